@@ -1,0 +1,34 @@
+"""Types shared by every part of the workbench: camera, LEDs, the capture format.
+
+sim/ and device/ write captures with these; solver/ and learn/ read them. Nothing here imports any
+heavy optional dependency at import time.
+"""
+
+from .camera import Camera
+from .capture import (
+    GroundTruth,
+    Press,
+    Reference,
+    SensorResponse,
+    find_presses,
+    is_press_folder,
+    load_press,
+    write_press,
+)
+from .leds import Led, led_arrays, led_shading, tricolor_groups
+
+__all__ = [
+    "Camera",
+    "GroundTruth",
+    "Led",
+    "Press",
+    "Reference",
+    "SensorResponse",
+    "find_presses",
+    "is_press_folder",
+    "led_arrays",
+    "led_shading",
+    "load_press",
+    "tricolor_groups",
+    "write_press",
+]

@@ -1,0 +1,354 @@
+"""The press capture format shared by the digital twin (sim/) and the real sensor (device/).
+
+A press folder (see docs/formats.md)::
+
+    press_0007/
+      meta.json        camera, LEDs, sensor response, provenance
+      dark.png         all LEDs off, 16-bit RGB, linear
+      led_01.png ...   one image per LED lit alone in white
+      tricolor.png     LED groups lit in red, green, blue at once
+      reference.npz    optional: undeformed-dome depth and normals (sensor design / CAD)
+      gt.npz           optional (synthetic presses): per-pixel ground truth
+
+Writers build the folder under a temporary name and rename it when complete
+(:func:`nlipscalib.core.atomic.atomic_dir`), so a press folder that exists is whole.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..errors import CaptureError
+from .atomic import atomic_dir, write_json
+from .camera import Camera
+from .imageio import read_png16, write_png16
+from .leds import Led
+
+FORMAT_NAME = "nlipscalib.press"
+FORMAT_VERSION = 1
+META_FILE = "meta.json"
+GT_FILE = "gt.npz"
+REFERENCE_FILE = "reference.npz"
+GT_KEYS = {"depth": 2, "points": 3, "normals": 3, "valid": 2, "contact": 2}
+"""Ground-truth arrays and their number of dimensions; all (H, W[, 3]) in the camera frame."""
+
+
+def led_image_name(index: int) -> str:
+    """File name of LED ``index`` (0-based) image: led_01.png for the first LED."""
+    return f"led_{index + 1:02d}.png"
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorResponse:
+    """How stored 16-bit values relate to light."""
+
+    bit_depth: int = 12
+    """Bits of the sensor ADC; stored values are DN << (16 - bit_depth)."""
+    black_level: float = 256.0
+    """Stored value of zero light (16-bit units), before read noise."""
+    white_level: float = 65520.0
+    """Largest stored value; pixels at or above it are saturated (16-bit units)."""
+    exposure_ms: float = 10.0
+    """Exposure time, ms (informational; images are not normalised by it)."""
+    gain: float = 1.0
+    """Analogue gain (informational)."""
+
+    def __post_init__(self):
+        if not 8 <= self.bit_depth <= 16:
+            raise CaptureError(f"sensor.bit_depth must be 8..16, got {self.bit_depth}")
+        if not 0 <= self.black_level < self.white_level <= 65535:
+            raise CaptureError(
+                f"sensor levels must satisfy 0 <= black_level < white_level <= 65535, "
+                f"got {self.black_level}, {self.white_level}"
+            )
+
+
+@dataclasses.dataclass(frozen=True)
+class GroundTruth:
+    """Per-pixel truth of a synthetic press, camera frame, millimetres."""
+
+    depth: np.ndarray
+    """(H, W) float32, mm -- z coordinate of the surface point; NaN where the ray misses the gel."""
+    points: np.ndarray
+    """(H, W, 3) float32, mm, camera frame."""
+    normals: np.ndarray
+    """(H, W, 3) float32, unit, camera frame, pointing toward the camera (shading normals)."""
+    valid: np.ndarray
+    """(H, W) bool -- the pixel sees the gel surface."""
+    contact: np.ndarray
+    """(H, W) bool -- the gel under this pixel is displaced by the press."""
+
+    def save(self, path: Path) -> None:
+        np.savez_compressed(path, **{k: getattr(self, k) for k in GT_KEYS})
+
+    @classmethod
+    def load(cls, path: Path, shape: tuple[int, int]) -> GroundTruth:
+        arrays = _load_npz(path, GT_KEYS)
+        for key, ndim in GT_KEYS.items():
+            a = arrays[key]
+            want = shape + ((3,) if ndim == 3 else ())
+            if a.shape != want:
+                raise CaptureError(f"{path}: ground truth '{key}' has shape {a.shape}, expected {want}")
+        return cls(**{k: arrays[k] for k in GT_KEYS})
+
+
+@dataclasses.dataclass(frozen=True)
+class Reference:
+    """The undeformed sensor surface as seen by the camera (from the design or a calibration)."""
+
+    depth: np.ndarray
+    """(H, W) float32, mm -- z of the undeformed gel surface; NaN where the ray misses the gel."""
+    normals: np.ndarray
+    """(H, W, 3) float32, unit, camera frame, toward the camera."""
+
+    def save(self, path: Path) -> None:
+        np.savez_compressed(path, depth=self.depth, normals=self.normals)
+
+    @classmethod
+    def load(cls, path: Path, shape: tuple[int, int]) -> Reference:
+        arrays = _load_npz(path, {"depth": 2, "normals": 3})
+        if arrays["depth"].shape != shape or arrays["normals"].shape != shape + (3,):
+            raise CaptureError(f"{path}: reference arrays do not match the camera size {shape}")
+        return cls(depth=arrays["depth"], normals=arrays["normals"])
+
+
+@dataclasses.dataclass(frozen=True)
+class Press:
+    """One press: everything the solver and the network need, loaded and validated."""
+
+    folder: Path
+    """Where it was loaded from."""
+    camera: Camera
+    leds: tuple[Led, ...]
+    response: SensorResponse
+    dark: np.ndarray
+    """(H, W, 3) uint16, stored values, RGB."""
+    led_images: np.ndarray
+    """(L, H, W, 3) uint16, stored values, RGB, one per LED lit alone in white."""
+    tricolor: np.ndarray
+    """(H, W, 3) uint16, stored values, RGB."""
+    meta: dict
+    """The whole meta.json (provenance: scene, indenter, press pose, seed, software version)."""
+    reference: Reference | None = None
+    ground_truth: GroundTruth | None = None
+
+    def linear(self, image: np.ndarray) -> np.ndarray:
+        """Dark-subtracted linear intensity, scaled so the sensor's full range is 1.
+
+        Parameters
+        ----------
+        image : (..., H, W, 3) uint16, stored values
+
+        Returns
+        -------
+        (..., H, W, 3) float32, linear, 0 = dark frame, 1 = full scale
+        """
+        scale = self.response.white_level - self.response.black_level
+        return (image.astype(np.float32) - self.dark.astype(np.float32)) / np.float32(scale)
+
+    def saturated(self, image: np.ndarray) -> np.ndarray:
+        """(..., H, W, 3) bool -- stored value at or above the white level."""
+        return image >= self.response.white_level
+
+
+def write_press(
+    folder: str | Path,
+    camera: Camera,
+    leds,
+    response: SensorResponse,
+    dark: np.ndarray,
+    led_images: np.ndarray,
+    tricolor: np.ndarray,
+    provenance: dict | None = None,
+    reference: Reference | None = None,
+    ground_truth: GroundTruth | None = None,
+    overwrite: bool = False,
+) -> Path:
+    """Write a press folder atomically and return its path.
+
+    Parameters
+    ----------
+    folder : path of the press folder to create
+    camera, leds, response : the capture's optics and sensor response
+    dark : (H, W, 3) uint16 ; led_images : (L, H, W, 3) uint16 ; tricolor : (H, W, 3) uint16
+    provenance : extra JSON-able metadata (source, scene, indenter, press, seed ...)
+    """
+    leds = tuple(leds)
+    shape = camera.shape
+    _check_image(dark, shape, "dark")
+    _check_image(tricolor, shape, "tricolor")
+    if led_images.ndim != 4 or led_images.shape[0] != len(leds):
+        raise CaptureError(f"led_images must be (L={len(leds)}, H, W, 3), got {led_images.shape}")
+    for i, img in enumerate(led_images):
+        _check_image(img, shape, led_image_name(i))
+    meta = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "software_version": __version__,
+        "units": "mm",
+        "frame": "camera (OpenCV: x right, y down, z forward)",
+        "camera": camera.to_dict(),
+        "leds": [led.to_dict() for led in leds],
+        "sensor": dataclasses.asdict(response),
+        "images": {
+            "dark": "dark.png",
+            "leds": [led_image_name(i) for i in range(len(leds))],
+            "tricolor": "tricolor.png",
+        },
+        "reference": REFERENCE_FILE if reference is not None else None,
+        "ground_truth": GT_FILE if ground_truth is not None else None,
+        "provenance": provenance or {},
+    }
+    with atomic_dir(folder, overwrite=overwrite) as tmp:
+        write_png16(tmp / "dark.png", dark)
+        write_png16(tmp / "tricolor.png", tricolor)
+        for i, img in enumerate(led_images):
+            write_png16(tmp / led_image_name(i), img)
+        if reference is not None:
+            reference.save(tmp / REFERENCE_FILE)
+        if ground_truth is not None:
+            ground_truth.save(tmp / GT_FILE)
+        write_json(tmp / META_FILE, meta)  # last: its presence marks a complete folder
+    return Path(folder)
+
+
+def load_press(folder: str | Path, led_subset=None) -> Press:
+    """Load and validate a press folder; every problem is reported naming the file.
+
+    Parameters
+    ----------
+    folder : path of the press folder
+    led_subset : optional sequence of 0-based LED indices to keep (for ablations)
+    """
+    folder = Path(folder)
+    meta = read_meta(folder)
+    camera, leds, response = _parse_optics(meta, folder / META_FILE)
+    images = meta["images"]
+    dark = _load_image(folder, images["dark"], camera)
+    tricolor = _load_image(folder, images["tricolor"], camera)
+    names = images["leds"]
+    if len(names) != len(leds):
+        raise CaptureError(f"{folder / META_FILE}: {len(leds)} LEDs but {len(names)} LED images listed")
+    keep = range(len(leds)) if led_subset is None else _check_subset(led_subset, len(leds), folder)
+    led_images = np.stack([_load_image(folder, names[i], camera) for i in keep])
+    reference = ground_truth = None
+    if meta.get("reference"):
+        reference = Reference.load(_existing(folder, meta["reference"]), camera.shape)
+    if meta.get("ground_truth"):
+        ground_truth = GroundTruth.load(_existing(folder, meta["ground_truth"]), camera.shape)
+    return Press(
+        folder=folder,
+        camera=camera,
+        leds=tuple(leds[i] for i in keep),
+        response=response,
+        dark=dark,
+        led_images=led_images,
+        tricolor=tricolor,
+        meta=meta,
+        reference=reference,
+        ground_truth=ground_truth,
+    )
+
+
+def read_meta(folder: str | Path) -> dict:
+    """Read and check the top level of a press folder's meta.json."""
+    folder = Path(folder)
+    path = folder / META_FILE
+    if not folder.is_dir():
+        raise CaptureError(f"{folder}: not a press folder (no such directory)")
+    if not path.is_file():
+        raise CaptureError(f"{path}: missing; {folder} is not a complete press folder")
+    try:
+        meta = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CaptureError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
+        raise CaptureError(f"{path}: 'format' must be {FORMAT_NAME!r}")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise CaptureError(
+            f"{path}: format_version {meta.get('format_version')!r} is not supported (expected {FORMAT_VERSION})"
+        )
+    for key in ("camera", "leds", "sensor", "images"):
+        if key not in meta:
+            raise CaptureError(f"{path}: missing key '{key}'")
+    for key in ("dark", "leds", "tricolor"):
+        if key not in meta["images"]:
+            raise CaptureError(f"{path}: missing key 'images.{key}'")
+    return meta
+
+
+def is_press_folder(folder: str | Path) -> bool:
+    """True when ``folder`` holds a meta.json (complete press folders are written atomically)."""
+    return (Path(folder) / META_FILE).is_file()
+
+
+def find_presses(root: str | Path) -> list[Path]:
+    """Press folders at ``root`` (itself a press) or directly below it, sorted by name."""
+    root = Path(root)
+    if is_press_folder(root):
+        return [root]
+    if not root.is_dir():
+        raise CaptureError(f"{root}: no such folder")
+    return sorted(p for p in root.iterdir() if p.is_dir() and is_press_folder(p))
+
+
+# ---------------------------------------------------------------------- helpers
+def _parse_optics(meta: dict, path: Path):
+    try:
+        camera = Camera.from_dict(meta["camera"])
+        leds = [Led.from_dict(d) for d in meta["leds"]]
+        response = SensorResponse(**meta["sensor"])
+    except (TypeError, ValueError) as exc:
+        raise CaptureError(f"{path}: {exc}") from None
+    if not leds:
+        raise CaptureError(f"{path}: 'leds' is empty")
+    return camera, leds, response
+
+
+def _existing(folder: Path, name: str) -> Path:
+    path = folder / name
+    if not path.is_file():
+        raise CaptureError(f"{path}: listed in {META_FILE} but missing")
+    return path
+
+
+def _load_image(folder: Path, name: str, camera: Camera) -> np.ndarray:
+    path = _existing(folder, name)
+    img = read_png16(path)
+    if img.shape != camera.shape + (3,):
+        raise CaptureError(f"{path}: image is {img.shape}, but the camera in {META_FILE} is {camera.shape + (3,)}")
+    return img
+
+
+def _check_image(img: np.ndarray, shape, name: str) -> None:
+    if img.dtype != np.uint16 or img.shape != tuple(shape) + (3,):
+        raise CaptureError(f"{name}: expected ({shape[0]}, {shape[1]}, 3) uint16, got {img.shape} {img.dtype}")
+
+
+def _check_subset(subset, n: int, folder: Path) -> list[int]:
+    subset = [int(i) for i in subset]
+    bad = [i for i in subset if not 0 <= i < n]
+    if bad or len(set(subset)) != len(subset) or not subset:
+        raise CaptureError(f"{folder}: LED subset {subset} is invalid for {n} LEDs (0-based, unique, non-empty)")
+    return subset
+
+
+def _load_npz(path: Path, keys: dict) -> dict:
+    try:
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
+    except Exception as exc:  # numpy raises many kinds for a corrupt file
+        raise CaptureError(f"{path}: not a readable .npz file ({exc})") from None
+    missing = set(keys) - set(arrays)
+    if missing:
+        raise CaptureError(f"{path}: missing arrays {sorted(missing)}")
+    for k in keys:
+        if arrays[k].dtype.kind == "f" and k != "depth" and k != "points" and not np.all(np.isfinite(arrays[k])):
+            # normals are finite everywhere by convention (zero where invalid); depth/points use NaN
+            raise CaptureError(f"{path}: array '{k}' contains NaN or infinity")
+    return arrays

@@ -1,0 +1,134 @@
+"""Point LEDs with anisotropy and the near-light image model they produce.
+
+The image model (Quéau et al., JMIV 2018), per LED i and colour channel c, at a surface point x with
+unit normal n (pointing toward the camera) and albedo rho_c::
+
+    I_ic(x) = Psi_ic * rho_c * (n_s . d)^mu * max(0, (x_s - x) . n) / |x_s - x|^3,   d = (x - x_s)/|x - x_s|
+
+``rho`` here absorbs the Lambertian 1/pi, the camera gain and exposure: the capture stores linear
+images, the solver recovers rho up to that scale. Everything is in millimetres, camera frame.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..errors import ConfigError, ShapeError
+
+TRICOLOR_COLORS = np.eye(3)
+"""Colour of each tri-colour group: group 0 red, 1 green, 2 blue."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Led:
+    """One point LED, in the camera frame."""
+
+    position: tuple[float, float, float]
+    """x_s, mm, camera frame."""
+    direction: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    """n_s, principal direction, unit vector, camera frame (normalised on construction)."""
+    mu: float = 1.0
+    """Anisotropy: radiant intensity falls off as (n_s . d)^mu (mu = 0 is isotropic)."""
+    intensity: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Psi per colour channel (R, G, B) when lit white, in linear image units x mm^2."""
+
+    def __post_init__(self):
+        pos = _vec3(self.position, "led.position")
+        d = _vec3(self.direction, "led.direction")
+        norm = float(np.linalg.norm(d))
+        if norm < 1e-12:
+            raise ConfigError("led.direction must be a non-zero vector")
+        psi = _vec3(self.intensity, "led.intensity")
+        if any(p < 0 for p in psi) or not np.isfinite(self.mu) or self.mu < 0:
+            raise ConfigError(f"led.intensity must be >= 0 and led.mu >= 0, got {psi}, {self.mu}")
+        object.__setattr__(self, "position", tuple(pos))
+        object.__setattr__(self, "direction", tuple(float(c) / norm for c in d))
+        object.__setattr__(self, "intensity", tuple(psi))
+        object.__setattr__(self, "mu", float(self.mu))
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Led:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise ConfigError(f"led has unknown keys {sorted(unknown)}; expected {sorted(known)}")
+        if "position" not in d:
+            raise ConfigError("led is missing 'position'")
+        return cls(**d)
+
+
+def tricolor_groups(n_leds: int) -> np.ndarray:
+    """Colour group (0 red, 1 green, 2 blue) of each LED in the tri-colour image.
+
+    LEDs are split into three contiguous runs of (nearly) equal size: 12 LEDs give 1-4 red,
+    5-8 green, 9-12 blue as on NLiPsTac; other counts generalise the same way.
+
+    Returns
+    -------
+    groups : (n_leds,) int
+    """
+    if n_leds < 3:
+        raise ConfigError(f"a tri-colour image needs at least 3 LEDs, got {n_leds}")
+    return (np.arange(n_leds) * 3) // n_leds
+
+
+def led_arrays(leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Stack LEDs into arrays.
+
+    Returns
+    -------
+    positions : (L, 3) float64, mm, camera frame
+    directions : (L, 3) float64, unit, camera frame
+    mu : (L,) float64
+    intensity : (L, 3) float64, Psi per channel
+    """
+    leds = list(leds)
+    return (
+        np.array([led.position for led in leds], dtype=np.float64).reshape(-1, 3),
+        np.array([led.direction for led in leds], dtype=np.float64).reshape(-1, 3),
+        np.array([led.mu for led in leds], dtype=np.float64),
+        np.array([led.intensity for led in leds], dtype=np.float64).reshape(-1, 3),
+    )
+
+
+def led_shading(points: np.ndarray, normals: np.ndarray, leds) -> np.ndarray:
+    """Near-light shading factor of every LED at every point (the image model without albedo).
+
+    Parameters
+    ----------
+    points : (..., 3) float, mm, camera frame
+    normals : (..., 3) float, unit, camera frame, pointing toward the camera
+    leds : sequence of Led, length L
+
+    Returns
+    -------
+    shading : (L, ..., 3) float64 -- Psi_ic (n_s.d)^mu max(0, cos) / r^2 per LED and channel;
+        multiply by rho_c to get the linear image.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    normals = np.asarray(normals, dtype=np.float64)
+    if points.shape[-1:] != (3,) or normals.shape != points.shape:
+        raise ShapeError(f"points and normals must both be (..., 3), got {points.shape} and {normals.shape}")
+    pos, dirs, mu, psi = led_arrays(leds)
+    out = np.empty((len(pos),) + points.shape, dtype=np.float64)
+    for i in range(len(pos)):
+        to_led = pos[i] - points  # x_s - x
+        r2 = np.sum(to_led * to_led, axis=-1)
+        r = np.sqrt(r2)
+        cos_surface = np.maximum(0.0, np.sum(to_led * normals, axis=-1) / r)
+        cos_led = np.maximum(0.0, -(to_led @ dirs[i]) / r)  # n_s . (x - x_s)/r
+        radial = cos_led ** mu[i] if mu[i] > 0 else np.ones_like(cos_led)
+        out[i] = (radial * cos_surface / r2)[..., None] * psi[i]
+    return out
+
+
+def _vec3(v, name: str) -> tuple[float, float, float]:
+    arr = np.asarray(v, dtype=np.float64)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ConfigError(f"{name} must be 3 finite numbers, got {v!r}")
+    return tuple(float(c) for c in arr)
