@@ -56,8 +56,7 @@ class Camera:
         object.__setattr__(self, "dist", tuple(float(c) for c in self.dist))
         if len(self.dist) != _N_COEFFS[self.model]:
             raise ConfigError(
-                f"camera.dist for model {self.model!r} needs {_N_COEFFS[self.model]} "
-                f"coefficients, got {len(self.dist)}"
+                f"camera.dist for model {self.model!r} needs {_N_COEFFS[self.model]} coefficients, got {len(self.dist)}"
             )
         if self.width < 2 or self.height < 2:
             raise ConfigError(f"camera size must be at least 2x2, got {self.width}x{self.height}")

@@ -104,7 +104,9 @@ class LedConfig:
             dirs = np.asarray(self.directions, dtype=float) if self.directions else np.tile([0, 0, 1.0], (len(pos), 1))
         else:
             ang = np.radians(self.start_angle_deg) + 2 * np.pi * np.arange(self.count) / self.count
-            pos = np.stack([self.ring_radius * np.cos(ang), self.ring_radius * np.sin(ang), np.full_like(ang, self.z)], 1)
+            pos = np.stack(
+                [self.ring_radius * np.cos(ang), self.ring_radius * np.sin(ang), np.full_like(ang, self.z)], 1
+            )
             t = math.radians(self.tilt_deg)
             dirs = np.stack([-np.sin(t) * np.cos(ang), -np.sin(t) * np.sin(ang), np.full_like(ang, np.cos(t))], 1)
         return tuple(Led(tuple(p - cam), tuple(d), self.mu, self.intensity) for p, d in zip(pos, dirs))

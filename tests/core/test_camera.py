@@ -1,0 +1,74 @@
+import math
+
+import numpy as np
+import pytest
+
+from nlipscalib.core.camera import Camera
+from nlipscalib.errors import ConfigError, ShapeError
+
+cv2 = pytest.importorskip("cv2")
+
+
+def _K(cam):
+    return np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1.0]])
+
+
+def _points(n=200, seed=0):
+    rng = np.random.default_rng(seed)
+    p = rng.normal(size=(n, 3))
+    p[:, 2] = np.abs(p[:, 2]) + 0.6  # in front of the camera, up to ~60 deg off axis
+    return p * rng.uniform(5, 30, size=(n, 1))
+
+
+def test_fisheye_projection_matches_opencv():
+    cam = Camera.from_fov(640, 480, 100.0, "fisheye", (0.05, -0.01, 0.002, 0.0))
+    p = _points()
+    ours = cam.project(p)
+    ref, _ = cv2.fisheye.projectPoints(p.reshape(-1, 1, 3), np.zeros(3), np.zeros(3), _K(cam), np.array(cam.dist))
+    np.testing.assert_allclose(ours, ref.reshape(-1, 2), atol=1e-6)
+
+
+def test_brown_projection_matches_opencv():
+    cam = Camera(640, 480, 300.0, 302.0, 321.0, 238.0, "brown", (-0.2, 0.05, 0.001, -0.002, -0.005))
+    p = _points()
+    ours = cam.project(p)
+    ref, _ = cv2.projectPoints(p, np.zeros(3), np.zeros(3), _K(cam), np.array(cam.dist))
+    np.testing.assert_allclose(ours, ref.reshape(-1, 2), atol=1e-6)
+
+
+@pytest.mark.parametrize("model,dist", [("fisheye", (0.05, -0.01, 0.0, 0.0)), ("brown", (-0.1, 0.01, 0.0, 0.0, 0.0))])
+def test_unproject_inverts_project(model, dist):
+    cam = Camera.from_fov(160, 120, 90.0, model, dist)
+    rays = cam.rays
+    assert rays.shape == (120, 160, 3)
+    np.testing.assert_allclose(np.linalg.norm(rays, axis=-1), 1.0, atol=1e-12)
+    u, v = cam.pixel_grid()
+    np.testing.assert_allclose(cam.project(rays * 7.0), np.stack([u, v], -1), atol=1e-6)
+
+
+def test_from_fov_gives_requested_field_of_view():
+    cam = Camera.from_fov(640, 480, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
+    left, right = cam.unproject(np.array([[-0.5, cam.cy], [639.5, cam.cy]]))
+    angle = math.degrees(math.acos(np.clip(left @ right, -1, 1)))
+    assert angle == pytest.approx(100.0, abs=0.01)
+
+
+def test_scaled_camera_keeps_rays_of_the_same_scene_points():
+    cam = Camera.from_fov(160, 120, 100.0)
+    half = cam.scaled(0.5)
+    assert half.shape == (60, 80)
+    # the centre of a 2x2 block in the full image is the centre of one pixel in the half image
+    full_uv = np.array([[0.5, 0.5], [10.5, 20.5]])
+    half_uv = (full_uv + 0.5) * 0.5 - 0.5
+    np.testing.assert_allclose(cam.unproject(full_uv), half.unproject(half_uv), atol=1e-9)
+
+
+def test_bad_camera_configs_name_the_problem():
+    with pytest.raises(ConfigError, match="model"):
+        Camera(64, 48, 50, 50, 32, 24, "pinhole")
+    with pytest.raises(ConfigError, match="coefficients"):
+        Camera(64, 48, 50, 50, 32, 24, "fisheye", (0.1,))
+    with pytest.raises(ConfigError, match="unknown keys"):
+        Camera.from_dict({"width": 64, "height": 48, "fx": 1, "fy": 1, "cx": 0, "cy": 0, "fov": 3})
+    with pytest.raises(ShapeError, match=r"\(\.\.\., 3\)"):
+        Camera.from_fov(64, 48).project(np.zeros((4, 2)))
