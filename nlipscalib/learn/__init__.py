@@ -1,0 +1,1 @@
+"""NLiPsNet: real-time normals from one tri-colour image (not built yet; see the issues)."""

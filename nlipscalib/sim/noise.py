@@ -1,0 +1,101 @@
+"""Image sensor model: linear radiance -> stored 16-bit values (pure numpy, seeded).
+
+Pipeline per pixel and channel, with ``x = radiance * exposure`` the fraction of full scale::
+
+    electrons = Poisson(max(x, 0) * full_well)            (shot noise; skipped when disabled)
+    DN        = electrons / full_well * (2^bits - 1 - black) + black + Normal(0, read_noise)
+    stored    = clip(round(DN), 0, 2^bits - 1) << (16 - bits)
+
+so :meth:`nlipscalib.core.Press.linear` of a stored image (dark-subtracted, divided by
+white - black of :meth:`NoiseConfig.response`) is ``x`` again, up to noise and quantisation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.leds import TRICOLOR_COLORS, led_shading, tricolor_groups
+
+EXPOSURE_TARGET = 0.8
+"""Auto exposure puts the 99.5th percentile of the brightest single-LED image at this fraction."""
+EXPOSURE_PERCENTILE = 99.5
+_GAUSS_ABOVE = 1000.0
+"""Above this many electrons shot noise is drawn from its normal approximation (same mean and variance)."""
+
+
+def _span(cfg) -> float:
+    return float((1 << cfg.bit_depth) - 1) - cfg.black_level
+
+
+def apply_noise(linear: np.ndarray, exposure: float, cfg, rng: np.random.Generator | None) -> np.ndarray:
+    """Turn linear radiance into stored sensor values.
+
+    Parameters
+    ----------
+    linear : (..., H, W, 3) float, linear radiance (render units)
+    exposure : float, scale from radiance to fraction of full scale
+    cfg : NoiseConfig
+    rng : numpy Generator (required when ``cfg.enabled``)
+
+    Returns
+    -------
+    (..., H, W, 3) uint16, stored values DN << (16 - bit_depth)
+    """
+    # float32 throughout: 12 full images per press, and 24-bit mantissas far exceed 16-bit output
+    x = np.maximum(np.asarray(linear, dtype=np.float32) * np.float32(exposure), np.float32(0))
+    max_dn = float((1 << cfg.bit_depth) - 1)
+    if cfg.enabled:
+        dn = sensor_noise(x, cfg, rng)
+    else:
+        dn = x * np.float32(_span(cfg)) + np.float32(cfg.black_level)
+    dn = np.clip(np.rint(dn, out=dn), 0, max_dn, out=dn).astype(np.uint16)
+    return dn << np.uint16(16 - cfg.bit_depth)
+
+
+def sensor_noise(x: np.ndarray, cfg, rng: np.random.Generator) -> np.ndarray:
+    """DN (float32, unquantised) of fractions of full scale ``x`` with shot and read noise.
+
+    Where a pixel collects more than ``_GAUSS_ABOVE`` electrons, shot and read noise are drawn as one
+    normal variable with their summed variance (same mean and variance, one draw instead of two);
+    dimmer pixels get an exact Poisson draw plus normal read noise.
+    """
+    span = np.float32(_span(cfg))
+    gain = span / np.float32(cfg.full_well)  # DN per electron
+    electrons = x * np.float32(cfg.full_well)
+    sigma = np.sqrt(gain * gain * electrons + np.float32(cfg.read_noise) ** 2)
+    dn = x * span + np.float32(cfg.black_level) + sigma * rng.standard_normal(x.shape, dtype=np.float32)
+    dim = electrons <= _GAUSS_ABOVE
+    if dim.any():
+        lam = electrons[dim]
+        read = np.float32(cfg.read_noise) * rng.standard_normal(lam.shape, dtype=np.float32)
+        dn[dim] = rng.poisson(lam).astype(np.float32) * gain + np.float32(cfg.black_level) + read
+    return dn
+
+
+def dark_frame(shape, cfg, rng: np.random.Generator | None) -> np.ndarray:
+    """(H, W, 3) uint16: black level plus read noise (no light)."""
+    return apply_noise(np.zeros(tuple(shape) + (3,)), 1.0, cfg, rng)
+
+
+def auto_exposure(points: np.ndarray, normals: np.ndarray, leds, albedo, scale: float = 1.0, tricolor=False) -> float:
+    """Exposure making the undeformed dome well exposed, the same for every press of a scene.
+
+    Parameters
+    ----------
+    points : (N, 3) float, mm, camera frame -- valid pixels of the undeformed dome's ground truth
+    normals : (N, 3) float, unit, toward the camera
+    leds : sequence of Led
+    albedo : (3,) coating albedo
+    scale : NoiseConfig.exposure (1 = the calibrated exposure)
+    tricolor : expose the tri-colour image instead (its channels sum several LEDs, so it needs less)
+
+    Returns
+    -------
+    float -- multiply linear radiance (albedo/pi * led_shading) by it to get the fraction of full scale
+    """
+    lin = led_shading(points, normals, leds) * (np.asarray(albedo, dtype=np.float64) / np.pi)  # (L, N, 3)
+    if tricolor:
+        colours = TRICOLOR_COLORS[tricolor_groups(len(lin))]  # (L, 3)
+        lin = np.einsum("lnc,lc->nc", lin, colours)[None]
+    per_led = np.percentile(lin.max(axis=-1), EXPOSURE_PERCENTILE, axis=1)
+    return float(scale * EXPOSURE_TARGET / per_led.max())

@@ -1,0 +1,93 @@
+"""Rendering any gel surface mesh with a scene's camera, LEDs and coating."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ...core.capture import GroundTruth
+from .groundtruth import trace_ground_truth
+from .mesh import albedo_per_vertex
+from .scene import build_scene
+from .variant import load_mitsuba
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderResult:
+    """Linear, noise-free images of one surface and its ground truth."""
+
+    images: np.ndarray
+    """(L, H, W, 3) float32, one image per LED lit alone in white. Units: linear radiance,
+    i.e. albedo/pi * led_shading (Psi (n_s.d)^mu cos / r^2), before exposure and noise."""
+    gt: GroundTruth
+    """Pixel-centre ground truth, camera frame, mm."""
+    variant: str
+    spp: int
+    bounces: int
+    seed: int
+    seconds: float
+    """Wall time of scene build + render + ground truth."""
+
+
+def render_surface(
+    scene_cfg,
+    mesh,
+    contact_per_vertex=None,
+    *,
+    spp=None,
+    bounces=None,
+    variant=None,
+    threads=None,
+    seed=None,
+    integrator="multi",
+    only_led=None,
+) -> RenderResult:
+    """Render every LED's image of ``mesh`` in one pass, plus the ground truth.
+
+    Parameters
+    ----------
+    scene_cfg : SceneConfig -- camera, LEDs, coating and default render settings
+    mesh : trimesh.Trimesh, dome frame, mm, faces wound toward the camera
+    contact_per_vertex : (V,) bool/float or None (no contact)
+    spp, bounces, variant, threads, seed : override ``scene_cfg.render``
+    integrator : "multi" (default) or "path" (Mitsuba's path tracer; then ``only_led`` picks the LED
+        and ``images`` holds that single image, shape (1, H, W, 3))
+    """
+    r = scene_cfg.render
+    spp = r.spp if spp is None else int(spp)
+    bounces = r.bounces if bounces is None else int(bounces)
+    seed = r.seed if seed is None else int(seed)
+    mi, chosen = load_mitsuba(variant or r.variant, r.threads if threads is None else threads)
+    t0 = time.perf_counter()
+    camera = scene_cfg.camera_model()
+    leds = scene_cfg.led_models()
+    verts_dome = np.asarray(mesh.vertices, dtype=np.float64)
+    verts = verts_dome - np.asarray(scene_cfg.camera.position, dtype=np.float64)
+    contact = np.zeros(len(verts)) if contact_per_vertex is None else np.asarray(contact_per_vertex, np.float32)
+    c = scene_cfg.coating
+    colors = albedo_per_vertex(verts_dome, c.albedo, c.variation, c.variation_scale) if c.variation > 0 else None
+    scene = build_scene(
+        mi,
+        camera,
+        leds,
+        verts,
+        mesh.faces,
+        mesh.vertex_normals,
+        contact,
+        colors,
+        c.albedo,
+        spp=spp,
+        bounces=bounces,
+        integrator=integrator,
+        only_led=only_led,
+    )
+    out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
+    h, w = camera.shape
+    if integrator == "multi":
+        images = out[..., 3:].reshape(h, w, -1, 3).transpose(2, 0, 1, 3)
+    else:
+        images = out[None, ..., :3]
+    gt = trace_ground_truth(mi, scene, camera)
+    return RenderResult(np.ascontiguousarray(images), gt, chosen, spp, bounces, seed, time.perf_counter() - t0)

@@ -1,0 +1,96 @@
+import numpy as np
+import pytest
+
+from nlipscalib.core.atomic import TMP_PREFIX
+from nlipscalib.errors import ConfigError
+from nlipscalib.sim import dataset as ds
+from nlipscalib.sim.dataset import DatasetSpec, expand_jobs, load_dataset_spec, run_dataset
+from nlipscalib.sim.scene import SCENES_DIR
+
+
+def _write(tmp_path, text):
+    p = tmp_path / "spec.toml"
+    p.write_text(text)
+    return p
+
+
+GRID = """
+scene = "nlipstac"
+seed = 3
+[render]
+spp = 2
+[grid]
+indenters = [{ kind = "sphere", size = 6.0 }, { kind = "cube", size = 4.0 }]
+polar_deg = [0.0, 20.0]
+depth = [0.5, 1.0, 1.5]
+"""
+
+
+def test_grid_expands_to_every_combination_plus_reference(tmp_path):
+    spec, scene = load_dataset_spec(_write(tmp_path, GRID))
+    jobs = expand_jobs(spec)
+    assert scene.render.spp == 2  # override applied
+    assert jobs[0].name == "reference" and jobs[0].press is None
+    presses = [j.press for j in jobs[1:]]
+    assert len(presses) == 2 * 2 * 3
+    assert {p.depth for p in presses} == {0.5, 1.0, 1.5}
+    assert len({j.seed for j in jobs}) == len(jobs)  # every press its own noise seed
+
+
+def test_random_draw_is_reproducible_and_in_range(tmp_path):
+    text = """
+seed = 11
+reference = false
+[random]
+count = 20
+indenters = [{ kind = "sphere", size = 6.0 }]
+polar_deg = [5.0, 25.0]
+depth = [0.4, 0.9]
+"""
+    spec, _ = load_dataset_spec(_write(tmp_path, text))
+    a, b = expand_jobs(spec), expand_jobs(spec)
+    assert [j.press for j in a] == [j.press for j in b] and len(a) == 20
+    depths = np.array([j.press.depth for j in a])
+    polars = np.array([j.press.polar_deg for j in a])
+    assert depths.min() >= 0.4 and depths.max() <= 0.9 and polars.min() >= 5 and polars.max() <= 25
+    assert np.ptp(depths) > 0.1  # actually random
+
+
+def test_spec_needs_exactly_one_mode(tmp_path):
+    with pytest.raises(ConfigError, match="exactly one"):
+        DatasetSpec()
+    with pytest.raises(ConfigError, match=r"spec\.toml.*grid.*unknown"):
+        load_dataset_spec(_write(tmp_path, "[grid]\nindenters = []\ndepths = [1.0]\n"))
+
+
+def test_shipped_dataset_specs_load():
+    for path in (SCENES_DIR / "datasets").glob("*.toml"):
+        spec, _ = load_dataset_spec(path)
+        assert expand_jobs(spec)
+
+
+def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
+    """Resume logic with a stand-in renderer (the real one is tested in test_press)."""
+    spec, scene = load_dataset_spec(_write(tmp_path, GRID))
+    jobs = expand_jobs(spec)[:4]
+    calls = []
+
+    def fake_render(scene, job, out):
+        calls.append(job.name)
+        if job.name == "press_0002":
+            raise ConfigError("indenter off the dome")
+        folder = out / job.name
+        folder.mkdir()
+        (folder / "meta.json").write_text("{}")
+
+    monkeypatch.setattr(ds, "_run_one", fake_render)
+    out = tmp_path / "out"
+    (out / (TMP_PREFIX + "press_0001-x")).mkdir(parents=True)  # an interrupted earlier write
+    first = run_dataset(scene, jobs, out, workers=1, progress=False)
+    assert sorted(first["rendered"]) == ["press_0000", "press_0001", "reference"]
+    assert first["failed"][0][0] == "press_0002" and "off the dome" in first["failed"][0][1]
+    assert not list(out.glob(TMP_PREFIX + "*"))
+    calls.clear()
+    second = run_dataset(scene, jobs, out, workers=1, progress=False)
+    assert calls == ["press_0002"]  # finished presses are never rendered twice
+    assert len(second["skipped"]) == 3

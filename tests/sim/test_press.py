@@ -1,0 +1,65 @@
+"""render_press: capture round trip, determinism, shared exposure, presses."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+
+from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.sim.press import render_press, scene_exposure, tricolor_linear  # noqa: E402
+from nlipscalib.sim.scene import SceneConfig  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return SceneConfig().replace(camera={"width": 40, "height": 30}, render={"spp": 1, "threads": 2})
+
+
+def test_undeformed_press_round_trip(scene, tmp_path):
+    path, res = render_press(scene, None, tmp_path / "p0", seed=3, return_result=True)
+    p = load_press(path)
+    assert p.led_images.shape == (12, 30, 40, 3) and p.dark.shape == (30, 40, 3)
+    prov = p.meta["provenance"]
+    assert prov["source"] == "sim" and prov["seed"] == 3 and prov["press"] is None
+    assert prov["exposure"] == pytest.approx(scene_exposure(scene))
+    assert {"variant", "spp", "bounces", "scene"} <= set(prov)
+    assert p.reference is not None and p.ground_truth is not None
+    assert not p.ground_truth.contact.any()
+    np.testing.assert_array_equal(p.reference.depth, p.ground_truth.depth)
+    # stored images decode to exposure x linear radiance (noise: few % per pixel, unbiased on average)
+    v = p.ground_truth.valid
+    lin = p.linear(p.led_images)[:, v]
+    want = res.images[:, v] * prov["exposure"]
+    assert abs(lin.mean() / want.mean() - 1) < 0.01
+    tri = p.linear(p.tricolor)[v]
+    assert prov["tricolor_exposure"] == pytest.approx(scene_exposure(scene, tricolor=True))
+    assert abs(tri.mean() / (tricolor_linear(res.images)[v] * prov["tricolor_exposure"]).mean() - 1) < 0.01
+    assert (p.tricolor >= p.response.white_level).mean() < 0.01
+
+
+def test_same_seed_bit_identical(scene, tmp_path):
+    a = load_press(render_press(scene, None, tmp_path / "a", seed=5))
+    b = load_press(render_press(scene, None, tmp_path / "b", seed=5))
+    c = load_press(render_press(scene, None, tmp_path / "c", seed=6))
+    np.testing.assert_array_equal(a.led_images, b.led_images)
+    np.testing.assert_array_equal(a.tricolor, b.tricolor)
+    np.testing.assert_array_equal(a.dark, b.dark)
+    assert not np.array_equal(a.led_images, c.led_images)
+
+
+def test_overwrite_guard(scene, tmp_path):
+    render_press(scene, None, tmp_path / "p", seed=1)
+    with pytest.raises(FileExistsError):
+        render_press(scene, None, tmp_path / "p", seed=1)
+    render_press(scene, None, tmp_path / "p", seed=1, overwrite=True)
+
+
+def test_pressed_dome_has_contact_and_same_exposure(scene, tmp_path):
+    indent = pytest.importorskip("nlipscalib.sim.indent")
+    from nlipscalib.cli.render import DEFAULT_PRESS
+    from nlipscalib.config import from_mapping
+
+    press = from_mapping(indent.PressConfig, DEFAULT_PRESS | {"indenter": {"kind": "sphere"}, "depth": 1.5}, "press")
+    p = load_press(render_press(scene.replace(camera={"width": 80, "height": 60}), press, tmp_path / "p", seed=2))
+    assert p.ground_truth.contact.any()
+    assert p.meta["provenance"]["press"]["depth"] == 1.5
