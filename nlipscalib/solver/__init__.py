@@ -1,0 +1,31 @@
+"""NLiPs solver: near-light photometric stereo on the capture's real (distorted) camera.
+
+Never imports nlipscalib.sim or nlipscalib.device: it works from captures (``Press``) or plain arrays.
+"""
+
+from .calibrate import LedCalibration, calibrate_leds
+from .io import load_leds, load_result, save_leds, save_result
+from .metrics import aae, angular_error_map, depth_rmse, evaluate, mabse
+from .nlips import SolveResult, exclusions, solve
+from .options import SolverOptions
+from .press import auto_roi, solve_press
+
+__all__ = [
+    "LedCalibration",
+    "SolveResult",
+    "SolverOptions",
+    "aae",
+    "angular_error_map",
+    "auto_roi",
+    "calibrate_leds",
+    "depth_rmse",
+    "evaluate",
+    "exclusions",
+    "load_leds",
+    "load_result",
+    "mabse",
+    "save_leds",
+    "save_result",
+    "solve",
+    "solve_press",
+]

@@ -1,0 +1,88 @@
+"""``nlips solve PRESS``: NLiPs reconstruction of a press (or a folder of presses), saved in PRESS/nlips/."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("solve", help="reconstruct depth/normals of a press with near-light photometric stereo")
+    p.add_argument("press", help="press folder, or a folder of press folders")
+    p.add_argument("--roi", nargs="+", metavar="V", help="x0 y0 w h (pixels) or 'auto' (around the contact)")
+    p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
+    p.add_argument("--backend", choices=("numpy", "torch"), default="numpy")
+    p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
+    p.add_argument("--overwrite", action="store_true", help="recompute even if a result exists")
+    p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
+    p.set_defaults(func=run)
+
+
+def parse_roi(values):
+    from ..errors import ConfigError
+
+    if not values:
+        return None
+    if values == ["auto"]:
+        return "auto"
+    try:
+        roi = tuple(int(v) for v in values)
+    except ValueError:
+        roi = ()
+    if len(roi) != 4:
+        raise ConfigError(f"--roi needs 'x0 y0 w h' or 'auto', got {' '.join(values)}")
+    return roi
+
+
+def parse_leds(value):
+    """(subset 0-based list or None, LED tuple from file or None)."""
+    from ..errors import ConfigError
+    from ..solver.io import load_leds
+
+    if not value:
+        return None, None
+    if Path(value).suffix.lower() == ".json" or Path(value).is_file():
+        return None, load_leds(value)
+    try:
+        return [int(v) - 1 for v in value.split(",")], None
+    except ValueError:
+        raise ConfigError(f"--leds must be like '1,2,5' or an LED .json file, got {value!r}") from None
+
+
+def run(args) -> int:
+    from tqdm import tqdm
+
+    from ..config import from_mapping, read_config_file
+    from ..core.capture import find_presses, load_press
+    from ..errors import ConfigError
+    from ..solver import SolverOptions, save_result, solve_press
+    from ..solver.io import RESULT_FILE, result_dir
+
+    options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
+    roi = parse_roi(args.roi)
+    subset, leds = parse_leds(args.leds)
+    presses = find_presses(args.press)
+    if not presses:
+        raise ConfigError(f"{args.press}: no press folders found")
+    if args.out and len(presses) > 1:
+        raise ConfigError("--out only applies to a single press")
+    for folder in tqdm(presses, desc="presses", disable=len(presses) == 1):
+        out = result_dir(folder, args.out)
+        if (out / RESULT_FILE).is_file() and not args.overwrite:
+            log.info("%s: result exists, skipped (use --overwrite)", out)
+            continue
+        press = load_press(folder, led_subset=subset)
+        chosen = leds
+        if leds is not None and subset is None and len(leds) != len(press.leds):
+            raise ConfigError(f"{args.leds}: {len(leds)} LEDs, but {folder} has {len(press.leds)}")
+        result = solve_press(press, roi=roi, leds=chosen, options=options, backend=args.backend, progress=True)
+        save_result(result, out, press.ground_truth, overwrite=True)
+        rep = result.report
+        log.info(
+            "%s: %d/%d pixels reconstructed, %d with too few LEDs, dead LEDs %s, %.1f s -> %s",
+            folder.name, rep["pixels_reconstructed"], rep["pixels_solved"], rep["pixels_too_few_leds"],
+            [i + 1 for i in rep["dead_leds"]], rep["seconds"], out,
+        )
+    return 0

@@ -1,0 +1,150 @@
+"""Geometry of a distorted camera for log-depth unknowns: ray tables, difference operators, normals.
+
+With the exact unit ray omega of a pixel and q = omega / omega_z = (a, b, 1), a surface point is
+x = z q. With log-depth t = log z, dx/du = z (t_u q + q_u), so the unnormalised normal
+
+    N = -[(t_u q + q_u) x (t_v q + q_v)] = -[t_u (q x q_v) + t_v (q_u x q) + q_u x q_v]
+
+is linear in the gradient of t (the minus sign makes it face the camera: N . x < 0). No pinhole
+approximation is made: q, q_u, q_v come from the lens model's own per-pixel rays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..core.camera import Camera
+from ..errors import ShapeError
+
+
+def ray_tables(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-pixel q = omega / omega_z and its derivatives along u and v.
+
+    Returns
+    -------
+    q, q_u, q_v : (H, W, 3) float64, camera frame; q has unit z, the derivatives are per pixel.
+    """
+    omega = camera.rays
+    q = omega / omega[..., 2:3]
+    # Second-order differences of the exact ray table (one unprojection only; the lens is smooth at
+    # the pixel scale, so the O(h^2) error is far below the image noise).
+    q_u = np.gradient(q, axis=1, edge_order=2)
+    q_v = np.gradient(q, axis=0, edge_order=2)
+    return q, q_u, q_v
+
+
+def normal_basis(q: np.ndarray, q_u: np.ndarray, q_v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A, B, C with the camera-facing unnormalised normal N = -(t_u A + t_v B + C).
+
+    Parameters
+    ----------
+    q, q_u, q_v : (..., 3) float64, from :func:`ray_tables`
+
+    Returns
+    -------
+    A, B, C : (..., 3) float64
+    """
+    return np.cross(q, q_v), np.cross(q_u, q), np.cross(q_u, q_v)
+
+
+def difference_operators(mask: np.ndarray, backward: bool = False) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray]:
+    """Sparse one-sided first differences of a field defined on the pixels of ``mask``.
+
+    Forward differences t[p+1] - t[p] (or backward t[p] - t[p-1] with ``backward=True``). Where the
+    preferred neighbour is missing (mask edge) the second-order one-sided difference from the other
+    side, (3 t[p] - 4 t[p-1] + t[p-2]) / 2, is used, or the first-order one if only one neighbour
+    exists. One-sided differences couple every pixel to its neighbours (central ones would split the
+    grid into four decoupled sub-lattices and leave checkerboard modes free); the solver uses both
+    orientations so that their half-pixel biases cancel.
+
+    Parameters
+    ----------
+    mask : (H, W) bool -- the unknowns, numbered in row-major order of ``mask``.
+    backward : bool -- prefer the previous pixel instead of the next one.
+
+    Returns
+    -------
+    Du, Dv : (N, N) scipy.sparse.csr_matrix, float64 -- d/du (columns) and d/dv (rows), per pixel.
+    has_gradient : (N,) bool -- False where a pixel has no neighbour in u or in v (isolated).
+    """
+    mask = np.asarray(mask)
+    if mask.ndim != 2 or mask.dtype != bool:
+        raise ShapeError(f"mask must be a 2-D bool array, got {mask.shape} {mask.dtype}")
+    n = int(mask.sum())
+    index = np.full(mask.shape, -1, dtype=np.int64)
+    index[mask] = np.arange(n)
+    padded = np.pad(index, 2, constant_values=-1)
+    rr, cc = np.nonzero(mask)
+    me = index[rr, cc]
+    ops, ok = [], np.ones(n, dtype=bool)
+    for axis in (1, 0):
+        step = np.array([0, 1]) if axis == 1 else np.array([1, 0])
+        s = -1 if backward else 1  # preferred direction
+
+        def nb(k, s=s, step=step):
+            return padded[rr + 2 + k * s * step[0], cc + 2 + k * s * step[1]]
+
+        p1, m1, m2 = nb(1), nb(-1), nb(-2)
+        rows, cols, vals = [], [], []
+        pref = p1 >= 0
+        second = ~pref & (m1 >= 0) & (m2 >= 0)
+        first = ~pref & (m1 >= 0) & (m2 < 0)
+        # preferred one-sided: s * (t[p + s] - t[p])
+        for sel, terms in (
+            (pref, ((me, -s), (p1, s))),
+            (second, ((me, 1.5 * s), (m1, -2.0 * s), (m2, 0.5 * s))),
+            (first, ((me, s), (m1, -s))),
+        ):
+            for col, val in terms:
+                rows.append(me[sel])
+                cols.append(col[sel])
+                vals.append(np.full(int(sel.sum()), val, dtype=np.float64))
+        ops.append(sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)))
+        ok &= pref | second | first
+    return ops[0], ops[1], ok
+
+
+def gradient_operators(mask: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray]:
+    """Central differences (t[p+1] - t[p-1]) / 2 inside the mask, second-order one-sided at its edges.
+
+    The mean of the forward- and backward-preferring operators of :func:`difference_operators`.
+
+    Returns
+    -------
+    Du, Dv : (N, N) scipy.sparse.csr_matrix, float64, per pixel
+    has_gradient : (N,) bool
+    """
+    du_f, dv_f, ok = difference_operators(mask)
+    du_b, dv_b, _ = difference_operators(mask, backward=True)
+    out = []
+    for axis, f, b in ((1, du_f, du_b), (0, dv_f, dv_b)):
+        nxt = np.zeros_like(mask)
+        prv = np.zeros_like(mask)
+        if axis == 1:
+            nxt[:, :-1], prv[:, 1:] = mask[:, 1:], mask[:, :-1]
+        else:
+            nxt[:-1], prv[1:] = mask[1:], mask[:-1]
+        both = (nxt & prv)[mask].astype(np.float64)
+        # rows with both neighbours: central; at an edge, the operator that fell back to the
+        # second-order one-sided difference (forward-preferring at the far edge, and vice versa)
+        wf = both / 2 + (~nxt[mask]).astype(np.float64)
+        wb = both / 2 + (nxt[mask] & ~prv[mask]).astype(np.float64)
+        out.append((sp.diags(wf) @ f + sp.diags(wb) @ b).tocsr())
+    return out[0], out[1], ok
+
+
+def normals_from_gradient(t_u: np.ndarray, t_v: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Unit normals facing the camera from the log-depth gradient.
+
+    Parameters
+    ----------
+    t_u, t_v : (N,) float -- d(log z)/du, d(log z)/dv, per pixel
+    A, B, C : (N, 3) float -- from :func:`normal_basis`
+
+    Returns
+    -------
+    normals : (N, 3) float64, unit, camera frame
+    """
+    nvec = -(t_u[:, None] * A + t_v[:, None] * B + C)
+    return nvec / np.linalg.norm(nvec, axis=1, keepdims=True)

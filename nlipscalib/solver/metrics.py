@@ -1,0 +1,86 @@
+"""Accuracy metrics of a reconstruction against ground truth (Quéau et al. 2018 definitions).
+
+- AAE: average angular error, degrees: mean over the mask M of arccos(n_hat . n).
+- MabsE: mean absolute error of normal components, 1/(3|M|) sum_M ||n_hat - n||_1.
+- depth RMSE, mm: sqrt(mean over M of (z_hat - z)^2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ShapeError
+
+
+def _check(est: np.ndarray, gt: np.ndarray, mask, name: str, last: int | None):
+    est, gt = np.asarray(est, dtype=np.float64), np.asarray(gt, dtype=np.float64)
+    if est.shape != gt.shape or (last is not None and est.shape[-1] != last):
+        raise ShapeError(f"{name}: estimate {est.shape} and ground truth {gt.shape} must match" +
+                         (f" and end in {last}" if last else ""))
+    grid = est.shape[:-1] if last else est.shape
+    m = np.ones(grid, bool) if mask is None else np.asarray(mask, bool)
+    if m.shape != grid:
+        raise ShapeError(f"{name}: mask {m.shape} does not match {grid}")
+    finite = np.isfinite(est).all(-1) & np.isfinite(gt).all(-1) if last else np.isfinite(est) & np.isfinite(gt)
+    return est, gt, m & finite
+
+
+def angular_error_map(normals: np.ndarray, gt_normals: np.ndarray) -> np.ndarray:
+    """Angle between estimated and true normals.
+
+    Parameters
+    ----------
+    normals, gt_normals : (..., 3) float, unit
+
+    Returns
+    -------
+    (...) float64, degrees; NaN where either is not finite.
+    """
+    est, gt, m = _check(normals, gt_normals, None, "angular_error_map", 3)
+    cos = np.clip(np.sum(est * gt, axis=-1), -1.0, 1.0)
+    return np.where(m, np.degrees(np.arccos(cos)), np.nan)
+
+
+def aae(normals: np.ndarray, gt_normals: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Average angular error, degrees, over ``mask`` ((...) bool) and finite pixels."""
+    est, gt, m = _check(normals, gt_normals, mask, "aae", 3)
+    if not m.any():
+        return float("nan")
+    cos = np.clip(np.sum(est[m] * gt[m], axis=-1), -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos)).mean())
+
+
+def mabse(normals: np.ndarray, gt_normals: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Mean absolute error of normal components: 1/(3|M|) sum ||n_hat - n||_1 (unitless)."""
+    est, gt, m = _check(normals, gt_normals, mask, "mabse", 3)
+    if not m.any():
+        return float("nan")
+    return float(np.abs(est[m] - gt[m]).sum() / (3 * m.sum()))
+
+
+def depth_rmse(depth: np.ndarray, gt_depth: np.ndarray, mask: np.ndarray | None = None) -> float:
+    """Root mean square depth error, mm, over ``mask`` and finite pixels."""
+    est, gt, m = _check(depth, gt_depth, mask, "depth_rmse", None)
+    if not m.any():
+        return float("nan")
+    return float(np.sqrt(np.mean((est[m] - gt[m]) ** 2)))
+
+
+def evaluate(result, ground_truth, mask: np.ndarray | None = None) -> dict:
+    """AAE, MabsE, depth RMSE (and pixel counts) of a SolveResult-like object against a GroundTruth.
+
+    The mask defaults to pixels that are valid in the truth and reconstructed; ``contact`` metrics use
+    the truth's contact region as well.
+    """
+    base = ground_truth.valid & result.reconstructed
+    if mask is not None:
+        base = base & mask
+    out = {}
+    for name, m in (("all", base), ("contact", base & ground_truth.contact)):
+        out[name] = {
+            "pixels": int(m.sum()),
+            "aae_deg": aae(result.normals, ground_truth.normals, m),
+            "mabse": mabse(result.normals, ground_truth.normals, m),
+            "depth_rmse_mm": depth_rmse(result.depth, ground_truth.depth, m),
+        }
+    return out

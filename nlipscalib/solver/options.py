@@ -1,0 +1,72 @@
+"""Options of the NLiPs solver (frozen dataclass; fill from TOML/YAML with :func:`nlipscalib.config.from_mapping`)."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+from ..core import tolerances
+from ..errors import ConfigError
+
+Estimator = Literal["cauchy", "ls", "huber", "tukey"]
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverOptions:
+    """Numerical settings of :func:`nlipscalib.solver.solve`."""
+
+    estimator: Estimator = "cauchy"
+    """Robust estimator of the data term: cauchy (default), ls (least squares), huber or tukey."""
+    robust_scale: float = 3.0
+    """Estimator scale lambda = robust_scale * 1.4826 * MAD(residuals), set at the start of each pyramid level."""
+    robust_floor: float = 0.02
+    """Lower bound of lambda relative to the median usable intensity, so exact data is not over-trimmed."""
+    prior_weight: float = 1e-3
+    """zeta: weight of the depth prior sum (log z - log z0)^2, with images normalised to a 99th percentile of 1."""
+    smoothness: float = 1e-3
+    """gamma: weight of squared second differences of log-depth, relative to the data term's gradient
+    curvature; tiny, it only ties together the pixel sub-lattices that central differences decouple."""
+    nominal_distance: float = 15.0
+    """Camera-to-surface distance along each ray, mm, used as prior when the capture has no reference."""
+    pyramid_levels: int = 0
+    """Number of pyramid levels (0 = automatic: halve until the short side is below 2 * min_level_size)."""
+    min_level_size: int = 24
+    """Smallest short side of the coarsest level, pixels (automatic pyramid)."""
+    max_iters: int = 30
+    """Iteration cap per pyramid level (one iteration = albedo update + Gauss-Newton step on log-depth)."""
+    energy_rtol: float = 1e-4
+    """Stop a level when the relative energy decrease falls below this."""
+    normal_tol_deg: float = 1e-3
+    """Stop a level when the median normal change of an iteration falls below this, degrees."""
+    cg_rtol: float = 1e-6
+    """Relative residual tolerance of the preconditioned conjugate gradient."""
+    cg_maxiter: int = 200
+    """Iteration cap of the conjugate gradient."""
+    line_search_steps: int = 8
+    """Step halvings tried before a Gauss-Newton step is rejected (energy must not increase)."""
+    shadow_level: float = 0.01
+    """Observed intensity below this fraction of the LED image's 99th percentile is shadow: excluded."""
+    dead_led_level: float = 1e-3
+    """An LED whose image's 99th percentile (linear, full scale 1) is below this is dead: excluded."""
+    dead_pixel_level: float = 1e-4
+    """A pixel at or below this in every LED image and channel is dead: excluded."""
+    min_leds: int = tolerances.MIN_LEDS_PER_PIXEL
+    """A pixel needs this many usable LEDs to be reconstructed; others are reported, not filled."""
+    dtype: Literal["float32", "float64"] = "float64"
+    """Floating point type of the per-pixel shading computations."""
+
+    def __post_init__(self):
+        positive = ("robust_scale", "nominal_distance", "energy_rtol", "normal_tol_deg", "cg_rtol")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"solver.{name} must be > 0, got {getattr(self, name)}")
+        if self.prior_weight < 0 or self.robust_floor < 0 or self.smoothness < 0:
+            raise ConfigError("solver.prior_weight, solver.smoothness and solver.robust_floor must be >= 0")
+        if self.max_iters < 1 or self.cg_maxiter < 1 or self.line_search_steps < 0:
+            raise ConfigError("solver.max_iters and solver.cg_maxiter must be >= 1, line_search_steps >= 0")
+        if self.pyramid_levels < 0 or self.min_level_size < 4:
+            raise ConfigError("solver.pyramid_levels must be >= 0 and solver.min_level_size >= 4")
+        if self.min_leds < 1:
+            raise ConfigError(f"solver.min_leds must be >= 1, got {self.min_leds}")
+        if self.estimator not in ("cauchy", "ls", "huber", "tukey"):
+            raise ConfigError(f"solver.estimator must be cauchy, ls, huber or tukey, got {self.estimator!r}")

@@ -1,0 +1,51 @@
+"""Robust estimators of the data term: rho(r) and the IRLS weight w(r) = rho'(r) / (2 r).
+
+Normalised so that every estimator behaves like r^2 for small residuals; lambda is the scale.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+ESTIMATORS = ("cauchy", "ls", "huber", "tukey")
+
+
+def rho(r, lam: float, estimator: str, xp=np):
+    """Per-residual energy (same array type as ``r``; ``xp`` is numpy or torch)."""
+    a2 = r * r
+    if estimator == "ls":
+        return a2
+    if estimator == "cauchy":
+        return lam**2 * xp.log1p(a2 / lam**2)
+    absr = xp.abs(r)
+    if estimator == "huber":
+        return xp.where(absr <= lam, a2, 2 * lam * absr - lam**2)
+    if estimator == "tukey":
+        s = 1 - a2 / lam**2
+        s = xp.where(s > 0, s, 0 * s)
+        return lam**2 / 3 * (1 - s**3)
+    raise ValueError(f"unknown estimator {estimator!r}; expected one of {ESTIMATORS}")
+
+
+def weight(r, lam: float, estimator: str, xp=np):
+    """IRLS weight w(r) = rho'(r) / (2 r), in [0, 1]."""
+    a2 = r * r
+    if estimator == "ls":
+        return 0 * r + 1
+    if estimator == "cauchy":
+        return 1 / (1 + a2 / lam**2)
+    absr = xp.abs(r)
+    if estimator == "huber":
+        return xp.where(absr <= lam, 0 * r + 1, lam / xp.where(absr > lam, absr, 0 * r + lam))
+    if estimator == "tukey":
+        s = 1 - a2 / lam**2
+        return xp.where(s > 0, s, 0 * s) ** 2
+    raise ValueError(f"unknown estimator {estimator!r}; expected one of {ESTIMATORS}")
+
+
+def mad_scale(residuals: np.ndarray) -> float:
+    """1.4826 * median absolute deviation: a robust standard deviation (0 for an empty input)."""
+    r = np.asarray(residuals, dtype=np.float64).ravel()
+    if r.size == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(r - np.median(r))))

@@ -1,0 +1,29 @@
+import numpy as np
+
+from nlipscalib.core import Led, load_press
+from nlipscalib.solver import SolverOptions, calibrate_leds, evaluate, solve_press
+
+from . import synth
+
+
+def test_led_self_calibration_recovers_parameters(tmp_path):
+    true = synth.ring_leds(jitter=3)
+    flat = load_press(synth.make_press(tmp_path / "ref", "none", leds=true))
+    rng = np.random.default_rng(0)
+    init = [Led(tuple(np.add(t.position, rng.normal(0, 0.3, 3))), tuple(np.add(t.direction, rng.normal(0, 0.08, 3))),
+                t.mu * 1.3) for t in true]
+    cal = calibrate_leds(flat, initial=init, stride=3)
+    psi = np.array([t.intensity for t in true])
+    psi /= psi.mean(0)  # the documented gauge
+    for led, t, p, sd in zip(cal.leds, true, psi, cal.std):
+        np.testing.assert_allclose(led.intensity, p, rtol=0.02)
+        assert abs(led.mu / t.mu - 1) < 0.02
+        assert np.degrees(np.arccos(min(1.0, np.dot(led.direction, t.direction)))) < 0.5
+        assert np.abs(np.subtract(led.position, t.position)).max() < 0.05
+        assert sd["mu"] < 0.05 and max(sd["position_mm"]) < 0.05
+    # NLiPs with calibrated LEDs within 0.5 deg AAE of NLiPs with the true ones
+    press = load_press(synth.make_press(tmp_path / "dent", "sphere", leds=true))
+    opts = SolverOptions(max_iters=15)
+    a = evaluate(solve_press(press, options=opts), press.ground_truth)["all"]["aae_deg"]
+    b = evaluate(solve_press(press, leds=cal.leds, options=opts), press.ground_truth)["all"]["aae_deg"]
+    assert abs(a - b) < 0.5
