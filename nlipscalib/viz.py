@@ -85,7 +85,11 @@ def _draw(fig, ax, panel: Panel) -> None:
     if panel.image.ndim == 3:
         ax.imshow(panel.image)
         return
-    im = ax.imshow(panel.image, cmap=panel.cmap, vmin=panel.vmin, vmax=panel.vmax)
+    import matplotlib
+
+    cmap = matplotlib.colormaps[panel.cmap].copy()
+    cmap.set_bad("0.85")  # pixels without a value (NaN) in light grey, not the colour of zero
+    im = ax.imshow(panel.image, cmap=cmap, vmin=panel.vmin, vmax=panel.vmax)
     bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
     bar.ax.tick_params(labelsize=7)
     if panel.label:

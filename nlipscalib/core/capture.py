@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +28,7 @@ from .. import __version__
 from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
 from .camera import Camera
-from .imageio import read_png16, write_png16
+from .imageio import read_png16, save_npz, write_png16
 from .leds import Led
 
 FORMAT_NAME = "nlipscalib.press"
@@ -84,7 +86,7 @@ class GroundTruth:
     """(H, W) bool -- the gel under this pixel is displaced by the press."""
 
     def save(self, path: Path) -> None:
-        np.savez_compressed(path, **{k: getattr(self, k) for k in GT_KEYS})
+        save_npz(path, {k: getattr(self, k) for k in GT_KEYS})
 
     @classmethod
     def load(cls, path: Path, shape: tuple[int, int]) -> GroundTruth:
@@ -107,7 +109,7 @@ class Reference:
     """(H, W, 3) float32, unit, camera frame, toward the camera."""
 
     def save(self, path: Path) -> None:
-        np.savez_compressed(path, depth=self.depth, normals=self.normals)
+        save_npz(path, {"depth": self.depth, "normals": self.normals})
 
     @classmethod
     def load(cls, path: Path, shape: tuple[int, int]) -> Reference:
@@ -205,14 +207,10 @@ def write_press(
         "provenance": provenance or {},
     }
     with atomic_dir(folder, overwrite=overwrite) as tmp:
-        write_png16(tmp / "dark.png", dark)
-        write_png16(tmp / "tricolor.png", tricolor)
-        for i, img in enumerate(led_images):
-            write_png16(tmp / led_image_name(i), img)
-        if reference is not None:
-            reference.save(tmp / REFERENCE_FILE)
-        if ground_truth is not None:
-            ground_truth.save(tmp / GT_FILE)
+        jobs = [(write_png16, tmp / "dark.png", dark), (write_png16, tmp / "tricolor.png", tricolor)]
+        jobs += [(write_png16, tmp / led_image_name(i), img) for i, img in enumerate(led_images)]
+        jobs += [(obj.save, tmp / name) for obj, name in ((reference, REFERENCE_FILE), (ground_truth, GT_FILE)) if obj]
+        _in_threads(jobs)
         write_json(tmp / META_FILE, meta)  # last: its presence marks a complete folder
     return Path(folder)
 
@@ -235,7 +233,7 @@ def load_press(folder: str | Path, led_subset=None) -> Press:
     if len(names) != len(leds):
         raise CaptureError(f"{folder / META_FILE}: {len(leds)} LEDs but {len(names)} LED images listed")
     keep = range(len(leds)) if led_subset is None else _check_subset(led_subset, len(leds), folder)
-    led_images = np.stack([_load_image(folder, names[i], camera) for i in keep])
+    led_images = np.stack(_in_threads([(_load_image, folder, names[i], camera) for i in keep]))
     reference = ground_truth = None
     if meta.get("reference"):
         reference = Reference.load(_existing(folder, meta["reference"]), camera.shape)
@@ -298,6 +296,12 @@ def find_presses(root: str | Path) -> list[Path]:
 
 
 # ---------------------------------------------------------------------- helpers
+def _in_threads(jobs: list[tuple]) -> list:
+    """Run (func, *args) jobs on a thread pool: PNG and zlib coding release the GIL, so this scales."""
+    with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1) or 1) as pool:
+        return list(pool.map(lambda job: job[0](*job[1:]), jobs))
+
+
 def _parse_optics(meta: dict, path: Path):
     try:
         camera = Camera.from_dict(meta["camera"])

@@ -1,7 +1,8 @@
-"""16-bit linear PNG read/write (OpenCV does 16-bit 3-channel PNG fast; Pillow cannot)."""
+"""Capture files: 16-bit linear PNG (OpenCV does 16-bit 3-channel PNG fast; Pillow cannot) and npz."""
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -43,3 +44,16 @@ def read_png16(path: str | Path) -> np.ndarray:
             raise CaptureError(f"{path}: expected 3 colour channels, found {img.shape[2]}")
         img = img[..., ::-1]
     return np.ascontiguousarray(img)
+
+
+def save_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> Path:
+    """Save arrays as a compressed .npz that ``np.load`` reads, at zlib level 1.
+
+    ``np.savez_compressed`` uses level 6, several times slower for float maps that barely compress
+    further; the file is written in place (callers write inside an atomic folder).
+    """
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for name, arr in arrays.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(arr), allow_pickle=False)
+    return Path(path)

@@ -76,6 +76,8 @@ class DatasetSpec:
     """Overrides of the scene's [render] section, e.g. {spp = 16, bounces = 1}."""
     noise: dict = dataclasses.field(default_factory=dict)
     """Overrides of the scene's [noise] section."""
+    camera: dict = dataclasses.field(default_factory=dict)
+    """Overrides of the scene's [camera] section, e.g. {width = 160, height = 120} for previews."""
     grid: GridSpec | None = None
     random: RandomSpec | None = None
 
@@ -92,12 +94,12 @@ class PressJob:
 
 
 def load_dataset_spec(path: str | Path) -> tuple[DatasetSpec, SceneConfig]:
-    """Read a dataset spec file and the scene it names (render/noise overrides applied)."""
+    """Read a dataset spec file and the scene it names (render/noise/camera overrides applied)."""
     path = Path(path)
     spec = from_mapping(DatasetSpec, read_config_file(path), str(path))
     scene_path = path.parent / spec.scene
     scene = load_scene(scene_path if scene_path.is_file() else spec.scene)
-    sections = {k: v for k, v in (("render", spec.render), ("noise", spec.noise)) if v}
+    sections = {k: v for k, v in (("render", spec.render), ("noise", spec.noise), ("camera", spec.camera)) if v}
     return spec, scene.replace(**sections) if sections else scene
 
 

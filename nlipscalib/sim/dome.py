@@ -145,6 +145,12 @@ def _flat_pad(cfg: DomeConfig) -> tuple[np.ndarray, np.ndarray]:
     n = max(2, int(np.ceil(2 * cfg.radius / cfg.edge_length)))
     g = np.linspace(-cfg.radius, cfg.radius, n + 1)
     x, y = np.meshgrid(g, g, indexing="ij")
+    # The camera sits on the axis, so grid and diagonal edges through the axis lie exactly in planes
+    # of pixel-centre rays (u - cx = v - cy): such rays graze the shared edge and miss both triangles.
+    # A tiny in-plane jitter of the interior vertices (pad stays flat) breaks that degeneracy.
+    interior = (np.abs(x) < cfg.radius) & (np.abs(y) < cfg.radius)
+    jitter = np.random.default_rng(0).uniform(-0.02, 0.02, size=(2,) + x.shape) * (g[1] - g[0])
+    x, y = x + jitter[0] * interior, y + jitter[1] * interior
     vertices = np.stack([x.ravel(), y.ravel(), np.full(x.size, cfg.height)], 1)
     i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     v00 = (i * (n + 1) + j).ravel()
