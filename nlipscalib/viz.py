@@ -87,8 +87,8 @@ def _draw(fig, ax, panel: Panel) -> None:
         return
     import matplotlib
 
-    cmap = matplotlib.colormaps[panel.cmap].copy()
-    cmap.set_bad("0.85")  # pixels without a value (NaN) in light grey, not the colour of zero
+    # pixels without a value (NaN) in light grey, not the colour of zero
+    cmap = matplotlib.colormaps[panel.cmap].with_extremes(bad="0.85")
     im = ax.imshow(panel.image, cmap=cmap, vmin=panel.vmin, vmax=panel.vmax)
     bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
     bar.ax.tick_params(labelsize=7)
