@@ -13,6 +13,9 @@ def register(subparsers) -> None:
     p.add_argument("press", help="press folder, or a folder of press folders")
     p.add_argument("--roi", nargs="+", metavar="V", help="x0 y0 w h (pixels) or 'auto' (around the contact)")
     p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
+    p.add_argument("--reference", metavar="REF_PRESS",
+                   help="press folder of the undeformed dome (same camera, LEDs, exposure): its interreflections "
+                   "are estimated and subtracted from every press before solving (and --roi auto compares to it)")
     p.add_argument("--backend", choices=("numpy", "torch"), default="numpy")
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="recompute even if a result exists")
@@ -74,10 +77,13 @@ def run(args) -> int:
             log.info("%s: result exists, skipped (use --overwrite)", out)
             continue
         press = load_press(folder, led_subset=subset)
+        # the reference capture is reloaded per press: cheap, and keeps an LED subset consistent
+        ref = load_press(args.reference, led_subset=subset) if args.reference else None
         chosen = leds
         if leds is not None and subset is None and len(leds) != len(press.leds):
             raise ConfigError(f"{args.leds}: {len(leds)} LEDs, but {folder} has {len(press.leds)}")
-        result = solve_press(press, roi=roi, leds=chosen, options=options, backend=args.backend, progress=True)
+        result = solve_press(press, roi=roi, leds=chosen, options=options, backend=args.backend, progress=True,
+                             indirect=ref)
         save_result(result, out, press.ground_truth, overwrite=True)
         rep = result.report
         log.info(

@@ -10,11 +10,24 @@ from .nlips import SolveResult, solve
 from .options import SolverOptions
 
 
-def auto_roi(press: Press, margin: int = 8, min_size: int = 32, threshold: float = 3.0) -> tuple[int, int, int, int]:
-    """Bounding box (x0, y0, w, h) of pixels whose images disagree with the undeformed reference.
+def contact_misfit(press: Press, indirect: np.ndarray | None = None, reference: Press | None = None) -> np.ndarray:
+    """Per-pixel relative misfit of the undeformed dome's shading to the LED images.
 
-    Per pixel, the reference's shading is fitted to the LED images with one albedo per channel; the
-    relative misfit above ``threshold`` times its median marks the contact.
+    Per pixel, the undeformed shading is fitted to the LED images with one scale per channel; where
+    the gel is not displaced it fits to rendering/sensor noise (and to what the model lacks).
+
+    Parameters
+    ----------
+    press : Press -- with ``reference``.
+    indirect : (L, H, W, 3) float or None -- interreflection estimate to subtract first (linear units).
+    reference : Press or None -- a capture of the undeformed dome (same camera, LEDs, exposure): its
+        images are the undeformed shading, interreflections included, so the contact stands out even
+        where the direct model does not explain the light (bounces >= 1, real sensor). ``indirect``
+        is then ignored. None: the direct model on ``press.reference``.
+
+    Returns
+    -------
+    (H, W) float64 -- RMS misfit over LEDs and channels relative to the images' RMS; NaN off the gel.
     """
     from ..core.leds import led_shading
 
@@ -22,15 +35,46 @@ def auto_roi(press: Press, margin: int = 8, min_size: int = 32, threshold: float
         raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
     ref = press.reference
     valid = np.isfinite(ref.depth)
-    pts = ref.depth[..., None] / press.camera.rays[..., 2:3] * press.camera.rays
+    pts = np.nan_to_num(ref.depth)[..., None] / press.camera.rays[..., 2:3] * press.camera.rays
     S = led_shading(np.where(valid[..., None], pts, 0), ref.normals.astype(np.float64), press.leds)
     img = press.linear(press.led_images).astype(np.float64)
+    if reference is not None:
+        S = reference.linear(reference.led_images).astype(np.float64)
+    elif indirect is not None:
+        img = img - indirect
     alb = (S * img).sum(0) / np.maximum((S * S).sum(0), 1e-30)
     mis = np.sqrt(((alb * S - img) ** 2).sum((0, 3)) / np.maximum((img**2).sum((0, 3)), 1e-30))
+    return np.where(valid, mis, np.nan)
+
+
+def auto_roi(
+    press: Press,
+    margin: int = 8,
+    min_size: int = 32,
+    threshold: float = 3.0,
+    min_component: float = 0.05,
+    indirect: np.ndarray | None = None,
+    reference: Press | None = None,
+) -> tuple[int, int, int, int]:
+    """Bounding box (x0, y0, w, h) of pixels whose images disagree with the undeformed reference.
+
+    Pixels whose :func:`contact_misfit` exceeds ``threshold`` times its median are candidates; of
+    their connected components only those at least ``min_component`` times the largest are kept, so
+    isolated misfits (cast shadows far from the dent, silhouette aliasing, hot pixels) do not
+    stretch the box over the whole image. ``indirect`` and ``reference``: see :func:`contact_misfit`.
+    """
+    from scipy import ndimage
+
+    mis = contact_misfit(press, indirect, reference)
+    valid = np.isfinite(mis)
     med = np.median(mis[valid])
-    hit = valid & (mis > threshold * max(med, 1e-6))
+    hit = valid & (np.nan_to_num(mis) > threshold * max(med, 1e-6))
     if not hit.any():
         raise CaptureError(f"{press.folder}: --roi auto found no contact (images match the undeformed reference)")
+    labels, count = ndimage.label(hit)
+    sizes = ndimage.sum(hit, labels, np.arange(1, count + 1))
+    keep = np.flatnonzero(sizes >= min_component * sizes.max()) + 1
+    hit = np.isin(labels, keep)
     rows, cols = np.nonzero(hit)
     H, W = press.camera.shape
     y0, y1 = max(rows.min() - margin, 0), min(rows.max() + 1 + margin, H)
@@ -52,6 +96,7 @@ def solve_press(
     options: SolverOptions | None = None,
     backend: str = "numpy",
     progress: bool = False,
+    indirect: np.ndarray | Press | None = None,
 ) -> SolveResult:
     """Solve one press.
 
@@ -61,17 +106,28 @@ def solve_press(
     roi : (x0, y0, w, h) pixels, "auto", or None for the whole visible gel.
     leds : sequence of Led replacing ``press.leds`` (e.g. from ``calibrate-leds``); same count.
     options, backend, progress : see :func:`nlipscalib.solver.solve`.
+    indirect : interreflection compensation (:mod:`nlipscalib.solver.interreflection`): None (off),
+        a Press of the undeformed dome (same camera, LEDs, LED subset and exposure) to estimate it
+        from, or an (L, H, W, 3) float array from ``estimate_indirect`` (linear units), subtracted
+        from the LED images before solving.
     """
+    from .interreflection import compensate, estimate_indirect
+
     leds = press.leds if leds is None else tuple(leds)
     if len(leds) != len(press.leds):
         raise CaptureError(f"{press.folder}: {len(leds)} LEDs given for {len(press.leds)} LED images")
+    ref_capture = None
+    if isinstance(indirect, Press):
+        if indirect.camera != press.camera or len(indirect.leds) != len(press.leds):
+            raise CaptureError(f"{indirect.folder}: camera or LED count differs from {press.folder}")
+        ref_capture, indirect = indirect, estimate_indirect(indirect, leds)
     H, W = press.camera.shape
     prior = press.reference.depth if press.reference is not None else None
     mask = np.isfinite(prior) if prior is not None else np.ones((H, W), bool)
     if isinstance(roi, str):
         if roi != "auto":
             raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
-        roi = auto_roi(press)
+        roi = auto_roi(press, indirect=indirect, reference=ref_capture)
     if roi is not None:
         x0, y0, w, h = (int(v) for v in roi)
         if w < 4 or h < 4 or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
@@ -80,6 +136,8 @@ def solve_press(
         box[y0 : y0 + h, x0 : x0 + w] = True
         mask &= box
     images = press.linear(press.led_images)
+    if indirect is not None:
+        images = compensate(images, indirect)
     saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
     result = solve(
         images, press.camera, leds, prior_depth=prior, mask=mask, saturated=saturated,
@@ -87,4 +145,5 @@ def solve_press(
     )
     result.report["roi"] = list(roi) if roi is not None else None
     result.report["prior"] = "reference" if prior is not None else "nominal_distance"
+    result.report["indirect_compensation"] = indirect is not None
     return result

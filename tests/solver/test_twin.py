@@ -1,0 +1,132 @@
+"""The solver on the digital twin's renders (Mitsuba): accuracy, LED self-calibration, interreflection.
+
+CI-sized: 160x120 images (the default scene's 100 deg fisheye), 4 spp, presses at polar 15 deg so the
+contact sits well inside the view. Direct light only (bounces 0) unless a test is about
+interreflection.
+"""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+
+from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.core import Led, load_press  # noqa: E402
+from nlipscalib.sim.indent import PressConfig  # noqa: E402
+from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
+from nlipscalib.sim.press import render_press  # noqa: E402
+from nlipscalib.sim.scene import load_scene  # noqa: E402
+from nlipscalib.solver import calibrate_leds, evaluate, load_result, solve_press  # noqa: E402
+from nlipscalib.solver.interreflection import estimate_indirect  # noqa: E402
+
+WIDTH, HEIGHT = 160, 120
+PRESSES = {
+    "sphere": PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5),
+    "cube": PressConfig(IndenterConfig(kind="cube", size=5.0), polar_deg=15, azimuth_deg=30, depth=1.0),
+}
+
+
+def twin(bounces=0, spp=4, noise=False):
+    return load_scene().replace(
+        noise={"enabled": noise}, render={"bounces": bounces, "spp": spp}, camera={"width": WIDTH, "height": HEIGHT}
+    )
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    return tmp_path_factory.mktemp("twin")
+
+
+@pytest.fixture(scope="module")
+def direct_presses(root):
+    """Noise-free, direct-light-only renders of the sphere and cube presses."""
+    return {k: load_press(render_press(twin(), cfg, root / k, seed=1)) for k, cfg in PRESSES.items()}
+
+
+@pytest.fixture(scope="module")
+def sphere_true_leds(direct_presses):
+    p = direct_presses["sphere"]
+    return solve_press(p, roi="auto")
+
+
+@pytest.mark.parametrize("kind", ["sphere", "cube"])
+def test_twin_contact_aae_within_2_degrees(direct_presses, sphere_true_leds, kind):
+    press = direct_presses[kind]
+    result = sphere_true_leds if kind == "sphere" else solve_press(press, roi="auto")
+    metrics = evaluate(result, press.ground_truth)["contact"]
+    # the auto ROI must hold (nearly) all of the contact, else the AAE says little
+    assert metrics["pixels"] >= 0.95 * press.ground_truth.contact.sum()
+    assert metrics["aae_deg"] <= 2.0, metrics
+
+
+def perturbed(leds, rng):
+    """The scene's LEDs off by 0.3-0.5 mm, ~5 deg, mu x1.3, Psi x0.8: a calibration's starting point."""
+    out = []
+    for led in leds:
+        offset = rng.normal(size=3)
+        offset *= rng.uniform(0.3, 0.5) / np.linalg.norm(offset)
+        d = np.asarray(led.direction)
+        axis = np.cross(d, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        tilt = np.radians(5.0)
+        direction = np.cos(tilt) * d + np.sin(tilt) * axis  # axis is perpendicular to d
+        out.append(Led(tuple(np.add(led.position, offset)), tuple(direction), led.mu * 1.3,
+                       tuple(0.8 * np.asarray(led.intensity))))
+    return out
+
+
+@pytest.mark.parametrize("noise", [False, True])
+def test_led_self_calibration_on_twin(root, direct_presses, sphere_true_leds, noise):
+    flat = load_press(render_press(twin(noise=noise), None, root / f"flat_noise{noise}", seed=2))
+    true = flat.leds
+    cal = calibrate_leds(flat, initial=perturbed(true, np.random.default_rng(0)), stride=2)
+    exposure = flat.meta["provenance"]["exposure"]
+    # gauge: mean Psi = 1 per channel; every twin LED has the same Psi, so each must come out 1, and the
+    # albedo must be exposure * coating albedo / pi (Press.linear = exposure * albedo/pi * shading)
+    np.testing.assert_allclose(cal.albedo, exposure * np.array(load_scene().coating.albedo) / np.pi, rtol=0.03)
+    for led, t in zip(cal.leds, true):
+        np.testing.assert_allclose(led.intensity, 1.0, rtol=0.03)
+        assert abs(led.mu / t.mu - 1) < 0.05
+        assert np.degrees(np.arccos(min(1.0, np.dot(led.direction, t.direction)))) < 1.0
+        assert np.linalg.norm(np.subtract(led.position, t.position)) < 0.1
+    if not noise:
+        return
+    # NLiPs with the calibrated LEDs within 0.5 deg AAE of NLiPs with the true ones
+    press = direct_presses["sphere"]
+    roi = tuple(sphere_true_leds.report["roi"])
+    a = evaluate(sphere_true_leds, press.ground_truth)["contact"]["aae_deg"]
+    b = evaluate(solve_press(press, roi=roi, leds=cal.leds), press.ground_truth)["contact"]["aae_deg"]
+    assert abs(a - b) < 0.5, (a, b)
+
+
+def contact_box(contact, margin=8):
+    """(x0, y0, w, h) around the true contact: auto ROI is unreliable on noisy one-bounce renders."""
+    rows, cols = np.nonzero(contact)
+    y0, x0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
+    y1, x1 = min(rows.max() + 1 + margin, contact.shape[0]), min(cols.max() + 1 + margin, contact.shape[1])
+    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
+
+
+def test_interreflection_compensation_improves_aae(root):
+    scene = twin(bounces=1, spp=16)
+    flat = load_press(render_press(scene, None, root / "flat_b1", seed=3))
+    press = load_press(render_press(scene, PRESSES["sphere"], root / "sphere_b1", seed=4))
+    indirect = estimate_indirect(flat)
+    valid = np.isfinite(flat.reference.depth)
+    # one bounce inside the dome adds roughly a tenth to a third of the direct light
+    share = indirect[:, valid].mean() / flat.linear(flat.led_images)[:, valid].mean()
+    assert 0.05 < share < 0.5, share
+    roi = contact_box(press.ground_truth.contact)  # the same ROI for both solves
+    raw = evaluate(solve_press(press, roi=roi), press.ground_truth)
+    compensated = solve_press(press, roi=roi, indirect=indirect)
+    comp = evaluate(compensated, press.ground_truth)
+    assert comp["contact"]["aae_deg"] < raw["contact"]["aae_deg"], (raw, comp)
+    assert comp["all"]["aae_deg"] < raw["all"]["aae_deg"], (raw, comp)
+
+    # the CLI's --reference does the same as solve_press(..., indirect=<undeformed capture>)
+    out = root / "cli_out"
+    assert main(["solve", str(root / "sphere_b1"), "--reference", str(root / "flat_b1"),
+                 "--roi", *map(str, roi), "--out", str(out)]) == 0
+    cli = load_result(out)
+    assert cli.report["indirect_compensation"] is True
+    np.testing.assert_allclose(cli.normals, compensated.normals, atol=1e-5, equal_nan=True)
