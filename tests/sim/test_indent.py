@@ -87,7 +87,8 @@ def test_other_domes_and_user_mesh():
     for name in ("capsule", "flat"):
         dome = load_scene(name).dome
         gel = apply_press(dome, press)
-        assert gel.displacement.max() == pytest.approx(0.5, abs=0.05)
+        # a sharp tip is sampled by the nearest gel vertex: within about one refined edge of depth
+        assert gel.displacement.max() == pytest.approx(0.5, abs=dome.contact_edge_length)
         assert _gap(gel, press, dome).min() > -1e-3
 
 
