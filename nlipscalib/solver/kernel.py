@@ -113,44 +113,77 @@ class Model:
         """r : (L, 3, N) = rho_c Psi_ic F_i - I_ic (albedo : (3, N) on the backend)."""
         return albedo[None] * self.psi * F[:, None] - self.images
 
-    def energy(self, F, albedo, lam: float, estimator: str, usable=None) -> float:
-        """Robust data energy over the usable samples (``usable`` overrides the model's mask)."""
-        r = self.residuals(F, albedo)
-        use = self.usable if usable is None else usable
-        return self.be.total(use * robust.rho(r, lam, estimator, self.be.xp))
+    def data_energy(self, r, lam: float, estimator: str) -> float:
+        """Robust data energy of residuals ``r`` (L, 3, N) over the usable samples, summed in float64."""
+        return self.be.total(self.usable * robust.rho(r, lam, estimator, self.be.xp))
 
-    def weights(self, r, lam: float, estimator: str, usable=None):
+    def energy(self, F, albedo, lam: float, estimator: str) -> float:
+        """Robust data energy at shading ``F`` (L, N) and albedo (3, N)."""
+        return self.data_energy(self.residuals(F, albedo), lam, estimator)
+
+    def weights(self, r, lam: float, estimator: str):
         """IRLS weights, zero on excluded samples: (L, 3, N)."""
-        use = self.usable if usable is None else usable
-        return use * robust.weight(r, lam, estimator, self.be.xp)
+        return self.usable * robust.weight(r, lam, estimator, self.be.xp)
 
-    def albedo(self, Fs, ws):
-        """Closed-form per-pixel, per-channel albedo minimising the weighted data term: (3, N).
+    def albedo(self, F, w):
+        """Closed-form per-pixel, per-channel albedo minimising the data term weighted by ``w``: (3, N).
 
-        ``Fs`` and ``ws`` are lists (one per difference stencil) whose terms are summed."""
+        Parameters
+        ----------
+        F : (L, N) shading; w : (L, 3, N) sample weights (0 on excluded samples).
+        """
         xp = self.be.xp
-        num = den = 0
-        for F, w in zip(Fs, ws):
-            S = self.psi * F[:, None]
-            num = num + (w * S * self.images).sum(0)
-            den = den + (w * S * S).sum(0)
+        S = self.psi * F[:, None]
+        wS = w * S
+        num = (wS * self.images).sum(0)
+        den = (wS * S).sum(0)
         ok = den > 1e-30
         return xp.where(ok, num / xp.where(ok, den, 0 * den + 1), 0 * den)
 
-    def gauss_newton_blocks(self, dF, r, w, albedo):
-        """Per-pixel 3x3 normal-equation blocks and right-hand sides, summed over LEDs and channels.
+    def gradient_curvature(self, dF, albedo, w) -> np.ndarray:
+        """Data-term curvature along the log-depth gradient, (N,) float64 numpy: the plain (not
+        projected) Gauss-Newton diagonal sum over LEDs and channels of w (rho Psi)^2 (dF_u^2 + dF_v^2)."""
+        g2 = (w * (albedo[None] * self.psi) ** 2).sum(1)  # (L, N)
+        return self.be.numpy((g2 * (dF[1] * dF[1] + dF[2] * dF[2])).sum(0))
 
-        Returns (numpy) M : (3, 3, N), b : (3, N) with J^T W J = sum_ab P_a^T diag(M_ab) P_b and
-        J^T W r = sum_a P_a^T b_a, where P = (identity, D_u, D_v).
+    def gauss_newton_blocks(self, F, dF, r, w, albedo):
+        """Variable-projection Gauss-Newton blocks of the data term, summed over LEDs and channels.
+
+        The albedo is eliminated (it is the closed-form weighted least-squares fit at every depth), so
+        the model's Jacobian along t, t_u, t_v is projected, per pixel and channel, orthogonally (in
+        the metric of ``w``) to the shading vector over LEDs (Kaufman's variable projection). Without
+        it, depth and albedo are fitted alternately and the mode they share -- a common change of
+        depth that the albedo absorbs, which near light pins only through ratios of 1/r^2 between
+        LEDs -- converges at the slow rate of alternating minimisation (small regions of interest
+        needed hundreds of iterations).
+
+        Parameters
+        ----------
+        F : (L, N) shading; dF : 3 arrays (L, N), its derivatives along t, t_u, t_v.
+        r, w : (L, 3, N) residuals and IRLS weights; albedo : (3, N).
+
+        Returns
+        -------
+        M : (3, 3, N) float64 numpy, b : (3, N) float64 numpy, with J^T W J = sum_ab P_a^T diag(M_ab) P_b
+        and J^T W r = sum_a P_a^T b_a, where P = (identity, D_u, D_v).
         """
-        g = albedo[None] * self.psi  # dr/dF, (L, 3, N)
-        K = (w * g * g).sum(1)  # (L, N)
-        R = (w * r * g).sum(1)
-        be = self.be
-        M = np.empty((3, 3, K.shape[1]))
-        b = np.empty((3, K.shape[1]))
-        for a in range(3):
-            b[a] = be.numpy((R * dF[a]).sum(0))
-            for c in range(a, 3):
-                M[a, c] = M[c, a] = be.numpy((K * dF[a] * dF[c]).sum(0))
+        xp = self.be.xp
+        Wp = w * self.psi * self.psi  # (L, 3, N): weights of the products of s = Psi F terms
+        d = xp.einsum("lcn,ln->cn", Wp, F * F)  # (3, N): |s|_W^2, s = Psi F
+        inv_d = xp.where(d > 1e-30, 1 / xp.where(d > 1e-30, d, 0 * d + 1), 0 * d)
+        rho2 = albedo * albedo
+        wr = w * r * self.psi  # (L, 3, N)
+        e = xp.einsum("lcn,ln->cn", wr, F)  # (3, N): <r, s>_W, zero when rho is the exact fit
+        a = [xp.einsum("lcn,ln->cn", Wp, F * dFa) for dFa in dF]  # <s, ds_a>_W
+        N = F.shape[1]
+        M = np.empty((3, 3, N))
+        b = np.empty((3, N))
+        for i in range(3):
+            # projected gradient: <r, rho (ds_a - s <s, ds_a>/<s, s>)>_W
+            gi = albedo * (xp.einsum("lcn,ln->cn", wr, dF[i]) - e * a[i] * inv_d)
+            b[i] = self.be.numpy(gi.sum(0))
+            for j in range(i, 3):
+                Aij = xp.einsum("lcn,ln->cn", Wp, dF[i] * dF[j])
+                mij = (rho2 * (Aij - a[i] * a[j] * inv_d)).sum(0)
+                M[i, j] = M[j, i] = self.be.numpy(mij)
         return M, b

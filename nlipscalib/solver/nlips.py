@@ -1,17 +1,25 @@
-"""Near-light photometric stereo on a distorted camera: alternating reweighted least squares.
+"""Near-light photometric stereo on a distorted camera: reweighted Gauss-Newton on log-depth.
 
 Unknown: log-depth t = log z on a mask of pixels. Energy::
 
-    E(t, rho) = sum_{p, i, c usable} phi(rho_c(p) Psi_ic F_i(p; t) - I_ic(p)) + zeta sum_p (t_p - t0_p)^2
+    E(t, rho) = sum_{p, i, c usable} phi(rho_c(p) Psi_ic F_i(p; t) - I_ic(p))
+                + zeta sum_p (t_p - t0_p)^2 + gamma |second differences of t|^2
 
-Each iteration: closed-form albedo (IRLS weights), then one Gauss-Newton step on t whose sparse SPD
-system is solved by conjugate gradient preconditioned with smoothed-aggregation algebraic multigrid
-(pyamg); a backtracking line search rejects any step that would raise E. Coarse-to-fine over an image
-pyramid (cv2.resize INTER_AREA, Camera.scaled).
+The albedo is eliminated (variable projection): it is the closed-form (IRLS-weighted) fit at every
+depth, and each Gauss-Newton step on t uses the Jacobian projected orthogonally to the shading, so
+depth and albedo move together instead of alternating -- alternation crawls along the depth scale that
+the albedo absorbs and left small regions of interest far from convergence. The sparse SPD system is
+solved inexactly (Eisenstat-Walker forcing term) by conjugate gradient, Jacobi-preconditioned for loose
+solves and smoothed-aggregation AMG (pyamg) otherwise; a backtracking line search on the joint energy
+rejects any step that would raise it. Coarse-to-fine over an image pyramid (cv2.resize INTER_AREA,
+Camera.scaled). Per-pixel work runs in ``SolverOptions.dtype`` (float32 by default), the sparse system
+in float64.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import dataclasses
 import logging
 import time
@@ -75,9 +83,10 @@ def exclusions(images: np.ndarray, saturated: np.ndarray | None, options: Solver
     """
     L = images.shape[0]
     sat = np.zeros(images.shape, bool) if saturated is None else saturated
-    per_led_high = np.array([np.percentile(images[i], 99) for i in range(L)])
+    per_led_high = np.percentile(images.reshape(L, -1), 99, axis=1)
     dead_leds = [i for i in range(L) if per_led_high[i] < options.dead_led_level]
-    dead_px = np.all(images <= options.dead_pixel_level, axis=(0, 3))
+    # max over LEDs first (a reduction along the contiguous leading axis), then over the channels
+    dead_px = images.max(axis=0).max(axis=-1) <= options.dead_pixel_level
     # Shadow threshold per LED and channel, relative to that image's bright end.
     high_c = np.percentile(images.reshape(L, -1, 3), 99, axis=1)  # (L, 3)
     shadow = images < options.shadow_level * high_c[:, None, None, :]
@@ -132,8 +141,10 @@ def solve(
     if len(leds) < opts.min_leds:
         raise ShapeError(f"{len(leds)} LEDs given; the solver needs at least min_leds={opts.min_leds}")
     if not np.all(np.isfinite(images)):
-        raise ShapeError(f"images contain {int(np.sum(~np.isfinite(images)))} NaN/inf values; mark bad pixels "
-                         "with `mask` or `saturated` instead")
+        raise ShapeError(
+            f"images contain {int(np.sum(~np.isfinite(images)))} NaN/inf values; mark bad pixels "
+            "with `mask` or `saturated` instead"
+        )
     if saturated is not None and np.shape(saturated) != images.shape:
         raise ShapeError(f"saturated must have the images' shape {images.shape}, got {np.shape(saturated)}")
     if prior_depth is None:
@@ -152,20 +163,22 @@ def solve(
         raise ShapeError("the solve mask holds fewer than 4 pixels with a finite prior depth")
 
     t_start = time.perf_counter()
-    images = images.astype(np.float64)
+    # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
+    images = images.astype(np.float32 if opts.dtype == "float32" else np.float64, copy=False)
     usable, report = exclusions(images, saturated, opts)
     usable &= mask[None, :, :, None]
-    usable_leds = usable.any(axis=3).sum(axis=0).astype(np.int16)
-    scale = float(np.percentile(images[usable], 99)) if usable.any() else 1.0
-    scale = scale if scale > 0 else 1.0
+    usable_leds = (usable[..., 0] | usable[..., 1] | usable[..., 2]).sum(axis=0, dtype=np.int16)
 
     # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
     rows, cols = np.nonzero(mask)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     cam = dataclasses.replace(camera, width=int(c1 - c0), height=int(r1 - r0), cx=camera.cx - c0, cy=camera.cy - r0)
     crop = (slice(r0, r1), slice(c0, c1))
-    data = images[:, crop[0], crop[1]] / scale
+    data = images[:, crop[0], crop[1]]
     use = usable[:, crop[0], crop[1]]
+    scale = float(np.percentile(data[use], 99)) if use.any() else 1.0  # usable lies inside the crop
+    scale = scale if scale > 0 else 1.0
+    data = data / np.float32(scale) if data.dtype == np.float32 else data / scale
     m = mask[crop]
     t0 = np.log(np.where(m, prior_depth[crop], 1.0))
     pos, dirs, mu, psi = led_arrays(leds)
@@ -176,27 +189,13 @@ def solve(
     be = Backend(backend, opts.dtype)
     levels = _pyramid(cam, data, use, m, t0, opts)
     report["levels"] = []
-    t_state = None
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
-    for k, lv in enumerate(levels):
-        if t_state is None:
-            t_init = lv["t0"]
-        else:
-            prev = levels[k - 1]
-            delta = np.where(prev["mask"], t_state - prev["t0"], 0.0)
-            delta = _resize(delta, lv["camera"].shape, linear=True)
-            t_init = lv["t0"] + delta
-        if k == 0 and opts.estimator != "ls":
-            # Least squares first on the coarsest level: from the undeformed prior, the contact's
-            # residuals are large and a robust estimator would treat the dent itself as outliers.
-            t_init, _, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, "ls")
-            report["levels"].append(info)
-        t_state, out, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, opts.estimator)
-        report["levels"].append(info)
+    with _blas_threads(1):
+        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report)
     if bar is not None:
         bar.close()
 
@@ -250,6 +249,67 @@ def solve(
     )
 
 
+def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report):
+    """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest."""
+    t_state = out = None
+    for k, lv in enumerate(levels):
+        if t_state is None:
+            t_init = lv["t0"]
+        else:
+            prev = levels[k - 1]
+            delta = np.where(prev["mask"], t_state - prev["t0"], 0.0)
+            delta = _resize(delta, lv["camera"].shape, linear=True)
+            t_init = lv["t0"] + delta
+        if k == 0 and opts.estimator != "ls":
+            # Least squares first on the coarsest level: from the undeformed prior, the contact's
+            # residuals are large and a robust estimator would treat the dent itself as outliers.
+            t_init, _, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, "ls", coarse=True)
+            report["levels"].append(info)
+        coarse = k < len(levels) - 1
+        t_state, out, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, opts.estimator, coarse)
+        report["levels"].append(info)
+    return t_state, out
+
+
+@contextlib.contextmanager
+def _blas_threads(count: int):
+    """Limit OpenBLAS's threads while the solver runs (Linux; a no-op where the library is not found).
+
+    The solver's BLAS calls are vector dot products and norms inside CG (and small dense ones in
+    pyamg's setup). Multithreading those is a loss everywhere and a disaster on a loaded machine:
+    on 2 shared cores a 250k-element dot product took 2.5 ms with 2 threads against 0.05 ms with one,
+    and made up half of the solve time.
+    """
+    libs = []
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = {line.split()[-1] for line in fh if "openblas" in line.lower() and "/" in line}
+    except OSError:
+        paths = set()
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for suffix in ("64_", "", "_64_"):
+            for prefix in ("scipy_openblas", "openblas"):
+                get = getattr(lib, f"{prefix}_get_num_threads{suffix}", None)
+                put = getattr(lib, f"{prefix}_set_num_threads{suffix}", None)
+                if get is not None and put is not None:
+                    libs.append((get, put, int(get())))
+                    break
+            else:
+                continue
+            break
+    try:
+        for _, put, _ in libs:
+            put(count)
+        yield
+    finally:
+        for _, put, old in libs:
+            put(old)
+
+
 # ---------------------------------------------------------------------- pyramid
 def _resize(a: np.ndarray, shape: tuple[int, int], linear: bool = False) -> np.ndarray:
     import cv2
@@ -274,11 +334,13 @@ def _pyramid(cam: Camera, data, use, mask, t0, opts: SolverOptions) -> list[dict
         if k == 0:
             d, u, mk, tk = data, use, mask, t0
         else:
-            d = np.stack([_resize(img, c.shape) for img in data])
+            d = np.stack([_resize(img, c.shape) for img in data]).astype(data.dtype, copy=False)
             u = np.stack([_resize(x.astype(np.float32), c.shape) for x in use]) > 0.999
             mk = _resize(mask.astype(np.float32), c.shape) > 0.999
-            tk = np.log(_resize(np.where(mask, np.exp(t0), 0.0), c.shape) / np.maximum(
-                _resize(mask.astype(np.float32), c.shape), 1e-9))
+            tk = np.log(
+                _resize(np.where(mask, np.exp(t0), 0.0), c.shape)
+                / np.maximum(_resize(mask.astype(np.float32), c.shape), 1e-9)
+            )
             tk = np.where(mk, tk, 0.0)
         if mk.sum() < 16:
             break
@@ -289,7 +351,7 @@ def _pyramid(cam: Camera, data, use, mask, t0, opts: SolverOptions) -> list[dict
                 "camera": c,
                 "mask": mk,
                 "images": np.moveaxis(d[:, mk], 2, 1),  # (L, 3, N)
-                "usable": np.moveaxis(u[:, mk], 2, 1).astype(np.float64),
+                "usable": np.moveaxis(u[:, mk], 2, 1).astype(d.dtype),
                 "t0": tk,
                 "q": q[mk],
                 "ABC": (A, B, C),
@@ -299,137 +361,205 @@ def _pyramid(cam: Camera, data, use, mask, t0, opts: SolverOptions) -> list[dict
 
 
 # ---------------------------------------------------------------------- one level
-def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backend, bar, est: str):
+class _Timer:
+    """Accumulates wall time per named stage (reported per level, for profiling)."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+        self._t = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.seconds[name] = self.seconds.get(name, 0.0) + now - self._t
+        self._t = now
+
+
+def _operators(lv: dict) -> dict:
+    """Difference operators and the normal-matrix assembler of a level (cached in ``lv``)."""
+    if "ops" not in lv:
+        mk = lv["mask"]
+        Du, Dv, has_grad = geometry.gradient_operators(mk)
+        du_f, dv_f, _ = geometry.difference_operators(mk)
+        du_b, dv_b, _ = geometry.difference_operators(mk, backward=True)
+        # Second differences (forward minus backward; zero at edges): the checkerboard modes central
+        # differences cannot see. A weak penalty on them couples the sub-lattices (and lets AMG work).
+        second = [(du_f - du_b).tocsr(), (dv_f - dv_b).tocsr()]
+        lap = (second[0].T @ second[0] + second[1].T @ second[1]).tocsr()
+        eye = sp.identity(Du.shape[0], format="csr")
+        # Central differences: one-sided ones put the normal half a pixel off the data and bias the
+        # fit by about a degree on this lens.
+        lv["ops"] = {
+            "Du": Du,
+            "Dv": Dv,
+            "has_grad": has_grad,
+            "lap": lap,
+            "normal": geometry.NormalMatrix((eye, Du, Dv), second),
+        }
+    return lv["ops"]
+
+
+def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backend, bar, est: str, coarse=False):
+    """Minimise the energy on one pyramid level from log-depth ``t_init`` (H, W) of that level.
+
+    On a ``coarse`` level (one whose result only starts the next), linear solves stop at a relative
+    residual of sqrt(cg_rtol): tighter solves there bought nothing the next level keeps.
+
+    Each iteration: variable-projection Gauss-Newton step on t (albedo eliminated), solved inexactly
+    by AMG-preconditioned CG, then a backtracking line search on the joint energy with the albedo
+    refitted (IRLS) at the trial depth: the energy never increases.
+    """
+    tm = _Timer()
     mk = lv["mask"]
     A, B, C = lv["ABC"]
-    Du, Dv, has_grad = geometry.gradient_operators(mk)
-    du_f, dv_f, _ = geometry.difference_operators(mk)
-    du_b, dv_b, _ = geometry.difference_operators(mk, backward=True)
-    # Second differences (forward minus backward; zero at edges): the checkerboard modes central
-    # differences cannot see. A weak penalty on them couples the sub-lattices (and lets AMG work).
-    lap = ((du_f - du_b).T @ (du_f - du_b) + (dv_f - dv_b).T @ (dv_f - dv_b)).tocsr()
-    # Central differences: one-sided ones put the normal half a pixel off the data and bias the fit
-    # by about a degree on this lens. Central differences alone leave the four pixel sub-lattices
-    # weakly coupled; near light ties each pixel's own depth to the data (1/r^2 fall-off), and the
-    # prior does the rest.
-    stencils = [(Du, Dv)]
+    ops = _operators(lv)
+    Du, Dv, lap, normal = ops["Du"], ops["Dv"], ops["lap"], ops["normal"]
     t0 = lv["t0"][mk]
     t = t_init[mk].copy()
     model = Model(be, lv["q"], A, B, C, pos, dirs, mu, psi, lv["images"], lv["usable"])
-    uses = [model.usable]
     zeta = opts.prior_weight
     n = len(t)
-    eye = sp.identity(n, format="csr")
-    Gs = [sp.vstack([eye, du, dv]).tocsr() for du, dv in stencils]
+    tm.lap("setup")
 
     def shade(tt, derivatives=False):
-        return [model.shading(tt, du @ tt, dv @ tt, derivatives) for du, dv in stencils]
-
-    gamma = 0.0  # set below from the data term's own scale
+        out = model.shading(tt, Du @ tt, Dv @ tt, derivatives)
+        return (out[0], out[1:]) if derivatives else (out, None)
 
     def prior(tt):
         return zeta * float(np.sum((tt - t0) ** 2)) + gamma * float(tt @ (lap @ tt))
 
-    def energy(Fs, alb, tt):
-        return sum(model.energy(F, alb, lam, est, u) for F, u in zip(Fs, uses)) + prior(tt)
+    def refit(F, alb):
+        """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise."""
+        w = model.usable if est == "ls" or alb is None else model.weights(model.residuals(F, alb), lam, est)
+        alb = model.albedo(F, w)
+        return alb, model.residuals(F, alb)
 
     def normals(tt):
         return geometry.normals_from_gradient(Du @ tt, Dv @ tt, A, B, C)
 
-    def fit_albedo(Fs, alb=None):
-        """Closed-form albedo under the IRLS weights of the current residuals (plain LS if alb is None)."""
-        if alb is None:
-            return model.albedo(Fs, uses)
-        ws = [model.weights(model.residuals(F, alb), lam, est, u) for F, u in zip(Fs, uses)]
-        return model.albedo(Fs, ws)
-
-    out = shade(t, True)
-    Fs = [o[0] for o in out]
-    dFs = [o[1:] for o in out]
-    albedo = fit_albedo(Fs)
-    usable_np = lv["usable"] > 0
-    r_np = be.numpy(model.residuals(Fs[0], albedo))[usable_np]
-    med_i = float(np.median(lv["images"][usable_np])) if usable_np.any() else 1.0
-    lam = max(opts.robust_scale * robust.mad_scale(r_np), opts.robust_floor * med_i, 1e-12)
-    M0, _ = model.gauss_newton_blocks(dFs[0], model.residuals(Fs[0], albedo), model.usable, albedo)
-    gamma = opts.smoothness * float(np.median(M0[1, 1] + M0[2, 2]))
-    e_cur = energy(Fs, albedo, t)
+    F, dF = shade(t, True)
+    albedo, r = refit(F, None)
+    lam = _robust_scale(be, r, lv["images"], lv["usable"] > 0, opts)
+    # The smoothness weight is relative to the data term's curvature along the gradient of t (least
+    # squares, starting depth).
+    gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
+    if est != "ls":
+        albedo, r = refit(F, albedo)
+    w = model.weights(r, lam, est)
+    M, b = model.gauss_newton_blocks(F, dF, r, w, albedo)
+    e_cur = model.data_energy(r, lam, est) + prior(t)
     info = {
-        "shape": list(mk.shape), "estimator": est, "gamma": gamma, "pixels": n, "lambda": lam,
-        "energy": [e_cur], "cg_iters": [], "rejected_steps": 0, "stop": "max_iters",
+        "shape": list(mk.shape),
+        "estimator": est,
+        "gamma": gamma,
+        "pixels": n,
+        "lambda": lam,
+        "energy": [e_cur],
+        "cg_iters": [],
+        "cg_rtol": [],
+        "normal_change_deg": [],
+        "rejected_steps": 0,
+        "stop": "max_iters",
     }
-    amg = None
+    pcg = _Krylov(opts)
     nrm = normals(t)
+    g_prev = eta = None
+    tm.lap("init")
     for _ in range(opts.max_iters):
-        # 1. albedo: IRLS majorisation, cannot raise the energy
-        albedo = fit_albedo(Fs, albedo)
-        e_alb = energy(Fs, albedo, t)
-        # 2. Gauss-Newton on log-depth with IRLS weights
-        Hm = sp.csr_matrix((n, n))
-        g = zeta * (t - t0) + gamma * (lap @ t)
-        for F, dF, G, u in zip(Fs, dFs, Gs, uses):
-            r = model.residuals(F, albedo)
-            w = model.weights(r, lam, est, u)
-            M, b = model.gauss_newton_blocks(dF, r, w, albedo)
-            Mbig = sp.bmat([[sp.diags(M[a, c]) for c in range(3)] for a in range(3)], format="csr")
-            Hm = Hm + G.T @ Mbig @ G
-            g = g + G.T @ b.ravel()
-        tiny = 1e-12 * max(float(Hm.diagonal().mean()), 1e-30)  # keeps H definite if zeta = 0
-        Hm = (Hm + gamma * lap + sp.diags(np.full(n, zeta + tiny))).tocsr()
-        delta, amg, iters = _pcg(Hm, -g, amg, opts)
+        # 1. Gauss-Newton system on log-depth with the IRLS weights of the current residuals
+        if M is None:
+            w = model.weights(r, lam, est)
+            M, b = model.gauss_newton_blocks(F, dF, r, w, albedo)
+            tm.lap("blocks")
+        g = b[0] + Du.T @ b[1] + Dv.T @ b[2] + zeta * (t - t0) + gamma * (lap @ t)
+        M[0, 0] += zeta + 1e-12 * max(float(np.mean(M[0, 0])), 1e-30)  # the prior; definite if zeta = 0
+        Hm = normal.assemble(M, (gamma, gamma))
+        M = None  # used; the next iteration's blocks come from the accepted depth
+        tm.lap("assemble")
+        # 2. Inexact Newton: the forcing term loosens CG while the gradient is still large
+        g_norm = float(np.linalg.norm(g))
+        eta = _forcing(g_norm, g_prev, eta, opts)
+        eta = max(eta, np.sqrt(opts.cg_rtol)) if coarse else eta
+        g_prev = g_norm
+        delta, iters = pcg.solve(Hm, -g, eta)
         info["cg_iters"].append(iters)
+        info["cg_rtol"].append(eta)
+        tm.lap("cg")
+        # 3. Line search on the joint energy, albedo refitted at each trial depth. When the model
+        # predicts less than energy_rtol of decrease, the level has converged by that criterion:
+        # the full step is taken if it does not raise the energy, and no halvings are tried.
+        predicted = -float(g @ delta) - 0.5 * float(delta @ (Hm @ delta))
+        converged = predicted < opts.energy_rtol * e_cur
         accepted = False
-        for k in range(opts.line_search_steps + 1):
+        for k in range(1 if converged else opts.line_search_steps + 1):
             t_new = t + 0.5**k * delta
-            F_new = shade(t_new)
-            e_new = energy(F_new, albedo, t_new)
-            if e_new <= e_alb:
+            F_new, dF_new = shade(t_new, derivatives=k == 0)
+            alb_new, r_new = refit(F_new, albedo)
+            e_new = model.data_energy(r_new, lam, est) + prior(t_new)
+            if e_new <= e_cur:
                 accepted = True
                 break
             info["rejected_steps"] += 1
+        tm.lap("line_search")
         if bar is not None:
             bar.update(1)
         if not accepted:
-            info["energy"].append(e_alb)
-            info["stop"] = "no_descent"
+            info["stop"] = "energy_rtol" if converged else "no_descent"
             break
-        t = t_new
-        out = shade(t, True)
-        Fs = [o[0] for o in out]
-        dFs = [o[1:] for o in out]
+        if dF_new is None:
+            F_new, dF_new = shade(t_new, True)
+        t, F, dF, albedo, r = t_new, F_new, dF_new, alb_new, r_new
         nrm_new = normals(t)
         change = float(np.degrees(np.median(np.arccos(np.clip(np.sum(nrm * nrm_new, 1), -1, 1)))))
         nrm = nrm_new
+        info["normal_change_deg"].append(change)
         rel = (e_cur - e_new) / max(e_cur, 1e-300)
         e_cur = e_new
         info["energy"].append(e_cur)
-        if rel < opts.energy_rtol:
+        tm.lap("line_search")
+        if rel < opts.energy_rtol or converged:
             info["stop"] = "energy_rtol"
             break
         if change < opts.normal_tol_deg:
             info["stop"] = "normal_tol"
             break
     info["iterations"] = len(info["energy"]) - 1
-    # Final albedo and per-pixel diagnostics at the accepted depth.
-    albedo = fit_albedo(Fs, albedo)
+    info["amg_setups"] = pcg.setups
+    # Final albedo and per-pixel diagnostics at the accepted depth (the refit cannot raise the energy).
+    albedo, r = refit(F, albedo)
     u_np = lv["usable"]
     cnt = u_np.sum(axis=(0, 1))
-    cnt_s = sq = wsum = 0
-    for F, u in zip(Fs, uses):
-        r = model.residuals(F, albedo)
-        sq = sq + be.numpy(u * r * r).sum(axis=(0, 1))
-        wsum = wsum + be.numpy(model.weights(r, lam, est, u)).sum(axis=(0, 1))
-        cnt_s = cnt_s + be.numpy(u).sum(axis=(0, 1))
-    rms = np.sqrt(sq / np.maximum(cnt_s, 1))
-    conf = (cnt / (u_np.shape[0] * u_np.shape[1])) * (wsum / np.maximum(cnt_s, 1))
+    sq = be.numpy(model.usable * r * r).sum(axis=(0, 1))
+    wsum = be.numpy(model.weights(r, lam, est)).sum(axis=(0, 1))
+    rms = np.sqrt(sq / np.maximum(cnt, 1))
+    conf = (cnt / (u_np.shape[0] * u_np.shape[1])) * (wsum / np.maximum(cnt, 1))
     result = {
         "normals": nrm,
         "albedo": be.numpy(albedo),
         "residual": np.where(cnt > 0, rms, np.nan),
         "confidence": np.clip(conf, 0, 1),
-        "has_gradient": has_grad,
+        "has_gradient": ops["has_grad"],
     }
+    tm.lap("finish")
+    info["seconds"] = {k: round(v, 4) for k, v in tm.seconds.items()}
     return _embed(t, mk), result, info
+
+
+def _robust_scale(be: Backend, r, images: np.ndarray, usable: np.ndarray, opts: SolverOptions) -> float:
+    """Estimator scale lambda from the residuals of the usable samples, floored relative to the images.
+
+    Parameters
+    ----------
+    r : (L, 3, N) residuals on the backend; images : (L, 3, N) normalised images; usable : (L, 3, N) bool
+    """
+    # Medians over a regular subsample: up to 10^7 samples at full resolution, and a median of
+    # 2 10^5 is as good a scale estimate as it needs to be.
+    step = max(1, usable.size // 200_000)
+    u = usable.reshape(-1)[::step]
+    if not u.any():
+        return 1e-12
+    med_i = float(np.median(images.reshape(-1)[::step][u]))
+    r_sub = be.numpy(r.reshape(-1)[::step])[u]
+    return max(opts.robust_scale * robust.mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
 
 
 def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -438,20 +568,129 @@ def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return full
 
 
-def _pcg(Hm: sp.csr_matrix, rhs: np.ndarray, amg, opts: SolverOptions):
-    """Conjugate gradient preconditioned by smoothed-aggregation AMG (hierarchy reused while it works)."""
-    import pyamg
+def _forcing(g_norm: float, g_prev: float | None, eta_prev: float | None, opts: SolverOptions) -> float:
+    """CG tolerance of an inexact Newton step (Eisenstat and Walker 1996, choice 2, safeguarded).
 
-    if amg is None:
-        amg = pyamg.smoothed_aggregation_solver(
-            Hm, symmetry="symmetric", max_coarse=100, coarse_solver="splu"
-        ).aspreconditioner(cycle="V")
-    count = [0]
+    eta = 0.9 (|g_k| / |g_k-1|)^2: solve the linear system only as accurately as the outer iteration
+    is converging -- tighter is wasted work, since the Gauss-Newton model itself is approximate.
+    """
+    if g_prev is None or eta_prev is None:
+        return opts.cg_rtol_max
+    eta = 0.9 * (g_norm / max(g_prev, 1e-300)) ** 2
+    if 0.9 * eta_prev**2 > 0.1:  # do not let the tolerance drop abruptly
+        eta = max(eta, 0.9 * eta_prev**2)
+    return float(min(opts.cg_rtol_max, max(opts.cg_rtol, eta)))
 
-    def cb(_):
-        count[0] += 1
 
-    x, _ = spla.cg(Hm, rhs, rtol=opts.cg_rtol, maxiter=opts.cg_maxiter, M=amg, callback=cb)
-    if count[0] > 30:  # the matrix drifted away from the one the hierarchy was built for
-        amg = None
-    return x, amg, count[0]
+class _Krylov:
+    """Preconditioned conjugate gradient for the Gauss-Newton systems of one pyramid level.
+
+    Jacobi-preconditioned CG is tried first, capped at ``opts.cg_jacobi_iters``: the first steps of a
+    warm-started level are loose (inexact Newton) and converge in a few cheap iterations, where a
+    smoothed-aggregation AMG hierarchy would cost more to build than the whole solve. Otherwise
+    (or once a hierarchy exists) CG preconditioned by AMG V-cycles continues from that iterate. The
+    matrix changes little between iterations (weights and shading drift), so the hierarchy is kept
+    and rebuilt only when its convergence factor per CG iteration degrades past 0.85.
+    """
+
+    def __init__(self, opts: SolverOptions):
+        self.opts = opts
+        self.amg = None
+        self.setups = 0
+
+    def solve(self, Hm: sp.csr_matrix, rhs: np.ndarray, rtol: float) -> tuple[np.ndarray, int]:
+        """Approximate solution of Hm x = rhs to ``|r| <= rtol |rhs|``; returns x and CG iterations."""
+        count = [0]
+
+        def cb(_):
+            count[0] += 1
+
+        x = None
+        # Jacobi only for loose solves: below 1e-2 it needed more iterations than it is worth.
+        if self.amg is None and self.opts.cg_jacobi_iters > 0 and rtol >= 1e-2:
+            inv_diag = 1.0 / Hm.diagonal()
+            jac = spla.LinearOperator(Hm.shape, matvec=lambda v: inv_diag * v.ravel(), dtype=np.float64)
+            x, status = spla.cg(Hm, rhs, rtol=rtol, maxiter=self.opts.cg_jacobi_iters, M=jac, callback=cb)
+            if status == 0:
+                return x, count[0]
+        if self.amg is None:
+            import pyamg
+
+            # improve_candidates=None: the constant near-null space is right for this operator, and
+            # the smoothing of candidates cost a third of the setup for no gain in convergence.
+            ml = pyamg.smoothed_aggregation_solver(
+                Hm, symmetry="symmetric", max_coarse=300, coarse_solver="splu", improve_candidates=None
+            )
+            self.amg = ml.aspreconditioner(cycle="V")
+            self.setups += 1
+        start = count[0]
+        x, _ = spla.cg(Hm, rhs, x0=x, rtol=rtol, maxiter=self.opts.cg_maxiter, M=self.amg, callback=cb)
+        iters = max(count[0] - start, 1)
+        achieved = float(np.linalg.norm(rhs - Hm @ x)) / max(float(np.linalg.norm(rhs)), 1e-300)
+        if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > 0.85:
+            self.amg = None  # the matrix drifted away from the one the hierarchy was built for
+        return x, count[0]
+
+
+def _robust_scale(be: Backend, r, images: np.ndarray, usable: np.ndarray, opts: SolverOptions) -> float:
+    """Estimator scale lambda from the residuals of the usable samples, floored relative to the images.
+
+    Parameters
+    ----------
+    r : (L, 3, N) residuals on the backend; images : (L, 3, N) normalised images; usable : (L, 3, N) bool
+    """
+    # Medians over a regular subsample: up to 10^7 samples at full resolution, and a median of
+    # 2 10^5 is as good a scale estimate as it needs to be.
+    step = max(1, usable.size // 200_000)
+    u = usable.reshape(-1)[::step]
+    if not u.any():
+        return 1e-12
+    med_i = float(np.median(images.reshape(-1)[::step][u]))
+    r_sub = be.numpy(r.reshape(-1)[::step])[u]
+    return max(opts.robust_scale * robust.mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
+
+
+def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    full = np.zeros(mask.shape)
+    full[mask] = values
+    return full
+
+
+class _AmgCG:
+    """Conjugate gradient preconditioned by smoothed-aggregation AMG, hierarchy kept across solves.
+
+    The Gauss-Newton matrix of one level changes little from one iteration to the next (weights and
+    shading drift), so the hierarchy built for the first one keeps preconditioning well; it is rebuilt
+    only when its convergence factor per CG iteration degrades.
+    """
+
+    def __init__(self, opts: SolverOptions):
+        self.opts = opts
+        self.amg = None
+        self.factor = None  # convergence factor per iteration right after the last setup
+        self.setups = 0
+
+    def solve(self, Hm: sp.csr_matrix, rhs: np.ndarray, rtol: float) -> tuple[np.ndarray, int]:
+        import pyamg
+
+        if self.amg is None:
+            ml = pyamg.smoothed_aggregation_solver(Hm, symmetry="symmetric", max_coarse=300, coarse_solver="splu")
+            self.amg = ml.aspreconditioner(cycle="V")
+            self.setups += 1
+            fresh = True
+        else:
+            fresh = False
+        count = [0]
+
+        def cb(_):
+            count[0] += 1
+
+        x, _ = spla.cg(Hm, rhs, rtol=rtol, maxiter=self.opts.cg_maxiter, M=self.amg, callback=cb)
+        iters = max(count[0], 1)
+        achieved = float(np.linalg.norm(rhs - Hm @ x)) / max(float(np.linalg.norm(rhs)), 1e-300)
+        factor = min(max(achieved, 1e-16) ** (1 / iters), 1.0)
+        if fresh:
+            self.factor = factor
+        elif factor > max(self.factor, 1e-3) ** 0.5:  # twice as many iterations per digit: rebuild
+            self.amg = None
+        return x, count[0]
