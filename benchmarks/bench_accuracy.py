@@ -39,9 +39,11 @@ def row(label: str, kind: str, comp: str, result, press, seconds: float) -> str:
     e = evaluate(result, press.ground_truth)
     c, a = e["contact"], e["all"]
     roi = result.report["roi"]
-    return (f"| {label} | {kind} | {comp} | {roi[2]}x{roi[3]} | {c['aae_deg']:.2f} | {a['aae_deg']:.2f} | "
-            f"{c['mabse']:.4f} | {a['mabse']:.4f} | {c['depth_rmse_mm']:.3f} | {a['depth_rmse_mm']:.3f} | "
-            f"{seconds:.0f} |")
+    return (
+        f"| {label} | {kind} | {comp} | {roi[2]}x{roi[3]} | {c['aae_deg']:.2f} | {a['aae_deg']:.2f} | "
+        f"{c['mabse']:.4f} | {a['mabse']:.4f} | {c['depth_rmse_mm']:.3f} | {a['depth_rmse_mm']:.3f} | "
+        f"{seconds:.0f} |"
+    )
 
 
 def timed(fn):
@@ -102,9 +104,11 @@ def main() -> None:
 
     # LED self-calibration: on direct light it is exact (tests/solver/test_twin.py); with one bounce the
     # interreflection the model lacks leaks into the LED parameters.
-    lines += ["| calibration capture | max abs Psi error | max mu error | max direction error (deg) | "
-              "max position error (mm) | sphere AAE contact, calibrated LEDs, reference + dent (deg) |",
-              "|---|---|---|---|---|---|"]
+    lines += [
+        "| calibration capture | max abs Psi error | max mu error | max direction error (deg) | "
+        "max position error (mm) | sphere AAE contact, calibrated LEDs, reference + dent (deg) |",
+        "|---|---|---|---|---|---|",
+    ]
     sphere = load_press(root / "sphere_b1")
     roi = rois["sphere"]
     for label, cap in (("bounces 0, no noise", flat_ideal), (f"bounces 1, {args.spp} spp, noise", flat)):
@@ -120,9 +124,14 @@ def main() -> None:
         print(lines[-1], flush=True)
 
     if not args.no_ablation:
-        lines += ["", "LED ablation (sphere, bounces 1, noise, compensated: reference + dent; "
-                  "paper: 9.86 deg at 3 LEDs, ~7.3 at 12):",
-                  "", "| LEDs | AAE contact (deg) | AAE ROI (deg) | MabsE contact |", "|---|---|---|---|"]
+        lines += [
+            "",
+            "LED ablation (sphere, bounces 1, noise, compensated: reference + dent; "
+            "paper: 9.86 deg at 3 LEDs, ~7.3 at 12):",
+            "",
+            "| LEDs | AAE contact (deg) | AAE ROI (deg) | MabsE contact |",
+            "|---|---|---|---|",
+        ]
         for n, subset in SUBSETS.items():
             p = load_press(root / "sphere_b1", led_subset=subset)
             ref = load_press(root / "flat_b1", led_subset=subset)

@@ -23,7 +23,9 @@ def run(args) -> int:
     print(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))
     for i, (led, sd) in enumerate(zip(cal.leds, cal.std)):
         r, g, b = led.intensity
-        print(f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {sd['mu']:>6.3f} "
-              f"{sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}")
+        print(
+            f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {sd['mu']:>6.3f} "
+            f"{sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}"
+        )
     print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {cal.albedo})")
     return 0

@@ -14,14 +14,26 @@ def register(subparsers) -> None:
     p.add_argument("press", help="press folder, or a folder of press folders")
     p.add_argument("--roi", nargs="+", metavar="V", help="x0 y0 w h (pixels) or 'auto' (around the contact)")
     p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
-    p.add_argument("--reference", metavar="REF_PRESS",
-                   help="press folder of the undeformed dome (same camera, LEDs, exposure): its interreflections "
-                   "are estimated and subtracted from every press before solving (and --roi auto compares to it)")
-    p.add_argument("--dent-interreflection", action=argparse.BooleanOptionalAction, default=True,
-                   help="with --reference, also correct for the dent's own interreflection (one diffuse bounce "
-                   "over the solved surface, then a second solve; default on)")
-    p.add_argument("--coating-albedo", type=float, default=0.8, metavar="A",
-                   help="the coating's reflectance (0-1) for --dent-interreflection (default 0.8, the twin's)")
+    p.add_argument(
+        "--reference",
+        metavar="REF_PRESS",
+        help="press folder of the undeformed dome (same camera, LEDs, exposure): its interreflections "
+        "are estimated and subtracted from every press before solving (and --roi auto compares to it)",
+    )
+    p.add_argument(
+        "--dent-interreflection",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="with --reference, also correct for the dent's own interreflection (one diffuse bounce "
+        "over the solved surface, then a second solve; default on)",
+    )
+    p.add_argument(
+        "--coating-albedo",
+        type=float,
+        default=0.8,
+        metavar="A",
+        help="the coating's reflectance (0-1) for --dent-interreflection (default 0.8, the twin's)",
+    )
     p.add_argument("--backend", choices=("numpy", "torch"), default="numpy")
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="recompute even if a result exists")
@@ -88,14 +100,27 @@ def run(args) -> int:
         chosen = leds
         if leds is not None and subset is None and len(leds) != len(press.leds):
             raise ConfigError(f"{args.leds}: {len(leds)} LEDs, but {folder} has {len(press.leds)}")
-        result = solve_press(press, roi=roi, leds=chosen, options=options, backend=args.backend, progress=True,
-                             indirect=ref, dent_interreflection=args.dent_interreflection,
-                             coating_albedo=args.coating_albedo)
+        result = solve_press(
+            press,
+            roi=roi,
+            leds=chosen,
+            options=options,
+            backend=args.backend,
+            progress=True,
+            indirect=ref,
+            dent_interreflection=args.dent_interreflection,
+            coating_albedo=args.coating_albedo,
+        )
         save_result(result, out, press.ground_truth, overwrite=True)
         rep = result.report
         log.info(
             "%s: %d/%d pixels reconstructed, %d with too few LEDs, dead LEDs %s, %.1f s -> %s",
-            folder.name, rep["pixels_reconstructed"], rep["pixels_solved"], rep["pixels_too_few_leds"],
-            [i + 1 for i in rep["dead_leds"]], rep["seconds"], out,
+            folder.name,
+            rep["pixels_reconstructed"],
+            rep["pixels_solved"],
+            rep["pixels_too_few_leds"],
+            [i + 1 for i in rep["dead_leds"]],
+            rep["seconds"],
+            out,
         )
     return 0

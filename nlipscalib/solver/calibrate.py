@@ -35,8 +35,12 @@ class LedCalibration:
     """Per LED RMS residual, linear image units."""
 
     def to_json(self) -> dict:
-        return {"gauge": "mean Psi = 1 per channel, uniform albedo", "albedo": list(self.albedo),
-                "std": self.std, "rms": self.rms}
+        return {
+            "gauge": "mean Psi = 1 per channel, uniform albedo",
+            "albedo": list(self.albedo),
+            "std": self.std,
+            "rms": self.rms,
+        }
 
 
 def _unit(theta, phi):
@@ -89,9 +93,13 @@ def calibrate_leds(presses, initial=None, stride: int = 2, loss: str = "cauchy")
     fitted, stds, rms = [], [], []
     for i, led in enumerate(leds0):
         d = np.asarray(led.direction)
-        p0 = np.concatenate([
-            np.zeros(3), [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])], led.position,
-        ])
+        p0 = np.concatenate(
+            [
+                np.zeros(3),
+                [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])],
+                led.position,
+            ]
+        )
         # initial intensity: least-squares scale of the nominal model
         geo = _model(p0, x, n)
         k0 = (geo * img[i] * ok[i]).sum(0) / np.maximum((geo * geo * ok[i]).sum(0), 1e-30)
@@ -123,10 +131,12 @@ def calibrate_leds(presses, initial=None, stride: int = 2, loss: str = "cauchy")
     for f, sd, k in zip(fitted, stds, K):
         psi = k / albedo
         leds.append(Led(tuple(f[6:9]), tuple(_unit(f[4], f[5])), float(max(f[3], 0.0)), tuple(psi)))
-        std.append({
-            "intensity": list(psi * sd[:3]),
-            "mu": float(sd[3]),
-            "direction_deg": float(np.degrees(np.hypot(sd[4], np.sin(f[4]) * sd[5]))),
-            "position_mm": list(sd[6:9]),
-        })
+        std.append(
+            {
+                "intensity": list(psi * sd[:3]),
+                "mu": float(sd[3]),
+                "direction_deg": float(np.degrees(np.hypot(sd[4], np.sin(f[4]) * sd[5]))),
+                "position_mm": list(sd[6:9]),
+            }
+        )
     return LedCalibration(tuple(leds), tuple(float(a) for a in albedo), std, rms)

@@ -15,8 +15,10 @@ from ..errors import ShapeError
 def _check(est: np.ndarray, gt: np.ndarray, mask, name: str, last: int | None):
     est, gt = np.asarray(est, dtype=np.float64), np.asarray(gt, dtype=np.float64)
     if est.shape != gt.shape or (last is not None and est.shape[-1] != last):
-        raise ShapeError(f"{name}: estimate {est.shape} and ground truth {gt.shape} must match" +
-                         (f" and end in {last}" if last else ""))
+        raise ShapeError(
+            f"{name}: estimate {est.shape} and ground truth {gt.shape} must match"
+            + (f" and end in {last}" if last else "")
+        )
     grid = est.shape[:-1] if last else est.shape
     m = np.ones(grid, bool) if mask is None else np.asarray(mask, bool)
     if m.shape != grid:

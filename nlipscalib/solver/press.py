@@ -149,8 +149,17 @@ def solve_press(
 
     def run(light):
         data = images if light is None else compensate(images, light)
-        return solve(data, press.camera, leds, prior_depth=prior, mask=mask, saturated=saturated,
-                     options=options, backend=backend, progress=progress)
+        return solve(
+            data,
+            press.camera,
+            leds,
+            prior_depth=prior,
+            mask=mask,
+            saturated=saturated,
+            options=options,
+            backend=backend,
+            progress=progress,
+        )
 
     result = run(indirect)
     dent = dent_interreflection and indirect is not None and press.reference is not None

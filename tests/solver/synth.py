@@ -143,5 +143,15 @@ def make_press(folder, kind="sphere", depth=1.5, size=(96, 72), leds=None, lin_h
         valid=valid,
         contact=valid & (np.abs(z - zr) > 1e-3),
     )
-    return write_press(folder, cam, leds, RESPONSE, dark, stored, to_stored(tri), {"source": "tests.solver.synth",
-                       "kind": kind}, reference=ref, ground_truth=gt)
+    return write_press(
+        folder,
+        cam,
+        leds,
+        RESPONSE,
+        dark,
+        stored,
+        to_stored(tri),
+        {"source": "tests.solver.synth", "kind": kind},
+        reference=ref,
+        ground_truth=gt,
+    )

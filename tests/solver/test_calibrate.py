@@ -10,8 +10,14 @@ def test_led_self_calibration_recovers_parameters(tmp_path):
     true = synth.ring_leds(jitter=3)
     flat = load_press(synth.make_press(tmp_path / "ref", "none", leds=true))
     rng = np.random.default_rng(0)
-    init = [Led(tuple(np.add(t.position, rng.normal(0, 0.3, 3))), tuple(np.add(t.direction, rng.normal(0, 0.08, 3))),
-                t.mu * 1.3) for t in true]
+    init = [
+        Led(
+            tuple(np.add(t.position, rng.normal(0, 0.3, 3))),
+            tuple(np.add(t.direction, rng.normal(0, 0.08, 3))),
+            t.mu * 1.3,
+        )
+        for t in true
+    ]
     cal = calibrate_leds(flat, initial=init, stride=3)
     psi = np.array([t.intensity for t in true])
     psi /= psi.mean(0)  # the documented gauge

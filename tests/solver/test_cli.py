@@ -27,7 +27,21 @@ def test_solve_eval_calibrate_cli(presses, tmp_path, capsys):
     leds = tmp_path / "leds.json"
     assert main(["calibrate-leds", str(presses["none"]), "--out", str(leds), "--stride", "4"]) == 0
     assert len(json.loads(leds.read_text())["leds"]) == 12
-    assert main(["solve", str(press), "--leds", str(leds), "--overwrite", "--config", str(cfg),
-                 "--out", str(tmp_path / "o")]) == 0
+    assert (
+        main(
+            [
+                "solve",
+                str(press),
+                "--leds",
+                str(leds),
+                "--overwrite",
+                "--config",
+                str(cfg),
+                "--out",
+                str(tmp_path / "o"),
+            ]
+        )
+        == 0
+    )
     assert np.isfinite(load_result(tmp_path / "o").normals).all()
     assert main(["solve", str(press), "--roi", "1", "2"]) == 2

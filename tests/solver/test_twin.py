@@ -70,8 +70,14 @@ def perturbed(leds, rng):
         axis /= np.linalg.norm(axis)
         tilt = np.radians(5.0)
         direction = np.cos(tilt) * d + np.sin(tilt) * axis  # axis is perpendicular to d
-        out.append(Led(tuple(np.add(led.position, offset)), tuple(direction), led.mu * 1.3,
-                       tuple(0.8 * np.asarray(led.intensity))))
+        out.append(
+            Led(
+                tuple(np.add(led.position, offset)),
+                tuple(direction),
+                led.mu * 1.3,
+                tuple(0.8 * np.asarray(led.intensity)),
+            )
+        )
     return out
 
 
@@ -141,8 +147,21 @@ def test_dent_interreflection_beats_reference_compensation(root, one_bounce):
 
     # the CLI's --reference does the same as solve_press(..., indirect=<undeformed capture>)
     out = root / "cli_out"
-    assert main(["solve", str(root / "sphere_b1"), "--reference", str(root / "flat_b1"),
-                 "--roi", *map(str, roi), "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "solve",
+                str(root / "sphere_b1"),
+                "--reference",
+                str(root / "flat_b1"),
+                "--roi",
+                *map(str, roi),
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     cli = load_result(out)
     assert cli.report["indirect_compensation"] is True and cli.report["dent_interreflection"] is True
     np.testing.assert_allclose(cli.normals, dent.normals, atol=1e-5, equal_nan=True)
