@@ -76,9 +76,9 @@ def run(args) -> int:
     from tqdm import tqdm
 
     from ..config import from_mapping, read_config_file
-    from ..core.capture import find_presses, load_press
-    from ..errors import ConfigError
-    from ..solver import SolverOptions, save_result, solve_press
+    from ..core.capture import find_presses
+    from ..errors import ConfigError, NlipsError
+    from ..solver import SolverOptions, save_result
     from ..solver.io import RESULT_FILE, result_dir
 
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
@@ -89,28 +89,22 @@ def run(args) -> int:
         raise ConfigError(f"{args.press}: no press folders found")
     if args.out and len(presses) > 1:
         raise ConfigError("--out only applies to a single press")
+    if args.reference:  # the undeformed dome is the reference, not a press to solve
+        presses = [p for p in presses if p.resolve() != Path(args.reference).resolve()]
+    failed = []
     for folder in tqdm(presses, desc="presses", disable=len(presses) == 1):
         out = result_dir(folder, args.out)
         if (out / RESULT_FILE).is_file() and not args.overwrite:
             log.info("%s: result exists, skipped (use --overwrite)", out)
             continue
-        press = load_press(folder, led_subset=subset)
-        # the reference capture is reloaded per press: cheap, and keeps an LED subset consistent
-        ref = load_press(args.reference, led_subset=subset) if args.reference else None
-        chosen = leds
-        if leds is not None and subset is None and len(leds) != len(press.leds):
-            raise ConfigError(f"{args.leds}: {len(leds)} LEDs, but {folder} has {len(press.leds)}")
-        result = solve_press(
-            press,
-            roi=roi,
-            leds=chosen,
-            options=options,
-            backend=args.backend,
-            progress=True,
-            indirect=ref,
-            dent_interreflection=args.dent_interreflection,
-            coating_albedo=args.coating_albedo,
-        )
+        try:
+            press, result = _solve_one(folder, args, roi, subset, leds, options)
+        except NlipsError as exc:
+            if len(presses) == 1:
+                raise
+            failed.append(folder.name)  # one bad press must not stop a batch
+            log.error("%s: %s", folder.name, exc)
+            continue
         save_result(result, out, press.ground_truth, overwrite=True)
         rep = result.report
         log.info(
@@ -123,4 +117,31 @@ def run(args) -> int:
             rep["seconds"],
             out,
         )
-    return 0
+    if failed:
+        log.error("%d of %d presses failed: %s", len(failed), len(presses), ", ".join(failed))
+    return 1 if failed else 0
+
+
+def _solve_one(folder, args, roi, subset, leds, options):
+    """Load one press (and the reference capture) and solve it; returns (press, result)."""
+    from ..core.capture import load_press
+    from ..errors import ConfigError
+    from ..solver import solve_press
+
+    press = load_press(folder, led_subset=subset)
+    # the reference capture is reloaded per press: cheap, and keeps an LED subset consistent
+    ref = load_press(args.reference, led_subset=subset) if args.reference else None
+    if leds is not None and subset is None and len(leds) != len(press.leds):
+        raise ConfigError(f"{args.leds}: {len(leds)} LEDs, but {folder} has {len(press.leds)}")
+    result = solve_press(
+        press,
+        roi=roi,
+        leds=leds,
+        options=options,
+        backend=args.backend,
+        progress=True,
+        indirect=ref,
+        dent_interreflection=args.dent_interreflection,
+        coating_albedo=args.coating_albedo,
+    )
+    return press, result

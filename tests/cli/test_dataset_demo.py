@@ -40,6 +40,14 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 0
     assert "0 rendered, 3 already there" in capsys.readouterr().out
 
+    # solving the whole dataset folder: the reference is used, not solved; a broken press is
+    # reported and the others are still solved
+    (out / "press_0001" / "led_03.png").write_bytes(b"broken")
+    code = main(["solve", str(out), "--roi", "auto", "--reference", str(out / "reference")])
+    assert code == 1
+    assert (out / "press_0000" / "nlips" / "result.npz").is_file()
+    assert not (out / "press_0001" / "nlips").exists() and not (out / "reference" / "nlips").exists()
+
 
 def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
     spec = tmp_path / "spec.toml"
