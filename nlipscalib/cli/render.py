@@ -20,7 +20,12 @@ def register(subparsers) -> None:
     p.add_argument("--bounces", type=int, default=None, help="interreflection bounces (0 = direct light)")
     p.add_argument("--variant", default=None, help="auto, llvm_ad_rgb, scalar_rgb or cuda_ad_rgb")
     p.add_argument("--threads", type=int, default=None, help="render threads (0 = all cores)")
-    p.add_argument("--seed", type=int, default=None, help="render and noise seed")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="render and noise seed (default: derived from the scene seed and the press)",
+    )
     p.add_argument("--width", type=int, default=None, help="image width, pixels")
     p.add_argument("--height", type=int, default=None, help="image height, pixels")
     p.add_argument("--out", required=True, help="press folder to write")

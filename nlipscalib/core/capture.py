@@ -139,19 +139,20 @@ class Press:
     reference: Reference | None = None
     ground_truth: GroundTruth | None = None
 
-    def linear(self, image: np.ndarray) -> np.ndarray:
+    def linear(self, image: np.ndarray, window=(slice(None), slice(None))) -> np.ndarray:
         """Dark-subtracted linear intensity, scaled so the sensor's full range is 1.
 
         Parameters
         ----------
-        image : (..., H, W, 3) uint16, stored values
+        image : (..., H, W, 3) uint16, stored values (or (..., h, w, 3) cut out with ``window``)
+        window : (rows, cols) slices that cut ``image`` out of the full frame; the dark frame is cut alike
 
         Returns
         -------
         (..., H, W, 3) float32, linear, 0 = dark frame, 1 = full scale
         """
         scale = self.response.white_level - self.response.black_level
-        return (image.astype(np.float32) - self.dark.astype(np.float32)) / np.float32(scale)
+        return (image.astype(np.float32) - self.dark[tuple(window)].astype(np.float32)) / np.float32(scale)
 
     def saturated(self, image: np.ndarray) -> np.ndarray:
         """(..., H, W, 3) bool -- stored value at or above the white level."""

@@ -7,7 +7,9 @@ noise, plus ground truth and the undeformed dome's Reference. Exposure is chosen
 
 from __future__ import annotations
 
+import json
 import logging
+import zlib
 
 import numpy as np
 
@@ -94,6 +96,16 @@ def tricolor_linear(images: np.ndarray) -> np.ndarray:
     return np.einsum("lhwc,lc->hwc", images, colours, dtype=np.float64)
 
 
+def press_seed(scene_seed: int, press_dict: dict | None) -> int:
+    """Deterministic seed of one press: the scene's seed mixed with a digest of the press description.
+
+    Two renders of the same press repeat exactly; two different presses (say a press and the
+    undeformed reference it is compared with) get independent sensor noise, as real captures do.
+    """
+    digest = zlib.crc32(json.dumps(press_dict, sort_keys=True).encode())
+    return int(np.random.SeedSequence([int(scene_seed), digest]).generate_state(1)[0])
+
+
 def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False, return_result=False):
     """Render one press (or the undeformed dome when ``press`` is None) into a press folder.
 
@@ -102,7 +114,8 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
     scene : SceneConfig
     press : PressConfig or None
     out_folder : path of the press folder to write
-    seed : render and noise seed (default ``scene.render.seed``)
+    seed : render and noise seed (default: derived from ``scene.render.seed`` and the press, so
+        different presses -- and the undeformed dome -- never share a noise realisation)
     overwrite : replace an existing folder
     return_result : also return the noise-free RenderResult (for tests)
 
@@ -114,8 +127,8 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
 
     if out_folder is None:
         raise ConfigError("render_press needs out_folder")
-    seed = scene.render.seed if seed is None else int(seed)
     mesh, contact, press_dict = _surface(scene, press)
+    seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
     ref_mesh, ref_gt = reference_ground_truth(scene)
     exposure, tri_exposure = scene_exposure(scene), scene_exposure(scene, tricolor=True)
     result = render_surface(scene, mesh, contact, seed=seed)

@@ -110,6 +110,7 @@ def solve(
     leds,
     *,
     prior_depth: np.ndarray | None = None,
+    prior_weights: np.ndarray | None = None,
     mask: np.ndarray | None = None,
     saturated: np.ndarray | None = None,
     options: SolverOptions | None = None,
@@ -127,6 +128,9 @@ def solve(
     prior_depth : (H, W) float, mm, or None
         Depth prior z0 (e.g. the undeformed dome, ``Press.reference.depth``); NaN where not gel.
         None: ``options.nominal_distance`` along every ray.
+    prior_weights : (H, W) float >= 0 or None
+        Per-pixel multiplier of the prior weight zeta (default 1): e.g. large where the gel is known
+        to be undeformed, which pins the absolute depth that near light determines only weakly.
     mask : (H, W) bool or None -- pixels to solve (default: where the prior is finite).
     saturated : (L, H, W, 3) bool or None -- samples to exclude as saturated.
     options : SolverOptions
@@ -184,13 +188,14 @@ def solve(
     data = data / np.float32(scale) if data.dtype == np.float32 else data / scale
     m = mask[crop]
     t0 = np.log(np.where(m, prior_depth[crop], 1.0))
+    w0 = _prior_weights(prior_weights, (H, W))[crop]
     pos, dirs, mu, psi = led_arrays(leds)
     keep = [i for i in range(len(leds)) if i not in report["dead_leds"]]
     pos, dirs, mu, psi = pos[keep], dirs[keep], mu[keep], psi[keep]
     data, use = data[keep], use[keep]
 
     be = Backend(backend, opts.dtype)
-    levels = _pyramid(cam, data, use, m, t0, opts)
+    levels = _pyramid(cam, data, use, m, t0, w0, opts)
     report["levels"] = []
     bar = None
     if progress:
@@ -324,8 +329,17 @@ def _resize(a: np.ndarray, shape: tuple[int, int], linear: bool = False) -> np.n
     return cv2.resize(a, (shape[1], shape[0]), interpolation=interp).astype(np.float64)
 
 
-def _pyramid(cam: Camera, data, use, mask, t0, opts: SolverOptions) -> list[dict]:
-    """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, rays."""
+def _prior_weights(weights, shape) -> np.ndarray:
+    if weights is None:
+        return np.ones(shape)
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.shape != shape or not np.all(np.isfinite(weights)) or weights.min() < 0:
+        raise ShapeError(f"prior_weights must be a finite, non-negative {shape} array, got {weights.shape}")
+    return weights
+
+
+def _pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> list[dict]:
+    """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, zeta, rays."""
     n_levels = opts.pyramid_levels
     if n_levels == 0:
         n_levels = 1
@@ -335,7 +349,7 @@ def _pyramid(cam: Camera, data, use, mask, t0, opts: SolverOptions) -> list[dict
     for k in range(n_levels):
         c = cam if k == 0 else cam.scaled(0.5**k)
         if k == 0:
-            d, u, mk, tk = data, use, mask, t0
+            d, u, mk, tk, wk = data, use, mask, t0, w0
         else:
             d = np.stack([_resize(img, c.shape) for img in data]).astype(data.dtype, copy=False)
             u = np.stack([_resize(x.astype(np.float32), c.shape) for x in use]) > 0.999
@@ -345,6 +359,7 @@ def _pyramid(cam: Camera, data, use, mask, t0, opts: SolverOptions) -> list[dict
                 / np.maximum(_resize(mask.astype(np.float32), c.shape), 1e-9)
             )
             tk = np.where(mk, tk, 0.0)
+            wk = _resize(w0.astype(np.float32), c.shape)
         if mk.sum() < 16:
             break
         q, qu, qv = geometry.ray_tables(c)
@@ -356,6 +371,7 @@ def _pyramid(cam: Camera, data, use, mask, t0, opts: SolverOptions) -> list[dict
                 "images": np.moveaxis(d[:, mk], 2, 1),  # (L, 3, N)
                 "usable": np.moveaxis(u[:, mk], 2, 1).astype(d.dtype),
                 "t0": tk,
+                "zeta": opts.prior_weight * wk[mk].astype(np.float64),  # (N,) per-pixel prior weight
                 "q": q[mk],
                 "ABC": (A, B, C),
             }
@@ -419,7 +435,7 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
     t0 = lv["t0"][mk]
     t = t_init[mk].copy()
     model = Model(be, lv["q"], A, B, C, pos, dirs, mu, psi, lv["images"], lv["usable"])
-    zeta = opts.prior_weight
+    zeta = lv["zeta"]
     n = len(t)
     tm.lap("setup")
 
@@ -428,7 +444,7 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
         return (out[0], out[1:]) if derivatives else (out, None)
 
     def prior(tt):
-        return zeta * float(np.sum((tt - t0) ** 2)) + gamma * float(tt @ (lap @ tt))
+        return float(np.sum(zeta * (tt - t0) ** 2)) + gamma * float(tt @ (lap @ tt))
 
     def refit(F, alb):
         """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise."""

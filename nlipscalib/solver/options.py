@@ -23,6 +23,12 @@ class SolverOptions:
     """Lower bound of lambda relative to the median usable intensity, so exact data is not over-trimmed."""
     prior_weight: float = 1e-3
     """zeta: weight of the depth prior sum (log z - log z0)^2, with images normalised to a 99th percentile of 1."""
+    anchor_weight: float = 1000.0
+    """Multiplier of zeta on pixels that the capture shows undeformed (:func:`solve_press` with a
+    reference): near light fixes absolute depth only weakly, and in a small ROI the depth scale drifts
+    (a coin press came out 5 % too close); the undeformed gel around the contact pins it. 0 = off."""
+    anchor_threshold: float = 1.5
+    """A pixel counts as undeformed when its contact misfit is at most this times the median misfit."""
     smoothness: float = 1e-3
     """gamma: weight of squared second differences of log-depth, relative to the data term's gradient
     curvature; tiny, it only ties together the pixel sub-lattices that central differences decouple."""
@@ -68,8 +74,10 @@ class SolverOptions:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"solver.{name} must be > 0, got {getattr(self, name)}")
-        if self.prior_weight < 0 or self.robust_floor < 0 or self.smoothness < 0:
-            raise ConfigError("solver.prior_weight, solver.smoothness and solver.robust_floor must be >= 0")
+        if min(self.prior_weight, self.robust_floor, self.smoothness, self.anchor_weight) < 0:
+            raise ConfigError(
+                "solver.prior_weight, solver.smoothness, solver.robust_floor and solver.anchor_weight must be >= 0"
+            )
         if self.max_iters < 1 or self.cg_maxiter < 1 or self.line_search_steps < 0 or self.cg_jacobi_iters < 0:
             raise ConfigError(
                 "solver.max_iters and solver.cg_maxiter must be >= 1, line_search_steps and cg_jacobi_iters >= 0"

@@ -10,7 +10,9 @@ from .nlips import SolveResult, solve
 from .options import SolverOptions
 
 
-def contact_misfit(press: Press, indirect: np.ndarray | None = None, reference: Press | None = None) -> np.ndarray:
+def contact_misfit(
+    press: Press, indirect: np.ndarray | None = None, reference: Press | None = None, window=(slice(None), slice(None))
+) -> np.ndarray:
     """Per-pixel relative misfit of the undeformed dome's shading to the LED images.
 
     Per pixel, the undeformed shading is fitted to the LED images with one scale per channel; where
@@ -24,24 +26,29 @@ def contact_misfit(press: Press, indirect: np.ndarray | None = None, reference: 
         images are the undeformed shading, interreflections included, so the contact stands out even
         where the direct model does not explain the light (bounces >= 1, real sensor). ``indirect``
         is then ignored. None: the direct model on ``press.reference``.
+    window : (rows, cols) slices -- evaluate only there (a crop, or a strided sample for statistics).
 
     Returns
     -------
-    (H, W) float64 -- RMS misfit over LEDs and channels relative to the images' RMS; NaN off the gel.
+    (h, w) float64 -- RMS misfit over LEDs and channels relative to the images' RMS over ``window``
+    (the whole (H, W) image by default); NaN off the gel.
     """
     from ..core.leds import led_shading
 
     if press.reference is None:
         raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
     ref = press.reference
-    valid = np.isfinite(ref.depth)
-    pts = np.nan_to_num(ref.depth)[..., None] / press.camera.rays[..., 2:3] * press.camera.rays
-    S = led_shading(np.where(valid[..., None], pts, 0), ref.normals.astype(np.float64), press.leds)
-    img = press.linear(press.led_images).astype(np.float64)
+    win = (slice(None),) + tuple(window)  # the same window on every (L, H, W, ...) stack
+    depth, rays = ref.depth[window], press.camera.rays[window]
+    valid = np.isfinite(depth)
+    pts = np.nan_to_num(depth)[..., None] / rays[..., 2:3] * rays
+    img = press.linear(press.led_images[win], window).astype(np.float64)
     if reference is not None:
-        S = reference.linear(reference.led_images).astype(np.float64)
-    elif indirect is not None:
-        img = img - indirect
+        S = reference.linear(reference.led_images[win], window).astype(np.float64)
+    else:
+        S = led_shading(np.where(valid[..., None], pts, 0), ref.normals[window].astype(np.float64), press.leds)
+        if indirect is not None:
+            img = img - indirect[win]
     alb = (S * img).sum(0) / np.maximum((S * S).sum(0), 1e-30)
     mis = np.sqrt(((alb * S - img) ** 2).sum((0, 3)) / np.maximum((img**2).sum((0, 3)), 1e-30))
     return np.where(valid, mis, np.nan)
@@ -146,6 +153,10 @@ def solve_press(
         mask &= box
     images = press.linear(press.led_images)
     saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
+    options = options or SolverOptions()
+    # the direct model minus the indirect estimate: the same classification whether the indirect
+    # light came as a capture or as an array
+    weights = _anchor_weights(press, mask, options, indirect)
 
     def run(light):
         data = images if light is None else compensate(images, light)
@@ -154,6 +165,7 @@ def solve_press(
             press.camera,
             leds,
             prior_depth=prior,
+            prior_weights=weights,
             mask=mask,
             saturated=saturated,
             options=options,
@@ -175,4 +187,24 @@ def solve_press(
     result.report["prior"] = "reference" if prior is not None else "nominal_distance"
     result.report["indirect_compensation"] = indirect is not None
     result.report["dent_interreflection"] = bool(dent)
+    result.report["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
     return result
+
+
+def _anchor_weights(press: Press, mask, options: SolverOptions, indirect) -> np.ndarray | None:
+    """Prior weight multipliers: ``options.anchor_weight`` where the gel is seen undeformed, else 1.
+
+    The misfit to the undeformed dome is evaluated on the solve mask's bounding box only; its median,
+    the noise level the threshold is relative to, comes from a strided sample of the whole gel, so
+    that a box mostly filled by the contact does not raise the threshold.
+    """
+    if press.reference is None or options.anchor_weight <= 0 or not mask.any():
+        return None
+    rows, cols = np.nonzero(mask)
+    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    sample = contact_misfit(press, indirect, None, (slice(None, None, 4), slice(None, None, 4)))
+    median = float(np.nanmedian(sample))
+    weights = np.ones(mask.shape)
+    misfit = np.nan_to_num(contact_misfit(press, indirect, None, box), nan=np.inf)
+    weights[box] += options.anchor_weight * (misfit <= options.anchor_threshold * median)
+    return weights

@@ -5,6 +5,7 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
+from nlipscalib.config import to_mapping  # noqa: E402
 from nlipscalib.core import load_press  # noqa: E402
 from nlipscalib.sim.press import render_press, scene_exposure, tricolor_linear  # noqa: E402
 from nlipscalib.sim.scene import SceneConfig  # noqa: E402
@@ -63,3 +64,13 @@ def test_pressed_dome_has_contact_and_same_exposure(scene, tmp_path):
     p = load_press(render_press(scene.replace(camera={"width": 80, "height": 60}), press, tmp_path / "p", seed=2))
     assert p.ground_truth.contact.any()
     assert p.meta["provenance"]["press"]["depth"] == 1.5
+
+
+def test_default_seed_differs_between_presses_and_repeats_for_one():
+    from nlipscalib.sim.indent import IndenterConfig, PressConfig
+    from nlipscalib.sim.press import press_seed
+
+    a = to_mapping(PressConfig(IndenterConfig("sphere", 6.0), polar_deg=10.0, depth=1.0))
+    b = to_mapping(PressConfig(IndenterConfig("sphere", 6.0), polar_deg=10.0, depth=1.1))
+    assert press_seed(0, a) == press_seed(0, a)
+    assert len({press_seed(0, a), press_seed(0, b), press_seed(0, None), press_seed(1, a)}) == 4
