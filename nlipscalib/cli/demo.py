@@ -92,7 +92,7 @@ def _panels(press, result):
         err = np.where(shown, angular_error_map(result.normals, gt.normals), np.nan)
         panels[3:] = [
             Panel("NLiPs normals", normals_to_rgb(result.normals, shown)),
-            Panel("angular error", err, cmap="inferno", label="degrees", vmin=0, vmax=15),
+            Panel("angular error", err, cmap="inferno", label="degrees", vmin=0, vmax=10),
         ]
     return panels
 
