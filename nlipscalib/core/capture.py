@@ -339,7 +339,10 @@ def _check_subset(subset, n: int, folder: Path) -> list[int]:
     subset = [int(i) for i in subset]
     bad = [i for i in subset if not 0 <= i < n]
     if bad or len(set(subset)) != len(subset) or not subset:
-        raise CaptureError(f"{folder}: LED subset {subset} is invalid for {n} LEDs (0-based, unique, non-empty)")
+        raise CaptureError(
+            f"{folder}: LED subset {subset} (0-based; LEDs {[i + 1 for i in subset]} counting from 1) "
+            f"is invalid for {n} LEDs: indices must be unique, in range and at least one"
+        )
     return subset
 
 
