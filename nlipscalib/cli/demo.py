@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-DEMO_SPEC = Path(__file__).resolve().parents[2] / "scenes" / "datasets" / "demo.toml"
+DEMO_SPEC = Path(__file__).resolve().parents[1] / "scenes" / "datasets" / "demo.toml"
 
 
 def register(sub) -> None:

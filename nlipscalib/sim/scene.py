@@ -22,7 +22,8 @@ from ..core.leds import Led
 from ..errors import ConfigError
 
 DomeShape = Literal["hemisphere", "fingertip", "oblate", "capsule", "flat"]
-SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
+SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
+"""The shipped scenes (nlipscalib/scenes links to the repository's scenes/; installs carry a copy)."""
 DEFAULT_SCENE = SCENES_DIR / "nlipstac.toml"
 
 
