@@ -17,6 +17,19 @@ TMP_PREFIX = ".tmp-"
 """Prefix of in-progress files and folders; anything starting with it is an interrupted write."""
 
 
+def _umask() -> int:
+    mask = os.umask(0)  # the only portable way to read it is to set it
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()
+# mkstemp/mkdtemp create private (0600/0700) entries; results are shared data, so give them the
+# permissions an ordinary open()/mkdir() would have.
+FILE_MODE = 0o666 & ~_UMASK
+DIR_MODE = 0o777 & ~_UMASK
+
+
 def write_bytes(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temp file in the same folder, then rename)."""
     path = Path(path)
@@ -25,6 +38,7 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
+        os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -55,6 +69,7 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
     tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX + final.name + "-", dir=final.parent))
     try:
         yield tmp
+        os.chmod(tmp, DIR_MODE)
         if final.exists():
             old = final.with_name(TMP_PREFIX + final.name + "-old")
             shutil.rmtree(old, ignore_errors=True)

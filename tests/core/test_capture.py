@@ -53,6 +53,18 @@ def test_round_trip_keeps_everything(tmp_path):
     assert find_presses(tmp_path) == [folder]
 
 
+def test_written_files_get_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    from nlipscalib.core.atomic import DIR_MODE, FILE_MODE
+
+    folder = _press(tmp_path / "p1")
+    assert stat.S_IMODE(os.stat(folder).st_mode) == DIR_MODE
+    assert stat.S_IMODE(os.stat(folder / "meta.json").st_mode) == FILE_MODE
+    assert FILE_MODE & stat.S_IRUSR and DIR_MODE & stat.S_IXUSR
+
+
 def test_write_refuses_to_clobber_and_leaves_no_temp(tmp_path):
     _press(tmp_path / "p1")
     with pytest.raises(FileExistsError):
