@@ -47,6 +47,10 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     assert code == 1
     assert (out / "press_0000" / "nlips" / "result.npz").is_file()
     assert not (out / "press_0001" / "nlips").exists() and not (out / "reference" / "nlips").exists()
+    capsys.readouterr()
+    assert main(["eval", str(out)]) == 0  # scores what was solved, names what was not
+    table = capsys.readouterr().out
+    assert "press_0000" in table and "not solved, skipped: press_0001, reference" in table
 
 
 def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
