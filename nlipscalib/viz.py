@@ -12,18 +12,19 @@ from .core.atomic import write_bytes
 
 
 def normals_to_rgb(normals: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """Normal map as an image.
+    """Normal map as an image, in the usual normal-map colours: a surface facing the camera is blue.
 
     Parameters
     ----------
-    normals : (H, W, 3) float, unit, camera frame
+    normals : (H, W, 3) float, unit, camera frame (toward the camera, docs/conventions.md)
     mask : (H, W) bool, optional -- pixels outside are shown black
 
     Returns
     -------
-    rgb : (H, W, 3) float in [0, 1], RGB = (n + 1) / 2
+    rgb : (H, W, 3) float in [0, 1], RGB = ((n_x, -n_y, -n_z) + 1) / 2 -- x right, y up, z toward the viewer
     """
-    rgb = np.clip((np.nan_to_num(normals) + 1.0) / 2.0, 0.0, 1.0)
+    n = np.nan_to_num(normals)
+    rgb = np.clip((np.stack([n[..., 0], -n[..., 1], -n[..., 2]], axis=-1) + 1.0) / 2.0, 0.0, 1.0)
     if mask is not None:
         rgb[~mask] = 0.0
     return rgb

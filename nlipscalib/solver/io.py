@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import io
 import json
 from pathlib import Path
 
 import numpy as np
 
 from ..core.atomic import atomic_dir
+from ..core.imageio import save_npz
 from ..core.leds import Led
 from ..errors import CaptureError
 from .nlips import SolveResult
@@ -26,9 +26,7 @@ def save_result(result: SolveResult, folder: str | Path, ground_truth=None, over
     """Write result.npz, report.json and PNGs (normals, depth, residual[, error]) atomically into ``folder``."""
     folder = Path(folder)
     with atomic_dir(folder, overwrite=overwrite) as tmp:
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **result.arrays())
-        (tmp / RESULT_FILE).write_bytes(buf.getvalue())
+        save_npz(tmp / RESULT_FILE, result.arrays())
         (tmp / REPORT_FILE).write_text(json.dumps(_jsonable(result.report), indent=2) + "\n")
         _figures(result, tmp, ground_truth)
     return folder
@@ -74,31 +72,19 @@ def _jsonable(obj):
 
 
 def _figures(result: SolveResult, folder: Path, ground_truth) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    from ..viz import Panel, contact_sheet, normals_to_rgb
     from .metrics import aae, angular_error_map
 
-    def save(name, image, title, cmap=None, label=None, vmin=None, vmax=None):
-        fig, ax = plt.subplots(figsize=(6, 4.5), dpi=100)
-        im = ax.imshow(image, cmap=cmap, vmin=vmin, vmax=vmax)
-        ax.set_title(title)
-        ax.axis("off")
-        if label:
-            fig.colorbar(im, ax=ax, label=label)
-        fig.savefig(folder / name, bbox_inches="tight")
-        plt.close(fig)
-
-    n = result.normals
-    # Paper-style normal map: RGB = ((n_x, -n_y, -n_z) + 1) / 2 with the camera looking at the surface.
-    rgb = np.clip((np.stack([n[..., 0], -n[..., 1], -n[..., 2]], -1) + 1) / 2, 0, 1)
-    save("normals.png", np.nan_to_num(rgb, nan=0.0), "normals")
-    save("depth.png", result.depth, "depth (mm)", "viridis", "mm")
-    save("residual.png", result.residual, "RMS residual (linear)", "magma", "linear intensity")
+    shown = result.reconstructed
+    figures = {
+        "normals.png": Panel("normals", normals_to_rgb(result.normals, shown)),
+        "depth.png": Panel("depth", result.depth, "viridis", "mm"),
+        "residual.png": Panel("RMS residual", result.residual, "magma", "linear intensity"),
+    }
     if ground_truth is not None:
-        err = angular_error_map(result.normals, ground_truth.normals)
-        err = np.where(result.reconstructed & ground_truth.valid, err, np.nan)
-        m = result.reconstructed & ground_truth.valid
-        save("error.png", err, f"angular error, AAE {aae(n, ground_truth.normals, m):.2f} deg", "jet", "deg", 0, 10)
+        m = shown & ground_truth.valid
+        err = np.where(m, angular_error_map(result.normals, ground_truth.normals), np.nan)
+        title = f"angular error, AAE {aae(result.normals, ground_truth.normals, m):.2f} deg"
+        figures["error.png"] = Panel(title, err, "jet", "deg", 0, 10)
+    for name, panel in figures.items():
+        contact_sheet([("", [panel])], folder / name, dpi=200)
