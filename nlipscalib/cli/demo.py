@@ -47,7 +47,7 @@ def run(args) -> int:
         rows.append((title, _panels(press, result)))
         if result is not None:
             table.append((job.name, job.press.indenter.kind, _scores(press, result)))
-    from ..viz import contact_sheet
+    from ..report import contact_sheet
 
     sheet = contact_sheet(rows, out / "contact_sheet.png")
     _print_table(table)
@@ -57,11 +57,11 @@ def run(args) -> int:
 
 def _solve(press):
     """NLiPs around the contact; the solution is cached in PRESS/nlips/."""
+    from ..core.reconstruction import has_reconstruction
     from ..solver import load_result, save_result, solve_press
-    from ..solver.io import RESULT_FILE
 
     folder = press.folder / "nlips"
-    if (folder / RESULT_FILE).is_file():
+    if has_reconstruction(folder):
         return load_result(folder)
     result = solve_press(press, roi="auto", progress=True)
     save_result(result, folder, ground_truth=press.ground_truth, overwrite=True)
@@ -77,8 +77,8 @@ def _scores(press, result) -> dict:
 def _panels(press, result):
     import numpy as np
 
+    from ..report import Panel, display_image, normals_to_rgb
     from ..solver import angular_error_map
-    from ..viz import Panel, display_image, normals_to_rgb
 
     gt = press.ground_truth
     panels = [

@@ -14,22 +14,22 @@ def run(args) -> int:
     import numpy as np
 
     from ..core.capture import find_presses, load_press
+    from ..core.reconstruction import has_reconstruction, reconstruction_dir
     from ..errors import CaptureError
     from ..solver import evaluate, load_result
-    from ..solver.io import RESULT_FILE, result_dir
 
     presses = find_presses(args.path)
     if not presses:
         raise CaptureError(f"{args.path}: no press folders found")
     rows, skipped = [], []
     for folder in presses:
-        if len(presses) > 1 and not (result_dir(folder) / RESULT_FILE).is_file():
+        if len(presses) > 1 and not has_reconstruction(reconstruction_dir(folder)):
             skipped.append(folder.name)  # e.g. a dataset's undeformed reference: nothing solved there
             continue
         press = load_press(folder)
         if press.ground_truth is None:
             raise CaptureError(f"{folder}: no ground truth (gt.npz) to evaluate against")
-        scores = evaluate(load_result(result_dir(folder)), press.ground_truth)[args.region]
+        scores = evaluate(load_result(reconstruction_dir(folder)), press.ground_truth)[args.region]
         rows.append((folder.name, scores))
     if not rows:
         raise CaptureError(f"{args.path}: no press has a solver result yet (run `nlips solve` first)")

@@ -77,9 +77,9 @@ def run(args) -> int:
 
     from ..config import from_mapping, read_config_file
     from ..core.capture import find_presses
+    from ..core.reconstruction import has_reconstruction, reconstruction_dir
     from ..errors import ConfigError, NlipsError
     from ..solver import SolverOptions, save_result
-    from ..solver.io import RESULT_FILE, result_dir
 
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
     roi = parse_roi(args.roi)
@@ -93,8 +93,8 @@ def run(args) -> int:
         presses = [p for p in presses if p.resolve() != Path(args.reference).resolve()]
     failed = []
     for folder in tqdm(presses, desc="presses", disable=len(presses) == 1):
-        out = result_dir(folder, args.out)
-        if (out / RESULT_FILE).is_file() and not args.overwrite:
+        out = reconstruction_dir(folder, args.out)
+        if has_reconstruction(out) and not args.overwrite:
             log.info("%s: result exists, skipped (use --overwrite)", out)
             continue
         try:

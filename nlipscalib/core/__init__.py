@@ -16,19 +16,28 @@ from .capture import (
     write_press,
 )
 from .leds import Led, led_arrays, led_shading, tricolor_groups
+from .reconstruction import Reconstruction, load_reconstruction, save_reconstruction
+from .sensor import CameraConfig, DomeConfig, LedConfig, SensorDesign
 
 __all__ = [
     "Camera",
+    "CameraConfig",
+    "DomeConfig",
     "GroundTruth",
     "Led",
+    "LedConfig",
     "Press",
+    "Reconstruction",
     "Reference",
+    "SensorDesign",
     "SensorResponse",
     "find_presses",
     "is_press_folder",
     "led_arrays",
     "led_shading",
     "load_press",
+    "load_reconstruction",
+    "save_reconstruction",
     "tricolor_groups",
     "write_press",
 ]

@@ -25,11 +25,11 @@ import scipy.sparse.linalg as spla
 import trimesh
 from scipy.spatial import cKDTree
 
+from ..core.sensor import DomeConfig
 from ..core.tolerances import CONTACT_MM, NORMAL_EPS
 from ..errors import ConfigError
 from .dome import check_dome, dome_surface_point, make_dome, project_to_dome
 from .indenters import HeightField, IndenterConfig, indenter_heightfield, make_indenter
-from .scene import DomeConfig
 
 SPREAD_PER_THICKNESS = 2.0
 """The gel's deformation fades to zero this many gel thicknesses beyond the indenter's footprint."""

@@ -3,9 +3,9 @@
 Never imports nlipscalib.sim or nlipscalib.device: it works from captures (``Press``) or plain arrays.
 """
 
+from ..core.metrics import aae, angular_error_map, depth_rmse, evaluate, mabse
 from .calibrate import LedCalibration, calibrate_leds
 from .io import load_leds, load_result, save_leds, save_result
-from .metrics import aae, angular_error_map, depth_rmse, evaluate, mabse
 from .nlips import SolveResult, exclusions, solve
 from .options import SolverOptions
 from .press import auto_roi, solve_press

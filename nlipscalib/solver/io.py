@@ -7,40 +7,22 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.atomic import atomic_dir
-from ..core.imageio import save_npz
 from ..core.leds import Led
+from ..core.reconstruction import (
+    Reconstruction,
+    load_reconstruction,
+    save_reconstruction,
+)
 from ..errors import CaptureError
-from .nlips import SolveResult
-
-RESULT_DIR = "nlips"
-RESULT_FILE = "result.npz"
-REPORT_FILE = "report.json"
 
 
-def result_dir(press_folder, out: str | Path | None = None) -> Path:
-    return Path(out) if out is not None else Path(press_folder) / RESULT_DIR
+def save_result(result: Reconstruction, folder: str | Path, ground_truth=None, overwrite: bool = False) -> Path:
+    """Write the reconstruction and its PNG figures (normals, depth, residual[, error]) atomically into ``folder``."""
+    return save_reconstruction(result, folder, overwrite, lambda tmp: _figures(result, tmp, ground_truth))
 
 
-def save_result(result: SolveResult, folder: str | Path, ground_truth=None, overwrite: bool = False) -> Path:
-    """Write result.npz, report.json and PNGs (normals, depth, residual[, error]) atomically into ``folder``."""
-    folder = Path(folder)
-    with atomic_dir(folder, overwrite=overwrite) as tmp:
-        save_npz(tmp / RESULT_FILE, result.arrays())
-        (tmp / REPORT_FILE).write_text(json.dumps(_jsonable(result.report), indent=2) + "\n")
-        _figures(result, tmp, ground_truth)
-    return folder
-
-
-def load_result(folder: str | Path) -> SolveResult:
-    folder = Path(folder)
-    path = folder / RESULT_FILE
-    if not path.is_file():
-        raise CaptureError(f"{path}: no solver result (run `nlips solve` first)")
-    with np.load(path) as data:
-        arrays = {k: data[k] for k in data.files}
-    report = json.loads((folder / REPORT_FILE).read_text()) if (folder / REPORT_FILE).is_file() else {}
-    return SolveResult(**arrays, report=report)
+def load_result(folder: str | Path) -> Reconstruction:
+    return load_reconstruction(folder)
 
 
 def save_leds(path: str | Path, leds, extra: dict | None = None) -> Path:
@@ -61,19 +43,9 @@ def load_leds(path: str | Path) -> tuple[Led, ...]:
         raise CaptureError(f"{path}: not a valid LED file ({exc})") from None
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
-
-
-def _figures(result: SolveResult, folder: Path, ground_truth) -> None:
-    from ..viz import Panel, contact_sheet, normals_to_rgb
-    from .metrics import aae, angular_error_map
+def _figures(result: Reconstruction, folder: Path, ground_truth) -> None:
+    from ..core.metrics import aae, angular_error_map
+    from ..report import Panel, contact_sheet, normals_to_rgb
 
     shown = result.reconstructed
     figures = {

@@ -30,6 +30,7 @@ import scipy.sparse.linalg as spla
 
 from ..core.camera import Camera
 from ..core.leds import led_arrays
+from ..core.reconstruction import Reconstruction
 from ..errors import ShapeError
 from . import geometry, robust
 from .kernel import Backend, Model
@@ -38,33 +39,8 @@ from .options import SolverOptions
 log = logging.getLogger(__name__)
 
 
-@dataclasses.dataclass(frozen=True)
-class SolveResult:
-    """Output of :func:`solve`; every map is (H, W[, 3]) in the full image, NaN where not reconstructed."""
-
-    depth: np.ndarray
-    """(H, W) float32, mm -- z in the camera frame."""
-    points: np.ndarray
-    """(H, W, 3) float32, mm, camera frame."""
-    normals: np.ndarray
-    """(H, W, 3) float32, unit, camera frame, toward the camera."""
-    albedo: np.ndarray
-    """(H, W, 3) float32 -- rho_c in linear image units per unit Psi (relative)."""
-    residual: np.ndarray
-    """(H, W) float32 -- RMS of the model-minus-image residual over usable LEDs/channels, linear units."""
-    confidence: np.ndarray
-    """(H, W) float32 in [0, 1] -- usable fraction of LED images times mean robust weight; 0 if not solved."""
-    usable_leds: np.ndarray
-    """(H, W) int16 -- LEDs with at least one usable (lit, unsaturated, alive) channel at the pixel."""
-    mask: np.ndarray
-    """(H, W) bool -- pixels that were unknowns of the solve."""
-    reconstructed: np.ndarray
-    """(H, W) bool -- mask and enough usable LEDs and a valid gradient: the maps are defined here."""
-    report: dict
-    """What was excluded (dead LEDs, dead/saturated/shadowed/too-few pixels), per-level iterations, energy, time."""
-
-    def arrays(self) -> dict:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "report"}
+SolveResult = Reconstruction
+"""The solver's output is the core reconstruction format (:class:`nlipscalib.core.reconstruction.Reconstruction`)."""
 
 
 def exclusions(images: np.ndarray, saturated: np.ndarray | None, options: SolverOptions):

@@ -1,6 +1,6 @@
 import numpy as np
 
-from nlipscalib.viz import Panel, contact_sheet, normals_to_rgb
+from nlipscalib.report import Panel, contact_sheet, normals_to_rgb
 
 
 def test_normal_map_colours_known_answers():

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.atomic import write_bytes
+from ..core.atomic import write_bytes
 
 
 def normals_to_rgb(normals: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from nlipscalib.core.metrics import aae, angular_error_map, depth_rmse, mabse
 from nlipscalib.errors import ShapeError
-from nlipscalib.solver import aae, angular_error_map, depth_rmse, mabse
 
 
 def test_metrics_values():

@@ -1,0 +1,165 @@
+"""The analytic gel surface of a dome design, in the dome frame (mm): shape rules, ray hits, normals.
+
+Pure numpy, shared by the twin's meshes (sim/dome.py) and everything that needs the undeformed surface
+of a design without rendering (device/, the solver's reference).
+
+Shape rules (checked by :func:`check_dome`):
+
+* ``hemisphere``: sphere of ``radius``; ``height`` is ignored.
+* ``fingertip``: prolate half-ellipsoid, needs ``height > radius``.
+* ``oblate``: flattened half-ellipsoid, needs ``height < radius`` (``height == radius`` is a hemisphere).
+* ``capsule``: cylinder of ``radius`` capped by a hemisphere, total height ``height > radius``.
+* ``flat``: square pad of half side ``radius`` at ``z = height > 0``, seen from below.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ConfigError
+from .sensor import DomeConfig
+from .tolerances import NORMAL_EPS
+
+
+def check_dome(cfg: DomeConfig) -> None:
+    """Raise :class:`ConfigError` when ``cfg`` describes no buildable dome."""
+    for name in ("radius", "thickness", "edge_length", "contact_edge_length"):
+        if not getattr(cfg, name) > 0:
+            raise ConfigError(f"dome.{name} must be > 0, got {getattr(cfg, name)}")
+    if cfg.shape != "hemisphere" and not cfg.height > 0:
+        raise ConfigError(f"dome.height must be > 0, got {cfg.height}")
+    if cfg.shape == "fingertip" and not cfg.height > cfg.radius:
+        raise ConfigError(f"fingertip dome needs height > radius (got {cfg.height} <= {cfg.radius}); use oblate")
+    if cfg.shape == "oblate" and not cfg.height < cfg.radius:
+        raise ConfigError(f"oblate dome needs height < radius (got {cfg.height} >= {cfg.radius}); use fingertip")
+    if cfg.shape == "capsule" and not cfg.height > cfg.radius:
+        raise ConfigError(f"capsule dome needs height > radius (got {cfg.height} <= {cfg.radius})")
+    if cfg.edge_length > cfg.radius / 3:
+        raise ConfigError(f"dome.edge_length {cfg.edge_length} is too coarse for radius {cfg.radius}")
+    if cfg.contact_edge_length > cfg.edge_length:
+        raise ConfigError("dome.contact_edge_length must be <= dome.edge_length")
+    if cfg.shape != "flat" and cfg.thickness >= min(cfg.radius, _apex_height(cfg)):
+        raise ConfigError(f"dome.thickness {cfg.thickness} must be smaller than the dome's radius and height")
+
+
+def _apex_height(cfg: DomeConfig) -> float:
+    return cfg.radius if cfg.shape == "hemisphere" else cfg.height
+
+
+def _ray_hit(cfg: DomeConfig, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where rays from the dome-frame origin meet the surface, and the inward normal there.
+
+    Parameters
+    ----------
+    directions : (N, 3) float, unit, dome frame
+
+    Returns
+    -------
+    points : (N, 3) float, mm, dome frame
+    normals : (N, 3) float, unit, inward, dome frame
+    """
+    d = np.asarray(directions, dtype=float)
+    a = cfg.radius
+    if cfg.shape == "flat":
+        with np.errstate(divide="ignore"):
+            t = np.where(d[:, 2] > NORMAL_EPS, cfg.height / d[:, 2], np.inf)
+        normals = np.tile([0.0, 0.0, -1.0], (len(d), 1))
+        return t[:, None] * d, normals
+    if cfg.shape == "capsule":
+        return _capsule_hit(cfg, d)
+    c = a if cfg.shape == "hemisphere" else cfg.height
+    t = 1.0 / np.sqrt((d[:, 0] ** 2 + d[:, 1] ** 2) / a**2 + d[:, 2] ** 2 / c**2)
+    p = t[:, None] * d
+    n = -p / np.array([a**2, a**2, c**2])
+    return p, n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _capsule_hit(cfg: DomeConfig, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a, zc = cfg.radius, cfg.height - cfg.radius
+    rho = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_wall = np.where(rho > NORMAL_EPS, a / rho, np.inf)
+    on_wall = t_wall * d[:, 2] <= zc
+    # far root of |t d - c|^2 = a^2 with c = (0, 0, zc)
+    b = d[:, 2] * zc
+    t_cap = b + np.sqrt(np.maximum(b**2 - zc**2 + a**2, 0.0))
+    t = np.where(on_wall, t_wall, t_cap)
+    p = t[:, None] * d
+    n_cap = -(p - [0.0, 0.0, zc]) / a
+    with np.errstate(invalid="ignore"):
+        n_wall = -np.stack([d[:, 0] / rho, d[:, 1] / rho, np.zeros(len(d))], 1)
+    return p, np.where(on_wall[:, None], n_wall, n_cap)
+
+
+def _direction(polar_deg, azimuth_deg) -> np.ndarray:
+    th, ph = np.radians(polar_deg), np.radians(azimuth_deg)
+    return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
+
+
+def dome_surface_point(cfg: DomeConfig, polar_deg: float, azimuth_deg: float) -> tuple[np.ndarray, np.ndarray]:
+    """Point of the surface seen from the dome-frame origin in a given direction.
+
+    Parameters
+    ----------
+    cfg : DomeConfig
+    polar_deg : float, degrees
+        Angle of the ray from +z (0 = apex).
+    azimuth_deg : float, degrees
+        Angle of the ray from +x toward +y.
+
+    Returns
+    -------
+    point : (3,) float, mm, dome frame
+    inward_normal : (3,) float, unit, dome frame, pointing toward the camera
+
+    Raises
+    ------
+    ConfigError
+        When the ray leaves the dome through its open base or misses the flat pad.
+    """
+    check_dome(cfg)
+    d = _direction(float(polar_deg), float(azimuth_deg))[None]
+    if cfg.shape != "flat" and not 0 <= polar_deg < 90:
+        raise ConfigError(f"polar angle {polar_deg} deg is off the dome (it must be in [0, 90) deg)")
+    p, n = _ray_hit(cfg, d)
+    if not np.all(np.isfinite(p)) or (cfg.shape == "flat" and np.max(np.abs(p[0, :2])) > cfg.radius):
+        raise ConfigError(f"polar angle {polar_deg} deg at azimuth {azimuth_deg} deg misses the flat pad")
+    return p[0], n[0]
+
+
+def project_to_dome(cfg: DomeConfig, points: np.ndarray) -> np.ndarray:
+    """Move points along their ray from the dome-frame origin onto the surface.
+
+    Parameters
+    ----------
+    points : (N, 3) float, mm, dome frame (not at the origin)
+
+    Returns
+    -------
+    (N, 3) float, mm, dome frame, on the analytic surface
+    """
+    points = np.asarray(points, dtype=float)
+    if cfg.shape == "flat":
+        out = points.copy()
+        out[:, 2] = cfg.height
+        return out
+    d = points / np.linalg.norm(points, axis=1, keepdims=True)
+    return _ray_hit(cfg, d)[0]
+
+
+def dome_inward_normals(cfg: DomeConfig, points: np.ndarray) -> np.ndarray:
+    """Exact inward normals of the analytic surface at (or radially nearest to) ``points``.
+
+    Parameters
+    ----------
+    points : (N, 3) float, mm, dome frame
+
+    Returns
+    -------
+    (N, 3) float, unit, dome frame, pointing toward the camera
+    """
+    points = np.asarray(points, dtype=float)
+    if cfg.shape == "flat":
+        return np.tile([0.0, 0.0, -1.0], (len(points), 1))
+    d = points / np.linalg.norm(points, axis=1, keepdims=True)
+    return _ray_hit(cfg, d)[1]

@@ -1,0 +1,174 @@
+"""The reconstruction format: what NLiPs (and later NLiPsNet) writes and what training and scoring read.
+
+A reconstruction folder (usually ``PRESS/nlips/``, see docs/formats.md)::
+
+    nlips/
+      result.npz     the maps below, over the full image grid
+      report.json    format, format_version, software_version, and what made it (options, inputs, timings)
+      *.png          optional figures (reporting), never read back
+
+Written atomically (the folder appears complete or not at all); :func:`load_reconstruction`
+validates format, version, keys, shapes and dtypes and names the file and the problem.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..errors import CaptureError
+from .atomic import atomic_dir, write_json
+from .imageio import save_npz
+
+FORMAT_NAME = "nlipscalib.reconstruction"
+FORMAT_VERSION = 1
+RESULT_DIR = "nlips"
+RESULT_FILE = "result.npz"
+REPORT_FILE = "report.json"
+
+# name: (number of dims, trailing 3?, dtype kind)
+ARRAYS = {
+    "depth": (2, "f"),
+    "points": (3, "f"),
+    "normals": (3, "f"),
+    "albedo": (3, "f"),
+    "residual": (2, "f"),
+    "confidence": (2, "f"),
+    "usable_leds": (2, "i"),
+    "mask": (2, "b"),
+    "reconstructed": (2, "b"),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Reconstruction:
+    """Depth and normals of one press; every map is (H, W[, 3]) over the full image, NaN where not reconstructed."""
+
+    depth: np.ndarray
+    """(H, W) float32, mm -- z in the camera frame."""
+    points: np.ndarray
+    """(H, W, 3) float32, mm, camera frame."""
+    normals: np.ndarray
+    """(H, W, 3) float32, unit, camera frame, toward the camera."""
+    albedo: np.ndarray
+    """(H, W, 3) float32 -- rho_c in linear image units per unit Psi (relative)."""
+    residual: np.ndarray
+    """(H, W) float32 -- RMS of the model-minus-image residual over usable LEDs/channels, linear units."""
+    confidence: np.ndarray
+    """(H, W) float32 in [0, 1] -- usable fraction of LED images times mean robust weight; 0 if not solved."""
+    usable_leds: np.ndarray
+    """(H, W) int16 -- LEDs with at least one usable (lit, unsaturated, alive) channel at the pixel."""
+    mask: np.ndarray
+    """(H, W) bool -- pixels that were unknowns of the solve."""
+    reconstructed: np.ndarray
+    """(H, W) bool -- mask and enough usable LEDs and a valid gradient: the maps are defined here."""
+    report: dict
+    """What made it and what happened: exclusions (dead LEDs, dead/saturated/shadowed/too-few pixels),
+    per-level iterations, energy, times, options and inputs."""
+
+    def arrays(self) -> dict:
+        """The maps by name (everything but the report)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "report"}
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.depth.shape)
+
+
+def reconstruction_dir(press_folder: str | Path, out: str | Path | None = None) -> Path:
+    """Where the reconstruction of ``press_folder`` lives (``out`` when given, else PRESS/nlips)."""
+    return Path(out) if out is not None else Path(press_folder) / RESULT_DIR
+
+
+def has_reconstruction(folder: str | Path) -> bool:
+    """True when ``folder`` holds a (complete, atomically written) reconstruction."""
+    return (Path(folder) / RESULT_FILE).is_file()
+
+
+def save_reconstruction(rec: Reconstruction, folder: str | Path, overwrite: bool = False, extra_files=None) -> Path:
+    """Write ``rec`` atomically into ``folder``.
+
+    Parameters
+    ----------
+    rec : Reconstruction
+    folder : output folder (created; replaced when ``overwrite``)
+    extra_files : optional callable ``f(tmp_folder)`` that adds files (figures) before the folder is
+        moved into place, so they appear together with the result or not at all.
+    """
+    folder = Path(folder)
+    with atomic_dir(folder, overwrite=overwrite) as tmp:
+        save_npz(tmp / RESULT_FILE, rec.arrays())
+        head = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "software_version": __version__}
+        write_json(tmp / REPORT_FILE, head | jsonable(rec.report))
+        if extra_files is not None:
+            extra_files(tmp)
+    return folder
+
+
+def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None) -> Reconstruction:
+    """Load and validate a reconstruction folder.
+
+    Parameters
+    ----------
+    folder : the reconstruction folder (e.g. PRESS/nlips)
+    shape : (H, W) the image it must match (the press's camera), or None
+
+    Raises
+    ------
+    CaptureError naming the file: missing, unreadable or truncated, wrong format or version, missing
+    arrays, wrong shapes or dtypes.
+    """
+    folder = Path(folder)
+    path, rpath = folder / RESULT_FILE, folder / REPORT_FILE
+    if not path.is_file():
+        raise CaptureError(f"{path}: no reconstruction there (run `nlips solve` first)")
+    report = _read_report(rpath)
+    try:
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise CaptureError(f"{path}: damaged or truncated reconstruction ({exc})") from None
+    missing = sorted(set(ARRAYS) - set(arrays))
+    if missing:
+        raise CaptureError(f"{path}: missing arrays {missing}")
+    grid = tuple(arrays["depth"].shape) if shape is None else tuple(shape)
+    for name, (ndim, kind) in ARRAYS.items():
+        a = arrays[name]
+        want = grid + ((3,) if ndim == 3 else ())
+        if a.shape != want or a.dtype.kind != kind:
+            raise CaptureError(f"{path}: array '{name}' is {a.shape} {a.dtype}, expected {want} of kind '{kind}'")
+    return Reconstruction(**{k: arrays[k] for k in ARRAYS}, report=report)
+
+
+def _read_report(path: Path) -> dict:
+    if not path.is_file():
+        raise CaptureError(f"{path}: missing (an incomplete reconstruction folder)")
+    try:
+        report = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CaptureError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(report, dict) or report.get("format") != FORMAT_NAME:
+        raise CaptureError(f"{path}: 'format' must be {FORMAT_NAME!r}")
+    if report.get("format_version") != FORMAT_VERSION:
+        raise CaptureError(
+            f"{path}: format_version {report.get('format_version')!r} is not supported (expected {FORMAT_VERSION})"
+        )
+    return report
+
+
+def jsonable(obj):
+    """A copy of ``obj`` that json can write (numpy scalars and arrays become Python numbers and lists)."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj

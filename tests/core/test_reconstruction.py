@@ -1,0 +1,41 @@
+import numpy as np
+import pytest
+
+from nlipscalib.core.reconstruction import Reconstruction, load_reconstruction, save_reconstruction
+from nlipscalib.errors import CaptureError
+
+
+def _rec(h=4, w=5):
+    f = np.float32
+    return Reconstruction(
+        depth=np.full((h, w), 10, f),
+        points=np.zeros((h, w, 3), f),
+        normals=np.tile(np.array([0, 0, -1], f), (h, w, 1)),
+        albedo=np.ones((h, w, 3), f),
+        residual=np.zeros((h, w), f),
+        confidence=np.ones((h, w), f),
+        usable_leds=np.full((h, w), 12, np.int16),
+        mask=np.ones((h, w), bool),
+        reconstructed=np.ones((h, w), bool),
+        report={"seconds": np.float64(1.5), "dead_leds": [3]},
+    )
+
+
+def test_round_trip_keeps_maps_and_report(tmp_path):
+    save_reconstruction(_rec(), tmp_path / "nlips")
+    back = load_reconstruction(tmp_path / "nlips", shape=(4, 5))
+    assert np.array_equal(back.depth, _rec().depth) and back.report["dead_leds"] == [3]
+    assert back.report["format"] == "nlipscalib.reconstruction"
+
+
+def test_damaged_or_mismatched_reconstruction_names_the_file(tmp_path):
+    folder = save_reconstruction(_rec(), tmp_path / "nlips")
+    with pytest.raises(CaptureError, match="result.npz.*expected"):
+        load_reconstruction(folder, shape=(8, 8))
+    data = (folder / "result.npz").read_bytes()
+    (folder / "result.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(CaptureError, match="result.npz: damaged"):
+        load_reconstruction(folder)
+    (folder / "report.json").write_text('{"format": "other"}')
+    with pytest.raises(CaptureError, match="report.json"):
+        load_reconstruction(folder)
