@@ -47,6 +47,21 @@ def tmp_prefix(name: str) -> str:
     return f"{TMP_PREFIX}{name}{OWNER_SEP}{HOST}{OWNER_SEP}{os.getpid()}{OWNER_SEP}"
 
 
+def check_writable(folder: str | Path, longest_name: int = 0) -> None:
+    """Fail fast (OSError naming the path) when ``folder`` cannot receive output, before long work.
+
+    Creates and removes a probe folder named like the longest temporary folder an item of
+    ``longest_name`` characters will need, so a read-only disk, a permission problem or a name too
+    long shows up now, not after minutes of work. (A full disk may still show up later: work must
+    stop at the first failed write.)
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    probe = folder / (tmp_prefix("x" * longest_name) + "probe")
+    probe.mkdir()
+    probe.rmdir()
+
+
 def write_bytes(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temp file in the same folder, then rename)."""
     path = Path(path)
@@ -57,9 +72,10 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
             f.write(data)
         os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        _raise_with_path(exc, path)
         raise
     return path
 
@@ -106,8 +122,9 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
             _swap_in(tmp, final)
         else:
             _rename_no_replace(tmp, final)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        _raise_with_path(exc, final)
         raise
 
 
@@ -139,6 +156,12 @@ def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | 
 
 
 # ---------------------------------------------------------------------- internals
+def _raise_with_path(exc: BaseException, path: Path) -> None:
+    """Some writers (file.write, numpy, image libraries) raise OSError without the path: add it."""
+    if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
+        raise type(exc)(exc.errno, exc.strerror or str(exc), str(path)) from exc
+
+
 def _rename_no_replace(tmp: Path, final: Path) -> None:
     """Rename a folder into place; fails (FileExistsError) if ``final`` is a non-empty folder.
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import from_mapping, read_config_file
-from ..core.atomic import clean_interrupted, tmp_prefix, write_if_changed
+from ..core.atomic import check_writable, clean_interrupted, write_if_changed
 from ..core.capture import is_press_folder
 from ..errors import ConfigError
 from ..progress import progress_bar
@@ -173,18 +173,6 @@ def run_dataset(
     return result
 
 
-def check_writable(folder: Path, longest_name: int = 0) -> None:
-    """Fail fast (OSError naming ``folder``) when the output cannot be written, before any rendering.
-
-    Creates and removes a probe named like the longest temporary folder a press will need, so a
-    read-only disk, a permission problem or a name too long shows up now, not after minutes of work.
-    """
-    folder.mkdir(parents=True, exist_ok=True)
-    probe = folder / (tmp_prefix("x" * longest_name) + "probe")
-    probe.mkdir()
-    probe.rmdir()
-
-
 def manifest_text(spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> str:
     """dataset.json's content: what was asked (the whole spec, whatever ``--limit`` renders)."""
     from ..config import to_mapping
@@ -274,7 +262,7 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
     except FileExistsError:  # published by a process that lost its claim: the folder is whole
         return "skipped", None
     except OSError as exc:
-        return "oserror", (exc.errno, exc.strerror or str(exc), exc.filename)
+        return "oserror", (exc.errno, exc.strerror or str(exc), exc.filename or str(out / job.name))
     except Exception as exc:  # reported per press; the other presses go on
         return "failed", f"{type(exc).__name__}: {exc}"
 
