@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import from_mapping, read_config_file
+from ..config import check_count, check_range, from_mapping, read_config_file
 from ..core.atomic import check_writable, clean_interrupted, write_if_changed
 from ..core.capture import is_press_folder
 from ..errors import ConfigError
@@ -49,6 +49,9 @@ class GridSpec:
     spin_deg: tuple[float, ...] = (0.0,)
     """Rotations of the indenter about the press axis, degrees."""
 
+    def __post_init__(self):
+        _check_values(self, min_count=1)
+
 
 @dataclasses.dataclass(frozen=True)
 class RandomSpec:
@@ -66,6 +69,27 @@ class RandomSpec:
     """Range of depths, mm."""
     spin_deg: tuple[float, float] = (0.0, 360.0)
     """Range of spins, degrees."""
+
+    def __post_init__(self):
+        check_count("count", self.count, minimum=1)
+        _check_values(self, min_count=2)
+        for name in ("polar_deg", "azimuth_deg", "depth", "spin_deg"):
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise ConfigError(f"{name}: the range [{lo}, {hi}] is empty (low > high)")
+
+
+def _check_values(spec, min_count: int) -> None:
+    """Shared range checks of grid values and random ranges: polar angles, depths, indenters."""
+    if not spec.indenters:
+        raise ConfigError("indenters: give at least one indenter")
+    for name in ("polar_deg", "azimuth_deg", "depth", "spin_deg"):
+        if len(getattr(spec, name)) < min_count:
+            raise ConfigError(f"{name}: give at least {min_count} value(s)")
+    for v in spec.polar_deg:
+        check_range("polar_deg", v, 0.0, 90.0)
+    for v in spec.depth:
+        check_range("depth", v, 0.0, open_lo=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +114,7 @@ class DatasetSpec:
     def __post_init__(self):
         if (self.grid is None) == (self.random is None):
             raise ConfigError("give exactly one of [grid] and [random]")
+        check_count("seed", self.seed, minimum=0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,7 +131,28 @@ def load_dataset_spec(path: str | Path) -> tuple[DatasetSpec, SceneConfig]:
     scene_path = path.parent / spec.scene
     scene = load_scene(scene_path if scene_path.is_file() else spec.scene)
     sections = {k: v for k, v in (("render", spec.render), ("noise", spec.noise), ("camera", spec.camera)) if v}
-    return spec, scene.replace(**sections) if sections else scene
+    try:
+        scene = scene.replace(**sections) if sections else scene
+    except ConfigError as exc:  # an override out of range: name the spec file, not the scene
+        raise ConfigError(f"{path}: {str(exc).removeprefix('scene.')}") from None
+    _check_presses(spec, scene, path)
+    return spec, scene
+
+
+def _check_presses(spec: DatasetSpec, scene: SceneConfig, path: Path) -> None:
+    """Cheap checks of every press against the scene, so a bad one fails now, naming the spec file."""
+    from .indenters import make_indenter
+
+    mode = "grid" if spec.grid else "random"
+    for i, ind in enumerate((spec.grid or spec.random).indenters):
+        if ind.kind == "mesh":
+            try:
+                make_indenter(ind)
+            except ConfigError as exc:
+                raise ConfigError(f"{path}: {mode}.indenters[{i}]: {exc}") from None
+    depths = spec.grid.depth if spec.grid else spec.random.depth
+    if max(depths) > scene.dome.thickness:
+        raise ConfigError(f"{path}: {mode}.depth: {max(depths)} mm exceeds the gel thickness {scene.dome.thickness} mm")
 
 
 def expand_jobs(spec: DatasetSpec) -> list[PressJob]:
