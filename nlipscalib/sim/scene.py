@@ -20,6 +20,7 @@ from ..core.capture import SensorResponse
 from ..core.leds import Led
 from ..core.sensor import CameraConfig, DomeConfig, LedConfig, SensorDesign
 from ..errors import ConfigError
+from .render.variant import VARIANTS
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 """The shipped scenes (nlipscalib/scenes links to the repository's scenes/; installs carry a copy)."""
@@ -75,9 +76,6 @@ class NoiseConfig:
         return SensorResponse(bit_depth=self.bit_depth, black_level=self.black_level * (1 << shift), white_level=white)
 
 
-RENDER_VARIANTS = ("auto", "llvm_ad_rgb", "scalar_rgb", "cuda_ad_rgb")
-
-
 @dataclasses.dataclass(frozen=True)
 class RenderConfig:
     """Mitsuba settings."""
@@ -98,8 +96,8 @@ class RenderConfig:
         check_count("bounces", self.bounces, minimum=0)
         check_count("threads", self.threads, minimum=0)
         check_count("seed", self.seed, minimum=0)
-        if self.variant not in RENDER_VARIANTS:
-            raise ConfigError(f"variant must be one of {list(RENDER_VARIANTS)}, got {self.variant!r}")
+        if self.variant not in VARIANTS:
+            raise ConfigError(f"variant must be one of {list(VARIANTS)}, got {self.variant!r}")
 
 
 @dataclasses.dataclass(frozen=True)
