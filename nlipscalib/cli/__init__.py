@@ -77,7 +77,7 @@ def describe_os_error(exc: OSError, overwrite_flag: bool = False) -> str:
 
 def _fail(args, message: str) -> int:
     print(f"nlips {args.command}: error: {message}", file=sys.stderr)
-    logging.getLogger("nlipscalib").debug("error in nlips %s: %s", args.command, message)
+    progress.file_log(logging.ERROR, f"nlips {args.command}: {message}")
     return 2
 
 
