@@ -262,6 +262,7 @@ def _random_presses(spec: RandomSpec, seed: int) -> list[PressConfig]:
 
 def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) -> None:
     """Run jobs; jobs busy in another process are retried until done or taken over (owner died)."""
+    waited = False
     while todo:
         if pool:
             futures = {start(job): job for job in todo}
@@ -283,7 +284,10 @@ def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) 
             log.debug("press %s: %s", job.name, status)
             bar.update(1)
         if busy:
-            log.info("waiting for %d press(es) another process is rendering", len(busy))
+            (log.info if not waited else log.debug)(
+                "waiting for %d press(es) another process is rendering (taken over if it dies)", len(busy)
+            )
+            waited = True
             time.sleep(BUSY_POLL_S)
         todo = busy
 
