@@ -8,12 +8,15 @@ folders, which are cleaned before the run.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import itertools
 import json
 import logging
 import os
+import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -22,7 +25,7 @@ import numpy as np
 from ..config import check_count, check_range, from_mapping, read_config_file
 from ..core.atomic import check_writable, clean_interrupted, write_if_changed
 from ..core.capture import is_press_folder
-from ..errors import ConfigError
+from ..errors import ConfigError, NlipsError
 from ..progress import progress_bar
 from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
@@ -30,6 +33,8 @@ from .scene import SceneConfig, load_scene
 log = logging.getLogger(__name__)
 REFERENCE_NAME = "reference"
 MANIFEST = "dataset.json"
+GT_BYTES_PER_PIXEL = 4 + 12 + 12 + 2 + 4 + 12
+"""gt.npz (depth, points, normals, masks) and reference.npz (depth, normals) per pixel, uncompressed."""
 BUSY_POLL_S = 1.0
 """Seconds between checks on presses another process is rendering."""
 
@@ -198,6 +203,7 @@ def run_dataset(
     if not todo:
         return result
     check_writable(out, longest_name=max(len(j.name) for j in todo))
+    check_space(out, scene, len(todo))
     for stale in clean_interrupted(out):
         log.info("removed interrupted write %s", stale.name)
     cores = os.cpu_count() or 1
@@ -213,10 +219,40 @@ def run_dataset(
                 submit = lambda job: pool.submit(_render_job, scene, job, out, overwrite, stale_s)  # noqa: E731
                 try:
                     _rounds(todo, submit, result, bar, pool=True)
+                except BrokenProcessPool:
+                    raise NlipsError(
+                        f"{out}: a render process died (out of memory, or killed); finished presses are kept, "
+                        "run again to resume (fewer --workers needs less memory)"
+                    ) from None
                 except BaseException:
                     pool.shutdown(wait=True, cancel_futures=True)
                     raise
     return result
+
+
+def press_bytes(scene: SceneConfig) -> int:
+    """Rough upper bound of one press folder's size on disk: 16-bit RGB images + ground truth + reference."""
+    pixels = scene.camera.width * scene.camera.height
+    n_images = len(scene.led_models()) + 2  # LEDs, dark, tri-colour
+    return pixels * (n_images * 6 + GT_BYTES_PER_PIXEL)
+
+
+def check_space(out: Path, scene: SceneConfig, n_presses: int) -> None:
+    """No room for even one press: fail now (ENOSPC). Room for some only: warn that the run will stop."""
+    free = shutil.disk_usage(out).free
+    need = press_bytes(scene)
+    if free < need:
+        raise OSError(
+            errno.ENOSPC, f"No space left on device ({free >> 10} KiB free, a press needs ~{need >> 10} KiB)", str(out)
+        )
+    if free < need * n_presses:
+        log.warning(
+            "%s: %d MiB free, the %d presses may need up to %d MiB: the run will stop when the disk is full",
+            out,
+            free >> 20,
+            n_presses,
+            (need * n_presses) >> 20,
+        )
 
 
 def manifest_text(spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> str:
