@@ -34,6 +34,8 @@
 #define NS_PER_CYCLE (1e9 / FREQ)
 #define LATCH_CYCLES (50 * 16)  // a WS2812 latches after >= 50 us low (we wait 280 us in firmware)
 #define MAX_FRAME 512
+#define UCSR0B_ADDR 0xC1  // ATmega328P USART0 control register B (data space address)
+#define RXEN0_BIT 4
 
 static avr_t *avr;
 static const char *link_path;
@@ -230,6 +232,9 @@ int main(int argc, char **argv) {
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 6), pin_changed, NULL);
     avr_irq_t *uart_in = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
 
+    // Boot until the firmware listens (USART0 receiver enabled), as a host opening a board that has been
+    // powered for a while would find it; bytes sent before that would be lost, as on real hardware.
+    for (long i = 0; i < 20000000L && !(avr->data[UCSR0B_ADDR] & (1 << RXEN0_BIT)); i++) avr_run(avr);
     open_port();
     printf("READY %s\n", ptsname(master));
     fflush(stdout);
