@@ -315,11 +315,7 @@ class LedController:
         return f"LedController({self.url!r}, n_leds={self.info.n_leds if self.info else '?'})"
 
     def _check_index(self, index: int) -> int:
-        if not 0 <= int(index) < self.n_leds:
-            raise LedIndexError(
-                f"LED index {index} out of range: the board drives {self.n_leds} LEDs (0..{self.n_leds - 1})"
-            )
-        return int(index)
+        return _check_index(index, self.n_leds)
 
     # --- transactions ---------------------------------------------------------------------------------
     def _command(self, command: str, *args) -> p.Reply:
@@ -471,6 +467,12 @@ def _check_versions(url: str, info: p.BoardInfo) -> None:
             f"{url}: firmware {info.firmware} is not a {SUPPORTED_FIRMWARE_MAJOR}.x nlips LED firmware: "
             "flash firmware/ from this version of nlipscalib (firmware/README.md)"
         )
+
+
+def _check_index(index: int, n_leds: int) -> int:
+    if not 0 <= int(index) < n_leds:
+        raise LedIndexError(f"LED index {index} out of range: there are {n_leds} LEDs (0..{n_leds - 1})")
+    return int(index)
 
 
 def _check_colours(colours, n_leds: int) -> np.ndarray:
