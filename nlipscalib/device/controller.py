@@ -411,7 +411,7 @@ class LedController:
             return "garbage", None
         if marker == p.BANNER_START and body.startswith("BOOT"):
             info = p.decode_info(body[4:])
-            log.info("%s: board booted (session %s)", self.url, info.session_id)
+            log.debug("%s: board booted (session %s)", self.url, info.session_id)
             self._reset_seen = True
             return "banner", info
         if marker == p.REPLY_START:

@@ -6,10 +6,13 @@ so one parametrised suite (test_protocol_boards.py) checks both.
 
 from __future__ import annotations
 
+import atexit
 import ctypes.util
+import functools
 import os
 import shutil
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 
@@ -56,6 +59,15 @@ def build_firmware(build_dir: Path, nleds: int = FIRMWARE_LEDS) -> tuple[Path, P
     if result.returncode != 0:
         pytest.fail(f"firmware build failed:\n{result.stdout}\n{result.stderr}")
     return build_dir / "nlips-led.elf", build_dir / "simavr-harness"
+
+
+@functools.cache
+def firmware_build(nleds: int = FIRMWARE_LEDS) -> tuple[Path, Path]:
+    """build_firmware once per test process (every test module shares it); skips or fails without the tools."""
+    require_device_tools()
+    build_dir = Path(tempfile.mkdtemp(prefix="nlips-firmware-"))
+    atexit.register(shutil.rmtree, build_dir, ignore_errors=True)
+    return build_firmware(build_dir, nleds)
 
 
 class VirtualUnderTest:

@@ -11,7 +11,7 @@ import pytest
 from nlipscalib.device.controller import LedController
 
 from . import ledboards
-from .ledboards import SimavrUnderTest, build_firmware, require_device_tools
+from .ledboards import SimavrUnderTest, firmware_build
 
 # WS2812B timing windows, ns: the intersection of the original datasheet (T0H 400+-150, T1H 800+-150) and
 # the V5 one (T0H 220-380, T1H 580-1000); low times from 450 ns up to a few us are read as data.
@@ -21,15 +21,9 @@ TLOW_NS = (450, 5000)
 LATCH_US = 280  # V5 reset time (older parts: 50 us)
 
 
-@pytest.fixture(scope="module")
-def firmware(tmp_path_factory):
-    require_device_tools()
-    return build_firmware(tmp_path_factory.mktemp("fw"))
-
-
 @pytest.fixture
-def simavr(firmware, tmp_path):
-    board = SimavrUnderTest(*firmware, tmp_path / "tty")
+def simavr(tmp_path):
+    board = SimavrUnderTest(*firmware_build(), tmp_path / "tty")
     yield board
     board.close()
 
@@ -53,8 +47,7 @@ def test_ws2812_waveform_meets_the_datasheet_and_acks_follow_the_latch(simavr):
 
 
 def test_firmware_for_24_leds_fits_and_reports_its_count(tmp_path):
-    require_device_tools()
-    elf, harness = build_firmware(tmp_path / "fw24", nleds=24)
+    elf, harness = firmware_build(24)
     sizes = subprocess.run(["avr-size", str(elf)], capture_output=True, text=True, check=True).stdout
     text, data, bss = (int(v) for v in sizes.splitlines()[1].split()[:3])
     assert text + data <= 32 * 1024 - 512  # flash, leaving the Uno's optiboot bootloader its 512 bytes
