@@ -340,7 +340,11 @@ class VirtualSerial(serial.SerialBase):
             raise serial.SerialException(f"expected {prefix}<id>, got {url!r}")
         board = _BOARDS.get(url[len(prefix) :].split("?")[0])
         if board is None:
-            raise serial.SerialException(errno.ENOENT, f"could not open port {url}: no such virtual board")
+            raise serial.SerialException(
+                errno.ENOENT,
+                f"could not open port {url}: no such virtual board in this process (keep a reference to the "
+                "VirtualBoard while you use its url)",
+            )
         return board
 
     def close(self):
