@@ -295,6 +295,8 @@ class LedController:
     def hello(self) -> p.BoardInfo:
         """Ask the board for its description again (also a cheap liveness check)."""
         with self._lock:
+            if self._port is None:
+                raise DeviceError(f"{self.url}: the LED controller is closed")
             return self._hello()
 
     def close(self) -> None:
@@ -366,11 +368,11 @@ class LedController:
         return BoardError(f"{self.url}: the board refused {command}: E{reply.error} {name}: {meaning}", reply.error)
 
     def _await_reply(self, seq: str) -> p.Reply | None:
-        """The reply carrying ``seq``, or None on timeout or a corrupted reply (both mean: send again)."""
+        """The reply carrying ``seq``, or None on timeout, a corrupted reply or a boot banner (send again)."""
         deadline = time.monotonic() + self.timeout
         while (line := self._read_line(deadline)) is not None:
             kind, value = self._classify(line)
-            if kind == "corrupt":
+            if kind in ("corrupt", "banner"):  # a banner: the board rebooted and will not answer this line
                 return None
             if kind == "reply" and value.seq in (seq, p.UNKNOWN_SEQ):
                 return value
