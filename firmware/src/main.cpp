@@ -132,15 +132,17 @@ static void latch() {
 }
 
 // --- commands --------------------------------------------------------------------------------------------
-// Split `body` (NUL-terminated, without seq) into at most 3 space-separated tokens; returns the count.
+// Split `body` (NUL-terminated, without seq) at single spaces into at most 3 tokens; returns the count,
+// or 0 for an empty token (leading, trailing or double space) or more than 3 tokens.
 static uint8_t split(char *body, char **tok) {
     uint8_t n = 0;
-    while (*body && n < 3) {
+    for (;;) {
+        if (n == 3 || *body == ' ' || !*body) return 0;
         tok[n++] = body;
         while (*body && *body != ' ') ++body;
-        if (*body) *body++ = '\0';
+        if (!*body) return n;
+        *body++ = '\0';
     }
-    return *body ? 4 : n;  // 4: too many tokens
 }
 
 static void execute(const char *seq, char *body) {

@@ -339,7 +339,7 @@ class LedController:
                 if session and self._reset_seen:
                     self._after_reset("it printed its boot banner")
                 self._port.write(line)
-                reply = self._await_reply(f"{seq:02x}")
+                reply = self._await_reply(f"{seq:02x}", session)
             except _serial().SerialTimeoutException:
                 continue
             except (_serial().SerialException, OSError) as exc:
@@ -367,13 +367,13 @@ class LedController:
             return LedIndexError(f"{self.url}: LED index {args[0]} out of range (board: {meaning})")
         return BoardError(f"{self.url}: the board refused {command}: E{reply.error} {name}: {meaning}", reply.error)
 
-    def _await_reply(self, seq: str) -> p.Reply | None:
-        """The reply carrying ``seq``, or None on timeout, a corrupted reply or a boot banner (send again)."""
+    def _await_reply(self, seq: str, in_session: bool) -> p.Reply | None:
+        """The reply carrying ``seq``, or None on timeout, a corrupted reply or a boot banner mid-session."""
         deadline = time.monotonic() + self.timeout
         while (line := self._read_line(deadline)) is not None:
             kind, value = self._classify(line)
-            if kind in ("corrupt", "banner"):  # a banner: the board rebooted and will not answer this line
-                return None
+            if kind == "corrupt" or (kind == "banner" and in_session):
+                return None  # a rebooted board answers a session command only with E7: handle the reset now
             if kind == "reply" and value.seq in (seq, p.UNKNOWN_SEQ):
                 return value
             if kind == "reply":

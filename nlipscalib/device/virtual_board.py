@@ -190,7 +190,7 @@ class VirtualBoard:
             except p.FrameError:
                 reply = f"{seq} E{p.E_CRC} {p.ERROR_NAMES[p.E_CRC]}"
             else:
-                reply = self._execute(body)
+                reply = self._execute(body if seq != p.UNKNOWN_SEQ else p.UNKNOWN_SEQ + body[2:])
         if self.reply_delay_s:
             self._cond.release()
             try:
@@ -200,8 +200,11 @@ class VirtualBoard:
         self._send(p.frame(p.REPLY_START, reply))
 
     def _execute(self, body: str) -> str:
-        seq, _, rest = body.partition(" ")
-        command, *args = rest.split(" ") if rest else [""]
+        seq, rest = body[:2], body[3:]
+        tokens = rest.split(" ")
+        if seq == p.UNKNOWN_SEQ or body[2:3] != " " or "" in tokens or len(tokens) > 3:
+            return _error(seq, p.E_SYNTAX)  # bad sequence field, empty token or too many tokens
+        command, *args = tokens
         handler = _COMMANDS.get(command)
         if handler is None:
             return _error(seq, p.E_UNKNOWN)

@@ -130,6 +130,10 @@ def test_every_error_code(board):
         assert raw_exchange(port, p.encode_command(8, "ALL", "00" * 3 * (n - 1))).error == p.E_COUNT
         assert raw_exchange(port, p.encode_command(9, "ALL", "00" * 3 * (n + 20))).error == p.E_LONG
         assert raw_exchange(port, b">zz HELLO*0000\n").seq == p.UNKNOWN_SEQ
+        assert raw_exchange(port, p.frame(b">", "zz HELLO")) == p.Reply("--", p.E_SYNTAX, "SYNTAX")
+        assert raw_exchange(port, p.encode_command(10, "OFF", "")).error == p.E_SYNTAX  # trailing space
+        assert raw_exchange(port, p.encode_command(11, "SET", "", 0, "ffffff")).error == p.E_SYNTAX  # double
+        assert raw_exchange(port, p.encode_command(12, "SET", 0, "ffffff", "x")).error == p.E_SYNTAX
         assert raw_exchange(port, good).ok
         assert board.latched()[0].tolist() == [255, 255, 255]
     finally:
