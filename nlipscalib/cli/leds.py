@@ -46,7 +46,12 @@ def run(args) -> int:
         args.parser.error(f"{args.action} takes {expected} numbers, got {len(args.values)}")
     if not all(0 <= v <= 255 for v in args.values[-3:]) or not 0 <= args.level <= 255:
         args.parser.error("colour values must be 0..255")
-    leds, board = _open(args)
+    if args.adalight is not None and args.adalight < 1:
+        args.parser.error("--adalight needs the strip's LED count (>= 1)")
+    count = args.port.partition(":")[2] if args.port.startswith("virtual:") else "12"
+    if not count.isdigit() or not 1 <= int(count) <= 255:
+        args.parser.error(f"virtual:N needs an LED count 1..255, got {count!r}")
+    leds, board = _open(args)  # board: the virtual board, kept alive while the controller uses it
     with leds:
         return _ACTIONS[args.action](leds, args)
 
@@ -62,7 +67,7 @@ def _open(args):
 
         board = VirtualBoard(int(url.partition(":")[2] or 12))
         url = board.url
-    if args.adalight:
+    if args.adalight is not None:
         return AdalightController.open(url, args.adalight), board
     return LedController.open(url, timeout=args.timeout), board
 

@@ -21,6 +21,9 @@ def test_leds_info_and_bad_input(capsys):
         main(["leds", "virtual", "set", "1", "2", "3"])
     assert exit_info.value.code == 2
     assert "set takes 4 numbers" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["leds", "virtual:many", "info"])
+    assert "virtual:N needs an LED count" in capsys.readouterr().err
 
 
 def test_missing_port_is_one_line(capsys):
