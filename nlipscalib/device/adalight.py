@@ -60,9 +60,11 @@ class AdalightController:
     acknowledged = False
     firmware = "adalight"
 
-    def __init__(self, url: str, port, n_leds: int, settle_s: float, baudrate: int):
+    def __init__(self, url: str, port, n_leds: int, settle_s: float, baudrate: int, boot_timeout: float, reconnect_s):
         self.url, self._port, self.n_leds = url, port, int(n_leds)
         self.settle_s, self.baudrate = float(settle_s), baudrate
+        self.boot_timeout, self.reconnect_s = float(boot_timeout), float(reconnect_s)
+        self.reconnects = 0
         self._staged = np.zeros((self.n_leds, 3), np.uint8)
         self._shown = self._staged.copy()
 
@@ -75,6 +77,7 @@ class AdalightController:
         settle_s: float = 0.03,
         baudrate: int = BAUD_RATE,
         boot_timeout: float = 3.0,
+        reconnect_s: float = 5.0,
     ) -> AdalightController:
         """Open the port and wait (up to ``boot_timeout`` s) for the ``Ada`` banner of a board that reset.
 
@@ -90,11 +93,13 @@ class AdalightController:
             Line speed of the sketch (Adalight-FastLED: 115200).
         boot_timeout : float
             How long to wait for ``Ada\\n``; 0 to not wait (boards whose reset on open is disabled).
+        reconnect_s : float
+            How long to wait for an unplugged board to come back before DeviceDisconnectedError, s.
         """
         if n_leds < 1:
             raise DeviceError(f"{url}: an Adalight strip needs at least 1 LED, got {n_leds}")
         port = open_port(url, baudrate=baudrate)
-        ctrl = cls(url, port, n_leds, settle_s, baudrate)
+        ctrl = cls(url, port, n_leds, settle_s, baudrate, boot_timeout, reconnect_s)
         if boot_timeout > 0:
             ctrl._wait_for_banner(boot_timeout)
         return ctrl
@@ -158,5 +163,26 @@ class AdalightController:
             self._port.write(frame)
             self._port.flush()
         except (serial.SerialException, OSError) as exc:
-            raise DeviceDisconnectedError(f"{self.url}: the Adalight board disconnected: {exc}") from None
+            self._reconnect(exc)  # the board rebooted (power lost): the frame goes to the new session
+            self._port.write(frame)
+            self._port.flush()
         time.sleep(self.frame_time_s() + self.settle_s)
+
+    def _reconnect(self, cause: Exception) -> None:
+        log.warning("%s: port failed (%s); waiting up to %g s for it to come back", self.url, cause, self.reconnect_s)
+        self._port.close()
+        deadline = time.monotonic() + self.reconnect_s
+        while True:
+            try:
+                self._port = open_port(self.url, baudrate=self.baudrate)
+                break
+            except DeviceError as exc:
+                if time.monotonic() >= deadline:
+                    raise DeviceDisconnectedError(
+                        f"{self.url}: the Adalight board disconnected ({cause}) and did not come back within "
+                        f"{self.reconnect_s:g} s: {exc}"
+                    ) from None
+                time.sleep(0.1)
+        self.reconnects += 1
+        if self.boot_timeout > 0:
+            self._wait_for_banner(self.boot_timeout)

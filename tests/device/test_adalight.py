@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.device.adalight import AdalightController, adalight_frame, adalight_header
-from nlipscalib.device.controller import LedIndexError
+from nlipscalib.device.controller import DeviceDisconnectedError, LedIndexError
 from nlipscalib.errors import ShapeError
 
 
@@ -107,3 +107,44 @@ def test_missing_banner_only_warns(caplog):
     with AdalightController.open("loop://", 2, settle_s=0.0, boot_timeout=0.1) as leds:
         leds.off()
     assert "no 'Ada' banner" in caplog.text
+
+
+class PtyPort:
+    """A serial port at a fixed path (a symlink to a pseudo-terminal) that can be unplugged and plugged back."""
+
+    def __init__(self, link):
+        self.link = link
+        self.plug()
+
+    def plug(self):
+        self.master, self.slave = os.openpty()
+        if os.path.lexists(self.link):
+            os.unlink(self.link)
+        os.symlink(os.ttyname(self.slave), self.link)
+
+    def unplug(self):
+        os.unlink(self.link)
+        os.close(self.master)
+        os.close(self.slave)
+
+    def received(self, n: int, timeout: float = 2.0) -> bytes:
+        data, deadline = b"", time.monotonic() + timeout
+        while len(data) < n and time.monotonic() < deadline:
+            data += os.read(self.master, n - len(data))
+        return data
+
+
+def test_unplug_and_reconnect_resends_the_frame(tmp_path):
+    port = PtyPort(tmp_path / "ttyADA")
+    with AdalightController.open(str(port.link), 2, settle_s=0.0, boot_timeout=0, reconnect_s=3.0) as leds:
+        leds.set_led(0, (1, 2, 3))
+        assert port.received(12) == b"Ada\x00\x01\x54" + bytes([1, 2, 3, 0, 0, 0])
+        port.unplug()
+        threading.Timer(0.2, port.plug).start()
+        leds.set_led(1, (4, 5, 6))  # the write fails, the port comes back, the whole frame goes to the new board
+        assert leds.reconnects == 1
+        assert port.received(12) == b"Ada\x00\x01\x54" + bytes([1, 2, 3, 4, 5, 6])
+        port.unplug()
+        leds.reconnect_s = 0.2
+        with pytest.raises(DeviceDisconnectedError, match="did not come back within 0.2 s"):
+            leds.off()
