@@ -261,28 +261,28 @@ class LedController:
         """Set LED ``index`` (0-based) to ``rgb`` (3 ints 0..255); latched unless ``show=False`` (staged)."""
         index = self._check_index(index)
         colour = _check_colours(np.asarray(rgb).reshape(1, 3), 1)[0]
-        self._command("SET" if show else "PUT", index, p.encode_colour(colour))
-        self._staged[index] = colour
-        if show:
-            self._shown[:] = self._staged
+
+        def stage(staged):
+            staged[index] = colour
+
+        self._command("SET" if show else "PUT", index, p.encode_colour(colour), stage=stage, latch=show)
 
     def set_all(self, colours) -> None:
         """Set and latch every LED in one frame. ``colours : (N, 3) uint8, RGB``."""
         colours = _check_colours(colours, self.n_leds)
-        self._command("ALL", p.encode_colours(colours))
-        self._staged[:] = colours
-        self._shown[:] = colours
+
+        def stage(staged):
+            staged[:] = colours
+
+        self._command("ALL", p.encode_colours(colours), stage=stage, latch=True)
 
     def off(self) -> None:
         """Switch every LED off (latched)."""
-        self._command("OFF")
-        self._staged[:] = 0
-        self._shown[:] = 0
+        self._command("OFF", stage=lambda staged: staged.fill(0), latch=True)
 
     def show(self) -> None:
         """Latch the colours staged with ``set_led(..., show=False)``."""
-        self._command("SHOW")
-        self._shown[:] = self._staged
+        self._command("SHOW", latch=True)
 
     def state(self) -> np.ndarray:
         """``(N, 3) uint8``: the colours the LEDs show now, as the board reports them."""
@@ -320,11 +320,18 @@ class LedController:
         return _check_index(index, self.n_leds)
 
     # --- transactions ---------------------------------------------------------------------------------
-    def _command(self, command: str, *args) -> p.Reply:
+    def _command(self, command: str, *args, stage=None, latch: bool = False) -> p.Reply:
+        """Exchange one command; once acknowledged, apply ``stage`` to the host's copy of the staged colours
+        and, when the command latched, copy them to the shown colours (what a reset restores)."""
         with self._lock:
             if self._port is None:
                 raise DeviceError(f"{self.url}: the LED controller is closed")
-            return self._exchange(command, *args)
+            reply = self._exchange(command, *args)
+            if stage is not None:
+                stage(self._staged)
+            if latch:
+                self._shown[:] = self._staged
+            return reply
 
     def _exchange(self, command: str, *args, session: bool = True) -> p.Reply:
         """Send one command and wait for its reply: resend on timeout or corruption, reopen after unplug."""
