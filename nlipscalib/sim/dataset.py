@@ -198,7 +198,7 @@ def run_dataset(
     if workers < 0:
         raise ConfigError(f"workers must be >= 0 (0 = automatic), got {workers}")
     check_existing(scene, jobs, out, overwrite)
-    todo = [j for j in jobs if not _done(scene, j, out)]
+    todo = [j for j in jobs if not is_complete(scene, j, out)]
     result = {"rendered": [], "skipped": [j.name for j in jobs if j not in todo], "failed": []}
     if not todo:
         return result
@@ -340,7 +340,7 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
         with claim(out / job.name, stale_s=stale_s) as mine:
             if not mine:
                 return "busy", None
-            if _done(scene, job, out):
+            if is_complete(scene, job, out):
                 return "skipped", None
             clean_interrupted(out, item=job.name)  # a dead owner's half-written folder, if any
             _run_one(scene, job, out, overwrite)
@@ -373,7 +373,7 @@ def _expected_hash(scene: SceneConfig, job: PressJob) -> str:
     return render_spec_hash(scene, job.press, job.seed)
 
 
-def _done(scene: SceneConfig, job: PressJob, out: Path) -> bool:
+def is_complete(scene: SceneConfig, job: PressJob, out: Path) -> bool:
     """A complete folder rendered from this very spec."""
     folder = out / job.name
     return is_press_folder(folder) and _recorded_hash(folder) == _expected_hash(scene, job)
@@ -383,7 +383,7 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
     """Finished presses made from another spec are an error (or re-rendered with ``overwrite``)."""
     if overwrite:
         return
-    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not _done(scene, j, out)]
+    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not is_complete(scene, j, out)]
     if changed:
         names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
         raise ConfigError(

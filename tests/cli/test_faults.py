@@ -136,6 +136,7 @@ def test_real_full_disk_and_read_only_recheck(spec, tmpfs, capsys):
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--no-progress"]) == 0
     assert f"{5 - len(done)} rendered, {len(done)} already there" in capsys.readouterr().out
 
+    (out / "dataset.json").unlink()  # even one from before dataset.json existed
     _remount(tmpfs, "ro")  # a finished dataset on read-only media can be re-checked
     assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 0
     assert "0 rendered, 5 already there, 0 failed" in capsys.readouterr().out
