@@ -13,10 +13,12 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from ..config import check_count
     from ..core.capture import load_press
     from ..progress import track, working
     from ..solver import calibrate_leds, save_leds
 
+    check_count("--stride", args.stride, minimum=1)
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
     with working(f"calibrating {len(presses[0].leds)} LEDs from {len(presses)} capture(s)"):
         cal = calibrate_leds(presses, stride=args.stride, loss=args.loss)
