@@ -109,15 +109,15 @@ def _up_to_date(out, scene, press, seed) -> bool:
 
     from ..core.capture import is_press_folder
     from ..errors import ConfigError
-    from ..sim.press import render_spec_hash
+    from ..sim.press import recorded_spec_hash, render_spec_hash
 
     if not out.exists():
         return False
     if not is_press_folder(out):
         raise ConfigError(f"{out}: exists and is not a press folder; choose another --out or use --overwrite")
     try:
-        recorded = json.loads((out / "meta.json").read_text()).get("provenance", {}).get("spec_hash")
-    except (OSError, ValueError, AttributeError):
+        recorded = recorded_spec_hash(json.loads((out / "meta.json").read_text())["provenance"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         recorded = None
     if recorded != render_spec_hash(scene, press, seed):
         raise ConfigError(

@@ -360,10 +360,11 @@ def _run_one(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = Fal
 
 
 def _recorded_hash(folder: Path) -> str | None:
+    from .press import recorded_spec_hash
+
     try:
-        meta = json.loads((folder / "meta.json").read_text())
-        return meta.get("provenance", {}).get("spec_hash")
-    except (OSError, ValueError, AttributeError):
+        return recorded_spec_hash(json.loads((folder / "meta.json").read_text())["provenance"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 
 
