@@ -1,0 +1,95 @@
+"""Figures of one reconstruction (NLiPs or NLiPsNet): the PNGs written next to result.npz.
+
+Two levels:
+
+- ``"maps"`` (default of ``nlips solve``): normals.png, depth.png, residual.png and, with ground truth,
+  error.png, as plain PNGs on the image grid (OpenCV, milliseconds; :mod:`.maps`).
+- ``"full"``: the maps plus summary.png, a matplotlib contact sheet with titles and colour bars
+  (about a second, most of it importing matplotlib).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+FIGURE_LEVELS = ("none", "maps", "full")
+"""Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""
+ERROR_RANGE_DEG = (0.0, 10.0)
+"""Colour range of angular error maps, degrees: the same in every figure so they compare."""
+
+
+def figure_level(figures) -> str:
+    """Normalise a ``figures`` argument (bool or one of :data:`FIGURE_LEVELS`) to a level name."""
+    if figures is True:
+        return "maps"
+    if figures is False or figures is None:
+        return "none"
+    if figures not in FIGURE_LEVELS:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"figures must be one of {FIGURE_LEVELS} (or True/False), got {figures!r}")
+    return figures
+
+
+def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, level="maps") -> list[Path]:
+    """Write the figures of ``rec`` into ``folder``; returns the files written.
+
+    Parameters
+    ----------
+    folder : output folder (usually the reconstruction's temporary folder, so figures appear with it)
+    rec : Reconstruction -- maps over the full (H, W) image, camera frame
+    ground_truth : GroundTruth or None -- adds error.png (angular error, degrees)
+    level : "none", "maps" or "full" (or a bool), see the module docstring
+    """
+    from .maps import normal_map_png, scalar_map_png
+
+    level = figure_level(level)
+    if level == "none":
+        return []
+    folder = Path(folder)
+    shown = rec.reconstructed
+    written = [
+        normal_map_png(folder / "normals.png", rec.normals, shown),
+        scalar_map_png(folder / "depth.png", _masked(rec.depth, shown), "viridis", "mm"),
+        scalar_map_png(folder / "residual.png", _masked(rec.residual, shown), "magma", "lin."),
+    ]
+    err = error_map(rec, ground_truth)
+    if err is not None:
+        written.append(scalar_map_png(folder / "error.png", err, "jet", "deg", *ERROR_RANGE_DEG))
+    if level == "full":
+        written.append(_summary(folder / "summary.png", rec, err))
+    return written
+
+
+def error_map(rec, ground_truth) -> np.ndarray | None:
+    """(H, W) float64 angular error, degrees, where reconstructed and valid in the truth (NaN elsewhere)."""
+    if ground_truth is None:
+        return None
+    from ..core.metrics import angular_error_map
+
+    m = rec.reconstructed & ground_truth.valid
+    return np.where(m, angular_error_map(rec.normals, ground_truth.normals), np.nan)
+
+
+def _masked(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    return np.where(mask, values, np.nan)
+
+
+def _summary(path: Path, rec, err) -> Path:
+    """One matplotlib sheet of the result, cropped to the reconstructed pixels."""
+    from .figures import Panel, contact_sheet, normals_to_rgb
+
+    rows, cols = np.nonzero(rec.reconstructed)
+    crop = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1)) if rows.size else (slice(None),) * 2
+    shown = rec.reconstructed[crop]
+    panels = [
+        Panel("normals", normals_to_rgb(rec.normals[crop], shown)),
+        Panel("depth", _masked(rec.depth[crop], shown), "viridis", "mm"),
+        Panel("RMS residual", _masked(rec.residual[crop], shown), "magma", "linear intensity"),
+    ]
+    if err is not None:
+        title = f"angular error, AAE {np.nanmean(err):.2f} deg"  # err is NaN off the scored pixels
+        panels.append(Panel(title, err[crop], "jet", "deg", *ERROR_RANGE_DEG))
+    return contact_sheet([("", panels)], path, dpi=150)
