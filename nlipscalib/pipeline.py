@@ -118,6 +118,35 @@ def make_settings(
     )
 
 
+def settings_from_record(record: dict) -> SolveSettings:
+    """The :class:`SolveSettings` recorded in a report.json (``provenance.settings``), e.g. to re-make a result.
+
+    The LED file is not re-read: the recorded LED values are used.
+    """
+    from .core.leds import Led
+    from .solver import SolverOptions
+
+    try:
+        leds = None
+        if record.get("leds") is not None:
+            leds = tuple(Led.from_dict(d) for d in record["leds"])
+        elif record.get("led_subset") is not None:
+            leds = tuple(int(i) - 1 for i in record["led_subset"])
+        roi = record.get("roi")
+        options = SolverOptions(**record["options"]) if record.get("options") is not None else None
+        settings = make_settings(
+            reference=record.get("reference"),
+            roi=tuple(roi) if isinstance(roi, list) else roi,
+            leds=leds,
+            options=options,
+            backend=record.get("backend", "numpy"),
+            solver_keywords=record.get("solver_keywords") or {},
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"recorded solve settings are not usable ({exc})") from None
+    return dataclasses.replace(settings, leds_file=record.get("leds_file"))
+
+
 def solve_folder(
     folder: str | Path,
     *,
@@ -187,9 +216,12 @@ def solve_presses(
     -------
     dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``.
     """
+    from .report import figure_level
+
     settings = make_settings(
         reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
     )
+    figure_level(figures)
     folders = [Path(f) for f in folders]
     if settings.reference is not None:  # the undeformed dome is the reference, not a press to solve
         folders = [f for f in folders if f.resolve() != settings.reference.resolve()]
@@ -214,6 +246,9 @@ def solve_one(
     want_result: bool = True,
 ) -> tuple[Reconstruction | None, str]:
     """:func:`solve_folder` with prepared settings; ``want_result=False`` skips loading a reused result."""
+    from .report import figure_level
+
+    figures = figure_level(figures)  # a bad value fails now, not after the solve
     out = reconstruction_dir(folder, out)
     provenance = make_provenance(folder, settings)
     if not overwrite:

@@ -22,6 +22,7 @@ def register(sub) -> None:
     p.add_argument("--spec", default=str(DEMO_SPEC), help="dataset spec to render (default: the demo spec)")
     p.add_argument("--workers", type=int, default=1, help="render processes (default 1: all cores to one)")
     p.add_argument("--no-solve", action="store_true", help="only render and show the ground truth")
+    p.add_argument("--no-figures", action="store_true", help="no per-press figure maps next to the results")
     p.set_defaults(func=run)
 
 
@@ -43,7 +44,7 @@ def run(args) -> int:
     for job in (j for j in jobs if j.name != REFERENCE_NAME):
         press = load_press(out / job.name)
         title = f"{job.name}\n{job.press.indenter.kind}, {job.press.depth:.1f} mm"
-        result = None if args.no_solve else _solve(press)
+        result = None if args.no_solve else _solve(press, figures=not args.no_figures)
         rows.append((title, _panels(press, result)))
         if result is not None:
             table.append((job.name, job.press.indenter.kind, _scores(press, result)))
@@ -55,21 +56,17 @@ def run(args) -> int:
     return 0
 
 
-def _solve(press):
-    """NLiPs around the contact; the solution is cached in PRESS/nlips/."""
-    from ..core.reconstruction import has_reconstruction
-    from ..solver import load_result, save_result, solve_press
+def _solve(press, figures: bool):
+    """NLiPs around the contact, through the shared pipeline: an identical result in PRESS/nlips/ is
+    reused, a damaged or differently made one is re-solved."""
+    from ..pipeline import solve_folder
 
-    folder = press.folder / "nlips"
-    if has_reconstruction(folder):
-        return load_result(folder)
-    result = solve_press(press, roi="auto", progress=True)
-    save_result(result, folder, ground_truth=press.ground_truth, overwrite=True)
-    return result
+    result, _ = solve_folder(press.folder, roi="auto", progress=True, figures=figures)
+    return result  # None when another process is solving this press right now
 
 
 def _scores(press, result) -> dict:
-    from ..solver import evaluate
+    from ..core.metrics import evaluate
 
     return evaluate(result, press.ground_truth)  # reconstructed pixels: all of the ROI, and its contact part
 
@@ -77,8 +74,8 @@ def _scores(press, result) -> dict:
 def _panels(press, result):
     import numpy as np
 
+    from ..core.metrics import angular_error_map
     from ..report import Panel, display_image, normals_to_rgb
-    from ..solver import angular_error_map
 
     gt = press.ground_truth
     panels = [
