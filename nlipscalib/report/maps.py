@@ -105,9 +105,12 @@ def _colour_bar(height: int, cmap: str, vmin: float, vmax: float, label: str) ->
     cv2 = _cv2()
     bar = np.full((height, BAR_WIDTH, 3), 255, np.uint8)
     text_h = 12
-    top, bottom = text_h + 2, max(height - text_h - 4, text_h + 4)
+    labelled = height >= 4 * text_h  # too short for text: the gradient alone
+    top, bottom = (text_h + 2, height - text_h - 4) if labelled else (0, height)
     ramp = np.linspace(255, 0, bottom - top).round().astype(np.uint8)
     bar[top:bottom, 6:20] = _colour(np.repeat(ramp[:, None], 14, axis=1), cmap)
+    if not labelled:
+        return bar
     scale = max(0.3, min(0.4, height / 600))  # small images keep legible, tiny labels
     font = cv2.FONT_HERSHEY_SIMPLEX
     for text, y in ((_fmt(vmax), top + 8), (_fmt(vmin), bottom)):

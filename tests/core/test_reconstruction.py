@@ -39,3 +39,17 @@ def test_damaged_or_mismatched_reconstruction_names_the_file(tmp_path):
     (folder / "report.json").write_text('{"format": "other"}')
     with pytest.raises(CaptureError, match="report.json"):
         load_reconstruction(folder)
+
+
+def test_problem_check_is_cheap_and_names_the_damage(tmp_path):
+    from nlipscalib.core.reconstruction import reconstruction_dir, reconstruction_problem
+
+    folder = save_reconstruction(_rec(), tmp_path / "nlips")
+    assert reconstruction_problem(folder) is None
+    data = (folder / "result.npz").read_bytes()
+    (folder / "result.npz").write_bytes(data[:-30])
+    assert "damaged or truncated" in reconstruction_problem(folder)
+    assert "missing" in reconstruction_problem(tmp_path / "none")
+    assert reconstruction_dir(tmp_path, method="nlipsnet") == tmp_path / "nlipsnet"
+    with pytest.raises(CaptureError, match="method"):
+        reconstruction_dir(tmp_path, method="other")
