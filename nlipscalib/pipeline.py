@@ -251,10 +251,11 @@ def solve_one(
     figures = figure_level(figures)  # a bad value fails now, not after the solve
     out = reconstruction_dir(folder, out)
     provenance = make_provenance(folder, settings)
-    if not overwrite:
+    if not overwrite and not _leftovers(out):  # leftovers are cleaned under the claim, below
         reused = _reuse(out, provenance, want_result, quiet=True)
         if reused is not None:
             return reused
+    progress = _bars(progress)
     with _claim(out) as mine:
         if not mine:
             log.info("%s: being solved by another process, skipped", folder)
@@ -317,13 +318,15 @@ def capture_identity(folder: str | Path) -> str:
 
 
 # ---------------------------------------------------------------------- internals
-def _claim(target: Path):
-    try:
-        from .core.claims import claim
-    except ImportError:  # TEMPORARY until core/claims (reliab helper) is on main: no cross-process exclusion
-        import contextlib
+def _bars(requested: bool) -> bool:
+    from .progress import bars_enabled
 
-        return contextlib.nullcontext(True)
+    return bars_enabled(requested)
+
+
+def _claim(target: Path):
+    from .core.claims import claim
+
     return claim(target, stale_s=CLAIM_STALE_S)
 
 
@@ -368,13 +371,28 @@ def _what_changed(old: dict, new: dict) -> str:
     return ", ".join(changed) or "record differs"
 
 
+def _leftovers(out: Path) -> bool:
+    """Whether temporary entries of ``out`` (live or interrupted writes) lie beside it."""
+    return any(out.parent.glob(f"{TMP_PREFIX}{out.name}[~-]*"))
+
+
 def _clean_interrupted(out: Path) -> None:
-    """Remove interrupted writes of ``out`` (``.tmp-<name>-*`` beside it). Call only while holding its claim."""
+    """Remove interrupted writes of ``out`` beside it. Call only while holding its claim.
+
+    Owner-tagged temporary folders (``.tmp-nlips~host~pid~*``) go when their owner is gone
+    (core.atomic.clean_interrupted); untagged ones of older versions (``.tmp-nlips-*``) go too: holding
+    the claim means no live process of this pipeline is writing ``out``.
+    """
     import shutil
 
-    for tmp in out.parent.glob(f"{TMP_PREFIX}{out.name}-*"):
-        log.warning("%s: removing an interrupted write", tmp)
+    from .core.atomic import clean_interrupted
+
+    gone = clean_interrupted(out.parent, item=out.name)
+    legacy = list(out.parent.glob(f"{TMP_PREFIX}{out.name}-*"))
+    for tmp in legacy:
         shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
+    for tmp in gone + legacy:
+        log.warning("%s: removed an interrupted write", tmp)
 
 
 def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance: dict, progress: bool, figures):
@@ -521,11 +539,11 @@ def _status_of(folder: Path, settings: SolveSettings, overwrite: bool, progress:
 
 
 def _solve_serially(folders, names, settings, overwrite, progress, figures) -> dict[Path, str]:
-    from tqdm import tqdm
+    from .progress import track
 
     single = len(folders) == 1
     statuses = {}
-    bar = tqdm(folders, desc="presses", unit="press", disable=None if progress and not single else True)
+    bar = track(folders, enabled=progress and not single, desc="presses", unit="press")
     for folder in bar:
         bar.set_postfix_str(names[folder], refresh=False)
         statuses[folder] = _status_of(folder, settings, overwrite, progress and single, figures)
@@ -536,7 +554,7 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    from tqdm import tqdm
+    from .progress import progress_bar
 
     # forkserver: workers start from a clean process with the solver imported once, not from a fork of
     # a caller that may hold threads (claims' heartbeats, progress monitors) or a multi-threaded BLAS
@@ -547,7 +565,7 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
     statuses = {}
     with ProcessPoolExecutor(max_workers=min(workers, len(folders)), mp_context=ctx, initializer=_worker_init) as pool:
         futures = {pool.submit(_status_of, f, settings, overwrite, False, figures): f for f in folders}
-        bar = tqdm(total=len(futures), desc="presses", unit="press", disable=None if progress else True)
+        bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
         for done in as_completed(futures):
             folder = futures[done]
             statuses[folder] = done.result()

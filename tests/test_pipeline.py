@@ -79,15 +79,36 @@ def test_damaged_result_is_recomputed_with_a_warning(press, caplog):
     assert load_reconstruction(press / "nlips").reconstructed.sum() == rec.reconstructed.sum()
 
 
-def test_interrupted_writes_are_cleaned(press):
-    stale = press / ".tmp-nlips-killed"
-    stale.mkdir()
-    (stale / "result.npz").write_bytes(b"half")
+def test_interrupted_writes_are_cleaned_but_not_live_ones(press):
+    import os
+    import subprocess
+    import sys
+
+    from nlipscalib.core.atomic import tmp_prefix
+    from nlipscalib.core.claims import HOST
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    killed = press / f".tmp-nlips~{HOST}~{int(dead.stdout)}~abc"  # its writer is gone
+    legacy = press / ".tmp-nlips-k2j3"  # an older version's untagged leftover
+    live = press / (tmp_prefix("nlips").replace(f"~{os.getpid()}~", "~1~") + "x")  # pid 1 is alive
+    for tmp in (killed, legacy, live):
+        tmp.mkdir()
+        (tmp / "result.npz").write_bytes(b"half")
     solve_folder(press, options=FAST, figures=False)
-    assert not stale.exists()
-    stale.mkdir()  # also when the result is reused
+    assert not killed.exists() and not legacy.exists() and live.exists()
+    killed.mkdir()  # also cleaned when the result is reused
     assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"
-    assert (press / "nlips" / "result.npz").is_file()
+    assert not killed.exists() and (press / "nlips" / "result.npz").is_file()
+
+
+def test_a_press_claimed_by_a_live_process_is_skipped(press):
+    from nlipscalib.core.claims import claim
+
+    with claim(press / "nlips") as mine:  # another worker holds it (a claim is not re-entrant)
+        assert mine
+        assert solve_folder(press, options=FAST, figures=False) == (None, "skipped")
+    assert not (press / "nlips").exists()
+    assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
 
 
 def test_figures_off_maps_and_full(press):
