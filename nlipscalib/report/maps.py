@@ -126,7 +126,7 @@ def _fmt(v: float) -> str:
 
 def _write_png(path: str | Path, bgr: np.ndarray) -> Path:
     cv2 = _cv2()
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr), [cv2.IMWRITE_PNG_COMPRESSION, 3])
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr), [cv2.IMWRITE_PNG_COMPRESSION, 1])
     if not ok:  # pragma: no cover - OpenCV failure
         raise ShapeError(f"{path}: OpenCV could not encode the map")
     return write_bytes(path, buf.tobytes())

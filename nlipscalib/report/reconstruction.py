@@ -10,6 +10,8 @@ Two levels:
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -50,14 +52,17 @@ def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, lev
         return []
     folder = Path(folder)
     shown = rec.reconstructed
-    written = [
-        normal_map_png(folder / "normals.png", rec.normals, shown),
-        scalar_map_png(folder / "depth.png", _masked(rec.depth, shown), "viridis", "mm"),
-        scalar_map_png(folder / "residual.png", _masked(rec.residual, shown), "magma", "lin."),
-    ]
     err = error_map(rec, ground_truth)
+    jobs = [
+        (normal_map_png, folder / "normals.png", rec.normals, shown),
+        (scalar_map_png, folder / "depth.png", _masked(rec.depth, shown), "viridis", "mm"),
+        (scalar_map_png, folder / "residual.png", _masked(rec.residual, shown), "magma", "lin."),
+    ]
     if err is not None:
-        written.append(scalar_map_png(folder / "error.png", err, "jet", "deg", *ERROR_RANGE_DEG))
+        jobs.append((scalar_map_png, folder / "error.png", err, "jet", "deg", *ERROR_RANGE_DEG))
+    # PNG encoding releases the GIL: the maps are written side by side
+    with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
+        written = list(pool.map(lambda job: job[0](*job[1:]), jobs))
     if level == "full":
         written.append(_summary(folder / "summary.png", rec, err))
     return written
