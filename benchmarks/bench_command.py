@@ -1,0 +1,130 @@
+"""Whole-command speed of ``nlips solve``: process wall time as a user measures it, next to the solver's timer.
+
+Each case runs ``nlips solve PRESS ...`` as a fresh Python process (imports, loading, solving, saving,
+figures: everything the user waits for) on an exact-data 640x480 sphere press (12 LEDs), with
+``--overwrite`` so every run solves. Reported per case: median process wall, the solver's own timer
+(report.json ``seconds``), the pipeline's load and solve timers (``command_seconds``), and the rest
+(imports, ROI/anchor work outside the solver's timer, saving, figures). Also the start-up floor
+(``nlips --help`` and importing the solver) and a skipped re-run (identical result).
+
+The machine's 2 cores are shared with other work: the load average before and after is recorded.
+
+Run: .venv/bin/python benchmarks/bench_command.py [--repeats 3]
+Writes the "bench_command" section of benchmarks/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(ROOT))
+from common import write_section  # noqa: E402
+
+CLI = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+GOALS = {"full": 4.0, "auto ROI": 1.5}
+
+
+def run_process(args: list[str]) -> float:
+    """Wall seconds of ``python -c CLI args`` (fails loudly on a non-zero exit)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", CLI, *args], env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"nlips {' '.join(args)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    return wall
+
+
+def run_python(code: str) -> float:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", code], env=env, check=True)
+    return time.perf_counter() - t0
+
+
+def time_case(press: Path, extra: list[str], repeats: int) -> dict:
+    """Median process wall and the inner timers of ``nlips solve press --overwrite extra``."""
+    walls, solver, load, solve = [], [], [], []
+    for _ in range(repeats + 1):  # the first run warms the page cache
+        walls.append(run_process(["solve", str(press), "--overwrite", "--no-progress", *extra]))
+        report = json.loads((press / "nlips" / "report.json").read_text())
+        solver.append(report["seconds"])
+        load.append(report["command_seconds"]["load"])
+        solve.append(report["command_seconds"]["solve"])
+    series = {"wall": walls, "solver": solver, "load": load, "solve": solve}
+    med = {k: statistics.median(v[1:]) for k, v in series.items()}
+    med["roi"] = report.get("roi")
+    return med
+
+
+def load_average() -> str:
+    return " / ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    from tests.solver import synth
+
+    before = load_average()
+    with tempfile.TemporaryDirectory() as tmp:
+        press = synth.make_press(Path(tmp) / "sphere", "sphere", size=(640, 480))
+        floor = {
+            "`nlips --help`": statistics.median(run_process(["--help"]) for _ in range(args.repeats)),
+            "`import nlipscalib.solver`": statistics.median(
+                run_python("import nlipscalib.solver") for _ in range(args.repeats)
+            ),
+        }
+        cases = [
+            ("full", "maps (default)", []),
+            ("full", "none", ["--no-figures"]),
+            ("auto ROI", "maps (default)", ["--roi", "auto"]),
+            ("auto ROI", "none", ["--roi", "auto", "--no-figures"]),
+        ]
+        rows = [(name, figs, time_case(press, extra, args.repeats)) for name, figs, extra in cases]
+        skip = statistics.median(
+            run_process(["solve", str(press), "--roi", "auto", "--no-progress"]) for _ in range(args.repeats)
+        )
+    after = load_average()
+    lines = [
+        f"`nlips solve` on an exact-data 640x480 sphere press (12 LEDs, default options), each run a fresh "
+        f"process with `--overwrite`; median of {args.repeats} after a warm-up. Load average (1/5/15 min) "
+        f"before: {before}, after: {after} (2 cores shared with other helpers' work: expect several-fold "
+        "inflation of every number when the load is above 2).",
+        "",
+        "| case | figures | process wall s | solver timer s | load s | solve_press s | rest s (imports, save, figures) "
+        "| goal s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, figs, m in rows:
+        rest = m["wall"] - m["load"] - m["solve"]
+        lines.append(
+            f"| {name} | {figs} | {m['wall']:.2f} | {m['solver']:.2f} | {m['load']:.2f} | {m['solve']:.2f} "
+            f"| {rest:.2f} | {GOALS[name]:.1f} |"
+        )
+    lines += [
+        "",
+        "`solve_press s` includes the solver timer plus auto ROI and anchor classification (solver/press.py).",
+        "",
+        "| start-up and re-run | process wall s |",
+        "|---|---|",
+        *(f"| {k} | {v:.2f} |" for k, v in floor.items()),
+        f"| identical re-run (`--roi auto`, skipped) | {skip:.2f} |",
+    ]
+    write_section("bench_command", "\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
