@@ -563,7 +563,12 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
     if "forkserver" in methods:
         ctx.set_forkserver_preload(["nlipscalib.pipeline", "nlipscalib.solver"])
     statuses = {}
-    with ProcessPoolExecutor(max_workers=min(workers, len(folders)), mp_context=ctx, initializer=_worker_init) as pool:
+    with ProcessPoolExecutor(
+        max_workers=min(workers, len(folders)),
+        mp_context=ctx,
+        initializer=_worker_init,
+        initargs=(logging.getLogger().getEffectiveLevel(),),
+    ) as pool:
         futures = {pool.submit(_status_of, f, settings, overwrite, False, figures): f for f in folders}
         bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
         for done in as_completed(futures):
@@ -575,8 +580,9 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
     return statuses
 
 
-def _worker_init() -> None:
-    """One core per worker: the solver limits BLAS itself; OpenCV's and torch's pools are limited here."""
+def _worker_init(log_level: int) -> None:
+    """Log like the parent; one core per worker: the solver limits BLAS itself, OpenCV's pool is limited here."""
+    logging.basicConfig(level=log_level, format="%(levelname)s %(message)s")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     try:
         import cv2
