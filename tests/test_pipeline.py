@@ -152,3 +152,23 @@ def test_failures_are_reported_per_press(press_set, tmp_path):
     assert statuses["b_cube"].startswith("failed: ") and "led_03.png" in statuses["b_cube"]
     with pytest.raises(ConfigError, match="workers"):
         solve_presses([root / "a_sphere"], workers=0)
+
+
+def test_reference_is_used_not_solved_and_is_part_of_the_identity(press_set, tmp_path):
+    root = tmp_path / "set"
+    root.mkdir()
+    shutil.copytree(press_set / "a_sphere", root / "a_sphere")
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    folders = sorted(root.iterdir())
+    statuses = solve_presses(folders, reference=root / "reference", options=FAST, progress=False, figures=False)
+    assert statuses == {"a_sphere": "solved"} and not (root / "reference" / "nlips").exists()
+    report = read_report(root / "a_sphere" / "nlips")
+    assert report["indirect_compensation"] is True
+    assert (
+        report["provenance"]["inputs"]["reference"]
+        == make_provenance(root / "reference", make_settings())["inputs"]["press"]
+    )
+    again = solve_presses(folders, reference=root / "reference", options=FAST, progress=False, figures=False)
+    assert again == {"a_sphere": "skipped"}
+    without = solve_presses(folders[:1], options=FAST, progress=False, figures=False)
+    assert without == {"a_sphere": "solved"}  # the reference was an input: its absence re-solves
