@@ -445,13 +445,13 @@ def _load_reference(folder: Path, subset: tuple[int, ...] | None, identity: str)
 
 def _log_solved(folder: Path, out: Path, rep: dict, save_s: float) -> None:
     log.info(
-        "%s: %d/%d pixels reconstructed, %d with too few LEDs, dead LEDs %s, solver %.1f s, saved in %.2f s -> %s",
+        "%s: %s/%s pixels reconstructed, %s with too few LEDs, dead LEDs %s, solver %.1f s, saved in %.2f s -> %s",
         folder.name,
-        rep["pixels_reconstructed"],
-        rep["pixels_solved"],
-        rep["pixels_too_few_leds"],
-        [i + 1 for i in rep["dead_leds"]],
-        rep["seconds"],
+        rep.get("pixels_reconstructed", "?"),
+        rep.get("pixels_solved", "?"),
+        rep.get("pixels_too_few_leds", "?"),
+        [i + 1 for i in rep.get("dead_leds", [])],
+        rep.get("seconds", float("nan")),
         save_s,
         out,
     )
