@@ -122,8 +122,8 @@ def main() -> None:
     for name, figs, m in rows:
         rest = m["wall"] - m["load"] - m["solve"]
         lines.append(
-            f"| {name} | {figs} | {m['wall']:.2f} | {m['cpu']:.2f} | {m['solver']:.2f} | {m['load']:.2f} | {m['solve']:.2f} "
-            f"| {rest:.2f} | {GOALS[name]:.1f} |"
+            f"| {name} | {figs} | {m['wall']:.2f} | {m['cpu']:.2f} | {m['solver']:.2f} | {m['load']:.2f} "
+            f"| {m['solve']:.2f} | {rest:.2f} | {GOALS[name]:.1f} |"
         )
     lines += [
         "",
