@@ -127,3 +127,16 @@ def test_bad_arguments_are_one_line(data, capsys):
     assert "leds must be like '1,2,5'" in capsys.readouterr().err
     assert main(["solve", str(root / "press_a"), "--roi", "1", "2"]) == 2
     assert "--roi" in capsys.readouterr().err
+
+
+def test_demo_recomputes_a_damaged_cached_result(data, capsys):
+    from nlipscalib.cli import demo
+
+    root, _ = data
+    press = load_press(root / "press_b")
+    first = demo._solve(press, figures=False)
+    npz = root / "press_b" / "nlips" / "result.npz"
+    npz.write_bytes(npz.read_bytes()[:5000])  # was a BadZipFile traceback
+    again = demo._solve(press, figures=False)
+    assert again.reconstructed.sum() == first.reconstructed.sum()
+    assert load_reconstruction(root / "press_b" / "nlips").reconstructed.any()
