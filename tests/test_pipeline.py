@@ -123,6 +123,17 @@ def test_figures_off_maps_and_full(press):
         solve_folder(press, options=FAST, figures="some")
 
 
+def test_maps_show_the_solved_box(press):
+    import cv2
+
+    from nlipscalib.report.maps import BAR_WIDTH
+
+    solve_folder(press, options=FAST, roi=(10, 12, 30, 20))
+    depth = cv2.imread(str(press / "nlips" / "depth.png"), cv2.IMREAD_COLOR)
+    normals = cv2.imread(str(press / "nlips" / "normals.png"), cv2.IMREAD_COLOR)
+    assert depth.shape == (20, 30 + BAR_WIDTH, 3) and normals.shape == (20, 30, 3)
+
+
 def test_parallel_solve_matches_serial(press_set, tmp_path):
     one, two = tmp_path / "one", tmp_path / "two"
     shutil.copytree(press_set, one)

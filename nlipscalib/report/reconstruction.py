@@ -3,7 +3,8 @@
 Two levels:
 
 - ``"maps"`` (default of ``nlips solve``): normals.png, depth.png, residual.png and, with ground truth,
-  error.png, as plain PNGs on the image grid (OpenCV, milliseconds; :mod:`.maps`).
+  error.png, as plain PNGs over the solved box at the image's resolution (OpenCV, milliseconds;
+  :mod:`.maps`).
 - ``"full"``: the maps plus summary.png, a matplotlib contact sheet with titles and colour bars
   (about a second, most of it importing matplotlib).
 """
@@ -51,12 +52,13 @@ def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, lev
     if level == "none":
         return []
     folder = Path(folder)
-    shown = rec.reconstructed
-    err = error_map(rec, ground_truth)
+    box = solved_box(rec)
+    shown = rec.reconstructed[box]
+    err = error_map(rec, ground_truth, box)
     jobs = [
-        (normal_map_png, folder / "normals.png", rec.normals, shown),
-        (scalar_map_png, folder / "depth.png", _masked(rec.depth, shown), "viridis", "mm"),
-        (scalar_map_png, folder / "residual.png", _masked(rec.residual, shown), "magma", "lin."),
+        (normal_map_png, folder / "normals.png", rec.normals[box], shown),
+        (scalar_map_png, folder / "depth.png", _masked(rec.depth[box], shown), "viridis", "mm"),
+        (scalar_map_png, folder / "residual.png", _masked(rec.residual[box], shown), "magma", "lin."),
     ]
     if err is not None:
         jobs.append((scalar_map_png, folder / "error.png", err, "jet", "deg", *ERROR_RANGE_DEG))
@@ -64,37 +66,52 @@ def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, lev
     with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
         written = list(pool.map(lambda job: job[0](*job[1:]), jobs))
     if level == "full":
-        written.append(_summary(folder / "summary.png", rec, err))
+        written.append(_summary(folder / "summary.png", rec, box, err))
     return written
 
 
-def error_map(rec, ground_truth) -> np.ndarray | None:
-    """(H, W) float64 angular error, degrees, where reconstructed and valid in the truth (NaN elsewhere)."""
+def solved_box(rec) -> tuple[slice, slice]:
+    """(rows, cols) slices of the bounding box of the solved pixels (``rec.mask``; the whole image if none).
+
+    Figures show this box: a region-of-interest result is drawn at full resolution without a field of
+    empty pixels around it (and costs a fraction of a full-frame map to write); ``report.json``'s
+    ``roi`` gives its place in the image.
+    """
+    rows, cols = np.nonzero(rec.mask)
+    if rows.size == 0:
+        return slice(None), slice(None)
+    return slice(int(rows.min()), int(rows.max()) + 1), slice(int(cols.min()), int(cols.max()) + 1)
+
+
+def error_map(rec, ground_truth, box=(slice(None), slice(None))) -> np.ndarray | None:
+    """Angular error, degrees, where reconstructed and valid in the truth (NaN elsewhere).
+
+    Returns (h, w) float64 over ``box`` ((rows, cols) slices; default the whole (H, W) image), or None
+    without ground truth.
+    """
     if ground_truth is None:
         return None
     from ..core.metrics import angular_error_map
 
-    m = rec.reconstructed & ground_truth.valid
-    return np.where(m, angular_error_map(rec.normals, ground_truth.normals), np.nan)
+    m = rec.reconstructed[box] & ground_truth.valid[box]
+    return np.where(m, angular_error_map(rec.normals[box], ground_truth.normals[box]), np.nan)
 
 
 def _masked(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.where(mask, values, np.nan)
 
 
-def _summary(path: Path, rec, err) -> Path:
-    """One matplotlib sheet of the result, cropped to the reconstructed pixels."""
+def _summary(path: Path, rec, box, err) -> Path:
+    """One matplotlib sheet of the result over the solved box."""
     from .figures import Panel, contact_sheet, normals_to_rgb
 
-    rows, cols = np.nonzero(rec.reconstructed)
-    crop = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1)) if rows.size else (slice(None),) * 2
-    shown = rec.reconstructed[crop]
+    shown = rec.reconstructed[box]
     panels = [
-        Panel("normals", normals_to_rgb(rec.normals[crop], shown)),
-        Panel("depth", _masked(rec.depth[crop], shown), "viridis", "mm"),
-        Panel("RMS residual", _masked(rec.residual[crop], shown), "magma", "linear intensity"),
+        Panel("normals", normals_to_rgb(rec.normals[box], shown)),
+        Panel("depth", _masked(rec.depth[box], shown), "viridis", "mm"),
+        Panel("RMS residual", _masked(rec.residual[box], shown), "magma", "linear intensity"),
     ]
     if err is not None:
         title = f"angular error, AAE {np.nanmean(err):.2f} deg"  # err is NaN off the scored pixels
-        panels.append(Panel(title, err[crop], "jet", "deg", *ERROR_RANGE_DEG))
+        panels.append(Panel(title, err, "jet", "deg", *ERROR_RANGE_DEG))
     return contact_sheet([("", panels)], path, dpi=150)
