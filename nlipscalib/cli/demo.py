@@ -7,6 +7,7 @@ Resumable: presses and solutions already on disk are reused.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 DEMO_SPEC = Path(__file__).resolve().parents[1] / "scenes" / "datasets" / "demo.toml"
@@ -23,6 +24,12 @@ def register(sub) -> None:
     p.add_argument("--workers", type=int, default=1, help="render processes (default 1: all cores to one)")
     p.add_argument("--no-solve", action="store_true", help="only render and show the ground truth")
     p.add_argument("--no-figures", action="store_true", help="no per-press figure maps next to the results")
+    p.add_argument(
+        "--solve-workers",
+        type=int,
+        default=min(os.cpu_count() or 1, 3),
+        help="presses solved at once, one single-threaded process each (default: one per core, at most 3)",
+    )
     p.set_defaults(func=run)
 
 
@@ -40,11 +47,26 @@ def run(args) -> int:
         for name, error in rendered["failed"]:
             print(f"{name}: {error}")
         return 1
+    if args.solve_workers < 1:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"--solve-workers must be >= 1, got {args.solve_workers}")
+    presses = [j for j in jobs if j.name != REFERENCE_NAME]
+    failed = set()
+    if not args.no_solve:
+        from ..pipeline import solve_presses
+
+        folders = [out / job.name for job in presses]
+        statuses = solve_presses(folders, roi="auto", workers=args.solve_workers, figures=not args.no_figures)
+        failed = {name for name, status in statuses.items() if status.startswith("failed")}
+        for name in sorted(failed):
+            print(f"{name}: {statuses[name]}")
     rows, table = [], []
-    for job in (j for j in jobs if j.name != REFERENCE_NAME):
+    for job in presses:
         press = load_press(out / job.name)
         title = f"{job.name}\n{job.press.indenter.kind}, {job.press.depth:.1f} mm"
-        result = None if args.no_solve else _solve(press, figures=not args.no_figures)
+        solve = not args.no_solve and job.name not in failed
+        result = _solve(press, figures=not args.no_figures) if solve else None  # solved above: this loads it
         rows.append((title, _panels(press, result)))
         if result is not None:
             table.append((job.name, job.press.indenter.kind, _scores(press, result)))
@@ -53,7 +75,7 @@ def run(args) -> int:
     sheet = contact_sheet(rows, out / "contact_sheet.png")
     _print_table(table)
     print(f"contact sheet: {sheet}")
-    return 0
+    return 1 if failed else 0
 
 
 def _solve(press, figures: bool):
