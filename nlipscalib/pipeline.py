@@ -106,6 +106,7 @@ def make_settings(
     if backend not in ("numpy", "torch"):
         raise ConfigError(f"backend must be 'numpy' or 'torch', got {backend!r}")
     subset, led_values, leds_file = _resolve_leds(leds)
+    reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
     return SolveSettings(
         roi=_resolve_roi(roi),
         led_subset=subset,
@@ -199,8 +200,8 @@ def solve_presses(
     Parameters
     ----------
     folders : press folders; the ``reference`` folder, if among them, is not solved
-    reference : press folder of the undeformed dome (same camera, LEDs, exposure): interreflection
-        compensation and auto ROI against it (solver.solve_press ``indirect``)
+    reference : press folder (or loaded Press) of the undeformed dome (same camera, LEDs, exposure):
+        interreflection compensation and auto ROI against it (solver.solve_press ``indirect``)
     roi : "auto", (x0, y0, w, h) pixels, or None (the whole visible gel)
     leds : None (the capture's LEDs); an LED JSON file from ``nlips calibrate-leds``; a string like
         "1,2,5" (1-based LED subset); a sequence of core.leds.Led; or a sequence of 0-based int indices
