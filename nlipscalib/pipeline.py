@@ -215,7 +215,9 @@ def solve_presses(
 
     Returns
     -------
-    dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``.
+    dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``. "skipped":
+    an identical result exists, or another live process is solving the press right now. Failures of
+    one press (bad capture, bad LED file, disk errors) do not stop the others.
     """
     from .report import figure_level
 
