@@ -76,6 +76,44 @@ def time_case(press: Path, extra: list[str], repeats: int) -> dict:
     return med
 
 
+BREAKDOWN = """
+import json, sys, time
+marks = []
+def mark(name):
+    marks.append((name, time.process_time(), time.perf_counter()))
+mark("start")
+import nlipscalib.cli
+mark("import nlipscalib.cli (parser modules)")
+import nlipscalib.solver
+mark("import nlipscalib.solver (numpy, scipy.sparse[.linalg], scipy.optimize via solver.calibrate)")
+from nlipscalib.core.capture import load_press
+from nlipscalib.pipeline import make_provenance, make_settings
+from nlipscalib.report import write_reconstruction_figures
+from nlipscalib.solver import save_result, solve_press
+mark("import pipeline, report")
+folder, roi = sys.argv[1], (None if sys.argv[2] == "full" else "auto")
+prov = make_provenance(folder, make_settings(roi=roi))
+mark("settings + input hashes (provenance)")
+press = load_press(folder)
+mark("load_press (14 PNG + 2 npz)")
+res = solve_press(press, roi=roi)
+mark("solve_press: solver timer %.2f s wall" % res.report["seconds"])
+save_result(res, sys.argv[3], overwrite=True)
+mark("save result.npz + report.json")
+write_reconstruction_figures(sys.argv[4], res, press.ground_truth)
+mark("figure maps (OpenCV)")
+print(json.dumps([(n, c - marks[i][1], w - marks[i][2]) for i, (n, c, w) in enumerate(marks[1:])]))
+"""
+
+
+def breakdown(press: Path, case: str, tmp: Path) -> list:
+    """CPU and wall seconds of each stage of one solve, in one fresh process."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    args = [sys.executable, "-c", BREAKDOWN, str(press), case, str(tmp / "bd"), str(tmp / "bdf")]
+    out = subprocess.run(args, env=env, capture_output=True, text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def load_average() -> str:
     return " / ".join(f"{x:.2f}" for x in os.getloadavg())
 
@@ -105,6 +143,7 @@ def main() -> None:
             ("auto ROI", "none", ["--roi", "auto", "--no-figures"]),
         ]
         rows = [(name, figs, time_case(press, extra, args.repeats)) for name, figs, extra in cases]
+        stages = {case: breakdown(press, case, Path(tmp)) for case in ("full", "auto")}
         skip = statistics.median(
             run_process(["solve", str(press), "--roi", "auto", "--no-progress"]) for _ in range(args.repeats)
         )
@@ -135,7 +174,16 @@ def main() -> None:
         "|---|---|",
         *(f"| {k} | {v:.2f} |" for k, v in floor.items()),
         f"| identical re-run (`--roi auto`, skipped) | {skip:.2f} |",
+        "",
+        "Where one solve's time goes (one fresh process per case, stages in order; CPU s does not count "
+        "waiting for a core):",
+        "",
+        "| stage | full: CPU s | full: wall s | auto ROI: CPU s | auto ROI: wall s |",
+        "|---|---|---|---|---|",
     ]
+    for (name, cf, wf), (_, ca, wa) in zip(stages["full"], stages["auto"]):
+        label = name.split(":")[0] if name.startswith("solve_press") else name
+        lines.append(f"| {label} | {cf:.2f} | {wf:.2f} | {ca:.2f} | {wa:.2f} |")
     write_section("bench_command", "\n".join(lines))
     print("\n".join(lines))
 
