@@ -32,16 +32,18 @@ def _stamp(press):
     return (press / "nlips" / "result.npz").stat().st_mtime_ns
 
 
-def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys):
+def test_solve_again_with_new_options_re_solves_and_identical_skips(data, caplog):
+    caplog.set_level("INFO")
     root, cfg = data
     press = root / "press_a"
     assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
     first = _stamp(press)
     assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
-    assert _stamp(press) == first and "identical result exists, skipped" in capsys.readouterr().err
+    assert _stamp(press) == first and "identical result exists, skipped" in caplog.text
+    caplog.clear()
     assert main(["solve", str(press), "--config", str(cfg), "--roi", "auto", "--no-progress"]) == 0
     assert _stamp(press) != first  # new options: re-solved, not "result exists"
-    assert "made with other settings or inputs (roi), re-solving" in capsys.readouterr().err
+    assert "made with other settings or inputs (roi), re-solving" in caplog.text
     report = json.loads((press / "nlips" / "report.json").read_text())
     assert report["provenance"]["settings"]["roi"] == "auto" and report["roi"] is not None
     assert main(["solve", str(press), "--config", str(cfg), "--leds", "1,3,5,7,9,11", "--no-progress"]) == 0
@@ -55,7 +57,8 @@ def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys
     ]
 
 
-def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys):
+def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys, caplog):
+    caplog.set_level("INFO")
     root, cfg = data
     assert main(["solve", str(root), "--config", str(cfg), "--workers", "2", "--no-progress"]) == 0
     assert "2 solved, 0 skipped" in capsys.readouterr().out
@@ -63,6 +66,7 @@ def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys):
     npz.write_bytes(npz.read_bytes()[:-200])  # truncated
     assert main(["eval", str(root)]) == 0  # re-computed from the recorded settings, then scored
     out, err = capsys.readouterr()
+    err += caplog.text  # warnings go through logging (pytest's handler under test, stderr for a user)
     assert "press_a" in out and "press_b" in out and "damaged or truncated" in err and "re-computing" in err
     assert load_reconstruction(root / "press_a" / "nlips").report["provenance"]["settings"]["options"]["max_iters"] == 5
     npz.write_bytes(b"garbage")
