@@ -39,6 +39,8 @@ def load_leds(path: str | Path) -> tuple[Led, ...]:
     path = Path(path)
     try:
         data = json.loads(path.read_text())
+        if not isinstance(data.get("leds"), list):
+            raise ValueError(f"'leds' must be a list of LEDs, got {data.get('leds')!r}")
         return tuple(Led.from_dict(d) for d in data["leds"])
     except FileNotFoundError:
         raise CaptureError(f"{path}: no such LED file") from None
