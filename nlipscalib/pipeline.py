@@ -574,12 +574,17 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
     ) as pool:
         futures = {pool.submit(_status_of, f, settings, overwrite, False, figures): f for f in folders}
         bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
-        for done in as_completed(futures):
-            folder = futures[done]
-            statuses[folder] = done.result()
-            bar.set_postfix_str(names[folder], refresh=False)
-            bar.update()
-        bar.close()
+        try:
+            for done in as_completed(futures):
+                folder = futures[done]
+                statuses[folder] = done.result()
+                bar.set_postfix_str(names[folder], refresh=False)
+                bar.update()
+        except BaseException:  # Ctrl-C, SIGTERM, a bug: queued presses never start, running ones finish
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        finally:
+            bar.close()
     return statuses
 
 
