@@ -150,3 +150,20 @@ def test_demo_recomputes_a_damaged_cached_result(data, capsys):
     again = demo._solve(press, figures=False)
     assert again.reconstructed.sum() == first.reconstructed.sum()
     assert load_reconstruction(root / "press_b" / "nlips").reconstructed.any()
+
+
+def test_unwritable_output_is_one_line_before_solving(data, capsys, monkeypatch):
+    import errno
+
+    from nlipscalib.core import atomic
+
+    root, cfg = data
+
+    def read_only(folder, longest_name=0):
+        raise OSError(errno.EROFS, "Read-only file system", str(folder))
+
+    monkeypatch.setattr(atomic, "check_writable", read_only)
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "Read-only file system" in err and str(root / "press_a") in err and "Traceback" not in err
+    assert not (root / "press_a" / "nlips").exists() and not (root / "press_b" / "nlips").exists()
