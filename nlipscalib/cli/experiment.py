@@ -43,11 +43,13 @@ def run(args) -> int:
     from ..errors import ConfigError
     from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
     from ..experiments.framework import run_experiment
+    from ..experiments.summary import clean
 
     if args.name == "all" and (args.check or args.write_baseline or args.config):
         raise ConfigError("--check, --write-baseline and --config need one experiment, not 'all'")
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)
+    baseline = check.load_baseline(Path(args.check), args.name) if args.check else None  # fail fast
     code = 0
     for name in names:
         exp = get(name)
@@ -75,9 +77,9 @@ def run(args) -> int:
         )
         code = code or (1 if failed else 0)
         if args.write_baseline:
-            write_json(args.write_baseline, check.baseline_document(name, size, doc["check_figures"]))
+            write_json(args.write_baseline, clean(check.baseline_document(name, size, doc["check_figures"])))
         if args.check:
-            worse = check.compare(doc["check_figures"], check.load_baseline(Path(args.check), name))
+            worse = check.compare(doc["check_figures"], baseline)
             if worse:
                 print(f"{name}: {len(worse)} accuracy figure(s) worse than {args.check}:")
                 print(check.format_worse(worse))

@@ -36,14 +36,15 @@ def series_by(rows: list[dict], category: str, series: str, metric: str, categor
     return categories, out
 
 
-def map_rows(rows: list[dict], out: Path, title, limit: int = 6) -> list:
-    """Error-map figure rows for the first evaluation of each distinct title (at most ``limit``)."""
+def map_rows(rows: list[dict], out: Path, key: tuple[str, ...], limit: int = 6) -> list:
+    """Error-map figure rows: the first evaluation of each distinct ``key`` labels (at most ``limit``)."""
     seen, picked = set(), []
     for r in rows:
-        name = title(r)
+        name = tuple(r[k] for k in key)
         if name in seen or not r.get("map") or len(picked) >= limit:
             continue
         seen.add(name)
         with np.load(Path(out) / r["map"]) as z:
-            picked.append((name, z["true"], z["estimate"], z["error"]))
+            title = ", ".join(str(v) for v in name) + f"\n{r['press']}"
+            picked.append((title, z["true"], z["estimate"], z["error"]))
     return picked

@@ -79,7 +79,7 @@ class Q1(Experiment):
         fig.grouped_bars(cats, aae, "AAE in the contact (°)", folder / "q1_aae.png", {"paper, real sensor": 7.04})
         cats, mab = series_by(rows, "indenter", "leds", "mabse")
         fig.grouped_bars(cats, mab, "MabsE in the contact", folder / "q1_mabse.png", {"paper, real sensor": 0.0588})
-        maps = map_rows(rows, out, lambda r: f"{r['indenter']}, {r['leds']} LEDs\n{r['press']}")
+        maps = map_rows(rows, out, ("indenter", "leds"))
         out_figs = [
             ("AAE per indenter and LED source", "q1_aae.png"),
             ("MabsE per indenter and LED source", "q1_mabse.png"),

@@ -12,8 +12,6 @@ import dataclasses
 import logging
 import os
 import sys
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -122,35 +120,7 @@ class _backend:
             for t in tasks:
                 _record(status, t.id, execute(t, out, threads, keep), bar)
             return
-        attempts = dict.fromkeys((t.id for t in tasks), 0)
-        pending = list(tasks)
-        while pending:
-            for t in pending:
-                attempts[t.id] += 1
-            pending = self._local_pool(pending, out, keep, threads, status, bar)
-            for t in [t for t in pending if attempts[t.id] >= MAX_ATTEMPTS]:
-                _record(status, t.id, "failed: its worker process died repeatedly", bar)
-                pending.remove(t)
-
-    def _local_pool(self, tasks, out, keep, threads, status, bar) -> list[Task]:
-        """Run tasks in a fresh pool; returns those whose worker died (a broken pool) to run again."""
-        unfinished = {t.id: t for t in tasks}
-        with ProcessPoolExecutor(min(self.workers, len(tasks)), mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(execute, t, str(out), threads, keep): t for t in tasks}
-            try:
-                for fut in as_completed(futures):
-                    t = futures[fut]
-                    _record(status, t.id, fut.result(), bar)
-                    del unfinished[t.id]
-            except BrokenProcessPool:
-                log.warning("a worker process died; re-running its unfinished tasks in a new pool")
-        again = []
-        for t in unfinished.values():  # finished before the pool broke, or lost with it
-            if load_result(out, t) is not None:
-                _record(status, t.id, "done", bar)
-            else:
-                again.append(t)
-        return again
+        _WorkerSlots(min(self.workers, len(tasks)), str(out), threads, keep).run(tasks, status, bar)
 
     def _dask(self, tasks, out, keep, status, bar):
         from distributed import as_completed as dask_completed
@@ -166,6 +136,71 @@ class _backend:
             except Exception as exc:  # KilledWorker after too many deaths, lost scheduler, ...
                 outcome = f"failed: {type(exc).__name__}: {exc}"
             _record(status, t.id, outcome, bar)
+
+
+class _WorkerSlots:
+    """N long-lived worker processes, one task each at a time; a worker that dies costs only its task.
+
+    (A ProcessPoolExecutor whose worker dies breaks as a whole and kills the siblings' tasks too.)
+    The dead worker is replaced and its task re-run, up to ``MAX_ATTEMPTS`` times.
+    """
+
+    def __init__(self, n: int, out: str, threads: int, keep: bool):
+        self.ctx = get_context("spawn")
+        self.n, self.args = n, (out, threads, keep)
+        self.results = self.ctx.Queue()
+
+    def _start(self, slot: int):
+        inbox = self.ctx.Queue()
+        proc = self.ctx.Process(target=_worker_loop, args=(slot, inbox, self.results, *self.args), daemon=True)
+        proc.start()
+        return proc, inbox
+
+    def run(self, tasks: list[Task], status: RunStatus, bar) -> None:
+        queue, attempts = list(tasks), dict.fromkeys((t.id for t in tasks), 0)
+        slots = [self._start(i) for i in range(self.n)]
+        busy: dict[int, Task] = {}  # slot -> task
+        try:
+            while queue or busy:
+                for i in range(self.n):
+                    if i not in busy and queue:
+                        busy[i] = queue.pop(0)
+                        attempts[busy[i].id] += 1
+                        slots[i][1].put(busy[i])
+                self._collect(busy, status, bar)
+                for i, task in list(busy.items()):
+                    if not slots[i][0].is_alive():  # died mid-task: replace it, re-run only its task
+                        log.warning("worker running %s died; re-running that task", task.id)
+                        del busy[i]
+                        slots[i] = self._start(i)
+                        if attempts[task.id] < MAX_ATTEMPTS:
+                            queue.insert(0, task)
+                        else:
+                            _record(status, task.id, "failed: its worker process died repeatedly", bar)
+        finally:
+            for _, inbox in slots:
+                inbox.put(None)
+            for proc, _ in slots:
+                proc.join(timeout=5)
+                if proc.is_alive():
+                    proc.kill()
+
+    def _collect(self, busy: dict[int, Task], status: RunStatus, bar) -> None:
+        import queue as queue_mod
+
+        try:
+            slot, task_id, outcome = self.results.get(timeout=0.5)
+        except queue_mod.Empty:
+            return
+        if busy.get(slot) is not None and busy[slot].id == task_id:
+            del busy[slot]
+            _record(status, task_id, outcome, bar)
+
+
+def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool) -> None:
+    """Body of a local worker process: run tasks from ``inbox`` until it gets None."""
+    while (task := inbox.get()) is not None:
+        results.put((slot, task.id, execute(task, out, threads, keep)))
 
 
 def _count(text: str) -> int:

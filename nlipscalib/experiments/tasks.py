@@ -121,10 +121,13 @@ def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = 
     out = Path(out)
     if load_result(out, task) is not None:
         return "done"
+    from threadpoolctl import threadpool_limits
+
     start = time.perf_counter()
     try:
-        runner = {"reference": _run_reference, "calibration": _run_calibration, "press": _run_press}[task.kind]
-        body = runner(task, out, threads, keep_presses)
+        with threadpool_limits(limits=1):  # BLAS sums in a fixed order: the same numbers on any worker
+            runner = {"reference": _run_reference, "calibration": _run_calibration, "press": _run_press}[task.kind]
+            body = runner(task, out, threads, keep_presses)
     except Exception as exc:  # recorded, the sweep goes on
         write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": f"{type(exc).__name__}: {exc}"})
         return f"failed: {type(exc).__name__}: {exc}"
