@@ -55,7 +55,7 @@ class Q3(Experiment):
         "quick": Q3Config(twin=TwinConfig(**QUICK_TWIN), presses=PressGrid(indenters=(SCREW,)), leds=("true",)),
         "medium": Q3Config(
             twin=TwinConfig(**MEDIUM_TWIN),
-            presses=PressGrid(indenters=(SPHERE, SCREW), polar_deg=(15.0,), azimuth_deg=(30.0, 210.0)),
+            presses=PressGrid(indenters=(SPHERE, SCREW), polar_deg=(15.0,), azimuth_deg=(30.0,)),
         ),
         "full": Q3Config(),
     }

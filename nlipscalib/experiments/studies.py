@@ -80,7 +80,11 @@ class Studies(Experiment):
         ),
         "medium": StudiesConfig(
             twin=TwinConfig(**MEDIUM_TWIN),
-            presses=PressGrid(polar_deg=(10.0, 20.0), azimuth_deg=(30.0,)),
+            presses=PressGrid(),
+            noise=(0.0, 1.0, 2.0, 4.0),
+            led_position_mm=(0.0, 0.25, 0.5, 1.0),
+            depth=(0.5, 1.0, 1.5, 2.0),
+            albedo=(0.5, 0.8, 0.95),
         ),
         "full": StudiesConfig(),
     }
