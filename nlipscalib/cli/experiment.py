@@ -34,6 +34,7 @@ def register(sub) -> None:
     )
     p.add_argument("--check", help="baseline JSON: exit 1 when an accuracy figure got worse than it")
     p.add_argument("--write-baseline", help="write this run's accuracy figures as a baseline JSON")
+    p.add_argument("--plan", action="store_true", help="only print how many tasks the experiment has (and done)")
     p.add_argument("--keep-presses", action="store_true", help="keep the rendered press folders")
     p.set_defaults(func=run)
 
@@ -56,6 +57,9 @@ def run(args) -> int:
         cfg = exp.config(args.size, args.config)
         size = "custom" if args.config else args.size
         work = Path(args.out) / f"{name}-{size}"
+        if args.plan:
+            _print_plan(name, size, exp, cfg, work, options)
+            continue
         report = (
             Path(args.report) / name if args.report and args.name == "all" else Path(args.report or work / "report")
         )
@@ -89,6 +93,21 @@ def run(args) -> int:
         for name, why in UNAVAILABLE.items():
             print(f"{name}: not run: {why}", file=sys.stderr)
     return code
+
+
+def _print_plan(name: str, size: str, exp, cfg, work: Path, options: dict) -> None:
+    from ..experiments.framework import with_solver_options
+    from ..experiments.plan import build_tasks
+    from ..experiments.tasks import load_result
+
+    tasks = build_tasks(with_solver_options(exp.evaluations(cfg), options))
+    kinds = {k: sum(t.kind == k for t in tasks) for k in ("reference", "calibration", "press")}
+    solves = sum(len({str(e["solve"]) for e in t.evaluations}) for t in tasks)
+    done = sum(load_result(work, t) is not None for t in tasks)
+    print(
+        f"{name} ({size}): {len(tasks)} tasks = {kinds['reference']} references + {kinds['calibration']} "
+        f"calibrations + {kinds['press']} presses ({solves} solves); {done} done in {work}"
+    )
 
 
 def _options(pairs: list[str]) -> dict:

@@ -101,3 +101,10 @@ def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
     assert main(["experiment", "q1", "--config", str(cfg), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "q1.toml" in err and "widht" in err
+
+
+def test_plan_counts_tasks_without_running(tmp_path, capsys):
+    assert main(["experiment", "all", "--size", "full", "--plan", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 4 and lines[0].startswith("q1 (full): 74 tasks")  # 72 presses + reference + calibration
+    assert not any(tmp_path.iterdir())  # nothing rendered or written
