@@ -73,6 +73,18 @@ class Experiment:
         return build_tasks(self.evaluations(cfg))
 
 
+def _task_seconds(tasks, out: Path) -> dict:
+    """Seconds the finished tasks took, summed per kind (kept across resumes, unlike this run's wall time)."""
+    from .tasks import load_result
+
+    total: dict[str, float] = {}
+    for t in tasks:
+        result = load_result(out, t)
+        if result is not None:
+            total[t.kind] = total.get(t.kind, 0.0) + result.get("timing", {}).get("task_seconds", 0.0)
+    return {k: round(v, 1) for k, v in total.items()} | {"all": round(sum(total.values()), 1)}
+
+
 def with_solver_options(evaluations, options: dict):
     """The same evaluations with extra SolverOptions overrides in every solve (e.g. a worsened solver)."""
     if not options:
@@ -131,6 +143,7 @@ def run_experiment(
             "failed": status.failed,
         },
         "wall_seconds": round(run_s, 1),
+        "task_seconds": _task_seconds(tasks, out),
         "not_done": list(exp.not_done),
     }
     write_text(report / "results.json", dumps(doc))

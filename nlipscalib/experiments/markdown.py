@@ -41,7 +41,8 @@ def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
         f"{'on' if twin.get('noise') else 'off'}. AAE, MabsE and depth RMSE are over the true contact region "
         "(mean ± standard deviation over presses); AAE ROI is over the whole solved region. "
         f"{tasks['total']} tasks ({tasks['run_now']} run now, {tasks['already_done']} reused), "
-        f"{len(tasks['failed'])} failed; {doc['wall_seconds']} s wall on {mach['cores']} cores "
+        f"{len(tasks['failed'])} failed; {doc['wall_seconds']} s wall for this run, "
+        f"{doc['task_seconds']['all']} s of task time in all, on {mach['cores']} cores "
         f"({mach['cpu']}, load {mach['load_average']}); nlipscalib {sw['nlipscalib']} at `{sw['git_commit']}`. "
         "Every number, the exact configuration and the machine are in `results.json`.",
         "",
