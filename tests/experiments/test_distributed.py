@@ -41,6 +41,18 @@ def _wait(predicate, timeout: float = 600.0) -> None:
         time.sleep(0.2)
 
 
+def _worker_processes() -> list:
+    """This process's local experiment workers (spawned children; not multiprocessing's resource tracker)."""
+    found = []
+    for child in psutil.Process().children(recursive=True):
+        try:
+            if "spawn_main" in " ".join(child.cmdline()):
+                found.append(child)
+        except psutil.Error:  # exited meanwhile
+            pass
+    return found
+
+
 def _presses_started(out: Path) -> bool:
     """Stage 2 (presses) has begun: the calibration's result is written."""
     return any((out / "tasks").glob("cal-*.json"))
@@ -65,11 +77,9 @@ def local_run(tmp_path_factory):
     logging.getLogger("nlipscalib.experiments.runner").addHandler(handler)
     thread, box = _in_thread(lambda: _sweep(out, workers=2))  # noqa: B023
     _wait(lambda: _presses_started(out))
-    me = psutil.Process()
-    _wait(lambda: [p for p in me.children(recursive=True) if "spawn_main" in " ".join(p.cmdline())])
+    _wait(lambda: _worker_processes())
     time.sleep(1.0)  # mid-task: a press renders for seconds
-    workers = [p for p in me.children(recursive=True) if "spawn_main" in " ".join(p.cmdline())]
-    workers[0].send_signal(signal.SIGKILL)
+    _worker_processes()[0].send_signal(signal.SIGKILL)
     thread.join(timeout=900)
     logging.getLogger("nlipscalib.experiments.runner").removeHandler(handler)
     assert "error" not in box, box.get("error")
