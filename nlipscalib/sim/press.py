@@ -106,6 +106,36 @@ def press_seed(scene_seed: int, press_dict: dict | None) -> int:
     return int(np.random.SeedSequence([int(scene_seed), digest]).generate_state(1)[0])
 
 
+def render_spec_hash(scene, press=None, seed=None) -> str:
+    """Hash of everything that determines a render (scene, press, seed; not the thread count).
+
+    Stored as ``provenance.spec_hash`` so re-runs can tell a matching press folder from a stale one.
+    """
+    from ..config import to_mapping
+
+    press_dict = None if press is None else to_mapping(press)
+    seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
+    return _spec_digest(scene.to_dict(), press_dict, seed)
+
+
+def recorded_spec_hash(provenance: dict) -> str | None:
+    """The spec hash of a rendered press: recorded, or recomputed from older folders' provenance."""
+    if provenance.get("spec_hash"):
+        return provenance["spec_hash"]
+    try:
+        return _spec_digest(provenance["scene"], provenance["press"], int(provenance["seed"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _spec_digest(scene_dict: dict, press_dict: dict | None, seed: int) -> str:
+    from ..config import digest
+
+    data = dict(scene_dict)
+    data["render"] = {k: v for k, v in data["render"].items() if k != "threads"}
+    return digest({"scene": data, "press": press_dict, "seed": seed})
+
+
 def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False, return_result=False):
     """Render one press (or the undeformed dome when ``press`` is None) into a press folder.
 
@@ -139,6 +169,7 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
     tri = apply_noise(tricolor_linear(result.images), tri_exposure, cfg, rng)
     provenance = {
         "source": "sim",
+        "spec_hash": render_spec_hash(scene, press, seed),
         "scene": scene.to_dict(),
         "press": press_dict,
         "seed": seed,
