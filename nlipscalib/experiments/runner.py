@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import os
-import sys
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -68,9 +67,9 @@ def run_tasks(
 
 
 def _bar(total: int, initial: int, progress: bool):
-    from tqdm import tqdm
+    from ..progress import progress_bar
 
-    return tqdm(total=total, initial=initial, unit="task", disable=not (progress and sys.stderr.isatty()))
+    return progress_bar(total, enabled=progress, initial=initial, unit="task")
 
 
 def _record(status: RunStatus, task_id: str, outcome: str, bar) -> None:

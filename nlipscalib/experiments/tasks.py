@@ -22,6 +22,8 @@ import numpy as np
 from ..core.atomic import write_bytes, write_json
 
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
+CLAIM_STALE_S = 60.0
+"""A task claimed by a process that stopped its heartbeat this long ago (seconds) is taken over."""
 
 
 def digest(obj, n: int = 10) -> str:
@@ -118,8 +120,21 @@ def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = 
     Exceptions are recorded in ``tasks/<id>.failed.json`` (retried on the next run), never raised, so
     one bad press does not stop a sweep.
     """
+    from ..core.claims import claim
+
     out = Path(out)
-    if load_result(out, task) is not None:
+    while load_result(out, task) is None:
+        # another process or machine sharing the folder may be on this task: wait for it (its claim goes
+        # stale at once if it died on this host, after CLAIM_STALE_S elsewhere), never run it twice
+        with claim(result_path(out, task.id), stale_s=CLAIM_STALE_S) as mine:
+            if mine:
+                return _execute_claimed(task, out, threads, keep_presses)
+        time.sleep(1.0)
+    return "done"
+
+
+def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) -> str:
+    if load_result(out, task) is not None:  # finished by another process while we waited
         return "done"
     from threadpoolctl import threadpool_limits
 

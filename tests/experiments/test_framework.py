@@ -108,3 +108,28 @@ def test_plan_counts_tasks_without_running(tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 4 and lines[0].startswith("q1 (full): 74 tasks")  # 72 presses + reference + calibration
     assert not any(tmp_path.iterdir())  # nothing rendered or written
+
+
+def test_two_processes_on_one_folder_run_a_task_once(tmp_path, monkeypatch):
+    import threading
+    import time
+
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    calls = []
+
+    def slow_reference(task, out, threads, keep):
+        calls.append(task.id)
+        time.sleep(1.5)
+        return {"folder": "refs/x"}
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", slow_reference)
+    task = Task(kind="reference", id="ref-y", scene={"b": 1})
+    outcomes = []
+    threads = [threading.Thread(target=lambda: outcomes.append(tasks_mod.execute(task, tmp_path))) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    assert outcomes == ["done", "done"] and calls == ["ref-y"]  # the second waited for the first's result
+    assert load_result(tmp_path, task)["folder"] == "refs/x"
