@@ -103,7 +103,12 @@ class _backend:
             self.client = Client(self.cluster)
             self.threads = max(1, (os.cpu_count() or 1) // n)
         else:
-            self.client = Client(self.scheduler, timeout="30s")
+            if "://" not in self.scheduler:
+                raise ConfigError(f"--scheduler {self.scheduler!r}: give tcp://HOST:PORT or local:N")
+            try:
+                self.client = Client(self.scheduler, timeout="30s")
+            except (OSError, TimeoutError) as exc:
+                raise ConfigError(f"--scheduler {self.scheduler}: cannot reach the Dask scheduler ({exc})") from None
             self.threads = 0  # a remote worker renders with all its cores
         return self._dask
 
