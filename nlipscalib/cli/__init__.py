@@ -16,7 +16,7 @@ import sys
 from .. import __version__, progress
 from ..errors import MissingDependencyError, NlipsError
 
-SUBCOMMAND_MODULES = ("render", "dataset", "demo", "solve", "calibrate", "evaluate", "leds")
+SUBCOMMAND_MODULES = ("render", "dataset", "demo", "solve", "calibrate", "evaluate", "leds", "experiment")
 
 
 def build_parser() -> argparse.ArgumentParser:

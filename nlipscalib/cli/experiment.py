@@ -1,0 +1,136 @@
+"""``nlips experiment NAME|all``: the paper's experiments and the twin-only studies, with reports.
+
+Runs (or resumes) the experiment's per-press tasks into --out, then writes --report (report.md,
+results.json, PNG figures). Local processes by default; --scheduler tcp://HOST:PORT uses a running
+Dask cluster, --scheduler local:N starts a LocalCluster of N workers. --check BASELINE exits 1 with a
+table of the accuracy figures that got worse than the baseline by more than their tolerance.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "experiment",
+        help="run an experiment (q1, ablation, q3, studies, all) and write its report",
+        description=__doc__,
+    )
+    p.add_argument("name", help="q1, ablation, q3, studies, or all (q2 needs NLiPsNet)")
+    p.add_argument("--size", default="quick", help="quick (CI), medium or full (default quick)")
+    p.add_argument("--config", help="TOML/YAML file with the experiment's config fields (instead of --size)")
+    p.add_argument("--out", default="out/experiments", help="work folder: per-task results (default out/experiments)")
+    p.add_argument("--report", help="report folder (default OUT/NAME-SIZE/report); with 'all' one subfolder each")
+    p.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
+    p.add_argument("--scheduler", help="Dask scheduler address tcp://HOST:PORT, or local:N for a LocalCluster")
+    p.add_argument(
+        "--solver-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a SolverOptions field in every solve (repeatable), e.g. max_iters=2",
+    )
+    p.add_argument("--check", help="baseline JSON: exit 1 when an accuracy figure got worse than it")
+    p.add_argument("--write-baseline", help="write this run's accuracy figures as a baseline JSON")
+    p.add_argument("--plan", action="store_true", help="only print how many tasks the experiment has (and done)")
+    p.add_argument("--keep-presses", action="store_true", help="keep the rendered press folders")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..core.atomic import write_json
+    from ..errors import ConfigError
+    from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
+    from ..experiments.framework import run_experiment
+    from ..experiments.summary import clean
+
+    if args.name == "all" and (args.check or args.write_baseline or args.config):
+        raise ConfigError("--check, --write-baseline and --config need one experiment, not 'all'")
+    names = list(EXPERIMENTS) if args.name == "all" else [args.name]
+    options = _options(args.solver_option)
+    baseline = check.load_baseline(Path(args.check), args.name) if args.check else None  # fail fast
+    code = 0
+    for name in names:
+        exp = get(name)
+        cfg = exp.config(args.size, args.config)
+        size = "custom" if args.config else args.size
+        work = Path(args.out) / f"{name}-{size}"
+        if args.plan:
+            _print_plan(name, size, exp, cfg, work, options)
+            continue
+        report = (
+            Path(args.report) / name if args.report and args.name == "all" else Path(args.report or work / "report")
+        )
+        doc = run_experiment(
+            exp,
+            cfg,
+            work,
+            report,
+            size=size,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            solver_options=options,
+            keep_presses=args.keep_presses,
+        )
+        failed = doc["tasks"]["failed"]
+        print(
+            f"{name}: {doc['tasks']['total']} tasks, {len(failed)} failed, {doc['wall_seconds']} s; "
+            f"report {report / 'report.md'}"
+        )
+        code = code or (1 if failed else 0)
+        if args.write_baseline:
+            write_json(args.write_baseline, clean(check.baseline_document(name, size, doc["check_figures"])))
+        if args.check:
+            worse = check.compare(doc["check_figures"], baseline)
+            if worse:
+                print(f"{name}: {len(worse)} accuracy figure(s) worse than {args.check}:")
+                print(check.format_worse(worse))
+                return 1
+            print(f"{name}: no accuracy figure worse than {args.check}")
+    if args.name == "all":
+        for name, why in UNAVAILABLE.items():
+            print(f"{name}: not run: {why}", file=sys.stderr)
+    return code
+
+
+def _print_plan(name: str, size: str, exp, cfg, work: Path, options: dict) -> None:
+    from ..experiments.framework import with_solver_options
+    from ..experiments.plan import build_tasks
+    from ..experiments.tasks import load_result
+
+    tasks = build_tasks(with_solver_options(exp.evaluations(cfg), options))
+    kinds = {k: sum(t.kind == k for t in tasks) for k in ("reference", "calibration", "press")}
+    solves = sum(len({str(e["solve"]) for e in t.evaluations}) for t in tasks)
+    done = sum(load_result(work, t) is not None for t in tasks)
+    print(
+        f"{name} ({size}): {len(tasks)} tasks = {kinds['reference']} references + {kinds['calibration']} "
+        f"calibrations + {kinds['press']} presses ({solves} solves); {done} done in {work}"
+    )
+
+
+def _options(pairs: list[str]) -> dict:
+    """KEY=VALUE strings to typed SolverOptions overrides (validated by building SolverOptions)."""
+    import dataclasses
+    import json
+
+    from ..errors import ConfigError
+    from ..solver import SolverOptions
+
+    known = {f.name for f in dataclasses.fields(SolverOptions)}
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or key not in known:
+            raise ConfigError(
+                f"--solver-option {pair!r}: expected KEY=VALUE with KEY one of {', '.join(sorted(known))}"
+            )
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    from ..config import from_mapping
+
+    from_mapping(SolverOptions, out, "--solver-option")
+    return out

@@ -1,0 +1,181 @@
+"""The only seams between experiments and the rest of the workbench: render, calibrate, solve, score.
+
+Every experiment goes through these few functions, so when the twin, the solver or the pipeline gain
+a better API (interreflection-aware LED calibration, ``pipeline.solve_presses``), only this file changes.
+This is wiring (like cli/): it may import sim/ and solver/ together.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..config import from_mapping
+from ..core.leds import Led
+from ..errors import CaptureError, ConfigError
+
+SOLVER_RNG_SEED = 0
+"""numpy's global generator is seeded with this before every solve and calibration: pyamg draws random
+vectors from it (spectral-radius estimates of its smoothers), and unseeded the same press solved twice
+differs by ~1e-6 degrees; seeded, a press gives the same bits in any process or Dask worker."""
+ROI_MARGIN_PX = 8
+"""Margin around the true contact's bounding box for ``roi = "truth"``, pixels."""
+
+
+def build_scene(scene: dict):
+    """SceneConfig from a full scene mapping (as stored in a task)."""
+    from ..sim.scene import SceneConfig
+
+    return from_mapping(SceneConfig, scene, "experiment scene")
+
+
+def render(scene: dict, press: dict | None, folder: Path, threads: int = 0) -> Path:
+    """Render one press (None: the undeformed dome) of the twin into a press folder (atomic).
+
+    The render and noise seed derive from the scene's seed and the press description
+    (``sim.press.press_seed``), so the same task renders the same images on any worker.
+    """
+    from ..sim.indent import PressConfig
+    from ..sim.press import render_press
+
+    cfg = build_scene(scene).replace(render={"threads": int(threads)})
+    press_cfg = None if press is None else from_mapping(PressConfig, press, "experiment press")
+    return render_press(cfg, press_cfg, folder, overwrite=True)
+
+
+def load(folder: Path):
+    from ..core.capture import load_press
+
+    return load_press(folder)
+
+
+def perturb_leds(leds, position_mm: float = 0.0, direction_deg: float = 0.0, seed: int = 0) -> tuple[Led, ...]:
+    """LEDs as a CAD with errors would give them: each moved by exactly ``position_mm`` in a random
+    direction and its axis tilted by exactly ``direction_deg`` about a random perpendicular axis.
+
+    Parameters
+    ----------
+    leds : sequence of Led, camera frame, mm
+    position_mm, direction_deg : size of the error (fixed magnitude, random direction per LED)
+    seed : the random directions' seed
+
+    Returns
+    -------
+    tuple of Led
+    """
+    if position_mm == 0 and direction_deg == 0:
+        return tuple(leds)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 7919]))
+    out = []
+    for led in leds:
+        shift = rng.normal(size=3)
+        shift *= position_mm / np.linalg.norm(shift)
+        d = np.asarray(led.direction)
+        axis = np.cross(d, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        a = np.radians(direction_deg)  # Rodrigues, axis perpendicular to d
+        new_d = d * np.cos(a) + np.cross(axis, d) * np.sin(a)
+        out.append(
+            Led(
+                position=tuple(np.asarray(led.position) + shift),
+                direction=tuple(new_d),
+                mu=led.mu,
+                intensity=led.intensity,
+            )
+        )
+    return tuple(out)
+
+
+def calibrate(reference_folder: Path, initial) -> tuple[tuple[Led, ...], dict]:
+    """LED self-calibration from the undeformed dome's capture, starting from ``initial`` LEDs.
+
+    Returns the calibrated LEDs (camera frame) and a JSON-able summary (RMS residual per LED).
+    """
+    from ..solver import calibrate_leds
+
+    np.random.seed(SOLVER_RNG_SEED)
+    cal = calibrate_leds(load(reference_folder), initial=initial)
+    return cal.leds, {"rms": [float(r) for r in cal.rms], "albedo": list(cal.albedo)}
+
+
+def solver_options(overrides: dict):
+    from ..solver import SolverOptions
+
+    return from_mapping(SolverOptions, dict(overrides), "solver options")
+
+
+def truth_roi(press, margin: int = ROI_MARGIN_PX) -> tuple[int, int, int, int]:
+    """(x0, y0, w, h) around the true contact: solver accuracy without the contact detector's errors."""
+    contact = press.ground_truth.contact & press.ground_truth.valid
+    if not contact.any():
+        raise CaptureError(f"{press.folder}: the press has no visible contact")
+    rows, cols = np.nonzero(contact)
+    H, W = press.camera.shape
+    y0, y1 = max(rows.min() - margin, 0), min(rows.max() + 1 + margin, H)
+    x0, x1 = max(cols.min() - margin, 0), min(cols.max() + 1 + margin, W)
+    return int(x0), int(y0), int(max(x1 - x0, 4)), int(max(y1 - y0, 4))
+
+
+def solve(press, *, leds, interreflection: str, reference=None, roi: str = "truth", options=None, albedo=0.8):
+    """NLiPs on one press.
+
+    Parameters
+    ----------
+    press : Press (with ground truth when ``roi = "truth"``)
+    leds : sequence of Led given to the solver (true, CAD-with-error or self-calibrated)
+    interreflection : "off" (direct model only), "reference" (subtract the undeformed dome's own
+        indirect light) or "dent" (also the dent's own one-bounce change)
+    reference : Press of the undeformed dome, needed unless ``interreflection == "off"``
+    roi : "truth" (true contact box), "auto" (the solver's contact detector) or "full"
+    options : SolverOptions or None
+    albedo : coating albedo the solver assumes for the dent correction
+
+    Returns
+    -------
+    SolveResult
+    """
+    from ..solver import solve_press
+
+    if interreflection not in ("off", "reference", "dent"):
+        raise ConfigError(f"interreflection must be off, reference or dent, got {interreflection!r}")
+    if interreflection != "off" and reference is None:
+        raise ConfigError(f"interreflection {interreflection!r} needs the undeformed reference capture")
+    np.random.seed(SOLVER_RNG_SEED)
+    box = {"truth": lambda: truth_roi(press), "auto": lambda: "auto", "full": lambda: None}[roi]()
+    return solve_press(
+        press,
+        roi=box,
+        leds=leds,
+        options=options,
+        indirect=None if interreflection == "off" else reference,
+        dent_interreflection=interreflection == "dent",
+        coating_albedo=albedo,
+    )
+
+
+def score(result, ground_truth) -> dict:
+    """AAE / MabsE / depth RMSE over the solved region ("all") and its true contact ("contact")."""
+    from ..core.metrics import evaluate
+
+    return evaluate(result, ground_truth)
+
+
+def error_crop(result, ground_truth) -> dict[str, np.ndarray]:
+    """Arrays for the error-map figures, cut to the solved region's bounding box.
+
+    Returns
+    -------
+    dict with "true" and "estimate" (h, w, 3) float32 normals (NaN outside), "error" (h, w) float32 degrees
+    """
+    from ..core.metrics import angular_error_map
+
+    shown = result.reconstructed & ground_truth.valid
+    if not shown.any():
+        return {}
+    rows, cols = np.nonzero(shown)
+    win = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    est = np.where(shown[..., None], result.normals, np.nan)[win]
+    gt = np.where(shown[..., None], ground_truth.normals, np.nan)[win]
+    err = angular_error_map(est, gt)
+    return {"true": gt.astype(np.float32), "estimate": est.astype(np.float32), "error": err.astype(np.float32)}

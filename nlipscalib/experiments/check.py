@@ -1,0 +1,67 @@
+"""Regression check: compare an experiment's accuracy figures with a stored baseline."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+from ..core import tolerances
+from ..errors import ConfigError
+from .summary import METRICS
+
+
+def headline(rows: list[dict], by: tuple[str, ...]) -> dict[str, float]:
+    """Accuracy figures keyed "label=value/...: metric" from aggregated rows."""
+    out = {}
+    for row in rows:
+        name = "/".join(f"{k}={row[k]}" for k in by)
+        for m in METRICS:
+            out[f"{name}: {m}"] = row[m]
+    return out
+
+
+def baseline_document(experiment: str, size: str, figures: dict[str, float]) -> dict:
+    tol = {m: {"abs": tolerances.EXPERIMENT_CHECK_ABS[m], "rel": tolerances.EXPERIMENT_CHECK_REL} for m in METRICS}
+    return {"experiment": experiment, "size": size, "figures": figures, "tolerances": tol}
+
+
+def load_baseline(path: Path, experiment: str) -> dict:
+    try:
+        data = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such baseline file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("figures"), dict):
+        raise ConfigError(f"{path}: a baseline needs a 'figures' mapping (write one with --write-baseline)")
+    if data.get("experiment") not in (None, experiment):
+        raise ConfigError(f"{path}: baseline of experiment {data.get('experiment')!r}, not {experiment!r}")
+    return data
+
+
+def compare(current: dict[str, float], baseline: dict) -> list[dict]:
+    """Figures worse than the baseline by more than their tolerance (missing or NaN counts as worse)."""
+    tol = baseline.get("tolerances", {})
+    worse = []
+    for key, base in baseline["figures"].items():
+        if base is None:
+            continue
+        metric = key.rsplit(": ", 1)[-1]
+        t = tol.get(metric, {})
+        allowed = max(
+            t.get("abs", tolerances.EXPERIMENT_CHECK_ABS.get(metric, 0.0)),
+            t.get("rel", tolerances.EXPERIMENT_CHECK_REL) * abs(base),
+        )
+        now = current.get(key)
+        if now is None or not math.isfinite(now) or now > base + allowed:
+            worse.append({"figure": key, "baseline": base, "now": now, "allowed": base + allowed})
+    return worse
+
+
+def format_worse(worse: list[dict]) -> str:
+    lines = [f"{'figure':<50} {'baseline':>10} {'now':>10} {'allowed':>10}"]
+    for w in worse:
+        now = "missing" if w["now"] is None or not math.isfinite(w["now"]) else f"{w['now']:.4f}"
+        lines.append(f"{w['figure']:<50} {w['baseline']:>10.4f} {now:>10} {w['allowed']:>10.4f}")
+    return "\n".join(lines)

@@ -1,0 +1,50 @@
+"""Shared pieces of the experiment definitions: sizes of the twin, indenters, figure helpers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..sim.indenters import IndenterConfig
+from .summary import aggregate
+
+SPHERE = IndenterConfig(kind="sphere", size=6.0)
+CUBE = IndenterConfig(kind="cube", size=5.0)
+SCREW = IndenterConfig(kind="screw", size=4.0, length=10.0)
+
+QUICK_TWIN = {"width": 96, "height": 72, "spp": 2, "bounces": 1}
+"""CI size: tiny images, few samples (noisy numbers; they test the plumbing and catch gross regressions)."""
+MEDIUM_TWIN = {"width": 320, "height": 240, "spp": 16, "bounces": 1}
+"""What fits a shared 2-core machine in an hour or so."""
+FULL_TWIN = {"width": 640, "height": 480, "spp": 16, "bounces": 1}
+"""The default twin's full resolution."""
+
+
+def series_by(rows: list[dict], category: str, series: str, metric: str, categories=None, labels=None):
+    """Means and standard deviations of ``metric`` per (series label, category) for bar charts and sweeps."""
+    agg = aggregate(rows, (series, category))
+    categories = categories or list(dict.fromkeys(r[category] for r in rows))
+    labels = labels or list(dict.fromkeys(r[series] for r in rows))
+    out = {}
+    for label in labels:
+        found = {r[category]: r for r in agg if r[series] == label}
+        out[str(label)] = (
+            [found[c][metric] if c in found else np.nan for c in categories],
+            [found[c][metric + "_std"] if c in found else np.nan for c in categories],
+        )
+    return categories, out
+
+
+def map_rows(rows: list[dict], out: Path, key: tuple[str, ...], limit: int = 6) -> list:
+    """Error-map figure rows: the first evaluation of each distinct ``key`` labels (at most ``limit``)."""
+    seen, picked = set(), []
+    for r in rows:
+        name = tuple(r[k] for k in key)
+        if name in seen or not r.get("map") or len(picked) >= limit:
+            continue
+        seen.add(name)
+        with np.load(Path(out) / r["map"]) as z:
+            title = ", ".join(str(v) for v in name) + f"\n{r['press']}"
+            picked.append((title, z["true"], z["estimate"], z["error"]))
+    return picked

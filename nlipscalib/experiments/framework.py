@@ -1,0 +1,151 @@
+"""An experiment = a frozen-dataclass config with named sizes, expanded into per-press tasks, run, reported.
+
+Subclasses of :class:`Experiment` say what to evaluate (``evaluations``), how to tabulate it
+(``tables``), what to draw (``figures``) and which table the regression check reads; running,
+resuming, the report's JSON and Markdown are common.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+from ..config import from_mapping, read_config_file, to_mapping
+from ..core.atomic import write_text
+from ..errors import ConfigError
+from . import check, markdown
+from .plan import build_tasks
+from .provenance import machine, software
+from .runner import run_tasks
+from .summary import dumps, evaluation_rows
+
+
+@dataclasses.dataclass
+class Table:
+    """One table of a report."""
+
+    name: str
+    caption: str
+    by: tuple[str, ...]
+    """Group labels (the first columns)."""
+    rows: list[dict]
+    """Aggregated rows (:func:`summary.aggregate`), possibly with paper columns added."""
+    paper: dict[str, str] = dataclasses.field(default_factory=dict)
+    """Extra columns: key in the rows -> header (the paper's numbers)."""
+
+
+class Experiment:
+    """Base of every experiment (subclasses set the class attributes and the three methods)."""
+
+    name: str = ""
+    title: str = ""
+    description: str = ""
+    config_cls: type = object
+    sizes: dict = {}
+    """Size name -> config instance (quick: CI; medium: what fits a small machine; full: the paper's scale)."""
+    paper: dict = {}
+    """The paper's numbers, shown side by side and stored in the JSON."""
+    check_table: str = ""
+    """Name of the table whose figures ``--check`` compares."""
+    not_done: tuple[str, ...] = ()
+    """Parts of the issue this experiment does not run (and why), listed in the report."""
+
+    def evaluations(self, cfg) -> list[tuple[dict, dict, dict, dict]]:
+        raise NotImplementedError
+
+    def tables(self, cfg, rows: list[dict]) -> list[Table]:
+        raise NotImplementedError
+
+    def figures(self, cfg, rows: list[dict], tables: list[Table], out: Path, folder: Path) -> list[tuple[str, str]]:
+        return []
+
+    # ------------------------------------------------------------------ common machinery
+    def config(self, size: str = "quick", config_file: str | Path | None = None):
+        """The config of a named size, or read from a TOML/YAML file (fields of ``config_cls``)."""
+        if config_file is not None:
+            return from_mapping(self.config_cls, read_config_file(config_file), str(config_file))
+        if size not in self.sizes:
+            raise ConfigError(f"experiment {self.name}: unknown size {size!r} (known: {', '.join(self.sizes)})")
+        return self.sizes[size]
+
+    def tasks(self, cfg):
+        return build_tasks(self.evaluations(cfg))
+
+
+def _task_seconds(tasks, out: Path) -> dict:
+    """Seconds the finished tasks took, summed per kind (kept across resumes, unlike this run's wall time)."""
+    from .tasks import load_result
+
+    total: dict[str, float] = {}
+    for t in tasks:
+        result = load_result(out, t)
+        if result is not None:
+            total[t.kind] = total.get(t.kind, 0.0) + result.get("timing", {}).get("task_seconds", 0.0)
+    return {k: round(v, 1) for k, v in total.items()} | {"all": round(sum(total.values()), 1)}
+
+
+def with_solver_options(evaluations, options: dict):
+    """The same evaluations with extra SolverOptions overrides in every solve (e.g. a worsened solver)."""
+    if not options:
+        return evaluations
+    out = []
+    for scene, press, labels, solve in evaluations:
+        merged = dict(solve["options"]) | options
+        out.append((scene, press, labels, solve | {"options": dict(sorted(merged.items()))}))
+    return out
+
+
+def run_experiment(
+    exp: Experiment,
+    cfg,
+    out: Path,
+    report: Path,
+    *,
+    size: str,
+    workers: int = 1,
+    scheduler: str | None = None,
+    solver_options: dict | None = None,
+    keep_presses: bool = False,
+    progress: bool = True,
+) -> dict:
+    """Run (or resume) an experiment into ``out`` and write its report into ``report``.
+
+    Returns the report's JSON document (also written to ``report/results.json``).
+    """
+    start = time.perf_counter()
+    evaluations = with_solver_options(exp.evaluations(cfg), solver_options or {})
+    tasks = build_tasks(evaluations)
+    status = run_tasks(tasks, out, workers=workers, scheduler=scheduler, keep_presses=keep_presses, progress=progress)
+    run_s = time.perf_counter() - start
+    rows = evaluation_rows(tasks, out)
+    tables = exp.tables(cfg, rows)
+    report.mkdir(parents=True, exist_ok=True)
+    figures = exp.figures(cfg, rows, tables, out, report)
+    main = next((t for t in tables if t.name == exp.check_table), tables[0] if tables else None)
+    doc = {
+        "experiment": exp.name,
+        "title": exp.title,
+        "size": size,
+        "config": to_mapping(cfg),
+        "solver_option_overrides": solver_options or {},
+        "software": software(),
+        "machine": machine(),
+        "execution": {"workers": workers, "scheduler": scheduler, "output": str(out)},
+        "paper": exp.paper,
+        "tables": {t.name: {"caption": t.caption, "by": list(t.by), "rows": t.rows} for t in tables},
+        "check_figures": check.headline(main.rows, main.by) if main else {},
+        "evaluations": rows,
+        "tasks": {
+            "total": len(tasks),
+            "run_now": len(status.done),
+            "already_done": len(status.skipped),
+            "failed": status.failed,
+        },
+        "wall_seconds": round(run_s, 1),
+        "task_seconds": _task_seconds(tasks, out),
+        "not_done": list(exp.not_done),
+    }
+    write_text(report / "results.json", dumps(doc))
+    write_text(report / "report.md", markdown.report(exp, doc, tables, figures))
+    return doc

@@ -1,0 +1,60 @@
+"""The Markdown page of an experiment report (text only; figures come from nlipscalib.report)."""
+
+from __future__ import annotations
+
+import math
+
+
+def fmt(value, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+METRIC_HEADERS = (("aae_deg", "AAE (°)", 2), ("mabse", "MabsE", 4), ("depth_rmse_mm", "depth RMSE (mm)", 3))
+
+
+def table(t) -> str:
+    heads = list(t.by) + ["n"] + [h for _, h, _ in METRIC_HEADERS] + ["AAE ROI (°)"] + list(t.paper.values())
+    lines = [f"**{t.caption}**", "", "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
+    for r in t.rows:
+        cells = [fmt(r.get(k)) for k in t.by] + [f"{r['n']}" + (f" ({r['failed']} failed)" if r["failed"] else "")]
+        cells += [fmt(r[m], d) + (f" ± {fmt(r[m + '_std'], d)}" if r["n"] > 1 else "") for m, _, d in METRIC_HEADERS]
+        cells += [fmt(r.get("roi_aae_deg"), 2)] + [fmt(r.get(k), 4 if "mabse" in k else 2) for k in t.paper]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
+    cfg, mach, sw = doc["config"], doc["machine"], doc["software"]
+    twin = cfg.get("twin", {})
+    tasks = doc["tasks"]
+    parts = [
+        f"# {exp.title}",
+        "",
+        exp.description,
+        "",
+        f"Size **{doc['size']}**; twin: scene `{twin.get('scene')}` at {twin.get('width')}x{twin.get('height')} px, "
+        f"{twin.get('spp')} spp, {twin.get('bounces')} interreflection bounce(s), noise "
+        f"{'on' if twin.get('noise') else 'off'}. AAE, MabsE and depth RMSE are over the true contact region "
+        "(mean ± standard deviation over presses); AAE ROI is over the whole solved region. "
+        f"{tasks['total']} tasks ({tasks['run_now']} run now, {tasks['already_done']} reused), "
+        f"{len(tasks['failed'])} failed; {doc['wall_seconds']} s wall for this run, "
+        f"{doc['task_seconds']['all']} s of task time in all, on {mach['cores']} cores "
+        f"({mach['cpu']}, load {mach['load_average']}); nlipscalib {sw['nlipscalib']} at `{sw['git_commit']}`. "
+        "Every number, the exact configuration and the machine are in `results.json`.",
+        "",
+    ]
+    if doc["solver_option_overrides"]:
+        parts += [f"Solver option overrides: `{doc['solver_option_overrides']}`.", ""]
+    for t in tables:
+        parts += [table(t), ""]
+    for caption, path in figures:
+        parts += [f"![{caption}]({path})", "", f"*{caption}*", ""]
+    if doc["not_done"]:
+        parts += ["## Not done", ""] + [f"- {line}" for line in doc["not_done"]] + [""]
+    if tasks["failed"]:
+        parts += ["## Failed tasks", ""] + [f"- `{k}`: {v}" for k, v in tasks["failed"].items()] + [""]
+    return "\n".join(parts)

@@ -1,0 +1,113 @@
+"""From an experiment's list of wanted evaluations to the fewest tasks: one render per distinct press.
+
+An experiment asks for evaluations = (scene, press, labels, solve). Evaluations of the same press on
+the same scene share one render (an LED-error sweep solves one press many ways); every scene gets one
+reference task, every (scene, LED error) that a calibrated solve needs one calibration task.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ..config import to_mapping
+from ..sim.indent import PressConfig
+from ..sim.indenters import IndenterConfig
+from .tasks import SolveSpec, Task, calibration_id, digest, scene_key
+
+
+@dataclasses.dataclass(frozen=True)
+class TwinConfig:
+    """The digital twin an experiment renders with (overrides of a shipped or given scene)."""
+
+    scene: str = "nlipstac"
+    """Scene file or shipped scene name."""
+    width: int = 320
+    """Image width, pixels (the camera's field of view is kept)."""
+    height: int = 240
+    """Image height, pixels."""
+    spp: int = 16
+    """Samples per pixel."""
+    bounces: int = 1
+    """Interreflection bounces (0 = direct light only)."""
+    noise: bool = True
+    """Sensor noise on."""
+    seed: int = 0
+    """Render and noise seed of the scene (each press mixes in its own description)."""
+
+    def scene_dict(self, scene: str | None = None, **sections) -> dict:
+        """Full scene mapping with this twin's settings and extra section overrides."""
+        from ..sim.scene import load_scene
+
+        cfg = load_scene(scene or self.scene)
+        base = {
+            "camera": {"width": self.width, "height": self.height},
+            "render": {"spp": self.spp, "bounces": self.bounces, "seed": self.seed, "threads": 0},
+            "noise": {"enabled": self.noise},
+        }
+        for name, changes in sections.items():
+            base[name] = base.get(name, {}) | changes
+        return cfg.replace(**base).to_dict()
+
+
+@dataclasses.dataclass(frozen=True)
+class PressGrid:
+    """Presses: every combination of indenters, locations and depths."""
+
+    indenters: tuple[IndenterConfig, ...] = (IndenterConfig(kind="sphere", size=6.0),)
+    """Indenters."""
+    polar_deg: tuple[float, ...] = (15.0,)
+    """Polar angles of the press locations, degrees."""
+    azimuth_deg: tuple[float, ...] = (30.0,)
+    """Azimuths of the press locations, degrees."""
+    depth: tuple[float, ...] = (1.0,)
+    """Indentation depths, mm."""
+
+    def presses(self, indenters=None, depth=None) -> list[dict]:
+        out = []
+        for ind in indenters or self.indenters:
+            for polar in self.polar_deg:
+                for az in self.azimuth_deg:
+                    for d in depth or self.depth:
+                        p = PressConfig(indenter=ind, polar_deg=polar, azimuth_deg=az, depth=d)
+                        out.append(to_mapping(p))
+        return out
+
+
+def press_name(press: dict) -> str:
+    ind = press["indenter"]
+    return f"{ind['kind']}-p{press['polar_deg']:g}-a{press['azimuth_deg']:g}-d{press['depth']:g}"
+
+
+def solve_dict(**fields) -> dict:
+    """SolveSpec as a mapping; ``options`` may be given as a dict."""
+    opts = fields.pop("options", {}) or {}
+    return SolveSpec(options=tuple(sorted(dict(opts).items())), **fields).to_dict()
+
+
+def build_tasks(evaluations: list[tuple[dict, dict, dict, dict]]) -> list[Task]:
+    """Tasks for (scene, press, labels, solve) evaluations, in a fixed order.
+
+    Returns reference tasks, then calibration tasks, then press tasks (ids are readable and unique).
+    """
+    presses: dict[str, dict] = {}
+    refs: dict[str, Task] = {}
+    cals: dict[str, Task] = {}
+    for scene, press, labels, solve in evaluations:
+        skey = scene_key(scene)
+        refs.setdefault(skey, Task(kind="reference", id=f"ref-{skey}", scene=scene))
+        if solve["leds"] == "calibrated":
+            err = {
+                "position_mm": solve["position_error_mm"],
+                "direction_deg": solve["direction_error_deg"],
+                "seed": solve["error_seed"],
+            }
+            cid = calibration_id(scene, err)
+            cals.setdefault(cid, Task(kind="calibration", id=cid, scene=scene, led_error=err))
+        pid = f"{press_name(press)}-{skey}-{digest(press, 6)}"
+        entry = presses.setdefault(pid, {"scene": scene, "press": press, "evaluations": []})
+        entry["evaluations"].append({"labels": labels, "solve": solve})
+    press_tasks = [
+        Task(kind="press", id=pid, scene=e["scene"], press=e["press"], evaluations=tuple(e["evaluations"]))
+        for pid, e in presses.items()
+    ]
+    return list(refs.values()) + list(cals.values()) + press_tasks

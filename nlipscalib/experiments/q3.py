@@ -1,0 +1,116 @@
+"""Q3, dome shapes: every shipped sensor (scenes/*.toml) with sphere, cube and screw presses."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from ..report import experiments as fig
+from ..sim.scene import SCENES_DIR
+from .common import CUBE, FULL_TWIN, MEDIUM_TWIN, QUICK_TWIN, SCREW, SPHERE, map_rows, series_by
+from .framework import Experiment, Table
+from .plan import PressGrid, TwinConfig, solve_dict
+from .summary import aggregate
+
+PAPER_BOUND_DEG = 10.0
+"""The paper: AAE below 10° on each of its three dome shapes."""
+
+
+def shipped_shapes() -> tuple[str, ...]:
+    """Names of the shipped sensor scenes (scenes/*.toml), the default first."""
+    names = sorted(p.stem for p in SCENES_DIR.glob("*.toml"))
+    return tuple(sorted(names, key=lambda n: n != "nlipstac"))
+
+
+@dataclasses.dataclass(frozen=True)
+class Q3Config:
+    """Q3: NLiPs on every dome shape."""
+
+    twin: TwinConfig = TwinConfig(**FULL_TWIN)
+    """Render settings (its ``scene`` is replaced by each shape)."""
+    shapes: tuple[str, ...] = shipped_shapes()
+    """Scene names or files, one per dome shape."""
+    presses: PressGrid = PressGrid(
+        indenters=(SPHERE, CUBE, SCREW), polar_deg=(5.0, 15.0, 25.0), azimuth_deg=(0.0, 120.0, 240.0)
+    )
+    """Presses on every shape (a screw is always among them)."""
+    leds: tuple[str, ...] = ("true", "calibrated")
+    """LEDs given to the solver (each shape is self-calibrated on its own undeformed capture)."""
+    interreflection: str = "dent"
+    """Interreflection correction of the solver."""
+    roi: str = "truth"
+    """Solved region: truth, auto or full."""
+
+
+class Q3(Experiment):
+    name = "q3"
+    title = "Q3: dome shapes"
+    description = (
+        "Every shipped sensor shape (hemisphere, fingertip, oblate, capsule, flat pad), each with its LEDs "
+        "self-calibrated on its own undeformed capture, pressed with a sphere, a cube and a screw (side on). "
+        "The paper reports AAE below 10° on its three dome shapes."
+    )
+    config_cls = Q3Config
+    sizes = {
+        "quick": Q3Config(twin=TwinConfig(**QUICK_TWIN), presses=PressGrid(indenters=(SCREW,)), leds=("true",)),
+        "medium": Q3Config(
+            twin=TwinConfig(**MEDIUM_TWIN),
+            presses=PressGrid(indenters=(SPHERE, SCREW), polar_deg=(15.0,), azimuth_deg=(30.0,)),
+        ),
+        "full": Q3Config(),
+    }
+    paper = {"aae_deg_below": PAPER_BOUND_DEG, "shapes": 3, "source": "paper, three real dome shapes"}
+    check_table = "q3"
+
+    def evaluations(self, cfg: Q3Config):
+        out = []
+        for shape in cfg.shapes:
+            scene = cfg.twin.scene_dict(scene=shape)
+            for p in cfg.presses.presses():
+                for leds in cfg.leds:
+                    labels = {"shape": scene["name"], "indenter": p["indenter"]["kind"], "leds": leds}
+                    out.append(
+                        (scene, p, labels, solve_dict(leds=leds, interreflection=cfg.interreflection, roi=cfg.roi))
+                    )
+        return out
+
+    def tables(self, cfg, rows):
+        by_shape = aggregate(rows, ("shape", "leds"))
+        for r in by_shape:
+            r["paper_below"] = f"< {PAPER_BOUND_DEG:g}"
+        return [
+            Table(
+                "q3",
+                "AAE per dome shape (all indenters)",
+                ("shape", "leds"),
+                by_shape,
+                {"paper_below": "paper AAE (°)"},
+            ),
+            Table(
+                "q3_by_indenter",
+                "Per dome shape and indenter",
+                ("shape", "indenter", "leds"),
+                aggregate(rows, ("shape", "indenter", "leds")),
+            ),
+        ]
+
+    def figures(self, cfg, rows, tables, out: Path, folder: Path):
+        true_rows = [r for r in rows if r["leds"] == cfg.leds[0]]
+        cats, aae = series_by(true_rows, "shape", "indenter", "aae_deg")
+        fig.grouped_bars(
+            cats,
+            aae,
+            f"AAE in the contact (°), {cfg.leds[0]} LEDs",
+            folder / "q3_aae.png",
+            {"paper bound": PAPER_BOUND_DEG},
+        )
+        maps = map_rows(
+            [r for r in true_rows if r["indenter"] == "screw"], out, ("shape", "indenter"), limit=len(cfg.shapes)
+        )
+        figs = [("AAE per dome shape and indenter", "q3_aae.png")]
+        if maps:
+            fig.error_maps(maps, folder / "q3_screw_maps.png")
+            figs.append(
+                ("A screw pressed into each dome shape: true normals, NLiPs, angular error", "q3_screw_maps.png")
+            )
+        return figs

@@ -1,0 +1,217 @@
+"""Running tasks: in this process, in local worker processes, or on a Dask cluster; stage by stage.
+
+Results never travel back through the executor: each task writes its JSON into the shared output
+folder, and the runner only learns "done" or "failed". That is what makes a sweep resumable and
+lets a worker die: Dask re-runs a dead worker's task elsewhere (``allowed-failures``), the local
+pool is rebuilt and the unfinished tasks re-submitted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+from multiprocessing import get_context
+from pathlib import Path
+
+from ..errors import ConfigError, MissingDependencyError
+from .tasks import Task, execute, load_result
+
+log = logging.getLogger(__name__)
+MAX_ATTEMPTS = 3
+"""A task whose worker died this many times is given up (reported as failed)."""
+
+
+@dataclasses.dataclass
+class RunStatus:
+    done: list[str] = dataclasses.field(default_factory=list)
+    """Tasks run now."""
+    skipped: list[str] = dataclasses.field(default_factory=list)
+    """Tasks already done on disk."""
+    failed: dict[str, str] = dataclasses.field(default_factory=dict)
+    """Task id -> reason."""
+
+
+def run_tasks(
+    tasks: list[Task],
+    out: Path,
+    *,
+    workers: int = 1,
+    scheduler: str | None = None,
+    keep_presses: bool = False,
+    progress: bool = True,
+) -> RunStatus:
+    """Run every task not yet done, stage by stage (references, calibrations, presses).
+
+    Parameters
+    ----------
+    workers : local worker processes (1 = in this process); ignored with ``scheduler``
+    scheduler : None (local), "local:N" (start a Dask LocalCluster of N single-threaded worker
+        processes) or the address of a running Dask scheduler ("tcp://host:8786")
+    """
+    out = Path(out)
+    (out / "tasks").mkdir(parents=True, exist_ok=True)
+    status = RunStatus()
+    todo = []
+    for t in tasks:
+        if load_result(out, t) is not None:
+            status.skipped.append(t.id)
+        else:
+            todo.append(t)
+    bar = _bar(len(tasks), len(status.skipped), progress)
+    with _backend(scheduler, workers) as backend:
+        for stage in sorted({t.stage for t in todo}):
+            backend([t for t in todo if t.stage == stage], out, keep_presses, status, bar)
+    bar.close()
+    return status
+
+
+def _bar(total: int, initial: int, progress: bool):
+    from ..progress import progress_bar
+
+    return progress_bar(total, enabled=progress, initial=initial, unit="task")
+
+
+def _record(status: RunStatus, task_id: str, outcome: str, bar) -> None:
+    if outcome == "done":
+        status.done.append(task_id)
+    else:
+        status.failed[task_id] = outcome.removeprefix("failed: ")
+        log.warning("%s: %s", task_id, outcome)
+    bar.update(1)
+
+
+class _backend:
+    """Context manager giving ``run(tasks, out, keep, status, bar)`` for the chosen executor."""
+
+    def __init__(self, scheduler: str | None, workers: int):
+        self.scheduler, self.workers = scheduler, max(1, int(workers))
+        self.client = self.cluster = None
+
+    def __enter__(self):
+        if self.scheduler is None:
+            return self._local
+        try:
+            from distributed import Client, LocalCluster
+        except ModuleNotFoundError:
+            raise MissingDependencyError(
+                "--scheduler needs dask.distributed: pip install 'nlipscalib[cluster]'"
+            ) from None
+        if self.scheduler.startswith("local:"):
+            n = _count(self.scheduler.removeprefix("local:"))
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+            self.client = Client(self.cluster)
+            self.threads = max(1, (os.cpu_count() or 1) // n)
+        else:
+            if "://" not in self.scheduler:
+                raise ConfigError(f"--scheduler {self.scheduler!r}: give tcp://HOST:PORT or local:N")
+            try:
+                self.client = Client(self.scheduler, timeout="30s")
+            except (OSError, TimeoutError) as exc:
+                raise ConfigError(f"--scheduler {self.scheduler}: cannot reach the Dask scheduler ({exc})") from None
+            self.threads = 0  # a remote worker renders with all its cores
+        return self._dask
+
+    def __exit__(self, *exc):
+        if self.client is not None:
+            self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+    def _local(self, tasks, out, keep, status, bar):
+        threads = max(1, (os.cpu_count() or 1) // self.workers)
+        if self.workers == 1 or len(tasks) == 1:
+            for t in tasks:
+                _record(status, t.id, execute(t, out, threads, keep), bar)
+            return
+        _WorkerSlots(min(self.workers, len(tasks)), str(out), threads, keep).run(tasks, status, bar)
+
+    def _dask(self, tasks, out, keep, status, bar):
+        from distributed import as_completed as dask_completed
+
+        futures = {
+            self.client.submit(execute, t, str(out), self.threads, keep, key=f"{t.id}-{t.hash}", pure=False): t
+            for t in tasks
+        }
+        for fut in dask_completed(futures):
+            t = futures[fut]
+            try:
+                outcome = fut.result()
+            except Exception as exc:  # KilledWorker after too many deaths, lost scheduler, ...
+                outcome = f"failed: {type(exc).__name__}: {exc}"
+            _record(status, t.id, outcome, bar)
+
+
+class _WorkerSlots:
+    """N long-lived worker processes, one task each at a time; a worker that dies costs only its task.
+
+    (A ProcessPoolExecutor whose worker dies breaks as a whole and kills the siblings' tasks too.)
+    The dead worker is replaced and its task re-run, up to ``MAX_ATTEMPTS`` times.
+    """
+
+    def __init__(self, n: int, out: str, threads: int, keep: bool):
+        self.ctx = get_context("spawn")
+        self.n, self.args = n, (out, threads, keep)
+        self.results = self.ctx.Queue()
+
+    def _start(self, slot: int):
+        inbox = self.ctx.Queue()
+        proc = self.ctx.Process(target=_worker_loop, args=(slot, inbox, self.results, *self.args), daemon=True)
+        proc.start()
+        return proc, inbox
+
+    def run(self, tasks: list[Task], status: RunStatus, bar) -> None:
+        queue, attempts = list(tasks), dict.fromkeys((t.id for t in tasks), 0)
+        slots = [self._start(i) for i in range(self.n)]
+        busy: dict[int, Task] = {}  # slot -> task
+        try:
+            while queue or busy:
+                for i in range(self.n):
+                    if i not in busy and queue:
+                        busy[i] = queue.pop(0)
+                        attempts[busy[i].id] += 1
+                        slots[i][1].put(busy[i])
+                self._collect(busy, status, bar)
+                for i, task in list(busy.items()):
+                    if not slots[i][0].is_alive():  # died mid-task: replace it, re-run only its task
+                        log.warning("worker running %s died; re-running that task", task.id)
+                        del busy[i]
+                        slots[i] = self._start(i)
+                        if attempts[task.id] < MAX_ATTEMPTS:
+                            queue.insert(0, task)
+                        else:
+                            _record(status, task.id, "failed: its worker process died repeatedly", bar)
+        finally:
+            for _, inbox in slots:
+                inbox.put(None)
+            for proc, _ in slots:
+                proc.join(timeout=5)
+                if proc.is_alive():
+                    proc.kill()
+
+    def _collect(self, busy: dict[int, Task], status: RunStatus, bar) -> None:
+        import queue as queue_mod
+
+        try:
+            slot, task_id, outcome = self.results.get(timeout=0.5)
+        except queue_mod.Empty:
+            return
+        if busy.get(slot) is not None and busy[slot].id == task_id:
+            del busy[slot]
+            _record(status, task_id, outcome, bar)
+
+
+def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool) -> None:
+    """Body of a local worker process: run tasks from ``inbox`` until it gets None."""
+    while (task := inbox.get()) is not None:
+        results.put((slot, task.id, execute(task, out, threads, keep)))
+
+
+def _count(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ConfigError(f"--scheduler local:N needs a worker count N >= 1, got {text!r}")
+    return n

@@ -1,0 +1,255 @@
+"""Per-press tasks of an experiment and how one is run: render, solve every variant asked, score, write JSON.
+
+Three kinds of task, run in stages: ``reference`` (stage 0) renders the undeformed dome of one scene;
+``calibration`` (stage 1) self-calibrates the LEDs from it, starting from the design LEDs with a
+given error; ``press`` (stage 2) renders one press and solves it once per distinct solve variant.
+Each task writes ``tasks/<id>.json`` atomically when it is done; a task whose JSON exists with the
+same content hash is never run again, so an interrupted experiment resumes where it stopped and a
+worker that dies loses only the task it was running.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.atomic import write_bytes, write_json
+
+STAGES = {"reference": 0, "calibration": 1, "press": 2}
+CLAIM_STALE_S = 60.0
+"""A task claimed by a process that stopped its heartbeat this long ago (seconds) is taken over."""
+
+
+def digest(obj, n: int = 10) -> str:
+    """Short content hash of a JSON-able object (stable across processes and machines)."""
+    return hashlib.sha1(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:n]
+
+
+@dataclasses.dataclass(frozen=True)
+class SolveSpec:
+    """One way of solving a press."""
+
+    leds: str = "true"
+    """LEDs given to the solver: true (the twin's), design (with ``led_error``) or calibrated
+    (self-calibrated from the reference, starting from the design with ``led_error``)."""
+    position_error_mm: float = 0.0
+    """CAD error of every LED position, mm (fixed magnitude, random direction)."""
+    direction_error_deg: float = 0.0
+    """CAD error of every LED axis, degrees (fixed magnitude, random tilt)."""
+    error_seed: int = 0
+    """Seed of the CAD error's random directions."""
+    interreflection: str = "dent"
+    """off, reference (undeformed dome's indirect light) or dent (also the dent's own bounce)."""
+    roi: str = "truth"
+    """truth (true contact box + margin), auto (the solver's contact detector) or full."""
+    options: tuple[tuple[str, object], ...] = ()
+    """SolverOptions overrides as (name, value) pairs."""
+
+    def led_error(self) -> dict:
+        return {
+            "position_mm": self.position_error_mm,
+            "direction_deg": self.direction_error_deg,
+            "seed": self.error_seed,
+        }
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["options"] = dict(self.options)
+        return d
+
+
+@dataclasses.dataclass(frozen=True)
+class Task:
+    """One unit of work (JSON-able fields only, so it travels to any worker)."""
+
+    kind: str
+    """reference, calibration or press."""
+    id: str
+    """Unique, file-safe name within the experiment."""
+    scene: dict
+    """The full scene mapping (SceneConfig.to_dict())."""
+    press: dict | None = None
+    """PressConfig mapping (press tasks)."""
+    evaluations: tuple = ()
+    """Press tasks: ({"labels": {...}, "solve": SolveSpec.to_dict()}, ...)."""
+    led_error: dict | None = None
+    """Calibration tasks: the design error the calibration starts from."""
+
+    @property
+    def stage(self) -> int:
+        return STAGES[self.kind]
+
+    @property
+    def hash(self) -> str:
+        return digest(dataclasses.asdict(self))
+
+
+def scene_key(scene: dict) -> str:
+    """Name of a scene's reference folder: its content hash (render threads excluded)."""
+    render = {k: v for k, v in scene.get("render", {}).items() if k != "threads"}
+    return digest({**scene, "render": render})
+
+
+def calibration_id(scene: dict, led_error: dict) -> str:
+    return f"cal-{scene_key(scene)}-{digest(led_error, 6)}"
+
+
+def result_path(out: Path, task_id: str) -> Path:
+    return Path(out) / "tasks" / f"{task_id}.json"
+
+
+def load_result(out: Path, task: Task) -> dict | None:
+    """The task's stored result, or None when missing, unreadable or from a different task content."""
+    path = result_path(out, task.id)
+    try:
+        data = json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
+        return None
+    return data if data.get("task_hash") == task.hash and data.get("status") == "done" else None
+
+
+def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = False) -> str:
+    """Run one task (in any process or Dask worker) and write its JSON; returns "done" or "failed: ...".
+
+    Exceptions are recorded in ``tasks/<id>.failed.json`` (retried on the next run), never raised, so
+    one bad press does not stop a sweep.
+    """
+    from ..core.claims import claim
+
+    out = Path(out)
+    while load_result(out, task) is None:
+        # another process or machine sharing the folder may be on this task: wait for it (its claim goes
+        # stale at once if it died on this host, after CLAIM_STALE_S elsewhere), never run it twice
+        with claim(result_path(out, task.id), stale_s=CLAIM_STALE_S) as mine:
+            if mine:
+                return _execute_claimed(task, out, threads, keep_presses)
+        time.sleep(1.0)
+    return "done"
+
+
+def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) -> str:
+    if load_result(out, task) is not None:  # finished by another process while we waited
+        return "done"
+    from threadpoolctl import threadpool_limits
+
+    start = time.perf_counter()
+    try:
+        with threadpool_limits(limits=1):  # BLAS sums in a fixed order: the same numbers on any worker
+            runner = {"reference": _run_reference, "calibration": _run_calibration, "press": _run_press}[task.kind]
+            body = runner(task, out, threads, keep_presses)
+    except Exception as exc:  # recorded, the sweep goes on
+        write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": f"{type(exc).__name__}: {exc}"})
+        return f"failed: {type(exc).__name__}: {exc}"
+    body["timing"] = body.get("timing", {}) | {"task_seconds": round(time.perf_counter() - start, 3)}
+    write_json(
+        result_path(out, task.id), {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done"} | body
+    )
+    (out / "tasks" / f"{task.id}.failed.json").unlink(missing_ok=True)
+    return "done"
+
+
+def reference_folder(out: Path, scene: dict) -> Path:
+    return Path(out) / "refs" / scene_key(scene)
+
+
+def _run_reference(task: Task, out: Path, threads: int, keep: bool) -> dict:
+    from . import adapters
+
+    folder = reference_folder(out, task.scene)
+    t = time.perf_counter()
+    adapters.render(task.scene, None, folder, threads)
+    return {"folder": str(folder.relative_to(out)), "timing": {"render_seconds": round(time.perf_counter() - t, 3)}}
+
+
+def _run_calibration(task: Task, out: Path, threads: int, keep: bool) -> dict:
+    from . import adapters
+
+    ref = reference_folder(out, task.scene)
+    design = adapters.perturb_leds(adapters.load(ref).leds, **_error_args(task.led_error))
+    leds, info = adapters.calibrate(ref, design)
+    return {"led_error": task.led_error, "leds": [led.to_dict() for led in leds], "calibration": info}
+
+
+def _error_args(err: dict) -> dict:
+    return {"position_mm": err["position_mm"], "direction_deg": err["direction_deg"], "seed": err["seed"]}
+
+
+def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
+    from . import adapters
+
+    folder = out / "presses" / task.id
+    t = time.perf_counter()
+    from ..core.capture import is_press_folder
+
+    if not is_press_folder(folder):  # a press rendered before an interruption is reused
+        adapters.render(task.scene, task.press, folder, threads)
+    render_s = time.perf_counter() - t
+    press = adapters.load(folder)
+    reference = adapters.load(reference_folder(out, task.scene))
+    albedo = tuple(task.scene["coating"]["albedo"])
+    solved: dict[str, dict] = {}
+    evaluations = []
+    for ev in task.evaluations:
+        key = digest(ev["solve"])
+        if key not in solved:
+            solved[key] = _solve_one(adapters, out, task, press, reference, ev["solve"], albedo, key)
+        evaluations.append({"labels": ev["labels"], "solve": ev["solve"], **solved[key]["result"]})
+    if not keep:
+        shutil.rmtree(folder, ignore_errors=True)
+    timing = {"render_seconds": round(render_s, 3), "solve_seconds": {k: v["seconds"] for k, v in solved.items()}}
+    return {"press": task.press, "scene_key": scene_key(task.scene), "evaluations": evaluations, "timing": timing}
+
+
+def _solve_one(adapters, out, task, press, reference, spec: dict, albedo, key: str) -> dict:
+    t = time.perf_counter()
+    try:
+        leds = _solver_leds(adapters, out, task, press, spec)
+        result = adapters.solve(
+            press,
+            leds=leds,
+            interreflection=spec["interreflection"],
+            reference=reference,
+            roi=spec["roi"],
+            options=adapters.solver_options(spec["options"]),
+            albedo=albedo,
+        )
+    except Exception as exc:  # one failed variant (say, no contact found by --roi auto) is a result too
+        return {"result": {"error": f"{type(exc).__name__}: {exc}"}, "seconds": round(time.perf_counter() - t, 3)}
+    metrics = adapters.score(result, press.ground_truth)
+    crop = adapters.error_crop(result, press.ground_truth)
+    if crop:
+        _save_maps(out / "maps" / f"{task.id}-{key}.npz", crop)
+    return {
+        "result": {"metrics": metrics, "map": f"maps/{task.id}-{key}.npz" if crop else None},
+        "seconds": round(time.perf_counter() - t, 3),
+    }
+
+
+def _solver_leds(adapters, out, task, press, spec: dict):
+    err = {
+        "position_mm": spec["position_error_mm"],
+        "direction_deg": spec["direction_error_deg"],
+        "seed": spec["error_seed"],
+    }
+    if spec["leds"] == "true":
+        return press.leds
+    if spec["leds"] == "design":
+        return adapters.perturb_leds(press.leds, **_error_args(err))
+    from ..core.leds import Led
+
+    cal = json.loads(result_path(out, calibration_id(task.scene, err)).read_text())
+    return tuple(Led.from_dict(d) for d in cal["leds"])
+
+
+def _save_maps(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    import io
+
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays)
+    write_bytes(path, buf.getvalue())

@@ -1,0 +1,133 @@
+"""Figures of the experiment reports (``nlips experiment``): bar charts, sweeps, error maps. Small PNGs."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from ..core.atomic import write_bytes
+from .figures import Panel, contact_sheet, normals_to_rgb
+
+DPI = 80
+"""Reports are committed to the repository: keep the PNGs small."""
+
+
+def _save(fig, path: str | Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    plt.close(fig)
+    return write_bytes(path, _palette_png(buf.getvalue()))
+
+
+def _palette_png(png: bytes) -> bytes:
+    """The same picture as a 256-colour palette PNG: noisy error maps shrink several times (Pillow)."""
+    from PIL import Image
+
+    img = Image.open(io.BytesIO(png)).convert("RGB").quantize(256)
+    buf = io.BytesIO()
+    img.save(buf, format="PNG", optimize=True)
+    return buf.getvalue()
+
+
+def _figure(width: float = 5.0, height: float = 3.2):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt.subplots(figsize=(width, height))
+
+
+def grouped_bars(
+    categories: list[str],
+    series: dict[str, tuple[list[float], list[float]]],
+    ylabel: str,
+    path: str | Path,
+    lines: dict[str, float] | None = None,
+) -> Path:
+    """Bars of ``series`` (label -> (means, standard deviations) per category) with horizontal reference lines.
+
+    Parameters
+    ----------
+    categories : group names on the x axis
+    series : label -> (means, stds), each of len(categories); NaN bars are left out
+    lines : label -> value drawn as a dashed horizontal line (e.g. the paper's real-sensor number)
+    """
+    fig, ax = _figure(max(4.0, 1.1 * len(categories) + 2), 3.2)
+    x = np.arange(len(categories))
+    width = 0.8 / max(len(series), 1)
+    for i, (label, (mean, std)) in enumerate(series.items()):
+        ax.bar(
+            x + (i - (len(series) - 1) / 2) * width,
+            np.nan_to_num(mean),
+            width,
+            yerr=np.nan_to_num(std),
+            label=label,
+            capsize=2,
+        )
+    for j, (label, value) in enumerate((lines or {}).items()):
+        ax.axhline(value, ls="--", lw=1, color=f"C{len(series) + j}", label=label)
+    ax.set_xticks(x, categories, fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def sweep(
+    series: dict[str, tuple[list, list[float], list[float]]],
+    xlabel: str,
+    ylabel: str,
+    path: str | Path,
+    paper: dict[str, tuple[list, list[float]]] | None = None,
+    categorical: bool = False,
+) -> Path:
+    """Curves of a parameter sweep: label -> (x values, means, standard deviations); paper points as markers.
+
+    ``categorical``: x values are names (placed at 0, 1, 2...).
+    """
+    fig, ax = _figure()
+    ticks = None
+    for label, (x, mean, std) in series.items():
+        xs = np.arange(len(x)) if categorical else np.asarray(x, float)
+        ticks = x if categorical else ticks
+        ax.errorbar(xs, mean, yerr=std, marker="o", ms=4, capsize=2, label=label)
+    for label, (x, y) in (paper or {}).items():
+        ax.plot(np.asarray(x, float), y, "k*", ms=9, label=label)
+    if ticks is not None:
+        ax.set_xticks(np.arange(len(ticks)), [str(t) for t in ticks], fontsize=8, rotation=15)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=7)
+    return _save(fig, path)
+
+
+def error_maps(
+    rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], path: str | Path, vmax: float = 20.0
+) -> Path:
+    """One row per press: true normals, estimated normals, angular error (degrees, colour bar).
+
+    Parameters
+    ----------
+    rows : (title, true (h, w, 3) float, estimate (h, w, 3) float, error (h, w) float degrees); NaN = not solved
+    """
+    sheet = []
+    for title, true, est, err in rows:
+        shown = np.isfinite(err)
+        sheet.append(
+            (
+                title,
+                [
+                    Panel("true normals", normals_to_rgb(true, shown)),
+                    Panel("NLiPs normals", normals_to_rgb(est, shown)),
+                    Panel("angular error", err, cmap="inferno", label="degrees", vmin=0, vmax=vmax),
+                ],
+            )
+        )
+    contact_sheet(sheet, path, dpi=60)
+    return write_bytes(path, _palette_png(Path(path).read_bytes()))

@@ -1,0 +1,112 @@
+"""Local worker processes and a 2-worker Dask LocalCluster give identical numbers, even when a worker is
+killed in the middle of the sweep (its press is re-run elsewhere, nothing else is lost)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from nlipscalib.experiments import get
+from nlipscalib.experiments.framework import run_experiment
+
+psutil = pytest.importorskip("psutil")
+distributed = pytest.importorskip("distributed")
+
+
+def _in_thread(fn) -> tuple[threading.Thread, dict]:
+    box: dict = {}
+
+    def target():
+        try:
+            box["doc"] = fn()
+        except BaseException as exc:  # surfaced by the test
+            box["error"] = exc
+
+    thread = threading.Thread(target=target, daemon=True)
+    thread.start()
+    return thread, box
+
+
+def _wait(predicate, timeout: float = 600.0) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            raise TimeoutError("the sweep did not get there in time")
+        time.sleep(0.2)
+
+
+def _worker_processes() -> list:
+    """This process's local experiment workers (spawned children; not multiprocessing's resource tracker)."""
+    found = []
+    for child in psutil.Process().children(recursive=True):
+        try:
+            if "spawn_main" in " ".join(child.cmdline()):
+                found.append(child)
+        except psutil.Error:  # exited meanwhile
+            pass
+    return found
+
+
+def _presses_started(out: Path) -> bool:
+    """Stage 2 (presses) has begun: the calibration's result is written."""
+    return any((out / "tasks").glob("cal-*.json"))
+
+
+def _sweep(out: Path, **kw) -> dict:
+    exp = get("q1")
+    return run_experiment(exp, exp.config("quick"), out, out / "report", size="quick", progress=False, **kw)
+
+
+def _numbers(doc: dict) -> list[dict]:
+    return [{k: v for k, v in e.items() if k != "map"} for e in doc["evaluations"]]
+
+
+@pytest.fixture(scope="module")
+def local_run(tmp_path_factory):
+    """Two local worker processes; one is killed while the presses are being rendered/solved."""
+    out = tmp_path_factory.mktemp("local")
+    deaths: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: deaths.append(record.getMessage()) if "died" in record.getMessage() else None
+    logging.getLogger("nlipscalib.experiments.runner").addHandler(handler)
+    thread, box = _in_thread(lambda: _sweep(out, workers=2))  # noqa: B023
+    _wait(lambda: _presses_started(out))
+    _wait(lambda: _worker_processes())
+    time.sleep(1.0)  # mid-task: a press renders for seconds
+    _worker_processes()[0].send_signal(signal.SIGKILL)
+    thread.join(timeout=900)
+    logging.getLogger("nlipscalib.experiments.runner").removeHandler(handler)
+    assert "error" not in box, box.get("error")
+    assert deaths, "the killed worker was not noticed"
+    return box["doc"]
+
+
+def test_local_sweep_survives_a_killed_worker(local_run):
+    assert local_run["tasks"]["failed"] == {}
+    assert len(local_run["evaluations"]) == 4
+    assert all(e["error"] is None for e in local_run["evaluations"])
+
+
+def test_dask_cluster_gives_identical_numbers_despite_a_killed_worker(local_run, tmp_path, caplog):
+    from distributed import Client, LocalCluster
+
+    caplog.set_level(logging.WARNING)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        with Client(cluster) as client:
+            thread, box = _in_thread(lambda: _sweep(tmp_path, scheduler=cluster.scheduler_address))
+            _wait(lambda: _presses_started(tmp_path))
+            time.sleep(1.0)
+            pids = client.run(os.getpid)  # worker address -> pid
+            os.kill(next(iter(pids.values())), signal.SIGKILL)  # the nanny restarts it; its task runs again
+            thread.join(timeout=900)
+    assert "error" not in box, box.get("error")
+    doc = box["doc"]
+    assert doc["tasks"]["failed"] == {}
+    assert _numbers(doc) == _numbers(local_run)  # bit-identical accuracy numbers
+    assert doc["tables"] == local_run["tables"]

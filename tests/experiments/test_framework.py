@@ -1,0 +1,136 @@
+"""The experiment framework without rendering: planning, resume bookkeeping, regression check, CLI errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.core.leds import Led
+from nlipscalib.experiments import adapters, check, get
+from nlipscalib.experiments.plan import build_tasks
+from nlipscalib.experiments.summary import aggregate, clean
+from nlipscalib.experiments.tasks import Task, load_result, result_path
+
+
+def test_studies_share_one_render_per_distinct_press():
+    exp = get("studies")
+    cfg = exp.config("quick")
+    evaluations = exp.evaluations(cfg)
+    tasks = build_tasks(evaluations)
+    presses = [t for t in tasks if t.kind == "press"]
+    distinct = {json.dumps([s, p], sort_keys=True) for s, p, _, _ in evaluations}
+    assert len(presses) == len(distinct) < len(evaluations)
+    assert sum(len(t.evaluations) for t in presses) == len(evaluations)
+    stages = [t.stage for t in tasks]
+    assert stages == sorted(stages)  # references, then calibrations, then presses
+    # every scene has its reference; every calibrated LED error its calibration
+    assert {t.id for t in tasks if t.kind == "reference"} == {
+        f"ref-{k}" for k in {t.id.split("-")[-2] for t in presses}
+    }
+    assert any(t.kind == "calibration" for t in tasks)
+
+
+def test_stored_result_is_reused_only_for_the_same_task(tmp_path):
+    task = Task(kind="reference", id="ref-x", scene={"a": 1})
+    path = result_path(tmp_path, task.id)
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps({"task_hash": task.hash, "status": "done"}))
+    assert load_result(tmp_path, task) is not None
+    changed = Task(kind="reference", id="ref-x", scene={"a": 2})
+    assert load_result(tmp_path, changed) is None  # config changed: run again, never reuse stale numbers
+    path.write_text('{"task_hash": "')  # torn file (cannot happen with atomic writes, but never trusted)
+    assert load_result(tmp_path, task) is None
+
+
+def test_led_errors_have_the_asked_size():
+    leds = (Led(position=(1.0, 2.0, 3.0), direction=(0.0, 0.3, 1.0)), Led(position=(-4.0, 0.0, 2.0)))
+    moved = adapters.perturb_leds(leds, position_mm=0.5, direction_deg=5.0, seed=3)
+    for a, b in zip(leds, moved):
+        assert np.linalg.norm(np.subtract(a.position, b.position)) == pytest.approx(0.5)
+        angle = np.degrees(np.arccos(np.clip(np.dot(a.direction, b.direction), -1, 1)))
+        assert angle == pytest.approx(5.0, abs=1e-6)
+    assert adapters.perturb_leds(leds, 0.5, 5.0, seed=3) == moved  # seeded
+    assert adapters.perturb_leds(leds) == leds
+
+
+def test_aggregate_means_and_failures():
+    rows = [
+        {"g": "a", "aae_deg": 2.0, "mabse": 0.02, "depth_rmse_mm": 0.1, "roi_aae_deg": 3.0, "error": None},
+        {"g": "a", "aae_deg": 4.0, "mabse": 0.04, "depth_rmse_mm": 0.3, "roi_aae_deg": 5.0, "error": None},
+        {"g": "a", "aae_deg": float("nan"), "mabse": np.nan, "depth_rmse_mm": np.nan, "error": "no contact"},
+    ]
+    (row,) = aggregate(rows, ("g",))
+    assert (row["n"], row["failed"]) == (2, 1)
+    assert row["aae_deg"] == pytest.approx(3.0) and row["aae_deg_std"] == pytest.approx(1.0)
+    assert clean({"x": float("nan")}) == {"x": None}
+
+
+def test_check_flags_only_what_got_worse_beyond_tolerance():
+    base = check.baseline_document("q1", "quick", {"s: aae_deg": 5.0, "s: mabse": 0.04, "c: aae_deg": 5.0})
+    now = {"s: aae_deg": 5.4, "s: mabse": 0.1, "c: aae_deg": float("nan")}  # within 0.5 deg; worse; missing
+    worse = check.compare(now, base)
+    assert [w["figure"] for w in worse] == ["s: mabse", "c: aae_deg"]
+    assert "s: mabse" in check.format_worse(worse)
+    assert check.compare({"s: aae_deg": 1.0, "s: mabse": 0.01, "c: aae_deg": 2.0}, base) == []  # better is fine
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["experiment", "nope"], "unknown experiment 'nope'"),
+        (["experiment", "q2"], "needs nlipscalib.learn"),
+        (["experiment", "q1", "--size", "huge"], "unknown size 'huge'"),
+        (["experiment", "q1", "--solver-option", "max_iter=3"], "--solver-option 'max_iter=3'"),
+        (["experiment", "q1", "--solver-option", "max_iters=0"], "max_iters"),
+        (["experiment", "q1", "--scheduler", "local:zero"], "local:N"),
+        (["experiment", "q1", "--scheduler", "nowhere"], "tcp://HOST:PORT"),
+        (["experiment", "q1", "--check", "/nonexistent/base.json"], "no such baseline file"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(argv, message, capsys, tmp_path):
+    assert main(argv + ["--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+
+
+def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
+    cfg = tmp_path / "q1.toml"
+    cfg.write_text("[twin]\nwidht = 64\n")
+    assert main(["experiment", "q1", "--config", str(cfg), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "q1.toml" in err and "widht" in err
+
+
+def test_plan_counts_tasks_without_running(tmp_path, capsys):
+    assert main(["experiment", "all", "--size", "full", "--plan", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 4 and lines[0].startswith("q1 (full): 74 tasks")  # 72 presses + reference + calibration
+    assert not any(tmp_path.iterdir())  # nothing rendered or written
+
+
+def test_two_processes_on_one_folder_run_a_task_once(tmp_path, monkeypatch):
+    import threading
+    import time
+
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    calls = []
+
+    def slow_reference(task, out, threads, keep):
+        calls.append(task.id)
+        time.sleep(1.5)
+        return {"folder": "refs/x"}
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", slow_reference)
+    task = Task(kind="reference", id="ref-y", scene={"b": 1})
+    outcomes = []
+    threads = [threading.Thread(target=lambda: outcomes.append(tasks_mod.execute(task, tmp_path))) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    assert outcomes == ["done", "done"] and calls == ["ref-y"]  # the second waited for the first's result
+    assert load_result(tmp_path, task)["folder"] == "refs/x"

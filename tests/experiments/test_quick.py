@@ -1,0 +1,74 @@
+"""Each experiment's quick variant end to end through the CLI (tiny renders: 96x72 px, 2 spp)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from nlipscalib.cli import main
+
+BASELINE = Path(__file__).resolve().parents[2] / "nlipscalib" / "experiments" / "baselines" / "q1_quick.json"
+
+
+def _finite_numbers(doc: dict) -> list[float]:
+    return [e["aae_deg"] for e in doc["evaluations"] if e["aae_deg"] is not None and math.isfinite(e["aae_deg"])]
+
+
+@pytest.fixture(scope="module")
+def q1(tmp_path_factory):
+    out = tmp_path_factory.mktemp("q1")
+    argv = ["experiment", "q1", "--out", str(out), "--keep-presses", "--check", str(BASELINE)]
+    return out, argv, main(argv)
+
+
+def test_q1_quick_writes_report_json_and_passes_the_stored_baseline(q1, capsys):
+    out, _, code = q1
+    assert code == 0
+    report = out / "q1-quick" / "report"
+    doc = json.loads((report / "results.json").read_text())
+    assert doc["software"]["nlipscalib"] and doc["machine"]["cores"] >= 1
+    assert doc["config"]["twin"]["width"] == 96 and doc["size"] == "quick"
+    assert doc["paper"]["aae_deg"] == 7.04
+    assert len(_finite_numbers(doc)) == 4  # sphere and cube, true and self-calibrated LEDs
+    assert {(e["indenter"], e["leds"]) for e in doc["evaluations"]} == {
+        (i, s) for i in ("sphere", "cube") for s in ("true", "calibrated")
+    }
+    text = (report / "report.md").read_text()
+    assert "7.04" in text and "0.0588" in text
+    for png in ("q1_aae.png", "q1_mabse.png", "q1_error_maps.png"):
+        assert (report / png).stat().st_size > 1000 and f"({png})" in text
+
+
+def test_a_finished_experiment_resumes_without_redoing_presses(q1, capsys):
+    out, argv, _ = q1
+    assert main(argv) == 0
+    doc = json.loads((out / "q1-quick" / "report" / "results.json").read_text())
+    assert doc["tasks"]["run_now"] == 0 and doc["tasks"]["already_done"] == doc["tasks"]["total"]
+
+
+def test_a_worsened_solver_option_fails_the_check(q1, capsys):
+    out, argv, _ = q1
+    # a heavy depth prior pins the surface to the undeformed dome: the contact comes out too flat
+    assert main(argv + ["--solver-option", "prior_weight=1.0"]) == 1
+    printed = capsys.readouterr().out
+    assert "worse than" in printed and "baseline" in printed
+
+
+@pytest.mark.parametrize("name, table", [("ablation", "paper AAE"), ("q3", "capsule"), ("studies", "1 bounce")])
+def test_quick_variant_writes_its_report(name, table, tmp_path):
+    assert main(["experiment", name, "--out", str(tmp_path)]) == 0
+    report = tmp_path / f"{name}-quick" / "report"
+    doc = json.loads((report / "results.json").read_text())
+    assert doc["experiment"] == name and not doc["tasks"]["failed"]
+    assert _finite_numbers(doc) and len(_finite_numbers(doc)) == len(doc["evaluations"])
+    text = (report / "report.md").read_text()
+    assert table in text
+    assert list(report.glob("*.png"))
+    if name == "studies":
+        assert "NLiPsNet" in text  # the calibration-press study is reported as not done
+    if name == "q3":  # every shipped dome, each with a screw press
+        assert {e["shape"] for e in doc["evaluations"]} == {"nlipstac", "fingertip", "oblate", "capsule", "flat"}
+        assert {e["indenter"] for e in doc["evaluations"]} == {"screw"}
