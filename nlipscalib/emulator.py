@@ -202,6 +202,15 @@ class EmulatedSensor:
     board: object
     tricolor_level: int
 
+    def prerender(self, progress: bool = False) -> None:
+        """Render every scripted surface now (the undeformed dome, each press, each moved pose), so that
+        capture times measure the hardware path, not the renderer."""
+        from tqdm import tqdm
+
+        surfaces = [None] + [s for step in self.operator.script for s in (step.press, step.moved) if s is not None]
+        for surface in tqdm(surfaces, desc="rendering the twin", unit="surface", disable=not progress):
+            self.camera.renders.images(surface)
+
     def close(self) -> None:
         self.rig.controller.close()
         close = getattr(self.board, "close", None)

@@ -15,7 +15,17 @@ import sys
 from .. import __version__
 from ..errors import MissingDependencyError, NlipsError
 
-SUBCOMMAND_MODULES = ("render", "dataset", "demo", "solve", "calibrate", "evaluate")
+SUBCOMMAND_MODULES = (
+    "render",
+    "dataset",
+    "demo",
+    "solve",
+    "calibrate",
+    "evaluate",
+    "capture",
+    "calibrate_camera",
+    "live",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -166,7 +166,7 @@ def dome_inward_normals(cfg: DomeConfig, points: np.ndarray) -> np.ndarray:
     return _ray_hit(cfg, d)[1]
 
 
-def reference_surface(design) -> Reference:
+def reference_surface(design, camera=None) -> Reference:
     """The undeformed gel surface of a design as the camera sees it, computed analytically.
 
     Every pixel's viewing ray (:attr:`Camera.rays`, exact lens model) leaves the camera centre at
@@ -178,6 +178,9 @@ def reference_surface(design) -> Reference:
     Parameters
     ----------
     design : SensorDesign
+    camera : core Camera or None
+        The camera's calibrated intrinsics and lens (``nlips calibrate-camera``) when they differ from the
+        design's; its centre stays at ``design.camera.position``.
 
     Returns
     -------
@@ -187,7 +190,7 @@ def reference_surface(design) -> Reference:
     """
     cfg = design.dome
     check_dome(cfg)
-    camera = design.camera_model()
+    camera = design.camera_model() if camera is None else camera
     h, w = camera.shape
     rays = camera.rays.reshape(-1, 3)
     origin = np.asarray(design.camera.position, dtype=float)

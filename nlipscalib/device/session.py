@@ -14,7 +14,7 @@ A session writes ``reference/`` (the undeformed sensor, captured first, before a
 gel) and ``press_0001/`` ... into its folder, each atomically with :func:`nlipscalib.core.write_press`;
 run it again after an interruption and it continues with the first press not yet written.
 
-The LED controller is anything with ``set_all(colors)``, ``show()``, ``off()`` and ``n_leds`` whose
+The LED controller is anything with ``set_all(colors)``, ``off()`` and ``n_leds`` whose
 calls return once the LEDs latched (:class:`nlipscalib.device.controller.LedController`); the frame
 source is a :class:`nlipscalib.device.camera.FrameSource`.
 """
@@ -83,7 +83,7 @@ class Rig:
     """The sensor as the session drives it."""
 
     controller: object
-    """LED controller (``n_leds``, ``set_all``, ``show``, ``off``)."""
+    """LED controller (``n_leds``, ``set_all``, ``off``)."""
     source: object
     """FrameSource (``capture``, ``shape``, ``bit_depth``)."""
     camera: Camera
@@ -166,8 +166,7 @@ def capture_frames(rig: Rig, cfg: SessionConfig) -> dict[str, np.ndarray]:
     frames = {}
     try:
         for name, colors in frame_sequence(len(rig.leds), cfg):
-            rig.controller.set_all(colors)
-            rig.controller.show()
+            rig.controller.set_all(colors)  # returns once the LEDs latched
             frames[name] = rig.source.capture()
     finally:
         rig.controller.off()
