@@ -58,3 +58,16 @@ class LitSource(FrameSource):
         x = np.einsum("lhwc,lc->hwc", self.images, w)
         x = x + self.noise * self.rng.standard_normal(x.shape)
         return np.clip(np.rint(x * 65000 + 256), 0, 65535).astype(np.uint16)
+
+
+def flat_predictor(shape):
+    """A pluggable `nlips live` predictor: facing-the-camera normals, depth = the frame's mean green value."""
+    from nlipscalib.device.live import LiveResult
+
+    def predict(frame):
+        normals = np.zeros(tuple(shape) + (3,), np.float32)
+        normals[..., 2] = -1.0
+        depth = np.full(tuple(shape), frame[..., 1].mean() / 1000.0, np.float32)
+        return LiveResult(normals, depth)
+
+    return predict
