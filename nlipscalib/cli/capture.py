@@ -14,6 +14,8 @@ from __future__ import annotations
 import sys
 import time
 
+from ..progress import bars_enabled
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -74,8 +76,8 @@ def _run_emulated(args):
     args.presses = len(script)
     with open_emulated_sensor(scene, script, seed=args.seed, flush_frames=args.flush) as sensor:
         cfg = _session_config(args, sensor.tricolor_level)
-        sensor.prerender(progress=sys.stderr.isatty())
-        return run_session(sensor.rig, args.out, cfg, sensor.operator, progress=sys.stderr.isatty())
+        sensor.prerender(progress=bars_enabled())
+        return run_session(sensor.rig, args.out, cfg, sensor.operator, progress=bars_enabled())
 
 
 def _run_device(args):
@@ -124,7 +126,7 @@ def _run_device(args):
             },
         )
         operator = Operator(interactive=not args.yes and sys.stdin.isatty())
-        return run_session(rig, args.out, _session_config(args, None), operator, progress=sys.stderr.isatty())
+        return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
 
 
 def _usage(message: str):
