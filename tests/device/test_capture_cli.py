@@ -5,7 +5,6 @@ import json
 import pytest
 
 pytest.importorskip("mitsuba")
-pytest.importorskip("nlipscalib.device.virtual_board", reason="the virtual LED board (ledctl) is not merged yet")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import find_presses, load_press  # noqa: E402

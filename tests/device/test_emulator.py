@@ -1,4 +1,5 @@
-"""The emulated sensor end to end: a capture session on the twin, solved like direct renders."""
+"""The emulated sensor end to end: a capture session through the LED host driver, the virtual board and the
+virtual camera on the twin; its captures solve like direct renders of the same presses."""
 
 import pytest
 
@@ -11,17 +12,6 @@ from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
 from nlipscalib.solver import evaluate, solve_press  # noqa: E402
 
-from .fakes import FakeController  # noqa: E402
-
-
-def _controller(n):
-    try:
-        from nlipscalib.device.virtual_board import VirtualBoard  # noqa: F401
-
-        return None  # the real virtual board and host driver
-    except ModuleNotFoundError:
-        return FakeController(n)
-
 
 @pytest.fixture(scope="module")
 def scene():
@@ -33,7 +23,7 @@ def session(scene, tmp_path_factory):
     out = tmp_path_factory.mktemp("emulated")
     script = default_script(3, move_press=3)
     lines = []
-    with open_emulated_sensor(scene, script, seed=7, controller=_controller(12), echo=lines.append) as sensor:
+    with open_emulated_sensor(scene, script, seed=7, echo=lines.append) as sensor:
         cfg = SessionConfig(presses=3, tricolor_level=sensor.tricolor_level)
         status = run_session(sensor.rig, out / "session", cfg, sensor.operator)
     return out, script, status, lines
