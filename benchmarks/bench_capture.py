@@ -101,8 +101,10 @@ def main() -> None:
         cmd += ["--width", str(args.width), "--height", str(args.height)]
         t0 = time.perf_counter()
         subprocess.run(cmd, check=True, capture_output=True)
-        print(f"whole command `nlips capture --emulate nlipstac --presses 3` ({args.width}x{args.height}): "
-              f"{time.perf_counter() - t0:.1f} s wall (renders included)")
+        print(
+            f"whole command `nlips capture --emulate nlipstac --presses 3` ({args.width}x{args.height}): "
+            f"{time.perf_counter() - t0:.1f} s wall (renders included)"
+        )
     print(f"load average: {os.getloadavg()}")
 
 

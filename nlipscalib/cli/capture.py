@@ -26,6 +26,7 @@ def register(subparsers) -> None:
     p.add_argument("--presses", type=int, default=10, help="presses after the reference (default 10)")
     src = p.add_argument_group("real sensor")
     src.add_argument("--port", help="LED controller: serial port or pyserial URL (/dev/ttyACM0, COM3, socket://...)")
+    src.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
     src.add_argument("--camera", default="0", help="camera index, device path, folder of images or video (default 0)")
     src.add_argument("--design", default=None, help="sensor design: scene file or shipped name (default nlipstac)")
     src.add_argument("--camera-calibration", help="camera JSON from `nlips calibrate-camera` (default: the design's)")
@@ -84,7 +85,6 @@ def _run_device(args):
     from ..core.capture import SensorResponse
     from ..core.dome import reference_surface
     from ..device.camera import CameraSettings, open_source
-    from ..device.controller import LedController
     from ..device.session import Operator, Rig, run_session
 
     if not args.port:
@@ -101,7 +101,7 @@ def _run_device(args):
         flush_frames=args.flush,
         average=args.average,
     )
-    with LedController.open(args.port) as controller, open_source(args.camera, settings) as source:
+    with open_leds(args.port, args.adalight) as controller, open_source(args.camera, settings) as source:
         for line in source.refused:
             print(f"camera refused: {line}", file=sys.stderr)
         shift = 16 - source.bit_depth
@@ -127,6 +127,18 @@ def _run_device(args):
         )
         operator = Operator(interactive=not args.yes and sys.stdin.isatty())
         return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
+
+
+def open_leds(port: str, adalight: int | None = None):
+    """The LED controller on ``port``: the nlips firmware, or a stock Adalight board with ``adalight`` LEDs
+    (no acknowledgement: it waits a settle delay after each frame instead, and the camera flushes)."""
+    if adalight is not None:
+        from ..device.adalight import AdalightController
+
+        return AdalightController.open(port, adalight)
+    from ..device.controller import LedController
+
+    return LedController.open(port)
 
 
 def _usage(message: str):

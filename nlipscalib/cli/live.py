@@ -21,6 +21,7 @@ def register(subparsers) -> None:
     p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
     p.add_argument("--camera", default="0", help="camera index, device path, folder of frames or video (default 0)")
     p.add_argument("--port", help="LED controller port/URL: lit in the tri-colour pattern while streaming")
+    p.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
     p.add_argument("--tricolor-level", type=int, default=255, help="LED drive of the tri-colour pattern, 1-255")
     p.add_argument("--exposure-ms", type=float, default=10.0, help="fixed exposure of a live camera, ms")
     p.add_argument("--emulate", metavar="SCENE", help="stream from the emulated sensor of this scene")
@@ -111,9 +112,9 @@ def run(args) -> int:
         else:
             source = stack.enter_context(open_source(args.camera, CameraSettings(exposure_ms=args.exposure_ms)))
             if args.port:
-                from ..device.controller import LedController
+                from .capture import open_leds
 
-                _light_tricolor(stack.enter_context(LedController.open(args.port)), args.tricolor_level)
+                _light_tricolor(stack.enter_context(open_leds(args.port, args.adalight)), args.tricolor_level)
         predict, reference_depth = _nlipsnet(args) if args.model else _plugged(args.predictor, source.shape)
         sinks = []
         if args.save:

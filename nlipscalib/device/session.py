@@ -133,7 +133,8 @@ class Operator:
         self._say(f"Press {index}/{total}: press the object now, hold still.")
 
     def retake(self, index: int, reason: str) -> None:
-        self._say(f"Press {index}: {reason}; hold still, retaking.")
+        what = "Reference" if index == 0 else f"Press {index}"
+        self._say(f"{what}: {reason}; hold still, retaking.")
 
     def release(self, index: int) -> None:
         self.echo(f"Press {index} captured: release.")

@@ -29,3 +29,31 @@ def test_emulated_session_from_the_cli_resumes(tmp_path, capsys):
 def test_device_path_without_port_is_one_clear_error(tmp_path, capsys):
     assert main(["capture", "--out", str(tmp_path / "s")]) == 2
     assert "--port" in capsys.readouterr().err
+
+
+def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
+    """The real-sensor wiring: LED port, camera (a folder of frames), design, calibrated camera JSON."""
+    import cv2
+    import numpy as np
+
+    from nlipscalib.core import Camera
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    camera = Camera.from_fov(64, 48, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
+    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(2 * 15):  # reference + one press, 15 images each; the check frame repeats the first
+        value = 100 + (k % 15) * (k % 15 != 14)
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), value, np.uint8))
+    board = VirtualBoard(12)
+    args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes"]
+    args += ["--camera-calibration", str(tmp_path / "camera.json"), "--presses", "1", "--out", str(tmp_path / "s")]
+    assert main(args) == 0
+    assert "press_0001: captured" in capsys.readouterr().out
+    p = load_press(tmp_path / "s" / "press_0001")
+    assert p.camera == camera and p.response.bit_depth == 8 and p.response.white_level == 255 << 8
+    assert p.meta["provenance"]["device"]["firmware"] and np.isfinite(p.reference.depth).all()
+    # frames 15..29 in capture order: tri-colour, dark, LED 1..12, check
+    assert p.tricolor[0, 0, 0] == 100 << 8 and p.dark[0, 0, 0] == 101 << 8 and p.led_images[11, 0, 0, 0] == 113 << 8
+    assert board.latched.sum() == 0
