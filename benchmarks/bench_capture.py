@@ -20,6 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import nlipscalib.device.session as session_module
 from nlipscalib.device.session import Operator, SessionConfig, capture_press, frame_sequence
 from nlipscalib.emulator import default_script, open_emulated_sensor
 from nlipscalib.sim.scene import load_scene
@@ -71,6 +72,7 @@ def main() -> None:
     rig = sensor.rig
     rig.controller = Timed(rig.controller, tally, {"set_all": "leds", "off": "leds"})
     rig.source = Timed(rig.source, tally, {"capture": "camera"})
+    session_module.write_press = Timed(session_module, tally, {"write_press": "write"}).write_press
     cfg = SessionConfig(presses=args.presses, tricolor_level=sensor.tricolor_level)
     op = Operator(echo=lambda s: None)
     per_press, parts = [], []
@@ -85,10 +87,12 @@ def main() -> None:
     n_images = len(frame_sequence(len(rig.leds), cfg))
     leds = statistics.median(p["leds"] for p in parts)
     camera = statistics.median(p["camera"] for p in parts)
+    write = statistics.median(p["write"] for p in parts)
     total = statistics.median(per_press)
     print(f"emulator {args.width}x{args.height}, {len(rig.leds)} LEDs, {n_images} images per press:")
     print(f"  per press median {total:.3f} s (LED commands {leds:.3f} s = {1e3 * leds / (n_images + 1):.1f} ms each,")
-    print(f"  emulated camera {camera:.3f} s, movement check + atomic write {total - leds - camera:.3f} s)")
+    print(f"  emulated camera {camera:.3f} s, atomic press write {write:.3f} s, movement check and rest ", end="")
+    print(f"{total - leds - camera - write:.3f} s)")
     latch = leds / (n_images + 1)
     for flush in (1, 2):
         est = expected_camera_seconds(len(rig.leds), 30.0, flush, 1, latch)
