@@ -204,12 +204,24 @@ def capture_press(
 
     Returns
     -------
-    dict with ``folder``, ``attempts``, ``moved`` (fraction of moved pixels per attempt), ``seconds``
+    dict with ``folder``, ``attempts``, ``moved`` (fraction of moved pixels per attempt; None for an attempt
+    cut short by a reset of the LED board), ``seconds``
     """
+    from .controller import BoardResetError
+
     moved = []
     for attempt in range(cfg.max_retakes + 1):
         t0 = time.perf_counter()
-        frames = capture_frames(rig, cfg)
+        try:
+            frames = capture_frames(rig, cfg)
+        except BoardResetError as exc:
+            # the LEDs went dark for a while: frames since the last command may be wrong, so retake all
+            if attempt == cfg.max_retakes:
+                raise
+            log.warning("%s: %s", folder, exc)
+            moved.append(None)
+            operator.retake(index, "the LED board reset")
+            continue
         seconds = time.perf_counter() - t0
         moved.append(movement(frames, rig.response, cfg))
         if moved[-1] <= cfg.movement_area:

@@ -128,3 +128,28 @@ def test_rig_check_names_the_mismatch():
     rig.controller = FakeController(N_LEDS + 1)
     with pytest.raises(CaptureError, match="7 LEDs"):
         rig.check()
+
+
+def test_board_reset_mid_press_is_retaken(tmp_path):
+    """A reset of the real virtual board during a press (detected by the host driver) makes the press retake."""
+    from nlipscalib.device.controller import LedController
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    rig, images = _rig()
+    board = VirtualBoard(N_LEDS)
+    with LedController.open(board.url) as controller:
+        rig.controller = controller
+
+        class ResetOnce(LitSource):
+            def read(self):
+                if self.reads == 6:
+                    board.reset()  # the LEDs go dark while the sixth frame is read
+                return super().read()
+
+        rig.source = ResetOnce(board, images)
+        op, lines = _quiet()
+        rec = capture_press(rig, tmp_path / "p", SessionConfig(), op, index=1)
+    assert rec["attempts"] == 2 and rec["moved"][0] is None and rec["moved"][1] == 0
+    assert any("LED board reset" in line for line in lines)
+    p = load_press(tmp_path / "p")
+    np.testing.assert_allclose(p.linear(p.led_images), images, atol=2e-5)
