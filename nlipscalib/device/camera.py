@@ -232,6 +232,13 @@ class OpenCVSource(FrameSource):
             return frame
         return self._grab()
 
+    def flush(self) -> None:
+        # grab() without retrieve(): the stale frames are dequeued but never decoded
+        for _ in range(self.flush_frames):
+            if not self.cap.grab():
+                raise CaptureError(f"camera {self.device}: no frame while flushing (the camera stopped)")
+            self._first = None  # the probe frame is stale too
+
     def close(self) -> None:
         self.cap.release()
 
