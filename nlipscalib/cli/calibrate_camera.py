@@ -11,8 +11,12 @@ def register(subparsers) -> None:
         help="camera intrinsics and distortion (fisheye or standard) from checkerboard images -> camera JSON",
     )
     p.add_argument("images", nargs="+", help="checkerboard images, or folders of them")
-    p.add_argument("--pattern", required=True, help="inner corners, COLUMNSxROWS (a 9x7-square board: 8x6)")
+    p.add_argument(
+        "--pattern", required=True, help="checkerboard: inner corners COLUMNSxROWS (9x7 squares: 8x6); ChArUco: squares"
+    )
     p.add_argument("--square", type=float, required=True, help="side of one square, mm")
+    p.add_argument("--charuco", type=float, metavar="MARKER_MM", help="a ChArUco board with markers of this side, mm")
+    p.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary (default DICT_4X4_50)")
     p.add_argument("--model", default="fisheye", choices=("fisheye", "brown"), help="lens model (default fisheye)")
     p.add_argument("--out", required=True, help="camera JSON to write (use with `nlips capture --camera-calibration`)")
     p.set_defaults(func=run)
@@ -48,12 +52,10 @@ def _image_paths(items) -> list:
 
 def run(args) -> int:
     from ..core.atomic import write_json
-    from ..device.camera_calibration import calibrate_images
-    from ..errors import ConfigError
+    from ..device.camera_calibration import Target, calibrate_images
 
-    if not args.square > 0:
-        raise ConfigError(f"--square must be > 0 mm, got {args.square}")
-    cal = calibrate_images(_image_paths(args.images), _pattern(args.pattern), args.square, args.model)
+    target = Target(_pattern(args.pattern), args.square, args.charuco, args.dictionary)
+    cal = calibrate_images(_image_paths(args.images), target, args.model)
     for name, err in zip(cal.used, cal.per_view_px):
         print(f"{name}: {err:.3f} px")
     for name in cal.rejected:

@@ -1,7 +1,9 @@
-"""Camera intrinsics and lens distortion from checkerboard images (OpenCV), as a core Camera.
+"""Camera intrinsics and lens distortion from checkerboard or ChArUco images (OpenCV), as a core Camera.
 
-OpenCV does the work: ``cv2.findChessboardCornersSB`` (sector-based detector, sub-pixel accurate and robust
-to the strong distortion of wide lenses) finds the inner corners, and ``cv2.fisheye.calibrate``
+OpenCV does the work: ``cv2.findChessboardCornersSB`` (sector-based detector, robust to the strong
+distortion of wide lenses) finds a checkerboard's inner corners, refined with ``cv2.cornerSubPix``;
+``cv2.aruco.CharucoDetector`` finds the corners of a ChArUco board, which need not be wholly in view
+(useful at the edge of a fisheye's field); and ``cv2.fisheye.calibrate``
 (Kannala-Brandt, 4 coefficients) or ``cv2.calibrateCamera`` (Brown-Conrady, 5 coefficients) fits the
 model. Both share the core Camera's conventions (pixel centres at integers, OpenCV coefficient order),
 so the result drops straight into the capture metadata's ``camera`` block. The reprojection error is
@@ -81,15 +83,7 @@ def find_corners(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | No
     (columns * rows, 2) float64, pixels (u, v), or None
     """
     cv2 = _cv2()
-    grey = np.asarray(image)
-    if grey.ndim == 3:
-        grey = grey.mean(axis=2)
-    if grey.ndim != 2:
-        raise ShapeError(f"find_corners needs an (H, W[, 3]) image, got {np.shape(image)}")
-    if grey.dtype != np.uint8:
-        top = float(grey.max()) or 1.0
-        grey = np.clip(grey.astype(np.float64) * (255.0 / top), 0, 255)
-    grey = np.ascontiguousarray(np.rint(grey).astype(np.uint8))
+    grey = _grey8(image)
     flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_NORMALIZE_IMAGE
     found, corners = cv2.findChessboardCornersSB(grey, tuple(pattern), flags=flags)
     if not found:
@@ -108,39 +102,109 @@ def find_corners(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | No
     return refined.reshape(-1, 2).astype(np.float64)
 
 
+@dataclasses.dataclass(frozen=True)
+class Target:
+    """The calibration target the images show."""
+
+    pattern: tuple[int, int]
+    """Checkerboard: inner corners (columns, rows). ChArUco: squares (columns, rows)."""
+    square_mm: float
+    """Side of one square, mm."""
+    marker_mm: float | None = None
+    """ChArUco only: side of the ArUco markers, mm (None: a plain checkerboard)."""
+    dictionary: str = "DICT_4X4_50"
+    """ChArUco only: OpenCV's ArUco dictionary name."""
+
+    def __post_init__(self):
+        if not self.square_mm > 0 or (self.marker_mm is not None and not 0 < self.marker_mm < self.square_mm):
+            raise ConfigError(
+                f"target needs square > 0 and 0 < marker < square (mm), got {self.square_mm}, {self.marker_mm}"
+            )
+
+    @property
+    def name(self) -> str:
+        kind = "ChArUco board" if self.marker_mm else "checkerboard"
+        return f"the {self.pattern[0]}x{self.pattern[1]} {kind}"
+
+    def detect(self, image: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Board points and their pixels in one image, or None when not enough of the board is seen.
+
+        Returns
+        -------
+        (N, 3) float64 mm board frame, (N, 2) float64 pixels
+        """
+        if self.marker_mm is None:
+            corners = find_corners(image, self.pattern)
+            return None if corners is None else (board_points(self.pattern, self.square_mm), corners)
+        return _detect_charuco(_grey8(image), self)
+
+
+def _grey8(image: np.ndarray) -> np.ndarray:
+    grey = np.asarray(image)
+    if grey.ndim == 3:
+        grey = grey[..., :3].mean(axis=2)
+    if grey.ndim != 2:
+        raise ShapeError(f"calibration images must be (H, W[, 3]), got {np.shape(image)}")
+    if grey.dtype != np.uint8:
+        top = float(grey.max()) or 1.0
+        grey = np.clip(grey.astype(np.float64) * (255.0 / top), 0, 255)
+    return np.ascontiguousarray(np.rint(grey).astype(np.uint8))
+
+
+CHARUCO_MIN_CORNERS = 6
+"""ChArUco views with fewer interpolated corners are skipped (too little to pin a pose)."""
+
+
+def charuco_board(target: Target):
+    """The OpenCV CharucoBoard of a target (also to print one: ``board.generateImage``)."""
+    cv2 = _cv2()
+    name = target.dictionary.upper()
+    if not hasattr(cv2.aruco, name):
+        raise ConfigError(f"unknown ArUco dictionary {target.dictionary!r} (e.g. DICT_4X4_50, DICT_5X5_100)")
+    dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name))
+    return cv2.aruco.CharucoBoard(tuple(target.pattern), target.square_mm, target.marker_mm, dictionary)
+
+
+def _detect_charuco(grey: np.ndarray, target: Target):
+    board = charuco_board(target)
+    corners, ids, _, _ = _cv2().aruco.CharucoDetector(board).detectBoard(grey)
+    if ids is None or len(ids) < CHARUCO_MIN_CORNERS:
+        return None
+    obj = np.asarray(board.getChessboardCorners(), np.float64)[np.ravel(ids)]
+    return obj, corners.reshape(-1, 2).astype(np.float64)
+
+
 def calibrate(
-    corners: list[np.ndarray | None],
-    pattern: tuple[int, int],
-    square_mm: float,
+    views: list[tuple[np.ndarray, np.ndarray] | None],
     image_size: tuple[int, int],
     model: str = "fisheye",
     names: list[str] | None = None,
+    target_name: str = "the board",
 ) -> Calibration:
-    """Fit intrinsics and distortion to detected corners.
+    """Fit intrinsics and distortion to detected board points.
 
     Parameters
     ----------
-    corners : per view, (N, 2) float pixels from :func:`find_corners`, or None (board not found)
-    pattern : (columns, rows) of inner corners; square_mm : square side, mm
+    views : per image, (board points (N, 3) mm, pixels (N, 2)) from :meth:`Target.detect`, or None
     image_size : (width, height), pixels
     model : "fisheye" or "brown"
     names : view names for the report (default: indices)
+    target_name : what the images show, for the error message
     """
     cv2 = _cv2()
     if model not in ("fisheye", "brown"):
         raise ConfigError(f"camera model must be fisheye or brown, got {model!r}")
-    names = names or [str(k) for k in range(len(corners))]
-    used = [k for k, c in enumerate(corners) if c is not None]
-    rejected = tuple(names[k] for k, c in enumerate(corners) if c is None)
+    names = names or [str(k) for k in range(len(views))]
+    used = [k for k, v in enumerate(views) if v is not None]
+    rejected = tuple(names[k] for k, v in enumerate(views) if v is None)
     if len(used) < MIN_VIEWS:
         raise CaptureError(
-            f"the {pattern[0]}x{pattern[1]} checkerboard was found in {len(used)} of {len(corners)} images; "
-            f"at least {MIN_VIEWS} are needed (check --pattern: inner corners, columns x rows)"
+            f"{target_name} was found in {len(used)} of {len(views)} images; at least {MIN_VIEWS} are needed "
+            "(check --pattern: inner corners of a checkerboard, squares of a ChArUco board, columns x rows)"
         )
-    obj = board_points(pattern, square_mm)
     # (1, N, 3) / (1, N, 2) float32: the layout both OpenCV 4 and 5 accept in fisheye.calibrate
-    objs = [obj.reshape(1, -1, 3).astype(np.float32) for _ in used]
-    imgs = [np.asarray(corners[k], np.float32).reshape(1, -1, 2) for k in used]
+    objs = [np.asarray(views[k][0], np.float32).reshape(1, -1, 3) for k in used]
+    imgs = [np.asarray(views[k][1], np.float32).reshape(1, -1, 2) for k in used]
     w, h = image_size
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     if model == "fisheye":
@@ -150,21 +214,15 @@ def calibrate(
         )
     else:
         _, K, D, rvecs, tvecs = cv2.calibrateCamera(
-            [o.reshape(-1, 3) for o in objs],
-            [i.reshape(-1, 2) for i in imgs],
-            (w, h),
-            None,
-            None,
-            criteria=criteria,
+            [o.reshape(-1, 3) for o in objs], [i.reshape(-1, 2) for i in imgs], (w, h), None, None, criteria=criteria
         )
-    camera = Camera(
-        w, h, K[0, 0], K[1, 1], K[0, 2], K[1, 2], model, tuple(np.ravel(D)[: 4 if model == "fisheye" else 5])
-    )
+    coeffs = tuple(float(c) for c in np.ravel(D)[: 4 if model == "fisheye" else 5])
+    camera = Camera(w, h, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), model, coeffs)
     per_view = []
-    for rvec, tvec, img in zip(rvecs, tvecs, imgs):
+    for k, rvec, tvec in zip(used, rvecs, tvecs):
         R = cv2.Rodrigues(np.asarray(rvec, np.float64))[0]
-        pts = obj @ R.T + np.asarray(tvec, np.float64).reshape(1, 3)
-        err = camera.project(pts) - img.reshape(-1, 2).astype(np.float64)
+        pts = np.asarray(views[k][0], np.float64) @ R.T + np.asarray(tvec, np.float64).reshape(1, 3)
+        err = camera.project(pts) - np.asarray(views[k][1], np.float64)
         per_view.append(float(np.sqrt((err**2).sum(axis=1).mean())))
     rms = float(np.sqrt(np.mean(np.square(per_view))))
     return Calibration(camera, rms, tuple(per_view), tuple(names[k] for k in used), rejected)
@@ -175,12 +233,10 @@ def _fisheye_flag(cv2, name: str) -> int:
     return int(getattr(cv2.fisheye, name, None) or getattr(cv2, name))
 
 
-def calibrate_images(
-    paths: list[str | Path], pattern: tuple[int, int], square_mm: float, model: str = "fisheye"
-) -> Calibration:
-    """Detect the checkerboard in image files and calibrate (all images must share one size)."""
+def calibrate_images(paths: list[str | Path], target: Target, model: str = "fisheye") -> Calibration:
+    """Detect the target in image files and calibrate (all images must share one size)."""
     cv2 = _cv2()
-    corners, size = [], None
+    views, size = [], None
     for path in paths:
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if image is None:
@@ -189,7 +245,7 @@ def calibrate_images(
         if size is not None and this != size:
             raise CaptureError(f"{path}: size {this[0]}x{this[1]} differs from the first image's {size[0]}x{size[1]}")
         size = this
-        corners.append(find_corners(image[..., ::-1] if image.ndim == 3 else image, pattern))
+        views.append(target.detect(image))
     if size is None:
         raise CaptureError("no calibration images given")
-    return calibrate(corners, pattern, square_mm, size, model, [Path(p).name for p in paths])
+    return calibrate(views, size, model, [Path(p).name for p in paths], target.name)

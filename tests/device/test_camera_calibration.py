@@ -6,7 +6,13 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 
 from nlipscalib.core import Camera  # noqa: E402
-from nlipscalib.device.camera_calibration import board_points, calibrate, calibrate_images, find_corners  # noqa: E402
+from nlipscalib.device.camera_calibration import (  # noqa: E402
+    Target,
+    board_points,
+    calibrate,
+    calibrate_images,
+    find_corners,
+)
 from nlipscalib.errors import CaptureError  # noqa: E402
 
 PATTERN, SQUARE = (8, 6), 3.0
@@ -79,9 +85,10 @@ def views(subpixel_rays):
 
 
 def test_recovers_the_known_fisheye_camera(views, tmp_path):
-    corners = [find_corners(v, PATTERN) for v in views]
-    assert sum(c is not None for c in corners) >= 8
-    cal = calibrate(corners, PATTERN, SQUARE, (TRUE.width, TRUE.height), "fisheye")
+    target = Target(PATTERN, SQUARE)
+    detected = [target.detect(v) for v in views]
+    assert sum(d is not None for d in detected) >= 8
+    cal = calibrate(detected, (TRUE.width, TRUE.height), "fisheye")
     assert cal.rms_px < 0.1, cal.per_view_px
     assert cal.camera.model == "fisheye"
     assert cal.camera.fx == pytest.approx(TRUE.fx, rel=0.01) and cal.camera.cx == pytest.approx(TRUE.cx, abs=0.5)
@@ -98,7 +105,7 @@ def test_recovers_the_known_fisheye_camera(views, tmp_path):
     for k, v in enumerate(views):
         paths.append(tmp_path / f"view_{k:02d}.png")
         cv2.imwrite(str(paths[-1]), v)
-    from_files = calibrate_images(paths, PATTERN, SQUARE)
+    from_files = calibrate_images(paths, target)
     assert from_files.rms_px == pytest.approx(cal.rms_px, rel=1e-6)
 
 
@@ -111,7 +118,7 @@ def test_too_few_views_is_a_clear_error():
     blank = np.full((60, 80), 128, np.uint8)
     assert find_corners(blank, PATTERN) is None
     with pytest.raises(CaptureError, match="found in 0 of 2 images"):
-        calibrate([None, None], PATTERN, SQUARE, (80, 60))
+        calibrate([None, None], (80, 60))
 
 
 def test_cli_writes_the_camera_block(views, tmp_path, capsys):
@@ -131,3 +138,42 @@ def test_cli_writes_the_camera_block(views, tmp_path, capsys):
     assert Camera.from_dict(data["camera"]).model == "fisheye" and data["reprojection_rms_px"] < 0.1
     assert main(args[:3] + ["9x6"] + args[4:]) == 2  # wrong pattern: one clear error, no traceback
     assert "found in 0 of 7 images" in capsys.readouterr().err
+
+
+CHARUCO = Target((5, 4), 6.0, marker_mm=4.5, dictionary="DICT_4X4_50")
+
+
+def render_charuco(rays, R, t, texels_per_square=64):
+    """8-bit image of the ChArUco board (OpenCV's own drawing, slightly blurred like a lens) through the true camera."""
+    from nlipscalib.device.camera_calibration import charuco_board
+
+    cols, rows = CHARUCO.pattern
+    texture = charuco_board(CHARUCO).generateImage((cols * texels_per_square, rows * texels_per_square), marginSize=0)
+    texture = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), texels_per_square / 40) * (215 / 255) + 20
+    n, c = R[:, 2], np.asarray(t, float)
+    lam = (n @ c) / (rays @ n)
+    local = (lam[..., None] * rays - c) @ R  # board frame, mm; OpenCV's board: x right, y down from its corner
+    scale = texels_per_square / CHARUCO.square_mm
+    mapx = np.where(lam > 0, local[..., 0] * scale - 0.5, -1e6).astype(np.float32)
+    mapy = np.where(lam > 0, local[..., 1] * scale - 0.5, -1e6).astype(np.float32)
+    value = cv2.remap(texture, mapx, mapy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=235.0)
+    h, w = TRUE.shape
+    return np.clip(np.rint(value.reshape(h, SUPER, w, SUPER).mean(axis=(1, 3))), 0, 255).astype(np.uint8)
+
+
+def _charuco_pose(rotation_deg, centre):
+    R = _rotation(*rotation_deg)
+    mid = np.array([CHARUCO.pattern[0] / 2 * CHARUCO.square_mm, CHARUCO.pattern[1] / 2 * CHARUCO.square_mm, 0.0])
+    return R, np.asarray(centre, float) - R @ mid
+
+
+def test_charuco_calibration_uses_partial_views(subpixel_rays):
+    poses = POSES + [((0, 0, 0), (-20, 0, 20)), ((0, 0, 0), (20, 0, 20))]  # the last two: board partly outside
+    views = [render_charuco(subpixel_rays, *_charuco_pose(r, c)) for r, c in poses]
+    detected = [CHARUCO.detect(v) for v in views]
+    assert sum(d is not None for d in detected) >= 10
+    partial = [d for d in detected[-2:] if d is not None]
+    assert partial and all(len(d[0]) < 12 for d in partial)  # fewer than all 4x3 inner corners seen
+    cal = calibrate(detected, (TRUE.width, TRUE.height), "fisheye", target_name=CHARUCO.name)
+    assert cal.rms_px < 0.2, cal.per_view_px
+    assert cal.camera.fx == pytest.approx(TRUE.fx, rel=0.01)
