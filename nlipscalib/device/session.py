@@ -122,7 +122,10 @@ class Operator:
 
     def _say(self, text: str) -> None:
         if self.interactive:
-            input(f"{text} [Enter] ")
+            try:
+                input(f"{text} [Enter] ")
+            except EOFError:  # Ctrl-D or a closed stdin: stop like Ctrl-C, keeping what is captured
+                raise KeyboardInterrupt from None
         else:
             self.echo(text)
 

@@ -153,3 +153,20 @@ def test_board_reset_mid_press_is_retaken(tmp_path):
     assert any("LED board reset" in line for line in lines)
     p = load_press(tmp_path / "p")
     np.testing.assert_allclose(p.linear(p.led_images), images, atol=2e-5)
+
+
+def test_interactive_operator_waits_for_enter_and_stops_on_eof(monkeypatch):
+    answers = iter(["", EOFError])
+
+    def fake_input(prompt):
+        answer = next(answers)
+        if answer is EOFError:
+            raise EOFError
+        assert prompt.endswith("[Enter] ")
+        return answer
+
+    monkeypatch.setattr("builtins.input", fake_input)
+    op = Operator(interactive=True)
+    op.press(1, 2)  # returns after Enter
+    with pytest.raises(KeyboardInterrupt):
+        op.press(2, 2)
