@@ -80,6 +80,8 @@ def _emulated_source(args, stack):
     camera = EmulatedCamera(renders, lambda: board.latched, flush_frames=0)
     _light_tricolor(controller, tricolor_level(renders))
     surfaces = [None] + [s.press for s in script]
+    for surface in surfaces:  # render now, so the frame rate measures the stream, not the twin
+        renders.images(surface)
 
     def before_frame(i):
         camera.show(surfaces[(i // args.frames_per_press) % len(surfaces)])
