@@ -232,28 +232,17 @@ def open_emulated_sensor(
     seed: int = 0,
     latency_frames: int = 1,
     flush_frames: int = 2,
-    controller=None,
     echo=print,
 ) -> EmulatedSensor:
-    """The virtual LED board (opened through the real host driver) and the virtual camera for ``scene``.
+    """The virtual LED board (opened through the real host driver) and the virtual camera for ``scene``."""
+    from .device.controller import LedController
+    from .device.virtual_board import VirtualBoard
 
-    ``controller``: a ready LED controller to use instead (tests of the session logic); it must expose the
-    latched colours as ``latched`` or ``state()``.
-    """
-    board = None
-    if controller is None:
-        from .device.controller import LedController
-        from .device.virtual_board import VirtualBoard
+    board = VirtualBoard(len(scene.led_models()))
+    controller = LedController.open(board.url)
 
-        board = VirtualBoard(len(scene.led_models()))
-        controller = LedController.open(board.url)
-
-        def latched():
-            return board.latched
-    else:
-
-        def latched():
-            return controller.latched if hasattr(controller, "latched") else controller.state()
+    def latched():
+        return board.latched
 
     renders = TwinRenders(scene)
     camera = EmulatedCamera(renders, latched, seed=seed, latency_frames=latency_frames, flush_frames=flush_frames)

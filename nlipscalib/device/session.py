@@ -34,7 +34,7 @@ from ..core.atomic import clean_interrupted, write_json
 from ..core.camera import Camera
 from ..core.capture import Reference, SensorResponse, is_press_folder, write_press
 from ..core.leds import TRICOLOR_COLORS, Led, tricolor_groups
-from ..errors import CaptureError, ConfigError
+from ..errors import CaptureError, ConfigError, require
 
 log = logging.getLogger(__name__)
 
@@ -188,8 +188,7 @@ def change_map(first: np.ndarray, last: np.ndarray, response: SensorResponse) ->
     -------
     (H, W) float32 map of the 5x5-box-blurred largest channel difference, fraction of full scale
     """
-    import cv2
-
+    cv2 = require("cv2", "opencv-python-headless", "The movement check")
     scale = np.float32(response.white_level - response.black_level)
     diff = np.abs(last.astype(np.float32) - first.astype(np.float32)) / scale
     return cv2.blur(diff, (5, 5)).max(axis=2)
