@@ -21,7 +21,7 @@ class StubRenders:
 
 
 def _camera(flush_frames, latency_frames=1):
-    scene = SceneConfig().replace(camera={"width": 8, "height": 6}, noise={"enabled": False})
+    scene = SceneConfig().replace(camera={"width": 10, "height": 8}, noise={"enabled": False})
     board = FakeController(12)
     cam = EmulatedCamera(StubRenders(scene, 12), lambda: board.latched, latency_frames=latency_frames)
     cam.flush_frames = flush_frames
