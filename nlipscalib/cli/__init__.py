@@ -16,7 +16,19 @@ import sys
 from .. import __version__, progress
 from ..errors import MissingDependencyError, NlipsError
 
-SUBCOMMAND_MODULES = ("render", "dataset", "demo", "solve", "calibrate", "evaluate", "leds", "experiment")
+SUBCOMMAND_MODULES = (
+    "render",
+    "dataset",
+    "demo",
+    "solve",
+    "calibrate",
+    "evaluate",
+    "experiment",
+    "leds",
+    "capture",
+    "calibrate_camera",
+    "live",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError
+from .capture import Reference
 from .sensor import DomeConfig
 from .tolerances import NORMAL_EPS
 
@@ -163,3 +164,96 @@ def dome_inward_normals(cfg: DomeConfig, points: np.ndarray) -> np.ndarray:
         return np.tile([0.0, 0.0, -1.0], (len(points), 1))
     d = points / np.linalg.norm(points, axis=1, keepdims=True)
     return _ray_hit(cfg, d)[1]
+
+
+def reference_surface(design, camera=None) -> Reference:
+    """The undeformed gel surface of a design as the camera sees it, computed analytically.
+
+    Every pixel's viewing ray (:attr:`Camera.rays`, exact lens model) leaves the camera centre at
+    ``design.camera.position`` (dome frame) and is intersected with the analytic surface. The pixel sees
+    the gel when the first surface the ray meets is seen from inside (the coated side, as in the twin's
+    one-sided mesh); a ray that misses the gel, meets its outside first or leaves through the open base
+    gets NaN depth and zero normals.
+
+    Parameters
+    ----------
+    design : SensorDesign
+    camera : core Camera or None
+        The camera's calibrated intrinsics and lens (``nlips calibrate-camera``) when they differ from the
+        design's; its centre stays at ``design.camera.position``.
+
+    Returns
+    -------
+    Reference
+        ``depth`` (H, W) float32, mm, z in the camera frame (NaN where not seen); ``normals`` (H, W, 3)
+        float32, unit, camera frame, toward the camera (zero where not seen).
+    """
+    cfg = design.dome
+    check_dome(cfg)
+    camera = design.camera_model() if camera is None else camera
+    h, w = camera.shape
+    rays = camera.rays.reshape(-1, 3)
+    origin = np.asarray(design.camera.position, dtype=float)
+    t = _first_hit(cfg, origin, rays)
+    with np.errstate(invalid="ignore"):
+        points_dome = origin + t[:, None] * rays
+    seen = np.isfinite(t)
+    normals = np.zeros_like(rays)
+    normals[seen] = _inward_normals_at(cfg, points_dome[seen])
+    seen &= np.einsum("ij,ij->i", normals, rays) < 0  # coated (inner) side faces the camera
+    normals[~seen] = 0.0
+    depth = np.where(seen, t * rays[:, 2], np.nan)
+    return Reference(depth=depth.reshape(h, w).astype(np.float32), normals=normals.reshape(h, w, 3).astype(np.float32))
+
+
+def _first_hit(cfg: DomeConfig, origin: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """(N,) float: ray parameter (mm, unit rays) of the nearest surface hit in front of ``origin``; inf on miss."""
+    if cfg.shape == "flat":
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (cfg.height - origin[2]) / d[:, 2]
+            p = origin + t[:, None] * d
+        on_pad = (t > 0) & (np.abs(p[:, 0]) <= cfg.radius) & (np.abs(p[:, 1]) <= cfg.radius)
+        return np.where(on_pad, t, np.inf)
+    if cfg.shape == "capsule":
+        zc = cfg.height - cfg.radius
+        wall = _quadric_hits(origin, d, np.array([1.0, 1.0, 0.0]), np.zeros(3), cfg.radius**2)
+        cap = _quadric_hits(origin, d, np.ones(3), np.array([0.0, 0.0, zc]), cfg.radius**2)
+        return np.minimum(_nearest(origin, d, wall, 0.0, zc), _nearest(origin, d, cap, zc, np.inf))
+    c = cfg.radius if cfg.shape == "hemisphere" else cfg.height
+    scale = 1.0 / np.array([cfg.radius, cfg.radius, c]) ** 2
+    roots = _quadric_hits(origin, d, scale, np.zeros(3), 1.0)
+    return _nearest(origin, d, roots, 0.0, np.inf)
+
+
+def _quadric_hits(origin, d, scale, centre, rhs) -> np.ndarray:
+    """(N, 2) roots t of sum_k scale_k (o + t d - centre)_k^2 = rhs; NaN where the ray misses."""
+    o = origin - centre
+    a = (scale * d * d).sum(1)
+    b = 2.0 * (scale * o * d).sum(1)
+    c = float((scale * o * o).sum()) - rhs
+    disc = b * b - 4 * a * c
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sq = np.sqrt(disc)
+        roots = np.stack([(-b - sq) / (2 * a), (-b + sq) / (2 * a)], 1)
+    return roots
+
+
+def _nearest(origin, d, roots, z_lo, z_hi) -> np.ndarray:
+    """(N,) the smallest root in front of the camera whose point lies in z_lo <= z <= z_hi; inf if none."""
+    z = origin[2] + roots * d[:, 2:3]
+    ok = (roots > 0) & (z >= z_lo) & (z <= z_hi)
+    return np.where(ok, roots, np.inf).min(axis=1)
+
+
+def _inward_normals_at(cfg: DomeConfig, points: np.ndarray) -> np.ndarray:
+    """(N, 3) unit inward normals of the analytic surface at ``points`` (dome frame, on the surface)."""
+    if cfg.shape == "flat":
+        return np.tile([0.0, 0.0, -1.0], (len(points), 1))
+    if cfg.shape == "capsule":
+        zc = cfg.height - cfg.radius
+        n = -(points - [0.0, 0.0, zc])
+        n[points[:, 2] < zc, 2] = 0.0  # cylinder wall
+    else:
+        c = cfg.radius if cfg.shape == "hemisphere" else cfg.height
+        n = -points / np.array([cfg.radius, cfg.radius, c]) ** 2
+    return n / np.linalg.norm(n, axis=1, keepdims=True)

@@ -1,0 +1,70 @@
+"""``nlips calibrate-camera IMAGES...``: camera intrinsics and lens distortion from checkerboard images."""
+
+from __future__ import annotations
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "calibrate-camera",
+        help="camera intrinsics and distortion (fisheye or standard) from checkerboard images -> camera JSON",
+    )
+    p.add_argument("images", nargs="+", help="checkerboard images, or folders of them")
+    p.add_argument(
+        "--pattern", required=True, help="checkerboard: inner corners COLUMNSxROWS (9x7 squares: 8x6); ChArUco: squares"
+    )
+    p.add_argument("--square", type=float, required=True, help="side of one square, mm")
+    p.add_argument("--charuco", type=float, metavar="MARKER_MM", help="a ChArUco board with markers of this side, mm")
+    p.add_argument("--dictionary", default="DICT_4X4_50", help="ChArUco ArUco dictionary (default DICT_4X4_50)")
+    p.add_argument("--model", default="fisheye", choices=("fisheye", "brown"), help="lens model (default fisheye)")
+    p.add_argument("--out", required=True, help="camera JSON to write (use with `nlips capture --camera-calibration`)")
+    p.set_defaults(func=run)
+
+
+def _pattern(text: str) -> tuple[int, int]:
+    from ..errors import ConfigError
+
+    try:
+        cols, rows = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--pattern must look like 8x6 (inner corners), got {text!r}") from None
+    if cols < 3 or rows < 3:
+        raise ConfigError(f"--pattern needs at least 3x3 inner corners, got {text!r}")
+    return cols, rows
+
+
+def _image_paths(items) -> list:
+    from pathlib import Path
+
+    from ..errors import CaptureError
+
+    paths = []
+    for item in map(Path, items):
+        if item.is_dir():
+            paths += sorted(p for p in item.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        elif item.is_file():
+            paths.append(item)
+        else:
+            raise CaptureError(f"{item}: no such image or folder")
+    return paths
+
+
+def run(args) -> int:
+    from ..core.atomic import write_json
+    from ..device.camera_calibration import Target, calibrate_images
+
+    target = Target(_pattern(args.pattern), args.square, args.charuco, args.dictionary)
+    cal = calibrate_images(_image_paths(args.images), target, args.model)
+    for name, err in zip(cal.used, cal.per_view_px):
+        print(f"{name}: {err:.3f} px")
+    for name in cal.rejected:
+        print(f"{name}: board not found (skipped)")
+    c = cal.camera
+    print(
+        f"{c.model} camera {c.width}x{c.height}: fx {c.fx:.2f} fy {c.fy:.2f} cx {c.cx:.2f} cy {c.cy:.2f} dist {c.dist}"
+    )
+    print(f"reprojection error (RMS over {len(cal.used)} views): {cal.rms_px:.3f} px")
+    write_json(args.out, cal.to_dict())
+    print(f"written {args.out}")
+    return 0

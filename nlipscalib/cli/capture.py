@@ -1,0 +1,189 @@
+"""``nlips capture``: a capture session on the real sensor (LED board + camera) or on the emulated one.
+
+Real sensor::
+
+    nlips capture --port /dev/ttyACM0 --camera 0 --design nlipstac --camera-calibration camera.json --out session1
+
+Emulated sensor (the twin behind the virtual LED board and a virtual camera; no hardware)::
+
+    nlips capture --emulate nlipstac --presses 3 --out session1
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from ..progress import bars_enabled
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "capture",
+        help="capture a session of presses (undeformed reference first) from the sensor or its emulator",
+    )
+    p.add_argument("--out", required=True, help="session folder (reference/, press_0001/, ...); resumes if present")
+    p.add_argument("--presses", type=int, default=10, help="presses after the reference (default 10)")
+    src = p.add_argument_group("real sensor")
+    src.add_argument("--port", help="LED controller: serial port or pyserial URL (/dev/ttyACM0, COM3, socket://...)")
+    src.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
+    src.add_argument("--camera", default="0", help="camera index, device path, folder of images or video (default 0)")
+    src.add_argument("--design", default=None, help="sensor design: scene file or shipped name (default nlipstac)")
+    src.add_argument("--camera-calibration", help="camera JSON from `nlips calibrate-camera` (default: the design's)")
+    src.add_argument("--leds", help="LED JSON from `nlips calibrate-leds` (default: the design's LED ring)")
+    src.add_argument("--exposure-ms", type=float, default=10.0, help="fixed exposure, ms (default 10)")
+    src.add_argument("--gain", type=float, default=0.0, help="fixed analogue gain, camera units (default 0)")
+    src.add_argument("--white-balance", type=float, default=5000.0, help="fixed white balance, kelvin (default 5000)")
+    src.add_argument("--black-level", type=float, default=0.0, help="camera black level in its own DN (default 0)")
+    src.add_argument("--flush", type=int, default=2, help="frames dropped after each LED change (default 2)")
+    src.add_argument("--average", type=int, default=1, help="frames averaged per image (default 1)")
+    emu = p.add_argument_group("emulated sensor")
+    emu.add_argument("--emulate", metavar="SCENE", help="run against the emulated sensor of this scene (no hardware)")
+    emu.add_argument("--script", help="press script (TOML/YAML [[press]] tables); default: sphere presses")
+    emu.add_argument("--move-press", type=int, help="make this press (1-based) move during its sequence")
+    emu.add_argument("--width", type=int, help="emulated image width, pixels")
+    emu.add_argument("--height", type=int, help="emulated image height, pixels")
+    emu.add_argument("--spp", type=int, help="emulated render samples per pixel")
+    emu.add_argument("--seed", type=int, default=0, help="emulated sensor noise seed")
+    ses = p.add_argument_group("session")
+    ses.add_argument("--tricolor-level", type=int, help="LED drive of the tri-colour frame, 1-255 (default 255)")
+    ses.add_argument("--movement-threshold", type=float, default=0.02, help="pixel change counted as movement")
+    ses.add_argument("--max-retakes", type=int, default=3, help="retakes of a moving press before giving up")
+    ses.add_argument("--yes", action="store_true", help="do not wait for Enter at the prompts (scripts)")
+    p.set_defaults(func=run)
+
+
+def _session_config(args, tricolor_level: int | None):
+    from ..device.session import SessionConfig
+
+    level = args.tricolor_level or tricolor_level or 255
+    return SessionConfig(
+        presses=args.presses,
+        tricolor_level=level,
+        movement_threshold=args.movement_threshold,
+        max_retakes=args.max_retakes,
+    )
+
+
+def _run_emulated(args):
+    from ..device.session import run_session
+    from ..emulator import default_script, load_script, open_emulated_sensor
+    from ..sim.scene import load_scene
+
+    scene = load_scene(args.emulate)
+    camera = {k: v for k, v in {"width": args.width, "height": args.height}.items() if v}
+    scene = scene.replace(camera=camera, render={"spp": args.spp} if args.spp else {})
+    script = load_script(args.script) if args.script else default_script(args.presses, args.move_press)
+    args.presses = len(script)
+    with open_emulated_sensor(scene, script, seed=args.seed, flush_frames=args.flush) as sensor:
+        cfg = _session_config(args, sensor.tricolor_level)
+        sensor.prerender(progress=bars_enabled())
+        return run_session(sensor.rig, args.out, cfg, sensor.operator, progress=bars_enabled())
+
+
+def _run_device(args):
+    from ..core.capture import SensorResponse
+    from ..core.dome import reference_surface
+    from ..device.camera import CameraSettings, open_source
+    from ..device.session import Operator, Rig, run_session
+
+    if not args.port:
+        raise _usage("give the LED controller's --port (or --emulate SCENE to run without hardware)")
+    design = _design(args.design)
+    camera = _calibrated_camera(args.camera_calibration) or design.camera_model()
+    leds = _leds(args.leds) or design.led_models()
+    settings = CameraSettings(
+        exposure_ms=args.exposure_ms,
+        gain=args.gain,
+        white_balance_k=args.white_balance,
+        width=camera.width,
+        height=camera.height,
+        flush_frames=args.flush,
+        average=args.average,
+    )
+    with open_leds(args.port, args.adalight) as controller, open_source(args.camera, settings) as source:
+        for line in source.refused:
+            print(f"camera refused: {line}", file=sys.stderr)
+        shift = 16 - source.bit_depth
+        response = SensorResponse(
+            bit_depth=source.bit_depth,
+            black_level=float(args.black_level) * (1 << shift),
+            white_level=float(((1 << source.bit_depth) - 1) << shift),
+            exposure_ms=args.exposure_ms,
+            gain=args.gain,
+        )
+        rig = Rig(
+            controller=controller,
+            source=source,
+            camera=camera,
+            leds=leds,
+            response=response,
+            reference=reference_surface(design, camera),
+            provenance={
+                "device": {"port": args.port, "firmware": str(controller.firmware), "camera": str(args.camera)},
+                "camera_refused": list(source.refused),
+                "design": args.design or "nlipstac",
+            },
+        )
+        operator = Operator(interactive=not args.yes and sys.stdin.isatty())
+        return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
+
+
+def open_leds(port: str, adalight: int | None = None):
+    """The LED controller on ``port``: the nlips firmware, or a stock Adalight board with ``adalight`` LEDs
+    (no acknowledgement: it waits a settle delay after each frame instead, and the camera flushes)."""
+    if adalight is not None:
+        from ..device.adalight import AdalightController
+
+        return AdalightController.open(port, adalight)
+    from ..device.controller import LedController
+
+    return LedController.open(port)
+
+
+def _usage(message: str):
+    from ..errors import ConfigError
+
+    return ConfigError(message)
+
+
+def _design(name):
+    from ..sim.scene import load_scene  # the scene file's dome/camera/leds sections are the design
+
+    return load_scene(name).design
+
+
+def _calibrated_camera(path):
+    if not path:
+        return None
+    import json
+
+    from ..core.camera import Camera
+    from ..errors import ConfigError
+
+    try:
+        return Camera.from_dict(json.loads(open(path).read())["camera"])
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such camera calibration file") from None
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{path}: not a camera calibration file ({exc})") from None
+
+
+def _leds(path):
+    if not path:
+        return None
+    from ..solver.io import load_leds
+
+    return load_leds(path)
+
+
+def run(args) -> int:
+    t0 = time.perf_counter()
+    status = _run_emulated(args) if args.emulate else _run_device(args)
+    for name, rec in status.items():
+        if rec == "kept":
+            print(f"{name}: kept (already captured)")
+        else:
+            print(f"{name}: captured in {rec['seconds']:.2f} s, {rec['attempts']} attempt(s)")
+    print(f"session {args.out}: {len(status)} folders in {time.perf_counter() - t0:.1f} s")
+    return 0

@@ -1,0 +1,137 @@
+"""``nlips live``: stream tri-colour frames into a trained NLiPsNet; show or save normal and depth maps.
+
+Sources: a camera (with the LED board lit in the tri-colour pattern), a folder or video of recorded
+tri-colour frames, or the emulated sensor (``--emulate SCENE``: the twin pressing its scripted presses
+in turn). The predictor is pluggable: ``--model FILE`` loads an NLiPsNet from ``nlips train``;
+``--predictor module:function`` loads any other one, ``function(camera_shape)`` returning a callable
+that maps a stored frame ((H, W, 3) uint16) to ``nlipscalib.device.live.LiveResult``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("live", help="live normal and depth maps from tri-colour frames (NLiPsNet)")
+    p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
+    p.add_argument("--predictor", help="other predictor, module:function (see `nlips live` in the README)")
+    p.add_argument("--backend", default="torch", choices=("torch", "onnx"), help="network runtime (default torch)")
+    p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
+    p.add_argument("--camera", default="0", help="camera index, device path, folder of frames or video (default 0)")
+    p.add_argument("--port", help="LED controller port/URL: lit in the tri-colour pattern while streaming")
+    p.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
+    p.add_argument("--tricolor-level", type=int, default=255, help="LED drive of the tri-colour pattern, 1-255")
+    p.add_argument("--exposure-ms", type=float, default=10.0, help="fixed exposure of a live camera, ms")
+    p.add_argument("--emulate", metavar="SCENE", help="stream from the emulated sensor of this scene")
+    p.add_argument("--script", help="emulated press script (TOML/YAML [[press]] tables)")
+    p.add_argument("--frames-per-press", type=int, default=10, help="emulated frames per scripted press")
+    p.add_argument("--width", type=int, help="emulated image width, pixels")
+    p.add_argument("--height", type=int, help="emulated image height, pixels")
+    p.add_argument("--frames", type=int, help="stop after this many frames (default: until the input ends or q)")
+    p.add_argument("--save", help="folder for every frame's normal map (PNG) and arrays (npz)")
+    p.add_argument("--every", type=int, default=1, help="save every N-th frame (default 1)")
+    p.add_argument("--no-window", action="store_true", help="do not open a window even if a display is present")
+    p.set_defaults(func=run)
+
+
+def _nlipsnet(args):
+    from ..device.live import LiveResult
+    from ..errors import ConfigError
+
+    try:
+        from ..learn.infer import Predictor
+    except ModuleNotFoundError:
+        raise ConfigError("--model needs NLiPsNet (nlipscalib.learn.infer), which this installation lacks") from None
+    predictor = Predictor(args.model, backend=args.backend, threads=args.threads)
+
+    def predict(frame):
+        out = predictor.predict(predictor.linear(frame))
+        return LiveResult(out.normals, out.depth)
+
+    return predict, predictor.ref_depth.astype("float32")
+
+
+def _plugged(spec: str, shape):
+    from ..errors import ConfigError
+
+    module, _, name = spec.partition(":")
+    try:
+        factory = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError, ValueError) as exc:
+        raise ConfigError(f"--predictor {spec}: cannot load it ({exc}); give module:function") from None
+    return factory(shape), None
+
+
+def _emulated_source(args, stack):
+    from ..emulator import EmulatedCamera, TwinRenders, default_script, load_script, tricolor_level
+    from ..sim.scene import load_scene
+
+    scene = load_scene(args.emulate)
+    scene = scene.replace(camera={k: v for k, v in {"width": args.width, "height": args.height}.items() if v})
+    script = load_script(args.script) if args.script else default_script(3)
+    from ..device.controller import LedController
+    from ..device.virtual_board import VirtualBoard
+
+    board = VirtualBoard(len(scene.led_models()))
+    controller = stack.enter_context(LedController.open(board.url))
+    renders = TwinRenders(scene)
+    camera = EmulatedCamera(renders, lambda: board.latched, flush_frames=0)
+    _light_tricolor(controller, tricolor_level(renders))
+    surfaces = [None] + [s.press for s in script]
+    for surface in surfaces:  # render now, so the frame rate measures the stream, not the twin
+        renders.images(surface)
+
+    def before_frame(i):
+        camera.show(surfaces[(i // args.frames_per_press) % len(surfaces)])
+
+    return camera, before_frame
+
+
+def _light_tricolor(controller, level: int) -> None:
+    import numpy as np
+
+    from ..core.leds import TRICOLOR_COLORS, tricolor_groups
+
+    controller.set_all((TRICOLOR_COLORS[tricolor_groups(controller.n_leds)] * level).astype(np.uint8))
+
+
+def run(args) -> int:
+    import contextlib
+
+    from ..device.camera import CameraSettings, open_source
+    from ..device.live import SaveSink, WindowSink, display_available, stream
+    from ..errors import ConfigError
+    from ..report import normals_to_rgb
+
+    if bool(args.model) == bool(args.predictor):
+        raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
+    with contextlib.ExitStack() as stack:
+        before_frame = None
+        if args.emulate:
+            source, before_frame = _emulated_source(args, stack)
+        else:
+            source = stack.enter_context(open_source(args.camera, CameraSettings(exposure_ms=args.exposure_ms)))
+            if args.port:
+                from .capture import open_leds
+
+                _light_tricolor(stack.enter_context(open_leds(args.port, args.adalight)), args.tricolor_level)
+        predict, reference_depth = _nlipsnet(args) if args.model else _plugged(args.predictor, source.shape)
+        sinks = []
+        if args.save:
+            sinks.append(SaveSink(args.save, normals_to_rgb, args.every))
+        if not args.no_window and display_available():
+            sinks.append(WindowSink(normals_to_rgb, reference_depth))
+        elif not args.save:
+            print("no display: maps are not shown; use --save DIR to keep them", file=sys.stderr)
+        stats = stream(
+            source,
+            predict,
+            sinks,
+            max_frames=args.frames,
+            before_frame=before_frame,
+            report=lambda line: print(line, file=sys.stderr),
+        )
+    print(stats.summary())
+    return 0

@@ -1,0 +1,300 @@
+"""Frame sources for capture: a live OpenCV camera, a folder of images, a video file.
+
+Every source returns frames as the capture format stores them: (H, W, 3) uint16, RGB, linear values
+``DN << (16 - bit_depth)`` (docs/formats.md). Photometric stereo needs frames whose brightness depends
+on the LEDs only, so a live camera is opened with auto exposure, auto gain and auto white balance off
+and fixed values set; every setting is read back and those the camera refused are listed in
+``refused`` (a capture with auto exposure still on would be worthless, and the user must know).
+
+After each LED change the session calls :meth:`FrameSource.capture`, which first drops the frames that
+were exposed (or buffered) before the light changed (``flush_frames``), then averages ``average``
+frames. File-backed sources hold exactly one recorded frame per exposure, so they never flush.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CaptureError, ConfigError, require
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
+"""Files a folder source reads, in name order."""
+
+
+def _cv2():
+    return require("cv2", "opencv-python-headless", "Reading a camera")
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraSettings:
+    """How a live camera is set up for photometric stereo."""
+
+    exposure_ms: float | None = 10.0
+    """Fixed exposure time, ms (auto exposure is switched off); None keeps the camera's current value."""
+    gain: float | None = 0.0
+    """Fixed analogue gain in the camera's units (auto gain off); None keeps the camera's."""
+    white_balance_k: float | None = 5000.0
+    """Fixed white balance temperature, kelvin (auto white balance off); None keeps the camera's."""
+    width: int | None = None
+    """Requested frame width, pixels (None: the camera's default)."""
+    height: int | None = None
+    """Requested frame height, pixels."""
+    buffer_size: int = 1
+    """Driver frame buffers: the fewer, the fewer stale frames wait after an LED change."""
+    flush_frames: int = 2
+    """Frames dropped after each LED change: the buffered one and the one being exposed when it changed."""
+    average: int = 1
+    """Frames averaged per captured image (noise drops as 1/sqrt(average))."""
+    raw: bool = True
+    """Ask for the camera's unconverted frames (the highest bit depth it gives, e.g. 10/12/16-bit Y16)."""
+
+    def __post_init__(self):
+        if self.buffer_size < 1 or self.flush_frames < 0 or self.average < 1:
+            raise ConfigError(
+                f"camera settings need buffer_size >= 1, flush_frames >= 0, average >= 1; got "
+                f"{self.buffer_size}, {self.flush_frames}, {self.average}"
+            )
+
+
+class FrameSource:
+    """Base of every frame source: ``read`` one frame, ``flush`` stale ones, ``capture`` one image."""
+
+    bit_depth: int = 8
+    """Bits per sample of the frames this source delivers."""
+    flush_frames: int = 0
+    """Frames dropped by :meth:`flush`."""
+    average: int = 1
+    """Frames averaged by :meth:`capture`."""
+    refused: tuple[str, ...] = ()
+    """Settings the camera did not accept, one readable line each."""
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the frames."""
+        raise NotImplementedError
+
+    def read(self) -> np.ndarray:
+        """The next frame: (H, W, 3) uint16, RGB, stored values ``DN << (16 - bit_depth)``."""
+        raise NotImplementedError
+
+    def flush(self) -> None:
+        """Drop the frames exposed before the last LED change."""
+        for _ in range(self.flush_frames):
+            self.read()
+
+    def capture(self) -> np.ndarray:
+        """One image for the current LED state: flush, then the mean of ``average`` frames.
+
+        Returns
+        -------
+        (H, W, 3) uint16, RGB, stored values
+        """
+        self.flush()
+        if self.average == 1:
+            return self.read()
+        total = np.zeros(self.shape + (3,), np.float64)
+        for _ in range(self.average):
+            total += self.read()
+        return np.rint(total / self.average).astype(np.uint16)
+
+    def close(self) -> None:
+        """Release the device or file."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def to_stored(frame: np.ndarray, name: str = "frame") -> tuple[np.ndarray, int]:
+    """A frame as OpenCV returns it (BGR or grey, 8 or 16 bit) -> ((H, W, 3) uint16 RGB stored, bit depth).
+
+    16-bit frames are taken as already scaled to 16 bits (OpenCV's Y16 and 16-bit PNG); 8-bit ones are
+    shifted up by 8 bits.
+    """
+    if frame.dtype == np.uint8:
+        out, bits = frame.astype(np.uint16) << np.uint16(8), 8
+    elif frame.dtype == np.uint16:
+        out, bits = frame, 16
+    else:
+        raise CaptureError(f"{name}: unsupported sample type {frame.dtype} (8- or 16-bit images only)")
+    if out.ndim == 2:
+        out = np.repeat(out[..., None], 3, axis=2)
+    elif out.ndim == 3 and out.shape[2] == 4:
+        out = out[..., 2::-1]
+    elif out.ndim == 3 and out.shape[2] == 3:
+        out = out[..., ::-1]
+    else:
+        raise CaptureError(f"{name}: unsupported image shape {frame.shape}")
+    return np.ascontiguousarray(out), bits
+
+
+class FolderSource(FrameSource):
+    """Images of a folder in name order, one per :meth:`read` (a recorded capture, or a test fixture).
+
+    16-bit PNG/TIFF keep their bit depth (OpenCV's ``imread`` with ``IMREAD_UNCHANGED``).
+    """
+
+    def __init__(self, folder: str | Path, average: int = 1):
+        self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise CaptureError(f"{self.folder}: image folder does not exist")
+        self.files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not self.files:
+            raise CaptureError(f"{self.folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+        self.average = int(average)
+        self.position = 0
+        first, self.bit_depth = self._load(self.files[0])
+        self._shape = first.shape[:2]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self._shape
+
+    def _load(self, path: Path) -> tuple[np.ndarray, int]:
+        frame = _cv2().imread(str(path), _cv2().IMREAD_UNCHANGED)
+        if frame is None:
+            raise CaptureError(f"{path}: not a readable image")
+        return to_stored(frame, str(path))
+
+    def read(self) -> np.ndarray:
+        if self.position >= len(self.files):
+            raise CaptureError(f"{self.folder}: ran out of images after {len(self.files)} frames")
+        frame, _ = self._load(self.files[self.position])
+        if frame.shape[:2] != self._shape:
+            raise CaptureError(f"{self.files[self.position]}: size {frame.shape[:2]} differs from {self._shape}")
+        self.position += 1
+        return frame
+
+
+class OpenCVSource(FrameSource):
+    """A camera (index or device path), a video file or an image sequence (``img_%04d.png``) via ``cv2.VideoCapture``.
+
+    For a live camera, ``settings`` are applied (auto modes off) and verified by reading them back; a
+    file or sequence gets no settings and no flushing (each recorded frame is one exposure).
+    """
+
+    def __init__(self, device: int | str, settings: CameraSettings | None = None):
+        cv2 = _cv2()
+        self.device = device
+        self.live = isinstance(device, int) or str(device).startswith("/dev/")
+        if not self.live and "%" not in str(device) and not Path(device).exists():
+            raise CaptureError(f"{device}: video file does not exist")
+        self.cap = cv2.VideoCapture(device)
+        if not self.cap.isOpened():
+            raise CaptureError(f"camera {device}: OpenCV could not open it (unplugged, busy, or no permission)")
+        settings = settings or CameraSettings()
+        if self.live:
+            self.refused = tuple(apply_settings(self.cap, settings))
+            for line in self.refused:
+                log.warning("camera %s: %s", device, line)
+            self.flush_frames = settings.flush_frames
+            self.exposure_ms = settings.exposure_ms
+            self.gain = settings.gain
+        else:
+            self.exposure_ms, self.gain = None, None
+        self.average = settings.average
+        frame = self._grab()
+        self._shape = frame.shape[:2]
+        self._first = frame  # the probe frame is handed out first, so files lose nothing
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self._shape
+
+    def _grab(self) -> np.ndarray:
+        ok, frame = self.cap.read()
+        if not ok or frame is None:
+            raise CaptureError(f"camera {self.device}: no frame (end of file, or the camera stopped)")
+        if frame.ndim == 2 and frame.shape[0] == 1 and self.live:
+            # unconverted YUYV/MJPEG frames come as a flat byte buffer: only 16-bit grey (Y16) raw frames
+            # are images, so fall back to OpenCV's 8-bit conversion
+            log.info("camera %s: raw frames are compressed; using 8-bit converted frames", self.device)
+            self.cap.set(_cv2().CAP_PROP_CONVERT_RGB, 1)
+            self.refused = tuple(r for r in self.refused if not r.startswith("raw")) + (
+                "raw frames: the camera's raw format is compressed, 8-bit frames used",
+            )
+            return self._grab()
+        out, self.bit_depth = to_stored(frame, f"camera {self.device}")
+        return out
+
+    def read(self) -> np.ndarray:
+        if self._first is not None:
+            frame, self._first = self._first, None
+            return frame
+        return self._grab()
+
+    def flush(self) -> None:
+        # grab() without retrieve(): the stale frames are dequeued but never decoded
+        for _ in range(self.flush_frames):
+            if not self.cap.grab():
+                raise CaptureError(f"camera {self.device}: no frame while flushing (the camera stopped)")
+            self._first = None  # the probe frame is stale too
+
+    def close(self) -> None:
+        self.cap.release()
+
+
+def exposure_to_backend(exposure_ms: float, backend: str) -> float:
+    """OpenCV's CAP_PROP_EXPOSURE value for an exposure time: V4L2 counts 100 us steps, DirectShow and
+    Media Foundation take log2(seconds), other backends are passed milliseconds."""
+    if backend == "V4L2":
+        return exposure_ms * 10.0
+    if backend in ("DSHOW", "MSMF"):
+        return float(round(math.log2(exposure_ms / 1000.0)))
+    return exposure_ms
+
+
+def apply_settings(cap, settings: CameraSettings) -> list[str]:
+    """Set a live camera up for photometric stereo; returns one line per setting it refused.
+
+    Each property is set, then read back: a camera that ignores a property (or clamps it) is reported,
+    not silently trusted.
+    """
+    cv2 = _cv2()
+    backend = cap.getBackendName() if hasattr(cap, "getBackendName") else ""
+    wanted: list[tuple[str, int, float]] = [("buffer size", cv2.CAP_PROP_BUFFERSIZE, settings.buffer_size)]
+    if settings.raw:
+        wanted.append(("raw frames (no RGB conversion)", cv2.CAP_PROP_CONVERT_RGB, 0))
+    if settings.width:
+        wanted.append(("frame width", cv2.CAP_PROP_FRAME_WIDTH, settings.width))
+    if settings.height:
+        wanted.append(("frame height", cv2.CAP_PROP_FRAME_HEIGHT, settings.height))
+    if settings.exposure_ms is not None:
+        # V4L2 manual exposure is 1 (V4L2_EXPOSURE_MANUAL); OpenCV's older mapping used 0.25
+        manual = 1 if backend == "V4L2" else 0.25
+        wanted.append(("auto exposure off", cv2.CAP_PROP_AUTO_EXPOSURE, manual))
+        wanted.append(("exposure", cv2.CAP_PROP_EXPOSURE, exposure_to_backend(settings.exposure_ms, backend)))
+    if settings.gain is not None:
+        if hasattr(cv2, "CAP_PROP_AUTO_GAIN"):  # pragma: no cover - newer OpenCV only
+            wanted.append(("auto gain off", cv2.CAP_PROP_AUTO_GAIN, 0))
+        wanted.append(("gain", cv2.CAP_PROP_GAIN, settings.gain))
+    if settings.white_balance_k is not None:
+        wanted.append(("auto white balance off", cv2.CAP_PROP_AUTO_WB, 0))
+        wanted.append(("white balance", cv2.CAP_PROP_WB_TEMPERATURE, settings.white_balance_k))
+    refused = []
+    for name, prop, value in wanted:
+        accepted = cap.set(prop, value)
+        got = cap.get(prop)
+        if not accepted or not math.isclose(got, value, rel_tol=0.02, abs_tol=1e-6):
+            refused.append(f"{name}: asked {value:g}, camera reports {got:g}")
+    return refused
+
+
+def open_source(spec: str | int, settings: CameraSettings | None = None) -> FrameSource:
+    """Frame source from a command-line spec: a camera index ("0"), a device path, a folder, a video file
+    or an image sequence pattern ("frames/img_%04d.png")."""
+    settings = settings or CameraSettings()
+    if isinstance(spec, int) or str(spec).isdigit():
+        return OpenCVSource(int(spec), settings)
+    if Path(spec).is_dir():
+        return FolderSource(spec, average=settings.average)
+    return OpenCVSource(str(spec), settings)

@@ -1,0 +1,194 @@
+"""Live reconstruction: tri-colour frames from a frame source through a predictor into a window or files.
+
+The LEDs stay lit in the tri-colour pattern, so frames stream without flushing. The predictor is
+pluggable: any callable taking a stored frame ((H, W, 3) uint16) and returning a :class:`LiveResult`
+(``nlips live`` plugs in a trained NLiPsNet). Outputs are sinks: an OpenCV window when a display is
+present (:class:`WindowSink`), or normal and depth maps written to a folder (:class:`SaveSink`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import numpy as np
+
+from ..core.atomic import write_bytes
+from ..core.imageio import save_npz
+from ..errors import CaptureError, require
+
+
+@dataclasses.dataclass
+class LiveResult:
+    """What the predictor gives for one frame."""
+
+    normals: np.ndarray
+    """(H, W, 3) float32, unit, camera frame, toward the camera; zero off the gel."""
+    depth: np.ndarray
+    """(H, W) float32, mm, camera-frame z; NaN off the gel."""
+
+
+@dataclasses.dataclass
+class LiveStats:
+    """Frame rate and where the time went."""
+
+    frames: int = 0
+    seconds: float = 0.0
+    """Wall time of the whole loop, s."""
+    read_s: float = 0.0
+    """Time spent waiting for frames, s."""
+    predict_s: float = 0.0
+    """Time spent in the predictor, s."""
+    output_s: float = 0.0
+    """Time spent showing or saving, s."""
+
+    @property
+    def fps(self) -> float:
+        return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+    def summary(self) -> str:
+        n = max(self.frames, 1)
+        return (
+            f"{self.frames} frames in {self.seconds:.2f} s: {self.fps:.1f} fps "
+            f"(per frame: camera {1e3 * self.read_s / n:.1f} ms, network {1e3 * self.predict_s / n:.1f} ms, "
+            f"output {1e3 * self.output_s / n:.1f} ms)"
+        )
+
+
+class StopLive(Exception):
+    """Raised by a sink to end the stream (the window was closed, q pressed)."""
+
+
+def stream(
+    source,
+    predict: Callable[[np.ndarray], LiveResult],
+    sinks: Iterable[Callable[[int, np.ndarray, LiveResult], None]],
+    *,
+    max_frames: int | None = None,
+    before_frame: Callable[[int], None] | None = None,
+    report: Callable[[str], None] | None = print,
+    report_every_s: float = 1.0,
+) -> LiveStats:
+    """Run frames through the predictor into the sinks until ``max_frames``, the end of the input, or a sink stops.
+
+    Parameters
+    ----------
+    source : FrameSource (``read``)
+    predict : stored frame (H, W, 3) uint16 -> LiveResult
+    sinks : callables (frame index, stored frame, result)
+    max_frames : stop after this many frames (None: until the source ends or Ctrl-C)
+    before_frame : called with the frame index before each read (the emulator changes the press there)
+    report : where the running frame rate goes (once per ``report_every_s``), None for quiet
+    """
+    sinks = list(sinks)
+    stats = LiveStats()
+    t_start = last_report = time.perf_counter()
+    frames_at_report = 0
+    try:
+        while max_frames is None or stats.frames < max_frames:
+            if before_frame is not None:
+                before_frame(stats.frames)
+            t0 = time.perf_counter()
+            try:
+                frame = source.read()
+            except CaptureError:
+                if max_frames is None:
+                    break  # end of a recorded input
+                raise
+            t1 = time.perf_counter()
+            result = predict(frame)
+            t2 = time.perf_counter()
+            for sink in sinks:
+                sink(stats.frames, frame, result)
+            t3 = time.perf_counter()
+            stats.frames += 1
+            stats.read_s += t1 - t0
+            stats.predict_s += t2 - t1
+            stats.output_s += t3 - t2
+            if report is not None and t3 - last_report >= report_every_s:
+                report(f"{(stats.frames - frames_at_report) / (t3 - last_report):.1f} fps")
+                last_report, frames_at_report = t3, stats.frames
+    except (StopLive, KeyboardInterrupt):
+        pass
+    stats.seconds = time.perf_counter() - t_start
+    return stats
+
+
+def depth_to_rgb(depth: np.ndarray, reference: np.ndarray | None = None, span_mm: float = 2.0) -> np.ndarray:
+    """Depth map for viewing: indentation below the reference (or depth itself) on a colour scale.
+
+    Parameters
+    ----------
+    depth : (H, W) float, mm, NaN off the gel
+    reference : (H, W) float, mm, the undeformed depth (None: the map's own range)
+    span_mm : indentation shown at full colour
+
+    Returns
+    -------
+    (H, W, 3) uint8, RGB; black off the gel
+    """
+    cv2 = require("cv2", "opencv-python-headless", "Showing depth maps")
+    valid = np.isfinite(depth)
+    if reference is not None:
+        value = np.clip((depth - reference) / span_mm, 0, 1)
+    else:
+        lo, hi = (np.nanmin(depth), np.nanmax(depth)) if valid.any() else (0.0, 1.0)
+        value = (depth - lo) / max(hi - lo, 1e-9)
+    grey = np.where(valid, np.nan_to_num(value) * 255, 0).astype(np.uint8)
+    rgb = cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS)[..., ::-1].copy()
+    rgb[~valid] = 0
+    return rgb
+
+
+def display_available() -> bool:
+    """True when an OpenCV window can be opened (a display, and an OpenCV built with a GUI)."""
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or os.name == "nt"):
+        return False
+    cv2 = require("cv2", "opencv-python-headless", "Showing live maps")
+    try:
+        cv2.namedWindow("nlips live", cv2.WINDOW_NORMAL)
+    except cv2.error:
+        return False  # opencv-python-headless: no GUI
+    return True
+
+
+class WindowSink:
+    """Normals and depth side by side in an OpenCV window; q or Esc ends the stream."""
+
+    def __init__(self, colour_normals, reference_depth=None):
+        self.cv2 = require("cv2", "opencv-python-headless", "Showing live maps")
+        self.colour_normals = colour_normals
+        self.reference_depth = reference_depth
+
+    def __call__(self, index: int, frame: np.ndarray, result: LiveResult) -> None:
+        normals = (self.colour_normals(result.normals) * 255).astype(np.uint8)
+        view = np.concatenate([normals, depth_to_rgb(result.depth, self.reference_depth)], axis=1)
+        self.cv2.imshow("nlips live", view[..., ::-1])
+        if self.cv2.waitKey(1) & 0xFF in (ord("q"), 27):
+            raise StopLive
+
+
+class SaveSink:
+    """Every ``every``-th frame's normal map (PNG, normal-map colours) and arrays (npz: normals, depth)."""
+
+    def __init__(self, folder: str | Path, colour_normals, every: int = 1):
+        self.cv2 = require("cv2", "opencv-python-headless", "Saving live maps")
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.colour_normals = colour_normals
+        self.every = max(int(every), 1)
+
+    def __call__(self, index: int, frame: np.ndarray, result: LiveResult) -> None:
+        if index % self.every:
+            return
+        stem = self.folder / f"frame_{index:06d}"
+        rgb = (self.colour_normals(result.normals) * 255).astype(np.uint8)
+        ok, png = self.cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
+        if ok:
+            write_bytes(stem.with_name(stem.name + "_normals.png"), png.tobytes())
+        tmp = stem.with_name(".tmp-" + stem.name + ".npz")
+        save_npz(tmp, {"normals": result.normals.astype(np.float32), "depth": result.depth.astype(np.float32)})
+        os.replace(tmp, stem.with_suffix(".npz"))

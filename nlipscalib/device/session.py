@@ -1,0 +1,311 @@
+"""Capture sessions on the real sensor: one press = a fixed LED sequence, many presses with prompts.
+
+One press is captured as (docs/formats.md)::
+
+    tri-colour   LED groups red / green / blue at once (the movement check's first frame)
+    dark         all LEDs off
+    LED 1 .. L   each LED alone in white
+    tri-colour   again: compared with the first; a difference means the object moved, and the press is retaken
+
+The tri-colour frame opens and closes the sequence because it is the one frame lit by every LED, so
+any change of the surface shows in it (a dark frame would show none). The first one is stored.
+
+A session writes ``reference/`` (the undeformed sensor, captured first, before anything touches the
+gel) and ``press_0001/`` ... into its folder, each atomically with :func:`nlipscalib.core.write_press`;
+run it again after an interruption and it continues with the first press not yet written.
+
+The LED controller is anything with ``set_all(colors)``, ``off()`` and ``n_leds`` whose
+calls return once the LEDs latched (:class:`nlipscalib.device.controller.LedController`); the frame
+source is a :class:`nlipscalib.device.camera.FrameSource`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ..core.atomic import clean_interrupted, write_json
+from ..core.camera import Camera
+from ..core.capture import Reference, SensorResponse, is_press_folder, write_press
+from ..core.leds import TRICOLOR_COLORS, Led, tricolor_groups
+from ..errors import CaptureError, ConfigError, require
+
+log = logging.getLogger(__name__)
+
+REFERENCE_NAME = "reference"
+"""Folder of the undeformed sensor's capture inside a session."""
+SESSION_FILE = "session.json"
+"""The session's description (camera, LEDs, settings), written when the session starts."""
+
+
+def press_name(index: int) -> str:
+    """Folder name of press ``index`` (1-based): press_0001."""
+    return f"press_{index:04d}"
+
+
+@dataclasses.dataclass(frozen=True)
+class SessionConfig:
+    """How a session captures."""
+
+    presses: int = 10
+    """Presses to capture after the reference."""
+    white_level: int = 255
+    """LED drive (0-255 per channel) of the single-LED white frames."""
+    tricolor_level: int = 255
+    """LED drive of the tri-colour frame: lower it when its channels, each summing a third of the LEDs,
+    would saturate at the exposure chosen for single LEDs."""
+    movement_threshold: float = 0.02
+    """A pixel moved when the repeated tri-colour frame differs by more than this fraction of full scale
+    (after a 5x5 box blur that averages the sensor noise away)."""
+    movement_area: float = 0.001
+    """The press moved when more than this fraction of the pixels moved."""
+    max_retakes: int = 3
+    """Retakes of a press that moved before the session gives up."""
+
+    def __post_init__(self):
+        for name in ("white_level", "tricolor_level"):
+            if not 1 <= getattr(self, name) <= 255:
+                raise ConfigError(f"{name} must be 1..255, got {getattr(self, name)}")
+        if self.presses < 0 or self.max_retakes < 0:
+            raise ConfigError(f"presses and max_retakes must be >= 0, got {self.presses}, {self.max_retakes}")
+        if not (self.movement_threshold > 0 and 0 <= self.movement_area < 1):
+            raise ConfigError("movement_threshold must be > 0 and movement_area in [0, 1)")
+
+
+@dataclasses.dataclass
+class Rig:
+    """The sensor as the session drives it."""
+
+    controller: object
+    """LED controller (``n_leds``, ``set_all``, ``off``)."""
+    source: object
+    """FrameSource (``capture``, ``shape``, ``bit_depth``)."""
+    camera: Camera
+    """Intrinsics and lens (from ``nlips calibrate-camera`` or the design)."""
+    leds: tuple[Led, ...]
+    """LEDs in the camera frame, LED 1 first (from the design or ``nlips calibrate-leds``)."""
+    response: SensorResponse
+    """How stored values relate to light (bit depth, black and white level, exposure, gain)."""
+    reference: Reference | None = None
+    """The undeformed surface (``core.dome.reference_surface`` of the design), written with every press."""
+    provenance: dict = dataclasses.field(default_factory=dict)
+    """Extra metadata for every press (device, firmware, camera settings, design)."""
+
+    def check(self) -> None:
+        """Raise CaptureError when the parts do not fit together."""
+        n = int(self.controller.n_leds)
+        if n != len(self.leds):
+            raise CaptureError(f"the LED board has {n} LEDs but the sensor description has {len(self.leds)}")
+        if tuple(self.source.shape) != self.camera.shape:
+            raise CaptureError(
+                f"the camera gives {self.source.shape[1]}x{self.source.shape[0]} frames but its calibration is "
+                f"{self.camera.width}x{self.camera.height}"
+            )
+
+
+class Operator:
+    """The person at the sensor: told what to do before the reference, each press and each retake.
+
+    ``interactive`` waits for Enter after each instruction; otherwise the instruction is only printed
+    (scripts, tests, a robot pressing on its own schedule).
+    """
+
+    def __init__(self, interactive: bool = False, echo: Callable[[str], None] = print):
+        self.interactive = interactive
+        self.echo = echo
+
+    def _say(self, text: str) -> None:
+        if self.interactive:
+            try:
+                input(f"{text} [Enter] ")
+            except EOFError:  # Ctrl-D or a closed stdin: stop like Ctrl-C, keeping what is captured
+                raise KeyboardInterrupt from None
+        else:
+            self.echo(text)
+
+    def reference(self) -> None:
+        self._say("Do not touch the sensor: capturing the undeformed reference.")
+
+    def press(self, index: int, total: int) -> None:
+        self._say(f"Press {index}/{total}: press the object now, hold still.")
+
+    def retake(self, index: int, reason: str) -> None:
+        what = "Reference" if index == 0 else f"Press {index}"
+        self._say(f"{what}: {reason}; hold still, retaking.")
+
+    def release(self, index: int) -> None:
+        self.echo(f"Press {index} captured: release.")
+
+
+def frame_sequence(n_leds: int, cfg: SessionConfig) -> list[tuple[str, np.ndarray]]:
+    """The LED states of one press, in capture order.
+
+    Returns
+    -------
+    list of (name, colors) with colors (n_leds, 3) uint8: "tricolor", "dark", "led_01" ..., "check"
+    """
+    tri = (TRICOLOR_COLORS[tricolor_groups(n_leds)] * cfg.tricolor_level).astype(np.uint8)
+    seq = [("tricolor", tri), ("dark", np.zeros((n_leds, 3), np.uint8))]
+    for i in range(n_leds):
+        colors = np.zeros((n_leds, 3), np.uint8)
+        colors[i] = cfg.white_level
+        seq.append((f"led_{i + 1:02d}", colors))
+    seq.append(("check", tri))
+    return seq
+
+
+def capture_frames(rig: Rig, cfg: SessionConfig) -> dict[str, np.ndarray]:
+    """Light each state of :func:`frame_sequence` and capture it; LEDs off afterwards.
+
+    Returns
+    -------
+    dict name -> (H, W, 3) uint16 stored image
+    """
+    frames = {}
+    try:
+        for name, colors in frame_sequence(len(rig.leds), cfg):
+            rig.controller.set_all(colors)  # returns once the LEDs latched
+            frames[name] = rig.source.capture()
+    finally:
+        rig.controller.off()
+    return frames
+
+
+def change_map(first: np.ndarray, last: np.ndarray, response: SensorResponse) -> np.ndarray:
+    """How much each pixel changed between two frames of the same LED state, noise smoothed away.
+
+    Parameters
+    ----------
+    first, last : (H, W, 3) uint16, stored values of the same LED state
+
+    Returns
+    -------
+    (H, W) float32 map of the 5x5-box-blurred largest channel difference, fraction of full scale
+    """
+    cv2 = require("cv2", "opencv-python-headless", "The movement check")
+    scale = np.float32(response.white_level - response.black_level)
+    diff = np.abs(last.astype(np.float32) - first.astype(np.float32)) / scale
+    return cv2.blur(diff, (5, 5)).max(axis=2)
+
+
+def movement(frames: dict[str, np.ndarray], response: SensorResponse, cfg: SessionConfig) -> float:
+    """Fraction of pixels that changed between the first and the repeated tri-colour frame."""
+    return float((change_map(frames["tricolor"], frames["check"], response) > cfg.movement_threshold).mean())
+
+
+def capture_press(
+    rig: Rig, folder: str | Path, cfg: SessionConfig, operator: Operator, index: int = 0, overwrite: bool = False
+) -> dict:
+    """Capture one press (retaking it while it moves) and write it atomically.
+
+    Returns
+    -------
+    dict with ``folder``, ``attempts``, ``moved`` (fraction of moved pixels per attempt; None for an attempt
+    cut short by a reset of the LED board), ``seconds``
+    """
+    from .controller import BoardResetError
+
+    moved = []
+    for attempt in range(cfg.max_retakes + 1):
+        t0 = time.perf_counter()
+        try:
+            frames = capture_frames(rig, cfg)
+        except BoardResetError as exc:
+            # the LEDs went dark for a while: frames since the last command may be wrong, so retake all
+            if attempt == cfg.max_retakes:
+                raise
+            log.warning("%s: %s", folder, exc)
+            moved.append(None)
+            operator.retake(index, "the LED board reset")
+            continue
+        seconds = time.perf_counter() - t0
+        moved.append(movement(frames, rig.response, cfg))
+        if moved[-1] <= cfg.movement_area:
+            break
+        if attempt == cfg.max_retakes:
+            raise CaptureError(
+                f"{folder}: the object kept moving ({moved[-1]:.2%} of the pixels changed in the last of "
+                f"{attempt + 1} attempts); hold it still, or raise movement_threshold"
+            )
+        log.warning("%s: %.2f%% of the pixels changed during the sequence: retaking", folder, 100 * moved[-1])
+        operator.retake(index, f"the object moved ({moved[-1]:.2%} of the pixels changed)")
+    provenance = dict(rig.provenance) | {
+        "source": "device",
+        "captured_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "attempts": len(moved),
+        "moved_fraction": moved,
+        "capture_seconds": round(seconds, 4),
+        "white_level": cfg.white_level,
+        "tricolor_level": cfg.tricolor_level,
+    }
+    leds = np.stack([frames[f"led_{i + 1:02d}"] for i in range(len(rig.leds))])
+    write_press(
+        folder,
+        rig.camera,
+        rig.leds,
+        rig.response,
+        frames["dark"],
+        leds,
+        frames["tricolor"],
+        provenance=provenance,
+        reference=rig.reference,
+        overwrite=overwrite,
+    )
+    return {"folder": str(folder), "attempts": len(moved), "moved": moved, "seconds": seconds}
+
+
+def run_session(
+    rig: Rig, out: str | Path, cfg: SessionConfig, operator: Operator | None = None, progress: bool = False
+) -> dict[str, dict | str]:
+    """Capture the reference, then ``cfg.presses`` presses, into ``out``; resumes where a previous run stopped.
+
+    Returns
+    -------
+    dict folder name -> the :func:`capture_press` record, or "kept" for folders already complete
+    """
+    from tqdm import tqdm
+
+    rig.check()
+    operator = operator or Operator()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    clean_interrupted(out)
+    _check_same_sensor(out, rig)
+    names = [REFERENCE_NAME] + [press_name(k) for k in range(1, cfg.presses + 1)]
+    status: dict[str, dict | str] = {}
+    for k, name in enumerate(tqdm(names, desc="capture", unit="press", disable=not progress)):
+        folder = out / name
+        if is_press_folder(folder):
+            status[name] = "kept"
+            continue
+        if k == 0:
+            operator.reference()
+        else:
+            operator.press(k, cfg.presses)
+        status[name] = capture_press(rig, folder, cfg, operator, index=k)
+        if k > 0:
+            operator.release(k)
+    return status
+
+
+def _check_same_sensor(out: Path, rig: Rig) -> None:
+    """Refuse to resume a session captured with another camera or LED count; record the sensor otherwise."""
+    path = out / SESSION_FILE
+    described = {"camera": rig.camera.to_dict(), "n_leds": len(rig.leds)}
+    if path.exists():
+        try:
+            before = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise CaptureError(f"{path}: unreadable session description ({exc})") from None
+        if {k: before.get(k) for k in described} != described:
+            raise CaptureError(
+                f"{path}: this session folder was captured with another camera or LED count; use a new folder"
+            )
+        return
+    write_json(path, described | {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z")})

@@ -1,0 +1,258 @@
+"""The emulated sensor: the virtual LED board plus a virtual camera that shows what the twin renders.
+
+This is the one module besides cli/ that imports both sim/ and device/: it lets the whole hardware path
+(``nlips capture``: LED protocol, camera flushing, sessions, movement checks) run without hardware.
+
+How a frame is made: each scripted surface (the undeformed dome, each press, a press after it moved)
+is rendered once with every LED in its own channel (``sim.render.surface.render_surface``). A frame is
+the sum of those images weighted by the colours the LED board has latched right now (``latched / 255``
+per channel), scaled by the scene's exposure and passed through the scene's sensor noise model, with a
+fresh noise draw per frame, as a real sensor gives.
+
+Like a real UVC camera, the virtual camera delivers frames with a delay (``latency_frames``): a frame
+read right after an LED change still shows the old light, so a session that does not flush fails.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from .config import from_mapping, read_config_file, to_mapping
+from .core.dome import reference_surface
+from .device.camera import FrameSource
+from .device.session import Operator, Rig
+from .errors import ConfigError
+from .sim.indent import PressConfig, apply_press
+from .sim.noise import apply_noise
+from .sim.press import press_seed, scene_exposure, undeformed_mesh
+from .sim.scene import SceneConfig
+
+log = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class ScriptedPress:
+    """One press of the emulated session."""
+
+    press: PressConfig
+    """What the operator presses and where."""
+    moved: PressConfig | None = None
+    """Where the object ends up if it moves during the LED sequence (None: it holds still)."""
+    move_after_frames: int = 5
+    """Frames read after the press prompt before the object moves (retakes then see ``moved``)."""
+
+
+def default_script(n_presses: int, move_press: int | None = None) -> list[ScriptedPress]:
+    """Sphere presses around the dome, 1.2 mm deep at 15 deg from the apex; press ``move_press`` (1-based)
+    slides 1 mm deeper halfway through its sequence."""
+    presses = []
+    for k in range(1, n_presses + 1):
+        press = PressConfig(polar_deg=15.0, azimuth_deg=(k - 1) * 360.0 / max(n_presses, 1) + 30.0, depth=1.2)
+        moved = dataclasses.replace(press, depth=2.2) if k == move_press else None
+        presses.append(ScriptedPress(press, moved))
+    return presses
+
+
+def load_script(path: str | Path) -> list[ScriptedPress]:
+    """A press script file (TOML/YAML): ``[[press]]`` tables of PressConfig fields, each optionally with a
+    ``moved`` table (the pose after it moves) and ``move_after_frames``."""
+    data = read_config_file(path)
+    entries = data.get("press")
+    if not isinstance(entries, list) or not entries:
+        raise ConfigError(f"{path}: a press script needs one or more [[press]] tables")
+    script = []
+    for k, entry in enumerate(entries, 1):
+        entry = dict(entry)
+        moved = entry.pop("moved", None)
+        after = entry.pop("move_after_frames", 5)
+        press = _press_config(entry, f"{path}: press {k}")
+        moved_cfg = _press_config(to_mapping(press) | moved, f"{path}: press {k} moved") if moved else None
+        script.append(ScriptedPress(press, moved_cfg, int(after)))
+    return script
+
+
+def _press_config(data: dict, where: str) -> PressConfig:
+    if isinstance(data.get("indenter"), str):
+        data = data | {"indenter": {"kind": data["indenter"]}}
+    return from_mapping(PressConfig, data, where)
+
+
+class TwinRenders:
+    """Per-LED linear images of the scripted surfaces, rendered once each and kept."""
+
+    def __init__(self, scene: SceneConfig):
+        self.scene = scene
+        self.cache: dict = {}
+        self.exposure = scene_exposure(scene)
+
+    def images(self, press: PressConfig | None) -> np.ndarray:
+        """(L, H, W, 3) float32 linear radiance of ``press`` (None: the undeformed dome), one image per LED."""
+        from .sim.render.surface import render_surface
+
+        key = None if press is None else repr(to_mapping(press))
+        if key not in self.cache:
+            if press is None:
+                mesh, contact, press_dict = undeformed_mesh(self.scene.dome), None, None
+            else:
+                gel = apply_press(self.scene.dome, press)
+                mesh, contact, press_dict = gel.mesh, np.asarray(gel.contact, bool), to_mapping(press)
+            # the twin's own seed for this press: the same render a direct `nlips render` would make
+            seed = press_seed(self.scene.render.seed, press_dict)
+            self.cache[key] = render_surface(self.scene, mesh, contact, seed=seed).images
+        return self.cache[key]
+
+
+class EmulatedCamera(FrameSource):
+    """A camera looking at the twin, lit by whatever the LED board latched.
+
+    Parameters
+    ----------
+    renders : TwinRenders
+    latched : callable returning the board's latched colours, (L, 3) uint8
+    seed : noise seed of the frame sequence
+    latency_frames : frames between exposure and delivery (a real camera's buffer)
+    flush_frames, average : as :class:`nlipscalib.device.camera.CameraSettings`
+    """
+
+    def __init__(
+        self, renders: TwinRenders, latched, seed: int = 0, latency_frames: int = 1, flush_frames: int = 2, average=1
+    ):
+        self.renders = renders
+        self.latched = latched
+        self.rng = np.random.default_rng(seed)
+        self.latency_frames = int(latency_frames)
+        self.flush_frames = int(flush_frames)
+        self.average = int(average)
+        self.bit_depth = renders.scene.noise.bit_depth
+        self.surface: PressConfig | None = None
+        self.pending: tuple[int, PressConfig] | None = None
+        self.frames_read = 0
+        self.pipeline: collections.deque = collections.deque()
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.renders.scene.camera_model().shape
+
+    def show(self, surface: PressConfig | None, moves_to: PressConfig | None = None, after: int = 0) -> None:
+        """The gel now looks like ``surface``; if ``moves_to``, it changes to that after ``after`` more frames."""
+        self.surface = surface
+        self.pending = (self.frames_read + after, moves_to) if moves_to is not None else None
+
+    def read(self) -> np.ndarray:
+        if self.pending is not None and self.frames_read >= self.pending[0]:
+            self.surface, self.pending = self.pending[1], None
+        self.frames_read += 1
+        colors = np.asarray(self.latched(), dtype=np.float32) / np.float32(255)
+        self.pipeline.append((self.surface, colors))
+        while len(self.pipeline) > self.latency_frames + 1:
+            self.pipeline.popleft()
+        surface, colors = self.pipeline[0]  # the oldest frame in the pipeline is delivered
+        images = self.renders.images(surface)
+        lit = np.flatnonzero(colors.any(axis=1))  # most frames light one LED or none: skip the dark ones
+        linear = np.einsum("lhwc,lc->hwc", images[lit], colors[lit], dtype=np.float32)
+        return apply_noise(linear, self.renders.exposure, self.renders.scene.noise, self.rng)
+
+
+class ScriptedOperator(Operator):
+    """The emulated person: presses what the script says when the session asks for a press."""
+
+    def __init__(self, camera: EmulatedCamera, script: list[ScriptedPress], echo=print):
+        super().__init__(interactive=False, echo=echo)
+        self.camera = camera
+        self.script = script
+
+    def reference(self) -> None:
+        super().reference()
+        self.camera.show(None)
+
+    def press(self, index: int, total: int) -> None:
+        super().press(index, total)
+        step = self._step(index)
+        self.camera.show(step.press, step.moved, step.move_after_frames)
+
+    def retake(self, index: int, reason: str) -> None:
+        super().retake(index, reason)
+        step = self._step(index)
+        # the object settled where it moved to, and now holds still
+        self.camera.show(step.moved or step.press)
+
+    def _step(self, index: int) -> ScriptedPress:
+        if not 1 <= index <= len(self.script):
+            raise ConfigError(f"the press script has {len(self.script)} presses; press {index} was asked for")
+        return self.script[index - 1]
+
+
+def tricolor_level(renders: TwinRenders) -> int:
+    """LED drive of the tri-colour frame giving it the twin's tri-colour exposure at the single-LED exposure."""
+    ratio = scene_exposure(renders.scene, tricolor=True) / renders.exposure
+    return int(np.clip(round(255 * ratio), 1, 255))
+
+
+@dataclasses.dataclass
+class EmulatedSensor:
+    """An emulated sensor ready for a session: the rig, its scripted operator, and what to close."""
+
+    rig: Rig
+    operator: ScriptedOperator
+    camera: EmulatedCamera
+    board: object
+    tricolor_level: int
+
+    def prerender(self, progress: bool = False) -> None:
+        """Render every scripted surface now (the undeformed dome, each press, each moved pose), so that
+        capture times measure the hardware path, not the renderer."""
+        from tqdm import tqdm
+
+        surfaces = [None] + [s for step in self.operator.script for s in (step.press, step.moved) if s is not None]
+        for surface in tqdm(surfaces, desc="rendering the twin", unit="surface", disable=not progress):
+            self.camera.renders.images(surface)
+
+    def close(self) -> None:
+        self.rig.controller.close()
+        close = getattr(self.board, "close", None)
+        if close is not None:
+            close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def open_emulated_sensor(
+    scene: SceneConfig,
+    script: list[ScriptedPress],
+    *,
+    seed: int = 0,
+    latency_frames: int = 1,
+    flush_frames: int = 2,
+    echo=print,
+) -> EmulatedSensor:
+    """The virtual LED board (opened through the real host driver) and the virtual camera for ``scene``."""
+    from .device.controller import LedController
+    from .device.virtual_board import VirtualBoard
+
+    board = VirtualBoard(len(scene.led_models()))
+    controller = LedController.open(board.url)
+
+    def latched():
+        return board.latched
+
+    renders = TwinRenders(scene)
+    camera = EmulatedCamera(renders, latched, seed=seed, latency_frames=latency_frames, flush_frames=flush_frames)
+    rig = Rig(
+        controller=controller,
+        source=camera,
+        camera=scene.camera_model(),
+        leds=scene.led_models(),
+        response=scene.noise.response(),
+        reference=reference_surface(scene.design),
+        provenance={"device": "emulator", "scene": scene.to_dict(), "exposure": renders.exposure},
+    )
+    return EmulatedSensor(rig, ScriptedOperator(camera, script, echo), camera, board, tricolor_level(renders))

@@ -1,0 +1,73 @@
+"""Small stand-ins for the LED controller and a camera, to test session logic without hardware."""
+
+import numpy as np
+
+from nlipscalib.device.camera import FrameSource
+
+
+class FakeController:
+    """Latches every command at once, like a board that acknowledges after latching."""
+
+    def __init__(self, n_leds: int):
+        self.n_leds = n_leds
+        self.latched = np.zeros((n_leds, 3), np.uint8)
+        self.commands = []
+
+    def set_all(self, colors):
+        colors = np.asarray(colors, np.uint8)
+        assert colors.shape == (self.n_leds, 3)
+        self.latched = colors.copy()
+        self.commands.append("set_all")
+
+    def show(self):
+        self.commands.append("show")
+
+    def off(self):
+        self.latched[:] = 0
+        self.commands.append("off")
+
+    def state(self):
+        return self.latched.copy()
+
+    def close(self):
+        self.commands.append("close")
+
+
+class LitSource(FrameSource):
+    """Frames = a fixed per-LED image stack weighted by the controller's latched colours; optional change later."""
+
+    bit_depth = 16
+
+    def __init__(self, controller, images, noise=0.0, seed=0):
+        self.controller = controller
+        self.images = np.asarray(images, np.float32)  # (L, H, W, 3), fraction of full scale
+        self.noise = noise
+        self.rng = np.random.default_rng(seed)
+        self.reads = 0
+        self.change_at = None  # (read count, new images)
+
+    @property
+    def shape(self):
+        return self.images.shape[1:3]
+
+    def read(self):
+        if self.change_at is not None and self.reads >= self.change_at[0]:
+            self.images, self.change_at = self.change_at[1], None
+        self.reads += 1
+        w = self.controller.latched.astype(np.float32) / 255
+        x = np.einsum("lhwc,lc->hwc", self.images, w)
+        x = x + self.noise * self.rng.standard_normal(x.shape)
+        return np.clip(np.rint(x * 65000 + 256), 0, 65535).astype(np.uint16)
+
+
+def flat_predictor(shape):
+    """A pluggable `nlips live` predictor: facing-the-camera normals, depth = the frame's mean green value."""
+    from nlipscalib.device.live import LiveResult
+
+    def predict(frame):
+        normals = np.zeros(tuple(shape) + (3,), np.float32)
+        normals[..., 2] = -1.0
+        depth = np.full(tuple(shape), frame[..., 1].mean() / 1000.0, np.float32)
+        return LiveResult(normals, depth)
+
+    return predict

@@ -1,0 +1,89 @@
+"""Frame sources: folders of 8/16-bit images, video files, camera settings read back, flushing, averaging."""
+
+import numpy as np
+import pytest
+
+cv2 = pytest.importorskip("cv2")
+
+from nlipscalib.device.camera import (  # noqa: E402
+    CameraSettings,
+    FolderSource,
+    OpenCVSource,
+    apply_settings,
+    open_source,
+    to_stored,
+)
+from nlipscalib.errors import CaptureError  # noqa: E402
+
+
+def test_folder_keeps_16_bit_and_rgb_order(tmp_path):
+    frames = [np.full((6, 8, 3), [1000 * k, 2000, 3000], np.uint16) for k in range(1, 4)]
+    for k, f in enumerate(frames):
+        cv2.imwrite(str(tmp_path / f"img_{k:03d}.png"), f[..., ::-1])  # OpenCV writes BGR
+    src = open_source(str(tmp_path))
+    assert isinstance(src, FolderSource) and src.bit_depth == 16 and src.shape == (6, 8)
+    for f in frames:
+        np.testing.assert_array_equal(src.capture(), f)  # file sources never flush
+    with pytest.raises(CaptureError, match="ran out of images"):
+        src.read()
+
+
+def test_8_bit_and_grey_frames_scale_to_16_bit():
+    grey = np.array([[0, 1], [128, 255]], np.uint8)
+    out, bits = to_stored(grey)
+    assert bits == 8 and out.shape == (2, 2, 3) and out[1, 1, 0] == 255 << 8
+    with pytest.raises(CaptureError, match="unsupported"):
+        to_stored(np.zeros((2, 2), np.float32))
+
+
+def test_folder_averages_frames(tmp_path):
+    for k, v in enumerate([100, 200, 400, 500]):
+        cv2.imwrite(str(tmp_path / f"{k}.png"), np.full((4, 4, 3), v, np.uint16))
+    src = FolderSource(tmp_path, average=2)
+    assert src.capture()[0, 0, 0] == 150 and src.capture()[0, 0, 0] == 450
+
+
+def test_video_file_is_read_frame_by_frame(tmp_path):
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (32, 24))
+    for v in (40, 120, 200):
+        writer.write(np.full((24, 32, 3), v, np.uint8))
+    writer.release()
+    src = open_source(str(path), CameraSettings(flush_frames=5))
+    assert isinstance(src, OpenCVSource) and src.shape == (24, 32) and src.bit_depth == 8
+    levels = [int(src.capture()[12, 16, 1]) >> 8 for _ in range(3)]  # no flushing on files
+    assert np.allclose(levels, [40, 120, 200], atol=3)
+    with pytest.raises(CaptureError, match="no frame"):
+        src.capture()
+    src.close()
+    with pytest.raises(CaptureError, match="does not exist"):
+        open_source(str(tmp_path / "missing.avi"))
+
+
+class FakeCap:
+    """A camera that accepts some properties and ignores or clamps others."""
+
+    def __init__(self, refuses):
+        self.props, self.refuses = {}, refuses
+
+    def getBackendName(self):
+        return "V4L2"
+
+    def set(self, prop, value):
+        if prop in self.refuses:
+            return self.refuses[prop] is not None and not self.props.setdefault(prop, self.refuses[prop])
+        self.props[prop] = value
+        return True
+
+    def get(self, prop):
+        return self.props.get(prop, self.refuses.get(prop) or 0.0)
+
+
+def test_settings_are_read_back_and_refusals_reported():
+    cap = FakeCap({cv2.CAP_PROP_AUTO_WB: None, cv2.CAP_PROP_EXPOSURE: 156.0})  # WB ignored, exposure clamped
+    refused = apply_settings(cap, CameraSettings(exposure_ms=20.0, gain=1.0, white_balance_k=4500))
+    assert cap.props[cv2.CAP_PROP_BUFFERSIZE] == 1 and cap.props[cv2.CAP_PROP_AUTO_EXPOSURE] == 1
+    assert cap.props[cv2.CAP_PROP_GAIN] == 1.0 and cap.props[cv2.CAP_PROP_WB_TEMPERATURE] == 4500
+    assert len(refused) == 2
+    assert any(r.startswith("auto white balance off") for r in refused)
+    assert any(r.startswith("exposure: asked 200") and "156" in r for r in refused)  # V4L2: 100 us units

@@ -1,0 +1,60 @@
+"""Live streaming: frames through a pluggable predictor into sinks; frame rate; saved maps."""
+
+import numpy as np
+import pytest
+
+cv2 = pytest.importorskip("cv2")
+
+from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.device.camera import FolderSource  # noqa: E402
+from nlipscalib.device.live import StopLive, depth_to_rgb, stream  # noqa: E402
+
+from .fakes import flat_predictor  # noqa: E402
+
+
+@pytest.fixture
+def frames(tmp_path):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(5):
+        cv2.imwrite(str(folder / f"f{k:02d}.png"), np.full((12, 16, 3), 1000 * (k + 1), np.uint16))
+    return folder
+
+
+def test_stream_runs_every_frame_until_the_input_ends(frames):
+    seen = []
+    stats = stream(FolderSource(frames), flat_predictor((12, 16)), [lambda i, f, r: seen.append(r.depth[0, 0])])
+    assert stats.frames == 5 and stats.fps > 0
+    np.testing.assert_allclose(seen, [1, 2, 3, 4, 5])
+    assert "5 frames" in stats.summary()
+
+
+def test_stream_stops_at_max_frames_or_when_a_sink_says_so(frames):
+    assert stream(FolderSource(frames), flat_predictor((12, 16)), [], max_frames=2, report=None).frames == 2
+
+    def stop_at_third(i, frame, result):
+        if i == 2:
+            raise StopLive
+
+    assert stream(FolderSource(frames), flat_predictor((12, 16)), [stop_at_third], report=None).frames == 2
+
+
+def test_depth_colours_black_off_the_gel():
+    depth = np.array([[np.nan, 10.0], [10.5, 12.0]], np.float32)
+    rgb = depth_to_rgb(depth, reference=np.full((2, 2), 10.0))
+    assert rgb.shape == (2, 2, 3) and rgb[0, 0].sum() == 0 and rgb[1, 1].sum() > 0
+
+
+def test_live_cli_saves_maps_with_a_plugged_predictor(frames, tmp_path, capsys):
+    out = tmp_path / "maps"
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor"]
+    assert main(args + ["--save", str(out), "--every", "2", "--no-window"]) == 0
+    assert "5 frames in" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == [
+        f"frame_{k:06d}{ext}" for k in (0, 2, 4) for ext in (".npz", "_normals.png")
+    ]
+    saved = np.load(out / "frame_000002.npz")
+    assert saved["depth"][0, 0] == pytest.approx(3.0) and saved["normals"][0, 0, 2] == -1
+    normals_png = cv2.imread(str(out / "frame_000000_normals.png"))
+    assert tuple(normals_png[0, 0]) == (255, 127, 127)  # BGR of the camera-facing blue
+    assert main(["live", "--camera", str(frames)]) == 2  # no predictor: one clear error

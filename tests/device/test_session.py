@@ -1,0 +1,172 @@
+"""Capture sessions with a fake LED controller and camera: frames, movement retakes, resumption."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.core import Camera, Led, SensorResponse, load_press, tricolor_groups
+from nlipscalib.device.session import (
+    Operator,
+    Rig,
+    SessionConfig,
+    capture_press,
+    frame_sequence,
+    run_session,
+)
+from nlipscalib.errors import CaptureError
+
+from .fakes import FakeController, LitSource
+
+N_LEDS, H, W = 6, 12, 16
+
+
+def _rig(noise=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    images = rng.uniform(0.05, 0.15, size=(N_LEDS, H, W, 3)).astype(np.float32)
+    controller = FakeController(N_LEDS)
+    leds = tuple(Led((np.cos(a) * 5, np.sin(a) * 5, 0.0)) for a in np.linspace(0, 6, N_LEDS))
+    rig = Rig(
+        controller=controller,
+        source=LitSource(controller, images, noise=noise, seed=seed),
+        camera=Camera.from_fov(W, H, 90.0),
+        leds=leds,
+        response=SensorResponse(bit_depth=16, black_level=256.0, white_level=65256.0),
+    )
+    return rig, images
+
+
+def _quiet():
+    lines = []
+    return Operator(interactive=False, echo=lines.append), lines
+
+
+def test_frame_sequence_order_and_colours():
+    seq = frame_sequence(N_LEDS, SessionConfig(white_level=200, tricolor_level=100))
+    names = [n for n, _ in seq]
+    assert names == ["tricolor", "dark"] + [f"led_{i:02d}" for i in range(1, N_LEDS + 1)] + ["check"]
+    tri = seq[0][1]
+    np.testing.assert_array_equal(tri.argmax(axis=1), tricolor_groups(N_LEDS))
+    assert tri.max() == 100 and seq[1][1].max() == 0
+    led3 = seq[4][1]
+    assert led3[2].tolist() == [200, 200, 200] and led3.sum() == 600
+
+
+def test_press_holds_each_led_alone_and_the_tricolor(tmp_path):
+    rig, images = _rig()
+    op, _ = _quiet()
+    rec = capture_press(rig, tmp_path / "p", SessionConfig(), op, index=1)
+    assert rec["attempts"] == 1
+    p = load_press(tmp_path / "p")
+    lin = p.linear(p.led_images)
+    np.testing.assert_allclose(lin, images * 65000 / 65000, atol=2e-5)
+    tri = np.einsum("lhwc,lc->hwc", images, np.eye(3)[tricolor_groups(N_LEDS)])
+    np.testing.assert_allclose(p.linear(p.tricolor), tri, atol=2e-5)
+    assert np.all(p.dark == 256)
+    assert rig.controller.latched.sum() == 0  # LEDs off afterwards
+    assert p.meta["provenance"]["source"] == "device"
+
+
+def test_movement_is_retaken_then_refused(tmp_path):
+    rig, images = _rig(noise=0.002)
+    op, lines = _quiet()
+    moved = images.copy()
+    moved[:, 2:8, 3:9] *= 1.5  # the object moved: a patch changes brightness
+    rig.source.change_at = (4, moved)  # mid-sequence of the first attempt
+    rec = capture_press(rig, tmp_path / "p", SessionConfig(), op, index=2)
+    assert rec["attempts"] == 2 and rec["moved"][0] > 0.1 and rec["moved"][1] == 0
+    assert any("moved" in line for line in lines)
+    kept = load_press(tmp_path / "p")
+    np.testing.assert_allclose(kept.linear(kept.led_images), moved, atol=0.01)
+
+    class Shaky(LitSource):
+        def read(self):
+            self.images = self.images * 1.05  # never holds still
+            return super().read()
+
+    rig.source = Shaky(rig.controller, images)
+    with pytest.raises(CaptureError, match="kept moving"):
+        capture_press(rig, tmp_path / "q", SessionConfig(max_retakes=1), op, index=3)
+    assert not (tmp_path / "q").exists()
+
+
+def test_noise_alone_is_not_movement(tmp_path):
+    rig, _ = _rig(noise=0.01)  # 1% of full scale per pixel, like a real sensor at mid range
+    rec = capture_press(rig, tmp_path / "p", SessionConfig(), _quiet()[0])
+    assert rec["attempts"] == 1
+
+
+def test_session_resumes_after_interruption(tmp_path):
+    rig, _ = _rig()
+    op, lines = _quiet()
+
+    class Interrupted(Operator):
+        def press(self, index, total):
+            if index == 2:
+                raise KeyboardInterrupt
+            super().press(index, total)
+
+    with pytest.raises(KeyboardInterrupt):
+        run_session(rig, tmp_path / "s", SessionConfig(presses=3), Interrupted(echo=lines.append))
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["press_0001", "reference", "session.json"]
+    status = run_session(rig, tmp_path / "s", SessionConfig(presses=3), op)
+    assert status["reference"] == "kept" and status["press_0001"] == "kept"
+    assert status["press_0002"]["attempts"] == 1 and status["press_0003"]["attempts"] == 1
+    assert lines.index("Do not touch the sensor: capturing the undeformed reference.") < lines.index(
+        "Press 1/3: press the object now, hold still."
+    )
+
+
+def test_resume_refuses_another_camera(tmp_path):
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=0), _quiet()[0])
+    rig.camera = Camera.from_fov(W, H, 120.0)
+    with pytest.raises(CaptureError, match="another camera"):
+        run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+
+
+def test_rig_check_names_the_mismatch():
+    rig, _ = _rig()
+    rig.controller = FakeController(N_LEDS + 1)
+    with pytest.raises(CaptureError, match="7 LEDs"):
+        rig.check()
+
+
+def test_board_reset_mid_press_is_retaken(tmp_path):
+    """A reset of the real virtual board during a press (detected by the host driver) makes the press retake."""
+    from nlipscalib.device.controller import LedController
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    rig, images = _rig()
+    board = VirtualBoard(N_LEDS)
+    with LedController.open(board.url) as controller:
+        rig.controller = controller
+
+        class ResetOnce(LitSource):
+            def read(self):
+                if self.reads == 6:
+                    board.reset()  # the LEDs go dark while the sixth frame is read
+                return super().read()
+
+        rig.source = ResetOnce(board, images)
+        op, lines = _quiet()
+        rec = capture_press(rig, tmp_path / "p", SessionConfig(), op, index=1)
+    assert rec["attempts"] == 2 and rec["moved"][0] is None and rec["moved"][1] == 0
+    assert any("LED board reset" in line for line in lines)
+    p = load_press(tmp_path / "p")
+    np.testing.assert_allclose(p.linear(p.led_images), images, atol=2e-5)
+
+
+def test_interactive_operator_waits_for_enter_and_stops_on_eof(monkeypatch):
+    answers = iter(["", EOFError])
+
+    def fake_input(prompt):
+        answer = next(answers)
+        if answer is EOFError:
+            raise EOFError
+        assert prompt.endswith("[Enter] ")
+        return answer
+
+    monkeypatch.setattr("builtins.input", fake_input)
+    op = Operator(interactive=True)
+    op.press(1, 2)  # returns after Enter
+    with pytest.raises(KeyboardInterrupt):
+        op.press(2, 2)
