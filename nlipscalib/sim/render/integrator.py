@@ -1,7 +1,8 @@
 """All LEDs in one pass: a path tracer that writes each LED's light to its own AOV channels.
 
-Along each camera path, every vertex sends one shadow ray per LED (LEDs are delta lights, so this
-is exact next-event estimation without emitter sampling noise); LED k's contribution goes to AOV
+Along each camera path, every vertex sends one shadow ray per LED (point LEDs are delta lights, so
+this is exact next-event estimation without emitter sampling noise; an extended LED sends it to one
+point of its emitting area drawn uniformly); LED k's contribution goes to AOV
 channels ``ledKK.R/G/B``. ``bounces`` diffuse bounces follow (0 = direct light only). The main RGB
 output is the sum over LEDs (all LEDs on in white).
 """
@@ -52,8 +53,9 @@ def make_integrator_class(mi, led_class):
                 hit_first = active if hit_first is None else hit_first
                 bsdf = si.bsdf(ray)
                 for k, led in enumerate(leds):
-                    weight, d, dist = led.radiance_weight(si.p, active)
-                    shadow = si.spawn_ray_to(led.position)
+                    source = led.emitting_point(sampler.next_2d(active)) if led.extended else led.position
+                    weight, d, dist = led.radiance_weight(si.p, active, source)
+                    shadow = si.spawn_ray_to(source)
                     visible = active & (scene.ray_test(shadow, active) ^ True)  # ^True: works for scalar bools too
                     f = bsdf.eval(ctx, si, si.to_local(d), visible)  # f * cos, shading frame
                     acc[k] += dr.select(visible, throughput * f * weight, 0.0)
