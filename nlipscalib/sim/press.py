@@ -88,6 +88,11 @@ def _exposure(geometry, leds_cfg, albedo, scale, tricolor) -> float:
     gt = _reference_ground_truth(geometry)
     v = gt.valid
     leds = dataclasses.replace(geometry, leds=leds_cfg).led_models()
+    optics = geometry.gel_optics
+    if optics.enabled:
+        # a diffuse coat seen from a lower-index housing looks (n_housing / n_gel)^2 as bright (the rest is
+        # totally internally reflected): a user would expose for it
+        scale *= (optics.gel_ior / optics.housing_ior) ** 2
     return auto_exposure(gt.points[v], gt.normals[v], leds, albedo, scale, tricolor=tricolor)
 
 

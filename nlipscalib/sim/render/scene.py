@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .emitter import PLUGIN as LED_PLUGIN
 from .integrator import PLUGIN as INTEGRATOR_PLUGIN
 from .mesh import COLOR_ATTR, to_mitsuba_mesh
 from .sensor import PLUGIN as CAMERA_PLUGIN
 from .sensor import camera_props
+
+REFRACT_CONE_DEG = 25.0
+"""Half-angle of the cone in which a coat vertex looks for each LED through a refracting gel, degrees."""
 
 
 def led_entries(mi, leds, only=None, shape="point", size=0.0) -> dict:
@@ -84,6 +89,7 @@ def build_scene(
     led_size=0.0,
     specular=0.0,
     roughness=0.3,
+    interface=None,
 ):
     """Load the scene.
 
@@ -96,6 +102,8 @@ def build_scene(
     only_led : keep only this LED in the scene (for single-LED "path" renders)
     led_shape, led_size : emitting area of every LED ("point", "disk", "square"; mm)
     specular, roughness : the coat's specular lobe (see :func:`coating_bsdf`)
+    interface : None (index-matched gel) or (vertices (V, 3) mm camera frame, faces (F, 3) wound toward
+        the camera, gel_ior, housing_ior): the refracting inner surface of the gel
     """
     bsdf = mi.load_dict(coating_bsdf(colors, albedo, specular, roughness))
     mesh = to_mitsuba_mesh(mi, vertices, faces, normals, contact, colors)
@@ -103,9 +111,23 @@ def build_scene(
     n_leds = len(leds) if only_led is None else 1
     if integrator == "multi":
         integ = {"type": INTEGRATOR_PLUGIN, "n_leds": n_leds, "bounces": int(bounces)}
+        if interface is not None:
+            integ |= {"refract": True, "eta": float(interface[2] / interface[3]), "cone_deg": REFRACT_CONE_DEG}
     else:
         # max_depth counts the camera ray and the light ray: 2 = direct only.
         integ = {"type": "path", "max_depth": int(bounces) + 2, "rr_depth": 1000, "hide_emitters": True}
     scene = {"type": "scene", "integrator": integ, "sensor": sensor_entry(camera, spp), "gel": mesh}
+    if interface is not None:
+        scene["interface"] = interface_shape(mi, *interface)
     scene |= led_entries(mi, leds, only_led, led_shape, led_size)
     return mi.load_dict(scene)
+
+
+def interface_shape(mi, vertices, faces, gel_ior, housing_ior):
+    """The gel's inner surface as a smooth ``dielectric``: gel inside, housing on the side its normals face."""
+    import trimesh
+
+    normals = trimesh.Trimesh(vertices, faces, process=False).vertex_normals
+    mesh = to_mitsuba_mesh(mi, vertices, faces, normals, np.zeros(len(vertices)), name="interface")
+    mesh.set_bsdf(mi.load_dict({"type": "dielectric", "int_ior": float(gel_ior), "ext_ior": float(housing_ior)}))
+    return mesh

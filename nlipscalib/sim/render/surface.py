@@ -92,9 +92,11 @@ def render_surface(
         led_size=pkg.size if pkg.enabled else 0.0,
         specular=c.specular,
         roughness=c.roughness,
+        interface=_interface(scene_cfg),
     )
     stack = _render_images(mi, scene, camera.shape, spp, seed, integrator) if images else None
-    gt = trace_ground_truth(mi, scene, camera)
+    optics = scene_cfg.gel_optics
+    gt = trace_ground_truth(mi, scene, camera, optics.gel_ior / optics.housing_ior if optics.enabled else None)
     return RenderResult(stack, gt, chosen, spp, bounces, seed, time.perf_counter() - t0)
 
 
@@ -105,3 +107,15 @@ def _render_images(mi, scene, shape, spp, seed, integrator) -> np.ndarray:
     if integrator == "multi":
         return np.ascontiguousarray(out[..., 3:].reshape(h, w, -1, 3).transpose(2, 0, 1, 3))
     return np.ascontiguousarray(out[None, ..., :3])
+
+
+def _interface(scene_cfg):
+    """(vertices camera frame, faces, gel_ior, housing_ior) of the refracting inner surface, or None."""
+    optics = scene_cfg.gel_optics
+    if not optics.enabled:
+        return None
+    from ..dome import inner_surface
+
+    inner = inner_surface(scene_cfg.dome)
+    verts = np.asarray(inner.vertices, dtype=np.float64) - np.asarray(scene_cfg.camera.position, dtype=np.float64)
+    return verts, np.asarray(inner.faces), optics.gel_ior, optics.housing_ior
