@@ -21,6 +21,10 @@ from __future__ import annotations
 PLUGIN = "nlips_multiled"
 MAX_SPECULAR = 3
 """Specular (interface) vertices a path may pass between two coat vertices; longer paths are dropped."""
+AIM_STEPS = 3
+"""Fixed-point steps toward the direction in which an LED is seen through the interface."""
+AIM_SLACK_DEG = 1.0
+"""Added to the per-LED cone's half-angle, degrees: room for the aim's last error."""
 
 
 def aov_names(n_leds: int) -> list[str]:
@@ -42,7 +46,8 @@ def make_integrator_class(mi, led_class):
             self.bounces = int(props.get("bounces", 0))
             self.refract = bool(props.get("refract", False))
             self.eta = float(props.get("eta", 1.0))
-            self.cos_cone = float(dr.cos(dr.deg2rad(float(props.get("cone_deg", 25.0)))))
+            self.max_cone = float(dr.deg2rad(float(props.get("cone_deg", 30.0))))
+            self.cone_margin = float(props.get("cone_margin", 1.3))
 
         def aov_names(self):
             return aov_names(self.n_leds)
@@ -132,9 +137,9 @@ def make_integrator_class(mi, led_class):
 
         def _led_through_interface(self, scene, sampler, si, bsdf, led, throughput, active):
             """One-sample estimate of the light of ``led`` reaching coat vertex ``si`` through the interface."""
-            aim = self._arrival_direction(scene, si, led, active)
-            local = mi.warp.square_to_uniform_cone(sampler.next_2d(active), self.cos_cone)
-            pdf = mi.warp.square_to_uniform_cone_pdf(local, self.cos_cone)
+            aim, cos_cone = self._arrival_cone(scene, si, led, active)
+            local = mi.warp.square_to_uniform_cone(sampler.next_2d(active), cos_cone)
+            pdf = mi.warp.square_to_uniform_cone_pdf(local, cos_cone)
             omega = mi.Frame3f(aim).to_world(local)
             f = bsdf.eval(mi.BSDFContext(), si, si.to_local(omega), active)  # f * cos
             s1 = scene.ray_intersect(si.spawn_ray(omega), active)
@@ -162,17 +167,36 @@ def make_integrator_class(mi, led_class):
             gain = (1 - fresnel) * self.eta * self.eta / pdf
             return dr.select(ok, throughput * f * radiance * gain, 0.0)
 
-        def _arrival_direction(self, scene, si, led, active):
-            """Unit direction (from ``si``) opposite to the LED's light just inside the interface, where the
-            straight line from ``si`` to the LED's centre crosses it (the straight direction if it does not)."""
-            straight = dr.normalize(led.position - si.p)
-            s1 = scene.ray_intersect(si.spawn_ray(straight), active)
-            cross = active & s1.is_valid() & mi.has_flag(s1.bsdf().flags(), mi.BSDFFlags.Delta)
-            to_led = dr.normalize(led.position - s1.p)
-            wi = s1.to_local(to_led)  # on the housing side of the interface
-            _, cos_t, _, eta_ti = mi.fresnel(mi.Frame3f.cos_theta(wi), self.eta)
-            inside = s1.to_world(mi.refract(wi, cos_t, eta_ti))  # the light's direction of travel in the gel
-            return dr.select(cross & (dr.norm(inside) > 0.5), -inside, straight)
+        def _arrival_cone(self, scene, si, led, active):
+            """Axis (unit, from ``si``) and cosine of the half-angle of a cone holding the LED as seen
+            from ``si`` through the interface.
+
+            The axis is the fixed point of: cross the interface at z, take the direction in which the
+            light of the LED's centre travels on from z into the gel, trace back from ``si`` against
+            it to a new z. ``si`` lies much nearer the interface than the LED does, so each step
+            shrinks the error several-fold; ``AIM_STEPS`` steps leave a fraction of a degree. The
+            half-angle is the LED's angular radius seen in a straight line from the crossing point,
+            an upper bound of the refracted one (rays bend toward the normal entering the gel), times
+            ``cone_margin``, and at most ``cone_deg``.
+            """
+            aim = dr.normalize(led.position - si.p)
+            found = mi.Bool(active)
+            span = mi.Float(0.0)
+            for _ in range(AIM_STEPS):
+                s1 = scene.ray_intersect(si.spawn_ray(aim), active)
+                cross = active & s1.is_valid() & mi.has_flag(s1.bsdf().flags(), mi.BSDFFlags.Delta)
+                to_led = led.position - s1.p
+                d_led = dr.norm(to_led)
+                wi = s1.to_local(to_led / d_led)  # on the housing side of the interface
+                _, cos_t, _, eta_ti = mi.fresnel(mi.Frame3f.cos_theta(wi), self.eta)
+                travel = s1.to_world(mi.refract(wi, cos_t, eta_ti))  # the light's direction in the gel
+                good = cross & (dr.norm(travel) > 0.5)
+                aim = dr.select(good, -travel, aim)
+                span = dr.select(good, d_led + dr.norm(s1.p - si.p), span)
+                found &= good
+            angle = dr.atan(self.cone_margin * led.half / dr.maximum(span, 1e-3)) + dr.deg2rad(AIM_SLACK_DEG)
+            cos_cone = dr.select(found, dr.cos(dr.minimum(angle, self.max_cone)), dr.cos(self.max_cone))
+            return aim, cos_cone
 
         def to_string(self):
             return f"NlipsMultiLed[n_leds={self.n_leds}, bounces={self.bounces}, refract={self.refract}]"

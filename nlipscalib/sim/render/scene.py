@@ -12,8 +12,10 @@ from .mesh import COLOR_ATTR, to_mitsuba_mesh
 from .sensor import PLUGIN as CAMERA_PLUGIN
 from .sensor import camera_props
 
-REFRACT_CONE_DEG = 25.0
-"""Half-angle of the cone in which a coat vertex looks for each LED through a refracting gel, degrees."""
+REFRACT_CONE_DEG = 30.0
+"""Largest half-angle of the cone in which a coat vertex looks for each LED through a refracting gel, degrees."""
+REFRACT_CONE_MARGIN = 1.3
+"""That cone's half-angle over the LED's angular radius seen in a straight line (see the integrator)."""
 
 
 def led_entries(mi, leds, only=None, shape="point", size=0.0) -> dict:
@@ -113,6 +115,7 @@ def build_scene(
         integ = {"type": INTEGRATOR_PLUGIN, "n_leds": n_leds, "bounces": int(bounces)}
         if interface is not None:
             integ |= {"refract": True, "eta": float(interface[2] / interface[3]), "cone_deg": REFRACT_CONE_DEG}
+            integ["cone_margin"] = REFRACT_CONE_MARGIN
     else:
         # max_depth counts the camera ray and the light ray: 2 = direct only.
         integ = {"type": "path", "max_depth": int(bounces) + 2, "rr_depth": 1000, "hide_emitters": True}
