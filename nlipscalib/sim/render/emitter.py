@@ -48,10 +48,16 @@ def make_led_class(mi):
             """A point of the emitting area, uniform in area, for a 2D sample in [0, 1)^2 (the centre if a point)."""
             if not self.extended:
                 return self.position
+            return self.to_world_point(self.local_point(sample))
+
+        def local_point(self, sample):
+            """Point2f, mm, in the emitting plane's (axis_s, axis_t) coordinates: uniform over the area."""
             if self.shape == "disk":
-                local = mi.warp.square_to_uniform_disk_concentric(sample) * self.half
-            else:
-                local = (sample * 2.0 - 1.0) * self.half
+                return mi.warp.square_to_uniform_disk_concentric(sample) * self.half
+            return (sample * 2.0 - 1.0) * self.half
+
+        def to_world_point(self, local):
+            """Point3f of emitting-plane coordinates ``local`` (mm)."""
             return self.position + self.axis_s * local.x + self.axis_t * local.y
 
         def radiance_weight(self, p, active=True, source=None):
