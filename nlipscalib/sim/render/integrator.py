@@ -9,8 +9,9 @@ output is the sum over LEDs (all LEDs on in white).
 With a refracting gel (``refract``: a ``dielectric`` interface between housing and gel) no shadow ray
 can reach an LED in a straight line. Camera paths then pass the interface by sampling its BSDF (reflect
 or refract, Fresnel-weighted), and each coat vertex estimates each LED's light with one direction drawn
-uniformly in a cone (``cone_deg``) around the direction from which that LED's light arrives where the
-straight line to it crosses the interface: the direction is traced through the interface (Snell,
+uniformly in a cone around the direction from which that LED's light arrives through the interface
+(found by a fixed-point trace), ``cone_margin`` times as wide as the LED seen in a straight line and at
+most ``cone_deg``: the direction is traced through the interface (Snell,
 transmittance 1 - F, radiance scaled by (n_gel / n_housing)^2) and counts when it lands on the LED's
 emitting area, with the area's radiance (Psi / A) (n_s . d)^(mu - 1). Unbiased while the cone covers
 the LED as seen through the interface.
