@@ -141,3 +141,25 @@ def _orient_inward(cfg: DomeConfig, vertices: np.ndarray, faces: np.ndarray) -> 
     faces = faces.copy()
     faces[flip] = faces[flip][:, ::-1]
     return trimesh.Trimesh(vertices, faces, process=False)
+
+
+def inner_surface(cfg: DomeConfig) -> trimesh.Trimesh:
+    """The gel's inner surface (where it meets the housing): the dome moved inward by ``cfg.thickness``.
+
+    For the curved domes this is the dome shape with radius and height reduced by the thickness (exact
+    for the hemisphere, close to the true offset surface for the others); for ``flat`` the plane
+    ``thickness`` below the pad. Faces wound inward (toward the camera), dome frame, mm.
+    """
+    import dataclasses
+
+    t = cfg.thickness
+    radius = cfg.radius if cfg.shape == "flat" else cfg.radius - t
+    inner = dataclasses.replace(
+        cfg,
+        radius=radius,
+        height=cfg.height - t,
+        thickness=min(t, radius / 2),
+        edge_length=min(cfg.edge_length, radius / 3),
+        contact_edge_length=min(cfg.contact_edge_length, radius / 3),
+    )
+    return make_dome(inner)

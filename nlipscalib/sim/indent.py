@@ -10,8 +10,8 @@ touches the indenter where it must, lifts off it tangentially, and fades into th
 over about ``DRAPE_PER_THICKNESS * thickness``. ``max(drape, push)`` is taken last so the gel never
 penetrates the indenter.
 
-The mesh is refined (conformal red-green subdivision, new vertices projected onto the analytic
-dome) to ``contact_edge_length`` around the footprint so that textures such as coin relief show.
+The mesh is refined (pymeshlab's conformal midpoint subdivision, new vertices projected onto the
+analytic dome) to ``contact_edge_length`` around the footprint so that textures such as coin relief show.
 """
 
 from __future__ import annotations
@@ -206,7 +206,7 @@ def _push(hf: HeightField, vertices: np.ndarray, tip: np.ndarray, rot: np.ndarra
 def _refine_near(dome_cfg, vertices, faces, centre, radius):
     """Subdivide faces near ``centre`` until their edges reach ``contact_edge_length``.
 
-    Coarser levels reach further out, so each level's red-green transition lies on faces that
+    Coarser levels reach further out, so each level's transition lies on faces that
     the next level leaves alone and the grading stays smooth.
     """
     levels = max(0, int(np.ceil(np.log2(dome_cfg.edge_length / dome_cfg.contact_edge_length))))
@@ -216,60 +216,34 @@ def _refine_near(dome_cfg, vertices, faces, centre, radius):
         centres = vertices[faces].mean(axis=1)
         mask = np.linalg.norm(centres - centre, axis=1) < reach + 3 * edge
         n_old = len(vertices)
-        vertices, faces = _red_green(vertices, faces, mask)
+        vertices, faces = _subdivide(vertices, faces, mask)
         vertices[n_old:] = project_to_dome(dome_cfg, vertices[n_old:])
         edge /= 2
     return vertices, faces
 
 
-def _red_green(vertices: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One conformal refinement step: masked faces split 1-to-4, neighbours bisected so no T-junctions remain."""
-    n = len(vertices)
-    a, b = faces, np.roll(faces, -1, axis=1)  # edge j joins faces[:, j] and faces[:, j + 1]
-    key = np.minimum(a, b).astype(np.int64) * n + np.maximum(a, b)
-    uniq, inv = np.unique(key.ravel(), return_inverse=True)
-    inv = inv.reshape(-1, 3)
-    split = np.zeros(len(uniq), bool)
-    split[inv[mask].ravel()] = True
-    while True:  # a face with two split edges becomes red: split its third edge too
-        count = split[inv].sum(axis=1)
-        two = count == 2
-        if not two.any():
-            break
-        split[inv[two].ravel()] = True
-    new_index = np.full(len(uniq), -1)
-    new_index[split] = n + np.arange(split.sum())
-    ends = np.stack([uniq[split] // n, uniq[split] % n], 1)
-    vertices = np.concatenate([vertices, vertices[ends].mean(axis=1)])
-    mid = new_index[inv]
-    count = split[inv].sum(axis=1)
-    keep = faces[count == 0]
-    r, m = faces[count == 3], mid[count == 3]
-    red = np.concatenate(
-        [
-            np.stack([r[:, 0], m[:, 0], m[:, 2]], 1),
-            np.stack([m[:, 0], r[:, 1], m[:, 1]], 1),
-            np.stack([m[:, 2], m[:, 1], r[:, 2]], 1),
-            m,
-        ]
-    )
-    g_rows = np.flatnonzero(count == 1)
-    j = np.argmax(split[inv[g_rows]], axis=1)
-    ga, gb, gc = (faces[g_rows, (j + k) % 3] for k in range(3))
-    gm = mid[g_rows, j]
-    green = np.concatenate([np.stack([ga, gm, gc], 1), np.stack([gm, gb, gc], 1)])
-    return vertices, np.concatenate([keep, red, green])
+def _subdivide(vertices: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One conformal midpoint-subdivision step of the masked faces (pymeshlab); no T-junctions remain.
+
+    pymeshlab keeps the old vertices first, in order, and appends the edge midpoints, which the
+    coarse-to-fine draping relies on.
+    """
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces, f_scalar_array=mask.astype(np.float64)))
+    ms.compute_selection_by_condition_per_face(condselect="fq > 0.5")
+    ms.meshing_surface_subdivision_midpoint(iterations=1, threshold=pymeshlab.PercentageValue(0.0), selected=True)
+    mesh = ms.current_mesh()
+    return np.asarray(mesh.vertex_matrix(), dtype=np.float64), np.asarray(mesh.face_matrix(), dtype=np.int64)
 
 
 def _boundary_vertices(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """(V,) bool: vertex on an edge used by one face only (the dome's base rim, the pad's edge)."""
-    a, b = faces, np.roll(faces, -1, axis=1)
-    key = (np.minimum(a, b).astype(np.int64) * n_vertices + np.maximum(a, b)).ravel()
-    uniq, counts = np.unique(key, return_counts=True)
-    once = uniq[counts == 1]
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    once = edges[trimesh.grouping.group_rows(edges, require_count=1)]
     out = np.zeros(n_vertices, bool)
-    out[once // n_vertices] = True
-    out[once % n_vertices] = True
+    out[once.ravel()] = True
     return out
 
 

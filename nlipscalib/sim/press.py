@@ -1,14 +1,18 @@
 """Rendering one press of the digital twin into a press folder (the capture format of core/).
 
 A press = dark frame + one white image per LED + the tri-colour image, each with its own sensor
-noise, plus ground truth and the undeformed dome's Reference. Exposure is chosen once per scene
+noise, plus ground truth and the undeformed dome's Reference. :func:`render_press` reads as its
+steps: the gel surface (undeformed dome or indented gel), the render (all LED images and the ground
+truth through :func:`nlipscalib.sim.render.render_surface`, the one render path), the camera (lens
+effects, exposure, sensor noise), and writing. Exposure is chosen once per scene
 (:func:`scene_exposure`), so every press of a scene shares it and the solver can compare them.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import json
-import logging
 import zlib
 
 import numpy as np
@@ -16,52 +20,57 @@ import numpy as np
 from ..core.capture import write_press
 from ..core.leds import TRICOLOR_COLORS, tricolor_groups
 from ..errors import ConfigError
+from .camera_effects import apply_lens
+from .dome import make_dome
 from .noise import apply_noise, auto_exposure, dark_frame
-from .render.groundtruth import reference_from, trace_ground_truth
+from .render.groundtruth import reference_from
 
-log = logging.getLogger(__name__)
-_reference_cache: dict = {}
-_exposure_cache: dict = {}
+CACHE_SIZE = 8
+"""Scenes whose undeformed ground truth and exposures stay in memory (a dataset uses one scene)."""
 
 
 def undeformed_mesh(dome_cfg):
-    """The undeformed gel mesh (dome frame, inward faces) from ``sim.dome``, or a stand-in hemisphere."""
-    try:
-        from .dome import make_dome
-    except ModuleNotFoundError as exc:
-        if exc.name != f"{__package__}.dome":
-            raise
-        if dome_cfg.shape != "hemisphere":
-            raise ConfigError(f"dome shape {dome_cfg.shape!r} needs nlipscalib.sim.dome, which is missing") from None
-        from .render.shapes import hemisphere
-
-        log.warning("nlipscalib.sim.dome is missing: using a stand-in hemisphere mesh")
-        return hemisphere(dome_cfg.radius)
+    """The undeformed gel mesh (dome frame, mm, faces wound inward)."""
     return make_dome(dome_cfg)
 
 
 def reference_ground_truth(scene):
-    """Ground truth of the undeformed dome (cached per dome + camera): the Reference and exposure source."""
-    key = (scene.dome, scene.camera)
-    if key not in _reference_cache:
-        from .render.scene import build_scene
-        from .render.variant import load_mitsuba
+    """Ground truth of the undeformed dome: the Reference every press carries and the exposure's source.
 
-        mi, _ = load_mitsuba(scene.render.variant, scene.render.threads)
-        mesh = undeformed_mesh(scene.dome)
-        verts = np.asarray(mesh.vertices) - np.asarray(scene.camera.position)
-        built = build_scene(
-            mi,
-            scene.camera_model(),
-            scene.led_models(),
-            verts,
-            mesh.faces,
-            mesh.vertex_normals,
-            np.zeros(len(verts)),
-            spp=1,
-        )
-        _reference_cache[key] = (mesh, trace_ground_truth(mi, built, scene.camera_model()))
-    return _reference_cache[key]
+    Rendered through the same path as the presses (``render_surface`` without images) and cached per
+    geometry (dome, camera, gel optics), so scenes that differ only in LEDs, coat or noise share it.
+
+    Returns
+    -------
+    core GroundTruth (read-only: shared between callers)
+    """
+    return _reference_ground_truth(_geometry(scene))
+
+
+def _geometry(scene):
+    """The scene reduced to what its ground truth depends on (a small, hashable cache key)."""
+    from .scene import LedPackageConfig, RenderConfig, SceneConfig
+
+    render = RenderConfig(variant=scene.render.variant, threads=scene.render.threads)
+    return SceneConfig(
+        dome=scene.dome,
+        camera=scene.camera,
+        render=render,
+        led_package=scene.led_package if scene.gel_optics.enabled else LedPackageConfig(),
+        gel_optics=scene.gel_optics,
+    )
+
+
+@functools.lru_cache(maxsize=CACHE_SIZE)
+def _reference_ground_truth(geometry):
+    from .render.surface import render_surface
+
+    gt = render_surface(geometry, undeformed_mesh(geometry.dome), images=False).gt
+    for field in dataclasses.fields(gt):
+        value = getattr(gt, field.name)
+        if isinstance(value, np.ndarray):
+            value.setflags(write=False)
+    return gt
 
 
 def scene_exposure(scene, tricolor: bool = False) -> float:
@@ -70,15 +79,21 @@ def scene_exposure(scene, tricolor: bool = False) -> float:
     The tri-colour image (``tricolor=True``) gets its own, shorter exposure: each of its channels sums
     a third of the LEDs and would otherwise saturate.
     """
-    key = (scene.dome, scene.camera, scene.leds, scene.coating.albedo, scene.noise.exposure, tricolor)
-    if key not in _exposure_cache:  # ~1 s of numpy at 640x480: once per scene, not per press
-        _, gt = reference_ground_truth(scene)
-        v = gt.valid
-        leds, albedo = scene.led_models(), scene.coating.albedo
-        _exposure_cache[key] = auto_exposure(
-            gt.points[v], gt.normals[v], leds, albedo, scene.noise.exposure, tricolor=tricolor
-        )
-    return _exposure_cache[key]
+    return _exposure(_geometry(scene), scene.leds, scene.coating.albedo, scene.noise.exposure, tricolor)
+
+
+@functools.lru_cache(maxsize=4 * CACHE_SIZE)
+def _exposure(geometry, leds_cfg, albedo, scale, tricolor) -> float:
+    # ~1 s of numpy at 640x480: once per scene, not per press
+    gt = _reference_ground_truth(geometry)
+    v = gt.valid
+    leds = dataclasses.replace(geometry, leds=leds_cfg).led_models()
+    optics = geometry.gel_optics
+    if optics.enabled:
+        # a diffuse coat seen from a lower-index housing looks (n_housing / n_gel)^2 as bright (the rest is
+        # totally internally reflected): a user would expose for it
+        scale *= (optics.gel_ior / optics.housing_ior) ** 2
+    return auto_exposure(gt.points[v], gt.normals[v], leds, albedo, scale, tricolor=tricolor)
 
 
 def tricolor_linear(images: np.ndarray) -> np.ndarray:
@@ -157,16 +172,14 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
 
     if out_folder is None:
         raise ConfigError("render_press needs out_folder")
-    mesh, contact, press_dict = _surface(scene, press)
+    # 1. the surface: the undeformed dome, or the gel under the press
+    mesh, contact, press_dict = gel_surface(scene, press)
     seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
-    ref_mesh, ref_gt = reference_ground_truth(scene)
-    exposure, tri_exposure = scene_exposure(scene), scene_exposure(scene, tricolor=True)
+    # 2. the render: every LED's linear image and the ground truth, in one pass
     result = render_surface(scene, mesh, contact, seed=seed)
-    rng = np.random.default_rng(seed)
-    cfg = scene.noise
-    dark = dark_frame(scene.camera_model().shape, cfg, rng)
-    leds = apply_noise(result.images, exposure, cfg, rng)
-    tri = apply_noise(tricolor_linear(result.images), tri_exposure, cfg, rng)
+    # 3. the camera: lens, exposure, sensor noise
+    dark, leds, tri, exposure, tri_exposure = camera_capture(scene, result.images, seed)
+    # 4. writing the press folder
     provenance = {
         "source": "sim",
         "spec_hash": render_spec_hash(scene, press, seed),
@@ -186,21 +199,50 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
         out_folder,
         scene.camera_model(),
         scene.led_models(),
-        cfg.response(),
+        scene.noise.response(),
         dark,
         leds,
         tri,
         provenance=provenance,
-        reference=reference_from(ref_gt),
+        reference=reference_from(reference_ground_truth(scene)),
         ground_truth=result.gt,
         overwrite=overwrite,
     )
     return (path, result) if return_result else path
 
 
-def _surface(scene, press):
+def camera_capture(scene, images: np.ndarray, seed: int):
+    """What the camera stores of linear LED images: dark frame, LED images, tri-colour image.
+
+    Parameters
+    ----------
+    scene : SceneConfig -- camera effects, noise model, exposure
+    images : (L, H, W, 3) float32, linear radiance, one per LED
+    seed : noise seed
+
+    Returns
+    -------
+    dark : (H, W, 3) uint16 ; leds : (L, H, W, 3) uint16 ; tricolor : (H, W, 3) uint16 ;
+    exposure, tricolor_exposure : float
+    """
+    exposure, tri_exposure = scene_exposure(scene), scene_exposure(scene, tricolor=True)
+    effects, cfg = scene.camera_effects, scene.noise
+    camera = scene.camera_model()
+    seen = apply_lens(images, camera, effects)
+    rng = np.random.default_rng(seed)
+    dark = dark_frame(camera.shape, cfg, rng, effects)
+    leds = apply_noise(seen, exposure, cfg, rng, effects)
+    tri = apply_noise(tricolor_linear(seen), tri_exposure, cfg, rng, effects)
+    return dark, leds, tri, exposure, tri_exposure
+
+
+def gel_surface(scene, press):
+    """The gel's surface: (mesh, per-vertex contact (V,) bool, press description or None).
+
+    The mesh is in the dome frame (mm), faces wound inward; the undeformed dome when ``press`` is None.
+    """
     if press is None:
-        mesh, _ = reference_ground_truth(scene)
+        mesh = undeformed_mesh(scene.dome)
         return mesh, np.zeros(len(mesh.vertices), dtype=bool), None
     from ..config import to_mapping
     from .indent import apply_press

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import Literal
 
 from ..config import check_count, check_range, from_mapping, read_config_file, to_mapping
 from ..core.camera import Camera
@@ -27,6 +28,11 @@ SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 DEFAULT_SCENE = SCENES_DIR / "nlipstac.toml"
 
 
+def _check_range(name: str, value: float, lo: float, hi: float) -> None:
+    if not lo <= value <= hi:
+        raise ConfigError(f"{name} must be in [{lo}, {hi}], got {value}")
+
+
 @dataclasses.dataclass(frozen=True)
 class CoatingConfig:
     """The Lambertian reflective coating on the gel."""
@@ -37,6 +43,16 @@ class CoatingConfig:
     """Relative amplitude of smooth spatial albedo variation (0 = uniform)."""
     variation_scale: float = 4.0
     """Spatial scale of the variation, mm."""
+    specular: float = 0.0
+    """Weight of a rough specular lobe on top of the diffuse coat (0 = perfectly Lambertian, the NLiPs
+    model; a sprayed matte coat is about 0.02-0.05, a satin one 0.1-0.3). Scales the lobe's Fresnel
+    reflectance (Mitsuba ``roughplastic``, ``specular_reflectance``)."""
+    roughness: float = 0.3
+    """GGX roughness alpha of that lobe (0.01 = nearly mirror-like, 1 = very rough)."""
+
+    def __post_init__(self):
+        _check_range("coating.specular", self.specular, 0.0, 1.0)
+        _check_range("coating.roughness", self.roughness, 0.01, 1.0)
 
     def __post_init__(self):
         for i, a in enumerate(self.albedo):
@@ -77,6 +93,86 @@ class NoiseConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class LedPackageConfig:
+    """Extended LEDs: each LED emits from a flat disk or square instead of a point.
+
+    Every area element emits with the LED's own law, intensity (Psi / area) (n_s . d)^mu, so the
+    LED's total light is unchanged and a point LED is the limit ``size -> 0``. Off by default: the
+    NLiPs model (and the solver) assume point LEDs; turn it on to measure what that costs.
+    """
+
+    enabled: bool = False
+    """True: LEDs are disks/squares of ``size``; False: point LEDs (the NLiPs model)."""
+    shape: Literal["disk", "square"] = "disk"
+    """Emitting area's shape, in the plane perpendicular to the LED's principal direction."""
+    size: float = 3.6
+    """Disk diameter or square side, mm. Default: the round light cup of a WS2812B (5050 package,
+    5.0 x 5.0 mm outline; the emitting window is about 3.6 mm across)."""
+
+    def __post_init__(self):
+        _check_range("led_package.size", self.size, 0.0, 20.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class CameraEffectsConfig:
+    """Departures of the camera from the ideal linear pinhole the solver assumes (applied in that order).
+
+    Off by default: the NLiPs model is a linear camera without falloff; each effect is a separate switch.
+    """
+
+    defocus_px: float = 0.0
+    """Defocus blur: radius of a uniform disk point-spread function, pixels (0 = sharp)."""
+    vignetting: Literal["none", "cos4", "polynomial"] = "none"
+    """Radial falloff of the image: ``cos4`` = cos^4 of each pixel's ray angle to the optical axis (a thin
+    rectilinear lens); ``polynomial`` = 1 + c1 r^2 + c2 r^4 + c3 r^6 with r the distance to the principal
+    point over half the image diagonal."""
+    vignetting_coeffs: tuple[float, float, float] = (-0.3, 0.0, 0.0)
+    """c1, c2, c3 of the ``polynomial`` falloff (default: 30 % darker in the image corners)."""
+    response_gamma: float = 1.0
+    """Response curve: the sensor records x^gamma of the fraction of full scale x (1 = linear)."""
+    black_level_error: float = 0.0
+    """The true black level differs from the one stated in the capture's response by this much, DN
+    (the dark frame carries the true one)."""
+
+    def __post_init__(self):
+        _check_range("camera_effects.defocus_px", self.defocus_px, 0.0, 50.0)
+        _check_range("camera_effects.response_gamma", self.response_gamma, 0.2, 5.0)
+        _check_range("camera_effects.black_level_error", self.black_level_error, -1000.0, 1000.0)
+        if self.vignetting == "polynomial":
+            c1, c2, c3 = self.vignetting_coeffs
+            if 1 + min(0.0, c1) + min(0.0, c2) + min(0.0, c3) <= 0:
+                raise ConfigError(f"camera_effects.vignetting_coeffs {self.vignetting_coeffs} reach zero in the image")
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any effect departs from the ideal camera."""
+        return self != CameraEffectsConfig()
+
+
+@dataclasses.dataclass(frozen=True)
+class GelOpticsConfig:
+    """Refraction at the gel's inner surface: the gel's index differs from the housing's inside it.
+
+    The camera and the LEDs sit in the housing (index ``housing_ior``); the gel (``gel_ior``) fills the
+    dome from its inner surface (the undeformed dome moved inward by ``dome.thickness``) to the coated
+    outer surface. Off by default: the twin treats the gel as index-matched, as the NLiPs model does.
+    Needs ``led_package.enabled`` (a point light cannot be reached through a refracting surface) and
+    many samples per pixel: light reaches the coat only by paths that happen to hit an LED.
+    """
+
+    enabled: bool = False
+    """True: trace refraction at the gel's inner surface."""
+    gel_ior: float = 1.41
+    """Refractive index of the gel (silicone elastomers: 1.40-1.43)."""
+    housing_ior: float = 1.0
+    """Refractive index inside the housing, where camera and LEDs sit (air: 1.0)."""
+
+    def __post_init__(self):
+        _check_range("gel_optics.gel_ior", self.gel_ior, 1.0, 3.0)
+        _check_range("gel_optics.housing_ior", self.housing_ior, 1.0, 3.0)
+
+
+@dataclasses.dataclass(frozen=True)
 class RenderConfig:
     """Mitsuba settings."""
 
@@ -112,6 +208,18 @@ class SceneConfig:
     coating: CoatingConfig = CoatingConfig()
     noise: NoiseConfig = NoiseConfig()
     render: RenderConfig = RenderConfig()
+    led_package: LedPackageConfig = LedPackageConfig()
+    """Extended LEDs (off: point LEDs)."""
+    camera_effects: CameraEffectsConfig = CameraEffectsConfig()
+    """Vignetting, response curve, black-level error, defocus (off: ideal linear camera)."""
+    gel_optics: GelOpticsConfig = GelOpticsConfig()
+    """Refraction at the gel's inner surface (off: index-matched gel)."""
+
+    def __post_init__(self):
+        if self.gel_optics.enabled and not self.led_package.enabled:
+            raise ConfigError(
+                "gel_optics.enabled needs led_package.enabled: point LEDs cannot light through a refracting surface"
+            )
 
     @property
     def design(self) -> SensorDesign:

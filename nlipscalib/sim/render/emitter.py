@@ -1,12 +1,19 @@
-"""Anisotropic point LED as a Mitsuba emitter: radiant intensity Psi_c (n_s . d)^mu.
+"""Anisotropic LED as a Mitsuba emitter: radiant intensity Psi_c (n_s . d)^mu, from a point or an area.
 
 Units: positions in mm, intensity Psi in (linear image units) x mm^2, so the irradiance at distance
 r is Psi (n_s . d)^mu cos / r^2 and a diffuse surface of albedo a reflects a/pi times that.
+
+An extended LED (``shape`` disk or square of ``size`` mm, in the plane perpendicular to n_s) gives every
+area element dA the intensity (Psi / A) (n_s . d)^mu dA. Sampling one emitting point uniformly over the
+area (pdf 1/A) and weighting it as a point LED of intensity Psi is then an unbiased estimate of the
+extended LED's light, and ``size -> 0`` is the point LED exactly.
 """
 
 from __future__ import annotations
 
 PLUGIN = "nlips_led"
+SHAPES = ("point", "disk", "square")
+"""Emitting area of an LED: a point (the NLiPs model), a disk of diameter ``size`` or a square of side ``size``."""
 
 
 def make_led_class(mi):
@@ -14,7 +21,7 @@ def make_led_class(mi):
     import drjit as dr
 
     class NlipsLed(mi.Emitter):
-        """Point LED; properties: index (int), position, direction (ScalarVector3f), mu, intensity."""
+        """LED; properties: index (int), position, direction (ScalarVector3f), mu, intensity, shape, size (mm)."""
 
         def __init__(self, props):
             mi.Emitter.__init__(self, props)
@@ -25,12 +32,38 @@ def make_led_class(mi):
             self.direction = dr.normalize(mi.Vector3f(props.get("direction")))
             self.mu = mi.Float(float(props.get("mu", 1.0)))
             self.intensity = mi.Color3f(props.get("intensity"))
+            self.shape = str(props.get("shape", "point"))
+            self.size = float(props.get("size", 0.0))
+            if self.shape not in SHAPES:
+                raise ValueError(f"LED shape must be one of {SHAPES}, got {self.shape!r}")
+            # Python-level flag: a point LED draws no sample, so its renders stay as before.
+            self.extended = self.shape != "point" and self.size > 0
+            frame = mi.Frame3f(self.direction)
+            self.axis_s, self.axis_t = mi.Vector3f(frame.s), mi.Vector3f(frame.t)
+            self.half = mi.Float(self.size / 2)
             # Opaque: a new LED layout reuses the compiled kernel instead of baking in literals.
-            dr.make_opaque(self.position, self.direction, self.mu, self.intensity)
+            dr.make_opaque(self.position, self.direction, self.mu, self.intensity, self.axis_s, self.axis_t, self.half)
 
-        def radiance_weight(self, p, active=True):
-            """Psi (n_s . d)^mu / r^2 toward points ``p`` and the unit vector from p to the LED."""
-            to_led = self.position - p
+        def emitting_point(self, sample):
+            """A point of the emitting area, uniform in area, for a 2D sample in [0, 1)^2 (the centre if a point)."""
+            if not self.extended:
+                return self.position
+            return self.to_world_point(self.local_point(sample))
+
+        def local_point(self, sample):
+            """Point2f, mm, in the emitting plane's (axis_s, axis_t) coordinates: uniform over the area."""
+            if self.shape == "disk":
+                return mi.warp.square_to_uniform_disk_concentric(sample) * self.half
+            return (sample * 2.0 - 1.0) * self.half
+
+        def to_world_point(self, local):
+            """Point3f of emitting-plane coordinates ``local`` (mm)."""
+            return self.position + self.axis_s * local.x + self.axis_t * local.y
+
+        def radiance_weight(self, p, active=True, source=None):
+            """Psi (n_s . d)^mu / r^2 toward points ``p`` from ``source`` (default: the LED's centre), and the
+            unit vector and distance from p to the source."""
+            to_led = (self.position if source is None else source) - p
             dist2 = dr.squared_norm(to_led)
             dist = dr.sqrt(dist2)
             d = to_led / dist
@@ -40,9 +73,10 @@ def make_led_class(mi):
             return self.intensity * (radial / dist2), d, dist
 
         def sample_direction(self, it, sample, active=True):
-            weight, d, dist = self.radiance_weight(it.p, active)
+            source = self.emitting_point(sample)
+            weight, d, dist = self.radiance_weight(it.p, active, source)
             ds = dr.zeros(mi.DirectionSample3f)
-            ds.p = self.position
+            ds.p = source
             ds.time = it.time
             ds.pdf = 1.0
             ds.delta = True
@@ -62,9 +96,12 @@ def make_led_class(mi):
             return mi.Spectrum(0.0)
 
         def bbox(self):
-            return mi.ScalarBoundingBox3f(self.scalar_position)
+            box = mi.ScalarBoundingBox3f(self.scalar_position)
+            box.expand(self.scalar_position + self.size)
+            box.expand(self.scalar_position - self.size)
+            return box
 
         def to_string(self):
-            return f"NlipsLed[index={self.index}]"
+            return f"NlipsLed[index={self.index}, {self.shape} {self.size} mm]"
 
     return NlipsLed

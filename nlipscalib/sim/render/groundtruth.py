@@ -2,7 +2,9 @@
 
 The rays are the core :attr:`Camera.rays` (pixel centres at integer (u, v)), the normals are the
 shading normals the BSDF shades with (interpolated vertex normals), and contact is the per-vertex
-contact flag interpolated over the hit triangle, thresholded at 0.5.
+contact flag interpolated over the hit triangle, thresholded at 0.5. Through a refracting gel
+(a ``dielectric`` interface in the scene) each ray is refracted (Snell) and the ground truth is the
+coat point it then meets: the point the pixel really sees.
 """
 
 from __future__ import annotations
@@ -10,10 +12,11 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.capture import GroundTruth, Reference
+from ...errors import ConfigError
 from .mesh import CONTACT_ATTR
 
 
-def trace_ground_truth(mi, scene, camera) -> GroundTruth:
+def trace_ground_truth(mi, scene, camera, eta: float | None = None) -> GroundTruth:
     """Ground truth of ``scene`` as seen by ``camera``.
 
     Parameters
@@ -21,6 +24,7 @@ def trace_ground_truth(mi, scene, camera) -> GroundTruth:
     mi : mitsuba module with the variant of ``scene`` active
     scene : mi.Scene built in the camera frame (mm)
     camera : core Camera
+    eta : n_gel / n_housing of the scene's refracting interface, or None when there is none
 
     Returns
     -------
@@ -30,8 +34,12 @@ def trace_ground_truth(mi, scene, camera) -> GroundTruth:
     """
     h, w = camera.shape
     rays = np.ascontiguousarray(camera.rays.reshape(-1, 3), dtype=np.float32)
-    trace = _trace_scalar if mi.variant().startswith("scalar") else _trace_vector
-    valid, points, normals, contact = trace(mi, scene, rays)
+    if mi.variant().startswith("scalar"):
+        if eta is not None:
+            raise ConfigError("gel_optics needs a vectorised Mitsuba variant (llvm_ad_rgb or cuda_ad_rgb)")
+        valid, points, normals, contact = _trace_scalar(mi, scene, rays)
+    else:
+        valid, points, normals, contact = _trace_vector(mi, scene, rays, eta)
     points[~valid] = np.nan
     normals[~valid] = 0.0
     normals[valid] /= np.linalg.norm(normals[valid], axis=1, keepdims=True)
@@ -50,15 +58,33 @@ def reference_from(gt: GroundTruth) -> Reference:
     return Reference(depth=gt.depth.copy(), normals=gt.normals.copy())
 
 
-def _trace_vector(mi, scene, rays):
+REFRACTIONS = 2
+"""Interface crossings followed per ground-truth ray (in through the gel's inner surface, and a spare)."""
+
+
+def _gel_shape(scene):
+    """The coated gel mesh of a scene built by ``build_scene`` (other shapes: the refracting interface)."""
+    shapes = [s for s in scene.shapes() if s.id() == "gel"] or list(scene.shapes()[:1])
+    return shapes[0] if shapes else None
+
+
+def _trace_vector(mi, scene, rays, eta=None):
+    import drjit as dr
+
     ray = mi.Ray3f(mi.Point3f(0.0), mi.Vector3f(np.ascontiguousarray(rays.T)))
     si = scene.ray_intersect(ray)
-    valid = np.array(si.is_valid(), dtype=bool)
-    contact = np.zeros(valid.shape, dtype=bool)
-    shape = scene.shapes()[0] if scene.shapes() else None
+    for _ in range(REFRACTIONS if eta is not None else 0):
+        delta = si.is_valid() & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Delta)
+        _, cos_t, _, eta_ti = mi.fresnel(mi.Frame3f.cos_theta(si.wi), eta)
+        refracted = si.spawn_ray(si.to_world(mi.refract(si.wi, cos_t, eta_ti)))
+        ray = dr.select(delta, refracted, ray)
+        si = scene.ray_intersect(ray)
+    valid = si.is_valid() & ~mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Delta)
+    contact = np.zeros(dr.width(valid), dtype=bool)
+    shape = _gel_shape(scene)
     if shape is not None and shape.has_attribute(CONTACT_ATTR):
-        contact = np.array(shape.eval_attribute_1(CONTACT_ATTR, si, si.is_valid()), dtype=np.float32) > 0.5
-    return valid, _to_n3(si.p), _to_n3(si.sh_frame.n), contact
+        contact = np.array(shape.eval_attribute_1(CONTACT_ATTR, si, valid), dtype=np.float32) > 0.5
+    return np.array(valid, dtype=bool), _to_n3(si.p), _to_n3(si.sh_frame.n), contact
 
 
 def _trace_scalar(mi, scene, rays):
@@ -66,7 +92,7 @@ def _trace_scalar(mi, scene, rays):
     n = len(rays)
     valid, contact = np.zeros(n, bool), np.zeros(n, bool)
     points, normals = np.zeros((n, 3), np.float32), np.zeros((n, 3), np.float32)
-    shape = scene.shapes()[0] if scene.shapes() else None
+    shape = _gel_shape(scene)
     has_contact = shape is not None and shape.has_attribute(CONTACT_ATTR)
     for i, d in enumerate(rays):
         si = scene.ray_intersect(mi.Ray3f(mi.Point3f(0.0), mi.Vector3f(*map(float, d))))

@@ -1,14 +1,31 @@
 """All LEDs in one pass: a path tracer that writes each LED's light to its own AOV channels.
 
-Along each camera path, every vertex sends one shadow ray per LED (LEDs are delta lights, so this
-is exact next-event estimation without emitter sampling noise); LED k's contribution goes to AOV
+Along each camera path, every vertex sends one shadow ray per LED (point LEDs are delta lights, so
+this is exact next-event estimation without emitter sampling noise; an extended LED sends it to one
+point of its emitting area drawn uniformly); LED k's contribution goes to AOV
 channels ``ledKK.R/G/B``. ``bounces`` diffuse bounces follow (0 = direct light only). The main RGB
 output is the sum over LEDs (all LEDs on in white).
+
+With a refracting gel (``refract``: a ``dielectric`` interface between housing and gel) no shadow ray
+can reach an LED in a straight line. Camera paths then pass the interface by sampling its BSDF (reflect
+or refract, Fresnel-weighted), and each coat vertex estimates each LED's light with one direction drawn
+uniformly in a cone around the direction from which that LED's light arrives through the interface
+(found by a fixed-point trace), ``cone_margin`` times as wide as the LED seen in a straight line and at
+most ``cone_deg``: the direction is traced through the interface (Snell,
+transmittance 1 - F, radiance scaled by (n_gel / n_housing)^2) and counts when it lands on the LED's
+emitting area, with the area's radiance (Psi / A) (n_s . d)^(mu - 1). Unbiased while the cone covers
+the LED as seen through the interface.
 """
 
 from __future__ import annotations
 
 PLUGIN = "nlips_multiled"
+MAX_SPECULAR = 3
+"""Specular (interface) vertices a path may pass between two coat vertices; longer paths are dropped."""
+AIM_STEPS = 3
+"""Fixed-point steps toward the direction in which an LED is seen through the interface."""
+AIM_SLACK_DEG = 1.0
+"""Added to the per-LED cone's half-angle, degrees: room for the aim's last error."""
 
 
 def aov_names(n_leds: int) -> list[str]:
@@ -21,12 +38,17 @@ def make_integrator_class(mi, led_class):
     import drjit as dr
 
     class NlipsMultiLed(mi.SamplingIntegrator):
-        """Properties: n_leds (int), bounces (int, default 0)."""
+        """Properties: n_leds (int), bounces (int, default 0), refract (bool), eta (n_gel / n_housing),
+        cone_deg (half-angle of the per-LED direction cone when refracting)."""
 
         def __init__(self, props):
             mi.SamplingIntegrator.__init__(self, props)
             self.n_leds = int(props.get("n_leds"))
             self.bounces = int(props.get("bounces", 0))
+            self.refract = bool(props.get("refract", False))
+            self.eta = float(props.get("eta", 1.0))
+            self.max_cone = float(dr.deg2rad(float(props.get("cone_deg", 30.0))))
+            self.cone_margin = float(props.get("cone_margin", 1.3))
 
         def aov_names(self):
             return aov_names(self.n_leds)
@@ -38,6 +60,8 @@ def make_integrator_class(mi, led_class):
             return leds
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
+            if self.refract:
+                return self._sample_refracting(scene, sampler, ray, active)
             leds = self._leds(scene)
             acc = [mi.Spectrum(0.0) for _ in leds]
             throughput = mi.Spectrum(1.0)
@@ -52,8 +76,9 @@ def make_integrator_class(mi, led_class):
                 hit_first = active if hit_first is None else hit_first
                 bsdf = si.bsdf(ray)
                 for k, led in enumerate(leds):
-                    weight, d, dist = led.radiance_weight(si.p, active)
-                    shadow = si.spawn_ray_to(led.position)
+                    source = led.emitting_point(sampler.next_2d(active)) if led.extended else led.position
+                    weight, d, dist = led.radiance_weight(si.p, active, source)
+                    shadow = si.spawn_ray_to(source)
                     visible = active & (scene.ray_test(shadow, active) ^ True)  # ^True: works for scalar bools too
                     f = bsdf.eval(ctx, si, si.to_local(d), visible)  # f * cos, shading frame
                     acc[k] += dr.select(visible, throughput * f * weight, 0.0)
@@ -69,7 +94,112 @@ def make_integrator_class(mi, led_class):
             aovs = [channel for a in acc for channel in (a[0], a[1], a[2])]
             return total, hit_first, aovs
 
+        def _sample_refracting(self, scene, sampler, ray, active):
+            leds = self._leds(scene)
+            acc = [mi.Spectrum(0.0) for _ in leds]
+            throughput = mi.Spectrum(1.0)
+            ray = mi.Ray3f(ray)
+            active = mi.Bool(active)
+            hit_first = None
+            ctx = mi.BSDFContext()
+            for depth in range(self.bounces + 1):
+                si, ray, throughput, active = self._walk_to_coat(scene, sampler, ray, throughput, active)
+                hit_first = active if hit_first is None else hit_first
+                bsdf = si.bsdf(ray)
+                for k, led in enumerate(leds):
+                    acc[k] += self._led_through_interface(scene, sampler, si, bsdf, led, throughput, active)
+                if depth == self.bounces:
+                    break
+                bs, bweight = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
+                throughput *= bweight
+                active &= (bs.pdf > 0) & dr.any(throughput != 0)
+                ray = si.spawn_ray(si.to_world(bs.wo))
+            total = mi.Spectrum(0.0)
+            for a in acc:
+                total += a
+            aovs = [channel for a in acc for channel in (a[0], a[1], a[2])]
+            return total, hit_first, aovs
+
+        def _walk_to_coat(self, scene, sampler, ray, throughput, active):
+            """Follow ``ray`` through specular (interface) vertices to the next coat vertex."""
+            ctx = mi.BSDFContext()
+            for _ in range(MAX_SPECULAR):
+                si = scene.ray_intersect(ray, active)
+                active &= si.is_valid()
+                bsdf = si.bsdf(ray)
+                delta = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta)
+                bs, weight = bsdf.sample(ctx, si, sampler.next_1d(delta), sampler.next_2d(delta), delta)
+                # lanes already on the coat keep their ray, so the next intersection finds the same point
+                ray = dr.select(delta, si.spawn_ray(si.to_world(bs.wo)), ray)
+                throughput = dr.select(delta, throughput * weight, throughput)
+            si = scene.ray_intersect(ray, active)
+            active &= si.is_valid() & ~mi.has_flag(si.bsdf(ray).flags(), mi.BSDFFlags.Delta)
+            return si, ray, throughput, active
+
+        def _led_through_interface(self, scene, sampler, si, bsdf, led, throughput, active):
+            """One-sample estimate of the light of ``led`` reaching coat vertex ``si`` through the interface."""
+            aim, cos_cone = self._arrival_cone(scene, si, led, active)
+            local = mi.warp.square_to_uniform_cone(sampler.next_2d(active), cos_cone)
+            pdf = mi.warp.square_to_uniform_cone_pdf(local, cos_cone)
+            omega = mi.Frame3f(aim).to_world(local)
+            f = bsdf.eval(mi.BSDFContext(), si, si.to_local(omega), active)  # f * cos
+            s1 = scene.ray_intersect(si.spawn_ray(omega), active)
+            ok = active & s1.is_valid() & mi.has_flag(s1.bsdf().flags(), mi.BSDFFlags.Delta)
+            fresnel, cos_t, _, eta_ti = mi.fresnel(mi.Frame3f.cos_theta(s1.wi), self.eta)
+            ok &= fresnel < 1  # total internal reflection sends nothing out
+            out = s1.to_world(mi.refract(s1.wi, cos_t, eta_ti))
+            # where the refracted ray meets the LED's plane, and whether that is on the emitting area
+            towards = dr.dot(out, led.direction)
+            cos_e = -towards
+            ok &= cos_e > 1e-6
+            dist = dr.dot(led.position - s1.p, led.direction) / dr.select(ok, towards, -1.0)
+            ok &= dist > 0
+            rel = s1.p + out * dist - led.position
+            a, b = dr.dot(rel, led.axis_s), dr.dot(rel, led.axis_t)
+            if led.shape == "disk":
+                ok &= a * a + b * b <= led.half * led.half
+            else:
+                ok &= (dr.abs(a) <= led.half) & (dr.abs(b) <= led.half)
+            shadow = s1.spawn_ray(out)
+            shadow.maxt = dist * (1 - 1e-4)
+            ok &= ~scene.ray_test(shadow, ok)
+            area = dr.pi * led.half * led.half if led.shape == "disk" else 4 * led.half * led.half
+            radiance = led.intensity / area * dr.select(led.mu > 0, dr.power(cos_e, led.mu - 1), 1 / cos_e)
+            gain = (1 - fresnel) * self.eta * self.eta / pdf
+            return dr.select(ok, throughput * f * radiance * gain, 0.0)
+
+        def _arrival_cone(self, scene, si, led, active):
+            """Axis (unit, from ``si``) and cosine of the half-angle of a cone holding the LED as seen
+            from ``si`` through the interface.
+
+            The axis is the fixed point of: cross the interface at z, take the direction in which the
+            light of the LED's centre travels on from z into the gel, trace back from ``si`` against
+            it to a new z. ``si`` lies much nearer the interface than the LED does, so each step
+            shrinks the error several-fold; ``AIM_STEPS`` steps leave a fraction of a degree. The
+            half-angle is the LED's angular radius seen in a straight line from the crossing point,
+            an upper bound of the refracted one (rays bend toward the normal entering the gel), times
+            ``cone_margin``, and at most ``cone_deg``.
+            """
+            aim = dr.normalize(led.position - si.p)
+            found = mi.Bool(active)
+            span = mi.Float(0.0)
+            for _ in range(AIM_STEPS):
+                s1 = scene.ray_intersect(si.spawn_ray(aim), active)
+                cross = active & s1.is_valid() & mi.has_flag(s1.bsdf().flags(), mi.BSDFFlags.Delta)
+                to_led = led.position - s1.p
+                d_led = dr.norm(to_led)
+                wi = s1.to_local(to_led / d_led)  # on the housing side of the interface
+                _, cos_t, _, eta_ti = mi.fresnel(mi.Frame3f.cos_theta(wi), self.eta)
+                travel = s1.to_world(mi.refract(wi, cos_t, eta_ti))  # the light's direction in the gel
+                good = cross & (dr.norm(travel) > 0.5)
+                aim = dr.select(good, -travel, aim)
+                span = dr.select(good, d_led + dr.norm(s1.p - si.p), span)
+                found &= good
+            angle = dr.atan(self.cone_margin * led.half / dr.maximum(span, 1e-3)) + dr.deg2rad(AIM_SLACK_DEG)
+            cos_cone = dr.select(found, dr.cos(dr.minimum(angle, self.max_cone)), dr.cos(self.max_cone))
+            return aim, cos_cone
+
         def to_string(self):
-            return f"NlipsMultiLed[n_leds={self.n_leds}, bounces={self.bounces}]"
+            return f"NlipsMultiLed[n_leds={self.n_leds}, bounces={self.bounces}, refract={self.refract}]"
 
     return NlipsMultiLed

@@ -12,9 +12,15 @@ from .mesh import COLOR_ATTR, to_mitsuba_mesh
 from .sensor import PLUGIN as CAMERA_PLUGIN
 from .sensor import camera_props
 
+REFRACT_CONE_DEG = 30.0
+"""Largest half-angle of the cone in which a coat vertex looks for each LED through a refracting gel, degrees."""
+REFRACT_CONE_MARGIN = 1.3
+"""That cone's half-angle over the LED's angular radius seen in a straight line (see the integrator)."""
 
-def led_entries(mi, leds, only=None) -> dict:
-    """Scene-dict entries of the LED emitters (``only``: keep just that 0-based LED)."""
+
+def led_entries(mi, leds, only=None, shape="point", size=0.0) -> dict:
+    """Scene-dict entries of the LED emitters (``only``: keep just that 0-based LED; ``shape``/``size``: see
+    :mod:`.emitter`)."""
     out = {}
     for k, led in enumerate(leds):
         if only is not None and k != only:
@@ -26,16 +32,16 @@ def led_entries(mi, leds, only=None) -> dict:
             "direction": mi.ScalarVector3f(led.direction),
             "mu": float(led.mu),
             "intensity": mi.ScalarVector3f(led.intensity),
+            "shape": shape,
+            "size": float(size),
         }
     return out
 
 
-def sensor_entry(camera, spp: int, pixel_exact: bool = False) -> dict:
+def sensor_entry(camera, spp: int) -> dict:
     """The distorted camera with a box filter so every sample stays in its own pixel."""
     root = math.isqrt(spp)
-    if pixel_exact:
-        sampler = {"type": "stratified", "sample_count": 1, "jitter": False}
-    elif root * root == spp:
+    if root * root == spp:
         sampler = {"type": "stratified", "sample_count": spp}
     else:
         sampler = {"type": "independent", "sample_count": spp}
@@ -47,6 +53,24 @@ def sensor_entry(camera, spp: int, pixel_exact: bool = False) -> dict:
         "rfilter": {"type": "box"},
     }
     return {"type": CAMERA_PLUGIN, **camera_props(camera), "film": film, "sampler": sampler}
+
+
+def coating_bsdf(colors=None, albedo=(0.8, 0.8, 0.8), specular=0.0, roughness=0.3) -> dict:
+    """Scene-dict entry of the coat: Lambertian, plus a rough specular lobe when ``specular`` > 0.
+
+    The lobe is a GGX rough mirror (``roughconductor``, reflectance 1) blended in with weight
+    ``specular``: ``(1 - specular) * Lambert(albedo) + specular * GGX(roughness)``, so ``specular = 0`` is the
+    NLiPs model exactly and the lobe's strength and width are independent knobs.
+    """
+    if colors is not None:
+        reflectance = {"type": "mesh_attribute", "name": COLOR_ATTR}
+    else:
+        reflectance = {"type": "rgb", "value": list(map(float, albedo))}
+    diffuse = {"type": "diffuse", "reflectance": reflectance}
+    if specular <= 0:
+        return diffuse
+    lobe = {"type": "roughconductor", "material": "none", "distribution": "ggx", "alpha": float(roughness)}
+    return {"type": "blendbsdf", "weight": float(specular), "diffuse": diffuse, "lobe": lobe}
 
 
 def build_scene(
@@ -63,6 +87,11 @@ def build_scene(
     bounces=0,
     integrator="multi",
     only_led=None,
+    led_shape="point",
+    led_size=0.0,
+    specular=0.0,
+    roughness=0.3,
+    interface=None,
 ):
     """Load the scene.
 
@@ -73,24 +102,35 @@ def build_scene(
     albedo : (3,) uniform albedo used when ``colors`` is None
     integrator : "multi" (one AOV per LED) or "path" (Mitsuba's standard path tracer, cross-checks)
     only_led : keep only this LED in the scene (for single-LED "path" renders)
+    led_shape, led_size : emitting area of every LED ("point", "disk", "square"; mm)
+    specular, roughness : the coat's specular lobe (see :func:`coating_bsdf`)
+    interface : None (index-matched gel) or (vertices (V, 3) mm camera frame, faces (F, 3) wound toward
+        the camera, gel_ior, housing_ior): the refracting inner surface of the gel
     """
-    if colors is not None:
-        bsdf = mi.load_dict({"type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": COLOR_ATTR}})
-    else:
-        bsdf = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": list(map(float, albedo))}})
+    bsdf = mi.load_dict(coating_bsdf(colors, albedo, specular, roughness))
     mesh = to_mitsuba_mesh(mi, vertices, faces, normals, contact, colors)
     mesh.set_bsdf(bsdf)
     n_leds = len(leds) if only_led is None else 1
     if integrator == "multi":
         integ = {"type": INTEGRATOR_PLUGIN, "n_leds": n_leds, "bounces": int(bounces)}
+        if interface is not None:
+            integ |= {"refract": True, "eta": float(interface[2] / interface[3]), "cone_deg": REFRACT_CONE_DEG}
+            integ["cone_margin"] = REFRACT_CONE_MARGIN
     else:
         # max_depth counts the camera ray and the light ray: 2 = direct only.
         integ = {"type": "path", "max_depth": int(bounces) + 2, "rr_depth": 1000, "hide_emitters": True}
     scene = {"type": "scene", "integrator": integ, "sensor": sensor_entry(camera, spp), "gel": mesh}
-    scene |= led_entries(mi, leds, only_led)
+    if interface is not None:
+        scene["interface"] = interface_shape(mi, *interface)
+    scene |= led_entries(mi, leds, only_led, led_shape, led_size)
     return mi.load_dict(scene)
 
 
-def gel_arrays(mesh_vertices_dome, camera_position) -> np.ndarray:
-    """(V, 3) float64 dome-frame vertices moved into the camera frame (axes are parallel)."""
-    return np.asarray(mesh_vertices_dome, dtype=np.float64) - np.asarray(camera_position, dtype=np.float64)
+def interface_shape(mi, vertices, faces, gel_ior, housing_ior):
+    """The gel's inner surface as a smooth ``dielectric``: gel inside, housing on the side its normals face."""
+    import trimesh
+
+    normals = trimesh.Trimesh(vertices, faces, process=False).vertex_normals
+    mesh = to_mitsuba_mesh(mi, vertices, faces, normals, np.zeros(len(vertices)), name="interface")
+    mesh.set_bsdf(mi.load_dict({"type": "dielectric", "int_ior": float(gel_ior), "ext_ior": float(housing_ior)}))
+    return mesh

@@ -18,9 +18,10 @@ from .variant import load_mitsuba
 class RenderResult:
     """Linear, noise-free images of one surface and its ground truth."""
 
-    images: np.ndarray
+    images: np.ndarray | None
     """(L, H, W, 3) float32, one image per LED lit alone in white. Units: linear radiance,
-    i.e. albedo/pi * led_shading (Psi (n_s.d)^mu cos / r^2), before exposure and noise."""
+    i.e. albedo/pi * led_shading (Psi (n_s.d)^mu cos / r^2), before exposure and noise.
+    None when only the ground truth was asked for."""
     gt: GroundTruth
     """Pixel-centre ground truth, camera frame, mm."""
     variant: str
@@ -43,8 +44,12 @@ def render_surface(
     seed=None,
     integrator="multi",
     only_led=None,
+    images=True,
 ) -> RenderResult:
     """Render every LED's image of ``mesh`` in one pass, plus the ground truth.
+
+    The one render path of the twin: presses and the undeformed dome (``images=False`` for its ground
+    truth alone) both come through here.
 
     Parameters
     ----------
@@ -54,6 +59,7 @@ def render_surface(
     spp, bounces, variant, threads, seed : override ``scene_cfg.render``
     integrator : "multi" (default) or "path" (Mitsuba's path tracer; then ``only_led`` picks the LED
         and ``images`` holds that single image, shape (1, H, W, 3))
+    images : False: trace the ground truth only (no radiance render)
     """
     r = scene_cfg.render
     spp = r.spp if spp is None else int(spp)
@@ -66,7 +72,7 @@ def render_surface(
     verts_dome = np.asarray(mesh.vertices, dtype=np.float64)
     verts = verts_dome - np.asarray(scene_cfg.camera.position, dtype=np.float64)
     contact = np.zeros(len(verts)) if contact_per_vertex is None else np.asarray(contact_per_vertex, np.float32)
-    c = scene_cfg.coating
+    c, pkg = scene_cfg.coating, scene_cfg.led_package
     colors = albedo_per_vertex(verts_dome, c.albedo, c.variation, c.variation_scale) if c.variation > 0 else None
     scene = build_scene(
         mi,
@@ -82,12 +88,34 @@ def render_surface(
         bounces=bounces,
         integrator=integrator,
         only_led=only_led,
+        led_shape=pkg.shape if pkg.enabled else "point",
+        led_size=pkg.size if pkg.enabled else 0.0,
+        specular=c.specular,
+        roughness=c.roughness,
+        interface=_interface(scene_cfg),
     )
+    stack = _render_images(mi, scene, camera.shape, spp, seed, integrator) if images else None
+    optics = scene_cfg.gel_optics
+    gt = trace_ground_truth(mi, scene, camera, optics.gel_ior / optics.housing_ior if optics.enabled else None)
+    return RenderResult(stack, gt, chosen, spp, bounces, seed, time.perf_counter() - t0)
+
+
+def _render_images(mi, scene, shape, spp, seed, integrator) -> np.ndarray:
+    """(L, H, W, 3) float32 linear images: one per LED from the AOVs, or the path tracer's one image."""
     out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
-    h, w = camera.shape
+    h, w = shape
     if integrator == "multi":
-        images = out[..., 3:].reshape(h, w, -1, 3).transpose(2, 0, 1, 3)
-    else:
-        images = out[None, ..., :3]
-    gt = trace_ground_truth(mi, scene, camera)
-    return RenderResult(np.ascontiguousarray(images), gt, chosen, spp, bounces, seed, time.perf_counter() - t0)
+        return np.ascontiguousarray(out[..., 3:].reshape(h, w, -1, 3).transpose(2, 0, 1, 3))
+    return np.ascontiguousarray(out[None, ..., :3])
+
+
+def _interface(scene_cfg):
+    """(vertices camera frame, faces, gel_ior, housing_ior) of the refracting inner surface, or None."""
+    optics = scene_cfg.gel_optics
+    if not optics.enabled:
+        return None
+    from ..dome import inner_surface
+
+    inner = inner_surface(scene_cfg.dome)
+    verts = np.asarray(inner.vertices, dtype=np.float64) - np.asarray(scene_cfg.camera.position, dtype=np.float64)
+    return verts, np.asarray(inner.faces), optics.gel_ior, optics.housing_ior
