@@ -28,11 +28,6 @@ SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 DEFAULT_SCENE = SCENES_DIR / "nlipstac.toml"
 
 
-def _check_range(name: str, value: float, lo: float, hi: float) -> None:
-    if not lo <= value <= hi:
-        raise ConfigError(f"{name} must be in [{lo}, {hi}], got {value}")
-
-
 @dataclasses.dataclass(frozen=True)
 class CoatingConfig:
     """The Lambertian reflective coating on the gel."""
@@ -51,10 +46,8 @@ class CoatingConfig:
     """GGX roughness alpha of that lobe (0.01 = nearly mirror-like, 1 = very rough)."""
 
     def __post_init__(self):
-        _check_range("coating.specular", self.specular, 0.0, 1.0)
-        _check_range("coating.roughness", self.roughness, 0.01, 1.0)
-
-    def __post_init__(self):
+        check_range("specular", self.specular, 0.0, 1.0)
+        check_range("roughness", self.roughness, 0.01, 1.0)
         for i, a in enumerate(self.albedo):
             check_range(f"albedo[{i}]", a, 0.0, 1.0)
         check_range("variation", self.variation, 0.0, 1.0)
@@ -110,7 +103,7 @@ class LedPackageConfig:
     5.0 x 5.0 mm outline; the emitting window is about 3.6 mm across)."""
 
     def __post_init__(self):
-        _check_range("led_package.size", self.size, 0.0, 20.0)
+        check_range("size", self.size, 0.0, 20.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -135,9 +128,9 @@ class CameraEffectsConfig:
     (the dark frame carries the true one)."""
 
     def __post_init__(self):
-        _check_range("camera_effects.defocus_px", self.defocus_px, 0.0, 50.0)
-        _check_range("camera_effects.response_gamma", self.response_gamma, 0.2, 5.0)
-        _check_range("camera_effects.black_level_error", self.black_level_error, -1000.0, 1000.0)
+        check_range("defocus_px", self.defocus_px, 0.0, 50.0)
+        check_range("response_gamma", self.response_gamma, 0.2, 5.0)
+        check_range("black_level_error", self.black_level_error, -1000.0, 1000.0)
         if self.vignetting == "polynomial":
             c1, c2, c3 = self.vignetting_coeffs
             if 1 + min(0.0, c1) + min(0.0, c2) + min(0.0, c3) <= 0:
@@ -168,8 +161,8 @@ class GelOpticsConfig:
     """Refractive index inside the housing, where camera and LEDs sit (air: 1.0)."""
 
     def __post_init__(self):
-        _check_range("gel_optics.gel_ior", self.gel_ior, 1.0, 3.0)
-        _check_range("gel_optics.housing_ior", self.housing_ior, 1.0, 3.0)
+        check_range("gel_ior", self.gel_ior, 1.0, 3.0)
+        check_range("housing_ior", self.housing_ior, 1.0, 3.0)
 
 
 @dataclasses.dataclass(frozen=True)
