@@ -6,3 +6,9 @@ MIN_LEDS_PER_PIXEL = 3
 """A pixel needs at least this many usable (lit, unsaturated) LEDs to be reconstructed."""
 NORMAL_EPS = 1e-9
 """Norms below this are treated as zero when normalising."""
+INDIRECT_MIN_SHARE = 0.02
+"""Interreflection ``auto``: the indirect term is applied when its fitted share of the direct light on the
+undeformed dome (median over the gel) is at least this; below it the capture has no measurable indirect light."""
+ANCHOR_NOISE_FACTOR = 3.0
+"""Anchoring: a pixel is undeformed when its misfit to the undeformed model is within this many times the
+misfit that the estimated image noise alone explains."""
