@@ -105,7 +105,8 @@ def test_led_calibration_on_an_interreflecting_capture(bounce1):
 
     flat, press = bounce1
     true = flat.leds
-    cal = calibrate_leds(flat, initial=perturbed(true, np.random.default_rng(0)), stride=2)
+    # every pixel: at 160x120 the stride-2 sample leaves 2.06 deg on one LED (1.73 with all pixels)
+    cal = calibrate_leds(flat, initial=perturbed(true, np.random.default_rng(0)), stride=1)
     assert cal.interreflection and cal.interreflection[0]["enabled"]
     for led, t in zip(cal.leds, true):
         assert np.degrees(np.arccos(min(1.0, np.dot(led.direction, t.direction)))) <= 2.0
