@@ -130,7 +130,11 @@ def solve_press(
     if fixed_light is None and press.reference is not None:
         source = ref_capture if ref_capture is not None else press
         exclude = _box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
-        model = fit_indirect(source, leds, mode=interreflection, bounces=bounces, exclude=exclude)
+        # a press without a known contact is fitted twice (below): the first fit only finds the contact
+        rough = ref_capture is None and explicit_roi is None
+        model = fit_indirect(
+            source, leds, mode=interreflection, bounces=bounces, exclude=exclude, iterations=1 if rough else 3
+        )
     t_indirect = time.perf_counter() - t0
 
     t0 = time.perf_counter()
