@@ -9,6 +9,14 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="LED JSON file to write (use with `nlips solve --leds FILE`)")
     p.add_argument("--stride", type=int, default=2, help="use every N-th pixel (default 2)")
     p.add_argument("--loss", default="cauchy", choices=("cauchy", "soft_l1", "huber", "linear"))
+    p.add_argument(
+        "--interreflection",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="fit the LEDs to the images minus the dome's own diffuse interreflection: auto (kept when it "
+        "explains the images better; default), on, off",
+    )
+    p.add_argument("--bounces", type=int, choices=(1, 2), default=1, help="diffuse bounces modelled (default 1)")
     p.set_defaults(func=run)
 
 
@@ -21,7 +29,9 @@ def run(args) -> int:
     check_count("--stride", args.stride, minimum=1)
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
     with working(f"calibrating {len(presses[0].leds)} LEDs from {len(presses)} capture(s)"):
-        cal = calibrate_leds(presses, stride=args.stride, loss=args.loss)
+        cal = calibrate_leds(
+            presses, stride=args.stride, loss=args.loss, interreflection=args.interreflection, bounces=args.bounces
+        )
     save_leds(args.out, cal.leds, cal.to_json())
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")
     print(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))
@@ -31,5 +41,7 @@ def run(args) -> int:
             f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {sd['mu']:>6.3f} "
             f"{sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}"
         )
+    for i, model in enumerate(cal.interreflection):
+        print(f"capture {i + 1}: {model.get('reason', '')}")
     print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {cal.albedo})")
     return 0

@@ -16,22 +16,30 @@ def register(subparsers) -> None:
     p.add_argument(
         "--reference",
         metavar="REF_PRESS",
-        help="press folder of the undeformed dome (same camera, LEDs, exposure): its interreflections "
-        "are estimated and subtracted from every press before solving (and --roi auto compares to it)",
+        help="press folder of the undeformed dome (same camera, LEDs, exposure): the interreflection term is "
+        "fitted on it (default: on the press itself, away from the contact) and --roi auto / anchoring compare to it",
     )
+    p.add_argument(
+        "--interreflection",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="the gel's own diffuse interreflection in the image model: auto (applied when the data show "
+        "indirect light; default), on, off",
+    )
+    p.add_argument("--bounces", type=int, choices=(1, 2), default=1, help="diffuse bounces modelled (default 1)")
     p.add_argument(
         "--dent-interreflection",
         action=argparse.BooleanOptionalAction,
         default=True,
-        help="with --reference, also correct for the dent's own interreflection (one diffuse bounce "
-        "over the solved surface, then a second solve; default on)",
+        help="re-solve with the indirect light of the solved surface until the normals settle (default on); "
+        "off: only the undeformed surface's indirect light is subtracted",
     )
     p.add_argument(
         "--coating-albedo",
         type=float,
-        default=0.8,
+        default=None,
         metavar="A",
-        help="the coating's reflectance (0-1) for --dent-interreflection (default 0.8, the twin's)",
+        help="override the coating's reflectance (0-1]; default: fitted from the data",
     )
     p.add_argument("--backend", choices=("numpy", "torch"), default="numpy")
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
@@ -50,7 +58,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-SOLVER_KEYWORDS = ("dent_interreflection", "coating_albedo")
+SOLVER_KEYWORDS = ("dent_interreflection", "coating_albedo", "interreflection", "bounces")
 """Flags of this parser passed as keywords to solver.solve_press (add a flag above, then its name here)."""
 
 

@@ -232,6 +232,21 @@ class Camera:
         return a, b
 
 
+def depth_to_points(depth: np.ndarray, rays: np.ndarray) -> np.ndarray:
+    """Surface points from depth along the optical axis: ``x = z / ray_z * ray``.
+
+    Parameters
+    ----------
+    depth : (...) float, mm -- z in the camera frame (not range).
+    rays : (..., 3) float, unit, camera frame -- the pixels' viewing rays (``Camera.rays``).
+
+    Returns
+    -------
+    (..., 3) float, mm, camera frame.
+    """
+    return np.asarray(depth)[..., None] / rays[..., 2:3] * rays
+
+
 def _check_last_dim(arr, n: int, name: str) -> np.ndarray:
     arr = np.asarray(arr, dtype=np.float64)
     if arr.ndim < 1 or arr.shape[-1] != n:

@@ -11,3 +11,9 @@ EXPERIMENT_CHECK_ABS = {"aae_deg": 0.5, "mabse": 0.005, "depth_rmse_mm": 0.05}
 max(this absolute amount, EXPERIMENT_CHECK_REL x baseline) (units: degrees, unitless, mm)."""
 EXPERIMENT_CHECK_REL = 0.10
 """Relative part of the ``--check`` tolerance (fraction of the baseline value)."""
+INDIRECT_MIN_SHARE = 0.02
+"""Interreflection ``auto``: the indirect term is applied when its fitted share of the direct light on the
+undeformed dome (median over the gel) is at least this; below it the capture has no measurable indirect light."""
+ANCHOR_NOISE_FACTOR = 3.0
+"""Anchoring: a pixel is undeformed when its misfit to the undeformed model is within this many times the
+misfit that the estimated image noise alone explains."""

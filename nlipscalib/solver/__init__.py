@@ -5,12 +5,18 @@ Never imports nlipscalib.sim or nlipscalib.device: it works from captures (``Pre
 
 from ..core.metrics import aae, angular_error_map, depth_rmse, evaluate, mabse
 from .calibrate import LedCalibration, calibrate_leds
+from .contact import ContactMap, classify_contact
+from .indirect import IndirectModel, fit_indirect
 from .io import load_leds, load_result, save_leds, save_result
 from .nlips import SolveResult, exclusions, solve
 from .options import SolverOptions
 from .press import auto_roi, solve_press
 
 __all__ = [
+    "ContactMap",
+    "IndirectModel",
+    "classify_contact",
+    "fit_indirect",
     "LedCalibration",
     "SolveResult",
     "SolverOptions",

@@ -16,8 +16,9 @@ import dataclasses
 import numpy as np
 from scipy.optimize import least_squares
 
+from ..core.camera import depth_to_points
 from ..core.capture import Press
-from ..core.leds import Led
+from ..core.leds import Led, led_shading
 from ..errors import CaptureError
 
 
@@ -33,6 +34,8 @@ class LedCalibration:
     """Per LED 1-sigma uncertainties from the Jacobian: intensity (3,), mu, direction_deg, position_mm (3,)."""
     rms: list[float]
     """Per LED RMS residual, linear image units."""
+    interreflection: list = dataclasses.field(default_factory=list)
+    """Per capture, the fitted indirect term (``IndirectModel.to_json()``) of the last round."""
 
     def to_json(self) -> dict:
         return {
@@ -40,6 +43,7 @@ class LedCalibration:
             "albedo": list(self.albedo),
             "std": self.std,
             "rms": self.rms,
+            "interreflection": self.interreflection,
         }
 
 
@@ -47,18 +51,34 @@ def _unit(theta, phi):
     return np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
 
 
+def _led(params) -> Led:
+    """The Led a parameter vector (log K (3), mu, polar, azimuth of n_s, x_s (3)) stands for."""
+    return Led(
+        tuple(params[6:9]), tuple(_unit(params[4], params[5])), max(float(params[3]), 0.0), tuple(np.exp(params[:3]))
+    )
+
+
 def _model(params, x, n):
-    logk, mu, theta, phi, pos = params[:3], params[3], params[4], params[5], params[6:9]
-    v = pos - x
-    r = np.linalg.norm(v, axis=1)
-    cos_s = np.maximum(np.sum(v * n, axis=1) / r, 0)
-    cos_l = np.maximum(-(v @ _unit(theta, phi)) / r, 0)
-    geo = cos_l ** max(mu, 0.0) * cos_s / r**2
-    return geo[:, None] * np.exp(logk)[None, :]
+    """(N, 3) model images of one LED: the one LED image model, ``core.leds.led_shading``."""
+    return led_shading(x, n, (_led(params),))[0]
 
 
-def calibrate_leds(presses, initial=None, stride: int = 2, loss: str = "cauchy") -> LedCalibration:
+def calibrate_leds(
+    presses,
+    initial=None,
+    stride: int = 2,
+    loss: str = "cauchy",
+    *,
+    interreflection: str = "auto",
+    bounces: int = 1,
+    rounds: int = 3,
+) -> LedCalibration:
     """Estimate Psi_c, mu, n_s and x_s of every LED from undeformed captures.
+
+    With interreflection (any real sensor) the images hold more than the direct model: the LEDs are
+    fitted, the indirect term (:func:`nlipscalib.solver.indirect.fit_indirect`, radiosity gather on the
+    known undeformed surface, coating reflectance fitted) is computed with them, subtracted, and the
+    LEDs fitted again from where they are, ``rounds`` times.
 
     Parameters
     ----------
@@ -66,42 +86,97 @@ def calibrate_leds(presses, initial=None, stride: int = 2, loss: str = "cauchy")
     initial : sequence of Led or None -- starting values (default: the capture's LEDs).
     stride : use every ``stride``-th pixel in u and v (speed).
     loss : scipy robust loss ("cauchy", "soft_l1", "huber", "linear").
+    interreflection : "auto" (subtract the indirect term when the data show it), "on", "off".
+    bounces : diffuse bounces of the indirect term (1 or 2).
+    rounds : LED fit / indirect term alternations (with the term on).
     """
+    from .indirect import fit_indirect
+
     presses = [presses] if isinstance(presses, Press) else list(presses)
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
     first = presses[0]
-    leds0 = tuple(initial) if initial is not None else first.leds
-    xs, ns, imgs, oks = [], [], [], []
-    for p in presses:
-        if p.reference is None:
-            raise CaptureError(f"{p.folder}: LED calibration needs the undeformed reference (reference.npz)")
-        if p.camera != first.camera or len(p.leds) != len(leds0):
-            raise CaptureError(f"{p.folder}: camera or LED count differs from {first.folder}")
-        valid = np.isfinite(p.reference.depth)
-        valid[::stride] &= True
-        sub = np.zeros_like(valid)
-        sub[::stride, ::stride] = True
-        sel = valid & sub
-        rays = p.camera.rays[sel]
-        xs.append(p.reference.depth[sel][:, None].astype(np.float64) / rays[:, 2:3] * rays)
-        ns.append(p.reference.normals[sel].astype(np.float64))
-        imgs.append(p.linear(p.led_images)[:, sel].astype(np.float64))
-        oks.append(~p.saturated(p.led_images)[:, sel])
-    x, n = np.concatenate(xs), np.concatenate(ns)
-    img, ok = np.concatenate(imgs, axis=1), np.concatenate(oks, axis=1)
-    fitted, stds, rms = [], [], []
-    for i, led in enumerate(leds0):
+    leds0 = leds = tuple(initial) if initial is not None else first.leds
+    data = [_samples(p, first, len(leds), stride) for p in presses]
+    x, n = np.concatenate([d[0] for d in data]), np.concatenate([d[1] for d in data])
+    img, ok = np.concatenate([d[2] for d in data], axis=1), np.concatenate([d[3] for d in data], axis=1)
+    # A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on
+    # the twin), after which nothing correlates with the indirect term any more: the term is fitted
+    # with the starting LEDs first, and the LEDs are always fitted to the images minus it.
+    fitted = None
+    models = []
+    for r in range(rounds if interreflection != "off" else 0):
+        if r > 0:
+            leds = _to_leds(fitted)[0]
+        models = [fit_indirect(p, leds, mode=interreflection, bounces=bounces) for p in presses]
+        if r == 0 and interreflection == "auto":
+            models = [_decide(m) for m in models]
+        if not any(m.enabled for m in models):
+            break
+        light = []
+        for p, m, (_, _, _, _, sel) in zip(presses, models, data):
+            if not m.enabled:
+                light.append(np.zeros((len(leds), int(sel.sum()), 3)))
+                continue
+            # the fitted capture's own indirect light, at its typical albedo
+            light.append((m.undeformed_light(p.camera.shape) * np.asarray(m.off_view_albedo, np.float32))[:, sel])
+        fitted = _fit_all(leds, x, n, img - np.concatenate(light, axis=1), ok, loss)
+    if fitted is None or (models and not any(m.enabled for m in models)):
+        fitted = _fit_all(leds0, x, n, img, ok, loss)
+    models = [m.to_json() for m in models]
+    leds, albedo, std = _to_leds(fitted)
+    rms = [f[2] for f in fitted]
+    return LedCalibration(leds, albedo, std, rms, models)
+
+
+CALIBRATION_MIN_SHARE = 0.1
+"""LED calibration, interreflection auto: the indirect term is used when, fitted with the starting LEDs,
+its share of the direct light is at least this. The starting LEDs' own errors pose as a few % of
+indirect light (a nominal ring 0.3 mm / 5 deg off: 3 %); a coated dome interreflects far more (the
+twin: 31 %). The images cannot decide it after the fact: a direct-only fit absorbs the indirect light
+into wrong LED parameters (17 deg off on the twin) and then fits as well as the right model."""
+
+
+def _decide(model):
+    """The calibration's auto decision (:data:`CALIBRATION_MIN_SHARE`) on a model fitted with the starting LEDs."""
+    import dataclasses
+
+    on = model.share >= CALIBRATION_MIN_SHARE
+    note = f"; calibration: {'used' if on else 'not used'} (threshold {CALIBRATION_MIN_SHARE} with the starting LEDs)"
+    reason = model.reason.replace("interreflection on:", "interreflection off:") if not on else model.reason
+    return dataclasses.replace(model, enabled=on, reason=reason + note)
+
+
+def _samples(p: Press, first: Press, count: int, stride: int):
+    """Points, normals, linear images, usable flags and the pixel selection of one capture."""
+    if p.reference is None:
+        raise CaptureError(f"{p.folder}: LED calibration needs the undeformed reference (reference.npz)")
+    if p.camera != first.camera or len(p.leds) != count:
+        raise CaptureError(f"{p.folder}: camera or LED count differs from {first.folder}")
+    valid = np.isfinite(p.reference.depth)
+    sub = np.zeros_like(valid)
+    sub[::stride, ::stride] = True
+    sel = valid & sub
+    rays = p.camera.rays[sel]
+    x = depth_to_points(p.reference.depth[sel].astype(np.float64), rays)
+    n = p.reference.normals[sel].astype(np.float64)
+    return x, n, p.linear(p.led_images)[:, sel].astype(np.float64), ~p.saturated(p.led_images)[:, sel], sel
+
+
+def _fit_all(leds, x, n, img, ok, loss):
+    """[(params, std, rms)] per LED: robust non-linear least squares from ``leds``."""
+    out = []
+    for i, led in enumerate(leds):
         d = np.asarray(led.direction)
         p0 = np.concatenate(
             [
-                np.zeros(3),
+                np.log(np.maximum(led.intensity, 1e-12)),
                 [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])],
                 led.position,
             ]
         )
-        # initial intensity: least-squares scale of the nominal model
-        geo = _model(p0, x, n)
+        # initial intensity: least-squares scale of the model
+        geo = _model(p0, x, n) / np.exp(p0[:3])
         k0 = (geo * img[i] * ok[i]).sum(0) / np.maximum((geo * geo * ok[i]).sum(0), 1e-30)
         p0[:3] = np.log(np.maximum(k0, 1e-12))
         use = ok[i] & (img[i] > 0.01 * np.percentile(img[i], 99, axis=0))
@@ -113,22 +188,22 @@ def calibrate_leds(presses, initial=None, stride: int = 2, loss: str = "cauchy")
         r0 = resid(p0)
         f_scale = max(3 * 1.4826 * float(np.median(np.abs(r0 - np.median(r0)))), 1e-3)
         res = least_squares(resid, p0, loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
-        J = res.jac
         dof = max(len(res.fun) - len(p0), 1)
         s2 = float(np.sum(res.fun**2) / dof)
         try:
-            cov = np.linalg.inv(J.T @ J) * s2
-            sd = np.sqrt(np.maximum(np.diag(cov), 0))
+            sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0))
         except np.linalg.LinAlgError:
             sd = np.full(len(p0), np.nan)
-        pr = res.x
-        fitted.append(pr)
-        stds.append(sd)
-        rms.append(float(np.sqrt(np.mean(res.fun**2))) * scale)
-    K = np.exp(np.array([f[:3] for f in fitted]))  # (L, 3)
+        out.append((res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * scale))
+    return out
+
+
+def _to_leds(fitted):
+    """(LEDs in the gauge mean Psi = 1 per channel, albedo (3,), std dicts) from per-LED fits."""
+    K = np.exp(np.array([f[0][:3] for f in fitted]))  # (L, 3)
     albedo = K.mean(axis=0)
     leds, std = [], []
-    for f, sd, k in zip(fitted, stds, K):
+    for (f, sd, _), k in zip(fitted, K):
         psi = k / albedo
         leds.append(Led(tuple(f[6:9]), tuple(_unit(f[4], f[5])), float(max(f[3], 0.0)), tuple(psi)))
         std.append(
@@ -139,4 +214,4 @@ def calibrate_leds(presses, initial=None, stride: int = 2, loss: str = "cauchy")
                 "position_mm": list(sd[6:9]),
             }
         )
-    return LedCalibration(tuple(leds), tuple(float(a) for a in albedo), std, rms)
+    return tuple(leds), tuple(float(a) for a in albedo), std

@@ -18,23 +18,23 @@ in float64.
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import dataclasses
 import logging
 import time
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from ..core.camera import Camera
 from ..core.leds import led_arrays
 from ..core.reconstruction import Reconstruction
-from ..errors import ShapeError
 from . import geometry, robust
+from .blas import blas_threads
+from .inputs import check_inputs
 from .kernel import Backend, Model
+from .krylov import Krylov, forcing
 from .options import SolverOptions
+from .pyramid import build_pyramid, checked_prior_weights, resize
 
 log = logging.getLogger(__name__)
 
@@ -115,35 +115,8 @@ def solve(
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
-    images = np.asarray(images)
     H, W = camera.shape
-    if images.ndim != 4 or images.shape[1:] != (H, W, 3):
-        raise ShapeError(f"images must be (L, {H}, {W}, 3) for this camera, got {images.shape}")
-    if images.shape[0] != len(leds):
-        raise ShapeError(f"{images.shape[0]} LED images but {len(leds)} LEDs")
-    if len(leds) < opts.min_leds:
-        raise ShapeError(f"{len(leds)} LEDs given; the solver needs at least min_leds={opts.min_leds}")
-    if not np.all(np.isfinite(images)):
-        raise ShapeError(
-            f"images contain {int(np.sum(~np.isfinite(images)))} NaN/inf values; mark bad pixels "
-            "with `mask` or `saturated` instead"
-        )
-    if saturated is not None and np.shape(saturated) != images.shape:
-        raise ShapeError(f"saturated must have the images' shape {images.shape}, got {np.shape(saturated)}")
-    if prior_depth is None:
-        prior_depth = opts.nominal_distance * camera.rays[..., 2]
-    prior_depth = np.asarray(prior_depth, dtype=np.float64)
-    if prior_depth.shape != (H, W):
-        raise ShapeError(f"prior_depth must be ({H}, {W}), got {prior_depth.shape}")
-    finite = np.isfinite(prior_depth) & (np.nan_to_num(prior_depth) > 0)
-    if mask is None:
-        mask = finite
-    mask = np.asarray(mask)
-    if mask.shape != (H, W) or mask.dtype != bool:
-        raise ShapeError(f"mask must be ({H}, {W}) bool, got {mask.shape} {mask.dtype}")
-    mask = mask & finite
-    if mask.sum() < 4:
-        raise ShapeError("the solve mask holds fewer than 4 pixels with a finite prior depth")
+    images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
 
     t_start = time.perf_counter()
     # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
@@ -164,21 +137,21 @@ def solve(
     data = data / np.float32(scale) if data.dtype == np.float32 else data / scale
     m = mask[crop]
     t0 = np.log(np.where(m, prior_depth[crop], 1.0))
-    w0 = _prior_weights(prior_weights, (H, W))[crop]
+    w0 = checked_prior_weights(prior_weights, (H, W))[crop]
     pos, dirs, mu, psi = led_arrays(leds)
     keep = [i for i in range(len(leds)) if i not in report["dead_leds"]]
     pos, dirs, mu, psi = pos[keep], dirs[keep], mu[keep], psi[keep]
     data, use = data[keep], use[keep]
 
     be = Backend(backend, opts.dtype)
-    levels = _pyramid(cam, data, use, m, t0, w0, opts)
+    levels = build_pyramid(cam, data, use, m, t0, w0, opts)
     report["levels"] = []
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
-    with _blas_threads(1):
+    with blas_threads(1):
         t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report)
     if bar is not None:
         bar.close()
@@ -242,7 +215,7 @@ def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report):
         else:
             prev = levels[k - 1]
             delta = np.where(prev["mask"], t_state - prev["t0"], 0.0)
-            delta = _resize(delta, lv["camera"].shape, linear=True)
+            delta = resize(delta, lv["camera"].shape, linear=True)
             t_init = lv["t0"] + delta
         if k == 0 and opts.estimator != "ls":
             # Least squares first on the coarsest level: from the undeformed prior, the contact's
@@ -253,106 +226,6 @@ def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report):
         t_state, out, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, opts.estimator, coarse)
         report["levels"].append(info)
     return t_state, out
-
-
-@contextlib.contextmanager
-def _blas_threads(count: int):
-    """Limit OpenBLAS's threads while the solver runs (Linux; a no-op where the library is not found).
-
-    The solver's BLAS calls are vector dot products and norms inside CG (and small dense ones in
-    pyamg's setup). Multithreading those is a loss everywhere and a disaster on a loaded machine:
-    on 2 shared cores a 250k-element dot product took 2.5 ms with 2 threads against 0.05 ms with one,
-    and made up half of the solve time.
-    """
-    libs = []
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = {line.split()[-1] for line in fh if "openblas" in line.lower() and "/" in line}
-    except OSError:
-        paths = set()
-    for path in sorted(paths):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for suffix in ("64_", "", "_64_"):
-            for prefix in ("scipy_openblas", "openblas"):
-                get = getattr(lib, f"{prefix}_get_num_threads{suffix}", None)
-                put = getattr(lib, f"{prefix}_set_num_threads{suffix}", None)
-                if get is not None and put is not None:
-                    libs.append((get, put, int(get())))
-                    break
-            else:
-                continue
-            break
-    try:
-        for _, put, _ in libs:
-            put(count)
-        yield
-    finally:
-        for _, put, old in libs:
-            put(old)
-
-
-# ---------------------------------------------------------------------- pyramid
-def _resize(a: np.ndarray, shape: tuple[int, int], linear: bool = False) -> np.ndarray:
-    import cv2
-
-    interp = cv2.INTER_LINEAR if linear else cv2.INTER_AREA
-    a = np.ascontiguousarray(a, dtype=np.float32)
-    if a.ndim == 3 and a.shape[2] > 4:  # OpenCV handles up to 512 channels, but keep it simple
-        return np.stack([_resize(a[..., k], shape, linear) for k in range(a.shape[2])], axis=-1)
-    return cv2.resize(a, (shape[1], shape[0]), interpolation=interp).astype(np.float64)
-
-
-def _prior_weights(weights, shape) -> np.ndarray:
-    if weights is None:
-        return np.ones(shape)
-    weights = np.asarray(weights, dtype=np.float64)
-    if weights.shape != shape or not np.all(np.isfinite(weights)) or weights.min() < 0:
-        raise ShapeError(f"prior_weights must be a finite, non-negative {shape} array, got {weights.shape}")
-    return weights
-
-
-def _pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> list[dict]:
-    """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, zeta, rays."""
-    n_levels = opts.pyramid_levels
-    if n_levels == 0:
-        n_levels = 1
-        while min(cam.shape) / 2**n_levels >= 2 * opts.min_level_size:
-            n_levels += 1
-    levels = []
-    for k in range(n_levels):
-        c = cam if k == 0 else cam.scaled(0.5**k)
-        if k == 0:
-            d, u, mk, tk, wk = data, use, mask, t0, w0
-        else:
-            d = np.stack([_resize(img, c.shape) for img in data]).astype(data.dtype, copy=False)
-            u = np.stack([_resize(x.astype(np.float32), c.shape) for x in use]) > 0.999
-            mk = _resize(mask.astype(np.float32), c.shape) > 0.999
-            tk = np.log(
-                _resize(np.where(mask, np.exp(t0), 0.0), c.shape)
-                / np.maximum(_resize(mask.astype(np.float32), c.shape), 1e-9)
-            )
-            tk = np.where(mk, tk, 0.0)
-            wk = _resize(w0.astype(np.float32), c.shape)
-        if mk.sum() < 16:
-            break
-        q, qu, qv = geometry.ray_tables(c)
-        A, B, C = geometry.normal_basis(q[mk], qu[mk], qv[mk])
-        levels.append(
-            {
-                "camera": c,
-                "mask": mk,
-                "images": np.moveaxis(d[:, mk], 2, 1),  # (L, 3, N)
-                "usable": np.moveaxis(u[:, mk], 2, 1).astype(d.dtype),
-                "t0": tk,
-                "zeta": opts.prior_weight * wk[mk].astype(np.float64),  # (N,) per-pixel prior weight
-                "q": q[mk],
-                "ABC": (A, B, C),
-            }
-        )
-    return levels[::-1]
 
 
 # ---------------------------------------------------------------------- one level
@@ -455,7 +328,7 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
         "rejected_steps": 0,
         "stop": "max_iters",
     }
-    pcg = _Krylov(opts)
+    pcg = Krylov(opts)
     nrm = normals(t)
     g_prev = eta = None
     tm.lap("init")
@@ -472,7 +345,7 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
         tm.lap("assemble")
         # 2. Inexact Newton: the forcing term loosens CG while the gradient is still large
         g_norm = float(np.linalg.norm(g))
-        eta = _forcing(g_norm, g_prev, eta, opts)
+        eta = forcing(g_norm, g_prev, eta, opts)
         eta = max(eta, np.sqrt(opts.cg_rtol)) if coarse else eta
         g_prev = g_norm
         delta, iters = pcg.solve(Hm, -g, eta)
@@ -561,67 +434,3 @@ def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     full = np.zeros(mask.shape)
     full[mask] = values
     return full
-
-
-def _forcing(g_norm: float, g_prev: float | None, eta_prev: float | None, opts: SolverOptions) -> float:
-    """CG tolerance of an inexact Newton step (Eisenstat and Walker 1996, choice 2, safeguarded).
-
-    eta = 0.9 (|g_k| / |g_k-1|)^2: solve the linear system only as accurately as the outer iteration
-    is converging -- tighter is wasted work, since the Gauss-Newton model itself is approximate.
-    """
-    if g_prev is None or eta_prev is None:
-        return opts.cg_rtol_max
-    eta = 0.9 * (g_norm / max(g_prev, 1e-300)) ** 2
-    if 0.9 * eta_prev**2 > 0.1:  # do not let the tolerance drop abruptly
-        eta = max(eta, 0.9 * eta_prev**2)
-    return float(min(opts.cg_rtol_max, max(opts.cg_rtol, eta)))
-
-
-class _Krylov:
-    """Preconditioned conjugate gradient for the Gauss-Newton systems of one pyramid level.
-
-    Jacobi-preconditioned CG is tried first, capped at ``opts.cg_jacobi_iters``: the first steps of a
-    warm-started level are loose (inexact Newton) and converge in a few cheap iterations, where a
-    smoothed-aggregation AMG hierarchy would cost more to build than the whole solve. Otherwise
-    (or once a hierarchy exists) CG preconditioned by AMG V-cycles continues from that iterate. The
-    matrix changes little between iterations (weights and shading drift), so the hierarchy is kept
-    and rebuilt only when its convergence factor per CG iteration degrades past 0.85.
-    """
-
-    def __init__(self, opts: SolverOptions):
-        self.opts = opts
-        self.amg = None
-        self.setups = 0
-
-    def solve(self, Hm: sp.csr_matrix, rhs: np.ndarray, rtol: float) -> tuple[np.ndarray, int]:
-        """Approximate solution of Hm x = rhs to ``|r| <= rtol |rhs|``; returns x and CG iterations."""
-        count = [0]
-
-        def cb(_):
-            count[0] += 1
-
-        x = None
-        # Jacobi only for loose solves: below 1e-2 it needed more iterations than it is worth.
-        if self.amg is None and self.opts.cg_jacobi_iters > 0 and rtol >= 1e-2:
-            inv_diag = 1.0 / Hm.diagonal()
-            jac = spla.LinearOperator(Hm.shape, matvec=lambda v: inv_diag * v.ravel(), dtype=np.float64)
-            x, status = spla.cg(Hm, rhs, rtol=rtol, maxiter=self.opts.cg_jacobi_iters, M=jac, callback=cb)
-            if status == 0:
-                return x, count[0]
-        if self.amg is None:
-            import pyamg
-
-            # improve_candidates=None: the constant near-null space is right for this operator, and
-            # the smoothing of candidates cost a third of the setup for no gain in convergence.
-            ml = pyamg.smoothed_aggregation_solver(
-                Hm, symmetry="symmetric", max_coarse=300, coarse_solver="splu", improve_candidates=None
-            )
-            self.amg = ml.aspreconditioner(cycle="V")
-            self.setups += 1
-        start = count[0]
-        x, _ = spla.cg(Hm, rhs, x0=x, rtol=rtol, maxiter=self.opts.cg_maxiter, M=self.amg, callback=cb)
-        iters = max(count[0] - start, 1)
-        achieved = float(np.linalg.norm(rhs - Hm @ x)) / max(float(np.linalg.norm(rhs)), 1e-300)
-        if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > 0.85:
-            self.amg = None  # the matrix drifted away from the one the hierarchy was built for
-        return x, count[0]

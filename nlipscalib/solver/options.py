@@ -32,6 +32,11 @@ class SolverOptions:
     smoothness: float = 1e-3
     """gamma: weight of squared second differences of log-depth, relative to the data term's gradient
     curvature; tiny, it only ties together the pixel sub-lattices that central differences decouple."""
+    noise_smoothness: float = 25.0
+    """Smoothness added per squared relative image noise: gamma = max(smoothness, noise_smoothness *
+    (sigma / median image level)^2), sigma estimated from the images (Immerkaer 1996), so noisy data
+    (one-bounce twin renders: ~6 % per pixel -> gamma ~0.1) are regularised and exact data are not.
+    Applied by :func:`solve_press`; 0 = off."""
     nominal_distance: float = 15.0
     """Camera-to-surface distance along each ray, mm, used as prior when the capture has no reference."""
     pyramid_levels: int = 0
@@ -74,9 +79,10 @@ class SolverOptions:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"solver.{name} must be > 0, got {getattr(self, name)}")
-        if min(self.prior_weight, self.robust_floor, self.smoothness, self.anchor_weight) < 0:
+        if min(self.prior_weight, self.robust_floor, self.smoothness, self.anchor_weight, self.noise_smoothness) < 0:
             raise ConfigError(
-                "solver.prior_weight, solver.smoothness, solver.robust_floor and solver.anchor_weight must be >= 0"
+                "solver.prior_weight, solver.smoothness, solver.noise_smoothness, solver.robust_floor and "
+                "solver.anchor_weight must be >= 0"
             )
         if self.max_iters < 1 or self.cg_maxiter < 1 or self.line_search_steps < 0 or self.cg_jacobi_iters < 0:
             raise ConfigError(

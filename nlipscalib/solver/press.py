@@ -1,98 +1,69 @@
-"""Solving a capture (Press): prior from the undeformed reference, ROI, LED subsets and LED files."""
+"""Solving a capture (Press): prior from the undeformed reference, ROI, anchoring, interreflection, LEDs.
+
+The order of work in :func:`solve_press`:
+
+1. the indirect term of the image model is fitted (:func:`nlipscalib.solver.indirect.fit_indirect`) on
+   the capture of the undeformed dome when one is given, else on the press itself outside its contact
+   (``interreflection="auto"`` applies it only when the data show indirect light);
+2. the contact classification is computed once (:mod:`nlipscalib.solver.contact`) against the
+   undeformed model *with* that term and with the LEDs the solve uses (calibrated ones when given):
+   it gives the auto ROI and the anchored pixels;
+3. NLiPs on the images minus the indirect light of the undeformed surface, then an outer loop: the
+   indirect light of the *solved* surface (its points, normals and albedo; radiosity gather,
+   :mod:`nlipscalib.solver.radiosity`) is subtracted and the press solved again, until the normals stop
+   changing.
+"""
 
 from __future__ import annotations
 
+import logging
+import time
+
 import numpy as np
 
+from ..core import tolerances
+from ..core.camera import depth_to_points
 from ..core.capture import Press
+from ..core.leds import led_shading
 from ..errors import CaptureError, ConfigError, ShapeError
+from .contact import ContactMap, anchor_weights, classify_contact
+from .contact import auto_roi as _auto_roi_box
+from .indirect import IndirectModel, fit_indirect, surface_indirect
+from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
+
+log = logging.getLogger(__name__)
+
+INTERREFLECTION_MODES = ("auto", "on", "off")
+OUTER_TOL_DEG = 0.05
+"""The outer interreflection loop stops when the median normal change of a pass is below this, degrees."""
 
 
 def contact_misfit(
     press: Press, indirect: np.ndarray | None = None, reference: Press | None = None, window=(slice(None), slice(None))
 ) -> np.ndarray:
-    """Per-pixel relative misfit of the undeformed dome's shading to the LED images.
+    """Per-pixel misfit of the undeformed dome to the LED images, relative to the noise-only misfit.
 
-    Per pixel, the undeformed shading is fitted to the LED images with one scale per channel; where
-    the gel is not displaced it fits to rendering/sensor noise (and to what the model lacks).
-
-    Parameters
-    ----------
-    press : Press -- with ``reference``.
-    indirect : (L, H, W, 3) float or None -- interreflection estimate to subtract first (linear units).
-    reference : Press or None -- a capture of the undeformed dome (same camera, LEDs, exposure): its
-        images are the undeformed shading, interreflections included, so the contact stands out even
-        where the direct model does not explain the light (bounces >= 1, real sensor). ``indirect``
-        is then ignored. None: the direct model on ``press.reference``.
-    window : (rows, cols) slices -- evaluate only there (a crop, or a strided sample for statistics).
+    Kept for callers of the earlier API; :func:`nlipscalib.solver.contact.classify_contact` is the one
+    computation. ``window`` cuts the result.
 
     Returns
     -------
-    (h, w) float64 -- RMS misfit over LEDs and channels relative to the images' RMS over ``window``
-    (the whole (H, W) image by default); NaN off the gel.
+    (h, w) float64 -- misfit / noise-only misfit; NaN off the gel.
     """
-    from ..core.leds import led_shading
-
-    if press.reference is None:
-        raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
-    ref = press.reference
-    win = (slice(None),) + tuple(window)  # the same window on every (L, H, W, ...) stack
-    depth, rays = ref.depth[window], press.camera.rays[window]
-    valid = np.isfinite(depth)
-    pts = np.nan_to_num(depth)[..., None] / rays[..., 2:3] * rays
-    img = press.linear(press.led_images[win], window).astype(np.float64)
-    if reference is not None:
-        S = reference.linear(reference.led_images[win], window).astype(np.float64)
-    else:
-        S = led_shading(np.where(valid[..., None], pts, 0), ref.normals[window].astype(np.float64), press.leds)
-        if indirect is not None:
-            img = img - indirect[win]
-    alb = (S * img).sum(0) / np.maximum((S * S).sum(0), 1e-30)
-    mis = np.sqrt(((alb * S - img) ** 2).sum((0, 3)) / np.maximum((img**2).sum((0, 3)), 1e-30))
-    return np.where(valid, mis, np.nan)
+    und = reference.linear(reference.led_images) if reference is not None else None
+    cmap = classify_contact(press, undeformed_images=und, indirect=indirect, undeformed_noise=reference is not None)
+    return cmap.ratio[tuple(window)]
 
 
-def auto_roi(
-    press: Press,
-    margin: int = 8,
-    min_size: int = 32,
-    threshold: float = 3.0,
-    min_component: float = 0.05,
-    indirect: np.ndarray | None = None,
-    reference: Press | None = None,
-) -> tuple[int, int, int, int]:
-    """Bounding box (x0, y0, w, h) of pixels whose images disagree with the undeformed reference.
-
-    Pixels whose :func:`contact_misfit` exceeds ``threshold`` times its median are candidates; of
-    their connected components only those at least ``min_component`` times the largest are kept, so
-    isolated misfits (cast shadows far from the dent, silhouette aliasing, hot pixels) do not
-    stretch the box over the whole image. ``indirect`` and ``reference``: see :func:`contact_misfit`.
-    """
-    from scipy import ndimage
-
-    mis = contact_misfit(press, indirect, reference)
-    valid = np.isfinite(mis)
-    med = np.median(mis[valid])
-    hit = valid & (np.nan_to_num(mis) > threshold * max(med, 1e-6))
-    if not hit.any():
-        raise CaptureError(f"{press.folder}: --roi auto found no contact (images match the undeformed reference)")
-    labels, count = ndimage.label(hit)
-    sizes = ndimage.sum(hit, labels, np.arange(1, count + 1))
-    keep = np.flatnonzero(sizes >= min_component * sizes.max()) + 1
-    hit = np.isin(labels, keep)
-    rows, cols = np.nonzero(hit)
-    H, W = press.camera.shape
-    y0, y1 = max(rows.min() - margin, 0), min(rows.max() + 1 + margin, H)
-    x0, x1 = max(cols.min() - margin, 0), min(cols.max() + 1 + margin, W)
-    if x1 - x0 < min_size:
-        c = (x0 + x1) // 2
-        x0, x1 = max(c - min_size // 2, 0), min(c + min_size // 2, W)
-    if y1 - y0 < min_size:
-        c = (y0 + y1) // 2
-        y0, y1 = max(c - min_size // 2, 0), min(c + min_size // 2, H)
-    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
+def auto_roi(press: Press, indirect: np.ndarray | None = None, reference: Press | None = None, leds=None, **kwargs):
+    """Bounding box (x0, y0, w, h) of the contact (:func:`nlipscalib.solver.contact.auto_roi`)."""
+    und = reference.linear(reference.led_images) if reference is not None else None
+    cmap = classify_contact(
+        press, leds, undeformed_images=und, indirect=indirect, undeformed_noise=reference is not None
+    )
+    return _auto_roi_box(cmap, press.camera.shape, folder=press.folder, **kwargs)
 
 
 def solve_press(
@@ -105,7 +76,10 @@ def solve_press(
     progress: bool = False,
     indirect: np.ndarray | Press | None = None,
     dent_interreflection: bool = True,
-    coating_albedo: float | tuple[float, float, float] = 0.8,
+    coating_albedo: float | tuple[float, float, float] | None = None,
+    interreflection: str = "auto",
+    bounces: int = 1,
+    max_outer: int = 3,
 ) -> SolveResult:
     """Solve one press.
 
@@ -113,54 +87,89 @@ def solve_press(
     ----------
     press : Press -- load with ``load_press(folder, led_subset=...)`` for an LED ablation.
     roi : (x0, y0, w, h) pixels, "auto", or None for the whole visible gel.
-    leds : sequence of Led replacing ``press.leds`` (e.g. from ``calibrate-leds``); same count.
+    leds : sequence of Led replacing ``press.leds`` (e.g. from ``calibrate-leds``); same count. Used
+        everywhere: the solve, the indirect term, the contact classification (auto ROI, anchoring).
     options, backend, progress : see :func:`nlipscalib.solver.solve`.
-    indirect : interreflection compensation (:mod:`nlipscalib.solver.interreflection`): None (off),
-        a Press of the undeformed dome (same camera, LEDs, LED subset and exposure) to estimate it
-        from, or an (L, H, W, 3) float array from ``estimate_indirect`` (linear units), subtracted
-        from the LED images before solving.
-    dent_interreflection : with ``indirect``, also correct for the dent's own interreflection: the
-        press is solved once compensated with the reference's indirect light, the change of one
-        diffuse bounce between the solved and the undeformed surface is added to it
-        (:func:`~nlipscalib.solver.interreflection.dent_indirect`), and the press is solved again.
-        About twice the solve time. Ignored without ``indirect`` or ``press.reference``.
-    coating_albedo : the coating's reflectance (dimensionless, per channel or one value) for
-        ``dent_interreflection``; the twin's coating is 0.8.
-    """
-    from .interreflection import compensate, dent_indirect, estimate_indirect
+    indirect : a Press of the undeformed dome (same camera, LEDs, LED subset and exposure) to fit the
+        indirect term on; None: fit it on the press itself, away from the contact; an (L, H, W, 3)
+        float array: light to subtract as is (linear units), no model.
+    dent_interreflection : run the outer loop (indirect light of the solved surface, solve again);
+        False: only the undeformed surface's indirect light is subtracted.
+    coating_albedo : the coating's reflectance (0-1], one value or per channel, overriding the
+        fitted one (None: fitted from the data).
+    interreflection : "auto" (apply the term when the data show indirect light), "on", "off".
+    bounces : diffuse bounces in the indirect term (1 or 2).
+    max_outer : most outer passes (solves after the first).
 
+    Returns
+    -------
+    SolveResult -- ``report`` adds roi, prior, interreflection (the fitted model and the decision),
+    indirect_compensation, dent_interreflection, outer_passes, anchoring (what was decided and why),
+    anchored_pixels, dead_leds_contact, contact_seconds, indirect_seconds.
+    """
+    if interreflection not in INTERREFLECTION_MODES:
+        raise ConfigError(f"interreflection must be one of {INTERREFLECTION_MODES}, got {interreflection!r}")
+    if bounces not in (1, 2):
+        raise ConfigError(f"bounces must be 1 or 2, got {bounces}")
     leds = press.leds if leds is None else tuple(leds)
     if len(leds) != len(press.leds):
         raise CaptureError(f"{press.folder}: {len(leds)} LEDs given for {len(press.leds)} LED images")
-    ref_capture = None
-    if isinstance(indirect, Press):
-        if indirect.camera != press.camera or len(indirect.leds) != len(press.leds):
-            raise CaptureError(f"{indirect.folder}: camera or LED count differs from {press.folder}")
-        ref_capture, indirect = indirect, estimate_indirect(indirect, leds)
+    options = options or SolverOptions()
+    ref_capture, fixed_light = _split_indirect(press, indirect)
     H, W = press.camera.shape
     prior = press.reference.depth if press.reference is not None else None
     mask = np.isfinite(prior) if prior is not None else np.ones((H, W), bool)
-    if isinstance(roi, str):
-        if roi != "auto":
-            raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
-        roi = auto_roi(press, indirect=indirect, reference=ref_capture)
+    if prior is not None and not mask.any():
+        raise CaptureError(f"{press.folder}: the reference surface covers no pixel; nothing to reconstruct")
+    explicit_roi = None if roi is None or isinstance(roi, str) else _check_roi(roi, W, H)
+    if isinstance(roi, str) and roi != "auto":
+        raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
+
+    t0 = time.perf_counter()
+    model = None
+    if fixed_light is None and press.reference is not None:
+        source = ref_capture if ref_capture is not None else press
+        exclude = _box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
+        # a press without a known contact is fitted twice (below): the first fit only finds the contact
+        rough = ref_capture is None and explicit_roi is None
+        model = fit_indirect(
+            source, leds, mode=interreflection, bounces=bounces, exclude=exclude, iterations=1 if rough else 3
+        )
+    t_indirect = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    cmap, refit = None, 0.0
+    if press.reference is not None:
+        cmap = _contact(press, leds, ref_capture, fixed_light, model)
+        if model is not None and model.enabled and ref_capture is None and explicit_roi is None:
+            # the press stands in for the undeformed capture: fit again without its contact
+            t1 = time.perf_counter()
+            model = fit_indirect(press, leds, mode=interreflection, bounces=bounces, exclude=_contact_pixels(cmap))
+            refit = time.perf_counter() - t1
+            t_indirect += refit
+            cmap = _contact(press, leds, None, None, model)
+    if model is not None and model.enabled and coating_albedo is not None:
+        model = _with_reflectance(model, coating_albedo)
+    if roi == "auto":
+        if cmap is None:
+            raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
+        roi = _auto_roi_box(cmap, (H, W), folder=press.folder)
+    elif explicit_roi is not None:
+        roi = explicit_roi
     if roi is not None:
-        x0, y0, w, h = (int(v) for v in roi)
-        if w < 4 or h < 4 or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
-            raise ShapeError(f"roi {roi} must lie inside the {W}x{H} image and be at least 4x4")
-        box = np.zeros((H, W), bool)
-        box[y0 : y0 + h, x0 : x0 + w] = True
-        mask &= box
+        mask &= _box_mask(roi, (H, W))
+    weights, anchoring = (None, "anchoring off (no reference surface)")
+    if cmap is not None:
+        weights, anchoring = anchor_weights(cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR)
+    options, noise = _noise_regularised(options, press, cmap)
+    t_contact = time.perf_counter() - t0 - refit
+
     images = press.linear(press.led_images)
     saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
-    options = options or SolverOptions()
-    # the direct model minus the indirect estimate: the same classification whether the indirect
-    # light came as a capture or as an array
-    weights = _anchor_weights(press, mask, options, indirect)
 
     def run(light):
         data = images if light is None else compensate(images, light)
-        return solve(
+        result = solve(
             data,
             press.camera,
             leds,
@@ -172,39 +181,154 @@ def solve_press(
             backend=backend,
             progress=progress,
         )
+        if not result.reconstructed.any():
+            dead = [i + 1 for i in result.report["dead_leds"]]
+            raise CaptureError(
+                f"{press.folder}: no pixel could be reconstructed ({result.report['pixels_too_few_leds']} pixels "
+                f"with fewer than {options.min_leds} usable LEDs; dead LEDs {dead})"
+            )
+        return result
 
-    result = run(indirect)
-    dent = dent_interreflection and indirect is not None and press.reference is not None
-    if dent:
-        if not np.all((np.asarray(coating_albedo) > 0) & (np.asarray(coating_albedo) <= 1)):
-            raise ConfigError(f"coating_albedo must be in (0, 1], got {coating_albedo}")
-        # One outer iteration: a second one did not help on the twin (320x240 contact AAE: sphere
-        # 3.44 -> 3.85 deg, cube 3.60 -> 3.66 deg).
-        first = result.report
-        result = run(indirect + dent_indirect(press.camera, leds, press.reference, result, coating_albedo))
-        result.report["dent_first_solve_seconds"] = first.get("seconds")
-    result.report["roi"] = list(roi) if roi is not None else None
-    result.report["prior"] = "reference" if prior is not None else "nominal_distance"
-    result.report["indirect_compensation"] = indirect is not None
-    result.report["dent_interreflection"] = bool(dent)
-    result.report["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
+    passes, seconds = 0, 0.0
+    if model is not None and model.enabled:
+        t0 = time.perf_counter()
+        albedo0 = np.broadcast_to(np.asarray(model.off_view_albedo), (H, W, 3))
+        light = surface_indirect(model, press.camera, leds, prior, press.reference.normals, albedo0, mask)
+        seconds += time.perf_counter() - t0
+        result = run(light)
+        for _ in range(max_outer if dent_interreflection else 0):
+            t0 = time.perf_counter()
+            light = _solved_surface_light(model, press, leds, result, mask)
+            seconds += time.perf_counter() - t0
+            new = run(light)
+            passes += 1
+            change = _median_change_deg(result, new)
+            result = new
+            if change < OUTER_TOL_DEG:
+                break
+    else:
+        result = run(fixed_light)
+    rep = result.report
+    rep["roi"] = list(roi) if roi is not None else None
+    rep["prior"] = "reference" if prior is not None else "nominal_distance"
+    rep["interreflection"] = model.to_json() if model is not None else None
+    rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
+    rep["dent_interreflection"] = bool(passes > 0)
+    rep["outer_passes"] = passes
+    rep["anchoring"] = anchoring
+    rep["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
+    rep["dead_leds_contact"] = list(cmap.dead_leds) if cmap is not None else []
+    rep["contact_seconds"] = t_contact
+    rep["image_noise"] = noise
+    rep["smoothness"] = options.smoothness
+    rep["indirect_seconds"] = t_indirect + seconds
+    if model is not None:
+        log.info("%s: %s", press.folder, model.reason)
+    log.info("%s: %s", press.folder, anchoring)
     return result
 
 
-def _anchor_weights(press: Press, mask, options: SolverOptions, indirect) -> np.ndarray | None:
-    """Prior weight multipliers: ``options.anchor_weight`` where the gel is seen undeformed, else 1.
+def _contact_pixels(cmap: ContactMap, margin: int = 4) -> np.ndarray:
+    """(H, W) bool -- the pixels the auto ROI would box (its components), dilated by ``margin``."""
+    from scipy import ndimage
 
-    The misfit to the undeformed dome is evaluated on the solve mask's bounding box only; its median,
-    the noise level the threshold is relative to, comes from a strided sample of the whole gel, so
-    that a box mostly filled by the contact does not raise the threshold.
-    """
-    if press.reference is None or options.anchor_weight <= 0 or not mask.any():
-        return None
-    rows, cols = np.nonzero(mask)
-    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
-    sample = contact_misfit(press, indirect, None, (slice(None, None, 4), slice(None, None, 4)))
-    median = float(np.nanmedian(sample))
-    weights = np.ones(mask.shape)
-    misfit = np.nan_to_num(contact_misfit(press, indirect, None, box), nan=np.inf)
-    weights[box] += options.anchor_weight * (misfit <= options.anchor_threshold * median)
-    return weights
+    mis = cmap.misfit
+    valid = np.isfinite(mis)
+    floor = np.maximum(cmap.expected, float(np.median(mis[valid])) if valid.any() else 0.0)
+    hit = valid & (np.nan_to_num(mis) > 3.0 * np.maximum(floor, 1e-9))
+    return ndimage.binary_dilation(hit, iterations=margin) if hit.any() else hit
+
+
+def _noise_regularised(options: SolverOptions, press: Press, cmap: ContactMap | None):
+    """(options with the noise-adapted smoothness, relative noise level) -- see SolverOptions.noise_smoothness."""
+    import dataclasses
+
+    from .contact import image_noise
+
+    if options.noise_smoothness <= 0:
+        return options, None
+    valid = np.isfinite(press.reference.depth) if press.reference is not None else np.ones(press.camera.shape, bool)
+    if cmap is not None:
+        sigma, level = cmap.noise, float(np.nanmedian(np.where(valid, cmap.level, np.nan)))
+    else:
+        lin = press.linear(press.led_images)
+        sigma = image_noise(lin, valid)
+        level = float(np.median(np.sqrt((lin[:, valid] ** 2).mean(axis=(0, 2)))))
+    rel = sigma / max(level, 1e-12)
+    gamma = max(options.smoothness, options.noise_smoothness * rel**2)
+    return dataclasses.replace(options, smoothness=gamma), rel
+
+
+def _split_indirect(press: Press, indirect):
+    """(reference capture or None, fixed light array or None) from ``solve_press``'s ``indirect``."""
+    if indirect is None:
+        return None, None
+    if isinstance(indirect, Press):
+        if indirect.camera != press.camera or len(indirect.leds) != len(press.leds):
+            raise CaptureError(f"{indirect.folder}: camera or LED count differs from {press.folder}")
+        if indirect.reference is None:
+            raise CaptureError(f"{indirect.folder}: the undeformed capture needs its reference surface (reference.npz)")
+        return indirect, None
+    light = np.asarray(indirect, np.float32)
+    if light.shape != press.led_images.shape:
+        raise ShapeError(f"indirect light {light.shape} must match the LED images {press.led_images.shape}")
+    return None, light
+
+
+def _check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:
+    x0, y0, w, h = (int(v) for v in roi)
+    if w < 4 or h < 4 or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
+        raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least 4x4")
+    return x0, y0, w, h
+
+
+def _box_mask(roi, shape) -> np.ndarray:
+    x0, y0, w, h = roi
+    box = np.zeros(shape, bool)
+    box[y0 : y0 + h, x0 : x0 + w] = True
+    return box
+
+
+def _with_reflectance(model: IndirectModel, reflectance) -> IndirectModel:
+    import dataclasses
+
+    a = np.broadcast_to(np.asarray(reflectance, float), (3,))
+    if not np.all((a > 0) & (a <= 1)):
+        raise ConfigError(f"coating_albedo must be in (0, 1], got {reflectance}")
+    kappa = tuple(float(v) for v in a / np.maximum(np.asarray(model.off_view_albedo), 1e-30))
+    return dataclasses.replace(
+        model, kappa=kappa, reflectance=tuple(float(v) for v in a), reason=model.reason + f"; reflectance set to {a}"
+    )
+
+
+def _contact(press: Press, leds, ref_capture, fixed_light, model) -> ContactMap:
+    """The one contact classification: against the undeformed capture, or the model with its indirect term."""
+    if ref_capture is not None:
+        und = ref_capture.linear(ref_capture.led_images)
+        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True)
+    if model is not None and model.enabled:
+        valid = np.isfinite(press.reference.depth)
+        pts = depth_to_points(np.where(valid, press.reference.depth, 0.0), press.camera.rays)
+        nrm = np.where(valid[..., None], press.reference.normals, 0.0)
+        undeformed = led_shading(pts, nrm, leds) + model.undeformed_light(press.camera.shape)
+        return classify_contact(press, leds, undeformed_images=undeformed)
+    return classify_contact(press, leds, indirect=fixed_light)
+
+
+def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask) -> np.ndarray:
+    """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere."""
+    ref = press.reference
+    rec = result.reconstructed
+    depth = np.where(rec, result.depth, ref.depth)
+    normals = np.where(rec[..., None], result.normals, ref.normals)
+    typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
+    albedo = np.where(rec[..., None], result.albedo, typical)
+    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask)
+
+
+def _median_change_deg(a: SolveResult, b: SolveResult) -> float:
+    both = a.reconstructed & b.reconstructed
+    if not both.any():
+        return 0.0
+    cos = np.clip(np.sum(a.normals[both] * b.normals[both], axis=-1), -1.0, 1.0)
+    return float(np.degrees(np.median(np.arccos(cos))))

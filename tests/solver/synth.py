@@ -118,9 +118,27 @@ def to_stored(lin):
     return np.clip(np.round(RESPONSE.black_level + lin * scale), 0, 65535).astype(np.uint16)
 
 
-def make_press(folder, kind="sphere", depth=1.5, size=(96, 72), leds=None, lin_hook=None, exposure=None):
-    """Write an exact-data press; ``lin_hook(lin) -> lin`` may corrupt the linear images first."""
-    cam = camera(*size)
+def crop_camera(full=(480, 360), size=(64, 64), centre=None) -> Camera:
+    """A ``size`` crop of a ``full``-sized camera of the default lens, centred on a camera-frame point."""
+    import dataclasses
+
+    cam = camera(*full)
+    u, v = cam.project(np.asarray(centre, float))
+    x0, y0 = int(round(u)) - size[0] // 2, int(round(v)) - size[1] // 2
+    return dataclasses.replace(cam, width=size[0], height=size[1], cx=cam.cx - x0, cy=cam.cy - y0)
+
+
+def dent_centre(tilt_deg: float = 15.0) -> np.ndarray:
+    """Camera-frame point of the undeformed dome on the indenters' axis."""
+    tilt = math.radians(tilt_deg)
+    axis = np.array([math.sin(tilt) * math.cos(0.7), math.sin(tilt) * math.sin(0.7), math.cos(tilt)])
+    return CENTRE + RADIUS * axis
+
+
+def make_press(folder, kind="sphere", depth=1.5, size=(96, 72), leds=None, lin_hook=None, exposure=None, cam=None):
+    """Write an exact-data press; ``lin_hook(lin) -> lin`` may corrupt the linear images first;
+    ``cam`` replaces the default ``size`` camera (e.g. :func:`crop_camera`)."""
+    cam = cam if cam is not None else camera(*size)
     leds = leds or ring_leds()
     z, pts, nrm, valid = surface(cam, kind, depth)
     zr, _, nr, _ = surface(cam, "none")

@@ -1,0 +1,255 @@
+"""Where a press differs from the undeformed dome: one classification for the auto ROI and anchoring.
+
+Per pixel, the undeformed model (the capture of the undeformed dome, or the direct model on the
+reference geometry plus the fitted indirect term) is fitted to the LED images with one scale per
+channel (the albedo); what it leaves is the pixel's *misfit*. The misfit is compared in absolute
+terms with what the image noise alone leaves (noise estimated from the images, Immerkaer, "Fast noise
+variance estimation", CVIU 64(2), 1996), so the decision does not depend on how much of the view the
+dent fills: a capture that is mostly dent has mostly large misfits, and none of them is called
+undeformed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..core import tolerances
+from ..core.camera import depth_to_points
+from ..core.capture import Press
+from ..core.leds import led_shading
+from ..errors import CaptureError
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactMap:
+    """Result of :func:`classify_contact` (computed once per solve)."""
+
+    misfit: np.ndarray
+    """(H, W) float64 -- RMS residual of the undeformed model over live LEDs and channels, linear image
+    units; NaN off the gel."""
+    expected: np.ndarray
+    """(H, W) float64 -- the misfit that image noise alone leaves at that pixel, same units."""
+    live_leds: tuple[int, ...]
+    """LEDs used (0-based): dead LEDs (dark image) are left out."""
+    dead_leds: tuple[int, ...]
+    """LEDs whose image is dark (0-based)."""
+    noise: float
+    """Estimated image noise sigma, linear units (full scale 1)."""
+    level: np.ndarray
+    """(H, W) float64 -- RMS of the (smoothed) images over live LEDs and channels, linear units."""
+
+    @property
+    def ratio(self) -> np.ndarray:
+        """(H, W) misfit over its noise-only value (NaN off the gel)."""
+        return self.misfit / np.maximum(self.expected, 1e-12)
+
+    def undeformed(self, factor: float = tolerances.ANCHOR_NOISE_FACTOR) -> np.ndarray:
+        """(H, W) bool -- pixels the data show undeformed: misfit within ``factor`` times the noise."""
+        return np.nan_to_num(self.ratio, nan=np.inf) <= factor
+
+
+def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
+    """Noise sigma of linear images (Immerkaer 1996: a Laplacian-difference mask cancels smooth shading).
+
+    Parameters
+    ----------
+    images : (L, H, W, 3) float -- linear images.
+    valid : (H, W) bool -- pixels to measure on (eroded by one so the gel's border does not count).
+
+    Returns
+    -------
+    float -- median over LEDs and channels of the per-image estimate (robust form: 1.4826 MAD of the
+    filtered image over sqrt(36), the mask's squared norm).
+    """
+    from scipy import ndimage
+
+    inner = ndimage.binary_erosion(valid, iterations=2)
+    if inner.sum() < 16:
+        return 0.0
+    kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+    est = []
+    for img in images:
+        for c in range(img.shape[-1]):
+            f = ndimage.convolve(np.asarray(img[..., c], np.float32), kernel, mode="nearest")[inner]
+            est.append(1.4826 * float(np.median(np.abs(f - np.median(f)))) / 6.0)
+    return float(np.median(est))
+
+
+def classify_contact(
+    press: Press,
+    leds=None,
+    *,
+    undeformed_images: np.ndarray | None = None,
+    indirect: np.ndarray | None = None,
+    dead_level: float = 1e-3,
+    undeformed_noise: bool = False,
+    blur_px: float = 1.5,
+) -> ContactMap:
+    """Misfit of the undeformed dome to a press's LED images, and the noise-only misfit, per pixel.
+
+    Parameters
+    ----------
+    press : Press -- with ``reference``.
+    leds : sequence of Led or None -- the LED model (calibrated LEDs when given), default ``press.leds``.
+    undeformed_images : (L, H, W, 3) float or None -- what the undeformed dome looks like under each
+        LED up to a per-pixel albedo (a capture of it: linear images; or the model with its indirect
+        term). None: the direct model on ``press.reference`` with ``leds``.
+    indirect : (L, H, W, 3) float or None -- light to subtract from the press's images first.
+    dead_level : an LED whose image's 99th percentile (linear) is below this is dead and left out.
+    undeformed_noise : ``undeformed_images`` is a capture with its own noise (the noise-only misfit is
+        then sqrt(2) times larger).
+    blur_px : Gaussian sigma, pixels, of the smoothing before the fit (0: none).
+
+    Returns
+    -------
+    ContactMap
+    """
+    if press.reference is None:
+        raise CaptureError(f"{press.folder}: --roi auto and anchoring need the capture's reference (undeformed dome)")
+    leds = press.leds if leds is None else tuple(leds)
+    ref = press.reference
+    valid = np.isfinite(ref.depth)
+    img = press.linear(press.led_images).astype(np.float64)
+    level = np.percentile(img[:, valid], 99, axis=(1, 2)) if valid.any() else np.zeros(len(img))
+    dead = tuple(int(i) for i in np.flatnonzero(level < dead_level))
+    live = [i for i in range(len(img)) if i not in dead]
+    if len(live) < tolerances.MIN_LEDS_PER_PIXEL:
+        raise CaptureError(
+            f"{press.folder}: only {len(live)} LED images are lit (dead: {[i + 1 for i in dead]}); "
+            f"nothing can be reconstructed"
+        )
+    if indirect is not None:
+        img = img - indirect
+    if undeformed_images is not None:
+        S = np.asarray(undeformed_images, np.float64)
+    else:
+        pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
+        S = led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds)
+    img, S = img[live], S[live]
+    ok = ~press.saturated(press.led_images[live])
+    # Deformation changes the shading coherently over many pixels, noise does not: classify on
+    # smoothed images (normalised convolution inside the gel) and scale the noise alike.
+    img, S = _smooth(img, valid, blur_px), _smooth(S, valid, blur_px)
+    alb = (S * img * ok).sum(0) / np.maximum((S * S * ok).sum(0), 1e-30)
+    count = np.maximum(ok.sum((0, 3)), 1)
+    misfit = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
+    noise = image_noise(press.linear(press.led_images[live]), valid)
+    dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
+    noise_blurred = noise * _gain(blur_px) * (np.sqrt(2.0) if undeformed_noise else 1.0)
+    expected = np.full(valid.shape, noise_blurred) * np.sqrt(dof)
+    level = np.sqrt(((img * ok) ** 2).sum((0, 3)) / count)
+    return ContactMap(np.where(valid, misfit, np.nan), expected, tuple(live), dead, noise, level)
+
+
+def auto_roi(
+    contact: ContactMap,
+    shape: tuple[int, int],
+    margin: int = 8,
+    min_size: int = 32,
+    threshold: float = 3.0,
+    min_component: float = 0.05,
+    folder="",
+) -> tuple[int, int, int, int]:
+    """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome.
+
+    Candidates are pixels whose misfit exceeds ``threshold`` times the larger of its noise-only value
+    and its median over the gel (the undeformed model is never exact on a real sensor); of their
+    connected components only those at least ``min_component`` times the largest are kept, so isolated
+    misfits (cast shadows far from the dent, silhouette aliasing, hot pixels) do not stretch the box.
+    """
+    from scipy import ndimage
+
+    mis = contact.misfit
+    valid = np.isfinite(mis)
+    if not valid.any():
+        raise CaptureError(f"{folder}: no pixel sees the gel; nothing to reconstruct")
+    floor = np.maximum(contact.expected, float(np.median(mis[valid])))
+    hit = valid & (np.nan_to_num(mis) > threshold * np.maximum(floor, 1e-9))
+    if not hit.any():
+        raise CaptureError(f"{folder}: --roi auto found no contact (images match the undeformed dome)")
+    labels, count = ndimage.label(hit)
+    sizes = ndimage.sum(hit, labels, np.arange(1, count + 1))
+    keep = np.flatnonzero(sizes >= min_component * sizes.max()) + 1
+    rows, cols = np.nonzero(np.isin(labels, keep))
+    H, W = shape
+    y0, y1 = max(rows.min() - margin, 0), min(rows.max() + 1 + margin, H)
+    x0, x1 = max(cols.min() - margin, 0), min(cols.max() + 1 + margin, W)
+    if x1 - x0 < min_size:
+        c = (x0 + x1) // 2
+        x0, x1 = max(c - min_size // 2, 0), min(c + min_size // 2, W)
+    if y1 - y0 < min_size:
+        c = (y0 + y1) // 2
+        y0, y1 = max(c - min_size // 2, 0), min(c + min_size // 2, H)
+    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
+
+
+def anchor_weights(
+    contact: ContactMap,
+    mask: np.ndarray,
+    weight: float,
+    factor: float,
+    min_fraction: float = 0.02,
+    max_relative: float = 0.05,
+):
+    """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed.
+
+    Parameters
+    ----------
+    contact : ContactMap
+    mask : (H, W) bool -- the solve mask.
+    weight : SolverOptions.anchor_weight (0: off).
+    factor : a pixel is undeformed when its misfit is within ``factor`` times the noise-only misfit.
+    min_fraction : evidence is weak -- no anchoring -- when fewer than this fraction of the gel's
+        pixels fit at noise level (the undeformed model does not explain the data at all, e.g. strong
+        unmodelled interreflection or a wrong LED model).
+    max_relative : a pixel's verdict counts only when its threshold, ``factor`` times the noise-only
+        misfit, is at most this fraction of its image level: with more noise a real dent (a 1 deg
+        tilt changes the shading by ~2 %) would pass as undeformed.
+
+    Returns
+    -------
+    weights : (H, W) float64 or None
+    note : str -- what was decided and why.
+    """
+    if weight <= 0:
+        return None, "anchoring off (anchor_weight = 0)"
+    gel = np.isfinite(contact.misfit)
+    sharp = factor * contact.expected <= max_relative * np.nan_to_num(contact.level)
+    undeformed = contact.undeformed(factor) & gel & sharp
+    fraction = float(undeformed.sum()) / max(int(gel.sum()), 1)
+    if contact.noise <= 0 or fraction < min_fraction:
+        return None, (
+            f"anchoring off: weak evidence (only {100 * fraction:.1f} % of the gel fits the undeformed model within "
+            f"{factor:g} x the noise level {contact.noise:.2g} at a threshold below {100 * max_relative:g} % of the "
+            f"image)"
+        )
+    pins = undeformed & mask
+    weights = np.ones(mask.shape)
+    weights[pins] += weight
+    return weights, f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise)"
+
+
+def _smooth(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur of (L, H, W, 3) images inside ``valid`` (normalised convolution), float64."""
+    if sigma <= 0:
+        return stack
+    import cv2
+
+    w = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma)
+    inv = np.where(valid, 1.0 / np.maximum(w, 1e-6), 0.0)[..., None]
+    out = np.empty(stack.shape, np.float64)
+    for i, img in enumerate(stack):
+        out[i] = cv2.GaussianBlur(np.where(valid[..., None], img, 0).astype(np.float32), (0, 0), sigma) * inv
+    return out
+
+
+def _gain(sigma: float) -> float:
+    """How much a Gaussian blur of ``sigma`` pixels scales white noise: the kernel's L2 norm."""
+    if sigma <= 0:
+        return 1.0
+    import cv2
+
+    k = cv2.getGaussianKernel(2 * int(np.ceil(3 * sigma)) + 1, sigma)[:, 0]
+    return float(np.sum(k**2))  # separable: (sum k^2)^(1/2) per axis, squared over two axes

@@ -1,0 +1,382 @@
+"""The indirect (interreflected) term of the image model, fitted to data and applied to a solved surface.
+
+Image model with interreflection (one or two diffuse bounces, :mod:`nlipscalib.solver.radiosity`)::
+
+    I_ic(p) = rho_pc * ( S_ic(p) + kappa_c * G_ic(p) )
+
+S is the direct shading (``core.leds.led_shading``), G the gather of the surface's own direct light
+(``D_q = rho_q S_q``) over the visible surface plus, when the sensor design is known, the dome beyond the
+camera's view; kappa_c = a_p / rho_p (reflectance per unit linear albedo, = pi / exposure in the LED
+gauge) is one constant per channel. Nothing assumes a uniform albedo: rho is fitted per pixel, and the
+only global unknown, kappa, is fitted to the capture of the undeformed dome (:func:`fit_indirect`).
+The coating's reflectance follows as a = kappa * median(rho) and is reported.
+
+How much indirect light there is, is therefore measured, not assumed: kappa comes out ~0 on a capture
+without interreflection (a textured albedo is absorbed by the per-pixel rho, it does not correlate with
+G across the LEDs), and :func:`fit_indirect` switches the term off when its share of the light is below
+``tolerances.INDIRECT_MIN_SHARE``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..core import tolerances
+from ..core.camera import Camera, depth_to_points
+from ..core.capture import Press
+from ..core.leds import led_shading
+from ..core.sensor import DomeConfig
+from ..errors import CaptureError, ConfigError
+from . import radiosity
+
+PATCH_TARGET = 80
+"""Patches along the image's long side (the patch side is the long side over this, at least 2 px)."""
+FIT_PATCH_TARGET = 40
+"""The same for the fit on the undeformed dome (slowly varying light: coarse patches suffice)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class IndirectModel:
+    """The fitted indirect term (:func:`fit_indirect`)."""
+
+    kappa: tuple[float, float, float]
+    """Reflectance per unit linear albedo, per channel (0: no interreflection)."""
+    reflectance: tuple[float, float, float]
+    """The coating's dimensionless reflectance a = kappa * median(rho), per channel (the twin's: 0.8)."""
+    share: float
+    """Median over the gel of indirect / direct light on the undeformed dome."""
+    bounces: int
+    """Diffuse bounces modelled (1 or 2)."""
+    enabled: bool
+    """Whether the term is applied (auto: share >= INDIRECT_MIN_SHARE; or forced)."""
+    reason: str
+    """Why it is (not) applied, for the report."""
+    off_view: dict | None = dataclasses.field(default=None, repr=False, compare=False)
+    """Patches of the dome beyond the view (points, normals, area) or None without a design."""
+    off_view_albedo: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Linear albedo given to the off-view dome (median of the fitted rho)."""
+    fitted_light: tuple | None = dataclasses.field(default=None, repr=False, compare=False)
+    """(kappa G (L, h, w, 3) float32 on the fitted capture's patches, patch side): the undeformed
+    dome's indirect light per unit receiver albedo."""
+
+    def undeformed_light(self, shape: tuple[int, int]) -> np.ndarray:
+        """(L, H, W, 3) float32 -- the fitted capture's indirect light per unit receiver albedo
+        (multiply by the pixel's albedo; add to the direct shading for the undeformed model)."""
+        if self.fitted_light is None:
+            raise CaptureError("this interreflection model holds no fitted light")
+        light, size = self.fitted_light
+        return radiosity.upsample(light, shape, size)
+
+    def to_json(self) -> dict:
+        return {
+            "kappa": list(self.kappa),
+            "coating_reflectance": list(self.reflectance),
+            "indirect_share": self.share,
+            "bounces": self.bounces,
+            "enabled": self.enabled,
+            "reason": self.reason,
+            "off_view_dome": self.off_view is not None,
+        }
+
+
+def design_of(press: Press) -> tuple[DomeConfig, np.ndarray] | None:
+    """The sensor design's dome and camera position recorded in a capture's meta, or None.
+
+    Looks at ``meta["design"]`` (captures from a design) and ``meta["provenance"]["scene"]`` (twin).
+    """
+    for source in (press.meta.get("design"), (press.meta.get("provenance") or {}).get("scene")):
+        if isinstance(source, dict) and isinstance(source.get("dome"), dict):
+            try:
+                dome = DomeConfig(**source["dome"])
+                position = np.asarray((source.get("camera") or {}).get("position", (0.0, 0.0, -3.0)), float)
+            except (TypeError, ValueError):
+                continue
+            return dome, position
+    return None
+
+
+def patch_size(camera: Camera) -> int:
+    """Patch side, pixels, for a solved surface (:data:`PATCH_TARGET` patches along the long side)."""
+    return max(2, round(max(camera.shape) / PATCH_TARGET))
+
+
+def fit_patch_size(camera: Camera) -> int:
+    """Patch side, pixels, for the undeformed dome (:data:`FIT_PATCH_TARGET` patches along the long side)."""
+    return max(2, round(max(camera.shape) / FIT_PATCH_TARGET))
+
+
+class Surface:
+    """The (reference or solved) surface as patches, with its direct shading per patch.
+
+    Parameters
+    ----------
+    camera : Camera
+    leds : sequence of Led
+    depth : (H, W) float, mm (z), camera frame; NaN off the gel.
+    normals : (H, W, 3) float, unit, camera frame, toward the camera.
+    """
+
+    def __init__(self, camera: Camera, leds, depth, normals, size: int | None = None):
+        self.camera, self.leds = camera, tuple(leds)
+        self.valid = np.isfinite(depth)
+        self.size = patch_size(camera) if size is None else int(size)
+        pts = depth_to_points(np.where(self.valid, depth, 0.0), camera.rays)
+        nrm = np.where(self.valid[..., None], normals, 0.0).astype(np.float64)
+        self.patches = radiosity.surface_patches(pts, nrm, self.valid, camera, self.size)
+        self.shading = self._shading(pts, nrm)  # (L, h, w, 3) patch means
+        self.keep = self.patches["area"] > 0
+
+    def _shading(self, pts, nrm):
+        s = led_shading(pts, nrm, self.leds)
+        s[:, ~self.valid] = 0.0
+        return radiosity.patch_mean(self.patches, s)
+
+    def emitters(self) -> dict:
+        k = self.keep
+        return {key: self.patches[key][k] for key in ("points", "normals", "area")}
+
+    def receivers(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.patches["points"][self.keep], self.patches["normals"][self.keep]
+
+
+def _gather_all(surface: Surface, rho_patch, off_unit, off_albedo, bounces: int, kappa=None):
+    """G (L, K, 3) at the surface's patches: the visible patches' and the off-view dome's direct light,
+    gathered once (and, with bounces=2, the first bounce's light gathered again, scaled by kappa).
+    ``off_unit``: the off-view dome's gather for a unit albedo (linear in it), or None."""
+    recv_p, recv_n = surface.receivers()
+    direct = rho_patch[None] * surface.shading[:, surface.keep]  # (L, K, 3)
+    emit = surface.emitters()
+    g = radiosity.gather(recv_p, recv_n, emit, direct)
+    if off_unit is not None:
+        g = g + off_unit * np.asarray(off_albedo)
+    if bounces >= 2 and kappa is not None:
+        first = np.asarray(kappa)[None, None] * rho_patch[None] * g  # light leaving after one bounce
+        g = g + radiosity.gather(recv_p, recv_n, emit, first)
+    return g
+
+
+def fit_indirect(
+    reference: Press,
+    leds=None,
+    *,
+    mode: str = "auto",
+    bounces: int = 1,
+    iterations: int = 3,
+    exclude: np.ndarray | None = None,
+) -> IndirectModel:
+    """Fit the indirect term to a capture of the undeformed dome (known geometry ``reference.reference``).
+
+    Alternates (per channel) the per-pixel albedo rho_p (least squares over the LEDs of
+    ``S + kappa G``) and kappa (least squares of ``I - rho S`` against ``rho G``), on patch means.
+
+    Parameters
+    ----------
+    reference : Press -- the undeformed dome, with ``reference`` (depth, normals).
+    leds : sequence of Led or None -- the LED model (default the capture's).
+    mode : "auto" (apply when the fitted share is significant), "on" (always), "off" (fit nothing).
+    bounces : 1 or 2 diffuse bounces.
+    iterations : alternations of rho and kappa.
+    exclude : (H, W) bool or None -- pixels not to fit on (a press's contact, when the press itself
+        stands in for the undeformed capture); they still emit light.
+
+    Returns
+    -------
+    IndirectModel
+    """
+    if mode == "off":
+        return IndirectModel((0.0,) * 3, (0.0,) * 3, 0.0, bounces, False, "interreflection off (requested)")
+    if mode not in ("auto", "on"):
+        raise ConfigError(f"interreflection must be auto, on or off, got {mode!r}")
+    if reference.reference is None:
+        raise CaptureError(f"{reference.folder}: the interreflection term needs the reference surface (reference.npz)")
+    leds = reference.leds if leds is None else tuple(leds)
+    surf = Surface(
+        reference.camera,
+        leds,
+        reference.reference.depth,
+        reference.reference.normals,
+        size=fit_patch_size(reference.camera),
+    )
+    design = design_of(reference)
+    off = None
+    if design is not None:
+        off = radiosity.off_view_patches(design[0], design[1], reference.camera, surf.valid, step_deg=3.0)
+    lin = reference.linear(reference.led_images).astype(np.float64)
+    usable = (~reference.saturated(reference.led_images)).astype(np.float64)
+    usable[:, ~surf.valid] = 0.0
+    if exclude is not None:
+        usable[:, exclude] = 0.0
+    live = np.percentile(lin[:, surf.valid], 99, axis=(1, 2)) >= 1e-3 if surf.valid.any() else np.zeros(len(lin), bool)
+    usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
+    img = radiosity.patch_mean(surf.patches, lin * usable)[:, surf.keep]  # (L, K, 3)
+    frac = radiosity.patch_mean(surf.patches, usable)[:, surf.keep]
+    ok = frac > 0.99  # patches wholly usable for that LED and channel
+    S = surf.shading[:, surf.keep]
+    kappa = np.zeros(3)
+    rho = _albedo(img, S, ok)
+    G = np.zeros_like(S)
+    fitted = ok.any(axis=0)  # (K, 3) patches with data
+    if not fitted.any():
+        raise CaptureError(f"{reference.folder}: no usable pixel to fit the interreflection term on")
+
+    def typical(values):  # median over the patches with data; the others take it as their albedo
+        return np.array([np.median(values[fitted[:, c], c]) if fitted[:, c].any() else 0.0 for c in range(3)])
+
+    off_unit = None
+    if off is not None:
+        off_s = led_shading(off["points"], off["normals"], leds)
+        off_unit = radiosity.gather(*surf.receivers(), off, off_s)
+    for _ in range(iterations):  # G depends on the emitters' albedo: refit both a few times
+        rho = np.where(fitted, rho, typical(rho))
+        off_albedo = typical(rho)
+        G = _gather_all(surf, rho, off_unit, off_albedo, bounces, kappa)
+        kappa = _profile_kappa(img, S, G, ok)
+        rho = _albedo(img, S + kappa * G, ok)
+    # the receiver's albedo multiplies both terms: the share is kappa G / S
+    on = fitted.all(axis=1)
+    share = float(np.median((kappa * G)[:, on].sum(axis=(0, 2)) / np.maximum(S[:, on].sum(axis=(0, 2)), 1e-30)))
+    reflectance = tuple(float(k * a) for k, a in zip(kappa, off_albedo))
+    enabled = mode == "on" or share >= tolerances.INDIRECT_MIN_SHARE
+    reason = (
+        f"interreflection {'on' if enabled else 'off'}: fitted indirect share {share:.3f} of the direct light "
+        f"(auto threshold {tolerances.INDIRECT_MIN_SHARE}), coating reflectance {np.round(reflectance, 3).tolist()}"
+        + ("" if off is not None else "; no sensor design in the capture: the dome beyond the view is not modelled")
+    )
+    if mode == "on":
+        reason += " (forced on)"
+    light = np.zeros(surf.shading.shape, np.float32)
+    light[:, surf.keep] = kappa * G  # per unit receiver albedo
+    return IndirectModel(
+        tuple(float(k) for k in kappa),
+        reflectance,
+        share,
+        bounces,
+        enabled,
+        reason,
+        off,
+        tuple(float(a) for a in off_albedo),
+        (light, surf.size),
+    )
+
+
+def _albedo(img, model, ok) -> np.ndarray:
+    """(K, 3) least-squares albedo per patch and channel of img ~ rho * model over the LEDs."""
+    num = (img * model * ok).sum(0)
+    den = (model * model * ok).sum(0)
+    return num / np.maximum(den, 1e-30)
+
+
+def _profile_kappa(img, S, G, ok, kappa_max: float | None = None, steps: int = 400) -> np.ndarray:
+    """(3,) kappa >= 0 minimising the residual of img ~ rho_p (S + kappa G) with every patch's rho_p
+    profiled out (its least-squares value for that kappa): a 1-D search per channel, exact for the
+    per-patch albedo (alternating rho and kappa would crawl: G and S are strongly correlated over LEDs).
+
+    With M = S + kappa G, the profiled residual of a patch is sum I^2 - (a + kappa b)^2 / (c + 2 kappa d
+    + kappa^2 e) with a = sum I S, b = sum I G, c = sum S S, d = sum S G, e = sum G G over the LEDs.
+    """
+    w = ok.astype(np.float64)
+    a, b = (w * img * S).sum(0), (w * img * G).sum(0)
+    c, d, e = (w * S * S).sum(0), (w * S * G).sum(0), (w * G * G).sum(0)
+    out = np.zeros(3)
+    for ch in range(3):
+        # kappa G comparable to S at most: search up to the ratio that makes them equal
+        has = (c[:, ch] > 0) & (d[:, ch] > 0)
+        if not has.any():
+            continue
+        top = kappa_max or float(10 * np.median(c[has, ch]) / np.median(d[has, ch]))
+        ks = np.linspace(0.0, top, steps)
+        for _ in range(3):  # grid, then two refinements around the best
+            num = (a[:, ch, None] + ks * b[:, ch, None]) ** 2
+            den = c[:, ch, None] + 2 * ks * d[:, ch, None] + ks**2 * e[:, ch, None]
+            gain = (num / np.maximum(den, 1e-300)).sum(0)
+            i = int(np.argmax(gain))
+            lo, hi = ks[max(i - 1, 0)], ks[min(i + 1, len(ks) - 1)]
+            ks = np.linspace(lo, hi, 50)
+        out[ch] = ks[
+            np.argmax(
+                (
+                    (a[:, ch, None] + ks * b[:, ch, None]) ** 2
+                    / np.maximum(c[:, ch, None] + 2 * ks * d[:, ch, None] + ks**2 * e[:, ch, None], 1e-300)
+                ).sum(0)
+            )
+        ]
+    return out
+
+
+def surface_indirect(
+    model: IndirectModel,
+    camera: Camera,
+    leds,
+    depth: np.ndarray,
+    normals: np.ndarray,
+    albedo: np.ndarray,
+    receivers: np.ndarray,
+    size: int | None = None,
+) -> np.ndarray:
+    """Indirect light ``B = kappa rho_p G(p)`` of a surface, at the receiver pixels.
+
+    Parameters
+    ----------
+    model : IndirectModel -- from :func:`fit_indirect` (enabled).
+    camera : Camera
+    leds : sequence of Led, length L
+    depth : (H, W) float, mm (z), camera frame -- the whole visible surface (solved where known, the
+        undeformed reference elsewhere); NaN off the gel.
+    normals : (H, W, 3) float, unit, camera frame, toward the camera.
+    albedo : (H, W, 3) float -- linear albedo rho per pixel (``SolveResult.albedo`` scale).
+    receivers : (H, W) bool -- pixels that need the term (the solve's mask).
+    size : patch side, pixels (default :func:`patch_size`; the undeformed dome's smooth light needs
+        no more than :func:`fit_patch_size`).
+
+    Returns
+    -------
+    (L, H, W, 3) float32 -- linear image units (``Press.linear`` scale); 0 outside ``receivers``.
+    """
+    surf = Surface(camera, leds, depth, normals, size)
+    albedo = np.where(surf.valid[..., None], np.nan_to_num(albedo), 0.0)
+    rho_patch = radiosity.patch_mean(surf.patches, albedo)
+    size = surf.size
+    h, w = surf.patches["area"].shape
+    H, W = camera.shape
+    grid = np.zeros((h * size, w * size), bool)
+    grid[:H, :W] = receivers
+    want = grid.reshape(h, size, w, size).any(axis=(1, 3))
+    # one patch of margin so the bilinear upsampling never blends with an unset neighbour
+    want = _dilate(want) & surf.keep
+    G_all = _gather_at(surf, rho_patch, model, want)
+    g = np.zeros((len(surf.leds), h, w, 3), np.float32)
+    g[:, want] = G_all
+    up = radiosity.upsample(g, (H, W), size)
+    B = np.asarray(model.kappa, np.float32) * albedo.astype(np.float32)[None] * up
+    B[:, ~receivers] = 0.0
+    return B
+
+
+def _dilate(mask: np.ndarray) -> np.ndarray:
+    from scipy import ndimage
+
+    return ndimage.binary_dilation(mask, iterations=1)
+
+
+def _gather_at(surf: Surface, rho_patch, model: IndirectModel, want) -> np.ndarray:
+    """(L, n, 3) G at the patches ``want`` (visible surface and off-view dome as emitters)."""
+    keep = surf.keep
+    emit = surf.emitters()
+    direct = rho_patch[keep][None] * surf.shading[:, keep]
+    pts, nrm = surf.patches["points"][want], surf.patches["normals"][want]
+    g = radiosity.gather(pts, nrm, emit, direct)
+    off = model.off_view
+    off_direct = None
+    if off is not None:
+        off_direct = led_shading(off["points"], off["normals"], surf.leds) * np.asarray(model.off_view_albedo)
+        g = g + radiosity.gather(pts, nrm, off, off_direct)
+    if model.bounces >= 2:
+        # second bounce: the first bounce's light over the whole visible surface, gathered again
+        g1 = radiosity.gather(emit["points"], emit["normals"], emit, direct)
+        if off is not None:
+            g1 = g1 + radiosity.gather(emit["points"], emit["normals"], off, off_direct)
+        second = np.asarray(model.kappa)[None, None] * rho_patch[keep][None] * g1
+        g = g + radiosity.gather(pts, nrm, emit, second)
+    return g

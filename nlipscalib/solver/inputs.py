@@ -1,0 +1,48 @@
+"""Entry checks of :func:`nlipscalib.solver.solve`: shapes, finiteness, the prior and the mask."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.camera import Camera
+from ..errors import ShapeError
+from .options import SolverOptions
+
+
+def check_inputs(images, camera: Camera, leds: tuple, prior_depth, mask, saturated, opts: SolverOptions):
+    """Validate the solver's inputs; returns (images ndarray, prior_depth (H, W) float64, mask (H, W) bool).
+
+    Raises ShapeError naming the offending argument.
+    """
+    leds = tuple(leds)
+    images = np.asarray(images)
+    H, W = camera.shape
+    if images.ndim != 4 or images.shape[1:] != (H, W, 3):
+        raise ShapeError(f"images must be (L, {H}, {W}, 3) for this camera, got {images.shape}")
+    if images.shape[0] != len(leds):
+        raise ShapeError(f"{images.shape[0]} LED images but {len(leds)} LEDs")
+    if len(leds) < opts.min_leds:
+        raise ShapeError(f"{len(leds)} LEDs given; the solver needs at least min_leds={opts.min_leds}")
+    if not np.all(np.isfinite(images)):
+        raise ShapeError(
+            f"images contain {int(np.sum(~np.isfinite(images)))} NaN/inf values; mark bad pixels "
+            "with `mask` or `saturated` instead"
+        )
+    if saturated is not None and np.shape(saturated) != images.shape:
+        raise ShapeError(f"saturated must have the images' shape {images.shape}, got {np.shape(saturated)}")
+    if prior_depth is None:
+        prior_depth = opts.nominal_distance * camera.rays[..., 2]
+    prior_depth = np.asarray(prior_depth, dtype=np.float64)
+    if prior_depth.shape != (H, W):
+        raise ShapeError(f"prior_depth must be ({H}, {W}), got {prior_depth.shape}")
+    finite = np.isfinite(prior_depth) & (np.nan_to_num(prior_depth) > 0)
+    if mask is None:
+        mask = finite
+    mask = np.asarray(mask)
+    if mask.shape != (H, W) or mask.dtype != bool:
+        raise ShapeError(f"mask must be ({H}, {W}) bool, got {mask.shape} {mask.dtype}")
+    mask = mask & finite
+    if mask.sum() < 4:
+        raise ShapeError("the solve mask holds fewer than 4 pixels with a finite prior depth")
+
+    return images, prior_depth, mask

@@ -1,0 +1,70 @@
+"""The coarse-to-fine image pyramid of a solve (cv2.resize INTER_AREA, Camera.scaled)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.camera import Camera
+from ..errors import ShapeError
+from . import geometry
+from .options import SolverOptions
+
+
+def resize(a: np.ndarray, shape: tuple[int, int], linear: bool = False) -> np.ndarray:
+    import cv2
+
+    interp = cv2.INTER_LINEAR if linear else cv2.INTER_AREA
+    a = np.ascontiguousarray(a, dtype=np.float32)
+    if a.ndim == 3 and a.shape[2] > 4:  # OpenCV handles up to 512 channels, but keep it simple
+        return np.stack([resize(a[..., k], shape, linear) for k in range(a.shape[2])], axis=-1)
+    return cv2.resize(a, (shape[1], shape[0]), interpolation=interp).astype(np.float64)
+
+
+def checked_prior_weights(weights, shape) -> np.ndarray:
+    if weights is None:
+        return np.ones(shape)
+    weights = np.asarray(weights, dtype=np.float64)
+    if weights.shape != shape or not np.all(np.isfinite(weights)) or weights.min() < 0:
+        raise ShapeError(f"prior_weights must be a finite, non-negative {shape} array, got {weights.shape}")
+    return weights
+
+
+def build_pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> list[dict]:
+    """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, zeta, rays."""
+    n_levels = opts.pyramid_levels
+    if n_levels == 0:
+        n_levels = 1
+        while min(cam.shape) / 2**n_levels >= 2 * opts.min_level_size:
+            n_levels += 1
+    levels = []
+    for k in range(n_levels):
+        c = cam if k == 0 else cam.scaled(0.5**k)
+        if k == 0:
+            d, u, mk, tk, wk = data, use, mask, t0, w0
+        else:
+            d = np.stack([resize(img, c.shape) for img in data]).astype(data.dtype, copy=False)
+            u = np.stack([resize(x.astype(np.float32), c.shape) for x in use]) > 0.999
+            mk = resize(mask.astype(np.float32), c.shape) > 0.999
+            tk = np.log(
+                resize(np.where(mask, np.exp(t0), 0.0), c.shape)
+                / np.maximum(resize(mask.astype(np.float32), c.shape), 1e-9)
+            )
+            tk = np.where(mk, tk, 0.0)
+            wk = resize(w0.astype(np.float32), c.shape)
+        if mk.sum() < 16:
+            break
+        q, qu, qv = geometry.ray_tables(c)
+        A, B, C = geometry.normal_basis(q[mk], qu[mk], qv[mk])
+        levels.append(
+            {
+                "camera": c,
+                "mask": mk,
+                "images": np.moveaxis(d[:, mk], 2, 1),  # (L, 3, N)
+                "usable": np.moveaxis(u[:, mk], 2, 1).astype(d.dtype),
+                "t0": tk,
+                "zeta": opts.prior_weight * wk[mk].astype(np.float64),  # (N,) per-pixel prior weight
+                "q": q[mk],
+                "ABC": (A, B, C),
+            }
+        )
+    return levels[::-1]
