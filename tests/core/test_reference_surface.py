@@ -41,7 +41,7 @@ def test_matches_traced_twin_reference(name):
     from nlipscalib.sim.scene import load_scene
 
     scene = load_scene(name).replace(camera={"width": 48, "height": 36}, render={"threads": 2})
-    _, gt = reference_ground_truth(scene)
+    gt = reference_ground_truth(scene)
     ref = reference_surface(scene.design)
     seen = np.isfinite(ref.depth)
     # the mesh's rim and the pad's border are polygonal: allow a few edge pixels to disagree
