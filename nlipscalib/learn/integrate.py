@@ -1,0 +1,125 @@
+"""Depth from normals on the dome: integrate along the camera's real rays, the undeformed gel as boundary.
+
+Every surface point lies on its pixel's viewing ray, x(u, v) = rho(u, v) d(u, v) (``Camera.rays``, unit,
+distortion included; rho is the range, mm). A surface with normal n is tangent to x_u and x_v, so
+n . (rho_u d + rho d_u) = 0, i.e. the log-range has the gradient
+
+    d log(rho) / du = -(n . d_u) / (n . d),     d log(rho) / dv = -(n . d_v) / (n . d)
+
+which is linear in log(rho) for any lens (no pinhole or flat-sensor assumption; d_u, d_v are
+finite differences of the real rays). Only the pixels that changed are unknown; their neighbours
+keep the undeformed reference's log-range (Dirichlet boundary), and the least-squares problem over
+all pixel pairs touching an unknown is a sparse Poisson system, solved with SuperLU (scipy).
+A flat DCT/FFT Poisson solver would assume an orthographic view of a plane, which a dome is not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..errors import ShapeError
+
+ANCHOR_WEIGHT = 1e-4
+"""Weak pull of every unknown toward the reference log-range: keeps a region that touches no
+undeformed pixel (e.g. at the image border) determined, without biasing a bounded one."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RayGeometry:
+    """Per-sensor arrays the integration needs, computed once per model/camera."""
+
+    rays: np.ndarray
+    """(H, W, 3) float64, unit, camera frame -- viewing ray of every pixel centre."""
+    d_u: np.ndarray
+    """(H, W, 3) float64 -- derivative of the ray along u (per pixel)."""
+    d_v: np.ndarray
+    """(H, W, 3) float64 -- derivative of the ray along v (per pixel)."""
+    log_range: np.ndarray
+    """(H, W) float64 -- log of the undeformed reference's range along the ray, log(mm); NaN off the gel."""
+
+    @classmethod
+    def from_reference(cls, rays: np.ndarray, reference_depth: np.ndarray) -> RayGeometry:
+        """From ``Camera.rays`` and the reference depth ((H, W) mm, z; NaN off the gel)."""
+        if rays.shape != reference_depth.shape + (3,):
+            raise ShapeError(f"rays {rays.shape} and reference depth {reference_depth.shape} do not match")
+        d_v, d_u = np.gradient(rays, axis=(0, 1))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            log_range = np.log(reference_depth / rays[..., 2])
+        return cls(rays, d_u, d_v, log_range)
+
+
+def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """(p, q): d log(rho)/du and d log(rho)/dv, each (H, W) float64, from normals ((H, W, 3) unit, camera frame)."""
+    den = np.sum(normals * geo.rays, -1)
+    den = np.where(np.abs(den) < 1e-6, -1e-6, den)  # grazing normals: a huge but finite slope
+    return -np.sum(normals * geo.d_u, -1) / den, -np.sum(normals * geo.d_v, -1) / den
+
+
+def integrate_on_dome(normals: np.ndarray, unknown: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Depth of the surface whose normals are ``normals`` where ``unknown``, the reference elsewhere.
+
+    Parameters
+    ----------
+    normals : (H, W, 3) float, unit, camera frame, toward the camera (finite where ``unknown``)
+    unknown : (H, W) bool -- pixels to solve for (the changed pixels); must lie on the gel
+    geo : RayGeometry of the sensor
+
+    Returns
+    -------
+    depth : (H, W) float64, mm, camera-frame z (the reference depth outside ``unknown``; NaN off the gel)
+    points : (H, W, 3) float64, mm, camera frame
+    """
+    from scipy.sparse import coo_matrix, identity
+    from scipy.sparse.linalg import splu
+
+    H, W = unknown.shape
+    if normals.shape != (H, W, 3) or geo.rays.shape != (H, W, 3):
+        raise ShapeError(f"normals {normals.shape}, unknown {unknown.shape} and the sensor's rays must match")
+    known_lr = geo.log_range
+    on_gel = np.isfinite(known_lr)
+    unknown = unknown & on_gel
+    log_range = known_lr.copy()
+    if unknown.any():
+        p, q = log_range_gradient(np.asarray(normals, np.float64), geo)
+        index = np.full(H * W, -1, np.int64)
+        index[np.flatnonzero(unknown)] = np.arange(int(unknown.sum()))
+        rows, cols, vals, rhs = _equations(unknown, on_gel, index, known_lr, p, q)
+        n = int(unknown.sum())
+        A = coo_matrix((vals, (rows, cols)), shape=(len(rhs), n)).tocsr()
+        normal_matrix = (A.T @ A + ANCHOR_WEIGHT * identity(n)).tocsc()
+        b = A.T @ rhs + ANCHOR_WEIGHT * known_lr[unknown]
+        log_range[unknown] = splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
+    rng = np.exp(log_range)
+    points = rng[..., None] * geo.rays
+    return points[..., 2], points
+
+
+def _equations(unknown, on_gel, index, known_lr, p, q):
+    """Rows of the least-squares system x_j - x_i = (g_i + g_j) / 2 over neighbour pairs touching an unknown."""
+    rows, cols, vals, rhs = [], [], [], []
+    n_eq = 0
+    flat_lr = known_lr.ravel()
+    for axis, grad in ((1, p), (0, q)):
+        a = (slice(None), slice(None, -1)) if axis == 1 else (slice(None, -1), slice(None))
+        b = (slice(None), slice(1, None)) if axis == 1 else (slice(1, None), slice(None))
+        lin = np.arange(unknown.size).reshape(unknown.shape)
+        ia, ib = lin[a].ravel(), lin[b].ravel()
+        use = (on_gel[a] & on_gel[b] & (unknown[a] | unknown[b])).ravel()
+        ia, ib = ia[use], ib[use]
+        g = 0.5 * (grad.ravel()[ia] + grad.ravel()[ib])
+        ua, ub = index[ia], index[ib]
+        eq = n_eq + np.arange(len(ia))
+        # x_b - x_a = g ; a known endpoint moves to the right-hand side
+        r = g.copy()
+        r += np.where(ua < 0, flat_lr[ia], 0.0)
+        r -= np.where(ub < 0, flat_lr[ib], 0.0)
+        for sign, u_idx in ((-1.0, ua), (1.0, ub)):
+            m = u_idx >= 0
+            rows.append(eq[m])
+            cols.append(u_idx[m])
+            vals.append(np.full(int(m.sum()), sign))
+        rhs.append(r)
+        n_eq += len(ia)
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), np.concatenate(rhs)
