@@ -15,7 +15,7 @@ import sys
 from .. import __version__
 from ..errors import MissingDependencyError, NlipsError
 
-SUBCOMMAND_MODULES = ("render", "dataset", "demo", "solve", "calibrate", "evaluate")
+SUBCOMMAND_MODULES = ("render", "dataset", "demo", "solve", "calibrate", "evaluate", "calibration", "train", "infer")
 
 
 def build_parser() -> argparse.ArgumentParser:

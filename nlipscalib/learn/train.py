@@ -47,6 +47,8 @@ class TrainConfig:
     """Seed of the split, the initial weights, dropout and shuffling."""
     max_seconds: float = 0.0
     """Stop after this much training time (0: no limit)."""
+    threads: int = 1
+    """CPU threads for PyTorch (1: a small MLP gains little from more, and a shared machine loses a lot)."""
 
     def __post_init__(self):
         if self.labels not in ("nlips", "true"):
@@ -120,6 +122,7 @@ def train(dataset: CalibrationDataset, cfg: TrainConfig, out, val_names=None, pr
     x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
     if len(x_tr) < 2 or len(x_va) < 1:
         raise ConfigError(f"{dataset.folder}: too few labelled samples to train ({len(x_tr)} train, {len(x_va)} val)")
+    torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     cam = dataset.sensor["camera"]
     net = build_net(cfg.hidden, cfg.dropout, cam["width"], cam["height"])
