@@ -54,7 +54,9 @@ def run(args) -> int:
     write_coverage_json(out / "coverage.json", cov)
     coverage_figure(cov, out / "coverage.png")
     n = sum(e["samples"] for e in data.entries)
-    print(f"{out}: {len(data.entries)} presses, {n} samples ({sum(e['contact_samples'] for e in data.entries)} contact)")
+    print(
+        f"{out}: {len(data.entries)} presses, {n} samples ({sum(e['contact_samples'] for e in data.entries)} contact)"
+    )
     nxt = cov["next_press"]
     print(f"coverage: {cov['covered_fraction'] * 100:.0f}% of (region, direction) bins; press next: {nxt['advice']}")
     if failed:

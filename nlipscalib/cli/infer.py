@@ -29,7 +29,6 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     import time
-    from pathlib import Path
 
     import numpy as np
 

@@ -21,6 +21,7 @@ def register(subparsers) -> None:
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--val-presses", help="comma-separated validation presses (default: a seeded 20%% of them)")
+    p.add_argument("--exclude", help="comma-separated presses kept out of training and validation (a test set)")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop training after this long (0: no limit)")
     p.add_argument("--threads", type=int, default=1, help="PyTorch CPU threads (default 1)")
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export")
@@ -56,7 +57,8 @@ def run(args) -> int:
     )
     data = CalibrationDataset(args.dataset)
     val = args.val_presses.split(",") if args.val_presses else None
-    result = train(data, cfg, out, val_names=val, progress=not args.no_progress)
+    exclude = args.exclude.split(",") if args.exclude else ()
+    result = train(data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress)
     best = result.history[result.best_epoch]
     curve = training_curve(result.history, out.with_name(out.stem + "_curve.png"), f"NLiPsNet {args.hidden}")
     print(

@@ -10,20 +10,24 @@ import numpy as np
 
 from ..errors import ShapeError
 
-NOISE_SIGMAS = 6.0
-"""A pixel has changed when its colour differs from the reference by more than this many noise sigmas."""
-MIN_REL_CHANGE = 0.02
-"""... and by more than this fraction of the reference's intensity (rendering/shading noise floor)."""
-DILATE_PX = 2
+NOISE_SIGMAS = 5.0
+"""A pixel has changed when its (locally averaged) colour differs from the reference by more than this
+many noise sigmas of the averaged difference."""
+MIN_REL_CHANGE = 0.005
+"""... and by more than this fraction of the reference's intensity (shading noise floor)."""
+SMOOTH_PX = 5
+"""Side of the box the signed difference is averaged over: sensor noise averages out, the smooth
+shading change of a shallow, wide deformation does not."""
+DILATE_PX = 3
 """Changed regions grow by this many pixels, so a contact's soft rim is not cut off."""
 
 
 def changed_pixels(frame: np.ndarray, reference: np.ndarray, valid: np.ndarray, dilate: int = DILATE_PX) -> np.ndarray:
     """Pixels whose tri-colour value differs from the undeformed reference frame.
 
-    The noise level is estimated robustly (median absolute deviation of the difference over the gel),
-    so the rule adapts to sensor noise without a tuned absolute threshold; isolated noisy pixels are
-    removed by a morphological opening.
+    The signed difference is box-averaged (sensor noise falls, a smooth shading change stays), and
+    its noise level is estimated robustly (median absolute deviation over the gel), so the rule adapts
+    to sensor noise without a tuned absolute threshold; isolated specks are removed by an opening.
 
     Parameters
     ----------
@@ -39,13 +43,15 @@ def changed_pixels(frame: np.ndarray, reference: np.ndarray, valid: np.ndarray, 
 
     if frame.shape != reference.shape or frame.ndim != 3 or frame.shape[:2] != valid.shape:
         raise ShapeError(f"frame {frame.shape}, reference {reference.shape} and valid {valid.shape} must match")
-    diff = np.abs(frame.astype(np.float32) - reference.astype(np.float32)).sum(-1)
+    signed = np.where(valid[..., None], frame.astype(np.float32) - reference.astype(np.float32), 0)
+    diff = np.abs(ndimage.uniform_filter(signed, size=(SMOOTH_PX, SMOOTH_PX, 1), mode="nearest")).sum(-1)
     inside = diff[valid]
     if inside.size == 0:
         return np.zeros(valid.shape, bool)
-    sigma = 1.4826 * float(np.median(np.abs(inside - np.median(inside)))) + 1e-6
+    median = float(np.median(inside))
+    sigma = 1.4826 * float(np.median(np.abs(inside - median))) + 1e-6
     level = reference.astype(np.float32).sum(-1)
-    hit = valid & (diff > np.median(inside) + NOISE_SIGMAS * sigma) & (diff > MIN_REL_CHANGE * level)
+    hit = valid & (diff > median + NOISE_SIGMAS * sigma) & (diff > MIN_REL_CHANGE * level)
     hit = ndimage.binary_opening(hit, iterations=1)
     if dilate > 0:
         hit = ndimage.binary_dilation(hit, iterations=dilate)

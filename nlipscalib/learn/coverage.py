@@ -108,8 +108,15 @@ def _next_press(counts, covered, gel, kinds: dict, shape) -> dict:
         f"a {kind} in image region u {box[0]}-{box[2] - 1}, v {box[1]}-{box[3] - 1} "
         f"(centre u={centre[0]:.0f}, v={centre[1]:.0f}): {int(gap.sum())} of {gap.size} direction bins empty there"
     )
-    return {"region": [r, c], "box_u0_v0_u1_v1": box, "centre_uv": centre, "indenter": kind,
-            "kind_scores": scores, "empty_bins": int(gap.sum()), "advice": advice}
+    return {
+        "region": [r, c],
+        "box_u0_v0_u1_v1": box,
+        "centre_uv": centre,
+        "indenter": kind,
+        "kind_scores": scores,
+        "empty_bins": int(gap.sum()),
+        "advice": advice,
+    }
 
 
 def write_coverage_json(path, cov: dict):

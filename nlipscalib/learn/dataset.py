@@ -108,9 +108,7 @@ def press_samples(press, rec, ref: dict, cfg: SamplingConfig) -> dict:
     valid = ref["valid"] & np.all(np.isfinite(tri), -1)
     contact = changed_pixels(tri, ref["tricolor"], valid)
     finite = np.all(np.isfinite(rec.normals), -1)
-    reliable = (
-        rec.reconstructed & finite & (rec.confidence >= cfg.min_confidence) & (rec.usable_leds >= cfg.min_leds)
-    )
+    reliable = rec.reconstructed & finite & (rec.confidence >= cfg.min_confidence) & (rec.usable_leds >= cfg.min_leds)
     take_contact = contact & reliable
     rest = valid & ~contact & ~(rec.mask & ~reliable)  # an unreliable solved pixel never becomes a label
     rng = np.random.default_rng([cfg.seed, int(hashlib.sha1(press.folder.name.encode()).hexdigest()[:8], 16)])

@@ -16,7 +16,15 @@ import numpy as np
 
 from ..errors import ConfigError
 from .dataset import CalibrationDataset
-from .model import PAPER_DROPOUT, PAPER_HIDDEN, build_net, cosine_loss, model_inputs, save_model, set_colour_normalisation
+from .model import (
+    PAPER_DROPOUT,
+    PAPER_HIDDEN,
+    build_net,
+    cosine_loss,
+    model_inputs,
+    save_model,
+    set_colour_normalisation,
+)
 
 log = logging.getLogger(__name__)
 CHECKPOINT_FILE = "checkpoint.pt"
@@ -100,7 +108,9 @@ class TrainResult:
     val_presses: list
 
 
-def train(dataset: CalibrationDataset, cfg: TrainConfig, out, val_names=None, progress: bool = True) -> TrainResult:
+def train(
+    dataset: CalibrationDataset, cfg: TrainConfig, out, val_names=None, exclude=(), progress: bool = True
+) -> TrainResult:
     """Train NLiPsNet on ``dataset`` and write ``out`` (the model file) and ``checkpoint.pt`` beside it.
 
     Parameters
@@ -109,6 +119,7 @@ def train(dataset: CalibrationDataset, cfg: TrainConfig, out, val_names=None, pr
     cfg : TrainConfig
     out : path of the model file (.pt)
     val_names : optional explicit validation presses
+    exclude : presses kept out of training and validation (a test set)
     """
     import time
 
@@ -116,7 +127,14 @@ def train(dataset: CalibrationDataset, cfg: TrainConfig, out, val_names=None, pr
     from tqdm.auto import tqdm
 
     out = Path(out)
-    names = [e["name"] for e in dataset.entries if cfg.labels == "nlips" or e.get("has_truth")]
+    unknown = sorted(set(exclude) - set(dataset.names))
+    if unknown:
+        raise ConfigError(f"{dataset.folder}: excluded presses {unknown} are not in the dataset")
+    names = [
+        e["name"]
+        for e in dataset.entries
+        if (cfg.labels == "nlips" or e.get("has_truth")) and e["name"] not in set(exclude)
+    ]
     train_names, val_names = split_by_press(names, cfg.val_fraction, cfg.seed, val_names)
     x_tr, y_tr, _ = training_arrays(dataset.arrays(train_names), cfg.labels)
     x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
@@ -169,6 +187,7 @@ def train(dataset: CalibrationDataset, cfg: TrainConfig, out, val_names=None, pr
         "dataset": str(dataset.folder.resolve()),
         "train_presses": train_names,
         "val_presses": val_names,
+        "excluded_presses": sorted(exclude),
         "train_samples": int(len(x_tr)),
         "best_epoch": best["epoch"],
         "best_val_aae_deg": best["aae"],
