@@ -62,7 +62,13 @@ def accuracy(args) -> dict:
         ("upper", (256, 256, 128), "true"),
     ):
         t0 = time.perf_counter()
-        cfg = TrainConfig(hidden=hidden, labels=labels, max_epochs=args.epochs, patience=args.patience)
+        cfg = TrainConfig(
+            hidden=hidden,
+            labels=labels,
+            max_epochs=args.epochs,
+            patience=args.patience,
+            max_seconds=args.max_minutes * 60,
+        )
         res = train(train_data, cfg, out / f"{key}.pt", exclude=test_seen, progress=False)
         times[key] = time.perf_counter() - t0
         models[key] = load_model(res.model_path)
@@ -196,6 +202,7 @@ def main() -> None:
     ap.add_argument("--test-count", type=int, default=6)
     ap.add_argument("--epochs", type=int, default=120)
     ap.add_argument("--patience", type=int, default=12)
+    ap.add_argument("--max-minutes", type=float, default=0.0, help="training time limit per model")
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--skip-accuracy", action="store_true", help="frames/s only (models from a previous run)")
     args = ap.parse_args()
