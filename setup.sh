@@ -17,6 +17,21 @@ if ! ldconfig -p 2>/dev/null | grep -qE 'libLLVM(\.so\.|-)(1[6-9]|2[0-9])'; then
   fi
 fi
 
+# LED controller firmware (firmware/): AVR toolchain to build it, simavr to test it without a board.
+# The firmware tests skip without these (and fail when NLIPS_REQUIRE_DEVICE_TOOLS=1, as in CI).
+if ! { command -v avr-g++ >/dev/null && [ -e /usr/lib/avr/include/avr/io.h ] \
+       && [ -e /usr/include/simavr/sim_avr.h ] && command -v cc >/dev/null && command -v make >/dev/null; }; then
+  SUDO=""; [ "$(id -u)" != 0 ] && command -v sudo >/dev/null && SUDO="sudo"
+  if command -v apt-get >/dev/null; then
+    echo "setup: installing the AVR toolchain and simavr for the LED firmware"
+    { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq gcc-avr avr-libc binutils-avr simavr \
+        libsimavr-dev libsimavrparts1 gcc make >/dev/null; } \
+      || echo "setup: warning: could not install gcc-avr/avr-libc/simavr; the firmware tests will be skipped" >&2
+  else
+    echo "setup: warning: no apt-get; install gcc-avr, avr-libc and simavr to build and test firmware/" >&2
+  fi
+fi
+
 PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 PIP=(.venv/bin/python -m pip install -q --disable-pip-version-check)

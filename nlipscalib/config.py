@@ -88,6 +88,37 @@ def to_mapping(obj) -> dict:
     return plain(obj)
 
 
+def check_count(name: str, value: int, minimum: int = 0, where: str = "") -> int:
+    """A count from the command line or a config (workers, limit, spp ...) must be >= ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        prefix = f"{where}: " if where else ""
+        raise ConfigError(f"{prefix}{name} must be an integer >= {minimum}, got {value!r}")
+    return value
+
+
+def check_range(where: str, value: float, lo: float | None = None, hi: float | None = None, *, open_lo=False) -> float:
+    """``value`` within [lo, hi] (``open_lo``: strictly above lo); else ConfigError naming ``where``."""
+    below = lo is not None and (value <= lo if open_lo else value < lo)
+    if below or (hi is not None and value > hi) or value != value:
+        left = "(" if open_lo else "["
+        bounds = f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
+        raise ConfigError(f"{where}: must be in {bounds}, got {value!r}")
+    return value
+
+
+def digest(obj) -> str:
+    """Short stable hash of a config (dataclass or JSON-able mapping): what made a result.
+
+    Recorded with results so that a re-run with a changed spec is noticed instead of silently reusing
+    the old result. Key order does not matter; floats are hashed by their JSON text.
+    """
+    import hashlib
+    import json
+
+    text = json.dumps(to_mapping(obj) if dataclasses.is_dataclass(obj) else obj, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def _convert(tp, value, where: str):
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)

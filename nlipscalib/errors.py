@@ -17,6 +17,10 @@ class CaptureError(NlipsError):
     """A press folder is missing something or holds inconsistent data (the message names the file)."""
 
 
+class DeviceError(NlipsError):
+    """The LED controller or camera failed: port missing, no permission, no answer, wrong firmware, reset."""
+
+
 class ShapeError(NlipsError):
     """An array given to a public function has the wrong shape or dtype."""
 

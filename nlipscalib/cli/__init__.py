@@ -8,14 +8,26 @@ Heavy imports happen inside those callables, so ``nlips --help`` is instant.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import sys
 
-from .. import __version__
+from .. import __version__, progress
 from ..errors import MissingDependencyError, NlipsError
 
-SUBCOMMAND_MODULES = ("render", "dataset", "demo", "solve", "calibrate", "evaluate", "calibration", "train", "infer")
+SUBCOMMAND_MODULES = (
+    "render",
+    "dataset",
+    "demo",
+    "solve",
+    "calibrate",
+    "evaluate",
+    "leds",
+    "calibration",
+    "train",
+    "infer",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -24,6 +36,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"nlipscalib {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="show debug logging")
+    parser.add_argument(
+        "--no-progress",
+        dest="global_no_progress",
+        action="store_true",
+        help="no progress bars (they are also off when stderr is not a terminal)",
+    )
+    parser.add_argument("--log-file", default=None, help="also write every log line to this file")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in SUBCOMMAND_MODULES:
         try:
@@ -38,15 +57,39 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s %(message)s")
     try:
+        progress.configure(
+            progress=not (args.global_no_progress or getattr(args, "no_progress", False)),
+            verbose=args.verbose,
+            log_file=args.log_file,
+        )
         return int(args.func(args) or 0)
-    except (NlipsError, MissingDependencyError, FileExistsError) as exc:
-        print(f"nlips {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    except (NlipsError, MissingDependencyError) as exc:
+        return _fail(args, str(exc))
+    except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
+        return _fail(args, describe_os_error(exc, overwrite_flag=hasattr(args, "overwrite")))
     except KeyboardInterrupt:
         print(f"nlips {args.command}: interrupted; finished work is kept, run again to resume", file=sys.stderr)
         return 130
+
+
+def describe_os_error(exc: OSError, overwrite_flag: bool = False) -> str:
+    """One line naming the path and the cause of a file-system error."""
+    cause = exc.strerror or str(exc)
+    if exc.errno == errno.ENOSPC:
+        cause += " (the disk is full: free space or choose another --out)"
+    elif exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+        cause += " (choose a writable output folder)"
+    elif isinstance(exc, FileExistsError) and overwrite_flag:
+        cause += " (use --overwrite to replace it)"
+    paths = [p for p in (exc.filename, exc.filename2) if p is not None]
+    return f"{' -> '.join(map(str, paths))}: {cause}" if paths else cause
+
+
+def _fail(args, message: str) -> int:
+    print(f"nlips {args.command}: error: {message}", file=sys.stderr)
+    logging.getLogger("nlipscalib").debug("error in nlips %s: %s", args.command, message)
+    return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

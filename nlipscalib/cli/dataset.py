@@ -1,4 +1,4 @@
-"""``nlips dataset SPEC --out DIR``: render many presses in parallel, resumably."""
+"""``nlips dataset SPEC --out DIR``: render many presses in parallel, resumably, from several processes at once."""
 
 from __future__ import annotations
 
@@ -10,12 +10,15 @@ def register(sub) -> None:
         "dataset",
         help="render many presses from a dataset spec (grid or random), in parallel, resumable",
         description="Render every press of a dataset spec (TOML/YAML, see scenes/datasets/). "
-        "Presses already rendered are skipped, so an interrupted run resumes where it stopped.",
+        "Presses already rendered are skipped, so an interrupted run resumes where it stopped. Several "
+        "runs (terminals, cluster array jobs, machines sharing the disk) may fill one folder at once: each "
+        "press is claimed by one of them and rendered exactly once.",
     )
     p.add_argument("spec", help="dataset spec file, e.g. scenes/datasets/train50.toml")
     p.add_argument("--out", required=True, help="folder that receives one press folder per press")
     p.add_argument("--workers", type=int, default=0, help="render processes (default: one per two cores)")
-    p.add_argument("--limit", type=int, default=0, help="render only the first N presses of the spec")
+    p.add_argument("--limit", type=int, default=0, help="render only the first N presses of the spec (0 = all)")
+    p.add_argument("--overwrite", action="store_true", help="re-render presses made from a different spec")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -23,16 +26,19 @@ def register(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..sim.dataset import expand_jobs, load_dataset_spec, run_dataset, write_manifest
+    from ..config import check_count
+    from ..sim.dataset import check_existing, expand_jobs, load_dataset_spec, run_dataset, write_manifest
 
+    check_count("--workers", args.workers, minimum=0)
+    check_count("--limit", args.limit, minimum=0)
     spec, scene = load_dataset_spec(args.spec)
     jobs = expand_jobs(spec)
-    if args.limit:
-        jobs = jobs[: args.limit]
+    todo = jobs[: args.limit] if args.limit else jobs
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_manifest(out, spec, scene, jobs)
-    result = run_dataset(scene, jobs, out, workers=args.workers, progress=not args.no_progress)
+    check_existing(scene, jobs, out, args.overwrite)  # before anything is written
+    write_manifest(out, spec, scene, jobs)  # only if it changes: a finished dataset on read-only media re-checks
+    progress = not args.no_progress
+    result = run_dataset(scene, todo, out, workers=args.workers, progress=progress, overwrite=args.overwrite)
     print(
         f"{out}: {len(result['rendered'])} rendered, {len(result['skipped'])} already there, "
         f"{len(result['failed'])} failed"

@@ -66,10 +66,45 @@ def _press(args):
 
 
 def run(args) -> int:
+    from pathlib import Path
+
+    from ..core.atomic import check_writable
+    from ..progress import working
     from ..sim.press import render_press
 
     scene = _scene(args)
     press = None if args.undeformed else _press(args)
-    path = render_press(scene, press, args.out, seed=args.seed, overwrite=args.overwrite)
-    print(f"rendered {'undeformed dome' if press is None else 'press'} to {path}")
+    out = Path(args.out)
+    if not args.overwrite and _up_to_date(out, scene, press, args.seed):
+        print(f"{out}: already rendered from this scene and press, nothing to do")
+        return 0
+    check_writable(out.parent, longest_name=len(out.name))  # before the render, not after it
+    what = "undeformed dome" if press is None else "press"
+    with working(f"rendering {what} ({scene.camera.width}x{scene.camera.height}, spp {scene.render.spp})"):
+        path = render_press(scene, press, out, seed=args.seed, overwrite=args.overwrite)
+    print(f"rendered {what} to {path}")
     return 0
+
+
+def _up_to_date(out, scene, press, seed) -> bool:
+    """True when ``out`` holds this very render; an existing folder from another spec is an error."""
+    import json
+
+    from ..core.capture import is_press_folder
+    from ..errors import ConfigError
+    from ..sim.press import render_spec_hash
+
+    if not out.exists():
+        return False
+    if not is_press_folder(out):
+        raise ConfigError(f"{out}: exists and is not a press folder; choose another --out or use --overwrite")
+    try:
+        recorded = json.loads((out / "meta.json").read_text()).get("provenance", {}).get("spec_hash")
+    except (OSError, ValueError, AttributeError):
+        recorded = None
+    if recorded != render_spec_hash(scene, press, seed):
+        raise ConfigError(
+            f"{out}: already holds a press rendered from a different scene, press or seed; "
+            "use --overwrite to replace it, or another --out"
+        )
+    return True

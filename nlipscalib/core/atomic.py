@@ -1,20 +1,32 @@
 """Atomic writes: a reader (or a resumed run) never sees a half-written file or folder.
 
 Everything is first written under a temporary name in the same directory, then moved into place with
-``os.replace``, which is atomic on POSIX file systems.
+a rename, which is atomic on POSIX file systems. Temporary names carry their owner
+(``.tmp-<name>~<host>~<pid>~<random>``) so that a clean-up run by another process removes only
+leftovers whose owner is gone, never a live process's work in progress.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import glob
 import json
 import os
+import secrets
 import shutil
 import tempfile
+import time
 from pathlib import Path
 
+from .claims import CLAIM_PREFIX, HOST, holder, pid_alive
+
 TMP_PREFIX = ".tmp-"
-"""Prefix of in-progress files and folders; anything starting with it is an interrupted write."""
+"""Prefix of in-progress files and folders; anything starting with it is a write in progress or interrupted."""
+OWNER_SEP = "~"
+"""Separates the item name, host and pid in a temporary name (hostnames never contain it)."""
+STALE_S = 600.0
+"""Age (s) after which a temporary entry from another machine, with no live claim, counts as abandoned."""
 
 
 def _umask() -> int:
@@ -30,19 +42,40 @@ FILE_MODE = 0o666 & ~_UMASK
 DIR_MODE = 0o777 & ~_UMASK
 
 
+def tmp_prefix(name: str) -> str:
+    """Prefix of this process's temporary entries for item ``name``."""
+    return f"{TMP_PREFIX}{name}{OWNER_SEP}{HOST}{OWNER_SEP}{os.getpid()}{OWNER_SEP}"
+
+
+def check_writable(folder: str | Path, longest_name: int = 0) -> None:
+    """Fail fast (OSError naming the path) when ``folder`` cannot receive output, before long work.
+
+    Creates and removes a probe folder named like the longest temporary folder an item of
+    ``longest_name`` characters will need, so a read-only disk, a permission problem or a name too
+    long shows up now, not after minutes of work. (A full disk may still show up later: work must
+    stop at the first failed write.)
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    probe = folder / (tmp_prefix("x" * longest_name) + "probe")
+    probe.mkdir()
+    probe.rmdir()
+
+
 def write_bytes(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temp file in the same folder, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=TMP_PREFIX + path.name, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(path.name), dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        _raise_with_path(exc, path)
         raise
     return path
 
@@ -55,40 +88,116 @@ def write_json(path: str | Path, obj) -> Path:
     return write_text(path, json.dumps(obj, indent=2, sort_keys=False) + "\n")
 
 
+def write_if_changed(path: str | Path, text: str) -> bool:
+    """Write ``text`` to ``path`` atomically unless the file already holds exactly it; True if written.
+
+    Lets a finished result on read-only media be re-checked without a write.
+    """
+    path = Path(path)
+    with contextlib.suppress(OSError):
+        if path.read_text(encoding="utf-8") == text:
+            return False
+    write_text(path, text)
+    return True
+
+
 @contextlib.contextmanager
 def atomic_dir(final: str | Path, overwrite: bool = False):
     """Build a folder under a temporary name and move it to ``final`` only if the block succeeds.
 
     Yields the temporary folder's path. On error the temporary folder is removed, so an interrupted
-    run leaves either the complete folder or nothing.
+    run leaves either the complete folder or nothing. Without ``overwrite``, the final rename never
+    replaces an existing complete folder, even one another process published meanwhile
+    (:class:`FileExistsError` then, and this process's folder is dropped).
     """
     final = Path(final)
     if final.exists() and not overwrite:
-        raise FileExistsError(f"{final} already exists (pass overwrite=True to replace it)")
+        raise FileExistsError(errno.EEXIST, "already exists", str(final))
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX + final.name + "-", dir=final.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(final.name), dir=final.parent))
     try:
         yield tmp
         os.chmod(tmp, DIR_MODE)
-        if final.exists():
-            old = final.with_name(TMP_PREFIX + final.name + "-old")
-            shutil.rmtree(old, ignore_errors=True)
-            os.replace(final, old)
-            os.replace(tmp, final)
-            shutil.rmtree(old, ignore_errors=True)
+        if overwrite and final.exists():
+            _swap_in(tmp, final)
         else:
-            os.replace(tmp, final)
-    except BaseException:
+            _rename_no_replace(tmp, final)
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        _raise_with_path(exc, final)
         raise
 
 
-def clean_interrupted(folder: str | Path) -> list[Path]:
-    """Remove leftovers of interrupted atomic writes directly inside ``folder``; returns what went."""
+def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | None = None) -> list[Path]:
+    """Remove leftovers of interrupted writes directly inside ``folder``; returns what went.
+
+    ``item``: only those of that entry's name (e.g. after taking over its claim).
+
+    A temporary entry is removed only when its owner is gone: a dead process on this machine, or
+    (other machines, whose processes cannot be checked) no live claim on its item and no change for
+    ``stale_s`` seconds. Stale claim files go too.
+    """
     folder = Path(folder)
     gone = []
-    if folder.is_dir():
-        for p in folder.glob(TMP_PREFIX + "*"):
+    if not folder.is_dir():
+        return gone
+    now = time.time()
+    pattern = "*" if item is None else glob.escape(item) + OWNER_SEP + "*"
+    for p in folder.glob(TMP_PREFIX + pattern):
+        if _abandoned(p, now, stale_s):
             shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
             gone.append(p)
+    for p in folder.glob(CLAIM_PREFIX + ("*" if item is None else glob.escape(item))):
+        target = p.with_name(p.name[len(CLAIM_PREFIX) :])
+        if p.suffix == "" and holder(target) is None:
+            _remove_stale_claim(p)
+            gone.append(p)
     return gone
+
+
+# ---------------------------------------------------------------------- internals
+def _raise_with_path(exc: BaseException, path: Path) -> None:
+    """Some writers (file.write, numpy, image libraries) raise OSError without the path: add it."""
+    if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:
+        raise type(exc)(exc.errno, exc.strerror or str(exc), str(path)) from exc
+
+
+def _rename_no_replace(tmp: Path, final: Path) -> None:
+    """Rename a folder into place; fails (FileExistsError) if ``final`` is a non-empty folder.
+
+    rename(2) of a directory replaces only an empty one, so this is atomic with respect to other
+    processes publishing the same folder.
+    """
+    try:
+        os.rename(tmp, final)
+    except OSError as exc:
+        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+            raise FileExistsError(errno.EEXIST, "already exists (written by another process)", str(final)) from None
+        raise
+
+
+def _swap_in(tmp: Path, final: Path) -> None:
+    old = final.with_name(tmp_prefix(final.name) + "old-" + secrets.token_hex(4))
+    os.replace(final, old)
+    os.replace(tmp, final)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _abandoned(p: Path, now: float, stale_s: float) -> bool:
+    parts = p.name[len(TMP_PREFIX) :].rsplit(OWNER_SEP, 3)
+    if len(parts) == 4 and parts[2].isdigit():
+        item, host, pid = parts[0], parts[1], int(parts[2])
+        if host == HOST:
+            return not pid_alive(pid)
+        if holder(p.with_name(item)) is not None:
+            return False
+    try:
+        return now - p.stat().st_mtime > stale_s
+    except FileNotFoundError:
+        return False
+
+
+def _remove_stale_claim(path: Path) -> None:
+    from .claims import _read_owner, _remove_if_same
+
+    _remove_if_same(path, _read_owner(path))

@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import json
 import logging
 import os
+import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
@@ -18,14 +20,18 @@ from pathlib import Path
 import numpy as np
 
 from ..config import from_mapping, read_config_file
-from ..core.atomic import clean_interrupted, write_json
+from ..core.atomic import check_writable, clean_interrupted, write_if_changed
 from ..core.capture import is_press_folder
 from ..errors import ConfigError
+from ..progress import progress_bar
 from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
 
 log = logging.getLogger(__name__)
 REFERENCE_NAME = "reference"
+MANIFEST = "dataset.json"
+BUSY_POLL_S = 1.0
+"""Seconds between checks on presses another process is rendering."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,50 +119,75 @@ def expand_jobs(spec: DatasetSpec) -> list[PressJob]:
     return jobs
 
 
-def run_dataset(scene: SceneConfig, jobs: list[PressJob], out: str | Path, workers: int = 0, progress=True) -> dict:
+def run_dataset(
+    scene: SceneConfig,
+    jobs: list[PressJob],
+    out: str | Path,
+    workers: int = 0,
+    progress=True,
+    overwrite: bool = False,
+    stale_s: float = 60.0,
+) -> dict:
     """Render every job not yet done into ``out``; returns {"rendered", "skipped", "failed"} lists.
+
+    Several processes (terminals, cluster array jobs, machines sharing the disk) may run this on one
+    folder at once: each press is claimed (core.claims) before it is rendered, a press another live
+    process holds is left to it (and waited for, in case that process dies), and a finished press is
+    never rendered again nor replaced. An OSError (disk full, read-only, permission, name too long)
+    stops the run at the first failure and is raised; other per-press errors are reported in
+    ``failed`` and the rest goes on.
 
     Parameters
     ----------
     workers : processes (0 = one per two cores, at least 1); each gets cores // workers threads.
+    overwrite : re-render presses whose folder was made from a different spec (else that is an error)
+    stale_s : seconds without heartbeat after which another process's claim is taken over
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    for stale in clean_interrupted(out):
-        log.info("removed interrupted write %s", stale.name)
-    todo = [j for j in jobs if not is_press_folder(out / j.name)]
+    if workers < 0:
+        raise ConfigError(f"workers must be >= 0 (0 = automatic), got {workers}")
+    check_existing(scene, jobs, out, overwrite)
+    todo = [j for j in jobs if not _done(scene, j, out)]
     result = {"rendered": [], "skipped": [j.name for j in jobs if j not in todo], "failed": []}
     if not todo:
         return result
+    check_writable(out, longest_name=max(len(j.name) for j in todo))
+    for stale in clean_interrupted(out):
+        log.info("removed interrupted write %s", stale.name)
     cores = os.cpu_count() or 1
     workers = min(len(todo), workers or max(1, cores // 2))
-    threads = max(1, cores // workers)
-    scene = scene.replace(render={"threads": threads})
-    bar = _progress(len(jobs), len(result["skipped"]), progress)
-    if workers == 1:
-        for job in todo:
-            _record(result, job.name, _run_one, (scene, job, out), bar)
-    else:
-        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
-            futures = {pool.submit(_render_job, scene, job, out): job for job in todo}
-            for fut in as_completed(futures):
-                _record(result, futures[fut].name, fut.result, (), bar)
-    bar.close()
+    scene = scene.replace(render={"threads": max(1, cores // workers)})
+    with progress_bar(
+        total=len(jobs), initial=len(result["skipped"]), unit="press", desc="rendering", enabled=progress
+    ) as bar:
+        if workers == 1:
+            _rounds(todo, lambda job: _render_job(scene, job, out, overwrite, stale_s), result, bar)
+        else:
+            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+                submit = lambda job: pool.submit(_render_job, scene, job, out, overwrite, stale_s)  # noqa: E731
+                try:
+                    _rounds(todo, submit, result, bar, pool=True)
+                except BaseException:
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    raise
     return result
 
 
-def write_manifest(out: Path, spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> None:
-    """A JSON list of the dataset's presses beside them (what was asked, not what finished)."""
+def manifest_text(spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> str:
+    """dataset.json's content: what was asked (the whole spec, whatever ``--limit`` renders)."""
     from ..config import to_mapping
 
-    write_json(
-        out / "dataset.json",
-        {
-            "spec": to_mapping(spec),
-            "scene": scene.to_dict(),
-            "presses": [{"name": j.name, "seed": j.seed, "press": to_mapping(j.press)} for j in jobs],
-        },
-    )
+    data = {
+        "spec": to_mapping(spec),
+        "scene": scene.to_dict(),
+        "presses": [{"name": j.name, "seed": j.seed, "press": to_mapping(j.press)} for j in jobs],
+    }
+    return json.dumps(data, indent=2) + "\n"
+
+
+def write_manifest(out: Path, spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> bool:
+    """Write dataset.json beside the presses, only if its content changes (read-only re-checks work)."""
+    return write_if_changed(out / MANIFEST, manifest_text(spec, scene, jobs))
 
 
 # ---------------------------------------------------------------------- internals
@@ -183,35 +214,93 @@ def _random_presses(spec: RandomSpec, seed: int) -> list[PressConfig]:
     ]
 
 
-def _render_job(scene: SceneConfig, job: PressJob, out: Path) -> str | None:
-    """Worker body: returns None on success, else the error text (errors must not kill the pool)."""
+def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) -> None:
+    """Run jobs; jobs busy in another process are retried until done or taken over (owner died)."""
+    while todo:
+        if pool:
+            futures = {start(job): job for job in todo}
+            outcomes = ((futures[f], f.result()) for f in as_completed(futures))
+        else:
+            outcomes = ((job, start(job)) for job in todo)
+        busy = []
+        for job, (status, detail) in outcomes:
+            if status == "oserror":
+                raise OSError(*detail)
+            if status == "busy":
+                busy.append(job)
+                continue
+            result["failed" if status == "failed" else status].append(
+                (job.name, detail) if status == "failed" else job.name
+            )
+            if status == "failed":
+                log.error("%s failed: %s", job.name, detail)
+            log.debug("press %s: %s", job.name, status)
+            bar.update(1)
+        if busy:
+            log.info("waiting for %d press(es) another process is rendering", len(busy))
+            time.sleep(BUSY_POLL_S)
+        todo = busy
+
+
+def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, stale_s: float) -> tuple[str, object]:
+    """Worker body: claim, render, release. Returns (status, detail); errors must not kill the pool.
+
+    status is "rendered", "skipped" (finished meanwhile by another process), "busy" (another live
+    process holds it), "failed" (detail: the error text) or "oserror" (detail: errno, text, path).
+    """
+    from ..core.claims import claim
+
     try:
-        _run_one(scene, job, out)
-        return None
+        with claim(out / job.name, stale_s=stale_s) as mine:
+            if not mine:
+                return "busy", None
+            if _done(scene, job, out):
+                return "skipped", None
+            clean_interrupted(out, item=job.name)  # a dead owner's half-written folder, if any
+            _run_one(scene, job, out, overwrite)
+            return "rendered", None
+    except FileExistsError:  # published by a process that lost its claim: the folder is whole
+        return "skipped", None
+    except OSError as exc:
+        return "oserror", (exc.errno, exc.strerror or str(exc), exc.filename or str(out / job.name))
     except Exception as exc:  # reported per press; the other presses go on
-        return f"{type(exc).__name__}: {exc}"
+        return "failed", f"{type(exc).__name__}: {exc}"
 
 
-def _run_one(scene: SceneConfig, job: PressJob, out: Path) -> None:
+def _run_one(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = False) -> None:
     from .press import render_press
 
-    render_press(scene, job.press, out / job.name, seed=job.seed)
+    render_press(scene, job.press, out / job.name, seed=job.seed, overwrite=overwrite)
 
 
-def _record(result: dict, name: str, call, args, bar) -> None:
+def _recorded_hash(folder: Path) -> str | None:
     try:
-        error = call(*args)
-    except Exception as exc:
-        error = f"{type(exc).__name__}: {exc}"
-    if error:
-        result["failed"].append((name, error))
-        log.error("%s failed: %s", name, error)
-    else:
-        result["rendered"].append(name)
-    bar.update(1)
+        meta = json.loads((folder / "meta.json").read_text())
+        return meta.get("provenance", {}).get("spec_hash")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
-def _progress(total: int, done: int, enabled: bool):
-    from tqdm.auto import tqdm
+def _expected_hash(scene: SceneConfig, job: PressJob) -> str:
+    from .press import render_spec_hash
 
-    return tqdm(total=total, initial=done, unit="press", desc="rendering", disable=not enabled)
+    return render_spec_hash(scene, job.press, job.seed)
+
+
+def _done(scene: SceneConfig, job: PressJob, out: Path) -> bool:
+    """A complete folder rendered from this very spec."""
+    folder = out / job.name
+    return is_press_folder(folder) and _recorded_hash(folder) == _expected_hash(scene, job)
+
+
+def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:
+    """Finished presses made from another spec are an error (or re-rendered with ``overwrite``)."""
+    if overwrite:
+        return
+    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not _done(scene, j, out)]
+    if changed:
+        names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+        raise ConfigError(
+            f"{out}: {names} were rendered from a different scene or spec; render into a new folder, "
+            "or use --overwrite to re-render them"
+        )

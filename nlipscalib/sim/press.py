@@ -106,6 +106,20 @@ def press_seed(scene_seed: int, press_dict: dict | None) -> int:
     return int(np.random.SeedSequence([int(scene_seed), digest]).generate_state(1)[0])
 
 
+def render_spec_hash(scene, press=None, seed=None) -> str:
+    """Hash of everything that determines a render (scene, press, seed; not the thread count).
+
+    Stored as ``provenance.spec_hash`` so re-runs can tell a matching press folder from a stale one.
+    """
+    from ..config import digest, to_mapping
+
+    press_dict = None if press is None else to_mapping(press)
+    seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
+    data = scene.to_dict()
+    data["render"] = {k: v for k, v in data["render"].items() if k != "threads"}
+    return digest({"scene": data, "press": press_dict, "seed": seed})
+
+
 def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False, return_result=False):
     """Render one press (or the undeformed dome when ``press`` is None) into a press folder.
 
@@ -139,6 +153,7 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
     tri = apply_noise(tricolor_linear(result.images), tri_exposure, cfg, rng)
     provenance = {
         "source": "sim",
+        "spec_hash": render_spec_hash(scene, press, seed),
         "scene": scene.to_dict(),
         "press": press_dict,
         "seed": seed,

@@ -1,3 +1,6 @@
+import json
+import os
+
 import numpy as np
 import pytest
 
@@ -5,6 +8,7 @@ from nlipscalib.core.atomic import TMP_PREFIX
 from nlipscalib.errors import ConfigError
 from nlipscalib.sim import dataset as ds
 from nlipscalib.sim.dataset import DatasetSpec, expand_jobs, load_dataset_spec, run_dataset
+from nlipscalib.sim.press import render_spec_hash
 from nlipscalib.sim.scene import SCENES_DIR
 
 
@@ -75,17 +79,19 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
     jobs = expand_jobs(spec)[:4]
     calls = []
 
-    def fake_render(scene, job, out):
+    def fake_render(scene, job, out, overwrite=False):
         calls.append(job.name)
         if job.name == "press_0002":
             raise ConfigError("indenter off the dome")
         folder = out / job.name
         folder.mkdir()
-        (folder / "meta.json").write_text("{}")
+        meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
+        (folder / "meta.json").write_text(json.dumps(meta))
 
     monkeypatch.setattr(ds, "_run_one", fake_render)
     out = tmp_path / "out"
-    (out / (TMP_PREFIX + "press_0001-x")).mkdir(parents=True)  # an interrupted earlier write
+    (out / (TMP_PREFIX + "press_0001-x")).mkdir(parents=True)  # an interrupted earlier write (old naming)
+    os.utime(out / (TMP_PREFIX + "press_0001-x"), (0, 0))
     first = run_dataset(scene, jobs, out, workers=1, progress=False)
     assert sorted(first["rendered"]) == ["press_0000", "press_0001", "reference"]
     assert first["failed"][0][0] == "press_0002" and "off the dome" in first["failed"][0][1]

@@ -1,0 +1,142 @@
+"""``nlips leds PORT ACTION``: check and drive the sensor's LED controller from the command line.
+
+PORT is a serial device (``/dev/ttyACM0``, ``COM3``), a pyserial URL (``socket://host:port``), or
+``virtual`` / ``virtual:N`` for an in-process virtual board with N LEDs (try the commands without hardware).
+``--adalight N`` drives a stock Adalight board with N LEDs instead of the nlips firmware.
+"""
+
+from __future__ import annotations
+
+ACTIONS = {
+    "info": 0,
+    "test": 0,
+    "state": 0,
+    "off": 0,
+    "set": 4,
+    "all": 3,
+}
+"""Action -> number of integer values it takes."""
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "leds",
+        help="check or drive the LED controller (info, test, set, all, off, state)",
+        description="Check or drive the LED controller. Examples: nlips leds /dev/ttyACM0 info; "
+        "nlips leds /dev/ttyACM0 test; nlips leds /dev/ttyACM0 set 3 255 255 255; nlips leds virtual test",
+    )
+    p.add_argument("port", help="serial device or pyserial URL; 'virtual[:N]' for a virtual board")
+    p.add_argument(
+        "action",
+        choices=sorted(ACTIONS),
+        help="info: firmware and LED count; test: light each LED alone, then all red, green, blue; "
+        "set INDEX R G B; all R G B; off; state: colours the LEDs show",
+    )
+    p.add_argument("values", nargs="*", type=int, help="INDEX R G B for set, R G B for all (0..255)")
+    p.add_argument("--adalight", type=int, metavar="N", help="the board runs Adalight with N LEDs")
+    p.add_argument("--timeout", type=float, default=1.0, help="seconds to wait for each reply (default 1)")
+    p.add_argument("--dwell", type=float, default=0.3, help="test: seconds each step stays lit (default 0.3)")
+    p.add_argument("--level", type=int, default=64, help="test: brightness 0..255 (default 64)")
+    p.set_defaults(func=run, parser=p)
+
+
+def run(args) -> int:
+    expected = ACTIONS[args.action]
+    if len(args.values) != expected:
+        args.parser.error(f"{args.action} takes {expected} numbers, got {len(args.values)}")
+    if not all(0 <= v <= 255 for v in args.values[-3:]) or not 0 <= args.level <= 255:
+        args.parser.error("colour values must be 0..255")
+    if args.adalight is not None and args.adalight < 1:
+        args.parser.error("--adalight needs the strip's LED count (>= 1)")
+    count = args.port.partition(":")[2] if args.port.startswith("virtual:") else "12"
+    if not count.isdigit() or not 1 <= int(count) <= 255:
+        args.parser.error(f"virtual:N needs an LED count 1..255, got {count!r}")
+    leds, board = _open(args)  # board: the virtual board, kept alive while the controller uses it
+    with leds:
+        return _ACTIONS[args.action](leds, args)
+
+
+def _open(args):
+    from ..device.adalight import AdalightController
+    from ..device.controller import LedController
+
+    board = None
+    url = args.port
+    if url == "virtual" or url.startswith("virtual:"):
+        from ..device.virtual_board import VirtualBoard
+
+        board = VirtualBoard(int(url.partition(":")[2] or 12))
+        url = board.url
+    if args.adalight is not None:
+        return AdalightController.open(url, args.adalight), board
+    return LedController.open(url, timeout=args.timeout), board
+
+
+def _info(leds, args) -> int:
+    if not leds.acknowledged:
+        print(f"Adalight board, {leds.n_leds} LEDs (no acknowledgement: settle delay {leds.settle_s * 1e3:.0f} ms)")
+        return 0
+    info = leds.info
+    print(f"firmware {info.firmware}, protocol {info.protocol}, {info.n_leds} LEDs, session {info.session_id}")
+    return 0
+
+
+def _test(leds, args) -> int:
+    import time
+
+    import numpy as np
+
+    steps = [(f"LED {i}", _one_lit(leds.n_leds, i, args.level)) for i in range(leds.n_leds)]
+    for name, channel in (("all red", 0), ("all green", 1), ("all blue", 2)):
+        frame = np.zeros((leds.n_leds, 3), np.uint8)
+        frame[:, channel] = args.level
+        steps.append((name, frame))
+    times = []
+    for name, frame in steps:
+        start = time.perf_counter()
+        leds.set_all(frame)
+        times.append(time.perf_counter() - start)
+        if leds.acknowledged and not np.array_equal(leds.state(), frame):
+            print(f"{name}: the board reports other colours than sent")
+            return 1
+        print(f"{name}: lit ({times[-1] * 1e3:.1f} ms)", flush=True)
+        time.sleep(args.dwell)
+    leds.off()
+    resends = getattr(leds, "resends", 0)
+    print(f"ok: {len(steps)} steps, median {np.median(times) * 1e3:.1f} ms per change, {resends} lines resent")
+    return 0
+
+
+def _one_lit(n_leds: int, index: int, level: int):
+    import numpy as np
+
+    frame = np.zeros((n_leds, 3), np.uint8)
+    frame[index] = level
+    return frame
+
+
+def _state(leds, args) -> int:
+    for i, (r, g, b) in enumerate(leds.state()):
+        print(f"LED {i}: {r} {g} {b}")
+    return 0
+
+
+def _off(leds, args) -> int:
+    leds.off()
+    return 0
+
+
+def _set(leds, args) -> int:
+    index, *rgb = args.values
+    leds.set_led(index, rgb)
+    return 0
+
+
+def _all(leds, args) -> int:
+    import numpy as np
+
+    leds.set_all(np.tile(np.array(args.values, np.uint8), (leds.n_leds, 1)))
+    return 0
+
+
+_ACTIONS = {"info": _info, "test": _test, "state": _state, "off": _off, "set": _set, "all": _all}

@@ -1,0 +1,217 @@
+"""Per-item claims: several processes (on one machine or several sharing a file system) split work.
+
+A claim on ``target`` (a folder some process will produce) is a small JSON file beside it,
+``.claim-<name>``, holding its owner (host, pid, a random token). It is created atomically with a
+hard link (``os.link`` fails if the name exists, also on NFS), falling back to ``O_CREAT|O_EXCL``
+where hard links are not supported. While held, a daemon thread refreshes the file's modification
+time (the heartbeat). A claim is *stale*, and taken over, when its owner process is gone (same host)
+or its heartbeat is older than ``stale_s``. Ages are measured against the shared file system's own
+clock (the mtime of a file we just wrote), so clock skew between machines does not matter.
+
+Claims avoid duplicate work; they are not what keeps data correct. Folders are still published with
+an atomic rename that never replaces a complete folder (core.atomic.atomic_dir), so even a lost race
+costs only wasted work.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import json
+import logging
+import os
+import secrets
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+CLAIM_PREFIX = ".claim-"
+"""Prefix of claim files (never starts with core.atomic.TMP_PREFIX, so cleaners leave them alone)."""
+HOST = socket.gethostname()
+
+
+@dataclass(frozen=True)
+class Owner:
+    """Who holds a claim."""
+
+    host: str
+    pid: int
+    token: str
+
+
+def claim_path(target: str | Path) -> Path:
+    """The claim file of ``target``: a hidden sibling ``.claim-<name>``."""
+    target = Path(target)
+    return target.parent / (CLAIM_PREFIX + target.name)
+
+
+@contextlib.contextmanager
+def claim(target: str | Path, *, stale_s: float = 60.0) -> Iterator[bool]:
+    """Claim exclusive work on ``target`` for the duration of the block.
+
+    Parameters
+    ----------
+    target : folder (or file) this process means to produce; its parent is created if missing.
+    stale_s : seconds without heartbeat after which another process's claim counts as abandoned.
+
+    Yields
+    ------
+    bool
+        True when this process holds the claim (do the work), False when another live process holds
+        it (skip the item). The claim is released (its file removed) when the block exits.
+    """
+    if stale_s <= 0:
+        raise ValueError(f"stale_s must be > 0, got {stale_s}")
+    path = claim_path(target)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    me = Owner(HOST, os.getpid(), secrets.token_hex(8))
+    if not _acquire(path, me, stale_s):
+        yield False
+        return
+    beat = _Heartbeat(path, me, interval=max(0.05, stale_s / 4))
+    beat.start()
+    try:
+        yield True
+    finally:
+        beat.stop()
+        _release(path, me)
+
+
+def holder(target: str | Path, *, stale_s: float = 60.0) -> Owner | None:
+    """The live owner of ``target``'s claim, or None when it is unclaimed or the claim is stale."""
+    path = claim_path(target)
+    owner = _read_owner(path)
+    if owner is None and not path.exists():
+        return None
+    if _is_stale(path, owner, stale_s, now=_fs_now(path.parent)):
+        return None
+    return owner
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this id runs on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by another user
+        return True
+    return True
+
+
+# ---------------------------------------------------------------------- internals
+def _acquire(path: Path, me: Owner, stale_s: float) -> bool:
+    for _ in range(3):  # a takeover can race another process's; retry a couple of times
+        if _create(path, me):
+            return True
+        owner = _read_owner(path)
+        now = _fs_now(path.parent)
+        if not _is_stale(path, owner, stale_s, now):
+            return False
+        log.info("taking over stale claim %s (owner %s)", path, owner)
+        _remove_if_same(path, owner)
+    return False
+
+
+def _create(path: Path, me: Owner) -> bool:
+    """Atomically create the claim file holding ``me``; False if it exists already."""
+    data = json.dumps({"host": me.host, "pid": me.pid, "token": me.token}).encode()
+    tmp = path.with_name(f"{path.name}.{me.token}")
+    tmp.write_bytes(data)
+    try:
+        os.link(tmp, path)
+        return True
+    except FileExistsError:
+        return False
+    except OSError as exc:  # file systems without hard links: exclusive create instead
+        if exc.errno not in (errno.EPERM, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EMLINK):
+            raise
+        return _create_exclusive(path, data)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _create_exclusive(path: Path, data: bytes) -> bool:
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:
+        return False
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    return True
+
+
+def _read_owner(path: Path) -> Owner | None:
+    try:
+        d = json.loads(path.read_bytes())
+        return Owner(str(d["host"]), int(d["pid"]), str(d["token"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # missing, or being written by an O_EXCL creator
+
+
+def _is_stale(path: Path, owner: Owner | None, stale_s: float, now: float) -> bool:
+    try:
+        age = now - path.stat().st_mtime
+    except FileNotFoundError:
+        return True
+    if owner is not None and owner.host == HOST and not pid_alive(owner.pid):
+        return True
+    return age > stale_s
+
+
+def _fs_now(folder: Path) -> float:
+    """The current time by the file system's clock (matters when machines' clocks disagree)."""
+    probe = folder / f"{CLAIM_PREFIX}probe.{HOST}.{os.getpid()}.{secrets.token_hex(4)}"
+    try:
+        probe.write_bytes(b"")
+        return probe.stat().st_mtime
+    except OSError:
+        return time.time()
+    finally:
+        probe.unlink(missing_ok=True)
+
+
+def _remove_if_same(path: Path, owner: Owner | None) -> None:
+    """Remove a stale claim, unless another process replaced it meanwhile (then it is not stale)."""
+    aside = path.with_name(f"{path.name}.stale.{secrets.token_hex(6)}")
+    try:
+        os.rename(path, aside)  # only one of several racing takers wins this rename
+    except FileNotFoundError:
+        return
+    if _read_owner(aside) != owner:  # we moved a fresh claim: put it back
+        with contextlib.suppress(FileExistsError):
+            os.link(aside, path)
+    aside.unlink(missing_ok=True)
+
+
+def _release(path: Path, me: Owner) -> None:
+    if _read_owner(path) == me:
+        path.unlink(missing_ok=True)
+
+
+class _Heartbeat(threading.Thread):
+    """Refreshes the claim file's mtime; notices (and logs) a claim lost to a takeover."""
+
+    def __init__(self, path: Path, me: Owner, interval: float):
+        super().__init__(name=f"claim-heartbeat-{path.name}", daemon=True)
+        self.path, self.me, self.interval = path, me, interval
+        self._stop_event = threading.Event()
+        self.lost = False
+
+    def run(self) -> None:
+        while not self._stop_event.wait(self.interval):
+            if _read_owner(self.path) != self.me:
+                self.lost = True
+                log.warning("claim %s was taken over by another process", self.path)
+                return
+            with contextlib.suppress(OSError):
+                os.utime(self.path)
+
+    def stop(self) -> None:
+        self._stop_event.set()
+        self.join()

@@ -1,0 +1,496 @@
+"""Host driver for the nlips LED controller (protocol: docs/protocol.md, firmware: firmware/).
+
+Every call returns only after the board acknowledged that the LEDs latched the new colours, so a camera
+frame grabbed afterwards shows the new light. Lines are checked (CRC-16) and numbered; a lost or corrupted
+line is resent, garbage and half lines are skipped, an unplugged board is reopened, a rebooted board is
+detected (boot banner, or a board that lost its session).
+
+Usage::
+
+    with LedController.open("/dev/ttyACM0") as leds:      # or loop://, socket://host:port, nlipsemu://1
+        leds.set_led(3, (255, 255, 255))
+        leds.set_all(np.zeros((leds.n_leds, 3), np.uint8))
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import threading
+import time
+
+import numpy as np
+
+from ..errors import DeviceError, ShapeError, require
+from . import protocol as p
+
+log = logging.getLogger(__name__)
+
+SUPPORTED_FIRMWARE_MAJOR = 1
+"""Firmware major version this driver works with (the firmware in firmware/ reports 1.x.y)."""
+BAUD_RATE = 115200
+READ_SLICE_S = 0.02
+"""Longest single blocking read, so deadlines are checked often."""
+MAX_RX_BUFFER = 8192
+
+
+class PortNotFoundError(DeviceError):
+    """The serial port (or URL) does not exist."""
+
+
+class PortPermissionError(DeviceError):
+    """The serial port exists but this user may not open it."""
+
+
+class PortBusyError(DeviceError):
+    """Another program holds the serial port."""
+
+
+class DeviceTimeoutError(DeviceError):
+    """The board did not answer (after all retries)."""
+
+
+class WrongDeviceError(DeviceError):
+    """Something answers on the port, but it is not the nlips LED firmware."""
+
+
+class ProtocolVersionError(DeviceError):
+    """The board runs a firmware or protocol version this driver does not speak."""
+
+
+class LedIndexError(DeviceError):
+    """An LED index outside 0..n_leds-1."""
+
+
+class BoardError(DeviceError):
+    """The board answered a command with an error code."""
+
+    def __init__(self, message: str, code: int):
+        super().__init__(message)
+        self.code = code
+
+
+class BoardResetError(DeviceError):
+    """The board rebooted during the session (its LEDs went dark; frames taken meanwhile may be wrong)."""
+
+
+class DeviceDisconnectedError(DeviceError):
+    """The port vanished (cable pulled) and did not come back in time."""
+
+
+def _serial():
+    serial = require("serial", "pyserial", "The LED controller")
+    if "nlipscalib.device" not in serial.protocol_handler_packages:
+        serial.protocol_handler_packages.append("nlipscalib.device")  # nlipsemu:// (virtual board)
+    return serial
+
+
+def open_port(url: str, *, baudrate: int = BAUD_RATE, write_timeout: float = 1.0):
+    """Open ``url`` with ``serial.serial_for_url``, turning failures into one clear DeviceError.
+
+    Raises
+    ------
+    PortNotFoundError, PortPermissionError, PortBusyError, DeviceError
+    """
+    serial = _serial()
+    try:
+        return serial.serial_for_url(
+            url, baudrate=baudrate, timeout=READ_SLICE_S, write_timeout=write_timeout, exclusive=True
+        )
+    except ValueError as exc:  # unknown URL scheme or bad settings
+        raise PortNotFoundError(
+            f"{url}: {exc} (use a device such as /dev/ttyACM0 or COM3, or loop://, socket://HOST:PORT, nlipsemu://ID)"
+        ) from None
+    except serial.SerialException as exc:
+        raise _open_error(url, exc) from None
+
+
+def _open_error(url: str, exc: Exception) -> DeviceError:
+    code = getattr(exc, "errno", None)
+    if code in (errno.EACCES, errno.EPERM):
+        return PortPermissionError(
+            f"{url}: permission denied. Add yourself to the group that owns the port "
+            "(Debian/Ubuntu: sudo usermod -aG dialout $USER; Arch: uucp), then log out and back in"
+        )
+    if code in (errno.EBUSY, errno.EAGAIN) or "lock" in str(exc).lower():
+        return PortBusyError(f"{url}: port busy: another program has it open (an Arduino serial monitor?)")
+    if code == errno.ENOENT or "no such" in str(exc).lower():
+        return PortNotFoundError(f"{url}: no such serial port (is the board plugged in?). {_ports_present()}")
+    return DeviceError(f"{url}: could not open the port: {exc}")
+
+
+def _ports_present() -> str:
+    try:
+        from serial.tools import list_ports
+
+        names = sorted(port.device for port in list_ports.comports())
+    except Exception:  # noqa: BLE001 - listing is only a hint
+        return ""
+    return f"Serial ports present: {', '.join(names)}" if names else "No serial ports are present."
+
+
+class LedController:
+    """A session with the nlips LED firmware (or the virtual board). Create with LedController.open().
+
+    Attributes
+    ----------
+    n_leds : int
+        Number of LEDs the board drives.
+    firmware : str
+        Firmware version the board reported.
+    info : protocol.BoardInfo
+        Everything HELLO reported (firmware, protocol, LED count, session id).
+    acknowledged : bool
+        True: each call returns after the board confirmed the LEDs latched (no settle delay needed).
+    resets, reconnects, resends : int
+        How often the board rebooted, the port was reopened, a line was sent again.
+    """
+
+    acknowledged = True
+
+    def __init__(self, url: str, *, timeout: float, retries: int, reconnect_s: float, on_reset: str, baudrate: int):
+        if on_reset not in ("raise", "restore"):
+            raise ValueError(f"on_reset must be 'raise' or 'restore', got {on_reset!r}")
+        self.url, self.timeout, self.retries = url, float(timeout), int(retries)
+        self.reconnect_s, self.on_reset, self.baudrate = float(reconnect_s), on_reset, baudrate
+        self.resets = self.reconnects = self.resends = 0
+        self._port = None
+        self._rx = bytearray()
+        self._seq = 0
+        self._lock = threading.RLock()
+        self._reset_seen = False
+        self._foreign: list[bytes] = []
+        self.info: p.BoardInfo | None = None
+        self._shown = self._staged = None
+
+    # --- opening --------------------------------------------------------------------------------------
+    @classmethod
+    def open(
+        cls,
+        url: str,
+        *,
+        timeout: float = 1.0,
+        retries: int = 3,
+        reconnect_s: float = 5.0,
+        on_reset: str = "raise",
+        baudrate: int = BAUD_RATE,
+        expected_leds: int | None = None,
+    ) -> LedController:
+        """Open the port, say HELLO, check the firmware and protocol versions.
+
+        Parameters
+        ----------
+        url : str
+            Serial device (``/dev/ttyACM0``, ``COM3``) or pyserial URL (``loop://``, ``socket://host:port``,
+            ``nlipsemu://<id>`` for device.virtual_board.VirtualBoard).
+        timeout : float
+            Seconds to wait for each reply before sending the line again, s.
+        retries : int
+            How many times a line is sent again (timeout, corrupted line) before giving up.
+        reconnect_s : float
+            How long to wait for an unplugged board to come back, s.
+        on_reset : {"raise", "restore"}
+            When the board rebooted mid-session the driver always re-opens the session and restores the last
+            acknowledged colours; "raise" then raises BoardResetError (frames taken meanwhile may be wrong),
+            "restore" carries on silently (a warning is logged).
+        baudrate : int
+            Line speed; the firmware uses 115200.
+        expected_leds : int, optional
+            Fail unless the board drives exactly this many LEDs (the sensor design's count).
+        """
+        ctrl = cls(url, timeout=timeout, retries=retries, reconnect_s=reconnect_s, on_reset=on_reset, baudrate=baudrate)
+        ctrl._port = open_port(url, baudrate=baudrate, write_timeout=timeout)
+        try:
+            ctrl._start_session()
+            if expected_leds is not None and ctrl.n_leds != expected_leds:
+                raise DeviceError(f"{url}: the board drives {ctrl.n_leds} LEDs but {expected_leds} are expected")
+        except BaseException:
+            ctrl.close()
+            raise
+        return ctrl
+
+    def _start_session(self) -> None:
+        info = self._hello()
+        if self.info is not None and (info.n_leds, info.protocol) != (self.info.n_leds, self.info.protocol):
+            raise WrongDeviceError(f"{self.url}: a different board answered after reconnecting ({info})")
+        self.info = info
+        if self._shown is None:
+            self._shown = np.zeros((info.n_leds, 3), np.uint8)
+            self._staged = self._shown.copy()
+        self._reset_seen = False
+
+    def _hello(self) -> p.BoardInfo:
+        try:
+            reply = self._exchange("HELLO", session=False)
+        except DeviceTimeoutError:
+            raise self._no_hello_error() from None
+        try:
+            info = p.decode_info(reply.payload)
+        except p.FrameError as exc:
+            raise WrongDeviceError(f"{self.url}: unexpected HELLO answer: {exc}") from None
+        _check_versions(self.url, info)
+        return info
+
+    def _no_hello_error(self) -> DeviceError:
+        heard = b" | ".join(line[:30] for line in self._foreign[-3:])
+        if any(line.startswith(b"Ada") for line in self._foreign):
+            return WrongDeviceError(
+                f"{self.url}: this board prints 'Ada': it runs Adalight firmware, not the nlips LED firmware. "
+                "Drive it with nlipscalib.device.adalight.AdalightController, or flash firmware/ (see its README)"
+            )
+        hint = f" It printed: {heard!r}." if heard else ""
+        return DeviceTimeoutError(
+            f"{self.url}: no answer to HELLO after {self.retries + 1} tries of {self.timeout:g} s.{hint} "
+            f"Is the nlips LED firmware flashed (firmware/README.md) and the line at {self.baudrate} baud?"
+        )
+
+    # --- public API -----------------------------------------------------------------------------------
+    @property
+    def n_leds(self) -> int:
+        return self.info.n_leds
+
+    @property
+    def firmware(self) -> str:
+        return self.info.firmware
+
+    @property
+    def session_id(self) -> str:
+        return self.info.session_id
+
+    def set_led(self, index: int, rgb, *, show: bool = True) -> None:
+        """Set LED ``index`` (0-based) to ``rgb`` (3 ints 0..255); latched unless ``show=False`` (staged)."""
+        index = self._check_index(index)
+        colour = _check_colours(np.asarray(rgb).reshape(1, 3), 1)[0]
+
+        def stage(staged):
+            staged[index] = colour
+
+        self._command("SET" if show else "PUT", index, p.encode_colour(colour), stage=stage, latch=show)
+
+    def set_all(self, colours) -> None:
+        """Set and latch every LED in one frame. ``colours : (N, 3) uint8, RGB``."""
+        colours = _check_colours(colours, self.n_leds)
+
+        def stage(staged):
+            staged[:] = colours
+
+        self._command("ALL", p.encode_colours(colours), stage=stage, latch=True)
+
+    def off(self) -> None:
+        """Switch every LED off (latched)."""
+        self._command("OFF", stage=lambda staged: staged.fill(0), latch=True)
+
+    def show(self) -> None:
+        """Latch the colours staged with ``set_led(..., show=False)``."""
+        self._command("SHOW", latch=True)
+
+    def state(self) -> np.ndarray:
+        """``(N, 3) uint8``: the colours the LEDs show now, as the board reports them."""
+        reply = self._command("STATE")
+        try:
+            return p.decode_colours(reply.payload, self.n_leds)
+        except ValueError as exc:
+            raise DeviceError(f"{self.url}: malformed STATE answer: {exc}") from None
+
+    def hello(self) -> p.BoardInfo:
+        """Ask the board for its description again (also a cheap liveness check)."""
+        with self._lock:
+            if self._port is None:
+                raise DeviceError(f"{self.url}: the LED controller is closed")
+            return self._hello()
+
+    def close(self) -> None:
+        """Close the port (the LEDs keep their colours)."""
+        if self._port is not None:
+            try:
+                self._port.close()
+            finally:
+                self._port = None
+
+    def __enter__(self) -> LedController:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"LedController({self.url!r}, n_leds={self.info.n_leds if self.info else '?'})"
+
+    def _check_index(self, index: int) -> int:
+        return _check_index(index, self.n_leds)
+
+    # --- transactions ---------------------------------------------------------------------------------
+    def _command(self, command: str, *args, stage=None, latch: bool = False) -> p.Reply:
+        """Exchange one command; once acknowledged, apply ``stage`` to the host's copy of the staged colours
+        and, when the command latched, copy them to the shown colours (what a reset restores)."""
+        with self._lock:
+            if self._port is None:
+                raise DeviceError(f"{self.url}: the LED controller is closed")
+            reply = self._exchange(command, *args)
+            if stage is not None:
+                stage(self._staged)
+            if latch:
+                self._shown[:] = self._staged
+            return reply
+
+    def _exchange(self, command: str, *args, session: bool = True) -> p.Reply:
+        """Send one command and wait for its reply: resend on timeout or corruption, reopen after unplug."""
+        self._seq = seq = (self._seq + 1) & 0xFF
+        line = p.encode_command(seq, command, *args)
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self.resends += 1
+                log.warning("%s: sending %s again (%d/%d)", self.url, command, attempt, self.retries)
+            try:
+                self._drain()
+                if session and self._reset_seen:
+                    self._after_reset("it printed its boot banner")
+                self._port.write(line)
+                reply = self._await_reply(f"{seq:02x}", session)
+            except _serial().SerialTimeoutException:
+                continue
+            except (_serial().SerialException, OSError) as exc:
+                if not session:
+                    raise DeviceDisconnectedError(f"{self.url}: the port failed during HELLO: {exc}") from None
+                self._reconnect(exc)
+                self._after_reset("the board was unplugged and came back")
+                continue
+            if reply is None or reply.seq == p.UNKNOWN_SEQ or reply.error == p.E_CRC:
+                continue
+            if reply.error == p.E_NOSESSION and session:
+                self._after_reset("it no longer knows the session")
+                continue
+            if reply.error:
+                raise self._board_error(command, args, reply)
+            return reply
+        raise DeviceTimeoutError(
+            f"{self.url}: no valid answer to {command} after {self.retries + 1} tries of {self.timeout:g} s each"
+        )
+
+    def _board_error(self, command: str, args, reply: p.Reply) -> DeviceError:
+        name = p.ERROR_NAMES.get(reply.error, "?")
+        meaning = p.ERROR_MEANINGS.get(reply.error, "unknown error code")
+        if reply.error == p.E_RANGE:
+            return LedIndexError(f"{self.url}: LED index {args[0]} out of range (board: {meaning})")
+        return BoardError(f"{self.url}: the board refused {command}: E{reply.error} {name}: {meaning}", reply.error)
+
+    def _await_reply(self, seq: str, in_session: bool) -> p.Reply | None:
+        """The reply carrying ``seq``, or None on timeout, a corrupted reply or a boot banner mid-session."""
+        deadline = time.monotonic() + self.timeout
+        while (line := self._read_line(deadline)) is not None:
+            kind, value = self._classify(line)
+            if kind == "corrupt" or (kind == "banner" and in_session):
+                return None  # a rebooted board answers a session command only with E7: handle the reset now
+            if kind == "reply" and value.seq in (seq, p.UNKNOWN_SEQ):
+                return value
+            if kind == "reply":
+                log.debug("%s: ignoring a late reply %r", self.url, line)
+        return None
+
+    def _drain(self) -> None:
+        """Read what arrived between commands (a boot banner would be there) and drop stale lines."""
+        while self._port.in_waiting:
+            self._rx += self._port.read(self._port.in_waiting)
+        while (nl := self._rx.find(b"\n")) >= 0:
+            line = bytes(self._rx[:nl])
+            del self._rx[: nl + 1]
+            self._classify(line)
+
+    def _read_line(self, deadline: float) -> bytes | None:
+        while (nl := self._rx.find(b"\n")) < 0:
+            if time.monotonic() >= deadline:
+                return None
+            self._rx += self._port.read(max(1, self._port.in_waiting))
+            if len(self._rx) > MAX_RX_BUFFER:  # a flood of garbage without newlines
+                del self._rx[:-MAX_RX_BUFFER]
+        line = bytes(self._rx[:nl])
+        del self._rx[: nl + 1]
+        return line
+
+    def _classify(self, line: bytes):
+        """("reply", Reply) | ("banner", BoardInfo) | ("corrupt", None) | ("garbage", None)."""
+        try:
+            marker, body = p.check_frame(line)
+        except p.FrameError:
+            if b"<" in line or b"!" in line:
+                log.debug("%s: corrupted line %r", self.url, line)
+                return "corrupt", None
+            if line.strip():
+                self._foreign = [*self._foreign[-9:], line.strip()]
+            return "garbage", None
+        if marker == p.BANNER_START and body.startswith("BOOT"):
+            info = p.decode_info(body[4:])
+            log.debug("%s: board booted (session %s)", self.url, info.session_id)
+            self._reset_seen = True
+            return "banner", info
+        if marker == p.REPLY_START:
+            try:
+                return "reply", p.decode_reply(body)
+            except p.FrameError:
+                return "corrupt", None
+        return "garbage", None
+
+    # --- recovery -------------------------------------------------------------------------------------
+    def _reconnect(self, cause: Exception) -> None:
+        log.warning("%s: port failed (%s); waiting up to %g s for it to come back", self.url, cause, self.reconnect_s)
+        self.close()
+        self._rx.clear()
+        deadline = time.monotonic() + self.reconnect_s
+        while True:
+            try:
+                self._port = open_port(self.url, baudrate=self.baudrate, write_timeout=self.timeout)
+                self.reconnects += 1
+                return
+            except (PortNotFoundError, PortBusyError, DeviceError) as exc:
+                if isinstance(exc, PortPermissionError) or time.monotonic() >= deadline:
+                    raise DeviceDisconnectedError(
+                        f"{self.url}: the board disconnected ({cause}) and did not come back within "
+                        f"{self.reconnect_s:g} s: {exc}"
+                    ) from None
+                time.sleep(0.1)
+
+    def _after_reset(self, reason: str) -> None:
+        """Re-open the session and restore the last acknowledged colours; raise unless on_reset='restore'."""
+        self.resets += 1
+        log.warning("%s: board reset detected (%s); restoring the LEDs", self.url, reason)
+        self._start_session()
+        shown = self._shown.copy()
+        self._exchange("ALL", p.encode_colours(shown), session=False)
+        self._staged[:] = shown
+        if self.on_reset == "raise":
+            raise BoardResetError(
+                f"{self.url}: board reset detected ({reason}). The LEDs were dark meanwhile and have been restored "
+                "to the last acknowledged colours; retake any frame captured since the previous command"
+            )
+
+
+def _check_versions(url: str, info: p.BoardInfo) -> None:
+    if info.protocol != p.PROTOCOL_VERSION:
+        raise ProtocolVersionError(
+            f"{url}: the board speaks LED protocol {info.protocol}, this nlipscalib speaks {p.PROTOCOL_VERSION}: "
+            "flash the firmware shipped with this version (firmware/README.md) or update nlipscalib"
+        )
+    major = info.firmware.split(".", 1)[0]
+    if not major.isdigit() or int(major) != SUPPORTED_FIRMWARE_MAJOR:
+        raise ProtocolVersionError(
+            f"{url}: firmware {info.firmware} is not a {SUPPORTED_FIRMWARE_MAJOR}.x nlips LED firmware: "
+            "flash firmware/ from this version of nlipscalib (firmware/README.md)"
+        )
+
+
+def _check_index(index: int, n_leds: int) -> int:
+    if not 0 <= int(index) < n_leds:
+        raise LedIndexError(f"LED index {index} out of range: there are {n_leds} LEDs (0..{n_leds - 1})")
+    return int(index)
+
+
+def _check_colours(colours, n_leds: int) -> np.ndarray:
+    """``(n_leds, 3)`` integers 0..255 -> uint8 array; ShapeError otherwise."""
+    arr = np.asarray(colours)
+    if arr.shape != (n_leds, 3):
+        raise ShapeError(f"LED colours must have shape ({n_leds}, 3), got {arr.shape}")
+    if arr.dtype != np.uint8:
+        if not np.issubdtype(arr.dtype, np.integer) or arr.min() < 0 or arr.max() > 255:
+            raise ShapeError(f"LED colours must be integers 0..255 (uint8), got {arr.dtype} {arr.min()}..{arr.max()}")
+        arr = arr.astype(np.uint8)
+    return arr

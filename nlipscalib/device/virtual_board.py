@@ -1,0 +1,407 @@
+"""A virtual LED controller speaking the nlips LED protocol, reachable through pyserial as ``nlipsemu://<id>``.
+
+It behaves like the firmware in firmware/ (same parser rules, same replies, same error codes) and adds fault
+injection for tests: garbage on the line, dropped, corrupted or half replies, a reset mid-session, unplugging.
+Like an Arduino Uno it reboots (and prints its boot banner) when the port is opened.
+
+Usage::
+
+    board = VirtualBoard(12)
+    with LedController.open(board.url) as leds:
+        leds.set_led(0, (255, 0, 0))
+    board.latched  # (12, 3) uint8, what the LEDs show now
+"""
+
+from __future__ import annotations
+
+import errno
+import itertools
+import threading
+import time
+import weakref
+
+import numpy as np
+
+from ..errors import require
+from . import protocol as p
+
+serial = require("serial", "pyserial", "The virtual LED board")
+
+URL_SCHEME = "nlipsemu"
+_BOARDS: weakref.WeakValueDictionary[str, VirtualBoard] = weakref.WeakValueDictionary()
+_IDS = itertools.count(1)
+
+
+def register_url_scheme() -> None:
+    """Let ``serial.serial_for_url`` open ``nlipsemu://`` (handler module: device/protocol_nlipsemu.py)."""
+    if __package__ not in serial.protocol_handler_packages:
+        serial.protocol_handler_packages.append(__package__)
+
+
+register_url_scheme()
+
+
+class VirtualBoard:
+    """An in-process LED controller (firmware twin) with fault injection.
+
+    Parameters
+    ----------
+    n_leds : int
+        Number of LEDs it drives.
+    firmware : str
+        Version string it reports.
+    protocol : int
+        Protocol version it reports (change it to test the host's version check).
+    reply_delay_s : float
+        Time between receiving a command and replying (the WS2812 write and latch), seconds.
+    reset_on_open : bool
+        Reboot when the port is opened, as an Uno does through DTR.
+    """
+
+    def __init__(
+        self,
+        n_leds: int = 12,
+        *,
+        firmware: str = "1.0.0-virtual",
+        protocol: int = p.PROTOCOL_VERSION,
+        reply_delay_s: float = 0.0,
+        reset_on_open: bool = True,
+    ):
+        self.n_leds = int(n_leds)
+        self.firmware = firmware
+        self.protocol = int(protocol)
+        self.reply_delay_s = float(reply_delay_s)
+        self.reset_on_open = reset_on_open
+        self.id = str(next(_IDS))
+        self.url = f"{URL_SCHEME}://{self.id}"
+        self.max_line = 6 * self.n_leds + 32
+        """Longest accepted command line (bytes between ``>`` and newline), as in the firmware."""
+        self.boots = 0
+        self.executed: list[str] = []
+        """Every command line executed since creation (bodies, for tests)."""
+        self._cond = threading.Condition()
+        self._out = bytearray()
+        self._line: bytearray | None = None
+        self._plugged = True
+        self._connection: VirtualSerial | None = None
+        self._drop = self._corrupt = self._half = self._mute = 0
+        self._pending = np.zeros((self.n_leds, 3), np.uint8)
+        self._latched = np.zeros((self.n_leds, 3), np.uint8)
+        self._session = False
+        _BOARDS[self.id] = self
+        self._boot(announce=False)
+
+    # --- what the LEDs show ---------------------------------------------------------------------------
+    @property
+    def latched(self) -> np.ndarray:
+        """``(N, 3) uint8``: the colours the LEDs show now (RGB)."""
+        with self._cond:
+            return self._latched.copy()
+
+    @property
+    def session_id(self) -> str:
+        return f"{self.boots:04x}"
+
+    # --- fault injection ------------------------------------------------------------------------------
+    def inject(self, data: bytes) -> None:
+        """Put raw bytes (garbage, a half line) on the line from the board to the host."""
+        with self._cond:
+            self._out += data
+            self._cond.notify_all()
+
+    def drop_replies(self, n: int = 1) -> None:
+        """Execute the next ``n`` commands but lose their replies (the host times out)."""
+        self._drop += n
+
+    def mute(self, n: int = 1) -> None:
+        """Lose the next ``n`` command lines before they are executed (nothing happens, no reply)."""
+        self._mute += n
+
+    def corrupt_replies(self, n: int = 1) -> None:
+        """Flip one character in each of the next ``n`` replies (the host sees a checksum mismatch)."""
+        self._corrupt += n
+
+    def half_replies(self, n: int = 1) -> None:
+        """Send only the first half of the next ``n`` replies, without newline."""
+        self._half += n
+
+    def reset(self) -> None:
+        """Reboot now (watchdog, brown-out, reset button): LEDs off, session lost, banner printed."""
+        with self._cond:
+            self._boot(announce=True)
+
+    def unplug(self, replug_after_s: float | None = None) -> None:
+        """Pull the USB cable: the open port breaks and cannot be reopened until plug()."""
+        with self._cond:
+            self._plugged = False
+            self._latched[:] = 0
+            if self._connection is not None:
+                self._connection._broken = True
+            self._cond.notify_all()
+        if replug_after_s is not None:
+            timer = threading.Timer(replug_after_s, self.plug)
+            timer.daemon = True
+            timer.start()
+
+    def plug(self) -> None:
+        """Plug the cable back in (the board powers up and boots)."""
+        with self._cond:
+            self._plugged = True
+            self._boot(announce=False)
+
+    # --- the firmware ---------------------------------------------------------------------------------
+    def _boot(self, announce: bool) -> None:
+        self.boots += 1
+        self._pending[:] = 0
+        self._latched[:] = 0
+        self._session = False
+        self._line = None
+        if announce:
+            self._send(p.frame(p.BANNER_START, "BOOT " + p.encode_info(self._info())), faults=False)
+
+    def _info(self) -> p.BoardInfo:
+        return p.BoardInfo(self.firmware, self.protocol, self.n_leds, self.session_id)
+
+    def _receive(self, data: bytes) -> None:
+        """Bytes from the host, parsed like the firmware: ``>`` starts a line, newline ends it."""
+        for byte in data:
+            if byte == ord(">"):
+                self._line = bytearray()
+            elif self._line is None:
+                continue  # garbage outside a line
+            elif byte == ord("\n"):
+                line, self._line = bytes(self._line), None
+                self._handle_line(line)
+            elif len(self._line) <= self.max_line:
+                self._line.append(byte)
+
+    def _handle_line(self, line: bytes) -> None:
+        if self._mute:
+            self._mute -= 1
+            return
+        seq = line[:2].decode("ascii", "replace")
+        if not all(c in "0123456789abcdefABCDEF" for c in seq) or len(seq) != 2:
+            seq = p.UNKNOWN_SEQ
+        if len(line) > self.max_line:
+            reply = f"{seq} E{p.E_LONG} {p.ERROR_NAMES[p.E_LONG]}"
+        else:
+            try:
+                _, body = p.check_frame(b">" + line)
+            except p.FrameError:
+                reply = f"{seq} E{p.E_CRC} {p.ERROR_NAMES[p.E_CRC]}"
+            else:
+                reply = self._execute(body if seq != p.UNKNOWN_SEQ else p.UNKNOWN_SEQ + body[2:])
+        if self.reply_delay_s:
+            self._cond.release()
+            try:
+                time.sleep(self.reply_delay_s)
+            finally:
+                self._cond.acquire()
+        self._send(p.frame(p.REPLY_START, reply))
+
+    def _execute(self, body: str) -> str:
+        seq, rest = body[:2], body[3:]
+        tokens = rest.split(" ")
+        if seq == p.UNKNOWN_SEQ or body[2:3] != " " or "" in tokens or len(tokens) > 3:
+            return _error(seq, p.E_SYNTAX)  # bad sequence field, empty token or too many tokens
+        command, *args = tokens
+        handler = _COMMANDS.get(command)
+        if handler is None:
+            return _error(seq, p.E_UNKNOWN)
+        if command != "HELLO" and not self._session:
+            return _error(seq, p.E_NOSESSION)
+        try:
+            payload = handler(self, args)
+        except _BoardError as exc:
+            return _error(seq, exc.code)
+        self.executed.append(body)
+        return f"{seq} OK" + (f" {payload}" if payload else "")
+
+    def _latch(self) -> None:
+        self._latched[:] = self._pending
+
+    def _cmd_hello(self, args):
+        _no_args(args)
+        self._session = True
+        return p.encode_info(self._info())
+
+    def _cmd_set(self, args, latch=True):
+        if len(args) != 2:
+            raise _BoardError(p.E_SYNTAX)
+        index, colour = _parse_index(args[0]), _parse_colours(args[1], 1)
+        if index >= self.n_leds:
+            raise _BoardError(p.E_RANGE)
+        self._pending[index] = colour[0]
+        if latch:
+            self._latch()
+        return ""
+
+    def _cmd_put(self, args):
+        return self._cmd_set(args, latch=False)
+
+    def _cmd_all(self, args):
+        if len(args) != 1:
+            raise _BoardError(p.E_SYNTAX)
+        if len(args[0]) != 6 * self.n_leds:
+            raise _BoardError(p.E_COUNT if len(args[0]) % 6 == 0 else p.E_SYNTAX)
+        self._pending[:] = _parse_colours(args[0], self.n_leds)
+        self._latch()
+        return ""
+
+    def _cmd_off(self, args):
+        _no_args(args)
+        self._pending[:] = 0
+        self._latch()
+        return ""
+
+    def _cmd_show(self, args):
+        _no_args(args)
+        self._latch()
+        return ""
+
+    def _cmd_state(self, args):
+        _no_args(args)
+        return p.encode_colours(self._latched)
+
+    # --- the wire -------------------------------------------------------------------------------------
+    def _send(self, line: bytes, faults: bool = True) -> None:
+        if faults and self._drop:
+            self._drop -= 1
+            return
+        if faults and self._corrupt:
+            self._corrupt -= 1
+            i = len(line) // 2
+            line = line[:i] + bytes([line[i] ^ 0x01]) + line[i + 1 :]
+        if faults and self._half:
+            self._half -= 1
+            line = line[: len(line) // 2]
+        self._out += line
+        self._cond.notify_all()
+
+
+class _BoardError(Exception):
+    def __init__(self, code: int):
+        self.code = code
+
+
+def _error(seq: str, code: int) -> str:
+    return f"{seq} E{code} {p.ERROR_NAMES[code]}"
+
+
+def _no_args(args) -> None:
+    if args:
+        raise _BoardError(p.E_SYNTAX)
+
+
+def _parse_index(text: str) -> int:
+    if not text.isdigit() or len(text) > 3:
+        raise _BoardError(p.E_SYNTAX)
+    return int(text)
+
+
+def _parse_colours(text: str, n: int) -> np.ndarray:
+    try:
+        return p.decode_colours(text, n)
+    except ValueError:
+        raise _BoardError(p.E_SYNTAX) from None
+
+
+_COMMANDS = {
+    "HELLO": VirtualBoard._cmd_hello,
+    "SET": VirtualBoard._cmd_set,
+    "PUT": VirtualBoard._cmd_put,
+    "ALL": VirtualBoard._cmd_all,
+    "OFF": VirtualBoard._cmd_off,
+    "SHOW": VirtualBoard._cmd_show,
+    "STATE": VirtualBoard._cmd_state,
+}
+
+
+class VirtualSerial(serial.SerialBase):
+    """pyserial port class for ``nlipsemu://<id>`` (found through serial.protocol_handler_packages)."""
+
+    def open(self):
+        if self.is_open:
+            raise serial.SerialException("Port is already open.")
+        board = self._board_for(self.portstr)
+        with board._cond:
+            if not board._plugged:
+                raise serial.SerialException(errno.ENOENT, f"could not open port {self.portstr}: board unplugged")
+            if board._connection is not None and not board._connection._broken:
+                raise serial.SerialException(errno.EBUSY, f"could not open port {self.portstr}: port busy")
+            self._board, self._broken = board, False
+            board._connection = self
+            board._out.clear()
+            if board.reset_on_open:
+                board._boot(announce=True)
+        self.is_open = True
+
+    @staticmethod
+    def _board_for(url: str) -> VirtualBoard:
+        prefix = f"{URL_SCHEME}://"
+        if not url or not url.lower().startswith(prefix):
+            raise serial.SerialException(f"expected {prefix}<id>, got {url!r}")
+        board = _BOARDS.get(url[len(prefix) :].split("?")[0])
+        if board is None:
+            raise serial.SerialException(
+                errno.ENOENT,
+                f"could not open port {url}: no such virtual board in this process (keep a reference to the "
+                "VirtualBoard while you use its url)",
+            )
+        return board
+
+    def close(self):
+        if self.is_open:
+            with self._board._cond:
+                if self._board._connection is self:
+                    self._board._connection = None
+                self._board._cond.notify_all()
+        self.is_open = False
+
+    def _reconfigure_port(self):
+        pass
+
+    def _check(self):
+        if not self.is_open:
+            raise serial.PortNotOpenError()
+        if self._broken:
+            raise serial.SerialException(errno.EIO, "device disconnected (virtual board unplugged)")
+
+    @property
+    def in_waiting(self) -> int:
+        self._check()
+        return len(self._board._out)
+
+    def read(self, size: int = 1) -> bytes:
+        self._check()
+        board = self._board
+        deadline = None if self._timeout is None else time.monotonic() + self._timeout
+        with board._cond:
+            while len(board._out) < size:
+                self._check()
+                remaining = None if deadline is None else deadline - time.monotonic()
+                if remaining is not None and remaining <= 0:
+                    break
+                board._cond.wait(remaining)
+            self._check()
+            data = bytes(board._out[:size])
+            del board._out[:size]
+        return data
+
+    def write(self, data) -> int:
+        self._check()
+        data = bytes(data)
+        with self._board._cond:
+            self._board._receive(data)
+        return len(data)
+
+    def reset_input_buffer(self):
+        self._check()
+        with self._board._cond:
+            self._board._out.clear()
+
+    def reset_output_buffer(self):
+        self._check()
+
+    def flush(self):
+        self._check()

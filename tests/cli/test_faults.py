@@ -1,0 +1,149 @@
+"""Disk faults on output: one clear line naming the path and the cause, exit != 0, nothing half-written.
+
+Runs as root in CI, where chmod does not stop writes: read-only and permission faults are made by
+patching os.mkdir (the first write of every command), a full disk by a real small tmpfs when this
+process may mount one, else by a writer that fails on the second press.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import subprocess
+import uuid
+from pathlib import Path
+
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.core.capture import load_press
+from nlipscalib.sim import dataset as ds
+
+SPEC = """
+scene = "nlipstac"
+seed = 1
+[render]
+spp = 1
+bounces = 0
+[camera]
+width = 32
+height = 24
+[grid]
+indenters = [{ kind = "sphere", size = 4.0 }]
+polar_deg = [0.0, 15.0]
+depth = [0.5, 1.0]
+"""
+
+
+@pytest.fixture
+def spec(tmp_path) -> Path:
+    path = tmp_path / "spec.toml"
+    path.write_text(SPEC)
+    return path
+
+
+def _one_line_error(err: str, *needles: str) -> None:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+
+
+def _fake_render(calls, fail_at=None, error=errno.ENOSPC):
+    """Stand-in renderer writing a valid-looking press; raises an OSError on the ``fail_at``-th call."""
+    from nlipscalib.sim.press import render_spec_hash
+
+    def render(scene, job, out, overwrite=False):
+        calls.append(job.name)
+        if len(calls) == fail_at:
+            raise OSError(error, os.strerror(error), str(out / job.name / "led_03.png"))
+        (out / job.name).mkdir()
+        meta = f'{{"provenance": {{"spec_hash": "{render_spec_hash(scene, job.press, job.seed)}"}}}}'
+        (out / job.name / "meta.json").write_text(meta)
+
+    return render
+
+
+@pytest.mark.parametrize(
+    "code,cause",
+    [
+        (errno.EROFS, "Read-only file system"),
+        (errno.EACCES, "Permission denied"),
+        (errno.ENOSPC, "No space left on device"),
+    ],
+)
+def test_unwritable_output_fails_before_any_render(spec, tmp_path, monkeypatch, capsys, code, cause):
+    out = tmp_path / "out"
+    calls = []
+    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    real_mkdir = os.mkdir
+
+    def mkdir(path, *args, **kwargs):
+        if str(path).startswith(str(out)):
+            raise OSError(code, os.strerror(code), str(path))
+        return real_mkdir(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "mkdir", mkdir)
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
+    _one_line_error(capsys.readouterr().err, str(out), cause)
+    assert calls == []  # checked before the long work
+
+
+def test_disk_full_mid_run_stops_at_first_failure(spec, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    calls = []
+    monkeypatch.setattr(ds, "_run_one", _fake_render(calls, fail_at=2))
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
+    _one_line_error(capsys.readouterr().err, "led_03.png", "No space left on device", "disk is full")
+    assert len(calls) == 2  # the rest is not rendered only to fail writing
+    assert not list(out.glob(".tmp-*")) and not list(out.glob(".claim-*"))
+
+
+def test_name_too_long_is_one_line(spec, tmp_path, capsys):
+    out = tmp_path / ("x" * 300)
+    assert main(["dataset", str(spec), "--out", str(out)]) == 2
+    _one_line_error(capsys.readouterr().err, "File name too long")
+
+
+# ---------------------------------------------------------------------- real file systems
+@pytest.fixture
+def tmpfs(tmp_path):
+    """A small tmpfs (when this process may mount one): real ENOSPC and EROFS."""
+    mnt = tmp_path / f"mnt-{uuid.uuid4().hex[:6]}"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=160k", "tmpfs", str(mnt)]).returncode:
+        pytest.skip("cannot mount a tmpfs here (the patched-writer tests cover the logic)")
+    yield mnt
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def _remount(mnt: Path, *opts: str) -> None:
+    subprocess.run(["mount", "-o", ",".join(("remount", *opts)), str(mnt)], check=True)
+
+
+def test_real_full_disk_and_read_only_recheck(spec, tmpfs, capsys):
+    pytest.importorskip("mitsuba")
+    out = tmpfs / "out"
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--no-progress"]) == 2
+    _one_line_error(capsys.readouterr().err, str(out), "No space left on device")
+    done = [p for p in out.iterdir() if not p.name.startswith(".") and p.is_dir()]
+    for folder in done:  # whatever was published is whole
+        load_press(folder)
+    assert len(done) < 5 and not list(out.glob(".tmp-*"))
+
+    _remount(tmpfs, "size=4m")  # room again: the run resumes and finishes
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--no-progress"]) == 0
+    assert f"{5 - len(done)} rendered, {len(done)} already there" in capsys.readouterr().out
+
+    _remount(tmpfs, "ro")  # a finished dataset on read-only media can be re-checked
+    assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 0
+    assert "0 rendered, 5 already there, 0 failed" in capsys.readouterr().out
+
+
+def test_real_read_only_unfinished_dataset(spec, tmpfs, capsys):
+    out = tmpfs / "out"
+    out.mkdir()
+    _remount(tmpfs, "ro")
+    assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 2
+    _one_line_error(capsys.readouterr().err, str(out), "Read-only file system")

@@ -1,0 +1,77 @@
+"""Atomic folders under concurrency: never replace a complete folder, never clean a live process's work."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from nlipscalib.core.atomic import TMP_PREFIX, atomic_dir, clean_interrupted, tmp_prefix, write_if_changed
+from nlipscalib.core.claims import claim, claim_path
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def test_publish_never_replaces_a_complete_folder(tmp_path):
+    final = tmp_path / "press"
+    with pytest.raises(FileExistsError):
+        with atomic_dir(final) as tmp:
+            (tmp / "mine.txt").write_text("mine")
+            final.mkdir()  # another process publishes meanwhile
+            (final / "meta.json").write_text("{}")
+    assert sorted(p.name for p in final.iterdir()) == ["meta.json"]
+    assert not list(tmp_path.glob(TMP_PREFIX + "*"))
+
+
+def test_existing_folder_error_names_path_without_api_advice(tmp_path):
+    (tmp_path / "p").mkdir()
+    with pytest.raises(FileExistsError) as info:
+        with atomic_dir(tmp_path / "p"):
+            pass
+    assert info.value.filename == str(tmp_path / "p")
+    assert "overwrite=True" not in str(info.value)
+
+
+def test_clean_keeps_live_work_and_removes_dead(tmp_path):
+    live = tmp_path / (tmp_prefix("press_0001") + "abc")  # this (live) process's work in progress
+    live.mkdir()
+    dead = tmp_path / (tmp_prefix("press_0002").replace(f"~{os.getpid()}~", f"~{_dead_pid()}~") + "abc")
+    dead.mkdir()
+    gone = clean_interrupted(tmp_path)
+    assert gone == [dead] and live.is_dir() and not dead.exists()
+
+
+def test_clean_other_machine_work_only_when_unclaimed_and_old(tmp_path):
+    remote = tmp_path / f"{TMP_PREFIX}press_0003~othermachine~123~abc"
+    remote.mkdir()
+    assert clean_interrupted(tmp_path) == []  # fresh: may be a live process over there
+    os.utime(remote, (0, 0))
+    with claim(tmp_path / "press_0003") as mine:  # old, but its item is claimed by a live process
+        assert mine
+        assert clean_interrupted(tmp_path) == []
+    assert clean_interrupted(tmp_path) == [remote]
+
+
+def test_clean_removes_claims_of_dead_owners_only(tmp_path):
+    with claim(tmp_path / "a") as mine:
+        assert mine
+        claim_path(tmp_path / "b").write_text(
+            f'{{"host": "{os.uname().nodename}", "pid": {_dead_pid()}, "token": "t"}}'
+        )
+        gone = clean_interrupted(tmp_path)
+        assert gone == [claim_path(tmp_path / "b")] and claim_path(tmp_path / "a").exists()
+
+
+def test_write_if_changed_skips_identical_content(tmp_path, monkeypatch):
+    path = tmp_path / "dataset.json"
+    assert write_if_changed(path, "x\n")
+    monkeypatch.setattr(os, "replace", lambda *a: (_ for _ in ()).throw(OSError(30, "Read-only file system")))
+    assert not write_if_changed(path, "x\n")  # read-only media: an identical file is not rewritten
+    with pytest.raises(OSError):
+        write_if_changed(path, "y\n")

@@ -1,0 +1,120 @@
+"""Per-item claims across processes: exclusive, released, taken over when the owner dies or stalls."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from nlipscalib.core.claims import claim, claim_path, holder
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _spawn(code: str) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)], env=env, stdout=subprocess.PIPE, text=True)
+
+
+def _hold(target: Path, seconds: float, stale_s: float = 60.0) -> subprocess.Popen:
+    """A child process that claims ``target``, prints its verdict, then sleeps holding it."""
+    return _spawn(
+        f"""
+        import time
+        from nlipscalib.core.claims import claim
+        with claim({str(target)!r}, stale_s={stale_s}) as mine:
+            print("held" if mine else "busy", flush=True)
+            time.sleep({seconds})
+        """
+    )
+
+
+def test_claim_is_exclusive_and_released(tmp_path):
+    target = tmp_path / "press_0000"
+    with claim(target) as mine:
+        assert mine
+        assert claim_path(target).is_file()
+        with claim(target) as again:  # even the same process does not get it twice
+            assert not again
+        assert holder(target).pid == os.getpid()
+    assert not claim_path(target).exists()
+    assert holder(target) is None
+
+
+def test_second_process_is_refused_while_first_holds(tmp_path):
+    target = tmp_path / "item"
+    first = _hold(target, 3.0)
+    assert first.stdout.readline().strip() == "held"
+    second = _hold(target, 0.0)
+    assert second.stdout.readline().strip() == "busy"
+    second.wait(30)
+    with claim(target) as mine:
+        assert not mine
+    first.wait(30)
+    with claim(target) as mine:  # released on exit
+        assert mine
+
+
+def test_killed_owner_is_taken_over(tmp_path):
+    target = tmp_path / "item"
+    owner = _hold(target, 60.0)
+    assert owner.stdout.readline().strip() == "held"
+    owner.kill()
+    owner.wait(30)
+    assert claim_path(target).exists()  # a killed process leaves its claim behind
+    with claim(target) as mine:
+        assert mine
+        assert holder(target).pid == os.getpid()
+
+
+def test_claim_without_heartbeat_is_stale(tmp_path):
+    """A claim from another machine (pid not checkable) whose heartbeat stopped is taken over."""
+    target = tmp_path / "item"
+    path = claim_path(target)
+    path.write_text(json.dumps({"host": "other-machine", "pid": 1, "token": "x"}))
+    with claim(target, stale_s=30) as mine:
+        assert not mine  # fresh heartbeat: respected
+    old = time.time() - 120
+    os.utime(path, (old, old))
+    with claim(target, stale_s=30) as mine:
+        assert mine
+
+
+def test_heartbeat_keeps_a_long_claim_alive(tmp_path):
+    target = tmp_path / "item"
+    owner = _hold(target, 2.0, stale_s=0.5)
+    assert owner.stdout.readline().strip() == "held"
+    time.sleep(1.2)  # several stale periods: only the heartbeat keeps the claim fresh
+    with claim(target, stale_s=0.5) as mine:
+        assert not mine
+    owner.wait(30)
+
+
+@pytest.mark.parametrize("n", [3])
+def test_racing_processes_get_one_claim_each_item(tmp_path, n):
+    """n processes race over 6 items: each item is produced by exactly one of them."""
+    code = f"""
+        import time
+        from pathlib import Path
+        from nlipscalib.core.claims import claim
+        got = []
+        for i in range(6):
+            item = Path({str(tmp_path)!r}) / f"item{{i}}"
+            with claim(item) as mine:
+                if mine and not item.exists():  # the real pattern: claim, then check it is not done
+                    got.append(i)
+                    time.sleep(0.3)
+                    item.mkdir()
+        print(",".join(map(str, got)))
+        """
+    procs = [_spawn(code) for _ in range(n)]
+    outs = [p.communicate(timeout=60)[0].strip() for p in procs]
+    claimed = [int(i) for out in outs for i in out.split(",") if i]
+    assert sorted(claimed) == list(range(6))  # every item produced exactly once
+    assert not list(tmp_path.glob(".claim-*"))

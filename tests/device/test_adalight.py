@@ -1,0 +1,150 @@
+"""Adalight framing, byte for byte against the published description, and the ack-less controller.
+
+Published frame (Adafruit LEDstream / Adalight-FastLED): "Ada", LED count - 1 as high and low byte,
+checksum = high ^ low ^ 0x55, then R, G, B per LED; the board prints "Ada\\n" when it boots.
+"""
+
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from nlipscalib.device.adalight import AdalightController, adalight_frame, adalight_header
+from nlipscalib.device.controller import DeviceDisconnectedError, LedIndexError
+from nlipscalib.errors import ShapeError
+
+
+def parse_adalight_stream(stream: bytes) -> list[np.ndarray]:
+    """Read frames as the Adalight-FastLED sketch does: hunt for "Ada", check the checksum, read 3N bytes."""
+    frames, i = [], 0
+    while (i := stream.find(b"Ada", i)) >= 0 and i + 6 <= len(stream):
+        hi, lo, chk = stream[i + 3 : i + 6]
+        if chk != hi ^ lo ^ 0x55:
+            i += 1
+            continue
+        n = (hi << 8 | lo) + 1
+        data = stream[i + 6 : i + 6 + 3 * n]
+        if len(data) < 3 * n:
+            break
+        frames.append(np.frombuffer(data, np.uint8).reshape(n, 3))
+        i += 6 + 3 * n
+    return frames
+
+
+def test_header_bytes():
+    assert adalight_header(1) == b"Ada\x00\x00\x55"
+    assert adalight_header(3) == b"Ada\x00\x02\x57"  # 0x00 ^ 0x02 ^ 0x55
+    assert adalight_header(256) == b"Ada\x00\xff\xaa"
+    assert adalight_header(300) == b"Ada\x01\x2b\x7f"  # 299 = 0x012b; 0x01 ^ 0x2b ^ 0x55 = 0x7f
+    with pytest.raises(ValueError):
+        adalight_header(0)
+
+
+def test_frame_bytes():
+    colours = np.array([[255, 0, 0], [0, 128, 1], [2, 3, 255]], np.uint8)
+    assert adalight_frame(colours) == bytes.fromhex("416461 00 02 57 ff0000 008001 0203ff".replace(" ", ""))
+
+
+def test_controller_writes_exact_frames(tmp_path):
+    with AdalightController.open("loop://", 3, settle_s=0.0, boot_timeout=0) as leds:
+        assert not leds.acknowledged
+        leds.set_led(1, (10, 20, 30))
+        leds.set_led(2, (1, 2, 3), show=False)  # staged only: nothing sent
+        leds.show()
+        leds.off()
+        leds.set_all(np.full((3, 3), 7))
+        sent = leds._port.read(leds._port.in_waiting)
+        np.testing.assert_array_equal(leds.state(), 7)
+        with pytest.raises(LedIndexError):
+            leds.set_led(3, (1, 1, 1))
+        with pytest.raises(ShapeError):
+            leds.set_all(np.zeros((2, 3), np.uint8))
+    frames = parse_adalight_stream(sent)
+    assert len(sent) == 4 * (6 + 9)  # four frames, nothing else on the line
+    assert [f.tolist() for f in frames] == [
+        [[0, 0, 0], [10, 20, 30], [0, 0, 0]],
+        [[0, 0, 0], [10, 20, 30], [1, 2, 3]],
+        [[0, 0, 0]] * 3,
+        [[7, 7, 7]] * 3,
+    ]
+
+
+def test_settle_delay_covers_transmission_and_ws2812_write():
+    with AdalightController.open("loop://", 100, settle_s=0.01, boot_timeout=0) as leds:
+        expected = (6 + 300) * 10 / 115200 + 100 * 30e-6  # 26.6 ms line + 3 ms WS2812
+        assert leds.frame_time_s() == pytest.approx(expected)
+        start = time.monotonic()
+        leds.off()
+        assert time.monotonic() - start >= expected + 0.01
+
+
+def test_open_waits_for_the_boot_banner():
+    master, slave = os.openpty()
+
+    def boot():  # the board resets when the port opens and greets after its bootloader
+        time.sleep(0.2)
+        os.write(master, b"Ada\n")
+
+    thread = threading.Thread(target=boot, daemon=True)
+    thread.start()
+    try:
+        start = time.monotonic()
+        with AdalightController.open(os.ttyname(slave), 2, settle_s=0.0, boot_timeout=3.0) as leds:
+            waited = time.monotonic() - start
+            leds.set_led(0, (1, 2, 3))
+            received = os.read(master, 100)
+        assert 0.15 < waited < 2.5
+        assert received == b"Ada\x00\x01\x54" + bytes([1, 2, 3, 0, 0, 0])
+    finally:
+        thread.join()
+        os.close(master)
+        os.close(slave)
+
+
+def test_missing_banner_only_warns(caplog):
+    with AdalightController.open("loop://", 2, settle_s=0.0, boot_timeout=0.1) as leds:
+        leds.off()
+    assert "no 'Ada' banner" in caplog.text
+
+
+class PtyPort:
+    """A serial port at a fixed path (a symlink to a pseudo-terminal) that can be unplugged and plugged back."""
+
+    def __init__(self, link):
+        self.link = link
+        self.plug()
+
+    def plug(self):
+        self.master, self.slave = os.openpty()
+        if os.path.lexists(self.link):
+            os.unlink(self.link)
+        os.symlink(os.ttyname(self.slave), self.link)
+
+    def unplug(self):
+        os.unlink(self.link)
+        os.close(self.master)
+        os.close(self.slave)
+
+    def received(self, n: int, timeout: float = 2.0) -> bytes:
+        data, deadline = b"", time.monotonic() + timeout
+        while len(data) < n and time.monotonic() < deadline:
+            data += os.read(self.master, n - len(data))
+        return data
+
+
+def test_unplug_and_reconnect_resends_the_frame(tmp_path):
+    port = PtyPort(tmp_path / "ttyADA")
+    with AdalightController.open(str(port.link), 2, settle_s=0.0, boot_timeout=0, reconnect_s=3.0) as leds:
+        leds.set_led(0, (1, 2, 3))
+        assert port.received(12) == b"Ada\x00\x01\x54" + bytes([1, 2, 3, 0, 0, 0])
+        port.unplug()
+        threading.Timer(0.2, port.plug).start()
+        leds.set_led(1, (4, 5, 6))  # the write fails, the port comes back, the whole frame goes to the new board
+        assert leds.reconnects == 1
+        assert port.received(12) == b"Ada\x00\x01\x54" + bytes([1, 2, 3, 4, 5, 6])
+        port.unplug()
+        leds.reconnect_s = 0.2
+        with pytest.raises(DeviceDisconnectedError, match="did not come back within 0.2 s"):
+            leds.off()

@@ -1,0 +1,98 @@
+"""Several `nlips dataset` processes on one folder (one of them killed): every press rendered once, all whole."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from nlipscalib.core.capture import load_press
+
+pytest.importorskip("mitsuba")
+
+ROOT = Path(__file__).resolve().parents[2]
+SPEC = """
+scene = "nlipstac"
+seed = 1
+[render]
+spp = 1
+bounces = 0
+[camera]
+width = 32
+height = 24
+[grid]
+indenters = [{ kind = "sphere", size = 4.0 }]
+polar_deg = [0.0, 15.0]
+depth = [0.5, 1.0]
+"""
+NAMES = ["reference", "press_0000", "press_0001", "press_0002", "press_0003"]
+
+
+def _start(spec: Path, out: Path, log: Path) -> subprocess.Popen:
+    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    args = ["-v", "--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "1"]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.Popen([sys.executable, "-c", code, *args], env=env, stderr=subprocess.PIPE, text=True)
+
+
+def _rendered(logs: list[Path]) -> Counter:
+    text = "".join(p.read_text() for p in logs if p.exists())
+    return Counter(re.findall(r"press (\w+): rendered", text))
+
+
+def _check_folder(out: Path) -> None:
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == sorted([*NAMES, "dataset.json"])
+    for name in NAMES:
+        press = load_press(out / name)  # complete and loadable
+        assert press.led_images.shape[0] == 12
+    assert not list(out.glob(".tmp-*"))
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_concurrent_runs_render_each_press_once(tmp_path, n):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    out, logs = tmp_path / "out", [tmp_path / f"log{i}.txt" for i in range(n)]
+    procs = [_start(spec, out, log) for log in logs]
+    errs = [p.communicate(timeout=600)[1] for p in procs]
+    assert [p.returncode for p in procs] == [0] * n, errs
+    assert not any("Traceback" in e for e in errs), errs
+    assert _rendered(logs) == Counter(NAMES)  # every press exactly once, across all processes
+    _check_folder(out)
+
+
+def test_killed_run_is_taken_over(tmp_path):
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    out, logs = tmp_path / "out", [tmp_path / f"log{i}.txt" for i in range(3)]
+    victim = _start(spec, out, logs[0])
+    deadline = time.time() + 300
+    while not any(_owned_by(c, victim.pid) for c in out.glob(".claim-*")):  # kill it mid-render
+        assert time.time() < deadline and victim.poll() is None, "the victim never claimed a press"
+        time.sleep(0.05)
+    survivors = [_start(spec, out, log) for log in logs[1:]]
+    time.sleep(0.5)
+    victim.send_signal(signal.SIGKILL)
+    victim.wait()
+    errs = [p.communicate(timeout=600)[1] for p in survivors]
+    assert [p.returncode for p in survivors] == [0, 0], errs
+    assert not any("Traceback" in e for e in errs), errs
+    counts = _rendered(logs)
+    assert max(counts.values()) == 1  # nothing rendered twice
+    _check_folder(out)  # the victim's press was taken over and finished
+    assert not list(out.glob(".claim-*"))
+
+
+def _owned_by(claim: Path, pid: int) -> bool:
+    try:
+        return json.loads(claim.read_text())["pid"] == pid
+    except (OSError, ValueError, KeyError):
+        return False
