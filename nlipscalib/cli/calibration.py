@@ -80,16 +80,15 @@ def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True)
 
 
 def _solve_sequentially(presses, reference: Path, progress: bool) -> dict[str, str]:
-    from tqdm.auto import tqdm
-
     from ..core.capture import load_press
     from ..core.reconstruction import has_reconstruction, reconstruction_dir
     from ..errors import NlipsError
+    from ..progress import track
     from ..solver import save_result, solve_press
 
     ref = load_press(reference)
     status = {}
-    for folder in tqdm(presses, desc="solving", unit="press", disable=not progress):
+    for folder in track(presses, enabled=progress, desc="solving", unit="press"):
         out = reconstruction_dir(folder)
         if has_reconstruction(out):
             status[folder.name] = "skipped"

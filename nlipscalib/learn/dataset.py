@@ -36,6 +36,7 @@ from .. import __version__
 from ..core.atomic import write_json
 from ..core.imageio import save_npz
 from ..errors import CaptureError
+from ..progress import track
 from .change import changed_pixels
 from .sensor import check_sensor, sensor_of
 
@@ -208,8 +209,6 @@ def build_dataset(
     Path of the dataset folder. Raises CaptureError naming the press when one is unsolved or from
     another sensor.
     """
-    from tqdm.auto import tqdm
-
     from ..core.capture import load_press
     from ..core.reconstruction import load_reconstruction
 
@@ -222,7 +221,7 @@ def build_dataset(
     save_npz_atomic(out / SENSOR_FILE, ref)
     old = _old_entries(out)
     entries = []
-    for folder in tqdm(list(press_folders), desc="samples", unit="press", disable=not progress):
+    for folder in track(list(press_folders), enabled=progress, desc="samples", unit="press"):
         folder = Path(folder)
         stamp = _result_stamp(folder / result_dir, cfg)
         shard = out / SHARD_DIR / f"{folder.name}.npz"

@@ -7,10 +7,20 @@ n . (rho_u d + rho d_u) = 0, i.e. the log-range has the gradient
     d log(rho) / du = -(n . d_u) / (n . d),     d log(rho) / dv = -(n . d_v) / (n . d)
 
 which is linear in log(rho) for any lens (no pinhole or flat-sensor assumption; d_u, d_v are
-finite differences of the real rays). Only the pixels that changed are unknown; their neighbours
-keep the undeformed reference's log-range (Dirichlet boundary), and the least-squares problem over
-all pixel pairs touching an unknown is a sparse Poisson system, solved with SuperLU (scipy).
-A flat DCT/FFT Poisson solver would assume an orthographic view of a plane, which a dome is not.
+finite differences of the real rays). The pixels that changed are unknown; the undeformed
+reference's log-range is the Dirichlet boundary around them, and the least-squares problem over all
+pixel pairs touching an unknown is a discrete Poisson equation in log(rho).
+
+Two exact solvers of that same equation:
+
+- ``"box"`` (default when it applies): the unknowns are the changed pixels' bounding box (grown by
+  one pixel, all on the gel); unchanged pixels inside it carry the reference normals, so their
+  gradients agree with the dome. The 5-point Dirichlet Laplacian of a rectangle is diagonalised by
+  the type-I discrete sine transform (scipy.fft.dstn), an O(n log n) solve of a few milliseconds.
+  (This is a fast solver for the curved-surface equation above, not a flat-sensor height-from-
+  gradient integration: the gradients are of log-range along the real rays.)
+- ``"sparse"``: only the changed pixels are unknown, any shape, SuperLU (scipy.sparse) on the
+  normal equations; used when the box would leave the gel or touch the image border.
 """
 
 from __future__ import annotations
@@ -57,7 +67,9 @@ def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarra
     return -np.sum(normals * geo.d_u, -1) / den, -np.sum(normals * geo.d_v, -1) / den
 
 
-def integrate_on_dome(normals: np.ndarray, unknown: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
+def integrate_on_dome(
+    normals: np.ndarray, unknown: np.ndarray, geo: RayGeometry, method: str = "auto"
+) -> tuple[np.ndarray, np.ndarray]:
     """Depth of the surface whose normals are ``normals`` where ``unknown``, the reference elsewhere.
 
     Parameters
@@ -65,15 +77,13 @@ def integrate_on_dome(normals: np.ndarray, unknown: np.ndarray, geo: RayGeometry
     normals : (H, W, 3) float, unit, camera frame, toward the camera (finite where ``unknown``)
     unknown : (H, W) bool -- pixels to solve for (the changed pixels); must lie on the gel
     geo : RayGeometry of the sensor
+    method : "auto" (box when it applies, else sparse), "box" or "sparse" (module docstring)
 
     Returns
     -------
     depth : (H, W) float64, mm, camera-frame z (the reference depth outside ``unknown``; NaN off the gel)
     points : (H, W, 3) float64, mm, camera frame
     """
-    from scipy.sparse import coo_matrix, identity
-    from scipy.sparse.linalg import splu
-
     H, W = unknown.shape
     if normals.shape != (H, W, 3) or geo.rays.shape != (H, W, 3):
         raise ShapeError(f"normals {normals.shape}, unknown {unknown.shape} and the sensor's rays must match")
@@ -81,19 +91,74 @@ def integrate_on_dome(normals: np.ndarray, unknown: np.ndarray, geo: RayGeometry
     on_gel = np.isfinite(known_lr)
     unknown = unknown & on_gel
     log_range = known_lr.copy()
+    if method not in ("auto", "box", "sparse"):
+        raise ShapeError(f"method must be 'auto', 'box' or 'sparse', got {method!r}")
     if unknown.any():
-        p, q = log_range_gradient(np.asarray(normals, np.float64), geo)
-        index = np.full(H * W, -1, np.int64)
-        index[np.flatnonzero(unknown)] = np.arange(int(unknown.sum()))
-        rows, cols, vals, rhs = _equations(unknown, on_gel, index, known_lr, p, q)
-        n = int(unknown.sum())
-        A = coo_matrix((vals, (rows, cols)), shape=(len(rhs), n)).tocsr()
-        normal_matrix = (A.T @ A + ANCHOR_WEIGHT * identity(n)).tocsc()
-        b = A.T @ rhs + ANCHOR_WEIGHT * known_lr[unknown]
-        log_range[unknown] = splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
+        box = _box(unknown, on_gel) if method != "sparse" else None
+        if method == "box" and box is None:
+            raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
+        if box is not None:
+            _solve_box(log_range, normals, geo, box)
+        else:
+            _solve_sparse(log_range, normals, unknown, on_gel, geo)
     rng = np.exp(log_range)
     points = rng[..., None] * geo.rays
     return points[..., 2], points
+
+
+def _box(unknown: np.ndarray, on_gel: np.ndarray):
+    """(rows, cols) slices of the changed pixels' bounding box grown by one pixel, or None when that
+    box touches the image border or holds a pixel off the gel."""
+    rows, cols = np.nonzero(unknown)
+    r0, r1, c0, c1 = rows.min() - 1, rows.max() + 2, cols.min() - 1, cols.max() + 2
+    H, W = unknown.shape
+    if r0 < 0 or c0 < 0 or r1 > H or c1 > W:
+        return None
+    box = (slice(r0, r1), slice(c0, c1))
+    return box if on_gel[box].all() else None
+
+
+def _solve_box(log_range: np.ndarray, normals: np.ndarray, geo: RayGeometry, box) -> None:
+    """Poisson solve on the box interior, its outer ring fixed at the reference (in place, DST-I)."""
+    from scipy.fft import dstn
+
+    p, q = log_range_gradient(np.asarray(normals[box], np.float64), _crop(geo, box))
+    x = log_range[box]
+    gu = 0.5 * (p[:, :-1] + p[:, 1:])  # edge (r, c) -> (r, c + 1)
+    gv = 0.5 * (q[:-1, :] + q[1:, :])  # edge (r, c) -> (r + 1, c)
+    # 4 x_i - sum of neighbours = (incoming edge gradients) - (outgoing edge gradients)
+    f = gu[1:-1, :-1] - gu[1:-1, 1:] + gv[:-1, 1:-1] - gv[1:, 1:-1]
+    f[0, :] += x[0, 1:-1]
+    f[-1, :] += x[-1, 1:-1]
+    f[:, 0] += x[1:-1, 0]
+    f[:, -1] += x[1:-1, -1]
+    m, n = f.shape
+    lam = (2 - 2 * np.cos(np.pi * np.arange(1, m + 1) / (m + 1)))[:, None] + (
+        2 - 2 * np.cos(np.pi * np.arange(1, n + 1) / (n + 1))
+    )[None, :]
+    x[1:-1, 1:-1] = dstn(dstn(f, type=1, norm="ortho") / lam, type=1, norm="ortho")
+    log_range[box] = x
+
+
+def _crop(geo: RayGeometry, box) -> RayGeometry:
+    return RayGeometry(geo.rays[box], geo.d_u[box], geo.d_v[box], geo.log_range[box])
+
+
+def _solve_sparse(log_range, normals, unknown, on_gel, geo: RayGeometry) -> None:
+    """Least squares on the changed pixels only (any shape), SuperLU on the normal equations (in place)."""
+    from scipy.sparse import coo_matrix, identity
+    from scipy.sparse.linalg import splu
+
+    known_lr = geo.log_range
+    p, q = log_range_gradient(np.asarray(normals, np.float64), geo)
+    index = np.full(unknown.size, -1, np.int64)
+    index[np.flatnonzero(unknown)] = np.arange(int(unknown.sum()))
+    rows, cols, vals, rhs = _equations(unknown, on_gel, index, known_lr, p, q)
+    n = int(unknown.sum())
+    A = coo_matrix((vals, (rows, cols)), shape=(len(rhs), n)).tocsr()
+    normal_matrix = (A.T @ A + ANCHOR_WEIGHT * identity(n)).tocsc()
+    b = A.T @ rhs + ANCHOR_WEIGHT * known_lr[unknown]
+    log_range[unknown] = splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
 
 
 def _equations(unknown, on_gel, index, known_lr, p, q):

@@ -124,7 +124,8 @@ def train(
     import time
 
     import torch
-    from tqdm.auto import tqdm
+
+    from ..progress import progress_bar
 
     out = Path(out)
     unknown = sorted(set(exclude) - set(dataset.names))
@@ -153,7 +154,7 @@ def train(
     xv, yv, cv = torch.from_numpy(x_va), torch.from_numpy(y_va), torch.from_numpy(c_va)
     gen = torch.Generator().manual_seed(cfg.seed + len(history))
     start = time.perf_counter() - sum(h["seconds"] for h in history)
-    bar = tqdm(total=cfg.max_epochs, initial=len(history), desc="training", unit="epoch", disable=not progress)
+    bar = progress_bar(cfg.max_epochs, enabled=progress, initial=len(history), desc="training", unit="epoch")
     for epoch in range(len(history), cfg.max_epochs):
         if history and epoch - 1 - best["epoch"] >= cfg.patience:
             break  # a resumed run that had already stopped early
