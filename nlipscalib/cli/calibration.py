@@ -76,7 +76,7 @@ def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True)
         if exc.name != "nlipscalib.pipeline":
             raise
         return _solve_sequentially(presses, reference, progress)
-    return solve_presses(presses, reference=reference, roi="auto", workers=workers, progress=progress)
+    return solve_presses(presses, reference=reference, roi="auto", workers=workers, progress=progress, figures=False)
 
 
 def _solve_sequentially(presses, reference: Path, progress: bool) -> dict[str, str]:

@@ -162,7 +162,7 @@ def press_description(press) -> dict:
 
 
 def write_shard(path: Path, samples: dict) -> None:
-    """Write one press's samples atomically (build under a temporary name, then rename)."""
+    """Write arrays (one press's samples, or the reference) as .npz atomically (temporary name, then rename)."""
     from ..core.atomic import TMP_PREFIX
 
     tmp = path.with_name(TMP_PREFIX + path.name)
@@ -218,7 +218,7 @@ def build_dataset(
     ref_press = load_press(reference_folder)
     sensor = sensor_of(ref_press)
     ref = reference_arrays(ref_press)
-    save_npz_atomic(out / SENSOR_FILE, ref)
+    write_shard(out / SENSOR_FILE, ref)
     old = _old_entries(out)
     entries = []
     for folder in track(list(press_folders), enabled=progress, desc="samples", unit="press"):
@@ -246,10 +246,6 @@ def build_dataset(
         )
     write_index(out, sensor, cfg, entries, str(Path(reference_folder).resolve()))
     return out
-
-
-def save_npz_atomic(path: Path, arrays: dict) -> None:
-    write_shard(path, arrays)
 
 
 def _result_stamp(folder: Path, cfg: SamplingConfig) -> str:

@@ -63,6 +63,17 @@ class Predictor:
         self.geo = RayGeometry.from_reference(self.camera.rays, self.ref_depth) if depth else None
         self._run = self._backend(backend, threads)
         self.backend = backend
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """First calls import and plan (scipy.fft, the runtime's kernels): not part of any frame's time."""
+        self._run(np.zeros((2, 5), np.float32))
+        if self.geo is not None:
+            unknown = np.zeros(self.valid.shape, bool)
+            rows, cols = np.nonzero(self.valid)
+            if len(rows):
+                unknown[int(np.median(rows)), int(np.median(cols))] = True
+                integrate_on_dome(self.ref_normals, unknown, self.geo)
 
     def _backend(self, backend: str, threads: int):
         if backend == "onnx":
