@@ -36,6 +36,7 @@ from nlipscalib.learn.evaluate import net_predict, sample_scores  # noqa: E402
 from nlipscalib.learn.lut import LookupTable  # noqa: E402
 from nlipscalib.learn.model import load_model  # noqa: E402
 from nlipscalib.learn.train import TrainConfig, train  # noqa: E402
+from nlipscalib.report.learn import training_curve  # noqa: E402
 
 PAPER = (256, 256, 128)
 FAST = (64, 64, 64)
@@ -72,6 +73,7 @@ def accuracy(args) -> dict:
         res = train(train_data, cfg, out / f"{key}.pt", exclude=test_seen, progress=False)
         times[key] = time.perf_counter() - t0
         models[key] = load_model(res.model_path)
+        training_curve(res.history, out / f"{key}_curve.png", f"NLiPsNet {key} {'-'.join(map(str, hidden))}")
         print(f"trained {key}: {len(res.history)} epochs, {times[key]:.0f} s", flush=True)
     tr = train_data.arrays(models["paper"].info["train_presses"] + models["paper"].info["val_presses"])
     lut = LookupTable.fit(tr["pixel"], tr["rgb"], tr["normal"], train_data.reference()["tricolor"])
@@ -104,7 +106,7 @@ def fps_sensor(out: Path):
     folder = out / "fps640"
     if not (folder / "press" / "meta.json").is_file():
         render_press(scene, None, folder / "reference", seed=1, overwrite=True)
-        cfg = PressConfig(IndenterConfig(kind="sphere", size=14.0), polar_deg=10, azimuth_deg=30, depth=2.5)
+        cfg = PressConfig(IndenterConfig(kind="sphere", size=8.0), polar_deg=10, azimuth_deg=30, depth=1.6)
         render_press(scene, cfg, folder / "press", seed=2, overwrite=True)
     return folder
 
