@@ -15,7 +15,7 @@ import numpy as np
 
 from ..core.camera import Camera
 from ..errors import CaptureError, ShapeError
-from .change import changed_pixels
+from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
 from .model import load_model
 from .sensor import check_sensor, sensor_of
@@ -61,6 +61,7 @@ class Predictor:
         self.ref_depth = ref["depth"].astype(np.float64)
         self.dark = ref["dark"].astype(np.float32)
         self.geo = RayGeometry.from_reference(self.camera.rays, self.ref_depth) if depth else None
+        self.changed = ChangeDetector(self.ref_tricolor, self.valid)
         self._run = self._backend(backend, threads)
         self.backend = backend
         self._warm_up()
@@ -130,7 +131,7 @@ class Predictor:
         if tricolor.shape != self.shape + (3,):
             raise ShapeError(f"tri-colour frame is {tricolor.shape}, the model expects {self.shape + (3,)}")
         t0 = time.perf_counter()
-        changed = changed_pixels(tricolor, self.ref_tricolor, self.valid)
+        changed = self.changed(tricolor)
         t1 = time.perf_counter()
         rows, cols = np.nonzero(changed)
         normals = self.ref_normals.copy()
@@ -143,11 +144,11 @@ class Predictor:
         if self.geo is not None:
             depth, points = integrate_on_dome(normals, changed, self.geo)
         else:
-            depth = self.ref_depth
-            points = depth[..., None] / self.camera.rays[..., 2:3] * self.camera.rays
+            depth = self.ref_depth.astype(np.float32)
+            points = (depth[..., None] / self.camera.rays[..., 2:3] * self.camera.rays).astype(np.float32)
         t3 = time.perf_counter()
         seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
-        return Frame(normals, depth.astype(np.float32), points.astype(np.float32), changed, seconds)
+        return Frame(normals, depth, points, changed, seconds)
 
     def stream(self, frames):
         """Generator over (H, W, 3) linear frames -> Frame, for a live camera or a sequence of files."""

@@ -48,6 +48,8 @@ class RayGeometry:
     """(H, W, 3) float64 -- derivative of the ray along v (per pixel)."""
     log_range: np.ndarray
     """(H, W) float64 -- log of the undeformed reference's range along the ray, log(mm); NaN off the gel."""
+    points: np.ndarray
+    """(H, W, 3) float32, mm, camera frame -- the undeformed surface (NaN off the gel)."""
 
     @classmethod
     def from_reference(cls, rays: np.ndarray, reference_depth: np.ndarray) -> RayGeometry:
@@ -57,7 +59,8 @@ class RayGeometry:
         d_v, d_u = np.gradient(rays, axis=(0, 1))
         with np.errstate(invalid="ignore", divide="ignore"):
             log_range = np.log(reference_depth / rays[..., 2])
-        return cls(rays, d_u, d_v, log_range)
+        points = (np.exp(log_range)[..., None] * rays).astype(np.float32)
+        return cls(rays, d_u, d_v, log_range, points)
 
 
 def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
@@ -81,8 +84,8 @@ def integrate_on_dome(
 
     Returns
     -------
-    depth : (H, W) float64, mm, camera-frame z (the reference depth outside ``unknown``; NaN off the gel)
-    points : (H, W, 3) float64, mm, camera frame
+    depth : (H, W) float32, mm, camera-frame z (the reference depth outside the solved pixels; NaN off the gel)
+    points : (H, W, 3) float32, mm, camera frame
     """
     H, W = unknown.shape
     if normals.shape != (H, W, 3) or geo.rays.shape != (H, W, 3):
@@ -90,19 +93,20 @@ def integrate_on_dome(
     known_lr = geo.log_range
     on_gel = np.isfinite(known_lr)
     unknown = unknown & on_gel
-    log_range = known_lr.copy()
     if method not in ("auto", "box", "sparse"):
         raise ShapeError(f"method must be 'auto', 'box' or 'sparse', got {method!r}")
+    points = geo.points.copy()
     if unknown.any():
         box = _box(unknown, on_gel) if method != "sparse" else None
         if method == "box" and box is None:
             raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
+        # only the solved pixels change: the rest keeps the reference surface
         if box is not None:
-            _solve_box(log_range, normals, geo, box)
+            log_range = _solve_box(normals, geo, box)
+            points[box] = np.exp(log_range)[..., None] * geo.rays[box]
         else:
-            _solve_sparse(log_range, normals, unknown, on_gel, geo)
-    rng = np.exp(log_range)
-    points = rng[..., None] * geo.rays
+            log_range = _solve_sparse(normals, unknown, on_gel, geo)
+            points[unknown] = np.exp(log_range)[:, None] * geo.rays[unknown]
     return points[..., 2], points
 
 
@@ -118,12 +122,12 @@ def _box(unknown: np.ndarray, on_gel: np.ndarray):
     return box if on_gel[box].all() else None
 
 
-def _solve_box(log_range: np.ndarray, normals: np.ndarray, geo: RayGeometry, box) -> None:
-    """Poisson solve on the box interior, its outer ring fixed at the reference (in place, DST-I)."""
+def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
+    """Log-range over the box: Poisson solve on its interior, the outer ring fixed at the reference (DST-I)."""
     from scipy.fft import dstn
 
     p, q = log_range_gradient(np.asarray(normals[box], np.float64), _crop(geo, box))
-    x = log_range[box]
+    x = geo.log_range[box].copy()
     gu = 0.5 * (p[:, :-1] + p[:, 1:])  # edge (r, c) -> (r, c + 1)
     gv = 0.5 * (q[:-1, :] + q[1:, :])  # edge (r, c) -> (r + 1, c)
     # 4 x_i - sum of neighbours = (incoming edge gradients) - (outgoing edge gradients)
@@ -137,15 +141,16 @@ def _solve_box(log_range: np.ndarray, normals: np.ndarray, geo: RayGeometry, box
         2 - 2 * np.cos(np.pi * np.arange(1, n + 1) / (n + 1))
     )[None, :]
     x[1:-1, 1:-1] = dstn(dstn(f, type=1, norm="ortho") / lam, type=1, norm="ortho")
-    log_range[box] = x
+    return x
 
 
 def _crop(geo: RayGeometry, box) -> RayGeometry:
-    return RayGeometry(geo.rays[box], geo.d_u[box], geo.d_v[box], geo.log_range[box])
+    return RayGeometry(geo.rays[box], geo.d_u[box], geo.d_v[box], geo.log_range[box], geo.points[box])
 
 
-def _solve_sparse(log_range, normals, unknown, on_gel, geo: RayGeometry) -> None:
-    """Least squares on the changed pixels only (any shape), SuperLU on the normal equations (in place)."""
+def _solve_sparse(normals, unknown, on_gel, geo: RayGeometry) -> np.ndarray:
+    """Log-range of the changed pixels ((n,) in ``unknown`` order): least squares on them only (any shape),
+    SuperLU on the normal equations."""
     from scipy.sparse import coo_matrix, identity
     from scipy.sparse.linalg import splu
 
@@ -158,7 +163,7 @@ def _solve_sparse(log_range, normals, unknown, on_gel, geo: RayGeometry) -> None
     A = coo_matrix((vals, (rows, cols)), shape=(len(rhs), n)).tocsr()
     normal_matrix = (A.T @ A + ANCHOR_WEIGHT * identity(n)).tocsc()
     b = A.T @ rhs + ANCHOR_WEIGHT * known_lr[unknown]
-    log_range[unknown] = splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
+    return splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
 
 
 def _equations(unknown, on_gel, index, known_lr, p, q):
