@@ -92,7 +92,7 @@ def check_count(name: str, value: int, minimum: int = 0, where: str = "") -> int
     """A count from the command line or a config (workers, limit, spp ...) must be >= ``minimum``."""
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         prefix = f"{where}: " if where else ""
-        raise ConfigError(f"{prefix}{name} must be an integer >= {minimum}, got {value!r}")
+        raise ConfigError(f"{prefix}{name}: must be an integer >= {minimum}, got {value!r}")
     return value
 
 

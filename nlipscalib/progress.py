@@ -14,17 +14,40 @@ _enabled = True
 
 
 def configure(*, progress: bool = True, verbose: bool = False, log_file: str | Path | None = None) -> None:
-    """Set up logging (stderr, plus ``log_file`` when given) and the global progress switch."""
+    """Set up logging (stderr, plus ``log_file`` when given) and the global progress switch.
+
+    Handlers already on the root logger (an embedding application's, pytest's) are kept; only the
+    file handler this function added before is replaced.
+    """
     global _enabled
     _enabled = progress
-    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
+    root = logging.getLogger()
+    root.setLevel(logging.DEBUG if verbose else logging.INFO)
+    for handler in [h for h in root.handlers if getattr(h, _OURS, False)]:
+        root.removeHandler(handler)
+        handler.close()
+    if not root.handlers:
+        _add(root, logging.StreamHandler(sys.stderr), "%(levelname)s %(message)s")
     if log_file:
         Path(log_file).parent.mkdir(parents=True, exist_ok=True)
-        file_handler = logging.FileHandler(log_file, encoding="utf-8")
-        file_handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-        handlers.append(file_handler)
-    handlers[0].setFormatter(logging.Formatter("%(levelname)s %(message)s"))
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, handlers=handlers, force=True)
+        _add(root, logging.FileHandler(log_file, encoding="utf-8"), "%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+_OURS = "_nlips_handler"
+
+
+def file_log(level: int, message: str) -> None:
+    """Record ``message`` in the log file only (for lines already printed on the terminal)."""
+    record = logging.LogRecord("nlipscalib", level, __file__, 0, message, None, None)
+    for handler in logging.getLogger().handlers:
+        if getattr(handler, _OURS, False) and isinstance(handler, logging.FileHandler):
+            handler.handle(record)
+
+
+def _add(root: logging.Logger, handler: logging.Handler, fmt: str) -> None:
+    handler.setFormatter(logging.Formatter(fmt))
+    setattr(handler, _OURS, True)
+    root.addHandler(handler)
 
 
 def bars_enabled(requested: bool = True) -> bool:

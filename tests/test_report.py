@@ -17,3 +17,27 @@ def test_contact_sheet_writes_a_png(tmp_path):
         [("row", [Panel("scalar", img, label="mm"), Panel("rgb", np.zeros((8, 10, 3)))])], tmp_path / "s.png"
     )
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_scalar_map_colours_range_and_missing_values(tmp_path):
+    import cv2
+
+    from nlipscalib.report.maps import BAR_WIDTH, NO_VALUE_BGR, scalar_map_png
+
+    values = np.array([[0.0, 10.0, np.nan], [5.0, 20.0, -3.0]])
+    img = cv2.imread(str(scalar_map_png(tmp_path / "m.png", values, "gray", "deg", 0, 10)), cv2.IMREAD_COLOR)
+    assert img.shape == (2, 3 + BAR_WIDTH, 3)  # the image grid kept, the colour bar beside it
+    assert tuple(img[0, 0]) == (0, 0, 0) and tuple(img[0, 1]) == (255, 255, 255)  # vmin black, vmax white
+    assert tuple(img[1, 0]) in ((128, 128, 128), (127, 127, 127))  # half way
+    assert tuple(img[1, 1]) == (255, 255, 255) and tuple(img[1, 2]) == (0, 0, 0)  # clipped to the range
+    assert tuple(img[0, 2]) == NO_VALUE_BGR  # NaN: grey, not the colour of zero
+
+
+def test_normal_map_png_matches_normals_to_rgb(tmp_path):
+    import cv2
+
+    from nlipscalib.report.maps import normal_map_png
+
+    n = np.array([[[0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]])
+    img = cv2.imread(str(normal_map_png(tmp_path / "n.png", n)), cv2.IMREAD_COLOR)[..., ::-1]
+    np.testing.assert_array_equal(img, np.round(normals_to_rgb(n) * 255))

@@ -57,6 +57,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    previous = _terminate_cleanly()
+    try:
+        return _run(args)
+    finally:
+        if previous is not None:
+            import signal
+
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _run(args) -> int:
     try:
         progress.configure(
             progress=not (args.global_no_progress or getattr(args, "no_progress", False)),
@@ -71,6 +82,26 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print(f"nlips {args.command}: interrupted; finished work is kept, run again to resume", file=sys.stderr)
         return 130
+    except _Terminated:
+        print(f"nlips {args.command}: terminated; finished work is kept, run again to resume", file=sys.stderr)
+        return 143
+
+
+class _Terminated(BaseException):
+    """SIGTERM (cluster schedulers' time limit, `kill`): unwind so claims and temporaries are released."""
+
+
+def _terminate_cleanly():
+    """Turn SIGTERM into an exception for the duration of the command; returns the previous handler."""
+    import signal
+    import threading
+
+    def handler(signum, frame):
+        raise _Terminated()
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, handler)
 
 
 def describe_os_error(exc: OSError, overwrite_flag: bool = False) -> str:
@@ -88,7 +119,7 @@ def describe_os_error(exc: OSError, overwrite_flag: bool = False) -> str:
 
 def _fail(args, message: str) -> int:
     print(f"nlips {args.command}: error: {message}", file=sys.stderr)
-    logging.getLogger("nlipscalib").debug("error in nlips %s: %s", args.command, message)
+    progress.file_log(logging.ERROR, f"nlips {args.command}: {message}")
     return 2
 
 

@@ -13,11 +13,15 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from ..config import check_count
     from ..core.capture import load_press
+    from ..progress import track, working
     from ..solver import calibrate_leds, save_leds
 
-    presses = [load_press(f) for f in args.presses]
-    cal = calibrate_leds(presses, stride=args.stride, loss=args.loss)
+    check_count("--stride", args.stride, minimum=1)
+    presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
+    with working(f"calibrating {len(presses[0].leds)} LEDs from {len(presses)} capture(s)"):
+        cal = calibrate_leds(presses, stride=args.stride, loss=args.loss)
     save_leds(args.out, cal.leds, cal.to_json())
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")
     print(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))

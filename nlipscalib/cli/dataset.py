@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import logging
 import sys
+
+log = logging.getLogger(__name__)
 
 
 def register(sub) -> None:
@@ -27,7 +30,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..config import check_count
-    from ..sim.dataset import check_existing, expand_jobs, load_dataset_spec, run_dataset, write_manifest
+    from ..sim.dataset import check_existing, expand_jobs, is_complete, load_dataset_spec, run_dataset, write_manifest
 
     check_count("--workers", args.workers, minimum=0)
     check_count("--limit", args.limit, minimum=0)
@@ -36,7 +39,12 @@ def run(args) -> int:
     todo = jobs[: args.limit] if args.limit else jobs
     out = Path(args.out)
     check_existing(scene, jobs, out, args.overwrite)  # before anything is written
-    write_manifest(out, spec, scene, jobs)  # only if it changes: a finished dataset on read-only media re-checks
+    try:
+        write_manifest(out, spec, scene, jobs)  # only if it changes: a finished dataset on read-only media re-checks
+    except OSError as exc:
+        if not all(is_complete(scene, job, out) for job in todo):
+            raise
+        log.warning("%s: could not write dataset.json (%s); the presses are complete", out, exc.strerror)
     progress = not args.no_progress
     result = run_dataset(scene, todo, out, workers=args.workers, progress=progress, overwrite=args.overwrite)
     print(

@@ -7,6 +7,7 @@ Resumable: presses and solutions already on disk are reused.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 DEMO_SPEC = Path(__file__).resolve().parents[1] / "scenes" / "datasets" / "demo.toml"
@@ -22,6 +23,13 @@ def register(sub) -> None:
     p.add_argument("--spec", default=str(DEMO_SPEC), help="dataset spec to render (default: the demo spec)")
     p.add_argument("--workers", type=int, default=1, help="render processes (default 1: all cores to one)")
     p.add_argument("--no-solve", action="store_true", help="only render and show the ground truth")
+    p.add_argument("--no-figures", action="store_true", help="no per-press figure maps next to the results")
+    p.add_argument(
+        "--solve-workers",
+        type=int,
+        default=min(os.cpu_count() or 1, 3),
+        help="presses solved at once, one single-threaded process each (default: one per core, at most 3)",
+    )
     p.set_defaults(func=run)
 
 
@@ -39,11 +47,26 @@ def run(args) -> int:
         for name, error in rendered["failed"]:
             print(f"{name}: {error}")
         return 1
+    if args.solve_workers < 1:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"--solve-workers must be >= 1, got {args.solve_workers}")
+    presses = [j for j in jobs if j.name != REFERENCE_NAME]
+    failed = set()
+    if not args.no_solve:
+        from ..pipeline import solve_presses
+
+        folders = [out / job.name for job in presses]
+        statuses = solve_presses(folders, roi="auto", workers=args.solve_workers, figures=not args.no_figures)
+        failed = {name for name, status in statuses.items() if status.startswith("failed")}
+        for name in sorted(failed):
+            print(f"{name}: {statuses[name]}")
     rows, table = [], []
-    for job in (j for j in jobs if j.name != REFERENCE_NAME):
+    for job in presses:
         press = load_press(out / job.name)
         title = f"{job.name}\n{job.press.indenter.kind}, {job.press.depth:.1f} mm"
-        result = None if args.no_solve else _solve(press)
+        solve = not args.no_solve and job.name not in failed
+        result = _solve(press, figures=not args.no_figures) if solve else None  # solved above: this loads it
         rows.append((title, _panels(press, result)))
         if result is not None:
             table.append((job.name, job.press.indenter.kind, _scores(press, result)))
@@ -52,24 +75,20 @@ def run(args) -> int:
     sheet = contact_sheet(rows, out / "contact_sheet.png")
     _print_table(table)
     print(f"contact sheet: {sheet}")
-    return 0
+    return 1 if failed else 0
 
 
-def _solve(press):
-    """NLiPs around the contact; the solution is cached in PRESS/nlips/."""
-    from ..core.reconstruction import has_reconstruction
-    from ..solver import load_result, save_result, solve_press
+def _solve(press, figures: bool):
+    """NLiPs around the contact, through the shared pipeline: an identical result in PRESS/nlips/ is
+    reused, a damaged or differently made one is re-solved."""
+    from ..pipeline import solve_folder
 
-    folder = press.folder / "nlips"
-    if has_reconstruction(folder):
-        return load_result(folder)
-    result = solve_press(press, roi="auto", progress=True)
-    save_result(result, folder, ground_truth=press.ground_truth, overwrite=True)
-    return result
+    result, _ = solve_folder(press.folder, roi="auto", progress=True, figures=figures)
+    return result  # None when another process is solving this press right now
 
 
 def _scores(press, result) -> dict:
-    from ..solver import evaluate
+    from ..core.metrics import evaluate
 
     return evaluate(result, press.ground_truth)  # reconstructed pixels: all of the ROI, and its contact part
 
@@ -77,8 +96,8 @@ def _scores(press, result) -> dict:
 def _panels(press, result):
     import numpy as np
 
+    from ..core.metrics import angular_error_map
     from ..report import Panel, display_image, normals_to_rgb
-    from ..solver import angular_error_map
 
     gt = press.ground_truth
     panels = [

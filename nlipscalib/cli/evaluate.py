@@ -1,44 +1,147 @@
-"""``nlips eval PATH``: AAE, MabsE and depth RMSE of solver results against ground truth."""
+"""``nlips eval PATH``: AAE, MabsE and depth RMSE of reconstructions (NLiPs or NLiPsNet) against ground truth.
+
+PATH is a press folder, a folder of presses, or a reconstruction folder (PRESS/nlips, PRESS/nlipsnet:
+the method is then taken from the folder's name). Both methods write the core reconstruction format
+(docs/formats.md), so they are scored alike. A damaged NLiPs result is re-computed from the settings
+recorded in its report.json, with a warning.
+"""
 
 from __future__ import annotations
 
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("eval", help="score solver results (needs `nlips solve` results and ground truth)")
-    p.add_argument("path", help="press folder or a folder of presses")
+    p = subparsers.add_parser(
+        "eval", help="score reconstructions (NLiPs or NLiPsNet) against the ground truth", description=__doc__
+    )
+    p.add_argument("path", help="press folder, folder of presses, or a reconstruction folder (PRESS/nlips)")
+    p.add_argument(
+        "--method",
+        choices=("nlips", "nlipsnet"),
+        help="which reconstruction to score: PRESS/nlips (default) or PRESS/nlipsnet",
+    )
     p.add_argument("--region", choices=("all", "contact"), default="all", help="pixels to score")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from ..errors import CaptureError
+
+    presses, method = _targets(Path(args.path), args.method)
+    rows, unsolved, damaged = [], [], []
+    for folder in presses:
+        rec = _load(folder, method, single=len(presses) == 1)
+        if rec is None:
+            unsolved.append(folder.name)  # e.g. a dataset's undeformed reference: nothing solved there
+        elif isinstance(rec, str):
+            damaged.append((folder.name, rec))
+        else:
+            rows.append((folder.name, _scores(folder, rec)[args.region]))
+    if not rows and not damaged:
+        raise CaptureError(f"{args.path}: no press has a {method} result yet (run `nlips solve` first)")
+    _print(rows, method)
+    if unsolved:
+        print(f"not solved, skipped: {', '.join(unsolved)}")
+    for name, problem in damaged:
+        print(f"damaged, not scored: {name}: {problem}")
+    return 1 if damaged else 0
+
+
+def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
+    """(press folders, method): PATH as a reconstruction folder, a press, or a folder of presses."""
+    from ..core.capture import find_presses, is_press_folder
+    from ..core.reconstruction import METHODS, is_reconstruction_dir
+    from ..errors import CaptureError
+
+    if is_reconstruction_dir(path) and is_press_folder(path.parent):
+        named = path.name if path.name in METHODS else None
+        if method and named and method != named:
+            raise CaptureError(f"{path}: a {named} folder, but --method {method} was given")
+        return [path.parent], method or named or "nlips"
+    presses = find_presses(path)
+    if not presses:
+        raise CaptureError(f"{path}: no press folders found")
+    return presses, method or "nlips"
+
+
+def _load(folder: Path, method: str, single: bool):
+    """The reconstruction; None when there is none; a problem string when it is damaged beyond repair."""
+    from ..core.reconstruction import has_reconstruction, load_reconstruction, reconstruction_dir
+    from ..errors import CaptureError
+
+    out = reconstruction_dir(folder, method=method)
+    if not has_reconstruction(out):
+        if single:
+            raise CaptureError(f"{out}: no {method} result there (run `nlips solve` first)")
+        return None
+    try:
+        return load_reconstruction(out)
+    except CaptureError as exc:
+        if method != "nlips":
+            return str(exc)  # NLiPsNet results are re-made by `nlips infer`, not here
+        log.warning("%s; re-computing it from its recorded settings", exc)
+        return _recompute(folder, out)
+
+
+def _recompute(folder: Path, out: Path):
+    from ..core.reconstruction import read_report
+    from ..errors import NlipsError
+    from ..pipeline import settings_from_record, solve_one
+
+    try:
+        record = (read_report(out).get("provenance") or {}).get("settings")
+        if record is None:
+            return f"{out}: damaged, and its report.json records no settings to re-solve with; run `nlips solve`"
+        result, _ = solve_one(folder, settings_from_record(record), out=out, progress=True)
+    except NlipsError as exc:
+        return f"damaged, and re-solving failed: {exc}"
+    return result if result is not None else f"{out}: damaged; being re-solved by another process"
+
+
+def _scores(folder: Path, rec) -> dict:
+    from ..core.metrics import evaluate
+    from ..errors import CaptureError
+
+    gt = _ground_truth(folder)
+    if gt is None:
+        raise CaptureError(f"{folder}: no ground truth (gt.npz) to evaluate against")
+    if rec.shape != gt.depth.shape:
+        raise CaptureError(f"{folder}: reconstruction is {rec.shape}, the capture {gt.depth.shape}")
+    return evaluate(rec, gt)
+
+
+def _ground_truth(folder: Path):
+    """The press's GroundTruth or None, without decoding its images (only gt.npz is needed)."""
+    from ..core.camera import Camera
+    from ..core.capture import GroundTruth, read_meta
+    from ..errors import CaptureError
+
+    meta = read_meta(folder)
+    if not meta.get("ground_truth"):
+        return None
+    path = folder / meta["ground_truth"]
+    if not path.is_file():
+        raise CaptureError(f"{path}: listed in meta.json but missing")
+    try:
+        shape = Camera.from_dict(meta["camera"]).shape
+    except (TypeError, ValueError) as exc:
+        raise CaptureError(f"{folder / 'meta.json'}: {exc}") from None
+    return GroundTruth.load(path, shape)
+
+
+def _print(rows, method: str) -> None:
     import numpy as np
 
-    from ..core.capture import find_presses, load_press
-    from ..core.reconstruction import has_reconstruction, reconstruction_dir
-    from ..errors import CaptureError
-    from ..solver import evaluate, load_result
-
-    presses = find_presses(args.path)
-    if not presses:
-        raise CaptureError(f"{args.path}: no press folders found")
-    rows, skipped = [], []
-    for folder in presses:
-        if len(presses) > 1 and not has_reconstruction(reconstruction_dir(folder)):
-            skipped.append(folder.name)  # e.g. a dataset's undeformed reference: nothing solved there
-            continue
-        press = load_press(folder)
-        if press.ground_truth is None:
-            raise CaptureError(f"{folder}: no ground truth (gt.npz) to evaluate against")
-        scores = evaluate(load_result(reconstruction_dir(folder)), press.ground_truth)[args.region]
-        rows.append((folder.name, scores))
     if not rows:
-        raise CaptureError(f"{args.path}: no press has a solver result yet (run `nlips solve` first)")
+        return
+    print(f"scoring PRESS/{method}")
     print(f"{'press':<24} {'pixels':>8} {'AAE(deg)':>9} {'MabsE':>8} {'RMSE(mm)':>9}")
     for name, s in rows:
         print(f"{name:<24} {s['pixels']:>8d} {s['aae_deg']:>9.3f} {s['mabse']:>8.4f} {s['depth_rmse_mm']:>9.4f}")
     if len(rows) > 1:
         mean = {k: float(np.nanmean([s[k] for _, s in rows])) for k in ("aae_deg", "mabse", "depth_rmse_mm")}
         print(f"{'mean':<24} {'':>8} {mean['aae_deg']:>9.3f} {mean['mabse']:>8.4f} {mean['depth_rmse_mm']:>9.4f}")
-    if skipped:
-        print(f"not solved, skipped: {', '.join(skipped)}")
-    return 0

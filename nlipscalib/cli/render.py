@@ -33,9 +33,26 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+ARG_MINIMA = {"spp": 1, "bounces": 0, "threads": 0, "seed": 0, "width": 8, "height": 8}
+"""Smallest value of each integer option (checked before anything is loaded or rendered)."""
+
+
+def _check_args(args) -> None:
+    from ..config import check_count, check_range
+
+    for name, minimum in ARG_MINIMA.items():
+        if getattr(args, name) is not None:
+            check_count(f"--{name}", getattr(args, name), minimum=minimum)
+    if args.depth is not None:
+        check_range("--depth", args.depth, 0.0, open_lo=True)
+    if args.polar is not None:
+        check_range("--polar", args.polar, 0.0, 90.0)
+
+
 def _scene(args):
     from ..sim.scene import load_scene
 
+    _check_args(args)
     scene = load_scene(args.scene)
     render = {k: getattr(args, k) for k in ("spp", "bounces", "variant", "threads", "seed")}
     camera = {"width": args.width, "height": args.height}
@@ -92,15 +109,15 @@ def _up_to_date(out, scene, press, seed) -> bool:
 
     from ..core.capture import is_press_folder
     from ..errors import ConfigError
-    from ..sim.press import render_spec_hash
+    from ..sim.press import recorded_spec_hash, render_spec_hash
 
     if not out.exists():
         return False
     if not is_press_folder(out):
         raise ConfigError(f"{out}: exists and is not a press folder; choose another --out or use --overwrite")
     try:
-        recorded = json.loads((out / "meta.json").read_text()).get("provenance", {}).get("spec_hash")
-    except (OSError, ValueError, AttributeError):
+        recorded = recorded_spec_hash(json.loads((out / "meta.json").read_text())["provenance"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         recorded = None
     if recorded != render_spec_hash(scene, press, seed):
         raise ConfigError(

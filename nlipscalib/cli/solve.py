@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-from pathlib import Path
 
 log = logging.getLogger(__name__)
 
@@ -36,9 +35,23 @@ def register(subparsers) -> None:
     )
     p.add_argument("--backend", choices=("numpy", "torch"), default="numpy")
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
-    p.add_argument("--overwrite", action="store_true", help="recompute even if a result exists")
+    p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
+    p.add_argument("--workers", type=int, default=1, help="presses solved at once, one process each (default 1)")
+    p.add_argument(
+        "--figures",
+        choices=("none", "maps", "full"),
+        default="maps",
+        help="figures next to the result: maps (PNG normal/depth/residual/error maps, fast; default), "
+        "full (plus a matplotlib summary sheet), none",
+    )
+    p.add_argument("--no-figures", dest="figures", action="store_const", const="none", help="same as --figures none")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars (they are off anyway when not a TTY)")
     p.set_defaults(func=run)
+
+
+SOLVER_KEYWORDS = ("dent_interreflection", "coating_albedo")
+"""Flags of this parser passed as keywords to solver.solve_press (add a flag above, then its name here)."""
 
 
 def parse_roi(values):
@@ -57,91 +70,46 @@ def parse_roi(values):
     return roi
 
 
-def parse_leds(value):
-    """(subset 0-based list or None, LED tuple from file or None)."""
-    from ..errors import ConfigError
-    from ..solver.io import load_leds
-
-    if not value:
-        return None, None
-    if Path(value).suffix.lower() == ".json" or Path(value).is_file():
-        return None, load_leds(value)
-    try:
-        return [int(v) - 1 for v in value.split(",")], None
-    except ValueError:
-        raise ConfigError(f"--leds must be like '1,2,5' or an LED .json file, got {value!r}") from None
-
-
 def run(args) -> int:
-    from tqdm import tqdm
-
     from ..config import from_mapping, read_config_file
     from ..core.capture import find_presses
-    from ..core.reconstruction import has_reconstruction, reconstruction_dir
-    from ..errors import ConfigError, NlipsError
-    from ..solver import SolverOptions, save_result
+    from ..errors import ConfigError
+    from ..pipeline import make_settings, solve_one, solve_presses
+    from ..solver import SolverOptions
 
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
-    roi = parse_roi(args.roi)
-    subset, leds = parse_leds(args.leds)
+    if args.workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     presses = find_presses(args.press)
     if not presses:
         raise ConfigError(f"{args.press}: no press folders found")
     if args.out and len(presses) > 1:
         raise ConfigError("--out only applies to a single press")
-    if args.reference:  # the undeformed dome is the reference, not a press to solve
-        presses = [p for p in presses if p.resolve() != Path(args.reference).resolve()]
-    failed = []
-    for folder in tqdm(presses, desc="presses", disable=len(presses) == 1):
-        out = reconstruction_dir(folder, args.out)
-        if has_reconstruction(out) and not args.overwrite:
-            log.info("%s: result exists, skipped (use --overwrite)", out)
-            continue
-        try:
-            press, result = _solve_one(folder, args, roi, subset, leds, options)
-        except NlipsError as exc:
-            if len(presses) == 1:
-                raise
-            failed.append(folder.name)  # one bad press must not stop a batch
-            log.error("%s: %s", folder.name, exc)
-            continue
-        save_result(result, out, press.ground_truth, overwrite=True)
-        rep = result.report
-        log.info(
-            "%s: %d/%d pixels reconstructed, %d with too few LEDs, dead LEDs %s, %.1f s -> %s",
-            folder.name,
-            rep["pixels_reconstructed"],
-            rep["pixels_solved"],
-            rep["pixels_too_few_leds"],
-            [i + 1 for i in rep["dead_leds"]],
-            rep["seconds"],
-            out,
-        )
-    if failed:
-        log.error("%d of %d presses failed: %s", len(failed), len(presses), ", ".join(failed))
-    return 1 if failed else 0
-
-
-def _solve_one(folder, args, roi, subset, leds, options):
-    """Load one press (and the reference capture) and solve it; returns (press, result)."""
-    from ..core.capture import load_press
-    from ..errors import ConfigError
-    from ..solver import solve_press
-
-    press = load_press(folder, led_subset=subset)
-    # the reference capture is reloaded per press: cheap, and keeps an LED subset consistent
-    ref = load_press(args.reference, led_subset=subset) if args.reference else None
-    if leds is not None and subset is None and len(leds) != len(press.leds):
-        raise ConfigError(f"{args.leds}: {len(leds)} LEDs, but {folder} has {len(press.leds)}")
-    result = solve_press(
-        press,
-        roi=roi,
-        leds=leds,
-        options=options,
-        backend=args.backend,
-        progress=True,
-        indirect=ref,
-        dent_interreflection=args.dent_interreflection,
-        coating_albedo=args.coating_albedo,
+    given = {
+        "reference": args.reference,
+        "roi": parse_roi(args.roi),
+        "leds": args.leds,
+        "options": options,
+        "backend": args.backend,
+        "solver_keywords": {k: getattr(args, k) for k in SOLVER_KEYWORDS if hasattr(args, k)},
+    }
+    progress = not args.no_progress
+    if len(presses) == 1:  # one press: its errors are the command's (one line, exit 2)
+        settings = make_settings(**given)
+        solve_one(presses[0], settings, out=args.out, overwrite=args.overwrite, progress=progress, figures=args.figures)
+        return 0
+    statuses = solve_presses(
+        presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
     )
-    return press, result
+    return _summary(statuses)
+
+
+def _summary(statuses: dict[str, str]) -> int:
+    """Print one line of counts (and the failed presses); exit code 1 when any failed."""
+    failed = {name: s for name, s in statuses.items() if s.startswith("failed")}
+    solved = sum(s == "solved" for s in statuses.values())
+    skipped = len(statuses) - solved - len(failed)
+    print(f"{solved} solved, {skipped} skipped (identical result or busy), {len(failed)} failed")
+    for name, status in failed.items():
+        print(f"  {name}: {status}")
+    return 1 if failed else 0

@@ -114,6 +114,8 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
     if final.exists() and not overwrite:
         raise FileExistsError(errno.EEXIST, "already exists", str(final))
     final.parent.mkdir(parents=True, exist_ok=True)
+    with contextlib.suppress(OSError):  # leftovers of a killed earlier write of this folder (e.g. PRESS/nlips)
+        clean_interrupted(final.parent, item=final.name)
     tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(final.name), dir=final.parent))
     try:
         yield tmp
@@ -142,8 +144,8 @@ def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | 
     if not folder.is_dir():
         return gone
     now = time.time()
-    pattern = "*" if item is None else glob.escape(item) + OWNER_SEP + "*"
-    for p in folder.glob(TMP_PREFIX + pattern):
+    patterns = ["*"] if item is None else [glob.escape(item) + OWNER_SEP + "*", glob.escape(item) + "-*"]
+    for p in {p for pattern in patterns for p in folder.glob(TMP_PREFIX + pattern)}:  # "-": older naming
         if _abandoned(p, now, stale_s):
             shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
             gone.append(p)

@@ -306,6 +306,8 @@ def _in_threads(jobs: list[tuple]) -> list:
 def _parse_optics(meta: dict, path: Path):
     try:
         camera = Camera.from_dict(meta["camera"])
+        if not isinstance(meta["leds"], list):
+            raise ValueError(f"'leds' must be a list of LEDs, got {meta['leds']!r}")
         leds = [Led.from_dict(d) for d in meta["leds"]]
         response = SensorResponse(**meta["sensor"])
     except (TypeError, ValueError) as exc:

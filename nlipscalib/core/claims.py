@@ -44,6 +44,10 @@ class Owner:
     token: str
 
 
+UNKNOWN_OWNER = Owner("unknown", 0, "")
+"""Owner of a fresh claim file whose content is not written yet."""
+
+
 def claim_path(target: str | Path) -> Path:
     """The claim file of ``target``: a hidden sibling ``.claim-<name>``."""
     target = Path(target)
@@ -83,14 +87,17 @@ def claim(target: str | Path, *, stale_s: float = 60.0) -> Iterator[bool]:
 
 
 def holder(target: str | Path, *, stale_s: float = 60.0) -> Owner | None:
-    """The live owner of ``target``'s claim, or None when it is unclaimed or the claim is stale."""
+    """The live owner of ``target``'s claim, or None when it is unclaimed or the claim is stale.
+
+    A fresh claim file that cannot be read yet (being written) gives ``UNKNOWN_OWNER``.
+    """
     path = claim_path(target)
     owner = _read_owner(path)
     if owner is None and not path.exists():
         return None
     if _is_stale(path, owner, stale_s, now=_fs_now(path.parent)):
         return None
-    return owner
+    return owner or UNKNOWN_OWNER
 
 
 def pid_alive(pid: int) -> bool:

@@ -46,14 +46,31 @@ def read_png16(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
-def save_npz(path: str | Path, arrays: dict[str, np.ndarray]) -> Path:
-    """Save arrays as a compressed .npz that ``np.load`` reads, at zlib level 1.
+def save_npz(path: str | Path, arrays: dict[str, np.ndarray], compress: bool | str = True) -> Path:
+    """Save arrays as a .npz that ``np.load`` reads.
 
-    ``np.savez_compressed`` uses level 6, several times slower for float maps that barely compress
-    further; the file is written in place (callers write inside an atomic folder).
+    ``compress``: True deflates every array at zlib level 1 (``np.savez_compressed`` uses level 6,
+    several times slower for float maps that barely compress further); False stores them; "auto"
+    deflates only arrays that are mostly NaN or zero (outside a region of interest) and integer /
+    boolean masks, and stores dense float maps, which deflate to ~85 % of their size at ~0.1 s per
+    megabyte. The file is written in place (callers write inside an atomic folder).
     """
     with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
         for name, arr in arrays.items():
-            with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
-                np.lib.format.write_array(f, np.asanyarray(arr), allow_pickle=False)
+            arr = np.asanyarray(arr)
+            member = f"{name}.npy"
+            if not _deflate(arr, compress):
+                member = zipfile.ZipInfo(member, date_time=(1980, 1, 1, 0, 0, 0))
+                member.compress_type = zipfile.ZIP_STORED
+            with zf.open(member, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, arr, allow_pickle=False)
     return Path(path)
+
+
+def _deflate(arr: np.ndarray, compress: bool | str) -> bool:
+    if compress != "auto":
+        return bool(compress)
+    if arr.dtype.kind != "f" or arr.size == 0:
+        return True
+    informative = np.isfinite(arr) & (arr != 0)  # NaN or zero outside a region of interest deflates well
+    return np.count_nonzero(informative) < 0.5 * arr.size

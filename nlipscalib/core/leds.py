@@ -53,6 +53,8 @@ class Led:
 
     @classmethod
     def from_dict(cls, d: dict) -> Led:
+        if not isinstance(d, dict):
+            raise ConfigError(f"each led must be a mapping with 'position', ..., got {d!r}")
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(d) - known
         if unknown:

@@ -1,11 +1,13 @@
 """The reconstruction format: what NLiPs (and later NLiPsNet) writes and what training and scoring read.
 
-A reconstruction folder (usually ``PRESS/nlips/``, see docs/formats.md)::
+A reconstruction folder (``PRESS/nlips/`` from NLiPs, ``PRESS/nlipsnet/`` from NLiPsNet; see
+docs/formats.md)::
 
     nlips/
       result.npz     the maps below, over the full image grid
-      report.json    format, format_version, software_version, and what made it (options, inputs, timings)
-      *.png          optional figures (reporting), never read back
+      report.json    format, format_version, software_version, method, and what made it
+                     (provenance: settings and input identities, their hash; timings; exclusions)
+      *.png          optional figures (nlipscalib.report), never read back
 
 Written atomically (the folder appears complete or not at all); :func:`load_reconstruction`
 validates format, version, keys, shapes and dtypes and names the file and the problem.
@@ -28,6 +30,8 @@ from .imageio import save_npz
 FORMAT_NAME = "nlipscalib.reconstruction"
 FORMAT_VERSION = 1
 RESULT_DIR = "nlips"
+METHODS = ("nlips", "nlipsnet")
+"""Reconstruction methods; each writes PRESS/<method>/ in this format."""
 RESULT_FILE = "result.npz"
 REPORT_FILE = "report.json"
 
@@ -80,14 +84,49 @@ class Reconstruction:
         return tuple(self.depth.shape)
 
 
-def reconstruction_dir(press_folder: str | Path, out: str | Path | None = None) -> Path:
-    """Where the reconstruction of ``press_folder`` lives (``out`` when given, else PRESS/nlips)."""
-    return Path(out) if out is not None else Path(press_folder) / RESULT_DIR
+def reconstruction_dir(press_folder: str | Path, out: str | Path | None = None, method: str = RESULT_DIR) -> Path:
+    """Where the reconstruction of ``press_folder`` lives (``out`` when given, else PRESS/<method>)."""
+    if method not in METHODS:
+        raise CaptureError(f"unknown reconstruction method {method!r}; expected one of {METHODS}")
+    return Path(out) if out is not None else Path(press_folder) / method
 
 
 def has_reconstruction(folder: str | Path) -> bool:
     """True when ``folder`` holds a (complete, atomically written) reconstruction."""
     return (Path(folder) / RESULT_FILE).is_file()
+
+
+def is_reconstruction_dir(folder: str | Path) -> bool:
+    """True when ``folder`` itself looks like a reconstruction folder (result.npz and report.json)."""
+    folder = Path(folder)
+    return (folder / RESULT_FILE).is_file() and (folder / REPORT_FILE).is_file()
+
+
+def read_report(folder: str | Path) -> dict:
+    """The validated report.json of a reconstruction folder (format and version checked), without the maps."""
+    return _read_report(Path(folder) / REPORT_FILE)
+
+
+def reconstruction_problem(folder: str | Path) -> str | None:
+    """Why the reconstruction in ``folder`` cannot be used, or None when it looks whole.
+
+    Cheap (no array is decompressed): report.json is validated, and result.npz's zip directory -- the
+    last bytes of the file, so a truncated file loses it -- must list every array.
+    """
+    folder = Path(folder)
+    path = folder / RESULT_FILE
+    if not path.is_file():
+        return f"{path}: missing"
+    try:
+        read_report(folder)
+        with zipfile.ZipFile(path) as zf:
+            names = {n.removesuffix(".npy") for n in zf.namelist()}
+    except CaptureError as exc:
+        return str(exc)
+    except (OSError, zipfile.BadZipFile, EOFError, ValueError) as exc:
+        return f"{path}: damaged or truncated reconstruction ({exc})"
+    missing = sorted(set(ARRAYS) - names)
+    return f"{path}: missing arrays {missing}" if missing else None
 
 
 def save_reconstruction(rec: Reconstruction, folder: str | Path, overwrite: bool = False, extra_files=None) -> Path:
@@ -102,7 +141,7 @@ def save_reconstruction(rec: Reconstruction, folder: str | Path, overwrite: bool
     """
     folder = Path(folder)
     with atomic_dir(folder, overwrite=overwrite) as tmp:
-        save_npz(tmp / RESULT_FILE, rec.arrays())
+        save_npz(tmp / RESULT_FILE, rec.arrays(), compress="auto")  # dense float maps stored: 10x faster
         head = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "software_version": __version__}
         write_json(tmp / REPORT_FILE, head | jsonable(rec.report))
         if extra_files is not None:

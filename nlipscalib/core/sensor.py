@@ -16,10 +16,13 @@ from typing import Literal
 
 import numpy as np
 
+from ..config import check_count, check_range
 from ..errors import ConfigError
 from .camera import Camera
 from .leds import Led
 
+MIN_IMAGE_SIDE, MAX_IMAGE_SIDE = 8, 16384
+"""Image sides, pixels, the camera accepts."""
 DomeShape = Literal["hemisphere", "fingertip", "oblate", "capsule", "flat"]
 
 
@@ -41,6 +44,12 @@ class DomeConfig:
     contact_edge_length: float = 0.08
     """Target triangle edge inside and around a contact, mm."""
 
+    def __post_init__(self):
+        for name in ("radius", "height", "thickness", "edge_length", "contact_edge_length"):
+            check_range(name, getattr(self, name), 0.0, open_lo=True)
+        if self.thickness >= self.radius:
+            raise ConfigError(f"thickness ({self.thickness} mm) must be smaller than radius ({self.radius} mm)")
+
 
 @dataclasses.dataclass(frozen=True)
 class CameraConfig:
@@ -58,6 +67,19 @@ class CameraConfig:
     """Distortion coefficients in OpenCV order (4 for fisheye, 5 for brown)."""
     position: tuple[float, float, float] = (0.0, 0.0, -3.0)
     """Camera centre in the dome frame, mm (looks along +z)."""
+
+    def __post_init__(self):
+        check_count("width", self.width, minimum=MIN_IMAGE_SIDE)
+        check_count("height", self.height, minimum=MIN_IMAGE_SIDE)
+        check_range("width", self.width, MIN_IMAGE_SIDE, MAX_IMAGE_SIDE)
+        check_range("height", self.height, MIN_IMAGE_SIDE, MAX_IMAGE_SIDE)
+        check_range("hfov_deg", self.hfov_deg, 0.0, 270.0, open_lo=True)
+        expected = {"fisheye": (4,), "brown": (4, 5, 8, 12, 14)}[self.model]
+        if len(self.dist) not in expected:
+            raise ConfigError(
+                f"dist: the {self.model} model takes {' or '.join(map(str, expected))} coefficients, "
+                f"got {len(self.dist)}"
+            )
 
     def camera(self) -> Camera:
         return Camera.from_fov(self.width, self.height, self.hfov_deg, self.model, self.dist)
@@ -89,7 +111,16 @@ class LedConfig:
     def __post_init__(self):
         n = len(self.positions) or self.count
         if not 3 <= n <= 24:
-            raise ConfigError(f"the sensor needs 3 to 24 LEDs, got {n}")
+            raise ConfigError(f"count: the sensor needs 3 to 24 LEDs, got {n}")
+        check_range("ring_radius", self.ring_radius, 0.0)
+        check_range("tilt_deg", self.tilt_deg, -90.0, 90.0)
+        check_range("mu", self.mu, 0.0)
+        for i, psi in enumerate(self.intensity):
+            check_range(f"intensity[{i}]", psi, 0.0)
+        if not any(self.intensity):
+            raise ConfigError("intensity: at least one channel must be > 0")
+        if any(not any(d) for d in self.directions):
+            raise ConfigError("directions: a zero vector has no direction")
         if self.directions and len(self.directions) != len(self.positions):
             raise ConfigError("leds.directions must have one entry per leds.positions entry")
 

@@ -1,10 +1,24 @@
-"""Pictures people look at (matplotlib, like the paper's figures), used by the CLI.
+"""Pictures people look at, used by the CLI.
 
 Computing packages (sim/, solver/, learn/, device/) return arrays; only this package draws them.
-One module per subject: ``figures`` holds the shared building blocks (normal-map colouring, panels,
-contact sheets).
+One module per subject: ``figures`` holds the matplotlib building blocks (normal-map colouring,
+panels, contact sheets), ``maps`` the cheap OpenCV maps (normal, scalar with colour bar), and
+``reconstruction`` the figures of one reconstruction.
 """
 
 from .figures import Panel, contact_sheet, display_image, normals_to_rgb
+from .maps import normal_map_png, scalar_map_png
+from .reconstruction import FIGURE_LEVELS, error_map, figure_level, write_reconstruction_figures
 
-__all__ = ["Panel", "contact_sheet", "display_image", "normals_to_rgb"]
+__all__ = [
+    "FIGURE_LEVELS",
+    "Panel",
+    "contact_sheet",
+    "display_image",
+    "error_map",
+    "figure_level",
+    "normal_map_png",
+    "normals_to_rgb",
+    "scalar_map_png",
+    "write_reconstruction_figures",
+]

@@ -8,21 +8,24 @@ folders, which are cleaned before the run.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import itertools
 import json
 import logging
 import os
+import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
 
-from ..config import from_mapping, read_config_file
+from ..config import check_count, check_range, from_mapping, read_config_file
 from ..core.atomic import check_writable, clean_interrupted, write_if_changed
 from ..core.capture import is_press_folder
-from ..errors import ConfigError
+from ..errors import ConfigError, NlipsError
 from ..progress import progress_bar
 from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
@@ -30,6 +33,8 @@ from .scene import SceneConfig, load_scene
 log = logging.getLogger(__name__)
 REFERENCE_NAME = "reference"
 MANIFEST = "dataset.json"
+GT_BYTES_PER_PIXEL = 4 + 12 + 12 + 2 + 4 + 12
+"""gt.npz (depth, points, normals, masks) and reference.npz (depth, normals) per pixel, uncompressed."""
 BUSY_POLL_S = 1.0
 """Seconds between checks on presses another process is rendering."""
 
@@ -49,6 +54,9 @@ class GridSpec:
     spin_deg: tuple[float, ...] = (0.0,)
     """Rotations of the indenter about the press axis, degrees."""
 
+    def __post_init__(self):
+        _check_values(self, min_count=1)
+
 
 @dataclasses.dataclass(frozen=True)
 class RandomSpec:
@@ -66,6 +74,27 @@ class RandomSpec:
     """Range of depths, mm."""
     spin_deg: tuple[float, float] = (0.0, 360.0)
     """Range of spins, degrees."""
+
+    def __post_init__(self):
+        check_count("count", self.count, minimum=1)
+        _check_values(self, min_count=2)
+        for name in ("polar_deg", "azimuth_deg", "depth", "spin_deg"):
+            lo, hi = getattr(self, name)
+            if lo > hi:
+                raise ConfigError(f"{name}: the range [{lo}, {hi}] is empty (low > high)")
+
+
+def _check_values(spec, min_count: int) -> None:
+    """Shared range checks of grid values and random ranges: polar angles, depths, indenters."""
+    if not spec.indenters:
+        raise ConfigError("indenters: give at least one indenter")
+    for name in ("polar_deg", "azimuth_deg", "depth", "spin_deg"):
+        if len(getattr(spec, name)) < min_count:
+            raise ConfigError(f"{name}: give at least {min_count} value(s)")
+    for v in spec.polar_deg:
+        check_range("polar_deg", v, 0.0, 90.0)
+    for v in spec.depth:
+        check_range("depth", v, 0.0, open_lo=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +119,7 @@ class DatasetSpec:
     def __post_init__(self):
         if (self.grid is None) == (self.random is None):
             raise ConfigError("give exactly one of [grid] and [random]")
+        check_count("seed", self.seed, minimum=0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -106,7 +136,28 @@ def load_dataset_spec(path: str | Path) -> tuple[DatasetSpec, SceneConfig]:
     scene_path = path.parent / spec.scene
     scene = load_scene(scene_path if scene_path.is_file() else spec.scene)
     sections = {k: v for k, v in (("render", spec.render), ("noise", spec.noise), ("camera", spec.camera)) if v}
-    return spec, scene.replace(**sections) if sections else scene
+    try:
+        scene = scene.replace(**sections) if sections else scene
+    except ConfigError as exc:  # an override out of range: name the spec file, not the scene
+        raise ConfigError(f"{path}: {str(exc).removeprefix('scene.')}") from None
+    _check_presses(spec, scene, path)
+    return spec, scene
+
+
+def _check_presses(spec: DatasetSpec, scene: SceneConfig, path: Path) -> None:
+    """Cheap checks of every press against the scene, so a bad one fails now, naming the spec file."""
+    from .indenters import make_indenter
+
+    mode = "grid" if spec.grid else "random"
+    for i, ind in enumerate((spec.grid or spec.random).indenters):
+        if ind.kind == "mesh":
+            try:
+                make_indenter(ind)
+            except ConfigError as exc:
+                raise ConfigError(f"{path}: {mode}.indenters[{i}]: {exc}") from None
+    depths = spec.grid.depth if spec.grid else spec.random.depth
+    if max(depths) > scene.dome.thickness:
+        raise ConfigError(f"{path}: {mode}.depth: {max(depths)} mm exceeds the gel thickness {scene.dome.thickness} mm")
 
 
 def expand_jobs(spec: DatasetSpec) -> list[PressJob]:
@@ -147,11 +198,12 @@ def run_dataset(
     if workers < 0:
         raise ConfigError(f"workers must be >= 0 (0 = automatic), got {workers}")
     check_existing(scene, jobs, out, overwrite)
-    todo = [j for j in jobs if not _done(scene, j, out)]
+    todo = [j for j in jobs if not is_complete(scene, j, out)]
     result = {"rendered": [], "skipped": [j.name for j in jobs if j not in todo], "failed": []}
     if not todo:
         return result
     check_writable(out, longest_name=max(len(j.name) for j in todo))
+    check_space(out, scene, len(todo))
     for stale in clean_interrupted(out):
         log.info("removed interrupted write %s", stale.name)
     cores = os.cpu_count() or 1
@@ -167,10 +219,40 @@ def run_dataset(
                 submit = lambda job: pool.submit(_render_job, scene, job, out, overwrite, stale_s)  # noqa: E731
                 try:
                     _rounds(todo, submit, result, bar, pool=True)
+                except BrokenProcessPool:
+                    raise NlipsError(
+                        f"{out}: a render process died (out of memory, or killed); finished presses are kept, "
+                        "run again to resume (fewer --workers needs less memory)"
+                    ) from None
                 except BaseException:
                     pool.shutdown(wait=True, cancel_futures=True)
                     raise
     return result
+
+
+def press_bytes(scene: SceneConfig) -> int:
+    """Rough upper bound of one press folder's size on disk: 16-bit RGB images + ground truth + reference."""
+    pixels = scene.camera.width * scene.camera.height
+    n_images = len(scene.led_models()) + 2  # LEDs, dark, tri-colour
+    return pixels * (n_images * 6 + GT_BYTES_PER_PIXEL)
+
+
+def check_space(out: Path, scene: SceneConfig, n_presses: int) -> None:
+    """No room for even one press: fail now (ENOSPC). Room for some only: warn that the run will stop."""
+    free = shutil.disk_usage(out).free
+    need = press_bytes(scene)
+    if free < need:
+        raise OSError(
+            errno.ENOSPC, f"No space left on device ({free >> 10} KiB free, a press needs ~{need >> 10} KiB)", str(out)
+        )
+    if free < need * n_presses:
+        log.warning(
+            "%s: %d MiB free, the %d presses may need up to %d MiB: the run will stop when the disk is full",
+            out,
+            free >> 20,
+            n_presses,
+            (need * n_presses) >> 20,
+        )
 
 
 def manifest_text(spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> str:
@@ -216,6 +298,7 @@ def _random_presses(spec: RandomSpec, seed: int) -> list[PressConfig]:
 
 def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) -> None:
     """Run jobs; jobs busy in another process are retried until done or taken over (owner died)."""
+    waited = False
     while todo:
         if pool:
             futures = {start(job): job for job in todo}
@@ -237,7 +320,10 @@ def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) 
             log.debug("press %s: %s", job.name, status)
             bar.update(1)
         if busy:
-            log.info("waiting for %d press(es) another process is rendering", len(busy))
+            (log.info if not waited else log.debug)(
+                "waiting for %d press(es) another process is rendering (taken over if it dies)", len(busy)
+            )
+            waited = True
             time.sleep(BUSY_POLL_S)
         todo = busy
 
@@ -254,7 +340,7 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
         with claim(out / job.name, stale_s=stale_s) as mine:
             if not mine:
                 return "busy", None
-            if _done(scene, job, out):
+            if is_complete(scene, job, out):
                 return "skipped", None
             clean_interrupted(out, item=job.name)  # a dead owner's half-written folder, if any
             _run_one(scene, job, out, overwrite)
@@ -274,10 +360,11 @@ def _run_one(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = Fal
 
 
 def _recorded_hash(folder: Path) -> str | None:
+    from .press import recorded_spec_hash
+
     try:
-        meta = json.loads((folder / "meta.json").read_text())
-        return meta.get("provenance", {}).get("spec_hash")
-    except (OSError, ValueError, AttributeError):
+        return recorded_spec_hash(json.loads((folder / "meta.json").read_text())["provenance"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 
 
@@ -287,7 +374,7 @@ def _expected_hash(scene: SceneConfig, job: PressJob) -> str:
     return render_spec_hash(scene, job.press, job.seed)
 
 
-def _done(scene: SceneConfig, job: PressJob, out: Path) -> bool:
+def is_complete(scene: SceneConfig, job: PressJob, out: Path) -> bool:
     """A complete folder rendered from this very spec."""
     folder = out / job.name
     return is_press_folder(folder) and _recorded_hash(folder) == _expected_hash(scene, job)
@@ -297,7 +384,7 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
     """Finished presses made from another spec are an error (or re-rendered with ``overwrite``)."""
     if overwrite:
         return
-    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not _done(scene, j, out)]
+    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not is_complete(scene, j, out)]
     if changed:
         names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
         raise ConfigError(

@@ -306,21 +306,85 @@ _BUILDERS = {
 
 
 def _load_mesh(cfg: IndenterConfig) -> trimesh.Trimesh:
+    """Read a user's indenter mesh; it must be a closed solid (small holes are repaired, with a warning)."""
     path = Path(cfg.mesh).expanduser()
     if not path.is_file():
         raise ConfigError(f"indenter mesh {path}: no such file")
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in MESH_TYPES:
+        raise ConfigError(f"indenter mesh {path}: unknown mesh type '.{suffix}' (use {', '.join(MESH_TYPES)})")
+    data = path.read_bytes()
+    if suffix == "stl" and not _looks_like_stl(data):
+        raise ConfigError(f"indenter mesh {path}: not an STL file (neither binary STL nor ASCII 'solid ... facet')")
+    if suffix in TEXT_MESH_TYPES and not _is_text(data):
+        raise ConfigError(f"indenter mesh {path}: not a .{suffix} file (binary or undecodable bytes)")
     try:
-        mesh = trimesh.load(path, force="mesh")
+        mesh = trimesh.load(trimesh.util.wrap_as_stream(data), file_type=suffix, force="mesh")
+    except ImportError:  # trimesh falls back on optional text-encoding guessers for bytes it cannot decode
+        raise ConfigError(f"indenter mesh {path}: not a readable .{suffix} file (undecodable bytes)") from None
     except Exception as exc:  # trimesh raises many types for unreadable files
-        raise ConfigError(f"indenter mesh {path}: cannot read it as a mesh ({exc})") from None
+        raise ConfigError(f"indenter mesh {path}: cannot read it as a .{suffix} mesh ({exc})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0 or not np.all(np.isfinite(mesh.vertices)):
         raise ConfigError(f"indenter mesh {path}: holds no triangles")
     extent = float(np.max(mesh.extents))
     if not extent > 0:
         raise ConfigError(f"indenter mesh {path}: has zero size")
+    mesh = _closed_solid(mesh, path)
     if cfg.scale_to_size:
         mesh.apply_scale(cfg.size / extent)
     return mesh
+
+
+MESH_TYPES = ("stl", "obj", "ply", "off", "glb", "gltf")
+"""Mesh files trimesh reads without optional extras."""
+
+
+TEXT_MESH_TYPES = ("obj", "off", "gltf")
+
+
+def _is_text(data: bytes) -> bool:
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return b"\x00" not in data
+
+
+def _looks_like_stl(data: bytes) -> bool:
+    """Binary STL (80-byte header, triangle count, 50 bytes per triangle) or ASCII STL."""
+    if len(data) >= 84:
+        n = int.from_bytes(data[80:84], "little")
+        if 84 + 50 * n == len(data):
+            return True
+    head = data[:1024].lstrip().lower()
+    return head.startswith(b"solid") and b"facet" in data[:4096].lower()
+
+
+def _closed_solid(mesh: trimesh.Trimesh, path: Path) -> trimesh.Trimesh:
+    """The mesh as a watertight solid: holes filled and normals fixed if needed (warned), else refused."""
+    import logging
+
+    if len(mesh.faces) < 4:
+        raise ConfigError(f"indenter mesh {path}: {len(mesh.faces)} triangle(s) cannot enclose a solid")
+    if mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0:
+        return mesh
+    repaired = mesh.copy()
+    repaired.merge_vertices()
+    trimesh.repair.fill_holes(repaired)
+    trimesh.repair.fix_normals(repaired)
+    if not (repaired.is_watertight and abs(repaired.volume) > 0):
+        open_edges = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
+        raise ConfigError(
+            f"indenter mesh {path}: not a closed solid ({open_edges} open edges) and the holes are too large "
+            "to fill; close it in a mesh editor"
+        )
+    logging.getLogger(__name__).warning(
+        "indenter mesh %s was not watertight: holes filled and normals fixed (%d -> %d triangles)",
+        path,
+        len(mesh.faces),
+        len(repaired.faces),
+    )
+    return repaired
 
 
 # --- height field of the leading surface --------------------------------------------------------

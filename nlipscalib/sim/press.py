@@ -111,11 +111,27 @@ def render_spec_hash(scene, press=None, seed=None) -> str:
 
     Stored as ``provenance.spec_hash`` so re-runs can tell a matching press folder from a stale one.
     """
-    from ..config import digest, to_mapping
+    from ..config import to_mapping
 
     press_dict = None if press is None else to_mapping(press)
     seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
-    data = scene.to_dict()
+    return _spec_digest(scene.to_dict(), press_dict, seed)
+
+
+def recorded_spec_hash(provenance: dict) -> str | None:
+    """The spec hash of a rendered press: recorded, or recomputed from older folders' provenance."""
+    if provenance.get("spec_hash"):
+        return provenance["spec_hash"]
+    try:
+        return _spec_digest(provenance["scene"], provenance["press"], int(provenance["seed"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _spec_digest(scene_dict: dict, press_dict: dict | None, seed: int) -> str:
+    from ..config import digest
+
+    data = dict(scene_dict)
     data["render"] = {k: v for k, v in data["render"].items() if k != "threads"}
     return digest({"scene": data, "press": press_dict, "seed": seed})
 

@@ -14,12 +14,13 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from ..config import from_mapping, read_config_file, to_mapping
+from ..config import check_count, check_range, from_mapping, read_config_file, to_mapping
 from ..core.camera import Camera
 from ..core.capture import SensorResponse
 from ..core.leds import Led
 from ..core.sensor import CameraConfig, DomeConfig, LedConfig, SensorDesign
 from ..errors import ConfigError
+from .render.variant import VARIANTS
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 """The shipped scenes (nlipscalib/scenes links to the repository's scenes/; installs carry a copy)."""
@@ -36,6 +37,12 @@ class CoatingConfig:
     """Relative amplitude of smooth spatial albedo variation (0 = uniform)."""
     variation_scale: float = 4.0
     """Spatial scale of the variation, mm."""
+
+    def __post_init__(self):
+        for i, a in enumerate(self.albedo):
+            check_range(f"albedo[{i}]", a, 0.0, 1.0)
+        check_range("variation", self.variation, 0.0, 1.0)
+        check_range("variation_scale", self.variation_scale, 0.0, open_lo=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +61,14 @@ class NoiseConfig:
     """Black level in DN of the sensor's bit depth."""
     exposure: float = 1.0
     """Scale from rendered radiance to full scale (1.0 = the scene's calibrated exposure)."""
+
+    def __post_init__(self):
+        check_count("bit_depth", self.bit_depth, minimum=1)
+        check_range("bit_depth", self.bit_depth, 8, 16)
+        check_range("full_well", self.full_well, 0.0, open_lo=True)
+        check_range("read_noise", self.read_noise, 0.0)
+        check_range("black_level", self.black_level, 0.0, (1 << self.bit_depth) - 2)
+        check_range("exposure", self.exposure, 0.0, open_lo=True)
 
     def response(self) -> SensorResponse:
         shift = 16 - self.bit_depth
@@ -75,6 +90,14 @@ class RenderConfig:
     """Render threads (0 = all cores)."""
     seed: int = 0
     """Seed of the sampler and the noise: same seed, same images."""
+
+    def __post_init__(self):
+        check_count("spp", self.spp, minimum=1)
+        check_count("bounces", self.bounces, minimum=0)
+        check_count("threads", self.threads, minimum=0)
+        check_count("seed", self.seed, minimum=0)
+        if self.variant not in VARIANTS:
+            raise ConfigError(f"variant must be one of {list(VARIANTS)}, got {self.variant!r}")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -56,9 +56,14 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
 def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
     spec = tmp_path / "spec.toml"
     spec.write_text(SPEC.replace("depth = [1.2]", "depth = [9.0]").replace("seed = 5", "seed = 5\nreference = false"))
+    assert main(["dataset", str(spec), "--out", str(tmp_path / "d"), "--workers", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err  # refused before rendering, naming the file and key
+    assert "spec.toml" in err and "depth" in err and "thickness" in err
+    rim = SPEC.replace("polar_deg = [10.0]", "polar_deg = [80.0]").replace("size = 6.0", "size = 12.0")
+    spec.write_text(rim.replace("seed = 5", "seed = 5\nreference = false"))
     assert main(["dataset", str(spec), "--out", str(tmp_path / "d"), "--workers", "1", "--no-progress"]) == 1
-    err = capsys.readouterr().err
-    assert "press_0000" in err and "thickness" in err
+    err = capsys.readouterr().err  # found only while rendering: reported per press, the others go on
+    assert "press_0000" in err and "rim" in err
     spec.write_text("[grid]\nindenter = []\n")
     assert main(["dataset", str(spec), "--out", str(tmp_path / "e")]) == 2
     assert "spec.toml" in capsys.readouterr().err

@@ -136,6 +136,7 @@ def test_real_full_disk_and_read_only_recheck(spec, tmpfs, capsys):
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--no-progress"]) == 0
     assert f"{5 - len(done)} rendered, {len(done)} already there" in capsys.readouterr().out
 
+    (out / "dataset.json").unlink()  # even one from before dataset.json existed
     _remount(tmpfs, "ro")  # a finished dataset on read-only media can be re-checked
     assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 0
     assert "0 rendered, 5 already there, 0 failed" in capsys.readouterr().out
@@ -147,3 +148,20 @@ def test_real_read_only_unfinished_dataset(spec, tmpfs, capsys):
     _remount(tmpfs, "ro")
     assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 2
     _one_line_error(capsys.readouterr().err, str(out), "Read-only file system")
+
+
+def test_no_room_for_one_press_fails_before_rendering(spec, tmp_path, monkeypatch, capsys, caplog):
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    calls = []
+    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 1000, 1000))
+    out = tmp_path / "out"
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
+    _one_line_error(capsys.readouterr().err, str(out), "No space left on device", "KiB free")
+    assert calls == []
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 0, 200_000))  # room for two presses of five
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
+    assert "the run will stop when the disk is full" in caplog.text

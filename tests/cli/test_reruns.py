@@ -60,3 +60,17 @@ def test_render_rerun_same_spec_skips_changed_spec_refuses(tmp_path, capsys):
     assert "different scene, press or seed" in capsys.readouterr().err
     assert main([*args, "--depth", "0.7", "--overwrite"]) == 0
     assert json.loads((out / "meta.json").read_text())["provenance"]["press"]["depth"] == 0.7
+
+
+def test_press_from_before_spec_hashes_is_recognised():
+    """Folders written before spec_hash existed: the hash is recomputed from their provenance."""
+    from nlipscalib.config import to_mapping
+    from nlipscalib.sim.indent import PressConfig
+    from nlipscalib.sim.press import recorded_spec_hash, render_spec_hash
+    from nlipscalib.sim.scene import load_scene
+
+    scene, press = load_scene(), PressConfig(depth=0.8)
+    old = {"scene": scene.replace(render={"threads": 7}).to_dict(), "press": to_mapping(press), "seed": 42}
+    assert recorded_spec_hash(old) == render_spec_hash(scene, press, 42)
+    assert recorded_spec_hash({**old, "seed": 43}) != render_spec_hash(scene, press, 42)
+    assert recorded_spec_hash({"source": "device"}) is None

@@ -75,3 +75,20 @@ def test_write_if_changed_skips_identical_content(tmp_path, monkeypatch):
     assert not write_if_changed(path, "x\n")  # read-only media: an identical file is not rewritten
     with pytest.raises(OSError):
         write_if_changed(path, "y\n")
+
+
+def test_next_write_of_a_folder_cleans_its_killed_predecessor(tmp_path):
+    """A killed `nlips solve` left PRESS/.tmp-nlips~host~pid~xyz: the next write of PRESS/nlips removes it."""
+    dead = tmp_path / (tmp_prefix("nlips").replace(f"~{os.getpid()}~", f"~{_dead_pid()}~") + "xyz")
+    dead.mkdir()
+    (dead / "result.npz").write_bytes(b"half")
+    old_style = tmp_path / f"{TMP_PREFIX}nlips-abc123"
+    old_style.mkdir()
+    os.utime(old_style, (0, 0))
+    other_item = tmp_path / (tmp_prefix("press_0001").replace(f"~{os.getpid()}~", f"~{_dead_pid()}~") + "q")
+    other_item.mkdir()
+    with atomic_dir(tmp_path / "nlips") as tmp:
+        (tmp / "result.npz").write_bytes(b"whole")
+    assert not dead.exists() and not old_style.exists()
+    assert other_item.exists()  # only this folder's leftovers
+    assert (tmp_path / "nlips" / "result.npz").read_bytes() == b"whole"

@@ -118,3 +118,16 @@ def test_racing_processes_get_one_claim_each_item(tmp_path, n):
     claimed = [int(i) for out in outs for i in out.split(",") if i]
     assert sorted(claimed) == list(range(6))  # every item produced exactly once
     assert not list(tmp_path.glob(".claim-*"))
+
+
+def test_fresh_unreadable_claim_counts_as_held(tmp_path):
+    """A claim file being written (exclusive-create fallback) is not free; once old, it is."""
+    target = tmp_path / "item"
+    claim_path(target).write_bytes(b"")
+    assert holder(target) is not None
+    with claim(target) as mine:
+        assert not mine
+    os.utime(claim_path(target), (0, 0))
+    assert holder(target) is None
+    with claim(target) as mine:
+        assert mine

@@ -39,3 +39,32 @@ def test_damaged_or_mismatched_reconstruction_names_the_file(tmp_path):
     (folder / "report.json").write_text('{"format": "other"}')
     with pytest.raises(CaptureError, match="report.json"):
         load_reconstruction(folder)
+
+
+def test_problem_check_is_cheap_and_names_the_damage(tmp_path):
+    from nlipscalib.core.reconstruction import reconstruction_dir, reconstruction_problem
+
+    folder = save_reconstruction(_rec(), tmp_path / "nlips")
+    assert reconstruction_problem(folder) is None
+    data = (folder / "result.npz").read_bytes()
+    (folder / "result.npz").write_bytes(data[:-30])
+    assert "damaged or truncated" in reconstruction_problem(folder)
+    assert "missing" in reconstruction_problem(tmp_path / "none")
+    assert reconstruction_dir(tmp_path, method="nlipsnet") == tmp_path / "nlipsnet"
+    with pytest.raises(CaptureError, match="method"):
+        reconstruction_dir(tmp_path, method="other")
+
+
+def test_auto_compression_stores_dense_maps_and_deflates_sparse_ones(tmp_path):
+    import zipfile
+
+    from nlipscalib.core.imageio import save_npz
+
+    dense = np.random.default_rng(0).random((40, 50)).astype(np.float32)
+    roi_only = np.full((40, 50), np.nan, np.float32)
+    roi_only[5:10, 5:10] = 1.0
+    path = save_npz(tmp_path / "a.npz", {"dense": dense, "roi": roi_only, "mask": dense > 0.5}, compress="auto")
+    kinds = {i.filename: i.compress_type for i in zipfile.ZipFile(path).infolist()}
+    assert kinds == {"dense.npy": zipfile.ZIP_STORED, "roi.npy": zipfile.ZIP_DEFLATED, "mask.npy": zipfile.ZIP_DEFLATED}
+    with np.load(path) as data:
+        assert np.array_equal(data["dense"], dense) and np.array_equal(data["roi"], roi_only, equal_nan=True)

@@ -96,3 +96,19 @@ def _owned_by(claim: Path, pid: int) -> bool:
         return json.loads(claim.read_text())["pid"] == pid
     except (OSError, ValueError, KeyError):
         return False
+
+
+def test_terminated_run_releases_its_claims(tmp_path):
+    """SIGTERM (a scheduler's time limit) unwinds: exit 143, its claim and half-written folder gone."""
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    out = tmp_path / "out"
+    proc = _start(spec, out, tmp_path / "log.txt")
+    deadline = time.time() + 300
+    while not any(_owned_by(c, proc.pid) for c in out.glob(".claim-*")):
+        assert time.time() < deadline and proc.poll() is None, "it never claimed a press"
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    err = proc.communicate(timeout=120)[1]
+    assert proc.returncode == 143 and "terminated" in err and "Traceback" not in err, err
+    assert not list(out.glob(".claim-*")) and not list(out.glob(".tmp-*"))

@@ -1,0 +1,595 @@
+"""Solving presses as a user's command does: resumable, honest about re-runs, concurrency-safe, parallel.
+
+The one place that turns press folders into reconstruction folders (PRESS/nlips/), shared by
+``nlips solve``, ``nlips demo``, ``nlips eval`` (re-computing a damaged result), and later
+``nlips calibrate`` and the experiments.
+
+- **Honest re-runs.** Every result records what made it (report.json ``provenance``): the solver
+  settings (options, ROI request, LED subset or calibrated LEDs, backend, extra solver keywords), the
+  identities of its inputs (content hashes of the press and the reference capture) and the software
+  version, and one ``key`` hashing them all. A result is reused only when its key equals the key of
+  the new request; otherwise it is re-solved (and the log says what changed).
+- **Damaged results** (truncated result.npz, broken report.json) are re-computed with a warning.
+- **Concurrency.** Work on PRESS/nlips is claimed (:func:`nlipscalib.core.claims.claim`): a press that
+  another live process is solving is skipped, and interrupted writes (``.tmp-nlips-*``) are removed
+  only by the claim's holder, i.e. when no live process can own them.
+- **Parallel.** ``workers > 1`` solves presses in separate processes (the solver runs single-threaded
+  BLAS, so one process per core is the efficient split).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import logging
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+from . import __version__
+from .core.atomic import TMP_PREFIX
+from .core.reconstruction import (
+    Reconstruction,
+    load_reconstruction,
+    read_report,
+    reconstruction_dir,
+    reconstruction_problem,
+)
+from .errors import CaptureError, ConfigError, NlipsError
+
+log = logging.getLogger(__name__)
+
+SOLVED, SKIPPED, FAILED = "solved", "skipped", "failed"
+"""Statuses of one press (a failure reads "failed: reason")."""
+CLAIM_STALE_S = 60.0
+"""A claim on PRESS/nlips without heartbeat for this long is taken over (its owner died)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class SolveSettings:
+    """Everything besides the press that decides a reconstruction (recorded and hashed in report.json)."""
+
+    roi: str | tuple[int, int, int, int] | None = "auto"
+    """"auto" (around the contact), (x0, y0, w, h) pixels, or None (the whole visible gel)."""
+    led_subset: tuple[int, ...] | None = None
+    """0-based LED indices to use (an ablation), or None for all."""
+    leds: tuple | None = None
+    """Calibrated LEDs (core.leds.Led) replacing the capture's, or None."""
+    leds_file: str | None = None
+    """Where ``leds`` were read from (informational; their values are what counts)."""
+    reference: Path | None = None
+    """Press folder of the undeformed dome (interreflection compensation, auto ROI), or None."""
+    options: object = None
+    """solver.SolverOptions (None: the defaults)."""
+    backend: str = "numpy"
+    """Solver backend: "numpy" or "torch"."""
+    solver_keywords: tuple[tuple[str, object], ...] = ()
+    """Further keyword arguments of solver.solve_press (name, value), e.g. dent_interreflection."""
+
+    def describe(self) -> dict:
+        """JSON-able record of the settings (paths as given; values that decide the result)."""
+        from .core.reconstruction import jsonable
+
+        return jsonable(
+            {
+                "roi": list(self.roi) if isinstance(self.roi, tuple) else self.roi,
+                "led_subset": None if self.led_subset is None else [i + 1 for i in self.led_subset],
+                "leds": None if self.leds is None else [led.to_dict() for led in self.leds],
+                "leds_file": self.leds_file,
+                "reference": None if self.reference is None else str(self.reference),
+                "options": dataclasses.asdict(self.options) if self.options is not None else None,
+                "backend": self.backend,
+                "solver_keywords": dict(self.solver_keywords),
+            }
+        )
+
+
+# ---------------------------------------------------------------------- public API
+def make_settings(
+    *,
+    reference: str | Path | None = None,
+    roi="auto",
+    leds=None,
+    options=None,
+    backend: str = "numpy",
+    solver_keywords: dict | None = None,
+) -> SolveSettings:
+    """Check and normalise solve arguments (see :func:`solve_presses`) into :class:`SolveSettings`."""
+    from .solver import SolverOptions
+
+    if options is None:
+        options = SolverOptions()
+    elif not isinstance(options, SolverOptions):
+        raise ConfigError(f"options must be a SolverOptions, got {type(options).__name__}")
+    if backend not in ("numpy", "torch"):
+        raise ConfigError(f"backend must be 'numpy' or 'torch', got {backend!r}")
+    subset, led_values, leds_file = _resolve_leds(leds)
+    reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
+    return SolveSettings(
+        roi=_resolve_roi(roi),
+        led_subset=subset,
+        leds=led_values,
+        leds_file=leds_file,
+        reference=None if reference is None else Path(reference),
+        options=options,
+        backend=backend,
+        solver_keywords=tuple(sorted(_solver_keywords(solver_keywords).items())),
+    )
+
+
+def settings_from_record(record: dict) -> SolveSettings:
+    """The :class:`SolveSettings` recorded in a report.json (``provenance.settings``), e.g. to re-make a result.
+
+    The LED file is not re-read: the recorded LED values are used.
+    """
+    from .core.leds import Led
+    from .solver import SolverOptions
+
+    try:
+        leds = None
+        if record.get("leds") is not None:
+            leds = tuple(Led.from_dict(d) for d in record["leds"])
+        elif record.get("led_subset") is not None:
+            leds = tuple(int(i) - 1 for i in record["led_subset"])
+        roi = record.get("roi")
+        options = SolverOptions(**record["options"]) if record.get("options") is not None else None
+        settings = make_settings(
+            reference=record.get("reference"),
+            roi=tuple(roi) if isinstance(roi, list) else roi,
+            leds=leds,
+            options=options,
+            backend=record.get("backend", "numpy"),
+            solver_keywords=record.get("solver_keywords") or {},
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"recorded solve settings are not usable ({exc})") from None
+    return dataclasses.replace(settings, leds_file=record.get("leds_file"))
+
+
+def solve_folder(
+    folder: str | Path,
+    *,
+    reference: str | Path | None = None,
+    roi="auto",
+    leds=None,
+    options=None,
+    backend: str = "numpy",
+    overwrite: bool = False,
+    progress: bool = True,
+    figures=True,
+    out: str | Path | None = None,
+    solver_keywords: dict | None = None,
+) -> tuple[Reconstruction | None, str]:
+    """Solve one press folder into ``out`` (default PRESS/nlips), or reuse an identical result there.
+
+    Parameters are those of :func:`solve_presses`, plus ``out``.
+
+    Returns
+    -------
+    (reconstruction, status) : the result (solved now or reused; None when another process is solving
+        this press right now) and "solved" or "skipped".
+
+    Raises
+    ------
+    NlipsError (CaptureError, ConfigError, ShapeError) with one line naming the file and the problem.
+    """
+    settings = make_settings(
+        reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
+    )
+    return solve_one(Path(folder), settings, out=out, overwrite=overwrite, progress=progress, figures=figures)
+
+
+def solve_presses(
+    folders: Iterable[str | Path],
+    *,
+    reference: str | Path | None = None,
+    roi="auto",
+    leds=None,
+    options=None,
+    backend: str = "numpy",
+    workers: int = 1,
+    overwrite: bool = False,
+    progress: bool = True,
+    figures=True,
+    solver_keywords: dict | None = None,
+) -> dict[str, str]:
+    """Solve several press folders (each into PRESS/nlips), in parallel processes when ``workers > 1``.
+
+    Parameters
+    ----------
+    folders : press folders; the ``reference`` folder, if among them, is not solved
+    reference : press folder (or loaded Press) of the undeformed dome (same camera, LEDs, exposure):
+        interreflection compensation and auto ROI against it (solver.solve_press ``indirect``)
+    roi : "auto", (x0, y0, w, h) pixels, or None (the whole visible gel)
+    leds : None (the capture's LEDs); an LED JSON file from ``nlips calibrate-leds``; a string like
+        "1,2,5" (1-based LED subset); a sequence of core.leds.Led; or a sequence of 0-based int indices
+    options : solver.SolverOptions or None (defaults)
+    backend : "numpy" or "torch"
+    workers : processes solving presses at once (1: in this process)
+    overwrite : re-solve even when an identical result exists
+    progress : progress bars (shown only on a terminal)
+    figures : True/"maps" (cheap PNG maps), "full" (plus a matplotlib summary), False/"none"
+    solver_keywords : further keyword arguments of solver.solve_press (recorded and hashed too)
+
+    Returns
+    -------
+    dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``. "skipped":
+    an identical result exists, or another live process is solving the press right now. Failures of
+    one press (bad capture, bad LED file, disk errors) do not stop the others.
+    """
+    from .report import figure_level
+
+    settings = make_settings(
+        reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
+    )
+    figure_level(figures)
+    folders = [Path(f) for f in folders]
+    if settings.reference is not None:  # the undeformed dome is the reference, not a press to solve
+        folders = [f for f in folders if f.resolve() != settings.reference.resolve()]
+    if not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"workers must be a whole number >= 1, got {workers!r}")
+    names = _names(folders)
+    if workers == 1 or len(folders) <= 1:
+        statuses = _solve_serially(folders, names, settings, overwrite, progress, figures)
+    else:
+        statuses = _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures)
+    return {names[f]: statuses[f] for f in folders}
+
+
+def solve_one(
+    folder: Path,
+    settings: SolveSettings,
+    *,
+    out: str | Path | None = None,
+    overwrite: bool = False,
+    progress: bool = False,
+    figures=True,
+    want_result: bool = True,
+) -> tuple[Reconstruction | None, str]:
+    """:func:`solve_folder` with prepared settings; ``want_result=False`` skips loading a reused result."""
+    from .report import figure_level
+
+    figures = figure_level(figures)  # a bad value fails now, not after the solve
+    out = reconstruction_dir(folder, out)
+    provenance = make_provenance(folder, settings)
+    if not overwrite and not _leftovers(out):  # leftovers are cleaned under the claim, below
+        reused = _reuse(out, provenance, want_result, quiet=True)
+        if reused is not None:
+            return reused
+    progress = _bars(progress)
+    with _claim(out) as mine:
+        if not mine:
+            log.info("%s: being solved by another process, skipped", folder)
+            return None, SKIPPED
+        _clean_interrupted(out)
+        if not overwrite:  # the result may have appeared while we waited for the claim
+            reused = _reuse(out, provenance, want_result, quiet=False)
+            if reused is not None:
+                return reused
+        return _solve_and_save(folder, out, settings, provenance, progress, figures), SOLVED
+
+
+def make_provenance(folder: Path, settings: SolveSettings) -> dict:
+    """What makes the reconstruction of ``folder`` with ``settings``: settings, input identities, and their key.
+
+    Input identities are content hashes (SHA-256) of the capture files the solver reads (meta.json,
+    the images, reference.npz), so a moved or copied press keeps its identity and a re-captured one
+    does not.
+    """
+    inputs = {
+        "press": capture_identity(folder),
+        "reference": None if settings.reference is None else capture_identity(settings.reference),
+    }
+    described = settings.describe()
+    keyed = {k: v for k, v in described.items() if k not in ("leds_file", "reference")}  # paths: not content
+    key_source = {"settings": keyed, "inputs": inputs, "software_version": __version__}
+    key = hashlib.sha256(json.dumps(key_source, sort_keys=True).encode()).hexdigest()
+    return {"key": key, "software_version": __version__, "settings": described, "inputs": inputs}
+
+
+@functools.lru_cache(maxsize=16)
+def _capture_identity_cached(folder: str, stamp: tuple) -> str:
+    from .core.capture import META_FILE, read_meta
+
+    meta = read_meta(folder)
+    digest = hashlib.sha256((Path(folder) / META_FILE).read_bytes())
+    images = meta["images"]
+    for name in [images["dark"], images["tricolor"], *images["leds"], meta.get("reference")]:
+        if not name:
+            continue
+        path = Path(folder) / name
+        try:
+            digest.update(name.encode() + b"\0" + path.read_bytes())
+        except FileNotFoundError:
+            raise CaptureError(f"{path}: listed in {META_FILE} but missing") from None
+    return digest.hexdigest()
+
+
+def capture_identity(folder: str | Path) -> str:
+    """SHA-256 (hex) of a press folder's solver inputs: meta.json, images and reference.npz contents."""
+    from .core.capture import META_FILE
+
+    meta = Path(folder) / META_FILE
+    try:
+        st = meta.stat()
+    except FileNotFoundError:
+        raise CaptureError(f"{meta}: missing; {folder} is not a complete press folder") from None
+    # cached per process while meta.json is the same file (press folders are replaced whole, atomically)
+    return _capture_identity_cached(str(Path(folder).resolve()), (st.st_ino, st.st_mtime_ns, st.st_size))
+
+
+# ---------------------------------------------------------------------- internals
+def _bars(requested: bool) -> bool:
+    from .progress import bars_enabled
+
+    return bars_enabled(requested)
+
+
+def _claim(target: Path):
+    from .core.claims import claim
+
+    return claim(target, stale_s=CLAIM_STALE_S)
+
+
+def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool):
+    """(result or None, "skipped") when ``out`` holds a sound result made with the same key; else None."""
+    if not out.exists():
+        return None
+    problem = reconstruction_problem(out)
+    if problem is not None:
+        if not quiet:
+            log.warning("%s; re-computing it", problem)
+        return None
+    old = read_report(out).get("provenance") or {}
+    if old.get("key") != provenance["key"]:
+        if not quiet:
+            log.info("%s: made with other settings or inputs (%s), re-solving", out, _what_changed(old, provenance))
+        return None
+    if not want_result:
+        log.info("%s: identical result exists, skipped (--overwrite re-solves)", out)
+        return None, SKIPPED
+    try:
+        result = load_reconstruction(out)
+    except CaptureError as exc:
+        if not quiet:
+            log.warning("%s; re-computing it", exc)
+        return None
+    log.info("%s: identical result exists, skipped (--overwrite re-solves)", out)
+    return result, SKIPPED
+
+
+def _what_changed(old: dict, new: dict) -> str:
+    if not old:
+        return "no record of them"
+    changed = [
+        k
+        for k, v in new["settings"].items()
+        if k not in ("leds_file", "reference") and old.get("settings", {}).get(k) != v
+    ]
+    changed += [f"{k} capture" for k, v in new["inputs"].items() if (old.get("inputs") or {}).get(k) != v]
+    if old.get("software_version") != new["software_version"]:
+        changed.append("software version")
+    return ", ".join(changed) or "record differs"
+
+
+def _leftovers(out: Path) -> bool:
+    """Whether temporary entries of ``out`` (live or interrupted writes) lie beside it."""
+    return any(out.parent.glob(f"{TMP_PREFIX}{out.name}[~-]*"))
+
+
+def _clean_interrupted(out: Path) -> None:
+    """Remove interrupted writes of ``out`` beside it. Call only while holding its claim.
+
+    Owner-tagged temporary folders (``.tmp-nlips~host~pid~*``) go when their owner is gone
+    (core.atomic.clean_interrupted); untagged ones of older versions (``.tmp-nlips-*``) go too: holding
+    the claim means no live process of this pipeline is writing ``out``.
+    """
+    import shutil
+
+    from .core.atomic import clean_interrupted
+
+    gone = clean_interrupted(out.parent, item=out.name)
+    legacy = list(out.parent.glob(f"{TMP_PREFIX}{out.name}-*"))
+    for tmp in legacy:
+        shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
+    for tmp in gone + legacy:
+        log.warning("%s: removed an interrupted write", tmp)
+
+
+def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance: dict, progress: bool, figures):
+    import time
+
+    from .core.capture import load_press
+    from .report import figure_level, write_reconstruction_figures
+    from .solver import save_result, solve_press
+
+    level = figure_level(figures)
+    t0 = time.perf_counter()
+    press = load_press(folder, led_subset=settings.led_subset)
+    ref = None
+    if settings.reference is not None:
+        ref = _load_reference(settings.reference, settings.led_subset, capture_identity(settings.reference))
+    if settings.leds is not None and len(settings.leds) != len(press.leds):
+        raise ConfigError(
+            f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {len(press.leds)}"
+        )
+    t1 = time.perf_counter()
+    result = solve_press(
+        press,
+        roi=settings.roi,
+        leds=settings.leds,
+        options=settings.options,
+        backend=settings.backend,
+        progress=progress,
+        indirect=ref,
+        **dict(settings.solver_keywords),
+    )
+    t2 = time.perf_counter()
+    result.report["method"] = "nlips"
+    result.report["provenance"] = provenance
+    result.report["command_seconds"] = {"load": round(t1 - t0, 3), "solve": round(t2 - t1, 3)}
+    gt = press.ground_truth
+    save_result(
+        result, out, overwrite=True, extra_files=lambda tmp: write_reconstruction_figures(tmp, result, gt, level)
+    )
+    _log_solved(folder, out, result.report, time.perf_counter() - t2)
+    return result
+
+
+@functools.lru_cache(maxsize=2)
+def _load_reference(folder: Path, subset: tuple[int, ...] | None, identity: str):
+    """The reference capture, loaded once per process and identity (presses of a batch share it)."""
+    from .core.capture import load_press
+
+    return load_press(folder, led_subset=subset)
+
+
+def _log_solved(folder: Path, out: Path, rep: dict, save_s: float) -> None:
+    log.info(
+        "%s: %s/%s pixels reconstructed, %s with too few LEDs, dead LEDs %s, solver %.1f s, saved in %.2f s -> %s",
+        folder.name,
+        rep.get("pixels_reconstructed", "?"),
+        rep.get("pixels_solved", "?"),
+        rep.get("pixels_too_few_leds", "?"),
+        [i + 1 for i in rep.get("dead_leds", [])],
+        rep.get("seconds", float("nan")),
+        save_s,
+        out,
+    )
+
+
+def _resolve_roi(roi):
+    if roi is None or roi == "auto":
+        return roi
+    if isinstance(roi, str):
+        raise ConfigError(f"roi must be 'auto', None or (x0, y0, w, h), got {roi!r}")
+    try:
+        box = tuple(int(v) for v in roi)
+    except (TypeError, ValueError):
+        box = ()
+    if len(box) != 4 or box[2] < 1 or box[3] < 1 or min(box) < 0:
+        raise ConfigError(f"roi must be (x0, y0, w, h) with x0, y0 >= 0 and w, h >= 1 pixels, got {roi!r}")
+    return box
+
+
+def _resolve_leds(leds):
+    """(0-based subset or None, calibrated LEDs or None, LED file or None) from the ``leds`` argument."""
+    from .core.leds import Led
+    from .solver.io import load_leds
+
+    if leds is None:
+        return None, None, None
+    if isinstance(leds, (str, Path)):
+        path = Path(leds)
+        if path.suffix.lower() == ".json" or path.is_file():
+            return None, load_leds(path), str(path)
+        try:
+            return tuple(int(v) - 1 for v in str(leds).split(",")), None, None
+        except ValueError:
+            raise ConfigError(f"leds must be like '1,2,5' (1-based) or an LED .json file, got {leds!r}") from None
+    leds = tuple(leds)
+    if leds and all(isinstance(v, Led) for v in leds):
+        return None, leds, None
+    if leds and all(isinstance(v, int) for v in leds):
+        return leds, None, None
+    raise ConfigError("leds must be an LED file, '1,2,5', a sequence of Led, or a sequence of 0-based indices")
+
+
+def _solver_keywords(given: dict | None) -> dict:
+    """``given`` checked against solve_press's keywords and completed with their defaults.
+
+    Completing with the defaults makes "not given" and "given at its default" the same request (one key).
+    """
+    import inspect
+
+    from .solver import solve_press
+
+    own = {"press", "roi", "leds", "options", "backend", "progress", "indirect"}
+    params = {
+        name: p.default
+        for name, p in inspect.signature(solve_press).parameters.items()
+        if name not in own and p.default is not inspect.Parameter.empty
+    }
+    unknown = sorted(set(given or {}) - set(params))
+    if unknown:
+        raise ConfigError(f"unknown solver keywords {unknown}; solve_press accepts {sorted(params)}")
+    return params | dict(given or {})
+
+
+def _names(folders: Sequence[Path]) -> dict[Path, str]:
+    """Press names for the status table: the folder name, or the whole path where names repeat."""
+    counts: dict[str, int] = {}
+    for f in folders:
+        counts[f.name] = counts.get(f.name, 0) + 1
+    return {f: f.name if counts[f.name] == 1 else str(f) for f in folders}
+
+
+def _status_of(folder: Path, settings: SolveSettings, overwrite: bool, progress: bool, figures) -> str:
+    """One press's status; expected failures (bad capture, bad settings, disk errors) become "failed: ..."."""
+    try:
+        return solve_one(folder, settings, overwrite=overwrite, progress=progress, figures=figures, want_result=False)[
+            1
+        ]
+    except NlipsError as exc:
+        log.error("%s: %s", folder.name, exc)
+        return f"{FAILED}: {exc}"
+    except OSError as exc:  # disk full, read-only, permission: name the file and the cause
+        where = exc.filename or folder
+        log.error("%s: %s", where, exc.strerror or exc)
+        return f"{FAILED}: {where}: {exc.strerror or exc}"
+
+
+def _solve_serially(folders, names, settings, overwrite, progress, figures) -> dict[Path, str]:
+    from .progress import track
+
+    single = len(folders) == 1
+    statuses = {}
+    bar = track(folders, enabled=progress and not single, desc="presses", unit="press")
+    for folder in bar:
+        bar.set_postfix_str(names[folder], refresh=False)
+        statuses[folder] = _status_of(folder, settings, overwrite, progress and single, figures)
+    return statuses
+
+
+def _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures) -> dict[Path, str]:
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    from .progress import progress_bar
+
+    # forkserver: workers start from a clean process with the solver imported once, not from a fork of
+    # a caller that may hold threads (claims' heartbeats, progress monitors) or a multi-threaded BLAS
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    if "forkserver" in methods:
+        ctx.set_forkserver_preload(["nlipscalib.pipeline", "nlipscalib.solver"])
+    statuses = {}
+    with ProcessPoolExecutor(
+        max_workers=min(workers, len(folders)),
+        mp_context=ctx,
+        initializer=_worker_init,
+        initargs=(logging.getLogger().getEffectiveLevel(),),
+    ) as pool:
+        futures = {pool.submit(_status_of, f, settings, overwrite, False, figures): f for f in folders}
+        bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
+        for done in as_completed(futures):
+            folder = futures[done]
+            statuses[folder] = done.result()
+            bar.set_postfix_str(names[folder], refresh=False)
+            bar.update()
+        bar.close()
+    return statuses
+
+
+def _worker_init(log_level: int) -> None:
+    """Log like the parent; one core per worker: the solver limits BLAS itself, OpenCV's pool is limited here."""
+    logging.basicConfig(level=log_level, format="%(levelname)s %(message)s")
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except ImportError:  # pragma: no cover - OpenCV is a core dependency
+        pass

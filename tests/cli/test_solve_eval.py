@@ -1,0 +1,142 @@
+"""`nlips solve` and `nlips eval` as a user runs them: honest re-runs, damaged results, figures, both methods."""
+
+import dataclasses
+import json
+import shutil
+
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.core.capture import load_press
+from nlipscalib.core.reconstruction import load_reconstruction, save_reconstruction
+from tests.solver import synth
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cli_presses")
+    synth.make_press(root / "press_a", "sphere", size=(64, 48))
+    synth.make_press(root / "press_b", "cube", size=(64, 48))
+    return root
+
+
+@pytest.fixture
+def data(dataset, tmp_path):
+    shutil.copytree(dataset, tmp_path / "d")
+    cfg = tmp_path / "solver.toml"
+    cfg.write_text("max_iters = 5\n")
+    return tmp_path / "d", cfg
+
+
+def _stamp(press):
+    return (press / "nlips" / "result.npz").stat().st_mtime_ns
+
+
+def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys):
+    root, cfg = data
+    press = root / "press_a"
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    first = _stamp(press)
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    assert _stamp(press) == first and "identical result exists, skipped" in capsys.readouterr().err
+    assert main(["solve", str(press), "--config", str(cfg), "--roi", "auto", "--no-progress"]) == 0
+    assert _stamp(press) != first  # new options: re-solved, not "result exists"
+    assert "made with other settings or inputs (roi), re-solving" in capsys.readouterr().err
+    report = json.loads((press / "nlips" / "report.json").read_text())
+    assert report["provenance"]["settings"]["roi"] == "auto" and report["roi"] is not None
+    assert main(["solve", str(press), "--config", str(cfg), "--leds", "1,3,5,7,9,11", "--no-progress"]) == 0
+    assert json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["led_subset"] == [
+        1,
+        3,
+        5,
+        7,
+        9,
+        11,
+    ]
+
+
+def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys):
+    root, cfg = data
+    assert main(["solve", str(root), "--config", str(cfg), "--workers", "2", "--no-progress"]) == 0
+    assert "2 solved, 0 skipped" in capsys.readouterr().out
+    npz = root / "press_a" / "nlips" / "result.npz"
+    npz.write_bytes(npz.read_bytes()[:-200])  # truncated
+    assert main(["eval", str(root)]) == 0  # re-computed from the recorded settings, then scored
+    out, err = capsys.readouterr()
+    assert "press_a" in out and "press_b" in out and "damaged or truncated" in err and "re-computing" in err
+    assert load_reconstruction(root / "press_a" / "nlips").report["provenance"]["settings"]["options"]["max_iters"] == 5
+    npz.write_bytes(b"garbage")
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
+    assert "1 solved, 1 skipped" in capsys.readouterr().out
+    assert load_reconstruction(root / "press_a" / "nlips").reconstructed.any()
+
+
+def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
+    root, cfg = data
+    press = root / "press_a"
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    # an "NLiPsNet" result in the same format: here the exact truth, so its scores are known (zero)
+    gt = load_press(press).ground_truth
+    nlips = load_reconstruction(press / "nlips")
+    exact = dataclasses.replace(
+        nlips,
+        normals=gt.normals,
+        depth=gt.depth,
+        points=gt.points,
+        reconstructed=gt.valid,
+        mask=gt.valid,
+        report={"method": "nlipsnet"},
+    )
+    save_reconstruction(exact, press / "nlipsnet")
+    capsys.readouterr()
+    assert main(["eval", str(press / "nlipsnet")]) == 0
+    out = capsys.readouterr().out
+    assert "PRESS/nlipsnet" in out
+    row = next(line for line in out.splitlines() if line.startswith("press_a")).split()
+    # zero up to arccos near 1 on float32 unit vectors (~0.01 deg); depth exactly zero
+    assert int(row[1]) == gt.valid.sum() and float(row[2]) < 0.02 and float(row[4]) == 0.0
+    assert main(["eval", str(root), "--method", "nlipsnet"]) == 0
+    assert "not solved, skipped: press_b" in capsys.readouterr().out
+    assert main(["eval", str(press / "nlips")]) == 0
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("press_a")).split()
+    assert float(row[4]) > 0.0 and float(row[2]) < 5.0  # NLiPs on exact data: small but not exact
+    assert main(["eval", str(press / "nlips"), "--method", "nlipsnet"]) == 2
+    npz = press / "nlipsnet" / "result.npz"
+    npz.write_bytes(npz.read_bytes()[:100])
+    assert main(["eval", str(root), "--method", "nlipsnet"]) == 1  # not re-made here: named, exit 1
+    assert "damaged, not scored: press_a" in capsys.readouterr().out
+
+
+def test_figures_flags(data):
+    root, cfg = data
+    press = root / "press_b"
+    assert main(["solve", str(press), "--config", str(cfg), "--no-figures", "--no-progress"]) == 0
+    assert not list((press / "nlips").glob("*.png"))
+    assert main(["solve", str(press), "--config", str(cfg), "--figures", "full", "--overwrite", "--no-progress"]) == 0
+    pngs = {p.name for p in (press / "nlips").glob("*.png")}
+    assert pngs == {"normals.png", "depth.png", "residual.png", "error.png", "summary.png"}
+    normals = (press / "nlips" / "normals.png").read_bytes()
+    assert normals[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bad_arguments_are_one_line(data, capsys):
+    root, cfg = data
+    assert main(["solve", str(root), "--workers", "0"]) == 2
+    assert "--workers must be >= 1" in capsys.readouterr().err
+    assert main(["solve", str(root / "press_a"), "--leds", "one"]) == 2
+    assert "leds must be like '1,2,5'" in capsys.readouterr().err
+    assert main(["solve", str(root / "press_a"), "--roi", "1", "2"]) == 2
+    assert "--roi" in capsys.readouterr().err
+
+
+def test_demo_recomputes_a_damaged_cached_result(data, capsys):
+    from nlipscalib.cli import demo
+
+    root, _ = data
+    press = load_press(root / "press_b")
+    first = demo._solve(press, figures=False)
+    npz = root / "press_b" / "nlips" / "result.npz"
+    npz.write_bytes(npz.read_bytes()[:5000])  # was a BadZipFile traceback
+    again = demo._solve(press, figures=False)
+    assert again.reconstructed.sum() == first.reconstructed.sum()
+    assert load_reconstruction(root / "press_b" / "nlips").reconstructed.any()

@@ -1,0 +1,71 @@
+"""Project-wide pytest settings: in CI the digital-twin tests must run, never skip quietly.
+
+``--require-twin`` (or ``NLIPS_REQUIRE_TWIN=1``, which .ci/run sets) checks at start-up that Mitsuba
+imports and renders with its LLVM backend, and turns every skip caused by a missing twin part
+(Mitsuba, drjit, LLVM) into a failure, so a broken install cannot give a green suite.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+import pytest
+
+REQUIRE_TWIN_ENV = "NLIPS_REQUIRE_TWIN"
+TWIN_PARTS = re.compile(r"mitsuba|drjit|llvm", re.IGNORECASE)
+"""A skip whose reason mentions one of these was caused by a missing twin part."""
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--require-twin",
+        action="store_true",
+        default=False,
+        help=f"fail (not skip) when Mitsuba/LLVM cannot render; also set by {REQUIRE_TWIN_ENV}=1",
+    )
+
+
+def twin_required(config) -> bool:
+    return bool(config.getoption("--require-twin")) or os.environ.get(REQUIRE_TWIN_ENV, "") not in ("", "0")
+
+
+def pytest_sessionstart(session):
+    if not twin_required(session.config):
+        return
+    problem = _twin_problem()
+    if problem:
+        pytest.exit(f"--require-twin: the digital twin cannot render here: {problem}", returncode=3)
+
+
+def _twin_problem() -> str | None:
+    try:
+        import mitsuba  # noqa: F401
+    except Exception as exc:  # ImportError, or a broken binary wheel
+        return f"mitsuba does not import ({type(exc).__name__}: {exc})"
+    from nlipscalib.sim.render.variant import llvm_usable
+
+    if not llvm_usable():
+        return "Mitsuba's LLVM backend cannot render (install libLLVM 16..19, see setup.sh)"
+    return None
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    _fail_twin_skip(item.config, outcome.get_result())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_make_collect_report(collector):
+    outcome = yield
+    _fail_twin_skip(collector.config, outcome.get_result())
+
+
+def _fail_twin_skip(config, report) -> None:
+    if not (report.skipped and twin_required(config)):
+        return
+    reason = report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr)
+    if TWIN_PARTS.search(reason):
+        report.outcome = "failed"
+        report.longrepr = f"twin test skipped under --require-twin: {reason}"

@@ -1,0 +1,185 @@
+"""The shared solve pipeline: honest re-runs, damaged results, interrupted writes, parallel presses."""
+
+import logging
+import shutil
+
+import numpy as np
+import pytest
+
+from nlipscalib.core.reconstruction import load_reconstruction, read_report
+from nlipscalib.errors import ConfigError
+from nlipscalib.pipeline import make_provenance, make_settings, solve_folder, solve_presses
+from nlipscalib.solver import SolverOptions
+from tests.solver import synth
+
+FAST = SolverOptions(max_iters=6)
+
+
+@pytest.fixture(scope="module")
+def press_set(tmp_path_factory):
+    """Three small exact-data presses (sphere, cube, deeper sphere) and the undeformed dome."""
+    root = tmp_path_factory.mktemp("pipeline_presses")
+    synth.make_press(root / "a_sphere", "sphere", size=(64, 48))
+    synth.make_press(root / "b_cube", "cube", size=(64, 48))
+    synth.make_press(root / "c_sphere_deep", "sphere", depth=2.0, size=(64, 48))
+    return root
+
+
+@pytest.fixture
+def press(press_set, tmp_path):
+    folder = tmp_path / "press"
+    shutil.copytree(press_set / "a_sphere", folder)
+    return folder
+
+
+def test_identical_request_skips_and_a_changed_one_re_solves(press, caplog):
+    rec, status = solve_folder(press, options=FAST, figures=False)
+    assert status == "solved" and rec.reconstructed.any()
+    stamp = (press / "nlips" / "result.npz").stat().st_mtime_ns
+    again, status = solve_folder(press, options=FAST, figures=False)
+    assert status == "skipped" and np.array_equal(again.normals, rec.normals, equal_nan=True)
+    assert (press / "nlips" / "result.npz").stat().st_mtime_ns == stamp
+
+    caplog.set_level(logging.INFO)
+    _, status = solve_folder(press, options=SolverOptions(max_iters=7), figures=False)
+    assert status == "solved" and "options" in caplog.text  # the log says what changed
+    assert read_report(press / "nlips")["provenance"]["settings"]["options"]["max_iters"] == 7
+    _, status = solve_folder(press, options=SolverOptions(max_iters=7), roi=(10, 10, 30, 20), figures=False)
+    assert status == "solved"
+    assert read_report(press / "nlips")["roi"] == [10, 10, 30, 20]
+    _, status = solve_folder(press, options=SolverOptions(max_iters=7), roi=(10, 10, 30, 20), overwrite=True)
+    assert status == "solved"
+
+
+def test_provenance_records_inputs_and_changes_with_them(press_set, tmp_path):
+    settings = make_settings(options=FAST, leds="1,2,3,5,7,9")
+    a = make_provenance(press_set / "a_sphere", settings)
+    assert a["settings"]["led_subset"] == [1, 2, 3, 5, 7, 9] and len(a["inputs"]["press"]) == 64
+    assert make_provenance(press_set / "a_sphere", settings)["key"] == a["key"]  # deterministic
+    copy = tmp_path / "moved"
+    shutil.copytree(press_set / "a_sphere", copy)
+    assert make_provenance(copy, settings)["key"] == a["key"]  # identity is content, not place
+    assert make_provenance(press_set / "b_cube", settings)["key"] != a["key"]
+    with_ref = make_settings(options=FAST, leds="1,2,3,5,7,9", reference=press_set / "b_cube")
+    assert make_provenance(press_set / "a_sphere", with_ref)["key"] != a["key"]
+    # the defaults of solve_press's keywords count as given: omitting one equals passing its default
+    explicit = make_settings(options=FAST, leds="1,2,3,5,7,9", solver_keywords={"dent_interreflection": True})
+    assert make_provenance(press_set / "a_sphere", explicit)["key"] == a["key"]
+    with pytest.raises(ConfigError, match="unknown solver keywords"):
+        make_settings(solver_keywords={"no_such_flag": 1})
+
+
+def test_damaged_result_is_recomputed_with_a_warning(press, caplog):
+    solve_folder(press, options=FAST, figures=False)
+    npz = press / "nlips" / "result.npz"
+    npz.write_bytes(npz.read_bytes()[:1000])  # truncated: a killed copy, a full disk
+    caplog.set_level(logging.WARNING)
+    rec, status = solve_folder(press, options=FAST, figures=False)
+    assert status == "solved" and "damaged or truncated" in caplog.text
+    assert load_reconstruction(press / "nlips").reconstructed.sum() == rec.reconstructed.sum()
+
+
+def test_interrupted_writes_are_cleaned_but_not_live_ones(press):
+    import os
+    import subprocess
+    import sys
+
+    from nlipscalib.core.atomic import tmp_prefix
+    from nlipscalib.core.claims import HOST
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    killed = press / f".tmp-nlips~{HOST}~{int(dead.stdout)}~abc"  # its writer is gone
+    legacy = press / ".tmp-nlips-k2j3"  # an older version's untagged leftover
+    live = press / (tmp_prefix("nlips").replace(f"~{os.getpid()}~", "~1~") + "x")  # pid 1 is alive
+    for tmp in (killed, legacy, live):
+        tmp.mkdir()
+        (tmp / "result.npz").write_bytes(b"half")
+    solve_folder(press, options=FAST, figures=False)
+    assert not killed.exists() and not legacy.exists() and live.exists()
+    killed.mkdir()  # also cleaned when the result is reused
+    assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"
+    assert not killed.exists() and (press / "nlips" / "result.npz").is_file()
+
+
+def test_a_press_claimed_by_a_live_process_is_skipped(press):
+    from nlipscalib.core.claims import claim
+
+    with claim(press / "nlips") as mine:  # another worker holds it (a claim is not re-entrant)
+        assert mine
+        assert solve_folder(press, options=FAST, figures=False) == (None, "skipped")
+    assert not (press / "nlips").exists()
+    assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
+
+
+def test_figures_off_maps_and_full(press):
+    solve_folder(press, options=FAST, figures=False)
+    assert not list((press / "nlips").glob("*.png"))
+    solve_folder(press, options=FAST, figures=True, overwrite=True)
+    names = {p.name for p in (press / "nlips").glob("*.png")}
+    assert names == {"normals.png", "depth.png", "residual.png", "error.png"}
+    solve_folder(press, options=FAST, figures="full", overwrite=True)
+    assert (press / "nlips" / "summary.png").stat().st_size > 5_000
+    with pytest.raises(ConfigError, match="figures"):
+        solve_folder(press, options=FAST, figures="some")
+
+
+def test_maps_show_the_solved_box(press):
+    import cv2
+
+    from nlipscalib.report.maps import BAR_WIDTH
+
+    solve_folder(press, options=FAST, roi=(10, 12, 30, 20))
+    depth = cv2.imread(str(press / "nlips" / "depth.png"), cv2.IMREAD_COLOR)
+    normals = cv2.imread(str(press / "nlips" / "normals.png"), cv2.IMREAD_COLOR)
+    assert depth.shape == (20, 30 + BAR_WIDTH, 3) and normals.shape == (20, 30, 3)
+
+
+def test_parallel_solve_matches_serial(press_set, tmp_path):
+    one, two = tmp_path / "one", tmp_path / "two"
+    shutil.copytree(press_set, one)
+    shutil.copytree(press_set, two)
+    folders = lambda root: sorted(p for p in root.iterdir() if p.is_dir())  # noqa: E731
+    serial = solve_presses(folders(one), options=FAST, workers=1, progress=False, figures=False)
+    parallel = solve_presses(folders(two), options=FAST, workers=2, progress=False, figures=False)
+    assert serial == parallel == {"a_sphere": "solved", "b_cube": "solved", "c_sphere_deep": "solved"}
+    for name in serial:
+        a, b = load_reconstruction(one / name / "nlips"), load_reconstruction(two / name / "nlips")
+        # the solver itself repeats only to float32 rounding (1e-6 mm run to run, in one process too)
+        for key, arr in a.arrays().items():
+            if arr.dtype.kind == "f":
+                np.testing.assert_allclose(getattr(b, key), arr, rtol=1e-4, atol=1e-5, err_msg=f"{name} {key}")
+            else:
+                assert np.array_equal(arr, getattr(b, key)), (name, key)
+    again = solve_presses(folders(two), options=FAST, workers=2, progress=False, figures=False)
+    assert set(again.values()) == {"skipped"}
+
+
+def test_failures_are_reported_per_press(press_set, tmp_path):
+    root = tmp_path / "set"
+    shutil.copytree(press_set, root)
+    (root / "b_cube" / "led_03.png").write_bytes(b"broken")
+    statuses = solve_presses(sorted(root.iterdir()), options=FAST, progress=False, figures=False)
+    assert statuses["a_sphere"] == "solved" and statuses["c_sphere_deep"] == "solved"
+    assert statuses["b_cube"].startswith("failed: ") and "led_03.png" in statuses["b_cube"]
+    with pytest.raises(ConfigError, match="workers"):
+        solve_presses([root / "a_sphere"], workers=0)
+
+
+def test_reference_is_used_not_solved_and_is_part_of_the_identity(press_set, tmp_path):
+    root = tmp_path / "set"
+    root.mkdir()
+    shutil.copytree(press_set / "a_sphere", root / "a_sphere")
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    folders = sorted(root.iterdir())
+    statuses = solve_presses(folders, reference=root / "reference", options=FAST, progress=False, figures=False)
+    assert statuses == {"a_sphere": "solved"} and not (root / "reference" / "nlips").exists()
+    report = read_report(root / "a_sphere" / "nlips")
+    assert report["indirect_compensation"] is True
+    assert (
+        report["provenance"]["inputs"]["reference"]
+        == make_provenance(root / "reference", make_settings())["inputs"]["press"]
+    )
+    again = solve_presses(folders, reference=root / "reference", options=FAST, progress=False, figures=False)
+    assert again == {"a_sphere": "skipped"}
+    without = solve_presses(folders[:1], options=FAST, progress=False, figures=False)
+    assert without == {"a_sphere": "solved"}  # the reference was an input: its absence re-solves

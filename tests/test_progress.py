@@ -1,0 +1,55 @@
+"""Progress bars only on a terminal (never in logs), a global --no-progress, and an optional log file."""
+
+from __future__ import annotations
+
+import io
+import logging
+
+import pytest
+
+from nlipscalib import progress
+from nlipscalib.cli import main
+from nlipscalib.sim import dataset as ds
+from tests.cli.test_faults import SPEC, _fake_render
+
+
+@pytest.fixture(autouse=True)
+def _restore_progress():
+    yield
+    progress.configure(progress=True)  # main() sets the global switch and a log file: undo both
+
+
+class _Tty(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_bars_only_on_a_terminal_and_not_with_no_progress(monkeypatch):
+    monkeypatch.setattr("sys.stderr", io.StringIO())
+    assert not progress.bars_enabled()
+    tty = _Tty()
+    monkeypatch.setattr("sys.stderr", tty)
+    progress.configure(progress=True)
+    assert progress.bars_enabled()
+    with progress.progress_bar(3, desc="x", file=tty) as bar:
+        bar.update(3)
+    assert "\r" in tty.getvalue()
+    progress.configure(progress=False)  # --no-progress
+    assert not progress.bars_enabled()
+
+
+def test_working_logs_start_and_end_when_not_a_terminal(caplog):
+    caplog.set_level(logging.INFO)
+    with progress.working("rendering press"):
+        pass
+    assert "rendering press ..." in caplog.text and "rendering press done in" in caplog.text
+
+
+def test_dataset_log_file_without_carriage_returns(tmp_path, monkeypatch, capsys):
+    spec, out, log = tmp_path / "spec.toml", tmp_path / "out", tmp_path / "logs" / "run.log"
+    spec.write_text(SPEC)
+    monkeypatch.setattr(ds, "_run_one", _fake_render([]))
+    assert main(["-v", "--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
+    text = log.read_text()
+    assert "press press_0003: rendered" in text and "\r" not in text
+    assert "\r" not in capsys.readouterr().err  # stderr is not a terminal here: no bar
