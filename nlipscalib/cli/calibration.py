@@ -65,39 +65,8 @@ def run(args) -> int:
 
 
 def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True) -> dict[str, str]:
-    """NLiPs results for every press (PRESS/nlips), solving only what is missing.
+    """NLiPs results for every press (PRESS/nlips) via the pipeline: parallel, resumable, concurrency-safe;
+    presses already solved with the same options and inputs are skipped."""
+    from ..pipeline import solve_presses
 
-    Uses ``nlipscalib.pipeline.solve_presses`` (parallel, concurrency-safe) when it is available;
-    until then, a sequential loop over ``solver.solve_press`` with the same options.
-    """
-    try:
-        from ..pipeline import solve_presses
-    except ModuleNotFoundError as exc:
-        if exc.name != "nlipscalib.pipeline":
-            raise
-        return _solve_sequentially(presses, reference, progress)
     return solve_presses(presses, reference=reference, roi="auto", workers=workers, progress=progress, figures=False)
-
-
-def _solve_sequentially(presses, reference: Path, progress: bool) -> dict[str, str]:
-    from ..core.capture import load_press
-    from ..core.reconstruction import has_reconstruction, reconstruction_dir
-    from ..errors import NlipsError
-    from ..progress import track
-    from ..solver import save_result, solve_press
-
-    ref = load_press(reference)
-    status = {}
-    for folder in track(presses, enabled=progress, desc="solving", unit="press"):
-        out = reconstruction_dir(folder)
-        if has_reconstruction(out):
-            status[folder.name] = "skipped"
-            continue
-        try:
-            press = load_press(folder)
-            result = solve_press(press, roi="auto", indirect=ref)
-            save_result(result, out, press.ground_truth, overwrite=True)
-            status[folder.name] = "solved"
-        except NlipsError as exc:
-            status[folder.name] = f"failed: {exc}"
-    return status

@@ -53,3 +53,15 @@ def test_infer_folder_of_png_frames_with_onnx(trained, twin_presses, tmp_path, c
     assert main(["infer", str(trained), str(frames), "--backend", "onnx", "--out", str(tmp_path / "o")]) == 0
     assert "3 frame(s), onnx" in capsys.readouterr().out
     assert (tmp_path / "o" / "frame_2" / "result.npz").is_file()
+
+
+def test_nlips_eval_scores_the_nlipsnet_reconstruction(trained, twin_presses, tmp_path, capsys):
+    import shutil
+
+    press = tmp_path / HELD_OUT
+    shutil.copytree(twin_presses / HELD_OUT, press)
+    assert main(["infer", str(trained), str(press)]) == 0
+    assert (press / "nlipsnet" / "result.npz").is_file()
+    capsys.readouterr()
+    assert main(["eval", str(press), "--method", "nlipsnet", "--region", "contact"]) == 0
+    assert HELD_OUT in capsys.readouterr().out
