@@ -42,8 +42,15 @@ PAPER = (256, 256, 128)
 FAST = (64, 64, 64)
 
 
-def calibrate(folder: Path) -> tuple[CalibrationDataset, float]:
+def calibrate(folder: Path, solve: bool = True) -> tuple[CalibrationDataset, float]:
     t0 = time.perf_counter()
+    if not solve:  # presses solved before: only (re)build the samples
+        from nlipscalib.core import find_presses
+        from nlipscalib.learn.dataset import build_dataset
+
+        presses = [p for p in find_presses(folder) if (p / "nlips" / "result.npz").is_file() and p.name != "reference"]
+        build_dataset(presses, folder / "reference", folder / "calibration", progress=False)
+        return CalibrationDataset(folder / "calibration"), time.perf_counter() - t0
     rc = nlips(["calibrate", str(folder), "--no-progress"])
     if rc not in (0, 1):
         raise SystemExit(f"nlips calibrate {folder} failed ({rc})")
@@ -51,8 +58,8 @@ def calibrate(folder: Path) -> tuple[CalibrationDataset, float]:
 
 
 def accuracy(args) -> dict:
-    train_data, t_train = calibrate(Path(args.train))
-    unseen_data, t_unseen = calibrate(Path(args.unseen))
+    train_data, t_train = calibrate(Path(args.train), not args.no_solve)
+    unseen_data, t_unseen = calibrate(Path(args.unseen), not args.no_solve)
     test_seen = train_data.names[-args.test_count :]
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -217,6 +224,7 @@ def main() -> None:
     ap.add_argument("--patience", type=int, default=12)
     ap.add_argument("--max-minutes", type=float, default=0.0, help="training time limit per model")
     ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument("--no-solve", action="store_true", help="presses already solved: only rebuild the samples")
     ap.add_argument("--skip-accuracy", action="store_true", help="frames/s only (models from a previous run)")
     args = ap.parse_args()
     out = Path(args.out)

@@ -16,6 +16,8 @@ import numpy as np
 
 from ..errors import ShapeError
 
+RULE_VERSION = 2
+"""Bumped whenever the rule changes, so calibration datasets re-sample their presses."""
 NOISE_SIGMAS = 5.0
 """A block has changed when its averaged colour difference exceeds the median by this many noise sigmas."""
 MIN_REL_CHANGE = 0.005
@@ -93,5 +95,5 @@ def changed_pixels(frame: np.ndarray, reference: np.ndarray, valid: np.ndarray) 
 def _blocks(image: np.ndarray, crop) -> np.ndarray:
     """Sums over 2x2 pixel blocks: (H, W[, C]) -> (H // 2, W // 2[, C])."""
     a = image[crop]
-    h, w = a.shape[0] // 2, a.shape[1] // 2
-    return a.reshape(h, 2, w, 2, *a.shape[2:]).sum((1, 3))
+    # four strided views added: several times faster than reshape(...).sum((1, 3)) over strided axes
+    return a[0::2, 0::2] + a[0::2, 1::2] + a[1::2, 0::2] + a[1::2, 1::2]

@@ -37,7 +37,7 @@ from ..core.atomic import write_json
 from ..core.imageio import save_npz
 from ..errors import CaptureError
 from ..progress import track
-from .change import changed_pixels
+from .change import RULE_VERSION, changed_pixels
 from .sensor import check_sensor, sensor_of
 
 FORMAT_NAME = "nlipscalib.calibration"
@@ -256,7 +256,8 @@ def _result_stamp(folder: Path, cfg: SamplingConfig) -> str:
     if not path.is_file():
         raise CaptureError(f"{path}: press not solved (no NLiPs reconstruction)")
     st = path.stat()
-    return hashlib.sha1(f"{st.st_size}:{st.st_mtime_ns}:{dataclasses.asdict(cfg)}".encode()).hexdigest()[:16]
+    key = f"{st.st_size}:{st.st_mtime_ns}:{dataclasses.asdict(cfg)}:change-rule-{RULE_VERSION}"
+    return hashlib.sha1(key.encode()).hexdigest()[:16]
 
 
 def _old_entries(out: Path) -> dict:

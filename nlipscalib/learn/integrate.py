@@ -65,9 +65,9 @@ class RayGeometry:
 
 def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
     """(p, q): d log(rho)/du and d log(rho)/dv, each (H, W) float64, from normals ((H, W, 3) unit, camera frame)."""
-    den = np.sum(normals * geo.rays, -1)
+    den = np.einsum("...k,...k->...", normals, geo.rays)
     den = np.where(np.abs(den) < 1e-6, -1e-6, den)  # grazing normals: a huge but finite slope
-    return -np.sum(normals * geo.d_u, -1) / den, -np.sum(normals * geo.d_v, -1) / den
+    return -np.einsum("...k,...k->...", normals, geo.d_u) / den, -np.einsum("...k,...k->...", normals, geo.d_v) / den
 
 
 def integrate_on_dome(
@@ -112,14 +112,36 @@ def integrate_on_dome(
 
 def _box(unknown: np.ndarray, on_gel: np.ndarray):
     """(rows, cols) slices of the changed pixels' bounding box grown by one pixel, or None when that
-    box touches the image border or holds a pixel off the gel."""
+    box touches the image border or holds a pixel off the gel.
+
+    The box is grown further (when it stays on the gel) to sides whose DST-I length is FFT-friendly:
+    a prime-sized transform is several times slower.
+    """
     rows, cols = np.nonzero(unknown)
-    r0, r1, c0, c1 = rows.min() - 1, rows.max() + 2, cols.min() - 1, cols.max() + 2
+    r0, r1, c0, c1 = int(rows.min()) - 1, int(rows.max()) + 2, int(cols.min()) - 1, int(cols.max()) + 2
     H, W = unknown.shape
-    if r0 < 0 or c0 < 0 or r1 > H or c1 > W:
+    if r0 < 0 or c0 < 0 or r1 > H or c1 > W or not on_gel[r0:r1, c0:c1].all():
         return None
-    box = (slice(r0, r1), slice(c0, c1))
-    return box if on_gel[box].all() else None
+    fr0, fr1 = _fast_span(r0, r1, H)
+    fc0, fc1 = _fast_span(c0, c1, W)
+    if on_gel[fr0:fr1, fc0:fc1].all():
+        r0, r1, c0, c1 = fr0, fr1, fc0, fc1
+    return (slice(r0, r1), slice(c0, c1))
+
+
+def _fast_span(lo: int, hi: int, size: int) -> tuple[int, int]:
+    """[lo, hi) grown (centred, within [0, size)) so that the interior length n has a fast DST-I (2(n+1) 5-smooth)."""
+    from scipy.fft import next_fast_len
+
+    n = hi - lo - 2
+    target = n
+    while next_fast_len(2 * (target + 1), real=True) != 2 * (target + 1):
+        target += 1
+    grow = target - n
+    new_lo = max(0, lo - grow // 2)
+    new_hi = min(size, new_lo + target + 2)
+    new_lo = new_hi - target - 2
+    return (new_lo, new_hi) if new_lo >= 0 else (lo, hi)
 
 
 def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
@@ -140,7 +162,10 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
     lam = (2 - 2 * np.cos(np.pi * np.arange(1, m + 1) / (m + 1)))[:, None] + (
         2 - 2 * np.cos(np.pi * np.arange(1, n + 1) / (n + 1))
     )[None, :]
-    x[1:-1, 1:-1] = dstn(dstn(f, type=1, norm="ortho") / lam, type=1, norm="ortho")
+    # float32 transforms: twice as fast, and 1e-7 relative error of a log-range is 1e-6 mm
+    x[1:-1, 1:-1] = dstn(
+        dstn(f.astype(np.float32), type=1, norm="ortho") / lam.astype(np.float32), type=1, norm="ortho"
+    )
     return x
 
 
