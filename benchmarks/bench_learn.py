@@ -2,6 +2,8 @@
 
 Usage (datasets rendered with `nlips dataset`, e.g. the reduced specs in benchmarks/learn_*.toml)::
 
+    nlips dataset benchmarks/learn_train.toml --out DATA/train
+    nlips dataset benchmarks/learn_unseen.toml --out DATA/unseen
     python benchmarks/bench_learn.py --train DATA/train --unseen DATA/unseen --out OUT [--test-count 6]
 
 1. `nlips calibrate` both folders (NLiPs solve + samples), timed.
