@@ -217,7 +217,8 @@ def solve_presses(
     -------
     dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``. "skipped":
     an identical result exists, or another live process is solving the press right now. Failures of
-    one press (bad capture, bad LED file, disk errors) do not stop the others.
+    one press (bad capture, bad LED file) do not stop the others; a file-system error (disk full,
+    read-only) stops the batch (OSError naming the path).
     """
     from .report import figure_level
 
@@ -401,11 +402,13 @@ def _clean_interrupted(out: Path) -> None:
 def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance: dict, progress: bool, figures):
     import time
 
+    from .core.atomic import check_writable
     from .core.capture import load_press
     from .report import figure_level, write_reconstruction_figures
     from .solver import save_result, solve_press
 
     level = figure_level(figures)
+    check_writable(out.parent, len(out.name))  # a read-only disk fails now, not after the solve
     t0 = time.perf_counter()
     press = load_press(folder, led_subset=settings.led_subset)
     ref = None
@@ -527,7 +530,11 @@ def _names(folders: Sequence[Path]) -> dict[Path, str]:
 
 
 def _status_of(folder: Path, settings: SolveSettings, overwrite: bool, progress: bool, figures) -> str:
-    """One press's status; expected failures (bad capture, bad settings, disk errors) become "failed: ..."."""
+    """One press's status; a bad capture or bad settings become "failed: ...".
+
+    File-system errors (disk full, read-only, permission) propagate: every later press would fail
+    alike, so the batch stops and the CLI prints one line naming the path.
+    """
     try:
         return solve_one(folder, settings, overwrite=overwrite, progress=progress, figures=figures, want_result=False)[
             1
@@ -535,10 +542,6 @@ def _status_of(folder: Path, settings: SolveSettings, overwrite: bool, progress:
     except NlipsError as exc:
         log.error("%s: %s", folder.name, exc)
         return f"{FAILED}: {exc}"
-    except OSError as exc:  # disk full, read-only, permission: name the file and the cause
-        where = exc.filename or folder
-        log.error("%s: %s", where, exc.strerror or exc)
-        return f"{FAILED}: {where}: {exc.strerror or exc}"
 
 
 def _solve_serially(folders, names, settings, overwrite, progress, figures) -> dict[Path, str]:
@@ -574,12 +577,17 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
     ) as pool:
         futures = {pool.submit(_status_of, f, settings, overwrite, False, figures): f for f in folders}
         bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
-        for done in as_completed(futures):
-            folder = futures[done]
-            statuses[folder] = done.result()
-            bar.set_postfix_str(names[folder], refresh=False)
-            bar.update()
-        bar.close()
+        try:
+            for done in as_completed(futures):
+                folder = futures[done]
+                statuses[folder] = done.result()
+                bar.set_postfix_str(names[folder], refresh=False)
+                bar.update()
+        except BaseException:  # Ctrl-C, SIGTERM, a bug: queued presses never start, running ones finish
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        finally:
+            bar.close()
     return statuses
 
 

@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    previous = _terminate_cleanly()
+    previous = _terminate_cleanly(args.command)
     try:
         return _run(args)
     finally:
@@ -82,22 +82,28 @@ def _run(args) -> int:
     except KeyboardInterrupt:
         print(f"nlips {args.command}: interrupted; finished work is kept, run again to resume", file=sys.stderr)
         return 130
-    except _Terminated:
-        print(f"nlips {args.command}: terminated; finished work is kept, run again to resume", file=sys.stderr)
-        return 143
 
 
-class _Terminated(BaseException):
-    """SIGTERM (cluster schedulers' time limit, `kill`): unwind so claims and temporaries are released."""
+def _terminate_cleanly(command: str):
+    """On SIGTERM (a scheduler's time limit, `kill`) release claims and temporaries, then exit 143.
 
-
-def _terminate_cleanly():
-    """Turn SIGTERM into an exception for the duration of the command; returns the previous handler."""
+    Done in the handler and ended with os._exit rather than by raising: an exception raised at an
+    arbitrary point can land inside a native library (Mitsuba, drjit) and abort the process.
+    Returns the previous handler.
+    """
+    import os
     import signal
     import threading
 
+    from ..core import atomic, claims
+
     def handler(signum, frame):
-        raise _Terminated()
+        claims.release_all()
+        atomic.remove_in_progress()
+        print(f"nlips {command}: terminated; finished work is kept, run again to resume", file=sys.stderr)
+        sys.stderr.flush()
+        sys.stdout.flush()
+        os._exit(143)
 
     if threading.current_thread() is not threading.main_thread():
         return None

@@ -29,6 +29,10 @@ STALE_S = 600.0
 """Age (s) after which a temporary entry from another machine, with no live claim, counts as abandoned."""
 
 
+_IN_PROGRESS: set[Path] = set()
+"""Temporary folders this process is filling now."""
+
+
 def _umask() -> int:
     mask = os.umask(0)  # the only portable way to read it is to set it
     os.umask(mask)
@@ -117,6 +121,7 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
     with contextlib.suppress(OSError):  # leftovers of a killed earlier write of this folder (e.g. PRESS/nlips)
         clean_interrupted(final.parent, item=final.name)
     tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(final.name), dir=final.parent))
+    _IN_PROGRESS.add(tmp)
     try:
         yield tmp
         os.chmod(tmp, DIR_MODE)
@@ -128,6 +133,15 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
         shutil.rmtree(tmp, ignore_errors=True)
         _raise_with_path(exc, final)
         raise
+    finally:
+        _IN_PROGRESS.discard(tmp)
+
+
+def remove_in_progress() -> None:
+    """Remove this process's unfinished temporary folders (for a signal handler about to exit)."""
+    for tmp in list(_IN_PROGRESS):
+        shutil.rmtree(tmp, ignore_errors=True)
+    _IN_PROGRESS.clear()
 
 
 def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | None = None) -> list[Path]:

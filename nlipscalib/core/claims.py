@@ -33,6 +33,8 @@ log = logging.getLogger(__name__)
 CLAIM_PREFIX = ".claim-"
 """Prefix of claim files (never starts with core.atomic.TMP_PREFIX, so cleaners leave them alone)."""
 HOST = socket.gethostname()
+_HELD: dict[Path, Owner] = {}
+"""Claims this process holds now (released by ``release_all`` when it is terminated)."""
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,7 @@ def claim(target: str | Path, *, stale_s: float = 60.0) -> Iterator[bool]:
     if not _acquire(path, me, stale_s):
         yield False
         return
+    _HELD[path] = me
     beat = _Heartbeat(path, me, interval=max(0.05, stale_s / 4))
     beat.start()
     try:
@@ -84,6 +87,7 @@ def claim(target: str | Path, *, stale_s: float = 60.0) -> Iterator[bool]:
     finally:
         beat.stop()
         _release(path, me)
+        _HELD.pop(path, None)
 
 
 def holder(target: str | Path, *, stale_s: float = 60.0) -> Owner | None:
@@ -98,6 +102,14 @@ def holder(target: str | Path, *, stale_s: float = 60.0) -> Owner | None:
     if _is_stale(path, owner, stale_s, now=_fs_now(path.parent)):
         return None
     return owner or UNKNOWN_OWNER
+
+
+def release_all() -> None:
+    """Release every claim this process holds (for a signal handler about to exit the process)."""
+    for path, me in list(_HELD.items()):
+        with contextlib.suppress(OSError):
+            _release(path, me)
+    _HELD.clear()
 
 
 def pid_alive(pid: int) -> bool:

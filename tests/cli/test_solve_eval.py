@@ -2,6 +2,7 @@
 
 import dataclasses
 import json
+import logging
 import shutil
 
 import pytest
@@ -32,16 +33,24 @@ def _stamp(press):
     return (press / "nlips" / "result.npz").stat().st_mtime_ns
 
 
-def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys):
+def _log(caplog, capsys) -> str:
+    """What the command logged (pytest's handler receives it; stderr has it when none is installed)."""
+    text = caplog.text + capsys.readouterr().err
+    caplog.clear()
+    return text
+
+
+def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys, caplog):
     root, cfg = data
+    caplog.set_level(logging.INFO)
     press = root / "press_a"
     assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
     first = _stamp(press)
     assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
-    assert _stamp(press) == first and "identical result exists, skipped" in capsys.readouterr().err
+    assert _stamp(press) == first and "identical result exists, skipped" in _log(caplog, capsys)
     assert main(["solve", str(press), "--config", str(cfg), "--roi", "auto", "--no-progress"]) == 0
     assert _stamp(press) != first  # new options: re-solved, not "result exists"
-    assert "made with other settings or inputs (roi), re-solving" in capsys.readouterr().err
+    assert "made with other settings or inputs (roi), re-solving" in _log(caplog, capsys)
     report = json.loads((press / "nlips" / "report.json").read_text())
     assert report["provenance"]["settings"]["roi"] == "auto" and report["roi"] is not None
     assert main(["solve", str(press), "--config", str(cfg), "--leds", "1,3,5,7,9,11", "--no-progress"]) == 0
@@ -55,15 +64,16 @@ def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys
     ]
 
 
-def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys):
+def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys, caplog):
     root, cfg = data
     assert main(["solve", str(root), "--config", str(cfg), "--workers", "2", "--no-progress"]) == 0
     assert "2 solved, 0 skipped" in capsys.readouterr().out
     npz = root / "press_a" / "nlips" / "result.npz"
     npz.write_bytes(npz.read_bytes()[:-200])  # truncated
     assert main(["eval", str(root)]) == 0  # re-computed from the recorded settings, then scored
-    out, err = capsys.readouterr()
-    assert "press_a" in out and "press_b" in out and "damaged or truncated" in err and "re-computing" in err
+    out = capsys.readouterr().out
+    log = caplog.text
+    assert "press_a" in out and "press_b" in out and "damaged or truncated" in log and "re-computing" in log
     assert load_reconstruction(root / "press_a" / "nlips").report["provenance"]["settings"]["options"]["max_iters"] == 5
     npz.write_bytes(b"garbage")
     assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
@@ -140,3 +150,20 @@ def test_demo_recomputes_a_damaged_cached_result(data, capsys):
     again = demo._solve(press, figures=False)
     assert again.reconstructed.sum() == first.reconstructed.sum()
     assert load_reconstruction(root / "press_b" / "nlips").reconstructed.any()
+
+
+def test_unwritable_output_is_one_line_before_solving(data, capsys, monkeypatch):
+    import errno
+
+    from nlipscalib.core import atomic
+
+    root, cfg = data
+
+    def read_only(folder, longest_name=0):
+        raise OSError(errno.EROFS, "Read-only file system", str(folder))
+
+    monkeypatch.setattr(atomic, "check_writable", read_only)
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "Read-only file system" in err and str(root / "press_a") in err and "Traceback" not in err
+    assert not (root / "press_a" / "nlips").exists() and not (root / "press_b" / "nlips").exists()
