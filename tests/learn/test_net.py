@@ -90,3 +90,15 @@ def test_wrong_image_size_is_refused(trained, tmp_path, capsys):
     assert main(["infer", str(trained), str(frame)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "small.png" in err[0] and "96x72" in err[0]
+
+
+def test_training_resumes_from_its_checkpoint(calib, tmp_path):
+    from nlipscalib.learn.train import TrainConfig, train
+
+    cfg = TrainConfig(hidden=(8, 8), max_epochs=2, patience=5)
+    first = train(calib, cfg, tmp_path / "m.pt", progress=False)
+    assert (tmp_path / "m.checkpoint.pt").is_file()
+    again = train(calib, cfg, tmp_path / "m.pt", progress=False)  # as after an interruption: nothing left to do
+    assert [h["val_aae_deg"] for h in again.history] == [h["val_aae_deg"] for h in first.history]
+    longer = TrainConfig(hidden=(8, 8), max_epochs=3, patience=5)  # other options: trained afresh
+    assert len(train(calib, longer, tmp_path / "m.pt", progress=False).history) == 3
