@@ -28,6 +28,9 @@ SUBCOMMAND_MODULES = (
     "capture",
     "calibrate_camera",
     "live",
+    "calibration",
+    "train",
+    "infer",
 )
 
 

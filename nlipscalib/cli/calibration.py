@@ -1,0 +1,72 @@
+"""``nlips calibrate PRESSES``: solve every press with NLiPs, then build the NLiPsNet calibration dataset + coverage."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "calibrate",
+        help="NLiPs-solve a folder of presses and pair tri-colour pixels with the normals (NLiPsNet training data)",
+        description="Solve every press of FOLDER with NLiPs (skipping presses already solved), then write a "
+        "calibration dataset of (u, v, r, g, b) -> normal samples and a coverage report (which dome regions and "
+        "normal directions the presses cover, and where to press next). Resumable.",
+    )
+    p.add_argument("presses", help="folder of press folders (twin or device)")
+    p.add_argument("--reference", help="press folder of the undeformed dome (default: PRESSES/reference)")
+    p.add_argument("--out", help="calibration dataset folder (default: PRESSES/calibration)")
+    p.add_argument("--workers", type=int, default=1, help="solver processes (default 1)")
+    p.add_argument("--min-confidence", type=float, default=0.5, help="leave out NLiPs pixels below this confidence")
+    p.add_argument("--min-leds", type=int, default=4, help="leave out NLiPs pixels lit by fewer usable LEDs")
+    p.add_argument("--rest-per-cell", type=int, default=24, help="undeformed samples per image cell (8x8 cells)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..core.capture import find_presses
+    from ..errors import ConfigError
+    from ..learn.coverage import coverage, write_coverage_json
+    from ..learn.dataset import CalibrationDataset, SamplingConfig, build_dataset
+    from ..report.learn import coverage_figure
+
+    root = Path(args.presses)
+    reference = Path(args.reference) if args.reference else root / "reference"
+    presses = [p for p in find_presses(root) if p.resolve() != reference.resolve()]
+    if not presses:
+        raise ConfigError(f"{root}: no press folders found")
+    status = solve_all(presses, reference, workers=args.workers, progress=not args.no_progress)
+    solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]
+    failed = {k: v for k, v in status.items() if v not in ("solved", "skipped")}
+    for name, why in failed.items():
+        log.error("%s: %s", name, why)
+    if not solved:
+        raise ConfigError(f"{root}: no press could be solved")
+    out = Path(args.out) if args.out else root / "calibration"
+    cfg = SamplingConfig(min_confidence=args.min_confidence, min_leds=args.min_leds, rest_per_cell=args.rest_per_cell)
+    build_dataset(solved, reference, out, cfg, progress=not args.no_progress)
+    data = CalibrationDataset(out)
+    cov = coverage(data)
+    write_coverage_json(out / "coverage.json", cov)
+    coverage_figure(cov, out / "coverage.png")
+    n = sum(e["samples"] for e in data.entries)
+    print(
+        f"{out}: {len(data.entries)} presses, {n} samples ({sum(e['contact_samples'] for e in data.entries)} contact)"
+    )
+    nxt = cov["next_press"]
+    print(f"coverage: {cov['covered_fraction'] * 100:.0f}% of (region, direction) bins; press next: {nxt['advice']}")
+    if failed:
+        print(f"{len(failed)} presses failed to solve: {', '.join(sorted(failed))}")
+    return 1 if failed else 0
+
+
+def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True) -> dict[str, str]:
+    """NLiPs results for every press (PRESS/nlips) via the pipeline: parallel, resumable, concurrency-safe;
+    presses already solved with the same options and inputs are skipped."""
+    from ..pipeline import solve_presses
+
+    return solve_presses(presses, reference=reference, roi="auto", workers=workers, progress=progress, figures=False)

@@ -1,0 +1,91 @@
+"""``nlips train CALIB --out MODEL.pt``: train NLiPsNet on a calibration dataset, export ONNX, check parity."""
+
+from __future__ import annotations
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "train",
+        help="train NLiPsNet (u, v, r, g, b) -> normal on a calibration dataset from `nlips calibrate`",
+        description="Train the paper's NLiPsNet (MLP 256-256-128, BatchNorm, ReLU, dropout 0.2, cosine loss) with "
+        "a split by press and early stopping on validation AAE; writes MODEL.pt, MODEL.onnx, MODEL_curve.png and "
+        "a resumable MODEL.checkpoint.pt.",
+    )
+    p.add_argument("dataset", help="calibration dataset folder (from `nlips calibrate`)")
+    p.add_argument("--out", required=True, help="model file to write (.pt)")
+    p.add_argument("--hidden", default="256,256,128", help="hidden widths (paper 256,256,128; fast 64,64,64)")
+    p.add_argument("--labels", choices=("nlips", "true"), default="nlips", help="targets: NLiPs or true normals")
+    p.add_argument("--epochs", type=int, default=200, help="maximum epochs")
+    p.add_argument("--patience", type=int, default=15, help="early-stopping patience, epochs")
+    p.add_argument("--batch-size", type=int, default=1024)
+    p.add_argument("--lr", type=float, default=2e-3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--val-presses", help="comma-separated validation presses (default: a seeded 20%% of them)")
+    p.add_argument("--exclude", help="comma-separated presses kept out of training and validation (a test set)")
+    p.add_argument("--max-minutes", type=float, default=0.0, help="stop training after this long (0: no limit)")
+    p.add_argument("--threads", type=int, default=1, help="PyTorch CPU threads (default 1)")
+    p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..errors import ConfigError
+    from ..learn.dataset import CalibrationDataset
+    from ..learn.train import TrainConfig, train
+    from ..report.learn import training_curve
+
+    try:
+        hidden = tuple(int(h) for h in args.hidden.split(","))
+    except ValueError:
+        raise ConfigError(f"--hidden must be like 256,256,128, got {args.hidden!r}") from None
+    out = Path(args.out)
+    if out.suffix != ".pt":
+        raise ConfigError(f"--out {out}: the model file must end in .pt")
+    cfg = TrainConfig(
+        hidden=hidden,
+        labels=args.labels,
+        max_epochs=args.epochs,
+        patience=args.patience,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        seed=args.seed,
+        max_seconds=args.max_minutes * 60,
+        threads=args.threads,
+    )
+    data = CalibrationDataset(args.dataset)
+    val = args.val_presses.split(",") if args.val_presses else None
+    exclude = args.exclude.split(",") if args.exclude else ()
+    result = train(data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress)
+    best = result.history[result.best_epoch]
+    curve = training_curve(result.history, out.with_name(out.stem + "_curve.png"), f"NLiPsNet {args.hidden}")
+    print(
+        f"{out}: best epoch {result.best_epoch} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg "
+        f"(contact {best['val_contact_aae_deg']:.2f} deg) on {', '.join(result.val_presses)}; curve {curve}"
+    )
+    if not args.no_onnx:
+        onnx_path, angle = export_and_check(out, data, result.val_presses)
+        print(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
+    return 0
+
+
+def export_and_check(model_path, dataset, names) -> tuple:
+    """Export MODEL.onnx and return (path, max angle in degrees between onnxruntime and PyTorch normals)."""
+    import torch
+
+    from ..errors import CaptureError
+    from ..learn.model import load_model, model_inputs
+    from ..learn.onnx_export import OnnxNet, export_onnx, max_angle_deg
+
+    model = load_model(model_path)
+    path = export_onnx(model, model_path.with_suffix(".onnx"))
+    s = dataset.arrays(names)
+    x = model_inputs(s["pixel"], s["rgb"])
+    with torch.inference_mode():
+        ref = model.net(torch.from_numpy(x)).numpy()
+    angle = max_angle_deg(OnnxNet(path, model)(x), ref)
+    if angle >= 0.1:
+        raise CaptureError(f"{path}: onnxruntime differs from PyTorch by {angle:.3f} deg (limit 0.1)")
+    return path, angle

@@ -1,0 +1,99 @@
+"""Which pixels of a tri-colour frame differ from the undeformed reference frame.
+
+Used twice with the same rule: the calibration dataset separates the contact from the undeformed
+rest with it, and real-time inference sends only the changed pixels through the network.
+
+The difference is evaluated on 2x2 pixel blocks (a quarter of the work per frame, and sensor noise
+already halves), box-averaged over a few blocks (a smooth shading change of a shallow, wide
+deformation stays, noise averages out), compared with a robust noise estimate (median absolute
+deviation over the gel, so no absolute threshold needs tuning), cleaned of isolated specks by a
+morphological opening and grown by a margin, then brought back to full resolution.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ShapeError
+
+RULE_VERSION = 2
+"""Bumped whenever the rule changes, so calibration datasets re-sample their presses."""
+NOISE_SIGMAS = 5.0
+"""A block has changed when its averaged colour difference exceeds the median by this many noise sigmas."""
+MIN_REL_CHANGE = 0.005
+"""... and exceeds this fraction of the reference's intensity (shading noise floor)."""
+SMOOTH_BLOCKS = 3
+"""Side of the box (in 2x2 blocks, i.e. 6 pixels) the signed difference is averaged over."""
+DILATE_BLOCKS = 2
+"""Changed regions grow by this many blocks (4 pixels), so a contact's soft rim is not cut off."""
+NOISE_STRIDE = 4
+"""The noise level is estimated on every NOISE_STRIDE-th gel block (plenty of samples, less work)."""
+
+
+class ChangeDetector:
+    """The change rule for one reference frame; precomputes what does not depend on the frame.
+
+    Parameters
+    ----------
+    reference : (H, W, 3) float, linear tri-colour image of the undeformed sensor
+    valid : (H, W) bool -- pixels that see the gel
+    """
+
+    def __init__(self, reference: np.ndarray, valid: np.ndarray):
+        if reference.ndim != 3 or reference.shape[:2] != valid.shape or reference.shape[2] != 3:
+            raise ShapeError(f"reference {reference.shape} and valid {valid.shape} must be (H, W, 3) and (H, W)")
+        self.shape = valid.shape
+        self.valid = valid.astype(bool)
+        h2, w2 = self.shape[0] // 2, self.shape[1] // 2
+        self._crop = (slice(0, 2 * h2), slice(0, 2 * w2))
+        self._ref_blocks = _blocks(np.where(self.valid[..., None], reference, 0).astype(np.float32), self._crop)
+        self._valid_blocks = _blocks(self.valid.astype(np.float32), self._crop) == 4  # all four pixels on the gel
+        self._level = self._ref_blocks.sum(-1)
+        self._sample = np.flatnonzero(self._valid_blocks)[::NOISE_STRIDE]
+
+    def __call__(self, frame: np.ndarray) -> np.ndarray:
+        """(H, W) bool -- pixels of ``frame`` ((H, W, 3) float, linear) that differ from the reference."""
+        from scipy import ndimage
+
+        if frame.shape != self.shape + (3,):
+            raise ShapeError(f"frame {frame.shape} does not match the reference {self.shape + (3,)}")
+        signed = _blocks(frame.astype(np.float32, copy=False), self._crop) - self._ref_blocks
+        signed[~self._valid_blocks] = 0
+        smooth = ndimage.uniform_filter(signed, size=(SMOOTH_BLOCKS, SMOOTH_BLOCKS, 1), mode="nearest")
+        diff = np.abs(smooth).sum(-1)
+        if self._sample.size == 0:
+            return np.zeros(self.shape, bool)
+        sample = diff.ravel()[self._sample]
+        median = float(np.median(sample))
+        sigma = 1.4826 * float(np.median(np.abs(sample - median))) + 1e-6
+        hit = self._valid_blocks & (diff > median + NOISE_SIGMAS * sigma) & (diff > MIN_REL_CHANGE * self._level)
+        hit = ndimage.binary_opening(hit)
+        if DILATE_BLOCKS > 0:
+            hit = ndimage.binary_dilation(hit, iterations=DILATE_BLOCKS)
+        out = np.zeros(self.shape, bool)
+        out[self._crop] = hit.repeat(2, 0).repeat(2, 1)
+        return out & self.valid
+
+
+def changed_pixels(frame: np.ndarray, reference: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Pixels whose tri-colour value differs from the undeformed reference frame (module docstring).
+
+    Parameters
+    ----------
+    frame, reference : (H, W, 3) float, linear tri-colour images (``Press.linear``)
+    valid : (H, W) bool -- pixels that see the gel
+
+    Returns
+    -------
+    (H, W) bool
+    """
+    if frame.shape != reference.shape:
+        raise ShapeError(f"frame {frame.shape} and reference {reference.shape} must match")
+    return ChangeDetector(reference, valid)(frame)
+
+
+def _blocks(image: np.ndarray, crop) -> np.ndarray:
+    """Sums over 2x2 pixel blocks: (H, W[, C]) -> (H // 2, W // 2[, C])."""
+    a = image[crop]
+    # four strided views added: several times faster than reshape(...).sum((1, 3)) over strided axes
+    return a[0::2, 0::2] + a[0::2, 1::2] + a[1::2, 0::2] + a[1::2, 1::2]

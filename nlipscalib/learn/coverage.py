@@ -1,0 +1,124 @@
+"""Coverage of a calibration dataset: which dome regions and normal directions the presses taught.
+
+The image is cut into ``cells x cells`` regions; in each, the contact samples' normals are binned by
+how they tilt away from the undeformed surface there: tilt angle rings x tilt azimuth sectors (the
+"sphere of directions" per region, relative to the local dome normal, so that every region has the
+same bins). A bin is covered when it holds at least ``min_samples`` samples. The next press goes to
+the region with the most empty bins, with the indenter kind (among those already pressed) whose
+normals best fill exactly those bins.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.atomic import write_json
+from ..core.reconstruction import jsonable
+
+TILT_EDGES_DEG = (2.0, 10.0, 25.0, 45.0, 90.0)
+"""Tilt rings, degrees from the undeformed normal (below 2 deg counts as undeformed)."""
+AZIMUTH_SECTORS = 8
+"""Tilt directions per ring (image-plane azimuth of the tilt)."""
+
+
+def direction_bins(normals: np.ndarray, ref_normals: np.ndarray) -> np.ndarray:
+    """Direction bin of each normal relative to the undeformed normal; -1 when tilted less than 2 deg.
+
+    Parameters
+    ----------
+    normals, ref_normals : (N, 3) float, unit, camera frame
+
+    Returns
+    -------
+    (N,) int -- ring * AZIMUTH_SECTORS + sector, or -1
+    """
+    cos = np.clip(np.sum(normals * ref_normals, -1), -1, 1)
+    tilt = np.degrees(np.arccos(cos))
+    ring = np.searchsorted(TILT_EDGES_DEG, tilt, side="right") - 1
+    d = normals - ref_normals
+    sector = ((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * AZIMUTH_SECTORS).astype(int) % AZIMUTH_SECTORS
+    return np.where(ring >= 0, np.minimum(ring, len(TILT_EDGES_DEG) - 2) * AZIMUTH_SECTORS + sector, -1)
+
+
+def coverage(dataset, cells: int = 4, min_samples: int = 20) -> dict:
+    """Coverage of ``dataset`` (CalibrationDataset): counts per (region, direction bin) and the next press.
+
+    Returns
+    -------
+    dict with ``counts`` (cells, cells, B) int (region row, region column, direction bin), ``gel``
+    (cells, cells) bool (regions that see the gel), ``covered_fraction``, per-kind direction histograms
+    ``kinds``, ``next_press`` (region box in pixels, centre (u, v), indenter kind, advice text) and the
+    bin layout (tilt ring edges, sectors).
+    """
+    ref = dataset.reference()
+    H, W = ref["valid"].shape
+    n_bins = (len(TILT_EDGES_DEG) - 1) * AZIMUTH_SECTORS
+    counts = np.zeros((cells, cells, n_bins), np.int64)
+    kinds: dict[str, np.ndarray] = {}
+    for entry in dataset.entries:
+        s = dataset.load(entry["name"])
+        keep = s["contact"] & (s["source"] == 0)
+        u, v = s["pixel"][keep, 0].astype(int), s["pixel"][keep, 1].astype(int)
+        b = direction_bins(s["normal"][keep], ref["normals"][v, u])
+        ok = b >= 0
+        np.add.at(counts, (v[ok] * cells // H, u[ok] * cells // W, b[ok]), 1)
+        kind = entry.get("press", {}).get("indenter") or "unknown"
+        kinds[kind] = kinds.get(kind, np.zeros(n_bins)) + np.bincount(b[ok], minlength=n_bins)
+    gel = _gel_regions(ref["valid"], cells)
+    covered = counts >= min_samples
+    fraction = float(covered[gel].mean()) if gel.any() else 0.0
+    return {
+        "cells": cells,
+        "min_samples": min_samples,
+        "tilt_edges_deg": list(TILT_EDGES_DEG),
+        "azimuth_sectors": AZIMUTH_SECTORS,
+        "image_size": [W, H],
+        "counts": counts,
+        "gel": gel,
+        "covered_fraction": fraction,
+        "kinds": {k: (h / max(h.sum(), 1)).round(4) for k, h in kinds.items()},
+        "next_press": _next_press(counts, covered, gel, kinds, (H, W)),
+    }
+
+
+def _gel_regions(valid: np.ndarray, cells: int) -> np.ndarray:
+    """Regions where at least a quarter of the pixels see the gel."""
+    H, W = valid.shape
+    rr = np.arange(H)[:, None] * cells // H
+    cc = np.arange(W)[None, :] * cells // W
+    frac = np.zeros((cells, cells))
+    np.add.at(frac, (np.broadcast_to(rr, valid.shape), np.broadcast_to(cc, valid.shape)), valid)
+    return frac / (H * W / cells**2) >= 0.25
+
+
+def _next_press(counts, covered, gel, kinds: dict, shape) -> dict:
+    H, W = shape
+    cells = counts.shape[0]
+    empty = np.where(gel, (~covered).sum(-1), -1)
+    # most empty bins first, then fewest samples
+    order = np.lexsort((counts.sum(-1).ravel(), -empty.ravel()))
+    r, c = divmod(int(order[0]), cells)
+    gap = ~covered[r, c]
+    # bins of the gap the kind has ever reached, then how much of its normals fall there
+    scores = {k: float((h[gap] > 0).sum() + h[gap].sum() / max(h.sum(), 1)) for k, h in kinds.items()}
+    kind = max(scores, key=scores.get) if scores else "any indenter"
+    box = [c * W // cells, r * H // cells, (c + 1) * W // cells, (r + 1) * H // cells]
+    centre = [(box[0] + box[2] - 1) / 2, (box[1] + box[3] - 1) / 2]
+    advice = (
+        f"a {kind} in image region u {box[0]}-{box[2] - 1}, v {box[1]}-{box[3] - 1} "
+        f"(centre u={centre[0]:.0f}, v={centre[1]:.0f}): {int(gap.sum())} of {gap.size} direction bins empty there"
+    )
+    return {
+        "region": [r, c],
+        "box_u0_v0_u1_v1": box,
+        "centre_uv": centre,
+        "indenter": kind,
+        "kind_scores": scores,
+        "empty_bins": int(gap.sum()),
+        "advice": advice,
+    }
+
+
+def write_coverage_json(path, cov: dict):
+    """coverage.json: the dict of :func:`coverage` (arrays as nested lists)."""
+    return write_json(path, jsonable(cov))

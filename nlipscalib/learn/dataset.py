@@ -1,0 +1,347 @@
+"""The calibration dataset: (u, v, r, g, b) -> n samples from solved presses, one shard per press.
+
+Layout (see docs/formats.md, "Calibration dataset")::
+
+    calib/
+      index.json        format, version, sensor, sampling options, one entry per press (written last)
+      sensor.npz        the undeformed reference: tri-colour (linear), dark frame, depth, normals, valid
+      samples/press_0003.npz   the samples of one press (below)
+
+A shard holds, for N samples of one press:
+
+- ``pixel`` (N, 2) int16: (u, v) = (column, row) of the sample
+- ``rgb`` (N, 3) float32: the tri-colour image there, linear (``Press.linear``)
+- ``normal`` (N, 3) float32, unit, camera frame: the label (NLiPs normal; reference normal on the
+  undeformed rest outside the solved region)
+- ``true_normal`` (N, 3) float32: the twin's true normal (NaN when the press has no ground truth)
+- ``contact`` (N,) bool: the pixel differs from the undeformed reference frame
+- ``source`` (N,) uint8: 0 = NLiPs label, 1 = reference-surface label
+
+Shards load one press at a time (:meth:`CalibrationDataset.load`), so training holds the samples,
+never the 12 LED images of each press. Every file is written atomically; an interrupted build
+resumes with the presses whose shard is missing or was made from another reconstruction.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..core.atomic import write_json
+from ..core.imageio import save_npz
+from ..errors import CaptureError
+from ..progress import track
+from .change import RULE_VERSION, changed_pixels
+from .sensor import check_sensor, sensor_of
+
+FORMAT_NAME = "nlipscalib.calibration"
+FORMAT_VERSION = 1
+INDEX_FILE = "index.json"
+SENSOR_FILE = "sensor.npz"
+SHARD_DIR = "samples"
+SHARD_KEYS = {"pixel": 2, "rgb": 2, "normal": 2, "true_normal": 2, "contact": 1, "source": 1}
+SENSOR_KEYS = ("tricolor", "dark", "depth", "normals", "valid")
+SOURCE_NLIPS, SOURCE_REFERENCE = 0, 1
+
+
+@dataclasses.dataclass(frozen=True)
+class SamplingConfig:
+    """Which pixels of a solved press become samples."""
+
+    min_confidence: float = 0.5
+    """NLiPs pixels with a lower confidence (usable LED fraction x robust weight) are left out."""
+    min_leds: int = 4
+    """NLiPs pixels lit by fewer usable LEDs are left out."""
+    rest_cells: int = 8
+    """The undeformed rest is sampled on a rest_cells x rest_cells grid of image cells ..."""
+    rest_per_cell: int = 24
+    """... with at most this many random pixels per cell (stratified, so every dome region is seen)."""
+    seed: int = 0
+    """Seed of the stratified sample (mixed with the press name)."""
+
+
+# ---------------------------------------------------------------------- building
+def reference_arrays(reference_press) -> dict:
+    """The undeformed reference a calibration keeps: tri-colour (linear), dark frame, depth, normals, valid.
+
+    Parameters
+    ----------
+    reference_press : core.Press of the undeformed dome, with its reference.npz
+
+    Returns
+    -------
+    dict: tricolor (H, W, 3) float32 linear; dark (H, W, 3) uint16; depth (H, W) float32 mm (NaN off
+    the gel); normals (H, W, 3) float32 unit camera frame; valid (H, W) bool
+    """
+    ref = reference_press.reference
+    if ref is None:
+        raise CaptureError(f"{reference_press.folder}: the undeformed reference needs reference.npz (dome surface)")
+    return {
+        "tricolor": reference_press.linear(reference_press.tricolor),
+        "dark": reference_press.dark,
+        "depth": ref.depth.astype(np.float32),
+        "normals": ref.normals.astype(np.float32),
+        "valid": np.isfinite(ref.depth),
+    }
+
+
+def press_samples(press, rec, ref: dict, cfg: SamplingConfig) -> dict:
+    """Samples of one solved press: every reliable NLiPs pixel of the contact, a stratified sample of the rest.
+
+    Parameters
+    ----------
+    press : core.Press
+    rec : core.Reconstruction of that press (full image grid)
+    ref : :func:`reference_arrays` of the undeformed dome
+    cfg : SamplingConfig
+
+    Returns
+    -------
+    dict of the shard arrays (module docstring)
+    """
+    tri = press.linear(press.tricolor)
+    valid = ref["valid"] & np.all(np.isfinite(tri), -1)
+    contact = changed_pixels(tri, ref["tricolor"], valid)
+    finite = np.all(np.isfinite(rec.normals), -1)
+    reliable = rec.reconstructed & finite & (rec.confidence >= cfg.min_confidence) & (rec.usable_leds >= cfg.min_leds)
+    take_contact = contact & reliable
+    rest = valid & ~contact & ~(rec.mask & ~reliable)  # an unreliable solved pixel never becomes a label
+    rng = np.random.default_rng([cfg.seed, int(hashlib.sha1(press.folder.name.encode()).hexdigest()[:8], 16)])
+    take_rest = _stratified(rest, cfg.rest_cells, cfg.rest_per_cell, rng)
+    rows, cols = np.nonzero(take_contact | take_rest)
+    use_nlips = reliable[rows, cols]
+    normal = np.where(use_nlips[:, None], rec.normals[rows, cols], ref["normals"][rows, cols])
+    gt = press.ground_truth
+    true = gt.normals[rows, cols] if gt is not None else np.full((len(rows), 3), np.nan, np.float32)
+    if gt is not None:
+        true = np.where(gt.valid[rows, cols][:, None], true, np.nan)
+    return {
+        "pixel": np.stack([cols, rows], -1).astype(np.int16),
+        "rgb": tri[rows, cols].astype(np.float32),
+        "normal": normal.astype(np.float32),
+        "true_normal": true.astype(np.float32),
+        "contact": contact[rows, cols],
+        "source": np.where(use_nlips, SOURCE_NLIPS, SOURCE_REFERENCE).astype(np.uint8),
+    }
+
+
+def _stratified(candidates: np.ndarray, cells: int, per_cell: int, rng) -> np.ndarray:
+    """(H, W) bool: at most ``per_cell`` random candidate pixels from each of cells x cells image cells."""
+    H, W = candidates.shape
+    cell = (np.arange(H)[:, None] * cells // H) * cells + (np.arange(W)[None, :] * cells // W)
+    flat = np.flatnonzero(candidates)
+    order = rng.permutation(len(flat))
+    flat, owner = flat[order], cell.ravel()[flat[order]]
+    # rank of each pixel within its cell, in the random order: keep the first per_cell of each
+    sort = np.argsort(owner, kind="stable")
+    first = np.searchsorted(owner[sort], owner[sort])
+    rank = np.empty_like(sort)
+    rank[sort] = np.arange(len(sort)) - first
+    out = np.zeros(H * W, bool)
+    out[flat[rank < per_cell]] = True
+    return out.reshape(H, W)
+
+
+def press_description(press) -> dict:
+    """What was pressed where (twin provenance), for the coverage report; {} for device captures."""
+    prov = press.meta.get("provenance") or {}
+    desc = prov.get("press") or {}
+    indenter = desc.get("indenter") or {}
+    return {
+        "indenter": indenter.get("kind", prov.get("indenter", "unknown")),
+        "polar_deg": desc.get("polar_deg"),
+        "azimuth_deg": desc.get("azimuth_deg"),
+        "depth_mm": desc.get("depth"),
+    }
+
+
+def write_shard(path: Path, samples: dict) -> None:
+    """Write arrays (one press's samples, or the reference) as .npz atomically (temporary name, then rename)."""
+    from ..core.atomic import TMP_PREFIX
+
+    tmp = path.with_name(TMP_PREFIX + path.name)
+    save_npz(tmp, samples)
+    tmp.replace(path)
+
+
+def write_index(folder: Path, sensor: dict, cfg: SamplingConfig, entries: list[dict], reference: str) -> Path:
+    """index.json: written last, so its presence marks a usable dataset."""
+    return write_json(
+        folder / INDEX_FILE,
+        {
+            "format": FORMAT_NAME,
+            "format_version": FORMAT_VERSION,
+            "software_version": __version__,
+            "sensor": sensor,
+            "reference": reference,
+            "sampling": dataclasses.asdict(cfg),
+            "presses": entries,
+        },
+    )
+
+
+def build_dataset(
+    press_folders,
+    reference_folder,
+    out,
+    cfg: SamplingConfig | None = None,
+    result_dir: str = "nlips",
+    progress: bool = True,
+) -> Path:
+    """Pair every solved press's tri-colour image with its NLiPs normals into a calibration dataset.
+
+    Parameters
+    ----------
+    press_folders : press folders solved with NLiPs (``PRESS/<result_dir>/``)
+    reference_folder : press folder of the undeformed dome (same sensor)
+    out : dataset folder to write (created; existing shards made from the same reconstruction are kept)
+    cfg : SamplingConfig
+    result_dir : reconstruction folder name inside each press
+
+    Returns
+    -------
+    Path of the dataset folder. Raises CaptureError naming the press when one is unsolved or from
+    another sensor.
+    """
+    from ..core.capture import load_press
+    from ..core.reconstruction import load_reconstruction
+
+    cfg = cfg or SamplingConfig()
+    out = Path(out)
+    (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
+    ref_press = load_press(reference_folder)
+    sensor = sensor_of(ref_press)
+    ref = reference_arrays(ref_press)
+    write_shard(out / SENSOR_FILE, ref)
+    old = _old_entries(out)
+    entries = []
+    for folder in track(list(press_folders), enabled=progress, desc="samples", unit="press"):
+        folder = Path(folder)
+        stamp = _result_stamp(folder / result_dir, cfg)
+        shard = out / SHARD_DIR / f"{folder.name}.npz"
+        if old.get(folder.name, {}).get("stamp") == stamp and shard.is_file():
+            entries.append(old[folder.name])  # resumed: made from the same reconstruction and options
+            continue
+        press = load_press(folder)
+        check_sensor(sensor, sensor_of(press), folder)
+        rec = load_reconstruction(folder / result_dir, press.camera.shape)
+        samples = press_samples(press, rec, ref, cfg)
+        write_shard(shard, samples)
+        entries.append(
+            {
+                "name": folder.name,
+                "folder": str(folder.resolve()),
+                "samples": int(len(samples["rgb"])),
+                "contact_samples": int(samples["contact"].sum()),
+                "has_truth": bool(press.ground_truth is not None),
+                "press": press_description(press),
+                "stamp": stamp,
+            }
+        )
+    write_index(out, sensor, cfg, entries, str(Path(reference_folder).resolve()))
+    return out
+
+
+def _result_stamp(folder: Path, cfg: SamplingConfig) -> str:
+    """Changes when the reconstruction or the sampling options change (resume key)."""
+    from ..core.reconstruction import RESULT_FILE
+
+    path = folder / RESULT_FILE
+    if not path.is_file():
+        raise CaptureError(f"{path}: press not solved (no NLiPs reconstruction)")
+    st = path.stat()
+    key = f"{st.st_size}:{st.st_mtime_ns}:{dataclasses.asdict(cfg)}:change-rule-{RULE_VERSION}"
+    return hashlib.sha1(key.encode()).hexdigest()[:16]
+
+
+def _old_entries(out: Path) -> dict:
+    try:
+        return {e["name"]: e for e in json.loads((out / INDEX_FILE).read_text())["presses"]}
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+
+
+# ---------------------------------------------------------------------- reading
+class CalibrationDataset:
+    """A calibration dataset folder, validated on open; shards load on demand."""
+
+    def __init__(self, folder) -> None:
+        self.folder = Path(folder)
+        path = self.folder / INDEX_FILE
+        if not path.is_file():
+            raise CaptureError(f"{path}: missing; {self.folder} is not a calibration dataset (run `nlips calibrate`)")
+        try:
+            index = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise CaptureError(f"{path}: not valid JSON ({exc})") from None
+        if not isinstance(index, dict) or index.get("format") != FORMAT_NAME:
+            raise CaptureError(f"{path}: 'format' must be {FORMAT_NAME!r}")
+        if index.get("format_version") != FORMAT_VERSION:
+            raise CaptureError(f"{path}: format_version {index.get('format_version')!r} is not {FORMAT_VERSION}")
+        for key in ("sensor", "presses"):
+            if key not in index:
+                raise CaptureError(f"{path}: missing key '{key}'")
+        self.index = index
+        self.sensor: dict = index["sensor"]
+        self.entries: list[dict] = index["presses"]
+
+    @property
+    def names(self) -> list[str]:
+        return [e["name"] for e in self.entries]
+
+    def entry(self, name: str) -> dict:
+        for e in self.entries:
+            if e["name"] == name:
+                return e
+        raise CaptureError(f"{self.folder / INDEX_FILE}: no press named {name!r}")
+
+    def load(self, name: str) -> dict:
+        """The samples of one press (module docstring), validated."""
+        path = self.folder / SHARD_DIR / f"{name}.npz"
+        arrays = _read_npz(path, SHARD_KEYS)
+        n = len(arrays["rgb"])
+        for key, ndim in SHARD_KEYS.items():
+            a = arrays[key]
+            if a.ndim != ndim or len(a) != n or (ndim == 2 and a.shape[1] != (2 if key == "pixel" else 3)):
+                raise CaptureError(f"{path}: array '{key}' has shape {a.shape}, inconsistent with {n} samples")
+        if n != self.entry(name)["samples"]:
+            raise CaptureError(f"{path}: {n} samples, index.json says {self.entry(name)['samples']}")
+        return arrays
+
+    def arrays(self, names=None) -> dict:
+        """Samples of several presses concatenated, with ``press`` (N,) int16 = position in ``names``."""
+        names = self.names if names is None else list(names)
+        parts = [self.load(n) for n in names]
+        out = {k: np.concatenate([p[k] for p in parts]) for k in SHARD_KEYS}
+        out["press"] = np.concatenate([np.full(len(p["rgb"]), i, np.int16) for i, p in enumerate(parts)])
+        return out
+
+    def reference(self) -> dict:
+        """The undeformed reference arrays (:func:`reference_arrays`)."""
+        path = self.folder / SENSOR_FILE
+        arrays = _read_npz(path, dict.fromkeys(SENSOR_KEYS, 0))
+        cam = self.sensor["camera"]
+        shape = (cam["height"], cam["width"])
+        if arrays["depth"].shape != shape or arrays["tricolor"].shape != shape + (3,):
+            raise CaptureError(f"{path}: arrays do not match the sensor's {cam['width']}x{cam['height']} image")
+        return arrays
+
+
+def _read_npz(path: Path, keys) -> dict:
+    if not path.is_file():
+        raise CaptureError(f"{path}: missing")
+    try:
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise CaptureError(f"{path}: damaged or truncated ({exc})") from None
+    missing = sorted(set(keys) - set(arrays))
+    if missing:
+        raise CaptureError(f"{path}: missing arrays {missing}")
+    return arrays

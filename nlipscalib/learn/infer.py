@@ -1,0 +1,223 @@
+"""Real-time inference: one tri-colour frame -> normal map, depth on the dome, points.
+
+Only the pixels that differ from the undeformed reference frame (:func:`changed_pixels`) go through
+the network; the others keep the reference normals and depth. Depth integrates the normals on the
+dome along the camera's real rays (:mod:`nlipscalib.learn.integrate`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.camera import Camera
+from ..errors import CaptureError, ShapeError
+from .change import ChangeDetector
+from .integrate import RayGeometry, integrate_on_dome
+from .model import load_model
+from .sensor import check_sensor, sensor_of
+
+RESULT_DIR = "nlipsnet"
+"""Reconstruction folder name inside a press (core reconstruction format, like PRESS/nlips)."""
+
+
+@dataclasses.dataclass
+class Frame:
+    """What one tri-colour frame gives."""
+
+    normals: np.ndarray
+    """(H, W, 3) float32, unit, camera frame; zero off the gel."""
+    depth: np.ndarray
+    """(H, W) float32, mm, camera-frame z; NaN off the gel."""
+    points: np.ndarray
+    """(H, W, 3) float32, mm, camera frame; NaN off the gel."""
+    changed: np.ndarray
+    """(H, W) bool -- pixels that differed from the reference frame (went through the network)."""
+    seconds: dict
+    """Time of each stage: change, network, integrate, total."""
+
+
+class Predictor:
+    """A loaded model ready for frames.
+
+    Parameters
+    ----------
+    model_path : the model file (.pt) from ``nlips train``
+    backend : "torch" or "onnx" (the .onnx file beside the model, from ``nlips train``)
+    threads : CPU threads for the network (0: the library's default)
+    depth : integrate depth (False: normals only)
+    """
+
+    def __init__(self, model_path, backend: str = "torch", threads: int = 0, depth: bool = True):
+        self.model = load_model(model_path)
+        ref = self.model.reference
+        self.camera = Camera.from_dict(self.model.sensor["camera"])
+        self.valid = ref["valid"].astype(bool)
+        self.ref_tricolor = ref["tricolor"].astype(np.float32)
+        self.ref_normals = np.where(self.valid[..., None], ref["normals"], 0).astype(np.float32)
+        self.ref_depth = ref["depth"].astype(np.float64)
+        self.dark = ref["dark"].astype(np.float32)
+        self.geo = RayGeometry.from_reference(self.camera.rays, self.ref_depth) if depth else None
+        self.changed = ChangeDetector(self.ref_tricolor, self.valid)
+        self._run = self._backend(backend, threads)
+        self.backend = backend
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """First calls import and plan (scipy.fft, the runtime's kernels): not part of any frame's time."""
+        self._run(np.zeros((2, 5), np.float32))
+        if self.geo is not None:
+            unknown = np.zeros(self.valid.shape, bool)
+            rows, cols = np.nonzero(self.valid)
+            if len(rows):
+                unknown[int(np.median(rows)), int(np.median(cols))] = True
+                integrate_on_dome(self.ref_normals, unknown, self.geo)
+
+    def _backend(self, backend: str, threads: int):
+        if backend == "onnx":
+            from .onnx_export import OnnxNet
+
+            return OnnxNet(Path(self.model.path).with_suffix(".onnx"), self.model, threads)
+        if backend != "torch":
+            raise ShapeError(f"backend must be 'torch' or 'onnx', got {backend!r}")
+        import torch
+
+        if threads:
+            torch.set_num_threads(threads)
+        net = self.model.net
+
+        def run(x):
+            with torch.inference_mode():
+                return net(torch.from_numpy(x)).numpy()
+
+        return run
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.model.shape
+
+    # ------------------------------------------------------------------ inputs
+    def check_press(self, press) -> None:
+        """Refuse a capture from another sensor (CaptureError naming the press folder)."""
+        check_sensor(self.model.sensor, sensor_of(press), press.folder)
+
+    def linear(self, image: np.ndarray, where="frame") -> np.ndarray:
+        """Linear tri-colour image from stored 16-bit values, with the calibration's dark frame and levels.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint16 stored values (a tri-colour PNG of this sensor)
+        where : name used in error messages (the file)
+        """
+        if image.shape != self.shape + (3,):
+            h, w = self.shape
+            raise CaptureError(
+                f"{where}: image is {image.shape[1]}x{image.shape[0]}, the model was calibrated for {w}x{h} images"
+            )
+        s = self.model.sensor
+        return (image.astype(np.float32) - self.dark) / np.float32(s["white_level"] - s["black_level"])
+
+    # ------------------------------------------------------------------ one frame
+    def predict(self, tricolor: np.ndarray) -> Frame:
+        """Normals, depth and points of one frame.
+
+        Parameters
+        ----------
+        tricolor : (H, W, 3) float32, linear (``Press.linear(press.tricolor)`` or :meth:`linear`)
+        """
+        if tricolor.shape != self.shape + (3,):
+            raise ShapeError(f"tri-colour frame is {tricolor.shape}, the model expects {self.shape + (3,)}")
+        t0 = time.perf_counter()
+        changed = self.changed(tricolor)
+        t1 = time.perf_counter()
+        rows, cols = np.nonzero(changed)
+        normals = self.ref_normals.copy()
+        if len(rows) >= 1:
+            x = np.empty((len(rows), 5), np.float32)
+            x[:, 0], x[:, 1] = cols, rows
+            x[:, 2:] = tricolor[rows, cols]
+            normals[rows, cols] = self._run(x)
+        t2 = time.perf_counter()
+        if self.geo is not None:
+            depth, points = integrate_on_dome(normals, changed, self.geo)
+        else:
+            depth = self.ref_depth.astype(np.float32)
+            points = (depth[..., None] / self.camera.rays[..., 2:3] * self.camera.rays).astype(np.float32)
+        t3 = time.perf_counter()
+        seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
+        return Frame(normals, depth, points, changed, seconds)
+
+    def stream(self, frames):
+        """Generator over (H, W, 3) linear frames -> Frame, for a live camera or a sequence of files."""
+        for frame in frames:
+            yield self.predict(frame)
+
+
+def to_reconstruction(frame: Frame, predictor: Predictor, source: str):
+    """The frame in the core reconstruction format (what ``nlips eval`` scores)."""
+    from ..core.reconstruction import Reconstruction
+
+    valid = predictor.valid
+    H, W = valid.shape
+    nan = np.full((H, W), np.nan, np.float32)
+    return Reconstruction(
+        depth=np.where(valid, frame.depth, np.nan).astype(np.float32),
+        points=np.where(valid[..., None], frame.points, np.nan).astype(np.float32),
+        normals=np.where(valid[..., None], frame.normals, np.nan).astype(np.float32),
+        albedo=np.full((H, W, 3), np.nan, np.float32),
+        residual=nan,
+        confidence=valid.astype(np.float32),
+        usable_leds=np.zeros((H, W), np.int16),
+        mask=valid.copy(),
+        reconstructed=valid.copy(),
+        report={
+            "method": "nlipsnet",
+            "model": str(predictor.model.path),
+            "backend": predictor.backend,
+            "hidden": list(predictor.model.hidden),
+            "labels": predictor.model.info.get("labels"),
+            "source": source,
+            "changed_pixels": int(frame.changed.sum()),
+            "seconds": frame.seconds,
+        },
+    )
+
+
+def load_tricolor(folder) -> tuple[np.ndarray, dict]:
+    """The linear tri-colour frame and sensor description of a press folder, without its LED images.
+
+    Returns
+    -------
+    frame : (H, W, 3) float32, linear (dark-subtracted, 1 = full scale)
+    sensor : dict (:func:`nlipscalib.learn.sensor.sensor_of` layout)
+    """
+    from ..core.capture import SensorResponse, read_meta
+    from ..core.imageio import read_png16
+    from ..core.leds import tricolor_groups
+
+    folder = Path(folder)
+    meta = read_meta(folder)
+    try:
+        camera = Camera.from_dict(meta["camera"])
+        response = SensorResponse(**meta["sensor"])
+    except (TypeError, ValueError) as exc:
+        raise CaptureError(f"{folder / 'meta.json'}: {exc}") from None
+    n = len(meta["leds"])
+    sensor = {
+        "camera": camera.to_dict(),
+        "n_leds": n,
+        "tricolor_groups": [int(g) for g in tricolor_groups(n)],
+        "black_level": response.black_level,
+        "white_level": response.white_level,
+    }
+    images = []
+    for name in (meta["images"]["tricolor"], meta["images"]["dark"]):
+        img = read_png16(folder / name)
+        if img.shape != camera.shape + (3,):
+            raise CaptureError(f"{folder / name}: image is {img.shape}, the camera in meta.json is {camera.shape}")
+        images.append(img.astype(np.float32))
+    scale = np.float32(response.white_level - response.black_level)
+    return (images[0] - images[1]) / scale, sensor

@@ -1,0 +1,148 @@
+"""NLiPsNet: the paper's per-pixel MLP (u, v, r, g, b) -> n, and its model file.
+
+Architecture (Quéau-style NLiPsNet of the NLiPsCalib paper): 5 inputs, hidden layers 256-256-128, each
+Linear -> BatchNorm -> ReLU -> Dropout(0.2), a Linear to 3 outputs normalised to unit length.
+Smaller variants change ``hidden`` only.
+
+Input normalisation (inside the network, so PyTorch and ONNX take the same raw inputs):
+
+- u, v: pixel centre coordinates (column, row), mapped to [-1, 1] over the image:
+  u_n = (u - (W - 1) / 2) / (W / 2), v_n = (v - (H - 1) / 2) / (H / 2)
+- r, g, b: linear tri-colour intensity (``Press.linear``: dark-subtracted, 1 = full scale),
+  standardised with the training samples' per-channel mean and standard deviation.
+
+The model file (``.pt``, read with ``torch.load(weights_only=True)``: no pickled code) holds the
+weights, the architecture, the normalisation, what it was trained on, the sensor it was calibrated
+for (camera, image size, LED grouping, sensor levels) and the undeformed reference (tri-colour frame,
+dark frame, depth, normals) that inference compares frames with and integrates depth on.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CaptureError, require
+
+MODEL_FORMAT = "nlipscalib.nlipsnet"
+MODEL_VERSION = 1
+PAPER_HIDDEN = (256, 256, 128)
+"""Hidden layer widths of the paper's NLiPsNet."""
+PAPER_DROPOUT = 0.2
+
+
+def _torch():
+    return require("torch", "torch", "NLiPsNet")
+
+
+def build_net(hidden=PAPER_HIDDEN, dropout: float = PAPER_DROPOUT, width: int = 640, height: int = 480):
+    """A fresh NLiPsNet (torch.nn.Module) for ``width`` x ``height`` images; forward((N, 5)) -> (N, 3) unit."""
+    torch = _torch()
+    nn = torch.nn
+
+    class NLiPsNet(nn.Module):
+        def __init__(self):
+            super().__init__()
+            layers, n_in = [], 5
+            for n_out in hidden:
+                layers += [nn.Linear(n_in, n_out), nn.BatchNorm1d(n_out), nn.ReLU(), nn.Dropout(dropout)]
+                n_in = n_out
+            layers.append(nn.Linear(n_in, 3))
+            self.mlp = nn.Sequential(*layers)
+            offset = [(width - 1) / 2, (height - 1) / 2, 0.0, 0.0, 0.0]
+            scale = [width / 2, height / 2, 1.0, 1.0, 1.0]
+            self.register_buffer("in_offset", torch.tensor(offset, dtype=torch.float32))
+            self.register_buffer("in_scale", torch.tensor(scale, dtype=torch.float32))
+
+        def forward(self, x):
+            out = self.mlp((x - self.in_offset) / self.in_scale)
+            return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True).clamp_min(1e-8)
+
+    return NLiPsNet()
+
+
+def set_colour_normalisation(net, rgb: np.ndarray) -> None:
+    """Standardise r, g, b with the mean and standard deviation of ``rgb`` ((N, 3) float, linear)."""
+    torch = _torch()
+    mean, std = rgb.mean(0), rgb.std(0) + 1e-6
+    with torch.no_grad():
+        net.in_offset[2:] = torch.as_tensor(mean, dtype=torch.float32)
+        net.in_scale[2:] = torch.as_tensor(std, dtype=torch.float32)
+
+
+def model_inputs(pixel: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+    """(N, 5) float32 network input from pixels ((N, 2) (u, v)) and linear colours ((N, 3))."""
+    return np.concatenate([pixel.astype(np.float32), rgb.astype(np.float32)], axis=1)
+
+
+def cosine_loss(pred, target):
+    """Mean of 1 - n_hat . n (both (N, 3) unit)."""
+    return (1.0 - (pred * target).sum(-1)).mean()
+
+
+# ---------------------------------------------------------------------- model file
+def save_model(path, net, *, hidden, dropout, sensor: dict, reference: dict, info: dict) -> Path:
+    """Write the model file atomically (see module docstring)."""
+    import io
+
+    from ..core.atomic import write_bytes
+
+    torch = _torch()
+    payload = {
+        "format": MODEL_FORMAT,
+        "format_version": MODEL_VERSION,
+        "hidden": [int(h) for h in hidden],
+        "dropout": float(dropout),
+        "state_dict": {k: v.detach().cpu() for k, v in net.state_dict().items()},
+        "sensor": sensor,
+        "reference": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in reference.items()},
+        "info": info,
+    }
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    return write_bytes(path, buf.getvalue())
+
+
+class LoadedModel:
+    """A model file, validated: ``net`` (eval mode), ``sensor``, ``reference`` arrays, ``info``."""
+
+    def __init__(self, path, net, payload: dict):
+        self.path = Path(path)
+        self.net = net
+        self.hidden = tuple(payload["hidden"])
+        self.sensor: dict = payload["sensor"]
+        self.reference: dict = {k: v.numpy() for k, v in payload["reference"].items()}
+        self.info: dict = payload["info"]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        cam = self.sensor["camera"]
+        return (cam["height"], cam["width"])
+
+
+def load_model(path) -> LoadedModel:
+    """Load and validate a model file; every problem is one CaptureError naming the file."""
+    torch = _torch()
+    path = Path(path)
+    if not path.is_file():
+        raise CaptureError(f"{path}: model file is missing")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds for a damaged file
+        raise CaptureError(f"{path}: not a readable NLiPsNet model ({type(exc).__name__})") from None
+    if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
+        raise CaptureError(f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r})")
+    if payload.get("format_version") != MODEL_VERSION:
+        raise CaptureError(f"{path}: model format_version {payload.get('format_version')!r} is not {MODEL_VERSION}")
+    for key in ("hidden", "dropout", "state_dict", "sensor", "reference", "info"):
+        if key not in payload:
+            raise CaptureError(f"{path}: model file lacks '{key}'")
+    cam = payload["sensor"]["camera"]
+    net = build_net(payload["hidden"], payload["dropout"], cam["width"], cam["height"])
+    try:
+        net.load_state_dict(payload["state_dict"])
+    except (RuntimeError, KeyError) as exc:
+        raise CaptureError(f"{path}: weights do not fit the architecture ({str(exc).splitlines()[0]})") from None
+    net.eval()
+    return LoadedModel(path, net, payload)

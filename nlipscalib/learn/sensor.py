@@ -1,0 +1,51 @@
+"""What a calibration is valid for: the sensor's camera, image size and LED grouping.
+
+A calibration dataset and every model trained on it carry this description; a capture (or a bare
+image) from another sensor is refused with a message saying what differs.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..core.leds import tricolor_groups
+from ..errors import CaptureError
+
+INTRINSICS_RTOL = 1e-3
+"""Relative tolerance on focal lengths and principal point when matching a capture to a model."""
+
+
+def sensor_of(press) -> dict:
+    """The sensor description of a capture (``core.Press``): camera, LED count and tri-colour groups."""
+    n = len(press.leds)
+    return {
+        "camera": press.camera.to_dict(),
+        "n_leds": n,
+        "tricolor_groups": [int(g) for g in tricolor_groups(n)],
+        "black_level": float(press.response.black_level),
+        "white_level": float(press.response.white_level),
+    }
+
+
+def sensor_mismatch(expected: dict, actual: dict) -> str | None:
+    """Why ``actual`` is not the sensor ``expected`` describes, or None when they match."""
+    ce, ca = expected["camera"], actual["camera"]
+    if (ce["width"], ce["height"]) != (ca["width"], ca["height"]):
+        return f"image size {ca['width']}x{ca['height']}, calibrated for {ce['width']}x{ce['height']}"
+    if ce["model"] != ca["model"]:
+        return f"lens model {ca['model']!r}, calibrated for {ce['model']!r}"
+    for key in ("fx", "fy", "cx", "cy"):
+        if not math.isclose(ce[key], ca[key], rel_tol=INTRINSICS_RTOL, abs_tol=1e-6):
+            return f"camera {key} = {ca[key]:.4g}, calibrated for {ce[key]:.4g}"
+    if any(not math.isclose(a, b, abs_tol=1e-3) for a, b in zip(ce["dist"], ca["dist"])):
+        return f"lens distortion {ca['dist']}, calibrated for {ce['dist']}"
+    if expected["n_leds"] != actual["n_leds"] or expected["tricolor_groups"] != actual["tricolor_groups"]:
+        return f"{actual['n_leds']} LEDs in groups {actual['tricolor_groups']}, calibrated for {expected['n_leds']}"
+    return None
+
+
+def check_sensor(expected: dict, actual: dict, where) -> None:
+    """Raise CaptureError naming ``where`` when ``actual`` is another sensor than ``expected``."""
+    why = sensor_mismatch(expected, actual)
+    if why:
+        raise CaptureError(f"{where}: captured with another sensor than the model was calibrated for ({why})")

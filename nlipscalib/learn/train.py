@@ -1,0 +1,290 @@
+"""Training NLiPsNet on a calibration dataset: split by press, cosine loss, early stopping on validation AAE.
+
+Resumable: after every epoch the state (weights, optimiser, history, best weights) goes into
+``checkpoint.pt`` beside the model; a run with the same options continues from it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError
+from .dataset import CalibrationDataset
+from .model import (
+    PAPER_DROPOUT,
+    PAPER_HIDDEN,
+    build_net,
+    cosine_loss,
+    model_inputs,
+    save_model,
+    set_colour_normalisation,
+)
+
+log = logging.getLogger(__name__)
+CHECKPOINT_FILE = "checkpoint.pt"
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """How to train NLiPsNet."""
+
+    hidden: tuple[int, ...] = PAPER_HIDDEN
+    """Hidden layer widths (paper: 256, 256, 128; a fast variant: 64, 64, 64)."""
+    dropout: float = PAPER_DROPOUT
+    """Dropout after every hidden layer (paper: 0.2)."""
+    labels: str = "nlips"
+    """Training targets: "nlips" (the NLiPs normals, the calibration) or "true" (the twin's true normals,
+    the upper bound)."""
+    val_fraction: float = 0.2
+    """Fraction of the presses held out for validation (at least one press)."""
+    max_epochs: int = 200
+    """Upper limit of epochs."""
+    patience: int = 15
+    """Stop when the validation AAE has not improved for this many epochs."""
+    batch_size: int = 1024
+    """Samples per optimisation step."""
+    lr: float = 2e-3
+    """Adam learning rate (cosine-annealed to 5 % over ``max_epochs``)."""
+    seed: int = 0
+    """Seed of the split, the initial weights, dropout and shuffling."""
+    max_seconds: float = 0.0
+    """Stop after this much training time (0: no limit)."""
+    threads: int = 1
+    """CPU threads for PyTorch (1: a small MLP gains little from more, and a shared machine loses a lot)."""
+
+    def __post_init__(self):
+        if self.labels not in ("nlips", "true"):
+            raise ConfigError(f"labels must be 'nlips' or 'true', got {self.labels!r}")
+        if not self.hidden or any(int(h) < 1 for h in self.hidden):
+            raise ConfigError(f"hidden must list positive layer widths, got {self.hidden}")
+        if not 0 < self.val_fraction < 1:
+            raise ConfigError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
+
+
+def split_by_press(names, val_fraction: float, seed: int, val_names=None) -> tuple[list[str], list[str]]:
+    """Training and validation presses: no press has samples on both sides.
+
+    ``val_names`` chooses the validation presses explicitly; otherwise a seeded random
+    ``val_fraction`` of them (at least one, leaving at least one for training).
+    """
+    names = list(names)
+    if len(names) < 2:
+        raise ConfigError(f"training needs at least 2 presses (one to validate on), got {len(names)}")
+    if val_names:
+        unknown = sorted(set(val_names) - set(names))
+        if unknown:
+            raise ConfigError(f"validation presses {unknown} are not in the dataset")
+        val = [n for n in names if n in set(val_names)]
+    else:
+        k = min(max(1, round(val_fraction * len(names))), len(names) - 1)
+        rng = np.random.default_rng(seed)
+        val = sorted(rng.choice(names, size=k, replace=False).tolist())
+    train = [n for n in names if n not in set(val)]
+    if not train:
+        raise ConfigError("no training presses left after holding out the validation presses")
+    return train, val
+
+
+def training_arrays(data: dict, labels: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(inputs (N, 5), targets (N, 3), contact (N,)) of the samples that have a finite label."""
+    target = data["normal"] if labels == "nlips" else data["true_normal"]
+    keep = np.all(np.isfinite(target), -1)
+    return model_inputs(data["pixel"][keep], data["rgb"][keep]), target[keep], data["contact"][keep]
+
+
+@dataclasses.dataclass
+class TrainResult:
+    model_path: Path
+    history: list
+    """One dict per epoch: epoch, train_loss, val_aae_deg, val_contact_aae_deg, seconds."""
+    best_epoch: int
+    train_presses: list
+    val_presses: list
+
+
+def train(
+    dataset: CalibrationDataset, cfg: TrainConfig, out, val_names=None, exclude=(), progress: bool = True
+) -> TrainResult:
+    """Train NLiPsNet on ``dataset`` and write ``out`` (the model file) and ``checkpoint.pt`` beside it.
+
+    Parameters
+    ----------
+    dataset : CalibrationDataset
+    cfg : TrainConfig
+    out : path of the model file (.pt)
+    val_names : optional explicit validation presses
+    exclude : presses kept out of training and validation (a test set)
+    """
+    import time
+
+    import torch
+
+    from ..progress import progress_bar
+
+    out = Path(out)
+    unknown = sorted(set(exclude) - set(dataset.names))
+    if unknown:
+        raise ConfigError(f"{dataset.folder}: excluded presses {unknown} are not in the dataset")
+    names = [
+        e["name"]
+        for e in dataset.entries
+        if (cfg.labels == "nlips" or e.get("has_truth")) and e["name"] not in set(exclude)
+    ]
+    train_names, val_names = split_by_press(names, cfg.val_fraction, cfg.seed, val_names)
+    x_tr, y_tr, _ = training_arrays(dataset.arrays(train_names), cfg.labels)
+    x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
+    if len(x_tr) < 2 or len(x_va) < 1:
+        raise ConfigError(f"{dataset.folder}: too few labelled samples to train ({len(x_tr)} train, {len(x_va)} val)")
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    cam = dataset.sensor["camera"]
+    net = build_net(cfg.hidden, cfg.dropout, cam["width"], cam["height"])
+    set_colour_normalisation(net, x_tr[:, 2:])
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.max_epochs, eta_min=cfg.lr * 0.05)
+    state = _resume(out, cfg, net, opt, sched)
+    history, best, best_state = state["history"], state["best"], state["best_state"]
+    xt, yt = torch.from_numpy(x_tr), torch.from_numpy(y_tr)
+    xv, yv, cv = torch.from_numpy(x_va), torch.from_numpy(y_va), torch.from_numpy(c_va)
+    gen = torch.Generator().manual_seed(cfg.seed + len(history))
+    start = time.perf_counter() - sum(h["seconds"] for h in history)
+    bar = progress_bar(cfg.max_epochs, enabled=progress, initial=len(history), desc="training", unit="epoch")
+    for epoch in range(len(history), cfg.max_epochs):
+        if history and epoch - 1 - best["epoch"] >= cfg.patience:
+            break  # a resumed run that had already stopped early
+        t0 = time.perf_counter()
+        loss = _epoch(net, opt, xt, yt, cfg.batch_size, gen)
+        sched.step()
+        val_aae, val_contact = _validate(net, xv, yv, cv)
+        history.append(
+            {
+                "epoch": epoch,
+                "train_loss": loss,
+                "val_aae_deg": val_aae,
+                "val_contact_aae_deg": val_contact,
+                "seconds": time.perf_counter() - t0,
+            }
+        )
+        if val_aae < best["aae"]:
+            best = {"aae": val_aae, "epoch": epoch}
+            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+        _save_checkpoint(out, cfg, net, opt, sched, history, best, best_state)
+        bar.update(1)
+        bar.set_postfix(val_aae=f"{val_aae:.2f}")
+        stop_early = epoch - best["epoch"] >= cfg.patience
+        if stop_early or (cfg.max_seconds and time.perf_counter() - start > cfg.max_seconds):
+            break
+    bar.close()
+    net.load_state_dict(best_state)
+    info = {
+        "labels": cfg.labels,
+        "config": _jsonable_config(cfg),
+        "dataset": str(dataset.folder.resolve()),
+        "train_presses": train_names,
+        "val_presses": val_names,
+        "excluded_presses": sorted(exclude),
+        "train_samples": int(len(x_tr)),
+        "best_epoch": best["epoch"],
+        "best_val_aae_deg": best["aae"],
+        "history": history,
+    }
+    save_model(
+        out,
+        net,
+        hidden=cfg.hidden,
+        dropout=cfg.dropout,
+        sensor=dataset.sensor,
+        reference=dataset.reference(),
+        info=info,
+    )
+    return TrainResult(out, history, best["epoch"], train_names, val_names)
+
+
+def _epoch(net, opt, x, y, batch_size: int, gen) -> float:
+    import torch
+
+    net.train()
+    order = torch.randperm(len(x), generator=gen)
+    total, count = 0.0, 0
+    for start in range(0, len(x), batch_size):
+        idx = order[start : start + batch_size]
+        if len(idx) < 2:  # BatchNorm needs two samples
+            continue
+        opt.zero_grad()
+        loss = cosine_loss(net(x[idx]), y[idx])
+        loss.backward()
+        opt.step()
+        total += float(loss.detach()) * len(idx)
+        count += len(idx)
+    return total / max(count, 1)
+
+
+def _validate(net, x, y, contact) -> tuple[float, float]:
+    """Validation AAE over all samples and over the contact samples, degrees."""
+    import torch
+
+    net.eval()
+    with torch.no_grad():
+        cos = (net(x) * y).sum(-1).clamp(-1, 1)
+    ang = torch.rad2deg(torch.arccos(cos))
+    contact_aae = float(ang[contact].mean()) if bool(contact.any()) else float("nan")
+    return float(ang.mean()), contact_aae
+
+
+def _jsonable_config(cfg: TrainConfig) -> dict:
+    d = dataclasses.asdict(cfg)
+    d["hidden"] = list(cfg.hidden)
+    return d
+
+
+def _config_key(cfg: TrainConfig) -> str:
+    return hashlib.sha1(repr(_jsonable_config(cfg)).encode()).hexdigest()[:16]
+
+
+def _save_checkpoint(out: Path, cfg, net, opt, sched, history, best, best_state) -> None:
+    import torch
+
+    from ..core.atomic import write_bytes
+
+    buf = io.BytesIO()
+    torch.save(
+        {
+            "key": _config_key(cfg),
+            "net": net.state_dict(),
+            "opt": opt.state_dict(),
+            "sched": sched.state_dict(),
+            "history": history,
+            "best": best,
+            "best_state": best_state,
+        },
+        buf,
+    )
+    write_bytes(out.with_name(out.stem + "." + CHECKPOINT_FILE), buf.getvalue())
+
+
+def _resume(out: Path, cfg, net, opt, sched) -> dict:
+    """Continue from ``MODEL.checkpoint.pt`` when it was made with the same options."""
+    import torch
+
+    fresh = {"history": [], "best": {"aae": float("inf"), "epoch": -1}, "best_state": None}
+    path = out.with_name(out.stem + "." + CHECKPOINT_FILE)
+    if not path.is_file():
+        return fresh
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+        if ck.get("key") != _config_key(cfg):
+            return fresh
+        net.load_state_dict(ck["net"])
+        opt.load_state_dict(ck["opt"])
+        sched.load_state_dict(ck["sched"])
+    except Exception as exc:  # a damaged checkpoint only costs the progress it held
+        log.warning("%s: not resumable (%s); training from scratch", path, type(exc).__name__)
+        return fresh
+    log.info("%s: resuming after epoch %d", path, len(ck["history"]))
+    return {"history": ck["history"], "best": ck["best"], "best_state": ck["best_state"]}

@@ -1,0 +1,84 @@
+"""The calibration dataset: what is sampled, with which labels, and how damage is reported."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.core import load_press, load_reconstruction
+from nlipscalib.errors import CaptureError
+from nlipscalib.learn.dataset import SOURCE_NLIPS, SOURCE_REFERENCE, CalibrationDataset
+
+
+def test_samples_pair_tricolor_pixels_with_reliable_nlips_normals(calib, twin_presses):
+    s = calib.load("press_a")
+    press = load_press(twin_presses / "press_a")
+    rec = load_reconstruction(twin_presses / "press_a" / "nlips")
+    u, v = s["pixel"][:, 0], s["pixel"][:, 1]
+    np.testing.assert_allclose(s["rgb"], press.linear(press.tricolor)[v, u], rtol=0, atol=1e-6)
+    nl = s["source"] == SOURCE_NLIPS
+    np.testing.assert_allclose(s["normal"][nl], rec.normals[v[nl], u[nl]], atol=1e-6)
+    # labels only where NLiPs is reliable
+    assert np.all(rec.reconstructed[v[nl], u[nl]]) and np.all(rec.confidence[v[nl], u[nl]] >= 0.5)
+    assert np.all(rec.usable_leds[v[nl], u[nl]] >= 4)
+    # the rest is labelled with the undeformed surface, never on the contact
+    rest = s["source"] == SOURCE_REFERENCE
+    assert not np.any(s["contact"][rest])
+    np.testing.assert_allclose(s["normal"][rest], press.reference.normals[v[rest], u[rest]], atol=1e-6)
+    # most of the true contact is sampled
+    gt = press.ground_truth
+    tilt = np.degrees(np.arccos(np.clip(np.sum(gt.normals * press.reference.normals, -1), -1, 1)))
+    visible_dent = gt.contact & gt.valid & (tilt > 3)
+    sampled = np.zeros_like(visible_dent)
+    sampled[v[s["contact"]], u[s["contact"]]] = True
+    assert (sampled & visible_dent).sum() >= 0.9 * visible_dent.sum()
+
+
+def test_every_press_has_a_shard_and_the_index_counts_them(calib):
+    assert sorted(calib.names) == sorted(f"press_{c}" for c in "abcdefg")
+    arrays = calib.arrays(["press_a", "press_b"])
+    assert set(np.unique(arrays["press"])) == {0, 1}
+    assert len(arrays["rgb"]) == calib.entry("press_a")["samples"] + calib.entry("press_b")["samples"]
+    assert calib.entry("press_b")["press"]["indenter"] == "cube"
+
+
+def test_corrupt_dataset_is_named(calib, tmp_path):
+    bad = tmp_path / "calib"
+    shutil.copytree(calib.folder, bad)
+    (bad / "samples" / "press_a.npz").write_bytes(b"not a zip")
+    with pytest.raises(CaptureError, match="press_a.npz"):
+        CalibrationDataset(bad).load("press_a")
+    (bad / "index.json").write_text("{")
+    with pytest.raises(CaptureError, match="index.json"):
+        CalibrationDataset(bad)
+
+
+def test_cli_train_on_corrupt_dataset_fails_with_one_line(calib, tmp_path, capsys):
+    bad = tmp_path / "calib"
+    shutil.copytree(calib.folder, bad)
+    index = json.loads((bad / "index.json").read_text())
+    index["format_version"] = 99
+    (bad / "index.json").write_text(json.dumps(index))
+    assert main(["train", str(bad), "--out", str(tmp_path / "m.pt")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "index.json" in err[0]
+
+
+def test_cli_calibrate_solves_samples_and_reports_coverage(twin_presses, tmp_path, capsys):
+    root = tmp_path / "presses"
+    shutil.copytree(twin_presses / "reference", root / "reference")
+    for name in ("press_a", "press_b"):  # press_b unsolved: calibrate must solve it
+        shutil.copytree(
+            twin_presses / name, root / name, ignore=shutil.ignore_patterns("nlips") if name == "press_b" else None
+        )
+    assert main(["calibrate", str(root), "--no-progress"]) == 0
+    assert (root / "press_b" / "nlips" / "result.npz").is_file()
+    data = CalibrationDataset(root / "calibration")
+    assert data.names == ["press_a", "press_b"]
+    cov = json.loads((root / "calibration" / "coverage.json").read_text())
+    assert 0 < cov["covered_fraction"] < 1
+    assert cov["next_press"]["indenter"] in ("sphere", "cube")
+    assert (root / "calibration" / "coverage.png").stat().st_size > 1000
+    assert "press next" in capsys.readouterr().out

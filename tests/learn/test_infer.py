@@ -1,0 +1,67 @@
+"""nlips infer: reconstructions in the core format, PLY, frames, only changed pixels through the network."""
+
+import numpy as np
+
+from nlipscalib.cli import main
+from nlipscalib.core import load_press, load_reconstruction
+from nlipscalib.core.metrics import evaluate
+from nlipscalib.learn.infer import Predictor
+
+from .conftest import HELD_OUT
+
+
+def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_presses, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(out), "--mesh"]) == 0
+    assert "frames/s" in capsys.readouterr().out
+    press = load_press(twin_presses / HELD_OUT)
+    rec = load_reconstruction(out / HELD_OUT / "nlipsnet", press.camera.shape)
+    scores = evaluate(rec, press.ground_truth)["contact"]
+    assert scores["aae_deg"] < 8.0 and scores["depth_rmse_mm"] < 0.4, scores
+    head = (out / HELD_OUT / "nlipsnet" / "points.ply").read_bytes()[:400]
+    assert b"element vertex" in head and b"element face" in head
+
+
+def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained, twin_presses):
+    predictor = Predictor(trained)
+    calls = []
+    run = predictor._run
+    predictor._run = lambda x: calls.append(len(x)) or run(x)
+    ref = load_press(twin_presses / "reference")
+    frame = predictor.predict(ref.linear(ref.tricolor))
+    assert calls == [] or calls == [0] or sum(calls) < 0.01 * predictor.valid.sum()
+    assert frame.changed.sum() < 0.01 * predictor.valid.sum()
+    press = load_press(twin_presses / HELD_OUT)
+    calls.clear()
+    frame = predictor.predict(press.linear(press.tricolor))
+    assert sum(calls) == frame.changed.sum() > 0
+    same = predictor.valid & ~frame.changed
+    np.testing.assert_array_equal(frame.normals[same], predictor.ref_normals[same])
+
+
+def test_infer_folder_of_png_frames_with_onnx(trained, twin_presses, tmp_path, capsys):
+    import shutil
+
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    export_onnx(load_model(trained), trained.with_suffix(".onnx"))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i, name in enumerate(("press_a", "press_b", HELD_OUT)):
+        shutil.copy(twin_presses / name / "tricolor.png", frames / f"frame_{i}.png")
+    assert main(["infer", str(trained), str(frames), "--backend", "onnx", "--out", str(tmp_path / "o")]) == 0
+    assert "3 frame(s), onnx" in capsys.readouterr().out
+    assert (tmp_path / "o" / "frame_2" / "result.npz").is_file()
+
+
+def test_nlips_eval_scores_the_nlipsnet_reconstruction(trained, twin_presses, tmp_path, capsys):
+    import shutil
+
+    press = tmp_path / HELD_OUT
+    shutil.copytree(twin_presses / HELD_OUT, press)
+    assert main(["infer", str(trained), str(press)]) == 0
+    assert (press / "nlipsnet" / "result.npz").is_file()
+    capsys.readouterr()
+    assert main(["eval", str(press), "--method", "nlipsnet", "--region", "contact"]) == 0
+    assert HELD_OUT in capsys.readouterr().out

@@ -1,0 +1,104 @@
+"""NLiPsNet: accuracy against the lookup-table baseline on an unseen press, the model file, ONNX parity."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.errors import CaptureError
+from nlipscalib.learn.evaluate import net_predict, sample_scores
+from nlipscalib.learn.lut import LookupTable
+from nlipscalib.learn.model import PAPER_HIDDEN, load_model
+
+from .conftest import HELD_OUT
+
+
+def test_paper_architecture(trained):
+    import torch
+
+    model = load_model(trained)
+    layers = list(model.net.mlp)
+    linear = [m for m in layers if isinstance(m, torch.nn.Linear)]
+    assert [m.out_features for m in linear] == [*PAPER_HIDDEN, 3]
+    assert sum(isinstance(m, torch.nn.BatchNorm1d) for m in layers) == 3
+    assert all(m.p == 0.2 for m in layers if isinstance(m, torch.nn.Dropout))
+    out = model.net(torch.randn(10, 5) * 50)
+    np.testing.assert_allclose(torch.linalg.vector_norm(out, dim=-1).detach().numpy(), 1, atol=1e-5)
+
+
+def test_split_by_press_and_held_out_press_never_seen(trained):
+    info = load_model(trained).info
+    assert not set(info["train_presses"]) & set(info["val_presses"])
+    assert HELD_OUT not in info["train_presses"] + info["val_presses"]
+
+
+def test_net_beats_lookup_table_on_held_out_press(calib, trained):
+    model = load_model(trained)
+    train = calib.arrays(model.info["train_presses"])
+    lut = LookupTable.fit(train["pixel"], train["rgb"], train["normal"], calib.reference()["tricolor"])
+    test = calib.load(HELD_OUT)
+    net = sample_scores(net_predict(model, test["pixel"], test["rgb"]), test)
+    table = sample_scores(lut.predict(test["pixel"], test["rgb"]), test)
+    assert net["aae_vs_nlips_deg"] < table["aae_vs_nlips_deg"], (net, table)
+    assert net["aae_vs_true_deg"] < table["aae_vs_true_deg"], (net, table)
+    assert net["aae_vs_true_deg"] < 8.0, net
+
+
+def test_onnx_matches_pytorch_within_a_tenth_of_a_degree(calib, trained, tmp_path):
+    from nlipscalib.learn.model import model_inputs
+    from nlipscalib.learn.onnx_export import OnnxNet, export_onnx, max_angle_deg
+
+    model = load_model(trained)
+    path = export_onnx(model, tmp_path / "net.onnx")
+    s = calib.load(HELD_OUT)
+    x = model_inputs(s["pixel"], s["rgb"])
+    assert max_angle_deg(OnnxNet(path, model)(x), net_predict(model, s["pixel"], s["rgb"])) < 0.1
+
+
+def test_missing_and_corrupt_model_files_are_named(tmp_path, trained, capsys):
+    with pytest.raises(CaptureError, match="missing"):
+        load_model(tmp_path / "none.pt")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"garbage")
+    with pytest.raises(CaptureError, match="bad.pt"):
+        load_model(bad)
+    truncated = tmp_path / "cut.pt"
+    truncated.write_bytes(trained.read_bytes()[:1000])
+    assert main(["infer", str(truncated), str(tmp_path)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cut.pt" in err[0]
+
+
+def test_model_refuses_a_capture_of_another_sensor(trained, twin_presses, tmp_path, capsys):
+    other = tmp_path / "other_press"
+    shutil.copytree(twin_presses / HELD_OUT, other)
+    meta = json.loads((other / "meta.json").read_text())
+    meta["camera"]["fx"] *= 1.1  # another lens
+    (other / "meta.json").write_text(json.dumps(meta))
+    assert main(["infer", str(trained), str(other)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "other_press" in err[0] and "another sensor" in err[0] and "fx" in err[0]
+
+
+def test_wrong_image_size_is_refused(trained, tmp_path, capsys):
+    from nlipscalib.core.imageio import write_png16
+
+    frame = tmp_path / "small.png"
+    write_png16(frame, np.zeros((30, 40, 3), np.uint16))
+    assert main(["infer", str(trained), str(frame)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "small.png" in err[0] and "96x72" in err[0]
+
+
+def test_training_resumes_from_its_checkpoint(calib, tmp_path):
+    from nlipscalib.learn.train import TrainConfig, train
+
+    cfg = TrainConfig(hidden=(8, 8), max_epochs=2, patience=5)
+    first = train(calib, cfg, tmp_path / "m.pt", progress=False)
+    assert (tmp_path / "m.checkpoint.pt").is_file()
+    again = train(calib, cfg, tmp_path / "m.pt", progress=False)  # as after an interruption: nothing left to do
+    assert [h["val_aae_deg"] for h in again.history] == [h["val_aae_deg"] for h in first.history]
+    longer = TrainConfig(hidden=(8, 8), max_epochs=3, patience=5)  # other options: trained afresh
+    assert len(train(calib, longer, tmp_path / "m.pt", progress=False).history) == 3
