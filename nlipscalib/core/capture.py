@@ -17,7 +17,6 @@ Writers build the folder under a temporary name and rename it when complete
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -28,6 +27,7 @@ from .. import __version__
 from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
 from .camera import Camera
+from .formatfile import read_format_json
 from .imageio import read_png16, save_npz, write_png16
 from .leds import Led
 
@@ -260,21 +260,13 @@ def read_meta(folder: str | Path) -> dict:
     path = folder / META_FILE
     if not folder.is_dir():
         raise CaptureError(f"{folder}: not a press folder (no such directory)")
-    if not path.is_file():
-        raise CaptureError(f"{path}: missing; {folder} is not a complete press folder")
-    try:
-        meta = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CaptureError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT_NAME:
-        raise CaptureError(f"{path}: 'format' must be {FORMAT_NAME!r}")
-    if meta.get("format_version") != FORMAT_VERSION:
-        raise CaptureError(
-            f"{path}: format_version {meta.get('format_version')!r} is not supported (expected {FORMAT_VERSION})"
-        )
-    for key in ("camera", "leds", "sensor", "images"):
-        if key not in meta:
-            raise CaptureError(f"{path}: missing key '{key}'")
+    meta = read_format_json(
+        path,
+        FORMAT_NAME,
+        FORMAT_VERSION,
+        required=("camera", "leds", "sensor", "images"),
+        missing_hint=f"{folder} is not a complete press folder",
+    )
     for key in ("dark", "leds", "tricolor"):
         if key not in meta["images"]:
             raise CaptureError(f"{path}: missing key 'images.{key}'")

@@ -16,7 +16,6 @@ validates format, version, keys, shapes and dtypes and names the file and the pr
 from __future__ import annotations
 
 import dataclasses
-import json
 import zipfile
 from pathlib import Path
 
@@ -25,6 +24,7 @@ import numpy as np
 from .. import __version__
 from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
+from .formatfile import read_format_json
 from .imageio import save_npz
 
 FORMAT_NAME = "nlipscalib.reconstruction"
@@ -185,19 +185,7 @@ def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None
 
 
 def _read_report(path: Path) -> dict:
-    if not path.is_file():
-        raise CaptureError(f"{path}: missing (an incomplete reconstruction folder)")
-    try:
-        report = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise CaptureError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(report, dict) or report.get("format") != FORMAT_NAME:
-        raise CaptureError(f"{path}: 'format' must be {FORMAT_NAME!r}")
-    if report.get("format_version") != FORMAT_VERSION:
-        raise CaptureError(
-            f"{path}: format_version {report.get('format_version')!r} is not supported (expected {FORMAT_VERSION})"
-        )
-    return report
+    return read_format_json(path, FORMAT_NAME, FORMAT_VERSION, missing_hint="an incomplete reconstruction folder")
 
 
 def jsonable(obj):

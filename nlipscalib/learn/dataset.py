@@ -34,6 +34,7 @@ import numpy as np
 
 from .. import __version__
 from ..core.atomic import write_json
+from ..core.formatfile import read_format_json
 from ..core.imageio import save_npz
 from ..errors import CaptureError
 from ..progress import track
@@ -274,19 +275,13 @@ class CalibrationDataset:
     def __init__(self, folder) -> None:
         self.folder = Path(folder)
         path = self.folder / INDEX_FILE
-        if not path.is_file():
-            raise CaptureError(f"{path}: missing; {self.folder} is not a calibration dataset (run `nlips calibrate`)")
-        try:
-            index = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise CaptureError(f"{path}: not valid JSON ({exc})") from None
-        if not isinstance(index, dict) or index.get("format") != FORMAT_NAME:
-            raise CaptureError(f"{path}: 'format' must be {FORMAT_NAME!r}")
-        if index.get("format_version") != FORMAT_VERSION:
-            raise CaptureError(f"{path}: format_version {index.get('format_version')!r} is not {FORMAT_VERSION}")
-        for key in ("sensor", "presses"):
-            if key not in index:
-                raise CaptureError(f"{path}: missing key '{key}'")
+        index = read_format_json(
+            path,
+            FORMAT_NAME,
+            FORMAT_VERSION,
+            required=("sensor", "presses"),
+            missing_hint=f"{self.folder} is not a calibration dataset (run `nlips calibrate`)",
+        )
         self.index = index
         self.sensor: dict = index["sensor"]
         self.entries: list[dict] = index["presses"]
