@@ -17,3 +17,7 @@ undeformed dome (median over the gel) is at least this; below it the capture has
 ANCHOR_NOISE_FACTOR = 3.0
 """Anchoring: a pixel is undeformed when its misfit to the undeformed model is within this many times the
 misfit that the estimated image noise alone explains."""
+MAX_MEDIAN_DISPLACEMENT_MM = 3.0
+"""A solve whose median distance to the undeformed surface exceeds this (mm; the default gel is 3 mm thick,
+and a median over a region around a contact is far below the deepest point) has left the physically
+possible range: :func:`nlipscalib.solver.solve_press` re-solves without the noise-adapted smoothness."""

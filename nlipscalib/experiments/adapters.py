@@ -117,19 +117,20 @@ def truth_roi(press, margin: int = ROI_MARGIN_PX) -> tuple[int, int, int, int]:
     return int(x0), int(y0), int(max(x1 - x0, 4)), int(max(y1 - y0, 4))
 
 
-def solve(press, *, leds, interreflection: str, reference=None, roi: str = "truth", options=None, albedo=0.8):
+def solve(press, *, leds, interreflection: str, reference=None, roi: str = "truth", options=None, albedo=None):
     """NLiPs on one press.
 
     Parameters
     ----------
     press : Press (with ground truth when ``roi = "truth"``)
     leds : sequence of Led given to the solver (true, CAD-with-error or self-calibrated)
-    interreflection : "off" (direct model only), "reference" (subtract the undeformed dome's own
-        indirect light) or "dent" (also the dent's own one-bounce change)
+    interreflection : "off" (direct model only), "reference" (the interreflection term fitted on the
+        undeformed capture, the undeformed surface's indirect light subtracted) or "dent" (also the outer
+        loop on the solved surface: the solver's default)
     reference : Press of the undeformed dome, needed unless ``interreflection == "off"``
     roi : "truth" (true contact box), "auto" (the solver's contact detector) or "full"
     options : SolverOptions or None
-    albedo : coating albedo the solver assumes for the dent correction
+    albedo : coating reflectance to impose on the interreflection term, or None (fitted from the data)
 
     Returns
     -------
@@ -151,6 +152,7 @@ def solve(press, *, leds, interreflection: str, reference=None, roi: str = "trut
         indirect=None if interreflection == "off" else reference,
         dent_interreflection=interreflection == "dent",
         coating_albedo=albedo,
+        interreflection="off" if interreflection == "off" else "on",
     )
 
 

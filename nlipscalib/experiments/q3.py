@@ -17,9 +17,18 @@ PAPER_BOUND_DEG = 10.0
 
 
 def shipped_shapes() -> tuple[str, ...]:
-    """Names of the shipped sensor scenes (scenes/*.toml), the default first."""
-    names = sorted(p.stem for p in SCENES_DIR.glob("*.toml"))
-    return tuple(sorted(names, key=lambda n: n != "nlipstac"))
+    """One shipped sensor scene (scenes/*.toml) per dome shape, the default first.
+
+    Variants of a shape (``nlipstac_realistic``: the default dome with the twin's non-ideal effects)
+    are not another shape; the first scene of each shape in that order stands for it.
+    """
+    from ..sim.scene import load_scene
+
+    names = sorted((p.stem for p in SCENES_DIR.glob("*.toml")), key=lambda n: (n != "nlipstac", n))
+    shapes: dict[str, str] = {}
+    for name in names:
+        shapes.setdefault(load_scene(name).dome.shape, name)
+    return tuple(shapes.values())
 
 
 @dataclasses.dataclass(frozen=True)

@@ -217,7 +217,7 @@ def _solve_one(adapters, out, task, press, reference, spec: dict, albedo, key: s
             reference=reference,
             roi=spec["roi"],
             options=adapters.solver_options(spec["options"]),
-            albedo=albedo,
+            albedo=None,  # the solver fits the coating's reflectance; ``albedo`` is the truth, for the record
         )
     except Exception as exc:  # one failed variant (say, no contact found by --roi auto) is a result too
         return {"result": {"error": f"{type(exc).__name__}: {exc}"}, "seconds": round(time.perf_counter() - t, 3)}

@@ -232,7 +232,9 @@ def fit_indirect(
         rho = np.where(fitted, rho, typical(rho))
         off_albedo = typical(rho)
         G = _gather_all(surf, rho, off_unit, off_albedo, bounces, kappa)
-        kappa = _profile_kappa(img, S, G, ok)
+        # reflectance = kappa x albedo is at most 1: on very noisy or tiny captures the free fit can
+        # exceed it (seen: 1.16 at 96x72, 2 spp), and an unphysical term then derails the solve
+        kappa = np.minimum(_profile_kappa(img, S, G, ok), 1.0 / np.maximum(off_albedo, 1e-30))
         rho = _albedo(img, S + kappa * G, ok)
     # the receiver's albedo multiplies both terms: the share is kappa G / S
     on = fitted.all(axis=1)
