@@ -52,7 +52,7 @@ def test_a_finished_experiment_resumes_without_redoing_presses(q1, capsys):
 def test_a_worsened_solver_option_fails_the_check(q1, capsys):
     out, argv, _ = q1
     # a heavy depth prior pins the surface to the undeformed dome: the contact comes out too flat
-    assert main(argv + ["--solver-option", "prior_weight=1.0"]) == 1
+    assert main(argv + ["--solver-option", "prior_weight=100.0"]) == 1
     printed = capsys.readouterr().out
     assert "worse than" in printed and "baseline" in printed
 
