@@ -42,6 +42,7 @@ def software() -> dict:
 
 
 def machine() -> dict:
+    """Host, platform, CPU model, core count and load average (recorded with every report and benchmark)."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
