@@ -28,7 +28,7 @@ from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
 from .camera import Camera
 from .formatfile import read_format_json
-from .imageio import read_png16, save_npz, write_png16
+from .imageio import read_npz, read_png16, save_npz, write_png16
 from .leds import Led
 
 FORMAT_NAME = "nlipscalib.press"
@@ -341,14 +341,7 @@ def _check_subset(subset, n: int, folder: Path) -> list[int]:
 
 
 def _load_npz(path: Path, keys: dict) -> dict:
-    try:
-        with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
-    except Exception as exc:  # numpy raises many kinds for a corrupt file
-        raise CaptureError(f"{path}: not a readable .npz file ({exc})") from None
-    missing = set(keys) - set(arrays)
-    if missing:
-        raise CaptureError(f"{path}: missing arrays {sorted(missing)}")
+    arrays = read_npz(path, keys, unreadable="not a readable .npz file")
     for k in keys:
         if arrays[k].dtype.kind == "f" and k != "depth" and k != "points" and not np.all(np.isfinite(arrays[k])):
             # normals are finite everywhere by convention (zero where invalid); depth/points use NaN

@@ -46,6 +46,33 @@ def read_png16(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+def read_npz(path: str | Path, keys=(), unreadable: str = "damaged or truncated .npz") -> dict[str, np.ndarray]:
+    """Every array of a .npz file, checked to be readable and to hold ``keys``.
+
+    ``unreadable`` words the problem when numpy cannot read the file (what the file was meant to be).
+
+    Raises
+    ------
+    CaptureError naming the file: missing, damaged or truncated, or lacking one of ``keys``.
+    """
+    import zipfile
+
+    from ..errors import CaptureError
+
+    path = Path(path)
+    if not path.is_file():
+        raise CaptureError(f"{path}: missing")
+    try:
+        with np.load(path) as data:
+            arrays = {k: data[k] for k in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise CaptureError(f"{path}: {unreadable} ({exc})") from None
+    missing = sorted(set(keys) - set(arrays))
+    if missing:
+        raise CaptureError(f"{path}: missing arrays {missing}")
+    return arrays
+
+
 def save_npz(path: str | Path, arrays: dict[str, np.ndarray], compress: bool | str = True) -> Path:
     """Save arrays as a .npz that ``np.load`` reads.
 

@@ -25,7 +25,7 @@ from .. import __version__
 from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
 from .formatfile import read_format_json
-from .imageio import save_npz
+from .imageio import read_npz, save_npz
 
 FORMAT_NAME = "nlipscalib.reconstruction"
 FORMAT_VERSION = 1
@@ -167,14 +167,7 @@ def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None
     if not path.is_file():
         raise CaptureError(f"{path}: no reconstruction there (run `nlips solve` first)")
     report = _read_report(rpath)
-    try:
-        with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise CaptureError(f"{path}: damaged or truncated reconstruction ({exc})") from None
-    missing = sorted(set(ARRAYS) - set(arrays))
-    if missing:
-        raise CaptureError(f"{path}: missing arrays {missing}")
+    arrays = read_npz(path, ARRAYS, unreadable="damaged or truncated reconstruction")
     grid = tuple(arrays["depth"].shape) if shape is None else tuple(shape)
     for name, (ndim, kind) in ARRAYS.items():
         a = arrays[name]

@@ -27,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +34,7 @@ import numpy as np
 from .. import __version__
 from ..core.atomic import write_json
 from ..core.formatfile import read_format_json
-from ..core.imageio import save_npz
+from ..core.imageio import read_npz, save_npz
 from ..errors import CaptureError
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
@@ -299,7 +298,7 @@ class CalibrationDataset:
     def load(self, name: str) -> dict:
         """The samples of one press (module docstring), validated."""
         path = self.folder / SHARD_DIR / f"{name}.npz"
-        arrays = _read_npz(path, SHARD_KEYS)
+        arrays = read_npz(path, SHARD_KEYS)
         n = len(arrays["rgb"])
         for key, ndim in SHARD_KEYS.items():
             a = arrays[key]
@@ -320,23 +319,9 @@ class CalibrationDataset:
     def reference(self) -> dict:
         """The undeformed reference arrays (:func:`reference_arrays`)."""
         path = self.folder / SENSOR_FILE
-        arrays = _read_npz(path, dict.fromkeys(SENSOR_KEYS, 0))
+        arrays = read_npz(path, dict.fromkeys(SENSOR_KEYS, 0))
         cam = self.sensor["camera"]
         shape = (cam["height"], cam["width"])
         if arrays["depth"].shape != shape or arrays["tricolor"].shape != shape + (3,):
             raise CaptureError(f"{path}: arrays do not match the sensor's {cam['width']}x{cam['height']} image")
         return arrays
-
-
-def _read_npz(path: Path, keys) -> dict:
-    if not path.is_file():
-        raise CaptureError(f"{path}: missing")
-    try:
-        with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise CaptureError(f"{path}: damaged or truncated ({exc})") from None
-    missing = sorted(set(keys) - set(arrays))
-    if missing:
-        raise CaptureError(f"{path}: missing arrays {missing}")
-    return arrays
