@@ -18,21 +18,7 @@ import pytest
 from nlipscalib.cli import main
 from nlipscalib.core.capture import load_press
 from nlipscalib.sim import dataset as ds
-
-SPEC = """
-scene = "nlipstac"
-seed = 1
-[render]
-spp = 1
-bounces = 0
-[camera]
-width = 32
-height = 24
-[grid]
-indenters = [{ kind = "sphere", size = 4.0 }]
-polar_deg = [0.0, 15.0]
-depth = [0.5, 1.0]
-"""
+from tests.specs import TINY_SPEC as SPEC
 
 
 @pytest.fixture

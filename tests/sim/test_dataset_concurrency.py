@@ -15,24 +15,11 @@ from pathlib import Path
 import pytest
 
 from nlipscalib.core.capture import load_press
+from tests.specs import TINY_SPEC as SPEC
 
 pytest.importorskip("mitsuba")
 
 ROOT = Path(__file__).resolve().parents[2]
-SPEC = """
-scene = "nlipstac"
-seed = 1
-[render]
-spp = 1
-bounces = 0
-[camera]
-width = 32
-height = 24
-[grid]
-indenters = [{ kind = "sphere", size = 4.0 }]
-polar_deg = [0.0, 15.0]
-depth = [0.5, 1.0]
-"""
 NAMES = ["reference", "press_0000", "press_0001", "press_0002", "press_0003"]
 
 
