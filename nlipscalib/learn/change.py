@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ShapeError
+from ..errors import ShapeError, require
 
 RULE_VERSION = 2
 """Bumped whenever the rule changes, so calibration datasets re-sample their presses."""
@@ -47,31 +47,32 @@ class ChangeDetector:
         h2, w2 = self.shape[0] // 2, self.shape[1] // 2
         self._crop = (slice(0, 2 * h2), slice(0, 2 * w2))
         self._ref_blocks = _blocks(np.where(self.valid[..., None], reference, 0).astype(np.float32), self._crop)
-        self._valid_blocks = _blocks(self.valid.astype(np.float32), self._crop) == 4  # all four pixels on the gel
+        self._valid_blocks = _blocks(self.valid.astype(np.float32), self._crop) == 1  # all four pixels on the gel
         self._level = self._ref_blocks.sum(-1)
         self._sample = np.flatnonzero(self._valid_blocks)[::NOISE_STRIDE]
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
         """(H, W) bool -- pixels of ``frame`` ((H, W, 3) float, linear) that differ from the reference."""
-        from scipy import ndimage
-
         if frame.shape != self.shape + (3,):
             raise ShapeError(f"frame {frame.shape} does not match the reference {self.shape + (3,)}")
-        signed = _blocks(frame.astype(np.float32, copy=False), self._crop) - self._ref_blocks
-        signed[~self._valid_blocks] = 0
-        smooth = ndimage.uniform_filter(signed, size=(SMOOTH_BLOCKS, SMOOTH_BLOCKS, 1), mode="nearest")
-        diff = np.abs(smooth).sum(-1)
         if self._sample.size == 0:
             return np.zeros(self.shape, bool)
+        cv2 = _cv2()
+        signed = _blocks(frame.astype(np.float32, copy=False), self._crop) - self._ref_blocks
+        signed[~self._valid_blocks] = 0
+        # OpenCV's box filter and morphology: the same operations as scipy.ndimage's (replicated border for
+        # the mean, zero outside for the binary ones), several times faster on a live frame
+        smooth = cv2.blur(signed, (SMOOTH_BLOCKS, SMOOTH_BLOCKS), borderType=cv2.BORDER_REPLICATE)
+        diff = cv2.transform(np.abs(smooth), _ONES)  # sum over the colours, (H/2, W/2)
         sample = diff.ravel()[self._sample]
         median = float(np.median(sample))
         sigma = 1.4826 * float(np.median(np.abs(sample - median))) + 1e-6
         hit = self._valid_blocks & (diff > median + NOISE_SIGMAS * sigma) & (diff > MIN_REL_CHANGE * self._level)
-        hit = ndimage.binary_opening(hit)
+        hit = _opening(hit.view(np.uint8))
         if DILATE_BLOCKS > 0:
-            hit = ndimage.binary_dilation(hit, iterations=DILATE_BLOCKS)
+            hit = cv2.dilate(hit, _CROSS, iterations=DILATE_BLOCKS, borderType=cv2.BORDER_CONSTANT, borderValue=0)
         out = np.zeros(self.shape, bool)
-        out[self._crop] = hit.repeat(2, 0).repeat(2, 1)
+        out[self._crop] = cv2.resize(hit, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST).view(bool)
         return out & self.valid
 
 
@@ -92,8 +93,28 @@ def changed_pixels(frame: np.ndarray, reference: np.ndarray, valid: np.ndarray) 
     return ChangeDetector(reference, valid)(frame)
 
 
+_ONES = np.ones((1, 3), np.float32)
+_CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
+"""3x3 cross: scipy.ndimage's default binary structure, which the rule was defined with."""
+
+
+def _cv2():
+    return require("cv2", "opencv-python-headless", "Detecting changed pixels")
+
+
+def _opening(mask: np.ndarray) -> np.ndarray:
+    """Binary opening by the 3x3 cross with zeros outside the image (scipy.ndimage.binary_opening's border)."""
+    cv2 = _cv2()
+    eroded = cv2.erode(mask, _CROSS, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return cv2.dilate(eroded, _CROSS, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+
+
 def _blocks(image: np.ndarray, crop) -> np.ndarray:
-    """Sums over 2x2 pixel blocks: (H, W[, C]) -> (H // 2, W // 2[, C])."""
+    """Means over 2x2 pixel blocks: (H, W[, C]) float32 -> (H // 2, W // 2[, C]).
+
+    OpenCV's area resampling at an exact factor of 2 is that mean, four times faster than strided adds.
+    Means rather than sums: the rule compares differences with their own noise and with the reference's
+    level, both scaled alike.
+    """
     a = image[crop]
-    # four strided views added: several times faster than reshape(...).sum((1, 3)) over strided axes
-    return a[0::2, 0::2] + a[0::2, 1::2] + a[1::2, 0::2] + a[1::2, 1::2]
+    return _cv2().resize(a, (a.shape[1] // 2, a.shape[0] // 2), interpolation=_cv2().INTER_AREA)

@@ -47,7 +47,7 @@ class Predictor:
     ----------
     model_path : the model file (.pt) from ``nlips train``
     backend : "torch" or "onnx" (the .onnx file beside the model, from ``nlips train``)
-    threads : CPU threads for the network (0: the library's default)
+    threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch)
     depth : integrate depth (False: normals only)
     """
 
@@ -85,9 +85,11 @@ class Predictor:
             raise ShapeError(f"backend must be 'torch' or 'onnx', got {backend!r}")
         import torch
 
+        from .model import fused_net
+
         if threads:
             torch.set_num_threads(threads)
-        net = self.model.net
+        net = fused_net(self.model.net)
 
         def run(x):
             with torch.inference_mode():
@@ -133,13 +135,13 @@ class Predictor:
         t0 = time.perf_counter()
         changed = self.changed(tricolor)
         t1 = time.perf_counter()
-        rows, cols = np.nonzero(changed)
         normals = self.ref_normals.copy()
-        if len(rows) >= 1:
-            x = np.empty((len(rows), 5), np.float32)
-            x[:, 0], x[:, 1] = cols, rows
-            x[:, 2:] = tricolor[rows, cols]
-            normals[rows, cols] = self._run(x)
+        index = np.flatnonzero(changed)  # flat pixel indices: gathers and scatters on them are the cheapest
+        if len(index) >= 1:
+            x = np.empty((len(index), 5), np.float32)
+            x[:, 1], x[:, 0] = np.divmod(index, self.shape[1])  # v = row, u = column
+            x[:, 2:] = tricolor.reshape(-1, 3)[index]
+            normals.reshape(-1, 3)[index] = self._run(x)
         t2 = time.perf_counter()
         if self.geo is not None:
             depth, points = integrate_on_dome(normals, changed, self.geo)

@@ -26,6 +26,7 @@ Two exact solvers of that same equation:
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -61,6 +62,19 @@ class RayGeometry:
             log_range = np.log(reference_depth / rays[..., 2])
         points = (np.exp(log_range)[..., None] * rays).astype(np.float32)
         return cls(rays, d_u, d_v, log_range, points)
+
+    # float32 copies for the per-frame box solver, made once per sensor
+    @functools.cached_property
+    def rays32(self) -> np.ndarray:
+        return self.rays.astype(np.float32)
+
+    @functools.cached_property
+    def d_u32(self) -> np.ndarray:
+        return self.d_u.astype(np.float32)
+
+    @functools.cached_property
+    def d_v32(self) -> np.ndarray:
+        return self.d_v.astype(np.float32)
 
 
 def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
@@ -103,7 +117,7 @@ def integrate_on_dome(
         # only the solved pixels change: the rest keeps the reference surface
         if box is not None:
             log_range = _solve_box(normals, geo, box)
-            points[box] = np.exp(log_range)[..., None] * geo.rays[box]
+            points[box] = np.exp(log_range.astype(np.float32))[..., None] * geo.rays32[box]
         else:
             log_range = _solve_sparse(normals, unknown, on_gel, geo)
             points[unknown] = np.exp(log_range)[:, None] * geo.rays[unknown]
@@ -117,8 +131,8 @@ def _box(unknown: np.ndarray, on_gel: np.ndarray):
     The box is grown further (when it stays on the gel) to sides whose DST-I length is FFT-friendly:
     a prime-sized transform is several times slower.
     """
-    rows, cols = np.nonzero(unknown)
-    r0, r1, c0, c1 = int(rows.min()) - 1, int(rows.max()) + 2, int(cols.min()) - 1, int(cols.max()) + 2
+    rows, cols = np.flatnonzero(unknown.any(1)), np.flatnonzero(unknown.any(0))  # no per-pixel index arrays
+    r0, r1, c0, c1 = int(rows[0]) - 1, int(rows[-1]) + 2, int(cols[0]) - 1, int(cols[-1]) + 2
     H, W = unknown.shape
     if r0 < 0 or c0 < 0 or r1 > H or c1 > W or not on_gel[r0:r1, c0:c1].all():
         return None
@@ -148,8 +162,9 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
     """Log-range over the box: Poisson solve on its interior, the outer ring fixed at the reference (DST-I)."""
     from scipy.fft import dstn
 
-    p, q = log_range_gradient(np.asarray(normals[box], np.float64), _crop(geo, box))
-    x = geo.log_range[box].copy()
+    # float32 like the transforms below: a gradient of log-range needs no more than 1e-7 relative
+    p, q = _gradient32(np.asarray(normals[box], np.float32), geo, box)
+    x = geo.log_range[box].astype(np.float32)
     gu = 0.5 * (p[:, :-1] + p[:, 1:])  # edge (r, c) -> (r, c + 1)
     gv = 0.5 * (q[:-1, :] + q[1:, :])  # edge (r, c) -> (r + 1, c)
     # 4 x_i - sum of neighbours = (incoming edge gradients) - (outgoing edge gradients)
@@ -163,14 +178,21 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
         2 - 2 * np.cos(np.pi * np.arange(1, n + 1) / (n + 1))
     )[None, :]
     # float32 transforms: twice as fast, and 1e-7 relative error of a log-range is 1e-6 mm
-    x[1:-1, 1:-1] = dstn(
-        dstn(f.astype(np.float32), type=1, norm="ortho") / lam.astype(np.float32), type=1, norm="ortho"
-    )
+    x[1:-1, 1:-1] = dstn(dstn(f, type=1, norm="ortho") / lam.astype(np.float32), type=1, norm="ortho")
     return x
 
 
-def _crop(geo: RayGeometry, box) -> RayGeometry:
-    return RayGeometry(geo.rays[box], geo.d_u[box], geo.d_v[box], geo.log_range[box], geo.points[box])
+def _gradient32(normals: np.ndarray, geo: RayGeometry, box) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`log_range_gradient` over ``box`` in float32 (``normals`` already cropped), for the box solver."""
+    n0, n1, n2 = normals[..., 0], normals[..., 1], normals[..., 2]
+
+    def dot(vectors):
+        v = vectors[box]
+        return n0 * v[..., 0] + n1 * v[..., 1] + n2 * v[..., 2]
+
+    den = dot(geo.rays32)
+    den = np.where(np.abs(den) < 1e-6, np.float32(-1e-6), den)
+    return -dot(geo.d_u32) / den, -dot(geo.d_v32) / den
 
 
 def _solve_sparse(normals, unknown, on_gel, geo: RayGeometry) -> np.ndarray:

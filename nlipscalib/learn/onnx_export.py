@@ -1,15 +1,19 @@
 """NLiPsNet to ONNX (torch.onnx) and inference with onnxruntime.
 
-The ONNX graph takes the same raw (N, 5) input as the PyTorch model (normalisation is inside the
-graph) and returns (N, 3) unit normals. The sensor description and the model file's digest travel
-in the ONNX metadata, so an .onnx file is never used with another model's reference.
+The ONNX graph takes the same raw (N, 5) input as the PyTorch model and returns (N, 3) unit normals.
+It is the inference form of the network (:func:`nlipscalib.learn.model.fused_net`): input
+normalisation and BatchNorm folded into the linear layers, so the graph is Gemm-ReLU-...-Gemm. The
+sensor description and the model file's digest travel in the ONNX metadata, so an .onnx file is
+never used with another model's reference.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -30,13 +34,14 @@ def export_onnx(model, out) -> Path:
     import torch
 
     from ..core.atomic import write_bytes
+    from .model import fused_net
 
     onnx = require("onnx", "onnx", "ONNX export")
     buf = io.BytesIO()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter is deprecated but needs no onnxscript
         torch.onnx.export(
-            model.net.eval(),
+            fused_net(model.net.eval()),
             (torch.zeros(8, 5),),
             buf,
             input_names=["uvrgb"],
@@ -54,7 +59,16 @@ def export_onnx(model, out) -> Path:
 
 
 class OnnxNet:
-    """onnxruntime session of an exported NLiPsNet: ``(N, 5) float32 -> (N, 3)`` unit normals."""
+    """onnxruntime session of an exported NLiPsNet: ``(N, 5) float32 -> (N, 3)`` unit normals.
+
+    With ``threads`` > 1 the pixels are split into that many equal slices run concurrently, each on one
+    onnxruntime thread: for these narrow layers that uses the cores far better than onnxruntime's own
+    intra-op split of one large call (measured in benchmarks/RESULTS.md). The session does not spin
+    between calls, so the other stages of a frame get the cores.
+    """
+
+    MIN_SLICE = 4096
+    """Fewest pixels worth a slice of their own (below, thread hand-over costs more than it saves)."""
 
     def __init__(self, path, model=None, threads: int = 0):
         ort = require("onnxruntime", "onnxruntime", "ONNX inference")
@@ -62,8 +76,10 @@ class OnnxNet:
         if not path.is_file():
             raise CaptureError(f"{path}: ONNX model is missing (export it with `nlips train` or `nlips export`)")
         opts = ort.SessionOptions()
-        if threads:
-            opts.intra_op_num_threads = threads
+        opts.intra_op_num_threads = 1
+        opts.inter_op_num_threads = 1
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
             self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
@@ -72,9 +88,21 @@ class OnnxNet:
         if model is not None and props.get("model_digest") != file_digest(model.path):
             raise CaptureError(f"{path}: exported from another model than {model.path}; export it again")
         self.path = path
+        self.threads = max(1, int(threads) if threads else len(os.sched_getaffinity(0)))
+        self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
+
+    def _run(self, x: np.ndarray) -> np.ndarray:
+        return self.session.run(None, {"uvrgb": x})[0]
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        return self.session.run(None, {"uvrgb": np.ascontiguousarray(x, np.float32)})[0]
+        x = np.ascontiguousarray(x, np.float32)
+        slices = min(self.threads, max(1, len(x) // self.MIN_SLICE))
+        if slices == 1:
+            return self._run(x)
+        parts = np.array_split(x, slices)
+        futures = [self._pool.submit(self._run, part) for part in parts[1:]]
+        first = self._run(parts[0])  # this thread does a share too
+        return np.concatenate([first] + [f.result() for f in futures])
 
 
 def max_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
