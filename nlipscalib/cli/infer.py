@@ -1,33 +1,244 @@
-"""``nlips infer MODEL INPUT...``: normals, depth on the dome and point clouds from tri-colour frames with NLiPsNet."""
+"""``nlips infer MODEL INPUT...``: normals, depth on the dome and point clouds from tri-colour frames with NLiPsNet.
+
+Inputs are press folders (PRESS/nlipsnet/ in the reconstruction format), tri-colour PNG files or folders
+of them, or a stream: a video file, an image-sequence pattern, a live camera (``--camera``) or the
+emulated sensor (``--emulate``). Streams are opened and run exactly as ``nlips live`` runs them
+(cli/live.py's source flags, device/live.py's loop): the running frame rate goes to stderr once per
+second, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
+frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud.
+"""
 
 from __future__ import annotations
 
 import logging
+import sys
+
+from .live import add_source_arguments
 
 log = logging.getLogger(__name__)
+
+STILL_SUFFIXES = (".png",)
+"""Files taken as single tri-colour frames; any other file is opened as a video."""
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "infer",
-        help="NLiPsNet normals + depth (+ PLY) from tri-colour frames: press folders, PNG files or a folder of frames",
-        description="Run a trained NLiPsNet on press folders (writes PRESS/nlipsnet/ in the reconstruction format) "
-        "or on 16-bit tri-colour PNG frames (a file, several, or a folder of frames processed as a stream). "
-        "Only pixels that differ from the calibration's reference frame go through the network; depth integrates "
-        "the normals on the dome. Prints frames per second.",
+        help="NLiPsNet normals + depth (+ PLY) from tri-colour frames: presses, PNG frames, a video or a camera",
+        description="Run a trained NLiPsNet on press folders (writes PRESS/nlipsnet/ in the reconstruction format), "
+        "on 16-bit tri-colour PNG frames (a file, several, or a folder of frames), or on a stream: a video file, "
+        "an image-sequence pattern (frames/img_%%04d.png), a camera (--camera 0) or the emulated sensor "
+        "(--emulate SCENE). Only pixels that differ from the calibration's reference frame go through the "
+        "network; depth integrates the normals on the dome. Prints frames per second and where the time goes.",
     )
     p.add_argument("model", help="model file (.pt) from `nlips train`")
-    p.add_argument("inputs", nargs="+", help="press folder(s), a folder of presses, PNG file(s) or a folder of PNGs")
-    p.add_argument("--backend", choices=("torch", "onnx"), default="torch", help="network runtime (default torch)")
-    p.add_argument("--out", help="output folder (PNG frames: required to save results; presses: default PRESS/)")
+    p.add_argument(
+        "inputs",
+        nargs="*",
+        help="press folder(s), a folder of presses, PNG file(s), a folder of PNGs, or one video file",
+    )
+    add_source_arguments(p, camera_default=None)
+    p.add_argument(
+        "--backend",
+        choices=("auto", "torch", "onnx"),
+        default="auto",
+        help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch)",
+    )
+    p.add_argument("--out", help="output folder (frames and streams: required to save results; presses: PRESS/)")
     p.add_argument("--ply", action="store_true", help="also write a PLY point cloud per frame")
     p.add_argument("--mesh", action="store_true", help="PLY with grid triangles (implies --ply)")
     p.add_argument("--no-depth", action="store_true", help="normals only (skip the integration)")
-    p.add_argument("--threads", type=int, default=0, help="CPU threads for the network (0: default)")
+    p.add_argument("--threads", type=int, default=0, help="CPU threads for the network (0: all this process may use)")
+    p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
+    p.add_argument("--every", type=int, default=1, help="stream with --out: keep every N-th frame (default 1)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from ..errors import ConfigError
+
+    stream_input = _stream_input(args)
+    if stream_input is None and not args.inputs:
+        raise ConfigError("give inputs (presses, PNG frames or a video), --camera SPEC or --emulate SCENE")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
+    if stream_input is not None:
+        return _run_stream(args, stream_input)
+    return _run_stills(args)
+
+
+# ---------------------------------------------------------------------- streams
+def _stream_input(args):
+    """What to stream from ("emulated", a camera spec or a video path), or None for still frames and presses."""
+    from pathlib import Path
+
+    from ..errors import ConfigError
+
+    videos = [
+        i for i in args.inputs if "%" in i or (Path(i).is_file() and Path(i).suffix.lower() not in STILL_SUFFIXES)
+    ]
+    chosen = [x for x in (args.emulate and "emulated", args.camera, *videos) if x]
+    if len(chosen) > 1 or (chosen and len(args.inputs) > len(videos)):
+        raise ConfigError("a stream (a video, --camera or --emulate) is inferred on its own: give one at a time")
+    return chosen[0] if chosen else None
+
+
+def _check_video(path: str) -> None:
+    """One line naming the file when OpenCV cannot decode it (OpenCV itself would only say 'camera ...')."""
+    from pathlib import Path
+
+    from ..errors import CaptureError, require
+
+    cv2 = require("cv2", "opencv-python-headless", "Reading a video")
+    if "%" not in path and not Path(path).is_file():
+        raise CaptureError(f"{path}: no such video file")
+    cap = cv2.VideoCapture(path)
+    try:
+        if not cap.isOpened() or not cap.grab():
+            raise CaptureError(f"{path}: not a readable video (OpenCV cannot decode it)")
+    finally:
+        cap.release()
+
+
+def _run_stream(args, what: str) -> int:
+    import contextlib
+    import time
+
+    from ..device.live import SaveSink, stream
+    from ..errors import CaptureError, require
+    from ..report import normals_to_rgb
+    from .live import nlipsnet_predictor, open_frames
+
+    cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better
+    video = what not in ("emulated", args.camera)
+    if video:
+        _check_video(what)
+        args.camera = what
+    name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
+    predictor = nlipsnet_predictor(args, depth=not args.no_depth)
+    with contextlib.ExitStack() as stack:
+        source, before_frame = open_frames(args, stack)
+        if tuple(source.shape) != predictor.shape:
+            (h, w), (mh, mw) = source.shape, predictor.shape
+            raise CaptureError(
+                f"{name}: frames are {w}x{h}, the model {args.model} was calibrated for {mw}x{mh} images"
+            )
+        if video:
+            source = _EndsCleanly(source)
+        stages = _StageTimes()
+        sinks = []
+        if args.out:
+            sinks.append(SaveSink(args.out, normals_to_rgb, args.every))
+            if args.ply or args.mesh:
+                sinks.append(_PlySink(args.out, args.every, args.mesh))
+        elif args.ply or args.mesh:
+            log.warning("--ply without --out: no point clouds are written")
+
+        def predict(frame):
+            return stages.add(predictor.predict_stored(frame, name))
+
+        cpu0 = time.process_time()
+        stats = stream(
+            source,
+            predict,
+            sinks,
+            max_frames=args.max_frames,
+            before_frame=before_frame,
+            report=lambda line: print(line, file=sys.stderr),
+        )
+        cpu = time.process_time() - cpu0
+    print(stats.summary())
+    print(stages.summary(predictor, cpu, stats.frames, args.no_depth))
+    if args.out and stats.frames:
+        _write_stream_report(args.out, name, predictor, stats, stages, cpu)
+    return 0
+
+
+class _EndsCleanly:
+    """A recorded stream (video, image sequence) whose end ends the stream, even before --max-frames."""
+
+    def __init__(self, source):
+        self.source = source
+        self.shape = source.shape
+
+    def read(self):
+        from ..device.live import StopLive
+        from ..errors import CaptureError
+
+        try:
+            return self.source.read()
+        except CaptureError:
+            raise StopLive from None
+
+
+class _StageTimes:
+    """Each frame's stage times (change, network, integrate, total), for the summary."""
+
+    def __init__(self):
+        self.seconds: list[dict] = []
+
+    def add(self, frame):
+        self.seconds.append(frame.seconds)
+        return frame
+
+    def medians(self) -> dict:
+        import numpy as np
+
+        return {k: float(np.median([s[k] for s in self.seconds])) for k in self.seconds[0]} if self.seconds else {}
+
+    def summary(self, predictor, cpu_s: float, frames: int, no_depth: bool) -> str:
+        med = self.medians()
+        if not med:
+            return "no frames"
+        net = "-".join(map(str, predictor.model.hidden))
+        return (
+            f"NLiPsNet {net} ({predictor.backend}), median per frame: change {1e3 * med['change']:.1f} ms, "
+            f"network {1e3 * med['network']:.1f} ms, integrate {1e3 * med['integrate']:.1f} ms = "
+            f"{1 / med['total']:.1f} frames/s (normals{'' if no_depth else ' + depth'}); "
+            f"process CPU {1e3 * cpu_s / max(frames, 1):.1f} ms/frame"
+        )
+
+
+class _PlySink:
+    """Every ``every``-th frame's point cloud (PLY, with normals; grid triangles with ``mesh``)."""
+
+    def __init__(self, folder, every: int, mesh: bool):
+        from pathlib import Path
+
+        self.folder, self.every, self.mesh = Path(folder), max(int(every), 1), mesh
+
+    def __call__(self, index, frame, result) -> None:
+        from ..learn.ply import write_ply
+
+        if index % self.every == 0:
+            write_ply(self.folder / f"frame_{index:06d}.ply", result.points, result.normals, mesh=self.mesh)
+
+
+def _write_stream_report(out, name, predictor, stats, stages, cpu_s) -> None:
+    import json
+    import os
+    from pathlib import Path
+
+    from ..core.atomic import write_bytes
+
+    report = {
+        "input": name,
+        "model": str(predictor.model.path),
+        "backend": predictor.backend,
+        "hidden": list(predictor.model.hidden),
+        "frames": stats.frames,
+        "wall_s": stats.seconds,
+        "fps": stats.fps,
+        "median_stage_s": stages.medians(),
+        "cpu_s_per_frame": cpu_s / stats.frames,
+        "load_average": list(os.getloadavg()),
+    }
+    write_bytes(Path(out) / "stream.json", json.dumps(report, indent=2).encode())
+
+
+# ---------------------------------------------------------------------- presses and still frames
+def _run_stills(args) -> int:
     import time
 
     import numpy as np

@@ -19,7 +19,19 @@ def register(subparsers) -> None:
     p.add_argument("--predictor", help="other predictor, module:function (see `nlips live` in the README)")
     p.add_argument("--backend", default="torch", choices=("torch", "onnx"), help="network runtime (default torch)")
     p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
-    p.add_argument("--camera", default="0", help="camera index, device path, folder of frames or video (default 0)")
+    add_source_arguments(p, camera_default="0")
+    p.add_argument("--frames", type=int, help="stop after this many frames (default: until the input ends or q)")
+    p.add_argument("--save", help="folder for every frame's normal map (PNG) and arrays (npz)")
+    p.add_argument("--every", type=int, default=1, help="save every N-th frame (default 1)")
+    p.add_argument("--no-window", action="store_true", help="do not open a window even if a display is present")
+    p.set_defaults(func=run)
+
+
+def add_source_arguments(p, camera_default: str | None) -> None:
+    """The frame-source flags shared by ``nlips live`` and ``nlips infer`` (one way to open a stream)."""
+    default = f" (default {camera_default})" if camera_default else ""
+    what = "camera index, device path, folder of frames or video"
+    p.add_argument("--camera", default=camera_default, help=what + default)
     p.add_argument("--port", help="LED controller port/URL: lit in the tri-colour pattern while streaming")
     p.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
     p.add_argument("--tricolor-level", type=int, default=255, help="LED drive of the tri-colour pattern, 1-255")
@@ -29,28 +41,41 @@ def register(subparsers) -> None:
     p.add_argument("--frames-per-press", type=int, default=10, help="emulated frames per scripted press")
     p.add_argument("--width", type=int, help="emulated image width, pixels")
     p.add_argument("--height", type=int, help="emulated image height, pixels")
-    p.add_argument("--frames", type=int, help="stop after this many frames (default: until the input ends or q)")
-    p.add_argument("--save", help="folder for every frame's normal map (PNG) and arrays (npz)")
-    p.add_argument("--every", type=int, default=1, help="save every N-th frame (default 1)")
-    p.add_argument("--no-window", action="store_true", help="do not open a window even if a display is present")
-    p.set_defaults(func=run)
 
 
-def _nlipsnet(args):
-    from ..device.live import LiveResult
+def open_frames(args, stack):
+    """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
+
+    The emulated sensor when ``--emulate``, else ``--camera`` (camera, folder or video) with the LED board
+    at ``--port`` lit in the tri-colour pattern.
+    """
+    from ..device.camera import CameraSettings, open_source
+
+    if args.emulate:
+        return _emulated_source(args, stack)
+    source = stack.enter_context(open_source(args.camera, CameraSettings(exposure_ms=args.exposure_ms)))
+    if args.port:
+        from .capture import open_leds
+
+        _light_tricolor(stack.enter_context(open_leds(args.port, args.adalight)), args.tricolor_level)
+    return source, None
+
+
+def nlipsnet_predictor(args, depth: bool = True):
+    """The NLiPsNet of ``args.model`` (``--backend``, ``--threads``) for a stream; its ``predict_stored`` maps a
+    stored frame ((H, W, 3) uint16) to a result with ``normals`` and ``depth`` (what the live sinks show)."""
     from ..errors import ConfigError
 
     try:
         from ..learn.infer import Predictor
     except ModuleNotFoundError:
         raise ConfigError("--model needs NLiPsNet (nlipscalib.learn.infer), which this installation lacks") from None
-    predictor = Predictor(args.model, backend=args.backend, threads=args.threads)
+    return Predictor(args.model, backend=args.backend, threads=args.threads, depth=depth)
 
-    def predict(frame):
-        out = predictor.predict(predictor.linear(frame))
-        return LiveResult(out.normals, out.depth)
 
-    return predict, predictor.ref_depth.astype("float32")
+def _nlipsnet(args):
+    predictor = nlipsnet_predictor(args)
+    return predictor.predict_stored, predictor.ref_depth.astype("float32")
 
 
 def _plugged(spec: str, shape):
@@ -100,7 +125,6 @@ def _light_tricolor(controller, level: int) -> None:
 def run(args) -> int:
     import contextlib
 
-    from ..device.camera import CameraSettings, open_source
     from ..device.live import SaveSink, WindowSink, display_available, stream
     from ..errors import ConfigError
     from ..report import normals_to_rgb
@@ -108,15 +132,7 @@ def run(args) -> int:
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
     with contextlib.ExitStack() as stack:
-        before_frame = None
-        if args.emulate:
-            source, before_frame = _emulated_source(args, stack)
-        else:
-            source = stack.enter_context(open_source(args.camera, CameraSettings(exposure_ms=args.exposure_ms)))
-            if args.port:
-                from .capture import open_leds
-
-                _light_tricolor(stack.enter_context(open_leds(args.port, args.adalight)), args.tricolor_level)
+        source, before_frame = open_frames(args, stack)
         predict, reference_depth = _nlipsnet(args) if args.model else _plugged(args.predictor, source.shape)
         sinks = []
         if args.save:

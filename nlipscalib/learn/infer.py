@@ -46,7 +46,8 @@ class Predictor:
     Parameters
     ----------
     model_path : the model file (.pt) from ``nlips train``
-    backend : "torch" or "onnx" (the .onnx file beside the model, from ``nlips train``)
+    backend : "torch", "onnx" (the .onnx file beside the model, from ``nlips train``) or "auto" (onnx when
+        that file exists, else torch)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch)
     depth : integrate depth (False: normals only)
     """
@@ -62,8 +63,8 @@ class Predictor:
         self.dark = ref["dark"].astype(np.float32)
         self.geo = RayGeometry.from_reference(self.camera.rays, self.ref_depth) if depth else None
         self.changed = ChangeDetector(self.ref_tricolor, self.valid)
-        self._run = self._backend(backend, threads)
         self.backend = backend
+        self._run = self._backend(backend, threads)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -77,6 +78,9 @@ class Predictor:
                 integrate_on_dome(self.ref_normals, unknown, self.geo)
 
     def _backend(self, backend: str, threads: int):
+        if backend == "auto":  # onnxruntime when the model was exported (nlips train does), else PyTorch
+            backend = "onnx" if Path(self.model.path).with_suffix(".onnx").is_file() else "torch"
+            self.backend = backend
         if backend == "onnx":
             from .onnx_export import OnnxNet
 
@@ -152,10 +156,9 @@ class Predictor:
         seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
         return Frame(normals, depth, points, changed, seconds)
 
-    def stream(self, frames):
-        """Generator over (H, W, 3) linear frames -> Frame, for a live camera or a sequence of files."""
-        for frame in frames:
-            yield self.predict(frame)
+    def predict_stored(self, image: np.ndarray, where="frame") -> Frame:
+        """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""
+        return self.predict(self.linear(image, where))
 
 
 def to_reconstruction(frame: Frame, predictor: Predictor, source: str):

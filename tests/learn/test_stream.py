@@ -1,0 +1,118 @@
+"""nlips infer on a stream: a video file, a camera (stand-in), Ctrl-C, and the one-line errors."""
+
+import json
+
+import numpy as np
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.core.imageio import read_png16
+from nlipscalib.learn.infer import Predictor
+
+from .conftest import HEIGHT, HELD_OUT, WIDTH
+
+cv2 = pytest.importorskip("cv2")
+
+FRAMES = ("reference", "press_a", HELD_OUT)
+
+
+def _eight_bit(stored16: np.ndarray) -> np.ndarray:
+    """What an 8-bit video keeps of a 16-bit tri-colour frame: (H, W, 3) uint8, RGB."""
+    return (stored16 >> 8).astype(np.uint8)
+
+
+def _video(path, frames, size=None) -> None:
+    """A lossless (FFV1) video of tri-colour frames ((H, W, 3) uint8 RGB), optionally resized."""
+    h, w = frames[0].shape[:2] if size is None else size[::-1]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"FFV1"), 30, (w, h))
+    assert writer.isOpened()
+    for rgb in frames:
+        bgr = np.ascontiguousarray(rgb[..., ::-1])
+        writer.write(bgr if size is None else cv2.resize(bgr, (w, h)))
+    writer.release()
+
+
+@pytest.fixture(scope="module")
+def video(twin_presses, tmp_path_factory):
+    path = tmp_path_factory.mktemp("stream") / "presses.avi"
+    _video(path, [_eight_bit(read_png16(twin_presses / name / "tricolor.png")) for name in FRAMES])
+    return path
+
+
+def test_video_frames_give_what_the_predictor_gives_on_those_frames(trained, twin_presses, video, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), str(video), "--out", str(out), "--ply"]) == 0
+    printed = capsys.readouterr().out
+    assert "3 frames in" in printed and "frames/s" in printed and "network" in printed
+    predictor = Predictor(trained)
+    for i, name in enumerate(FRAMES):
+        stored = _eight_bit(read_png16(twin_presses / name / "tricolor.png")).astype(np.uint16) << 8
+        expected = predictor.predict_stored(stored)
+        saved = np.load(out / f"frame_{i:06d}.npz")
+        np.testing.assert_allclose(saved["normals"], expected.normals, atol=1e-4)
+        np.testing.assert_allclose(saved["depth"], expected.depth, atol=1e-4)
+        assert (out / f"frame_{i:06d}_normals.png").is_file()
+        assert b"element vertex" in (out / f"frame_{i:06d}.ply").read_bytes()[:300]
+    assert expected.changed.sum() > 0  # the held-out press went through the network
+    report = json.loads((out / "stream.json").read_text())
+    assert report["frames"] == 3 and report["fps"] > 0 and set(report["median_stage_s"]) >= {"network", "integrate"}
+
+
+def test_max_frames_and_every(trained, video, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), str(video), "--max-frames", "2", "--out", str(out), "--every", "2"]) == 0
+    assert "2 frames in" in capsys.readouterr().out
+    assert sorted(p.name for p in out.glob("*.npz")) == ["frame_000000.npz"]
+
+
+def test_ctrl_c_ends_a_camera_stream_cleanly(trained, twin_presses, tmp_path, capsys, monkeypatch):
+    """A camera stand-in whose 4th read is interrupted (Ctrl-C): 3 frames kept, the summary printed, exit 0."""
+    from nlipscalib.device import camera
+
+    frame = read_png16(twin_presses / HELD_OUT / "tricolor.png")
+
+    class InterruptedCamera(camera.FrameSource):
+        reads = 0
+        shape = frame.shape[:2]
+
+        def read(self):
+            self.reads += 1
+            if self.reads == 4:
+                raise KeyboardInterrupt
+            return frame
+
+    monkeypatch.setattr(camera, "open_source", lambda spec, settings=None: InterruptedCamera())
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), "--camera", "0", "--out", str(out)]) == 0
+    assert "3 frames in" in capsys.readouterr().out
+    assert len(list(out.glob("*.npz"))) == 3
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    return err[0]
+
+
+def test_video_of_another_size_is_refused_in_one_line(trained, twin_presses, tmp_path, capsys):
+    small = tmp_path / "small.avi"
+    _video(small, [_eight_bit(read_png16(twin_presses / HELD_OUT / "tricolor.png"))], size=(64, 48))
+    assert main(["infer", str(trained), str(small)]) != 0
+    line = _one_line_error(capsys)
+    assert "small.avi" in line and "64x48" in line and f"{WIDTH}x{HEIGHT}" in line
+
+
+def test_unreadable_video_and_missing_camera_are_named(trained, tmp_path, capsys):
+    bad = tmp_path / "broken.mp4"
+    bad.write_bytes(b"not a video" * 100)
+    assert main(["infer", str(trained), str(bad)]) != 0
+    assert "broken.mp4" in _one_line_error(capsys)
+    assert main(["infer", str(trained), "--camera", "/dev/nlips-no-such-camera"]) != 0
+    assert "camera /dev/nlips-no-such-camera" in _one_line_error(capsys)
+
+
+def test_a_stream_is_not_mixed_with_other_inputs(trained, twin_presses, video, capsys):
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), str(video)]) != 0
+    assert "one at a time" in _one_line_error(capsys)
+    assert main(["infer", str(trained)]) != 0
+    assert "--camera" in _one_line_error(capsys)
