@@ -116,3 +116,32 @@ def test_a_stream_is_not_mixed_with_other_inputs(trained, twin_presses, video, c
     assert "one at a time" in _one_line_error(capsys)
     assert main(["infer", str(trained)]) != 0
     assert "--camera" in _one_line_error(capsys)
+
+
+def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
+    """`nlips infer --emulate`: the emulated camera, opened the way `nlips live` opens it."""
+    from nlipscalib.core import load_press
+    from nlipscalib.learn.dataset import reference_arrays
+    from nlipscalib.learn.model import build_net, save_model
+    from nlipscalib.learn.sensor import sensor_of
+
+    size = ["--emulate", "nlipstac", "--width", "64", "--height", "48"]
+    assert main(["capture", *size, "--presses", "0", "--spp", "1", "--out", str(tmp_path / "s")]) == 0
+    reference = load_press(tmp_path / "s" / "reference")
+    model = save_model(  # an untrained net for this sensor: the stream, not the accuracy, is under test
+        tmp_path / "net.pt",
+        build_net(hidden=(8, 8), dropout=0.0, width=64, height=48),
+        hidden=(8, 8),
+        dropout=0.0,
+        sensor=sensor_of(reference),
+        reference=reference_arrays(reference),
+        info={},
+    )
+    capsys.readouterr()
+    args = ["infer", str(model), *size, "--max-frames", "4", "--frames-per-press", "2", "--out", str(tmp_path / "o")]
+    assert main(args) == 0
+    assert "4 frames in" in capsys.readouterr().out
+    first = np.load(tmp_path / "o" / "frame_000000.npz")  # the undeformed gel: reference normals where unchanged
+    valid = np.isfinite(reference.reference.depth)
+    same = np.all(np.abs(first["normals"] - reference.reference.normals) < 1e-5, axis=-1)
+    assert same[valid].mean() > 0.9
