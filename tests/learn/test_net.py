@@ -57,6 +57,21 @@ def test_onnx_matches_pytorch_within_a_tenth_of_a_degree(calib, trained, tmp_pat
     assert max_angle_deg(OnnxNet(path, model)(x), net_predict(model, s["pixel"], s["rgb"])) < 0.1
 
 
+def test_int8_onnx_stays_close_to_the_float_network(calib, trained, tmp_path):
+    """Dynamic int8 quantisation (first and last layer float): a small, bounded angular cost."""
+    from nlipscalib.learn.model import model_inputs
+    from nlipscalib.learn.onnx_export import OnnxNet, export_onnx
+
+    model = load_model(trained)
+    path = export_onnx(model, tmp_path / "net.onnx")
+    s = calib.load(HELD_OUT)
+    x = model_inputs(s["pixel"], s["rgb"])
+    int8, exact = OnnxNet(path, model, int8=True)(x), net_predict(model, s["pixel"], s["rgb"])
+    angle = np.degrees(np.arccos(np.clip(np.sum(int8 * exact, -1), -1, 1)))
+    assert angle.mean() < 0.5 and np.percentile(angle, 99) < 2.0, (angle.mean(), angle.max())
+    assert OnnxNet(path, model).session.get_inputs()[0].name == "uvrgb"
+
+
 def test_missing_and_corrupt_model_files_are_named(tmp_path, trained, capsys):
     with pytest.raises(CaptureError, match="missing"):
         load_model(tmp_path / "none.pt")
