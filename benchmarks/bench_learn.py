@@ -11,8 +11,11 @@ Usage (datasets rendered with `nlips dataset`, e.g. the reduced specs in benchma
    holds other indenters. Trained on the rest: the paper's NLiPsNet and a 64-64-64 variant on NLiPs
    labels, the paper's net on the twin's true normals (upper bound), and the GelSight-style lookup table.
 3. Contact-sample AAE of each against the NLiPs normals and against the true normals.
-4. Frames/s of the predictor at 640x480 on a rendered press whose contact covers ~10 % of the image
-   (normals + depth on the dome), PyTorch and onnxruntime, and the whole `nlips infer` command.
+4. The same held-out samples through onnxruntime float32 and int8 (``--backend onnx-int8``).
+5. Frames/s of the predictor at 640x480 on a rendered press whose contact covers ~10 % of the image
+   (normals + depth on the dome): per stage (change detection, network, integration), wall and process
+   CPU per frame, onnxruntime float32 and int8, 1 and 2 threads, with the load average; and the whole
+   `nlips infer MODEL VIDEO` command on a lossless video of that press.
 Prints a markdown table and writes OUT/bench_learn.json.
 """
 
@@ -138,7 +141,14 @@ def fps_model(key: str, trained_path: Path, folder: Path, out: Path) -> Path:
     return path
 
 
+BACKENDS = ("onnx", "onnx-int8")
+COMMAND_FRAMES = 100
+"""Frames of the video the whole `nlips infer` command is timed on (start-up and warm-up amortised)."""
+
+
 def frames_per_second(model_paths: dict, folder: Path, out: Path, repeats: int) -> dict:
+    """Per stage (change detection, network, integration) wall and process CPU per frame, for each net,
+    onnxruntime float32 and int8, 1 and 2 threads, with the load average at the time."""
     from nlipscalib.core import load_press
     from nlipscalib.learn.infer import Predictor
     from nlipscalib.learn.onnx_export import export_onnx
@@ -149,49 +159,103 @@ def frames_per_second(model_paths: dict, folder: Path, out: Path, repeats: int) 
     for key, trained in model_paths.items():
         path = fps_model(key, Path(trained), folder, out)
         export_onnx(load_model(path), path.with_suffix(".onnx"))
-        for backend in ("torch", "onnx"):
+        for backend in BACKENDS:
             for threads in (1, 2):
                 pred = Predictor(path, backend=backend, threads=threads)
                 pred.predict(frame)  # warm-up
-                cpu0 = time.process_time()
+                cpu0, wall0 = time.process_time(), time.perf_counter()
                 runs = [pred.predict(frame).seconds for _ in range(repeats)]
                 cpu = (time.process_time() - cpu0) / repeats
+                wall = (time.perf_counter() - wall0) / repeats
                 med = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
-                changed = int(pred.predict(frame).changed.sum())
-                fraction = changed / frame[..., 0].size
+                fraction = int(pred.predict(frame).changed.sum()) / frame[..., 0].size
                 # on a shared machine the wall clock counts other jobs' time; the process CPU time per
-                # frame is what one otherwise idle core (threads=1) would take
+                # frame is what the cores this process used actually spent on it
                 result[f"{key}/{backend}/{threads}t"] = med | {
-                    "wall_fps": 1 / med["total"],
+                    "wall_fps_median": 1 / med["total"],
+                    "wall_fps_mean": 1 / wall,
                     "cpu_s_per_frame": cpu,
                     "changed_fraction": fraction,
+                    "load_average": os.getloadavg(),
                 }
                 print(
-                    f"{key}/{backend}/{threads} threads: wall {1 / med['total']:.1f} frames/s, "
-                    f"CPU {cpu * 1000:.1f} ms/frame, changed {fraction:.3f}",
+                    f"{key}/{backend}/{threads} threads: change {1e3 * med['change']:.1f} ms, network "
+                    f"{1e3 * med['network']:.1f} ms, integrate {1e3 * med['integrate']:.1f} ms; wall "
+                    f"{1 / med['total']:.1f} frames/s (median), CPU {cpu * 1000:.1f} ms/frame, changed {fraction:.3f}, "
+                    f"load {os.getloadavg()[0]:.2f}",
                     flush=True,
                 )
-    # whole command: `nlips infer` on a folder of identical frames, paper and fast net, onnx
-    frames = out / "fps_frames"
-    frames.mkdir(exist_ok=True)
-    for i in range(repeats):
-        dst = frames / f"frame_{i:03d}.png"
-        if not dst.exists():
-            os.link(folder / "press" / "tricolor.png", dst)
+    result |= stream_command(model_paths, folder, out, repeats)
+    return result
+
+
+def stream_command(model_paths: dict, folder: Path, out: Path, repeats: int) -> dict:
+    """The whole `nlips infer MODEL VIDEO` command on a lossless 8-bit video of the 640x480 press, timed
+    from outside (process wall and CPU of the child)."""
+    import resource
+
+    import cv2
+
+    from nlipscalib.core.imageio import read_png16
+
+    video = out / "fps640.avi"
+    if not video.is_file():
+        rgb8 = (read_png16(folder / "press" / "tricolor.png") >> 8).astype(np.uint8)
+        writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30, rgb8.shape[1::-1])
+        for _ in range(COMMAND_FRAMES):
+            writer.write(np.ascontiguousarray(rgb8[..., ::-1]))
+        writer.release()
+    result = {}
     for key in model_paths:
-        cmd = [
-            sys.executable,
-            "-c",
-            "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))",
-            "infer",
-            str(out / f"{key}_640.pt"),
-            str(frames),
-            "--backend",
-            "onnx",
-        ]
-        t0 = time.perf_counter()
-        line = subprocess.run(cmd, capture_output=True, text=True, env=os.environ | {"PYTHONPATH": str(ROOT)}).stdout
-        result[f"{key}/command"] = {"wall_s": time.perf_counter() - t0, "frames": repeats, "output": line.strip()}
+        for backend in BACKENDS:
+            cmd = [
+                sys.executable,
+                "-c",
+                "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))",
+                "infer",
+                str(out / f"{key}_640.pt"),
+                str(video),
+                "--backend",
+                backend,
+                "--threads",
+                "2",
+            ]
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            done = subprocess.run(cmd, capture_output=True, text=True, env=os.environ | {"PYTHONPATH": str(ROOT)})
+            wall = time.perf_counter() - t0
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+            result[f"{key}/{backend}/command"] = {
+                "wall_s": wall,
+                "cpu_s": cpu,
+                "frames": COMMAND_FRAMES,
+                "output": done.stdout.strip(),
+                "load_average": os.getloadavg(),
+            }
+            print(f"{key}/{backend} command: {wall:.1f} s wall, {cpu:.1f} s CPU; {done.stdout.strip()}", flush=True)
+    return result
+
+
+def int8_accuracy(model_paths: dict, args) -> dict:
+    """AAE of each net through onnxruntime float32 and int8 on the held-out presses (same samples as `accuracy`)."""
+    from nlipscalib.learn.model import model_inputs
+    from nlipscalib.learn.onnx_export import OnnxNet, export_onnx
+
+    train_data = CalibrationDataset(Path(args.train) / "calibration")
+    unseen_data = CalibrationDataset(Path(args.unseen) / "calibration")
+    test_seen = train_data.names[-args.test_count :]
+    splits = {"seen": train_data.arrays(test_seen), "unseen": unseen_data.arrays(unseen_data.names)}
+    result = {}
+    for key, path in model_paths.items():
+        model = load_model(path)
+        onnx_path = export_onnx(model, Path(args.out) / f"{key}_eval.onnx")
+        for backend, int8 in (("onnx", False), ("onnx-int8", True)):
+            net = OnnxNet(onnx_path, int8=int8)
+            for split, s in splits.items():
+                scores = sample_scores(net(model_inputs(s["pixel"], s["rgb"])), s)
+                result[f"{key}/{backend}/{split}"] = scores
+                print(f"{key} {backend} {split}: {scores}", flush=True)
     return result
 
 
@@ -228,6 +292,13 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--no-solve", action="store_true", help="presses already solved: only rebuild the samples")
     ap.add_argument("--skip-accuracy", action="store_true", help="frames/s only (models from a previous run)")
+    ap.add_argument(
+        "--fps-model",
+        action="append",
+        default=[],
+        metavar="KEY=MODEL",
+        help="a trained model (of --train's sensor) timed and scored too, or instead of the run's model KEY",
+    )
     args = ap.parse_args()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -240,6 +311,8 @@ def main() -> None:
         print(table(report["accuracy"]), flush=True)
     folder = fps_sensor(out)
     models = {k: v for k, v in report["accuracy"]["models"].items() if k in ("paper", "fast")}
+    models |= dict(item.split("=", 1) for item in args.fps_model)
+    report["int8_accuracy"] = int8_accuracy(models, args)
     report["fps"] = frames_per_second(models, folder, out, args.repeats)
     report["uptime_after"] = os.getloadavg()
     (out / "bench_learn.json").write_text(json.dumps(report, indent=2, default=float))
