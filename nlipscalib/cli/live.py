@@ -17,7 +17,12 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("live", help="live normal and depth maps from tri-colour frames (NLiPsNet)")
     p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
     p.add_argument("--predictor", help="other predictor, module:function (see `nlips live` in the README)")
-    p.add_argument("--backend", default="torch", choices=("torch", "onnx"), help="network runtime (default torch)")
+    p.add_argument(
+        "--backend",
+        default="auto",
+        choices=("auto", "torch", "onnx", "onnx-int8"),
+        help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch)",
+    )
     p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
     add_source_arguments(p, camera_default="0")
     p.add_argument("--frames", type=int, help="stop after this many frames (default: until the input ends or q)")
