@@ -27,7 +27,7 @@ def register(subparsers) -> None:
         help="NLiPsNet normals + depth (+ PLY) from tri-colour frames: presses, PNG frames, a video or a camera",
         description="Run a trained NLiPsNet on press folders (writes PRESS/nlipsnet/ in the reconstruction format), "
         "on 16-bit tri-colour PNG frames (a file, several, or a folder of frames), or on a stream: a video file, "
-        "an image-sequence pattern (frames/img_%%04d.png), a camera (--camera 0) or the emulated sensor "
+        "an image-sequence pattern (frames/img_%04d.png), a camera (--camera 0) or the emulated sensor "
         "(--emulate SCENE). Only pixels that differ from the calibration's reference frame go through the "
         "network; depth integrates the normals on the dome. Prints frames per second and where the time goes.",
     )
@@ -35,7 +35,8 @@ def register(subparsers) -> None:
     p.add_argument(
         "inputs",
         nargs="*",
-        help="press folder(s), a folder of presses, PNG file(s), a folder of PNGs, or one video file",
+        help="press folder(s), a folder of presses, PNG file(s), a folder of PNGs, or one video file or "
+        "image-sequence pattern",
     )
     add_source_arguments(p, camera_default=None)
     p.add_argument(
@@ -125,7 +126,7 @@ def _run_stream(args, what: str) -> int:
             raise CaptureError(
                 f"{name}: frames are {w}x{h}, the model {args.model} was calibrated for {mw}x{mh} images"
             )
-        if video:
+        if not args.emulate and not getattr(source, "live", False):  # a video, sequence or folder: it ends
             source = _EndsCleanly(source)
         stages = _StageTimes()
         sinks = []
