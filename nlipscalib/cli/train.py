@@ -14,6 +14,12 @@ def register(subparsers) -> None:
     p.add_argument("dataset", help="calibration dataset folder (from `nlips calibrate`)")
     p.add_argument("--out", required=True, help="model file to write (.pt)")
     p.add_argument("--hidden", default="256,256,128", help="hidden widths (paper 256,256,128; fast 64,64,64)")
+    p.add_argument(
+        "--dropout",
+        type=float,
+        default=0.2,
+        help="dropout after each hidden layer (paper 0.2; 0 for the small real-time variants, which it underfits)",
+    )
     p.add_argument("--labels", choices=("nlips", "true"), default="nlips", help="targets: NLiPs or true normals")
     p.add_argument("--epochs", type=int, default=200, help="maximum epochs")
     p.add_argument("--patience", type=int, default=15, help="early-stopping patience, epochs")
@@ -46,6 +52,7 @@ def run(args) -> int:
         raise ConfigError(f"--out {out}: the model file must end in .pt")
     cfg = TrainConfig(
         hidden=hidden,
+        dropout=args.dropout,
         labels=args.labels,
         max_epochs=args.epochs,
         patience=args.patience,

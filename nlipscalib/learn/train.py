@@ -63,6 +63,8 @@ class TrainConfig:
             raise ConfigError(f"labels must be 'nlips' or 'true', got {self.labels!r}")
         if not self.hidden or any(int(h) < 1 for h in self.hidden):
             raise ConfigError(f"hidden must list positive layer widths, got {self.hidden}")
+        if not 0 <= self.dropout < 1:
+            raise ConfigError(f"dropout must be in [0, 1), got {self.dropout}")
         if not 0 < self.val_fraction < 1:
             raise ConfigError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
 

@@ -117,3 +117,18 @@ def test_training_resumes_from_its_checkpoint(calib, tmp_path):
     assert [h["val_aae_deg"] for h in again.history] == [h["val_aae_deg"] for h in first.history]
     longer = TrainConfig(hidden=(8, 8), max_epochs=3, patience=5)  # other options: trained afresh
     assert len(train(calib, longer, tmp_path / "m.pt", progress=False).history) == 3
+
+
+def test_cli_trains_a_small_variant_without_dropout(calib, tmp_path, capsys):
+    import torch
+
+    out = tmp_path / "small.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--hidden", "16,16", "--dropout", "0", "--epochs", "2"]
+    assert main([*args, "--exclude", HELD_OUT, "--no-progress"]) == 0
+    model = load_model(out)
+    assert model.hidden == (16, 16) and out.with_suffix(".onnx").is_file()
+    assert not any(isinstance(m, torch.nn.Dropout) and m.p > 0 for m in model.net.mlp)
+    capsys.readouterr()
+    assert main(["train", str(calib.folder), "--out", str(tmp_path / "x.pt"), "--dropout", "1.5"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "dropout" in err[0]
