@@ -2,7 +2,8 @@
 
 Architecture (Quéau-style NLiPsNet of the NLiPsCalib paper): 5 inputs, hidden layers 256-256-128, each
 Linear -> BatchNorm -> ReLU -> Dropout(0.2), a Linear to 3 outputs normalised to unit length.
-Smaller variants change ``hidden`` only.
+Smaller variants change ``hidden`` (and train better without dropout, which underfits them: measured
+in benchmarks/RESULTS.md).
 
 Input normalisation (inside the network, so PyTorch and ONNX take the same raw inputs):
 
