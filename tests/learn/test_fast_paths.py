@@ -1,0 +1,108 @@
+"""The speed paths give what the plain formulation gives: folded layers, threaded slices, OpenCV change rule."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.learn import change
+from nlipscalib.learn.model import build_net, fused_net
+
+
+def _trained_like_net(hidden=(32, 16)):
+    """A net with non-trivial BatchNorm statistics and input normalisation (as after training)."""
+    import torch
+
+    torch.manual_seed(0)
+    net = build_net(hidden=hidden, dropout=0.2, width=64, height=48)
+    with torch.no_grad():
+        for m in net.mlp:
+            if isinstance(m, torch.nn.BatchNorm1d):
+                m.running_mean.uniform_(-1, 1)
+                m.running_var.uniform_(0.5, 2)
+                m.weight.uniform_(0.5, 1.5)
+                m.bias.uniform_(-0.5, 0.5)
+        net.in_offset[2:] = torch.tensor([0.2, 0.3, 0.1])
+        net.in_scale[2:] = torch.tensor([0.05, 0.08, 0.03])
+    return net.eval()
+
+
+def _inputs(n, seed=1):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(0, 64, n), rng.uniform(0, 48, n), rng.uniform(0, 0.5, (n, 3))]).astype(
+        np.float32
+    )
+
+
+def test_folded_layers_give_the_same_normals():
+    import torch
+
+    net = _trained_like_net()
+    x = torch.from_numpy(_inputs(2000))
+    with torch.inference_mode():
+        a, b = net(x).numpy(), fused_net(net)(x).numpy()
+    assert np.abs(a - b).max() < 1e-5
+
+
+def test_threaded_slices_equal_one_call(tmp_path):
+    from nlipscalib.learn.model import load_model, save_model
+    from nlipscalib.learn.onnx_export import OnnxNet, export_onnx
+
+    pytest.importorskip("onnxruntime")
+    net = _trained_like_net()
+    path = save_model(
+        tmp_path / "m.pt",
+        net,
+        hidden=(32, 16),
+        dropout=0.2,
+        sensor={"camera": {"width": 64, "height": 48}},
+        reference={},
+        info={},
+    )
+    onnx_path = export_onnx(load_model(path), tmp_path / "m.onnx")
+    x = _inputs(3 * OnnxNet.MIN_SLICE + 123)
+    one, three = OnnxNet(onnx_path, threads=1)(x), OnnxNet(onnx_path, threads=3)(x)
+    assert three.shape == (len(x), 3)
+    np.testing.assert_array_equal(one, three)  # same rows, same order, same arithmetic
+
+
+def _scipy_rule(frame, reference, valid):
+    """The change rule written with scipy.ndimage, as it was first defined (sums of 2x2 blocks)."""
+    from scipy import ndimage
+
+    h2, w2 = valid.shape[0] // 2, valid.shape[1] // 2
+
+    def blocks(a):
+        a = a[: 2 * h2, : 2 * w2]
+        return a[0::2, 0::2] + a[0::2, 1::2] + a[1::2, 0::2] + a[1::2, 1::2]
+
+    ref_b = blocks(np.where(valid[..., None], reference, 0).astype(np.float32))
+    valid_b = blocks(valid.astype(np.float32)) == 4
+    signed = blocks(frame.astype(np.float32)) - ref_b
+    signed[~valid_b] = 0
+    smooth = ndimage.uniform_filter(signed, size=(change.SMOOTH_BLOCKS, change.SMOOTH_BLOCKS, 1), mode="nearest")
+    diff = np.abs(smooth).sum(-1)
+    sample = diff.ravel()[np.flatnonzero(valid_b)[:: change.NOISE_STRIDE]]
+    median = float(np.median(sample))
+    sigma = 1.4826 * float(np.median(np.abs(sample - median))) + 1e-6
+    hit = valid_b & (diff > median + change.NOISE_SIGMAS * sigma) & (diff > change.MIN_REL_CHANGE * ref_b.sum(-1))
+    hit = ndimage.binary_dilation(ndimage.binary_opening(hit), iterations=change.DILATE_BLOCKS)
+    out = np.zeros(valid.shape, bool)
+    out[: 2 * h2, : 2 * w2] = hit.repeat(2, 0).repeat(2, 1)
+    return out & valid
+
+
+def test_opencv_change_rule_matches_the_scipy_definition():
+    """A noisy gel with a dent and a change touching the image border (where border handling matters)."""
+    rng = np.random.default_rng(3)
+    H, W = 60, 80
+    yy, xx = np.mgrid[0:H, 0:W]
+    valid = (yy - 30) ** 2 / 28**2 + (xx - 40) ** 2 / 42**2 < 1.2
+    valid[:, :3] = True  # gel reaching the left border
+    reference = (0.3 + 0.1 * np.sin(xx / 9)[..., None] * np.array([1, 0.5, 0.2])).astype(np.float32)
+    frame = reference + rng.normal(0, 0.004, reference.shape).astype(np.float32)
+    frame[(yy - 25) ** 2 + (xx - 45) ** 2 < 64] *= 1.2  # a dent
+    frame[20:32, 0:6] *= 0.8  # a change at the border
+    got = change.ChangeDetector(reference, valid)(frame)
+    want = _scipy_rule(frame, reference, valid)
+    assert want.sum() > 100
+    assert want[:, :4].any()  # the border change is found
+    np.testing.assert_array_equal(got, want)
