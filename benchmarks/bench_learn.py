@@ -8,8 +8,9 @@ Usage (datasets rendered with `nlips dataset`, e.g. the reduced specs in benchma
 
 1. `nlips calibrate` both folders (NLiPs solve + samples), timed.
 2. The last ``--test-count`` presses of --train are held out (seen indenters, new places); --unseen
-   holds other indenters. Trained on the rest: the paper's NLiPsNet and a 64-64-64 variant on NLiPs
-   labels, the paper's net on the twin's true normals (upper bound), and the GelSight-style lookup table.
+   holds other indenters. Trained on the rest (``VARIANTS``): the paper's NLiPsNet with and without
+   dropout, 64-64-64 and 32-32-32 variants without dropout on NLiPs labels, the paper's net on the
+   twin's true normals (upper bound), and the GelSight-style lookup table.
 3. Contact-sample AAE of each against the NLiPs normals and against the true normals.
 4. The same held-out samples through onnxruntime float32 and int8 (``--backend onnx-int8``).
 5. Frames/s of the predictor at 640x480 on a rendered press whose contact covers ~10 % of the image
@@ -45,6 +46,16 @@ from nlipscalib.report.learn import training_curve  # noqa: E402
 
 PAPER = (256, 256, 128)
 FAST = (64, 64, 64)
+TINY = (32, 32, 32)
+VARIANTS = (
+    # key, hidden, dropout, labels: the paper's net as the paper trains it, the same without dropout (which
+    # underfits), the real-time variants without dropout, and the true-normal upper bound
+    ("paper", PAPER, 0.2, "nlips"),
+    ("paper_d0", PAPER, 0.0, "nlips"),
+    ("fast", FAST, 0.0, "nlips"),
+    ("tiny", TINY, 0.0, "nlips"),
+    ("upper", PAPER, 0.2, "true"),
+)
 
 
 def calibrate(folder: Path, solve: bool = True) -> tuple[CalibrationDataset, float]:
@@ -69,14 +80,12 @@ def accuracy(args) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     models, times = {}, {}
-    for key, hidden, labels in (
-        ("paper", (256, 256, 128), "nlips"),
-        ("fast", FAST, "nlips"),
-        ("upper", (256, 256, 128), "true"),
-    ):
+    for key, hidden, dropout, labels in VARIANTS:
         t0 = time.perf_counter()
         cfg = TrainConfig(
             hidden=hidden,
+            dropout=dropout,
+            seed=args.seed,
             labels=labels,
             max_epochs=args.epochs,
             patience=args.patience,
@@ -261,8 +270,10 @@ def int8_accuracy(model_paths: dict, args) -> dict:
 
 def table(acc: dict) -> str:
     names = {
-        "paper": "NLiPsNet 256-256-128 (NLiPs labels)",
-        "fast": "NLiPsNet 64-64-64 (NLiPs labels)",
+        "paper": "NLiPsNet 256-256-128 (NLiPs labels, dropout 0.2)",
+        "paper_d0": "NLiPsNet 256-256-128 (NLiPs labels, no dropout)",
+        "fast": "NLiPsNet 64-64-64 (NLiPs labels, no dropout)",
+        "tiny": "NLiPsNet 32-32-32 (NLiPs labels, no dropout)",
         "upper": "NLiPsNet 256-256-128 (true normals, upper bound)",
         "lut": "lookup table (Yuan 2017)",
         "nlips": "NLiPs itself (the labels)",
@@ -272,6 +283,8 @@ def table(acc: dict) -> str:
         "|---|---|---|---|---|",
     ]
     for k, label in names.items():
+        if k not in acc["scores"]["seen"]:  # a run before this variant existed
+            continue
         s, u = acc["scores"]["seen"][k], acc["scores"]["unseen"][k]
         lines.append(
             f"| {label} | {s['aae_vs_nlips_deg']:.2f} | {s['aae_vs_true_deg']:.2f} | "
@@ -288,6 +301,7 @@ def main() -> None:
     ap.add_argument("--test-count", type=int, default=6)
     ap.add_argument("--epochs", type=int, default=120)
     ap.add_argument("--patience", type=int, default=12)
+    ap.add_argument("--seed", type=int, default=0, help="training seed (also picks the validation presses)")
     ap.add_argument("--max-minutes", type=float, default=0.0, help="training time limit per model")
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument("--no-solve", action="store_true", help="presses already solved: only rebuild the samples")
@@ -310,7 +324,7 @@ def main() -> None:
     if report["accuracy"].get("scores"):
         print(table(report["accuracy"]), flush=True)
     folder = fps_sensor(out)
-    models = {k: v for k, v in report["accuracy"]["models"].items() if k in ("paper", "fast")}
+    models = {k: v for k, v in report["accuracy"]["models"].items() if k in ("paper", "fast", "tiny")}
     models |= dict(item.split("=", 1) for item in args.fps_model)
     report["int8_accuracy"] = int8_accuracy(models, args)
     report["fps"] = frames_per_second(models, folder, out, args.repeats)
