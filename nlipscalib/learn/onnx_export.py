@@ -22,6 +22,8 @@ import numpy as np
 from ..errors import CaptureError, require
 
 OPSET = 17
+IR_VERSION = 8
+"""ONNX IR version of the export: the oldest that carries opset 17 (onnxruntime >= 1.13 reads it)."""
 
 
 def file_digest(path) -> str:
@@ -68,6 +70,7 @@ def export_onnx(model, out) -> Path:
         weights,
     )
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="nlipscalib")
+    proto.ir_version = IR_VERSION  # the installed onnx would write its newest, which older onnxruntimes refuse
     onnx.checker.check_model(proto)
     meta = {"sensor": json.dumps(model.sensor), "model_digest": file_digest(model.path), "hidden": str(model.hidden)}
     for key, value in meta.items():
