@@ -4,7 +4,7 @@ Inputs are press folders (PRESS/nlipsnet/ in the reconstruction format), tri-col
 of them, or a stream: a video file, an image-sequence pattern, a live camera (``--camera``) or the
 emulated sensor (``--emulate``). Streams are opened and run exactly as ``nlips live`` runs them
 (cli/live.py's source flags, device/live.py's loop): the running frame rate goes to stderr once per
-second, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
+second on a terminal, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
 frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud.
 """
 
@@ -147,7 +147,8 @@ def _run_stream(args, what: str) -> int:
             sinks,
             max_frames=args.max_frames,
             before_frame=before_frame,
-            report=lambda line: print(line, file=sys.stderr),
+            # the running frame rate once per second on a terminal; logs and pipes get the summary only
+            report=(lambda line: print(line, file=sys.stderr)) if sys.stderr.isatty() else None,
         )
         cpu = time.process_time() - cpu0
     print(stats.summary())
