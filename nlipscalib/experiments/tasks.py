@@ -22,6 +22,8 @@ import numpy as np
 from ..core.atomic import write_bytes, write_json
 
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
+SOLVES_DIR = "solves"
+"""PRESS/solves/<variant hash>/: the pipeline's reconstruction of each solve variant of a press."""
 CLAIM_STALE_S = 60.0
 """A task claimed by a process that stopped its heartbeat this long ago (seconds) is taken over."""
 
@@ -191,14 +193,13 @@ def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
         adapters.render(task.scene, task.press, folder, threads)
     render_s = time.perf_counter() - t
     press = adapters.load(folder)
-    reference = adapters.load(reference_folder(out, task.scene))
-    albedo = tuple(task.scene["coating"]["albedo"])
+    reference = reference_folder(out, task.scene)
     solved: dict[str, dict] = {}
     evaluations = []
     for ev in task.evaluations:
         key = digest(ev["solve"])
         if key not in solved:
-            solved[key] = _solve_one(adapters, out, task, press, reference, ev["solve"], albedo, key)
+            solved[key] = _solve_one(adapters, out, task, press, reference, ev["solve"], key)
         evaluations.append({"labels": ev["labels"], "solve": ev["solve"], **solved[key]["result"]})
     if not keep:
         shutil.rmtree(folder, ignore_errors=True)
@@ -206,18 +207,20 @@ def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
     return {"press": task.press, "scene_key": scene_key(task.scene), "evaluations": evaluations, "timing": timing}
 
 
-def _solve_one(adapters, out, task, press, reference, spec: dict, albedo, key: str) -> dict:
+def _solve_one(adapters, out, task, press, reference: Path, spec: dict, key: str) -> dict:
+    """Solve one variant into PRESS/solves/<key> (pipeline) and score it; a failure is a result too."""
     t = time.perf_counter()
     try:
         leds = _solver_leds(adapters, out, task, press, spec)
         result = adapters.solve(
             press,
+            out=press.folder / SOLVES_DIR / key,
             leds=leds,
             interreflection=spec["interreflection"],
             reference=reference,
             roi=spec["roi"],
             options=adapters.solver_options(spec["options"]),
-            albedo=None,  # the solver fits the coating's reflectance; ``albedo`` is the truth, for the record
+            albedo=None,  # the solver fits the coating's reflectance (the scene's albedo is the truth)
         )
     except Exception as exc:  # one failed variant (say, no contact found by --roi auto) is a result too
         return {"result": {"error": f"{type(exc).__name__}: {exc}"}, "seconds": round(time.perf_counter() - t, 3)}
@@ -238,7 +241,7 @@ def _solver_leds(adapters, out, task, press, spec: dict):
         "seed": spec["error_seed"],
     }
     if spec["leds"] == "true":
-        return press.leds
+        return None  # the capture's own LEDs (the twin's true ones)
     if spec["leds"] == "design":
         return adapters.perturb_leds(press.leds, **_error_args(err))
     from ..core.leds import Led
