@@ -206,3 +206,49 @@ def error_crop(result, ground_truth) -> dict[str, np.ndarray]:
     gt = np.where(shown[..., None], ground_truth.normals, np.nan)[win]
     err = angular_error_map(est, gt)
     return {"true": gt.astype(np.float32), "estimate": est.astype(np.float32), "error": err.astype(np.float32)}
+
+
+def calibration_samples(press, rec, reference: Path, sampling: dict) -> dict[str, np.ndarray]:
+    """NLiPsNet calibration samples of one solved press, as ``nlips calibrate`` makes them.
+
+    Parameters
+    ----------
+    press : Press ; rec : its NLiPs Reconstruction (full image) ; reference : press folder of the
+    undeformed dome ; sampling : learn.dataset.SamplingConfig mapping
+
+    Returns
+    -------
+    dict of the shard arrays (learn.dataset: pixel, rgb, normal, true_normal, contact, source)
+    """
+    from ..learn.dataset import SamplingConfig, press_samples, reference_arrays
+
+    cfg = from_mapping(SamplingConfig, dict(sampling), "experiment sampling")
+    return press_samples(press, rec, reference_arrays(load(reference)), cfg)
+
+
+def write_samples(path: Path, arrays: dict) -> None:
+    """Write a calibration shard atomically (learn.dataset's writer)."""
+    from ..learn.dataset import write_shard
+
+    write_shard(Path(path), arrays)
+
+
+def figure_view(press, margin: int = ROI_MARGIN_PX) -> dict[str, np.ndarray]:
+    """A crop around the true contact for the NLiPsNet figure (objects / true / predicted / error).
+
+    Returns
+    -------
+    dict: "rgb" (h, w, 3) float32 linear tri-colour image; "true" (h, w, 3) float32 true normals (NaN
+    off the gel); "origin" (2,) int (x0, y0) of the crop in the image; {} when there is no contact
+    """
+    if press.ground_truth is None or not (press.ground_truth.contact & press.ground_truth.valid).any():
+        return {}
+    x0, y0, w, h = truth_roi(press, margin)
+    win = (slice(y0, y0 + h), slice(x0, x0 + w))
+    gt = press.ground_truth
+    true = np.where(gt.valid[win][..., None], gt.normals[win], np.nan)
+    return {
+        "rgb": press.linear(press.tricolor)[win].astype(np.float32),
+        "true": true.astype(np.float32),
+        "origin": np.array([x0, y0], np.int64),
+    }

@@ -123,7 +123,7 @@ class Studies(Experiment):
             add("albedo", a, twin.scene_dict(coating={"albedo": [a, a, a]}), solve_dict(leds="true", **base_solve))
         return out
 
-    def tables(self, cfg, rows):
+    def tables(self, cfg, rows, learned=None):
         tables = []
         for study in XLABELS:
             mine = [r for r in rows if r["study"] == study]
@@ -147,7 +147,7 @@ class Studies(Experiment):
             getattr(cfg, {"led_position": "led_position_mm", "led_direction": "led_direction_deg"}.get(study, study))
         )
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path):
+    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
         figs = []
         for t in tables:
             if t.name.startswith("led_"):

@@ -82,6 +82,9 @@ class Task:
     """Press tasks: ({"labels": {...}, "solve": SolveSpec.to_dict()}, ...)."""
     led_error: dict | None = None
     """Calibration tasks: the design error the calibration starts from."""
+    samples: dict | None = None
+    """Press tasks of NLiPsNet experiments: the SamplingConfig mapping of the calibration samples written
+    from the first solve (the NLiPs labels); None: no samples."""
 
     @property
     def stage(self) -> int:
@@ -89,7 +92,10 @@ class Task:
 
     @property
     def hash(self) -> str:
-        return digest(dataclasses.asdict(self))
+        d = dataclasses.asdict(self)
+        if d["samples"] is None:  # tasks without samples keep the hashes they had before the field existed
+            del d["samples"]
+        return digest(d)
 
 
 def scene_key(scene: dict) -> str:
@@ -201,10 +207,44 @@ def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
         if key not in solved:
             solved[key] = _solve_one(adapters, out, task, press, reference, ev["solve"], key)
         evaluations.append({"labels": ev["labels"], "solve": ev["solve"], **solved[key]["result"]})
+    samples = None
+    if task.samples is not None:
+        first = solved[digest(task.evaluations[0]["solve"])]
+        samples = _write_samples(adapters, out, task, press, reference, first.get("reconstruction"))
     if not keep:
         shutil.rmtree(folder, ignore_errors=True)
     timing = {"render_seconds": round(render_s, 3), "solve_seconds": {k: v["seconds"] for k, v in solved.items()}}
-    return {"press": task.press, "scene_key": scene_key(task.scene), "evaluations": evaluations, "timing": timing}
+    body = {"press": task.press, "scene_key": scene_key(task.scene), "evaluations": evaluations, "timing": timing}
+    return body | ({"samples": samples} if samples is not None else {})
+
+
+def samples_path(out: Path, task_id: str) -> Path:
+    """The NLiPsNet calibration samples of a press task (a learn.dataset shard)."""
+    return Path(out) / "calibration" / "samples" / f"{task_id}.npz"
+
+
+def view_path(out: Path, task_id: str) -> Path:
+    """Crop of a press for the NLiPsNet figure: linear tri-colour image, true normals, pixel offset."""
+    return Path(out) / "views" / f"{task_id}.npz"
+
+
+def _write_samples(adapters, out: Path, task: Task, press, reference: Path, rec) -> dict:
+    """Write the press's calibration samples (from the NLiPs labels ``rec``) and its figure crop."""
+    if rec is None:  # the label solve failed: this press gives no samples (like ``nlips calibrate``)
+        return {"file": None, "error": "the NLiPs label solve failed"}
+    arrays = adapters.calibration_samples(press, rec, reference, task.samples)
+    path = samples_path(out, task.id)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    adapters.write_samples(path, arrays)
+    view = adapters.figure_view(press)
+    if view:
+        _save_maps(view_path(out, task.id), view)
+    return {
+        "file": str(path.relative_to(out)),
+        "count": int(len(arrays["rgb"])),
+        "contact": int(arrays["contact"].sum()),
+        "has_truth": bool(press.ground_truth is not None),
+    }
 
 
 def _solve_one(adapters, out, task, press, reference: Path, spec: dict, key: str) -> dict:
@@ -231,6 +271,7 @@ def _solve_one(adapters, out, task, press, reference: Path, spec: dict, key: str
     return {
         "result": {"metrics": metrics, "map": f"maps/{task.id}-{key}.npz" if crop else None},
         "seconds": round(time.perf_counter() - t, 3),
+        "reconstruction": result,  # kept in memory for the calibration samples, never written to JSON
     }
 
 
