@@ -17,6 +17,7 @@ EXPERIMENTS = {
     "ablation": "ablation:Ablation",
     "q3": "q3:Q3",
     "studies": "studies:Studies",
+    "presses": "presses:PressCount",
 }
 """Runnable experiments: name -> module:class."""
 UNAVAILABLE: dict[str, str] = {}

@@ -5,7 +5,8 @@
   undeformed reference, and also for the dent's own bounce
 - LED position / direction error: how precise must the CAD be, and how much does self-calibration recover
 - press depth and coating albedo
-The number of calibration presses needs NLiPsNet (nlipscalib.learn), not on this branch: not run.
+The number of calibration presses (how many are enough?) trains NLiPsNet on Q2's presses: its own
+experiment, ``nlips experiment presses``.
 """
 
 from __future__ import annotations
@@ -90,10 +91,6 @@ class Studies(Experiment):
     }
     paper = {"note": "the paper has no ground-truth normals for these factors"}
     check_table = "noise"
-    not_done = (
-        "Number of calibration presses (how many are enough?): needs NLiPsNet (nlipscalib.learn), which has not "
-        "landed on this branch.",
-    )
 
     def evaluations(self, cfg: StudiesConfig):
         twin, presses = cfg.twin, cfg.presses.presses()
