@@ -118,6 +118,12 @@ def fit_lookup_table(data, names: list[str]):
     return LookupTable.fit(s["pixel"], s["rgb"], s["normal"], data.reference()["tricolor"])
 
 
+def undeformed_predictor(data):
+    """(pixel, rgb) -> the undeformed dome's normals there: what "no calibration at all" predicts."""
+    normals = data.reference()["normals"]
+    return lambda pixel, rgb: normals[pixel[:, 1], pixel[:, 0]]
+
+
 def score(data, predictors: dict, test_sets: dict[str, list[str]]) -> list[dict]:
     """AAE of every predictor on the contact samples of every test set, against NLiPs labels and true normals.
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from ..errors import ConfigError
 from ..report import experiments as fig
 from .framework import Table
 from .q2 import MEDIUM, PAPER, Q2, QUICK, Q2Config
@@ -25,6 +26,10 @@ class PressCountConfig(Q2Config):
 
     counts: tuple[int, ...] = (5, 10, 20, 35, 50)
     """Numbers of calibration presses (the first k of ``train``; at least 2: one is held for validation)."""
+
+    def __post_init__(self):
+        if not self.counts or any(int(k) < 2 for k in self.counts):
+            raise ConfigError(f"counts must list numbers of presses >= 2 (one validates), got {list(self.counts)}")
 
 
 def _with_counts(base: Q2Config, counts: tuple[int, ...]) -> PressCountConfig:
@@ -52,7 +57,7 @@ class PressCount(Q2):
         data, stamps = learning.assemble_dataset(out, tasks, self.samples(cfg))
         names = self.names_by_role(tasks, stamps)
         tests = {"seen": names["seen"], "unseen": names["unseen"]}
-        counts = sorted({min(int(k), len(names["train"])) for k in cfg.counts if int(k) >= 2})
+        counts = sorted({min(int(k), len(names["train"])) for k in cfg.counts})
         rows, models = [], {}
         for k in counts:
             subset = names["train"][:k]

@@ -38,6 +38,7 @@ METHODS = {
     "nlipsnet": "NLiPsNet (NLiPs labels)",
     "upper": "NLiPsNet (true normals: upper bound)",
     "lut": "lookup table (Yuan 2017)",
+    "none": "undeformed dome (no calibration)",
 }
 SCORE_COLUMNS = (
     ("presses", "presses", 0),
@@ -143,6 +144,7 @@ class Q2(Experiment):
         predictors = {METHODS[k]: learning.net_predictor(out, m) for k, m in models.items()}
         lut = learning.fit_lookup_table(data, names["train"])
         predictors[METHODS["lut"]] = lut.predict
+        predictors[METHODS["none"]] = learning.undeformed_predictor(data)
         return {
             "presses": {k: len(v) for k, v in names.items()},
             "names": names,
