@@ -91,7 +91,7 @@ class PressSet:
     """Number of presses."""
     polar_max_deg: float = 25.0
     """Largest polar angle of a press location, degrees."""
-    depth_mm: tuple[float, float] = (0.6, 1.4)
+    depth_mm: tuple[float, float] = (0.8, 1.6)
     """Range of indentation depths, mm."""
     seed: int = 0
     """Seed of the places, spins and depths."""
