@@ -66,6 +66,8 @@ def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
         parts += [table(t), ""]
     for caption, path in figures:
         parts += [f"![{caption}]({path})", "", f"*{caption}*", ""]
+    if doc.get("learned", {}).get("error"):
+        parts += ["## Not computed", "", doc["learned"]["error"], ""]
     if doc["not_done"]:
         parts += ["## Not done", ""] + [f"- {line}" for line in doc["not_done"]] + [""]
     if tasks["failed"]:

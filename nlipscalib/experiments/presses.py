@@ -56,6 +56,8 @@ class PressCount(Q2):
 
         data, stamps = learning.assemble_dataset(out, tasks, self.samples(cfg))
         names = self.names_by_role(tasks, stamps)
+        if len(names["train"]) < 2:
+            return {"error": f"NLiPsNet not trained: {len(names['train'])} calibration press(es) with samples, need 2"}
         tests = {"seen": names["seen"], "unseen": names["unseen"]}
         counts = sorted({min(int(k), len(names["train"])) for k in cfg.counts})
         rows, models = [], {}
@@ -73,7 +75,7 @@ class PressCount(Q2):
         return {"presses": {r: len(v) for r, v in names.items()}, "counts": counts, "scores": rows, "models": models}
 
     def tables(self, cfg, rows, learned=None):
-        if not learned:
+        if not learned or "error" in learned:
             return []
         scores = sorted(
             learned["scores"],
@@ -112,7 +114,7 @@ class PressCount(Q2):
         return [counts, training]
 
     def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
-        if not learned:
+        if not learned or "error" in learned:
             return []
         series = {}
         for method in METHODS:

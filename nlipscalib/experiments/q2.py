@@ -136,6 +136,8 @@ class Q2(Experiment):
 
         data, stamps = learning.assemble_dataset(out, tasks, self.samples(cfg))
         names = self.names_by_role(tasks, stamps)
+        if len(names["train"]) < 2:  # e.g. most label solves failed: report it, do not stop the report
+            return {"error": f"NLiPsNet not trained: {len(names['train'])} calibration press(es) with samples, need 2"}
         tests = {"seen": names["seen"], "unseen": names["unseen"]}
         models = {"nlipsnet": learning.train_model(data, names["train"], stamps, cfg.net, out, progress)}
         if cfg.upper_bound:
@@ -166,7 +168,7 @@ class Q2(Experiment):
     def tables(self, cfg, rows, learned=None):
         nlips = aggregate(rows, ("role", "indenter"))
         tables = [Table("nlips", "NLiPs (the training labels) against the true normals", ("role", "indenter"), nlips)]
-        if not learned:
+        if not learned or "error" in learned:
             return tables
         scores = learned["scores"]
         for r in scores:
@@ -214,7 +216,7 @@ class Q2(Experiment):
         return tables
 
     def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
-        if not learned:
+        if not learned or "error" in learned:
             return []
         from ..report.learn import training_curve
         from . import learning

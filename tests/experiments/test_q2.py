@@ -91,3 +91,16 @@ def test_all_includes_q2_and_the_press_count_study(tmp_path, capsys):
     printed = capsys.readouterr().out
     for name in ("q1", "q2", "ablation", "q3", "studies", "presses"):
         assert f"{name} (quick):" in printed
+
+
+def test_too_few_calibration_presses_are_reported_not_fatal(tmp_path):
+    """One calibration press cannot be split into training and validation: the report says so."""
+    cfg = tmp_path / "q2_tiny.toml"
+    cfg.write_text(
+        "[twin]\nwidth = 96\nheight = 72\nspp = 8\n[train]\ncount = 1\n[seen]\ncount = 0\n[unseen]\ncount = 0\n"
+    )
+    assert main(["experiment", "q2", "--config", str(cfg), "--out", str(tmp_path)]) == 0
+    report = tmp_path / "q2-custom" / "report"
+    doc = json.loads((report / "results.json").read_text())
+    assert "need 2" in doc["learned"]["error"]
+    assert "## Not computed" in (report / "report.md").read_text()
