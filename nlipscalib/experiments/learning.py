@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_json
+from ..errors import ConfigError
 from .tasks import Task, digest, load_result, reference_folder, samples_path, view_path
 
 DATASET_DIR = "calibration"
@@ -39,7 +40,7 @@ def assemble_dataset(out: Path, tasks: list[Task], sampling: dict):
     press_tasks = [t for t in tasks if t.kind == "press" and t.samples is not None]
     scenes = {json.dumps(t.scene, sort_keys=True) for t in press_tasks}
     if len(scenes) != 1:
-        raise ValueError(f"an NLiPsNet dataset needs presses of one sensor, got {len(scenes)} scenes")
+        raise ConfigError(f"an NLiPsNet dataset needs presses of one sensor (scene), got {len(scenes)}")
     ref_folder = reference_folder(out, press_tasks[0].scene)
     ref_press = load_press(ref_folder)
     write_shard(folder / "sensor.npz", reference_arrays(ref_press))

@@ -105,8 +105,9 @@ class Q2(Experiment):
         "indenters pressed at other places (seen) and on other indenters (unseen), on the contact samples, against "
         "the NLiPs normals (all the paper could measure: 3.33° seen, 3.11° unseen) and against the twin's true "
         "normals; next to the GelSight-style lookup table fitted on the same samples, NLiPsNet trained on the "
-        "true normals (upper bound) and NLiPs itself. The first table is NLiPs (the labels) against the truth "
-        "per press."
+        "true normals (upper bound), the undeformed dome's normals (no calibration) and NLiPs itself. Contact "
+        "samples are the pixels whose tri-colour value changed (learn.change). The first table is NLiPs (the "
+        "labels) against the truth per press, over the true contact."
     )
     config_cls = Q2Config
     sizes = {"quick": QUICK, "medium": MEDIUM, "full": Q2Config()}
