@@ -15,10 +15,10 @@ from pathlib import Path
 def register(sub) -> None:
     p = sub.add_parser(
         "experiment",
-        help="run an experiment (q1, ablation, q3, studies, all) and write its report",
+        help="run an experiment (q1, q2, ablation, q3, studies, presses, all) and write its report",
         description=__doc__,
     )
-    p.add_argument("name", help="q1, ablation, q3, studies, or all (q2 needs NLiPsNet)")
+    p.add_argument("name", help="q1, q2, ablation, q3, studies, presses (number of calibration presses), or all")
     p.add_argument("--size", default="quick", help="quick (CI), medium or full (default quick)")
     p.add_argument("--config", help="TOML/YAML file with the experiment's config fields (instead of --size)")
     p.add_argument("--out", default="out/experiments", help="work folder: per-task results (default out/experiments)")
@@ -56,13 +56,12 @@ def run(args) -> int:
         exp = get(name)
         cfg = exp.config(args.size, args.config)
         size = "custom" if args.config else args.size
-        work = Path(args.out) / f"{name}-{size}"
+        work = Path(args.out) / f"{exp.work_name or name}-{size}"  # a study may share another's tasks
         if args.plan:
             _print_plan(name, size, exp, cfg, work, options)
             continue
-        report = (
-            Path(args.report) / name if args.report and args.name == "all" else Path(args.report or work / "report")
-        )
+        own = Path(args.out) / f"{name}-{size}"
+        report = Path(args.report) / name if args.report and args.name == "all" else Path(args.report or own / "report")
         doc = run_experiment(
             exp,
             cfg,
@@ -96,11 +95,9 @@ def run(args) -> int:
 
 
 def _print_plan(name: str, size: str, exp, cfg, work: Path, options: dict) -> None:
-    from ..experiments.framework import with_solver_options
-    from ..experiments.plan import build_tasks
     from ..experiments.tasks import load_result
 
-    tasks = build_tasks(with_solver_options(exp.evaluations(cfg), options))
+    tasks = exp.tasks(cfg, options)
     kinds = {k: sum(t.kind == k for t in tasks) for k in ("reference", "calibration", "press")}
     solves = sum(len({str(e["solve"]) for e in t.evaluations}) for t in tasks)
     done = sum(load_result(work, t) is not None for t in tasks)

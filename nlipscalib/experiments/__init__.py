@@ -11,12 +11,16 @@ import importlib
 
 from ..errors import ConfigError
 
-EXPERIMENTS = {"q1": "q1:Q1", "ablation": "ablation:Ablation", "q3": "q3:Q3", "studies": "studies:Studies"}
-"""Runnable experiments: name -> module:class."""
-UNAVAILABLE = {
-    "q2": "Q2 (NLiPsNet on seen and unseen indenters; paper 3.33°/3.11°) needs nlipscalib.learn (NLiPsNet), "
-    "which is not built on this branch yet"
+EXPERIMENTS = {
+    "q1": "q1:Q1",
+    "q2": "q2:Q2",
+    "ablation": "ablation:Ablation",
+    "q3": "q3:Q3",
+    "studies": "studies:Studies",
+    "presses": "presses:PressCount",
 }
+"""Runnable experiments: name -> module:class."""
+UNAVAILABLE: dict[str, str] = {}
 """Experiments of the issue that cannot run yet, with the reason."""
 
 

@@ -59,7 +59,7 @@ class Ablation(Experiment):
             out += [(scene, p, {"leds": n, "indenter": p["indenter"]["kind"]}, solve) for p in cfg.presses.presses()]
         return out
 
-    def tables(self, cfg, rows):
+    def tables(self, cfg, rows, learned=None):
         main = aggregate(rows, ("leds",))
         for r in main:
             r["paper_aae_deg"] = PAPER_AAE.get(r["leds"])
@@ -75,7 +75,7 @@ class Ablation(Experiment):
             Table("ablation_by_indenter", "By number of LEDs and indenter", ("leds", "indenter"), per),
         ]
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path):
+    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
         main = tables[0].rows
         x = [r["leds"] for r in main]
         paper = {"paper (real sensor)": (list(PAPER_AAE), list(PAPER_AAE.values()))}

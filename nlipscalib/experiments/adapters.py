@@ -1,8 +1,9 @@
 """The only seams between experiments and the rest of the workbench: render, calibrate, solve, score.
 
 Every experiment goes through these few functions, so when the twin, the solver or the pipeline gain
-a better API (interreflection-aware LED calibration, ``pipeline.solve_presses``), only this file changes.
-This is wiring (like cli/): it may import sim/ and solver/ together.
+a better API, only this file changes. Presses are solved by ``nlipscalib.pipeline`` (the path every
+command takes: recorded provenance, skip-if-solved, claims). This is wiring (like cli/): it may import
+sim/, solver/ and learn/ together.
 """
 
 from __future__ import annotations
@@ -117,43 +118,67 @@ def truth_roi(press, margin: int = ROI_MARGIN_PX) -> tuple[int, int, int, int]:
     return int(x0), int(y0), int(max(x1 - x0, 4)), int(max(y1 - y0, 4))
 
 
-def solve(press, *, leds, interreflection: str, reference=None, roi: str = "truth", options=None, albedo=None):
-    """NLiPs on one press.
+def solve(
+    press,
+    *,
+    out: Path,
+    leds=None,
+    interreflection: str,
+    reference: Path | None = None,
+    roi: str = "truth",
+    options=None,
+    albedo=None,
+):
+    """NLiPs on one press through the one solving path (``pipeline.solve_folder``) into ``out``.
+
+    The pipeline records what made the result (settings, input hashes) and reuses an identical one:
+    a press folder that survived an interruption is not solved again. The result is read back from
+    ``out`` either way (lossless), so a fresh and a reused solve give the same numbers.
 
     Parameters
     ----------
-    press : Press (with ground truth when ``roi = "truth"``)
-    leds : sequence of Led given to the solver (true, CAD-with-error or self-calibrated)
+    press : Press (with ground truth when ``roi = "truth"``), loaded from its folder
+    out : reconstruction folder to write (e.g. PRESS/solves/<variant>)
+    leds : sequence of Led given to the solver (CAD-with-error or self-calibrated), None: the capture's
     interreflection : "off" (direct model only), "reference" (the interreflection term fitted on the
         undeformed capture, the undeformed surface's indirect light subtracted) or "dent" (also the outer
         loop on the solved surface: the solver's default)
-    reference : Press of the undeformed dome, needed unless ``interreflection == "off"``
+    reference : press folder of the undeformed dome, needed unless ``interreflection == "off"``
     roi : "truth" (true contact box), "auto" (the solver's contact detector) or "full"
     options : SolverOptions or None
     albedo : coating reflectance to impose on the interreflection term, or None (fitted from the data)
 
     Returns
     -------
-    SolveResult
+    core.Reconstruction over the full image
     """
-    from ..solver import solve_press
+    from ..core.reconstruction import load_reconstruction
+    from ..pipeline import solve_folder
 
     if interreflection not in ("off", "reference", "dent"):
         raise ConfigError(f"interreflection must be off, reference or dent, got {interreflection!r}")
     if interreflection != "off" and reference is None:
         raise ConfigError(f"interreflection {interreflection!r} needs the undeformed reference capture")
-    np.random.seed(SOLVER_RNG_SEED)
     box = {"truth": lambda: truth_roi(press), "auto": lambda: "auto", "full": lambda: None}[roi]()
-    return solve_press(
-        press,
+    np.random.seed(SOLVER_RNG_SEED)
+    result, status = solve_folder(
+        press.folder,
+        reference=None if interreflection == "off" else reference,
         roi=box,
         leds=leds,
         options=options,
-        indirect=None if interreflection == "off" else reference,
-        dent_interreflection=interreflection == "dent",
-        coating_albedo=albedo,
-        interreflection="off" if interreflection == "off" else "on",
+        out=out,
+        progress=False,
+        figures=False,
+        solver_keywords={
+            "dent_interreflection": interreflection == "dent",
+            "coating_albedo": albedo,
+            "interreflection": "off" if interreflection == "off" else "on",
+        },
     )
+    if result is None:  # another process holds this very solve (two sweeps sharing a folder)
+        raise CaptureError(f"{out}: being solved by another process")
+    return load_reconstruction(out, press.camera.shape)
 
 
 def score(result, ground_truth) -> dict:
@@ -181,3 +206,49 @@ def error_crop(result, ground_truth) -> dict[str, np.ndarray]:
     gt = np.where(shown[..., None], ground_truth.normals, np.nan)[win]
     err = angular_error_map(est, gt)
     return {"true": gt.astype(np.float32), "estimate": est.astype(np.float32), "error": err.astype(np.float32)}
+
+
+def calibration_samples(press, rec, reference: Path, sampling: dict) -> dict[str, np.ndarray]:
+    """NLiPsNet calibration samples of one solved press, as ``nlips calibrate`` makes them.
+
+    Parameters
+    ----------
+    press : Press ; rec : its NLiPs Reconstruction (full image) ; reference : press folder of the
+    undeformed dome ; sampling : learn.dataset.SamplingConfig mapping
+
+    Returns
+    -------
+    dict of the shard arrays (learn.dataset: pixel, rgb, normal, true_normal, contact, source)
+    """
+    from ..learn.dataset import SamplingConfig, press_samples, reference_arrays
+
+    cfg = from_mapping(SamplingConfig, dict(sampling), "experiment sampling")
+    return press_samples(press, rec, reference_arrays(load(reference)), cfg)
+
+
+def write_samples(path: Path, arrays: dict) -> None:
+    """Write a calibration shard atomically (learn.dataset's writer)."""
+    from ..learn.dataset import write_shard
+
+    write_shard(Path(path), arrays)
+
+
+def figure_view(press, margin: int = ROI_MARGIN_PX) -> dict[str, np.ndarray]:
+    """A crop around the true contact for the NLiPsNet figure (objects / true / predicted / error).
+
+    Returns
+    -------
+    dict: "rgb" (h, w, 3) float32 linear tri-colour image; "true" (h, w, 3) float32 true normals (NaN
+    off the gel); "origin" (2,) int (x0, y0) of the crop in the image; {} when there is no contact
+    """
+    if press.ground_truth is None or not (press.ground_truth.contact & press.ground_truth.valid).any():
+        return {}
+    x0, y0, w, h = truth_roi(press, margin)
+    win = (slice(y0, y0 + h), slice(x0, x0 + w))
+    gt = press.ground_truth
+    true = np.where(gt.valid[win][..., None], gt.normals[win], np.nan)
+    return {
+        "rgb": press.linear(press.tricolor)[win].astype(np.float32),
+        "true": true.astype(np.float32),
+        "origin": np.array([x0, y0], np.int64),
+    }

@@ -17,7 +17,8 @@ def headline(rows: list[dict], by: tuple[str, ...]) -> dict[str, float]:
     for row in rows:
         name = "/".join(f"{k}={row[k]}" for k in by)
         for m in METRICS:
-            out[f"{name}: {m}"] = row[m]
+            if m in row:  # tables of other figures (NLiPsNet scores) have none of the NLiPs metrics
+                out[f"{name}: {m}"] = row[m]
     return out
 
 

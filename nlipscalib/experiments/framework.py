@@ -33,6 +33,9 @@ class Table:
     """Aggregated rows (:func:`summary.aggregate`), possibly with paper columns added."""
     paper: dict[str, str] = dataclasses.field(default_factory=dict)
     """Extra columns: key in the rows -> header (the paper's numbers)."""
+    columns: tuple[tuple[str, str, int], ...] = ()
+    """Columns (row key, header, decimals) after ``by`` instead of the NLiPs accuracy columns (tables that
+    are not per-press NLiPs metrics, e.g. NLiPsNet scores)."""
 
 
 class Experiment:
@@ -50,14 +53,27 @@ class Experiment:
     """Name of the table whose figures ``--check`` compares."""
     not_done: tuple[str, ...] = ()
     """Parts of the issue this experiment does not run (and why), listed in the report."""
+    work_name: str = ""
+    """Work folder OUT/<work_name>-SIZE shared with another experiment whose tasks this one reuses
+    (default: its own name)."""
 
     def evaluations(self, cfg) -> list[tuple[dict, dict, dict, dict]]:
         raise NotImplementedError
 
-    def tables(self, cfg, rows: list[dict]) -> list[Table]:
+    def samples(self, cfg) -> dict | None:
+        """SamplingConfig mapping when press tasks must write NLiPsNet calibration samples (else None)."""
+        return None
+
+    def learn(self, cfg, tasks, out: Path, progress: bool = True) -> dict:
+        """Work after the press tasks, in this process (NLiPsNet training); JSON-able results or {}."""
+        return {}
+
+    def tables(self, cfg, rows: list[dict], learned: dict) -> list[Table]:
         raise NotImplementedError
 
-    def figures(self, cfg, rows: list[dict], tables: list[Table], out: Path, folder: Path) -> list[tuple[str, str]]:
+    def figures(
+        self, cfg, rows: list[dict], tables: list[Table], out: Path, folder: Path, learned: dict
+    ) -> list[tuple[str, str]]:
         return []
 
     # ------------------------------------------------------------------ common machinery
@@ -69,8 +85,8 @@ class Experiment:
             raise ConfigError(f"experiment {self.name}: unknown size {size!r} (known: {', '.join(self.sizes)})")
         return self.sizes[size]
 
-    def tasks(self, cfg):
-        return build_tasks(self.evaluations(cfg))
+    def tasks(self, cfg, solver_options: dict | None = None):
+        return build_tasks(with_solver_options(self.evaluations(cfg), solver_options or {}), self.samples(cfg))
 
 
 def _task_seconds(tasks, out: Path) -> dict:
@@ -114,14 +130,14 @@ def run_experiment(
     Returns the report's JSON document (also written to ``report/results.json``).
     """
     start = time.perf_counter()
-    evaluations = with_solver_options(exp.evaluations(cfg), solver_options or {})
-    tasks = build_tasks(evaluations)
+    tasks = exp.tasks(cfg, solver_options)
     status = run_tasks(tasks, out, workers=workers, scheduler=scheduler, keep_presses=keep_presses, progress=progress)
+    learned = exp.learn(cfg, tasks, out, progress=progress)
     run_s = time.perf_counter() - start
     rows = evaluation_rows(tasks, out)
-    tables = exp.tables(cfg, rows)
+    tables = exp.tables(cfg, rows, learned)
     report.mkdir(parents=True, exist_ok=True)
-    figures = exp.figures(cfg, rows, tables, out, report)
+    figures = exp.figures(cfg, rows, tables, out, report, learned)
     main = next((t for t in tables if t.name == exp.check_table), tables[0] if tables else None)
     doc = {
         "experiment": exp.name,
@@ -136,6 +152,7 @@ def run_experiment(
         "tables": {t.name: {"caption": t.caption, "by": list(t.by), "rows": t.rows} for t in tables},
         "check_figures": check.headline(main.rows, main.by) if main else {},
         "evaluations": rows,
+        **({"learned": learned} if learned else {}),
         "tasks": {
             "total": len(tasks),
             "run_now": len(status.done),

@@ -17,12 +17,25 @@ METRIC_HEADERS = (("aae_deg", "AAE (°)", 2), ("mabse", "MabsE", 4), ("depth_rms
 
 
 def table(t) -> str:
+    if t.columns:
+        return _plain_table(t)
     heads = list(t.by) + ["n"] + [h for _, h, _ in METRIC_HEADERS] + ["AAE ROI (°)"] + list(t.paper.values())
     lines = [f"**{t.caption}**", "", "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for r in t.rows:
         cells = [fmt(r.get(k)) for k in t.by] + [f"{r['n']}" + (f" ({r['failed']} failed)" if r["failed"] else "")]
         cells += [fmt(r[m], d) + (f" ± {fmt(r[m + '_std'], d)}" if r["n"] > 1 else "") for m, _, d in METRIC_HEADERS]
         cells += [fmt(r.get("roi_aae_deg"), 2)] + [fmt(r.get(k), 4 if "mabse" in k else 2) for k in t.paper]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _plain_table(t) -> str:
+    """A table of named columns (``Table.columns``) and the paper's columns."""
+    heads = list(t.by) + [h for _, h, _ in t.columns] + list(t.paper.values())
+    lines = [f"**{t.caption}**", "", "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
+    for r in t.rows:
+        cells = [fmt(r.get(k)) for k in t.by] + [fmt(r.get(k), d) for k, _, d in t.columns]
+        cells += [fmt(r.get(k), 2) for k in t.paper]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -53,6 +66,8 @@ def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
         parts += [table(t), ""]
     for caption, path in figures:
         parts += [f"![{caption}]({path})", "", f"*{caption}*", ""]
+    if doc.get("learned", {}).get("error"):
+        parts += ["## Not computed", "", doc["learned"]["error"], ""]
     if doc["not_done"]:
         parts += ["## Not done", ""] + [f"- {line}" for line in doc["not_done"]] + [""]
     if tasks["failed"]:

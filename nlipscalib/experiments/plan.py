@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
+
 from ..config import to_mapping
 from ..sim.indent import PressConfig
 from ..sim.indenters import IndenterConfig
@@ -73,6 +75,46 @@ class PressGrid:
         return out
 
 
+@dataclasses.dataclass(frozen=True)
+class PressSet:
+    """Presses at seeded random places: ``count`` presses, the indenters taking turns (round robin).
+
+    Places are uniform over the dome's cap up to ``polar_max_deg`` (uniform in cos(polar)), the spin
+    and depth uniform; values are rounded (0.1 degree, 0.01 mm) so press names stay readable. Two sets
+    with different seeds press the same indenters at other places (a test set of "seen indenters at
+    unseen places"). The first k presses of a set are balanced over its indenters.
+    """
+
+    indenters: tuple[IndenterConfig, ...] = (IndenterConfig(kind="sphere", size=6.0),)
+    """Indenters, taking turns."""
+    count: int = 3
+    """Number of presses."""
+    polar_max_deg: float = 25.0
+    """Largest polar angle of a press location, degrees."""
+    depth_mm: tuple[float, float] = (0.8, 1.6)
+    """Range of indentation depths, mm."""
+    seed: int = 0
+    """Seed of the places, spins and depths."""
+
+    def presses(self) -> list[dict]:
+        rng = np.random.default_rng(np.random.SeedSequence([int(self.seed), 4242]))
+        cos_lo = np.cos(np.radians(self.polar_max_deg))
+        out = []
+        for i in range(int(self.count)):
+            polar = np.degrees(np.arccos(rng.uniform(cos_lo, 1.0)))
+            azimuth, spin = rng.uniform(0.0, 360.0, size=2)
+            depth = rng.uniform(*self.depth_mm)
+            p = PressConfig(
+                indenter=self.indenters[i % len(self.indenters)],
+                polar_deg=round(float(polar), 1),
+                azimuth_deg=round(float(azimuth), 1),
+                spin_deg=round(float(spin), 1),
+                depth=round(float(depth), 2),
+            )
+            out.append(to_mapping(p))
+        return out
+
+
 def press_name(press: dict) -> str:
     ind = press["indenter"]
     return f"{ind['kind']}-p{press['polar_deg']:g}-a{press['azimuth_deg']:g}-d{press['depth']:g}"
@@ -84,8 +126,11 @@ def solve_dict(**fields) -> dict:
     return SolveSpec(options=tuple(sorted(dict(opts).items())), **fields).to_dict()
 
 
-def build_tasks(evaluations: list[tuple[dict, dict, dict, dict]]) -> list[Task]:
+def build_tasks(evaluations: list[tuple[dict, dict, dict, dict]], samples: dict | None = None) -> list[Task]:
     """Tasks for (scene, press, labels, solve) evaluations, in a fixed order.
+
+    ``samples`` (a learn.dataset.SamplingConfig mapping): every press task also writes the NLiPsNet
+    calibration samples of its first solve (the NLiPs labels).
 
     Returns reference tasks, then calibration tasks, then press tasks (ids are readable and unique).
     """
@@ -107,7 +152,14 @@ def build_tasks(evaluations: list[tuple[dict, dict, dict, dict]]) -> list[Task]:
         entry = presses.setdefault(pid, {"scene": scene, "press": press, "evaluations": []})
         entry["evaluations"].append({"labels": labels, "solve": solve})
     press_tasks = [
-        Task(kind="press", id=pid, scene=e["scene"], press=e["press"], evaluations=tuple(e["evaluations"]))
+        Task(
+            kind="press",
+            id=pid,
+            scene=e["scene"],
+            press=e["press"],
+            evaluations=tuple(e["evaluations"]),
+            samples=samples,
+        )
         for pid, e in presses.items()
     ]
     return list(refs.values()) + list(cals.values()) + press_tasks

@@ -67,14 +67,14 @@ class Q1(Experiment):
             for leds in cfg.leds
         ]
 
-    def tables(self, cfg, rows):
+    def tables(self, cfg, rows, learned=None):
         main = aggregate(rows, ("indenter", "leds"))
         for r in main:
             r["paper_aae_deg"], r["paper_mabse"] = self.paper["aae_deg"], self.paper["mabse"]
         paper_cols = {"paper_aae_deg": "paper AAE (°, real sensor)", "paper_mabse": "paper MabsE"}
         return [Table("q1", "NLiPs on the twin vs the paper's real sensor", ("indenter", "leds"), main, paper_cols)]
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path):
+    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
         cats, aae = series_by(rows, "indenter", "leds", "aae_deg")
         fig.grouped_bars(cats, aae, "AAE in the contact (°)", folder / "q1_aae.png", {"paper, real sensor": 7.04})
         cats, mab = series_by(rows, "indenter", "leds", "mabse")

@@ -83,7 +83,7 @@ class Q3(Experiment):
                     )
         return out
 
-    def tables(self, cfg, rows):
+    def tables(self, cfg, rows, learned=None):
         by_shape = aggregate(rows, ("shape", "leds"))
         for r in by_shape:
             r["paper_below"] = f"< {PAPER_BOUND_DEG:g}"
@@ -103,7 +103,7 @@ class Q3(Experiment):
             ),
         ]
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path):
+    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
         true_rows = [r for r in rows if r["leds"] == cfg.leds[0]]
         cats, aae = series_by(true_rows, "shape", "indenter", "aae_deg")
         fig.grouped_bars(

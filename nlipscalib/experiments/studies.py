@@ -5,7 +5,8 @@
   undeformed reference, and also for the dent's own bounce
 - LED position / direction error: how precise must the CAD be, and how much does self-calibration recover
 - press depth and coating albedo
-The number of calibration presses needs NLiPsNet (nlipscalib.learn), not on this branch: not run.
+The number of calibration presses (how many are enough?) trains NLiPsNet on Q2's presses: its own
+experiment, ``nlips experiment presses``.
 """
 
 from __future__ import annotations
@@ -90,10 +91,6 @@ class Studies(Experiment):
     }
     paper = {"note": "the paper has no ground-truth normals for these factors"}
     check_table = "noise"
-    not_done = (
-        "Number of calibration presses (how many are enough?): needs NLiPsNet (nlipscalib.learn), which has not "
-        "landed on this branch.",
-    )
 
     def evaluations(self, cfg: StudiesConfig):
         twin, presses = cfg.twin, cfg.presses.presses()
@@ -123,7 +120,7 @@ class Studies(Experiment):
             add("albedo", a, twin.scene_dict(coating={"albedo": [a, a, a]}), solve_dict(leds="true", **base_solve))
         return out
 
-    def tables(self, cfg, rows):
+    def tables(self, cfg, rows, learned=None):
         tables = []
         for study in XLABELS:
             mine = [r for r in rows if r["study"] == study]
@@ -147,7 +144,7 @@ class Studies(Experiment):
             getattr(cfg, {"led_position": "led_position_mm", "led_direction": "led_direction_deg"}.get(study, study))
         )
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path):
+    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
         figs = []
         for t in tables:
             if t.name.startswith("led_"):

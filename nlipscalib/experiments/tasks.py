@@ -22,6 +22,8 @@ import numpy as np
 from ..core.atomic import write_bytes, write_json
 
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
+SOLVES_DIR = "solves"
+"""PRESS/solves/<variant hash>/: the pipeline's reconstruction of each solve variant of a press."""
 CLAIM_STALE_S = 60.0
 """A task claimed by a process that stopped its heartbeat this long ago (seconds) is taken over."""
 
@@ -80,6 +82,9 @@ class Task:
     """Press tasks: ({"labels": {...}, "solve": SolveSpec.to_dict()}, ...)."""
     led_error: dict | None = None
     """Calibration tasks: the design error the calibration starts from."""
+    samples: dict | None = None
+    """Press tasks of NLiPsNet experiments: the SamplingConfig mapping of the calibration samples written
+    from the first solve (the NLiPs labels); None: no samples."""
 
     @property
     def stage(self) -> int:
@@ -87,7 +92,10 @@ class Task:
 
     @property
     def hash(self) -> str:
-        return digest(dataclasses.asdict(self))
+        d = dataclasses.asdict(self)
+        if d["samples"] is None:  # tasks without samples keep the hashes they had before the field existed
+            del d["samples"]
+        return digest(d)
 
 
 def scene_key(scene: dict) -> str:
@@ -191,33 +199,68 @@ def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
         adapters.render(task.scene, task.press, folder, threads)
     render_s = time.perf_counter() - t
     press = adapters.load(folder)
-    reference = adapters.load(reference_folder(out, task.scene))
-    albedo = tuple(task.scene["coating"]["albedo"])
+    reference = reference_folder(out, task.scene)
     solved: dict[str, dict] = {}
     evaluations = []
     for ev in task.evaluations:
         key = digest(ev["solve"])
         if key not in solved:
-            solved[key] = _solve_one(adapters, out, task, press, reference, ev["solve"], albedo, key)
+            solved[key] = _solve_one(adapters, out, task, press, reference, ev["solve"], key)
         evaluations.append({"labels": ev["labels"], "solve": ev["solve"], **solved[key]["result"]})
+    samples = None
+    if task.samples is not None:
+        first = solved[digest(task.evaluations[0]["solve"])]
+        samples = _write_samples(adapters, out, task, press, reference, first.get("reconstruction"))
     if not keep:
         shutil.rmtree(folder, ignore_errors=True)
     timing = {"render_seconds": round(render_s, 3), "solve_seconds": {k: v["seconds"] for k, v in solved.items()}}
-    return {"press": task.press, "scene_key": scene_key(task.scene), "evaluations": evaluations, "timing": timing}
+    body = {"press": task.press, "scene_key": scene_key(task.scene), "evaluations": evaluations, "timing": timing}
+    return body | ({"samples": samples} if samples is not None else {})
 
 
-def _solve_one(adapters, out, task, press, reference, spec: dict, albedo, key: str) -> dict:
+def samples_path(out: Path, task_id: str) -> Path:
+    """The NLiPsNet calibration samples of a press task (a learn.dataset shard)."""
+    return Path(out) / "calibration" / "samples" / f"{task_id}.npz"
+
+
+def view_path(out: Path, task_id: str) -> Path:
+    """Crop of a press for the NLiPsNet figure: linear tri-colour image, true normals, pixel offset."""
+    return Path(out) / "views" / f"{task_id}.npz"
+
+
+def _write_samples(adapters, out: Path, task: Task, press, reference: Path, rec) -> dict:
+    """Write the press's calibration samples (from the NLiPs labels ``rec``) and its figure crop."""
+    if rec is None:  # the label solve failed: this press gives no samples (like ``nlips calibrate``)
+        return {"file": None, "error": "the NLiPs label solve failed"}
+    arrays = adapters.calibration_samples(press, rec, reference, task.samples)
+    path = samples_path(out, task.id)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    adapters.write_samples(path, arrays)
+    view = adapters.figure_view(press)
+    if view:
+        _save_maps(view_path(out, task.id), view)
+    return {
+        "file": str(path.relative_to(out)),
+        "count": int(len(arrays["rgb"])),
+        "contact": int(arrays["contact"].sum()),
+        "has_truth": bool(press.ground_truth is not None),
+    }
+
+
+def _solve_one(adapters, out, task, press, reference: Path, spec: dict, key: str) -> dict:
+    """Solve one variant into PRESS/solves/<key> (pipeline) and score it; a failure is a result too."""
     t = time.perf_counter()
     try:
         leds = _solver_leds(adapters, out, task, press, spec)
         result = adapters.solve(
             press,
+            out=press.folder / SOLVES_DIR / key,
             leds=leds,
             interreflection=spec["interreflection"],
             reference=reference,
             roi=spec["roi"],
             options=adapters.solver_options(spec["options"]),
-            albedo=None,  # the solver fits the coating's reflectance; ``albedo`` is the truth, for the record
+            albedo=None,  # the solver fits the coating's reflectance (the scene's albedo is the truth)
         )
     except Exception as exc:  # one failed variant (say, no contact found by --roi auto) is a result too
         return {"result": {"error": f"{type(exc).__name__}: {exc}"}, "seconds": round(time.perf_counter() - t, 3)}
@@ -228,6 +271,7 @@ def _solve_one(adapters, out, task, press, reference, spec: dict, albedo, key: s
     return {
         "result": {"metrics": metrics, "map": f"maps/{task.id}-{key}.npz" if crop else None},
         "seconds": round(time.perf_counter() - t, 3),
+        "reconstruction": result,  # kept in memory for the calibration samples, never written to JSON
     }
 
 
@@ -238,7 +282,7 @@ def _solver_leds(adapters, out, task, press, spec: dict):
         "seed": spec["error_seed"],
     }
     if spec["leds"] == "true":
-        return press.leds
+        return None  # the capture's own LEDs (the twin's true ones)
     if spec["leds"] == "design":
         return adapters.perturb_leds(press.leds, **_error_args(err))
     from ..core.leds import Led

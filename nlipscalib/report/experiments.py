@@ -131,3 +131,34 @@ def error_maps(
         )
     contact_sheet(sheet, path, dpi=60)
     return write_bytes(path, _palette_png(Path(path).read_bytes()))
+
+
+def nlipsnet_maps(
+    rows: list[tuple[str, dict[str, np.ndarray]]], path: str | Path, vmax: float = 20.0, method: str = "NLiPsNet"
+) -> Path:
+    """The paper's NLiPsNet figure: per press, the object, true normals, predicted normals, angular error.
+
+    Parameters
+    ----------
+    rows : (title, {"rgb": (h, w, 3) linear tri-colour image, "true": (h, w, 3) unit normals,
+        "estimate": (h, w, 3) unit normals, "error": (h, w) degrees}); NaN = off the gel
+    vmax : upper end of the error colour bar, degrees
+    """
+    sheet = []
+    for title, v in rows:
+        shown = np.isfinite(v["error"])
+        rgb = np.nan_to_num(v["rgb"])
+        scale = np.percentile(rgb, 99.5) or 1.0
+        sheet.append(
+            (
+                title,
+                [
+                    Panel("object (tri-colour image)", np.clip(rgb / scale, 0.0, 1.0)),
+                    Panel("ground-truth normals", normals_to_rgb(v["true"], shown)),
+                    Panel(f"{method} normals", normals_to_rgb(v["estimate"], shown)),
+                    Panel("angular error", v["error"], cmap="inferno", label="degrees", vmin=0, vmax=vmax),
+                ],
+            )
+        )
+    contact_sheet(sheet, path, dpi=60)
+    return write_bytes(path, _palette_png(Path(path).read_bytes()))

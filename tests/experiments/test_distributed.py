@@ -110,3 +110,38 @@ def test_dask_cluster_gives_identical_numbers_despite_a_killed_worker(local_run,
     assert doc["tasks"]["failed"] == {}
     assert _numbers(doc) == _numbers(local_run)  # bit-identical accuracy numbers
     assert doc["tables"] == local_run["tables"]
+
+
+def test_nlipsnet_samples_and_scores_are_identical_on_a_dask_cluster(tmp_path):
+    """Q2's press tasks write the same calibration samples on Dask workers as in this process, so the trained
+    NLiPsNet and its scores are the same too (a tiny Q2: 2 calibration presses, one test press of each kind)."""
+    import dataclasses
+
+    import numpy as np
+
+    from nlipscalib.experiments.plan import PressSet
+    from nlipscalib.experiments.summary import clean
+
+    exp = get("q2")
+    quick = exp.config("quick")
+    cfg = dataclasses.replace(
+        quick,
+        train=dataclasses.replace(quick.train, count=2),
+        seen=dataclasses.replace(quick.seen, count=1),
+        unseen=PressSet(indenters=quick.unseen.indenters[:1], count=1, seed=2),
+        net=dataclasses.replace(quick.net, max_epochs=3),
+        upper_bound=False,
+        figure_presses=1,
+    )
+    docs = {}
+    for where, kw in (("here", {}), ("dask", {"scheduler": "local:2"})):
+        out = tmp_path / where
+        docs[where] = run_experiment(exp, cfg, out, out / "report", size="custom", progress=False, **kw)
+    assert docs["here"]["tasks"]["failed"] == {} == docs["dask"]["tasks"]["failed"]
+    for shard in sorted((tmp_path / "here" / "calibration" / "samples").glob("*.npz")):
+        with np.load(shard) as a, np.load(tmp_path / "dask" / "calibration" / "samples" / shard.name) as b:
+            assert set(a.files) == set(b.files)
+            for key in a.files:
+                np.testing.assert_array_equal(a[key], b[key])
+    assert clean(docs["dask"]["learned"]["scores"]) == clean(docs["here"]["learned"]["scores"])  # NaN-safe
+    assert clean(_numbers(docs["dask"])) == clean(_numbers(docs["here"]))

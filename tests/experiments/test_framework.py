@@ -81,7 +81,7 @@ def test_check_flags_only_what_got_worse_beyond_tolerance():
     "argv, message",
     [
         (["experiment", "nope"], "unknown experiment 'nope'"),
-        (["experiment", "q2"], "needs nlipscalib.learn"),
+        (["experiment", "presses", "--size", "huge"], "unknown size 'huge'"),
         (["experiment", "q1", "--size", "huge"], "unknown size 'huge'"),
         (["experiment", "q1", "--solver-option", "max_iter=3"], "--solver-option 'max_iter=3'"),
         (["experiment", "q1", "--solver-option", "max_iters=0"], "max_iters"),
@@ -104,10 +104,18 @@ def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
     assert "q1.toml" in err and "widht" in err
 
 
+def test_press_count_study_config_names_file_and_problem(tmp_path, capsys):
+    cfg = tmp_path / "presses.toml"
+    cfg.write_text("counts = [1, 4]\n[net]\nhidden = [8]\n")
+    assert main(["experiment", "presses", "--config", str(cfg), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "presses.toml" in err and "counts" in err
+
+
 def test_plan_counts_tasks_without_running(tmp_path, capsys):
     assert main(["experiment", "all", "--size", "full", "--plan", "--out", str(tmp_path)]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert len(lines) == 4 and lines[0].startswith("q1 (full): 74 tasks")  # 72 presses + reference + calibration
+    assert len(lines) == 6 and lines[0].startswith("q1 (full): 74 tasks")  # 72 presses + reference + calibration
     assert not any(tmp_path.iterdir())  # nothing rendered or written
 
 

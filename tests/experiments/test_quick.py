@@ -49,6 +49,26 @@ def test_a_finished_experiment_resumes_without_redoing_presses(q1, capsys):
     assert doc["tasks"]["run_now"] == 0 and doc["tasks"]["already_done"] == doc["tasks"]["total"]
 
 
+def test_presses_are_solved_through_the_pipeline_and_not_solved_again(q1, capsys):
+    """Each solve variant is a pipeline reconstruction (PRESS/solves/KEY with provenance); a press task re-run
+    after an interruption (its JSON lost, the rendered press kept) reuses them and gives the same numbers."""
+    out, argv, _ = q1
+    work = out / "q1-quick"
+    reports = sorted(work.glob("presses/*/solves/*/report.json"))
+    assert len(reports) == 4  # sphere and cube, true and self-calibrated LEDs
+    for path in reports:
+        assert json.loads(path.read_text())["provenance"]["key"]
+    stamps = {p: p.stat().st_mtime_ns for p in reports}
+    before = json.loads((work / "report" / "results.json").read_text())
+    for task in work.glob("tasks/sphere-*.json"):
+        task.unlink()
+    assert main(argv) == 0
+    after = json.loads((work / "report" / "results.json").read_text())
+    assert after["tasks"]["run_now"] == 1
+    assert {p: p.stat().st_mtime_ns for p in reports} == stamps  # skipped by the pipeline, not re-solved
+    assert [e["aae_deg"] for e in after["evaluations"]] == [e["aae_deg"] for e in before["evaluations"]]
+
+
 def test_a_worsened_solver_option_fails_the_check(q1, capsys):
     out, argv, _ = q1
     # a heavy depth prior pins the surface to the undeformed dome: the contact comes out too flat
@@ -68,7 +88,7 @@ def test_quick_variant_writes_its_report(name, table, tmp_path):
     assert table in text
     assert list(report.glob("*.png"))
     if name == "studies":
-        assert "NLiPsNet" in text  # the calibration-press study is reported as not done
+        assert "nlips experiment presses" in text  # the calibration-press study is its own experiment
     if name == "q3":  # every shipped dome, each with a screw press
         assert {e["shape"] for e in doc["evaluations"]} == {"nlipstac", "fingertip", "oblate", "capsule", "flat"}
         assert {e["indenter"] for e in doc["evaluations"]} == {"screw"}

@@ -1,0 +1,195 @@
+"""NLiPsNet in the experiments: the press tasks' samples as one calibration dataset, trained models, scores.
+
+Wiring to nlipscalib.learn (dataset format, training, evaluation, lookup-table baseline); runs in the
+process that runs the experiment, after the press tasks. Every model is keyed by its training options
+and the identities of its presses' samples: ``learned/<key>.pt`` (+ ``.json`` when finished) is
+reused by a later run and by other experiments sharing the work folder; an interrupted training
+resumes from its checkpoint (learn.train).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.atomic import write_json
+from ..errors import ConfigError
+from .tasks import Task, digest, load_result, reference_folder, samples_path, view_path
+
+DATASET_DIR = "calibration"
+MODELS_DIR = "learned"
+
+
+def assemble_dataset(out: Path, tasks: list[Task], sampling: dict):
+    """The finished press tasks' samples as a learn.dataset calibration folder ``OUT/calibration``.
+
+    Returns
+    -------
+    (CalibrationDataset, stamps) : the dataset and, per press name (task id), the identity of its samples
+    """
+    from ..core.capture import load_press
+    from ..learn.dataset import CalibrationDataset, SamplingConfig, reference_arrays, write_index, write_shard
+    from ..learn.sensor import sensor_of
+
+    out = Path(out)
+    folder = out / DATASET_DIR
+    press_tasks = [t for t in tasks if t.kind == "press" and t.samples is not None]
+    scenes = {json.dumps(t.scene, sort_keys=True) for t in press_tasks}
+    if len(scenes) != 1:
+        raise ConfigError(f"an NLiPsNet dataset needs presses of one sensor (scene), got {len(scenes)}")
+    ref_folder = reference_folder(out, press_tasks[0].scene)
+    ref_press = load_press(ref_folder)
+    write_shard(folder / "sensor.npz", reference_arrays(ref_press))
+    entries, stamps = [], {}
+    for t in press_tasks:
+        result = load_result(out, t)
+        info = (result or {}).get("samples") or {}
+        if not info.get("file") or not samples_path(out, t.id).is_file():
+            continue
+        stamps[t.id] = t.hash
+        ind = t.press["indenter"]
+        entries.append(
+            {
+                "name": t.id,
+                "folder": str(out / "presses" / t.id),
+                "samples": info["count"],
+                "contact_samples": info["contact"],
+                "has_truth": info["has_truth"],
+                "press": {
+                    "indenter": ind["kind"],
+                    "polar_deg": t.press["polar_deg"],
+                    "azimuth_deg": t.press["azimuth_deg"],
+                    "depth_mm": t.press["depth"],
+                },
+                "stamp": t.hash,
+            }
+        )
+    cfg = SamplingConfig(**sampling)
+    write_index(folder, sensor_of(ref_press), cfg, entries, str(ref_folder.resolve()))
+    return CalibrationDataset(folder), stamps
+
+
+def train_model(data, names: list[str], stamps: dict, cfg, out: Path, progress: bool = True) -> dict:
+    """Train NLiPsNet on the presses ``names`` (split by press into training and validation), or reuse it.
+
+    Returns
+    -------
+    dict: key, model (path relative to ``out``), train/val presses, epochs, best epoch and validation
+    AAE, training seconds, history (per epoch)
+    """
+    from ..learn.train import train
+
+    key = digest({"train": dataclasses.asdict(cfg), "presses": [[n, stamps[n]] for n in names]}, 16)
+    folder = Path(out) / MODELS_DIR
+    path, record = folder / f"nlipsnet-{key}.pt", folder / f"nlipsnet-{key}.json"
+    if path.is_file() and record.is_file():
+        done = json.loads(record.read_text())
+        if done.get("key") == key:
+            return done
+    folder.mkdir(parents=True, exist_ok=True)
+    start = time.perf_counter()
+    others = [n for n in data.names if n not in set(names)]
+    res = train(data, cfg, path, exclude=others, progress=progress)
+    done = {
+        "key": key,
+        "model": str(path.relative_to(out)),
+        "labels": cfg.labels,
+        "hidden": list(cfg.hidden),
+        "train_presses": res.train_presses,
+        "val_presses": res.val_presses,
+        "epochs": len(res.history),
+        "best_epoch": res.best_epoch,
+        "best_val_aae_deg": res.history[res.best_epoch]["val_aae_deg"] if res.history else None,
+        "train_seconds": round(time.perf_counter() - start, 1),
+        "history": res.history,
+    }
+    write_json(record, done)
+    return done
+
+
+def fit_lookup_table(data, names: list[str]):
+    """The GelSight-style lookup-table baseline fitted on the samples of ``names`` (NLiPs labels)."""
+    from ..learn.lut import LookupTable
+
+    s = data.arrays(names)
+    return LookupTable.fit(s["pixel"], s["rgb"], s["normal"], data.reference()["tricolor"])
+
+
+def undeformed_predictor(data):
+    """(pixel, rgb) -> the undeformed dome's normals there: what "no calibration at all" predicts."""
+    normals = data.reference()["normals"]
+    return lambda pixel, rgb: normals[pixel[:, 1], pixel[:, 0]]
+
+
+def score(data, predictors: dict, test_sets: dict[str, list[str]]) -> list[dict]:
+    """AAE of every predictor on the contact samples of every test set, against NLiPs labels and true normals.
+
+    Parameters
+    ----------
+    data : CalibrationDataset
+    predictors : method name -> callable (pixel (N, 2), rgb (N, 3)) -> (N, 3) unit normals
+    test_sets : split name -> press names
+
+    Returns
+    -------
+    list of rows: split, method, presses, contact_samples, aae_vs_nlips_deg, aae_vs_true_deg; plus
+    a row "NLiPs (the labels)" scored against the true normals on the contact samples NLiPs labelled
+    """
+    from ..core.metrics import aae
+    from ..learn.evaluate import sample_scores
+
+    rows = []
+    for split, names in test_sets.items():
+        if not names:
+            continue
+        s = data.arrays(names)
+        for method, predict in predictors.items():
+            scores = sample_scores(predict(s["pixel"], s["rgb"]), s)
+            rows.append({"split": split, "method": method, "presses": len(names)} | scores)
+        labelled = s["contact"] & (s["source"] == 0) & np.all(np.isfinite(s["true_normal"]), -1)
+        rows.append(
+            {
+                "split": split,
+                "method": "NLiPs (the labels)",
+                "presses": len(names),
+                "contact_samples": int(labelled.sum()),
+                "aae_vs_nlips_deg": 0.0,
+                "aae_vs_true_deg": aae(s["normal"][labelled], s["true_normal"][labelled]) if labelled.any() else None,
+            }
+        )
+    return rows
+
+
+def net_predictor(out: Path, record: dict):
+    """(pixel, rgb) -> normals of a trained model (its record from :func:`train_model`)."""
+    from ..learn.evaluate import net_predict
+    from ..learn.model import load_model
+
+    model = load_model(Path(out) / record["model"])
+    return lambda pixel, rgb: net_predict(model, pixel, rgb)
+
+
+def predicted_views(out: Path, predict, names: list[str]) -> list[tuple[str, dict]]:
+    """Per press name with a stored crop: object image, true and predicted normals, angular error (degrees)."""
+    from ..core.metrics import angular_error_map
+
+    views = []
+    for name in names:
+        path = view_path(out, name)
+        if not path.is_file():
+            continue
+        with np.load(path) as z:
+            rgb, true, (x0, y0) = z["rgb"], z["true"], z["origin"]
+        h, w = true.shape[:2]
+        rows, cols = np.mgrid[0:h, 0:w]
+        pixel = np.stack([cols.ravel() + x0, rows.ravel() + y0], -1)
+        shown = np.all(np.isfinite(true), -1) & np.all(np.isfinite(rgb), -1)
+        pred = np.full((h * w, 3), np.nan, np.float32)
+        pred[shown.ravel()] = predict(pixel[shown.ravel()], rgb.reshape(-1, 3)[shown.ravel()])
+        pred = pred.reshape(h, w, 3)
+        views.append((name, {"rgb": rgb, "true": true, "estimate": pred, "error": angular_error_map(pred, true)}))
+    return views

@@ -1,0 +1,106 @@
+"""Q2 (NLiPsNet on seen and unseen indenters) and the calibration-press study, quick variants through the CLI.
+
+Quick: 13 presses at 96x72 px (8 calibration presses of three indenters, 3 seen-indenter and 2
+unseen-indenter test presses), a 64-64-64 net for 30 epochs.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.experiments.q2 import METHODS
+
+
+def _doc(out, name: str) -> dict:
+    return json.loads((out / f"{name}-quick" / "report" / "results.json").read_text())
+
+
+def _score(doc: dict, split: str, method: str, key: str = "aae_vs_true_deg") -> float:
+    rows = [r for r in doc["learned"]["scores"] if r["split"] == split and r["method"] == method]
+    assert len(rows) == 1, (split, method)
+    return rows[0][key]
+
+
+@pytest.fixture(scope="module")
+def q2(tmp_path_factory):
+    out = tmp_path_factory.mktemp("q2")
+    assert main(["experiment", "q2", "--out", str(out)]) == 0
+    return out
+
+
+def test_q2_quick_writes_report_json_and_figures(q2):
+    doc = _doc(q2, "q2")
+    assert doc["paper"]["seen_aae_deg"] == 3.33 and doc["paper"]["unseen_aae_deg"] == 3.11
+    assert doc["learned"]["presses"] == {"train": 8, "seen": 3, "unseen": 2}
+    assert not doc["tasks"]["failed"]
+    # every method on both test splits, scored against the NLiPs labels and against the true normals
+    for split in ("seen", "unseen"):
+        for method in [*METHODS.values(), "NLiPs (the labels)"]:
+            for key in ("aae_vs_nlips_deg", "aae_vs_true_deg"):
+                assert math.isfinite(_score(doc, split, method, key))
+    # the NLiPs labels themselves are scored against the truth per press, by role and indenter
+    roles = {(e["role"], e["indenter"]) for e in doc["evaluations"]}
+    assert {r for r, _ in roles} == {"train", "seen", "unseen"}
+    assert {i for r, i in roles if r == "unseen"}.isdisjoint({i for r, i in roles if r == "train"})
+    text = (q2 / "q2-quick" / "report" / "report.md").read_text()
+    assert "3.33" in text and "3.11" in text and "AAE vs true normals" in text
+    for png in ("q2_normals.png", "q2_vs_nlips.png", "q2_vs_true.png", "q2_training.png"):
+        assert (q2 / "q2-quick" / "report" / png).stat().st_size > 1000 and f"({png})" in text
+
+
+def test_nlipsnet_learns_the_contact(q2):
+    """Trained on NLiPs labels, NLiPsNet predicts the seen indenters' contact better than no calibration."""
+    doc = _doc(q2, "q2")
+    learned = _score(doc, "seen", METHODS["nlipsnet"])
+    nothing = _score(doc, "seen", METHODS["none"])
+    assert learned < nothing
+    # scored against its own labels on the training indenters it is near the labels, not near chance
+    assert _score(doc, "seen", METHODS["nlipsnet"], "aae_vs_nlips_deg") < 0.8 * nothing
+
+
+def test_q2_resumes_without_rendering_or_training_again(q2):
+    before = _doc(q2, "q2")
+    assert main(["experiment", "q2", "--out", str(q2)]) == 0
+    after = _doc(q2, "q2")
+    assert after["tasks"]["run_now"] == 0
+    assert after["learned"]["models"] == before["learned"]["models"]  # same keys, same recorded training
+    assert after["learned"]["scores"] == before["learned"]["scores"]
+
+
+def test_press_count_study_reuses_q2_presses_and_its_model(q2):
+    assert main(["experiment", "presses", "--out", str(q2)]) == 0
+    doc = _doc(q2, "presses")
+    assert doc["tasks"]["run_now"] == 0  # Q2's rendered and solved presses
+    assert doc["learned"]["counts"] == [2, 4, 8]
+    q2_doc = _doc(q2, "q2")
+    # k = 8 is Q2's full calibration set: the same model, hence the same numbers
+    rows = [r for r in doc["learned"]["scores"] if r["calibration_presses"] == 8 and r["method"] == "NLiPsNet"]
+    for r in rows:
+        assert r["aae_vs_true_deg"] == _score(q2_doc, r["split"], METHODS["nlipsnet"])
+    text = (q2 / "presses-quick" / "report" / "report.md").read_text()
+    assert "calibration_presses" in text and "(presses_aae.png)" in text
+    assert (q2 / "presses-quick" / "report" / "presses_aae.png").stat().st_size > 1000
+
+
+def test_all_includes_q2_and_the_press_count_study(tmp_path, capsys):
+    assert main(["experiment", "all", "--plan", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    for name in ("q1", "q2", "ablation", "q3", "studies", "presses"):
+        assert f"{name} (quick):" in printed
+
+
+def test_too_few_calibration_presses_are_reported_not_fatal(tmp_path):
+    """One calibration press cannot be split into training and validation: the report says so."""
+    cfg = tmp_path / "q2_tiny.toml"
+    cfg.write_text(
+        "[twin]\nwidth = 96\nheight = 72\nspp = 8\n[train]\ncount = 1\n[seen]\ncount = 0\n[unseen]\ncount = 0\n"
+    )
+    assert main(["experiment", "q2", "--config", str(cfg), "--out", str(tmp_path)]) == 0
+    report = tmp_path / "q2-custom" / "report"
+    doc = json.loads((report / "results.json").read_text())
+    assert "need 2" in doc["learned"]["error"]
+    assert "## Not computed" in (report / "report.md").read_text()
