@@ -86,6 +86,7 @@ def classify_contact(
     dead_level: float = 1e-3,
     undeformed_noise: bool = False,
     blur_px: float = 1.5,
+    noise: float | None = None,
 ) -> ContactMap:
     """Misfit of the undeformed dome to a press's LED images, and the noise-only misfit, per pixel.
 
@@ -101,6 +102,8 @@ def classify_contact(
     undeformed_noise : ``undeformed_images`` is a capture with its own noise (the noise-only misfit is
         then sqrt(2) times larger).
     blur_px : Gaussian sigma, pixels, of the smoothing before the fit (0: none).
+    noise : the press's image noise sigma (:func:`image_noise` over the live LEDs) when already
+        known, e.g. from an earlier classification of the same press; None: estimated here.
 
     Returns
     -------
@@ -135,7 +138,8 @@ def classify_contact(
     alb = (S * img * ok).sum(0) / np.maximum((S * S * ok).sum(0), 1e-30)
     count = np.maximum(ok.sum((0, 3)), 1)
     misfit = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
-    noise = image_noise(press.linear(press.led_images[live]), valid)
+    if noise is None:
+        noise = image_noise(press.linear(press.led_images[live]), valid)
     dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
     noise_blurred = noise * _gain(blur_px) * (np.sqrt(2.0) if undeformed_noise else 1.0)
     expected = np.full(valid.shape, noise_blurred) * np.sqrt(dof)

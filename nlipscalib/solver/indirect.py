@@ -107,6 +107,55 @@ def fit_patch_size(camera: Camera) -> int:
     return max(2, round(max(camera.shape) / FIT_PATCH_TARGET))
 
 
+def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Direct shading of a surface at every pixel (``core.leds.led_shading``), 0 off the gel.
+
+    Computed once per solve for the reference surface and shared by the indirect fit, the contact
+    classification and the outer loop (a full-frame evaluation costs ~0.4 s; a solve needed six).
+
+    Parameters
+    ----------
+    camera : Camera
+    leds : sequence of Led, length L
+    depth : (H, W) float, mm (z), camera frame; NaN off the gel.
+    normals : (H, W, 3) float, unit, camera frame, toward the camera.
+
+    Returns
+    -------
+    (L, H, W, 3) float64 -- shading factor per LED and channel.
+    """
+    valid = np.isfinite(depth)
+    pts = depth_to_points(np.where(valid, depth, 0.0), camera.rays)
+    nrm = np.where(valid[..., None], normals, 0.0).astype(np.float64)
+    s = led_shading(pts, nrm, tuple(leds))
+    s[:, ~valid] = 0.0
+    return s
+
+
+def updated_shading(
+    camera: Camera, leds, base: np.ndarray, depth: np.ndarray, normals: np.ndarray, changed: np.ndarray
+) -> np.ndarray:
+    """``base`` shading (:func:`direct_shading`) re-evaluated only at the ``changed`` pixels (a solved
+    region): the same numbers as :func:`direct_shading` of the whole surface, at the cost of the region.
+
+    Parameters
+    ----------
+    base : (L, H, W, 3) float64 -- the shading of the surface outside ``changed``.
+    depth : (H, W) float, mm; normals : (H, W, 3) float, unit -- the surface at ``changed``.
+    changed : (H, W) bool
+
+    Returns
+    -------
+    (L, H, W, 3) float64 -- a copy of ``base`` with the changed pixels replaced.
+    """
+    out = base.copy()
+    rows, cols = np.nonzero(changed)
+    if rows.size:
+        pts = depth_to_points(np.asarray(depth)[rows, cols], camera.rays[rows, cols])
+        out[:, rows, cols] = led_shading(pts, np.asarray(normals, np.float64)[rows, cols], tuple(leds))
+    return out
+
+
 class Surface:
     """The (reference or solved) surface as patches, with its direct shading per patch.
 
@@ -116,22 +165,22 @@ class Surface:
     leds : sequence of Led
     depth : (H, W) float, mm (z), camera frame; NaN off the gel.
     normals : (H, W, 3) float, unit, camera frame, toward the camera.
+    size : patch side, pixels (default :func:`patch_size`).
+    shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of this surface when the caller
+        has it already (None: computed here).
     """
 
-    def __init__(self, camera: Camera, leds, depth, normals, size: int | None = None):
+    def __init__(self, camera: Camera, leds, depth, normals, size: int | None = None, shading=None):
         self.camera, self.leds = camera, tuple(leds)
         self.valid = np.isfinite(depth)
         self.size = patch_size(camera) if size is None else int(size)
         pts = depth_to_points(np.where(self.valid, depth, 0.0), camera.rays)
         nrm = np.where(self.valid[..., None], normals, 0.0).astype(np.float64)
         self.patches = radiosity.surface_patches(pts, nrm, self.valid, camera, self.size)
-        self.shading = self._shading(pts, nrm)  # (L, h, w, 3) patch means
+        if shading is None:
+            shading = direct_shading(camera, self.leds, depth, normals)
+        self.shading = radiosity.patch_mean(self.patches, shading)  # (L, h, w, 3) patch means
         self.keep = self.patches["area"] > 0
-
-    def _shading(self, pts, nrm):
-        s = led_shading(pts, nrm, self.leds)
-        s[:, ~self.valid] = 0.0
-        return radiosity.patch_mean(self.patches, s)
 
     def emitters(self) -> dict:
         k = self.keep
@@ -165,6 +214,7 @@ def fit_indirect(
     bounces: int = 1,
     iterations: int = 3,
     exclude: np.ndarray | None = None,
+    shading: np.ndarray | None = None,
 ) -> IndirectModel:
     """Fit the indirect term to a capture of the undeformed dome (known geometry ``reference.reference``).
 
@@ -180,6 +230,8 @@ def fit_indirect(
     iterations : alternations of rho and kappa.
     exclude : (H, W) bool or None -- pixels not to fit on (a press's contact, when the press itself
         stands in for the undeformed capture); they still emit light.
+    shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of the reference surface with
+        ``leds``, when the caller has it (None: computed here).
 
     Returns
     -------
@@ -198,6 +250,7 @@ def fit_indirect(
         reference.reference.depth,
         reference.reference.normals,
         size=fit_patch_size(reference.camera),
+        shading=shading,
     )
     design = design_of(reference)
     off = None
@@ -316,6 +369,7 @@ def surface_indirect(
     albedo: np.ndarray,
     receivers: np.ndarray,
     size: int | None = None,
+    shading: np.ndarray | None = None,
 ) -> np.ndarray:
     """Indirect light ``B = kappa rho_p G(p)`` of a surface, at the receiver pixels.
 
@@ -331,12 +385,14 @@ def surface_indirect(
     receivers : (H, W) bool -- pixels that need the term (the solve's mask).
     size : patch side, pixels (default :func:`patch_size`; the undeformed dome's smooth light needs
         no more than :func:`fit_patch_size`).
+    shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of this surface, when the caller
+        has it (:func:`updated_shading` for a solved region); None: computed here.
 
     Returns
     -------
     (L, H, W, 3) float32 -- linear image units (``Press.linear`` scale); 0 outside ``receivers``.
     """
-    surf = Surface(camera, leds, depth, normals, size)
+    surf = Surface(camera, leds, depth, normals, size, shading)
     albedo = np.where(surf.valid[..., None], np.nan_to_num(albedo), 0.0)
     rho_patch = radiosity.patch_mean(surf.patches, albedo)
     size = surf.size

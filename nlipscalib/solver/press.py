@@ -23,13 +23,11 @@ import time
 import numpy as np
 
 from ..core import tolerances
-from ..core.camera import depth_to_points
 from ..core.capture import Press
-from ..core.leds import led_shading
 from ..errors import CaptureError, ConfigError, ShapeError
 from .contact import ContactMap, anchor_weights, classify_contact
 from .contact import auto_roi as _auto_roi_box
-from .indirect import IndirectModel, fit_indirect, surface_indirect
+from .indirect import IndirectModel, direct_shading, fit_indirect, surface_indirect, updated_shading
 from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -167,27 +165,37 @@ def _solve_press(
 
     t0 = time.perf_counter()
     model = None
+    # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
+    shading = direct_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
     if fixed_light is None and press.reference is not None:
         source = ref_capture if ref_capture is not None else press
         exclude = _box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
         # a press without a known contact is fitted twice (below): the first fit only finds the contact
         rough = ref_capture is None and explicit_roi is None
         model = fit_indirect(
-            source, leds, mode=interreflection, bounces=bounces, exclude=exclude, iterations=1 if rough else 3
+            source,
+            leds,
+            mode=interreflection,
+            bounces=bounces,
+            exclude=exclude,
+            iterations=1 if rough else 3,
+            shading=shading if source is press else None,
         )
     t_indirect = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     cmap, refit = None, 0.0
     if press.reference is not None:
-        cmap = _contact(press, leds, ref_capture, fixed_light, model)
+        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading)
         if model is not None and model.enabled and ref_capture is None and explicit_roi is None:
             # the press stands in for the undeformed capture: fit again without its contact
             t1 = time.perf_counter()
-            model = fit_indirect(press, leds, mode=interreflection, bounces=bounces, exclude=_contact_pixels(cmap))
+            model = fit_indirect(
+                press, leds, mode=interreflection, bounces=bounces, exclude=_contact_pixels(cmap), shading=shading
+            )
             refit = time.perf_counter() - t1
             t_indirect += refit
-            cmap = _contact(press, leds, None, None, model)
+            cmap = _contact(press, leds, None, None, model, shading, noise=cmap.noise)
     if model is not None and model.enabled and coating_albedo is not None:
         model = _with_reflectance(model, coating_albedo)
     if roi == "auto":
@@ -233,12 +241,14 @@ def _solve_press(
     if model is not None and model.enabled:
         t0 = time.perf_counter()
         albedo0 = np.broadcast_to(np.asarray(model.off_view_albedo), (H, W, 3))
-        light = surface_indirect(model, press.camera, leds, prior, press.reference.normals, albedo0, mask)
+        light = surface_indirect(
+            model, press.camera, leds, prior, press.reference.normals, albedo0, mask, shading=shading
+        )
         seconds += time.perf_counter() - t0
         result = run(light)
         for _ in range(max_outer if dent_interreflection else 0):
             t0 = time.perf_counter()
-            light = _solved_surface_light(model, press, leds, result, mask)
+            light = _solved_surface_light(model, press, leds, result, mask, shading)
             seconds += time.perf_counter() - t0
             new = run(light)
             passes += 1
@@ -337,29 +347,31 @@ def _with_reflectance(model: IndirectModel, reflectance) -> IndirectModel:
     )
 
 
-def _contact(press: Press, leds, ref_capture, fixed_light, model) -> ContactMap:
-    """The one contact classification: against the undeformed capture, or the model with its indirect term."""
+def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, noise=None) -> ContactMap:
+    """The one contact classification: against the undeformed capture, or the model with its indirect term.
+
+    ``shading``: :func:`direct_shading` of the reference surface; ``noise``: the press's image noise
+    when an earlier classification measured it."""
     if ref_capture is not None:
         und = ref_capture.linear(ref_capture.led_images)
-        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True)
+        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, noise=noise)
     if model is not None and model.enabled:
-        valid = np.isfinite(press.reference.depth)
-        pts = depth_to_points(np.where(valid, press.reference.depth, 0.0), press.camera.rays)
-        nrm = np.where(valid[..., None], press.reference.normals, 0.0)
-        undeformed = led_shading(pts, nrm, leds) + model.undeformed_light(press.camera.shape)
-        return classify_contact(press, leds, undeformed_images=undeformed)
-    return classify_contact(press, leds, indirect=fixed_light)
+        undeformed = shading + model.undeformed_light(press.camera.shape)
+        return classify_contact(press, leds, undeformed_images=undeformed, noise=noise)
+    return classify_contact(press, leds, undeformed_images=shading, indirect=fixed_light, noise=noise)
 
 
-def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask) -> np.ndarray:
-    """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere."""
+def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, shading) -> np.ndarray:
+    """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere
+    (``shading``, the reference's direct shading, is re-evaluated at the solved pixels only)."""
     ref = press.reference
     rec = result.reconstructed
     depth = np.where(rec, result.depth, ref.depth)
     normals = np.where(rec[..., None], result.normals, ref.normals)
     typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
     albedo = np.where(rec[..., None], result.albedo, typical)
-    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask)
+    solved = updated_shading(press.camera, leds, shading, depth, normals, rec)
+    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, shading=solved)
 
 
 def _median_change_deg(a: SolveResult, b: SolveResult) -> float:
