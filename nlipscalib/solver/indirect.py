@@ -19,6 +19,7 @@ G across the LEDs), and :func:`fit_indirect` switches the term off when its shar
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -132,30 +133,6 @@ def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray)
     return s
 
 
-def updated_shading(
-    camera: Camera, leds, base: np.ndarray, depth: np.ndarray, normals: np.ndarray, changed: np.ndarray
-) -> np.ndarray:
-    """``base`` shading (:func:`direct_shading`) re-evaluated only at the ``changed`` pixels (a solved
-    region): the same numbers as :func:`direct_shading` of the whole surface, at the cost of the region.
-
-    Parameters
-    ----------
-    base : (L, H, W, 3) float64 -- the shading of the surface outside ``changed``.
-    depth : (H, W) float, mm; normals : (H, W, 3) float, unit -- the surface at ``changed``.
-    changed : (H, W) bool
-
-    Returns
-    -------
-    (L, H, W, 3) float64 -- a copy of ``base`` with the changed pixels replaced.
-    """
-    out = base.copy()
-    rows, cols = np.nonzero(changed)
-    if rows.size:
-        pts = depth_to_points(np.asarray(depth)[rows, cols], camera.rays[rows, cols])
-        out[:, rows, cols] = led_shading(pts, np.asarray(normals, np.float64)[rows, cols], tuple(leds))
-    return out
-
-
 class Surface:
     """The (reference or solved) surface as patches, with its direct shading per patch.
 
@@ -173,6 +150,7 @@ class Surface:
     def __init__(self, camera: Camera, leds, depth, normals, size: int | None = None, shading=None):
         self.camera, self.leds = camera, tuple(leds)
         self.valid = np.isfinite(depth)
+        self.depth, self.normals = np.asarray(depth), np.asarray(normals)
         self.size = patch_size(camera) if size is None else int(size)
         pts = depth_to_points(np.where(self.valid, depth, 0.0), camera.rays)
         nrm = np.where(self.valid[..., None], normals, 0.0).astype(np.float64)
@@ -181,6 +159,52 @@ class Surface:
             shading = direct_shading(camera, self.leds, depth, normals)
         self.shading = radiosity.patch_mean(self.patches, shading)  # (L, h, w, 3) patch means
         self.keep = self.patches["area"] > 0
+
+    def replaced(self, depth: np.ndarray, normals: np.ndarray, changed: np.ndarray) -> Surface:
+        """This surface with ``depth`` and ``normals`` at the ``changed`` pixels (a solved region).
+
+        Only the patches over the changed pixels' bounding box are recomputed (geometry and direct
+        shading); the numbers equal those of a new ``Surface`` of the whole changed surface.
+
+        Parameters
+        ----------
+        depth : (H, W) float, mm; normals : (H, W, 3) float, unit -- the new surface (read in the box).
+        changed : (H, W) bool
+
+        Returns
+        -------
+        Surface
+        """
+        new = copy.copy(self)
+        rows, cols = np.nonzero(changed)
+        if not rows.size:
+            return new
+        s = self.size
+        H, W = self.camera.shape
+        pr, pc = slice(rows.min() // s, rows.max() // s + 1), slice(cols.min() // s, cols.max() // s + 1)
+        win = (slice(pr.start * s, min(pr.stop * s, H)), slice(pc.start * s, min(pc.stop * s, W)))
+        d = np.where(changed[win], np.asarray(depth)[win], self.depth[win])
+        n = np.where(changed[win][..., None], np.asarray(normals)[win], self.normals[win])
+        valid = np.isfinite(d)
+        pts = depth_to_points(np.where(valid, d, 0.0), self.camera.rays[win])
+        nrm = np.where(valid[..., None], n, 0.0).astype(np.float64)
+        sub = radiosity.surface_patches(
+            pts, nrm, valid, self.camera, s, window=win, solid_angle=self.patches["solid_angle"]
+        )
+        shade = led_shading(pts, nrm, self.leds)
+        shade[:, ~valid] = 0.0
+        new.valid, new.depth, new.normals = self.valid.copy(), self.depth.copy(), self.normals.copy()
+        new.valid[win], new.depth[win], new.normals[win] = valid, d, n
+        new.patches = dict(self.patches)
+        for key in ("points", "normals", "area"):
+            new.patches[key] = self.patches[key].copy()
+            new.patches[key][pr, pc] = sub[key]
+        new.patches["pixel_area"] = self.patches["pixel_area"].copy()
+        new.patches["pixel_area"][win] = sub["pixel_area"]
+        new.shading = self.shading.copy()
+        new.shading[:, pr, pc] = radiosity.patch_mean(sub, shade)
+        new.keep = new.patches["area"] > 0
+        return new
 
     def emitters(self) -> dict:
         k = self.keep
@@ -370,6 +394,7 @@ def surface_indirect(
     receivers: np.ndarray,
     size: int | None = None,
     shading: np.ndarray | None = None,
+    surface: Surface | None = None,
 ) -> np.ndarray:
     """Indirect light ``B = kappa rho_p G(p)`` of a surface, at the receiver pixels.
 
@@ -386,13 +411,15 @@ def surface_indirect(
     size : patch side, pixels (default :func:`patch_size`; the undeformed dome's smooth light needs
         no more than :func:`fit_patch_size`).
     shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of this surface, when the caller
-        has it (:func:`updated_shading` for a solved region); None: computed here.
+        has it; None: computed here.
+    surface : Surface or None -- this surface as patches when the caller has it (e.g. from
+        :meth:`Surface.replaced`); ``depth``, ``normals``, ``size`` and ``shading`` are then not read.
 
     Returns
     -------
     (L, H, W, 3) float32 -- linear image units (``Press.linear`` scale); 0 outside ``receivers``.
     """
-    surf = Surface(camera, leds, depth, normals, size, shading)
+    surf = surface if surface is not None else Surface(camera, leds, depth, normals, size, shading)
     albedo = np.where(surf.valid[..., None], np.nan_to_num(albedo), 0.0)
     rho_patch = radiosity.patch_mean(surf.patches, albedo)
     size = surf.size

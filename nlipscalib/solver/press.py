@@ -27,7 +27,7 @@ from ..core.capture import Press
 from ..errors import CaptureError, ConfigError, ShapeError
 from .contact import ContactMap, anchor_weights, classify_contact
 from .contact import auto_roi as _auto_roi_box
-from .indirect import IndirectModel, direct_shading, fit_indirect, surface_indirect, updated_shading
+from .indirect import IndirectModel, Surface, direct_shading, fit_indirect, surface_indirect
 from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -241,14 +241,15 @@ def _solve_press(
     if model is not None and model.enabled:
         t0 = time.perf_counter()
         albedo0 = np.broadcast_to(np.asarray(model.off_view_albedo), (H, W, 3))
+        ref_surface = Surface(press.camera, leds, prior, press.reference.normals, shading=shading)
         light = surface_indirect(
-            model, press.camera, leds, prior, press.reference.normals, albedo0, mask, shading=shading
+            model, press.camera, leds, prior, press.reference.normals, albedo0, mask, surface=ref_surface
         )
         seconds += time.perf_counter() - t0
         result = run(light)
         for _ in range(max_outer if dent_interreflection else 0):
             t0 = time.perf_counter()
-            light = _solved_surface_light(model, press, leds, result, mask, shading)
+            light = _solved_surface_light(model, press, leds, result, mask, ref_surface)
             seconds += time.perf_counter() - t0
             new = run(light)
             passes += 1
@@ -361,17 +362,17 @@ def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, noise
     return classify_contact(press, leds, undeformed_images=shading, indirect=fixed_light, noise=noise)
 
 
-def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, shading) -> np.ndarray:
+def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, ref_surface: Surface) -> np.ndarray:
     """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere
-    (``shading``, the reference's direct shading, is re-evaluated at the solved pixels only)."""
+    (``ref_surface``, the reference as patches, is recomputed around the solved pixels only)."""
     ref = press.reference
     rec = result.reconstructed
     depth = np.where(rec, result.depth, ref.depth)
     normals = np.where(rec[..., None], result.normals, ref.normals)
     typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
     albedo = np.where(rec[..., None], result.albedo, typical)
-    solved = updated_shading(press.camera, leds, shading, depth, normals, rec)
-    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, shading=solved)
+    solved = ref_surface.replaced(depth, normals, rec)
+    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, surface=solved)
 
 
 def _median_change_deg(a: SolveResult, b: SolveResult) -> float:
