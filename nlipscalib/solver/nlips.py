@@ -92,6 +92,7 @@ def solve(
     options: SolverOptions | None = None,
     backend: str = "numpy",
     progress: bool = False,
+    init_depth: np.ndarray | None = None,
 ) -> SolveResult:
     """Recover depth, normals and albedo from one image per LED.
 
@@ -112,6 +113,10 @@ def solve(
     options : SolverOptions
     backend : "numpy" or "torch" (per-pixel maths on a GPU when present; same equations).
     progress : show a tqdm bar.
+    init_depth : (H, W) float, mm, or None
+        A close solution to start from (e.g. the previous pass of the outer interreflection loop,
+        whose images differ only by a small change of the indirect light): the finest level alone is
+        solved from it, no pyramid. NaN pixels start from the prior.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -144,7 +149,13 @@ def solve(
     data, use = data[keep], use[keep]
 
     be = Backend(backend, opts.dtype)
-    levels = build_pyramid(cam, data, use, m, t0, w0, opts)
+    t_first = None
+    if init_depth is not None:
+        init = np.asarray(init_depth, np.float64)[crop]
+        t_first = np.where(m & np.isfinite(init) & (init > 0), np.log(np.where(init > 0, init, 1.0)), t0)
+    levels = build_pyramid(
+        cam, data, use, m, t0, w0, opts if t_first is None else dataclasses.replace(opts, pyramid_levels=1)
+    )
     report["levels"] = []
     bar = None
     if progress:
@@ -152,7 +163,7 @@ def solve(
 
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
     with blas_threads(1):
-        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report)
+        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first)
     if bar is not None:
         bar.close()
 
@@ -206,18 +217,20 @@ def solve(
     )
 
 
-def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report):
-    """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest."""
+def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first=None):
+    """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest.
+
+    ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve)."""
     t_state = out = None
     for k, lv in enumerate(levels):
         if t_state is None:
-            t_init = lv["t0"]
+            t_init = lv["t0"] if t_first is None else t_first
         else:
             prev = levels[k - 1]
             delta = np.where(prev["mask"], t_state - prev["t0"], 0.0)
             delta = resize(delta, lv["camera"].shape, linear=True)
             t_init = lv["t0"] + delta
-        if k == 0 and opts.estimator != "ls":
+        if k == 0 and opts.estimator != "ls" and t_first is None:
             # Least squares first on the coarsest level: from the undeformed prior, the contact's
             # residuals are large and a robust estimator would treat the dent itself as outliers.
             t_init, _, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, "ls", coarse=True)

@@ -215,7 +215,7 @@ def _solve_press(
     images = press.linear(press.led_images)
     saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
 
-    def run(light):
+    def run(light, init=None):
         data = images if light is None else compensate(images, light)
         result = solve(
             data,
@@ -228,6 +228,7 @@ def _solve_press(
             options=options,
             backend=backend,
             progress=progress,
+            init_depth=init,
         )
         if not result.reconstructed.any():
             dead = [i + 1 for i in result.report["dead_leds"]]
@@ -251,7 +252,7 @@ def _solve_press(
             t0 = time.perf_counter()
             light = _solved_surface_light(model, press, leds, result, mask, ref_surface)
             seconds += time.perf_counter() - t0
-            new = run(light)
+            new = run(light, init=result.depth)  # a small change of the light: start from the last depth
             passes += 1
             change = _median_change_deg(result, new)
             result = new
