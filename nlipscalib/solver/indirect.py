@@ -239,6 +239,7 @@ def fit_indirect(
     iterations: int = 3,
     exclude: np.ndarray | None = None,
     shading: np.ndarray | None = None,
+    cache: dict | None = None,
 ) -> IndirectModel:
     """Fit the indirect term to a capture of the undeformed dome (known geometry ``reference.reference``).
 
@@ -256,6 +257,9 @@ def fit_indirect(
         stands in for the undeformed capture); they still emit light.
     shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of the reference surface with
         ``leds``, when the caller has it (None: computed here).
+    cache : dict or None -- shared by fits of the same capture with the same ``leds`` (e.g. a rough
+        fit and a refit with a different ``exclude``): holds what does not depend on ``exclude``
+        (patches, the off-view dome's light, the linear images), filled by the first fit.
 
     Returns
     -------
@@ -268,25 +272,13 @@ def fit_indirect(
     if reference.reference is None:
         raise CaptureError(f"{reference.folder}: the interreflection term needs the reference surface (reference.npz)")
     leds = reference.leds if leds is None else tuple(leds)
-    surf = Surface(
-        reference.camera,
-        leds,
-        reference.reference.depth,
-        reference.reference.normals,
-        size=fit_patch_size(reference.camera),
-        shading=shading,
-    )
-    design = design_of(reference)
-    off = None
-    if design is not None:
-        off = radiosity.off_view_patches(design[0], design[1], reference.camera, surf.valid, step_deg=3.0)
-    lin = reference.linear(reference.led_images).astype(np.float64)
-    usable = (~reference.saturated(reference.led_images)).astype(np.float64)
-    usable[:, ~surf.valid] = 0.0
+    cache = {} if cache is None else cache
+    if not cache:
+        cache.update(_fit_inputs(reference, leds, shading))
+    surf, off, off_unit, lin = (cache[k] for k in ("surface", "off", "off_unit", "linear"))
+    usable = cache["usable"].copy()
     if exclude is not None:
         usable[:, exclude] = 0.0
-    live = np.percentile(lin[:, surf.valid], 99, axis=(1, 2)) >= 1e-3 if surf.valid.any() else np.zeros(len(lin), bool)
-    usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
     img = radiosity.patch_mean(surf.patches, lin * usable)[:, surf.keep]  # (L, K, 3)
     frac = radiosity.patch_mean(surf.patches, usable)[:, surf.keep]
     ok = frac > 0.99  # patches wholly usable for that LED and channel
@@ -301,10 +293,6 @@ def fit_indirect(
     def typical(values):  # median over the patches with data; the others take it as their albedo
         return np.array([np.median(values[fitted[:, c], c]) if fitted[:, c].any() else 0.0 for c in range(3)])
 
-    off_unit = None
-    if off is not None:
-        off_s = led_shading(off["points"], off["normals"], leds)
-        off_unit = radiosity.gather(*surf.receivers(), off, off_s)
     for _ in range(iterations):  # G depends on the emitters' albedo: refit both a few times
         rho = np.where(fitted, rho, typical(rho))
         off_albedo = typical(rho)
@@ -338,6 +326,31 @@ def fit_indirect(
         tuple(float(a) for a in off_albedo),
         (light, surf.size),
     )
+
+
+def _fit_inputs(reference: Press, leds, shading) -> dict:
+    """What :func:`fit_indirect` needs besides ``exclude``: the surface as patches, the off-view dome
+    and its light for a unit albedo, the linear images, the usable samples and the live LEDs."""
+    surf = Surface(
+        reference.camera,
+        leds,
+        reference.reference.depth,
+        reference.reference.normals,
+        size=fit_patch_size(reference.camera),
+        shading=shading,
+    )
+    design = design_of(reference)
+    off = off_unit = None
+    if design is not None:
+        off = radiosity.off_view_patches(design[0], design[1], reference.camera, surf.valid, step_deg=3.0)
+        off_s = led_shading(off["points"], off["normals"], leds)
+        off_unit = radiosity.gather(*surf.receivers(), off, off_s)
+    lin = reference.linear(reference.led_images).astype(np.float64)
+    usable = (~reference.saturated(reference.led_images)).astype(np.float64)
+    usable[:, ~surf.valid] = 0.0
+    live = np.percentile(lin[:, surf.valid], 99, axis=(1, 2)) >= 1e-3 if surf.valid.any() else np.zeros(len(lin), bool)
+    usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
+    return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
 
 
 def _albedo(img, model, ok) -> np.ndarray:

@@ -164,7 +164,7 @@ def _solve_press(
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
     t0 = time.perf_counter()
-    model = None
+    model, fit_cache = None, {}
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
     shading = direct_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
     if fixed_light is None and press.reference is not None:
@@ -180,6 +180,7 @@ def _solve_press(
             exclude=exclude,
             iterations=1 if rough else 3,
             shading=shading if source is press else None,
+            cache=fit_cache,
         )
     t_indirect = time.perf_counter() - t0
 
@@ -191,7 +192,13 @@ def _solve_press(
             # the press stands in for the undeformed capture: fit again without its contact
             t1 = time.perf_counter()
             model = fit_indirect(
-                press, leds, mode=interreflection, bounces=bounces, exclude=_contact_pixels(cmap), shading=shading
+                press,
+                leds,
+                mode=interreflection,
+                bounces=bounces,
+                exclude=_contact_pixels(cmap),
+                shading=shading,
+                cache=fit_cache,
             )
             refit = time.perf_counter() - t1
             t_indirect += refit
