@@ -43,7 +43,9 @@ SolveResult = Reconstruction
 """The solver's output is the core reconstruction format (:class:`nlipscalib.core.reconstruction.Reconstruction`)."""
 
 
-def exclusions(images: np.ndarray, saturated: np.ndarray | None, options: SolverOptions):
+def exclusions(
+    images: np.ndarray, saturated: np.ndarray | None, options: SolverOptions, whole: np.ndarray | None = None
+):
     """Which (LED, pixel, channel) samples the data term may use, and why others are excluded.
 
     Parameters
@@ -51,6 +53,8 @@ def exclusions(images: np.ndarray, saturated: np.ndarray | None, options: Solver
     images : (L, H, W, 3) float, linear, dark-subtracted, full scale 1
     saturated : (L, H, W, 3) bool or None
     options : SolverOptions
+    whole : (L, H', W', 3) float or None -- the whole images when ``images`` is a crop of them: the
+        dead-LED and shadow thresholds are statistics of the whole images (default ``images``).
 
     Returns
     -------
@@ -61,7 +65,7 @@ def exclusions(images: np.ndarray, saturated: np.ndarray | None, options: Solver
     sat = np.zeros(images.shape, bool) if saturated is None else saturated
     # The thresholds are image statistics: every second row and column gives the same 99th
     # percentiles as all pixels at a quarter of the cost (this dominated small ROI solves).
-    sample = images[:, ::2, ::2]
+    sample = (images if whole is None else whole)[:, ::2, ::2].astype(images.dtype, copy=False)
     per_led_high = np.percentile(sample.reshape(L, -1), 99, axis=1)
     dead_leds = [i for i in range(L) if per_led_high[i] < options.dead_led_level]
     # max over LEDs first (a reduction along the contiguous leading axis), then over the channels
@@ -124,19 +128,22 @@ def solve(
     images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
 
     t_start = time.perf_counter()
-    # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
-    images = images.astype(np.float32 if opts.dtype == "float32" else np.float64, copy=False)
-    usable, report = exclusions(images, saturated, opts)
-    usable &= mask[None, :, :, None]
-    usable_leds = (usable[..., 0] | usable[..., 1] | usable[..., 2]).sum(axis=0, dtype=np.int16)
-
-    # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
+    # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted. The
+    # exclusions are worked out on the crop too (outside the mask nothing is usable), their thresholds
+    # on the whole images; the report's counts are the crop's.
     rows, cols = np.nonzero(mask)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     cam = dataclasses.replace(camera, width=int(c1 - c0), height=int(r1 - r0), cx=camera.cx - c0, cy=camera.cy - r0)
     crop = (slice(r0, r1), slice(c0, c1))
-    data = images[:, crop[0], crop[1]]
-    use = usable[:, crop[0], crop[1]]
+    whole = images
+    # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
+    images = images[:, crop[0], crop[1]].astype(np.float32 if opts.dtype == "float32" else np.float64, copy=False)
+    sat = None if saturated is None else saturated[:, crop[0], crop[1]]
+    use, report = exclusions(images, sat, opts, whole=whole)
+    use &= mask[crop][None, :, :, None]
+    usable_leds = np.zeros((H, W), np.int16)
+    usable_leds[crop] = (use[..., 0] | use[..., 1] | use[..., 2]).sum(axis=0, dtype=np.int16)
+    data = images
     scale = float(np.percentile(data[use], 99)) if use.any() else 1.0  # usable lies inside the crop
     scale = scale if scale > 0 else 1.0
     data = data / np.float32(scale) if data.dtype == np.float32 else data / scale
