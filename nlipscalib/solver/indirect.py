@@ -31,6 +31,7 @@ from ..core.leds import led_shading
 from ..core.sensor import DomeConfig
 from ..errors import CaptureError, ConfigError
 from . import radiosity
+from .contact import led_levels
 
 PATCH_TARGET = 80
 """Patches along the image's long side (the patch side is the long side over this, at least 2 px)."""
@@ -348,7 +349,7 @@ def _fit_inputs(reference: Press, leds, shading) -> dict:
     lin = reference.linear(reference.led_images).astype(np.float64)
     usable = (~reference.saturated(reference.led_images)).astype(np.float64)
     usable[:, ~surf.valid] = 0.0
-    live = np.percentile(lin[:, surf.valid], 99, axis=(1, 2)) >= 1e-3 if surf.valid.any() else np.zeros(len(lin), bool)
+    live = led_levels(lin, surf.valid) >= 1e-3
     usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
     return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
 

@@ -142,7 +142,9 @@ def _solve_press(
     Returns
     -------
     SolveResult -- ``report`` adds roi, prior, interreflection (the fitted model and the decision),
-    indirect_compensation, dent_interreflection, outer_passes, anchoring (what was decided and why),
+    indirect_compensation, dent_interreflection, outer_passes, outer_changes_deg (median normal change of
+    each outer pass), pass_seconds (the solver's timer of each NLiPs solve; ``seconds`` is their sum),
+    anchoring (what was decided and why),
     anchored_pixels, dead_leds_contact, contact_seconds, indirect_seconds.
     """
     if interreflection not in INTERREFLECTION_MODES:
@@ -245,7 +247,7 @@ def _solve_press(
             )
         return result
 
-    passes, seconds = 0, 0.0
+    passes, seconds, changes, solver_seconds = 0, 0.0, [], []
     if model is not None and model.enabled:
         t0 = time.perf_counter()
         albedo0 = np.broadcast_to(np.asarray(model.off_view_albedo), (H, W, 3))
@@ -255,6 +257,7 @@ def _solve_press(
         )
         seconds += time.perf_counter() - t0
         result = run(light)
+        solver_seconds.append(result.report["seconds"])
         for _ in range(max_outer if dent_interreflection else 0):
             t0 = time.perf_counter()
             light = _solved_surface_light(model, press, leds, result, mask, ref_surface)
@@ -262,6 +265,8 @@ def _solve_press(
             new = run(light, init=result.depth)  # a small change of the light: start from the last depth
             passes += 1
             change = _median_change_deg(result, new)
+            changes.append(round(change, 4))
+            solver_seconds.append(new.report["seconds"])
             result = new
             if change < OUTER_TOL_DEG:
                 break
@@ -274,6 +279,9 @@ def _solve_press(
     rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
     rep["dent_interreflection"] = bool(passes > 0)
     rep["outer_passes"] = passes
+    rep["outer_changes_deg"] = changes
+    if solver_seconds:  # the solver's timer over every NLiPs solve of the outer loop, and each one
+        rep["seconds"], rep["pass_seconds"] = float(sum(solver_seconds)), [round(t, 3) for t in solver_seconds]
     rep["anchoring"] = anchoring
     rep["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
     rep["dead_leds_contact"] = list(cmap.dead_leds) if cmap is not None else []
