@@ -107,7 +107,7 @@ def classify_contact(
     dead_level: float = 1e-3,
     undeformed_noise: bool = False,
     blur_px: float = 1.5,
-    noise: float | None = None,
+    cache: dict | None = None,
 ) -> ContactMap:
     """Misfit of the undeformed dome to a press's LED images, and the noise-only misfit, per pixel.
 
@@ -123,8 +123,9 @@ def classify_contact(
     undeformed_noise : ``undeformed_images`` is a capture with its own noise (the noise-only misfit is
         then sqrt(2) times larger).
     blur_px : Gaussian sigma, pixels, of the smoothing before the fit (0: none).
-    noise : the press's image noise sigma (:func:`image_noise` over the live LEDs) when already
-        known, e.g. from an earlier classification of the same press; None: estimated here.
+    cache : dict or None -- shared by classifications of the same press against different undeformed
+        models (e.g. before and after a refit of the indirect term): holds the press's side (live
+        LEDs, smoothed images, noise), filled by the first call. Not used with ``indirect``.
 
     Returns
     -------
@@ -135,6 +136,27 @@ def classify_contact(
     leds = press.leds if leds is None else tuple(leds)
     ref = press.reference
     valid = np.isfinite(ref.depth)
+    side = cache if cache is not None and indirect is None else {}
+    if not side:
+        side.update(_press_side(press, valid, indirect, dead_level, blur_px))
+    live, img, ok, count = side["live"], side["images"], side["ok"], side["count"]
+    if undeformed_images is not None:
+        S = np.asarray(undeformed_images, np.float64)
+    else:
+        pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
+        S = led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds)
+    S = _smooth(S[live], valid, blur_px)
+    alb = (S * img * ok).sum(0) / np.maximum((S * S * ok).sum(0), 1e-30)
+    misfit = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
+    noise = side["noise"]
+    dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
+    noise_blurred = noise * _gain(blur_px) * (np.sqrt(2.0) if undeformed_noise else 1.0)
+    expected = np.full(valid.shape, noise_blurred) * np.sqrt(dof)
+    return ContactMap(np.where(valid, misfit, np.nan), expected, tuple(live), side["dead"], noise, side["level"])
+
+
+def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, blur_px: float) -> dict:
+    """The press's half of :func:`classify_contact`: live LEDs, smoothed images and their level, noise."""
     img = press.linear(press.led_images).astype(np.float64)
     level = led_levels(img, valid)
     dead = tuple(int(i) for i in np.flatnonzero(level < dead_level))
@@ -146,26 +168,20 @@ def classify_contact(
         )
     if indirect is not None:
         img = img - indirect
-    if undeformed_images is not None:
-        S = np.asarray(undeformed_images, np.float64)
-    else:
-        pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
-        S = led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds)
-    img, S = img[live], S[live]
     ok = ~press.saturated(press.led_images[live])
     # Deformation changes the shading coherently over many pixels, noise does not: classify on
     # smoothed images (normalised convolution inside the gel) and scale the noise alike.
-    img, S = _smooth(img, valid, blur_px), _smooth(S, valid, blur_px)
-    alb = (S * img * ok).sum(0) / np.maximum((S * S * ok).sum(0), 1e-30)
+    img = _smooth(img[live], valid, blur_px)
     count = np.maximum(ok.sum((0, 3)), 1)
-    misfit = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
-    if noise is None:
-        noise = image_noise(press.linear(press.led_images[live]), valid)
-    dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
-    noise_blurred = noise * _gain(blur_px) * (np.sqrt(2.0) if undeformed_noise else 1.0)
-    expected = np.full(valid.shape, noise_blurred) * np.sqrt(dof)
-    level = np.sqrt(((img * ok) ** 2).sum((0, 3)) / count)
-    return ContactMap(np.where(valid, misfit, np.nan), expected, tuple(live), dead, noise, level)
+    return {
+        "live": live,
+        "dead": dead,
+        "images": img,
+        "ok": ok,
+        "count": count,
+        "noise": image_noise(press.linear(press.led_images[live]), valid),
+        "level": np.sqrt(((img * ok) ** 2).sum((0, 3)) / count),
+    }
 
 
 def auto_roi(

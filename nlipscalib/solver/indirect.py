@@ -177,13 +177,10 @@ class Surface:
         Surface
         """
         new = copy.copy(self)
-        rows, cols = np.nonzero(changed)
-        if not rows.size:
+        if not changed.any():
             return new
         s = self.size
-        H, W = self.camera.shape
-        pr, pc = slice(rows.min() // s, rows.max() // s + 1), slice(cols.min() // s, cols.max() // s + 1)
-        win = (slice(pr.start * s, min(pr.stop * s, H)), slice(pc.start * s, min(pc.stop * s, W)))
+        pr, pc, win = _patch_window(changed, s)
         d = np.where(changed[win], np.asarray(depth)[win], self.depth[win])
         n = np.where(changed[win][..., None], np.asarray(normals)[win], self.normals[win])
         valid = np.isfinite(d)
@@ -213,6 +210,22 @@ class Surface:
 
     def receivers(self) -> tuple[np.ndarray, np.ndarray]:
         return self.patches["points"][self.keep], self.patches["normals"][self.keep]
+
+
+def _patch_window(pixels: np.ndarray, size: int) -> tuple[slice, slice, tuple[slice, slice]]:
+    """(patch rows, patch columns, pixel window) of the patches over the bounding box of ``pixels``
+    ((H, W) bool, not empty); the pixel window starts on a patch boundary and ends with the image."""
+    rows, cols = np.nonzero(pixels)
+    H, W = pixels.shape
+    pr, pc = slice(rows.min() // size, rows.max() // size + 1), slice(cols.min() // size, cols.max() // size + 1)
+    return pr, pc, (slice(pr.start * size, min(pr.stop * size, H)), slice(pc.start * size, min(pc.stop * size, W)))
+
+
+def _window_mean(patches: dict, values: np.ndarray, pr: slice, pc: slice, win) -> np.ndarray:
+    """:func:`radiosity.patch_mean` over the patches [pr, pc] only: ``values`` (L, h, w, 3) are the
+    pixels of their window ``win`` (from :func:`_patch_window`); the same numbers as the whole image's."""
+    sub = {"pixel_area": patches["pixel_area"][win], "area": patches["area"][pr, pc], "size": patches["size"]}
+    return radiosity.patch_mean(sub, values)
 
 
 def _gather_all(surface: Surface, rho_patch, off_unit, off_albedo, bounces: int, kappa=None):
@@ -277,11 +290,21 @@ def fit_indirect(
     if not cache:
         cache.update(_fit_inputs(reference, leds, shading))
     surf, off, off_unit, lin = (cache[k] for k in ("surface", "off", "off_unit", "linear"))
-    usable = cache["usable"].copy()
-    if exclude is not None:
-        usable[:, exclude] = 0.0
-    img = radiosity.patch_mean(surf.patches, lin * usable)[:, surf.keep]  # (L, K, 3)
-    frac = radiosity.patch_mean(surf.patches, usable)[:, surf.keep]
+    usable = cache["usable"]
+    if "image_means" not in cache:
+        cache["image_means"] = radiosity.patch_mean(surf.patches, lin * usable)
+        cache["usable_means"] = radiosity.patch_mean(surf.patches, usable)
+    img, frac = cache["image_means"], cache["usable_means"]
+    if exclude is not None and exclude.any():
+        # only the patches over the excluded pixels change: recompute those
+        pr, pc, win = _patch_window(exclude, surf.size)
+        usable = usable[:, win[0], win[1]].copy()
+        usable[:, exclude[win]] = 0.0
+        sub_lin = lin[:, win[0], win[1]]
+        img, frac = img.copy(), frac.copy()
+        img[:, pr, pc] = _window_mean(surf.patches, sub_lin * usable, pr, pc, win)
+        frac[:, pr, pc] = _window_mean(surf.patches, usable, pr, pc, win)
+    img, frac = img[:, surf.keep], frac[:, surf.keep]  # (L, K, 3)
     ok = frac > 0.99  # patches wholly usable for that LED and channel
     S = surf.shading[:, surf.keep]
     kappa = np.zeros(3)

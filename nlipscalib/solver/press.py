@@ -166,7 +166,7 @@ def _solve_press(
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
     t0 = time.perf_counter()
-    model, fit_cache = None, {}
+    model, fit_cache, contact_cache = None, {}, {}
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
     shading = direct_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
     if fixed_light is None and press.reference is not None:
@@ -189,7 +189,7 @@ def _solve_press(
     t0 = time.perf_counter()
     cmap, refit = None, 0.0
     if press.reference is not None:
-        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading)
+        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading, contact_cache)
         if model is not None and model.enabled and ref_capture is None and explicit_roi is None:
             # the press stands in for the undeformed capture: fit again without its contact
             t1 = time.perf_counter()
@@ -204,7 +204,7 @@ def _solve_press(
             )
             refit = time.perf_counter() - t1
             t_indirect += refit
-            cmap = _contact(press, leds, None, None, model, shading, noise=cmap.noise)
+            cmap = _contact(press, leds, None, None, model, shading, contact_cache)
     if model is not None and model.enabled and coating_albedo is not None:
         model = _with_reflectance(model, coating_albedo)
     if roi == "auto":
@@ -364,18 +364,18 @@ def _with_reflectance(model: IndirectModel, reflectance) -> IndirectModel:
     )
 
 
-def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, noise=None) -> ContactMap:
+def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache=None) -> ContactMap:
     """The one contact classification: against the undeformed capture, or the model with its indirect term.
 
-    ``shading``: :func:`direct_shading` of the reference surface; ``noise``: the press's image noise
-    when an earlier classification measured it."""
+    ``shading``: :func:`direct_shading` of the reference surface; ``cache``: the press's side of the
+    classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
     if ref_capture is not None:
         und = ref_capture.linear(ref_capture.led_images)
-        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, noise=noise)
+        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, cache=cache)
     if model is not None and model.enabled:
         undeformed = shading + model.undeformed_light(press.camera.shape)
-        return classify_contact(press, leds, undeformed_images=undeformed, noise=noise)
-    return classify_contact(press, leds, undeformed_images=shading, indirect=fixed_light, noise=noise)
+        return classify_contact(press, leds, undeformed_images=undeformed, cache=cache)
+    return classify_contact(press, leds, undeformed_images=shading, indirect=fixed_light, cache=cache)
 
 
 def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, ref_surface: Surface) -> np.ndarray:
