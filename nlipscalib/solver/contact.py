@@ -20,6 +20,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import led_shading
 from ..errors import CaptureError
+from . import threads
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,11 +91,15 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     if inner.sum() < 16:
         return 0.0
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    est = []
-    for img in images:
+
+    def per_image(img):
+        out = []
         for c in range(img.shape[-1]):
             f = ndimage.convolve(np.asarray(img[..., c], np.float32), kernel, mode="nearest")[inner]
-            est.append(1.4826 * float(np.median(np.abs(f - np.median(f)))) / 6.0)
+            out.append(1.4826 * float(np.median(np.abs(f - np.median(f)))) / 6.0)
+        return out
+
+    est = [e for per in threads.map_items(per_image, images) for e in per]
     return float(np.median(est))
 
 
@@ -281,8 +286,11 @@ def _smooth(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
     w = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma)
     inv = np.where(valid, 1.0 / np.maximum(w, 1e-6), 0.0)[..., None]
     out = np.empty(stack.shape, np.float64)
-    for i, img in enumerate(stack):
-        out[i] = cv2.GaussianBlur(np.where(valid[..., None], img, 0).astype(np.float32), (0, 0), sigma) * inv
+
+    def blur(i):
+        out[i] = cv2.GaussianBlur(np.where(valid[..., None], stack[i], 0).astype(np.float32), (0, 0), sigma) * inv
+
+    threads.map_items(blur, range(len(stack)))
     return out
 
 

@@ -30,7 +30,7 @@ from ..core.capture import Press
 from ..core.leds import led_shading
 from ..core.sensor import DomeConfig
 from ..errors import CaptureError, ConfigError
-from . import radiosity
+from . import radiosity, threads
 from .contact import led_levels
 
 PATCH_TARGET = 80
@@ -129,7 +129,8 @@ def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray)
     valid = np.isfinite(depth)
     pts = depth_to_points(np.where(valid, depth, 0.0), camera.rays)
     nrm = np.where(valid[..., None], normals, 0.0).astype(np.float64)
-    s = led_shading(pts, nrm, tuple(leds))
+    leds = tuple(leds)
+    s = np.concatenate(threads.map_items(lambda part: led_shading(pts, nrm, leds[part]), threads.chunks(len(leds))))
     s[:, ~valid] = 0.0
     return s
 

@@ -27,6 +27,7 @@ import numpy as np
 from ..core.camera import Camera
 from ..core.dome import dome_inward_normals, project_to_dome
 from ..core.sensor import DomeConfig
+from . import threads
 
 
 def pixel_solid_angle(camera: Camera) -> np.ndarray:
@@ -107,7 +108,7 @@ def patch_mean(patches: dict, values: np.ndarray) -> np.ndarray:
     w, size = patches["pixel_area"], patches["size"]
     per_area = 1.0 / np.maximum(patches["area"], 1e-30)
     if values.ndim == 4:
-        return np.stack([block_sum(v * w[..., None], size) * per_area[..., None] for v in values])
+        return np.stack(threads.map_items(lambda v: block_sum(v * w[..., None], size) * per_area[..., None], values))
     return block_sum(values * w.reshape(w.shape + (1,) * (values.ndim - 2)), size) * per_area.reshape(
         per_area.shape + (1,) * (values.ndim - 2)
     )
