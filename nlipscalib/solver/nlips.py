@@ -31,7 +31,7 @@ from ..core.reconstruction import Reconstruction
 from . import geometry, robust
 from .blas import blas_threads
 from .inputs import check_inputs
-from .kernel import Backend, Model
+from .kernel import Backend, make_model
 from .krylov import Krylov, forcing
 from .options import SolverOptions
 from .pyramid import build_pyramid, checked_prior_weights, resize
@@ -303,7 +303,7 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
     Du, Dv, lap, normal = ops["Du"], ops["Dv"], ops["lap"], ops["normal"]
     t0 = lv["t0"][mk]
     t = t_init[mk].copy()
-    model = Model(be, lv["q"], A, B, C, pos, dirs, mu, psi, lv["images"], lv["usable"])
+    model = make_model(be, lv["q"], A, B, C, pos, dirs, mu, psi, lv["images"], lv["usable"])
     zeta = lv["zeta"]
     n = len(t)
     tm.lap("setup")
