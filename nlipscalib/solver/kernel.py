@@ -189,7 +189,7 @@ class Model:
         return M, b
 
 
-PARALLEL_MIN_PIXELS = 40_000
+PARALLEL_MIN_PIXELS = 20_000
 """Levels with at least this many pixels run the model on pixel chunks in threads (numpy backend)."""
 
 
