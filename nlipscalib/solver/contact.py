@@ -83,19 +83,25 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     Returns
     -------
     float -- median over LEDs and channels of the per-image estimate (robust form: 1.4826 MAD of the
-    filtered image over sqrt(36), the mask's squared norm).
+    filtered image over sqrt(36), the mask's squared norm). The medians are taken over every second
+    row of the gel (a statistic: ~10^5 samples per image and channel, half the cost of all of them).
     """
+    import cv2
     from scipy import ndimage
 
     inner = ndimage.binary_erosion(valid, iterations=2)
     if inner.sum() < 16:
         return 0.0
+    sample = inner.copy()
+    if inner[::2].sum() >= 16:
+        sample[1::2] = False
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
     def per_image(img):
+        # the kernel is symmetric: correlation (OpenCV) = convolution; replicated border = scipy's "nearest"
+        filtered = cv2.filter2D(np.asarray(img, np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
         out = []
-        for c in range(img.shape[-1]):
-            f = ndimage.convolve(np.asarray(img[..., c], np.float32), kernel, mode="nearest")[inner]
+        for f in np.moveaxis(filtered[sample], -1, 0):
             out.append(1.4826 * float(np.median(np.abs(f - np.median(f)))) / 6.0)
         return out
 
