@@ -87,7 +87,7 @@ mark("start")
 import nlipscalib.cli
 mark("import nlipscalib.cli (parser modules)")
 import nlipscalib.solver
-mark("import nlipscalib.solver (numpy, scipy.sparse[.linalg], scipy.optimize via solver.calibrate)")
+mark("import nlipscalib.solver (numpy, scipy.sparse[.linalg])")
 from nlipscalib.core.capture import load_press
 from nlipscalib.pipeline import make_provenance, make_settings
 from nlipscalib.report import write_reconstruction_figures

@@ -18,13 +18,17 @@ _pool: ThreadPoolExecutor | None = None
 
 
 def workers() -> int:
-    """Threads used (default: the cores this process may run on)."""
+    """Threads used: ``NLIPS_THREADS`` when set, else the cores this process may run on."""
     global _workers
     if _workers is None:
-        try:
-            _workers = len(os.sched_getaffinity(0))
-        except AttributeError:  # not Linux
-            _workers = os.cpu_count() or 1
+        env = os.environ.get("NLIPS_THREADS", "").strip()
+        if env.isdigit() and int(env) > 0:
+            _workers = int(env)
+        else:
+            try:
+                _workers = len(os.sched_getaffinity(0))
+            except AttributeError:  # not Linux
+                _workers = os.cpu_count() or 1
     return _workers
 
 
