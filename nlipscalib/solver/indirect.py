@@ -471,9 +471,18 @@ def surface_indirect(
     G_all = _gather_at(surf, rho_patch, model, want)
     g = np.zeros((len(surf.leds), h, w, 3), np.float32)
     g[:, want] = G_all
-    up = radiosity.upsample(g, (H, W), size)
-    B = np.asarray(model.kappa, np.float32) * albedo.astype(np.float32)[None] * up
-    B[:, ~receivers] = 0.0
+    B = np.zeros((len(surf.leds), H, W, 3), np.float32)
+    if not receivers.any():
+        return B
+    # upsample only the patches around the receivers (one patch of margin: the bilinear weights of every
+    # receiver pixel then come from inside the window, the same numbers as upsampling the whole grid)
+    pr, pc, _ = _patch_window(receivers, size)
+    pr, pc = slice(max(pr.start - 1, 0), min(pr.stop + 1, h)), slice(max(pc.start - 1, 0), min(pc.stop + 1, w))
+    win = (slice(pr.start * size, min(pr.stop * size, H)), slice(pc.start * size, min(pc.stop * size, W)))
+    up = radiosity.upsample(g[:, pr, pc], (win[0].stop - win[0].start, win[1].stop - win[1].start), size)
+    block = np.asarray(model.kappa, np.float32) * albedo[win].astype(np.float32)[None] * up
+    block[:, ~receivers[win]] = 0.0
+    B[:, win[0], win[1]] = block
     return B
 
 

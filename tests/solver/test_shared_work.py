@@ -102,3 +102,22 @@ def test_threads_keep_the_order_and_cover_every_item():
     parts = threads.chunks(10, 3)
     assert [i for s in parts for i in range(10)[s]] == list(range(10))
     assert threads.chunks(1, 4) == [slice(0, 1)]
+
+
+def test_the_indirect_light_at_a_receiver_does_not_depend_on_the_other_receivers(press):
+    """surface_indirect gathers and upsamples around the receivers only: a box of receivers gets the
+    same light as the whole gel, cut to the box."""
+    from nlipscalib.solver.indirect import IndirectModel, surface_indirect
+
+    model = IndirectModel((0.01, 0.01, 0.01), (0.8, 0.8, 0.8), 0.3, 1, True, "test")
+    ref = press.reference
+    valid = np.isfinite(ref.depth)
+    albedo = np.full(press.camera.shape + (3,), 80.0)
+    box = np.zeros(press.camera.shape, bool)
+    box[22:47, 31:58] = True
+    box &= valid
+    whole = surface_indirect(model, press.camera, press.leds, ref.depth, ref.normals, albedo, valid, size=4)
+    part = surface_indirect(model, press.camera, press.leds, ref.depth, ref.normals, albedo, box, size=4)
+    assert whole[:, box].min() > 0  # the premise: light everywhere in the box
+    np.testing.assert_allclose(part[:, box], whole[:, box], rtol=1e-6)
+    assert not part[:, ~box].any()
