@@ -45,8 +45,11 @@ def block_sum(a: np.ndarray, size: int) -> np.ndarray:
     """Sum (H, W, ...) over size x size blocks -> (ceil(H/size), ceil(W/size), ...), zero padding."""
     H, W = a.shape[:2]
     h, w = -(-H // size), -(-W // size)
-    pad = np.zeros((h * size, w * size) + a.shape[2:], dtype=np.float64)
-    pad[:H, :W] = a
+    if H == h * size and W == w * size and a.dtype == np.float64 and a.flags.c_contiguous:
+        pad = a  # no padding needed: sum the blocks of the array itself (no copy)
+    else:
+        pad = np.zeros((h * size, w * size) + a.shape[2:], dtype=np.float64)
+        pad[:H, :W] = a
     return pad.reshape(h, size, w, size, *a.shape[2:]).sum(axis=(1, 3))
 
 
