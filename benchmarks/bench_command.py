@@ -1,7 +1,9 @@
 """Whole-command speed of ``nlips solve``: process wall time as a user measures it, next to the solver's timer.
 
 Each case runs ``nlips solve PRESS ...`` as a fresh Python process (imports, loading, solving, saving,
-figures: everything the user waits for) on an exact-data 640x480 sphere press (12 LEDs), with
+figures: everything the user waits for) on an exact-data 640x480 sphere press (12 LEDs) and, when the
+twin (Mitsuba) is installed, on rendered 640x480 sphere presses of the default scene with noise: one
+bounce at 16 spp (the interreflection term and its outer loop run) and direct light at 4 spp; with
 ``--overwrite`` so every run solves. Reported per case: median process wall, the solver's own timer
 (report.json ``seconds``), the pipeline's load and solve timers (``command_seconds``), and the rest
 (imports, ROI/anchor work outside the solver's timer, saving, figures). Also the start-up floor
@@ -9,7 +11,7 @@ figures: everything the user waits for) on an exact-data 640x480 sphere press (1
 
 The machine's 2 cores are shared with other work: the load average before and after is recorded.
 
-Run: .venv/bin/python benchmarks/bench_command.py [--repeats 3]
+Run: .venv/bin/python benchmarks/bench_command.py [--repeats 3] [--no-twin]
 Writes the "bench_command" section of benchmarks/RESULTS.md.
 """
 
@@ -85,7 +87,7 @@ mark("start")
 import nlipscalib.cli
 mark("import nlipscalib.cli (parser modules)")
 import nlipscalib.solver
-mark("import nlipscalib.solver (numpy, scipy.sparse[.linalg], scipy.optimize via solver.calibrate)")
+mark("import nlipscalib.solver (numpy, scipy.sparse[.linalg])")
 from nlipscalib.core.capture import load_press
 from nlipscalib.pipeline import make_provenance, make_settings
 from nlipscalib.report import write_reconstruction_figures
@@ -114,6 +116,29 @@ def breakdown(press: Path, case: str, tmp: Path) -> list:
     return json.loads(out.strip().splitlines()[-1])
 
 
+def twin_presses(tmp: Path) -> list[tuple[str, Path]]:
+    """(label, folder) of the rendered presses (empty without Mitsuba)."""
+    try:
+        from nlipscalib.sim.indent import PressConfig
+        from nlipscalib.sim.indenters import IndenterConfig
+        from nlipscalib.sim.press import render_press
+        from nlipscalib.sim.scene import load_scene
+    except ImportError as exc:
+        print(f"twin presses skipped: {exc}", flush=True)
+        return []
+    press = PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5)
+    base = load_scene().replace(camera={"width": 640, "height": 480}, noise={"enabled": True})
+    out = []
+    for label, render in (
+        ("twin, bounces 1, 16 spp", {"bounces": 1, "spp": 16}),
+        ("twin, bounces 0, 4 spp", {"bounces": 0, "spp": 4}),
+    ):
+        folder = tmp / label.replace(",", "").replace(" ", "_")
+        render_press(base.replace(render=render), press, folder, seed=2)
+        out.append((label, folder))
+    return out
+
+
 def load_average() -> str:
     return " / ".join(f"{x:.2f}" for x in os.getloadavg())
 
@@ -121,6 +146,7 @@ def load_average() -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--no-twin", action="store_true", help="exact-data press only (no Mitsuba renders)")
     args = parser.parse_args()
     from tests.solver import synth
 
@@ -137,36 +163,46 @@ def main() -> None:
             ),
         }
         cases = [
-            ("full", "maps (default)", []),
-            ("full", "none", ["--no-figures"]),
-            ("auto ROI", "maps (default)", ["--roi", "auto"]),
-            ("auto ROI", "none", ["--roi", "auto", "--no-figures"]),
+            ("exact sphere", press, "full", "maps (default)", []),
+            ("exact sphere", press, "full", "none", ["--no-figures"]),
+            ("exact sphere", press, "auto ROI", "maps (default)", ["--roi", "auto"]),
+            ("exact sphere", press, "auto ROI", "none", ["--roi", "auto", "--no-figures"]),
         ]
-        rows = [(name, figs, time_case(press, extra, args.repeats)) for name, figs, extra in cases]
+        for label, folder in [] if args.no_twin else twin_presses(Path(tmp)):
+            cases.append((label, folder, "auto ROI", "maps (default)", ["--roi", "auto"]))
+            if "bounces 0" in label:  # a one-bounce whole frame takes minutes (the outer loop on 300k pixels)
+                cases.append((label, folder, "full", "maps (default)", []))
+        rows = []
+        for label, folder, name, figs, extra in cases:
+            rows.append((label, name, figs, time_case(folder, extra, args.repeats)))
+            print(rows[-1], flush=True)
         stages = {case: breakdown(press, case, Path(tmp)) for case in ("full", "auto")}
         skip = statistics.median(
             run_process(["solve", str(press), "--roi", "auto", "--no-progress"]) for _ in range(args.repeats)
         )
     after = load_average()
     lines = [
-        f"`nlips solve` on an exact-data 640x480 sphere press (12 LEDs, default options), each run a fresh "
+        f"`nlips solve` on 640x480 sphere presses (12 LEDs, default options): exact data, and twin renders "
+        "(default scene, noise on); each run a fresh "
         f"process with `--overwrite`; median of {args.repeats} after a warm-up. Load average (1/5/15 min) "
         f"before: {before}, after: {after} (2 cores shared with other helpers' work: expect several-fold "
         "inflation of every number when the load is above 2).",
         "",
-        "| case | figures | process wall s | process CPU s | solver timer s | load s | solve_press s "
+        "| press | case | figures | process wall s | process CPU s | solver timer s | load s | solve_press s "
         "| rest s (imports, save, figures) | goal s |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for name, figs, m in rows:
+    for label, name, figs, m in rows:
         rest = m["wall"] - m["load"] - m["solve"]
         lines.append(
-            f"| {name} | {figs} | {m['wall']:.2f} | {m['cpu']:.2f} | {m['solver']:.2f} | {m['load']:.2f} "
+            f"| {label} | {name} | {figs} | {m['wall']:.2f} | {m['cpu']:.2f} | {m['solver']:.2f} | {m['load']:.2f} "
             f"| {m['solve']:.2f} | {rest:.2f} | {GOALS[name]:.1f} |"
         )
     lines += [
         "",
-        "`solve_press s` includes the solver timer plus auto ROI and anchor classification (solver/press.py). "
+        "`solver timer s` is the NLiPs solver's own timer summed over the outer interreflection passes; "
+        "`solve_press s` adds the contact classification (auto ROI, anchoring) and the interreflection term's "
+        "fit and gathers (solver/press.py). "
         "Process CPU s (user + system) does not count waiting for a core; PNG decoding and map writing use "
         "threads, so it can exceed wall time on an idle machine.",
         "",

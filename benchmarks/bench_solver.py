@@ -4,7 +4,8 @@ when the digital twin is installed, a rendered press (Mitsuba, noise on).
 Each case is a full 640x480 solve (the whole visible gel) and a 160x160 region of interest centred on
 the contact, 12 LEDs, default SolverOptions. Times are medians of ``--repeats`` runs after one warm-up,
 wall clock and process CPU time (the 2 cores are shared with other work: CPU time is the steadier
-number).
+number) of ``solve_press`` in this process, next to the process wall and CPU of the command a user runs
+(``nlips solve PRESS [--roi x0 y0 w h] --overwrite``: imports, loading, solving, saving, figures).
 
 Run: .venv/bin/python benchmarks/bench_solver.py [--repeats 3] [--backends numpy,torch]
 Writes the "bench_solver" section of benchmarks/RESULTS.md.
@@ -23,6 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench_command import run_process  # noqa: E402
 from common import median_time, write_section  # noqa: E402
 
 from nlipscalib.core import load_press  # noqa: E402
@@ -82,6 +84,16 @@ def time_case(press, roi, backend: str, repeats: int) -> dict:
     }
 
 
+def time_command(folder: Path, roi, backend: str, repeats: int) -> dict:
+    """Median process wall and CPU seconds of ``nlips solve folder`` (one warm-up run first)."""
+    extra = [] if roi is None else ["--roi", *(str(v) for v in roi)]
+    args = ["solve", str(folder), "--overwrite", "--no-progress", "--backend", backend, *extra]
+    walls, cpu = [], []
+    for _ in range(repeats + 1):
+        walls.append(run_process(args, cpu))
+    return {"process_wall": float(np.median(walls[1:])), "process_cpu": float(np.median(cpu[1:]))}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=3)
@@ -95,6 +107,7 @@ def main() -> None:
             for backend in args.backends.split(","):
                 for size, roi in (("full 640x480", None), (f"ROI {ROI_SIZE}x{ROI_SIZE}", contact_roi(press))):
                     r = time_case(press, roi, backend, args.repeats)
+                    r.update(time_command(folder, roi, backend, args.repeats))
                     rows.append((label, size, backend, r))
                     print(label, size, backend, {k: round(v, 4) for k, v in r.items()}, flush=True)
     load_after = os.getloadavg()
@@ -103,13 +116,14 @@ def main() -> None:
         f"Load average before {load_before[0]:.2f}, after {load_after[0]:.2f} (2 cores, shared).",
         "Goals: full <= 10 s, ROI <= 1 s.",
         "",
-        "| press | size | backend | median wall s | median CPU s | iterations (finest) "
-        "| AAE all (deg) | AAE contact (deg) | depth RMSE (mm) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| press | size | backend | solve_press wall s | solve_press CPU s | `nlips solve` process wall s "
+        "| `nlips solve` process CPU s | iterations (finest) | AAE all (deg) | AAE contact (deg) | depth RMSE (mm) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for label, size, backend, r in rows:
         lines.append(
-            f"| {label} | {size} | {backend} | {r['wall']:.2f} | {r['cpu']:.2f} | {r['iters']} ({r['finest_iters']}) "
+            f"| {label} | {size} | {backend} | {r['wall']:.2f} | {r['cpu']:.2f} | {r['process_wall']:.2f} "
+            f"| {r['process_cpu']:.2f} | {r['iters']} ({r['finest_iters']}) "
             f"| {r['aae']:.3f} | {r['aae_contact']:.3f} | {r['rmse']:.4f} |"
         )
     write_section("bench_solver", "\n".join(lines))

@@ -595,6 +595,9 @@ def _worker_init(log_level: int) -> None:
     """Log like the parent; one core per worker: the solver limits BLAS itself, OpenCV's pool is limited here."""
     logging.basicConfig(level=log_level, format="%(levelname)s %(message)s")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from .solver import threads
+
+    threads.set_workers(1)
     try:
         import cv2
 

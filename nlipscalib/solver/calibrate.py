@@ -14,7 +14,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from ..core.camera import depth_to_points
 from ..core.capture import Press
@@ -165,6 +164,8 @@ def _samples(p: Press, first: Press, count: int, stride: int):
 
 def _fit_all(leds, x, n, img, ok, loss):
     """[(params, std, rms)] per LED: robust non-linear least squares from ``leds``."""
+    from scipy.optimize import least_squares  # imported here: ~0.5 s that `nlips solve` never needs
+
     out = []
     for i, led in enumerate(leds):
         d = np.asarray(led.direction)

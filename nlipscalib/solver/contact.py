@@ -20,6 +20,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import led_shading
 from ..errors import CaptureError
+from . import threads
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +51,27 @@ class ContactMap:
         return np.nan_to_num(self.ratio, nan=np.inf) <= factor
 
 
+def led_levels(images: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Bright end of each LED image: the 99th percentile over the gel's pixels and the channels.
+
+    A statistic, taken on every second row and column (the same dead-LED verdicts at a tenth of the
+    cost of all 10^6 samples per image, which cost ~0.5 s per call at 640x480).
+
+    Parameters
+    ----------
+    images : (L, H, W, 3) float -- linear images.
+    valid : (H, W) bool -- the gel's pixels.
+
+    Returns
+    -------
+    (L,) float64 -- zeros when no pixel is valid.
+    """
+    sub = valid[::2, ::2]
+    if not sub.any():
+        return np.zeros(len(images))
+    return np.percentile(np.asarray(images)[:, ::2, ::2][:, sub], 99, axis=(1, 2))
+
+
 def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     """Noise sigma of linear images (Immerkaer 1996: a Laplacian-difference mask cancels smooth shading).
 
@@ -61,19 +83,29 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     Returns
     -------
     float -- median over LEDs and channels of the per-image estimate (robust form: 1.4826 MAD of the
-    filtered image over sqrt(36), the mask's squared norm).
+    filtered image over sqrt(36), the mask's squared norm). The medians are taken over every second
+    row of the gel (a statistic: ~10^5 samples per image and channel, half the cost of all of them).
     """
+    import cv2
     from scipy import ndimage
 
     inner = ndimage.binary_erosion(valid, iterations=2)
     if inner.sum() < 16:
         return 0.0
+    sample = inner.copy()
+    if inner[::2].sum() >= 16:
+        sample[1::2] = False
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
-    est = []
-    for img in images:
-        for c in range(img.shape[-1]):
-            f = ndimage.convolve(np.asarray(img[..., c], np.float32), kernel, mode="nearest")[inner]
-            est.append(1.4826 * float(np.median(np.abs(f - np.median(f)))) / 6.0)
+
+    def per_image(img):
+        # the kernel is symmetric: correlation (OpenCV) = convolution; replicated border = scipy's "nearest"
+        filtered = cv2.filter2D(np.asarray(img, np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
+        out = []
+        for f in np.moveaxis(filtered[sample], -1, 0):
+            out.append(1.4826 * float(np.median(np.abs(f - np.median(f)))) / 6.0)
+        return out
+
+    est = [e for per in threads.map_items(per_image, images) for e in per]
     return float(np.median(est))
 
 
@@ -86,6 +118,7 @@ def classify_contact(
     dead_level: float = 1e-3,
     undeformed_noise: bool = False,
     blur_px: float = 1.5,
+    cache: dict | None = None,
 ) -> ContactMap:
     """Misfit of the undeformed dome to a press's LED images, and the noise-only misfit, per pixel.
 
@@ -101,6 +134,9 @@ def classify_contact(
     undeformed_noise : ``undeformed_images`` is a capture with its own noise (the noise-only misfit is
         then sqrt(2) times larger).
     blur_px : Gaussian sigma, pixels, of the smoothing before the fit (0: none).
+    cache : dict or None -- shared by classifications of the same press against different undeformed
+        models (e.g. before and after a refit of the indirect term): holds the press's side (live
+        LEDs, smoothed images, noise), filled by the first call. Not used with ``indirect``.
 
     Returns
     -------
@@ -111,8 +147,29 @@ def classify_contact(
     leds = press.leds if leds is None else tuple(leds)
     ref = press.reference
     valid = np.isfinite(ref.depth)
+    side = cache if cache is not None and indirect is None else {}
+    if not side:
+        side.update(_press_side(press, valid, indirect, dead_level, blur_px))
+    live, img, ok, count = side["live"], side["images"], side["ok"], side["count"]
+    if undeformed_images is not None:
+        S = np.asarray(undeformed_images, np.float64)
+    else:
+        pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
+        S = led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds)
+    S = _smooth(S[live], valid, blur_px)
+    alb = (S * img * ok).sum(0) / np.maximum((S * S * ok).sum(0), 1e-30)
+    misfit = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
+    noise = side["noise"]
+    dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
+    noise_blurred = noise * _gain(blur_px) * (np.sqrt(2.0) if undeformed_noise else 1.0)
+    expected = np.full(valid.shape, noise_blurred) * np.sqrt(dof)
+    return ContactMap(np.where(valid, misfit, np.nan), expected, tuple(live), side["dead"], noise, side["level"])
+
+
+def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, blur_px: float) -> dict:
+    """The press's half of :func:`classify_contact`: live LEDs, smoothed images and their level, noise."""
     img = press.linear(press.led_images).astype(np.float64)
-    level = np.percentile(img[:, valid], 99, axis=(1, 2)) if valid.any() else np.zeros(len(img))
+    level = led_levels(img, valid)
     dead = tuple(int(i) for i in np.flatnonzero(level < dead_level))
     live = [i for i in range(len(img)) if i not in dead]
     if len(live) < tolerances.MIN_LEDS_PER_PIXEL:
@@ -122,25 +179,20 @@ def classify_contact(
         )
     if indirect is not None:
         img = img - indirect
-    if undeformed_images is not None:
-        S = np.asarray(undeformed_images, np.float64)
-    else:
-        pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
-        S = led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds)
-    img, S = img[live], S[live]
     ok = ~press.saturated(press.led_images[live])
     # Deformation changes the shading coherently over many pixels, noise does not: classify on
     # smoothed images (normalised convolution inside the gel) and scale the noise alike.
-    img, S = _smooth(img, valid, blur_px), _smooth(S, valid, blur_px)
-    alb = (S * img * ok).sum(0) / np.maximum((S * S * ok).sum(0), 1e-30)
+    img = _smooth(img[live], valid, blur_px)
     count = np.maximum(ok.sum((0, 3)), 1)
-    misfit = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
-    noise = image_noise(press.linear(press.led_images[live]), valid)
-    dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
-    noise_blurred = noise * _gain(blur_px) * (np.sqrt(2.0) if undeformed_noise else 1.0)
-    expected = np.full(valid.shape, noise_blurred) * np.sqrt(dof)
-    level = np.sqrt(((img * ok) ** 2).sum((0, 3)) / count)
-    return ContactMap(np.where(valid, misfit, np.nan), expected, tuple(live), dead, noise, level)
+    return {
+        "live": live,
+        "dead": dead,
+        "images": img,
+        "ok": ok,
+        "count": count,
+        "noise": image_noise(press.linear(press.led_images[live]), valid),
+        "level": np.sqrt(((img * ok) ** 2).sum((0, 3)) / count),
+    }
 
 
 def auto_roi(
@@ -240,8 +292,11 @@ def _smooth(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
     w = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma)
     inv = np.where(valid, 1.0 / np.maximum(w, 1e-6), 0.0)[..., None]
     out = np.empty(stack.shape, np.float64)
-    for i, img in enumerate(stack):
-        out[i] = cv2.GaussianBlur(np.where(valid[..., None], img, 0).astype(np.float32), (0, 0), sigma) * inv
+
+    def blur(i):
+        out[i] = cv2.GaussianBlur(np.where(valid[..., None], stack[i], 0).astype(np.float32), (0, 0), sigma) * inv
+
+    threads.map_items(blur, range(len(stack)))
     return out
 
 

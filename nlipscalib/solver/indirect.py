@@ -19,6 +19,7 @@ G across the LEDs), and :func:`fit_indirect` switches the term off when its shar
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import numpy as np
@@ -29,7 +30,8 @@ from ..core.capture import Press
 from ..core.leds import led_shading
 from ..core.sensor import DomeConfig
 from ..errors import CaptureError, ConfigError
-from . import radiosity
+from . import radiosity, threads
+from .contact import led_levels
 
 PATCH_TARGET = 80
 """Patches along the image's long side (the patch side is the long side over this, at least 2 px)."""
@@ -107,6 +109,32 @@ def fit_patch_size(camera: Camera) -> int:
     return max(2, round(max(camera.shape) / FIT_PATCH_TARGET))
 
 
+def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Direct shading of a surface at every pixel (``core.leds.led_shading``), 0 off the gel.
+
+    Computed once per solve for the reference surface and shared by the indirect fit, the contact
+    classification and the outer loop (a full-frame evaluation costs ~0.4 s; a solve needed six).
+
+    Parameters
+    ----------
+    camera : Camera
+    leds : sequence of Led, length L
+    depth : (H, W) float, mm (z), camera frame; NaN off the gel.
+    normals : (H, W, 3) float, unit, camera frame, toward the camera.
+
+    Returns
+    -------
+    (L, H, W, 3) float64 -- shading factor per LED and channel.
+    """
+    valid = np.isfinite(depth)
+    pts = depth_to_points(np.where(valid, depth, 0.0), camera.rays)
+    nrm = np.where(valid[..., None], normals, 0.0).astype(np.float64)
+    leds = tuple(leds)
+    s = np.concatenate(threads.map_items(lambda part: led_shading(pts, nrm, leds[part]), threads.chunks(len(leds))))
+    s[:, ~valid] = 0.0
+    return s
+
+
 class Surface:
     """The (reference or solved) surface as patches, with its direct shading per patch.
 
@@ -116,22 +144,66 @@ class Surface:
     leds : sequence of Led
     depth : (H, W) float, mm (z), camera frame; NaN off the gel.
     normals : (H, W, 3) float, unit, camera frame, toward the camera.
+    size : patch side, pixels (default :func:`patch_size`).
+    shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of this surface when the caller
+        has it already (None: computed here).
     """
 
-    def __init__(self, camera: Camera, leds, depth, normals, size: int | None = None):
+    def __init__(self, camera: Camera, leds, depth, normals, size: int | None = None, shading=None):
         self.camera, self.leds = camera, tuple(leds)
         self.valid = np.isfinite(depth)
+        self.depth, self.normals = np.asarray(depth), np.asarray(normals)
         self.size = patch_size(camera) if size is None else int(size)
         pts = depth_to_points(np.where(self.valid, depth, 0.0), camera.rays)
         nrm = np.where(self.valid[..., None], normals, 0.0).astype(np.float64)
         self.patches = radiosity.surface_patches(pts, nrm, self.valid, camera, self.size)
-        self.shading = self._shading(pts, nrm)  # (L, h, w, 3) patch means
+        if shading is None:
+            shading = direct_shading(camera, self.leds, depth, normals)
+        self.shading = radiosity.patch_mean(self.patches, shading)  # (L, h, w, 3) patch means
         self.keep = self.patches["area"] > 0
 
-    def _shading(self, pts, nrm):
-        s = led_shading(pts, nrm, self.leds)
-        s[:, ~self.valid] = 0.0
-        return radiosity.patch_mean(self.patches, s)
+    def replaced(self, depth: np.ndarray, normals: np.ndarray, changed: np.ndarray) -> Surface:
+        """This surface with ``depth`` and ``normals`` at the ``changed`` pixels (a solved region).
+
+        Only the patches over the changed pixels' bounding box are recomputed (geometry and direct
+        shading); the numbers equal those of a new ``Surface`` of the whole changed surface.
+
+        Parameters
+        ----------
+        depth : (H, W) float, mm; normals : (H, W, 3) float, unit -- the new surface (read in the box).
+        changed : (H, W) bool
+
+        Returns
+        -------
+        Surface
+        """
+        new = copy.copy(self)
+        if not changed.any():
+            return new
+        s = self.size
+        pr, pc, win = _patch_window(changed, s)
+        d = np.where(changed[win], np.asarray(depth)[win], self.depth[win])
+        n = np.where(changed[win][..., None], np.asarray(normals)[win], self.normals[win])
+        valid = np.isfinite(d)
+        pts = depth_to_points(np.where(valid, d, 0.0), self.camera.rays[win])
+        nrm = np.where(valid[..., None], n, 0.0).astype(np.float64)
+        sub = radiosity.surface_patches(
+            pts, nrm, valid, self.camera, s, window=win, solid_angle=self.patches["solid_angle"]
+        )
+        shade = led_shading(pts, nrm, self.leds)
+        shade[:, ~valid] = 0.0
+        new.valid, new.depth, new.normals = self.valid.copy(), self.depth.copy(), self.normals.copy()
+        new.valid[win], new.depth[win], new.normals[win] = valid, d, n
+        new.patches = dict(self.patches)
+        for key in ("points", "normals", "area"):
+            new.patches[key] = self.patches[key].copy()
+            new.patches[key][pr, pc] = sub[key]
+        new.patches["pixel_area"] = self.patches["pixel_area"].copy()
+        new.patches["pixel_area"][win] = sub["pixel_area"]
+        new.shading = self.shading.copy()
+        new.shading[:, pr, pc] = radiosity.patch_mean(sub, shade)
+        new.keep = new.patches["area"] > 0
+        return new
 
     def emitters(self) -> dict:
         k = self.keep
@@ -139,6 +211,22 @@ class Surface:
 
     def receivers(self) -> tuple[np.ndarray, np.ndarray]:
         return self.patches["points"][self.keep], self.patches["normals"][self.keep]
+
+
+def _patch_window(pixels: np.ndarray, size: int) -> tuple[slice, slice, tuple[slice, slice]]:
+    """(patch rows, patch columns, pixel window) of the patches over the bounding box of ``pixels``
+    ((H, W) bool, not empty); the pixel window starts on a patch boundary and ends with the image."""
+    rows, cols = np.nonzero(pixels)
+    H, W = pixels.shape
+    pr, pc = slice(rows.min() // size, rows.max() // size + 1), slice(cols.min() // size, cols.max() // size + 1)
+    return pr, pc, (slice(pr.start * size, min(pr.stop * size, H)), slice(pc.start * size, min(pc.stop * size, W)))
+
+
+def _window_mean(patches: dict, values: np.ndarray, pr: slice, pc: slice, win) -> np.ndarray:
+    """:func:`radiosity.patch_mean` over the patches [pr, pc] only: ``values`` (L, h, w, 3) are the
+    pixels of their window ``win`` (from :func:`_patch_window`); the same numbers as the whole image's."""
+    sub = {"pixel_area": patches["pixel_area"][win], "area": patches["area"][pr, pc], "size": patches["size"]}
+    return radiosity.patch_mean(sub, values)
 
 
 def _gather_all(surface: Surface, rho_patch, off_unit, off_albedo, bounces: int, kappa=None):
@@ -165,6 +253,8 @@ def fit_indirect(
     bounces: int = 1,
     iterations: int = 3,
     exclude: np.ndarray | None = None,
+    shading: np.ndarray | None = None,
+    cache: dict | None = None,
 ) -> IndirectModel:
     """Fit the indirect term to a capture of the undeformed dome (known geometry ``reference.reference``).
 
@@ -180,6 +270,11 @@ def fit_indirect(
     iterations : alternations of rho and kappa.
     exclude : (H, W) bool or None -- pixels not to fit on (a press's contact, when the press itself
         stands in for the undeformed capture); they still emit light.
+    shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of the reference surface with
+        ``leds``, when the caller has it (None: computed here).
+    cache : dict or None -- shared by fits of the same capture with the same ``leds`` (e.g. a rough
+        fit and a refit with a different ``exclude``): holds what does not depend on ``exclude``
+        (patches, the off-view dome's light, the linear images), filled by the first fit.
 
     Returns
     -------
@@ -192,26 +287,25 @@ def fit_indirect(
     if reference.reference is None:
         raise CaptureError(f"{reference.folder}: the interreflection term needs the reference surface (reference.npz)")
     leds = reference.leds if leds is None else tuple(leds)
-    surf = Surface(
-        reference.camera,
-        leds,
-        reference.reference.depth,
-        reference.reference.normals,
-        size=fit_patch_size(reference.camera),
-    )
-    design = design_of(reference)
-    off = None
-    if design is not None:
-        off = radiosity.off_view_patches(design[0], design[1], reference.camera, surf.valid, step_deg=3.0)
-    lin = reference.linear(reference.led_images).astype(np.float64)
-    usable = (~reference.saturated(reference.led_images)).astype(np.float64)
-    usable[:, ~surf.valid] = 0.0
-    if exclude is not None:
-        usable[:, exclude] = 0.0
-    live = np.percentile(lin[:, surf.valid], 99, axis=(1, 2)) >= 1e-3 if surf.valid.any() else np.zeros(len(lin), bool)
-    usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
-    img = radiosity.patch_mean(surf.patches, lin * usable)[:, surf.keep]  # (L, K, 3)
-    frac = radiosity.patch_mean(surf.patches, usable)[:, surf.keep]
+    cache = {} if cache is None else cache
+    if not cache:
+        cache.update(_fit_inputs(reference, leds, shading))
+    surf, off, off_unit, lin = (cache[k] for k in ("surface", "off", "off_unit", "linear"))
+    usable = cache["usable"]
+    if "image_means" not in cache:
+        cache["image_means"] = radiosity.patch_mean(surf.patches, lin * usable)
+        cache["usable_means"] = radiosity.patch_mean(surf.patches, usable)
+    img, frac = cache["image_means"], cache["usable_means"]
+    if exclude is not None and exclude.any():
+        # only the patches over the excluded pixels change: recompute those
+        pr, pc, win = _patch_window(exclude, surf.size)
+        usable = usable[:, win[0], win[1]].copy()
+        usable[:, exclude[win]] = 0.0
+        sub_lin = lin[:, win[0], win[1]]
+        img, frac = img.copy(), frac.copy()
+        img[:, pr, pc] = _window_mean(surf.patches, sub_lin * usable, pr, pc, win)
+        frac[:, pr, pc] = _window_mean(surf.patches, usable, pr, pc, win)
+    img, frac = img[:, surf.keep], frac[:, surf.keep]  # (L, K, 3)
     ok = frac > 0.99  # patches wholly usable for that LED and channel
     S = surf.shading[:, surf.keep]
     kappa = np.zeros(3)
@@ -224,10 +318,6 @@ def fit_indirect(
     def typical(values):  # median over the patches with data; the others take it as their albedo
         return np.array([np.median(values[fitted[:, c], c]) if fitted[:, c].any() else 0.0 for c in range(3)])
 
-    off_unit = None
-    if off is not None:
-        off_s = led_shading(off["points"], off["normals"], leds)
-        off_unit = radiosity.gather(*surf.receivers(), off, off_s)
     for _ in range(iterations):  # G depends on the emitters' albedo: refit both a few times
         rho = np.where(fitted, rho, typical(rho))
         off_albedo = typical(rho)
@@ -261,6 +351,31 @@ def fit_indirect(
         tuple(float(a) for a in off_albedo),
         (light, surf.size),
     )
+
+
+def _fit_inputs(reference: Press, leds, shading) -> dict:
+    """What :func:`fit_indirect` needs besides ``exclude``: the surface as patches, the off-view dome
+    and its light for a unit albedo, the linear images, the usable samples and the live LEDs."""
+    surf = Surface(
+        reference.camera,
+        leds,
+        reference.reference.depth,
+        reference.reference.normals,
+        size=fit_patch_size(reference.camera),
+        shading=shading,
+    )
+    design = design_of(reference)
+    off = off_unit = None
+    if design is not None:
+        off = radiosity.off_view_patches(design[0], design[1], reference.camera, surf.valid, step_deg=3.0)
+        off_s = led_shading(off["points"], off["normals"], leds)
+        off_unit = radiosity.gather(*surf.receivers(), off, off_s)
+    lin = reference.linear(reference.led_images).astype(np.float64)
+    usable = (~reference.saturated(reference.led_images)).astype(np.float64)
+    usable[:, ~surf.valid] = 0.0
+    live = led_levels(lin, surf.valid) >= 1e-3
+    usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
+    return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
 
 
 def _albedo(img, model, ok) -> np.ndarray:
@@ -316,6 +431,8 @@ def surface_indirect(
     albedo: np.ndarray,
     receivers: np.ndarray,
     size: int | None = None,
+    shading: np.ndarray | None = None,
+    surface: Surface | None = None,
 ) -> np.ndarray:
     """Indirect light ``B = kappa rho_p G(p)`` of a surface, at the receiver pixels.
 
@@ -331,12 +448,16 @@ def surface_indirect(
     receivers : (H, W) bool -- pixels that need the term (the solve's mask).
     size : patch side, pixels (default :func:`patch_size`; the undeformed dome's smooth light needs
         no more than :func:`fit_patch_size`).
+    shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of this surface, when the caller
+        has it; None: computed here.
+    surface : Surface or None -- this surface as patches when the caller has it (e.g. from
+        :meth:`Surface.replaced`); ``depth``, ``normals``, ``size`` and ``shading`` are then not read.
 
     Returns
     -------
     (L, H, W, 3) float32 -- linear image units (``Press.linear`` scale); 0 outside ``receivers``.
     """
-    surf = Surface(camera, leds, depth, normals, size)
+    surf = surface if surface is not None else Surface(camera, leds, depth, normals, size, shading)
     albedo = np.where(surf.valid[..., None], np.nan_to_num(albedo), 0.0)
     rho_patch = radiosity.patch_mean(surf.patches, albedo)
     size = surf.size
@@ -350,9 +471,18 @@ def surface_indirect(
     G_all = _gather_at(surf, rho_patch, model, want)
     g = np.zeros((len(surf.leds), h, w, 3), np.float32)
     g[:, want] = G_all
-    up = radiosity.upsample(g, (H, W), size)
-    B = np.asarray(model.kappa, np.float32) * albedo.astype(np.float32)[None] * up
-    B[:, ~receivers] = 0.0
+    B = np.zeros((len(surf.leds), H, W, 3), np.float32)
+    if not receivers.any():
+        return B
+    # upsample only the patches around the receivers (one patch of margin: the bilinear weights of every
+    # receiver pixel then come from inside the window, the same numbers as upsampling the whole grid)
+    pr, pc, _ = _patch_window(receivers, size)
+    pr, pc = slice(max(pr.start - 1, 0), min(pr.stop + 1, h)), slice(max(pc.start - 1, 0), min(pc.stop + 1, w))
+    win = (slice(pr.start * size, min(pr.stop * size, H)), slice(pc.start * size, min(pc.stop * size, W)))
+    up = radiosity.upsample(g[:, pr, pc], (win[0].stop - win[0].start, win[1].stop - win[1].start), size)
+    block = np.asarray(model.kappa, np.float32) * albedo[win].astype(np.float32)[None] * up
+    block[:, ~receivers[win]] = 0.0
+    B[:, win[0], win[1]] = block
     return B
 
 

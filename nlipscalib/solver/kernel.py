@@ -187,3 +187,82 @@ class Model:
                 mij = (rho2 * (Aij - a[i] * a[j] * inv_d)).sum(0)
                 M[i, j] = M[j, i] = self.be.numpy(mij)
         return M, b
+
+
+PARALLEL_MIN_PIXELS = 20_000
+"""Levels with at least this many pixels run the model on pixel chunks in threads (numpy backend)."""
+
+
+class ChunkedModel:
+    """:class:`Model` on contiguous pixel chunks, one thread each (:mod:`nlipscalib.solver.threads`).
+
+    Every method of the model is per pixel (sums run over LEDs and channels only), so cutting the pixel
+    axis gives the same numbers; energies are summed over the chunks. Large levels spend most of their
+    per-pixel time in memory-bound array expressions that one core leaves half the machine idle for.
+    """
+
+    def __init__(self, be: Backend, q, A, B, C, positions, directions, mu, psi, images, usable):
+        from . import threads
+
+        self._threads = threads
+        self.n = q.shape[0]
+        self.slices = threads.chunks(self.n)
+        self.parts = [
+            Model(be, q[s], A[s], B[s], C[s], positions, directions, mu, psi, images[..., s], usable[..., s])
+            for s in self.slices
+        ]
+        self.be = be
+        self.images = be.asarray(images)
+        self.usable = be.asarray(usable)
+
+    def _cut(self, a, s):
+        if isinstance(a, np.ndarray) and a.ndim and a.shape[-1] == self.n:
+            return a[..., s]
+        if isinstance(a, (list, tuple)):
+            return [self._cut(x, s) for x in a]
+        return a
+
+    def _map(self, name: str, *args):
+        return self._threads.map_items(
+            lambda k: getattr(self.parts[k], name)(*(self._cut(a, self.slices[k]) for a in args)),
+            range(len(self.parts)),
+        )
+
+    @staticmethod
+    def _join(outs):
+        if isinstance(outs[0], tuple):
+            return tuple(np.concatenate(group, axis=-1) for group in zip(*outs))
+        return np.concatenate(outs, axis=-1)
+
+    def shading(self, t, tu, tv, derivatives: bool = False):
+        return self._join(self._map("shading", t, tu, tv, derivatives))
+
+    def residuals(self, F, albedo):
+        return self._join(self._map("residuals", F, albedo))
+
+    def data_energy(self, r, lam: float, estimator: str) -> float:
+        return float(sum(self._map("data_energy", r, lam, estimator)))
+
+    def energy(self, F, albedo, lam: float, estimator: str) -> float:
+        return float(sum(self._map("energy", F, albedo, lam, estimator)))
+
+    def weights(self, r, lam: float, estimator: str):
+        return self._join(self._map("weights", r, lam, estimator))
+
+    def albedo(self, F, w):
+        return self._join(self._map("albedo", F, w))
+
+    def gradient_curvature(self, dF, albedo, w) -> np.ndarray:
+        return self._join(self._map("gradient_curvature", dF, albedo, w))
+
+    def gauss_newton_blocks(self, F, dF, r, w, albedo):
+        return self._join(self._map("gauss_newton_blocks", F, dF, r, w, albedo))
+
+
+def make_model(be: Backend, q, *args) -> Model | ChunkedModel:
+    """:class:`ChunkedModel` for large levels on the numpy backend with more than one core, else :class:`Model`."""
+    from . import threads
+
+    if be.name == "numpy" and threads.workers() > 1 and q.shape[0] >= PARALLEL_MIN_PIXELS:
+        return ChunkedModel(be, q, *args)
+    return Model(be, q, *args)

@@ -31,7 +31,7 @@ from ..core.reconstruction import Reconstruction
 from . import geometry, robust
 from .blas import blas_threads
 from .inputs import check_inputs
-from .kernel import Backend, Model
+from .kernel import Backend, make_model
 from .krylov import Krylov, forcing
 from .options import SolverOptions
 from .pyramid import build_pyramid, checked_prior_weights, resize
@@ -43,7 +43,9 @@ SolveResult = Reconstruction
 """The solver's output is the core reconstruction format (:class:`nlipscalib.core.reconstruction.Reconstruction`)."""
 
 
-def exclusions(images: np.ndarray, saturated: np.ndarray | None, options: SolverOptions):
+def exclusions(
+    images: np.ndarray, saturated: np.ndarray | None, options: SolverOptions, whole: np.ndarray | None = None
+):
     """Which (LED, pixel, channel) samples the data term may use, and why others are excluded.
 
     Parameters
@@ -51,6 +53,8 @@ def exclusions(images: np.ndarray, saturated: np.ndarray | None, options: Solver
     images : (L, H, W, 3) float, linear, dark-subtracted, full scale 1
     saturated : (L, H, W, 3) bool or None
     options : SolverOptions
+    whole : (L, H', W', 3) float or None -- the whole images when ``images`` is a crop of them: the
+        dead-LED and shadow thresholds are statistics of the whole images (default ``images``).
 
     Returns
     -------
@@ -61,7 +65,7 @@ def exclusions(images: np.ndarray, saturated: np.ndarray | None, options: Solver
     sat = np.zeros(images.shape, bool) if saturated is None else saturated
     # The thresholds are image statistics: every second row and column gives the same 99th
     # percentiles as all pixels at a quarter of the cost (this dominated small ROI solves).
-    sample = images[:, ::2, ::2]
+    sample = (images if whole is None else whole)[:, ::2, ::2].astype(images.dtype, copy=False)
     per_led_high = np.percentile(sample.reshape(L, -1), 99, axis=1)
     dead_leds = [i for i in range(L) if per_led_high[i] < options.dead_led_level]
     # max over LEDs first (a reduction along the contiguous leading axis), then over the channels
@@ -92,6 +96,7 @@ def solve(
     options: SolverOptions | None = None,
     backend: str = "numpy",
     progress: bool = False,
+    init_depth: np.ndarray | None = None,
 ) -> SolveResult:
     """Recover depth, normals and albedo from one image per LED.
 
@@ -112,6 +117,10 @@ def solve(
     options : SolverOptions
     backend : "numpy" or "torch" (per-pixel maths on a GPU when present; same equations).
     progress : show a tqdm bar.
+    init_depth : (H, W) float, mm, or None
+        A close solution to start from (e.g. the previous pass of the outer interreflection loop,
+        whose images differ only by a small change of the indirect light): the finest level alone is
+        solved from it, no pyramid. NaN pixels start from the prior.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -119,19 +128,22 @@ def solve(
     images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
 
     t_start = time.perf_counter()
-    # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
-    images = images.astype(np.float32 if opts.dtype == "float32" else np.float64, copy=False)
-    usable, report = exclusions(images, saturated, opts)
-    usable &= mask[None, :, :, None]
-    usable_leds = (usable[..., 0] | usable[..., 1] | usable[..., 2]).sum(axis=0, dtype=np.int16)
-
-    # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
+    # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted. The
+    # exclusions are worked out on the crop too (outside the mask nothing is usable), their thresholds
+    # on the whole images; the report's counts are the crop's.
     rows, cols = np.nonzero(mask)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     cam = dataclasses.replace(camera, width=int(c1 - c0), height=int(r1 - r0), cx=camera.cx - c0, cy=camera.cy - r0)
     crop = (slice(r0, r1), slice(c0, c1))
-    data = images[:, crop[0], crop[1]]
-    use = usable[:, crop[0], crop[1]]
+    whole = images
+    # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
+    images = images[:, crop[0], crop[1]].astype(np.float32 if opts.dtype == "float32" else np.float64, copy=False)
+    sat = None if saturated is None else saturated[:, crop[0], crop[1]]
+    use, report = exclusions(images, sat, opts, whole=whole)
+    use &= mask[crop][None, :, :, None]
+    usable_leds = np.zeros((H, W), np.int16)
+    usable_leds[crop] = (use[..., 0] | use[..., 1] | use[..., 2]).sum(axis=0, dtype=np.int16)
+    data = images
     scale = float(np.percentile(data[use], 99)) if use.any() else 1.0  # usable lies inside the crop
     scale = scale if scale > 0 else 1.0
     data = data / np.float32(scale) if data.dtype == np.float32 else data / scale
@@ -144,7 +156,13 @@ def solve(
     data, use = data[keep], use[keep]
 
     be = Backend(backend, opts.dtype)
-    levels = build_pyramid(cam, data, use, m, t0, w0, opts)
+    t_first = None
+    if init_depth is not None:
+        init = np.asarray(init_depth, np.float64)[crop]
+        t_first = np.where(m & np.isfinite(init) & (init > 0), np.log(np.where(init > 0, init, 1.0)), t0)
+    levels = build_pyramid(
+        cam, data, use, m, t0, w0, opts if t_first is None else dataclasses.replace(opts, pyramid_levels=1)
+    )
     report["levels"] = []
     bar = None
     if progress:
@@ -152,7 +170,7 @@ def solve(
 
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
     with blas_threads(1):
-        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report)
+        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first)
     if bar is not None:
         bar.close()
 
@@ -206,18 +224,20 @@ def solve(
     )
 
 
-def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report):
-    """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest."""
+def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first=None):
+    """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest.
+
+    ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve)."""
     t_state = out = None
     for k, lv in enumerate(levels):
         if t_state is None:
-            t_init = lv["t0"]
+            t_init = lv["t0"] if t_first is None else t_first
         else:
             prev = levels[k - 1]
             delta = np.where(prev["mask"], t_state - prev["t0"], 0.0)
             delta = resize(delta, lv["camera"].shape, linear=True)
             t_init = lv["t0"] + delta
-        if k == 0 and opts.estimator != "ls":
+        if k == 0 and opts.estimator != "ls" and t_first is None:
             # Least squares first on the coarsest level: from the undeformed prior, the contact's
             # residuals are large and a robust estimator would treat the dent itself as outliers.
             t_init, _, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, "ls", coarse=True)
@@ -283,7 +303,7 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
     Du, Dv, lap, normal = ops["Du"], ops["Dv"], ops["lap"], ops["normal"]
     t0 = lv["t0"][mk]
     t = t_init[mk].copy()
-    model = Model(be, lv["q"], A, B, C, pos, dirs, mu, psi, lv["images"], lv["usable"])
+    model = make_model(be, lv["q"], A, B, C, pos, dirs, mu, psi, lv["images"], lv["usable"])
     zeta = lv["zeta"]
     n = len(t)
     tm.lap("setup")

@@ -23,13 +23,11 @@ import time
 import numpy as np
 
 from ..core import tolerances
-from ..core.camera import depth_to_points
 from ..core.capture import Press
-from ..core.leds import led_shading
 from ..errors import CaptureError, ConfigError, ShapeError
 from .contact import ContactMap, anchor_weights, classify_contact
 from .contact import auto_roi as _auto_roi_box
-from .indirect import IndirectModel, fit_indirect, surface_indirect
+from .indirect import IndirectModel, Surface, direct_shading, fit_indirect, surface_indirect
 from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -144,7 +142,9 @@ def _solve_press(
     Returns
     -------
     SolveResult -- ``report`` adds roi, prior, interreflection (the fitted model and the decision),
-    indirect_compensation, dent_interreflection, outer_passes, anchoring (what was decided and why),
+    indirect_compensation, dent_interreflection, outer_passes, outer_changes_deg (median normal change of
+    each outer pass), pass_seconds (the solver's timer of each NLiPs solve; ``seconds`` is their sum),
+    anchoring (what was decided and why),
     anchored_pixels, dead_leds_contact, contact_seconds, indirect_seconds.
     """
     if interreflection not in INTERREFLECTION_MODES:
@@ -166,28 +166,45 @@ def _solve_press(
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
     t0 = time.perf_counter()
-    model = None
+    model, fit_cache, contact_cache = None, {}, {}
+    # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
+    shading = direct_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
     if fixed_light is None and press.reference is not None:
         source = ref_capture if ref_capture is not None else press
         exclude = _box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
         # a press without a known contact is fitted twice (below): the first fit only finds the contact
         rough = ref_capture is None and explicit_roi is None
         model = fit_indirect(
-            source, leds, mode=interreflection, bounces=bounces, exclude=exclude, iterations=1 if rough else 3
+            source,
+            leds,
+            mode=interreflection,
+            bounces=bounces,
+            exclude=exclude,
+            iterations=1 if rough else 3,
+            shading=shading if source is press else None,
+            cache=fit_cache,
         )
     t_indirect = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     cmap, refit = None, 0.0
     if press.reference is not None:
-        cmap = _contact(press, leds, ref_capture, fixed_light, model)
+        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading, contact_cache)
         if model is not None and model.enabled and ref_capture is None and explicit_roi is None:
             # the press stands in for the undeformed capture: fit again without its contact
             t1 = time.perf_counter()
-            model = fit_indirect(press, leds, mode=interreflection, bounces=bounces, exclude=_contact_pixels(cmap))
+            model = fit_indirect(
+                press,
+                leds,
+                mode=interreflection,
+                bounces=bounces,
+                exclude=_contact_pixels(cmap),
+                shading=shading,
+                cache=fit_cache,
+            )
             refit = time.perf_counter() - t1
             t_indirect += refit
-            cmap = _contact(press, leds, None, None, model)
+            cmap = _contact(press, leds, None, None, model, shading, contact_cache)
     if model is not None and model.enabled and coating_albedo is not None:
         model = _with_reflectance(model, coating_albedo)
     if roi == "auto":
@@ -207,7 +224,7 @@ def _solve_press(
     images = press.linear(press.led_images)
     saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
 
-    def run(light):
+    def run(light, init=None):
         data = images if light is None else compensate(images, light)
         result = solve(
             data,
@@ -220,6 +237,7 @@ def _solve_press(
             options=options,
             backend=backend,
             progress=progress,
+            init_depth=init,
         )
         if not result.reconstructed.any():
             dead = [i + 1 for i in result.report["dead_leds"]]
@@ -229,20 +247,26 @@ def _solve_press(
             )
         return result
 
-    passes, seconds = 0, 0.0
+    passes, seconds, changes, solver_seconds = 0, 0.0, [], []
     if model is not None and model.enabled:
         t0 = time.perf_counter()
         albedo0 = np.broadcast_to(np.asarray(model.off_view_albedo), (H, W, 3))
-        light = surface_indirect(model, press.camera, leds, prior, press.reference.normals, albedo0, mask)
+        ref_surface = Surface(press.camera, leds, prior, press.reference.normals, shading=shading)
+        light = surface_indirect(
+            model, press.camera, leds, prior, press.reference.normals, albedo0, mask, surface=ref_surface
+        )
         seconds += time.perf_counter() - t0
         result = run(light)
+        solver_seconds.append(result.report["seconds"])
         for _ in range(max_outer if dent_interreflection else 0):
             t0 = time.perf_counter()
-            light = _solved_surface_light(model, press, leds, result, mask)
+            light = _solved_surface_light(model, press, leds, result, mask, ref_surface)
             seconds += time.perf_counter() - t0
-            new = run(light)
+            new = run(light, init=result.depth)  # a small change of the light: start from the last depth
             passes += 1
             change = _median_change_deg(result, new)
+            changes.append(round(change, 4))
+            solver_seconds.append(new.report["seconds"])
             result = new
             if change < OUTER_TOL_DEG:
                 break
@@ -255,6 +279,9 @@ def _solve_press(
     rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
     rep["dent_interreflection"] = bool(passes > 0)
     rep["outer_passes"] = passes
+    rep["outer_changes_deg"] = changes
+    if solver_seconds:  # the solver's timer over every NLiPs solve of the outer loop, and each one
+        rep["seconds"], rep["pass_seconds"] = float(sum(solver_seconds)), [round(t, 3) for t in solver_seconds]
     rep["anchoring"] = anchoring
     rep["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
     rep["dead_leds_contact"] = list(cmap.dead_leds) if cmap is not None else []
@@ -337,29 +364,31 @@ def _with_reflectance(model: IndirectModel, reflectance) -> IndirectModel:
     )
 
 
-def _contact(press: Press, leds, ref_capture, fixed_light, model) -> ContactMap:
-    """The one contact classification: against the undeformed capture, or the model with its indirect term."""
+def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache=None) -> ContactMap:
+    """The one contact classification: against the undeformed capture, or the model with its indirect term.
+
+    ``shading``: :func:`direct_shading` of the reference surface; ``cache``: the press's side of the
+    classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
     if ref_capture is not None:
         und = ref_capture.linear(ref_capture.led_images)
-        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True)
+        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, cache=cache)
     if model is not None and model.enabled:
-        valid = np.isfinite(press.reference.depth)
-        pts = depth_to_points(np.where(valid, press.reference.depth, 0.0), press.camera.rays)
-        nrm = np.where(valid[..., None], press.reference.normals, 0.0)
-        undeformed = led_shading(pts, nrm, leds) + model.undeformed_light(press.camera.shape)
-        return classify_contact(press, leds, undeformed_images=undeformed)
-    return classify_contact(press, leds, indirect=fixed_light)
+        undeformed = shading + model.undeformed_light(press.camera.shape)
+        return classify_contact(press, leds, undeformed_images=undeformed, cache=cache)
+    return classify_contact(press, leds, undeformed_images=shading, indirect=fixed_light, cache=cache)
 
 
-def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask) -> np.ndarray:
-    """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere."""
+def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, ref_surface: Surface) -> np.ndarray:
+    """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere
+    (``ref_surface``, the reference as patches, is recomputed around the solved pixels only)."""
     ref = press.reference
     rec = result.reconstructed
     depth = np.where(rec, result.depth, ref.depth)
     normals = np.where(rec[..., None], result.normals, ref.normals)
     typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
     albedo = np.where(rec[..., None], result.albedo, typical)
-    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask)
+    solved = ref_surface.replaced(depth, normals, rec)
+    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, surface=solved)
 
 
 def _median_change_deg(a: SolveResult, b: SolveResult) -> float:

@@ -27,6 +27,7 @@ import numpy as np
 from ..core.camera import Camera
 from ..core.dome import dome_inward_normals, project_to_dome
 from ..core.sensor import DomeConfig
+from . import threads
 
 
 def pixel_solid_angle(camera: Camera) -> np.ndarray:
@@ -44,12 +45,17 @@ def block_sum(a: np.ndarray, size: int) -> np.ndarray:
     """Sum (H, W, ...) over size x size blocks -> (ceil(H/size), ceil(W/size), ...), zero padding."""
     H, W = a.shape[:2]
     h, w = -(-H // size), -(-W // size)
-    pad = np.zeros((h * size, w * size) + a.shape[2:], dtype=np.float64)
-    pad[:H, :W] = a
+    if H == h * size and W == w * size and a.dtype == np.float64 and a.flags.c_contiguous:
+        pad = a  # no padding needed: sum the blocks of the array itself (no copy)
+    else:
+        pad = np.zeros((h * size, w * size) + a.shape[2:], dtype=np.float64)
+        pad[:H, :W] = a
     return pad.reshape(h, size, w, size, *a.shape[2:]).sum(axis=(1, 3))
 
 
-def surface_patches(points, normals, valid, camera: Camera, size: int = 4, min_cos: float = 0.2) -> dict:
+def surface_patches(
+    points, normals, valid, camera: Camera, size: int = 4, min_cos: float = 0.2, window=None, solid_angle=None
+) -> dict:
     """Visible surface as size x size pixel patches: area-weighted centroid, normal and area.
 
     Parameters
@@ -60,22 +66,34 @@ def surface_patches(points, normals, valid, camera: Camera, size: int = 4, min_c
     camera : Camera
     size : patch side, pixels; the image is zero-padded to a multiple of it.
     min_cos : |n . ray| is clipped below this in the area (grazing pixels would get huge areas).
+    window : (row slice, column slice) or None -- the arrays are this window of the camera's image
+        (starting on a patch boundary): the patches of that window only.
+    solid_angle : (H, W) float64 or None -- :func:`pixel_solid_angle` of the camera, when known.
 
     Returns
     -------
     dict with points (h, w, 3) float64 mm; normals (h, w, 3) float64 unit; area (h, w) float64 mm^2
     (0 where no pixel sees the gel); pixel_area (H, W) float64 mm^2 (the weights, for
-    :func:`patch_mean`); size.
+    :func:`patch_mean`); solid_angle (H, W) float64 sr; size.
     """
+    window = (slice(None), slice(None)) if window is None else tuple(window)
+    solid_angle = pixel_solid_angle(camera) if solid_angle is None else solid_angle
     rng = np.linalg.norm(points, axis=-1)
-    cos = np.abs(np.sum(normals * camera.rays, axis=-1))
-    area = np.where(valid, pixel_solid_angle(camera) * rng**2 / np.maximum(cos, min_cos), 0.0)
+    cos = np.abs(np.sum(normals * camera.rays[window], axis=-1))
+    area = np.where(valid, solid_angle[window] * rng**2 / np.maximum(cos, min_cos), 0.0)
     total = block_sum(area, size)
     per_area = 1.0 / np.maximum(total, 1e-30)
     centroid = block_sum(np.where(valid[..., None], points, 0.0) * area[..., None], size) * per_area[..., None]
     mean_n = block_sum(np.where(valid[..., None], normals, 0.0) * area[..., None], size)
     mean_n /= np.maximum(np.linalg.norm(mean_n, axis=-1, keepdims=True), 1e-30)
-    return {"points": centroid, "normals": mean_n, "area": total, "pixel_area": area, "size": size}
+    return {
+        "points": centroid,
+        "normals": mean_n,
+        "area": total,
+        "pixel_area": area,
+        "solid_angle": solid_angle,
+        "size": size,
+    }
 
 
 def patch_mean(patches: dict, values: np.ndarray) -> np.ndarray:
@@ -93,7 +111,7 @@ def patch_mean(patches: dict, values: np.ndarray) -> np.ndarray:
     w, size = patches["pixel_area"], patches["size"]
     per_area = 1.0 / np.maximum(patches["area"], 1e-30)
     if values.ndim == 4:
-        return np.stack([block_sum(v * w[..., None], size) * per_area[..., None] for v in values])
+        return np.stack(threads.map_items(lambda v: block_sum(v * w[..., None], size) * per_area[..., None], values))
     return block_sum(values * w.reshape(w.shape + (1,) * (values.ndim - 2)), size) * per_area.reshape(
         per_area.shape + (1,) * (values.ndim - 2)
     )

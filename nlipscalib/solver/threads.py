@@ -1,0 +1,59 @@
+"""Independent per-LED work on a small thread pool (NumPy, OpenCV and SciPy's filters release the GIL).
+
+The whole-frame steps around the solver (contact classification, the interreflection term's patch
+means, the reference surface's shading) loop over LEDs with large array operations per LED: on the
+2-core machine a user runs ``nlips solve`` on, two threads halve their wall time at the same CPU time.
+``nlips solve --workers N`` runs one process per press and sets one thread per process
+(:func:`set_workers`), so cores are not oversubscribed.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+
+_workers: int | None = None
+_pool: ThreadPoolExecutor | None = None
+
+
+def workers() -> int:
+    """Threads used: ``NLIPS_THREADS`` when set, else the cores this process may run on."""
+    global _workers
+    if _workers is None:
+        env = os.environ.get("NLIPS_THREADS", "").strip()
+        if env.isdigit() and int(env) > 0:
+            _workers = int(env)
+        else:
+            try:
+                _workers = len(os.sched_getaffinity(0))
+            except AttributeError:  # not Linux
+                _workers = os.cpu_count() or 1
+    return _workers
+
+
+def set_workers(count: int) -> None:
+    """Use ``count`` threads from now on (1: run everything in the calling thread)."""
+    global _workers, _pool
+    _workers = max(1, int(count))
+    if _pool is not None:
+        _pool.shutdown(wait=True)
+        _pool = None
+
+
+def map_items(fn: Callable, items: Iterable) -> list:
+    """``[fn(x) for x in items]``, on the thread pool when there is more than one core and one item."""
+    items = list(items)
+    if workers() == 1 or len(items) < 2:
+        return [fn(x) for x in items]
+    global _pool
+    if _pool is None:
+        _pool = ThreadPoolExecutor(max_workers=workers(), thread_name_prefix="nlips")
+    return list(_pool.map(fn, items))
+
+
+def chunks(count: int, parts: int | None = None) -> list[slice]:
+    """``count`` items cut into ``parts`` (default :func:`workers`) contiguous, non-empty slices."""
+    parts = max(1, min(count, parts or workers()))
+    edges = [round(i * count / parts) for i in range(parts + 1)]
+    return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]

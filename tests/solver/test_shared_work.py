@@ -1,0 +1,123 @@
+"""Work shared or skipped for speed gives the same numbers as the plain computation (known answers:
+each shortcut against the computation it replaces, on exact-data presses from tests/solver/synth.py)."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.core import load_press
+from nlipscalib.solver import SolverOptions, evaluate, solve, threads
+from nlipscalib.solver.contact import classify_contact, led_levels
+from nlipscalib.solver.indirect import Surface, direct_shading, fit_indirect
+from nlipscalib.solver.nlips import exclusions
+
+from . import synth
+
+
+@pytest.fixture(scope="module")
+def press(tmp_path_factory):
+    return load_press(synth.make_press(tmp_path_factory.mktemp("shared") / "p", "sphere", size=(96, 72)))
+
+
+def test_a_replaced_surface_equals_a_new_surface_of_the_changed_geometry(press):
+    ref = press.reference
+    gt = press.ground_truth
+    changed = np.zeros(press.camera.shape, bool)
+    changed[20:45, 30:61] = True
+    changed &= gt.valid
+    depth = np.where(changed, gt.depth, ref.depth)
+    normals = np.where(changed[..., None], gt.normals, ref.normals)
+    base = Surface(press.camera, press.leds, ref.depth, ref.normals, size=4)
+    fast = base.replaced(depth, normals, changed)
+    fresh = Surface(press.camera, press.leds, depth, normals, size=4)
+    for key in ("points", "normals", "area", "pixel_area"):
+        np.testing.assert_allclose(fast.patches[key], fresh.patches[key], rtol=1e-12, atol=1e-12, err_msg=key)
+    np.testing.assert_allclose(fast.shading, fresh.shading, rtol=1e-12, atol=1e-15)
+    assert np.array_equal(fast.keep, fresh.keep)
+    assert not np.allclose(base.shading, fresh.shading)  # the premise: the change shows in the patches
+
+
+def test_direct_shading_is_the_led_image_model(press):
+    from nlipscalib.core.camera import depth_to_points
+    from nlipscalib.core.leds import led_shading
+
+    ref = press.reference
+    valid = np.isfinite(ref.depth)
+    expected = led_shading(depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays), ref.normals, press.leds)
+    expected[:, ~valid] = 0.0
+    np.testing.assert_allclose(direct_shading(press.camera, press.leds, ref.depth, ref.normals), expected, rtol=1e-12)
+
+
+def test_a_refit_with_a_shared_cache_equals_a_fresh_fit(press):
+    exclude = np.zeros(press.camera.shape, bool)
+    exclude[25:40, 35:55] = True
+    cache = {}
+    fit_indirect(press, mode="on", iterations=1, cache=cache)  # the rough fit fills the cache
+    shared = fit_indirect(press, mode="on", exclude=exclude, cache=cache)
+    fresh = fit_indirect(press, mode="on", exclude=exclude)
+    np.testing.assert_allclose(shared.kappa, fresh.kappa, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(shared.fitted_light[0], fresh.fitted_light[0], rtol=1e-6, atol=1e-12)
+
+
+def test_a_second_classification_with_a_cache_equals_a_fresh_one(press):
+    cache = {}
+    classify_contact(press, cache=cache)
+    moved = [
+        type(led)(tuple(np.add(led.position, (0.3, 0, 0))), led.direction, led.mu, led.intensity) for led in press.leds
+    ]
+    shared = classify_contact(press, moved, cache=cache)
+    fresh = classify_contact(press, moved)
+    np.testing.assert_allclose(shared.misfit, fresh.misfit, rtol=1e-12, equal_nan=True)
+    assert shared.noise == fresh.noise and shared.live_leds == fresh.live_leds
+
+
+def test_led_levels_find_a_dead_led(press):
+    lin = press.linear(press.led_images).copy()
+    lin[3] = 0.0
+    levels = led_levels(lin, np.isfinite(press.reference.depth))
+    assert levels[3] < 1e-3 and (np.delete(levels, 3) > 0.1).all()
+
+
+def test_exclusions_on_a_crop_equal_the_whole_images_cropped(press):
+    lin = press.linear(press.led_images).astype(np.float32)
+    sat = press.saturated(press.led_images)
+    crop = (slice(10, 50), slice(20, 70))
+    whole, _ = exclusions(lin, sat, SolverOptions())
+    part, _ = exclusions(lin[:, crop[0], crop[1]], sat[:, crop[0], crop[1]], SolverOptions(), whole=lin)
+    assert np.array_equal(part, whole[:, crop[0], crop[1]])
+
+
+def test_a_warm_start_from_the_solution_stays_there(press):
+    lin = press.linear(press.led_images)
+    prior = press.reference.depth
+    first = solve(lin, press.camera, press.leds, prior_depth=prior)
+    warm = solve(lin, press.camera, press.leds, prior_depth=prior, init_depth=first.depth)
+    assert len(warm.report["levels"]) == 1  # the finest level only
+    gt = press.ground_truth
+    a, b = evaluate(first, gt)["all"], evaluate(warm, gt)["all"]
+    assert b["aae_deg"] <= a["aae_deg"] + 0.01, (a, b)
+
+
+def test_threads_keep_the_order_and_cover_every_item():
+    assert threads.map_items(lambda x: x * x, range(7)) == [x * x for x in range(7)]
+    parts = threads.chunks(10, 3)
+    assert [i for s in parts for i in range(10)[s]] == list(range(10))
+    assert threads.chunks(1, 4) == [slice(0, 1)]
+
+
+def test_the_indirect_light_at_a_receiver_does_not_depend_on_the_other_receivers(press):
+    """surface_indirect gathers and upsamples around the receivers only: a box of receivers gets the
+    same light as the whole gel, cut to the box."""
+    from nlipscalib.solver.indirect import IndirectModel, surface_indirect
+
+    model = IndirectModel((0.01, 0.01, 0.01), (0.8, 0.8, 0.8), 0.3, 1, True, "test")
+    ref = press.reference
+    valid = np.isfinite(ref.depth)
+    albedo = np.full(press.camera.shape + (3,), 80.0)
+    box = np.zeros(press.camera.shape, bool)
+    box[22:47, 31:58] = True
+    box &= valid
+    whole = surface_indirect(model, press.camera, press.leds, ref.depth, ref.normals, albedo, valid, size=4)
+    part = surface_indirect(model, press.camera, press.leds, ref.depth, ref.normals, albedo, box, size=4)
+    assert whole[:, box].min() > 0  # the premise: light everywhere in the box
+    np.testing.assert_allclose(part[:, box], whole[:, box], rtol=1e-6)
+    assert not part[:, ~box].any()
