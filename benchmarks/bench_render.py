@@ -64,7 +64,8 @@ def main(argv=None) -> int:
             f"640x480, 12 LEDs, llvm_ad_rgb, sphere press; median of {args.repeats} after a warm-up. "
             f"Load average before: {load_before:.2f}, after: {os.getloadavg()[0]:.2f}.",
             "",
-            "| scene | bounces | spp | indentation (s) | render: all images + GT (s) | full press incl. noise + write (s) "
+            "| scene | bounces | spp | indentation (s) | render: all images + GT (s) "
+            "| full press incl. noise + write (s) "
             "| goal (s) | goal |",
             "|---|---|---|---|---|---|---|---|",
             *rows,
