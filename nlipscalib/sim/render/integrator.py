@@ -73,7 +73,7 @@ def make_integrator_class(mi, led_class):
                 hit_first = active if hit_first is None else hit_first
                 bsdf = si.bsdf(ray)
                 for k, led in enumerate(leds):
-                    acc[k] += self._led_light(scene, sampler, si, bsdf, led, throughput, active)
+                    acc[k] += self._led_light(scene, sampler, si, bsdf, led, throughput, active, depth == 0)
                 if depth == self.bounces:
                     break
                 bs, bweight = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
@@ -93,16 +93,24 @@ def make_integrator_class(mi, led_class):
             si = scene.ray_intersect(ray, active)
             return si, ray, throughput, active & si.is_valid()
 
-        def _led_light(self, scene, sampler, si, bsdf, led, throughput, active):
-            """One estimate of the light of ``led`` that coat vertex ``si`` sends back along the path."""
+        def _led_light(self, scene, sampler, si, bsdf, led, throughput, active, first):
+            """One estimate of the light of ``led`` that coat vertex ``si`` sends back along the path
+            (``first``: the vertex the camera sees)."""
             if self.refract:
                 return self._led_through_interface(scene, sampler, si, bsdf, led, throughput, active)
-            return self._led_direct(scene, sampler, si, bsdf, led, throughput, active)
+            return self._led_direct(scene, sampler, si, bsdf, led, throughput, active, first)
 
-        def _led_direct(self, scene, sampler, si, bsdf, led, throughput, active):
-            """Shadow rays to the LED: its centre (point LED) or an antithetic pair of points of its area."""
+        def _led_direct(self, scene, sampler, si, bsdf, led, throughput, active, first):
+            """Shadow rays to the LED: its centre (point LED) or points of its area, an antithetic pair at
+            the vertex the camera sees and one point at later vertices, whose light the bounce direction's
+            own sampling noise already dominates (one shadow ray per LED there, as for a point LED)."""
             ctx = mi.BSDFContext()
-            sources = led.emitting_points(sampler.next_2d(active)) if led.extended else [led.position]
+            if not led.extended:
+                sources = [led.position]
+            elif first:
+                sources = led.emitting_points(sampler.next_2d(active))
+            else:
+                sources = [led.emitting_point(sampler.next_2d(active))]
             light = mi.Spectrum(0.0)
             for source in sources:
                 weight, d, _ = led.radiance_weight(si.p, active, source)
