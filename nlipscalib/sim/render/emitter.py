@@ -8,12 +8,13 @@ area element dA the intensity (Psi / A) (n_s . d)^mu dA. Sampling one emitting p
 area (pdf 1/A) and weighting it as a point LED of intensity Psi is then an unbiased estimate of the
 extended LED's light, and ``size -> 0`` is the point LED exactly.
 
-The integrator sends a pair of shadow rays to an antithetic pair of points: a uniform point a of the area
-and its mirror image -a through the centre (uniform too, so the mean stays unbiased). Across the small
-emitting area the light a surface point receives is nearly linear in the emitting point, and the pair
-cancels that linear part exactly. Measured on the undeformed dome with a 3.6 mm disk (docs/twin.md): at
-4 samples per pixel the per-pixel Monte Carlo noise falls from 2.7 % rms with one point to 0.5 %, less
-than one point gives at 16 samples per pixel (0.7 %), for twice the shadow rays of extended LEDs only.
+At the vertex the camera sees, the integrator sends a pair of shadow rays to an antithetic pair of points:
+a uniform point a of the area and its mirror image -a through the centre (uniform too, so the mean stays
+unbiased). Across the small emitting area the light a surface point receives is nearly linear in the
+emitting point, and the pair cancels that linear part exactly. Measured on the undeformed dome with a 3.6 mm
+disk (docs/twin.md): at 4 samples per pixel the per-pixel Monte Carlo noise falls from 2.7 % rms with one
+point to 0.5 %, less than one point gives at 16 samples per pixel (0.7 %), for twice the shadow rays of
+extended LEDs only.
 """
 
 from __future__ import annotations
