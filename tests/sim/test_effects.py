@@ -231,6 +231,10 @@ def test_default_scene_is_the_papers_sensor_and_ideal_is_the_nlips_model():
     assert default.camera_effects.black_level_error != 0 and default.coating.specular == 0
     assert ideal.replace(name=default.name) == default.ideal()
     assert not ideal.led_package.enabled and not ideal.camera_effects.enabled
+    # ideal() turns off every departure, whatever the scene had on
+    stripped = load_scene("nlipstac_realistic").ideal()
+    assert not stripped.led_package.enabled and not stripped.camera_effects.enabled
+    assert stripped.coating.specular == 0 and not stripped.gel_optics.enabled
 
 
 def test_extended_leds_have_little_monte_carlo_noise_at_4_spp():
