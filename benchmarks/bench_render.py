@@ -2,7 +2,9 @@
 
 Run: ``.venv/bin/python benchmarks/bench_render.py [--repeats 5] [--threads 0]``; rewrites its
 section of benchmarks/RESULTS.md. Goals on the 2-core CPU: bounces 0 @ 4 spp <= 2 s and
-bounces 1 @ 16 spp <= 8 s for all images + ground truth.
+bounces 1 @ 16 spp <= 8 s for all images + ground truth. Each case runs on the default scene
+(``nlipstac.toml``: extended LEDs, defocus, black-level error) and on the ideal one (``nlipstac_ideal.toml``:
+point LEDs, ideal camera), so what the default's effects cost is measured next to it.
 
 Stages timed separately: indentation (``apply_press``), render (all LED images in one pass + the
 ground-truth pass, ``render_surface``), and the full ``render_press`` (indentation + render + noise
@@ -12,6 +14,7 @@ ground-truth pass, ``render_surface``), and the full ``render_press`` (indentati
 from __future__ import annotations
 
 import argparse
+import itertools
 import os
 import sys
 import tempfile
@@ -30,19 +33,19 @@ def bench(repeats: int, threads: int) -> list[str]:
     from nlipscalib.sim.scene import load_scene
 
     press = PressConfig(IndenterConfig("sphere", 6.0), polar_deg=15.0, azimuth_deg=30.0, depth=1.0)
-    base = load_scene()
-    t_indent, _ = median_time(lambda: apply_press(base.dome, press), repeats)
-    gel = apply_press(base.dome, press)
+    scenes = {"default": load_scene(), "ideal": load_scene("nlipstac_ideal")}
+    t_indent, _ = median_time(lambda: apply_press(scenes["default"].dome, press), repeats)
+    gel = apply_press(scenes["default"].dome, press)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for bounces, spp, goal in CASES:
+        for (bounces, spp, goal), (name, base) in itertools.product(CASES, scenes.items()):
             scene = base.replace(render={"spp": spp, "bounces": bounces, "threads": threads})
             t_render, _ = median_time(lambda s=scene: render_surface(s, gel.mesh, gel.contact), repeats)
             t_full, _ = median_time(
                 lambda s=scene: render_press(s, press, Path(tmp) / "p", seed=1, overwrite=True), repeats
             )
             rows.append(
-                f"| {bounces} | {spp} | {t_indent:.2f} | {t_render:.2f} | {t_full:.2f} | {goal:.0f} | "
+                f"| {name} | {bounces} | {spp} | {t_indent:.2f} | {t_render:.2f} | {t_full:.2f} | {goal:.0f} | "
                 f"{'met' if t_render <= goal else 'missed'} |"
             )
     return rows
@@ -57,12 +60,14 @@ def main(argv=None) -> int:
     rows = bench(args.repeats, args.threads)
     body = "\n".join(
         [
-            f"Default scene (640x480, 12 LEDs, llvm_ad_rgb), sphere press; median of {args.repeats} after a warm-up. "
+            "Default scene (extended LEDs, defocus, black-level error) and ideal scene (point LEDs, ideal camera), "
+            f"640x480, 12 LEDs, llvm_ad_rgb, sphere press; median of {args.repeats} after a warm-up. "
             f"Load average before: {load_before:.2f}, after: {os.getloadavg()[0]:.2f}.",
             "",
-            "| bounces | spp | indentation (s) | render: all images + GT (s) | full press incl. noise + write (s) "
+            "| scene | bounces | spp | indentation (s) | render: all images + GT (s) "
+            "| full press incl. noise + write (s) "
             "| goal (s) | goal |",
-            "|---|---|---|---|---|---|---|",
+            "|---|---|---|---|---|---|---|---|",
             *rows,
         ]
     )

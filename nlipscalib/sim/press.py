@@ -56,7 +56,7 @@ def _geometry(scene):
         dome=scene.dome,
         camera=scene.camera,
         render=render,
-        led_package=scene.led_package if scene.gel_optics.enabled else LedPackageConfig(),
+        led_package=scene.led_package if scene.gel_optics.enabled else LedPackageConfig(enabled=False),
         gel_optics=scene.gel_optics,
     )
 

@@ -3,6 +3,11 @@
 The sensor design (dome, camera, LEDs) is defined in :mod:`nlipscalib.core.sensor` and shared with
 device/; this module adds what only the twin needs (coating, noise model, renderer settings).
 
+Defaults are the paper's NLiPsTac as built: extended (WS2812B) LEDs, a fixed-focus lens's slight defocus
+and a black-level error that the dark frame absorbs are on; the glossy lobe, vignetting, a response curve
+and the refracting gel are off (docs/twin.md says why for each). :meth:`SceneConfig.ideal` turns every
+departure from the NLiPs image model off, for checks that need the model exactly.
+
 Frames (docs/conventions.md): the **dome frame** has its origin at the centre of the dome's base
 and +z along the dome's axis toward the apex; millimetres. The camera sits on the axis at
 ``camera.position`` looking along +z with its axes parallel to the dome's (OpenCV camera:
@@ -90,11 +95,12 @@ class LedPackageConfig:
     """Extended LEDs: each LED emits from a flat disk or square instead of a point.
 
     Every area element emits with the LED's own law, intensity (Psi / area) (n_s . d)^mu, so the
-    LED's total light is unchanged and a point LED is the limit ``size -> 0``. Off by default: the
-    NLiPs model (and the solver) assume point LEDs; turn it on to measure what that costs.
+    LED's total light is unchanged and a point LED is the limit ``size -> 0``. On by default: the
+    paper's NLiPsTac has WS2812B LEDs about 10 mm from the gel, where their 3.6 mm light cup is no point;
+    the NLiPs model (and the solver) assume point LEDs, the limit case (``enabled = false``).
     """
 
-    enabled: bool = False
+    enabled: bool = True
     """True: LEDs are disks/squares of ``size``; False: point LEDs (the NLiPs model)."""
     shape: Literal["disk", "square"] = "disk"
     """Emitting area's shape, in the plane perpendicular to the LED's principal direction."""
@@ -110,10 +116,12 @@ class LedPackageConfig:
 class CameraEffectsConfig:
     """Departures of the camera from the ideal linear pinhole the solver assumes (applied in that order).
 
-    Off by default: the NLiPs model is a linear camera without falloff; each effect is a separate switch.
+    The NLiPs model is a linear camera without falloff; each effect is a separate switch. Defaults: the
+    paper's NLiPsTac, a fixed-focus lens (0.7 px defocus) and a stated black level 3 DN off (the dark
+    frame carries the true one); vignetting and the response curve off (docs/twin.md says why).
     """
 
-    defocus_px: float = 0.0
+    defocus_px: float = 0.7
     """Defocus blur: radius of a uniform disk point-spread function, pixels (0 = sharp)."""
     vignetting: Literal["none", "cos4", "polynomial"] = "none"
     """Radial falloff of the image: ``cos4`` = cos^4 of each pixel's ray angle to the optical axis (a thin
@@ -123,7 +131,7 @@ class CameraEffectsConfig:
     """c1, c2, c3 of the ``polynomial`` falloff (default: 30 % darker in the image corners)."""
     response_gamma: float = 1.0
     """Response curve: the sensor records x^gamma of the fraction of full scale x (1 = linear)."""
-    black_level_error: float = 0.0
+    black_level_error: float = 3.0
     """The true black level differs from the one stated in the capture's response by this much, DN
     (the dark frame carries the true one)."""
 
@@ -139,7 +147,11 @@ class CameraEffectsConfig:
     @property
     def enabled(self) -> bool:
         """Whether any effect departs from the ideal camera."""
-        return self != CameraEffectsConfig()
+        return self != IDEAL_CAMERA
+
+
+IDEAL_CAMERA = CameraEffectsConfig(defocus_px=0.0, vignetting="none", response_gamma=1.0, black_level_error=0.0)
+"""The camera of the NLiPs model: sharp, no falloff, linear, black level as stated."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -202,9 +214,9 @@ class SceneConfig:
     noise: NoiseConfig = NoiseConfig()
     render: RenderConfig = RenderConfig()
     led_package: LedPackageConfig = LedPackageConfig()
-    """Extended LEDs (off: point LEDs)."""
+    """Extended LEDs (off: point LEDs, the NLiPs model)."""
     camera_effects: CameraEffectsConfig = CameraEffectsConfig()
-    """Vignetting, response curve, black-level error, defocus (off: ideal linear camera)."""
+    """Vignetting, response curve, black-level error, defocus (``IDEAL_CAMERA``: the NLiPs model's camera)."""
     gel_optics: GelOpticsConfig = GelOpticsConfig()
     """Refraction at the gel's inner surface (off: index-matched gel)."""
 
@@ -224,6 +236,17 @@ class SceneConfig:
 
     def led_models(self) -> tuple[Led, ...]:
         return self.design.led_models()
+
+    def ideal(self) -> SceneConfig:
+        """Copy that renders exactly the NLiPs image model (``core.leds.led_shading``): point LEDs, Lambertian
+        coat, ideal linear camera, index-matched gel. Noise, interreflection and spp are kept."""
+        return dataclasses.replace(
+            self,
+            led_package=dataclasses.replace(self.led_package, enabled=False),
+            coating=dataclasses.replace(self.coating, specular=0.0),
+            camera_effects=IDEAL_CAMERA,
+            gel_optics=dataclasses.replace(self.gel_optics, enabled=False),
+        )
 
     def to_dict(self) -> dict:
         return to_mapping(self)

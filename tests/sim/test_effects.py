@@ -13,7 +13,7 @@ from nlipscalib.sim.noise import apply_noise, dark_frame  # noqa: E402
 from nlipscalib.sim.press import render_press, undeformed_mesh  # noqa: E402
 from nlipscalib.sim.render import render_surface  # noqa: E402
 from nlipscalib.sim.render.shapes import plate  # noqa: E402
-from nlipscalib.sim.scene import CameraEffectsConfig, NoiseConfig, SceneConfig  # noqa: E402
+from nlipscalib.sim.scene import CameraEffectsConfig, NoiseConfig, SceneConfig, load_scene  # noqa: E402
 
 W, H = 48, 36
 PLATE_Z = 10.0
@@ -23,12 +23,16 @@ LEDS = {"positions": [[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [0.0, -4.0, 1.0]], "dire
 
 @pytest.fixture(scope="module")
 def flat_scene():
-    """Three LEDs facing a plate, ideal camera, no noise."""
-    return SceneConfig().replace(
-        camera={"width": W, "height": H, "hfov_deg": 90.0},
-        leds=LEDS,
-        noise={"enabled": False},
-        render={"spp": 64, "bounces": 0, "threads": 2},
+    """Three LEDs facing a plate, ideal camera, no noise (each test switches on the effect it checks)."""
+    return (
+        SceneConfig()
+        .ideal()
+        .replace(
+            camera={"width": W, "height": H, "hfov_deg": 90.0},
+            leds=LEDS,
+            noise={"enabled": False},
+            render={"spp": 64, "bounces": 0, "threads": 2},
+        )
     )
 
 
@@ -106,8 +110,12 @@ def test_specular_weight_blends_out_the_diffuse_part(flat_scene):
 
 
 def test_polynomial_vignetting_is_recovered_from_a_flat_render(tmp_path):
-    base = SceneConfig().replace(
-        camera={"width": W, "height": H}, noise={"enabled": False, "bit_depth": 16}, render={"spp": 1, "threads": 2}
+    base = (
+        SceneConfig()
+        .ideal()
+        .replace(
+            camera={"width": W, "height": H}, noise={"enabled": False, "bit_depth": 16}, render={"spp": 1, "threads": 2}
+        )
     )
     coeffs = [-0.3, 0.05, 0.0]
     vignetted = base.replace(camera_effects={"vignetting": "polynomial", "vignetting_coeffs": coeffs})
@@ -162,7 +170,7 @@ def test_response_curve_and_black_level_error():
 
 def test_effect_settings_are_validated():
     with pytest.raises(ConfigError, match="led_package"):
-        SceneConfig().replace(gel_optics={"enabled": True})
+        SceneConfig().replace(led_package={"enabled": False}, gel_optics={"enabled": True})
     with pytest.raises(ConfigError, match="specular"):
         SceneConfig().replace(coating={"specular": 1.5})
     with pytest.raises(ConfigError, match="vignetting"):
@@ -173,11 +181,15 @@ def test_effect_settings_are_validated():
 
 @pytest.fixture(scope="module")
 def dome_scene():
-    return SceneConfig().replace(
-        camera={"width": 24, "height": 18},
-        noise={"enabled": False},
-        render={"threads": 2},
-        led_package={"enabled": True},
+    return (
+        SceneConfig()
+        .ideal()
+        .replace(
+            camera={"width": 24, "height": 18},
+            noise={"enabled": False},
+            render={"threads": 2},
+            led_package={"enabled": True},
+        )
     )
 
 
@@ -210,3 +222,37 @@ def test_refracting_gel_bends_the_view_and_dims_the_coat(dome_scene):
     v = straight.gt.valid & through.gt.valid
     ratio = through.images[:, v].mean() / straight.images[:, v].mean()
     assert 0.35 < ratio < 0.55
+
+
+def test_default_scene_is_the_papers_sensor_and_ideal_is_the_nlips_model():
+    default, ideal = load_scene(), load_scene("nlipstac_ideal")
+    assert default == SceneConfig()
+    assert default.led_package.enabled and default.camera_effects.defocus_px > 0
+    assert default.camera_effects.black_level_error != 0 and default.coating.specular == 0
+    assert ideal.replace(name=default.name) == default.ideal()
+    assert not ideal.led_package.enabled and not ideal.camera_effects.enabled
+    # ideal() turns off every departure, whatever the scene had on
+    stripped = load_scene("nlipstac_realistic").ideal()
+    assert not stripped.led_package.enabled and not stripped.camera_effects.enabled
+    assert stripped.coating.specular == 0 and not stripped.gel_optics.enabled
+
+
+def test_extended_leds_have_little_monte_carlo_noise_at_4_spp():
+    """The antithetic pair of area points keeps a 3.6 mm disk's per-pixel noise at 4 spp near 0.5 % rms
+    (one point per sample: about 2.7 %, more than the sensor's shot noise)."""
+    scene = (
+        SceneConfig()
+        .ideal()
+        .replace(
+            camera={"width": 64, "height": 48},
+            noise={"enabled": False},
+            render={"threads": 2},
+            led_package={"enabled": True, "size": 3.6},
+        )
+    )
+    mesh = undeformed_mesh(scene.dome)
+    exact = render_surface(scene, mesh, spp=256, seed=1).images[..., 1]
+    quick = render_surface(scene, mesh, spp=4, seed=2).images[..., 1]
+    lit = exact > 0.05 * exact.max(axis=(1, 2), keepdims=True)
+    rel = quick[lit] / exact[lit] - 1
+    assert np.sqrt(np.mean(rel**2)) < 0.012

@@ -19,8 +19,13 @@ W, H = 80, 60
 
 @pytest.fixture(scope="module")
 def scene():
-    return SceneConfig().replace(
-        camera={"width": W, "height": H}, noise={"enabled": False}, render={"spp": 4, "bounces": 0, "threads": 2}
+    """The exact NLiPs image model: point LEDs, Lambertian coat, ideal camera (the default scene is not)."""
+    return (
+        SceneConfig()
+        .ideal()
+        .replace(
+            camera={"width": W, "height": H}, noise={"enabled": False}, render={"spp": 4, "bounces": 0, "threads": 2}
+        )
     )
 
 

@@ -7,6 +7,14 @@ An extended LED (``shape`` disk or square of ``size`` mm, in the plane perpendic
 area element dA the intensity (Psi / A) (n_s . d)^mu dA. Sampling one emitting point uniformly over the
 area (pdf 1/A) and weighting it as a point LED of intensity Psi is then an unbiased estimate of the
 extended LED's light, and ``size -> 0`` is the point LED exactly.
+
+At the vertex the camera sees, the integrator sends a pair of shadow rays to an antithetic pair of points:
+a uniform point a of the area and its mirror image -a through the centre (uniform too, so the mean stays
+unbiased). Across the small emitting area the light a surface point receives is nearly linear in the
+emitting point, and the pair cancels that linear part exactly. Measured on the undeformed dome with a 3.6 mm
+disk (docs/twin.md): at 4 samples per pixel the per-pixel Monte Carlo noise falls from 2.7 % rms with one
+point to 0.5 %, less than one point gives at 16 samples per pixel (0.7 %), for twice the shadow rays of
+extended LEDs only.
 """
 
 from __future__ import annotations
@@ -49,6 +57,12 @@ def make_led_class(mi):
             if not self.extended:
                 return self.position
             return self.to_world_point(self.local_point(sample))
+
+        def emitting_points(self, sample):
+            """An antithetic pair of points of the emitting area for one 2D sample: a uniform point and its
+            mirror image through the LED's centre (disk and square map onto themselves)."""
+            a = self.local_point(sample)
+            return [self.to_world_point(a), self.to_world_point(-a)]
 
         def local_point(self, sample):
             """Point2f, mm, in the emitting plane's (axis_s, axis_t) coordinates: uniform over the area."""

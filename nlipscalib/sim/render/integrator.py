@@ -1,8 +1,8 @@
 """All LEDs in one pass: a path tracer that writes each LED's light to its own AOV channels.
 
 Along each camera path, every vertex sends one shadow ray per LED (point LEDs are delta lights, so
-this is exact next-event estimation without emitter sampling noise; an extended LED sends it to one
-point of its emitting area drawn uniformly); LED k's contribution goes to AOV
+this is exact next-event estimation without emitter sampling noise; an extended LED sends one to each
+of an antithetic pair of points of its emitting area, see ``emitter.py``); LED k's contribution goes to AOV
 channels ``ledKK.R/G/B``. ``bounces`` diffuse bounces follow (0 = direct light only). The main RGB
 output is the sum over LEDs (all LEDs on in white).
 
@@ -60,8 +60,6 @@ def make_integrator_class(mi, led_class):
             return leds
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
-            if self.refract:
-                return self._sample_refracting(scene, sampler, ray, active)
             leds = self._leds(scene)
             acc = [mi.Spectrum(0.0) for _ in leds]
             throughput = mi.Spectrum(1.0)
@@ -71,17 +69,11 @@ def make_integrator_class(mi, led_class):
             hit_first = None
             # Python-unrolled: bounces is small and each vertex needs all LEDs anyway.
             for depth in range(self.bounces + 1):
-                si = scene.ray_intersect(ray, active)
-                active &= si.is_valid()
+                si, ray, throughput, active = self._next_coat_vertex(scene, sampler, ray, throughput, active)
                 hit_first = active if hit_first is None else hit_first
                 bsdf = si.bsdf(ray)
                 for k, led in enumerate(leds):
-                    source = led.emitting_point(sampler.next_2d(active)) if led.extended else led.position
-                    weight, d, dist = led.radiance_weight(si.p, active, source)
-                    shadow = si.spawn_ray_to(source)
-                    visible = active & (scene.ray_test(shadow, active) ^ True)  # ^True: works for scalar bools too
-                    f = bsdf.eval(ctx, si, si.to_local(d), visible)  # f * cos, shading frame
-                    acc[k] += dr.select(visible, throughput * f * weight, 0.0)
+                    acc[k] += self._led_light(scene, sampler, si, bsdf, led, throughput, active, depth == 0)
                 if depth == self.bounces:
                     break
                 bs, bweight = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
@@ -94,31 +86,39 @@ def make_integrator_class(mi, led_class):
             aovs = [channel for a in acc for channel in (a[0], a[1], a[2])]
             return total, hit_first, aovs
 
-        def _sample_refracting(self, scene, sampler, ray, active):
-            leds = self._leds(scene)
-            acc = [mi.Spectrum(0.0) for _ in leds]
-            throughput = mi.Spectrum(1.0)
-            ray = mi.Ray3f(ray)
-            active = mi.Bool(active)
-            hit_first = None
+        def _next_coat_vertex(self, scene, sampler, ray, throughput, active):
+            """The coat point ``ray`` reaches: its first hit, or past the interface when refracting."""
+            if self.refract:
+                return self._walk_to_coat(scene, sampler, ray, throughput, active)
+            si = scene.ray_intersect(ray, active)
+            return si, ray, throughput, active & si.is_valid()
+
+        def _led_light(self, scene, sampler, si, bsdf, led, throughput, active, first):
+            """One estimate of the light of ``led`` that coat vertex ``si`` sends back along the path
+            (``first``: the vertex the camera sees)."""
+            if self.refract:
+                return self._led_through_interface(scene, sampler, si, bsdf, led, throughput, active)
+            return self._led_direct(scene, sampler, si, bsdf, led, throughput, active, first)
+
+        def _led_direct(self, scene, sampler, si, bsdf, led, throughput, active, first):
+            """Shadow rays to the LED: its centre (point LED) or points of its area, an antithetic pair at
+            the vertex the camera sees and one point at later vertices, whose light the bounce direction's
+            own sampling noise already dominates (one shadow ray per LED there, as for a point LED)."""
             ctx = mi.BSDFContext()
-            for depth in range(self.bounces + 1):
-                si, ray, throughput, active = self._walk_to_coat(scene, sampler, ray, throughput, active)
-                hit_first = active if hit_first is None else hit_first
-                bsdf = si.bsdf(ray)
-                for k, led in enumerate(leds):
-                    acc[k] += self._led_through_interface(scene, sampler, si, bsdf, led, throughput, active)
-                if depth == self.bounces:
-                    break
-                bs, bweight = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
-                throughput *= bweight
-                active &= (bs.pdf > 0) & dr.any(throughput != 0)
-                ray = si.spawn_ray(si.to_world(bs.wo))
-            total = mi.Spectrum(0.0)
-            for a in acc:
-                total += a
-            aovs = [channel for a in acc for channel in (a[0], a[1], a[2])]
-            return total, hit_first, aovs
+            if not led.extended:
+                sources = [led.position]
+            elif first:
+                sources = led.emitting_points(sampler.next_2d(active))
+            else:
+                sources = [led.emitting_point(sampler.next_2d(active))]
+            light = mi.Spectrum(0.0)
+            for source in sources:
+                weight, d, _ = led.radiance_weight(si.p, active, source)
+                shadow = si.spawn_ray_to(source)
+                visible = active & (scene.ray_test(shadow, active) ^ True)  # ^True: works for scalar bools too
+                f = bsdf.eval(ctx, si, si.to_local(d), visible)  # f * cos, shading frame
+                light += dr.select(visible, throughput * f * weight, 0.0)
+            return light / len(sources)
 
         def _walk_to_coat(self, scene, sampler, ray, throughput, active):
             """Follow ``ray`` through specular (interface) vertices to the next coat vertex."""
