@@ -87,10 +87,14 @@ def _stream_input(args):
 
 def _check_video(path: str) -> None:
     """One line naming the file when OpenCV cannot decode it (OpenCV itself would only say 'camera ...')."""
+    import os
     from pathlib import Path
 
     from ..errors import CaptureError, require
 
+    # FFmpeg prints its own parse errors ("moov atom not found") to stderr at OpenCV's default level; the
+    # one-line error below names the file instead. Read once, when OpenCV first loads its FFmpeg backend.
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     cv2 = require("cv2", "opencv-python-headless", "Reading a video")
     if "%" not in path and not Path(path).is_file():
         raise CaptureError(f"{path}: no such video file")

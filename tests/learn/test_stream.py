@@ -145,3 +145,22 @@ def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
     valid = np.isfinite(reference.reference.depth)
     same = np.all(np.abs(first["normals"] - reference.reference.normals) < 1e-5, axis=-1)
     assert same[valid].mean() > 0.9
+
+
+def test_unreadable_video_prints_one_line_in_a_fresh_process(trained, tmp_path):
+    """FFmpeg writes its own parse errors straight to the process's stderr (not through Python): only ours shows."""
+    import subprocess
+    import sys
+
+    bad = tmp_path / "broken.mp4"
+    bad.write_bytes(b"not a video" * 100)
+    run = subprocess.run(
+        [sys.executable, "-c", "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"]
+        + ["infer", str(trained), str(bad)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode != 0
+    lines = [line for line in run.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "broken.mp4" in lines[0], run.stderr
