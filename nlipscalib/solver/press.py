@@ -11,7 +11,8 @@ The order of work in :func:`solve_press`:
 3. NLiPs on the images minus the indirect light of the undeformed surface, then an outer loop: the
    indirect light of the *solved* surface (its points, normals and albedo; radiosity gather,
    :mod:`nlipscalib.solver.radiosity`) is subtracted and the press solved again, until the normals stop
-   changing.
+   changing. The loop is under-relaxed per pixel (:func:`_relaxation`): the plain iteration alternates
+   around its answer because the light it subtracts feeds back through the solved albedo.
 """
 
 from __future__ import annotations
@@ -117,7 +118,8 @@ def _solve_press(
     coating_albedo: float | tuple[float, float, float] | None = None,
     interreflection: str = "auto",
     bounces: int = 1,
-    max_outer: int = 3,
+    max_outer: int = 2,
+    outer_relaxation: float | str = "auto",
 ) -> SolveResult:
     """Solve one press.
 
@@ -137,7 +139,10 @@ def _solve_press(
         fitted one (None: fitted from the data).
     interreflection : "auto" (apply the term when the data show indirect light), "on", "off".
     bounces : diffuse bounces in the indirect term (1 or 2).
-    max_outer : most outer passes (solves after the first).
+    max_outer : most outer passes (solves after the first). Two reach the loop's fixed point within
+        0.01 deg on the default twin's sphere and cube presses with ``outer_relaxation="auto"``.
+    outer_relaxation : "auto" (per pixel 1 / (1 + indirect / direct light), see :func:`_relaxation`) or a
+        number: the light of each outer pass is ``L + w (gathered - L)``; 1.0 is the plain iteration.
 
     Returns
     -------
@@ -151,6 +156,8 @@ def _solve_press(
         raise ConfigError(f"interreflection must be one of {INTERREFLECTION_MODES}, got {interreflection!r}")
     if bounces not in (1, 2):
         raise ConfigError(f"bounces must be 1 or 2, got {bounces}")
+    if outer_relaxation != "auto" and not (isinstance(outer_relaxation, (int, float)) and 0 < outer_relaxation <= 2):
+        raise ConfigError(f"outer_relaxation must be 'auto' or a number in (0, 2], got {outer_relaxation!r}")
     leds = press.leds if leds is None else tuple(leds)
     if len(leds) != len(press.leds):
         raise CaptureError(f"{press.folder}: {len(leds)} LEDs given for {len(press.leds)} LED images")
@@ -260,7 +267,9 @@ def _solve_press(
         solver_seconds.append(result.report["seconds"])
         for _ in range(max_outer if dent_interreflection else 0):
             t0 = time.perf_counter()
-            light = _solved_surface_light(model, press, leds, result, mask, ref_surface)
+            gathered = _solved_surface_light(model, press, leds, result, mask, ref_surface)
+            omega = _relaxation(images, light) if outer_relaxation == "auto" else float(outer_relaxation)
+            light = np.maximum(light + omega * (gathered - light), 0.0)
             seconds += time.perf_counter() - t0
             new = run(light, init=result.depth)  # a small change of the light: start from the last depth
             passes += 1
@@ -389,6 +398,20 @@ def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, 
     albedo = np.where(rec[..., None], result.albedo, typical)
     solved = ref_surface.replaced(depth, normals, rec)
     return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, surface=solved)
+
+
+def _relaxation(images: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """(H, W, 1) float32 -- per-pixel relaxation 1 / (1 + g) of the outer loop, g = indirect / direct light.
+
+    Why: the indirect light is proportional to the solved albedo, and the albedo is solved from the
+    images minus that light, so an error dL of the light comes back as about -g dL: the plain iteration
+    alternates around the answer with rate g (measured 0.49 per pass on a 640x480 sphere press: 3.4, 1.7,
+    0.8 deg). The update L + (gathered - L) / (1 + g) cancels that first-order feedback (the same press:
+    2.27, 0.16, 0.02 deg)."""
+    indirect = light.sum(axis=(0, 3))
+    direct = np.maximum(images.sum(axis=(0, 3)) - indirect, 1e-3 * np.maximum(indirect, 1e-30))
+    g = np.clip(indirect / direct, 0.0, 3.0)
+    return (1.0 / (1.0 + g))[None, ..., None].astype(np.float32)
 
 
 def _median_change_deg(a: SolveResult, b: SolveResult) -> float:
