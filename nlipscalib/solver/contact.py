@@ -72,6 +72,10 @@ def led_levels(images: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.percentile(np.asarray(images)[:, ::2, ::2][:, sub], 99, axis=(1, 2))
 
 
+NOISE_SAMPLES = 20_000
+"""Pixels :func:`image_noise` samples at least (all of the gel when it has fewer)."""
+
+
 def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     """Noise sigma of linear images (Immerkaer 1996: a Laplacian-difference mask cancels smooth shading).
 
@@ -83,8 +87,10 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     Returns
     -------
     float -- median over LEDs and channels of the per-image estimate (robust form: 1.4826 MAD of the
-    filtered image over sqrt(36), the mask's squared norm). The medians are taken over every second
-    row of the gel (a statistic: ~10^5 samples per image and channel, half the cost of all of them).
+    filtered image over sqrt(36), the mask's squared norm). The medians are taken on a regular subsample
+    of the gel, at least ``NOISE_SAMPLES`` pixels where the gel has them (a statistic: the MAD of 2x10^4
+    samples is within ~1 % of the MAD of all of them, and 36 estimates are pooled; a 640x480 dome keeps
+    one pixel in 8, a 96x72 one all).
     """
     import cv2
     from scipy import ndimage
@@ -92,9 +98,13 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     inner = ndimage.binary_erosion(valid, iterations=2)
     if inner.sum() < 16:
         return 0.0
-    sample = inner.copy()
-    if inner[::2].sum() >= 16:
-        sample[1::2] = False
+    sample = inner
+    for rows, cols in ((4, 2), (2, 2), (2, 1)):  # the coarsest grid that still has enough samples
+        grid = np.zeros_like(inner)
+        grid[::rows, ::cols] = inner[::rows, ::cols]
+        if grid.sum() >= NOISE_SAMPLES:
+            sample = grid
+            break
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
     def per_image(img):
@@ -152,7 +162,7 @@ def classify_contact(
         side.update(_press_side(press, valid, indirect, dead_level, blur_px))
     live, img, ok, count = side["live"], side["images"], side["ok"], side["count"]
     if undeformed_images is not None:
-        S = np.asarray(undeformed_images, np.float64)
+        S = np.asarray(undeformed_images, np.float32)
     else:
         pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
         S = led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds)
@@ -168,7 +178,7 @@ def classify_contact(
 
 def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, blur_px: float) -> dict:
     """The press's half of :func:`classify_contact`: live LEDs, smoothed images and their level, noise."""
-    img = press.linear(press.led_images).astype(np.float64)
+    img = press.linear(press.led_images).astype(np.float32)
     level = led_levels(img, valid)
     dead = tuple(int(i) for i in np.flatnonzero(level < dead_level))
     live = [i for i in range(len(img)) if i not in dead]
@@ -284,14 +294,14 @@ def anchor_weights(
 
 
 def _smooth(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
-    """Gaussian blur of (L, H, W, 3) images inside ``valid`` (normalised convolution), float64."""
+    """Gaussian blur of (L, H, W, 3) images inside ``valid`` (normalised convolution), float32."""
     if sigma <= 0:
         return stack
     import cv2
 
     w = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma)
     inv = np.where(valid, 1.0 / np.maximum(w, 1e-6), 0.0)[..., None]
-    out = np.empty(stack.shape, np.float64)
+    out = np.empty(stack.shape, np.float32)
 
     def blur(i):
         out[i] = cv2.GaussianBlur(np.where(valid[..., None], stack[i], 0).astype(np.float32), (0, 0), sigma) * inv
