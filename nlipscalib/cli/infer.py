@@ -110,7 +110,7 @@ def _run_stream(args, what: str) -> int:
     import contextlib
     import time
 
-    from ..device.live import SaveSink, stream
+    from ..device.live import ReadAhead, SaveSink, stream
     from ..errors import CaptureError, require
     from ..report import normals_to_rgb
     from .live import nlipsnet_predictor, open_frames
@@ -131,7 +131,7 @@ def _run_stream(args, what: str) -> int:
                 f"{name}: frames are {w}x{h}, the model {args.model} was calibrated for {mw}x{mh} images"
             )
         if not args.emulate and not getattr(source, "live", False):  # a video, sequence or folder: it ends
-            source = _EndsCleanly(source)
+            source = _EndsCleanly(stack.enter_context(ReadAhead(source)))
         stages = _StageTimes()
         sinks = []
         if args.out:

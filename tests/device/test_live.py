@@ -7,7 +7,7 @@ cv2 = pytest.importorskip("cv2")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.device.camera import FolderSource  # noqa: E402
-from nlipscalib.device.live import StopLive, depth_to_rgb, stream  # noqa: E402
+from nlipscalib.device.live import ReadAhead, StopLive, depth_to_rgb, stream  # noqa: E402
 
 from .fakes import flat_predictor  # noqa: E402
 
@@ -37,6 +37,40 @@ def test_stream_stops_at_max_frames_or_when_a_sink_says_so(frames):
             raise StopLive
 
     assert stream(FolderSource(frames), flat_predictor((12, 16)), [stop_at_third], report=None).frames == 2
+
+
+def test_read_ahead_gives_the_same_frames_in_order_and_ends_with_the_source(frames):
+    seen = []
+    with ReadAhead(FolderSource(frames)) as source:
+        assert source.shape == (12, 16)
+        stats = stream(source, flat_predictor((12, 16)), [lambda i, f, r: seen.append(r.depth[0, 0])], report=None)
+    assert stats.frames == 5
+    np.testing.assert_allclose(seen, [1, 2, 3, 4, 5])
+
+
+def test_read_ahead_decodes_the_next_frame_while_the_caller_works():
+    import threading
+
+    class Counting:
+        shape = (12, 16)
+
+        def __init__(self):
+            self.reads = 0
+            self.second = threading.Event()
+
+        def read(self):
+            self.reads += 1
+            if self.reads == 2:
+                self.second.set()
+            return self.reads
+
+    src = Counting()
+    with ReadAhead(src) as ahead:
+        assert ahead.read() == 1
+        # the caller has not asked for frame 2 yet, but the worker reads it now (and nothing beyond it)
+        assert src.second.wait(timeout=30)
+        assert src.reads == 2
+        assert ahead.read() == 2
 
 
 def test_depth_colours_black_off_the_gel():
