@@ -23,6 +23,12 @@ def register(subparsers) -> None:
     p.add_argument("--min-confidence", type=float, default=0.5, help="leave out NLiPs pixels below this confidence")
     p.add_argument("--min-leds", type=int, default=4, help="leave out NLiPs pixels lit by fewer usable LEDs")
     p.add_argument("--rest-per-cell", type=int, default=24, help="undeformed samples per image cell (8x8 cells)")
+    p.add_argument(
+        "--smoothing",
+        type=float,
+        help="sigma in px of the Gaussian low-pass on the tri-colour colours the network sees (default: "
+        "SamplingConfig's, 1 px; 0: raw pixels)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
@@ -34,6 +40,15 @@ def run(args) -> int:
     from ..learn.dataset import CalibrationDataset, SamplingConfig, build_dataset
     from ..report.learn import coverage_figure
 
+    smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
+    if not smoothing >= 0:
+        raise ConfigError(f"--smoothing must be >= 0 px, got {args.smoothing}")
+    cfg = SamplingConfig(  # checked before any solving
+        min_confidence=args.min_confidence,
+        min_leds=args.min_leds,
+        rest_per_cell=args.rest_per_cell,
+        smoothing_px=smoothing,
+    )
     root = Path(args.presses)
     reference = Path(args.reference) if args.reference else root / "reference"
     presses = [p for p in find_presses(root) if p.resolve() != reference.resolve()]
@@ -47,7 +62,6 @@ def run(args) -> int:
     if not solved:
         raise ConfigError(f"{root}: no press could be solved")
     out = Path(args.out) if args.out else root / "calibration"
-    cfg = SamplingConfig(min_confidence=args.min_confidence, min_leds=args.min_leds, rest_per_cell=args.rest_per_cell)
     build_dataset(solved, reference, out, cfg, progress=not args.no_progress)
     data = CalibrationDataset(out)
     cov = coverage(data)

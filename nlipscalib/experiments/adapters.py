@@ -233,22 +233,34 @@ def write_samples(path: Path, arrays: dict) -> None:
     write_shard(Path(path), arrays)
 
 
-def figure_view(press, margin: int = ROI_MARGIN_PX) -> dict[str, np.ndarray]:
+def figure_view(press, reference: Path, sampling: dict, margin: int = ROI_MARGIN_PX) -> dict[str, np.ndarray]:
     """A crop around the true contact for the NLiPsNet figure (objects / true / predicted / error).
+
+    Parameters
+    ----------
+    press : Press ; reference : press folder of the undeformed dome (its gel mask) ; sampling :
+    learn.dataset.SamplingConfig mapping (the prefilter of the network's input colours)
 
     Returns
     -------
-    dict: "rgb" (h, w, 3) float32 linear tri-colour image; "true" (h, w, 3) float32 true normals (NaN
-    off the gel); "origin" (2,) int (x0, y0) of the crop in the image; {} when there is no contact
+    dict: "rgb" (h, w, 3) float32 linear tri-colour image; "input" (h, w, 3) float32 the same filtered as
+    the samples' colours (learn.prefilter, over the whole frame); "true" (h, w, 3) float32 true normals
+    (NaN off the gel); "origin" (2,) int (x0, y0) of the crop in the image; {} when there is no contact
     """
+    from ..learn.dataset import SamplingConfig, reference_arrays
+    from ..learn.prefilter import Prefilter
+
     if press.ground_truth is None or not (press.ground_truth.contact & press.ground_truth.valid).any():
         return {}
     x0, y0, w, h = truth_roi(press, margin)
     win = (slice(y0, y0 + h), slice(x0, x0 + w))
     gt = press.ground_truth
     true = np.where(gt.valid[win][..., None], gt.normals[win], np.nan)
+    tri = press.linear(press.tricolor)
+    sigma = from_mapping(SamplingConfig, dict(sampling), "experiment sampling").smoothing_px
     return {
-        "rgb": press.linear(press.tricolor)[win].astype(np.float32),
+        "rgb": tri[win].astype(np.float32),
+        "input": Prefilter(reference_arrays(load(reference))["valid"], sigma)(tri, *win),
         "true": true.astype(np.float32),
         "origin": np.array([x0, y0], np.int64),
     }

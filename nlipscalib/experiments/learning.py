@@ -116,7 +116,7 @@ def fit_lookup_table(data, names: list[str]):
     from ..learn.lut import LookupTable
 
     s = data.arrays(names)
-    return LookupTable.fit(s["pixel"], s["rgb"], s["normal"], data.reference()["tricolor"])
+    return LookupTable.fit(s["pixel"], s["rgb"], s["normal"], data.filtered_reference())
 
 
 def undeformed_predictor(data):
@@ -184,12 +184,14 @@ def predicted_views(out: Path, predict, names: list[str]) -> list[tuple[str, dic
             continue
         with np.load(path) as z:
             rgb, true, (x0, y0) = z["rgb"], z["true"], z["origin"]
+            colours = z["input"] if "input" in z.files else rgb  # the network's (filtered) input colours
         h, w = true.shape[:2]
         rows, cols = np.mgrid[0:h, 0:w]
         pixel = np.stack([cols.ravel() + x0, rows.ravel() + y0], -1)
         shown = np.all(np.isfinite(true), -1) & np.all(np.isfinite(rgb), -1)
         pred = np.full((h * w, 3), np.nan, np.float32)
-        pred[shown.ravel()] = predict(pixel[shown.ravel()], rgb.reshape(-1, 3)[shown.ravel()])
+        shown &= np.all(np.isfinite(colours), -1)
+        pred[shown.ravel()] = predict(pixel[shown.ravel()], colours.reshape(-1, 3)[shown.ravel()])
         pred = pred.reshape(h, w, 3)
         views.append((name, {"rgb": rgb, "true": true, "estimate": pred, "error": angular_error_map(pred, true)}))
     return views

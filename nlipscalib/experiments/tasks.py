@@ -236,7 +236,7 @@ def _write_samples(adapters, out: Path, task: Task, press, reference: Path, rec)
     path = samples_path(out, task.id)
     path.parent.mkdir(parents=True, exist_ok=True)
     adapters.write_samples(path, arrays)
-    view = adapters.figure_view(press)
+    view = adapters.figure_view(press, reference, task.samples)
     if view:
         _save_maps(view_path(out, task.id), view)
     return {

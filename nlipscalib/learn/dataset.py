@@ -10,7 +10,8 @@ Layout (see docs/formats.md, "Calibration dataset")::
 A shard holds, for N samples of one press:
 
 - ``pixel`` (N, 2) int16: (u, v) = (column, row) of the sample
-- ``rgb`` (N, 3) float32: the tri-colour image there, linear (``Press.linear``)
+- ``rgb`` (N, 3) float32: the tri-colour image there, linear (``Press.linear``), low-pass filtered
+  with the sampling options' ``smoothing_px`` (:mod:`.prefilter`)
 - ``normal`` (N, 3) float32, unit, camera frame: the label (NLiPs normal; reference normal on the
   undeformed rest outside the solved region)
 - ``true_normal`` (N, 3) float32: the twin's true normal (NaN when the press has no ground truth)
@@ -38,6 +39,7 @@ from ..core.imageio import read_npz, save_npz
 from ..errors import CaptureError
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
+from .prefilter import Prefilter
 from .sensor import check_sensor, sensor_of
 
 FORMAT_NAME = "nlipscalib.calibration"
@@ -64,6 +66,10 @@ class SamplingConfig:
     """... with at most this many random pixels per cell (stratified, so every dome region is seen)."""
     seed: int = 0
     """Seed of the stratified sample (mixed with the press name)."""
+    smoothing_px: float = 1.0
+    """Sigma (pixels) of the Gaussian low-pass applied to the tri-colour image before its colours become
+    samples (:mod:`.prefilter`: cuts per-pixel sensor noise ~3.5x); the model file carries it and
+    inference filters alike. 0: raw pixels."""
 
 
 # ---------------------------------------------------------------------- building
@@ -123,7 +129,7 @@ def press_samples(press, rec, ref: dict, cfg: SamplingConfig) -> dict:
         true = np.where(gt.valid[rows, cols][:, None], true, np.nan)
     return {
         "pixel": np.stack([cols, rows], -1).astype(np.int16),
-        "rgb": tri[rows, cols].astype(np.float32),
+        "rgb": Prefilter(ref["valid"], cfg.smoothing_px)(tri)[rows, cols],
         "normal": normal.astype(np.float32),
         "true_normal": true.astype(np.float32),
         "contact": contact[rows, cols],
@@ -286,6 +292,11 @@ class CalibrationDataset:
         self.entries: list[dict] = index["presses"]
 
     @property
+    def smoothing_px(self) -> float:
+        """Prefilter sigma the samples' colours were filtered with (0 for datasets made before the option)."""
+        return float((self.index.get("sampling") or {}).get("smoothing_px", 0.0))
+
+    @property
     def names(self) -> list[str]:
         return [e["name"] for e in self.entries]
 
@@ -315,6 +326,11 @@ class CalibrationDataset:
         out = {k: np.concatenate([p[k] for p in parts]) for k in SHARD_KEYS}
         out["press"] = np.concatenate([np.full(len(p["rgb"]), i, np.int16) for i, p in enumerate(parts)])
         return out
+
+    def filtered_reference(self) -> np.ndarray:
+        """(H, W, 3) float32: the reference tri-colour frame filtered like the samples' colours."""
+        ref = self.reference()
+        return Prefilter(ref["valid"], self.smoothing_px)(ref["tricolor"])
 
     def reference(self) -> dict:
         """The undeformed reference arrays (:func:`reference_arrays`)."""

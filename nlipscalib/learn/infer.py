@@ -1,7 +1,8 @@
 """Real-time inference: one tri-colour frame -> normal map, depth on the dome, points.
 
 Only the pixels that differ from the undeformed reference frame (:func:`changed_pixels`) go through
-the network; the others keep the reference normals and depth. Depth integrates the normals on the
+the network, with their colours low-pass filtered as the model's training samples were
+(:mod:`.prefilter`); the others keep the reference normals and depth. Depth integrates the normals on the
 dome along the camera's real rays (:mod:`nlipscalib.learn.integrate`).
 """
 
@@ -18,6 +19,7 @@ from ..errors import CaptureError, ShapeError
 from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
 from .model import load_model
+from .prefilter import Prefilter
 from .sensor import check_sensor, sensor_of
 
 BACKENDS = ("auto", "torch", "onnx", "onnx-int8")
@@ -67,6 +69,7 @@ class Predictor:
         self.dark = ref["dark"].astype(np.float32)
         self.geo = RayGeometry.from_reference(self.camera.rays, self.ref_depth) if depth else None
         self.changed = ChangeDetector(self.ref_tricolor, self.valid)
+        self.prefilter = Prefilter(self.valid, self.model.smoothing_px)
         self.backend = backend
         self._run = self._backend(backend, threads)
         self._warm_up()
@@ -147,8 +150,9 @@ class Predictor:
         index = np.flatnonzero(changed)  # flat pixel indices: gathers and scatters on them are the cheapest
         if len(index) >= 1:
             x = np.empty((len(index), 5), np.float32)
-            x[:, 1], x[:, 0] = np.divmod(index, self.shape[1])  # v = row, u = column
-            x[:, 2:] = tricolor.reshape(-1, 3)[index]
+            row, col = np.divmod(index, self.shape[1])
+            x[:, 1], x[:, 0] = row, col  # v = row, u = column
+            x[:, 2:] = self._colours(tricolor, row, col)
             normals.reshape(-1, 3)[index] = self._run(x)
         t2 = time.perf_counter()
         if self.geo is not None:
@@ -159,6 +163,11 @@ class Predictor:
         t3 = time.perf_counter()
         seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
         return Frame(normals, depth, points, changed, seconds)
+
+    def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+        """(N, 3) network input colours at the changed pixels: the model's prefilter, on their bounding box only."""
+        rows, cols = slice(int(row[0]), int(row[-1]) + 1), slice(int(col.min()), int(col.max()) + 1)  # row is sorted
+        return self.prefilter(tricolor, rows, cols)[row - rows.start, col - cols.start]
 
     def predict_stored(self, image: np.ndarray, where="frame") -> Frame:
         """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""

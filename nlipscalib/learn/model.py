@@ -9,8 +9,9 @@ Input normalisation (inside the network, so PyTorch and ONNX take the same raw i
 
 - u, v: pixel centre coordinates (column, row), mapped to [-1, 1] over the image:
   u_n = (u - (W - 1) / 2) / (W / 2), v_n = (v - (H - 1) / 2) / (H / 2)
-- r, g, b: linear tri-colour intensity (``Press.linear``: dark-subtracted, 1 = full scale),
-  standardised with the training samples' per-channel mean and standard deviation.
+- r, g, b: linear tri-colour intensity (``Press.linear``: dark-subtracted, 1 = full scale), low-pass
+  filtered over the gel with the file's ``smoothing_px`` (:mod:`.prefilter`; outside the network, as
+  it needs the neighbours), standardised with the training samples' per-channel mean and deviation.
 
 The model file (``.pt``, read with ``torch.load(weights_only=True)``: no pickled code) holds the
 weights, the architecture, the normalisation, what it was trained on, the sensor it was calibrated
@@ -125,8 +126,10 @@ def cosine_loss(pred, target):
 
 
 # ---------------------------------------------------------------------- model file
-def save_model(path, net, *, hidden, dropout, sensor: dict, reference: dict, info: dict) -> Path:
-    """Write the model file atomically (see module docstring)."""
+def save_model(
+    path, net, *, hidden, dropout, sensor: dict, reference: dict, info: dict, smoothing_px: float = 0.0
+) -> Path:
+    """Write the model file atomically (see module docstring); ``smoothing_px``: the inputs' prefilter sigma."""
     import io
 
     from ..core.atomic import write_bytes
@@ -141,6 +144,7 @@ def save_model(path, net, *, hidden, dropout, sensor: dict, reference: dict, inf
         "sensor": sensor,
         "reference": {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in reference.items()},
         "info": info,
+        "smoothing_px": float(smoothing_px),
     }
     buf = io.BytesIO()
     torch.save(payload, buf)
@@ -157,6 +161,7 @@ class LoadedModel:
         self.sensor: dict = payload["sensor"]
         self.reference: dict = {k: v.numpy() for k, v in payload["reference"].items()}
         self.info: dict = payload["info"]
+        self.smoothing_px = float(payload.get("smoothing_px", 0.0))  # files from before the prefilter: raw inputs
 
     @property
     def shape(self) -> tuple[int, int]:

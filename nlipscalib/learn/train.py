@@ -204,6 +204,7 @@ def train(
         sensor=dataset.sensor,
         reference=dataset.reference(),
         info=info,
+        smoothing_px=dataset.smoothing_px,
     )
     return TrainResult(out, history, best["epoch"], train_names, val_names)
 

@@ -9,7 +9,8 @@ import pytest
 from nlipscalib.cli import main
 from nlipscalib.core import load_press, load_reconstruction
 from nlipscalib.errors import CaptureError
-from nlipscalib.learn.dataset import SOURCE_NLIPS, SOURCE_REFERENCE, CalibrationDataset
+from nlipscalib.learn.dataset import SOURCE_NLIPS, SOURCE_REFERENCE, CalibrationDataset, SamplingConfig
+from nlipscalib.learn.prefilter import Prefilter
 
 
 def test_samples_pair_tricolor_pixels_with_reliable_nlips_normals(calib, twin_presses):
@@ -17,7 +18,10 @@ def test_samples_pair_tricolor_pixels_with_reliable_nlips_normals(calib, twin_pr
     press = load_press(twin_presses / "press_a")
     rec = load_reconstruction(twin_presses / "press_a" / "nlips")
     u, v = s["pixel"][:, 0], s["pixel"][:, 1]
-    np.testing.assert_allclose(s["rgb"], press.linear(press.tricolor)[v, u], rtol=0, atol=1e-6)
+    # colours: the tri-colour image low-pass filtered over the gel, as the dataset's options say
+    assert calib.smoothing_px == SamplingConfig().smoothing_px > 0
+    colours = Prefilter(np.isfinite(press.reference.depth), calib.smoothing_px)(press.linear(press.tricolor))
+    np.testing.assert_allclose(s["rgb"], colours[v, u], rtol=0, atol=1e-6)
     nl = s["source"] == SOURCE_NLIPS
     np.testing.assert_allclose(s["normal"][nl], rec.normals[v[nl], u[nl]], atol=1e-6)
     # labels only where NLiPs is reliable
@@ -82,3 +86,16 @@ def test_cli_calibrate_solves_samples_and_reports_coverage(twin_presses, tmp_pat
     assert cov["next_press"]["indenter"] in ("sphere", "cube")
     assert (root / "calibration" / "coverage.png").stat().st_size > 1000
     assert "press next" in capsys.readouterr().out
+
+
+def test_cli_calibrate_raw_colours_on_request_and_refuses_a_negative_sigma(twin_presses, tmp_path, capsys):
+    root = tmp_path / "presses"
+    for name in ("reference", "press_a"):
+        shutil.copytree(twin_presses / name, root / name)
+    assert main(["calibrate", str(root), "--smoothing", "-1", "--no-progress"]) != 0
+    assert "--smoothing" in capsys.readouterr().err
+    assert main(["calibrate", str(root), "--smoothing", "0", "--no-progress"]) == 0
+    data = CalibrationDataset(root / "calibration")
+    s, press = data.load("press_a"), load_press(root / "press_a")
+    assert data.smoothing_px == 0
+    np.testing.assert_array_equal(s["rgb"], press.linear(press.tricolor)[s["pixel"][:, 1], s["pixel"][:, 0]])

@@ -6,6 +6,7 @@ from nlipscalib.cli import main
 from nlipscalib.core import load_press, load_reconstruction
 from nlipscalib.core.metrics import evaluate
 from nlipscalib.learn.infer import Predictor
+from nlipscalib.learn.prefilter import Prefilter
 
 from .conftest import HELD_OUT
 
@@ -35,6 +36,15 @@ def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained, twin_
     calls.clear()
     frame = predictor.predict(press.linear(press.tricolor))
     assert sum(calls) == frame.changed.sum() > 0
+    # the network sees the colours filtered as the model's training samples were
+    inputs = []
+    predictor._run = lambda x: inputs.append(x.copy()) or run(x)
+    tri = press.linear(press.tricolor)
+    predictor.predict(tri)
+    x = np.concatenate(inputs)
+    assert predictor.model.smoothing_px > 0
+    colours = Prefilter(predictor.valid, predictor.model.smoothing_px)(tri)
+    np.testing.assert_allclose(x[:, 2:], colours[x[:, 1].astype(int), x[:, 0].astype(int)], atol=1e-6)
     same = predictor.valid & ~frame.changed
     np.testing.assert_array_equal(frame.normals[same], predictor.ref_normals[same])
 

@@ -37,7 +37,7 @@ def test_split_by_press_and_held_out_press_never_seen(trained):
 def test_net_beats_lookup_table_on_held_out_press(calib, trained):
     model = load_model(trained)
     train = calib.arrays(model.info["train_presses"])
-    lut = LookupTable.fit(train["pixel"], train["rgb"], train["normal"], calib.reference()["tricolor"])
+    lut = LookupTable.fit(train["pixel"], train["rgb"], train["normal"], calib.filtered_reference())
     test = calib.load(HELD_OUT)
     net = sample_scores(net_predict(model, test["pixel"], test["rgb"]), test)
     table = sample_scores(lut.predict(test["pixel"], test["rgb"]), test)
