@@ -41,3 +41,35 @@ def test_normal_map_png_matches_normals_to_rgb(tmp_path):
     n = np.array([[[0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]])
     img = cv2.imread(str(normal_map_png(tmp_path / "n.png", n)), cv2.IMREAD_COLOR)[..., ::-1]
     np.testing.assert_array_equal(img, np.round(normals_to_rgb(n) * 255))
+
+
+def _png(rgb: np.ndarray) -> bytes:
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(rgb).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def test_report_png_palette_only_where_it_is_faithful():
+    import io
+
+    from PIL import Image
+
+    from nlipscalib.report.experiments import PALETTE_MAX_ERROR, _palette_png
+
+    # a smooth normal map has far more than 256 colours: a palette would posterise it into patches
+    y, x = np.mgrid[0:200, 0:200] / 199.0
+    smooth = (np.stack([x, y, 1 - 0.5 * (x + y)], -1) * 255).astype(np.uint8)
+    kept = Image.open(io.BytesIO(_palette_png(_png(smooth))))
+    assert kept.mode == "RGB"
+    assert np.abs(np.asarray(kept, np.int16) - smooth).max() == 0
+    # a chart of a few flat colours becomes a palette PNG with the same pixels
+    chart = np.full((60, 80, 3), 255, np.uint8)
+    chart[10:50, 10:30] = (31, 119, 180)
+    chart[20:50, 40:60] = (255, 127, 14)
+    small = Image.open(io.BytesIO(_palette_png(_png(chart))))
+    assert small.mode == "P"
+    assert np.abs(np.asarray(small.convert("RGB"), np.int16) - chart).max() <= PALETTE_MAX_ERROR

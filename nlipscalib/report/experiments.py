@@ -24,11 +24,22 @@ def _save(fig, path: str | Path) -> Path:
     return write_bytes(path, _palette_png(buf.getvalue()))
 
 
+PALETTE_MAX_ERROR = 3.0
+"""Largest 99th-percentile colour error (8-bit levels) a 256-colour palette may add to a figure."""
+
+
 def _palette_png(png: bytes) -> bytes:
-    """The same picture as a 256-colour palette PNG: noisy error maps shrink several times (Pillow)."""
+    """The same picture as a 256-colour palette PNG when that is faithful, else the RGB PNG (Pillow).
+
+    Charts and noisy error maps shrink several times as palettes, but smooth normal maps posterise
+    into patches that look like mesh facets (seen in the first full Q3 report), so a palette whose
+    99th-percentile colour error exceeds ``PALETTE_MAX_ERROR`` levels is not used."""
     from PIL import Image
 
-    img = Image.open(io.BytesIO(png)).convert("RGB").quantize(256)
+    rgb = Image.open(io.BytesIO(png)).convert("RGB")
+    pal = rgb.quantize(256)
+    err = np.abs(np.asarray(pal.convert("RGB"), np.int16) - np.asarray(rgb, np.int16)).max(axis=-1)
+    img = pal if np.percentile(err, 99) <= PALETTE_MAX_ERROR else rgb
     buf = io.BytesIO()
     img.save(buf, format="PNG", optimize=True)
     return buf.getvalue()
