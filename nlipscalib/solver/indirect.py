@@ -30,7 +30,7 @@ from ..core.capture import Press
 from ..core.leds import led_shading
 from ..core.sensor import DomeConfig
 from ..errors import CaptureError, ConfigError
-from . import radiosity, threads
+from . import radiosity, reuse, threads
 from .contact import led_levels
 
 PATCH_TARGET = 80
@@ -133,6 +133,28 @@ def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray)
     s = np.concatenate(threads.map_items(lambda part: led_shading(pts, nrm, leds[part]), threads.chunks(len(leds))))
     s[:, ~valid] = 0.0
     return s
+
+
+def reference_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """:func:`direct_shading` of the undeformed surface, reused for the next press of the same sensor
+    (:mod:`nlipscalib.solver.reuse`); read-only."""
+    leds = tuple(leds)
+    key = (camera, leds, reuse.digest(depth, normals))
+    return reuse.reused("shading", key, lambda: direct_shading(camera, leds, depth, normals))
+
+
+def reference_surface(camera: Camera, leds, depth, normals, size: int | None = None, shading=None) -> Surface:
+    """:class:`Surface` of the undeformed surface, reused for the next press of the same sensor; its
+    arrays are read-only (:meth:`Surface.replaced` copies what it changes)."""
+    leds = tuple(leds)
+    size = patch_size(camera) if size is None else int(size)
+
+    def make() -> Surface:
+        surf = Surface(camera, leds, np.array(depth), np.array(normals), size, shading)
+        reuse.freeze(surf.patches, surf.shading, surf.keep, surf.valid, surf.depth, surf.normals)
+        return surf
+
+    return reuse.reused("surface", (camera, leds, size, reuse.digest(depth, normals)), make)
 
 
 class Surface:
@@ -355,27 +377,30 @@ def fit_indirect(
 
 def _fit_inputs(reference: Press, leds, shading) -> dict:
     """What :func:`fit_indirect` needs besides ``exclude``: the surface as patches, the off-view dome
-    and its light for a unit albedo, the linear images, the usable samples and the live LEDs."""
-    surf = Surface(
-        reference.camera,
-        leds,
-        reference.reference.depth,
-        reference.reference.normals,
-        size=fit_patch_size(reference.camera),
-        shading=shading,
+    and its light for a unit albedo (both the sensor's alone: reused, :mod:`.reuse`), the linear
+    images, the usable samples and the live LEDs."""
+    ref = reference.reference
+    surf = reference_surface(
+        reference.camera, leds, ref.depth, ref.normals, size=fit_patch_size(reference.camera), shading=shading
     )
     design = design_of(reference)
     off = off_unit = None
     if design is not None:
-        off = radiosity.off_view_patches(design[0], design[1], reference.camera, surf.valid, step_deg=3.0)
-        off_s = led_shading(off["points"], off["normals"], leds)
-        off_unit = radiosity.gather(*surf.receivers(), off, off_s)
+        key = (reference.camera, tuple(leds), surf.size, repr(design[0]), tuple(design[1]), reuse.digest(ref.depth))
+        off, off_unit = reuse.reused("off_view", key, lambda: _off_view_light(reference.camera, leds, surf, design))
     lin = reference.linear(reference.led_images).astype(np.float64)
     usable = (~reference.saturated(reference.led_images)).astype(np.float64)
     usable[:, ~surf.valid] = 0.0
     live = led_levels(lin, surf.valid) >= 1e-3
     usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
     return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
+
+
+def _off_view_light(camera: Camera, leds, surf: Surface, design) -> tuple[dict, np.ndarray]:
+    """The dome beyond the view as patches, and its direct light gathered at ``surf`` for a unit albedo."""
+    off = radiosity.off_view_patches(design[0], design[1], camera, surf.valid, step_deg=3.0)
+    off_s = led_shading(off["points"], off["normals"], tuple(leds))
+    return off, radiosity.gather(*surf.receivers(), off, off_s)
 
 
 def _albedo(img, model, ok) -> np.ndarray:

@@ -18,6 +18,7 @@ The order of work in :func:`solve_press`:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 
@@ -26,9 +27,10 @@ import numpy as np
 from ..core import tolerances
 from ..core.capture import Press
 from ..errors import CaptureError, ConfigError, ShapeError
+from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact
 from .contact import auto_roi as _auto_roi_box
-from .indirect import IndirectModel, Surface, direct_shading, fit_indirect, surface_indirect
+from .indirect import IndirectModel, Surface, fit_indirect, reference_shading, reference_surface, surface_indirect
 from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -175,13 +177,15 @@ def _solve_press(
     t0 = time.perf_counter()
     model, fit_cache, contact_cache = None, {}, {}
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
-    shading = direct_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
+    # (and the next press of the same sensor: solver.reuse)
+    shading = reference_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
     if fixed_light is None and press.reference is not None:
         source = ref_capture if ref_capture is not None else press
         exclude = _box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
         # a press without a known contact is fitted twice (below): the first fit only finds the contact
         rough = ref_capture is None and explicit_roi is None
-        model = fit_indirect(
+        fit = functools.partial(
+            fit_indirect,
             source,
             leds,
             mode=interreflection,
@@ -191,6 +195,11 @@ def _solve_press(
             shading=shading if source is press else None,
             cache=fit_cache,
         )
+        if ref_capture is not None:  # the undeformed capture's fit is the sensor's: reused by later presses
+            model = reuse.reused("fit", (id(ref_capture), leds, interreflection, bounces), fit, keep=ref_capture)
+            reuse.freeze(model.off_view, model.fitted_light)
+        else:
+            model = fit()
     t_indirect = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -258,7 +267,7 @@ def _solve_press(
     if model is not None and model.enabled:
         t0 = time.perf_counter()
         albedo0 = np.broadcast_to(np.asarray(model.off_view_albedo), (H, W, 3))
-        ref_surface = Surface(press.camera, leds, prior, press.reference.normals, shading=shading)
+        ref_surface = reference_surface(press.camera, leds, prior, press.reference.normals, shading=shading)
         light = surface_indirect(
             model, press.camera, leds, prior, press.reference.normals, albedo0, mask, surface=ref_surface
         )

@@ -1,0 +1,69 @@
+"""Sensor-level results of a solve, kept for the next press of the same sensor in this process.
+
+A calibration solves some 50 presses of one sensor in a few long-lived worker processes (``nlips
+calibrate``, ``nlips solve DATASET``, the experiments). Part of every solve depends on the sensor alone,
+not on the press: the direct shading of the undeformed surface, that surface as radiosity patches, the
+dome beyond the view, and the interreflection fit on the capture of the undeformed dome. At 640x480 that
+is about 1-1.5 s of each press's solve. Those results are memoised here, keyed by what they are computed
+from (camera, LEDs, a digest of the undeformed surface's arrays, or the identity of a loaded reference
+capture), a few per kind, so a changed input is never served a stale result. Stored arrays are made
+read-only: a caller that would modify one fails loudly instead of corrupting the next press's solve.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
+
+import numpy as np
+
+PER_KIND = 2
+"""Results kept per kind (one sensor, and a second one for runs that alternate)."""
+
+_store: dict[str, OrderedDict] = {}
+
+
+def digest(*arrays: np.ndarray) -> str:
+    """Content digest of arrays (shape, dtype and bytes): a 640x480 surface in a few milliseconds."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.shape, a.dtype.str)).encode())
+        h.update(memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def reused(kind: str, key: Hashable, compute: Callable, keep: object | None = None):
+    """``compute()``, or the result stored under ``(kind, key)`` by an earlier call.
+
+    ``keep``: an object the key identifies by ``id`` (a loaded capture): it is stored with the result,
+    which is served only while ``keep`` is that same object (an ``id`` can be reused after it is freed).
+    """
+    shelf = _store.setdefault(kind, OrderedDict())
+    hit = shelf.get(key)
+    if hit is not None and hit[0] is keep:
+        shelf.move_to_end(key)
+        return hit[1]
+    value = compute()
+    freeze(value)
+    shelf[key] = (keep, value)
+    while len(shelf) > PER_KIND:
+        shelf.popitem(last=False)
+    return value
+
+
+def clear() -> None:
+    """Forget every stored result (tests; a process that moves to another sensor needs no call)."""
+    _store.clear()
+
+
+def freeze(*values) -> None:
+    """Make the arrays in ``values`` (arrays, and dicts, tuples and lists of them) read-only."""
+    for value in values:
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+        elif isinstance(value, dict):
+            freeze(*value.values())
+        elif isinstance(value, (tuple, list)):
+            freeze(*value)

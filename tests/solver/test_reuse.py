@@ -1,0 +1,82 @@
+"""Sensor-level work reused across the presses of one process (solver/reuse.py) changes no number."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.core import load_press
+from nlipscalib.solver import reuse
+from nlipscalib.solver.indirect import direct_shading, reference_shading
+from nlipscalib.solver.press import solve_press
+
+from . import synth
+
+
+@pytest.fixture(autouse=True)
+def empty_store():
+    reuse.clear()
+    yield
+    reuse.clear()
+
+
+def test_digest_tells_content_shape_and_dtype_apart():
+    a = np.arange(12, dtype=np.float32).reshape(3, 4)
+    assert reuse.digest(a) == reuse.digest(a.copy())
+    b = a.copy()
+    b[1, 2] += 1e-6
+    assert reuse.digest(a) != reuse.digest(b)
+    assert reuse.digest(a) != reuse.digest(a.reshape(4, 3))
+    assert reuse.digest(a) != reuse.digest(a.astype(np.float64))
+    assert reuse.digest(a[:, ::2]) == reuse.digest(np.ascontiguousarray(a[:, ::2]))  # views by content
+
+
+def test_a_result_is_served_for_its_key_and_object_only_and_read_only():
+    calls = []
+
+    def compute(tag):
+        calls.append(tag)
+        return {"values": np.zeros(3)}
+
+    first = reuse.reused("k", ("a",), lambda: compute("a"))
+    assert reuse.reused("k", ("a",), lambda: compute("again")) is first
+    with pytest.raises(ValueError):
+        first["values"][0] = 1.0  # stored arrays cannot be changed under the next press
+    owner, other = object(), object()
+    reuse.reused("k", ("b",), lambda: compute("b"), keep=owner)
+    reuse.reused("k", ("b",), lambda: compute("b2"), keep=other)  # same key, another object: computed
+    assert calls == ["a", "b", "b2"]
+    for tag in "cde":  # a few per kind: the oldest goes
+        reuse.reused("k", (tag,), lambda tag=tag: compute(tag))
+    reuse.reused("k", ("a",), lambda: compute("a3"))
+    assert calls[-1] == "a3" and len(reuse._store["k"]) == reuse.PER_KIND
+
+
+def test_reference_shading_is_reused_for_the_same_surface_only(tmp_path):
+    press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(48, 36)))
+    ref = press.reference
+    first = reference_shading(press.camera, press.leds, ref.depth, ref.normals)
+    np.testing.assert_array_equal(first, direct_shading(press.camera, press.leds, ref.depth, ref.normals))
+    assert reference_shading(press.camera, press.leds, ref.depth.copy(), ref.normals) is first
+    moved = ref.depth + np.float32(0.01)
+    assert reference_shading(press.camera, press.leds, moved, ref.normals) is not first
+
+
+def test_presses_of_one_sensor_solve_alike_with_reused_sensor_work(tmp_path):
+    folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere", "cube")}
+    undeformed = load_press(folders["none"])
+    presses = [load_press(folders[k]) for k in ("sphere", "cube")]
+
+    def solve(press):
+        np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
+        return solve_press(press, roi="auto", indirect=undeformed, interreflection="on")
+
+    alone = []
+    for press in presses:
+        reuse.clear()
+        alone.append(solve(press))
+    reuse.clear()
+    solve(presses[1])  # the store now holds the sensor's work, from another press
+    for press, fresh in zip(presses, alone):
+        shared = solve(press)
+        for key in ("depth", "normals", "albedo"):
+            np.testing.assert_array_equal(getattr(shared, key), getattr(fresh, key), err_msg=key)
+    assert {"shading", "surface", "fit"} <= set(reuse._store)  # the work was in fact reused
