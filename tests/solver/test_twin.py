@@ -135,8 +135,11 @@ def test_interreflection_compensation_improves_aae(one_bounce):
     assert 0.15 < share < 0.3, share
     raw = evaluate(solve_press(press, roi=roi, interreflection="off"), press.ground_truth)
     comp = evaluate(solve_press(press, roi=roi, indirect=indirect), press.ground_truth)
-    assert comp["contact"]["aae_deg"] < raw["contact"]["aae_deg"], (raw, comp)
-    assert comp["all"]["aae_deg"] < raw["all"]["aae_deg"], (raw, comp)
+    # over the region the undeformed dome's light is most of the indirect light: subtracting it helps a lot
+    # (9.1 -> 3.9 deg on the raw 16-spp render, 8.3 -> 5.3 with its bounce light denoised). In the contact
+    # the dent lights itself more than the undeformed dome did, so this step alone can go either way
+    # there (7.6 -> 5.6 raw, 6.6 -> 7.2 denoised); the outer loop on the solved surface (next test) fixes it.
+    assert comp["all"]["aae_deg"] < 0.75 * raw["all"]["aae_deg"], (raw, comp)
 
 
 def test_dent_interreflection_beats_reference_compensation(root, one_bounce):

@@ -28,9 +28,11 @@ AIM_SLACK_DEG = 1.0
 """Added to the per-LED cone's half-angle, degrees: room for the aim's last error."""
 
 
-def aov_names(n_leds: int) -> list[str]:
-    """AOV channel names: led01.R, led01.G, led01.B, led02.R, ..."""
-    return [f"led{k + 1:02d}.{c}" for k in range(n_leds) for c in "RGB"]
+def aov_names(n_leds: int, split: bool = False) -> list[str]:
+    """AOV channel names: led01.R, led01.G, led01.B, led02.R, ...; with ``split`` these hold the light of
+    the vertex the camera sees and ind01.R, ... follow with the light of the later (bounce) vertices."""
+    names = [f"led{k + 1:02d}.{c}" for k in range(n_leds) for c in "RGB"]
+    return names + ([f"ind{k + 1:02d}.{c}" for k in range(n_leds) for c in "RGB"] if split else [])
 
 
 def make_integrator_class(mi, led_class):
@@ -39,7 +41,8 @@ def make_integrator_class(mi, led_class):
 
     class NlipsMultiLed(mi.SamplingIntegrator):
         """Properties: n_leds (int), bounces (int, default 0), refract (bool), eta (n_gel / n_housing),
-        cone_deg (half-angle of the per-LED direction cone when refracting)."""
+        cone_deg (half-angle of the per-LED direction cone when refracting), split (bool: the bounces'
+        light in AOVs of its own, :func:`aov_names`)."""
 
         def __init__(self, props):
             mi.SamplingIntegrator.__init__(self, props)
@@ -49,9 +52,10 @@ def make_integrator_class(mi, led_class):
             self.eta = float(props.get("eta", 1.0))
             self.max_cone = float(dr.deg2rad(float(props.get("cone_deg", 30.0))))
             self.cone_margin = float(props.get("cone_margin", 1.3))
+            self.split = bool(props.get("split", False)) and self.bounces > 0
 
         def aov_names(self):
-            return aov_names(self.n_leds)
+            return aov_names(self.n_leds, self.split)
 
         def _leds(self, scene):
             leds = sorted((e for e in scene.emitters() if isinstance(e, led_class)), key=lambda e: e.index)
@@ -62,6 +66,7 @@ def make_integrator_class(mi, led_class):
         def sample(self, scene, sampler, ray, medium=None, active=True):
             leds = self._leds(scene)
             acc = [mi.Spectrum(0.0) for _ in leds]
+            bounced = [mi.Spectrum(0.0) for _ in leds]  # the later vertices' light, when split
             throughput = mi.Spectrum(1.0)
             ray = mi.Ray3f(ray)
             active = mi.Bool(active)
@@ -72,8 +77,9 @@ def make_integrator_class(mi, led_class):
                 si, ray, throughput, active = self._next_coat_vertex(scene, sampler, ray, throughput, active)
                 hit_first = active if hit_first is None else hit_first
                 bsdf = si.bsdf(ray)
+                into = bounced if self.split and depth > 0 else acc
                 for k, led in enumerate(leds):
-                    acc[k] += self._led_light(scene, sampler, si, bsdf, led, throughput, active, depth == 0)
+                    into[k] += self._led_light(scene, sampler, si, bsdf, led, throughput, active, depth == 0)
                 if depth == self.bounces:
                     break
                 bs, bweight = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
@@ -81,9 +87,9 @@ def make_integrator_class(mi, led_class):
                 active &= (bs.pdf > 0) & dr.any(throughput != 0)
                 ray = si.spawn_ray(si.to_world(bs.wo))
             total = mi.Spectrum(0.0)
-            for a in acc:
+            for a in acc + (bounced if self.split else []):
                 total += a
-            aovs = [channel for a in acc for channel in (a[0], a[1], a[2])]
+            aovs = [channel for a in acc + (bounced if self.split else []) for channel in (a[0], a[1], a[2])]
             return total, hit_first, aovs
 
         def _next_coat_vertex(self, scene, sampler, ray, throughput, active):

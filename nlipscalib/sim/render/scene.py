@@ -92,6 +92,7 @@ def build_scene(
     specular=0.0,
     roughness=0.3,
     interface=None,
+    split_bounces=False,
 ):
     """Load the scene.
 
@@ -106,13 +107,14 @@ def build_scene(
     specular, roughness : the coat's specular lobe (see :func:`coating_bsdf`)
     interface : None (index-matched gel) or (vertices (V, 3) mm camera frame, faces (F, 3) wound toward
         the camera, gel_ior, housing_ior): the refracting inner surface of the gel
+    split_bounces : "multi" with bounces: the bounce vertices' light in AOVs of its own (``aov_names``)
     """
     bsdf = mi.load_dict(coating_bsdf(colors, albedo, specular, roughness))
     mesh = to_mitsuba_mesh(mi, vertices, faces, normals, contact, colors)
     mesh.set_bsdf(bsdf)
     n_leds = len(leds) if only_led is None else 1
     if integrator == "multi":
-        integ = {"type": INTEGRATOR_PLUGIN, "n_leds": n_leds, "bounces": int(bounces)}
+        integ = {"type": INTEGRATOR_PLUGIN, "n_leds": n_leds, "bounces": int(bounces), "split": bool(split_bounces)}
         if interface is not None:
             integ |= {"refract": True, "eta": float(interface[2] / interface[3]), "cone_deg": REFRACT_CONE_DEG}
             integ["cone_margin"] = REFRACT_CONE_MARGIN

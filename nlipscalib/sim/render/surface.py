@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from ...core.capture import GroundTruth
+from .denoise import denoise_indirect
 from .groundtruth import trace_ground_truth
 from .mesh import albedo_per_vertex
 from .scene import build_scene
@@ -66,6 +67,8 @@ def render_surface(
     bounces = r.bounces if bounces is None else int(bounces)
     seed = r.seed if seed is None else int(seed)
     mi, chosen = load_mitsuba(variant or r.variant, r.threads if threads is None else threads)
+    # the bounce light comes in AOVs of its own to be denoised (RenderConfig.denoise_indirect)
+    split = r.denoise_indirect and bounces > 0 and integrator == "multi"
     t0 = time.perf_counter()
     camera = scene_cfg.camera_model()
     leds = scene_cfg.led_models()
@@ -93,10 +96,14 @@ def render_surface(
         specular=c.specular,
         roughness=c.roughness,
         interface=_interface(scene_cfg),
+        split_bounces=split,
     )
     stack = _render_images(mi, scene, camera.shape, spp, seed, integrator) if images else None
     optics = scene_cfg.gel_optics
     gt = trace_ground_truth(mi, scene, camera, optics.gel_ior / optics.housing_ior if optics.enabled else None)
+    if split and stack is not None:  # the direct light, then every LED's bounce light filtered along the surface
+        n = len(stack) // 2
+        stack = stack[:n] + denoise_indirect(stack[n:], gt.normals, gt.depth, gt.valid, r.denoise)
     return RenderResult(stack, gt, chosen, spp, bounces, seed, time.perf_counter() - t0)
 
 

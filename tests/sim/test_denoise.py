@@ -1,0 +1,100 @@
+"""The bounce light's Monte Carlo noise filter (sim/render/denoise.py): known answers, and in the renderer."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.sim.render.denoise import DenoiseConfig, denoise_indirect
+
+H, W = 40, 50
+
+
+def _guides(normal_edge_deg: float = 0.0, depth_step: float = 0.0):
+    """Flat surface at 15 mm; the right half tilted by ``normal_edge_deg`` and/or moved by ``depth_step`` mm."""
+    normals = np.zeros((H, W, 3), np.float32)
+    normals[..., 2] = -1.0
+    t = np.radians(normal_edge_deg)
+    normals[:, W // 2 :] = (np.sin(t), 0.0, -np.cos(t))
+    depth = np.full((H, W), 15.0, np.float32)
+    depth[:, W // 2 :] += depth_step
+    valid = np.ones((H, W), bool)
+    valid[:3] = False  # a rim that sees no surface
+    return normals, depth, valid
+
+
+def test_a_constant_field_is_returned_unchanged_and_nothing_outside_the_surface():
+    normals, depth, valid = _guides()
+    field = np.full((2, H, W, 3), 0.25, np.float32)
+    out = denoise_indirect(field, normals, depth, valid)
+    np.testing.assert_allclose(out[:, valid], 0.25, rtol=1e-5)
+    assert np.all(out[:, ~valid] == 0)
+
+
+def test_noise_on_a_smooth_field_drops_many_fold_and_its_mean_stays():
+    normals, depth, valid = _guides()
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[0:H, 0:W]
+    smooth = (0.2 + 0.05 * np.sin(x / 15.0) * np.cos(y / 12.0)).astype(np.float32)
+    clean = np.broadcast_to(smooth[None, ..., None], (3, H, W, 3))
+    noisy = clean * (1 + 0.3 * rng.standard_normal(clean.shape)).astype(np.float32)
+    out = denoise_indirect(noisy, normals, depth, valid)
+    inner = valid.copy()
+    inner[:, :8] = inner[:, -8:] = False
+    inner[:11] = inner[-8:] = False
+    before = np.sqrt(np.mean((noisy - clean)[:, inner] ** 2))
+    after = np.sqrt(np.mean((out - clean)[:, inner] ** 2))
+    assert after < before / 5
+    assert abs(out[:, valid].mean() / noisy[:, valid].mean() - 1) < 0.01
+
+
+@pytest.mark.parametrize("edge", [{"normal_edge_deg": 30.0}, {"depth_step": 1.0}])
+def test_light_is_not_blurred_across_an_edge_of_the_geometry(edge):
+    normals, depth, valid = _guides(**edge)
+    field = np.zeros((1, H, W, 3), np.float32)
+    field[:, :, : W // 2] = 0.1
+    field[:, :, W // 2 :] = 0.3  # a tilted or moved facet receives other light
+    out = denoise_indirect(field, normals, depth, valid)
+    np.testing.assert_allclose(out[0, 3:, : W // 2], 0.1, rtol=0.02)
+    np.testing.assert_allclose(out[0, 3:, W // 2 :], 0.3, rtol=0.02)
+    # without the edge in the guides the same step would be smeared over many pixels
+    flat = denoise_indirect(field, *_guides())
+    assert abs(flat[0, 20, W // 2 - 1, 0] - 0.1) > 0.03
+
+
+def test_bad_settings_and_guides_are_refused():
+    from nlipscalib.errors import ConfigError
+
+    with pytest.raises(ConfigError):
+        DenoiseConfig(iterations=9)
+    with pytest.raises(ConfigError):
+        DenoiseConfig(normal_deg=0)
+    normals, depth, valid = _guides()
+    with pytest.raises(ValueError):
+        denoise_indirect(np.zeros((1, H, W + 1, 3)), normals, depth, valid)
+
+
+def test_the_renderer_splits_the_bounce_light_exactly_and_filters_only_it():
+    pytest.importorskip("mitsuba")
+    from nlipscalib.sim.press import undeformed_mesh
+    from nlipscalib.sim.render import render_surface
+    from nlipscalib.sim.scene import SceneConfig
+
+    scene = (
+        SceneConfig()
+        .ideal()
+        .replace(camera={"width": 48, "height": 36}, noise={"enabled": False}, render={"threads": 2, "bounces": 1})
+    )
+    mesh = undeformed_mesh(scene.dome)
+    plain = render_surface(scene.replace(render={"denoise_indirect": False}), mesh, spp=16, seed=3)
+    off = scene.replace(render={"denoise": {"iterations": 0}, "denoise_indirect": True})  # split, nothing filtered
+    split = render_surface(off, mesh, spp=16, seed=3)
+    np.testing.assert_allclose(split.images, plain.images, rtol=1e-5, atol=1e-8)  # the same paths, split
+    on = scene.replace(render={"denoise_indirect": True})
+    filtered = [render_surface(on, mesh, spp=16, seed=seed) for seed in (3, 4)]
+    v = plain.gt.valid
+    # the same samples: only the bounce light differs, and its level over the dome is kept (it is a fifth
+    # to a third of the image, so 0.5 % of the image is a few % of it) ...
+    assert abs(filtered[0].images[:, v].mean() / split.images[:, v].mean() - 1) < 0.005
+    # ... and its noise (what two renders with other samples disagree on) is filtered; what is left is
+    # mostly the direct light's antialiasing noise at this coarse pixel size, which is never filtered
+    raw_noise = np.std((render_surface(off, mesh, spp=16, seed=4).images - split.images)[:, v])
+    assert np.std((filtered[1].images - filtered[0].images)[:, v]) < 0.7 * raw_noise
