@@ -26,6 +26,8 @@ SCENE_CASES = [
     ("render", "threads", "-2"),
     ("render", "seed", "-5"),
     ("render", "variant", '"gpu_fast"'),
+    ("render.denoise", "iterations", "9"),
+    ("render.denoise", "normal_deg", "0"),
     ("camera", "width", "0"),
     ("camera", "height", "100000"),
     ("camera", "hfov_deg", "0.0"),
