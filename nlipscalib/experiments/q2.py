@@ -148,10 +148,19 @@ class Q2(Experiment):
         lut = learning.fit_lookup_table(data, names["train"])
         predictors[METHODS["lut"]] = lut.predict
         predictors[METHODS["none"]] = learning.undeformed_predictor(data)
+        by_indenter = {
+            f"{split}/{kind}": [n for n in tests[split] if data.entry(n)["press"]["indenter"] == kind]
+            for split in tests
+            for kind in dict.fromkeys(data.entry(n)["press"]["indenter"] for n in tests[split])
+        }
+        per_indenter = learning.score(data, predictors, by_indenter)
+        for r in per_indenter:
+            r["split"], r["indenter"] = r["split"].split("/", 1)
         return {
             "presses": {k: len(v) for k, v in names.items()},
             "names": names,
             "scores": learning.score(data, predictors, tests),
+            "per_indenter": per_indenter,
             "models": {k: {key: v for key, v in m.items() if key != "history"} for k, m in models.items()},
             "histories": {k: m["history"] for k, m in models.items()},
         }
@@ -186,6 +195,16 @@ class Q2(Experiment):
                 SCORE_COLUMNS,
             )
         )
+        if learned.get("per_indenter"):  # what each test indenter costs (reports made before it lack it)
+            tables.append(
+                Table(
+                    "per_indenter",
+                    "The same scores per test indenter",
+                    ("split", "indenter", "method"),
+                    learned["per_indenter"],
+                    columns=SCORE_COLUMNS,
+                )
+            )
         training = [
             {"model": METHODS[k]}
             | {

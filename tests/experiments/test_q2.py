@@ -46,8 +46,18 @@ def test_q2_quick_writes_report_json_and_figures(q2):
     roles = {(e["role"], e["indenter"]) for e in doc["evaluations"]}
     assert {r for r, _ in roles} == {"train", "seen", "unseen"}
     assert {i for r, i in roles if r == "unseen"}.isdisjoint({i for r, i in roles if r == "train"})
+    # and every method per test indenter: the unseen split is the sum of its indenters' samples
+    per = doc["learned"]["per_indenter"]
+    unseen = {r["indenter"] for r in per if r["split"] == "unseen"}
+    assert unseen == {i for r, i in roles if r == "unseen"}
+    for method in METHODS.values():
+        parts = [r["contact_samples"] for r in per if r["split"] == "unseen" and r["method"] == method]
+        total = [
+            r["contact_samples"] for r in doc["learned"]["scores"] if r["split"] == "unseen" and r["method"] == method
+        ]
+        assert sum(parts) == total[0] > 0
     text = (q2 / "q2-quick" / "report" / "report.md").read_text()
-    assert "3.33" in text and "3.11" in text and "AAE vs true normals" in text
+    assert "3.33" in text and "3.11" in text and "AAE vs true normals" in text and "per test indenter" in text
     for png in ("q2_normals.png", "q2_vs_nlips.png", "q2_vs_true.png", "q2_training.png"):
         assert (q2 / "q2-quick" / "report" / png).stat().st_size > 1000 and f"({png})" in text
 
