@@ -73,3 +73,13 @@ def test_report_png_palette_only_where_it_is_faithful():
     small = Image.open(io.BytesIO(_palette_png(_png(chart))))
     assert small.mode == "P"
     assert np.abs(np.asarray(small.convert("RGB"), np.int16) - chart).max() <= PALETTE_MAX_ERROR
+
+
+def test_error_colour_bar_fits_the_errors_shown():
+    from nlipscalib.report.experiments import error_scale
+
+    rng = np.random.default_rng(1)
+    assert error_scale([rng.uniform(0, 0.9, (20, 20)), np.full((3, 3), np.nan)]) == 1.0
+    assert error_scale([rng.uniform(0, 1.6, (50, 50))]) == 2.0  # sub-degree maps no longer look black
+    assert error_scale([rng.uniform(0, 14.0, (50, 50))]) == 20.0
+    assert error_scale([np.full((4, 4), 90.0)]) == 45.0 and error_scale([np.full((2, 2), np.nan)]) == 1.0

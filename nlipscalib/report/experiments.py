@@ -118,15 +118,29 @@ def sweep(
     return _save(fig, path)
 
 
+ERROR_SCALES_DEG = (1.0, 2.0, 5.0, 10.0, 20.0, 45.0)
+"""Upper ends the angular-error colour bar chooses from (:func:`error_scale`)."""
+
+
+def error_scale(errors) -> float:
+    """The colour bar's upper end for angular error maps: the smallest of ``ERROR_SCALES_DEG`` at or above
+    the 99th percentile of all their finite values (a fixed 20 deg shows half-degree errors as black)."""
+    values = np.concatenate([np.asarray(e, float)[np.isfinite(e)].ravel() for e in errors] or [np.zeros(0)])
+    top = float(np.percentile(values, 99)) if values.size else 0.0
+    return next((v for v in ERROR_SCALES_DEG if v >= top), ERROR_SCALES_DEG[-1])
+
+
 def error_maps(
-    rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], path: str | Path, vmax: float = 20.0
+    rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], path: str | Path, vmax: float | None = None
 ) -> Path:
     """One row per press: true normals, estimated normals, angular error (degrees, colour bar).
 
     Parameters
     ----------
     rows : (title, true (h, w, 3) float, estimate (h, w, 3) float, error (h, w) float degrees); NaN = not solved
+    vmax : upper end of the error colour bar, degrees (None: :func:`error_scale` of the maps)
     """
+    vmax = error_scale([r[3] for r in rows]) if vmax is None else vmax
     sheet = []
     for title, true, est, err in rows:
         shown = np.isfinite(err)
@@ -145,7 +159,10 @@ def error_maps(
 
 
 def nlipsnet_maps(
-    rows: list[tuple[str, dict[str, np.ndarray]]], path: str | Path, vmax: float = 20.0, method: str = "NLiPsNet"
+    rows: list[tuple[str, dict[str, np.ndarray]]],
+    path: str | Path,
+    vmax: float | None = None,
+    method: str = "NLiPsNet",
 ) -> Path:
     """The paper's NLiPsNet figure: per press, the object, true normals, predicted normals, angular error.
 
@@ -153,8 +170,9 @@ def nlipsnet_maps(
     ----------
     rows : (title, {"rgb": (h, w, 3) linear tri-colour image, "true": (h, w, 3) unit normals,
         "estimate": (h, w, 3) unit normals, "error": (h, w) degrees}); NaN = off the gel
-    vmax : upper end of the error colour bar, degrees
+    vmax : upper end of the error colour bar, degrees (None: :func:`error_scale` of the maps)
     """
+    vmax = error_scale([v["error"] for _, v in rows]) if vmax is None else vmax
     sheet = []
     for title, v in rows:
         shown = np.isfinite(v["error"])
