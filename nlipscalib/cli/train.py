@@ -22,7 +22,12 @@ def register(subparsers) -> None:
     )
     p.add_argument("--labels", choices=("nlips", "true"), default="nlips", help="targets: NLiPs or true normals")
     p.add_argument("--epochs", type=int, default=200, help="maximum epochs")
-    p.add_argument("--patience", type=int, default=15, help="early-stopping patience, epochs")
+    p.add_argument("--patience", type=int, help="early-stopping patience, epochs (default 8)")
+    p.add_argument(
+        "--schedule",
+        choices=("plateau", "cosine"),
+        help="learning rate: lowered when validation stalls (plateau, default) or cosine-annealed over --epochs",
+    )
     p.add_argument("--batch-size", type=int, default=1024)
     p.add_argument("--lr", type=float, default=2e-3)
     p.add_argument("--seed", type=int, default=0)
@@ -50,12 +55,13 @@ def run(args) -> int:
     out = Path(args.out)
     if out.suffix != ".pt":
         raise ConfigError(f"--out {out}: the model file must end in .pt")
+    given = {k: v for k, v in (("patience", args.patience), ("schedule", args.schedule)) if v is not None}
     cfg = TrainConfig(
         hidden=hidden,
         dropout=args.dropout,
         labels=args.labels,
         max_epochs=args.epochs,
-        patience=args.patience,
+        **given,
         batch_size=args.batch_size,
         lr=args.lr,
         seed=args.seed,

@@ -132,3 +132,18 @@ def test_cli_trains_a_small_variant_without_dropout(calib, tmp_path, capsys):
     assert main(["train", str(calib.folder), "--out", str(tmp_path / "x.pt"), "--dropout", "1.5"]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "dropout" in err[0]
+
+
+def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp_path, monkeypatch):
+    from nlipscalib.errors import ConfigError
+    from nlipscalib.learn import train as train_module
+    from nlipscalib.learn.train import TrainConfig, train
+
+    scripted = iter([5.0, 4.0, 4.5, 4.2, 3.0, 3.5, 3.6])  # validation AAE per epoch: stalls at 3, 4, 6, 7
+    monkeypatch.setattr(train_module, "_validate", lambda *args: (next(scripted), 0.0))
+    cfg = TrainConfig(hidden=(8, 8), max_epochs=7, patience=10, lr_patience=1, lr_factor=0.5)
+    history = train(calib, cfg, tmp_path / "m.pt", progress=False).history
+    # lowered after two epochs in a row without a better AAE (epochs 3-4 and 6-7), not after one
+    assert [h["lr"] / cfg.lr for h in history] == pytest.approx([1, 1, 1, 0.5, 0.5, 0.5, 0.25])
+    with pytest.raises(ConfigError, match="schedule"):
+        TrainConfig(schedule="step")
