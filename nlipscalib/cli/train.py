@@ -23,10 +23,9 @@ def register(subparsers) -> None:
     p.add_argument("--labels", choices=("nlips", "true"), default="nlips", help="targets: NLiPs or true normals")
     p.add_argument("--epochs", type=int, default=200, help="maximum epochs")
     p.add_argument("--patience", type=int, help="early-stopping patience, epochs (default 8)")
-    p.add_argument(
+    p.add_argument(  # the values are checked once, by TrainConfig
         "--schedule",
-        choices=("plateau", "cosine"),
-        help="learning rate: lowered when validation stalls (plateau, default) or cosine-annealed over --epochs",
+        help="learning rate: plateau (default: lowered when validation stalls) or cosine (annealed over --epochs)",
     )
     p.add_argument("--batch-size", type=int, default=1024)
     p.add_argument("--lr", type=float, default=2e-3)

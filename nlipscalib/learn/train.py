@@ -56,9 +56,8 @@ class TrainConfig:
     without a better validation AAE, down to 1 % of ``lr``. At a fixed rate the validation AAE of the paper's
     net on 50 full-size presses scattered by 0.4 deg from epoch to epoch and early stopping kept a lucky
     epoch; lowering the rate when it stalls kept a better epoch, in fewer epochs (benchmarks/RESULTS.md; the
-    scatter, from 10 validation presses, stays). "cosine": annealed to 5 %
-    over ``max_epochs`` (the earlier default; with early stopping after ~25 of 200 epochs it stays near
-    ``lr``)."""
+    scatter, from 10 validation presses, stays). "cosine": annealed to 5 % over ``max_epochs`` (the earlier
+    default; with early stopping after ~25 of 200 epochs it stays near ``lr``)."""
     lr_patience: int = 2
     """Epochs without a better validation AAE before the plateau schedule lowers the rate."""
     lr_factor: float = 0.3

@@ -132,6 +132,9 @@ def test_cli_trains_a_small_variant_without_dropout(calib, tmp_path, capsys):
     assert main(["train", str(calib.folder), "--out", str(tmp_path / "x.pt"), "--dropout", "1.5"]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "dropout" in err[0]
+    assert main(["train", str(calib.folder), "--out", str(tmp_path / "y.pt"), "--schedule", "step"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "schedule" in err[0] and not (tmp_path / "y.pt").exists()
 
 
 def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp_path, monkeypatch):
