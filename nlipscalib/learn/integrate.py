@@ -36,6 +36,12 @@ ANCHOR_WEIGHT = 1e-4
 """Weak pull of every unknown toward the reference log-range: keeps a region that touches no
 undeformed pixel (e.g. at the image border) determined, without biasing a bounded one."""
 
+MIN_FACING = 0.05
+"""Least -n.d a normal is integrated with (it faces the camera at most ~87 deg from its ray). A
+visible surface faces the camera; a network's normal that is grazing or faces away (an untrained
+model, a frame of another sensor) would give a slope without bound and overflow the depth, so it is
+clipped to this grazing slope instead."""
+
 
 @dataclasses.dataclass(frozen=True)
 class RayGeometry:
@@ -79,8 +85,7 @@ class RayGeometry:
 
 def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
     """(p, q): d log(rho)/du and d log(rho)/dv, each (H, W) float64, from normals ((H, W, 3) unit, camera frame)."""
-    den = np.einsum("...k,...k->...", normals, geo.rays)
-    den = np.where(np.abs(den) < 1e-6, -1e-6, den)  # grazing normals: a huge but finite slope
+    den = np.minimum(np.einsum("...k,...k->...", normals, geo.rays), -MIN_FACING)
     return -np.einsum("...k,...k->...", normals, geo.d_u) / den, -np.einsum("...k,...k->...", normals, geo.d_v) / den
 
 
@@ -190,8 +195,7 @@ def _gradient32(normals: np.ndarray, geo: RayGeometry, box) -> tuple[np.ndarray,
         v = vectors[box]
         return n0 * v[..., 0] + n1 * v[..., 1] + n2 * v[..., 2]
 
-    den = dot(geo.rays32)
-    den = np.where(np.abs(den) < 1e-6, np.float32(-1e-6), den)
+    den = np.minimum(dot(geo.rays32), np.float32(-MIN_FACING))
     return -dot(geo.d_u32) / den, -dot(geo.d_v32) / den
 
 

@@ -43,3 +43,15 @@ def test_reference_normals_give_the_undeformed_dome(twin_presses, method):
     press = load_press(twin_presses / "press_a")
     dent, _, unknown, _ = _dent(press, press.reference.normals, method)
     assert np.abs(dent[unknown]).max() < 0.02  # mm: the dome's own normals integrate to the dome
+
+
+@pytest.mark.parametrize("method", ["box", "sparse"])
+def test_grazing_or_back_facing_normals_give_a_finite_surface(twin_presses, method):
+    # an untrained network or a frame of another sensor predicts any direction
+    press = load_press(twin_presses / "press_a")
+    rays = press.camera.rays
+    grazing = np.cross(rays, [1.0, 0.0, 0.0])  # n . d = 0 on every ray
+    grazing /= np.linalg.norm(grazing, axis=-1, keepdims=True)
+    for normals in (grazing, rays):  # along the ray: faces away
+        _, _, unknown, depth = _dent(press, normals, method)
+        assert np.isfinite(depth[unknown]).all()
