@@ -5,7 +5,6 @@ import pytest
 
 pytest.importorskip("mitsuba")
 pytest.importorskip("torch")
-pytest.importorskip("nlipscalib.learn.infer", reason="NLiPsNet (learn) is not merged yet")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import load_press  # noqa: E402
