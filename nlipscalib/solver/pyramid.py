@@ -45,10 +45,11 @@ def build_pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> 
             d = np.stack([resize(img, c.shape) for img in data]).astype(data.dtype, copy=False)
             u = np.stack([resize(x.astype(np.float32), c.shape) for x in use]) > 0.999
             mk = resize(mask.astype(np.float32), c.shape) > 0.999
-            tk = np.log(
-                resize(np.where(mask, np.exp(t0), 0.0), c.shape)
-                / np.maximum(resize(mask.astype(np.float32), c.shape), 1e-9)
-            )
+            with np.errstate(divide="ignore"):  # log(0) off the mask, replaced just below
+                tk = np.log(
+                    resize(np.where(mask, np.exp(t0), 0.0), c.shape)
+                    / np.maximum(resize(mask.astype(np.float32), c.shape), 1e-9)
+                )
             tk = np.where(mk, tk, 0.0)
             wk = resize(w0.astype(np.float32), c.shape)
         if mk.sum() < 16:
