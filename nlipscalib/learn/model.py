@@ -21,6 +21,7 @@ dark frame, depth, normals) that inference compares frames with and integrates d
 
 from __future__ import annotations
 
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -43,12 +44,35 @@ def build_net(hidden=PAPER_HIDDEN, dropout: float = PAPER_DROPOUT, width: int = 
     torch = _torch()
     nn = torch.nn
 
+    class ByteMaskDropout(nn.Dropout):
+        """torch.nn.Dropout's rate and scaling, its training mask drawn as uint8 integers.
+
+        On the CPU, torch.nn.Dropout's float Bernoulli draw was the largest cost of a training step after the
+        matrix products (about 30 % of the paper's net at batch 1024); integers uniform in [0, m), kept where
+        >= k (k / m the rate), cost a third of it (benchmarks/RESULTS.md). The rate is exactly ``p`` when it is
+        a fraction with a denominator up to 255 (0.2 = 1 / 5), otherwise the nearest such fraction; kept values
+        are scaled by 1 / (1 - k / m), so the expectation is unchanged. The identity in eval mode; drawn from
+        torch's global generator (seeded by ``torch.manual_seed``).
+        """
+
+        def __init__(self, p: float):
+            super().__init__(p)
+            rate = Fraction(float(p)).limit_denominator(255)
+            self.keep_from, self.draw_below = rate.numerator, rate.denominator
+            self.keep_scale = 1.0 / (1.0 - float(rate)) if rate < 1 else 0.0
+
+        def forward(self, x):
+            if not self.training or self.keep_from == 0:
+                return x
+            draw = torch.randint(0, self.draw_below, x.shape, dtype=torch.uint8, device=x.device)
+            return x * ((draw >= self.keep_from).to(x.dtype) * self.keep_scale)
+
     class NLiPsNet(nn.Module):
         def __init__(self):
             super().__init__()
             layers, n_in = [], 5
             for n_out in hidden:
-                layers += [nn.Linear(n_in, n_out), nn.BatchNorm1d(n_out), nn.ReLU(), nn.Dropout(dropout)]
+                layers += [nn.Linear(n_in, n_out), nn.BatchNorm1d(n_out), nn.ReLU(), ByteMaskDropout(dropout)]
                 n_in = n_out
             layers.append(nn.Linear(n_in, 3))
             self.mlp = nn.Sequential(*layers)

@@ -106,3 +106,22 @@ def test_opencv_change_rule_matches_the_scipy_definition():
     assert want.sum() > 100
     assert want[:, :4].any()  # the border change is found
     np.testing.assert_array_equal(got, want)
+
+
+@pytest.mark.parametrize("p", [0.2, 0.3, 1 / 3])
+def test_byte_mask_dropout_keeps_torch_dropouts_rate_scale_and_gradient(p):
+    """The training net's dropout: the rate p, kept values scaled by 1 / (1 - p), gradient through the same
+    mask, the identity in eval mode, and a torch.nn.Dropout (architecture checks look for one)."""
+    import torch
+
+    torch.manual_seed(0)
+    dropout = build_net(hidden=(8,), dropout=p, width=64, height=48).mlp[3]
+    assert isinstance(dropout, torch.nn.Dropout) and dropout.p == p
+    x = torch.full((1000, 1000), 2.0, requires_grad=True)
+    out = dropout.train()(x)
+    dropped = out == 0
+    assert abs(float(dropped.float().mean()) - p) < 0.002  # 1e6 draws: 5 standard deviations
+    np.testing.assert_allclose(out[~dropped].detach().numpy(), 2.0 / (1 - p), rtol=1e-6)
+    out.sum().backward()
+    np.testing.assert_allclose(x.grad.numpy(), (out / 2.0).detach().numpy(), rtol=1e-6)
+    assert torch.equal(dropout.eval()(x), x)
