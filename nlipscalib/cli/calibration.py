@@ -19,7 +19,9 @@ def register(subparsers) -> None:
     p.add_argument("presses", help="folder of press folders (twin or device)")
     p.add_argument("--reference", help="press folder of the undeformed dome (default: PRESSES/reference)")
     p.add_argument("--out", help="calibration dataset folder (default: PRESSES/calibration)")
-    p.add_argument("--workers", type=int, default=1, help="solver processes (default 1)")
+    p.add_argument(
+        "--workers", type=int, default=0, help="solver processes (default 0: one per core this process may use)"
+    )
     p.add_argument("--min-confidence", type=float, default=0.5, help="leave out NLiPs pixels below this confidence")
     p.add_argument("--min-leds", type=int, default=4, help="leave out NLiPs pixels lit by fewer usable LEDs")
     p.add_argument("--rest-per-cell", type=int, default=24, help="undeformed samples per image cell (8x8 cells)")
@@ -34,12 +36,15 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    from ..config import check_count
     from ..core.capture import find_presses
+    from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.coverage import coverage, write_coverage_json
     from ..learn.dataset import CalibrationDataset, SamplingConfig, build_dataset
     from ..report.learn import coverage_figure
 
+    check_count("--workers", args.workers, minimum=0)
     smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
     if not smoothing >= 0:
         raise ConfigError(f"--smoothing must be >= 0 px, got {args.smoothing}")
@@ -54,7 +59,8 @@ def run(args) -> int:
     presses = [p for p in find_presses(root) if p.resolve() != reference.resolve()]
     if not presses:
         raise ConfigError(f"{root}: no press folders found")
-    status = solve_all(presses, reference, workers=args.workers, progress=not args.no_progress)
+    workers = args.workers or usable_cores()
+    status = solve_all(presses, reference, workers=workers, progress=not args.no_progress)
     solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]
     failed = {k: v for k, v in status.items() if v not in ("solved", "skipped")}
     for name, why in failed.items():

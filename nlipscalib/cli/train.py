@@ -33,7 +33,9 @@ def register(subparsers) -> None:
     p.add_argument("--val-presses", help="comma-separated validation presses (default: a seeded 20%% of them)")
     p.add_argument("--exclude", help="comma-separated presses kept out of training and validation (a test set)")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop training after this long (0: no limit)")
-    p.add_argument("--threads", type=int, default=1, help="PyTorch CPU threads (default 1)")
+    p.add_argument(
+        "--threads", type=int, default=0, help="PyTorch CPU threads (default 0: every core this process may use)"
+    )
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
@@ -42,6 +44,8 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
+    from ..config import check_count
+    from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.dataset import CalibrationDataset
     from ..learn.train import TrainConfig, train
@@ -55,6 +59,7 @@ def run(args) -> int:
     if out.suffix != ".pt":
         raise ConfigError(f"--out {out}: the model file must end in .pt")
     given = {k: v for k, v in (("patience", args.patience), ("schedule", args.schedule)) if v is not None}
+    check_count("--threads", args.threads, minimum=0)
     cfg = TrainConfig(
         hidden=hidden,
         dropout=args.dropout,
@@ -65,7 +70,7 @@ def run(args) -> int:
         lr=args.lr,
         seed=args.seed,
         max_seconds=args.max_minutes * 60,
-        threads=args.threads,
+        threads=args.threads or usable_cores(),
     )
     data = CalibrationDataset(args.dataset)
     val = args.val_presses.split(",") if args.val_presses else None

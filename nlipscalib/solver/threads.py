@@ -13,6 +13,8 @@ import os
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 
+from ..cpus import usable_cores
+
 _workers: int | None = None
 _pool: ThreadPoolExecutor | None = None
 
@@ -25,10 +27,7 @@ def workers() -> int:
         if env.isdigit() and int(env) > 0:
             _workers = int(env)
         else:
-            try:
-                _workers = len(os.sched_getaffinity(0))
-            except AttributeError:  # not Linux
-                _workers = os.cpu_count() or 1
+            _workers = usable_cores()
     return _workers
 
 

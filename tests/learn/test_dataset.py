@@ -94,6 +94,8 @@ def test_cli_calibrate_raw_colours_on_request_and_refuses_a_negative_sigma(twin_
         shutil.copytree(twin_presses / name, root / name)
     assert main(["calibrate", str(root), "--smoothing", "-1", "--no-progress"]) != 0
     assert "--smoothing" in capsys.readouterr().err
+    assert main(["calibrate", str(root), "--workers", "-2", "--no-progress"]) != 0
+    assert "--workers" in capsys.readouterr().err
     assert main(["calibrate", str(root), "--smoothing", "0", "--no-progress"]) == 0
     data = CalibrationDataset(root / "calibration")
     s, press = data.load("press_a"), load_press(root / "press_a")

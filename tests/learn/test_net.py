@@ -1,5 +1,6 @@
 """NLiPsNet: accuracy against the lookup-table baseline on an unseen press, the model file, ONNX parity."""
 
+import dataclasses
 import json
 import shutil
 
@@ -115,6 +116,9 @@ def test_training_resumes_from_its_checkpoint(calib, tmp_path):
     assert (tmp_path / "m.checkpoint.pt").is_file()
     again = train(calib, cfg, tmp_path / "m.pt", progress=False)  # as after an interruption: nothing left to do
     assert [h["val_aae_deg"] for h in again.history] == [h["val_aae_deg"] for h in first.history]
+    other_threads = dataclasses.replace(cfg, threads=2)  # how fast, not what: still resumed
+    again = train(calib, other_threads, tmp_path / "m.pt", progress=False)
+    assert [h["seconds"] for h in again.history] == [h["seconds"] for h in first.history]
     longer = TrainConfig(hidden=(8, 8), max_epochs=3, patience=5)  # other options: trained afresh
     assert len(train(calib, longer, tmp_path / "m.pt", progress=False).history) == 3
 
@@ -135,6 +139,9 @@ def test_cli_trains_a_small_variant_without_dropout(calib, tmp_path, capsys):
     assert main(["train", str(calib.folder), "--out", str(tmp_path / "y.pt"), "--schedule", "step"]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "schedule" in err[0] and not (tmp_path / "y.pt").exists()
+    assert main(["train", str(calib.folder), "--out", str(tmp_path / "z.pt"), "--threads", "-1"]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--threads" in err[0]
 
 
 def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp_path, monkeypatch):
