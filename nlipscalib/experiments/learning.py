@@ -81,6 +81,7 @@ def train_model(data, names: list[str], stamps: dict, cfg, out: Path, progress: 
     dict: key, model (path relative to ``out``), train/val presses, epochs, best epoch and validation
     AAE, training seconds, history (per epoch)
     """
+    from ..cpus import usable_cores
     from ..learn.train import train
 
     key = digest({"train": dataclasses.asdict(cfg), "presses": [[n, stamps[n]] for n in names]}, 16)
@@ -93,7 +94,9 @@ def train_model(data, names: list[str], stamps: dict, cfg, out: Path, progress: 
     folder.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     others = [n for n in data.names if n not in set(names)]
-    res = train(data, cfg, path, exclude=others, progress=progress)
+    # training runs in this (the client's) process once the press tasks are done: every core is free for it;
+    # the key above keeps the configured count, so the thread count never makes a model look new
+    res = train(data, dataclasses.replace(cfg, threads=usable_cores()), path, exclude=others, progress=progress)
     done = {
         "key": key,
         "model": str(path.relative_to(out)),
