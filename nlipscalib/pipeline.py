@@ -161,10 +161,12 @@ def solve_folder(
     figures=True,
     out: str | Path | None = None,
     solver_keywords: dict | None = None,
+    announce_reuse: bool = True,
 ) -> tuple[Reconstruction | None, str]:
     """Solve one press folder into ``out`` (default PRESS/nlips), or reuse an identical result there.
 
-    Parameters are those of :func:`solve_presses`, plus ``out``.
+    Parameters are those of :func:`solve_presses`, plus ``out`` and ``announce_reuse`` (False: a reused
+    result is not logged, for a caller that solved the press itself a moment ago and only loads it).
 
     Returns
     -------
@@ -178,7 +180,15 @@ def solve_folder(
     settings = make_settings(
         reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
     )
-    return solve_one(Path(folder), settings, out=out, overwrite=overwrite, progress=progress, figures=figures)
+    return solve_one(
+        Path(folder),
+        settings,
+        out=out,
+        overwrite=overwrite,
+        progress=progress,
+        figures=figures,
+        announce_reuse=announce_reuse,
+    )
 
 
 def solve_presses(
@@ -248,6 +258,7 @@ def solve_one(
     progress: bool = False,
     figures=True,
     want_result: bool = True,
+    announce_reuse: bool = True,
 ) -> tuple[Reconstruction | None, str]:
     """:func:`solve_folder` with prepared settings; ``want_result=False`` skips loading a reused result."""
     from .report import figure_level
@@ -256,7 +267,7 @@ def solve_one(
     out = reconstruction_dir(folder, out)
     provenance = make_provenance(folder, settings)
     if not overwrite and not _leftovers(out):  # leftovers are cleaned under the claim, below
-        reused = _reuse(out, provenance, want_result, quiet=True)
+        reused = _reuse(out, provenance, want_result, quiet=True, announce=announce_reuse)
         if reused is not None:
             return reused
     progress = _bars(progress)
@@ -266,7 +277,7 @@ def solve_one(
             return None, SKIPPED
         _clean_interrupted(out)
         if not overwrite:  # the result may have appeared while we waited for the claim
-            reused = _reuse(out, provenance, want_result, quiet=False)
+            reused = _reuse(out, provenance, want_result, quiet=False, announce=announce_reuse)
             if reused is not None:
                 return reused
         return _solve_and_save(folder, out, settings, provenance, progress, figures), SOLVED
@@ -334,8 +345,10 @@ def _claim(target: Path):
     return claim(target, stale_s=CLAIM_STALE_S)
 
 
-def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool):
-    """(result or None, "skipped") when ``out`` holds a sound result made with the same key; else None."""
+def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce: bool = True):
+    """(result or None, "skipped") when ``out`` holds a sound result made with the same key; else None.
+
+    ``quiet``: no word on why a result is not reused; ``announce``: say that one is."""
     if not out.exists():
         return None
     problem = reconstruction_problem(out)
@@ -348,8 +361,9 @@ def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool):
         if not quiet:
             log.info("%s: made with other settings or inputs (%s), re-solving", out, _what_changed(old, provenance))
         return None
+    reused_level = logging.INFO if announce else logging.DEBUG
     if not want_result:
-        log.info("%s: identical result exists, skipped (--overwrite re-solves)", out)
+        log.log(reused_level, "%s: identical result exists, skipped (--overwrite re-solves)", out)
         return None, SKIPPED
     try:
         result = load_reconstruction(out)
@@ -357,7 +371,7 @@ def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool):
         if not quiet:
             log.warning("%s; re-computing it", exc)
         return None
-    log.info("%s: identical result exists, skipped (--overwrite re-solves)", out)
+    log.log(reused_level, "%s: identical result exists, skipped (--overwrite re-solves)", out)
     return result, SKIPPED
 
 

@@ -83,7 +83,8 @@ def _solve(press, figures: bool):
     reused, a damaged or differently made one is re-solved."""
     from ..pipeline import solve_folder
 
-    result, _ = solve_folder(press.folder, roi="auto", progress=True, figures=figures)
+    # the presses were solved (or found solved, and said so) just before: loading them is not news
+    result, _ = solve_folder(press.folder, roi="auto", progress=True, figures=figures, announce_reuse=False)
     return result  # None when another process is solving this press right now
 
 

@@ -1,6 +1,7 @@
 """`nlips dataset` and `nlips demo` end to end on tiny images (real Mitsuba renders)."""
 
 import json
+import logging
 
 import pytest
 
@@ -69,16 +70,24 @@ def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
     assert "spec.toml" in capsys.readouterr().err
 
 
-def test_demo_renders_solves_and_draws(tmp_path, capsys):
+def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
     spec = tmp_path / "demo.toml"
     spec.write_text(
         SPEC.replace("azimuth_deg = [0.0, 180.0]", "azimuth_deg = [0.0]").replace("80", "96").replace("60", "72")
     )
     out = tmp_path / "demo"
-    assert main(["demo", "--spec", str(spec), "--out", str(out)]) == 0
+    with caplog.at_level(logging.INFO, logger="nlipscalib"):
+        assert main(["demo", "--spec", str(spec), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert (out / "contact_sheet.png").stat().st_size > 10_000
     assert "press_0000" in text and "sphere" in text
     assert (out / "press_0000" / "nlips" / "result.npz").is_file()
     aae = float(text.split("press_0000")[1].split()[1].rstrip("°"))
     assert aae < 10.0  # a tiny noisy image still gives a sensible reconstruction
+    reused = [r for r in caplog.records if "identical result exists" in r.getMessage()]
+    assert not reused  # solved just now: loading it for the scores is not reported as a skip
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="nlipscalib"):
+        assert main(["demo", "--spec", str(spec), "--out", str(out)]) == 0
+    reused = [r for r in caplog.records if "identical result exists" in r.getMessage()]
+    assert len(reused) == 1  # the second run reuses the one press and says so once
