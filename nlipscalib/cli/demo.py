@@ -7,8 +7,9 @@ Resumable: presses and solutions already on disk are reused.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
+
+from ..cpus import usable_cores
 
 DEMO_SPEC = Path(__file__).resolve().parents[1] / "scenes" / "datasets" / "demo.toml"
 
@@ -27,7 +28,7 @@ def register(sub) -> None:
     p.add_argument(
         "--solve-workers",
         type=int,
-        default=min(os.cpu_count() or 1, 3),
+        default=min(usable_cores(), 3),
         help="presses solved at once, one single-threaded process each (default: one per core, at most 3)",
     )
     p.set_defaults(func=run)

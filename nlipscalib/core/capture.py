@@ -17,13 +17,13 @@ Writers build the folder under a temporary name and rename it when complete
 from __future__ import annotations
 
 import dataclasses
-import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
+from ..cpus import usable_cores
 from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
 from .camera import Camera
@@ -291,7 +291,7 @@ def find_presses(root: str | Path) -> list[Path]:
 # ---------------------------------------------------------------------- helpers
 def _in_threads(jobs: list[tuple]) -> list:
     """Run (func, *args) jobs on a thread pool: PNG and zlib coding release the GIL, so this scales."""
-    with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1) or 1) as pool:
+    with ThreadPoolExecutor(max_workers=min(len(jobs), usable_cores()) or 1) as pool:
         return list(pool.map(lambda job: job[0](*job[1:]), jobs))
 
 

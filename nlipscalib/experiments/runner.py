@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 from multiprocessing import get_context
 from pathlib import Path
 
+from ..cpus import usable_cores
 from ..errors import ConfigError, MissingDependencyError
 from .tasks import Task, execute, load_result
 
@@ -101,7 +101,7 @@ class _backend:
             n = _count(self.scheduler.removeprefix("local:"))
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
             self.client = Client(self.cluster)
-            self.threads = max(1, (os.cpu_count() or 1) // n)
+            self.threads = max(1, usable_cores() // n)
         else:
             if "://" not in self.scheduler:
                 raise ConfigError(f"--scheduler {self.scheduler!r}: give tcp://HOST:PORT or local:N")
@@ -119,7 +119,7 @@ class _backend:
             self.cluster.close()
 
     def _local(self, tasks, out, keep, status, bar):
-        threads = max(1, (os.cpu_count() or 1) // self.workers)
+        threads = max(1, usable_cores() // self.workers)
         if self.workers == 1 or len(tasks) == 1:
             for t in tasks:
                 _record(status, t.id, execute(t, out, threads, keep), bar)

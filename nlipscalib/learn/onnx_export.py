@@ -12,13 +12,13 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from ..cpus import usable_cores
 from ..errors import CaptureError, require
 
 OPSET = 17
@@ -144,7 +144,7 @@ class OnnxNet:
             self.session = ort.InferenceSession(quantized_int8(path), opts, providers=["CPUExecutionProvider"])
         self.path = path
         self.int8 = int8
-        self.threads = max(1, int(threads) if threads else len(os.sched_getaffinity(0)))
+        self.threads = max(1, int(threads) if threads else usable_cores())
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
 
     def _run(self, x: np.ndarray) -> np.ndarray:

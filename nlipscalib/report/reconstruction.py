@@ -11,11 +11,12 @@ Two levels:
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
+
+from ..cpus import usable_cores
 
 FIGURE_LEVELS = ("none", "maps", "full")
 """Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""
@@ -63,7 +64,7 @@ def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, lev
     if err is not None:
         jobs.append((scalar_map_png, folder / "error.png", err, "jet", "deg", *ERROR_RANGE_DEG))
     # PNG encoding releases the GIL: the maps are written side by side
-    with ThreadPoolExecutor(max_workers=min(len(jobs), os.cpu_count() or 1)) as pool:
+    with ThreadPoolExecutor(max_workers=min(len(jobs), usable_cores())) as pool:
         written = list(pool.map(lambda job: job[0](*job[1:]), jobs))
     if level == "full":
         written.append(_summary(folder / "summary.png", rec, box, err))

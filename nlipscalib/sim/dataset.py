@@ -12,7 +12,6 @@ import errno
 import itertools
 import json
 import logging
-import os
 import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -25,6 +24,7 @@ import numpy as np
 from ..config import check_count, check_range, from_mapping, read_config_file
 from ..core.atomic import check_writable, clean_interrupted, write_if_changed
 from ..core.capture import is_press_folder
+from ..cpus import usable_cores
 from ..errors import ConfigError, NlipsError
 from ..progress import progress_bar
 from .indent import IndenterConfig, PressConfig
@@ -206,7 +206,7 @@ def run_dataset(
     check_space(out, scene, len(todo))
     for stale in clean_interrupted(out):
         log.info("removed interrupted write %s", stale.name)
-    cores = os.cpu_count() or 1
+    cores = usable_cores()
     workers = min(len(todo), workers or max(1, cores // 2))
     scene = scene.replace(render={"threads": max(1, cores // workers)})
     with progress_bar(

@@ -13,6 +13,7 @@ import os
 import subprocess
 import sys
 
+from ...cpus import usable_cores
 from ...errors import ConfigError, require
 
 log = logging.getLogger(__name__)
@@ -130,8 +131,8 @@ def load_mitsuba(variant: str = "auto", threads: int = 0):
         mi.set_variant(chosen)
     if threads > 0 and dr.thread_count() != threads:
         dr.set_thread_count(threads)
-    elif threads <= 0 and dr.thread_count() != (os.cpu_count() or 1):
-        dr.set_thread_count(os.cpu_count() or 1)
+    elif threads <= 0 and dr.thread_count() != usable_cores():
+        dr.set_thread_count(usable_cores())
     from .plugins import register_plugins
 
     register_plugins(mi)
