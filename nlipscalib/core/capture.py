@@ -17,6 +17,7 @@ Writers build the folder under a temporary name and rename it when complete
 from __future__ import annotations
 
 import dataclasses
+import functools
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -153,6 +154,14 @@ class Press:
         """
         scale = self.response.white_level - self.response.black_level
         return (image.astype(np.float32) - self.dark[tuple(window)].astype(np.float32)) / np.float32(scale)
+
+    @functools.cached_property
+    def linear_led_images(self) -> np.ndarray:
+        """(L, H, W, 3) float32, read-only -- :meth:`linear` of ``led_images``, computed once per press
+        (a solve reads it in the contact classification, the indirect fit and the solve itself)."""
+        lin = self.linear(self.led_images)
+        lin.setflags(write=False)
+        return lin
 
     def saturated(self, image: np.ndarray) -> np.ndarray:
         """(..., H, W, 3) bool -- stored value at or above the white level."""

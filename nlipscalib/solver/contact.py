@@ -178,7 +178,7 @@ def classify_contact(
 
 def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, blur_px: float) -> dict:
     """The press's half of :func:`classify_contact`: live LEDs, smoothed images and their level, noise."""
-    img = press.linear(press.led_images).astype(np.float32)
+    img = press.linear_led_images
     level = led_levels(img, valid)
     dead = tuple(int(i) for i in np.flatnonzero(level < dead_level))
     live = [i for i in range(len(img)) if i not in dead]
@@ -200,7 +200,7 @@ def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, bl
         "images": img,
         "ok": ok,
         "count": count,
-        "noise": image_noise(press.linear(press.led_images[live]), valid),
+        "noise": image_noise(press.linear_led_images[live], valid),
         "level": np.sqrt(((img * ok) ** 2).sum((0, 3)) / count),
     }
 

@@ -154,12 +154,7 @@ def _solve_press(
     anchoring (what was decided and why),
     anchored_pixels, dead_leds_contact, contact_seconds, indirect_seconds.
     """
-    if interreflection not in INTERREFLECTION_MODES:
-        raise ConfigError(f"interreflection must be one of {INTERREFLECTION_MODES}, got {interreflection!r}")
-    if bounces not in (1, 2):
-        raise ConfigError(f"bounces must be 1 or 2, got {bounces}")
-    if outer_relaxation != "auto" and not (isinstance(outer_relaxation, (int, float)) and 0 < outer_relaxation <= 2):
-        raise ConfigError(f"outer_relaxation must be 'auto' or a number in (0, 2], got {outer_relaxation!r}")
+    _check_modes(interreflection, bounces, outer_relaxation)
     leds = press.leds if leds is None else tuple(leds)
     if len(leds) != len(press.leds):
         raise CaptureError(f"{press.folder}: {len(leds)} LEDs given for {len(press.leds)} LED images")
@@ -175,52 +170,23 @@ def _solve_press(
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
     t0 = time.perf_counter()
-    model, fit_cache, contact_cache = None, {}, {}
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
     # (and the next press of the same sensor: solver.reuse)
     shading = reference_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
-    if fixed_light is None and press.reference is not None:
-        source = ref_capture if ref_capture is not None else press
-        exclude = _box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
-        # a press without a known contact is fitted twice (below): the first fit only finds the contact
-        rough = ref_capture is None and explicit_roi is None
-        fit = functools.partial(
-            fit_indirect,
-            source,
-            leds,
-            mode=interreflection,
-            bounces=bounces,
-            exclude=exclude,
-            iterations=1 if rough else 3,
-            shading=shading if source is press else None,
-            cache=fit_cache,
-        )
-        if ref_capture is not None:  # the undeformed capture's fit is the sensor's: reused by later presses
-            model = reuse.reused("fit", (id(ref_capture), leds, interreflection, bounces), fit, keep=ref_capture)
-            reuse.freeze(model.off_view, model.fitted_light)
-        else:
-            model = fit()
+    fit = _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, shading)
+    model = fit.first() if fit is not None else None
     t_indirect = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     cmap, refit = None, 0.0
     if press.reference is not None:
-        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading, contact_cache)
-        if model is not None and model.enabled and ref_capture is None and explicit_roi is None:
+        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading, fit.contact_cache if fit else {})
+        if fit is not None and fit.refits and model.enabled:
             # the press stands in for the undeformed capture: fit again without its contact
             t1 = time.perf_counter()
-            model = fit_indirect(
-                press,
-                leds,
-                mode=interreflection,
-                bounces=bounces,
-                exclude=_contact_pixels(cmap),
-                shading=shading,
-                cache=fit_cache,
-            )
+            model = fit.again(exclude=_contact_pixels(cmap))
             refit = time.perf_counter() - t1
-            t_indirect += refit
-            cmap = _contact(press, leds, None, None, model, shading, contact_cache)
+            cmap = _contact(press, leds, None, None, model, shading, fit.contact_cache)
     if model is not None and model.enabled and coating_albedo is not None:
         model = _with_reflectance(model, coating_albedo)
     if roi == "auto":
@@ -237,7 +203,7 @@ def _solve_press(
     options, noise = _noise_regularised(options, press, cmap)
     t_contact = time.perf_counter() - t0 - refit
 
-    images = press.linear(press.led_images)
+    images = press.linear_led_images
     saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
 
     def run(light, init=None):
@@ -263,54 +229,153 @@ def _solve_press(
             )
         return result
 
-    passes, seconds, changes, solver_seconds = 0, 0.0, [], []
     if model is not None and model.enabled:
-        t0 = time.perf_counter()
-        albedo0 = np.broadcast_to(np.asarray(model.off_view_albedo), (H, W, 3))
-        ref_surface = reference_surface(press.camera, leds, prior, press.reference.normals, shading=shading)
-        light = surface_indirect(
-            model, press.camera, leds, prior, press.reference.normals, albedo0, mask, surface=ref_surface
-        )
-        seconds += time.perf_counter() - t0
-        result = run(light)
-        solver_seconds.append(result.report["seconds"])
-        for _ in range(max_outer if dent_interreflection else 0):
-            t0 = time.perf_counter()
-            gathered = _solved_surface_light(model, press, leds, result, mask, ref_surface)
-            omega = _relaxation(images, light) if outer_relaxation == "auto" else float(outer_relaxation)
-            light = np.maximum(light + omega * (gathered - light), 0.0)
-            seconds += time.perf_counter() - t0
-            new = run(light, init=result.depth)  # a small change of the light: start from the last depth
-            passes += 1
-            change = _median_change_deg(result, new)
-            changes.append(round(change, 4))
-            solver_seconds.append(new.report["seconds"])
-            result = new
-            if change < OUTER_TOL_DEG:
-                break
+        loop = _OuterLoop(model, press, leds, images, mask, shading, outer_relaxation)
+        result = loop.run(run, max_outer if dent_interreflection else 0)
     else:
-        result = run(fixed_light)
+        loop, result = None, run(fixed_light)
     rep = result.report
     rep["roi"] = list(roi) if roi is not None else None
     rep["prior"] = "reference" if prior is not None else "nominal_distance"
     rep["interreflection"] = model.to_json() if model is not None else None
     rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
-    rep["dent_interreflection"] = bool(passes > 0)
-    rep["outer_passes"] = passes
-    rep["outer_changes_deg"] = changes
-    if solver_seconds:  # the solver's timer over every NLiPs solve of the outer loop, and each one
-        rep["seconds"], rep["pass_seconds"] = float(sum(solver_seconds)), [round(t, 3) for t in solver_seconds]
+    rep["dent_interreflection"] = bool(loop is not None and loop.passes > 0)
+    rep["outer_passes"] = loop.passes if loop is not None else 0
+    rep["outer_changes_deg"] = loop.changes if loop is not None else []
+    if loop is not None:  # the solver's timer over every NLiPs solve of the outer loop, and each one
+        rep["seconds"], rep["pass_seconds"] = (
+            float(sum(loop.solver_seconds)),
+            [round(t, 3) for t in loop.solver_seconds],
+        )
     rep["anchoring"] = anchoring
     rep["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
     rep["dead_leds_contact"] = list(cmap.dead_leds) if cmap is not None else []
     rep["contact_seconds"] = t_contact
     rep["image_noise"] = noise
     rep["smoothness"] = options.smoothness
-    rep["indirect_seconds"] = t_indirect + seconds
+    rep["indirect_seconds"] = t_indirect + refit + (loop.seconds if loop is not None else 0.0)
     if model is not None:
         log.info("%s: %s", press.folder, model.reason)
     log.info("%s: %s", press.folder, anchoring)
     return result
+
+
+def _check_modes(interreflection: str, bounces: int, outer_relaxation) -> None:
+    if interreflection not in INTERREFLECTION_MODES:
+        raise ConfigError(f"interreflection must be one of {INTERREFLECTION_MODES}, got {interreflection!r}")
+    if bounces not in (1, 2):
+        raise ConfigError(f"bounces must be 1 or 2, got {bounces}")
+    if outer_relaxation != "auto" and not (isinstance(outer_relaxation, (int, float)) and 0 < outer_relaxation <= 2):
+        raise ConfigError(f"outer_relaxation must be 'auto' or a number in (0, 2], got {outer_relaxation!r}")
+
+
+@dataclasses.dataclass
+class _IndirectFitter:
+    """How a solve fits its indirect term: once on the undeformed capture (the sensor's fit, reused by
+    later presses), or on the press itself, where the first fit only finds the contact (``refits``) and
+    :meth:`again` fits without it."""
+
+    first: object
+    """() -> IndirectModel: the first fit."""
+    again: object
+    """(exclude=...) -> IndirectModel: the fit again, leaving out ``exclude`` (the press's own fit)."""
+    refits: bool
+    """Whether the contact found with the first fit should be left out of a second one."""
+    contact_cache: dict = dataclasses.field(default_factory=dict)
+    """The press's side of the contact classification, shared by the classifications of one solve."""
+
+
+def _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, shading):
+    """The :class:`_IndirectFitter` of a solve; None when no term is fitted (a fixed light, no reference)."""
+    if fixed_light is not None or press.reference is None:
+        return None
+    H, W = press.camera.shape
+    source = ref_capture if ref_capture is not None else press
+    exclude = _box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
+    # a press without a known contact is fitted twice: the first fit only finds the contact
+    rough = ref_capture is None and explicit_roi is None
+    cache = {}
+    fit = functools.partial(
+        fit_indirect,
+        source,
+        leds,
+        mode=interreflection,
+        bounces=bounces,
+        shading=shading if source is press else None,
+        cache=cache,
+    )
+    if ref_capture is not None:  # the undeformed capture's fit is the sensor's: reused by later presses
+
+        def first():
+            model = reuse.reused(
+                "fit",
+                (id(ref_capture), leds, interreflection, bounces),
+                lambda: fit(exclude=None, iterations=3),
+                keep=ref_capture,
+            )
+            reuse.freeze(model.off_view, model.fitted_light)
+            return model
+
+    else:
+
+        def first():
+            return fit(exclude=exclude, iterations=1 if rough else 3)
+
+    return _IndirectFitter(first=first, again=lambda exclude: fit(exclude=exclude, iterations=3), refits=rough)
+
+
+class _OuterLoop:
+    """NLiPs with the undeformed surface's indirect light subtracted, then passes with the indirect light of
+    the solved surface, under-relaxed per pixel (:func:`_relaxation`), until the normals stop changing.
+
+    The light is updated on the bounding box of the solve's mask only: outside it both the light and the
+    gathered light are zero (the receivers are the mask)."""
+
+    def __init__(self, model, press: Press, leds, images, mask, shading, relaxation):
+        self.model, self.press, self.leds, self.mask, self.relaxation = model, press, leds, mask, relaxation
+        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+        self.box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        # the images' per-pixel total, for the relaxation: the same in every pass
+        self.image_total = images[:, self.box[0], self.box[1]].sum(axis=(0, 3))
+        self.shading = shading
+        self.passes, self.changes, self.solver_seconds, self.seconds = 0, [], [], 0.0
+
+    def run(self, solve_with, max_passes: int) -> SolveResult:
+        """``solve_with(light, init=None)`` -> SolveResult, called once per pass; returns the last result."""
+        t0 = time.perf_counter()
+        press, ref = self.press, self.press.reference
+        albedo0 = np.broadcast_to(np.asarray(self.model.off_view_albedo), (*press.camera.shape, 3))
+        ref_surface = reference_surface(press.camera, self.leds, ref.depth, ref.normals, shading=self.shading)
+        self.ref_surface = ref_surface
+        light = surface_indirect(
+            self.model, press.camera, self.leds, ref.depth, ref.normals, albedo0, self.mask, surface=ref_surface
+        )
+        self.seconds += time.perf_counter() - t0
+        result = solve_with(light)
+        self.solver_seconds.append(result.report["seconds"])
+        for _ in range(max_passes):
+            t0 = time.perf_counter()
+            light = self._update(
+                light, _solved_surface_light(self.model, press, self.leds, result, self.mask, ref_surface)
+            )
+            self.seconds += time.perf_counter() - t0
+            new = solve_with(light, init=result.depth)  # a small change of the light: start from the last depth
+            self.passes += 1
+            change = _median_change_deg(result, new)
+            self.changes.append(round(change, 4))
+            self.solver_seconds.append(new.report["seconds"])
+            result = new
+            if change < OUTER_TOL_DEG:
+                break
+        return result
+
+    def _update(self, light: np.ndarray, gathered: np.ndarray) -> np.ndarray:
+        """The next pass's light ``L + w (gathered - L)``, clipped at 0, on the mask's bounding box."""
+        rows, cols = self.box
+        now, new = light[:, rows, cols], gathered[:, rows, cols]
+        omega = _relaxation(self.image_total, now) if self.relaxation == "auto" else float(self.relaxation)
+        light[:, rows, cols] = np.maximum(now + omega * (new - now), 0.0)
+        return light
 
 
 def _contact_pixels(cmap: ContactMap, margin: int = 4) -> np.ndarray:
@@ -334,7 +399,7 @@ def _noise_regularised(options: SolverOptions, press: Press, cmap: ContactMap | 
     if cmap is not None:
         sigma, level = cmap.noise, float(np.nanmedian(np.where(valid, cmap.level, np.nan)))
     else:
-        lin = press.linear(press.led_images)
+        lin = press.linear_led_images
         sigma = image_noise(lin, valid)
         level = float(np.median(np.sqrt((lin[:, valid] ** 2).mean(axis=(0, 2)))))
     rel = sigma / max(level, 1e-12)
@@ -388,7 +453,7 @@ def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache
     ``shading``: :func:`direct_shading` of the reference surface; ``cache``: the press's side of the
     classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
     if ref_capture is not None:
-        und = ref_capture.linear(ref_capture.led_images)
+        und = ref_capture.linear_led_images
         return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, cache=cache)
     if model is not None and model.enabled:
         undeformed = shading + model.undeformed_light(press.camera.shape)
@@ -409,8 +474,11 @@ def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, 
     return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, surface=solved)
 
 
-def _relaxation(images: np.ndarray, light: np.ndarray) -> np.ndarray:
-    """(H, W, 1) float32 -- per-pixel relaxation 1 / (1 + g) of the outer loop, g = indirect / direct light.
+def _relaxation(image_total: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """(1, h, w, 1) float32 -- per-pixel relaxation 1 / (1 + g) of the outer loop, g = indirect / direct light.
+
+    ``image_total`` : (h, w) the images summed over LEDs and channels; ``light`` : (L, h, w, 3) the
+    indirect light now subtracted.
 
     Why: the indirect light is proportional to the solved albedo, and the albedo is solved from the
     images minus that light, so an error dL of the light comes back as about -g dL: the plain iteration
@@ -418,7 +486,7 @@ def _relaxation(images: np.ndarray, light: np.ndarray) -> np.ndarray:
     0.8 deg). The update L + (gathered - L) / (1 + g) cancels that first-order feedback (the same press:
     2.27, 0.16, 0.02 deg)."""
     indirect = light.sum(axis=(0, 3))
-    direct = np.maximum(images.sum(axis=(0, 3)) - indirect, 1e-3 * np.maximum(indirect, 1e-30))
+    direct = np.maximum(image_total - indirect, 1e-3 * np.maximum(indirect, 1e-30))
     g = np.clip(indirect / direct, 0.0, 3.0)
     return (1.0 / (1.0 + g))[None, ..., None].astype(np.float32)
 
