@@ -17,20 +17,38 @@ def register(subparsers) -> None:
         "explains the images better; default), on, off",
     )
     p.add_argument("--bounces", type=int, choices=(1, 2), default=1, help="diffuse bounces modelled (default 1)")
+    p.add_argument(
+        "--led-diameter",
+        type=float,
+        default=0.0,
+        metavar="MM",
+        help="diameter of each LED's light-emitting area, mm (WS2812B: 3.6): also fit the LEDs as such disks, "
+        "the physical LEDs to compare with the CAD (written as 'emitters'; the solver keeps the point LEDs)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import numpy as np
+
     from ..config import check_count
     from ..core.capture import load_press
+    from ..errors import ConfigError
     from ..progress import track, working
     from ..solver import calibrate_leds, save_leds
 
     check_count("--stride", args.stride, minimum=1)
+    if not 0 <= args.led_diameter < 50:
+        raise ConfigError(f"--led-diameter must be 0-50 mm, got {args.led_diameter}")
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
     with working(f"calibrating {len(presses[0].leds)} LEDs from {len(presses)} capture(s)"):
         cal = calibrate_leds(
-            presses, stride=args.stride, loss=args.loss, interreflection=args.interreflection, bounces=args.bounces
+            presses,
+            stride=args.stride,
+            loss=args.loss,
+            interreflection=args.interreflection,
+            bounces=args.bounces,
+            led_radius=args.led_diameter / 2,
         )
     save_leds(args.out, cal.leds, cal.to_json())
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")
@@ -41,6 +59,16 @@ def run(args) -> int:
             f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {sd['mu']:>6.3f} "
             f"{sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}"
         )
+    if cal.emitters:
+        print(f"LEDs as {args.led_diameter:g} mm disks (physical centre and axis; offset from the point LED):")
+        for i, (disk, led) in enumerate(zip(cal.emitters, cal.leds)):
+            shift = np.subtract(led.position, disk.position)
+            tilt = np.degrees(np.arccos(min(1.0, float(np.dot(disk.direction, led.direction)))))
+            along = float(shift @ np.asarray(disk.direction))
+            print(
+                f"{i + 1:>3} centre ({', '.join(f'{c:.3f}' for c in disk.position)}) mm, point {along:+.3f} mm "
+                f"along the axis, axes {tilt:.2f} deg apart"
+            )
     for i, model in enumerate(cal.interreflection):
         print(f"capture {i + 1}: {model.get('reason', '')}")
     print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {cal.albedo})")

@@ -15,7 +15,7 @@ from .capture import (
     load_press,
     write_press,
 )
-from .leds import Led, led_arrays, led_shading, tricolor_groups
+from .leds import Led, disk_shading, led_arrays, led_shading, tricolor_groups
 from .reconstruction import Reconstruction, load_reconstruction, save_reconstruction
 from .sensor import CameraConfig, DomeConfig, LedConfig, SensorDesign
 
@@ -35,6 +35,7 @@ __all__ = [
     "is_press_folder",
     "led_arrays",
     "led_shading",
+    "disk_shading",
     "load_press",
     "load_reconstruction",
     "save_reconstruction",

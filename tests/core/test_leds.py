@@ -42,3 +42,43 @@ def test_led_validation():
         Led(position=(0, 0))
     d = Led(position=(1, 2, 3), direction=(0, 0, 2)).to_dict()
     assert Led.from_dict(d).direction == (0.0, 0.0, 1.0)
+
+
+def test_disk_shading_matches_the_closed_form_on_the_axis():
+    # a Lambertian (mu = 1) disk of radius R seen on its axis from distance h by a facing surface
+    # gives Psi / (h^2 + R^2) (the disk's form factor); the point LED gives Psi / h^2
+    from nlipscalib.core.leds import disk_shading
+
+    led = Led((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), 1.0, (1.0, 2.0, 3.0))
+    for h, tol in ((10.0, 1e-5), (6.0, 2e-4)):
+        s = disk_shading(np.array([[0.0, 0.0, h]]), np.array([[0.0, 0.0, -1.0]]), [led], 1.8)
+        np.testing.assert_allclose(s[0, 0], np.array([1.0, 2.0, 3.0]) / (h * h + 1.8**2), rtol=tol)
+        assert s[0, 0, 0] < 1 / h**2  # the disk's edge is farther and more oblique than its centre
+
+
+def test_disk_shading_of_radius_zero_is_the_point_model_and_off_axis_is_a_disk_mean():
+    from nlipscalib.core.leds import disk_shading
+
+    rng = np.random.default_rng(1)
+    pts = rng.normal(size=(50, 3)) * 3 + [0.0, 0.0, 12.0]
+    nrm = -pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    leds = [Led((5.0, 1.0, 2.0), (-0.3, 0.0, 0.954), 1.7, (1.0, 1.0, 1.0)), Led((-4.0, 3.0, 2.5), (0.2, -0.2, 0.96))]
+    np.testing.assert_array_equal(disk_shading(pts, nrm, leds, 0.0), led_shading(pts, nrm, leds))
+    # against a fine polar grid of point LEDs over the disk (midpoint rule, area weights)
+    R = 1.8
+    d = np.asarray(leds[0].direction) / np.linalg.norm(leds[0].direction)
+    u = np.cross(d, [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(d, u)
+    r = (np.arange(40) + 0.5) / 40 * R
+    t = (np.arange(64) + 0.5) / 64 * 2 * np.pi
+    rr, tt = np.meshgrid(r, t, indexing="ij")
+    w = (rr / rr.sum()).ravel()
+    grid = [
+        Led(tuple(np.add(leds[0].position, a * np.cos(b) * u + a * np.sin(b) * v)), tuple(d), 1.7)
+        for a, b in zip(rr.ravel(), tt.ravel())
+    ]
+    fine = np.tensordot(w, led_shading(pts, nrm, grid), axes=1)
+    np.testing.assert_allclose(disk_shading(pts, nrm, leds[:1], R)[0], fine, rtol=2e-3)
+    with pytest.raises(ConfigError):
+        disk_shading(pts, nrm, leds, -1.0)

@@ -191,3 +191,31 @@ def test_undeformed_gel_anchors_the_depth_scale_of_a_small_roi(root):
     assert result.report["anchored_pixels"] > 0
     assert anchored["all"]["depth_rmse_mm"] < 0.6 * free["all"]["depth_rmse_mm"], (free, anchored)
     assert anchored["all"]["aae_deg"] <= free["all"]["aae_deg"] + 0.1
+
+
+def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_path, capsys):
+    """The default twin's LEDs are 3.6 mm disks: the best point LEDs sit ~0.2 mm behind the centres, the
+    disk fit (``--led-diameter 3.6``) recovers centre and axis; the solver keeps using the points."""
+    import json
+
+    flat = load_press(render_press(twin(), None, root / "flat_disk", seed=3))
+    true = flat.leds
+    cal = calibrate_leds(flat, initial=perturbed(true, np.random.default_rng(1)), stride=2, led_radius=1.8)
+    assert len(cal.emitters) == len(true) and cal.led_radius == 1.8
+    for point, disk, t in zip(cal.leds, cal.emitters, true):
+        behind = float(np.subtract(t.position, point.position) @ np.asarray(t.direction))
+        assert behind > 0.15, behind
+        assert np.linalg.norm(np.subtract(disk.position, t.position)) < 0.05
+        assert np.degrees(np.arccos(min(1.0, np.dot(disk.direction, t.direction)))) < 0.3
+        assert abs(disk.mu / t.mu - 1) < 0.05
+    # the command writes the disks next to the point LEDs the solver reads
+    out = tmp_path / "leds.json"
+    assert (
+        main(["--no-progress", "calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--led-diameter", "3.6"])
+        == 0
+    )
+    data = json.loads(out.read_text())
+    assert data["emitters"]["radius_mm"] == 1.8 and len(data["emitters"]["leds"]) == len(true)
+    assert "as 3.6 mm disks" in capsys.readouterr().out
+    assert main(["calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--led-diameter", "-1"]) == 2
+    assert "--led-diameter" in capsys.readouterr().err
