@@ -60,14 +60,14 @@ def run(args) -> int:
             f"{sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}"
         )
     if cal.emitters:
-        print(f"LEDs as {args.led_diameter:g} mm disks (physical centre and axis; offset from the point LED):")
+        print(f"LEDs as {args.led_diameter:g} mm disks (the physical centre and axis, written as emitters):")
         for i, (disk, led) in enumerate(zip(cal.emitters, cal.leds)):
             shift = np.subtract(led.position, disk.position)
             tilt = np.degrees(np.arccos(min(1.0, float(np.dot(disk.direction, led.direction)))))
             along = float(shift @ np.asarray(disk.direction))
             print(
-                f"{i + 1:>3} centre ({', '.join(f'{c:.3f}' for c in disk.position)}) mm, point {along:+.3f} mm "
-                f"along the axis, axes {tilt:.2f} deg apart"
+                f"{i + 1:>3} centre ({', '.join(f'{c:.3f}' for c in disk.position)}) mm; the point LED sits "
+                f"{abs(along):.3f} mm {'behind' if along < 0 else 'in front of'} it, axes {tilt:.2f} deg apart"
             )
     for i, model in enumerate(cal.interreflection):
         print(f"capture {i + 1}: {model.get('reason', '')}")
