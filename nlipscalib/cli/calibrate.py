@@ -25,6 +25,14 @@ def register(subparsers) -> None:
         help="diameter of each LED's light-emitting area, mm (WS2812B: 3.6): also fit the LEDs as such disks, "
         "the physical LEDs to compare with the CAD (written as 'emitters'; the solver keeps the point LEDs)",
     )
+    p.add_argument(
+        "--coating-reflectance",
+        type=float,
+        default=None,
+        metavar="A",
+        help="the coating's diffuse reflectance 0-1 when known (measured or from its datasheet); default: fitted. "
+        "It fixes the interreflection term's magnitude, which the LED axes otherwise trade against",
+    )
     p.set_defaults(func=run)
 
 
@@ -38,6 +46,8 @@ def run(args) -> int:
     from ..solver import calibrate_leds, save_leds
 
     check_count("--stride", args.stride, minimum=1)
+    if args.coating_reflectance is not None and not 0 < args.coating_reflectance <= 1:
+        raise ConfigError(f"--coating-reflectance must be in (0, 1], got {args.coating_reflectance}")
     if not 0 <= args.led_diameter < 50:
         raise ConfigError(f"--led-diameter must be 0-50 mm, got {args.led_diameter}")
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
@@ -49,6 +59,7 @@ def run(args) -> int:
             interreflection=args.interreflection,
             bounces=args.bounces,
             led_radius=args.led_diameter / 2,
+            coating_reflectance=args.coating_reflectance,
         )
     save_leds(args.out, cal.leds, cal.to_json())
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")

@@ -91,6 +91,7 @@ def calibrate_leds(
     bounces: int = 1,
     rounds: int = 3,
     led_radius: float = 0.0,
+    coating_reflectance: float | tuple[float, float, float] | None = None,
 ) -> LedCalibration:
     """Estimate Psi_c, mu, n_s and x_s of every LED from undeformed captures.
 
@@ -113,6 +114,11 @@ def calibrate_leds(
         minus the same indirect light. On the twin's bounce-free 3.6 mm disk LEDs the disks come out
         within 0.02 deg and 0.005 mm of the truth, where the best points sit 0.24 mm behind
         (benchmarks/RESULTS.md).
+    coating_reflectance : the coating's reflectance (0-1], one value or per channel, when it is known
+        (measured, or from the coating's datasheet) instead of fitted. Why it matters: a ring-wide tilt of
+        the LED axes and the indirect term's magnitude explain the images almost alike; on the twin the
+        fitted reflectance comes out 0.89 for a true 0.8 and the axes ~2 deg too upright, with the true
+        reflectance ~1 deg (benchmarks/RESULTS.md).
     """
     from .indirect import fit_indirect
 
@@ -138,6 +144,10 @@ def calibrate_leds(
         models = [fit_indirect(p, leds, mode=interreflection, bounces=bounces) for p in presses]
         if r == 0 and interreflection == "auto":
             models = [_decide(m) for m in models]
+        if coating_reflectance is not None and r > 0:
+            # not in the first round: with the starting LEDs a lower light than fitted let an LED fit run off
+            # (seen: one LED 6.6 mm away); from the first round's LEDs the known value only refines
+            models = [m.with_reflectance(coating_reflectance) if m.enabled else m for m in models]
         if not any(m.enabled for m in models):
             break
         light = []

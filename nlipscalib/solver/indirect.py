@@ -63,6 +63,26 @@ class IndirectModel:
     """(kappa G (L, h, w, 3) float32 on the fitted capture's patches, patch side): the undeformed
     dome's indirect light per unit receiver albedo."""
 
+    def with_reflectance(self, reflectance) -> IndirectModel:
+        """This model with the coating's reflectance set (one value or per channel, in (0, 1]) instead of
+        fitted: kappa = a / the typical albedo, the fitted light scaled alike (exact for one bounce; with two,
+        the second bounce keeps the fitted kappa's share)."""
+        a = np.broadcast_to(np.asarray(reflectance, float), (3,))
+        if not np.all((a > 0) & (a <= 1)):
+            raise ConfigError(f"the coating reflectance must be in (0, 1], got {reflectance}")
+        kappa = a / np.maximum(np.asarray(self.off_view_albedo), 1e-30)
+        light = self.fitted_light
+        if light is not None:
+            ratio = kappa / np.maximum(np.asarray(self.kappa), 1e-30)
+            light = ((light[0] * ratio).astype(np.float32), light[1])
+        return dataclasses.replace(
+            self,
+            kappa=tuple(float(v) for v in kappa),
+            reflectance=tuple(float(v) for v in a),
+            fitted_light=light,
+            reason=self.reason + f"; reflectance set to {np.round(a, 3).tolist()}",
+        )
+
     def undeformed_light(self, shape: tuple[int, int]) -> np.ndarray:
         """(L, H, W, 3) float32 -- the fitted capture's indirect light per unit receiver albedo
         (multiply by the pixel's albedo; add to the direct shading for the undeformed model)."""

@@ -30,7 +30,7 @@ from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact
 from .contact import auto_roi as _auto_roi_box
-from .indirect import IndirectModel, Surface, fit_indirect, reference_shading, reference_surface, surface_indirect
+from .indirect import Surface, fit_indirect, reference_shading, reference_surface, surface_indirect
 from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -188,7 +188,7 @@ def _solve_press(
             refit = time.perf_counter() - t1
             cmap = _contact(press, leds, None, None, model, shading, fit.contact_cache)
     if model is not None and model.enabled and coating_albedo is not None:
-        model = _with_reflectance(model, coating_albedo)
+        model = model.with_reflectance(coating_albedo)
     if roi == "auto":
         if cmap is None:
             raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
@@ -435,16 +435,6 @@ def _box_mask(roi, shape) -> np.ndarray:
     box = np.zeros(shape, bool)
     box[y0 : y0 + h, x0 : x0 + w] = True
     return box
-
-
-def _with_reflectance(model: IndirectModel, reflectance) -> IndirectModel:
-    a = np.broadcast_to(np.asarray(reflectance, float), (3,))
-    if not np.all((a > 0) & (a <= 1)):
-        raise ConfigError(f"coating_albedo must be in (0, 1], got {reflectance}")
-    kappa = tuple(float(v) for v in a / np.maximum(np.asarray(model.off_view_albedo), 1e-30))
-    return dataclasses.replace(
-        model, kappa=kappa, reflectance=tuple(float(v) for v in a), reason=model.reason + f"; reflectance set to {a}"
-    )
 
 
 def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache=None) -> ContactMap:
