@@ -18,7 +18,7 @@ import numpy as np
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, disk_shading, led_shading
-from ..errors import CaptureError
+from ..errors import CaptureError, ConfigError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,7 +134,11 @@ def calibrate_leds(
     # the twin), after which nothing correlates with the indirect term any more: the term is fitted
     # with the starting LEDs first, and the LEDs are always fitted to the images minus it.
     if not led_radius >= 0:
-        raise CaptureError(f"the LED disk radius must be >= 0 mm, got {led_radius}")
+        raise ConfigError(f"the LED disk radius must be >= 0 mm, got {led_radius}")
+    if coating_reflectance is not None and not np.all(
+        (np.asarray(coating_reflectance, float) > 0) & (np.asarray(coating_reflectance, float) <= 1)
+    ):
+        raise ConfigError(f"the coating reflectance must be in (0, 1], got {coating_reflectance}")
     fitted = None
     models = []
     direct = img  # the images minus the indirect light the last LED fit used
