@@ -346,7 +346,6 @@ class _OuterLoop:
         press, ref = self.press, self.press.reference
         albedo0 = np.broadcast_to(np.asarray(self.model.off_view_albedo), (*press.camera.shape, 3))
         ref_surface = reference_surface(press.camera, self.leds, ref.depth, ref.normals, shading=self.shading)
-        self.ref_surface = ref_surface
         light = surface_indirect(
             self.model, press.camera, self.leds, ref.depth, ref.normals, albedo0, self.mask, surface=ref_surface
         )
