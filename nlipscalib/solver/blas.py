@@ -1,45 +1,42 @@
-"""BLAS thread control: the solver's BLAS work is small vector operations, faster on one thread."""
+"""BLAS thread control (threadpoolctl): limits for the solver, and the setting results depend on.
+
+The solver's BLAS work is small vector operations, faster on one thread; the interreflection gathers
+are large matrix products, which BLAS splits by thread, so their last bits depend on the thread count.
+"""
 
 from __future__ import annotations
 
 import contextlib
-import ctypes
+
+_controller = None
+
+
+def _blas():
+    """threadpoolctl's controller of the loaded BLAS libraries (numpy's and SciPy's OpenBLAS), made once:
+    both are loaded by the time the solver runs (the solver imports scipy.sparse.linalg)."""
+    global _controller
+    if _controller is None:
+        import scipy.linalg  # noqa: F401  (loads SciPy's BLAS, so the controller sees it)
+        from threadpoolctl import ThreadpoolController
+
+        _controller = ThreadpoolController().select(user_api="blas")
+    return _controller
 
 
 @contextlib.contextmanager
 def blas_threads(count: int):
-    """Limit OpenBLAS's threads while the solver runs (Linux; a no-op where the library is not found).
+    """Limit the BLAS libraries' threads to ``count`` while the block runs.
 
     The solver's BLAS calls are vector dot products and norms inside CG (and small dense ones in
     pyamg's setup). Multithreading those is a loss everywhere and a disaster on a loaded machine:
     on 2 shared cores a 250k-element dot product took 2.5 ms with 2 threads against 0.05 ms with one,
     and made up half of the solve time.
     """
-    libs = []
-    try:
-        with open("/proc/self/maps") as fh:
-            paths = {line.split()[-1] for line in fh if "openblas" in line.lower() and "/" in line}
-    except OSError:
-        paths = set()
-    for path in sorted(paths):
-        try:
-            lib = ctypes.CDLL(path)
-        except OSError:
-            continue
-        for suffix in ("64_", "", "_64_"):
-            for prefix in ("scipy_openblas", "openblas"):
-                get = getattr(lib, f"{prefix}_get_num_threads{suffix}", None)
-                put = getattr(lib, f"{prefix}_set_num_threads{suffix}", None)
-                if get is not None and put is not None:
-                    libs.append((get, put, int(get())))
-                    break
-            else:
-                continue
-            break
-    try:
-        for _, put, _ in libs:
-            put(count)
+    with _blas().limit(limits=count):
         yield
-    finally:
-        for _, put, old in libs:
-            put(old)
+
+
+def blas_setting() -> tuple[int, ...]:
+    """The BLAS libraries' current thread counts: a matrix product's rounding depends on them (a
+    gather under 1 and 2 threads differs in the last bits), so results kept for reuse are keyed by it."""
+    return tuple(int(lib.num_threads) for lib in _blas().lib_controllers)

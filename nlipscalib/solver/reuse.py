@@ -6,8 +6,11 @@ not on the press: the direct shading of the undeformed surface, that surface as 
 dome beyond the view, and the interreflection fit on the capture of the undeformed dome. At 640x480 that
 is about 1-1.5 s of each press's solve. Those results are memoised here, keyed by what they are computed
 from (camera, LEDs, a digest of the undeformed surface's arrays, or the identity of a loaded reference
-capture), a few per kind, so a changed input is never served a stale result. Stored arrays are made
-read-only: a caller that would modify one fails loudly instead of corrupting the next press's solve.
+capture), a few per kind, so a changed input is never served a stale result; and by the BLAS thread
+setting they were computed under (:func:`nlipscalib.solver.blas.blas_setting`): a matrix product's last
+bits depend on it, and a sweep that runs its tasks under one BLAS thread for reproducible numbers must not
+be served a result an earlier call computed under two. Stored arrays are made read-only: a caller that
+would modify one fails loudly instead of corrupting the next press's solve.
 """
 
 from __future__ import annotations
@@ -40,7 +43,10 @@ def reused(kind: str, key: Hashable, compute: Callable, keep: object | None = No
     ``keep``: an object the key identifies by ``id`` (a loaded capture): it is stored with the result,
     which is served only while ``keep`` is that same object (an ``id`` can be reused after it is freed).
     """
+    from .blas import blas_setting
+
     shelf = _store.setdefault(kind, OrderedDict())
+    key = (key, blas_setting())
     hit = shelf.get(key)
     if hit is not None and hit[0] is keep:
         shelf.move_to_end(key)

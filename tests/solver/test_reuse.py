@@ -50,6 +50,28 @@ def test_a_result_is_served_for_its_key_and_object_only_and_read_only():
     assert calls[-1] == "a3" and len(reuse._store["k"]) == reuse.PER_KIND
 
 
+def test_a_result_computed_under_another_blas_thread_count_is_not_served():
+    """A matrix product's last bits depend on BLAS's thread count (the radiosity gather's do): an experiment
+    task runs under one thread for reproducible numbers and must not get a result computed under two."""
+    from nlipscalib.solver.blas import blas_setting, blas_threads
+    from nlipscalib.solver.radiosity import gather
+
+    rng = np.random.default_rng(0)
+    points = rng.normal(size=(3000, 3))
+    normals = points / np.linalg.norm(points, axis=1, keepdims=True)
+    emitters = {"points": points[:1500] + 3.0, "normals": normals[:1500], "area": rng.uniform(size=1500)}
+    light = rng.uniform(size=(4, 1500, 3))
+    with blas_threads(2):
+        two = reuse.reused("g", ("x",), lambda: gather(points, normals, emitters, light))
+    with blas_threads(1):
+        assert blas_setting() and set(blas_setting()) == {1}
+        one = reuse.reused("g", ("x",), lambda: gather(points, normals, emitters, light))
+        np.testing.assert_array_equal(one, gather(points, normals, emitters, light))  # as computed fresh
+    assert one is not two
+    with blas_threads(2):
+        assert reuse.reused("g", ("x",), lambda: None) is two  # each setting keeps its own
+
+
 def test_reference_shading_is_reused_for_the_same_surface_only(tmp_path):
     press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(48, 36)))
     ref = press.reference
