@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core import masks
 from ..errors import ShapeError, require
 
 RULE_VERSION = 2
@@ -60,19 +61,19 @@ class ChangeDetector:
         cv2 = _cv2()
         signed = _blocks(frame.astype(np.float32, copy=False), self._crop) - self._ref_blocks
         signed[~self._valid_blocks] = 0
-        # OpenCV's box filter and morphology: the same operations as scipy.ndimage's (replicated border for
-        # the mean, zero outside for the binary ones), several times faster on a live frame
+        # OpenCV's box filter and morphology (core.masks): the same operations as scipy.ndimage's (replicated
+        # border for the mean, zero outside for the binary ones), several times faster on a live frame
         smooth = cv2.blur(signed, (SMOOTH_BLOCKS, SMOOTH_BLOCKS), borderType=cv2.BORDER_REPLICATE)
         diff = cv2.transform(np.abs(smooth), _ONES)  # sum over the colours, (H/2, W/2)
         sample = diff.ravel()[self._sample]
         median = float(np.median(sample))
         sigma = 1.4826 * float(np.median(np.abs(sample - median))) + 1e-6
         hit = self._valid_blocks & (diff > median + NOISE_SIGMAS * sigma) & (diff > MIN_REL_CHANGE * self._level)
-        hit = _opening(hit.view(np.uint8))
+        hit = masks.dilate(masks.erode(hit))  # opening: isolated blocks are noise
         if DILATE_BLOCKS > 0:
-            hit = cv2.dilate(hit, _CROSS, iterations=DILATE_BLOCKS, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+            hit = masks.dilate(hit, iterations=DILATE_BLOCKS)
         out = np.zeros(self.shape, bool)
-        out[self._crop] = cv2.resize(hit, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST).view(bool)
+        out[self._crop] = cv2.resize(hit.view(np.uint8), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST).view(bool)
         return out & self.valid
 
 
@@ -94,19 +95,10 @@ def changed_pixels(frame: np.ndarray, reference: np.ndarray, valid: np.ndarray) 
 
 
 _ONES = np.ones((1, 3), np.float32)
-_CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
-"""3x3 cross: scipy.ndimage's default binary structure, which the rule was defined with."""
 
 
 def _cv2():
     return require("cv2", "opencv-python-headless", "Detecting changed pixels")
-
-
-def _opening(mask: np.ndarray) -> np.ndarray:
-    """Binary opening by the 3x3 cross with zeros outside the image (scipy.ndimage.binary_opening's border)."""
-    cv2 = _cv2()
-    eroded = cv2.erode(mask, _CROSS, borderType=cv2.BORDER_CONSTANT, borderValue=0)
-    return cv2.dilate(eroded, _CROSS, borderType=cv2.BORDER_CONSTANT, borderValue=0)
 
 
 def _blocks(image: np.ndarray, crop) -> np.ndarray:

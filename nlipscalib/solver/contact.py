@@ -15,7 +15,7 @@ import dataclasses
 
 import numpy as np
 
-from ..core import tolerances
+from ..core import masks, tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import led_shading
@@ -93,9 +93,8 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     one pixel in 8, a 96x72 one all).
     """
     import cv2
-    from scipy import ndimage
 
-    inner = ndimage.binary_erosion(valid, iterations=2)
+    inner = masks.erode(valid, iterations=2)
     if inner.sum() < 16:
         return 0.0
     sample = inner
@@ -221,8 +220,6 @@ def auto_roi(
     connected components only those at least ``min_component`` times the largest are kept, so isolated
     misfits (cast shadows far from the dent, silhouette aliasing, hot pixels) do not stretch the box.
     """
-    from scipy import ndimage
-
     mis = contact.misfit
     valid = np.isfinite(mis)
     if not valid.any():
@@ -231,8 +228,7 @@ def auto_roi(
     hit = valid & (np.nan_to_num(mis) > threshold * np.maximum(floor, 1e-9))
     if not hit.any():
         raise CaptureError(f"{folder}: --roi auto found no contact (images match the undeformed dome)")
-    labels, count = ndimage.label(hit)
-    sizes = ndimage.sum(hit, labels, np.arange(1, count + 1))
+    labels, sizes = masks.components(hit)
     keep = np.flatnonzero(sizes >= min_component * sizes.max()) + 1
     rows, cols = np.nonzero(np.isin(labels, keep))
     H, W = shape

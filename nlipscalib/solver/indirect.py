@@ -24,7 +24,7 @@ import dataclasses
 
 import numpy as np
 
-from ..core import tolerances
+from ..core import masks, tolerances
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import Press
 from ..core.leds import led_shading
@@ -534,9 +534,7 @@ def surface_indirect(
 
 
 def _dilate(mask: np.ndarray) -> np.ndarray:
-    from scipy import ndimage
-
-    return ndimage.binary_dilation(mask, iterations=1)
+    return masks.dilate(mask, iterations=1)
 
 
 def _gather_at(surf: Surface, rho_patch, model: IndirectModel, want) -> np.ndarray:

@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from ..core import tolerances
+from ..core import masks, tolerances
 from ..core.capture import Press
 from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
@@ -379,13 +379,11 @@ class _OuterLoop:
 
 def _contact_pixels(cmap: ContactMap, margin: int = 4) -> np.ndarray:
     """(H, W) bool -- the pixels the auto ROI would box (its components), dilated by ``margin``."""
-    from scipy import ndimage
-
     mis = cmap.misfit
     valid = np.isfinite(mis)
     floor = np.maximum(cmap.expected, float(np.median(mis[valid])) if valid.any() else 0.0)
     hit = valid & (np.nan_to_num(mis) > 3.0 * np.maximum(floor, 1e-9))
-    return ndimage.binary_dilation(hit, iterations=margin) if hit.any() else hit
+    return masks.dilate(hit, iterations=margin) if hit.any() else hit
 
 
 def _noise_regularised(options: SolverOptions, press: Press, cmap: ContactMap | None):

@@ -1,0 +1,52 @@
+"""Binary masks: erosion, dilation and connected components (OpenCV).
+
+OpenCV rather than scipy.ndimage: the same results (ndimage's default 3x3 cross, zeros outside the
+image, 4-connected components), and importing scipy.ndimage costs ~0.5 s of every ``nlips solve``
+start-up against a few milliseconds of work.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+CROSS = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
+"""3x3 cross: scipy.ndimage's default binary structure."""
+
+
+def _cv2():
+    import cv2
+
+    return cv2
+
+
+def _u8(mask: np.ndarray) -> np.ndarray:
+    """The mask as 0/1 uint8 for OpenCV (a view of a contiguous bool array: no copy on live frames)."""
+    mask = np.ascontiguousarray(mask)
+    return mask.view(np.uint8) if mask.dtype == bool else (mask != 0).view(np.uint8)
+
+
+def erode(mask: np.ndarray, iterations: int = 1) -> np.ndarray:
+    """(H, W) bool -- ``mask`` eroded ``iterations`` times by the cross, outside the image counting as False."""
+    cv2 = _cv2()
+    out = cv2.erode(_u8(mask), CROSS, iterations=iterations, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.view(bool)
+
+
+def dilate(mask: np.ndarray, iterations: int = 1) -> np.ndarray:
+    """(H, W) bool -- ``mask`` dilated ``iterations`` times by the cross."""
+    cv2 = _cv2()
+    out = cv2.dilate(_u8(mask), CROSS, iterations=iterations, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return out.view(bool)
+
+
+def components(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """4-connected components of ``mask``.
+
+    Returns
+    -------
+    labels : (H, W) int32 -- 0 off the mask, 1..N on its components.
+    sizes : (N,) int -- pixels per component (``sizes[k - 1]`` for label k).
+    """
+    cv2 = _cv2()
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(_u8(mask), connectivity=4)
+    return labels, stats[1:count, cv2.CC_STAT_AREA].astype(np.int64)

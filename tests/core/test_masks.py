@@ -1,0 +1,35 @@
+"""core.masks (OpenCV) gives scipy.ndimage's binary erosion, dilation and 4-connected components."""
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from nlipscalib.core import masks
+
+
+@pytest.fixture
+def mask():
+    rng = np.random.default_rng(4)
+    m = ndimage.uniform_filter(rng.uniform(size=(61, 83)), 5) > 0.52  # blobs, some touching the border
+    m[0, :10] = True
+    return m
+
+
+@pytest.mark.parametrize("iterations", [1, 2, 4])
+def test_erosion_and_dilation_match_scipy_ndimage(mask, iterations):
+    np.testing.assert_array_equal(masks.erode(mask, iterations), ndimage.binary_erosion(mask, iterations=iterations))
+    np.testing.assert_array_equal(masks.dilate(mask, iterations), ndimage.binary_dilation(mask, iterations=iterations))
+    assert masks.erode(mask).dtype == bool and masks.erode(mask).shape == mask.shape
+
+
+def test_components_match_scipy_ndimage_labels(mask):
+    labels, sizes = masks.components(mask)
+    ref, count = ndimage.label(mask)
+    assert len(sizes) == count > 3
+    assert sorted(sizes) == sorted(ndimage.sum(mask, ref, np.arange(1, count + 1)).astype(int))
+    # the same partition: each of our components is exactly one of scipy's
+    for k in range(1, count + 1):
+        assert len(np.unique(ref[labels == k])) == 1
+    assert ((labels > 0) == mask).all()
+    empty_labels, empty_sizes = masks.components(np.zeros((4, 5), bool))
+    assert len(empty_sizes) == 0 and not empty_labels.any()
