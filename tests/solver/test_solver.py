@@ -34,8 +34,8 @@ def test_exact_data(presses, kind):
 
 
 def test_same_inputs_give_the_same_bits_whatever_numpys_global_generator_holds(sphere_press):
-    """pyamg draws from NumPy's global generator while building its hierarchy: the solve must not depend on it,
-    and must leave the caller's generator as it found it."""
+    """pyamg can draw from NumPy's global generator while building a hierarchy (its spectral radius estimate):
+    the solve must not depend on it, and must leave the caller's generator as it found it."""
     opts = SolverOptions(max_iters=20, cg_jacobi_iters=0)  # AMG from the first Gauss-Newton step
     np.random.seed(1)
     a = _solve(sphere_press, options=opts)
