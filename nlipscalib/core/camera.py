@@ -27,6 +27,16 @@ from ..errors import ConfigError, ShapeError
 LENS_MODELS = ("fisheye", "brown")
 _N_COEFFS = {"fisheye": 4, "brown": 5}
 _NEWTON_ITERS = 30
+"""Most Newton iterations of the lens inversions; they stop once no pixel's step exceeds _NEWTON_STEP_TOL
+(4-5 iterations for the default fisheye, converged to the last bit: later steps are ulp-sized)."""
+_NEWTON_STEP_TOL = 1e-15
+"""Largest step, relative to the largest unknown (radians or normalised coordinates), that ends a Newton loop."""
+
+
+def _converged(steps, values) -> bool:
+    """No step of ``steps`` exceeds _NEWTON_STEP_TOL times the largest of ``values`` (and 1)."""
+    size = max(1.0, max(float(np.max(np.abs(v), initial=0.0)) for v in values))
+    return all(float(np.max(np.abs(d), initial=0.0)) <= _NEWTON_STEP_TOL * size for d in steps)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -203,7 +213,10 @@ class Camera:
             t2 = theta**2
             f = theta * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - theta_d
             df = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
-            theta = theta - f / df
+            step = f / df
+            theta = theta - step
+            if _converged([step], [theta]):
+                break
         return theta
 
     def _brown_distort(self, a: np.ndarray, b: np.ndarray):
@@ -227,8 +240,10 @@ class Camera:
             j12, j22 = (xb - x) / h, (yb - y) / h
             ex, ey = x - mx, y - my
             det = j11 * j22 - j12 * j21
-            a = a - (j22 * ex - j12 * ey) / det
-            b = b - (-j21 * ex + j11 * ey) / det
+            da, db = (j22 * ex - j12 * ey) / det, (-j21 * ex + j11 * ey) / det
+            a, b = a - da, b - db
+            if _converged([da, db], [a, b]):
+                break
         return a, b
 
 

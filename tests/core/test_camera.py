@@ -46,6 +46,22 @@ def test_unproject_inverts_project(model, dist):
     np.testing.assert_allclose(cam.project(rays * 7.0), np.stack([u, v], -1), atol=1e-6)
 
 
+LENSES = [("fisheye", (0.05, -0.01, 0.0, 0.0)), ("brown", (-0.3, 0.1, 0.001, -0.001, -0.01))]
+
+
+@pytest.mark.parametrize("model,dist", LENSES)
+def test_lens_inversion_stops_when_converged_at_the_fixed_iterations_answer(model, dist, monkeypatch):
+    """The Newton loops stop once their steps are ulp-sized: the rays are those of all 30 iterations."""
+    from nlipscalib.core import camera as camera_module
+
+    cam = Camera.from_fov(320, 240, 100.0, model, dist)
+    u, v = cam.pixel_grid()
+    uv = np.stack([u, v], -1)
+    early = cam.unproject(uv)
+    monkeypatch.setattr(camera_module, "_NEWTON_STEP_TOL", -1.0)  # never converged: every iteration runs
+    np.testing.assert_allclose(early, cam.unproject(uv), rtol=0, atol=1e-15)
+
+
 def test_from_fov_gives_requested_field_of_view():
     cam = Camera.from_fov(640, 480, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
     left, right = cam.unproject(np.array([[-0.5, cam.cy], [639.5, cam.cy]]))
