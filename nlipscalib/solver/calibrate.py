@@ -120,7 +120,7 @@ def calibrate_leds(
         fitted reflectance comes out 0.89 for a true 0.8 and the axes ~2 deg too upright, with the true
         reflectance ~1 deg (benchmarks/RESULTS.md).
     """
-    from .indirect import fit_indirect
+    from .indirect import checked_reflectance, fit_indirect
 
     presses = [presses] if isinstance(presses, Press) else list(presses)
     if not presses:
@@ -135,10 +135,8 @@ def calibrate_leds(
     # with the starting LEDs first, and the LEDs are always fitted to the images minus it.
     if not led_radius >= 0:
         raise ConfigError(f"the LED disk radius must be >= 0 mm, got {led_radius}")
-    if coating_reflectance is not None and not np.all(
-        (np.asarray(coating_reflectance, float) > 0) & (np.asarray(coating_reflectance, float) <= 1)
-    ):
-        raise ConfigError(f"the coating reflectance must be in (0, 1], got {coating_reflectance}")
+    if coating_reflectance is not None:
+        checked_reflectance(coating_reflectance)  # before any fit
     fitted = None
     models = []
     direct = img  # the images minus the indirect light the last LED fit used

@@ -67,9 +67,7 @@ class IndirectModel:
         """This model with the coating's reflectance set (one value or per channel, in (0, 1]) instead of
         fitted: kappa = a / the typical albedo, the fitted light scaled alike (exact for one bounce; with two,
         the second bounce keeps the fitted kappa's share)."""
-        a = np.broadcast_to(np.asarray(reflectance, float), (3,))
-        if not np.all((a > 0) & (a <= 1)):
-            raise ConfigError(f"the coating reflectance must be in (0, 1], got {reflectance}")
+        a = checked_reflectance(reflectance)
         kappa = a / np.maximum(np.asarray(self.off_view_albedo), 1e-30)
         light = self.fitted_light
         if light is not None:
@@ -101,6 +99,14 @@ class IndirectModel:
             "reason": self.reason,
             "off_view_dome": self.off_view is not None,
         }
+
+
+def checked_reflectance(reflectance) -> np.ndarray:
+    """(3,) float -- a coating reflectance given as one value or per channel, each in (0, 1]; else ConfigError."""
+    a = np.broadcast_to(np.asarray(reflectance, float), (3,))
+    if not np.all((a > 0) & (a <= 1)):
+        raise ConfigError(f"the coating reflectance must be in (0, 1], got {reflectance}")
+    return a
 
 
 def design_of(press: Press) -> tuple[DomeConfig, np.ndarray] | None:
