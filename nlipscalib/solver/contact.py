@@ -20,7 +20,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import led_shading
 from ..errors import CaptureError
-from . import threads
+from . import reuse, threads
 
 
 @dataclasses.dataclass(frozen=True)
@@ -123,6 +123,7 @@ def classify_contact(
     leds=None,
     *,
     undeformed_images: np.ndarray | None = None,
+    undeformed_light: np.ndarray | None = None,
     indirect: np.ndarray | None = None,
     dead_level: float = 1e-3,
     undeformed_noise: bool = False,
@@ -138,6 +139,10 @@ def classify_contact(
     undeformed_images : (L, H, W, 3) float or None -- what the undeformed dome looks like under each
         LED up to a per-pixel albedo (a capture of it: linear images; or the model with its indirect
         term). None: the direct model on ``press.reference`` with ``leds``.
+    undeformed_light : (L, H, W, 3) float or None -- added to ``undeformed_images`` (e.g. the fitted
+        indirect light of the undeformed dome added to its direct shading). Kept apart so the smoothed
+        ``undeformed_images`` -- a sensor's direct shading -- is computed once and reused by the next
+        classification against it (the smoothing is linear).
     indirect : (L, H, W, 3) float or None -- light to subtract from the press's images first.
     dead_level : an LED whose image's 99th percentile (linear) is below this is dead and left out.
     undeformed_noise : ``undeformed_images`` is a capture with its own noise (the noise-only misfit is
@@ -161,13 +166,13 @@ def classify_contact(
         side.update(_press_side(press, valid, indirect, dead_level, blur_px))
     live, img, ok, count = side["live"], side["images"], side["ok"], side["count"]
     if undeformed_images is not None:
-        S = np.asarray(undeformed_images, np.float32)
+        S = _smoothed_undeformed(undeformed_images, live, valid, blur_px)
     else:
         pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
-        S = led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds)
-    S = _smooth(S[live], valid, blur_px)
-    alb = (S * img * ok).sum(0) / np.maximum((S * S * ok).sum(0), 1e-30)
-    misfit = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
+        S = _smooth(led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds)[live], valid, blur_px)
+    if undeformed_light is not None:
+        S = S + _smooth(np.asarray(undeformed_light, np.float32)[live], valid, blur_px)
+    misfit = _misfit(S, img, ok, count)
     noise = side["noise"]
     dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
     noise_blurred = noise * _gain(blur_px) * (np.sqrt(2.0) if undeformed_noise else 1.0)
@@ -189,10 +194,11 @@ def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, bl
     if indirect is not None:
         img = img - indirect
     ok = ~press.saturated(press.led_images[live])
+    ok = None if ok.all() else ok  # nothing saturated (the usual case): no mask to multiply by
     # Deformation changes the shading coherently over many pixels, noise does not: classify on
     # smoothed images (normalised convolution inside the gel) and scale the noise alike.
     img = _smooth(img[live], valid, blur_px)
-    count = np.maximum(ok.sum((0, 3)), 1)
+    count = np.maximum(ok.sum((0, 3)), 1) if ok is not None else np.full(valid.shape, img.shape[0] * img.shape[3])
     return {
         "live": live,
         "dead": dead,
@@ -200,7 +206,7 @@ def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, bl
         "ok": ok,
         "count": count,
         "noise": image_noise(press.linear_led_images[live], valid),
-        "level": np.sqrt(((img * ok) ** 2).sum((0, 3)) / count),
+        "level": np.sqrt(_sum_squares(img, ok) / count),
     }
 
 
@@ -287,6 +293,42 @@ def anchor_weights(
     weights = np.ones(mask.shape)
     weights[pins] += weight
     return weights, f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise)"
+
+
+def _misfit(S: np.ndarray, img: np.ndarray, ok: np.ndarray | None, count: np.ndarray) -> np.ndarray:
+    """(H, W) float32 -- RMS residual of ``S`` scaled per pixel and channel (the albedo) to ``img``.
+
+    ``S``, ``img`` : (L, H, W, 3) float32; ``ok`` : (L, H, W, 3) bool or None (all usable); ``count`` :
+    (H, W) usable samples. The sums run in ``np.einsum``: one pass over each stack, no (L, H, W, 3)
+    product temporaries (0.04 s against 0.11-0.17 s at 640x480 with 12 LEDs, the same numbers)."""
+    Sk = S if ok is None else S * ok
+    alb = np.einsum("lhwc,lhwc->hwc", Sk, img) / np.maximum(np.einsum("lhwc,lhwc->hwc", Sk, Sk), 1e-30)
+    res = alb * S
+    res -= img
+    if ok is not None:
+        res *= ok
+    return np.sqrt(_sum_squares(res, None) / count)
+
+
+def _sum_squares(stack: np.ndarray, ok: np.ndarray | None) -> np.ndarray:
+    """(H, W) -- sum over LEDs and channels of ``stack`` squared where ``ok`` (None: everywhere)."""
+    masked = stack if ok is None else stack * ok
+    return np.einsum("lhwc,lhwc->hw", masked, masked)
+
+
+def _smoothed_undeformed(images, live, valid: np.ndarray, sigma: float) -> np.ndarray:
+    """:func:`_smooth` of ``images[live]`` (float32). When ``images`` is read-only (the sensor's direct
+    shading, shared by the solves of its presses through ``solver.reuse``) the result is kept for the next
+    classification against that same array; a writable array could change in place, so it is smoothed anew."""
+    if not isinstance(images, np.ndarray) or images.flags.writeable:
+        return _smooth(np.asarray(images, np.float32)[live], valid, sigma)
+    key = (id(images), tuple(live), float(sigma), reuse.digest(valid))
+    return reuse.reused(
+        "smoothed undeformed",
+        key,
+        lambda: _smooth(np.asarray(images, np.float32)[live], valid, sigma),
+        keep=images,
+    )
 
 
 def _smooth(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:

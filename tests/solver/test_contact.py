@@ -84,3 +84,48 @@ def test_nothing_reconstructable_is_an_error_with_the_reason(tmp_path, capsys):
     code = main(["solve", str(folder), "--out", str(tmp_path / "out")])
     assert code != 0
     assert "reconstruct" in capsys.readouterr().err
+
+
+def _direct_shading(press):
+    from nlipscalib.core.camera import depth_to_points
+    from nlipscalib.core.leds import led_shading
+
+    ref = press.reference
+    valid = np.isfinite(ref.depth)
+    pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
+    return led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), press.leds).astype(np.float32)
+
+
+def test_undeformed_light_kept_apart_gives_the_classification_of_the_sum(sphere_press):
+    """``undeformed_light`` is added after smoothing (linear), and the read-only shading's smoothed copy is
+    reused: both give the misfit of classifying against ``shading + light`` in one array."""
+    shading = _direct_shading(sphere_press)
+    light = 0.2 * np.roll(shading, 7, axis=2)  # any positive extra light, unlike the shading's shape
+    summed = classify_contact(sphere_press, undeformed_images=shading + light)
+    shading.flags.writeable = False
+    first = classify_contact(sphere_press, undeformed_images=shading, undeformed_light=light)
+    again = classify_contact(sphere_press, undeformed_images=shading, undeformed_light=light)  # the kept copy
+    gel = np.isfinite(summed.misfit)
+    np.testing.assert_array_equal(gel, np.isfinite(first.misfit))
+    np.testing.assert_allclose(first.misfit[gel], summed.misfit[gel], rtol=1e-4, atol=1e-7)
+    np.testing.assert_array_equal(first.misfit, again.misfit)
+    # without the light the misfit is another one: the light was not dropped
+    plain = classify_contact(sphere_press, undeformed_images=shading)
+    assert np.nanmedian(np.abs(plain.misfit - first.misfit)) > 1e-4
+
+
+def test_misfit_leaves_out_saturated_samples_like_the_plain_sums():
+    """The einsum form against the textbook one: per-pixel albedo fitted on usable samples only."""
+    from nlipscalib.solver.contact import _misfit
+
+    rng = np.random.default_rng(3)
+    S = rng.uniform(0.1, 1.0, (5, 4, 6, 3)).astype(np.float32)
+    img = (S * rng.uniform(0.5, 0.9, (1, 4, 6, 3)) + rng.normal(0, 0.01, S.shape)).astype(np.float32)
+    ok = rng.random(S.shape) > 0.3
+    count = np.maximum(ok.sum((0, 3)), 1)
+    alb = (S * img * ok).sum(0) / (S * S * ok).sum(0)
+    want = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
+    np.testing.assert_allclose(_misfit(S, img, ok, count), want, rtol=1e-5)
+    full = np.full((4, 6), 15)
+    want_all = np.sqrt((((img * S).sum(0) / (S * S).sum(0) * S - img) ** 2).sum((0, 3)) / 15)
+    np.testing.assert_allclose(_misfit(S, img, None, full), want_all, rtol=1e-5)
