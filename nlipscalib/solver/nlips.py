@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from ..core.camera import Camera
 from ..core.leds import led_arrays
 from ..core.reconstruction import Reconstruction
-from . import geometry, robust
+from . import geometry, reuse, robust
 from .blas import blas_threads
 from .inputs import check_inputs
 from .kernel import Backend, make_model
@@ -97,6 +97,7 @@ def solve(
     backend: str = "numpy",
     progress: bool = False,
     init_depth: np.ndarray | None = None,
+    refine_finest: bool = True,
 ) -> SolveResult:
     """Recover depth, normals and albedo from one image per LED.
 
@@ -121,6 +122,9 @@ def solve(
         A close solution to start from (e.g. the previous pass of the outer interreflection loop,
         whose images differ only by a small change of the indirect light): the finest level alone is
         solved from it, no pyramid. NaN pixels start from the prior.
+    refine_finest : False: the finest level is not iterated, only evaluated (normals, albedo) at the
+        depth brought up from the next coarser one -- a first pass of the outer interreflection loop,
+        whose indirect light is gathered on patches several pixels wide, needs no more.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -170,7 +174,7 @@ def solve(
 
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
     with blas_threads(1):
-        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first)
+        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first, refine_finest)
     if bar is not None:
         bar.close()
 
@@ -224,10 +228,11 @@ def solve(
     )
 
 
-def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first=None):
+def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first=None, refine_finest=True):
     """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest.
 
-    ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve)."""
+    ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve).
+    ``refine_finest``: False: the finest level (of several) is evaluated at its starting depth, not iterated."""
     t_state = out = None
     for k, lv in enumerate(levels):
         if t_state is None:
@@ -243,7 +248,10 @@ def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first=N
             t_init, _, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, "ls", coarse=True)
             report["levels"].append(info)
         coarse = k < len(levels) - 1
-        t_state, out, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, opts.estimator, coarse)
+        iterate = refine_finest or coarse or k == 0
+        t_state, out, info = _solve_level(
+            lv, t_init, pos, dirs, mu, psi, opts, be, bar, opts.estimator, coarse, iterate
+        )
         report["levels"].append(info)
     return t_state, out
 
@@ -262,31 +270,44 @@ class _Timer:
         self._t = now
 
 
+OPERATOR_LEVELS = 8
+"""Levels whose operators a process keeps (solver.reuse): a pyramid's four to six, and a spare."""
+
+
 def _operators(lv: dict) -> dict:
-    """Difference operators and the normal-matrix assembler of a level (cached in ``lv``)."""
+    """Difference operators and the normal-matrix assembler of a level (cached in ``lv``).
+
+    They depend on the level's mask alone and cost 0.5-0.9 s at 640x480: kept for the next solve on the
+    same mask (the outer interreflection loop's passes, the next press of a whole-frame dataset)."""
     if "ops" not in lv:
         mk = lv["mask"]
-        Du, Dv, has_grad = geometry.gradient_operators(mk)
-        du_f, dv_f, _ = geometry.difference_operators(mk)
-        du_b, dv_b, _ = geometry.difference_operators(mk, backward=True)
-        # Second differences (forward minus backward; zero at edges): the checkerboard modes central
-        # differences cannot see. A weak penalty on them couples the sub-lattices (and lets AMG work).
-        second = [(du_f - du_b).tocsr(), (dv_f - dv_b).tocsr()]
-        lap = (second[0].T @ second[0] + second[1].T @ second[1]).tocsr()
-        eye = sp.identity(Du.shape[0], format="csr")
-        # Central differences: one-sided ones put the normal half a pixel off the data and bias the
-        # fit by about a degree on this lens.
-        lv["ops"] = {
-            "Du": Du,
-            "Dv": Dv,
-            "has_grad": has_grad,
-            "lap": lap,
-            "normal": geometry.NormalMatrix((eye, Du, Dv), second),
-        }
+        lv["ops"] = reuse.reused("operators", reuse.digest(mk), lambda: _make_operators(mk), most=OPERATOR_LEVELS)
     return lv["ops"]
 
 
-def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backend, bar, est: str, coarse=False):
+def _make_operators(mk: np.ndarray) -> dict:
+    Du, Dv, has_grad = geometry.gradient_operators(mk)
+    du_f, dv_f, _ = geometry.difference_operators(mk)
+    du_b, dv_b, _ = geometry.difference_operators(mk, backward=True)
+    # Second differences (forward minus backward; zero at edges): the checkerboard modes central
+    # differences cannot see. A weak penalty on them couples the sub-lattices (and lets AMG work).
+    second = [(du_f - du_b).tocsr(), (dv_f - dv_b).tocsr()]
+    lap = (second[0].T @ second[0] + second[1].T @ second[1]).tocsr()
+    eye = sp.identity(Du.shape[0], format="csr")
+    # Central differences: one-sided ones put the normal half a pixel off the data and bias the
+    # fit by about a degree on this lens.
+    return {
+        "Du": Du,
+        "Dv": Dv,
+        "has_grad": has_grad,
+        "lap": lap,
+        "normal": geometry.NormalMatrix((eye, Du, Dv), second),
+    }
+
+
+def _solve_level(
+    lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backend, bar, est: str, coarse=False, iterate=True
+):
     """Minimise the energy on one pyramid level from log-depth ``t_init`` (H, W) of that level.
 
     On a ``coarse`` level (one whose result only starts the next), linear solves stop at a relative
@@ -294,7 +315,8 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
 
     Each iteration: variable-projection Gauss-Newton step on t (albedo eliminated), solved inexactly
     by AMG-preconditioned CG, then a backtracking line search on the joint energy with the albedo
-    refitted (IRLS) at the trial depth: the energy never increases.
+    refitted (IRLS) at the trial depth: the energy never increases. ``iterate`` False: no iteration, the
+    level's normals, albedo and diagnostics at ``t_init``.
     """
     tm = _Timer()
     mk = lv["mask"]
@@ -333,7 +355,7 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
     if est != "ls":
         albedo, r = refit(F, albedo)
     w = model.weights(r, lam, est)
-    M, b = model.gauss_newton_blocks(F, dF, r, w, albedo)
+    M, b = model.gauss_newton_blocks(F, dF, r, w, albedo) if iterate else (None, None)
     e_cur = model.data_energy(r, lam, est) + prior(t)
     info = {
         "shape": list(mk.shape),
@@ -352,7 +374,7 @@ def _solve_level(lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backen
     nrm = normals(t)
     g_prev = eta = None
     tm.lap("init")
-    for _ in range(opts.max_iters):
+    for _ in range(opts.max_iters if iterate else 0):
         # 1. Gauss-Newton system on log-depth with the IRLS weights of the current residuals
         if M is None:
             w = model.weights(r, lam, est)

@@ -206,7 +206,7 @@ def _solve_press(
     images = press.linear_led_images
     saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
 
-    def run(light, init=None):
+    def run(light, init=None, refine_finest=True):
         data = images if light is None else compensate(images, light)
         result = solve(
             data,
@@ -220,6 +220,7 @@ def _solve_press(
             backend=backend,
             progress=progress,
             init_depth=init,
+            refine_finest=refine_finest,
         )
         if not result.reconstructed.any():
             dead = [i + 1 for i in result.report["dead_leds"]]
@@ -341,7 +342,10 @@ class _OuterLoop:
         self.passes, self.changes, self.solver_seconds, self.seconds = 0, [], [], 0.0
 
     def run(self, solve_with, max_passes: int) -> SolveResult:
-        """``solve_with(light, init=None)`` -> SolveResult, called once per pass; returns the last result."""
+        """``solve_with(light, init=None, refine_finest=True)`` -> SolveResult, called once per pass; returns the
+        last result. With passes to come, the first one stops after the pyramid's next-to-finest level (its
+        light is a gather over patches several pixels wide, which the finest level's detail does not
+        change): every later pass solves the finest level from the last depth, so the result is refined."""
         t0 = time.perf_counter()
         press, ref = self.press, self.press.reference
         albedo0 = np.broadcast_to(np.asarray(self.model.off_view_albedo), (*press.camera.shape, 3))
@@ -350,7 +354,7 @@ class _OuterLoop:
             self.model, press.camera, self.leds, ref.depth, ref.normals, albedo0, self.mask, surface=ref_surface
         )
         self.seconds += time.perf_counter() - t0
-        result = solve_with(light)
+        result = solve_with(light, refine_finest=max_passes == 0)
         self.solver_seconds.append(result.report["seconds"])
         for _ in range(max_passes):
             t0 = time.perf_counter()
@@ -443,8 +447,8 @@ def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache
         und = ref_capture.linear_led_images
         return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, cache=cache)
     if model is not None and model.enabled:
-        undeformed = shading + model.undeformed_light(press.camera.shape)
-        return classify_contact(press, leds, undeformed_images=undeformed, cache=cache)
+        light = model.undeformed_light(press.camera.shape)
+        return classify_contact(press, leds, undeformed_images=shading, undeformed_light=light, cache=cache)
     return classify_contact(press, leds, undeformed_images=shading, indirect=fixed_light, cache=cache)
 
 

@@ -4,11 +4,13 @@ A calibration solves some 50 presses of one sensor in a few long-lived worker pr
 calibrate``, ``nlips solve DATASET``, the experiments). Part of every solve depends on the sensor alone,
 not on the press: the direct shading of the undeformed surface, that surface as radiosity patches, the
 dome beyond the view, and the interreflection fit on the capture of the undeformed dome. At 640x480 that
-is about 1-1.5 s of each press's solve. Those results are memoised here, keyed by what they are computed
-from (camera, LEDs, a digest of the undeformed surface's arrays, or the identity of a loaded reference
-capture), a few per kind, so a changed input is never served a stale result; and by the BLAS thread
-setting they were computed under (:func:`nlipscalib.solver.blas.blas_setting`): a matrix product's last
-bits depend on it, and a sweep that runs its tasks under one BLAS thread for reproducible numbers must not
+is about 1-1.5 s of each press's solve. The sparse difference operators of a pyramid level depend
+on its mask alone (0.5-0.9 s at 640x480), and every pass of the outer interreflection loop and every whole-frame
+press of a dataset solves on the same masks. Those results are memoised here, keyed by what they are computed
+from (camera, LEDs, a digest of the undeformed surface's arrays or of a mask, or the identity of a loaded
+reference capture), a few per kind, so a changed input is never served a stale result; and by the BLAS thread
+setting they were computed under (:func:`nlipscalib.solver.blas.blas_setting`): a matrix product's last bits
+depend on it, and a sweep that runs its tasks under one BLAS thread for reproducible numbers must not
 be served a result an earlier call computed under two. Stored arrays are made read-only: a caller that
 would modify one fails loudly instead of corrupting the next press's solve.
 """
@@ -37,11 +39,12 @@ def digest(*arrays: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def reused(kind: str, key: Hashable, compute: Callable, keep: object | None = None):
+def reused(kind: str, key: Hashable, compute: Callable, keep: object | None = None, most: int = PER_KIND):
     """``compute()``, or the result stored under ``(kind, key)`` by an earlier call.
 
     ``keep``: an object the key identifies by ``id`` (a loaded capture): it is stored with the result,
     which is served only while ``keep`` is that same object (an ``id`` can be reused after it is freed).
+    ``most``: results of this kind kept (the least recently used go first).
     """
     from .blas import blas_setting
 
@@ -54,7 +57,7 @@ def reused(kind: str, key: Hashable, compute: Callable, keep: object | None = No
     value = compute()
     freeze(value)
     shelf[key] = (keep, value)
-    while len(shelf) > PER_KIND:
+    while len(shelf) > most:
         shelf.popitem(last=False)
     return value
 

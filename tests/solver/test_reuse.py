@@ -101,4 +101,21 @@ def test_presses_of_one_sensor_solve_alike_with_reused_sensor_work(tmp_path):
         shared = solve(press)
         for key in ("depth", "normals", "albedo"):
             np.testing.assert_array_equal(getattr(shared, key), getattr(fresh, key), err_msg=key)
-    assert {"shading", "surface", "fit"} <= set(reuse._store)  # the work was in fact reused
+    assert {"shading", "surface", "fit", "operators"} <= set(reuse._store)  # the work was in fact reused
+
+
+def test_solves_on_one_mask_share_its_difference_operators(tmp_path, monkeypatch):
+    from nlipscalib.solver import nlips
+
+    made = []
+    make = nlips._make_operators
+    monkeypatch.setattr(nlips, "_make_operators", lambda mk: made.append(int(mk.sum())) or make(mk))
+    press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(96, 72)))
+    first = solve_press(press, interreflection="off")
+    levels = len(made)
+    again = solve_press(press, interreflection="off")
+    assert levels >= 1 and len(made) == levels  # the same masks: nothing built again
+    for key in ("depth", "normals", "albedo"):
+        np.testing.assert_array_equal(getattr(again, key), getattr(first, key), err_msg=key)
+    solve_press(press, roi=(10, 10, 40, 30), interreflection="off")
+    assert len(made) > levels and made[-1] == 40 * 30  # another mask: its own operators

@@ -97,6 +97,24 @@ def test_a_warm_start_from_the_solution_stays_there(press):
     assert b["aae_deg"] <= a["aae_deg"] + 0.01, (a, b)
 
 
+def test_a_pass_without_the_finest_level_is_close_and_a_warm_start_refines_it(press):
+    """The outer interreflection loop's first pass stops at the next-to-finest level: its finest level is
+    only evaluated there, near the full solve; the next pass, from its depth, solves the finest level."""
+    lin = press.linear(press.led_images)
+    prior = press.reference.depth
+    two = SolverOptions(pyramid_levels=2)
+    full = solve(lin, press.camera, press.leds, prior_depth=prior, options=two)
+    rough = solve(lin, press.camera, press.leds, prior_depth=prior, options=two, refine_finest=False)
+    levels = rough.report["levels"]
+    assert len(levels) >= 2 and levels[-1]["iterations"] == 0 and levels[-2]["iterations"] > 0
+    refined = solve(lin, press.camera, press.leds, prior_depth=prior, options=two, init_depth=rough.depth)
+    assert refined.report["levels"][-1]["iterations"] > 0
+    gt = press.ground_truth
+    a, b, c = (evaluate(r, gt)["all"]["aae_deg"] for r in (full, rough, refined))
+    assert b < a + 2.0, (a, b)  # near the answer already, not at the prior
+    assert c <= a + 0.01, (a, c)
+
+
 def test_threads_keep_the_order_and_cover_every_item():
     assert threads.map_items(lambda x: x * x, range(7)) == [x * x for x in range(7)]
     parts = threads.chunks(10, 3)
