@@ -21,3 +21,9 @@ MAX_MEDIAN_DISPLACEMENT_MM = 3.0
 """A solve whose median distance to the undeformed surface exceeds this (mm; the default gel is 3 mm thick,
 and a median over a region around a contact is far below the deepest point) has left the physically
 possible range: :func:`nlipscalib.solver.solve_press` re-solves without the noise-adapted smoothness."""
+DENT_FOCUS_MARGIN = 0.05
+"""The outer interreflection loop's later passes solve the auto ROI's box widened by this fraction of the
+image's short side (24 px at 640x480): the dent's light changes most around it."""
+DENT_FOCUS_SHARE = 0.5
+"""... when that box covers less than this fraction of the solve's mask (a whole frame); otherwise every
+pass solves the whole mask."""

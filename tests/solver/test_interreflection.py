@@ -87,6 +87,23 @@ def test_interreflection_aware_solve_beats_the_plain_solve_in_the_contact(bounce
         assert aware["aae_deg"] < 2.5, aware
 
 
+def test_a_whole_frame_solves_the_passes_before_the_last_around_the_dent(bounce1):
+    """Away from the dent the light changes little between passes: on a whole frame only the last pass
+    solves every pixel, and the contact comes out as with an ROI around it."""
+    _, press = bounce1
+    gt = press.ground_truth
+    whole = solve_press(press)
+    x0, y0, w, h = whole.report["outer_focus"]
+    rows, cols = np.nonzero(gt.contact)
+    assert x0 <= cols.min() and cols.max() < x0 + w and y0 <= rows.min() and rows.max() < y0 + h
+    assert w * h < 0.5 * whole.mask.sum() and whole.report["outer_passes"] >= 2
+    assert whole.reconstructed[whole.mask].all()  # the last pass solved the whole mask
+    roi = solve_press(press, roi=contact_box(gt.contact))
+    assert roi.report["outer_focus"] is None  # an ROI around the contact is its own focus
+    a, b = (evaluate(r, gt)["contact"]["aae_deg"] for r in (whole, roi))
+    assert a < 2.5 and abs(a - b) < 0.3, (a, b)
+
+
 def test_auto_leaves_a_textured_bounce0_capture_unharmed(textured):
     flat, press = textured
     roi = contact_box(press.ground_truth.contact)

@@ -115,6 +115,25 @@ def test_a_pass_without_the_finest_level_is_close_and_a_warm_start_refines_it(pr
     assert c <= a + 0.01, (a, c)
 
 
+def test_a_pass_on_the_dent_replaces_the_whole_frame_result_there_only(press):
+    from nlipscalib.solver.press import _merged
+
+    lin = press.linear(press.led_images)
+    prior = press.reference.depth
+    whole = solve(lin, press.camera, press.leds, prior_depth=prior)
+    focus = np.zeros(press.camera.shape, bool)
+    focus[20:45, 30:61] = True
+    part = solve(0.9 * lin, press.camera, press.leds, prior_depth=prior, mask=focus, init_depth=whole.depth)
+    merged = _merged(whole, part, focus)
+    for name in ("depth", "normals", "albedo", "confidence", "reconstructed"):
+        got, a, b = getattr(merged, name), getattr(whole, name), getattr(part, name)
+        np.testing.assert_array_equal(got[focus], b[focus], err_msg=name)
+        np.testing.assert_array_equal(got[~focus], a[~focus], err_msg=name)
+    assert not np.allclose(whole.albedo[focus], part.albedo[focus])  # the pass did change the focus
+    assert merged.mask is whole.mask and merged.report["pixels_solved"] == whole.report["pixels_solved"]
+    assert merged.report["pixels_reconstructed"] == int(merged.reconstructed.sum()) == int(whole.mask.sum())
+
+
 def test_threads_keep_the_order_and_cover_every_item():
     assert threads.map_items(lambda x: x * x, range(7)) == [x * x for x in range(7)]
     parts = threads.chunks(10, 3)
