@@ -60,8 +60,9 @@ def build_pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> 
             {
                 "camera": c,
                 "mask": mk,
-                "images": np.moveaxis(d[:, mk], 2, 1),  # (L, 3, N)
-                "usable": np.moveaxis(u[:, mk], 2, 1).astype(d.dtype),
+                # (L, 3, N), contiguous: the model's pixel chunks are then views, not copies
+                "images": np.ascontiguousarray(np.moveaxis(d[:, mk], 2, 1)),
+                "usable": np.ascontiguousarray(np.moveaxis(u[:, mk], 2, 1), dtype=d.dtype),
                 "t0": tk,
                 "zeta": opts.prior_weight * wk[mk].astype(np.float64),  # (N,) per-pixel prior weight
                 "q": q[mk],
