@@ -22,8 +22,11 @@ MAX_MEDIAN_DISPLACEMENT_MM = 3.0
 and a median over a region around a contact is far below the deepest point) has left the physically
 possible range: :func:`nlipscalib.solver.solve_press` re-solves without the noise-adapted smoothness."""
 DENT_FOCUS_MARGIN = 0.05
-"""The outer interreflection loop's later passes solve the auto ROI's box widened by this fraction of the
+"""The outer interreflection loop's passes before the last solve the auto ROI's box widened by this fraction of the
 image's short side (24 px at 640x480): the dent's light changes most around it."""
 DENT_FOCUS_SHARE = 0.5
 """... when that box covers less than this fraction of the solve's mask (a whole frame); otherwise every
 pass solves the whole mask."""
+DENT_FOCUS_MIN_PIXELS = 1024
+"""... and when it holds at least this many pixels of the mask (a 32 x 32 box, the auto ROI's least): a contact
+outside an explicit ROI leaves nothing to focus on."""

@@ -223,7 +223,7 @@ def _solve_press(
             init_depth=init,
             refine_finest=refine_finest,
         )
-        if not result.reconstructed.any():
+        if receivers is None and not result.reconstructed.any():  # a focus pass is merged into the last result
             dead = [i + 1 for i in result.report["dead_leds"]]
             raise CaptureError(
                 f"{press.folder}: no pixel could be reconstructed ({result.report['pixels_too_few_leds']} pixels "
@@ -409,7 +409,8 @@ def _dent_focus(cmap: ContactMap, mask: np.ndarray) -> np.ndarray | None:
     except CaptureError:  # no contact: nothing to focus on
         return None
     focus = _box_mask(box, (H, W)) & mask
-    return focus if focus.sum() < tolerances.DENT_FOCUS_SHARE * mask.sum() else None
+    # a contact outside an explicit ROI leaves (next to) nothing to focus on
+    return focus if tolerances.DENT_FOCUS_MIN_PIXELS <= focus.sum() < tolerances.DENT_FOCUS_SHARE * mask.sum() else None
 
 
 def _merged(whole: SolveResult, part: SolveResult, focus: np.ndarray) -> SolveResult:

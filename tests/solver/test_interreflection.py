@@ -102,6 +102,8 @@ def test_a_whole_frame_solves_the_passes_before_the_last_around_the_dent(bounce1
     assert roi.report["outer_focus"] is None  # an ROI around the contact is its own focus
     a, b = (evaluate(r, gt)["contact"]["aae_deg"] for r in (whole, roi))
     assert a < 2.5 and abs(a - b) < 0.3, (a, b)
+    away = solve_press(press, roi=(0, 0, 60, 38))  # an ROI that misses the contact: nothing to focus on
+    assert away.report["outer_focus"] is None and away.reconstructed[away.mask].all()
 
 
 def test_auto_leaves_a_textured_bounce0_capture_unharmed(textured):
