@@ -335,7 +335,7 @@ class _OuterLoop:
     When the solve's mask is much larger than the dent (a whole frame), the passes before the last solve only
     the ``focus`` (the dent's box, :func:`_dent_focus`), where the light changes most from pass to pass, and
     keep the rest of the last result; the last pass solves the whole mask. On the default twin's 640x480
-    one-bounce sphere and cube presses that takes 12-14 s of solver time instead of 18-21 s, at contact AAE
+    one-bounce sphere and cube presses that takes 12-14 s of solver time instead of 19-21 s, at contact AAE
     0.495 / 0.408 deg against 0.492 / 0.414 with every pass on the whole frame (all pixels 0.51 against 0.73:
     fewer refined passes leave the frame's border better off; benchmarks/RESULTS.md). The light is updated
     on the mask's bounding box (outside it both the light and the gathered light are zero)."""
@@ -344,8 +344,8 @@ class _OuterLoop:
         self.model, self.press, self.leds, self.mask, self.relaxation = model, press, leds, mask, relaxation
         self.focus = focus
         """(H, W) bool or None -- what the passes before the last solve (None: the mask)."""
-        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-        self.box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))
+        x0, y0, w, h = _box_of(mask)
+        self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
         # the images' per-pixel total, for the relaxation: the same in every pass
         self.image_total = images[:, self.box[0], self.box[1]].sum(axis=(0, 3))
         self.shading = shading
@@ -390,7 +390,7 @@ class _OuterLoop:
         return result
 
     def _update(self, light: np.ndarray, gathered: np.ndarray) -> np.ndarray:
-        """The next pass's light ``L + w (gathered - L)``, clipped at 0, on the receivers' bounding box."""
+        """The next pass's light ``L + w (gathered - L)``, clipped at 0, on the mask's bounding box."""
         rows, cols = self.box
         now, new = light[:, rows, cols], gathered[:, rows, cols]
         omega = _relaxation(self.image_total, now) if self.relaxation == "auto" else float(self.relaxation)
@@ -399,7 +399,7 @@ class _OuterLoop:
 
 
 def _dent_focus(cmap: ContactMap, mask: np.ndarray) -> np.ndarray | None:
-    """(H, W) bool -- what the outer loop's later passes solve: the auto ROI's box widened by
+    """(H, W) bool -- what the outer loop's passes before the last solve: the auto ROI's box widened by
     ``tolerances.DENT_FOCUS_MARGIN`` of the image's short side, within ``mask``; None where that is
     most of the mask anyway (an ROI around the contact) or where no contact is found."""
     H, W = mask.shape
@@ -507,11 +507,10 @@ def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache
 
 
 def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, ref_surface: Surface) -> np.ndarray:
-    """Indirect light at the receivers ``mask`` of the solved surface: solved pixels where reconstructed
-    within ``mask``, the reference elsewhere (``ref_surface``, the reference as patches, is recomputed around
-    the solved pixels only)."""
+    """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere
+    (``ref_surface``, the reference as patches, is recomputed around the solved pixels only)."""
     ref = press.reference
-    rec = result.reconstructed & mask
+    rec = result.reconstructed
     depth = np.where(rec, result.depth, ref.depth)
     normals = np.where(rec[..., None], result.normals, ref.normals)
     typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
