@@ -121,10 +121,11 @@ def solve(
     init_depth : (H, W) float, mm, or None
         A close solution to start from (e.g. the previous pass of the outer interreflection loop,
         whose images differ only by a small change of the indirect light): the finest level alone is
-        solved from it, no pyramid. NaN pixels start from the prior.
+        solved from it, no pyramid (with ``refine_finest`` False: the next coarser level, from it
+        averaged down). NaN pixels start from the prior.
     refine_finest : False: the finest level is not iterated, only evaluated (normals, albedo) at the
-        depth brought up from the next coarser one -- a first pass of the outer interreflection loop,
-        whose indirect light is gathered on patches several pixels wide, needs no more.
+        depth brought up from the next coarser one -- a pass of the outer interreflection loop before its
+        last, whose indirect light is gathered on patches several pixels wide, needs no more.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -164,9 +165,15 @@ def solve(
     if init_depth is not None:
         init = np.asarray(init_depth, np.float64)[crop]
         t_first = np.where(m & np.isfinite(init) & (init > 0), np.log(np.where(init > 0, init, 1.0)), t0)
+    # a warm start solves the finest level from it; unrefined, the next coarser one (from it brought down)
+    warm_levels = 1 if refine_finest else 2
     levels = build_pyramid(
-        cam, data, use, m, t0, w0, opts if t_first is None else dataclasses.replace(opts, pyramid_levels=1)
+        cam, data, use, m, t0, w0, opts if t_first is None else dataclasses.replace(opts, pyramid_levels=warm_levels)
     )
+    if t_first is not None and len(levels) > 1:  # the start's change from the prior, averaged down inside the mask
+        shape = levels[0]["camera"].shape
+        change = resize(np.where(m, t_first - t0, 0.0), shape) / np.maximum(resize(m.astype(np.float32), shape), 1e-9)
+        t_first = levels[0]["t0"] + np.where(levels[0]["mask"], change, 0.0)
     report["levels"] = []
     bar = None
     if progress:

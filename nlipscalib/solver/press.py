@@ -150,10 +150,10 @@ def _solve_press(
     -------
     SolveResult -- ``report`` adds roi, prior, interreflection (the fitted model and the decision),
     indirect_compensation, dent_interreflection, outer_passes, outer_changes_deg (median normal change of
-    each outer pass), outer_focus (the box [x0, y0, w, h] the passes before the last solved, or None),
-    pass_seconds (the solver's timer of each NLiPs solve; ``seconds`` is their sum),
-    anchoring (what was decided and why),
-    anchored_pixels, dead_leds_contact, contact_seconds, indirect_seconds.
+    each outer pass; all but the last pass are unrefined), outer_focus (the box [x0, y0, w, h] the passes
+    before the last solved, or None), pass_seconds (the solver's timer of each NLiPs solve; ``seconds`` is
+    their sum), anchoring (what was decided and why), anchored_pixels, dead_leds_contact, contact_seconds,
+    indirect_seconds.
     """
     _check_modes(interreflection, bounces, outer_relaxation)
     leds = press.leds if leds is None else tuple(leds)
@@ -353,10 +353,10 @@ class _OuterLoop:
 
     def run(self, solve_with, max_passes: int) -> SolveResult:
         """``solve_with(light, init=None, refine_finest=True, receivers=None)`` -> SolveResult, called once per
-        pass (``receivers``: the pixels to solve, None for the mask); returns the last result. With passes to
-        come, the first one stops after the pyramid's next-to-finest level (its light is a gather over patches
-        several pixels wide, which the finest level's detail does not change): the last pass solves the finest
-        level of the whole mask from the last depth, so the result is refined everywhere."""
+        pass (``receivers``: the pixels to solve, None for the mask); returns the last result. Every pass but
+        the last stops at the pyramid's next-to-finest level (its light is a gather over patches several
+        pixels wide, which the finest level's detail does not change); the last solves the finest level of
+        the whole mask from the depth before it, so the result is refined everywhere."""
         t0 = time.perf_counter()
         press, ref = self.press, self.press.reference
         albedo0 = np.broadcast_to(np.asarray(self.model.off_view_albedo), (*press.camera.shape, 3))
@@ -367,26 +367,26 @@ class _OuterLoop:
         self.seconds += time.perf_counter() - t0
         result = solve_with(light, refine_finest=max_passes == 0)
         self.solver_seconds.append(result.report["seconds"])
-        final = self.focus is None
+        settled = False
         for k in range(max_passes):
             t0 = time.perf_counter()
             gathered = _solved_surface_light(self.model, press, self.leds, result, self.mask, ref_surface)
             light = self._update(light, gathered)
             self.seconds += time.perf_counter() - t0
-            final = final or k == max_passes - 1
-            # a small change of the light: start from the last depth
-            new = solve_with(light, init=result.depth, receivers=None if final else self.focus)
-            if not final:
-                new = _merged(result, new, self.focus)
+            last = settled or k == max_passes - 1
+            region = None if last else self.focus
+            # a small change of the light: start from the last depth; refined (and on the whole mask) at the last
+            new = solve_with(light, init=result.depth, refine_finest=last, receivers=region)
+            if region is not None:
+                new = _merged(result, new, region)
             self.passes += 1
-            change = _median_change_deg(result, new, self.mask if final else self.focus)
+            change = _median_change_deg(result, new, self.mask if region is None else region)
             self.changes.append(round(change, 4))
             self.solver_seconds.append(new.report["seconds"])
             result = new
-            if change < OUTER_TOL_DEG:
-                if final:
-                    break
-                final = True  # the dent has settled: one pass over the whole mask
+            if last:
+                break
+            settled = change < OUTER_TOL_DEG  # then one refined pass over the whole mask ends the loop
         return result
 
     def _update(self, light: np.ndarray, gathered: np.ndarray) -> np.ndarray:
