@@ -335,8 +335,8 @@ class _OuterLoop:
     When the solve's mask is much larger than the dent (a whole frame), the passes before the last solve only
     the ``focus`` (the dent's box, :func:`_dent_focus`), where the light changes most from pass to pass, and
     keep the rest of the last result; the last pass solves the whole mask. On the default twin's 640x480
-    one-bounce sphere and cube presses that takes 12-14 s of solver time instead of 19-21 s, at contact AAE
-    0.495 / 0.408 deg against 0.492 / 0.414 with every pass on the whole frame (all pixels 0.51 against 0.73:
+    one-bounce sphere and cube presses that takes 11-12 s of solver time instead of 19-21 s, at contact AAE
+    0.497 / 0.412 deg against 0.492 / 0.414 with every pass on the whole frame (all pixels 0.51 against 0.73:
     fewer refined passes leave the frame's border better off; benchmarks/RESULTS.md). The light is updated
     on the mask's bounding box (outside it both the light and the gathered light are zero)."""
 
