@@ -30,8 +30,9 @@ def register(subparsers) -> None:
         type=float,
         default=None,
         metavar="A",
-        help="the coating's diffuse reflectance 0-1 when known (measured or from its datasheet); default: fitted. "
-        "It fixes the interreflection term's magnitude, which the LED axes otherwise trade against",
+        help="the coating's diffuse reflectance 0-1 when known (measured or from its datasheet). It fixes the "
+        "interreflection term's magnitude, which the LED axes otherwise trade against; default: fitted, and with "
+        "--led-diameter chosen where the disk fit leaves the least residual",
     )
     p.set_defaults(func=run)
 
@@ -80,6 +81,12 @@ def run(args) -> int:
                 f"{i + 1:>3} centre ({', '.join(f'{c:.3f}' for c in disk.position)}) mm; the point LED sits "
                 f"{abs(along):.3f} mm {'behind' if along < 0 else 'in front of'} it, axes {tilt:.2f} deg apart"
             )
+    if cal.reflectance_profile is not None:
+        prof = cal.reflectance_profile
+        print(
+            f"coating reflectance from the images alone: {np.round(prof['chosen'], 3).tolist()} (least disk-fit "
+            f"residual over {len(prof['scales'])} tries; the free fit gave {np.round(prof['fitted'], 3).tolist()})"
+        )
     for i, model in enumerate(cal.interreflection):
         print(f"capture {i + 1}: {model.get('reason', '')}")
     print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {cal.albedo})")

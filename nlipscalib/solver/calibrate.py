@@ -42,6 +42,10 @@ class LedCalibration:
     a 3.6 mm disk about 0.2 mm behind its centre). Empty without ``led_radius``."""
     led_radius: float = 0.0
     """The emitting disk's radius the emitters were fitted with, mm (0: none)."""
+    reflectance_profile: dict | None = None
+    """With ``led_radius`` and no known coating reflectance: how the reflectance was chosen
+    (:func:`_profiled_reflectance`): the freely fitted one, the scales of it tried, their disk-fit residuals
+    and the chosen reflectance. None otherwise."""
 
     def to_json(self) -> dict:
         out = {
@@ -53,6 +57,8 @@ class LedCalibration:
         }
         if self.emitters:
             out["emitters"] = {"radius_mm": self.led_radius, "leds": [led.to_dict() for led in self.emitters]}
+        if self.reflectance_profile is not None:
+            out["reflectance_profile"] = self.reflectance_profile
         return out
 
 
@@ -118,7 +124,9 @@ def calibrate_leds(
         (measured, or from the coating's datasheet) instead of fitted. Why it matters: a ring-wide tilt of
         the LED axes and the indirect term's magnitude explain the images almost alike; on the twin the
         fitted reflectance comes out 0.89 for a true 0.8 and the axes ~2 deg too upright, with the true
-        reflectance ~1 deg (benchmarks/RESULTS.md).
+        reflectance ~1 deg (benchmarks/RESULTS.md). Unknown, with ``led_radius`` and the indirect term on,
+        it is profiled instead (:func:`_profiled_reflectance`): the reflectance whose disk fit leaves the
+        least residual, then the whole calibration again with it.
     """
     from .indirect import checked_reflectance, fit_indirect
 
@@ -170,7 +178,89 @@ def calibrate_leds(
     emitters = ()
     if led_radius > 0:  # from the points (0.2 mm off at most): the disk fit only refines them
         emitters = _to_leds(_fit_all(leds, x, n, direct, ok, loss, _disk_model(led_radius)))[0]
+    fitted_reflectance = _fitted_reflectance(models)
+    if led_radius > 0 and coating_reflectance is None and fitted_reflectance is not None:
+        profile = _profiled_reflectance(emitters, x, n, img, direct, ok, loss, led_radius, fitted_reflectance)
+        again = calibrate_leds(
+            presses,
+            initial=leds,
+            stride=stride,
+            loss=loss,
+            interreflection=interreflection,
+            bounces=bounces,
+            rounds=rounds,
+            led_radius=led_radius,
+            coating_reflectance=tuple(profile["chosen"]),
+        )
+        return dataclasses.replace(again, reflectance_profile=profile)
     return LedCalibration(leds, albedo, std, rms, models, emitters, float(led_radius))
+
+
+def _fitted_reflectance(models: list[dict]) -> np.ndarray | None:
+    """(3,) the coating reflectance the indirect term was fitted with (the first capture's whose term is on),
+    or None when no capture's term is on."""
+    for m in models:
+        if m.get("enabled"):
+            return np.asarray(m["coating_reflectance"], float)
+    return None
+
+
+PROFILE_SCALES = (0.6, 1.15)
+"""Range of the reflectance profile, as multiples of the freely fitted reflectance (:func:`_profiled_reflectance`)."""
+PROFILE_XTOL = 0.01
+"""The profile's tolerance on that multiple."""
+PROFILE_SAMPLES = 20_000
+"""The profile's disk fits use every k-th sample, k the smallest that leaves at most this many (a 640x480
+capture at stride 2 has ~55,000; fewer than ~5,000 made the residual's minimum wander by 0.03 in reflectance)."""
+
+
+def _profiled_reflectance(emitters, x, n, img, direct, ok, loss, radius, fitted) -> dict:
+    """The coating reflectance whose LED disk fit leaves the least residual, as a multiple of ``fitted``.
+
+    Why: a ring-wide tilt of the LED axes trades against the indirect term's magnitude, and the alternation
+    of LED fit and indirect fit settles on the tilted side (on the twin: 0.89-0.91 for a true 0.8, start
+    dependent). The point LEDs cannot arbitrate (a point is not the disk the light comes from: their residual
+    keeps falling with the reflectance), but the disk model is the emitter's own: its residual, with the
+    indirect light scaled by s (exact for one bounce, linear in the reflectance), is least near the true
+    reflectance (twin, 160x120: 0.75-0.80 for 0.8; benchmarks/RESULTS.md). Bounded Brent search over s
+    (scipy.optimize.minimize_scalar), each step a disk fit from ``emitters`` on at most
+    :data:`PROFILE_SAMPLES` samples.
+
+    Parameters
+    ----------
+    emitters : sequence of Led -- the disks fitted to ``direct`` (the start of every fit).
+    x, n : (N, 3) float, mm / unit, camera frame -- the samples' points and normals.
+    img, direct : (L, N, 3) float -- the images, and the images minus the indirect light at ``fitted``.
+    ok : (L, N, 3) bool -- usable samples.
+    loss : the LED fit's robust loss; radius : the disks' radius, mm.
+    fitted : (3,) float -- the freely fitted coating reflectance.
+
+    Returns
+    -------
+    dict -- fitted (3,), scales, residuals (sum over LEDs of the disk fit's squared RMS, image units), chosen (3,).
+    """
+    from scipy.optimize import minimize_scalar
+
+    light = img - direct
+    every = slice(None, None, -(-len(x) // PROFILE_SAMPLES))
+    xs, ns, imgs, lights, oks = x[every], n[every], img[:, every], light[:, every], ok[:, every]
+    model = _disk_model(radius)
+    tried: dict[float, float] = {}
+
+    def residual(s: float) -> float:
+        out = _fit_all(emitters, xs, ns, imgs - s * lights, oks, loss, model)
+        tried[float(s)] = float(sum(f[2] ** 2 for f in out))
+        return tried[float(s)]
+
+    top = min(PROFILE_SCALES[1], 1.0 / float(np.max(fitted)))
+    best = minimize_scalar(residual, bounds=(PROFILE_SCALES[0], top), method="bounded", options={"xatol": PROFILE_XTOL})
+    scales = sorted(tried)
+    return {
+        "fitted": [float(v) for v in fitted],
+        "scales": [round(s, 4) for s in scales],
+        "residuals": [tried[s] for s in scales],
+        "chosen": [float(v) for v in np.minimum(fitted * float(best.x), 1.0)],
+    }
 
 
 CALIBRATION_MIN_SHARE = 0.1

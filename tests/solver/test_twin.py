@@ -223,10 +223,11 @@ def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_pat
     assert "--coating-reflectance" in capsys.readouterr().err
 
 
-def test_led_calibration_with_a_known_coating_reflectance_on_an_interreflecting_capture(root):
+def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_interreflecting_capture(root):
     """Issue 6's LED acceptance on the default twin (3.6 mm disk LEDs, one bounce, noise): a ring-wide tilt of
-    the LED axes trades against the indirect term's magnitude, and the fitted reflectance comes out high
-    (0.89 for 0.8); with the coating's reflectance known, the LEDs as disks are within 2 deg and 0.3 mm."""
+    the LED axes trades against the indirect term's magnitude, and the freely fitted reflectance comes out high
+    (0.89 for 0.8). With the coating's reflectance known, or profiled from the images alone (the disk fit's
+    residual), the LEDs as disks are within 2 deg and 0.3 mm."""
     from nlipscalib.solver.indirect import fit_indirect
 
     flat = load_press(render_press(twin(bounces=1, spp=16, noise=True), None, root / "flat_b1_disk_leds", seed=3))
@@ -242,7 +243,16 @@ def test_led_calibration_with_a_known_coating_reflectance_on_an_interreflecting_
     ang, pos = worst(known.emitters)
     assert ang <= 2.0 and pos <= 0.3, (ang, pos)
     assert "reflectance set to [0.8, 0.8, 0.8]" in known.interreflection[0]["reason"]
-    assert worst(fitted.emitters)[0] > ang + 0.5  # the degeneracy the known value removes
+    assert known.reflectance_profile is None  # a known value is not profiled
+    # from the images alone: the free fit's reflectance is off (the degeneracy), the profiled one is not
+    ang, pos = worst(fitted.emitters)
+    assert ang <= 2.0 and pos <= 0.3, (ang, pos)
+    profile = fitted.reflectance_profile
+    free, chosen = profile["fitted"][0], profile["chosen"][0]
+    assert free > 0.85 and abs(chosen - 0.8) < 0.04, profile
+    assert len(profile["scales"]) == len(profile["residuals"]) >= 4
+    assert min(profile["residuals"]) < profile["residuals"][profile["scales"].index(max(profile["scales"]))]
+    assert "reflectance set to" in fitted.interreflection[0]["reason"]
     # the model with a set reflectance scales its light with it (the solver's --coating-albedo too)
     model = fit_indirect(flat, true)
     half = model.with_reflectance(np.asarray(model.reflectance) / 2)
