@@ -211,7 +211,8 @@ PROFILE_XTOL = 0.01
 """The profile's tolerance on that multiple."""
 PROFILE_SAMPLES = 20_000
 """The profile's disk fits use every k-th sample, k the smallest that leaves at most this many (a 640x480
-capture at stride 2 has ~55,000; fewer than ~5,000 made the residual's minimum wander by 0.03 in reflectance)."""
+capture at stride 2 has ~55,000; every second of a 160x120 capture's ~3,400 moved the chosen reflectance from
+0.78 to 0.75, and its LED positions by 0.03 mm)."""
 
 
 def _profiled_reflectance(emitters, x, n, img, direct, ok, loss, radius, fitted) -> dict:
