@@ -98,7 +98,7 @@ def led_arrays(leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     )
 
 
-def led_shading(points: np.ndarray, normals: np.ndarray, leds) -> np.ndarray:
+def led_shading(points: np.ndarray, normals: np.ndarray, leds, out: np.ndarray | None = None) -> np.ndarray:
     """Near-light shading factor of every LED at every point (the image model without albedo).
 
     Parameters
@@ -106,22 +106,44 @@ def led_shading(points: np.ndarray, normals: np.ndarray, leds) -> np.ndarray:
     points : (..., 3) float, mm, camera frame
     normals : (..., 3) float, unit, camera frame, pointing toward the camera
     leds : sequence of Led, length L
+    out : (L, ..., 3) float64 or None -- where to write the result (e.g. a block of rows of a larger array);
+        each LED's part must be contiguous.
 
     Returns
     -------
     shading : (L, ..., 3) float64 -- Psi_ic (n_s.d)^mu max(0, cos) / r^2 per LED and channel;
-        multiply by rho_c to get the linear image.
+        multiply by rho_c to get the linear image (``out`` when given).
     """
     points = np.asarray(points, dtype=np.float64)
     normals = np.asarray(normals, dtype=np.float64)
     if points.shape[-1:] != (3,) or normals.shape != points.shape:
         raise ShapeError(f"points and normals must both be (..., 3), got {points.shape} and {normals.shape}")
     pos, dirs, mu, psi = led_arrays(leds)
-    out = np.empty((len(pos),) + points.shape, dtype=np.float64)
+    flat_points, flat_normals = points.reshape(-1, 3), normals.reshape(-1, 3)
+    shape = (len(pos),) + points.shape
+    if out is None:
+        out = np.empty(shape, dtype=np.float64)
+    elif out.shape != shape or out.dtype != np.float64 or not all(part.flags.c_contiguous for part in out):
+        raise ShapeError(f"out must be {shape} float64, contiguous per LED, got {out.shape} {out.dtype}")
+    flat_out = [part.reshape(-1, 3) for part in out]  # views: each LED's part is contiguous
+    for start in range(0, len(flat_points), SHADING_BLOCK):
+        block = slice(start, start + SHADING_BLOCK)
+        _shade_block(flat_points[block], flat_normals[block], pos, dirs, mu, psi, [o[block] for o in flat_out])
+    return out
+
+
+SHADING_BLOCK = 16384
+"""Points per block of :func:`led_shading`: its temporaries (128 KiB each) then stay in the CPU's cache. Three
+times faster than whole-image temporaries at 640x480 with 12 LEDs (0.12 against 0.38 s, the same numbers);
+4096 to 65536 time alike."""
+
+
+def _shade_block(points, normals, pos, dirs, mu, psi, out) -> None:
+    """:func:`led_shading` of (P, 3) points and normals into ``out``, L arrays (P, 3)."""
     # one contiguous plane per coordinate, in place where possible: products summed over a length-3
     # last axis are several times slower in NumPy (this runs over every pixel of every LED image)
-    x = [np.ascontiguousarray(points[..., k]) for k in range(3)]
-    n = [np.ascontiguousarray(normals[..., k]) for k in range(3)]
+    x = [np.ascontiguousarray(points[:, k]) for k in range(3)]
+    n = [np.ascontiguousarray(normals[:, k]) for k in range(3)]
     for i in range(len(pos)):
         d = [pos[i, k] - x[k] for k in range(3)]  # x_s - x
         r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
@@ -133,8 +155,7 @@ def led_shading(points: np.ndarray, normals: np.ndarray, leds) -> np.ndarray:
         if mu[i] > 0:
             cos_surface *= cos_led if mu[i] == 1.0 else cos_led ** mu[i]
         cos_surface /= r2
-        np.multiply(cos_surface[..., None], psi[i], out=out[i])
-    return out
+        np.multiply(cos_surface[:, None], psi[i], out=out[i])
 
 
 # Radon's 7-point rule on the unit disk (exact for polynomials of degree 5): the centre, weight 1/4,

@@ -1,7 +1,8 @@
 """BLAS thread control (threadpoolctl): limits for the solver, and the setting results depend on.
 
-The solver's BLAS work is small vector operations, faster on one thread; the interreflection gathers
-are large matrix products, which BLAS splits by thread, so their last bits depend on the thread count.
+The solver's BLAS work is small vector operations, faster on one thread; the interreflection gathers are
+blocks of matrix products, which run on one BLAS thread each (radiosity.gather splits them over its own
+threads). A product's last bits depend on BLAS's thread count, so results kept for reuse record it.
 """
 
 from __future__ import annotations

@@ -156,9 +156,14 @@ def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray)
     pts = depth_to_points(np.where(valid, depth, 0.0), camera.rays)
     nrm = np.where(valid[..., None], normals, 0.0).astype(np.float64)
     leds = tuple(leds)
-    s = np.concatenate(threads.map_items(lambda part: led_shading(pts, nrm, leds[part]), threads.chunks(len(leds))))
-    s[:, ~valid] = 0.0
-    return s
+    out = np.empty((len(leds),) + depth.shape + (3,))
+
+    def rows(block):  # written in place by blocks of rows, one per thread: no (L, H, W, 3) temporaries
+        led_shading(pts[block], nrm[block], leds, out=out[:, block])
+        out[:, block][:, ~valid[block]] = 0.0
+
+    threads.map_items(rows, threads.chunks(depth.shape[0]))
+    return out
 
 
 def reference_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:

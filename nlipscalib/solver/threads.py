@@ -10,11 +10,13 @@ means, the reference surface's shading) loop over LEDs with large array operatio
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 
 from ..cpus import usable_cores
 
+_PREFIX = "nlips-pool"
 _workers: int | None = None
 _pool: ThreadPoolExecutor | None = None
 
@@ -43,11 +45,12 @@ def set_workers(count: int) -> None:
 def map_items(fn: Callable, items: Iterable) -> list:
     """``[fn(x) for x in items]``, on the thread pool when there is more than one core and one item."""
     items = list(items)
-    if workers() == 1 or len(items) < 2:
+    # a call from one of the pool's own threads runs in it: waiting there on the pool could deadlock it
+    if workers() == 1 or len(items) < 2 or threading.current_thread().name.startswith(_PREFIX):
         return [fn(x) for x in items]
     global _pool
     if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=workers(), thread_name_prefix="nlips")
+        _pool = ThreadPoolExecutor(max_workers=workers(), thread_name_prefix=_PREFIX)
     return list(_pool.map(fn, items))
 
 

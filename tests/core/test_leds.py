@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core.leds import Led, led_shading, tricolor_groups
-from nlipscalib.errors import ConfigError
+from nlipscalib.errors import ConfigError, ShapeError
 
 
 def test_shading_known_answer_directly_below_led():
@@ -82,3 +82,28 @@ def test_disk_shading_of_radius_zero_is_the_point_model_and_off_axis_is_a_disk_m
     np.testing.assert_allclose(disk_shading(pts, nrm, leds[:1], R)[0], fine, rtol=2e-3)
     with pytest.raises(ConfigError):
         disk_shading(pts, nrm, leds, -1.0)
+
+
+def test_shading_in_cache_sized_blocks_equals_each_point_alone(monkeypatch):
+    # the blocked evaluation (led_shading's speed) must give every point the numbers of a lone evaluation,
+    # across block boundaries, for any leading shape
+    import nlipscalib.core.leds as leds_module
+
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-5, 5, (7, 5, 3)) + np.array([0.0, 0.0, 14.0])
+    normals = rng.normal(size=(7, 5, 3)) - np.array([0.0, 0.0, 2.0])
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    leds = [Led((9 * np.cos(a), 9 * np.sin(a), 3.0), (0.0, 0.3, 1.0), 1.5, (1.0, 0.9, 0.8)) for a in (0.0, 2.0, 4.0)]
+    monkeypatch.setattr(leds_module, "SHADING_BLOCK", 4)  # 35 points: nine blocks, the last one partial
+    blocked = led_shading(points, normals, leds)
+    assert blocked.shape == (3, 7, 5, 3)
+    pairs = zip(points.reshape(-1, 3), normals.reshape(-1, 3))
+    alone = np.stack([led_shading(p[None], n[None], leds)[:, 0] for p, n in pairs], 1)
+    np.testing.assert_array_equal(blocked, alone.reshape(blocked.shape))
+    assert (blocked > 0).mean() > 0.3  # most points are lit: the comparison is not between zeros
+    out = np.full((3, 7, 5, 3), np.nan)
+    for rows in (slice(0, 3), slice(3, 7)):  # written in place by blocks of rows (the solver's threads)
+        assert led_shading(points[rows], normals[rows], leds, out=out[:, rows]) is not None
+    np.testing.assert_array_equal(out, blocked)
+    with pytest.raises(ShapeError, match="out must be"):
+        led_shading(points, normals, leds, out=np.empty((3, 5, 7, 3)))

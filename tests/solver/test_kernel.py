@@ -1,0 +1,74 @@
+"""The per-pixel model on cache-sized pixel chunks gives the numbers of the model on all pixels at once."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.solver import kernel
+
+from . import synth
+
+
+@pytest.fixture()
+def level():
+    """A model's inputs on 1,000 pixels of a dome seen by the default ring (lit, with some shadowed samples)."""
+    rng = np.random.default_rng(5)
+    n = 1000
+    q = np.column_stack([rng.uniform(-0.8, 0.8, (n, 2)), np.ones(n)])
+    A = rng.normal(0.0, 0.02, (n, 3))
+    B = rng.normal(0.0, 0.02, (n, 3))
+    C = np.column_stack([rng.normal(0.0, 1e-4, (n, 2)), np.full(n, 1e-3)])  # N = -C faces the camera
+    leds = synth.ring_leds(jitter=1)
+    pos = np.array([led.position for led in leds])
+    dirs = np.array([led.direction for led in leds])
+    mu = np.array([led.mu for led in leds])
+    psi = np.array([led.intensity for led in leds])
+    images = rng.uniform(0.0, 1.0, (len(leds), 3, n)).astype(np.float32)
+    usable = (rng.uniform(size=images.shape) > 0.1).astype(np.float32)
+    t = np.log(rng.uniform(12.0, 15.0, n))
+    grad = rng.normal(0.0, 1e-3, (2, n))
+    return (q, A, B, C, pos, dirs, mu, psi, images, usable), (t, *grad)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_chunked_model_equals_the_model_on_all_pixels(monkeypatch, level, dtype):
+    monkeypatch.setattr(kernel, "CHUNK_PIXELS", 96)  # 11 chunks, the last one partial
+    args, (t, tu, tv) = level
+    be = kernel.Backend("numpy", dtype)
+    whole, chunked = kernel.Model(be, *args), kernel.ChunkedModel(be, *args)
+    assert len(chunked.parts) == 11
+    F, *dF = whole.shading(t, tu, tv, True)
+    Fc, *dFc = chunked.shading(t, tu, tv, True)
+    assert (F > 0).mean() > 0.5  # lit: the comparison is between numbers, not zeros
+    for a, b in zip([F, *dF], [Fc, *dFc]):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(whole.shading(t, tu, tv), chunked.shading(t, tu, tv))
+    albedo = np.full((3, len(t)), 0.5, be.dtype)
+    r = whole.residuals(F, albedo)
+    np.testing.assert_array_equal(r, chunked.residuals(F, albedo))
+    w = whole.weights(r, 0.1, "cauchy")
+    np.testing.assert_array_equal(w, chunked.weights(r, 0.1, "cauchy"))
+    np.testing.assert_array_equal(whole.albedo(F, w), chunked.albedo(F, w))
+    np.testing.assert_allclose(whole.data_energy(r, 0.1, "cauchy"), chunked.data_energy(r, 0.1, "cauchy"), rtol=1e-12)
+    np.testing.assert_array_equal(whole.gradient_curvature(dF, albedo, w), chunked.gradient_curvature(dF, albedo, w))
+    for a, b in zip(whole.gauss_newton_blocks(F, dF, r, w, albedo), chunked.gauss_newton_blocks(F, dF, r, w, albedo)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_large_levels_run_chunked_whatever_the_core_count(monkeypatch, level):
+    from nlipscalib.solver import threads
+
+    args, _ = level
+    be = kernel.Backend("numpy", "float32")
+    monkeypatch.setattr(kernel, "PARALLEL_MIN_PIXELS", 500)
+    monkeypatch.setattr(threads, "workers", lambda: 1)
+    assert isinstance(kernel.make_model(be, *args), kernel.ChunkedModel)
+    monkeypatch.setattr(kernel, "PARALLEL_MIN_PIXELS", 5000)
+    assert isinstance(kernel.make_model(be, *args), kernel.Model)
+
+
+def test_thread_pool_work_nested_in_a_pool_thread_runs_there(monkeypatch):
+    from nlipscalib.solver import threads
+
+    monkeypatch.setattr(threads, "workers", lambda: 2)
+    out = threads.map_items(lambda i: sum(threads.map_items(lambda j: i * j, range(3))), range(4))
+    assert out == [0, 3, 6, 9]

@@ -1,0 +1,35 @@
+"""The AMG set-up's BSR deduplication shortcut: same matrices, SciPy's method restored afterwards."""
+
+import numpy as np
+import scipy.sparse as sp
+
+from nlipscalib.solver import krylov
+
+
+def _unsorted_bsr(duplicate: bool):
+    # rows 0 and 2 hold their columns out of order; with ``duplicate`` row 1 holds column 0 twice
+    indptr = np.array([0, 2, 4, 6])
+    indices = np.array([2, 0, 0, 0 if duplicate else 1, 2, 1])
+    data = np.arange(1.0, 7.0).reshape(-1, 1, 1)
+    return sp.bsr_array((data, indices, indptr), shape=(3, 3))
+
+
+def test_dedup_shortcut_keeps_the_matrix_and_restores_scipy():
+    original = type(_unsorted_bsr(False)).sum_duplicates
+    for duplicate in (False, True):
+        expected = _unsorted_bsr(duplicate).toarray()
+        with krylov._compiled_bsr_dedup():
+            m = _unsorted_bsr(duplicate)
+            m.sum_duplicates()
+            assert m.has_canonical_format
+            np.testing.assert_array_equal(m.toarray(), expected)
+            assert len(m.indices) == (5 if duplicate else 6)
+        assert abs(m).toarray().sum() == np.abs(expected).sum()
+    assert type(_unsorted_bsr(False)).sum_duplicates is original
+
+
+def test_has_duplicates_only_within_a_row():
+    # the last column of row 0 equals the first of row 1: not a duplicate
+    assert not krylov._has_duplicates(np.array([0, 2, 4]), np.array([0, 3, 3, 5]))
+    assert krylov._has_duplicates(np.array([0, 2, 4]), np.array([0, 3, 5, 5]))
+    assert not krylov._has_duplicates(np.array([0, 0, 1, 1]), np.array([2]))  # empty rows
