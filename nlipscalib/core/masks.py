@@ -50,3 +50,19 @@ def components(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     cv2 = _cv2()
     count, labels, stats, _ = cv2.connectedComponentsWithStats(_u8(mask), connectivity=4)
     return labels, stats[1:count, cv2.CC_STAT_AREA].astype(np.int64)
+
+
+STATISTIC_PIXELS = 20_000
+"""Pixels an image statistic (a percentile, a noise MAD) is taken on at least, where the image has them."""
+
+
+def sample_grid(mask: np.ndarray, min_pixels: int = STATISTIC_PIXELS) -> np.ndarray:
+    """(H, W) bool -- ``mask`` on the coarsest regular grid (every 4th, 2nd or 1st row and column) that keeps
+    at least ``min_pixels`` of its pixels (the whole mask when none does): where image statistics (percentiles,
+    a noise MAD) are taken. Such a statistic of 2 x 10^4 pixels is within ~1 % of the one of all of them."""
+    for rows, cols in ((4, 4), (4, 2), (2, 2), (2, 1)):
+        grid = np.zeros_like(mask, dtype=bool)
+        grid[::rows, ::cols] = mask[::rows, ::cols]
+        if grid.sum() >= min_pixels:
+            return grid
+    return np.asarray(mask, bool)

@@ -25,6 +25,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from ..core import masks
 from ..core.camera import Camera
 from ..core.leds import led_arrays
 from ..core.reconstruction import Reconstruction
@@ -63,15 +64,17 @@ def exclusions(
     """
     L = images.shape[0]
     sat = np.zeros(images.shape, bool) if saturated is None else saturated
-    # The thresholds are image statistics: every second row and column gives the same 99th
-    # percentiles as all pixels at a quarter of the cost (this dominated small ROI solves).
-    sample = (images if whole is None else whole)[:, ::2, ::2].astype(images.dtype, copy=False)
+    # The thresholds are image statistics: a regular subgrid of the whole images gives the same 99th
+    # percentiles as all pixels at a fraction of the cost (this dominated small ROI solves).
+    source = images if whole is None else whole
+    index = np.flatnonzero(masks.sample_grid(np.ones(source.shape[1:3], bool)))
+    sample = np.stack([image.reshape(-1, 3)[index] for image in source]).astype(images.dtype, copy=False)
     per_led_high = np.percentile(sample.reshape(L, -1), 99, axis=1)
     dead_leds = [i for i in range(L) if per_led_high[i] < options.dead_led_level]
     # max over LEDs first (a reduction along the contiguous leading axis), then over the channels
     dead_px = images.max(axis=0).max(axis=-1) <= options.dead_pixel_level
     # Shadow threshold per LED and channel, relative to that image's bright end.
-    high_c = np.percentile(sample.reshape(L, -1, 3), 99, axis=1)  # (L, 3)
+    high_c = np.percentile(sample, 99, axis=1)  # (L, 3)
     shadow = images < options.shadow_level * high_c[:, None, None, :]
     usable = ~sat & ~shadow & ~dead_px[None, :, :, None]
     usable[dead_leds] = False

@@ -33,3 +33,16 @@ def test_components_match_scipy_ndimage_labels(mask):
     assert ((labels > 0) == mask).all()
     empty_labels, empty_sizes = masks.components(np.zeros((4, 5), bool))
     assert len(empty_sizes) == 0 and not empty_labels.any()
+
+
+def test_sample_grid_is_the_coarsest_regular_grid_with_enough_pixels():
+    from nlipscalib.core.masks import sample_grid
+
+    mask = np.ones((480, 640), bool)
+    grid = sample_grid(mask, 20_000)  # every 4th row and column: 19,200, too few; every 4th row, 2nd column
+    assert grid.sum() == 38_400 and grid[::4, ::2].all() and not grid[1::4].any() and not grid[:, 1::2].any()
+    assert sample_grid(mask, 19_000).sum() == 19_200
+    small = np.zeros((72, 96), bool)
+    small[10:60, 20:80] = True
+    assert np.array_equal(sample_grid(small, 20_000), small)  # fewer than asked: all of it
+    assert not (sample_grid(small, 500) & ~small).any()  # never outside the mask
