@@ -105,18 +105,26 @@ def difference_operators(mask: np.ndarray, backward: bool = False) -> tuple[sp.c
     return ops[0], ops[1], ok
 
 
-def gradient_operators(mask: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray]:
+def gradient_operators(
+    mask: np.ndarray, forward=None, backward=None
+) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray]:
     """Central differences (t[p+1] - t[p-1]) / 2 inside the mask, second-order one-sided at its edges.
 
     The mean of the forward- and backward-preferring operators of :func:`difference_operators`.
+
+    Parameters
+    ----------
+    mask : (H, W) bool
+    forward, backward : :func:`difference_operators` of ``mask`` (forward and backward), when the caller has
+        them (None: computed here).
 
     Returns
     -------
     Du, Dv : (N, N) scipy.sparse.csr_matrix, float64, per pixel
     has_gradient : (N,) bool
     """
-    du_f, dv_f, ok = difference_operators(mask)
-    du_b, dv_b, _ = difference_operators(mask, backward=True)
+    du_f, dv_f, ok = difference_operators(mask) if forward is None else forward
+    du_b, dv_b, _ = difference_operators(mask, backward=True) if backward is None else backward
     out = []
     for axis, f, b in ((1, du_f, du_b), (0, dv_f, dv_b)):
         nxt = np.zeros_like(mask)

@@ -297,9 +297,10 @@ def _operators(lv: dict) -> dict:
 
 
 def _make_operators(mk: np.ndarray) -> dict:
-    Du, Dv, has_grad = geometry.gradient_operators(mk)
-    du_f, dv_f, _ = geometry.difference_operators(mk)
-    du_b, dv_b, _ = geometry.difference_operators(mk, backward=True)
+    forward = geometry.difference_operators(mk)
+    backward = geometry.difference_operators(mk, backward=True)
+    Du, Dv, has_grad = geometry.gradient_operators(mk, forward, backward)
+    (du_f, dv_f, _), (du_b, dv_b, _) = forward, backward
     # Second differences (forward minus backward; zero at edges): the checkerboard modes central
     # differences cannot see. A weak penalty on them couples the sub-lattices (and lets AMG work).
     second = [(du_f - du_b).tocsr(), (dv_f - dv_b).tocsr()]
@@ -449,8 +450,8 @@ def _solve_level(
     albedo, r = refit(F, albedo)
     u_np = lv["usable"]
     cnt = u_np.sum(axis=(0, 1))
-    sq = be.numpy(model.usable * r * r).sum(axis=(0, 1))
-    wsum = be.numpy(model.weights(r, lam, est)).sum(axis=(0, 1))
+    sq = be.pixel_sums(model.usable * r * r)
+    wsum = be.pixel_sums(model.weights(r, lam, est))
     rms = np.sqrt(sq / np.maximum(cnt, 1))
     conf = (cnt / (u_np.shape[0] * u_np.shape[1])) * (wsum / np.maximum(cnt, 1))
     result = {

@@ -97,10 +97,11 @@ def _direct_shading(press):
 
 
 def test_undeformed_light_kept_apart_gives_the_classification_of_the_sum(sphere_press):
-    """``undeformed_light`` is added after smoothing (linear), and the read-only shading's smoothed copy is
-    reused: both give the misfit of classifying against ``shading + light`` in one array."""
+    """``undeformed_light`` (smooth at the blur's scale) is added to the smoothed shading, and the read-only
+    shading's smoothed copy is reused: both give the misfit of classifying against ``shading + light``."""
     shading = _direct_shading(sphere_press)
-    light = 0.2 * np.roll(shading, 7, axis=2)  # any positive extra light, unlike the shading's shape
+    # a positive extra light unlike the shading's shape, smooth (constant per LED and channel: the blur keeps it)
+    light = np.broadcast_to(0.2 * shading.mean(axis=(1, 2), keepdims=True), shading.shape).copy()
     summed = classify_contact(sphere_press, undeformed_images=shading + light)
     shading.flags.writeable = False
     first = classify_contact(sphere_press, undeformed_images=shading, undeformed_light=light)
