@@ -101,8 +101,9 @@ def _compiled_bsr_dedup():
 
     Why: the "local" weighting takes ``abs`` of each coarse level's Galerkin product (BSR, 1x1 blocks),
     and SciPy deduplicates a BSR matrix in a Python loop over its rows even when, as here, its entries
-    are only unsorted, never duplicated: 0.56 s of a 0.99 s set-up on a 307,200-pixel level (profiled,
-    benchmarks/RESULTS.md). The result is the same matrix; the loop still runs if a duplicate exists.
+    are only unsorted, never duplicated: 0.56 s of a 0.99 s set-up on a 307,200-pixel level under cProfile,
+    which inflates Python loops; 0.1-0.2 s of wall time of a whole-frame solve (benchmarks/RESULTS.md). The
+    result is the same matrix; the loop still runs if a duplicate exists.
     """
     cls = next(c for c in type(sp.bsr_array((1, 1))).__mro__ if "sum_duplicates" in vars(c))
     original = cls.sum_duplicates
