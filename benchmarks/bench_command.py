@@ -11,7 +11,12 @@ bounce at 16 spp (the interreflection term and its outer loop run) and direct li
 
 The machine's 2 cores are shared with other work: the load average before and after is recorded.
 
-Run: .venv/bin/python benchmarks/bench_command.py [--repeats 3] [--no-twin]
+With ``--against DIR`` (another checkout, e.g. ``git worktree add /tmp/before REV``) every run of each case
+alternates between this checkout and that one on the same presses, so both see the same load; the table
+gets the other checkout's medians next to this one's. Every process runs from a temporary folder with
+``PYTHONPATH`` set: run from a checkout, Python's ``''`` path entry would import that checkout's package.
+
+Run: .venv/bin/python benchmarks/bench_command.py [--repeats 3] [--no-twin] [--against DIR]
 Writes the "bench_command" section of benchmarks/RESULTS.md.
 """
 
@@ -37,16 +42,19 @@ CLI = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))
 GOALS = {"full": 4.0, "auto ROI": 1.5}
 
 
-def run_process(args: list[str], cpu: list | None = None) -> float:
-    """Wall seconds of ``python -c CLI args`` (fails loudly on a non-zero exit); appends its CPU seconds to ``cpu``.
+def run_process(args: list[str], cpu: list | None = None, root: Path = ROOT) -> float:
+    """Wall seconds of ``python -c CLI args`` with ``root``'s package (fails loudly on a non-zero exit); appends
+    its CPU seconds to ``cpu``.
 
     CPU time (user + system of the child) is the steadier number on a shared machine: it does not
     count the time the process waited for a core.
     """
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env = dict(os.environ, PYTHONPATH=str(root))
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", CLI, *args], env=env, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", CLI, *args], env=env, capture_output=True, text=True, cwd=tempfile.gettempdir()
+    )
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
@@ -59,23 +67,22 @@ def run_process(args: list[str], cpu: list | None = None) -> float:
 def run_python(code: str) -> float:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", code], env=env, check=True)
+    subprocess.run([sys.executable, "-c", code], env=env, check=True, cwd=tempfile.gettempdir())
     return time.perf_counter() - t0
 
 
-def time_case(press: Path, extra: list[str], repeats: int) -> dict:
-    """Median process wall and the inner timers of ``nlips solve press --overwrite extra``."""
-    walls, cpu, solver, load, solve = [], [], [], [], []
+def time_case(press: Path, extra: list[str], repeats: int, roots: tuple[Path, ...] = (ROOT,)) -> list[dict]:
+    """Median process wall and the inner timers of ``nlips solve press --overwrite extra``, per checkout in
+    ``roots`` (their runs alternate)."""
+    series = [{"wall": [], "cpu": [], "solver": [], "load": [], "solve": []} for _ in roots]
     for _ in range(repeats + 1):  # the first run warms the page cache
-        walls.append(run_process(["solve", str(press), "--overwrite", "--no-progress", *extra], cpu))
-        report = json.loads((press / "nlips" / "report.json").read_text())
-        solver.append(report["seconds"])
-        load.append(report["command_seconds"]["load"])
-        solve.append(report["command_seconds"]["solve"])
-    series = {"wall": walls, "cpu": cpu, "solver": solver, "load": load, "solve": solve}
-    med = {k: statistics.median(v[1:]) for k, v in series.items()}
-    med["roi"] = report.get("roi")
-    return med
+        for root, s in zip(roots, series):
+            s["wall"].append(run_process(["solve", str(press), "--overwrite", "--no-progress", *extra], s["cpu"], root))
+            report = json.loads((press / "nlips" / "report.json").read_text())
+            s["solver"].append(report["seconds"])
+            s["load"].append(report["command_seconds"]["load"])
+            s["solve"].append(report["command_seconds"]["solve"])
+    return [{k: statistics.median(v[1:]) for k, v in s.items()} for s in series]
 
 
 BREAKDOWN = """
@@ -147,7 +154,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--no-twin", action="store_true", help="exact-data press only (no Mitsuba renders)")
+    parser.add_argument("--against", type=Path, help="another checkout to time alternately (its medians as 'before')")
     args = parser.parse_args()
+    roots = (ROOT,) if args.against is None else (ROOT, args.against.resolve())
+    if args.against is not None and not (args.against / "nlipscalib" / "cli").is_dir():
+        raise SystemExit(f"--against {args.against}: not a checkout of nlipscalib (no nlipscalib/cli)")
     from tests.solver import synth
 
     before = load_average()
@@ -174,7 +185,7 @@ def main() -> None:
                 cases.append((label, folder, "full", "maps (default)", []))
         rows = []
         for label, folder, name, figs, extra in cases:
-            rows.append((label, name, figs, time_case(folder, extra, args.repeats)))
+            rows.append((label, name, figs, *time_case(folder, extra, args.repeats, roots)))
             print(rows[-1], flush=True)
         stages = {case: breakdown(press, case, Path(tmp)) for case in ("full", "auto")}
         skip = statistics.median(
@@ -189,15 +200,18 @@ def main() -> None:
         "inflation of every number when the load is above 2).",
         "",
         "| press | case | figures | process wall s | process CPU s | solver timer s | load s | solve_press s "
-        "| rest s (imports, save, figures) | goal s |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| rest s (imports, save, figures) | goal s |" + (" before: wall s / solver s |" if args.against else ""),
+        "|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.against else ""),
     ]
-    for label, name, figs, m in rows:
+    for label, name, figs, m, *other in rows:
         rest = m["wall"] - m["load"] - m["solve"]
         lines.append(
             f"| {label} | {name} | {figs} | {m['wall']:.2f} | {m['cpu']:.2f} | {m['solver']:.2f} | {m['load']:.2f} "
             f"| {m['solve']:.2f} | {rest:.2f} | {GOALS[name]:.1f} |"
+            + "".join(f" {o['wall']:.2f} / {o['solver']:.2f} |" for o in other)
         )
+    if args.against:
+        lines += ["", f"`before`: the checkout {args.against} (its runs alternate with this one's, same presses)."]
     lines += [
         "",
         "`solver timer s` is the NLiPs solver's own timer summed over the outer interreflection passes; "
