@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import threading
 
 import numpy as np
 import scipy.sparse as sp
@@ -94,6 +95,10 @@ def _amg_preconditioner(Hm: sp.csr_matrix):
     return ml.aspreconditioner(cycle="V")
 
 
+_dedup_lock = threading.Lock()
+_dedup_users = [0, None]  # [set-ups inside the block now, SciPy's own method while they are]
+
+
 @contextlib.contextmanager
 def _compiled_bsr_dedup():
     """Within the block, SciPy's BSR ``sum_duplicates`` first sorts (compiled) and returns when no
@@ -103,24 +108,32 @@ def _compiled_bsr_dedup():
     and SciPy deduplicates a BSR matrix in a Python loop over its rows even when, as here, its entries
     are only unsorted, never duplicated: 0.56 s of a 0.99 s set-up on a 307,200-pixel level under cProfile,
     which inflates Python loops; 0.1-0.2 s of wall time of a whole-frame solve (benchmarks/RESULTS.md). The
-    result is the same matrix; the loop still runs if a duplicate exists.
+    result is the same matrix; the loop still runs if a duplicate exists. Set-ups in several threads share
+    one installation (counted under a lock): SciPy's method is back once the last one leaves.
     """
     cls = next(c for c in type(sp.bsr_array((1, 1))).__mro__ if "sum_duplicates" in vars(c))
-    original = cls.sum_duplicates
+    with _dedup_lock:
+        if _dedup_users[0] == 0:
+            original = cls.sum_duplicates
+            _dedup_users[1] = original
 
-    def sum_duplicates(self):
-        if not self.has_canonical_format:
-            self.sort_indices()
-            if not _has_duplicates(self.indptr, self.indices):
-                self.has_canonical_format = True
-                return
-        original(self)
+            def sum_duplicates(self):
+                if not self.has_canonical_format:
+                    self.sort_indices()
+                    if not _has_duplicates(self.indptr, self.indices):
+                        self.has_canonical_format = True
+                        return
+                original(self)
 
-    cls.sum_duplicates = sum_duplicates
+            cls.sum_duplicates = sum_duplicates
+        _dedup_users[0] += 1
     try:
         yield
     finally:
-        cls.sum_duplicates = original
+        with _dedup_lock:
+            _dedup_users[0] -= 1
+            if _dedup_users[0] == 0:
+                cls.sum_duplicates = _dedup_users[1]
 
 
 def _has_duplicates(indptr: np.ndarray, indices: np.ndarray) -> bool:

@@ -33,3 +33,17 @@ def test_has_duplicates_only_within_a_row():
     assert not krylov._has_duplicates(np.array([0, 2, 4]), np.array([0, 3, 3, 5]))
     assert krylov._has_duplicates(np.array([0, 2, 4]), np.array([0, 3, 5, 5]))
     assert not krylov._has_duplicates(np.array([0, 0, 1, 1]), np.array([2]))  # empty rows
+
+
+def test_dedup_shortcut_nested_or_overlapping_restores_scipy_once_the_last_leaves():
+    original = type(_unsorted_bsr(False)).sum_duplicates
+    outer = krylov._compiled_bsr_dedup()
+    inner = krylov._compiled_bsr_dedup()
+    outer.__enter__()
+    installed = type(_unsorted_bsr(False)).sum_duplicates
+    inner.__enter__()  # a second set-up (another thread) shares the installation
+    assert type(_unsorted_bsr(False)).sum_duplicates is installed is not original
+    outer.__exit__(None, None, None)  # the first leaves before the second: still installed
+    assert type(_unsorted_bsr(False)).sum_duplicates is installed
+    inner.__exit__(None, None, None)
+    assert type(_unsorted_bsr(False)).sum_duplicates is original
