@@ -209,8 +209,13 @@ def _solve_press(
 
     boxed = _BoxCompensation(images, mask)
 
+    def compensated(light):
+        if light is None:
+            return images
+        return compensate(images, light) if light is fixed_light else boxed(light)  # fixed: any light
+
     def run(light, init=None, refine_finest=True, receivers=None):
-        data = images if light is None else compensate(images, light) if light is fixed_light else boxed(light)
+        data = compensated(light)
         result = solve(
             data,
             press.camera,
@@ -407,13 +412,14 @@ class _BoxCompensation:
     ROI's box is a sixth of a 640x480 frame)."""
 
     def __init__(self, images: np.ndarray, mask: np.ndarray):
-        self.images, self.mask, self.buffer = images, mask, None
+        self.images, self.mask, self.buffer, self.box = images, mask, None, None
 
     def __call__(self, light: np.ndarray) -> np.ndarray:
-        x0, y0, w, h = _box_of(self.mask)
-        if self.buffer is None:
+        if self.buffer is None:  # on the first pass: a solve without the outer loop needs neither
+            x0, y0, w, h = _box_of(self.mask)
+            self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
             self.buffer = np.array(self.images, np.float32)
-        rows, cols = slice(y0, y0 + h), slice(x0, x0 + w)
+        rows, cols = self.box
         self.buffer[:, rows, cols] = compensate(self.images[:, rows, cols], light[:, rows, cols])
         return self.buffer
 

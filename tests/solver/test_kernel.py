@@ -72,3 +72,16 @@ def test_thread_pool_work_nested_in_a_pool_thread_runs_there(monkeypatch):
     monkeypatch.setattr(threads, "workers", lambda: 2)
     out = threads.map_items(lambda i: sum(threads.map_items(lambda j: i * j, range(3))), range(4))
     assert out == [0, 3, 6, 9]
+
+
+def test_masked_planes_are_the_masked_pixels_per_led_and_channel():
+    from nlipscalib.solver.pyramid import masked_planes
+
+    rng = np.random.default_rng(2)
+    images = rng.random((4, 9, 11, 3)).astype(np.float32)
+    mask = rng.random((9, 11)) > 0.4
+    planes = masked_planes(images, mask, np.float32)
+    assert planes.flags.c_contiguous and planes.shape == (4, 3, int(mask.sum()))
+    np.testing.assert_array_equal(planes, np.moveaxis(images[:, mask], 2, 1))
+    usable = masked_planes(images > 0.5, mask, np.float32)  # bool samples cast to the working dtype
+    np.testing.assert_array_equal(usable, np.moveaxis(images[:, mask] > 0.5, 2, 1).astype(np.float32))
