@@ -9,6 +9,10 @@ bounce at 16 spp (the interreflection term and its outer loop run) and direct li
 (imports, ROI/anchor work outside the solver's timer, saving, figures). Also the start-up floor
 (``nlips --help`` and importing the solver) and a skipped re-run (identical result).
 
+Each case runs twice over: with a **cold** disk cache (every run gets an empty ``NLIPS_CACHE_DIR``: the first
+command on a sensor) and a **warm** one (filled by the case's warm-up run: every later command on that sensor;
+``nlipscalib.core.diskcache``). A checkout without the disk cache ignores the variable.
+
 The machine's 2 cores are shared with other work: the load average before and after is recorded.
 
 With ``--against DIR`` (another checkout, e.g. ``git worktree add /tmp/before REV``) every run of each case
@@ -42,14 +46,16 @@ CLI = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))
 GOALS = {"full": 4.0, "auto ROI": 1.5}
 
 
-def run_process(args: list[str], cpu: list | None = None, root: Path = ROOT) -> float:
+def run_process(args: list[str], cpu: list | None = None, root: Path = ROOT, cache: str | None = None) -> float:
     """Wall seconds of ``python -c CLI args`` with ``root``'s package (fails loudly on a non-zero exit); appends
-    its CPU seconds to ``cpu``.
+    its CPU seconds to ``cpu``. ``cache``: the disk cache folder (``NLIPS_CACHE_DIR``) it runs with.
 
     CPU time (user + system of the child) is the steadier number on a shared machine: it does not
     count the time the process waited for a core.
     """
     env = dict(os.environ, PYTHONPATH=str(root))
+    if cache is not None:
+        env["NLIPS_CACHE_DIR"] = cache
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(
@@ -71,18 +77,29 @@ def run_python(code: str) -> float:
     return time.perf_counter() - t0
 
 
-def time_case(press: Path, extra: list[str], repeats: int, roots: tuple[Path, ...] = (ROOT,)) -> list[dict]:
+def time_case(
+    press: Path, extra: list[str], repeats: int, roots: tuple[Path, ...] = (ROOT,), warm: bool = True
+) -> list[dict]:
     """Median process wall and the inner timers of ``nlips solve press --overwrite extra``, per checkout in
-    ``roots`` (their runs alternate)."""
+    ``roots`` (their runs alternate); ``warm``: one disk cache per checkout, filled by the warm-up run, else an
+    empty one for every run."""
     series = [{"wall": [], "cpu": [], "solver": [], "load": [], "solve": []} for _ in roots]
-    for _ in range(repeats + 1):  # the first run warms the page cache
-        for root, s in zip(roots, series):
-            s["wall"].append(run_process(["solve", str(press), "--overwrite", "--no-progress", *extra], s["cpu"], root))
-            report = json.loads((press / "nlips" / "report.json").read_text())
-            s["solver"].append(report["seconds"])
-            s["load"].append(report["command_seconds"]["load"])
-            s["solve"].append(report["command_seconds"]["solve"])
+    with tempfile.TemporaryDirectory() as caches:
+        for i in range(repeats + 1):  # the first run warms the page cache (and a warm case's disk cache)
+            for k, (root, s) in enumerate(zip(roots, series)):
+                cache = Path(caches) / (f"{k}" if warm else f"{k}-{i}")
+                args = ["solve", str(press), "--overwrite", "--no-progress", *extra]
+                s["wall"].append(run_process(args, s["cpu"], root, cache=str(cache)))
+                _record(s, press)
     return [{k: statistics.median(v[1:]) for k, v in s.items()} for s in series]
+
+
+def _record(s: dict, press: Path) -> None:
+    """Append the run's inner timers (report.json) to the series ``s``."""
+    report = json.loads((press / "nlips" / "report.json").read_text())
+    s["solver"].append(report["seconds"])
+    s["load"].append(report["command_seconds"]["load"])
+    s["solve"].append(report["command_seconds"]["solve"])
 
 
 BREAKDOWN = """
@@ -116,15 +133,17 @@ print(json.dumps([(n, c - marks[i][1], w - marks[i][2]) for i, (n, c, w) in enum
 
 
 def breakdown(press: Path, case: str, tmp: Path) -> list:
-    """CPU and wall seconds of each stage of one solve, in one fresh process."""
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    """CPU and wall seconds of each stage of one solve, in one fresh process, with a warm disk cache (an
+    earlier process of the same stages filled it)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), NLIPS_CACHE_DIR=str(tmp / f"bd-cache-{case}"))
     args = [sys.executable, "-c", BREAKDOWN, str(press), case, str(tmp / "bd"), str(tmp / "bdf")]
-    out = subprocess.run(args, env=env, capture_output=True, text=True, check=True).stdout
+    for _ in range(2):
+        out = subprocess.run(args, env=env, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
-def twin_presses(tmp: Path) -> list[tuple[str, Path]]:
-    """(label, folder) of the rendered presses (empty without Mitsuba)."""
+def twin_presses(tmp: Path) -> tuple[list[tuple[str, Path]], Path | None]:
+    """((label, folder) of the rendered presses, the undeformed dome's capture); ([], None) without Mitsuba."""
     try:
         from nlipscalib.sim.indent import PressConfig
         from nlipscalib.sim.indenters import IndenterConfig
@@ -132,7 +151,7 @@ def twin_presses(tmp: Path) -> list[tuple[str, Path]]:
         from nlipscalib.sim.scene import load_scene
     except ImportError as exc:
         print(f"twin presses skipped: {exc}", flush=True)
-        return []
+        return [], None
     press = PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5)
     base = load_scene().replace(camera={"width": 640, "height": 480}, noise={"enabled": True})
     out = []
@@ -143,7 +162,9 @@ def twin_presses(tmp: Path) -> list[tuple[str, Path]]:
         folder = tmp / label.replace(",", "").replace(" ", "_")
         render_press(base.replace(render=render), press, folder, seed=2)
         out.append((label, folder))
-    return out
+    undeformed = tmp / "undeformed_bounces_1"
+    render_press(base.replace(render={"bounces": 1, "spp": 16}), None, undeformed, seed=1)
+    return out, undeformed
 
 
 def load_average() -> str:
@@ -179,14 +200,20 @@ def main() -> None:
             ("exact sphere", press, "auto ROI", "maps (default)", ["--roi", "auto"]),
             ("exact sphere", press, "auto ROI", "none", ["--roi", "auto", "--no-figures"]),
         ]
-        for label, folder in [] if args.no_twin else twin_presses(Path(tmp)):
+        twins, undeformed = ([], None) if args.no_twin else twin_presses(Path(tmp))
+        for label, folder in twins:
             cases.append((label, folder, "auto ROI", "maps (default)", ["--roi", "auto"]))
+            if "bounces 1" in label:  # the real-sensor workflow: the term fitted on the undeformed capture
+                reference = ["--roi", "auto", "--reference", str(undeformed)]
+                cases.append((label + ", `--reference`", folder, "auto ROI", "maps (default)", reference))
             if "bounces 0" in label:  # a one-bounce whole frame takes minutes (the outer loop on 300k pixels)
                 cases.append((label, folder, "full", "maps (default)", []))
         rows = []
         for label, folder, name, figs, extra in cases:
-            rows.append((label, name, figs, *time_case(folder, extra, args.repeats, roots)))
-            print(rows[-1], flush=True)
+            for warm in (False, True):
+                measured = time_case(folder, extra, args.repeats, roots, warm=warm)
+                rows.append((label, name, figs, "warm" if warm else "cold", *measured))
+                print(rows[-1], flush=True)
         stages = {case: breakdown(press, case, Path(tmp)) for case in ("full", "auto")}
         skip = statistics.median(
             run_process(["solve", str(press), "--roi", "auto", "--no-progress"]) for _ in range(args.repeats)
@@ -199,19 +226,28 @@ def main() -> None:
         f"before: {before}, after: {after} (2 cores shared with other helpers' work: expect several-fold "
         "inflation of every number when the load is above 2).",
         "",
-        "| press | case | figures | process wall s | process CPU s | solver timer s | load s | solve_press s "
-        "| rest s (imports, save, figures) | goal s |" + (" before: wall s / solver s |" if args.against else ""),
-        "|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.against else ""),
+        "| press | case | figures | disk cache | process wall s | process CPU s | solver timer s | load s "
+        "| solve_press s | rest s (imports, save, figures) | goal s |"
+        + (" before: wall s / solver s |" if args.against else ""),
+        "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if args.against else ""),
     ]
-    for label, name, figs, m, *other in rows:
+    for label, name, figs, cache, m, *other in rows:
         rest = m["wall"] - m["load"] - m["solve"]
         lines.append(
-            f"| {label} | {name} | {figs} | {m['wall']:.2f} | {m['cpu']:.2f} | {m['solver']:.2f} | {m['load']:.2f} "
+            f"| {label} | {name} | {figs} | {cache} | {m['wall']:.2f} | {m['cpu']:.2f} | {m['solver']:.2f} "
+            f"| {m['load']:.2f} "
             f"| {m['solve']:.2f} | {rest:.2f} | {GOALS[name]:.1f} |"
             + "".join(f" {o['wall']:.2f} / {o['solver']:.2f} |" for o in other)
         )
     if args.against:
         lines += ["", f"`before`: the checkout {args.against} (its runs alternate with this one's, same presses)."]
+    lines += [
+        "",
+        "`disk cache`: cold = every run starts from an empty `NLIPS_CACHE_DIR` (the first command on a sensor; it "
+        "writes the sensor's entries), warm = the entries the warm-up run wrote (every later command on that "
+        "sensor). The `--reference` rows fit the interreflection term on a capture of the undeformed dome "
+        "(one bounce, 16 spp, another noise seed).",
+    ]
     lines += [
         "",
         "`solver timer s` is the NLiPs solver's own timer summed over the outer interreflection passes; "
@@ -225,8 +261,8 @@ def main() -> None:
         *(f"| {k} | {v:.2f} |" for k, v in floor.items()),
         f"| identical re-run (`--roi auto`, skipped) | {skip:.2f} |",
         "",
-        "Where one solve's time goes (one fresh process per case, stages in order; CPU s does not count "
-        "waiting for a core):",
+        "Where one solve's time goes (one fresh process per case after one that filled its disk cache, stages "
+        "in order; CPU s does not count waiting for a core):",
         "",
         "| stage | full: CPU s | full: wall s | auto ROI: CPU s | auto ROI: wall s |",
         "|---|---|---|---|---|",

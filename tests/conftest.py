@@ -1,5 +1,8 @@
 """Project-wide pytest settings: in CI the digital-twin tests must run, never skip quietly.
 
+The solver's disk cache of sensor-level results (``nlipscalib.core.diskcache``) points at a folder of this
+test session (subprocesses inherit it): tests never read or fill the user's own cache.
+
 ``--require-twin`` (or ``NLIPS_REQUIRE_TWIN=1``, which .ci/run sets) checks at start-up that Mitsuba
 imports and renders with its LLVM backend, and turns every skip caused by a missing twin part
 (Mitsuba, drjit, LLVM) into a failure, so a broken install cannot give a green suite.
@@ -9,6 +12,8 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
+import tempfile
 
 import pytest
 
@@ -28,6 +33,20 @@ def pytest_addoption(parser):
 
 def twin_required(config) -> bool:
     return bool(config.getoption("--require-twin")) or os.environ.get(REQUIRE_TWIN_ENV, "") not in ("", "0")
+
+
+_CACHE_DIR: str | None = None
+
+
+def pytest_configure(config):
+    global _CACHE_DIR
+    _CACHE_DIR = tempfile.mkdtemp(prefix="nlips-test-cache-")
+    os.environ["NLIPS_CACHE_DIR"] = _CACHE_DIR
+
+
+def pytest_unconfigure(config):
+    if _CACHE_DIR is not None:
+        shutil.rmtree(_CACHE_DIR, ignore_errors=True)
 
 
 def pytest_sessionstart(session):

@@ -31,6 +31,7 @@ SUBCOMMAND_MODULES = (
     "calibration",
     "train",
     "infer",
+    "cache",
 )
 
 

@@ -316,16 +316,22 @@ def _sum_squares(stack: np.ndarray, ok: np.ndarray | None) -> np.ndarray:
 def _smoothed_undeformed(images, live, valid: np.ndarray, sigma: float) -> np.ndarray:
     """:func:`_smooth` of ``images[live]`` (float32). When ``images`` is read-only (the sensor's direct
     shading, shared by the solves of its presses through ``solver.reuse``) the result is kept for the next
-    classification against that same array; a writable array could change in place, so it is smoothed anew."""
+    classification against that same array (and on disk for the next process when the array is one that
+    ``solver.reuse`` returned, so its key names it by content); a writable array could change in place, so it
+    is smoothed anew."""
     if not isinstance(images, np.ndarray) or images.flags.writeable:
         return _smooth(np.asarray(images, np.float32)[live], valid, sigma)
+
+    def smooth():
+        return _smooth(np.asarray(images, np.float32)[live], valid, sigma)
+
+    origin = reuse.origin(images)  # the sensor's shading: named by its own key, kept on disk too
+    if origin is not None:
+        return reuse.reused(
+            "smoothed undeformed", (origin, tuple(live), float(sigma), reuse.digest(valid)), smooth, persist=True
+        )
     key = (id(images), tuple(live), float(sigma), reuse.digest(valid))
-    return reuse.reused(
-        "smoothed undeformed",
-        key,
-        lambda: _smooth(np.asarray(images, np.float32)[live], valid, sigma),
-        keep=images,
-    )
+    return reuse.reused("smoothed undeformed", key, smooth, keep=images)
 
 
 def _smooth(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:

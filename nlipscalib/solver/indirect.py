@@ -167,16 +167,16 @@ def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray)
 
 
 def reference_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """:func:`direct_shading` of the undeformed surface, reused for the next press of the same sensor
-    (:mod:`nlipscalib.solver.reuse`); read-only."""
+    """:func:`direct_shading` of the undeformed surface, reused for the next press of the same sensor, in
+    this process and the next (:mod:`nlipscalib.solver.reuse`); read-only."""
     leds = tuple(leds)
     key = (camera, leds, reuse.digest(depth, normals))
-    return reuse.reused("shading", key, lambda: direct_shading(camera, leds, depth, normals))
+    return reuse.reused("shading", key, lambda: direct_shading(camera, leds, depth, normals), persist=True)
 
 
 def reference_surface(camera: Camera, leds, depth, normals, size: int | None = None, shading=None) -> Surface:
-    """:class:`Surface` of the undeformed surface, reused for the next press of the same sensor; its
-    arrays are read-only (:meth:`Surface.replaced` copies what it changes)."""
+    """:class:`Surface` of the undeformed surface, reused for the next press of the same sensor (in this
+    process and the next); its arrays are read-only (:meth:`Surface.replaced` copies what it changes)."""
     leds = tuple(leds)
     size = patch_size(camera) if size is None else int(size)
 
@@ -185,7 +185,7 @@ def reference_surface(camera: Camera, leds, depth, normals, size: int | None = N
         reuse.freeze(surf.patches, surf.shading, surf.keep, surf.valid, surf.depth, surf.normals)
         return surf
 
-    return reuse.reused("surface", (camera, leds, size, reuse.digest(depth, normals)), make)
+    return reuse.reused("surface", (camera, leds, size, reuse.digest(depth, normals)), make, persist=True)
 
 
 class Surface:
@@ -418,7 +418,9 @@ def _fit_inputs(reference: Press, leds, shading) -> dict:
     off = off_unit = None
     if design is not None:
         key = (reference.camera, tuple(leds), surf.size, repr(design[0]), tuple(design[1]), reuse.digest(ref.depth))
-        off, off_unit = reuse.reused("off_view", key, lambda: _off_view_light(reference.camera, leds, surf, design))
+        off, off_unit = reuse.reused(
+            "off_view", key, lambda: _off_view_light(reference.camera, leds, surf, design), persist=True
+        )
     # float32 (as loaded) is enough: the patch means multiply by float64 areas and sum in float64, and
     # a 0/1 usable mask multiplies exactly; float64 copies of these (L, H, W, 3) arrays cost 0.25 s
     lin = reference.linear_led_images

@@ -283,16 +283,25 @@ class _Timer:
 OPERATOR_LEVELS = 8
 """Levels whose operators a process keeps (solver.reuse): a pyramid's four to six, and a spare. A 640x480 level's
 take 160 MB (its pyramid's 210 MB); an auto ROI's a tenth of that."""
+OPERATOR_PERSIST_PIXELS = 150_000
+"""Levels with at least this many pixels also keep their operators on disk for the next process
+(:mod:`nlipscalib.core.diskcache`): a whole 640x480 frame's finest level builds them in 0.46 s and reads them
+back in ~0.1 s, and every whole-frame press of a sensor solves on that mask. Smaller levels build about as fast
+as they would be written (76,800 px: 0.08 s), and an auto ROI's masks rarely recur."""
 
 
 def _operators(lv: dict) -> dict:
     """Difference operators and the normal-matrix assembler of a level (cached in ``lv``).
 
     They depend on the level's mask alone and cost 0.5-0.9 s at 640x480: kept for the next solve on the
-    same mask (the outer interreflection loop's passes, the next press of a whole-frame dataset)."""
+    same mask (the outer interreflection loop's passes, the next press of a whole-frame dataset; a large
+    level's on disk too, see :data:`OPERATOR_PERSIST_PIXELS`)."""
     if "ops" not in lv:
         mk = lv["mask"]
-        lv["ops"] = reuse.reused("operators", reuse.digest(mk), lambda: _make_operators(mk), most=OPERATOR_LEVELS)
+        persist = int(mk.sum()) >= OPERATOR_PERSIST_PIXELS
+        lv["ops"] = reuse.reused(
+            "operators", reuse.digest(mk), lambda: _make_operators(mk), most=OPERATOR_LEVELS, persist=persist
+        )
     return lv["ops"]
 
 

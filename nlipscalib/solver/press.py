@@ -24,13 +24,13 @@ import time
 
 import numpy as np
 
-from ..core import masks, tolerances
+from ..core import diskcache, masks, tolerances
 from ..core.capture import Press
 from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact
 from .contact import auto_roi as _auto_roi_box
-from .indirect import Surface, fit_indirect, reference_shading, reference_surface, surface_indirect
+from .indirect import Surface, design_of, fit_indirect, reference_shading, reference_surface, surface_indirect
 from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -320,9 +320,9 @@ def _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interr
         def first():
             model = reuse.reused(
                 "fit",
-                (id(ref_capture), leds, interreflection, bounces),
+                (_capture_key(ref_capture), leds, interreflection, bounces),
                 lambda: fit(exclude=None, iterations=3),
-                keep=ref_capture,
+                persist=True,
             )
             reuse.freeze(model.off_view, model.fitted_light)
             return model
@@ -333,6 +333,15 @@ def _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interr
             return fit(exclude=exclude, iterations=1 if rough else 3)
 
     return _IndirectFitter(first=first, again=lambda exclude: fit(exclude=exclude, iterations=3), refits=rough)
+
+
+def _capture_key(capture: Press) -> tuple:
+    """What an indirect fit reads of a capture, named by content: camera, response, a digest of the stored
+    images and the reference surface, and the sensor design (the dome beyond the view). A fit on the
+    undeformed dome is the sensor's, so it is kept for later presses and processes under this key."""
+    ref = capture.reference
+    arrays = reuse.digest(capture.led_images, capture.dark, ref.depth, ref.normals)
+    return capture.camera, capture.response, arrays, diskcache.stable_key(design_of(capture))
 
 
 class _OuterLoop:

@@ -13,6 +13,10 @@ setting they were computed under (:func:`nlipscalib.solver.blas.blas_setting`): 
 depend on it, and a sweep that runs its tasks under one BLAS thread for reproducible numbers must not
 be served a result an earlier call computed under two. Stored arrays are made read-only: a caller that
 would modify one fails loudly instead of corrupting the next press's solve.
+
+Results that depend on the sensor alone are also kept on disk for the next process
+(``persist=True``; :mod:`nlipscalib.core.diskcache`): their keys must name their inputs by content, never
+by the identity of an object in this process.
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from collections import OrderedDict
 from collections.abc import Callable, Hashable
 
 import numpy as np
+
+from ..core import diskcache
 
 PER_KIND = 2
 """Results kept per kind (one sensor, and a second one for runs that alternate)."""
@@ -39,12 +45,21 @@ def digest(*arrays: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def reused(kind: str, key: Hashable, compute: Callable, keep: object | None = None, most: int = PER_KIND):
+def reused(
+    kind: str,
+    key: Hashable,
+    compute: Callable,
+    keep: object | None = None,
+    most: int = PER_KIND,
+    persist: bool = False,
+):
     """``compute()``, or the result stored under ``(kind, key)`` by an earlier call.
 
     ``keep``: an object the key identifies by ``id`` (a loaded capture): it is stored with the result,
     which is served only while ``keep`` is that same object (an ``id`` can be reused after it is freed).
     ``most``: results of this kind kept (the least recently used go first).
+    ``persist``: also look for the result on disk, and store it there for later processes
+    (:mod:`nlipscalib.core.diskcache`); ``key`` must then name the inputs by content and ``keep`` be None.
     """
     from .blas import blas_setting
 
@@ -54,11 +69,35 @@ def reused(kind: str, key: Hashable, compute: Callable, keep: object | None = No
     if hit is not None and hit[0] is keep:
         shelf.move_to_end(key)
         return hit[1]
-    value = compute()
+    value = _from_disk(kind, key, compute) if persist and keep is None else compute()
     freeze(value)
     shelf[key] = (keep, value)
     while len(shelf) > most:
         shelf.popitem(last=False)
+    return value
+
+
+def origin(value) -> tuple[str, Hashable] | None:
+    """(kind, key) under which :func:`reused` returned this very object, or None: a later computation
+    from it can name its input by that key instead of hashing it again."""
+    for kind, shelf in _store.items():
+        for key, (_, stored) in shelf.items():
+            if stored is value:
+                return kind, key
+    return None
+
+
+def _from_disk(kind: str, key, compute: Callable):
+    """The result on disk, else ``compute()`` written there (nothing on disk when the tier is off)."""
+    path = diskcache.entry(kind, key)
+    if path is None:
+        return compute()
+    try:
+        return diskcache.load(path)
+    except KeyError:
+        pass
+    value = compute()
+    diskcache.store(path, value)
     return value
 
 

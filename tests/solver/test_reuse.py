@@ -1,9 +1,14 @@
-"""Sensor-level work reused across the presses of one process (solver/reuse.py) changes no number."""
+"""Sensor-level work reused across the presses of one process, and of later processes through the disk
+tier (solver/reuse.py, core/diskcache.py), changes no number."""
+
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
-from nlipscalib.core import load_press
+from nlipscalib.core import diskcache, load_press
 from nlipscalib.solver import reuse
 from nlipscalib.solver.indirect import direct_shading, reference_shading
 from nlipscalib.solver.press import solve_press
@@ -12,10 +17,19 @@ from . import synth
 
 
 @pytest.fixture(autouse=True)
-def empty_store():
+def empty_store(monkeypatch):
+    """An empty store, and no disk tier unless a test turns it on: "computed alone" must mean computed."""
+    monkeypatch.setenv(diskcache.ENV_DIR, "off")
     reuse.clear()
     yield
     reuse.clear()
+
+
+@pytest.fixture
+def disk(tmp_path, monkeypatch):
+    folder = tmp_path / "cache"
+    monkeypatch.setenv(diskcache.ENV_DIR, str(folder))
+    return folder
 
 
 def test_digest_tells_content_shape_and_dtype_apart():
@@ -119,3 +133,79 @@ def test_solves_on_one_mask_share_its_difference_operators(tmp_path, monkeypatch
         np.testing.assert_array_equal(getattr(again, key), getattr(first, key), err_msg=key)
     solve_press(press, roi=(10, 10, 40, 30), interreflection="off")
     assert len(made) > levels and made[-1] == 40 * 30  # another mask: its own operators
+
+
+def test_a_persisted_result_is_computed_once_for_later_processes_and_served_read_only(disk):
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return {"values": np.arange(4.0)}
+
+    key = ("a", reuse.digest(np.ones(3)))
+    first = reuse.reused("k", key, compute, persist=True)
+    reuse.clear()  # what a new process starts with
+    again = reuse.reused("k", key, compute, persist=True)
+    assert len(calls) == 1 and again is not first
+    np.testing.assert_array_equal(again["values"], first["values"])
+    with pytest.raises(ValueError):
+        again["values"][0] = 1.0
+    reuse.clear()
+    reuse.reused("k", ("a", reuse.digest(np.zeros(3))), compute, persist=True)  # other content: computed
+    assert len(calls) == 2
+    assert reuse.origin(again) is None  # this process's store was cleared since
+    from nlipscalib.solver.blas import blas_setting
+
+    assert reuse.origin(reuse.reused("k", key, compute)) == ("k", (key, blas_setting()))
+
+
+def _solve_fields(press, undeformed):
+    np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
+    result = solve_press(press, roi="auto", indirect=undeformed, interreflection="on")
+    return {key: getattr(result, key) for key in ("depth", "normals", "albedo")}
+
+
+def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, disk, monkeypatch):
+    from nlipscalib.solver import indirect
+
+    folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere")}
+    press, undeformed = load_press(folders["sphere"]), load_press(folders["none"])
+    monkeypatch.setenv(diskcache.ENV_DIR, "off")
+    fresh = _solve_fields(press, undeformed)
+    monkeypatch.setenv(diskcache.ENV_DIR, str(disk))
+    reuse.clear()
+    first = _solve_fields(press, undeformed)
+    kinds = {p.name for p in disk.iterdir() if any(p.iterdir())}
+    assert {"shading", "surface", "fit"} <= kinds
+    reuse.clear()  # a new process: only the disk remembers
+    shaded = []
+    direct = indirect.direct_shading
+    monkeypatch.setattr(indirect, "direct_shading", lambda *a, **k: shaded.append(1) or direct(*a, **k))
+    later = _solve_fields(press, undeformed)
+    assert not shaded  # the undeformed surface's shading came from disk
+    for key in fresh:
+        np.testing.assert_array_equal(first[key], fresh[key], err_msg=key)
+        np.testing.assert_array_equal(later[key], fresh[key], err_msg=key)
+
+
+def test_solve_commands_in_separate_processes_share_the_disk_cache(tmp_path, disk):
+    press = synth.make_press(tmp_path / "sphere", "sphere", size=(96, 72))
+    env = dict(os.environ, **{diskcache.ENV_DIR: str(disk)})
+
+    def nlips(*args):
+        cmd = [sys.executable, "-c", "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"]
+        done = subprocess.run(cmd + list(args), env=env, capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    results = []
+    for out in ("first", "second"):
+        nlips("--no-progress", "solve", str(press), "--figures", "none", "--out", str(tmp_path / out))
+        results.append(np.load(tmp_path / out / "result.npz"))
+    for key in ("depth", "normals", "albedo"):
+        np.testing.assert_array_equal(results[1][key], results[0][key], err_msg=key)
+    kinds = {p.name for p in disk.iterdir() if any(p.iterdir())}
+    assert {"shading", "surface", "smoothed_undeformed"} <= kinds
+    entries, size = diskcache.usage(disk)
+    assert f"{entries} entries" in nlips("cache")
+    assert "removed" in nlips("cache", "--clear") and diskcache.usage(disk) == (0, 0)

@@ -1,0 +1,37 @@
+"""``nlips cache``: where the sensor-level results kept between commands are, how much they take; ``--clear``.
+
+Every solve of a press computes some results from the sensor alone (the undeformed surface's shading and
+radiosity patches, a whole frame's difference operators, the interreflection fit on an undeformed capture).
+They are kept on disk so the next command on the same sensor starts from them (docs/formats.md, "Cache").
+The folder is ``$NLIPS_CACHE_DIR`` (``off`` turns the cache off), else ``$XDG_CACHE_HOME/nlipscalib``,
+else ``~/.cache/nlipscalib``; it holds at most ``$NLIPS_CACHE_MB`` megabytes (default 2048).
+"""
+
+from __future__ import annotations
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "cache", help="show (or --clear) the sensor-level results kept between commands", description=__doc__
+    )
+    p.add_argument("--clear", action="store_true", help="remove every cached result")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import os
+
+    from ..core import diskcache
+
+    root = diskcache.folder()
+    if root is None:
+        print(f"cache: off ({diskcache.ENV_DIR}={os.environ.get(diskcache.ENV_DIR)!r})")
+        return 0
+    if args.clear:
+        freed = diskcache.clear(root)
+        print(f"cache: {root}: removed {freed / 2**20:.1f} MB")
+        return 0
+    entries, size = diskcache.usage(root)
+    limit = diskcache.limit_bytes() / 2**20
+    print(f"cache: {root}: {entries} entries, {size / 2**20:.1f} MB (at most {limit:.0f} MB)")
+    return 0

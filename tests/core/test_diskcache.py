@@ -1,0 +1,118 @@
+"""The disk tier for sensor-level results (core/diskcache.py): keys by content, atomic entries, size bound."""
+
+import dataclasses
+import os
+import threading
+
+import numpy as np
+import pytest
+
+from nlipscalib.core import diskcache
+
+
+@pytest.fixture
+def cache_dir(tmp_path, monkeypatch):
+    monkeypatch.setenv(diskcache.ENV_DIR, str(tmp_path / "cache"))
+    return tmp_path / "cache"
+
+
+@dataclasses.dataclass(frozen=True)
+class _Thing:
+    size: float
+    values: tuple
+
+
+def test_stable_key_names_content_not_identity():
+    a = np.arange(6, dtype=np.float32).reshape(2, 3)
+    assert diskcache.stable_key((a, "x", 1.5)) == diskcache.stable_key((a.copy(), "x", 1.5))
+    b = a.copy()
+    b[0, 0] += 1e-6
+    assert diskcache.stable_key(a) != diskcache.stable_key(b)
+    assert diskcache.stable_key(a) != diskcache.stable_key(a.astype(np.float64))
+    assert diskcache.stable_key(a) != diskcache.stable_key(a.reshape(3, 2))
+    # a large array is named by its whole content (repr would elide the middle: "...")
+    big = np.zeros(10_000)
+    other = big.copy()
+    other[5_000] = 1.0
+    assert diskcache.stable_key(big) != diskcache.stable_key(other)
+    assert diskcache.stable_key(_Thing(1.0, (2, 3))) == diskcache.stable_key(_Thing(1.0, (2, 3)))
+    assert diskcache.stable_key(_Thing(1.0, (2, 3))) != diskcache.stable_key(_Thing(1.0, (2, 4)))
+    assert diskcache.stable_key(np.float64(0.1)) == diskcache.stable_key(0.1)
+
+
+def test_folder_follows_the_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv(diskcache.ENV_DIR, "off")
+    assert diskcache.folder() is None and diskcache.entry("k", ("a",)) is None
+    monkeypatch.delenv(diskcache.ENV_DIR)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert diskcache.folder() == tmp_path / "nlipscalib"
+
+
+def test_an_entry_round_trips_and_a_damaged_one_is_a_miss(cache_dir):
+    path = diskcache.entry("shading", ("camera", np.ones(3)))
+    assert path.parent.parent == cache_dir
+    with pytest.raises(KeyError):
+        diskcache.load(path)
+    value = {"a": np.arange(5.0), "b": (1, "x")}
+    diskcache.store(path, value)
+    back = diskcache.load(path)
+    np.testing.assert_array_equal(back["a"], value["a"])
+    assert back["b"] == (1, "x")
+    path.write_bytes(path.read_bytes()[:20])  # truncated (a full disk, a killed writer of another tool)
+    with pytest.raises(KeyError):
+        diskcache.load(path)
+    assert diskcache.entry("shading", ("camera", np.ones(3))) == path
+    assert diskcache.entry("shading", ("camera", np.zeros(3))) != path
+
+
+def test_another_source_salt_misses_every_earlier_entry(cache_dir, monkeypatch):
+    before = diskcache.entry("k", ("a",))
+    monkeypatch.setattr(diskcache, "_salt", "an edited formula")
+    assert diskcache.entry("k", ("a",)) != before
+
+
+def test_a_write_that_fails_costs_only_the_computation(cache_dir):
+    path = diskcache.entry("k", ("lambda",))
+    diskcache.store(path, {"f": lambda: 1})  # not picklable: logged, not raised
+    assert not path.exists()
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    (cache_dir / "k").write_text("a file where the kind's folder should be")
+    diskcache.store(path, np.zeros(3))  # OSError: logged, not raised
+    assert not path.is_file()
+
+
+def test_writers_of_one_key_at_once_leave_one_readable_entry(cache_dir):
+    path = diskcache.entry("k", ("shared",))
+    value = np.arange(200_000, dtype=np.float64)
+    errors = []
+
+    def write():
+        try:
+            for _ in range(5):
+                diskcache.store(path, value)
+                np.testing.assert_array_equal(diskcache.load(path), value)
+        except Exception as exc:  # noqa: BLE001 - collected and asserted below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=write) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors
+    assert [p.name for p in path.parent.iterdir()] == [path.name]  # no temporary file left behind
+
+
+def test_the_size_bound_removes_the_least_recently_used(cache_dir, monkeypatch):
+    paths = [diskcache.entry("k", (i,)) for i in range(4)]
+    for i, path in enumerate(paths):
+        diskcache.store(path, np.zeros(100_000, np.uint8))
+        os.utime(path, (1000.0 + i, 1000.0 + i))
+    diskcache.load(paths[0])  # read now: the most recently used
+    monkeypatch.setenv(diskcache.ENV_MB, str(2.5 * 100_000 / 2**20))
+    diskcache.store(diskcache.entry("k", ("new",)), np.zeros(10, np.uint8))
+    left = {p for p in paths if p.exists()}
+    assert left == {paths[0], paths[3]}
+    entries, size = diskcache.usage()
+    assert entries == 3 and size <= diskcache.limit_bytes()
+    assert diskcache.clear() == size and diskcache.usage() == (0, 0)
