@@ -68,12 +68,18 @@ def check_writable(folder: str | Path, longest_name: int = 0) -> None:
 
 def write_bytes(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temp file in the same folder, then rename)."""
+    return write_with(path, lambda f: f.write(data))
+
+
+def write_with(path: str | Path, writer) -> Path:
+    """Atomically write what ``writer(f)`` writes to the binary file ``f`` (e.g. ``pickle.dump(value, f)``:
+    no copy of a large result in memory first) to ``path`` (temp file in the same folder, then rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(path.name), dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            writer(f)
         os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException as exc:

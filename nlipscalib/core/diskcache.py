@@ -13,7 +13,8 @@ a process; this module keeps them on disk between processes.
   formula or library never serves an old result.
 - **Entries:** ``<dir>/<kind>/<digest>.pkl``, pickled (protocol 5), written atomically (temporary file, then
   rename: :func:`nlipscalib.core.atomic.write_bytes`), so processes sharing the folder never read a partial
-  entry; two writing the same key write the same result and the last rename wins. An entry that cannot be
+  entry; two writing the same key write the same result and the last rename wins. Pickles stream to the file:
+  no in-memory copy of a 100 MB result. An entry that cannot be
   read (truncated, another Python) is treated as missing, recomputed and replaced.
 - **Size:** at most ``$NLIPS_CACHE_MB`` (default :data:`DEFAULT_MB`) megabytes; after a write the least
   recently used entries (reads touch them) are removed.
@@ -122,7 +123,7 @@ def store(path: Path, value) -> None:
     (read-only or full disk, a value that cannot be pickled) only costs the next process the computation:
     it is logged, not raised."""
     try:
-        atomic.write_bytes(path, pickle.dumps(value, protocol=5))
+        atomic.write_with(path, lambda f: pickle.dump(value, f, protocol=5))
         trim(path.parent.parent, limit_bytes())
     except (OSError, pickle.PicklingError, TypeError, AttributeError) as exc:
         log.debug("could not write cache entry %s: %s", path, exc)

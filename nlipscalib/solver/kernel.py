@@ -156,6 +156,11 @@ class Model:
         g2 = (w * (albedo[None] * self.psi) ** 2).sum(1)  # (L, N)
         return self.be.numpy((g2 * (dF[1] * dF[1] + dF[2] * dF[2])).sum(0))
 
+    @staticmethod
+    def whole(a):
+        """``a`` as one array (a :class:`ChunkedModel` keeps its results in chunks; this model does not)."""
+        return a
+
     def gauss_newton_blocks(self, F, dF, r, w, albedo):
         """Variable-projection Gauss-Newton blocks of the data term, summed over LEDs and channels.
 
@@ -208,6 +213,20 @@ expressions then stay in the CPU's cache. The model's calls of a line-search ste
 0.38 s with one chunk per thread (307,200 pixels, 12 LEDs; 8192-32768 time alike, 2048 as before)."""
 
 
+class Parts:
+    """A per-pixel result of :class:`ChunkedModel` kept as its chunks' arrays (``arrays[k]`` of chunk k).
+
+    The model's next call cuts its inputs into the same chunks, so a result that only flows from one model
+    call into the next (shading, residuals, weights, albedo) is never joined into a whole-level array and cut
+    again: at 307,200 pixels and 12 LEDs those joins copied ~0.8 s worth of arrays per whole-frame solve.
+    :meth:`ChunkedModel.whole` joins one where a whole array is needed."""
+
+    __slots__ = ("arrays",)
+
+    def __init__(self, arrays: list):
+        self.arrays = arrays
+
+
 class ChunkedModel:
     """:class:`Model` on contiguous pixel chunks of :data:`CHUNK_PIXELS`, on the thread pool
     (:mod:`nlipscalib.solver.threads`).
@@ -215,6 +234,8 @@ class ChunkedModel:
     Every method of the model is per pixel (sums run over LEDs and channels only), so cutting the pixel
     axis gives the same numbers; energies are summed over the chunks. Large levels spend most of their
     per-pixel time in memory-bound array expressions that one core leaves half the machine idle for.
+    Per-pixel results come back as :class:`Parts` (see there), the Gauss-Newton blocks and the curvature
+    as whole arrays.
     """
 
     def __init__(self, be: Backend, q, A, B, C, positions, directions, mu, psi, images, usable):
@@ -231,16 +252,19 @@ class ChunkedModel:
         self.images = be.asarray(images)
         self.usable = be.asarray(usable)
 
-    def _cut(self, a, s):
+    def _cut(self, a, k: int):
+        """Chunk ``k`` of an argument: a :class:`Parts`' own array, a slice of a per-pixel array."""
+        if isinstance(a, Parts):
+            return a.arrays[k]
         if isinstance(a, np.ndarray) and a.ndim and a.shape[-1] == self.n:
-            return a[..., s]
+            return a[..., self.slices[k]]
         if isinstance(a, (list, tuple)):
-            return [self._cut(x, s) for x in a]
+            return [self._cut(x, k) for x in a]
         return a
 
     def _map(self, name: str, *args):
         return self._threads.map_items(
-            lambda k: getattr(self.parts[k], name)(*(self._cut(a, self.slices[k]) for a in args)),
+            lambda k: getattr(self.parts[k], name)(*(self._cut(a, k) for a in args)),
             range(len(self.parts)),
         )
 
@@ -250,11 +274,25 @@ class ChunkedModel:
             return tuple(np.concatenate(group, axis=-1) for group in zip(*outs))
         return np.concatenate(outs, axis=-1)
 
+    @staticmethod
+    def _parts(outs):
+        if isinstance(outs[0], tuple):
+            return tuple(Parts(list(group)) for group in zip(*outs))
+        return Parts(outs)
+
+    def whole(self, a):
+        """``a`` as one array (a :class:`Parts` joined; tuples element-wise; anything else as it is)."""
+        if isinstance(a, Parts):
+            return np.concatenate(a.arrays, axis=-1)
+        if isinstance(a, tuple):
+            return tuple(self.whole(x) for x in a)
+        return a
+
     def shading(self, t, tu, tv, derivatives: bool = False):
-        return self._join(self._map("shading", t, tu, tv, derivatives))
+        return self._parts(self._map("shading", t, tu, tv, derivatives))
 
     def residuals(self, F, albedo):
-        return self._join(self._map("residuals", F, albedo))
+        return self._parts(self._map("residuals", F, albedo))
 
     def data_energy(self, r, lam: float, estimator: str) -> float:
         return float(sum(self._map("data_energy", r, lam, estimator)))
@@ -263,10 +301,10 @@ class ChunkedModel:
         return float(sum(self._map("energy", F, albedo, lam, estimator)))
 
     def weights(self, r, lam: float, estimator: str):
-        return self._join(self._map("weights", r, lam, estimator))
+        return self._parts(self._map("weights", r, lam, estimator))
 
     def albedo(self, F, w):
-        return self._join(self._map("albedo", F, w))
+        return self._parts(self._map("albedo", F, w))
 
     def gradient_curvature(self, dF, albedo, w) -> np.ndarray:
         return self._join(self._map("gradient_curvature", dF, albedo, w))

@@ -369,7 +369,7 @@ def _solve_level(
 
     F, dF = shade(t, True)
     albedo, r = refit(F, None)
-    lam = _robust_scale(be, r, lv["images"], lv["usable"] > 0, opts)
+    lam = _robust_scale(be, model.whole(r), lv["images"], lv["usable"] > 0, opts)
     # The smoothness weight is relative to the data term's curvature along the gradient of t (least
     # squares, starting depth).
     gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
@@ -457,10 +457,11 @@ def _solve_level(
     info["amg_setups"] = pcg.setups
     # Final albedo and per-pixel diagnostics at the accepted depth (the refit cannot raise the energy).
     albedo, r = refit(F, albedo)
+    albedo, r = model.whole(albedo), model.whole(r)
     u_np = lv["usable"]
     cnt = u_np.sum(axis=(0, 1))
     sq = be.pixel_sums(model.usable * r * r)
-    wsum = be.pixel_sums(model.weights(r, lam, est))
+    wsum = be.pixel_sums(model.whole(model.weights(r, lam, est)))
     rms = np.sqrt(sq / np.maximum(cnt, 1))
     conf = (cnt / (u_np.shape[0] * u_np.shape[1])) * (wsum / np.maximum(cnt, 1))
     result = {

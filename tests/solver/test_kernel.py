@@ -37,21 +37,28 @@ def test_chunked_model_equals_the_model_on_all_pixels(monkeypatch, level, dtype)
     whole, chunked = kernel.Model(be, *args), kernel.ChunkedModel(be, *args)
     assert len(chunked.parts) == 11
     F, *dF = whole.shading(t, tu, tv, True)
-    Fc, *dFc = chunked.shading(t, tu, tv, True)
+    Fc, *dFc = chunked.shading(t, tu, tv, True)  # kept in chunks (kernel.Parts), cut alike by the next call
+    assert isinstance(Fc, kernel.Parts) and len(Fc.arrays) == 11
     assert (F > 0).mean() > 0.5  # lit: the comparison is between numbers, not zeros
     for a, b in zip([F, *dF], [Fc, *dFc]):
-        np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(whole.shading(t, tu, tv), chunked.shading(t, tu, tv))
+        np.testing.assert_array_equal(a, chunked.whole(b))
+    np.testing.assert_array_equal(whole.shading(t, tu, tv), chunked.whole(chunked.shading(t, tu, tv)))
     albedo = np.full((3, len(t)), 0.5, be.dtype)
     r = whole.residuals(F, albedo)
-    np.testing.assert_array_equal(r, chunked.residuals(F, albedo))
+    rc = chunked.residuals(Fc, albedo)
+    np.testing.assert_array_equal(r, chunked.whole(rc))
+    np.testing.assert_array_equal(r, chunked.whole(chunked.residuals(F, albedo)))  # whole arrays in: the same
     w = whole.weights(r, 0.1, "cauchy")
-    np.testing.assert_array_equal(w, chunked.weights(r, 0.1, "cauchy"))
-    np.testing.assert_array_equal(whole.albedo(F, w), chunked.albedo(F, w))
-    np.testing.assert_allclose(whole.data_energy(r, 0.1, "cauchy"), chunked.data_energy(r, 0.1, "cauchy"), rtol=1e-12)
-    np.testing.assert_array_equal(whole.gradient_curvature(dF, albedo, w), chunked.gradient_curvature(dF, albedo, w))
-    for a, b in zip(whole.gauss_newton_blocks(F, dF, r, w, albedo), chunked.gauss_newton_blocks(F, dF, r, w, albedo)):
+    wc = chunked.weights(rc, 0.1, "cauchy")
+    np.testing.assert_array_equal(w, chunked.whole(wc))
+    np.testing.assert_array_equal(whole.albedo(F, w), chunked.whole(chunked.albedo(Fc, wc)))
+    np.testing.assert_allclose(whole.data_energy(r, 0.1, "cauchy"), chunked.data_energy(rc, 0.1, "cauchy"), rtol=1e-12)
+    np.testing.assert_array_equal(whole.gradient_curvature(dF, albedo, w), chunked.gradient_curvature(dFc, albedo, wc))
+    for a, b in zip(
+        whole.gauss_newton_blocks(F, dF, r, w, albedo), chunked.gauss_newton_blocks(Fc, dFc, rc, wc, albedo)
+    ):
         np.testing.assert_array_equal(a, b)
+    assert whole.whole(r) is r
 
 
 def test_large_levels_run_chunked_whatever_the_core_count(monkeypatch, level):
