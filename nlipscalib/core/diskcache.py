@@ -60,7 +60,12 @@ def folder() -> Path | None:
     if env is not None:
         env = env.strip()
         return None if env.lower() in ("", "off", "0", "none") else Path(env).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME", "").strip() or Path.home() / ".cache"
+    base = os.environ.get("XDG_CACHE_HOME", "").strip()
+    if not base:
+        try:
+            base = Path.home() / ".cache"
+        except RuntimeError:  # no home folder (a bare service account): no disk tier
+            return None
     return Path(base) / "nlipscalib"
 
 
@@ -131,7 +136,11 @@ def store(path: Path, value) -> None:
 
 def trim(root: Path, limit: int) -> int:
     """Remove the least recently used entries under ``root`` until they hold at most ``limit`` bytes;
-    returns the bytes left. Entries another process removes meanwhile are skipped."""
+    returns the bytes left. Entries another process removes meanwhile are skipped; temporary files of
+    writers that died are removed (:func:`nlipscalib.core.atomic.clean_interrupted`: never a live one's)."""
+    for kind in root.iterdir():
+        if kind.is_dir():
+            atomic.clean_interrupted(kind)
     files = []
     for p in root.glob(f"*/*{SUFFIX}"):
         with contextlib.suppress(OSError):

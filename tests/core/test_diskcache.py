@@ -74,11 +74,12 @@ def test_another_source_salt_misses_every_earlier_entry(cache_dir, monkeypatch):
 def test_a_write_that_fails_costs_only_the_computation(cache_dir):
     path = diskcache.entry("k", ("lambda",))
     diskcache.store(path, {"f": lambda: 1})  # not picklable: logged, not raised
-    assert not path.exists()
+    assert not path.exists() and not list(path.parent.iterdir())  # no half-written entry either
+    blocked = diskcache.entry("blocked", ("x",))
     cache_dir.mkdir(parents=True, exist_ok=True)
-    (cache_dir / "k").write_text("a file where the kind's folder should be")
-    diskcache.store(path, np.zeros(3))  # OSError: logged, not raised
-    assert not path.is_file()
+    (cache_dir / "blocked").write_text("a file where the kind's folder should be")
+    diskcache.store(blocked, np.zeros(3))  # OSError: logged, not raised
+    assert not blocked.is_file()
 
 
 def test_writers_of_one_key_at_once_leave_one_readable_entry(cache_dir):
@@ -101,6 +102,19 @@ def test_writers_of_one_key_at_once_leave_one_readable_entry(cache_dir):
         t.join()
     assert not errors
     assert [p.name for p in path.parent.iterdir()] == [path.name]  # no temporary file left behind
+
+
+def test_a_dead_writers_temporary_file_goes_with_the_next_write(cache_dir):
+    from nlipscalib.core import atomic
+
+    path = diskcache.entry("k", ("x",))
+    path.parent.mkdir(parents=True)
+    dead = path.parent / (atomic.TMP_PREFIX + path.name + f"~{atomic.HOST}~999999999~abc")
+    dead.write_bytes(b"half a pickle")
+    alive = path.parent / (atomic.tmp_prefix(path.name) + "def")  # this process: a write in progress
+    alive.write_bytes(b"being written")
+    diskcache.store(path, np.zeros(3))
+    assert not dead.exists() and alive.exists() and path.is_file()
 
 
 def test_the_size_bound_removes_the_least_recently_used(cache_dir, monkeypatch):
