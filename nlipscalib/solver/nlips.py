@@ -285,9 +285,11 @@ OPERATOR_LEVELS = 8
 take 160 MB (its pyramid's 210 MB); an auto ROI's a tenth of that."""
 OPERATOR_PERSIST_PIXELS = 150_000
 """Levels with at least this many pixels also keep their operators on disk for the next process
-(:mod:`nlipscalib.core.diskcache`): a whole 640x480 frame's finest level builds them in 0.46 s and reads them
-back in ~0.1 s, and every whole-frame press of a sensor solves on that mask. Smaller levels build about as fast
-as they would be written (76,800 px: 0.08 s), and an auto ROI's masks rarely recur."""
+(:mod:`nlipscalib.core.diskcache`), and assemble their normal matrix with a fixed-pattern map
+(:class:`nlipscalib.solver.geometry.NormalMatrix`): every whole-frame press of a sensor solves on a whole
+frame's finest level, whose operators and map take ~1.6 s to build at 640x480 and ~0.15 s to read back, and
+whose assemblies then take 0.04 s instead of 0.4 s. Smaller levels build their operators about as fast as they
+would be written (76,800 px: 0.08 s), and an auto ROI's masks rarely recur."""
 
 
 def _operators(lv: dict) -> dict:
@@ -322,7 +324,8 @@ def _make_operators(mk: np.ndarray) -> dict:
         "Dv": Dv,
         "has_grad": has_grad,
         "lap": lap,
-        "normal": geometry.NormalMatrix((eye, Du, Dv), second),
+        # a level kept on disk recurs for every press of the sensor: its assembler's map is built once
+        "normal": geometry.NormalMatrix((eye, Du, Dv), second, fixed=Du.shape[0] >= OPERATOR_PERSIST_PIXELS),
     }
 
 

@@ -88,6 +88,12 @@ def test_normal_matrix_assembly():
     ref = sum(ops[a].T @ sp.diags(M[a, b]) @ ops[b] for a in range(3) for b in range(3)) + 0.3 * (E.T @ E)
     H = geometry.NormalMatrix(ops, [E]).assemble(M, (0.3,))
     assert abs(H - ref).max() < 1e-12 and H.has_sorted_indices
+    fixed = geometry.NormalMatrix(ops, [E], fixed=True)  # one sparse map of M instead of two products
+    Hf = fixed.assemble(M, (0.3,))
+    assert abs(Hf - ref).max() < 1e-12 and Hf.has_sorted_indices
+    M[:, :, : n // 2] = 0.0  # unlit pixels: their zeros are left out as the products leave them out
+    Hz, Hfz = geometry.NormalMatrix(ops, [E]).assemble(M, (0.3,)), fixed.assemble(M, (0.3,))
+    assert abs(Hfz - Hz).max() < 1e-12 and Hfz.nnz == Hz.nnz
 
 
 def test_variable_projection_blocks_match_reduced_jacobian():
