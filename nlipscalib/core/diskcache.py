@@ -71,9 +71,11 @@ def folder() -> Path | None:
 
 def limit_bytes() -> int:
     """The size bound from ``$NLIPS_CACHE_MB`` (default :data:`DEFAULT_MB`), bytes."""
+    text = os.environ.get(ENV_MB, "").strip()
     try:
-        return int(float(os.environ.get(ENV_MB, DEFAULT_MB)) * 2**20)
+        return int(float(text) * 2**20) if text else DEFAULT_MB * 2**20
     except ValueError:
+        log.warning("%s=%r is not a number of megabytes; the cache keeps at most %d MB", ENV_MB, text, DEFAULT_MB)
         return DEFAULT_MB * 2**20
 
 

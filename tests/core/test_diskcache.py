@@ -40,6 +40,14 @@ def test_stable_key_names_content_not_identity():
     assert diskcache.stable_key(np.float64(0.1)) == diskcache.stable_key(0.1)
 
 
+def test_a_size_bound_that_is_no_number_is_said_and_the_default_kept(monkeypatch, caplog):
+    monkeypatch.setenv(diskcache.ENV_MB, "lots")
+    assert diskcache.limit_bytes() == diskcache.DEFAULT_MB * 2**20
+    assert "NLIPS_CACHE_MB='lots' is not a number" in caplog.text
+    monkeypatch.setenv(diskcache.ENV_MB, "1.5")
+    assert diskcache.limit_bytes() == int(1.5 * 2**20)
+
+
 def test_folder_follows_the_environment(monkeypatch, tmp_path):
     monkeypatch.setenv(diskcache.ENV_DIR, "off")
     assert diskcache.folder() is None and diskcache.entry("k", ("a",)) is None
