@@ -134,6 +134,8 @@ def solve(
     leds = tuple(leds)
     H, W = camera.shape
     images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
+    # the sensor's whole gel: every whole-frame press solves on it, so its large levels' operators recur
+    whole_gel = bool(np.array_equal(mask, np.isfinite(prior_depth)))
 
     t_start = time.perf_counter()
     # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted. The
@@ -173,6 +175,8 @@ def solve(
     levels = build_pyramid(
         cam, data, use, m, t0, w0, opts if t_first is None else dataclasses.replace(opts, pyramid_levels=warm_levels)
     )
+    for lv in levels:
+        lv["recurs"] = whole_gel
     if t_first is not None and len(levels) > 1:  # the start's change from the prior, averaged down inside the mask
         shape = levels[0]["camera"].shape
         change = resize(np.where(m, t_first - t0, 0.0), shape) / np.maximum(resize(m.astype(np.float32), shape), 1e-9)
@@ -283,13 +287,14 @@ class _Timer:
 OPERATOR_LEVELS = 8
 """Levels whose operators a process keeps (solver.reuse): a pyramid's four to six, and a spare. A 640x480 level's
 take 160 MB (its pyramid's 210 MB); an auto ROI's a tenth of that."""
-OPERATOR_PERSIST_PIXELS = 150_000
-"""Levels with at least this many pixels also keep their operators on disk for the next process
-(:mod:`nlipscalib.core.diskcache`), and assemble their normal matrix with a fixed-pattern map
-(:class:`nlipscalib.solver.geometry.NormalMatrix`): every whole-frame press of a sensor solves on a whole
-frame's finest level, whose operators and map take ~1.6 s to build at 640x480 and ~0.15 s to read back, and
-whose assemblies then take 0.04 s instead of 0.4 s. Smaller levels build their operators about as fast as they
-would be written (76,800 px: 0.08 s), and an auto ROI's masks rarely recur."""
+OPERATOR_PERSIST_PIXELS = 50_000
+"""Levels of the sensor's whole gel (a solve whose mask is everywhere the prior is finite: every whole-frame
+press of the sensor solves on those masks) with at least this many pixels keep their operators on disk for the
+next process (:mod:`nlipscalib.core.diskcache`) and assemble their normal matrix with a fixed-pattern map
+(:class:`nlipscalib.solver.geometry.NormalMatrix`): at 640x480 the finest level's operators and map take ~1.6 s
+to build and ~0.15 s to read back, and its assemblies then take 0.04 s instead of 0.4 s; the 320x240 level's
+0.01 s instead of 0.07 s. An ROI's masks (auto ROI: one per press) are built in the process as before: their
+map would cost more than the few assemblies it saves, and they rarely recur."""
 
 
 def _operators(lv: dict) -> dict:
@@ -297,17 +302,23 @@ def _operators(lv: dict) -> dict:
 
     They depend on the level's mask alone and cost 0.5-0.9 s at 640x480: kept for the next solve on the
     same mask (the outer interreflection loop's passes, the next press of a whole-frame dataset; a large
-    level's on disk too, see :data:`OPERATOR_PERSIST_PIXELS`)."""
+    level of the sensor's whole gel on disk too, see :data:`OPERATOR_PERSIST_PIXELS`)."""
     if "ops" not in lv:
         mk = lv["mask"]
-        persist = int(mk.sum()) >= OPERATOR_PERSIST_PIXELS
+        recurs = lv.get("recurs", False) and int(mk.sum()) >= OPERATOR_PERSIST_PIXELS
         lv["ops"] = reuse.reused(
-            "operators", reuse.digest(mk), lambda: _make_operators(mk), most=OPERATOR_LEVELS, persist=persist
+            "operators",
+            (reuse.digest(mk), recurs),
+            lambda: _make_operators(mk, fixed=recurs),
+            most=OPERATOR_LEVELS,
+            persist=recurs,
         )
     return lv["ops"]
 
 
-def _make_operators(mk: np.ndarray) -> dict:
+def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
+    """Difference operators of a level's mask and its normal-matrix assembler (``fixed``: with the
+    fixed-pattern map, :class:`nlipscalib.solver.geometry.NormalMatrix`)."""
     forward = geometry.difference_operators(mk)
     backward = geometry.difference_operators(mk, backward=True)
     Du, Dv, has_grad = geometry.gradient_operators(mk, forward, backward)
@@ -324,8 +335,7 @@ def _make_operators(mk: np.ndarray) -> dict:
         "Dv": Dv,
         "has_grad": has_grad,
         "lap": lap,
-        # a level kept on disk recurs for every press of the sensor: its assembler's map is built once
-        "normal": geometry.NormalMatrix((eye, Du, Dv), second, fixed=Du.shape[0] >= OPERATOR_PERSIST_PIXELS),
+        "normal": geometry.NormalMatrix((eye, Du, Dv), second, fixed=fixed),
     }
 
 

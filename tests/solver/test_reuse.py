@@ -123,7 +123,7 @@ def test_solves_on_one_mask_share_its_difference_operators(tmp_path, monkeypatch
 
     made = []
     make = nlips._make_operators
-    monkeypatch.setattr(nlips, "_make_operators", lambda mk: made.append(int(mk.sum())) or make(mk))
+    monkeypatch.setattr(nlips, "_make_operators", lambda mk, **kw: made.append(int(mk.sum())) or make(mk, **kw))
     press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(96, 72)))
     first = solve_press(press, interreflection="off")
     levels = len(made)
@@ -161,14 +161,14 @@ def test_a_persisted_result_is_computed_once_for_later_processes_and_served_read
 
 def _solve_fields(press, undeformed):
     np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
-    result = solve_press(press, roi="auto", indirect=undeformed, interreflection="on")
+    result = solve_press(press, indirect=undeformed, interreflection="on")  # the whole gel: its operators recur
     return {key: getattr(result, key) for key in ("depth", "normals", "albedo")}
 
 
 def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, disk, monkeypatch):
     from nlipscalib.solver import indirect, nlips
 
-    # levels this large (a 96x72 press's auto ROI) keep their operators on disk, with the fixed-pattern map
+    # the whole gel's levels this large keep their operators on disk, with the fixed-pattern map
     monkeypatch.setattr(nlips, "OPERATOR_PERSIST_PIXELS", 1000)
     folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere")}
     press, undeformed = load_press(folders["sphere"]), load_press(folders["none"])
@@ -225,12 +225,15 @@ def test_a_level_assembled_by_the_fixed_pattern_map_solves_as_with_products(tmp_
         return solve_press(press, interreflection="off")
 
     products = solve()
-    monkeypatch.setattr(nlips, "OPERATOR_PERSIST_PIXELS", 1000)  # every level but the coarsest: fixed map
+    monkeypatch.setattr(nlips, "OPERATOR_PERSIST_PIXELS", 1000)  # the whole gel's levels but the coarsest
     made = []
     make = nlips._make_operators
-    monkeypatch.setattr(nlips, "_make_operators", lambda mk: made.append(make(mk)) or made[-1])
+    monkeypatch.setattr(nlips, "_make_operators", lambda mk, **kw: made.append(make(mk, **kw)) or made[-1])
     fixed = solve()
     assert any(ops["normal"].fixed is not None for ops in made)
+    made.clear()
+    solve_press(press, roi=(10, 10, 60, 40), interreflection="off")  # an ROI: its masks do not recur
+    assert made and all(ops["normal"].fixed is None for ops in made)
     rec = products.reconstructed & fixed.reconstructed
     assert rec.sum() > 0.9 * products.reconstructed.sum()
     # rounding differs, and the Gauss-Newton/CG iterations stop at their tolerances from slightly other
