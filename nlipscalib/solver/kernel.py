@@ -156,6 +156,11 @@ class Model:
         g2 = (w * (albedo[None] * self.psi) ** 2).sum(1)  # (L, N)
         return self.be.numpy((g2 * (dF[1] * dF[1] + dF[2] * dF[2])).sum(0))
 
+    def fit_sums(self, r, lam: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) float64 numpy each: the usable samples' squared residuals and their IRLS weights, summed over
+        LEDs and channels (a level's residual and confidence maps)."""
+        return self.be.pixel_sums(self.usable * r * r), self.be.pixel_sums(self.weights(r, lam, estimator))
+
     @staticmethod
     def whole(a):
         """``a`` as one array (a :class:`ChunkedModel` keeps its results in chunks; this model does not)."""
@@ -308,6 +313,9 @@ class ChunkedModel:
 
     def gradient_curvature(self, dF, albedo, w) -> np.ndarray:
         return self._join(self._map("gradient_curvature", dF, albedo, w))
+
+    def fit_sums(self, r, lam: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
+        return self._join(self._map("fit_sums", r, lam, estimator))
 
     def gauss_newton_blocks(self, F, dF, r, w, albedo):
         return self._join(self._map("gauss_newton_blocks", F, dF, r, w, albedo))

@@ -470,11 +470,10 @@ def _solve_level(
     info["amg_setups"] = pcg.setups
     # Final albedo and per-pixel diagnostics at the accepted depth (the refit cannot raise the energy).
     albedo, r = refit(F, albedo)
-    albedo, r = model.whole(albedo), model.whole(r)
+    albedo = model.whole(albedo)
     u_np = lv["usable"]
     cnt = u_np.sum(axis=(0, 1))
-    sq = be.pixel_sums(model.usable * r * r)
-    wsum = be.pixel_sums(model.whole(model.weights(r, lam, est)))
+    sq, wsum = model.fit_sums(r, lam, est)  # per chunk: no whole (L, 3, N) residual array
     rms = np.sqrt(sq / np.maximum(cnt, 1))
     conf = (cnt / (u_np.shape[0] * u_np.shape[1])) * (wsum / np.maximum(cnt, 1))
     result = {

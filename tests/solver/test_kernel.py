@@ -58,6 +58,8 @@ def test_chunked_model_equals_the_model_on_all_pixels(monkeypatch, level, dtype)
         whole.gauss_newton_blocks(F, dF, r, w, albedo), chunked.gauss_newton_blocks(Fc, dFc, rc, wc, albedo)
     ):
         np.testing.assert_array_equal(a, b)
+    for a, b in zip(whole.fit_sums(r, 0.1, "cauchy"), chunked.fit_sums(rc, 0.1, "cauchy")):
+        np.testing.assert_array_equal(a, b)
     assert whole.whole(r) is r
 
 
