@@ -168,9 +168,9 @@ class NormalMatrix:
       (each of which costs as much as a product at this size).
     - **fixed pattern** (``fixed=True``): H's sparsity pattern is fixed, and its values are linear in M, so
       ``H.data = S m + sum_j w_j e_j`` with one sparse map S, built once. An assembly is then one sparse
-      matrix-vector product: 0.02 s instead of 0.4-0.5 s at 307,200 pixels, for a build of ~2 s. That pays
-      where the level recurs: a whole frame's finest level, whose operators are kept on disk for every later
-      press of the sensor (:data:`nlipscalib.solver.nlips.OPERATOR_PERSIST_PIXELS`).
+      matrix-vector product: 0.04 s instead of 0.38-0.49 s at 307,200 pixels, for a build of 1.1-1.5 s. That
+      pays where the level recurs: the large levels of the sensor's whole gel, whose operators are kept on disk
+      for every later press of the sensor (:data:`nlipscalib.solver.nlips.OPERATOR_PERSIST_PIXELS`).
 
     Parameters
     ----------

@@ -21,7 +21,6 @@ by the identity of an object in this process.
 
 from __future__ import annotations
 
-import hashlib
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
 
@@ -35,14 +34,8 @@ PER_KIND = 2
 _store: dict[str, OrderedDict] = {}
 
 
-def digest(*arrays: np.ndarray) -> str:
-    """Content digest of arrays (shape, dtype and bytes): a 640x480 surface in a few milliseconds."""
-    h = hashlib.blake2b(digest_size=16)
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        h.update(repr((a.shape, a.dtype.str)).encode())
-        h.update(memoryview(a).cast("B"))
-    return h.hexdigest()
+digest = diskcache.digest
+"""Content digest of arrays (:func:`nlipscalib.core.diskcache.digest`): the keys of both tiers name arrays alike."""
 
 
 def reused(
