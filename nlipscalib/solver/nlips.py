@@ -29,6 +29,7 @@ from ..core import masks
 from ..core.camera import Camera
 from ..core.leds import led_arrays
 from ..core.reconstruction import Reconstruction
+from ..errors import ConfigError
 from . import geometry, reuse, robust
 from .blas import blas_threads
 from .inputs import check_inputs
@@ -100,7 +101,7 @@ def solve(
     backend: str = "numpy",
     progress: bool = False,
     init_depth: np.ndarray | None = None,
-    refine_finest: bool = True,
+    unrefined: int = 0,
 ) -> SolveResult:
     """Recover depth, normals and albedo from one image per LED.
 
@@ -124,11 +125,13 @@ def solve(
     init_depth : (H, W) float, mm, or None
         A close solution to start from (e.g. the previous pass of the outer interreflection loop,
         whose images differ only by a small change of the indirect light): the finest level alone is
-        solved from it, no pyramid (with ``refine_finest`` False: the next coarser level, from it
+        solved from it, no pyramid (with ``unrefined`` k > 0: the level k below the finest, from it
         averaged down). NaN pixels start from the prior.
-    refine_finest : False: the finest level is not iterated, only evaluated (normals, albedo) at the
-        depth brought up from the next coarser one -- a pass of the outer interreflection loop before its
-        last, whose indirect light is gathered on patches several pixels wide, needs no more.
+    unrefined : how many of the finest levels are not iterated (0: all are). The finest is then only
+        evaluated (normals, albedo) at the depth brought up from the finest iterated level, the levels
+        between are skipped -- a pass of the outer interreflection loop before its last, whose indirect
+        light is gathered on patches several pixels wide, needs no more. The coarsest level is always
+        iterated.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -170,10 +173,18 @@ def solve(
     if init_depth is not None:
         init = np.asarray(init_depth, np.float64)[crop]
         t_first = np.where(m & np.isfinite(init) & (init > 0), np.log(np.where(init > 0, init, 1.0)), t0)
-    # a warm start solves the finest level from it; unrefined, the next coarser one (from it brought down)
-    warm_levels = 1 if refine_finest else 2
+    if unrefined < 0:
+        raise ConfigError(f"unrefined must be >= 0 levels, got {unrefined}")
+    # a warm start solves the finest level from it; with unrefined levels, the one below them (from it brought down)
     levels = build_pyramid(
-        cam, data, use, m, t0, w0, opts if t_first is None else dataclasses.replace(opts, pyramid_levels=warm_levels)
+        cam,
+        data,
+        use,
+        m,
+        t0,
+        w0,
+        opts if t_first is None else dataclasses.replace(opts, pyramid_levels=unrefined + 1),
+        skip=range(1, unrefined),
     )
     for lv in levels:
         lv["recurs"] = whole_gel
@@ -188,7 +199,7 @@ def solve(
 
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
     with blas_threads(1):
-        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first, refine_finest)
+        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first, unrefined == 0)
     if bar is not None:
         bar.close()
 

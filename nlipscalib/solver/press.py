@@ -30,7 +30,15 @@ from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact
 from .contact import auto_roi as _auto_roi_box
-from .indirect import Surface, design_of, fit_indirect, reference_shading, reference_surface, surface_indirect
+from .indirect import (
+    Surface,
+    design_of,
+    fit_indirect,
+    patch_size,
+    reference_shading,
+    reference_surface,
+    surface_indirect,
+)
 from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -214,7 +222,7 @@ def _solve_press(
             return images
         return compensate(images, light) if light is fixed_light else boxed(light)  # fixed: any light
 
-    def run(light, init=None, refine_finest=True, receivers=None):
+    def run(light, init=None, unrefined=0, receivers=None):
         data = compensated(light)
         result = solve(
             data,
@@ -228,7 +236,7 @@ def _solve_press(
             backend=backend,
             progress=progress,
             init_depth=init,
-            refine_finest=refine_finest,
+            unrefined=unrefined,
         )
         if receivers is None and not result.reconstructed.any():  # a focus pass is merged into the last result
             dead = [i + 1 for i in result.report["dead_leds"]]
@@ -368,10 +376,10 @@ class _OuterLoop:
         self.passes, self.changes, self.solver_seconds, self.seconds = 0, [], [], 0.0
 
     def run(self, solve_with, max_passes: int) -> SolveResult:
-        """``solve_with(light, init=None, refine_finest=True, receivers=None)`` -> SolveResult, called once per
+        """``solve_with(light, init=None, unrefined=0, receivers=None)`` -> SolveResult, called once per
         pass (``receivers``: the pixels to solve, None for the mask); returns the last result. Every pass but
-        the last stops at the pyramid's next-to-finest level (its light is a gather over patches several
-        pixels wide, which the finest level's detail does not change); the last solves the finest level of
+        the last leaves the finest levels unrefined (:func:`_unrefined_levels`: its light is a gather over
+        patches several pixels wide, which finer detail does not change); the last solves the finest level of
         the whole mask from the depth before it, so the result is refined everywhere."""
         t0 = time.perf_counter()
         press, ref = self.press, self.press.reference
@@ -381,7 +389,8 @@ class _OuterLoop:
             self.model, press.camera, self.leds, ref.depth, ref.normals, albedo0, self.mask, surface=ref_surface
         )
         self.seconds += time.perf_counter() - t0
-        result = solve_with(light, refine_finest=max_passes == 0)
+        rough = _unrefined_levels(press.camera)
+        result = solve_with(light, unrefined=0 if max_passes == 0 else rough)
         self.solver_seconds.append(result.report["seconds"])
         settled = False
         for k in range(max_passes):
@@ -392,7 +401,7 @@ class _OuterLoop:
             last = settled or k == max_passes - 1
             region = None if last else self.focus
             # a small change of the light: start from the last depth; refined (and on the whole mask) at the last
-            new = solve_with(light, init=result.depth, refine_finest=last, receivers=region)
+            new = solve_with(light, init=result.depth, unrefined=0 if last else rough, receivers=region)
             if region is not None:
                 new = _merged(result, new, region)
             self.passes += 1
@@ -412,6 +421,16 @@ class _OuterLoop:
         omega = _relaxation(self.image_total, now) if self.relaxation == "auto" else float(self.relaxation)
         light[:, rows, cols] = np.maximum(now + omega * (new - now), 0.0)
         return light
+
+
+def _unrefined_levels(camera) -> int:
+    """How many of the finest pyramid levels the outer loop's passes before the last leave unrefined: the finest
+    iterated level keeps two pixels along an indirect-light patch's side (the gather reads the patch's mean), and
+    it is at least the next-to-finest. 640x480: 8 px patches, 2 levels (the solve iterates up to 160x120); 320x240
+    and smaller: 1. On the default twin's one-bounce 640x480 presses the contact AAE moved by <= 0.001 deg against
+    1 level (auto ROI and whole frame, sphere and cube) and each of those passes took about a third less
+    (benchmarks/RESULTS.md)."""
+    return max(1, int(np.log2(patch_size(camera) / 2)))
 
 
 class _BoxCompensation:

@@ -42,8 +42,10 @@ def masked_planes(stack: np.ndarray, mask: np.ndarray, dtype) -> np.ndarray:
     return out
 
 
-def build_pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> list[dict]:
-    """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, zeta, rays."""
+def build_pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions, skip=()) -> list[dict]:
+    """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, zeta, rays.
+
+    ``skip``: levels not built, counted from the finest (0); they still count in ``opts.pyramid_levels``."""
     n_levels = opts.pyramid_levels
     if n_levels == 0:
         n_levels = 1
@@ -51,6 +53,8 @@ def build_pyramid(cam: Camera, data, use, mask, t0, w0, opts: SolverOptions) -> 
             n_levels += 1
     levels = []
     for k in range(n_levels):
+        if k in skip:
+            continue
         c = cam if k == 0 else cam.scaled(0.5**k)
         if k == 0:
             d, u, mk, tk, wk = data, use, mask, t0, w0

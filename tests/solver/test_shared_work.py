@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core import load_press
+from nlipscalib.errors import ConfigError
 from nlipscalib.solver import SolverOptions, evaluate, solve, threads
 from nlipscalib.solver.contact import classify_contact, led_levels
 from nlipscalib.solver.indirect import Surface, direct_shading, fit_indirect
@@ -104,13 +105,13 @@ def test_a_pass_without_the_finest_level_is_close_and_a_warm_start_refines_it(pr
     prior = press.reference.depth
     two = SolverOptions(pyramid_levels=2)
     full = solve(lin, press.camera, press.leds, prior_depth=prior, options=two)
-    rough = solve(lin, press.camera, press.leds, prior_depth=prior, options=two, refine_finest=False)
+    rough = solve(lin, press.camera, press.leds, prior_depth=prior, options=two, unrefined=1)
     levels = rough.report["levels"]
     assert len(levels) >= 2 and levels[-1]["iterations"] == 0 and levels[-2]["iterations"] > 0
     refined = solve(lin, press.camera, press.leds, prior_depth=prior, options=two, init_depth=rough.depth)
     assert refined.report["levels"][-1]["iterations"] > 0
     # a warm start left unrefined (an outer pass before the last): the next coarser level from it, no pre-solve
-    again = solve(lin, press.camera, press.leds, prior_depth=prior, init_depth=rough.depth, refine_finest=False)
+    again = solve(lin, press.camera, press.leds, prior_depth=prior, init_depth=rough.depth, unrefined=1)
     levels = again.report["levels"]
     assert len(levels) == 2 and levels[0]["shape"] != levels[1]["shape"]
     assert levels[0]["estimator"] == "cauchy" and levels[0]["iterations"] > 0 and levels[1]["iterations"] == 0
@@ -118,6 +119,46 @@ def test_a_pass_without_the_finest_level_is_close_and_a_warm_start_refines_it(pr
     a, b, c, d = (evaluate(r, gt)["all"]["aae_deg"] for r in (full, rough, refined, again))
     assert b < a + 2.0 and d < a + 2.0, (a, b, d)  # near the answer already, not at the prior
     assert c <= a + 0.01, (a, c)
+
+
+def test_two_unrefined_levels_skip_the_one_between_and_stay_near_the_answer(press):
+    """An outer pass before the last on a large image leaves two levels unrefined: the level between the
+    finest iterated one and the finest is not built, the finest is only evaluated, from cold and warm starts."""
+    lin = press.linear(press.led_images)
+    prior = press.reference.depth
+    three = SolverOptions(pyramid_levels=3)
+    full = solve(lin, press.camera, press.leds, prior_depth=prior, options=three)
+    rough = solve(lin, press.camera, press.leds, prior_depth=prior, options=three, unrefined=2)
+    every = [tuple(lv["shape"]) for lv in full.report["levels"]]  # coarse to fine (the first twice: a pre-solve)
+    coarse, between, finest = every[0], every[-2], every[-1]
+    shapes = [tuple(lv["shape"]) for lv in rough.report["levels"]]
+    assert between not in shapes and shapes[-1] == finest and coarse in shapes, (every, shapes)
+    assert rough.report["levels"][-1]["iterations"] == 0
+    assert all(lv["iterations"] > 0 for lv in rough.report["levels"][:-1])
+    warm = solve(lin, press.camera, press.leds, prior_depth=prior, init_depth=rough.depth, unrefined=2)
+    levels = warm.report["levels"]
+    assert [tuple(lv["shape"]) for lv in levels] == [coarse, finest], levels
+    assert levels[0]["iterations"] > 0 and levels[1]["iterations"] == 0
+    gt = press.ground_truth
+    a, b, c = (evaluate(r, gt)["all"]["aae_deg"] for r in (full, rough, warm))
+    assert b < a + 2.0 and c < a + 2.0, (a, b, c)
+    with pytest.raises(ConfigError, match="unrefined"):
+        solve(lin, press.camera, press.leds, prior_depth=prior, unrefined=-1)
+
+
+def test_the_outer_passes_leave_unrefined_the_levels_finer_than_half_a_patch():
+    from nlipscalib.core.camera import Camera
+    from nlipscalib.solver.press import _unrefined_levels
+
+    def camera(w, h):
+        return Camera(width=w, height=h, fx=w, fy=w, cx=w / 2, cy=h / 2)
+
+    assert [_unrefined_levels(camera(w, h)) for w, h in ((160, 120), (320, 240), (640, 480), (1280, 960))] == [
+        1,
+        1,
+        2,
+        3,
+    ]
 
 
 def test_a_pass_on_the_dent_replaces_the_whole_frame_result_there_only(press):
