@@ -346,10 +346,22 @@ def _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interr
 def _capture_key(capture: Press) -> tuple:
     """What an indirect fit reads of a capture, named by content: camera, response, a digest of the stored
     images and the reference surface, and the sensor design (the dome beyond the view). A fit on the
-    undeformed dome is the sensor's, so it is kept for later presses and processes under this key."""
-    ref = capture.reference
-    arrays = reuse.digest(capture.led_images, capture.dark, ref.depth, ref.normals)
-    return capture.camera, capture.response, arrays, diskcache.stable_key(design_of(capture))
+    undeformed dome is the sensor's, so it is kept for later presses and processes under this key. Worked out
+    once per loaded capture (hashing its images takes ~30 ms at 640x480)."""
+
+    def key():
+        ref = capture.reference
+        arrays = reuse.digest(capture.led_images, capture.dark, ref.depth, ref.normals)
+        return capture.camera, capture.response, arrays, diskcache.stable_key(design_of(capture))
+
+    return reuse.reused("capture key", id(capture), key, keep=capture)
+
+
+def _undeformed_images(capture: Press) -> np.ndarray:
+    """(L, H, W, 3) float32, read-only -- the undeformed capture's linear images, returned through
+    :mod:`.reuse` under its content key: the contact classification's blur of them (0.13-0.25 s at 640x480)
+    then names them by that key and is kept on disk for the next process (``contact._smoothed_undeformed``)."""
+    return reuse.reused("undeformed capture", _capture_key(capture), lambda: capture.linear_led_images)
 
 
 class _OuterLoop:
@@ -552,7 +564,7 @@ def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache
     ``shading``: :func:`direct_shading` of the reference surface; ``cache``: the press's side of the
     classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
     if ref_capture is not None:
-        und = ref_capture.linear_led_images
+        und = _undeformed_images(ref_capture)
         return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, cache=cache)
     if model is not None and model.enabled:
         light = model.undeformed_light(press.camera.shape)

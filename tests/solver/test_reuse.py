@@ -166,7 +166,7 @@ def _solve_fields(press, undeformed):
 
 
 def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, disk, monkeypatch):
-    from nlipscalib.solver import indirect, nlips
+    from nlipscalib.solver import contact, indirect, nlips
 
     # the whole gel's levels this large keep their operators on disk, with the fixed-pattern map
     monkeypatch.setattr(nlips, "OPERATOR_PERSIST_PIXELS", 1000)
@@ -178,13 +178,15 @@ def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, dis
     reuse.clear()
     first = _solve_fields(press, undeformed)
     kinds = {p.name for p in disk.iterdir() if any(p.iterdir())}
-    assert {"shading", "surface", "fit", "operators"} <= kinds
+    assert {"shading", "surface", "fit", "operators", "smoothed_undeformed"} <= kinds
     reuse.clear()  # a new process: only the disk remembers
-    shaded = []
-    direct = indirect.direct_shading
+    shaded, blurred = [], []
+    direct, blur = indirect.direct_shading, contact._smooth
     monkeypatch.setattr(indirect, "direct_shading", lambda *a, **k: shaded.append(1) or direct(*a, **k))
+    monkeypatch.setattr(contact, "_smooth", lambda *a, **k: blurred.append(1) or blur(*a, **k))
     later = _solve_fields(press, undeformed)
     assert not shaded  # the undeformed surface's shading came from disk
+    assert len(blurred) == 1  # the press's images; the undeformed capture's blur came from disk
     for key in fresh:
         np.testing.assert_array_equal(first[key], fresh[key], err_msg=key)
         np.testing.assert_array_equal(later[key], fresh[key], err_msg=key)
