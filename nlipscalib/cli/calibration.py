@@ -37,7 +37,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..config import check_count
-    from ..core.capture import find_presses
+    from ..core.capture import REFERENCE_FOLDER, split_reference
     from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.coverage import coverage, write_coverage_json
@@ -55,8 +55,9 @@ def run(args) -> int:
         smoothing_px=smoothing,
     )
     root = Path(args.presses)
-    reference = Path(args.reference) if args.reference else root / "reference"
-    presses = [p for p in find_presses(root) if p.resolve() != reference.resolve()]
+    presses, reference = split_reference(root, args.reference)
+    if reference is None:
+        raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
     if not presses:
         raise ConfigError(f"{root}: no press folders found")
     workers = args.workers or usable_cores()

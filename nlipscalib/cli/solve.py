@@ -17,7 +17,9 @@ def register(subparsers) -> None:
         "--reference",
         metavar="REF_PRESS",
         help="press folder of the undeformed dome (same camera, LEDs, exposure): the interreflection term is "
-        "fitted on it (default: on the press itself, away from the contact) and --roi auto / anchoring compare to it",
+        "fitted on it and --roi auto / anchoring compare to it (default: PRESS/reference when PRESS is a folder of "
+        "presses that has one, as `nlips dataset` and `nlips capture` write; else the press itself, away from the "
+        "contact)",
     )
     p.add_argument(
         "--interreflection",
@@ -80,7 +82,7 @@ def parse_roi(values):
 
 def run(args) -> int:
     from ..config import from_mapping, read_config_file
-    from ..core.capture import find_presses
+    from ..core.capture import split_reference
     from ..errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..solver import SolverOptions
@@ -88,13 +90,15 @@ def run(args) -> int:
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
     if args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
-    presses = find_presses(args.press)
+    presses, reference = split_reference(args.press, args.reference)
     if not presses:
         raise ConfigError(f"{args.press}: no press folders found")
     if args.out and len(presses) > 1:
         raise ConfigError("--out only applies to a single press")
+    if reference is not None and args.reference is None:
+        log.info("%s: the undeformed dome's capture, used as --reference (not solved as a press)", reference)
     given = {
-        "reference": args.reference,
+        "reference": reference,
         "roi": parse_roi(args.roi),
         "leds": args.leds,
         "options": options,

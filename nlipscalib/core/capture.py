@@ -37,6 +37,8 @@ FORMAT_VERSION = 1
 META_FILE = "meta.json"
 GT_FILE = "gt.npz"
 REFERENCE_FILE = "reference.npz"
+REFERENCE_FOLDER = "reference"
+"""A folder of presses (a twin dataset, a capture session) keeps the capture of its undeformed dome here."""
 GT_KEYS = {"depth": 2, "points": 3, "normals": 3, "valid": 2, "contact": 2}
 """Ground-truth arrays and their number of dimensions; all (H, W[, 3]) in the camera frame."""
 
@@ -295,6 +297,22 @@ def find_presses(root: str | Path) -> list[Path]:
     if not root.is_dir():
         raise CaptureError(f"{root}: no such folder")
     return sorted(p for p in root.iterdir() if p.is_dir() and is_press_folder(p))
+
+
+def split_reference(root: str | Path, reference: str | Path | None = None) -> tuple[list[Path], Path | None]:
+    """The presses at ``root`` (:func:`find_presses`) and the undeformed dome's capture, kept apart.
+
+    ``reference``: the capture named by the user; None: ``root/reference`` (:data:`REFERENCE_FOLDER`) when
+    ``root`` is a folder of presses that holds one. The reference is never among the presses returned.
+    """
+    presses = find_presses(root)
+    if reference is None:
+        default = Path(root) / REFERENCE_FOLDER
+        reference = default if not is_press_folder(root) and is_press_folder(default) else None
+    if reference is None:
+        return presses, None
+    reference = Path(reference)
+    return [p for p in presses if p.resolve() != reference.resolve()], reference
 
 
 # ---------------------------------------------------------------------- helpers

@@ -48,6 +48,12 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     assert code == 1
     assert (out / "press_0000" / "nlips" / "result.npz").is_file()
     assert not (out / "press_0001" / "nlips").exists() and not (out / "reference" / "nlips").exists()
+    # without --reference, the dataset's own reference/ is the reference: used, not solved
+    first = json.loads((out / "press_0000" / "nlips" / "report.json").read_text())["provenance"]
+    assert main(["solve", str(out), "--roi", "auto", "--overwrite"]) == 1
+    again = json.loads((out / "press_0000" / "nlips" / "report.json").read_text())["provenance"]
+    assert again["settings"]["reference"] == str(out / "reference") and again["key"] == first["key"]
+    assert not (out / "reference" / "nlips").exists()
     capsys.readouterr()
     assert main(["eval", str(out)]) == 0  # scores what was solved, names what was not
     table = capsys.readouterr().out
