@@ -63,13 +63,16 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     previous = _terminate_cleanly(args.command)
+    previous_int = _note_interrupts()
     try:
         return _run(args)
     finally:
-        if previous is not None:
-            import signal
+        import signal
 
+        if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+        if previous_int is not None:
+            signal.signal(signal.SIGINT, previous_int)
 
 
 def _run(args) -> int:
@@ -85,8 +88,40 @@ def _run(args) -> int:
     except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
         return _fail(args, describe_os_error(exc, overwrite_flag=hasattr(args, "overwrite")))
     except KeyboardInterrupt:
-        print(f"nlips {args.command}: interrupted; finished work is kept, run again to resume", file=sys.stderr)
-        return 130
+        return _interrupted(args)
+    except Exception:
+        if _INTERRUPTED:  # Ctrl-C inside a native library (Mitsuba/drjit) surfaces as its own exception
+            return _interrupted(args)
+        raise
+
+
+_INTERRUPTED: list[int] = []
+"""SIGINT numbers received while a command ran (see :func:`_note_interrupts`)."""
+
+
+def _interrupted(args) -> int:
+    print(f"nlips {args.command}: interrupted; finished work is kept, run again to resume", file=sys.stderr)
+    return 130
+
+
+def _note_interrupts():
+    """Record Ctrl-C, then interrupt as Python does (KeyboardInterrupt). A native library can catch that
+    exception and raise its own (drjit: "error while performing a custom differentiable operation"); the
+    record lets :func:`_run` still report an interruption, not a traceback. Returns the previous handler."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return None  # ignored (a background job) or handled by the embedding program: leave it so
+    _INTERRUPTED.clear()
+
+    def handler(signum, frame):
+        _INTERRUPTED.append(signum)
+        signal.default_int_handler(signum, frame)
+
+    return signal.signal(signal.SIGINT, handler)
 
 
 def _terminate_cleanly(command: str):
