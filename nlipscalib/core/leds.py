@@ -79,6 +79,30 @@ def tricolor_groups(n_leds: int) -> np.ndarray:
     return (np.arange(n_leds) * 3) // n_leds
 
 
+def led_geometry_mismatch(positions_a, directions_a, positions_b, directions_b) -> str | None:
+    """Why two LED sets are not one sensor's LEDs (count, or an LED more than ``tolerances.SAME_LED_MM`` /
+    ``SAME_LED_DEG`` away from its counterpart, numbered from 1), or None when they match.
+
+    Parameters
+    ----------
+    positions_a, positions_b : (L, 3) float, mm, camera frame
+    directions_a, directions_b : (L, 3) float, unit, camera frame
+    """
+    from . import tolerances
+
+    pa, pb = np.asarray(positions_a, float), np.asarray(positions_b, float)
+    if pa.shape != pb.shape:
+        return f"{len(pb)} LEDs against {len(pa)}"
+    gap = np.linalg.norm(pa - pb, axis=1)
+    cos = np.sum(np.asarray(directions_a, float) * np.asarray(directions_b, float), axis=1)
+    turn = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    off = np.flatnonzero((gap > tolerances.SAME_LED_MM) | (turn > tolerances.SAME_LED_DEG))
+    if off.size:
+        i = int(off[0])
+        return f"LED {i + 1} is {gap[i]:.2f} mm and {turn[i]:.1f} deg from its counterpart"
+    return None
+
+
 def led_arrays(leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Stack LEDs into arrays.
 

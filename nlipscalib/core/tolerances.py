@@ -2,6 +2,13 @@
 
 CONTACT_MM = 1e-3
 """A gel vertex displaced by more than this (mm) is in contact / deformed."""
+SAME_LED_MM = 0.5
+"""Two captures are of one sensor only if each LED sits within this distance (mm) of its counterpart (a
+re-calibration moves an LED by ~0.1-0.3 mm; the twin's fingertip and NLiPsTac domes differ by 1.5 mm)."""
+SAME_LED_DEG = 3.0
+"""... and points within this angle (degrees) of it (a re-calibration: 1-2 deg; fingertip vs NLiPsTac: 10 deg)."""
+SAME_SURFACE_MM = 0.05
+"""... and their undeformed surfaces (reference.npz depth) agree within this median distance (mm)."""
 MIN_LEDS_PER_PIXEL = 3
 """A pixel needs at least this many usable (lit, unsaturated) LEDs to be reconstructed."""
 NORMAL_EPS = 1e-9

@@ -214,23 +214,18 @@ def load_tricolor(folder) -> tuple[np.ndarray, dict]:
     """
     from ..core.capture import SensorResponse, read_meta
     from ..core.imageio import read_png16
-    from ..core.leds import tricolor_groups
+    from ..core.leds import Led
+    from .sensor import describe_sensor
 
     folder = Path(folder)
     meta = read_meta(folder)
     try:
         camera = Camera.from_dict(meta["camera"])
         response = SensorResponse(**meta["sensor"])
-    except (TypeError, ValueError) as exc:
+        leds = [Led.from_dict(d) for d in meta["leds"]]
+    except (TypeError, ValueError, KeyError) as exc:
         raise CaptureError(f"{folder / 'meta.json'}: {exc}") from None
-    n = len(meta["leds"])
-    sensor = {
-        "camera": camera.to_dict(),
-        "n_leds": n,
-        "tricolor_groups": [int(g) for g in tricolor_groups(n)],
-        "black_level": response.black_level,
-        "white_level": response.white_level,
-    }
+    sensor = describe_sensor(camera, leds, response)
     images = []
     for name in (meta["images"]["tricolor"], meta["images"]["dark"]):
         img = read_png16(folder / name)

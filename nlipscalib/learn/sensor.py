@@ -1,4 +1,4 @@
-"""What a calibration is valid for: the sensor's camera, image size and LED grouping.
+"""What a calibration is valid for: the sensor's camera, image size, LED grouping and LED geometry.
 
 A calibration dataset and every model trained on it carry this description; a capture (or a bare
 image) from another sensor is refused with a message saying what differs.
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from ..core.leds import tricolor_groups
+from ..core.leds import led_geometry_mismatch, tricolor_groups
 from ..errors import CaptureError
 
 INTRINSICS_RTOL = 1e-3
@@ -16,14 +16,22 @@ INTRINSICS_RTOL = 1e-3
 
 
 def sensor_of(press) -> dict:
-    """The sensor description of a capture (``core.Press``): camera, LED count and tri-colour groups."""
-    n = len(press.leds)
+    """The sensor description of a capture (``core.Press``): :func:`describe_sensor` of its optics."""
+    return describe_sensor(press.camera, press.leds, press.response)
+
+
+def describe_sensor(camera, leds, response) -> dict:
+    """Camera, LED count, tri-colour groups, sensor levels and LED geometry (positions, mm, and directions,
+    camera frame) of a sensor: what a calibration dataset and a model are valid for."""
+    n = len(leds)
     return {
-        "camera": press.camera.to_dict(),
+        "camera": camera.to_dict(),
         "n_leds": n,
         "tricolor_groups": [int(g) for g in tricolor_groups(n)],
-        "black_level": float(press.response.black_level),
-        "white_level": float(press.response.white_level),
+        "black_level": float(response.black_level),
+        "white_level": float(response.white_level),
+        "led_positions": [[float(v) for v in led.position] for led in leds],
+        "led_directions": [[float(v) for v in led.direction] for led in leds],
     }
 
 
@@ -41,6 +49,10 @@ def sensor_mismatch(expected: dict, actual: dict) -> str | None:
         return f"lens distortion {ca['dist']}, calibrated for {ce['dist']}"
     if expected["n_leds"] != actual["n_leds"] or expected["tricolor_groups"] != actual["tricolor_groups"]:
         return f"{actual['n_leds']} LEDs in groups {actual['tricolor_groups']}, calibrated for {expected['n_leds']}"
+    if "led_positions" in expected and "led_positions" in actual:  # models made before they were recorded: no check
+        return led_geometry_mismatch(
+            expected["led_positions"], expected["led_directions"], actual["led_positions"], actual["led_directions"]
+        )
     return None
 
 

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..core import diskcache, masks, tolerances
 from ..core.capture import Press
+from ..core.leds import led_geometry_mismatch
 from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact
@@ -531,11 +532,32 @@ def _split_indirect(press: Press, indirect):
             raise CaptureError(f"{indirect.folder}: camera or LED count differs from {press.folder}")
         if indirect.reference is None:
             raise CaptureError(f"{indirect.folder}: the undeformed capture needs its reference surface (reference.npz)")
+        why = _other_sensor(press, indirect)
+        if why:
+            raise CaptureError(f"{indirect.folder}: not a capture of the sensor of {press.folder} ({why})")
         return indirect, None
     light = np.asarray(indirect, np.float32)
     if light.shape != press.led_images.shape:
         raise ShapeError(f"indirect light {light.shape} must match the LED images {press.led_images.shape}")
     return None, light
+
+
+def _other_sensor(press: Press, undeformed: Press) -> str | None:
+    """Why ``undeformed`` is not a capture of ``press``'s sensor (LED geometry, undeformed surface), or None."""
+    pos, dirs = (np.array([getattr(led, f) for led in press.leds]) for f in ("position", "direction"))
+    why = led_geometry_mismatch(
+        pos, dirs, [led.position for led in undeformed.leds], [led.direction for led in undeformed.leds]
+    )
+    if why or press.reference is None:
+        return why
+    a, b = press.reference.depth, undeformed.reference.depth
+    both = np.isfinite(a) & np.isfinite(b)
+    if not both.any():
+        return "their undeformed surfaces share no pixel"
+    gap = float(np.median(np.abs(a[both] - b[both])))
+    if gap > tolerances.SAME_SURFACE_MM:
+        return f"undeformed surfaces {gap:.2f} mm apart (median)"
+    return None
 
 
 def _check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:

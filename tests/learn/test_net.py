@@ -96,6 +96,12 @@ def test_model_refuses_a_capture_of_another_sensor(trained, twin_presses, tmp_pa
     assert main(["infer", str(trained), str(other)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "other_press" in err[0] and "another sensor" in err[0] and "fx" in err[0]
+    meta["camera"]["fx"] /= 1.1  # the same lens, but another dome's LED ring (1.5 mm further out)
+    meta["leds"][0]["position"][0] += 1.5
+    (other / "meta.json").write_text(json.dumps(meta))
+    assert main(["infer", str(trained), str(other)]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "another sensor" in err[0] and "LED 1 is 1.50 mm" in err[0]
 
 
 def test_wrong_image_size_is_refused(trained, tmp_path, capsys):

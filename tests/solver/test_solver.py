@@ -178,3 +178,22 @@ def test_bad_inputs(presses, sphere_press, tmp_path):
     (wrong / "meta.json").write_text(json.dumps(meta))
     with pytest.raises(CaptureError, match="camera"):
         load_press(wrong)
+
+
+def test_an_undeformed_capture_of_another_sensor_is_refused(tmp_path):
+    """The same camera and LED count are not enough: LEDs 1.5 mm / 10 deg elsewhere (another dome's ring) or
+    another undeformed surface make it another sensor, named in one line; the same sensor passes."""
+    import dataclasses
+
+    from nlipscalib.core.leds import led_geometry_mismatch
+
+    press = load_press(synth.make_press(tmp_path / "press", "sphere"))
+    same = load_press(synth.make_press(tmp_path / "same", "none"))
+    moved = tuple(dataclasses.replace(led, position=(led.position[0] * 1.17, *led.position[1:])) for led in press.leds)
+    other = load_press(synth.make_press(tmp_path / "other", "none", leds=moved))
+    solve_press(press, roi=(20, 15, 24, 24), indirect=same, max_outer=0)  # the same sensor: accepted
+    with pytest.raises(CaptureError, match=r"other: not a capture of the sensor of .*press \(LED 1 is 1\.53 mm"):
+        solve_press(press, roi=(20, 15, 24, 24), indirect=other)
+    assert led_geometry_mismatch([[0, 0, 0]], [[0, 0, 1]], [[0.4, 0, 0]], [[0, 0.05, 0.9987]]) is None  # within
+    turned = led_geometry_mismatch([[0, 0, 0]], [[0, 0, 1]], [[0, 0, 0]], [[0, 0.0872, 0.9962]])  # 5 deg
+    assert turned == "LED 1 is 0.00 mm and 5.0 deg from its counterpart"
