@@ -522,6 +522,7 @@ def _solver_keywords(given: dict | None) -> dict:
     import inspect
 
     from .solver import solve_press
+    from .solver.press import check_modes
 
     own = {"press", "roi", "leds", "options", "backend", "progress", "indirect"}
     params = {
@@ -532,7 +533,9 @@ def _solver_keywords(given: dict | None) -> dict:
     unknown = sorted(set(given or {}) - set(params))
     if unknown:
         raise ConfigError(f"unknown solver keywords {unknown}; solve_press accepts {sorted(params)}")
-    return params | dict(given or {})
+    keywords = params | dict(given or {})
+    check_modes(*(keywords[k] for k in ("interreflection", "bounces", "outer_relaxation", "coating_albedo")))
+    return keywords
 
 
 def _names(folders: Sequence[Path]) -> dict[Path, str]:

@@ -10,7 +10,7 @@ log = logging.getLogger(__name__)
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("solve", help="reconstruct depth/normals of a press with near-light photometric stereo")
-    p.add_argument("press", help="press folder, or a folder of press folders")
+    p.add_argument("press", nargs="?", help="press folder, or a folder of press folders")
     p.add_argument("--roi", nargs="+", metavar="V", help="x0 y0 w h (pixels) or 'auto' (around the contact)")
     p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
     p.add_argument(
@@ -87,6 +87,7 @@ def run(args) -> int:
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..solver import SolverOptions
 
+    _press_after_roi(args)
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
     if args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
@@ -114,6 +115,17 @@ def run(args) -> int:
         presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
     )
     return _summary(statuses)
+
+
+def _press_after_roi(args) -> None:
+    """``nlips solve --roi auto PRESS``: the press folder follows --roi's values (it takes one or four), so
+    argparse gave it to --roi; take it back."""
+    from ..errors import ConfigError
+
+    if args.press is None and args.roi and len(args.roi) in (2, 5):
+        args.press = args.roi.pop()
+    if args.press is None:
+        raise ConfigError("the press folder is missing (nlips solve PRESS [options])")
 
 
 def _summary(statuses: dict[str, str]) -> int:

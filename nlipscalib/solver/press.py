@@ -164,7 +164,7 @@ def _solve_press(
     their sum), anchoring (what was decided and why), anchored_pixels, dead_leds_contact, contact_seconds,
     indirect_seconds.
     """
-    _check_modes(interreflection, bounces, outer_relaxation)
+    check_modes(interreflection, bounces, outer_relaxation, coating_albedo)
     leds = press.leds if leds is None else tuple(leds)
     if len(leds) != len(press.leds):
         raise CaptureError(f"{press.folder}: {len(leds)} LEDs given for {len(press.leds)} LED images")
@@ -280,13 +280,21 @@ def _solve_press(
     return result
 
 
-def _check_modes(interreflection: str, bounces: int, outer_relaxation) -> None:
+def check_modes(interreflection: str, bounces: int, outer_relaxation, coating_albedo=None) -> None:
+    """ConfigError when one of :func:`solve_press`'s interreflection keywords is out of range (checked before any
+    work, also by the pipeline before it looks for an earlier result)."""
     if interreflection not in INTERREFLECTION_MODES:
         raise ConfigError(f"interreflection must be one of {INTERREFLECTION_MODES}, got {interreflection!r}")
     if bounces not in (1, 2):
         raise ConfigError(f"bounces must be 1 or 2, got {bounces}")
     if outer_relaxation != "auto" and not (isinstance(outer_relaxation, (int, float)) and 0 < outer_relaxation <= 2):
         raise ConfigError(f"outer_relaxation must be 'auto' or a number in (0, 2], got {outer_relaxation!r}")
+    if coating_albedo is not None:
+        values = np.atleast_1d(np.asarray(coating_albedo, float))
+        if values.size not in (1, 3) or not np.all((values > 0) & (values <= 1)):
+            raise ConfigError(
+                f"coating albedo (--coating-albedo) must be one value or three in (0, 1], got {coating_albedo!r}"
+            )
 
 
 @dataclasses.dataclass

@@ -137,6 +137,19 @@ def test_bad_arguments_are_one_line(data, capsys):
     assert "leds must be like '1,2,5'" in capsys.readouterr().err
     assert main(["solve", str(root / "press_a"), "--roi", "1", "2"]) == 2
     assert "--roi" in capsys.readouterr().err
+    assert main(["solve", str(root / "press_a"), "--coating-albedo", "2"]) == 2
+    assert "--coating-albedo" in capsys.readouterr().err
+    assert main(["solve", "--roi", "auto"]) == 2
+    assert "press folder is missing" in capsys.readouterr().err
+
+
+def test_the_press_may_follow_the_roi(data, capsys):
+    root, cfg = data
+    press = root / "press_a"
+    assert main(["solve", "--roi", "auto", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    assert json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["roi"] == "auto"
+    assert main(["solve", "--roi", "2", "3", "40", "30", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    assert json.loads((press / "nlips" / "report.json").read_text())["roi"] == [2, 3, 40, 30]
 
 
 def test_demo_recomputes_a_damaged_cached_result(data, capsys):
