@@ -86,7 +86,8 @@ def _run(args) -> int:
     except (NlipsError, MissingDependencyError) as exc:
         return _fail(args, str(exc))
     except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
-        return _fail(args, describe_os_error(exc, overwrite_flag=hasattr(args, "overwrite")))
+        where = next((getattr(args, k) for k in ("out", "press", "presses") if getattr(args, k, None)), None)
+        return _fail(args, describe_os_error(exc, overwrite_flag=hasattr(args, "overwrite"), where=where))
     except KeyboardInterrupt:
         return _interrupted(args)
     except Exception:
@@ -150,8 +151,12 @@ def _terminate_cleanly(command: str):
     return signal.signal(signal.SIGTERM, handler)
 
 
-def describe_os_error(exc: OSError, overwrite_flag: bool = False) -> str:
-    """One line naming the path and the cause of a file-system error."""
+def describe_os_error(exc: OSError, overwrite_flag: bool = False, where=None) -> str:
+    """One line naming the path and the cause of a file-system error: the entry the user asked for, not a
+    hidden temporary or claim beside it; ``where`` (the command's output or input) when the error names no
+    path (a full disk found while writing)."""
+    from ..core.atomic import named_target
+
     cause = exc.strerror or str(exc)
     if exc.errno == errno.ENOSPC:
         cause += " (the disk is full: free space or choose another --out)"
@@ -159,7 +164,9 @@ def describe_os_error(exc: OSError, overwrite_flag: bool = False) -> str:
         cause += " (choose a writable output folder)"
     elif isinstance(exc, FileExistsError) and overwrite_flag:
         cause += " (use --overwrite to replace it)"
-    paths = [p for p in (exc.filename, exc.filename2) if p is not None]
+    paths = [named_target(p) for p in (exc.filename, exc.filename2) if p is not None]
+    if not paths and where is not None:
+        paths = [where]
     return f"{' -> '.join(map(str, paths))}: {cause}" if paths else cause
 
 

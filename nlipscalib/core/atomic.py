@@ -13,6 +13,7 @@ import errno
 import glob
 import json
 import os
+import re
 import secrets
 import shutil
 import tempfile
@@ -49,6 +50,19 @@ DIR_MODE = 0o777 & ~_UMASK
 def tmp_prefix(name: str) -> str:
     """Prefix of this process's temporary entries for item ``name``."""
     return f"{TMP_PREFIX}{name}{OWNER_SEP}{HOST}{OWNER_SEP}{os.getpid()}{OWNER_SEP}"
+
+
+def named_target(path: str | Path) -> Path:
+    """The entry a user asked for, given one of the hidden entries written beside it (a temporary
+    ``.tmp-NAME~host~pid~...`` or a claim ``.claim-NAME[.token]``): for error messages, which should name
+    what the user knows. Any other path is returned as it is."""
+    p = Path(path)
+    if p.name.startswith(TMP_PREFIX):
+        return p.with_name(p.name[len(TMP_PREFIX) :].split(OWNER_SEP, 1)[0])
+    if p.name.startswith(CLAIM_PREFIX):
+        item = re.sub(r"\.(stale\.)?[0-9a-f]{8,16}$", "", p.name[len(CLAIM_PREFIX) :])
+        return p.parent if item.startswith("probe.") else p.with_name(item)
+    return p
 
 
 def check_writable(folder: str | Path, longest_name: int = 0) -> None:

@@ -33,6 +33,7 @@ def read_png16(path: str | Path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise CaptureError(f"{path}: image file is missing")
+    _check_png_ends(path)
     cv2 = _cv2()
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
@@ -44,6 +45,24 @@ def read_png16(path: str | Path) -> np.ndarray:
             raise CaptureError(f"{path}: expected 3 colour channels, found {img.shape[2]}")
         img = img[..., ::-1]
     return np.ascontiguousarray(img)
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _check_png_ends(path: Path) -> None:
+    """CaptureError for a file that is not a PNG or is cut short (no IEND chunk at its end: an interrupted copy
+    or write), found from its first and last bytes: libpng would print its own error line on stderr first."""
+    from ..errors import CaptureError
+
+    with open(path, "rb") as f:
+        head = f.read(len(PNG_SIGNATURE))
+        f.seek(max(f.seek(0, 2) - 64, 0))
+        tail = f.read()
+    if head != PNG_SIGNATURE:
+        raise CaptureError(f"{path}: not a readable PNG image (no PNG signature)")
+    if b"IEND" not in tail:
+        raise CaptureError(f"{path}: truncated PNG image (cut short: copy or capture it again)")
 
 
 def read_npz(path: str | Path, keys=(), unreadable: str = "damaged or truncated .npz") -> dict[str, np.ndarray]:
@@ -62,6 +81,9 @@ def read_npz(path: str | Path, keys=(), unreadable: str = "damaged or truncated 
     path = Path(path)
     if not path.is_file():
         raise CaptureError(f"{path}: missing")
+    with open(path, "rb") as f:
+        if f.read(2) != b"PK":  # a .npz is a zip archive; numpy would take other bytes for a pickle
+            raise CaptureError(f"{path}: {unreadable} (not a .npz archive)")
     try:
         with np.load(path) as data:
             arrays = {k: data[k] for k in data.files}

@@ -92,3 +92,22 @@ def test_next_write_of_a_folder_cleans_its_killed_predecessor(tmp_path):
     assert not dead.exists() and not old_style.exists()
     assert other_item.exists()  # only this folder's leftovers
     assert (tmp_path / "nlips" / "result.npz").read_bytes() == b"whole"
+
+
+def test_error_messages_name_the_entry_the_user_asked_for_not_its_hidden_siblings(tmp_path):
+    import errno
+
+    from nlipscalib.cli import describe_os_error
+    from nlipscalib.core.atomic import named_target, tmp_prefix
+
+    out = tmp_path / "nlips"
+    assert named_target(tmp_path / (tmp_prefix("nlips") + "abc")) == out
+    assert named_target(tmp_path / ".claim-nlips") == out
+    assert named_target(tmp_path / ".claim-nlips.667b44a0096d6a8b") == out
+    assert named_target(tmp_path / ".claim-nlips.stale.0123456789ab") == out
+    assert named_target(tmp_path / ".claim-probe.host.12.abcd1234") == tmp_path
+    assert named_target(tmp_path / "led_01.png") == tmp_path / "led_01.png"
+    denied = PermissionError(errno.EACCES, "Permission denied", str(tmp_path / ".claim-nlips.667b44a0096d6a8b"))
+    assert describe_os_error(denied).startswith(f"{out}: Permission denied")
+    full = OSError(errno.ENOSPC, "No space left on device")  # found while writing: no path in the error
+    assert describe_os_error(full, where=tmp_path / "press").startswith(f"{tmp_path / 'press'}: No space left")

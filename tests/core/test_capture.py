@@ -97,13 +97,17 @@ def test_interrupted_folder_write_leaves_nothing(tmp_path):
         (lambda f: _edit_meta(f, lambda m: m["leds"][0].update(mu=-1)), "mu"),
         (lambda f: _edit_meta(f, lambda m: m["sensor"].update(black_level=70000)), "black_level"),
         (lambda f: (f / "gt.npz").write_bytes(b"not npz"), "gt.npz: not a readable"),
+        (lambda f: (f / "led_03.png").write_bytes((f / "led_03.png").read_bytes()[:-200]), "led_03.png: truncated PNG"),
+        (lambda f: (f / "reference.npz").write_bytes(b"garbage"), "reference.npz: not a readable"),
     ],
 )
-def test_broken_folders_are_reported_precisely(tmp_path, breakage, message):
+def test_broken_folders_are_reported_precisely(tmp_path, breakage, message, capfd):
     folder = _press(tmp_path / "p")
     breakage(folder)
-    with pytest.raises(CaptureError, match=message.replace("(", r"\(").replace(".", r"\.")):
+    with pytest.raises(CaptureError, match=message.replace("(", r"\(").replace(".", r"\.")) as caught:
         load_press(folder)
+    assert "allow_pickle" not in str(caught.value)  # numpy's advice for a pickle, not for a broken file
+    assert capfd.readouterr().err == ""  # nothing printed by the decoders (libpng) besides the one error
 
 
 def test_nan_in_reference_normals_is_rejected(tmp_path):
