@@ -11,6 +11,7 @@ Emulated sensor (the twin behind the virtual LED board and a virtual camera; no 
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 
@@ -50,13 +51,105 @@ def register(subparsers) -> None:
     ses.add_argument("--movement-threshold", type=float, default=0.02, help="pixel change counted as movement")
     ses.add_argument("--max-retakes", type=int, default=3, help="retakes of a moving press before giving up")
     ses.add_argument("--yes", action="store_true", help="do not wait for Enter at the prompts (scripts)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, parser=p)
+
+
+REAL_SENSOR_OPTIONS = (
+    "port",
+    "adalight",
+    "camera",
+    "design",
+    "camera_calibration",
+    "leds",
+    "exposure_ms",
+    "gain",
+    "white_balance",
+    "black_level",
+    "average",
+)
+"""Options that set up the real sensor; the emulated one takes all of this from its scene file."""
+EMULATED_SENSOR_OPTIONS = ("script", "move_press", "width", "height", "spp", "seed")
+"""Options of the emulated sensor alone."""
+WHY_NOT_EMULATED = {
+    "camera_calibration": "the emulated camera is the scene's [camera] section (its size: --width/--height; "
+    "other intrinsics: a scene file)",
+    "leds": "the emulated LEDs are the scene's [leds] section (explicit positions: a scene file); calibrate the "
+    "captured LEDs afterwards with `nlips calibrate-leds`",
+    "port": "the emulated sensor has its own virtual LED board",
+    "adalight": "the emulated sensor's virtual LED board runs the nlips firmware",
+    "camera": "the emulated sensor has its own virtual camera",
+    "design": "the scene given to --emulate is the design",
+}
+
+
+def _option(dest: str) -> str:
+    return "--" + dest.replace("_", "-")
+
+
+def check_options(args) -> None:
+    """Refuse, in one line, options the chosen sensor would not use and numbers out of range (ConfigError)."""
+    given = [
+        d for d in (*REAL_SENSOR_OPTIONS, *EMULATED_SENSOR_OPTIONS) if getattr(args, d) != args.parser.get_default(d)
+    ]
+    for dest in given:
+        if args.emulate and dest in REAL_SENSOR_OPTIONS:
+            why = WHY_NOT_EMULATED.get(
+                dest, f"it sets up the real sensor; the emulated one takes it from {args.emulate}"
+            )
+            raise _usage(f"{_option(dest)} is not used with --emulate: {why}; drop {_option(dest)}")
+        if not args.emulate and dest in EMULATED_SENSOR_OPTIONS:
+            raise _usage(f"{_option(dest)} is only used with --emulate SCENE (the emulated sensor)")
+    if args.script and args.move_press is not None:
+        raise _usage(
+            "--move-press is not used with --script: a press of the script moves when its [[press]] table "
+            "has a `moved` table"
+        )
+    _at_least(args, "presses", 0, "presses after the reference")
+    if args.move_press is not None and not 1 <= args.move_press <= args.presses:
+        raise _usage(
+            f"--move-press must be a press of the session, 1..{args.presses} (--presses {args.presses}), "
+            f"got {args.move_press}"
+            if args.presses
+            else f"--move-press {args.move_press}: the session has no press to move (--presses 0)"
+        )
+    from ..core.sensor import MAX_IMAGE_SIDE, MIN_IMAGE_SIDE
+
+    for dest in ("width", "height"):
+        value = getattr(args, dest)
+        if value is not None and not MIN_IMAGE_SIDE <= value <= MAX_IMAGE_SIDE:
+            raise _usage(f"{_option(dest)} must be {MIN_IMAGE_SIDE}..{MAX_IMAGE_SIDE} pixels, got {value}")
+    _at_least(args, "spp", 1, "samples per pixel")
+    _at_least(args, "seed", 0, "a noise seed")
+    _at_least(args, "adalight", 1, "the strip's LED count")
+    _at_least(args, "flush", 0, "frames dropped after each LED change")
+    _at_least(args, "average", 1, "frames averaged per image")
+    _at_least(args, "max_retakes", 0, "retakes of a moving press")
+    if args.tricolor_level is not None and not 1 <= args.tricolor_level <= 255:
+        raise _usage(f"--tricolor-level must be an LED drive 1..255, got {args.tricolor_level}")
+    if not 0 < args.movement_threshold < 1:
+        raise _usage(
+            f"--movement-threshold must be a fraction of full scale in (0, 1), got {args.movement_threshold:g}"
+        )
+    for dest, lo, what in (("exposure_ms", 0.0, "ms"), ("white_balance", 0.0, "kelvin")):
+        value = getattr(args, dest)
+        if not (value > lo and math.isfinite(value)):
+            raise _usage(f"{_option(dest)} must be > 0 {what}, got {value:g}")
+    for dest in ("gain", "black_level"):
+        value = getattr(args, dest)
+        if not (value >= 0 and math.isfinite(value)):
+            raise _usage(f"{_option(dest)} must be >= 0, got {value:g}")
+
+
+def _at_least(args, dest: str, minimum: int, what: str) -> None:
+    value = getattr(args, dest)
+    if value is not None and value < minimum:
+        raise _usage(f"{_option(dest)} must be >= {minimum} ({what}), got {value}")
 
 
 def _session_config(args, tricolor_level: int | None):
     from ..device.session import SessionConfig
 
-    level = args.tricolor_level or tricolor_level or 255
+    level = args.tricolor_level or tricolor_level or 255  # check_options refused 0
     return SessionConfig(
         presses=args.presses,
         tricolor_level=level,
@@ -74,6 +167,8 @@ def _run_emulated(args):
     camera = {k: v for k, v in {"width": args.width, "height": args.height}.items() if v}
     scene = scene.replace(camera=camera, render={"spp": args.spp} if args.spp else {})
     script = load_script(args.script) if args.script else default_script(args.presses, args.move_press)
+    if args.script and args.presses not in (len(script), args.parser.get_default("presses")):
+        raise _usage(f"--presses {args.presses}: the script {args.script} has {len(script)} presses; drop --presses")
     args.presses = len(script)
     with open_emulated_sensor(scene, script, seed=args.seed, flush_frames=args.flush) as sensor:
         cfg = _session_config(args, sensor.tricolor_level)
@@ -178,6 +273,7 @@ def _leds(path):
 
 
 def run(args) -> int:
+    check_options(args)
     t0 = time.perf_counter()
     status = _run_emulated(args) if args.emulate else _run_device(args)
     for name, rec in status.items():

@@ -1,8 +1,13 @@
 """``nlips leds PORT ACTION``: check and drive the sensor's LED controller from the command line.
 
 PORT is a serial device (``/dev/ttyACM0``, ``COM3``), a pyserial URL (``socket://host:port``), or
-``virtual`` / ``virtual:N`` for an in-process virtual board with N LEDs (try the commands without hardware).
-``--adalight N`` drives a stock Adalight board with N LEDs instead of the nlips firmware.
+``virtual`` / ``virtual:N`` for an in-process virtual board with N LEDs (try the commands without hardware);
+``nlipsemu://ID`` is the virtual board of that id (started here unless this process already has one).
+``--adalight N`` drives a stock Adalight board with N LEDs instead of the nlips firmware (the virtual board
+then runs Adalight too).
+
+LEDs are numbered from 1 here, as in capture files (LED 1 = ``led_01.png``, docs/conventions.md); the wire
+protocol and the Python API number them from 0 (docs/protocol.md), translated in this module only.
 """
 
 from __future__ import annotations
@@ -16,58 +21,87 @@ ACTIONS = {
     "all": 3,
 }
 """Action -> number of integer values it takes."""
+DEFAULT_VIRTUAL_LEDS = 12
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "leds",
         help="check or drive the LED controller (info, test, set, all, off, state)",
-        description="Check or drive the LED controller. Examples: nlips leds /dev/ttyACM0 info; "
-        "nlips leds /dev/ttyACM0 test; nlips leds /dev/ttyACM0 set 3 255 255 255; nlips leds virtual test",
+        description="Check or drive the LED controller. LEDs are numbered from 1, as in capture files "
+        "(LED 1 = led_01.png). Examples: nlips leds /dev/ttyACM0 info; nlips leds /dev/ttyACM0 test; "
+        "nlips leds /dev/ttyACM0 set 3 255 255 255; nlips leds virtual test",
     )
-    p.add_argument("port", help="serial device or pyserial URL; 'virtual[:N]' for a virtual board")
+    p.add_argument(
+        "port",
+        help="serial device or pyserial URL; 'virtual[:N]' for a virtual board with N LEDs, "
+        "'nlipsemu://ID' for the virtual board of that id",
+    )
     p.add_argument(
         "action",
         choices=sorted(ACTIONS),
         help="info: firmware and LED count; test: light each LED alone, then all red, green, blue; "
-        "set INDEX R G B; all R G B; off; state: colours the LEDs show",
+        "set LED R G B (LED 1..N); all R G B; off; state: colours the LEDs show",
     )
-    p.add_argument("values", nargs="*", type=int, help="INDEX R G B for set, R G B for all (0..255)")
+    p.add_argument("values", nargs="*", type=int, help="LED R G B for set (LED from 1), R G B for all (0..255)")
     p.add_argument("--adalight", type=int, metavar="N", help="the board runs Adalight with N LEDs")
     p.add_argument("--timeout", type=float, default=1.0, help="seconds to wait for each reply (default 1)")
     p.add_argument("--dwell", type=float, default=0.3, help="test: seconds each step stays lit (default 0.3)")
     p.add_argument("--level", type=int, default=64, help="test: brightness 0..255 (default 64)")
-    p.set_defaults(func=run, parser=p)
+    p.set_defaults(func=run)
 
 
 def run(args) -> int:
     expected = ACTIONS[args.action]
     if len(args.values) != expected:
-        args.parser.error(f"{args.action} takes {expected} numbers, got {len(args.values)}")
-    if not all(0 <= v <= 255 for v in args.values[-3:]) or not 0 <= args.level <= 255:
-        args.parser.error("colour values must be 0..255")
+        _refuse(f"{args.action} takes {expected} numbers, got {len(args.values)}")
+    if not all(0 <= v <= 255 for v in args.values[-3:]):
+        _refuse(f"{args.action}: colour values must be 0..255, got {' '.join(map(str, args.values[-3:]))}")
+    if not 0 <= args.level <= 255:
+        _refuse(f"--level must be 0..255, got {args.level}")
+    if args.action == "set" and args.values[0] < 1:
+        _refuse(f"set: LEDs are numbered from 1 (LED 1 = led_01.png), got LED {args.values[0]}")
     if args.adalight is not None and args.adalight < 1:
-        args.parser.error("--adalight needs the strip's LED count (>= 1)")
-    count = args.port.partition(":")[2] if args.port.startswith("virtual:") else "12"
+        _refuse("--adalight needs the strip's LED count (>= 1)")
+    if not args.timeout > 0 or not args.dwell >= 0:
+        _refuse(f"--timeout must be > 0 and --dwell >= 0 seconds, got {args.timeout:g} and {args.dwell:g}")
+    count = args.port.partition(":")[2] if args.port.startswith("virtual:") else str(DEFAULT_VIRTUAL_LEDS)
     if not count.isdigit() or not 1 <= int(count) <= 255:
-        args.parser.error(f"virtual:N needs an LED count 1..255, got {count!r}")
+        _refuse(f"virtual:N needs an LED count 1..255, got {count!r}")
+    if args.port.startswith("virtual:") and args.adalight is not None and int(count) != args.adalight:
+        _refuse(
+            f"{args.port} has {int(count)} LEDs but --adalight says {args.adalight}: "
+            f"give the count once (virtual --adalight {args.adalight})"
+        )
     leds, board = _open(args)  # board: the virtual board, kept alive while the controller uses it
     with leds:
         return _ACTIONS[args.action](leds, args)
 
 
+def _refuse(message: str):
+    """Bad input: one line, exit 2 (the nlips command prints it)."""
+    from ..errors import ConfigError
+
+    raise ConfigError(message)
+
+
 def _open(args):
     from ..device.adalight import AdalightController
     from ..device.controller import LedController
+    from ..device.virtual_board import VirtualBoard, find_board, url_board_id
 
     board = None
     url = args.port
+    n_leds = args.adalight or DEFAULT_VIRTUAL_LEDS
+    adalight = args.adalight is not None
     if url == "virtual" or url.startswith("virtual:"):
-        from ..device.virtual_board import VirtualBoard
-
-        board = VirtualBoard(int(url.partition(":")[2] or 12))
+        board = VirtualBoard(int(url.partition(":")[2] or n_leds), adalight=adalight)
         url = board.url
-    if args.adalight is not None:
+    elif (board_id := url_board_id(url)) is not None and find_board(url) is None:
+        if not board_id or any(c in board_id for c in "/#"):
+            _refuse(f"{url}: nlipsemu:// needs a board id, e.g. nlipsemu://1")
+        board = VirtualBoard(n_leds, adalight=adalight, board_id=board_id)  # this process's board of that id
+    if adalight:
         return AdalightController.open(url, args.adalight), board
     return LedController.open(url, timeout=args.timeout), board
 
@@ -86,7 +120,7 @@ def _test(leds, args) -> int:
 
     import numpy as np
 
-    steps = [(f"LED {i}", _one_lit(leds.n_leds, i, args.level)) for i in range(leds.n_leds)]
+    steps = [(f"LED {i + 1}", _one_lit(leds.n_leds, i, args.level)) for i in range(leds.n_leds)]
     for name, channel in (("all red", 0), ("all green", 1), ("all blue", 2)):
         frame = np.zeros((leds.n_leds, 3), np.uint8)
         frame[:, channel] = args.level
@@ -116,8 +150,8 @@ def _one_lit(n_leds: int, index: int, level: int):
 
 
 def _state(leds, args) -> int:
-    for i, (r, g, b) in enumerate(leds.state()):
-        print(f"LED {i}: {r} {g} {b}")
+    for number, (r, g, b) in enumerate(leds.state(), 1):
+        print(f"LED {number}: {r} {g} {b}")
     return 0
 
 
@@ -127,8 +161,12 @@ def _off(leds, args) -> int:
 
 
 def _set(leds, args) -> int:
-    index, *rgb = args.values
-    leds.set_led(index, rgb)
+    number, *rgb = args.values
+    if number > leds.n_leds:
+        from ..device.controller import LedIndexError
+
+        raise LedIndexError(f"set: there is no LED {number}: the board has {leds.n_leds} LEDs (1..{leds.n_leds})")
+    leds.set_led(number - 1, rgb)  # the protocol counts from 0
     return 0
 
 

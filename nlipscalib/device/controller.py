@@ -114,6 +114,11 @@ def _open_error(url: str, exc: Exception) -> DeviceError:
         )
     if code in (errno.EBUSY, errno.EAGAIN) or "lock" in str(exc).lower():
         return PortBusyError(f"{url}: port busy: another program has it open (an Arduino serial monitor?)")
+    if "no such virtual board" in str(exc):
+        return PortNotFoundError(
+            f"{url}: no virtual board with this id in this process (nlipsemu://ID reaches a VirtualBoard of the same "
+            "Python process; `nlips leds nlipsemu://ID ...` starts one, `nlips capture/live --emulate` their own)"
+        )
     if code == errno.ENOENT or "no such" in str(exc).lower():
         return PortNotFoundError(f"{url}: no such serial port (is the board plugged in?). {_ports_present()}")
     return DeviceError(f"{url}: could not open the port: {exc}")

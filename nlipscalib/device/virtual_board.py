@@ -2,7 +2,9 @@
 
 It behaves like the firmware in firmware/ (same parser rules, same replies, same error codes) and adds fault
 injection for tests: garbage on the line, dropped, corrupted or half replies, a reset mid-session, unplugging.
-Like an Arduino Uno it reboots (and prints its boot banner) when the port is opened.
+Like an Arduino Uno it reboots (and prints its boot banner) when the port is opened. With ``adalight=True`` it
+runs stock Adalight instead (docs/protocol.md, "Adalight"): it prints ``Ada`` when it boots, latches every
+Adalight frame for its LED count and never answers.
 
 Usage::
 
@@ -28,6 +30,8 @@ from . import protocol as p
 serial = require("serial", "pyserial", "The virtual LED board")
 
 URL_SCHEME = "nlipsemu"
+ADALIGHT_MAGIC, ADALIGHT_BANNER = b"Ada", b"Ada\n"
+"""Adalight's frame header start and boot greeting (device/adalight.py speaks the host side)."""
 _BOARDS: weakref.WeakValueDictionary[str, VirtualBoard] = weakref.WeakValueDictionary()
 _IDS = itertools.count(1)
 
@@ -39,6 +43,20 @@ def register_url_scheme() -> None:
 
 
 register_url_scheme()
+
+
+def url_board_id(url: str) -> str | None:
+    """The board id of an ``nlipsemu://<id>`` URL (may be empty), None for any other URL."""
+    prefix = f"{URL_SCHEME}://"
+    if not url or not url.lower().startswith(prefix):
+        return None
+    return url[len(prefix) :].split("?")[0]
+
+
+def find_board(url: str) -> VirtualBoard | None:
+    """The VirtualBoard of this process that ``nlipsemu://<id>`` reaches, or None."""
+    board_id = url_board_id(url)
+    return None if board_id is None else _BOARDS.get(board_id)
 
 
 class VirtualBoard:
@@ -56,6 +74,11 @@ class VirtualBoard:
         Time between receiving a command and replying (the WS2812 write and latch), seconds.
     reset_on_open : bool
         Reboot when the port is opened, as an Uno does through DTR.
+    adalight : bool
+        Run stock Adalight instead of the nlips firmware: greet with ``Ada``, latch each Adalight frame that
+        carries ``n_leds`` LEDs (frames for another count are ignored), never answer.
+    board_id : str, optional
+        The id in its URL (``nlipsemu://<board_id>``); default: the next free number.
     """
 
     def __init__(
@@ -66,13 +89,21 @@ class VirtualBoard:
         protocol: int = p.PROTOCOL_VERSION,
         reply_delay_s: float = 0.0,
         reset_on_open: bool = True,
+        adalight: bool = False,
+        board_id: str | None = None,
     ):
         self.n_leds = int(n_leds)
         self.firmware = firmware
         self.protocol = int(protocol)
         self.reply_delay_s = float(reply_delay_s)
         self.reset_on_open = reset_on_open
-        self.id = str(next(_IDS))
+        self.adalight = bool(adalight)
+        if board_id is None:
+            while (board_id := str(next(_IDS))) in _BOARDS:
+                pass
+        elif not board_id or any(c in board_id for c in "/?#") or board_id in _BOARDS:
+            raise ValueError(f"board_id {board_id!r} is empty, holds / ? # or is taken in this process")
+        self.id = str(board_id)
         self.url = f"{URL_SCHEME}://{self.id}"
         self.max_line = 6 * self.n_leds + 32
         """Longest accepted command line (bytes between ``>`` and newline), as in the firmware."""
@@ -82,6 +113,7 @@ class VirtualBoard:
         self._cond = threading.Condition()
         self._out = bytearray()
         self._line: bytearray | None = None
+        self._ada = bytearray()
         self._plugged = True
         self._connection: VirtualSerial | None = None
         self._drop = self._corrupt = self._half = self._mute = 0
@@ -156,7 +188,10 @@ class VirtualBoard:
         self._latched[:] = 0
         self._session = False
         self._line = None
-        if announce:
+        self._ada.clear()
+        if announce and self.adalight:
+            self._send(ADALIGHT_BANNER, faults=False)
+        elif announce:
             self._send(p.frame(p.BANNER_START, "BOOT " + p.encode_info(self._info())), faults=False)
 
     def _info(self) -> p.BoardInfo:
@@ -164,6 +199,9 @@ class VirtualBoard:
 
     def _receive(self, data: bytes) -> None:
         """Bytes from the host, parsed like the firmware: ``>`` starts a line, newline ends it."""
+        if self.adalight:
+            self._receive_adalight(data)
+            return
         for byte in data:
             if byte == ord(">"):
                 self._line = bytearray()
@@ -174,6 +212,30 @@ class VirtualBoard:
                 self._handle_line(line)
             elif len(self._line) <= self.max_line:
                 self._line.append(byte)
+
+    def _receive_adalight(self, data: bytes) -> None:
+        """Adalight: hunt for ``Ada`` + a header whose checksum holds, then read R, G, B per LED and latch."""
+        buf = self._ada
+        buf += data
+        while True:
+            start = buf.find(ADALIGHT_MAGIC)
+            if start < 0:
+                del buf[: max(0, len(buf) - len(ADALIGHT_MAGIC) + 1)]  # keep what may begin a header
+                return
+            del buf[:start]
+            if len(buf) < 6:
+                return
+            hi, lo, check = buf[3:6]
+            n = (hi << 8 | lo) + 1
+            if check != hi ^ lo ^ 0x55 or n != self.n_leds:
+                del buf[:1]  # not a header for this strip: keep hunting
+                continue
+            if len(buf) < 6 + 3 * n:
+                return
+            self._pending[:] = np.frombuffer(bytes(buf[6 : 6 + 3 * n]), np.uint8).reshape(n, 3)
+            del buf[: 6 + 3 * n]
+            self._latch()
+            self.executed.append(f"Ada {n}")
 
     def _handle_line(self, line: bytes) -> None:
         if self._mute:
@@ -338,10 +400,10 @@ class VirtualSerial(serial.SerialBase):
 
     @staticmethod
     def _board_for(url: str) -> VirtualBoard:
-        prefix = f"{URL_SCHEME}://"
-        if not url or not url.lower().startswith(prefix):
-            raise serial.SerialException(f"expected {prefix}<id>, got {url!r}")
-        board = _BOARDS.get(url[len(prefix) :].split("?")[0])
+        board_id = url_board_id(url)
+        if board_id is None:
+            raise serial.SerialException(f"expected {URL_SCHEME}://<id>, got {url!r}")
+        board = _BOARDS.get(board_id)
         if board is None:
             raise serial.SerialException(
                 errno.ENOENT,

@@ -57,3 +57,89 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
     # frames 15..29 in capture order: tri-colour, dark, LED 1..12, check
     assert p.tricolor[0, 0, 0] == 100 << 8 and p.dark[0, 0, 0] == 101 << 8 and p.led_images[11, 0, 0, 0] == 113 << 8
     assert board.latched.sum() == 0
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (
+            ["--emulate", "nlipstac", "--presses", "1", "--move-press", "5"],
+            "--move-press must be a press of the session, 1..1 (--presses 1), got 5",
+        ),
+        (
+            ["--emulate", "nlipstac", "--presses", "3", "--move-press", "0"],
+            "--move-press must be a press of the session, 1..3",
+        ),
+        (["--emulate", "nlipstac", "--presses", "0", "--move-press", "1"], "the session has no press to move"),
+        (["--emulate", "nlipstac", "--presses", "-1"], "--presses must be >= 0"),
+        (["--emulate", "nlipstac", "--width", "4"], "--width must be 8..16384 pixels, got 4"),
+        (["--emulate", "nlipstac", "--height", "0"], "--height must be 8..16384 pixels, got 0"),
+        (["--emulate", "nlipstac", "--spp", "0"], "--spp must be >= 1"),
+        (["--emulate", "nlipstac", "--seed", "-3"], "--seed must be >= 0"),
+        (["--emulate", "nlipstac", "--flush", "-1"], "--flush must be >= 0"),
+        (["--emulate", "nlipstac", "--max-retakes", "-1"], "--max-retakes must be >= 0"),
+        (["--emulate", "nlipstac", "--tricolor-level", "0"], "--tricolor-level must be an LED drive 1..255, got 0"),
+        (["--emulate", "nlipstac", "--tricolor-level", "256"], "--tricolor-level must be an LED drive 1..255"),
+        (["--emulate", "nlipstac", "--movement-threshold", "0"], "--movement-threshold must be a fraction"),
+        (["--emulate", "nlipstac", "--movement-threshold", "nan"], "--movement-threshold must be a fraction"),
+        (["--port", "loop://", "--average", "0"], "--average must be >= 1"),
+        (["--port", "loop://", "--adalight", "0"], "--adalight must be >= 1"),
+        (["--port", "loop://", "--exposure-ms", "0"], "--exposure-ms must be > 0 ms"),
+        (["--port", "loop://", "--white-balance", "-5"], "--white-balance must be > 0 kelvin"),
+        (["--port", "loop://", "--gain", "-1"], "--gain must be >= 0"),
+        (["--port", "loop://", "--black-level", "inf"], "--black-level must be >= 0"),
+    ],
+)
+def test_numeric_options_out_of_range_are_one_line(tmp_path, capsys, extra, message):
+    assert main(["capture", "--out", str(tmp_path / "s"), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("nlips capture: error: ") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "s").exists()  # refused before anything was captured
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--camera-calibration", "{cam}"], "--camera-calibration is not used with --emulate: the emulated camera"),
+        (["--leds", "{leds}"], "--leds is not used with --emulate: the emulated LEDs"),
+        (["--port", "loop://"], "--port is not used with --emulate"),
+        (["--exposure-ms", "5"], "--exposure-ms is not used with --emulate"),
+        (["--design", "fingertip"], "--design is not used with --emulate"),
+    ],
+)
+def test_real_sensor_options_are_refused_with_emulate(tmp_path, capsys, extra, message):
+    """The emulated sensor is its scene file: a camera calibration or LED file (even garbage) is not ignored."""
+    from nlipscalib.core import Camera
+
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "cam.json").write_text("garbage{")
+    (bad / "leds_malformed.json").write_text('{"leds": "twelve"}')
+    extra = [a.format(cam=bad / "cam.json", leds=bad / "leds_malformed.json") for a in extra]
+    out = ["--out", str(tmp_path / "s"), "--presses", "1"]
+    assert main(["capture", "--emulate", "nlipstac", *out, *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1
+    # a valid 320x240 calibration is refused just the same: the capture would come out in the scene's size
+    good = tmp_path / "cam320.json"
+    good.write_text(json.dumps({"camera": Camera.from_fov(320, 240, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    assert main(["capture", "--emulate", "nlipstac", *out, "--camera-calibration", str(good)]) == 2
+    assert "--camera-calibration is not used with --emulate" in capsys.readouterr().err
+    assert not (tmp_path / "s").exists()
+
+
+def test_emulator_options_are_refused_without_emulate(tmp_path, capsys):
+    for extra in (["--move-press", "1"], ["--width", "64"], ["--script", "s.toml"], ["--spp", "4"]):
+        assert main(["capture", "--port", "loop://", "--out", str(tmp_path / "s"), *extra]) == 2
+        assert f"{extra[0]} is only used with --emulate SCENE" in capsys.readouterr().err
+
+
+def test_script_and_move_press_or_other_press_count_are_refused(tmp_path, capsys):
+    script = tmp_path / "script.toml"
+    script.write_text("[[press]]\npolar_deg = 10.0\ndepth = 1.0\n\n[[press]]\npolar_deg = 20.0\ndepth = 1.0\n")
+    args = ["capture", "--emulate", "nlipstac", "--script", str(script), "--out", str(tmp_path / "s")]
+    assert main(args + ["--move-press", "1"]) == 2
+    assert "--move-press is not used with --script" in capsys.readouterr().err
+    assert main(args + ["--presses", "3"]) == 2
+    err = capsys.readouterr().err
+    assert "--presses 3: the script" in err and "has 2 presses" in err

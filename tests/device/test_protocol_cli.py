@@ -1,8 +1,16 @@
 """``nlips leds``: check and drive the LED controller from the command line (virtual board and simavr firmware)."""
 
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
 import pytest
 
 from nlipscalib.cli import main
+from nlipscalib.device.virtual_board import VirtualBoard
 
 from .ledboards import SimavrUnderTest, firmware_build
 
@@ -10,20 +18,104 @@ from .ledboards import SimavrUnderTest, firmware_build
 def test_leds_test_on_the_virtual_board(capsys):
     assert main(["leds", "virtual:3", "test", "--dwell", "0"]) == 0
     out = capsys.readouterr().out.splitlines()
-    assert [line.split(":")[0] for line in out] == ["LED 0", "LED 1", "LED 2", "all red", "all green", "all blue", "ok"]
+    assert [line.split(":")[0] for line in out] == ["LED 1", "LED 2", "LED 3", "all red", "all green", "all blue", "ok"]
     assert out[-1].startswith("ok: 6 steps")
 
 
 def test_leds_info_and_bad_input(capsys):
     assert main(["leds", "virtual:5", "info"]) == 0
     assert "protocol 1, 5 LEDs" in capsys.readouterr().out
-    with pytest.raises(SystemExit) as exit_info:
-        main(["leds", "virtual", "set", "1", "2", "3"])
-    assert exit_info.value.code == 2
-    assert "set takes 4 numbers" in capsys.readouterr().err
-    with pytest.raises(SystemExit):
-        main(["leds", "virtual:many", "info"])
+    assert main(["leds", "virtual", "set", "1", "2", "3"]) == 2
+    err = capsys.readouterr().err
+    assert err == "nlips leds: error: set takes 4 numbers, got 3\n"  # one line, no usage block
+    assert main(["leds", "virtual:many", "info"]) == 2
     assert "virtual:N needs an LED count" in capsys.readouterr().err
+    assert main(["leds", "virtual", "all", "1", "2", "256"]) == 2
+    assert "colour values must be 0..255, got 1 2 256" in capsys.readouterr().err
+    assert main(["leds", "virtual", "test", "--level", "300"]) == 2
+    assert "--level must be 0..255, got 300" in capsys.readouterr().err
+
+
+def test_leds_are_numbered_from_1_as_in_capture_files(capsys):
+    """LED 1 is led_01.png, the protocol's index 0 (docs/conventions.md, docs/protocol.md)."""
+    board = VirtualBoard(4, reset_on_open=False)  # keeps its LEDs from one command to the next
+    assert main(["leds", board.url, "set", "1", "10", "20", "30"]) == 0
+    assert main(["leds", board.url, "set", "4", "1", "2", "3"]) == 0
+    assert board.latched.tolist() == [[10, 20, 30], [0, 0, 0], [0, 0, 0], [1, 2, 3]]
+    assert main(["leds", board.url, "state"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out == ["LED 1: 10 20 30", "LED 2: 0 0 0", "LED 3: 0 0 0", "LED 4: 1 2 3"]
+    assert main(["leds", "virtual:4", "set", "5", "1", "1", "1"]) == 2
+    assert capsys.readouterr().err == "nlips leds: error: set: there is no LED 5: the board has 4 LEDs (1..4)\n"
+    assert main(["leds", board.url, "set", "0", "1", "1", "1"]) == 2
+    assert "LEDs are numbered from 1" in capsys.readouterr().err
+    assert board.latched.tolist() == [[10, 20, 30], [0, 0, 0], [0, 0, 0], [1, 2, 3]]  # nothing changed
+
+
+def test_nlipsemu_url_from_the_cli(capsys):
+    """nlipsemu://ID: this process's board of that id, or one started for the command."""
+    assert main(["leds", "nlipsemu://cli-test", "info"]) == 0
+    assert "protocol 1, 12 LEDs" in capsys.readouterr().out
+    board = VirtualBoard(3)  # a board of this process: the command drives it
+    assert main(["leds", board.url, "all", "7", "8", "9"]) == 0
+    assert board.latched.tolist() == [[7, 8, 9]] * 3
+    assert main(["leds", "nlipsemu://", "info"]) == 2
+    assert "nlipsemu:// needs a board id" in capsys.readouterr().err
+
+
+def test_nlipsemu_url_from_the_installed_command(tmp_path):
+    """The command as a user types it: a fresh process, nothing registered beforehand."""
+    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    result = subprocess.run(
+        [sys.executable, "-c", code, "leds", "nlipsemu://1", "test", "--dwell", "0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=os.environ | {"PYTHONPATH": str(Path(__file__).resolve().parents[2])},
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines()[0].startswith("LED 1: lit") and "ok: 15 steps" in result.stdout
+
+
+def test_unknown_nlipsemu_board_says_what_the_url_reaches():
+    from nlipscalib.device.controller import LedController, PortNotFoundError
+
+    with pytest.raises(PortNotFoundError, match="no virtual board with this id in this process") as info:
+        LedController.open("nlipsemu://no-such-board", timeout=0.1)
+    assert "plugged in" not in str(info.value)
+
+
+def test_adalight_on_the_virtual_board(capsys):
+    """--adalight with the virtual board: it runs Adalight (greets with Ada, latches frames), no banner wait."""
+    start = time.monotonic()
+    assert main(["leds", "virtual", "test", "--adalight", "4", "--dwell", "0"]) == 0
+    assert time.monotonic() - start < 2.5  # no 3 s wait for a banner that never comes
+    out = capsys.readouterr().out.splitlines()
+    assert [line.split(":")[0] for line in out][:5] == ["LED 1", "LED 2", "LED 3", "LED 4", "all red"]
+    board = VirtualBoard(3, adalight=True)
+    assert main(["leds", board.url, "set", "2", "1", "2", "3", "--adalight", "3"]) == 0
+    assert board.latched.tolist() == [[0, 0, 0], [1, 2, 3], [0, 0, 0]]
+    assert main(["leds", "virtual:4", "info", "--adalight", "3"]) == 2
+    assert "virtual:4 has 4 LEDs but --adalight says 3" in capsys.readouterr().err
+
+
+def test_virtual_adalight_board_reads_frames_like_the_sketch(caplog):
+    """Garbage, a bad checksum and a frame for another LED count are skipped; split writes are joined."""
+    from nlipscalib.device.adalight import AdalightController, adalight_frame
+
+    board = VirtualBoard(2, adalight=True)
+    with AdalightController.open(board.url, 2, settle_s=0.0, boot_timeout=1.0) as leds:
+        leds.set_all([[1, 2, 3], [4, 5, 6]])
+        assert board.latched.tolist() == [[1, 2, 3], [4, 5, 6]]
+        port = leds._port
+        port.write(b"xxAda\x00\x01\x00" + bytes(6))  # checksum wrong: ignored
+        port.write(adalight_frame(np.full((3, 3), 9, np.uint8)))  # 3 LEDs: not this strip's frame
+        frame = adalight_frame(np.array([[7, 7, 7], [8, 8, 8]], np.uint8))
+        port.write(frame[:4])
+        assert board.latched.tolist() == [[1, 2, 3], [4, 5, 6]]
+        port.write(frame[4:])
+        assert board.latched.tolist() == [[7, 7, 7], [8, 8, 8]]
+    assert "banner" not in caplog.text
 
 
 def test_missing_port_is_one_line(capsys):
@@ -35,10 +127,10 @@ def test_missing_port_is_one_line(capsys):
 def test_leds_commands_on_the_firmware(tmp_path, capsys):
     board = SimavrUnderTest(*firmware_build(), tmp_path / "tty")
     try:
-        assert main(["leds", board.url, "set", "2", "10", "20", "30"]) == 0
+        assert main(["leds", board.url, "set", "3", "10", "20", "30"]) == 0  # LED 3: protocol index 2
         assert board.latched()[2].tolist() == [10, 20, 30]
         assert main(["leds", board.url, "state"]) == 0
-        assert "LED 2: 10 20 30" in capsys.readouterr().out
+        assert "LED 3: 10 20 30" in capsys.readouterr().out
         assert main(["leds", board.url, "all", "5", "6", "7"]) == 0
         assert board.latched().tolist() == [[5, 6, 7]] * 12
         assert main(["leds", board.url, "test", "--dwell", "0", "--level", "9"]) == 0
