@@ -264,6 +264,7 @@ def solve_one(
     from .report import figure_level
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
+    _check_fits_capture(folder, settings)  # before anything is said about an earlier result
     out = reconstruction_dir(folder, out)
     provenance = make_provenance(folder, settings)
     if not overwrite and not _leftovers(out):  # leftovers are cleaned under the claim, below
@@ -281,6 +282,23 @@ def solve_one(
             if reused is not None:
                 return reused
         return _solve_and_save(folder, out, settings, provenance, progress, figures), SOLVED
+
+
+def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
+    """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json)."""
+    from .core.capture import META_FILE, read_meta
+    from .solver.press import check_roi
+
+    meta = read_meta(folder)
+    camera, leds = meta.get("camera") or {}, meta.get("leds") or []
+    if isinstance(settings.roi, tuple) and isinstance(camera, dict) and "width" in camera and "height" in camera:
+        check_roi(settings.roi, int(camera["width"]), int(camera["height"]))
+    n = len(leds)
+    if settings.led_subset is not None and not all(0 <= i < n for i in settings.led_subset):
+        raise ConfigError(f"leds {[i + 1 for i in settings.led_subset]}: {folder / META_FILE} has LEDs 1..{n}")
+    used = len(settings.led_subset) if settings.led_subset is not None else n
+    if settings.leds is not None and len(settings.leds) != used:
+        raise ConfigError(f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {used}")
 
 
 def make_provenance(folder: Path, settings: SolveSettings) -> dict:

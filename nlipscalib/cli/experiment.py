@@ -40,6 +40,7 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..config import check_count
     from ..core.atomic import write_json
     from ..errors import ConfigError
     from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
@@ -48,6 +49,7 @@ def run(args) -> int:
 
     if args.name == "all" and (args.check or args.write_baseline or args.config):
         raise ConfigError("--check, --write-baseline and --config need one experiment, not 'all'")
+    check_count("--workers", args.workers, minimum=1)
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)
     baseline = check.load_baseline(Path(args.check), args.name) if args.check else None  # fail fast

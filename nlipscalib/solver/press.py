@@ -175,7 +175,7 @@ def _solve_press(
     mask = np.isfinite(prior) if prior is not None else np.ones((H, W), bool)
     if prior is not None and not mask.any():
         raise CaptureError(f"{press.folder}: the reference surface covers no pixel; nothing to reconstruct")
-    explicit_roi = None if roi is None or isinstance(roi, str) else _check_roi(roi, W, H)
+    explicit_roi = None if roi is None or isinstance(roi, str) else check_roi(roi, W, H)
     if isinstance(roi, str) and roi != "auto":
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
@@ -568,7 +568,8 @@ def _other_sensor(press: Press, undeformed: Press) -> str | None:
     return None
 
 
-def _check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:
+def check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:
+    """(x0, y0, w, h) as ints; ShapeError unless the box lies inside the W x H image and is at least 4x4."""
     x0, y0, w, h = (int(v) for v in roi)
     if w < 4 or h < 4 or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
         raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least 4x4")

@@ -143,6 +143,21 @@ def test_bad_arguments_are_one_line(data, capsys):
     assert "press folder is missing" in capsys.readouterr().err
 
 
+def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_said(data, capsys, caplog):
+    root, cfg = data
+    press = root / "press_a"
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    caplog.clear()
+    capsys.readouterr()
+    assert main(["solve", str(press), "--roi", "500", "0", "10", "10", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "roi (500, 0, 10, 10) must lie inside" in err[0]
+    assert main(["solve", str(press), "--leds", "1,2,40", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has LEDs 1..12" in err[0]
+    assert "re-solving" not in caplog.text and "identical result" not in caplog.text
+
+
 def test_the_press_may_follow_the_roi(data, capsys):
     root, cfg = data
     press = root / "press_a"

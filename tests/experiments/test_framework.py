@@ -88,6 +88,7 @@ def test_check_flags_only_what_got_worse_beyond_tolerance():
         (["experiment", "q1", "--scheduler", "local:zero"], "local:N"),
         (["experiment", "q1", "--scheduler", "nowhere"], "tcp://HOST:PORT"),
         (["experiment", "q1", "--check", "/nonexistent/base.json"], "no such baseline file"),
+        (["experiment", "q1", "--workers", "0"], "--workers: must be an integer >= 1"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, message, capsys, tmp_path):
