@@ -595,7 +595,7 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    from .progress import progress_bar
+    from .progress import progress_bar, worker_logging
 
     # forkserver: workers start from a clean process with the solver imported once, not from a fork of
     # a caller that may hold threads (claims' heartbeats, progress monitors) or a multi-threaded BLAS
@@ -608,7 +608,7 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
         max_workers=min(workers, len(folders)),
         mp_context=ctx,
         initializer=_worker_init,
-        initargs=(logging.getLogger().getEffectiveLevel(),),
+        initargs=worker_logging(),
     ) as pool:
         futures = {pool.submit(_status_of, f, settings, overwrite, False, figures): f for f in folders}
         bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
@@ -626,9 +626,12 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
     return statuses
 
 
-def _worker_init(log_level: int) -> None:
-    """Log like the parent; one core per worker: the solver limits BLAS itself, OpenCV's pool is limited here."""
-    logging.basicConfig(level=log_level, format="%(levelname)s %(message)s")
+def _worker_init(log_level: int, log_file: str | None = None) -> None:
+    """Log like the parent (stderr and its ``--log-file``); one core per worker: the solver limits BLAS
+    itself, OpenCV's pool is limited here."""
+    from .progress import configure_worker
+
+    configure_worker(log_level, log_file)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from .solver import threads
 

@@ -7,10 +7,15 @@ and CI output never fill with carriage-return bars. ``--log-file`` copies every 
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from pathlib import Path
 
 _enabled = True
+_log_file: str | None = None
+"""The ``log_file`` of the last :func:`configure` (handed to worker processes by :func:`worker_logging`)."""
+FILE_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+STDERR_FORMAT = "%(levelname)s %(message)s"
 
 
 def configure(*, progress: bool = True, verbose: bool = False, log_file: str | Path | None = None) -> None:
@@ -21,16 +26,72 @@ def configure(*, progress: bool = True, verbose: bool = False, log_file: str | P
     """
     global _enabled
     _enabled = progress
+    _setup(logging.DEBUG if verbose else logging.INFO, log_file)
+
+
+def worker_logging() -> tuple[int, str | None]:
+    """``initargs`` for :func:`configure_worker` as a pool's ``initializer``: this process's level and log file."""
+    return logging.getLogger().getEffectiveLevel(), _log_file
+
+
+def configure_worker(level: int, log_file: str | None = None) -> None:
+    """In a worker process (spawn, forkserver): log like the parent, to stderr and to its ``--log-file``.
+
+    Bars stay off: the parent draws the only one.
+    """
+    global _enabled
+    _enabled = False
+    _setup(level, log_file)
+
+
+def _setup(level: int, log_file: str | Path | None) -> None:
+    global _log_file
     root = logging.getLogger()
-    root.setLevel(logging.DEBUG if verbose else logging.INFO)
+    root.setLevel(level)
     for handler in [h for h in root.handlers if getattr(h, _OURS, False)]:
         root.removeHandler(handler)
         handler.close()
     if not root.handlers:
-        _add(root, logging.StreamHandler(sys.stderr), "%(levelname)s %(message)s")
+        _add(root, logging.StreamHandler(sys.stderr), STDERR_FORMAT)
+    _log_file = None
     if log_file:
         Path(log_file).parent.mkdir(parents=True, exist_ok=True)
-        _add(root, logging.FileHandler(log_file, encoding="utf-8"), "%(asctime)s %(levelname)s %(name)s: %(message)s")
+        _add(root, AppendFileHandler(log_file), FILE_FORMAT)
+        _log_file = str(Path(log_file).absolute())
+
+
+class AppendFileHandler(logging.Handler):
+    """Appends every record to a file with one ``os.write`` on an ``O_APPEND`` descriptor.
+
+    The parent and its worker processes all append to the same ``--log-file``: with ``O_APPEND`` the
+    kernel moves to the end of the file and writes in one step, so one process's line never
+    overwrites or splits another's (a ``logging.FileHandler`` writes through a buffer, which splits a
+    record longer than the buffer, e.g. a long traceback, into several writes that can interleave).
+    Nothing to set up in the parent (no queue, no listener thread), and a worker that dies has
+    written its lines already. (On NFS, appends from several machines are not atomic; one machine's
+    processes are fine.)
+    """
+
+    def __init__(self, path: str | Path):
+        super().__init__()
+        self.path = str(path)
+        flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_CLOEXEC", 0)
+        self._fd: int | None = os.open(self.path, flags, 0o666)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            data = (self.format(record) + "\n").encode("utf-8", "backslashreplace")
+            while data and self._fd is not None:
+                data = data[os.write(self._fd, data) :]  # a regular file takes it whole unless the disk is full
+        except Exception:
+            self.handleError(record)
+
+    def close(self) -> None:
+        with self.lock:
+            if self._fd is not None:
+                os.close(self._fd)
+                self._fd = None
+        super().close()
 
 
 _OURS = "_nlips_handler"
@@ -40,7 +101,7 @@ def file_log(level: int, message: str) -> None:
     """Record ``message`` in the log file only (for lines already printed on the terminal)."""
     record = logging.LogRecord("nlipscalib", level, __file__, 0, message, None, None)
     for handler in logging.getLogger().handlers:
-        if getattr(handler, _OURS, False) and isinstance(handler, logging.FileHandler):
+        if getattr(handler, _OURS, False) and isinstance(handler, AppendFileHandler):
             handler.handle(record)
 
 

@@ -53,3 +53,43 @@ def test_dataset_log_file_without_carriage_returns(tmp_path, monkeypatch, capsys
     text = log.read_text()
     assert "press press_0003: rendered" in text and "\r" not in text
     assert "\r" not in capsys.readouterr().err  # stderr is not a terminal here: no bar
+
+
+def test_worker_processes_append_whole_lines_to_the_log_file(tmp_path):
+    """Workers log to the parent's --log-file; long records from several processes never split or clobber."""
+    import re
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    log = tmp_path / "run.log"
+    log.write_text("earlier run\n")
+    progress.configure(progress=False, log_file=log)
+    logger = logging.getLogger("nlipscalib.test_workers")
+    long = "x" * 9000  # longer than a FileHandler's write buffer
+    with ProcessPoolExecutor(
+        2, mp_context=get_context("spawn"), initializer=progress.configure_worker, initargs=progress.worker_logging()
+    ) as pool:
+        for future in [pool.submit(logger.warning, f"worker line {i} {long}") for i in range(24)]:
+            future.result()
+    logger.warning("parent line")
+    progress.configure(progress=True)  # closes the file
+    lines = log.read_text().splitlines()
+    assert lines[0] == "earlier run"  # appended, not truncated
+    numbers = sorted(int(m.group(1)) for line in lines if (m := re.search(rf"worker line (\d+) {long}$", line)))
+    assert numbers == list(range(24)) and len(lines) == 26 and lines[-1].endswith("parent line")
+
+
+def test_parallel_solve_logs_to_the_log_file(tmp_path):
+    """`nlips solve --workers 2 --log-file`: what the worker processes log reaches the file too."""
+    from nlipscalib.pipeline import solve_presses
+
+    folders = [tmp_path / "press_a", tmp_path / "press_b"]
+    for folder in folders:
+        folder.mkdir()
+        (folder / "meta.json").write_text("{}")  # a capture the worker refuses, with an ERROR line
+    log = tmp_path / "run.log"
+    progress.configure(progress=False, log_file=log)
+    status = solve_presses(folders, workers=2, progress=False, figures=False)
+    assert all(s.startswith("failed") for s in status.values())
+    text = log.read_text()
+    assert "ERROR" in text and "press_a" in text and "press_b" in text, text

@@ -20,7 +20,13 @@ def register(sub) -> None:
     p.add_argument("spec", help="dataset spec file, e.g. scenes/datasets/train50.toml")
     p.add_argument("--out", required=True, help="folder that receives one press folder per press")
     p.add_argument("--workers", type=int, default=0, help="render processes (default: one per two cores)")
-    p.add_argument("--limit", type=int, default=0, help="render only the first N presses of the spec (0 = all)")
+    p.add_argument(
+        "--limit",
+        type=int,
+        default=0,
+        help="render only the first N presses of the spec (0 = all); the reference, when the spec asks for one, "
+        "is rendered too and not counted",
+    )
     p.add_argument("--overwrite", action="store_true", help="re-render presses made from a different spec")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -30,13 +36,21 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..config import check_count
-    from ..sim.dataset import check_existing, expand_jobs, is_complete, load_dataset_spec, run_dataset, write_manifest
+    from ..sim.dataset import (
+        check_existing,
+        expand_jobs,
+        is_complete,
+        limit_presses,
+        load_dataset_spec,
+        run_dataset,
+        write_manifest,
+    )
 
     check_count("--workers", args.workers, minimum=0)
     check_count("--limit", args.limit, minimum=0)
     spec, scene = load_dataset_spec(args.spec)
     jobs = expand_jobs(spec)
-    todo = jobs[: args.limit] if args.limit else jobs
+    todo = limit_presses(jobs, args.limit) if args.limit else jobs
     out = Path(args.out)
     check_existing(scene, jobs, out, args.overwrite)  # before anything is written
     try:

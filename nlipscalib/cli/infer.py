@@ -276,15 +276,15 @@ def _frames(inputs):
     """(name, loader(predictor) -> linear frame, press folder or None) for every input, in order."""
     from pathlib import Path
 
-    from ..core.capture import find_presses, is_press_folder
+    from ..core.capture import find_presses
     from ..errors import CaptureError
 
     for item in inputs:
         path = Path(item)
         if path.is_file():
             yield path.stem, _png_loader(path), None
-        elif path.is_dir() and (is_press_folder(path) or find_presses(path)):
-            for folder in find_presses(path):
+        elif path.is_dir() and (presses := find_presses(path)):
+            for folder in presses:
                 yield folder.name, _press_loader(folder), folder
         elif path.is_dir():
             pngs = sorted(path.glob("*.png"))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -26,7 +27,7 @@ import numpy as np
 from .. import __version__
 from ..cpus import usable_cores
 from ..errors import CaptureError
-from .atomic import atomic_dir, write_json
+from .atomic import TMP_PREFIX, atomic_dir, write_json
 from .camera import Camera
 from .formatfile import read_format_json
 from .imageio import read_npz, read_png16, save_npz, write_png16
@@ -39,6 +40,7 @@ GT_FILE = "gt.npz"
 REFERENCE_FILE = "reference.npz"
 REFERENCE_FOLDER = "reference"
 """A folder of presses (a twin dataset, a capture session) keeps the capture of its undeformed dome here."""
+log = logging.getLogger(__name__)
 GT_KEYS = {"depth": 2, "points": 3, "normals": 3, "valid": 2, "contact": 2}
 """Ground-truth arrays and their number of dimensions; all (H, W[, 3]) in the camera frame."""
 
@@ -290,13 +292,33 @@ def is_press_folder(folder: str | Path) -> bool:
 
 
 def find_presses(root: str | Path) -> list[Path]:
-    """Press folders at ``root`` (itself a press) or directly below it, sorted by name."""
+    """Press folders at ``root`` (itself a press) or directly below it, sorted by name.
+
+    Folders below ``root`` that hold press images but no meta.json (an interrupted or partial write)
+    are skipped with a warning naming each, never silently.
+    """
     root = Path(root)
     if is_press_folder(root):
         return [root]
     if not root.is_dir():
         raise CaptureError(f"{root}: no such folder")
-    return sorted(p for p in root.iterdir() if p.is_dir() and is_press_folder(p))
+    presses = []
+    for p in sorted(root.iterdir()):
+        if not p.is_dir() or p.name.startswith(TMP_PREFIX):  # a write in progress or interrupted
+            continue
+        if is_press_folder(p):
+            presses.append(p)
+        elif is_incomplete_press(p):
+            log.warning("%s: incomplete press folder (no %s; an interrupted write): skipped", p, META_FILE)
+    return presses
+
+
+def is_incomplete_press(folder: str | Path) -> bool:
+    """True when ``folder`` holds press images (dark, tri-colour or LED frames) but no meta.json."""
+    folder = Path(folder)
+    if is_press_folder(folder) or not folder.is_dir():
+        return False
+    return any((folder / name).is_file() for name in ("dark.png", "tricolor.png")) or any(folder.glob("led_*.png"))
 
 
 def split_reference(root: str | Path, reference: str | Path | None = None) -> tuple[list[Path], Path | None]:

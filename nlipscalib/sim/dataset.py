@@ -2,16 +2,20 @@
 
 Rendering is parallel (worker processes, each with its share of the cores) and resumable: a press
 whose folder is complete is never rendered again, and interrupted writes leave only ``.tmp-*``
-folders, which are cleaned before the run.
+folders, which are cleaned before the run. A press folder without meta.json (a partial copy, a
+deleted file) is incomplete: the process that claims the press removes it and renders it again.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import errno
 import itertools
 import json
 import logging
+import os
+import secrets
 import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -23,10 +27,10 @@ import numpy as np
 
 from ..config import check_count, check_range, from_mapping, read_config_file
 from ..core.atomic import check_writable, clean_interrupted, write_if_changed
-from ..core.capture import is_press_folder
+from ..core.capture import META_FILE, is_press_folder
 from ..cpus import usable_cores
-from ..errors import ConfigError, NlipsError
-from ..progress import progress_bar
+from ..errors import CaptureError, ConfigError, NlipsError
+from ..progress import configure_worker, progress_bar, worker_logging
 from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
 
@@ -170,6 +174,12 @@ def expand_jobs(spec: DatasetSpec) -> list[PressJob]:
     return jobs
 
 
+def limit_presses(jobs: list[PressJob], limit: int) -> list[PressJob]:
+    """The reference (if any) and the first ``limit`` presses of ``jobs`` (``--limit`` counts presses only)."""
+    presses = [j.name for j in jobs if j.press is not None][:limit]
+    return [j for j in jobs if j.press is None or j.name in presses]
+
+
 def run_dataset(
     scene: SceneConfig,
     jobs: list[PressJob],
@@ -215,7 +225,9 @@ def run_dataset(
         if workers == 1:
             _rounds(todo, lambda job: _render_job(scene, job, out, overwrite, stale_s), result, bar)
         else:
-            with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            with ProcessPoolExecutor(
+                workers, mp_context=get_context("spawn"), initializer=configure_worker, initargs=worker_logging()
+            ) as pool:
                 submit = lambda job: pool.submit(_render_job, scene, job, out, overwrite, stale_s)  # noqa: E731
                 try:
                     _rounds(todo, submit, result, bar, pool=True)
@@ -343,6 +355,13 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
             if is_complete(scene, job, out):
                 return "skipped", None
             clean_interrupted(out, item=job.name)  # a dead owner's half-written folder, if any
+            folder = out / job.name
+            if folder.exists() and not is_press_folder(folder):
+                busy = _live_claim_inside(folder)
+                if busy:
+                    return "failed", f"{folder}: incomplete (no {META_FILE}), but {busy}; run again when it is done"
+                log.warning("%s: incomplete press folder (no %s): removed, rendering it again", folder, META_FILE)
+                _remove_incomplete(folder)
             _run_one(scene, job, out, overwrite)
             return "rendered", None
     except FileExistsError:  # published by a process that lost its claim: the folder is whole
@@ -357,6 +376,59 @@ def _run_one(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = Fal
     from .press import render_press
 
     render_press(scene, job.press, out / job.name, seed=job.seed, overwrite=overwrite)
+
+
+def _live_claim_inside(folder: Path) -> str | None:
+    """Who works inside ``folder`` now (a live claim there, e.g. a solve's ``.claim-nlips``), or None."""
+    from ..core.claims import CLAIM_PREFIX, holder
+
+    if not folder.is_dir():
+        return None
+    for path in folder.glob(CLAIM_PREFIX + "*"):
+        name = path.name[len(CLAIM_PREFIX) :]
+        owner = holder(folder / name) if "." not in name else None  # NAME.token, NAME.stale.x: not claims
+        if owner is not None:
+            return f"process {owner.pid} on {owner.host} holds {path.name} in it"
+    return None
+
+
+def _remove_incomplete(folder: Path) -> None:
+    """Remove a press folder without meta.json; the caller holds the press's claim.
+
+    The folder is first renamed to a temporary name owned by this process (so a clean-up elsewhere
+    removes what is left if this process dies while deleting), then deleted. A complete folder that
+    another process published in the instant between the check and the rename (possible only over an
+    empty folder) is put back.
+    """
+    from ..core.atomic import tmp_prefix
+
+    aside = folder.with_name(tmp_prefix(folder.name) + "incomplete-" + secrets.token_hex(4))
+    try:
+        os.rename(folder, aside)
+    except FileNotFoundError:
+        return
+    if is_press_folder(aside):
+        with contextlib.suppress(OSError):  # else a duplicate: cleaned as this process's leftover
+            os.rename(aside, folder)
+        return
+    if aside.is_dir() and not aside.is_symlink():
+        shutil.rmtree(aside)
+    else:
+        aside.unlink()
+
+
+def _meta_problem(folder: Path) -> str | None:
+    """Why ``folder``'s meta.json cannot be read as JSON (unreadable, not JSON, not an object), or None."""
+    path = folder / META_FILE
+    try:
+        meta = json.loads(path.read_bytes())
+    except OSError as exc:
+        return f"{path}: cannot be read ({exc.strerror or exc})"
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        return f"{path}: not valid JSON ({exc})"
+    if not isinstance(meta, dict):
+        return f"{path}: not a JSON object"
+    return None
 
 
 def _recorded_hash(folder: Path) -> str | None:
@@ -381,9 +453,16 @@ def is_complete(scene: SceneConfig, job: PressJob, out: Path) -> bool:
 
 
 def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:
-    """Finished presses made from another spec are an error (or re-rendered with ``overwrite``)."""
+    """Finished presses made from another spec, or with a damaged meta.json, are an error (or
+    re-rendered with ``overwrite``)."""
     if overwrite:
         return
+    damaged = [p for p in (_meta_problem(out / j.name) for j in jobs if is_press_folder(out / j.name)) if p]
+    if damaged:
+        more = f" ({len(damaged) - 1} more press folders are damaged too)" if len(damaged) > 1 else ""
+        raise CaptureError(
+            f"{damaged[0]}; the press folder is damaged{more}: delete it to render it again, or use --overwrite"
+        )
     changed = [j.name for j in jobs if is_press_folder(out / j.name) and not is_complete(scene, j, out)]
     if changed:
         names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")

@@ -41,6 +41,19 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 0
     assert "0 rendered, 3 already there" in capsys.readouterr().out
 
+    # press folders without meta.json (interrupted copies) are removed and rendered again by the
+    # worker processes, which say so in the --log-file too
+    for name in ("press_0000", "press_0001"):
+        (out / name / "meta.json").unlink()
+    log = tmp_path / "run.log"
+    args = ["--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "2", "--no-progress"]
+    assert main(args) == 0
+    assert "2 rendered, 1 already there, 0 failed" in capsys.readouterr().out
+    text = log.read_text()
+    for name in ("press_0000", "press_0001"):
+        assert f"{name}: incomplete press folder" in text, text
+        assert load_press(out / name).camera.shape == (60, 80)
+
     # solving the whole dataset folder: the reference is used, not solved; a broken press is
     # reported and the others are still solved
     (out / "press_0001" / "led_03.png").write_bytes(b"broken")

@@ -54,6 +54,23 @@ def test_round_trip_keeps_everything(tmp_path):
     assert find_presses(tmp_path) == [folder]
 
 
+def test_find_presses_warns_about_incomplete_press_folders(tmp_path, caplog):
+    import logging
+    import shutil
+
+    caplog.set_level(logging.WARNING)
+    good = _press(tmp_path / "p1")
+    broken = tmp_path / "p2"
+    shutil.copytree(good, broken)
+    (broken / "meta.json").unlink()  # an interrupted copy
+    (tmp_path / "calibration").mkdir()  # other output beside the presses: not a press, no warning
+    (tmp_path / "calibration" / "index.json").write_text("{}")
+    shutil.copytree(good, tmp_path / (TMP_PREFIX + "p3~host~1~x"))  # a write in progress: ignored
+    assert find_presses(tmp_path) == [good]
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1 and str(broken) in warnings[0] and "meta.json" in warnings[0], warnings
+
+
 def test_written_files_get_ordinary_permissions(tmp_path):
     import os
     import stat
