@@ -32,13 +32,13 @@ import numpy as np
 
 from ..core.atomic import clean_interrupted, write_json
 from ..core.camera import Camera
-from ..core.capture import Reference, SensorResponse, is_press_folder, write_press
+from ..core.capture import REFERENCE_FOLDER, Reference, SensorResponse, is_press_folder, write_press
 from ..core.leds import TRICOLOR_COLORS, Led, tricolor_groups
 from ..errors import CaptureError, ConfigError, require
 
 log = logging.getLogger(__name__)
 
-REFERENCE_NAME = "reference"
+REFERENCE_NAME = REFERENCE_FOLDER  # the name every folder of presses uses (core.capture)
 """Folder of the undeformed sensor's capture inside a session."""
 SESSION_FILE = "session.json"
 """The session's description (camera, LEDs, settings), written when the session starts."""

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..config import check_count, check_range, from_mapping, read_config_file
 from ..core.atomic import check_writable, clean_interrupted, write_if_changed
-from ..core.capture import META_FILE, is_press_folder
+from ..core.capture import META_FILE, REFERENCE_FOLDER, is_press_folder
 from ..cpus import usable_cores
 from ..errors import CaptureError, ConfigError, NlipsError
 from ..progress import configure_worker, progress_bar, worker_logging
@@ -35,7 +35,7 @@ from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
 
 log = logging.getLogger(__name__)
-REFERENCE_NAME = "reference"
+REFERENCE_NAME = REFERENCE_FOLDER  # the name every folder of presses uses (core.capture)
 MANIFEST = "dataset.json"
 GT_BYTES_PER_PIXEL = 4 + 12 + 12 + 2 + 4 + 12
 """gt.npz (depth, points, normals, masks) and reference.npz (depth, normals) per pixel, uncompressed."""
