@@ -150,8 +150,10 @@ class _WorkerSlots:
     """
 
     def __init__(self, n: int, out: str, threads: int, keep: bool):
+        from ..progress import worker_logging
+
         self.ctx = get_context("spawn")
-        self.n, self.args = n, (out, threads, keep)
+        self.n, self.args = n, (out, threads, keep, worker_logging())
         self.results = self.ctx.Queue()
 
     def _start(self, slot: int):
@@ -201,8 +203,13 @@ class _WorkerSlots:
             _record(status, task_id, outcome, bar)
 
 
-def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool) -> None:
-    """Body of a local worker process: run tasks from ``inbox`` until it gets None."""
+def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool, logging_args=None) -> None:
+    """Body of a local worker process: run tasks from ``inbox`` until it gets None (logging like the parent,
+    to its ``--log-file`` too)."""
+    if logging_args is not None:
+        from ..progress import configure_worker
+
+        configure_worker(*logging_args)
     while (task := inbox.get()) is not None:
         results.put((slot, task.id, execute(task, out, threads, keep)))
 

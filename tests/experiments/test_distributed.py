@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from nlipscalib import progress
 from nlipscalib.experiments import get
 from nlipscalib.experiments.framework import run_experiment
 
@@ -75,13 +76,17 @@ def local_run(tmp_path_factory):
     handler = logging.Handler()
     handler.emit = lambda record: deaths.append(record.getMessage()) if "died" in record.getMessage() else None
     logging.getLogger("nlipscalib.experiments.runner").addHandler(handler)
+    progress.configure(progress=False, log_file=out / "log.txt")  # --log-file: the workers append to it too
     thread, box = _in_thread(lambda: _sweep(out, workers=2))  # noqa: B023
     _wait(lambda: _presses_started(out))
     _wait(lambda: _worker_processes())
     time.sleep(1.0)  # mid-task: a press renders for seconds
     _worker_processes()[0].send_signal(signal.SIGKILL)
     thread.join(timeout=900)
+    progress.configure(progress=False, log_file=None)
     logging.getLogger("nlipscalib.experiments.runner").removeHandler(handler)
+    logged = (out / "log.txt").read_text()
+    assert "nlipscalib.solver" in logged, logged[-2000:]  # solves run in the worker processes only
     assert "error" not in box, box.get("error")
     assert deaths, "the killed worker was not noticed"
     return box["doc"]
