@@ -218,3 +218,17 @@ def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch,
     assert list(curve.lines[-1].get_xdata()) == [best, best]  # the best-epoch marker
     info = load_model(out).info  # the stored numbers keep counting from 0 (docs/formats.md)
     assert info["best_epoch"] == best - 1 and [h["epoch"] for h in info["history"]] == [0, 1, 2]
+
+
+def test_missing_onnx_file_names_the_ways_to_make_it(trained, twin_presses, tmp_path, capsys):
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    model = tmp_path / "net.pt"
+    shutil.copy(trained, model)
+    args = ["infer", str(model), str(twin_presses / HELD_OUT), "--backend", "onnx", "--out", str(tmp_path / "o")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "net.onnx" in err[0] and "`nlips train`" in err[0]
+    assert "nlips export" not in err[0] and "export_onnx(" in err[0]
+    export_onnx(load_model(model), model.with_suffix(".onnx"))  # the way the message names works
+    assert main(args) == 0
