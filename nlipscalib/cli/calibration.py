@@ -8,6 +8,15 @@ from pathlib import Path
 log = logging.getLogger(__name__)
 
 
+OPTION_OF = {
+    "min_confidence": "--min-confidence",
+    "min_leds": "--min-leds",
+    "rest_per_cell": "--rest-per-cell",
+    "smoothing_px": "--smoothing",
+}
+"""The option of `nlips calibrate` that sets each SamplingConfig field (its validation messages name the field)."""
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "calibrate",
@@ -37,25 +46,31 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..config import check_count
-    from ..core.capture import REFERENCE_FOLDER, split_reference
+    from ..core.capture import REFERENCE_FOLDER, is_press_folder, read_meta, split_reference
     from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.coverage import coverage, write_coverage_json
-    from ..learn.dataset import CalibrationDataset, SamplingConfig, build_dataset
+    from ..learn.dataset import CalibrationDataset, SamplingConfig, build_dataset, check_min_leds
     from ..report.learn import coverage_figure
 
     check_count("--workers", args.workers, minimum=0)
     smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
     if not smoothing >= 0:
         raise ConfigError(f"--smoothing must be >= 0 px, got {args.smoothing}")
-    cfg = SamplingConfig(  # checked before any solving
-        min_confidence=args.min_confidence,
-        min_leds=args.min_leds,
-        rest_per_cell=args.rest_per_cell,
-        smoothing_px=smoothing,
-    )
-    root = Path(args.presses)
-    presses, reference = split_reference(root, args.reference)
+    try:  # checked before any solving
+        cfg = SamplingConfig(
+            min_confidence=args.min_confidence,
+            min_leds=args.min_leds,
+            rest_per_cell=args.rest_per_cell,
+            smoothing_px=smoothing,
+        )
+        root = Path(args.presses)
+        presses, reference = split_reference(root, args.reference)
+        if reference is not None and is_press_folder(reference):
+            check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
+    except ConfigError as exc:  # SamplingConfig names its field; the user typed the option
+        field, _, rest = str(exc).partition(" ")
+        raise ConfigError(f"{OPTION_OF.get(field, field)} {rest}") from None
     if reference is None:
         raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
     if not presses:

@@ -1,7 +1,8 @@
 """``nlips eval PATH``: AAE, MabsE and depth RMSE of reconstructions (NLiPs or NLiPsNet) against ground truth.
 
 PATH is a press folder, a folder of presses, or a reconstruction folder (PRESS/nlips, PRESS/nlipsnet:
-the method is then taken from the folder's name). Both methods write the core reconstruction format
+the method is then taken from the folder's name). A result written elsewhere (`nlips solve PRESS --out
+DIR`) is scored with `nlips eval PRESS --result DIR`. Both methods write the core reconstruction format
 (docs/formats.md), so they are scored alike. A damaged NLiPs result is re-computed from the settings
 recorded in its report.json, with a warning.
 """
@@ -12,6 +13,8 @@ import logging
 from pathlib import Path
 
 log = logging.getLogger(__name__)
+MAKES = {"nlips": "`nlips solve PRESS`", "nlipsnet": "`nlips infer MODEL.pt PRESS`"}
+"""The command that writes each method's result, for the "no result yet" errors."""
 
 
 def register(subparsers) -> None:
@@ -24,6 +27,12 @@ def register(subparsers) -> None:
         choices=("nlips", "nlipsnet"),
         help="which reconstruction to score: PRESS/nlips (default) or PRESS/nlipsnet",
     )
+    p.add_argument(
+        "--result",
+        metavar="DIR",
+        help="score this reconstruction folder (e.g. from `nlips solve PRESS --out DIR`) against PATH, which must "
+        "then be that one press folder (its ground truth); the method is read from DIR's report.json",
+    )
     p.add_argument("--region", choices=("all", "contact"), default="all", help="pixels to score")
     p.set_defaults(func=run)
 
@@ -31,10 +40,13 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from ..errors import CaptureError
 
-    presses, method = _targets(Path(args.path), args.method)
+    if args.result:
+        presses, method = _result_target(Path(args.path), Path(args.result), args.method)
+    else:
+        presses, method = _targets(Path(args.path), args.method)
     rows, unsolved, damaged = [], [], []
     for folder in presses:
-        rec = _load(folder, method, single=len(presses) == 1)
+        rec = _load(folder, method, single=len(presses) == 1, out=args.result)
         if rec is None:
             unsolved.append(folder.name)  # e.g. a dataset's undeformed reference: nothing solved there
         elif isinstance(rec, str):
@@ -42,8 +54,8 @@ def run(args) -> int:
         else:
             rows.append((folder.name, _scores(folder, rec)[args.region]))
     if not rows and not damaged:
-        raise CaptureError(f"{args.path}: no press has a {method} result yet (run `nlips solve` first)")
-    _print(rows, method)
+        raise CaptureError(f"{args.path}: no press has a {method} result yet (run {MAKES[method]} first)")
+    _print(rows, args.result or f"PRESS/{method}")
     if unsolved:
         print(f"not solved, skipped: {', '.join(unsolved)}")
     for name, problem in damaged:
@@ -53,7 +65,7 @@ def run(args) -> int:
 
 def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
     """(press folders, method): PATH as a reconstruction folder, a press, or a folder of presses."""
-    from ..core.capture import find_presses, is_press_folder
+    from ..core.capture import is_press_folder, split_reference
     from ..core.reconstruction import METHODS, is_reconstruction_dir
     from ..errors import CaptureError
 
@@ -62,21 +74,59 @@ def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
         if method and named and method != named:
             raise CaptureError(f"{path}: a {named} folder, but --method {method} was given")
         return [path.parent], method or named or "nlips"
-    presses = find_presses(path)
+    if is_reconstruction_dir(path):
+        raise CaptureError(
+            f"{path}: a reconstruction folder outside its press; score it with `nlips eval PRESS --result {path}`"
+        )
+    presses, _ = split_reference(path)  # a folder's undeformed capture is not a press to score
     if not presses:
         raise CaptureError(f"{path}: no press folders found")
     return presses, method or "nlips"
 
 
-def _load(folder: Path, method: str, single: bool):
-    """The reconstruction; None when there is none; a problem string when it is damaged beyond repair."""
+def _result_target(press: Path, result: Path, method: str | None) -> tuple[list[Path], str]:
+    """([press], method) for ``--result DIR``: DIR's reconstruction scored against the one press ``press``."""
+    from ..core.capture import is_press_folder
+    from ..core.reconstruction import METHODS, has_reconstruction, read_report
+    from ..errors import CaptureError
+
+    if not is_press_folder(press):
+        raise CaptureError(f"{press}: --result needs PATH to be the press folder the result was made from")
+    if not has_reconstruction(result):
+        raise CaptureError(f"--result {result}: no reconstruction there (result.npz)")
+    try:
+        report = read_report(result)
+    except CaptureError:
+        report = {}  # a damaged report: loading the result says what is wrong (and re-solves NLiPs)
+    named = report.get("method") if report.get("method") in METHODS else None
+    if method and named and method != named:
+        raise CaptureError(f"--result {result}: a {named} result, but --method {method} was given")
+    made_from = ((report.get("provenance") or {}).get("inputs") or {}).get("press")
+    if made_from and made_from != _identity(press):
+        log.warning("%s: made from another capture than %s (its images or meta.json differ)", result, press)
+    return [press], method or named or "nlips"
+
+
+def _identity(press: Path) -> str | None:
+    from ..errors import NlipsError
+    from ..pipeline import capture_identity
+
+    try:
+        return capture_identity(press)
+    except NlipsError:
+        return None
+
+
+def _load(folder: Path, method: str, single: bool, out=None):
+    """The reconstruction (in ``out``, default PRESS/<method>); None when there is none; a problem string when it
+    is damaged beyond repair."""
     from ..core.reconstruction import has_reconstruction, load_reconstruction, reconstruction_dir
     from ..errors import CaptureError
 
-    out = reconstruction_dir(folder, method=method)
+    out = reconstruction_dir(folder, out, method=method)
     if not has_reconstruction(out):
         if single:
-            raise CaptureError(f"{out}: no {method} result there (run `nlips solve` first)")
+            raise CaptureError(f"{out}: no {method} result there (run {MAKES[method]} first)")
         return None
     try:
         return load_reconstruction(out)
@@ -133,12 +183,12 @@ def _ground_truth(folder: Path):
     return GroundTruth.load(path, shape)
 
 
-def _print(rows, method: str) -> None:
+def _print(rows, scored: str) -> None:
     import numpy as np
 
     if not rows:
         return
-    print(f"scoring PRESS/{method}")
+    print(f"scoring {scored}")
     print(f"{'press':<24} {'pixels':>8} {'AAE(deg)':>9} {'MabsE':>8} {'RMSE(mm)':>9}")
     for name, s in rows:
         print(f"{name:<24} {s['pixels']:>8d} {s['aae_deg']:>9.3f} {s['mabse']:>8.4f} {s['depth_rmse_mm']:>9.4f}")

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import sys
 
-from .live import add_source_arguments
+from .live import add_source_arguments, check_output_arguments, check_source_arguments
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +64,8 @@ def run(args) -> int:
         raise ConfigError("give inputs (presses, PNG frames or a video), --camera SPEC or --emulate SCENE")
     if args.max_frames is not None and args.max_frames < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
+    check_source_arguments(args)
+    check_output_arguments(args)
     if stream_input is not None:
         return _run_stream(args, stream_input)
     return _run_stills(args)
@@ -276,7 +278,7 @@ def _frames(inputs):
     """(name, loader(predictor) -> linear frame, press folder or None) for every input, in order."""
     from pathlib import Path
 
-    from ..core.capture import find_presses
+    from ..core.capture import META_FILE, find_presses, is_incomplete_press
     from ..errors import CaptureError
 
     for item in inputs:
@@ -290,6 +292,11 @@ def _frames(inputs):
             pngs = sorted(path.glob("*.png"))
             if not pngs:
                 raise CaptureError(f"{path}: no press folders and no .png frames in it")
+            if is_incomplete_press(path):
+                raise CaptureError(
+                    f"{path}: looks like a press folder (dark.png, led_*.png) without its {META_FILE}: an "
+                    "incomplete capture; capture it again (its dark and LED images are not tri-colour frames)"
+                )
             for png in pngs:
                 yield png.stem, _png_loader(png), None
         else:

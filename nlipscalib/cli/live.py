@@ -48,6 +48,29 @@ def add_source_arguments(p, camera_default: str | None) -> None:
     p.add_argument("--height", type=int, help="emulated image height, pixels")
 
 
+def check_source_arguments(args) -> None:
+    """One line naming the option when a flag of :func:`add_source_arguments` is out of range."""
+    from ..config import check_count
+    from ..errors import ConfigError
+
+    check_count("--frames-per-press", args.frames_per_press, minimum=1)
+    if not 1 <= args.tricolor_level <= 255:
+        raise ConfigError(f"--tricolor-level must be 1-255, got {args.tricolor_level}")
+    if not args.exposure_ms > 0:
+        raise ConfigError(f"--exposure-ms must be > 0, got {args.exposure_ms}")
+    for option, value in (("--adalight", args.adalight), ("--width", args.width), ("--height", args.height)):
+        if value is not None:
+            check_count(option, value, minimum=1)
+
+
+def check_output_arguments(args) -> None:
+    """``--every`` >= 1 (0 would keep every frame) and ``--threads`` >= 0 (0: the default), shared with infer."""
+    from ..config import check_count
+
+    check_count("--every", args.every, minimum=1)
+    check_count("--threads", args.threads, minimum=0)
+
+
 def open_frames(args, stack):
     """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
 
@@ -91,7 +114,43 @@ def _plugged(spec: str, shape):
         factory = getattr(importlib.import_module(module), name)
     except (ImportError, AttributeError, ValueError) as exc:
         raise ConfigError(f"--predictor {spec}: cannot load it ({exc}); give module:function") from None
-    return factory(shape), None
+    usage = "function(camera_shape) returning a callable: stored frame -> LiveResult"
+    if not callable(factory):
+        raise ConfigError(f"--predictor {spec}: {type(factory).__name__} is not callable; give a {usage}")
+    try:
+        predict = factory(shape)
+    except TypeError as exc:
+        problem = f"calling it with the camera shape failed ({exc})"
+        raise ConfigError(f"--predictor {spec}: {problem}; give a {usage}") from None
+    if not callable(predict):
+        raise ConfigError(f"--predictor {spec}: returned a {type(predict).__name__}, not a callable; give a {usage}")
+    return _checked_first_call(spec, predict), None
+
+
+def _checked_first_call(spec: str, predict):
+    """``predict``, its first call's TypeError or a result without normals and depth made a ConfigError naming
+    --predictor (later calls run unchecked: the check costs nothing per frame)."""
+    from ..errors import ConfigError
+
+    checked = False
+
+    def first(frame):
+        nonlocal checked
+        if checked:
+            return predict(frame)
+        try:
+            result = predict(frame)
+        except TypeError as exc:
+            raise ConfigError(f"--predictor {spec}: its predictor failed on a frame ({exc})") from None
+        if not (hasattr(result, "normals") and hasattr(result, "depth")):
+            raise ConfigError(
+                f"--predictor {spec}: its predictor returned a {type(result).__name__}, not a LiveResult "
+                "(normals, depth)"
+            )
+        checked = True
+        return result
+
+    return first
 
 
 def _emulated_source(args, stack):
@@ -136,6 +195,10 @@ def run(args) -> int:
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
+    check_source_arguments(args)
+    check_output_arguments(args)
+    if args.frames is not None and args.frames < 1:
+        raise ConfigError(f"--frames must be >= 1, got {args.frames}")
     with contextlib.ExitStack() as stack:
         source, before_frame = open_frames(args, stack)
         predict, reference_depth = _nlipsnet(args) if args.model else _plugged(args.predictor, source.shape)

@@ -2,6 +2,21 @@
 
 from __future__ import annotations
 
+OPTION_OF = {
+    "hidden": "--hidden",
+    "dropout": "--dropout",
+    "labels": "--labels",
+    "max_epochs": "--epochs",
+    "patience": "--patience",
+    "schedule": "--schedule",
+    "batch_size": "--batch-size",
+    "lr": "--lr",
+    "seed": "--seed",
+    "max_seconds": "--max-minutes",
+    "threads": "--threads",
+}
+"""The option of `nlips train` that sets each TrainConfig field (its validation messages name the field)."""
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -60,26 +75,33 @@ def run(args) -> int:
         raise ConfigError(f"--out {out}: the model file must end in .pt")
     given = {k: v for k, v in (("patience", args.patience), ("schedule", args.schedule)) if v is not None}
     check_count("--threads", args.threads, minimum=0)
-    cfg = TrainConfig(
-        hidden=hidden,
-        dropout=args.dropout,
-        labels=args.labels,
-        max_epochs=args.epochs,
-        **given,
-        batch_size=args.batch_size,
-        lr=args.lr,
-        seed=args.seed,
-        max_seconds=args.max_minutes * 60,
-        threads=args.threads or usable_cores(),
-    )
+    if not args.max_minutes >= 0:  # NaN too
+        raise ConfigError(f"--max-minutes must be >= 0 (0: no limit), got {args.max_minutes}")
+    try:
+        cfg = TrainConfig(
+            hidden=hidden,
+            dropout=args.dropout,
+            labels=args.labels,
+            max_epochs=args.epochs,
+            **given,
+            batch_size=args.batch_size,
+            lr=args.lr,
+            seed=args.seed,
+            max_seconds=args.max_minutes * 60,
+            threads=args.threads or usable_cores(),
+        )
+    except ConfigError as exc:  # TrainConfig names its field; the user typed the option
+        field, _, rest = str(exc).partition(" ")
+        raise ConfigError(f"{OPTION_OF.get(field, field)} {rest}") from None
     data = CalibrationDataset(args.dataset)
     val = args.val_presses.split(",") if args.val_presses else None
     exclude = args.exclude.split(",") if args.exclude else ()
     result = train(data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress)
     best = result.history[result.best_epoch]
     curve = training_curve(result.history, out.with_name(out.stem + "_curve.png"), f"NLiPsNet {args.hidden}")
-    print(
-        f"{out}: best epoch {result.best_epoch} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg "
+    print(  # epochs numbered from 1 here (the stored history counts from 0)
+        f"{out}: best epoch {result.best_epoch + 1} of {len(result.history)}, "
+        f"validation AAE {best['val_aae_deg']:.2f} deg "
         f"(contact {best['val_contact_aae_deg']:.2f} deg) on {', '.join(result.val_presses)}; curve {curve}"
     )
     if not args.no_onnx:

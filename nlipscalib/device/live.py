@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.atomic import write_bytes
 from ..core.imageio import save_npz
-from ..errors import CaptureError, require
+from ..errors import CaptureError, ConfigError, require
 
 
 @dataclasses.dataclass
@@ -209,11 +209,13 @@ class SaveSink:
     """Every ``every``-th frame's normal map (PNG, normal-map colours) and arrays (npz: normals, depth)."""
 
     def __init__(self, folder: str | Path, colour_normals, every: int = 1):
+        if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+            raise ConfigError(f"every must be an integer >= 1 (1: every frame), got {every!r}")
         self.cv2 = require("cv2", "opencv-python-headless", "Saving live maps")
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.colour_normals = colour_normals
-        self.every = max(int(every), 1)
+        self.every = every
 
     def __call__(self, index: int, frame: np.ndarray, result: LiveResult) -> None:
         if index % self.every:

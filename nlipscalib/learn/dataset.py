@@ -36,7 +36,7 @@ from .. import __version__
 from ..core.atomic import write_json
 from ..core.formatfile import read_format_json
 from ..core.imageio import read_npz, save_npz
-from ..errors import CaptureError
+from ..errors import CaptureError, ConfigError
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
 from .prefilter import Prefilter
@@ -70,6 +70,19 @@ class SamplingConfig:
     """Sigma (pixels) of the Gaussian low-pass applied to the tri-colour image before its colours become
     samples (:mod:`.prefilter`: cuts per-pixel sensor noise ~3.5x); the model file carries it and
     inference filters alike. 0: raw pixels."""
+
+    def __post_init__(self):
+        # every message starts with the field's name: `nlips calibrate` names its option instead
+        if not (isinstance(self.min_confidence, (int, float)) and 0 <= self.min_confidence <= 1):
+            raise ConfigError(
+                f"min_confidence must be in [0, 1] (a pixel's confidence lies there), got {self.min_confidence!r}"
+            )
+        for name, minimum in (("min_leds", 0), ("rest_cells", 1), ("rest_per_cell", 0), ("seed", 0)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+                raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        if not (isinstance(self.smoothing_px, (int, float)) and 0 <= self.smoothing_px < float("inf")):
+            raise ConfigError(f"smoothing_px must be a finite sigma >= 0 px, got {self.smoothing_px!r}")
 
 
 # ---------------------------------------------------------------------- building
@@ -222,6 +235,7 @@ def build_dataset(
     out = Path(out)
     (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
     ref_press = load_press(reference_folder)
+    check_min_leds(cfg, len(ref_press.leds), reference_folder)
     sensor = sensor_of(ref_press)
     ref = reference_arrays(ref_press)
     write_shard(out / SENSOR_FILE, ref)
@@ -252,6 +266,12 @@ def build_dataset(
         )
     write_index(out, sensor, cfg, entries, str(Path(reference_folder).resolve()))
     return out
+
+
+def check_min_leds(cfg: SamplingConfig, n_leds: int, where) -> None:
+    """ConfigError when ``cfg.min_leds`` exceeds the sensor's LEDs: no NLiPs pixel could become a sample."""
+    if cfg.min_leds > n_leds:
+        raise ConfigError(f"min_leds must be at most the {n_leds} LEDs of {where}, got {cfg.min_leds}")
 
 
 def _result_stamp(folder: Path, cfg: SamplingConfig) -> str:

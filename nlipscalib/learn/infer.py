@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.camera import Camera
-from ..errors import CaptureError, ShapeError
+from ..errors import CaptureError, ConfigError, ShapeError
 from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
 from .model import load_model
@@ -59,6 +59,8 @@ class Predictor:
     """
 
     def __init__(self, model_path, backend: str = "torch", threads: int = 0, depth: bool = True):
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
+            raise ConfigError(f"threads must be an integer >= 0 (0: all cores), got {threads!r}")
         self.model = load_model(model_path)
         ref = self.model.reference
         self.camera = Camera.from_dict(self.model.sensor["camera"])

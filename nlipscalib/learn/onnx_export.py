@@ -26,6 +26,14 @@ IR_VERSION = 8
 """ONNX IR version of the export: the oldest that carries opset 17 (onnxruntime >= 1.13 reads it)."""
 
 
+EXPORT_HINT = (
+    "`nlips train` writes it beside the model unless --no-onnx; in Python: "
+    "nlipscalib.learn.onnx_export.export_onnx(nlipscalib.learn.model.load_model(MODEL), PATH); "
+    "or use --backend torch"
+)
+"""How to get MODEL.onnx: no command exports on its own, so the errors name these ways."""
+
+
 def file_digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
@@ -127,7 +135,7 @@ class OnnxNet:
         ort = require("onnxruntime", "onnxruntime", "ONNX inference")
         path = Path(path)
         if not path.is_file():
-            raise CaptureError(f"{path}: ONNX model is missing (export it with `nlips train` or `nlips export`)")
+            raise CaptureError(f"{path}: ONNX model is missing ({EXPORT_HINT})")
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
@@ -139,7 +147,9 @@ class OnnxNet:
             raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__})") from None
         props = self.session.get_modelmeta().custom_metadata_map
         if model is not None and props.get("model_digest") != file_digest(model.path):
-            raise CaptureError(f"{path}: exported from another model than {model.path}; export it again")
+            raise CaptureError(
+                f"{path}: exported from another model than {model.path}; export it again ({EXPORT_HINT})"
+            )
         if int8:  # the checked float file, quantised in memory
             self.session = ort.InferenceSession(quantized_int8(path), opts, providers=["CPUExecutionProvider"])
         self.path = path

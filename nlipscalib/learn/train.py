@@ -10,6 +10,7 @@ import dataclasses
 import hashlib
 import io
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -72,12 +73,21 @@ class TrainConfig:
     Not part of what a checkpoint must match to be resumed."""
 
     def __post_init__(self):
+        # every message starts with the field's name: `nlips train` names its option instead (cli/train.py)
         if self.labels not in ("nlips", "true"):
             raise ConfigError(f"labels must be 'nlips' or 'true', got {self.labels!r}")
-        if not self.hidden or any(int(h) < 1 for h in self.hidden):
+        if not self.hidden or any(not _is_int(h) or h < 1 for h in self.hidden):
             raise ConfigError(f"hidden must list positive layer widths, got {self.hidden}")
         if not 0 <= self.dropout < 1:
             raise ConfigError(f"dropout must be in [0, 1), got {self.dropout}")
+        for name, minimum in (("max_epochs", 1), ("patience", 0), ("batch_size", 1), ("seed", 0), ("threads", 1)):
+            value = getattr(self, name)
+            if not _is_int(value) or value < minimum:
+                raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
+            raise ConfigError(f"lr must be a finite number > 0, got {self.lr!r}")
+        if not (isinstance(self.max_seconds, (int, float)) and self.max_seconds >= 0):
+            raise ConfigError(f"max_seconds must be >= 0 (0: no limit), got {self.max_seconds!r}")
         if not 0 < self.val_fraction < 1:
             raise ConfigError(f"val_fraction must be in (0, 1), got {self.val_fraction}")
         if self.schedule not in ("plateau", "cosine"):
@@ -86,6 +96,10 @@ class TrainConfig:
             raise ConfigError(
                 f"lr_patience must be >= 0 and lr_factor in (0, 1), got {self.lr_patience}, {self.lr_factor}"
             )
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def split_by_press(names, val_fraction: float, seed: int, val_names=None) -> tuple[list[str], list[str]]:

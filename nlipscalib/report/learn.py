@@ -68,15 +68,15 @@ def coverage_figure(cov: dict, path) -> Path:
 
 
 def training_curve(history: list[dict], path, title: str = "NLiPsNet") -> Path:
-    """Training loss and validation AAE per epoch, best epoch marked.
+    """Training loss and validation AAE per epoch, best epoch marked; epochs numbered from 1, as `nlips train` says.
 
     Parameters
     ----------
-    history : list of dicts with epoch, train_loss, val_aae_deg, val_contact_aae_deg
+    history : list of dicts with epoch (0-based, as stored), train_loss, val_aae_deg, val_contact_aae_deg
     path : output .png
     """
     plt = _plt()
-    ep = [h["epoch"] for h in history]
+    ep = [h["epoch"] + 1 for h in history]
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.2))
     a1.semilogy(ep, [h["train_loss"] for h in history])
     a1.set_xlabel("epoch")
@@ -84,11 +84,11 @@ def training_curve(history: list[dict], path, title: str = "NLiPsNet") -> Path:
     a2.plot(ep, [h["val_aae_deg"] for h in history], label="validation, all samples")
     a2.plot(ep, [h["val_contact_aae_deg"] for h in history], label="validation, contact")
     best = min(history, key=lambda h: h["val_aae_deg"])
-    a2.axvline(best["epoch"], color="0.5", ls="--", lw=1)
+    a2.axvline(best["epoch"] + 1, color="0.5", ls="--", lw=1)
     a2.set_xlabel("epoch")
     a2.set_ylabel("AAE, deg")
     a2.legend(fontsize=8)
-    a2.set_title(f"best epoch {best['epoch']}: {best['val_aae_deg']:.2f} deg", fontsize=9)
+    a2.set_title(f"best epoch {best['epoch'] + 1}: {best['val_aae_deg']:.2f} deg", fontsize=9)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, path)

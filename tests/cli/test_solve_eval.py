@@ -9,6 +9,7 @@ import pytest
 
 from nlipscalib.cli import main
 from nlipscalib.core.capture import load_press
+from nlipscalib.core.metrics import evaluate
 from nlipscalib.core.reconstruction import load_reconstruction, save_reconstruction
 from tests.solver import synth
 
@@ -115,6 +116,38 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     npz.write_bytes(npz.read_bytes()[:100])
     assert main(["eval", str(root), "--method", "nlipsnet"]) == 1  # not re-made here: named, exit 1
     assert "damaged, not scored: press_a" in capsys.readouterr().out
+
+
+def test_eval_scores_a_result_solved_into_another_folder(data, tmp_path, capsys):
+    root, cfg = data
+    press, other = root / "press_a", tmp_path / "elsewhere"
+    assert main(["solve", str(press), "--config", str(cfg), "--out", str(other), "--no-progress"]) == 0
+    assert not (press / "nlips").exists()
+    capsys.readouterr()
+    assert main(["eval", str(other)]) == 2  # outside its press: no ground truth to score against; says how
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"nlips eval PRESS --result {other}" in err[0]
+    assert main(["eval", str(press), "--result", str(other)]) == 0
+    out = capsys.readouterr().out
+    assert f"scoring {other}" in out
+    row = next(line for line in out.splitlines() if line.startswith("press_a")).split()
+    scores = evaluate(load_reconstruction(other), load_press(press).ground_truth)["all"]
+    assert int(row[1]) == scores["pixels"] > 0 and float(row[2]) == pytest.approx(scores["aae_deg"], abs=1e-3)
+    assert main(["eval", str(press), "--result", str(other), "--method", "nlipsnet"]) == 2  # the report says nlips
+    assert "--method nlipsnet" in capsys.readouterr().err
+    assert main(["eval", str(root), "--result", str(other)]) == 2  # PATH must be the one press
+    assert "--result needs PATH to be the press folder" in capsys.readouterr().err
+    assert main(["eval", str(press), "--result", str(tmp_path / "none")]) == 2
+    assert "--result" in capsys.readouterr().err
+
+
+def test_eval_says_which_command_makes_the_missing_result(data, capsys):
+    root, _ = data
+    assert main(["eval", str(root / "press_a"), "--method", "nlipsnet"]) == 2
+    err = capsys.readouterr().err
+    assert "`nlips infer" in err and "nlips solve" not in err
+    assert main(["eval", str(root / "press_a")]) == 2
+    assert "`nlips solve" in capsys.readouterr().err
 
 
 def test_figures_flags(data):

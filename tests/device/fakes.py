@@ -71,3 +71,13 @@ def flat_predictor(shape):
         return LiveResult(normals, depth)
 
     return predict
+
+
+def tuple_predictor(shape):
+    """A broken `nlips live` predictor: its callable returns a tuple, not a LiveResult."""
+    return lambda frame: (frame, frame)
+
+
+def two_argument_predictor(shape):
+    """A broken `nlips live` predictor: its callable wants two arguments, so the first frame's call fails."""
+    return lambda frame, extra: None

@@ -92,3 +92,38 @@ def test_live_cli_saves_maps_with_a_plugged_predictor(frames, tmp_path, capsys):
     normals_png = cv2.imread(str(out / "frame_000000_normals.png"))
     assert tuple(normals_png[0, 0]) == (255, 127, 127)  # BGR of the camera-facing blue
     assert main(["live", "--camera", str(frames)]) == 2  # no predictor: one clear error
+
+
+def _one_line(err: str, *needles: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.mark.parametrize(
+    "spec, problem",
+    [
+        ("os:getcwd", "camera shape"),  # takes no argument
+        ("os:sep", "not callable"),  # a string
+        ("builtins:str", "not a callable"),  # returns a string
+        ("tests.device.fakes:two_argument_predictor", "failed on a frame"),
+        ("tests.device.fakes:tuple_predictor", "not a LiveResult"),
+    ],
+)
+def test_live_names_a_predictor_that_cannot_predict(frames, tmp_path, capsys, spec, problem):
+    args = ["live", "--camera", str(frames), "--predictor", spec, "--frames", "1", "--no-window"]
+    assert main([*args, "--save", str(tmp_path / "maps")]) == 2
+    _one_line(capsys.readouterr().err, f"--predictor {spec}", problem)
+    assert not list((tmp_path / "maps").glob("frame_*"))
+
+
+@pytest.mark.parametrize(
+    "option", [("--every", "0"), ("--threads", "-1"), ("--frames", "0"), ("--frames-per-press", "0")]
+)
+def test_live_refuses_out_of_range_options_before_streaming(frames, tmp_path, capsys, option):
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main([*args, "--save", str(tmp_path / "maps"), *option]) == 2
+    _one_line(capsys.readouterr().err, option[0])
+    assert not (tmp_path / "maps").exists()  # refused before anything was written

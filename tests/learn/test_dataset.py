@@ -101,3 +101,29 @@ def test_cli_calibrate_raw_colours_on_request_and_refuses_a_negative_sigma(twin_
     s, press = data.load("press_a"), load_press(root / "press_a")
     assert data.smoothing_px == 0
     np.testing.assert_array_equal(s["rgb"], press.linear(press.tricolor)[s["pixel"][:, 1], s["pixel"][:, 0]])
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [("min_confidence", 2.0), ("min_confidence", -0.1), ("min_leds", -1), ("rest_cells", 0)]
+    + [("rest_per_cell", -1), ("seed", -1), ("smoothing_px", float("nan")), ("min_leds", 2.5)],
+)
+def test_sampling_config_refuses_out_of_range_fields(field, value):
+    from nlipscalib.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=f"^{field} "):
+        SamplingConfig(**{field: value})
+
+
+@pytest.mark.parametrize(
+    "option, value", [("--min-confidence", "2"), ("--min-leds", "99"), ("--min-leds", "-1"), ("--rest-per-cell", "-5")]
+)
+def test_cli_calibrate_refuses_sampling_options_that_leave_no_samples(twin_presses, tmp_path, capsys, option, value):
+    root = tmp_path / "presses"
+    shutil.copytree(twin_presses / "reference", root / "reference")
+    shutil.copytree(twin_presses / "press_a", root / "press_a", ignore=shutil.ignore_patterns("nlips"))
+    assert main(["calibrate", str(root), option, value, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err and f"error: {option} " in lines[0] and value in lines[0], err
+    assert not (root / "press_a" / "nlips").exists() and not (root / "calibration").exists()  # before solving

@@ -1,10 +1,12 @@
 """nlips infer: reconstructions in the core format, PLY, frames, only changed pixels through the network."""
 
 import numpy as np
+import pytest
 
 from nlipscalib.cli import main
 from nlipscalib.core import load_press, load_reconstruction
 from nlipscalib.core.metrics import evaluate
+from nlipscalib.errors import ConfigError
 from nlipscalib.learn.infer import Predictor
 from nlipscalib.learn.prefilter import Prefilter
 
@@ -75,3 +77,25 @@ def test_nlips_eval_scores_the_nlipsnet_reconstruction(trained, twin_presses, tm
     capsys.readouterr()
     assert main(["eval", str(press), "--method", "nlipsnet", "--region", "contact"]) == 0
     assert HELD_OUT in capsys.readouterr().out
+
+
+def test_press_folder_without_meta_json_is_not_taken_for_frames(trained, twin_presses, tmp_path, capsys):
+    import shutil
+
+    press = tmp_path / "incomplete"
+    shutil.copytree(twin_presses / HELD_OUT, press, ignore=shutil.ignore_patterns("meta.json", "nlips"))
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), str(press), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "incomplete" in err[0] and "meta.json" in err[0] and "press folder" in err[0]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("option", [("--every", "0"), ("--threads", "-1")])
+def test_infer_refuses_out_of_range_options(trained, twin_presses, tmp_path, capsys, option):
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "o"), *option]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"error: {option[0]}" in err[0] and option[1] in err[0]
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(ConfigError, match="threads"):
+        Predictor(trained, threads=-1)

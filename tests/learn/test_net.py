@@ -163,3 +163,78 @@ def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp
     assert [h["lr"] / cfg.lr for h in history] == pytest.approx([1, 1, 1, 0.5, 0.5, 0.5, 0.25])
     with pytest.raises(ConfigError, match="schedule"):
         TrainConfig(schedule="step")
+
+
+@pytest.mark.parametrize(
+    "option, value",
+    [
+        ("--epochs", "0"),
+        ("--epochs", "-3"),
+        ("--batch-size", "0"),
+        ("--lr", "-1"),
+        ("--lr", "0"),
+        ("--lr", "nan"),
+        ("--max-minutes", "-1"),
+        ("--patience", "-1"),
+        ("--seed", "-1"),
+        ("--hidden", "16,0"),
+        ("--dropout", "-0.1"),
+    ],
+)
+def test_cli_train_refuses_out_of_range_options_in_one_line_naming_them(calib, tmp_path, capsys, option, value):
+    out = tmp_path / "m.pt"
+    assert main(["train", str(calib.folder), "--out", str(out), option, value, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err and f"error: {option} " in lines[0], err
+    assert value.replace(",", ", ") in lines[0]  # the value as given (--hidden: as parsed)
+    assert not out.exists() and not list(tmp_path.iterdir())  # refused before training
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [("max_epochs", 0), ("batch_size", 0), ("lr", -1.0), ("lr", float("inf")), ("max_seconds", -60.0)]
+    + [("patience", -1), ("threads", 0), ("seed", -1), ("max_epochs", 2.5), ("hidden", (16, 0))],
+)
+def test_train_config_refuses_out_of_range_fields(field, value):
+    from nlipscalib.errors import ConfigError
+    from nlipscalib.learn.train import TrainConfig
+
+    with pytest.raises(ConfigError, match=f"^{field} "):
+        TrainConfig(**{field: value})
+
+
+@pytest.mark.parametrize("scripted, best", [([5.0, 4.0, 3.0], 3), ([3.0, 4.0, 5.0], 1)])
+def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch, scripted, best):
+    from nlipscalib.learn import train as train_module
+    from nlipscalib.report import learn as report_learn
+
+    aae = iter(scripted)
+    monkeypatch.setattr(train_module, "_validate", lambda *args: (next(aae), 1.0))
+    figures = []
+    save = report_learn._save
+    monkeypatch.setattr(report_learn, "_save", lambda fig, path, **kw: figures.append(fig) or save(fig, path, **kw))
+    out = tmp_path / "m.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8,8", "--epochs", "3", "--patience", "5"]
+    assert main([*args, "--no-onnx", "--no-progress"]) == 0
+    assert f"best epoch {best} of 3," in capsys.readouterr().out
+    curve = figures[0].axes[1]
+    assert curve.get_title().startswith(f"best epoch {best}:")
+    assert list(curve.lines[0].get_xdata()) == [1, 2, 3]
+    assert list(curve.lines[-1].get_xdata()) == [best, best]  # the best-epoch marker
+    info = load_model(out).info  # the stored numbers keep counting from 0 (docs/formats.md)
+    assert info["best_epoch"] == best - 1 and [h["epoch"] for h in info["history"]] == [0, 1, 2]
+
+
+def test_missing_onnx_file_names_the_ways_to_make_it(trained, twin_presses, tmp_path, capsys):
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    model = tmp_path / "net.pt"
+    shutil.copy(trained, model)
+    args = ["infer", str(model), str(twin_presses / HELD_OUT), "--backend", "onnx", "--out", str(tmp_path / "o")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "net.onnx" in err[0] and "`nlips train`" in err[0]
+    assert "nlips export" not in err[0] and "export_onnx(" in err[0]
+    export_onnx(load_model(model), model.with_suffix(".onnx"))  # the way the message names works
+    assert main(args) == 0
