@@ -8,6 +8,7 @@ checks unknown keys, missing keys and value types, so a typo such as ``raduis = 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import tomllib
 import types
@@ -104,6 +105,17 @@ def check_range(where: str, value: float, lo: float | None = None, hi: float | N
         bounds = f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
         raise ConfigError(f"{where}: must be in {bounds}, got {value!r}")
     return value
+
+
+@contextlib.contextmanager
+def options_named(option_of: dict[str, str]):
+    """Inside: a ConfigError whose message starts with a config field's name (as the frozen configs' checks
+    word them) is raised again with the command-line option the user typed, e.g. ``max_epochs`` -> ``--epochs``."""
+    try:
+        yield
+    except ConfigError as exc:
+        field, _, rest = str(exc).partition(" ")
+        raise ConfigError(f"{option_of.get(field, field)} {rest}") from None
 
 
 def digest(obj) -> str:

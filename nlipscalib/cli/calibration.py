@@ -45,7 +45,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..config import check_count
+    from ..config import check_count, options_named
     from ..core.capture import REFERENCE_FOLDER, is_press_folder, read_meta, split_reference
     from ..cpus import usable_cores
     from ..errors import ConfigError
@@ -57,7 +57,7 @@ def run(args) -> int:
     smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
     if not smoothing >= 0:
         raise ConfigError(f"--smoothing must be >= 0 px, got {args.smoothing}")
-    try:  # checked before any solving
+    with options_named(OPTION_OF):  # checked before any solving; SamplingConfig names its fields
         cfg = SamplingConfig(
             min_confidence=args.min_confidence,
             min_leds=args.min_leds,
@@ -68,9 +68,6 @@ def run(args) -> int:
         presses, reference = split_reference(root, args.reference)
         if reference is not None and is_press_folder(reference):
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
-    except ConfigError as exc:  # SamplingConfig names its field; the user typed the option
-        field, _, rest = str(exc).partition(" ")
-        raise ConfigError(f"{OPTION_OF.get(field, field)} {rest}") from None
     if reference is None:
         raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
     if not presses:

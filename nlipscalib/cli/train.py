@@ -59,7 +59,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..config import check_count
+    from ..config import check_count, options_named
     from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.dataset import CalibrationDataset
@@ -77,7 +77,7 @@ def run(args) -> int:
     check_count("--threads", args.threads, minimum=0)
     if not args.max_minutes >= 0:  # NaN too
         raise ConfigError(f"--max-minutes must be >= 0 (0: no limit), got {args.max_minutes}")
-    try:
+    with options_named(OPTION_OF):  # TrainConfig names its field; the user typed the option
         cfg = TrainConfig(
             hidden=hidden,
             dropout=args.dropout,
@@ -90,9 +90,6 @@ def run(args) -> int:
             max_seconds=args.max_minutes * 60,
             threads=args.threads or usable_cores(),
         )
-    except ConfigError as exc:  # TrainConfig names its field; the user typed the option
-        field, _, rest = str(exc).partition(" ")
-        raise ConfigError(f"{OPTION_OF.get(field, field)} {rest}") from None
     data = CalibrationDataset(args.dataset)
     val = args.val_presses.split(",") if args.val_presses else None
     exclude = args.exclude.split(",") if args.exclude else ()
