@@ -5,9 +5,11 @@ The order of work in :func:`solve_press`:
 1. the indirect term of the image model is fitted (:func:`nlipscalib.solver.indirect.fit_indirect`) on
    the capture of the undeformed dome when one is given, else on the press itself outside its contact
    (``interreflection="auto"`` applies it only when the data show indirect light);
-2. the contact classification is computed once (:mod:`nlipscalib.solver.contact`) against the
+2. the contact classification (:mod:`nlipscalib.solver.contact`) compares the press to the
    undeformed model *with* that term and with the LEDs the solve uses (calibrated ones when given):
-   it gives the auto ROI and the anchored pixels;
+   it gives the auto ROI and the anchored pixels. Its press side (smoothed images, noise) is computed
+   once; when the press itself stands in for the undeformed capture, a first, rough fit only finds the
+   contact, the term is fitted again without it and the model side of the classification redone;
 3. NLiPs on the images minus the indirect light of the undeformed surface, then an outer loop: the
    indirect light of the *solved* surface (its points, normals and albedo; radiosity gather,
    :mod:`nlipscalib.solver.radiosity`) is subtracted and the press solved again, until the normals stop
