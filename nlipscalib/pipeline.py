@@ -462,6 +462,10 @@ def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance
         **dict(settings.solver_keywords),
     )
     t2 = time.perf_counter()
+    if settings.led_subset is not None:  # the solver numbers the LEDs it was given: back to the capture's
+        for key in ("leds_used", "dead_leds", "dead_leds_contact"):
+            if key in result.report:
+                result.report[key] = [settings.led_subset[i] for i in result.report[key]]
     result.report["method"] = "nlips"
     result.report["provenance"] = provenance
     result.report["command_seconds"] = {"load": round(t1 - t0, 3), "solve": round(t2 - t1, 3)}

@@ -2,7 +2,8 @@
 
 Every solve of a press computes some results from the sensor alone (the undeformed surface's shading and
 radiosity patches, a whole frame's difference operators, the interreflection fit on an undeformed capture).
-They are kept on disk so the next command on the same sensor starts from them (docs/formats.md, "Cache").
+They are kept on disk so the next command on the same sensor starts from them (docs/formats.md, "Disk cache
+of sensor-level results").
 The folder is ``$NLIPS_CACHE_DIR`` (``off`` turns the cache off), else ``$XDG_CACHE_HOME/nlipscalib``,
 else ``~/.cache/nlipscalib``; it holds at most ``$NLIPS_CACHE_MB`` megabytes (default 2048).
 """

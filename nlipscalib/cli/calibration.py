@@ -21,7 +21,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "calibrate",
         help="NLiPs-solve a folder of presses and pair tri-colour pixels with the normals (NLiPsNet training data)",
-        description="Solve every press of FOLDER with NLiPs (skipping presses already solved), then write a "
+        description="Solve every press of FOLDER with NLiPs "
+        "(skipping presses already solved with the same settings: auto ROI, the folder's reference), then write a "
         "calibration dataset of (u, v, r, g, b) -> normal samples and a coverage report (which dome regions and "
         "normal directions the presses cover, and where to press next). Resumable.",
     )

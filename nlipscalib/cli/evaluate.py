@@ -13,7 +13,7 @@ import logging
 from pathlib import Path
 
 log = logging.getLogger(__name__)
-MAKES = {"nlips": "`nlips solve PRESS`", "nlipsnet": "`nlips infer MODEL.pt PRESS`"}
+MAKES = {"nlips": "`nlips solve PATH`", "nlipsnet": "`nlips infer MODEL.pt PATH`"}
 """The command that writes each method's result, for the "no result yet" errors."""
 
 

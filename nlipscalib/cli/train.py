@@ -99,7 +99,8 @@ def run(args) -> int:
     print(  # epochs numbered from 1 here (the stored history counts from 0)
         f"{out}: best epoch {result.best_epoch + 1} of {len(result.history)}, "
         f"validation AAE {best['val_aae_deg']:.2f} deg "
-        f"(contact {best['val_contact_aae_deg']:.2f} deg) on {', '.join(result.val_presses)}; curve {curve}"
+        f"(contact {best['val_contact_aae_deg']:.2f} deg) on {', '.join(result.val_presses)}; "
+        f"{_why_stopped(result, cfg)}; curve {curve}"
     )
     if not args.no_onnx:
         onnx_path, angle = export_and_check(out, data, result.val_presses)
@@ -125,3 +126,13 @@ def export_and_check(model_path, dataset, names) -> tuple:
     if angle >= 0.1:
         raise CaptureError(f"{path}: onnxruntime differs from PyTorch by {angle:.3f} deg (limit 0.1)")
     return path, angle
+
+
+def _why_stopped(result, cfg) -> str:
+    """What ended the training: the epoch limit, early stopping, or the time limit (--max-minutes)."""
+    done = len(result.history)
+    if done >= cfg.max_epochs:
+        return f"stopped at the epoch limit (--epochs {cfg.max_epochs})"
+    if done - 1 - result.best_epoch >= cfg.patience:
+        return f"stopped early ({cfg.patience} epochs without a better validation AAE)"
+    return f"stopped by the time limit (--max-minutes {cfg.max_seconds / 60:g}; more epochs may help)"

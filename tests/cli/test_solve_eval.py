@@ -63,6 +63,8 @@ def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys
         9,
         11,
     ]
+    used = json.loads((press / "nlips" / "report.json").read_text())["leds_used"]
+    assert used == [0, 2, 4, 6, 8, 10]  # the capture's 0-based LED indices, not positions in the subset
 
 
 def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys, caplog):

@@ -217,7 +217,8 @@ def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch,
     out = tmp_path / "m.pt"
     args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8,8", "--epochs", "3", "--patience", "5"]
     assert main([*args, "--no-onnx", "--no-progress"]) == 0
-    assert f"best epoch {best} of 3," in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f"best epoch {best} of 3," in printed and "stopped at the epoch limit (--epochs 3)" in printed
     curve = figures[0].axes[1]
     assert curve.get_title().startswith(f"best epoch {best}:")
     assert list(curve.lines[0].get_xdata()) == [1, 2, 3]
