@@ -554,9 +554,11 @@ def _split_indirect(press: Press, indirect):
 
 def _other_sensor(press: Press, undeformed: Press) -> str | None:
     """Why ``undeformed`` is not a capture of ``press``'s sensor (LED geometry, undeformed surface), or None."""
-    pos, dirs = (np.array([getattr(led, f) for led in press.leds]) for f in ("position", "direction"))
     why = led_geometry_mismatch(
-        pos, dirs, [led.position for led in undeformed.leds], [led.direction for led in undeformed.leds]
+        [led.position for led in press.leds],
+        [led.direction for led in press.leds],
+        [led.position for led in undeformed.leds],
+        [led.direction for led in undeformed.leds],
     )
     if why or press.reference is None:
         return why
