@@ -24,6 +24,13 @@ undeformed dome (median over the gel) is at least this; below it the capture has
 ANCHOR_NOISE_FACTOR = 3.0
 """Anchoring: a pixel is undeformed when its misfit to the undeformed model is within this many times the
 misfit that the estimated image noise alone explains."""
+ROI_LARGE_FRACTION = 0.5
+"""``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
+components along the gel's edge are then left out when a large one lies inside, or the user is warned."""
+ROI_MIN_INNER_FRACTION = 0.005
+"""``--roi auto``: a misfit component away from the gel's edge counts as a dent, in favour of which the edge's
+are left out, when it holds at least this fraction of the gel's pixels (96 px at 160x120, 1,536 at 640x480:
+well above isolated hot pixels and shadow specks, below a 3 mm sphere's contact)."""
 MAX_MEDIAN_DISPLACEMENT_MM = 3.0
 """A solve whose median distance to the undeformed surface exceeds this (mm; the default gel is 3 mm thick,
 and a median over a region around a contact is far below the deepest point) has left the physically

@@ -12,6 +12,7 @@ undeformed.
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 
@@ -21,6 +22,8 @@ from ..core.capture import Press
 from ..core.leds import led_shading
 from ..errors import CaptureError
 from . import reuse, threads
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,10 +221,42 @@ def auto_roi(
 ) -> tuple[int, int, int, int]:
     """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome.
 
+    :func:`contact_box` without its note (which goes to the log as a warning).
+    """
+    box, note = contact_box(contact, shape, margin, min_size, threshold, min_component, folder)
+    if note:
+        log.warning("%s: %s", folder, note)
+    return box
+
+
+def contact_box(
+    contact: ContactMap,
+    shape: tuple[int, int],
+    margin: int = 8,
+    min_size: int = 32,
+    threshold: float = 3.0,
+    min_component: float = 0.05,
+    folder="",
+) -> tuple[tuple[int, int, int, int], str]:
+    """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome, and a note.
+
     Candidates are pixels whose misfit exceeds ``threshold`` times the larger of its noise-only value
     and its median over the gel (the undeformed model is never exact on a real sensor); of their
     connected components only those at least ``min_component`` times the largest are kept, so isolated
     misfits (cast shadows far from the dent, silhouette aliasing, hot pixels) do not stretch the box.
+
+    When that box would cover most of the gel (:data:`tolerances.ROI_LARGE_FRACTION` of the gel's bounding
+    box), the components along the gel's edge are left out if a large one remains inside
+    (:func:`_inner_regions`): an unmodelled effect that grows toward the view's edge -- vignetting, the view
+    through the gel at grazing angles, a glossy coat -- misfits there, away from the dent. Seen on the
+    ``nlipstac_realistic`` twin (160x120): the four corners misfit as much as the dent and the box was the
+    whole frame; without them it is the dent's. A dent that reaches the edge keeps its edge part (parts
+    within ``2 margin`` pixels of the inner one join it).
+
+    Returns
+    -------
+    box : (x0, y0, w, h) pixels
+    note : str -- empty, or what was left out, or a warning that the box still covers most of the gel.
     """
     mis = contact.misfit
     valid = np.isfinite(mis)
@@ -233,7 +268,19 @@ def auto_roi(
         raise CaptureError(f"{folder}: --roi auto found no contact (images match the undeformed dome)")
     labels, sizes = masks.components(hit)
     keep = np.flatnonzero(sizes >= min_component * sizes.max()) + 1
-    rows, cols = np.nonzero(np.isin(labels, keep))
+    region = np.isin(labels, keep)
+    note = ""
+    if _box_fraction(region, valid) >= tolerances.ROI_LARGE_FRACTION:
+        inner = _inner_regions(labels, sizes, valid, 2 * margin, min_component)
+        left = region & ~inner if inner is not None else None
+        if left is not None and left.any():
+            note = (
+                f"--roi auto left out {int(left.sum())} misfitting pixels along the gel's edge (an effect the "
+                f"undeformed model does not have there, e.g. vignetting or the view at grazing angles); pass "
+                f"--roi X,Y,W,H to solve them too"
+            )
+            region = inner
+    rows, cols = np.nonzero(region)
     H, W = shape
     y0, y1 = max(rows.min() - margin, 0), min(rows.max() + 1 + margin, H)
     x0, x1 = max(cols.min() - margin, 0), min(cols.max() + 1 + margin, W)
@@ -243,7 +290,44 @@ def auto_roi(
     if y1 - y0 < min_size:
         c = (y0 + y1) // 2
         y0, y1 = max(c - min_size // 2, 0), min(c + min_size // 2, H)
-    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
+    box = (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
+    boxed = np.zeros_like(valid)
+    boxed[y0:y1, x0:x1] = True
+    if not note and _box_fraction(boxed, valid) >= tolerances.ROI_LARGE_FRACTION:
+        note = (
+            f"--roi auto boxed {100 * _box_fraction(boxed, valid):.0f} % of the gel: the images differ from the "
+            f"undeformed model over most of it (a press that large, or LEDs / reference that do not fit this sensor: "
+            f"try nlips calibrate-leds or --reference); pass --roi X,Y,W,H to choose the region"
+        )
+    return box, note
+
+
+def _box_fraction(region: np.ndarray, valid: np.ndarray) -> float:
+    """Area of ``region``'s bounding box over that of the gel's (``valid``), both (H, W) bool."""
+
+    def area(mask):
+        rows, cols = np.nonzero(mask)
+        return 0 if rows.size == 0 else (rows.max() - rows.min() + 1) * (cols.max() - cols.min() + 1)
+
+    return area(region) / max(area(valid), 1)
+
+
+def _inner_regions(labels, sizes, valid: np.ndarray, join: int, min_component: float) -> np.ndarray | None:
+    """(H, W) bool -- the misfit components that do not touch the gel's edge (the gel's silhouette or the image
+    border), at least ``min_component`` times the largest of them and :data:`tolerances.ROI_MIN_INNER_FRACTION`
+    of the gel, plus the edge components that come within ``join`` pixels of them; None when no such inner
+    component exists (then every component is kept: a dent may lie at the edge)."""
+    edge = valid & ~masks.erode(valid)
+    edge_labels = np.unique(labels[edge])
+    inner = np.setdiff1d(np.arange(1, len(sizes) + 1), edge_labels)
+    inner = inner[sizes[inner - 1] >= tolerances.ROI_MIN_INNER_FRACTION * valid.sum()]
+    if inner.size == 0:
+        return None
+    inner = inner[sizes[inner - 1] >= min_component * sizes[inner - 1].max()]
+    region = np.isin(labels, inner)
+    near = masks.dilate(region, iterations=join)
+    touching = np.setdiff1d(np.unique(labels[near & (labels > 0)]), inner)
+    return region | np.isin(labels, touching)
 
 
 def anchor_weights(

@@ -33,6 +33,7 @@ from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact
 from .contact import auto_roi as _auto_roi_box
+from .contact import contact_box
 from .indirect import (
     Surface,
     design_of,
@@ -159,7 +160,7 @@ def _solve_press(
 
     Returns
     -------
-    SolveResult -- ``report`` adds roi, prior, interreflection (the fitted model and the decision),
+    SolveResult -- ``report`` adds roi, roi_note (what ``--roi auto`` left out or a warning; empty when none), prior, interreflection (the fitted model and the decision),
     indirect_compensation, dent_interreflection, outer_passes, outer_changes_deg (median normal change of
     each outer pass; all but the last pass are unrefined), outer_focus (the box [x0, y0, w, h] the passes
     before the last solved, or None), pass_seconds (the solver's timer of each NLiPs solve; ``seconds`` is
@@ -178,6 +179,7 @@ def _solve_press(
     if prior is not None and not mask.any():
         raise CaptureError(f"{press.folder}: the reference surface covers no pixel; nothing to reconstruct")
     explicit_roi = None if roi is None or isinstance(roi, str) else check_roi(roi, W, H)
+    roi_note = ""
     if isinstance(roi, str) and roi != "auto":
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
@@ -204,7 +206,9 @@ def _solve_press(
     if roi == "auto":
         if cmap is None:
             raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
-        roi = _auto_roi_box(cmap, (H, W), folder=press.folder)
+        roi, roi_note = contact_box(cmap, (H, W), folder=press.folder)
+        if roi_note:
+            log.warning("%s: %s", press.folder, roi_note)
     elif explicit_roi is not None:
         roi = explicit_roi
     if roi is not None:
@@ -257,6 +261,7 @@ def _solve_press(
         loop, result = None, run(fixed_light)
     rep = result.report
     rep["roi"] = list(roi) if roi is not None else None
+    rep["roi_note"] = roi_note
     rep["prior"] = "reference" if prior is not None else "nominal_distance"
     rep["interreflection"] = model.to_json() if model is not None else None
     rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
@@ -482,7 +487,7 @@ def _dent_focus(cmap: ContactMap, mask: np.ndarray) -> np.ndarray | None:
     H, W = mask.shape
     margin = int(round(tolerances.DENT_FOCUS_MARGIN * min(H, W)))
     try:
-        box = _auto_roi_box(cmap, (H, W), margin=margin)
+        box, _ = contact_box(cmap, (H, W), margin=margin)  # its note is for a user's --roi auto
     except CaptureError:  # no contact: nothing to focus on
         return None
     focus = _box_mask(box, (H, W)) & mask

@@ -130,3 +130,55 @@ def test_misfit_leaves_out_saturated_samples_like_the_plain_sums():
     full = np.full((4, 6), 15)
     want_all = np.sqrt((((img * S).sum(0) / (S * S).sum(0) * S - img) ** 2).sum((0, 3)) / 15)
     np.testing.assert_allclose(_misfit(S, img, None, full), want_all, rtol=1e-5)
+
+
+def _contact_map(misfit: np.ndarray):
+    """A ContactMap with the given misfit (noise-only misfit 1, no gel outside the image)."""
+    from nlipscalib.solver.contact import ContactMap
+
+    return ContactMap(misfit, np.ones_like(misfit), (0, 1, 2), (), 0.01, np.ones_like(misfit))
+
+
+def _disk(shape, centre, radius):
+    rows, cols = np.indices(shape)
+    return (rows - centre[0]) ** 2 + (cols - centre[1]) ** 2 <= radius**2
+
+
+def test_auto_roi_leaves_out_misfit_along_the_edge_when_a_dent_lies_inside():
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 105), 12)] = 10.0  # the dent
+    for corner in ((0, 0), (0, 159), (119, 0), (119, 159)):  # vignetting-like misfit in the corners
+        misfit[_disk(shape, corner, 25)] = 10.0
+    box, note = contact_box(_contact_map(misfit), shape)
+    x0, y0, w, h = box
+    assert (x0, y0, x0 + w, y0 + h) == (105 - 12 - 8, 60 - 12 - 8, 105 + 13 + 8, 60 + 13 + 8)
+    assert "left out" in note and "edge" in note
+
+
+def test_auto_roi_keeps_a_dent_at_the_edge():
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 150), 20)] = 10.0  # a dent cut by the image's right edge
+    misfit[_disk(shape, (60, 118), 6)] = 10.0  # and a part of it that the threshold split off, inside
+    box, note = contact_box(_contact_map(misfit), shape)
+    x0, y0, w, h = box
+    assert x0 + w == 160 and x0 <= 118 - 6 - 8  # both parts boxed
+    assert "left out" not in note
+
+
+def test_auto_roi_warns_when_its_box_covers_most_of_the_gel(caplog):
+    from nlipscalib.solver.contact import auto_roi
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (25, 25), 12)] = 10.0  # two misfits far apart inside the gel (two presses, or
+    misfit[_disk(shape, (95, 135), 12)] = 10.0  # LEDs that do not fit): the box spans most of the gel
+    with caplog.at_level("WARNING"):
+        box = auto_roi(_contact_map(misfit), shape, folder="press_x")
+    assert box == (25 - 12 - 8, 25 - 12 - 8, 135 + 13 + 8 - 5, 95 + 13 + 8 - 5)
+    assert "press_x" in caplog.text and "most of it" in caplog.text
