@@ -233,13 +233,22 @@ def open_emulated_sensor(
     latency_frames: int = 1,
     flush_frames: int = 2,
     echo=print,
+    board_id: str | None = None,
 ) -> EmulatedSensor:
-    """The virtual LED board (opened through the real host driver) and the virtual camera for ``scene``."""
+    """The virtual LED board (opened through the real host driver) and the virtual camera for ``scene``.
+
+    ``board_id`` names the board's URL (``nlipsemu://<board_id>``; default: the next free number), for a
+    command given ``--port nlipsemu://<id>``.
+    """
     from .device.controller import LedController
     from .device.virtual_board import VirtualBoard
 
-    board = VirtualBoard(len(scene.led_models()))
-    controller = LedController.open(board.url)
+    board = VirtualBoard(len(scene.led_models()), board_id=board_id)
+    try:
+        controller = LedController.open(board.url)
+    except BaseException:
+        board.close()
+        raise
 
     def latched():
         return board.latched

@@ -7,10 +7,17 @@ Real sensor::
 Emulated sensor (the twin behind the virtual LED board and a virtual camera; no hardware)::
 
     nlips capture --emulate nlipstac --presses 3 --out session1
+    nlips capture --port nlipsemu://1 --presses 3 --out session1     # the same, the board named by its URL
+
+``--port nlipsemu://ID`` names a virtual LED board, which lives in the process that starts it. When this
+process has none of that id the command starts one: without ``--camera`` it is the emulated sensor of
+``--design`` (its board at that URL, and the virtual camera it lights: a virtual board lights no real
+camera), with ``--camera`` only the board (recorded frames, the host driver exercised).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 import time
@@ -26,9 +33,14 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="session folder (reference/, press_0001/, ...); resumes if present")
     p.add_argument("--presses", type=int, default=10, help="presses after the reference (default 10)")
     src = p.add_argument_group("real sensor")
-    src.add_argument("--port", help="LED controller: serial port or pyserial URL (/dev/ttyACM0, COM3, socket://...)")
+    src.add_argument(
+        "--port",
+        help="LED controller: serial port or pyserial URL (/dev/ttyACM0, COM3, socket://...); nlipsemu://ID: a "
+        "virtual board, with the emulated camera of --design unless --camera is given",
+    )
     src.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
-    src.add_argument("--camera", default="0", help="camera index, device path, folder of images or video (default 0)")
+    # default None, not "0": whether a camera was given decides what --port nlipsemu://ID starts
+    src.add_argument("--camera", help="camera index, device path, folder of images or video (default 0)")
     src.add_argument("--design", default=None, help="sensor design: scene file or shipped name (default nlipstac)")
     src.add_argument("--camera-calibration", help="camera JSON from `nlips calibrate-camera` (default: the design's)")
     src.add_argument("--leds", help="LED JSON from `nlips calibrate-leds` (default: the design's LED ring)")
@@ -68,6 +80,8 @@ REAL_SENSOR_OPTIONS = (
     "average",
 )
 """Options that set up the real sensor; the emulated one takes all of this from its scene file."""
+DEFAULT_DESIGN = "nlipstac"
+"""The design (and emulated scene) when --design is not given."""
 EMULATED_SENSOR_OPTIONS = ("script", "move_press", "width", "height", "spp", "seed")
 """Options of the emulated sensor alone."""
 WHY_NOT_EMULATED = {
@@ -86,6 +100,32 @@ def _option(dest: str) -> str:
     return "--" + dest.replace("_", "-")
 
 
+def emulate_behind_port(args) -> None:
+    """Turn ``--port nlipsemu://ID`` without ``--camera`` into the emulated sensor of ``--design``.
+
+    Why: the URL names a virtual board, which exists only inside the process that starts it, and a virtual
+    board lights no real camera; the user asking for it from the command line means the emulated sensor,
+    its board reachable at that URL. Sets ``args.emulate`` (the design's scene), ``args.board_id`` and
+    ``args.emulated_port`` (the URL, for messages); ``--port`` and ``--design`` are then consumed. Nothing
+    changes for a board this process already has, for ``--emulate`` or when ``--camera`` is given.
+    """
+    from ..device.virtual_board import board_missing, check_board_url
+
+    args.board_id = args.emulated_port = None
+    if args.emulate or args.camera is not None or not board_missing(args.port):
+        return
+    args.board_id = check_board_url(args.port)
+    args.emulate, args.emulated_port = args.design or DEFAULT_DESIGN, args.port
+    args.port = args.design = None
+
+
+def _emulated_how(args) -> str:
+    """How the user asked for the emulated sensor, for messages."""
+    if getattr(args, "emulated_port", None):
+        return f"--port {args.emulated_port} and no --camera (the emulated sensor of {args.emulate})"
+    return "--emulate"
+
+
 def check_options(args) -> None:
     """Refuse, in one line, options the chosen sensor would not use and numbers out of range (ConfigError)."""
     given = [
@@ -96,9 +136,12 @@ def check_options(args) -> None:
             why = WHY_NOT_EMULATED.get(
                 dest, f"it sets up the real sensor; the emulated one takes it from {args.emulate}"
             )
-            raise _usage(f"{_option(dest)} is not used with --emulate: {why}; drop {_option(dest)}")
+            raise _usage(f"{_option(dest)} is not used with {_emulated_how(args)}: {why}; drop {_option(dest)}")
         if not args.emulate and dest in EMULATED_SENSOR_OPTIONS:
-            raise _usage(f"{_option(dest)} is only used with --emulate SCENE (the emulated sensor)")
+            raise _usage(
+                f"{_option(dest)} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID "
+                "without --camera)"
+            )
     if args.script and args.move_press is not None:
         raise _usage(
             "--move-press is not used with --script: a press of the script moves when its [[press]] table "
@@ -170,7 +213,14 @@ def _run_emulated(args):
     if args.script and args.presses not in (len(script), args.parser.get_default("presses")):
         raise _usage(f"--presses {args.presses}: the script {args.script} has {len(script)} presses; drop --presses")
     args.presses = len(script)
-    with open_emulated_sensor(scene, script, seed=args.seed, flush_frames=args.flush) as sensor:
+    board_id = getattr(args, "board_id", None)
+    if board_id is not None:
+        print(
+            f"{args.emulated_port}: starting the emulated sensor of {args.emulate} in this process (the virtual LED "
+            f"board at this URL and the virtual camera it lights), as --emulate {args.emulate} does",
+            file=sys.stderr,
+        )
+    with open_emulated_sensor(scene, script, seed=args.seed, flush_frames=args.flush, board_id=board_id) as sensor:
         cfg = _session_config(args, sensor.tricolor_level)
         sensor.prerender(progress=bars_enabled())
         return run_session(sensor.rig, args.out, cfg, sensor.operator, progress=bars_enabled())
@@ -181,12 +231,18 @@ def _run_device(args):
     from ..core.dome import reference_surface
     from ..device.camera import CameraSettings, open_source
     from ..device.session import Operator, Rig, run_session
+    from ..device.virtual_board import start_board
 
     if not args.port:
-        raise _usage("give the LED controller's --port (or --emulate SCENE to run without hardware)")
+        raise _usage(
+            "give the LED controller's --port (or --emulate SCENE, or --port nlipsemu://1, to run without hardware)"
+        )
     design = _design(args.design)
     camera = _calibrated_camera(args.camera_calibration) or design.camera_model()
     leds = _leds(args.leds) or design.led_models()
+    camera_spec = args.camera if args.camera is not None else "0"
+    # --port nlipsemu://ID with --camera: only the board is virtual; held here, as its URL reaches it while it lives
+    board = start_board(args.port, args.adalight or len(leds), adalight=args.adalight is not None)
     settings = CameraSettings(
         exposure_ms=args.exposure_ms,
         gain=args.gain,
@@ -196,7 +252,8 @@ def _run_device(args):
         flush_frames=args.flush,
         average=args.average,
     )
-    with open_leds(args.port, args.adalight) as controller, open_source(args.camera, settings) as source:
+    held = board if board is not None else contextlib.nullcontext()  # closing the board frees its id
+    with held, open_leds(args.port, args.adalight) as controller, open_source(camera_spec, settings) as source:
         for line in source.refused:
             print(f"camera refused: {line}", file=sys.stderr)
         shift = 16 - source.bit_depth
@@ -215,9 +272,9 @@ def _run_device(args):
             response=response,
             reference=reference_surface(design, camera),
             provenance={
-                "device": {"port": args.port, "firmware": str(controller.firmware), "camera": str(args.camera)},
+                "device": {"port": args.port, "firmware": str(controller.firmware), "camera": str(camera_spec)},
                 "camera_refused": list(source.refused),
-                "design": args.design or "nlipstac",
+                "design": args.design or DEFAULT_DESIGN,
             },
         )
         operator = Operator(interactive=not args.yes and sys.stdin.isatty())
@@ -273,6 +330,7 @@ def _leds(path):
 
 
 def run(args) -> int:
+    emulate_behind_port(args)
     check_options(args)
     t0 = time.perf_counter()
     status = _run_emulated(args) if args.emulate else _run_device(args)

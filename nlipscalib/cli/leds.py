@@ -88,19 +88,16 @@ def _refuse(message: str):
 def _open(args):
     from ..device.adalight import AdalightController
     from ..device.controller import LedController
-    from ..device.virtual_board import VirtualBoard, find_board, url_board_id
+    from ..device.virtual_board import VirtualBoard, start_board
 
-    board = None
     url = args.port
     n_leds = args.adalight or DEFAULT_VIRTUAL_LEDS
     adalight = args.adalight is not None
     if url == "virtual" or url.startswith("virtual:"):
         board = VirtualBoard(int(url.partition(":")[2] or n_leds), adalight=adalight)
         url = board.url
-    elif (board_id := url_board_id(url)) is not None and find_board(url) is None:
-        if not board_id or any(c in board_id for c in "/#"):
-            _refuse(f"{url}: nlipsemu:// needs a board id, e.g. nlipsemu://1")
-        board = VirtualBoard(n_leds, adalight=adalight, board_id=board_id)  # this process's board of that id
+    else:
+        board = start_board(url, n_leds, adalight=adalight)  # nlipsemu://ID: this process's board of that id
     if adalight:
         return AdalightController.open(url, args.adalight), board
     return LedController.open(url, timeout=args.timeout), board

@@ -2,7 +2,10 @@
 
 Sources: a camera (with the LED board lit in the tri-colour pattern), a folder or video of recorded
 tri-colour frames, or the emulated sensor (``--emulate SCENE``: the twin pressing its scripted presses
-in turn). The predictor is pluggable: ``--model FILE`` loads an NLiPsNet from ``nlips train``;
+in turn; ``--port nlipsemu://ID`` without ``--camera`` is the emulated nlipstac sensor with its board at
+that URL). The emulated stream is its script once, looped while a window shows it.
+
+The predictor is pluggable: ``--model FILE`` loads an NLiPsNet from ``nlips train``;
 ``--predictor module:function`` loads any other one, ``function(camera_shape)`` returning a callable
 that maps a stored frame ((H, W, 3) uint16) to ``nlipscalib.device.live.LiveResult``.
 """
@@ -25,7 +28,12 @@ def register(subparsers) -> None:
     )
     p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
     add_source_arguments(p, camera_default="0")
-    p.add_argument("--frames", type=int, help="stop after this many frames (default: until the input ends or q)")
+    p.add_argument(
+        "--frames",
+        type=int,
+        help="stop after this many frames (default: until the input ends, q in the window or Ctrl-C; the "
+        "emulated sensor's input is its script once, looped while a window shows it)",
+    )
     p.add_argument("--save", help="folder for every frame's normal map (PNG) and arrays (npz)")
     p.add_argument("--every", type=int, default=1, help="save every N-th frame (default 1)")
     p.add_argument("--no-window", action="store_true", help="do not open a window even if a display is present")
@@ -36,8 +44,15 @@ def add_source_arguments(p, camera_default: str | None) -> None:
     """The frame-source flags shared by ``nlips live`` and ``nlips infer`` (one way to open a stream)."""
     default = f" (default {camera_default})" if camera_default else ""
     what = "camera index, device path, folder of frames or video"
-    p.add_argument("--camera", default=camera_default, help=what + default)
-    p.add_argument("--port", help="LED controller port/URL: lit in the tri-colour pattern while streaming")
+    # parsed as None when not given (open_frames falls back to default_camera): whether a camera was given
+    # decides what --port nlipsemu://ID starts, and --emulate refuses one
+    p.add_argument("--camera", help=what + default)
+    p.set_defaults(default_camera=camera_default)
+    p.add_argument(
+        "--port",
+        help="LED controller port/URL: lit in the tri-colour pattern while streaming (nlipsemu://ID: a virtual "
+        "board, started here when this process has none)",
+    )
     p.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
     p.add_argument("--tricolor-level", type=int, default=255, help="LED drive of the tri-colour pattern, 1-255")
     p.add_argument("--exposure-ms", type=float, default=10.0, help="fixed exposure of a live camera, ms")
@@ -48,11 +63,42 @@ def add_source_arguments(p, camera_default: str | None) -> None:
     p.add_argument("--height", type=int, help="emulated image height, pixels")
 
 
+def emulate_behind_port(args, scene: str | None = None) -> None:
+    """``--port nlipsemu://ID`` without ``--camera`` and ``--emulate``: stream from the emulated sensor.
+
+    Why: the URL names a virtual board, which exists only inside the process that starts it, and a virtual
+    board lights no real camera; asked for from the command line it means the emulated sensor (``scene``,
+    default the nlipstac design) with its board at that URL. Sets ``args.emulate``, ``args.board_id`` and
+    ``args.emulated_port`` (the URL, for the note the stream prints) and consumes ``--port``. Nothing changes
+    for a board this process already has.
+    """
+    from ..device.virtual_board import board_missing, check_board_url
+    from .capture import DEFAULT_DESIGN
+
+    if args.emulate or args.camera is not None or not board_missing(args.port):
+        return
+    args.board_id = check_board_url(args.port)
+    args.emulate, args.emulated_port, args.port = scene or DEFAULT_DESIGN, args.port, None
+
+
 def check_source_arguments(args) -> None:
-    """One line naming the option when a flag of :func:`add_source_arguments` is out of range."""
+    """One line naming the option when a flag of :func:`add_source_arguments` is out of range, or is not
+    used by the chosen source (the real sensor's with ``--emulate``, the emulator's without it)."""
     from ..config import check_count
     from ..errors import ConfigError
 
+    for option, value in (("--port", args.port), ("--adalight", args.adalight), ("--camera", args.camera)):
+        if args.emulate and value is not None:
+            raise ConfigError(
+                f"{option} is not used with --emulate: the emulated sensor has its own virtual LED board and "
+                f"camera; drop {option}"
+            )
+    for option, value in (("--script", args.script), ("--width", args.width), ("--height", args.height)):
+        if not args.emulate and value is not None:
+            raise ConfigError(
+                f"{option} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID without "
+                "--camera)"
+            )
     check_count("--frames-per-press", args.frames_per_press, minimum=1)
     if not 1 <= args.tricolor_level <= 255:
         raise ConfigError(f"--tricolor-level must be 1-255, got {args.tricolor_level}")
@@ -71,22 +117,40 @@ def check_output_arguments(args) -> None:
     check_count("--threads", args.threads, minimum=0)
 
 
-def open_frames(args, stack):
+def open_frames(args, stack, loop: bool = False):
     """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
 
     The emulated sensor when ``--emulate``, else ``--camera`` (camera, folder or video) with the LED board
-    at ``--port`` lit in the tri-colour pattern.
+    at ``--port`` lit in the tri-colour pattern (``nlipsemu://ID``: a virtual board of that id, started here
+    when this process has none).
+
+    The emulated sensor's stream is its script once (the undeformed dome, then each press, for
+    ``--frames-per-press`` frames each) and then ends, as a recording does; it loops when ``loop`` (a window
+    shows it: until q) or a frame limit (``--frames``, ``--max-frames``) asks for more.
     """
     from ..device.camera import CameraSettings, open_source
 
     if args.emulate:
-        return _emulated_source(args, stack)
-    source = stack.enter_context(open_source(args.camera, CameraSettings(exposure_ms=args.exposure_ms)))
+        limited = getattr(args, "frames", None) is not None or getattr(args, "max_frames", None) is not None
+        return _emulated_source(args, stack, loop=loop or limited)
+    camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
+    source = stack.enter_context(open_source(camera, CameraSettings(exposure_ms=args.exposure_ms)))
     if args.port:
-        from .capture import open_leds
+        from ..device.virtual_board import start_board
+        from .capture import DEFAULT_DESIGN, open_leds
 
+        n_leds = args.adalight or _design_leds(DEFAULT_DESIGN)
+        board = start_board(args.port, n_leds, adalight=args.adalight is not None)
+        if board is not None:
+            stack.enter_context(board)  # held while the stream runs: its URL reaches it while it lives
         _light_tricolor(stack.enter_context(open_leds(args.port, args.adalight)), args.tricolor_level)
     return source, None
+
+
+def _design_leds(name: str) -> int:
+    from ..sim.scene import load_scene
+
+    return len(load_scene(name).led_models())
 
 
 def nlipsnet_predictor(args, depth: bool = True):
@@ -153,7 +217,8 @@ def _checked_first_call(spec: str, predict):
     return first
 
 
-def _emulated_source(args, stack):
+def _emulated_source(args, stack, loop: bool):
+    from ..device.live import StopLive
     from ..emulator import EmulatedCamera, TwinRenders, default_script, load_script, tricolor_level
     from ..sim.scene import load_scene
 
@@ -163,7 +228,14 @@ def _emulated_source(args, stack):
     from ..device.controller import LedController
     from ..device.virtual_board import VirtualBoard
 
-    board = VirtualBoard(len(scene.led_models()))
+    board_id = getattr(args, "board_id", None)
+    if board_id is not None:
+        print(
+            f"{args.emulated_port}: starting the emulated sensor of {args.emulate} in this process (the virtual LED "
+            f"board at this URL and the virtual camera it lights), as --emulate {args.emulate} does",
+            file=sys.stderr,
+        )
+    board = stack.enter_context(VirtualBoard(len(scene.led_models()), board_id=board_id))
     controller = stack.enter_context(LedController.open(board.url))
     renders = TwinRenders(scene)
     camera = EmulatedCamera(renders, lambda: board.latched, flush_frames=0)
@@ -173,6 +245,8 @@ def _emulated_source(args, stack):
         renders.images(surface)
 
     def before_frame(i):
+        if not loop and i >= len(surfaces) * args.frames_per_press:
+            raise StopLive  # the script was streamed once: the input ended
         camera.show(surfaces[(i // args.frames_per_press) % len(surfaces)])
 
     return camera, before_frame
@@ -195,17 +269,19 @@ def run(args) -> int:
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
+    emulate_behind_port(args)
     check_source_arguments(args)
     check_output_arguments(args)
     if args.frames is not None and args.frames < 1:
         raise ConfigError(f"--frames must be >= 1, got {args.frames}")
+    window = not args.no_window and display_available()
     with contextlib.ExitStack() as stack:
-        source, before_frame = open_frames(args, stack)
+        source, before_frame = open_frames(args, stack, loop=window)
         predict, reference_depth = _nlipsnet(args) if args.model else _plugged(args.predictor, source.shape)
         sinks = []
         if args.save:
             sinks.append(SaveSink(args.save, normals_to_rgb, args.every))
-        if not args.no_window and display_available():
+        if window:
             sinks.append(WindowSink(normals_to_rgb, reference_depth))
         elif not args.save:
             print("no display: maps are not shown; use --save DIR to keep them", file=sys.stderr)

@@ -116,8 +116,9 @@ def _open_error(url: str, exc: Exception) -> DeviceError:
         return PortBusyError(f"{url}: port busy: another program has it open (an Arduino serial monitor?)")
     if "no such virtual board" in str(exc):
         return PortNotFoundError(
-            f"{url}: no virtual board with this id in this process (nlipsemu://ID reaches a VirtualBoard of the same "
-            "Python process; `nlips leds nlipsemu://ID ...` starts one, `nlips capture/live --emulate` their own)"
+            f"{url}: no virtual board with this id in this process (nlipsemu://ID reaches a VirtualBoard of the "
+            "same Python process: create it first, e.g. virtual_board.start_board(url, n_leds); the nlips commands "
+            "start theirs)"
         )
     if code == errno.ENOENT or "no such" in str(exc).lower():
         return PortNotFoundError(f"{url}: no such serial port (is the board plugged in?). {_ports_present()}")

@@ -59,6 +59,51 @@ def find_board(url: str) -> VirtualBoard | None:
     return None if board_id is None else _BOARDS.get(board_id)
 
 
+def board_missing(url: str | None) -> bool:
+    """True when ``url`` is an ``nlipsemu://`` URL and this process has no board of its id (yet)."""
+    return bool(url) and url_board_id(url) is not None and find_board(url) is None
+
+
+def check_board_url(url: str) -> str:
+    """The board id of ``nlipsemu://<id>``; ConfigError (one line) when the URL names no usable id.
+
+    The commands use it before starting a board, so ``nlipsemu://`` or ``nlipsemu://a/b`` is refused as
+    the user's input, not as a failing port.
+    """
+    from ..errors import ConfigError
+
+    board_id = url_board_id(url)
+    if not board_id or any(c in board_id for c in "/#"):
+        raise ConfigError(f"{url}: nlipsemu:// needs a board id without / or #, e.g. nlipsemu://1")
+    return board_id
+
+
+def start_board(url: str, n_leds: int, *, adalight: bool = False) -> VirtualBoard | None:
+    """Start the virtual board that ``url`` names when it is an ``nlipsemu://<id>`` URL this process lacks.
+
+    Why: a board lives in the process that created it, so ``nlipsemu://1`` typed on a command line reaches
+    nothing unless the command itself starts the board (as a real board is there before the command).
+
+    Parameters
+    ----------
+    url : str
+        The port the command was given; any URL but a missing ``nlipsemu://`` board is left alone.
+    n_leds : int
+        LEDs of the started board (the sensor design's count).
+    adalight : bool
+        The started board runs stock Adalight.
+
+    Returns
+    -------
+    VirtualBoard or None
+        The started board (None: nothing to start). Keep it referenced while its URL is in use: the URL
+        table holds boards weakly; :meth:`VirtualBoard.close` frees the id.
+    """
+    if not board_missing(url):
+        return None
+    return VirtualBoard(n_leds, adalight=adalight, board_id=check_board_url(url))
+
+
 class VirtualBoard:
     """An in-process LED controller (firmware twin) with fault injection.
 
@@ -122,6 +167,17 @@ class VirtualBoard:
         self._session = False
         _BOARDS[self.id] = self
         self._boot(announce=False)
+
+    def close(self) -> None:
+        """Leave this process's URL table: ``nlipsemu://<id>`` reaches nothing now, and the id is free again."""
+        if _BOARDS.get(self.id) is self:
+            del _BOARDS[self.id]
+
+    def __enter__(self) -> VirtualBoard:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     # --- what the LEDs show ---------------------------------------------------------------------------
     @property

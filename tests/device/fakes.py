@@ -81,3 +81,16 @@ def tuple_predictor(shape):
 def two_argument_predictor(shape):
     """A broken `nlips live` predictor: its callable wants two arguments, so the first frame's call fails."""
     return lambda frame, extra: None
+
+
+def green_predictor(shape):
+    """A pluggable `nlips live` predictor that shows its input: depth = the frame's green channel / 1000 per pixel
+    (tests compare the saved depth maps to see what the camera saw)."""
+    from nlipscalib.device.live import LiveResult
+
+    def predict(frame):
+        normals = np.zeros(tuple(shape) + (3,), np.float32)
+        normals[..., 2] = -1.0
+        return LiveResult(normals, frame[..., 1].astype(np.float32) / 1000.0)
+
+    return predict

@@ -143,3 +143,110 @@ def test_script_and_move_press_or_other_press_count_are_refused(tmp_path, capsys
     assert main(args + ["--presses", "3"]) == 2
     err = capsys.readouterr().err
     assert "--presses 3: the script" in err and "has 2 presses" in err
+
+
+SMALL = ["--width", "64", "--height", "48", "--spp", "1"]
+
+
+def test_nlipsemu_port_from_a_fresh_process_captures_on_the_emulated_sensor(tmp_path):
+    """The command as a user types it: no board exists in the new process, so the command starts the emulated
+    sensor with its board at that URL; the capture validates with the loader."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import numpy as np
+
+    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    out = tmp_path / "s"
+    result = subprocess.run(
+        [sys.executable, "-c", code, "capture", "--port", "nlipsemu://1", *SMALL, "--presses", "1", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        stdin=subprocess.DEVNULL,  # no terminal: the session must not wait for Enter
+        timeout=300,
+        env=os.environ | {"PYTHONPATH": str(Path(__file__).resolve().parents[2])},
+    )
+    assert result.returncode == 0, result.stderr
+    assert "nlipsemu://1: starting the emulated sensor of nlipstac" in result.stderr
+    assert "Traceback" not in result.stderr and "press_0001: captured" in result.stdout
+    p = load_press(out / "press_0001")
+    assert p.led_images.shape == (12, 48, 64, 3) and p.reference is not None
+    assert p.meta["provenance"]["device"] == "emulator"
+    # each LED lights the gel: its image is brighter than the dark frame
+    assert all(img.mean() > p.dark.mean() + 100 for img in p.led_images.astype(np.float64))
+
+
+def test_nlipsemu_port_is_the_emulated_sensor_of_the_design(tmp_path, capsys):
+    """In process with no board of that id: the same session as --emulate DESIGN (same frames, bit for bit),
+    resumable, and the board is gone afterwards (the id is free again)."""
+    import numpy as np
+
+    from nlipscalib.device.virtual_board import find_board
+
+    url = "nlipsemu://capture-cli"
+    port = ["capture", "--port", url, "--design", "nlipstac", *SMALL, "--presses", "1"]
+    assert main([*port, "--out", str(tmp_path / "port")]) == 0
+    captured = capsys.readouterr()
+    assert f"{url}: starting the emulated sensor of nlipstac" in captured.err and captured.err.count("\n") == 1
+    assert find_board(url) is None
+    assert main(["capture", "--emulate", "nlipstac", *SMALL, "--presses", "1", "--out", str(tmp_path / "emu")]) == 0
+    capsys.readouterr()
+    a, b = load_press(tmp_path / "port" / "press_0001"), load_press(tmp_path / "emu" / "press_0001")
+    np.testing.assert_array_equal(a.led_images, b.led_images)
+    np.testing.assert_array_equal(a.tricolor, b.tricolor)
+    assert a.camera == b.camera and a.leds == b.leds
+    # run again with one press more: it resumes
+    assert main([*port[:-1], "2", "--out", str(tmp_path / "port")]) == 0
+    out = capsys.readouterr().out
+    assert "press_0001: kept" in out and "press_0002: captured" in out
+    assert [p.name for p in find_presses(tmp_path / "port")] == ["press_0001", "press_0002", "reference"]
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--port", "nlipsemu://"], "nlipsemu://: nlipsemu:// needs a board id"),
+        (["--port", "nlipsemu://a/b"], "nlipsemu:// needs a board id without / or #"),
+        (
+            ["--port", "nlipsemu://3", "--exposure-ms", "5"],
+            "--exposure-ms is not used with --port nlipsemu://3 and no --camera (the emulated sensor of nlipstac)",
+        ),
+        (["--port", "nlipsemu://3", "--camera-calibration", "cam.json"], "--camera-calibration is not used with"),
+        (["--port", "nlipsemu://3", "--adalight", "12"], "virtual LED board runs the nlips firmware"),
+        (["--port", "nlipsemu://3", "--design", "no-such-design"], "no-such-design"),
+        (["--port", "/dev/ttyACM0", "--width", "64"], "--width is only used with --emulate SCENE"),
+        (["--emulate", "nlipstac", "--camera", "0"], "--camera is not used with --emulate"),
+    ],
+)
+def test_nlipsemu_port_mistakes_are_one_line(tmp_path, capsys, extra, message):
+    assert main(["capture", "--out", str(tmp_path / "s"), "--presses", "1", *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("nlips capture: error: ") and message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "s").exists()
+
+
+def test_nlipsemu_port_with_a_camera_starts_the_board_alone(tmp_path, capsys):
+    """--camera given: only the LED board is virtual (started with the design's LED count, closed after)."""
+    import cv2
+    import numpy as np
+
+    from nlipscalib.core import Camera
+    from nlipscalib.device.virtual_board import find_board
+
+    camera = tmp_path / "camera.json"  # small frames
+    camera.write_text(json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(15):  # the reference alone: tri-colour, dark, LED 1..12, check (= the first)
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 50 + k * (k != 14), np.uint8))
+    url = "nlipsemu://capture-board"
+    args = ["capture", "--port", url, "--camera", str(frames), "--camera-calibration", str(camera)]
+    assert main([*args, "--presses", "0", "--out", str(tmp_path / "s")]) == 0
+    captured = capsys.readouterr()
+    assert "reference: captured" in captured.out and "emulated" not in captured.err
+    p = load_press(tmp_path / "s" / "reference")
+    assert p.meta["provenance"]["device"]["port"] == url and p.led_images.shape[0] == 12
+    assert p.dark[0, 0, 0] == 51 << 8 and p.led_images[11, 0, 0, 0] == 63 << 8
+    assert find_board(url) is None

@@ -1,0 +1,78 @@
+"""`nlips live` on the emulated sensor as a user runs it: no terminal, no window, a stream that ends."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+cv2 = pytest.importorskip("cv2")
+
+from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.device.virtual_board import find_board  # noqa: E402
+
+PREDICTOR = ["--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+SMALL = ["--width", "64", "--height", "48", "--frames-per-press", "2"]
+
+
+def _saved_depth(folder):
+    """The saved depth maps, in frame order."""
+    return [np.load(f)["depth"] for f in sorted(folder.glob("frame_*.npz"))]
+
+
+def test_live_on_nlipsemu_port_streams_the_emulated_script_once(tmp_path, capsys):
+    """--port nlipsemu://ID with no board in the process and no --camera: the emulated sensor, its board at
+    that URL lit in the tri-colour pattern; without a window the stream ends after the script (dome + 3 presses)."""
+    url = "nlipsemu://live-cli"
+    maps = tmp_path / "maps"
+    predictor = ["--predictor", "tests.device.fakes:green_predictor", "--no-window"]
+    assert main(["live", "--port", url, *predictor, *SMALL, "--save", str(maps)]) == 0
+    captured = capsys.readouterr()
+    assert f"{url}: starting the emulated sensor of nlipstac" in captured.err and "Traceback" not in captured.err
+    assert captured.out.startswith("8 frames in")
+    green = _saved_depth(maps)  # each frame's green channel / 1000
+    assert len(green) == 8 and min(g.mean() for g in green) > 1.0  # every frame lit by the tri-colour LEDs
+
+    # the camera delivers a frame late (latency 1): frames 0-2 show the dome, alike up to noise; the presses
+    # after them dent the gel, which changes part of the image far beyond the noise (5x5 box blurred)
+    def change(g):
+        return np.abs(cv2.blur(g - green[0], (5, 5))).max()
+
+    assert change(green[2]) < 1.0 and all(change(g) > 3 * change(green[1]) for g in green[3:])
+    assert find_board(url) is None
+
+
+def test_live_emulated_with_a_frame_limit_loops_the_script(tmp_path, capsys):
+    maps = tmp_path / "maps"
+    args = ["live", "--emulate", "nlipstac", *PREDICTOR, *SMALL, "--frames", "11", "--save", str(maps)]
+    assert main(args) == 0
+    assert capsys.readouterr().out.startswith("11 frames in")
+    assert len(_saved_depth(maps)) == 11
+
+
+def test_live_on_nlipsemu_port_with_recorded_frames_starts_the_board_alone(tmp_path, capsys):
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"f{k:02d}.png"), np.full((12, 16, 3), 1000 * (k + 1), np.uint16))
+    url = "nlipsemu://live-board"
+    assert main(["live", "--port", url, "--camera", str(frames), *PREDICTOR, "--save", str(tmp_path / "m")]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith("3 frames in") and "emulated" not in captured.err
+    assert find_board(url) is None
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--port", "nlipsemu://"], "nlipsemu:// needs a board id"),
+        (["--emulate", "nlipstac", "--port", "/dev/ttyACM0"], "--port is not used with --emulate"),
+        (["--emulate", "nlipstac", "--camera", "0"], "--camera is not used with --emulate"),
+        (["--emulate", "nlipstac", "--adalight", "12"], "--adalight is not used with --emulate"),
+        (["--camera", "0", "--width", "64"], "--width is only used with --emulate SCENE"),
+        (["--port", "nlipsemu://4", "--frames", "0"], "--frames must be >= 1"),
+    ],
+)
+def test_live_source_mistakes_are_one_line(tmp_path, capsys, extra, message):
+    assert main(["live", *PREDICTOR, *extra, "--save", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("nlips live: error: ") and message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "m").exists()
