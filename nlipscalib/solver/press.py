@@ -31,9 +31,8 @@ from ..core.capture import Press
 from ..core.leds import led_geometry_mismatch
 from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
-from .contact import ContactMap, anchor_weights, classify_contact
+from .contact import ContactMap, anchor_weights, classify_contact, contact_box
 from .contact import auto_roi as _auto_roi_box
-from .contact import contact_box
 from .indirect import (
     Surface,
     design_of,
@@ -160,7 +159,8 @@ def _solve_press(
 
     Returns
     -------
-    SolveResult -- ``report`` adds roi, roi_note (what ``--roi auto`` left out or a warning; empty when none), prior, interreflection (the fitted model and the decision),
+    SolveResult -- ``report`` adds roi, roi_note (what ``--roi auto`` left out or a warning; empty when none),
+    prior, interreflection (the fitted model and the decision),
     indirect_compensation, dent_interreflection, outer_passes, outer_changes_deg (median normal change of
     each outer pass; all but the last pass are unrefined), outer_focus (the box [x0, y0, w, h] the passes
     before the last solved, or None), pass_seconds (the solver's timer of each NLiPs solve; ``seconds`` is
