@@ -15,7 +15,7 @@ from pathlib import Path
 from ..errors import ConfigError
 from ..report import experiments as fig
 from .framework import Table
-from .q2 import MEDIUM, PAPER, Q2, QUICK, Q2Config
+from .q2 import MEDIUM, PAPER, Q2, QUICK, TRAINING_COLUMNS, Q2Config, training_summary
 
 METHODS = ("NLiPsNet", "lookup table")
 
@@ -99,17 +99,10 @@ class PressCount(Q2):
             f"NLiPsNet training per number of presses (hidden layers {'-'.join(map(str, cfg.net.hidden))})",
             ("calibration_presses",),
             [
-                {"calibration_presses": int(k), "val": len(m["val_presses"])}
-                | {key: m[key] for key in ("epochs", "best_epoch", "best_val_aae_deg", "train_seconds")}
+                {"calibration_presses": int(k), "val": len(m["val_presses"])} | training_summary(m)
                 for k, m in learned["models"].items()
             ],
-            columns=(
-                ("val", "of them validation", 0),
-                ("epochs", "epochs", 0),
-                ("best_epoch", "best epoch", 0),
-                ("best_val_aae_deg", "best validation AAE (°)", 2),
-                ("train_seconds", "seconds", 1),
-            ),
+            columns=(("val", "of them validation", 0),) + TRAINING_COLUMNS,
         )
         return [counts, training]
 

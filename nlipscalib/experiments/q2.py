@@ -46,6 +46,38 @@ SCORE_COLUMNS = (
     ("aae_vs_nlips_deg", "AAE vs NLiPs labels (°)", 2),
     ("aae_vs_true_deg", "AAE vs true normals (°)", 2),
 )
+TRAINING_COLUMNS = (
+    ("epochs", "epochs", 0),
+    ("best_epoch_from_1", "best epoch", 0),
+    ("best_val_aae_deg", "best validation AAE (°)", 2),
+    ("train_seconds", "seconds", 1),
+)
+"""The training columns of the Q2 and press-count tables (after each table's own ones)."""
+
+
+def training_summary(model: dict) -> dict:
+    """A trained model's record (``learning.train_model``) as a training-table row.
+
+    The record keeps the trainer's 0-based ``best_epoch`` (the model file's ``info.best_epoch``; records
+    of earlier runs are reused as they are); the table numbers epochs from 1, as ``nlips train`` and the
+    training-curve figure do, under its own key so results.json never holds one name with two meanings.
+
+    Parameters
+    ----------
+    model : dict with ``epochs``, ``best_epoch`` (0-based; None or negative without any epoch),
+        ``best_val_aae_deg`` and ``train_seconds``
+
+    Returns
+    -------
+    dict: epochs, best_epoch_from_1 (None without an epoch), best_val_aae_deg, train_seconds
+    """
+    best = model.get("best_epoch")
+    return {
+        "epochs": model["epochs"],
+        "best_epoch_from_1": best + 1 if best is not None and best >= 0 else None,
+        "best_val_aae_deg": model["best_val_aae_deg"],
+        "train_seconds": model["train_seconds"],
+    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,14 +239,8 @@ class Q2(Experiment):
             )
         training = [
             {"model": METHODS[k]}
-            | {
-                "train": len(m["train_presses"]),
-                "val": len(m["val_presses"]),
-                "epochs": m["epochs"],
-                "best_epoch": m["best_epoch"],
-                "best_val_aae_deg": m["best_val_aae_deg"],
-                "train_seconds": m["train_seconds"],
-            }
+            | {"train": len(m["train_presses"]), "val": len(m["val_presses"])}
+            | training_summary(m)
             for k, m in learned["models"].items()
         ]
         tables.append(
@@ -223,14 +249,7 @@ class Q2(Experiment):
                 f"Training (hidden layers {'-'.join(map(str, cfg.net.hidden))}, seed {cfg.net.seed})",
                 ("model",),
                 training,
-                columns=(
-                    ("train", "training presses", 0),
-                    ("val", "validation presses", 0),
-                    ("epochs", "epochs", 0),
-                    ("best_epoch", "best epoch", 0),
-                    ("best_val_aae_deg", "best validation AAE (°)", 2),
-                    ("train_seconds", "seconds", 1),
-                ),
+                columns=(("train", "training presses", 0), ("val", "validation presses", 0)) + TRAINING_COLUMNS,
             )
         )
         return tables

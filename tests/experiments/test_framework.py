@@ -143,3 +143,42 @@ def test_two_processes_on_one_folder_run_a_task_once(tmp_path, monkeypatch):
         t.join(timeout=30)
     assert outcomes == ["done", "done"] and calls == ["ref-y"]  # the second waited for the first's result
     assert load_result(tmp_path, task)["folder"] == "refs/x"
+
+
+def _trained(best_epoch: int, epochs: int) -> dict:
+    """A model record as learning.train_model stores it (best_epoch 0-based, as the trainer counts)."""
+    return {
+        "train_presses": ["a", "b", "c"],
+        "val_presses": ["d"],
+        "epochs": epochs,
+        "best_epoch": best_epoch,
+        "best_val_aae_deg": 1.5,
+        "train_seconds": 2.0,
+    }
+
+
+def test_training_tables_number_the_best_epoch_from_1_like_nlips_train():
+    from nlipscalib.experiments.markdown import table
+
+    score = {"split": "seen", "method": "NLiPsNet", "contact_samples": 10, "aae_vs_nlips_deg": 1.0}
+    score |= {"aae_vs_true_deg": 2.0, "presses": 1}
+    q2_learned = {
+        "presses": {"train": 3, "seen": 1, "unseen": 0},
+        "scores": [dict(score)],
+        "models": {"nlipsnet": _trained(0, 9), "upper": _trained(6, 7)},
+    }
+    count_learned = {
+        "presses": {"train": 3, "seen": 1, "unseen": 0},
+        "scores": [{"calibration_presses": 3} | score],
+        "models": {3: _trained(4, 12)},
+    }
+    for name, learned, expected in (("q2", q2_learned, [1, 7]), ("presses", count_learned, [5])):
+        exp = get(name)
+        training = next(t for t in exp.tables(exp.config("quick"), [], learned) if t.name == "training")
+        assert [r["best_epoch_from_1"] for r in training.rows] == expected
+        assert all("best_epoch" not in r for r in training.rows)  # no stored key with another meaning
+        lines = table(training).splitlines()
+        col = lines[2].strip("|").split("|").index(" best epoch ")
+        assert [int(row.strip("|").split("|")[col]) for row in lines[4:]] == expected
+        # the stored model records keep the trainer's 0-based count (old records stay loadable)
+        assert [m["best_epoch"] for m in learned["models"].values()] == [e - 1 for e in expected]
