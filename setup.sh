@@ -1,8 +1,16 @@
 #!/usr/bin/env bash
 # Install nlipscalib and everything it needs into ./.venv on a fresh Debian/Ubuntu machine.
-# Idempotent: a second run only checks. Usage: bash setup.sh
+# Idempotent: a second run only checks (no download, no pip install) unless pyproject.toml changed
+# since the last install or the installed environment no longer matches it.
+# Usage: bash setup.sh [--force]   (--force: run pip install even when everything matches)
 set -euo pipefail
 cd "$(dirname "$0")"
+FORCE=0
+case "${1:-}" in
+  "") ;;
+  --force) FORCE=1 ;;
+  *) echo "setup: unknown argument '$1' (usage: bash setup.sh [--force])" >&2; exit 2 ;;
+esac
 
 # drjit's LLVM backend aborts the whole process with Debian 12's default LLVM 15
 # ("Cannot select ... fminimum"); LLVM 19 works. Without it we fall back to the slow scalar_rgb.
@@ -38,5 +46,62 @@ PIP=(.venv/bin/python -m pip install -q --disable-pip-version-check)
 # Pin torch to the CPU build first: an unpinned torch pulls a multi-GB CUDA build. The project itself
 # only asks for a range (torch>=2.2,<3), which this satisfies, so nothing more is downloaded.
 .venv/bin/python -c "import torch" 2>/dev/null || "${PIP[@]}" "torch==2.13.0"
-"${PIP[@]}" -e ".[all]"
+
+# The editable install is what a second run skips: pip resolves every requirement against the index
+# (network, tens of seconds) even when nothing changes. Skipped only when the hash of pyproject.toml
+# recorded after the last successful install still matches, nlipscalib imports from this checkout, and
+# every requirement of nlipscalib[all] in the installed metadata (which must be pyproject.toml's) is
+# installed at a satisfying version. Anything unexpected in the check means "install".
+STAMP=.venv/.nlipscalib-pyproject.sha256
+installed_matches() {
+  [ -x .venv/bin/nlips ] || return 1
+  # -P: the checkout (the current directory) must not be on sys.path, or it would always be what imports
+  .venv/bin/python -P - "$STAMP" <<'PY' 2>/dev/null
+import hashlib, importlib.metadata as md, pathlib, sys, tomllib
+
+try:
+    from packaging.requirements import Requirement
+except ImportError:  # not installed by itself in every venv; pip always carries a copy
+    from pip._vendor.packaging.requirements import Requirement
+
+stamp, pyproject = pathlib.Path(sys.argv[1]), pathlib.Path("pyproject.toml")
+if stamp.read_text().strip() != hashlib.sha256(pyproject.read_bytes()).hexdigest():
+    sys.exit(1)
+import nlipscalib
+
+if pathlib.Path(nlipscalib.__file__).resolve().parent != pathlib.Path("nlipscalib").resolve():
+    sys.exit(1)  # another checkout (or a regular install) is what this venv imports
+project = tomllib.loads(pyproject.read_text())["project"]
+dist = md.distribution("nlipscalib")
+if dist.version != project["version"]:
+    sys.exit(1)
+
+
+def key(req):
+    return req.name.lower().replace("_", "-"), frozenset(str(s) for s in req.specifier)
+
+
+wanted = {key(Requirement(r)) for r in project["dependencies"]}
+wanted |= {key(Requirement(r)) for reqs in project["optional-dependencies"].values() for r in reqs}
+extras = set(dist.metadata.get_all("Provides-Extra") or [])
+have = set()
+for text in dist.requires or []:
+    req = Requirement(text)
+    have.add(key(req))
+    if req.marker is not None and not any(req.marker.evaluate({"extra": e}) for e in extras | {""}):
+        continue  # another platform's requirement: nothing to have installed
+    if req.name != "nlipscalib" and not req.specifier.contains(md.version(req.name), prereleases=True):
+        sys.exit(1)  # raises PackageNotFoundError (exit 1) when one is missing
+if have != wanted:
+    sys.exit(1)  # the installed metadata was built from another pyproject.toml
+PY
+}
+if [ "$FORCE" = 0 ] && [ -f "$STAMP" ] && installed_matches; then
+  echo "setup: .venv already matches pyproject.toml; nothing to install (bash setup.sh --force reinstalls)"
+else
+  rm -f "$STAMP"  # an interrupted install must not look complete
+  "${PIP[@]}" -e ".[all]"
+  .venv/bin/python -c 'import hashlib; print(hashlib.sha256(open("pyproject.toml", "rb").read()).hexdigest())' \
+    >"$STAMP"
+fi
 echo "setup: done. Run: .venv/bin/nlips demo   or   .venv/bin/python -m pytest"

@@ -1,0 +1,128 @@
+"""setup.sh: a second run on an installed checkout only checks; a changed pyproject.toml installs again.
+
+The checkout is a temporary copy (setup.sh, pyproject.toml, the package as a link) whose ``.venv/bin/python``
+is a wrapper around the interpreter running the tests: it logs ``-m pip`` calls instead of running them (no
+network, nothing installed anywhere), answers setup.sh's torch probe and runs everything else for real, so the
+up-to-date check reads the metadata of the environment the tests run in. apt-get and sudo are stubs that log too.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash")
+
+
+def _exe(path: Path, text: str) -> None:
+    path.write_text(text)
+    path.chmod(0o755)
+
+
+@pytest.fixture
+def checkout(tmp_path):
+    try:
+        from importlib.metadata import distribution
+
+        distribution("nlipscalib")
+    except Exception:
+        pytest.skip("nlipscalib is not installed in this environment (no metadata to check against)")
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    shutil.copy(ROOT / "setup.sh", repo)
+    shutil.copy(ROOT / "pyproject.toml", repo)
+    (repo / "nlipscalib").symlink_to(ROOT / "nlipscalib", target_is_directory=True)
+    bin_dir = repo / ".venv" / "bin"
+    bin_dir.mkdir(parents=True)
+    log = tmp_path / "calls.log"
+    _exe(
+        bin_dir / "python",
+        f"""#!/usr/bin/env bash
+if [ "$1" = "-m" ] && [ "$2" = "pip" ]; then echo "pip $*" >>"{log}"; exit 0; fi
+if [ "$1" = "-c" ] && [ "$2" = "import torch" ]; then exit 0; fi  # seconds per run, and not under test
+PYTHONPATH="{repo}" exec "{sys.executable}" "$@"
+""",
+    )
+    _exe(bin_dir / "nlips", "#!/bin/sh\n")
+    stubs = tmp_path / "stubs"
+    stubs.mkdir()
+    _exe(stubs / "apt-get", f'#!/bin/sh\necho "apt-get $*" >>"{log}"\n')
+    _exe(stubs / "sudo", '#!/bin/sh\nexec "$@"\n')
+    return repo, log, stubs
+
+
+def _setup(repo: Path, stubs: Path, *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PATH=f"{stubs}{os.pathsep}{os.environ['PATH']}")
+    env.pop("PYTHONPATH", None)
+    return subprocess.run(["bash", str(repo / "setup.sh"), *args], env=env, capture_output=True, text=True, timeout=300)
+
+
+def _installs(log: Path) -> int:
+    """How many times setup.sh ran ``pip install -e .[all]``."""
+    return log.read_text().count("-e .[all]") if log.exists() else 0
+
+
+def test_second_run_only_checks_and_a_changed_pyproject_installs_again(checkout):
+    repo, log, stubs = checkout
+    first = _setup(repo, stubs)
+    assert first.returncode == 0, first.stderr
+    assert _installs(log) == 1  # a fresh checkout installs, as before
+    stamp = repo / ".venv" / ".nlipscalib-pyproject.sha256"
+    assert stamp.is_file()
+
+    second = _setup(repo, stubs)
+    assert second.returncode == 0, second.stderr
+    assert _installs(log) == 1, "the second run installed again"
+    assert "nothing to install" in second.stdout
+
+    (repo / "pyproject.toml").write_text((repo / "pyproject.toml").read_text() + "\n# changed\n")
+    assert _setup(repo, stubs).returncode == 0
+    assert _installs(log) == 2  # pyproject.toml changed since the last install
+    assert _setup(repo, stubs).returncode == 0
+    assert _installs(log) == 2  # ... and recorded again
+
+    assert _setup(repo, stubs, "--force").returncode == 0
+    assert _installs(log) == 3
+
+
+def test_an_environment_that_no_longer_matches_installs(checkout):
+    repo, log, stubs = checkout
+    assert _setup(repo, stubs).returncode == 0 and _installs(log) == 1
+    # a requirement the installed metadata does not have (pip install was never run with it)
+    text = (repo / "pyproject.toml").read_text().replace('"numpy>=1.26",', '"numpy>=1.26",\n  "not-a-real-package>=1",')
+    (repo / "pyproject.toml").write_text(text)
+    stamp = repo / ".venv" / ".nlipscalib-pyproject.sha256"
+    stamp.write_text(hashlib.sha256(text.encode()).hexdigest())  # even with a matching stamp
+    assert _setup(repo, stubs).returncode == 0
+    assert _installs(log) == 2
+    # another checkout is what the venv imports (the package's own install, not this copy)
+    (repo / "pyproject.toml").write_text((ROOT / "pyproject.toml").read_text())
+    assert _setup(repo, stubs).returncode == 0 and _installs(log) == 3
+    assert _setup(repo, stubs).returncode == 0 and _installs(log) == 3
+    (repo / "nlipscalib").unlink()
+    assert _setup(repo, stubs).returncode == 0
+    assert _installs(log) == 4
+    # ... also when the checkout has its package but the venv imports another one: the check must not
+    # import from the current directory
+    (repo / "nlipscalib").mkdir()
+    shutil.copy(ROOT / "nlipscalib" / "__init__.py", repo / "nlipscalib")
+    wrapper = repo / ".venv" / "bin" / "python"
+    wrapper.write_text("".join(line for line in wrapper.read_text().splitlines(True) if "PYTHONPATH" not in line))
+    wrapper.write_text(wrapper.read_text() + f'exec "{sys.executable}" "$@"\n')
+    assert _setup(repo, stubs).returncode == 0
+    assert _installs(log) == 5
+
+
+def test_unknown_argument_is_one_line_and_non_zero(checkout):
+    repo, log, stubs = checkout
+    res = _setup(repo, stubs, "--frobnicate")
+    assert res.returncode == 2 and res.stderr.strip().count("\n") == 0 and "--frobnicate" in res.stderr
+    assert _installs(log) == 0
