@@ -23,6 +23,21 @@ import sys
 import time
 
 from ..progress import bars_enabled
+from .options import fill_defaults, option, typed
+
+DEFAULTS = {
+    "presses": 10,
+    "exposure_ms": 10.0,
+    "gain": 0.0,
+    "white_balance": 5000.0,
+    "black_level": 0.0,
+    "average": 1,
+    "seed": 0,
+}
+"""Real defaults of the options whose presence is checked (the sensor they belong to; --presses against a press
+script). argparse leaves them None, so one typed at its default value still counts as given; :func:`check_options`
+fills them in (cli/options.py). --camera stays None when not given (camera 0 is chosen where it is opened):
+whether one was given also decides what --port nlipsemu://ID starts."""
 
 
 def register(subparsers) -> None:
@@ -31,7 +46,7 @@ def register(subparsers) -> None:
         help="capture a session of presses (undeformed reference first) from the sensor or its emulator",
     )
     p.add_argument("--out", required=True, help="session folder (reference/, press_0001/, ...); resumes if present")
-    p.add_argument("--presses", type=int, default=10, help="presses after the reference (default 10)")
+    p.add_argument("--presses", type=int, help="presses after the reference (default 10; with --script: its presses)")
     src = p.add_argument_group("real sensor")
     src.add_argument(
         "--port",
@@ -44,12 +59,12 @@ def register(subparsers) -> None:
     src.add_argument("--design", default=None, help="sensor design: scene file or shipped name (default nlipstac)")
     src.add_argument("--camera-calibration", help="camera JSON from `nlips calibrate-camera` (default: the design's)")
     src.add_argument("--leds", help="LED JSON from `nlips calibrate-leds` (default: the design's LED ring)")
-    src.add_argument("--exposure-ms", type=float, default=10.0, help="fixed exposure, ms (default 10)")
-    src.add_argument("--gain", type=float, default=0.0, help="fixed analogue gain, camera units (default 0)")
-    src.add_argument("--white-balance", type=float, default=5000.0, help="fixed white balance, kelvin (default 5000)")
-    src.add_argument("--black-level", type=float, default=0.0, help="camera black level in its own DN (default 0)")
+    src.add_argument("--exposure-ms", type=float, help="fixed exposure, ms (default 10)")
+    src.add_argument("--gain", type=float, help="fixed analogue gain, camera units (default 0)")
+    src.add_argument("--white-balance", type=float, help="fixed white balance, kelvin (default 5000)")
+    src.add_argument("--black-level", type=float, help="camera black level in its own DN (default 0)")
     src.add_argument("--flush", type=int, default=2, help="frames dropped after each LED change (default 2)")
-    src.add_argument("--average", type=int, default=1, help="frames averaged per image (default 1)")
+    src.add_argument("--average", type=int, help="frames averaged per image (default 1)")
     emu = p.add_argument_group("emulated sensor")
     emu.add_argument("--emulate", metavar="SCENE", help="run against the emulated sensor of this scene (no hardware)")
     emu.add_argument("--script", help="press script (TOML/YAML [[press]] tables); default: sphere presses")
@@ -57,13 +72,13 @@ def register(subparsers) -> None:
     emu.add_argument("--width", type=int, help="emulated image width, pixels")
     emu.add_argument("--height", type=int, help="emulated image height, pixels")
     emu.add_argument("--spp", type=int, help="emulated render samples per pixel")
-    emu.add_argument("--seed", type=int, default=0, help="emulated sensor noise seed")
+    emu.add_argument("--seed", type=int, help="emulated sensor noise seed (default 0)")
     ses = p.add_argument_group("session")
     ses.add_argument("--tricolor-level", type=int, help="LED drive of the tri-colour frame, 1-255 (default 255)")
     ses.add_argument("--movement-threshold", type=float, default=0.02, help="pixel change counted as movement")
     ses.add_argument("--max-retakes", type=int, default=3, help="retakes of a moving press before giving up")
     ses.add_argument("--yes", action="store_true", help="do not wait for Enter at the prompts (scripts)")
-    p.set_defaults(func=run, parser=p)
+    p.set_defaults(func=run)
 
 
 REAL_SENSOR_OPTIONS = (
@@ -96,10 +111,6 @@ WHY_NOT_EMULATED = {
 }
 
 
-def _option(dest: str) -> str:
-    return "--" + dest.replace("_", "-")
-
-
 def emulate_behind_port(args) -> None:
     """Turn ``--port nlipsemu://ID`` without ``--camera`` into the emulated sensor of ``--design``.
 
@@ -127,19 +138,20 @@ def _emulated_how(args) -> str:
 
 
 def check_options(args) -> None:
-    """Refuse, in one line, options the chosen sensor would not use and numbers out of range (ConfigError)."""
-    given = [
-        d for d in (*REAL_SENSOR_OPTIONS, *EMULATED_SENSOR_OPTIONS) if getattr(args, d) != args.parser.get_default(d)
-    ]
-    for dest in given:
+    """Refuse, in one line, options the chosen sensor would not use and numbers out of range (ConfigError);
+    then fill in the defaults of :data:`DEFAULTS`.
+
+    An option counts as given when it was typed, also at its default value (``--seed 0`` without
+    ``--emulate`` is refused like ``--seed 1``)."""
+    for dest in typed(args, (*REAL_SENSOR_OPTIONS, *EMULATED_SENSOR_OPTIONS)):
         if args.emulate and dest in REAL_SENSOR_OPTIONS:
             why = WHY_NOT_EMULATED.get(
                 dest, f"it sets up the real sensor; the emulated one takes it from {args.emulate}"
             )
-            raise _usage(f"{_option(dest)} is not used with {_emulated_how(args)}: {why}; drop {_option(dest)}")
+            raise _usage(f"{option(dest)} is not used with {_emulated_how(args)}: {why}; drop {option(dest)}")
         if not args.emulate and dest in EMULATED_SENSOR_OPTIONS:
             raise _usage(
-                f"{_option(dest)} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID "
+                f"{option(dest)} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID "
                 "without --camera)"
             )
     if args.script and args.move_press is not None:
@@ -147,6 +159,7 @@ def check_options(args) -> None:
             "--move-press is not used with --script: a press of the script moves when its [[press]] table "
             "has a `moved` table"
         )
+    fill_defaults(args, DEFAULTS)
     _at_least(args, "presses", 0, "presses after the reference")
     if args.move_press is not None and not 1 <= args.move_press <= args.presses:
         raise _usage(
@@ -160,7 +173,7 @@ def check_options(args) -> None:
     for dest in ("width", "height"):
         value = getattr(args, dest)
         if value is not None and not MIN_IMAGE_SIDE <= value <= MAX_IMAGE_SIDE:
-            raise _usage(f"{_option(dest)} must be {MIN_IMAGE_SIDE}..{MAX_IMAGE_SIDE} pixels, got {value}")
+            raise _usage(f"{option(dest)} must be {MIN_IMAGE_SIDE}..{MAX_IMAGE_SIDE} pixels, got {value}")
     _at_least(args, "spp", 1, "samples per pixel")
     _at_least(args, "seed", 0, "a noise seed")
     _at_least(args, "adalight", 1, "the strip's LED count")
@@ -176,17 +189,17 @@ def check_options(args) -> None:
     for dest, lo, what in (("exposure_ms", 0.0, "ms"), ("white_balance", 0.0, "kelvin")):
         value = getattr(args, dest)
         if not (value > lo and math.isfinite(value)):
-            raise _usage(f"{_option(dest)} must be > 0 {what}, got {value:g}")
+            raise _usage(f"{option(dest)} must be > 0 {what}, got {value:g}")
     for dest in ("gain", "black_level"):
         value = getattr(args, dest)
         if not (value >= 0 and math.isfinite(value)):
-            raise _usage(f"{_option(dest)} must be >= 0, got {value:g}")
+            raise _usage(f"{option(dest)} must be >= 0, got {value:g}")
 
 
 def _at_least(args, dest: str, minimum: int, what: str) -> None:
     value = getattr(args, dest)
     if value is not None and value < minimum:
-        raise _usage(f"{_option(dest)} must be >= {minimum} ({what}), got {value}")
+        raise _usage(f"{option(dest)} must be >= {minimum} ({what}), got {value}")
 
 
 def _session_config(args, tricolor_level: int | None):
@@ -210,7 +223,7 @@ def _run_emulated(args):
     camera = {k: v for k, v in {"width": args.width, "height": args.height}.items() if v}
     scene = scene.replace(camera=camera, render={"spp": args.spp} if args.spp else {})
     script = load_script(args.script) if args.script else default_script(args.presses, args.move_press)
-    if args.script and args.presses not in (len(script), args.parser.get_default("presses")):
+    if args.script and typed(args, ["presses"]) and args.presses != len(script):  # --presses 10 too
         raise _usage(f"--presses {args.presses}: the script {args.script} has {len(script)} presses; drop --presses")
     args.presses = len(script)
     board_id = getattr(args, "board_id", None)

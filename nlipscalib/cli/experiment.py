@@ -19,7 +19,8 @@ def register(sub) -> None:
         description=__doc__,
     )
     p.add_argument("name", help="q1, q2, ablation, q3, studies, presses (number of calibration presses), or all")
-    p.add_argument("--size", default="quick", help="quick (CI), medium or full (default quick)")
+    # no argparse default: `--size quick --config F` must be refused like `--size full --config F`
+    p.add_argument("--size", help="quick (CI), medium or full (default quick)")
     p.add_argument("--config", help="TOML/YAML file with the experiment's config fields (instead of --size)")
     p.add_argument("--out", default="out/experiments", help="work folder: per-task results (default out/experiments)")
     p.add_argument("--report", help="report folder (default OUT/NAME-SIZE/report); with 'all' one subfolder each")
@@ -46,9 +47,16 @@ def run(args) -> int:
     from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
     from ..experiments.framework import run_experiment
     from ..experiments.summary import clean
+    from .options import fill_defaults
 
     if args.name == "all" and (args.check or args.write_baseline or args.config):
         raise ConfigError("--check, --write-baseline and --config need one experiment, not 'all'")
+    if args.config and args.size is not None:
+        raise ConfigError(
+            f"--size {args.size} and --config {args.config}: the config file replaces the size's settings; "
+            "give one of them"
+        )
+    fill_defaults(args, {"size": "quick"})
     check_count("--workers", args.workers, minimum=1)
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)

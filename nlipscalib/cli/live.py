@@ -15,6 +15,16 @@ from __future__ import annotations
 import importlib
 import sys
 
+from .options import fill_defaults, option, typed
+
+SOURCE_DEFAULTS = {"tricolor_level": 255, "exposure_ms": 10.0, "frames_per_press": 10}
+"""Real defaults of the source flags whose presence is checked (argparse leaves them None, so one typed at its
+default value still counts as given; cli/options.py)."""
+CAMERA_SOURCE_OPTIONS = ("port", "adalight", "camera", "tricolor_level", "exposure_ms")
+"""Source flags of a camera stream: the emulated sensor has its own camera and LED board."""
+EMULATED_SOURCE_OPTIONS = ("script", "frames_per_press", "width", "height")
+"""Source flags of the emulated sensor alone."""
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("live", help="live normal and depth maps from tri-colour frames (NLiPsNet)")
@@ -41,7 +51,10 @@ def register(subparsers) -> None:
 
 
 def add_source_arguments(p, camera_default: str | None) -> None:
-    """The frame-source flags shared by ``nlips live`` and ``nlips infer`` (one way to open a stream)."""
+    """The frame-source flags shared by ``nlips live`` and ``nlips infer`` (one way to open a stream).
+
+    The flags whose presence is checked have no argparse default (:func:`check_source_arguments` fills in
+    :data:`SOURCE_DEFAULTS`; ``--camera`` stays None when not given and ``camera_default`` is opened then)."""
     default = f" (default {camera_default})" if camera_default else ""
     what = "camera index, device path, folder of frames or video"
     # parsed as None when not given (open_frames falls back to default_camera): whether a camera was given
@@ -54,11 +67,11 @@ def add_source_arguments(p, camera_default: str | None) -> None:
         "board, started here when this process has none)",
     )
     p.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
-    p.add_argument("--tricolor-level", type=int, default=255, help="LED drive of the tri-colour pattern, 1-255")
-    p.add_argument("--exposure-ms", type=float, default=10.0, help="fixed exposure of a live camera, ms")
+    p.add_argument("--tricolor-level", type=int, help="LED drive of the tri-colour pattern, 1-255 (default 255)")
+    p.add_argument("--exposure-ms", type=float, help="fixed exposure of a live camera, ms (default 10)")
     p.add_argument("--emulate", metavar="SCENE", help="stream from the emulated sensor of this scene")
     p.add_argument("--script", help="emulated press script (TOML/YAML [[press]] tables)")
-    p.add_argument("--frames-per-press", type=int, default=10, help="emulated frames per scripted press")
+    p.add_argument("--frames-per-press", type=int, help="emulated frames per scripted press (default 10)")
     p.add_argument("--width", type=int, help="emulated image width, pixels")
     p.add_argument("--height", type=int, help="emulated image height, pixels")
 
@@ -83,30 +96,38 @@ def emulate_behind_port(args, scene: str | None = None) -> None:
 
 def check_source_arguments(args) -> None:
     """One line naming the option when a flag of :func:`add_source_arguments` is out of range, or is not
-    used by the chosen source (the real sensor's with ``--emulate``, the emulator's without it)."""
+    used by the chosen source (the real sensor's with ``--emulate``, the emulator's without it); then the
+    defaults of :data:`SOURCE_DEFAULTS` are filled in.
+
+    A flag counts as given when it was typed, also at its default value (``--tricolor-level 255`` with
+    ``--emulate`` is refused like ``--tricolor-level 100``: the emulated sensor lights its own board).
+    """
     from ..config import check_count
     from ..errors import ConfigError
 
-    for option, value in (("--port", args.port), ("--adalight", args.adalight), ("--camera", args.camera)):
-        if args.emulate and value is not None:
+    port = getattr(args, "emulated_port", None)  # set by emulate_behind_port: name what the user typed
+    how = f"--port {port} and no --camera (the emulated sensor of {args.emulate})" if port else "--emulate"
+    for dest in typed(args, CAMERA_SOURCE_OPTIONS):
+        if args.emulate:
             raise ConfigError(
-                f"{option} is not used with --emulate: the emulated sensor has its own virtual LED board and "
-                f"camera; drop {option}"
+                f"{option(dest)} is not used with {how}: the emulated sensor has its own virtual LED board and "
+                f"camera; drop {option(dest)}"
             )
-    for option, value in (("--script", args.script), ("--width", args.width), ("--height", args.height)):
-        if not args.emulate and value is not None:
+    for dest in typed(args, EMULATED_SOURCE_OPTIONS):
+        if not args.emulate:
             raise ConfigError(
-                f"{option} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID without "
-                "--camera)"
+                f"{option(dest)} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID "
+                "without --camera)"
             )
+    fill_defaults(args, SOURCE_DEFAULTS)
     check_count("--frames-per-press", args.frames_per_press, minimum=1)
     if not 1 <= args.tricolor_level <= 255:
         raise ConfigError(f"--tricolor-level must be 1-255, got {args.tricolor_level}")
     if not args.exposure_ms > 0:
         raise ConfigError(f"--exposure-ms must be > 0, got {args.exposure_ms}")
-    for option, value in (("--adalight", args.adalight), ("--width", args.width), ("--height", args.height)):
-        if value is not None:
-            check_count(option, value, minimum=1)
+    for dest in ("adalight", "width", "height"):
+        if getattr(args, dest) is not None:
+            check_count(option(dest), getattr(args, dest), minimum=1)
 
 
 def check_output_arguments(args) -> None:

@@ -105,6 +105,12 @@ def test_numeric_options_out_of_range_are_one_line(tmp_path, capsys, extra, mess
         (["--port", "loop://"], "--port is not used with --emulate"),
         (["--exposure-ms", "5"], "--exposure-ms is not used with --emulate"),
         (["--design", "fingertip"], "--design is not used with --emulate"),
+        # typed at their default values: still given, still refused
+        (["--exposure-ms", "10"], "--exposure-ms is not used with --emulate"),
+        (["--camera", "0"], "--camera is not used with --emulate"),
+        (["--gain", "0"], "--gain is not used with --emulate"),
+        (["--white-balance", "5000"], "--white-balance is not used with --emulate"),
+        (["--average", "1"], "--average is not used with --emulate"),
     ],
 )
 def test_real_sensor_options_are_refused_with_emulate(tmp_path, capsys, extra, message):
@@ -129,7 +135,7 @@ def test_real_sensor_options_are_refused_with_emulate(tmp_path, capsys, extra, m
 
 
 def test_emulator_options_are_refused_without_emulate(tmp_path, capsys):
-    for extra in (["--move-press", "1"], ["--width", "64"], ["--script", "s.toml"], ["--spp", "4"]):
+    for extra in (["--move-press", "1"], ["--width", "64"], ["--script", "s.toml"], ["--spp", "4"], ["--seed", "0"]):
         assert main(["capture", "--port", "loop://", "--out", str(tmp_path / "s"), *extra]) == 2
         assert f"{extra[0]} is only used with --emulate SCENE" in capsys.readouterr().err
 
@@ -143,6 +149,10 @@ def test_script_and_move_press_or_other_press_count_are_refused(tmp_path, capsys
     assert main(args + ["--presses", "3"]) == 2
     err = capsys.readouterr().err
     assert "--presses 3: the script" in err and "has 2 presses" in err
+    # --presses typed at its default value (10) is given too, not taken for "no --presses"
+    assert main(args + ["--presses", "10"]) == 2
+    err = capsys.readouterr().err
+    assert "--presses 10: the script" in err and "has 2 presses" in err and err.count("\n") == 1
 
 
 SMALL = ["--width", "64", "--height", "48", "--spp", "1"]

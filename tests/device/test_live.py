@@ -127,3 +127,39 @@ def test_live_refuses_out_of_range_options_before_streaming(frames, tmp_path, ca
     assert main([*args, "--save", str(tmp_path / "maps"), *option]) == 2
     _one_line(capsys.readouterr().err, option[0])
     assert not (tmp_path / "maps").exists()  # refused before anything was written
+
+
+@pytest.mark.parametrize(
+    "command, option, message",
+    [
+        # flags of a camera stream with --emulate, typed at their default values too
+        (["live"], ("--tricolor-level", "255"), "--tricolor-level is not used with --emulate"),
+        (["live"], ("--exposure-ms", "10"), "--exposure-ms is not used with --emulate"),
+        (["live"], ("--camera", "0"), "--camera is not used with --emulate"),
+        (["live"], ("--port", "loop://"), "--port is not used with --emulate"),
+        (["infer", "model.pt"], ("--tricolor-level", "255"), "--tricolor-level is not used with --emulate"),
+        (["live"], ("--frames-per-press", "0"), "--frames-per-press: must be an integer >= 1"),
+    ],
+)
+def test_stream_flags_the_emulated_sensor_does_not_use_are_refused(tmp_path, capsys, command, option, message):
+    args = [*command, "--emulate", "nlipstac", "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    if command[0] == "infer":
+        args = [*command, "--emulate", "nlipstac"]
+    assert main([*args, *option]) == 2
+    _one_line(capsys.readouterr().err, message)
+
+
+def test_stream_flags_refused_with_an_emulated_port_name_the_port(capsys):
+    args = ["live", "--port", "nlipsemu://live-flags", "--predictor", "tests.device.fakes:flat_predictor"]
+    assert main([*args, "--no-window", "--exposure-ms", "10"]) == 2
+    _one_line(capsys.readouterr().err, "--exposure-ms is not used with --port nlipsemu://live-flags and no --camera")
+
+
+@pytest.mark.parametrize("option", [("--frames-per-press", "10"), ("--script", "s.toml"), ("--width", "64")])
+def test_emulated_stream_flags_are_refused_without_emulate(frames, tmp_path, capsys, option):
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main([*args, "--save", str(tmp_path / "maps"), *option]) == 2
+    _one_line(capsys.readouterr().err, f"{option[0]} is only used with --emulate SCENE")
+    assert not (tmp_path / "maps").exists()
+    assert main(["infer", "model.pt", str(frames), *option]) == 2
+    _one_line(capsys.readouterr().err, f"{option[0]} is only used with --emulate SCENE")

@@ -89,6 +89,9 @@ def test_check_flags_only_what_got_worse_beyond_tolerance():
         (["experiment", "q1", "--scheduler", "nowhere"], "tcp://HOST:PORT"),
         (["experiment", "q1", "--check", "/nonexistent/base.json"], "no such baseline file"),
         (["experiment", "q1", "--workers", "0"], "--workers: must be an integer >= 1"),
+        # --config replaces --size: both refused, also with --size at its default value
+        (["experiment", "q1", "--size", "full", "--config", "q1.toml"], "--size full and --config q1.toml"),
+        (["experiment", "q1", "--size", "quick", "--config", "q1.toml"], "--size quick and --config q1.toml"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(argv, message, capsys, tmp_path):

@@ -1,0 +1,56 @@
+"""Options whose presence matters, not only their value.
+
+argparse stores an option's default without a trace, so a check that compares an option with its default
+(``args.seed != 0``) takes ``--seed 0`` for no ``--seed`` at all: an option typed at its default value
+then escapes a conflict check ("not used with --emulate"), or loses to what would win over an absent
+option (a press script's length, a config file). Such options are declared with ``default=None`` and a
+table of their real defaults: :func:`typed` says which of them the user typed, then
+:func:`fill_defaults` puts the real defaults in and records what was typed in ``args.typed_options``.
+"""
+
+from __future__ import annotations
+
+TYPED = "typed_options"
+"""Attribute of the parsed arguments: the options (dests) the user typed, recorded by :func:`fill_defaults`."""
+DEFAULTED = "defaulted_options"
+"""Attribute of the parsed arguments: the options :func:`fill_defaults` gave their default (not typed)."""
+
+
+def typed(args, dests) -> list[str]:
+    """The options among ``dests`` that the user typed, in the order of ``dests``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace; the options in ``dests`` have ``default=None`` (or were recorded by
+        :func:`fill_defaults`)
+    dests : iterable of option dests (``"exposure_ms"`` for ``--exposure-ms``)
+
+    Returns
+    -------
+    list of str
+    """
+    given, defaulted = getattr(args, TYPED, frozenset()), getattr(args, DEFAULTED, frozenset())
+    return [d for d in dests if d in given or (d not in defaulted and getattr(args, d, None) is not None)]
+
+
+def fill_defaults(args, defaults: dict) -> None:
+    """Give every option of ``defaults`` that the user did not type its real default, remembering the typed ones.
+
+    Parameters
+    ----------
+    args : argparse.Namespace, changed in place; ``args.typed_options`` and ``args.defaulted_options``
+        (frozensets of dests) gain the options of ``defaults`` that were typed and those that were not, so
+        :func:`typed` still answers afterwards
+    defaults : dest -> the value the option has when not typed
+    """
+    given = set(typed(args, defaults))
+    setattr(args, TYPED, getattr(args, TYPED, frozenset()) | given)
+    setattr(args, DEFAULTED, getattr(args, DEFAULTED, frozenset()) | (set(defaults) - given))
+    for dest, value in defaults.items():
+        if dest not in given:
+            setattr(args, dest, value)
+
+
+def option(dest: str) -> str:
+    """The command-line spelling of an option's dest: ``exposure_ms`` -> ``--exposure-ms``."""
+    return "--" + dest.replace("_", "-")
