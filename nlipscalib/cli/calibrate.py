@@ -89,5 +89,12 @@ def run(args) -> int:
         )
     for i, model in enumerate(cal.interreflection):
         print(f"capture {i + 1}: {model.get('reason', '')}")
-    print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {cal.albedo})")
+    q = cal.quality
+    print(
+        f"fit: residual {q['median_ratio']:.2f}x the images' noise (median over the LEDs; reliable up to "
+        f"{q['threshold']}): {'reliable' if q['reliable'] else 'UNRELIABLE, see the warning'}"
+    )
+    # the warnings were logged while calibrating, above the table: say so where the user looks last
+    seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
+    print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {cal.albedo}){seen}")
     return 0

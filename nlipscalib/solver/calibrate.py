@@ -7,11 +7,16 @@ with K_ic = rho_c Psi_ic. Parameters: log K_ic (3), mu, n_s (polar and azimuth a
 Gauge (Psi and albedo are only known up to a common scale): the coating's albedo is taken uniform per
 channel and the LED intensities are normalised so that **mean_i Psi_ic = 1 for every channel c**; the
 common factor rho_c = mean_i K_ic is reported as ``albedo``. The solver recovers albedo relative to it.
+
+What the user is told (``LedCalibration.warnings``, logged as warnings): a coating reflectance given but not
+used, a reflectance that could not be profiled, and a fit that leaves more than the images' own noise
+unexplained (:func:`fit_quality`), i.e. LEDs not to be trusted.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 
 import numpy as np
 
@@ -19,6 +24,8 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, disk_shading, led_shading
 from ..errors import CaptureError, ConfigError
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,6 +53,11 @@ class LedCalibration:
     """With ``led_radius`` and no known coating reflectance: how the reflectance was chosen
     (:func:`_profiled_reflectance`): the freely fitted one, the scales of it tried, their disk-fit residuals
     and the chosen reflectance. None otherwise."""
+    quality: dict | None = None
+    """:func:`fit_quality` of the point LEDs: each LED's residual against its images' noise, and whether the
+    calibration is reliable."""
+    warnings: tuple[str, ...] = ()
+    """What the user must know (one line each; also logged): options given but not used, an unreliable fit."""
 
     def to_json(self) -> dict:
         out = {
@@ -54,6 +66,8 @@ class LedCalibration:
             "std": self.std,
             "rms": self.rms,
             "interreflection": self.interreflection,
+            "quality": self.quality,
+            "warnings": list(self.warnings),
         }
         if self.emitters:
             out["emitters"] = {"radius_mm": self.led_radius, "leds": [led.to_dict() for led in self.emitters]}
@@ -126,13 +140,31 @@ def calibrate_leds(
         fitted reflectance comes out 0.89 for a true 0.8 and the axes ~2 deg too upright, with the true
         reflectance ~1 deg (benchmarks/RESULTS.md). Unknown, with ``led_radius`` and the indirect term on,
         it is profiled instead (:func:`_profiled_reflectance`): the reflectance whose disk fit leaves the
-        least residual, then the whole calibration again with it.
-    """
-    from .indirect import checked_reflectance, fit_indirect
+        least residual, then the whole calibration again with it. Not used when no capture's indirect term
+        is on (``interreflection`` "off", or "auto" on a capture without interreflection): a warning says so.
 
+    Returns
+    -------
+    LedCalibration -- with ``quality`` (:func:`fit_quality`) and ``warnings``, each also logged as a warning:
+    a ``coating_reflectance`` not used, a reflectance not profiled, an unreliable fit.
+    """
     presses = [presses] if isinstance(presses, Press) else list(presses)
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
+    cal = _calibrate(presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance)
+    notes = _unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
+    notes += _quality_warning(cal.quality, cal.interreflection, interreflection)
+    for note in notes:
+        log.warning(note)
+    return dataclasses.replace(cal, warnings=tuple(notes))
+
+
+def _calibrate(
+    presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance
+) -> LedCalibration:
+    """:func:`calibrate_leds` without its warnings (it calls itself once more after a reflectance profile)."""
+    from .indirect import checked_reflectance, fit_indirect
+
     first = presses[0]
     leds0 = leds = tuple(initial) if initial is not None else first.leds
     data = [_samples(p, first, len(leds), stride) for p in presses]
@@ -175,25 +207,17 @@ def calibrate_leds(
     models = [m.to_json() for m in models]
     leds, albedo, std = _to_leds(fitted)
     rms = [f[2] for f in fitted]
+    quality = fit_quality(presses, fitted, x, n, direct, ok)
     emitters = ()
     if led_radius > 0:  # from the points (0.2 mm off at most): the disk fit only refines them
         emitters = _to_leds(_fit_all(leds, x, n, direct, ok, loss, _disk_model(led_radius)))[0]
     fitted_reflectance = _fitted_reflectance(models)
     if led_radius > 0 and coating_reflectance is None and fitted_reflectance is not None:
         profile = _profiled_reflectance(emitters, x, n, img, direct, ok, loss, led_radius, fitted_reflectance)
-        again = calibrate_leds(
-            presses,
-            initial=leds,
-            stride=stride,
-            loss=loss,
-            interreflection=interreflection,
-            bounces=bounces,
-            rounds=rounds,
-            led_radius=led_radius,
-            coating_reflectance=tuple(profile["chosen"]),
-        )
+        chosen = tuple(profile["chosen"])
+        again = _calibrate(presses, leds, stride, loss, interreflection, bounces, rounds, led_radius, chosen)
         return dataclasses.replace(again, reflectance_profile=profile)
-    return LedCalibration(leds, albedo, std, rms, models, emitters, float(led_radius))
+    return LedCalibration(leds, albedo, std, rms, models, emitters, float(led_radius), quality=quality)
 
 
 def _fitted_reflectance(models: list[dict]) -> np.ndarray | None:
@@ -316,7 +340,7 @@ def _fit_all(leds, x, n, img, ok, loss, model=_model):
         geo = model(p0, x, n) / np.exp(p0[:3])
         k0 = (geo * img[i] * ok[i]).sum(0) / np.maximum((geo * geo * ok[i]).sum(0), 1e-30)
         p0[:3] = np.log(np.maximum(k0, 1e-12))
-        use = ok[i] & (img[i] > 0.01 * np.percentile(img[i], 99, axis=0))
+        use = _fit_samples(img[i], ok[i])
         scale = float(np.percentile(img[i][use], 90)) if use.any() else 1.0
 
         def resid(params, i=i, use=use, scale=scale):
@@ -352,3 +376,163 @@ def _to_leds(fitted):
             }
         )
     return tuple(leds), tuple(float(a) for a in albedo), std
+
+
+FIT_NOISE_RATIO = 1.15
+"""An LED calibration is reliable when its residual is at most this many times the images' own noise (median
+over the LEDs, :func:`fit_quality`): measured 1.01-1.11 on good captures, 1.19-1.63 on poor ones (the table there)."""
+
+
+def _fit_samples(img: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(N, 3) bool -- the samples one LED is fitted on: usable and lit (above 1 % of its 99th percentile per
+    channel); :func:`fit_quality` judges the fit on the same samples.
+
+    img : (N, 3) float -- that LED's samples, linear; ok : (N, 3) bool -- usable.
+    """
+    return ok & (img > 0.01 * np.percentile(img, 99, axis=0))
+
+
+def _led_noise(presses) -> np.ndarray:
+    """(L,) float -- the white noise of each LED's images, linear units: Immerkaer's estimate
+    (:func:`nlipscalib.solver.contact.image_noise`) on the gel, median over the captures, at least one ADC step
+    (a noise-free capture holds only quantisation, where the estimate says nothing)."""
+    from .contact import image_noise
+
+    per = []
+    for p in presses:
+        valid = np.isfinite(p.reference.depth)
+        lin = p.linear(p.led_images)
+        per.append([image_noise(lin[i : i + 1], valid) for i in range(len(lin))])
+    r = presses[0].response
+    step = 2.0 ** (16 - r.bit_depth) / (r.white_level - r.black_level)
+    return np.maximum(np.median(np.asarray(per, float), axis=0), step)
+
+
+def fit_quality(presses, fitted, x, n, img, ok, model=_model) -> dict:
+    """How much of the images the fitted LEDs leave unexplained, in units of the images' own noise.
+
+    Each LED's residual scale (1.4826 x the median absolute deviation of model minus image over its fitted
+    samples: robust, so a few bad pixels do not count) over the white noise of its images (Immerkaer's
+    estimate, which a Laplacian mask makes blind to smooth shading). A model that explains the images leaves
+    the noise alone: a ratio near 1. Light the model does not explain is mostly smooth (measured below: the
+    Monte Carlo error of a low-spp render, which the bounce light's denoiser turns into blotches; an
+    interreflection term left out; the realistic twin's optics), so it raises the residual and not the noise
+    estimate, and it biases the LEDs far beyond their Jacobian ``std``: at 160x120, 4 spp the worst LED's axis
+    is 2-4 deg off while its ``std`` says 0.15 deg.
+
+    Measured (``nlips render --undeformed``, then ``calibrate_leds`` from the capture's own LEDs; median ratio
+    over the LEDs, worst LED against the truth, points, or with ``led_radius`` 1.8 the disks; 2026-12-03):
+
+    ==================================================  ==============  ==========================
+    capture                                             median ratio    worst LED
+    ==================================================  ==============  ==========================
+    nlipstac, bounces 0, 160x120, 4 spp / 1 spp         1.01 / 1.04     0.51-0.80 deg, 0.24-0.29 mm
+    nlipstac, one bounce, 16 spp, 160x120 (3 seeds)     1.06-1.07       disks 0.87-1.43 deg, 0.13-0.30 mm
+    ... 320x240 / 640x480                               1.04 / 1.03     1.33 / 1.31 deg (points)
+    nlipstac_ideal / fingertip, one bounce, 16 spp      1.08 / 1.11     disks 0.87 / 1.45 deg
+    nlipstac, one bounce, 8 spp, 320x240                1.15            1.58 deg, 0.25 mm (points)
+    nlipstac, one bounce, 4 spp, 640x480                1.19            3.33 deg, 0.69 mm (points)
+    nlipstac, one bounce, 8 spp, 160x120 (3 seeds)      1.20-1.22       disks 2.91-4.58 deg, 0.29-0.55 mm
+    oblate, one bounce, 16 spp (term not used: share    1.23            disks 16.2 deg
+    0.09 with the starting LEDs; forced on: 1.06,
+    points 2.8 deg)
+    nlipstac, one bounce, 4 spp, 160x120 (3 seeds)      1.34-1.36       disks 1.81-3.57 deg, 0.43-0.80 mm
+    nlipstac_realistic, one bounce, 16 spp              1.52            disks 13.0 deg, 4.9 mm
+    nlipstac, one bounce, 2 spp, 160x120 (3 seeds)      1.63-1.64       disks 2.44-5.89 deg, 0.42-0.56 mm
+    ==================================================  ==============  ==========================
+
+    Good captures stay at or below 1.11; the poor ones (worst LED beyond the README's 2 deg or 0.3 mm) start at
+    1.19, so :data:`FIT_NOISE_RATIO` = 1.15 sits between them (the ratio's own scatter at 160x120: about 0.01
+    between seeds, up to 0.03 between strides 2, 3 and 4). The worst single LED of a good capture reached 1.13: the
+    verdict is the median's, so one LED's chance excess does not raise it. Blind spot: light the LEDs can absorb
+    by tilting (the indirect term forced on a bounce-free capture: worst LED 16 deg off at 1.04).
+
+    Parameters
+    ----------
+    presses : sequence of Press -- the captures (their LED images give the noise).
+    fitted : list of (params, std, rms) -- per LED, as :func:`_fit_all` returns them.
+    x, n : (N, 3) float -- the samples' points (mm) and normals (unit), camera frame.
+    img : (L, N, 3) float -- the images the LEDs were fitted to (minus the indirect light), linear.
+    ok : (L, N, 3) bool -- usable samples.
+    model : the LED model the parameters are of (default the point LED).
+
+    Returns
+    -------
+    dict -- ``noise`` (L,) and ``residual`` (L,), linear image units; ``ratio`` (L,) their quotient;
+    ``median_ratio``; ``threshold`` (:data:`FIT_NOISE_RATIO`); ``reliable`` (median_ratio <= threshold).
+    """
+    noise = _led_noise(presses)
+    residual = []
+    for i, (params, _, _) in enumerate(fitted):
+        r = (model(params, x, n) - img[i])[_fit_samples(img[i], ok[i])]
+        residual.append(1.4826 * float(np.median(np.abs(r - np.median(r)))) if r.size else float("nan"))
+    ratio = np.asarray(residual) / noise
+    median = float(np.nanmedian(ratio))
+    return {
+        "noise": [float(v) for v in noise],
+        "residual": residual,
+        "ratio": [round(float(v), 4) for v in ratio],
+        "median_ratio": round(median, 4),
+        "threshold": FIT_NOISE_RATIO,
+        "reliable": bool(median <= FIT_NOISE_RATIO),
+    }
+
+
+def _no_interreflection(models: list[dict], interreflection: str) -> str | None:
+    """Why no capture's indirect term is on (one clause), or None when one is."""
+    if any(m.get("enabled") for m in models):
+        return None
+    if interreflection == "off" or not models:
+        return "the interreflection term is off (requested)"
+    share = max(m["indirect_share"] for m in models)
+    return (
+        f"no capture shows interreflection (fitted indirect share {share:.3f} with the starting LEDs, below "
+        f"{CALIBRATION_MIN_SHARE})"
+    )
+
+
+def _unused_reflectance(models: list[dict], interreflection: str, led_radius: float, reflectance) -> list[str]:
+    """The warnings for a coating reflectance given but not used, or not profiled (with ``led_radius``).
+
+    Not honoured on purpose: the reflectance sets the magnitude of the indirect term, and with the term off
+    there is nothing to scale. On a capture the auto decision found without interreflection (a bounce-free
+    render of the twin: share 0.014, where its one-bounce renders show 0.31-0.33) the term would subtract light
+    that is not there; ``interreflection="on"`` forces it with the given reflectance (there, 160x120, 4 spp: worst
+    LED 16.0 deg and 0.73 mm off against 0.54 deg and 0.25 mm, and :func:`fit_quality` cannot tell: 1.04).
+    """
+    from .indirect import checked_reflectance
+
+    why = _no_interreflection(models, interreflection)
+    if why is None:
+        return []
+    if reflectance is not None:
+        a = np.round(checked_reflectance(reflectance), 3)
+        shown = f"{a[0]:g}" if np.all(a == a[0]) else str(a.tolist())
+        force = "" if interreflection == "off" else "; --interreflection on forces the term with this reflectance"
+        return [
+            f"coating reflectance {shown} (--coating-reflectance) not used: {why}, so the LEDs were fitted to the "
+            f"images as direct light{force}"
+        ]
+    if led_radius > 0 and interreflection != "off":
+        return [
+            f"coating reflectance not profiled (--led-diameter without --coating-reflectance): {why}, so the LEDs "
+            "were fitted to the images as direct light"
+        ]
+    return []
+
+
+def _quality_warning(quality: dict, models: list[dict], interreflection: str) -> list[str]:
+    """The warning for an unreliable fit (:func:`fit_quality`), with what to do; [] when reliable."""
+    if quality["reliable"]:
+        return []
+    ratio = np.asarray(quality["ratio"])
+    worst = int(np.nanargmax(ratio))
+    hint = ""
+    if interreflection == "auto" and _no_interreflection(models, interreflection) is not None:
+        hint = "; the interreflection term was not used: if the gel interreflects, try --interreflection on"
+    return [
+        f"LED calibration unreliable: its residual is {quality['median_ratio']:.2f}x the images' noise (median "
+        f"over the LEDs, reliable up to {quality['threshold']}; LED {worst + 1} {ratio[worst]:.2f}x): the images hold "
+        "light the LED model does not explain. Capture again with more samples per pixel (a render) or more frames "
+        "averaged, and check the capture (nothing moved, no stray light, the undeformed dome)" + hint
+    ]

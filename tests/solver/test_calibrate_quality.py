@@ -1,0 +1,109 @@
+"""What LED calibration (``nlips calibrate-leds``) tells the user: a coating reflectance it did not use, a
+reflectance it could not profile, and a fit too poor to trust (``solver.calibrate.fit_quality``).
+
+CI-sized renders of the default twin's undeformed dome (160x120, the sensor's noise on, as ``nlips render
+--undeformed`` makes them), calibrated at stride 4 (a second each): direct light only, one bounce at 16 spp
+(good), one bounce at 2 spp (the denoised bounce light's Monte Carlo blotches: poor LEDs).
+"""
+
+import json
+import logging
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+
+from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.sim.press import render_press  # noqa: E402
+from nlipscalib.sim.scene import load_scene  # noqa: E402
+from nlipscalib.solver import calibrate_leds  # noqa: E402
+from nlipscalib.solver.calibrate import FIT_NOISE_RATIO  # noqa: E402
+
+STRIDE = 4
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory):
+    root = tmp_path_factory.mktemp("calibration_quality")
+
+    def undeformed(name, bounces, spp):
+        scene = load_scene().replace(render={"bounces": bounces, "spp": spp}, camera={"width": 160, "height": 120})
+        return render_press(scene, None, root / name, seed=21)
+
+    return {"direct": undeformed("direct", 0, 4), "good": undeformed("good", 1, 16), "noisy": undeformed("noisy", 1, 2)}
+
+
+def worst_led(cal, true):
+    """(deg, mm): the calibrated point LEDs' worst axis and position error (the twin's 3.6 mm disk LEDs: the
+    best points sit ~0.23 mm behind the disks' centres by design)."""
+    ang = max(np.degrees(np.arccos(min(1.0, np.dot(a.direction, t.direction)))) for a, t in zip(cal.leds, true))
+    return ang, max(np.linalg.norm(np.subtract(a.position, t.position)) for a, t in zip(cal.leds, true))
+
+
+def test_a_reflectance_the_calibration_cannot_use_is_reported(captures, caplog):
+    flat = load_press(captures["direct"])
+    plain = calibrate_leds(flat, stride=STRIDE)
+    assert not plain.warnings and plain.quality["reliable"]
+    with caplog.at_level(logging.WARNING, logger="nlipscalib"):
+        given = calibrate_leds(flat, stride=STRIDE, coating_reflectance=0.8)
+    # the capture shows no interreflection: the value scales nothing, and the user is told so, once
+    (note,) = given.warnings
+    assert note.startswith("coating reflectance 0.8 (--coating-reflectance) not used: no capture shows interreflection")
+    assert "--interreflection on forces" in note
+    assert [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING] == [note]
+    assert given.leds == plain.leds  # what the warning says: fitted as direct light
+    # the term switched off by request: the same, without the hint to force it
+    (note,) = calibrate_leds(flat, stride=STRIDE, interreflection="off", coating_reflectance=(0.8, 0.8, 0.7)).warnings
+    assert "[0.8, 0.8, 0.7] (--coating-reflectance) not used: the interreflection term is off (requested)" in note
+    assert "forces" not in note
+    # forced on, the given reflectance is honoured
+    forced = calibrate_leds(flat, stride=STRIDE, interreflection="on", coating_reflectance=0.8)
+    assert not any("not used" in w for w in forced.warnings)
+    assert "reflectance set to [0.8, 0.8, 0.8]" in forced.interreflection[0]["reason"]
+    # LED disks without a known reflectance: the reflectance is not profiled, and the user is told why
+    disks = calibrate_leds(flat, stride=STRIDE, led_radius=1.8)
+    assert disks.reflectance_profile is None and len(disks.emitters) == len(flat.leds)
+    (note,) = disks.warnings
+    assert note.startswith("coating reflectance not profiled (--led-diameter without --coating-reflectance)")
+
+
+def test_calibrate_leds_command_warns_about_an_unused_reflectance(captures, tmp_path, caplog, capsys):
+    out = tmp_path / "leds.json"
+    argv = ["--no-progress", "calibrate-leds", str(captures["direct"]), "--out", str(out), "--stride", str(STRIDE)]
+    with caplog.at_level(logging.WARNING, logger="nlipscalib"):
+        assert main([*argv, "--coating-reflectance", "0.8"]) == 0
+    (note,) = json.loads(out.read_text())["warnings"]
+    assert "not used" in note and note in caplog.text
+    assert "1 warning(s) above, also in the file" in capsys.readouterr().out
+
+
+def test_a_good_capture_calibrates_without_a_quality_warning(captures):
+    flat = load_press(captures["good"])
+    cal = calibrate_leds(flat, stride=STRIDE)
+    q = cal.quality
+    assert q["reliable"] and q["median_ratio"] <= FIT_NOISE_RATIO and not cal.warnings, q
+    assert len(q["ratio"]) == len(q["noise"]) == len(q["residual"]) == len(flat.leds)
+    ang, pos = worst_led(cal, flat.leds)
+    assert ang <= 2.5 and pos <= 0.5, (ang, pos)
+
+
+def test_a_noisy_capture_is_reported_unreliable(captures, tmp_path, caplog, capsys):
+    """A one-bounce render at 2 spp: the LEDs come out poor (worst 2-3 deg, 0.8-1.4 mm on four seed/stride
+    pairs), with a Jacobian std of ~0.2 deg that hides it; the residual against the image noise shows it."""
+    out = tmp_path / "leds.json"
+    argv = ["--no-progress", "calibrate-leds", str(captures["noisy"]), "--out", str(out), "--stride", str(STRIDE)]
+    with caplog.at_level(logging.WARNING, logger="nlipscalib"):
+        assert main(argv) == 0
+    data = json.loads(out.read_text())
+    assert not data["quality"]["reliable"] and data["quality"]["median_ratio"] > FIT_NOISE_RATIO
+    (note,) = data["warnings"]
+    assert note.startswith("LED calibration unreliable") and "more samples per pixel" in note
+    assert note in caplog.text
+    assert "UNRELIABLE" in capsys.readouterr().out
+    # the warning is right: these LEDs are poor
+    flat = load_press(captures["noisy"])
+    cal = calibrate_leds(flat, stride=STRIDE)
+    ang, pos = worst_led(cal, flat.leds)
+    assert ang > 2.0 or pos > 0.5, (ang, pos)
