@@ -31,7 +31,7 @@ STALE_S = 600.0
 
 
 _IN_PROGRESS: set[Path] = set()
-"""Temporary folders this process is filling now."""
+"""Temporary folders and files this process is filling now."""
 
 
 def _umask() -> int:
@@ -88,12 +88,30 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
 def write_with(path: str | Path, writer) -> Path:
     """Atomically write what ``writer(f)`` writes to the binary file ``f`` (e.g. ``pickle.dump(value, f)``:
     no copy of a large result in memory first) to ``path`` (temp file in the same folder, then rename)."""
+
+    def write_file(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            writer(f)
+
+    return write_by_name(path, write_file)
+
+
+def write_by_name(path: str | Path, write) -> Path:
+    """Atomically write the file that ``write(tmp)`` creates at the path ``tmp`` it is given (for writers
+    that open the file themselves, e.g. ``imageio.save_npz``); then rename it to ``path``.
+
+    The temporary name carries this process (``.tmp-NAME~host~pid~random``), so concurrent writers of one
+    file never write into the same temporary, and a killed writer's leftover is recognised and removed by
+    :func:`clean_interrupted`.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(path.name), dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    _IN_PROGRESS.add(tmp)
     try:
-        with os.fdopen(fd, "wb") as f:
-            writer(f)
+        write(tmp)
         os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException as exc:
@@ -101,6 +119,8 @@ def write_with(path: str | Path, writer) -> Path:
             os.unlink(tmp)
         _raise_with_path(exc, path)
         raise
+    finally:
+        _IN_PROGRESS.discard(tmp)
     return path
 
 
@@ -158,9 +178,13 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
 
 
 def remove_in_progress() -> None:
-    """Remove this process's unfinished temporary folders (for a signal handler about to exit)."""
+    """Remove this process's unfinished temporary folders and files (for a signal handler about to exit)."""
     for tmp in list(_IN_PROGRESS):
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp.is_dir():
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
     _IN_PROGRESS.clear()
 
 
@@ -187,6 +211,11 @@ def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | 
         target = p.with_name(p.name[len(CLAIM_PREFIX) :])
         if p.suffix == "" and holder(target) is None:
             _remove_stale_claim(p)
+            gone.append(p)
+    siblings = [CLAIM_PREFIX + ("*" if item is None else glob.escape(item)) + ".*", CLAIM_PREFIX + "probe.*"]
+    for p in {p for pattern in siblings for p in folder.glob(pattern)}:
+        if _abandoned_claim_sibling(p, now, stale_s):
+            p.unlink(missing_ok=True)
             gone.append(p)
     return gone
 
@@ -227,6 +256,31 @@ def _abandoned(p: Path, now: float, stale_s: float) -> bool:
             return not pid_alive(pid)
         if holder(p.with_name(item)) is not None:
             return False
+    try:
+        return now - p.stat().st_mtime > stale_s
+    except FileNotFoundError:
+        return False
+
+
+def _abandoned_claim_sibling(p: Path, now: float, stale_s: float) -> bool:
+    """Whether a short-lived file of core.claims was left by a process killed while it existed: the owner's
+    JSON written before linking it as the claim (``.claim-NAME.TOKEN``), a claim moved aside while being
+    taken over (``.claim-NAME.stale.HEX``), or a clock probe (``.claim-probe.HOST.PID.HEX``). Each lives
+    for microseconds, so one that its owner did not remove is abandoned once the owner is gone (or, from
+    another machine, after ``stale_s`` without change)."""
+    from .claims import _read_owner
+
+    host, pid = None, None
+    if p.name.startswith(CLAIM_PREFIX + "probe."):
+        parts = p.name[len(CLAIM_PREFIX + "probe.") :].rsplit(".", 2)
+        if len(parts) == 3 and parts[1].isdigit():
+            host, pid = parts[0], int(parts[1])
+    else:
+        owner = _read_owner(p)
+        if owner is not None:
+            host, pid = owner.host, owner.pid
+    if host == HOST and pid is not None:
+        return not pid_alive(pid)
     try:
         return now - p.stat().st_mtime > stale_s
     except FileNotFoundError:
