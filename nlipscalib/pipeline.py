@@ -47,6 +47,8 @@ SOLVED, SKIPPED, FAILED = "solved", "skipped", "failed"
 """Statuses of one press (a failure reads "failed: reason")."""
 CLAIM_STALE_S = 60.0
 """A claim on PRESS/nlips without heartbeat for this long is taken over (its owner died)."""
+BROKEN = f"{FAILED}: not solved, a solver process was killed (by a signal or for lack of memory); run again"
+"""Status of the presses a parallel batch could not finish because one of its processes died."""
 CLAIM_POLL_S = 0.5
 """How often ``wait=True`` checks whether another process has finished the press it is solving."""
 
@@ -625,6 +627,7 @@ def _solve_serially(folders, names, settings, overwrite, progress, figures, wait
 def _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures, wait=False) -> dict[Path, str]:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
     from .progress import progress_bar, worker_logging
 
@@ -646,7 +649,14 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
         try:
             for done in as_completed(futures):
                 folder = futures[done]
-                statuses[folder] = done.result()
+                try:
+                    statuses[folder] = done.result()
+                except BrokenProcessPool:
+                    # a worker was killed (SIGKILL, the out-of-memory killer): the pool ends every other
+                    # worker (they release their claims, _worker_signals) and fails every press not done
+                    if not any(s == BROKEN for s in statuses.values()):
+                        log.error("a solver process was killed; the presses not finished are left for the next run")
+                    statuses[folder] = BROKEN
                 bar.set_postfix_str(names[folder], refresh=False)
                 bar.update()
         except BaseException as exc:  # Ctrl-C, a bug: queued presses never start, running ones finish

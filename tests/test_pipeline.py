@@ -325,3 +325,38 @@ def test_a_batch_re_solves_a_result_damaged_inside(press_set, tmp_path, caplog):
     assert statuses == {"a_sphere": "skipped", "b_cube": "solved", "c_sphere_deep": "skipped"}
     assert "b_cube/nlips/result.npz: damaged" in caplog.text
     load_reconstruction(root / "b_cube" / "nlips")
+
+
+def test_a_killed_worker_fails_the_unfinished_presses_in_one_line_each(press_set, tmp_path):
+    """The out-of-memory killer (or kill -9) ends one worker: no traceback; the presses not finished are
+    named as such, the other worker releases its claim, and the next run takes over the dead one's."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = tmp_path / "set"
+    shutil.copytree(press_set, root)
+    command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    argv = [sys.executable, "-c", command, "--no-progress", "solve", str(root), "--workers", "2", "--no-figures"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (claims := list(root.glob("*/.claim-nlips"))) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        victim = claims[0].parent.name
+        with contextlib.suppress(ValueError, OSError, ProcessLookupError):  # it may have finished meanwhile
+            os.kill(json.loads(claims[0].read_text())["pid"], signal.SIGKILL)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert "Traceback" not in err, err
+    if proc.returncode == 0:  # the press was finished before the signal arrived: nothing to check
+        return
+    assert proc.returncode == 1 and f"{victim}: failed: not solved, a solver process was killed" in out, out
+    others = [p for p in root.rglob(".claim-*") if p.parent.name != victim]
+    assert not others and not list(root.rglob(".tmp-*"))
+    statuses = solve_presses(sorted(root.iterdir()), progress=False, figures=False, options=FAST)
+    assert "failed" not in " ".join(statuses.values()) and not list(root.rglob(".claim-*"))
