@@ -26,6 +26,8 @@ TMP_PREFIX = ".tmp-"
 """Prefix of in-progress files and folders; anything starting with it is a write in progress or interrupted."""
 OWNER_SEP = "~"
 """Separates the item name, host and pid in a temporary name (hostnames never contain it)."""
+SWAP_ATTEMPTS = 20
+"""Tries to put an overwriting folder in place while other processes keep publishing theirs."""
 STALE_S = 600.0
 """Age (s) after which a temporary entry from another machine, with no live claim, counts as abandoned."""
 
@@ -165,7 +167,7 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
     try:
         yield tmp
         os.chmod(tmp, DIR_MODE)
-        if overwrite and final.exists():
+        if overwrite:
             _swap_in(tmp, final)
         else:
             _rename_no_replace(tmp, final)
@@ -242,10 +244,32 @@ def _rename_no_replace(tmp: Path, final: Path) -> None:
 
 
 def _swap_in(tmp: Path, final: Path) -> None:
-    old = final.with_name(tmp_prefix(final.name) + "old-" + secrets.token_hex(4))
-    os.replace(final, old)
-    os.replace(tmp, final)
-    shutil.rmtree(old, ignore_errors=True)
+    """Put the folder ``tmp`` in place of ``final``, whatever is there (``atomic_dir(overwrite=True)``).
+
+    rename(2) replaces only an empty folder, so a complete ``final`` is first moved aside (under this
+    process's temporary name, removed afterwards). Other processes may publish ``final`` at the same
+    time (two ``nlips infer`` runs on one press): the first rename failed when another process had just
+    moved the folder aside, the second when another had published its own between our two renames,
+    and the folder moved aside was then left behind. Now a folder already moved aside is no error, one
+    published in between is moved aside in turn, and the swap tried again: the last writer wins, and
+    every moment shows a complete folder or, briefly, none.
+    """
+    for _ in range(SWAP_ATTEMPTS):
+        old = final.with_name(tmp_prefix(final.name) + "old-" + secrets.token_hex(4))
+        try:
+            os.rename(final, old)
+        except FileNotFoundError:
+            old = None
+        try:
+            os.rename(tmp, final)
+            return
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+        finally:
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+    raise FileExistsError(errno.EEXIST, "replaced by other processes again and again", str(final))
 
 
 def _abandoned(p: Path, now: float, stale_s: float) -> bool:

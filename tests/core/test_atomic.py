@@ -160,3 +160,29 @@ def test_clean_removes_the_short_lived_claim_files_of_killed_processes(tmp_path)
         path.write_text(text)
     assert sorted(clean_interrupted(tmp_path, item="nlips")) == sorted(killed)
     assert all(p.exists() for p in live)
+
+
+def test_concurrent_overwrites_of_one_folder_all_succeed_and_leave_nothing_behind(tmp_path):
+    """Two `nlips infer` runs of one press publish PRESS/nlipsnet with overwrite at once: every write
+    succeeds (the last one wins), the folder is always whole, and no moved-aside copy is left."""
+    import threading
+
+    final, errors = tmp_path / "nlipsnet", []
+
+    def writer(k):
+        for i in range(60):
+            try:
+                with atomic_dir(final, overwrite=True) as tmp:
+                    (tmp / "result.npz").write_text(f"{k} {i}")
+                    (tmp / "report.json").write_text("{}")
+            except Exception as exc:  # before: ENOTEMPTY, FileNotFoundError, "already exists"
+                errors.append(exc)
+
+    threads = [threading.Thread(target=writer, args=(k,)) for k in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    assert [p.name for p in tmp_path.iterdir()] == ["nlipsnet"]
+    assert sorted(p.name for p in final.iterdir()) == ["report.json", "result.npz"]
