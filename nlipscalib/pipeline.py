@@ -9,12 +9,14 @@ The one place that turns press folders into reconstruction folders (PRESS/nlips/
   identities of its inputs (content hashes of the press and the reference capture) and the software
   version, and one ``key`` hashing them all. A result is reused only when its key equals the key of
   the new request; otherwise it is re-solved (and the log says what changed).
-- **Damaged results** (truncated result.npz, broken report.json) are re-computed with a warning.
+- **Damaged results** (truncated result.npz, an array failing its checksum, broken report.json) are
+  re-computed with a warning.
 - **Concurrency.** Work on PRESS/nlips is claimed (:func:`nlipscalib.core.claims.claim`): a press that
   another live process is solving is skipped, and interrupted writes (``.tmp-nlips-*``) are removed
   only by the claim's holder, i.e. when no live process can own them.
 - **Parallel.** ``workers > 1`` solves presses in separate processes (the solver runs single-threaded
-  BLAS, so one process per core is the efficient split).
+  BLAS, so one process per core is the efficient split). Ctrl-C stops the batch in the parent: queued
+  presses are not started, running ones finish; a SIGTERM'd worker removes its claim and temporary first.
 """
 
 from __future__ import annotations
@@ -45,6 +47,10 @@ SOLVED, SKIPPED, FAILED = "solved", "skipped", "failed"
 """Statuses of one press (a failure reads "failed: reason")."""
 CLAIM_STALE_S = 60.0
 """A claim on PRESS/nlips without heartbeat for this long is taken over (its owner died)."""
+BROKEN = f"{FAILED}: not solved, a solver process was killed (by a signal or for lack of memory); run again"
+"""Status of the presses a parallel batch could not finish because one of its processes died."""
+CLAIM_POLL_S = 0.5
+"""How often ``wait=True`` checks whether another process has finished the press it is solving."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,6 +210,7 @@ def solve_presses(
     progress: bool = True,
     figures=True,
     solver_keywords: dict | None = None,
+    wait: bool = False,
 ) -> dict[str, str]:
     """Solve several press folders (each into PRESS/nlips), in parallel processes when ``workers > 1``.
 
@@ -222,13 +229,17 @@ def solve_presses(
     progress : progress bars (shown only on a terminal)
     figures : True/"maps" (cheap PNG maps), "full" (plus a matplotlib summary), False/"none"
     solver_keywords : further keyword arguments of solver.solve_press (recorded and hashed too)
+    wait : a press another live process is solving is waited for (then its result is reused when it
+        was made with these settings, else the press is solved here) instead of skipped: for a caller
+        that needs every result, such as ``nlips calibrate``
 
     Returns
     -------
     dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``. "skipped":
-    an identical result exists, or another live process is solving the press right now. Failures of
-    one press (bad capture, bad LED file) do not stop the others; a file-system error (disk full,
-    read-only) stops the batch (OSError naming the path).
+    an identical result exists, or (without ``wait``) another live process is solving the press right
+    now. Failures of one press (bad capture, bad LED file) do not stop the others; a file-system error
+    (disk full, read-only) stops the batch (OSError naming the path). A result is reused only when its
+    arrays pass their checksums, so damage inside result.npz is re-computed too.
     """
     from .report import figure_level
 
@@ -243,9 +254,9 @@ def solve_presses(
         raise ConfigError(f"workers must be a whole number >= 1, got {workers!r}")
     names = _names(folders)
     if workers == 1 or len(folders) <= 1:
-        statuses = _solve_serially(folders, names, settings, overwrite, progress, figures)
+        statuses = _solve_serially(folders, names, settings, overwrite, progress, figures, wait)
     else:
-        statuses = _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures)
+        statuses = _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures, wait)
     return {names[f]: statuses[f] for f in folders}
 
 
@@ -259,8 +270,10 @@ def solve_one(
     figures=True,
     want_result: bool = True,
     announce_reuse: bool = True,
+    wait: bool = False,
 ) -> tuple[Reconstruction | None, str]:
-    """:func:`solve_folder` with prepared settings; ``want_result=False`` skips loading a reused result."""
+    """:func:`solve_folder` with prepared settings; ``want_result=False`` skips loading a reused result;
+    ``wait``: as in :func:`solve_presses` (a press being solved by another process is waited for)."""
     from .report import figure_level
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
@@ -272,16 +285,31 @@ def solve_one(
         if reused is not None:
             return reused
     progress = _bars(progress)
-    with _claim(out) as mine:
-        if not mine:
+    while True:
+        with _claim(out) as mine:
+            if mine:
+                _clean_interrupted(out)
+                if not overwrite:  # the result may have appeared while we waited for the claim
+                    reused = _reuse(out, provenance, want_result, quiet=False, announce=announce_reuse)
+                    if reused is not None:
+                        return reused
+                return _solve_and_save(folder, out, settings, provenance, progress, figures), SOLVED
+        if not wait:
             log.info("%s: being solved by another process, skipped", folder)
             return None, SKIPPED
-        _clean_interrupted(out)
-        if not overwrite:  # the result may have appeared while we waited for the claim
-            reused = _reuse(out, provenance, want_result, quiet=False, announce=announce_reuse)
-            if reused is not None:
-                return reused
-        return _solve_and_save(folder, out, settings, provenance, progress, figures), SOLVED
+        _wait_for_release(folder, out)  # then claimed here: its result reused when made with these settings
+
+
+def _wait_for_release(folder: Path, out: Path) -> None:
+    """Wait until no live process holds the claim on ``out`` (it published its result, failed, or died:
+    a dead owner's claim goes stale and is taken over)."""
+    import time
+
+    from .core.claims import holder
+
+    log.info("%s: being solved by another process; waiting for it", folder)
+    while holder(out, stale_s=CLAIM_STALE_S) is not None:
+        time.sleep(CLAIM_POLL_S)
 
 
 def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
@@ -369,12 +397,14 @@ def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce
     ``quiet``: no word on why a result is not reused; ``announce``: say that one is."""
     if not out.exists():
         return None
-    problem = reconstruction_problem(out)
+    problem = reconstruction_problem(out, verify=not want_result)  # a loaded result is checked as it loads
     if problem is not None:
         if not quiet:
             log.warning("%s; re-computing it", problem)
         return None
-    old = read_report(out).get("provenance") or {}
+    old = read_report(out).get("provenance")
+    if not isinstance(old, dict):  # absent, or a hand-edited report: no record of what made it
+        old = {}
     if old.get("key") != provenance["key"]:
         if not quiet:
             log.info("%s: made with other settings or inputs (%s), re-solving", out, _what_changed(old, provenance))
@@ -396,12 +426,11 @@ def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce
 def _what_changed(old: dict, new: dict) -> str:
     if not old:
         return "no record of them"
-    changed = [
-        k
-        for k, v in new["settings"].items()
-        if k not in ("leds_file", "reference") and old.get("settings", {}).get(k) != v
-    ]
-    changed += [f"{k} capture" for k, v in new["inputs"].items() if (old.get("inputs") or {}).get(k) != v]
+    settings, inputs = old.get("settings"), old.get("inputs")
+    settings = settings if isinstance(settings, dict) else {}
+    inputs = inputs if isinstance(inputs, dict) else {}
+    changed = [k for k, v in new["settings"].items() if k not in ("leds_file", "reference") and settings.get(k) != v]
+    changed += [f"{k} capture" for k, v in new["inputs"].items() if inputs.get(k) != v]
     if old.get("software_version") != new["software_version"]:
         changed.append("software version")
     return ", ".join(changed) or "record differs"
@@ -568,22 +597,22 @@ def _names(folders: Sequence[Path]) -> dict[Path, str]:
     return {f: f.name if counts[f.name] == 1 else str(f) for f in folders}
 
 
-def _status_of(folder: Path, settings: SolveSettings, overwrite: bool, progress: bool, figures) -> str:
+def _status_of(folder: Path, settings: SolveSettings, overwrite: bool, progress: bool, figures, wait=False) -> str:
     """One press's status; a bad capture or bad settings become "failed: ...".
 
     File-system errors (disk full, read-only, permission) propagate: every later press would fail
     alike, so the batch stops and the CLI prints one line naming the path.
     """
     try:
-        return solve_one(folder, settings, overwrite=overwrite, progress=progress, figures=figures, want_result=False)[
-            1
-        ]
+        return solve_one(
+            folder, settings, overwrite=overwrite, progress=progress, figures=figures, want_result=False, wait=wait
+        )[1]
     except NlipsError as exc:
         log.error("%s: %s", folder.name, exc)
         return f"{FAILED}: {exc}"
 
 
-def _solve_serially(folders, names, settings, overwrite, progress, figures) -> dict[Path, str]:
+def _solve_serially(folders, names, settings, overwrite, progress, figures, wait=False) -> dict[Path, str]:
     from .progress import track
 
     single = len(folders) == 1
@@ -591,13 +620,14 @@ def _solve_serially(folders, names, settings, overwrite, progress, figures) -> d
     bar = track(folders, enabled=progress and not single, desc="presses", unit="press")
     for folder in bar:
         bar.set_postfix_str(names[folder], refresh=False)
-        statuses[folder] = _status_of(folder, settings, overwrite, progress and single, figures)
+        statuses[folder] = _status_of(folder, settings, overwrite, progress and single, figures, wait)
     return statuses
 
 
-def _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures) -> dict[Path, str]:
+def _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures, wait=False) -> dict[Path, str]:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
     from .progress import progress_bar, worker_logging
 
@@ -614,15 +644,24 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
         initializer=_worker_init,
         initargs=worker_logging(),
     ) as pool:
-        futures = {pool.submit(_status_of, f, settings, overwrite, False, figures): f for f in folders}
+        futures = {pool.submit(_status_of, f, settings, overwrite, False, figures, wait): f for f in folders}
         bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
         try:
             for done in as_completed(futures):
                 folder = futures[done]
-                statuses[folder] = done.result()
+                try:
+                    statuses[folder] = done.result()
+                except BrokenProcessPool:
+                    # a worker was killed (SIGKILL, the out-of-memory killer): the pool ends every other
+                    # worker (they release their claims, _worker_signals) and fails every press not done
+                    if not any(s == BROKEN for s in statuses.values()):
+                        log.error("a solver process was killed; the presses not finished are left for the next run")
+                    statuses[folder] = BROKEN
                 bar.set_postfix_str(names[folder], refresh=False)
                 bar.update()
-        except BaseException:  # Ctrl-C, SIGTERM, a bug: queued presses never start, running ones finish
+        except BaseException as exc:  # Ctrl-C, a bug: queued presses never start, running ones finish
+            if isinstance(exc, KeyboardInterrupt):  # the workers ignore Ctrl-C (_worker_signals)
+                log.warning("interrupted: the presses being solved are finished, the others are not started")
             pool.shutdown(wait=True, cancel_futures=True)
             raise
         finally:
@@ -636,6 +675,7 @@ def _worker_init(log_level: int, log_file: str | None = None) -> None:
     from .progress import configure_worker
 
     configure_worker(log_level, log_file)
+    _worker_signals()
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from .solver import threads
 
@@ -646,3 +686,32 @@ def _worker_init(log_level: int, log_file: str | None = None) -> None:
         cv2.setNumThreads(1)
     except ImportError:  # pragma: no cover - OpenCV is a core dependency
         pass
+
+
+def _worker_signals() -> None:
+    """Leave Ctrl-C to the parent; on SIGTERM release this worker's claims and temporaries, then exit.
+
+    Ctrl-C in a terminal reaches every process of the command. A worker waiting for its next press
+    dies of it with a traceback (concurrent.futures catches it only around a press), the pool counts
+    as broken and kills the other workers in the middle of their presses, leaving their claims
+    behind. Ignored here, the parent alone stops the batch: queued presses are cancelled, running
+    ones finish and release their claims (:func:`_solve_in_processes`).
+
+    SIGTERM (a scheduler's time limit, ``kill`` of the process group) would end a worker at once,
+    leaving its claim and its half-written ``.tmp-nlips~...`` folder for the next run to clean; the
+    handler removes both first, as ``nlips`` itself does (cli._terminate_cleanly). It runs when the
+    current native call (a sparse solve) returns, and ends the process with ``os._exit``: an
+    exception raised there could land inside a library.
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_terminated)
+
+
+def _worker_terminated(signum, frame) -> None:
+    from .core import atomic, claims
+
+    claims.release_all()
+    atomic.remove_in_progress()
+    os._exit(128 + signum)

@@ -1,5 +1,6 @@
 """The shared solve pipeline: honest re-runs, damaged results, interrupted writes, parallel presses."""
 
+import contextlib
 import logging
 import shutil
 
@@ -189,3 +190,173 @@ def test_reference_is_used_not_solved_and_is_part_of_the_identity(press_set, tmp
     assert again == {"a_sphere": "skipped"}
     without = solve_presses(folders[:1], options=FAST, progress=False, figures=False, solver_keywords=on)
     assert without == {"a_sphere": "solved"}  # the reference was an input: its absence re-solves
+
+
+WORKER = """
+import sys, time
+from pathlib import Path
+from nlipscalib import pipeline
+from nlipscalib.core.atomic import atomic_dir
+from nlipscalib.core.claims import claim
+
+pipeline._worker_signals()
+target = Path(sys.argv[1]) / "nlips"
+with claim(target), atomic_dir(target):
+    print("solving", flush=True)
+    time.sleep(60)
+"""
+
+
+def test_a_worker_leaves_ctrl_c_to_the_parent_and_cleans_up_when_terminated(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-c", WORKER, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "solving"
+        leftovers = lambda: sorted(p.name.split("~")[0] for p in tmp_path.iterdir())  # noqa: E731
+        assert leftovers() == [".claim-nlips", ".tmp-nlips"]
+        proc.send_signal(signal.SIGINT)  # Ctrl-C: the parent cancels the batch; the worker finishes its press
+        time.sleep(0.5)
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGTERM)  # a scheduler's kill: claim and half-written folder go with it
+        assert proc.wait(timeout=10) == 128 + signal.SIGTERM
+        assert leftovers() == []
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_ctrl_c_on_a_parallel_solve_leaves_no_claim_and_no_traceback(press_set, tmp_path):
+    """Ctrl-C reaches the whole process group, idle workers too; the batch stops cleanly and resumes."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = tmp_path / "set"
+    shutil.copytree(press_set, root)
+    command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    argv = [sys.executable, "-c", command, "--no-progress", "solve", str(root), "--workers", "3", "--no-figures"]
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(root.glob("*/nlips/result.npz")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)  # the first worker to finish now waits for work: it is hit idle
+        _, err = proc.communicate(timeout=60)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert "Traceback" not in err, err
+    assert proc.returncode in (0, 130), err  # 0: every press was done before the signal arrived
+    assert not [p for p in root.rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
+    for result in root.glob("*/nlips"):
+        load_reconstruction(result)
+    statuses = solve_presses(sorted(root.iterdir()), progress=False, figures=False)
+    assert "failed" not in " ".join(statuses.values())
+
+
+def test_a_result_damaged_inside_or_with_a_strange_record_is_re_solved(press, caplog):
+    import json
+
+    from tests.core.test_reconstruction import _spoil_deflated_member
+
+    solve_folder(press, options=FAST, figures=False)
+    _spoil_deflated_member(press / "nlips" / "result.npz", "mask.npy")  # the zip directory is whole
+    caplog.set_level(logging.INFO)
+    assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
+    assert "compressed data damaged" in caplog.text
+    report = press / "nlips" / "report.json"
+    record = json.loads(report.read_text())
+    for provenance in (5, {"settings": 5, "inputs": [1]}):  # hand-edited: valid JSON, not a record
+        report.write_text(json.dumps(record | {"provenance": provenance}))
+        assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
+    assert read_report(press / "nlips")["provenance"]["key"] == record["provenance"]["key"]
+
+
+def test_wait_reuses_what_another_process_was_solving(press, tmp_path, caplog):
+    """`nlips calibrate` needs every result: with wait=True a press another process is solving is waited
+    for, then its result reused (made with the same settings) instead of being skipped unsolved."""
+    import threading
+    import time
+
+    from nlipscalib.core.claims import claim
+
+    solve_folder(press, options=FAST, figures=False)
+    finished = tmp_path / "finished"
+    (press / "nlips").rename(finished)
+    holding, done = threading.Event(), threading.Event()
+
+    def other_process():
+        with claim(press / "nlips"):  # a claim is per process and not re-entrant: this thread stands for one
+            holding.set()
+            time.sleep(1.0)
+            finished.rename(press / "nlips")  # it publishes its result, then releases the claim
+        done.set()
+
+    thread = threading.Thread(target=other_process)
+    thread.start()
+    holding.wait()
+    assert solve_presses([press], options=FAST, progress=False, figures=False) == {"press": "skipped"}
+    assert not (press / "nlips").exists()  # skipped without a result: what calibrate could not use
+    caplog.set_level(logging.INFO)
+    assert solve_presses([press], options=FAST, progress=False, figures=False, wait=True) == {"press": "skipped"}
+    assert done.is_set() and "waiting for it" in caplog.text and "identical result exists" in caplog.text
+    load_reconstruction(press / "nlips")
+    thread.join()
+
+
+def test_a_batch_re_solves_a_result_damaged_inside(press_set, tmp_path, caplog):
+    """A batch reuses results without loading them (nlips solve, nlips calibrate): still, damage inside
+    result.npz is found and the press re-solved, not skipped for `nlips calibrate` to fail on."""
+    from tests.core.test_reconstruction import _spoil_deflated_member
+
+    root = tmp_path / "set"
+    shutil.copytree(press_set, root)
+    folders = sorted(root.iterdir())
+    solve_presses(folders, options=FAST, progress=False, figures=False)
+    _spoil_deflated_member(root / "b_cube" / "nlips" / "result.npz", "mask.npy")
+    caplog.set_level(logging.WARNING)
+    statuses = solve_presses(folders, options=FAST, progress=False, figures=False)
+    assert statuses == {"a_sphere": "skipped", "b_cube": "solved", "c_sphere_deep": "skipped"}
+    assert "b_cube/nlips/result.npz: damaged" in caplog.text
+    load_reconstruction(root / "b_cube" / "nlips")
+
+
+def test_a_killed_worker_fails_the_unfinished_presses_in_one_line_each(press_set, tmp_path):
+    """The out-of-memory killer (or kill -9) ends one worker: no traceback; the presses not finished are
+    named as such, the other worker releases its claim, and the next run takes over the dead one's."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    root = tmp_path / "set"
+    shutil.copytree(press_set, root)
+    command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    argv = [sys.executable, "-c", command, "--no-progress", "solve", str(root), "--workers", "2", "--no-figures"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (claims := list(root.glob("*/.claim-nlips"))) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        victim = claims[0].parent.name
+        with contextlib.suppress(ValueError, OSError, ProcessLookupError):  # it may have finished meanwhile
+            os.kill(json.loads(claims[0].read_text())["pid"], signal.SIGKILL)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert "Traceback" not in err, err
+    if proc.returncode == 0:  # the press was finished before the signal arrived: nothing to check
+        return
+    assert proc.returncode == 1 and f"{victim}: failed: not solved, a solver process was killed" in out, out
+    others = [p for p in root.rglob(".claim-*") if p.parent.name != victim]
+    assert not others and not list(root.rglob(".tmp-*"))
+    statuses = solve_presses(sorted(root.iterdir()), progress=False, figures=False, options=FAST)
+    assert "failed" not in " ".join(statuses.values()) and not list(root.rglob(".claim-*"))

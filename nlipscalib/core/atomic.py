@@ -26,12 +26,14 @@ TMP_PREFIX = ".tmp-"
 """Prefix of in-progress files and folders; anything starting with it is a write in progress or interrupted."""
 OWNER_SEP = "~"
 """Separates the item name, host and pid in a temporary name (hostnames never contain it)."""
+SWAP_ATTEMPTS = 20
+"""Tries to put an overwriting folder in place while other processes keep publishing theirs."""
 STALE_S = 600.0
 """Age (s) after which a temporary entry from another machine, with no live claim, counts as abandoned."""
 
 
 _IN_PROGRESS: set[Path] = set()
-"""Temporary folders this process is filling now."""
+"""Temporary folders and files this process is filling now."""
 
 
 def _umask() -> int:
@@ -88,12 +90,30 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
 def write_with(path: str | Path, writer) -> Path:
     """Atomically write what ``writer(f)`` writes to the binary file ``f`` (e.g. ``pickle.dump(value, f)``:
     no copy of a large result in memory first) to ``path`` (temp file in the same folder, then rename)."""
+
+    def write_file(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
+            writer(f)
+
+    return write_by_name(path, write_file)
+
+
+def write_by_name(path: str | Path, write) -> Path:
+    """Atomically write the file that ``write(tmp)`` creates at the path ``tmp`` it is given (for writers
+    that open the file themselves, e.g. ``imageio.save_npz``); then rename it to ``path``.
+
+    The temporary name carries this process (``.tmp-NAME~host~pid~random``), so concurrent writers of one
+    file never write into the same temporary, and a killed writer's leftover is recognised and removed by
+    :func:`clean_interrupted`.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(path.name), dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    _IN_PROGRESS.add(tmp)
     try:
-        with os.fdopen(fd, "wb") as f:
-            writer(f)
+        write(tmp)
         os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
     except BaseException as exc:
@@ -101,6 +121,8 @@ def write_with(path: str | Path, writer) -> Path:
             os.unlink(tmp)
         _raise_with_path(exc, path)
         raise
+    finally:
+        _IN_PROGRESS.discard(tmp)
     return path
 
 
@@ -145,7 +167,7 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
     try:
         yield tmp
         os.chmod(tmp, DIR_MODE)
-        if overwrite and final.exists():
+        if overwrite:
             _swap_in(tmp, final)
         else:
             _rename_no_replace(tmp, final)
@@ -158,9 +180,13 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
 
 
 def remove_in_progress() -> None:
-    """Remove this process's unfinished temporary folders (for a signal handler about to exit)."""
+    """Remove this process's unfinished temporary folders and files (for a signal handler about to exit)."""
     for tmp in list(_IN_PROGRESS):
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp.is_dir():
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
     _IN_PROGRESS.clear()
 
 
@@ -188,6 +214,11 @@ def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | 
         if p.suffix == "" and holder(target) is None:
             _remove_stale_claim(p)
             gone.append(p)
+    siblings = [CLAIM_PREFIX + ("*" if item is None else glob.escape(item)) + ".*", CLAIM_PREFIX + "probe.*"]
+    for p in {p for pattern in siblings for p in folder.glob(pattern)}:
+        if _abandoned_claim_sibling(p, now, stale_s):
+            p.unlink(missing_ok=True)
+            gone.append(p)
     return gone
 
 
@@ -213,10 +244,32 @@ def _rename_no_replace(tmp: Path, final: Path) -> None:
 
 
 def _swap_in(tmp: Path, final: Path) -> None:
-    old = final.with_name(tmp_prefix(final.name) + "old-" + secrets.token_hex(4))
-    os.replace(final, old)
-    os.replace(tmp, final)
-    shutil.rmtree(old, ignore_errors=True)
+    """Put the folder ``tmp`` in place of ``final``, whatever is there (``atomic_dir(overwrite=True)``).
+
+    rename(2) replaces only an empty folder, so a complete ``final`` is first moved aside (under this
+    process's temporary name, removed afterwards). Other processes may publish ``final`` at the same
+    time (two ``nlips infer`` runs on one press): the first rename failed when another process had just
+    moved the folder aside, the second when another had published its own between our two renames,
+    and the folder moved aside was then left behind. Now a folder already moved aside is no error, one
+    published in between is moved aside in turn, and the swap tried again: the last writer wins, and
+    every moment shows a complete folder or, briefly, none.
+    """
+    for _ in range(SWAP_ATTEMPTS):
+        old = final.with_name(tmp_prefix(final.name) + "old-" + secrets.token_hex(4))
+        try:
+            os.rename(final, old)
+        except FileNotFoundError:
+            old = None
+        try:
+            os.rename(tmp, final)
+            return
+        except OSError as exc:
+            if exc.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+        finally:
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+    raise FileExistsError(errno.EEXIST, "replaced by other processes again and again", str(final))
 
 
 def _abandoned(p: Path, now: float, stale_s: float) -> bool:
@@ -227,6 +280,31 @@ def _abandoned(p: Path, now: float, stale_s: float) -> bool:
             return not pid_alive(pid)
         if holder(p.with_name(item)) is not None:
             return False
+    try:
+        return now - p.stat().st_mtime > stale_s
+    except FileNotFoundError:
+        return False
+
+
+def _abandoned_claim_sibling(p: Path, now: float, stale_s: float) -> bool:
+    """Whether a short-lived file of core.claims was left by a process killed while it existed: the owner's
+    JSON written before linking it as the claim (``.claim-NAME.TOKEN``), a claim moved aside while being
+    taken over (``.claim-NAME.stale.HEX``), or a clock probe (``.claim-probe.HOST.PID.HEX``). Each lives
+    for microseconds, so one that its owner did not remove is abandoned once the owner is gone (or, from
+    another machine, after ``stale_s`` without change)."""
+    from .claims import _read_owner
+
+    host, pid = None, None
+    if p.name.startswith(CLAIM_PREFIX + "probe."):
+        parts = p.name[len(CLAIM_PREFIX + "probe.") :].rsplit(".", 2)
+        if len(parts) == 3 and parts[1].isdigit():
+            host, pid = parts[0], int(parts[1])
+    else:
+        owner = _read_owner(p)
+        if owner is not None:
+            host, pid = owner.host, owner.pid
+    if host == HOST and pid is not None:
+        return not pid_alive(pid)
     try:
         return now - p.stat().st_mtime > stale_s
     except FileNotFoundError:

@@ -29,8 +29,8 @@ from ..cpus import usable_cores
 from ..errors import CaptureError
 from .atomic import TMP_PREFIX, atomic_dir, write_json
 from .camera import Camera
-from .formatfile import read_format_json
-from .imageio import read_npz, read_png16, save_npz, write_png16
+from .formatfile import read_arrays, read_format_json
+from .imageio import read_png16, save_npz, write_png16
 from .leds import Led
 
 FORMAT_NAME = "nlipscalib.press"
@@ -390,7 +390,7 @@ def _check_subset(subset, n: int, folder: Path) -> list[int]:
 
 
 def _load_npz(path: Path, keys: dict) -> dict:
-    arrays = read_npz(path, keys, unreadable="not a readable .npz file")
+    arrays = read_arrays(path, keys, unreadable="not a readable .npz file")
     for k in keys:
         if arrays[k].dtype.kind == "f" and k != "depth" and k != "points" and not np.all(np.isfinite(arrays[k])):
             # normals are finite everywhere by convention (zero where invalid); depth/points use NaN

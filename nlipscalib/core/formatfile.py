@@ -1,4 +1,5 @@
-"""Reading the JSON header every workbench format carries (``format``, ``format_version``), checked once."""
+"""Reading the workbench's files: the JSON header every format carries (``format``, ``format_version``),
+checked once, and the .npz archives of arrays, with every problem one error naming the file."""
 
 from __future__ import annotations
 
@@ -39,3 +40,27 @@ def read_format_json(path: str | Path, name: str, version: int, *, required=(), 
         if key not in data:
             raise CaptureError(f"{path}: missing key '{key}'")
     return data
+
+
+def read_arrays(path: str | Path, keys=(), unreadable: str = "damaged or truncated .npz") -> dict:
+    """Every array of a .npz file (:func:`nlipscalib.core.imageio.read_npz`), any damage one CaptureError.
+
+    ``read_npz`` names a missing file, a truncated archive (no zip directory) and a bad CRC; a flipped
+    byte inside a deflated array instead fails in zlib's decompressor (``zlib.error``, which is not an
+    OSError), and a damaged array header in numpy's parser (struct or Unicode errors): those are named
+    here alike, so a reading command prints one line, and a command that makes the file can make it again.
+
+    Raises
+    ------
+    CaptureError -- missing, damaged or truncated, or lacking one of ``keys``.
+    """
+    import struct
+    import zlib
+
+    from .imageio import read_npz
+
+    try:
+        return read_npz(path, keys, unreadable=unreadable)
+    except (zlib.error, struct.error, UnicodeDecodeError, NotImplementedError, OverflowError, MemoryError) as exc:
+        what = "compressed data damaged" if isinstance(exc, zlib.error) else type(exc).__name__
+        raise CaptureError(f"{path}: {unreadable} ({what}: {exc})") from None

@@ -18,9 +18,14 @@ A shard holds, for N samples of one press:
 - ``contact`` (N,) bool: the pixel differs from the undeformed reference frame
 - ``source`` (N,) uint8: 0 = NLiPs label, 1 = reference-surface label
 
+and, written by :func:`build_dataset`, ``entry`` (uint8): the press's index.json entry as UTF-8 JSON,
+with the ``stamp`` of the reconstruction and options it was made from.
+
 Shards load one press at a time (:meth:`CalibrationDataset.load`), so training holds the samples,
-never the 12 LED images of each press. Every file is written atomically; an interrupted build
-resumes with the presses whose shard is missing or was made from another reconstruction.
+never the 12 LED images of each press. Every file is written atomically (owner-tagged temporary
+names, core.atomic), so several builds may share a folder; an interrupted build resumes: a shard
+whose recorded stamp matches is kept (index.json is written last, so the shards carry their own
+entries), a missing, damaged or outdated one is made again.
 """
 
 from __future__ import annotations
@@ -28,19 +33,21 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
+import time
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
-from ..core.atomic import write_json
-from ..core.formatfile import read_format_json
-from ..core.imageio import read_npz, save_npz
+from ..core.atomic import write_by_name, write_json
+from ..core.formatfile import read_arrays, read_format_json
+from ..core.imageio import save_npz
 from ..errors import CaptureError, ConfigError
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
 from .prefilter import Prefilter
-from .sensor import check_sensor, sensor_of
+from .sensor import check_sensor, check_sensor_record, sensor_of
 
 FORMAT_NAME = "nlipscalib.calibration"
 FORMAT_VERSION = 1
@@ -50,6 +57,14 @@ SHARD_DIR = "samples"
 SHARD_KEYS = {"pixel": 2, "rgb": 2, "normal": 2, "true_normal": 2, "contact": 1, "source": 1}
 SENSOR_KEYS = ("tricolor", "dark", "depth", "normals", "valid")
 SOURCE_NLIPS, SOURCE_REFERENCE = 0, 1
+ENTRY_KEY = "entry"
+"""Shard array holding the press's index entry (UTF-8 JSON bytes), so a build resumes without index.json."""
+CLAIM_STALE_S = 60.0
+"""A claim on PRESS/<result_dir> without heartbeat for this long is abandoned (as pipeline.CLAIM_STALE_S)."""
+CLAIM_POLL_S = 0.5
+"""How often a build checks whether another process has finished solving a press it needs."""
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -181,12 +196,12 @@ def press_description(press) -> dict:
 
 
 def write_shard(path: Path, samples: dict) -> None:
-    """Write arrays (one press's samples, or the reference) as .npz atomically (temporary name, then rename)."""
-    from ..core.atomic import TMP_PREFIX
+    """Write arrays (one press's samples, or the reference) as .npz atomically (temporary name, then rename).
 
-    tmp = path.with_name(TMP_PREFIX + path.name)
-    save_npz(tmp, samples)
-    tmp.replace(path)
+    The temporary name carries this process (core.atomic.write_by_name): two builds writing the same
+    shard never write into one temporary file, and a killed build's leftover is cleaned by the next.
+    """
+    write_by_name(path, lambda tmp: save_npz(tmp, samples))
 
 
 def write_index(folder: Path, sensor: dict, cfg: SamplingConfig, entries: list[dict], reference: str) -> Path:
@@ -228,12 +243,16 @@ def build_dataset(
     Path of the dataset folder. Raises CaptureError naming the press when one is unsolved or from
     another sensor.
     """
+    from ..core.atomic import clean_interrupted
     from ..core.capture import load_press
     from ..core.reconstruction import load_reconstruction
 
     cfg = cfg or SamplingConfig()
     out = Path(out)
     (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
+    for folder in (out, out / SHARD_DIR):  # temporaries of killed builds (only those whose owner is gone)
+        for gone in clean_interrupted(folder):
+            log.warning("%s: removed an interrupted write", gone)
     ref_press = load_press(reference_folder)
     check_min_leds(cfg, len(ref_press.leds), reference_folder)
     sensor = sensor_of(ref_press)
@@ -243,27 +262,28 @@ def build_dataset(
     entries = []
     for folder in track(list(press_folders), enabled=progress, desc="samples", unit="press"):
         folder = Path(folder)
+        _wait_for_solver(folder / result_dir)
         stamp = _result_stamp(folder / result_dir, cfg)
         shard = out / SHARD_DIR / f"{folder.name}.npz"
-        if old.get(folder.name, {}).get("stamp") == stamp and shard.is_file():
-            entries.append(old[folder.name])  # resumed: made from the same reconstruction and options
+        kept = _kept_entry(shard, stamp, old.get(folder.name))
+        if kept is not None:
+            entries.append(kept)  # resumed: made from the same reconstruction and options
             continue
         press = load_press(folder)
         check_sensor(sensor, sensor_of(press), folder)
         rec = load_reconstruction(folder / result_dir, press.camera.shape)
         samples = press_samples(press, rec, ref, cfg)
-        write_shard(shard, samples)
-        entries.append(
-            {
-                "name": folder.name,
-                "folder": str(folder.resolve()),
-                "samples": int(len(samples["rgb"])),
-                "contact_samples": int(samples["contact"].sum()),
-                "has_truth": bool(press.ground_truth is not None),
-                "press": press_description(press),
-                "stamp": stamp,
-            }
-        )
+        entry = {
+            "name": folder.name,
+            "folder": str(folder.resolve()),
+            "samples": int(len(samples["rgb"])),
+            "contact_samples": int(samples["contact"].sum()),
+            "has_truth": bool(press.ground_truth is not None),
+            "press": press_description(press),
+            "stamp": stamp,
+        }
+        write_shard(shard, samples | {ENTRY_KEY: _entry_bytes(entry)})
+        entries.append(entry)
     write_index(out, sensor, cfg, entries, str(Path(reference_folder).resolve()))
     return out
 
@@ -293,7 +313,86 @@ def _old_entries(out: Path) -> dict:
         return {}
 
 
+def _entry_bytes(entry: dict) -> np.ndarray:
+    return np.frombuffer(json.dumps(entry, sort_keys=True).encode(), np.uint8)
+
+
+def _kept_entry(shard: Path, stamp: str, indexed: dict | None) -> dict | None:
+    """The index entry of ``shard`` when it is whole and was made with ``stamp``; None when it must be made.
+
+    The entry comes from the previous index.json, or, after a build that was interrupted before writing
+    it, from the shard itself (``entry``). A damaged shard (a disk fault, a hand edit) is made again
+    with a warning, as ``nlips solve`` re-computes a damaged result.
+    """
+    if not shard.is_file():
+        return None
+    try:
+        arrays = _checked_shard(shard)
+    except CaptureError as exc:
+        log.warning("%s; making it again", exc)
+        return None
+    entries = [indexed] if isinstance(indexed, dict) else []
+    if ENTRY_KEY in arrays:
+        try:
+            entries.append(json.loads(arrays[ENTRY_KEY].tobytes().decode()))
+        except (UnicodeDecodeError, ValueError):
+            pass
+    for entry in entries:
+        if isinstance(entry, dict) and entry.get("stamp") == stamp and entry.get("samples") == len(arrays["rgb"]):
+            return entry
+    return None
+
+
+def _checked_shard(path: Path) -> dict:
+    """The arrays of a shard, read in full (so a damaged deflated array shows) and checked for consistency."""
+    arrays = read_arrays(path, SHARD_KEYS)
+    n = len(arrays["rgb"])
+    for key, ndim in SHARD_KEYS.items():
+        a = arrays[key]
+        if a.ndim != ndim or len(a) != n or (ndim == 2 and a.shape[1] != (2 if key == "pixel" else 3)):
+            raise CaptureError(f"{path}: array '{key}' has shape {a.shape}, inconsistent with {n} samples")
+    return arrays
+
+
+def _wait_for_solver(result: Path) -> None:
+    """Wait while another live process holds the claim on ``result`` (it is solving that press).
+
+    Two ``nlips calibrate`` runs on one folder split the solving: each skips the presses the other is
+    solving (pipeline.solve_presses). The samples need every result, so a build waits here for the other
+    run to publish it (or to die: its claim then goes stale and the wait ends; a press still unsolved is
+    then reported by :func:`_result_stamp`).
+    """
+    from ..core.claims import holder
+
+    said = False
+    while holder(result, stale_s=CLAIM_STALE_S) is not None:
+        if not said:
+            log.info("%s: being solved by another process; waiting for its result", result.parent)
+            said = True
+        time.sleep(CLAIM_POLL_S)
+
+
 # ---------------------------------------------------------------------- reading
+def _checked_entries(presses, path: Path) -> list[dict]:
+    """index.json's ``presses``, checked: a list of entries, each with a plain file ``name`` and a ``samples``
+    count (what reading the shards relies on); a hand-edited index is named here, not in a traceback."""
+    if not isinstance(presses, list):
+        raise CaptureError(f"{path}: 'presses' must be a list of press entries, got {type(presses).__name__}")
+    names = set()
+    for i, entry in enumerate(presses):
+        if not isinstance(entry, dict):
+            raise CaptureError(f"{path}: presses[{i}] must be a mapping, got {type(entry).__name__}")
+        name, samples = entry.get("name"), entry.get("samples")
+        if not isinstance(name, str) or not name or Path(name).name != name or name in (".", ".."):
+            raise CaptureError(f"{path}: presses[{i}].name must be a press folder's name, got {name!r}")
+        if name in names:
+            raise CaptureError(f"{path}: press {name!r} is listed twice")
+        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 0:
+            raise CaptureError(f"{path}: presses[{i}] ({name}): 'samples' must be a count, got {samples!r}")
+        names.add(name)
+    return presses
+
+
 class CalibrationDataset:
     """A calibration dataset folder, validated on open; shards load on demand."""
 
@@ -308,8 +407,8 @@ class CalibrationDataset:
             missing_hint=f"{self.folder} is not a calibration dataset (run `nlips calibrate`)",
         )
         self.index = index
-        self.sensor: dict = index["sensor"]
-        self.entries: list[dict] = index["presses"]
+        self.sensor: dict = check_sensor_record(index["sensor"], path)
+        self.entries: list[dict] = _checked_entries(index["presses"], path)
 
     @property
     def smoothing_px(self) -> float:
@@ -329,15 +428,11 @@ class CalibrationDataset:
     def load(self, name: str) -> dict:
         """The samples of one press (module docstring), validated."""
         path = self.folder / SHARD_DIR / f"{name}.npz"
-        arrays = read_npz(path, SHARD_KEYS)
+        arrays = _checked_shard(path)
         n = len(arrays["rgb"])
-        for key, ndim in SHARD_KEYS.items():
-            a = arrays[key]
-            if a.ndim != ndim or len(a) != n or (ndim == 2 and a.shape[1] != (2 if key == "pixel" else 3)):
-                raise CaptureError(f"{path}: array '{key}' has shape {a.shape}, inconsistent with {n} samples")
         if n != self.entry(name)["samples"]:
             raise CaptureError(f"{path}: {n} samples, index.json says {self.entry(name)['samples']}")
-        return arrays
+        return {k: arrays[k] for k in SHARD_KEYS}
 
     def arrays(self, names=None) -> dict:
         """Samples of several presses concatenated, with ``press`` (N,) int16 = position in ``names``."""
@@ -355,7 +450,7 @@ class CalibrationDataset:
     def reference(self) -> dict:
         """The undeformed reference arrays (:func:`reference_arrays`)."""
         path = self.folder / SENSOR_FILE
-        arrays = read_npz(path, dict.fromkeys(SENSOR_KEYS, 0))
+        arrays = read_arrays(path, dict.fromkeys(SENSOR_KEYS, 0))
         cam = self.sensor["camera"]
         shape = (cam["height"], cam["width"])
         if arrays["depth"].shape != shape or arrays["tricolor"].shape != shape + (3,):

@@ -195,14 +195,13 @@ class LoadedModel:
 
 def load_model(path) -> LoadedModel:
     """Load and validate a model file; every problem is one CaptureError naming the file."""
+    from .sensor import check_sensor_record
+
     torch = _torch()
     path = Path(path)
     if not path.is_file():
         raise CaptureError(f"{path}: model file is missing")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many kinds for a damaged file
-        raise CaptureError(f"{path}: not a readable NLiPsNet model ({type(exc).__name__})") from None
+    payload = read_torch_file(path, "an NLiPsNet model file")
     if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
         raise CaptureError(f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r})")
     if payload.get("format_version") != MODEL_VERSION:
@@ -210,11 +209,60 @@ def load_model(path) -> LoadedModel:
     for key in ("hidden", "dropout", "state_dict", "sensor", "reference", "info"):
         if key not in payload:
             raise CaptureError(f"{path}: model file lacks '{key}'")
-    cam = payload["sensor"]["camera"]
-    net = build_net(payload["hidden"], payload["dropout"], cam["width"], cam["height"])
+    # a hand-edited or foreign file: each field named here, not as a TypeError deep inside inference
+    cam = check_sensor_record(payload["sensor"], path)["camera"]
+    hidden, dropout = payload["hidden"], payload["dropout"]
+    if not isinstance(hidden, (list, tuple)) or not hidden or any(type(h) is not int or h < 1 for h in hidden):
+        raise CaptureError(f"{path}: 'hidden' must list positive layer widths, got {hidden!r}")
+    if isinstance(dropout, bool) or not isinstance(dropout, (int, float)) or not 0 <= dropout < 1:
+        raise CaptureError(f"{path}: 'dropout' must be in [0, 1), got {dropout!r}")
+    reference = payload["reference"]
+    if not isinstance(reference, dict) or not all(isinstance(v, torch.Tensor) for v in reference.values()):
+        raise CaptureError(f"{path}: 'reference' must map names to arrays")
+    if not isinstance(payload["info"], dict):
+        raise CaptureError(f"{path}: 'info' must be a mapping, got {type(payload['info']).__name__}")
+    if not isinstance(payload.get("smoothing_px", 0.0), (int, float)):
+        raise CaptureError(f"{path}: 'smoothing_px' must be a number, got {payload['smoothing_px']!r}")
+    net = build_net(hidden, float(dropout), cam["width"], cam["height"])
     try:
         net.load_state_dict(payload["state_dict"])
-    except (RuntimeError, KeyError) as exc:
+    except (RuntimeError, KeyError, TypeError, AttributeError) as exc:
         raise CaptureError(f"{path}: weights do not fit the architecture ({str(exc).splitlines()[0]})") from None
     net.eval()
     return LoadedModel(path, net, payload)
+
+
+def read_torch_file(path, what: str):
+    """``torch.load(path, weights_only=True)`` on the CPU; a damaged file is one CaptureError saying how.
+
+    ``what`` names the file the caller expects, with its article ("an NLiPsNet model file").
+
+    torch's own messages for these cases run to several lines and, for a file that is not a checkpoint
+    at all, advise loading it with ``weights_only=False`` (running code from the file): never the advice
+    here. An empty file, one that is not a ``torch.save`` archive (a zip file), and one cut short (the zip
+    directory at its end missing: an interrupted copy) are told apart from its bytes.
+    """
+    import zipfile
+
+    torch = _torch()
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise CaptureError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if size == 0:
+        raise CaptureError(f"{path}: empty, not {what} (an interrupted copy?)")
+    if head != b"PK\x03\x04":
+        raise CaptureError(f"{path}: not {what} (not a torch.save archive)")
+    if not zipfile.is_zipfile(path):
+        raise CaptureError(f"{path}: truncated or damaged, not usable as {what} (the archive's directory is missing)")
+    try:
+        return torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many kinds (RuntimeError, UnpicklingError, EOFError ...)
+        first = (str(exc).strip().splitlines() or [""])[0]
+        if "weights_only" in first or "Weights only load failed" in first:
+            first = "it holds objects other than tensors and plain data"
+        detail = f"{type(exc).__name__}: {first[:160]}" if first else type(exc).__name__
+        raise CaptureError(f"{path}: damaged, not usable as {what} ({detail})") from None

@@ -61,3 +61,45 @@ def check_sensor(expected: dict, actual: dict, where) -> None:
     why = sensor_mismatch(expected, actual)
     if why:
         raise CaptureError(f"{where}: captured with another sensor than the model was calibrated for ({why})")
+
+
+def check_sensor_record(sensor, where) -> dict:
+    """``sensor`` as read back from a file (index.json, a model file), checked to be a sensor description.
+
+    Such files are written by this package, but a hand edit or another tool's file would otherwise fail
+    later, deep inside inference, as a KeyError or TypeError. Returns ``sensor``.
+
+    Raises
+    ------
+    CaptureError naming ``where`` and what is wrong.
+    """
+    import numpy as np
+
+    from ..core.camera import Camera
+    from ..errors import ConfigError
+
+    try:
+        if not isinstance(sensor, dict):
+            raise TypeError(f"expected a mapping, got {type(sensor).__name__}")
+        camera = sensor["camera"]
+        if not isinstance(camera, dict):
+            raise TypeError(f"camera: expected a mapping, got {type(camera).__name__}")
+        Camera.from_dict(camera)
+        for key in ("width", "height"):
+            if isinstance(camera[key], bool) or not isinstance(camera[key], int) or camera[key] < 1:
+                raise ValueError(f"camera.{key} must be a whole number >= 1, got {camera[key]!r}")
+        n = sensor["n_leds"]
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ValueError(f"n_leds must be a whole number >= 1, got {n!r}")
+        if not isinstance(sensor["tricolor_groups"], list) or len(sensor["tricolor_groups"]) != n:
+            raise ValueError(f"tricolor_groups must list one group per LED ({n})")
+        float(sensor["black_level"]), float(sensor["white_level"])
+        for key in ("led_positions", "led_directions"):  # absent in files made before they were recorded
+            if key in sensor and np.asarray(sensor[key], dtype=float).shape != (n, 3):
+                raise ValueError(f"{key} must be {n} (x, y, z) triples")
+        sensor_mismatch(sensor, sensor)  # every field a comparison with a capture reads
+    except KeyError as exc:
+        raise CaptureError(f"{where}: 'sensor' is not a sensor description (missing key {exc})") from None
+    except (TypeError, ValueError, ConfigError, CaptureError) as exc:
+        raise CaptureError(f"{where}: 'sensor' is not a sensor description ({exc})") from None
+    return sensor

@@ -1,7 +1,9 @@
 """Training NLiPsNet on a calibration dataset: split by press, cosine loss, early stopping on validation AAE.
 
 Resumable: after every epoch the state (weights, optimiser, history, best weights) goes into
-``checkpoint.pt`` beside the model; a run with the same options continues from it.
+``MODEL.checkpoint.pt`` beside the model; a run with the same options on the same training and
+validation samples continues from it. Any other run (other options, another dataset, other presses
+held out for validation or excluded) trains afresh, saying why.
 """
 
 from __future__ import annotations
@@ -163,6 +165,7 @@ def train(
     from ..progress import progress_bar
 
     out = Path(out)
+    _clean_interrupted_writes(out)
     unknown = sorted(set(exclude) - set(dataset.names))
     if unknown:
         raise ConfigError(f"{dataset.folder}: excluded presses {unknown} are not in the dataset")
@@ -183,7 +186,8 @@ def train(
     set_colour_normalisation(net, x_tr[:, 2:])
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     sched = _scheduler(opt, cfg)
-    state = _resume(out, cfg, net, opt, sched)
+    data_key = _data_key(x_tr, y_tr, x_va, y_va, c_va)
+    state = _resume(out, cfg, data_key, net, opt, sched)
     history, best, best_state = state["history"], state["best"], state["best_state"]
     xt, yt = torch.from_numpy(x_tr), torch.from_numpy(y_tr)
     xv, yv, cv = torch.from_numpy(x_va), torch.from_numpy(y_va), torch.from_numpy(c_va)
@@ -213,7 +217,7 @@ def train(
         if val_aae < best["aae"]:
             best = {"aae": val_aae, "epoch": epoch}
             best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
-        _save_checkpoint(out, cfg, net, opt, sched, history, best, best_state)
+        _save_checkpoint(out, cfg, data_key, net, opt, sched, history, best, best_state)
         bar.update(1)
         bar.set_postfix(val_aae=f"{val_aae:.2f}")
         stop_early = epoch - best["epoch"] >= cfg.patience
@@ -299,7 +303,38 @@ def _config_key(cfg: TrainConfig) -> str:
     return hashlib.sha1(repr(options).encode()).hexdigest()[:16]
 
 
-def _save_checkpoint(out: Path, cfg, net, opt, sched, history, best, best_state) -> None:
+def _data_key(*arrays) -> str:
+    """What a checkpoint's samples must match: the training and validation arrays themselves (inputs, labels,
+    contact flags), so another dataset, a rebuilt shard, other validation presses or other excluded presses
+    all count as other data. Hashing them costs ~0.03 s per million samples, against seconds per epoch."""
+    digest = hashlib.sha1()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        digest.update(f"{a.dtype.str}{a.shape}".encode())
+        digest.update(memoryview(a).cast("B"))
+    return digest.hexdigest()[:16]
+
+
+def checkpoint_path(out: Path) -> Path:
+    """``MODEL.checkpoint.pt`` beside the model file ``out``."""
+    return out.with_name(out.stem + "." + CHECKPOINT_FILE)
+
+
+def _clean_interrupted_writes(out: Path) -> None:
+    """Remove temporaries of killed writes of the model, its checkpoint, ONNX file and curve (owner gone only).
+
+    Every file here is written atomically under an owner-tagged temporary name (core.atomic); a SIGKILL
+    in the middle of a write leaves that temporary, which no later write would otherwise remove.
+    """
+    from ..core.atomic import clean_interrupted
+
+    names = (out.name, checkpoint_path(out).name, out.with_suffix(".onnx").name, out.stem + "_curve.png")
+    for name in names:
+        for gone in clean_interrupted(out.parent, item=name):
+            log.warning("%s: removed an interrupted write", gone)
+
+
+def _save_checkpoint(out: Path, cfg, data_key: str, net, opt, sched, history, best, best_state) -> None:
     import torch
 
     from ..core.atomic import write_bytes
@@ -308,6 +343,7 @@ def _save_checkpoint(out: Path, cfg, net, opt, sched, history, best, best_state)
     torch.save(
         {
             "key": _config_key(cfg),
+            "data_key": data_key,
             "net": net.state_dict(),
             "opt": opt.state_dict(),
             "sched": sched.state_dict(),
@@ -317,26 +353,57 @@ def _save_checkpoint(out: Path, cfg, net, opt, sched, history, best, best_state)
         },
         buf,
     )
-    write_bytes(out.with_name(out.stem + "." + CHECKPOINT_FILE), buf.getvalue())
+    write_bytes(checkpoint_path(out), buf.getvalue())
 
 
-def _resume(out: Path, cfg, net, opt, sched) -> dict:
-    """Continue from ``MODEL.checkpoint.pt`` when it was made with the same options."""
-    import torch
+def _resume(out: Path, cfg, data_key: str, net, opt, sched) -> dict:
+    """Continue from ``MODEL.checkpoint.pt`` when it was made with the same options on the same samples.
+
+    A checkpoint of another run is not resumed (the log says which differs): resuming one trained on other
+    presses would report its validation AAE as if measured on this run's validation presses, and one that
+    had reached its epoch limit would be saved as the new model without a single epoch on the new data.
+    A damaged checkpoint only costs the progress it held (a warning, then training from scratch).
+    """
+    import copy
+
+    from .model import read_torch_file
 
     fresh = {"history": [], "best": {"aae": float("inf"), "epoch": -1}, "best_state": None}
-    path = out.with_name(out.stem + "." + CHECKPOINT_FILE)
+    path = checkpoint_path(out)
     if not path.is_file():
         return fresh
+    initial = copy.deepcopy((net.state_dict(), opt.state_dict(), sched.state_dict()))
     try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        ck = read_torch_file(path, "a training checkpoint")
+        if not isinstance(ck, dict):
+            raise ValueError(f"a {type(ck).__name__}, not a checkpoint")
         if ck.get("key") != _config_key(cfg):
+            log.info("%s: made with other training options; training from scratch", path)
             return fresh
+        if ck.get("data_key") != data_key:
+            log.info(
+                "%s: made on other samples (another dataset, other validation or excluded presses); "
+                "training from scratch",
+                path,
+            )
+            return fresh
+        history, best, best_state = ck["history"], ck["best"], ck["best_state"]
+        if not isinstance(history, list) or not history or not isinstance(best, dict) or best_state is None:
+            raise ValueError("no finished epoch recorded")
+        float(best["aae"]), int(best["epoch"])
+        build_net(cfg.hidden, cfg.dropout).load_state_dict(best_state)  # the weights it would save must fit
         net.load_state_dict(ck["net"])
         opt.load_state_dict(ck["opt"])
         sched.load_state_dict(ck["sched"])
-    except Exception as exc:  # a damaged checkpoint only costs the progress it held
-        log.warning("%s: not resumable (%s); training from scratch", path, type(exc).__name__)
+    except Exception as exc:  # torch and the checks above raise many kinds; every one means "not usable"
+        if isinstance(exc, KeyError):
+            why = f"it lacks {exc}"
+        else:
+            why = str(exc).removeprefix(f"{path}: ") or type(exc).__name__
+        log.warning("%s: not resumable (%s); training from scratch", path, why)
+        net.load_state_dict(initial[0])  # nothing half-loaded carries over into the fresh run
+        opt.load_state_dict(initial[1])
+        sched.load_state_dict(initial[2])
         return fresh
-    log.info("%s: resuming after epoch %d", path, len(ck["history"]))
-    return {"history": ck["history"], "best": ck["best"], "best_state": ck["best_state"]}
+    log.info("%s: resuming after epoch %d", path, len(history))
+    return {"history": history, "best": best, "best_state": best_state}

@@ -111,3 +111,78 @@ def test_error_messages_name_the_entry_the_user_asked_for_not_its_hidden_sibling
     assert describe_os_error(denied).startswith(f"{out}: Permission denied")
     full = OSError(errno.ENOSPC, "No space left on device")  # found while writing: no path in the error
     assert describe_os_error(full, where=tmp_path / "press").startswith(f"{tmp_path / 'press'}: No space left")
+
+
+def test_a_file_written_by_name_is_atomic_owner_tagged_and_removed_on_termination(tmp_path):
+    from nlipscalib.core.atomic import _IN_PROGRESS, remove_in_progress, write_by_name
+
+    target = tmp_path / "samples" / "press_0001.npz"
+    seen = []
+
+    def writer(tmp):
+        seen.append(tmp)
+        assert tmp.name.startswith(tmp_prefix(target.name))  # this process's name: never another writer's file
+        assert tmp in _IN_PROGRESS and not target.exists()
+        tmp.write_bytes(b"whole")
+
+    write_by_name(target, writer)
+    assert target.read_bytes() == b"whole" and not seen[0].exists() and not _IN_PROGRESS
+
+    def killed(tmp):  # SIGTERM while writing: the handler removes what this process was filling
+        tmp.write_bytes(b"ha")
+        remove_in_progress()
+        assert not tmp.exists()
+        raise SystemExit(143)
+
+    with pytest.raises(SystemExit):
+        write_by_name(target, killed)
+    assert target.read_bytes() == b"whole" and sorted(p.name for p in target.parent.iterdir()) == [target.name]
+
+
+def test_clean_removes_the_short_lived_claim_files_of_killed_processes(tmp_path):
+    from nlipscalib.core.claims import HOST
+
+    def owner(pid):
+        return f'{{"host": "{HOST}", "pid": {pid}, "token": "0123456789abcdef"}}'
+
+    dead = _dead_pid()
+    killed = {  # a SIGKILL between creating and removing each of them
+        tmp_path / ".claim-nlips.0123456789abcdef": owner(dead),  # the owner's JSON, before the link
+        tmp_path / ".claim-nlips.stale.0123456789ab": owner(dead),  # moved aside during a takeover
+        tmp_path / f".claim-probe.{HOST}.{dead}.0a1b2c3d": "",  # the file-system clock probe
+    }
+    live = {
+        tmp_path / ".claim-other.fedcba9876543210": owner(os.getpid()),
+        tmp_path / f".claim-probe.{HOST}.{os.getpid()}.0a1b2c3d": "",
+        tmp_path / ".claim-probe.elsewhere.12.0a1b2c3d": "",  # another machine's, fresh
+    }
+    for path, text in (killed | live).items():
+        path.write_text(text)
+    assert sorted(clean_interrupted(tmp_path, item="nlips")) == sorted(killed)
+    assert all(p.exists() for p in live)
+
+
+def test_concurrent_overwrites_of_one_folder_all_succeed_and_leave_nothing_behind(tmp_path):
+    """Two `nlips infer` runs of one press publish PRESS/nlipsnet with overwrite at once: every write
+    succeeds (the last one wins), the folder is always whole, and no moved-aside copy is left."""
+    import threading
+
+    final, errors = tmp_path / "nlipsnet", []
+
+    def writer(k):
+        for i in range(60):
+            try:
+                with atomic_dir(final, overwrite=True) as tmp:
+                    (tmp / "result.npz").write_text(f"{k} {i}")
+                    (tmp / "report.json").write_text("{}")
+            except Exception as exc:  # before: ENOTEMPTY, FileNotFoundError, "already exists"
+                errors.append(exc)
+
+    threads = [threading.Thread(target=writer, args=(k,)) for k in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    assert [p.name for p in tmp_path.iterdir()] == ["nlipsnet"]
+    assert sorted(p.name for p in final.iterdir()) == ["report.json", "result.npz"]

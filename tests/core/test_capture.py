@@ -116,6 +116,7 @@ def test_interrupted_folder_write_leaves_nothing(tmp_path):
         (lambda f: (f / "gt.npz").write_bytes(b"not npz"), "gt.npz: not a readable"),
         (lambda f: (f / "led_03.png").write_bytes((f / "led_03.png").read_bytes()[:-200]), "led_03.png: truncated PNG"),
         (lambda f: (f / "reference.npz").write_bytes(b"garbage"), "reference.npz: not a readable"),
+        (lambda f: _spoil_deflated(f / "gt.npz", "normals.npy"), "gt.npz: not a readable .npz file (compressed"),
     ],
 )
 def test_broken_folders_are_reported_precisely(tmp_path, breakage, message, capfd):
@@ -125,6 +126,12 @@ def test_broken_folders_are_reported_precisely(tmp_path, breakage, message, capf
         load_press(folder)
     assert "allow_pickle" not in str(caught.value)  # numpy's advice for a pickle, not for a broken file
     assert capfd.readouterr().err == ""  # nothing printed by the decoders (libpng) besides the one error
+
+
+def _spoil_deflated(path, member):
+    from tests.core.test_reconstruction import _spoil_deflated_member
+
+    _spoil_deflated_member(path, member)  # a flipped block inside an array: zlib fails, not the zip layer
 
 
 def test_nan_in_reference_normals_is_rejected(tmp_path):

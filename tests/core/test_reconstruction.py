@@ -68,3 +68,35 @@ def test_auto_compression_stores_dense_maps_and_deflates_sparse_ones(tmp_path):
     assert kinds == {"dense.npy": zipfile.ZIP_STORED, "roi.npy": zipfile.ZIP_DEFLATED, "mask.npy": zipfile.ZIP_DEFLATED}
     with np.load(path) as data:
         assert np.array_equal(data["dense"], dense) and np.array_equal(data["roi"], roi_only, equal_nan=True)
+
+
+def _spoil_deflated_member(path, member: str) -> None:
+    """Overwrite a deflated member's data with 0xFF: zlib then fails ("invalid block type"), not the zip layer."""
+    import zipfile
+
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo(member)
+        assert info.compress_type == zipfile.ZIP_DEFLATED
+    data = bytearray(path.read_bytes())
+    start = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra)  # past the local header
+    data[start : start + info.compress_size] = b"\xff" * info.compress_size
+    path.write_bytes(bytes(data))
+
+
+def test_a_damaged_deflated_array_is_named_not_a_zlib_traceback(tmp_path):
+    save_reconstruction(_rec(40, 50), tmp_path / "nlips")
+    _spoil_deflated_member(tmp_path / "nlips" / "result.npz", "mask.npy")
+    with pytest.raises(
+        CaptureError, match=r"result\.npz: damaged or truncated reconstruction \(compressed data damaged"
+    ):
+        load_reconstruction(tmp_path / "nlips")
+
+
+def test_verifying_finds_damage_the_zip_directory_does_not_show(tmp_path):
+    from nlipscalib.core.reconstruction import reconstruction_problem
+
+    save_reconstruction(_rec(40, 50), tmp_path / "nlips")
+    _spoil_deflated_member(tmp_path / "nlips" / "result.npz", "mask.npy")
+    assert reconstruction_problem(tmp_path / "nlips") is None  # the cheap check: every array is listed
+    problem = reconstruction_problem(tmp_path / "nlips", verify=True)
+    assert "result.npz: damaged" in problem and "mask" in problem

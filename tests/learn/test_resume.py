@@ -1,0 +1,204 @@
+"""Interrupted, concurrent and damaged calibration datasets, checkpoints and model files (exact-data presses,
+64x48, no rendering: a few seconds)."""
+
+import json
+import logging
+import shutil
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.core.atomic import TMP_PREFIX
+from nlipscalib.core.claims import HOST, claim
+from nlipscalib.errors import CaptureError
+from nlipscalib.learn import dataset as dataset_module
+from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
+from nlipscalib.learn.model import load_model
+from nlipscalib.learn.train import TrainConfig, checkpoint_path, train
+from nlipscalib.pipeline import solve_folder
+from nlipscalib.solver import SolverOptions
+from tests.core.test_atomic import _dead_pid
+from tests.core.test_reconstruction import _spoil_deflated_member
+from tests.solver import synth
+
+NAMES = ("a_sphere", "b_cube", "c_sphere_deep")
+TINY = TrainConfig(hidden=(8,), dropout=0.0, max_epochs=2, patience=5)
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory):
+    """The undeformed dome and three exact-data presses, solved with NLiPs."""
+    root = tmp_path_factory.mktemp("resume_presses")
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    for name, kind, depth in zip(NAMES, ("sphere", "cube", "sphere"), (1.5, 1.5, 2.0)):
+        synth.make_press(root / name, kind, depth=depth, size=(64, 48))
+        solve_folder(root / name, options=SolverOptions(max_iters=6), figures=False, progress=False)
+    return root
+
+
+@pytest.fixture
+def built(solved, tmp_path):
+    out = tmp_path / "calib"
+    build_dataset([solved / n for n in NAMES], solved / "reference", out, progress=False)
+    return out
+
+
+def _build(solved, out):
+    return build_dataset([solved / n for n in NAMES], solved / "reference", out, progress=False)
+
+
+def test_a_build_killed_before_its_index_resumes_from_the_shards(solved, built, monkeypatch):
+    index = json.loads((built / "index.json").read_text())
+    (built / "index.json").unlink()  # index.json is written last: a build killed before it wrote none
+    killed = built / "samples" / f"{TMP_PREFIX}b_cube.npz~{HOST}~{_dead_pid()}~x1y2"
+    killed.write_bytes(b"half a shard")
+
+    def never(*args):
+        raise AssertionError("a finished shard was made again")
+
+    monkeypatch.setattr(dataset_module, "press_samples", never)
+    _build(solved, built)
+    assert json.loads((built / "index.json").read_text())["presses"] == index["presses"]
+    assert not killed.exists()
+    assert len(CalibrationDataset(built).arrays()["rgb"]) == sum(e["samples"] for e in index["presses"])
+
+
+def test_a_damaged_shard_is_made_again_and_named_when_read(solved, built, caplog):
+    shard = built / "samples" / "b_cube.npz"
+    whole = CalibrationDataset(built).load("b_cube")
+    _spoil_deflated_member(shard, "rgb.npy")  # its zip directory is whole: only reading the array shows it
+    with pytest.raises(CaptureError, match=r"b_cube\.npz: damaged or truncated \.npz \(compressed data damaged"):
+        CalibrationDataset(built).load("b_cube")
+    caplog.set_level(logging.WARNING)
+    _build(solved, built)  # `nlips calibrate` again: it makes the shard again instead of failing on it
+    assert "b_cube.npz" in caplog.text and "making it again" in caplog.text
+    for key, value in CalibrationDataset(built).load("b_cube").items():
+        np.testing.assert_array_equal(value, whole[key])
+
+
+def test_a_build_waits_for_a_press_another_process_is_solving(solved, tmp_path, caplog, monkeypatch):
+    """Two `nlips calibrate` runs split the solving; each build needs the presses the other one solved."""
+    root = tmp_path / "presses"
+    shutil.copytree(solved, root)
+    finished = tmp_path / "finished"
+    (root / "b_cube" / "nlips").rename(finished)
+    holding = threading.Event()
+
+    def other_run():
+        with claim(root / "b_cube" / "nlips"):  # a thread standing for the other run (claims are per process)
+            holding.set()
+            time.sleep(1.0)
+            finished.rename(root / "b_cube" / "nlips")
+
+    monkeypatch.setattr(dataset_module, "CLAIM_POLL_S", 0.05)
+    thread = threading.Thread(target=other_run)
+    thread.start()
+    holding.wait()
+    caplog.set_level(logging.INFO)
+    build_dataset([root / n for n in NAMES], root / "reference", tmp_path / "calib", progress=False)
+    thread.join()
+    assert "waiting for its result" in caplog.text
+    assert CalibrationDataset(tmp_path / "calib").names == list(NAMES)
+
+
+@pytest.mark.parametrize(
+    "change, problem",
+    [
+        ({"presses": 3}, "'presses' must be a list"),
+        ({"presses": [7]}, r"presses\[0\] must be a mapping"),
+        ({"presses": [{"name": "../../etc/x", "samples": 1}]}, r"presses\[0\].name must be a press folder's name"),
+        ({"presses": [{"name": "a_sphere"}]}, r"presses\[0\] \(a_sphere\): 'samples' must be a count"),
+        ({"sensor": {}}, "'sensor' is not a sensor description .missing key 'camera'"),
+        ({"sensor": {"camera": {"width": 64}}}, "'sensor' is not a sensor description .camera is missing keys"),
+    ],
+)
+def test_a_hand_edited_index_is_one_line_naming_it(built, tmp_path, capsys, change, problem):
+    index = json.loads((built / "index.json").read_text())
+    (built / "index.json").write_text(json.dumps(index | change))
+    with pytest.raises(CaptureError, match="index.json: " + problem):
+        CalibrationDataset(built)
+    assert main(["train", str(built), "--out", str(tmp_path / "m.pt"), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "index.json" in err[0], err
+
+
+def test_a_checkpoint_of_other_samples_is_not_resumed(built, tmp_path, caplog):
+    data, out = CalibrationDataset(built), tmp_path / "m.pt"
+    first = train(data, TINY, out, val_names=["a_sphere"], progress=False)
+    caplog.set_level(logging.INFO)
+    again = train(data, TINY, out, val_names=["a_sphere"], progress=False)  # the same run: resumed, as it was
+    assert "resuming after epoch 2" in caplog.text
+    assert [h["seconds"] for h in again.history] == [h["seconds"] for h in first.history]
+    for other in ({"val_names": ["b_cube"]}, {"val_names": ["a_sphere"], "exclude": ["c_sphere_deep"]}):
+        caplog.clear()
+        result = train(data, TINY, out, progress=False, **other)
+        # resumed, it would train no epoch and report the old validation AAE as measured on these presses
+        assert "made on other samples" in caplog.text
+        assert [h["seconds"] for h in result.history] != [h["seconds"] for h in first.history]
+        assert load_model(out).info["val_presses"] == other["val_names"]
+
+
+def test_a_damaged_checkpoint_costs_only_its_progress(built, tmp_path, caplog):
+    import torch
+
+    from nlipscalib.learn.train import _config_key
+
+    data, out = CalibrationDataset(built), tmp_path / "m.pt"
+    train(data, TINY, out, progress=False)
+    whole = checkpoint_path(out).read_bytes()
+    caplog.set_level(logging.WARNING)
+    hollow = tmp_path / "hollow.pt"
+    torch.save({"key": _config_key(TINY), "data_key": torch.load(checkpoint_path(out))["data_key"]}, hollow)
+    for damage, why in (
+        (whole[: len(whole) // 2], "truncated or damaged"),
+        (b"\x00" * 300, "not a training checkpoint"),
+        (b"", "empty"),
+        (hollow.read_bytes(), "not resumable (it lacks 'history')"),  # right keys, no state: not a traceback either
+    ):
+        checkpoint_path(out).write_bytes(damage)
+        caplog.clear()
+        assert len(train(data, TINY, out, progress=False).history) == TINY.max_epochs
+        assert "not resumable" in caplog.text and why in caplog.text and "training from scratch" in caplog.text
+
+
+def test_killed_writes_beside_the_model_are_removed_by_the_next_training(built, tmp_path):
+    out = tmp_path / "m.pt"
+    dead = _dead_pid()
+    leftovers = [tmp_path / f"{TMP_PREFIX}{name}~{HOST}~{dead}~k9" for name in ("m.pt", "m.checkpoint.pt")]
+    live = tmp_path / f"{TMP_PREFIX}m.pt~{HOST}~1~k9"  # pid 1 lives: another training's write in progress
+    for path in [*leftovers, live]:
+        path.write_bytes(b"half")
+    train(CalibrationDataset(built), TINY, out, progress=False)
+    assert not any(p.exists() for p in leftovers) and live.exists()
+
+
+def test_damaged_and_foreign_model_files_are_one_line(built, tmp_path, capsys):
+    import torch
+
+    out = tmp_path / "m.pt"
+    train(CalibrationDataset(built), TINY, out, progress=False)
+    whole = out.read_bytes()
+    payload = torch.load(out, weights_only=True)
+    cases = {
+        "empty": (b"", "empty, not an NLiPsNet model file"),
+        "garbage": (b"\x89PNG" + bytes(200), r"not an NLiPsNet model file \(not a torch.save archive\)"),
+        "cut": (whole[:3000], "truncated or damaged, not usable as an NLiPsNet model file"),
+    }
+    for name, change, problem in (
+        ("sensorless", {"sensor": {"camera": 5}}, "'sensor' is not a sensor description"),
+        ("widthless", {"hidden": ["wide"]}, "'hidden' must list positive layer widths"),
+        ("noreference", {"reference": [1, 2]}, "'reference' must map names to arrays"),
+    ):
+        torch.save(payload | change, tmp_path / "crafted.pt")
+        cases[name] = ((tmp_path / "crafted.pt").read_bytes(), problem)
+    for name, (data, problem) in cases.items():
+        path = tmp_path / f"{name}.pt"
+        path.write_bytes(data)
+        with pytest.raises(CaptureError, match=f"{name}.pt: {problem}"):
+            load_model(path)
+        assert main(["infer", str(path), str(built)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{name}.pt" in err[0], err
