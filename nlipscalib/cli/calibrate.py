@@ -13,8 +13,9 @@ def register(subparsers) -> None:
         "--interreflection",
         choices=("auto", "on", "off"),
         default="auto",
-        help="fit the LEDs to the images minus the dome's own diffuse interreflection: auto (kept when it "
-        "explains the images better; default), on, off",
+        help="fit the LEDs to the images minus the dome's own diffuse interreflection: auto (used when its "
+        "share of the light is >= 0.1 with the starting LEDs, or when the LEDs alone leave more than the images' "
+        "noise and the term does not; default), on, off",
     )
     p.add_argument("--bounces", type=int, choices=(1, 2), default=1, help="diffuse bounces modelled (default 1)")
     p.add_argument(

@@ -203,6 +203,9 @@ def _solve_press(
             cmap = _contact(press, leds, None, None, model, shading, fit.contact_cache)
     if model is not None and model.enabled and coating_albedo is not None:
         model = model.with_reflectance(coating_albedo)
+    elif coating_albedo is not None:  # nothing for it to scale: say so rather than drop the user's value
+        why = model.reason if model is not None else "no interreflection term (a fixed light or no reference surface)"
+        log.warning("%s: --coating-albedo not used: %s", press.folder, why)
     if roi == "auto":
         if cmap is None:
             raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")

@@ -16,7 +16,7 @@ from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
-from nlipscalib.solver import evaluate, solve_press  # noqa: E402
+from nlipscalib.solver import SolverOptions, evaluate, solve_press  # noqa: E402
 from nlipscalib.solver.indirect import fit_indirect  # noqa: E402
 
 SPHERE = PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5)
@@ -115,6 +115,17 @@ def test_auto_leaves_a_textured_bounce0_capture_unharmed(textured):
         assert not result.report["interreflection"]["enabled"]
         auto = evaluate(result, press.ground_truth)["contact"]["aae_deg"]
         assert abs(auto - off) <= 0.05, (off, auto)
+
+
+def test_a_coating_albedo_with_the_term_off_is_reported_not_dropped(textured, caplog):
+    _, press = textured
+    roi = contact_box(press.ground_truth.contact)
+    with caplog.at_level("WARNING", logger="nlipscalib"):
+        given = solve_press(press, roi=roi, coating_albedo=0.8, options=SolverOptions(max_iters=3))
+    assert not given.report["interreflection"]["enabled"]
+    assert "--coating-albedo not used: interreflection off" in caplog.text
+    plain = solve_press(press, roi=roi, options=SolverOptions(max_iters=3))
+    np.testing.assert_array_equal(given.normals, plain.normals)  # what the warning says: nothing changed
 
 
 def test_led_calibration_on_an_interreflecting_capture(bounce1):
