@@ -438,8 +438,8 @@ def fit_quality(presses, fitted, x, n, img, ok, model=_model) -> dict:
     nlipstac, one bounce, 4 spp, 640x480                1.19            3.33 deg, 0.69 mm (points)
     nlipstac, one bounce, 8 spp, 160x120 (3 seeds)      1.20-1.22       disks 2.91-4.58 deg, 0.29-0.55 mm
     oblate, one bounce, 16 spp (term not used: share    1.23            disks 16.2 deg
-    0.09 with the starting LEDs; forced on: 1.06,
-    points 2.8 deg)
+    0.09 with the starting LEDs; forced on, as
+    auto now does: 1.06, points 2.8 deg)
     nlipstac, one bounce, 4 spp, 160x120 (3 seeds)      1.34-1.36       disks 1.81-3.57 deg, 0.43-0.80 mm
     nlipstac_realistic, one bounce, 16 spp              1.52            disks 13.0 deg, 4.9 mm
     nlipstac, one bounce, 2 spp, 160x120 (3 seeds)      1.63-1.64       disks 2.44-5.89 deg, 0.42-0.56 mm
