@@ -228,11 +228,9 @@ def _run_emulated(args):
     args.presses = len(script)
     board_id = getattr(args, "board_id", None)
     if board_id is not None:
-        print(
-            f"{args.emulated_port}: starting the emulated sensor of {args.emulate} in this process (the virtual LED "
-            f"board at this URL and the virtual camera it lights), as --emulate {args.emulate} does",
-            file=sys.stderr,
-        )
+        from ..device.virtual_board import emulated_sensor_note
+
+        print(emulated_sensor_note(args.emulated_port, args.emulate), file=sys.stderr)
     with open_emulated_sensor(scene, script, seed=args.seed, flush_frames=args.flush, board_id=board_id) as sensor:
         cfg = _session_config(args, sensor.tricolor_level)
         sensor.prerender(progress=bars_enabled())

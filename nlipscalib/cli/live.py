@@ -251,11 +251,9 @@ def _emulated_source(args, stack, loop: bool):
 
     board_id = getattr(args, "board_id", None)
     if board_id is not None:
-        print(
-            f"{args.emulated_port}: starting the emulated sensor of {args.emulate} in this process (the virtual LED "
-            f"board at this URL and the virtual camera it lights), as --emulate {args.emulate} does",
-            file=sys.stderr,
-        )
+        from ..device.virtual_board import emulated_sensor_note
+
+        print(emulated_sensor_note(args.emulated_port, args.emulate), file=sys.stderr)
     board = stack.enter_context(VirtualBoard(len(scene.led_models()), board_id=board_id))
     controller = stack.enter_context(LedController.open(board.url))
     renders = TwinRenders(scene)

@@ -78,6 +78,15 @@ def check_board_url(url: str) -> str:
     return board_id
 
 
+def emulated_sensor_note(url: str, scene: str) -> str:
+    """The line ``nlips capture`` / ``nlips live`` print when ``--port nlipsemu://ID`` names no board of this
+    process and they start the emulated sensor behind it."""
+    return (
+        f"{url}: starting the emulated sensor of {scene} in this process (the virtual LED board at this URL and "
+        f"the virtual camera it lights), as --emulate {scene} does"
+    )
+
+
 def start_board(url: str, n_leds: int, *, adalight: bool = False) -> VirtualBoard | None:
     """Start the virtual board that ``url`` names when it is an ``nlipsemu://<id>`` URL this process lacks.
 
