@@ -100,7 +100,15 @@ def run(args) -> int:
 
 def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True) -> dict[str, str]:
     """NLiPs results for every press (PRESS/nlips) via the pipeline: parallel, resumable, concurrency-safe;
-    presses already solved with the same options and inputs are skipped."""
+    presses already solved with the same options and inputs are skipped.
+
+    The dataset needs every press's result, so a press another run (a second ``nlips calibrate`` or
+    ``nlips solve`` on the folder) is solving is waited for (``wait=True``) rather than skipped: its
+    result is reused when it was made with these settings, and the press is solved here when that run
+    failed, died or used other settings.
+    """
     from ..pipeline import solve_presses
 
-    return solve_presses(presses, reference=reference, roi="auto", workers=workers, progress=progress, figures=False)
+    return solve_presses(
+        presses, reference=reference, roi="auto", workers=workers, progress=progress, figures=False, wait=True
+    )

@@ -4,7 +4,8 @@ PATH is a press folder, a folder of presses, or a reconstruction folder (PRESS/n
 the method is then taken from the folder's name). A result written elsewhere (`nlips solve PRESS --out
 DIR`) is scored with `nlips eval PRESS --result DIR`. Both methods write the core reconstruction format
 (docs/formats.md), so they are scored alike. A damaged NLiPs result is re-computed from the settings
-recorded in its report.json, with a warning.
+recorded in its report.json, with a warning; when report.json is itself damaged or records no settings,
+the press is reported with the `nlips solve PRESS --overwrite` that re-makes it.
 """
 
 from __future__ import annotations
@@ -133,20 +134,50 @@ def _load(folder: Path, method: str, single: bool, out=None):
     except CaptureError as exc:
         if method != "nlips":
             return str(exc)  # NLiPsNet results are re-made by `nlips infer`, not here
+        settings = _recorded_settings(out)
+        if isinstance(settings, str):  # said before any "re-computing": there is nothing to re-compute from
+            unknown = "" if settings == str(exc) else f" ({settings})"
+            command = f"nlips solve {folder}" + ("" if out == reconstruction_dir(folder) else f" --out {out}")
+            return (
+                f"{exc}; the settings it was solved with are unknown{unknown}: re-solve it with "
+                f"`{command} --overwrite` and the options it was first solved with"
+            )
         log.warning("%s; re-computing it from its recorded settings", exc)
-        return _recompute(folder, out)
+        return _recompute(folder, out, settings)
 
 
-def _recompute(folder: Path, out: Path):
-    from ..core.reconstruction import read_report
-    from ..errors import NlipsError
-    from ..pipeline import settings_from_record, solve_one
+def _recorded_settings(out: Path):
+    """The SolveSettings recorded in ``out``'s report.json, or why they cannot be known (a string naming the file).
+
+    A damaged report.json (garbage, cut short) or one without a usable ``provenance.settings`` (written by
+    hand, or by ``solver.save_result`` outside the pipeline) leaves nothing to re-solve with: guessing the
+    options would score a result the user never asked for.
+    """
+    from ..core.reconstruction import REPORT_FILE, read_report
+    from ..errors import CaptureError, NlipsError
+    from ..pipeline import settings_from_record
 
     try:
-        record = (read_report(out).get("provenance") or {}).get("settings")
-        if record is None:
-            return f"{out}: damaged, and its report.json records no settings to re-solve with; run `nlips solve`"
-        result, _ = solve_one(folder, settings_from_record(record), out=out, progress=True)
+        provenance = read_report(out).get("provenance")
+    except CaptureError as exc:
+        return str(exc)
+    record = provenance.get("settings") if isinstance(provenance, dict) else None
+    if not isinstance(record, dict):
+        return f"{out / REPORT_FILE} records no solve settings"
+    try:
+        return settings_from_record(record)
+    except NlipsError as exc:
+        return f"{out / REPORT_FILE}: {exc}"
+
+
+def _recompute(folder: Path, out: Path, settings):
+    """The result re-solved into ``out`` with the ``settings`` it was first made with; a problem string when
+    that fails."""
+    from ..errors import NlipsError
+    from ..pipeline import solve_one
+
+    try:
+        result, _ = solve_one(folder, settings, out=out, progress=True)
     except NlipsError as exc:
         return f"damaged, and re-solving failed: {exc}"
     return result if result is not None else f"{out}: damaged; being re-solved by another process"

@@ -341,6 +341,11 @@ def _save(args, predictor, result, name, press_folder) -> None:
         folder = Path(args.out) / name
     else:
         return  # a stream of frames without --out: only the frame rate is reported
-    save_reconstruction(to_reconstruction(result, predictor, name), folder, overwrite=True)
-    if args.ply or args.mesh:
-        write_ply(folder / "points.ply", result.points, result.normals, mesh=args.mesh)
+
+    def ply(tmp: Path) -> None:
+        # written into the temporary folder, so the result is published with its points.ply or not at all: a
+        # reader never sees a folder that lacks it, and a failed write (a full disk) publishes nothing
+        write_ply(tmp / "points.ply", result.points, result.normals, mesh=args.mesh)
+
+    extra = ply if args.ply or args.mesh else None
+    save_reconstruction(to_reconstruction(result, predictor, name), folder, overwrite=True, extra_files=extra)

@@ -75,6 +75,7 @@ def read_npz(path: str | Path, keys=(), unreadable: str = "damaged or truncated 
     CaptureError naming the file: missing, damaged or truncated, or lacking one of ``keys``.
     """
     import zipfile
+    import zlib
 
     from ..errors import CaptureError
 
@@ -89,6 +90,10 @@ def read_npz(path: str | Path, keys=(), unreadable: str = "damaged or truncated 
             arrays = {k: data[k] for k in data.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise CaptureError(f"{path}: {unreadable} ({exc})") from None
+    except zlib.error as exc:
+        # A flipped byte inside a deflated array fails in zlib's decompressor before the zip layer can
+        # compare the CRC, and zlib.error is not an OSError: without this the reader gets a traceback.
+        raise CaptureError(f"{path}: {unreadable} (compressed data damaged: {exc})") from None
     missing = sorted(set(keys) - set(arrays))
     if missing:
         raise CaptureError(f"{path}: missing arrays {missing}")

@@ -84,6 +84,35 @@ def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys, caplog):
     assert load_reconstruction(root / "press_a" / "nlips").reconstructed.any()
 
 
+def test_eval_of_a_result_whose_settings_are_unknown_says_how_to_re_solve_it(data, tmp_path, capsys, caplog):
+    """Garbage in report.json: nothing to re-compute from, so no "re-computing" and no "re-solving failed"."""
+    root, cfg = data
+    press, other = root / "press_a", tmp_path / "elsewhere"
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    (press / "nlips" / "report.json").write_text("garbage")
+    caplog.set_level(logging.INFO)
+    capsys.readouterr()
+    assert main(["eval", str(press)]) == 1
+    captured = capsys.readouterr()
+    lines = [line for line in captured.out.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in captured.err, captured
+    assert str(press / "nlips" / "report.json") in lines[0] and "not valid JSON" in lines[0]
+    assert "the settings it was solved with are unknown" in lines[0]
+    assert f"`nlips solve {press} --overwrite`" in lines[0] and "re-solving failed" not in lines[0]
+    assert "re-computing" not in caplog.text + captured.err
+    # a result in another folder whose record has no settings: the command names that folder too
+    assert main(["solve", str(press), "--config", str(cfg), "--out", str(other), "--no-progress"]) == 0
+    report = json.loads((other / "report.json").read_text())
+    del report["provenance"]
+    (other / "report.json").write_text(json.dumps(report))
+    (other / "result.npz").write_bytes(b"garbage")
+    capsys.readouterr()
+    assert main(["eval", str(press), "--result", str(other)]) == 1
+    out = capsys.readouterr().out
+    assert "result.npz" in out and f"{other / 'report.json'} records no solve settings" in out
+    assert f"`nlips solve {press} --out {other} --overwrite`" in out
+
+
 def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     root, cfg = data
     press = root / "press_a"

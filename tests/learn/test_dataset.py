@@ -1,6 +1,7 @@
 """The calibration dataset: what is sampled, with which labels, and how damage is reported."""
 
 import json
+import os
 import shutil
 
 import numpy as np
@@ -127,3 +128,40 @@ def test_cli_calibrate_refuses_sampling_options_that_leave_no_samples(twin_press
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in err and f"error: {option} " in lines[0] and value in lines[0], err
     assert not (root / "press_a" / "nlips").exists() and not (root / "calibration").exists()  # before solving
+
+
+def test_cli_calibrate_waits_for_a_press_another_run_holds_and_solves_it_when_that_run_fails(
+    twin_presses, tmp_path, capsys
+):
+    """Two `nlips calibrate` runs at once: a press the other run holds is waited for, not reported unsolved."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = tmp_path / "presses"
+    shutil.copytree(twin_presses / "reference", root / "reference")
+    shutil.copytree(twin_presses / "press_b", root / "press_b", ignore=shutil.ignore_patterns("nlips"))
+    # another run claims press_b's result for 3 s, then ends without publishing one (it failed)
+    holder = (
+        "import sys, time\n"
+        "from nlipscalib.core.claims import claim\n"
+        "with claim(sys.argv[1]) as mine:\n"
+        "    assert mine\n"
+        "    print('held', flush=True)\n"
+        "    time.sleep(3)\n"
+    )
+    repo = str(Path(__file__).resolve().parents[2])
+    env = os.environ | {"PYTHONPATH": os.pathsep.join(filter(None, [repo, os.environ.get("PYTHONPATH")]))}
+    other = subprocess.Popen(
+        [sys.executable, "-c", holder, str(root / "press_b" / "nlips")], stdout=subprocess.PIPE, text=True, env=env
+    )
+    try:
+        assert other.stdout.readline().strip() == "held"
+        assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0
+        assert other.poll() == 0  # calibrate waited for the other run to end first
+    finally:
+        other.kill()
+        other.wait()
+    assert (root / "press_b" / "nlips" / "result.npz").is_file()
+    assert CalibrationDataset(root / "calibration").names == ["press_b"]
+    assert "press not solved" not in capsys.readouterr().err

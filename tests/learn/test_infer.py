@@ -25,6 +25,33 @@ def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_pres
     assert b"element vertex" in head and b"element face" in head
 
 
+def test_the_result_folder_is_published_with_its_ply_or_not_at_all(
+    trained, twin_presses, tmp_path, capsys, monkeypatch
+):
+    import errno
+    import os
+
+    from nlipscalib.learn import ply
+
+    def disk_full(path, *args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    out = tmp_path / "out"
+    monkeypatch.setattr(ply, "write_ply", disk_full)
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(out), "--ply"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "No space left on device" in err[0], err
+    assert not (out / HELD_OUT / "nlipsnet").exists()  # no result without the points.ply asked for
+    assert not [p for p in out.rglob("*") if p.name.startswith(".tmp-")]
+    monkeypatch.undo()
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(out), "--ply"]) == 0
+    assert sorted(p.name for p in (out / HELD_OUT / "nlipsnet").iterdir()) == [
+        "points.ply",
+        "report.json",
+        "result.npz",
+    ]
+
+
 def test_unchanged_pixels_keep_the_reference_and_skip_the_network(trained, twin_presses):
     predictor = Predictor(trained)
     calls = []

@@ -1,0 +1,50 @@
+"""docs/faults.md: every test its last column names exists, so a row cannot point at a renamed or imagined test."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+FAULTS = ROOT / "docs" / "faults.md"
+
+
+def _references() -> list[tuple[str, str, str | None]]:
+    """(row text, test file, test name or None) for every test a table row's last column names.
+
+    A cell names tests as `tests/dir/test_x.py::test_y`, `test_x.py::test_y` (a file found under tests/) or
+    `::test_z` (another test of the file named before it in the same cell), or a whole file."""
+    refs = []
+    for line in FAULTS.read_text().splitlines():
+        if not line.startswith("|") or line.startswith("|---"):
+            continue
+        cell = line.rstrip().rstrip("|").rsplit("|", 1)[-1]
+        current = None
+        for ref in re.findall(r"`([^`]+)`", cell):
+            file, _, name = ref.partition("::")
+            if file:
+                if not file.endswith(".py"):
+                    continue
+                current = file
+            if current is not None:
+                refs.append((line, current, name or None))
+    return refs
+
+
+def _test_file(name: str) -> Path | None:
+    if "/" in name:
+        path = ROOT / name
+        return path if path.is_file() else None
+    found = sorted((ROOT / "tests").rglob(name))
+    return found[0] if len(found) == 1 else None
+
+
+def test_every_test_the_faults_table_names_exists():
+    refs = _references()
+    assert len(refs) > 40  # the parser reads the tables (a format change would otherwise pass silently)
+    missing = []
+    for row, file, name in refs:
+        path = _test_file(file)
+        if path is None or (name is not None and not re.search(rf"^def {re.escape(name)}\(", path.read_text(), re.M)):
+            missing.append(f"{file}::{name}  (row: {row[:60]}...)")
+    assert missing == []
