@@ -35,6 +35,8 @@ CLAIM_PREFIX = ".claim-"
 HOST = socket.gethostname()
 _HELD: dict[Path, Owner] = {}
 """Claims this process holds now (released by ``release_all`` when it is terminated)."""
+_PROBES: set[Path] = set()
+"""Clock probes (:func:`_fs_now`) this process is writing now."""
 
 
 @dataclass(frozen=True)
@@ -105,11 +107,15 @@ def holder(target: str | Path, *, stale_s: float = 60.0) -> Owner | None:
 
 
 def release_all() -> None:
-    """Release every claim this process holds (for a signal handler about to exit the process)."""
+    """Release every claim this process holds, and remove its clock probe if one is being written (for a
+    signal handler about to exit the process: a worker SIGTERM'd by a broken process pool left one behind)."""
     for path, me in list(_HELD.items()):
         with contextlib.suppress(OSError):
             _release(path, me)
     _HELD.clear()
+    for probe in list(_PROBES):
+        with contextlib.suppress(OSError):
+            probe.unlink(missing_ok=True)
 
 
 def pid_alive(pid: int) -> bool:
@@ -186,6 +192,7 @@ def _is_stale(path: Path, owner: Owner | None, stale_s: float, now: float) -> bo
 def _fs_now(folder: Path) -> float:
     """The current time by the file system's clock (matters when machines' clocks disagree)."""
     probe = folder / f"{CLAIM_PREFIX}probe.{HOST}.{os.getpid()}.{secrets.token_hex(4)}"
+    _PROBES.add(probe)  # a signal handler exiting meanwhile removes it (release_all): no finally runs then
     try:
         probe.write_bytes(b"")
         return probe.stat().st_mtime
@@ -193,6 +200,7 @@ def _fs_now(folder: Path) -> float:
         return time.time()
     finally:
         probe.unlink(missing_ok=True)
+        _PROBES.discard(probe)
 
 
 def _remove_if_same(path: Path, owner: Owner | None) -> None:

@@ -131,3 +131,24 @@ def test_fresh_unreadable_claim_counts_as_held(tmp_path):
     assert holder(target) is None
     with claim(target) as mine:
         assert mine
+
+
+def test_release_all_removes_a_clock_probe_being_written(tmp_path, monkeypatch):
+    """A worker SIGTERM'd while it reads the file system's clock (its handler calls release_all, then os._exit:
+    no ``finally`` runs) leaves no ``.claim-probe.*`` behind."""
+    from nlipscalib.core import claims
+
+    before, after = [], []
+    stat = Path.stat
+
+    def signal_while_probing(path, *args, **kwargs):  # the signal lands between the probe's write and stat
+        if path.name.startswith(".claim-probe.") and not before:
+            before.extend(tmp_path.glob(".claim-probe.*"))
+            claims.release_all()  # what the handler does before os._exit
+            after.extend(tmp_path.glob(".claim-probe.*"))
+        return stat(path, *args, **kwargs)
+
+    monkeypatch.setattr(claims.Path, "stat", signal_while_probing)
+    claims._fs_now(tmp_path)
+    monkeypatch.undo()
+    assert before and not after

@@ -42,6 +42,19 @@ def test_folded_layers_give_the_same_normals():
     assert np.abs(a - b).max() < 1e-5
 
 
+def _sensor(width: int, height: int) -> dict:
+    """The default design's sensor description at ``width`` x ``height`` (what a model file records)."""
+    import dataclasses
+
+    from nlipscalib.core.capture import SensorResponse
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.learn.sensor import describe_sensor
+
+    design = SensorDesign()
+    design = dataclasses.replace(design, camera=dataclasses.replace(design.camera, width=width, height=height))
+    return describe_sensor(design.camera_model(), design.led_models(), SensorResponse())
+
+
 def test_threaded_slices_equal_one_call(tmp_path):
     from nlipscalib.learn.model import load_model, save_model
     from nlipscalib.learn.onnx_export import OnnxNet, export_onnx
@@ -53,7 +66,7 @@ def test_threaded_slices_equal_one_call(tmp_path):
         net,
         hidden=(32, 16),
         dropout=0.2,
-        sensor={"camera": {"width": 64, "height": 48}},
+        sensor=_sensor(64, 48),
         reference={},
         info={},
     )
