@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import sys
 
-from .live import add_source_arguments, check_output_arguments, check_source_arguments
+from .live import add_source_arguments, check_output_arguments, check_source_arguments, emulate_behind_port
 
 log = logging.getLogger(__name__)
 
@@ -59,9 +59,13 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from ..errors import ConfigError
 
+    if not args.inputs:
+        emulate_behind_port(args)  # --port nlipsemu://ID alone: the emulated sensor, as nlips live streams it
     stream_input = _stream_input(args)
     if stream_input is None and not args.inputs:
-        raise ConfigError("give inputs (presses, PNG frames or a video), --camera SPEC or --emulate SCENE")
+        raise ConfigError(
+            "give inputs (presses, PNG frames or a video), --camera SPEC, --emulate SCENE or --port nlipsemu://ID"
+        )
     if args.max_frames is not None and args.max_frames < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
     check_source_arguments(args)

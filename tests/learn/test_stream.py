@@ -145,6 +145,13 @@ def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
     valid = np.isfinite(reference.reference.depth)
     same = np.all(np.abs(first["normals"] - reference.reference.normals) < 1e-5, axis=-1)
     assert same[valid].mean() > 0.9
+    # the same stream asked for by its board's URL, as nlips live takes it
+    by_port = ["--port", "nlipsemu://17", "--width", "64", "--height", "48"]
+    args = ["infer", str(model), *by_port, "--max-frames", "4", "--frames-per-press", "2", "--out", str(tmp_path / "p")]
+    assert main(args) == 0
+    assert "4 frames in" in capsys.readouterr().out
+    again = np.load(tmp_path / "p" / "frame_000000.npz")
+    np.testing.assert_array_equal(again["normals"], first["normals"])
 
 
 def test_unreadable_video_prints_one_line_in_a_fresh_process(trained, tmp_path):
