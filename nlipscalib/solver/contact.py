@@ -210,22 +210,12 @@ def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, bl
     }
 
 
-def auto_roi(
-    contact: ContactMap,
-    shape: tuple[int, int],
-    margin: int = 8,
-    min_size: int = 32,
-    threshold: float = 3.0,
-    min_component: float = 0.05,
-    folder="",
-) -> tuple[int, int, int, int]:
-    """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome.
-
-    :func:`contact_box` without its note (which goes to the log as a warning).
-    """
-    box, note = contact_box(contact, shape, margin, min_size, threshold, min_component, folder)
+def auto_roi(contact: ContactMap, shape: tuple[int, int], **kwargs) -> tuple[int, int, int, int]:
+    """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome: :func:`contact_box`
+    (the same keywords) without its note, which goes to the log as a warning."""
+    box, note = contact_box(contact, shape, **kwargs)
     if note:
-        log.warning("%s: %s", folder, note)
+        log.warning("%s: %s", kwargs.get("folder", ""), note)
     return box
 
 
