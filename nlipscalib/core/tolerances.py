@@ -44,3 +44,13 @@ pass solves the whole mask."""
 DENT_FOCUS_MIN_PIXELS = 1024
 """... and when it holds at least this many pixels of the mask (a 32 x 32 box, the auto ROI's least): a contact
 outside an explicit ROI leaves nothing to focus on."""
+CALIBRATION_MIN_SHARE = 0.1
+"""LED calibration, interreflection auto: the indirect term is used when, fitted with the starting LEDs,
+its share of the direct light is at least this. The starting LEDs' own errors pose as a few % of
+indirect light (a nominal ring 0.3 mm / 5 deg off: 3 %); a coated dome interreflects far more (the
+twin: 31 %). The images cannot decide it after the fact: a direct-only fit absorbs the indirect light
+into wrong LED parameters (17 deg off on the twin) and then fits as well as the right model."""
+FIT_NOISE_RATIO = 1.15
+"""An LED calibration is reliable when its residual is at most this many times the images' own noise (median
+over the LEDs): measured 1.01-1.11 on good captures, 1.19-1.63 on poor ones (the table in
+:func:`nlipscalib.solver.calibrate.fit_quality`)."""

@@ -292,20 +292,14 @@ def _profiled_reflectance(emitters, x, n, img, direct, ok, loss, radius, fitted)
     }
 
 
-CALIBRATION_MIN_SHARE = 0.1
-"""LED calibration, interreflection auto: the indirect term is used when, fitted with the starting LEDs,
-its share of the direct light is at least this. The starting LEDs' own errors pose as a few % of
-indirect light (a nominal ring 0.3 mm / 5 deg off: 3 %); a coated dome interreflects far more (the
-twin: 31 %). The images cannot decide it after the fact: a direct-only fit absorbs the indirect light
-into wrong LED parameters (17 deg off on the twin) and then fits as well as the right model."""
-
-
 def _decide(model):
-    """The calibration's auto decision (:data:`CALIBRATION_MIN_SHARE`) on a model fitted with the starting LEDs."""
+    """The calibration's auto decision (:data:`tolerances.CALIBRATION_MIN_SHARE`) on a model fitted with the
+    starting LEDs."""
     import dataclasses
 
-    on = model.share >= CALIBRATION_MIN_SHARE
-    note = f"; calibration: {'used' if on else 'not used'} (threshold {CALIBRATION_MIN_SHARE} with the starting LEDs)"
+    on = model.share >= tolerances.CALIBRATION_MIN_SHARE
+    limit = tolerances.CALIBRATION_MIN_SHARE
+    note = f"; calibration: {'used' if on else 'not used'} (threshold {limit} with the starting LEDs)"
     reason = model.reason.replace("interreflection on:", "interreflection off:") if not on else model.reason
     return dataclasses.replace(model, enabled=on, reason=reason + note)
 
@@ -382,11 +376,6 @@ def _to_leds(fitted):
     return tuple(leds), tuple(float(a) for a in albedo), std
 
 
-FIT_NOISE_RATIO = 1.15
-"""An LED calibration is reliable when its residual is at most this many times the images' own noise (median
-over the LEDs, :func:`fit_quality`): measured 1.01-1.11 on good captures, 1.19-1.63 on poor ones (the table there)."""
-
-
 def _fit_samples(img: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """(N, 3) bool -- the samples one LED is fitted on: usable and lit (above 1 % of its 99th percentile per
     channel); :func:`fit_quality` judges the fit on the same samples.
@@ -446,7 +435,7 @@ def fit_quality(presses, fitted, x, n, img, ok, model=_model) -> dict:
     ==================================================  ==============  ==========================
 
     Good captures stay at or below 1.11; the poor ones (worst LED beyond the README's 2 deg or 0.3 mm) start at
-    1.19, so :data:`FIT_NOISE_RATIO` = 1.15 sits between them (the ratio's own scatter at 160x120: about 0.01
+    1.19, so :data:`tolerances.FIT_NOISE_RATIO` = 1.15 sits between them (the ratio's own scatter at 160x120: about 0.01
     between seeds, up to 0.03 between strides 2, 3 and 4). The worst single LED of a good capture reached 1.13: the
     verdict is the median's, so one LED's chance excess does not raise it. Blind spot: light the LEDs can absorb
     by tilting (the indirect term forced on a bounce-free capture: worst LED 16 deg off at 1.04).
@@ -463,7 +452,7 @@ def fit_quality(presses, fitted, x, n, img, ok, model=_model) -> dict:
     Returns
     -------
     dict -- ``noise`` (L,) and ``residual`` (L,), linear image units; ``ratio`` (L,) their quotient;
-    ``median_ratio``; ``threshold`` (:data:`FIT_NOISE_RATIO`); ``reliable`` (median_ratio <= threshold).
+    ``median_ratio``; ``threshold`` (:data:`tolerances.FIT_NOISE_RATIO`); ``reliable`` (median_ratio <= threshold).
     """
     noise = _led_noise(presses)
     residual = []
@@ -477,8 +466,8 @@ def fit_quality(presses, fitted, x, n, img, ok, model=_model) -> dict:
         "residual": residual,
         "ratio": [round(float(v), 4) for v in ratio],
         "median_ratio": round(median, 4),
-        "threshold": FIT_NOISE_RATIO,
-        "reliable": bool(median <= FIT_NOISE_RATIO),
+        "threshold": tolerances.FIT_NOISE_RATIO,
+        "reliable": bool(median <= tolerances.FIT_NOISE_RATIO),
     }
 
 
@@ -488,7 +477,7 @@ def _with_term_if_needed(
     """``cal``, or the calibration with the indirect term on when "auto" left it off and that fit did not explain
     the images (:func:`fit_quality` unreliable) while the term makes it reliable.
 
-    Why: the share decision (:data:`CALIBRATION_MIN_SHARE`, with the starting LEDs) cannot tell a weakly
+    Why: the share decision (:data:`tolerances.CALIBRATION_MIN_SHARE`, with the starting LEDs) cannot tell a weakly
     interreflecting dome from starting LEDs a few % off. A direct-only fit that leaves more than the noise
     settles it: measured on the oblate twin (one bounce, 16 spp, 160x120; share 0.088 with the starting LEDs)
     direct-only 1.23x the noise with its worst LED 16 deg off, with the term 1.06x and 2.8 deg. Not tried where
@@ -520,7 +509,7 @@ def _no_interreflection(models: list[dict], interreflection: str) -> str | None:
     share = max(m["indirect_share"] for m in models)
     return (
         f"no capture shows interreflection (fitted indirect share {share:.3f} with the starting LEDs, below "
-        f"{CALIBRATION_MIN_SHARE})"
+        f"{tolerances.CALIBRATION_MIN_SHARE})"
     )
 
 

@@ -16,10 +16,10 @@ pytest.importorskip("mitsuba")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.core.tolerances import FIT_NOISE_RATIO  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
 from nlipscalib.solver import calibrate_leds  # noqa: E402
-from nlipscalib.solver.calibrate import FIT_NOISE_RATIO  # noqa: E402
 
 STRIDE = 4
 
