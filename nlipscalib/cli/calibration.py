@@ -93,6 +93,8 @@ def run(args) -> int:
     )
     nxt = cov["next_press"]
     print(f"coverage: {cov['covered_fraction'] * 100:.0f}% of (region, direction) bins; press next: {nxt['advice']}")
+    if cov["steep"]["advice"]:
+        print(f"coverage: {cov['steep']['advice']}")
     if failed:
         print(f"{len(failed)} presses failed to solve: {', '.join(sorted(failed))}")
     return 1 if failed else 0

@@ -6,6 +6,14 @@ how they tilt away from the undeformed surface there: tilt angle rings x tilt az
 same bins). A bin is covered when it holds at least ``min_samples`` samples. The next press goes to
 the region with the most empty bins, with the indenter kind (among those already pressed) whose
 normals best fill exactly those bins.
+
+No pressed kind can fill tilt rings that none of them ever reached: smooth indenters (sphere, cube,
+cylinder) tilt the gel by at most ~30 deg, while engraved or embossed detail tilts it by 45-90 deg (the
+default twin: 99 % of the contact normals of 50 sphere/cube/cylinder presses within 32 deg; 12 % of a
+coin's beyond 45 deg). NLiPsNet maps colour to normal pixel by pixel and extrapolates past what it was
+taught: on the twin's Q2 it errs 5 deg on an unseen coin, 1-2 deg on smooth unseen indenters, with true
+labels too. So the report also says how steep the taught normals are and, when the steepest rings are
+empty everywhere, asks for a press with steep relief.
 """
 
 from __future__ import annotations
@@ -19,6 +27,13 @@ TILT_EDGES_DEG = (2.0, 10.0, 25.0, 45.0, 90.0)
 """Tilt rings, degrees from the undeformed normal (below 2 deg counts as undeformed)."""
 AZIMUTH_SECTORS = 8
 """Tilt directions per ring (image-plane azimuth of the tilt)."""
+STEEP_RELIEF = (
+    "an object with steep relief (studs, ridges, embossed or engraved detail, "
+    "e.g. a LEGO brick's studs, a knurled cap's side or a coin's face)"
+)
+"""What the advice asks for when no press reached the steepest tilt rings."""
+TAUGHT_PERCENTILE = 99.0
+"""``taught_tilt_deg``: this percentile of the contact samples' tilt (a few stray labels do not count)."""
 
 
 def direction_bins(normals: np.ndarray, ref_normals: np.ndarray) -> np.ndarray:
@@ -32,12 +47,21 @@ def direction_bins(normals: np.ndarray, ref_normals: np.ndarray) -> np.ndarray:
     -------
     (N,) int -- ring * AZIMUTH_SECTORS + sector, or -1
     """
-    cos = np.clip(np.sum(normals * ref_normals, -1), -1, 1)
-    tilt = np.degrees(np.arccos(cos))
+    tilt = tilt_deg(normals, ref_normals)
     ring = np.searchsorted(TILT_EDGES_DEG, tilt, side="right") - 1
     d = normals - ref_normals
     sector = ((np.arctan2(d[:, 1], d[:, 0]) + np.pi) / (2 * np.pi) * AZIMUTH_SECTORS).astype(int) % AZIMUTH_SECTORS
     return np.where(ring >= 0, np.minimum(ring, len(TILT_EDGES_DEG) - 2) * AZIMUTH_SECTORS + sector, -1)
+
+
+def tilt_deg(normals: np.ndarray, ref_normals: np.ndarray) -> np.ndarray:
+    """(N,) float, degrees -- angle of each normal from the undeformed normal at its pixel.
+
+    Parameters
+    ----------
+    normals, ref_normals : (N, 3) float, unit, camera frame
+    """
+    return np.degrees(np.arccos(np.clip(np.sum(normals * ref_normals, -1), -1.0, 1.0)))
 
 
 def coverage(dataset, cells: int = 4, min_samples: int = 20) -> dict:
@@ -47,19 +71,23 @@ def coverage(dataset, cells: int = 4, min_samples: int = 20) -> dict:
     -------
     dict with ``counts`` (cells, cells, B) int (region row, region column, direction bin), ``gel``
     (cells, cells) bool (regions that see the gel), ``covered_fraction``, per-kind direction histograms
-    ``kinds``, ``next_press`` (region box in pixels, centre (u, v), indenter kind, advice text) and the
-    bin layout (tilt ring edges, sectors).
+    ``kinds``, ``next_press`` (region box in pixels, centre (u, v), indenter kind, advice text), ``steep``
+    (how steep the taught normals are, the advice when the steepest rings are empty: :func:`steep_gap`)
+    and the bin layout (tilt ring edges, sectors).
     """
     ref = dataset.reference()
     H, W = ref["valid"].shape
     n_bins = (len(TILT_EDGES_DEG) - 1) * AZIMUTH_SECTORS
     counts = np.zeros((cells, cells, n_bins), np.int64)
     kinds: dict[str, np.ndarray] = {}
+    tilts = np.zeros(181, np.int64)  # contact samples per whole degree of tilt
     for entry in dataset.entries:
         s = dataset.load(entry["name"])
         keep = s["contact"] & (s["source"] == 0)
         u, v = s["pixel"][keep, 0].astype(int), s["pixel"][keep, 1].astype(int)
-        b = direction_bins(s["normal"][keep], ref["normals"][v, u])
+        normals, ref_normals = s["normal"][keep], ref["normals"][v, u]
+        tilts += np.bincount(tilt_deg(normals, ref_normals).astype(int), minlength=181)[:181]
+        b = direction_bins(normals, ref_normals)
         ok = b >= 0
         np.add.at(counts, (v[ok] * cells // H, u[ok] * cells // W, b[ok]), 1)
         kind = entry.get("press", {}).get("indenter") or "unknown"
@@ -78,7 +106,46 @@ def coverage(dataset, cells: int = 4, min_samples: int = 20) -> dict:
         "covered_fraction": fraction,
         "kinds": {k: (h / max(h.sum(), 1)).round(4) for k, h in kinds.items()},
         "next_press": _next_press(counts, covered, gel, kinds, (H, W)),
+        "steep": steep_gap(covered, gel, tilts),
     }
+
+
+def steep_gap(covered: np.ndarray, gel: np.ndarray, tilt_counts: np.ndarray) -> dict:
+    """How steep the taught normals are, and whether the steepest tilt rings are empty in every region.
+
+    Parameters
+    ----------
+    covered : (cells, cells, B) bool -- covered (region, direction bin)s, B = rings x AZIMUTH_SECTORS.
+    gel : (cells, cells) bool -- regions that see the gel.
+    tilt_counts : (T,) int -- contact samples per whole degree of tilt (index = floor of the tilt in deg).
+
+    Returns
+    -------
+    dict: ``taught_tilt_deg`` (:data:`TAUGHT_PERCENTILE` of the samples' tilt; None without samples),
+    ``untaught_from_deg`` (the lower edge of the first tilt ring that no region covers in any direction, with
+    none covered beyond it; None when the steepest ring is covered somewhere) and ``advice`` ("" or the line
+    asking for :data:`STEEP_RELIEF`).
+    """
+    rings = len(TILT_EDGES_DEG) - 1
+    ring_covered = (
+        covered[gel].reshape(-1, rings, AZIMUTH_SECTORS).any(axis=(0, 2)) if gel.any() else np.zeros(rings, bool)
+    )
+    reached = np.flatnonzero(ring_covered)
+    first_empty = int(reached[-1]) + 1 if reached.size else 0
+    total = int(tilt_counts.sum())
+    taught = None
+    if total:
+        cumulative = np.cumsum(tilt_counts)
+        taught = float(np.searchsorted(cumulative, TAUGHT_PERCENTILE / 100 * total) + 1)  # upper edge of its degree
+    if first_empty >= rings:
+        return {"taught_tilt_deg": taught, "untaught_from_deg": None, "advice": ""}
+    edge = float(TILT_EDGES_DEG[first_empty])
+    within = f"{TAUGHT_PERCENTILE:.0f} % of the contact samples within {taught:.0f} deg" if taught else "no samples"
+    advice = (
+        f"no press tilts the gel's normals by more than {edge:.0f} deg ({within}); NLiPsNet will extrapolate "
+        f"steeper ones (edges, engraved or embossed detail): press {STEEP_RELIEF} too"
+    )
+    return {"taught_tilt_deg": taught, "untaught_from_deg": edge, "advice": advice}
 
 
 def _gel_regions(valid: np.ndarray, cells: int) -> np.ndarray:

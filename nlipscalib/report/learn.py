@@ -60,11 +60,21 @@ def coverage_figure(cov: dict, path) -> Path:
     fig.suptitle(
         f"normal-direction coverage per image region ({cov['covered_fraction'] * 100:.0f}% of bins)\n"
         f"press next (red): {cov['next_press']['indenter']} at u~{cov['next_press']['centre_uv'][0]:.0f}, "
-        f"v~{cov['next_press']['centre_uv'][1]:.0f}",
+        f"v~{cov['next_press']['centre_uv'][1]:.0f}" + _steep_line(cov.get("steep")),
         fontsize=9,
     )
     fig.tight_layout()
     return _save(fig, path)
+
+
+def _steep_line(steep: dict | None) -> str:
+    """The coverage figure's line on how steep the taught normals are ("" for reports without it)."""
+    if not steep or steep.get("taught_tilt_deg") is None:
+        return ""
+    line = f"\n99% of taught normals within {steep['taught_tilt_deg']:.0f}° of the undeformed"
+    if steep.get("untaught_from_deg") is not None:
+        line += f"; none beyond {steep['untaught_from_deg']:.0f}°: press an object with steep relief"
+    return line
 
 
 def training_curve(history: list[dict], path, title: str = "NLiPsNet") -> Path:

@@ -1,0 +1,64 @@
+"""Coverage report: known answers on synthetic calibration samples (no solver, no twin)."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.learn.coverage import STEEP_RELIEF, coverage, steep_gap, tilt_deg
+
+H, W = 64, 64
+
+
+class FakeDataset:
+    """What ``coverage`` reads of a CalibrationDataset: the reference and per-press contact samples."""
+
+    def __init__(self, presses: dict[str, tuple[str, np.ndarray]]):
+        self.presses = presses  # name -> (indenter kind, tilts in degrees of its samples)
+        self.entries = [{"name": n, "press": {"indenter": k}} for n, (k, _) in presses.items()]
+
+    def reference(self):
+        normals = np.zeros((H, W, 3))
+        normals[..., 2] = -1.0  # the undeformed surface faces the camera
+        return {"valid": np.ones((H, W), bool), "normals": normals}
+
+    def load(self, name):
+        _, tilts = self.presses[name]
+        rng = np.random.default_rng(len(name))
+        n = len(tilts)
+        pixel = np.stack([rng.integers(0, W, n), rng.integers(0, H, n)], axis=1)
+        azimuth = rng.uniform(-np.pi, np.pi, n)
+        t = np.radians(tilts)
+        normal = np.stack([np.sin(t) * np.cos(azimuth), np.sin(t) * np.sin(azimuth), -np.cos(t)], axis=1)
+        return {"contact": np.ones(n, bool), "source": np.zeros(n, int), "pixel": pixel, "normal": normal}
+
+
+def smooth_press(kind: str, n: int = 40_000, most: float = 30.0):
+    return kind, np.random.default_rng(0).uniform(3.0, most, n)
+
+
+def test_tilt_is_the_angle_from_the_undeformed_normal():
+    ref = np.array([[0.0, 0.0, -1.0]] * 3)
+    t = np.radians([0.0, 30.0, 90.0])
+    normals = np.stack([np.sin(t), np.zeros(3), -np.cos(t)], axis=1)
+    np.testing.assert_allclose(tilt_deg(normals, ref), [0.0, 30.0, 90.0], atol=1e-6)
+
+
+def test_smooth_presses_only_ask_for_steep_relief():
+    data = FakeDataset({"a": smooth_press("sphere"), "b": smooth_press("cube")})
+    steep = coverage(data)["steep"]
+    assert steep["untaught_from_deg"] == 45.0  # the 45-90 deg ring is empty in every region
+    assert 29.0 <= steep["taught_tilt_deg"] <= 31.0  # 99 % of U(3, 30) deg
+    assert STEEP_RELIEF in steep["advice"] and "45 deg" in steep["advice"]
+
+
+def test_a_press_with_steep_relief_fills_the_gap():
+    steep_kind = ("brick", np.concatenate([np.random.default_rng(1).uniform(3.0, 30.0, 20_000), np.full(20_000, 60.0)]))
+    data = FakeDataset({"a": smooth_press("sphere"), "b": steep_kind})
+    steep = coverage(data)["steep"]
+    assert steep["untaught_from_deg"] is None and steep["advice"] == ""
+    assert steep["taught_tilt_deg"] == pytest.approx(60.0, abs=1.0)  # to the whole degree
+
+
+def test_steep_gap_of_an_empty_dataset_asks_from_the_first_ring():
+    covered = np.zeros((4, 4, 32), bool)
+    steep = steep_gap(covered, np.ones((4, 4), bool), np.zeros(181, np.int64))
+    assert steep["taught_tilt_deg"] is None and steep["untaught_from_deg"] == 2.0 and "no samples" in steep["advice"]
