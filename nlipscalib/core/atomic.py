@@ -180,10 +180,20 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
 
 
 def remove_in_progress() -> None:
-    """Remove this process's unfinished temporary folders and files (for a signal handler about to exit)."""
+    """Remove this process's unfinished temporary folders and files (for a signal handler about to exit).
+
+    A folder is renamed first (its name gains ``.removing``, still this process's temporary name): threads of
+    this process may still be writing into it (``write_press``'s image writers), and a file they create while
+    ``rmtree`` empties it would keep the folder; under its new name their writes fail and whatever is left
+    is a dead process's temporary, which the next write or ``clean_interrupted`` removes."""
     for tmp in list(_IN_PROGRESS):
         if tmp.is_dir():
-            shutil.rmtree(tmp, ignore_errors=True)
+            doomed = tmp.with_name(tmp.name + ".removing")
+            try:
+                os.rename(tmp, doomed)
+            except OSError:
+                doomed = tmp
+            shutil.rmtree(doomed, ignore_errors=True)
         else:
             with contextlib.suppress(OSError):
                 tmp.unlink()

@@ -186,3 +186,40 @@ def test_concurrent_overwrites_of_one_folder_all_succeed_and_leave_nothing_behin
     assert errors == []
     assert [p.name for p in tmp_path.iterdir()] == ["nlipsnet"]
     assert sorted(p.name for p in final.iterdir()) == ["report.json", "result.npz"]
+
+
+def test_a_folder_removed_on_termination_is_gone_while_threads_still_write_into_it(tmp_path):
+    """SIGTERM while write_press's image threads fill a press folder: the handler's removal must not race them
+    (rmtree emptied the folder, a thread created a file, the folder stayed under its temporary name)."""
+    import threading
+
+    from nlipscalib.core.atomic import remove_in_progress
+
+    stop = threading.Event()
+
+    def keep_writing(folder):
+        i = 0
+        while not stop.is_set():
+            try:
+                (folder / f"led_{i % 12:02d}.png").write_bytes(b"x" * 4096)
+            except OSError:  # the folder went away under the thread: its writes fail from now on
+                pass
+            i += 1
+
+    with pytest.raises(SystemExit), atomic_dir(tmp_path / "press_0001") as tmp:
+        writers = [threading.Thread(target=keep_writing, args=(tmp,)) for _ in range(2)]
+        for t in writers:
+            t.start()
+        try:
+            for _ in range(50):  # files keep appearing while the folder is being removed
+                (tmp / "meta.json").write_text("{}")
+            remove_in_progress()
+            assert not tmp.exists()
+        finally:
+            stop.set()
+            for t in writers:
+                t.join()
+        assert not tmp.exists()  # nothing wrote the folder back under its name
+        raise SystemExit(143)
+    left = [p.name for p in tmp_path.iterdir()]
+    assert "press_0001" not in left and all(n.startswith(tmp.name) for n in left), left
