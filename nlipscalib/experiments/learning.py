@@ -167,6 +167,43 @@ def score(data, predictors: dict, test_sets: dict[str, list[str]]) -> list[dict]
     return rows
 
 
+def steepness(data, groups: dict[str, list[str]], tilts_deg: tuple[float, ...]) -> list[dict]:
+    """How steep the true normals of each group's contact samples are, relative to the undeformed surface.
+
+    NLiPsNet maps colour to normal pixel by pixel and extrapolates past the tilts its calibration presses
+    taught; this table shows where a test split leaves them (``learn.coverage`` asks for such presses).
+
+    Parameters
+    ----------
+    data : CalibrationDataset
+    groups : "split/indenter" -> press names
+    tilts_deg : tilts (deg from the undeformed normal) whose exceedance is reported
+
+    Returns
+    -------
+    list of rows: split, indenter, contact_samples, tilt_p99_deg and, per t of ``tilts_deg``,
+    ``beyond_<t>_pct`` (% of the samples tilted more than t deg)
+    """
+    from ..learn.coverage import tilt_deg
+
+    ref = data.reference()["normals"]
+    rows = []
+    for key, names in groups.items():
+        if not names:
+            continue
+        split, indenter = key.split("/", 1)
+        s = data.arrays(names)
+        keep = s["contact"] & np.all(np.isfinite(s["true_normal"]), -1)
+        u, v = s["pixel"][keep, 0].astype(int), s["pixel"][keep, 1].astype(int)
+        tilt = tilt_deg(s["true_normal"][keep], ref[v, u])
+        row = {"split": split, "indenter": indenter, "contact_samples": int(keep.sum())}
+        row["tilt_p99_deg"] = float(np.percentile(tilt, 99)) if tilt.size else None
+        for t in tilts_deg:
+            row[f"beyond_{t:.0f}_pct"] = float(100 * np.mean(tilt > t)) if tilt.size else None
+        rows.append(row)
+    return rows
+
+
 def net_predictor(out: Path, record: dict):
     """(pixel, rgb) -> normals of a trained model (its record from :func:`train_model`)."""
     from ..learn.evaluate import net_predict

@@ -46,6 +46,13 @@ SCORE_COLUMNS = (
     ("aae_vs_nlips_deg", "AAE vs NLiPs labels (°)", 2),
     ("aae_vs_true_deg", "AAE vs true normals (°)", 2),
 )
+STEEP_TILTS_DEG = (35.0, 45.0)
+"""Tilts (deg from the undeformed normal) whose exceedance the steepness table reports: the smooth calibration
+indenters stay below the first on the default twin, a coin's engraved detail goes beyond both."""
+STEEPNESS_COLUMNS = (
+    ("contact_samples", "contact samples", 0),
+    ("tilt_p99_deg", "99th percentile tilt (°)", 1),
+) + tuple((f"beyond_{t:.0f}_pct", f"% beyond {t:.0f}°", 1) for t in STEEP_TILTS_DEG)
 TRAINING_COLUMNS = (
     ("epochs", "epochs", 0),
     ("best_epoch_from_1", "best epoch", 0),
@@ -186,6 +193,9 @@ class Q2(Experiment):
             for kind in dict.fromkeys(data.entry(n)["press"]["indenter"] for n in tests[split])
         }
         per_indenter = learning.score(data, predictors, by_indenter)
+        by_kind = {f"train/{data.entry(n)['press']['indenter']}": [] for n in names["train"]}
+        for n in names["train"]:
+            by_kind[f"train/{data.entry(n)['press']['indenter']}"].append(n)
         for r in per_indenter:
             r["split"], r["indenter"] = r["split"].split("/", 1)
         return {
@@ -193,6 +203,7 @@ class Q2(Experiment):
             "names": names,
             "scores": learning.score(data, predictors, tests),
             "per_indenter": per_indenter,
+            "steepness": learning.steepness(data, by_kind | by_indenter, STEEP_TILTS_DEG),
             "models": {k: {key: v for key, v in m.items() if key != "history"} for k, m in models.items()},
             "histories": {k: m["history"] for k, m in models.items()},
         }
@@ -235,6 +246,17 @@ class Q2(Experiment):
                     ("split", "indenter", "method"),
                     learned["per_indenter"],
                     columns=SCORE_COLUMNS,
+                )
+            )
+        if learned.get("steepness"):  # why an unseen indenter costs more (reports made before it lack it)
+            tables.append(
+                Table(
+                    "steepness",
+                    "How steep the contact is: true normals' tilt from the undeformed surface (the net extrapolates "
+                    "beyond what its calibration presses reach)",
+                    ("split", "indenter"),
+                    learned["steepness"],
+                    columns=STEEPNESS_COLUMNS,
                 )
             )
         training = [

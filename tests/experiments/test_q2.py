@@ -56,8 +56,15 @@ def test_q2_quick_writes_report_json_and_figures(q2):
             r["contact_samples"] for r in doc["learned"]["scores"] if r["split"] == "unseen" and r["method"] == method
         ]
         assert sum(parts) == total[0] > 0
+    # how steep each group's contact is, from the true normals: every calibration and test indenter
+    steep = {(r["split"], r["indenter"]): r for r in doc["learned"]["steepness"]}
+    assert set(steep) == {(r, i) for r, i in roles}
+    for r in steep.values():
+        assert r["contact_samples"] > 0 and 0 < r["tilt_p99_deg"] <= 90
+        assert 0 <= r["beyond_45_pct"] <= r["beyond_35_pct"] <= 100
     text = (q2 / "q2-quick" / "report" / "report.md").read_text()
     assert "3.33" in text and "3.11" in text and "AAE vs true normals" in text and "per test indenter" in text
+    assert "How steep the contact is" in text
     for png in ("q2_normals.png", "q2_vs_nlips.png", "q2_vs_true.png", "q2_training.png"):
         assert (q2 / "q2-quick" / "report" / png).stat().st_size > 1000 and f"({png})" in text
 
