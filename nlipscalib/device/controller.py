@@ -122,6 +122,10 @@ def _open_error(url: str, exc: Exception) -> DeviceError:
             "same Python process: create it first, e.g. virtual_board.start_board(url, n_leds); the nlips commands "
             "start theirs)"
         )
+    if code in (errno.ENOTTY, errno.EISDIR) or "Inappropriate ioctl" in str(exc) or "Is a directory" in str(exc):
+        return PortNotFoundError(
+            f"{url}: not a serial port (boards appear as /dev/ttyACM0, /dev/ttyUSB0, COM3). {_ports_present()}"
+        )
     if code == errno.ENOENT or "no such" in str(exc).lower():
         return PortNotFoundError(f"{url}: no such serial port (is the board plugged in?). {_ports_present()}")
     return DeviceError(f"{url}: could not open the port: {exc}")
