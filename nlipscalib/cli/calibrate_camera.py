@@ -51,8 +51,12 @@ def _image_paths(items) -> list:
 
 
 def run(args) -> int:
+    import logging
+
     from ..core.atomic import write_json
-    from ..device.camera_calibration import Target, calibrate_images
+    from ..device.camera_calibration import HIGH_RMS_PX, Target, calibrate_images
+
+    log = logging.getLogger(__name__)
 
     target = Target(_pattern(args.pattern), args.square, args.charuco, args.dictionary)
     cal = calibrate_images(_image_paths(args.images), target, args.model)
@@ -65,6 +69,15 @@ def run(args) -> int:
         f"{c.model} camera {c.width}x{c.height}: fx {c.fx:.2f} fy {c.fy:.2f} cx {c.cx:.2f} cy {c.cy:.2f} dist {c.dist}"
     )
     print(f"reprojection error (RMS over {len(cal.used)} views): {cal.rms_px:.3f} px")
+    if cal.rms_px > HIGH_RMS_PX:
+        worst = max(zip(cal.per_view_px, cal.used))[1]
+        log.warning(
+            "the reprojection error %.2f px is high (a good calibration is below %g px): check --pattern and "
+            "--square, that the board is flat and sharp in every image, and the lens model (--model); worst view: %s",
+            cal.rms_px,
+            HIGH_RMS_PX,
+            worst,
+        )
     write_json(args.out, cal.to_dict())
     print(f"written {args.out}")
     return 0

@@ -241,6 +241,7 @@ def _run_device(args):
     from ..core.capture import SensorResponse
     from ..core.dome import reference_surface
     from ..device.camera import CameraSettings, open_source
+    from ..device.controller import lights_out_on_exit
     from ..device.session import Operator, Rig, run_session
     from ..device.virtual_board import start_board
 
@@ -264,7 +265,12 @@ def _run_device(args):
         average=args.average,
     )
     held = board if board is not None else contextlib.nullcontext()  # closing the board frees its id
-    with held, open_leds(args.port, args.adalight) as controller, open_source(camera_spec, settings) as source:
+    with (
+        held,
+        open_leds(args.port, args.adalight) as controller,
+        lights_out_on_exit(controller),  # also when the session is stopped (Ctrl-C, SIGTERM) mid-press
+        open_source(camera_spec, settings) as source,
+    ):
         for line in source.refused:
             print(f"camera refused: {line}", file=sys.stderr)
         shift = 16 - source.bit_depth

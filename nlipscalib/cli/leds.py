@@ -75,7 +75,12 @@ def run(args) -> int:
         )
     leds, board = _open(args)  # board: the virtual board, kept alive while the controller uses it
     with leds:
-        return _ACTIONS[args.action](leds, args)
+        if args.action != "test":
+            return _ACTIONS[args.action](leds, args)
+        from ..device.controller import lights_out_on_exit
+
+        with lights_out_on_exit(leds):  # a test stopped halfway (Ctrl-C, SIGTERM) leaves no LED lit
+            return _test(leds, args)
 
 
 def _refuse(message: str):
@@ -132,7 +137,6 @@ def _test(leds, args) -> int:
             return 1
         print(f"{name}: lit ({times[-1] * 1e3:.1f} ms)", flush=True)
         time.sleep(args.dwell)
-    leds.off()
     resends = getattr(leds, "resends", 0)
     print(f"ok: {len(steps)} steps, median {np.median(times) * 1e3:.1f} ms per change, {resends} lines resent")
     return 0

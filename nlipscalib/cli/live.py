@@ -157,6 +157,7 @@ def open_frames(args, stack, loop: bool = False):
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     source = stack.enter_context(open_source(camera, CameraSettings(exposure_ms=args.exposure_ms)))
     if args.port:
+        from ..device.controller import lights_out_on_exit
         from ..device.virtual_board import start_board
         from .capture import DEFAULT_DESIGN, open_leds
 
@@ -164,7 +165,9 @@ def open_frames(args, stack, loop: bool = False):
         board = start_board(args.port, n_leds, adalight=args.adalight is not None)
         if board is not None:
             stack.enter_context(board)  # held while the stream runs: its URL reaches it while it lives
-        _light_tricolor(stack.enter_context(open_leds(args.port, args.adalight)), args.tricolor_level)
+        controller = stack.enter_context(open_leds(args.port, args.adalight))
+        # dark again when the stream ends (its end, q, Ctrl-C, SIGTERM, an error): nothing drives them afterwards
+        _light_tricolor(stack.enter_context(lights_out_on_exit(controller)), args.tricolor_level)
     return source, None
 
 

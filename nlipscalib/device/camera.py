@@ -13,6 +13,7 @@ frames. File-backed sources hold exactly one recorded frame per exposure, so the
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
@@ -188,9 +189,10 @@ class OpenCVSource(FrameSource):
         self.live = isinstance(device, int) or str(device).startswith("/dev/")
         if not self.live and "%" not in str(device) and not Path(device).exists():
             raise CaptureError(f"{device}: video file does not exist")
-        self.cap = cv2.VideoCapture(device)
+        with _quiet_opencv(cv2):  # its own warnings ("can't open camera by index") would come before our line
+            self.cap = cv2.VideoCapture(device)
         if not self.cap.isOpened():
-            raise CaptureError(f"camera {device}: OpenCV could not open it (unplugged, busy, or no permission)")
+            raise CaptureError(_not_opened(device, self.live))
         settings = settings or CameraSettings()
         if self.live:
             self.refused = tuple(apply_settings(self.cap, settings))
@@ -241,6 +243,38 @@ class OpenCVSource(FrameSource):
 
     def close(self) -> None:
         self.cap.release()
+
+
+@contextlib.contextmanager
+def _quiet_opencv(cv2):
+    """OpenCV's log at errors only for the block (a failure is then reported once, by us)."""
+    logging_ = getattr(getattr(cv2, "utils", None), "logging", None)
+    if logging_ is None:  # pragma: no cover - builds without cv2.utils.logging
+        yield
+        return
+    level = logging_.getLogLevel()
+    logging_.setLogLevel(logging_.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        logging_.setLogLevel(level)
+
+
+def _not_opened(device: int | str, live: bool) -> str:
+    """Why OpenCV could not open ``device``: a file it cannot decode, or a camera; on Linux with the cameras
+    present (``/dev/video*``)."""
+    if not live:
+        return f"{device}: OpenCV cannot read it as a video (not a video file, damaged, or a codec it lacks)"
+    if not Path("/dev").is_dir():  # not Linux: OpenCV numbers the cameras itself
+        return f"camera {device}: OpenCV could not open it (no such camera, unplugged, busy, or no permission)"
+    video = sorted(Path("/dev").glob("video*"), key=lambda p: (len(p.name), p.name))
+    present = f"cameras present: {', '.join(map(str, video))}" if video else "no camera is present (no /dev/video*)"
+    path = Path(f"/dev/video{device}") if isinstance(device, int) else Path(device)
+    if not path.exists():
+        return f"camera {device}: no such camera ({path} does not exist); {present}"
+    if not path.name.startswith("video"):
+        return f"camera {device}: not a camera (cameras are /dev/videoN); {present}"
+    return f"camera {device}: OpenCV could not open it (busy in another program, or no permission); {present}"
 
 
 def exposure_to_backend(exposure_ms: float, backend: str) -> float:

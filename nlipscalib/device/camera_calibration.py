@@ -22,6 +22,12 @@ from ..errors import CaptureError, ConfigError, ShapeError, require
 
 MIN_VIEWS = 3
 """Views with a detected board needed for a calibration (use 10-20 covering the whole field in practice)."""
+MIN_TILT_SPREAD_DEG = 5.0
+"""Views whose boards all face the same way (normals within this angle, deg) cannot separate the focal length
+from the board's distance: the fit then returns any focal length (4 copies of one view gave fx 2944 px for a
+640 px wide camera, at 0.7 px error), so such a set is refused."""
+HIGH_RMS_PX = 1.0
+"""A calibration whose reprojection error (RMS, px) exceeds this is reported as poor (good ones: 0.02-0.3 px)."""
 
 
 def _cv2():
@@ -216,6 +222,14 @@ def calibrate(
         _, K, D, rvecs, tvecs = cv2.calibrateCamera(
             [o.reshape(-1, 3) for o in objs], [i.reshape(-1, 2) for i in imgs], (w, h), None, None, criteria=criteria
         )
+    # before the camera is built: such a fit's focal length can be anything, negative too
+    why = _unconstrained(K, rvecs, (w, h))
+    if why:
+        raise CaptureError(
+            f"{target_name} in these {len(used)} images does not pin the camera down ({why}): the focal length "
+            "cannot be told from the board's distance when the board faces the same way in every image. Take the "
+            "views again with the board tilted 20-40 deg in different directions, spread over the whole field"
+        )
     coeffs = tuple(float(c) for c in np.ravel(D)[: 4 if model == "fisheye" else 5])
     camera = Camera(w, h, float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), model, coeffs)
     per_view = []
@@ -226,6 +240,30 @@ def calibrate(
         per_view.append(float(np.sqrt((err**2).sum(axis=1).mean())))
     rms = float(np.sqrt(np.mean(np.square(per_view))))
     return Calibration(camera, rms, tuple(per_view), tuple(names[k] for k in used), rejected)
+
+
+def _unconstrained(K: np.ndarray, rvecs, size: tuple[int, int]) -> str | None:
+    """Why a fit is degenerate (boards all facing one way, a focal length or centre no camera has), or None."""
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    spread = tilt_spread_deg(rvecs)
+    if spread < MIN_TILT_SPREAD_DEG:
+        return f"the board normals lie within {spread:.1f} deg of each other"
+    if not (fx > 0 and fy > 0 and 0 <= cx < size[0] and 0 <= cy < size[1]):
+        return f"the fit diverged: fx {fx:.4g} fy {fy:.4g} px, centre ({cx:.4g}, {cy:.4g})"
+    return None
+
+
+def tilt_spread_deg(rvecs) -> float:
+    """Largest angle between the board normals of any two views, deg.
+
+    Parameters
+    ----------
+    rvecs : sequence of (3,) or (3, 1) Rodrigues vectors, board frame -> camera frame
+    """
+    cv2 = _cv2()
+    normals = np.stack([cv2.Rodrigues(np.asarray(r, np.float64).reshape(3, 1))[0][:, 2] for r in rvecs])
+    cosines = np.clip(normals @ normals.T, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cosines.min())))
 
 
 def _fisheye_flag(cv2, name: str) -> int:

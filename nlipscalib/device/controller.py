@@ -14,8 +14,10 @@ Usage::
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import logging
+import signal
 import threading
 import time
 
@@ -119,6 +121,10 @@ def _open_error(url: str, exc: Exception) -> DeviceError:
             f"{url}: no virtual board with this id in this process (nlipsemu://ID reaches a VirtualBoard of the "
             "same Python process: create it first, e.g. virtual_board.start_board(url, n_leds); the nlips commands "
             "start theirs)"
+        )
+    if code in (errno.ENOTTY, errno.EISDIR) or "Inappropriate ioctl" in str(exc) or "Is a directory" in str(exc):
+        return PortNotFoundError(
+            f"{url}: not a serial port (boards appear as /dev/ttyACM0, /dev/ttyUSB0, COM3). {_ports_present()}"
         )
     if code == errno.ENOENT or "no such" in str(exc).lower():
         return PortNotFoundError(f"{url}: no such serial port (is the board plugged in?). {_ports_present()}")
@@ -468,6 +474,74 @@ class LedController:
                 f"{self.url}: board reset detected ({reason}). The LEDs were dark meanwhile and have been restored "
                 "to the last acknowledged colours; retake any frame captured since the previous command"
             )
+
+
+LIGHTS_OUT_TIMEOUT_S = 0.3
+"""How long switching the LEDs off on SIGTERM may wait for the board's acknowledgement, s (one try)."""
+
+
+@contextlib.contextmanager
+def lights_out_on_exit(controller):
+    """Switch the LEDs off when the block ends: normally, by an exception (Ctrl-C too), or by SIGTERM.
+
+    Why: the LEDs keep whatever they show when nothing drives them any more; a capture or a live stream
+    stopped halfway would leave the sensor lit (a single WS2812 at full white heats the gel for hours).
+    The ``nlips`` command ends a SIGTERM'd process with ``os._exit`` (see cli/__init__.py), which runs no
+    ``finally`` block, so a SIGTERM handler is chained in front of the current one for the block: it
+    switches the LEDs off (one try, a short timeout: a board that does not answer must not hold the exit
+    up), then hands the signal on. Off the main thread no handler can be installed; the other exits still
+    switch the LEDs off.
+
+    Parameters
+    ----------
+    controller : LedController, AdalightController or anything with ``off()``
+    """
+    previous = _chain_sigterm(lambda: _off_quickly(controller))
+    try:
+        yield controller
+    except BaseException:
+        _restore_sigterm(previous)
+        # the error in flight is the one to report (an unplugged board, Ctrl-C): one quick try, no second message
+        with contextlib.suppress(Exception):
+            _off_quickly(controller)
+        raise
+    _restore_sigterm(previous)
+    controller.off()
+
+
+def _restore_sigterm(previous) -> None:
+    if previous is not None:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _chain_sigterm(first):
+    """Install a SIGTERM handler that calls ``first()`` and then the handler installed before; returns that."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    previous = signal.getsignal(signal.SIGTERM)
+    if previous == signal.SIG_IGN:  # the process is not to be terminated: nothing to do on the way out
+        return None
+    if previous is None:  # installed from outside Python: restoring it is impossible, the default is close
+        previous = signal.SIG_DFL
+
+    def handler(signum, frame):
+        with contextlib.suppress(Exception):  # best effort on the way out
+            first()
+        signal.signal(signal.SIGTERM, previous)
+        if callable(previous):
+            previous(signum, frame)
+        else:  # the default action: terminate, as if this handler had not been there
+            signal.raise_signal(signal.SIGTERM)
+
+    signal.signal(signal.SIGTERM, handler)
+    return previous
+
+
+def _off_quickly(controller) -> None:
+    """``controller.off()`` with one short try (LedController), for a process about to exit."""
+    if hasattr(controller, "retries"):
+        controller.timeout, controller.retries, controller.reconnect_s = LIGHTS_OUT_TIMEOUT_S, 0, 0.0
+    controller.off()
 
 
 def _check_versions(url: str, info: p.BoardInfo) -> None:

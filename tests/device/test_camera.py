@@ -87,3 +87,29 @@ def test_settings_are_read_back_and_refusals_reported():
     assert len(refused) == 2
     assert any(r.startswith("auto white balance off") for r in refused)
     assert any(r.startswith("exposure: asked 200") and "156" in r for r in refused)  # V4L2: 100 us units
+
+
+@pytest.mark.parametrize("command", ["capture", "live"])
+def test_a_camera_that_is_not_there_is_one_line_without_opencv_warnings(command, tmp_path, capfd):
+    """OpenCV printed its own "[ WARN:0@0.02] global cap_v4l.cpp:915 open VIDEOIO(V4L2:/dev/video97): can't open
+    camera by index" lines (two) before ours; and a file it cannot decode was called a busy camera."""
+    from nlipscalib.cli import main
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    board = VirtualBoard(12)
+    (tmp_path / "garbage.avi").write_text("not a video")
+    args = {
+        "capture": ["capture", "--port", board.url, "--yes", "--out", str(tmp_path / "s"), "--camera"],
+        "live": ["live", "--predictor", "tests.device.fakes:flat_predictor", "--no-window", "--camera"],
+    }[command]
+    assert main(args + ["97"]) == 2
+    err = capfd.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith(f"nlips {command}: error: camera 97: no such camera ("), err
+    assert "/dev/video97 does not exist" in err[0]
+    assert main(args + [str(tmp_path / "garbage.avi")]) == 2
+    err = capfd.readouterr().err.splitlines()
+    assert err == [
+        f"nlips {command}: error: {tmp_path / 'garbage.avi'}: OpenCV cannot read it as a video (not a "
+        "video file, damaged, or a codec it lacks)"
+    ]
+    assert not (tmp_path / "s").exists()  # nothing captured

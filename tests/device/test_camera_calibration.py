@@ -177,3 +177,37 @@ def test_charuco_calibration_uses_partial_views(subpixel_rays):
     cal = calibrate(detected, (TRUE.width, TRUE.height), "fisheye", target_name=CHARUCO.name)
     assert cal.rms_px < 0.2, cal.per_view_px
     assert cal.camera.fx == pytest.approx(TRUE.fx, rel=0.01)
+
+
+def test_views_of_one_orientation_are_refused(subpixel_rays):
+    """Four shots of a board that was not moved, or boards all facing the camera: any focal length fits them
+    (the fit wrote fx 2944 px for a 640 px camera at 0.7 px error); one clear error instead."""
+    target = Target(PATTERN, SQUARE)
+    same = [target.detect(render_board(subpixel_rays, *_pose((20, 0, 5), (0, 0, 22))))] * 4
+    facing = [
+        target.detect(render_board(subpixel_rays, *_pose((0, 0, 0), c))) for c in [(0, 0, 22), (-6, 0, 26), (6, 3, 30)]
+    ]
+    for detected in (same, facing):
+        assert all(d is not None for d in detected)
+        with pytest.raises(
+            CaptureError, match="does not pin the camera down .* tilted 20-40 deg in different directions"
+        ):
+            calibrate(detected, (TRUE.width, TRUE.height), "fisheye", target_name=target.name)
+
+
+def test_a_poor_fit_is_written_with_a_warning(views, tmp_path, capsys, caplog):
+    """Views the model cannot explain (half of them sheared, as a bent board or a wrong lens model would)."""
+    from nlipscalib.cli import main
+
+    for k, v in enumerate(views):
+        shear = np.float32([[1, 0.2 * (k % 2), 0], [0, 1, 0]])
+        cv2.imwrite(str(tmp_path / f"v{k:02d}.png"), cv2.warpAffine(v, shear, v.shape[::-1], borderValue=120))
+    args = ["calibrate-camera", str(tmp_path), "--pattern", "8x6", "--square", "3", "--out", str(tmp_path / "c.json")]
+    assert main(args) == 0 and (tmp_path / "c.json").is_file()
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1 and "is high (a good calibration is below 1 px)" in warnings[0], warnings
+    assert int(warnings[0].split("worst view: v")[1][:2]) % 2 == 1  # a sheared one
+    caplog.clear()
+    for k, v in enumerate(views):  # the same views unsheared: no warning
+        cv2.imwrite(str(tmp_path / f"v{k:02d}.png"), v)
+    assert main(args) == 0 and not [r for r in caplog.records if r.levelname == "WARNING"]

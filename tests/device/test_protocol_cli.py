@@ -138,3 +138,12 @@ def test_leds_commands_on_the_firmware(tmp_path, capsys):
         assert board.latched().sum() == 0  # the test ends with the LEDs off
     finally:
         board.close()
+
+
+def test_a_path_that_is_not_a_serial_port_is_one_line(tmp_path, capsys):
+    """/dev/null or a folder: it said "could not open the port: Could not configure port: (25, 'Inappropriate
+    ioctl for device')"."""
+    for path in ("/dev/null", str(tmp_path)):
+        assert main(["leds", path, "info"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"nlips leds: error: {path}: not a serial port") and err.count("\n") == 1, err

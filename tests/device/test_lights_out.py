@@ -1,0 +1,135 @@
+"""Commands that light the LEDs leave them dark when they stop: at the end, on an error, Ctrl-C or SIGTERM.
+
+The LEDs keep the last frame they latched when nothing drives them any more, so a capture or a live stream
+stopped halfway used to leave the sensor lit (SIGTERM ends an ``nlips`` process with ``os._exit``, which
+runs no ``finally``; ``nlips live`` never switched them off at all).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.device.controller import LedController, lights_out_on_exit
+from nlipscalib.device.virtual_board import VirtualBoard
+
+from .ledboards import SimavrUnderTest, firmware_build
+
+TERMINATED = "nlips capture: terminated; finished work is kept, run again to resume"
+
+
+@pytest.fixture
+def previous_sigterm():
+    """A stand-in for the nlips command's SIGTERM handler, recording what the LEDs showed when it ran."""
+    seen = []
+    old = signal.signal(signal.SIGTERM, lambda signum, frame: seen.append(signum))
+    yield seen
+    signal.signal(signal.SIGTERM, old)
+
+
+def test_sigterm_in_the_block_switches_the_leds_off_then_hands_the_signal_on(previous_sigterm):
+    board = VirtualBoard(4)
+    handler = signal.getsignal(signal.SIGTERM)
+    with LedController.open(board.url) as leds, lights_out_on_exit(leds):
+        leds.set_all(np.full((4, 3), 200, np.uint8))
+        assert signal.getsignal(signal.SIGTERM) is not handler  # chained in front for the block
+        signal.raise_signal(signal.SIGTERM)
+        assert previous_sigterm == [signal.SIGTERM]  # the previous handler ran (the command's: exit 143) ...
+        assert board.latched.sum() == 0  # ... after the LEDs went dark
+        leds.set_all(np.full((4, 3), 9, np.uint8))
+    assert signal.getsignal(signal.SIGTERM) is handler  # put back
+    assert board.latched.sum() == 0  # and dark at the end of the block too
+
+
+def test_an_error_in_the_block_switches_the_leds_off_and_is_the_one_reported():
+    board = VirtualBoard(3)
+    with pytest.raises(KeyboardInterrupt), LedController.open(board.url) as leds, lights_out_on_exit(leds):
+        leds.set_led(1, (255, 255, 255))
+        raise KeyboardInterrupt
+    assert board.latched.sum() == 0
+
+
+def test_ctrl_c_during_leds_test_leaves_no_led_lit(monkeypatch, capsys):
+    board = VirtualBoard(12)
+    naps = []
+
+    def sleep(seconds):  # Ctrl-C while the third LED is lit
+        naps.append(seconds)
+        if len(naps) == 3:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(time, "sleep", sleep)
+    assert main(["leds", board.url, "test"]) == 130
+    assert "LED 3: lit" in capsys.readouterr().out
+    assert board.latched.sum() == 0
+
+
+def test_live_switches_the_leds_off_when_the_stream_ends(tmp_path, monkeypatch, capsys):
+    cv2 = pytest.importorskip("cv2")
+    from tests.device import fakes
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k}.png"), np.full((12, 16, 3), 90, np.uint8))
+    board = VirtualBoard(12)
+    lit = []
+
+    def lit_predictor(shape):  # records what the LEDs showed while each frame was predicted
+        predict = fakes.flat_predictor(shape)
+        return lambda frame: (lit.append(int(board.latched.sum())), predict(frame))[1]
+
+    monkeypatch.setattr(fakes, "lit_predictor", lit_predictor, raising=False)
+    args = ["live", "--camera", str(frames), "--port", board.url, "--no-window", "--save", str(tmp_path / "s")]
+    assert main(args + ["--predictor", "tests.device.fakes:lit_predictor"]) == 0
+    assert len(lit) >= 3 and min(lit) > 0  # lit (tri-colour) while streaming
+    assert board.latched.sum() == 0  # dark afterwards
+
+
+def test_sigterm_mid_capture_on_the_firmware_leaves_the_leds_dark_and_no_partial_press(tmp_path):
+    """`kill` of `nlips capture` on the real host path (the firmware in simavr, recorded frames) mid-press."""
+    cv2 = pytest.importorskip("cv2")
+    from nlipscalib.core import Camera, find_presses, load_press
+
+    camera = Camera.from_fov(160, 120, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
+    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}))
+    video = cv2.VideoWriter(str(tmp_path / "v.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 30, (160, 120))
+    for _ in range(4000):  # ~0.5 s of decoding per press at --average 100: the session outlasts the kill
+        video.write(np.full((120, 160, 3), 90, np.uint8))
+    video.release()
+    board = SimavrUnderTest(*firmware_build(), tmp_path / "tty")
+    command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    argv = [sys.executable, "-c", command, "--no-progress", "capture", "--port", board.url, "--yes"]
+    argv += ["--camera", str(tmp_path / "v.avi"), "--camera-calibration", str(tmp_path / "camera.json")]
+    argv += ["--average", "100", "--presses", "9", "--out", str(tmp_path / "s")]
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while proc.poll() is None and time.monotonic() < deadline:
+            if (tmp_path / "s" / "reference").is_dir() and board.latched().sum() > 0:
+                break  # a press is being captured under one of its lights
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, signal.SIGKILL)
+    try:
+        assert proc.returncode == 128 + signal.SIGTERM, err
+        assert [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING "))] == [TERMINATED]
+        assert board.latched().sum() == 0  # was lit when the signal came
+    finally:
+        board.close()
+    presses = find_presses(tmp_path / "s")
+    assert len(presses) < 10  # stopped mid-session
+    for press in presses:  # whatever looks complete is complete
+        assert load_press(press).led_images.shape == (12, 120, 160, 3)
