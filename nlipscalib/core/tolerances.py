@@ -44,3 +44,8 @@ pass solves the whole mask."""
 DENT_FOCUS_MIN_PIXELS = 1024
 """... and when it holds at least this many pixels of the mask (a 32 x 32 box, the auto ROI's least): a contact
 outside an explicit ROI leaves nothing to focus on."""
+FRAME_MISMATCH_FRACTION = 0.04
+"""NLiPsNet: a frame whose median difference from the calibration's reference frame over the gel exceeds this
+fraction of the reference's brightness differs almost everywhere (twin frames of presses: 0.009-0.011, 8-bit
+ones too; 5 % brighter: 0.052; red and blue swapped: 0.28; a dark frame: 1.0), so its changed pixels cannot be
+told apart and the result is warned about."""

@@ -407,7 +407,8 @@ class CalibrationDataset:
             missing_hint=f"{self.folder} is not a calibration dataset (run `nlips calibrate`)",
         )
         self.index = index
-        self.sensor: dict = check_sensor_record(index["sensor"], path)
+        remedy = "run `nlips calibrate` on its presses again to record it (the samples are kept)"
+        self.sensor: dict = check_sensor_record(index["sensor"], path, remedy)
         self.entries: list[dict] = _checked_entries(index["presses"], path)
 
     @property

@@ -44,6 +44,9 @@ class Frame:
     """(H, W) bool -- pixels that differed from the reference frame (went through the network)."""
     seconds: dict
     """Time of each stage: change, network, integrate, total."""
+    mismatch: float = 0.0
+    """Median difference from the reference frame over the gel, fraction of its brightness (:func:`mismatch_warning`).
+    """
 
 
 class Predictor:
@@ -164,7 +167,7 @@ class Predictor:
             points = (depth[..., None] / self.camera.rays[..., 2:3] * self.camera.rays).astype(np.float32)
         t3 = time.perf_counter()
         seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
-        return Frame(normals, depth, points, changed, seconds)
+        return Frame(normals, depth, points, changed, seconds, self.changed.mismatch)
 
     def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         """(N, 3) network input colours at the changed pixels: the model's prefilter, on their bounding box only."""
@@ -174,6 +177,27 @@ class Predictor:
     def predict_stored(self, image: np.ndarray, where="frame") -> Frame:
         """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""
         return self.predict(self.linear(image, where))
+
+
+def mismatch_warning(frame: Frame, where) -> str | None:
+    """Why ``frame``'s result is not to be trusted when it differs from the reference frame almost everywhere.
+
+    The change rule finds the pixels that differ from the rest of the frame; a frame unlike the calibration's
+    reference over the whole gel (another exposure, LEDs off or lit otherwise, red and blue swapped, another
+    sensor) leaves it nothing to find, and the result would silently be the undeformed dome. None when the
+    frame is like the reference (:data:`nlipscalib.core.tolerances.FRAME_MISMATCH_FRACTION`).
+    """
+    from ..core.tolerances import FRAME_MISMATCH_FRACTION
+
+    if not frame.mismatch > FRAME_MISMATCH_FRACTION:
+        return None
+    return (
+        f"{where}: differs from the calibration's reference frame over most of the gel (median difference "
+        f"{100 * frame.mismatch:.0f} % of its brightness; a press changes only part of it, and up to "
+        f"{100 * FRAME_MISMATCH_FRACTION:.0f} % is normal), so a contact cannot be told apart and the result is "
+        "unreliable: was the frame taken with this sensor, its LEDs lit in the tri-colour pattern, at the "
+        "calibration's exposure, and stored as RGB (not OpenCV's BGR)?"
+    )
 
 
 def to_reconstruction(frame: Frame, predictor: Predictor, source: str):

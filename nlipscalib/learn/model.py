@@ -210,7 +210,8 @@ def load_model(path) -> LoadedModel:
         if key not in payload:
             raise CaptureError(f"{path}: model file lacks '{key}'")
     # a hand-edited or foreign file: each field named here, not as a TypeError deep inside inference
-    cam = check_sensor_record(payload["sensor"], path)["camera"]
+    remedy = "train it again (`nlips train`) on a calibration dataset that records it"
+    cam = check_sensor_record(payload["sensor"], path, remedy)["camera"]
     hidden, dropout = payload["hidden"], payload["dropout"]
     if not isinstance(hidden, (list, tuple)) or not hidden or any(type(h) is not int or h < 1 for h in hidden):
         raise CaptureError(f"{path}: 'hidden' must list positive layer widths, got {hidden!r}")

@@ -126,3 +126,106 @@ def test_infer_refuses_out_of_range_options(trained, twin_presses, tmp_path, cap
     assert not (tmp_path / "o").exists()
     with pytest.raises(ConfigError, match="threads"):
         Predictor(trained, threads=-1)
+
+
+def _angle_deg(a, b):
+    return np.degrees(np.arccos(np.clip((a * b).sum(-1), -1.0, 1.0)))
+
+
+def test_eight_bit_png_jpeg_and_upper_case_frames_are_inferred_like_16_bit_ones(
+    trained, twin_presses, tmp_path, caplog
+):
+    """A lab's frames: 8-bit PNG and JPEG (were refused or streamed as a video), FRAME.PNG (was skipped), notes."""
+    import logging
+
+    import cv2
+
+    caplog.set_level(logging.INFO)
+    bgr16 = cv2.imread(str(twin_presses / HELD_OUT / "tricolor.png"), cv2.IMREAD_UNCHANGED)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    cv2.imwrite(str(frames / "a16.PNG"), bgr16)
+    cv2.imwrite(str(frames / "b8.png"), (bgr16 >> 8).astype(np.uint8))
+    cv2.imwrite(str(frames / "c8.jpg"), (bgr16 >> 8).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 98])
+    (frames / "notes.txt").write_text("press g, 2026-12-03")
+    out = tmp_path / "o"
+    assert main(["infer", str(trained), str(frames), "--backend", "torch", "--out", str(out)]) == 0
+    assert "notes.txt" in caplog.text and "skipped" in caplog.text
+    assert caplog.text.count("an 8-bit image") == 1  # once per command, not per frame
+    shape = load_press(twin_presses / HELD_OUT).camera.shape
+    full = load_reconstruction(out / "a16", shape)
+    changed = full.report["changed_pixels"]
+    assert changed > 0
+    for name in ("b8", "c8"):
+        rec = load_reconstruction(out / name, shape)
+        # the same pixels change and the network sees the same colours up to 8-bit rounding: a swapped channel
+        # order or another scaling would change (nearly) every pixel or none, and turn the normals far away
+        assert abs(rec.report["changed_pixels"] - changed) < 0.25 * changed, (name, rec.report, changed)
+        both = full.mask & np.isfinite(rec.normals).all(-1)
+        assert np.median(_angle_deg(rec.normals[both], full.normals[both])) < 0.5
+        assert np.percentile(_angle_deg(rec.normals[both], full.normals[both]), 95) < 10.0
+
+
+def test_a_grey_image_is_refused_in_one_line(trained, twin_presses, tmp_path, capsys):
+    import cv2
+
+    grey = tmp_path / "grey.png"
+    cv2.imwrite(str(grey), cv2.imread(str(twin_presses / HELD_OUT / "tricolor.png"), cv2.IMREAD_UNCHANGED)[..., 1])
+    assert main(["infer", str(trained), str(grey), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "grey.png" in err[0] and "3 colour channels, found 1" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_frame_unlike_the_reference_everywhere_is_warned_about(trained, twin_presses, tmp_path, caplog, capsys):
+    """Red and blue swapped (BGR saved as RGB): no pixel stood out, the undeformed dome came back silently."""
+    import logging
+
+    import cv2
+
+    caplog.set_level(logging.WARNING)
+    bgr16 = cv2.imread(str(twin_presses / HELD_OUT / "tricolor.png"), cv2.IMREAD_UNCHANGED)
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "good")]) == 0
+    assert "differs from the calibration's reference" not in caplog.text
+    swapped = tmp_path / "swapped.png"
+    cv2.imwrite(str(swapped), np.ascontiguousarray(bgr16[..., ::-1]))
+    assert main(["infer", str(trained), str(swapped), "--out", str(tmp_path / "o")]) == 0
+    assert "swapped.png: differs from the calibration's reference" in caplog.text and "BGR" in caplog.text
+    # a stream of such frames: the warning once, and how many frames it concerned at the end
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(seq / f"img_{i:04d}.png"), np.ascontiguousarray(bgr16[..., ::-1]))
+    caplog.clear()
+    assert main(["infer", str(trained), str(seq / "img_%04d.png"), "--out", str(tmp_path / "s")]) == 0
+    assert caplog.text.count("differs from the calibration's reference") == 1
+    assert "3 of 3 frames differed" in caplog.text
+
+
+def test_a_model_without_led_geometry_warns_and_infers_while_a_whole_one_refuses_another_ring(
+    trained, twin_presses, tmp_path, caplog, capsys
+):
+    """Models trained before 2026-12-03 lack led_positions/led_directions: usable, with a warning naming the file."""
+    import json
+    import logging
+    import shutil
+
+    import torch
+
+    caplog.set_level(logging.WARNING)
+    payload = torch.load(trained, weights_only=True)
+    del payload["sensor"]["led_positions"], payload["sensor"]["led_directions"]
+    old = tmp_path / "old.pt"
+    torch.save(payload, old)
+    other = tmp_path / "other_ring"
+    shutil.copytree(twin_presses / HELD_OUT, other, ignore=shutil.ignore_patterns("nlips*"))
+    meta = json.loads((other / "meta.json").read_text())
+    for led in meta["leds"]:
+        led["position"][2] += 1.5  # a ring 1.5 mm higher: another sensor
+    (other / "meta.json").write_text(json.dumps(meta))
+    assert main(["infer", str(trained), str(other), "--out", str(tmp_path / "new")]) == 2
+    assert "another sensor" in capsys.readouterr().err
+    assert "records no LED geometry" not in caplog.text
+    assert main(["infer", str(old), str(other), "--out", str(tmp_path / "o")]) == 0
+    assert f"{old}: records no LED geometry" in caplog.text and "cannot be checked" in caplog.text
+    assert (tmp_path / "o" / "other_ring" / "nlipsnet" / "result.npz").is_file()
