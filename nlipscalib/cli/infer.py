@@ -303,7 +303,7 @@ def _frames(inputs):
     """(name, loader(predictor) -> linear frame, press folder or None, source path) for every input, in order."""
     from pathlib import Path
 
-    from ..core.capture import META_FILE, find_presses, is_incomplete_press
+    from ..core.capture import META_FILE, REFERENCE_FOLDER, find_presses, is_incomplete_press
     from ..errors import CaptureError
 
     eight_bit = _EightBitNotice()
@@ -312,6 +312,8 @@ def _frames(inputs):
         if path.is_file():
             yield path.stem, _image_loader(path, eight_bit), None, path
         elif path.is_dir() and (presses := find_presses(path)):
+            if len(presses) > 1 or presses[0] != path:  # a folder of presses: its reference/ is no press (as solve)
+                presses = [p for p in presses if p != path / REFERENCE_FOLDER] or presses
             for folder in presses:
                 yield folder.name, _press_loader(folder), folder, folder
         elif path.is_dir():

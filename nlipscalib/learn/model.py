@@ -199,8 +199,7 @@ def load_model(path) -> LoadedModel:
 
     torch = _torch()
     path = Path(path)
-    if not path.is_file():
-        raise CaptureError(f"{path}: model file is missing")
+    _check_model_path(path)
     payload = read_torch_file(path, "an NLiPsNet model file")
     if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
         raise CaptureError(f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r})")
@@ -231,6 +230,23 @@ def load_model(path) -> LoadedModel:
         raise CaptureError(f"{path}: weights do not fit the architecture ({str(exc).splitlines()[0]})") from None
     net.eval()
     return LoadedModel(path, net, payload)
+
+
+def _check_model_path(path: Path) -> None:
+    """CaptureError for a path that is no model file: missing, a folder, or the ONNX export given instead."""
+    if path.is_dir():
+        models = sorted(p.name for p in path.glob("*.pt") if not p.name.endswith(".checkpoint.pt"))
+        hint = f" (it holds {', '.join(models[:5])})" if models else ""
+        raise CaptureError(f"{path}: a folder, not a model file: give the .pt file from `nlips train`{hint}")
+    if path.suffix.lower() == ".onnx":  # the export beside the model: it lacks the sensor and reference frame
+        beside = path.with_suffix(".pt")
+        hint = f" ({beside})" if beside.is_file() else ""
+        raise CaptureError(
+            f"{path}: the ONNX export, not the model file: give the .pt file from `nlips train`{hint}; the .onnx "
+            "beside it is used with --backend onnx (and by default)"
+        )
+    if not path.is_file():
+        raise CaptureError(f"{path}: model file is missing")
 
 
 def read_torch_file(path, what: str):

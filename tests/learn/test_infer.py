@@ -229,3 +229,38 @@ def test_a_model_without_led_geometry_warns_and_infers_while_a_whole_one_refuses
     assert main(["infer", str(old), str(other), "--out", str(tmp_path / "o")]) == 0
     assert f"{old}: records no LED geometry" in caplog.text and "cannot be checked" in caplog.text
     assert (tmp_path / "o" / "other_ring" / "nlipsnet" / "result.npz").is_file()
+
+
+def test_a_folder_or_the_onnx_export_given_as_the_model_says_which_file_to_give(
+    trained, twin_presses, tmp_path, capsys
+):
+    import shutil
+
+    models = tmp_path / "models"
+    models.mkdir()
+    shutil.copy(trained, models / "net.pt")
+    (models / "net.onnx").write_bytes(b"\x08\x07onnx-ish")
+    (tmp_path / "renamed.onnx").write_bytes(trained.read_bytes())  # a .pt renamed: was "not a readable ONNX model"
+    cases = {
+        models: "a folder, not a model file: give the .pt file from `nlips train` (it holds net.pt)",
+        models / "net.onnx": f"the ONNX export, not the model file: give the .pt file from `nlips train` ({models}",
+        tmp_path / "renamed.onnx": "the ONNX export, not the model file",
+    }
+    for model, expected in cases.items():
+        assert main(["infer", str(model), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{model}: {expected}" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_folder_of_presses_infers_its_presses_not_its_reference(trained, twin_presses, tmp_path, capsys):
+    import shutil
+
+    root = tmp_path / "presses"
+    for name in ("reference", "press_a", "press_b"):
+        shutil.copytree(twin_presses / name, root / name, ignore=shutil.ignore_patterns("nlips"))
+    assert main(["infer", str(trained), str(root)]) == 0
+    assert capsys.readouterr().out.startswith("2 frame(s)")
+    assert (root / "press_a" / "nlipsnet").is_dir() and not (root / "reference" / "nlipsnet").exists()
+    assert main(["infer", str(trained), str(root / "reference")]) == 0  # named itself, it is inferred
+    assert (root / "reference" / "nlipsnet" / "result.npz").is_file()
