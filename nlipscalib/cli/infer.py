@@ -280,6 +280,9 @@ def _run_stills(args) -> int:
     t_start = time.perf_counter()
     predictor = Predictor(args.model, backend=args.backend, threads=args.threads, depth=not args.no_depth)
     frames = list(_frames(args.inputs))
+    _check_destinations(args, frames)
+    if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
+        log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
     inner, n = [], 0
     for name, load, press_folder, source in frames:
         frame_linear = load(predictor)
@@ -407,19 +410,42 @@ def _press_loader(folder):
     return load
 
 
+def _destination(args, name, press_folder):
+    """The result folder of one input: PRESS/nlipsnet, OUT/PRESS/nlipsnet or OUT/FRAME; None for a frame
+    without --out."""
+    from pathlib import Path
+
+    from ..learn.infer import RESULT_DIR
+
+    if press_folder is not None:
+        return Path(args.out) / name / RESULT_DIR if args.out else Path(press_folder) / RESULT_DIR
+    return Path(args.out) / name if args.out else None
+
+
+def _check_destinations(args, frames) -> None:
+    """One line, before any inference, when two inputs would write one result folder (the last would win)."""
+    from ..errors import ConfigError
+
+    seen = {}
+    for name, _, press_folder, source in frames:
+        folder = _destination(args, name, press_folder)
+        if folder is not None and seen.setdefault(folder, source) != source:
+            raise ConfigError(
+                f"{seen[folder]} and {source} would both be written to {folder}: infer them into separate --out "
+                "folders (or rename one)"
+            )
+
+
 def _save(args, predictor, result, name, press_folder) -> None:
     from pathlib import Path
 
     from ..core.reconstruction import save_reconstruction
-    from ..learn.infer import RESULT_DIR, to_reconstruction
+    from ..learn.infer import to_reconstruction
     from ..learn.ply import write_ply
 
-    if press_folder is not None:
-        folder = Path(args.out) / name / RESULT_DIR if args.out else press_folder / RESULT_DIR
-    elif args.out:
-        folder = Path(args.out) / name
-    else:
-        return  # a stream of frames without --out: only the frame rate is reported
+    folder = _destination(args, name, press_folder)
+    if folder is None:
+        return  # image frames without --out: only the frame rate is reported
 
     def ply(tmp: Path) -> None:
         # written into the temporary folder, so the result is published with its points.ply or not at all: a

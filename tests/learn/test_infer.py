@@ -264,3 +264,22 @@ def test_a_folder_of_presses_infers_its_presses_not_its_reference(trained, twin_
     assert (root / "press_a" / "nlipsnet").is_dir() and not (root / "reference" / "nlipsnet").exists()
     assert main(["infer", str(trained), str(root / "reference")]) == 0  # named itself, it is inferred
     assert (root / "reference" / "nlipsnet" / "result.npz").is_file()
+
+
+def test_two_inputs_for_one_result_folder_are_refused_before_inferring(trained, twin_presses, tmp_path, capsys, caplog):
+    """Two presses of one name (two datasets) into one --out: the second silently replaced the first's result."""
+    import logging
+    import shutil
+
+    other = tmp_path / "copy" / HELD_OUT
+    shutil.copytree(twin_presses / HELD_OUT, other, ignore=shutil.ignore_patterns("nlips*"))
+    out = tmp_path / "o"
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), str(other), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"would both be written to {out / HELD_OUT / 'nlipsnet'}" in err[0], err
+    assert not out.exists()
+    # without --out each press keeps its own result; a frame without --out is said to be written nowhere
+    caplog.set_level(logging.WARNING)
+    assert main(["infer", str(trained), str(other), str(other / "tricolor.png")]) == 0
+    assert (other / "nlipsnet" / "result.npz").is_file()
+    assert "image frames without --out: their results are not written" in caplog.text
