@@ -219,6 +219,7 @@ def load_model(path) -> LoadedModel:
     reference = payload["reference"]
     if not isinstance(reference, dict) or not all(isinstance(v, torch.Tensor) for v in reference.values()):
         raise CaptureError(f"{path}: 'reference' must map names to arrays")
+    _check_reference(reference, (cam["height"], cam["width"]), path)
     if not isinstance(payload["info"], dict):
         raise CaptureError(f"{path}: 'info' must be a mapping, got {type(payload['info']).__name__}")
     if not isinstance(payload.get("smoothing_px", 0.0), (int, float)):
@@ -230,6 +231,24 @@ def load_model(path) -> LoadedModel:
         raise CaptureError(f"{path}: weights do not fit the architecture ({str(exc).splitlines()[0]})") from None
     net.eval()
     return LoadedModel(path, net, payload)
+
+
+REFERENCE_ARRAYS = {"tricolor": 3, "dark": 3, "depth": 2, "normals": 3, "valid": 2}
+"""The reference arrays inference reads, with their number of dimensions ((H, W, 3) or (H, W))."""
+
+
+def _check_reference(reference: dict, shape: tuple[int, int], path: Path) -> None:
+    """CaptureError naming the model file when a reference array inference reads is missing or not of the
+    sensor's image size (a hand-edited or foreign file: else a KeyError or a shape error without the file)."""
+    for key, ndim in REFERENCE_ARRAYS.items():
+        if key not in reference:
+            raise CaptureError(f"{path}: 'reference' lacks the array {key!r} (the model file is damaged or foreign)")
+        want = shape + (3,) if ndim == 3 else shape
+        if tuple(reference[key].shape) != want:
+            got = "x".join(map(str, reference[key].shape))
+            raise CaptureError(
+                f"{path}: 'reference' array {key!r} is {got}, the sensor's images need {'x'.join(map(str, want))}"
+            )
 
 
 def _check_model_path(path: Path) -> None:

@@ -211,6 +211,17 @@ def test_damaged_and_foreign_model_files_are_one_line(built, tmp_path, capsys):
         ("sensorless", {"sensor": {"camera": 5}}, "'sensor' is not a sensor description"),
         ("widthless", {"hidden": ["wide"]}, "'hidden' must list positive layer widths"),
         ("noreference", {"reference": [1, 2]}, "'reference' must map names to arrays"),
+        # a reference array missing or of another size: were a KeyError traceback, or a shape error not naming it
+        (
+            "novalid",
+            {"reference": {k: v for k, v in payload["reference"].items() if k != "valid"}},
+            "'reference' lacks the array 'valid'",
+        ),
+        (
+            "shortdepth",
+            {"reference": payload["reference"] | {"depth": payload["reference"]["depth"][:10]}},
+            "'reference' array 'depth' is 10x64, the sensor's images need 48x64",
+        ),
     ):
         torch.save(payload | change, tmp_path / "crafted.pt")
         cases[name] = ((tmp_path / "crafted.pt").read_bytes(), problem)
