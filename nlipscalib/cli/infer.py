@@ -86,7 +86,10 @@ def _stream_input(args):
     from ..errors import ConfigError
 
     videos = [
-        i for i in args.inputs if "%" in i or (Path(i).is_file() and Path(i).suffix.lower() not in STILL_SUFFIXES)
+        i
+        for i in args.inputs
+        if ("%" in i and not Path(i).exists())  # a pattern, not a file whose name holds a % ("press 50%.png")
+        or (Path(i).is_file() and Path(i).suffix.lower() not in STILL_SUFFIXES)
     ]
     chosen = [x for x in (args.emulate and "emulated", args.camera, *videos) if x]
     if len(chosen) > 1 or (chosen and len(args.inputs) > len(videos)):

@@ -283,3 +283,15 @@ def test_two_inputs_for_one_result_folder_are_refused_before_inferring(trained, 
     assert main(["infer", str(trained), str(other), str(other / "tricolor.png")]) == 0
     assert (other / "nlipsnet" / "result.npz").is_file()
     assert "image frames without --out: their results are not written" in caplog.text
+
+
+def test_a_frame_whose_name_holds_a_percent_sign_is_a_still_not_a_sequence_pattern(
+    trained, twin_presses, tmp_path, capsys
+):
+    import shutil
+
+    frame = tmp_path / "press 50%.png"
+    shutil.copy(twin_presses / HELD_OUT / "tricolor.png", frame)
+    assert main(["infer", str(trained), str(frame), "--out", str(tmp_path / "o")]) == 0
+    assert capsys.readouterr().out.startswith("1 frame(s)")  # the stills' summary, not a stream's
+    assert (tmp_path / "o" / "press 50%" / "result.npz").is_file()
