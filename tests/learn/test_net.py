@@ -150,6 +150,15 @@ def test_cli_trains_a_small_variant_without_dropout(calib, tmp_path, capsys):
     assert len(err) == 1 and "--threads" in err[0]
 
 
+def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
+    """`--val-presses "press_a, press_b"` was "validation presses [' press_b'] are not in the dataset"."""
+    out = tmp_path / "m.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8", "--dropout", "0", "--epochs", "1"]
+    assert main([*args, "--val-presses", "press_a, press_b", "--exclude", f" {HELD_OUT} ,", "--no-onnx"]) == 0
+    info = load_model(out).info
+    assert info["val_presses"] == ["press_a", "press_b"] and info["excluded_presses"] == [HELD_OUT]
+
+
 def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp_path, monkeypatch):
     from nlipscalib.errors import ConfigError
     from nlipscalib.learn import train as train_module
