@@ -191,6 +191,13 @@ def test_a_frame_unlike_the_reference_everywhere_is_warned_about(trained, twin_p
     cv2.imwrite(str(swapped), np.ascontiguousarray(bgr16[..., ::-1]))
     assert main(["infer", str(trained), str(swapped), "--out", str(tmp_path / "o")]) == 0
     assert "swapped.png: differs from the calibration's reference" in caplog.text and "BGR" in caplog.text
+    assert "times as bright" not in caplog.text  # as bright as the reference: the colours are what differ
+    dim = tmp_path / "twelve_bit.png"  # 12-bit values in a 16-bit file, as some cameras store them
+    cv2.imwrite(str(dim), bgr16 >> 4)
+    caplog.clear()
+    assert main(["infer", str(trained), str(dim), "--out", str(tmp_path / "o")]) == 0
+    assert "twelve_bit.png: differs from the calibration's reference" in caplog.text
+    assert "times as bright" in caplog.text and "bit depth" in caplog.text and "BGR" not in caplog.text
     # a stream of such frames: the warning once, and how many frames it concerned at the end
     seq = tmp_path / "seq"
     seq.mkdir()
