@@ -259,7 +259,7 @@ def _write_stream_report(out, name, predictor, stats, stages, cpu_s) -> None:
 
     report = {
         "input": name,
-        "model": str(predictor.model.path),
+        "model": str(predictor.model.path.resolve()),
         "backend": predictor.backend,
         "hidden": list(predictor.model.hidden),
         "frames": stats.frames,

@@ -242,7 +242,7 @@ def to_reconstruction(frame: Frame, predictor: Predictor, source: str):
         reconstructed=valid.copy(),
         report={
             "method": "nlipsnet",
-            "model": str(predictor.model.path),
+            "model": str(predictor.model.path.resolve()),  # absolute: a later command may run elsewhere
             "backend": predictor.backend,
             "hidden": list(predictor.model.hidden),
             "labels": predictor.model.info.get("labels"),

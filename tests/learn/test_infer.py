@@ -21,6 +21,7 @@ def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_pres
     rec = load_reconstruction(out / HELD_OUT / "nlipsnet", press.camera.shape)
     scores = evaluate(rec, press.ground_truth)["contact"]
     assert scores["aae_deg"] < 8.0 and scores["depth_rmse_mm"] < 0.4, scores
+    assert rec.report["model"] == str(trained.resolve())  # absolute: `nlips eval` names it from anywhere
     head = (out / HELD_OUT / "nlipsnet" / "points.ply").read_bytes()[:400]
     assert b"element vertex" in head and b"element face" in head
 
