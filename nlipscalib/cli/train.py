@@ -51,7 +51,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--threads", type=int, default=0, help="PyTorch CPU threads (default 0: every core this process may use)"
     )
-    p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export")
+    p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export (`nlips export MODEL` makes it later)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
 
