@@ -30,6 +30,7 @@ SUBCOMMAND_MODULES = (
     "live",
     "calibration",
     "train",
+    "export",
     "infer",
     "cache",
 )

@@ -51,7 +51,7 @@ def run(args) -> int:
     from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.coverage import coverage, write_coverage_json
-    from ..learn.dataset import CalibrationDataset, SamplingConfig, build_dataset, check_min_leds
+    from ..learn.dataset import DEFAULT_DIR, CalibrationDataset, SamplingConfig, build_dataset, check_min_leds
     from ..report.learn import coverage_figure
 
     check_count("--workers", args.workers, minimum=0)
@@ -81,7 +81,7 @@ def run(args) -> int:
         log.error("%s: %s", name, why)
     if not solved:
         raise ConfigError(f"{root}: no press could be solved")
-    out = Path(args.out) if args.out else root / "calibration"
+    out = Path(args.out) if args.out else root / DEFAULT_DIR
     build_dataset(solved, reference, out, cfg, progress=not args.no_progress)
     data = CalibrationDataset(out)
     cov = coverage(data)

@@ -132,8 +132,8 @@ def _load(folder: Path, method: str, single: bool, out=None):
     try:
         return load_reconstruction(out)
     except CaptureError as exc:
-        if method != "nlips":
-            return str(exc)  # NLiPsNet results are re-made by `nlips infer`, not here
+        if method != "nlips":  # NLiPsNet results are re-made by `nlips infer`, not here: say how
+            return f"{exc}; make it again with {_infer_command(folder, out)}"
         settings = _recorded_settings(out)
         if isinstance(settings, str):  # said before any "re-computing": there is nothing to re-compute from
             unknown = "" if settings == str(exc) else f" ({settings})"
@@ -144,6 +144,21 @@ def _load(folder: Path, method: str, single: bool, out=None):
             )
         log.warning("%s; re-computing it from its recorded settings", exc)
         return _recompute(folder, out, settings)
+
+
+def _infer_command(folder: Path, out: Path) -> str:
+    """The `nlips infer` that re-makes the NLiPsNet result ``out`` of the press ``folder`` (its model when the
+    report still names it)."""
+    from ..core.reconstruction import read_report, reconstruction_dir
+    from ..errors import CaptureError
+
+    try:
+        model = read_report(out).get("model")
+    except CaptureError:
+        model = None
+    model = model if isinstance(model, str) and model else "MODEL.pt"
+    elsewhere = out != reconstruction_dir(folder, method="nlipsnet") and out.parent.name == folder.name
+    return f"`nlips infer {model} {folder}" + (f" --out {out.parent.parent}`" if elsewhere else "`")
 
 
 def _recorded_settings(out: Path):

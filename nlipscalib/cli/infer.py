@@ -17,8 +17,9 @@ from .live import add_source_arguments, check_output_arguments, check_source_arg
 
 log = logging.getLogger(__name__)
 
-STILL_SUFFIXES = (".png",)
-"""Files taken as single tri-colour frames; any other file is opened as a video."""
+STILL_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
+"""Files taken as single tri-colour frames (any case; device.camera.IMAGE_SUFFIXES, what a folder source reads);
+any other file is opened as a video."""
 
 
 def register(subparsers) -> None:
@@ -26,7 +27,9 @@ def register(subparsers) -> None:
         "infer",
         help="NLiPsNet normals + depth (+ PLY) from tri-colour frames: presses, PNG frames, a video or a camera",
         description="Run a trained NLiPsNet on press folders (writes PRESS/nlipsnet/ in the reconstruction format), "
-        "on 16-bit tri-colour PNG frames (a file, several, or a folder of frames), or on a stream: a video file, "
+        "on tri-colour frames stored as images (a file, several, or a folder of frames: 16-bit PNG as captured, or "
+        "8-bit PNG/JPEG/TIFF/BMP with a warning that they are coarser, read as RGB like a video's frames), "
+        "or on a stream: a video file, "
         "an image-sequence pattern (frames/img_%04d.png), a camera (--camera 0) or the emulated sensor "
         "(--emulate SCENE). Only pixels that differ from the calibration's reference frame go through the "
         "network; depth integrates the normals on the dome. Prints frames per second and where the time goes.",
@@ -35,8 +38,8 @@ def register(subparsers) -> None:
     p.add_argument(
         "inputs",
         nargs="*",
-        help="press folder(s), a folder of presses, PNG file(s), a folder of PNGs, or one video file or "
-        "image-sequence pattern",
+        help="press folder(s), a folder of presses, image file(s) (PNG, JPEG, TIFF, ...), a folder of them, or one "
+        "video file or image-sequence pattern",
     )
     add_source_arguments(p, camera_default=None)
     p.add_argument(
@@ -83,7 +86,10 @@ def _stream_input(args):
     from ..errors import ConfigError
 
     videos = [
-        i for i in args.inputs if "%" in i or (Path(i).is_file() and Path(i).suffix.lower() not in STILL_SUFFIXES)
+        i
+        for i in args.inputs
+        if ("%" in i and not Path(i).exists())  # a pattern, not a file whose name holds a % ("press 50%.png")
+        or (Path(i).is_file() and Path(i).suffix.lower() not in STILL_SUFFIXES)
     ]
     chosen = [x for x in (args.emulate and "emulated", args.camera, *videos) if x]
     if len(chosen) > 1 or (chosen and len(args.inputs) > len(videos)):
@@ -116,8 +122,10 @@ def _run_stream(args, what: str) -> int:
     import contextlib
     import time
 
+    from ..core.tolerances import FRAME_MISMATCH_FRACTION
     from ..device.live import ReadAhead, SaveSink, stream
     from ..errors import CaptureError, require
+    from ..learn.infer import mismatch_warning
     from ..report import normals_to_rgb
     from .live import nlipsnet_predictor, open_frames
 
@@ -147,8 +155,15 @@ def _run_stream(args, what: str) -> int:
         elif args.ply or args.mesh:
             log.warning("--ply without --out: no point clouds are written")
 
+        mismatched = []
+
         def predict(frame):
-            return stages.add(predictor.predict_stored(frame, name))
+            result = stages.add(predictor.predict_stored(frame, name))
+            if not mismatched and (why := mismatch_warning(result, f"{name} frame {len(stages.seconds) - 1}")):
+                log.warning("%s", why)  # once: a stream of such frames would repeat it every frame
+            if result.mismatch > FRAME_MISMATCH_FRACTION:
+                mismatched.append(len(stages.seconds) - 1)
+            return result
 
         cpu0 = time.process_time()
         stats = stream(
@@ -163,6 +178,13 @@ def _run_stream(args, what: str) -> int:
         cpu = time.process_time() - cpu0
     print(stats.summary())
     print(stages.summary(predictor, cpu, stats.frames, args.no_depth))
+    if mismatched:
+        log.warning(
+            "%d of %d frames differed from the calibration's reference over most of the gel (see the warning "
+            "above): their results are unreliable",
+            len(mismatched),
+            len(stages.seconds),
+        )
     if args.out and stats.frames:
         _write_stream_report(args.out, name, predictor, stats, stages, cpu)
     return 0
@@ -237,7 +259,7 @@ def _write_stream_report(out, name, predictor, stats, stages, cpu_s) -> None:
 
     report = {
         "input": name,
-        "model": str(predictor.model.path),
+        "model": str(predictor.model.path.resolve()),
         "backend": predictor.backend,
         "hidden": list(predictor.model.hidden),
         "frames": stats.frames,
@@ -256,15 +278,20 @@ def _run_stills(args) -> int:
 
     import numpy as np
 
-    from ..learn.infer import Predictor
+    from ..learn.infer import Predictor, mismatch_warning
 
     t_start = time.perf_counter()
     predictor = Predictor(args.model, backend=args.backend, threads=args.threads, depth=not args.no_depth)
     frames = list(_frames(args.inputs))
+    _check_destinations(args, frames)
+    if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
+        log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
     inner, n = [], 0
-    for name, load, press_folder in frames:
+    for name, load, press_folder, source in frames:
         frame_linear = load(predictor)
         result = predictor.predict(frame_linear)
+        if why := mismatch_warning(result, source):
+            log.warning("%s", why)
         inner.append(result.seconds["total"])
         n += 1
         _save(args, predictor, result, name, press_folder)
@@ -279,45 +306,99 @@ def _run_stills(args) -> int:
 
 
 def _frames(inputs):
-    """(name, loader(predictor) -> linear frame, press folder or None) for every input, in order."""
+    """(name, loader(predictor) -> linear frame, press folder or None, source path) for every input, in order."""
     from pathlib import Path
 
-    from ..core.capture import META_FILE, find_presses, is_incomplete_press
+    from ..core.capture import META_FILE, REFERENCE_FOLDER, find_presses, is_incomplete_press
     from ..errors import CaptureError
 
+    eight_bit = _EightBitNotice()
     for item in inputs:
         path = Path(item)
         if path.is_file():
-            yield path.stem, _png_loader(path), None
+            yield path.stem, _image_loader(path, eight_bit), None, path
         elif path.is_dir() and (presses := find_presses(path)):
+            if len(presses) > 1 or presses[0] != path:  # a folder of presses: its reference/ is no press (as solve)
+                presses = [p for p in presses if p != path / REFERENCE_FOLDER] or presses
             for folder in presses:
-                yield folder.name, _press_loader(folder), folder
+                yield folder.name, _press_loader(folder), folder, folder
         elif path.is_dir():
-            pngs = sorted(path.glob("*.png"))
-            if not pngs:
-                raise CaptureError(f"{path}: no press folders and no .png frames in it")
+            images = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in STILL_SUFFIXES)
+            if not images:
+                raise CaptureError(f"{path}: no press folders and no image frames ({', '.join(STILL_SUFFIXES)}) in it")
             if is_incomplete_press(path):
                 raise CaptureError(
                     f"{path}: looks like a press folder (dark.png, led_*.png) without its {META_FILE}: an "
                     "incomplete capture; capture it again (its dark and LED images are not tri-colour frames)"
                 )
-            for png in pngs:
-                yield png.stem, _png_loader(png), None
+            others = sorted(p.name for p in path.iterdir() if p.is_file() and p not in images)
+            if others:  # said, so a frame saved under an unexpected suffix is not silently missing
+                shown = ", ".join(others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
+                log.info("%s: %d file(s) that are not image frames skipped: %s", path, len(others), shown)
+            stems = [image.stem for image in images]
+            for image in images:  # frame.png and frame.jpg side by side: each keeps its own result folder
+                name = image.stem if stems.count(image.stem) == 1 else image.name
+                yield name, _image_loader(image, eight_bit), None, image
         else:
             raise CaptureError(f"{path}: no such file or folder")
 
 
-def _png_loader(path):
-    def load(predictor):
-        from ..core.imageio import read_png16
-        from ..errors import CaptureError
+class _EightBitNotice:
+    """Says once per command that 8-bit frames were scaled up (and JPEG's loss), not once per frame."""
 
-        img = read_png16(path)
-        if img.ndim != 3:
-            raise CaptureError(f"{path}: a tri-colour frame must have 3 colour channels")
-        return predictor.linear(img, path)
+    def __init__(self):
+        self.said = False
+
+    def __call__(self, path) -> None:
+        if self.said:
+            return
+        self.said = True
+        lossy = path.suffix.lower() in (".jpg", ".jpeg")
+        log.warning(
+            "%s: an 8-bit image%s: taken as the top 8 bits of the sensor's 16-bit values (as a video's frames "
+            "are); the model was calibrated on 16-bit captures, so its colours are coarser than the training "
+            "samples'%s. Save the camera's frames as 16-bit PNG for the full accuracy",
+            path,
+            " (JPEG, lossy)" if lossy else "",
+            " and JPEG compression changes them further" if lossy else "",
+        )
+
+
+def _image_loader(path, eight_bit):
+    def load(predictor):
+        return predictor.linear(read_still(path, eight_bit), path)
 
     return load
+
+
+def read_still(path, eight_bit=None):
+    """A tri-colour frame stored as an image file, as stored 16-bit RGB values ((H, W, 3) uint16).
+
+    The capture format (16-bit PNG) or any image OpenCV reads (8 or 16 bits, BGR or BGRA as OpenCV returns
+    it), converted as a camera's or a video's frames are (``device.camera.to_stored``: 8-bit values shifted up
+    by 8 bits). ``eight_bit(path)`` is called for an 8-bit image. A grey image is refused: it is no
+    tri-colour frame.
+    """
+    from pathlib import Path
+
+    from ..core.imageio import _check_png_ends as check_png_ends
+    from ..device.camera import to_stored
+    from ..errors import CaptureError, require
+
+    path = Path(path)
+    cv2 = require("cv2", "opencv-python-headless", "Reading an image")
+    if path.suffix.lower() == ".png":
+        check_png_ends(path)  # a truncated PNG is named as such, before libpng prints its own error line
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise CaptureError(f"{path}: not a readable image")
+    channels = raw.shape[2] if raw.ndim == 3 else 1
+    if channels not in (3, 4):
+        raise CaptureError(f"{path}: a tri-colour frame must have 3 colour channels, found {channels}")
+    image, bits = to_stored(raw, str(path))
+    if bits == 8 and eight_bit is not None:
+        eight_bit(path)
+    return image
 
 
 def _press_loader(folder):
@@ -332,19 +413,42 @@ def _press_loader(folder):
     return load
 
 
+def _destination(args, name, press_folder):
+    """The result folder of one input: PRESS/nlipsnet, OUT/PRESS/nlipsnet or OUT/FRAME; None for a frame
+    without --out."""
+    from pathlib import Path
+
+    from ..learn.infer import RESULT_DIR
+
+    if press_folder is not None:
+        return Path(args.out) / name / RESULT_DIR if args.out else Path(press_folder) / RESULT_DIR
+    return Path(args.out) / name if args.out else None
+
+
+def _check_destinations(args, frames) -> None:
+    """One line, before any inference, when two inputs would write one result folder (the last would win)."""
+    from ..errors import ConfigError
+
+    seen = {}
+    for name, _, press_folder, source in frames:
+        folder = _destination(args, name, press_folder)
+        if folder is not None and seen.setdefault(folder, source) != source:
+            raise ConfigError(
+                f"{seen[folder]} and {source} would both be written to {folder}: infer them into separate --out "
+                "folders (or rename one)"
+            )
+
+
 def _save(args, predictor, result, name, press_folder) -> None:
     from pathlib import Path
 
     from ..core.reconstruction import save_reconstruction
-    from ..learn.infer import RESULT_DIR, to_reconstruction
+    from ..learn.infer import to_reconstruction
     from ..learn.ply import write_ply
 
-    if press_folder is not None:
-        folder = Path(args.out) / name / RESULT_DIR if args.out else press_folder / RESULT_DIR
-    elif args.out:
-        folder = Path(args.out) / name
-    else:
-        return  # a stream of frames without --out: only the frame rate is reported
+    folder = _destination(args, name, press_folder)
+    if folder is None:
+        return  # image frames without --out: only the frame rate is reported
 
     def ply(tmp: Path) -> None:
         # written into the temporary folder, so the result is published with its points.ply or not at all: a

@@ -51,7 +51,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--threads", type=int, default=0, help="PyTorch CPU threads (default 0: every core this process may use)"
     )
-    p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export")
+    p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export (`nlips export MODEL` makes it later)")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
 
@@ -91,8 +91,8 @@ def run(args) -> int:
             threads=args.threads or usable_cores(),
         )
     data = CalibrationDataset(args.dataset)
-    val = args.val_presses.split(",") if args.val_presses else None
-    exclude = args.exclude.split(",") if args.exclude else ()
+    val = _names(args.val_presses) or None
+    exclude = _names(args.exclude)
     result = train(data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress)
     best = result.history[result.best_epoch]
     curve = training_curve(result.history, out.with_name(out.stem + "_curve.png"), f"NLiPsNet {args.hidden}")
@@ -106,6 +106,11 @@ def run(args) -> int:
         onnx_path, angle = export_and_check(out, data, result.val_presses)
         print(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
     return 0
+
+
+def _names(option: str | None) -> list[str]:
+    """Press names of a comma-separated option, as typed ("press_1, press_2" too: the spaces are no part of them)."""
+    return [name.strip() for name in (option or "").split(",") if name.strip()]
 
 
 def export_and_check(model_path, dataset, names) -> tuple:

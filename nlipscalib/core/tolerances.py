@@ -54,3 +54,8 @@ FIT_NOISE_RATIO = 1.15
 """An LED calibration is reliable when its residual is at most this many times the images' own noise (median
 over the LEDs): measured 1.01-1.11 on good captures, 1.19-1.63 on poor ones (the table in
 :func:`nlipscalib.solver.calibrate.fit_quality`)."""
+FRAME_MISMATCH_FRACTION = 0.04
+"""NLiPsNet: a frame whose median difference from the calibration's reference frame over the gel exceeds this
+fraction of the reference's brightness differs almost everywhere (twin frames of presses: 0.009-0.011, 8-bit
+ones too; 5 % brighter: 0.052; red and blue swapped: 0.28; a dark frame: 1.0), so its changed pixels cannot be
+told apart and the result is warned about."""

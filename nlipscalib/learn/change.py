@@ -51,6 +51,10 @@ class ChangeDetector:
         self._valid_blocks = _blocks(self.valid.astype(np.float32), self._crop) == 1  # all four pixels on the gel
         self._level = self._ref_blocks.sum(-1)
         self._sample = np.flatnonzero(self._valid_blocks)[::NOISE_STRIDE]
+        self._sample_level = float(np.median(self._level.ravel()[self._sample])) if self._sample.size else 0.0
+        self.mismatch = 0.0
+        """The last frame's median difference from the reference over the gel, as a fraction of the reference's
+        median brightness (see :data:`nlipscalib.core.tolerances.FRAME_MISMATCH_FRACTION`)."""
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
         """(H, W) bool -- pixels of ``frame`` ((H, W, 3) float, linear) that differ from the reference."""
@@ -67,6 +71,9 @@ class ChangeDetector:
         diff = cv2.transform(np.abs(smooth), _ONES)  # sum over the colours, (H/2, W/2)
         sample = diff.ravel()[self._sample]
         median = float(np.median(sample))
+        # the rule below finds what differs from the rest of the frame: when the whole frame differs (another
+        # exposure, LEDs off, channels swapped), nothing does, and the caller is told through this figure
+        self.mismatch = median / self._sample_level if self._sample_level > 0 else 0.0
         sigma = 1.4826 * float(np.median(np.abs(sample - median))) + 1e-6
         hit = self._valid_blocks & (diff > median + NOISE_SIGMAS * sigma) & (diff > MIN_REL_CHANGE * self._level)
         hit = masks.dilate(masks.erode(hit))  # opening: isolated blocks are noise

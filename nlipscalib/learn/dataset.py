@@ -49,6 +49,8 @@ from .change import RULE_VERSION, changed_pixels
 from .prefilter import Prefilter
 from .sensor import check_sensor, check_sensor_record, sensor_of
 
+DEFAULT_DIR = "calibration"
+"""Where ``nlips calibrate PRESSES`` writes the dataset by default: ``PRESSES/calibration``."""
 FORMAT_NAME = "nlipscalib.calibration"
 FORMAT_VERSION = 1
 INDEX_FILE = "index.json"
@@ -399,6 +401,12 @@ class CalibrationDataset:
     def __init__(self, folder) -> None:
         self.folder = Path(folder)
         path = self.folder / INDEX_FILE
+        inside = self.folder / DEFAULT_DIR / INDEX_FILE
+        if not path.is_file() and inside.is_file():  # the folder of presses given: `nlips calibrate` wrote inside it
+            raise CaptureError(
+                f"{self.folder}: a folder of presses, not a calibration dataset; its calibration dataset is "
+                f"{inside.parent} (give that folder)"
+            )
         index = read_format_json(
             path,
             FORMAT_NAME,
@@ -407,7 +415,8 @@ class CalibrationDataset:
             missing_hint=f"{self.folder} is not a calibration dataset (run `nlips calibrate`)",
         )
         self.index = index
-        self.sensor: dict = check_sensor_record(index["sensor"], path)
+        remedy = "run `nlips calibrate` on its presses again to record it (the samples are kept)"
+        self.sensor: dict = check_sensor_record(index["sensor"], path, remedy)
         self.entries: list[dict] = _checked_entries(index["presses"], path)
 
     @property

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.camera import Camera
+from ..core.tolerances import FRAME_MISMATCH_FRACTION
 from ..errors import CaptureError, ConfigError, ShapeError
 from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
@@ -25,6 +26,10 @@ from .sensor import check_sensor, sensor_of
 BACKENDS = ("auto", "torch", "onnx", "onnx-int8")
 """Network runtimes: auto (onnx when MODEL.onnx exists, else torch), PyTorch, onnxruntime float32, and
 onnxruntime with dynamic int8 quantisation (about 1.5x faster for the paper's net, ~0.05 deg)."""
+
+BRIGHTNESS_OFF = 0.15
+"""A mismatched frame whose median brightness is off the reference's by more than this fraction is called darker or
+brighter in the warning (another exposure, LED level or bit depth); otherwise the colours differ."""
 
 RESULT_DIR = "nlipsnet"
 """Reconstruction folder name inside a press (core reconstruction format, like PRESS/nlips)."""
@@ -44,6 +49,12 @@ class Frame:
     """(H, W) bool -- pixels that differed from the reference frame (went through the network)."""
     seconds: dict
     """Time of each stage: change, network, integrate, total."""
+    brightness: float = 1.0
+    """Median brightness on the gel over the reference frame's; measured only for a frame that differs over most of
+    the gel (:func:`mismatch_warning`), else 1."""
+    mismatch: float = 0.0
+    """Median difference from the reference frame over the gel, fraction of its brightness (:func:`mismatch_warning`).
+    """
 
 
 class Predictor:
@@ -164,7 +175,15 @@ class Predictor:
             points = (depth[..., None] / self.camera.rays[..., 2:3] * self.camera.rays).astype(np.float32)
         t3 = time.perf_counter()
         seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
-        return Frame(normals, depth, points, changed, seconds)
+        frame = Frame(normals, depth, points, changed, seconds, mismatch=self.changed.mismatch)
+        if frame.mismatch > FRAME_MISMATCH_FRACTION:  # only then: what the warning can say about it
+            frame.brightness = self._brightness(tricolor)
+        return frame
+
+    def _brightness(self, tricolor: np.ndarray) -> float:
+        """The frame's median brightness on the gel over the reference frame's (1: as bright)."""
+        level = float(np.median(self.ref_tricolor[self.valid].sum(-1)))
+        return float(np.median(tricolor[self.valid].sum(-1))) / level if level > 0 else float("nan")
 
     def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         """(N, 3) network input colours at the changed pixels: the model's prefilter, on their bounding box only."""
@@ -174,6 +193,34 @@ class Predictor:
     def predict_stored(self, image: np.ndarray, where="frame") -> Frame:
         """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""
         return self.predict(self.linear(image, where))
+
+
+def mismatch_warning(frame: Frame, where) -> str | None:
+    """Why ``frame``'s result is not to be trusted when it differs from the reference frame almost everywhere.
+
+    The change rule finds the pixels that differ from the rest of the frame; a frame unlike the calibration's
+    reference over the whole gel (another exposure, LEDs off or lit otherwise, red and blue swapped, another
+    sensor) leaves it nothing to find, and the result would silently be the undeformed dome. None when the
+    frame is like the reference (:data:`nlipscalib.core.tolerances.FRAME_MISMATCH_FRACTION`).
+    """
+    if not frame.mismatch > FRAME_MISMATCH_FRACTION:
+        return None
+    if abs(frame.brightness - 1) > BRIGHTNESS_OFF:  # darker or brighter throughout: say by how much
+        question = (
+            f"it is {frame.brightness:.2g} times as bright: was it taken at the calibration's exposure and LED level, "
+            "with its values at the calibration's bit depth (12-bit values in a 16-bit file are 1/16 as bright)?"
+        )
+    else:
+        question = (
+            "was it taken with this sensor, its LEDs lit in the tri-colour pattern, and stored as RGB (not "
+            "OpenCV's BGR)?"
+        )
+    return (
+        f"{where}: differs from the calibration's reference frame over most of the gel (median difference "
+        f"{100 * frame.mismatch:.0f} % of its brightness; a press changes only part of it, and up to "
+        f"{100 * FRAME_MISMATCH_FRACTION:.0f} % is normal), so a contact cannot be told apart and the result is "
+        f"unreliable: {question}"
+    )
 
 
 def to_reconstruction(frame: Frame, predictor: Predictor, source: str):
@@ -195,7 +242,7 @@ def to_reconstruction(frame: Frame, predictor: Predictor, source: str):
         reconstructed=valid.copy(),
         report={
             "method": "nlipsnet",
-            "model": str(predictor.model.path),
+            "model": str(predictor.model.path.resolve()),  # absolute: a later command may run elsewhere
             "backend": predictor.backend,
             "hidden": list(predictor.model.hidden),
             "labels": predictor.model.info.get("labels"),

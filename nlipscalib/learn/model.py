@@ -199,8 +199,7 @@ def load_model(path) -> LoadedModel:
 
     torch = _torch()
     path = Path(path)
-    if not path.is_file():
-        raise CaptureError(f"{path}: model file is missing")
+    _check_model_path(path)
     payload = read_torch_file(path, "an NLiPsNet model file")
     if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
         raise CaptureError(f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r})")
@@ -210,7 +209,8 @@ def load_model(path) -> LoadedModel:
         if key not in payload:
             raise CaptureError(f"{path}: model file lacks '{key}'")
     # a hand-edited or foreign file: each field named here, not as a TypeError deep inside inference
-    cam = check_sensor_record(payload["sensor"], path)["camera"]
+    remedy = "train it again (`nlips train`) on a calibration dataset that records it"
+    cam = check_sensor_record(payload["sensor"], path, remedy)["camera"]
     hidden, dropout = payload["hidden"], payload["dropout"]
     if not isinstance(hidden, (list, tuple)) or not hidden or any(type(h) is not int or h < 1 for h in hidden):
         raise CaptureError(f"{path}: 'hidden' must list positive layer widths, got {hidden!r}")
@@ -219,6 +219,7 @@ def load_model(path) -> LoadedModel:
     reference = payload["reference"]
     if not isinstance(reference, dict) or not all(isinstance(v, torch.Tensor) for v in reference.values()):
         raise CaptureError(f"{path}: 'reference' must map names to arrays")
+    _check_reference(reference, (cam["height"], cam["width"]), path)
     if not isinstance(payload["info"], dict):
         raise CaptureError(f"{path}: 'info' must be a mapping, got {type(payload['info']).__name__}")
     if not isinstance(payload.get("smoothing_px", 0.0), (int, float)):
@@ -230,6 +231,41 @@ def load_model(path) -> LoadedModel:
         raise CaptureError(f"{path}: weights do not fit the architecture ({str(exc).splitlines()[0]})") from None
     net.eval()
     return LoadedModel(path, net, payload)
+
+
+REFERENCE_ARRAYS = {"tricolor": 3, "dark": 3, "depth": 2, "normals": 3, "valid": 2}
+"""The reference arrays inference reads, with their number of dimensions ((H, W, 3) or (H, W))."""
+
+
+def _check_reference(reference: dict, shape: tuple[int, int], path: Path) -> None:
+    """CaptureError naming the model file when a reference array inference reads is missing or not of the
+    sensor's image size (a hand-edited or foreign file: else a KeyError or a shape error without the file)."""
+    for key, ndim in REFERENCE_ARRAYS.items():
+        if key not in reference:
+            raise CaptureError(f"{path}: 'reference' lacks the array {key!r} (the model file is damaged or foreign)")
+        want = shape + (3,) if ndim == 3 else shape
+        if tuple(reference[key].shape) != want:
+            got = "x".join(map(str, reference[key].shape))
+            raise CaptureError(
+                f"{path}: 'reference' array {key!r} is {got}, the sensor's images need {'x'.join(map(str, want))}"
+            )
+
+
+def _check_model_path(path: Path) -> None:
+    """CaptureError for a path that is no model file: missing, a folder, or the ONNX export given instead."""
+    if path.is_dir():
+        models = sorted(p.name for p in path.glob("*.pt") if not p.name.endswith(".checkpoint.pt"))
+        hint = f" (it holds {', '.join(models[:5])})" if models else ""
+        raise CaptureError(f"{path}: a folder, not a model file: give the .pt file from `nlips train`{hint}")
+    if path.suffix.lower() == ".onnx":  # the export beside the model: it lacks the sensor and reference frame
+        beside = path.with_suffix(".pt")
+        hint = f" ({beside})" if beside.is_file() else ""
+        raise CaptureError(
+            f"{path}: the ONNX export, not the model file: give the .pt file from `nlips train`{hint}; the .onnx "
+            "beside it is used with --backend onnx (and by default)"
+        )
+    if not path.is_file():
+        raise CaptureError(f"{path}: model file is missing")
 
 
 def read_torch_file(path, what: str):

@@ -26,12 +26,9 @@ IR_VERSION = 8
 """ONNX IR version of the export: the oldest that carries opset 17 (onnxruntime >= 1.13 reads it)."""
 
 
-EXPORT_HINT = (
-    "`nlips train` writes it beside the model unless --no-onnx; in Python: "
-    "nlipscalib.learn.onnx_export.export_onnx(nlipscalib.learn.model.load_model(MODEL), PATH); "
-    "or use --backend torch"
-)
-"""How to get MODEL.onnx: no command exports on its own, so the errors name these ways."""
+def export_hint(model_path) -> str:
+    """How to get the ONNX file of the model at ``model_path``, for the errors that find it missing or stale."""
+    return f"`nlips export {model_path}` writes it, as `nlips train` does unless --no-onnx; or use --backend torch"
 
 
 def file_digest(path) -> str:
@@ -135,7 +132,7 @@ class OnnxNet:
         ort = require("onnxruntime", "onnxruntime", "ONNX inference")
         path = Path(path)
         if not path.is_file():
-            raise CaptureError(f"{path}: ONNX model is missing ({EXPORT_HINT})")
+            raise CaptureError(f"{path}: ONNX model is missing ({export_hint(model.path if model else 'MODEL.pt')})")
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
@@ -148,7 +145,7 @@ class OnnxNet:
         props = self.session.get_modelmeta().custom_metadata_map
         if model is not None and props.get("model_digest") != file_digest(model.path):
             raise CaptureError(
-                f"{path}: exported from another model than {model.path}; export it again ({EXPORT_HINT})"
+                f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
             )
         if int8:  # the checked float file, quantised in memory
             self.session = ort.InferenceSession(quantized_int8(path), opts, providers=["CPUExecutionProvider"])

@@ -6,10 +6,13 @@ image) from another sensor is refused with a message saying what differs.
 
 from __future__ import annotations
 
+import logging
 import math
 
 from ..core.leds import led_geometry_mismatch, tricolor_groups
 from ..errors import CaptureError
+
+log = logging.getLogger(__name__)
 
 INTRINSICS_RTOL = 1e-3
 """Relative tolerance on focal lengths and principal point when matching a capture to a model."""
@@ -63,11 +66,13 @@ def check_sensor(expected: dict, actual: dict, where) -> None:
         raise CaptureError(f"{where}: captured with another sensor than the model was calibrated for ({why})")
 
 
-def check_sensor_record(sensor, where) -> dict:
+def check_sensor_record(sensor, where, remedy: str = "") -> dict:
     """``sensor`` as read back from a file (index.json, a model file), checked to be a sensor description.
 
     Such files are written by this package, but a hand edit or another tool's file would otherwise fail
-    later, deep inside inference, as a KeyError or TypeError. Returns ``sensor``.
+    later, deep inside inference, as a KeyError or TypeError. Returns ``sensor``. A file written before
+    the LED geometry was recorded (2026-12-03) is accepted with a warning naming ``where``, that a capture
+    of another LED ring cannot be refused, and ``remedy`` (how to make the file again).
 
     Raises
     ------
@@ -102,4 +107,12 @@ def check_sensor_record(sensor, where) -> dict:
         raise CaptureError(f"{where}: 'sensor' is not a sensor description (missing key {exc})") from None
     except (TypeError, ValueError, ConfigError, CaptureError) as exc:
         raise CaptureError(f"{where}: 'sensor' is not a sensor description ({exc})") from None
+    if "led_positions" not in sensor or "led_directions" not in sensor:
+        # silently accepting it would let a capture of another LED ring (same camera, same LED count) through
+        log.warning(
+            "%s: records no LED geometry (made before 2026-12-03, or from a dataset made then), so the LED "
+            "positions and directions of a capture cannot be checked against the calibrated sensor%s",
+            where,
+            f"; {remedy}" if remedy else "",
+        )
     return sensor

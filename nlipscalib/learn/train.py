@@ -189,6 +189,12 @@ def train(
     data_key = _data_key(x_tr, y_tr, x_va, y_va, c_va)
     state = _resume(out, cfg, data_key, net, opt, sched)
     history, best, best_state = state["history"], state["best"], state["best_state"]
+    if not history and out.is_file():  # a re-run with a tweak would otherwise replace a better model unnoticed
+        log.warning(
+            "%s: a model is already there (not this training's: its checkpoint was made with other options or "
+            "samples, or is missing); it is replaced when this run ends: give another --out to keep it",
+            out,
+        )
     xt, yt = torch.from_numpy(x_tr), torch.from_numpy(y_tr)
     xv, yv, cv = torch.from_numpy(x_va), torch.from_numpy(y_va), torch.from_numpy(c_va)
     gen = torch.Generator().manual_seed(cfg.seed + len(history))

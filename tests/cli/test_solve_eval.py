@@ -146,7 +146,13 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     npz = press / "nlipsnet" / "result.npz"
     npz.write_bytes(npz.read_bytes()[:100])
     assert main(["eval", str(root), "--method", "nlipsnet"]) == 1  # not re-made here: named, exit 1
-    assert "damaged, not scored: press_a" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    # with the command that makes it again (the model the report names; this report names none)
+    assert "damaged, not scored: press_a" in out and f"make it again with `nlips infer MODEL.pt {press}`" in out
+    report = json.loads((press / "nlipsnet" / "report.json").read_text())
+    (press / "nlipsnet" / "report.json").write_text(json.dumps(report | {"model": "/lab/models/net.pt"}))
+    assert main(["eval", str(press), "--method", "nlipsnet"]) == 1
+    assert f"make it again with `nlips infer /lab/models/net.pt {press}`" in capsys.readouterr().out
 
 
 def test_eval_scores_a_result_solved_into_another_folder(data, tmp_path, capsys):

@@ -71,6 +71,32 @@ def test_cli_train_on_corrupt_dataset_fails_with_one_line(calib, tmp_path, capsy
     assert len(err) == 1 and "index.json" in err[0]
 
 
+def test_cli_train_on_the_folder_of_presses_names_its_calibration_dataset(calib, tmp_path, capsys):
+    """`nlips train PRESSES` (for PRESSES/calibration) said "not a calibration dataset (run `nlips calibrate`)"."""
+    presses = tmp_path / "presses"
+    shutil.copytree(calib.folder, presses / "calibration")
+    assert main(["train", str(presses), "--out", str(tmp_path / "m.pt")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"its calibration dataset is {presses / 'calibration'} (give that folder)" in err[0], err
+    assert not (tmp_path / "m.pt").exists()
+
+
+def test_a_dataset_without_led_geometry_opens_with_a_warning(calib, tmp_path, caplog):
+    """index.json written before 2026-12-03 lacks led_positions/led_directions: usable, said once, not silent."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    old = tmp_path / "calib"
+    shutil.copytree(calib.folder, old)
+    assert CalibrationDataset(old).sensor["led_positions"] and "LED geometry" not in caplog.text
+    index = json.loads((old / "index.json").read_text())
+    del index["sensor"]["led_positions"], index["sensor"]["led_directions"]
+    (old / "index.json").write_text(json.dumps(index))
+    data = CalibrationDataset(old)
+    assert data.names == calib.names
+    assert f"{old / 'index.json'}: records no LED geometry" in caplog.text and "nlips calibrate" in caplog.text
+
+
 def test_cli_calibrate_solves_samples_and_reports_coverage(twin_presses, tmp_path, capsys):
     root = tmp_path / "presses"
     shutil.copytree(twin_presses / "reference", root / "reference")

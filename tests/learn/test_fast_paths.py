@@ -55,6 +55,12 @@ def _sensor(width: int, height: int) -> dict:
     return describe_sensor(design.camera_model(), design.led_models(), SensorResponse())
 
 
+def _reference(width: int, height: int) -> dict:
+    """Reference arrays of the sensor's image size (load_model checks them; their values do not matter here)."""
+    colour, grey = np.zeros((height, width, 3), np.float32), np.zeros((height, width), np.float32)
+    return {"tricolor": colour, "dark": colour, "depth": grey, "normals": colour, "valid": grey > 0}
+
+
 def test_threaded_slices_equal_one_call(tmp_path):
     from nlipscalib.learn.model import load_model, save_model
     from nlipscalib.learn.onnx_export import OnnxNet, export_onnx
@@ -67,7 +73,7 @@ def test_threaded_slices_equal_one_call(tmp_path):
         hidden=(32, 16),
         dropout=0.2,
         sensor=_sensor(64, 48),
-        reference={},
+        reference=_reference(64, 48),
         info={},
     )
     onnx_path = export_onnx(load_model(path), tmp_path / "m.onnx")

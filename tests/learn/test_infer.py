@@ -21,6 +21,7 @@ def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_pres
     rec = load_reconstruction(out / HELD_OUT / "nlipsnet", press.camera.shape)
     scores = evaluate(rec, press.ground_truth)["contact"]
     assert scores["aae_deg"] < 8.0 and scores["depth_rmse_mm"] < 0.4, scores
+    assert rec.report["model"] == str(trained.resolve())  # absolute: `nlips eval` names it from anywhere
     head = (out / HELD_OUT / "nlipsnet" / "points.ply").read_bytes()[:400]
     assert b"element vertex" in head and b"element face" in head
 
@@ -126,3 +127,179 @@ def test_infer_refuses_out_of_range_options(trained, twin_presses, tmp_path, cap
     assert not (tmp_path / "o").exists()
     with pytest.raises(ConfigError, match="threads"):
         Predictor(trained, threads=-1)
+
+
+def _angle_deg(a, b):
+    return np.degrees(np.arccos(np.clip((a * b).sum(-1), -1.0, 1.0)))
+
+
+def test_eight_bit_png_jpeg_and_upper_case_frames_are_inferred_like_16_bit_ones(
+    trained, twin_presses, tmp_path, caplog
+):
+    """A lab's frames: 8-bit PNG and JPEG (were refused or streamed as a video), FRAME.PNG (was skipped), notes."""
+    import logging
+
+    import cv2
+
+    caplog.set_level(logging.INFO)
+    bgr16 = cv2.imread(str(twin_presses / HELD_OUT / "tricolor.png"), cv2.IMREAD_UNCHANGED)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    cv2.imwrite(str(frames / "a16.PNG"), bgr16)
+    cv2.imwrite(str(frames / "b8.png"), (bgr16 >> 8).astype(np.uint8))
+    cv2.imwrite(str(frames / "c8.jpg"), (bgr16 >> 8).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 98])
+    (frames / "notes.txt").write_text("press g, 2026-12-03")
+    out = tmp_path / "o"
+    assert main(["infer", str(trained), str(frames), "--backend", "torch", "--out", str(out)]) == 0
+    assert "notes.txt" in caplog.text and "skipped" in caplog.text
+    assert caplog.text.count("an 8-bit image") == 1  # once per command, not per frame
+    shape = load_press(twin_presses / HELD_OUT).camera.shape
+    full = load_reconstruction(out / "a16", shape)
+    changed = full.report["changed_pixels"]
+    assert changed > 0
+    for name in ("b8", "c8"):
+        rec = load_reconstruction(out / name, shape)
+        # the same pixels change and the network sees the same colours up to 8-bit rounding: a swapped channel
+        # order or another scaling would change (nearly) every pixel or none, and turn the normals far away
+        assert abs(rec.report["changed_pixels"] - changed) < 0.25 * changed, (name, rec.report, changed)
+        both = full.mask & np.isfinite(rec.normals).all(-1)
+        assert np.median(_angle_deg(rec.normals[both], full.normals[both])) < 0.5
+        assert np.percentile(_angle_deg(rec.normals[both], full.normals[both]), 95) < 10.0
+
+
+def test_a_grey_image_is_refused_in_one_line(trained, twin_presses, tmp_path, capsys):
+    import cv2
+
+    grey = tmp_path / "grey.png"
+    cv2.imwrite(str(grey), cv2.imread(str(twin_presses / HELD_OUT / "tricolor.png"), cv2.IMREAD_UNCHANGED)[..., 1])
+    assert main(["infer", str(trained), str(grey), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "grey.png" in err[0] and "3 colour channels, found 1" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_frame_unlike_the_reference_everywhere_is_warned_about(trained, twin_presses, tmp_path, caplog, capsys):
+    """Red and blue swapped (BGR saved as RGB): no pixel stood out, the undeformed dome came back silently."""
+    import logging
+
+    import cv2
+
+    caplog.set_level(logging.WARNING)
+    bgr16 = cv2.imread(str(twin_presses / HELD_OUT / "tricolor.png"), cv2.IMREAD_UNCHANGED)
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "good")]) == 0
+    assert "differs from the calibration's reference" not in caplog.text
+    swapped = tmp_path / "swapped.png"
+    cv2.imwrite(str(swapped), np.ascontiguousarray(bgr16[..., ::-1]))
+    assert main(["infer", str(trained), str(swapped), "--out", str(tmp_path / "o")]) == 0
+    assert "swapped.png: differs from the calibration's reference" in caplog.text and "BGR" in caplog.text
+    assert "times as bright" not in caplog.text  # as bright as the reference: the colours are what differ
+    dim = tmp_path / "twelve_bit.png"  # 12-bit values in a 16-bit file, as some cameras store them
+    cv2.imwrite(str(dim), bgr16 >> 4)
+    caplog.clear()
+    assert main(["infer", str(trained), str(dim), "--out", str(tmp_path / "o")]) == 0
+    assert "twelve_bit.png: differs from the calibration's reference" in caplog.text
+    assert "times as bright" in caplog.text and "bit depth" in caplog.text and "BGR" not in caplog.text
+    # a stream of such frames: the warning once, and how many frames it concerned at the end
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(seq / f"img_{i:04d}.png"), np.ascontiguousarray(bgr16[..., ::-1]))
+    caplog.clear()
+    assert main(["infer", str(trained), str(seq / "img_%04d.png"), "--out", str(tmp_path / "s")]) == 0
+    assert caplog.text.count("differs from the calibration's reference") == 1
+    assert "3 of 3 frames differed" in caplog.text
+
+
+def test_a_model_without_led_geometry_warns_and_infers_while_a_whole_one_refuses_another_ring(
+    trained, twin_presses, tmp_path, caplog, capsys
+):
+    """Models trained before 2026-12-03 lack led_positions/led_directions: usable, with a warning naming the file."""
+    import json
+    import logging
+    import shutil
+
+    import torch
+
+    caplog.set_level(logging.WARNING)
+    payload = torch.load(trained, weights_only=True)
+    del payload["sensor"]["led_positions"], payload["sensor"]["led_directions"]
+    old = tmp_path / "old.pt"
+    torch.save(payload, old)
+    other = tmp_path / "other_ring"
+    shutil.copytree(twin_presses / HELD_OUT, other, ignore=shutil.ignore_patterns("nlips*"))
+    meta = json.loads((other / "meta.json").read_text())
+    for led in meta["leds"]:
+        led["position"][2] += 1.5  # a ring 1.5 mm higher: another sensor
+    (other / "meta.json").write_text(json.dumps(meta))
+    assert main(["infer", str(trained), str(other), "--out", str(tmp_path / "new")]) == 2
+    assert "another sensor" in capsys.readouterr().err
+    assert "records no LED geometry" not in caplog.text
+    assert main(["infer", str(old), str(other), "--out", str(tmp_path / "o")]) == 0
+    assert f"{old}: records no LED geometry" in caplog.text and "cannot be checked" in caplog.text
+    assert (tmp_path / "o" / "other_ring" / "nlipsnet" / "result.npz").is_file()
+
+
+def test_a_folder_or_the_onnx_export_given_as_the_model_says_which_file_to_give(
+    trained, twin_presses, tmp_path, capsys
+):
+    import shutil
+
+    models = tmp_path / "models"
+    models.mkdir()
+    shutil.copy(trained, models / "net.pt")
+    (models / "net.onnx").write_bytes(b"\x08\x07onnx-ish")
+    (tmp_path / "renamed.onnx").write_bytes(trained.read_bytes())  # a .pt renamed: was "not a readable ONNX model"
+    cases = {
+        models: "a folder, not a model file: give the .pt file from `nlips train` (it holds net.pt)",
+        models / "net.onnx": f"the ONNX export, not the model file: give the .pt file from `nlips train` ({models}",
+        tmp_path / "renamed.onnx": "the ONNX export, not the model file",
+    }
+    for model, expected in cases.items():
+        assert main(["infer", str(model), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{model}: {expected}" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_folder_of_presses_infers_its_presses_not_its_reference(trained, twin_presses, tmp_path, capsys):
+    import shutil
+
+    root = tmp_path / "presses"
+    for name in ("reference", "press_a", "press_b"):
+        shutil.copytree(twin_presses / name, root / name, ignore=shutil.ignore_patterns("nlips"))
+    assert main(["infer", str(trained), str(root)]) == 0
+    assert capsys.readouterr().out.startswith("2 frame(s)")
+    assert (root / "press_a" / "nlipsnet").is_dir() and not (root / "reference" / "nlipsnet").exists()
+    assert main(["infer", str(trained), str(root / "reference")]) == 0  # named itself, it is inferred
+    assert (root / "reference" / "nlipsnet" / "result.npz").is_file()
+
+
+def test_two_inputs_for_one_result_folder_are_refused_before_inferring(trained, twin_presses, tmp_path, capsys, caplog):
+    """Two presses of one name (two datasets) into one --out: the second silently replaced the first's result."""
+    import logging
+    import shutil
+
+    other = tmp_path / "copy" / HELD_OUT
+    shutil.copytree(twin_presses / HELD_OUT, other, ignore=shutil.ignore_patterns("nlips*"))
+    out = tmp_path / "o"
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), str(other), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"would both be written to {out / HELD_OUT / 'nlipsnet'}" in err[0], err
+    assert not out.exists()
+    # without --out each press keeps its own result; a frame without --out is said to be written nowhere
+    caplog.set_level(logging.WARNING)
+    assert main(["infer", str(trained), str(other), str(other / "tricolor.png")]) == 0
+    assert (other / "nlipsnet" / "result.npz").is_file()
+    assert "image frames without --out: their results are not written" in caplog.text
+
+
+def test_a_frame_whose_name_holds_a_percent_sign_is_a_still_not_a_sequence_pattern(
+    trained, twin_presses, tmp_path, capsys
+):
+    import shutil
+
+    frame = tmp_path / "press 50%.png"
+    shutil.copy(twin_presses / HELD_OUT / "tricolor.png", frame)
+    assert main(["infer", str(trained), str(frame), "--out", str(tmp_path / "o")]) == 0
+    assert capsys.readouterr().out.startswith("1 frame(s)")  # the stills' summary, not a stream's
+    assert (tmp_path / "o" / "press 50%" / "result.npz").is_file()

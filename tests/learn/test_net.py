@@ -150,6 +150,15 @@ def test_cli_trains_a_small_variant_without_dropout(calib, tmp_path, capsys):
     assert len(err) == 1 and "--threads" in err[0]
 
 
+def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
+    """`--val-presses "press_a, press_b"` was "validation presses [' press_b'] are not in the dataset"."""
+    out = tmp_path / "m.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8", "--dropout", "0", "--epochs", "1"]
+    assert main([*args, "--val-presses", "press_a, press_b", "--exclude", f" {HELD_OUT} ,", "--no-onnx"]) == 0
+    info = load_model(out).info
+    assert info["val_presses"] == ["press_a", "press_b"] and info["excluded_presses"] == [HELD_OUT]
+
+
 def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp_path, monkeypatch):
     from nlipscalib.errors import ConfigError
     from nlipscalib.learn import train as train_module
@@ -228,6 +237,8 @@ def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch,
 
 
 def test_missing_onnx_file_names_the_ways_to_make_it(trained, twin_presses, tmp_path, capsys):
+    import torch
+
     from nlipscalib.learn.onnx_export import export_onnx
 
     model = tmp_path / "net.pt"
@@ -236,6 +247,26 @@ def test_missing_onnx_file_names_the_ways_to_make_it(trained, twin_presses, tmp_
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "net.onnx" in err[0] and "`nlips train`" in err[0]
-    assert "nlips export" not in err[0] and "export_onnx(" in err[0]
-    export_onnx(load_model(model), model.with_suffix(".onnx"))  # the way the message names works
+    assert f"`nlips export {model}` writes it" in err[0]
+    assert main(["export", str(model)]) == 0  # the way the message names works
+    assert "max angular difference" in capsys.readouterr().out
     assert main(args) == 0
+    # stale (another model's export beside it, e.g. after retraining with --no-onnx): named, and export mends it
+    other = tmp_path / "other.pt"
+    payload = torch.load(trained, weights_only=True)
+    payload["state_dict"] = {k: v * 1.01 if v.is_floating_point() else v for k, v in payload["state_dict"].items()}
+    torch.save(payload, other)
+    export_onnx(load_model(other), model.with_suffix(".onnx"))
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "exported from another model" in err[0] and f"`nlips export {model}`" in err[0]
+    assert main(["export", str(model)]) == 0 and main(args) == 0
+    # a copy elsewhere, checked alike; the wrong suffix and the ONNX file given as the model are one line each
+    assert main(["export", str(model), "--out", str(tmp_path / "copy.onnx")]) == 0
+    assert "a copy: `nlips infer` and `nlips live` use" in capsys.readouterr().out
+    for bad, problem in ((["--out", str(tmp_path / "x.pt")], "must end in .onnx"), ([], "the ONNX export")):
+        target = str(model.with_suffix(".onnx")) if not bad else str(model)
+        assert main(["export", target, *bad]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and problem in err[0], err

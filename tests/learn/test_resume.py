@@ -141,6 +141,26 @@ def test_a_checkpoint_of_other_samples_is_not_resumed(built, tmp_path, caplog):
         assert load_model(out).info["val_presses"] == other["val_names"]
 
 
+def test_a_model_another_training_made_is_replaced_with_a_warning_a_resumed_one_without(built, tmp_path, caplog):
+    """`nlips train` again into the same --out with a tweak replaced the earlier (maybe better) model unnoticed."""
+    import dataclasses
+
+    data, out = CalibrationDataset(built), tmp_path / "m.pt"
+    train(data, TINY, out, val_names=["a_sphere"], progress=False)
+    caplog.set_level(logging.INFO)
+    caplog.clear()
+    train(data, TINY, out, val_names=["a_sphere"], progress=False)  # the same run again: nothing is lost
+    assert "resuming" in caplog.text and "a model is already there" not in caplog.text
+    caplog.clear()
+    train(data, dataclasses.replace(TINY, lr=1e-3), out, val_names=["a_sphere"], progress=False)
+    warned = [r for r in caplog.records if r.levelno == logging.WARNING and "a model is already there" in r.message]
+    assert len(warned) == 1 and str(out) in warned[0].message and "another --out" in warned[0].message
+    checkpoint_path(out).unlink()  # a model whose checkpoint is gone (copied in, cleaned up) is not this run's
+    caplog.clear()
+    train(data, TINY, out, val_names=["a_sphere"], progress=False)
+    assert "a model is already there" in caplog.text
+
+
 def test_a_damaged_checkpoint_costs_only_its_progress(built, tmp_path, caplog):
     import torch
 
@@ -191,6 +211,17 @@ def test_damaged_and_foreign_model_files_are_one_line(built, tmp_path, capsys):
         ("sensorless", {"sensor": {"camera": 5}}, "'sensor' is not a sensor description"),
         ("widthless", {"hidden": ["wide"]}, "'hidden' must list positive layer widths"),
         ("noreference", {"reference": [1, 2]}, "'reference' must map names to arrays"),
+        # a reference array missing or of another size: were a KeyError traceback, or a shape error not naming it
+        (
+            "novalid",
+            {"reference": {k: v for k, v in payload["reference"].items() if k != "valid"}},
+            "'reference' lacks the array 'valid'",
+        ),
+        (
+            "shortdepth",
+            {"reference": payload["reference"] | {"depth": payload["reference"]["depth"][:10]}},
+            "'reference' array 'depth' is 10x64, the sensor's images need 48x64",
+        ),
     ):
         torch.save(payload | change, tmp_path / "crafted.pt")
         cases[name] = ((tmp_path / "crafted.pt").read_bytes(), problem)

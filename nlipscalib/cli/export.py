@@ -1,0 +1,71 @@
+"""``nlips export MODEL.pt``: the ONNX file of a trained NLiPsNet (what ``nlips train`` writes unless --no-onnx).
+
+For a model trained with ``--no-onnx``, an ONNX file lost or left stale beside its model (a model copied without
+it, or retrained), or a copy elsewhere (``--out``); checked against PyTorch like ``nlips train``'s export.
+"""
+
+from __future__ import annotations
+
+PARITY_LIMIT_DEG = 0.1
+"""onnxruntime and PyTorch normals may differ by at most this angle (degrees), as after ``nlips train``."""
+CHECK_PIXELS = 20000
+"""At most this many of the reference frame's gel pixels check the export."""
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "export",
+        help="write the ONNX file of a trained NLiPsNet model (for --backend onnx / onnx-int8)",
+        description="Export a model file from `nlips train` to ONNX (by default MODEL.onnx beside it, where `nlips "
+        "infer` and `nlips live` look for it) and check that onnxruntime gives PyTorch's normals (within 0.1 deg) "
+        "on the model's reference frame, its colours as they are and 10 % darker and brighter.",
+    )
+    p.add_argument("model", help="model file (.pt) from `nlips train`")
+    p.add_argument("--out", help="ONNX file to write (default: MODEL.onnx beside the model)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..errors import CaptureError, ConfigError
+    from ..learn.model import load_model
+    from ..learn.onnx_export import export_onnx
+
+    out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
+    if out.suffix.lower() != ".onnx":
+        raise ConfigError(f"--out {out}: the ONNX file must end in .onnx")
+    model = load_model(args.model)
+    path = export_onnx(model, out)
+    angle = parity_deg(model, path)
+    if not angle < PARITY_LIMIT_DEG:
+        raise CaptureError(f"{path}: onnxruntime differs from PyTorch by {angle:.3f} deg (limit {PARITY_LIMIT_DEG})")
+    beside = path.resolve() == Path(args.model).resolve().with_suffix(".onnx")
+    default = Path(model.path).with_suffix(".onnx")
+    used = (
+        "`nlips infer` and `nlips live` use it by default"
+        if beside
+        else f"a copy: `nlips infer` and `nlips live` use {default} by default"
+    )
+    print(f"{path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg; {used}")
+    return 0
+
+
+def parity_deg(model, onnx_path) -> float:
+    """Largest angle (degrees) between onnxruntime's and PyTorch's normals on the model's reference gel pixels."""
+    import numpy as np
+    import torch
+
+    from ..learn.model import model_inputs
+    from ..learn.onnx_export import OnnxNet, max_angle_deg
+
+    ref = model.reference
+    rows, cols = np.nonzero(ref["valid"].astype(bool))
+    pick = np.linspace(0, len(rows) - 1, min(len(rows), CHECK_PIXELS)).astype(int) if len(rows) else []
+    rows, cols = rows[pick], cols[pick]
+    pixel = np.stack([cols, rows], axis=1)  # (u, v) = (column, row)
+    rgb = ref["tricolor"][rows, cols].astype(np.float32)
+    x = np.concatenate([model_inputs(pixel, rgb * s) for s in (0.9, 1.0, 1.1)])  # a contact changes the colours
+    with torch.inference_mode():
+        expected = model.net(torch.from_numpy(x)).numpy()
+    return max_angle_deg(OnnxNet(onnx_path, model, threads=1)(x), expected)
