@@ -9,7 +9,24 @@ DEFAULT_PRESS = {"indenter": "sphere", "polar_deg": 20.0, "azimuth_deg": 0.0, "s
 def register(subparsers) -> None:
     p = subparsers.add_parser("render", help="render one press of the digital twin into a press folder")
     p.add_argument("--scene", default=None, help="scene file or shipped scene name (default: nlipstac)")
-    p.add_argument("--indenter", default=None, help="indenter kind, e.g. sphere (default sphere)")
+    p.add_argument(
+        "--indenter",
+        default=None,
+        help="indenter kind: sphere (default), cube, cylinder, cone, screw, coin, cap, gear, key, brick or mesh",
+    )
+    p.add_argument("--size", type=float, default=None, help="indenter size, mm (diameter, side or length; default 6)")
+    p.add_argument(
+        "--orientation",
+        default=None,
+        help="which side meets the gel: cube face/edge/corner, cylinder end/side, screw side/end, coin face/side, "
+        "cap side/face, gear face/side, key face/side (default: the kind's first)",
+    )
+    p.add_argument(
+        "--mesh",
+        default=None,
+        help="STL/OBJ/PLY file of your own indenter (implies --indenter mesh; in millimetres, scaled to --size "
+        "unless the press file sets scale_to_size = false)",
+    )
     p.add_argument("--polar", type=float, default=None, help="press direction from the apex, degrees")
     p.add_argument("--azimuth", type=float, default=None, help="press direction around the axis, degrees")
     p.add_argument("--spin", type=float, default=None, help="indenter rotation about the press axis, degrees")
@@ -38,7 +55,10 @@ ARG_MINIMA = {"spp": 1, "bounces": 0, "threads": 0, "seed": 0, "width": 8, "heig
 
 
 def _check_args(args) -> None:
+    import math
+
     from ..config import check_count, check_range
+    from ..errors import ConfigError
 
     for name, minimum in ARG_MINIMA.items():
         if getattr(args, name) is not None:
@@ -47,6 +67,14 @@ def _check_args(args) -> None:
         check_range("--depth", args.depth, 0.0, open_lo=True)
     if args.polar is not None:
         check_range("--polar", args.polar, 0.0, 90.0)
+    if args.size is not None:
+        check_range("--size", args.size, 0.0, open_lo=True)
+    for name in ("azimuth", "spin"):
+        value = getattr(args, name)
+        if value is not None and not math.isfinite(value):
+            raise ConfigError(f"--{name}: must be a finite angle in degrees, got {value}")
+    if args.mesh and args.indenter not in (None, "mesh"):
+        raise ConfigError(f"--mesh is for --indenter mesh, not --indenter {args.indenter}: drop one of them")
 
 
 def _scene(args):
@@ -63,19 +91,28 @@ def _scene(args):
 
 
 def _press(args):
+    from pathlib import Path
+
     from ..config import from_mapping, read_config_file
     from ..errors import ConfigError
     from ..sim.indent import PressConfig
+    from ..sim.indenters import with_mesh_beside
 
     data = dict(DEFAULT_PRESS)
     if args.press_file:
         data |= read_config_file(args.press_file)
     pose = {"polar_deg": args.polar, "azimuth_deg": args.azimuth, "spin_deg": args.spin, "depth": args.depth}
     data |= {k: v for k, v in pose.items() if v is not None}
-    if args.indenter:
-        data["indenter"] = args.indenter
     if isinstance(data.get("indenter"), str):
         data["indenter"] = {"kind": data["indenter"]}
+    indenter = {"kind": args.indenter or ("mesh" if args.mesh else None), "size": args.size}
+    indenter |= {"orientation": args.orientation, "mesh": args.mesh}
+    if indenter["kind"] and isinstance(data.get("indenter"), dict) and data["indenter"].get("kind") != indenter["kind"]:
+        data["indenter"] = {}  # another kind from the command line: the press file's indenter fields do not apply
+    if isinstance(data.get("indenter"), dict):
+        data["indenter"] = data["indenter"] | {k: v for k, v in indenter.items() if v is not None}
+        if args.press_file and not args.mesh:
+            data["indenter"] = with_mesh_beside(data["indenter"], Path(args.press_file).parent)
     try:
         return from_mapping(PressConfig, data, args.press_file or "press")
     except TypeError as exc:

@@ -24,11 +24,16 @@ ROI_MARGIN_PX = 8
 """Margin around the true contact's bounding box for ``roi = "truth"``, pixels."""
 
 
-def build_scene(scene: dict):
-    """SceneConfig from a full scene mapping (as stored in a task)."""
+def build_scene(scene: dict, reference: bool = False):
+    """SceneConfig from a full scene mapping (as stored in a task); ``reference``: the one its undeformed
+    reference is rendered with (``plan.REFERENCE_RENDER`` applied)."""
     from ..sim.scene import SceneConfig
+    from .plan import REFERENCE_RENDER
 
-    return from_mapping(SceneConfig, scene, "experiment scene")
+    scene = dict(scene)
+    overrides = scene.pop(REFERENCE_RENDER, None)
+    cfg = from_mapping(SceneConfig, scene, "experiment scene")
+    return cfg.replace(render=overrides) if reference and overrides else cfg
 
 
 def render(scene: dict, press: dict | None, folder: Path, threads: int = 0) -> Path:
@@ -40,7 +45,7 @@ def render(scene: dict, press: dict | None, folder: Path, threads: int = 0) -> P
     from ..sim.indent import PressConfig
     from ..sim.press import render_press
 
-    cfg = build_scene(scene).replace(render={"threads": int(threads)})
+    cfg = build_scene(scene, reference=press is None).replace(render={"threads": int(threads)})
     press_cfg = None if press is None else from_mapping(PressConfig, press, "experiment press")
     return render_press(cfg, press_cfg, folder, overwrite=True)
 
@@ -91,13 +96,15 @@ def perturb_leds(leds, position_mm: float = 0.0, direction_deg: float = 0.0, see
 def calibrate(reference_folder: Path, initial) -> tuple[tuple[Led, ...], dict]:
     """LED self-calibration from the undeformed dome's capture, starting from ``initial`` LEDs.
 
-    Returns the calibrated LEDs (camera frame) and a JSON-able summary (RMS residual per LED).
+    Returns the calibrated LEDs (camera frame) and a JSON-able summary (RMS residual per LED, the fit's
+    ``quality``: its residual over the images' noise, ``reliable``).
     """
     from ..solver import calibrate_leds
 
     np.random.seed(SOLVER_RNG_SEED)
     cal = calibrate_leds(load(reference_folder), initial=initial)
-    return cal.leds, {"rms": [float(r) for r in cal.rms], "albedo": list(cal.albedo)}
+    quality = {k: cal.quality[k] for k in ("median_ratio", "threshold", "reliable")}
+    return cal.leds, {"rms": [float(r) for r in cal.rms], "albedo": list(cal.albedo), "quality": quality}
 
 
 def solver_options(overrides: dict):

@@ -13,8 +13,9 @@ SPHERE = IndenterConfig(kind="sphere", size=6.0)
 CUBE = IndenterConfig(kind="cube", size=5.0)
 SCREW = IndenterConfig(kind="screw", size=4.0, length=10.0)
 
-QUICK_TWIN = {"width": 96, "height": 72, "spp": 8, "bounces": 1}
-"""CI size: tiny images, few samples (noisy numbers; they test the plumbing and catch gross regressions)."""
+QUICK_TWIN = {"width": 96, "height": 72, "spp": 8, "bounces": 1, "reference_spp": 64}
+"""CI size: tiny images, few samples (noisy numbers; they test the plumbing and catch gross regressions); the
+undeformed reference at 64 spp, so that LED self-calibration from it is reliable (``TwinConfig.reference_spp``)."""
 MEDIUM_TWIN = {"width": 320, "height": 240, "spp": 16, "bounces": 1}
 """What fits a shared 2-core machine in an hour or so."""
 FULL_TWIN = {"width": 640, "height": 480, "spp": 16, "bounces": 1}

@@ -101,6 +101,18 @@ def _task_seconds(tasks, out: Path) -> dict:
     return {k: round(v, 1) for k, v in total.items()} | {"all": round(sum(total.values()), 1)}
 
 
+def _calibrations(tasks, out: Path) -> list[dict]:
+    """Each LED self-calibration's id and fit quality (``adapters.calibrate``; None for older results)."""
+    from .tasks import load_result
+
+    found = []
+    for t in tasks:
+        result = load_result(out, t) if t.kind == "calibration" else None
+        if result is not None:
+            found.append({"id": t.id, "quality": result.get("calibration", {}).get("quality")})
+    return found
+
+
 def with_solver_options(evaluations, options: dict):
     """The same evaluations with extra SolverOptions overrides in every solve (e.g. a worsened solver)."""
     if not options:
@@ -151,6 +163,7 @@ def run_experiment(
         "paper": exp.paper,
         "tables": {t.name: {"caption": t.caption, "by": list(t.by), "rows": t.rows} for t in tables},
         "check_figures": check.headline(main.rows, main.by) if main else {},
+        "calibrations": _calibrations(tasks, out),
         "evaluations": rows,
         **({"learned": learned} if learned else {}),
         "tasks": {

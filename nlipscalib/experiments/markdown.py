@@ -50,7 +50,7 @@ def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
         exp.description,
         "",
         f"Size **{doc['size']}**; twin: scene `{twin.get('scene')}` at {twin.get('width')}x{twin.get('height')} px, "
-        f"{twin.get('spp')} spp, {twin.get('bounces')} interreflection bounce(s), noise "
+        f"{twin.get('spp')} spp{_reference_spp(twin)}, {twin.get('bounces')} interreflection bounce(s), noise "
         f"{'on' if twin.get('noise') else 'off'}. AAE, MabsE and depth RMSE are over the true contact region "
         "(mean ± standard deviation over presses); AAE ROI is over the whole solved region. "
         f"{tasks['total']} tasks ({tasks['run_now']} run now, {tasks['already_done']} reused), "
@@ -60,6 +60,7 @@ def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
         "Every number, the exact configuration and the machine are in `results.json`.",
         "",
     ]
+    parts += _calibration_lines(doc.get("calibrations", []))
     if doc["solver_option_overrides"]:
         parts += [f"Solver option overrides: `{doc['solver_option_overrides']}`.", ""]
     for t in tables:
@@ -73,3 +74,23 @@ def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
     if tasks["failed"]:
         parts += ["## Failed tasks", ""] + [f"- `{k}`: {v}" for k, v in tasks["failed"].items()] + [""]
     return "\n".join(parts)
+
+
+def _reference_spp(twin: dict) -> str:
+    spp = twin.get("reference_spp") or 0
+    return f" (the undeformed reference at {spp} spp)" if spp > (twin.get("spp") or 0) else ""
+
+
+def _calibration_lines(calibrations: list[dict]) -> list[str]:
+    """One line on the LED self-calibrations' fit quality (the calibrated LEDs' trust), or none."""
+    rated = [c for c in calibrations if c.get("quality")]
+    if not rated:
+        return []
+    ratios = ", ".join(f"{c['quality']['median_ratio']:.2f}" for c in rated)
+    bad = [c["id"] for c in rated if not c["quality"]["reliable"]]
+    verdict = f"UNRELIABLE: {', '.join(bad)}" if bad else "reliable"
+    return [
+        f"LED self-calibration: residual {ratios}x the images' noise (reliable up to "
+        f"{rated[0]['quality']['threshold']}): {verdict}.",
+        "",
+    ]

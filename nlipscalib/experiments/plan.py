@@ -16,6 +16,9 @@ from ..sim.indent import PressConfig
 from ..sim.indenters import IndenterConfig
 from .tasks import SolveSpec, Task, calibration_id, digest, scene_key
 
+REFERENCE_RENDER = "reference_render"
+"""Key of an experiment's scene mapping (not a scene section): render overrides of its undeformed reference."""
+
 
 @dataclasses.dataclass(frozen=True)
 class TwinConfig:
@@ -35,9 +38,20 @@ class TwinConfig:
     """Sensor noise on."""
     seed: int = 0
     """Render and noise seed of the scene (each press mixes in its own description)."""
+    reference_spp: int = 0
+    """Samples per pixel of the undeformed reference render, when more than ``spp`` (0: ``spp``). LED
+    self-calibration and the reference's interreflection fit read that one image: with interreflection at few spp
+    it carries Monte Carlo noise of the bounce light that the LED model cannot explain (96x72, one bounce: the
+    calibration's residual 1.40x the images' noise at 8 spp, 1.11-1.12x at 32, 1.02 at 64), and one render per
+    scene costs little."""
 
     def scene_dict(self, scene: str | None = None, **sections) -> dict:
-        """Full scene mapping with this twin's settings and extra section overrides."""
+        """Full scene mapping with this twin's settings and extra section overrides.
+
+        With ``reference_spp`` above the scene's spp the mapping carries :data:`REFERENCE_RENDER` (the
+        reference's render overrides, which ``adapters.render`` applies to the undeformed dome only), so the
+        scene's reference, calibration and press tasks are told apart from those of a plain scene.
+        """
         from ..sim.scene import load_scene
 
         cfg = load_scene(scene or self.scene)
@@ -48,7 +62,10 @@ class TwinConfig:
         }
         for name, changes in sections.items():
             base[name] = base.get(name, {}) | changes
-        return cfg.replace(**base).to_dict()
+        out = cfg.replace(**base).to_dict()
+        if self.reference_spp > out["render"]["spp"]:
+            out[REFERENCE_RENDER] = {"spp": self.reference_spp}
+        return out
 
 
 @dataclasses.dataclass(frozen=True)

@@ -136,7 +136,7 @@ class PressJob:
 def load_dataset_spec(path: str | Path) -> tuple[DatasetSpec, SceneConfig]:
     """Read a dataset spec file and the scene it names (render/noise/camera overrides applied)."""
     path = Path(path)
-    spec = from_mapping(DatasetSpec, read_config_file(path), str(path))
+    spec = from_mapping(DatasetSpec, _meshes_beside(read_config_file(path), path.parent), str(path))
     scene_path = path.parent / spec.scene
     scene = load_scene(scene_path if scene_path.is_file() else spec.scene)
     sections = {k: v for k, v in (("render", spec.render), ("noise", spec.noise), ("camera", spec.camera)) if v}
@@ -146,6 +146,18 @@ def load_dataset_spec(path: str | Path) -> tuple[DatasetSpec, SceneConfig]:
         raise ConfigError(f"{path}: {str(exc).removeprefix('scene.')}") from None
     _check_presses(spec, scene, path)
     return spec, scene
+
+
+def _meshes_beside(data: dict, folder: Path) -> dict:
+    """The raw spec with relative indenter mesh paths found beside the spec file (``indenters.with_mesh_beside``)."""
+    from .indenters import with_mesh_beside
+
+    for mode in ("grid", "random"):
+        section = data.get(mode)
+        if isinstance(section, dict) and isinstance(section.get("indenters"), list):
+            indenters = [with_mesh_beside(ind, folder) for ind in section["indenters"]]
+            data = data | {mode: section | {"indenters": indenters}}
+    return data
 
 
 def _check_presses(spec: DatasetSpec, scene: SceneConfig, path: Path) -> None:

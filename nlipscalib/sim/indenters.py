@@ -75,7 +75,9 @@ class IndenterConfig:
             raise ConfigError(f"indenter.size must be > 0, got {self.size}")
         allowed = _ORIENTATIONS[self.kind]
         if self.orientation != "default" and self.orientation not in allowed:
-            raise ConfigError(f"indenter {self.kind!r} cannot be pressed {self.orientation!r} (use {allowed})")
+            raise ConfigError(
+                f"indenter {self.kind!r} cannot be pressed {self.orientation!r} (orientations: {', '.join(allowed)})"
+            )
         for name in ("relief", "length"):
             value = getattr(self, name)
             if value is not None and not value > 0:
@@ -305,6 +307,31 @@ _BUILDERS = {
 }
 
 
+def with_mesh_beside(indenter, folder: Path):
+    """An indenter mapping whose relative ``mesh`` path is found beside the file that names it.
+
+    A press file or dataset spec naming ``mesh = "indenters/pyramid.stl"`` means the file next to it, wherever
+    the command runs; a path that exists from the working directory keeps its meaning (and the spec hash of the
+    presses rendered with it). Anything that is not such a mapping comes back unchanged (``from_mapping``
+    reports it).
+
+    Parameters
+    ----------
+    indenter : the raw ``[indenter]`` mapping (any value)
+    folder : Path -- the directory of the press file or spec
+
+    Returns
+    -------
+    the mapping, with ``mesh`` joined to ``folder`` where that is the file meant
+    """
+    if not isinstance(indenter, dict) or not isinstance(indenter.get("mesh"), str):
+        return indenter
+    mesh = Path(indenter["mesh"]).expanduser()
+    if mesh.is_absolute() or mesh.exists() or not (folder / mesh).exists():
+        return indenter
+    return indenter | {"mesh": str(folder / mesh)}
+
+
 def _load_mesh(cfg: IndenterConfig) -> trimesh.Trimesh:
     """Read a user's indenter mesh; it must be a closed solid (small holes are repaired, with a warning)."""
     path = Path(cfg.mesh).expanduser()
@@ -329,10 +356,31 @@ def _load_mesh(cfg: IndenterConfig) -> trimesh.Trimesh:
     extent = float(np.max(mesh.extents))
     if not extent > 0:
         raise ConfigError(f"indenter mesh {path}: has zero size")
+    if not cfg.scale_to_size:
+        _check_unscaled_extent(path, extent)
     mesh = _closed_solid(mesh, path)
     if cfg.scale_to_size:
         mesh.apply_scale(cfg.size / extent)
     return mesh
+
+
+MESH_EXTENT_MM = (0.2, 200.0)
+"""Extents (mm) an unscaled indenter mesh may have: smaller than a fifth of a millimetre it cannot dent the gel
+visibly (a 6 mm part exported in metres is 0.006 across), larger than 200 mm it is no fingertip indenter (a part
+exported in micrometres)."""
+
+
+def _check_unscaled_extent(path: Path, extent: float) -> None:
+    """A mesh read as it is (``scale_to_size = false``) must be in millimetres: one line when its size says
+    it is not."""
+    lo, hi = MESH_EXTENT_MM
+    if lo <= extent <= hi:
+        return
+    unit = "metres" if extent < lo else "micrometres"
+    raise ConfigError(
+        f"indenter mesh {path}: its largest extent is {extent:.3g} mm with scale_to_size = false (files are read in "
+        f"millimetres; is it in {unit}?): scale it in a mesh editor, or let scale_to_size scale it to indenter.size"
+    )
 
 
 MESH_TYPES = ("stl", "obj", "ply", "off", "glb", "gltf")

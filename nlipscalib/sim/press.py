@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import logging
 import zlib
 
 import numpy as np
@@ -25,6 +26,7 @@ from .dome import make_dome
 from .noise import apply_noise, auto_exposure, dark_frame
 from .render.groundtruth import reference_from
 
+log = logging.getLogger(__name__)
 CACHE_SIZE = 8
 """Scenes whose undeformed ground truth and exposures stay in memory (a dataset uses one scene)."""
 
@@ -177,6 +179,8 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
     seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
     # 2. the render: every LED's linear image and the ground truth, in one pass
     result = render_surface(scene, mesh, contact, seed=seed)
+    if press is not None:
+        _warn_if_unseen(out_folder, press, result.gt)
     # 3. the camera: lens, exposure, sensor noise
     dark, leds, tri, exposure, tri_exposure = camera_capture(scene, result.images, seed)
     # 4. writing the press folder
@@ -209,6 +213,26 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
         overwrite=overwrite,
     )
     return (path, result) if return_result else path
+
+
+def _warn_if_unseen(folder, press, gt) -> None:
+    """One warning when no pixel shows the press's contact: the capture then looks like the undeformed gel.
+
+    Why: a press beyond the camera's view (the default fisheye sees the hemisphere up to a polar angle of about
+    60 deg in its corners) or too shallow to move the gel by ``CONTACT_MM`` renders without error, and a dataset of such
+    presses teaches and scores nothing.
+    """
+    if np.any(gt.contact & gt.valid):
+        return
+    log.warning(
+        "%s: no pixel shows the contact of this press (%s at polar %g deg, azimuth %g deg, depth %g mm): it lies "
+        "outside the camera's view or is too shallow; the images show the undeformed gel",
+        folder,
+        press.indenter.kind,
+        press.polar_deg,
+        press.azimuth_deg,
+        press.depth,
+    )
 
 
 def camera_capture(scene, images: np.ndarray, seed: int):

@@ -1,4 +1,4 @@
-"""Each experiment's quick variant end to end through the CLI (tiny renders: 96x72 px, 2 spp)."""
+"""Each experiment's quick variant end to end through the CLI (tiny renders: 96x72 px, 8 spp, the reference at 64)."""
 
 from __future__ import annotations
 
@@ -40,6 +40,21 @@ def test_q1_quick_writes_report_json_and_passes_the_stored_baseline(q1, capsys):
     assert "7.04" in text and "0.0588" in text
     for png in ("q1_aae.png", "q1_mabse.png", "q1_error_maps.png"):
         assert (report / png).stat().st_size > 1000 and f"({png})" in text
+
+
+def test_q1_quick_calibrates_its_leds_reliably_from_a_reference_rendered_at_more_spp(q1):
+    """The quick twin renders presses at 8 spp but its undeformed reference at 64: at 8 spp with one bounce the
+    LED self-calibration's residual was 1.40x the images' noise and warned UNRELIABLE in every quick run."""
+    out, _, _ = q1
+    work = out / "q1-quick"
+    doc = json.loads((work / "report" / "results.json").read_text())
+    [calibration] = doc["calibrations"]
+    assert calibration["quality"]["reliable"] and calibration["quality"]["median_ratio"] <= 1.1
+    assert "LED self-calibration: residual" in (work / "report" / "report.md").read_text()
+    [reference] = list(work.glob("refs/*/meta.json"))
+    assert json.loads(reference.read_text())["provenance"]["spp"] == 64
+    presses = list(work.glob("presses/*/meta.json"))
+    assert presses and all(json.loads(p.read_text())["provenance"]["spp"] == 8 for p in presses)
 
 
 def test_a_finished_experiment_resumes_without_redoing_presses(q1, capsys):

@@ -100,3 +100,16 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
     second = run_dataset(scene, jobs, out, workers=1, progress=False)
     assert calls == ["press_0002"]  # finished presses are never rendered twice
     assert len(second["skipped"]) == 3
+
+
+def test_a_spec_finds_its_indenter_mesh_beside_it_from_any_working_directory(tmp_path, monkeypatch):
+    """``mesh = "part.stl"`` in a spec was looked up in the working directory: the same spec failed with
+    "no such file" when run from anywhere else (its ``scene`` was already found beside it)."""
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    (folder / "part.stl").write_bytes((SCENES_DIR / "indenters" / "pyramid.stl").read_bytes())
+    spec_file = folder / "spec.toml"
+    spec_file.write_text('reference = false\n[random]\ncount = 2\nindenters = [{ kind = "mesh", mesh = "part.stl" }]\n')
+    monkeypatch.chdir(tmp_path)
+    spec, _ = load_dataset_spec(spec_file)
+    assert spec.random.indenters[0].mesh == str(folder / "part.stl")

@@ -89,3 +89,32 @@ def test_bad_configs_raise():
         IndenterConfig(size=0)
     with pytest.raises(ConfigError, match="needs indenter.mesh"):
         IndenterConfig(kind="mesh")
+
+
+def test_unscaled_mesh_in_metres_or_micrometres_is_refused(tmp_path):
+    """A part exported in metres read as it is (scale_to_size = false) was 0.004 mm across: rendered without a
+    word, its press touched no pixel."""
+    import trimesh
+
+    for scale, unit in ((0.001, "metres"), (1000.0, "micrometres")):
+        mesh = trimesh.load(PYRAMID)
+        mesh.apply_scale(scale)
+        path = tmp_path / f"pyramid_{unit}.stl"
+        mesh.export(path)
+        with pytest.raises(ConfigError, match=f"pyramid_{unit}.stl: its largest extent .* is it in {unit}"):
+            make_indenter(IndenterConfig(kind="mesh", mesh=str(path), scale_to_size=False))
+        scaled = make_indenter(IndenterConfig(kind="mesh", mesh=str(path), size=5.0))  # scaled to size: fine
+        assert np.max(scaled.extents) == pytest.approx(5.0)
+
+
+def test_a_relative_mesh_path_is_found_beside_the_file_naming_it(tmp_path, monkeypatch):
+    from nlipscalib.sim.indenters import with_mesh_beside
+
+    (tmp_path / "specs").mkdir()
+    (tmp_path / "specs" / "part.stl").write_bytes(PYRAMID.read_bytes())
+    monkeypatch.chdir(tmp_path)
+    beside = with_mesh_beside({"kind": "mesh", "mesh": "part.stl"}, tmp_path / "specs")
+    assert beside["mesh"] == str(tmp_path / "specs" / "part.stl")
+    (tmp_path / "part.stl").write_bytes(PYRAMID.read_bytes())  # one in the working directory keeps its meaning
+    assert with_mesh_beside({"kind": "mesh", "mesh": "part.stl"}, tmp_path / "specs")["mesh"] == "part.stl"
+    assert with_mesh_beside("sphere", tmp_path) == "sphere"  # not a mapping: from_mapping reports it

@@ -33,3 +33,53 @@ def test_cli_renders_undeformed_dome(tmp_path, capsys):
     p = load_press(out)
     assert p.camera.shape == (24, 32) and p.meta["provenance"]["seed"] == 4
     assert main(["render", "--undeformed", "--width", "32", "--height", "24", "--out", str(out)]) == 2  # exists
+
+
+TINY = ["--width", "48", "--height", "36", "--spp", "1", "--threads", "2"]
+
+
+def test_render_options_choose_the_indenter_size_side_and_a_user_mesh(tmp_path):
+    """Size, side and a user's mesh needed a press file: the command line had only --indenter KIND."""
+    from pathlib import Path
+
+    pyramid = Path(__file__).resolve().parents[2] / "scenes" / "indenters" / "pyramid.stl"
+    cube = tmp_path / "cube"
+    assert (
+        main(["render", "--indenter", "cube", "--orientation", "corner", "--size", "4", *TINY, "--out", str(cube)]) == 0
+    )
+    indenter = load_press(cube).meta["provenance"]["press"]["indenter"]
+    assert (indenter["kind"], indenter["orientation"], indenter["size"]) == ("cube", "corner", 4.0)
+    mesh = tmp_path / "mesh"
+    assert main(["render", "--mesh", str(pyramid), "--size", "5", *TINY, "--out", str(mesh)]) == 0
+    indenter = load_press(mesh).meta["provenance"]["press"]["indenter"]
+    assert (indenter["kind"], indenter["mesh"], indenter["size"]) == ("mesh", str(pyramid), 5.0)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--indenter", "cube", "--mesh", "part.stl"], "--mesh is for --indenter mesh, not --indenter cube"),
+        (["--orientation", "side"], "indenter 'sphere' cannot be pressed 'side' (orientations: face)"),
+        (["--size", "0"], "--size: must be in (0.0, inf], got 0.0"),
+        (["--azimuth", "inf"], "--azimuth: must be a finite angle in degrees, got inf"),
+    ],
+)
+def test_render_indenter_option_mistakes_are_one_line(tmp_path, capsys, argv, message):
+    out = tmp_path / "press"
+    assert main(["render", *argv, *TINY, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"nlips render: error: {err[0].removeprefix('nlips render: error: ')}"] and message in err[0]
+    assert not out.exists()
+
+
+def test_a_press_no_pixel_shows_is_rendered_with_a_warning(tmp_path, caplog):
+    """A press beyond the camera's view (polar 80 deg: the fisheye sees up to about 60) rendered silently, its
+    images the undeformed gel's; a press in view gives no warning."""
+    import logging
+
+    with caplog.at_level(logging.WARNING, logger="nlipscalib"):
+        assert main(["render", "--polar", "80", *TINY, "--out", str(tmp_path / "unseen")]) == 0
+        assert main(["render", "--polar", "20", *TINY, "--out", str(tmp_path / "seen")]) == 0
+    warned = [r.getMessage() for r in caplog.records if "no pixel shows the contact" in r.getMessage()]
+    assert len(warned) == 1 and str(tmp_path / "unseen") in warned[0] and "polar 80 deg" in warned[0]
+    assert not load_press(tmp_path / "unseen").ground_truth.contact.any()
