@@ -157,8 +157,10 @@ def _up_to_date(out, scene, press, seed) -> bool:
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         recorded = None
     if recorded != render_spec_hash(scene, press, seed):
+        mesh = press.indenter.mesh if press is not None and press.indenter.kind == "mesh" else None
+        edited = f" (or from another version of {mesh}: the mesh file's content counts)" if mesh else ""
         raise ConfigError(
-            f"{out}: already holds a press rendered from a different scene, press or seed; "
+            f"{out}: already holds a press rendered from a different scene, press or seed{edited}; "
             "use --overwrite to replace it, or another --out"
         )
     return True

@@ -478,7 +478,9 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
     changed = [j.name for j in jobs if is_press_folder(out / j.name) and not is_complete(scene, j, out)]
     if changed:
         names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+        meshes = any(j.press is not None and j.press.indenter.kind == "mesh" for j in jobs if j.name in changed)
+        edited = " (or from another version of an indenter's mesh file: its content counts)" if meshes else ""
         raise ConfigError(
-            f"{out}: {names} were rendered from a different scene or spec; render into a new folder, "
+            f"{out}: {names} were rendered from a different scene or spec{edited}; render into a new folder, "
             "or use --overwrite to re-render them"
         )

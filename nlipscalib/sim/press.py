@@ -126,17 +126,46 @@ def press_seed(scene_seed: int, press_dict: dict | None) -> int:
 def render_spec_hash(scene, press=None, seed=None) -> str:
     """Hash of everything that determines a render (scene, press, seed; not the thread count).
 
-    Stored as ``provenance.spec_hash`` so re-runs can tell a matching press folder from a stale one.
+    Stored as ``provenance.spec_hash`` so re-runs can tell a matching press folder from a stale one. A user
+    mesh indenter (``kind = "mesh"``) adds its file's content (:func:`mesh_file_digest`): the press names only
+    the file's path, and an edited mesh must not reuse the press rendered from the old one. Every other
+    press's hash is what it was before meshes were hashed, so existing datasets are not rendered again.
     """
     from ..config import to_mapping
 
     press_dict = None if press is None else to_mapping(press)
     seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
-    return _spec_digest(scene.to_dict(), press_dict, seed)
+    return _spec_digest(scene.to_dict(), press_dict, seed, mesh_file_digest(press))
+
+
+def mesh_file_digest(press) -> str | None:
+    """SHA-256 (hex, first 16 digits) of the file of a press's mesh indenter; None for any other press.
+
+    Parameters
+    ----------
+    press : PressConfig or None -- its ``indenter.mesh`` already resolved (beside the press file or spec)
+
+    Returns
+    -------
+    str or None; None too when the file cannot be read (rendering it reports that, naming the file)
+    """
+    import hashlib
+    from pathlib import Path
+
+    if press is None or press.indenter.kind != "mesh" or not press.indenter.mesh:
+        return None
+    try:
+        return hashlib.sha256(Path(press.indenter.mesh).expanduser().read_bytes()).hexdigest()[:16]
+    except OSError:
+        return None
 
 
 def recorded_spec_hash(provenance: dict) -> str | None:
-    """The spec hash of a rendered press: recorded, or recomputed from older folders' provenance."""
+    """The spec hash of a rendered press: recorded, or recomputed from older folders' provenance.
+
+    Older folders of mesh presses recorded no mesh content: their recomputed hash matches no current
+    mesh press, so they are taken as stale (rendered again), never as matching an edited mesh.
+    """
     if provenance.get("spec_hash"):
         return provenance["spec_hash"]
     try:
@@ -145,12 +174,15 @@ def recorded_spec_hash(provenance: dict) -> str | None:
         return None
 
 
-def _spec_digest(scene_dict: dict, press_dict: dict | None, seed: int) -> str:
+def _spec_digest(scene_dict: dict, press_dict: dict | None, seed: int, mesh_digest: str | None = None) -> str:
     from ..config import digest
 
     data = dict(scene_dict)
     data["render"] = {k: v for k, v in data["render"].items() if k != "threads"}
-    return digest({"scene": data, "press": press_dict, "seed": seed})
+    spec = {"scene": data, "press": press_dict, "seed": seed}
+    if mesh_digest is not None:  # mesh presses only: no other press's hash changes
+        spec["mesh_file"] = mesh_digest
+    return digest(spec)
 
 
 def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False, return_result=False):
@@ -174,6 +206,8 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
 
     if out_folder is None:
         raise ConfigError("render_press needs out_folder")
+    # hashed before the mesh file is read: a mesh edited during the render leaves a stale hash, rendered again
+    spec_hash = render_spec_hash(scene, press, seed)
     # 1. the surface: the undeformed dome, or the gel under the press
     mesh, contact, press_dict = gel_surface(scene, press)
     seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
@@ -186,7 +220,7 @@ def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False,
     # 4. writing the press folder
     provenance = {
         "source": "sim",
-        "spec_hash": render_spec_hash(scene, press, seed),
+        "spec_hash": spec_hash,
         "scene": scene.to_dict(),
         "press": press_dict,
         "seed": seed,

@@ -113,3 +113,52 @@ def test_a_spec_finds_its_indenter_mesh_beside_it_from_any_working_directory(tmp
     monkeypatch.chdir(tmp_path)
     spec, _ = load_dataset_spec(spec_file)
     assert spec.random.indenters[0].mesh == str(folder / "part.stl")
+
+
+def test_an_edited_indenter_mesh_makes_its_presses_stale_and_only_those(tmp_path, monkeypatch, capsys):
+    """Editing the STL a spec names (a relative path, found beside the spec) and re-running took the presses of
+    the old shape as done. Now they are refused as stale (re-rendered with --overwrite); the sphere's presses,
+    the reference, and every press of an unchanged mesh are kept."""
+    import trimesh
+
+    from nlipscalib.cli import main
+    from tests.cli.test_faults import _fake_render
+
+    folder = tmp_path / "specs"
+    folder.mkdir()
+    (folder / "part.stl").write_bytes((SCENES_DIR / "indenters" / "pyramid.stl").read_bytes())
+    spec = folder / "spec.toml"
+    spec.write_text(
+        '[grid]\nindenters = [{ kind = "sphere" }, { kind = "mesh", mesh = "part.stl" }]\ndepth = [0.5, 1.0]\n'
+    )
+    out, calls = tmp_path / "out", []
+    monkeypatch.chdir(tmp_path)  # the mesh is found beside the spec, not in the working directory
+    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
+    assert calls == ["reference", "press_0000", "press_0001", "press_0002", "press_0003"]
+    calls.clear()
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0 and calls == []  # unchanged
+    trimesh.creation.box(extents=[4.0, 4.0, 3.0]).export(folder / "part.stl")
+    capsys.readouterr()
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "press_0002, press_0003 were rendered" in err[0] and "mesh file" in err[0], err
+    assert calls == []
+    monkeypatch.setattr(ds, "_run_one", _rerender(calls))
+    assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--overwrite"]) == 0
+    assert calls == ["press_0002", "press_0003"]  # the mesh's presses only
+
+
+def _rerender(calls):
+    """The fake render of tests/cli, replacing the folder as ``--overwrite`` does."""
+    import shutil
+
+    from tests.cli.test_faults import _fake_render
+
+    render = _fake_render(calls)
+
+    def again(scene, job, out, overwrite=False):
+        shutil.rmtree(out / job.name, ignore_errors=True)
+        render(scene, job, out)
+
+    return again

@@ -74,3 +74,28 @@ def test_default_seed_differs_between_presses_and_repeats_for_one():
     b = to_mapping(PressConfig(IndenterConfig("sphere", 6.0), polar_deg=10.0, depth=1.1))
     assert press_seed(0, a) == press_seed(0, a)
     assert len({press_seed(0, a), press_seed(0, b), press_seed(0, None), press_seed(1, a)}) == 4
+
+
+def test_only_a_mesh_press_hashes_its_file_content(tmp_path):
+    """Hashing a mesh indenter's file must leave every other press's spec hash as it was (values from the code
+    before mesh content was hashed): a changed hash re-renders or refuses every existing dataset's presses."""
+    from nlipscalib.config import digest
+    from nlipscalib.sim.indent import IndenterConfig, PressConfig
+    from nlipscalib.sim.press import press_seed, render_spec_hash
+
+    scene = SceneConfig()
+    sphere = PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=20, azimuth_deg=30, depth=1.0)
+    assert render_spec_hash(scene, sphere) == "c12b4e1ebfd82f33"
+    assert render_spec_hash(scene, None, seed=3) == "4bf108c3ab66ac47"
+    cube = PressConfig(IndenterConfig(kind="cube", size=5.0), depth=0.8)
+    render = {k: v for k, v in scene.to_dict()["render"].items() if k != "threads"}
+    before = digest({"scene": scene.to_dict() | {"render": render}, "press": to_mapping(cube), "seed": 9})
+    assert render_spec_hash(scene, cube, 9) == before
+    # a mesh press: the file's content counts, its noise seed does not change with it
+    part = tmp_path / "part.stl"
+    part.write_bytes(b"solid a\nendsolid a\n")
+    mesh = PressConfig(IndenterConfig(kind="mesh", mesh=str(part)), depth=0.8)
+    seed, first = press_seed(0, to_mapping(mesh)), render_spec_hash(scene, mesh)
+    assert render_spec_hash(scene, mesh) == first
+    part.write_bytes(b"solid b\nendsolid b\n")
+    assert render_spec_hash(scene, mesh) != first and press_seed(0, to_mapping(mesh)) == seed
