@@ -66,7 +66,9 @@ def _check_args(args) -> None:
     if args.depth is not None:
         check_range("--depth", args.depth, 0.0, open_lo=True)
     if args.polar is not None:
-        check_range("--polar", args.polar, 0.0, 90.0)
+        from ..sim.press import check_polar
+
+        check_polar("--polar", args.polar)
     if args.size is not None:
         check_range("--size", args.size, 0.0, open_lo=True)
     for name in ("azimuth", "spin"):

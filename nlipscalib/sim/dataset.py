@@ -59,7 +59,7 @@ class GridSpec:
     """Rotations of the indenter about the press axis, degrees."""
 
     def __post_init__(self):
-        _check_values(self, min_count=1)
+        _check_values(self, ranges=False)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,20 +81,28 @@ class RandomSpec:
 
     def __post_init__(self):
         check_count("count", self.count, minimum=1)
-        _check_values(self, min_count=2)
+        _check_values(self, ranges=True)
         for name in ("polar_deg", "azimuth_deg", "depth", "spin_deg"):
             lo, hi = getattr(self, name)
             if lo > hi:
                 raise ConfigError(f"{name}: the range [{lo}, {hi}] is empty (low > high)")
 
 
-def _check_values(spec, min_count: int) -> None:
-    """Shared range checks of grid values and random ranges: polar angles, depths, indenters."""
+def _check_values(spec, ranges: bool) -> None:
+    """Shared range checks of grid values (``ranges`` False) and random ranges (True): polar angles, depths,
+    indenters."""
+    from .press import check_polar
+
+    min_count = 2 if ranges else 1
     if not spec.indenters:
         raise ConfigError("indenters: give at least one indenter")
     for name in ("polar_deg", "azimuth_deg", "depth", "spin_deg"):
         if len(getattr(spec, name)) < min_count:
             raise ConfigError(f"{name}: give at least {min_count} value(s)")
+    # every grid angle is pressed; a random range's high end only bounds the draw (uniform in [low, high))
+    ends = spec.polar_deg[:1] if ranges else spec.polar_deg
+    for v in ends:
+        check_polar("polar_deg", v)
     for v in spec.polar_deg:
         check_range("polar_deg", v, 0.0, 90.0)
     for v in spec.depth:

@@ -123,6 +123,14 @@ def press_seed(scene_seed: int, press_dict: dict | None) -> int:
     return int(np.random.SeedSequence([int(scene_seed), digest]).generate_state(1)[0])
 
 
+def check_polar(where: str, value: float) -> float:
+    """``value`` a polar angle on the dome, in [0, 90) deg (``core.dome.dome_surface_point``'s limit: 90 deg is
+    the base rim, whose ray leaves the dome); else a ConfigError naming ``where`` (an option or spec key)."""
+    if not 0.0 <= value < 90.0:  # also NaN
+        raise ConfigError(f"{where}: must be in [0, 90) deg (90 is the dome's open base), got {value!r}")
+    return value
+
+
 def render_spec_hash(scene, press=None, seed=None) -> str:
     """Hash of everything that determines a render (scene, press, seed; not the thread count).
 

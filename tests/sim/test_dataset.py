@@ -162,3 +162,20 @@ def _rerender(calls):
         render(scene, job, out)
 
     return again
+
+
+def test_a_grid_polar_angle_of_90_is_refused_when_the_spec_is_read(tmp_path):
+    """``polar_deg = [0.0, 90.0]`` passed the spec check [0, 90], then every press at 90 failed to render
+    ("off the dome"). A random range may end at 90: its draws lie below its high end."""
+    grid = _write(tmp_path, '[grid]\nindenters = [{ kind = "sphere" }]\npolar_deg = [0.0, 90.0]\n')
+    with pytest.raises(ConfigError, match=r"grid: polar_deg: must be in \[0, 90\) deg.*got 90\.0"):
+        load_dataset_spec(grid)
+    spec, _ = load_dataset_spec(_write(tmp_path, GRID.replace("[0.0, 20.0]", "[0.0, 89.5]")))
+    assert spec.grid.polar_deg == (0.0, 89.5)
+    spec, _ = load_dataset_spec(
+        _write(tmp_path, '[random]\ncount = 4\nindenters = [{ kind = "sphere" }]\npolar_deg = [0.0, 90.0]\n')
+    )
+    assert all(0 <= j.press.polar_deg < 90 for j in expand_jobs(spec) if j.press is not None)
+    stuck = '[random]\ncount = 1\nindenters = [{ kind = "sphere" }]\npolar_deg = [90.0, 90.0]\n'
+    with pytest.raises(ConfigError, match=r"random: polar_deg: must be in \[0, 90\) deg"):
+        load_dataset_spec(_write(tmp_path, stuck))

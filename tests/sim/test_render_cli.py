@@ -63,6 +63,9 @@ def test_render_options_choose_the_indenter_size_side_and_a_user_mesh(tmp_path):
         (["--orientation", "side"], "indenter 'sphere' cannot be pressed 'side' (orientations: face)"),
         (["--size", "0"], "--size: must be in (0.0, inf], got 0.0"),
         (["--azimuth", "inf"], "--azimuth: must be a finite angle in degrees, got inf"),
+        # the option check allowed 90, then the render failed with "polar angle 90.0 deg is off the dome"
+        (["--polar", "90"], "--polar: must be in [0, 90) deg"),
+        (["--polar", "nan"], "--polar: must be in [0, 90) deg"),
     ],
 )
 def test_render_indenter_option_mistakes_are_one_line(tmp_path, capsys, argv, message):
