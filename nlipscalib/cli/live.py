@@ -13,9 +13,12 @@ that maps a stored frame ((H, W, 3) uint16) to ``nlipscalib.device.live.LiveResu
 from __future__ import annotations
 
 import importlib
+import logging
 import sys
 
 from .options import fill_defaults, option, typed
+
+log = logging.getLogger(__name__)
 
 SOURCE_DEFAULTS = {"tricolor_level": 255, "exposure_ms": 10.0, "frames_per_press": 10}
 """Real defaults of the source flags whose presence is checked (argparse leaves them None, so one typed at its
@@ -191,7 +194,58 @@ def nlipsnet_predictor(args, depth: bool = True):
 
 def _nlipsnet(args):
     predictor = nlipsnet_predictor(args)
-    return predictor.predict_stored, predictor.ref_depth.astype("float32")
+    return MismatchWatch(predictor, source_name(args)), predictor.ref_depth.astype("float32")
+
+
+def source_name(args) -> str:
+    """What a stream's frames are named after in messages: the emulated sensor, a camera, or the file read."""
+    if args.emulate:
+        return "emulated sensor"
+    camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
+    return f"camera {camera}" if str(camera).isdigit() or str(camera).startswith("/dev/") else str(camera)
+
+
+class MismatchWatch:
+    """An NLiPsNet predictor of stored frames that warns when frames differ from the calibration's reference
+    over the whole gel (``learn.infer.mismatch_warning``: BGR stored as RGB, another exposure or sensor).
+
+    Why: such a frame leaves the change rule nothing to find, so the maps silently show the undeformed dome.
+    The warning is logged once per stream (a stream of such frames would repeat it every frame);
+    :meth:`report` logs at the end how many frames it concerned, as ``nlips infer`` does.
+
+    Parameters
+    ----------
+    predictor : learn.infer.Predictor
+    name : str -- the source, for the warning (``"camera 0"``, a video's path, ``"emulated sensor"``)
+    """
+
+    def __init__(self, predictor, name: str):
+        self.predictor, self.name = predictor, name
+        self.frames = 0
+        self.mismatched = 0
+
+    def __call__(self, frame):
+        """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
+        from ..core.tolerances import FRAME_MISMATCH_FRACTION
+        from ..learn.infer import mismatch_warning
+
+        result = self.predictor.predict_stored(frame, self.name)
+        index, self.frames = self.frames, self.frames + 1
+        if not self.mismatched and (why := mismatch_warning(result, f"{self.name} frame {index}")):
+            log.warning("%s", why)
+        if result.mismatch > FRAME_MISMATCH_FRACTION:
+            self.mismatched += 1
+        return result
+
+    def report(self) -> None:
+        """The count of frames warned about, when there were any (after the stream)."""
+        if self.mismatched:
+            log.warning(
+                "%d of %d frames differed from the calibration's reference over most of the gel (see the warning "
+                "above): their results are unreliable",
+                self.mismatched,
+                self.frames,
+            )
 
 
 def _plugged(spec: str, shape):
@@ -316,4 +370,6 @@ def run(args) -> int:
             report=lambda line: print(line, file=sys.stderr),
         )
     print(stats.summary())
+    if isinstance(predict, MismatchWatch):
+        predict.report()
     return 0

@@ -12,28 +12,57 @@ from nlipscalib.core import load_press  # noqa: E402
 ARGS = ["--emulate", "nlipstac", "--width", "64", "--height", "48"]
 
 
-def _untrained_model(reference_press, path):
-    """A model file for this sensor with an untrained network: enough to test the streaming path."""
+def _untrained_model(reference_press, path, brightness: float = 1.0):
+    """A model file for this sensor with an untrained network: enough to test the streaming path.
+
+    ``brightness`` scales the calibration's reference frame: the sensor's frames are then 1/brightness as
+    bright as the calibration's, as after a change of exposure."""
     from nlipscalib.learn.dataset import reference_arrays
     from nlipscalib.learn.model import build_net, save_model
     from nlipscalib.learn.sensor import sensor_of
 
     net = build_net(hidden=(16, 16), dropout=0.0, width=64, height=48)
     sensor, reference = sensor_of(reference_press), reference_arrays(reference_press)
+    reference["tricolor"] = reference["tricolor"] * np.float32(brightness)
     return save_model(path, net, hidden=(16, 16), dropout=0.0, sensor=sensor, reference=reference, info={})
 
 
-def test_live_streams_the_emulated_sensor_through_nlipsnet(tmp_path, capsys):
-    assert main(["capture", *ARGS, "--presses", "0", "--spp", "1", "--out", str(tmp_path / "s")]) == 0
-    reference = load_press(tmp_path / "s" / "reference")
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The emulated sensor's undeformed capture (what a calibration's reference is)."""
+    folder = tmp_path_factory.mktemp("live_nlipsnet") / "s"
+    assert main(["capture", *ARGS, "--presses", "0", "--spp", "1", "--out", str(folder)]) == 0
+    return load_press(folder / "reference")
+
+
+def test_live_streams_the_emulated_sensor_through_nlipsnet(reference, tmp_path, capsys, caplog):
+    import logging
+
+    caplog.set_level(logging.WARNING)
     model = _untrained_model(reference, tmp_path / "net.pt")
     maps = tmp_path / "maps"
     args = ["live", *ARGS, "--model", str(model), "--frames", "6", "--frames-per-press", "3", "--save", str(maps)]
     assert main(args) == 0
     summary = capsys.readouterr().out
     assert "6 frames in" in summary and "fps" in summary
+    assert "differs from the calibration's reference" not in caplog.text  # frames of the calibrated sensor
     first = np.load(maps / "frame_000001.npz")  # the undeformed gel: the reference normals where nothing changed
     valid = np.isfinite(reference.reference.depth)
     same = np.all(np.abs(first["normals"] - reference.reference.normals) < 1e-5, axis=-1)
     assert same[valid].mean() > 0.9
     assert len(list(maps.glob("*_normals.png"))) == 6
+
+
+def test_live_warns_once_when_frames_differ_from_the_calibration_everywhere(reference, tmp_path, capsys, caplog):
+    """``nlips infer`` warned about frames unlike the calibration's reference over the whole gel (another exposure,
+    BGR stored as RGB); ``nlips live`` showed the undeformed dome without a word. Now: once per stream, and the
+    count at the end."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    model = _untrained_model(reference, tmp_path / "net.pt", brightness=3.0)  # frames 1/3 as bright
+    assert main(["live", *ARGS, "--model", str(model), "--frames", "4", "--no-window"]) == 0
+    assert "4 frames in" in capsys.readouterr().out
+    warned = [r.getMessage() for r in caplog.records if "differs from the calibration's reference" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith("emulated sensor frame 0: ") and "times as bright" in warned[0]
+    assert "4 of 4 frames differed from the calibration's reference" in caplog.text
