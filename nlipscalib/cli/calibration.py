@@ -69,6 +69,8 @@ def run(args) -> int:
         presses, reference = split_reference(root, args.reference)
         if reference is not None and is_press_folder(reference):
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
+    if args.reference is not None:
+        own_reference_left_out(root, Path(args.reference))
     if reference is None:
         raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
     if not presses:
@@ -98,6 +100,32 @@ def run(args) -> int:
     if failed:
         print(f"{len(failed)} presses failed to solve: {', '.join(sorted(failed))}")
     return 1 if failed else 0
+
+
+def own_reference_left_out(root: Path, given: Path) -> None:
+    """``nlips calibrate ROOT --reference GIVEN`` where ROOT holds its own ``reference/``: one info line that it is
+    left out (it is the undeformed dome, never a press), or a ConfigError when the two are captures of different
+    sensors (ROOT's presses would then not match GIVEN: the dataset build would refuse them after the solve)."""
+    from ..core.capture import REFERENCE_FOLDER, is_press_folder, load_press
+    from ..errors import CaptureError, ConfigError
+    from ..learn.sensor import sensor_mismatch, sensor_of
+
+    own = root / REFERENCE_FOLDER
+    if is_press_folder(root) or not is_press_folder(own) or not is_press_folder(given):
+        return  # nothing to leave out, or GIVEN is refused in one line where it is read
+    if own.resolve() == given.resolve():
+        return
+    try:
+        why = sensor_mismatch(sensor_of(load_press(given)), sensor_of(load_press(own)))
+    except CaptureError as exc:  # a damaged own reference is not used: say so, and go on with GIVEN
+        log.info("%s: left out, --reference %s is used (it cannot be read: %s)", own, given, exc)
+        return
+    if why:
+        raise ConfigError(
+            f"{own} and --reference {given} are captures of different sensors ({own}: {why}): "
+            f"leave out --reference to use {own}, or name a reference captured with the sensor of {root}'s presses"
+        )
+    log.info("%s: left out (not a press); the undeformed dome of --reference %s is used", own, given)
 
 
 def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True) -> dict[str, str]:

@@ -325,11 +325,14 @@ def split_reference(root: str | Path, reference: str | Path | None = None) -> tu
     """The presses at ``root`` (:func:`find_presses`) and the undeformed dome's capture, kept apart.
 
     ``reference``: the capture named by the user; None: ``root/reference`` (:data:`REFERENCE_FOLDER`) when
-    ``root`` is a folder of presses that holds one. The reference is never among the presses returned.
+    ``root`` is a folder of presses that holds one. The reference is never among the presses returned, nor is
+    ``root/reference`` when another ``reference`` is named: a folder's own undeformed capture is not a press.
     """
     presses = find_presses(root)
+    default = Path(root) / REFERENCE_FOLDER
+    if not is_press_folder(root):
+        presses = [p for p in presses if p != default]
     if reference is None:
-        default = Path(root) / REFERENCE_FOLDER
         reference = default if not is_press_folder(root) and is_press_folder(default) else None
     if reference is None:
         return presses, None

@@ -71,6 +71,20 @@ def test_find_presses_warns_about_incomplete_press_folders(tmp_path, caplog):
     assert len(warnings) == 1 and str(broken) in warnings[0] and "meta.json" in warnings[0], warnings
 
 
+def test_a_folders_own_reference_is_never_a_press_whichever_reference_is_named(tmp_path):
+    """``split_reference(DS, OTHER)`` returned DS/reference among the presses: ``nlips calibrate DS --reference
+    OTHER`` solved the undeformed dome as if it were a press."""
+    from nlipscalib.core.capture import split_reference
+
+    ds = tmp_path / "ds"
+    own, press, other = _press(ds / "reference"), _press(ds / "press_a"), _press(tmp_path / "other")
+    assert split_reference(ds) == ([press], own)
+    assert split_reference(ds, other) == ([press], other)
+    assert split_reference(ds, own) == ([press], own)
+    assert split_reference(ds, press) == ([], press)  # a press named as the reference: the user's choice
+    assert split_reference(own, other) == ([own], other)  # a press folder given as such is still a press
+
+
 def test_written_files_get_ordinary_permissions(tmp_path):
     import os
     import stat

@@ -191,3 +191,34 @@ def test_cli_calibrate_waits_for_a_press_another_run_holds_and_solves_it_when_th
     assert (root / "press_b" / "nlips" / "result.npz").is_file()
     assert CalibrationDataset(root / "calibration").names == ["press_b"]
     assert "press not solved" not in capsys.readouterr().err
+
+
+def test_cli_calibrate_with_another_reference_leaves_the_folders_own_out(twin_presses, tmp_path, capsys, caplog):
+    """``nlips calibrate DS --reference OTHER`` solved DS/reference as if it were a press (and sampled it). Now it is
+    left out with an info line when OTHER is of the same sensor, and the command refuses in one line, before any
+    solving, when the two references are of different sensors."""
+    import logging
+
+    caplog.set_level(logging.INFO)
+    root = tmp_path / "presses"
+    shutil.copytree(twin_presses / "reference", root / "reference")
+    shutil.copytree(twin_presses / "press_a", root / "press_a", ignore=shutil.ignore_patterns("nlips"))
+    foreign = tmp_path / "foreign"  # the undeformed dome of another sensor: another focal length
+    shutil.copytree(twin_presses / "reference", foreign)
+    meta = json.loads((foreign / "meta.json").read_text())
+    meta["camera"]["fx"] *= 1.1
+    (foreign / "meta.json").write_text(json.dumps(meta))
+    assert main(["calibrate", str(root), "--reference", str(foreign), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "different sensors" in err[0] and "camera fx" in err[0], err
+    assert str(root / "reference") in err[0] and str(foreign) in err[0]
+    assert not (root / "press_a" / "nlips").exists() and not (root / "calibration").exists()  # before solving
+
+    other = tmp_path / "other"  # the same sensor's undeformed dome, captured again
+    shutil.copytree(twin_presses / "reference", other)
+    assert main(["calibrate", str(root), "--reference", str(other), "--workers", "1", "--no-progress"]) == 0
+    assert not (root / "reference" / "nlips").exists()  # not solved as a press
+    data = CalibrationDataset(root / "calibration")
+    assert data.names == ["press_a"]
+    left_out = [r.getMessage() for r in caplog.records if "left out" in r.getMessage()]
+    assert len(left_out) == 1 and str(root / "reference") in left_out[0] and str(other) in left_out[0]
