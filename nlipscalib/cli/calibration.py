@@ -47,7 +47,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..config import check_count, options_named
-    from ..core.capture import REFERENCE_FOLDER, is_press_folder, read_meta, split_reference
+    from ..core.capture import REFERENCE_FOLDER, read_meta, split_reference
     from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.coverage import coverage, write_coverage_json
@@ -67,7 +67,7 @@ def run(args) -> int:
         )
         root = Path(args.presses)
         presses, reference = split_reference(root, args.reference)
-        if reference is not None and is_press_folder(reference):
+        if reference is not None:  # a missing or broken --reference: one line naming it, before any solving
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
     if args.reference is not None:
         own_reference_left_out(root, Path(args.reference))

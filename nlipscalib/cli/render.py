@@ -130,6 +130,10 @@ def run(args) -> int:
 
     scene = _scene(args)
     press = None if args.undeformed else _press(args)
+    if press is not None and press.indenter.kind == "mesh":
+        from ..sim.indenters import make_indenter
+
+        make_indenter(press.indenter)  # a missing or unreadable mesh is named now, not taken for an edited one
     out = Path(args.out)
     if not args.overwrite and _up_to_date(out, scene, press, args.seed):
         print(f"{out}: already rendered from this scene and press, nothing to do")

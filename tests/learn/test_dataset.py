@@ -203,6 +203,11 @@ def test_cli_calibrate_with_another_reference_leaves_the_folders_own_out(twin_pr
     root = tmp_path / "presses"
     shutil.copytree(twin_presses / "reference", root / "reference")
     shutil.copytree(twin_presses / "press_a", root / "press_a", ignore=shutil.ignore_patterns("nlips"))
+    missing = tmp_path / "missing"  # a mistyped --reference: was one error per press, then "no press could be solved"
+    assert main(["calibrate", str(root), "--reference", str(missing), "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"nlips calibrate: error: {missing}: not a press folder (no such directory)"
+    ]
     foreign = tmp_path / "foreign"  # the undeformed dome of another sensor: another focal length
     shutil.copytree(twin_presses / "reference", foreign)
     meta = json.loads((foreign / "meta.json").read_text())

@@ -126,3 +126,8 @@ def test_an_edited_mesh_is_not_taken_for_its_rendered_press(tmp_path, capsys):
     assert second.meta["provenance"]["seed"] == first.meta["provenance"]["seed"]  # the noise seed stays
     assert not np.array_equal(second.ground_truth.contact, first.ground_truth.contact)  # the box's footprint
     assert main(args) == 0 and "nothing to do" in capsys.readouterr().out
+    part.unlink()  # a missing mesh is named as such, not taken for an edited one
+    _fresh_indenter_caches()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"nlips render: error: indenter mesh {part}: no such file"], err
