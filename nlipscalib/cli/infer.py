@@ -122,12 +122,10 @@ def _run_stream(args, what: str) -> int:
     import contextlib
     import time
 
-    from ..core.tolerances import FRAME_MISMATCH_FRACTION
     from ..device.live import ReadAhead, SaveSink, stream
     from ..errors import CaptureError, require
-    from ..learn.infer import mismatch_warning
     from ..report import normals_to_rgb
-    from .live import nlipsnet_predictor, open_frames
+    from .live import MismatchWatch, nlipsnet_predictor, open_frames
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better
@@ -155,15 +153,10 @@ def _run_stream(args, what: str) -> int:
         elif args.ply or args.mesh:
             log.warning("--ply without --out: no point clouds are written")
 
-        mismatched = []
+        watch = MismatchWatch(predictor, name)
 
         def predict(frame):
-            result = stages.add(predictor.predict_stored(frame, name))
-            if not mismatched and (why := mismatch_warning(result, f"{name} frame {len(stages.seconds) - 1}")):
-                log.warning("%s", why)  # once: a stream of such frames would repeat it every frame
-            if result.mismatch > FRAME_MISMATCH_FRACTION:
-                mismatched.append(len(stages.seconds) - 1)
-            return result
+            return stages.add(watch(frame))
 
         cpu0 = time.process_time()
         stats = stream(
@@ -178,13 +171,7 @@ def _run_stream(args, what: str) -> int:
         cpu = time.process_time() - cpu0
     print(stats.summary())
     print(stages.summary(predictor, cpu, stats.frames, args.no_depth))
-    if mismatched:
-        log.warning(
-            "%d of %d frames differed from the calibration's reference over most of the gel (see the warning "
-            "above): their results are unreliable",
-            len(mismatched),
-            len(stages.seconds),
-        )
+    watch.report()
     if args.out and stats.frames:
         _write_stream_report(args.out, name, predictor, stats, stages, cpu)
     return 0
