@@ -29,7 +29,7 @@ from ..core.sensor import DomeConfig
 from ..core.tolerances import CONTACT_MM, NORMAL_EPS
 from ..errors import ConfigError
 from .dome import check_dome, dome_surface_point, make_dome, project_to_dome
-from .indenters import HeightField, IndenterConfig, indenter_heightfield, make_indenter
+from .indenters import HeightField, IndenterConfig, indenter_heightfield, make_indenter, mesh_file_stamp
 
 SPREAD_PER_THICKNESS = 2.0
 """The gel's deformation fades to zero this many gel thicknesses beyond the indenter's footprint."""
@@ -127,7 +127,7 @@ def apply_press(dome_cfg: DomeConfig, press_cfg: PressConfig) -> DeformedGel:
         raise ConfigError(f"press depth {press_cfg.depth} mm exceeds the gel thickness {dome_cfg.thickness} mm")
     point, rot = press_frame(dome_cfg, press_cfg)
     tip = point + press_cfg.depth * rot[:, 2]
-    hf = _heightfield(press_cfg.indenter, dome_cfg.contact_edge_length / 2)
+    hf = _heightfield(press_cfg.indenter, dome_cfg.contact_edge_length / 2, mesh_file_stamp(press_cfg.indenter))
     footprint = _footprint_radius(hf, press_cfg.depth)
     dome = make_dome(dome_cfg)
     vertices, faces = _refine_near(dome_cfg, dome.vertices, dome.faces, point, footprint + press_cfg.depth)
@@ -159,7 +159,8 @@ def apply_press(dome_cfg: DomeConfig, press_cfg: PressConfig) -> DeformedGel:
 
 
 @functools.lru_cache(maxsize=32)
-def _heightfield(cfg: IndenterConfig, resolution: float) -> HeightField:
+def _heightfield(cfg: IndenterConfig, resolution: float, stamp: tuple[int, int] | None = None) -> HeightField:
+    """Cached per indenter, resolution and mesh file stamp (:func:`mesh_file_stamp`: an edited file is read again)."""
     if cfg.kind == "sphere":
         return _sphere_heightfield(cfg.size / 2, resolution)
     return indenter_heightfield(make_indenter(cfg), resolution)

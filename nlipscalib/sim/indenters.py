@@ -109,11 +109,25 @@ def make_indenter(cfg: IndenterConfig) -> trimesh.Trimesh:
     trimesh.Trimesh
         mm, indenter frame; watertight for every built-in kind. A fresh copy each call.
     """
-    return _make_indenter_cached(cfg).copy()
+    return _make_indenter_cached(cfg, mesh_file_stamp(cfg)).copy()
+
+
+def mesh_file_stamp(cfg: IndenterConfig) -> tuple[int, int] | None:
+    """(modification time ns, size) of a mesh indenter's file, None for other kinds or an unreadable file.
+
+    Why: part of the in-process caches' keys (the indenter body, its height field), so a process that renders
+    again after the file was edited (a notebook, an experiment driver) gets the new shape, not the cached one."""
+    if cfg.kind != "mesh" or not cfg.mesh:
+        return None
+    try:
+        st = Path(cfg.mesh).expanduser().stat()
+    except OSError:
+        return None
+    return st.st_mtime_ns, st.st_size
 
 
 @functools.lru_cache(maxsize=32)
-def _make_indenter_cached(cfg: IndenterConfig) -> trimesh.Trimesh:
+def _make_indenter_cached(cfg: IndenterConfig, stamp: tuple[int, int] | None = None) -> trimesh.Trimesh:
     mesh = _load_mesh(cfg) if cfg.kind == "mesh" else _BUILDERS[cfg.kind](cfg)
     mesh.apply_transform(_pose_matrix(cfg))
     if any(cfg.rotation_deg):

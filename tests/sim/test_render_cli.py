@@ -89,17 +89,10 @@ def test_a_press_no_pixel_shows_is_rendered_with_a_warning(tmp_path, caplog):
     assert not load_press(tmp_path / "unseen").ground_truth.contact.any()
 
 
-def _fresh_indenter_caches():
-    """Forget loaded indenter meshes: each ``nlips`` command is a new process, this test runs several in one."""
-    from nlipscalib.sim import indent, indenters
-
-    indenters._make_indenter_cached.cache_clear()
-    indent._heightfield.cache_clear()
-
-
 def test_an_edited_mesh_is_not_taken_for_its_rendered_press(tmp_path, capsys):
     """The spec hash held the mesh's path only: editing the STL and re-running said "already rendered, nothing to
-    do" and kept the old shape's press. An unchanged mesh is still reused; an edited one is stale."""
+    do" and kept the old shape's press. An unchanged mesh is still reused; an edited one is stale. The commands run
+    in this one process, as in a notebook: the in-process caches of the indenter must not keep the old shape."""
     import json
     import shutil
     from pathlib import Path
@@ -110,12 +103,10 @@ def test_an_edited_mesh_is_not_taken_for_its_rendered_press(tmp_path, capsys):
     shutil.copyfile(Path(__file__).resolve().parents[2] / "scenes" / "indenters" / "pyramid.stl", part)
     out = tmp_path / "press"
     args = ["render", "--mesh", str(part), "--size", "5", *TINY, "--out", str(out)]
-    _fresh_indenter_caches()
     assert main(args) == 0
     first = load_press(out)
     assert main(args) == 0 and "nothing to do" in capsys.readouterr().out  # unchanged mesh: reused
     trimesh.creation.box(extents=[4.0, 4.0, 3.0]).export(part)  # the same path, another shape
-    _fresh_indenter_caches()
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(out) in err[0] and f"another version of {part}" in err[0] and "--overwrite" in err[0]
@@ -127,7 +118,6 @@ def test_an_edited_mesh_is_not_taken_for_its_rendered_press(tmp_path, capsys):
     assert not np.array_equal(second.ground_truth.contact, first.ground_truth.contact)  # the box's footprint
     assert main(args) == 0 and "nothing to do" in capsys.readouterr().out
     part.unlink()  # a missing mesh is named as such, not taken for an edited one
-    _fresh_indenter_caches()
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"nlips render: error: indenter mesh {part}: no such file"], err
