@@ -67,13 +67,40 @@ def from_mapping(cls, data, where: str = ""):
             if field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING:
                 raise ConfigError(f"{where}: missing required key '{name}'")
             continue
-        kwargs[name] = _convert(hints[name], data[name], f"{where}.{name}" if where else name)
+        value = _over_default(field, data[name])
+        kwargs[name] = _convert(hints[name], value, f"{where}.{name}" if where else name)
     try:
         return cls(**kwargs)
     except ConfigError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+def _over_default(field: dataclasses.Field, value):
+    """A table given for a field whose default is a config (a dataclass instance): its keys over that default's.
+
+    Why: a section sets what it names and keeps the rest of the *field's* default, not of its class; e.g. Q2's
+    ``[train]`` with only ``indenters`` keeps Q2's 50 presses and seed (the class ``PressSet`` has 3), and
+    ``[twin]`` with only ``spp`` keeps the experiment's 640x480 (the class ``TwinConfig`` has 320x240).
+    """
+    if field.default is not dataclasses.MISSING:
+        default = field.default
+    elif field.default_factory is not dataclasses.MISSING:
+        default = field.default_factory()
+    else:
+        return value
+    return _merged(default, value)
+
+
+def _merged(default, value):
+    """``value`` (a mapping) over the fields of config instance ``default``, recursively; else ``value``."""
+    if not isinstance(value, dict) or not dataclasses.is_dataclass(default) or isinstance(default, type):
+        return value
+    out = {f.name: getattr(default, f.name) for f in dataclasses.fields(default) if f.init}
+    for key, given in value.items():
+        out[key] = _merged(out[key], given) if key in out else given  # an unknown key is refused by from_mapping
+    return out
 
 
 def to_mapping(obj) -> dict:

@@ -56,3 +56,45 @@ def test_yaml_and_unparsable_files(tmp_path):
 def test_replace_changes_one_field():
     s = SceneConfig().replace(render={"spp": 16})
     assert s.render.spp == 16 and s.render.bounces == 0
+
+
+def test_a_section_keeps_the_rest_of_its_fields_default_not_its_classes():
+    """``[twin]`` with only ``spp`` for a config whose twin defaults to 640x480 kept the class's 320x240, and Q2's
+    ``[train]`` with only ``indenters`` its class's 3 presses instead of Q2's 50 (silently)."""
+    import dataclasses
+
+    @dataclasses.dataclass(frozen=True)
+    class Inner:
+        width: int = 320
+        spp: int = 16
+
+    @dataclasses.dataclass(frozen=True)
+    class Middle:
+        inner: Inner = Inner(width=640)
+        name: str = "middle"
+
+    @dataclasses.dataclass(frozen=True)
+    class Outer:
+        middle: Middle = Middle(inner=Inner(width=800, spp=4))
+        flag: bool = False
+
+    cfg = from_mapping(Outer, {"middle": {"inner": {"spp": 8}}})
+    assert cfg.middle == Middle(inner=Inner(width=800, spp=8), name="middle")
+    assert from_mapping(Outer, {"middle": {"name": "m"}}).middle.inner == Inner(width=800, spp=4)
+    assert from_mapping(Outer, {}) == Outer()
+    with pytest.raises(ConfigError, match="middle.inner: unknown key"):
+        from_mapping(Outer, {"middle": {"inner": {"widht": 1}}})
+
+
+def test_an_experiment_config_file_overrides_only_what_it_names(tmp_path):
+    import dataclasses
+
+    from nlipscalib.experiments.q2 import Q2, Q2Config
+
+    path = tmp_path / "q2.toml"
+    path.write_text('[train]\nindenters = [{kind = "brick", size = 8.0}]\n[twin]\nspp = 4\n')
+    cfg, full = Q2().config(None, path), Q2Config()
+    assert cfg.train == dataclasses.replace(full.train, indenters=cfg.train.indenters) and cfg.train.count == 50
+    assert cfg.train.indenters[0].kind == "brick"
+    assert (cfg.twin.width, cfg.twin.height, cfg.twin.spp) == (full.twin.width, full.twin.height, 4)
+    assert cfg.seen == full.seen and cfg.net == full.net
