@@ -96,15 +96,41 @@ def open_port(url: str, *, baudrate: int = BAUD_RATE, write_timeout: float = 1.0
     """
     serial = _serial()
     try:
-        return serial.serial_for_url(
+        port = serial.serial_for_url(
             url, baudrate=baudrate, timeout=READ_SLICE_S, write_timeout=write_timeout, exclusive=True
         )
+        _keep_dtr_after_close(port)
+        return port
     except ValueError as exc:  # unknown URL scheme or bad settings
         raise PortNotFoundError(
             f"{url}: {exc} (use a device such as /dev/ttyACM0 or COM3, or loop://, socket://HOST:PORT, nlipsemu://ID)"
         ) from None
     except serial.SerialException as exc:
         raise _open_error(url, exc) from None
+
+
+def _keep_dtr_after_close(port) -> None:
+    """Clear HUPCL on a POSIX serial port, so DTR stays up when the port closes.
+
+    Why: an Arduino Uno resets on DTR's rising edge, and a USB serial port drops DTR on close (HUPCL is the
+    kernel's default), so every ``nlips leds`` command reset the board and found its LEDs dark: ``set`` then
+    ``state`` reported nothing lit. With DTR kept up the next open finds it up and the board keeps its LEDs and
+    session; the first open after plugging in still resets it (HELLO is resent until the bootloader is done).
+    Other ports (``loop://``, ``socket://``, ``nlipsemu://``, Windows) have no such flag and are left alone."""
+    fd = getattr(port, "fd", None)
+    try:
+        import termios
+    except ImportError:  # Windows
+        return
+    if not isinstance(fd, int):
+        return
+    try:
+        attrs = termios.tcgetattr(fd)
+        if attrs[2] & termios.HUPCL:
+            attrs[2] &= ~termios.HUPCL
+            termios.tcsetattr(fd, termios.TCSANOW, attrs)
+    except (OSError, termios.error):  # not a terminal device: nothing to keep
+        return
 
 
 def _open_error(url: str, exc: Exception) -> DeviceError:

@@ -61,3 +61,27 @@ def test_nlipsemu_url_through_plain_pyserial():
     with serial.serial_for_url(board.url, timeout=1.0) as port:
         port.write(b">01 HELLO*cae2\n")
         assert port.readline().startswith(b"<01 OK fw=")
+
+
+def test_a_serial_device_keeps_dtr_up_when_closed_so_an_uno_is_not_reset_by_the_next_command():
+    """A USB serial port drops DTR on close (HUPCL, the kernel's default), and an Uno resets when DTR rises on the
+    next open: ``nlips leds PORT set ...`` then ``nlips leds PORT state`` found every LED dark. The driver clears
+    HUPCL on the device it opens (a pseudo-terminal stands in for /dev/ttyACM0: it has the flag, not the DTR line)."""
+    import os
+    import pty
+    import termios
+
+    from nlipscalib.device.controller import open_port
+
+    master, slave = pty.openpty()
+    try:
+        attrs = termios.tcgetattr(slave)
+        attrs[2] |= termios.HUPCL  # as a freshly plugged-in ttyACM has it
+        termios.tcsetattr(slave, termios.TCSANOW, attrs)
+        port = open_port(os.ttyname(slave))
+        port.close()
+        assert not termios.tcgetattr(slave)[2] & termios.HUPCL
+        open_port("loop://").close()  # a URL without a terminal device behind it opens as before
+    finally:
+        os.close(master)
+        os.close(slave)
