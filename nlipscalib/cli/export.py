@@ -6,8 +6,6 @@ it, or retrained), or a copy elsewhere (``--out``); checked against PyTorch like
 
 from __future__ import annotations
 
-PARITY_LIMIT_DEG = 0.1
-"""onnxruntime and PyTorch normals may differ by at most this angle (degrees), as after ``nlips train``."""
 CHECK_PIXELS = 20000
 """At most this many of the reference frame's gel pixels check the export."""
 
@@ -28,7 +26,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..errors import CaptureError, ConfigError
+    from ..errors import ConfigError
     from ..learn.model import load_model
     from ..learn.onnx_export import export_onnx
 
@@ -38,8 +36,6 @@ def run(args) -> int:
     model = load_model(args.model)
     path = export_onnx(model, out)
     angle = parity_deg(model, path)
-    if not angle < PARITY_LIMIT_DEG:
-        raise CaptureError(f"{path}: onnxruntime differs from PyTorch by {angle:.3f} deg (limit {PARITY_LIMIT_DEG})")
     beside = path.resolve() == Path(args.model).resolve().with_suffix(".onnx")
     default = Path(model.path).with_suffix(".onnx")
     used = (
@@ -52,12 +48,12 @@ def run(args) -> int:
 
 
 def parity_deg(model, onnx_path) -> float:
-    """Largest angle (degrees) between onnxruntime's and PyTorch's normals on the model's reference gel pixels."""
+    """Largest angle (degrees) between onnxruntime's and PyTorch's normals on the model's reference gel pixels, their
+    colours as they are and 10 % darker and brighter (a contact changes them); CaptureError beyond the limit."""
     import numpy as np
-    import torch
 
     from ..learn.model import model_inputs
-    from ..learn.onnx_export import OnnxNet, max_angle_deg
+    from ..learn.onnx_export import checked_parity
 
     ref = model.reference
     rows, cols = np.nonzero(ref["valid"].astype(bool))
@@ -65,7 +61,5 @@ def parity_deg(model, onnx_path) -> float:
     rows, cols = rows[pick], cols[pick]
     pixel = np.stack([cols, rows], axis=1)  # (u, v) = (column, row)
     rgb = ref["tricolor"][rows, cols].astype(np.float32)
-    x = np.concatenate([model_inputs(pixel, rgb * s) for s in (0.9, 1.0, 1.1)])  # a contact changes the colours
-    with torch.inference_mode():
-        expected = model.net(torch.from_numpy(x)).numpy()
-    return max_angle_deg(OnnxNet(onnx_path, model, threads=1)(x), expected)
+    x = np.concatenate([model_inputs(pixel, rgb * s) for s in (0.9, 1.0, 1.1)])
+    return checked_parity(model, onnx_path, x, threads=1)

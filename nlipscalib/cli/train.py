@@ -114,23 +114,15 @@ def _names(option: str | None) -> list[str]:
 
 
 def export_and_check(model_path, dataset, names) -> tuple:
-    """Export MODEL.onnx and return (path, max angle in degrees between onnxruntime and PyTorch normals)."""
-    import torch
-
-    from ..errors import CaptureError
+    """Export MODEL.onnx and return (path, max angle in degrees between onnxruntime and PyTorch normals) on the
+    samples of presses ``names``; CaptureError beyond ``learn.onnx_export.PARITY_LIMIT_DEG``."""
     from ..learn.model import load_model, model_inputs
-    from ..learn.onnx_export import OnnxNet, export_onnx, max_angle_deg
+    from ..learn.onnx_export import checked_parity, export_onnx
 
     model = load_model(model_path)
     path = export_onnx(model, model_path.with_suffix(".onnx"))
     s = dataset.arrays(names)
-    x = model_inputs(s["pixel"], s["rgb"])
-    with torch.inference_mode():
-        ref = model.net(torch.from_numpy(x)).numpy()
-    angle = max_angle_deg(OnnxNet(path, model)(x), ref)
-    if angle >= 0.1:
-        raise CaptureError(f"{path}: onnxruntime differs from PyTorch by {angle:.3f} deg (limit 0.1)")
-    return path, angle
+    return path, checked_parity(model, path, model_inputs(s["pixel"], s["rgb"]))
 
 
 def _why_stopped(result, cfg) -> str:

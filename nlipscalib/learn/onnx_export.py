@@ -174,3 +174,33 @@ def max_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     # atan2(|a x b|, a . b) stays accurate for tiny angles, where arccos of a rounded cosine does not
     ang = np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, -1))
     return float(np.degrees(ang).max()) if len(ang) else 0.0
+
+
+PARITY_LIMIT_DEG = 0.1
+"""An ONNX export is accepted when onnxruntime's normals are within this angle (degrees) of PyTorch's."""
+
+
+def checked_parity(model, onnx_path, x: np.ndarray, threads: int = 0) -> float:
+    """Largest angle (degrees) between onnxruntime's and PyTorch's normals on network inputs ``x``.
+
+    Parameters
+    ----------
+    model : learn.model.LoadedModel -- the PyTorch side
+    onnx_path : its export
+    x : (N, 5) float32 -- normalised network inputs (``learn.model.model_inputs``)
+    threads : onnxruntime threads (0: the usable cores)
+
+    Raises
+    ------
+    CaptureError naming ``onnx_path`` when the angle reaches :data:`PARITY_LIMIT_DEG`.
+    """
+    import torch
+
+    with torch.inference_mode():
+        expected = model.net(torch.from_numpy(x)).numpy()
+    angle = max_angle_deg(OnnxNet(onnx_path, model, threads=threads)(x), expected)
+    if not angle < PARITY_LIMIT_DEG:
+        raise CaptureError(
+            f"{onnx_path}: onnxruntime differs from PyTorch by {angle:.3f} deg (limit {PARITY_LIMIT_DEG})"
+        )
+    return angle
