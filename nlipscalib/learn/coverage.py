@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.atomic import write_json
+from ..core.metrics import angular_error_map
 from ..core.reconstruction import jsonable
 
 TILT_EDGES_DEG = (2.0, 10.0, 25.0, 45.0, 90.0)
@@ -61,7 +62,7 @@ def tilt_deg(normals: np.ndarray, ref_normals: np.ndarray) -> np.ndarray:
     ----------
     normals, ref_normals : (N, 3) float, unit, camera frame
     """
-    return np.degrees(np.arccos(np.clip(np.sum(normals * ref_normals, -1), -1.0, 1.0)))
+    return angular_error_map(normals, ref_normals)  # the metric's angle, read as a tilt
 
 
 def coverage(dataset, cells: int = 4, min_samples: int = 20) -> dict:
