@@ -187,15 +187,8 @@ class Q2(Experiment):
         lut = learning.fit_lookup_table(data, names["train"])
         predictors[METHODS["lut"]] = lut.predict
         predictors[METHODS["none"]] = learning.undeformed_predictor(data)
-        by_indenter = {
-            f"{split}/{kind}": [n for n in tests[split] if data.entry(n)["press"]["indenter"] == kind]
-            for split in tests
-            for kind in dict.fromkeys(data.entry(n)["press"]["indenter"] for n in tests[split])
-        }
+        by_indenter = _by_indenter(data, tests)
         per_indenter = learning.score(data, predictors, by_indenter)
-        by_kind = {f"train/{data.entry(n)['press']['indenter']}": [] for n in names["train"]}
-        for n in names["train"]:
-            by_kind[f"train/{data.entry(n)['press']['indenter']}"].append(n)
         for r in per_indenter:
             r["split"], r["indenter"] = r["split"].split("/", 1)
         return {
@@ -203,7 +196,9 @@ class Q2(Experiment):
             "names": names,
             "scores": learning.score(data, predictors, tests),
             "per_indenter": per_indenter,
-            "steepness": learning.steepness(data, by_kind | by_indenter, STEEP_TILTS_DEG),
+            "steepness": learning.steepness(
+                data, _by_indenter(data, {"train": names["train"]}) | by_indenter, STEEP_TILTS_DEG
+            ),
             "models": {k: {key: v for key, v in m.items() if key != "history"} for k, m in models.items()},
             "histories": {k: m["history"] for k, m in models.items()},
         }
@@ -312,6 +307,15 @@ class Q2(Experiment):
         training_curve(learned["histories"]["nlipsnet"], folder / "q2_training.png", METHODS["nlipsnet"])
         figs.append(("Training curve of NLiPsNet (validation presses)", "q2_training.png"))
         return figs
+
+
+def _by_indenter(data, splits: dict[str, list[str]]) -> dict[str, list[str]]:
+    """ "split/indenter" -> the split's press names of that indenter kind, kinds in order of appearance."""
+    return {
+        f"{split}/{kind}": [n for n in names if data.entry(n)["press"]["indenter"] == kind]
+        for split, names in splits.items()
+        for kind in dict.fromkeys(data.entry(n)["press"]["indenter"] for n in names)
+    }
 
 
 def _nan(value) -> float:
