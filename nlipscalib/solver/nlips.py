@@ -135,78 +135,144 @@ def solve(
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
-    H, W = camera.shape
     images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
-    # the sensor's whole gel: every whole-frame press solves on it, so its large levels' operators recur
-    whole_gel = bool(np.array_equal(mask, np.isfinite(prior_depth)))
-
-    t_start = time.perf_counter()
-    # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted. The
-    # exclusions are worked out on the crop too (outside the mask nothing is usable), their thresholds
-    # on the whole images; the report's counts are the crop's.
-    rows, cols = np.nonzero(mask)
-    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-    cam = dataclasses.replace(camera, width=int(c1 - c0), height=int(r1 - r0), cx=camera.cx - c0, cy=camera.cy - r0)
-    crop = (slice(r0, r1), slice(c0, c1))
-    whole = images
-    # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
-    images = images[:, crop[0], crop[1]].astype(np.float32 if opts.dtype == "float32" else np.float64, copy=False)
-    sat = None if saturated is None else saturated[:, crop[0], crop[1]]
-    use, report = exclusions(images, sat, opts, whole=whole)
-    use &= mask[crop][None, :, :, None]
-    usable_leds = np.zeros((H, W), np.int16)
-    usable_leds[crop] = (use[..., 0] | use[..., 1] | use[..., 2]).sum(axis=0, dtype=np.int16)
-    data = images
-    scale = float(np.percentile(data[use], 99)) if use.any() else 1.0  # usable lies inside the crop
-    scale = scale if scale > 0 else 1.0
-    data = data / np.float32(scale) if data.dtype == np.float32 else data / scale
-    m = mask[crop]
-    t0 = np.log(np.where(m, prior_depth[crop], 1.0))
-    w0 = checked_prior_weights(prior_weights, (H, W))[crop]
-    pos, dirs, mu, psi = led_arrays(leds)
-    keep = [i for i in range(len(leds)) if i not in report["dead_leds"]]
-    pos, dirs, mu, psi = pos[keep], dirs[keep], mu[keep], psi[keep]
-    data, use = data[keep], use[keep]
-
-    be = Backend(backend, opts.dtype)
-    t_first = None
-    if init_depth is not None:
-        init = np.asarray(init_depth, np.float64)[crop]
-        t_first = np.where(m & np.isfinite(init) & (init > 0), np.log(np.where(init > 0, init, 1.0)), t0)
     if unrefined < 0:
         raise ConfigError(f"unrefined must be >= 0 levels, got {unrefined}")
-    # a warm start solves the finest level from it; with unrefined levels, the one below them (from it brought down)
-    levels = build_pyramid(
-        cam,
-        data,
-        use,
-        m,
-        t0,
-        w0,
-        opts if t_first is None else dataclasses.replace(opts, pyramid_levels=unrefined + 1),
-        skip=range(1, unrefined),
-    )
+    t_start = time.perf_counter()
+    # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
+    crop, cam = _crop_to_mask(mask, camera)
+    data = _LevelData.of(images, saturated, mask, crop, prior_depth, prior_weights, leds, opts)
+    levels, t_first = _pyramid(cam, data, init_depth, crop, opts, unrefined)
+    # the sensor's whole gel: every whole-frame press solves on it, so its large levels' operators recur
+    whole_gel = bool(np.array_equal(mask, np.isfinite(prior_depth)))
     for lv in levels:
         lv["recurs"] = whole_gel
-    if t_first is not None and len(levels) > 1:  # the start's change from the prior, averaged down inside the mask
-        shape = levels[0]["camera"].shape
-        change = resize(np.where(m, t_first - t0, 0.0), shape) / np.maximum(resize(m.astype(np.float32), shape), 1e-9)
-        t_first = levels[0]["t0"] + np.where(levels[0]["mask"], change, 0.0)
+    report = data.report
     report["levels"] = []
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
+    be = Backend(backend, opts.dtype)
     with blas_threads(1):
-        t_state, out = _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first, unrefined == 0)
+        t_state, out = _coarse_to_fine(levels, *data.leds, opts, be, bar, report, t_first, unrefined == 0)
     if bar is not None:
         bar.close()
+    report.update({"leds_used": [int(i) for i in data.kept], "pixels_solved": int(mask.sum())})
+    result = _full_image(t_state, out, levels[-1], data, mask, crop, opts)
+    report.update({"intensity_scale": data.scale, "backend": backend, "seconds": time.perf_counter() - t_start})
+    if report["pixels_too_few_leds"]:
+        log.warning(
+            "%d pixels have fewer than %d usable LEDs: not reconstructed (NaN)",
+            report["pixels_too_few_leds"],
+            opts.min_leds,
+        )
+    if report["dead_leds"]:
+        log.warning("dead LEDs excluded (1-based): %s", [i + 1 for i in report["dead_leds"]])
+    return result
 
-    # Back to the full image.
-    lv = levels[-1]
+
+def _crop_to_mask(mask: np.ndarray, camera: Camera) -> tuple[tuple[slice, slice], Camera]:
+    """The mask's bounding box as (rows, cols) slices, and the camera of that crop (the same lens, shifted)."""
+    rows, cols = np.nonzero(mask)
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    cam = dataclasses.replace(camera, width=int(c1 - c0), height=int(r1 - r0), cx=camera.cx - c0, cy=camera.cy - r0)
+    return (slice(r0, r1), slice(c0, c1)), cam
+
+
+@dataclasses.dataclass
+class _LevelData:
+    """What the finest level is built from, on the mask's bounding box: the normalised images of the LEDs
+    kept (dead ones dropped), their usable samples, the log-depth prior and its weights."""
+
+    images: np.ndarray
+    """(L', h, w, 3) float, divided by ``scale``."""
+    usable: np.ndarray
+    """(L', h, w, 3) bool."""
+    mask: np.ndarray
+    """(h, w) bool -- the solve mask on the crop."""
+    t0: np.ndarray
+    """(h, w) float64 -- log prior depth (0 off the mask)."""
+    w0: np.ndarray
+    """(h, w) float -- the prior weights' multipliers."""
+    leds: tuple
+    """(positions, directions, mu, psi) of the LEDs kept (:func:`nlipscalib.core.leds.led_arrays`)."""
+    kept: list
+    """0-based indices of the LEDs kept."""
+    usable_leds: np.ndarray
+    """(H, W) int16 -- usable LEDs per pixel of the whole image (0 outside the crop)."""
+    scale: float
+    """The images' 99th percentile over usable samples, by which they were divided."""
+    report: dict
+    """:func:`exclusions`' report (its counts are the crop's)."""
+
+    @classmethod
+    def of(cls, images, saturated, mask, crop, prior_depth, prior_weights, leds, opts: SolverOptions) -> _LevelData:
+        whole = images
+        H, W = mask.shape
+        # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
+        dtype = np.float32 if opts.dtype == "float32" else np.float64
+        images = images[:, crop[0], crop[1]].astype(dtype, copy=False)
+        sat = None if saturated is None else saturated[:, crop[0], crop[1]]
+        # the exclusions' thresholds are statistics of the whole images; outside the mask nothing is usable
+        use, report = exclusions(images, sat, opts, whole=whole)
+        use &= mask[crop][None, :, :, None]
+        usable_leds = np.zeros((H, W), np.int16)
+        usable_leds[crop] = (use[..., 0] | use[..., 1] | use[..., 2]).sum(axis=0, dtype=np.int16)
+        scale = float(np.percentile(images[use], 99)) if use.any() else 1.0  # usable lies inside the crop
+        scale = scale if scale > 0 else 1.0
+        images = images / np.float32(scale) if images.dtype == np.float32 else images / scale
+        m = mask[crop]
+        kept = [i for i in range(len(leds)) if i not in report["dead_leds"]]
+        pos, dirs, mu, psi = led_arrays(leds)
+        return cls(
+            images=images[kept],
+            usable=use[kept],
+            mask=m,
+            t0=np.log(np.where(m, prior_depth[crop], 1.0)),
+            w0=checked_prior_weights(prior_weights, (H, W))[crop],
+            leds=(pos[kept], dirs[kept], mu[kept], psi[kept]),
+            kept=kept,
+            usable_leds=usable_leds,
+            scale=scale,
+            report=report,
+        )
+
+
+def _pyramid(cam: Camera, data: _LevelData, init_depth, crop, opts: SolverOptions, unrefined: int):
+    """The levels to solve, and the log-depth the first of them starts from (None: the prior).
+
+    A warm start (``init_depth``) solves the finest level from it; with ``unrefined`` levels, the one below
+    them, from it brought down (the start's change from the prior, averaged inside the mask)."""
+    m, t0 = data.mask, data.t0
+    t_first = None
+    if init_depth is not None:
+        init = np.asarray(init_depth, np.float64)[crop]
+        t_first = np.where(m & np.isfinite(init) & (init > 0), np.log(np.where(init > 0, init, 1.0)), t0)
+    levels = build_pyramid(
+        cam,
+        data.images,
+        data.usable,
+        m,
+        t0,
+        data.w0,
+        opts if t_first is None else dataclasses.replace(opts, pyramid_levels=unrefined + 1),
+        skip=range(1, unrefined),
+    )
+    if t_first is not None and len(levels) > 1:
+        shape = levels[0]["camera"].shape
+        change = resize(np.where(m, t_first - t0, 0.0), shape) / np.maximum(resize(m.astype(np.float32), shape), 1e-9)
+        t_first = levels[0]["t0"] + np.where(levels[0]["mask"], change, 0.0)
+    return levels, t_first
+
+
+def _full_image(t_state, out: dict, lv: dict, data: _LevelData, mask, crop, opts: SolverOptions) -> SolveResult:
+    """The finest level's solution pasted into the whole image (NaN where not reconstructed: off the mask,
+    no gradient, fewer than ``opts.min_leds`` usable LEDs); adds the pixel counts to ``data.report``."""
+    H, W = mask.shape
     lm = lv["mask"]
-    n_ok = out["has_gradient"] & (usable_leds[crop][lm] >= opts.min_leds)
+    n_ok = out["has_gradient"] & (data.usable_leds[crop][lm] >= opts.min_leds)
     rec = np.zeros((H, W), bool)
     sub = np.zeros(lm.shape, bool)
     sub[lm] = n_ok
@@ -222,34 +288,24 @@ def solve(
         return full
 
     depth = np.exp(t_state[lm])
-    too_few = int((mask & (usable_leds < opts.min_leds)).sum())
-    report.update(
+    data.report.update(
         {
-            "leds_used": [int(i) for i in keep],
-            "pixels_solved": int(mask.sum()),
             "pixels_reconstructed": int(rec.sum()),
-            "pixels_too_few_leds": too_few,
+            "pixels_too_few_leds": int((mask & (data.usable_leds < opts.min_leds)).sum()),
             "pixels_no_gradient": int((~out["has_gradient"]).sum()),
-            "intensity_scale": scale,
-            "backend": backend,
-            "seconds": time.perf_counter() - t_start,
         }
     )
-    if too_few:
-        log.warning("%d pixels have fewer than %d usable LEDs: not reconstructed (NaN)", too_few, opts.min_leds)
-    if report["dead_leds"]:
-        log.warning("dead LEDs excluded (1-based): %s", [i + 1 for i in report["dead_leds"]])
     return SolveResult(
         depth=paste(depth),
         points=paste(depth[:, None] * lv["q"]),
         normals=paste(out["normals"]),
-        albedo=paste(out["albedo"].T * scale),
-        residual=paste(out["residual"] * scale),
+        albedo=paste(out["albedo"].T * data.scale),
+        residual=paste(out["residual"] * data.scale),
         confidence=np.nan_to_num(paste(out["confidence"], 0.0)),
-        usable_leds=usable_leds,
+        usable_leds=data.usable_leds,
         mask=mask,
         reconstructed=rec,
-        report=report,
+        report=data.report,
     )
 
 
@@ -358,145 +414,189 @@ def _solve_level(
     On a ``coarse`` level (one whose result only starts the next), linear solves stop at a relative
     residual of sqrt(cg_rtol): tighter solves there bought nothing the next level keeps.
 
-    Each iteration: variable-projection Gauss-Newton step on t (albedo eliminated), solved inexactly
-    by AMG-preconditioned CG, then a backtracking line search on the joint energy with the albedo
-    refitted (IRLS) at the trial depth: the energy never increases. ``iterate`` False: no iteration, the
-    level's normals, albedo and diagnostics at ``t_init``.
-    """
-    tm = _Timer()
-    mk = lv["mask"]
-    A, B, C = lv["ABC"]
-    ops = _operators(lv)
-    Du, Dv, lap, normal = ops["Du"], ops["Dv"], ops["lap"], ops["normal"]
-    t0 = lv["t0"][mk]
-    t = t_init[mk].copy()
-    model = make_model(be, lv["q"], A, B, C, pos, dirs, mu, psi, lv["images"], lv["usable"])
-    zeta = lv["zeta"]
-    n = len(t)
-    tm.lap("setup")
+    Each iteration (:meth:`_Level.iterate`): variable-projection Gauss-Newton step on t (albedo eliminated),
+    solved inexactly by AMG-preconditioned CG, then a backtracking line search on the joint energy with the
+    albedo refitted (IRLS) at the trial depth: the energy never increases. ``iterate`` False: no iteration,
+    the level's normals, albedo and diagnostics at ``t_init``.
 
-    def shade(tt, derivatives=False):
-        out = model.shading(tt, Du @ tt, Dv @ tt, derivatives)
+    Returns
+    -------
+    (H, W) float64 log-depth (0 off the mask), the per-pixel results (normals, albedo, residual, confidence,
+    has_gradient), the level's report entry.
+    """
+    level = _Level(lv, t_init, (pos, dirs, mu, psi), opts, be, est, iterate)
+    pcg = Krylov(opts)
+    for _ in range(opts.max_iters if iterate else 0):
+        stop = level.iterate(pcg, coarse)
+        if bar is not None:
+            bar.update(1)
+        if stop:
+            level.info["stop"] = stop
+            break
+    level.info["iterations"] = len(level.info["energy"]) - 1
+    level.info["amg_setups"] = pcg.setups
+    return level.finish()
+
+
+class _Level:
+    """One pyramid level's energy and the Gauss-Newton state on it: log-depth t on the mask's pixels, the
+    shading F and its derivatives dF, the albedo, the residuals r, the energy, the normals."""
+
+    def __init__(self, lv: dict, t_init, leds: tuple, opts: SolverOptions, be: Backend, est: str, iterate):
+        self.tm = _Timer()
+        self.lv, self.opts, self.be, self.est = lv, opts, be, est
+        self.mk = mk = lv["mask"]
+        self.A, self.B, self.C = lv["ABC"]
+        self.ops = _operators(lv)
+        self.t0 = lv["t0"][mk]
+        self.zeta = lv["zeta"]
+        t = t_init[mk].copy()
+        self.model = model = make_model(be, lv["q"], self.A, self.B, self.C, *leds, lv["images"], lv["usable"])
+        self.tm.lap("setup")
+
+        F, dF = self.shade(t, True)
+        self.lam = None
+        albedo, r = self.refit(F, None)
+        self.lam = _robust_scale(be, model.whole(r), lv["images"], lv["usable"] > 0, opts)
+        # The smoothness weight is relative to the data term's curvature along the gradient of t (least
+        # squares, starting depth).
+        self.gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
+        if est != "ls":
+            albedo, r = self.refit(F, albedo)
+        w = model.weights(r, self.lam, est)
+        self.M, self.b = model.gauss_newton_blocks(F, dF, r, w, albedo) if iterate else (None, None)
+        self.t, self.F, self.dF, self.albedo, self.r = t, F, dF, albedo, r
+        self.e_cur = model.data_energy(r, self.lam, est) + self.prior(t)
+        self.info = {
+            "shape": list(mk.shape),
+            "estimator": est,
+            "gamma": self.gamma,
+            "pixels": len(t),
+            "lambda": self.lam,
+            "energy": [self.e_cur],
+            "cg_iters": [],
+            "cg_rtol": [],
+            "normal_change_deg": [],
+            "rejected_steps": 0,
+            "stop": "max_iters",
+        }
+        self.nrm = self.normals(t)
+        self.g_prev = self.eta = None
+        self.tm.lap("init")
+
+    # ------------------------------------------------------------------ the energy's parts
+    def shade(self, tt, derivatives=False):
+        out = self.model.shading(tt, self.ops["Du"] @ tt, self.ops["Dv"] @ tt, derivatives)
         return (out[0], out[1:]) if derivatives else (out, None)
 
-    def prior(tt):
-        return float(np.sum(zeta * (tt - t0) ** 2)) + gamma * float(tt @ (lap @ tt))
+    def prior(self, tt) -> float:
+        return float(np.sum(self.zeta * (tt - self.t0) ** 2)) + self.gamma * float(tt @ (self.ops["lap"] @ tt))
 
-    def refit(F, alb):
+    def refit(self, F, alb):
         """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise."""
-        w = model.usable if est == "ls" or alb is None else model.weights(model.residuals(F, alb), lam, est)
+        model, est = self.model, self.est
+        w = model.usable if est == "ls" or alb is None else model.weights(model.residuals(F, alb), self.lam, est)
         alb = model.albedo(F, w)
         return alb, model.residuals(F, alb)
 
-    def normals(tt):
-        return geometry.normals_from_gradient(Du @ tt, Dv @ tt, A, B, C)
+    def normals(self, tt):
+        return geometry.normals_from_gradient(self.ops["Du"] @ tt, self.ops["Dv"] @ tt, self.A, self.B, self.C)
 
-    F, dF = shade(t, True)
-    albedo, r = refit(F, None)
-    lam = _robust_scale(be, model.whole(r), lv["images"], lv["usable"] > 0, opts)
-    # The smoothness weight is relative to the data term's curvature along the gradient of t (least
-    # squares, starting depth).
-    gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
-    if est != "ls":
-        albedo, r = refit(F, albedo)
-    w = model.weights(r, lam, est)
-    M, b = model.gauss_newton_blocks(F, dF, r, w, albedo) if iterate else (None, None)
-    e_cur = model.data_energy(r, lam, est) + prior(t)
-    info = {
-        "shape": list(mk.shape),
-        "estimator": est,
-        "gamma": gamma,
-        "pixels": n,
-        "lambda": lam,
-        "energy": [e_cur],
-        "cg_iters": [],
-        "cg_rtol": [],
-        "normal_change_deg": [],
-        "rejected_steps": 0,
-        "stop": "max_iters",
-    }
-    pcg = Krylov(opts)
-    nrm = normals(t)
-    g_prev = eta = None
-    tm.lap("init")
-    for _ in range(opts.max_iters if iterate else 0):
-        # 1. Gauss-Newton system on log-depth with the IRLS weights of the current residuals
-        if M is None:
-            w = model.weights(r, lam, est)
-            M, b = model.gauss_newton_blocks(F, dF, r, w, albedo)
-            tm.lap("blocks")
-        g = b[0] + Du.T @ b[1] + Dv.T @ b[2] + zeta * (t - t0) + gamma * (lap @ t)
-        M[0, 0] += zeta + 1e-12 * max(float(np.mean(M[0, 0])), 1e-30)  # the prior; definite if zeta = 0
-        Hm = normal.assemble(M, (gamma, gamma))
-        M = None  # used; the next iteration's blocks come from the accepted depth
-        tm.lap("assemble")
-        # 2. Inexact Newton: the forcing term loosens CG while the gradient is still large
-        g_norm = float(np.linalg.norm(g))
-        eta = forcing(g_norm, g_prev, eta, opts)
-        eta = max(eta, np.sqrt(opts.cg_rtol)) if coarse else eta
-        g_prev = g_norm
-        delta, iters = pcg.solve(Hm, -g, eta)
-        info["cg_iters"].append(iters)
-        info["cg_rtol"].append(eta)
-        tm.lap("cg")
-        # 3. Line search on the joint energy, albedo refitted at each trial depth. When the model
-        # predicts less than energy_rtol of decrease, the level has converged by that criterion:
-        # the full step is taken if it does not raise the energy, and no halvings are tried.
+    def energy(self, r, tt) -> float:
+        return self.model.data_energy(r, self.lam, self.est) + self.prior(tt)
+
+    # ------------------------------------------------------------------ one iteration
+    def iterate(self, pcg: Krylov, coarse: bool) -> str | None:
+        """One Gauss-Newton iteration; the reason to stop (a report ``stop`` value) or None."""
+        delta, g, Hm = self._newton_step(pcg, coarse)
+        # When the model predicts less than energy_rtol of decrease, the level has converged by that
+        # criterion: the full step is taken if it does not raise the energy, and no halvings are tried.
         predicted = -float(g @ delta) - 0.5 * float(delta @ (Hm @ delta))
-        converged = predicted < opts.energy_rtol * e_cur
-        accepted = False
-        for k in range(1 if converged else opts.line_search_steps + 1):
-            t_new = t + 0.5**k * delta
-            F_new, dF_new = shade(t_new, derivatives=k == 0)
-            alb_new, r_new = refit(F_new, albedo)
-            e_new = model.data_energy(r_new, lam, est) + prior(t_new)
-            if e_new <= e_cur:
-                accepted = True
-                break
-            info["rejected_steps"] += 1
-        tm.lap("line_search")
-        if bar is not None:
-            bar.update(1)
-        if not accepted:
-            info["stop"] = "energy_rtol" if converged else "no_descent"
-            break
+        converged = predicted < self.opts.energy_rtol * self.e_cur
+        step = self._line_search(delta, converged)
+        if step is None:
+            return "energy_rtol" if converged else "no_descent"
+        return self._accept(*step, converged)
+
+    def _newton_step(self, pcg: Krylov, coarse: bool):
+        """The Gauss-Newton step on log-depth with the IRLS weights of the current residuals, solved inexactly
+        (the forcing term loosens CG while the gradient is still large); (step, gradient, normal matrix)."""
+        model, ops, opts, t = self.model, self.ops, self.opts, self.t
+        if self.M is None:
+            w = model.weights(self.r, self.lam, self.est)
+            self.M, self.b = model.gauss_newton_blocks(self.F, self.dF, self.r, w, self.albedo)
+            self.tm.lap("blocks")
+        M, b, zeta, gamma = self.M, self.b, self.zeta, self.gamma
+        g = b[0] + ops["Du"].T @ b[1] + ops["Dv"].T @ b[2] + zeta * (t - self.t0) + gamma * (ops["lap"] @ t)
+        M[0, 0] += zeta + 1e-12 * max(float(np.mean(M[0, 0])), 1e-30)  # the prior; definite if zeta = 0
+        Hm = ops["normal"].assemble(M, (gamma, gamma))
+        self.M = None  # used; the next iteration's blocks come from the accepted depth
+        self.tm.lap("assemble")
+        g_norm = float(np.linalg.norm(g))
+        eta = forcing(g_norm, self.g_prev, self.eta, opts)
+        self.eta = max(eta, np.sqrt(opts.cg_rtol)) if coarse else eta
+        self.g_prev = g_norm
+        delta, iters = pcg.solve(Hm, -g, self.eta)
+        self.info["cg_iters"].append(iters)
+        self.info["cg_rtol"].append(self.eta)
+        self.tm.lap("cg")
+        return delta, g, Hm
+
+    def _line_search(self, delta, converged: bool):
+        """Backtracking on the joint energy, the albedo refitted at each trial depth: (t, F, dF or None,
+        albedo, r, energy) of the first step that does not raise the energy, or None."""
+        for k in range(1 if converged else self.opts.line_search_steps + 1):
+            t_new = self.t + 0.5**k * delta
+            F_new, dF_new = self.shade(t_new, derivatives=k == 0)
+            alb_new, r_new = self.refit(F_new, self.albedo)
+            e_new = self.energy(r_new, t_new)
+            if e_new <= self.e_cur:
+                self.tm.lap("line_search")
+                return t_new, F_new, dF_new, alb_new, r_new, e_new
+            self.info["rejected_steps"] += 1
+        self.tm.lap("line_search")
+        return None
+
+    def _accept(self, t_new, F_new, dF_new, alb_new, r_new, e_new, converged: bool) -> str | None:
+        """Move to the accepted depth; the reason to stop there (energy or normals no longer change) or None."""
         if dF_new is None:
-            F_new, dF_new = shade(t_new, True)
-        t, F, dF, albedo, r = t_new, F_new, dF_new, alb_new, r_new
-        nrm_new = normals(t)
-        change = float(np.degrees(np.median(np.arccos(np.clip(np.sum(nrm * nrm_new, 1), -1, 1)))))
-        nrm = nrm_new
-        info["normal_change_deg"].append(change)
-        rel = (e_cur - e_new) / max(e_cur, 1e-300)
-        e_cur = e_new
-        info["energy"].append(e_cur)
-        tm.lap("line_search")
-        if rel < opts.energy_rtol or converged:
-            info["stop"] = "energy_rtol"
-            break
-        if change < opts.normal_tol_deg:
-            info["stop"] = "normal_tol"
-            break
-    info["iterations"] = len(info["energy"]) - 1
-    info["amg_setups"] = pcg.setups
-    # Final albedo and per-pixel diagnostics at the accepted depth (the refit cannot raise the energy).
-    albedo, r = refit(F, albedo)
-    albedo = model.whole(albedo)
-    u_np = lv["usable"]
-    cnt = u_np.sum(axis=(0, 1))
-    sq, wsum = model.fit_sums(r, lam, est)  # per chunk: no whole (L, 3, N) residual array
-    rms = np.sqrt(sq / np.maximum(cnt, 1))
-    conf = (cnt / (u_np.shape[0] * u_np.shape[1])) * (wsum / np.maximum(cnt, 1))
-    result = {
-        "normals": nrm,
-        "albedo": be.numpy(albedo),
-        "residual": np.where(cnt > 0, rms, np.nan),
-        "confidence": np.clip(conf, 0, 1),
-        "has_gradient": ops["has_grad"],
-    }
-    tm.lap("finish")
-    info["seconds"] = {k: round(v, 4) for k, v in tm.seconds.items()}
-    return _embed(t, mk), result, info
+            F_new, dF_new = self.shade(t_new, True)
+        self.t, self.F, self.dF, self.albedo, self.r = t_new, F_new, dF_new, alb_new, r_new
+        nrm_new = self.normals(t_new)
+        change = float(np.degrees(np.median(np.arccos(np.clip(np.sum(self.nrm * nrm_new, 1), -1, 1)))))
+        self.nrm = nrm_new
+        self.info["normal_change_deg"].append(change)
+        rel = (self.e_cur - e_new) / max(self.e_cur, 1e-300)
+        self.e_cur = e_new
+        self.info["energy"].append(e_new)
+        self.tm.lap("line_search")
+        if rel < self.opts.energy_rtol or converged:
+            return "energy_rtol"
+        if change < self.opts.normal_tol_deg:
+            return "normal_tol"
+        return None
+
+    # ------------------------------------------------------------------ the result
+    def finish(self):
+        """Final albedo and per-pixel diagnostics at the accepted depth (the refit cannot raise the energy):
+        (log-depth (H, W), per-pixel results, the level's report entry)."""
+        albedo, r = self.refit(self.F, self.albedo)
+        albedo = self.model.whole(albedo)
+        u_np = self.lv["usable"]
+        cnt = u_np.sum(axis=(0, 1))
+        sq, wsum = self.model.fit_sums(r, self.lam, self.est)  # per chunk: no whole (L, 3, N) residual array
+        rms = np.sqrt(sq / np.maximum(cnt, 1))
+        conf = (cnt / (u_np.shape[0] * u_np.shape[1])) * (wsum / np.maximum(cnt, 1))
+        result = {
+            "normals": self.nrm,
+            "albedo": self.be.numpy(albedo),
+            "residual": np.where(cnt > 0, rms, np.nan),
+            "confidence": np.clip(conf, 0, 1),
+            "has_gradient": self.ops["has_grad"],
+        }
+        self.tm.lap("finish")
+        self.info["seconds"] = {k: round(v, 4) for k, v in self.tm.seconds.items()}
+        return _embed(self.t, self.mk), result, self.info
 
 
 def _robust_scale(be: Backend, r, images: np.ndarray, usable: np.ndarray, opts: SolverOptions) -> float:

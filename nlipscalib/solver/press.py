@@ -179,10 +179,76 @@ def _solve_press(
     if prior is not None and not mask.any():
         raise CaptureError(f"{press.folder}: the reference surface covers no pixel; nothing to reconstruct")
     explicit_roi = None if roi is None or isinstance(roi, str) else check_roi(roi, W, H)
-    roi_note = ""
     if isinstance(roi, str) and roi != "auto":
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
+    light = _light_and_contact(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces)
+    model, cmap = light.model, light.cmap
+    if model is not None and model.enabled and coating_albedo is not None:
+        model = model.with_reflectance(coating_albedo)
+    elif coating_albedo is not None:  # nothing for it to scale: say so rather than drop the user's value
+        why = model.reason if model is not None else "no interreflection term (a fixed light or no reference surface)"
+        log.warning("%s: --coating-albedo not used: %s", press.folder, why)
+    t0 = time.perf_counter()
+    roi, roi_note = _region(press, roi, explicit_roi, cmap)
+    if roi is not None:
+        mask &= _box_mask(roi, (H, W))
+    weights, anchoring = (None, "anchoring off (no reference surface)")
+    if cmap is not None:
+        weights, anchoring = anchor_weights(cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR)
+    options, noise = _noise_regularised(options, press, cmap)
+    t_contact = light.contact_seconds + time.perf_counter() - t0
+
+    images = press.linear_led_images
+    run = _Runner(press, leds, images, prior, weights, mask, options, backend, progress, fixed_light)
+    if model is not None and model.enabled:
+        focus = _dent_focus(cmap, mask) if cmap is not None and dent_interreflection else None
+        loop = _OuterLoop(model, press, leds, images, mask, light.shading, outer_relaxation, focus)
+        result = loop.run(run, max_outer if dent_interreflection else 0)
+    else:
+        loop, result = None, run(fixed_light)
+    rep = result.report
+    rep["roi"] = list(roi) if roi is not None else None
+    rep["roi_note"] = roi_note
+    rep["prior"] = "reference" if prior is not None else "nominal_distance"
+    rep["interreflection"] = model.to_json() if model is not None else None
+    rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
+    _report_loop(rep, loop)
+    rep["anchoring"] = anchoring
+    rep["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
+    rep["dead_leds_contact"] = list(cmap.dead_leds) if cmap is not None else []
+    rep["contact_seconds"] = t_contact
+    rep["image_noise"] = noise
+    rep["smoothness"] = options.smoothness
+    rep["indirect_seconds"] = light.indirect_seconds + (loop.seconds if loop is not None else 0.0)
+    if model is not None:
+        log.info("%s: %s", press.folder, model.reason)
+    log.info("%s: %s", press.folder, anchoring)
+    return result
+
+
+@dataclasses.dataclass
+class _Light:
+    """What a solve knows before NLiPs runs: the indirect term, the contact classification, the reference
+    surface's direct shading, and the seconds each took."""
+
+    model: object
+    """IndirectModel or None (a fixed light, or no reference surface)."""
+    cmap: ContactMap | None
+    """The contact classification (None without a reference surface)."""
+    shading: np.ndarray | None
+    """The reference surface's direct shading (:func:`reference_shading`), or None."""
+    indirect_seconds: float
+    """The term's fits."""
+    contact_seconds: float
+    """The contact classifications."""
+
+
+def _light_and_contact(press: Press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces) -> _Light:
+    """Fit the indirect term, then classify the contact against the undeformed model with it (when the press
+    stands in for the undeformed capture: a rough fit finds the contact, the term is fitted again without it
+    and the classification redone)."""
+    prior = press.reference.depth if press.reference is not None else None
     t0 = time.perf_counter()
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
     # (and the next press of the same sensor: solver.reuse)
@@ -201,73 +267,66 @@ def _solve_press(
             model = fit.again(exclude=_contact_pixels(cmap))
             refit = time.perf_counter() - t1
             cmap = _contact(press, leds, None, None, model, shading, fit.contact_cache)
-    if model is not None and model.enabled and coating_albedo is not None:
-        model = model.with_reflectance(coating_albedo)
-    elif coating_albedo is not None:  # nothing for it to scale: say so rather than drop the user's value
-        why = model.reason if model is not None else "no interreflection term (a fixed light or no reference surface)"
-        log.warning("%s: --coating-albedo not used: %s", press.folder, why)
-    if roi == "auto":
-        if cmap is None:
-            raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
-        roi, roi_note = contact_box(cmap, (H, W), folder=press.folder)
-        if roi_note:
-            log.warning("%s: %s", press.folder, roi_note)
-    elif explicit_roi is not None:
-        roi = explicit_roi
-    if roi is not None:
-        mask &= _box_mask(roi, (H, W))
-    weights, anchoring = (None, "anchoring off (no reference surface)")
-    if cmap is not None:
-        weights, anchoring = anchor_weights(cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR)
-    options, noise = _noise_regularised(options, press, cmap)
     t_contact = time.perf_counter() - t0 - refit
+    return _Light(model, cmap, shading, t_indirect + refit, t_contact)
 
-    images = press.linear_led_images
-    saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
 
-    boxed = _BoxCompensation(images, mask)
+def _region(press: Press, roi, explicit_roi, cmap: ContactMap | None):
+    """The box to solve, (x0, y0, w, h) or None for the whole gel, and what ``--roi auto`` left out or warns
+    about ("" when nothing)."""
+    if roi != "auto":
+        return explicit_roi, ""
+    if cmap is None:
+        raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
+    box, note = contact_box(cmap, press.camera.shape, folder=press.folder)
+    if note:
+        log.warning("%s: %s", press.folder, note)
+    return box, note
 
-    def compensated(light):
+
+class _Runner:
+    """One NLiPs solve of the press's images, minus an indirect light (none, a fixed light, or the outer
+    loop's on the mask's bounding box): ``runner(light, init=None, unrefined=0, receivers=None)``."""
+
+    def __init__(self, press: Press, leds, images, prior, weights, mask, options, backend, progress, fixed_light):
+        self.press, self.leds, self.images, self.prior, self.weights = press, leds, images, prior, weights
+        self.mask, self.options, self.backend, self.progress = mask, options, backend, progress
+        self.fixed_light = fixed_light
+        self.saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
+        self.boxed = _BoxCompensation(images, mask)
+
+    def compensated(self, light):
         if light is None:
-            return images
-        return compensate(images, light) if light is fixed_light else boxed(light)  # fixed: any light
+            return self.images
+        # a fixed light may be anything; the outer loop's is zero outside the mask's box
+        return compensate(self.images, light) if light is self.fixed_light else self.boxed(light)
 
-    def run(light, init=None, unrefined=0, receivers=None):
-        data = compensated(light)
+    def __call__(self, light, init=None, unrefined=0, receivers=None) -> SolveResult:
         result = solve(
-            data,
-            press.camera,
-            leds,
-            prior_depth=prior,
-            prior_weights=weights,
-            mask=mask if receivers is None else receivers,
-            saturated=saturated,
-            options=options,
-            backend=backend,
-            progress=progress,
+            self.compensated(light),
+            self.press.camera,
+            self.leds,
+            prior_depth=self.prior,
+            prior_weights=self.weights,
+            mask=self.mask if receivers is None else receivers,
+            saturated=self.saturated,
+            options=self.options,
+            backend=self.backend,
+            progress=self.progress,
             init_depth=init,
             unrefined=unrefined,
         )
         if receivers is None and not result.reconstructed.any():  # a focus pass is merged into the last result
             dead = [i + 1 for i in result.report["dead_leds"]]
             raise CaptureError(
-                f"{press.folder}: no pixel could be reconstructed ({result.report['pixels_too_few_leds']} pixels "
-                f"with fewer than {options.min_leds} usable LEDs; dead LEDs {dead})"
+                f"{self.press.folder}: no pixel could be reconstructed ({result.report['pixels_too_few_leds']} "
+                f"pixels with fewer than {self.options.min_leds} usable LEDs; dead LEDs {dead})"
             )
         return result
 
-    if model is not None and model.enabled:
-        focus = _dent_focus(cmap, mask) if cmap is not None and dent_interreflection else None
-        loop = _OuterLoop(model, press, leds, images, mask, shading, outer_relaxation, focus)
-        result = loop.run(run, max_outer if dent_interreflection else 0)
-    else:
-        loop, result = None, run(fixed_light)
-    rep = result.report
-    rep["roi"] = list(roi) if roi is not None else None
-    rep["roi_note"] = roi_note
-    rep["prior"] = "reference" if prior is not None else "nominal_distance"
-    rep["interreflection"] = model.to_json() if model is not None else None
-    rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
+
+def _report_loop(rep: dict, loop) -> None:
+    """The outer interreflection loop's entries of a solve's report (``loop``: an :class:`_OuterLoop` or None)."""
     rep["dent_interreflection"] = bool(loop is not None and loop.passes > 0)
     rep["outer_passes"] = loop.passes if loop is not None else 0
     rep["outer_changes_deg"] = loop.changes if loop is not None else []
@@ -277,17 +336,6 @@ def _solve_press(
             float(sum(loop.solver_seconds)),
             [round(t, 3) for t in loop.solver_seconds],
         )
-    rep["anchoring"] = anchoring
-    rep["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
-    rep["dead_leds_contact"] = list(cmap.dead_leds) if cmap is not None else []
-    rep["contact_seconds"] = t_contact
-    rep["image_noise"] = noise
-    rep["smoothness"] = options.smoothness
-    rep["indirect_seconds"] = t_indirect + refit + (loop.seconds if loop is not None else 0.0)
-    if model is not None:
-        log.info("%s: %s", press.folder, model.reason)
-    log.info("%s: %s", press.folder, anchoring)
-    return result
 
 
 def check_modes(interreflection: str, bounces: int, outer_relaxation, coating_albedo=None) -> None:
