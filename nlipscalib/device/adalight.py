@@ -112,6 +112,16 @@ class AdalightController:
             if BOOT_BANNER in seen:
                 self._port.reset_input_buffer()
                 return
+        if seen:  # bytes but no banner: what a UART at another rate makes of it
+            log.warning(
+                "%s: %d bytes but no 'Ada' banner within %g s: is the sketch's line rate %d baud (--baud)? "
+                "Sending frames anyway",
+                self.url,
+                len(seen),
+                timeout,
+                self.baudrate,
+            )
+            return
         log.warning("%s: no 'Ada' banner within %g s; sending frames anyway", self.url, timeout)
 
     def frame_time_s(self) -> float:
