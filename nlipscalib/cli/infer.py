@@ -14,6 +14,7 @@ import logging
 import sys
 
 from .live import add_source_arguments, check_output_arguments, check_source_arguments, emulate_behind_port
+from .options import option, typed
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +72,12 @@ def run(args) -> int:
         )
     if args.max_frames is not None and args.max_frames < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
+    if stream_input is None:  # only a stream lights the LED board: the option would be ignored
+        for dest in typed(args, ("port", "adalight", "baud")):
+            raise ConfigError(
+                f"{option(dest)} is not used with press folders or image files (they are read as captured); it "
+                "lights the LED board while a camera streams (--camera)"
+            )
     check_source_arguments(args)
     check_output_arguments(args)
     if stream_input is not None:

@@ -275,6 +275,7 @@ class LedController:
         expected_leds : int, optional
             Fail unless the board drives exactly this many LEDs (the sensor design's count).
         """
+        baudrate = check_baudrate(baudrate, f"{url}: baudrate")  # an int from here on (the messages compare it)
         ctrl = cls(url, timeout=timeout, retries=retries, reconnect_s=reconnect_s, on_reset=on_reset, baudrate=baudrate)
         ctrl._port = open_port(url, baudrate=baudrate, write_timeout=timeout)
         try:

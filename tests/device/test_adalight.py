@@ -119,7 +119,8 @@ def test_a_garbled_banner_asks_for_the_sketch_line_rate(caplog):
         leds.set_all(np.full((2, 3), 9, np.uint8))
     assert "4 bytes but no 'Ada' banner within 0.1 s: is the sketch's line rate 115200 baud (--baud)?" in caplog.text
     assert board.latched.sum() == 0
-    with AdalightController.open(board.url, 2, settle_s=0.0, boot_timeout=0.1, baudrate=500000) as leds:
+    # the rate as text (a config file's): checked and made an int, which the settle delay divides by
+    with AdalightController.open(board.url, 2, settle_s=0.0, boot_timeout=0.1, baudrate="500000") as leds:
         leds.set_all(np.full((2, 3), 9, np.uint8))
     assert board.latched.tolist() == [[9, 9, 9]] * 2
 

@@ -191,6 +191,8 @@ FLAT = "tests.device.fakes:flat_predictor"
         (["infer", "model.pt", "--camera", "{frames}", "--baud", "9600"], "--baud describes the LED board"),
         (["infer", "model.pt", "--camera", "0", "--port", "loop://", "--baud", "1234"], "--baud: must be a standard"),
         (["live", "--emulate", "nlipstac", "--predictor", FLAT, "--baud", "9600"], "--baud is not used with --emulate"),
+        (["infer", "model.pt", "{frames}", "--port", "loop://"], "--port is not used with press folders or image"),
+        (["infer", "model.pt", "{frames}", "--adalight", "12"], "--adalight is not used with press folders or image"),
     ],
 )
 def test_a_baud_rate_without_a_board_or_off_the_standard_set_is_one_line(frames, capsys, args, message):
