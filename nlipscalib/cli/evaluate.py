@@ -128,11 +128,8 @@ def _check_made_from(press: Path, result: Path, report: dict, other_capture: boo
     an image file the file's (``frame``, equal to the press's when it is the press's tri-colour image)."""
     from ..errors import CaptureError
 
-    provenance = report.get("provenance")
-    inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
-    inputs = inputs if isinstance(inputs, dict) else {}
-    recorded = {k: inputs[k] for k in ("press", "frame") if isinstance(inputs.get(k), str)}
-    if not recorded:  # nlipscalib before inputs were recorded for NLiPsNet, solver.save_result, a hand-made one
+    recorded = _recorded_input(report)
+    if recorded is None:  # nlipscalib before inputs were recorded for NLiPsNet, solver.save_result, a hand-made one
         log.warning(
             "%s: its report.json records no input identity (written by an older nlipscalib or outside `nlips solve` "
             "and `nlips infer`): cannot check that it was made from %s; scoring it against that press's ground "
@@ -141,7 +138,7 @@ def _check_made_from(press: Path, result: Path, report: dict, other_capture: boo
             press,
         )
         return
-    kind, made_from = next(iter(recorded.items()))
+    kind, made_from = recorded
     try:
         identity = _identity(press) if kind == "press" else _tricolor_identity(press)
     except (CaptureError, OSError, KeyError, TypeError) as exc:
@@ -161,6 +158,14 @@ def _check_made_from(press: Path, result: Path, report: dict, other_capture: boo
         "press it was made from, or add --other-capture to score it anyway (e.g. the same press rendered with "
         "another noise seed)"
     )
+
+
+def _recorded_input(report: dict) -> tuple[str, str] | None:
+    """(``"press"`` or ``"frame"``, identity) that a result's report.json records of its input; None if none."""
+    provenance = report.get("provenance")
+    inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
+    inputs = inputs if isinstance(inputs, dict) else {}
+    return next(((k, inputs[k]) for k in ("press", "frame") if isinstance(inputs.get(k), str)), None)
 
 
 def _identity(press: Path) -> str:
