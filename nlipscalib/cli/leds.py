@@ -91,7 +91,7 @@ def add_baud_argument(p) -> None:
     p.add_argument(
         "--baud",
         metavar="RATE",
-        help="line rate of the LED board, baud (default 115200, the nlips firmware's; Adalight sketches: theirs)",
+        help="line rate of the LED board, baud (default 115200: the nlips firmware's and Adalight-FastLED's)",
     )
 
 
