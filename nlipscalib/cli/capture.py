@@ -23,6 +23,7 @@ import sys
 import time
 
 from ..progress import bars_enabled
+from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
 
 DEFAULTS = {
@@ -54,6 +55,7 @@ def register(subparsers) -> None:
         "virtual board, with the emulated camera of --design unless --camera is given",
     )
     src.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
+    add_baud_argument(src)
     # default None, not "0": whether a camera was given decides what --port nlipsemu://ID starts
     src.add_argument("--camera", help="camera index, device path, folder of images or video (default 0)")
     src.add_argument("--design", default=None, help="sensor design: scene file or shipped name (default nlipstac)")
@@ -84,6 +86,7 @@ def register(subparsers) -> None:
 REAL_SENSOR_OPTIONS = (
     "port",
     "adalight",
+    "baud",
     "camera",
     "design",
     "camera_calibration",
@@ -106,6 +109,7 @@ WHY_NOT_EMULATED = {
     "captured LEDs afterwards with `nlips calibrate-leds`",
     "port": "the emulated sensor has its own virtual LED board",
     "adalight": "the emulated sensor's virtual LED board runs the nlips firmware",
+    "baud": "the emulated sensor's virtual LED board is in this process, with no serial line",
     "camera": "the emulated sensor has its own virtual camera",
     "design": "the scene given to --emulate is the design",
 }
@@ -160,6 +164,8 @@ def check_options(args) -> None:
             "has a `moved` table"
         )
     fill_defaults(args, DEFAULTS)
+    if not args.emulate:
+        args.baud = check_baud(args)
     _at_least(args, "presses", 0, "presses after the reference")
     if args.move_press is not None and not 1 <= args.move_press <= args.presses:
         raise _usage(
@@ -241,7 +247,7 @@ def _run_device(args):
     from ..core.capture import SensorResponse
     from ..core.dome import reference_surface
     from ..device.camera import CameraSettings, open_source
-    from ..device.controller import lights_out_on_exit
+    from ..device.controller import BAUD_RATE, lights_out_on_exit
     from ..device.session import Operator, Rig, run_session
     from ..device.virtual_board import start_board
 
@@ -254,7 +260,7 @@ def _run_device(args):
     leds = _leds(args.leds) or design.led_models()
     camera_spec = args.camera if args.camera is not None else "0"
     # --port nlipsemu://ID with --camera: only the board is virtual; held here, as its URL reaches it while it lives
-    board = start_board(args.port, args.adalight or len(leds), adalight=args.adalight is not None)
+    board = start_board(args.port, args.adalight or len(leds), adalight=args.adalight is not None, baudrate=BAUD_RATE)
     settings = CameraSettings(
         exposure_ms=args.exposure_ms,
         gain=args.gain,
@@ -267,7 +273,7 @@ def _run_device(args):
     held = board if board is not None else contextlib.nullcontext()  # closing the board frees its id
     with (
         held,
-        open_leds(args.port, args.adalight) as controller,
+        open_leds(args.port, args.adalight, args.baud) as controller,
         lights_out_on_exit(controller),  # also when the session is stopped (Ctrl-C, SIGTERM) mid-press
         open_source(camera_spec, settings) as source,
     ):
@@ -298,16 +304,18 @@ def _run_device(args):
         return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
 
 
-def open_leds(port: str, adalight: int | None = None):
-    """The LED controller on ``port``: the nlips firmware, or a stock Adalight board with ``adalight`` LEDs
-    (no acknowledgement: it waits a settle delay after each frame instead, and the camera flushes)."""
+def open_leds(port: str, adalight: int | None = None, baudrate: int | None = None):
+    """The LED controller on ``port`` at ``baudrate`` (default the firmware's, 115200): the nlips firmware, or a
+    stock Adalight board with ``adalight`` LEDs (no acknowledgement: it waits a settle delay after each frame
+    instead, and the camera flushes)."""
+    from ..device.controller import BAUD_RATE, LedController
+
+    baudrate = BAUD_RATE if baudrate is None else baudrate
     if adalight is not None:
         from ..device.adalight import AdalightController
 
-        return AdalightController.open(port, adalight)
-    from ..device.controller import LedController
-
-    return LedController.open(port)
+        return AdalightController.open(port, adalight, baudrate=baudrate)
+    return LedController.open(port, baudrate=baudrate)
 
 
 def _usage(message: str):

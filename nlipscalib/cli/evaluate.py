@@ -2,7 +2,8 @@
 
 PATH is a press folder, a folder of presses, or a reconstruction folder (PRESS/nlips, PRESS/nlipsnet:
 the method is then taken from the folder's name). A result written elsewhere (`nlips solve PRESS --out
-DIR`) is scored with `nlips eval PRESS --result DIR`. Both methods write the core reconstruction format
+DIR`) is scored with `nlips eval PRESS --result DIR`, which refuses a result made from another capture than PRESS
+(`--other-capture` scores it anyway). Both methods write the core reconstruction format
 (docs/formats.md), so they are scored alike. A damaged NLiPs result is re-computed from the settings
 recorded in its report.json, with a warning; when report.json is itself damaged or records no settings,
 the press is reported with the `nlips solve PRESS --overwrite` that re-makes it.
@@ -34,6 +35,12 @@ def register(subparsers) -> None:
         help="score this reconstruction folder (e.g. from `nlips solve PRESS --out DIR`) against PATH, which must "
         "then be that one press folder (its ground truth); the method is read from DIR's report.json",
     )
+    p.add_argument(
+        "--other-capture",
+        action="store_true",
+        help="with --result: score it even though it was made from another capture than PATH (e.g. the same press "
+        "rendered with another noise seed, whose ground truth is the same); without it such a result is refused",
+    )
     p.add_argument("--region", choices=("all", "contact"), default="all", help="pixels to score")
     p.set_defaults(func=run)
 
@@ -41,8 +48,12 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from ..errors import CaptureError
 
+    if args.other_capture and not args.result:
+        from ..errors import ConfigError
+
+        raise ConfigError("--other-capture is only used with --result DIR (a result from another folder)")
     if args.result:
-        presses, method = _result_target(Path(args.path), Path(args.result), args.method)
+        presses, method = _result_target(Path(args.path), Path(args.result), args.method, args.other_capture)
     else:
         presses, method = _targets(Path(args.path), args.method)
     rows, unsolved, damaged = [], [], []
@@ -85,7 +96,7 @@ def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
     return presses, method or "nlips"
 
 
-def _result_target(press: Path, result: Path, method: str | None) -> tuple[list[Path], str]:
+def _result_target(press: Path, result: Path, method: str | None, other_capture: bool) -> tuple[list[Path], str]:
     """([press], method) for ``--result DIR``: DIR's reconstruction scored against the one press ``press``."""
     from ..core.capture import is_press_folder
     from ..core.reconstruction import METHODS, has_reconstruction, read_report
@@ -98,24 +109,78 @@ def _result_target(press: Path, result: Path, method: str | None) -> tuple[list[
     try:
         report = read_report(result)
     except CaptureError:
-        report = {}  # a damaged report: loading the result says what is wrong (and re-solves NLiPs)
-    named = report.get("method") if report.get("method") in METHODS else None
+        report = None  # a damaged report: loading the result says what is wrong (and re-solves NLiPs)
+    named = (report or {}).get("method") if (report or {}).get("method") in METHODS else None
     if method and named and method != named:
         raise CaptureError(f"--result {result}: a {named} result, but --method {method} was given")
-    made_from = ((report.get("provenance") or {}).get("inputs") or {}).get("press")
-    if made_from and made_from != _identity(press):
-        log.warning("%s: made from another capture than %s (its images or meta.json differ)", result, press)
+    if report is not None:
+        _check_made_from(press, result, report, other_capture)
     return [press], method or named or "nlips"
 
 
-def _identity(press: Path) -> str | None:
-    from ..errors import NlipsError
+def _check_made_from(press: Path, result: Path, report: dict, other_capture: bool) -> None:
+    """Refuse (CaptureError) a result whose recorded input is not ``press``, unless ``other_capture``; warn when
+    the result records no input, or the press's identity cannot be read.
+
+    Why refuse: the score of another press's result against this press's ground truth is a wrong number
+    printed like a right one. Every kind records its input in ``provenance.inputs`` (docs/formats.md): NLiPs
+    (``nlips solve``) and NLiPsNet of a press (``nlips infer``) the capture's identity (``press``), NLiPsNet of
+    an image file the file's (``frame``, equal to the press's when it is the press's tri-colour image)."""
+    from ..errors import CaptureError
+
+    recorded = _recorded_input(report)
+    if recorded is None:  # nlipscalib before inputs were recorded for NLiPsNet, solver.save_result, a hand-made one
+        log.warning(
+            "%s: its report.json records no input identity (written by an older nlipscalib or outside `nlips solve` "
+            "and `nlips infer`): cannot check that it was made from %s; scoring it against that press's ground "
+            "truth",
+            result,
+            press,
+        )
+        return
+    kind, made_from = recorded
+    try:
+        identity = _identity(press) if kind == "press" else _tricolor_identity(press)
+    except (CaptureError, OSError, KeyError, TypeError) as exc:
+        log.warning("%s: cannot check that it was made from %s (%s); scoring it anyway", result, press, exc)
+        return
+    if made_from == identity:
+        return
+    source = report.get("source")
+    what = f"the image frame {source!r}" if kind == "frame" else "another capture"
+    named = f" (it names {source!r})" if kind == "press" and isinstance(source, str) and source else ""
+    if other_capture:
+        log.warning("%s: made from %s%s, not from %s; scored anyway (--other-capture)", result, what, named, press)
+        return
+    raise CaptureError(
+        f"--result {result} was made from {what}{named}, not from {press} (the input identity in its report.json "
+        f"differs from {press}'s): scored against {press}'s ground truth it would be a wrong number. Give the "
+        "press it was made from, or add --other-capture to score it anyway (e.g. the same press rendered with "
+        "another noise seed)"
+    )
+
+
+def _recorded_input(report: dict) -> tuple[str, str] | None:
+    """(``"press"`` or ``"frame"``, identity) that a result's report.json records of its input; None if none."""
+    provenance = report.get("provenance")
+    inputs = provenance.get("inputs") if isinstance(provenance, dict) else None
+    inputs = inputs if isinstance(inputs, dict) else {}
+    return next(((k, inputs[k]) for k in ("press", "frame") if isinstance(inputs.get(k), str)), None)
+
+
+def _identity(press: Path) -> str:
+    """The press's capture identity (what NLiPs and NLiPsNet results record as ``inputs.press``)."""
     from ..pipeline import capture_identity
 
-    try:
-        return capture_identity(press)
-    except NlipsError:
-        return None
+    return capture_identity(press)
+
+
+def _tricolor_identity(press: Path) -> str:
+    """The identity of the press's tri-colour image file (what an NLiPsNet result of that file records)."""
+    from ..core.capture import read_meta
+    from .infer import frame_identity
+
+    return frame_identity(press / read_meta(press)["images"]["tricolor"])
 
 
 def _load(folder: Path, method: str, single: bool, out=None):

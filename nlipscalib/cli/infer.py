@@ -14,6 +14,7 @@ import logging
 import sys
 
 from .live import add_source_arguments, check_output_arguments, check_source_arguments, emulate_behind_port
+from .options import option, typed
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +72,12 @@ def run(args) -> int:
         )
     if args.max_frames is not None and args.max_frames < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
+    if stream_input is None:  # only a stream lights the LED board: the option would be ignored
+        for dest in typed(args, ("port", "adalight", "baud")):
+            raise ConfigError(
+                f"{option(dest)} is not used with press folders or image files (they are read as captured); it "
+                "lights the LED board while a camera streams (--camera)"
+            )
     check_source_arguments(args)
     check_output_arguments(args)
     if stream_input is not None:
@@ -281,7 +288,7 @@ def _run_stills(args) -> int:
             log.warning("%s", why)
         inner.append(result.seconds["total"])
         n += 1
-        _save(args, predictor, result, name, press_folder)
+        _save(args, predictor, result, name, press_folder, source)
     wall = time.perf_counter() - t_start
     med = float(np.median(inner))
     print(
@@ -426,7 +433,7 @@ def _check_destinations(args, frames) -> None:
             )
 
 
-def _save(args, predictor, result, name, press_folder) -> None:
+def _save(args, predictor, result, name, press_folder, source) -> None:
     from pathlib import Path
 
     from ..core.reconstruction import save_reconstruction
@@ -436,6 +443,7 @@ def _save(args, predictor, result, name, press_folder) -> None:
     folder = _destination(args, name, press_folder)
     if folder is None:
         return  # image frames without --out: only the frame rate is reported
+    inputs = input_identity(press_folder, source)
 
     def ply(tmp: Path) -> None:
         # written into the temporary folder, so the result is published with its points.ply or not at all: a
@@ -443,4 +451,27 @@ def _save(args, predictor, result, name, press_folder) -> None:
         write_ply(tmp / "points.ply", result.points, result.normals, mesh=args.mesh)
 
     extra = ply if args.ply or args.mesh else None
-    save_reconstruction(to_reconstruction(result, predictor, name), folder, overwrite=True, extra_files=extra)
+    reconstruction = to_reconstruction(result, predictor, name, inputs)
+    save_reconstruction(reconstruction, folder, overwrite=True, extra_files=extra)
+
+
+def input_identity(press_folder, source) -> dict:
+    """What an NLiPsNet result records of its input (report ``provenance.inputs``, docs/formats.md), so that
+    ``nlips eval PRESS --result`` can tell a result of PRESS from one of another capture.
+
+    A press: ``{"press": ...}``, the identity NLiPs records (``pipeline.capture_identity``: meta.json and every
+    image). An image frame: ``{"frame": ...}``, :func:`frame_identity` of the file (equal to a press's when the
+    file is that press's tri-colour image)."""
+    if press_folder is not None:
+        from ..pipeline import capture_identity
+
+        return {"press": capture_identity(press_folder)}
+    return {"frame": frame_identity(source)}
+
+
+def frame_identity(path) -> str:
+    """SHA-256 (hex) of an image file's bytes: the identity of a tri-colour frame stored as a file."""
+    import hashlib
+    from pathlib import Path
+
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

@@ -4,7 +4,8 @@ PORT is a serial device (``/dev/ttyACM0``, ``COM3``), a pyserial URL (``socket:/
 ``virtual`` / ``virtual:N`` for an in-process virtual board with N LEDs (try the commands without hardware);
 ``nlipsemu://ID`` is the virtual board of that id (started here unless this process already has one).
 ``--adalight N`` drives a stock Adalight board with N LEDs instead of the nlips firmware (the virtual board
-then runs Adalight too).
+then runs Adalight too). ``--baud`` sets the line rate when the board's firmware runs at another rate than
+the nlips firmware's 115200 (docs/protocol.md, "Line rate"); the virtual boards run at 115200.
 
 LEDs are numbered from 1 here, as in capture files (LED 1 = ``led_01.png``, docs/conventions.md); the wire
 protocol and the Python API number them from 0 (docs/protocol.md), translated in this module only.
@@ -45,6 +46,7 @@ def register(subparsers) -> None:
     )
     p.add_argument("values", nargs="*", type=int, help="LED R G B for set (LED from 1), R G B for all (0..255)")
     p.add_argument("--adalight", type=int, metavar="N", help="the board runs Adalight with N LEDs")
+    add_baud_argument(p)
     p.add_argument("--timeout", type=float, default=1.0, help="seconds to wait for each reply (default 1)")
     p.add_argument("--dwell", type=float, default=0.3, help="test: seconds each step stays lit (default 0.3)")
     p.add_argument("--level", type=int, default=64, help="test: brightness 0..255 (default 64)")
@@ -73,6 +75,7 @@ def run(args) -> int:
             f"{args.port} has {int(count)} LEDs but --adalight says {args.adalight}: "
             f"give the count once (virtual --adalight {args.adalight})"
         )
+    args.baud = check_baud(args)
     leds, board = _open(args)  # board: the virtual board, kept alive while the controller uses it
     with leds:
         if args.action != "test":
@@ -81,6 +84,22 @@ def run(args) -> int:
 
         with lights_out_on_exit(leds):  # a test stopped halfway (Ctrl-C, SIGTERM) leaves no LED lit
             return _test(leds, args)
+
+
+def add_baud_argument(p) -> None:
+    """``--baud RATE``: the LED board's line rate, shared by every command that opens the LED port."""
+    p.add_argument(
+        "--baud",
+        metavar="RATE",
+        help="line rate of the LED board, baud (default 115200: the nlips firmware's and Adalight-FastLED's)",
+    )
+
+
+def check_baud(args) -> int:
+    """The rate of ``--baud`` (default the firmware's), or one line naming --baud (ConfigError)."""
+    from ..device.controller import BAUD_RATE, check_baudrate
+
+    return check_baudrate(BAUD_RATE if args.baud is None else args.baud, "--baud")
 
 
 def _refuse(message: str):
@@ -92,20 +111,20 @@ def _refuse(message: str):
 
 def _open(args):
     from ..device.adalight import AdalightController
-    from ..device.controller import LedController
+    from ..device.controller import BAUD_RATE, LedController
     from ..device.virtual_board import VirtualBoard, start_board
 
     url = args.port
     n_leds = args.adalight or DEFAULT_VIRTUAL_LEDS
     adalight = args.adalight is not None
     if url == "virtual" or url.startswith("virtual:"):
-        board = VirtualBoard(int(url.partition(":")[2] or n_leds), adalight=adalight)
+        board = VirtualBoard(int(url.partition(":")[2] or n_leds), adalight=adalight, baudrate=BAUD_RATE)
         url = board.url
-    else:
-        board = start_board(url, n_leds, adalight=adalight)  # nlipsemu://ID: this process's board of that id
+    else:  # nlipsemu://ID: this process's board of that id, else one started at the firmware's rate
+        board = start_board(url, n_leds, adalight=adalight, baudrate=BAUD_RATE)
     if adalight:
-        return AdalightController.open(url, args.adalight), board
-    return LedController.open(url, timeout=args.timeout), board
+        return AdalightController.open(url, args.adalight, baudrate=args.baud), board
+    return LedController.open(url, timeout=args.timeout, baudrate=args.baud), board
 
 
 def _info(leds, args) -> int:

@@ -16,6 +16,7 @@ import importlib
 import logging
 import sys
 
+from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
 
 log = logging.getLogger(__name__)
@@ -23,7 +24,7 @@ log = logging.getLogger(__name__)
 SOURCE_DEFAULTS = {"tricolor_level": 255, "exposure_ms": 10.0, "frames_per_press": 10}
 """Real defaults of the source flags whose presence is checked (argparse leaves them None, so one typed at its
 default value still counts as given; cli/options.py)."""
-CAMERA_SOURCE_OPTIONS = ("port", "adalight", "camera", "tricolor_level", "exposure_ms")
+CAMERA_SOURCE_OPTIONS = ("port", "adalight", "baud", "camera", "tricolor_level", "exposure_ms")
 """Source flags of a camera stream: the emulated sensor has its own camera and LED board."""
 EMULATED_SOURCE_OPTIONS = ("script", "frames_per_press", "width", "height")
 """Source flags of the emulated sensor alone."""
@@ -70,6 +71,7 @@ def add_source_arguments(p, camera_default: str | None) -> None:
         "board, started here when this process has none)",
     )
     p.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
+    add_baud_argument(p)
     p.add_argument("--tricolor-level", type=int, help="LED drive of the tri-colour pattern, 1-255 (default 255)")
     p.add_argument("--exposure-ms", type=float, help="fixed exposure of a live camera, ms (default 10)")
     p.add_argument("--emulate", metavar="SCENE", help="stream from the emulated sensor of this scene")
@@ -122,7 +124,12 @@ def check_source_arguments(args) -> None:
                 f"{option(dest)} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID "
                 "without --camera)"
             )
+    for dest in typed(args, ("adalight", "baud")):
+        if not args.port:
+            raise ConfigError(f"{option(dest)} describes the LED board: give its --port too (or drop {option(dest)})")
     fill_defaults(args, SOURCE_DEFAULTS)
+    if args.port:  # only then: pyserial is not needed to infer on files
+        args.baud = check_baud(args)
     check_count("--frames-per-press", args.frames_per_press, minimum=1)
     if not 1 <= args.tricolor_level <= 255:
         raise ConfigError(f"--tricolor-level must be 1-255, got {args.tricolor_level}")
@@ -160,15 +167,15 @@ def open_frames(args, stack, loop: bool = False):
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     source = stack.enter_context(open_source(camera, CameraSettings(exposure_ms=args.exposure_ms)))
     if args.port:
-        from ..device.controller import lights_out_on_exit
+        from ..device.controller import BAUD_RATE, lights_out_on_exit
         from ..device.virtual_board import start_board
         from .capture import DEFAULT_DESIGN, open_leds
 
         n_leds = args.adalight or _design_leds(DEFAULT_DESIGN)
-        board = start_board(args.port, n_leds, adalight=args.adalight is not None)
+        board = start_board(args.port, n_leds, adalight=args.adalight is not None, baudrate=BAUD_RATE)
         if board is not None:
             stack.enter_context(board)  # held while the stream runs: its URL reaches it while it lives
-        controller = stack.enter_context(open_leds(args.port, args.adalight))
+        controller = stack.enter_context(open_leds(args.port, args.adalight, args.baud))
         # dark again when the stream ends (its end, q, Ctrl-C, SIGTERM, an error): nothing drives them afterwards
         _light_tricolor(stack.enter_context(lights_out_on_exit(controller)), args.tricolor_level)
     return source, None

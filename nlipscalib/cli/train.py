@@ -24,7 +24,8 @@ def register(subparsers) -> None:
         help="train NLiPsNet (u, v, r, g, b) -> normal on a calibration dataset from `nlips calibrate`",
         description="Train the paper's NLiPsNet (MLP 256-256-128, BatchNorm, ReLU, dropout 0.2, cosine loss) with "
         "a split by press and early stopping on validation AAE; writes MODEL.pt, MODEL.onnx, MODEL_curve.png and "
-        "a resumable MODEL.checkpoint.pt.",
+        "a resumable MODEL.checkpoint.pt, published together when it ends (another run into the same --out: the "
+        "files of the one that ends last).",
     )
     p.add_argument("dataset", help="calibration dataset folder (from `nlips calibrate`)")
     p.add_argument("--out", required=True, help="model file to write (.pt)")
@@ -63,7 +64,7 @@ def run(args) -> int:
     from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.dataset import CalibrationDataset
-    from ..learn.train import TrainConfig, train
+    from ..learn.train import TrainConfig, model_stage, publish_model, train
     from ..report.learn import training_curve
 
     try:
@@ -93,17 +94,32 @@ def run(args) -> int:
     data = CalibrationDataset(args.dataset)
     val = _names(args.val_presses) or None
     exclude = _names(args.exclude)
-    result = train(data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress)
-    best = result.history[result.best_epoch]
-    curve = training_curve(result.history, out.with_name(out.stem + "_curve.png"), f"NLiPsNet {args.hidden}")
-    print(  # epochs numbered from 1 here (the stored history counts from 0)
-        f"{out}: best epoch {result.best_epoch + 1} of {len(result.history)}, "
-        f"validation AAE {best['val_aae_deg']:.2f} deg "
-        f"(contact {best['val_contact_aae_deg']:.2f} deg) on {', '.join(result.val_presses)}; "
-        f"{_why_stopped(result, cfg)}; curve {curve}"
-    )
-    if not args.no_onnx:
-        onnx_path, angle = export_and_check(out, data, result.val_presses)
+    onnx_path = out.with_suffix(".onnx")
+    curve = out.with_name(out.stem + "_curve.png")
+    # this run's files are made in a folder of their own and published together: another run into the same --out
+    # (other options) leaves the files of whichever finishes last, never its .pt beside the other's .onnx
+    with model_stage(out) as stage:
+        result = train(data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress, stage=stage)
+        training_curve(result.history, stage / curve.name, f"NLiPsNet {args.hidden}")
+        best = result.history[result.best_epoch]
+        summary = (  # epochs numbered from 1 here (the stored history counts from 0)
+            f"{out}: best epoch {result.best_epoch + 1} of {len(result.history)}, "
+            f"validation AAE {best['val_aae_deg']:.2f} deg "
+            f"(contact {best['val_contact_aae_deg']:.2f} deg) on {', '.join(result.val_presses)}; "
+            f"{_why_stopped(result, cfg)}; curve {curve}"
+        )
+        angle = None
+        try:
+            if not args.no_onnx:
+                angle = export_and_check(stage / out.name, data, result.val_presses)[1]
+        except Exception:  # a failed export costs the export, not the training: the model goes out without one
+            (stage / onnx_path.name).unlink(missing_ok=True)  # written, then failed its parity check
+            publish_model(stage, out)
+            print(summary)
+            raise
+        publish_model(stage, out)
+    print(summary)
+    if angle is not None:
         print(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
     return 0
 

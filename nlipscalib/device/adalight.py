@@ -18,7 +18,15 @@ import time
 import numpy as np
 
 from ..errors import DeviceError
-from .controller import BAUD_RATE, DeviceDisconnectedError, _check_colours, _check_index, _serial, open_port
+from .controller import (
+    BAUD_RATE,
+    DeviceDisconnectedError,
+    _check_colours,
+    _check_index,
+    _serial,
+    check_baudrate,
+    open_port,
+)
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +106,7 @@ class AdalightController:
         """
         if n_leds < 1:
             raise DeviceError(f"{url}: an Adalight strip needs at least 1 LED, got {n_leds}")
+        baudrate = check_baudrate(baudrate, f"{url}: baudrate")  # an int: frame_time_s divides by it
         port = open_port(url, baudrate=baudrate)
         ctrl = cls(url, port, n_leds, settle_s, baudrate, boot_timeout, reconnect_s)
         if boot_timeout > 0:
@@ -112,6 +121,16 @@ class AdalightController:
             if BOOT_BANNER in seen:
                 self._port.reset_input_buffer()
                 return
+        if seen:  # bytes but no banner: what a UART at another rate makes of it
+            log.warning(
+                "%s: %d bytes but no 'Ada' banner within %g s: is the sketch's line rate %d baud (--baud)? "
+                "Sending frames anyway",
+                self.url,
+                len(seen),
+                timeout,
+                self.baudrate,
+            )
+            return
         log.warning("%s: no 'Ada' banner within %g s; sending frames anyway", self.url, timeout)
 
     def frame_time_s(self) -> float:

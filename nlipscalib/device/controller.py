@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from ..errors import DeviceError, ShapeError, require
+from ..errors import ConfigError, DeviceError, ShapeError, require
 from . import protocol as p
 
 log = logging.getLogger(__name__)
@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 SUPPORTED_FIRMWARE_MAJOR = 1
 """Firmware major version this driver works with (the firmware in firmware/ reports 1.x.y)."""
 BAUD_RATE = 115200
+"""Line rate of the nlips LED firmware (firmware/src/uart.h) and of Adalight-FastLED, baud; the default of
+every command that opens the LED port (``--baud``)."""
 READ_SLICE_S = 0.02
 """Longest single blocking read, so deadlines are checked often."""
 MAX_RX_BUFFER = 8192
@@ -87,14 +89,49 @@ def _serial():
     return serial
 
 
+def check_baudrate(baudrate, where: str = "baudrate") -> int:
+    """``baudrate`` as an int when it is one of pyserial's standard rates (``serial.SerialBase.BAUDRATES``).
+
+    Why: pyserial refuses a non-positive rate with a ValueError that reads like a bad port name, and a
+    non-standard one fails differently per platform (some only when the port opens); a rate outside the
+    standard set is a typo far more often than a board's real setting.
+
+    Parameters
+    ----------
+    baudrate : int or str
+        Line rate, baud (the command line passes the text typed after ``--baud``).
+    where : str
+        What to name in the message (``--baud``, ``/dev/ttyACM0: baudrate``).
+
+    Raises
+    ------
+    ConfigError
+        One line naming ``where``, the standard rates and the firmware's.
+    """
+    rates = _serial().SerialBase.BAUDRATES
+    try:
+        value = int(str(baudrate).strip())  # str(): 9600.5 is refused, not truncated
+    except ValueError:
+        value = None
+    if isinstance(baudrate, bool) or value not in rates:
+        raise ConfigError(
+            f"{where}: must be a standard serial rate, one of {', '.join(map(str, rates))} "
+            f"(the nlips LED firmware runs at {BAUD_RATE}), got {baudrate!r}"
+        )
+    return value
+
+
 def open_port(url: str, *, baudrate: int = BAUD_RATE, write_timeout: float = 1.0):
-    """Open ``url`` with ``serial.serial_for_url``, turning failures into one clear DeviceError.
+    """Open ``url`` with ``serial.serial_for_url`` at ``baudrate``, turning failures into one clear error.
 
     Raises
     ------
     PortNotFoundError, PortPermissionError, PortBusyError, DeviceError
+    ConfigError
+        ``baudrate`` is not a standard rate (:func:`check_baudrate`).
     """
     serial = _serial()
+    baudrate = check_baudrate(baudrate, f"{url}: baudrate")
     try:
         port = serial.serial_for_url(
             url, baudrate=baudrate, timeout=READ_SLICE_S, write_timeout=write_timeout, exclusive=True
@@ -198,6 +235,8 @@ class LedController:
         self._lock = threading.RLock()
         self._reset_seen = False
         self._foreign: list[bytes] = []
+        self._unreadable = 0
+        """Bytes received since HELLO was last sent that formed no protocol line (for the no-answer message)."""
         self.info: p.BoardInfo | None = None
         self._shown = self._staged = None
 
@@ -236,6 +275,7 @@ class LedController:
         expected_leds : int, optional
             Fail unless the board drives exactly this many LEDs (the sensor design's count).
         """
+        baudrate = check_baudrate(baudrate, f"{url}: baudrate")  # an int from here on (the messages compare it)
         ctrl = cls(url, timeout=timeout, retries=retries, reconnect_s=reconnect_s, on_reset=on_reset, baudrate=baudrate)
         ctrl._port = open_port(url, baudrate=baudrate, write_timeout=timeout)
         try:
@@ -258,6 +298,7 @@ class LedController:
         self._reset_seen = False
 
     def _hello(self) -> p.BoardInfo:
+        self._unreadable = 0
         try:
             reply = self._exchange("HELLO", session=False)
         except DeviceTimeoutError:
@@ -276,10 +317,21 @@ class LedController:
                 f"{self.url}: this board prints 'Ada': it runs Adalight firmware, not the nlips LED firmware. "
                 "Drive it with nlipscalib.device.adalight.AdalightController, or flash firmware/ (see its README)"
             )
-        hint = f" It printed: {heard!r}." if heard else ""
+        tries = f"{self.url}: no answer to HELLO after {self.retries + 1} tries of {self.timeout:g} s"
+        unreadable = self._unreadable + len(self._rx)  # with the half line left over
+        if heard:
+            return DeviceTimeoutError(
+                f"{tries}. It printed: {heard!r}. Is the nlips LED firmware flashed (firmware/README.md)? "
+                f"{_rate_hint(self.baudrate)}"
+            )
+        if unreadable:  # what a UART at another rate makes of the boot banner and the replies
+            return DeviceTimeoutError(
+                f"{tries}: it sent {unreadable} bytes that form no protocol line, as a board running at another "
+                f"line rate does. {_rate_hint(self.baudrate)}"
+            )
         return DeviceTimeoutError(
-            f"{self.url}: no answer to HELLO after {self.retries + 1} tries of {self.timeout:g} s.{hint} "
-            f"Is the nlips LED firmware flashed (firmware/README.md) and the line at {self.baudrate} baud?"
+            f"{tries}: nothing came back. Is the nlips LED firmware flashed (firmware/README.md) and the board on "
+            f"this port? {_rate_hint(self.baudrate)}"
         )
 
     # --- public API -----------------------------------------------------------------------------------
@@ -378,7 +430,9 @@ class LedController:
         for attempt in range(self.retries + 1):
             if attempt:
                 self.resends += 1
-                log.warning("%s: sending %s again (%d/%d)", self.url, command, attempt, self.retries)
+                # HELLO is resent while an Uno sits in its bootloader after the open: expected, so not a warning
+                level = logging.WARNING if session else logging.DEBUG
+                log.log(level, "%s: sending %s again (%d/%d)", self.url, command, attempt, self.retries)
             try:
                 self._drain()
                 if session and self._reset_seen:
@@ -440,6 +494,7 @@ class LedController:
                 return None
             self._rx += self._port.read(max(1, self._port.in_waiting))
             if len(self._rx) > MAX_RX_BUFFER:  # a flood of garbage without newlines
+                self._unreadable += len(self._rx) - MAX_RX_BUFFER
                 del self._rx[:-MAX_RX_BUFFER]
         line = bytes(self._rx[:nl])
         del self._rx[: nl + 1]
@@ -450,11 +505,13 @@ class LedController:
         try:
             marker, body = p.check_frame(line)
         except p.FrameError:
+            self._unreadable += len(line) + 1
             if b"<" in line or b"!" in line:
                 log.debug("%s: corrupted line %r", self.url, line)
                 return "corrupt", None
-            if line.strip():
-                self._foreign = [*self._foreign[-9:], line.strip()]
+            text = line.strip()
+            if text and text.isascii() and text.decode().isprintable():  # another firmware's text ("Ada")
+                self._foreign = [*self._foreign[-9:], text]
             return "garbage", None
         if marker == p.BANNER_START and body.startswith("BOOT"):
             info = p.decode_info(body[4:])
@@ -568,6 +625,13 @@ def _off_quickly(controller) -> None:
     if hasattr(controller, "retries"):
         controller.timeout, controller.retries, controller.reconnect_s = LIGHTS_OUT_TIMEOUT_S, 0, 0.0
     controller.off()
+
+
+def _rate_hint(baudrate: int) -> str:
+    """The sentence on line rates that ends a no-answer message (docs/protocol.md, "Line rate")."""
+    if baudrate != BAUD_RATE:
+        return f"The port is at {baudrate} baud but the nlips LED firmware runs at {BAUD_RATE} (--baud)."
+    return f"The port is at {BAUD_RATE} baud, the nlips LED firmware's rate; a board at another rate needs --baud."
 
 
 def _check_versions(url: str, info: p.BoardInfo) -> None:

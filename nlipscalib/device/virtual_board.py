@@ -4,7 +4,8 @@ It behaves like the firmware in firmware/ (same parser rules, same replies, same
 injection for tests: garbage on the line, dropped, corrupted or half replies, a reset mid-session, unplugging.
 Like an Arduino Uno it reboots (and prints its boot banner) when the port is opened. With ``adalight=True`` it
 runs stock Adalight instead (docs/protocol.md, "Adalight"): it prints ``Ada`` when it boots, latches every
-Adalight frame for its LED count and never answers.
+Adalight frame for its LED count and never answers. Given a ``baudrate`` it runs at that line rate only, as
+the firmware does: a port opened at another rate garbles every byte both ways (docs/protocol.md, "Line rate").
 
 Usage::
 
@@ -87,7 +88,7 @@ def emulated_sensor_note(url: str, scene: str) -> str:
     )
 
 
-def start_board(url: str, n_leds: int, *, adalight: bool = False) -> VirtualBoard | None:
+def start_board(url: str, n_leds: int, *, adalight: bool = False, baudrate: int | None = None) -> VirtualBoard | None:
     """Start the virtual board that ``url`` names when it is an ``nlipsemu://<id>`` URL this process lacks.
 
     Why: a board lives in the process that created it, so ``nlipsemu://1`` typed on a command line reaches
@@ -101,6 +102,9 @@ def start_board(url: str, n_leds: int, *, adalight: bool = False) -> VirtualBoar
         LEDs of the started board (the sensor design's count).
     adalight : bool
         The started board runs stock Adalight.
+    baudrate : int, optional
+        The started board's line rate (:class:`VirtualBoard`): the commands give the firmware's, so a wrong
+        ``--baud`` fails as it would on the real board.
 
     Returns
     -------
@@ -110,7 +114,7 @@ def start_board(url: str, n_leds: int, *, adalight: bool = False) -> VirtualBoar
     """
     if not board_missing(url):
         return None
-    return VirtualBoard(n_leds, adalight=adalight, board_id=check_board_url(url))
+    return VirtualBoard(n_leds, adalight=adalight, board_id=check_board_url(url), baudrate=baudrate)
 
 
 class VirtualBoard:
@@ -133,6 +137,10 @@ class VirtualBoard:
         carries ``n_leds`` LEDs (frames for another count are ignored), never answer.
     board_id : str, optional
         The id in its URL (``nlipsemu://<board_id>``); default: the next free number.
+    baudrate : int, optional
+        The firmware's line rate, baud. A port opened at another rate garbles every byte, as a UART at the
+        wrong rate does: the board reads no line (so never answers) and the host reads bytes that form no
+        line. None (default): any rate works (an in-process board has no line).
     """
 
     def __init__(
@@ -145,6 +153,7 @@ class VirtualBoard:
         reset_on_open: bool = True,
         adalight: bool = False,
         board_id: str | None = None,
+        baudrate: int | None = None,
     ):
         self.n_leds = int(n_leds)
         self.firmware = firmware
@@ -152,6 +161,7 @@ class VirtualBoard:
         self.reply_delay_s = float(reply_delay_s)
         self.reset_on_open = reset_on_open
         self.adalight = bool(adalight)
+        self.baudrate = baudrate
         if board_id is None:
             while (board_id := str(next(_IDS))) in _BOARDS:
                 pass
@@ -513,14 +523,20 @@ class VirtualSerial(serial.SerialBase):
             self._check()
             data = bytes(board._out[:size])
             del board._out[:size]
-        return data
+        return _garbled(data) if self._rate_mismatch() else data
 
     def write(self, data) -> int:
         self._check()
         data = bytes(data)
+        if self._rate_mismatch():  # the board's UART reads framing errors: no line start, nothing executed
+            return len(data)
         with self._board._cond:
             self._board._receive(data)
         return len(data)
+
+    def _rate_mismatch(self) -> bool:
+        """True when the board runs at a fixed rate and this port is opened at another one."""
+        return self._board.baudrate is not None and self.baudrate != self._board.baudrate
 
     def reset_input_buffer(self):
         self._check()
@@ -532,3 +548,11 @@ class VirtualSerial(serial.SerialBase):
 
     def flush(self):
         self._check()
+
+
+def _garbled(data: bytes) -> bytes:
+    """What a UART at another rate makes of ``data``: as many bytes, none a start marker or a newline.
+
+    Why deterministic: tests then see the same thing every run (a real mismatch yields framing errors and
+    bytes that depend on the two rates); setting the high bit keeps every byte outside printable ASCII."""
+    return bytes(b | 0x80 for b in data)

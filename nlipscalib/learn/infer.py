@@ -223,8 +223,20 @@ def mismatch_warning(frame: Frame, where) -> str | None:
     )
 
 
-def to_reconstruction(frame: Frame, predictor: Predictor, source: str):
-    """The frame in the core reconstruction format (what ``nlips eval`` scores)."""
+def to_reconstruction(frame: Frame, predictor: Predictor, source: str, inputs: dict | None = None):
+    """The frame in the core reconstruction format (what ``nlips eval`` scores).
+
+    Parameters
+    ----------
+    frame : Frame
+    predictor : Predictor
+    source : str
+        The name of the press or image frame it read (report ``source``).
+    inputs : dict, optional
+        The identity of what it read, recorded as the report's ``provenance.inputs`` (docs/formats.md):
+        ``{"press": capture identity}`` or ``{"frame": SHA-256 of the image file}``, which ``nlips eval
+        PRESS --result`` compares with PRESS. None: nothing recorded (eval then warns it cannot check).
+    """
     from ..core.reconstruction import Reconstruction
 
     valid = predictor.valid
@@ -249,7 +261,8 @@ def to_reconstruction(frame: Frame, predictor: Predictor, source: str):
             "source": source,
             "changed_pixels": int(frame.changed.sum()),
             "seconds": frame.seconds,
-        },
+        }
+        | ({"provenance": {"inputs": dict(inputs)}} if inputs else {}),
     )
 
 

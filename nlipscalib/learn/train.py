@@ -4,15 +4,24 @@ Resumable: after every epoch the state (weights, optimiser, history, best weight
 ``MODEL.checkpoint.pt`` beside the model; a run with the same options on the same training and
 validation samples continues from it. Any other run (other options, another dataset, other presses
 held out for validation or excluded) trains afresh, saying why.
+
+A training's files (the model, its ONNX export, curve and final checkpoint) are written into one temporary
+folder beside the model (:func:`model_stage`) and published together (:func:`publish_model`), so runs into
+one model path leave the files of one run, the last to finish, never a mix.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import io
 import logging
 import math
+import os
+import shutil
+import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -146,7 +155,13 @@ class TrainResult:
 
 
 def train(
-    dataset: CalibrationDataset, cfg: TrainConfig, out, val_names=None, exclude=(), progress: bool = True
+    dataset: CalibrationDataset,
+    cfg: TrainConfig,
+    out,
+    val_names=None,
+    exclude=(),
+    progress: bool = True,
+    stage: Path | None = None,
 ) -> TrainResult:
     """Train NLiPsNet on ``dataset`` and write ``out`` (the model file) and ``checkpoint.pt`` beside it.
 
@@ -157,9 +172,11 @@ def train(
     out : path of the model file (.pt)
     val_names : optional explicit validation presses
     exclude : presses kept out of training and validation (a test set)
+    stage : folder from :func:`model_stage`, optional
+        Write the model and a copy of the final checkpoint there, under their names beside ``out``, for
+        :func:`publish_model` to put in place with the other files of this run. The checkpoint of every epoch
+        still goes beside ``out`` (what an interrupted run resumes from).
     """
-    import time
-
     import torch
 
     from ..progress import progress_bar
@@ -230,6 +247,8 @@ def train(
         if stop_early or (cfg.max_seconds and time.perf_counter() - start > cfg.max_seconds):
             break
     bar.close()
+    if stage is not None:  # this run's last state, published with its model (another run may have written since)
+        _save_checkpoint(out, cfg, data_key, net, opt, sched, history, best, best_state, stage)
     net.load_state_dict(best_state)
     info = {
         "labels": cfg.labels,
@@ -244,7 +263,7 @@ def train(
         "history": history,
     }
     save_model(
-        out,
+        out if stage is None else Path(stage) / out.name,
         net,
         hidden=cfg.hidden,
         dropout=cfg.dropout,
@@ -326,6 +345,66 @@ def checkpoint_path(out: Path) -> Path:
     return out.with_name(out.stem + "." + CHECKPOINT_FILE)
 
 
+def model_file_names(out: Path) -> tuple[str, ...]:
+    """The files one training writes beside the model ``out``: the model, its checkpoint, ONNX export and curve."""
+    return (out.name, checkpoint_path(out).name, out.with_suffix(".onnx").name, out.stem + "_curve.png")
+
+
+PUBLISH_POLL_S = 0.05
+"""How often a finished training checks whether another one is still publishing its files into the same place, s."""
+
+
+@contextlib.contextmanager
+def model_stage(out):
+    """A temporary folder beside the model path ``out`` to write one training's files into, removed afterwards.
+
+    Named like core.atomic's temporaries of ``out`` (``.tmp-MODEL.pt~host~pid~...``), so a killed run's
+    folder is removed by the next training (:func:`_clean_interrupted_writes`) once its owner is gone, and
+    never a live run's. Fill it with the files of :func:`model_file_names`, then :func:`publish_model`.
+    """
+    from ..core.atomic import DIR_MODE, tmp_prefix
+
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=tmp_prefix(out.name), dir=out.parent))
+    os.chmod(stage, DIR_MODE)
+    try:
+        yield stage
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def publish_model(stage, out) -> list[Path]:
+    """Put the files of one training (``stage``, from :func:`model_stage`) beside ``out``, together.
+
+    Why: two ``nlips train`` runs into one ``--out`` with different options each wrote their .pt, .onnx and
+    curve as they finished, so a .pt of one run could end up beside the .onnx of the other (which inference
+    refuses as exported from another model). Now each run publishes under a claim on the model path, so the
+    renames of two runs never interleave, and removes the files of :func:`model_file_names` it did not write
+    (an .onnx of an earlier run when this one has none): the last run to finish leaves its files, whole, and
+    nothing of another run beside them. The old .onnx goes first, so a reader in between finds the new model
+    with no export (PyTorch is used) rather than with a stale one.
+
+    Returns the published paths.
+    """
+    from ..core.claims import claim
+
+    stage, out = Path(stage), Path(out)
+    while True:
+        with claim(out) as mine:
+            if mine:
+                out.with_suffix(".onnx").unlink(missing_ok=True)  # first: see above
+                published = []
+                for name in model_file_names(out):  # the model before its export
+                    if (stage / name).exists():
+                        os.replace(stage / name, out.parent / name)
+                        published.append(out.parent / name)
+                    else:  # another run's file, or a file of this name made before
+                        (out.parent / name).unlink(missing_ok=True)
+                return published
+        time.sleep(PUBLISH_POLL_S)  # another run is publishing: a few renames, then it is this run's turn
+
+
 def _clean_interrupted_writes(out: Path) -> None:
     """Remove temporaries of killed writes of the model, its checkpoint, ONNX file and curve (owner gone only).
 
@@ -334,13 +413,13 @@ def _clean_interrupted_writes(out: Path) -> None:
     """
     from ..core.atomic import clean_interrupted
 
-    names = (out.name, checkpoint_path(out).name, out.with_suffix(".onnx").name, out.stem + "_curve.png")
-    for name in names:
+    for name in model_file_names(out):
         for gone in clean_interrupted(out.parent, item=name):
             log.warning("%s: removed an interrupted write", gone)
 
 
-def _save_checkpoint(out: Path, cfg, data_key: str, net, opt, sched, history, best, best_state) -> None:
+def _save_checkpoint(out: Path, cfg, data_key: str, net, opt, sched, history, best, best_state, folder=None) -> None:
+    """Write the training state to ``MODEL.checkpoint.pt`` beside ``out`` (or in ``folder``)."""
     import torch
 
     from ..core.atomic import write_bytes
@@ -359,7 +438,8 @@ def _save_checkpoint(out: Path, cfg, data_key: str, net, opt, sched, history, be
         },
         buf,
     )
-    write_bytes(checkpoint_path(out), buf.getvalue())
+    path = checkpoint_path(out)
+    write_bytes(path if folder is None else Path(folder) / path.name, buf.getvalue())
 
 
 def _resume(out: Path, cfg, data_key: str, net, opt, sched) -> dict:

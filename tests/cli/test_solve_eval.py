@@ -265,3 +265,40 @@ def test_unwritable_output_is_one_line_before_solving(data, capsys, monkeypatch)
     err = capsys.readouterr().err
     assert "Read-only file system" in err and str(root / "press_a") in err and "Traceback" not in err
     assert not (root / "press_a" / "nlips").exists() and not (root / "press_b" / "nlips").exists()
+
+
+def test_eval_refuses_a_result_of_another_press_unless_told(data, tmp_path, capsys, caplog):
+    """It warned and printed the score of press_b's result against press_a's ground truth: a wrong number."""
+    root, cfg = data
+    press, other = root / "press_a", tmp_path / "of_b"
+    assert main(["solve", str(root / "press_b"), "--config", str(cfg), "--out", str(other), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(press), "--result", str(other)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and not captured.out, captured
+    assert f"--result {other} was made from another capture, not from {press}" in err[0]
+    assert "--other-capture" in err[0]
+    caplog.set_level(logging.WARNING)
+    assert main(["eval", str(press), "--result", str(other), "--other-capture"]) == 0
+    assert "press_a" in capsys.readouterr().out
+    assert f"{other}: made from another capture, not from {press}; scored anyway (--other-capture)" in caplog.text
+    assert main(["eval", str(press), "--other-capture"]) == 2
+    assert "--other-capture is only used with --result" in capsys.readouterr().err
+
+
+def test_eval_warns_that_a_result_recording_no_input_cannot_be_checked(data, tmp_path, capsys, caplog):
+    """A result written outside `nlips solve`/`nlips infer` (solver.save_result) or by an older nlipscalib: scored,
+    with a warning that says it was not checked."""
+    root, cfg = data
+    press, other = root / "press_a", tmp_path / "elsewhere"
+    assert main(["solve", str(press), "--config", str(cfg), "--out", str(other), "--no-progress"]) == 0
+    report = json.loads((other / "report.json").read_text())
+    del report["provenance"]["inputs"]
+    (other / "report.json").write_text(json.dumps(report))
+    caplog.set_level(logging.WARNING)
+    capsys.readouterr()
+    assert main(["eval", str(press), "--result", str(other)]) == 0
+    assert "press_a" in capsys.readouterr().out
+    assert f"{other}: its report.json records no input identity" in caplog.text
+    assert f"cannot check that it was made from {press}" in caplog.text

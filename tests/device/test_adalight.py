@@ -109,6 +109,22 @@ def test_missing_banner_only_warns(caplog):
     assert "no 'Ada' banner" in caplog.text
 
 
+def test_a_garbled_banner_asks_for_the_sketch_line_rate(caplog):
+    """An Adalight board at another rate than the port's: its banner arrives as bytes that are no banner, and the
+    warning names the port's rate and --baud (the board itself ignores the garbled frames, silently)."""
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    board = VirtualBoard(2, adalight=True, baudrate=500000)
+    with AdalightController.open(board.url, 2, settle_s=0.0, boot_timeout=0.1) as leds:
+        leds.set_all(np.full((2, 3), 9, np.uint8))
+    assert "4 bytes but no 'Ada' banner within 0.1 s: is the sketch's line rate 115200 baud (--baud)?" in caplog.text
+    assert board.latched.sum() == 0
+    # the rate as text (a config file's): checked and made an int, which the settle delay divides by
+    with AdalightController.open(board.url, 2, settle_s=0.0, boot_timeout=0.1, baudrate="500000") as leds:
+        leds.set_all(np.full((2, 3), 9, np.uint8))
+    assert board.latched.tolist() == [[9, 9, 9]] * 2
+
+
 class PtyPort:
     """A serial port at a fixed path (a symlink to a pseudo-terminal) that can be unplugged and plugged back."""
 

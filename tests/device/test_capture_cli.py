@@ -88,6 +88,8 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
         (["--port", "loop://", "--white-balance", "-5"], "--white-balance must be > 0 kelvin"),
         (["--port", "loop://", "--gain", "-1"], "--gain must be >= 0"),
         (["--port", "loop://", "--black-level", "inf"], "--black-level must be >= 0"),
+        (["--port", "loop://", "--baud", "0"], "--baud: must be a standard serial rate, one of 50, 75,"),
+        (["--port", "loop://", "--baud", "250000"], "(the nlips LED firmware runs at 115200), got '250000'"),
     ],
 )
 def test_numeric_options_out_of_range_are_one_line(tmp_path, capsys, extra, message):
@@ -103,6 +105,7 @@ def test_numeric_options_out_of_range_are_one_line(tmp_path, capsys, extra, mess
         (["--camera-calibration", "{cam}"], "--camera-calibration is not used with --emulate: the emulated camera"),
         (["--leds", "{leds}"], "--leds is not used with --emulate: the emulated LEDs"),
         (["--port", "loop://"], "--port is not used with --emulate"),
+        (["--baud", "115200"], "--baud is not used with --emulate: the emulated sensor's virtual LED board is in"),
         (["--exposure-ms", "5"], "--exposure-ms is not used with --emulate"),
         (["--design", "fingertip"], "--design is not used with --emulate"),
         # typed at their default values: still given, still refused
@@ -260,3 +263,29 @@ def test_nlipsemu_port_with_a_camera_starts_the_board_alone(tmp_path, capsys):
     assert p.meta["provenance"]["device"]["port"] == url and p.led_images.shape[0] == 12
     assert p.dark[0, 0, 0] == 51 << 8 and p.led_images[11, 0, 0, 0] == 63 << 8
     assert find_board(url) is None
+
+
+def test_capture_drives_the_led_board_at_the_rate_of_baud(tmp_path, capsys):
+    """--baud reaches the LED port: a board whose firmware runs at 57600 baud captures the reference with --baud
+    57600; at the default 115200 it reads no line and the capture stops in one line naming the rates."""
+    import cv2
+    import numpy as np
+
+    from nlipscalib.core import Camera
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(15):  # the reference alone: tri-colour, dark, LED 1..12, check (= the first)
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 50 + k * (k != 14), np.uint8))
+    board = VirtualBoard(12, baudrate=57600)
+    args = ["capture", "--port", board.url, "--camera", str(frames), "--camera-calibration", str(camera), "--yes"]
+    args += ["--presses", "0"]
+    assert main([*args, "--out", str(tmp_path / "s"), "--baud", "57600"]) == 0
+    assert "reference: captured" in capsys.readouterr().out
+    assert load_press(tmp_path / "s" / "reference").led_images.shape[0] == 12
+    assert main([*args, "--out", str(tmp_path / "t")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no answer to HELLO" in err and "The port is at 115200 baud" in err, err

@@ -163,3 +163,38 @@ def test_emulated_stream_flags_are_refused_without_emulate(frames, tmp_path, cap
     assert not (tmp_path / "maps").exists()
     assert main(["infer", "model.pt", str(frames), *option]) == 2
     _one_line(capsys.readouterr().err, f"{option[0]} is only used with --emulate SCENE")
+
+
+def test_live_lights_the_led_board_at_the_rate_of_baud(frames, capsys):
+    """--baud reaches the LED port of a stream (nlips infer --port opens it the same way): a board at 57600 baud
+    is lit and switched off at the end; at the default rate the stream stops before its first frame, in one line."""
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    board = VirtualBoard(12, baudrate=57600)
+    args = ["live", "--camera", str(frames), "--port", board.url, "--predictor", "tests.device.fakes:flat_predictor"]
+    args += ["--no-window", "--frames", "1"]
+    assert main([*args, "--baud", "57600"]) == 0
+    assert [body.split(" ")[1] for body in board.executed] == ["HELLO", "ALL", "OFF"]  # lit, then dark at the end
+    capsys.readouterr()
+    assert main(args) == 2
+    _one_line(capsys.readouterr().err, f"{board.url}: no answer to HELLO", "The port is at 115200 baud")
+    assert len(board.executed) == 3
+
+
+FLAT = "tests.device.fakes:flat_predictor"
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["live", "--camera", "{frames}", "--predictor", FLAT, "--baud", "9600"], "give its --port too"),
+        (["infer", "model.pt", "--camera", "{frames}", "--baud", "9600"], "--baud describes the LED board"),
+        (["infer", "model.pt", "--camera", "0", "--port", "loop://", "--baud", "1234"], "--baud: must be a standard"),
+        (["live", "--emulate", "nlipstac", "--predictor", FLAT, "--baud", "9600"], "--baud is not used with --emulate"),
+        (["infer", "model.pt", "{frames}", "--port", "loop://"], "--port is not used with press folders or image"),
+        (["infer", "model.pt", "{frames}", "--adalight", "12"], "--adalight is not used with press folders or image"),
+    ],
+)
+def test_a_baud_rate_without_a_board_or_off_the_standard_set_is_one_line(frames, capsys, args, message):
+    assert main([a.format(frames=frames) for a in args] + (["--no-window"] if args[0] == "live" else [])) == 2
+    _one_line(capsys.readouterr().err, message)

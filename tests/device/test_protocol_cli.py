@@ -14,6 +14,9 @@ from nlipscalib.device.virtual_board import VirtualBoard
 
 from .ledboards import SimavrUnderTest, firmware_build
 
+CLI = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+"""The nlips command in a fresh process."""
+
 
 def test_leds_test_on_the_virtual_board(capsys):
     assert main(["leds", "virtual:3", "test", "--dwell", "0"]) == 0
@@ -65,9 +68,8 @@ def test_nlipsemu_url_from_the_cli(capsys):
 
 def test_nlipsemu_url_from_the_installed_command(tmp_path):
     """The command as a user types it: a fresh process, nothing registered beforehand."""
-    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
     result = subprocess.run(
-        [sys.executable, "-c", code, "leds", "nlipsemu://1", "test", "--dwell", "0"],
+        [sys.executable, "-c", CLI, "leds", "nlipsemu://1", "test", "--dwell", "0"],
         capture_output=True,
         text=True,
         timeout=60,
@@ -147,3 +149,60 @@ def test_a_path_that_is_not_a_serial_port_is_one_line(tmp_path, capsys):
         assert main(["leds", path, "info"]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"nlips leds: error: {path}: not a serial port") and err.count("\n") == 1, err
+
+
+def test_baud_reaches_the_board_and_a_board_at_another_rate_is_one_line(capsys):
+    """A board whose firmware runs at 57600 baud: driven with --baud 57600; at the default 115200 every byte is
+    garbled both ways (the virtual board's UART), and the command says so in one line naming both rates."""
+    board = VirtualBoard(3, baudrate=57600)
+    assert main(["leds", board.url, "all", "1", "2", "3", "--baud", "57600"]) == 0
+    assert board.latched.tolist() == [[1, 2, 3]] * 3
+    capsys.readouterr()
+    executed = list(board.executed)
+    assert main(["leds", board.url, "off", "--timeout", "0.05"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err, err  # no resend warnings before it
+    assert "no answer to HELLO" in err and "form no protocol line" in err
+    assert "The port is at 115200 baud, the nlips LED firmware's rate; a board at another rate needs --baud" in err
+    assert board.executed == executed  # the board read no line (it rebooted on the open, as an Uno does)
+    assert main(["leds", "virtual:2", "info", "--baud", "9600", "--timeout", "0.05"]) == 2  # a virtual board: 115200
+    assert "The port is at 9600 baud but the nlips LED firmware runs at 115200 (--baud)" in capsys.readouterr().err
+
+
+def test_baud_sets_the_rate_of_a_serial_device():
+    """--baud reaches the serial device itself (a pseudo-terminal stands in for /dev/ttyACM0 and keeps the rate
+    the driver set); nothing answers on it, which the one-line error says."""
+    import pty
+    import termios
+
+    master, slave = pty.openpty()
+    try:
+        path = os.ttyname(slave)
+        result = subprocess.run(  # the installed command's way: its own process, its one line on stderr
+            [sys.executable, "-c", CLI, "leds", path, "info", "--baud", "57600", "--timeout", "0.05"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=os.environ | {"PYTHONPATH": str(Path(__file__).resolve().parents[2])},
+        )
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+        assert f"{path}: no answer to HELLO" in result.stderr and "nothing came back" in result.stderr
+        assert "The port is at 57600 baud but the nlips LED firmware runs at 115200" in result.stderr
+        ispeed, ospeed = termios.tcgetattr(slave)[4:6]
+        assert ispeed == ospeed == termios.B57600
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+@pytest.mark.parametrize("rate", ["abc", "0", "-9600", "12345", "9600.5"])
+def test_a_baud_rate_pyserial_does_not_know_is_one_line(capsys, rate):
+    board = VirtualBoard(2)
+    assert main(["leds", board.url, "all", "1", "1", "1", f"--baud={rate}"]) == 2
+    err = capsys.readouterr().err
+    assert (
+        err.startswith("nlips leds: error: --baud: must be a standard serial rate, one of 50, 75,")
+        and err.count("\n") == 1
+    ), err
+    assert f"(the nlips LED firmware runs at 115200), got '{rate}'" in err
+    assert board.latched.sum() == 0 and not board.executed  # refused before the port was opened

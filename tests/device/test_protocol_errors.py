@@ -11,7 +11,7 @@ import serial
 
 from nlipscalib.device import controller as c
 from nlipscalib.device.virtual_board import VirtualBoard
-from nlipscalib.errors import DeviceError, NlipsError, ShapeError
+from nlipscalib.errors import ConfigError, DeviceError, NlipsError, ShapeError
 
 
 def test_missing_port_names_it():
@@ -107,3 +107,42 @@ def test_bad_colours_are_refused_before_sending():
         assert board.latched.min() == 200
     with pytest.raises(DeviceError, match="closed"):
         leds.off()
+
+
+def test_a_board_at_another_line_rate_is_told_from_a_silent_one():
+    """Bytes that form no line (what a UART at another rate makes of the board's banner and replies) say so, with
+    the rates; a silent port says nothing came back; text lines from other firmware are quoted."""
+    board = VirtualBoard(2, baudrate=57600)
+    with pytest.raises(c.DeviceTimeoutError, match=r"sent \d+ bytes that form no protocol line.*115200 baud, the"):
+        c.LedController.open(board.url, timeout=0.05, retries=0)
+    with pytest.raises(c.DeviceTimeoutError, match="nothing came back.*at 57600 baud but the nlips LED firmware runs"):
+        c.LedController.open("loop://", timeout=0.05, retries=0, baudrate=57600)  # an echo is no answer either
+    master, slave = os.openpty()
+    stop = threading.Event()
+
+    def garbage():  # framing errors with newlines among them: lines, but no text
+        while not stop.is_set():
+            os.write(master, bytes(range(0x80, 0x100)) + b"\n\xfe\xff\n")
+            time.sleep(0.01)
+
+    thread = threading.Thread(target=garbage, daemon=True)
+    thread.start()
+    try:
+        with pytest.raises(c.DeviceTimeoutError, match="form no protocol line") as info:
+            c.LedController.open(os.ttyname(slave), timeout=0.05, retries=0)
+        assert "It printed" not in str(info.value)
+    finally:
+        stop.set()
+        thread.join()
+        os.close(master)
+        os.close(slave)
+
+
+@pytest.mark.parametrize("rate", [0, -1, 12345, 9600.5, True, "fast"])
+def test_a_rate_off_the_standard_set_is_refused_before_the_port_opens(rate):
+    """pyserial's own message for baudrate=0 read like a bad port name ("use a device such as /dev/ttyACM0")."""
+    board = VirtualBoard(2)
+    with pytest.raises(ConfigError, match=rf"{board.url}: baudrate: must be a standard serial rate.*got {rate!r}"):
+        c.LedController.open(board.url, baudrate=rate)
+    assert not board.executed
+    assert c.check_baudrate("57600", "--baud") == 57600

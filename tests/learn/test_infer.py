@@ -303,3 +303,43 @@ def test_a_frame_whose_name_holds_a_percent_sign_is_a_still_not_a_sequence_patte
     assert main(["infer", str(trained), str(frame), "--out", str(tmp_path / "o")]) == 0
     assert capsys.readouterr().out.startswith("1 frame(s)")  # the stills' summary, not a stream's
     assert (tmp_path / "o" / "press 50%" / "result.npz").is_file()
+
+
+def test_nlipsnet_results_record_their_input_and_eval_refuses_another_press(
+    trained, twin_presses, tmp_path, capsys, caplog
+):
+    """NLiPsNet results recorded no input, so `nlips eval PRESS --result` scored another press's result against
+    PRESS's ground truth without a word. Now a press's result records the capture identity NLiPs records, an image
+    frame's the file's, and eval refuses a mismatch in one line (--other-capture scores it anyway)."""
+    import json
+    import logging
+    import shutil
+
+    from nlipscalib.pipeline import capture_identity
+
+    held, other = twin_presses / HELD_OUT, twin_presses / "press_a"
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), str(held), str(other), "--out", str(out)]) == 0
+    report = json.loads((out / HELD_OUT / "nlipsnet" / "report.json").read_text())
+    assert report["provenance"]["inputs"] == {"press": capture_identity(held)}
+    capsys.readouterr()
+    assert main(["eval", str(held), "--result", str(out / HELD_OUT / "nlipsnet")]) == 0
+    assert main(["eval", str(held), "--result", str(out / "press_a" / "nlipsnet")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "made from another capture (it names 'press_a'), not from" in err[0], err
+    assert main(["eval", str(held), "--result", str(out / "press_a" / "nlipsnet"), "--other-capture"]) == 0
+    # an image frame: its file's identity, the press's when it is that press's tri-colour image
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    shutil.copy(held / "tricolor.png", frames / "held.png")
+    assert main(["infer", str(trained), str(frames), "--out", str(tmp_path / "f")]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(held), "--result", str(tmp_path / "f" / "held")]) == 0
+    assert main(["eval", str(other), "--result", str(tmp_path / "f" / "held")]) == 2
+    assert "was made from the image frame 'held', not from" in capsys.readouterr().err
+    # a result written before inputs were recorded: still scored, with a warning that it was not checked
+    old = out / HELD_OUT / "nlipsnet" / "report.json"
+    old.write_text(json.dumps({k: v for k, v in report.items() if k != "provenance"}))
+    caplog.set_level(logging.WARNING)
+    assert main(["eval", str(held), "--result", str(old.parent)]) == 0
+    assert "records no input identity (written by an older nlipscalib" in caplog.text

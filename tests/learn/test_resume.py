@@ -233,3 +233,85 @@ def test_damaged_and_foreign_model_files_are_one_line(built, tmp_path, capsys):
         assert main(["infer", str(path), str(built)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"{name}.pt" in err[0], err
+
+
+EXPORT_WAITS = """
+import pathlib, sys, time
+from nlipscalib.learn import onnx_export
+flags, export = pathlib.Path(sys.argv.pop(1)), onnx_export.export_onnx
+def export_when_told(model, out):  # the model to export is loaded: hold on until the test says go
+    (flags / "exporting").touch()
+    while not (flags / "go").exists():
+        time.sleep(0.02)
+    return export(model, out)
+onnx_export.export_onnx = export_when_told
+from nlipscalib.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+"""`nlips train` whose ONNX export waits for a file ``go`` in the folder given first (and says it waits)."""
+
+
+def test_two_trainings_into_one_out_leave_the_files_of_the_last_to_finish_whole(built, tmp_path):
+    """Run A (8 wide) reaches its export, run B (4 wide) runs start to end, then A finishes. A wrote its .pt as it
+    finished training, B replaced it, A wrote its .onnx: B's .pt beside A's .onnx, which inference refused. Now
+    each run's files are published together: A's, the last to finish, whole, and nothing of B beside them."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import torch
+
+    from nlipscalib.learn.onnx_export import OnnxNet
+
+    out = tmp_path / "models" / "m.pt"
+    flags = tmp_path / "flags"
+    flags.mkdir()
+    train_args = ["train", str(built), "--out", str(out), "--epochs", "2", "--threads", "1", "--no-progress"]
+    env = os.environ | {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    run_a = subprocess.Popen(
+        [sys.executable, "-c", EXPORT_WAITS, str(flags), *train_args, "--hidden", "8", "--dropout", "0"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not (flags / "exporting").exists():
+            assert run_a.poll() is None, run_a.communicate()
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        cli = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+        run_b = subprocess.run(
+            [sys.executable, "-c", cli, *train_args, "--hidden", "4"], env=env, capture_output=True, text=True
+        )
+        assert run_b.returncode == 0, run_b.stderr
+        (flags / "go").touch()
+        stdout, stderr = run_a.communicate(timeout=120)
+    finally:
+        run_a.kill()
+        run_a.wait()
+    assert run_a.returncode == 0, stderr
+    model = load_model(out)
+    assert model.hidden == (8,)  # A's
+    OnnxNet(out.with_suffix(".onnx"), model)  # exported from this very .pt (it raised: "from another model")
+    checkpoint = torch.load(checkpoint_path(out), weights_only=False)
+    assert checkpoint["history"] == model.info["history"]  # A's last state, not B's
+    assert sorted(p.name for p in out.parent.iterdir()) == ["m.checkpoint.pt", "m.onnx", "m.pt", "m_curve.png"]
+    assert f"{out}: best epoch" in stdout and f"{out.with_suffix('.onnx')}: onnxruntime vs PyTorch" in stdout
+
+
+def test_a_training_without_onnx_removes_the_export_of_the_model_it_replaces(built, tmp_path, capsys):
+    """`--no-onnx` into an --out that held another run's .pt and .onnx left that .onnx beside the new .pt."""
+    out = tmp_path / "m.pt"
+    args = ["train", str(built), "--out", str(out), "--epochs", "1", "--threads", "1", "--no-progress"]
+    assert main([*args, "--hidden", "4"]) == 0 and out.with_suffix(".onnx").is_file()
+    assert main([*args, "--hidden", "8", "--no-onnx"]) == 0
+    assert load_model(out).hidden == (8,)
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("m")) == [
+        "m.checkpoint.pt",
+        "m.pt",
+        "m_curve.png",
+    ]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith((TMP_PREFIX, ".claim-"))]
