@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import io
 import logging
@@ -179,19 +180,9 @@ def train(
     """
     import torch
 
-    from ..progress import progress_bar
-
     out = Path(out)
     _clean_interrupted_writes(out)
-    unknown = sorted(set(exclude) - set(dataset.names))
-    if unknown:
-        raise ConfigError(f"{dataset.folder}: excluded presses {unknown} are not in the dataset")
-    names = [
-        e["name"]
-        for e in dataset.entries
-        if (cfg.labels == "nlips" or e.get("has_truth")) and e["name"] not in set(exclude)
-    ]
-    train_names, val_names = split_by_press(names, cfg.val_fraction, cfg.seed, val_names)
+    train_names, val_names = _presses(dataset, cfg, val_names, exclude)
     x_tr, y_tr, _ = training_arrays(dataset.arrays(train_names), cfg.labels)
     x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
     if len(x_tr) < 2 or len(x_va) < 1:
@@ -205,15 +196,68 @@ def train(
     sched = _scheduler(opt, cfg)
     data_key = _data_key(x_tr, y_tr, x_va, y_va, c_va)
     state = _resume(out, cfg, data_key, net, opt, sched)
-    history, best, best_state = state["history"], state["best"], state["best_state"]
-    if not history and out.is_file():  # a re-run with a tweak would otherwise replace a better model unnoticed
+    if not state["history"] and out.is_file():  # a re-run with a tweak would otherwise replace a better model unnoticed
         log.warning(
             "%s: a model is already there (not this training's: its checkpoint was made with other options or "
             "samples, or is missing); it is replaced when this run ends: give another --out to keep it",
             out,
         )
-    xt, yt = torch.from_numpy(x_tr), torch.from_numpy(y_tr)
-    xv, yv, cv = torch.from_numpy(x_va), torch.from_numpy(y_va), torch.from_numpy(c_va)
+    samples = [torch.from_numpy(a) for a in (x_tr, y_tr, x_va, y_va, c_va)]
+    checkpoint = functools.partial(_save_checkpoint, out, cfg, data_key, net, opt, sched)
+    history, best, best_state = _epochs(net, opt, sched, samples, cfg, state, checkpoint, progress)
+    if stage is not None:  # this run's last state, published with its model (another run may have written since)
+        checkpoint(history, best, best_state, stage)
+    net.load_state_dict(best_state)
+    info = {
+        "labels": cfg.labels,
+        "config": _jsonable_config(cfg),
+        "dataset": str(dataset.folder.resolve()),
+        "train_presses": train_names,
+        "val_presses": val_names,
+        "excluded_presses": sorted(exclude),
+        "train_samples": int(len(x_tr)),
+        "best_epoch": best["epoch"],
+        "best_val_aae_deg": best["aae"],
+        "history": history,
+    }
+    save_model(
+        out if stage is None else Path(stage) / out.name,
+        net,
+        hidden=cfg.hidden,
+        dropout=cfg.dropout,
+        sensor=dataset.sensor,
+        reference=dataset.reference(),
+        info=info,
+        smoothing_px=dataset.smoothing_px,
+    )
+    return TrainResult(out, history, best["epoch"], train_names, val_names)
+
+
+def _presses(dataset: CalibrationDataset, cfg: TrainConfig, val_names, exclude) -> tuple[list[str], list[str]]:
+    """(training presses, validation presses): the dataset's presses with labels of ``cfg.labels`` (true
+    normals need a press with ground truth), less ``exclude``, split by press."""
+    unknown = sorted(set(exclude) - set(dataset.names))
+    if unknown:
+        raise ConfigError(f"{dataset.folder}: excluded presses {unknown} are not in the dataset")
+    names = [
+        e["name"]
+        for e in dataset.entries
+        if (cfg.labels == "nlips" or e.get("has_truth")) and e["name"] not in set(exclude)
+    ]
+    return split_by_press(names, cfg.val_fraction, cfg.seed, val_names)
+
+
+def _epochs(net, opt, sched, samples, cfg: TrainConfig, state: dict, checkpoint, progress: bool):
+    """Train from ``state`` (:func:`_resume`) until early stopping, ``cfg.max_epochs`` or ``cfg.max_seconds``,
+    checkpointing every epoch (``checkpoint(history, best, best_state)``); returns (history, best, best_state).
+
+    ``samples``: tensors x_train, y_train, x_val, y_val, contact_val."""
+    import torch
+
+    from ..progress import progress_bar
+
+    xt, yt, xv, yv, cv = samples
+    history, best, best_state = state["history"], state["best"], state["best_state"]
     gen = torch.Generator().manual_seed(cfg.seed + len(history))
     start = time.perf_counter() - sum(h["seconds"] for h in history)
     bar = progress_bar(cfg.max_epochs, enabled=progress, initial=len(history), desc="training", unit="epoch")
@@ -240,39 +284,14 @@ def train(
         if val_aae < best["aae"]:
             best = {"aae": val_aae, "epoch": epoch}
             best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
-        _save_checkpoint(out, cfg, data_key, net, opt, sched, history, best, best_state)
+        checkpoint(history, best, best_state)
         bar.update(1)
         bar.set_postfix(val_aae=f"{val_aae:.2f}")
         stop_early = epoch - best["epoch"] >= cfg.patience
         if stop_early or (cfg.max_seconds and time.perf_counter() - start > cfg.max_seconds):
             break
     bar.close()
-    if stage is not None:  # this run's last state, published with its model (another run may have written since)
-        _save_checkpoint(out, cfg, data_key, net, opt, sched, history, best, best_state, stage)
-    net.load_state_dict(best_state)
-    info = {
-        "labels": cfg.labels,
-        "config": _jsonable_config(cfg),
-        "dataset": str(dataset.folder.resolve()),
-        "train_presses": train_names,
-        "val_presses": val_names,
-        "excluded_presses": sorted(exclude),
-        "train_samples": int(len(x_tr)),
-        "best_epoch": best["epoch"],
-        "best_val_aae_deg": best["aae"],
-        "history": history,
-    }
-    save_model(
-        out if stage is None else Path(stage) / out.name,
-        net,
-        hidden=cfg.hidden,
-        dropout=cfg.dropout,
-        sensor=dataset.sensor,
-        reference=dataset.reference(),
-        info=info,
-        smoothing_px=dataset.smoothing_px,
-    )
-    return TrainResult(out, history, best["epoch"], train_names, val_names)
+    return history, best, best_state
 
 
 def _scheduler(opt, cfg: TrainConfig):
