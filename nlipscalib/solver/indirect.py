@@ -343,42 +343,14 @@ def fit_indirect(
     cache = {} if cache is None else cache
     if not cache:
         cache.update(_fit_inputs(reference, leds, shading))
-    surf, off, off_unit, lin = (cache[k] for k in ("surface", "off", "off_unit", "linear"))
-    usable = cache["usable"]
-    if "image_means" not in cache:
-        cache["image_means"] = radiosity.patch_mean(surf.patches, lin * usable)
-        cache["usable_means"] = radiosity.patch_mean(surf.patches, usable)
-    img, frac = cache["image_means"], cache["usable_means"]
-    if exclude is not None and exclude.any():
-        # only the patches over the excluded pixels change: recompute those
-        pr, pc, win = _patch_window(exclude, surf.size)
-        usable = usable[:, win[0], win[1]].copy()
-        usable[:, exclude[win]] = 0.0
-        sub_lin = lin[:, win[0], win[1]]
-        img, frac = img.copy(), frac.copy()
-        img[:, pr, pc] = _window_mean(surf.patches, sub_lin * usable, pr, pc, win)
-        frac[:, pr, pc] = _window_mean(surf.patches, usable, pr, pc, win)
-    img, frac = img[:, surf.keep], frac[:, surf.keep]  # (L, K, 3)
+    surf, off = cache["surface"], cache["off"]
+    img, frac = _patch_data(cache, exclude)
     ok = frac > 0.99  # patches wholly usable for that LED and channel
     S = surf.shading[:, surf.keep]
-    kappa = np.zeros(3)
-    rho = _albedo(img, S, ok)
-    G = np.zeros_like(S)
     fitted = ok.any(axis=0)  # (K, 3) patches with data
     if not fitted.any():
         raise CaptureError(f"{reference.folder}: no usable pixel to fit the interreflection term on")
-
-    def typical(values):  # median over the patches with data; the others take it as their albedo
-        return np.array([np.median(values[fitted[:, c], c]) if fitted[:, c].any() else 0.0 for c in range(3)])
-
-    for _ in range(iterations):  # G depends on the emitters' albedo: refit both a few times
-        rho = np.where(fitted, rho, typical(rho))
-        off_albedo = typical(rho)
-        G = _gather_all(surf, rho, off_unit, off_albedo, bounces, kappa)
-        # reflectance = kappa x albedo is at most 1: on very noisy or tiny captures the free fit can
-        # exceed it (seen: 1.16 at 96x72, 2 spp), and an unphysical term then derails the solve
-        kappa = np.minimum(_profile_kappa(img, S, G, ok), 1.0 / np.maximum(off_albedo, 1e-30))
-        rho = _albedo(img, S + kappa * G, ok)
+    kappa, G, off_albedo = _alternate(img, S, ok, surf, cache["off_unit"], bounces, iterations)
     # the receiver's albedo multiplies both terms: the share is kappa G / S
     on = fitted.all(axis=1)
     share = float(np.median((kappa * G)[:, on].sum(axis=(0, 2)) / np.maximum(S[:, on].sum(axis=(0, 2)), 1e-30)))
@@ -404,6 +376,53 @@ def fit_indirect(
         tuple(float(a) for a in off_albedo),
         (light, surf.size),
     )
+
+
+def _patch_data(cache: dict, exclude: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The kept patches' mean images and usable fractions, (L, K, 3) each, leaving out ``exclude`` (H, W) bool.
+
+    The means over every pixel are worked out once per capture (kept in ``cache``); with ``exclude``, only the
+    patches over the excluded pixels are recomputed."""
+    surf, lin, usable = cache["surface"], cache["linear"], cache["usable"]
+    if "image_means" not in cache:
+        cache["image_means"] = radiosity.patch_mean(surf.patches, lin * usable)
+        cache["usable_means"] = radiosity.patch_mean(surf.patches, usable)
+    img, frac = cache["image_means"], cache["usable_means"]
+    if exclude is not None and exclude.any():
+        pr, pc, win = _patch_window(exclude, surf.size)
+        usable = usable[:, win[0], win[1]].copy()
+        usable[:, exclude[win]] = 0.0
+        sub_lin = lin[:, win[0], win[1]]
+        img, frac = img.copy(), frac.copy()
+        img[:, pr, pc] = _window_mean(surf.patches, sub_lin * usable, pr, pc, win)
+        frac[:, pr, pc] = _window_mean(surf.patches, usable, pr, pc, win)
+    return img[:, surf.keep], frac[:, surf.keep]
+
+
+def _alternate(img, S, ok, surf: Surface, off_unit, bounces: int, iterations: int):
+    """Alternate the per-patch albedo and kappa ``iterations`` times (G depends on the emitters' albedo):
+    (kappa (3,), G (L, K, 3) the gathered light per unit kappa, the off-view dome's albedo (3,)).
+
+    ``img`` (L, K, 3) patch means, ``S`` (L, K, 3) their direct shading, ``ok`` (L, K, 3) wholly usable."""
+    fitted = ok.any(axis=0)
+    kappa = np.zeros(3)
+    rho = _albedo(img, S, ok)
+    G = np.zeros_like(S)
+
+    def typical(values):  # median over the patches with data; the others take it as their albedo
+        return np.array([np.median(values[fitted[:, c], c]) if fitted[:, c].any() else 0.0 for c in range(3)])
+
+    off_albedo = typical(rho)
+
+    for _ in range(iterations):
+        rho = np.where(fitted, rho, typical(rho))
+        off_albedo = typical(rho)
+        G = _gather_all(surf, rho, off_unit, off_albedo, bounces, kappa)
+        # reflectance = kappa x albedo is at most 1: on very noisy or tiny captures the free fit can
+        # exceed it (seen: 1.16 at 96x72, 2 spp), and an unphysical term then derails the solve
+        kappa = np.minimum(_profile_kappa(img, S, G, ok), 1.0 / np.maximum(off_albedo, 1e-30))
+        rho = _albedo(img, S + kappa * G, ok)
+    return kappa, G, off_albedo
 
 
 def _fit_inputs(reference: Press, leds, shading) -> dict:
