@@ -8,8 +8,11 @@ pool is rebuilt and the unfinished tasks re-submitted.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
+import signal
+import threading
 from multiprocessing import get_context
 from pathlib import Path
 
@@ -159,13 +162,15 @@ class _WorkerSlots:
     def _start(self, slot: int):
         inbox = self.ctx.Queue()
         proc = self.ctx.Process(target=_worker_loop, args=(slot, inbox, self.results, *self.args), daemon=True)
-        proc.start()
+        with _sigint_ignored():  # inherited through exec: the worker ignores Ctrl-C from its first instruction
+            proc.start()
         return proc, inbox
 
     def run(self, tasks: list[Task], status: RunStatus, bar) -> None:
         queue, attempts = list(tasks), dict.fromkeys((t.id for t in tasks), 0)
         slots = [self._start(i) for i in range(self.n)]
         busy: dict[int, Task] = {}  # slot -> task
+        finished = False
         try:
             while queue or busy:
                 for i in range(self.n):
@@ -183,13 +188,23 @@ class _WorkerSlots:
                             queue.insert(0, task)
                         else:
                             _record(status, task.id, "failed: its worker process died repeatedly", bar)
+            finished = True
         finally:
-            for _, inbox in slots:
+            self._stop(slots, finished)
+
+    @staticmethod
+    def _stop(slots, finished: bool) -> None:
+        """End the workers: idle ones when all is done; on Ctrl-C (or an error here) at once, with SIGTERM, which
+        makes a worker release its claim and remove its temporaries first (``pipeline._worker_signals``)."""
+        for proc, inbox in slots:
+            if finished:
                 inbox.put(None)
-            for proc, _ in slots:
-                proc.join(timeout=5)
-                if proc.is_alive():
-                    proc.kill()
+            elif proc.is_alive():
+                proc.terminate()
+        for proc, _ in slots:
+            proc.join(timeout=5)
+            if proc.is_alive():  # inside a long native call (a render): its claim is stale at once, being ours
+                proc.kill()
 
     def _collect(self, busy: dict[int, Task], status: RunStatus, bar) -> None:
         import queue as queue_mod
@@ -206,12 +221,29 @@ class _WorkerSlots:
 def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool, logging_args=None) -> None:
     """Body of a local worker process: run tasks from ``inbox`` until it gets None (logging like the parent,
     to its ``--log-file`` too)."""
+    from ..pipeline import _worker_signals
+
+    _worker_signals()  # Ctrl-C is the parent's to handle; SIGTERM releases this worker's claim first
     if logging_args is not None:
         from ..progress import configure_worker
 
         configure_worker(*logging_args)
     while (task := inbox.get()) is not None:
         results.put((slot, task.id, execute(task, out, threads, keep)))
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ctrl-C ignored while a worker process starts: it inherits that and never dies of it with a traceback
+    of its own (a terminal sends Ctrl-C to every process of the command; the parent alone stops the run)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _count(text: str) -> int:
