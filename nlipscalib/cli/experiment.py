@@ -84,10 +84,7 @@ def run(args) -> int:
             keep_presses=args.keep_presses,
         )
         failed = doc["tasks"]["failed"]
-        print(
-            f"{name}: {doc['tasks']['total']} tasks, {len(failed)} failed, {doc['wall_seconds']} s; "
-            f"report {report / 'report.md'}"
-        )
+        print(f"{name}: {_summary(doc['tasks'])}, {doc['wall_seconds']} s; report {report / 'report.md'}")
         code = code or (1 if failed else 0)
         if args.write_baseline:
             write_json(args.write_baseline, clean(check.baseline_document(name, size, doc["check_figures"])))
@@ -102,6 +99,15 @@ def run(args) -> int:
         for name, why in UNAVAILABLE.items():
             print(f"{name}: not run: {why}", file=sys.stderr)
     return code
+
+
+def _summary(tasks: dict) -> str:
+    """What this run did with the tasks, in the report's words: run now, reused (done by an earlier or a concurrent run
+    sharing the folder), failed."""
+    return (
+        f"{tasks['total']} tasks ({tasks['run_now']} run now, {tasks['already_done']} reused), "
+        f"{len(tasks['failed'])} failed"
+    )
 
 
 def _print_plan(name: str, size: str, exp, cfg, work: Path, options: dict) -> None:

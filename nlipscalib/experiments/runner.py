@@ -18,7 +18,7 @@ from pathlib import Path
 
 from ..cpus import usable_cores
 from ..errors import ConfigError, MissingDependencyError
-from .tasks import Task, execute, load_result
+from .tasks import REUSED, Task, execute, load_result
 
 log = logging.getLogger(__name__)
 MAX_ATTEMPTS = 3
@@ -30,7 +30,7 @@ class RunStatus:
     done: list[str] = dataclasses.field(default_factory=list)
     """Tasks run now."""
     skipped: list[str] = dataclasses.field(default_factory=list)
-    """Tasks already done on disk."""
+    """Tasks already done on disk, or done by another run sharing the folder meanwhile."""
     failed: dict[str, str] = dataclasses.field(default_factory=dict)
     """Task id -> reason."""
 
@@ -78,6 +78,8 @@ def _bar(total: int, initial: int, progress: bool):
 def _record(status: RunStatus, task_id: str, outcome: str, bar) -> None:
     if outcome == "done":
         status.done.append(task_id)
+    elif outcome == REUSED:  # another run sharing the folder did it while this one waited
+        status.skipped.append(task_id)
     else:
         status.failed[task_id] = outcome.removeprefix("failed: ")
         log.warning("%s: %s", task_id, outcome)

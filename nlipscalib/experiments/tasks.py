@@ -26,6 +26,8 @@ SOLVES_DIR = "solves"
 """PRESS/solves/<variant hash>/: the pipeline's reconstruction of each solve variant of a press."""
 CLAIM_STALE_S = 60.0
 """A task claimed by a process that stopped its heartbeat this long ago (seconds) is taken over."""
+REUSED = "reused"
+"""What :func:`execute` returns for a task another run sharing the folder finished."""
 
 
 def digest(obj, n: int = 10) -> str:
@@ -123,10 +125,11 @@ def load_result(out: Path, task: Task) -> dict | None:
 
 
 def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = False) -> str:
-    """Run one task (in any process or Dask worker) and write its JSON; returns "done" or "failed: ...".
+    """Run one task (in any process or Dask worker) and write its JSON.
 
-    Exceptions are recorded in ``tasks/<id>.failed.json`` (retried on the next run), never raised, so
-    one bad press does not stop a sweep.
+    Returns "done" (run here), "reused" (finished by another run sharing the folder, which this one waited
+    for) or "failed: ...". Exceptions are recorded in ``tasks/<id>.failed.json`` (retried on the next run),
+    never raised, so one bad press does not stop a sweep.
     """
     from ..core.claims import claim
 
@@ -138,12 +141,12 @@ def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = 
             if mine:
                 return _execute_claimed(task, out, threads, keep_presses)
         time.sleep(1.0)
-    return "done"
+    return REUSED
 
 
 def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) -> str:
     if load_result(out, task) is not None:  # finished by another process while we waited
-        return "done"
+        return REUSED
     from threadpoolctl import threadpool_limits
 
     start = time.perf_counter()

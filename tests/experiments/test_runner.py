@@ -73,3 +73,14 @@ def test_ctrl_c_with_worker_processes_is_one_line_and_a_rerun_resumes(tmp_path):
     assert again.returncode == 0, err
     assert "3 tasks" in stdout and "0 failed" in stdout, stdout
     assert len(list(tasks.glob("*.json"))) == 3
+
+
+def test_a_second_run_says_it_reused_the_finished_tasks(tmp_path):
+    """The command's line used to read "3 tasks, 0 failed" whether it ran them or found them done."""
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY)
+    args = ("ablation", "--config", str(config), "--out", str(tmp_path / "out"))
+    first = _nlips(*args).communicate(timeout=300)[0]
+    assert "3 tasks (3 run now, 0 reused), 0 failed" in first
+    second = _nlips(*args).communicate(timeout=300)[0]
+    assert "3 tasks (0 run now, 3 reused), 0 failed" in second
