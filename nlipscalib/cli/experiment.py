@@ -61,17 +61,24 @@ def run(args) -> int:
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)
     baseline = check.load_baseline(Path(args.check), args.name) if args.check else None  # fail fast
-    code = 0
+    size = "custom" if args.config else args.size
+    runs = []
     for name in names:
         exp = get(name)
-        cfg = exp.config(args.size, args.config)
-        size = "custom" if args.config else args.size
         work = Path(args.out) / f"{exp.work_name or name}-{size}"  # a study may share another's tasks
+        own = Path(args.out) / f"{name}-{size}"
+        report = Path(args.report) / name if args.report and args.name == "all" else Path(args.report or own / "report")
+        runs.append((name, exp, exp.config(args.size, args.config), work, report))
+    for _, _, _, work, report in runs:  # every output checked before hours of work, not at the first report
+        _writable_folder("--out", args.out, work, probe=not args.plan)
+        _writable_folder("--report", args.report, report, probe=not args.plan)
+    if args.write_baseline:
+        _writable_file("--write-baseline", Path(args.write_baseline), probe=not args.plan)
+    code = 0
+    for name, exp, cfg, work, report in runs:
         if args.plan:
             _print_plan(name, size, exp, cfg, work, options)
             continue
-        own = Path(args.out) / f"{name}-{size}"
-        report = Path(args.report) / name if args.report and args.name == "all" else Path(args.report or own / "report")
         doc = run_experiment(
             exp,
             cfg,
@@ -99,6 +106,37 @@ def run(args) -> int:
         for name, why in UNAVAILABLE.items():
             print(f"{name}: not run: {why}", file=sys.stderr)
     return code
+
+
+def _writable_folder(option: str, given, folder: Path, probe: bool = True) -> None:
+    """``folder`` (under the option's value ``given``) can be made and written: ConfigError naming the option
+    when a file stands in its way; with ``probe``, OSError naming the folder (one line from the CLI) when it
+    cannot be written (read-only, permission)."""
+    from ..core.atomic import check_writable
+    from ..errors import ConfigError
+
+    given = Path(given or folder)
+    for part in (folder, *folder.parents):
+        if part.exists():
+            if not part.is_dir():
+                where = "" if part == given else f"{part} "
+                raise ConfigError(f"{option} {given}: {where}is a file, not a folder")
+            break
+    if not probe:
+        return
+    try:
+        check_writable(folder, longest_name=len(folder.name))
+    except OSError as exc:  # name the folder, not the probe made in it
+        raise OSError(exc.errno, exc.strerror, str(folder)) from None
+
+
+def _writable_file(option: str, path: Path, probe: bool = True) -> None:
+    """``path`` can be written as a file: no folder has its name, its folder is writable."""
+    from ..errors import ConfigError
+
+    if path.is_dir():
+        raise ConfigError(f"{option} {path}: is a folder; give a file name")
+    _writable_folder(option, path, path.parent, probe)
 
 
 def _summary(tasks: dict) -> str:

@@ -100,6 +100,34 @@ def test_bad_input_is_one_line_and_exit_2(argv, message, capsys, tmp_path):
     assert len(err) == 1 and message in err[0]
 
 
+@pytest.mark.parametrize(
+    "option, value, message",
+    [
+        ("--out", "afile", "--out {}: is a file, not a folder"),
+        ("--out", "afile/sub", "--out {}: {} is a file, not a folder"),
+        ("--report", "afile", "--report {}: is a file, not a folder"),
+        ("--write-baseline", ".", "--write-baseline {}: is a folder; give a file name"),
+    ],
+)
+def test_an_output_that_cannot_be_written_is_refused_before_any_work(
+    option, value, message, tmp_path, monkeypatch, capsys
+):
+    """--report onto a file used to fail only when the report was written, after the whole run (hours at full size),
+    and --out onto a file named a folder inside it ("afile/q1-quick/tasks: Not a directory")."""
+    from nlipscalib.experiments import framework
+
+    def ran(*args, **kwargs):
+        raise AssertionError("the experiment ran")
+
+    monkeypatch.setattr(framework, "run_experiment", ran)
+    (tmp_path / "afile").write_text("not a folder")
+    given = tmp_path / value
+    argv = ["experiment", "q1", "--out", str(tmp_path / "work"), option, str(given)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"nlips experiment: error: {message.format(given, tmp_path / 'afile')}"]
+
+
 def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
     cfg = tmp_path / "q1.toml"
     cfg.write_text("[twin]\nwidht = 64\n")
