@@ -13,10 +13,14 @@ from pathlib import Path
 
 
 def register(sub) -> None:
+    import argparse
+
     p = sub.add_parser(
         "experiment",
         help="run an experiment (q1, q2, ablation, q3, studies, presses, all) and write its report",
         description=__doc__,
+        epilog=_guide(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("name", help="q1, q2, ablation, q3, studies, presses (number of calibration presses), or all")
     # no argparse default: `--size quick --config F` must be refused like `--size full --config F`
@@ -38,6 +42,24 @@ def register(sub) -> None:
     p.add_argument("--plan", action="store_true", help="only print how many tasks the experiment has (and done)")
     p.add_argument("--keep-presses", action="store_true", help="keep the rendered press folders")
     p.set_defaults(func=run)
+
+
+ALL_TAKES = "~10 min / ~50 min / ~4.5 h"
+"""Wall time of ``nlips experiment all`` per size, as the experiments' (docs/experiments/RESULTS.md)."""
+
+
+def _guide() -> str:
+    """The experiments, what each measures and how long it takes per size (``nlips experiment --help``)."""
+    import textwrap
+
+    from ..experiments import GUIDE
+
+    lines = ["experiments (wall time with --workers 2 on a shared 2-core machine: quick / medium / full):"]
+    for name, (what, took) in GUIDE.items():
+        lines += textwrap.wrap(what, 96, initial_indent=f"  {name:9s}", subsequent_indent=" " * 11)
+        lines.append(" " * 11 + " / ".join(took[size] for size in ("quick", "medium", "full")))
+    lines.append(f"  {'all':9s}every one of them in turn: {ALL_TAKES}")
+    return "\n".join(lines)
 
 
 def run(args) -> int:

@@ -128,6 +128,18 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(
     assert err == [f"nlips experiment: error: {message.format(given, tmp_path / 'afile')}"]
 
 
+def test_help_says_what_each_experiment_measures_and_how_long_each_size_takes(capsys):
+    from nlipscalib.experiments import EXPERIMENTS, GUIDE
+
+    assert set(GUIDE) == set(EXPERIMENTS)  # a new experiment comes with its line
+    with pytest.raises(SystemExit):
+        main(["experiment", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for name, (what, took) in GUIDE.items():
+        assert f"{name} {' '.join(what.split())}" in text
+        assert " / ".join(took[size] for size in ("quick", "medium", "full")) in text
+
+
 def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
     cfg = tmp_path / "q1.toml"
     cfg.write_text("[twin]\nwidht = 64\n")
