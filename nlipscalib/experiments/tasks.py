@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes, write_json
+from ..errors import ConfigError
 
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
 SOLVES_DIR = "solves"
@@ -33,6 +34,14 @@ REUSED = "reused"
 def digest(obj, n: int = 10) -> str:
     """Short content hash of a JSON-able object (stable across processes and machines)."""
     return hashlib.sha1(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:n]
+
+
+SOLVE_CHOICES = {
+    "leds": ("true", "design", "calibrated"),
+    "interreflection": ("off", "reference", "dent"),
+    "roi": ("truth", "auto", "full"),
+}
+"""The words a :class:`SolveSpec` field (and the experiment config fields it comes from) accepts."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,6 +63,12 @@ class SolveSpec:
     """truth (true contact box + margin), auto (the solver's contact detector) or full."""
     options: tuple[tuple[str, object], ...] = ()
     """SolverOptions overrides as (name, value) pairs."""
+
+    def __post_init__(self):
+        # checked when the tasks are planned: an unknown word would otherwise fail every press after its render
+        for name, allowed in SOLVE_CHOICES.items():
+            if getattr(self, name) not in allowed:
+                raise ConfigError(f"{name}: must be one of {list(allowed)}, got {getattr(self, name)!r}")
 
     def led_error(self) -> dict:
         return {

@@ -148,6 +148,29 @@ def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
     assert "q1.toml" in err and "widht" in err
 
 
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        ("q1", 'leds = ["trueish"]\n', "leds: must be one of ['true', 'design', 'calibrated'], got 'trueish'"),
+        ("q1", 'roi = "bogus"\n', "roi: must be one of ['truth', 'auto', 'full'], got 'bogus'"),
+        ("studies", 'correction = "x"\n', "interreflection: must be one of ['off', 'reference', 'dent'], got 'x'"),
+        ("ablation", "counts = [1]\n", "the sensor needs 3 to 24 LEDs, got 1"),
+        ("ablation", "[presses]\ndepth = [-1.0]\n", "press depth must be > 0 mm, got -1.0"),
+        ("ablation", "counts = []\n", "nothing to run"),
+        ("q2", "[train]\nindenters = []\n", "50 presses need at least one indenter, got none"),
+        ("q2", "[train]\ncount = -3\n", "count: must be an integer >= 0, got -3"),
+    ],
+)
+def test_a_config_value_the_tasks_cannot_use_is_refused_naming_the_file(name, text, message, tmp_path, capsys):
+    """Such values used to pass --plan and the start of a run: an unknown word failed every press after its render
+    (leds, roi, interreflection), a scene error did not name the file, an empty indenter list was a traceback."""
+    cfg = tmp_path / "exp.toml"
+    cfg.write_text(text)
+    assert main(["experiment", name, "--config", str(cfg), "--out", str(tmp_path), "--plan"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"nlips experiment: error: {cfg}") and message in err[0], err
+
+
 def test_press_count_study_config_names_file_and_problem(tmp_path, capsys):
     cfg = tmp_path / "presses.toml"
     cfg.write_text("counts = [1, 4]\n[net]\nhidden = [8]\n")
