@@ -23,6 +23,8 @@ from .tasks import REUSED, Task, execute, load_result
 log = logging.getLogger(__name__)
 MAX_ATTEMPTS = 3
 """A task whose worker died this many times is given up (reported as failed)."""
+PARENT_POLL_S = 1.0
+"""An idle local worker checks this often (seconds) that the command that started it still runs."""
 
 
 @dataclasses.dataclass
@@ -230,7 +232,19 @@ def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool, 
         from ..progress import configure_worker
 
         configure_worker(*logging_args)
-    while (task := inbox.get()) is not None:
+    import os
+    import queue
+
+    parent = os.getppid()
+    while True:
+        try:
+            task = inbox.get(timeout=PARENT_POLL_S)
+        except queue.Empty:
+            if os.getppid() != parent:  # the command ended without telling us (`kill PID`: it exits at once)
+                return
+            continue
+        if task is None:
+            return
         results.put((slot, task.id, execute(task, out, threads, keep)))
 
 

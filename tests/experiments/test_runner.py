@@ -84,3 +84,33 @@ def test_a_second_run_says_it_reused_the_finished_tasks(tmp_path):
     assert "3 tasks (3 run now, 0 reused), 0 failed" in first
     second = _nlips(*args).communicate(timeout=300)[0]
     assert "3 tasks (0 run now, 3 reused), 0 failed" in second
+
+
+ORPHAN = """
+import sys, time
+from nlipscalib.experiments.runner import _WorkerSlots
+from nlipscalib.experiments.tasks import Task
+
+slots = _WorkerSlots(1, sys.argv[1], 1, False)
+proc, inbox = slots._start(0)
+inbox.put(Task(kind="reference", id="ref-none", scene={}))  # fails at once: the worker is then idle in its loop
+slots.results.get(timeout=120)
+print(proc.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_worker_ends_when_the_command_that_started_it_is_killed(tmp_path):
+    """`kill PID` of `nlips experiment --workers 2` (SIGTERM to the command alone: it exits at once) left its idle
+    worker processes waiting for a next task forever."""
+    import psutil
+
+    command = subprocess.Popen([sys.executable, "-c", ORPHAN, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    worker = psutil.Process(int(command.stdout.readline()))
+    try:
+        command.kill()
+        command.wait(timeout=10)
+        worker.wait(timeout=20)  # psutil.TimeoutExpired while it still waits for a task
+    finally:
+        with contextlib.suppress(psutil.Error):
+            worker.kill()
