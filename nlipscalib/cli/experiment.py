@@ -205,5 +205,8 @@ def _options(pairs: list[str]) -> dict:
             out[key] = value
     from ..config import from_mapping
 
-    from_mapping(SolverOptions, out, "--solver-option")
+    try:
+        from_mapping(SolverOptions, out, "--solver-option")
+    except ConfigError as exc:  # "--solver-option.max_iters: ..." reads as one word: name the option, then the key
+        raise ConfigError(str(exc).replace("--solver-option.", "--solver-option ", 1)) from None
     return out

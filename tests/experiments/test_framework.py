@@ -85,6 +85,7 @@ def test_check_flags_only_what_got_worse_beyond_tolerance():
         (["experiment", "q1", "--size", "huge"], "unknown size 'huge'"),
         (["experiment", "q1", "--solver-option", "max_iter=3"], "--solver-option 'max_iter=3'"),
         (["experiment", "q1", "--solver-option", "max_iters=0"], "max_iters"),
+        (["experiment", "q1", "--solver-option", "max_iters=abc"], "--solver-option max_iters: expected an integer"),
         (["experiment", "q1", "--scheduler", "local:zero"], "local:N"),
         (["experiment", "q1", "--scheduler", "nowhere"], "tcp://HOST:PORT"),
         (["experiment", "q1", "--check", "/nonexistent/base.json"], "no such baseline file"),
