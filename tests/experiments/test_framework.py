@@ -250,3 +250,13 @@ def test_training_tables_number_the_best_epoch_from_1_like_nlips_train():
         assert [int(row.strip("|").split("|")[col]) for row in lines[4:]] == expected
         # the stored model records keep the trainer's 0-based count (old records stay loadable)
         assert [m["best_epoch"] for m in learned["models"].values()] == [e - 1 for e in expected]
+
+
+def test_table_headers_name_group_columns_in_words():
+    """The press-count study's tables were headed by a row key: "| calibration_presses | split | ..."."""
+    from nlipscalib.experiments.framework import Table
+    from nlipscalib.experiments.markdown import table
+
+    rows = [{"calibration_presses": 4, "split": "seen", "aae": 1.5}]
+    text = table(Table("counts", "caption", ("calibration_presses", "split"), rows, columns=(("aae", "AAE", 2),)))
+    assert "| calibration presses | split | AAE |" in text
