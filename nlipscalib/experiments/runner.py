@@ -117,6 +117,7 @@ class _backend:
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"--scheduler {self.scheduler}: cannot reach the Dask scheduler ({exc})") from None
             self.threads = 0  # a remote worker renders with all its cores
+        self.client.register_plugin(_main_thread_imports())  # also on workers that join later
         return self._dask
 
     def __exit__(self, *exc):
@@ -246,6 +247,31 @@ def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool, 
         if task is None:
             return
         results.put((slot, task.id, execute(task, out, threads, keep)))
+
+
+def import_native_libraries() -> None:
+    """Import the native libraries that must first be loaded in a process's main thread.
+
+    pymeshlab (the indentation's mesh subdivision, ``sim.indent._subdivide``) first imported in another thread
+    -- a Dask worker runs every task in one -- corrupts the heap: the process aborts when it exits ("malloc_
+    consolidate(): unaligned fastbin chunk detected", the worker "killed by signal 6"). Imported in the main
+    thread first, later use from any thread is fine.
+    """
+    with contextlib.suppress(ImportError):  # without it the twin cannot render presses: nothing to protect
+        import pymeshlab  # noqa: F401
+
+
+def _main_thread_imports():
+    """A Dask worker plugin running :func:`import_native_libraries` in each worker's main (event loop) thread."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class MainThreadImports(WorkerPlugin):
+        name = "nlipscalib-main-thread-imports"
+
+        def setup(self, worker):
+            import_native_libraries()
+
+    return MainThreadImports()
 
 
 @contextlib.contextmanager
