@@ -170,6 +170,8 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
             runner = {"reference": _run_reference, "calibration": _run_calibration, "press": _run_press}[task.kind]
             body = runner(task, out, threads, keep_presses)
     except Exception as exc:  # recorded, the sweep goes on
+        if _from_ctrl_c(exc):  # Ctrl-C inside a native library: stop the sweep, not record a failed press
+            raise KeyboardInterrupt from exc
         write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": f"{type(exc).__name__}: {exc}"})
         return f"failed: {type(exc).__name__}: {exc}"
     body["timing"] = body.get("timing", {}) | {"task_seconds": round(time.perf_counter() - start, 3)}
@@ -178,6 +180,18 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
     )
     (out / "tasks" / f"{task.id}.failed.json").unlink(missing_ok=True)
     return "done"
+
+
+def _from_ctrl_c(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised because of a KeyboardInterrupt (drjit turns Ctrl-C during a render into its
+    own RuntimeError, raised from the interrupt)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def reference_folder(out: Path, scene: dict) -> Path:

@@ -213,6 +213,24 @@ def test_two_processes_on_one_folder_run_a_task_once(tmp_path, monkeypatch):
     assert load_result(tmp_path, task)["folder"] == "refs/x"
 
 
+def test_ctrl_c_inside_a_native_library_stops_the_sweep_instead_of_failing_the_task(tmp_path, monkeypatch):
+    """drjit turns Ctrl-C during a render into its own RuntimeError: the task was recorded as failed (a
+    .failed.json) and the sweep went on to the next press, so Ctrl-C did not stop the run."""
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    def interrupted_render(task, out, threads, keep):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("drjit.custom(...): error while performing a custom differentiable operation") from exc
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", interrupted_render)
+    task = Task(kind="reference", id="ref-z", scene={"c": 1})
+    with pytest.raises(KeyboardInterrupt):
+        tasks_mod.execute(task, tmp_path)
+    assert not list((tmp_path / "tasks").glob("*.failed.json"))
+
+
 def _trained(best_epoch: int, epochs: int) -> dict:
     """A model record as learning.train_model stores it (best_epoch 0-based, as the trainer counts)."""
     return {
