@@ -98,6 +98,7 @@ def train_model(data, names: list[str], stamps: dict, cfg, out: Path, progress: 
             log.info("%s: another run is training this model; waiting for it", path)
             waited = True
         time.sleep(1.0)
+    log.info("%s: reused (trained before on the same presses with the same options)", path)
     return done
 
 

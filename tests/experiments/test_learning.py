@@ -6,6 +6,8 @@ import json
 import threading
 import time
 
+import pytest
+
 from nlipscalib.core.atomic import write_json
 from nlipscalib.core.claims import claim
 from nlipscalib.experiments import learning
@@ -38,3 +40,16 @@ def test_a_model_another_run_is_training_is_waited_for_not_trained_twice(tmp_pat
     thread.join()
     assert trained == []
     assert got == theirs == json.loads(record.read_text())
+
+
+def test_a_model_trained_before_is_reused_and_the_log_says_so(tmp_path, monkeypatch, caplog):
+    """A re-run of q2 or presses found its models silently: only the tasks' line said what was reused."""
+    names, stamps, cfg = ["a", "b"], {"a": "1", "b": "2"}, TrainConfig()
+    key, path, record = learning.model_files(tmp_path, names, stamps, cfg)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"model")
+    write_json(record, {"key": key, "model": str(path.relative_to(tmp_path))})
+    monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained again"))
+    with caplog.at_level("INFO", logger="nlipscalib.experiments.learning"):
+        assert learning.train_model(None, names, stamps, cfg, tmp_path, progress=False)["key"] == key
+    assert f"{path}: reused" in caplog.text
