@@ -32,6 +32,7 @@ def read_config_file(path: str | Path) -> dict:
             import yaml
 
             data = yaml.safe_load(path.read_text())
+            data = {} if data is None else data  # an empty (or comments-only) file, as an empty TOML file reads
         else:
             raise ConfigError(f"{path}: unknown config type '{suffix}' (use .toml, .yaml or .yml)")
     except ConfigError:
