@@ -32,15 +32,24 @@ def read_config_file(path: str | Path) -> dict:
             import yaml
 
             data = yaml.safe_load(path.read_text())
+            data = {} if data is None else data  # an empty (or comments-only) file, as an empty TOML file reads
         else:
             raise ConfigError(f"{path}: unknown config type '{suffix}' (use .toml, .yaml or .yml)")
     except ConfigError:
         raise
     except Exception as exc:  # tomllib / yaml parse errors
-        raise ConfigError(f"{path}: cannot parse ({exc})") from None
+        raise ConfigError(f"{path}: cannot parse ({_parse_problem(exc)})") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a table/mapping")
     return data
+
+
+def _parse_problem(exc: Exception) -> str:
+    """A parser's error on one line: YAML's spans several (the problem, a quote of the file, a caret)."""
+    mark, problem = getattr(exc, "problem_mark", None), getattr(exc, "problem", None)
+    if mark is not None and problem:
+        return f"{problem} at line {mark.line + 1}, column {mark.column + 1}"
+    return " ".join(str(exc).split())
 
 
 def from_mapping(cls, data, where: str = ""):

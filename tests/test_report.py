@@ -83,3 +83,24 @@ def test_error_colour_bar_fits_the_errors_shown():
     assert error_scale([rng.uniform(0, 1.6, (50, 50))]) == 2.0  # sub-degree maps no longer look black
     assert error_scale([rng.uniform(0, 14.0, (50, 50))]) == 20.0
     assert error_scale([np.full((4, 4), 90.0)]) == 45.0 and error_scale([np.full((2, 2), np.nan)]) == 1.0
+
+
+def test_an_experiment_chart_legend_covers_no_bar(tmp_path, monkeypatch):
+    """Five methods on two test splits, as the quick Q2 report draws them: the legend hid the tallest bars."""
+    from nlipscalib.report import experiments
+
+    drawn = {}
+    save = experiments._save
+
+    def keep(fig, path):
+        fig.canvas.draw()
+        ax = fig.axes[0]
+        legend = ax.get_legend().get_window_extent()
+        drawn["overlaps"] = [p for p in ax.patches if p.get_window_extent().overlaps(legend)]
+        return save(fig, path)
+
+    monkeypatch.setattr(experiments, "_save", keep)
+    heights = {"net": [2.4, 4.8], "upper": [2.5, 4.8], "lut": [7.4, 8.8], "none": [11.2, 10.5], "nlips": [1.0, 2.2]}
+    series = {label: (h, [0.0, 0.0]) for label, h in heights.items()}
+    path = experiments.grouped_bars(["seen", "unseen"], series, "AAE (deg)", tmp_path / "bars.png", {"paper": 3.3})
+    assert path.is_file() and drawn["overlaps"] == []

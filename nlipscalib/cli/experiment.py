@@ -13,10 +13,14 @@ from pathlib import Path
 
 
 def register(sub) -> None:
+    import argparse
+
     p = sub.add_parser(
         "experiment",
         help="run an experiment (q1, q2, ablation, q3, studies, presses, all) and write its report",
         description=__doc__,
+        epilog=_guide(),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("name", help="q1, q2, ablation, q3, studies, presses (number of calibration presses), or all")
     # no argparse default: `--size quick --config F` must be refused like `--size full --config F`
@@ -40,6 +44,24 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+ALL_TAKES = "~10 min / ~50 min / ~4.5 h"
+"""Wall time of ``nlips experiment all`` per size, as the experiments' (docs/experiments/RESULTS.md)."""
+
+
+def _guide() -> str:
+    """The experiments, what each measures and how long it takes per size (``nlips experiment --help``)."""
+    import textwrap
+
+    from ..experiments import GUIDE
+
+    lines = ["experiments (wall time with --workers 2 on a shared 2-core machine: quick / medium / full):"]
+    for name, (what, took) in GUIDE.items():
+        lines += textwrap.wrap(what, 96, initial_indent=f"  {name:9s}", subsequent_indent=" " * 11)
+        lines.append(" " * 11 + " / ".join(took[size] for size in ("quick", "medium", "full")))
+    lines.append(f"  {'all':9s}every one of them in turn: {ALL_TAKES}")
+    return "\n".join(lines)
+
+
 def run(args) -> int:
     from ..config import check_count
     from ..core.atomic import write_json
@@ -61,17 +83,24 @@ def run(args) -> int:
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)
     baseline = check.load_baseline(Path(args.check), args.name) if args.check else None  # fail fast
-    code = 0
+    size = "custom" if args.config else args.size
+    runs = []
     for name in names:
         exp = get(name)
-        cfg = exp.config(args.size, args.config)
-        size = "custom" if args.config else args.size
         work = Path(args.out) / f"{exp.work_name or name}-{size}"  # a study may share another's tasks
+        own = Path(args.out) / f"{name}-{size}"
+        report = Path(args.report) / name if args.report and args.name == "all" else Path(args.report or own / "report")
+        runs.append((name, exp, exp.config(args.size, args.config), work, report))
+    for _, _, _, work, report in runs:  # every output checked before hours of work, not at the first report
+        _writable_folder("--out", args.out, work, probe=not args.plan)
+        _writable_folder("--report", args.report, report, probe=not args.plan)
+    if args.write_baseline:
+        _writable_file("--write-baseline", Path(args.write_baseline), probe=not args.plan)
+    code = 0
+    for name, exp, cfg, work, report in runs:
         if args.plan:
             _print_plan(name, size, exp, cfg, work, options)
             continue
-        own = Path(args.out) / f"{name}-{size}"
-        report = Path(args.report) / name if args.report and args.name == "all" else Path(args.report or own / "report")
         doc = run_experiment(
             exp,
             cfg,
@@ -84,10 +113,7 @@ def run(args) -> int:
             keep_presses=args.keep_presses,
         )
         failed = doc["tasks"]["failed"]
-        print(
-            f"{name}: {doc['tasks']['total']} tasks, {len(failed)} failed, {doc['wall_seconds']} s; "
-            f"report {report / 'report.md'}"
-        )
+        print(f"{name}: {_summary(doc['tasks'])}, {doc['wall_seconds']} s; report {report / 'report.md'}")
         code = code or (1 if failed else 0)
         if args.write_baseline:
             write_json(args.write_baseline, clean(check.baseline_document(name, size, doc["check_figures"])))
@@ -102,6 +128,46 @@ def run(args) -> int:
         for name, why in UNAVAILABLE.items():
             print(f"{name}: not run: {why}", file=sys.stderr)
     return code
+
+
+def _writable_folder(option: str, given, folder: Path, probe: bool = True) -> None:
+    """``folder`` (under the option's value ``given``) can be made and written: ConfigError naming the option
+    when a file stands in its way; with ``probe``, OSError naming the folder (one line from the CLI) when it
+    cannot be written (read-only, permission)."""
+    from ..core.atomic import check_writable
+    from ..errors import ConfigError
+
+    given = Path(given or folder)
+    for part in (folder, *folder.parents):
+        if part.exists():
+            if not part.is_dir():
+                where = "" if part == given else f"{part} "
+                raise ConfigError(f"{option} {given}: {where}is a file, not a folder")
+            break
+    if not probe:
+        return
+    try:
+        check_writable(folder, longest_name=len(folder.name))
+    except OSError as exc:  # name the folder, not the probe made in it
+        raise OSError(exc.errno, exc.strerror, str(folder)) from None
+
+
+def _writable_file(option: str, path: Path, probe: bool = True) -> None:
+    """``path`` can be written as a file: no folder has its name, its folder is writable."""
+    from ..errors import ConfigError
+
+    if path.is_dir():
+        raise ConfigError(f"{option} {path}: is a folder; give a file name")
+    _writable_folder(option, path, path.parent, probe)
+
+
+def _summary(tasks: dict) -> str:
+    """What this run did with the tasks, in the report's words: run now, reused (done by an earlier or a concurrent run
+    sharing the folder), failed."""
+    return (
+        f"{tasks['total']} tasks ({tasks['run_now']} run now, {tasks['already_done']} reused), "
+        f"{len(tasks['failed'])} failed"
+    )
 
 
 def _print_plan(name: str, size: str, exp, cfg, work: Path, options: dict) -> None:
@@ -139,5 +205,8 @@ def _options(pairs: list[str]) -> dict:
             out[key] = value
     from ..config import from_mapping
 
-    from_mapping(SolverOptions, out, "--solver-option")
+    try:
+        from_mapping(SolverOptions, out, "--solver-option")
+    except ConfigError as exc:  # "--solver-option.max_iters: ..." reads as one word: name the option, then the key
+        raise ConfigError(str(exc).replace("--solver-option.", "--solver-option ", 1)) from None
     return out

@@ -20,6 +20,36 @@ EXPERIMENTS = {
     "presses": "presses:PressCount",
 }
 """Runnable experiments: name -> module:class."""
+GUIDE = {
+    "q1": (
+        "Q1 table: NLiPs normal and depth error (AAE, MabsE, depth RMSE) of sphere and cube presses against the "
+        "true normals, with the true and with self-calibrated LEDs",
+        {"quick": "~30 s", "medium": "~6 min", "full": "~40 min"},
+    ),
+    "q2": (
+        "Q2 table: NLiPsNet trained on NLiPs-solved presses of three indenters, AAE on seen and unseen indenters "
+        "vs the NLiPs labels and the true normals, next to a lookup table and the undeformed dome",
+        {"quick": "~2-5 min", "medium": "~8 min", "full": "~65 min"},
+    ),
+    "ablation": (
+        "LED ablation table: AAE and MabsE with 3 to 24 LEDs in the ring",
+        {"quick": "~35 s", "medium": "~17 min", "full": "~95 min"},
+    ),
+    "q3": (
+        "Q3 table: AAE on every shipped dome shape (hemisphere, fingertip, oblate, capsule, flat pad)",
+        {"quick": "~1 min", "medium": "~9 min", "full": "~70 min"},
+    ),
+    "studies": (
+        "twin-only studies: noise, interreflection, LED position/axis error, press depth, coating albedo",
+        {"quick": "~45 s", "medium": "~6 min", "full": "~30 min"},
+    ),
+    "presses": (
+        "how many calibration presses are enough: NLiPsNet and the lookup table trained on k of Q2's presses",
+        {"quick": "~1 min after q2", "medium": "~3 min after q2", "full": "~30 min with Q2's presses"},
+    ),
+}
+"""Per experiment, for ``nlips experiment --help``: what its tables measure, and its wall time per size with
+``--workers 2`` on a shared 2-core machine (docs/experiments/RESULTS.md; a GPU or more cores take less)."""
 UNAVAILABLE: dict[str, str] = {}
 """Experiments of the issue that cannot run yet, with the reason."""
 

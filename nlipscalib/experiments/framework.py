@@ -80,7 +80,14 @@ class Experiment:
     def config(self, size: str = "quick", config_file: str | Path | None = None):
         """The config of a named size, or read from a TOML/YAML file (fields of ``config_cls``)."""
         if config_file is not None:
-            return from_mapping(self.config_cls, read_config_file(config_file), str(config_file))
+            cfg = from_mapping(self.config_cls, read_config_file(config_file), str(config_file))
+            try:  # what only planning checks (scenes, LED counts, press depths) is refused now, naming the file
+                tasks = self.tasks(cfg)
+            except ConfigError as exc:
+                raise ConfigError(f"{config_file}: {exc}") from None
+            if not tasks:
+                raise ConfigError(f"{config_file}: nothing to run (an empty list of presses, LED counts or shapes?)")
+            return cfg
         if size not in self.sizes:
             raise ConfigError(f"experiment {self.name}: unknown size {size!r} (known: {', '.join(self.sizes)})")
         return self.sizes[size]

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from ..core.atomic import write_json
 from ..errors import ConfigError
 from .tasks import Task, digest, load_result, reference_folder, samples_path, view_path
 
+log = logging.getLogger(__name__)
 DATASET_DIR = "calibration"
 MODELS_DIR = "learned"
 
@@ -81,17 +83,53 @@ def train_model(data, names: list[str], stamps: dict, cfg, out: Path, progress: 
     dict: key, model (path relative to ``out``), train/val presses, epochs, best epoch and validation
     AAE, training seconds, history (per epoch)
     """
+    from ..core.claims import claim
+    from .tasks import CLAIM_STALE_S
+
+    key, path, record = model_files(out, names, stamps, cfg)
+    waited = False
+    while (done := _finished(path, record, key)) is None:
+        # another run sharing the folder may be training this model: wait for its record rather than train it
+        # a second time over the same checkpoint and score a model file that the other run then replaces
+        with claim(path, stale_s=CLAIM_STALE_S) as mine:
+            if mine:
+                return _finished(path, record, key) or _train(data, names, cfg, key, path, record, out, progress)
+        if not waited:
+            log.info("%s: another run is training this model; waiting for it", path)
+            waited = True
+        time.sleep(1.0)
+    log.info("%s: reused (trained before on the same presses with the same options)", path)
+    return done
+
+
+def model_files(out: Path, names: list[str], stamps: dict, cfg) -> tuple[str, Path, Path]:
+    """Key, model file and record of the model trained with ``cfg`` on the presses ``names``.
+
+    The key hashes the training options and each press's sample identity (``stamps``), so a changed press
+    or option never reuses a stale model.
+    """
+    key = digest({"train": dataclasses.asdict(cfg), "presses": [[n, stamps[n]] for n in names]}, 16)
+    folder = Path(out) / MODELS_DIR
+    return key, folder / f"nlipsnet-{key}.pt", folder / f"nlipsnet-{key}.json"
+
+
+def _finished(path: Path, record: Path, key: str) -> dict | None:
+    """The stored record of the model ``key`` when its training has finished, else None."""
+    if not (path.is_file() and record.is_file()):
+        return None
+    try:
+        done = json.loads(record.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        return None
+    return done if done.get("key") == key else None
+
+
+def _train(data, names: list[str], cfg, key: str, path: Path, record: Path, out: Path, progress: bool) -> dict:
+    """Train the model ``key`` (resuming its checkpoint) and write its record; the caller holds its claim."""
     from ..cpus import usable_cores
     from ..learn.train import train
 
-    key = digest({"train": dataclasses.asdict(cfg), "presses": [[n, stamps[n]] for n in names]}, 16)
-    folder = Path(out) / MODELS_DIR
-    path, record = folder / f"nlipsnet-{key}.pt", folder / f"nlipsnet-{key}.json"
-    if path.is_file() and record.is_file():
-        done = json.loads(record.read_text())
-        if done.get("key") == key:
-            return done
-    folder.mkdir(parents=True, exist_ok=True)
+    path.parent.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     others = [n for n in data.names if n not in set(names)]
     # training runs in this (the client's) process once the press tasks are done: every core is free for it;

@@ -19,7 +19,7 @@ METRIC_HEADERS = (("aae_deg", "AAE (°)", 2), ("mabse", "MabsE", 4), ("depth_rms
 def table(t) -> str:
     if t.columns:
         return _plain_table(t)
-    heads = list(t.by) + ["n"] + [h for _, h, _ in METRIC_HEADERS] + ["AAE ROI (°)"] + list(t.paper.values())
+    heads = _by_heads(t) + ["n"] + [h for _, h, _ in METRIC_HEADERS] + ["AAE ROI (°)"] + list(t.paper.values())
     lines = [f"**{t.caption}**", "", "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for r in t.rows:
         cells = [fmt(r.get(k)) for k in t.by] + [f"{r['n']}" + (f" ({r['failed']} failed)" if r["failed"] else "")]
@@ -29,9 +29,14 @@ def table(t) -> str:
     return "\n".join(lines)
 
 
+def _by_heads(t) -> list[str]:
+    """Headers of the group columns: their row keys in words ("calibration_presses" -> "calibration presses")."""
+    return [k.replace("_", " ") for k in t.by]
+
+
 def _plain_table(t) -> str:
     """A table of named columns (``Table.columns``) and the paper's columns."""
-    heads = list(t.by) + [h for _, h, _ in t.columns] + list(t.paper.values())
+    heads = _by_heads(t) + [h for _, h, _ in t.columns] + list(t.paper.values())
     lines = [f"**{t.caption}**", "", "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
     for r in t.rows:
         cells = [fmt(r.get(k)) for k in t.by] + [fmt(r.get(k), d) for k, _, d in t.columns]

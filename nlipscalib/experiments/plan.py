@@ -11,7 +11,8 @@ import dataclasses
 
 import numpy as np
 
-from ..config import to_mapping
+from ..config import check_count, to_mapping
+from ..errors import ConfigError
 from ..sim.indent import PressConfig
 from ..sim.indenters import IndenterConfig
 from .tasks import SolveSpec, Task, calibration_id, digest, scene_key
@@ -112,6 +113,11 @@ class PressSet:
     """Range of indentation depths, mm."""
     seed: int = 0
     """Seed of the places, spins and depths."""
+
+    def __post_init__(self):
+        check_count("count", self.count)
+        if self.count and not self.indenters:
+            raise ConfigError(f"indenters: {self.count} presses need at least one indenter, got none")
 
     def presses(self) -> list[dict]:
         rng = np.random.default_rng(np.random.SeedSequence([int(self.seed), 4242]))

@@ -8,18 +8,23 @@ pool is rebuilt and the unfinished tasks re-submitted.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
+import signal
+import threading
 from multiprocessing import get_context
 from pathlib import Path
 
 from ..cpus import usable_cores
 from ..errors import ConfigError, MissingDependencyError
-from .tasks import Task, execute, load_result
+from .tasks import REUSED, Task, execute, load_result
 
 log = logging.getLogger(__name__)
 MAX_ATTEMPTS = 3
 """A task whose worker died this many times is given up (reported as failed)."""
+PARENT_POLL_S = 1.0
+"""An idle local worker checks this often (seconds) that the command that started it still runs."""
 
 
 @dataclasses.dataclass
@@ -27,7 +32,7 @@ class RunStatus:
     done: list[str] = dataclasses.field(default_factory=list)
     """Tasks run now."""
     skipped: list[str] = dataclasses.field(default_factory=list)
-    """Tasks already done on disk."""
+    """Tasks already done on disk, or done by another run sharing the folder meanwhile."""
     failed: dict[str, str] = dataclasses.field(default_factory=dict)
     """Task id -> reason."""
 
@@ -75,6 +80,8 @@ def _bar(total: int, initial: int, progress: bool):
 def _record(status: RunStatus, task_id: str, outcome: str, bar) -> None:
     if outcome == "done":
         status.done.append(task_id)
+    elif outcome == REUSED:  # another run sharing the folder did it while this one waited
+        status.skipped.append(task_id)
     else:
         status.failed[task_id] = outcome.removeprefix("failed: ")
         log.warning("%s: %s", task_id, outcome)
@@ -110,6 +117,7 @@ class _backend:
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"--scheduler {self.scheduler}: cannot reach the Dask scheduler ({exc})") from None
             self.threads = 0  # a remote worker renders with all its cores
+        self.client.register_plugin(_main_thread_imports())  # also on workers that join later
         return self._dask
 
     def __exit__(self, *exc):
@@ -159,13 +167,15 @@ class _WorkerSlots:
     def _start(self, slot: int):
         inbox = self.ctx.Queue()
         proc = self.ctx.Process(target=_worker_loop, args=(slot, inbox, self.results, *self.args), daemon=True)
-        proc.start()
+        with _sigint_ignored():  # inherited through exec: the worker ignores Ctrl-C from its first instruction
+            proc.start()
         return proc, inbox
 
     def run(self, tasks: list[Task], status: RunStatus, bar) -> None:
         queue, attempts = list(tasks), dict.fromkeys((t.id for t in tasks), 0)
         slots = [self._start(i) for i in range(self.n)]
         busy: dict[int, Task] = {}  # slot -> task
+        finished = False
         try:
             while queue or busy:
                 for i in range(self.n):
@@ -183,13 +193,23 @@ class _WorkerSlots:
                             queue.insert(0, task)
                         else:
                             _record(status, task.id, "failed: its worker process died repeatedly", bar)
+            finished = True
         finally:
-            for _, inbox in slots:
+            self._stop(slots, finished)
+
+    @staticmethod
+    def _stop(slots, finished: bool) -> None:
+        """End the workers: idle ones when all is done; on Ctrl-C (or an error here) at once, with SIGTERM, which
+        makes a worker release its claim and remove its temporaries first (``pipeline._worker_signals``)."""
+        for proc, inbox in slots:
+            if finished:
                 inbox.put(None)
-            for proc, _ in slots:
-                proc.join(timeout=5)
-                if proc.is_alive():
-                    proc.kill()
+            elif proc.is_alive():
+                proc.terminate()
+        for proc, _ in slots:
+            proc.join(timeout=5)
+            if proc.is_alive():  # inside a long native call (a render): its claim is stale at once, being ours
+                proc.kill()
 
     def _collect(self, busy: dict[int, Task], status: RunStatus, bar) -> None:
         import queue as queue_mod
@@ -206,12 +226,66 @@ class _WorkerSlots:
 def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool, logging_args=None) -> None:
     """Body of a local worker process: run tasks from ``inbox`` until it gets None (logging like the parent,
     to its ``--log-file`` too)."""
+    from ..pipeline import _worker_signals
+
+    _worker_signals()  # Ctrl-C is the parent's to handle; SIGTERM releases this worker's claim first
     if logging_args is not None:
         from ..progress import configure_worker
 
         configure_worker(*logging_args)
-    while (task := inbox.get()) is not None:
+    import os
+    import queue
+
+    parent = os.getppid()
+    while True:
+        try:
+            task = inbox.get(timeout=PARENT_POLL_S)
+        except queue.Empty:
+            if os.getppid() != parent:  # the command ended without telling us (`kill PID`: it exits at once)
+                return
+            continue
+        if task is None:
+            return
         results.put((slot, task.id, execute(task, out, threads, keep)))
+
+
+def import_native_libraries() -> None:
+    """Import the native libraries that must first be loaded in a process's main thread.
+
+    pymeshlab (the indentation's mesh subdivision, ``sim.indent._subdivide``) first imported in another thread
+    -- a Dask worker runs every task in one -- corrupts the heap: the process aborts when it exits ("malloc_
+    consolidate(): unaligned fastbin chunk detected", the worker "killed by signal 6"). Imported in the main
+    thread first, later use from any thread is fine.
+    """
+    with contextlib.suppress(ImportError):  # without it the twin cannot render presses: nothing to protect
+        import pymeshlab  # noqa: F401
+
+
+def _main_thread_imports():
+    """A Dask worker plugin running :func:`import_native_libraries` in each worker's main (event loop) thread."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class MainThreadImports(WorkerPlugin):
+        name = "nlipscalib-main-thread-imports"
+
+        def setup(self, worker):
+            import_native_libraries()
+
+    return MainThreadImports()
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """Ctrl-C ignored while a worker process starts: it inherits that and never dies of it with a traceback
+    of its own (a terminal sends Ctrl-C to every process of the command; the parent alone stops the run)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _count(text: str) -> int:

@@ -20,17 +20,28 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes, write_json
+from ..errors import ConfigError
 
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
 SOLVES_DIR = "solves"
 """PRESS/solves/<variant hash>/: the pipeline's reconstruction of each solve variant of a press."""
 CLAIM_STALE_S = 60.0
 """A task claimed by a process that stopped its heartbeat this long ago (seconds) is taken over."""
+REUSED = "reused"
+"""What :func:`execute` returns for a task another run sharing the folder finished."""
 
 
 def digest(obj, n: int = 10) -> str:
     """Short content hash of a JSON-able object (stable across processes and machines)."""
     return hashlib.sha1(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:n]
+
+
+SOLVE_CHOICES = {
+    "leds": ("true", "design", "calibrated"),
+    "interreflection": ("off", "reference", "dent"),
+    "roi": ("truth", "auto", "full"),
+}
+"""The words a :class:`SolveSpec` field (and the experiment config fields it comes from) accepts."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +63,12 @@ class SolveSpec:
     """truth (true contact box + margin), auto (the solver's contact detector) or full."""
     options: tuple[tuple[str, object], ...] = ()
     """SolverOptions overrides as (name, value) pairs."""
+
+    def __post_init__(self):
+        # checked when the tasks are planned: an unknown word would otherwise fail every press after its render
+        for name, allowed in SOLVE_CHOICES.items():
+            if getattr(self, name) not in allowed:
+                raise ConfigError(f"{name}: must be one of {list(allowed)}, got {getattr(self, name)!r}")
 
     def led_error(self) -> dict:
         return {
@@ -123,10 +140,11 @@ def load_result(out: Path, task: Task) -> dict | None:
 
 
 def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = False) -> str:
-    """Run one task (in any process or Dask worker) and write its JSON; returns "done" or "failed: ...".
+    """Run one task (in any process or Dask worker) and write its JSON.
 
-    Exceptions are recorded in ``tasks/<id>.failed.json`` (retried on the next run), never raised, so
-    one bad press does not stop a sweep.
+    Returns "done" (run here), "reused" (finished by another run sharing the folder, which this one waited
+    for) or "failed: ...". Exceptions are recorded in ``tasks/<id>.failed.json`` (retried on the next run),
+    never raised, so one bad press does not stop a sweep.
     """
     from ..core.claims import claim
 
@@ -138,12 +156,12 @@ def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = 
             if mine:
                 return _execute_claimed(task, out, threads, keep_presses)
         time.sleep(1.0)
-    return "done"
+    return REUSED
 
 
 def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) -> str:
     if load_result(out, task) is not None:  # finished by another process while we waited
-        return "done"
+        return REUSED
     from threadpoolctl import threadpool_limits
 
     start = time.perf_counter()
@@ -152,6 +170,8 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
             runner = {"reference": _run_reference, "calibration": _run_calibration, "press": _run_press}[task.kind]
             body = runner(task, out, threads, keep_presses)
     except Exception as exc:  # recorded, the sweep goes on
+        if _from_ctrl_c(exc):  # Ctrl-C inside a native library: stop the sweep, not record a failed press
+            raise KeyboardInterrupt from exc
         write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": f"{type(exc).__name__}: {exc}"})
         return f"failed: {type(exc).__name__}: {exc}"
     body["timing"] = body.get("timing", {}) | {"task_seconds": round(time.perf_counter() - start, 3)}
@@ -160,6 +180,18 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
     )
     (out / "tasks" / f"{task.id}.failed.json").unlink(missing_ok=True)
     return "done"
+
+
+def _from_ctrl_c(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised because of a KeyboardInterrupt (drjit turns Ctrl-C during a render into its
+    own RuntimeError, raised from the interrupt)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
 
 
 def reference_folder(out: Path, scene: dict) -> Path:

@@ -277,7 +277,10 @@ def load_scene(path: str | Path | None = None) -> SceneConfig:
     if path is None:
         path = DEFAULT_SCENE
     path = Path(path)
-    if not path.exists() and not path.suffix and (SCENES_DIR / f"{path}.toml").exists():
+    if not path.exists() and not path.suffix:
+        if not (SCENES_DIR / f"{path}.toml").exists():  # a typo'd name, not a missing "config file"
+            shipped = ", ".join(sorted(p.stem for p in SCENES_DIR.glob("*.toml")))
+            raise ConfigError(f"scene {str(path)!r}: no such scene file, nor a shipped scene ({shipped})")
         path = SCENES_DIR / f"{path}.toml"
     data = read_config_file(path)
     return from_mapping(SceneConfig, data, str(path))

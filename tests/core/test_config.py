@@ -53,6 +53,30 @@ def test_yaml_and_unparsable_files(tmp_path):
         load_scene(tmp_path / "missing.toml")
 
 
+@pytest.mark.parametrize("text", ["counts: [3\n", "twin:\n  width: 3\n bad: 1\n", "a: 'open\n"])
+def test_a_yaml_file_that_does_not_parse_is_one_line_naming_file_and_place(tmp_path, text):
+    """PyYAML's message spans several lines (quoting the file, a caret under the place): one line of an error
+    message became five on the user's terminal."""
+    from nlipscalib.config import read_config_file
+
+    bad = tmp_path / "exp.yaml"
+    bad.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        read_config_file(bad)
+    message = str(err.value)
+    assert "\n" not in message and message.startswith(f"{bad}: cannot parse (") and "line " in message
+
+
+def test_an_empty_yaml_file_reads_as_an_empty_toml_file(tmp_path):
+    """An empty (or comments-only) YAML config was refused ("the top level must be a table/mapping") while an
+    empty TOML file gives every default."""
+    from nlipscalib.config import read_config_file
+
+    (tmp_path / "a.yaml").write_text("# nothing changed yet\n")
+    (tmp_path / "a.toml").write_text("# nothing changed yet\n")
+    assert read_config_file(tmp_path / "a.yaml") == read_config_file(tmp_path / "a.toml") == {}
+
+
 def test_replace_changes_one_field():
     s = SceneConfig().replace(render={"spp": 16})
     assert s.render.spp == 16 and s.render.bounces == 0

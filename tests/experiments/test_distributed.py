@@ -150,3 +150,30 @@ def test_nlipsnet_samples_and_scores_are_identical_on_a_dask_cluster(tmp_path):
                 np.testing.assert_array_equal(a[key], b[key])
     assert clean(docs["dask"]["learned"]["scores"]) == clean(docs["here"]["learned"]["scores"])  # NaN-safe
     assert clean(_numbers(docs["dask"])) == clean(_numbers(docs["here"]))
+
+
+def test_dask_workers_that_indented_a_gel_exit_cleanly():
+    """A Dask worker runs tasks in a thread: pymeshlab (the indentation's mesh subdivision) first imported there
+    corrupted the heap, and every worker that had rendered a press aborted when the cluster closed ("malloc_
+    consolidate(): unaligned fastbin chunk detected", "Worker process N was killed by signal 6")."""
+    import numpy as np
+    import trimesh
+
+    from nlipscalib.experiments.runner import _backend
+    from nlipscalib.sim.indent import _subdivide
+
+    said: list[str] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: said.append(record.getMessage())
+    nanny = logging.getLogger("distributed.nanny")
+    nanny.addHandler(handler)
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    try:
+        backend = _backend("local:1", 1)
+        with backend:
+            v, f = backend.client.submit(_subdivide, vertices, faces, np.ones(len(faces), bool)).result()
+    finally:
+        nanny.removeHandler(handler)
+    assert len(f) == 4 * len(faces)  # each face split in four
+    assert not [m for m in said if "killed by signal" in m], said

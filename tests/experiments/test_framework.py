@@ -85,6 +85,7 @@ def test_check_flags_only_what_got_worse_beyond_tolerance():
         (["experiment", "q1", "--size", "huge"], "unknown size 'huge'"),
         (["experiment", "q1", "--solver-option", "max_iter=3"], "--solver-option 'max_iter=3'"),
         (["experiment", "q1", "--solver-option", "max_iters=0"], "max_iters"),
+        (["experiment", "q1", "--solver-option", "max_iters=abc"], "--solver-option max_iters: expected an integer"),
         (["experiment", "q1", "--scheduler", "local:zero"], "local:N"),
         (["experiment", "q1", "--scheduler", "nowhere"], "tcp://HOST:PORT"),
         (["experiment", "q1", "--check", "/nonexistent/base.json"], "no such baseline file"),
@@ -100,12 +101,75 @@ def test_bad_input_is_one_line_and_exit_2(argv, message, capsys, tmp_path):
     assert len(err) == 1 and message in err[0]
 
 
+@pytest.mark.parametrize(
+    "option, value, message",
+    [
+        ("--out", "afile", "--out {}: is a file, not a folder"),
+        ("--out", "afile/sub", "--out {}: {} is a file, not a folder"),
+        ("--report", "afile", "--report {}: is a file, not a folder"),
+        ("--write-baseline", ".", "--write-baseline {}: is a folder; give a file name"),
+    ],
+)
+def test_an_output_that_cannot_be_written_is_refused_before_any_work(
+    option, value, message, tmp_path, monkeypatch, capsys
+):
+    """--report onto a file used to fail only when the report was written, after the whole run (hours at full size),
+    and --out onto a file named a folder inside it ("afile/q1-quick/tasks: Not a directory")."""
+    from nlipscalib.experiments import framework
+
+    def ran(*args, **kwargs):
+        raise AssertionError("the experiment ran")
+
+    monkeypatch.setattr(framework, "run_experiment", ran)
+    (tmp_path / "afile").write_text("not a folder")
+    given = tmp_path / value
+    argv = ["experiment", "q1", "--out", str(tmp_path / "work"), option, str(given)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"nlips experiment: error: {message.format(given, tmp_path / 'afile')}"]
+
+
+def test_help_says_what_each_experiment_measures_and_how_long_each_size_takes(capsys):
+    from nlipscalib.experiments import EXPERIMENTS, GUIDE
+
+    assert set(GUIDE) == set(EXPERIMENTS)  # a new experiment comes with its line
+    with pytest.raises(SystemExit):
+        main(["experiment", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for name, (what, took) in GUIDE.items():
+        assert f"{name} {' '.join(what.split())}" in text
+        assert " / ".join(took[size] for size in ("quick", "medium", "full")) in text
+
+
 def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
     cfg = tmp_path / "q1.toml"
     cfg.write_text("[twin]\nwidht = 64\n")
     assert main(["experiment", "q1", "--config", str(cfg), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "q1.toml" in err and "widht" in err
+
+
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        ("q1", 'leds = ["trueish"]\n', "leds: must be one of ['true', 'design', 'calibrated'], got 'trueish'"),
+        ("q1", 'roi = "bogus"\n', "roi: must be one of ['truth', 'auto', 'full'], got 'bogus'"),
+        ("studies", 'correction = "x"\n', "interreflection: must be one of ['off', 'reference', 'dent'], got 'x'"),
+        ("ablation", "counts = [1]\n", "the sensor needs 3 to 24 LEDs, got 1"),
+        ("ablation", "[presses]\ndepth = [-1.0]\n", "press depth must be > 0 mm, got -1.0"),
+        ("ablation", "counts = []\n", "nothing to run"),
+        ("q2", "[train]\nindenters = []\n", "50 presses need at least one indenter, got none"),
+        ("q2", "[train]\ncount = -3\n", "count: must be an integer >= 0, got -3"),
+    ],
+)
+def test_a_config_value_the_tasks_cannot_use_is_refused_naming_the_file(name, text, message, tmp_path, capsys):
+    """Such values used to pass --plan and the start of a run: an unknown word failed every press after its render
+    (leds, roi, interreflection), a scene error did not name the file, an empty indenter list was a traceback."""
+    cfg = tmp_path / "exp.toml"
+    cfg.write_text(text)
+    assert main(["experiment", name, "--config", str(cfg), "--out", str(tmp_path), "--plan"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"nlips experiment: error: {cfg}") and message in err[0], err
 
 
 def test_press_count_study_config_names_file_and_problem(tmp_path, capsys):
@@ -144,8 +208,27 @@ def test_two_processes_on_one_folder_run_a_task_once(tmp_path, monkeypatch):
         t.start()
     for t in threads:
         t.join(timeout=30)
-    assert outcomes == ["done", "done"] and calls == ["ref-y"]  # the second waited for the first's result
+    assert calls == ["ref-y"]  # the second waited for the first's result
+    assert sorted(outcomes) == ["done", "reused"]  # and counts it as reused, not as run by itself
     assert load_result(tmp_path, task)["folder"] == "refs/x"
+
+
+def test_ctrl_c_inside_a_native_library_stops_the_sweep_instead_of_failing_the_task(tmp_path, monkeypatch):
+    """drjit turns Ctrl-C during a render into its own RuntimeError: the task was recorded as failed (a
+    .failed.json) and the sweep went on to the next press, so Ctrl-C did not stop the run."""
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    def interrupted_render(task, out, threads, keep):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise RuntimeError("drjit.custom(...): error while performing a custom differentiable operation") from exc
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", interrupted_render)
+    task = Task(kind="reference", id="ref-z", scene={"c": 1})
+    with pytest.raises(KeyboardInterrupt):
+        tasks_mod.execute(task, tmp_path)
+    assert not list((tmp_path / "tasks").glob("*.failed.json"))
 
 
 def _trained(best_epoch: int, epochs: int) -> dict:
@@ -185,3 +268,13 @@ def test_training_tables_number_the_best_epoch_from_1_like_nlips_train():
         assert [int(row.strip("|").split("|")[col]) for row in lines[4:]] == expected
         # the stored model records keep the trainer's 0-based count (old records stay loadable)
         assert [m["best_epoch"] for m in learned["models"].values()] == [e - 1 for e in expected]
+
+
+def test_table_headers_name_group_columns_in_words():
+    """The press-count study's tables were headed by a row key: "| calibration_presses | split | ..."."""
+    from nlipscalib.experiments.framework import Table
+    from nlipscalib.experiments.markdown import table
+
+    rows = [{"calibration_presses": 4, "split": "seen", "aae": 1.5}]
+    text = table(Table("counts", "caption", ("calibration_presses", "split"), rows, columns=(("aae", "AAE", 2),)))
+    assert "| calibration presses | split | AAE |" in text

@@ -99,7 +99,7 @@ def test_press_count_study_reuses_q2_presses_and_its_model(q2):
     for r in rows:
         assert r["aae_vs_true_deg"] == _score(q2_doc, r["split"], METHODS["nlipsnet"])
     text = (q2 / "presses-quick" / "report" / "report.md").read_text()
-    assert "calibration_presses" in text and "(presses_aae.png)" in text
+    assert "| calibration presses | split | method |" in text and "(presses_aae.png)" in text
     assert (q2 / "presses-quick" / "report" / "presses_aae.png").stat().st_size > 1000
 
 

@@ -27,3 +27,13 @@ def test_shipped_scene_sees_the_whole_gel_without_holes(tmp_path, name):
     assert not press.ground_truth.contact.any()
     lit = press.linear(press.led_images)[:, valid]
     assert 0.05 < lit.max() and press.saturated(press.led_images).mean() < 0.01
+
+
+def test_a_scene_name_that_is_neither_a_file_nor_shipped_says_so_and_lists_the_shipped_ones():
+    """It read "nowhere: no such config file" (a scene name is not a config file the user wrote)."""
+    from nlipscalib.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        load_scene("nowhere")
+    assert str(err.value).startswith("scene 'nowhere': no such scene file, nor a shipped scene (")
+    assert "fingertip" in str(err.value) and "nlipstac" in str(err.value)

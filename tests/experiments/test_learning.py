@@ -1,0 +1,55 @@
+"""NLiPsNet in the experiments: models shared by runs that share a work folder."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import pytest
+
+from nlipscalib.core.atomic import write_json
+from nlipscalib.core.claims import claim
+from nlipscalib.experiments import learning
+from nlipscalib.learn import train as train_module
+from nlipscalib.learn.train import TrainConfig
+
+
+def test_a_model_another_run_is_training_is_waited_for_not_trained_twice(tmp_path, monkeypatch):
+    """Two `nlips experiment q2` into one --out used to train each model twice over one checkpoint, and each
+    report scored whichever model file the other run had written last (two reports, two sets of numbers)."""
+    names, stamps, cfg = ["a", "b"], {"a": "1", "b": "2"}, TrainConfig()
+    key, path, record = learning.model_files(tmp_path, names, stamps, cfg)
+    trained: list[str] = []
+    monkeypatch.setattr(train_module, "train", lambda *a, **k: trained.append("again"))
+    theirs = {"key": key, "model": str(path.relative_to(tmp_path)), "best_epoch": 4}
+    holding = threading.Event()
+
+    def other_run():
+        with claim(path) as mine:
+            assert mine
+            holding.set()
+            time.sleep(1.5)  # training
+            path.write_bytes(b"model")
+            write_json(record, theirs)
+
+    thread = threading.Thread(target=other_run)
+    thread.start()
+    holding.wait(10)
+    got = learning.train_model(None, names, stamps, cfg, tmp_path, progress=False)
+    thread.join()
+    assert trained == []
+    assert got == theirs == json.loads(record.read_text())
+
+
+def test_a_model_trained_before_is_reused_and_the_log_says_so(tmp_path, monkeypatch, caplog):
+    """A re-run of q2 or presses found its models silently: only the tasks' line said what was reused."""
+    names, stamps, cfg = ["a", "b"], {"a": "1", "b": "2"}, TrainConfig()
+    key, path, record = learning.model_files(tmp_path, names, stamps, cfg)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"model")
+    write_json(record, {"key": key, "model": str(path.relative_to(tmp_path))})
+    monkeypatch.setattr(train_module, "train", lambda *a, **k: pytest.fail("trained again"))
+    with caplog.at_level("INFO", logger="nlipscalib.experiments.learning"):
+        assert learning.train_model(None, names, stamps, cfg, tmp_path, progress=False)["key"] == key
+    assert f"{path}: reused" in caplog.text

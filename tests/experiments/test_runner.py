@@ -1,0 +1,116 @@
+"""The local runner as a user meets it: Ctrl-C of ``nlips experiment --workers 2`` in a terminal."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+COMMAND = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+TINY = """
+counts = [12]
+[twin]
+width = 40
+height = 30
+spp = 2
+bounces = 0
+[presses]
+indenters = [{ kind = "sphere", size = 6.0 }]
+polar_deg = [10.0, 20.0]
+azimuth_deg = [30.0]
+"""
+"""One reference (run in the command's process) and two presses (the two worker processes)."""
+
+
+def _nlips(*args: str, **kw) -> subprocess.Popen:
+    argv = [sys.executable, "-c", COMMAND, "--no-progress", "experiment", *args]
+    return subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        # as a shell with job control starts it: Ctrl-C not ignored, the command its own process group
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        start_new_session=True,
+        **kw,
+    )
+
+
+def _not_log(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.strip() and not line.startswith(("INFO ", "WARNING "))]
+
+
+def test_ctrl_c_with_worker_processes_is_one_line_and_a_rerun_resumes(tmp_path):
+    """A terminal sends Ctrl-C to every process of the command. The worker processes used to die of it each
+    with a multiprocessing traceback of their own (KeyboardInterrupt inside a render) after the parent's line."""
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY)
+    out = tmp_path / "out"
+    args = ("ablation", "--config", str(config), "--workers", "2", "--out", str(out))
+    proc = _nlips(*args)
+    tasks = out / "ablation-custom" / "tasks"
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tasks.glob(".claim-sphere*")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # a worker holds a press: it is rendering or solving it
+        assert proc.poll() is None, "the run ended before a worker took a press"
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert _not_log(err) == ["nlips experiment: interrupted; finished work is kept, run again to resume"], err
+    left = [p for p in Path(out).rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
+    assert not left, left
+
+    again = _nlips(*args)
+    stdout, err = again.communicate(timeout=300)
+    assert again.returncode == 0, err
+    assert "3 tasks" in stdout and "0 failed" in stdout, stdout
+    assert len(list(tasks.glob("*.json"))) == 3
+
+
+def test_a_second_run_says_it_reused_the_finished_tasks(tmp_path):
+    """The command's line used to read "3 tasks, 0 failed" whether it ran them or found them done."""
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY)
+    args = ("ablation", "--config", str(config), "--out", str(tmp_path / "out"))
+    first = _nlips(*args).communicate(timeout=300)[0]
+    assert "3 tasks (3 run now, 0 reused), 0 failed" in first
+    second = _nlips(*args).communicate(timeout=300)[0]
+    assert "3 tasks (0 run now, 3 reused), 0 failed" in second
+
+
+ORPHAN = """
+import sys, time
+from nlipscalib.experiments.runner import _WorkerSlots
+from nlipscalib.experiments.tasks import Task
+
+slots = _WorkerSlots(1, sys.argv[1], 1, False)
+proc, inbox = slots._start(0)
+inbox.put(Task(kind="reference", id="ref-none", scene={}))  # fails at once: the worker is then idle in its loop
+slots.results.get(timeout=120)
+print(proc.pid, flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_worker_ends_when_the_command_that_started_it_is_killed(tmp_path):
+    """`kill PID` of `nlips experiment --workers 2` (SIGTERM to the command alone: it exits at once) left its idle
+    worker processes waiting for a next task forever."""
+    import psutil
+
+    command = subprocess.Popen([sys.executable, "-c", ORPHAN, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    worker = psutil.Process(int(command.stdout.readline()))
+    try:
+        command.kill()
+        command.wait(timeout=10)
+        worker.wait(timeout=20)  # psutil.TimeoutExpired while it still waits for a task
+    finally:
+        with contextlib.suppress(psutil.Error):
+            worker.kill()
