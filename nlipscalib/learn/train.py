@@ -247,6 +247,11 @@ def _presses(dataset: CalibrationDataset, cfg: TrainConfig, val_names, exclude) 
     return split_by_press(names, cfg.val_fraction, cfg.seed, val_names)
 
 
+EPOCH_SEED_STRIDE = 7919
+"""Epoch k reseeds torch's global generator (dropout) with seed + stride (k + 1): apart from the seeds of the
+weights' initialisation (seed) and of the batch order (seed + k)."""
+
+
 def _epochs(net, opt, sched, samples, cfg: TrainConfig, state: dict, checkpoint, progress: bool):
     """Train from ``state`` (:func:`_resume`) until early stopping, ``cfg.max_epochs`` or ``cfg.max_seconds``,
     checkpointing every epoch (``checkpoint(history, best, best_state)``); returns (history, best, best_state).
@@ -258,13 +263,16 @@ def _epochs(net, opt, sched, samples, cfg: TrainConfig, state: dict, checkpoint,
 
     xt, yt, xv, yv, cv = samples
     history, best, best_state = state["history"], state["best"], state["best_state"]
-    gen = torch.Generator().manual_seed(cfg.seed + len(history))
     start = time.perf_counter() - sum(h["seconds"] for h in history)
     bar = progress_bar(cfg.max_epochs, enabled=progress, initial=len(history), desc="training", unit="epoch")
     for epoch in range(len(history), cfg.max_epochs):
         if history and epoch - 1 - best["epoch"] >= cfg.patience:
             break  # a resumed run that had already stopped early
         t0 = time.perf_counter()
+        # every epoch's random draws (batch order; dropout masks from torch's global generator) depend on the
+        # seed and the epoch alone, so a resumed training makes the model an uninterrupted one makes
+        gen = torch.Generator().manual_seed(cfg.seed + epoch)
+        torch.manual_seed(cfg.seed + EPOCH_SEED_STRIDE * (epoch + 1))
         loss = _epoch(net, opt, xt, yt, cfg.batch_size, gen)
         val_aae, val_contact = _validate(net, xv, yv, cv)
         if cfg.schedule == "plateau":

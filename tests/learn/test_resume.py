@@ -315,3 +315,36 @@ def test_a_training_without_onnx_removes_the_export_of_the_model_it_replaces(bui
         "m_curve.png",
     ]
     assert not [p for p in tmp_path.iterdir() if p.name.startswith((TMP_PREFIX, ".claim-"))]
+
+
+def test_an_interrupted_training_resumed_makes_the_model_an_uninterrupted_one_makes(built, tmp_path, monkeypatch):
+    """The batch order and the dropout masks of each epoch depend on the seed and the epoch alone: a resumed run
+    used to reseed its batch order with seed + epochs done and kept no dropout state, so it trained another
+    model (quick Q2: best epoch 21 vs 27)."""
+    import torch
+
+    from nlipscalib.learn import train as train_module
+
+    cfg = TrainConfig(hidden=(8,), dropout=0.2, max_epochs=4, patience=10, threads=1)
+    data = CalibrationDataset(built)
+    whole = train(data, cfg, tmp_path / "whole" / "net.pt", progress=False)
+
+    real_epoch, calls = train_module._epoch, []
+
+    def interrupted(*args):
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        calls.append(1)
+        return real_epoch(*args)
+
+    monkeypatch.setattr(train_module, "_epoch", interrupted)
+    out = tmp_path / "resumed" / "net.pt"
+    with pytest.raises(KeyboardInterrupt):
+        train(data, cfg, out, progress=False)
+    torch.manual_seed(12345)  # whatever the process drew in between
+    monkeypatch.setattr(train_module, "_epoch", real_epoch)
+    resumed = train(data, cfg, out, progress=False)
+    assert [h["val_aae_deg"] for h in resumed.history] == [h["val_aae_deg"] for h in whole.history]
+    a, b = load_model(tmp_path / "whole" / "net.pt"), load_model(out)
+    for (name, x), y in zip(a.net.state_dict().items(), b.net.state_dict().values()):
+        assert torch.equal(x, y), name
