@@ -29,7 +29,7 @@ GUIDE = {
     "q2": (
         "Q2 table: NLiPsNet trained on NLiPs-solved presses of three indenters, AAE on seen and unseen indenters "
         "vs the NLiPs labels and the true normals, next to a lookup table and the undeformed dome",
-        {"quick": "~2-5 min", "medium": "~8 min", "full": "~65 min"},
+        {"quick": "~2-5 min", "medium": "~8 min", "full": "~25-40 min"},
     ),
     "ablation": (
         "LED ablation table: AAE and MabsE with 3 to 24 LEDs in the ring",
