@@ -60,7 +60,8 @@ def named_target(path: str | Path) -> Path:
     what the user knows. Any other path is returned as it is."""
     p = Path(path)
     if p.name.startswith(TMP_PREFIX):
-        return p.with_name(p.name[len(TMP_PREFIX) :].split(OWNER_SEP, 1)[0])
+        item = p.name[len(TMP_PREFIX) :].split(OWNER_SEP, 1)[0]
+        return p.with_name(item) if item else p.parent  # no item: check_writable's probe of the folder itself
     if p.name.startswith(CLAIM_PREFIX):
         item = re.sub(r"\.(stale\.)?[0-9a-f]{8,16}$", "", p.name[len(CLAIM_PREFIX) :])
         return p.parent if item.startswith("probe.") else p.with_name(item)

@@ -106,6 +106,7 @@ def test_error_messages_name_the_entry_the_user_asked_for_not_its_hidden_sibling
     assert named_target(tmp_path / ".claim-nlips.667b44a0096d6a8b") == out
     assert named_target(tmp_path / ".claim-nlips.stale.0123456789ab") == out
     assert named_target(tmp_path / ".claim-probe.host.12.abcd1234") == tmp_path
+    assert named_target(tmp_path / (tmp_prefix("") + "probe")) == tmp_path  # check_writable(folder)'s own probe
     assert named_target(tmp_path / "led_01.png") == tmp_path / "led_01.png"
     denied = PermissionError(errno.EACCES, "Permission denied", str(tmp_path / ".claim-nlips.667b44a0096d6a8b"))
     assert describe_os_error(denied).startswith(f"{out}: Permission denied")
