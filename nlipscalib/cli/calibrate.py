@@ -8,7 +8,12 @@ def register(subparsers) -> None:
     p.add_argument("presses", nargs="+", help="press folders of the undeformed dome (with reference.npz)")
     p.add_argument("--out", required=True, help="LED JSON file to write (use with `nlips solve --leds FILE`)")
     p.add_argument("--stride", type=int, default=2, help="use every N-th pixel (default 2)")
-    p.add_argument("--loss", default="cauchy", choices=("cauchy", "soft_l1", "huber", "linear"))
+    p.add_argument(
+        "--loss",
+        default="cauchy",
+        choices=("cauchy", "soft_l1", "huber", "linear"),
+        help="robust loss of the least-squares fit (default cauchy; linear: plain least squares)",
+    )
     p.add_argument(
         "--interreflection",
         choices=("auto", "on", "off"),

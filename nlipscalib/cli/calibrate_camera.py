@@ -9,6 +9,10 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "calibrate-camera",
         help="camera intrinsics and distortion (fisheye or standard) from checkerboard images -> camera JSON",
+        description="Calibrate the sensor's camera from images of a printed checkerboard (or a ChArUco board, "
+        "--charuco, whose partial views count) held at several tilts: writes the camera JSON (docs/formats.md) "
+        "that `nlips capture --camera-calibration` puts into every press. Prints the reprojection error and warns "
+        "when it is high or when the views do not pin the camera down.",
     )
     p.add_argument("images", nargs="+", help="checkerboard images, or folders of them")
     p.add_argument(

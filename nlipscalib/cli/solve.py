@@ -11,7 +11,12 @@ log = logging.getLogger(__name__)
 def register(subparsers) -> None:
     p = subparsers.add_parser("solve", help="reconstruct depth/normals of a press with near-light photometric stereo")
     p.add_argument("press", nargs="?", help="press folder, or a folder of press folders")
-    p.add_argument("--roi", nargs="+", metavar="V", help="x0 y0 w h (pixels) or 'auto' (around the contact)")
+    p.add_argument(
+        "--roi",
+        nargs="+",
+        metavar="V",
+        help="x0 y0 w h (pixels) or 'auto' (around the contact); default: the whole gel",
+    )
     p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
     p.add_argument(
         "--reference",
@@ -43,7 +48,12 @@ def register(subparsers) -> None:
         metavar="A",
         help="override the coating's reflectance (0-1]; default: fitted from the data",
     )
-    p.add_argument("--backend", choices=("numpy", "torch"), default="numpy")
+    p.add_argument(
+        "--backend",
+        choices=("numpy", "torch"),
+        default="numpy",
+        help="array library of the solver: numpy (default) or torch (the same equations, on a GPU when present)",
+    )
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
