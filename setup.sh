@@ -43,9 +43,12 @@ fi
 PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 PIP=(.venv/bin/python -m pip install -q --disable-pip-version-check)
-# Pin torch to the CPU build first: an unpinned torch pulls a multi-GB CUDA build. The project itself
-# only asks for a range (torch>=2.2,<3), which this satisfies, so nothing more is downloaded.
-.venv/bin/python -c "import torch" 2>/dev/null || "${PIP[@]}" "torch==2.13.0"
+# Install torch's CPU build first, from PyTorch's CPU index: PyPI's Linux torch wheels are CUDA builds
+# (several GB of nvidia-* packages), whatever the version pin. The project itself only asks for a range
+# (torch>=2.2,<3), which this satisfies, so nothing more is downloaded. (Offline, pip's own find-links or
+# extra indexes still serve it, after a few retry warnings about the unreachable index.)
+TORCH_CPU_INDEX=https://download.pytorch.org/whl/cpu
+.venv/bin/python -c "import torch" 2>/dev/null || "${PIP[@]}" --index-url "$TORCH_CPU_INDEX" "torch==2.13.0"
 
 # The editable install is what a second run skips: pip resolves every requirement against the index
 # (network, tens of seconds) even when nothing changes. Skipped only when the hash of pyproject.toml
