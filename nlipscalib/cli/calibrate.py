@@ -102,5 +102,6 @@ def run(args) -> int:
     )
     # the warnings were logged while calibrating, above the table: say so where the user looks last
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
-    print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {cal.albedo}){seen}")
+    albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
+    print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
     return 0

@@ -70,7 +70,8 @@ def run(args) -> int:
         print(f"{name}: board not found (skipped)")
     c = cal.camera
     print(
-        f"{c.model} camera {c.width}x{c.height}: fx {c.fx:.2f} fy {c.fy:.2f} cx {c.cx:.2f} cy {c.cy:.2f} dist {c.dist}"
+        f"{c.model} camera {c.width}x{c.height}: fx {c.fx:.2f} fy {c.fy:.2f} cx {c.cx:.2f} cy {c.cy:.2f} "
+        f"dist {', '.join(f'{d:.4g}' for d in c.dist)}"  # every digit is in the JSON file
     )
     print(f"reprojection error (RMS over {len(cal.used)} views): {cal.rms_px:.3f} px")
     if cal.rms_px > HIGH_RMS_PX:
