@@ -15,7 +15,7 @@ def register(subparsers) -> None:
         "--roi",
         nargs="+",
         metavar="V",
-        help="x0 y0 w h (pixels) or 'auto' (around the contact); default: the whole gel",
+        help="x0 y0 w h (pixels, as 4 values or x0,y0,w,h) or 'auto' (around the contact); default: the whole gel",
     )
     p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
     p.add_argument(
@@ -79,10 +79,11 @@ def parse_roi(values):
 
     if not values:
         return None
-    if values == ["auto"]:
+    parts = " ".join(values).replace(",", " ").split()  # "2 3 40 30", "2,3,40,30" and "2, 3, 40, 30" alike
+    if parts == ["auto"]:
         return "auto"
     try:
-        roi = tuple(int(v) for v in values)
+        roi = tuple(int(v) for v in parts)
     except ValueError:
         roi = ()
     if len(roi) != 4:

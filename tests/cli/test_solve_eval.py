@@ -235,6 +235,9 @@ def test_the_press_may_follow_the_roi(data, capsys):
     assert json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["roi"] == "auto"
     assert main(["solve", "--roi", "2", "3", "40", "30", str(press), "--config", str(cfg), "--no-progress"]) == 0
     assert json.loads((press / "nlips" / "report.json").read_text())["roi"] == [2, 3, 40, 30]
+    # typed with commas, as `--leds 1,5,9` is (it was "--roi needs 'x0 y0 w h' or 'auto', got 2,3,40,30")
+    assert main(["solve", "--roi", "2,3,40,31", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    assert json.loads((press / "nlips" / "report.json").read_text())["roi"] == [2, 3, 40, 31]
 
 
 def test_demo_recomputes_a_damaged_cached_result(data, capsys):
