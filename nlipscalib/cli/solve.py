@@ -9,7 +9,14 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("solve", help="reconstruct depth/normals of a press with near-light photometric stereo")
+    p = subparsers.add_parser(
+        "solve",
+        help="reconstruct depth/normals of a press with near-light photometric stereo",
+        description="NLiPs: the normals, depth and albedo of a press (or of every press of a folder, whose "
+        "reference/ is then the undeformed dome) from its LED images, written to PRESS/nlips/ (docs/formats.md) "
+        "with PNG maps. A result made with the same settings and inputs is kept (the log says so); other "
+        "options, LEDs, ROI or reference re-solve it (the log says what changed). Score it with `nlips eval`.",
+    )
     p.add_argument("press", nargs="?", help="press folder, or a folder of press folders")
     p.add_argument(
         "--roi",
