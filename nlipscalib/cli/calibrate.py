@@ -9,9 +9,9 @@ def register(subparsers) -> None:
         help="estimate LED Psi, mu, n_s, x_s from undeformed-dome captures",
         description="LED self-calibration: each LED's intensity Psi (per colour), emission exponent mu, axis n_s "
         "and position x_s, fitted to captures of the undeformed dome (its known shape, reference.npz) minus the "
-        "dome's own interreflection where they show it, written as an LED file (docs/formats.md) for `nlips solve --leds "
-        "FILE`. Prints the LEDs with their 1-sigma uncertainties and how well the fit explains the images; warns "
-        "when it is unreliable (render the reference at 16 spp or more, or average more frames).",
+        "dome's own interreflection where they show it, written as an LED file (docs/formats.md) for "
+        "`nlips solve --leds FILE`. Prints the LEDs with their 1-sigma uncertainties and how well the fit explains "
+        "the images; warns when it is unreliable (render the reference at 16 spp or more, or average more frames).",
     )
     p.add_argument("presses", nargs="+", help="press folders of the undeformed dome (with reference.npz)")
     p.add_argument("--out", required=True, help="LED JSON file to write (use with `nlips solve --leds FILE`)")
