@@ -277,7 +277,10 @@ def load_scene(path: str | Path | None = None) -> SceneConfig:
     if path is None:
         path = DEFAULT_SCENE
     path = Path(path)
-    if not path.exists() and not path.suffix and (SCENES_DIR / f"{path}.toml").exists():
+    if not path.exists() and not path.suffix:
+        if not (SCENES_DIR / f"{path}.toml").exists():
+            shipped = ", ".join(sorted(p.stem for p in SCENES_DIR.glob("*.toml")))
+            raise ConfigError(f"{path}: no such scene file, nor a shipped scene (shipped: {shipped})")
         path = SCENES_DIR / f"{path}.toml"
     data = read_config_file(path)
     return from_mapping(SceneConfig, data, str(path))

@@ -27,3 +27,16 @@ def test_shipped_scene_sees_the_whole_gel_without_holes(tmp_path, name):
     assert not press.ground_truth.contact.any()
     lit = press.linear(press.led_images)[:, valid]
     assert 0.05 < lit.max() and press.saturated(press.led_images).mean() < 0.01
+
+
+def test_an_unknown_scene_name_lists_the_shipped_scenes():
+    """`--scene fingertp` (a typo, or a scene not shipped) said only "fingertp: no such config file"."""
+    from nlipscalib.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        load_scene("fingertp")
+    message = str(err.value)
+    assert message.startswith("fingertp: no such scene file, nor a shipped scene")
+    assert all(name in message for name in ("nlipstac", "nlipstac_ideal", "fingertip", "flat"))
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_scene("missing.toml")  # a file name keeps its message
