@@ -192,6 +192,14 @@ def test_figures_flags(data):
     press = root / "press_b"
     assert main(["solve", str(press), "--config", str(cfg), "--no-figures", "--no-progress"]) == 0
     assert not list((press / "nlips").glob("*.png"))
+    # the same settings again, now asking for figures: the result is kept and gets them (it was skipped as
+    # identical and the figures never came without --overwrite, which re-solved)
+    stamp = _stamp(press)
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    maps = {"normals.png", "depth.png", "residual.png", "error.png"}
+    assert {p.name for p in (press / "nlips").glob("*.png")} == maps
+    assert main(["solve", str(press), "--config", str(cfg), "--figures", "full", "--no-progress"]) == 0
+    assert (press / "nlips" / "summary.png").is_file() and _stamp(press) == stamp  # never re-solved
     assert main(["solve", str(press), "--config", str(cfg), "--figures", "full", "--overwrite", "--no-progress"]) == 0
     pngs = {p.name for p in (press / "nlips").glob("*.png")}
     assert pngs == {"normals.png", "depth.png", "residual.png", "error.png", "summary.png"}
