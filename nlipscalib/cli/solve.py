@@ -100,7 +100,7 @@ def parse_roi(values):
 
 def run(args) -> int:
     from ..config import from_mapping, read_config_file
-    from ..core.capture import split_reference
+    from ..core.capture import read_meta, split_reference
     from ..errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..solver import SolverOptions
@@ -112,6 +112,8 @@ def run(args) -> int:
     presses, reference = split_reference(args.press, args.reference)
     if not presses:
         raise ConfigError(f"{args.press}: no press folders found")
+    if reference is not None:
+        read_meta(reference)  # a missing or broken --reference is one line now, not one failure per press
     if args.out and len(presses) > 1:
         raise ConfigError("--out only applies to a single press")
     if reference is not None and args.reference is None:

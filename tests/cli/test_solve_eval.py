@@ -219,6 +219,11 @@ def test_bad_arguments_are_one_line(data, capsys):
     assert "--coating-albedo" in capsys.readouterr().err
     assert main(["solve", "--roi", "auto"]) == 2
     assert "press folder is missing" in capsys.readouterr().err
+    # a --reference that is not there: one line before any solving (was a failure line per press, exit 1)
+    assert main(["solve", str(root), "--reference", str(root / "nothing"), "--no-progress"]) == 2
+    out, err = capsys.readouterr()
+    assert err.strip() == f"nlips solve: error: {root / 'nothing'}: not a press folder (no such directory)"
+    assert "failed" not in out and not (root / "press_a" / "nlips").exists()
 
 
 def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_said(data, capsys, caplog):
