@@ -43,9 +43,19 @@ fi
 PY=${PYTHON:-python3}
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 PIP=(.venv/bin/python -m pip install -q --disable-pip-version-check)
-# Pin torch to the CPU build first: an unpinned torch pulls a multi-GB CUDA build. The project itself
-# only asks for a range (torch>=2.2,<3), which this satisfies, so nothing more is downloaded.
-.venv/bin/python -c "import torch" 2>/dev/null || "${PIP[@]}" "torch==2.13.0"
+# Install torch's CPU build first, from PyTorch's CPU index: PyPI's Linux torch wheels are CUDA builds
+# (several GB of nvidia-* packages), whatever the version pin. The project itself only asks for a range
+# (torch>=2.2,<3), which this satisfies, so nothing more is downloaded. Offline, pip's own find-links and
+# extra indexes still serve it (after a few retry warnings); where pip cannot get it that way (a mirror set
+# as its index), the configured index is asked for the same version.
+TORCH_CPU_INDEX=https://download.pytorch.org/whl/cpu
+if ! .venv/bin/python -c "import torch" 2>/dev/null; then
+  "${PIP[@]}" --index-url "$TORCH_CPU_INDEX" "torch==2.13.0" || {
+    echo "setup: warning: torch's CPU build is not reachable ($TORCH_CPU_INDEX); installing torch==2.13.0" \
+      "from pip's configured index (on Linux, PyPI's is a CUDA build of several GB)" >&2
+    "${PIP[@]}" "torch==2.13.0"
+  }
+fi
 
 # The editable install is what a second run skips: pip resolves every requirement against the index
 # (network, tens of seconds) even when nothing changes. Skipped only when the hash of pyproject.toml

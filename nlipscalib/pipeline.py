@@ -274,13 +274,14 @@ def solve_one(
 ) -> tuple[Reconstruction | None, str]:
     """:func:`solve_folder` with prepared settings; ``want_result=False`` skips loading a reused result;
     ``wait``: as in :func:`solve_presses` (a press being solved by another process is waited for)."""
-    from .report import figure_level
+    from .report import figure_level, figures_missing
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
     _check_fits_capture(folder, settings)  # before anything is said about an earlier result
     out = reconstruction_dir(folder, out)
     provenance = make_provenance(folder, settings)
-    if not overwrite and not _leftovers(out):  # leftovers are cleaned under the claim, below
+    # leftovers are cleaned, and figures a reused result lacks are drawn, under the claim, below
+    if not overwrite and not _leftovers(out) and not figures_missing(out, figures):
         reused = _reuse(out, provenance, want_result, quiet=True, announce=announce_reuse)
         if reused is not None:
             return reused
@@ -292,12 +293,28 @@ def solve_one(
                 if not overwrite:  # the result may have appeared while we waited for the claim
                     reused = _reuse(out, provenance, want_result, quiet=False, announce=announce_reuse)
                     if reused is not None:
+                        _write_missing_figures(folder, out, reused[0], figures)
                         return reused
                 return _solve_and_save(folder, out, settings, provenance, progress, figures), SOLVED
         if not wait:
             log.info("%s: being solved by another process, skipped", folder)
             return None, SKIPPED
         _wait_for_release(folder, out)  # then claimed here: its result reused when made with these settings
+
+
+def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | None, figures) -> None:
+    """Give a reused result the figures this run asks for that the run which made it did not write
+    (``--no-figures`` then, ``--figures full`` now): drawing them takes milliseconds, re-solving seconds.
+    Called under the result's claim, so no other process replaces the folder meanwhile."""
+    from .core.capture import load_press
+    from .report import figures_missing, write_reconstruction_figures
+
+    if not figures_missing(out, figures):
+        return
+    if result is None:
+        result = load_reconstruction(out)
+    write_reconstruction_figures(out, result, load_press(folder).ground_truth, figures)
+    log.info("%s: figures (%s) added to the existing result", out, figures)
 
 
 def _wait_for_release(folder: Path, out: Path) -> None:

@@ -46,8 +46,12 @@ def checkout(tmp_path):
     _exe(
         bin_dir / "python",
         f"""#!/usr/bin/env bash
-if [ "$1" = "-m" ] && [ "$2" = "pip" ]; then echo "pip $*" >>"{log}"; exit 0; fi
-if [ "$1" = "-c" ] && [ "$2" = "import torch" ]; then exit 0; fi  # seconds per run, and not under test
+if [ "$1" = "-m" ] && [ "$2" = "pip" ]; then
+  echo "pip $*" >>"{log}"
+  case "$*" in *--index-url*) [ -e "{tmp_path}/cpu-index-down" ] && exit 1;; esac
+  exit 0
+fi
+if [ "$1" = "-c" ] && [ "$2" = "import torch" ]; then [ -e "{tmp_path}/no-torch" ] && exit 1; exit 0; fi
 PYTHONPATH="{repo}" exec "{sys.executable}" "$@"
 """,
     )
@@ -126,3 +130,30 @@ def test_unknown_argument_is_one_line_and_non_zero(checkout):
     res = _setup(repo, stubs, "--frobnicate")
     assert res.returncode == 2 and res.stderr.strip().count("\n") == 0 and "--frobnicate" in res.stderr
     assert _installs(log) == 0
+
+
+def test_torch_comes_from_the_cpu_index_not_pypis_cuda_build(checkout):
+    """A venv without torch gets PyTorch's CPU build: a plain `pip install torch==X` takes PyPI's Linux
+    wheel, a CUDA build with several GB of nvidia-* packages (the README promises none)."""
+    repo, log, stubs = checkout
+    (repo.parent / "no-torch").touch()
+    assert _setup(repo, stubs).returncode == 0
+    torch_calls = [line for line in log.read_text().splitlines() if "torch==" in line]
+    assert len(torch_calls) == 1
+    assert "--index-url https://download.pytorch.org/whl/cpu" in torch_calls[0]
+    (repo.parent / "no-torch").unlink()
+    assert _setup(repo, stubs).returncode == 0
+    assert sum("torch==" in line for line in log.read_text().splitlines()) == 1  # installed: not asked again
+
+
+def test_torch_falls_back_to_the_configured_index_when_the_cpu_index_fails(checkout):
+    """Where pip cannot reach PyTorch's index nor find the wheel locally (a mirror set as its index), setup.sh
+    still installs: the same version from the configured index, with a warning that says what that costs."""
+    repo, log, stubs = checkout
+    (repo.parent / "no-torch").touch()
+    (repo.parent / "cpu-index-down").touch()
+    res = _setup(repo, stubs)
+    assert res.returncode == 0, res.stderr
+    torch_calls = [line for line in log.read_text().splitlines() if "torch==" in line]
+    assert len(torch_calls) == 2 and "--index-url" in torch_calls[0] and "--index-url" not in torch_calls[1]
+    assert "setup: warning: torch's CPU build is not reachable" in res.stderr

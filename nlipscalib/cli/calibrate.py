@@ -4,11 +4,24 @@ from __future__ import annotations
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("calibrate-leds", help="estimate LED Psi, mu, n_s, x_s from undeformed-dome captures")
+    p = subparsers.add_parser(
+        "calibrate-leds",
+        help="estimate LED Psi, mu, n_s, x_s from undeformed-dome captures",
+        description="LED self-calibration: each LED's intensity Psi (per colour), emission exponent mu, axis n_s "
+        "and position x_s, fitted to captures of the undeformed dome (its known shape, reference.npz) minus the "
+        "dome's own interreflection where they show it, written as an LED file (docs/formats.md) for "
+        "`nlips solve --leds FILE`. Prints the LEDs with their 1-sigma uncertainties and how well the fit explains "
+        "the images; warns when it is unreliable (render the reference at 16 spp or more, or average more frames).",
+    )
     p.add_argument("presses", nargs="+", help="press folders of the undeformed dome (with reference.npz)")
     p.add_argument("--out", required=True, help="LED JSON file to write (use with `nlips solve --leds FILE`)")
     p.add_argument("--stride", type=int, default=2, help="use every N-th pixel (default 2)")
-    p.add_argument("--loss", default="cauchy", choices=("cauchy", "soft_l1", "huber", "linear"))
+    p.add_argument(
+        "--loss",
+        default="cauchy",
+        choices=("cauchy", "soft_l1", "huber", "linear"),
+        help="robust loss of the least-squares fit (default cauchy; linear: plain least squares)",
+    )
     p.add_argument(
         "--interreflection",
         choices=("auto", "on", "off"),
@@ -24,7 +37,8 @@ def register(subparsers) -> None:
         default=0.0,
         metavar="MM",
         help="diameter of each LED's light-emitting area, mm (WS2812B: 3.6): also fit the LEDs as such disks, "
-        "the physical LEDs to compare with the CAD (written as 'emitters'; the solver keeps the point LEDs)",
+        "the physical LEDs to compare with the CAD (written as 'emitters'; the solver keeps the point LEDs); "
+        "default 0: point LEDs only",
     )
     p.add_argument(
         "--coating-reflectance",
@@ -97,5 +111,6 @@ def run(args) -> int:
     )
     # the warnings were logged while calibrating, above the table: say so where the user looks last
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
-    print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {cal.albedo}){seen}")
+    albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
+    print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
     return 0

@@ -9,6 +9,10 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "calibrate-camera",
         help="camera intrinsics and distortion (fisheye or standard) from checkerboard images -> camera JSON",
+        description="Calibrate the sensor's camera from images of a printed checkerboard (or a ChArUco board, "
+        "--charuco, whose partial views count) held at several tilts: writes the camera JSON (docs/formats.md) "
+        "that `nlips capture --camera-calibration` puts into every press. Prints the reprojection error and warns "
+        "when it is high or when the views do not pin the camera down.",
     )
     p.add_argument("images", nargs="+", help="checkerboard images, or folders of them")
     p.add_argument(
@@ -66,7 +70,8 @@ def run(args) -> int:
         print(f"{name}: board not found (skipped)")
     c = cal.camera
     print(
-        f"{c.model} camera {c.width}x{c.height}: fx {c.fx:.2f} fy {c.fy:.2f} cx {c.cx:.2f} cy {c.cy:.2f} dist {c.dist}"
+        f"{c.model} camera {c.width}x{c.height}: fx {c.fx:.2f} fy {c.fy:.2f} cx {c.cx:.2f} cy {c.cy:.2f} "
+        f"dist {', '.join(f'{d:.4g}' for d in c.dist)}"  # every digit is in the JSON file
     )
     print(f"reprojection error (RMS over {len(cal.used)} views): {cal.rms_px:.3f} px")
     if cal.rms_px > HIGH_RMS_PX:

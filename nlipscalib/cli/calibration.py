@@ -32,9 +32,21 @@ def register(subparsers) -> None:
     p.add_argument(
         "--workers", type=int, default=0, help="solver processes (default 0: one per core this process may use)"
     )
-    p.add_argument("--min-confidence", type=float, default=0.5, help="leave out NLiPs pixels below this confidence")
-    p.add_argument("--min-leds", type=int, default=4, help="leave out NLiPs pixels lit by fewer usable LEDs")
-    p.add_argument("--rest-per-cell", type=int, default=24, help="undeformed samples per image cell (8x8 cells)")
+    p.add_argument(
+        "--min-confidence",
+        type=float,
+        default=0.5,
+        help="leave out NLiPs pixels below this confidence, 0-1 (default %(default)s)",
+    )
+    p.add_argument(
+        "--min-leds", type=int, default=4, help="leave out NLiPs pixels lit by fewer usable LEDs (default %(default)s)"
+    )
+    p.add_argument(
+        "--rest-per-cell",
+        type=int,
+        default=24,
+        help="undeformed samples per image cell, 8x8 cells (default %(default)s)",
+    )
     p.add_argument(
         "--smoothing",
         type=float,

@@ -21,7 +21,9 @@ def register(sub) -> None:
         description=__doc__,
     )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    p.add_argument("--spec", default=str(DEMO_SPEC), help="dataset spec to render (default: the demo spec)")
+    p.add_argument(
+        "--spec", default=str(DEMO_SPEC), help="dataset spec to render (default: the shipped scenes/datasets/demo.toml)"
+    )
     p.add_argument("--workers", type=int, default=1, help="render processes (default 1: all cores to one)")
     p.add_argument("--no-solve", action="store_true", help="only render and show the ground truth")
     p.add_argument("--no-figures", action="store_true", help="no per-press figure maps next to the results")

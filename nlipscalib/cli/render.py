@@ -7,7 +7,15 @@ DEFAULT_PRESS = {"indenter": "sphere", "polar_deg": 20.0, "azimuth_deg": 0.0, "s
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("render", help="render one press of the digital twin into a press folder")
+    p = subparsers.add_parser(
+        "render",
+        help="render one press of the digital twin into a press folder",
+        description="Render one press (or, with --undeformed, the undeformed dome) of a scene with the digital "
+        "twin into a press folder (docs/formats.md): the dark frame, one image per LED, the tri-colour image and "
+        "the per-pixel ground truth. Press options not typed come from --press-file, else from the default press "
+        "(a 6 mm sphere 1 mm deep at polar 20 deg, azimuth 0); render and image options not typed come from the "
+        "scene file (nlipstac: 640x480, 4 spp, direct light). Re-running with the same options does nothing.",
+    )
     p.add_argument("--scene", default=None, help="scene file or shipped scene name (default: nlipstac)")
     p.add_argument(
         "--indenter",
@@ -27,24 +35,39 @@ def register(subparsers) -> None:
         help="STL/OBJ/PLY file of your own indenter (implies --indenter mesh; in millimetres, scaled to --size "
         "unless the press file sets scale_to_size = false)",
     )
-    p.add_argument("--polar", type=float, default=None, help="press direction from the apex, degrees")
-    p.add_argument("--azimuth", type=float, default=None, help="press direction around the axis, degrees")
-    p.add_argument("--spin", type=float, default=None, help="indenter rotation about the press axis, degrees")
-    p.add_argument("--depth", type=float, default=None, help="indentation depth, mm")
+    p.add_argument("--polar", type=float, default=None, help="press direction from the apex, degrees (default 20)")
+    p.add_argument("--azimuth", type=float, default=None, help="press direction around the axis, degrees (default 0)")
+    p.add_argument(
+        "--spin", type=float, default=None, help="indenter rotation about the press axis, degrees (default 0)"
+    )
+    p.add_argument("--depth", type=float, default=None, help="indentation depth, mm (default 1)")
     p.add_argument("--press-file", default=None, help="TOML/YAML press spec (indenter, polar_deg, ...)")
     p.add_argument("--undeformed", action="store_true", help="render the undeformed dome (LED calibration)")
-    p.add_argument("--spp", type=int, default=None, help="samples per pixel")
-    p.add_argument("--bounces", type=int, default=None, help="interreflection bounces (0 = direct light)")
-    p.add_argument("--variant", default=None, help="auto, llvm_ad_rgb, scalar_rgb or cuda_ad_rgb")
-    p.add_argument("--threads", type=int, default=None, help="render threads (0 = all cores)")
+    p.add_argument(
+        "--spp", type=int, default=None, help="samples per pixel (default: the scene's [render] spp; nlipstac 4)"
+    )
+    p.add_argument(
+        "--bounces",
+        type=int,
+        default=None,
+        help="interreflection bounces, 0 = direct light (default: the scene's; nlipstac 0)",
+    )
+    p.add_argument(
+        "--variant",
+        default=None,
+        help="Mitsuba variant: auto, llvm_ad_rgb, scalar_rgb or cuda_ad_rgb (default: the scene's; nlipstac auto)",
+    )
+    p.add_argument(
+        "--threads", type=int, default=None, help="render threads, 0 = all cores (default: the scene's; nlipstac 0)"
+    )
     p.add_argument(
         "--seed",
         type=int,
         default=None,
         help="render and noise seed (default: derived from the scene seed and the press)",
     )
-    p.add_argument("--width", type=int, default=None, help="image width, pixels")
-    p.add_argument("--height", type=int, default=None, help="image height, pixels")
+    p.add_argument("--width", type=int, default=None, help="image width, pixels (default: the scene's; nlipstac 640)")
+    p.add_argument("--height", type=int, default=None, help="image height, pixels (default: the scene's; nlipstac 480)")
     p.add_argument("--out", required=True, help="press folder to write")
     p.add_argument("--overwrite", action="store_true", help="replace an existing press folder")
     p.set_defaults(func=run)

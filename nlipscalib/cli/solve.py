@@ -9,9 +9,21 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("solve", help="reconstruct depth/normals of a press with near-light photometric stereo")
+    p = subparsers.add_parser(
+        "solve",
+        help="reconstruct depth/normals of a press with near-light photometric stereo",
+        description="NLiPs: the normals, depth and albedo of a press (or of every press of a folder, whose "
+        "reference/ is then the undeformed dome) from its LED images, written to PRESS/nlips/ (docs/formats.md) "
+        "with PNG maps. A result made with the same settings and inputs is kept (the log says so); other "
+        "options, LEDs, ROI or reference re-solve it (the log says what changed). Score it with `nlips eval`.",
+    )
     p.add_argument("press", nargs="?", help="press folder, or a folder of press folders")
-    p.add_argument("--roi", nargs="+", metavar="V", help="x0 y0 w h (pixels) or 'auto' (around the contact)")
+    p.add_argument(
+        "--roi",
+        nargs="+",
+        metavar="V",
+        help="x0 y0 w h (pixels, as 4 values or x0,y0,w,h) or 'auto' (around the contact); default: the whole gel",
+    )
     p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
     p.add_argument(
         "--reference",
@@ -43,7 +55,12 @@ def register(subparsers) -> None:
         metavar="A",
         help="override the coating's reflectance (0-1]; default: fitted from the data",
     )
-    p.add_argument("--backend", choices=("numpy", "torch"), default="numpy")
+    p.add_argument(
+        "--backend",
+        choices=("numpy", "torch"),
+        default="numpy",
+        help="array library of the solver: numpy (default) or torch (the same equations, on a GPU when present)",
+    )
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
@@ -69,10 +86,11 @@ def parse_roi(values):
 
     if not values:
         return None
-    if values == ["auto"]:
+    parts = " ".join(values).replace(",", " ").split()  # "2 3 40 30", "2,3,40,30" and "2, 3, 40, 30" alike
+    if parts == ["auto"]:
         return "auto"
     try:
-        roi = tuple(int(v) for v in values)
+        roi = tuple(int(v) for v in parts)
     except ValueError:
         roi = ()
     if len(roi) != 4:
@@ -82,7 +100,7 @@ def parse_roi(values):
 
 def run(args) -> int:
     from ..config import from_mapping, read_config_file
-    from ..core.capture import split_reference
+    from ..core.capture import read_meta, split_reference
     from ..errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..solver import SolverOptions
@@ -94,6 +112,8 @@ def run(args) -> int:
     presses, reference = split_reference(args.press, args.reference)
     if not presses:
         raise ConfigError(f"{args.press}: no press folders found")
+    if reference is not None:
+        read_meta(reference)  # a missing or broken --reference is one line now, not one failure per press
     if args.out and len(presses) > 1:
         raise ConfigError("--out only applies to a single press")
     if reference is not None and args.reference is None:

@@ -8,7 +8,7 @@ panels, contact sheets), ``maps`` the cheap OpenCV maps (normal, scalar with col
 
 from .figures import Panel, contact_sheet, display_image, normals_to_rgb
 from .maps import normal_map_png, scalar_map_png
-from .reconstruction import FIGURE_LEVELS, error_map, figure_level, write_reconstruction_figures
+from .reconstruction import FIGURE_LEVELS, error_map, figure_level, figures_missing, write_reconstruction_figures
 
 __all__ = [
     "FIGURE_LEVELS",
@@ -17,6 +17,7 @@ __all__ = [
     "display_image",
     "error_map",
     "figure_level",
+    "figures_missing",
     "normal_map_png",
     "normals_to_rgb",
     "scalar_map_png",

@@ -22,6 +22,8 @@ FIGURE_LEVELS = ("none", "maps", "full")
 """Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""
 ERROR_RANGE_DEG = (0.0, 10.0)
 """Colour range of angular error maps, degrees: the same in every figure so they compare."""
+NORMALS_PNG, SUMMARY_PNG = "normals.png", "summary.png"
+"""The normal map (written at every level but "none") and the "full" level's summary sheet."""
 
 
 def figure_level(figures) -> str:
@@ -35,6 +37,18 @@ def figure_level(figures) -> str:
 
         raise ConfigError(f"figures must be one of {FIGURE_LEVELS} (or True/False), got {figures!r}")
     return figures
+
+
+def figures_missing(folder: str | Path, level) -> bool:
+    """True when ``folder`` lacks figures that ``level`` writes (e.g. a result solved with --no-figures).
+
+    Parameters
+    ----------
+    folder : a reconstruction folder
+    level : "none", "maps" or "full" (or a bool)
+    """
+    needed = {"none": (), "maps": (NORMALS_PNG,), "full": (NORMALS_PNG, SUMMARY_PNG)}[figure_level(level)]
+    return any(not (Path(folder) / name).is_file() for name in needed)
 
 
 def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, level="maps") -> list[Path]:
@@ -57,7 +71,7 @@ def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, lev
     shown = rec.reconstructed[box]
     err = error_map(rec, ground_truth, box)
     jobs = [
-        (normal_map_png, folder / "normals.png", rec.normals[box], shown),
+        (normal_map_png, folder / NORMALS_PNG, rec.normals[box], shown),
         (scalar_map_png, folder / "depth.png", _masked(rec.depth[box], shown), "viridis", "mm"),
         (scalar_map_png, folder / "residual.png", _masked(rec.residual[box], shown), "magma", "lin."),
     ]
@@ -67,7 +81,7 @@ def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, lev
     with ThreadPoolExecutor(max_workers=min(len(jobs), usable_cores())) as pool:
         written = list(pool.map(lambda job: job[0](*job[1:]), jobs))
     if level == "full":
-        written.append(_summary(folder / "summary.png", rec, box, err))
+        written.append(_summary(folder / SUMMARY_PNG, rec, box, err))
     return written
 
 

@@ -267,7 +267,7 @@ def contact_box(
             note = (
                 f"--roi auto left out {int(left.sum())} misfitting pixels along the gel's edge (an effect the "
                 f"undeformed model does not have there, e.g. vignetting or the view at grazing angles); pass "
-                f"--roi X,Y,W,H to solve them too"
+                f"--roi X0 Y0 W H to solve them too"
             )
             region = inner
     rows, cols = np.nonzero(region)
@@ -287,7 +287,7 @@ def contact_box(
         note = (
             f"--roi auto boxed {100 * _box_fraction(boxed, valid):.0f} % of the gel: the images differ from the "
             f"undeformed model over most of it (a press that large, or LEDs / reference that do not fit this sensor: "
-            f"try nlips calibrate-leds or --reference); pass --roi X,Y,W,H to choose the region"
+            f"try nlips calibrate-leds or --reference); pass --roi X0 Y0 W H to choose the region"
         )
     return box, note
 

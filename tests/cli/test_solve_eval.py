@@ -192,6 +192,14 @@ def test_figures_flags(data):
     press = root / "press_b"
     assert main(["solve", str(press), "--config", str(cfg), "--no-figures", "--no-progress"]) == 0
     assert not list((press / "nlips").glob("*.png"))
+    # the same settings again, now asking for figures: the result is kept and gets them (it was skipped as
+    # identical and the figures never came without --overwrite, which re-solved)
+    stamp = _stamp(press)
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    maps = {"normals.png", "depth.png", "residual.png", "error.png"}
+    assert {p.name for p in (press / "nlips").glob("*.png")} == maps
+    assert main(["solve", str(press), "--config", str(cfg), "--figures", "full", "--no-progress"]) == 0
+    assert (press / "nlips" / "summary.png").is_file() and _stamp(press) == stamp  # never re-solved
     assert main(["solve", str(press), "--config", str(cfg), "--figures", "full", "--overwrite", "--no-progress"]) == 0
     pngs = {p.name for p in (press / "nlips").glob("*.png")}
     assert pngs == {"normals.png", "depth.png", "residual.png", "error.png", "summary.png"}
@@ -211,6 +219,11 @@ def test_bad_arguments_are_one_line(data, capsys):
     assert "--coating-albedo" in capsys.readouterr().err
     assert main(["solve", "--roi", "auto"]) == 2
     assert "press folder is missing" in capsys.readouterr().err
+    # a --reference that is not there: one line before any solving (was a failure line per press, exit 1)
+    assert main(["solve", str(root), "--reference", str(root / "nothing"), "--no-progress"]) == 2
+    out, err = capsys.readouterr()
+    assert err.strip() == f"nlips solve: error: {root / 'nothing'}: not a press folder (no such directory)"
+    assert "failed" not in out and not (root / "press_a" / "nlips").exists()
 
 
 def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_said(data, capsys, caplog):
@@ -235,6 +248,9 @@ def test_the_press_may_follow_the_roi(data, capsys):
     assert json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["roi"] == "auto"
     assert main(["solve", "--roi", "2", "3", "40", "30", str(press), "--config", str(cfg), "--no-progress"]) == 0
     assert json.loads((press / "nlips" / "report.json").read_text())["roi"] == [2, 3, 40, 30]
+    # typed with commas, as `--leds 1,5,9` is (it was "--roi needs 'x0 y0 w h' or 'auto', got 2,3,40,30")
+    assert main(["solve", "--roi", "2,3,40,31", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    assert json.loads((press / "nlips" / "report.json").read_text())["roi"] == [2, 3, 40, 31]
 
 
 def test_demo_recomputes_a_damaged_cached_result(data, capsys):

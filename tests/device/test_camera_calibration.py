@@ -1,5 +1,7 @@
 """Camera calibration recovers a known fisheye camera from checkerboard views rendered with the core model."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -134,6 +136,9 @@ def test_cli_writes_the_camera_block(views, tmp_path, capsys):
     assert main(args) == 0
     text = capsys.readouterr().out
     assert "blank.png: board not found" in text and "reprojection error" in text
+    # the lens line is legible: four significant digits per coefficient, not a tuple of full float reprs
+    lens = next(line for line in text.splitlines() if line.startswith("fisheye camera"))
+    assert "dist " in lens and "(" not in lens and not re.search(r"\.\d{7}", lens), lens
     data = json.loads(out.read_text())
     assert Camera.from_dict(data["camera"]).model == "fisheye" and data["reprojection_rms_px"] < 0.1
     assert main(args[:3] + ["9x6"] + args[4:]) == 2  # wrong pattern: one clear error, no traceback

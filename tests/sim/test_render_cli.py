@@ -121,3 +121,47 @@ def test_an_edited_mesh_is_not_taken_for_its_rendered_press(tmp_path, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"nlips render: error: indenter mesh {part}: no such file"], err
+
+
+def _render_help() -> str:
+    import argparse
+
+    from nlipscalib.cli import build_parser
+
+    subs = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return " ".join(subs.choices["render"].format_help().split())
+
+
+def test_render_help_states_the_defaults_a_render_takes():
+    """`nlips render --help` states each default (it stated none for the pose, spp, bounces or image size);
+    the numbers it gives are the ones an untyped option gets."""
+    import re
+
+    from nlipscalib.cli.render import DEFAULT_PRESS
+    from nlipscalib.sim.indenters import IndenterConfig
+    from nlipscalib.sim.scene import load_scene
+
+    text = _render_help()
+
+    options = text.split("options:", 1)[1]
+
+    def stated(option: str) -> str:
+        entry = re.search(rf" {option} [A-Z_]+ (.*?)(?= --|$)", options).group(1)
+        m = re.search(r"default:? (?:the scene's(?: \[render\] \w+)?; nlipstac )?([\w.]+)", entry)
+        assert m, f"{option}: no default in `nlips render --help`: {entry}"
+        return m.group(1)
+
+    for option, key in (("--polar", "polar_deg"), ("--azimuth", "azimuth_deg"), ("--spin", "spin_deg")):
+        assert float(stated(option)) == DEFAULT_PRESS[key]
+    assert float(stated("--depth")) == DEFAULT_PRESS["depth"]
+    assert float(stated("--size")) == IndenterConfig().size
+    scene = load_scene("nlipstac")
+    for option in ("--spp", "--bounces", "--threads"):
+        assert int(stated(option)) == getattr(scene.render, option[2:])
+    assert stated("--variant") == scene.render.variant
+    assert (int(stated("--width")), int(stated("--height"))) == (scene.camera.width, scene.camera.height)
+    pose = DEFAULT_PRESS
+    assert f"polar {pose['polar_deg']:g} deg, azimuth {pose['azimuth_deg']:g}" in text
+    assert f"{IndenterConfig().size:g} mm {pose['indenter']} {pose['depth']:g} mm deep" in text
+    r = scene.render
+    assert f"nlipstac: {scene.camera.width}x{scene.camera.height}, {r.spp} spp, direct light" in text and r.bounces == 0

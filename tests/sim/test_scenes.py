@@ -37,3 +37,5 @@ def test_a_scene_name_that_is_neither_a_file_nor_shipped_says_so_and_lists_the_s
         load_scene("nowhere")
     assert str(err.value).startswith("scene 'nowhere': no such scene file, nor a shipped scene (")
     assert "fingertip" in str(err.value) and "nlipstac" in str(err.value)
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_scene("missing.toml")  # a file name keeps its message

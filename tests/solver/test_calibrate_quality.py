@@ -8,6 +8,7 @@ CI-sized renders of the default twin's undeformed dome (160x120, the sensor's no
 
 import json
 import logging
+import re
 
 import numpy as np
 import pytest
@@ -76,7 +77,12 @@ def test_calibrate_leds_command_warns_about_an_unused_reflectance(captures, tmp_
         assert main([*argv, "--coating-reflectance", "0.8"]) == 0
     (note,) = json.loads(out.read_text())["warnings"]
     assert "not used" in note and note in caplog.text
-    assert "1 warning(s) above, also in the file" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "1 warning(s) above, also in the file" in printed
+    # the summary's albedo is legible (it printed Python's full float reprs, 103.04731814227624)
+    written = next(line for line in printed.splitlines() if line.startswith("written "))
+    assert re.search(r"albedo \d+(\.\d+)?, \d+(\.\d+)?, \d+(\.\d+)?\)", written), written
+    assert not re.search(r"\.\d{7}", written), written
 
 
 def test_a_good_capture_calibrates_without_a_quality_warning(captures):

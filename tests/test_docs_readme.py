@@ -1,0 +1,63 @@
+"""README.md: every `nlips` command its code blocks show is one the command line takes, as typed.
+
+A renamed option, a removed choice or a subcommand the README invents would otherwise reach a new user as
+"nlips solve: error: unrecognized arguments" on the first copy and paste.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+
+from nlipscalib.cli import build_parser
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def readme_commands(text: str) -> list[str]:
+    """Every `nlips ...` command of the bash code blocks, comments cut off, `&&` chains split."""
+    commands = []
+    for block in re.findall(r"```bash\n(.*?)```", text, re.S):
+        for line in block.splitlines():
+            line = re.split(r"\s#", line, maxsplit=1)[0]
+            for part in line.split("&&"):
+                words = shlex.split(part)
+                if words and Path(words[0]).name == "nlips":
+                    commands.append(" ".join(words))
+    return commands
+
+
+def parse_problem(command: str) -> str | None:
+    """argparse's complaint about ``command`` (an `nlips ...` line), or None when it parses."""
+    err = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+            build_parser().parse_args(shlex.split(command)[1:])
+    except SystemExit as exc:
+        if exc.code:
+            return err.getvalue().strip().splitlines()[-1]
+    return None
+
+
+def test_every_readme_command_parses():
+    commands = readme_commands(README.read_text())
+    assert len(commands) > 40  # the blocks were read (a format change would otherwise pass silently)
+    subcommands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
+    assert {c.split()[1] for c in commands} >= set(subcommands)  # every subcommand is shown
+    problems = {c: parse_problem(c) for c in commands}
+    assert {c: p for c, p in problems.items() if p} == {}
+
+
+@pytest.mark.parametrize(
+    "line",
+    ["nlips solve out/press --roi-auto", "nlips solve out/press --interreflection maybe", "nlips frobnicate out/x"],
+)
+def test_a_command_the_cli_refuses_is_caught(line):
+    (command,) = readme_commands(f"```bash\n{line}   # a comment\n```")
+    assert parse_problem(command)
