@@ -46,11 +46,12 @@ PIP=(.venv/bin/python -m pip install -q --disable-pip-version-check)
 # Install torch's CPU build first, from PyTorch's CPU index: PyPI's Linux torch wheels are CUDA builds
 # (several GB of nvidia-* packages), whatever the version pin. The project itself only asks for a range
 # (torch>=2.2,<3), which this satisfies, so nothing more is downloaded. Offline, pip's own find-links and
-# extra indexes still serve it (after a few retry warnings); where pip cannot get it that way (a mirror set
+# extra indexes still serve it (after a retry warning); where pip cannot get it that way (a mirror set
 # as its index), the configured index is asked for the same version.
 TORCH_CPU_INDEX=https://download.pytorch.org/whl/cpu
 if ! .venv/bin/python -c "import torch" 2>/dev/null; then
-  "${PIP[@]}" --index-url "$TORCH_CPU_INDEX" "torch==2.13.0" || {
+  # bounded: where that index cannot be reached, pip's default (5 retries of up to PIP_DEFAULT_TIMEOUT) can wait minutes
+  "${PIP[@]}" --retries 1 --timeout 30 --index-url "$TORCH_CPU_INDEX" "torch==2.13.0" || {
     echo "setup: warning: torch's CPU build is not reachable ($TORCH_CPU_INDEX); installing torch==2.13.0" \
       "from pip's configured index (on Linux, PyPI's is a CUDA build of several GB)" >&2
     "${PIP[@]}" "torch==2.13.0"
