@@ -15,7 +15,8 @@ import logging
 from pathlib import Path
 
 log = logging.getLogger(__name__)
-MAKES = {"nlips": "`nlips solve PATH`", "nlipsnet": "`nlips infer MODEL.pt PATH`"}
+MAKES = {"nlips": "`nlips solve {path}`", "nlipsnet": "`nlips infer MODEL.pt {path}`"}
+"""How a user makes a result of each method, for the folder the user gave (``{path}``)."""
 """The command that writes each method's result, for the "no result yet" errors."""
 
 
@@ -66,7 +67,9 @@ def run(args) -> int:
         else:
             rows.append((folder.name, _scores(folder, rec)[args.region]))
     if not rows and not damaged:
-        raise CaptureError(f"{args.path}: no press has a {method} result yet (run {MAKES[method]} first)")
+        raise CaptureError(
+            f"{args.path}: no press has a {method} result yet (run {MAKES[method].format(path=args.path)} first)"
+        )
     _print(rows, args.result or f"PRESS/{method}")
     if unsolved:
         print(f"not solved, skipped: {', '.join(unsolved)}")
@@ -192,7 +195,7 @@ def _load(folder: Path, method: str, single: bool, out=None):
     out = reconstruction_dir(folder, out, method=method)
     if not has_reconstruction(out):
         if single:
-            raise CaptureError(f"{out}: no {method} result there (run {MAKES[method]} first)")
+            raise CaptureError(f"{out}: no {method} result there (run {MAKES[method].format(path=folder)} first)")
         return None
     try:
         return load_reconstruction(out)

@@ -367,7 +367,8 @@ def run(args) -> int:
         if window:
             sinks.append(WindowSink(normals_to_rgb, reference_depth))
         elif not args.save:
-            print("no display: maps are not shown; use --save DIR to keep them", file=sys.stderr)
+            why = "--no-window" if args.no_window else "no display"
+            print(f"{why}: maps are not shown; use --save DIR to keep them", file=sys.stderr)
         stats = stream(
             source,
             predict,

@@ -182,9 +182,10 @@ def test_eval_says_which_command_makes_the_missing_result(data, capsys):
     root, _ = data
     assert main(["eval", str(root / "press_a"), "--method", "nlipsnet"]) == 2
     err = capsys.readouterr().err
-    assert "`nlips infer" in err and "nlips solve" not in err
+    # the command to run names the folder given (it said `nlips infer MODEL.pt PATH`, PATH literally)
+    assert f"`nlips infer MODEL.pt {root / 'press_a'}`" in err and "nlips solve" not in err
     assert main(["eval", str(root / "press_a")]) == 2
-    assert "`nlips solve" in capsys.readouterr().err
+    assert f"`nlips solve {root / 'press_a'}`" in capsys.readouterr().err
 
 
 def test_figures_flags(data):

@@ -119,6 +119,13 @@ def test_live_names_a_predictor_that_cannot_predict(frames, tmp_path, capsys, sp
     assert not list((tmp_path / "maps").glob("frame_*"))
 
 
+def test_live_without_a_window_nor_save_says_why_nothing_is_shown(frames, capsys):
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--frames", "1"]
+    assert main([*args, "--no-window"]) == 0
+    err = capsys.readouterr().err
+    assert "--no-window: maps are not shown; use --save DIR" in err and "no display" not in err  # it said no display
+
+
 @pytest.mark.parametrize(
     "option", [("--every", "0"), ("--threads", "-1"), ("--frames", "0"), ("--frames-per-press", "0")]
 )
