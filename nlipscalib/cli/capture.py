@@ -45,6 +45,11 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "capture",
         help="capture a session of presses (undeformed reference first) from the sensor or its emulator",
+        description="Capture the undeformed reference, then each press: tri-colour, dark, one image per LED, and "
+        "the tri-colour again to detect movement (a press that moved is retaken), in the capture format the twin "
+        "writes. Prompts the operator before each press (--yes for scripts); run again after an interruption and "
+        "it continues. Real sensor: --port and --camera (fixed exposure, gain and white balance); --emulate SCENE: "
+        "the same path through the LED driver, a virtual board and a camera showing the twin's renders.",
     )
     p.add_argument("--out", required=True, help="session folder (reference/, press_0001/, ...); resumes if present")
     p.add_argument("--presses", type=int, help="presses after the reference (default 10; with --script: its presses)")

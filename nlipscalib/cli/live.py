@@ -31,7 +31,14 @@ EMULATED_SOURCE_OPTIONS = ("script", "frames_per_press", "width", "height")
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("live", help="live normal and depth maps from tri-colour frames (NLiPsNet)")
+    p = subparsers.add_parser(
+        "live",
+        help="live normal and depth maps from tri-colour frames (NLiPsNet)",
+        description="Stream tri-colour frames (a camera with the LED board lighting the tri-colour pattern, a video "
+        "or image folder, or --emulate SCENE) through NLiPsNet (--model) or your own --predictor: normals, depth "
+        "integrated on the dome, frames per second; shown in a window, and/or saved with --save. Warns when the "
+        "frames stop looking like the model's calibration.",
+    )
     p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
     p.add_argument("--predictor", help="other predictor, module:function (see `nlips live` in the README)")
     p.add_argument(

@@ -36,16 +36,23 @@ def register(subparsers) -> None:
         default=0.2,
         help="dropout after each hidden layer (paper 0.2; 0 for the small real-time variants, which it underfits)",
     )
-    p.add_argument("--labels", choices=("nlips", "true"), default="nlips", help="targets: NLiPs or true normals")
-    p.add_argument("--epochs", type=int, default=200, help="maximum epochs")
+    p.add_argument(
+        "--labels",
+        choices=("nlips", "true"),
+        default="nlips",
+        help="targets: NLiPs or true normals (default nlips; true needs presses with ground truth, e.g. the twin's)",
+    )
+    p.add_argument("--epochs", type=int, default=200, help="maximum epochs (default 200)")
     p.add_argument("--patience", type=int, help="early-stopping patience, epochs (default 8)")
     p.add_argument(  # the values are checked once, by TrainConfig
         "--schedule",
         help="learning rate: plateau (default: lowered when validation stalls) or cosine (annealed over --epochs)",
     )
-    p.add_argument("--batch-size", type=int, default=1024)
-    p.add_argument("--lr", type=float, default=2e-3)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--batch-size", type=int, default=1024, help="samples per optimiser step (default 1024)")
+    p.add_argument("--lr", type=float, default=2e-3, help="Adam's learning rate (default 0.002)")
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of the validation split, weights, batch order, dropout (default 0)"
+    )
     p.add_argument("--val-presses", help="comma-separated validation presses (default: a seeded 20%% of them)")
     p.add_argument("--exclude", help="comma-separated presses kept out of training and validation (a test set)")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop training after this long (0: no limit)")
@@ -53,7 +60,7 @@ def register(subparsers) -> None:
         "--threads", type=int, default=0, help="PyTorch CPU threads (default 0: every core this process may use)"
     )
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export (`nlips export MODEL` makes it later)")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (none either when not on a terminal)")
     p.set_defaults(func=run)
 
 

@@ -37,3 +37,26 @@ def test_nothing_typed_gets_the_defaults():
 
 def test_option_spelling():
     assert option("exposure_ms") == "--exposure-ms"
+
+
+def test_every_command_has_a_description_and_every_option_a_help_text():
+    """`nlips capture --help` and `nlips live --help` were a usage line and a list of options: what the command
+    does was nowhere."""
+    import argparse
+
+    from nlipscalib.cli import build_parser
+
+    missing = []
+
+    def walk(parser, name):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for sub, subparser in action.choices.items():
+                    if not subparser.description:
+                        missing.append(f"{name} {sub}: no description")
+                    walk(subparser, f"{name} {sub}")
+            elif not action.help and action.dest != "help":
+                missing.append(f"{name} {action.option_strings or action.dest}: no help")
+
+    walk(build_parser(), "nlips")
+    assert not missing
