@@ -180,6 +180,26 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
         _IN_PROGRESS.discard(tmp)
 
 
+@contextlib.contextmanager
+def scratch_dir(final: str | Path):
+    """A temporary folder beside ``final`` to assemble several files in, removed when the block ends.
+
+    Named as this process's temporary of ``final`` (``.tmp-NAME~host~pid~...``): a killed run's is removed by
+    the next write of ``final`` or :func:`clean_interrupted` once its owner is gone, never a live run's; and a
+    SIGTERM'd command removes its own (:func:`remove_in_progress`). Moving files out of it is the caller's.
+    """
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(final.name), dir=final.parent))
+    os.chmod(tmp, DIR_MODE)
+    _IN_PROGRESS.add(tmp)
+    try:
+        yield tmp
+    finally:
+        _IN_PROGRESS.discard(tmp)
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def remove_in_progress() -> None:
     """Remove this process's unfinished temporary folders and files (for a signal handler about to exit).
 

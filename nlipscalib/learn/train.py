@@ -12,7 +12,6 @@ one model path leave the files of one run, the last to finish, never a mix.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -20,8 +19,6 @@ import io
 import logging
 import math
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
@@ -381,24 +378,13 @@ PUBLISH_POLL_S = 0.05
 """How often a finished training checks whether another one is still publishing its files into the same place, s."""
 
 
-@contextlib.contextmanager
 def model_stage(out):
-    """A temporary folder beside the model path ``out`` to write one training's files into, removed afterwards.
+    """A temporary folder beside the model path ``out`` to write one training's files into, removed afterwards
+    (:func:`nlipscalib.core.atomic.scratch_dir`: a killed run's is removed by the next training, a SIGTERM'd
+    one removes its own). Fill it with the files of :func:`model_file_names`, then :func:`publish_model`."""
+    from ..core.atomic import scratch_dir
 
-    Named like core.atomic's temporaries of ``out`` (``.tmp-MODEL.pt~host~pid~...``), so a killed run's
-    folder is removed by the next training (:func:`_clean_interrupted_writes`) once its owner is gone, and
-    never a live run's. Fill it with the files of :func:`model_file_names`, then :func:`publish_model`.
-    """
-    from ..core.atomic import DIR_MODE, tmp_prefix
-
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=tmp_prefix(out.name), dir=out.parent))
-    os.chmod(stage, DIR_MODE)
-    try:
-        yield stage
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
+    return scratch_dir(out)
 
 
 def publish_model(stage, out) -> list[Path]:

@@ -195,6 +195,19 @@ def test_killed_writes_beside_the_model_are_removed_by_the_next_training(built, 
     assert not any(p.exists() for p in leftovers) and live.exists()
 
 
+def test_a_terminated_training_removes_its_staging_folder(tmp_path):
+    """The SIGTERM handler removes this process's temporaries (core.atomic.remove_in_progress): the staging folder
+    of a training's files is one of them (it used to stay until the next training into that place)."""
+    from nlipscalib.core import atomic
+    from nlipscalib.learn.train import model_stage
+
+    with model_stage(tmp_path / "m.pt") as stage:
+        (stage / "m.pt").write_bytes(b"half a model")
+        atomic.remove_in_progress()  # what the SIGTERM handler does before exiting
+        assert not stage.exists()
+    assert not list(tmp_path.iterdir())
+
+
 def test_damaged_and_foreign_model_files_are_one_line(built, tmp_path, capsys):
     import torch
 
