@@ -177,10 +177,13 @@ def _print_plan(name: str, size: str, exp, cfg, work: Path, options: dict) -> No
     kinds = {k: sum(t.kind == k for t in tasks) for k in ("reference", "calibration", "press")}
     solves = sum(len({str(e["solve"]) for e in t.evaluations}) for t in tasks)
     done = sum(load_result(work, t) is not None for t in tasks)
-    print(
-        f"{name} ({size}): {len(tasks)} tasks = {kinds['reference']} references + {kinds['calibration']} "
-        f"calibrations + {kinds['press']} presses ({solves} solves); {done} done in {work}"
-    )
+    counts = " + ".join(_counted(kinds[k], k) for k in ("reference", "calibration", "press"))
+    print(f"{name} ({size}): {len(tasks)} tasks = {counts} ({_counted(solves, 'solve')}); {done} done in {work}")
+
+
+def _counted(n: int, noun: str) -> str:
+    """'1 press', '3 presses'."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}{'es' if noun.endswith('s') else 's'}"
 
 
 def _options(pairs: list[str]) -> dict:

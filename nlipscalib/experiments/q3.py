@@ -55,8 +55,9 @@ class Q3(Experiment):
     name = "q3"
     title = "Q3: dome shapes"
     description = (
-        "Every shipped sensor shape (hemisphere, fingertip, oblate, capsule, flat pad), each with its LEDs "
-        "self-calibrated on its own undeformed capture, pressed with a sphere, a cube and a screw (side on). "
+        "Every shipped sensor shape (hemisphere, fingertip, oblate, capsule, flat pad), pressed with a sphere, a "
+        "cube and a screw (side on), solved with the true LEDs and with LEDs self-calibrated on the shape's own "
+        "undeformed capture (quick size: the screw and the true LEDs only). "
         "The paper reports AAE below 10° on its three dome shapes."
     )
     config_cls = Q3Config

@@ -184,6 +184,7 @@ def test_plan_counts_tasks_without_running(tmp_path, capsys):
     assert main(["experiment", "all", "--size", "full", "--plan", "--out", str(tmp_path)]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 6 and lines[0].startswith("q1 (full): 74 tasks")  # 72 presses + reference + calibration
+    assert "= 1 reference + 1 calibration + 72 presses" in lines[0]  # it said "1 references + 1 calibrations"
     assert not any(tmp_path.iterdir())  # nothing rendered or written
 
 
