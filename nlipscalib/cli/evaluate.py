@@ -16,8 +16,7 @@ from pathlib import Path
 
 log = logging.getLogger(__name__)
 MAKES = {"nlips": "`nlips solve {path}`", "nlipsnet": "`nlips infer MODEL.pt {path}`"}
-"""How a user makes a result of each method, for the folder the user gave (``{path}``)."""
-"""The command that writes each method's result, for the "no result yet" errors."""
+"""The command that writes each method's result, for the "no result yet" errors (``{path}``: the folder given)."""
 
 
 def register(subparsers) -> None:
