@@ -13,7 +13,13 @@ from __future__ import annotations
 import logging
 import sys
 
-from .live import add_source_arguments, check_output_arguments, check_source_arguments, emulate_behind_port
+from .live import (
+    add_device_arguments,
+    add_source_arguments,
+    check_output_arguments,
+    check_source_arguments,
+    emulate_behind_port,
+)
 from .options import option, typed
 
 log = logging.getLogger(__name__)
@@ -55,6 +61,7 @@ def register(subparsers) -> None:
     p.add_argument("--mesh", action="store_true", help="PLY with grid triangles (implies --ply)")
     p.add_argument("--no-depth", action="store_true", help="normals only (skip the integration)")
     p.add_argument("--threads", type=int, default=0, help="CPU threads for the network (0: all this process may use)")
+    add_device_arguments(p)
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
     p.add_argument("--every", type=int, default=1, help="stream with --out: keep every N-th frame (default 1)")
     p.set_defaults(func=run)
@@ -221,9 +228,11 @@ class _StageTimes:
         if not med:
             return "no frames"
         net = "-".join(map(str, predictor.model.hidden))
+        where = f"{predictor.backend}{'' if predictor.device is None else f' on {predictor.device}'}"
+        stages = ("upload", "compute", "download") if predictor.full_frame else ("change", "network", "integrate")
+        times = ", ".join(f"{k} {1e3 * med[k]:.1f} ms" for k in stages)
         return (
-            f"NLiPsNet {net} ({predictor.backend}), median per frame: change {1e3 * med['change']:.1f} ms, "
-            f"network {1e3 * med['network']:.1f} ms, integrate {1e3 * med['integrate']:.1f} ms = "
+            f"NLiPsNet {net} ({where}), median per frame: {times} = "
             f"{1 / med['total']:.1f} frames/s (normals{'' if no_depth else ' + depth'}); "
             f"process CPU {1e3 * cpu_s / max(frames, 1):.1f} ms/frame"
         )
@@ -272,10 +281,11 @@ def _run_stills(args) -> int:
 
     import numpy as np
 
-    from ..learn.infer import Predictor, mismatch_warning
+    from ..learn.infer import mismatch_warning
+    from .live import nlipsnet_predictor
 
     t_start = time.perf_counter()
-    predictor = Predictor(args.model, backend=args.backend, threads=args.threads, depth=not args.no_depth)
+    predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     frames = list(_frames(args.inputs))
     _check_destinations(args, frames)
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):

@@ -48,6 +48,7 @@ def register(subparsers) -> None:
         help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch)",
     )
     p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
+    add_device_arguments(p)
     add_source_arguments(p, camera_default="0")
     p.add_argument(
         "--frames",
@@ -194,16 +195,39 @@ def _design_leds(name: str) -> int:
     return len(load_scene(name).led_models())
 
 
+def add_device_arguments(p) -> None:
+    """``--device`` and ``--full-frame``, shared with ``nlips infer``."""
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="where the network runs: cpu (default) or cuda / cuda:N (PyTorch on a GPU)",
+    )
+    p.add_argument(
+        "--full-frame",
+        action="store_true",
+        help="every gel pixel through the network and depth over the whole gel, every step on --device (a GPU's "
+        "way to real time; on a CPU much slower than the default, which infers only the pixels that changed)",
+    )
+
+
 def nlipsnet_predictor(args, depth: bool = True):
-    """The NLiPsNet of ``args.model`` (``--backend``, ``--threads``) for a stream; its ``predict_stored`` maps a
-    stored frame ((H, W, 3) uint16) to a result with ``normals`` and ``depth`` (what the live sinks show)."""
+    """The NLiPsNet of ``args.model`` (``--backend``, ``--threads``, ``--device``, ``--full-frame``) for a stream;
+    its ``predict_stored`` maps a stored frame ((H, W, 3) uint16) to a result with ``normals`` and ``depth`` (what
+    the live sinks show)."""
     from ..errors import ConfigError
 
     try:
         from ..learn.infer import Predictor
     except ModuleNotFoundError:
         raise ConfigError("--model needs NLiPsNet (nlipscalib.learn.infer), which this installation lacks") from None
-    return Predictor(args.model, backend=args.backend, threads=args.threads, depth=depth)
+    return Predictor(
+        args.model,
+        backend=args.backend,
+        threads=args.threads,
+        depth=depth,
+        device=args.device,
+        full_frame=args.full_frame,
+    )
 
 
 def _nlipsnet(args):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.camera import Camera
+from ..core.camera import Camera, depth_to_points
 from ..core.tolerances import FRAME_MISMATCH_FRACTION
 from ..errors import CaptureError, ConfigError, ShapeError
 from .change import ChangeDetector
@@ -48,7 +48,8 @@ class Frame:
     changed: np.ndarray
     """(H, W) bool -- pixels that differed from the reference frame (went through the network)."""
     seconds: dict
-    """Time of each stage: change, network, integrate, total."""
+    """Time of each stage: change, network, integrate, total (the whole-frame path: upload, compute, download,
+    total)."""
     brightness: float = 1.0
     """Median brightness on the gel over the reference frame's; measured only for a frame that differs over most of
     the gel (:func:`mismatch_warning`), else 1."""
@@ -67,11 +68,24 @@ class Predictor:
         ``nlips train``)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch)
     depth : integrate depth (False: normals only)
+    device : torch device of the network ("cpu", "cuda", "cuda:N"); anything but the CPU runs the PyTorch backend
+    full_frame : every gel pixel through the network and depth over the whole gel, every step on ``device``
+        (:mod:`.fullframe`: a GPU's way to real time) instead of the changed pixels only
     """
 
-    def __init__(self, model_path, backend: str = "torch", threads: int = 0, depth: bool = True):
+    def __init__(
+        self,
+        model_path,
+        backend: str = "torch",
+        threads: int = 0,
+        depth: bool = True,
+        device: str = "cpu",
+        full_frame: bool = False,
+    ):
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
             raise ConfigError(f"threads must be an integer >= 0 (0: all cores), got {threads!r}")
+        self.device = self._device(device, backend, full_frame)
+        self.full_frame = full_frame
         self.model = load_model(model_path)
         ref = self.model.reference
         self.camera = Camera.from_dict(self.model.sensor["camera"])
@@ -85,10 +99,32 @@ class Predictor:
         self.prefilter = Prefilter(self.valid, self.model.smoothing_px)
         self.backend = backend
         self._run = self._backend(backend, threads)
+        self._full = None
+        if full_frame:
+            from .fullframe import FullFrame
+
+            self._full = FullFrame(self.model, self.device, self.geo)
         self._warm_up()
+
+    @staticmethod
+    def _device(device: str, backend: str, full_frame: bool):
+        """The torch device, or None for the CPU without the whole-frame path (no torch needed then)."""
+        if device == "cpu" and not full_frame:
+            return None
+        if backend not in ("auto", "torch"):
+            raise ConfigError(
+                f"--backend {backend} runs on the CPU alone: --device {device}"
+                f"{' and --full-frame run' if full_frame else ' runs'} the PyTorch backend (--backend torch)"
+            )
+        from .fullframe import check_device
+
+        return check_device(device)
 
     def _warm_up(self) -> None:
         """First calls import and plan (scipy.fft, the runtime's kernels): not part of any frame's time."""
+        if self._full is not None:
+            self._full.warm_up()
+            return
         self._run(np.zeros((2, 5), np.float32))
         if self.geo is not None:
             unknown = np.zeros(self.valid.shape, bool)
@@ -98,6 +134,8 @@ class Predictor:
                 integrate_on_dome(self.ref_normals, unknown, self.geo)
 
     def _backend(self, backend: str, threads: int):
+        if backend == "auto" and self.device is not None:  # a GPU or the whole-frame path: PyTorch
+            backend = self.backend = "torch"
         if backend == "auto":  # onnxruntime when the model was exported (nlips train does), else PyTorch
             backend = "onnx" if Path(self.model.path).with_suffix(".onnx").is_file() else "torch"
             self.backend = backend
@@ -113,11 +151,12 @@ class Predictor:
 
         if threads:
             torch.set_num_threads(threads)
-        net = fused_net(self.model.net)
+        device = self.device or torch.device("cpu")
+        net = fused_net(self.model.net).to(device)
 
         def run(x):
             with torch.inference_mode():
-                return net(torch.from_numpy(x)).numpy()
+                return net(torch.from_numpy(x).to(device)).cpu().numpy()
 
         return run
 
@@ -156,6 +195,8 @@ class Predictor:
         """
         if tricolor.shape != self.shape + (3,):
             raise ShapeError(f"tri-colour frame is {tricolor.shape}, the model expects {self.shape + (3,)}")
+        if self._full is not None:
+            return self._whole_frame(tricolor, stored=False)
         t0 = time.perf_counter()
         changed = self.changed(tricolor)
         t1 = time.perf_counter()
@@ -172,7 +213,7 @@ class Predictor:
             depth, points = integrate_on_dome(normals, changed, self.geo)
         else:
             depth = self.ref_depth.astype(np.float32)
-            points = (depth[..., None] / self.camera.rays[..., 2:3] * self.camera.rays).astype(np.float32)
+            points = depth_to_points(depth, self.camera.rays).astype(np.float32)
         t3 = time.perf_counter()
         seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
         frame = Frame(normals, depth, points, changed, seconds, mismatch=self.changed.mismatch)
@@ -192,7 +233,17 @@ class Predictor:
 
     def predict_stored(self, image: np.ndarray, where="frame") -> Frame:
         """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""
+        if self._full is not None and image.dtype == np.uint16 and image.shape == self.shape + (3,):
+            return self._whole_frame(image, stored=True)  # converted on the device: half the bytes to move
         return self.predict(self.linear(image, where))
+
+    def _whole_frame(self, tricolor: np.ndarray, stored: bool) -> Frame:
+        """:mod:`.fullframe`'s result as a Frame: every gel pixel went through the network ("changed")."""
+        normals, depth, points, seconds, mismatch = self._full(tricolor, stored)
+        frame = Frame(normals, depth, points, self.valid.copy(), seconds, mismatch=mismatch)
+        if frame.mismatch > FRAME_MISMATCH_FRACTION:
+            frame.brightness = self._brightness(self.linear(tricolor) if stored else tricolor)
+        return frame
 
 
 def mismatch_warning(frame: Frame, where) -> str | None:

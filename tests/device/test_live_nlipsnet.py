@@ -53,15 +53,16 @@ def test_live_streams_the_emulated_sensor_through_nlipsnet(reference, tmp_path, 
     assert len(list(maps.glob("*_normals.png"))) == 6
 
 
-def test_live_warns_once_when_frames_differ_from_the_calibration_everywhere(reference, tmp_path, capsys, caplog):
+@pytest.mark.parametrize("path", [[], ["--full-frame"]])
+def test_live_warns_once_when_frames_differ_from_the_calibration_everywhere(reference, tmp_path, capsys, caplog, path):
     """``nlips infer`` warned about frames unlike the calibration's reference over the whole gel (another exposure,
     BGR stored as RGB); ``nlips live`` showed the undeformed dome without a word. Now: once per stream, and the
-    count at the end."""
+    count at the end; the whole-frame path (torch, any device) measures the same figure."""
     import logging
 
     caplog.set_level(logging.WARNING)
     model = _untrained_model(reference, tmp_path / "net.pt", brightness=3.0)  # frames 1/3 as bright
-    assert main(["live", *ARGS, "--model", str(model), "--frames", "4", "--no-window"]) == 0
+    assert main(["live", *ARGS, "--model", str(model), "--frames", "4", "--no-window", *path]) == 0
     assert "4 frames in" in capsys.readouterr().out
     warned = [r.getMessage() for r in caplog.records if "differs from the calibration's reference" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith("emulated sensor frame 0: ") and "times as bright" in warned[0]

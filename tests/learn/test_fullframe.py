@@ -1,0 +1,176 @@
+"""Whole-frame inference in PyTorch (learn.fullframe): DST, the capacitance-matrix integration, parity with the
+changed-pixel path, and the CLI's --full-frame / --device."""
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.learn.fullframe import DomeIntegrator, dst1  # noqa: E402
+from nlipscalib.learn.infer import Predictor  # noqa: E402
+from nlipscalib.learn.integrate import RayGeometry, log_range_gradient  # noqa: E402
+
+CPU = torch.device("cpu")
+DEVICES = [
+    "cpu",
+    pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")),
+]
+
+
+def test_dst1_is_scipys_orthonormal_type_i_along_either_axis():
+    from scipy.fft import dst
+
+    x = np.random.default_rng(0).normal(size=(7, 11))
+    for axis in (0, 1):
+        got = dst1(torch.from_numpy(x), axis).numpy()
+        np.testing.assert_allclose(got, dst(x, type=1, norm="ortho", axis=axis), atol=1e-12)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_the_devices_prefilter_is_opencvs(device):
+    from nlipscalib.learn.fullframe import _GelFilter
+    from nlipscalib.learn.prefilter import Prefilter
+
+    _, on_gel, _ = _dome()
+    image = np.random.default_rng(2).uniform(0, 1, on_gel.shape + (3,)).astype(np.float32)
+    image[~on_gel] = np.nan  # off the gel: never read
+    got = _GelFilter(on_gel, 1.3, torch.device(device))(torch.from_numpy(image).to(device)).cpu().numpy()
+    want = Prefilter(on_gel, 1.3)(image)
+    np.testing.assert_allclose(got[on_gel], want[on_gel], rtol=1e-5, atol=1e-6)
+
+
+def _dome(shape=(40, 52), radius=17.0):
+    """A pinhole camera looking at a tilted, curved gel that fills a disk of the image (NaN outside)."""
+    H, W = shape
+    v, u = np.mgrid[0:H, 0:W].astype(float)
+    rays = np.stack([(u - W / 2) / 30, (v - H / 2) / 30, np.ones_like(u)], -1)
+    rays /= np.linalg.norm(rays, axis=-1, keepdims=True)
+    on_gel = np.hypot(u - W / 2 - 2, v - H / 2 + 1) < radius
+    log_range = np.log(20.0 + 0.05 * (u - W / 2) + 0.002 * (v - H / 2) ** 2)
+    depth = np.where(on_gel, np.exp(log_range) * rays[..., 2], np.nan)
+    return RayGeometry.from_reference(rays, depth), on_gel, log_range
+
+
+def _normals_of(log_range, rays):
+    """Unit normals, toward the camera, of the surface exp(log_range) * rays (central differences)."""
+    x = np.exp(log_range)[..., None] * rays
+    x_v, x_u = np.gradient(x, axis=(0, 1))
+    n = np.cross(x_u, x_v)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.where((n * rays).sum(-1, keepdims=True) > 0, -n, n)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_whole_gel_integration_is_the_exact_solution_of_the_dirichlet_problem(device):
+    """Capacitance + box DST equals a sparse direct solve of the same 5-point system on the disk."""
+    from scipy.sparse import lil_matrix
+    from scipy.sparse.linalg import spsolve
+
+    geo, on_gel, _ = _dome()
+    rng = np.random.default_rng(1)
+    normals = _normals_of(np.nan_to_num(geo.log_range), geo.rays) + rng.normal(0, 0.05, geo.rays.shape)
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    integrator = DomeIntegrator(geo, torch.device(device))
+    got = geo.log_range.copy()  # the box covers the inner pixels; the rest of the gel is the reference
+    got[integrator.box] = integrator.log_range(torch.from_numpy(normals).to(device)).cpu().numpy()
+
+    inner = on_gel.copy()
+    inner[1:-1, 1:-1] &= on_gel[:-2, 1:-1] & on_gel[2:, 1:-1] & on_gel[1:-1, :-2] & on_gel[1:-1, 2:]
+    p, q = log_range_gradient(normals, geo)
+    index = -np.ones(on_gel.shape, int)
+    index[inner] = np.arange(inner.sum())
+    A, b = lil_matrix((inner.sum(), inner.sum())), np.zeros(inner.sum())
+    for r, c in zip(*np.nonzero(inner)):
+        i = index[r, c]
+        A[i, i] = 4
+        for dr, dc, g in ((0, 1, p), (0, -1, p), (1, 0, q), (-1, 0, q)):
+            rr, cc = r + dr, c + dc
+            b[i] -= (dr + dc) * 0.5 * (g[r, c] + g[rr, cc])  # edge gradient toward the neighbour, signed
+            if index[rr, cc] >= 0:
+                A[i, index[rr, cc]] = -1
+            else:
+                b[i] += geo.log_range[rr, cc]
+    want = geo.log_range.copy()
+    want[inner] = spsolve(A.tocsr(), b)
+    assert inner.sum() > 500 and not inner.all()
+    np.testing.assert_allclose(got[on_gel], want[on_gel], atol=1e-10)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_exact_normals_of_a_known_indentation_give_its_depth(device):
+    geo, on_gel, smooth = _dome()  # normals near the rim from the surface beyond it, not from NaN
+    H, W = on_gel.shape
+    v, u = np.mgrid[0:H, 0:W]
+    dent = 0.06 * np.exp(-((u - W / 2) ** 2 + (v - H / 2) ** 2) / (2 * 4.0**2))  # 1.2 mm at 20 mm range
+    truth = geo.log_range + dent
+    normals = torch.from_numpy(_normals_of(smooth + dent, geo.rays)).to(device)
+    points = DomeIntegrator(geo, torch.device(device))(normals).cpu()
+    depth = points[..., 2]
+    true_depth = np.exp(truth) * geo.rays[..., 2]
+    change = np.abs(true_depth - geo.points[..., 2])
+    err = np.abs(depth.numpy() - true_depth)
+    assert np.nanmax(err) < 0.05 * np.nanmax(change), (np.nanmax(err), np.nanmax(change))
+    assert np.isnan(depth.numpy()[~on_gel]).all()
+
+
+def test_whole_frame_path_matches_the_changed_pixel_path_where_it_changed(trained, twin_presses):
+    press = load_press(twin_presses / "press_g")
+    frame = press.linear(press.tricolor)
+    cpu = Predictor(trained, backend="torch").predict(frame)
+    whole_predictor = Predictor(trained, full_frame=True)
+    assert whole_predictor.backend == "torch" and whole_predictor.device == CPU
+    whole = whole_predictor.predict(frame)
+    stored = whole_predictor.predict_stored(press.tricolor)
+    changed = cpu.changed
+    assert 100 < changed.sum() < whole.changed.sum() == whole_predictor.valid.sum()
+    # float32 rounding only (1e-4 of a unit vector is 0.006 deg; arccos of a float32 cosine cannot resolve it)
+    np.testing.assert_allclose(whole.normals[changed], cpu.normals[changed], atol=1e-4)
+    on_host = whole_predictor.predict(whole_predictor.linear(press.tricolor))  # the model's dark frame, on the CPU
+    np.testing.assert_allclose(stored.normals, on_host.normals, atol=1e-5)
+    assert whole.mismatch == pytest.approx(cpu.mismatch, rel=1e-4)
+    # depth of the contact: the same surface, integrated over the box or the whole gel
+    truth = press.ground_truth.depth[changed]
+    dent = np.nanmax(np.abs(truth - whole_predictor.ref_depth[changed]))
+    assert dent > 0.5
+    assert np.median(np.abs(whole.depth[changed] - cpu.depth[changed])) < 0.05 * dent
+    assert np.nanmedian(np.abs(whole.depth[changed] - truth)) < 0.1 * dent
+    assert np.isfinite(whole.points[whole_predictor.valid]).all()
+
+
+def test_infer_full_frame_from_the_command_line(trained, twin_presses, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), str(twin_presses / "press_g"), "--full-frame", "--out", str(out)]) == 0
+    line = capsys.readouterr().out
+    assert "torch" in line and "frames/s" in line, line
+    assert (out / "press_g" / "nlipsnet" / "result.npz").is_file()
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (["--device", "tpu"], "--device 'tpu'"),
+        (["--full-frame", "--backend", "onnx"], "--backend onnx runs on the CPU alone"),
+        (["--device", "cuda"], "--device cuda"),
+    ],
+)
+def test_bad_device_options_are_one_line_errors(trained, twin_presses, tmp_path, capsys, options, message):
+    if options == ["--device", "cuda"] and torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA device")
+    assert main(["infer", str(trained), str(twin_presses / "press_g"), "--out", str(tmp_path / "o"), *options]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+def test_the_gpu_gives_the_cpu_result(trained, twin_presses):
+    press = load_press(twin_presses / "press_g")
+    frame = press.linear(press.tricolor)
+    cpu = Predictor(trained, full_frame=True).predict(frame)
+    gpu = Predictor(trained, full_frame=True, device="cuda").predict(frame)
+    np.testing.assert_allclose(gpu.normals, cpu.normals, atol=2e-4)
+    np.testing.assert_allclose(gpu.depth, cpu.depth, atol=1e-4, equal_nan=True)
+    changed = Predictor(trained, device="cuda").predict(frame)
+    base = Predictor(trained, backend="torch").predict(frame)
+    np.testing.assert_allclose(changed.normals, base.normals, atol=2e-4)
