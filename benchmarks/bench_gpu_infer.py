@@ -12,13 +12,13 @@ Two steps, because the GPU machine has no renderer:
 
        python benchmarks/bench_gpu_infer.py run --model A.pt [--model B.pt] --frames frames.npz --out OUT
 
-   times, per model: the whole-frame path on the GPU (every gel pixel through the network, depth over the whole
-   gel; stored uint16 frames in, numpy results out, so uploads and downloads count), without its CUDA graph,
-   normals only, TF32
-   matrix products, and the changed-pixel path with the network on the GPU; checks the GPU against the CPU
-   (same code on both); scores each path against the truth (AAE in the contact and over the gel, depth error);
-   then the whole ``python -m nlipscalib infer MODEL 'frames/img_%04d.png' --device cuda --full-frame`` command
-   on a sequence of PNG frames (process wall, decoding included). Results: OUT/gpu_infer.json, and lines on stdout.
+   times, per model, stored uint16 frames in and numpy results out (uploads and downloads count): the GPU path
+   (``--device cuda``: the change rule, the network, the changed pixels' box integrated), normals only, without
+   its CUDA graph, with TF32 matrix products, the whole-frame variant (``--full-frame``: the network's normals on
+   every gel pixel, depth over the whole gel), and the CPU path on the same machine; checks the GPU against
+   the CPU and the graph against eager execution; scores each against the truth (AAE in the contact and over the
+   gel, depth error); then the whole ``python -m nlipscalib infer MODEL 'frames/img_%04d.png' --device cuda``
+   command on a sequence of PNG frames (process wall, decoding included). Results: OUT/gpu_infer.json, stdout.
 """
 
 from __future__ import annotations
@@ -131,45 +131,51 @@ def _bench_model(model, key, entry, stored, presses, ref_depth, args) -> None:
     from nlipscalib.learn.infer import Predictor
 
     configs = {
-        "full_frame": dict(full_frame=True, device=args.device),
-        "full_frame_normals_only": dict(full_frame=True, device=args.device, depth=False),
-        "changed_pixels_net_on_gpu": dict(device=args.device, backend="torch"),
+        "gpu": dict(device=args.device),
+        "gpu_normals_only": dict(device=args.device, depth=False),
+        "gpu_no_cuda_graph": dict(device=args.device),
+        "gpu_full_frame": dict(device=args.device, full_frame=True),
+        "gpu_full_frame_no_cuda_graph": dict(device=args.device, full_frame=True),
+        "cpu_changed_pixels": dict(backend="torch"),
     }
-    configs["full_frame_no_cuda_graph"] = configs["full_frame"]
     for name, kw in configs.items():
         pred = Predictor(model, **kw)
-        if name.endswith("no_cuda_graph"):  # the eager path: per-frame launches from Python
+        if name.endswith("no_cuda_graph") and pred._full is not None:  # eager: per-frame launches from Python
             pred._full._graphs = {(torch.uint16, True): None, (torch.float32, False): None}
-        entry[name] = _timed(pred, stored, args.repeats) | {
+        repeats = args.repeats if name != "cpu_changed_pixels" else max(args.repeats // 10, 5)
+        entry[name] = _timed(pred, stored, repeats) | {
             "scores": {n: _scores(pred, p, ref_depth) for n, p in presses.items()}
         }
         print(f"{key} {name}: {json.dumps(entry[name])}", flush=True)
     torch.backends.cuda.matmul.allow_tf32 = True
-    pred = Predictor(model, full_frame=True, device=args.device)
-    tf32 = pred.predict_stored(stored[0]).normals
-    entry["full_frame_tf32"] = _timed(pred, stored, args.repeats)
+    for name, kw in (("gpu_tf32", {}), ("gpu_full_frame_tf32", {"full_frame": True})):
+        pred = Predictor(model, device=args.device, **kw)
+        scores = {n: _scores(pred, p, ref_depth) for n, p in presses.items()}
+        entry[name] = _timed(pred, stored, args.repeats) | {"scores": scores}
+        print(f"{key} {name}: {json.dumps(entry[name])}", flush=True)
     torch.backends.cuda.matmul.allow_tf32 = False
-    fp32 = Predictor(model, full_frame=True, device=args.device).predict_stored(stored[0])
-    cpu = Predictor(model, full_frame=True, device="cpu").predict_stored(stored[0])
-    eager = Predictor(model, full_frame=True, device=args.device)
-    eager._full._graphs = {(torch.uint16, True): None}
-    eager = eager.predict_stored(stored[0])
-    valid = pred.valid
-    entry["full_frame_tf32"]["max_angle_vs_fp32_deg"] = float(_angles(tf32, fp32.normals, valid).max())
-    entry["gpu_vs_cpu"] = {
-        "max_normal_diff": float(np.abs(fp32.normals - cpu.normals).max()),
-        "max_depth_diff_mm": float(np.nanmax(np.abs(fp32.depth - cpu.depth))),
-        "graph_vs_eager_max_normal_diff": float(np.abs(fp32.normals - eager.normals).max()),
-        "graph_vs_eager_max_depth_diff_mm": float(np.nanmax(np.abs(fp32.depth - eager.depth))),
-    }
-    print(f"{key} tf32: {json.dumps(entry['full_frame_tf32'])}", flush=True)
+    entry["gpu_vs_cpu"] = {}
+    for name, kw in (("changed", {}), ("full_frame", {"full_frame": True})):
+        gpu = Predictor(model, device=args.device, **kw).predict_stored(stored[0])
+        eager_pred = Predictor(model, device=args.device, **kw)
+        if eager_pred._full is not None:
+            eager_pred._full._graphs = {(torch.uint16, True): None}
+        eager = eager_pred.predict_stored(stored[0])
+        cpu = Predictor(model, backend="torch", **kw).predict_stored(stored[0])
+        entry["gpu_vs_cpu"][name] = {
+            "changed_masks_differ_px": int((gpu.changed != cpu.changed).sum()),
+            "max_normal_diff": float(np.abs(gpu.normals - cpu.normals).max()),
+            "max_depth_diff_mm": float(np.nanmax(np.abs(gpu.depth - cpu.depth))),
+            "graph_vs_eager_max_normal_diff": float(np.abs(gpu.normals - eager.normals).max()),
+            "graph_vs_eager_max_depth_diff_mm": float(np.nanmax(np.abs(gpu.depth - eager.depth))),
+        }
     print(f"{key} gpu vs cpu: {json.dumps(entry['gpu_vs_cpu'])}", flush=True)
     entry["command"] = _command(model, stored, args)
     print(f"{key} command: {json.dumps(entry['command'])}", flush=True)
 
 
 def _command(model, stored, args) -> dict:
-    """The whole `nlips infer MODEL SEQUENCE --device cuda --full-frame` on PNG frames, timed from outside."""
+    """The whole `nlips infer MODEL SEQUENCE --device cuda` on PNG frames, timed from outside."""
     import cv2
 
     seq = Path(args.scratch) / "frames"
@@ -178,8 +184,7 @@ def _command(model, stored, args) -> dict:
         path = seq / f"img_{i:04d}.png"
         if not path.exists():
             cv2.imwrite(str(path), stored[i % len(stored)][..., ::-1])
-    cmd = [sys.executable, "-m", "nlipscalib", "infer", model, str(seq / "img_%04d.png"), "--full-frame"]
-    cmd += ["--device", args.device]
+    cmd = [sys.executable, "-m", "nlipscalib", "infer", model, str(seq / "img_%04d.png"), "--device", args.device]
     t0 = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
     wall = time.perf_counter() - t0

@@ -229,7 +229,8 @@ class _StageTimes:
             return "no frames"
         net = "-".join(map(str, predictor.model.hidden))
         where = f"{predictor.backend}{'' if predictor.device is None else f' on {predictor.device}'}"
-        stages = ("upload", "compute", "download") if predictor.full_frame else ("change", "network", "integrate")
+        # the stages each path times: the CPU path's, or the device path's (learn.fullframe: one recorded graph)
+        stages = ("upload", "compute", "download") if "upload" in med else ("change", "network", "integrate")
         times = ", ".join(f"{k} {1e3 * med[k]:.1f} ms" for k in stages)
         return (
             f"NLiPsNet {net} ({where}), median per frame: {times} = "

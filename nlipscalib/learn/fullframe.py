@@ -1,10 +1,13 @@
-"""Whole-frame inference in PyTorch, on any device: every gel pixel through NLiPsNet, depth over the whole gel.
+"""NLiPsNet inference in PyTorch with every step on one device (a GPU's way to real time), depth over the whole gel.
 
-The CPU path (:mod:`.infer`) sends only the pixels that changed through the network and integrates
-their bounding box; on a GPU the whole frame is cheaper than deciding what changed, so this path
-runs every step on the device: the tri-colour frame's linearisation, the model's Gaussian prefilter
-(:mod:`.prefilter`'s normalised filter, with OpenCV's kernel), the network on every gel pixel, and
-the integration of the normals over the whole gel.
+The CPU path (:mod:`.infer`) gathers the pixels that changed, sends only them through the network
+and integrates their bounding box: shapes that change every frame. On a GPU fixed shapes are
+cheaper, and they let the whole frame's work be recorded once as a CUDA graph and replayed, so this
+path runs every step on the device with the shapes of the sensor: the tri-colour frame's
+linearisation, the model's Gaussian prefilter (:mod:`.prefilter`'s normalised filter, OpenCV's
+kernel), the network on every gel pixel, the change rule of :mod:`.change` (the same operations),
+the reference normals kept where nothing changed (as on the CPU path; ``keep_reference=False``
+keeps the network's everywhere), and the integration of the normals over the whole gel.
 
 The integration solves the same equation as :mod:`.integrate` (5-point Poisson in the log-range
 along the camera's real rays, gradients averaged on each pixel pair) on every gel pixel whose four
@@ -21,13 +24,14 @@ cores at 640x480). A gel that fills the image needs one box solve and no set-up.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
 import numpy as np
 
 from ..errors import ConfigError, ShapeError, require
-from .integrate import MIN_FACING, RayGeometry
+from .integrate import MIN_FACING, RayGeometry, _box, box_eigenvalues, box_rhs
 from .prefilter import kernel_radius
 
 SETUP_BATCH_BYTES = 1 << 29
@@ -77,14 +81,45 @@ class BoxPoisson:
     """Solver of the 5-point Dirichlet Laplacian (4 x_i - sum of neighbours = f) on an (m, n) box, zero outside."""
 
     def __init__(self, m: int, n: int, device, dtype):
-        torch = _torch()
-        i = torch.arange(1, m + 1, dtype=dtype, device=device)
-        j = torch.arange(1, n + 1, dtype=dtype, device=device)
-        self.lam = (2 - 2 * torch.cos(math.pi * i / (m + 1)))[:, None] + (2 - 2 * torch.cos(math.pi * j / (n + 1)))
+        self.lam = _torch().as_tensor(box_eigenvalues(m, n), dtype=dtype, device=device)
 
     def __call__(self, f):
         """x with L x = f; ``f`` is (..., m, n)."""
         return dst1(dst1(dst1(dst1(f, -2), -1) / self.lam, -2), -1)
+
+
+class BoxIntegrator:
+    """:mod:`.integrate`'s box solver on a torch device: the changed pixels' box (grown to fast transform sizes,
+    :func:`.integrate._box`), its interior solved with the outer ring at the reference, in float32 like the CPU's.
+
+    Parameters
+    ----------
+    geo : RayGeometry of the sensor
+    device : torch device
+    """
+
+    def __init__(self, geo: RayGeometry, device):
+        torch = _torch()
+        self.on_gel = np.isfinite(geo.log_range)
+        self.log_range = torch.as_tensor(geo.log_range.astype(np.float32), device=device)
+        self.rays, self.d_u, self.d_v = (torch.as_tensor(a, device=device) for a in (geo.rays32, geo.d_u32, geo.d_v32))
+        self.device = device
+
+    def box(self, changed: np.ndarray):
+        """The box for ``changed`` ((H, W) bool on the gel), or None when it leaves the gel or touches the border."""
+        return _box(changed, self.on_gel)
+
+    def __call__(self, normals, box):
+        """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor)."""
+        torch = _torch()
+        x = self.log_range[box].clone()
+        f = box_rhs(normals[box], self.rays[box], self.d_u[box], self.d_v[box], x)
+        x[1:-1, 1:-1] = self._solver(*f.shape)(f)
+        return torch.exp(x)[..., None] * self.rays[box]
+
+    @functools.lru_cache(maxsize=32)  # noqa: B019 -- one per box size; the instance lives as long as the model
+    def _solver(self, m: int, n: int) -> BoxPoisson:
+        return BoxPoisson(m, n, self.device, _torch().float32)
 
 
 class DomeIntegrator:
@@ -184,9 +219,11 @@ class FullFrame:
     model : LoadedModel (``learn.model.load_model``)
     device : torch device
     geo : RayGeometry of the sensor, or None for normals only (the reference depth and points)
+    keep_reference : pixels the change rule finds unchanged keep the reference normals, as on the CPU path;
+        False: the network's normals on every gel pixel
     """
 
-    def __init__(self, model, device, geo: RayGeometry | None):
+    def __init__(self, model, device, geo: RayGeometry | None, keep_reference: bool = True):
         from ..core.camera import Camera, depth_to_points
         from .model import fused_net
 
@@ -204,10 +241,16 @@ class FullFrame:
         self.x = torch.as_tensor(np.stack([col, row], 1).astype(np.float32), device=device)  # u = column, v = row
         self.net = fused_net(model.net).to(device)
         self.filter = _GelFilter(valid, model.smoothing_px, device)
+        # the whole gel (every pixel's normal from the network, or a change that reaches the image border) and the
+        # changed pixels' box (the reference elsewhere, as on the CPU path)
         self.integrator = DomeIntegrator(geo, device) if geo is not None else None
-        points = depth_to_points(ref["depth"].astype(np.float32), camera.rays)
-        self.ref_points = torch.as_tensor(points.astype(np.float32), device=device)
-        self.mismatch = _Mismatch(ref["tricolor"].astype(np.float32), valid, device)
+        self.box_integrator = BoxIntegrator(geo, device) if geo is not None and keep_reference else None
+        self.ref_points_host = depth_to_points(ref["depth"].astype(np.float32), camera.rays).astype(np.float32)
+        self.ref_points = torch.as_tensor(self.ref_points_host, device=device)
+        self.change = _ChangeRule(ref["tricolor"].astype(np.float32), valid, device)
+        self.keep_reference = keep_reference
+        ref_normals = np.where(valid[..., None], ref["normals"], 0).astype(np.float32)
+        self.ref_normals = torch.as_tensor(ref_normals, device=device)
         self._graphs: dict = {}
 
     def warm_up(self) -> None:
@@ -218,10 +261,13 @@ class FullFrame:
             self(linear.astype(np.uint16), stored=True)
 
     def __call__(self, tricolor: np.ndarray, stored: bool = False):
-        """normals, depth, points (numpy, as :class:`.infer.Frame` holds them), stage seconds, mismatch.
+        """normals, depth, points, changed (numpy, as :class:`.infer.Frame` holds them), stage seconds, mismatch.
 
         ``tricolor`` is (H, W, 3): linear float32, or the stored uint16 values when ``stored`` (converted on the
         device: half the bytes to move). Stage seconds: upload, compute (everything on the device), download.
+
+        On a CUDA device the work up to the normals (the whole integration with ``keep_reference=False``) is a
+        recorded graph; the changed pixels' box is solved after it (its shape changes from frame to frame).
         """
         torch = self.torch
         t0 = time.perf_counter()
@@ -232,28 +278,51 @@ class FullFrame:
                 replay.input.copy_(host)
                 t1 = self._sync()
                 replay.graph.replay()
-                normals, points, mismatch = replay.outputs
+                out = replay.outputs
             else:
                 frame = host.to(self.device)
                 t1 = self._sync()
-                normals, points, mismatch = self._compute(frame, stored)
+                out = self._compute(frame, stored)
+            normals, changed, mismatch, points = out
+            changed = changed.cpu().numpy()
+            points = self._box_points(normals, changed) if self.box_integrator is not None else points
             t2 = self._sync()
-            normals, points, mismatch = normals.cpu().numpy(), points.cpu().numpy(), float(mismatch)
+            normals, mismatch = normals.cpu().numpy(), float(mismatch)
+            points = points if isinstance(points, np.ndarray) else points.cpu().numpy()
         t3 = time.perf_counter()
         seconds = {"upload": t1 - t0, "compute": t2 - t1, "download": t3 - t2, "total": t3 - t0}
-        return normals, points[..., 2], points, seconds, mismatch  # depth is the points' z: one array to download
+        return normals, points[..., 2], points, changed, seconds, mismatch  # depth: the points' z, not downloaded
+
+    def _box_points(self, normals, changed: np.ndarray):
+        """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels' box
+        solved (:class:`BoxIntegrator`; only the box comes back from the device), or the whole gel solved where
+        that box would leave the gel or touch the image border."""
+        if not changed.any():
+            return self.ref_points_host.copy()
+        box = self.box_integrator.box(changed)
+        if box is None:
+            return self.integrator(normals)
+        points = self.ref_points_host.copy()
+        points[box] = self.box_integrator(normals, box).cpu().numpy()
+        return points
 
     def _compute(self, frame, stored: bool):
-        """(normals (H, W, 3), points (H, W, 3), mismatch ()) tensors of one frame already on the device."""
+        """(normals (H, W, 3), changed (H, W), mismatch (), points (H, W, 3)) tensors of one frame on the device;
+        with ``keep_reference`` the points are the reference's (the box is integrated after, not recorded)."""
         torch = self.torch
         if stored:
             frame = (frame.to(torch.float32) - self.dark) / self.scale
         filtered = self.filter(frame)
+        # every gel pixel through the network: on a GPU cheaper than gathering the changed ones (a shape per frame)
         x = torch.cat([self.x, filtered.reshape(-1, 3)[self.flat]], 1)
         normals = torch.zeros(self.shape + (3,), dtype=torch.float32, device=self.device)
         normals.view(-1, 3)[self.flat] = self.net(x)
-        points = self.integrator(normals) if self.integrator is not None else self.ref_points
-        return normals, points, self.mismatch(frame)
+        changed, mismatch = self.change(frame)
+        if not self.keep_reference:  # the network's normals everywhere, integrated over the whole gel
+            whole = self.integrator(normals) if self.integrator is not None else self.ref_points
+            return normals, self.change.valid, mismatch, whole
+        # the reference normals where nothing changed; the box is integrated after (its shape changes per frame)
+        return torch.where(changed[..., None], normals, self.ref_normals), changed, mismatch, self.ref_points
 
     def _graph(self, host, stored: bool):
         """The frame's work recorded once as a CUDA graph and replayed per frame (one launch instead of ~100 small
@@ -334,42 +403,71 @@ class _GelFilter:
         return (self._blur(inside) / self.weight).permute(1, 2, 0)
 
 
-class _Mismatch:
-    """The change rule's whole-frame figure (:attr:`.change.ChangeDetector.mismatch`) on a torch device: median
-    over the gel of the box-averaged 2x2-block difference from the reference, over the reference's median level."""
+class _ChangeRule:
+    """:class:`.change.ChangeDetector` on a torch device, operation for operation: 2x2-block means, the signed
+    difference from the reference box-averaged (replicated border), summed over colours, compared with the
+    median and the median absolute deviation over the gel's sampled blocks and with the reference's level, an
+    opening and growth with the 3x3 cross (zeros outside), back to full resolution. Also its whole-frame figure
+    (:attr:`.change.ChangeDetector.mismatch`)."""
 
     def __init__(self, reference: np.ndarray, valid: np.ndarray, device):
-        from .change import NOISE_STRIDE, SMOOTH_BLOCKS
+        from .change import MIN_REL_CHANGE, NOISE_SIGMAS, NOISE_STRIDE, SMOOTH_BLOCKS
 
         torch = _torch()
-        self.smooth = SMOOTH_BLOCKS
+        self.smooth, self.sigmas = SMOOTH_BLOCKS, NOISE_SIGMAS
+        self.valid = torch.as_tensor(valid, device=device)
         h2, w2 = valid.shape[0] // 2, valid.shape[1] // 2
         self.crop = (slice(0, 2 * h2), slice(0, 2 * w2))
         ref = torch.as_tensor(np.where(valid[..., None], reference, 0).astype(np.float32), device=device)
         self.ref_blocks = self._blocks(ref)
-        on = self._blocks(torch.as_tensor(valid.astype(np.float32), device=device)[..., None])[..., 0] == 1
-        self.on = on
-        self.sample = torch.nonzero(on.flatten()).flatten()[::NOISE_STRIDE]
+        self.on = self._blocks(torch.as_tensor(valid.astype(np.float32), device=device)[..., None])[..., 0] == 1
+        self.floor = MIN_REL_CHANGE * self.ref_blocks.sum(-1)
+        self.sample = torch.nonzero(self.on.flatten()).flatten()[::NOISE_STRIDE]
         level = self.ref_blocks.sum(-1).flatten()[self.sample]
-        self.level = float(level.median()) if len(level) else 0.0
+        self.level = float(_median(level)) if len(level) else 0.0
 
     def _blocks(self, image):
         F = _torch().nn.functional
         return F.avg_pool2d(image[self.crop].permute(2, 0, 1)[None], 2)[0].permute(1, 2, 0)
 
     def __call__(self, frame):
-        """0-d tensor: the figure for ``frame`` ((H, W, 3) linear)."""
+        """(changed (H, W) bool, mismatch 0-d) tensors for ``frame`` ((H, W, 3) linear)."""
+        from .change import DILATE_BLOCKS
+
         torch = _torch()
         F = torch.nn.functional
         if not len(self.sample) or self.level <= 0:
-            return torch.zeros((), device=frame.device)
+            return torch.zeros_like(self.valid), torch.zeros((), device=frame.device)
         signed = torch.where(self.on[..., None], self._blocks(frame) - self.ref_blocks, 0.0)
         r = self.smooth // 2
         padded = F.pad(signed.permute(2, 0, 1)[None], (r, r, r, r), mode="replicate")
-        smooth = F.avg_pool2d(padded, self.smooth, stride=1)[0]
-        diff = smooth.abs().sum(0).flatten()[self.sample]
-        middle = torch.sort(diff).values[(len(diff) - 1) // 2 : len(diff) // 2 + 1]  # numpy's median: one or two
-        return middle.mean() / self.level
+        diff = F.avg_pool2d(padded, self.smooth, stride=1)[0].abs().sum(0)
+        sample = diff.flatten()[self.sample]
+        median = _median(sample)
+        sigma = 1.4826 * _median((sample - median).abs()) + 1e-6
+        hit = self.on & (diff > median + self.sigmas * sigma) & (diff > self.floor)
+        hit = _cross(_cross(hit, torch.amin), torch.amax)  # opening: isolated blocks are noise
+        for _ in range(DILATE_BLOCKS):
+            hit = _cross(hit, torch.amax)
+        changed = torch.zeros_like(self.valid)
+        changed[self.crop] = hit.repeat_interleave(2, 0).repeat_interleave(2, 1)
+        return changed & self.valid, median / self.level
+
+
+def _median(x):
+    """numpy's median of a 1-d tensor (the mean of the middle two of an even count), without leaving the device."""
+    torch = _torch()
+    n = len(x)
+    return torch.sort(x).values[(n - 1) // 2 : n // 2 + 1].mean()
+
+
+def _cross(mask, reduce):
+    """Erosion (``torch.amin``) or dilation (``torch.amax``) of a bool mask by the 3x3 cross, zeros outside."""
+    F = _torch().nn.functional
+    m = F.pad(mask[None, None].to(_torch().uint8), (1, 1, 1, 1))[0, 0]
+    H, W = mask.shape
+    shifts = [m[1 : H + 1, 1 : W + 1], m[:H, 1 : W + 1], m[2:, 1 : W + 1], m[1 : H + 1, :W], m[1 : H + 1, 2:]]
+    return reduce(_torch().stack(shifts), 0).bool()
 
 
 def _inner(on_gel: np.ndarray) -> np.ndarray:

@@ -68,9 +68,10 @@ class Predictor:
         ``nlips train``)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch)
     depth : integrate depth (False: normals only)
-    device : torch device of the network ("cpu", "cuda", "cuda:N"); anything but the CPU runs the PyTorch backend
-    full_frame : every gel pixel through the network and depth over the whole gel, every step on ``device``
-        (:mod:`.fullframe`: a GPU's way to real time) instead of the changed pixels only
+    device : "cpu", or a torch GPU ("cuda", "cuda:N"): every step of a frame on that GPU (:mod:`.fullframe`, the
+        PyTorch backend; the same change rule and results as the CPU path, depth integrated over the whole gel)
+    full_frame : the network's normals on every gel pixel, not only where the frame changed (the rest keeps
+        the reference's otherwise), on ``device`` by :mod:`.fullframe`
     """
 
     def __init__(
@@ -100,10 +101,10 @@ class Predictor:
         self.backend = backend
         self._run = self._backend(backend, threads)
         self._full = None
-        if full_frame:
+        if self.device is not None:  # a GPU, or the whole frame on the CPU
             from .fullframe import FullFrame
 
-            self._full = FullFrame(self.model, self.device, self.geo)
+            self._full = FullFrame(self.model, self.device, self.geo, keep_reference=not full_frame)
         self._warm_up()
 
     @staticmethod
@@ -134,8 +135,9 @@ class Predictor:
                 integrate_on_dome(self.ref_normals, unknown, self.geo)
 
     def _backend(self, backend: str, threads: int):
-        if backend == "auto" and self.device is not None:  # a GPU or the whole-frame path: PyTorch
-            backend = self.backend = "torch"
+        if self.device is not None:  # a GPU or the whole frame: PyTorch, run by .fullframe
+            self.backend = "torch"
+            return None
         if backend == "auto":  # onnxruntime when the model was exported (nlips train does), else PyTorch
             backend = "onnx" if Path(self.model.path).with_suffix(".onnx").is_file() else "torch"
             self.backend = backend
@@ -151,12 +153,11 @@ class Predictor:
 
         if threads:
             torch.set_num_threads(threads)
-        device = self.device or torch.device("cpu")
-        net = fused_net(self.model.net).to(device)
+        net = fused_net(self.model.net)
 
         def run(x):
             with torch.inference_mode():
-                return net(torch.from_numpy(x).to(device)).cpu().numpy()
+                return net(torch.from_numpy(x)).numpy()
 
         return run
 
@@ -238,9 +239,9 @@ class Predictor:
         return self.predict(self.linear(image, where))
 
     def _whole_frame(self, tricolor: np.ndarray, stored: bool) -> Frame:
-        """:mod:`.fullframe`'s result as a Frame: every gel pixel went through the network ("changed")."""
-        normals, depth, points, seconds, mismatch = self._full(tricolor, stored)
-        frame = Frame(normals, depth, points, self.valid.copy(), seconds, mismatch=mismatch)
+        """:mod:`.fullframe`'s result as a Frame ("changed": every gel pixel with ``full_frame``)."""
+        normals, depth, points, changed, seconds, mismatch = self._full(tricolor, stored)
+        frame = Frame(normals, depth, points, changed, seconds, mismatch=mismatch)
         if frame.mismatch > FRAME_MISMATCH_FRACTION:
             frame.brightness = self._brightness(self.linear(tricolor) if stored else tricolor)
         return frame

@@ -168,8 +168,30 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
     from scipy.fft import dstn
 
     # float32 like the transforms below: a gradient of log-range needs no more than 1e-7 relative
-    p, q = _gradient32(np.asarray(normals[box], np.float32), geo, box)
     x = geo.log_range[box].astype(np.float32)
+    f = box_rhs(np.asarray(normals[box], np.float32), geo.rays32[box], geo.d_u32[box], geo.d_v32[box], x)
+    lam = box_eigenvalues(*f.shape).astype(np.float32)
+    # float32 transforms: twice as fast, and 1e-7 relative error of a log-range is 1e-6 mm
+    x[1:-1, 1:-1] = dstn(dstn(f, type=1, norm="ortho") / lam, type=1, norm="ortho")
+    return x
+
+
+def box_rhs(normals, rays, d_u, d_v, x):
+    """Right-hand side of the box's interior equation, 4 x_i - sum of neighbours = f_i, with the box's outer ring
+    (of ``x``, the reference) moved to it.
+
+    Written with slicing and arithmetic only, so numpy arrays and torch tensors (:mod:`.fullframe`) share it.
+
+    Parameters
+    ----------
+    normals, rays, d_u, d_v : (h, w, 3) float32 over the box (the normals unit, toward the camera)
+    x : (h, w) float32 -- the reference log-range over the box (its outer ring is used)
+
+    Returns
+    -------
+    (h - 2, w - 2) float32
+    """
+    p, q = _gradient32(normals, rays, d_u, d_v)
     gu = 0.5 * (p[:, :-1] + p[:, 1:])  # edge (r, c) -> (r, c + 1)
     gv = 0.5 * (q[:-1, :] + q[1:, :])  # edge (r, c) -> (r + 1, c)
     # 4 x_i - sum of neighbours = (incoming edge gradients) - (outgoing edge gradients)
@@ -178,25 +200,25 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
     f[-1, :] += x[-1, 1:-1]
     f[:, 0] += x[1:-1, 0]
     f[:, -1] += x[1:-1, -1]
-    m, n = f.shape
-    lam = (2 - 2 * np.cos(np.pi * np.arange(1, m + 1) / (m + 1)))[:, None] + (
+    return f
+
+
+def box_eigenvalues(m: int, n: int) -> np.ndarray:
+    """(m, n) float64 eigenvalues of the 5-point Dirichlet Laplacian of an (m, n) box, in the DST-I basis."""
+    return (2 - 2 * np.cos(np.pi * np.arange(1, m + 1) / (m + 1)))[:, None] + (
         2 - 2 * np.cos(np.pi * np.arange(1, n + 1) / (n + 1))
     )[None, :]
-    # float32 transforms: twice as fast, and 1e-7 relative error of a log-range is 1e-6 mm
-    x[1:-1, 1:-1] = dstn(dstn(f, type=1, norm="ortho") / lam.astype(np.float32), type=1, norm="ortho")
-    return x
 
 
-def _gradient32(normals: np.ndarray, geo: RayGeometry, box) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`log_range_gradient` over ``box`` in float32 (``normals`` already cropped), for the box solver."""
+def _gradient32(normals, rays, d_u, d_v):
+    """:func:`log_range_gradient` in float32 over a box (every argument cropped to it); numpy or torch."""
     n0, n1, n2 = normals[..., 0], normals[..., 1], normals[..., 2]
 
-    def dot(vectors):
-        v = vectors[box]
+    def dot(v):
         return n0 * v[..., 0] + n1 * v[..., 1] + n2 * v[..., 2]
 
-    den = np.minimum(dot(geo.rays32), np.float32(-MIN_FACING))
-    return -dot(geo.d_u32) / den, -dot(geo.d_v32) / den
+    den = dot(rays).clip(max=-MIN_FACING)
+    return -dot(d_u) / den, -dot(d_v) / den
 
 
 def _solve_sparse(normals, unknown, on_gel, geo: RayGeometry) -> np.ndarray:

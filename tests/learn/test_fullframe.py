@@ -115,6 +115,34 @@ def test_exact_normals_of_a_known_indentation_give_its_depth(device):
     assert np.isnan(depth.numpy()[~on_gel]).all()
 
 
+def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_elsewhere(trained, twin_presses):
+    """What a GPU runs (learn.fullframe with the change rule), here on the CPU: the CPU path's mask and normals."""
+    from nlipscalib.learn.fullframe import FullFrame
+
+    cpu_predictor = Predictor(trained, backend="torch")
+    device_path = FullFrame(cpu_predictor.model, CPU, cpu_predictor.geo, keep_reference=True)
+    for name in ("press_g", "press_a", "reference"):
+        press = load_press(twin_presses / name)
+        frame = press.linear(press.tricolor)
+        cpu = cpu_predictor.predict(frame)
+        normals, depth, points, changed, seconds, mismatch = device_path(frame)
+        np.testing.assert_array_equal(changed, cpu.changed)
+        np.testing.assert_allclose(normals, cpu.normals, atol=1e-4)  # float32 rounding (1e-4: 0.006 deg)
+        assert mismatch == pytest.approx(cpu_predictor.changed.mismatch, rel=1e-4, abs=1e-7)
+        assert set(seconds) == {"upload", "compute", "download", "total"}
+        np.testing.assert_allclose(depth, cpu.depth, atol=1e-4)  # the same box solve (torch's FFT, scipy's)
+        np.testing.assert_allclose(points, cpu.points, atol=1e-4)
+    assert cpu.changed.sum() == 0  # the reference itself: nothing changed
+    # a change that reaches the image border: no box, the whole gel is solved
+    press = load_press(twin_presses / "press_g")
+    normals = torch.from_numpy(cpu_predictor.predict(press.linear(press.tricolor)).normals)
+    border = np.zeros(cpu_predictor.valid.shape, bool)
+    border[:10, :10] = True
+    whole = device_path._box_points(normals, border)
+    np.testing.assert_allclose(whole, device_path.integrator(normals).numpy())
+    assert not np.allclose(whole, device_path.ref_points_host)
+
+
 def test_whole_frame_path_matches_the_changed_pixel_path_where_it_changed(trained, twin_presses):
     press = load_press(twin_presses / "press_g")
     frame = press.linear(press.tricolor)
@@ -166,11 +194,34 @@ def test_bad_device_options_are_one_line_errors(trained, twin_presses, tmp_path,
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 def test_the_gpu_gives_the_cpu_result(trained, twin_presses):
     press = load_press(twin_presses / "press_g")
-    frame = press.linear(press.tricolor)
-    cpu = Predictor(trained, full_frame=True).predict(frame)
-    gpu = Predictor(trained, full_frame=True, device="cuda").predict(frame)
-    np.testing.assert_allclose(gpu.normals, cpu.normals, atol=2e-4)
-    np.testing.assert_allclose(gpu.depth, cpu.depth, atol=1e-4, equal_nan=True)
-    changed = Predictor(trained, device="cuda").predict(frame)
-    base = Predictor(trained, backend="torch").predict(frame)
-    np.testing.assert_allclose(changed.normals, base.normals, atol=2e-4)
+    cpu = Predictor(trained, backend="torch")
+    gpu = Predictor(trained, device="cuda")
+    for _ in range(2):  # the first stored frame records the CUDA graph, the second replays it
+        want, got = cpu.predict_stored(press.tricolor), gpu.predict_stored(press.tricolor)
+        np.testing.assert_array_equal(got.changed, want.changed)
+        np.testing.assert_allclose(got.normals, want.normals, atol=2e-4)
+    whole_cpu = Predictor(trained, full_frame=True).predict_stored(press.tricolor)
+    whole_gpu = Predictor(trained, full_frame=True, device="cuda").predict_stored(press.tricolor)
+    np.testing.assert_allclose(whole_gpu.normals, whole_cpu.normals, atol=2e-4)
+    np.testing.assert_allclose(whole_gpu.depth, whole_cpu.depth, atol=1e-4, equal_nan=True)
+
+
+def test_a_stream_through_the_device_path_prints_its_stage_times(trained, twin_presses, tmp_path, capsys):
+    """The stream summary named the CPU path's stages (change, network, integrate) and failed on the device path's
+    (upload, compute, download) after a whole stream on a GPU."""
+    import cv2
+
+    from nlipscalib.cli.infer import _StageTimes
+
+    press = load_press(twin_presses / "press_g")
+    for i in range(3):  # an image sequence, RGB stored as PNG (OpenCV writes BGR)
+        cv2.imwrite(str(tmp_path / f"img_{i:04d}.png"), press.tricolor[..., ::-1])
+    pattern = str(tmp_path / "img_%04d.png")
+    assert main(["infer", str(trained), pattern, "--full-frame", "--max-frames", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "3 frames in" in out and "upload" in out and "compute" in out and "frames/s" in out, out
+    stages = _StageTimes()
+    device_predictor = Predictor(trained, full_frame=True)
+    stages.add(device_predictor.predict_stored(press.tricolor))
+    device_predictor.full_frame = False  # as --device cuda alone: the device path's stages, not the whole frame
+    assert "compute" in stages.summary(device_predictor, 0.1, 1, no_depth=False)
