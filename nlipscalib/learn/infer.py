@@ -308,6 +308,8 @@ def to_reconstruction(frame: Frame, predictor: Predictor, source: str, inputs: d
             "method": "nlipsnet",
             "model": str(predictor.model.path.resolve()),  # absolute: a later command may run elsewhere
             "backend": predictor.backend,
+            "device": str(predictor.device or "cpu"),
+            "full_frame": predictor.full_frame,
             "hidden": list(predictor.model.hidden),
             "labels": predictor.model.info.get("labels"),
             "source": source,
