@@ -213,17 +213,19 @@ def calibrate(
     imgs = [np.asarray(views[k][1], np.float32).reshape(1, -1, 2) for k in used]
     w, h = image_size
     criteria = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
-    if model == "fisheye":
-        flags = _fisheye_flag(cv2, "CALIB_RECOMPUTE_EXTRINSIC") | _fisheye_flag(cv2, "CALIB_FIX_SKEW")
-        _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
-            objs, imgs, (w, h), np.eye(3), np.zeros((4, 1)), flags=flags, criteria=criteria
-        )
-    else:
-        _, K, D, rvecs, tvecs = cv2.calibrateCamera(
-            [o.reshape(-1, 3) for o in objs], [i.reshape(-1, 2) for i in imgs], (w, h), None, None, criteria=criteria
-        )
-    # before the camera is built: such a fit's focal length can be anything, negative too
-    why = _unconstrained(K, rvecs, (w, h))
+    try:
+        if model == "fisheye":
+            flags = _fisheye_flag(cv2, "CALIB_RECOMPUTE_EXTRINSIC") | _fisheye_flag(cv2, "CALIB_FIX_SKEW")
+            _, K, D, rvecs, tvecs = cv2.fisheye.calibrate(
+                objs, imgs, (w, h), np.eye(3), np.zeros((4, 1)), flags=flags, criteria=criteria
+            )
+        else:
+            objs2, imgs2 = [o.reshape(-1, 3) for o in objs], [i.reshape(-1, 2) for i in imgs]
+            _, K, D, rvecs, tvecs = cv2.calibrateCamera(objs2, imgs2, (w, h), None, None, criteria=criteria)
+        # before the camera is built: such a fit's focal length can be anything, negative too
+        why = _unconstrained(K, rvecs, (w, h))
+    except cv2.error as exc:  # OpenCV 5.1 asserts inside the fit on such views where 5.0 returned a degenerate one
+        why = f"OpenCV's {model} fit failed on them: {str(exc).strip().splitlines()[-1][:160]}"
     if why:
         raise CaptureError(
             f"{target_name} in these {len(used)} images does not pin the camera down ({why}): the focal length "

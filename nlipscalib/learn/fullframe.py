@@ -1,4 +1,4 @@
-"""NLiPsNet inference in PyTorch with every step on one device (a GPU's way to real time), depth over the whole gel.
+"""NLiPsNet inference in PyTorch with every step on one device: a GPU's way to real time (``--device cuda``).
 
 The CPU path (:mod:`.infer`) gathers the pixels that changed, sends only them through the network
 and integrates their bounding box: shapes that change every frame. On a GPU fixed shapes are
@@ -7,39 +7,25 @@ path runs every step on the device with the shapes of the sensor: the tri-colour
 linearisation, the model's Gaussian prefilter (:mod:`.prefilter`'s normalised filter, OpenCV's
 kernel), the network on every gel pixel, the change rule of :mod:`.change` (the same operations),
 the reference normals kept where nothing changed (as on the CPU path; ``keep_reference=False``
-keeps the network's everywhere), and the integration of the normals over the whole gel.
-
-The integration solves the same equation as :mod:`.integrate` (5-point Poisson in the log-range
-along the camera's real rays, gradients averaged on each pixel pair) on every gel pixel whose four
-neighbours are on the gel; the gel's outermost pixel ring is the Dirichlet boundary, held at the
-undeformed reference (the gel is fixed where it meets the dome's base; where the gel fills the
-image, the ring is the image border). Where the domain is not a rectangle, the fast sine-transform
-solver of its bounding box is corrected on the boundary ring with a precomputed capacitance
-matrix -- the capacitance-matrix method for the discrete Poisson equation on irregular regions
-(Buzbee, Dorr, George & Golub, SIAM J. Numer. Anal. 8(4), 1971): per frame two box solves and one
-(b, b) matrix-vector product (b: ring pixels inside the box), exact up to rounding, no iterations;
-set up once per sensor with b box solves (batched: under a second on a GPU, about a minute on two CPU
-cores at 640x480). A gel that fills the image needs one box solve and no set-up.
+keeps the network's everywhere: ``--full-frame``). Then :mod:`.integrate_torch` integrates the
+changed pixels' box as the CPU does, after the graph (the box's shape changes per frame), or the
+whole gel inside it (``--full-frame``, or a change that reaches the image border).
 """
 
 from __future__ import annotations
 
-import functools
-import math
 import time
 
 import numpy as np
 
-from ..errors import ConfigError, ShapeError, require
-from .integrate import MIN_FACING, RayGeometry, _box, box_eigenvalues, box_rhs
+from ..errors import ConfigError, require
+from .integrate import RayGeometry
+from .integrate_torch import BoxIntegrator, DomeIntegrator
 from .prefilter import kernel_radius
-
-SETUP_BATCH_BYTES = 1 << 29
-"""Memory of one batch of box solves while the capacitance matrix is set up (float64 boxes)."""
 
 
 def _torch():
-    return require("torch", "torch", "Whole-frame inference")
+    return require("torch", "torch", "Inference with --device or --full-frame")
 
 
 def check_device(device: str):
@@ -60,155 +46,6 @@ def check_device(device: str):
     elif dev.type != "cpu":
         raise ConfigError(f"--device {device}: only cpu and cuda devices are supported")
     return dev
-
-
-def dst1(x, dim: int):
-    """Orthonormal type-I discrete sine transform of a torch tensor along ``dim`` (its own inverse).
-
-    Through a real FFT of the odd extension [0, x, 0, -reversed x] (length 2(n + 1)): torch has no DST;
-    equals ``scipy.fft.dst(x, type=1, norm="ortho", axis=dim)``.
-    """
-    torch = _torch()
-    x = x.movedim(dim, -1)
-    n = x.shape[-1]
-    zero = torch.zeros(x.shape[:-1] + (1,), dtype=x.dtype, device=x.device)
-    odd = torch.cat([zero, x, zero, -x.flip(-1)], dim=-1)
-    out = torch.fft.rfft(odd, dim=-1).imag[..., 1 : n + 1] * (-1.0 / math.sqrt(2 * (n + 1)))
-    return out.movedim(-1, dim)
-
-
-class BoxPoisson:
-    """Solver of the 5-point Dirichlet Laplacian (4 x_i - sum of neighbours = f) on an (m, n) box, zero outside."""
-
-    def __init__(self, m: int, n: int, device, dtype):
-        self.lam = _torch().as_tensor(box_eigenvalues(m, n), dtype=dtype, device=device)
-
-    def __call__(self, f):
-        """x with L x = f; ``f`` is (..., m, n)."""
-        return dst1(dst1(dst1(dst1(f, -2), -1) / self.lam, -2), -1)
-
-
-class BoxIntegrator:
-    """:mod:`.integrate`'s box solver on a torch device: the changed pixels' box (grown to fast transform sizes,
-    :func:`.integrate._box`), its interior solved with the outer ring at the reference, in float32 like the CPU's.
-
-    Parameters
-    ----------
-    geo : RayGeometry of the sensor
-    device : torch device
-    """
-
-    def __init__(self, geo: RayGeometry, device):
-        torch = _torch()
-        self.on_gel = np.isfinite(geo.log_range)
-        self.log_range = torch.as_tensor(geo.log_range.astype(np.float32), device=device)
-        self.rays, self.d_u, self.d_v = (torch.as_tensor(a, device=device) for a in (geo.rays32, geo.d_u32, geo.d_v32))
-        self.device = device
-
-    def box(self, changed: np.ndarray):
-        """The box for ``changed`` ((H, W) bool on the gel), or None when it leaves the gel or touches the border."""
-        return _box(changed, self.on_gel)
-
-    def __call__(self, normals, box):
-        """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor)."""
-        torch = _torch()
-        x = self.log_range[box].clone()
-        f = box_rhs(normals[box], self.rays[box], self.d_u[box], self.d_v[box], x)
-        x[1:-1, 1:-1] = self._solver(*f.shape)(f)
-        return torch.exp(x)[..., None] * self.rays[box]
-
-    @functools.lru_cache(maxsize=32)  # noqa: B019 -- one per box size; the instance lives as long as the model
-    def _solver(self, m: int, n: int) -> BoxPoisson:
-        return BoxPoisson(m, n, self.device, _torch().float32)
-
-
-class DomeIntegrator:
-    """Log-range of the whole gel from a normal map, on a torch device (module docstring).
-
-    The box solver works on the bounding box of the inner gel pixels, whose outer frame is ring or off the
-    gel; the ring pixels inside the box (where the gel's outline is not that rectangle) are held by the
-    capacitance correction. A gel that fills the image needs none: one box solve per frame, no set-up.
-
-    Parameters
-    ----------
-    geo : RayGeometry of the sensor (rays, their derivatives, the undeformed log-range; NaN off the gel)
-    device : torch device
-    """
-
-    def __init__(self, geo: RayGeometry, device):
-        torch = _torch()
-        self.device, dt = device, torch.float64
-        on_gel = np.isfinite(geo.log_range)
-        inner = _inner(on_gel)
-        if not inner.any():
-            raise ShapeError("the gel has no pixel whose four neighbours are on the gel: nothing to integrate")
-        rows, cols = np.nonzero(inner)
-        r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
-        self.box = (slice(r0, r1), slice(c0, c1))
-        # the box and its frame (inner pixels never touch the image border, so the frame is in the image)
-        self.framed = (slice(r0 - 1, r1 + 1), slice(c0 - 1, c1 + 1))
-
-        def put(a):
-            return torch.as_tensor(np.ascontiguousarray(a), device=device)
-
-        ref = np.where(on_gel, geo.log_range, 0.0)
-        self.ref = put(ref[self.box])
-        self.inner = put(inner[self.box])
-        ring = _dilate4(inner) & ~inner
-        self.ring = put(np.flatnonzero(ring[self.box]))  # ring pixels inside the box
-        # the framed box's rays and their derivatives, for the log-range gradient of a normal map
-        self.rays, self.d_u, self.d_v = (put(a[self.framed]).to(dt) for a in (geo.rays, geo.d_u, geo.d_v))
-        self.points_ref = put(np.where(on_gel[..., None], geo.points, np.nan).astype(np.float32))
-        self.solve = BoxPoisson(*self.ref.shape, device, dt)
-        self.ref_laplacian = _laplacian(put(ref[self.framed]))[1:-1, 1:-1] * self.inner
-        self.capacitance_inverse = self._capacitance_inverse() if len(self.ring) else None
-        # the inner pixels by index (boolean-mask indexing waits for the device; a CUDA graph cannot)
-        self.inner_in_box = put(np.flatnonzero(inner[self.box]))
-        self.inner_in_image = put(np.flatnonzero(inner))
-        self.inner_rays = put(geo.rays[inner])
-
-    def _capacitance_inverse(self):
-        """(b, b) inverse of the box solver's response at the ring to unit sources at the ring."""
-        torch = _torch()
-        m, n = self.ref.shape
-        b = len(self.ring)
-        chunk = max(1, min(b, SETUP_BATCH_BYTES // (8 * 4 * (m + 1) * (n + 1))))
-        green = torch.empty((b, b), dtype=torch.float64, device=self.device)
-        for start in range(0, b, chunk):
-            idx = self.ring[start : start + chunk]
-            sources = torch.zeros((len(idx), m * n), dtype=torch.float64, device=self.device)
-            sources[torch.arange(len(idx), device=self.device), idx] = 1.0
-            green[start : start + len(idx)] = self.solve(sources.view(-1, m, n)).view(-1, m * n)[:, self.ring]
-        return torch.linalg.inv(green)
-
-    def log_range(self, normals):
-        """(m, n) float64 log-range over :attr:`box` from ``normals`` ((H, W, 3) float tensor, unit, camera frame).
-
-        Inner gel pixels are solved, the ring and the rest of the gel keep the reference.
-        """
-        torch = _torch()
-        nb = normals[self.framed].to(torch.float64)
-        den = torch.clamp_max((nb * self.rays).sum(-1), -MIN_FACING)
-        p = -(nb * self.d_u).sum(-1) / den
-        q = -(nb * self.d_v).sum(-1) / den
-        # f = (incoming - outgoing edge gradients) at each pixel of the box; the reference to the right-hand side
-        gu = 0.5 * (p[1:-1, :-1] + p[1:-1, 1:])  # edge (r, c) -> (r, c + 1)
-        gv = 0.5 * (q[:-1, 1:-1] + q[1:, 1:-1])  # edge (r, c) -> (r + 1, c)
-        f = gu[:, :-1] - gu[:, 1:] + gv[:-1, :] - gv[1:, :]
-        rhs = (f - self.ref_laplacian) * self.inner  # the change from the reference: zero on the ring
-        change = self.solve(rhs)
-        if self.capacitance_inverse is not None:  # sources on the ring that bring the change there back to zero
-            held = -(self.capacitance_inverse @ change.flatten()[self.ring])
-            change = self.solve(rhs.flatten().index_add(0, self.ring, held).view_as(rhs))
-        return self.ref + change * self.inner
-
-    def __call__(self, normals):
-        """(H, W, 3) float32 tensor: the surface points, mm, camera frame (NaN off the gel); depth is their z."""
-        torch = _torch()
-        points = self.points_ref.clone()
-        lr = self.log_range(normals).flatten()[self.inner_in_box]
-        points.view(-1, 3)[self.inner_in_image] = (torch.exp(lr)[:, None] * self.inner_rays).to(torch.float32)
-        return points
 
 
 class FullFrame:
@@ -468,30 +305,3 @@ def _cross(mask, reduce):
     H, W = mask.shape
     shifts = [m[1 : H + 1, 1 : W + 1], m[:H, 1 : W + 1], m[2:, 1 : W + 1], m[1 : H + 1, :W], m[1 : H + 1, 2:]]
     return reduce(_torch().stack(shifts), 0).bool()
-
-
-def _inner(on_gel: np.ndarray) -> np.ndarray:
-    """Gel pixels whose four neighbours are gel pixels (none on the image border)."""
-    inner = on_gel.copy()
-    inner[0, :] = inner[-1, :] = inner[:, 0] = inner[:, -1] = False
-    inner[1:-1, 1:-1] &= on_gel[:-2, 1:-1] & on_gel[2:, 1:-1] & on_gel[1:-1, :-2] & on_gel[1:-1, 2:]
-    return inner
-
-
-def _dilate4(mask: np.ndarray) -> np.ndarray:
-    out = mask.copy()
-    out[1:] |= mask[:-1]
-    out[:-1] |= mask[1:]
-    out[:, 1:] |= mask[:, :-1]
-    out[:, :-1] |= mask[:, 1:]
-    return out
-
-
-def _laplacian(x):
-    """4 x_i - sum of the four neighbours (zero beyond the array), as :class:`BoxPoisson` defines it."""
-    out = 4 * x
-    out[1:] -= x[:-1]
-    out[:-1] -= x[1:]
-    out[:, 1:] -= x[:, :-1]
-    out[:, :-1] -= x[:, 1:]
-    return out

@@ -8,9 +8,9 @@ torch = pytest.importorskip("torch")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import load_press  # noqa: E402
-from nlipscalib.learn.fullframe import DomeIntegrator, dst1  # noqa: E402
 from nlipscalib.learn.infer import Predictor  # noqa: E402
 from nlipscalib.learn.integrate import RayGeometry, log_range_gradient  # noqa: E402
+from nlipscalib.learn.integrate_torch import DomeIntegrator, dst1  # noqa: E402
 
 CPU = torch.device("cpu")
 DEVICES = [
