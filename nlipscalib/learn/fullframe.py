@@ -122,7 +122,10 @@ class FullFrame:
                 out = self._compute(frame, stored)
             normals, changed, mismatch, points = out
             changed = changed.cpu().numpy()
-            points = self._box_points(normals, changed) if self.box_integrator is not None else points
+            if self.integrator is None:  # normals only: the reference surface, nothing to bring back
+                points = self.ref_points_host.copy()
+            elif self.box_integrator is not None:
+                points = self._box_points(normals, changed)
             t2 = self._sync()
             normals, mismatch = normals.cpu().numpy(), float(mismatch)
             points = points if isinstance(points, np.ndarray) else points.cpu().numpy()

@@ -46,10 +46,11 @@ class Frame:
     points: np.ndarray
     """(H, W, 3) float32, mm, camera frame; NaN off the gel."""
     changed: np.ndarray
-    """(H, W) bool -- pixels that differed from the reference frame (went through the network)."""
+    """(H, W) bool -- pixels that differed from the reference frame: their normals are the network's, the rest
+    keeps the reference's (every gel pixel with ``full_frame``)."""
     seconds: dict
-    """Time of each stage: change, network, integrate, total (the whole-frame path: upload, compute, download,
-    total)."""
+    """Time of each stage: change, network, integrate, total (the device path, :mod:`.fullframe`: upload,
+    compute, download, total)."""
     brightness: float = 1.0
     """Median brightness on the gel over the reference frame's; measured only for a frame that differs over most of
     the gel (:func:`mismatch_warning`), else 1."""
@@ -69,7 +70,7 @@ class Predictor:
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch)
     depth : integrate depth (False: normals only)
     device : "cpu", or a torch GPU ("cuda", "cuda:N"): every step of a frame on that GPU (:mod:`.fullframe`, the
-        PyTorch backend; the same change rule and results as the CPU path, depth integrated over the whole gel)
+        PyTorch backend; the same change rule, box integration and results as the CPU path)
     full_frame : the network's normals on every gel pixel, not only where the frame changed (the rest keeps
         the reference's otherwise), on ``device`` by :mod:`.fullframe`
     """

@@ -225,3 +225,11 @@ def test_a_stream_through_the_device_path_prints_its_stage_times(trained, twin_p
     stages.add(device_predictor.predict_stored(press.tricolor))
     device_predictor.full_frame = False  # as --device cuda alone: the device path's stages, not the whole frame
     assert "compute" in stages.summary(device_predictor, 0.1, 1, no_depth=False)
+
+
+def test_normals_only_on_the_device_path_keeps_the_reference_surface(trained, twin_presses):
+    press = load_press(twin_presses / "press_g")
+    predictor = Predictor(trained, full_frame=True, depth=False)
+    frame = predictor.predict_stored(press.tricolor)
+    np.testing.assert_allclose(frame.depth[predictor.valid], predictor.ref_depth[predictor.valid], rtol=1e-6)
+    assert frame.changed.sum() == predictor.valid.sum() and np.isfinite(frame.normals).all()
