@@ -141,7 +141,7 @@ def _bench_model(model, key, entry, stored, presses, ref_depth, args) -> None:
     for name, kw in configs.items():
         pred = Predictor(model, **kw)
         if name.endswith("no_cuda_graph") and pred._full is not None:  # eager: per-frame launches from Python
-            pred._full._graphs = {(torch.uint16, True): None, (torch.float32, False): None}
+            _eager(pred)
         repeats = args.repeats if name != "cpu_changed_pixels" else max(args.repeats // 10, 5)
         entry[name] = _timed(pred, stored, repeats) | {
             "scores": {n: _scores(pred, p, ref_depth) for n, p in presses.items()}
@@ -159,7 +159,7 @@ def _bench_model(model, key, entry, stored, presses, ref_depth, args) -> None:
         gpu = Predictor(model, device=args.device, **kw).predict_stored(stored[0])
         eager_pred = Predictor(model, device=args.device, **kw)
         if eager_pred._full is not None:
-            eager_pred._full._graphs = {(torch.uint16, True): None}
+            _eager(eager_pred)
         eager = eager_pred.predict_stored(stored[0])
         cpu = Predictor(model, backend="torch", **kw).predict_stored(stored[0])
         entry["gpu_vs_cpu"][name] = {
@@ -172,6 +172,15 @@ def _bench_model(model, key, entry, stored, presses, ref_depth, args) -> None:
     print(f"{key} gpu vs cpu: {json.dumps(entry['gpu_vs_cpu'])}", flush=True)
     entry["command"] = _command(model, stored, args)
     print(f"{key} command: {json.dumps(entry['command'])}", flush=True)
+
+
+def _eager(predictor) -> None:
+    """No CUDA graphs in ``predictor``: the frame's and the box's work launched from Python, kernel by kernel."""
+    import torch
+
+    predictor._full._graphs = {(torch.uint16, True): None, (torch.float32, False): None}
+    if predictor._full.box_integrator is not None:
+        predictor._full.box_integrator._graph = lambda h, w: None
 
 
 def _command(model, stored, args) -> dict:

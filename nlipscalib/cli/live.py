@@ -201,7 +201,7 @@ def add_device_arguments(p) -> None:
         "--device",
         default="cpu",
         help="where frames are inferred: cpu (default) or cuda / cuda:N: every step on that GPU with PyTorch "
-        "(the same change rule and results as on the CPU; ~180-550 frames/s at 640x480 on an H200)",
+        "(the same change rule and results as on the CPU; ~240-360 frames/s at 640x480 on an H200)",
     )
     p.add_argument(
         "--full-frame",

@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 from ..errors import ConfigError, require
+from .cuda_graph import record
 from .integrate import RayGeometry
 from .integrate_torch import BoxIntegrator, DomeIntegrator
 from .prefilter import kernel_radius
@@ -112,10 +113,9 @@ class FullFrame:
             host = torch.from_numpy(np.ascontiguousarray(tricolor))
             replay = self._graph(host, stored) if self.device.type == "cuda" else None
             if replay is not None:
-                replay.input.copy_(host)
+                replay.inputs[0].copy_(host)
                 t1 = self._sync()
-                replay.graph.replay()
-                out = replay.outputs
+                out = replay()
             else:
                 frame = host.to(self.device)
                 t1 = self._sync()
@@ -170,42 +170,14 @@ class FullFrame:
         fails (the eager path then runs, identical in results)."""
         key = (host.dtype, stored)
         if key not in self._graphs:
-            self._graphs[key] = _record(self._compute, host.to(self.device), stored, self.device)
+            inputs = (host.to(self.device), stored)
+            self._graphs[key] = record(self._compute, inputs, self.device, "NLiPsNet inference on the GPU")
         return self._graphs[key]
 
     def _sync(self) -> float:
         if self.device.type == "cuda":  # stage times of queued GPU work: wait for it
             self.torch.cuda.synchronize(self.device)
         return time.perf_counter()
-
-
-class _Replay:
-    """A recorded CUDA graph with its static input and output tensors."""
-
-    def __init__(self, graph, input, outputs):
-        self.graph, self.input, self.outputs = graph, input, outputs
-
-
-def _record(compute, static_input, stored: bool, device):
-    """``compute(static_input, stored)`` recorded as a CUDA graph after warm-up runs on a side stream (cuFFT plans,
-    allocator pools), as torch.cuda.graphs requires; None, with a warning, when the runtime refuses."""
-    import logging
-
-    torch = _torch()
-    try:
-        side = torch.cuda.Stream(device)
-        side.wait_stream(torch.cuda.current_stream(device))
-        with torch.cuda.stream(side):
-            for _ in range(3):
-                compute(static_input, stored)
-        torch.cuda.current_stream(device).wait_stream(side)
-        graph = torch.cuda.CUDAGraph()
-        with torch.cuda.graph(graph):
-            outputs = compute(static_input, stored)
-    except RuntimeError as exc:  # an op this torch build cannot record: run eagerly
-        logging.getLogger(__name__).warning("whole-frame inference runs without a CUDA graph (slower): %s", exc)
-        return None
-    return _Replay(graph, static_input, outputs)
 
 
 class _GelFilter:

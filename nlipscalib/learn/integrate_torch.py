@@ -73,8 +73,11 @@ class BoxIntegrator:
     def __init__(self, geo: RayGeometry, device):
         torch = _torch()
         self.on_gel = np.isfinite(geo.log_range)
-        self.log_range = torch.as_tensor(geo.log_range.astype(np.float32), device=device)
-        self.rays, self.d_u, self.d_v = (torch.as_tensor(a, device=device) for a in (geo.rays32, geo.d_u32, geo.d_v32))
+        self.width = geo.log_range.shape[1]
+        self.log_range = torch.as_tensor(geo.log_range.astype(np.float32), device=device).flatten()
+        self.rays, self.d_u, self.d_v = (
+            torch.as_tensor(a, device=device).reshape(-1, 3) for a in (geo.rays32, geo.d_u32, geo.d_v32)
+        )
         self.device = device
 
     def box(self, changed: np.ndarray):
@@ -82,16 +85,48 @@ class BoxIntegrator:
         return _box(changed, self.on_gel)
 
     def __call__(self, normals, box):
-        """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor)."""
+        """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor).
+
+        On a GPU, recorded once per box size as a CUDA graph (the box's place is an input): a new size costs
+        a recording (milliseconds) the first time, every later frame one launch.
+        """
+        h, w = box[0].stop - box[0].start, box[1].stop - box[1].start
+        offset = box[0].start * self.width + box[1].start
+        replay = self._graph(h, w) if self.device.type == "cuda" else None
+        if replay is None:
+            return self._solve(normals, self._index(h, w) + offset)
+        frame_normals, place = replay.inputs
+        frame_normals.copy_(normals)
+        place.fill_(offset)
+        return replay()
+
+    def _solve(self, normals, index):
+        """Points over the box whose flat pixel indices are ``index`` ((h, w) long tensor)."""
         torch = _torch()
-        x = self.log_range[box].clone()
-        f = box_rhs(normals[box], self.rays[box], self.d_u[box], self.d_v[box], x)
+        rays = self.rays[index]
+        x = self.log_range[index]  # a copy: the reference, whose interior is replaced below
+        f = box_rhs(normals.reshape(-1, 3)[index], rays, self.d_u[index], self.d_v[index], x)
         x[1:-1, 1:-1] = self._solver(*f.shape)(f)
-        return torch.exp(x)[..., None] * self.rays[box]
+        return torch.exp(x)[..., None] * rays
 
     @functools.lru_cache(maxsize=32)  # noqa: B019 -- one per box size; the instance lives as long as the model
     def _solver(self, m: int, n: int) -> BoxPoisson:
         return BoxPoisson(m, n, self.device, _torch().float32)
+
+    @functools.lru_cache(maxsize=32)  # noqa: B019
+    def _index(self, h: int, w: int):
+        """(h, w) flat pixel indices of a box at the image's corner (add its place's flat index)."""
+        torch = _torch()
+        return torch.arange(h, device=self.device)[:, None] * self.width + torch.arange(w, device=self.device)
+
+    @functools.lru_cache(maxsize=32)  # noqa: B019
+    def _graph(self, h: int, w: int):
+        torch = _torch()
+        from .cuda_graph import record
+
+        normals = torch.zeros(self.on_gel.shape + (3,), dtype=torch.float32, device=self.device)
+        place = torch.zeros((), dtype=torch.long, device=self.device)
+        return record(lambda n, o: self._solve(n, self._index(h, w) + o), (normals, place), self.device, "box")
 
 
 class DomeIntegrator:
