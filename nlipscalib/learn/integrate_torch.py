@@ -121,12 +121,14 @@ class BoxIntegrator:
 
     @functools.lru_cache(maxsize=32)  # noqa: B019
     def _graph(self, h: int, w: int):
+        """The solve of an (h, w) box recorded as a CUDA graph; inputs: the normal map and the box's flat place."""
         torch = _torch()
         from .cuda_graph import record
 
         normals = torch.zeros(self.on_gel.shape + (3,), dtype=torch.float32, device=self.device)
         place = torch.zeros((), dtype=torch.long, device=self.device)
-        return record(lambda n, o: self._solve(n, self._index(h, w) + o), (normals, place), self.device, "box")
+        solve = lambda n, o: self._solve(n, self._index(h, w) + o)  # noqa: E731
+        return record(solve, (normals, place), self.device, "The changed pixels' box solve")
 
 
 class DomeIntegrator:
