@@ -19,6 +19,14 @@ Two steps, because the GPU machine has no renderer:
    the CPU and the graph against eager execution; scores each against the truth (AAE in the contact and over the
    gel, depth error); then the whole ``python -m nlipscalib infer MODEL 'frames/img_%04d.png' --device cuda``
    command on a sequence of PNG frames (process wall, decoding included). Results: OUT/gpu_infer.json, stdout.
+
+3. the stream alone, on the GPU machine::
+
+       python benchmarks/bench_gpu_infer.py stream --model A.pt [--model B.pt] --frames frames.npz --out OUT
+
+   the frames as a 16-bit PNG sequence, streamed in this process as ``nlips infer`` streams them (its source,
+   read-ahead and mismatch watch) with 1, 2 and 4 decoding threads, then the whole command (process wall) with
+   its default and with ``--full-frame``. Results: OUT/gpu_stream.json, stdout.
 """
 
 from __future__ import annotations
@@ -183,8 +191,8 @@ def _eager(predictor) -> None:
         predictor._full.box_integrator._graph = lambda h, w: None
 
 
-def _command(model, stored, args) -> dict:
-    """The whole `nlips infer MODEL SEQUENCE --device cuda` on PNG frames, timed from outside."""
+def _png_sequence(stored, args) -> str:
+    """``args.command_frames`` 16-bit PNG frames cycling through ``stored``; returns their pattern."""
     import cv2
 
     seq = Path(args.scratch) / "frames"
@@ -193,11 +201,182 @@ def _command(model, stored, args) -> dict:
         path = seq / f"img_{i:04d}.png"
         if not path.exists():
             cv2.imwrite(str(path), stored[i % len(stored)][..., ::-1])
-    cmd = [sys.executable, "-m", "nlipscalib", "infer", model, str(seq / "img_%04d.png"), "--device", args.device]
+    return str(seq / "img_%04d.png")
+
+
+def _command(model, stored, args) -> dict:
+    """The whole `nlips infer MODEL SEQUENCE --device cuda` on PNG frames, timed from outside."""
+    return run_command(model, _png_sequence(stored, args), args, [])
+
+
+def run_command(model, pattern: str, args, extra: list) -> dict:
+    """``python -m nlipscalib infer MODEL PATTERN --device DEVICE [extra]``: its process wall and printout."""
+    cmd = [sys.executable, "-m", "nlipscalib", "infer", model, pattern, "--device", args.device, *extra]
     t0 = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True, cwd=Path(__file__).resolve().parents[1])
     wall = time.perf_counter() - t0
     return {"frames": args.command_frames, "process_wall_s": wall, "rc": done.returncode, "stdout": done.stdout[-800:]}
+
+
+def stream_step(args) -> None:
+    """Step 3: the streaming command's frames/s with 1, 2, 4 decoding threads, and the whole command."""
+    import torch
+
+    from nlipscalib.cli.live import MismatchWatch
+    from nlipscalib.device.camera import SequenceSource
+    from nlipscalib.device.live import ReadAhead, decoding_workers, stream
+    from nlipscalib.learn.infer import Predictor
+
+    _, presses = _frames(args.frames)
+    stored = [p["tricolor"] for p in presses.values()]
+    pattern = _png_sequence(stored, args)
+    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none"
+    report = {"gpu": gpu, "cpu_count": os.cpu_count(), "default_workers": decoding_workers()}
+    print(json.dumps(report), flush=True)
+    for model in args.model:
+        entry = report.setdefault(Path(model).stem, {})
+        for full in (False, True) if not args.no_sweep else ():
+            predictor = Predictor(model, device=args.device, full_frame=full)
+            watch = MismatchWatch(predictor, "bench")
+            for f in stored:  # warm-up: records the CUDA graphs
+                watch(f)
+            for workers in (1, 2, 4):
+                with ReadAhead(SequenceSource(pattern), workers=workers) as source:
+                    stats = stream(source, watch, [], report=None)
+                key = f"{'full_frame' if full else 'changed'}_workers_{workers}"
+                entry[key] = {"frames": stats.frames, "fps": stats.fps, "summary": stats.summary()}
+                print(f"{Path(model).stem} {key}: {stats.summary()}", flush=True)
+        for extra in ([], ["--full-frame"]):
+            entry["command" + "".join(extra)] = run_command(model, pattern, args, extra)
+            print(f"{Path(model).stem} command {extra}: {json.dumps(entry['command' + ''.join(extra)])}", flush=True)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    (Path(args.out) / "gpu_stream.json").write_text(json.dumps(report, indent=2))
+
+
+def boxes_step(args) -> None:
+    """Step 4: what a new size of the changed pixels' box costs on the GPU (a moving contact brings new sizes):
+    per size, its first eager solve (cuFFT plans made), a later eager solve, its graph recording and a replay."""
+    import torch
+
+    from nlipscalib.learn.fullframe import FullFrame, check_device
+    from nlipscalib.learn.infer import Predictor
+    from nlipscalib.learn.integrate import _fast_span
+
+    pred = Predictor(args.model[0])
+    full = FullFrame(pred.model, check_device(args.device), pred.geo, keep_reference=True)
+    integ = full.box_integrator
+    H, W = integ.on_gel.shape
+    normals = full.ref_normals
+    rng = np.random.default_rng(0)
+    rows = []
+
+    sync = torch.cuda.synchronize if torch.cuda.is_available() else (lambda: None)
+
+    def timed(f):
+        sync()
+        t0 = time.perf_counter()
+        f()
+        sync()
+        return 1e3 * (time.perf_counter() - t0)
+
+    for _ in range(args.sizes):
+        r0, c0 = int(rng.integers(2, H // 3)), int(rng.integers(2, W // 3))
+        r0, r1 = _fast_span(r0, r0 + int(rng.integers(20, H // 2)), H)
+        c0, c1 = _fast_span(c0, c0 + int(rng.integers(20, W // 2)), W)
+        box = (slice(r0, r1), slice(c0, c1))
+        h, w = r1 - r0, c1 - c0
+        index = integ._index(h, w) + (r0 * integ.width + c0)
+        rows.append(
+            {
+                "h": h,
+                "w": w,
+                "eager_first_ms": timed(lambda i=index: integ._solve(normals, i)),
+                "eager_ms": timed(lambda i=index: integ._solve(normals, i)),
+                "record_ms": timed(lambda b=box: integ(normals, b)),
+                "replay_ms": timed(lambda b=box: integ(normals, b)),
+            }
+        )
+    med = {k: float(np.median([r[k] for r in rows])) for k in rows[0] if k.endswith("_ms")}
+    print(json.dumps({"sizes": len(rows), "median": med}), flush=True)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    (Path(args.out) / "gpu_boxes.json").write_text(json.dumps({"median": med, "rows": rows}, indent=2))
+
+
+def moving_step(args) -> None:
+    """Step 5: a contact that grows and shrinks (a new box size nearly every frame): frames/s and the slowest
+    frames, the box solved by dense sine transforms (the default on a GPU) or, with ``--fft``, by FFTs (a cuFFT
+    plan per new box size). One model per process: the plans a process made would serve the next model."""
+    import torch
+
+    from nlipscalib.learn import integrate_torch
+    from nlipscalib.learn.infer import Predictor
+
+    integrate_torch.RECORD_AFTER = args.record_after or integrate_torch.RECORD_AFTER
+    if args.fft:
+        integrate_torch.BoxIntegrator._solver = lambda self, m, n: integrate_torch.BoxPoisson(
+            m, n, self.device, torch.float32
+        )
+    _, presses = _frames(args.frames)
+    press = next(iter(presses.values()))
+    pred = Predictor(args.model[0], device=args.device)
+    frames = _growing_contact(pred, press, args.moving_frames)
+    sizes, walls = set(), []
+    t_all = time.perf_counter()
+    for f in frames:
+        t0 = time.perf_counter()
+        res = pred.predict(f)
+        walls.append(time.perf_counter() - t0)
+        rows, cols = np.flatnonzero(res.changed.any(1)), np.flatnonzero(res.changed.any(0))
+        sizes.add((len(rows), len(cols)))
+    entry = {
+        "model": Path(args.model[0]).stem,
+        "box_solve": "fft" if args.fft else "dense",
+        "record_after": integrate_torch.RECORD_AFTER,
+        "slowest_frame": int(np.argmax(walls)),
+        "frames": len(frames),
+        "frames_per_s": len(frames) / (time.perf_counter() - t_all),
+        "call_ms_median": 1e3 * float(np.median(walls)),
+        "call_ms_p95": 1e3 * float(np.percentile(walls, 95)),
+        "call_ms_max": 1e3 * float(np.max(walls)),
+        "changed_extents": len(sizes),
+    }
+    print(json.dumps(entry), flush=True)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    with open(Path(args.out) / "gpu_moving.jsonl", "a") as fh:
+        fh.write(json.dumps(entry) + "\n")
+
+
+def parity_step(args) -> None:
+    """Step 6: the GPU's result against the CPU's (the torch backend) on every packed frame and on frames of a
+    growing contact: changed masks, normals, depth."""
+    from nlipscalib.learn.infer import Predictor
+
+    _, presses = _frames(args.frames)
+    for model in args.model:
+        gpu, cpu = Predictor(model, device=args.device), Predictor(model, backend="torch")
+        frames = [gpu.linear(p["tricolor"]) for p in presses.values()]
+        frames += _growing_contact(gpu, next(iter(presses.values())), 12)
+        worst = {"changed_masks_differ_px": 0, "max_normal_diff": 0.0, "max_depth_diff_mm": 0.0}
+        for f in frames:
+            a, b = gpu.predict(f), cpu.predict(f)
+            differ = int((a.changed != b.changed).sum())
+            worst["changed_masks_differ_px"] = max(worst["changed_masks_differ_px"], differ)
+            worst["max_normal_diff"] = max(worst["max_normal_diff"], float(np.abs(a.normals - b.normals).max()))
+            worst["max_depth_diff_mm"] = max(worst["max_depth_diff_mm"], float(np.nanmax(np.abs(a.depth - b.depth))))
+        print(json.dumps({"model": Path(model).stem, "frames": len(frames), **worst}), flush=True)
+
+
+def _growing_contact(pred, press: dict, n: int) -> list:
+    """``n`` linear frames: the press's frame inside a disc about its contact that grows to the whole contact and
+    shrinks back, the reference frame outside (a press going in and out)."""
+    linear = pred.linear(press["tricolor"])
+    diff = np.abs(linear - pred.ref_tricolor).sum(-1)
+    cy, cx = np.unravel_index(np.argmax(diff), diff.shape)
+    yy, xx = np.indices(diff.shape)
+    dist = np.hypot(yy - cy, xx - cx)
+    reach = float(dist[diff > 0.2 * diff.max()].max())
+    radii = reach * np.sin(np.linspace(0.05, np.pi - 0.05, n))
+    return [np.where((dist <= r)[..., None], linear, pred.ref_tricolor).astype(np.float32) for r in radii]
 
 
 def main() -> None:
@@ -215,8 +394,34 @@ def main() -> None:
     r.add_argument("--repeats", type=int, default=300)
     r.add_argument("--command-frames", type=int, default=300)
     r.add_argument("--scratch", default="/tmp/bench_gpu_infer")
+    t = sub.add_parser("stream")
+    t.add_argument("--model", action="append", required=True)
+    t.add_argument("--frames", required=True)
+    t.add_argument("--out", required=True)
+    t.add_argument("--device", default="cuda")
+    t.add_argument("--command-frames", type=int, default=300)
+    t.add_argument("--no-sweep", action="store_true", help="only the whole commands")
+    t.add_argument("--scratch", default="/tmp/bench_gpu_infer")
+    b = sub.add_parser("boxes")
+    b.add_argument("--model", action="append", required=True)
+    b.add_argument("--out", required=True)
+    b.add_argument("--device", default="cuda")
+    b.add_argument("--sizes", type=int, default=40)
+    m = sub.add_parser("moving")
+    m.add_argument("--model", action="append", required=True)
+    m.add_argument("--frames", required=True)
+    m.add_argument("--out", required=True)
+    m.add_argument("--device", default="cuda")
+    m.add_argument("--moving-frames", type=int, default=200)
+    m.add_argument("--fft", action="store_true", help="the box solved by FFTs (a cuFFT plan per new box size)")
+    m.add_argument("--record-after", type=int, help="record a box size at its N-th frame (default: the module's)")
+    q = sub.add_parser("parity")
+    q.add_argument("--model", action="append", required=True)
+    q.add_argument("--frames", required=True)
+    q.add_argument("--device", default="cuda")
     args = ap.parse_args()
-    pack(args) if args.step == "pack" else run(args)
+    steps = {"pack": pack, "run": run, "stream": stream_step, "boxes": boxes_step, "moving": moving_step}
+    (steps | {"parity": parity_step})[args.step](args)
 
 
 if __name__ == "__main__":

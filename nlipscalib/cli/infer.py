@@ -122,7 +122,9 @@ def _check_video(path: str) -> None:
     # one-line error below names the file instead. Read once, when OpenCV first loads its FFmpeg backend.
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     cv2 = require("cv2", "opencv-python-headless", "Reading a video")
-    if "%" not in path and not Path(path).is_file():
+    if "%" in path and not Path(path).exists():  # an image sequence: its source names a bad frame itself
+        return
+    if not Path(path).is_file():
         raise CaptureError(f"{path}: no such video file")
     cap = cv2.VideoCapture(path)
     try:
@@ -188,23 +190,32 @@ def _run_stream(args, what: str) -> int:
     watch.report()
     if args.out and stats.frames:
         _write_stream_report(args.out, name, predictor, stats, stages, cpu)
+    if getattr(source, "failure", None) is not None:  # a damaged frame: after what came before it, one line
+        raise CaptureError(f"{source.failure} (the stream stopped there, after {stats.frames} frames)")
     return 0
 
 
 class _EndsCleanly:
-    """A recorded stream (video, image sequence) whose end ends the stream, even before --max-frames."""
+    """A recorded stream (video, image sequence) whose end ends the stream, even before --max-frames; a frame
+    that cannot be read (a damaged file) ends it too, and is kept in ``failure`` to be raised after the summary
+    (the frames before it are inferred and saved)."""
 
     def __init__(self, source):
         self.source = source
         self.shape = source.shape
+        self.failure = None
 
     def read(self):
+        from ..device.camera import EndOfFrames
         from ..device.live import StopLive
         from ..errors import CaptureError
 
         try:
             return self.source.read()
-        except CaptureError:
+        except EndOfFrames:
+            raise StopLive from None
+        except CaptureError as exc:
+            self.failure = exc
             raise StopLive from None
 
 

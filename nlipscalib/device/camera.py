@@ -1,4 +1,4 @@
-"""Frame sources for capture: a live OpenCV camera, a folder of images, a video file.
+"""Frame sources for capture: a live OpenCV camera, a folder of images, an image sequence, a video file.
 
 Every source returns frames as the capture format stores them: (H, W, 3) uint16, RGB, linear values
 ``DN << (16 - bit_depth)`` (docs/formats.md). Photometric stereo needs frames whose brightness depends
@@ -24,6 +24,10 @@ import numpy as np
 from ..errors import CaptureError, ConfigError, require
 
 log = logging.getLogger(__name__)
+
+class EndOfFrames(CaptureError):
+    """A recorded source (folder, image sequence, video) has no frame left: its end, not a fault."""
+
 
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
 """Files a folder source reads, in name order."""
@@ -138,19 +142,21 @@ def to_stored(frame: np.ndarray, name: str = "frame") -> tuple[np.ndarray, int]:
     return np.ascontiguousarray(out), bits
 
 
-class FolderSource(FrameSource):
-    """Images of a folder in name order, one per :meth:`read` (a recorded capture, or a test fixture).
+class _ImageFiles(FrameSource):
+    """Recorded frames, one image file each, in order: :meth:`read` the next, or :meth:`frame_at` any one.
 
-    16-bit PNG/TIFF keep their bit depth (OpenCV's ``imread`` with ``IMREAD_UNCHANGED``).
+    16-bit PNG/TIFF keep their bit depth (OpenCV's ``imread`` with ``IMREAD_UNCHANGED``). :meth:`frame_at`
+    only reads its file, so several threads may decode frames at once (:class:`~nlipscalib.device.live.ReadAhead`
+    does: OpenCV releases the GIL while it decodes).
     """
 
-    def __init__(self, folder: str | Path, average: int = 1):
-        self.folder = Path(folder)
-        if not self.folder.is_dir():
-            raise CaptureError(f"{self.folder}: image folder does not exist")
-        self.files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-        if not self.files:
-            raise CaptureError(f"{self.folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+    files: list[Path]
+    """The frames' files, in order."""
+    name: str
+    """What error lines call the whole (the folder, or the pattern)."""
+
+    def __init__(self, files: list[Path], name: str, average: int = 1):
+        self.files, self.name = files, name
         self.average = int(average)
         self.position = 0
         first, self.bit_depth = self._load(self.files[0])
@@ -166,18 +172,63 @@ class FolderSource(FrameSource):
             raise CaptureError(f"{path}: not a readable image")
         return to_stored(frame, str(path))
 
-    def read(self) -> np.ndarray:
-        if self.position >= len(self.files):
-            raise CaptureError(f"{self.folder}: ran out of images after {len(self.files)} frames")
-        frame, _ = self._load(self.files[self.position])
+    def frame_at(self, index: int) -> np.ndarray:
+        """Frame ``index`` (from 0): (H, W, 3) uint16, RGB, stored values; CaptureError past the last one."""
+        if index >= len(self.files):
+            raise EndOfFrames(f"{self.name}: ran out of images after {len(self.files)} frames")
+        frame, _ = self._load(self.files[index])
         if frame.shape[:2] != self._shape:
-            raise CaptureError(f"{self.files[self.position]}: size {frame.shape[:2]} differs from {self._shape}")
+            raise CaptureError(f"{self.files[index]}: size {frame.shape[:2]} differs from {self._shape}")
+        return frame
+
+    def read(self) -> np.ndarray:
+        frame = self.frame_at(self.position)
         self.position += 1
         return frame
 
 
+class FolderSource(_ImageFiles):
+    """Images of a folder in name order, one per :meth:`read` (a recorded capture, or a test fixture)."""
+
+    def __init__(self, folder: str | Path, average: int = 1):
+        self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise CaptureError(f"{self.folder}: image folder does not exist")
+        files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if not files:
+            raise CaptureError(f"{self.folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+        super().__init__(files, str(self.folder), average)
+
+
+class SequenceSource(_ImageFiles):
+    """An image sequence named by a printf pattern (``frames/img_%04d.png``), read as OpenCV's image-sequence
+    reader does: from index 0, or 1 when there is no 0, up to the first index whose file is missing.
+
+    Not through ``cv2.VideoCapture``: this source can decode several frames at once (:meth:`frame_at`).
+    """
+
+    def __init__(self, pattern: str, average: int = 1):
+        self.pattern = str(pattern)
+        start = next((i for i in (0, 1) if Path(self._name(i)).is_file()), None)
+        if start is None:
+            raise CaptureError(f"{self.pattern}: no image of the sequence ({self._name(0)} nor {self._name(1)} exists)")
+        files = []
+        while Path(self._name(start + len(files))).is_file():
+            files.append(Path(self._name(start + len(files))))
+        super().__init__(files, self.pattern, average)
+
+    def _name(self, index: int) -> str:
+        try:
+            return self.pattern % index
+        except (TypeError, ValueError):
+            raise CaptureError(
+                f"{self.pattern}: not an image-sequence pattern (one integer field such as %04d, and %% for a "
+                "literal %)"
+            ) from None
+
+
 class OpenCVSource(FrameSource):
-    """A camera (index or device path), a video file or an image sequence (``img_%04d.png``) via ``cv2.VideoCapture``.
+    """A camera (index or device path) or a video file via ``cv2.VideoCapture``.
 
     For a live camera, ``settings`` are applied (auto modes off) and verified by reading them back; a
     file or sequence gets no settings and no flushing (each recorded frame is one exposure).
@@ -215,7 +266,7 @@ class OpenCVSource(FrameSource):
     def _grab(self) -> np.ndarray:
         ok, frame = self.cap.read()
         if not ok or frame is None:
-            raise CaptureError(f"camera {self.device}: no frame (end of file, or the camera stopped)")
+            raise EndOfFrames(f"camera {self.device}: no frame (end of file, or the camera stopped)")
         if frame.ndim == 2 and frame.shape[0] == 1 and self.live:
             # unconverted YUYV/MJPEG frames come as a flat byte buffer: only 16-bit grey (Y16) raw frames
             # are images, so fall back to OpenCV's 8-bit conversion
@@ -331,4 +382,6 @@ def open_source(spec: str | int, settings: CameraSettings | None = None) -> Fram
         return OpenCVSource(int(spec), settings)
     if Path(spec).is_dir():
         return FolderSource(spec, average=settings.average)
+    if "%" in str(spec) and not str(spec).startswith("/dev/") and not Path(spec).exists():
+        return SequenceSource(spec, average=settings.average)
     return OpenCVSource(str(spec), settings)

@@ -97,6 +97,8 @@ class FullFrame:
         self(linear)
         if self.device.type == "cuda":
             self(linear.astype(np.uint16), stored=True)
+        if self.box_integrator is not None:  # and the changed pixels' box, which an empty frame never reaches
+            self.box_integrator.warm_up(self.ref_normals)
 
     def __call__(self, tricolor: np.ndarray, stored: bool = False):
         """normals, depth, points, changed (numpy, as :class:`.infer.Frame` holds them), stage seconds, mismatch.

@@ -26,6 +26,10 @@ import numpy as np
 from ..errors import ShapeError, require
 from .integrate import MIN_FACING, RayGeometry, _box, box_eigenvalues, box_rhs
 
+RECORD_AFTER = 3
+"""A box size is recorded as a CUDA graph when it comes the third time, solved eagerly before: a contact that
+moves or grows brings a new box size nearly every frame, and recording one costs several eager solves (its
+warm-up runs and a memory pool of its own; benchmarks/RESULTS.md), while a held contact repeats its size."""
 SETUP_BATCH_BYTES = 1 << 29
 """Memory of one batch of box solves while the capacitance matrix is set up (float64 boxes)."""
 
@@ -49,14 +53,35 @@ def dst1(x, dim: int):
     return out.movedim(-1, dim)
 
 
-class BoxPoisson:
-    """Solver of the 5-point Dirichlet Laplacian (4 x_i - sum of neighbours = f) on an (m, n) box, zero outside."""
+@functools.lru_cache(maxsize=64)
+def dst1_matrix(n: int, device, dtype):
+    """(n, n) matrix of the orthonormal type-I DST (symmetric, its own inverse): ``S @ x`` is :func:`dst1` along
+    the first axis. Its sines are taken of exact arguments (the index product reduced modulo the period)."""
+    torch = _torch()
+    k = torch.arange(1, n + 1, dtype=torch.int64)
+    phase = (k[:, None] * k[None, :]) % (2 * (n + 1))
+    s = math.sqrt(2.0 / (n + 1)) * torch.sin(phase.to(torch.float64) * (math.pi / (n + 1)))
+    return s.to(device=device, dtype=dtype)
 
-    def __init__(self, m: int, n: int, device, dtype):
+
+class BoxPoisson:
+    """Solver of the 5-point Dirichlet Laplacian (4 x_i - sum of neighbours = f) on an (m, n) box, zero outside.
+
+    ``dense``: the sine transforms as matrix products (:func:`dst1_matrix`) instead of FFTs. On a GPU a box of a
+    new size then costs no cuFFT plan: 34 ms the first time a size came on an H200, against 1 ms once planned,
+    and a moving contact brings a new box size nearly every frame (benchmarks/RESULTS.md). On a CPU the FFT is
+    the faster.
+    """
+
+    def __init__(self, m: int, n: int, device, dtype, dense: bool = False):
         self.lam = _torch().as_tensor(box_eigenvalues(m, n), dtype=dtype, device=device)
+        self.dense = (dst1_matrix(m, device, dtype), dst1_matrix(n, device, dtype)) if dense else None
 
     def __call__(self, f):
         """x with L x = f; ``f`` is (..., m, n)."""
+        if self.dense is not None:
+            s_m, s_n = self.dense
+            return s_m @ ((s_m @ f @ s_n) / self.lam) @ s_n
         return dst1(dst1(dst1(dst1(f, -2), -1) / self.lam, -2), -1)
 
 
@@ -72,6 +97,8 @@ class BoxIntegrator:
 
     def __init__(self, geo: RayGeometry, device):
         torch = _torch()
+        self.seen: dict[tuple[int, int], int] = {}
+        """How often each box size (h, w) has come (recorded at :data:`RECORD_AFTER`)."""
         self.on_gel = np.isfinite(geo.log_range)
         self.width = geo.log_range.shape[1]
         self.log_range = torch.as_tensor(geo.log_range.astype(np.float32), device=device).flatten()
@@ -87,18 +114,41 @@ class BoxIntegrator:
     def __call__(self, normals, box):
         """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor).
 
-        On a GPU, recorded once per box size as a CUDA graph (the box's place is an input): a new size costs
-        a recording (milliseconds) the first time, every later frame one launch.
+        On a GPU, a box size that keeps coming is recorded as a CUDA graph (the box's place is an input) at its
+        :data:`RECORD_AFTER`-th frame; every later frame of that size is one launch. The others are solved
+        eagerly, with the same results.
         """
         h, w = box[0].stop - box[0].start, box[1].stop - box[1].start
         offset = box[0].start * self.width + box[1].start
-        replay = self._graph(h, w) if self.device.type == "cuda" else None
+        replay = self._graph(h, w) if self._recorded(h, w) else None
         if replay is None:
             return self._solve(normals, self._index(h, w) + offset)
         frame_normals, place = replay.inputs
         frame_normals.copy_(normals)
         place.fill_(offset)
         return replay()
+
+    def warm_up(self, normals) -> None:
+        """Solve one small box in the gel's middle, uncounted: the first box of a stream would otherwise load the
+        path's GPU kernels (CUDA loads a kernel on its first use; a stream's first box took 0.36-0.58 s on an
+        H200, benchmarks/RESULTS.md). ``normals``: an (H, W, 3) tensor on the device."""
+        from scipy.ndimage import distance_transform_edt
+
+        inside = distance_transform_edt(np.pad(self.on_gel, 1))[1:-1, 1:-1]  # the image's border counts as an edge
+        middle = np.unravel_index(np.argmax(inside), self.on_gel.shape)
+        seed = np.zeros_like(self.on_gel)
+        seed[middle[0] - 2 : middle[0] + 3, middle[1] - 2 : middle[1] + 3] = True
+        box = self.box(seed & self.on_gel) if (seed & self.on_gel).any() else None
+        if box is not None:
+            h, w = box[0].stop - box[0].start, box[1].stop - box[1].start
+            self._solve(normals, self._index(h, w) + (box[0].start * self.width + box[1].start))
+
+    def _recorded(self, h: int, w: int) -> bool:
+        """Whether this frame's (h, w) box runs as a recorded graph (this frame counted)."""
+        if self.device.type != "cuda":
+            return False
+        self.seen[(h, w)] = self.seen.get((h, w), 0) + 1
+        return self.seen[(h, w)] >= RECORD_AFTER
 
     def _solve(self, normals, index):
         """Points over the box whose flat pixel indices are ``index`` ((h, w) long tensor)."""
@@ -111,7 +161,8 @@ class BoxIntegrator:
 
     @functools.lru_cache(maxsize=32)  # noqa: B019 -- one per box size; the instance lives as long as the model
     def _solver(self, m: int, n: int) -> BoxPoisson:
-        return BoxPoisson(m, n, self.device, _torch().float32)
+        # on a GPU as matrix products: a box of a new size would otherwise wait for its cuFFT plans
+        return BoxPoisson(m, n, self.device, _torch().float32, dense=self.device.type == "cuda")
 
     @functools.lru_cache(maxsize=32)  # noqa: B019
     def _index(self, h: int, w: int):

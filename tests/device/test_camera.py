@@ -9,6 +9,7 @@ from nlipscalib.device.camera import (  # noqa: E402
     CameraSettings,
     FolderSource,
     OpenCVSource,
+    SequenceSource,
     apply_settings,
     open_source,
     to_stored,
@@ -58,6 +59,48 @@ def test_video_file_is_read_frame_by_frame(tmp_path):
     src.close()
     with pytest.raises(CaptureError, match="does not exist"):
         open_source(str(tmp_path / "missing.avi"))
+
+
+@pytest.mark.parametrize("first", [0, 1])
+def test_an_image_sequence_reads_as_opencv_reads_it(tmp_path, first):
+    """Known answer: OpenCV's own image-sequence reader (from 0, or 1 without a 0; up to the first gap)."""
+    for k in range(first, first + 4):
+        cv2.imwrite(str(tmp_path / f"img_{k:04d}.png"), np.full((6, 8, 3), [100 * k, 2000, 3000], np.uint16))
+    cv2.imwrite(str(tmp_path / "img_0009.png"), np.zeros((6, 8, 3), np.uint16))  # after the gap: not in it
+    pattern = str(tmp_path / "img_%04d.png")
+    src = open_source(pattern)
+    assert isinstance(src, SequenceSource) and src.bit_depth == 16 and len(src.files) == 4
+    cap = cv2.VideoCapture(pattern)
+    opencv = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        opencv.append(to_stored(frame)[0])
+    cap.release()
+    ours = [src.read() for _ in range(len(src.files))]
+    # OpenCV's sequence reader rounds 16-bit files to 8 bits; this source keeps their 16
+    assert len(ours) == len(opencv) == 4
+    for a, b in zip(ours, opencv):
+        assert np.all(np.abs(a / 256.0 - (b >> 8)) <= 0.5)
+    np.testing.assert_array_equal(src.frame_at(2), ours[2])  # any frame, in any order
+    with pytest.raises(CaptureError, match="ran out of images after 4 frames"):
+        src.read()
+
+
+def test_a_bad_image_sequence_is_one_line(tmp_path):
+    with pytest.raises(CaptureError, match=r"no image of the sequence \(.*img_0000.png nor .*img_0001.png exists\)"):
+        open_source(str(tmp_path / "img_%04d.png"))
+    (tmp_path / "x_5.png").write_bytes(b"")
+    with pytest.raises(CaptureError, match="not an image-sequence pattern"):
+        open_source(str(tmp_path / "x_%s%d.png"))
+    (tmp_path / "y_0.png").write_bytes(b"not a png")
+    with pytest.raises(CaptureError, match="y_0.png: not a readable image"):
+        open_source(str(tmp_path / "y_%d.png"))
+    # a file whose name holds a % is that file, not a pattern
+    named = tmp_path / "press 50%.png"
+    cv2.imwrite(str(named), np.zeros((4, 4, 3), np.uint16))
+    assert not isinstance(open_source(str(named)), SequenceSource)
 
 
 class FakeCap:

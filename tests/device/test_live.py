@@ -6,8 +6,9 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 
 from nlipscalib.cli import main  # noqa: E402
-from nlipscalib.device.camera import FolderSource  # noqa: E402
+from nlipscalib.device.camera import FolderSource, SequenceSource  # noqa: E402
 from nlipscalib.device.live import ReadAhead, StopLive, depth_to_rgb, stream  # noqa: E402
+from nlipscalib.errors import CaptureError  # noqa: E402
 
 from .fakes import flat_predictor  # noqa: E402
 
@@ -71,6 +72,36 @@ def test_read_ahead_decodes_the_next_frame_while_the_caller_works():
         assert src.second.wait(timeout=30)
         assert src.reads == 2
         assert ahead.read() == 2
+
+
+def test_read_ahead_decodes_image_files_on_several_threads_in_order(tmp_path):
+    import threading
+
+    for k in range(9):
+        cv2.imwrite(str(tmp_path / f"img_{k:04d}.png"), np.full((12, 16, 3), 1000 * (k + 1), np.uint16))
+    (tmp_path / "img_0006.png").write_bytes(b"damaged")  # the stream must end there, after frames 0-5
+
+    class Watched(SequenceSource):
+        def __init__(self, pattern):
+            super().__init__(pattern)
+            self.threads, self.lock = set(), threading.Lock()
+            self.both = threading.Barrier(2, timeout=30)
+
+        def frame_at(self, index):
+            with self.lock:
+                self.threads.add(threading.get_ident())
+            if index < 2:  # frames 0 and 1 each wait for the other: only two threads decoding at once pass
+                self.both.wait()
+            return super().frame_at(index)
+
+    src = Watched(str(tmp_path / "img_%04d.png"))
+    seen = []
+    with ReadAhead(src, workers=3) as ahead:
+        with pytest.raises(CaptureError, match="img_0006.png: not a readable image"):
+            while True:
+                seen.append(int(ahead.read()[0, 0, 0]))
+    assert seen == [1000 * (k + 1) for k in range(6)]
+    assert len(src.threads) >= 2
 
 
 def test_depth_colours_black_off_the_gel():

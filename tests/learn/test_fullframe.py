@@ -10,7 +10,7 @@ from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import load_press  # noqa: E402
 from nlipscalib.learn.infer import Predictor  # noqa: E402
 from nlipscalib.learn.integrate import RayGeometry, log_range_gradient  # noqa: E402
-from nlipscalib.learn.integrate_torch import DomeIntegrator, dst1  # noqa: E402
+from nlipscalib.learn.integrate_torch import RECORD_AFTER, BoxPoisson, DomeIntegrator, dst1  # noqa: E402
 
 CPU = torch.device("cpu")
 DEVICES = [
@@ -26,6 +26,39 @@ def test_dst1_is_scipys_orthonormal_type_i_along_either_axis():
     for axis in (0, 1):
         got = dst1(torch.from_numpy(x), axis).numpy()
         np.testing.assert_allclose(got, dst(x, type=1, norm="ortho", axis=axis), atol=1e-12)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_the_box_solve_by_matrix_products_is_the_fft_one(device):
+    """The GPU's box solve (dense sine transforms: no cuFFT plan per box size) against the FFT one and against
+    the 5-point Laplacian it inverts."""
+    f = np.random.default_rng(4).normal(size=(37, 53))
+    for dtype, tol in ((torch.float64, 1e-12), (torch.float32, 2e-5)):
+        x = torch.from_numpy(f).to(device=device, dtype=dtype)
+        dense = BoxPoisson(37, 53, torch.device(device), dtype, dense=True)(x).cpu().double().numpy()
+        fft = BoxPoisson(37, 53, torch.device(device), dtype)(x).cpu().double().numpy()
+        np.testing.assert_allclose(dense, fft, atol=tol * np.abs(fft).max())
+    padded = np.pad(dense, 1)
+    laplacian = 4 * dense - padded[:-2, 1:-1] - padded[2:, 1:-1] - padded[1:-1, :-2] - padded[1:-1, 2:]
+    np.testing.assert_allclose(laplacian, f, atol=1e-3)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("gel", ["disk", "whole image"])
+def test_the_box_warm_up_solves_a_box_in_the_gel_uncounted(device, gel, monkeypatch):
+    from nlipscalib.learn.integrate_torch import BoxIntegrator
+
+    geo, on_gel, _ = _dome()
+    if gel == "whole image":
+        rays = geo.rays32.astype(float)
+        geo = RayGeometry.from_reference(rays, np.exp(np.nan_to_num(geo.log_range, nan=3.0)) * rays[..., 2])
+    integrator = BoxIntegrator(geo, torch.device(device))
+    solved = []
+    monkeypatch.setattr(integrator, "_solve", lambda normals, index: solved.append(index.cpu().numpy()))
+    integrator.warm_up(torch.zeros(on_gel.shape + (3,), device=device))
+    assert len(solved) == 1 and integrator.seen == {}
+    rows, cols = np.divmod(solved[0], on_gel.shape[1])
+    assert integrator.on_gel[rows, cols].all() and rows.min() > 0 and cols.min() > 0
 
 
 @pytest.mark.parametrize("device", DEVICES)
@@ -196,10 +229,13 @@ def test_the_gpu_gives_the_cpu_result(trained, twin_presses):
     press = load_press(twin_presses / "press_g")
     cpu = Predictor(trained, backend="torch")
     gpu = Predictor(trained, device="cuda")
-    for _ in range(2):  # the first stored frame records the CUDA graph, the second replays it
+    # the first stored frame records the frame's CUDA graph, the second replays it; the changed pixels' box
+    # is solved eagerly until its size has come RECORD_AFTER times, then recorded, then replayed
+    for _ in range(RECORD_AFTER + 1):
         want, got = cpu.predict_stored(press.tricolor), gpu.predict_stored(press.tricolor)
         np.testing.assert_array_equal(got.changed, want.changed)
         np.testing.assert_allclose(got.normals, want.normals, atol=2e-4)
+    assert list(gpu._full.box_integrator.seen.values()) == [RECORD_AFTER + 1]
     whole_cpu = Predictor(trained, full_frame=True).predict_stored(press.tricolor)
     whole_gpu = Predictor(trained, full_frame=True, device="cuda").predict_stored(press.tricolor)
     np.testing.assert_allclose(whole_gpu.normals, whole_cpu.normals, atol=2e-4)

@@ -343,3 +343,23 @@ def test_nlipsnet_results_record_their_input_and_eval_refuses_another_press(
     caplog.set_level(logging.WARNING)
     assert main(["eval", str(held), "--result", str(old.parent)]) == 0
     assert "records no input identity (written by an older nlipscalib" in caplog.text
+
+
+def test_a_damaged_frame_of_a_sequence_ends_the_stream_with_one_line_after_the_frames_before_it(
+    trained, twin_presses, tmp_path, capsys
+):
+    """A damaged file in an image sequence used to end the stream as if the recording had ended, exit 0."""
+    import shutil
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for i in range(4):
+        shutil.copy(twin_presses / HELD_OUT / "tricolor.png", seq / f"img_{i:04d}.png")
+    (seq / "img_0002.png").write_bytes(b"damaged")
+    out = tmp_path / "o"
+    assert main(["infer", str(trained), str(seq / "img_%04d.png"), "--out", str(out)]) == 2  # bad input
+    captured = capsys.readouterr()
+    assert captured.out.startswith("2 frames in")  # the summary of the frames before it
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and "img_0002.png: not a readable image (the stream stopped there, after 2 frames)" in err[0]
+    assert (out / "stream.json").is_file()
