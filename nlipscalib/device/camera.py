@@ -25,6 +25,7 @@ from ..errors import CaptureError, ConfigError, require
 
 log = logging.getLogger(__name__)
 
+
 class EndOfFrames(CaptureError):
     """A recorded source (folder, image sequence, video) has no frame left: its end, not a fault."""
 
