@@ -121,10 +121,10 @@ def run(args) -> int:
                 angle = export_and_check(stage / out.name, data, result.val_presses)[1]
         except Exception:  # a failed export costs the export, not the training: the model goes out without one
             (stage / onnx_path.name).unlink(missing_ok=True)  # written, then failed its parity check
-            publish_model(stage, out)
+            publish_model(stage, out, result)
             print(summary)
             raise
-        publish_model(stage, out)
+        publish_model(stage, out, result)
     print(summary)
     if angle is not None:
         print(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")

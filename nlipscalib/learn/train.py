@@ -1,9 +1,11 @@
 """Training NLiPsNet on a calibration dataset: split by press, cosine loss, early stopping on validation AAE.
 
-Resumable: after every epoch the state (weights, optimiser, history, best weights) goes into
-``MODEL.checkpoint.pt`` beside the model; a run with the same options on the same training and
-validation samples continues from it. Any other run (other options, another dataset, other presses
-held out for validation or excluded) trains afresh, saying why.
+Resumable: after every epoch the state (weights, optimiser, history, best weights) goes into a checkpoint
+beside the model named by the run (``MODEL.<run>.checkpoint.pt``, :func:`progress_checkpoint_path`: the options
+and the samples), so trainings of other runs into the same place never overwrite each other's progress; when the
+run ends, its last state is published as ``MODEL.checkpoint.pt`` with the model. A run with the same options on
+the same training and validation samples continues from its own checkpoint, or from the published one. Any other
+run (other options, another dataset, other presses held out for validation or excluded) trains afresh, saying why.
 
 A training's files (the model, its ONNX export, curve and final checkpoint) are written into one temporary
 folder beside the model (:func:`model_stage`) and published together (:func:`publish_model`), so runs into
@@ -150,6 +152,8 @@ class TrainResult:
     best_epoch: int
     train_presses: list
     val_presses: list
+    progress: Path | None = None
+    """This run's per-epoch checkpoint while its files wait in a stage: removed by :func:`publish_model`."""
 
 
 def train(
@@ -192,7 +196,9 @@ def train(
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     sched = _scheduler(opt, cfg)
     data_key = _data_key(x_tr, y_tr, x_va, y_va, c_va)
-    state = _resume(out, cfg, data_key, net, opt, sched)
+    progress_path = progress_checkpoint_path(out, cfg, data_key)
+    _clean_interrupted_writes(out, progress_path.name)
+    state = _resume(out, progress_path, cfg, data_key, net, opt, sched)
     if not state["history"] and out.is_file():  # a re-run with a tweak would otherwise replace a better model unnoticed
         log.warning(
             "%s: a model is already there (not this training's: its checkpoint was made with other options or "
@@ -200,10 +206,12 @@ def train(
             out,
         )
     samples = [torch.from_numpy(a) for a in (x_tr, y_tr, x_va, y_va, c_va)]
-    checkpoint = functools.partial(_save_checkpoint, out, cfg, data_key, net, opt, sched)
+    checkpoint = functools.partial(_save_checkpoint, progress_path, cfg, data_key, net, opt, sched)
     history, best, best_state = _epochs(net, opt, sched, samples, cfg, state, checkpoint, progress)
-    if stage is not None:  # this run's last state, published with its model (another run may have written since)
-        checkpoint(history, best, best_state, stage)
+    # this run's last state as MODEL.checkpoint.pt: published with its model from the stage, or put there now
+    checkpoint(history, best, best_state, stage / checkpoint_path(out).name if stage else checkpoint_path(out))
+    if stage is None:
+        progress_path.unlink(missing_ok=True)
     net.load_state_dict(best_state)
     info = {
         "labels": cfg.labels,
@@ -227,7 +235,7 @@ def train(
         info=info,
         smoothing_px=dataset.smoothing_px,
     )
-    return TrainResult(out, history, best["epoch"], train_names, val_names)
+    return TrainResult(out, history, best["epoch"], train_names, val_names, progress_path if stage else None)
 
 
 def _presses(dataset: CalibrationDataset, cfg: TrainConfig, val_names, exclude) -> tuple[list[str], list[str]]:
@@ -369,6 +377,13 @@ def checkpoint_path(out: Path) -> Path:
     return out.with_name(out.stem + "." + CHECKPOINT_FILE)
 
 
+def progress_checkpoint_path(out: Path, cfg, data_key: str) -> Path:
+    """``MODEL.<run>.checkpoint.pt`` beside the model file ``out``: the checkpoint of every epoch of the run of
+    these options on these samples (``<run>``: 12 hex digits of their keys)."""
+    run = hashlib.sha1(f"{_config_key(cfg)}:{data_key}".encode()).hexdigest()[:12]
+    return out.with_name(f"{out.stem}.{run}.{CHECKPOINT_FILE}")
+
+
 def model_file_names(out: Path) -> tuple[str, ...]:
     """The files one training writes beside the model ``out``: the model, its checkpoint, ONNX export and curve."""
     return (out.name, checkpoint_path(out).name, out.with_suffix(".onnx").name, out.stem + "_curve.png")
@@ -387,7 +402,7 @@ def model_stage(out):
     return scratch_dir(out)
 
 
-def publish_model(stage, out) -> list[Path]:
+def publish_model(stage, out, result: TrainResult | None = None) -> list[Path]:
     """Put the files of one training (``stage``, from :func:`model_stage`) beside ``out``, together.
 
     Why: two ``nlips train`` runs into one ``--out`` with different options each wrote their .pt, .onnx and
@@ -397,6 +412,9 @@ def publish_model(stage, out) -> list[Path]:
     (an .onnx of an earlier run when this one has none): the last run to finish leaves its files, whole, and
     nothing of another run beside them. The old .onnx goes first, so a reader in between finds the new model
     with no export (PyTorch is used) rather than with a stale one.
+
+    ``result``: the training's :class:`TrainResult`; its per-epoch checkpoint is removed once its last state is
+    published.
 
     Returns the published paths.
     """
@@ -414,25 +432,28 @@ def publish_model(stage, out) -> list[Path]:
                         published.append(out.parent / name)
                     else:  # another run's file, or a file of this name made before
                         (out.parent / name).unlink(missing_ok=True)
+                if result is not None and result.progress is not None:
+                    result.progress.unlink(missing_ok=True)
                 return published
         time.sleep(PUBLISH_POLL_S)  # another run is publishing: a few renames, then it is this run's turn
 
 
-def _clean_interrupted_writes(out: Path) -> None:
-    """Remove temporaries of killed writes of the model, its checkpoint, ONNX file and curve (owner gone only).
+def _clean_interrupted_writes(out: Path, *names: str) -> None:
+    """Remove temporaries of killed writes of the model, its checkpoint, ONNX file and curve, or of the files
+    ``names`` (a run's per-epoch checkpoint) beside ``out`` (owner gone only).
 
-    Every file here is written atomically under an owner-tagged temporary name (core.atomic); a SIGKILL
-    in the middle of a write leaves that temporary, which no later write would otherwise remove.
+        Every file here is written atomically under an owner-tagged temporary name (core.atomic); a SIGKILL
+        in the middle of a write leaves that temporary, which no later write would otherwise remove.
     """
     from ..core.atomic import clean_interrupted
 
-    for name in model_file_names(out):
+    for name in names or model_file_names(out):
         for gone in clean_interrupted(out.parent, item=name):
             log.warning("%s: removed an interrupted write", gone)
 
 
-def _save_checkpoint(out: Path, cfg, data_key: str, net, opt, sched, history, best, best_state, folder=None) -> None:
-    """Write the training state to ``MODEL.checkpoint.pt`` beside ``out`` (or in ``folder``)."""
+def _save_checkpoint(path: Path, cfg, data_key: str, net, opt, sched, history, best, best_state, to=None) -> None:
+    """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``."""
     import torch
 
     from ..core.atomic import write_bytes
@@ -451,12 +472,13 @@ def _save_checkpoint(out: Path, cfg, data_key: str, net, opt, sched, history, be
         },
         buf,
     )
-    path = checkpoint_path(out)
-    write_bytes(path if folder is None else Path(folder) / path.name, buf.getvalue())
+    write_bytes(path if to is None else Path(to), buf.getvalue())
 
 
-def _resume(out: Path, cfg, data_key: str, net, opt, sched) -> dict:
-    """Continue from ``MODEL.checkpoint.pt`` when it was made with the same options on the same samples.
+def _resume(out: Path, progress_path: Path, cfg, data_key: str, net, opt, sched) -> dict:
+    """Continue from the run's checkpoint (``progress_path``), else from ``MODEL.checkpoint.pt`` (a finished run's,
+    or one written before checkpoints were named by their run) when it was made with the same options on the same
+    samples.
 
     A checkpoint of another run is not resumed (the log says which differs): resuming one trained on other
     presses would report its validation AAE as if measured on this run's validation presses, and one that
@@ -468,7 +490,7 @@ def _resume(out: Path, cfg, data_key: str, net, opt, sched) -> dict:
     from .model import read_torch_file
 
     fresh = {"history": [], "best": {"aae": float("inf"), "epoch": -1}, "best_state": None}
-    path = checkpoint_path(out)
+    path = progress_path if progress_path.is_file() else checkpoint_path(out)
     if not path.is_file():
         return fresh
     initial = copy.deepcopy((net.state_dict(), opt.state_dict(), sched.state_dict()))

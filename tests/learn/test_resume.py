@@ -361,3 +361,41 @@ def test_an_interrupted_training_resumed_makes_the_model_an_uninterrupted_one_ma
     a, b = load_model(tmp_path / "whole" / "net.pt"), load_model(out)
     for (name, x), y in zip(a.net.state_dict().items(), b.net.state_dict().values()):
         assert torch.equal(x, y), name
+
+
+def test_a_training_interrupted_while_another_run_trains_into_the_same_out_resumes_its_own_progress(
+    built, tmp_path, monkeypatch, caplog
+):
+    """Every epoch's checkpoint was MODEL.checkpoint.pt, whichever run wrote it: a run with other options into the
+    same --out overwrote an interrupted run's progress, which then trained from scratch. Now each run's progress is
+    a checkpoint named by the run, and the published MODEL.checkpoint.pt is the last state of the run that ended."""
+    import dataclasses
+
+    import torch
+
+    from nlipscalib.learn import train as train_module
+
+    data, out = CalibrationDataset(built), tmp_path / "m.pt"
+    cfg_a = TrainConfig(hidden=(8,), dropout=0.0, max_epochs=4, patience=10, threads=1)
+    cfg_b = dataclasses.replace(cfg_a, hidden=(4,), max_epochs=2)
+    real_epoch, calls = train_module._epoch, []
+
+    def interrupted(*args):
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        calls.append(1)
+        return real_epoch(*args)
+
+    monkeypatch.setattr(train_module, "_epoch", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        train(data, cfg_a, out, progress=False)
+    progress = [p for p in tmp_path.iterdir() if p.name.endswith(".checkpoint.pt")]
+    assert len(progress) == 1 and progress[0] != checkpoint_path(out)  # A's, named by its run
+    monkeypatch.setattr(train_module, "_epoch", real_epoch)
+    b = train(data, cfg_b, out, progress=False)  # another run, start to end, into the same place
+    assert torch.load(checkpoint_path(out), weights_only=False)["history"] == b.history
+    caplog.set_level(logging.INFO)
+    a = train(data, cfg_a, out, progress=False)
+    assert f"{progress[0]}: resuming after epoch 2" in caplog.text
+    assert len(a.history) == 4 and load_model(out).hidden == (8,)
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.endswith(".checkpoint.pt")) == ["m.checkpoint.pt"]
