@@ -379,6 +379,29 @@ def _growing_contact(pred, press: dict, n: int) -> list:
     return [np.where((dist <= r)[..., None], linear, pred.ref_tricolor).astype(np.float32) for r in radii]
 
 
+STEPS = {"run": run, "stream": stream_step, "boxes": boxes_step, "moving": moving_step, "parity": parity_step}
+"""The steps on the GPU machine; each takes --model (repeatable) and --device, and those of NEEDS their own."""
+NEEDS = {
+    "run": ("--frames", "--out", "--repeats", "--command-frames", "--scratch"),
+    "stream": ("--frames", "--out", "--command-frames", "--scratch", "--no-sweep"),
+    "boxes": ("--out", "--sizes"),
+    "moving": ("--frames", "--out", "--moving-frames", "--fft", "--record-after"),
+    "parity": ("--frames",),
+}
+OPTIONS = {
+    "--frames": {"required": True, "help": "frames.npz from the pack step"},
+    "--out": {"required": True, "help": "folder for the step's JSON"},
+    "--repeats": {"type": int, "default": 300},
+    "--command-frames": {"type": int, "default": 300},
+    "--scratch": {"default": "/tmp/bench_gpu_infer"},
+    "--no-sweep": {"action": "store_true", "help": "only the whole commands"},
+    "--sizes": {"type": int, "default": 40},
+    "--moving-frames": {"type": int, "default": 200},
+    "--fft": {"action": "store_true", "help": "the box solved by FFTs (a cuFFT plan per new box size)"},
+    "--record-after": {"type": int, "help": "record a box size at its N-th frame (default: the module's)"},
+}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="step", required=True)
@@ -386,42 +409,14 @@ def main() -> None:
     p.add_argument("presses", nargs="+")
     p.add_argument("--reference", required=True)
     p.add_argument("--out", required=True)
-    r = sub.add_parser("run")
-    r.add_argument("--model", action="append", required=True)
-    r.add_argument("--frames", required=True)
-    r.add_argument("--out", required=True)
-    r.add_argument("--device", default="cuda")
-    r.add_argument("--repeats", type=int, default=300)
-    r.add_argument("--command-frames", type=int, default=300)
-    r.add_argument("--scratch", default="/tmp/bench_gpu_infer")
-    t = sub.add_parser("stream")
-    t.add_argument("--model", action="append", required=True)
-    t.add_argument("--frames", required=True)
-    t.add_argument("--out", required=True)
-    t.add_argument("--device", default="cuda")
-    t.add_argument("--command-frames", type=int, default=300)
-    t.add_argument("--no-sweep", action="store_true", help="only the whole commands")
-    t.add_argument("--scratch", default="/tmp/bench_gpu_infer")
-    b = sub.add_parser("boxes")
-    b.add_argument("--model", action="append", required=True)
-    b.add_argument("--out", required=True)
-    b.add_argument("--device", default="cuda")
-    b.add_argument("--sizes", type=int, default=40)
-    m = sub.add_parser("moving")
-    m.add_argument("--model", action="append", required=True)
-    m.add_argument("--frames", required=True)
-    m.add_argument("--out", required=True)
-    m.add_argument("--device", default="cuda")
-    m.add_argument("--moving-frames", type=int, default=200)
-    m.add_argument("--fft", action="store_true", help="the box solved by FFTs (a cuFFT plan per new box size)")
-    m.add_argument("--record-after", type=int, help="record a box size at its N-th frame (default: the module's)")
-    q = sub.add_parser("parity")
-    q.add_argument("--model", action="append", required=True)
-    q.add_argument("--frames", required=True)
-    q.add_argument("--device", default="cuda")
+    for name, needs in NEEDS.items():
+        step = sub.add_parser(name)
+        step.add_argument("--model", action="append", required=True)
+        step.add_argument("--device", default="cuda")
+        for option in needs:
+            step.add_argument(option, **OPTIONS[option])
     args = ap.parse_args()
-    steps = {"pack": pack, "run": run, "stream": stream_step, "boxes": boxes_step, "moving": moving_step}
-    (steps | {"parity": parity_step})[args.step](args)
+    (STEPS | {"pack": pack})[args.step](args)
 
 
 if __name__ == "__main__":

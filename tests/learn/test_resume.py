@@ -336,26 +336,13 @@ def test_an_interrupted_training_resumed_makes_the_model_an_uninterrupted_one_ma
     model (quick Q2: best epoch 21 vs 27)."""
     import torch
 
-    from nlipscalib.learn import train as train_module
-
     cfg = TrainConfig(hidden=(8,), dropout=0.2, max_epochs=4, patience=10, threads=1)
     data = CalibrationDataset(built)
     whole = train(data, cfg, tmp_path / "whole" / "net.pt", progress=False)
 
-    real_epoch, calls = train_module._epoch, []
-
-    def interrupted(*args):
-        if len(calls) == 2:
-            raise KeyboardInterrupt
-        calls.append(1)
-        return real_epoch(*args)
-
-    monkeypatch.setattr(train_module, "_epoch", interrupted)
     out = tmp_path / "resumed" / "net.pt"
-    with pytest.raises(KeyboardInterrupt):
-        train(data, cfg, out, progress=False)
+    _interrupted_after_two_epochs(monkeypatch, lambda: train(data, cfg, out, progress=False))
     torch.manual_seed(12345)  # whatever the process drew in between
-    monkeypatch.setattr(train_module, "_epoch", real_epoch)
     resumed = train(data, cfg, out, progress=False)
     assert [h["val_aae_deg"] for h in resumed.history] == [h["val_aae_deg"] for h in whole.history]
     a, b = load_model(tmp_path / "whole" / "net.pt"), load_model(out)
@@ -373,11 +360,25 @@ def test_a_training_interrupted_while_another_run_trains_into_the_same_out_resum
 
     import torch
 
-    from nlipscalib.learn import train as train_module
-
     data, out = CalibrationDataset(built), tmp_path / "m.pt"
     cfg_a = TrainConfig(hidden=(8,), dropout=0.0, max_epochs=4, patience=10, threads=1)
     cfg_b = dataclasses.replace(cfg_a, hidden=(4,), max_epochs=2)
+    _interrupted_after_two_epochs(monkeypatch, lambda: train(data, cfg_a, out, progress=False))
+    progress = [p for p in tmp_path.iterdir() if p.name.endswith(".checkpoint.pt")]
+    assert len(progress) == 1 and progress[0] != checkpoint_path(out)  # A's, named by its run
+    b = train(data, cfg_b, out, progress=False)  # another run, start to end, into the same place
+    assert torch.load(checkpoint_path(out), weights_only=False)["history"] == b.history
+    caplog.set_level(logging.INFO)
+    a = train(data, cfg_a, out, progress=False)
+    assert f"{progress[0]}: resuming after epoch 2" in caplog.text
+    assert len(a.history) == 4 and load_model(out).hidden == (8,)
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.endswith(".checkpoint.pt")) == ["m.checkpoint.pt"]
+
+
+def _interrupted_after_two_epochs(monkeypatch, run) -> None:
+    """``run()`` (a training) with Ctrl-C arriving after its second epoch; the trainer is whole again afterwards."""
+    from nlipscalib.learn import train as train_module
+
     real_epoch, calls = train_module._epoch, []
 
     def interrupted(*args):
@@ -386,16 +387,7 @@ def test_a_training_interrupted_while_another_run_trains_into_the_same_out_resum
         calls.append(1)
         return real_epoch(*args)
 
-    monkeypatch.setattr(train_module, "_epoch", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        train(data, cfg_a, out, progress=False)
-    progress = [p for p in tmp_path.iterdir() if p.name.endswith(".checkpoint.pt")]
-    assert len(progress) == 1 and progress[0] != checkpoint_path(out)  # A's, named by its run
-    monkeypatch.setattr(train_module, "_epoch", real_epoch)
-    b = train(data, cfg_b, out, progress=False)  # another run, start to end, into the same place
-    assert torch.load(checkpoint_path(out), weights_only=False)["history"] == b.history
-    caplog.set_level(logging.INFO)
-    a = train(data, cfg_a, out, progress=False)
-    assert f"{progress[0]}: resuming after epoch 2" in caplog.text
-    assert len(a.history) == 4 and load_model(out).hidden == (8,)
-    assert sorted(p.name for p in tmp_path.iterdir() if p.name.endswith(".checkpoint.pt")) == ["m.checkpoint.pt"]
+    with monkeypatch.context() as patch:
+        patch.setattr(train_module, "_epoch", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            run()
