@@ -18,7 +18,8 @@ import numpy as np
 
 from ..core.atomic import write_bytes
 from ..core.imageio import save_npz
-from ..errors import CaptureError, ConfigError, require
+from ..errors import ConfigError, require
+from .camera import EndOfFrames
 
 
 @dataclasses.dataclass
@@ -156,9 +157,9 @@ def stream(
             t0 = time.perf_counter()
             try:
                 frame = source.read()
-            except CaptureError:
+            except EndOfFrames:
                 if max_frames is None:
-                    break  # end of a recorded input
+                    break  # end of a recorded input (a damaged frame is an error: it goes out)
                 raise
             t1 = time.perf_counter()
             result = predict(frame)

@@ -236,3 +236,11 @@ FLAT = "tests.device.fakes:flat_predictor"
 def test_a_baud_rate_without_a_board_or_off_the_standard_set_is_one_line(frames, capsys, args, message):
     assert main([a.format(frames=frames) for a in args] + (["--no-window"] if args[0] == "live" else [])) == 2
     _one_line(capsys.readouterr().err, message)
+
+
+def test_a_damaged_frame_ends_a_stream_with_its_error_the_end_of_the_input_cleanly(frames):
+    (frames / "f02.png").write_bytes(b"damaged")
+    seen = []
+    with pytest.raises(CaptureError, match="f02.png: not a readable image"):
+        stream(FolderSource(frames), flat_predictor((12, 16)), [lambda i, f, r: seen.append(i)], report=None)
+    assert seen == [0, 1]
