@@ -56,16 +56,19 @@ def run(args) -> int:
         presses, method = _result_target(Path(args.path), Path(args.result), args.method, args.other_capture)
     else:
         presses, method = _targets(Path(args.path), args.method)
-    rows, unsolved, damaged = [], [], []
+    rows, unsolved, damaged, outdated = [], [], [], []
     for folder in presses:
         rec = _load(folder, method, single=len(presses) == 1, out=args.result)
+        stale = None if rec is None or isinstance(rec, str) or args.result else _stale(folder, method)
         if rec is None:
             unsolved.append(folder.name)  # e.g. a dataset's undeformed reference: nothing solved there
         elif isinstance(rec, str):
             damaged.append((folder.name, rec))
+        elif stale:
+            outdated.append((folder.name, stale))
         else:
             rows.append((folder.name, _scores(folder, rec)[args.region]))
-    if not rows and not damaged:
+    if not rows and not damaged and not outdated:
         raise CaptureError(
             f"{args.path}: no press has a {method} result yet (run {MAKES[method].format(path=args.path)} first)"
         )
@@ -74,7 +77,9 @@ def run(args) -> int:
         print(f"not solved, skipped: {', '.join(unsolved)}")
     for name, problem in damaged:
         print(f"damaged, not scored: {name}: {problem}")
-    return 1 if damaged else 0
+    for name, problem in outdated:
+        print(f"outdated, not scored: {name}: {problem}")
+    return 1 if damaged or outdated else 0
 
 
 def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
@@ -160,6 +165,30 @@ def _check_made_from(press: Path, result: Path, report: dict, other_capture: boo
         "press it was made from, or add --other-capture to score it anyway (e.g. the same press rendered with "
         "another noise seed)"
     )
+
+
+def _stale(press: Path, method: str) -> str | None:
+    """Why PRESS/<method> was not made from the press as it is now (its images or reference replaced since; a
+    result copied in from another press), or None: it was, or its report records no input to check.
+
+    Why: scored against the new ground truth, a result of the old capture is a wrong number printed like a right
+    one. Costs one hash of the press's inputs (~70 ms at 640x480)."""
+    from ..core.reconstruction import read_report, reconstruction_dir
+    from ..errors import CaptureError
+
+    try:
+        recorded = _recorded_input(read_report(reconstruction_dir(press, method=method)))
+        if recorded is None:
+            return None
+        kind, made_from = recorded
+        identity = _identity(press) if kind == "press" else _tricolor_identity(press)
+    except (CaptureError, OSError, KeyError, TypeError):  # unreadable: loading it said so, or nothing to check
+        return None
+    if made_from == identity:
+        return None
+    out = reconstruction_dir(press, method=method)
+    again = f"`nlips solve {press} --overwrite`" if method == "nlips" else _infer_command(press, out)
+    return f"{out} was made from another capture than {press} holds now (its inputs changed since): remake it: {again}"
 
 
 def _recorded_input(report: dict) -> tuple[str, str] | None:

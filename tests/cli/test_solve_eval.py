@@ -319,3 +319,18 @@ def test_eval_warns_that_a_result_recording_no_input_cannot_be_checked(data, tmp
     assert "press_a" in capsys.readouterr().out
     assert f"{other}: its report.json records no input identity" in caplog.text
     assert f"cannot check that it was made from {press}" in caplog.text
+
+
+def test_eval_does_not_score_a_result_its_press_was_recaptured_since(data, capsys):
+    """`nlips eval PRESS` scored PRESS/nlips without checking that it was made from the press as it is now: a press
+    captured again into the same folder (or a result copied in) gave the old result's score against the new truth."""
+    root, cfg = data
+    press = root / "press_a"
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(root)]) == 0
+    shutil.copytree(root / "press_b" / "nlips", press / "nlips", dirs_exist_ok=True)  # press_a's folder, b's result
+    assert main(["eval", str(root)]) == 1
+    out = capsys.readouterr().out
+    assert "press_b" in out and f"outdated, not scored: press_a: {press / 'nlips'} was made from another capture" in out
+    assert f"remake it: `nlips solve {press} --overwrite`" in out
