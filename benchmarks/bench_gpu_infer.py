@@ -155,6 +155,8 @@ def _bench_model(model, key, entry, stored, presses, ref_depth, args) -> None:
             "scores": {n: _scores(pred, p, ref_depth) for n, p in presses.items()}
         }
         print(f"{key} {name}: {json.dumps(entry[name])}", flush=True)
+    # TF32 for every float32 matrix product: the network's, and the changed pixels' box solve's (dense sine
+    # transforms on a GPU), whose depth then loses precision too
     torch.backends.cuda.matmul.allow_tf32 = True
     for name, kw in (("gpu_tf32", {}), ("gpu_full_frame_tf32", {"full_frame": True})):
         pred = Predictor(model, device=args.device, **kw)
@@ -255,13 +257,16 @@ def stream_step(args) -> None:
 
 def boxes_step(args) -> None:
     """Step 4: what a new size of the changed pixels' box costs on the GPU (a moving contact brings new sizes):
-    per size, its first eager solve (cuFFT plans made), a later eager solve, its graph recording and a replay."""
+    per size, its first eager solve (with FFTs: its cuFFT plans made), a later eager solve, its graph recording and
+    a replay."""
     import torch
 
+    from nlipscalib.learn import integrate_torch
     from nlipscalib.learn.fullframe import FullFrame, check_device
     from nlipscalib.learn.infer import Predictor
     from nlipscalib.learn.integrate import _fast_span
 
+    integrate_torch.RECORD_AFTER = 1  # a size's first call through the integrator records it, the next replays
     pred = Predictor(args.model[0])
     full = FullFrame(pred.model, check_device(args.device), pred.geo, keep_reference=True)
     integ = full.box_integrator

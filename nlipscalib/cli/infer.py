@@ -122,7 +122,10 @@ def _check_video(path: str) -> None:
     # one-line error below names the file instead. Read once, when OpenCV first loads its FFmpeg backend.
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     cv2 = require("cv2", "opencv-python-headless", "Reading a video")
-    if "%" in path and not Path(path).exists():  # an image sequence: its source names a bad frame itself
+    if "%" in path and not Path(path).exists():  # an image sequence: opened now, before the model loads
+        from ..device.camera import open_source
+
+        open_source(path).close()
         return
     if not Path(path).is_file():
         raise CaptureError(f"{path}: no such video file")

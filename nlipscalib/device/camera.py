@@ -17,6 +17,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -210,6 +211,11 @@ class SequenceSource(_ImageFiles):
 
     def __init__(self, pattern: str, average: int = 1):
         self.pattern = str(pattern)
+        if not is_sequence_pattern(self.pattern):
+            raise CaptureError(
+                f"{self.pattern}: not an image-sequence pattern (one integer field such as %04d, and %% for a "
+                "literal %) nor an existing file"
+            )
         start = next((i for i in (0, 1) if Path(self._name(i)).is_file()), None)
         if start is None:
             raise CaptureError(f"{self.pattern}: no image of the sequence ({self._name(0)} nor {self._name(1)} exists)")
@@ -219,13 +225,13 @@ class SequenceSource(_ImageFiles):
         super().__init__(files, self.pattern, average)
 
     def _name(self, index: int) -> str:
-        try:
-            return self.pattern % index
-        except (TypeError, ValueError):
-            raise CaptureError(
-                f"{self.pattern}: not an image-sequence pattern (one integer field such as %04d, and %% for a "
-                "literal %)"
-            ) from None
+        return self.pattern % index
+
+
+def is_sequence_pattern(spec: str) -> bool:
+    """Whether ``spec`` names an image sequence as OpenCV's reader takes one: exactly one integer field
+    (``%d``, ``%04d``), ``%%`` for a literal ``%``, and no other conversion (``%s`` would repeat names)."""
+    return re.fullmatch(r"[^%]*%0?\d*d[^%]*", spec.replace("%%", "")) is not None
 
 
 class OpenCVSource(FrameSource):
@@ -267,7 +273,9 @@ class OpenCVSource(FrameSource):
     def _grab(self) -> np.ndarray:
         ok, frame = self.cap.read()
         if not ok or frame is None:
-            raise EndOfFrames(f"camera {self.device}: no frame (end of file, or the camera stopped)")
+            if self.live:  # unplugged, or stopped: a fault, not the end of a recording
+                raise CaptureError(f"camera {self.device}: no frame (the camera stopped)")
+            raise EndOfFrames(f"camera {self.device}: no frame (end of file)")
         if frame.ndim == 2 and frame.shape[0] == 1 and self.live:
             # unconverted YUYV/MJPEG frames come as a flat byte buffer: only 16-bit grey (Y16) raw frames
             # are images, so fall back to OpenCV's 8-bit conversion
@@ -383,6 +391,6 @@ def open_source(spec: str | int, settings: CameraSettings | None = None) -> Fram
         return OpenCVSource(int(spec), settings)
     if Path(spec).is_dir():
         return FolderSource(spec, average=settings.average)
-    if "%" in str(spec) and not str(spec).startswith("/dev/") and not Path(spec).exists():
-        return SequenceSource(spec, average=settings.average)
+    if "%" in str(spec) and "://" not in str(spec) and not str(spec).startswith("/dev/") and not Path(spec).exists():
+        return SequenceSource(spec, average=settings.average)  # a stream URL may hold %-escapes: OpenCV's
     return OpenCVSource(str(spec), settings)

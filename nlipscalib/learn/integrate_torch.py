@@ -4,7 +4,8 @@ Both solve the equation of :mod:`.integrate` (5-point Poisson in the log-range a
 rays, gradients averaged on each pixel pair; :func:`.integrate.box_rhs` is shared).
 
 - :class:`BoxIntegrator`: the CPU's box solver (the changed pixels' box, its outer ring at the reference),
-  with torch's FFT for the type-I sine transform.
+  its type-I sine transforms by torch's FFT on a CPU and by dense matrix products on a GPU (no cuFFT plan per
+  box size).
 - :class:`DomeIntegrator`: every gel pixel whose four neighbours are on the gel; the gel's outermost pixel
   ring is the Dirichlet boundary, held at the undeformed reference (the gel is fixed where it meets the
   dome's base; where the gel fills the image, the ring is the image border). Where that domain is not a

@@ -199,7 +199,7 @@ def train(
     progress_path = progress_checkpoint_path(out, cfg, data_key)
     _clean_interrupted_writes(out, progress_path.name)
     state = _resume(out, progress_path, cfg, data_key, net, opt, sched)
-    if not state["history"] and out.is_file():  # a re-run with a tweak would otherwise replace a better model unnoticed
+    if out.is_file() and not _published_by(out, cfg, data_key):  # a better model would go unnoticed otherwise
         log.warning(
             "%s: a model is already there (not this training's: its checkpoint was made with other options or "
             "samples, or is missing); it is replaced when this run ends: give another --out to keep it",
@@ -473,6 +473,18 @@ def _save_checkpoint(path: Path, cfg, data_key: str, net, opt, sched, history, b
         buf,
     )
     write_bytes(path if to is None else Path(to), buf.getvalue())
+
+
+def _published_by(out: Path, cfg, data_key: str) -> bool:
+    """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options and
+    samples): a run resumed from its own progress may still replace another run's model, finished since."""
+    from .model import read_torch_file
+
+    try:
+        ck = read_torch_file(checkpoint_path(out), "a training checkpoint")
+    except Exception:  # missing or damaged: nothing says the model is this run's
+        return False
+    return isinstance(ck, dict) and ck.get("key") == _config_key(cfg) and ck.get("data_key") == data_key
 
 
 def _resume(out: Path, progress_path: Path, cfg, data_key: str, net, opt, sched) -> dict:

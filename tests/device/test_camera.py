@@ -61,6 +61,15 @@ def test_video_file_is_read_frame_by_frame(tmp_path):
         open_source(str(tmp_path / "missing.avi"))
 
 
+def test_sequence_patterns_are_one_integer_field():
+    from nlipscalib.device.camera import is_sequence_pattern
+
+    for good in ("img_%04d.png", "f%d.tif", "50%%_a%02d.png", "%3d.png"):
+        assert is_sequence_pattern(good), good
+    for bad in ("img.png", "x_%s.png", "x_%d_%d.png", "a%.0sb.png", "x_%f.png", "50%.png"):
+        assert not is_sequence_pattern(bad), bad
+
+
 @pytest.mark.parametrize("first", [0, 1])
 def test_an_image_sequence_reads_as_opencv_reads_it(tmp_path, first):
     """Known answer: OpenCV's own image-sequence reader (from 0, or 1 without a 0; up to the first gap)."""
@@ -92,8 +101,11 @@ def test_a_bad_image_sequence_is_one_line(tmp_path):
     with pytest.raises(CaptureError, match=r"no image of the sequence \(.*img_0000.png nor .*img_0001.png exists\)"):
         open_source(str(tmp_path / "img_%04d.png"))
     (tmp_path / "x_5.png").write_bytes(b"")
-    with pytest.raises(CaptureError, match="not an image-sequence pattern"):
-        open_source(str(tmp_path / "x_%s%d.png"))
+    (tmp_path / "ab.png").write_bytes(b"")
+    # %s and the like would name files too ("a%.0sb.png": ab.png for every index, a sequence without end)
+    for bad in ("x_%s%d.png", "x_%s.png", "a%.0sb.png", "x_%d_%d.png", "x_%f.png"):
+        with pytest.raises(CaptureError, match="not an image-sequence pattern .* nor an existing file"):
+            open_source(str(tmp_path / bad))
     (tmp_path / "y_0.png").write_bytes(b"not a png")
     with pytest.raises(CaptureError, match="y_0.png: not a readable image"):
         open_source(str(tmp_path / "y_%d.png"))
@@ -101,6 +113,29 @@ def test_a_bad_image_sequence_is_one_line(tmp_path):
     named = tmp_path / "press 50%.png"
     cv2.imwrite(str(named), np.zeros((4, 4, 3), np.uint16))
     assert not isinstance(open_source(str(named)), SequenceSource)
+
+
+def test_a_live_camera_that_stops_is_an_error_a_video_that_ends_is_not(tmp_path):
+    from nlipscalib.device.camera import EndOfFrames
+
+    class Stopped:
+        def read(self):
+            return False, None
+
+    camera = object.__new__(OpenCVSource)  # a camera that has stopped (unplugged), without opening one
+    camera.device, camera.live, camera.cap, camera._first = 0, True, Stopped(), None
+    with pytest.raises(CaptureError, match="camera 0: no frame \\(the camera stopped\\)") as stopped:
+        camera.read()
+    assert not isinstance(stopped.value, EndOfFrames)
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (32, 24))
+    writer.write(np.full((24, 32, 3), 90, np.uint8))
+    writer.release()
+    video = open_source(str(path))
+    video.read()
+    with pytest.raises(EndOfFrames, match="end of file"):
+        video.read()
+    video.close()
 
 
 class FakeCap:

@@ -371,6 +371,7 @@ def test_a_training_interrupted_while_another_run_trains_into_the_same_out_resum
     caplog.set_level(logging.INFO)
     a = train(data, cfg_a, out, progress=False)
     assert f"{progress[0]}: resuming after epoch 2" in caplog.text
+    assert f"{out}: a model is already there (not this training's" in caplog.text  # B's, replaced: said
     assert len(a.history) == 4 and load_model(out).hidden == (8,)
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.endswith(".checkpoint.pt")) == ["m.checkpoint.pt"]
 
