@@ -176,8 +176,9 @@ def _stale(press: Path, method: str) -> str | None:
     from ..core.reconstruction import read_report, reconstruction_dir
     from ..errors import CaptureError
 
+    out = reconstruction_dir(press, method=method)
     try:
-        recorded = _recorded_input(read_report(reconstruction_dir(press, method=method)))
+        recorded = _recorded_input(read_report(out))
         if recorded is None:
             return None
         kind, made_from = recorded
@@ -186,7 +187,6 @@ def _stale(press: Path, method: str) -> str | None:
         return None
     if made_from == identity:
         return None
-    out = reconstruction_dir(press, method=method)
     again = f"`nlips solve {press} --overwrite`" if method == "nlips" else _infer_command(press, out)
     return f"{out} was made from another capture than {press} holds now (its inputs changed since): remake it: {again}"
 

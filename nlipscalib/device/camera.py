@@ -175,7 +175,8 @@ class _ImageFiles(FrameSource):
         return to_stored(frame, str(path))
 
     def frame_at(self, index: int) -> np.ndarray:
-        """Frame ``index`` (from 0): (H, W, 3) uint16, RGB, stored values; CaptureError past the last one."""
+        """Frame ``index`` (from 0): (H, W, 3) uint16, RGB, stored values; :class:`EndOfFrames` past the last one,
+        CaptureError for a file that cannot be read or has another size."""
         if index >= len(self.files):
             raise EndOfFrames(f"{self.name}: ran out of images after {len(self.files)} frames")
         frame, _ = self._load(self.files[index])

@@ -66,8 +66,8 @@ class ReadAhead:
     Why: decoding a 640x480 frame takes about as long as a small NLiPsNet's frame; OpenCV releases the GIL
     while it decodes, so the two overlap. A video decodes in order, one frame ahead on one worker thread. Image
     files (a source with ``frame_at(index)``: a folder, an image sequence) are decoded by ``workers`` threads
-    at once, ``2 * workers`` frames ahead: a GPU infers a 640x480 frame in 3-4 ms, faster than one core
-    decodes a 16-bit PNG (about 5 ms). Not for a live camera (it would hand out a frame one period old) nor
+    at once, ``2 * workers`` frames ahead: a GPU infers a 640x480 frame in 2-4 ms, where one core decodes a 16-bit
+    PNG in about 10 ms (benchmarks/RESULTS.md). Not for a live camera (it would hand out a frame one period old) nor
     for the emulator (its press changes before each read).
 
     Parameters
@@ -115,7 +115,7 @@ class ReadAhead:
 
 def decoding_workers() -> int:
     """Threads :class:`ReadAhead` decodes image files with: the usable cores but one (the predictor's), at
-    most 4 (a GPU stream needs about two; more only cost memory), at least 1."""
+    most 4 (four kept a 640x480 GPU stream fed at ~240-270 frames/s on an H200 host; two gave ~140), at least 1."""
     from ..cpus import usable_cores
 
     return max(1, min(4, usable_cores() - 1))

@@ -442,8 +442,8 @@ def _clean_interrupted_writes(out: Path, *names: str) -> None:
     """Remove temporaries of killed writes of the model, its checkpoint, ONNX file and curve, or of the files
     ``names`` (a run's per-epoch checkpoint) beside ``out`` (owner gone only).
 
-        Every file here is written atomically under an owner-tagged temporary name (core.atomic); a SIGKILL
-        in the middle of a write leaves that temporary, which no later write would otherwise remove.
+    Every file here is written atomically under an owner-tagged temporary name (core.atomic); a SIGKILL
+    in the middle of a write leaves that temporary, which no later write would otherwise remove.
     """
     from ..core.atomic import clean_interrupted
 
