@@ -135,9 +135,9 @@ def fps_sensor(out: Path):
 def fps_model(key: str, trained_path: Path, folder: Path, out: Path) -> Path:
     """The trained weights re-targeted to the 640x480 sensor (weights' values do not change the speed)."""
     from nlipscalib.core import load_press
+    from nlipscalib.core.sensor_record import sensor_of
     from nlipscalib.learn.dataset import reference_arrays
     from nlipscalib.learn.model import build_net, save_model
-    from nlipscalib.learn.sensor import sensor_of
 
     src = load_model(trained_path)
     ref = load_press(folder / "reference")

@@ -65,6 +65,9 @@ class SolveSettings:
     """Calibrated LEDs (core.leds.Led) replacing the capture's, or None."""
     leds_file: str | None = None
     """Where ``leds`` were read from (informational; their values are what counts)."""
+    leds_sensor: dict | None = None
+    """The sensor ``leds`` were calibrated on, as the LED file records it (core.sensor_record), or None:
+    a press of another sensor is refused."""
     reference: Path | None = None
     """Press folder of the undeformed dome (interreflection compensation, auto ROI), or None."""
     options: object = None
@@ -111,13 +114,14 @@ def make_settings(
         raise ConfigError(f"options must be a SolverOptions, got {type(options).__name__}")
     if backend not in ("numpy", "torch"):
         raise ConfigError(f"backend must be 'numpy' or 'torch', got {backend!r}")
-    subset, led_values, leds_file = _resolve_leds(leds)
+    subset, led_values, leds_file, leds_sensor = _resolve_leds(leds)
     reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
     return SolveSettings(
         roi=_resolve_roi(roi),
         led_subset=subset,
         leds=led_values,
         leds_file=leds_file,
+        leds_sensor=leds_sensor,
         reference=None if reference is None else Path(reference),
         options=options,
         backend=backend,
@@ -344,6 +348,42 @@ def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
     used = len(settings.led_subset) if settings.led_subset is not None else n
     if settings.leds is not None and len(settings.leds) != used:
         raise ConfigError(f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {used}")
+    if settings.leds is not None and settings.led_subset is None:
+        _check_leds_sensor(folder, meta, settings)
+
+
+def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> None:
+    """Calibrated LEDs of another sensor are refused (the LED file records the sensor it was calibrated on).
+
+    LEDs that record no sensor (a file written before 2026-12-04, or Led values passed in) are compared
+    with the capture's own: far from them, a warning -- not an error, since a calibration may rightly
+    find a real sensor's LEDs millimetres and degrees from its design.
+    """
+    from .core.capture import META_FILE, parse_optics
+    from .core.leds import led_geometry_mismatch
+    from .core.sensor_record import describe_sensor, sensor_mismatch
+
+    camera, leds, response = parse_optics(meta, folder / META_FILE)
+    where = settings.leds_file or "the calibrated LEDs"
+    if settings.leds_sensor is not None:
+        why = sensor_mismatch(settings.leds_sensor, describe_sensor(camera, leds, response))
+        if why:
+            raise CaptureError(f"{where}: calibrated on another sensor than {folder} ({why})")
+        return
+    far = led_geometry_mismatch(
+        [led.position for led in leds],
+        [led.direction for led in leds],
+        [led.position for led in settings.leds],
+        [led.direction for led in settings.leds],
+    )
+    if far:
+        log.warning(
+            "%s: records no sensor to check against %s, and its LEDs differ from the capture's (%s): make sure "
+            "they are a calibration of this sensor (a new `nlips calibrate-leds` records the sensor)",
+            where,
+            folder,
+            far,
+        )
 
 
 def make_provenance(folder: Path, settings: SolveSettings) -> dict:
@@ -560,25 +600,27 @@ def _resolve_roi(roi):
 
 
 def _resolve_leds(leds):
-    """(0-based subset or None, calibrated LEDs or None, LED file or None) from the ``leds`` argument."""
+    """(0-based subset or None, calibrated LEDs or None, LED file or None, the sensor the file records or None)
+    from the ``leds`` argument."""
     from .core.leds import Led
-    from .solver.io import load_leds
+    from .solver.io import read_led_file
 
     if leds is None:
-        return None, None, None
+        return None, None, None, None
     if isinstance(leds, (str, Path)):
         path = Path(leds)
         if path.suffix.lower() == ".json" or path.is_file():
-            return None, load_leds(path), str(path)
+            led_file = read_led_file(path)
+            return None, led_file.leds, str(path), led_file.sensor
         try:
-            return tuple(int(v) - 1 for v in str(leds).split(",")), None, None
+            return tuple(int(v) - 1 for v in str(leds).split(",")), None, None, None
         except ValueError:
             raise ConfigError(f"leds must be like '1,2,5' (1-based) or an LED .json file, got {leds!r}") from None
     leds = tuple(leds)
     if leds and all(isinstance(v, Led) for v in leds):
-        return None, leds, None
+        return None, leds, None, None
     if leds and all(isinstance(v, int) for v in leds):
-        return leds, None, None
+        return leds, None, None, None
     raise ConfigError("leds must be an LED file, '1,2,5', a sequence of Led, or a sequence of 0-based indices")
 
 

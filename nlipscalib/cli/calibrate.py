@@ -57,6 +57,7 @@ def run(args) -> int:
 
     from ..config import check_count
     from ..core.capture import load_press
+    from ..core.sensor_record import sensor_of
     from ..errors import ConfigError
     from ..progress import track, working
     from ..solver import calibrate_leds, save_leds
@@ -77,7 +78,8 @@ def run(args) -> int:
             led_radius=args.led_diameter / 2,
             coating_reflectance=args.coating_reflectance,
         )
-    save_leds(args.out, cal.leds, cal.to_json())
+    # the sensor it was calibrated on: `nlips solve --leds` refuses the file for a capture of another one
+    save_leds(args.out, cal.leds, cal.to_json() | {"sensor": sensor_of(presses[0])})
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")
     print(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))
     for i, (led, sd) in enumerate(zip(cal.leds, cal.std)):

@@ -119,8 +119,8 @@ def own_reference_left_out(root: Path, given: Path) -> None:
     left out (it is the undeformed dome, never a press), or a ConfigError when the two are captures of different
     sensors (ROOT's presses would then not match GIVEN: the dataset build would refuse them after the solve)."""
     from ..core.capture import REFERENCE_FOLDER, is_press_folder, load_press
+    from ..core.sensor_record import sensor_mismatch, sensor_of
     from ..errors import CaptureError, ConfigError
-    from ..learn.sensor import sensor_mismatch, sensor_of
 
     own = root / REFERENCE_FOLDER
     if is_press_folder(root) or not is_press_folder(own) or not is_press_folder(given):

@@ -422,8 +422,8 @@ def read_still(path, eight_bit=None):
 
 def _press_loader(folder):
     def load(predictor):
+        from ..core.sensor_record import check_sensor
         from ..learn.infer import load_tricolor
-        from ..learn.sensor import check_sensor
 
         frame, sensor = load_tricolor(folder)
         check_sensor(predictor.model.sensor, sensor, folder)

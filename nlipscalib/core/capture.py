@@ -239,7 +239,7 @@ def load_press(folder: str | Path, led_subset=None) -> Press:
     """
     folder = Path(folder)
     meta = read_meta(folder)
-    camera, leds, response = _parse_optics(meta, folder / META_FILE)
+    camera, leds, response = parse_optics(meta, folder / META_FILE)
     images = meta["images"]
     dark = _load_image(folder, images["dark"], camera)
     tricolor = _load_image(folder, images["tricolor"], camera)
@@ -347,7 +347,8 @@ def _in_threads(jobs: list[tuple]) -> list:
         return list(pool.map(lambda job: job[0](*job[1:]), jobs))
 
 
-def _parse_optics(meta: dict, path: Path):
+def parse_optics(meta: dict, path: Path) -> tuple[Camera, list[Led], SensorResponse]:
+    """(camera, LEDs, sensor response) of a press's meta.json (``read_meta``); CaptureError naming ``path``."""
     try:
         camera = Camera.from_dict(meta["camera"])
         if not isinstance(meta["leds"], list):

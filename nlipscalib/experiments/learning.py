@@ -34,8 +34,8 @@ def assemble_dataset(out: Path, tasks: list[Task], sampling: dict):
     (CalibrationDataset, stamps) : the dataset and, per press name (task id), the identity of its samples
     """
     from ..core.capture import load_press
+    from ..core.sensor_record import sensor_of
     from ..learn.dataset import CalibrationDataset, SamplingConfig, reference_arrays, write_index, write_shard
-    from ..learn.sensor import sensor_of
 
     out = Path(out)
     folder = out / DATASET_DIR

@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 
 from ..core.camera import Camera, depth_to_points
+from ..core.sensor_record import check_sensor, sensor_of
 from ..core.tolerances import FRAME_MISMATCH_FRACTION
 from ..errors import CaptureError, ConfigError, ShapeError
 from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
 from .model import load_model
 from .prefilter import Prefilter
-from .sensor import check_sensor, sensor_of
 
 BACKENDS = ("auto", "torch", "onnx", "onnx-int8")
 """Network runtimes: auto (onnx when MODEL.onnx exists, else torch), PyTorch, onnxruntime float32, and
@@ -327,12 +327,12 @@ def load_tricolor(folder) -> tuple[np.ndarray, dict]:
     Returns
     -------
     frame : (H, W, 3) float32, linear (dark-subtracted, 1 = full scale)
-    sensor : dict (:func:`nlipscalib.learn.sensor.sensor_of` layout)
+    sensor : dict (:func:`nlipscalib.core.sensor_record.sensor_of` layout)
     """
     from ..core.capture import SensorResponse, read_meta
     from ..core.imageio import read_png16
     from ..core.leds import Led
-    from .sensor import describe_sensor
+    from ..core.sensor_record import describe_sensor
 
     folder = Path(folder)
     meta = read_meta(folder)

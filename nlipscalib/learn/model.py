@@ -195,7 +195,7 @@ class LoadedModel:
 
 def load_model(path) -> LoadedModel:
     """Load and validate a model file; every problem is one CaptureError naming the file."""
-    from .sensor import check_sensor_record
+    from ..core.sensor_record import check_sensor_record
 
     torch = _torch()
     path = Path(path)

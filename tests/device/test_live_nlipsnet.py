@@ -17,9 +17,9 @@ def _untrained_model(reference_press, path, brightness: float = 1.0):
 
     ``brightness`` scales the calibration's reference frame: the sensor's frames are then 1/brightness as
     bright as the calibration's, as after a change of exposure."""
+    from nlipscalib.core.sensor_record import sensor_of
     from nlipscalib.learn.dataset import reference_arrays
     from nlipscalib.learn.model import build_net, save_model
-    from nlipscalib.learn.sensor import sensor_of
 
     net = build_net(hidden=(16, 16), dropout=0.0, width=64, height=48)
     sensor, reference = sensor_of(reference_press), reference_arrays(reference_press)

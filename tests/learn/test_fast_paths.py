@@ -48,7 +48,7 @@ def _sensor(width: int, height: int) -> dict:
 
     from nlipscalib.core.capture import SensorResponse
     from nlipscalib.core.sensor import SensorDesign
-    from nlipscalib.learn.sensor import describe_sensor
+    from nlipscalib.core.sensor_record import describe_sensor
 
     design = SensorDesign()
     design = dataclasses.replace(design, camera=dataclasses.replace(design.camera, width=width, height=height))

@@ -121,9 +121,9 @@ def test_a_stream_is_not_mixed_with_other_inputs(trained, twin_presses, video, c
 def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
     """`nlips infer --emulate`: the emulated camera, opened the way `nlips live` opens it."""
     from nlipscalib.core import load_press
+    from nlipscalib.core.sensor_record import sensor_of
     from nlipscalib.learn.dataset import reference_arrays
     from nlipscalib.learn.model import build_net, save_model
-    from nlipscalib.learn.sensor import sensor_of
 
     size = ["--emulate", "nlipstac", "--width", "64", "--height", "48"]
     assert main(["capture", *size, "--presses", "0", "--spp", "1", "--out", str(tmp_path / "s")]) == 0

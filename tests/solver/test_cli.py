@@ -45,3 +45,33 @@ def test_solve_eval_calibrate_cli(presses, tmp_path, capsys):
     )
     assert np.isfinite(load_result(tmp_path / "o").normals).all()
     assert main(["solve", str(press), "--roi", "1", "2"]) == 2
+
+
+def test_led_file_of_another_sensor_is_refused(presses, tmp_path, capsys, caplog):
+    """An LED file records the sensor it was calibrated on; `solve --leds` refuses it for another sensor's
+    press (same camera and LED count, LEDs 1.5 mm away: the twin's fingertip against NLiPsTac), and warns
+    about a file that records no sensor when its LEDs are far from the capture's."""
+    import shutil
+
+    leds = tmp_path / "leds.json"
+    assert main(["calibrate-leds", str(presses["none"]), "--out", str(leds), "--stride", "8"]) == 0
+    assert json.loads(leds.read_text())["sensor"]["n_leds"] == 12
+    other = tmp_path / "other"
+    shutil.copytree(presses["sphere"], other)
+    meta = json.loads((other / "meta.json").read_text())
+    for led in meta["leds"]:
+        led["position"] = [v * 1.2 for v in led["position"]]
+    (other / "meta.json").write_text(json.dumps(meta))
+    capsys.readouterr()
+    assert main(["solve", str(other), "--leds", str(leds)]) == 2
+    err = capsys.readouterr().err
+    assert f"{leds}: calibrated on another sensor than {other}" in err and "LED 1 is" in err
+    assert "Traceback" not in err and not (other / "nlips").exists()
+
+    unrecorded = json.loads(leds.read_text())
+    del unrecorded["sensor"]
+    leds.write_text(json.dumps(unrecorded))
+    cfg = tmp_path / "solver.toml"
+    cfg.write_text("max_iters = 2\n")
+    assert main(["solve", str(other), "--leds", str(leds), "--roi", "40,30,24,24", "--config", str(cfg)]) == 0
+    assert "records no sensor to check against" in caplog.text

@@ -1,7 +1,9 @@
 """What a calibration is valid for: the sensor's camera, image size, LED grouping and LED geometry.
 
-A calibration dataset and every model trained on it carry this description; a capture (or a bare
-image) from another sensor is refused with a message saying what differs.
+A calibration dataset, every model trained on it and every LED file from ``nlips calibrate-leds`` carry
+this description; a capture (or a bare image) from another sensor is refused with a message saying what
+differs. In core because both consumers read it: learn/ (datasets, models) and the solve pipeline (LED
+files).
 """
 
 from __future__ import annotations
@@ -9,8 +11,8 @@ from __future__ import annotations
 import logging
 import math
 
-from ..core.leds import led_geometry_mismatch, tricolor_groups
 from ..errors import CaptureError
+from .leds import led_geometry_mismatch, tricolor_groups
 
 log = logging.getLogger(__name__)
 
@@ -80,8 +82,8 @@ def check_sensor_record(sensor, where, remedy: str = "") -> dict:
     """
     import numpy as np
 
-    from ..core.camera import Camera
     from ..errors import ConfigError
+    from .camera import Camera
 
     try:
         if not isinstance(sensor, dict):
