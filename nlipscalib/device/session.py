@@ -276,7 +276,7 @@ def run_session(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     clean_interrupted(out)
-    _check_same_sensor(out, rig)
+    _check_same_session(out, rig, cfg)
     names = [REFERENCE_NAME] + [press_name(k) for k in range(1, cfg.presses + 1)]
     status: dict[str, dict | str] = {}
     for k, name in enumerate(tqdm(names, desc="capture", unit="press", disable=not progress)):
@@ -294,18 +294,58 @@ def run_session(
     return status
 
 
-def _check_same_sensor(out: Path, rig: Rig) -> None:
-    """Refuse to resume a session captured with another camera or LED count; record the sensor otherwise."""
+def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
+    """Refuse to resume a session with another camera, LED count or capture settings (exposure, gain, LED
+    levels, the design or emulated scene): its presses would mix two kinds of image, and a calibration would
+    train on the mix. Records the session otherwise. A session.json from before the settings were recorded
+    is checked on what it holds."""
     path = out / SESSION_FILE
-    described = {"camera": rig.camera.to_dict(), "n_leds": len(rig.leds)}
-    if path.exists():
-        try:
-            before = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise CaptureError(f"{path}: unreadable session description ({exc})") from None
-        if {k: before.get(k) for k in described} != described:
-            raise CaptureError(
-                f"{path}: this session folder was captured with another camera or LED count; use a new folder"
-            )
+    described = {"camera": rig.camera.to_dict(), "n_leds": len(rig.leds), "settings": _capture_settings(rig, cfg)}
+    if not path.exists():
+        write_json(path, described | {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
         return
-    write_json(path, described | {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+    try:
+        before = json.loads(path.read_text())
+        if not isinstance(before, dict):
+            raise ValueError(f"expected a JSON object, got {type(before).__name__}")
+    except (OSError, ValueError) as exc:
+        raise CaptureError(f"{path}: unreadable session description ({exc})") from None
+    if {k: before.get(k) for k in ("camera", "n_leds")} != {k: described[k] for k in ("camera", "n_leds")}:
+        raise CaptureError(
+            f"{path}: this session folder was captured with another camera or LED count; use a new folder"
+        )
+    if "settings" in before and (change := _first_difference(before["settings"], described["settings"])):
+        raise CaptureError(
+            f"{path}: this session was captured with other settings ({change}); resume it with the same "
+            "settings, or capture into a new folder"
+        )
+
+
+def _capture_settings(rig: Rig, cfg: SessionConfig) -> dict:
+    """What decides a session's images beside the camera: LED levels, exposure, gain, black level, and the
+    design (a device) or the scene (the emulator: its render settings too). Not the port or the camera's
+    device number: a board plugged into another socket takes the same images."""
+    from ..core.reconstruction import jsonable
+
+    prov = rig.provenance
+    return jsonable(
+        {
+            "white_level": cfg.white_level,
+            "tricolor_level": cfg.tricolor_level,
+            "exposure_ms": rig.response.exposure_ms,
+            "gain": rig.response.gain,
+            "black_level": rig.response.black_level,
+            "design": prov.get("design"),
+            "scene": prov.get("scene"),
+        }
+    )
+
+
+def _first_difference(old, new, where: str = "") -> str | None:
+    """'key: old -> new' of the first (dotted) key where two JSON values differ, or None when equal."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        for key in sorted(set(old) | set(new), key=str):
+            if change := _first_difference(old.get(key), new.get(key), f"{where}.{key}" if where else str(key)):
+                return change
+        return None
+    return None if old == new else f"{where or 'value'}: {old!r} -> {new!r}"

@@ -123,6 +123,23 @@ def test_resume_refuses_another_camera(tmp_path):
         run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
 
 
+def test_resume_refuses_other_capture_settings_and_names_the_change(tmp_path):
+    """A resumed session with another LED level or exposure would mix two kinds of image in one calibration
+    (seen: a tri-colour frame 3x darker from press 5 on, taken silently); the same settings resume."""
+    import dataclasses
+
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    with pytest.raises(CaptureError, match=r"other settings \(tricolor_level: 255 -> 30\)"):
+        run_session(rig, tmp_path / "s", SessionConfig(presses=2, tricolor_level=30), _quiet()[0])
+    rig.response = dataclasses.replace(rig.response, exposure_ms=rig.response.exposure_ms * 2)
+    with pytest.raises(CaptureError, match="exposure_ms"):
+        run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["press_0001", "reference", "session.json"]
+    rig.response = dataclasses.replace(rig.response, exposure_ms=rig.response.exposure_ms / 2)
+    assert run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])["press_0002"]["attempts"] == 1
+
+
 def test_rig_check_names_the_mismatch():
     rig, _ = _rig()
     rig.controller = FakeController(N_LEDS + 1)
