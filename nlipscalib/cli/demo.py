@@ -25,6 +25,11 @@ def register(sub) -> None:
         "--spec", default=str(DEMO_SPEC), help="dataset spec to render (default: the shipped scenes/datasets/demo.toml)"
     )
     p.add_argument("--workers", type=int, default=1, help="render processes (default 1: all cores to one)")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="render every press again (e.g. --out holds presses of another scene, spec or version)",
+    )
     p.add_argument("--no-solve", action="store_true", help="only render and show the ground truth")
     p.add_argument("--no-figures", action="store_true", help="no per-press figure maps next to the results")
     p.add_argument(
@@ -45,7 +50,7 @@ def run(args) -> int:
     jobs = expand_jobs(spec)
     out.mkdir(parents=True, exist_ok=True)
     write_manifest(out, spec, scene, jobs)
-    rendered = run_dataset(scene, jobs, out, workers=args.workers)
+    rendered = run_dataset(scene, jobs, out, workers=args.workers, overwrite=args.overwrite)
     if rendered["failed"]:
         for name, error in rendered["failed"]:
             print(f"{name}: {error}")

@@ -110,3 +110,8 @@ def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
         assert main(["demo", "--spec", str(spec), "--out", str(out)]) == 0
     reused = [r for r in caplog.records if "identical result exists" in r.getMessage()]
     assert len(reused) == 1  # the second run reuses the one press and says so once
+    # another spec into the same folder: refused naming --overwrite, which demo takes (it did not)
+    spec.write_text(spec.read_text().replace("seed = 5", "seed = 6"))
+    assert main(["demo", "--spec", str(spec), "--out", str(out), "--no-solve"]) == 2
+    assert "use --overwrite" in capsys.readouterr().err
+    assert main(["demo", "--spec", str(spec), "--out", str(out), "--no-solve", "--overwrite"]) == 0
