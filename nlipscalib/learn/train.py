@@ -354,10 +354,27 @@ def _jsonable_config(cfg: TrainConfig) -> dict:
     return d
 
 
+def _trajectory_options(cfg: TrainConfig) -> dict:
+    """The options that decide the weights epoch by epoch: every option but the thread count (how fast) and the
+    stopping limits (``max_seconds``, ``patience``, and ``max_epochs`` unless the cosine schedule is laid out
+    over it), which only decide where a run stops. A run stopped by a limit thus continues when only a limit
+    changes (``--max-minutes 10`` today, no limit tomorrow; ``--epochs 8`` then ``10``)."""
+    limits = {"threads", "max_seconds", "patience"} | ({"max_epochs"} if cfg.schedule != "cosine" else set())
+    return {k: v for k, v in _jsonable_config(cfg).items() if k not in limits}
+
+
 def _config_key(cfg: TrainConfig) -> str:
-    """What a checkpoint must match to be resumed: every option but the thread count (how fast, not what)."""
-    options = {k: v for k, v in _jsonable_config(cfg).items() if k != "threads"}
-    return hashlib.sha1(repr(options).encode()).hexdigest()[:16]
+    """What a checkpoint must match to be resumed: a digest of :func:`_trajectory_options`."""
+    return hashlib.sha1(repr(_trajectory_options(cfg)).encode()).hexdigest()[:16]
+
+
+def _options_changed(recorded, cfg: TrainConfig) -> str:
+    """'name old -> new, ...' of the trajectory options a checkpoint recorded and ``cfg`` differ in ("" when the
+    checkpoint records none: written before 2026-12-04)."""
+    if not isinstance(recorded, dict):
+        return ""
+    now = _trajectory_options(cfg)
+    return ", ".join(f"{k} {recorded.get(k)!r} -> {v!r}" for k, v in now.items() if recorded.get(k) != v)
 
 
 def _data_key(*arrays) -> str:
@@ -462,6 +479,7 @@ def _save_checkpoint(path: Path, cfg, data_key: str, net, opt, sched, history, b
     torch.save(
         {
             "key": _config_key(cfg),
+            "options": _trajectory_options(cfg),  # so a refusal can say which option differs
             "data_key": data_key,
             "net": net.state_dict(),
             "opt": opt.state_dict(),
@@ -511,7 +529,10 @@ def _resume(out: Path, progress_path: Path, cfg, data_key: str, net, opt, sched)
         if not isinstance(ck, dict):
             raise ValueError(f"a {type(ck).__name__}, not a checkpoint")
         if ck.get("key") != _config_key(cfg):
-            log.info("%s: made with other training options; training from scratch", path)
+            changed = _options_changed(ck.get("options"), cfg)
+            log.info(
+                "%s: made with other training options%s; training from scratch", path, f" ({changed})" * bool(changed)
+            )
             return fresh
         if ck.get("data_key") != data_key:
             log.info(

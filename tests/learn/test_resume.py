@@ -161,6 +161,26 @@ def test_a_model_another_training_made_is_replaced_with_a_warning_a_resumed_one_
     assert "a model is already there" in caplog.text
 
 
+def test_a_run_stopped_by_a_limit_continues_when_only_a_limit_changes_and_another_says_what_differs(
+    built, tmp_path, caplog
+):
+    """Raising --epochs (or lifting --max-minutes, changing --patience) trained from scratch and replaced the model;
+    these limits only decide where a run stops. Another option still starts afresh, and the log names it."""
+    import dataclasses
+
+    data, out = CalibrationDataset(built), tmp_path / "m.pt"
+    cfg = TrainConfig(hidden=(8,), dropout=0.0, max_epochs=2, patience=10, threads=1)
+    first = train(data, cfg, out, val_names=["a_sphere"], progress=False)
+    caplog.set_level(logging.INFO)
+    longer = dataclasses.replace(cfg, max_epochs=4, patience=20, max_seconds=600.0)
+    more = train(data, longer, out, val_names=["a_sphere"], progress=False)
+    assert "resuming after epoch 2" in caplog.text and "a model is already there" not in caplog.text
+    assert len(more.history) == 4 and more.history[:2] == first.history
+    caplog.clear()
+    train(data, dataclasses.replace(longer, lr=1e-3), out, val_names=["a_sphere"], progress=False)
+    assert "made with other training options (lr 0.002 -> 0.001); training from scratch" in caplog.text
+
+
 def test_a_damaged_checkpoint_costs_only_its_progress(built, tmp_path, caplog):
     import torch
 
