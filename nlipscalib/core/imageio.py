@@ -28,14 +28,35 @@ def write_png16(path: str | Path, image: np.ndarray) -> Path:
     return write_bytes(path, buf.tobytes())
 
 
+def opencv_path(path: str | Path) -> str:
+    """``path`` as OpenCV takes it; CaptureError for a name that is not valid UTF-8 (a byte sequence the file
+    system allows but Python keeps as surrogates): OpenCV crashes the process on it (segfault, measured)."""
+    name = str(path)
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise CaptureError(f"{name!r}: OpenCV cannot open a path that is not valid UTF-8; rename it") from None
+    return name
+
+
+def read_image(path: str | Path) -> np.ndarray | None:
+    """OpenCV's ``imread(path, IMREAD_UNCHANGED)`` (BGR, bit depth kept), or None when OpenCV cannot decode it.
+
+    The file is read by Python and decoded from memory (``cv2.imdecode``: the same decoders), so any path the
+    file system allows works, where ``imread`` crashes on one that is not UTF-8.
+    """
+    cv2 = _cv2()
+    data = np.fromfile(path, np.uint8)
+    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+
+
 def read_png16(path: str | Path) -> np.ndarray:
     """Read a 16-bit PNG written by :func:`write_png16`; returns (H, W[, 3]) uint16, RGB."""
     path = Path(path)
     if not path.is_file():
         raise CaptureError(f"{path}: image file is missing")
     _check_png_ends(path)
-    cv2 = _cv2()
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    img = read_image(path)
     if img is None:
         raise CaptureError(f"{path}: not a readable PNG image")
     if img.dtype != np.uint16:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.imageio import opencv_path, read_image
 from ..errors import CaptureError, ConfigError, require
 
 log = logging.getLogger(__name__)
@@ -169,7 +170,7 @@ class _ImageFiles(FrameSource):
         return self._shape
 
     def _load(self, path: Path) -> tuple[np.ndarray, int]:
-        frame = _cv2().imread(str(path), _cv2().IMREAD_UNCHANGED)
+        frame = read_image(path)
         if frame is None:
             raise CaptureError(f"{path}: not a readable image")
         return to_stored(frame, str(path))
@@ -249,7 +250,7 @@ class OpenCVSource(FrameSource):
         if not self.live and "%" not in str(device) and not Path(device).exists():
             raise CaptureError(f"{device}: video file does not exist")
         with _quiet_opencv(cv2):  # its own warnings ("can't open camera by index") would come before our line
-            self.cap = cv2.VideoCapture(device)
+            self.cap = cv2.VideoCapture(device if isinstance(device, int) else opencv_path(device))
         if not self.cap.isOpened():
             raise CaptureError(_not_opened(device, self.live))
         settings = settings or CameraSettings()

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.camera import Camera
+from ..core.imageio import read_image
 from ..errors import CaptureError, ConfigError, ShapeError, require
 
 MIN_VIEWS = 3
@@ -275,10 +276,9 @@ def _fisheye_flag(cv2, name: str) -> int:
 
 def calibrate_images(paths: list[str | Path], target: Target, model: str = "fisheye") -> Calibration:
     """Detect the target in image files and calibrate (all images must share one size)."""
-    cv2 = _cv2()
     views, size = [], None
     for path in paths:
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        image = read_image(path)
         if image is None:
             raise CaptureError(f"{path}: not a readable image")
         this = (image.shape[1], image.shape[0])

@@ -12,3 +12,20 @@ def test_a_damaged_deflated_array_is_one_error_naming_the_file(tmp_path):
     with pytest.raises(CaptureError, match=r"a\.npz: damaged or truncated \.npz \(compressed data damaged: ") as caught:
         read_npz(path)
     assert str(path) in str(caught.value)
+
+
+def test_a_path_that_is_not_utf8_is_read_and_refused_by_opencv_in_one_line(tmp_path):
+    """OpenCV crashes the process (segfault) on a str path holding surrogates (a file name that is not UTF-8):
+    images are read from memory instead, and a video path is refused in one line."""
+    import os
+
+    from nlipscalib.core.imageio import opencv_path, read_png16, write_png16
+
+    folder = tmp_path / os.fsdecode(b"caf\xe9")  # Latin-1 bytes: not UTF-8
+    folder.mkdir()
+    image = np.arange(4 * 5 * 3, dtype=np.uint16).reshape(4, 5, 3) * 1000
+    write_png16(folder / "led_01.png", image)
+    np.testing.assert_array_equal(read_png16(folder / "led_01.png"), image)
+    with pytest.raises(CaptureError, match="not valid UTF-8"):
+        opencv_path(folder / "video.avi")
+    assert opencv_path(tmp_path / "café.avi") == str(tmp_path / "café.avi")
