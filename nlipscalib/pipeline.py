@@ -34,6 +34,7 @@ from . import __version__
 from .core.atomic import TMP_PREFIX
 from .core.reconstruction import (
     Reconstruction,
+    check_replaceable,
     load_reconstruction,
     read_report,
     reconstruction_dir,
@@ -282,7 +283,8 @@ def solve_one(
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
     _check_fits_capture(folder, settings)  # before anything is said about an earlier result
-    out = reconstruction_dir(folder, out)
+    out = reconstruction_dir(folder, out).absolute()  # "." has no name to claim or write beside
+    check_replaceable(out)  # a dataset, a press or a user's folder at --out is never replaced by a result
     provenance = make_provenance(folder, settings)
     # leftovers are cleaned, and figures a reused result lacks are drawn, under the claim, below
     if not overwrite and not _leftovers(out) and not figures_missing(out, figures):

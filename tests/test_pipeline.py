@@ -363,3 +363,47 @@ def test_a_killed_worker_fails_the_unfinished_presses_in_one_line_each(press_set
     assert not others and not list(root.rglob(".tmp-*"))
     statuses = solve_presses(sorted(root.iterdir()), progress=False, figures=False, options=FAST)
     assert "failed" not in " ".join(statuses.values()) and not list(root.rglob(".claim-*"))
+
+
+@pytest.mark.parametrize("what", ["dataset", "press itself", "user folder", "user file"])
+def test_out_that_is_not_a_reconstruction_is_never_replaced(press, press_set, tmp_path, capsys, what):
+    """`nlips solve PRESS --out X` refuses an X that holds something else than a reconstruction (it used to be
+    replaced whole, as a "damaged result": a dataset, the press's own images, a user's notes), with or without
+    --overwrite; an empty folder or a damaged result is still written."""
+    from nlipscalib.cli import main
+
+    target = {
+        "dataset": press_set,
+        "press itself": press,
+        "user folder": tmp_path / "notes",
+        "user file": tmp_path / "notes.txt",
+    }[what]
+    if what == "user folder":
+        target.mkdir()
+        (target / "todo.txt").write_text("important")
+    elif what == "user file":
+        target.write_text("precious")
+    before = sorted(p.name for p in target.iterdir()) if target.is_dir() else target.read_text()
+    for extra in ([], ["--overwrite"]):
+        assert main(["--no-progress", "solve", str(press), "--out", str(target), *extra]) == 2
+        err = capsys.readouterr().err
+        assert str(target) in err and "choose another --out" in err and "Traceback" not in err
+    after = sorted(p.name for p in target.iterdir()) if target.is_dir() else target.read_text()
+    assert after == before
+
+
+def test_out_dot_inside_the_press_is_one_line(press, monkeypatch, capsys):
+    from nlipscalib.cli import main
+
+    monkeypatch.chdir(press)
+    assert main(["--no-progress", "solve", ".", "--out", "."]) == 2
+    assert "is a press folder" in capsys.readouterr().err
+
+
+def test_empty_out_folder_and_damaged_result_are_written(press, tmp_path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert solve_folder(press, options=FAST, figures=False, out=empty)[1] == "solved"
+    (empty / "result.npz").write_bytes(b"damaged")
+    assert solve_folder(press, options=FAST, figures=False, out=empty)[1] == "solved"
+    assert load_reconstruction(empty).reconstructed.any()

@@ -116,6 +116,7 @@ def _check_video(path: str) -> None:
     import os
     from pathlib import Path
 
+    from ..core.imageio import opencv_path
     from ..errors import CaptureError, require
 
     # FFmpeg prints its own parse errors ("moov atom not found") to stderr at OpenCV's default level; the
@@ -129,7 +130,7 @@ def _check_video(path: str) -> None:
         return
     if not Path(path).is_file():
         raise CaptureError(f"{path}: no such video file")
-    cap = cv2.VideoCapture(path)
+    cap = cv2.VideoCapture(opencv_path(path))
     try:
         if not cap.isOpened() or not cap.grab():
             raise CaptureError(f"{path}: not a readable video (OpenCV cannot decode it)")
@@ -401,14 +402,14 @@ def read_still(path, eight_bit=None):
     from pathlib import Path
 
     from ..core.imageio import _check_png_ends as check_png_ends
+    from ..core.imageio import read_image
     from ..device.camera import to_stored
-    from ..errors import CaptureError, require
+    from ..errors import CaptureError
 
     path = Path(path)
-    cv2 = require("cv2", "opencv-python-headless", "Reading an image")
     if path.suffix.lower() == ".png":
         check_png_ends(path)  # a truncated PNG is named as such, before libpng prints its own error line
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    raw = read_image(path)
     if raw is None:
         raise CaptureError(f"{path}: not a readable image")
     channels = raw.shape[2] if raw.ndim == 3 else 1
@@ -445,12 +446,16 @@ def _destination(args, name, press_folder):
 
 
 def _check_destinations(args, frames) -> None:
-    """One line, before any inference, when two inputs would write one result folder (the last would win)."""
+    """One line, before any inference, when two inputs would write one result folder (the last would win), or
+    when a destination holds something else than a result (a result replaces its folder whole)."""
+    from ..core.reconstruction import check_replaceable
     from ..errors import ConfigError
 
     seen = {}
     for name, _, press_folder, source in frames:
         folder = _destination(args, name, press_folder)
+        if folder is not None:
+            check_replaceable(folder)
         if folder is not None and seen.setdefault(folder, source) != source:
             raise ConfigError(
                 f"{seen[folder]} and {source} would both be written to {folder}: infer them into separate --out "
@@ -477,7 +482,21 @@ def _save(args, predictor, result, name, press_folder, source) -> None:
 
     extra = ply if args.ply or args.mesh else None
     reconstruction = to_reconstruction(result, predictor, name, inputs)
+    _say_what_is_replaced(folder, reconstruction.report["model"])
     save_reconstruction(reconstruction, folder, overwrite=True, extra_files=extra)
+
+
+def _say_what_is_replaced(folder, model: str) -> None:
+    """Log it when ``folder`` holds a result of another model (a user comparing models would lose it unseen)."""
+    from ..core.reconstruction import read_report
+    from ..errors import CaptureError
+
+    try:
+        old = read_report(folder).get("model")
+    except CaptureError:  # none there, or not readable: nothing of value is replaced
+        return
+    if old is not None and old != model:
+        log.info("%s: replacing the result of another model (%s)", folder, old)
 
 
 def input_identity(press_folder, source) -> dict:

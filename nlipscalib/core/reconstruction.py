@@ -102,6 +102,39 @@ def is_reconstruction_dir(folder: str | Path) -> bool:
     return (folder / RESULT_FILE).is_file() and (folder / REPORT_FILE).is_file()
 
 
+def replace_problem(folder: str | Path) -> str | None:
+    """Why writing a reconstruction into ``folder`` would destroy something else, or None when it may.
+
+    A reconstruction is published by replacing the whole folder (core.atomic), so ``folder`` must be
+    absent, an empty folder, or a reconstruction folder -- even a damaged one: result.npz or report.json
+    among files alone. A file, a press folder, a folder of presses or any other folder is not one
+    (``nlips solve PRESS --out DATASET`` would otherwise replace the dataset with one result).
+    """
+    folder = Path(folder)
+    if not folder.exists() and not folder.is_symlink():
+        return None
+    if not folder.is_dir():
+        return f"{folder}: exists and is a file, not a reconstruction folder"
+    entries = sorted(folder.iterdir())
+    if not entries:
+        return None
+    names = {e.name for e in entries}
+    listed = ", ".join(e.name for e in entries[:3]) + (f" and {len(entries) - 3} more" if len(entries) > 3 else "")
+    if "meta.json" in names:
+        return f"{folder}: is a press folder, not a reconstruction folder"
+    if not names & {RESULT_FILE, REPORT_FILE} or any(e.is_dir() for e in entries):
+        return f"{folder}: exists and holds other things than a reconstruction ({listed})"
+    return None
+
+
+def check_replaceable(folder: str | Path, remedy: str = "move it away or choose another --out") -> None:
+    """Raise CaptureError (:func:`replace_problem`, with ``remedy``) unless a reconstruction may be written
+    into ``folder``."""
+    problem = replace_problem(folder)
+    if problem is not None:
+        raise CaptureError(f"{problem}; {remedy}")
+
+
 def read_report(folder: str | Path) -> dict:
     """The validated report.json of a reconstruction folder (format and version checked), without the maps."""
     return _read_report(Path(folder) / REPORT_FILE)
@@ -134,7 +167,22 @@ def reconstruction_problem(folder: str | Path, verify: bool = False) -> str | No
     if bad is not None:
         return f"{path}: damaged reconstruction (array {bad[0].removesuffix('.npy')!r}: {bad[1]})"
     missing = sorted(set(ARRAYS) - names)
-    return f"{path}: missing arrays {missing}" if missing else None
+    if missing:
+        return f"{path}: missing arrays {missing}"
+    return _verified_content(path) if verify else None
+
+
+def _verified_content(path: Path) -> str | None:
+    """:func:`content_problem` of the result.npz at ``path`` (its members already checked to inflate)."""
+    with np.load(path) as npz:
+        arrays = {name: npz[name] for name in ("depth", "normals", "reconstructed")}
+    if (
+        arrays["normals"].shape != arrays["depth"].shape + (3,)
+        or arrays["reconstructed"].shape != arrays["depth"].shape
+    ):
+        return f"{path}: arrays 'depth', 'normals' and 'reconstructed' differ in shape"
+    problem = content_problem(arrays)
+    return f"{path}: {problem}" if problem else None
 
 
 def _damaged_member(zf: zipfile.ZipFile) -> tuple[str, str] | None:
@@ -159,11 +207,13 @@ def save_reconstruction(rec: Reconstruction, folder: str | Path, overwrite: bool
     Parameters
     ----------
     rec : Reconstruction
-    folder : output folder (created; replaced when ``overwrite``)
+    folder : output folder (created; replaced when ``overwrite``). CaptureError when something else than
+        a reconstruction is there (:func:`replace_problem`): it is never replaced.
     extra_files : optional callable ``f(tmp_folder)`` that adds files (figures) before the folder is
         moved into place, so they appear together with the result or not at all.
     """
-    folder = Path(folder)
+    folder = Path(folder).absolute()  # "." has no name to write beside
+    check_replaceable(folder)
     with atomic_dir(folder, overwrite=overwrite) as tmp:
         save_npz(tmp / RESULT_FILE, rec.arrays(), compress="auto")  # dense float maps stored: 10x faster
         head = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "software_version": __version__}
@@ -198,7 +248,30 @@ def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None
         want = grid + ((3,) if ndim == 3 else ())
         if a.shape != want or a.dtype.kind != kind:
             raise CaptureError(f"{path}: array '{name}' is {a.shape} {a.dtype}, expected {want} of kind '{kind}'")
+    if problem := content_problem(arrays):
+        raise CaptureError(f"{path}: {problem}")
     return Reconstruction(**{k: arrays[k] for k in ARRAYS}, report=report)
+
+
+def content_problem(arrays: dict) -> str | None:
+    """Why a reconstruction's maps break its own promise, or None: on every reconstructed pixel the depth is
+    finite and the normal a finite unit vector (a result of NaN -- a diverged solve, a network with NaN weights,
+    a hand-made file -- would otherwise be reused, and scored on the pixels where it is not NaN)."""
+    done = np.asarray(arrays["reconstructed"], bool)
+    n = int(done.sum())
+    depth, normals = arrays["depth"][done], arrays["normals"][done]
+    bad = int((~np.isfinite(depth)).sum())
+    if bad:
+        return f"array 'depth' is not finite on {bad} of its {n} reconstructed pixels"
+    length = np.linalg.norm(normals.astype(np.float64), axis=-1)
+    bad = int((~(np.abs(length - 1.0) <= UNIT_NORMAL_TOL)).sum())  # NaN compares False: counted
+    if bad:
+        return f"array 'normals' is not a finite unit vector on {bad} of its {n} reconstructed pixels"
+    return None
+
+
+UNIT_NORMAL_TOL = 1e-3
+"""A stored normal's length may differ from 1 by this much (float32 storage rounds at ~1e-7)."""
 
 
 def _read_report(path: Path) -> dict:

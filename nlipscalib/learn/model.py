@@ -225,12 +225,24 @@ def load_model(path) -> LoadedModel:
     if not isinstance(payload.get("smoothing_px", 0.0), (int, float)):
         raise CaptureError(f"{path}: 'smoothing_px' must be a number, got {payload['smoothing_px']!r}")
     net = build_net(hidden, float(dropout), cam["width"], cam["height"])
+    _check_finite_weights(payload["state_dict"], path)
     try:
         net.load_state_dict(payload["state_dict"])
     except (RuntimeError, KeyError, TypeError, AttributeError) as exc:
         raise CaptureError(f"{path}: weights do not fit the architecture ({str(exc).splitlines()[0]})") from None
     net.eval()
     return LoadedModel(path, net, payload)
+
+
+def _check_finite_weights(state: dict, path: Path) -> None:
+    """CaptureError naming the model file when a weight is NaN or infinite (a diverged training or a damaged
+    file): such a net gives NaN normals, which nothing downstream could tell from a result."""
+    torch = _torch()
+    if not isinstance(state, dict):
+        return  # load_state_dict names the problem
+    for name, value in state.items():
+        if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            raise CaptureError(f"{path}: weights {name!r} are not finite (NaN or inf): train it again")
 
 
 REFERENCE_ARRAYS = {"tricolor": 3, "dark": 3, "depth": 2, "normals": 3, "valid": 2}

@@ -100,3 +100,43 @@ def test_verifying_finds_damage_the_zip_directory_does_not_show(tmp_path):
     assert reconstruction_problem(tmp_path / "nlips") is None  # the cheap check: every array is listed
     problem = reconstruction_problem(tmp_path / "nlips", verify=True)
     assert "result.npz: damaged" in problem and "mask" in problem
+
+
+@pytest.mark.parametrize("spoil", ["nan normals", "nan depth", "not unit"])
+def test_a_result_that_breaks_its_own_promise_is_refused_and_not_reused(tmp_path, spoil):
+    """Reconstructed pixels carry a finite depth and a finite unit normal: a result of NaN (a diverged solve, a
+    network with NaN weights, a hand-made file) is named by the loader and by the reuse check, not scored."""
+    from nlipscalib.core.reconstruction import reconstruction_problem
+
+    rec = _rec()
+    if spoil == "nan normals":
+        rec.normals[1:3] = np.nan
+    elif spoil == "nan depth":
+        rec.depth[0, 0] = np.nan
+    else:
+        rec.normals[0, 0] = (0, 0, -0.5)
+    folder = save_reconstruction(rec, tmp_path / "nlips")
+    word = "depth" if spoil == "nan depth" else "normals"
+    with pytest.raises(CaptureError, match=f"result.npz: array '{word}' is not .*finite.* reconstructed pixels"):
+        load_reconstruction(folder)
+    assert reconstruction_problem(folder) is None  # the cheap check reads no array
+    assert f"array '{word}'" in reconstruction_problem(folder, verify=True)
+    rec.reconstructed[...] = False  # NaN where nothing was reconstructed is what the format says
+    assert load_reconstruction(save_reconstruction(rec, tmp_path / "other")).reconstructed.sum() == 0
+
+
+def test_only_an_empty_folder_or_a_reconstruction_is_replaced(tmp_path):
+    from nlipscalib.core.reconstruction import replace_problem
+
+    assert replace_problem(tmp_path / "absent") is None
+    (tmp_path / "empty").mkdir()
+    assert replace_problem(tmp_path / "empty") is None
+    old = save_reconstruction(_rec(), tmp_path / "old")
+    (old / "result.npz").write_bytes(b"damaged")
+    assert replace_problem(old) is None
+    (tmp_path / "file").write_text("x")
+    assert "is a file" in replace_problem(tmp_path / "file")
+    (old / "sub").mkdir()
+    assert "other things" in replace_problem(old)
+    with pytest.raises(CaptureError, match="other things"):
+        save_reconstruction(_rec(), old, overwrite=True)

@@ -363,3 +363,30 @@ def test_a_damaged_frame_of_a_sequence_ends_the_stream_with_one_line_after_the_f
     err = captured.err.strip().splitlines()
     assert len(err) == 1 and "img_0002.png: not a readable image (the stream stopped there, after 2 frames)" in err[0]
     assert (out / "stream.json").is_file()
+
+
+def test_a_destination_holding_other_things_is_refused_and_another_models_result_is_named(
+    trained, twin_presses, tmp_path, caplog, capsys
+):
+    """A result replaces its folder whole: a user's folder at PRESS/nlipsnet is refused before inferring (it
+    used to be replaced); a result of another model is replaced, with a line naming that model."""
+    import logging
+    import shutil
+
+    press = tmp_path / "press"
+    shutil.copytree(twin_presses / HELD_OUT, press, ignore=shutil.ignore_patterns("nlips*"))
+    (press / "nlipsnet").mkdir()
+    (press / "nlipsnet" / "notes.txt").write_text("mine")
+    assert main(["infer", str(trained), str(press)]) == 2
+    err = capsys.readouterr().err
+    assert f"{press / 'nlipsnet'}: exists and holds other things than a reconstruction (notes.txt)" in err
+    assert (press / "nlipsnet" / "notes.txt").read_text() == "mine"
+
+    shutil.rmtree(press / "nlipsnet")
+    other = tmp_path / "other.pt"
+    shutil.copy(trained, other)
+    caplog.set_level(logging.INFO)
+    assert main(["infer", str(other), str(press)]) == 0
+    assert "replacing the result of another model" not in caplog.text
+    assert main(["infer", str(trained), str(press)]) == 0
+    assert f"replacing the result of another model ({other.resolve()})" in caplog.text
