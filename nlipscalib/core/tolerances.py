@@ -44,6 +44,10 @@ pass solves the whole mask."""
 DENT_FOCUS_MIN_PIXELS = 1024
 """... and when it holds at least this many pixels of the mask (a 32 x 32 box, the auto ROI's least): a contact
 outside an explicit ROI leaves nothing to focus on."""
+CALIBRATION_MIN_PIXELS = 100
+"""LED self-calibration needs at least this many pixels of the gel (all captures, after ``stride``): about ten
+per parameter of an LED (9). With one pixel (``--stride 10000``) half the LEDs came out NaN and the fit
+called itself reliable."""
 CALIBRATION_MIN_SHARE = 0.1
 """LED calibration, interreflection auto: the indirect term is used when, fitted with the starting LEDs,
 its share of the direct light is at least this. The starting LEDs' own errors pose as a few % of

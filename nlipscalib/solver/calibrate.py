@@ -156,11 +156,20 @@ def calibrate_leds(
     cal = _with_term_if_needed(
         cal, presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance
     )
+    _check_finite(cal, presses[0].folder)
     notes = _unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
     notes += _quality_warning(cal.quality, cal.interreflection, interreflection)
     for note in notes:
         log.warning(note)
     return dataclasses.replace(cal, warnings=tuple(notes))
+
+
+def _check_finite(cal: LedCalibration, folder) -> None:
+    """CaptureError naming the capture when a fitted LED is not finite (the fit ran off): never written."""
+    for i, led in enumerate(cal.leds + tuple(cal.emitters or ())):
+        values = [*led.position, *led.direction, led.mu, *led.intensity]
+        if not np.all(np.isfinite(values)):
+            raise CaptureError(f"{folder}: the fit of LED {i % len(cal.leds) + 1} did not converge (not finite)")
 
 
 def _calibrate(
@@ -172,6 +181,12 @@ def _calibrate(
     first = presses[0]
     leds0 = leds = tuple(initial) if initial is not None else first.leds
     data = [_samples(p, first, len(leds), stride) for p in presses]
+    used = sum(len(d[0]) for d in data)
+    if used < tolerances.CALIBRATION_MIN_PIXELS:
+        raise ConfigError(
+            f"{first.folder}: stride {stride} leaves {used} pixels of the gel; the LED fit needs at least "
+            f"{tolerances.CALIBRATION_MIN_PIXELS}: use a smaller stride"
+        )
     x, n = np.concatenate([d[0] for d in data]), np.concatenate([d[1] for d in data])
     img, ok = np.concatenate([d[2] for d in data], axis=1), np.concatenate([d[3] for d in data], axis=1)
     # A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on

@@ -75,3 +75,11 @@ def test_led_file_of_another_sensor_is_refused(presses, tmp_path, capsys, caplog
     cfg.write_text("max_iters = 2\n")
     assert main(["solve", str(other), "--leds", str(leds), "--roi", "40,30,24,24", "--config", str(cfg)]) == 0
     assert "records no sensor to check against" in caplog.text
+
+
+def test_a_stride_that_leaves_too_few_pixels_is_refused(presses, tmp_path, capsys):
+    """--stride 10000 kept one pixel: half the LEDs came out NaN, the fit called itself reliable, exit 0."""
+    out = tmp_path / "leds.json"
+    assert main(["calibrate-leds", str(presses["none"]), "--out", str(out), "--stride", "10000"]) == 2
+    err = capsys.readouterr().err
+    assert "stride 10000 leaves 1 pixels of the gel" in err and "smaller stride" in err and not out.exists()
