@@ -145,7 +145,7 @@ def _run_stream(args, what: str) -> int:
     from ..device.live import ReadAhead, SaveSink, stream
     from ..errors import CaptureError, require
     from ..report import normals_to_rgb
-    from .live import MismatchWatch, nlipsnet_predictor, open_frames
+    from .live import MismatchWatch, nlipsnet_predictor, open_frames, size_emulator_for
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better
@@ -155,6 +155,7 @@ def _run_stream(args, what: str) -> int:
         args.camera = what
     name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
+    size_emulator_for(args, predictor.shape)
     with contextlib.ExitStack() as stack:
         source, before_frame = open_frames(args, stack)
         if tuple(source.shape) != predictor.shape:

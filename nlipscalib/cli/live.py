@@ -189,6 +189,23 @@ def open_frames(args, stack, loop: bool = False):
     return source, None
 
 
+def size_emulator_for(args, shape: tuple[int, int]) -> None:
+    """The emulated sensor (``--emulate``) renders at a model's image size ``shape`` (H, W) unless ``--width`` /
+    ``--height`` say otherwise; a size that differs is refused now, not after rendering the script (~20 s)."""
+    from ..errors import ConfigError
+
+    if not args.emulate:
+        return
+    h, w = shape
+    if args.width is None and args.height is None:
+        args.width, args.height = w, h
+    elif (args.width or w, args.height or h) != (w, h):
+        raise ConfigError(
+            f"--width {args.width} --height {args.height}: the model {args.model} was calibrated for {w}x{h} "
+            f"images; give --width {w} --height {h}, or leave both out"
+        )
+
+
 def _design_leds(name: str) -> int:
     from ..sim.scene import load_scene
 
@@ -391,8 +408,12 @@ def run(args) -> int:
         raise ConfigError(f"--frames must be >= 1, got {args.frames}")
     window = not args.no_window and display_available()
     with contextlib.ExitStack() as stack:
+        if args.model:  # before the source: the emulated sensor then renders at the model's image size
+            predict, reference_depth = _nlipsnet(args)
+            size_emulator_for(args, predict.predictor.shape)
         source, before_frame = open_frames(args, stack, loop=window)
-        predict, reference_depth = _nlipsnet(args) if args.model else _plugged(args.predictor, source.shape)
+        if not args.model:
+            predict, reference_depth = _plugged(args.predictor, source.shape)
         sinks = []
         if args.save:
             sinks.append(SaveSink(args.save, normals_to_rgb, args.every))

@@ -91,7 +91,7 @@ def coverage(dataset, cells: int = 4, min_samples: int = 20) -> dict:
         b = direction_bins(normals, ref_normals)
         ok = b >= 0
         np.add.at(counts, (v[ok] * cells // H, u[ok] * cells // W, b[ok]), 1)
-        kind = entry.get("press", {}).get("indenter") or "unknown"
+        kind = entry.get("press", {}).get("indenter") or UNRECORDED_KIND
         kinds[kind] = kinds.get(kind, np.zeros(n_bins)) + np.bincount(b[ok], minlength=n_bins)
     gel = _gel_regions(ref["valid"], cells)
     covered = counts >= min_samples
@@ -149,6 +149,17 @@ def steep_gap(covered: np.ndarray, gel: np.ndarray, tilt_counts: np.ndarray) -> 
     return {"taught_tilt_deg": taught, "untaught_from_deg": edge, "advice": advice}
 
 
+UNRECORDED_KIND = "object"
+"""The indenter kind of presses that record none (captured on a sensor: the operator's object is unnamed)."""
+
+
+def _with_article(kind: str) -> str:
+    """'a sphere', 'an object', 'any indenter'."""
+    if kind.startswith("any "):
+        return kind
+    return f"{'an' if kind[:1].lower() in 'aeiou' else 'a'} {kind}"
+
+
 def _gel_regions(valid: np.ndarray, cells: int) -> np.ndarray:
     """Regions where at least a quarter of the pixels see the gel."""
     H, W = valid.shape
@@ -173,7 +184,7 @@ def _next_press(counts, covered, gel, kinds: dict, shape) -> dict:
     box = [c * W // cells, r * H // cells, (c + 1) * W // cells, (r + 1) * H // cells]
     centre = [(box[0] + box[2] - 1) / 2, (box[1] + box[3] - 1) / 2]
     advice = (
-        f"a {kind} in image region u {box[0]}-{box[2] - 1}, v {box[1]}-{box[3] - 1} "
+        f"{_with_article(kind)} in image region u {box[0]}-{box[2] - 1}, v {box[1]}-{box[3] - 1} "
         f"(centre u={centre[0]:.0f}, v={centre[1]:.0f}): {int(gap.sum())} of {gap.size} direction bins empty there"
     )
     return {

@@ -62,3 +62,16 @@ def test_steep_gap_of_an_empty_dataset_asks_from_the_first_ring():
     covered = np.zeros((4, 4, 32), bool)
     steep = steep_gap(covered, np.ones((4, 4), bool), np.zeros(181, np.int64))
     assert steep["taught_tilt_deg"] is None and steep["untaught_from_deg"] == 2.0 and "no samples" in steep["advice"]
+
+
+def test_the_advice_names_the_object_with_its_article():
+    """Captured presses record no indenter: the advice said "press next: a unknown"."""
+    from nlipscalib.learn.coverage import _next_press
+
+    covered = np.zeros((2, 2, 3), bool)
+    counts = np.zeros((2, 2, 3))
+    gel = np.ones((2, 2), bool)
+    kinds = {"object": np.ones(3)}
+    assert _next_press(counts, covered, gel, kinds, (20, 20))["advice"].startswith("an object in image region")
+    assert _next_press(counts, covered, gel, {"sphere": np.ones(3)}, (20, 20))["advice"].startswith("a sphere in")
+    assert _next_press(counts, covered, gel, {}, (20, 20))["advice"].startswith("any indenter in")

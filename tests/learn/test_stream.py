@@ -145,8 +145,12 @@ def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
     valid = np.isfinite(reference.reference.depth)
     same = np.all(np.abs(first["normals"] - reference.reference.normals) < 1e-5, axis=-1)
     assert same[valid].mean() > 0.9
-    # the same stream asked for by its board's URL, as nlips live takes it
-    by_port = ["--port", "nlipsemu://17", "--width", "64", "--height", "48"]
+    # another size is refused before the twin renders (it said so after ~20 s), naming the model's size
+    args = ["infer", str(model), "--emulate", "nlipstac", "--width", "80", "--height", "60", "--max-frames", "1"]
+    assert main(args) == 2
+    assert "give --width 64 --height 48, or leave both out" in _one_line_error(capsys)
+    # the same stream asked for by its board's URL, as nlips live takes it; its size is the model's
+    by_port = ["--port", "nlipsemu://17"]
     args = ["infer", str(model), *by_port, "--max-frames", "4", "--frames-per-press", "2", "--out", str(tmp_path / "p")]
     assert main(args) == 0
     assert "4 frames in" in capsys.readouterr().out
