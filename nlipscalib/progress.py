@@ -6,6 +6,8 @@ and CI output never fill with carriage-return bars. ``--log-file`` copies every 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import os
 import sys
@@ -103,6 +105,54 @@ def file_log(level: int, message: str) -> None:
     for handler in logging.getLogger().handlers:
         if getattr(handler, _OURS, False) and isinstance(handler, AppendFileHandler):
             handler.handle(record)
+
+
+@contextlib.contextmanager
+def results_to_log_file():
+    """While active, every line printed on stdout (a command's results: summaries, tables, scores) also goes
+    to the ``--log-file``, at INFO (a cluster job's log then holds the outcome, not only the warnings).
+    Nothing changes without a log file."""
+    if _log_file is None:
+        yield
+        return
+    real = sys.stdout
+    tee = _LinesToLog(real)
+    sys.stdout = tee
+    try:
+        yield
+    finally:
+        tee.flush_partial()
+        if sys.stdout is tee:
+            sys.stdout = real
+
+
+class _LinesToLog(io.TextIOBase):
+    """A text stream that writes through to ``real`` and hands each finished line to :func:`file_log`."""
+
+    def __init__(self, real):
+        self.real, self._partial = real, ""
+
+    def write(self, text: str) -> int:
+        self.real.write(text)
+        *lines, self._partial = (self._partial + text).split("\n")
+        for line in lines:
+            if line.strip():
+                file_log(logging.INFO, line)
+        return len(text)
+
+    def flush(self) -> None:
+        self.real.flush()
+
+    def flush_partial(self) -> None:
+        if self._partial.strip():
+            file_log(logging.INFO, self._partial)
+        self._partial = ""
+
+    def isatty(self) -> bool:
+        return self.real.isatty()
+
+    def fileno(self) -> int:
+        return self.real.fileno()
 
 
 def _add(root: logging.Logger, handler: logging.Handler, fmt: str) -> None:

@@ -93,3 +93,30 @@ def test_parallel_solve_logs_to_the_log_file(tmp_path):
     assert all(s.startswith("failed") for s in status.values())
     text = log.read_text()
     assert "ERROR" in text and "press_a" in text and "press_b" in text, text
+
+
+def test_results_printed_on_stdout_reach_the_log_file_too(tmp_path, capsys):
+    """A successful `nlips --log-file F dataset ...` left F empty: its summary went to stdout only."""
+    import sys
+
+    log = tmp_path / "run.log"
+    progress.configure(progress=False, log_file=log)
+    real = sys.stdout
+    with progress.results_to_log_file():
+        print("3 rendered, 0 already there")
+        print("mean AAE", end="")
+        print(" 1.5")
+    assert sys.stdout is real
+    assert capsys.readouterr().out == "3 rendered, 0 already there\nmean AAE 1.5\n"
+    lines = log.read_text().splitlines()
+    assert lines[0].endswith("3 rendered, 0 already there") and lines[1].endswith("mean AAE 1.5") and len(lines) == 2
+    progress.configure(progress=False)  # without a log file nothing is wrapped
+    with progress.results_to_log_file():
+        assert sys.stdout is real
+
+
+def test_the_cli_logs_a_commands_results_to_its_log_file(tmp_path, capsys):
+    log = tmp_path / "cache.log"
+    assert main(["--log-file", str(log), "cache"]) == 0
+    printed = capsys.readouterr().out.strip().splitlines()
+    assert printed and all(line in log.read_text() for line in printed)

@@ -48,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="no progress bars (they are also off when stderr is not a terminal)",
     )
-    parser.add_argument("--log-file", default=None, help="also write every log line to this file")
+    parser.add_argument(
+        "--log-file", default=None, help="also write every log line and every result line to this file (appended)"
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in SUBCOMMAND_MODULES:
         try:
@@ -83,7 +85,8 @@ def _run(args) -> int:
             verbose=args.verbose,
             log_file=args.log_file,
         )
-        return int(args.func(args) or 0)
+        with progress.results_to_log_file():
+            return int(args.func(args) or 0)
     except (NlipsError, MissingDependencyError) as exc:
         return _fail(args, str(exc))
     except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
