@@ -63,7 +63,7 @@ def register(subparsers) -> None:
     p.add_argument("--threads", type=int, default=0, help="CPU threads for the network (0: all this process may use)")
     add_device_arguments(p)
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
-    p.add_argument("--every", type=int, default=1, help="stream with --out: keep every N-th frame (default 1)")
+    p.add_argument("--every", type=int, help="stream with --out: keep every N-th frame (default 1)")
     p.set_defaults(func=run)
 
 
@@ -79,14 +79,19 @@ def run(args) -> int:
         )
     if args.max_frames is not None and args.max_frames < 1:
         raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
-    if stream_input is None:  # only a stream lights the LED board: the option would be ignored
-        for dest in typed(args, ("port", "adalight", "baud")):
+    if stream_input is None:  # only a stream lights the LED board, or has frames to count or skip
+        for dest in typed(args, ("port", "adalight", "baud", "tricolor_level")):
             raise ConfigError(
                 f"{option(dest)} is not used with press folders or image files (they are read as captured); it "
                 "lights the LED board while a camera streams (--camera)"
             )
+        for dest in typed(args, ("max_frames", "every")):
+            raise ConfigError(
+                f"{option(dest)} is for a stream (a video, --camera, --emulate): press folders and image files "
+                "are each inferred once; drop it"
+            )
     check_source_arguments(args)
-    check_output_arguments(args)
+    check_output_arguments(args, args.out)
     if stream_input is not None:
         return _run_stream(args, stream_input)
     return _run_stills(args)

@@ -57,7 +57,7 @@ def register(subparsers) -> None:
         "emulated sensor's input is its script once, looped while a window shows it)",
     )
     p.add_argument("--save", help="folder for every frame's normal map (PNG) and arrays (npz)")
-    p.add_argument("--every", type=int, default=1, help="save every N-th frame (default 1)")
+    p.add_argument("--every", type=int, help="save every N-th frame (default 1)")
     p.add_argument("--no-window", action="store_true", help="do not open a window even if a display is present")
     p.set_defaults(func=run)
 
@@ -132,9 +132,14 @@ def check_source_arguments(args) -> None:
                 f"{option(dest)} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID "
                 "without --camera)"
             )
-    for dest in typed(args, ("adalight", "baud")):
+    for dest in typed(args, ("adalight", "baud", "tricolor_level")):
         if not args.port:
             raise ConfigError(f"{option(dest)} describes the LED board: give its --port too (or drop {option(dest)})")
+    if typed(args, ("exposure_ms",)) and not args.emulate and not _live_camera(args):
+        raise ConfigError(
+            "--exposure-ms sets a live camera's exposure (--camera N or /dev/videoN); recorded frames keep theirs: "
+            "drop --exposure-ms"
+        )
     fill_defaults(args, SOURCE_DEFAULTS)
     if args.port:  # only then: pyserial is not needed to infer on files
         args.baud = check_baud(args)
@@ -148,10 +153,20 @@ def check_source_arguments(args) -> None:
             check_count(option(dest), getattr(args, dest), minimum=1)
 
 
-def check_output_arguments(args) -> None:
-    """``--every`` >= 1 (0 would keep every frame) and ``--threads`` >= 0 (0: the default), shared with infer."""
+def _live_camera(args) -> bool:
+    """Whether the stream's camera is a device (a number or /dev/...), not a recording (file, folder, pattern)."""
+    camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
+    return camera is not None and (str(camera).isdigit() or str(camera).startswith("/dev/"))
+
+
+def check_output_arguments(args, out: str | None) -> None:
+    """``--every`` >= 1 (0 would keep every frame), and said to do nothing without ``out`` (the output folder
+    flag's value); ``--threads`` >= 0 (0: the default). Shared with infer."""
     from ..config import check_count
 
+    if typed(args, ("every",)) and not out:
+        log.warning("--every without an output folder: no frames are kept")
+    fill_defaults(args, {"every": 1})
     check_count("--every", args.every, minimum=1)
     check_count("--threads", args.threads, minimum=0)
 
@@ -403,7 +418,7 @@ def run(args) -> int:
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
     emulate_behind_port(args)
     check_source_arguments(args)
-    check_output_arguments(args)
+    check_output_arguments(args, args.save)
     if args.frames is not None and args.frames < 1:
         raise ConfigError(f"--frames must be >= 1, got {args.frames}")
     window = not args.no_window and display_available()

@@ -193,6 +193,26 @@ def test_stream_flags_refused_with_an_emulated_port_name_the_port(capsys):
     _one_line(capsys.readouterr().err, "--exposure-ms is not used with --port nlipsemu://live-flags and no --camera")
 
 
+@pytest.mark.parametrize(
+    "option, message",
+    [
+        (("--tricolor-level", "100"), "--tricolor-level describes the LED board: give its --port too"),
+        (("--exposure-ms", "5"), "--exposure-ms sets a live camera's exposure"),
+    ],
+)
+def test_camera_flags_a_recording_does_not_use_are_refused(frames, tmp_path, capsys, option, message):
+    """A folder of recorded frames has no exposure to set and no board to light: the flags did nothing, unsaid."""
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main([*args, *option]) == 2
+    _one_line(capsys.readouterr().err, message)
+
+
+def test_every_without_a_folder_to_save_in_is_warned_about(frames, capsys, caplog):
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main([*args, "--every", "2", "--frames", "2"]) == 0
+    assert "--every without an output folder" in caplog.text
+
+
 @pytest.mark.parametrize("option", [("--frames-per-press", "10"), ("--script", "s.toml"), ("--width", "64")])
 def test_emulated_stream_flags_are_refused_without_emulate(frames, tmp_path, capsys, option):
     args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]

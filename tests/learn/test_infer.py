@@ -119,7 +119,23 @@ def test_press_folder_without_meta_json_is_not_taken_for_frames(trained, twin_pr
     assert not out.exists()
 
 
-@pytest.mark.parametrize("option", [("--every", "0"), ("--threads", "-1")])
+@pytest.mark.parametrize(
+    "option, message",
+    [
+        (("--max-frames", "3"), "--max-frames is for a stream"),
+        (("--every", "3"), "--every is for a stream"),
+        (("--tricolor-level", "100"), "--tricolor-level is not used with press folders"),
+        (("--exposure-ms", "5"), "--exposure-ms sets a live camera's exposure"),
+    ],
+)
+def test_stream_options_on_press_folders_are_refused(trained, twin_presses, tmp_path, capsys, option, message):
+    """They did nothing there, without a word, while --port or --adalight were refused."""
+    assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "o"), *option]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+
+
+@pytest.mark.parametrize("option", [("--max-frames", "0"), ("--threads", "-1")])
 def test_infer_refuses_out_of_range_options(trained, twin_presses, tmp_path, capsys, option):
     assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "o"), *option]) == 2
     err = capsys.readouterr().err.strip().splitlines()
