@@ -32,8 +32,9 @@ def register(subparsers) -> None:
     p.add_argument(
         "--result",
         metavar="DIR",
-        help="score this reconstruction folder (e.g. from `nlips solve PRESS --out DIR`) against PATH, which must "
-        "then be that one press folder (its ground truth); the method is read from DIR's report.json",
+        help="score this reconstruction folder (e.g. from `nlips solve PRESS --out DIR`) against PATH, the press "
+        "folder it was made from (its ground truth); or, with PATH a folder of presses, DIR/PRESS/<method> "
+        "against each press (what `nlips infer PRESSES --out DIR` writes). The method is read from the results",
     )
     p.add_argument(
         "--other-capture",
@@ -53,13 +54,14 @@ def run(args) -> int:
 
         raise ConfigError("--other-capture is only used with --result DIR (a result from another folder)")
     if args.result:
-        presses, method = _result_target(Path(args.path), Path(args.result), args.method, args.other_capture)
+        pairs, method = _result_targets(Path(args.path), Path(args.result), args.method, args.other_capture)
     else:
         presses, method = _targets(Path(args.path), args.method)
+        pairs = [(folder, None) for folder in presses]
     rows, unsolved, damaged, outdated = [], [], [], []
-    for folder in presses:
-        rec = _load(folder, method, single=len(presses) == 1, out=args.result)
-        stale = None if rec is None or isinstance(rec, str) or args.result else _stale(folder, method)
+    for folder, out in pairs:
+        rec = _load(folder, method, single=len(pairs) == 1, out=out)
+        stale = None if rec is None or isinstance(rec, str) or out else _stale(folder, method)
         if rec is None:
             unsolved.append(folder.name)  # e.g. a dataset's undeformed reference: nothing solved there
         elif isinstance(rec, str):
@@ -99,8 +101,51 @@ def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
         )
     presses, _ = split_reference(path)  # a folder's undeformed capture is not a press to score
     if not presses:
-        raise CaptureError(f"{path}: no press folders found")
+        raise CaptureError(f"{path}: no press folders found{_results_hint(path)}")
     return presses, method or "nlips"
+
+
+def _results_hint(path: Path) -> str:
+    """A hint when ``path`` holds results without their presses (``nlips infer PRESSES --out DIR`` writes
+    DIR/PRESS/nlipsnet): they are scored against the presses with ``--result``."""
+    from ..core.reconstruction import METHODS, has_reconstruction
+
+    if not path.is_dir():
+        return ""
+    found = next((d / m for d in sorted(path.iterdir()) for m in METHODS if has_reconstruction(d / m)), None)
+    if found is None:
+        return ""
+    return (
+        f" ({path} holds results, e.g. {found.relative_to(path)}): score them against their presses with "
+        f"`nlips eval PRESSES --result {path}`"
+    )
+
+
+def _result_targets(path: Path, result: Path, method: str | None, other_capture: bool):
+    """([(press, result folder)], method) for ``--result DIR``: DIR scored against the press ``path``, or, when
+    ``path`` is a folder of presses, DIR/PRESS/<method> (what ``nlips infer PRESSES --out DIR`` writes) against
+    each press PRESS of it."""
+    from ..core.capture import is_press_folder, split_reference
+    from ..core.reconstruction import METHODS, has_reconstruction
+    from ..errors import CaptureError
+
+    if is_press_folder(path) or not path.is_dir():
+        presses, method = _result_target(path, result, method, other_capture)
+        return [(presses[0], result)], method
+    presses, _ = split_reference(path)
+    methods = [method] if method else list(METHODS)
+    pairs = []
+    for press in presses:
+        found = next((result / press.name / m for m in methods if has_reconstruction(result / press.name / m)), None)
+        if found is not None:
+            _, method = _result_target(press, found, method, other_capture)
+            pairs.append((press, found))
+    if not pairs:
+        raise CaptureError(
+            f"--result {result}: holds no result of the presses of {path} (looked for {result}/PRESS/"
+            f"{'|'.join(methods)})"
+        )
+    return pairs, method
 
 
 def _result_target(press: Path, result: Path, method: str | None, other_capture: bool) -> tuple[list[Path], str]:

@@ -406,3 +406,25 @@ def test_a_destination_holding_other_things_is_refused_and_another_models_result
     assert "replacing the result of another model" not in caplog.text
     assert main(["infer", str(trained), str(press)]) == 0
     assert f"replacing the result of another model ({other.resolve()})" in caplog.text
+
+
+def test_results_of_a_folder_of_presses_are_scored_against_their_presses(trained, twin_presses, tmp_path, capsys):
+    """`nlips infer MODEL PRESSES --out DIR` writes DIR/PRESS/nlipsnet; `nlips eval DIR` found "no press folders"
+    and nothing scored them together. Now `nlips eval PRESSES --result DIR` does, and eval DIR says so."""
+    import shutil
+
+    presses = tmp_path / "presses"
+    presses.mkdir()
+    for name in ("press_a", HELD_OUT):
+        shutil.copytree(twin_presses / name, presses / name, ignore=shutil.ignore_patterns("nlips*"))
+    out = tmp_path / "inferred"
+    assert main(["infer", str(trained), str(presses), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "holds results" in err and f"nlips eval PRESSES --result {out}" in err
+    assert main(["eval", str(presses), "--result", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "press_a" in table and HELD_OUT in table and "mean" in table
+    assert main(["eval", str(presses), "--result", str(tmp_path)]) == 2
+    assert "holds no result of the presses" in capsys.readouterr().err
