@@ -129,7 +129,7 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
     from ..core.reconstruction import METHODS, has_reconstruction
     from ..errors import CaptureError
 
-    if is_press_folder(path) or not path.is_dir():
+    if is_press_folder(path) or not path.is_dir() or has_reconstruction(result):  # one result: of one press
         presses, method = _result_target(path, result, method, other_capture)
         return [(presses[0], result)], method
     presses, _ = split_reference(path)
