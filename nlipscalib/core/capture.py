@@ -313,6 +313,18 @@ def find_presses(root: str | Path) -> list[Path]:
     return presses
 
 
+def missing_capture_files(folder: str | Path) -> list[str]:
+    """Files a press folder's meta.json lists (images, reference) that are not there; [] for a whole press.
+
+    CaptureError (naming meta.json) when meta.json itself is missing or malformed."""
+    folder = Path(folder)
+    meta = read_meta(folder)
+    images = meta["images"]
+    names = [images["dark"], images["tricolor"], *images["leds"]]
+    names += [meta["reference"]] if meta.get("reference") else []
+    return [str(name) for name in names if not (folder / str(name)).is_file()]
+
+
 def is_incomplete_press(folder: str | Path) -> bool:
     """True when ``folder`` holds press images (dark, tri-colour or LED frames) but no meta.json."""
     folder = Path(folder)

@@ -281,17 +281,32 @@ def run_session(
     status: dict[str, dict | str] = {}
     for k, name in enumerate(tqdm(names, desc="capture", unit="press", disable=not progress)):
         folder = out / name
-        if is_press_folder(folder):
+        damaged = is_press_folder(folder) and _damaged(folder)
+        if is_press_folder(folder) and not damaged:
             status[name] = "kept"
             continue
+        if damaged:
+            log.warning("%s: %s; capturing it again", folder, damaged)
         if k == 0:
             operator.reference()
         else:
             operator.press(k, cfg.presses)
-        status[name] = capture_press(rig, folder, cfg, operator, index=k)
+        status[name] = capture_press(rig, folder, cfg, operator, index=k, overwrite=bool(damaged))
         if k > 0:
             operator.release(k)
     return status
+
+
+def _damaged(folder: Path) -> str:
+    """Why a captured press folder cannot be kept ("" when it is whole): files its meta.json lists are gone
+    (deleted or lost since), or meta.json itself is unreadable."""
+    from ..core.capture import missing_capture_files
+
+    try:
+        missing = missing_capture_files(folder)
+    except CaptureError as exc:
+        return str(exc).removeprefix(f"{folder}: ")
+    return f"{', '.join(missing[:3])}{' and more' if len(missing) > 3 else ''} missing" if missing else ""
 
 
 def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:

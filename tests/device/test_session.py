@@ -140,6 +140,17 @@ def test_resume_refuses_other_capture_settings_and_names_the_change(tmp_path):
     assert run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])["press_0002"]["attempts"] == 1
 
 
+def test_resume_captures_again_a_press_whose_files_are_gone(tmp_path, caplog):
+    """A captured press whose LED image was deleted was reported "kept (already captured)"."""
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    (tmp_path / "s" / "press_0001" / "led_02.png").unlink()
+    status = run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    assert status["reference"] == "kept" and status["press_0001"]["attempts"] == 1
+    assert "press_0001: led_02.png missing; capturing it again" in caplog.text
+    assert (tmp_path / "s" / "press_0001" / "led_02.png").is_file()
+
+
 def test_rig_check_names_the_mismatch():
     rig, _ = _rig()
     rig.controller = FakeController(N_LEDS + 1)
