@@ -37,9 +37,11 @@ def trace_ground_truth(mi, scene, camera, eta: float | None = None) -> GroundTru
     if mi.variant().startswith("scalar"):
         if eta is not None:
             raise ConfigError("gel_optics needs a vectorised Mitsuba variant (llvm_ad_rgb or cuda_ad_rgb)")
-        valid, points, normals, contact = _trace_scalar(mi, scene, rays)
+        trace = lambda r: _trace_scalar(mi, scene, r)  # noqa: E731
     else:
-        valid, points, normals, contact = _trace_vector(mi, scene, rays, eta)
+        trace = lambda r: _trace_vector(mi, scene, r, eta)  # noqa: E731
+    valid, points, normals, contact = trace(rays)
+    _retrace_pinholes(trace, rays, valid.reshape(h, w), (valid, points, normals, contact))
     points[~valid] = np.nan
     normals[~valid] = 0.0
     normals[valid] /= np.linalg.norm(normals[valid], axis=1, keepdims=True)
@@ -51,6 +53,33 @@ def trace_ground_truth(mi, scene, camera, eta: float | None = None) -> GroundTru
         valid=valid.reshape(h, w),
         contact=contact.reshape(h, w),
     )
+
+
+PINHOLE_NUDGE_RAD = 1e-5
+"""How far a missed ray is turned to be traced again (:func:`_retrace_pinholes`): 0.2 um at 20 mm."""
+
+
+def _retrace_pinholes(trace, rays: np.ndarray, valid: np.ndarray, out: tuple) -> None:
+    """Trace again, slightly turned, the rays that missed a surface their four neighbours all hit.
+
+    Single-precision ray-triangle tests are not watertight: a ray through a shared edge or vertex of the
+    deformed mesh can slip between its triangles (seen: one pixel inside a 160x120 sphere dent, a black dot
+    in the true normals, left out of every score). Each such ray is traced again turned by
+    :data:`PINHOLE_NUDGE_RAD` in up to four directions; the first hit fills ``out`` (valid, points, normals,
+    contact: flat per-pixel arrays, changed in place).
+    """
+    inner = np.zeros_like(valid)
+    inner[1:-1, 1:-1] = valid[:-2, 1:-1] & valid[2:, 1:-1] & valid[1:-1, :-2] & valid[1:-1, 2:]
+    todo = np.flatnonzero(inner & ~valid)
+    for axis in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0)):
+        if not todo.size:
+            return
+        turned = rays[todo] + np.float32(PINHOLE_NUDGE_RAD) * np.asarray(axis, np.float32)
+        hit = trace(np.ascontiguousarray(turned / np.linalg.norm(turned, axis=1, keepdims=True)))
+        got = hit[0]
+        for whole, part in zip(out, hit):
+            whole[todo[got]] = part[got]
+        todo = todo[~got]
 
 
 def reference_from(gt: GroundTruth) -> Reference:
