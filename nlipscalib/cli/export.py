@@ -34,8 +34,9 @@ def run(args) -> int:
     if out.suffix.lower() != ".onnx":
         raise ConfigError(f"--out {out}: the ONNX file must end in .onnx")
     model = load_model(args.model)
-    path = export_onnx(model, out)
-    angle = parity_deg(model, path)
+    angles = []  # checked on the written file before it takes its name: a failed or interrupted check publishes none
+    path = export_onnx(model, out, check=lambda tmp: angles.append(parity_deg(model, tmp)))
+    angle = angles[0]
     beside = path.resolve() == Path(args.model).resolve().with_suffix(".onnx")
     default = Path(model.path).with_suffix(".onnx")
     used = (

@@ -143,9 +143,14 @@ def export_and_check(model_path, dataset, names) -> tuple:
     from ..learn.onnx_export import checked_parity, export_onnx
 
     model = load_model(model_path)
-    path = export_onnx(model, model_path.with_suffix(".onnx"))
     s = dataset.arrays(names)
-    return path, checked_parity(model, path, model_inputs(s["pixel"], s["rgb"]))
+    angles = []  # on the written file, before it takes its name (export_onnx)
+    path = export_onnx(
+        model,
+        model_path.with_suffix(".onnx"),
+        check=lambda tmp: angles.append(checked_parity(model, tmp, model_inputs(s["pixel"], s["rgb"]))),
+    )
+    return path, angles[0]
 
 
 def _why_stopped(result, cfg) -> str:

@@ -35,8 +35,12 @@ def file_digest(path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
-def export_onnx(model, out) -> Path:
+def export_onnx(model, out, check=None) -> Path:
     """Write ``model`` (a LoadedModel) as an ONNX file ``out`` atomically; returns its path.
+
+    ``check(path)``, when given, runs on the written file before it takes its name (e.g. the parity with
+    PyTorch, :func:`checked_parity`): an export that fails it, or is interrupted during it, is never published
+    (an interrupted ``nlips export`` used to leave a file whose check never ran, which ``nlips infer`` then used).
 
     The graph is written directly from the folded weights (:func:`nlipscalib.learn.model.fused_net`):
     per layer a MatMul named ``layer<k>`` and an Add (onnxruntime fuses the pair into one Gemm), ReLU
@@ -45,7 +49,7 @@ def export_onnx(model, out) -> Path:
     """
     import torch
 
-    from ..core.atomic import write_bytes
+    from ..core.atomic import write_by_name, write_bytes
     from .model import fused_net
 
     onnx = require("onnx", "onnx", "ONNX export")
@@ -81,7 +85,15 @@ def export_onnx(model, out) -> Path:
     for key, value in meta.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
-    return write_bytes(out, proto.SerializeToString())
+    data = proto.SerializeToString()
+    if check is None:
+        return write_bytes(out, data)
+
+    def write_and_check(tmp: Path) -> None:
+        tmp.write_bytes(data)
+        check(tmp)
+
+    return write_by_name(out, write_and_check)
 
 
 def quantized_int8(path) -> bytes:

@@ -283,3 +283,19 @@ def test_a_model_with_nan_weights_is_refused_naming_the_file(tmp_path, trained):
     torch.save(payload, bad)
     with pytest.raises(CaptureError, match=f"nan.pt: weights '{first}' are not finite"):
         load_model(bad)
+
+
+def test_an_export_that_fails_its_check_is_never_published(tmp_path, trained):
+    """An interrupted `nlips export` left an ONNX file whose parity check never ran; `nlips infer` then used it."""
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    out = tmp_path / "net.onnx"
+
+    def interrupted(path):
+        assert path != out and path.is_file()  # the written file, under its temporary name
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        export_onnx(load_model(trained), out, check=interrupted)
+    assert not out.exists() and not list(tmp_path.iterdir())
+    assert export_onnx(load_model(trained), out, check=lambda path: None) == out and out.is_file()
