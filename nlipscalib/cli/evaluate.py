@@ -84,7 +84,7 @@ def run(args) -> int:
 
 def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
     """(press folders, method): PATH as a reconstruction folder, a press, or a folder of presses."""
-    from ..core.capture import is_press_folder, split_reference
+    from ..core.capture import is_press_folder, no_presses_error, split_reference
     from ..core.reconstruction import METHODS, is_reconstruction_dir
     from ..errors import CaptureError
 
@@ -99,7 +99,7 @@ def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
         )
     presses, _ = split_reference(path)  # a folder's undeformed capture is not a press to score
     if not presses:
-        raise CaptureError(f"{path}: no press folders found")
+        raise no_presses_error(path)
     return presses, method or "nlips"
 
 
