@@ -194,4 +194,3 @@ def test_a_file_or_a_press_without_meta_json_is_called_what_it_is(tmp_path, caps
     ):
         assert main(["--no-progress", *command]) == 2
         _one_line_error(capsys.readouterr().err, f"{press / 'meta.json'}: missing", "holds press images but no")
-
