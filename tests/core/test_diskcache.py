@@ -138,3 +138,55 @@ def test_the_size_bound_removes_the_least_recently_used(cache_dir, monkeypatch):
     entries, size = diskcache.usage()
     assert entries == 3 and size <= diskcache.limit_bytes()
     assert diskcache.clear() == size and diskcache.usage() == (0, 0)
+
+
+def test_an_entry_holding_another_object_is_removed_with_a_warning_and_recomputed(cache_dir, caplog):
+    """A readable pickle that is no entry of this program (``{'wrong': 1}`` under an entry's name) was served:
+    the solver failed on it with "AttributeError: 'dict' object has no attribute 'size'"."""
+    import logging
+    import pickle
+
+    from nlipscalib.solver import reuse
+    from nlipscalib.solver.blas import blas_setting
+
+    path = diskcache.entry("thing", ("x",))
+    diskcache.store(path, _Thing(1.0, (2,)))
+    assert diskcache.load(path) == _Thing(1.0, (2,))
+    path.write_bytes(pickle.dumps({"wrong": 1}))
+    caplog.set_level(logging.WARNING)
+    with pytest.raises(KeyError):
+        diskcache.load(path)
+    assert "holds no result of this program: removed, recomputing" in caplog.text and str(path) in caplog.text
+    assert not path.exists()
+    reuse.clear()
+    served = diskcache.entry("thing", (("x",), blas_setting()))  # where reused() looks
+    served.write_bytes(pickle.dumps({"wrong": 1}))
+    assert reuse.reused("thing", ("x",), lambda: _Thing(3.0, ()), persist=True) == _Thing(3.0, ())
+    assert diskcache.load(served) == _Thing(3.0, ())  # replaced by the recomputed result
+    reuse.clear()
+
+
+@pytest.mark.parametrize("text", ["-5", "inf", "nan"])
+def test_a_size_bound_below_zero_or_infinite_is_said_once_and_the_default_kept(monkeypatch, caplog, text):
+    """``NLIPS_CACHE_MB=-5`` was taken (``nlips cache`` printed "at most -5 MB"); ``inf`` overflowed."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    monkeypatch.setattr(diskcache, "_warned", set())
+    monkeypatch.setenv(diskcache.ENV_MB, text)
+    assert diskcache.limit_bytes() == diskcache.limit_bytes() == diskcache.DEFAULT_MB * 2**20
+    said = [r for r in caplog.records if "is not a number of megabytes >= 0" in r.getMessage()]
+    assert len(said) == 1 and repr(text) in said[0].getMessage()
+
+
+def test_a_cache_folder_that_is_a_file_turns_the_cache_off_with_one_warning(tmp_path, monkeypatch, caplog):
+    """It turned the cache off without a word (``nlips cache`` printed "0 entries")."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    monkeypatch.setattr(diskcache, "_warned", set())
+    (tmp_path / "cache").write_text("not a folder")
+    monkeypatch.setenv(diskcache.ENV_DIR, str(tmp_path / "cache"))
+    assert diskcache.folder() is None and diskcache.entry("k", ("a",)) is None
+    said = [r for r in caplog.records if "is a file, not a folder: the disk cache is off" in r.getMessage()]
+    assert len(said) == 1 and str(tmp_path / "cache") in said[0].getMessage()
