@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
+import numbers
 import tomllib
 import types
 import typing
@@ -131,6 +133,21 @@ def check_count(name: str, value: int, minimum: int = 0, where: str = "") -> int
         prefix = f"{where}: " if where else ""
         raise ConfigError(f"{prefix}{name}: must be an integer >= {minimum}, got {value!r}")
     return value
+
+
+def is_number(value) -> bool:
+    """A real number as JSON, TOML or numpy give one (an int, a float, a numpy scalar); ``True`` is not one."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def is_finite_number(value) -> bool:
+    """:func:`is_number` and neither NaN nor infinite."""
+    return is_number(value) and math.isfinite(value)
+
+
+def is_whole_number(value) -> bool:
+    """An integer (a Python or numpy int), not a bool nor a float such as 640.0."""
+    return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
 def check_range(where: str, value: float, lo: float | None = None, hi: float | None = None, *, open_lo=False) -> float:

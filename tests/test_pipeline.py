@@ -166,6 +166,22 @@ def test_failures_are_reported_per_press(press_set, tmp_path):
         solve_presses([root / "a_sphere"], workers=0)
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_press_whose_meta_json_names_an_image_by_a_number_fails_alone(press_set, tmp_path, workers):
+    """``images.dark = 5`` was a TypeError out of the capture's identity, hashed before meta.json was checked:
+    the whole batch stopped (``nlips calibrate`` wrote no dataset) and ``--workers 2`` printed tracebacks."""
+    import json
+
+    root = tmp_path / "set"
+    shutil.copytree(press_set, root)
+    meta = json.loads((root / "b_cube" / "meta.json").read_text())
+    meta["images"]["dark"] = 5
+    (root / "b_cube" / "meta.json").write_text(json.dumps(meta))
+    statuses = solve_presses(sorted(root.iterdir()), options=FAST, workers=workers, progress=False, figures=False)
+    assert statuses["a_sphere"] == "solved" and statuses["c_sphere_deep"] == "solved"
+    assert statuses["b_cube"] == f"failed: {root / 'b_cube' / 'meta.json'}: 'images.dark' must be a file name, got 5"
+
+
 def test_reference_is_used_not_solved_and_is_part_of_the_identity(press_set, tmp_path):
     root = tmp_path / "set"
     root.mkdir()

@@ -59,7 +59,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from ..config import check_count, options_named
-    from ..core.capture import REFERENCE_FOLDER, read_meta, split_reference
+    from ..core.capture import REFERENCE_FOLDER, no_presses_error, read_meta, split_reference
     from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.coverage import coverage, write_coverage_json
@@ -86,7 +86,7 @@ def run(args) -> int:
     if reference is None:
         raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
     if not presses:
-        raise ConfigError(f"{root}: no press folders found")
+        raise no_presses_error(root)
     workers = args.workers or usable_cores()
     status = solve_all(presses, reference, workers=workers, progress=not args.no_progress)
     solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]

@@ -86,7 +86,7 @@ def run(args) -> int:
 
 def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
     """(press folders, method): PATH as a reconstruction folder, a press, or a folder of presses."""
-    from ..core.capture import is_press_folder, split_reference
+    from ..core.capture import is_press_folder, no_presses_error, split_reference
     from ..core.reconstruction import METHODS, is_reconstruction_dir
     from ..errors import CaptureError
 
@@ -101,7 +101,8 @@ def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
         )
     presses, _ = split_reference(path)  # a folder's undeformed capture is not a press to score
     if not presses:
-        raise CaptureError(f"{path}: no press folders found{_results_hint(path)}")
+        hint = _results_hint(path)
+        raise CaptureError(f"{path}: no press folders found{hint}") if hint else no_presses_error(path)
     return presses, method or "nlips"
 
 

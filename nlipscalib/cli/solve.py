@@ -101,7 +101,7 @@ def parse_roi(values):
 
 def run(args) -> int:
     from ..config import from_mapping, read_config_file
-    from ..core.capture import read_meta, split_reference
+    from ..core.capture import no_presses_error, read_meta, split_reference
     from ..errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..solver import SolverOptions
@@ -112,9 +112,11 @@ def run(args) -> int:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     presses, reference = split_reference(args.press, args.reference)
     if not presses:
-        raise ConfigError(f"{args.press}: no press folders found")
+        raise no_presses_error(args.press)
     if reference is not None:
         read_meta(reference)  # a missing or broken --reference is one line now, not one failure per press
+    if options is not None:
+        _check_min_leds(options, presses[0], args.config)
     if args.out and len(presses) > 1:
         raise ConfigError("--out only applies to a single press")
     if reference is not None and args.reference is None:
@@ -136,6 +138,21 @@ def run(args) -> int:
         presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
     )
     return _summary(statuses)
+
+
+def _check_min_leds(options, press, config: str) -> None:
+    """ConfigError naming the config file when its ``min_leds`` exceeds the capture's LEDs: the solver's own
+    check ("12 LEDs given; the solver needs at least min_leds=50") says neither where the value came from
+    nor which press. The presses of one folder share a sensor, so the first stands for all."""
+    from ..core.capture import read_meta
+    from ..errors import CaptureError, ConfigError
+
+    try:
+        leds = read_meta(press)["leds"]
+    except CaptureError:
+        return  # the press's own failure is reported when it is solved
+    if isinstance(leds, list) and options.min_leds > len(leds):
+        raise ConfigError(f"{config}: solver.min_leds = {options.min_leds} exceeds the {len(leds)} LEDs of {press}")
 
 
 def _press_after_roi(args) -> None:

@@ -61,6 +61,7 @@ class Camera:
     """Distortion coefficients in OpenCV order for ``model``."""
 
     def __post_init__(self):
+        self._check_types()
         if self.model not in LENS_MODELS:
             raise ConfigError(f"camera.model must be one of {LENS_MODELS}, got {self.model!r}")
         object.__setattr__(self, "dist", tuple(float(c) for c in self.dist))
@@ -72,6 +73,20 @@ class Camera:
             raise ConfigError(f"camera size must be at least 2x2, got {self.width}x{self.height}")
         if not (self.fx > 0 and self.fy > 0):
             raise ConfigError(f"camera focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+
+    def _check_types(self) -> None:
+        """ConfigError naming the key whose value is of the wrong type (a hand-edited meta.json or model file),
+        before a comparison fails with Python's "'<' not supported between instances of 'str' and 'int'"."""
+        from ..config import is_finite_number, is_number, is_whole_number
+
+        for key in ("width", "height"):
+            if not is_whole_number(getattr(self, key)):
+                raise ConfigError(f"camera.{key} must be a whole number of pixels, got {getattr(self, key)!r}")
+        for key in ("fx", "fy", "cx", "cy"):
+            if not is_finite_number(getattr(self, key)):
+                raise ConfigError(f"camera.{key} must be a finite number of pixels, got {getattr(self, key)!r}")
+        if not isinstance(self.dist, (list, tuple)) or not all(is_number(c) for c in self.dist):
+            raise ConfigError(f"camera.dist must be a list of numbers, got {self.dist!r}")
 
     # ------------------------------------------------------------------ construction / io
     @classmethod
@@ -114,7 +129,7 @@ class Camera:
         missing = {"width", "height", "fx", "fy", "cx", "cy"} - set(d)
         if missing:
             raise ConfigError(f"camera is missing keys {sorted(missing)}")
-        return cls(**{k: (tuple(v) if k == "dist" else v) for k, v in d.items()})
+        return cls(**{k: (tuple(v) if k == "dist" and isinstance(v, list) else v) for k, v in d.items()})
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -61,11 +61,23 @@ class SensorResponse:
     white_level: float = 65520.0
     """Largest stored value; pixels at or above it are saturated (16-bit units)."""
     exposure_ms: float = 10.0
-    """Exposure time, ms (informational; images are not normalised by it)."""
+    """Exposure time, ms (informational; images are not normalised by it); > 0."""
     gain: float = 1.0
-    """Analogue gain (informational)."""
+    """Analogue gain (informational); >= 0."""
 
     def __post_init__(self):
+        from ..config import is_finite_number, is_whole_number
+
+        # types first: a string compared below would fail as "'<=' not supported ...", naming no key
+        if not is_whole_number(self.bit_depth):
+            raise CaptureError(f"sensor.bit_depth must be a whole number of bits, got {self.bit_depth!r}")
+        for key in ("black_level", "white_level", "exposure_ms", "gain"):
+            if not is_finite_number(getattr(self, key)):
+                raise CaptureError(f"sensor.{key} must be a finite number, got {getattr(self, key)!r}")
+        if not self.exposure_ms > 0 or self.gain < 0:
+            raise CaptureError(
+                f"sensor.exposure_ms must be > 0 and sensor.gain >= 0, got {self.exposure_ms}, {self.gain}"
+            )
         if not 8 <= self.bit_depth <= 16:
             raise CaptureError(f"sensor.bit_depth must be 8..16, got {self.bit_depth}")
         if not 0 <= self.black_level < self.white_level <= 65535:
@@ -271,6 +283,8 @@ def read_meta(folder: str | Path) -> dict:
     """Read and check the top level of a press folder's meta.json."""
     folder = Path(folder)
     path = folder / META_FILE
+    if folder.exists() and not folder.is_dir():
+        raise CaptureError(f"{folder}: a file, not a press folder")
     if not folder.is_dir():
         raise CaptureError(f"{folder}: not a press folder (no such directory)")
     meta = read_format_json(
@@ -280,10 +294,33 @@ def read_meta(folder: str | Path) -> dict:
         required=("camera", "leds", "sensor", "images"),
         missing_hint=f"{folder} is not a complete press folder",
     )
-    for key in ("dark", "leds", "tricolor"):
-        if key not in meta["images"]:
-            raise CaptureError(f"{path}: missing key 'images.{key}'")
+    _check_file_names(meta, path)
     return meta
+
+
+def _check_file_names(meta: dict, path: Path) -> None:
+    """CaptureError naming the key of meta.json whose file name is not a string (every reader joins them to the
+    folder, and the capture's identity hashes them before the press is loaded: else a TypeError traceback)."""
+    images = meta["images"]
+    if not isinstance(images, dict):
+        raise CaptureError(f"{path}: 'images' must be a mapping of image names, got {type(images).__name__}")
+    for key in ("dark", "leds", "tricolor"):
+        if key not in images:
+            raise CaptureError(f"{path}: missing key 'images.{key}'")
+    for key in ("dark", "tricolor"):
+        _check_name(images[key], f"images.{key}", path)
+    if not isinstance(images["leds"], list):
+        raise CaptureError(f"{path}: 'images.leds' must be a list of file names, got {images['leds']!r}")
+    for i, name in enumerate(images["leds"]):
+        _check_name(name, f"images.leds[{i}]", path)
+    for key in ("reference", "ground_truth"):  # optional files: null or absent when there is none
+        if meta.get(key) is not None:
+            _check_name(meta[key], key, path)
+
+
+def _check_name(name, key: str, path: Path) -> None:
+    if not isinstance(name, str) or not name:
+        raise CaptureError(f"{path}: '{key}' must be a file name, got {name!r}")
 
 
 def is_press_folder(folder: str | Path) -> bool:
@@ -300,6 +337,8 @@ def find_presses(root: str | Path) -> list[Path]:
     root = Path(root)
     if is_press_folder(root):
         return [root]
+    if root.exists() and not root.is_dir():
+        raise CaptureError(f"{root}: a file, not a press folder nor a folder of presses")
     if not root.is_dir():
         raise CaptureError(f"{root}: no such folder")
     presses = []
@@ -323,6 +362,17 @@ def missing_capture_files(folder: str | Path) -> list[str]:
     names = [images["dark"], images["tricolor"], *images["leds"]]
     names += [meta["reference"]] if meta.get("reference") else []
     return [str(name) for name in names if not (folder / str(name)).is_file()]
+
+
+def no_presses_error(root: str | Path) -> CaptureError:
+    """The error for a ``root`` in which :func:`find_presses` found no press: a press folder that lacks its
+    meta.json says so (not "no press folders found", which sends the user looking for the wrong thing)."""
+    if is_incomplete_press(root):
+        return CaptureError(
+            f"{Path(root) / META_FILE}: missing; {root} holds press images but no {META_FILE} (an interrupted "
+            "write or a deleted file): capture or render it again"
+        )
+    return CaptureError(f"{root}: no press folders found")
 
 
 def is_incomplete_press(folder: str | Path) -> bool:
@@ -365,13 +415,23 @@ def parse_optics(meta: dict, path: Path) -> tuple[Camera, list[Led], SensorRespo
         camera = Camera.from_dict(meta["camera"])
         if not isinstance(meta["leds"], list):
             raise ValueError(f"'leds' must be a list of LEDs, got {meta['leds']!r}")
-        leds = [Led.from_dict(d) for d in meta["leds"]]
+        leds = [_led(d, i) for i, d in enumerate(meta["leds"])]
+        if not isinstance(meta["sensor"], dict):
+            raise ValueError(f"'sensor' must be a mapping of sensor levels, got {meta['sensor']!r}")
         response = SensorResponse(**meta["sensor"])
     except (TypeError, ValueError) as exc:
         raise CaptureError(f"{path}: {exc}") from None
     if not leds:
         raise CaptureError(f"{path}: 'leds' is empty")
     return camera, leds, response
+
+
+def _led(entry, index: int) -> Led:
+    """LED ``index`` of meta.json's ``leds``; a bad value names its place (``leds[3]``) as well as its key."""
+    try:
+        return Led.from_dict(entry)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"leds[{index}]: {exc}") from None
 
 
 def _existing(folder: Path, name: str) -> Path:
@@ -408,6 +468,8 @@ def _check_subset(subset, n: int, folder: Path) -> list[int]:
 def _load_npz(path: Path, keys: dict) -> dict:
     arrays = read_arrays(path, keys, unreadable="not a readable .npz file")
     for k in keys:
+        if arrays[k].dtype.kind not in "biuf":  # strings, objects: else numpy's "ufunc 'isfinite' not supported"
+            raise CaptureError(f"{path}: array '{k}' holds {arrays[k].dtype} values, expected numbers")
         if arrays[k].dtype.kind == "f" and k != "depth" and k != "points" and not np.all(np.isfinite(arrays[k])):
             # normals are finite everywhere by convention (zero where invalid); depth/points use NaN
             raise CaptureError(f"{path}: array '{k}' contains NaN or infinity")

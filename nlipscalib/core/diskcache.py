@@ -15,7 +15,9 @@ a process; this module keeps them on disk between processes.
   rename: :func:`nlipscalib.core.atomic.write_bytes`), so processes sharing the folder never read a partial
   entry; two writing the same key write the same result and the last rename wins. Pickles stream to the file:
   no in-memory copy of a 100 MB result. An entry that cannot be
-  read (truncated, another Python) is treated as missing, recomputed and replaced.
+  read (truncated, another Python) is treated as missing, recomputed and replaced; one that reads but holds
+  no result of this package (another program's pickle under that name) is removed with a warning and
+  recomputed: each entry carries :data:`TAG`.
 - **Size:** at most ``$NLIPS_CACHE_MB`` (default :data:`DEFAULT_MB`) megabytes; after a write the least
   recently used entries (reads touch them) are removed.
 - **Trust:** entries are pickles, loaded only from the user's own cache folder (as joblib's ``Memory`` does);
@@ -50,8 +52,19 @@ ENV_MB = "NLIPS_CACHE_MB"
 DEFAULT_MB = 2048
 """Default size bound, MB: a 640x480 sensor's entries take about 300 MB."""
 SUFFIX = ".pkl"
+TAG = "nlipscalib.diskcache.entry/1"
+"""First item of every stored (TAG, value) pair: an entry without it was not written by :func:`store`."""
 
 _salt: str | None = None
+_warned: set[str] = set()
+"""Warnings given once per process (a bad setting is read before every entry)."""
+
+
+def _warn_once(message: str, *args) -> None:
+    text = message % args
+    if text not in _warned:
+        _warned.add(text)
+        log.warning(text)
 
 
 def folder() -> Path | None:
@@ -59,24 +72,38 @@ def folder() -> Path | None:
     env = os.environ.get(ENV_DIR)
     if env is not None:
         env = env.strip()
-        return None if env.lower() in ("", "off", "0", "none") else Path(env).expanduser()
+        return None if env.lower() in ("", "off", "0", "none") else _usable(Path(env).expanduser())
     base = os.environ.get("XDG_CACHE_HOME", "").strip()
     if not base:
         try:
             base = Path.home() / ".cache"
         except RuntimeError:  # no home folder (a bare service account): no disk tier
             return None
-    return Path(base) / "nlipscalib"
+    return _usable(Path(base) / "nlipscalib")
+
+
+def _usable(root: Path) -> Path | None:
+    """``root``, or None (the tier off, said once) when a file is in its place: every entry would fail to
+    be written or read, and the user would wonder why every command recomputes."""
+    if root.exists() and not root.is_dir():
+        _warn_once("cache folder %s is a file, not a folder: the disk cache is off (set %s)", root, ENV_DIR)
+        return None
+    return root
 
 
 def limit_bytes() -> int:
     """The size bound from ``$NLIPS_CACHE_MB`` (default :data:`DEFAULT_MB`), bytes."""
+    import math
+
     text = os.environ.get(ENV_MB, "").strip()
     try:
-        return int(float(text) * 2**20) if text else DEFAULT_MB * 2**20
+        mb = float(text) if text else DEFAULT_MB
     except ValueError:
-        log.warning("%s=%r is not a number of megabytes; the cache keeps at most %d MB", ENV_MB, text, DEFAULT_MB)
-        return DEFAULT_MB * 2**20
+        mb = math.nan
+    if not (math.isfinite(mb) and mb >= 0):  # a negative or infinite bound is no size
+        _warn_once("%s=%r is not a number of megabytes >= 0; the cache keeps at most %d MB", ENV_MB, text, DEFAULT_MB)
+        mb = DEFAULT_MB
+    return int(mb * 2**20)
 
 
 def digest(*arrays: np.ndarray) -> str:
@@ -122,15 +149,21 @@ def load(path: Path):
     """The result stored at ``path``; raises KeyError when there is none or it cannot be read."""
     try:
         with open(path, "rb") as f:
-            value = pickle.load(f)
+            stored = pickle.load(f)
     except FileNotFoundError:
         raise KeyError(str(path)) from None
     except Exception as exc:  # a truncated or foreign entry is a miss, not an error: it is recomputed
         log.debug("cache entry %s unreadable (%s); recomputing", path, exc)
         raise KeyError(str(path)) from None
+    if not (isinstance(stored, tuple) and len(stored) == 2 and stored[0] == TAG):
+        # readable, but not written by store(): served, it failed deep inside the solver (AttributeError)
+        log.warning("cache entry %s holds no result of this program: removed, recomputing", path)
+        with contextlib.suppress(OSError):
+            path.unlink()
+        raise KeyError(str(path))
     with contextlib.suppress(OSError):
         os.utime(path)  # recently used: the size bound removes the oldest first
-    return value
+    return stored[1]
 
 
 def store(path: Path, value) -> None:
@@ -138,7 +171,7 @@ def store(path: Path, value) -> None:
     (read-only or full disk, a value that cannot be pickled) only costs the next process the computation:
     it is logged, not raised."""
     try:
-        atomic.write_with(path, lambda f: pickle.dump(value, f, protocol=5))
+        atomic.write_with(path, lambda f: pickle.dump((TAG, value), f, protocol=5))
         trim(path.parent.parent, limit_bytes())
     except (OSError, pickle.PicklingError, TypeError, AttributeError) as exc:
         log.debug("could not write cache entry %s: %s", path, exc)

@@ -15,6 +15,7 @@ import dataclasses
 
 import numpy as np
 
+from ..config import is_number
 from ..errors import ConfigError, ShapeError
 
 TRICOLOR_COLORS = np.eye(3)
@@ -41,6 +42,8 @@ class Led:
         if norm < 1e-12:
             raise ConfigError("led.direction must be a non-zero vector")
         psi = _vec3(self.intensity, "led.intensity")
+        if not is_number(self.mu):  # else numpy's "ufunc 'isfinite' not supported" names no key
+            raise ConfigError(f"led.mu must be a number, got {self.mu!r}")
         if any(p < 0 for p in psi) or not np.isfinite(self.mu) or self.mu < 0:
             raise ConfigError(f"led.intensity must be >= 0 and led.mu >= 0, got {psi}, {self.mu}")
         object.__setattr__(self, "position", tuple(pos))
@@ -229,6 +232,8 @@ def disk_shading(points: np.ndarray, normals: np.ndarray, leds, radius: float) -
 
 
 def _vec3(v, name: str) -> tuple[float, float, float]:
+    if not isinstance(v, (list, tuple, np.ndarray)) or not all(is_number(c) for c in np.ravel(np.asarray(v, object))):
+        raise ConfigError(f"{name} must be 3 finite numbers, got {v!r}")
     arr = np.asarray(v, dtype=np.float64)
     if arr.shape != (3,) or not np.all(np.isfinite(arr)):
         raise ConfigError(f"{name} must be 3 finite numbers, got {v!r}")

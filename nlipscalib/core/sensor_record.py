@@ -82,6 +82,7 @@ def check_sensor_record(sensor, where, remedy: str = "") -> dict:
     """
     import numpy as np
 
+    from ..config import is_finite_number
     from ..errors import ConfigError
     from .camera import Camera
 
@@ -100,7 +101,9 @@ def check_sensor_record(sensor, where, remedy: str = "") -> dict:
             raise ValueError(f"n_leds must be a whole number >= 1, got {n!r}")
         if not isinstance(sensor["tricolor_groups"], list) or len(sensor["tricolor_groups"]) != n:
             raise ValueError(f"tricolor_groups must list one group per LED ({n})")
-        float(sensor["black_level"]), float(sensor["white_level"])
+        for key in ("black_level", "white_level"):  # float("x") would name the value, not the key
+            if not is_finite_number(sensor[key]):
+                raise ValueError(f"{key} must be a finite number, got {sensor[key]!r}")
         for key in ("led_positions", "led_directions"):  # absent in files made before they were recorded
             if key in sensor and np.asarray(sensor[key], dtype=float).shape != (n, 3):
                 raise ValueError(f"{key} must be {n} (x, y, z) triples")

@@ -47,7 +47,7 @@ from ..core.sensor_record import check_sensor, check_sensor_record, sensor_of
 from ..errors import CaptureError, ConfigError
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
-from .prefilter import Prefilter
+from .prefilter import Prefilter, check_sigma
 
 DEFAULT_DIR = "calibration"
 """Where ``nlips calibrate PRESSES`` writes the dataset by default: ``PRESSES/calibration``."""
@@ -98,8 +98,7 @@ class SamplingConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
                 raise ConfigError(f"{name} must be an integer >= {minimum}, got {value!r}")
-        if not (isinstance(self.smoothing_px, (int, float)) and 0 <= self.smoothing_px < float("inf")):
-            raise ConfigError(f"smoothing_px must be a finite sigma >= 0 px, got {self.smoothing_px!r}")
+        check_sigma(self.smoothing_px, "smoothing_px")
 
 
 # ---------------------------------------------------------------------- building
@@ -345,15 +344,44 @@ def _kept_entry(shard: Path, stamp: str, indexed: dict | None) -> dict | None:
     return None
 
 
+SHARD_KINDS = {"pixel": "iu", "rgb": "f", "normal": "f", "true_normal": "f", "contact": "b", "source": "iu"}
+"""numpy dtype kinds each shard array may have: integers, floats, booleans (strings or objects: refused)."""
+
+
 def _checked_shard(path: Path) -> dict:
-    """The arrays of a shard, read in full (so a damaged deflated array shows) and checked for consistency."""
+    """The arrays of a shard, read in full (so a damaged deflated array shows) and checked for consistency:
+    shapes, dtypes, and finite colours and labels (a NaN there reaches the training loss and stops training
+    without a model); ``true_normal`` is NaN wherever a press has no ground truth."""
     arrays = read_arrays(path, SHARD_KEYS)
     n = len(arrays["rgb"])
     for key, ndim in SHARD_KEYS.items():
         a = arrays[key]
         if a.ndim != ndim or len(a) != n or (ndim == 2 and a.shape[1] != (2 if key == "pixel" else 3)):
             raise CaptureError(f"{path}: array '{key}' has shape {a.shape}, inconsistent with {n} samples")
+        if a.dtype.kind not in SHARD_KINDS[key]:
+            raise CaptureError(f"{path}: array '{key}' holds {a.dtype} values, expected {_kind_words(key)}")
+    for key in ("rgb", "normal"):
+        bad = int(np.count_nonzero(~np.isfinite(arrays[key]).all(-1)))
+        if bad:
+            raise CaptureError(f"{path}: array '{key}' has NaN or infinite values in {bad} of {n} samples")
     return arrays
+
+
+def _kind_words(key: str) -> str:
+    return {"iu": "integers", "f": "floating-point numbers", "b": "booleans"}[SHARD_KINDS[key]]
+
+
+def _check_pixels(pixel: np.ndarray, camera: dict, path: Path) -> None:
+    """CaptureError when a sample's (u, v) lies outside the sensor's image (the network's input would be
+    meaningless there, and the reference frame is read at it)."""
+    w, h = camera["width"], camera["height"]
+    outside = (pixel[:, 0] < 0) | (pixel[:, 0] >= w) | (pixel[:, 1] < 0) | (pixel[:, 1] >= h)
+    if outside.any():
+        u, v = pixel[np.argmax(outside)]
+        raise CaptureError(
+            f"{path}: array 'pixel' has {int(outside.sum())} samples outside the sensor's {w}x{h} image "
+            f"(e.g. u={u}, v={v})"
+        )
 
 
 def _wait_for_solver(result: Path) -> None:
@@ -375,6 +403,20 @@ def _wait_for_solver(result: Path) -> None:
 
 
 # ---------------------------------------------------------------------- reading
+def check_reference_values(arrays: dict, where) -> None:
+    """CaptureError naming ``where`` when the undeformed reference (:func:`reference_arrays`: sensor.npz, a
+    model's ``reference``) holds values no capture gives: a tri-colour frame or normals that are NaN or
+    infinite (inference would find no pixel changed and return the undeformed dome without a word), or
+    arrays that are not numbers. ``depth`` is NaN off the gel by convention."""
+    for key in SENSOR_KEYS:
+        if key in arrays and np.asarray(arrays[key]).dtype.kind not in "biuf":
+            raise CaptureError(f"{where}: reference array '{key}' holds {np.asarray(arrays[key]).dtype} values")
+    for key in ("tricolor", "normals"):
+        if key in arrays and not np.isfinite(arrays[key]).all():
+            bad = int(np.count_nonzero(~np.isfinite(arrays[key]).all(-1)))
+            raise CaptureError(f"{where}: reference array '{key}' is NaN or infinite at {bad} pixels")
+
+
 def _checked_entries(presses, path: Path) -> list[dict]:
     """index.json's ``presses``, checked: a list of entries, each with a plain file ``name`` and a ``samples``
     count (what reading the shards relies on); a hand-edited index is named here, not in a traceback."""
@@ -393,6 +435,19 @@ def _checked_entries(presses, path: Path) -> list[dict]:
             raise CaptureError(f"{path}: presses[{i}] ({name}): 'samples' must be a count, got {samples!r}")
         names.add(name)
     return presses
+
+
+def _checked_smoothing(sampling, path: Path) -> float:
+    """index.json's ``sampling.smoothing_px``, checked (0 when the dataset predates the option): a bad value
+    is named here, not by inference reading the model that carries it ("prefilter sigma must be ...")."""
+    if sampling is None:
+        return 0.0
+    if not isinstance(sampling, dict):
+        raise CaptureError(f"{path}: 'sampling' must be a mapping of sampling options, got {sampling!r}")
+    try:
+        return check_sigma(sampling.get("smoothing_px", 0.0), "'sampling.smoothing_px'")
+    except ConfigError as exc:
+        raise CaptureError(f"{path}: {exc}") from None
 
 
 class CalibrationDataset:
@@ -418,11 +473,8 @@ class CalibrationDataset:
         remedy = "run `nlips calibrate` on its presses again to record it (the samples are kept)"
         self.sensor: dict = check_sensor_record(index["sensor"], path, remedy)
         self.entries: list[dict] = _checked_entries(index["presses"], path)
-
-    @property
-    def smoothing_px(self) -> float:
+        self.smoothing_px: float = _checked_smoothing(index.get("sampling"), path)
         """Prefilter sigma the samples' colours were filtered with (0 for datasets made before the option)."""
-        return float((self.index.get("sampling") or {}).get("smoothing_px", 0.0))
 
     @property
     def names(self) -> list[str]:
@@ -438,6 +490,7 @@ class CalibrationDataset:
         """The samples of one press (module docstring), validated."""
         path = self.folder / SHARD_DIR / f"{name}.npz"
         arrays = _checked_shard(path)
+        _check_pixels(arrays["pixel"], self.sensor["camera"], path)
         n = len(arrays["rgb"])
         if n != self.entry(name)["samples"]:
             raise CaptureError(f"{path}: {n} samples, index.json says {self.entry(name)['samples']}")
@@ -464,4 +517,5 @@ class CalibrationDataset:
         shape = (cam["height"], cam["width"])
         if arrays["depth"].shape != shape or arrays["tricolor"].shape != shape + (3,):
             raise CaptureError(f"{path}: arrays do not match the sensor's {cam['width']}x{cam['height']} image")
+        check_reference_values(arrays, path)
         return arrays

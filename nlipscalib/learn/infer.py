@@ -329,19 +329,13 @@ def load_tricolor(folder) -> tuple[np.ndarray, dict]:
     frame : (H, W, 3) float32, linear (dark-subtracted, 1 = full scale)
     sensor : dict (:func:`nlipscalib.core.sensor_record.sensor_of` layout)
     """
-    from ..core.capture import SensorResponse, read_meta
+    from ..core.capture import META_FILE, parse_optics, read_meta
     from ..core.imageio import read_png16
-    from ..core.leds import Led
     from ..core.sensor_record import describe_sensor
 
     folder = Path(folder)
     meta = read_meta(folder)
-    try:
-        camera = Camera.from_dict(meta["camera"])
-        response = SensorResponse(**meta["sensor"])
-        leds = [Led.from_dict(d) for d in meta["leds"]]
-    except (TypeError, ValueError, KeyError) as exc:
-        raise CaptureError(f"{folder / 'meta.json'}: {exc}") from None
+    camera, leds, response = parse_optics(meta, folder / META_FILE)  # each bad key named, as load_press does
     sensor = describe_sensor(camera, leds, response)
     images = []
     for name in (meta["images"]["tricolor"], meta["images"]["dark"]):

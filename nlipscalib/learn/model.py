@@ -196,6 +196,8 @@ class LoadedModel:
 def load_model(path) -> LoadedModel:
     """Load and validate a model file; every problem is one CaptureError naming the file."""
     from ..core.sensor_record import check_sensor_record
+    from ..errors import ConfigError
+    from .prefilter import check_sigma
 
     torch = _torch()
     path = Path(path)
@@ -222,8 +224,10 @@ def load_model(path) -> LoadedModel:
     _check_reference(reference, (cam["height"], cam["width"]), path)
     if not isinstance(payload["info"], dict):
         raise CaptureError(f"{path}: 'info' must be a mapping, got {type(payload['info']).__name__}")
-    if not isinstance(payload.get("smoothing_px", 0.0), (int, float)):
-        raise CaptureError(f"{path}: 'smoothing_px' must be a number, got {payload['smoothing_px']!r}")
+    try:  # a bad sigma is named here, not by the prefilter at inference ("prefilter sigma must be ...")
+        check_sigma(payload.get("smoothing_px", 0.0), "'smoothing_px'")
+    except ConfigError as exc:
+        raise CaptureError(f"{path}: {exc}") from None
     net = build_net(hidden, float(dropout), cam["width"], cam["height"])
     _check_finite_weights(payload["state_dict"], path)
     try:
@@ -252,6 +256,8 @@ REFERENCE_ARRAYS = {"tricolor": 3, "dark": 3, "depth": 2, "normals": 3, "valid":
 def _check_reference(reference: dict, shape: tuple[int, int], path: Path) -> None:
     """CaptureError naming the model file when a reference array inference reads is missing or not of the
     sensor's image size (a hand-edited or foreign file: else a KeyError or a shape error without the file)."""
+    from .dataset import check_reference_values
+
     for key, ndim in REFERENCE_ARRAYS.items():
         if key not in reference:
             raise CaptureError(f"{path}: 'reference' lacks the array {key!r} (the model file is damaged or foreign)")
@@ -261,6 +267,7 @@ def _check_reference(reference: dict, shape: tuple[int, int], path: Path) -> Non
             raise CaptureError(
                 f"{path}: 'reference' array {key!r} is {got}, the sensor's images need {'x'.join(map(str, want))}"
             )
+    check_reference_values({k: reference[k].numpy() for k in REFERENCE_ARRAYS}, path)
 
 
 def _check_model_path(path: Path) -> None:

@@ -22,6 +22,21 @@ import numpy as np
 
 from ..errors import ShapeError, require
 
+MAX_SIGMA_PX = 50.0
+"""Largest sigma accepted, px: a wider Gaussian averages the shading of most of the dome (the useful range
+is 0-3 px), and OpenCV refuses a kernel of ~6 sigma once it exceeds an int ("Can't parse 'ksize'")."""
+
+
+def check_sigma(sigma_px, where: str) -> float:
+    """``sigma_px`` as a float in [0, :data:`MAX_SIGMA_PX`]; else ConfigError naming ``where`` (an option or
+    a file's key)."""
+    from ..config import is_finite_number
+    from ..errors import ConfigError
+
+    if not (is_finite_number(sigma_px) and 0 <= sigma_px <= MAX_SIGMA_PX):
+        raise ConfigError(f"{where} must be a sigma in [0, {MAX_SIGMA_PX:g}] px, got {sigma_px!r}")
+    return float(sigma_px)
+
 
 def kernel_radius(sigma_px: float) -> int:
     """Half-width of the Gaussian kernel in pixels (3 sigma; 0 when the filter is off)."""
@@ -40,8 +55,8 @@ class Prefilter:
     def __init__(self, valid: np.ndarray, sigma_px: float):
         if valid.ndim != 2:
             raise ShapeError(f"valid must be (H, W), got {valid.shape}")
-        if not (sigma_px >= 0 and math.isfinite(sigma_px)):
-            raise ShapeError(f"prefilter sigma must be a finite number >= 0 px, got {sigma_px!r}")
+        if not (0 <= sigma_px <= MAX_SIGMA_PX and math.isfinite(sigma_px)):
+            raise ShapeError(f"prefilter sigma must be in [0, {MAX_SIGMA_PX:g}] px, got {sigma_px!r}")
         self.sigma = float(sigma_px)
         self.radius = kernel_radius(self.sigma)
         self.valid = valid.astype(bool)

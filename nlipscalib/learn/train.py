@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
-from .dataset import CalibrationDataset
+from .dataset import INDEX_FILE, CalibrationDataset
 from .model import (
     PAPER_DROPOUT,
     PAPER_HIDDEN,
@@ -184,6 +184,7 @@ def train(
     out = Path(out)
     _clean_interrupted_writes(out)
     train_names, val_names = _presses(dataset, cfg, val_names, exclude)
+    reference = dataset.reference()  # checked now, not after the whole training (the model file carries it)
     x_tr, y_tr, _ = training_arrays(dataset.arrays(train_names), cfg.labels)
     x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
     if len(x_tr) < 2 or len(x_va) < 1:
@@ -208,6 +209,11 @@ def train(
     samples = [torch.from_numpy(a) for a in (x_tr, y_tr, x_va, y_va, c_va)]
     checkpoint = functools.partial(_save_checkpoint, progress_path, cfg, data_key, net, opt, sched)
     history, best, best_state = _epochs(net, opt, sched, samples, cfg, state, checkpoint, progress)
+    if best_state is None:  # every epoch's validation error NaN: no weights worth a model file
+        raise ConfigError(
+            f"{dataset.folder}: training diverged (no finite validation error in {len(history)} epochs); "
+            "try a smaller --lr"
+        )
     # this run's last state as MODEL.checkpoint.pt: published with its model from the stage, or put there now
     checkpoint(history, best, best_state, stage / checkpoint_path(out).name if stage else checkpoint_path(out))
     if stage is None:
@@ -231,7 +237,7 @@ def train(
         hidden=cfg.hidden,
         dropout=cfg.dropout,
         sensor=dataset.sensor,
-        reference=dataset.reference(),
+        reference=reference,
         info=info,
         smoothing_px=dataset.smoothing_px,
     )
@@ -249,6 +255,13 @@ def _presses(dataset: CalibrationDataset, cfg: TrainConfig, val_names, exclude) 
         for e in dataset.entries
         if (cfg.labels == "nlips" or e.get("has_truth")) and e["name"] not in set(exclude)
     ]
+    if len(names) < 2:  # named here: split_by_press does not know the dataset
+        usable = "" if cfg.labels == "nlips" else " with ground truth (true-normal labels)"
+        left = f", {len(exclude)} excluded" if exclude else ""
+        raise ConfigError(
+            f"{dataset.folder / INDEX_FILE}: training needs at least 2 presses (one to validate on); "
+            f"{len(names)} of the {len(dataset.names)} it lists can be used{usable}{left}"
+        )
     return split_by_press(names, cfg.val_fraction, cfg.seed, val_names)
 
 

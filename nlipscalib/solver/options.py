@@ -78,6 +78,7 @@ class SolverOptions:
     the noise of a 16-bit image."""
 
     def __post_init__(self):
+        self._check_finite()
         positive = ("robust_scale", "nominal_distance", "energy_rtol", "normal_tol_deg", "cg_rtol", "cg_rtol_max")
         for name in positive:
             if not getattr(self, name) > 0:
@@ -97,3 +98,19 @@ class SolverOptions:
             raise ConfigError(f"solver.min_leds must be >= 1, got {self.min_leds}")
         if self.estimator not in ("cauchy", "ls", "huber", "tukey"):
             raise ConfigError(f"solver.estimator must be cauchy, ls, huber or tukey, got {self.estimator!r}")
+        # image levels are linear with full scale 1: an LED whose images stay below 1 everywhere is no
+        # evidence of a dead LED, and a threshold of 1 or more marks every LED dead (nothing left to solve)
+        if not 0 <= self.dead_led_level < 1:
+            raise ConfigError(f"solver.dead_led_level must be in [0, 1) of full scale, got {self.dead_led_level}")
+        if self.anchor_threshold < 0:
+            raise ConfigError(f"solver.anchor_threshold must be >= 0, got {self.anchor_threshold}")
+
+    def _check_finite(self) -> None:
+        """Every float option finite: an infinite weight passed the ">= 0" checks and filled the solve with
+        NaN (numpy's "invalid value encountered in multiply"), and NaN fails no comparison at all."""
+        import math
+
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ConfigError(f"solver.{field.name} must be a finite number, got {value}")

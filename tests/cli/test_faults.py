@@ -151,3 +151,46 @@ def test_no_room_for_one_press_fails_before_rendering(spec, tmp_path, monkeypatc
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 0, 200_000))  # room for two presses of five
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
     assert "the run will stop when the disk is full" in caplog.text
+
+
+# ---------------------------------------------------------------------- bad input values
+@pytest.mark.parametrize(
+    "line,problem",
+    [
+        ("dead_led_level = 1.0", "solver.dead_led_level must be in [0, 1) of full scale, got 1.0"),
+        ("prior_weight = inf", "solver.prior_weight must be a finite number, got inf"),
+        ("robust_scale = nan", "solver.robust_scale must be a finite number, got nan"),
+        ("anchor_threshold = -1", "solver.anchor_threshold must be >= 0, got -1.0"),
+        ("min_leds = 50", "solver.min_leds = 50 exceeds the 3 LEDs of"),
+    ],
+)
+def test_a_solver_option_out_of_range_in_a_config_file_is_one_line_naming_the_file(tmp_path, capsys, line, problem):
+    """``dead_led_level >= 1`` marked every LED dead ("need at least one array to stack" traceback), ``inf``
+    weights filled the solve with NaN behind numpy warnings, and ``min_leds = 50`` was refused without
+    naming the config file it came from."""
+    from tests.core.test_capture import _press
+
+    press = _press(tmp_path / "p")
+    config = tmp_path / "c.toml"
+    config.write_text(line + "\n")
+    assert main(["--no-progress", "solve", str(press), "--config", str(config)]) == 2
+    _one_line_error(capsys.readouterr().err, str(config), problem)
+
+
+def test_a_file_or_a_press_without_meta_json_is_called_what_it_is(tmp_path, capsys):
+    """``--reference FILE`` said "not a press folder (no such directory)" of a path that exists; a press folder
+    without its meta.json said "no press folders found"."""
+    from tests.core.test_capture import _press
+
+    press, reference = _press(tmp_path / "p"), _press(tmp_path / "ref")
+    (tmp_path / "f.txt").write_text("x")
+    assert main(["--no-progress", "solve", str(press), "--reference", str(tmp_path / "f.txt")]) == 2
+    _one_line_error(capsys.readouterr().err, "f.txt: a file, not a press folder")
+    (press / "meta.json").unlink()
+    for command in (
+        ["solve", str(press)],
+        ["eval", str(press)],
+        ["calibrate", str(press), "--reference", str(reference), "--min-leds", "3"],
+    ):
+        assert main(["--no-progress", *command]) == 2
+        _one_line_error(capsys.readouterr().err, f"{press / 'meta.json'}: missing", "holds press images but no")

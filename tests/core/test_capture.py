@@ -168,3 +168,84 @@ def _edit_meta(folder, change):
     meta = json.loads((folder / "meta.json").read_text())
     change(meta)
     (folder / "meta.json").write_text(json.dumps(meta))
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (lambda m: m["images"].update(dark=5), "'images.dark' must be a file name, got 5"),
+        (lambda m: m["images"].update(dark=None), "'images.dark' must be a file name, got None"),
+        (lambda m: m["images"]["leds"].__setitem__(2, 12), r"'images.leds\[2\]' must be a file name, got 12"),
+        (lambda m: m["images"].update(leds=5), "'images.leds' must be a list of file names, got 5"),
+        (lambda m: m.update(images="x"), "'images' must be a mapping of image names"),
+        (lambda m: m.update(reference=5), "'reference' must be a file name, got 5"),
+        (lambda m: m.update(ground_truth=[1]), r"'ground_truth' must be a file name, got \[1\]"),
+    ],
+)
+def test_a_file_name_that_is_no_string_is_named_by_every_reader(tmp_path, change, message):
+    """A non-string image name in meta.json was a TypeError traceback: the capture's identity (hashed before the
+    press is loaded, by solve, infer, calibrate-leds and calibrate) joined it to the folder unchecked."""
+    from nlipscalib.core.capture import read_meta
+    from nlipscalib.pipeline import capture_identity
+
+    folder = _press(tmp_path / "p")
+    _edit_meta(folder, change)
+    for reader in (read_meta, load_press, capture_identity):
+        with pytest.raises(CaptureError, match="meta.json: " + message):
+            reader(folder)
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (lambda m: m["camera"].update(width="abc"), "camera.width must be a whole number of pixels, got 'abc'"),
+        (lambda m: m["camera"].update(height=48.0), "camera.height must be a whole number of pixels, got 48.0"),
+        (lambda m: m["camera"].update(fx="88"), "camera.fx must be a finite number of pixels, got '88'"),
+        (lambda m: m["camera"].update(cx=None), "camera.cx must be a finite number of pixels, got None"),
+        (lambda m: m["camera"].update(dist=5), "camera.dist must be a list of numbers, got 5"),
+        (lambda m: m["sensor"].update(bit_depth="twelve"), "sensor.bit_depth must be a whole number of bits"),
+        (lambda m: m["sensor"].update(white_level="max"), "sensor.white_level must be a finite number, got 'max'"),
+        (lambda m: m["sensor"].update(exposure_ms=0), "sensor.exposure_ms must be > 0 and sensor.gain >= 0"),
+        (lambda m: m["sensor"].update(exposure_ms=-5), "sensor.exposure_ms must be > 0"),
+        (lambda m: m["sensor"].update(gain=-1), r"sensor.exposure_ms must be > 0 and sensor.gain >= 0, got 10.0, -1"),
+        (lambda m: m.update(sensor="x"), "'sensor' must be a mapping of sensor levels, got 'x'"),
+        (lambda m: m["leds"][1].update(mu="one"), r"leds\[1\]: led.mu must be a number, got 'one'"),
+        (lambda m: m["leds"][0].update(position=["a", 1, 2]), r"leds\[0\]: led.position must be 3 finite numbers"),
+    ],
+)
+def test_a_value_of_the_wrong_type_names_its_key(tmp_path, change, message):
+    """These were Python's own errors ("'<' not supported between instances of 'str' and 'int'", "ufunc
+    'isfinite' not supported ...", "SensorResponse() argument after ** must be a mapping"), naming no key;
+    a zero or negative exposure and a negative gain were accepted."""
+    folder = _press(tmp_path / "p")
+    _edit_meta(folder, change)
+    with pytest.raises(CaptureError, match="meta.json: " + message):
+        load_press(folder)
+
+
+def test_a_reference_array_of_strings_is_named(tmp_path):
+    """numpy's "ufunc 'isfinite' not supported for the input types" came out of the solver instead."""
+    folder = _press(tmp_path / "p")
+    with np.load(folder / "reference.npz") as d:
+        depth, normals = d["depth"], d["normals"]
+    np.savez(folder / "reference.npz", depth=depth.astype("U8"), normals=normals)
+    with pytest.raises(CaptureError, match=r"reference.npz: array 'depth' holds <U8 values, expected numbers"):
+        load_press(folder)
+
+
+def test_a_file_or_a_press_without_meta_json_is_called_what_it_is(tmp_path):
+    """A file given as a press said "not a press folder (no such directory)"; a press folder without its meta.json
+    (a single press given) said "no press folders found"."""
+    from nlipscalib.core.capture import no_presses_error, read_meta
+
+    (tmp_path / "f.txt").write_text("x")
+    with pytest.raises(CaptureError, match="f.txt: a file, not a press folder"):
+        read_meta(tmp_path / "f.txt")
+    with pytest.raises(CaptureError, match="f.txt: a file, not a press folder nor a folder of presses"):
+        find_presses(tmp_path / "f.txt")
+    folder = _press(tmp_path / "p")
+    (folder / "meta.json").unlink()
+    assert find_presses(folder) == []
+    assert "holds press images but no meta.json" in str(no_presses_error(folder))
+    (tmp_path / "empty").mkdir()
+    assert str(no_presses_error(tmp_path / "empty")).endswith("empty: no press folders found")

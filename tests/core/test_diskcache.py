@@ -147,6 +147,7 @@ def test_an_entry_holding_another_object_is_removed_with_a_warning_and_recompute
     import pickle
 
     from nlipscalib.solver import reuse
+    from nlipscalib.solver.blas import blas_setting
 
     path = diskcache.entry("thing", ("x",))
     diskcache.store(path, _Thing(1.0, (2,)))
@@ -158,8 +159,11 @@ def test_an_entry_holding_another_object_is_removed_with_a_warning_and_recompute
     assert "holds no result of this program: removed, recomputing" in caplog.text and str(path) in caplog.text
     assert not path.exists()
     reuse.clear()
-    path.write_bytes(pickle.dumps({"wrong": 1}))
+    served = diskcache.entry("thing", (("x",), blas_setting()))  # where reused() looks
+    served.write_bytes(pickle.dumps({"wrong": 1}))
     assert reuse.reused("thing", ("x",), lambda: _Thing(3.0, ()), persist=True) == _Thing(3.0, ())
+    assert diskcache.load(served) == _Thing(3.0, ())  # replaced by the recomputed result
+    reuse.clear()
 
 
 @pytest.mark.parametrize("text", ["-5", "inf", "nan"])
