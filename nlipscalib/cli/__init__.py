@@ -12,6 +12,7 @@ import errno
 import importlib
 import logging
 import sys
+from pathlib import Path
 
 from .. import __version__, progress
 from ..errors import MissingDependencyError, NlipsError
@@ -189,12 +190,22 @@ def describe_os_error(exc: OSError, overwrite_flag: bool = False, where=None) ->
         cause += " (the disk is full: free space or choose another --out)"
     elif exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
         cause += " (choose a writable output folder)"
+    elif isinstance(exc, FileExistsError) and _file_in_the_way(exc.filename, where):
+        cause = "a file where a folder is needed (choose another --out, or move the file)"
     elif isinstance(exc, FileExistsError) and overwrite_flag:
         cause += " (use --overwrite to replace it)"
     paths = [named_target(p) for p in (exc.filename, exc.filename2) if p is not None]
     if not paths and where is not None:
         paths = [where]
     return f"{' -> '.join(map(str, paths))}: {cause}" if paths else cause
+
+
+def _file_in_the_way(name, where) -> bool:
+    """Whether ``name`` is a file above the output ``where`` (``--out FILE/sub``): --overwrite would not help."""
+    if name is None or where is None or not Path(name).is_file():
+        return False
+    path, out = Path(name).absolute(), Path(where).absolute()
+    return out != path and out.is_relative_to(path)
 
 
 def _fail(args, message: str) -> int:

@@ -194,3 +194,16 @@ def test_a_file_or_a_press_without_meta_json_is_called_what_it_is(tmp_path, caps
     ):
         assert main(["--no-progress", *command]) == 2
         _one_line_error(capsys.readouterr().err, f"{press / 'meta.json'}: missing", "holds press images but no")
+
+
+def test_a_file_where_the_output_folder_needs_a_folder_is_named_as_such(tmp_path):
+    """`--out FILE/sub` said "File exists (use --overwrite to replace it)", which would not help."""
+    from nlipscalib.cli import describe_os_error
+
+    blocker = tmp_path / "bfile"
+    blocker.write_text("x")
+    try:
+        (blocker / "sub").mkdir(parents=True, exist_ok=True)
+    except FileExistsError as exc:
+        line = describe_os_error(exc, overwrite_flag=True, where=blocker / "sub")
+    assert line == f"{blocker}: a file where a folder is needed (choose another --out, or move the file)"
