@@ -203,7 +203,7 @@ def test_a_file_where_the_output_folder_needs_a_folder_is_named_as_such(tmp_path
     blocker = tmp_path / "bfile"
     blocker.write_text("x")
     try:
-        (blocker / "sub").mkdir(parents=True, exist_ok=True)
+        blocker.mkdir(parents=True, exist_ok=True)  # what making --out's parent does
     except FileExistsError as exc:
         line = describe_os_error(exc, overwrite_flag=True, where=blocker / "sub")
     assert line == f"{blocker}: a file where a folder is needed (choose another --out, or move the file)"
