@@ -23,6 +23,7 @@ SCENE_CASES = [
     ("coating", "variation_scale", "0.0"),
     ("render", "spp", "0"),
     ("render", "bounces", "-1"),
+    ("render", "bounces", "1000"),
     ("render", "threads", "-2"),
     ("render", "seed", "-5"),
     ("render", "variant", '"gpu_fast"'),
