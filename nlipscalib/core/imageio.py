@@ -40,13 +40,17 @@ def opencv_path(path: str | Path) -> str:
 
 
 def read_image(path: str | Path) -> np.ndarray | None:
-    """OpenCV's ``imread(path, IMREAD_UNCHANGED)`` (BGR, bit depth kept), or None when OpenCV cannot decode it.
+    """OpenCV's ``imread(path, IMREAD_UNCHANGED)`` (BGR, bit depth kept), or None when OpenCV cannot decode it;
+    CaptureError for a PNG cut short.
 
     The file is read by Python and decoded from memory (``cv2.imdecode``: the same decoders), so any path the
     file system allows works, where ``imread`` crashes on one that is not UTF-8.
     """
     cv2 = _cv2()
     data = np.fromfile(path, np.uint8)
+    if data[: len(PNG_SIGNATURE)].tobytes() == PNG_SIGNATURE and b"IEND" not in data[-64:].tobytes():
+        # libpng would print "libpng error: Read Error" on stderr before the caller's one line
+        raise CaptureError(f"{path}: truncated PNG image (cut short: copy or capture it again)")
     return cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
 
 

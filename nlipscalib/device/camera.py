@@ -17,6 +17,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import os
 import re
 from pathlib import Path
 
@@ -37,6 +38,9 @@ IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bm
 
 
 def _cv2():
+    # FFmpeg prints its own parse errors ("moov atom not found") straight to stderr at OpenCV's default level,
+    # before our one line naming the file; the level is read when OpenCV first loads its FFmpeg backend
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     return require("cv2", "opencv-python-headless", "Reading a camera")
 
 

@@ -29,3 +29,16 @@ def test_a_path_that_is_not_utf8_is_read_and_refused_by_opencv_in_one_line(tmp_p
     with pytest.raises(CaptureError, match="not valid UTF-8"):
         opencv_path(folder / "video.avi")
     assert opencv_path(tmp_path / "café.avi") == str(tmp_path / "café.avi")
+
+
+def test_a_truncated_png_read_as_a_frame_is_named_before_libpng_speaks(tmp_path, capfd):
+    """`nlips live --camera FOLDER` printed "libpng error: Read Error" before its own line."""
+    from nlipscalib.core.imageio import read_image, write_png16
+
+    whole = write_png16(tmp_path / "a.png", np.zeros((8, 8, 3), np.uint16))
+    cut = tmp_path / "b.png"
+    cut.write_bytes(whole.read_bytes()[:60])
+    assert read_image(whole).shape == (8, 8, 3)
+    with pytest.raises(CaptureError, match="b.png: truncated PNG image"):
+        read_image(cut)
+    assert "libpng" not in capfd.readouterr().err
