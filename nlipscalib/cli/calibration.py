@@ -87,6 +87,7 @@ def run(args) -> int:
         raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
     if not presses:
         raise no_presses_error(root)
+    reference_fits(reference, presses)
     workers = args.workers or usable_cores()
     status = solve_all(presses, reference, workers=workers, progress=not args.no_progress)
     solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]
@@ -138,6 +139,25 @@ def own_reference_left_out(root: Path, given: Path) -> None:
             f"leave out --reference to use {own}, or name a reference captured with the sensor of {root}'s presses"
         )
     log.info("%s: left out (not a press); the undeformed dome of --reference %s is used", own, given)
+
+
+def reference_fits(reference: Path, presses) -> None:
+    """One line, before any solving, when the undeformed capture cannot be read or is of another sensor than
+    the first readable press (every press's solve failed on it alike: one line per press). A press whose
+    meta.json cannot be read is not compared: it fails alone, in its own line."""
+    from ..core.capture import META_FILE, load_press, parse_optics, read_meta
+    from ..core.sensor_record import describe_sensor, sensor_mismatch, sensor_of
+    from ..errors import CaptureError, ConfigError
+
+    theirs = sensor_of(load_press(reference))
+    for press in presses:
+        try:
+            ours = describe_sensor(*parse_optics(read_meta(press), press / META_FILE))
+        except CaptureError:
+            continue
+        if why := sensor_mismatch(theirs, ours):
+            raise ConfigError(f"--reference {reference}: not a capture of the sensor of {press} ({press}: {why})")
+        return
 
 
 def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True) -> dict[str, str]:
