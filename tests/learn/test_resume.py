@@ -272,11 +272,11 @@ EXPORT_WAITS = """
 import pathlib, sys, time
 from nlipscalib.learn import onnx_export
 flags, export = pathlib.Path(sys.argv.pop(1)), onnx_export.export_onnx
-def export_when_told(model, out):  # the model to export is loaded: hold on until the test says go
+def export_when_told(model, out, check=None):  # the model to export is loaded: hold on until the test says go
     (flags / "exporting").touch()
     while not (flags / "go").exists():
         time.sleep(0.02)
-    return export(model, out)
+    return export(model, out, check=check)
 onnx_export.export_onnx = export_when_told
 from nlipscalib.cli import main
 sys.exit(main(sys.argv[1:]))
