@@ -155,6 +155,21 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     assert f"make it again with `nlips infer /lab/models/net.pt {press}`" in capsys.readouterr().out
 
 
+def test_eval_header_names_what_is_scored(data, capsys):
+    """The table's header said `scoring PRESS/nlips` whatever PATH was."""
+    root, cfg = data
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
+    capsys.readouterr()
+    press = root / "press_a"
+    for path, header in (
+        (root, f"scoring {root / '*' / 'nlips'}"),
+        (press, f"scoring {press / 'nlips'}"),
+        (press / "nlips", f"scoring {press / 'nlips'}"),
+    ):
+        assert main(["eval", str(path)]) == 0
+        assert capsys.readouterr().out.splitlines()[0] == header
+
+
 def test_eval_scores_a_result_solved_into_another_folder(data, tmp_path, capsys):
     root, cfg = data
     press, other = root / "press_a", tmp_path / "elsewhere"
@@ -166,7 +181,7 @@ def test_eval_scores_a_result_solved_into_another_folder(data, tmp_path, capsys)
     assert len(err) == 1 and f"nlips eval PRESS --result {other}" in err[0]
     assert main(["eval", str(press), "--result", str(other)]) == 0
     out = capsys.readouterr().out
-    assert f"scoring {other}" in out
+    assert f"scoring {other} against {press}" in out
     row = next(line for line in out.splitlines() if line.startswith("press_a")).split()
     scores = evaluate(load_reconstruction(other), load_press(press).ground_truth)["all"]
     assert int(row[1]) == scores["pixels"] > 0 and float(row[2]) == pytest.approx(scores["aae_deg"], abs=1e-3)
