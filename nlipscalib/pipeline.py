@@ -554,8 +554,10 @@ def _resolve_roi(roi):
         box = tuple(int(v) for v in roi)
     except (TypeError, ValueError):
         box = ()
-    if len(box) != 4 or box[2] < 1 or box[3] < 1 or min(box) < 0:
-        raise ConfigError(f"roi must be (x0, y0, w, h) with x0, y0 >= 0 and w, h >= 1 pixels, got {roi!r}")
+    from .solver.press import MIN_ROI_SIDE as side
+
+    if len(box) != 4 or min(box) < 0 or min(box[2:]) < side:  # the same minimum as the solver's check_roi
+        raise ConfigError(f"roi {roi!r} must be (x0, y0, w, h) with x0, y0 >= 0, at least {side}x{side} pixels")
     return box
 
 

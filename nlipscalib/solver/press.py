@@ -49,6 +49,8 @@ from .options import SolverOptions
 log = logging.getLogger(__name__)
 
 INTERREFLECTION_MODES = ("auto", "on", "off")
+MIN_ROI_SIDE = 4
+"""Smallest width and height of an explicit ROI box, pixels (the API's and --roi's checks both state it)."""
 OUTER_TOL_DEG = 0.05
 """The outer interreflection loop stops when the median normal change of a pass is below this, degrees."""
 
@@ -631,8 +633,9 @@ def _other_sensor(press: Press, undeformed: Press) -> str | None:
 def check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:
     """(x0, y0, w, h) as ints; ShapeError unless the box lies inside the W x H image and is at least 4x4."""
     x0, y0, w, h = (int(v) for v in roi)
-    if w < 4 or h < 4 or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
-        raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least 4x4")
+    if min(w, h) < MIN_ROI_SIDE or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
+        side = MIN_ROI_SIDE
+        raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least {side}x{side} pixels")
     return x0, y0, w, h
 
 

@@ -257,6 +257,15 @@ def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_sai
     assert "re-solving" not in caplog.text and "identical result" not in caplog.text
 
 
+@pytest.mark.parametrize("roi", [["0,0,0,0"], ["10", "10", "3", "3"], ["60", "10", "10", "10"]])
+def test_a_roi_too_small_or_outside_states_the_one_true_minimum(data, capsys, roi):
+    """`--roi 0,0,0,0` said "w, h >= 1" while `--roi 150 110 20 20` said "at least 4x4"."""
+    root, cfg = data
+    assert main(["solve", str(root / "press_a"), "--roi", *roi, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith("at least 4x4 pixels") and ">= 1" not in err[0], err
+
+
 def test_the_press_may_follow_the_roi(data, capsys):
     root, cfg = data
     press = root / "press_a"
