@@ -330,9 +330,10 @@ def _wait_for_release(folder: Path, out: Path) -> None:
 
 
 def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
-    """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json)."""
-    from .core.capture import META_FILE, read_meta
-    from .solver.press import check_roi
+    """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json), a
+    reference captured by the same sensor."""
+    from .core.capture import META_FILE, read_meta, read_optics
+    from .solver.press import check_roi, check_undeformed
 
     meta = read_meta(folder)
     camera, leds = meta.get("camera") or {}, meta.get("leds") or []
@@ -344,6 +345,8 @@ def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
     used = len(settings.led_subset) if settings.led_subset is not None else n
     if settings.leds is not None and len(settings.leds) != used:
         raise ConfigError(f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {used}")
+    if settings.reference is not None:  # another sensor's capture: refused now, not after "re-solving" is logged
+        check_undeformed(read_optics(folder), read_optics(settings.reference))
 
 
 def make_provenance(folder: Path, settings: SolveSettings) -> dict:

@@ -596,13 +596,7 @@ def _split_indirect(press: Press, indirect):
     if indirect is None:
         return None, None
     if isinstance(indirect, Press):
-        if indirect.camera != press.camera or len(indirect.leds) != len(press.leds):
-            raise CaptureError(f"{indirect.folder}: camera or LED count differs from {press.folder}")
-        if indirect.reference is None:
-            raise CaptureError(f"{indirect.folder}: the undeformed capture needs its reference surface (reference.npz)")
-        why = _other_sensor(press, indirect)
-        if why:
-            raise CaptureError(f"{indirect.folder}: not a capture of the sensor of {press.folder} ({why})")
+        check_undeformed(press, indirect)
         return indirect, None
     light = np.asarray(indirect, np.float32)
     if light.shape != press.led_images.shape:
@@ -610,7 +604,25 @@ def _split_indirect(press: Press, indirect):
     return None, light
 
 
-def _other_sensor(press: Press, undeformed: Press) -> str | None:
+def check_undeformed(press, undeformed) -> None:
+    """CaptureError naming ``undeformed`` unless it is an undeformed capture of ``press``'s sensor.
+
+    Parameters
+    ----------
+    press, undeformed : core.Press or core.capture.CaptureOptics
+        Anything with ``folder``, ``camera``, ``leds`` and ``reference``: the pipeline checks the captures'
+        optics before it says anything about an earlier result, the solver the loaded presses.
+    """
+    if undeformed.camera != press.camera or len(undeformed.leds) != len(press.leds):
+        raise CaptureError(f"{undeformed.folder}: camera or LED count differs from {press.folder}")
+    if undeformed.reference is None:
+        raise CaptureError(f"{undeformed.folder}: the undeformed capture needs its reference surface (reference.npz)")
+    why = _other_sensor(press, undeformed)
+    if why:
+        raise CaptureError(f"{undeformed.folder}: not a capture of the sensor of {press.folder} ({why})")
+
+
+def _other_sensor(press, undeformed) -> str | None:
     """Why ``undeformed`` is not a capture of ``press``'s sensor (LED geometry, undeformed surface), or None."""
     why = led_geometry_mismatch(
         [led.position for led in press.leds],

@@ -133,7 +133,7 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     capsys.readouterr()
     assert main(["eval", str(press / "nlipsnet")]) == 0
     out = capsys.readouterr().out
-    assert "PRESS/nlipsnet" in out
+    assert f"scoring {press / 'nlipsnet'}" in out  # the method came from the folder's name
     row = next(line for line in out.splitlines() if line.startswith("press_a")).split()
     # zero up to arccos near 1 on float32 unit vectors (~0.01 deg); depth exactly zero
     assert int(row[1]) == gt.valid.sum() and float(row[2]) < 0.02 and float(row[4]) == 0.0
@@ -254,6 +254,11 @@ def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_sai
     assert main(["solve", str(press), "--leds", "1,2,40", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has LEDs 1..12" in err[0]
+    other = root.parent / "other_sensor"  # an undeformed capture of another LED ring
+    synth.make_press(other, "none", size=(64, 48), leds=synth.ring_leds(tilt_deg=40))
+    assert main(["solve", str(press), "--reference", str(other), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{other}: not a capture of the sensor of {press}" in err[0]
     assert "re-solving" not in caplog.text and "identical result" not in caplog.text
 
 
