@@ -336,9 +336,10 @@ def _wait_for_release(folder: Path, out: Path) -> None:
 
 
 def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
-    """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json)."""
-    from .core.capture import META_FILE, read_meta
-    from .solver.press import check_roi
+    """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json), a
+    reference captured by the same sensor."""
+    from .core.capture import META_FILE, read_meta, read_optics
+    from .solver.press import check_roi, check_undeformed
 
     meta = read_meta(folder)
     camera, leds = meta.get("camera") or {}, meta.get("leds") or []
@@ -352,6 +353,8 @@ def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
         raise ConfigError(f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {used}")
     if settings.leds is not None and settings.led_subset is None:
         _check_leds_sensor(folder, meta, settings)
+    if settings.reference is not None:  # another sensor's capture: refused now, not after "re-solving" is logged
+        check_undeformed(read_optics(folder), read_optics(settings.reference))
 
 
 def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> None:
@@ -596,8 +599,10 @@ def _resolve_roi(roi):
         box = tuple(int(v) for v in roi)
     except (TypeError, ValueError):
         box = ()
-    if len(box) != 4 or box[2] < 1 or box[3] < 1 or min(box) < 0:
-        raise ConfigError(f"roi must be (x0, y0, w, h) with x0, y0 >= 0 and w, h >= 1 pixels, got {roi!r}")
+    from .solver.press import MIN_ROI_SIDE as side
+
+    if len(box) != 4 or min(box) < 0 or min(box[2:]) < side:  # the same minimum as the solver's check_roi
+        raise ConfigError(f"roi {roi!r} must be (x0, y0, w, h) with x0, y0 >= 0, at least {side}x{side} pixels")
     return box
 
 

@@ -11,6 +11,7 @@ import argparse
 import errno
 import importlib
 import logging
+import re
 import sys
 from pathlib import Path
 
@@ -61,7 +62,33 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # subcommand not built yet
             raise
         module.register(sub)
+    for command in sub.choices.values():
+        command.description, command.epilog = plain_text(command.description), plain_text(command.epilog)
     return parser
+
+
+_MARKUP = re.compile(r":\w+:`([^`]+)`|``([^`]+)``")
+"""reStructuredText inline markup in a module docstring: a role (:func:`name`) or a literal (double backticks)."""
+
+
+def plain_text(text: str | None) -> str | None:
+    """``text`` without reStructuredText inline markup, for ``--help``.
+
+    Why: several commands take their description from their module's docstring, written for the API docs;
+    ``--help`` showed its double backticks verbatim. Single backticks (a command to type) are kept.
+
+    Parameters
+    ----------
+    text : str or None
+        A description or epilog.
+
+    Returns
+    -------
+    str or None
+    """
+    if text is None:
+        return None
+    return _MARKUP.sub(lambda m: m.group(1) or m.group(2), text)
 
 
 def main(argv=None) -> int:

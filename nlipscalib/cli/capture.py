@@ -81,7 +81,12 @@ def register(subparsers) -> None:
     emu.add_argument("--spp", type=int, help="emulated render samples per pixel")
     emu.add_argument("--seed", type=int, help="emulated sensor noise seed (default 0)")
     ses = p.add_argument_group("session")
-    ses.add_argument("--tricolor-level", type=int, help="LED drive of the tri-colour frame, 1-255 (default 255)")
+    ses.add_argument(
+        "--tricolor-level",
+        type=int,
+        help="LED drive of the tri-colour frame, 1-255 (default 255; --emulate: the drive giving the scene's "
+        "tri-colour exposure, nlipstac 99)",
+    )
     ses.add_argument("--movement-threshold", type=float, default=0.02, help="pixel change counted as movement")
     ses.add_argument("--max-retakes", type=int, default=3, help="retakes of a moving press before giving up")
     ses.add_argument("--yes", action="store_true", help="do not wait for Enter at the prompts (scripts)")

@@ -42,7 +42,13 @@ def register(subparsers) -> None:
         help="with --result: score it even though it was made from another capture than PATH (e.g. the same press "
         "rendered with another noise seed, whose ground truth is the same); without it such a result is refused",
     )
-    p.add_argument("--region", choices=("all", "contact"), default="all", help="pixels to score")
+    p.add_argument(
+        "--region",
+        choices=("all", "contact"),
+        default="all",
+        help="pixels to score: all (default: every pixel valid in both the truth and the result) or contact (only "
+        "those of the truth's contact region)",
+    )
     p.set_defaults(func=run)
 
 
@@ -74,7 +80,7 @@ def run(args) -> int:
         raise CaptureError(
             f"{args.path}: no press has a {method} result yet (run {MAKES[method].format(path=args.path)} first)"
         )
-    _print(rows, args.result or f"PRESS/{method}")
+    _print(rows, _scored(Path(args.path), presses, method, args.result))
     if unsolved:
         print(f"not solved, skipped: {', '.join(unsolved)}")
     for name, problem in damaged:
@@ -369,6 +375,15 @@ def _ground_truth(folder: Path):
     except (TypeError, ValueError) as exc:
         raise CaptureError(f"{folder / 'meta.json'}: {exc}") from None
     return GroundTruth.load(path, shape)
+
+
+def _scored(path: Path, presses: list[Path], method: str, result: str | None) -> str:
+    """What the table scores, for its header: the result folder(s) as paths the user can open."""
+    if result:
+        return f"{result} against {presses[0]}"
+    if presses == [path] or path.parent == presses[0]:  # a press, or its reconstruction folder
+        return str(presses[0] / method)
+    return str(path / "*" / method)
 
 
 def _print(rows, scored: str) -> None:

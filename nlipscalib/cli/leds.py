@@ -13,6 +13,8 @@ protocol and the Python API number them from 0 (docs/protocol.md), translated in
 
 from __future__ import annotations
 
+import contextlib
+
 ACTIONS = {
     "info": 0,
     "test": 0,
@@ -76,14 +78,38 @@ def run(args) -> int:
             f"give the count once (virtual --adalight {args.adalight})"
         )
     args.baud = check_baud(args)
-    leds, board = _open(args)  # board: the virtual board, kept alive while the controller uses it
-    with leds:
+    url, board = _board(args)  # board: the virtual board, kept alive while the controller uses it
+    with _named_as_typed(args.port, url), _connect(args, url) as leds:
         if args.action != "test":
             return _ACTIONS[args.action](leds, args)
         from ..device.controller import lights_out_on_exit
 
         with lights_out_on_exit(leds):  # a test stopped halfway (Ctrl-C, SIGTERM) leaves no LED lit
             return _test(leds, args)
+
+
+@contextlib.contextmanager
+def _named_as_typed(port: str, url: str):
+    """Errors name the port as the user typed it (``virtual``), not the URL of the board started for it.
+
+    Why: ``virtual[:N]`` starts a board at ``nlipsemu://<next id>``, a URL the user never typed, and the
+    driver's messages begin with the URL it opened.
+
+    Parameters
+    ----------
+    port : str
+        PORT as typed on the command line.
+    url : str
+        The URL the driver opens for it.
+    """
+    from ..errors import NlipsError
+
+    try:
+        yield
+    except NlipsError as exc:
+        if url != port and exc.args and isinstance(exc.args[0], str):
+            exc.args = (exc.args[0].replace(f"{url}:", f"{port}:"), *exc.args[1:])
+        raise
 
 
 def add_baud_argument(p) -> None:
@@ -109,9 +135,9 @@ def _refuse(message: str):
     raise ConfigError(message)
 
 
-def _open(args):
-    from ..device.adalight import AdalightController
-    from ..device.controller import BAUD_RATE, LedController
+def _board(args):
+    """The URL to open for PORT, and the virtual board started for it (None for a real port)."""
+    from ..device.controller import BAUD_RATE
     from ..device.virtual_board import VirtualBoard, start_board
 
     url = args.port
@@ -119,12 +145,18 @@ def _open(args):
     adalight = args.adalight is not None
     if url == "virtual" or url.startswith("virtual:"):
         board = VirtualBoard(int(url.partition(":")[2] or n_leds), adalight=adalight, baudrate=BAUD_RATE)
-        url = board.url
-    else:  # nlipsemu://ID: this process's board of that id, else one started at the firmware's rate
-        board = start_board(url, n_leds, adalight=adalight, baudrate=BAUD_RATE)
-    if adalight:
-        return AdalightController.open(url, args.adalight, baudrate=args.baud), board
-    return LedController.open(url, timeout=args.timeout, baudrate=args.baud), board
+        return board.url, board
+    # nlipsemu://ID: this process's board of that id, else one started at the firmware's rate
+    return url, start_board(url, n_leds, adalight=adalight, baudrate=BAUD_RATE)
+
+
+def _connect(args, url: str):
+    from ..device.adalight import AdalightController
+    from ..device.controller import LedController
+
+    if args.adalight is not None:
+        return AdalightController.open(url, args.adalight, baudrate=args.baud)
+    return LedController.open(url, timeout=args.timeout, baudrate=args.baud)
 
 
 def _info(leds, args) -> int:
@@ -177,6 +209,7 @@ def _state(leds, args) -> int:
 
 def _off(leds, args) -> int:
     leds.off()
+    _done(leds, f"all {leds.n_leds} LEDs off")
     return 0
 
 
@@ -187,6 +220,7 @@ def _set(leds, args) -> int:
 
         raise LedIndexError(f"set: there is no LED {number}: the board has {leds.n_leds} LEDs (1..{leds.n_leds})")
     leds.set_led(number - 1, rgb)  # the protocol counts from 0
+    _done(leds, f"LED {number} set to {' '.join(map(str, rgb))}")
     return 0
 
 
@@ -194,7 +228,13 @@ def _all(leds, args) -> int:
     import numpy as np
 
     leds.set_all(np.tile(np.array(args.values, np.uint8), (leds.n_leds, 1)))
+    _done(leds, f"all {leds.n_leds} LEDs set to {' '.join(map(str, args.values))}")
     return 0
+
+
+def _done(leds, what: str) -> None:
+    """Confirm a change on one line; an Adalight board acknowledges nothing, so say the frame was only sent."""
+    print(what if leds.acknowledged else f"{what} (sent; Adalight does not acknowledge)")
 
 
 _ACTIONS = {"info": _info, "test": _test, "state": _state, "off": _off, "set": _set, "all": _all}

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import re
+
 DEFAULT_PRESS = {"indenter": "sphere", "polar_deg": 20.0, "azimuth_deg": 0.0, "spin_deg": 0.0, "depth": 1.0}
 """The press rendered when no indenter, pose or press file is given: a sphere 1 mm deep, 20 deg off the apex."""
 
@@ -75,6 +78,8 @@ def register(subparsers) -> None:
 
 ARG_MINIMA = {"spp": 1, "bounces": 0, "threads": 0, "seed": 0, "width": 8, "height": 8}
 """Smallest value of each integer option (checked before anything is loaded or rendered)."""
+PRESS_OPTIONS = ("indenter", "size", "orientation", "mesh", "polar", "azimuth", "spin", "depth", "press_file")
+"""Options that describe the press: --undeformed renders none, so they do not apply to it."""
 
 
 def _check_args(args) -> None:
@@ -83,11 +88,14 @@ def _check_args(args) -> None:
     from ..config import check_count, check_range
     from ..errors import ConfigError
 
+    if args.undeformed:
+        given = [name for name in PRESS_OPTIONS if getattr(args, name) is not None]
+        if given:
+            flag = "--" + given[0].replace("_", "-")
+            raise ConfigError(f"{flag} is not used with --undeformed: the undeformed dome has no press; drop {flag}")
     for name, minimum in ARG_MINIMA.items():
         if getattr(args, name) is not None:
             check_count(f"--{name}", getattr(args, name), minimum=minimum)
-    if args.depth is not None:
-        check_range("--depth", args.depth, 0.0, open_lo=True)
     if args.polar is not None:
         from ..sim.press import check_polar
 
@@ -109,10 +117,50 @@ def _scene(args):
     scene = load_scene(args.scene)
     render = {k: getattr(args, k) for k in ("spp", "bounces", "variant", "threads", "seed")}
     camera = {"width": args.width, "height": args.height}
-    return scene.replace(
-        render={k: v for k, v in render.items() if v is not None},
-        camera={k: v for k, v in camera.items() if v is not None},
-    )
+    with _scene_keys_as_flags():
+        return scene.replace(
+            render={k: v for k, v in render.items() if v is not None},
+            camera={k: v for k, v in camera.items() if v is not None},
+        )
+
+
+@contextlib.contextmanager
+def _scene_keys_as_flags():
+    """A typed value the scene refuses is named by its flag (``--width``), not by its scene key.
+
+    Why: the scene file itself was checked when it loaded, so what ``scene.replace`` refuses is a value from the
+    command line, and ``scene.camera: width: ...`` names a key the user never wrote.
+    """
+    from ..errors import ConfigError
+
+    try:
+        yield
+    except ConfigError as exc:
+        found = re.fullmatch(r"scene\.(?:camera|render): (\w+):? (.*)", str(exc), re.DOTALL)
+        if found is None:
+            raise
+        raise ConfigError(f"--{found[1]}: {found[2]}") from None
+
+
+def _check_depth(where: str, depth: float, scene) -> None:
+    """The press depth within (0, gel thickness], checked before the render starts (and its INFO line).
+
+    Parameters
+    ----------
+    where : str
+        What set the depth, for the message (``--depth``, or the press file).
+    depth : float
+        Indentation depth, mm.
+    scene : SceneConfig
+        The scene rendered: its gel thickness is the deepest press.
+    """
+    from ..errors import ConfigError
+
+    thickness = scene.dome.thickness
+    if not 0 < depth <= thickness:
+        raise ConfigError(
+            f"{where}: must be in (0, {thickness:g}] mm (the scene's gel is {thickness:g} mm thick), got {depth:g}"
+        )
 
 
 def _press(args):
@@ -152,7 +200,11 @@ def run(args) -> int:
     from ..sim.press import render_press
 
     scene = _scene(args)
+    if args.depth is not None:
+        _check_depth("--depth", args.depth, scene)
     press = None if args.undeformed else _press(args)
+    if press is not None and args.depth is None:  # a press file's depth
+        _check_depth(f"{args.press_file or 'press'}: depth", press.depth, scene)
     if press is not None and press.indenter.kind == "mesh":
         from ..sim.indenters import make_indenter
 

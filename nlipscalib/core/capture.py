@@ -241,6 +241,30 @@ def write_press(
     return Path(folder)
 
 
+@dataclasses.dataclass(frozen=True)
+class CaptureOptics:
+    """What a capture says about its sensor, read without decoding its images: enough to tell two sensors apart."""
+
+    folder: Path
+    camera: Camera
+    leds: tuple[Led, ...]
+    reference: Reference | None
+    """The undeformed surface (reference.npz), when the capture has one."""
+
+
+def read_optics(folder: str | Path) -> CaptureOptics:
+    """The camera, LEDs and undeformed surface of a press folder (meta.json and reference.npz only).
+
+    Why: checks that two captures come from one sensor run before a solve says anything, and decoding every
+    image for them would cost as much as the solve's own loading.
+    """
+    folder = Path(folder)
+    meta = read_meta(folder)
+    camera, leds, _ = parse_optics(meta, folder / META_FILE)
+    reference = Reference.load(_existing(folder, meta["reference"]), camera.shape) if meta.get("reference") else None
+    return CaptureOptics(folder=folder, camera=camera, leds=tuple(leds), reference=reference)
+
+
 def load_press(folder: str | Path, led_subset=None) -> Press:
     """Load and validate a press folder; every problem is reported naming the file.
 

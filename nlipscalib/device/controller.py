@@ -237,6 +237,10 @@ class LedController:
         self._foreign: list[bytes] = []
         self._unreadable = 0
         """Bytes received since HELLO was last sent that formed no protocol line (for the no-answer message)."""
+        self._sent = b""
+        """The last line written, without its newline: a line that comes back equal to it is an echo."""
+        self._echoes = 0
+        """Lines received since HELLO was last sent that were the line sent (a loopback, for the no-answer message)."""
         self.info: p.BoardInfo | None = None
         self._shown = self._staged = None
 
@@ -298,7 +302,7 @@ class LedController:
         self._reset_seen = False
 
     def _hello(self) -> p.BoardInfo:
-        self._unreadable = 0
+        self._unreadable = self._echoes = 0
         try:
             reply = self._exchange("HELLO", session=False)
         except DeviceTimeoutError:
@@ -318,6 +322,11 @@ class LedController:
                 "Drive it with nlipscalib.device.adalight.AdalightController, or flash firmware/ (see its README)"
             )
         tries = f"{self.url}: no answer to HELLO after {self.retries + 1} tries of {self.timeout:g} s"
+        if self._echoes and not heard:  # loop:// or a wire from TX to RX: the line rate cannot be the cause
+            return DeviceTimeoutError(
+                f"{tries}: the port echoes what is sent (a loopback, no board on it); give the LED board's port "
+                "(/dev/ttyACM0, COM3, ...)"
+            )
         unreadable = self._unreadable + len(self._rx)  # with the half line left over
         if heard:
             return DeviceTimeoutError(
@@ -437,6 +446,7 @@ class LedController:
                 self._drain()
                 if session and self._reset_seen:
                     self._after_reset("it printed its boot banner")
+                self._sent = line.rstrip(b"\n")
                 self._port.write(line)
                 reply = self._await_reply(f"{seq:02x}", session)
             except _serial().SerialTimeoutException:
@@ -502,6 +512,9 @@ class LedController:
 
     def _classify(self, line: bytes):
         """("reply", Reply) | ("banner", BoardInfo) | ("corrupt", None) | ("garbage", None)."""
+        if self._sent and line.rstrip(b"\r") == self._sent:
+            self._echoes += 1
+            return "garbage", None
         try:
             marker, body = p.check_frame(line)
         except p.FrameError:

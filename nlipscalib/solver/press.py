@@ -49,6 +49,8 @@ from .options import SolverOptions
 log = logging.getLogger(__name__)
 
 INTERREFLECTION_MODES = ("auto", "on", "off")
+MIN_ROI_SIDE = 4
+"""Smallest width and height of an explicit ROI box, pixels (the API's and --roi's checks both state it)."""
 OUTER_TOL_DEG = 0.05
 """The outer interreflection loop stops when the median normal change of a pass is below this, degrees."""
 
@@ -594,13 +596,7 @@ def _split_indirect(press: Press, indirect):
     if indirect is None:
         return None, None
     if isinstance(indirect, Press):
-        if indirect.camera != press.camera or len(indirect.leds) != len(press.leds):
-            raise CaptureError(f"{indirect.folder}: camera or LED count differs from {press.folder}")
-        if indirect.reference is None:
-            raise CaptureError(f"{indirect.folder}: the undeformed capture needs its reference surface (reference.npz)")
-        why = _other_sensor(press, indirect)
-        if why:
-            raise CaptureError(f"{indirect.folder}: not a capture of the sensor of {press.folder} ({why})")
+        check_undeformed(press, indirect)
         return indirect, None
     light = np.asarray(indirect, np.float32)
     if light.shape != press.led_images.shape:
@@ -608,7 +604,25 @@ def _split_indirect(press: Press, indirect):
     return None, light
 
 
-def _other_sensor(press: Press, undeformed: Press) -> str | None:
+def check_undeformed(press, undeformed) -> None:
+    """CaptureError naming ``undeformed`` unless it is an undeformed capture of ``press``'s sensor.
+
+    Parameters
+    ----------
+    press, undeformed : core.Press or core.capture.CaptureOptics
+        Anything with ``folder``, ``camera``, ``leds`` and ``reference``: the pipeline checks the captures'
+        optics before it says anything about an earlier result, the solver the loaded presses.
+    """
+    if undeformed.camera != press.camera or len(undeformed.leds) != len(press.leds):
+        raise CaptureError(f"{undeformed.folder}: camera or LED count differs from {press.folder}")
+    if undeformed.reference is None:
+        raise CaptureError(f"{undeformed.folder}: the undeformed capture needs its reference surface (reference.npz)")
+    why = _other_sensor(press, undeformed)
+    if why:
+        raise CaptureError(f"{undeformed.folder}: not a capture of the sensor of {press.folder} ({why})")
+
+
+def _other_sensor(press, undeformed) -> str | None:
     """Why ``undeformed`` is not a capture of ``press``'s sensor (LED geometry, undeformed surface), or None."""
     why = led_geometry_mismatch(
         [led.position for led in press.leds],
@@ -631,8 +645,9 @@ def _other_sensor(press: Press, undeformed: Press) -> str | None:
 def check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:
     """(x0, y0, w, h) as ints; ShapeError unless the box lies inside the W x H image and is at least 4x4."""
     x0, y0, w, h = (int(v) for v in roi)
-    if w < 4 or h < 4 or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
-        raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least 4x4")
+    if min(w, h) < MIN_ROI_SIDE or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
+        side = MIN_ROI_SIDE
+        raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least {side}x{side} pixels")
     return x0, y0, w, h
 
 

@@ -133,7 +133,7 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     capsys.readouterr()
     assert main(["eval", str(press / "nlipsnet")]) == 0
     out = capsys.readouterr().out
-    assert "PRESS/nlipsnet" in out
+    assert f"scoring {press / 'nlipsnet'}" in out  # the method came from the folder's name
     row = next(line for line in out.splitlines() if line.startswith("press_a")).split()
     # zero up to arccos near 1 on float32 unit vectors (~0.01 deg); depth exactly zero
     assert int(row[1]) == gt.valid.sum() and float(row[2]) < 0.02 and float(row[4]) == 0.0
@@ -155,6 +155,21 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     assert f"make it again with `nlips infer /lab/models/net.pt {press}`" in capsys.readouterr().out
 
 
+def test_eval_header_names_what_is_scored(data, capsys):
+    """The table's header said `scoring PRESS/nlips` whatever PATH was."""
+    root, cfg = data
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
+    capsys.readouterr()
+    press = root / "press_a"
+    for path, header in (
+        (root, f"scoring {root / '*' / 'nlips'}"),
+        (press, f"scoring {press / 'nlips'}"),
+        (press / "nlips", f"scoring {press / 'nlips'}"),
+    ):
+        assert main(["eval", str(path)]) == 0
+        assert capsys.readouterr().out.splitlines()[0] == header
+
+
 def test_eval_scores_a_result_solved_into_another_folder(data, tmp_path, capsys):
     root, cfg = data
     press, other = root / "press_a", tmp_path / "elsewhere"
@@ -166,7 +181,7 @@ def test_eval_scores_a_result_solved_into_another_folder(data, tmp_path, capsys)
     assert len(err) == 1 and f"nlips eval PRESS --result {other}" in err[0]
     assert main(["eval", str(press), "--result", str(other)]) == 0
     out = capsys.readouterr().out
-    assert f"scoring {other}" in out
+    assert f"scoring {other} against {press}" in out
     row = next(line for line in out.splitlines() if line.startswith("press_a")).split()
     scores = evaluate(load_reconstruction(other), load_press(press).ground_truth)["all"]
     assert int(row[1]) == scores["pixels"] > 0 and float(row[2]) == pytest.approx(scores["aae_deg"], abs=1e-3)
@@ -239,7 +254,21 @@ def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_sai
     assert main(["solve", str(press), "--leds", "1,2,40", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has LEDs 1..12" in err[0]
+    other = root.parent / "other_sensor"  # an undeformed capture of another LED ring
+    synth.make_press(other, "none", size=(64, 48), leds=synth.ring_leds(tilt_deg=40))
+    assert main(["solve", str(press), "--reference", str(other), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{other}: not a capture of the sensor of {press}" in err[0]
     assert "re-solving" not in caplog.text and "identical result" not in caplog.text
+
+
+@pytest.mark.parametrize("roi", [["0,0,0,0"], ["10", "10", "3", "3"], ["60", "10", "10", "10"]])
+def test_a_roi_too_small_or_outside_states_the_one_true_minimum(data, capsys, roi):
+    """`--roi 0,0,0,0` said "w, h >= 1" while `--roi 150 110 20 20` said "at least 4x4"."""
+    root, cfg = data
+    assert main(["solve", str(root / "press_a"), "--roi", *roi, "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith("at least 4x4 pixels") and ">= 1" not in err[0], err
 
 
 def test_the_press_may_follow_the_roi(data, capsys):

@@ -289,3 +289,18 @@ def test_capture_drives_the_led_board_at_the_rate_of_baud(tmp_path, capsys):
     assert main([*args, "--out", str(tmp_path / "t")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no answer to HELLO" in err and "The port is at 115200 baud" in err, err
+
+
+def test_help_names_the_tricolor_level_an_emulated_session_records(capsys):
+    """`--tricolor-level` said "(default 255)", but an --emulate session records the emulator's drive."""
+    from nlipscalib.emulator import tricolor_level
+    from nlipscalib.sim.press import scene_exposure
+    from nlipscalib.sim.scene import load_scene
+
+    with pytest.raises(SystemExit):
+        main(["capture", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    scene = load_scene("nlipstac")
+    renders = type("Renders", (), {"scene": scene, "exposure": scene_exposure(scene)})
+    assert f"--emulate: the drive giving the scene's tri-colour exposure, nlipstac {tricolor_level(renders)})" in text
+    assert "1-255 (default 255;" in text

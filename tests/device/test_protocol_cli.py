@@ -39,12 +39,44 @@ def test_leds_info_and_bad_input(capsys):
     assert "--level must be 0..255, got 300" in capsys.readouterr().err
 
 
+def test_changes_are_confirmed_on_one_line(capsys):
+    """set, all and off printed nothing on success."""
+    board = VirtualBoard(3)
+    assert main(["leds", board.url, "set", "3", "255", "255", "255"]) == 0
+    assert capsys.readouterr().out == "LED 3 set to 255 255 255\n"
+    assert main(["leds", board.url, "all", "1", "2", "3"]) == 0
+    assert capsys.readouterr().out == "all 3 LEDs set to 1 2 3\n"
+    assert main(["leds", board.url, "off"]) == 0
+    assert capsys.readouterr().out == "all 3 LEDs off\n"
+    ada = VirtualBoard(2, adalight=True)
+    assert main(["leds", ada.url, "set", "2", "4", "5", "6", "--adalight", "2"]) == 0
+    assert capsys.readouterr().out == "LED 2 set to 4 5 6 (sent; Adalight does not acknowledge)\n"
+
+
+def test_errors_name_the_port_as_typed(capsys):
+    """`virtual` starts a board at nlipsemu://N: the message named that URL, which the user never typed."""
+    assert main(["leds", "virtual", "info", "--baud", "9600", "--timeout", "0.05"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("nlips leds: error: virtual: no answer to HELLO") and err.count("\n") == 1
+    assert "nlipsemu" not in err
+    assert main(["leds", "virtual:3", "info", "--baud", "9600", "--timeout", "0.05"]) == 2
+    assert capsys.readouterr().err.startswith("nlips leds: error: virtual:3: no answer to HELLO")
+
+
+def test_loop_url_is_named_a_loopback(capsys):
+    assert main(["leds", "loop://", "info", "--timeout", "0.05"]) == 2
+    err = capsys.readouterr().err
+    assert "loop://: no answer to HELLO" in err and "the port echoes what is sent (a loopback, no board on it)" in err
+    assert "firmware flashed" not in err and err.count("\n") == 1
+
+
 def test_leds_are_numbered_from_1_as_in_capture_files(capsys):
     """LED 1 is led_01.png, the protocol's index 0 (docs/conventions.md, docs/protocol.md)."""
     board = VirtualBoard(4, reset_on_open=False)  # keeps its LEDs from one command to the next
     assert main(["leds", board.url, "set", "1", "10", "20", "30"]) == 0
     assert main(["leds", board.url, "set", "4", "1", "2", "3"]) == 0
     assert board.latched.tolist() == [[10, 20, 30], [0, 0, 0], [0, 0, 0], [1, 2, 3]]
+    assert capsys.readouterr().out.splitlines() == ["LED 1 set to 10 20 30", "LED 4 set to 1 2 3"]
     assert main(["leds", board.url, "state"]) == 0
     out = capsys.readouterr().out.splitlines()
     assert out == ["LED 1: 10 20 30", "LED 2: 0 0 0", "LED 3: 0 0 0", "LED 4: 1 2 3"]

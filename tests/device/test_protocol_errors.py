@@ -69,8 +69,23 @@ def test_wrong_led_count():
 
 
 def test_silent_port_times_out_with_a_hint():
-    with pytest.raises(c.DeviceTimeoutError, match="no answer to HELLO after 2 tries.*firmware"):
-        c.LedController.open("loop://", timeout=0.1, retries=1)
+    master, slave = os.openpty()  # a port nothing answers on (loop:// echoes: a test of its own)
+    try:
+        with pytest.raises(c.DeviceTimeoutError, match="no answer to HELLO after 2 tries.*firmware"):
+            c.LedController.open(os.ttyname(slave), timeout=0.1, retries=1)
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_a_loopback_is_told_from_a_silent_port():
+    """loop:// sends every line back: "nothing came back" and the firmware hint were wrong for it."""
+    with pytest.raises(c.DeviceTimeoutError) as info:
+        c.LedController.open("loop://", timeout=0.05, retries=1, baudrate=57600)
+    message = str(info.value)
+    assert message.startswith("loop://: no answer to HELLO after 2 tries of 0.05 s: the port echoes what is sent ")
+    assert "(a loopback, no board on it)" in message
+    assert "nothing came back" not in message and "firmware" not in message and "baud" not in message
 
 
 def test_an_adalight_board_is_recognised():
@@ -115,8 +130,13 @@ def test_a_board_at_another_line_rate_is_told_from_a_silent_one():
     board = VirtualBoard(2, baudrate=57600)
     with pytest.raises(c.DeviceTimeoutError, match=r"sent \d+ bytes that form no protocol line.*115200 baud, the"):
         c.LedController.open(board.url, timeout=0.05, retries=0)
-    with pytest.raises(c.DeviceTimeoutError, match="nothing came back.*at 57600 baud but the nlips LED firmware runs"):
-        c.LedController.open("loop://", timeout=0.05, retries=0, baudrate=57600)  # an echo is no answer either
+    master, slave = os.openpty()  # a port nothing answers on
+    try:
+        with pytest.raises(c.DeviceTimeoutError, match="nothing came back.*at 57600 baud but the nlips LED firmware"):
+            c.LedController.open(os.ttyname(slave), timeout=0.05, retries=0, baudrate=57600)
+    finally:
+        os.close(master)
+        os.close(slave)
     master, slave = os.openpty()
     stop = threading.Event()
 
