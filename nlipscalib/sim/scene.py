@@ -184,6 +184,10 @@ dome (one bounce: 31 % brighter, measured), so the ninth would add < 1e-4; ``--b
 over ten minutes without ending (a native call that SIGTERM cannot cut short)."""
 
 
+MAX_SPP = 4096
+"""Most samples per pixel a render takes (``--spp 1000000000`` ended in drjit's own traceback)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class RenderConfig:
     """Mitsuba settings."""
@@ -208,6 +212,8 @@ class RenderConfig:
 
     def __post_init__(self):
         check_count("spp", self.spp, minimum=1)
+        if self.spp > MAX_SPP:
+            raise ConfigError(f"spp: must be at most {MAX_SPP}, got {self.spp} (the twin's presses use 4-64)")
         check_count("bounces", self.bounces, minimum=0)
         if self.bounces > MAX_BOUNCES:
             raise ConfigError(

@@ -24,6 +24,7 @@ SCENE_CASES = [
     ("render", "spp", "0"),
     ("render", "bounces", "-1"),
     ("render", "bounces", "1000"),
+    ("render", "spp", "1000000000"),
     ("render", "threads", "-2"),
     ("render", "seed", "-5"),
     ("render", "variant", '"gpu_fast"'),
