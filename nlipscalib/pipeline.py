@@ -35,6 +35,7 @@ from .core.atomic import TMP_PREFIX
 from .core.reconstruction import (
     Reconstruction,
     check_replaceable,
+    content_problem,
     load_reconstruction,
     read_report,
     reconstruction_dir,
@@ -357,6 +358,10 @@ def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
         check_undeformed(read_optics(folder), read_optics(settings.reference))
 
 
+_WARNED_UNRECORDED: set[str] = set()
+"""LED files already warned about for recording no sensor (in this process)."""
+
+
 def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> None:
     """Calibrated LEDs of another sensor are refused (the LED file records the sensor it was calibrated on).
 
@@ -370,18 +375,23 @@ def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> Non
 
     camera, leds, response = parse_optics(meta, folder / META_FILE)
     where = settings.leds_file or "the calibrated LEDs"
-    if settings.leds_sensor is not None:
-        why = sensor_mismatch(settings.leds_sensor, describe_sensor(camera, leds, response))
-        if why:
-            raise CaptureError(f"{where}: calibrated on another sensor than {folder} ({why})")
-        return
     far = led_geometry_mismatch(
         [led.position for led in leds],
         [led.direction for led in leds],
         [led.position for led in settings.leds],
         [led.direction for led in settings.leds],
     )
-    if far:
+    if settings.leds_sensor is not None:
+        recorded = settings.leds_sensor
+        if not far:  # captured with these calibrated LEDs (`nlips capture --leds FILE`): it records them, not the
+            # design the file recorded, so only the camera and the LED count and grouping are compared
+            recorded = {k: v for k, v in recorded.items() if k not in ("led_positions", "led_directions")}
+        why = sensor_mismatch(recorded, describe_sensor(camera, leds, response))
+        if why:
+            raise CaptureError(f"{where}: calibrated on another sensor than {folder} ({why})")
+        return
+    if far and where not in _WARNED_UNRECORDED:
+        _WARNED_UNRECORDED.add(where)  # once per file, not once per press of a batch
         log.warning(
             "%s: records no sensor to check against %s, and its LEDs differ from the capture's (%s): make sure "
             "they are a calibration of this sensor (a new `nlips calibrate-leds` records the sensor)",
@@ -560,6 +570,8 @@ def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance
     result.report["method"] = "nlips"
     result.report["provenance"] = provenance
     result.report["command_seconds"] = {"load": round(t1 - t0, 3), "solve": round(t2 - t1, 3)}
+    if problem := content_problem(result.arrays()):  # never published: every later run would re-solve it
+        raise CaptureError(f"{folder}: the solve gave an unusable result ({problem})")
     gt = press.ground_truth
     save_result(
         result, out, overwrite=True, extra_files=lambda tmp: write_reconstruction_figures(tmp, result, gt, level)

@@ -112,7 +112,7 @@ def results_to_log_file():
     """While active, every line printed on stdout (a command's results: summaries, tables, scores) also goes
     to the ``--log-file``, at INFO (a cluster job's log then holds the outcome, not only the warnings).
     Nothing changes without a log file."""
-    if _log_file is None:
+    if _log_file is None or sys.stdout is None:  # no file, or no stdout (fd 1 closed: print writes nothing)
         yield
         return
     real = sys.stdout
@@ -150,6 +150,13 @@ class _LinesToLog(io.TextIOBase):
 
     def isatty(self) -> bool:
         return self.real.isatty()
+
+    @property
+    def encoding(self):
+        return self.real.encoding
+
+    def __getattr__(self, name):  # buffer, errors, ...: the real stream's
+        return getattr(self.real, name)
 
     def fileno(self) -> int:
         return self.real.fileno()

@@ -120,3 +120,15 @@ def test_the_cli_logs_a_commands_results_to_its_log_file(tmp_path, capsys):
     assert main(["--log-file", str(log), "cache"]) == 0
     printed = capsys.readouterr().out.strip().splitlines()
     assert printed and all(line in log.read_text() for line in printed)
+
+
+def test_the_log_tee_forwards_what_it_does_not_handle_and_steps_aside_without_stdout(tmp_path, monkeypatch):
+    import sys
+
+    progress.configure(progress=False, log_file=tmp_path / "run.log")
+    real = sys.stdout
+    with progress.results_to_log_file():
+        assert sys.stdout is not real and sys.stdout.encoding == real.encoding and sys.stdout.errors == real.errors
+    monkeypatch.setattr(sys, "stdout", None)  # fd 1 closed: print writes nothing, and must not fail
+    with progress.results_to_log_file():
+        print("lost")

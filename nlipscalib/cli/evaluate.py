@@ -80,7 +80,7 @@ def run(args) -> int:
         raise CaptureError(
             f"{args.path}: no press has a {method} result yet (run {MAKES[method].format(path=args.path)} first)"
         )
-    _print(rows, _scored(Path(args.path), presses, method, args.result))
+    _print(rows, _scored(Path(args.path), pairs, method, args.result))
     if unsolved:
         print(f"not solved, skipped: {', '.join(unsolved)}")
     for name, problem in damaged:
@@ -141,18 +141,20 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
         return [(presses[0], result)], method
     presses, _ = split_reference(path)
     methods = [method] if method else list(METHODS)
-    pairs = []
+    pairs, missing = [], []
     for press in presses:
         found = next((result / press.name / m for m in methods if has_reconstruction(result / press.name / m)), None)
-        if found is not None:
-            _, method = _result_target(press, found, method, other_capture)
-            pairs.append((press, found))
+        if found is None:
+            missing.append(press)
+            continue
+        _, method = _result_target(press, found, method, other_capture)
+        pairs.append((press, found))
     if not pairs:
         raise CaptureError(
             f"--result {result}: holds no result of the presses of {path} (looked for {result}/PRESS/"
             f"{'|'.join(methods)})"
         )
-    return pairs, method
+    return pairs + [(press, result / press.name / method) for press in missing], method  # listed as not solved
 
 
 def _result_target(press: Path, result: Path, method: str | None, other_capture: bool) -> tuple[list[Path], str]:
@@ -377,10 +379,14 @@ def _ground_truth(folder: Path):
     return GroundTruth.load(path, shape)
 
 
-def _scored(path: Path, presses: list[Path], method: str, result: str | None) -> str:
-    """What the table scores, for its header: the result folder(s) as paths the user can open."""
-    if result:
+def _scored(path: Path, pairs: list, method: str, result: str | None) -> str:
+    """What the table scores, for its header: the result folder(s) as paths the user can open. ``pairs``: (press,
+    result folder or None) as scored."""
+    presses = [press for press, _ in pairs]
+    if result and len(pairs) == 1 and pairs[0][1] == Path(result):
         return f"{result} against {presses[0]}"
+    if result:  # a folder of presses against DIR/PRESS/<method>
+        return f"{Path(result) / '*' / method} against {path / '*'}"
     if presses == [path] or path.parent == presses[0]:  # a press, or its reconstruction folder
         return str(presses[0] / method)
     return str(path / "*" / method)

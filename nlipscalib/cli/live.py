@@ -215,9 +215,10 @@ def size_emulator_for(args, shape: tuple[int, int]) -> None:
     if args.width is None and args.height is None:
         args.width, args.height = w, h
     elif (args.width or w, args.height or h) != (w, h):
+        given = " ".join(f"--{k} {v}" for k, v in (("width", args.width), ("height", args.height)) if v is not None)
         raise ConfigError(
-            f"--width {args.width} --height {args.height}: the model {args.model} was calibrated for {w}x{h} "
-            f"images; give --width {w} --height {h}, or leave both out"
+            f"{given}: the model {args.model} was calibrated for {w}x{h} images; give --width {w} --height {h}, "
+            "or leave both out"
         )
 
 

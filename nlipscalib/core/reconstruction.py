@@ -114,7 +114,7 @@ def replace_problem(folder: str | Path) -> str | None:
     if not folder.exists() and not folder.is_symlink():
         return None
     if not folder.is_dir():
-        return f"{folder}: exists and is a file, not a reconstruction folder"
+        return f"{folder}: exists and is not a folder (a file or a broken link), not a reconstruction folder"
     entries = sorted(folder.iterdir())
     if not entries:
         return None
@@ -174,8 +174,11 @@ def reconstruction_problem(folder: str | Path, verify: bool = False) -> str | No
 
 def _verified_content(path: Path) -> str | None:
     """:func:`content_problem` of the result.npz at ``path`` (its members already checked to inflate)."""
-    with np.load(path) as npz:
-        arrays = {name: npz[name] for name in ("depth", "normals", "reconstructed")}
+    try:
+        with np.load(path) as npz:
+            arrays = {name: npz[name] for name in ("depth", "normals", "reconstructed")}
+    except (ValueError, OSError, KeyError) as exc:  # object arrays (pickled), a hand-made file
+        return f"{path}: damaged or foreign reconstruction ({exc})"
     if (
         arrays["normals"].shape != arrays["depth"].shape + (3,)
         or arrays["reconstructed"].shape != arrays["depth"].shape

@@ -91,7 +91,10 @@ def export_onnx(model, out, check=None) -> Path:
 
     def write_and_check(tmp: Path) -> None:
         tmp.write_bytes(data)
-        check(tmp)
+        try:
+            check(tmp)
+        except CaptureError as exc:  # named by the file the user asked for: the temporary is removed
+            raise CaptureError(str(exc).replace(str(tmp), str(out))) from None
 
     return write_by_name(out, write_and_check)
 

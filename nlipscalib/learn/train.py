@@ -542,9 +542,18 @@ def _resume(out: Path, progress_path: Path, cfg, data_key: str, net, opt, sched)
         if not isinstance(ck, dict):
             raise ValueError(f"a {type(ck).__name__}, not a checkpoint")
         if ck.get("key") != _config_key(cfg):
-            changed = _options_changed(ck.get("options"), cfg)
+            if "options" not in ck:  # keyed before the stopping limits were left out of the key (2026-12-04)
+                log.info("%s: made by an older version of nlipscalib; training from scratch", path)
+            else:
+                changed = _options_changed(ck["options"], cfg)
+                log.info("%s: made with other training options (%s); training from scratch", path, changed)
+            return fresh
+        if len(ck.get("history") or ()) > cfg.max_epochs:  # a shorter run asked for: resuming would train none
             log.info(
-                "%s: made with other training options%s; training from scratch", path, f" ({changed})" * bool(changed)
+                "%s: trained %d epochs, more than --epochs %d; training from scratch",
+                path,
+                len(ck["history"]),
+                cfg.max_epochs,
             )
             return fresh
         if ck.get("data_key") != data_key:

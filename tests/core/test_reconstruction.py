@@ -135,7 +135,7 @@ def test_only_an_empty_folder_or_a_reconstruction_is_replaced(tmp_path):
     (old / "result.npz").write_bytes(b"damaged")
     assert replace_problem(old) is None
     (tmp_path / "file").write_text("x")
-    assert "is a file" in replace_problem(tmp_path / "file")
+    assert "is not a folder (a file" in replace_problem(tmp_path / "file")
     (old / "sub").mkdir()
     assert "other things" in replace_problem(old)
     with pytest.raises(CaptureError, match="other things"):

@@ -423,8 +423,10 @@ def test_results_of_a_folder_of_presses_are_scored_against_their_presses(trained
     assert main(["eval", str(out)]) == 2
     err = capsys.readouterr().err
     assert "holds results" in err and f"nlips eval PRESSES --result {out}" in err
+    shutil.copytree(twin_presses / "press_b", presses / "press_b", ignore=shutil.ignore_patterns("nlips*"))
     assert main(["eval", str(presses), "--result", str(out)]) == 0
     table = capsys.readouterr().out
     assert "press_a" in table and HELD_OUT in table and "mean" in table
+    assert f"scoring {out}/*/nlipsnet against {presses}/*" in table and "not solved, skipped: press_b" in table
     assert main(["eval", str(presses), "--result", str(tmp_path)]) == 2
     assert "holds no result of the presses" in capsys.readouterr().err

@@ -299,3 +299,16 @@ def test_an_export_that_fails_its_check_is_never_published(tmp_path, trained):
         export_onnx(load_model(trained), out, check=interrupted)
     assert not out.exists() and not list(tmp_path.iterdir())
     assert export_onnx(load_model(trained), out, check=lambda path: None) == out and out.is_file()
+
+
+def test_a_failed_check_names_the_export_not_its_temporary(tmp_path, trained):
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    out = tmp_path / "net.onnx"
+
+    def differs(path):
+        raise CaptureError(f"{path}: onnxruntime differs from PyTorch by 1.000 deg (limit 0.1)")
+
+    with pytest.raises(CaptureError, match=f"^{out}: onnxruntime differs"):
+        export_onnx(load_model(trained), out, check=differs)
+    assert not out.exists()

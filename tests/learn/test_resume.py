@@ -177,6 +177,9 @@ def test_a_run_stopped_by_a_limit_continues_when_only_a_limit_changes_and_anothe
     assert "resuming after epoch 2" in caplog.text and "a model is already there" not in caplog.text
     assert len(more.history) == 4 and more.history[:2] == first.history
     caplog.clear()
+    shorter = train(data, dataclasses.replace(longer, max_epochs=3), out, val_names=["a_sphere"], progress=False)
+    assert "trained 4 epochs, more than --epochs 3; training from scratch" in caplog.text and len(shorter.history) == 3
+    caplog.clear()
     train(data, dataclasses.replace(longer, lr=1e-3), out, val_names=["a_sphere"], progress=False)
     assert "made with other training options (lr 0.002 -> 0.001); training from scratch" in caplog.text
 

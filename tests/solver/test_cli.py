@@ -68,11 +68,23 @@ def test_led_file_of_another_sensor_is_refused(presses, tmp_path, capsys, caplog
     assert f"{leds}: calibrated on another sensor than {other}" in err and "LED 1 is" in err
     assert "Traceback" not in err and not (other / "nlips").exists()
 
+    # a session captured with these calibrated LEDs records them in meta.json, not the design: accepted
+    captured = tmp_path / "captured"
+    shutil.copytree(presses["sphere"], captured)
+    meta = json.loads((captured / "meta.json").read_text())
+    meta["leds"] = [{**d, "position": [v * 1.2 for v in d["position"]]} for d in json.loads(leds.read_text())["leds"]]
+    (captured / "meta.json").write_text(json.dumps(meta))
+    good = json.loads(leds.read_text())
+    good["leds"] = meta["leds"]
+    leds_moved = tmp_path / "leds_moved.json"  # its LEDs 20 % further out than the design it records
+    leds_moved.write_text(json.dumps(good))
+    cfg = tmp_path / "solver.toml"
+    cfg.write_text("max_iters = 2\n")
+    assert main(["solve", str(captured), "--leds", str(leds_moved), "--roi", "40,30,24,24", "--config", str(cfg)]) == 0
+
     unrecorded = json.loads(leds.read_text())
     del unrecorded["sensor"]
     leds.write_text(json.dumps(unrecorded))
-    cfg = tmp_path / "solver.toml"
-    cfg.write_text("max_iters = 2\n")
     assert main(["solve", str(other), "--leds", str(leds), "--roi", "40,30,24,24", "--config", str(cfg)]) == 0
     assert "records no sensor to check against" in caplog.text
 
