@@ -155,6 +155,10 @@ class _LinesToLog(io.TextIOBase):
     def encoding(self):
         return self.real.encoding
 
+    @property
+    def errors(self):
+        return self.real.errors
+
     def __getattr__(self, name):  # buffer, errors, ...: the real stream's
         return getattr(self.real, name)
 
