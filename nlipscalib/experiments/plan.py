@@ -149,6 +149,17 @@ def solve_dict(**fields) -> dict:
     return SolveSpec(options=tuple(sorted(dict(opts).items())), **fields).to_dict()
 
 
+def _check_press(scene: dict, press: dict) -> None:
+    """ConfigError now, while planning, for a press its render would refuse after the reference was rendered
+    (a place off the dome, a depth beyond the gel): the caller names the config file."""
+    from ..sim.press import check_polar
+
+    check_polar("presses.polar_deg", press["polar_deg"])
+    thickness = scene["dome"]["thickness"]
+    if press["depth"] > thickness:
+        raise ConfigError(f"presses.depth: {press['depth']} mm exceeds the gel thickness {thickness} mm")
+
+
 def build_tasks(evaluations: list[tuple[dict, dict, dict, dict]], samples: dict | None = None) -> list[Task]:
     """Tasks for (scene, press, labels, solve) evaluations, in a fixed order.
 
@@ -172,6 +183,8 @@ def build_tasks(evaluations: list[tuple[dict, dict, dict, dict]], samples: dict 
             cid = calibration_id(scene, err)
             cals.setdefault(cid, Task(kind="calibration", id=cid, scene=scene, led_error=err))
         pid = f"{press_name(press)}-{skey}-{digest(press, 6)}"
+        if pid not in presses:
+            _check_press(scene, press)
         entry = presses.setdefault(pid, {"scene": scene, "press": press, "evaluations": []})
         entry["evaluations"].append({"labels": labels, "solve": solve})
     press_tasks = [

@@ -157,6 +157,8 @@ def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
         ("studies", 'correction = "x"\n', "interreflection: must be one of ['off', 'reference', 'dent'], got 'x'"),
         ("ablation", "counts = [1]\n", "the sensor needs 3 to 24 LEDs, got 1"),
         ("ablation", "[presses]\ndepth = [-1.0]\n", "press depth must be > 0 mm, got -1.0"),
+        ("q1", "[presses]\npolar_deg = [95.0]\n", "presses.polar_deg: must be in [0, 90) deg"),
+        ("q1", "[presses]\ndepth = [50.0]\n", "presses.depth: 50.0 mm exceeds the gel thickness"),
         ("ablation", "counts = []\n", "nothing to run"),
         ("q2", "[train]\nindenters = []\n", "50 presses need at least one indenter, got none"),
         ("q2", "[train]\ncount = -3\n", "count: must be an integer >= 0, got -3"),
