@@ -228,11 +228,11 @@ def describe_os_error(exc: OSError, overwrite_flag: bool = False, where=None) ->
 
 
 def _file_in_the_way(name, where) -> bool:
-    """Whether ``name`` is a file above the output ``where`` (``--out FILE/sub``): --overwrite would not help."""
+    """Whether ``name`` is a file at or above the output folder ``where`` (``--out FILE``, ``--out FILE/sub``): a
+    folder cannot be made there, and --overwrite would not help."""
     if name is None or where is None or not Path(name).is_file():
         return False
-    path, out = Path(name).absolute(), Path(where).absolute()
-    return out != path and out.is_relative_to(path)
+    return Path(where).absolute().is_relative_to(Path(name).absolute())
 
 
 def _fail(args, message: str) -> int:

@@ -43,6 +43,7 @@ def run(args) -> int:
         limit_presses,
         load_dataset_spec,
         run_dataset,
+        warn_unlisted,
         write_manifest,
     )
 
@@ -53,6 +54,8 @@ def run(args) -> int:
     todo = limit_presses(jobs, args.limit) if args.limit else jobs
     out = Path(args.out)
     check_existing(scene, jobs, out, args.overwrite)  # before anything is written
+    if out.is_dir():
+        warn_unlisted(jobs, out)
     try:
         write_manifest(out, spec, scene, jobs)  # only if it changes: a finished dataset on read-only media re-checks
     except OSError as exc:

@@ -82,8 +82,8 @@ def run(args) -> int:
     check_count("--workers", args.workers, minimum=1)
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)
-    baseline = check.load_baseline(Path(args.check), args.name) if args.check else None  # fail fast
     size = "custom" if args.config else args.size
+    baseline = check.load_baseline(Path(args.check), args.name, size) if args.check else None  # fail fast
     runs = []
     for name in names:
         exp = get(name)

@@ -27,7 +27,9 @@ def baseline_document(experiment: str, size: str, figures: dict[str, float]) -> 
     return {"experiment": experiment, "size": size, "figures": figures, "tolerances": tol}
 
 
-def load_baseline(path: Path, experiment: str) -> dict:
+def load_baseline(path: Path, experiment: str, size: str | None = None) -> dict:
+    """The baseline document at ``path``: ConfigError (naming it) unless it is one of ``experiment`` at ``size``
+    (a baseline of another size holds other figures: a quick run checked against a medium one passed unsaid)."""
     try:
         data = json.loads(Path(path).read_text())
     except FileNotFoundError:
@@ -38,6 +40,8 @@ def load_baseline(path: Path, experiment: str) -> dict:
         raise ConfigError(f"{path}: a baseline needs a 'figures' mapping (write one with --write-baseline)")
     if data.get("experiment") not in (None, experiment):
         raise ConfigError(f"{path}: baseline of experiment {data.get('experiment')!r}, not {experiment!r}")
+    if size is not None and data.get("size") not in (None, size):
+        raise ConfigError(f"{path}: baseline of size {data.get('size')!r}, this run is {size!r}")
     return data
 
 

@@ -472,6 +472,26 @@ def is_complete(scene: SceneConfig, job: PressJob, out: Path) -> bool:
     return is_press_folder(folder) and _recorded_hash(folder) == _expected_hash(scene, job)
 
 
+def warn_unlisted(jobs: list[PressJob], out: Path) -> list[str]:
+    """Warn about press folders in ``out`` that the spec does not name (left by an earlier, longer spec, or a
+    reference the spec no longer asks for): every later command on the folder (solve, calibrate) still takes
+    them as part of the dataset. Returns their names."""
+    from ..core.capture import is_press_folder
+
+    named = {j.name for j in jobs}
+    extra = sorted(p.name for p in out.iterdir() if p.is_dir() and p.name not in named and is_press_folder(p))
+    if extra:
+        more = f" and {len(extra) - 3} more" if len(extra) > 3 else ""
+        log.warning(
+            "%s: %s%s are not in this spec (left from an earlier one); later commands on the folder still use "
+            "them: remove them, or render into a new folder",
+            out,
+            ", ".join(extra[:3]),
+            more,
+        )
+    return extra
+
+
 def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:
     """Finished presses made from another spec, or with a damaged meta.json, are an error (or
     re-rendered with ``overwrite``)."""

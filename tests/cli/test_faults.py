@@ -206,4 +206,6 @@ def test_a_file_where_the_output_folder_needs_a_folder_is_named_as_such(tmp_path
         blocker.mkdir(parents=True, exist_ok=True)  # what making --out's parent does
     except FileExistsError as exc:
         line = describe_os_error(exc, overwrite_flag=True, where=blocker / "sub")
+        itself = describe_os_error(exc, overwrite_flag=True, where=blocker)  # --out FILE itself
     assert line == f"{blocker}: a file where a folder is needed (choose another --out, or move the file)"
+    assert itself == line

@@ -77,6 +77,16 @@ def test_check_flags_only_what_got_worse_beyond_tolerance():
     assert check.compare({"s: aae_deg": 1.0, "s: mabse": 0.01, "c: aae_deg": 2.0}, base) == []  # better is fine
 
 
+def test_a_baseline_of_another_size_is_refused(tmp_path, capsys):
+    """A quick run checked against a medium baseline passed without a word (other figures, other numbers)."""
+    import json
+
+    base = tmp_path / "base.json"
+    base.write_text(json.dumps({"experiment": "q1", "size": "medium", "figures": {}}))
+    assert main(["experiment", "q1", "--check", str(base), "--out", str(tmp_path), "--plan"]) == 2
+    assert "baseline of size 'medium', this run is 'quick'" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

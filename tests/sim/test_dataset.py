@@ -179,3 +179,19 @@ def test_a_grid_polar_angle_of_90_is_refused_when_the_spec_is_read(tmp_path):
     stuck = '[random]\ncount = 1\nindenters = [{ kind = "sphere" }]\npolar_deg = [90.0, 90.0]\n'
     with pytest.raises(ConfigError, match=r"random: polar_deg: must be in \[0, 90\) deg"):
         load_dataset_spec(_write(tmp_path, stuck))
+
+
+def test_press_folders_a_shorter_spec_no_longer_names_are_warned_about(tmp_path, caplog):
+    """A spec shortened (an indenter dropped, `reference = false`) left the old folders in place, unsaid, and
+    `nlips solve` / `calibrate` on the folder still took them as part of the dataset."""
+    from types import SimpleNamespace
+
+    from nlipscalib.sim.dataset import warn_unlisted
+
+    for name in ("press_0000", "press_0002", "reference", "notes"):
+        (tmp_path / name).mkdir()
+        if name != "notes":
+            (tmp_path / name / "meta.json").write_text("{}")
+    jobs = [SimpleNamespace(name="press_0000"), SimpleNamespace(name="press_0001")]
+    assert warn_unlisted(jobs, tmp_path) == ["press_0002", "reference"]
+    assert "press_0002, reference are not in this spec" in caplog.text
