@@ -23,6 +23,8 @@ from .errors import ConfigError
 def read_config_file(path: str | Path) -> dict:
     """Parse a .toml, .yaml or .yml file into a dict; errors name the file."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{path}: a folder, not a config file (.toml, .yaml)")
     if not path.is_file():
         raise ConfigError(f"{path}: no such config file")
     suffix = path.suffix.lower()

@@ -365,9 +365,9 @@ _WARNED_UNRECORDED: set[str] = set()
 def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> None:
     """Calibrated LEDs of another sensor are refused (the LED file records the sensor it was calibrated on).
 
-    LEDs that record no sensor (a file written before 2026-12-04, or Led values passed in) are compared
-    with the capture's own: far from them, a warning -- not an error, since a calibration may rightly
-    find a real sensor's LEDs millimetres and degrees from its design.
+    An LED file that records no sensor (written before 2026-12-04) is compared with the capture's LEDs: far
+    from them, a warning -- not an error, since a calibration may rightly find a real sensor's LEDs millimetres
+    and degrees from its design. LED values passed in (an experiment's deliberately offset LEDs) are not.
     """
     from .core.capture import META_FILE, parse_optics
     from .core.leds import led_geometry_mismatch
@@ -390,7 +390,7 @@ def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> Non
         if why:
             raise CaptureError(f"{where}: calibrated on another sensor than {folder} ({why})")
         return
-    if far and where not in _WARNED_UNRECORDED:
+    if far and settings.leds_file and where not in _WARNED_UNRECORDED:  # LED values passed in: the caller's
         _WARNED_UNRECORDED.add(where)  # once per file, not once per press of a batch
         log.warning(
             "%s: records no sensor to check against %s, and its LEDs differ from the capture's (%s): make sure "

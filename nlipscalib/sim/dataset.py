@@ -146,7 +146,11 @@ def load_dataset_spec(path: str | Path) -> tuple[DatasetSpec, SceneConfig]:
     path = Path(path)
     spec = from_mapping(DatasetSpec, _meshes_beside(read_config_file(path), path.parent), str(path))
     scene_path = path.parent / spec.scene
-    scene = load_scene(scene_path if scene_path.is_file() else spec.scene)
+    try:
+        scene = load_scene(scene_path if scene_path.is_file() else spec.scene)
+    except ConfigError as exc:  # an unknown scene name: the spec file that names it is the one to edit
+        message = str(exc)
+        raise ConfigError(message if message.startswith(str(path)) else f"{path}: {message}") from None
     sections = {k: v for k, v in (("render", spec.render), ("noise", spec.noise), ("camera", spec.camera)) if v}
     try:
         scene = scene.replace(**sections) if sections else scene

@@ -176,3 +176,12 @@ def test_led_file_with_a_word_for_leds_says_so(tmp_path):
         load_leds(path)
     assert "leds.json" in str(info.value) and "must be a list" in str(info.value)
     assert "['t']" not in str(info.value)
+
+
+def test_a_spec_naming_an_unknown_scene_or_a_folder_given_as_spec_is_named(tmp_path):
+    spec = tmp_path / "spec.toml"
+    spec.write_text('scene = "nope"\n[grid]\nindenters = [{ kind = "sphere", size = 6.0 }]\n')
+    with pytest.raises(ConfigError, match=f"^{spec}: scene 'nope': no such scene file"):
+        load_dataset_spec(spec)
+    with pytest.raises(ConfigError, match=f"^{tmp_path}: a folder, not a config file"):
+        load_dataset_spec(tmp_path)
