@@ -46,22 +46,32 @@ def _image_paths(items) -> list:
     paths = []
     for item in map(Path, items):
         if item.is_dir():
-            paths += sorted(p for p in item.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            found = sorted(p for p in item.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise CaptureError(f"{item}: no images ({', '.join(sorted(IMAGE_SUFFIXES))}) in this folder")
+            paths += found
         elif item.is_file():
             paths.append(item)
         else:
             raise CaptureError(f"{item}: no such image or folder")
-    return paths
+    # one image given twice (a folder and a file of it, the same folder twice) would count its view twice
+    return list({p.resolve(): p for p in paths}.values())
 
 
 def run(args) -> int:
     import logging
+    from pathlib import Path
 
     from ..core.atomic import write_json
     from ..device.camera_calibration import HIGH_RMS_PX, Target, calibrate_images
+    from ..errors import ConfigError
 
     log = logging.getLogger(__name__)
 
+    if Path(args.out).is_dir():
+        raise ConfigError(f"--out {args.out}: a folder; give the JSON file to write (e.g. {args.out}/camera.json)")
+    if not args.square > 0:
+        raise ConfigError(f"--square must be > 0 mm, got {args.square}")
     target = Target(_pattern(args.pattern), args.square, args.charuco, args.dictionary)
     cal = calibrate_images(_image_paths(args.images), target, args.model)
     for name, err in zip(cal.used, cal.per_view_px):

@@ -143,6 +143,17 @@ def test_cli_writes_the_camera_block(views, tmp_path, capsys):
     assert Camera.from_dict(data["camera"]).model == "fisheye" and data["reprojection_rms_px"] < 0.1
     assert main(args[:3] + ["9x6"] + args[4:]) == 2  # wrong pattern: one clear error, no traceback
     assert "found in 0 of 7 images" in capsys.readouterr().err
+    # the same folder twice counts each view once; an empty folder, a folder as --out, --square -3: one line each
+    assert main(args[:2] + [str(tmp_path)] + args[2:]) == 0
+    assert "(RMS over 6 views)" in capsys.readouterr().out
+    (tmp_path / "empty").mkdir()
+    for bad, message in (
+        ([args[0], str(tmp_path / "empty"), *args[2:]], "empty: no images (.bmp"),
+        ([*args[:-1], str(tmp_path)], "a folder; give the JSON file to write"),
+        ([*args[:5], "-3", *args[6:]], "--square must be > 0 mm, got -3.0"),
+    ):
+        assert main(bad) == 2
+        assert message in capsys.readouterr().err
 
 
 CHARUCO = Target((5, 4), 6.0, marker_mm=4.5, dictionary="DICT_4X4_50")
