@@ -135,6 +135,7 @@ def _writable_folder(option: str, given, folder: Path, probe: bool = True) -> No
     when a file stands in its way; with ``probe``, OSError naming the folder (one line from the CLI) when it
     cannot be written (read-only, permission)."""
     from ..core.atomic import check_writable
+    from ..core.capture import is_press_folder
     from ..errors import ConfigError
 
     given = Path(given or folder)
@@ -143,6 +144,9 @@ def _writable_folder(option: str, given, folder: Path, probe: bool = True) -> No
             if not part.is_dir():
                 where = "" if part == given else f"{part} "
                 raise ConfigError(f"{option} {given}: {where}is a file, not a folder")
+            if is_press_folder(part):  # its files would be mixed in among a capture's images
+                where = "" if part == given else f"{part} "
+                raise ConfigError(f"{option} {given}: {where}is a press folder; choose another {option}")
             break
     if not probe:
         return

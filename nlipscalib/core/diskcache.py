@@ -173,7 +173,15 @@ def store(path: Path, value) -> None:
     try:
         atomic.write_with(path, lambda f: pickle.dump((TAG, value), f, protocol=5))
         trim(path.parent.parent, limit_bytes())
-    except (OSError, pickle.PicklingError, TypeError, AttributeError) as exc:
+    except OSError as exc:  # a folder that cannot be written (read-only, /proc, full): every command recomputes
+        _warn_once(
+            "the disk cache in %s cannot be written (%s): sensor-level results are computed again by every "
+            "command (set %s to a writable folder, or to off)",
+            path.parent.parent,
+            exc.strerror or exc,
+            ENV_DIR,
+        )
+    except (pickle.PicklingError, TypeError, AttributeError) as exc:
         log.debug("could not write cache entry %s: %s", path, exc)
 
 

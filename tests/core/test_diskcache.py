@@ -190,3 +190,24 @@ def test_a_cache_folder_that_is_a_file_turns_the_cache_off_with_one_warning(tmp_
     assert diskcache.folder() is None and diskcache.entry("k", ("a",)) is None
     said = [r for r in caplog.records if "is a file, not a folder: the disk cache is off" in r.getMessage()]
     assert len(said) == 1 and str(tmp_path / "cache") in said[0].getMessage()
+
+
+def test_a_cache_folder_that_cannot_be_written_is_said_once(tmp_path, monkeypatch, caplog):
+    """NLIPS_CACHE_DIR=/proc/nope showed as a working, empty cache, and every command recomputed unsaid."""
+    import errno
+    import logging
+
+    from nlipscalib.core import atomic
+
+    caplog.set_level(logging.WARNING)
+    monkeypatch.setattr(diskcache, "_warned", set())
+    monkeypatch.setenv(diskcache.ENV_DIR, str(tmp_path / "cache"))
+
+    def refused(path, writer):
+        raise OSError(errno.EACCES, "Permission denied", str(path))
+
+    monkeypatch.setattr(atomic, "write_with", refused)
+    for value in (1, 2):
+        diskcache.store(diskcache.entry("k", (value,)), value)
+    said = [r for r in caplog.records if "cannot be written (Permission denied)" in r.getMessage()]
+    assert len(said) == 1 and str(tmp_path / "cache") in said[0].getMessage()

@@ -117,6 +117,7 @@ def test_bad_input_is_one_line_and_exit_2(argv, message, capsys, tmp_path):
         ("--out", "afile", "--out {}: is a file, not a folder"),
         ("--out", "afile/sub", "--out {}: {} is a file, not a folder"),
         ("--report", "afile", "--report {}: is a file, not a folder"),
+        ("--report", "apress", "--report {}: is a press folder; choose another --report"),
         ("--write-baseline", ".", "--write-baseline {}: is a folder; give a file name"),
     ],
 )
@@ -132,6 +133,8 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(
 
     monkeypatch.setattr(framework, "run_experiment", ran)
     (tmp_path / "afile").write_text("not a folder")
+    (tmp_path / "apress").mkdir()
+    (tmp_path / "apress" / "meta.json").write_text("{}")  # a capture: its images and the report would mix
     given = tmp_path / value
     argv = ["experiment", "q1", "--out", str(tmp_path / "work"), option, str(given)]
     assert main(argv) == 2
