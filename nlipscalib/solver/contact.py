@@ -281,13 +281,14 @@ def contact_box(
         c = (y0 + y1) // 2
         y0, y1 = max(c - min_size // 2, 0), min(c + min_size // 2, H)
     box = (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
-    boxed = np.zeros_like(valid)
-    boxed[y0:y1, x0:x1] = True
-    if not note and _box_fraction(boxed, valid) >= tolerances.ROI_LARGE_FRACTION:
+    # judged on the misfit itself, not on the box's margin and minimum size: at 96x72 those alone make a
+    # small dent's box cover half the gel, and the warning is about images that do not fit the model
+    spread = _box_fraction(region, valid)
+    if not note and spread >= tolerances.ROI_LARGE_FRACTION:
         note = (
-            f"--roi auto boxed {100 * _box_fraction(boxed, valid):.0f} % of the gel: the images differ from the "
-            f"undeformed model over most of it (a press that large, or LEDs / reference that do not fit this sensor: "
-            f"try nlips calibrate-leds or --reference); pass --roi X0 Y0 W H to choose the region"
+            f"--roi auto: the images differ from the undeformed model over {100 * spread:.0f} % of the gel "
+            f"(a press that large, or LEDs / reference that do not fit this sensor: try nlips calibrate-leds or "
+            f"--reference); pass --roi X0 Y0 W H to choose the region"
         )
     return box, note
 
