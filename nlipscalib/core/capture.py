@@ -32,6 +32,7 @@ from .camera import Camera
 from .formatfile import read_arrays, read_format_json
 from .imageio import read_png16, save_npz, write_png16
 from .leds import Led
+from .surface_checks import surface_problem
 
 FORMAT_NAME = "nlipscalib.press"
 FORMAT_VERSION = 1
@@ -261,7 +262,7 @@ def read_optics(folder: str | Path) -> CaptureOptics:
     folder = Path(folder)
     meta = read_meta(folder)
     camera, leds, _ = parse_optics(meta, folder / META_FILE)
-    reference = Reference.load(_existing(folder, meta["reference"]), camera.shape) if meta.get("reference") else None
+    reference = _reference(folder, meta, camera, leds)
     return CaptureOptics(folder=folder, camera=camera, leds=tuple(leds), reference=reference)
 
 
@@ -284,11 +285,13 @@ def load_press(folder: str | Path, led_subset=None) -> Press:
         raise CaptureError(f"{folder / META_FILE}: {len(leds)} LEDs but {len(names)} LED images listed")
     keep = range(len(leds)) if led_subset is None else _check_subset(led_subset, len(leds), folder)
     led_images = np.stack(_in_threads([(_load_image, folder, names[i], camera) for i in keep]))
-    reference = ground_truth = None
-    if meta.get("reference"):
-        reference = Reference.load(_existing(folder, meta["reference"]), camera.shape)
+    reference = _reference(folder, meta, camera, leds)
+    ground_truth = None
     if meta.get("ground_truth"):
-        ground_truth = GroundTruth.load(_existing(folder, meta["ground_truth"]), camera.shape)
+        path = _existing(folder, meta["ground_truth"])
+        ground_truth = GroundTruth.load(path, camera.shape)
+        gt = ground_truth
+        _check_surface(path, surface_problem(gt.depth, gt.normals, gt.valid.astype(bool), camera, leds))
     return Press(
         folder=folder,
         camera=camera,
@@ -301,6 +304,21 @@ def load_press(folder: str | Path, led_subset=None) -> Press:
         reference=reference,
         ground_truth=ground_truth,
     )
+
+
+def _reference(folder: Path, meta: dict, camera: Camera, leds) -> Reference | None:
+    """The capture's reference.npz, checked against the format's promise; None when it has none."""
+    if not meta.get("reference"):
+        return None
+    path = _existing(folder, meta["reference"])
+    ref = Reference.load(path, camera.shape)
+    _check_surface(path, surface_problem(ref.depth, ref.normals, np.isfinite(ref.depth), camera, leds))
+    return ref
+
+
+def _check_surface(path: Path, problem: str | None) -> None:
+    if problem:
+        raise CaptureError(f"{path}: {problem}")
 
 
 def read_meta(folder: str | Path) -> dict:
@@ -319,7 +337,21 @@ def read_meta(folder: str | Path) -> dict:
         missing_hint=f"{folder} is not a complete press folder",
     )
     _check_file_names(meta, path)
+    _check_units(meta, path)
     return meta
+
+
+def _check_units(meta: dict, path: Path) -> None:
+    """CaptureError when meta.json declares units or a frame other than the format's (millimetres, the camera
+    frame): its numbers would be read as such and solve to a wrong result without a word. Both keys are optional."""
+    units = meta.get("units", "mm")
+    if units != "mm":
+        raise CaptureError(f"{path}: 'units' is {units!r}; captures are in millimetres ('mm'): convert the file")
+    frame = meta.get("frame", "camera")
+    if not (isinstance(frame, str) and frame.startswith("camera")):
+        raise CaptureError(
+            f"{path}: 'frame' is {frame!r}; captures are in the camera frame ('camera', docs/conventions.md)"
+        )
 
 
 def _check_file_names(meta: dict, path: Path) -> None:

@@ -26,6 +26,7 @@ from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
 from .formatfile import read_arrays, read_format_json
 from .imageio import save_npz
+from .tolerances import UNIT_NORMAL_TOL
 
 FORMAT_NAME = "nlipscalib.reconstruction"
 FORMAT_VERSION = 1
@@ -271,10 +272,6 @@ def content_problem(arrays: dict) -> str | None:
     if bad:
         return f"array 'normals' is not a finite unit vector on {bad} of its {n} reconstructed pixels"
     return None
-
-
-UNIT_NORMAL_TOL = 1e-3
-"""A stored normal's length may differ from 1 by this much (float32 storage rounds at ~1e-7)."""
 
 
 def _read_report(path: Path) -> dict:

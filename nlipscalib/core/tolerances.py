@@ -63,3 +63,8 @@ FRAME_MISMATCH_FRACTION = 0.04
 fraction of the reference's brightness differs almost everywhere (twin frames of presses: 0.009-0.011, 8-bit
 ones too; 5 % brighter: 0.052; red and blue swapped: 0.28; a dark frame: 1.0), so its changed pixels cannot be
 told apart and the result is warned about."""
+UNIT_NORMAL_TOL = 1e-3
+"""A stored normal's length may differ from 1 by this much (float32 storage rounds at ~1e-7)."""
+SURFACE_SCALE_RATIO = 20.0
+"""A capture's undeformed surface (reference.npz) and ground truth lie, in median, within this factor of its LEDs'
+median distance from the camera (the shipped sensors: 1.3-2.4 times; depth written in metres: 1/1000)."""

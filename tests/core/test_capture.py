@@ -249,3 +249,47 @@ def test_a_file_or_a_press_without_meta_json_is_called_what_it_is(tmp_path):
     assert "holds press images but no meta.json" in str(no_presses_error(folder))
     (tmp_path / "empty").mkdir()
     assert str(no_presses_error(tmp_path / "empty")).endswith("empty: no press folders found")
+
+
+def _edit_surface(folder, name, change):
+    with np.load(folder / name) as d:
+        arrays = {k: d[k].copy() for k in d.files}
+    change(arrays)
+    np.savez(folder / name, **arrays)
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (lambda m: m.update(units="m"), "meta.json: 'units' is 'm'; captures are in millimetres"),
+        (lambda m: m.update(frame="dome"), "meta.json: 'frame' is 'dome'; captures are in the camera frame"),
+    ],
+)
+def test_units_or_frame_other_than_the_formats_are_refused(tmp_path, change, message):
+    """The audit's press with `units: "m"` loaded, and solved to a wrong result without a word."""
+    from nlipscalib.core.capture import read_optics
+
+    folder = _press(tmp_path / "p")
+    _edit_meta(folder, change)
+    for reader in (load_press, read_optics):
+        with pytest.raises(CaptureError, match=message):
+            reader(folder)
+
+
+@pytest.mark.parametrize(
+    "name,change,message",
+    [
+        ("reference.npz", lambda a: a.update(normals=-a["normals"]), "'normals' points away from the camera on 100 %"),
+        ("reference.npz", lambda a: a.update(normals=2 * a["normals"]), "'normals' is not a unit vector on 192 of"),
+        ("reference.npz", lambda a: a.update(depth=a["depth"] / 1000), "'depth' puts the gel 0.0.* mm from the camera"),
+        ("gt.npz", lambda a: a.update(normals=-a["normals"]), "'normals' points away from the camera"),
+        ("gt.npz", lambda a: a.update(depth=a["depth"] * 1000), "'depth' puts the gel 1.*e\\+04 mm from the camera"),
+    ],
+)
+def test_surfaces_that_break_the_formats_promise_are_named(tmp_path, name, change, message):
+    """Depth in metres, flipped or unnormalised normals had the right shapes and loaded: a solve of such a press
+    gave 2.68 deg / 9.9 mm instead of 0.40 deg / 0.026 mm, and said nothing."""
+    folder = _press(tmp_path / "p")
+    _edit_surface(folder, name, change)
+    with pytest.raises(CaptureError, match=f"{name}: array {message}"):
+        load_press(folder)
