@@ -87,8 +87,15 @@ def register(subparsers) -> None:
         help="LED drive of the tri-colour frame, 1-255 (default 255; --emulate: the drive giving the scene's "
         "tri-colour exposure, nlipstac 99)",
     )
-    ses.add_argument("--movement-threshold", type=float, default=0.02, help="pixel change counted as movement")
-    ses.add_argument("--max-retakes", type=int, default=3, help="retakes of a moving press before giving up")
+    ses.add_argument(
+        "--movement-threshold",
+        type=float,
+        default=0.02,
+        help="pixel change counted as movement, a fraction of full scale in (0, 1) (default 0.02)",
+    )
+    ses.add_argument(
+        "--max-retakes", type=int, default=3, help="retakes of a moving press before giving up (default 3)"
+    )
     ses.add_argument("--yes", action="store_true", help="do not wait for Enter at the prompts (scripts)")
     p.set_defaults(func=run)
 
