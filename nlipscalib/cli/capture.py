@@ -18,6 +18,7 @@ camera), with ``--camera`` only the board (recorded frames, the host driver exer
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import sys
 import time
@@ -311,6 +312,7 @@ def _run_device(args):
             leds=leds,
             response=response,
             reference=reference_surface(design, camera),
+            design=dataclasses.asdict(design),
             provenance={
                 "device": {"port": args.port, "firmware": str(controller.firmware), "camera": str(camera_spec)},
                 "camera_refused": list(source.refused),

@@ -197,6 +197,7 @@ def write_press(
     reference: Reference | None = None,
     ground_truth: GroundTruth | None = None,
     overwrite: bool = False,
+    design: dict | None = None,
 ) -> Path:
     """Write a press folder atomically and return its path.
 
@@ -206,6 +207,8 @@ def write_press(
     camera, leds, response : the capture's optics and sensor response
     dark : (H, W, 3) uint16 ; led_images : (L, H, W, 3) uint16 ; tricolor : (H, W, 3) uint16
     provenance : extra JSON-able metadata (source, scene, indenter, press, seed ...)
+    design : the sensor design (``dome``, ``camera``, ``leds`` as in a scene file) that ``reference`` was computed
+        from, written as meta.json's ``design``: the solver models the dome beyond the view from it
     """
     leds = tuple(leds)
     shape = camera.shape
@@ -233,6 +236,8 @@ def write_press(
         "ground_truth": GT_FILE if ground_truth is not None else None,
         "provenance": provenance or {},
     }
+    if design is not None:
+        meta["design"] = design
     with atomic_dir(folder, overwrite=overwrite) as tmp:
         jobs = [(write_png16, tmp / "dark.png", dark), (write_png16, tmp / "tricolor.png", tricolor)]
         jobs += [(write_png16, tmp / led_image_name(i), img) for i, img in enumerate(led_images)]

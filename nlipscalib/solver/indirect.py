@@ -112,7 +112,8 @@ def checked_reflectance(reflectance) -> np.ndarray:
 def design_of(press: Press) -> tuple[DomeConfig, np.ndarray] | None:
     """The sensor design's dome and camera position recorded in a capture's meta, or None.
 
-    Looks at ``meta["design"]`` (captures from a design) and ``meta["provenance"]["scene"]`` (twin).
+    Looks at ``meta["design"]`` (device captures: ``nlips capture --port``) and ``meta["provenance"]["scene"]``
+    (twin, emulated sensor).
     """
     for source in (press.meta.get("design"), (press.meta.get("provenance") or {}).get("scene")):
         if isinstance(source, dict) and isinstance(source.get("dome"), dict):

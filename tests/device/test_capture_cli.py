@@ -57,6 +57,11 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
     # frames 15..29 in capture order: tri-colour, dark, LED 1..12, check
     assert p.tricolor[0, 0, 0] == 100 << 8 and p.dark[0, 0, 0] == 101 << 8 and p.led_images[11, 0, 0, 0] == 113 << 8
     assert board.latched.sum() == 0
+    # the design travels with the press: the interreflection term models the dome beyond the view from it
+    from nlipscalib.solver.indirect import design_of
+
+    dome, camera_position = design_of(p)
+    assert dome.radius == 15.0 and camera_position.tolist() == [0.0, 0.0, -3.0]
 
 
 @pytest.mark.parametrize(
