@@ -119,14 +119,26 @@ def release_all() -> None:
 
 
 def pid_alive(pid: int) -> bool:
-    """Whether a process with this id runs on this machine."""
+    """Whether a process with this id runs on this machine (a zombie -- exited, not yet reaped -- does not)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:  # exists, owned by another user
-        return True
-    return True
+        return not _zombie(pid)
+    return not _zombie(pid)
+
+
+def _zombie(pid: int) -> bool:
+    """True when Linux reports the process as exited but not yet reaped (state Z or X in /proc/PID/stat).
+
+    Why: a worker killed with SIGKILL stays a zombie until its parent or init reaps it, which some containers'
+    init does late; ``kill(pid, 0)`` succeeds on it, and its claims looked held by a live process."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:  # no procfs (macOS, Windows) or gone meanwhile: kill() had the last word
+        return False
+    return stat[stat.rfind(")") + 2 :][:1] in ("Z", "X")  # the name in parentheses may hold spaces
 
 
 # ---------------------------------------------------------------------- internals

@@ -227,8 +227,16 @@ def usage(root: Path | None = None) -> tuple[int, int]:
     root = folder() if root is None else root
     if root is None or not root.is_dir():
         return 0, 0
-    sizes = [p.stat().st_size for p in root.glob(f"*/*{SUFFIX}")]
+    sizes = [size for p in root.glob(f"*/*{SUFFIX}") if (size := _size(p)) is not None]
     return len(sizes), sum(sizes)
+
+
+def _size(path: Path) -> int | None:
+    """Bytes of an entry, or None when another process removed it since it was listed."""
+    try:
+        return path.stat().st_size
+    except FileNotFoundError:
+        return None
 
 
 def _source_salt() -> str:

@@ -73,6 +73,25 @@ def test_killed_owner_is_taken_over(tmp_path):
         assert holder(target).pid == os.getpid()
 
 
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="zombies are told from /proc")
+def test_a_killed_owner_not_yet_reaped_is_taken_over(tmp_path):
+    """Right after ``kill -9`` a worker stays a zombie until reaped (late on some containers' init), and its
+    claims looked held: a re-run skipped its presses as "being solved by another process"."""
+    import signal
+
+    target = tmp_path / "item"
+    owner = _hold(target, 60.0)
+    assert owner.stdout.readline().strip() == "held"
+    os.kill(owner.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 30
+    while "Z" not in Path(f"/proc/{owner.pid}/stat").read_text().rsplit(")", 1)[1][:3]:  # not reaped: no wait()
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    with claim(target) as mine:
+        assert mine
+    owner.wait(30)
+
+
 def test_claim_without_heartbeat_is_stale(tmp_path):
     """A claim from another machine (pid not checkable) whose heartbeat stopped is taken over."""
     target = tmp_path / "item"

@@ -211,3 +211,16 @@ def test_a_cache_folder_that_cannot_be_written_is_said_once(tmp_path, monkeypatc
         diskcache.store(diskcache.entry("k", (value,)), value)
     said = [r for r in caplog.records if "cannot be written (Permission denied)" in r.getMessage()]
     assert len(said) == 1 and str(tmp_path / "cache") in said[0].getMessage()
+
+
+def test_usage_skips_an_entry_removed_while_it_is_counted(cache_dir, monkeypatch):
+    """`nlips cache` next to a `--clear` or the size bound of another process: an entry listed, then removed,
+    was a FileNotFoundError traceback."""
+    from pathlib import Path
+
+    path = diskcache.entry("shading", ("camera", np.ones(3)))
+    diskcache.store(path, {"a": np.arange(5.0)})
+    gone = path.with_name("removed-meanwhile" + diskcache.SUFFIX)
+    listed = Path.glob
+    monkeypatch.setattr(Path, "glob", lambda self, pattern: [*listed(self, pattern), gone])
+    assert diskcache.usage(cache_dir) == (1, path.stat().st_size)
