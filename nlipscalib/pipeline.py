@@ -12,8 +12,8 @@ The one place that turns press folders into reconstruction folders (PRESS/nlips/
 - **Damaged results** (truncated result.npz, an array failing its checksum, broken report.json) are
   re-computed with a warning.
 - **Concurrency.** Work on PRESS/nlips is claimed (:func:`nlipscalib.core.claims.claim`): a press that
-  another live process is solving is skipped, and interrupted writes (``.tmp-nlips-*``) are removed
-  only by the claim's holder, i.e. when no live process can own them.
+  another live process is solving is left to it and waited for at the end, and interrupted writes
+  (``.tmp-nlips-*``) are removed only by the claim's holder, i.e. when no live process can own them.
 - **Parallel.** ``workers > 1`` solves presses in separate processes (the solver runs single-threaded
   BLAS, so one process per core is the efficient split). Ctrl-C stops the batch in the parent: queued
   presses are not started, running ones finish; a SIGTERM'd worker removes its claim and temporary first.
@@ -46,6 +46,8 @@ from .errors import CaptureError, ConfigError, NlipsError
 log = logging.getLogger(__name__)
 
 SOLVED, SKIPPED, FAILED = "solved", "skipped", "failed"
+BUSY = "busy"
+"""Internal status: another live process holds the press's claim (left to it, then waited for)."""
 """Statuses of one press (a failure reads "failed: reason")."""
 CLAIM_STALE_S = 60.0
 """A claim on PRESS/nlips without heartbeat for this long is taken over (its owner died)."""
@@ -182,8 +184,9 @@ def solve_folder(
 
     Returns
     -------
-    (reconstruction, status) : the result (solved now or reused; None when another process is solving
-        this press right now) and "solved" or "skipped".
+    (reconstruction, status) : the result (solved now or reused) and "solved" or "skipped". When another
+        process is solving the press, this waits for it: its result is reused when made with these
+        settings, else the press is solved here.
 
     Raises
     ------
@@ -200,6 +203,7 @@ def solve_folder(
         progress=progress,
         figures=figures,
         announce_reuse=announce_reuse,
+        wait=True,
     )
 
 
@@ -235,16 +239,17 @@ def solve_presses(
     progress : progress bars (shown only on a terminal)
     figures : True/"maps" (cheap PNG maps), "full" (plus a matplotlib summary), False/"none"
     solver_keywords : further keyword arguments of solver.solve_press (recorded and hashed too)
-    wait : a press another live process is solving is waited for (then its result is reused when it
-        was made with these settings, else the press is solved here) instead of skipped: for a caller
-        that needs every result, such as ``nlips calibrate``
+    wait : a press another live process is solving is waited for at once (then its result is reused when it
+        was made with these settings, else the press is solved here); without it such presses are left to
+        that process first and waited for once this run's other presses are done (two runs on one folder
+        share the work, and each ends with a result of its own settings for every press)
 
     Returns
     -------
     dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``. "skipped":
-    an identical result exists, or (without ``wait``) another live process is solving the press right
-    now. Failures of one press (bad capture, bad LED file) do not stop the others; a file-system error
-    (disk full, read-only) stops the batch (OSError naming the path). A result is reused only when its
+    an identical result exists (made earlier, or by another process that held the press). Failures of one
+    press (bad capture, bad LED file) do not stop the others; a file-system error (disk full, read-only) stops
+    the batch (OSError naming the path). A result is reused only when its
     arrays pass their checksums, so damage inside result.npz is re-computed too.
     """
     from .report import figure_level
@@ -263,6 +268,10 @@ def solve_presses(
         statuses = _solve_serially(folders, names, settings, overwrite, progress, figures, wait)
     else:
         statuses = _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures, wait)
+    busy = [f for f in folders if statuses[f] == BUSY]  # another run's: left to it, now waited for
+    if busy:
+        log.info("%d presses were being solved by another process; waiting for them", len(busy))
+        statuses |= _solve_serially(busy, names, settings, overwrite, False, figures, wait=True)
     return {names[f]: statuses[f] for f in folders}
 
 
@@ -304,8 +313,8 @@ def solve_one(
                         return reused
                 return _solve_and_save(folder, out, settings, provenance, progress, figures), SOLVED
         if not wait:
-            log.info("%s: being solved by another process, skipped", folder)
-            return None, SKIPPED
+            log.info("%s: being solved by another process; left to it for now", folder)
+            return None, BUSY
         _wait_for_release(folder, out)  # then claimed here: its result reused when made with these settings
 
 

@@ -102,14 +102,46 @@ def test_interrupted_writes_are_cleaned_but_not_live_ones(press):
     assert not killed.exists() and (press / "nlips" / "result.npz").is_file()
 
 
-def test_a_press_claimed_by_a_live_process_is_skipped(press):
+def _held_by_another_process(target, seconds: float, publish=None):
+    """A thread standing for another process (a claim is per process and not re-entrant): it claims
+    ``target``, holds it ``seconds``, moves ``publish`` (a finished result) to ``target`` if given, releases."""
+    import threading
+    import time
+
     from nlipscalib.core.claims import claim
 
-    with claim(press / "nlips") as mine:  # another worker holds it (a claim is not re-entrant)
-        assert mine
-        assert solve_folder(press, options=FAST, figures=False) == (None, "skipped")
-    assert not (press / "nlips").exists()
-    assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
+    holding = threading.Event()
+
+    def other_process():
+        with claim(target):
+            holding.set()
+            time.sleep(seconds)
+            if publish is not None:
+                publish.rename(target)
+
+    thread = threading.Thread(target=other_process)
+    thread.start()
+    holding.wait()
+    return thread
+
+
+def test_a_press_another_process_holds_is_left_to_it_then_waited_for(press_set, tmp_path, caplog):
+    """Two `nlips solve` runs with other settings on one folder: a press the other run held was "skipped"
+    with exit 0, and this run's result never existed for it (audit). Now such a press is left to the other
+    run while this one solves the rest, then waited for and solved with this run's settings."""
+    root = tmp_path / "presses"
+    shutil.copytree(press_set / "a_sphere", root / "a")
+    shutil.copytree(press_set / "b_cube", root / "b")
+    caplog.set_level(logging.INFO)
+    thread = _held_by_another_process(root / "a" / "nlips", 1.0)  # it fails, or holds other settings' result
+    statuses = solve_presses([root / "a", root / "b"], options=FAST, progress=False, figures=False)
+    assert statuses == {"a": "solved", "b": "solved"}
+    assert "left to it for now" in caplog.text and "waiting for them" in caplog.text
+    assert load_reconstruction(root / "a" / "nlips").reconstructed.any()
+    thread.join()
+    thread = _held_by_another_process(root / "a" / "nlips", 0.5)
+    assert solve_folder(root / "a", options=FAST, figures=False)[1] == "skipped"  # waited, then reused
+    thread.join()
 
 
 def test_figures_off_maps_and_full(press):
@@ -294,34 +326,17 @@ def test_a_result_damaged_inside_or_with_a_strange_record_is_re_solved(press, ca
     assert read_report(press / "nlips")["provenance"]["key"] == record["provenance"]["key"]
 
 
-def test_wait_reuses_what_another_process_was_solving(press, tmp_path, caplog):
-    """`nlips calibrate` needs every result: with wait=True a press another process is solving is waited
-    for, then its result reused (made with the same settings) instead of being skipped unsolved."""
-    import threading
-    import time
-
-    from nlipscalib.core.claims import claim
-
+@pytest.mark.parametrize("wait", [True, False])
+def test_wait_reuses_what_another_process_was_solving(press, tmp_path, caplog, wait):
+    """`nlips calibrate` needs every result: a press another process is solving is waited for (at once with
+    wait=True, after the other presses without), then its result reused when made with the same settings."""
     solve_folder(press, options=FAST, figures=False)
     finished = tmp_path / "finished"
     (press / "nlips").rename(finished)
-    holding, done = threading.Event(), threading.Event()
-
-    def other_process():
-        with claim(press / "nlips"):  # a claim is per process and not re-entrant: this thread stands for one
-            holding.set()
-            time.sleep(1.0)
-            finished.rename(press / "nlips")  # it publishes its result, then releases the claim
-        done.set()
-
-    thread = threading.Thread(target=other_process)
-    thread.start()
-    holding.wait()
-    assert solve_presses([press], options=FAST, progress=False, figures=False) == {"press": "skipped"}
-    assert not (press / "nlips").exists()  # skipped without a result: what calibrate could not use
+    thread = _held_by_another_process(press / "nlips", 1.0, publish=finished)
     caplog.set_level(logging.INFO)
-    assert solve_presses([press], options=FAST, progress=False, figures=False, wait=True) == {"press": "skipped"}
-    assert done.is_set() and "waiting for it" in caplog.text and "identical result exists" in caplog.text
+    assert solve_presses([press], options=FAST, progress=False, figures=False, wait=wait) == {"press": "skipped"}
+    assert "waiting for" in caplog.text and "identical result exists" in caplog.text
     load_reconstruction(press / "nlips")
     thread.join()
 

@@ -93,7 +93,7 @@ def _solve(press, figures: bool):
 
     # the presses were solved (or found solved, and said so) just before: loading them is not news
     result, _ = solve_folder(press.folder, roi="auto", progress=True, figures=figures, announce_reuse=False)
-    return result  # None when another process is solving this press right now
+    return result
 
 
 def _scores(press, result) -> dict:

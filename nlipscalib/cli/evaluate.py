@@ -342,10 +342,10 @@ def _recompute(folder: Path, out: Path, settings):
     from ..pipeline import solve_one
 
     try:
-        result, _ = solve_one(folder, settings, out=out, progress=True)
+        result, _ = solve_one(folder, settings, out=out, progress=True, wait=True)
     except NlipsError as exc:
         return f"damaged, and re-solving failed: {exc}"
-    return result if result is not None else f"{out}: damaged; being re-solved by another process"
+    return result
 
 
 def _scores(folder: Path, rec) -> dict:

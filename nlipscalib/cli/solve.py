@@ -132,7 +132,15 @@ def run(args) -> int:
     progress = not args.no_progress
     if len(presses) == 1:  # one press: its errors are the command's (one line, exit 2)
         settings = make_settings(**given)
-        solve_one(presses[0], settings, out=args.out, overwrite=args.overwrite, progress=progress, figures=args.figures)
+        solve_one(
+            presses[0],
+            settings,
+            out=args.out,
+            overwrite=args.overwrite,
+            progress=progress,
+            figures=args.figures,
+            wait=True,  # the result asked for: another run's is waited for, and reused only when made alike
+        )
         return 0
     statuses = solve_presses(
         presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
@@ -171,7 +179,7 @@ def _summary(statuses: dict[str, str]) -> int:
     failed = {name: s for name, s in statuses.items() if s.startswith("failed")}
     solved = sum(s == "solved" for s in statuses.values())
     skipped = len(statuses) - solved - len(failed)
-    print(f"{solved} solved, {skipped} skipped (identical result or busy), {len(failed)} failed")
+    print(f"{solved} solved, {skipped} skipped (identical result), {len(failed)} failed")
     for name, status in failed.items():
         print(f"  {name}: {status}")
     return 1 if failed else 0

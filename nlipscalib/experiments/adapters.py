@@ -183,8 +183,6 @@ def solve(
             "interreflection": "off" if interreflection == "off" else "on",
         },
     )
-    if result is None:  # another process holds this very solve (two sweeps sharing a folder)
-        raise CaptureError(f"{out}: being solved by another process")
     return load_reconstruction(out, press.camera.shape)
 
 
