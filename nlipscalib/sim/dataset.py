@@ -251,7 +251,7 @@ def run_dataset(
             _rounds(todo, lambda job: _render_job(scene, job, out, overwrite, stale_s), result, bar)
         else:
             with ProcessPoolExecutor(
-                workers, mp_context=get_context("spawn"), initializer=configure_worker, initargs=worker_logging()
+                workers, mp_context=get_context("spawn"), initializer=_worker_init, initargs=worker_logging()
             ) as pool:
                 submit = lambda job: pool.submit(_render_job, scene, job, out, overwrite, stale_s)  # noqa: E731
                 try:
@@ -331,6 +331,25 @@ def _random_presses(spec: RandomSpec, seed: int) -> list[PressConfig]:
         )
         for _ in range(spec.count)
     ]
+
+
+def _worker_init(log_level: int, log_file: str | None = None) -> None:
+    """A render process: logs like the parent; on SIGTERM (sent by a terminated ``nlips dataset``, or to the whole
+    process group) releases its claim and removes its half-written press folder, then exits, as the parent
+    does. The handler runs when the current native call (a Mitsuba render) returns; ended with ``os._exit``, as
+    an exception raised there could land inside the library."""
+    import signal
+
+    configure_worker(log_level, log_file)
+    signal.signal(signal.SIGTERM, _worker_terminated)
+
+
+def _worker_terminated(signum, frame) -> None:
+    from ..core import atomic, claims
+
+    claims.release_all()
+    atomic.remove_in_progress()
+    os._exit(128 + signum)
 
 
 def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) -> None:
