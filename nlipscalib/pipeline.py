@@ -526,15 +526,21 @@ def _clean_interrupted(out: Path) -> None:
     """Remove interrupted writes of ``out`` beside it. Call only while holding its claim.
 
     Owner-tagged temporary folders (``.tmp-nlips~host~pid~*``) go when their owner is gone
-    (core.atomic.clean_interrupted); untagged ones of older versions (``.tmp-nlips-*``) go too: holding
-    the claim means no live process of this pipeline is writing ``out``.
+    (core.atomic.clean_interrupted); untagged ones of older versions (``.tmp-nlips-XXXXXXXX``, ``.tmp-nlips-old``)
+    go too: holding the claim means no live process of this pipeline is writing ``out``. Only ``out``'s own:
+    ``.tmp-res-2~host~pid~*`` is the live temporary of another output (``--out res-2``), which the claim on
+    ``res`` does not cover (a glob ``.tmp-res-*`` removed it under a running solve).
     """
+    import glob
+    import re
     import shutil
 
     from .core.atomic import clean_interrupted
 
     gone = clean_interrupted(out.parent, item=out.name)
-    legacy = list(out.parent.glob(f"{TMP_PREFIX}{out.name}-*"))
+    # tempfile.mkdtemp's suffix, or "old": another item's legacy name has a second "-", a tagged one a "~"
+    untagged = re.compile(re.escape(f"{TMP_PREFIX}{out.name}-") + r"[a-z0-9_]+")
+    legacy = [p for p in out.parent.glob(glob.escape(f"{TMP_PREFIX}{out.name}-") + "*") if untagged.fullmatch(p.name)]
     for tmp in legacy:
         shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
     for tmp in gone + legacy:

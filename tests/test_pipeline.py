@@ -438,3 +438,19 @@ def test_empty_out_folder_and_damaged_result_are_written(press, tmp_path):
     (empty / "result.npz").write_bytes(b"damaged")
     assert solve_folder(press, options=FAST, figures=False, out=empty)[1] == "solved"
     assert load_reconstruction(empty).reconstructed.any()
+
+
+def test_cleaning_an_output_leaves_the_live_temporary_of_an_output_named_like_it(tmp_path):
+    """`--out res` removed `.tmp-res-2~host~pid~*`, the live temporary folder of a solve writing `--out res-2`
+    (a glob `.tmp-res-*` meant for untagged leftovers of older versions); that solve then published a result
+    without result.npz. Only `res`'s own untagged leftovers go."""
+    from nlipscalib import pipeline
+    from nlipscalib.core.atomic import tmp_prefix
+
+    sibling = tmp_path / (tmp_prefix("res-2") + "0s9ec5e9")  # this (live) process writes res-2
+    sibling_legacy = tmp_path / ".tmp-res-2-k2j3x9ab"  # an older version's leftover of res-2: not res's to remove
+    legacy = tmp_path / ".tmp-res-k2j3x9ab"  # an older version's leftover of res
+    for tmp in (sibling, sibling_legacy, legacy):
+        tmp.mkdir()
+    pipeline._clean_interrupted(tmp_path / "res")
+    assert sibling.is_dir() and sibling_legacy.is_dir() and not legacy.exists()

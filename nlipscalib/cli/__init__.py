@@ -158,7 +158,8 @@ def _note_interrupts():
 
 
 def _terminate_cleanly(command: str):
-    """On SIGTERM (a scheduler's time limit, `kill`) release claims and temporaries, then exit 143.
+    """On SIGTERM (a scheduler's time limit, `kill`) stop the worker processes, release claims and
+    temporaries, then exit 143.
 
     Done in the handler and ended with os._exit rather than by raising: an exception raised at an
     arbitrary point can land inside a native library (Mitsuba, drjit) and abort the process.
@@ -171,6 +172,7 @@ def _terminate_cleanly(command: str):
     from ..core import atomic, claims
 
     def handler(signum, frame):
+        _stop_workers()
         claims.release_all()
         atomic.remove_in_progress()
         _release_multiprocessing_resources()
@@ -182,6 +184,43 @@ def _terminate_cleanly(command: str):
     if threading.current_thread() is not threading.main_thread():
         return None
     return signal.signal(signal.SIGTERM, handler)
+
+
+WORKER_GRACE_S = 5.0
+"""Seconds a terminated command gives its worker processes to release their claims and exit before killing them."""
+
+
+def _stop_workers() -> None:
+    """End the command's worker processes (``--workers N`` pools of solve, calibrate, dataset; experiment tasks).
+
+    A plain ``kill PID`` signals this process alone (a scheduler or ``timeout`` signals the whole group): its
+    workers, reparented to init, went on publishing results after the "terminated" line and then waited forever
+    for tasks. Each gets SIGTERM (its handler releases its claims and temporaries and exits), and SIGKILL if it
+    has not ended within :data:`WORKER_GRACE_S` (a long native call, e.g. one Mitsuba render; what it leaves, a
+    dead process's claim and temporary, the next run takes over and removes).
+    """
+    import contextlib
+    import time
+
+    mp = sys.modules.get("multiprocessing")
+    if mp is None:  # no worker was ever started
+        return
+    try:
+        workers = mp.active_children()
+    except Exception:  # best effort on the way out
+        return
+    for worker in workers:
+        with contextlib.suppress(Exception):
+            worker.terminate()
+    deadline = time.monotonic() + WORKER_GRACE_S
+    for worker in workers:
+        with contextlib.suppress(Exception):
+            worker.join(max(0.0, deadline - time.monotonic()))
+    for worker in workers:
+        with contextlib.suppress(Exception):
+            if worker.is_alive():
+                worker.kill()
+                worker.join(1.0)
 
 
 def _release_multiprocessing_resources() -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import sys
 
@@ -64,6 +65,9 @@ def run(args) -> int:
         log.warning("%s: could not write dataset.json (%s); the presses are complete", out, exc.strerror)
     progress = not args.no_progress
     result = run_dataset(scene, todo, out, workers=args.workers, progress=progress, overwrite=args.overwrite)
+    if not result["failed"]:  # a run of another spec, refused meanwhile, may have written its own
+        with contextlib.suppress(OSError):
+            write_manifest(out, spec, scene, jobs)
     print(
         f"{out}: {len(result['rendered'])} rendered, {len(result['skipped'])} already there, "
         f"{len(result['failed'])} failed"

@@ -213,10 +213,20 @@ def run(args) -> int:
     if not args.overwrite and _up_to_date(out, scene, press, args.seed):
         print(f"{out}: already rendered from this scene and press, nothing to do")
         return 0
-    check_writable(out.parent, longest_name=len(out.name))  # before the render, not after it
+    try:
+        check_writable(out.parent, longest_name=len(out.name))  # before the render, not after it
+    except OSError as exc:  # named by the folder asked for, not by the probe's name (romnt/xxxxxxx)
+        raise type(exc)(exc.errno, exc.strerror or str(exc), str(out)) from None
     what = "undeformed dome" if press is None else "press"
-    with working(f"rendering {what} ({scene.camera.width}x{scene.camera.height}, spp {scene.render.spp})"):
-        path = render_press(scene, press, out, seed=args.seed, overwrite=args.overwrite)
+    try:
+        with working(f"rendering {what} ({scene.camera.width}x{scene.camera.height}, spp {scene.render.spp})"):
+            path = render_press(scene, press, out, seed=args.seed, overwrite=args.overwrite)
+    except FileExistsError:
+        # another run published the folder meanwhile: its very render is done, as a run after it would say
+        if args.overwrite or not out.is_dir() or not _up_to_date(out, scene, press, args.seed):
+            raise
+        print(f"{out}: already rendered from this scene and press (by another run meanwhile), nothing to do")
+        return 0
     print(f"rendered {what} to {path}")
     return 0
 

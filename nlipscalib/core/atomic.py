@@ -108,7 +108,7 @@ def write_by_name(path: str | Path, write) -> Path:
     :func:`clean_interrupted`.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_folder(path.parent)
     fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(path.name), dir=path.parent)
     os.close(fd)
     tmp = Path(tmp)
@@ -164,9 +164,11 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
     with contextlib.suppress(OSError):  # leftovers of a killed earlier write of this folder (e.g. PRESS/nlips)
         clean_interrupted(final.parent, item=final.name)
     tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(final.name), dir=final.parent))
+    held = os.open(tmp, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))  # keeps its inode number its own
     _IN_PROGRESS.add(tmp)
     try:
         yield tmp
+        _check_same_folder(tmp, os.fstat(held))  # never publish a folder that lost what was written into it
         os.chmod(tmp, DIR_MODE)
         if overwrite:
             _swap_in(tmp, final)
@@ -178,6 +180,7 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
         raise
     finally:
         _IN_PROGRESS.discard(tmp)
+        os.close(held)
 
 
 @contextlib.contextmanager
@@ -254,6 +257,44 @@ def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | 
 
 
 # ---------------------------------------------------------------------- internals
+VANISHED = "its temporary folder was removed while being written (by another process?); nothing was published"
+
+
+def _vanished(tmp: Path) -> FileNotFoundError:
+    return FileNotFoundError(errno.ENOENT, VANISHED, str(tmp))
+
+
+def _make_folder(folder: Path) -> None:
+    """``folder.mkdir(parents=True, exist_ok=True)``, except that a temporary folder this process is filling
+    (:func:`atomic_dir`) is never made again: a file written into one that vanished (removed by a clean-up, a
+    user) fails (FileNotFoundError naming it), where re-creating it quietly led to a folder published without
+    the files written before."""
+    for tmp in list(_IN_PROGRESS):
+        if folder == tmp or tmp in folder.parents:
+            below = [folder, *folder.parents][: len(folder.parts) - len(tmp.parts)]
+            try:
+                for level in reversed(below):  # one level at a time: none of them re-creates ``tmp``
+                    level.mkdir(exist_ok=True)
+            except FileNotFoundError:
+                raise _vanished(tmp) from None
+            if not tmp.is_dir():
+                raise _vanished(tmp)
+            return
+    folder.mkdir(parents=True, exist_ok=True)
+
+
+def _check_same_folder(tmp: Path, made: os.stat_result) -> None:
+    """FileNotFoundError when ``tmp`` is no longer the folder ``made`` (held open, so that a folder made again
+    under its name cannot get its inode number): removed, or removed and made again, by another process, and
+    what was written into it gone with it."""
+    try:
+        now = os.stat(tmp)
+    except FileNotFoundError:
+        raise _vanished(tmp) from None
+    if (now.st_dev, now.st_ino) != (made.st_dev, made.st_ino):
+        raise _vanished(tmp)
+
+
 def _raise_with_path(exc: BaseException, path: Path) -> None:
     """Some writers (file.write, numpy, image libraries) raise OSError without the path: add it."""
     if isinstance(exc, OSError) and exc.filename is None and exc.errno is not None:

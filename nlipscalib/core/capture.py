@@ -414,15 +414,21 @@ def find_presses(root: str | Path) -> list[Path]:
 
 
 def missing_capture_files(folder: str | Path) -> list[str]:
-    """Files a press folder's meta.json lists (images, reference) that are not there; [] for a whole press.
+    """Files a press folder's meta.json lists (images, reference, ground truth) that are not there; [] for a
+    whole press.
 
     CaptureError (naming meta.json) when meta.json itself is missing or malformed."""
     folder = Path(folder)
-    meta = read_meta(folder)
+    return [name for name in listed_files(read_meta(folder)) if not (folder / name).is_file()]
+
+
+def listed_files(meta: dict) -> list[str]:
+    """The files a press folder's meta.json lists: its images (dark, tri-colour, one per LED) and, when it
+    records them, its reference and ground-truth arrays (KeyError/TypeError when ``images`` is malformed)."""
     images = meta["images"]
     names = [images["dark"], images["tricolor"], *images["leds"]]
-    names += [meta["reference"]] if meta.get("reference") else []
-    return [str(name) for name in names if not (folder / str(name)).is_file()]
+    names += [meta[key] for key in ("reference", "ground_truth") if meta.get(key)]
+    return [str(name) for name in names]
 
 
 def no_presses_error(root: str | Path) -> CaptureError:

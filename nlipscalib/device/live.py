@@ -254,6 +254,8 @@ class SaveSink:
         ok, png = self.cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
         if ok:
             write_bytes(stem.with_name(stem.name + "_normals.png"), png.tobytes())
-        tmp = stem.with_name(".tmp-" + stem.name + ".npz")
-        save_npz(tmp, {"normals": result.normals.astype(np.float32), "depth": result.depth.astype(np.float32)})
-        os.replace(tmp, stem.with_suffix(".npz"))
+        from ..core.atomic import write_by_name
+
+        arrays = {"normals": result.normals.astype(np.float32), "depth": result.depth.astype(np.float32)}
+        # a temporary of this process's own (streams into one folder never share one), removed on SIGTERM
+        write_by_name(stem.with_suffix(".npz"), lambda tmp: save_npz(tmp, arrays))

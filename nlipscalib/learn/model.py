@@ -176,10 +176,15 @@ def save_model(
 
 
 class LoadedModel:
-    """A model file, validated: ``net`` (eval mode), ``sensor``, ``reference`` arrays, ``info``."""
+    """A model file, validated: ``net`` (eval mode), ``sensor``, ``reference`` arrays, ``info``; ``digest``: that
+    of the file's bytes these came from (``learn.onnx_export.bytes_digest``; by default, of the file at ``path``
+    now), which an ONNX export records and inference checks."""
 
-    def __init__(self, path, net, payload: dict):
+    def __init__(self, path, net, payload: dict, digest: str | None = None):
+        from .onnx_export import file_digest
+
         self.path = Path(path)
+        self.digest = digest if digest is not None else file_digest(self.path)
         self.net = net
         self.hidden = tuple(payload["hidden"])
         self.sensor: dict = payload["sensor"]
@@ -202,7 +207,7 @@ def load_model(path) -> LoadedModel:
     torch = _torch()
     path = Path(path)
     _check_model_path(path)
-    payload = read_torch_file(path, "an NLiPsNet model file")
+    payload, data = _read_torch_bytes(path, "an NLiPsNet model file")
     if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
         raise CaptureError(f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r})")
     if payload.get("format_version") != MODEL_VERSION:
@@ -235,7 +240,11 @@ def load_model(path) -> LoadedModel:
     except (RuntimeError, KeyError, TypeError, AttributeError) as exc:
         raise CaptureError(f"{path}: weights do not fit the architecture ({str(exc).splitlines()[0]})") from None
     net.eval()
-    return LoadedModel(path, net, payload)
+    from .onnx_export import bytes_digest
+
+    # the digest of the bytes read, not of the file at the path later: a model published there meanwhile (`nlips
+    # train --out`) would otherwise lend its digest to this one's export, which inference then takes as current
+    return LoadedModel(path, net, payload, digest=bytes_digest(data))
 
 
 def _check_finite_weights(state: dict, path: Path) -> None:
@@ -297,24 +306,29 @@ def read_torch_file(path, what: str):
     here. An empty file, one that is not a ``torch.save`` archive (a zip file), and one cut short (the zip
     directory at its end missing: an interrupted copy) are told apart from its bytes.
     """
+    return _read_torch_bytes(path, what)[0]
+
+
+def _read_torch_bytes(path, what: str) -> tuple[object, bytes]:
+    """:func:`read_torch_file`, and the bytes it loaded: the file is read once, so both are of one version of it
+    even while another process replaces the file."""
+    import io
     import zipfile
 
     torch = _torch()
     path = Path(path)
     try:
-        size = path.stat().st_size
-        with open(path, "rb") as f:
-            head = f.read(4)
+        data = path.read_bytes()
     except OSError as exc:
         raise CaptureError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if size == 0:
+    if not data:
         raise CaptureError(f"{path}: empty, not {what} (an interrupted copy?)")
-    if head != b"PK\x03\x04":
+    if data[:4] != b"PK\x03\x04":
         raise CaptureError(f"{path}: not {what} (not a torch.save archive)")
-    if not zipfile.is_zipfile(path):
+    if not zipfile.is_zipfile(io.BytesIO(data)):
         raise CaptureError(f"{path}: truncated or damaged, not usable as {what} (the archive's directory is missing)")
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(io.BytesIO(data), map_location="cpu", weights_only=True), data
     except Exception as exc:  # torch raises many kinds (RuntimeError, UnpicklingError, EOFError ...)
         first = (str(exc).strip().splitlines() or [""])[0]
         if "weights_only" in first or "Weights only load failed" in first:

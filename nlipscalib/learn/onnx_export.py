@@ -31,8 +31,12 @@ def export_hint(model_path) -> str:
     return f"`nlips export {model_path}` writes it, as `nlips train` does unless --no-onnx; or use --backend torch"
 
 
+def bytes_digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()[:16]
+
+
 def file_digest(path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
+    return bytes_digest(Path(path).read_bytes())
 
 
 def export_onnx(model, out, check=None) -> Path:
@@ -81,7 +85,7 @@ def export_onnx(model, out, check=None) -> Path:
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="nlipscalib")
     proto.ir_version = IR_VERSION  # the installed onnx would write its newest, which older onnxruntimes refuse
     onnx.checker.check_model(proto)
-    meta = {"sensor": json.dumps(model.sensor), "model_digest": file_digest(model.path), "hidden": str(model.hidden)}
+    meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": str(model.hidden)}
     for key, value in meta.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value
@@ -158,7 +162,7 @@ class OnnxNet:
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
             raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__})") from None
         props = self.session.get_modelmeta().custom_metadata_map
-        if model is not None and props.get("model_digest") != file_digest(model.path):
+        if model is not None and props.get("model_digest") != model.digest:
             raise CaptureError(
                 f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
             )

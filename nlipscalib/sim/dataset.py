@@ -3,7 +3,8 @@
 Rendering is parallel (worker processes, each with its share of the cores) and resumable: a press
 whose folder is complete is never rendered again, and interrupted writes leave only ``.tmp-*``
 folders, which are cleaned before the run. A press folder without meta.json (a partial copy, a
-deleted file) is incomplete: the process that claims the press removes it and renders it again.
+deleted file) is incomplete: the process that claims the press removes it and renders it again; so is
+one that lost a file its meta.json lists (an image, reference.npz, gt.npz), rendered again in its place.
 """
 
 from __future__ import annotations
@@ -250,7 +251,7 @@ def run_dataset(
             _rounds(todo, lambda job: _render_job(scene, job, out, overwrite, stale_s), result, bar)
         else:
             with ProcessPoolExecutor(
-                workers, mp_context=get_context("spawn"), initializer=configure_worker, initargs=worker_logging()
+                workers, mp_context=get_context("spawn"), initializer=_worker_init, initargs=worker_logging()
             ) as pool:
                 submit = lambda job: pool.submit(_render_job, scene, job, out, overwrite, stale_s)  # noqa: E731
                 try:
@@ -332,6 +333,25 @@ def _random_presses(spec: RandomSpec, seed: int) -> list[PressConfig]:
     ]
 
 
+def _worker_init(log_level: int, log_file: str | None = None) -> None:
+    """A render process: logs like the parent; on SIGTERM (sent by a terminated ``nlips dataset``, or to the whole
+    process group) releases its claim and removes its half-written press folder, then exits, as the parent
+    does. The handler runs when the current native call (a Mitsuba render) returns; ended with ``os._exit``, as
+    an exception raised there could land inside the library."""
+    import signal
+
+    configure_worker(log_level, log_file)
+    signal.signal(signal.SIGTERM, _worker_terminated)
+
+
+def _worker_terminated(signum, frame) -> None:
+    from ..core import atomic, claims
+
+    claims.release_all()
+    atomic.remove_in_progress()
+    os._exit(128 + signum)
+
+
 def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) -> None:
     """Run jobs; jobs busy in another process are retried until done or taken over (owner died)."""
     waited = False
@@ -345,6 +365,8 @@ def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) 
         for job, (status, detail) in outcomes:
             if status == "oserror":
                 raise OSError(*detail)
+            if status == "changed":  # another run published it from its own spec: refused, as before a run
+                raise ConfigError(detail)
             if status == "busy":
                 busy.append(job)
                 continue
@@ -368,7 +390,9 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
     """Worker body: claim, render, release. Returns (status, detail); errors must not kill the pool.
 
     status is "rendered", "skipped" (finished meanwhile by another process), "busy" (another live
-    process holds it), "failed" (detail: the error text) or "oserror" (detail: errno, text, path).
+    process holds it), "changed" (detail: the error line; without ``overwrite``, the press was rendered
+    meanwhile by a run of another spec), "failed" (detail: the error text) or "oserror" (detail: errno,
+    text, path).
     """
     from ..core.claims import claim
 
@@ -380,15 +404,26 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
                 return "skipped", None
             clean_interrupted(out, item=job.name)  # a dead owner's half-written folder, if any
             folder = out / job.name
-            if folder.exists() and not is_press_folder(folder):
+            replace = overwrite
+            if is_press_folder(folder):
+                if not overwrite and not _same_spec(scene, job, out):
+                    return "changed", _changed_error(scene, job, out)
+                missing = _missing_files(folder)
+                if missing:
+                    more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+                    log.warning("%s: %s%s missing; rendering it again", folder, ", ".join(missing[:3]), more)
+                    replace = True
+            elif folder.exists():
                 busy = _live_claim_inside(folder)
                 if busy:
                     return "failed", f"{folder}: incomplete (no {META_FILE}), but {busy}; run again when it is done"
                 log.warning("%s: incomplete press folder (no %s): removed, rendering it again", folder, META_FILE)
                 _remove_incomplete(folder)
-            _run_one(scene, job, out, overwrite)
+            _run_one(scene, job, out, replace)
             return "rendered", None
     except FileExistsError:  # published by a process that lost its claim: the folder is whole
+        if is_press_folder(out / job.name) and not overwrite and not _same_spec(scene, job, out):
+            return "changed", _changed_error(scene, job, out)
         return "skipped", None
     except OSError as exc:
         return "oserror", (exc.errno, exc.strerror or str(exc), exc.filename or str(out / job.name))
@@ -470,10 +505,36 @@ def _expected_hash(scene: SceneConfig, job: PressJob) -> str:
     return render_spec_hash(scene, job.press, job.seed)
 
 
+def _same_spec(scene: SceneConfig, job: PressJob, out: Path) -> bool:
+    """Whether the press folder of ``job`` in ``out`` records this very spec."""
+    return _recorded_hash(out / job.name) == _expected_hash(scene, job)
+
+
+def _missing_files(folder: Path) -> list[str]:
+    """Files ``folder``'s meta.json lists that are gone (deleted or lost since it was rendered); [] when whole, or
+    when meta.json cannot say (its format is for the commands that load the press to judge)."""
+    from ..core.capture import listed_files
+
+    try:
+        names = listed_files(json.loads((folder / META_FILE).read_bytes()))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return []
+    return [name for name in names if not (folder / name).is_file()]
+
+
 def is_complete(scene: SceneConfig, job: PressJob, out: Path) -> bool:
-    """A complete folder rendered from this very spec."""
+    """A whole folder rendered from this very spec: meta.json records the spec, and every file it lists is there."""
     folder = out / job.name
-    return is_press_folder(folder) and _recorded_hash(folder) == _expected_hash(scene, job)
+    return is_press_folder(folder) and _same_spec(scene, job, out) and not _missing_files(folder)
+
+
+def _changed_error(scene: SceneConfig, job: PressJob, out: Path) -> str:
+    """The line :func:`check_existing` gives for ``job``'s folder, rendered from another spec (or damaged)."""
+    try:
+        check_existing(scene, [job], out, overwrite=False)
+    except NlipsError as exc:
+        return str(exc)
+    return f"{out}: {job.name} was rendered meanwhile from a different scene or spec"  # and replaced since
 
 
 def warn_unlisted(jobs: list[PressJob], out: Path) -> list[str]:
@@ -507,7 +568,7 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
         raise CaptureError(
             f"{damaged[0]}; the press folder is damaged{more}: delete it to render it again, or use --overwrite"
         )
-    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not is_complete(scene, j, out)]
+    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not _same_spec(scene, j, out)]
     if changed:
         names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
         meshes = any(j.press is not None and j.press.indenter.kind == "mesh" for j in jobs if j.name in changed)

@@ -78,3 +78,131 @@ def test_sigterm_of_a_parallel_solve_is_one_line_without_leaked_semaphore_warnin
     not_log = [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
     assert not_log == [TERMINATED], err
     assert not [p for p in tmp_path.rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
+
+
+def _live_members(group: int) -> list[int]:
+    """Processes of the process group ``group`` that still run (zombies, whose reaping init may delay, excepted)."""
+    from pathlib import Path
+
+    pids = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:  # ended meanwhile
+            continue
+        state, _, pgrp = text[text.rindex(")") + 2 :].split()[:3]
+        if int(pgrp) == group and state not in ("Z", "X"):
+            pids.append(int(stat.parent.name))
+    return pids
+
+
+def _wait_until_gone(group: int, seconds: float) -> list[int]:
+    import time
+
+    deadline = time.monotonic() + seconds
+    while _live_members(group) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return _live_members(group)
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads the process table from /proc")
+def test_sigterm_of_the_command_alone_stops_its_workers(tmp_path):
+    """`kill PID` of `nlips solve DATASET --workers 2` (the command's process only, not its group): the parent
+    printed "terminated" and exited 143, but its workers went on, published results after that line and then
+    waited forever for tasks. Now they end with it, releasing their claims."""
+    import contextlib
+    import subprocess
+    import sys
+    import time
+
+    from tests.solver import synth
+
+    for i in range(6):
+        synth.make_press(tmp_path / f"p{i}", "sphere" if i % 2 else "cube", depth=1.0 + 0.1 * i, size=(64, 48))
+    command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    argv = [sys.executable, "-c", command, "--no-progress", "solve", str(tmp_path), "--workers", "2", "--no-figures"]
+    log = tmp_path / "stderr.txt"
+    with open(log, "w") as err:  # a file, not a pipe: workers left running would hold a pipe open
+        proc = subprocess.Popen(argv, stderr=err, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(tmp_path.glob("*/nlips/result.npz")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert proc.poll() is None, log.read_text()  # still solving: the rest of the batch is in the pool
+        os.kill(proc.pid, signal.SIGTERM)  # the command's process only
+        assert proc.wait(timeout=60) == 128 + signal.SIGTERM, log.read_text()
+        assert _wait_until_gone(proc.pid, 30) == []  # no worker (nor forkserver) left running
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    not_log = [line for line in log.read_text().splitlines() if not line.startswith(("INFO ", "WARNING "))]
+    assert not_log == [TERMINATED]
+    assert not [p for p in tmp_path.rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
+
+
+DATASET_POOL = """
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+from nlipscalib import cli
+from nlipscalib.progress import worker_logging
+from nlipscalib.sim import dataset
+from tests.cli.test_interrupt import _render_forever
+
+cli._terminate_cleanly("dataset")  # as `nlips dataset` runs: its handler, its pool
+out = Path(sys.argv[1])
+context, init = get_context("spawn"), dataset._worker_init
+with ProcessPoolExecutor(2, mp_context=context, initializer=init, initargs=worker_logging()) as pool:
+    for future in [pool.submit(_render_forever, out / f"press_{i:04d}") for i in range(2)]:
+        future.result()
+"""
+
+
+def _render_forever(press) -> None:
+    """A render worker's task that never ends: the press claimed, its folder half-written, and its pid noted."""
+    import time
+
+    from nlipscalib.core.atomic import atomic_dir
+    from nlipscalib.core.claims import claim
+
+    with claim(press) as mine, atomic_dir(press) as tmp:
+        assert mine
+        (tmp / "led_01.png").write_bytes(b"half")
+        (press.parent / f"worker.{os.getpid()}").touch()
+        time.sleep(120)
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads the process table from /proc")
+def test_sigterm_of_a_dataset_run_ends_its_render_workers_which_release_their_claims(tmp_path):
+    """`nlips dataset --workers 2` uses a pool of its own (spawn): a plain `kill PID` left its render workers
+    running, and a worker that was terminated left its claim and half-written folder. Now the command ends
+    them and each releases its claim and removes its temporary folder."""
+    import contextlib
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+    log = tmp_path / "stderr.txt"
+    with open(log, "w") as err:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", DATASET_POOL, str(tmp_path)], stderr=err, env=env, start_new_session=True
+        )
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(tmp_path.glob("worker.*"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(list(tmp_path.glob("worker.*"))) == 2, log.read_text()
+        assert len(list(tmp_path.glob(".claim-press_*"))) == 2
+        os.kill(proc.pid, signal.SIGTERM)
+        assert proc.wait(timeout=60) == 128 + signal.SIGTERM, log.read_text()
+        assert _wait_until_gone(proc.pid, 30) == []
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert log.read_text().strip() == "nlips dataset: terminated; finished work is kept, run again to resume"
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith((".claim-", ".tmp-"))]

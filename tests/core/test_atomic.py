@@ -224,3 +224,32 @@ def test_a_folder_removed_on_termination_is_gone_while_threads_still_write_into_
         raise SystemExit(143)
     left = [p.name for p in tmp_path.iterdir()]
     assert "press_0001" not in left and all(n.startswith(tmp.name) for n in left), left
+
+
+def test_a_file_written_into_a_temporary_folder_removed_meanwhile_fails_and_nothing_is_published(tmp_path):
+    """A clean-up elsewhere removed a live solve's temporary folder; write_by_name quietly made it again for the
+    next figure, and atomic_dir published the near-empty folder (a result without result.npz, exit 0)."""
+    import shutil
+
+    from nlipscalib.core.atomic import write_text
+
+    final = tmp_path / "res-2"
+    with pytest.raises(FileNotFoundError, match="removed while being written"):
+        with atomic_dir(final) as tmp:
+            write_text(tmp / "result.npz", "data")
+            shutil.rmtree(tmp)  # what another process's clean-up did
+            write_text(tmp / "figures" / "summary.png", "png")
+    assert not final.exists() and not list(tmp_path.glob(TMP_PREFIX + "*"))
+
+
+def test_a_temporary_folder_removed_and_made_again_is_not_published(tmp_path):
+    import shutil
+
+    final = tmp_path / "res-2"
+    with pytest.raises(FileNotFoundError, match="removed while being written"):
+        with atomic_dir(final) as tmp:
+            (tmp / "result.npz").write_text("data")
+            shutil.rmtree(tmp)
+            tmp.mkdir()  # e.g. an os.makedirs of a writer
+            (tmp / "summary.png").write_text("png")
+    assert not final.exists()

@@ -195,3 +195,89 @@ def test_press_folders_a_shorter_spec_no_longer_names_are_warned_about(tmp_path,
     jobs = [SimpleNamespace(name="press_0000"), SimpleNamespace(name="press_0001")]
     assert warn_unlisted(jobs, tmp_path) == ["press_0002", "reference"]
     assert "press_0002, reference are not in this spec" in caplog.text
+
+
+def _publish_as_another_run(scene, job, out):
+    """A press folder as a run of ``scene``'s spec publishes it (meta.json records its spec hash)."""
+    (out / job.name).mkdir(parents=True)
+    meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
+    (out / job.name / "meta.json").write_text(json.dumps(meta))
+
+
+def test_a_press_another_spec_rendered_meanwhile_is_refused_not_counted_as_there(tmp_path, monkeypatch, capsys):
+    """Two `nlips dataset` runs of different specs on one folder at once both exited 0, each counting the other's
+    presses as "already there", and left a dataset of mixed specs. A press published by a run of another spec
+    after this run's start-up check is now found under its claim and refused with the line a later run gives."""
+    from nlipscalib.cli import main
+    from tests.cli.test_faults import _fake_render
+
+    spec = _write(tmp_path, GRID)
+    other_spec = tmp_path / "other.toml"
+    other_spec.write_text(GRID.replace("spp = 2", "spp = 3"))
+    other_scene = load_dataset_spec(other_spec)[1]
+    other_job = expand_jobs(load_dataset_spec(other_spec)[0])[2]
+    out, calls, checks = tmp_path / "out", [], []
+    check = ds.check_existing
+
+    def checked_then_the_other_run_publishes(scene, jobs, folder, overwrite):
+        check(scene, jobs, folder, overwrite)
+        checks.append(folder)
+        if len(checks) == 2:  # just after the start-up checks (the command's, run_dataset's), before any claim
+            _publish_as_another_run(other_scene, other_job, out)
+
+    monkeypatch.setattr(ds, "check_existing", checked_then_the_other_run_publishes)
+    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips dataset: error: {out}: press_0001 were rendered from a different scene or spec; render into a new "
+        "folder, or use --overwrite to re-render them"
+    ], err
+    assert calls == ["reference", "press_0000"]  # found under press_0001's claim, not before the run
+    calls.clear()
+    monkeypatch.setattr(ds, "_run_one", _rerender(calls))
+    assert main([*args, "--overwrite"]) == 0 and calls == ["press_0001"]  # --overwrite renders it again
+
+
+def _whole_render(calls):
+    """Stand-in renderer writing every file its meta.json lists (replacing the folder as ``--overwrite`` does)."""
+    import shutil
+
+    def render(scene, job, out, overwrite=False):
+        calls.append(job.name)
+        folder = out / job.name
+        if overwrite:
+            shutil.rmtree(folder)
+        folder.mkdir()
+        images = {"dark": "dark.png", "tricolor": "tricolor.png", "leds": ["led_01.png", "led_02.png"]}
+        meta = {"images": images, "reference": "reference.npz", "ground_truth": "gt.npz"}
+        for name in ["dark.png", "tricolor.png", *images["leds"], "reference.npz", "gt.npz"]:
+            (folder / name).write_bytes(b"data")
+        meta["provenance"] = {"spec_hash": render_spec_hash(scene, job.press, job.seed)}
+        (folder / "meta.json").write_text(json.dumps(meta))
+
+    return render
+
+
+def test_a_press_that_lost_a_file_is_rendered_again_not_counted_as_there(tmp_path, monkeypatch, capsys, caplog):
+    """A press with an image or reference.npz deleted was "already there" (only meta.json and the spec hash were
+    looked at), and every solve of the dataset then failed on it. Now it is rendered again, as `nlips capture`
+    captures such a press again."""
+    from nlipscalib.cli import main
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(ds, "_run_one", _whole_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
+    assert main(args) == 0 and calls == ["reference", "press_0000", "press_0001"]
+    (out / "press_0000" / "led_02.png").unlink()
+    (out / "reference" / "reference.npz").unlink()
+    calls.clear()
+    capsys.readouterr()
+    assert main(args) == 0
+    assert calls == ["reference", "press_0000"]
+    assert capsys.readouterr().out.strip() == f"{out}: 2 rendered, 1 already there, 0 failed"
+    assert "led_02.png missing; rendering it again" in caplog.text
+    assert not [p for p in out.rglob("*") if p.name.startswith((".tmp-", ".claim-"))]
+    calls.clear()
+    assert main(args) == 0 and calls == []  # whole again

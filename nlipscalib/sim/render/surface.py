@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import time
 
@@ -109,11 +110,34 @@ def render_surface(
 
 def _render_images(mi, scene, shape, spp, seed, integrator) -> np.ndarray:
     """(L, H, W, 3) float32 linear images: one per LED from the AOVs, or the path tracer's one image."""
-    out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
+    with _no_interrupt_notice(mi):
+        out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
     h, w = shape
     if integrator == "multi":
         return np.ascontiguousarray(out[..., 3:].reshape(h, w, -1, 3).transpose(2, 0, 1, 3))
     return np.ascontiguousarray(out[None, ..., :3])
+
+
+@contextlib.contextmanager
+def _no_interrupt_notice(mi):
+    """Mitsuba's warnings held back (its errors shown) while it renders.
+
+    Mitsuba puts a Ctrl-C handler of its own in place around a render (``Integrator.render``'s binding): it
+    cancels the render, hands the signal on to Python (``nlips`` then prints its one line "interrupted; ...",
+    exit 130), and first logs "Received interrupt signal, winding down.." as a warning, in ANSI colours even
+    into a file. The handler cannot be left out, nor its line told apart from other warnings (a filter in
+    Python would run inside a C signal handler); the scene's warnings come when it is built, before this.
+    """
+    logger = mi.logger() if hasattr(mi, "logger") else mi.Thread.thread().logger()
+    level = logger.log_level() if logger is not None else None
+    if level is None or level >= mi.LogLevel.Error:
+        yield
+        return
+    logger.set_log_level(mi.LogLevel.Error)
+    try:
+        yield
+    finally:
+        logger.set_log_level(level)
 
 
 def _interface(scene_cfg):

@@ -1,0 +1,67 @@
+"""`nlips render`'s output folder: another run publishing it meanwhile, and a folder that cannot be written."""
+
+from __future__ import annotations
+
+import errno
+import json
+from pathlib import Path
+
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.sim import press as sim_press
+
+TINY = ["render", "--width", "96", "--height", "72", "--spp", "1"]
+
+
+def _published_meanwhile(seed_offset: int = 0):
+    """A render_press that finds the folder published by another run (of the same render, or of another seed)
+    when it publishes its own, as atomic_dir does: FileExistsError."""
+
+    def render_press(scene, press, out_folder, seed=None, overwrite=False):
+        out_folder = Path(out_folder)
+        out_folder.mkdir(parents=True)
+        recorded = sim_press.render_spec_hash(scene, press, None if seed_offset == 0 else seed_offset)
+        (out_folder / "meta.json").write_text(json.dumps({"provenance": {"spec_hash": recorded}}))
+        raise FileExistsError(errno.EEXIST, "already exists (written by another process)", str(out_folder))
+
+    return render_press
+
+
+def test_the_same_render_published_meanwhile_by_another_run_is_nothing_to_do(tmp_path, monkeypatch, capsys):
+    """Two identical `nlips render` runs at once: the second failed "already exists (use --overwrite to replace
+    it)", exit 2, though the folder held exactly its render; run after the first, it says "nothing to do"."""
+    out = tmp_path / "r1" / "p"
+    monkeypatch.setattr(sim_press, "render_press", _published_meanwhile())
+    assert main([*TINY, "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.strip() == (
+        f"{out}: already rendered from this scene and press (by another run meanwhile), nothing to do"
+    )
+    assert captured.err == ""
+
+
+def test_another_render_published_meanwhile_is_still_refused(tmp_path, monkeypatch, capsys):
+    out = tmp_path / "r1" / "p"
+    monkeypatch.setattr(sim_press, "render_press", _published_meanwhile(seed_offset=12345))
+    assert main([*TINY, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "already holds a press rendered from a different scene, press or seed" in err[0], err
+
+
+def test_a_read_only_output_folder_is_named_as_the_user_gave_it(tmp_path, monkeypatch, capsys):
+    """The writability probe's name leaked: "romnt/xxxxxxx: Read-only file system"."""
+    mkdir = Path.mkdir
+
+    def read_only(self, *args, **kwargs):
+        if self.name.startswith(".tmp-"):
+            raise OSError(errno.EROFS, "Read-only file system", str(self))
+        return mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "mkdir", read_only)
+    monkeypatch.setattr(sim_press, "render_press", lambda *a, **k: pytest.fail("rendered before the check"))
+    out = tmp_path / "romnt" / "mypress"
+    assert main([*TINY, "--out", str(out)]) == 2
+    assert capsys.readouterr().err == (
+        f"nlips render: error: {out}: Read-only file system (choose a writable output folder)\n"
+    )

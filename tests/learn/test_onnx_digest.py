@@ -1,0 +1,64 @@
+"""The ONNX file's model digest is that of the weights exported, even when the model file is replaced meanwhile."""
+
+import os
+import shutil
+
+import pytest
+
+from nlipscalib.errors import CaptureError
+from tests.learn.test_fast_paths import _reference, _sensor, _trained_like_net
+
+
+def _save(path, scale: float = 1.0):
+    import torch
+
+    from nlipscalib.learn.model import save_model
+
+    net = _trained_like_net()
+    with torch.no_grad():
+        for p in net.parameters():
+            p.mul_(scale)
+    return save_model(
+        path, net, hidden=(32, 16), dropout=0.2, sensor=_sensor(64, 48), reference=_reference(64, 48), info={}
+    )
+
+
+def test_an_export_racing_a_model_update_records_the_digest_of_the_weights_it_exported(tmp_path):
+    """`nlips export m.pt` while `nlips train --out m.pt` published a new model: the ONNX file held the old weights
+    but the digest of the new file (read again from the path at write time), and `nlips infer` used it with the
+    new model without a word (normals up to 55 deg off). The digest is now that of the bytes loaded."""
+    onnx = pytest.importorskip("onnx")
+    pytest.importorskip("onnxruntime")
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import OnnxNet, export_onnx, file_digest
+
+    old, new, path = _save(tmp_path / "a.pt"), _save(tmp_path / "b.pt", scale=1.5), tmp_path / "m.pt"
+    shutil.copy(old, path)
+    loaded = load_model(path)
+    shutil.copy(new, tmp_path / "publishing.pt")
+    os.replace(tmp_path / "publishing.pt", path)  # the training run publishes its model meanwhile
+    out = export_onnx(loaded, tmp_path / "m.onnx")
+    digest = {p.key: p.value for p in onnx.load(str(out)).metadata_props}["model_digest"]
+    assert digest == file_digest(old) != file_digest(new)
+    OnnxNet(out, loaded)  # the weights loaded and their export go together
+    with pytest.raises(CaptureError, match="exported from another model"):
+        OnnxNet(out, load_model(path))  # the new model is not served by the old export
+
+
+def test_inference_compares_the_export_with_the_model_it_loaded_not_the_file_there_now(tmp_path):
+    """`nlips infer` loads the .pt, then opens the ONNX file: its digest was compared with whatever file was at the
+    path by then, so a model published in between paired the old model's reference with the new network."""
+    pytest.importorskip("onnxruntime")
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import OnnxNet, export_onnx
+
+    old, path = _save(tmp_path / "a.pt"), tmp_path / "m.pt"
+    shutil.copy(_save(tmp_path / "b.pt", scale=1.5), path)
+    export_onnx(load_model(path), tmp_path / "m.onnx")  # the new model's export, beside it
+    shutil.copy(old, tmp_path / "old.pt")
+    os.replace(tmp_path / "old.pt", path)
+    loaded = load_model(path)  # the old model, loaded by an inference ...
+    shutil.copy(tmp_path / "b.pt", tmp_path / "publishing.pt")
+    os.replace(tmp_path / "publishing.pt", path)  # ... while the new one is published again
+    with pytest.raises(CaptureError, match="exported from another model"):
+        OnnxNet(tmp_path / "m.onnx", loaded)
