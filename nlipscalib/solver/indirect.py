@@ -32,6 +32,7 @@ from ..core.sensor import DomeConfig
 from ..errors import CaptureError, ConfigError
 from . import radiosity, reuse, threads
 from .contact import led_levels
+from .exposure import no_light_reason
 
 PATCH_TARGET = 80
 """Patches along the image's long side (the patch side is the long side over this, at least 2 px)."""
@@ -349,7 +350,8 @@ def fit_indirect(
     S = surf.shading[:, surf.keep]
     fitted = ok.any(axis=0)  # (K, 3) patches with data
     if not fitted.any():
-        raise CaptureError(f"{reference.folder}: no usable pixel to fit the interreflection term on")
+        why = no_light_reason(reference, surf.valid, cache["live"])
+        raise CaptureError(f"{reference.folder}: no usable pixel to fit the interreflection term on{why}")
     kappa, G, off_albedo = _alternate(img, S, ok, surf, cache["off_unit"], bounces, iterations)
     # the receiver's albedo multiplies both terms: the share is kappa G / S
     on = fitted.all(axis=1)
