@@ -41,7 +41,8 @@ def test_calibrate_solves_with_the_led_file_and_again_when_the_leds_change(sessi
     # not reused silently: each result made with the capture's LEDs is named and solved again
     resolved = [r.getMessage() for r in caplog.records if "made with other settings or inputs (leds)" in r.getMessage()]
     assert len(resolved) == 2, caplog.text
-    assert "2 presses" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "2 presses" in out and "press next: an object in image region" in out  # was "an unknown"
     caplog.clear()
     assert main(["calibrate", str(root), "--leds", str(leds), "--workers", "1", "--no-progress"]) == 0
     assert "identical result exists" in caplog.text and "re-solving" not in caplog.text
