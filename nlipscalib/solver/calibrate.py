@@ -26,7 +26,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, disk_shading, led_shading
 from ..errors import CaptureError, ConfigError
-from .exposure import saturated_share, saturation_note
+from .exposure import nothing_to_fit, saturated_share, saturation_note
 
 log = logging.getLogger(__name__)
 
@@ -189,6 +189,9 @@ def _calibrate(
     first = presses[0]
     leds0 = leds = tuple(initial) if initial is not None else first.leds
     data = [_samples(p, first, len(leds), stride) for p in presses]
+    for p in presses:  # black or saturated throughout: said here, not as a fit that fails further on
+        if why := nothing_to_fit(p):
+            raise CaptureError(f"{p.folder}: no usable pixel to calibrate the LEDs on{why}")
     used = sum(len(d[0]) for d in data)
     if used < tolerances.CALIBRATION_MIN_PIXELS:
         raise ConfigError(

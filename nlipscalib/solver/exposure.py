@@ -12,6 +12,9 @@ import numpy as np
 from ..core import tolerances
 from ..core.capture import Press
 
+LIT_LEVEL = 1e-3
+"""An LED image gives light when its bright end on the gel (``solver.contact.led_levels``: the 99th percentile) is
+at least this, linear units (full scale 1) above the dark frame; a dead LED's image says nothing about the light."""
 REMEDY_SATURATED = "lower the exposure (`nlips capture --exposure-ms`) or the LEDs' drive, and capture again"
 """What to do about saturated LED images."""
 REMEDY_BLACK = "LEDs off, lens cap on, the camera not streaming?"
@@ -91,3 +94,19 @@ def no_light_reason(press: Press, gel: np.ndarray, live: np.ndarray) -> str:
             f"{REMEDY_BLACK})"
         )
     return ""
+
+
+def nothing_to_fit(press: Press, gel: np.ndarray | None = None) -> str:
+    """Why no sample of a capture can be fitted on (:func:`no_light_reason`, or a plainer word when the exposure
+    does not explain it): no LED image gives light above the dark frame, or every lit one is saturated on the gel;
+    "" when some sample is usable."""
+    from .contact import led_levels
+
+    gel = gel_of(press) if gel is None else gel
+    if not gel.any():
+        return no_light_reason(press, gel, np.zeros(len(press.leds), bool))
+    live = led_levels(press.linear_led_images, gel) >= LIT_LEVEL
+    unsaturated = ~press.saturated(press.led_images[live][:, gel]) & ~press.saturated(press.dark[gel])[None]
+    if unsaturated.any():
+        return ""
+    return no_light_reason(press, gel, live) or ": no LED image holds an unsaturated sample lit above the dark frame"

@@ -33,7 +33,7 @@ from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box
 from .contact import auto_roi as _auto_roi_box
-from .exposure import saturated_share, saturation_note
+from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
     Surface,
     design_of,
@@ -336,6 +336,7 @@ class _Runner:
             raise CaptureError(
                 f"{self.press.folder}: no pixel could be reconstructed ({result.report['pixels_too_few_leds']} "
                 f"pixels with fewer than {self.options.min_leds} usable LEDs; dead LEDs {dead})"
+                + nothing_to_fit(self.press)  # black or saturated throughout: say so
             )
         return result
 
