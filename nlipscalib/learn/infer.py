@@ -279,7 +279,7 @@ def mismatch_warning(frame: Frame, where) -> str | None:
     """
     if not frame.mismatch > FRAME_MISMATCH_FRACTION:
         return None
-    brightness = max(0.0, frame.brightness)  # never a negative ratio (a Frame made elsewhere)
+    brightness = 0.0 if frame.brightness < 0 else frame.brightness  # never a negative ratio (NaN stays NaN)
     off = abs(brightness - 1) > BRIGHTNESS_OFF
     if brightness <= BLACK_FRACTION:
         question = "the frame is black (no light above the black level: LEDs off, lens cap, camera not streaming?)"
