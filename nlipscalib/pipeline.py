@@ -292,7 +292,7 @@ def solve_one(
     from .report import figure_level, figures_missing
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
-    _check_fits_capture(folder, settings)  # before anything is said about an earlier result
+    check_fits_capture(folder, settings)  # before anything is said about an earlier result
     out = reconstruction_dir(folder, out).absolute()  # "." has no name to claim or write beside
     check_replaceable(out)  # a dataset, a press or a user's folder at --out is never replaced by a result
     provenance = make_provenance(folder, settings)
@@ -345,9 +345,10 @@ def _wait_for_release(folder: Path, out: Path) -> None:
         time.sleep(CLAIM_POLL_S)
 
 
-def _check_fits_capture(folder: Path, settings: SolveSettings) -> None:
+def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
     """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json), a
-    reference captured by the same sensor."""
+    reference captured by the same sensor; else ConfigError or CaptureError naming what does not fit (``nlips
+    calibrate --leds`` checks its LED file with it before any solving)."""
     from .core.capture import META_FILE, read_meta, read_optics
     from .solver.press import check_roi, check_undeformed
 

@@ -10,11 +10,16 @@ def register(subparsers) -> None:
         description="LED self-calibration: each LED's intensity Psi (per colour), emission exponent mu, axis n_s "
         "and position x_s, fitted to captures of the undeformed dome (its known shape, reference.npz) minus the "
         "dome's own interreflection where they show it, written as an LED file (docs/formats.md) for "
-        "`nlips solve --leds FILE`. Prints the LEDs with their 1-sigma uncertainties and how well the fit explains "
-        "the images; warns when it is unreliable (render the reference at 16 spp or more, or average more frames).",
+        "`nlips solve --leds FILE` or `nlips calibrate --leds FILE` (NLiPsNet's labels). Prints the LEDs with their "
+        "1-sigma uncertainties and how well the fit explains the images; warns when it is unreliable (render the "
+        "reference at 16 spp or more, or average more frames).",
     )
     p.add_argument("presses", nargs="+", help="press folders of the undeformed dome (with reference.npz)")
-    p.add_argument("--out", required=True, help="LED JSON file to write (use with `nlips solve --leds FILE`)")
+    p.add_argument(
+        "--out",
+        required=True,
+        help="LED JSON file to write (use with `nlips solve --leds FILE` or `nlips calibrate --leds FILE`)",
+    )
     p.add_argument("--stride", type=int, default=2, help="use every N-th pixel (default 2)")
     p.add_argument(
         "--loss",
@@ -78,7 +83,7 @@ def run(args) -> int:
             led_radius=args.led_diameter / 2,
             coating_reflectance=args.coating_reflectance,
         )
-    # the sensor it was calibrated on: `nlips solve --leds` refuses the file for a capture of another one
+    # the sensor it was calibrated on: `nlips solve/calibrate --leds` refuse the file for a capture of another one
     save_leds(args.out, cal.leds, cal.to_json() | {"sensor": sensor_of(presses[0])})
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")
     print(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))

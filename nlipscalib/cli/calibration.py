@@ -24,11 +24,19 @@ def register(subparsers) -> None:
         description="Solve every press of FOLDER with NLiPs "
         "(skipping presses already solved with the same settings: auto ROI, the folder's reference), then write a "
         "calibration dataset of (u, v, r, g, b) -> normal samples and a coverage report (which dome regions and "
-        "normal directions the presses cover, and where to press next). Resumable.",
+        "normal directions the presses cover, and where to press next). Resumable. On a real sensor, calibrate its "
+        "LEDs first (`nlips calibrate-leds PRESSES/reference --out leds.json`) and give them with --leds leds.json.",
     )
     p.add_argument("presses", help="folder of press folders (twin or device)")
     p.add_argument("--reference", help="press folder of the undeformed dome (default: PRESSES/reference)")
     p.add_argument("--out", help="calibration dataset folder (default: PRESSES/calibration)")
+    p.add_argument(
+        "--leds",
+        metavar="FILE",
+        help="LED file from `nlips calibrate-leds` (of this sensor): every press is solved with these LEDs, as by "
+        "`nlips solve --leds FILE` (an LED file of another sensor is refused); results solved with other LEDs are "
+        "solved again (default: the LEDs each capture records)",
+    )
     p.add_argument(
         "--workers", type=int, default=0, help="solver processes (default 0: one per core this process may use)"
     )
@@ -88,8 +96,10 @@ def run(args) -> int:
     if not presses:
         raise no_presses_error(root)
     reference_fits(reference, presses)
+    if args.leds is not None:
+        led_file_fits(args.leds, reference)
     workers = args.workers or usable_cores()
-    status = solve_all(presses, reference, workers=workers, progress=not args.no_progress)
+    status = solve_all(presses, reference, workers=workers, progress=not args.no_progress, leds=args.leds)
     solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]
     # each failure was logged with its cause as it happened (pipeline._status_of): listed by name at the end only
     failed = {k: v for k, v in status.items() if v not in ("solved", "skipped")}
@@ -159,9 +169,26 @@ def reference_fits(reference: Path, presses) -> None:
         return
 
 
-def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True) -> dict[str, str]:
+def led_file_fits(leds: str, reference: Path) -> None:
+    """One line, before any solving, when ``--leds`` is not an LED file or was calibrated on another sensor than
+    the undeformed capture's (whose sensor every press shares, :func:`reference_fits`): the checks of ``nlips solve
+    --leds FILE`` (:func:`nlipscalib.pipeline.check_fits_capture`), made once instead of failing every press."""
+    from ..errors import ConfigError
+    from ..pipeline import check_fits_capture, make_settings
+
+    if Path(leds).suffix.lower() != ".json" and not Path(leds).is_file():
+        raise ConfigError(
+            f"--leds {leds}: no LED file (a .json file from `nlips calibrate-leds`); an LED subset such as 1,5,9 is "
+            "for `nlips solve` (a calibration's samples need every LED)"
+        )
+    check_fits_capture(reference, make_settings(leds=leds))
+
+
+def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True, leds=None) -> dict[str, str]:
     """NLiPs results for every press (PRESS/nlips) via the pipeline: parallel, resumable, concurrency-safe;
-    presses already solved with the same options and inputs are skipped.
+    presses already solved with the same options and inputs are skipped. ``leds``: an LED file from ``nlips
+    calibrate-leds`` to solve with (None: each capture's LEDs); its LED values are part of a result's settings,
+    so a result solved with other LEDs is solved again.
 
     The dataset needs every press's result, so a press another run (a second ``nlips calibrate`` or
     ``nlips solve`` on the folder) is solving is waited for (``wait=True``) rather than skipped: its
@@ -171,5 +198,12 @@ def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True)
     from ..pipeline import solve_presses
 
     return solve_presses(
-        presses, reference=reference, roi="auto", workers=workers, progress=progress, figures=False, wait=True
+        presses,
+        reference=reference,
+        roi="auto",
+        leds=leds,
+        workers=workers,
+        progress=progress,
+        figures=False,
+        wait=True,
     )

@@ -112,7 +112,7 @@ def run(args) -> int:
         summary = (  # epochs numbered from 1 here (the stored history counts from 0)
             f"{out}: best epoch {result.best_epoch + 1} of {len(result.history)}, "
             f"validation AAE {best['val_aae_deg']:.2f} deg "
-            f"(contact {best['val_contact_aae_deg']:.2f} deg) on {', '.join(result.val_presses)}; "
+            f"({_contact_figure(best['val_contact_aae_deg'])}) on {', '.join(result.val_presses)}; "
             f"{_why_stopped(result, cfg)}; curve {curve}"
         )
         angle = None
@@ -151,6 +151,13 @@ def export_and_check(model_path, dataset, names) -> tuple:
         check=lambda tmp: angles.append(checked_parity(model, tmp, model_inputs(s["pixel"], s["rgb"]))),
     )
     return path, angles[0]
+
+
+def _contact_figure(aae) -> str:
+    """'contact 3.20 deg', or 'no contact samples' when the validation presses hold none (their AAE is NaN)."""
+    import math
+
+    return f"contact {aae:.2f} deg" if aae is not None and math.isfinite(aae) else "no contact samples"
 
 
 def _why_stopped(result, cfg) -> str:

@@ -11,6 +11,13 @@ SAME_SURFACE_MM = 0.05
 """... and their undeformed surfaces (reference.npz depth) agree within this median distance (mm)."""
 MIN_LEDS_PER_PIXEL = 3
 """A pixel needs at least this many usable (lit, unsaturated) LEDs to be reconstructed."""
+SATURATED_SHARE_WARN = 0.05
+"""A capture is warned about when at least this share of the gel's samples (LED x pixel x channel) is saturated (at
+or above the white level, in an LED image or the dark frame): ``nlips solve``, ``calibrate`` and ``calibrate-leds``
+leave those samples out of their fits, the brightest LEDs of a pixel first, so its normal rests on the dimmer ones
+(the audit's over-exposed session: 48 % of the gel's samples clipped, its LEDs calibrated to 3.5 times the images'
+noise, without a word on why). ``nlips infer`` and ``live`` say it of a frame with this share of the gel's pixels
+clipped."""
 NORMAL_EPS = 1e-9
 """Norms below this are treated as zero when normalising."""
 EXPERIMENT_CHECK_ABS = {"aae_deg": 0.5, "mabse": 0.005, "depth_rmse_mm": 0.05}

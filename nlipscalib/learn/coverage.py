@@ -91,7 +91,7 @@ def coverage(dataset, cells: int = 4, min_samples: int = 20) -> dict:
         b = direction_bins(normals, ref_normals)
         ok = b >= 0
         np.add.at(counts, (v[ok] * cells // H, u[ok] * cells // W, b[ok]), 1)
-        kind = entry.get("press", {}).get("indenter") or UNRECORDED_KIND
+        kind = recorded_kind(entry)
         kinds[kind] = kinds.get(kind, np.zeros(n_bins)) + np.bincount(b[ok], minlength=n_bins)
     gel = _gel_regions(ref["valid"], cells)
     covered = counts >= min_samples
@@ -151,6 +151,16 @@ def steep_gap(covered: np.ndarray, gel: np.ndarray, tilt_counts: np.ndarray) -> 
 
 UNRECORDED_KIND = "object"
 """The indenter kind of presses that record none (captured on a sensor: the operator's object is unnamed)."""
+LEGACY_UNRECORDED = "unknown"
+"""What datasets built before 2026-12-04 evening recorded for such presses (now null): read as unrecorded too."""
+
+
+def recorded_kind(entry: dict) -> str:
+    """The indenter kind of a dataset entry (index.json ``presses[i].press.indenter``), or :data:`UNRECORDED_KIND`
+    for a press that records none (null, or an older dataset's "unknown")."""
+    press = entry.get("press")
+    kind = press.get("indenter") if isinstance(press, dict) else None
+    return kind if isinstance(kind, str) and kind and kind != LEGACY_UNRECORDED else UNRECORDED_KIND
 
 
 def _with_article(kind: str) -> str:

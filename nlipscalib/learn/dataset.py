@@ -184,12 +184,13 @@ def _stratified(candidates: np.ndarray, cells: int, per_cell: int, rng) -> np.nd
 
 
 def press_description(press) -> dict:
-    """What was pressed where (twin provenance), for the coverage report; {} for device captures."""
+    """What was pressed where (twin provenance), for the coverage report; null values for device captures, whose
+    operator's object is unnamed (the coverage report calls it ``coverage.UNRECORDED_KIND``, "an object")."""
     prov = press.meta.get("provenance") or {}
     desc = prov.get("press") or {}
     indenter = desc.get("indenter") or {}
     return {
-        "indenter": indenter.get("kind", prov.get("indenter", "unknown")),
+        "indenter": indenter.get("kind", prov.get("indenter")),
         "polar_deg": desc.get("polar_deg"),
         "azimuth_deg": desc.get("azimuth_deg"),
         "depth_mm": desc.get("depth"),

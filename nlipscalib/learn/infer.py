@@ -16,7 +16,7 @@ import numpy as np
 
 from ..core.camera import Camera, depth_to_points
 from ..core.sensor_record import check_sensor, sensor_of
-from ..core.tolerances import FRAME_MISMATCH_FRACTION
+from ..core.tolerances import FRAME_MISMATCH_FRACTION, SATURATED_SHARE_WARN
 from ..errors import CaptureError, ConfigError, ShapeError
 from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
@@ -30,6 +30,14 @@ onnxruntime with dynamic int8 quantisation (about 1.5x faster for the paper's ne
 BRIGHTNESS_OFF = 0.15
 """A mismatched frame whose median brightness is off the reference's by more than this fraction is called darker or
 brighter in the warning (another exposure, LED level or bit depth); otherwise the colours differ."""
+
+BLACK_FRACTION = 0.01
+"""A mismatched frame whose median brightness on the gel is at most this fraction of the reference's is called black
+in the warning (no light above the black level: LEDs off, a lens cap, a camera not streaming); a black frame below
+the calibration's dark frame would otherwise read as a negative number of times as bright."""
+CLIPPED_VALUE = 0xFF00
+"""Stored values from here up count as clipped even below the sensor's white level: an 8-bit frame's 255, shifted up
+to 16 bits as frames are (docs/formats.md)."""
 
 RESULT_DIR = "nlipsnet"
 """Reconstruction folder name inside a press (core reconstruction format, like PRESS/nlips)."""
@@ -52,8 +60,12 @@ class Frame:
     """Time of each stage: change, network, integrate, total (the device path, :mod:`.fullframe`: upload,
     compute, download, total)."""
     brightness: float = 1.0
-    """Median brightness on the gel over the reference frame's; measured only for a frame that differs over most of
-    the gel (:func:`mismatch_warning`), else 1."""
+    """Median brightness on the gel over the reference frame's, at least 0 (a frame below the calibration's dark frame
+    is 0, not negative); measured only for a frame that differs over most of the gel (:func:`mismatch_warning`), else
+    1."""
+    saturated: float = 0.0
+    """Share of the gel's pixels with a channel at the white level (or an 8-bit frame's 255), measured like
+    ``brightness``."""
     mismatch: float = 0.0
     """Median difference from the reference frame over the gel, fraction of its brightness (:func:`mismatch_warning`).
     """
@@ -220,13 +232,22 @@ class Predictor:
         seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
         frame = Frame(normals, depth, points, changed, seconds, mismatch=self.changed.mismatch)
         if frame.mismatch > FRAME_MISMATCH_FRACTION:  # only then: what the warning can say about it
-            frame.brightness = self._brightness(tricolor)
+            frame.brightness, frame.saturated = self._exposure(tricolor)
         return frame
 
-    def _brightness(self, tricolor: np.ndarray) -> float:
-        """The frame's median brightness on the gel over the reference frame's (1: as bright)."""
+    def _exposure(self, tricolor: np.ndarray) -> tuple[float, float]:
+        """(brightness, saturated) of a linear frame (:class:`Frame`): its median brightness on the gel over the
+        reference frame's (1: as bright; 0 when no brighter than the calibration's dark frame, never negative), and
+        the share of the gel's pixels with a channel clipped (stored at the white level, or at
+        :data:`CLIPPED_VALUE`)."""
+        gel = tricolor[self.valid]
         level = float(np.median(self.ref_tricolor[self.valid].sum(-1)))
-        return float(np.median(tricolor[self.valid].sum(-1))) / level if level > 0 else float("nan")
+        brightness = max(0.0, float(np.median(gel.sum(-1))) / level) if level > 0 else float("nan")
+        s = self.model.sensor
+        stored = gel * np.float32(s["white_level"] - s["black_level"]) + self.dark[self.valid]
+        top = min(float(s["white_level"]), CLIPPED_VALUE) - 0.5  # linear values are float32: half a step of slack
+        saturated = float((stored >= top).any(-1).mean()) if len(gel) else 0.0
+        return brightness, saturated
 
     def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         """(N, 3) network input colours at the changed pixels: the model's prefilter, on their bounding box only."""
@@ -244,7 +265,7 @@ class Predictor:
         normals, depth, points, changed, seconds, mismatch = self._full(tricolor, stored)
         frame = Frame(normals, depth, points, changed, seconds, mismatch=mismatch)
         if frame.mismatch > FRAME_MISMATCH_FRACTION:
-            frame.brightness = self._brightness(self.linear(tricolor) if stored else tricolor)
+            frame.brightness, frame.saturated = self._exposure(self.linear(tricolor) if stored else tricolor)
         return frame
 
 
@@ -258,9 +279,20 @@ def mismatch_warning(frame: Frame, where) -> str | None:
     """
     if not frame.mismatch > FRAME_MISMATCH_FRACTION:
         return None
-    if abs(frame.brightness - 1) > BRIGHTNESS_OFF:  # darker or brighter throughout: say by how much
+    brightness = 0.0 if frame.brightness < 0 else frame.brightness  # never a negative ratio (NaN stays NaN)
+    off = abs(brightness - 1) > BRIGHTNESS_OFF
+    if brightness <= BLACK_FRACTION:
+        question = "the frame is black (no light above the black level: LEDs off, lens cap, camera not streaming?)"
+    elif frame.saturated >= SATURATED_SHARE_WARN:
+        times = f", and it is {brightness:.2g} times as bright" if off else ""
+        share = 100 if frame.saturated >= 1 else int(100 * frame.saturated)  # 99.6 % is not all of it
         question = (
-            f"it is {frame.brightness:.2g} times as bright: was it taken at the calibration's exposure and LED level, "
+            f"{share} % of the gel is saturated (at the white level){times}: was it taken at the calibration's "
+            "exposure and LED level?"
+        )
+    elif off:  # darker or brighter throughout: say by how much
+        question = (
+            f"it is {brightness:.2g} times as bright: was it taken at the calibration's exposure and LED level, "
             "with its values at the calibration's bit depth (12-bit values in a 16-bit file are 1/16 as bright)?"
         )
     else:

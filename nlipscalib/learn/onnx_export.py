@@ -26,8 +26,11 @@ IR_VERSION = 8
 """ONNX IR version of the export: the oldest that carries opset 17 (onnxruntime >= 1.13 reads it)."""
 
 
-def export_hint(model_path) -> str:
-    """How to get the ONNX file of the model at ``model_path``, for the errors that find it missing or stale."""
+def export_hint(model_path, again: bool = False) -> str:
+    """How to get the ONNX file of the model at ``model_path``, for the errors that find it missing or stale
+    (``again``: damaged, so it is written again)."""
+    if again:
+        return f"`nlips export {model_path}` writes it again, or use --backend torch"
     return f"`nlips export {model_path}` writes it, as `nlips train` does unless --no-onnx; or use --backend torch"
 
 
@@ -160,7 +163,10 @@ class OnnxNet:
         try:
             self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
-            raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__})") from None
+            raise CaptureError(
+                f"{path}: not a readable ONNX model ({type(exc).__name__}): "
+                f"{export_hint(model.path if model else 'MODEL.pt', again=True)}"
+            ) from None
         props = self.session.get_modelmeta().custom_metadata_map
         if model is not None and props.get("model_digest") != model.digest:
             raise CaptureError(

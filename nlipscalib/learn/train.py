@@ -185,10 +185,12 @@ def train(
     _clean_interrupted_writes(out)
     train_names, val_names = _presses(dataset, cfg, val_names, exclude)
     reference = dataset.reference()  # checked now, not after the whole training (the model file carries it)
-    x_tr, y_tr, _ = training_arrays(dataset.arrays(train_names), cfg.labels)
+    x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels)
     x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
     if len(x_tr) < 2 or len(x_va) < 1:
         raise ConfigError(f"{dataset.folder}: too few labelled samples to train ({len(x_tr)} train, {len(x_va)} val)")
+    if not (c_tr.any() or c_va.any()):
+        raise ConfigError(no_contact_error(dataset, len(train_names) + len(val_names), len(x_tr) + len(x_va)))
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     cam = dataset.sensor["camera"]
@@ -242,6 +244,17 @@ def train(
         smoothing_px=dataset.smoothing_px,
     )
     return TrainResult(out, history, best["epoch"], train_names, val_names, progress_path if stage else None)
+
+
+def no_contact_error(dataset: CalibrationDataset, presses: int, samples: int) -> str:
+    """Why a dataset without contact samples is not trained on: the network would learn the undeformed dome alone
+    (every validation figure of contact would be NaN)."""
+    return (
+        f"{dataset.folder}: no contact samples: none of the {samples} samples of its {presses} presses differ from "
+        "the reference frame (the tri-colour frames show the undeformed dome), so the network has no press to learn "
+        "from: check that the presses were pressed, and exposed like the reference (neither black nor saturated: "
+        "`nlips calibrate` prints the contact samples), then capture them again"
+    )
 
 
 def _presses(dataset: CalibrationDataset, cfg: TrainConfig, val_names, exclude) -> tuple[list[str], list[str]]:

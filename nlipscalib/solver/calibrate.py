@@ -9,8 +9,9 @@ channel and the LED intensities are normalised so that **mean_i Psi_ic = 1 for e
 common factor rho_c = mean_i K_ic is reported as ``albedo``. The solver recovers albedo relative to it.
 
 What the user is told (``LedCalibration.warnings``, logged as warnings): a coating reflectance given but not
-used, a reflectance that could not be profiled, and a fit that leaves more than the images' own noise
-unexplained (:func:`fit_quality`), i.e. LEDs not to be trusted.
+used, a reflectance that could not be profiled, a fit that leaves more than the images' own noise
+unexplained (:func:`fit_quality`), i.e. LEDs not to be trusted, and a capture with many saturated samples
+(left out of the fit, :data:`nlipscalib.core.tolerances.SATURATED_SHARE_WARN`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, disk_shading, led_shading
 from ..errors import CaptureError, ConfigError
+from .exposure import nothing_to_fit, saturated_share, saturation_note
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +60,10 @@ class LedCalibration:
     """:func:`fit_quality` of the point LEDs: each LED's residual against its images' noise, and whether the
     calibration is reliable."""
     warnings: tuple[str, ...] = ()
-    """What the user must know (one line each; also logged): options given but not used, an unreliable fit."""
+    """What the user must know (one line each; also logged): options given but not used, an unreliable fit, captures
+    with many saturated samples."""
+    saturated_share: tuple[float, ...] = ()
+    """Per capture, the share of the gel's samples left out as saturated (:func:`.exposure.saturated_share`)."""
 
     def to_json(self) -> dict:
         out = {
@@ -69,6 +74,7 @@ class LedCalibration:
             "interreflection": self.interreflection,
             "quality": self.quality,
             "warnings": list(self.warnings),
+            "saturated_share": list(self.saturated_share),
         }
         if self.emitters:
             out["emitters"] = {"radius_mm": self.led_radius, "leds": [led.to_dict() for led in self.emitters]}
@@ -157,11 +163,13 @@ def calibrate_leds(
         cal, presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance
     )
     _check_finite(cal, presses[0].folder)
-    notes = _unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
+    shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
+    notes = [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
+    notes += _unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
     notes += _quality_warning(cal.quality, cal.interreflection, interreflection)
     for note in notes:
         log.warning(note)
-    return dataclasses.replace(cal, warnings=tuple(notes))
+    return dataclasses.replace(cal, warnings=tuple(notes), saturated_share=tuple(round(v, 4) for v in shares))
 
 
 def _check_finite(cal: LedCalibration, folder) -> None:
@@ -181,6 +189,9 @@ def _calibrate(
     first = presses[0]
     leds0 = leds = tuple(initial) if initial is not None else first.leds
     data = [_samples(p, first, len(leds), stride) for p in presses]
+    for p in presses:  # black or saturated throughout: said here, not as a fit that fails further on
+        if why := nothing_to_fit(p):
+            raise CaptureError(f"{p.folder}: no usable pixel to calibrate the LEDs on{why}")
     used = sum(len(d[0]) for d in data)
     if used < tolerances.CALIBRATION_MIN_PIXELS:
         raise ConfigError(

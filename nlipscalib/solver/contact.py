@@ -187,9 +187,12 @@ def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, bl
     dead = tuple(int(i) for i in np.flatnonzero(level < dead_level))
     live = [i for i in range(len(img)) if i not in dead]
     if len(live) < tolerances.MIN_LEDS_PER_PIXEL:
+        from .exposure import no_light_reason
+
+        why = no_light_reason(press, valid, level >= dead_level)  # black or saturated throughout: say so
         raise CaptureError(
             f"{press.folder}: only {len(live)} LED images are lit (dead: {[i + 1 for i in dead]}); "
-            f"nothing can be reconstructed"
+            f"nothing can be reconstructed{why}"
         )
     if indirect is not None:
         img = img - indirect

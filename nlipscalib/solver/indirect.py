@@ -32,6 +32,7 @@ from ..core.sensor import DomeConfig
 from ..errors import CaptureError, ConfigError
 from . import radiosity, reuse, threads
 from .contact import led_levels
+from .exposure import LIT_LEVEL, no_light_reason
 
 PATCH_TARGET = 80
 """Patches along the image's long side (the patch side is the long side over this, at least 2 px)."""
@@ -350,7 +351,8 @@ def fit_indirect(
     S = surf.shading[:, surf.keep]
     fitted = ok.any(axis=0)  # (K, 3) patches with data
     if not fitted.any():
-        raise CaptureError(f"{reference.folder}: no usable pixel to fit the interreflection term on")
+        why = no_light_reason(reference, surf.valid, cache["live"])
+        raise CaptureError(f"{reference.folder}: no usable pixel to fit the interreflection term on{why}")
     kappa, G, off_albedo = _alternate(img, S, ok, surf, cache["off_unit"], bounces, iterations)
     # the receiver's albedo multiplies both terms: the share is kappa G / S
     on = fitted.all(axis=1)
@@ -446,7 +448,7 @@ def _fit_inputs(reference: Press, leds, shading) -> dict:
     lin = reference.linear_led_images
     usable = (~reference.saturated(reference.led_images)).astype(np.float32)
     usable[:, ~surf.valid] = 0.0
-    live = led_levels(lin, surf.valid) >= 1e-3
+    live = led_levels(lin, surf.valid) >= LIT_LEVEL
     usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
     return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
 

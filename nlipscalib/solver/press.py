@@ -33,6 +33,7 @@ from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box
 from .contact import auto_roi as _auto_roi_box
+from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
     Surface,
     design_of,
@@ -108,7 +109,19 @@ def solve_press(press: Press, **kwargs) -> SolveResult:
         result.report["smoothness_fallback"] = (
             f"noise-adapted smoothness dropped: the first solve drifted {drift:.1f} mm"
         )
+    _report_saturation(result, press)
     return result
+
+
+def _report_saturation(result: SolveResult, press: Press) -> None:
+    """The share of the gel's samples left out as saturated in the report (``saturated_share``), and a warning,
+    logged and in the report's ``warnings``, when it reaches ``tolerances.SATURATED_SHARE_WARN``."""
+    share = saturated_share(press)
+    result.report["saturated_share"] = round(share, 4)
+    note = saturation_note(press, share, "the solve")
+    if note is not None:
+        result.report["warnings"] = [*result.report.get("warnings", []), note]
+        log.warning("%s", note)
 
 
 def _median_displacement(result: SolveResult, press: Press) -> float:
@@ -323,6 +336,7 @@ class _Runner:
             raise CaptureError(
                 f"{self.press.folder}: no pixel could be reconstructed ({result.report['pixels_too_few_leds']} "
                 f"pixels with fewer than {self.options.min_leds} usable LEDs; dead LEDs {dead})"
+                + nothing_to_fit(self.press)  # black or saturated throughout: say so
             )
         return result
 

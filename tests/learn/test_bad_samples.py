@@ -97,6 +97,25 @@ def test_too_few_presses_to_train_names_the_dataset(built, tmp_path, capsys):  #
     _one_line(capsys, f"{built / 'index.json'}: training needs at least 2 presses", "0 of the 0 it lists")
 
 
+def test_a_dataset_without_contact_samples_is_refused_naming_it(built, tmp_path, capsys):  # noqa: F811
+    """A session of black or over-exposed presses gave "3 presses, 4189 samples (0 contact)"; `nlips train` then
+    wrote a model of the undeformed dome and printed "validation AAE 98.51 deg (contact nan deg)", exit 0."""
+    for name in NAMES:
+        _edit_npz(built / "samples" / f"{name}.npz", lambda a: a["contact"].fill(False))
+    assert main(["train", str(built), "--out", str(tmp_path / "m.pt"), "--no-onnx", "--no-progress"]) == 2
+    _one_line(capsys, f"{built}: no contact samples: none of the", "of its 3 presses differ from the reference frame")
+    assert not list(tmp_path.glob("m*"))  # no model, no checkpoint left
+
+
+def test_validation_presses_without_contact_say_so_never_nan_deg(built, tmp_path, capsys):  # noqa: F811
+    """The summary printed "(contact nan deg)" when the validation presses held no contact sample."""
+    _edit_npz(built / "samples" / f"{NAMES[0]}.npz", lambda a: a["contact"].fill(False))
+    cmd = ["train", str(built), "--out", str(tmp_path / "m.pt"), "--val-presses", NAMES[0], "--hidden", "8"]
+    assert main(cmd + ["--dropout", "0", "--epochs", "2", "--no-onnx", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert f"(no contact samples) on {NAMES[0]};" in out and "nan" not in out.lower(), out
+
+
 def test_a_model_with_a_nan_reference_or_a_bad_sigma_is_named(built, tmp_path, capsys):  # noqa: F811
     import torch
 

@@ -75,3 +75,13 @@ def test_the_advice_names_the_object_with_its_article():
     assert _next_press(counts, covered, gel, kinds, (20, 20))["advice"].startswith("an object in image region")
     assert _next_press(counts, covered, gel, {"sphere": np.ones(3)}, (20, 20))["advice"].startswith("a sphere in")
     assert _next_press(counts, covered, gel, {}, (20, 20))["advice"].startswith("any indenter in")
+
+
+@pytest.mark.parametrize("recorded", [None, "unknown"])
+def test_a_press_that_records_no_indenter_is_an_object(recorded):
+    """Captured presses are recorded with no indenter kind (older datasets: "unknown"): `nlips calibrate` advised
+    "press next: an unknown in image region ..."."""
+    data = FakeDataset({"a": smooth_press(recorded), "b": smooth_press(recorded)})
+    cov = coverage(data)
+    assert list(cov["kinds"]) == ["object"] and cov["next_press"]["indenter"] == "object"
+    assert cov["next_press"]["advice"].startswith("an object in image region")

@@ -238,3 +238,14 @@ def test_cli_calibrate_with_another_reference_leaves_the_folders_own_out(twin_pr
     assert data.names == ["press_a"]
     left_out = [r.getMessage() for r in caplog.records if "left out" in r.getMessage()]
     assert len(left_out) == 1 and str(root / "reference") in left_out[0] and str(other) in left_out[0]
+
+
+def test_a_captured_press_records_no_indenter_kind(tmp_path):
+    """A press without the twin's provenance was recorded as indenter "unknown", which the coverage report then
+    named ("press next: an unknown"); null lets it call the operator's object "an object"."""
+    from nlipscalib.core import load_press
+    from nlipscalib.learn.dataset import press_description
+    from tests.solver import synth
+
+    press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(32, 24)))
+    assert press_description(press) == {"indenter": None, "polar_deg": None, "azimuth_deg": None, "depth_mm": None}

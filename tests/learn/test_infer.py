@@ -430,3 +430,66 @@ def test_results_of_a_folder_of_presses_are_scored_against_their_presses(trained
     assert f"scoring {out}/*/nlipsnet against {presses}/*" in table and "not solved, skipped: press_b" in table
     assert main(["eval", str(presses), "--result", str(tmp_path)]) == 2
     assert "holds no result of the presses" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    """A tiny model of the exact-data sensor (64x48, no rendering: seconds), with the presses it came from."""
+    from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
+    from nlipscalib.learn.train import train
+    from nlipscalib.pipeline import solve_folder
+    from nlipscalib.solver import SolverOptions
+    from tests.learn.test_resume import NAMES, TINY
+    from tests.solver import synth
+
+    root = tmp_path_factory.mktemp("exposure_model")
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    for name, kind in zip(NAMES, ("sphere", "cube", "sphere")):
+        synth.make_press(root / name, kind, size=(64, 48))
+        solve_folder(root / name, options=SolverOptions(max_iters=6), figures=False, progress=False)
+    build_dataset([root / n for n in NAMES], root / "reference", root / "calib", progress=False)
+    out = root / "m.pt"
+    train(CalibrationDataset(root / "calib"), TINY, out, progress=False)
+    return out, root
+
+
+def test_black_and_saturated_frames_are_called_so_never_a_negative_brightness(tiny_model, tmp_path, caplog, capsys):
+    """A black frame (all 0, below the calibration's dark frame) was "-0.037 times as bright"; a saturated one "2.3
+    times as bright", with no word of clipping (the audit's frames_black, frames_sat, video_black.avi)."""
+    import logging
+    import re
+
+    import cv2
+
+    from nlipscalib.learn.infer import Frame, mismatch_warning
+
+    model, root = tiny_model
+    caplog.set_level(logging.WARNING)
+    frames = {
+        "black.png": np.zeros((48, 64, 3), np.uint16),
+        "saturated.png": np.full((48, 64, 3), 65535, np.uint16),
+        "saturated8.png": np.full((48, 64, 3), 255, np.uint8),  # an 8-bit frame's 255: 65280 once shifted up
+    }
+    for name, image in frames.items():
+        cv2.imwrite(str(tmp_path / name), image)
+    for name, expected in (
+        ("black.png", "the frame is black (no light above the black level: LEDs off, lens cap, camera not streaming?)"),
+        ("saturated.png", "100 % of the gel is saturated (at the white level), and it is"),
+        ("saturated8.png", "100 % of the gel is saturated (at the white level)"),
+    ):
+        caplog.clear()
+        assert main(["infer", str(model), str(tmp_path / name), "--out", str(tmp_path / name[:-4])]) == 0
+        assert f"{name}: differs from the calibration's reference" in caplog.text and expected in caplog.text
+        assert not re.search(r"-\d[\d.]* times as bright", caplog.text), caplog.text
+    # both predictor paths measure it alike (the whole frame's too), and a frame made elsewhere never reads negative
+    for full in (False, True):
+        predictor = Predictor(model, full_frame=full)
+        black = predictor.predict_stored(frames["black.png"])
+        assert black.brightness == 0.0 and black.saturated == 0.0
+        assert predictor.predict_stored(frames["saturated.png"]).saturated == 1.0
+        press = load_press(root / "a_sphere")
+        assert predictor.predict_stored(press.tricolor).saturated == 0.0  # measured only for a mismatched frame
+    odd = Frame(*(np.zeros(1),) * 4, {}, brightness=-0.5, mismatch=1.0)
+    assert "the frame is black" in mismatch_warning(odd, "x")
+    dim = Frame(*(np.zeros(1),) * 4, {}, brightness=0.3, saturated=0.01, mismatch=1.0)
+    assert "0.3 times as bright" in mismatch_warning(dim, "x") and "saturated" not in mismatch_warning(dim, "x")

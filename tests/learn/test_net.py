@@ -312,3 +312,19 @@ def test_a_failed_check_names_the_export_not_its_temporary(tmp_path, trained):
     with pytest.raises(CaptureError, match=f"^{out}: onnxruntime differs"):
         export_onnx(load_model(trained), out, check=differs)
     assert not out.exists()
+
+
+def test_a_garbage_onnx_file_names_the_way_to_write_it_again(tmp_path):
+    """`b.onnx: not a readable ONNX model (InvalidProtobuf)` gave no remedy; the missing-file line gave one."""
+    from types import SimpleNamespace
+
+    from nlipscalib.learn.onnx_export import OnnxNet
+
+    garbage = tmp_path / "net.onnx"
+    garbage.write_bytes(np.random.default_rng(0).bytes(3000))
+    model = SimpleNamespace(path=tmp_path / "net.pt")
+    with pytest.raises(CaptureError) as caught:
+        OnnxNet(garbage, model)
+    message = str(caught.value)
+    assert message.startswith(f"{garbage}: not a readable ONNX model (")
+    assert message.endswith(f"`nlips export {model.path}` writes it again, or use --backend torch"), message

@@ -1,0 +1,112 @@
+"""What a capture's exposure leaves to fit: the saturated samples, and LED images without light.
+
+The solver and the LED calibration drop saturated samples (at or above the white level) and LEDs that give no
+light; this module says how much of a capture that was, so a user is told why a capture cannot be used (every
+sample dropped) or how much of it was (:data:`nlipscalib.core.tolerances.SATURATED_SHARE_WARN`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core import tolerances
+from ..core.capture import Press
+
+LIT_LEVEL = 1e-3
+"""An LED image gives light when its bright end on the gel (``solver.contact.led_levels``: the 99th percentile) is
+at least this, linear units (full scale 1) above the dark frame; a dead LED's image says nothing about the light."""
+REMEDY_SATURATED = "lower the exposure (`nlips capture --exposure-ms`) or the LEDs' drive, and capture again"
+"""What to do about saturated LED images."""
+REMEDY_BLACK = "LEDs off, lens cap on, the camera not streaming?"
+"""What black LED images suggest."""
+
+
+def gel_of(press: Press) -> np.ndarray:
+    """(H, W) bool -- the gel's pixels: where the undeformed surface (reference.npz) is known, else every pixel."""
+    if press.reference is not None:
+        return np.isfinite(press.reference.depth)
+    return np.ones(press.camera.shape, bool)
+
+
+def saturated_share(press: Press, gel: np.ndarray | None = None) -> float:
+    """Share of the gel's samples (LED x pixel x channel) that are saturated: at or above the white level in the
+    LED image or in the dark frame (what the solver leaves out, ``solver.press._Runner``); 0 without a gel."""
+    gel = gel_of(press) if gel is None else gel
+    if not gel.any():
+        return 0.0
+    sat = press.saturated(press.led_images[:, gel]) | press.saturated(press.dark[gel])[None]
+    return float(sat.mean())
+
+
+def percent(share: float) -> str:
+    """'53 %', '<1 %' for a share above 0 that rounds to 0, '100 %' only when it is all."""
+    if 0 < share < 0.005:
+        return "<1 %"
+    if share < 1 and round(100 * share) == 100:
+        return ">99 %"
+    return f"{100 * share:.0f} %"
+
+
+def led_files(press: Press) -> str:
+    """'its LED images (led_01.png .. led_12.png)', or without the names when meta.json lists other LEDs."""
+    names = (press.meta.get("images") or {}).get("leds")
+    if isinstance(names, list) and len(names) == len(press.leds) and all(isinstance(n, str) for n in names):
+        return f"its LED images ({names[0]} .. {names[-1]})" if len(names) > 1 else f"its LED image ({names[0]})"
+    return "its LED images"
+
+
+def dark_file(press: Press) -> str:
+    name = (press.meta.get("images") or {}).get("dark")
+    return name if isinstance(name, str) else "dark.png"
+
+
+def saturation_note(press: Press, share: float, dropped_from: str) -> str | None:
+    """The warning for a capture with ``share`` (:func:`saturated_share`) of its gel's samples saturated, at
+    least :data:`~nlipscalib.core.tolerances.SATURATED_SHARE_WARN`; None below it."""
+    if not share >= tolerances.SATURATED_SHARE_WARN:
+        return None
+    return (
+        f"{press.folder}: {percent(share)} of the gel's samples in {led_files(press)} are saturated (at or above "
+        f"the white level {press.response.white_level:g}) and left out of {dropped_from} (warned from "
+        f"{percent(tolerances.SATURATED_SHARE_WARN)}): {REMEDY_SATURATED}"
+    )
+
+
+def no_light_reason(press: Press, gel: np.ndarray, live: np.ndarray) -> str:
+    """Why a capture leaves no sample to fit on, when its exposure tells: ": its LED images are black (...)" or
+    ": N % of the gel's samples ... are saturated (...)"; "" when it is neither.
+
+    ``gel`` (H, W) bool: the pixels fitted on; ``live`` (L,) bool: the LEDs whose images hold light above the dark
+    frame (``solver.contact.led_levels``)."""
+    if not gel.any():
+        return ": the undeformed surface (reference.npz) covers no pixel of the image"
+    share = saturated_share(press, gel)
+    if share >= tolerances.SATURATED_SHARE_WARN:
+        dark = float(press.saturated(press.dark[gel]).mean())
+        also = f", and so is {percent(dark)} of the dark frame ({dark_file(press)})" if dark > 0 else ""
+        return (
+            f": {percent(share)} of the gel's samples in {led_files(press)} are saturated (at or above the white "
+            f"level {press.response.white_level:g}){also}: {REMEDY_SATURATED}"
+        )
+    if not np.any(live):
+        return (
+            f": {led_files(press)} are black (no light above the dark frame {dark_file(press)} on the gel: "
+            f"{REMEDY_BLACK})"
+        )
+    return ""
+
+
+def nothing_to_fit(press: Press, gel: np.ndarray | None = None) -> str:
+    """Why no sample of a capture can be fitted on (:func:`no_light_reason`, or a plainer word when the exposure
+    does not explain it): no LED image gives light above the dark frame, or every lit one is saturated on the gel;
+    "" when some sample is usable."""
+    from .contact import led_levels
+
+    gel = gel_of(press) if gel is None else gel
+    if not gel.any():
+        return no_light_reason(press, gel, np.zeros(len(press.leds), bool))
+    live = led_levels(press.linear_led_images, gel) >= LIT_LEVEL
+    unsaturated = ~press.saturated(press.led_images[live][:, gel]) & ~press.saturated(press.dark[gel])[None]
+    if unsaturated.any():
+        return ""
+    return no_light_reason(press, gel, live) or ": no LED image holds an unsaturated sample lit above the dark frame"

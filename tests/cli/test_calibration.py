@@ -1,0 +1,78 @@
+"""`nlips calibrate --leds FILE`: capture -> calibrate-leds -> calibrate, the LED file's sensor checked once before
+any solving, and the LEDs part of what a reused result must have been solved with (exact-data presses, 64x48)."""
+
+import json
+import logging
+
+import pytest
+
+from nlipscalib.cli import main
+from tests.solver import synth
+
+SIZE = (64, 48)
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    root = tmp_path_factory.mktemp("calibrate_leds") / "presses"
+    synth.make_press(root / "reference", "none", size=SIZE)
+    synth.make_press(root / "press_0001", "sphere", size=SIZE)
+    synth.make_press(root / "press_0002", "cube", size=SIZE)
+    leds = root.parent / "leds.json"
+    assert main(["calibrate-leds", str(root / "reference"), "--out", str(leds), "--stride", "4"]) == 0
+    return root, leds
+
+
+def _solved_with(press) -> list | None:
+    return json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["leds"]
+
+
+def test_calibrate_solves_with_the_led_file_and_again_when_the_leds_change(session, capsys, caplog):
+    """`nlips calibrate` had no --leds: the calibrated LEDs never reached NLiPsNet's labels."""
+    root, leds = session
+    caplog.set_level(logging.INFO)
+    assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0
+    assert _solved_with(root / "press_0001") is None  # the capture's own LEDs
+    caplog.clear()
+    assert main(["calibrate", str(root), "--leds", str(leds), "--workers", "1", "--no-progress"]) == 0
+    calibrated = json.loads(leds.read_text())["leds"]
+    for name in ("press_0001", "press_0002"):
+        assert [d["position"] for d in _solved_with(root / name)] == [d["position"] for d in calibrated]
+    # not reused silently: each result made with the capture's LEDs is named and solved again
+    resolved = [r.getMessage() for r in caplog.records if "made with other settings or inputs (leds)" in r.getMessage()]
+    assert len(resolved) == 2, caplog.text
+    out = capsys.readouterr().out
+    assert "2 presses" in out and "press next: an object in image region" in out  # was "an unknown"
+    caplog.clear()
+    assert main(["calibrate", str(root), "--leds", str(leds), "--workers", "1", "--no-progress"]) == 0
+    assert "identical result exists" in caplog.text and "re-solving" not in caplog.text
+
+
+def test_an_led_file_of_another_sensor_or_an_led_subset_is_one_line_before_any_solving(session, tmp_path, capsys):
+    root, leds = session
+    other = json.loads(leds.read_text())  # calibrated on a sensor whose LEDs sit 20 % further out
+    for led in other["leds"]:
+        led["position"] = [v * 1.2 for v in led["position"]]
+    other["sensor"]["led_positions"] = [[v * 1.2 for v in p] for p in other["sensor"]["led_positions"]]
+    foreign = tmp_path / "other.json"
+    foreign.write_text(json.dumps(other))
+    fresh = tmp_path / "presses"
+    for name in ("reference", "press_0001"):
+        synth.make_press(fresh / name, "none" if name == "reference" else "sphere", size=SIZE)
+    capsys.readouterr()
+    for given, problem in (
+        (str(foreign), f"{foreign}: calibrated on another sensor than {fresh / 'reference'} (LED 1 is"),
+        ("1,5,9", "--leds 1,5,9: no LED file (a .json file from `nlips calibrate-leds`)"),
+        (str(tmp_path / "missing.json"), "missing.json: no such LED file"),
+    ):
+        assert main(["calibrate", str(fresh), "--leds", given, "--workers", "1", "--no-progress"]) == 2
+        err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+        assert len(err) == 1 and problem in err[0], err
+    assert not (fresh / "press_0001" / "nlips").exists() and not (fresh / "calibration").exists()
+
+
+def test_calibrate_leds_help_names_both_commands(capsys):
+    with pytest.raises(SystemExit):
+        main(["calibrate-leds", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "`nlips solve --leds FILE` or `nlips calibrate --leds FILE`" in text

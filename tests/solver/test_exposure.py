@@ -1,0 +1,90 @@
+"""Black or saturated captures: the solver and the LED calibration say why they cannot use one, and how much of a
+capture they left out as saturated (the audit's real_black, real_sat and real_over sessions)."""
+
+import dataclasses
+import json
+import logging
+
+import numpy as np
+import pytest
+
+from nlipscalib.cli import main
+from nlipscalib.core import load_press
+from nlipscalib.core.tolerances import SATURATED_SHARE_WARN
+from nlipscalib.errors import CaptureError
+from nlipscalib.solver import calibrate_leds, solve_press
+from nlipscalib.solver.exposure import saturated_share
+from nlipscalib.solver.indirect import fit_indirect
+
+from . import synth
+
+SIZE = (64, 48)
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory):
+    """Undeformed captures at 64x48: exposed as usual, black (no light above the dark frame), saturated (every
+    sample at the white level), over-exposed (a third of the gel's samples clipped)."""
+    root = tmp_path_factory.mktemp("exposure")
+    hooks = {
+        "good": None,
+        "black": lambda lin: lin * 0.0,
+        "saturated": lambda lin: lin + 10.0,
+        "over": lambda lin: lin * 2.5,
+    }
+    return {name: synth.make_press(root / name, "none", size=SIZE, lin_hook=hook) for name, hook in hooks.items()}
+
+
+def test_no_usable_pixel_says_the_led_images_are_black_or_saturated(captures, tmp_path, capsys):
+    """It said "no usable pixel to fit the interreflection term on", and nothing of why."""
+    black, sat = load_press(captures["black"]), load_press(captures["saturated"])
+    with pytest.raises(CaptureError, match=r"led_01\.png \.\. led_12\.png\) are black \(no light above the dark"):
+        fit_indirect(black)
+    with pytest.raises(CaptureError, match=r"100 % of the gel's samples in its LED images .* are saturated") as err:
+        fit_indirect(sat)
+    assert str(captures["saturated"]) in str(err.value) and "--exposure-ms" in str(err.value)
+    # the commands, with the interreflection term and without (calibrate-leds then stopped on a numpy traceback)
+    for folder, why in ((captures["black"], "are black"), (captures["saturated"], "are saturated")):
+        for cmd in (["calibrate-leds", str(folder), "--out", str(tmp_path / "l.json")], ["solve", str(folder)]):
+            for mode in ("auto", "off"):
+                assert main([*cmd, "--interreflection", mode]) == 2
+                err = capsys.readouterr().err.strip().splitlines()
+                assert len(err) == 1 and str(folder) in err[0] and why in err[0], (mode, err)
+
+
+def test_solve_and_calibrate_leds_report_a_large_saturated_share(captures, tmp_path, caplog):
+    """The solver counted the saturated samples it left out (`saturated_samples`) and no user ever saw it."""
+    over, good = load_press(captures["over"]), load_press(captures["good"])
+    share = saturated_share(over)
+    assert 0.1 < share < 0.9 and saturated_share(good) == 0.0
+    caplog.set_level(logging.WARNING)
+    result = solve_press(over, interreflection="off", dent_interreflection=False)
+    assert result.report["saturated_share"] == pytest.approx(share, abs=1e-4)
+    (note,) = result.report["warnings"]
+    assert f"{100 * share:.0f} % of the gel's samples" in note and "left out of the solve" in note
+    assert str(captures["over"]) in note and note in caplog.text
+    quiet = solve_press(good, interreflection="off", dent_interreflection=False)
+    assert quiet.report["saturated_share"] == 0.0 and "warnings" not in quiet.report
+
+    cal = calibrate_leds(over, interreflection="off")
+    assert cal.saturated_share == (round(share, 4),)
+    assert "left out of the LED fit" in cal.warnings[0]  # first: the likely cause of an unreliable fit
+    assert main(["calibrate-leds", str(captures["over"]), "--out", str(tmp_path / "l.json")]) == 0
+    written = json.loads((tmp_path / "l.json").read_text())
+    assert written["saturated_share"] == [round(share, 4)] and "saturated" in written["warnings"][0]
+    assert SATURATED_SHARE_WARN == 0.05
+    assert not [w for w in calibrate_leds(good, interreflection="off").warnings if "saturated" in w]
+
+
+def test_a_share_below_the_threshold_is_recorded_without_a_warning(captures):
+    """A few clipped samples (specular glints) are normal: recorded, not warned about."""
+    press = load_press(captures["good"])
+    images = press.led_images.copy()
+    gel = np.isfinite(press.reference.depth)
+    rows, cols = np.nonzero(gel)
+    images[0, rows[:20], cols[:20]] = press.response.white_level  # 20 of the gel's pixels in one LED image
+    clipped = dataclasses.replace(press, led_images=images)
+    share = saturated_share(clipped)
+    assert 0 < share < SATURATED_SHARE_WARN
+    result = solve_press(clipped, interreflection="off", dent_interreflection=False)
+    assert result.report["saturated_share"] == pytest.approx(share, abs=1e-4) and "warnings" not in result.report
