@@ -36,7 +36,7 @@ HOST = socket.gethostname()
 _HELD: dict[Path, Owner] = {}
 """Claims this process holds now (released by ``release_all`` when it is terminated)."""
 _PROBES: set[Path] = set()
-"""Clock probes (:func:`_fs_now`) this process is writing now."""
+"""Files this process is writing now: clock probes (:func:`_fs_now`) and claim files' temporaries (:func:`_create`)."""
 
 
 @dataclass(frozen=True)
@@ -78,10 +78,14 @@ def claim(target: str | Path, *, stale_s: float = 60.0) -> Iterator[bool]:
     path = claim_path(target)
     path.parent.mkdir(parents=True, exist_ok=True)
     me = Owner(HOST, os.getpid(), secrets.token_hex(8))
+    # registered before the file exists: a signal handler exiting right after the link still removes it
+    # (a claim this process already holds stays registered as its holder's: claims are not re-entrant)
+    registered = _HELD.setdefault(path, me) is me
     if not _acquire(path, me, stale_s):
+        if registered:
+            _HELD.pop(path, None)
         yield False
         return
-    _HELD[path] = me
     beat = _Heartbeat(path, me, interval=max(0.05, stale_s / 4))
     beat.start()
     try:
@@ -159,8 +163,9 @@ def _create(path: Path, me: Owner) -> bool:
     """Atomically create the claim file holding ``me``; False if it exists already."""
     data = json.dumps({"host": me.host, "pid": me.pid, "token": me.token}).encode()
     tmp = path.with_name(f"{path.name}.{me.token}")
-    tmp.write_bytes(data)
+    _PROBES.add(tmp)  # a signal handler exiting meanwhile removes it (release_all): no finally runs then
     try:
+        tmp.write_bytes(data)
         os.link(tmp, path)
         return True
     except FileExistsError:
@@ -171,6 +176,7 @@ def _create(path: Path, me: Owner) -> bool:
         return _create_exclusive(path, data)
     finally:
         tmp.unlink(missing_ok=True)
+        _PROBES.discard(tmp)
 
 
 def _create_exclusive(path: Path, data: bytes) -> bool:

@@ -171,3 +171,23 @@ def test_release_all_removes_a_clock_probe_being_written(tmp_path, monkeypatch):
     claims._fs_now(tmp_path)
     monkeypatch.undo()
     assert before and not after
+
+
+def test_a_signal_handler_exiting_while_a_claim_is_made_leaves_no_file(tmp_path, monkeypatch):
+    """Ctrl-C of `nlips experiment --workers 2` left `.claim-TASK.json.TOKEN` (the claim's temporary): the
+    worker's handler (release_all, then exit: no `finally` runs) struck between writing it and linking it."""
+    import nlipscalib.core.claims as claims
+
+    seen = []
+    real_link = os.link
+
+    def link_then_the_handler_runs(src, dst):
+        real_link(src, dst)
+        claims.release_all()  # what the worker's SIGINT/SIGTERM handler does before os._exit
+        seen.extend(p.name for p in tmp_path.iterdir())
+        raise SystemExit(130)
+
+    monkeypatch.setattr(claims.os, "link", link_then_the_handler_runs)
+    with pytest.raises(SystemExit), claim(tmp_path / "item"):
+        pass
+    assert seen == []  # neither the claim nor its temporary outlived the handler
