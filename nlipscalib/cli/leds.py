@@ -70,8 +70,10 @@ def run(args) -> int:
     if not args.timeout > 0 or not args.dwell >= 0:
         _refuse(f"--timeout must be > 0 and --dwell >= 0 seconds, got {args.timeout:g} and {args.dwell:g}")
     count = args.port.partition(":")[2] if args.port.startswith("virtual:") else str(DEFAULT_VIRTUAL_LEDS)
-    if not count.isdigit() or not 1 <= int(count) <= 255:
-        _refuse(f"virtual:N needs an LED count 1..255, got {count!r}")
+    from ..device.protocol import MAX_LEDS
+
+    if not count.isdigit() or not 1 <= int(count) <= MAX_LEDS:
+        _refuse(f"virtual:N needs an LED count 1..{MAX_LEDS}, got {count!r}")
     if args.port.startswith("virtual:") and args.adalight is not None and int(count) != args.adalight:
         _refuse(
             f"{args.port} has {int(count)} LEDs but --adalight says {args.adalight}: "
