@@ -409,11 +409,8 @@ def _light_tricolor(controller, level: int) -> None:
 
 
 def run(args) -> int:
-    import contextlib
-
-    from ..device.live import SaveSink, WindowSink, display_available, stream
-    from ..errors import ConfigError
-    from ..report import normals_to_rgb
+    from ..device.live import display_available
+    from ..errors import ConfigError, DeviceError
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
@@ -423,6 +420,28 @@ def run(args) -> int:
     if args.frames is not None and args.frames < 1:
         raise ConfigError(f"--frames must be >= 1, got {args.frames}")
     window = not args.no_window and display_available()
+    done = {}
+    try:
+        _stream(args, window, done)
+    except DeviceError:
+        if "stats" not in done:
+            raise
+        # the LED board failed only as the stream closed (unplugged or killed: its lights-off got no answer):
+        # the frames were streamed, so their summary comes before the one error line (exit 2)
+        _summarise(done["stats"], done["predict"])
+        raise
+    _summarise(done["stats"], done["predict"])
+    return 0
+
+
+def _stream(args, window: bool, done: dict) -> None:
+    """Open the source, the predictor and the sinks, and stream; ``done`` gets ``stats`` and ``predict`` once
+    the stream ended, before what it opened is closed (the LED board switched off)."""
+    import contextlib
+
+    from ..device.live import SaveSink, WindowSink, stream
+    from ..report import normals_to_rgb
+
     with contextlib.ExitStack() as stack:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
             predict, reference_depth = _nlipsnet(args)
@@ -438,7 +457,7 @@ def run(args) -> int:
         elif not args.save:
             why = "--no-window" if args.no_window else "no display"
             print(f"{why}: maps are not shown; use --save DIR to keep them", file=sys.stderr)
-        stats = stream(
+        done["stats"] = stream(
             source,
             predict,
             sinks,
@@ -446,7 +465,11 @@ def run(args) -> int:
             before_frame=before_frame,
             report=lambda line: print(line, file=sys.stderr),
         )
+        done["predict"] = predict
+
+
+def _summarise(stats, predict) -> None:
+    """The stream's summary line (stdout), and how many frames differed from the calibration (a warning)."""
     print(stats.summary())
     if isinstance(predict, MismatchWatch):
         predict.report()
-    return 0

@@ -627,9 +627,7 @@ def lights_out_on_exit(controller):
         yield controller
     except BaseException:
         _restore_sigterm(previous)
-        # the error in flight is the one to report (an unplugged board, Ctrl-C): one quick try, no second message
-        with contextlib.suppress(Exception):
-            _off_quickly(controller)
+        off_quietly(controller)  # the error in flight is the one to report (an unplugged board, Ctrl-C)
         raise
     _restore_sigterm(previous)
     controller.off()
@@ -668,6 +666,31 @@ def _off_quickly(controller) -> None:
     if hasattr(controller, "retries"):
         controller.timeout, controller.retries, controller.reconnect_s = LIGHTS_OUT_TIMEOUT_S, 0, 0.0
     controller.off()
+
+
+def off_quietly(controller) -> None:
+    """Switch the LEDs off while another error is on its way to the user: best effort, never an error.
+
+    One try with a short timeout (:data:`LIGHTS_OUT_TIMEOUT_S`, no reconnect wait), its own failure
+    suppressed; the controller's timeout, retries and reconnect wait are put back afterwards, so a session
+    that goes on (a press retaken after a board reset) keeps its patience.
+
+    Why: a clean-up ``off()`` in a ``finally`` replaced the error in flight by its own. After an unplugged
+    board did not come back, the capture reported "the LED controller is closed"; after a board went silent,
+    "no valid answer to OFF after 4 tries" (the failing command was ALL), having waited the tries a second
+    time. The user needs the cause, once.
+
+    Parameters
+    ----------
+    controller : LedController, AdalightController or anything with ``off()``
+    """
+    saved = {k: getattr(controller, k) for k in ("timeout", "retries", "reconnect_s") if hasattr(controller, k)}
+    try:
+        with contextlib.suppress(Exception):
+            _off_quickly(controller)
+    finally:
+        for key, value in saved.items():
+            setattr(controller, key, value)
 
 
 QUOTED_CHARS = 60

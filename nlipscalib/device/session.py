@@ -163,17 +163,25 @@ def frame_sequence(n_leds: int, cfg: SessionConfig) -> list[tuple[str, np.ndarra
 def capture_frames(rig: Rig, cfg: SessionConfig) -> dict[str, np.ndarray]:
     """Light each state of :func:`frame_sequence` and capture it; LEDs off afterwards.
 
+    When the sequence fails (the board unplugged or silent, a camera error, Ctrl-C), the LEDs are switched
+    off best effort (:func:`nlipscalib.device.controller.off_quietly`: one short try, its failure
+    suppressed), so the error reported is the one that stopped the sequence, not the clean-up's.
+
     Returns
     -------
     dict name -> (H, W, 3) uint16 stored image
     """
+    from .controller import off_quietly
+
     frames = {}
     try:
         for name, colors in frame_sequence(len(rig.leds), cfg):
             rig.controller.set_all(colors)  # returns once the LEDs latched
             frames[name] = rig.source.capture()
-    finally:
-        rig.controller.off()
+    except BaseException:
+        off_quietly(rig.controller)
+        raise
+    rig.controller.off()
     return frames
 
 

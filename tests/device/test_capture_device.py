@@ -1,0 +1,101 @@
+"""`nlips capture` on the real-sensor path (LED port + camera) when things go wrong: the board lost or silent
+mid-session, recorded frames that are black or saturated, an LED file or camera calibration of another sensor.
+
+The board is the in-process virtual board (faults injected), the camera a folder of recorded frames."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+cv2 = pytest.importorskip("cv2")
+
+from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.device import virtual_board  # noqa: E402
+from nlipscalib.device.controller import LedController  # noqa: E402
+from nlipscalib.device.virtual_board import VirtualBoard  # noqa: E402
+
+W, H = 64, 48
+SEQUENCE = 15
+"""Frames of one press with the design's 12 LEDs: tri-colour, dark, LED 1..12, the tri-colour again."""
+
+
+def camera_file(tmp_path):
+    from nlipscalib.core import Camera
+
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps({"camera": Camera.from_fov(W, H, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    return path
+
+
+def frames_folder(tmp_path, presses: int, value=None, name: str = "frames"):
+    """Recorded 8-bit frames for the reference and ``presses`` presses: ``value(k)`` is frame k's grey level
+    within its sequence (default: the check frame repeats the tri-colour one, each LED a bit brighter)."""
+    value = value or (lambda k: 100 + k * (k != SEQUENCE - 1))
+    folder = tmp_path / name
+    folder.mkdir()
+    for i in range(SEQUENCE * (presses + 1)):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), np.full((H, W, 3), value(i % SEQUENCE), np.uint8))
+    return folder
+
+
+def capture_args(board_url, frames, camera, out, presses: int):
+    args = ["capture", "--port", board_url, "--camera", str(frames), "--camera-calibration", str(camera), "--yes"]
+    return args + ["--presses", str(presses), "--out", str(out)]
+
+
+def errors(err: str) -> list[str]:
+    return [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+
+
+@pytest.fixture
+def impatient(monkeypatch):
+    """LedController.open with a short reply timeout and reconnect wait (the command opens it with the
+    defaults: 1 s per try, 5 s for an unplugged board to come back)."""
+    real = LedController.open.__func__
+
+    def open_quickly(cls, url, **kwargs):
+        return real(cls, url, **{**kwargs, "timeout": 0.2, "reconnect_s": 0.3})
+
+    monkeypatch.setattr(LedController, "open", classmethod(open_quickly))
+
+
+def fault_on_all(monkeypatch, number: int, fault):
+    """Run ``fault(board)`` as the board executes its ``number``-th ALL (its reply still goes out)."""
+    seen = []
+    real = virtual_board._COMMANDS["ALL"]
+
+    def all_command(board, args):
+        seen.append(1)
+        if len(seen) == number:
+            fault(board)
+        return real(board, args)
+
+    monkeypatch.setitem(virtual_board._COMMANDS, "ALL", all_command)
+
+
+def test_a_board_unplugged_mid_capture_is_reported_as_such(tmp_path, capsys, monkeypatch, impatient):
+    """Reported as "the LED controller is closed": the clean-up's lights-off failed on the port the failed
+    reconnect had closed, and its error replaced the real one."""
+    board = VirtualBoard(12)
+    fault_on_all(monkeypatch, SEQUENCE + 4, lambda b: b.unplug())  # mid-way through press 1
+    out = tmp_path / "s"
+    assert main(capture_args(board.url, frames_folder(tmp_path, 1), camera_file(tmp_path), out, 1)) == 2
+    err = capsys.readouterr().err
+    assert len(errors(err)) == 1, err
+    assert errors(err)[0].startswith(f"nlips capture: error: {board.url}: the board disconnected (")
+    assert "did not come back within 0.3 s" in err and "closed" not in err
+    assert (out / "reference").is_dir() and not (out / "press_0001").exists()
+
+
+def test_a_board_silent_mid_capture_is_named_by_the_command_that_failed(tmp_path, capsys, monkeypatch, impatient):
+    """Reported as "no valid answer to OFF after 4 tries of 1 s each" after 8.9 s: the clean-up's OFF waited its
+    own 4 tries after ALL had failed."""
+    board = VirtualBoard(12)
+    fault_on_all(monkeypatch, SEQUENCE + 4, lambda b: b.mute(10**6))
+    args = capture_args(board.url, frames_folder(tmp_path, 1), camera_file(tmp_path), tmp_path / "s", 1)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert errors(err) == [f"nlips capture: error: {board.url}: no valid answer to ALL after 4 tries of 0.2 s each"]
