@@ -99,3 +99,44 @@ def test_a_board_silent_mid_capture_is_named_by_the_command_that_failed(tmp_path
     assert main(args) == 2
     err = capsys.readouterr().err
     assert errors(err) == [f"nlips capture: error: {board.url}: no valid answer to ALL after 4 tries of 0.2 s each"]
+
+
+def _led_file(path, leds, camera_path):
+    """An LED file as `nlips calibrate-leds` writes it: the LEDs and the sensor they were calibrated on (the
+    camera of ``camera_path`` with ``leds`` as its design LEDs)."""
+    from nlipscalib.core import Camera, SensorResponse
+    from nlipscalib.core.sensor_record import describe_sensor
+    from nlipscalib.solver.io import save_leds
+
+    camera = Camera.from_dict(json.loads(camera_path.read_text())["camera"])
+    return save_leds(path, leds, {"sensor": describe_sensor(camera, leds, SensorResponse())})
+
+
+def test_an_led_file_of_another_sensor_is_refused_as_solve_refuses_it(tmp_path, capsys):
+    """`nlips capture --leds FILE` took LEDs calibrated on another sensor (fingertip's, for an nlipstac capture)
+    and wrote them into every press, which `nlips solve` then used; `nlips solve --leds FILE` refuses that file."""
+    import dataclasses
+
+    from nlipscalib.core import load_press
+    from nlipscalib.sim.scene import load_scene
+
+    camera = camera_file(tmp_path)
+    other = _led_file(tmp_path / "fingertip_leds.json", load_scene("fingertip").led_models(), camera)
+    board = VirtualBoard(12)
+    frames = frames_folder(tmp_path, 0)
+    out = tmp_path / "s"
+    assert main([*capture_args(board.url, frames, camera, out, 0), "--leds", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(
+        f"nlips capture: error: {other}: calibrated on another sensor than the one captured here, the design "
+        f"nlipstac with the camera of {camera} (LED 1 is 1.50 mm and 10.0 deg from its counterpart)"
+    )
+    assert err.count("\n") == 1 and not out.exists() and not board.executed  # refused before the board is opened
+    # a calibration of this sensor (its LEDs 0.2 mm from the design's) is taken, and recorded in the capture
+    design = load_scene("nlipstac").led_models()
+    moved = tuple(dataclasses.replace(led, position=tuple(led.position + np.array([0.2, 0, 0]))) for led in design)
+    ours = _led_file(tmp_path / "our_leds.json", design, camera)
+    ours.write_text(json.dumps(json.loads(ours.read_text()) | {"leds": [led.to_dict() for led in moved]}))
+    assert main([*capture_args(board.url, frames, camera, out, 0), "--leds", str(ours)]) == 0
+    capsys.readouterr()
+    np.testing.assert_allclose(load_press(out / "reference").leds[0].position, moved[0].position, atol=1e-6)
