@@ -150,7 +150,7 @@ def _run_stream(args, what: str) -> int:
     from ..device.live import ReadAhead, SaveSink, stream
     from ..errors import CaptureError, require
     from ..report import normals_to_rgb
-    from .live import MismatchWatch, nlipsnet_predictor, open_frames, size_emulator_for
+    from .live import MismatchWatch, check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better
@@ -161,6 +161,7 @@ def _run_stream(args, what: str) -> int:
     name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     size_emulator_for(args, predictor.shape)
+    check_emulated_sensor(args, predictor.model.sensor)
     with contextlib.ExitStack() as stack:
         source, before_frame = open_frames(args, stack)
         if tuple(source.shape) != predictor.shape:

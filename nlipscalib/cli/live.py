@@ -222,6 +222,31 @@ def size_emulator_for(args, shape: tuple[int, int]) -> None:
         )
 
 
+def check_emulated_sensor(args, sensor: dict) -> None:
+    """Refuse ``--emulate SCENE`` when its sensor (camera at the size streamed, LEDs) is not the one the model was
+    calibrated for (``sensor``, the model's record), as ``nlips infer`` refuses presses of another sensor (the
+    same check: :func:`nlipscalib.core.sensor_record.sensor_mismatch`). Called after :func:`size_emulator_for`,
+    before anything is rendered.
+
+    Why: the emulated scene's geometry is known, yet only the brightness heuristic (:class:`MismatchWatch`) spoke,
+    and a scene of similar brightness streamed another sensor's frames through the model without a word.
+    """
+    from ..core.sensor_record import describe_sensor, sensor_mismatch
+    from ..errors import CaptureError
+    from ..sim.scene import load_scene
+
+    if not args.emulate:
+        return
+    scene = load_scene(args.emulate)
+    scene = scene.replace(camera={k: v for k, v in {"width": args.width, "height": args.height}.items() if v})
+    why = sensor_mismatch(sensor, describe_sensor(scene.camera_model(), scene.led_models(), scene.noise.response()))
+    if why:
+        raise CaptureError(
+            f"--emulate {args.emulate}: the emulated sensor of {args.emulate} is another sensor than the model "
+            f"{args.model} was calibrated for ({why}); stream the scene the model was calibrated on"
+        )
+
+
 def _design_leds(name: str) -> int:
     from ..sim.scene import load_scene
 
@@ -446,6 +471,7 @@ def _stream(args, window: bool, done: dict) -> None:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
             predict, reference_depth = _nlipsnet(args)
             size_emulator_for(args, predict.predictor.shape)
+            check_emulated_sensor(args, predict.predictor.model.sensor)
         source, before_frame = open_frames(args, stack, loop=window)
         if not args.model:
             predict, reference_depth = _plugged(args.predictor, source.shape)

@@ -67,3 +67,21 @@ def test_live_warns_once_when_frames_differ_from_the_calibration_everywhere(refe
     warned = [r.getMessage() for r in caplog.records if "differs from the calibration's reference" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith("emulated sensor frame 0: ") and "times as bright" in warned[0]
     assert "4 of 4 frames differed from the calibration's reference" in caplog.text
+
+
+@pytest.mark.parametrize("command", ["live", "infer"])
+def test_a_model_of_another_sensor_is_refused_on_the_emulated_sensor(reference, tmp_path, capsys, command):
+    """`nlips live --emulate oblate` with a model calibrated on nlipstac streamed with a brightness warning only,
+    exit 0; `nlips infer` refuses presses of another sensor. Now the same check refuses the scene, before rendering."""
+    model = _untrained_model(reference, tmp_path / "net.pt")
+    args = (
+        ["live", "--model", str(model), "--frames", "2", "--no-window"] if command == "live" else ["infer", str(model)]
+    )
+    assert main([*args, "--emulate", "fingertip"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(
+        f"nlips {command}: error: --emulate fingertip: the emulated sensor of fingertip is another sensor than the "
+        f"model {model} was calibrated for ("
+    )
+    assert err.count("\n") == 1, err
+    assert main([*args, "--emulate", "nlipstac", "--frames-per-press", "1"]) == 0  # its own sensor streams
