@@ -316,6 +316,10 @@ def _run_device(args):
                 "camera_refused": list(source.refused),
                 "design": args.design or DEFAULT_DESIGN,
             },
+            source_name=f"camera {camera_spec}" if str(camera_spec).isdigit() else str(camera_spec),
+            camera_origin=f"the camera calibration {args.camera_calibration}"
+            if args.camera_calibration
+            else f"the camera of the design {args.design or DEFAULT_DESIGN} (no --camera-calibration)",
         )
         operator = Operator(interactive=not args.yes and sys.stdin.isatty())
         return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())

@@ -96,6 +96,11 @@ class Rig:
     """The undeformed surface (``core.dome.reference_surface`` of the design), written with every press."""
     provenance: dict = dataclasses.field(default_factory=dict)
     """Extra metadata for every press (device, firmware, camera settings, design)."""
+    source_name: str = "the camera"
+    """What the frames come from, for messages (``camera 0``, a folder or video path)."""
+    camera_origin: str = "its calibration"
+    """Where ``camera`` comes from, for messages (``the camera calibration camera.json``, ``the design
+    nlipstac's camera``)."""
 
     def check(self) -> None:
         """Raise CaptureError when the parts do not fit together."""
@@ -103,9 +108,10 @@ class Rig:
         if n != len(self.leds):
             raise CaptureError(f"the LED board has {n} LEDs but the sensor description has {len(self.leds)}")
         if tuple(self.source.shape) != self.camera.shape:
+            (h, w), (ch, cw) = self.source.shape, self.camera.shape
             raise CaptureError(
-                f"the camera gives {self.source.shape[1]}x{self.source.shape[0]} frames but its calibration is "
-                f"{self.camera.width}x{self.camera.height}"
+                f"{self.source_name} gives {w}x{h} frames but {self.camera_origin} is {cw}x{ch}: calibrate this "
+                f"camera at {w}x{h} (`nlips calibrate-camera`, then --camera-calibration), or capture at {cw}x{ch}"
             )
 
 

@@ -140,3 +140,20 @@ def test_an_led_file_of_another_sensor_is_refused_as_solve_refuses_it(tmp_path, 
     assert main([*capture_args(board.url, frames, camera, out, 0), "--leds", str(ours)]) == 0
     capsys.readouterr()
     np.testing.assert_allclose(load_press(out / "reference").leds[0].position, moved[0].position, atol=1e-6)
+
+
+def test_frames_of_another_size_than_the_calibration_name_the_camera_and_where_the_calibration_came_from(
+    tmp_path, capsys
+):
+    """ "the camera gives 64x48 frames but its calibration is 640x480" named neither the camera nor the design
+    whose camera it was."""
+    board = VirtualBoard(12)
+    frames = frames_folder(tmp_path, 0)
+    args = ["capture", "--port", board.url, "--camera", str(frames), "--yes", "--presses", "0"]
+    assert main([*args, "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"nlips capture: error: {frames} gives 64x48 frames but the camera of the design nlipstac (no "
+        "--camera-calibration) is 640x480: calibrate this camera at 64x48 (`nlips calibrate-camera`, then "
+        "--camera-calibration), or capture at 640x480\n"
+    )
