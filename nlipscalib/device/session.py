@@ -216,7 +216,11 @@ def movement(frames: dict[str, np.ndarray], response: SensorResponse, cfg: Sessi
 def capture_press(
     rig: Rig, folder: str | Path, cfg: SessionConfig, operator: Operator, index: int = 0, overwrite: bool = False
 ) -> dict:
-    """Capture one press (retaking it while it moves) and write it atomically.
+    """Capture one press (retaking it while it moves), check its exposure and write it atomically.
+
+    Exposure (:func:`nlipscalib.device.exposure.check_exposure`): black LED frames and a large saturated share
+    are warned about (log lines naming the files); a reference (``index`` 0) with nothing usable, wholly black
+    or saturated, raises CaptureError and is not written.
 
     Returns
     -------
@@ -224,6 +228,7 @@ def capture_press(
     cut short by a reset of the LED board), ``seconds``
     """
     from .controller import BoardResetError
+    from .exposure import check_exposure
 
     moved = []
     for attempt in range(cfg.max_retakes + 1):
@@ -258,6 +263,9 @@ def capture_press(
         "white_level": cfg.white_level,
         "tricolor_level": cfg.tricolor_level,
     }
+    gel = None if rig.reference is None else np.isfinite(rig.reference.depth)
+    for line in check_exposure(frames, rig.response, folder, gel, reference=index == 0):
+        log.warning("%s", line)
     leds = np.stack([frames[f"led_{i + 1:02d}"] for i in range(len(rig.leds))])
     write_press(
         folder,
@@ -326,11 +334,13 @@ def _damaged(folder: Path) -> str:
 def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
     """Refuse to resume a session with another camera, LED count or capture settings (exposure, gain, LED
     levels, the design or emulated scene): its presses would mix two kinds of image, and a calibration would
-    train on the mix. Records the session otherwise. A session.json from before the settings were recorded
+    train on the mix. Records the session otherwise, and again while no folder is captured (a reference refused
+    for its exposure is captured again at another one). A session.json from before the settings were recorded
     is checked on what it holds."""
     path = out / SESSION_FILE
     described = {"camera": rig.camera.to_dict(), "n_leds": len(rig.leds), "settings": _capture_settings(rig, cfg)}
-    if not path.exists():
+    if not path.exists() or not any(is_press_folder(d) for d in out.iterdir() if d.is_dir()):
+        # nothing captured yet (a reference refused for its exposure, a run stopped before it): nothing to mix
         write_json(path, described | {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
         return
     try:

@@ -32,8 +32,9 @@ def camera_file(tmp_path):
 
 def frames_folder(tmp_path, presses: int, value=None, name: str = "frames"):
     """Recorded 8-bit frames for the reference and ``presses`` presses: ``value(k)`` is frame k's grey level
-    within its sequence (default: the check frame repeats the tri-colour one, each LED a bit brighter)."""
-    value = value or (lambda k: 100 + k * (k != SEQUENCE - 1))
+    within its sequence (default: well exposed, the dark frame at 40, LED k at 60 + 10 k, the check frame the
+    tri-colour one's 150)."""
+    value = value or (lambda k: 40 if k == 1 else 150 if k in (0, SEQUENCE - 1) else 60 + 10 * k)
     folder = tmp_path / name
     folder.mkdir()
     for i in range(SEQUENCE * (presses + 1)):
@@ -157,3 +158,42 @@ def test_frames_of_another_size_than_the_calibration_name_the_camera_and_where_t
         "--camera-calibration) is 640x480: calibrate this camera at 64x48 (`nlips calibrate-camera`, then "
         "--camera-calibration), or capture at 640x480\n"
     )
+
+
+def test_a_black_reference_is_refused_and_can_be_captured_again_at_another_exposure(tmp_path, capsys):
+    """A session of black frames (LEDs off, a lens cap) was captured without a word, and every later command
+    failed with "no usable pixel to fit the interreflection term on"."""
+    board = VirtualBoard(12)
+    camera, out = camera_file(tmp_path), tmp_path / "s"
+    black = frames_folder(tmp_path, 1, value=lambda k: 0, name="black")
+    assert main(capture_args(board.url, black, camera, out, 1)) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"nlips capture: error: {out / 'reference'}: the reference is black: no LED frame shows ")
+    assert err.count("\n") == 1 and not (out / "reference").exists() and board.latched.sum() == 0
+    # nothing was captured, so the session is not bound to its settings yet: another exposure is taken
+    good = frames_folder(tmp_path, 1)
+    assert main([*capture_args(board.url, good, camera, out, 1), "--exposure-ms", "5"]) == 0
+    assert "press_0001: captured" in capsys.readouterr().out
+
+
+def test_an_over_exposed_press_is_captured_with_a_warning_naming_the_file(tmp_path, capsys, caplog):
+    """53 % of an LED frame clipped at the white level was captured silently; its light is lost to every fit."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(2 * SEQUENCE):  # the reference well exposed; press 1's LED 3 clipped over the top half
+        k = i % SEQUENCE
+        image = np.full((H, W, 3), 40 if k == 1 else 150 if k in (0, SEQUENCE - 1) else 60 + 10 * k, np.uint8)
+        if i == SEQUENCE + 4:  # press 1, LED 3
+            image[: H // 2] = 255
+        cv2.imwrite(str(frames / f"{i:04d}.png"), image)
+    board = VirtualBoard(12)
+    out = tmp_path / "s"
+    assert main(capture_args(board.url, frames, camera_file(tmp_path), out, 1)) == 0
+    captured = capsys.readouterr()
+    assert "press_0001: captured" in captured.out
+    warnings = [r.getMessage() for r in caplog.records if "saturated" in r.getMessage()]
+    assert warnings == [
+        f"{out / 'press_0001' / 'led_03.png'}: 50 % of the gel saturated: saturated pixels are left out of every fit; "
+        "lower --exposure-ms or the LED level"
+    ]
+    assert not [r for r in caplog.records if "reference" in r.getMessage()]  # the reference was well exposed
