@@ -85,3 +85,36 @@ def test_a_model_of_another_sensor_is_refused_on_the_emulated_sensor(reference, 
     )
     assert err.count("\n") == 1, err
     assert main([*args, "--emulate", "nlipstac", "--frames-per-press", "1"]) == 0  # its own sensor streams
+
+
+def test_infer_keeps_its_summary_and_report_when_the_board_is_lost_before_the_lights_off(
+    reference, tmp_path, capsys, monkeypatch
+):
+    """`nlips infer --camera FRAMES --port PORT` whose board is pulled mid-stream: the final lights-off failed and
+    its error replaced the summary and stream.json of the frames inferred. Now they come first, then one line."""
+    import cv2
+
+    from nlipscalib.device.controller import LedController
+    from nlipscalib.device.virtual_board import VirtualBoard
+    from nlipscalib.learn.infer import Predictor
+
+    model = _untrained_model(reference, tmp_path / "net.pt")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k}.png"), np.ascontiguousarray(reference.tricolor[..., ::-1]))
+    board = VirtualBoard(12)
+    real_open, real_predict = LedController.open.__func__, Predictor.predict_stored
+    monkeypatch.setattr(  # the command waits 5 s for an unplugged board to come back
+        LedController, "open", classmethod(lambda cls, url, **kw: real_open(cls, url, **{**kw, "reconnect_s": 0.3}))
+    )
+    monkeypatch.setattr(
+        Predictor, "predict_stored", lambda self, *a, **k: (board.unplug(), real_predict(self, *a, **k))[1]
+    )
+    out = tmp_path / "out"
+    assert main(["infer", str(model), "--camera", str(frames), "--port", board.url, "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out.startswith("3 frames in ")
+    lines = [line for line in captured.err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+    assert len(lines) == 1 and lines[0].startswith(f"nlips infer: error: {board.url}: the board disconnected ("), lines
+    assert (out / "stream.json").is_file() and len(list(out.glob("frame_*.npz"))) == 3
