@@ -381,25 +381,21 @@ def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> Non
     """
     from .core.capture import META_FILE, parse_optics
     from .core.leds import led_geometry_mismatch
-    from .core.sensor_record import describe_sensor, sensor_mismatch
+    from .core.sensor_record import describe_sensor, leds_file_mismatch
 
     camera, leds, response = parse_optics(meta, folder / META_FILE)
     where = settings.leds_file or "the calibrated LEDs"
+    if settings.leds_sensor is not None:  # the check `nlips capture --leds FILE` makes too
+        why = leds_file_mismatch(settings.leds_sensor, settings.leds, describe_sensor(camera, leds, response))
+        if why:
+            raise CaptureError(f"{where}: calibrated on another sensor than {folder} ({why})")
+        return
     far = led_geometry_mismatch(
         [led.position for led in leds],
         [led.direction for led in leds],
         [led.position for led in settings.leds],
         [led.direction for led in settings.leds],
     )
-    if settings.leds_sensor is not None:
-        recorded = settings.leds_sensor
-        if not far:  # captured with these calibrated LEDs (`nlips capture --leds FILE`): it records them, not the
-            # design the file recorded, so only the camera and the LED count and grouping are compared
-            recorded = {k: v for k, v in recorded.items() if k not in ("led_positions", "led_directions")}
-        why = sensor_mismatch(recorded, describe_sensor(camera, leds, response))
-        if why:
-            raise CaptureError(f"{where}: calibrated on another sensor than {folder} ({why})")
-        return
     if far and settings.leds_file and where not in _WARNED_UNRECORDED:  # LED values passed in: the caller's
         _WARNED_UNRECORDED.add(where)  # once per file, not once per press of a batch
         log.warning(

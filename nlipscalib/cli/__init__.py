@@ -132,8 +132,20 @@ _INTERRUPTED: list[int] = []
 """SIGINT numbers received while a command ran (see :func:`_note_interrupts`)."""
 
 
+STOPPED = {
+    "live": "the stream stopped (a live stream does not resume; maps already saved with --save are kept)",
+}
+"""What an interrupted or terminated command says it left, where "finished work is kept, run again to resume"
+(:func:`_stopped`) is not true: a live stream cannot continue where it stopped."""
+
+
+def _stopped(command: str) -> str:
+    """The end of the line an interrupted or terminated ``nlips COMMAND`` prints (:data:`STOPPED`)."""
+    return STOPPED.get(command, "finished work is kept, run again to resume")
+
+
 def _interrupted(args) -> int:
-    print(f"nlips {args.command}: interrupted; finished work is kept, run again to resume", file=sys.stderr)
+    print(f"nlips {args.command}: interrupted; {_stopped(args.command)}", file=sys.stderr)
     return 130
 
 
@@ -176,7 +188,7 @@ def _terminate_cleanly(command: str):
         claims.release_all()
         atomic.remove_in_progress()
         _release_multiprocessing_resources()
-        print(f"nlips {command}: terminated; finished work is kept, run again to resume", file=sys.stderr)
+        print(f"nlips {command}: terminated; {_stopped(command)}", file=sys.stderr)
         sys.stderr.flush()
         sys.stdout.flush()
         os._exit(143)

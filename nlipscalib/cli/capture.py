@@ -275,7 +275,7 @@ def _run_device(args):
         )
     design = _design(args.design)
     camera = _calibrated_camera(args.camera_calibration) or design.camera_model()
-    leds = _leds(args.leds) or design.led_models()
+    leds = _leds(args, camera, design) or design.led_models()
     camera_spec = args.camera if args.camera is not None else "0"
     # --port nlipsemu://ID with --camera: only the board is virtual; held here, as its URL reaches it while it lives
     board = start_board(args.port, args.adalight or len(leds), adalight=args.adalight is not None, baudrate=BAUD_RATE)
@@ -318,6 +318,10 @@ def _run_device(args):
                 "camera_refused": list(source.refused),
                 "design": args.design or DEFAULT_DESIGN,
             },
+            source_name=f"camera {camera_spec}" if str(camera_spec).isdigit() else str(camera_spec),
+            camera_origin=f"the camera calibration {args.camera_calibration}"
+            if args.camera_calibration
+            else f"the camera of the design {args.design or DEFAULT_DESIGN} (no --camera-calibration)",
         )
         operator = Operator(interactive=not args.yes and sys.stdin.isatty())
         return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
@@ -365,12 +369,47 @@ def _calibrated_camera(path):
         raise ConfigError(f"{path}: not a camera calibration file ({exc})") from None
 
 
-def _leds(path):
-    if not path:
+def _leds(args, camera, design):
+    """The LEDs of ``--leds FILE`` (None without it), refused in one line when the file was calibrated on
+    another sensor than the one captured here: the design's LEDs with ``camera`` (the same check as
+    ``nlips solve --leds``: :func:`nlipscalib.core.sensor_record.leds_file_mismatch`). A file that records no
+    sensor (written before 2026-12-04) and whose LEDs are far from the design's is warned about, as solve does."""
+    if not args.leds:
         return None
-    from ..solver.io import load_leds
+    import logging
 
-    return load_leds(path)
+    from ..core.leds import led_geometry_mismatch
+    from ..core.sensor_record import describe_sensor, leds_file_mismatch
+    from ..errors import CaptureError
+    from ..solver.io import read_led_file
+
+    led_file = read_led_file(args.leds)
+    sensor = describe_sensor(camera, design.led_models())
+    what = f"the design {args.design or DEFAULT_DESIGN}" + (
+        f" with the camera of {args.camera_calibration}" if args.camera_calibration else ""
+    )
+    if led_file.sensor is not None:
+        why = leds_file_mismatch(led_file.sensor, led_file.leds, sensor)
+        if why:
+            raise CaptureError(
+                f"{args.leds}: calibrated on another sensor than the one captured here, {what} ({why}); give the "
+                "LED file calibrated on this sensor's reference (`nlips calibrate-leds SESSION/reference`), or drop "
+                "--leds"
+            )
+    elif far := led_geometry_mismatch(
+        sensor["led_positions"],
+        sensor["led_directions"],
+        [led.position for led in led_file.leds],
+        [led.direction for led in led_file.leds],
+    ):
+        logging.getLogger(__name__).warning(
+            "%s: records no sensor to check against %s, and its LEDs differ from the design's (%s): make sure they "
+            "are a calibration of this sensor (a new `nlips calibrate-leds` records the sensor)",
+            args.leds,
+            what,
+            far,
+        )
+    return led_file.leds
 
 
 def run(args) -> int:

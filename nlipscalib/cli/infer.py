@@ -148,9 +148,9 @@ def _run_stream(args, what: str) -> int:
     import time
 
     from ..device.live import ReadAhead, SaveSink, stream
-    from ..errors import CaptureError, require
+    from ..errors import CaptureError, DeviceError, require
     from ..report import normals_to_rgb
-    from .live import MismatchWatch, nlipsnet_predictor, open_frames, size_emulator_for
+    from .live import MismatchWatch, check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better
@@ -161,48 +161,63 @@ def _run_stream(args, what: str) -> int:
     name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     size_emulator_for(args, predictor.shape)
-    with contextlib.ExitStack() as stack:
-        source, before_frame = open_frames(args, stack)
-        if tuple(source.shape) != predictor.shape:
-            (h, w), (mh, mw) = source.shape, predictor.shape
-            raise CaptureError(
-                f"{name}: frames are {w}x{h}, the model {args.model} was calibrated for {mw}x{mh} images"
+    check_emulated_sensor(args, predictor.model.sensor)
+    stats = None
+    try:
+        with contextlib.ExitStack() as stack:
+            source, before_frame = open_frames(args, stack)
+            if tuple(source.shape) != predictor.shape:
+                (h, w), (mh, mw) = source.shape, predictor.shape
+                raise CaptureError(
+                    f"{name}: frames are {w}x{h}, the model {args.model} was calibrated for {mw}x{mh} images"
+                )
+            if not args.emulate and not getattr(source, "live", False):  # a video, sequence or folder: it ends
+                source = _EndsCleanly(stack.enter_context(ReadAhead(source)))
+            stages = _StageTimes()
+            sinks = []
+            if args.out:
+                sinks.append(SaveSink(args.out, normals_to_rgb, args.every))
+                if args.ply or args.mesh:
+                    sinks.append(_PlySink(args.out, args.every, args.mesh))
+            elif args.ply or args.mesh:
+                log.warning("--ply without --out: no point clouds are written")
+
+            watch = MismatchWatch(predictor, name)
+
+            def predict(frame):
+                return stages.add(watch(frame))
+
+            cpu0 = time.process_time()
+            stats = stream(
+                source,
+                predict,
+                sinks,
+                max_frames=args.max_frames,
+                before_frame=before_frame,
+                # the running frame rate once per second on a terminal; logs and pipes get the summary only
+                report=(lambda line: print(line, file=sys.stderr)) if sys.stderr.isatty() else None,
             )
-        if not args.emulate and not getattr(source, "live", False):  # a video, sequence or folder: it ends
-            source = _EndsCleanly(stack.enter_context(ReadAhead(source)))
-        stages = _StageTimes()
-        sinks = []
-        if args.out:
-            sinks.append(SaveSink(args.out, normals_to_rgb, args.every))
-            if args.ply or args.mesh:
-                sinks.append(_PlySink(args.out, args.every, args.mesh))
-        elif args.ply or args.mesh:
-            log.warning("--ply without --out: no point clouds are written")
+            cpu = time.process_time() - cpu0
+    except DeviceError:
+        if stats is None:
+            raise
+        # the LED board failed only as the stream closed (unplugged: its lights-off got no answer): the frames
+        # were inferred and saved, so their summary and report come before the one error line (exit 2)
+        _finish_stream(args, name, predictor, stats, stages, cpu, watch)
+        raise
+    _finish_stream(args, name, predictor, stats, stages, cpu, watch)
+    if getattr(source, "failure", None) is not None:  # a damaged frame: after what came before it, one line
+        raise CaptureError(f"{source.failure} (the stream stopped there, after {stats.frames} frames)")
+    return 0
 
-        watch = MismatchWatch(predictor, name)
 
-        def predict(frame):
-            return stages.add(watch(frame))
-
-        cpu0 = time.process_time()
-        stats = stream(
-            source,
-            predict,
-            sinks,
-            max_frames=args.max_frames,
-            before_frame=before_frame,
-            # the running frame rate once per second on a terminal; logs and pipes get the summary only
-            report=(lambda line: print(line, file=sys.stderr)) if sys.stderr.isatty() else None,
-        )
-        cpu = time.process_time() - cpu0
+def _finish_stream(args, name, predictor, stats, stages, cpu, watch) -> None:
+    """A stream's summary lines, its mismatch count and (with --out) its stream.json."""
     print(stats.summary())
     print(stages.summary(predictor, cpu, stats.frames, args.no_depth))
     watch.report()
     if args.out and stats.frames:
         _write_stream_report(args.out, name, predictor, stats, stages, cpu)
-    if getattr(source, "failure", None) is not None:  # a damaged frame: after what came before it, one line
-        raise CaptureError(f"{source.failure} (the stream stopped there, after {stats.frames} frames)")
-    return 0
 
 
 class _EndsCleanly:

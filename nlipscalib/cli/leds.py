@@ -44,7 +44,7 @@ def register(subparsers) -> None:
         "action",
         choices=sorted(ACTIONS),
         help="info: firmware and LED count; test: light each LED alone, then all red, green, blue; "
-        "set LED R G B (LED 1..N); all R G B; off; state: colours the LEDs show",
+        "set LED R G B (LED 1..N); all R G B; off; state: colours the LEDs show (read back: not with --adalight)",
     )
     p.add_argument("values", nargs="*", type=int, help="LED R G B for set (LED from 1), R G B for all (0..255)")
     p.add_argument("--adalight", type=int, metavar="N", help="the board runs Adalight with N LEDs")
@@ -67,11 +67,18 @@ def run(args) -> int:
         _refuse(f"set: LEDs are numbered from 1 (LED 1 = led_01.png), got LED {args.values[0]}")
     if args.adalight is not None and args.adalight < 1:
         _refuse("--adalight needs the strip's LED count (>= 1)")
+    if args.action == "state" and args.adalight is not None:
+        _refuse(
+            "state: an Adalight board cannot report what its LEDs show (its protocol has no replies); look at the "
+            "LEDs, or flash firmware/ (the nlips LED firmware reads them back: firmware/README.md)"
+        )
     if not args.timeout > 0 or not args.dwell >= 0:
         _refuse(f"--timeout must be > 0 and --dwell >= 0 seconds, got {args.timeout:g} and {args.dwell:g}")
     count = args.port.partition(":")[2] if args.port.startswith("virtual:") else str(DEFAULT_VIRTUAL_LEDS)
-    if not count.isdigit() or not 1 <= int(count) <= 255:
-        _refuse(f"virtual:N needs an LED count 1..255, got {count!r}")
+    from ..device.protocol import MAX_LEDS
+
+    if not count.isdigit() or not 1 <= int(count) <= MAX_LEDS:
+        _refuse(f"virtual:N needs an LED count 1..{MAX_LEDS}, got {count!r}")
     if args.port.startswith("virtual:") and args.adalight is not None and int(count) != args.adalight:
         _refuse(
             f"{args.port} has {int(count)} LEDs but --adalight says {args.adalight}: "
@@ -90,10 +97,12 @@ def run(args) -> int:
 
 @contextlib.contextmanager
 def _named_as_typed(port: str, url: str):
-    """Errors name the port as the user typed it (``virtual``), not the URL of the board started for it.
+    """Errors and warnings name the port as the user typed it (``virtual``), not the URL of the board started
+    for it.
 
     Why: ``virtual[:N]`` starts a board at ``nlipsemu://<next id>``, a URL the user never typed, and the
-    driver's messages begin with the URL it opened.
+    driver's messages begin with the URL it opened (its log lines too: the Adalight driver's "no 'Ada'
+    banner" warning named ``nlipsemu://1``).
 
     Parameters
     ----------
@@ -102,14 +111,28 @@ def _named_as_typed(port: str, url: str):
     url : str
         The URL the driver opens for it.
     """
+    import logging
+
     from ..errors import NlipsError
 
+    def rename(record: logging.LogRecord) -> bool:
+        if isinstance(record.args, tuple):  # the drivers log "%s: ..." with the URL as an argument
+            record.args = tuple(port if arg == url else arg for arg in record.args)
+        return True
+
+    loggers = [logging.getLogger(f"nlipscalib.device.{name}") for name in ("controller", "adalight")]
+    if url != port:
+        for logger in loggers:
+            logger.addFilter(rename)
     try:
         yield
     except NlipsError as exc:
         if url != port and exc.args and isinstance(exc.args[0], str):
             exc.args = (exc.args[0].replace(f"{url}:", f"{port}:"), *exc.args[1:])
         raise
+    finally:
+        for logger in loggers:
+            logger.removeFilter(rename)
 
 
 def add_baud_argument(p) -> None:
@@ -183,11 +206,20 @@ def _test(leds, args) -> int:
         start = time.perf_counter()
         leds.set_all(frame)
         times.append(time.perf_counter() - start)
-        if leds.acknowledged and not np.array_equal(leds.state(), frame):
+        if not leds.acknowledged:  # nothing to check: the frame went out, whether a board lit it or not
+            print(f"{name} (sent; Adalight does not acknowledge)", flush=True)
+        elif not np.array_equal(leds.state(), frame):
             print(f"{name}: the board reports other colours than sent")
             return 1
-        print(f"{name}: lit ({times[-1] * 1e3:.1f} ms)", flush=True)
+        else:
+            print(f"{name}: lit ({times[-1] * 1e3:.1f} ms)", flush=True)
         time.sleep(args.dwell)
+    if not leds.acknowledged:
+        print(
+            f"sent: {len(steps)} steps; Adalight does not acknowledge, so nothing was checked: each LED should have "
+            "lit alone, then all red, green and blue"
+        )
+        return 0
     resends = getattr(leds, "resends", 0)
     print(f"ok: {len(steps)} steps, median {np.median(times) * 1e3:.1f} ms per change, {resends} lines resent")
     return 0

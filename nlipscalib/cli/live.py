@@ -222,6 +222,31 @@ def size_emulator_for(args, shape: tuple[int, int]) -> None:
         )
 
 
+def check_emulated_sensor(args, sensor: dict) -> None:
+    """Refuse ``--emulate SCENE`` when its sensor (camera at the size streamed, LEDs) is not the one the model was
+    calibrated for (``sensor``, the model's record), as ``nlips infer`` refuses presses of another sensor (the
+    same check: :func:`nlipscalib.core.sensor_record.sensor_mismatch`). Called after :func:`size_emulator_for`,
+    before anything is rendered.
+
+    Why: the emulated scene's geometry is known, yet only the brightness heuristic (:class:`MismatchWatch`) spoke,
+    and a scene of similar brightness streamed another sensor's frames through the model without a word.
+    """
+    from ..core.sensor_record import describe_sensor, sensor_mismatch
+    from ..errors import CaptureError
+    from ..sim.scene import load_scene
+
+    if not args.emulate:
+        return
+    scene = load_scene(args.emulate)
+    scene = scene.replace(camera={k: v for k, v in {"width": args.width, "height": args.height}.items() if v})
+    why = sensor_mismatch(sensor, describe_sensor(scene.camera_model(), scene.led_models(), scene.noise.response()))
+    if why:
+        raise CaptureError(
+            f"--emulate {args.emulate}: the emulated sensor of {args.emulate} is another sensor than the model "
+            f"{args.model} was calibrated for ({why}); stream the scene the model was calibrated on"
+        )
+
+
 def _design_leds(name: str) -> int:
     from ..sim.scene import load_scene
 
@@ -409,11 +434,8 @@ def _light_tricolor(controller, level: int) -> None:
 
 
 def run(args) -> int:
-    import contextlib
-
-    from ..device.live import SaveSink, WindowSink, display_available, stream
-    from ..errors import ConfigError
-    from ..report import normals_to_rgb
+    from ..device.live import display_available
+    from ..errors import ConfigError, DeviceError
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
@@ -423,10 +445,33 @@ def run(args) -> int:
     if args.frames is not None and args.frames < 1:
         raise ConfigError(f"--frames must be >= 1, got {args.frames}")
     window = not args.no_window and display_available()
+    done = {}
+    try:
+        _stream(args, window, done)
+    except DeviceError:
+        if "stats" not in done:
+            raise
+        # the LED board failed only as the stream closed (unplugged or killed: its lights-off got no answer):
+        # the frames were streamed, so their summary comes before the one error line (exit 2)
+        _summarise(done["stats"], done["predict"])
+        raise
+    _summarise(done["stats"], done["predict"])
+    return 0
+
+
+def _stream(args, window: bool, done: dict) -> None:
+    """Open the source, the predictor and the sinks, and stream; ``done`` gets ``stats`` and ``predict`` once
+    the stream ended, before what it opened is closed (the LED board switched off)."""
+    import contextlib
+
+    from ..device.live import SaveSink, WindowSink, stream
+    from ..report import normals_to_rgb
+
     with contextlib.ExitStack() as stack:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
             predict, reference_depth = _nlipsnet(args)
             size_emulator_for(args, predict.predictor.shape)
+            check_emulated_sensor(args, predict.predictor.model.sensor)
         source, before_frame = open_frames(args, stack, loop=window)
         if not args.model:
             predict, reference_depth = _plugged(args.predictor, source.shape)
@@ -438,7 +483,7 @@ def run(args) -> int:
         elif not args.save:
             why = "--no-window" if args.no_window else "no display"
             print(f"{why}: maps are not shown; use --save DIR to keep them", file=sys.stderr)
-        stats = stream(
+        done["stats"] = stream(
             source,
             predict,
             sinks,
@@ -446,7 +491,11 @@ def run(args) -> int:
             before_frame=before_frame,
             report=lambda line: print(line, file=sys.stderr),
         )
+        done["predict"] = predict
+
+
+def _summarise(stats, predict) -> None:
+    """The stream's summary line (stdout), and how many frames differed from the calibration (a warning)."""
     print(stats.summary())
     if isinstance(predict, MismatchWatch):
         predict.report()
-    return 0

@@ -25,16 +25,21 @@ def sensor_of(press) -> dict:
     return describe_sensor(press.camera, press.leds, press.response)
 
 
-def describe_sensor(camera, leds, response) -> dict:
+def describe_sensor(camera, leds, response=None) -> dict:
     """Camera, LED count, tri-colour groups, sensor levels and LED geometry (positions, mm, and directions,
-    camera frame) of a sensor: what a calibration dataset and a model are valid for."""
+    camera frame) of a sensor: what a calibration dataset and a model are valid for.
+
+    ``response`` None (a sensor about to be captured, its camera not yet opened): no sensor levels, which
+    :func:`sensor_mismatch` does not compare; such a description is for comparing only, not for storing."""
     n = len(leds)
+    levels = {}
+    if response is not None:
+        levels = {"black_level": float(response.black_level), "white_level": float(response.white_level)}
     return {
         "camera": camera.to_dict(),
         "n_leds": n,
         "tricolor_groups": [int(g) for g in tricolor_groups(n)],
-        "black_level": float(response.black_level),
-        "white_level": float(response.white_level),
+        **levels,
         "led_positions": [[float(v) for v in led.position] for led in leds],
         "led_directions": [[float(v) for v in led.direction] for led in leds],
     }
@@ -59,6 +64,35 @@ def sensor_mismatch(expected: dict, actual: dict) -> str | None:
             expected["led_positions"], expected["led_directions"], actual["led_positions"], actual["led_directions"]
         )
     return None
+
+
+def leds_file_mismatch(recorded: dict, file_leds, actual: dict) -> str | None:
+    """Why an LED file from ``nlips calibrate-leds`` was calibrated on another sensor than ``actual``, or None.
+
+    Parameters
+    ----------
+    recorded : dict
+        The sensor the file records (:func:`describe_sensor` of the capture it was calibrated from).
+    file_leds : sequence of Led
+        The file's calibrated LEDs.
+    actual : dict
+        :func:`describe_sensor` of the sensor the file is about to be used with: a capture being solved
+        (``nlips solve --leds``), or the design and camera of a capture being taken (``nlips capture --leds``).
+
+    When ``actual``'s LEDs are the file's (within SAME_LED_MM / SAME_LED_DEG), ``actual`` was captured with
+    these calibrated LEDs (``nlips capture --leds FILE`` records them, not the design the file recorded), so
+    only the camera and the LED count and grouping are compared; otherwise the whole sensor, its design LED
+    geometry too.
+    """
+    far = led_geometry_mismatch(
+        [led.position for led in file_leds],
+        [led.direction for led in file_leds],
+        actual["led_positions"],
+        actual["led_directions"],
+    )
+    if not far:
+        recorded = {k: v for k, v in recorded.items() if k not in ("led_positions", "led_directions")}
+    return sensor_mismatch(recorded, actual)
 
 
 def check_sensor(expected: dict, actual: dict, where) -> None:

@@ -75,3 +75,23 @@ UNIT_NORMAL_TOL = 1e-3
 SURFACE_SCALE_RATIO = 20.0
 """A capture's undeformed surface (reference.npz) and ground truth lie, in median, within this factor of its LEDs'
 median distance from the camera (the shipped sensors: 1.3-2.4 times; depth written in metres: 1/1000)."""
+EXPOSURE_LIGHT_FRACTION = 0.02
+"""Capture exposure check: a pixel is lit by an LED when its LED frame exceeds the dark frame by more than this
+fraction of full scale (mean of the channels after a 5x5 box blur, which averages the sensor noise away; an
+8-bit camera: 5 DN). The emulated nlipstac sensor's dimmest LED lights 99 % of the gel above 0.11, a median
+pixel at 0.23; a frame with the LEDs off, or a lens cap, stays within noise of the dark frame."""
+EXPOSURE_LIT_SHARE = 0.01
+"""... an LED frame is black (no light above the dark frame: the LED off or dead, a lens cap, the camera not
+looking at the gel) when fewer than this fraction of the gel's pixels are lit by it (a lit LED of the shipped
+sensors lights all of them)."""
+EXPOSURE_SATURATED_SHARE = 0.05
+"""... a frame (an LED frame or the tri-colour frame) is over-exposed, and the capture warns naming it and
+suggesting a shorter exposure or a lower LED level, when more than this fraction of the gel's pixels are at the
+white level in a channel: those pixels are dropped by every solver (their light is unknown), so a few
+specular glints pass and a clipped patch does not (the audit's over-exposed session: 54 % of LED 1's gel, 100 %
+of the tri-colour frame's)."""
+EXPOSURE_UNUSABLE_SHARE = 0.99
+"""... the reference is refused (not written; the session's settings are not yet fixed, so it can be captured
+again at another exposure) when every LED frame is black or has at least this fraction of the gel saturated:
+nothing downstream can use it (LED calibration and NLiPs read the LED frames, and NLiPs solves label NLiPsNet's
+training)."""

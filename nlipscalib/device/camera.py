@@ -186,7 +186,10 @@ class _ImageFiles(FrameSource):
             raise EndOfFrames(f"{self.name}: ran out of images after {len(self.files)} frames")
         frame, _ = self._load(self.files[index])
         if frame.shape[:2] != self._shape:
-            raise CaptureError(f"{self.files[index]}: size {frame.shape[:2]} differs from {self._shape}")
+            (h, w), (fh, fw) = frame.shape[:2], self._shape
+            raise CaptureError(
+                f"{self.files[index]}: image is {w}x{h}, the stream's first frame ({self.files[0].name}) is {fw}x{fh}"
+            )
         return frame
 
     def read(self) -> np.ndarray:

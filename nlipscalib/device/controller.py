@@ -241,6 +241,11 @@ class LedController:
         """The last line written, without its newline: a line that comes back equal to it is an echo."""
         self._echoes = 0
         """Lines received since HELLO was last sent that were the line sent (a loopback, for the no-answer message)."""
+        self._bad_checksums = 0
+        """Well-formed protocol lines received since HELLO was last sent whose checksum failed (for the no-answer
+        message: noise, or another protocol with the same markers; never a line rate)."""
+        self._checksum_failures = 0
+        """The same, counted over the whole session (an exchange compares it before and after)."""
         self.info: p.BoardInfo | None = None
         self._shown = self._staged = None
 
@@ -302,7 +307,7 @@ class LedController:
         self._reset_seen = False
 
     def _hello(self) -> p.BoardInfo:
-        self._unreadable = self._echoes = 0
+        self._unreadable = self._echoes = self._bad_checksums = 0
         try:
             reply = self._exchange("HELLO", session=False)
         except DeviceTimeoutError:
@@ -315,7 +320,7 @@ class LedController:
         return info
 
     def _no_hello_error(self) -> DeviceError:
-        heard = b" | ".join(line[:30] for line in self._foreign[-3:])
+        heard = _quoted(list(dict.fromkeys(self._foreign))[-3:])  # a banner printed over and over: once
         if any(line.startswith(b"Ada") for line in self._foreign):
             return WrongDeviceError(
                 f"{self.url}: this board prints 'Ada': it runs Adalight firmware, not the nlips LED firmware. "
@@ -330,8 +335,14 @@ class LedController:
         unreadable = self._unreadable + len(self._rx)  # with the half line left over
         if heard:
             return DeviceTimeoutError(
-                f"{tries}. It printed: {heard!r}. Is the nlips LED firmware flashed (firmware/README.md)? "
+                f'{tries}. It printed "{heard}". Is the nlips LED firmware flashed (firmware/README.md)? '
                 f"{_rate_hint(self.baudrate)}"
+            )
+        if self._bad_checksums:  # protocol lines, so the line rate is right; each is answered by a resend at once
+            return DeviceTimeoutError(
+                f"{self.url}: no valid answer to HELLO in {self.retries + 1} tries: it answered, but "
+                f"{self._bad_checksums} of its lines failed the checksum (CRC-16): noise on the line (a loose or "
+                "long unshielded USB cable), or a device speaking another protocol with the same line markers"
             )
         if unreadable:  # what a UART at another rate makes of the boot banner and the replies
             return DeviceTimeoutError(
@@ -435,6 +446,7 @@ class LedController:
     def _exchange(self, command: str, *args, session: bool = True) -> p.Reply:
         """Send one command and wait for its reply: resend on timeout or corruption, reopen after unplug."""
         self._seq = seq = (self._seq + 1) & 0xFF
+        failures_before = self._checksum_failures
         line = p.encode_command(seq, command, *args)
         for attempt in range(self.retries + 1):
             if attempt:
@@ -465,8 +477,17 @@ class LedController:
             if reply.error:
                 raise self._board_error(command, args, reply)
             return reply
+        tries = self.retries + 1
+        corrupt = self._checksum_failures - failures_before
+        if corrupt >= tries:  # each answered by a resend at once: the tries did not last the timeout
+            raise DeviceTimeoutError(
+                f"{self.url}: no valid answer to {command} in {tries} tries: every reply failed its checksum "
+                "(CRC-16): noise on the line (a loose or long unshielded USB cable), or a device speaking another "
+                "protocol with the same line markers"
+            )
+        failed = f" ({corrupt} of them answered with a reply that failed its checksum)" if corrupt else ""
         raise DeviceTimeoutError(
-            f"{self.url}: no valid answer to {command} after {self.retries + 1} tries of {self.timeout:g} s each"
+            f"{self.url}: no valid answer to {command} after {tries} tries of {self.timeout:g} s each{failed}"
         )
 
     def _board_error(self, command: str, args, reply: p.Reply) -> DeviceError:
@@ -517,8 +538,11 @@ class LedController:
             return "garbage", None
         try:
             marker, body = p.check_frame(line)
-        except p.FrameError:
+        except p.FrameError as exc:
             self._unreadable += len(line) + 1
+            if isinstance(exc, p.ChecksumError):
+                self._bad_checksums += 1
+                self._checksum_failures += 1
             if b"<" in line or b"!" in line:
                 log.debug("%s: corrupted line %r", self.url, line)
                 return "corrupt", None
@@ -527,7 +551,13 @@ class LedController:
                 self._foreign = [*self._foreign[-9:], text]
             return "garbage", None
         if marker == p.BANNER_START and body.startswith("BOOT"):
-            info = p.decode_info(body[4:])
+            try:
+                info = p.decode_info(body[4:])
+            except p.FrameError as exc:  # its checksum held: not noise but a board describing itself wrongly
+                raise WrongDeviceError(
+                    f"{self.url}: unexpected boot banner: {exc}. Is the nlips LED firmware of this version flashed "
+                    "(firmware/README.md)?"
+                ) from None
             log.debug("%s: board booted (session %s)", self.url, info.session_id)
             self._reset_seen = True
             return "banner", info
@@ -597,9 +627,7 @@ def lights_out_on_exit(controller):
         yield controller
     except BaseException:
         _restore_sigterm(previous)
-        # the error in flight is the one to report (an unplugged board, Ctrl-C): one quick try, no second message
-        with contextlib.suppress(Exception):
-            _off_quickly(controller)
+        off_quietly(controller)  # the error in flight is the one to report (an unplugged board, Ctrl-C)
         raise
     _restore_sigterm(previous)
     controller.off()
@@ -638,6 +666,42 @@ def _off_quickly(controller) -> None:
     if hasattr(controller, "retries"):
         controller.timeout, controller.retries, controller.reconnect_s = LIGHTS_OUT_TIMEOUT_S, 0, 0.0
     controller.off()
+
+
+def off_quietly(controller) -> None:
+    """Switch the LEDs off while another error is on its way to the user: best effort, never an error.
+
+    One try with a short timeout (:data:`LIGHTS_OUT_TIMEOUT_S`, no reconnect wait), its own failure
+    suppressed; the controller's timeout, retries and reconnect wait are put back afterwards, so a session
+    that goes on (a press retaken after a board reset) keeps its patience.
+
+    Why: a clean-up ``off()`` in a ``finally`` replaced the error in flight by its own. After an unplugged
+    board did not come back, the capture reported "the LED controller is closed"; after a board went silent,
+    "no valid answer to OFF after 4 tries" (the failing command was ALL), having waited the tries a second
+    time. The user needs the cause, once.
+
+    Parameters
+    ----------
+    controller : LedController, AdalightController or anything with ``off()``
+    """
+    saved = {k: getattr(controller, k) for k in ("timeout", "retries", "reconnect_s") if hasattr(controller, k)}
+    try:
+        with contextlib.suppress(Exception):
+            _off_quickly(controller)
+    finally:
+        for key, value in saved.items():
+            setattr(controller, key, value)
+
+
+QUOTED_CHARS = 60
+"""Most characters of another firmware's text quoted in a no-answer message."""
+
+
+def _quoted(lines: list[bytes]) -> str:
+    """Text lines another firmware printed, as one plain string (not a bytes repr) of at most QUOTED_CHARS
+    characters, lines separated by `` | ``; bytes that are not ASCII become U+FFFD."""
+    text = " | ".join(line.decode("ascii", errors="replace") for line in lines)
+    return text if len(text) <= QUOTED_CHARS else text[: QUOTED_CHARS - 3] + "..."
 
 
 def _rate_hint(baudrate: int) -> str:

@@ -16,6 +16,9 @@ import numpy as np
 
 PROTOCOL_VERSION = 1
 """The protocol version this host speaks (the board's ``proto=`` must match)."""
+MAX_LEDS = 255
+"""Most LEDs a board may report (``leds=``): the firmware counts its LEDs in a byte (firmware/src/main.cpp), so
+a count of 0 or above this is a corrupted or foreign board description, not a sensor."""
 
 COMMAND_START = b">"
 REPLY_START = b"<"
@@ -88,6 +91,12 @@ class FrameError(ValueError):
     """A line that is not a valid protocol line (bad marker, missing checksum, checksum mismatch)."""
 
 
+class ChecksumError(FrameError):
+    """A well-formed protocol line (start marker, ``*`` and four hex digits) whose checksum does not match its
+    body: noise on the line, or a device speaking another protocol with the same markers (not a line rate: a
+    UART at another rate makes no such line)."""
+
+
 def check_frame(line: bytes) -> tuple[bytes, str]:
     """Split a received line (newline removed) into its start marker and verified body.
 
@@ -113,7 +122,7 @@ def check_frame(line: bytes) -> tuple[bytes, str]:
     except (ValueError, UnicodeDecodeError) as exc:
         raise FrameError(f"unreadable line {line[:40]!r}") from exc
     if crc16(body) != expected:
-        raise FrameError(f"checksum mismatch in {line[:40]!r}")
+        raise ChecksumError(f"checksum mismatch in {line[:40]!r}")
     return marker, text
 
 
@@ -162,12 +171,21 @@ class BoardInfo:
 
 
 def decode_info(payload: str) -> BoardInfo:
-    """Decode ``fw=1.0.0 proto=1 leds=12 sid=002a`` (HELLO payload or banner after ``BOOT``)."""
+    """Decode ``fw=1.0.0 proto=1 leds=12 sid=002a`` (HELLO payload or banner after ``BOOT``).
+
+    Raises
+    ------
+    FrameError
+        A field missing or unreadable, or an LED count outside 1..MAX_LEDS.
+    """
     fields = dict(tok.split("=", 1) for tok in payload.split() if "=" in tok)
     try:
-        return BoardInfo(fields["fw"], int(fields["proto"]), int(fields["leds"]), fields["sid"])
+        info = BoardInfo(fields["fw"], int(fields["proto"]), int(fields["leds"]), fields["sid"])
     except (KeyError, ValueError) as exc:
         raise FrameError(f"malformed board description {payload[:60]!r}") from exc
+    if not 1 <= info.n_leds <= MAX_LEDS:
+        raise FrameError(f"LED count {fields['leds'][:20]} out of range (1..{MAX_LEDS}) in {payload[:60]!r}")
+    return info
 
 
 def encode_info(info: BoardInfo) -> str:

@@ -100,6 +100,11 @@ class Rig:
     """The sensor design the reference was computed from (``dome``, ``camera``, ``leds`` as in a scene file),
     written into every press's meta.json: without it the solver's interreflection term cannot model the dome
     beyond the view (measured on one render: 0.53 -> 2.37 deg, LED calibration 1.8 -> 5.1 deg)."""
+    source_name: str = "the camera"
+    """What the frames come from, for messages (``camera 0``, a folder or video path)."""
+    camera_origin: str = "its calibration"
+    """Where ``camera`` comes from, for messages (``the camera calibration camera.json``, ``the design
+    nlipstac's camera``)."""
 
     def check(self) -> None:
         """Raise CaptureError when the parts do not fit together."""
@@ -107,9 +112,10 @@ class Rig:
         if n != len(self.leds):
             raise CaptureError(f"the LED board has {n} LEDs but the sensor description has {len(self.leds)}")
         if tuple(self.source.shape) != self.camera.shape:
+            (h, w), (ch, cw) = self.source.shape, self.camera.shape
             raise CaptureError(
-                f"the camera gives {self.source.shape[1]}x{self.source.shape[0]} frames but its calibration is "
-                f"{self.camera.width}x{self.camera.height}"
+                f"{self.source_name} gives {w}x{h} frames but {self.camera_origin} is {cw}x{ch}: calibrate this "
+                f"camera at {w}x{h} (`nlips calibrate-camera`, then --camera-calibration), or capture at {cw}x{ch}"
             )
 
 
@@ -167,17 +173,25 @@ def frame_sequence(n_leds: int, cfg: SessionConfig) -> list[tuple[str, np.ndarra
 def capture_frames(rig: Rig, cfg: SessionConfig) -> dict[str, np.ndarray]:
     """Light each state of :func:`frame_sequence` and capture it; LEDs off afterwards.
 
+    When the sequence fails (the board unplugged or silent, a camera error, Ctrl-C), the LEDs are switched
+    off best effort (:func:`nlipscalib.device.controller.off_quietly`: one short try, its failure
+    suppressed), so the error reported is the one that stopped the sequence, not the clean-up's.
+
     Returns
     -------
     dict name -> (H, W, 3) uint16 stored image
     """
+    from .controller import off_quietly
+
     frames = {}
     try:
         for name, colors in frame_sequence(len(rig.leds), cfg):
             rig.controller.set_all(colors)  # returns once the LEDs latched
             frames[name] = rig.source.capture()
-    finally:
-        rig.controller.off()
+    except BaseException:
+        off_quietly(rig.controller)
+        raise
+    rig.controller.off()
     return frames
 
 
@@ -206,7 +220,11 @@ def movement(frames: dict[str, np.ndarray], response: SensorResponse, cfg: Sessi
 def capture_press(
     rig: Rig, folder: str | Path, cfg: SessionConfig, operator: Operator, index: int = 0, overwrite: bool = False
 ) -> dict:
-    """Capture one press (retaking it while it moves) and write it atomically.
+    """Capture one press (retaking it while it moves), check its exposure and write it atomically.
+
+    Exposure (:func:`nlipscalib.device.exposure.check_exposure`): black LED frames and a large saturated share
+    are warned about (log lines naming the files); a reference (``index`` 0) with nothing usable, wholly black
+    or saturated, raises CaptureError and is not written.
 
     Returns
     -------
@@ -214,6 +232,7 @@ def capture_press(
     cut short by a reset of the LED board), ``seconds``
     """
     from .controller import BoardResetError
+    from .exposure import check_exposure
 
     moved = []
     for attempt in range(cfg.max_retakes + 1):
@@ -248,6 +267,9 @@ def capture_press(
         "white_level": cfg.white_level,
         "tricolor_level": cfg.tricolor_level,
     }
+    gel = None if rig.reference is None else np.isfinite(rig.reference.depth)
+    for line in check_exposure(frames, rig.response, folder, gel, reference=index == 0):
+        log.warning("%s", line)
     leds = np.stack([frames[f"led_{i + 1:02d}"] for i in range(len(rig.leds))])
     write_press(
         folder,
@@ -317,11 +339,13 @@ def _damaged(folder: Path) -> str:
 def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
     """Refuse to resume a session with another camera, LED count or capture settings (exposure, gain, LED
     levels, the design or emulated scene): its presses would mix two kinds of image, and a calibration would
-    train on the mix. Records the session otherwise. A session.json from before the settings were recorded
+    train on the mix. Records the session otherwise, and again while no folder is captured (a reference refused
+    for its exposure is captured again at another one). A session.json from before the settings were recorded
     is checked on what it holds."""
     path = out / SESSION_FILE
     described = {"camera": rig.camera.to_dict(), "n_leds": len(rig.leds), "settings": _capture_settings(rig, cfg)}
-    if not path.exists():
+    if not path.exists() or not any(is_press_folder(d) for d in out.iterdir() if d.is_dir()):
+        # nothing captured yet (a reference refused for its exposure, a run stopped before it): nothing to mix
         write_json(path, described | {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
         return
     try:

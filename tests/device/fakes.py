@@ -94,3 +94,82 @@ def green_predictor(shape):
         return LiveResult(normals, frame[..., 1].astype(np.float32) / 1000.0)
 
     return predict
+
+
+class PtyBoard:
+    """A board on a pseudo-terminal that answers each host line with ``respond(seq, command)``'s bytes.
+
+    For boards the virtual board cannot be: one whose replies fail their checksum, one that describes itself
+    with bad fields, one that prints another firmware's text. ``url`` is the port to open; use as a context
+    manager (the reader thread stops and the pty closes at its end).
+    """
+
+    def __init__(self, respond):
+        import os
+        import threading
+        import tty
+
+        self.respond = respond
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.master)
+        self.url = os.ttyname(self.slave)
+        self.lines = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self):
+        import os
+        import select
+
+        buf = b""
+        while not self._stop.is_set():
+            ready, _, _ = select.select([self.master], [], [], 0.02)
+            if not ready:
+                continue
+            try:
+                buf += os.read(self.master, 4096)
+            except OSError:
+                return
+            while b"\n" in buf:
+                line, buf = buf.split(b"\n", 1)
+                if b">" not in line:
+                    continue
+                body = line[line.rindex(b">") + 1 :].split(b"*")[0].decode("ascii", "replace")
+                seq, _, rest = body.partition(" ")
+                self.lines.append(body)
+                answer = self.respond(seq, rest.split(" ")[0])
+                if answer:
+                    os.write(self.master, answer)
+
+    def close(self):
+        import os
+
+        self._stop.set()
+        self._thread.join()
+        os.close(self.master)
+        os.close(self.slave)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def protocol_line(body: str, start: str = "<", crc: str | None = None) -> bytes:
+    """One protocol line with ``body`` (its CRC unless ``crc`` gives four other hex digits)."""
+    from nlipscalib.device import protocol as p
+
+    return f"{start}{body}*{crc if crc is not None else format(p.crc16(body.encode()), '04x')}\n".encode()
+
+
+def hello_then(other, payload: str = "fw=1.0.0 proto=1 leds=12 sid=0001"):
+    """A ``respond`` for PtyBoard: HELLO answered with ``payload``, every other command with ``other(seq)``."""
+
+    def respond(seq, command):
+        if command == "HELLO":
+            return protocol_line(f"{seq} OK {payload}")
+        return other(seq)
+
+    return respond

@@ -14,6 +14,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -103,8 +104,9 @@ def test_sigterm_mid_capture_on_the_firmware_leaves_the_leds_dark_and_no_partial
     camera = Camera.from_fov(160, 120, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
     (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}))
     video = cv2.VideoWriter(str(tmp_path / "v.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 30, (160, 120))
-    for _ in range(4000):  # ~0.5 s of decoding per press at --average 100: the session outlasts the kill
-        video.write(np.full((120, 160, 3), 90, np.uint8))
+    for i in range(4000):  # ~0.5 s of decoding per press at --average 100: the session outlasts the kill
+        # each image: --flush 2 + --average 100 frames; the dark one (second of 15) darker, so the LEDs show light
+        video.write(np.full((120, 160, 3), 40 if (i // 102) % 15 == 1 else 150, np.uint8))
     video.release()
     board = SimavrUnderTest(*firmware_build(), tmp_path / "tty")
     command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
@@ -133,3 +135,71 @@ def test_sigterm_mid_capture_on_the_firmware_leaves_the_leds_dark_and_no_partial
     assert len(presses) < 10  # stopped mid-session
     for press in presses:  # whatever looks complete is complete
         assert load_press(press).led_images.shape == (12, 120, 160, 3)
+
+
+def test_live_summarises_its_frames_when_the_board_is_lost_before_the_lights_off(tmp_path, monkeypatch, capsys):
+    """The board killed while `nlips live --port` streamed: the stream ended normally, then the final lights-off
+    failed, and its error replaced the frame summary (never printed). Now the summary, then the one error line
+    saying the board is gone, exit 2."""
+    cv2 = pytest.importorskip("cv2")
+    from tests.device import fakes
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k}.png"), np.full((12, 16, 3), 90, np.uint8))
+    board = VirtualBoard(12)
+    real_open = LedController.open.__func__
+    monkeypatch.setattr(  # the command waits 5 s for an unplugged board to come back
+        LedController, "open", classmethod(lambda cls, url, **kw: real_open(cls, url, **{**kw, "reconnect_s": 0.3}))
+    )
+
+    def unplugging_predictor(shape):  # the board is pulled while the first frame is predicted
+        predict = fakes.flat_predictor(shape)
+        return lambda frame: (board.unplug(), predict(frame))[1]
+
+    monkeypatch.setattr(fakes, "unplugging_predictor", unplugging_predictor, raising=False)
+    args = ["live", "--camera", str(frames), "--port", board.url, "--no-window", "--save", str(tmp_path / "s")]
+    assert main(args + ["--predictor", "tests.device.fakes:unplugging_predictor"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out.startswith("3 frames in ")
+    lines = [line for line in captured.err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+    assert len(lines) == 1 and lines[0].startswith(f"nlips live: error: {board.url}: the board disconnected ("), lines
+    assert len(list((tmp_path / "s").glob("*_normals.png"))) == 3
+
+
+def test_sigterm_of_live_says_the_stream_stopped_not_run_again_to_resume(tmp_path):
+    """A live stream cannot resume: "finished work is kept, run again to resume" promised what it cannot do."""
+    cv2 = pytest.importorskip("cv2")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(200):
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((12, 16, 3), 90, np.uint8))
+    started = tmp_path / "started"
+    code = (
+        "import os, sys, time; from tests.device import fakes; from nlipscalib.cli import main\n"
+        "def slow(shape):\n"
+        "    predict = fakes.flat_predictor(shape)\n"
+        "    def run(frame):\n"
+        f"        open({str(started)!r}, 'w').close(); time.sleep(0.05); return predict(frame)\n"
+        "    return run\n"
+        "fakes.slow = slow\n"
+        "sys.exit(main(sys.argv[1:]))"
+    )
+    argv = [sys.executable, "-c", code, "live", "--camera", str(frames), "--no-window", "--predictor"]
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    proc = subprocess.Popen(argv + ["tests.device.fakes:slow"], stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.monotonic() + 60
+        while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert err.splitlines()[-1] == (
+        "nlips live: terminated; the stream stopped (a live stream does not resume; maps already saved with --save "
+        "are kept)"
+    )

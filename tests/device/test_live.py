@@ -264,3 +264,14 @@ def test_a_damaged_frame_ends_a_stream_with_its_error_the_end_of_the_input_clean
     with pytest.raises(CaptureError, match="f02.png: not a readable image"):
         stream(FolderSource(frames), flat_predictor((12, 16)), [lambda i, f, r: seen.append(i)], report=None)
     assert seen == [0, 1]
+
+
+def test_a_frame_of_another_size_is_named_in_width_x_height(frames, tmp_path, capsys):
+    """`frames/f04.png: size (24, 32) differs from (12, 16)` gave numpy (H, W) tuples; infer says "image is WxH"."""
+    cv2.imwrite(str(frames / "f03.png"), np.full((24, 32, 3), 1000, np.uint16))
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert (
+        err == f"nlips live: error: {frames / 'f03.png'}: image is 32x24, the stream's first frame (f00.png) is 16x12"
+    )

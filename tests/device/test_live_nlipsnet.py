@@ -67,3 +67,54 @@ def test_live_warns_once_when_frames_differ_from_the_calibration_everywhere(refe
     warned = [r.getMessage() for r in caplog.records if "differs from the calibration's reference" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith("emulated sensor frame 0: ") and "times as bright" in warned[0]
     assert "4 of 4 frames differed from the calibration's reference" in caplog.text
+
+
+@pytest.mark.parametrize("command", ["live", "infer"])
+def test_a_model_of_another_sensor_is_refused_on_the_emulated_sensor(reference, tmp_path, capsys, command):
+    """`nlips live --emulate oblate` with a model calibrated on nlipstac streamed with a brightness warning only,
+    exit 0; `nlips infer` refuses presses of another sensor. Now the same check refuses the scene, before rendering."""
+    model = _untrained_model(reference, tmp_path / "net.pt")
+    args = (
+        ["live", "--model", str(model), "--frames", "2", "--no-window"] if command == "live" else ["infer", str(model)]
+    )
+    assert main([*args, "--emulate", "fingertip"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(
+        f"nlips {command}: error: --emulate fingertip: the emulated sensor of fingertip is another sensor than the "
+        f"model {model} was calibrated for ("
+    )
+    assert err.count("\n") == 1, err
+    assert main([*args, "--emulate", "nlipstac", "--frames-per-press", "1"]) == 0  # its own sensor streams
+
+
+def test_infer_keeps_its_summary_and_report_when_the_board_is_lost_before_the_lights_off(
+    reference, tmp_path, capsys, monkeypatch
+):
+    """`nlips infer --camera FRAMES --port PORT` whose board is pulled mid-stream: the final lights-off failed and
+    its error replaced the summary and stream.json of the frames inferred. Now they come first, then one line."""
+    import cv2
+
+    from nlipscalib.device.controller import LedController
+    from nlipscalib.device.virtual_board import VirtualBoard
+    from nlipscalib.learn.infer import Predictor
+
+    model = _untrained_model(reference, tmp_path / "net.pt")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(frames / f"{k}.png"), np.ascontiguousarray(reference.tricolor[..., ::-1]))
+    board = VirtualBoard(12)
+    real_open, real_predict = LedController.open.__func__, Predictor.predict_stored
+    monkeypatch.setattr(  # the command waits 5 s for an unplugged board to come back
+        LedController, "open", classmethod(lambda cls, url, **kw: real_open(cls, url, **{**kw, "reconnect_s": 0.3}))
+    )
+    monkeypatch.setattr(
+        Predictor, "predict_stored", lambda self, *a, **k: (board.unplug(), real_predict(self, *a, **k))[1]
+    )
+    out = tmp_path / "out"
+    assert main(["infer", str(model), "--camera", str(frames), "--port", board.url, "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out.startswith("3 frames in ")
+    lines = [line for line in captured.err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+    assert len(lines) == 1 and lines[0].startswith(f"nlips infer: error: {board.url}: the board disconnected ("), lines
+    assert (out / "stream.json").is_file() and len(list(out.glob("frame_*.npz"))) == 3

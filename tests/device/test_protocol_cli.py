@@ -125,7 +125,8 @@ def test_adalight_on_the_virtual_board(capsys):
     assert main(["leds", "virtual", "test", "--adalight", "4", "--dwell", "0"]) == 0
     assert time.monotonic() - start < 2.5  # no 3 s wait for a banner that never comes
     out = capsys.readouterr().out.splitlines()
-    assert [line.split(":")[0] for line in out][:5] == ["LED 1", "LED 2", "LED 3", "LED 4", "all red"]
+    sent = " (sent; Adalight does not acknowledge)"
+    assert out[:5] == [f"LED {k}{sent}" for k in range(1, 5)] + [f"all red{sent}"]
     board = VirtualBoard(3, adalight=True)
     assert main(["leds", board.url, "set", "2", "1", "2", "3", "--adalight", "3"]) == 0
     assert board.latched.tolist() == [[0, 0, 0], [1, 2, 3], [0, 0, 0]]
@@ -238,3 +239,31 @@ def test_a_baud_rate_pyserial_does_not_know_is_one_line(capsys, rate):
     ), err
     assert f"(the nlips LED firmware runs at 115200), got '{rate}'" in err
     assert board.latched.sum() == 0 and not board.executed  # refused before the port was opened
+
+
+def test_adalight_test_and_state_claim_nothing_they_cannot_check(capsys, caplog):
+    """`test --adalight` printed "LED k: lit" and "ok: 15 steps" with no board at all (loop://, a silent port), and
+    `state --adalight` printed "LED 1: 0 0 0" as if read back; Adalight acknowledges nothing and reports no state."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    assert main(["leds", "loop://", "test", "--adalight", "3", "--dwell", "0"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == "LED 1 (sent; Adalight does not acknowledge)" and len(out) == 7
+    assert out[-1].startswith("sent: 6 steps; Adalight does not acknowledge, so nothing was checked")
+    assert not any("lit" in line.split(";")[0] or line.startswith("ok") for line in out)
+    assert main(["leds", "loop://", "state", "--adalight", "3"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("nlips leds: error: state: an Adalight board cannot report what its LEDs show")
+    assert err.count("\n") == 1
+
+
+def test_adalight_warnings_name_the_port_as_typed(capsys, caplog):
+    """`nlips leds virtual test --adalight 12 --baud 9600` warned about `nlipsemu://1`, a URL the user never typed."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    assert main(["leds", "virtual", "off", "--adalight", "2", "--baud", "9600"]) == 0
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warnings and all(w.startswith("virtual: ") for w in warnings), warnings
+    assert "nlipsemu://" not in caplog.text

@@ -166,3 +166,96 @@ def test_a_rate_off_the_standard_set_is_refused_before_the_port_opens(rate):
         c.LedController.open(board.url, baudrate=rate)
     assert not board.executed
     assert c.check_baudrate("57600", "--baud") == 57600
+
+
+@pytest.mark.parametrize(
+    "payload, message",
+    [
+        ("fw=1.0.0 proto=1 leds=-3 sid=0001", "LED count -3 out of range (1..255)"),
+        ("fw=1.0.0 proto=1 leds=0 sid=0001", "LED count 0 out of range (1..255)"),
+        ("fw=1.0.0 proto=1 leds=99999999999999999999 sid=0001", "LED count 99999999999999999999 out of range"),
+        ("fw=1.0.0 proto=1 leds=x sid=zz", "malformed board description"),
+    ],
+)
+def test_a_hello_with_a_bad_led_count_is_one_line_naming_the_port(capsys, payload, message):
+    """leds=-3 and a 20-digit count ended in a numpy traceback (negative dimensions, maximum dimension exceeded),
+    leds=0 was accepted as a board with no LEDs."""
+    from nlipscalib.cli import main
+
+    from .fakes import PtyBoard, hello_then, protocol_line
+
+    with PtyBoard(hello_then(lambda seq: protocol_line(f"{seq} OK"), payload)) as board:
+        assert main(["leds", board.url, "info", "--timeout", "0.2"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"nlips leds: error: {board.url}: unexpected HELLO answer: ") and message in err
+    assert err.count("\n") == 1
+
+
+def test_decode_info_checks_the_led_count():
+    from nlipscalib.device import protocol as p
+
+    assert p.decode_info("fw=1.0.0 proto=1 leds=255 sid=0001").n_leds == p.MAX_LEDS == 255
+    for count in ("0", "256", "-1"):
+        with pytest.raises(p.FrameError, match=f"LED count {count} out of range"):
+            p.decode_info(f"fw=1.0.0 proto=1 leds={count} sid=0001")
+
+
+def test_a_boot_banner_with_bad_fields_is_one_line_naming_the_port(capsys):
+    """A banner whose checksum holds but whose fields do not parse raised protocol.FrameError (not a DeviceError):
+    a traceback, exit 1."""
+    from nlipscalib.cli import main
+
+    from .fakes import PtyBoard, hello_then, protocol_line
+
+    def banner_then_ok(seq):
+        return protocol_line("BOOT fw=1.0.0 proto=1 leds=x sid=zz", start="!") + protocol_line(f"{seq} OK")
+
+    with PtyBoard(hello_then(banner_then_ok)) as board:
+        assert main(["leds", board.url, "test", "--dwell", "0", "--timeout", "0.2"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"nlips leds: error: {board.url}: unexpected boot banner: malformed board description")
+    assert err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_replies_that_fail_their_checksum_are_named_so_not_a_line_rate():
+    """Every reply with a wrong CRC was blamed on the line rate ("bytes that form no protocol line, as a board
+    running at another line rate does") after "4 tries of 1 s" that lasted 0.4 s together."""
+    from .fakes import PtyBoard, protocol_line
+
+    def bad_crc(seq, command):
+        return protocol_line(f"{seq} OK fw=1.0.0 proto=1 leds=12 sid=0001", crc="0000")
+
+    with PtyBoard(bad_crc) as board, pytest.raises(c.DeviceTimeoutError) as info:
+        c.LedController.open(board.url, timeout=1.0, retries=3)
+    message = str(info.value)
+    assert message.startswith(f"{board.url}: no valid answer to HELLO in 4 tries: it answered, but 4 of its lines ")
+    assert "failed the checksum (CRC-16): noise on the line" in message and "another protocol" in message
+    assert "line rate" not in message and "tries of 1 s" not in message
+
+
+def test_replies_that_fail_their_checksum_mid_session_say_so():
+    from .fakes import PtyBoard, hello_then, protocol_line
+
+    with PtyBoard(hello_then(lambda seq: protocol_line(f"{seq} OK", crc="0000"))) as board:
+        with (
+            c.LedController.open(board.url, timeout=1.0, retries=2) as leds,
+            pytest.raises(c.DeviceTimeoutError) as info,
+        ):
+            leds.off()
+    assert str(info.value) == (
+        f"{board.url}: no valid answer to OFF in 3 tries: every reply failed its checksum (CRC-16): noise on the "
+        "line (a loose or long unshielded USB cable), or a device speaking another protocol with the same line markers"
+    )
+
+
+def test_another_firmwares_text_is_quoted_as_text():
+    """It was quoted as a Python bytes repr, each line cut at 30 bytes: b'> Welcome to FooBar firmware v | ...'."""
+    from .fakes import PtyBoard
+
+    with PtyBoard(lambda seq, command: b"Welcome to FooBar firmware v2.3 (c) 2024 FooBar Inc.\r\n") as board:
+        with pytest.raises(c.DeviceTimeoutError) as info:
+            c.LedController.open(board.url, timeout=0.1, retries=1)
+    message = str(info.value)
+    assert 'It printed "Welcome to FooBar firmware v2.3 (c) 2024 FooBar Inc.". Is the nlips' in message, message
+    assert "b'" not in message
+    assert c._quoted([b"x" * 100]) == "x" * 57 + "..." and c._quoted([b"caf\xe9"]) == "caf\ufffd"

@@ -198,3 +198,55 @@ def test_interactive_operator_waits_for_enter_and_stops_on_eof(monkeypatch):
     op.press(1, 2)  # returns after Enter
     with pytest.raises(KeyboardInterrupt):
         op.press(2, 2)
+
+
+def test_a_board_lost_mid_press_is_the_error_reported_not_the_clean_ups(tmp_path):
+    """The clean-up's lights-off replaced the error in flight: an unplugged board that did not come back was
+    reported as "the LED controller is closed" (the reconnect had closed it)."""
+    from nlipscalib.device.controller import DeviceDisconnectedError, LedController
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    rig, images = _rig()
+    board = VirtualBoard(N_LEDS)
+    with LedController.open(board.url, reconnect_s=0.2) as controller:
+        rig.controller = controller
+
+        class UnpluggedMidPress(LitSource):
+            def read(self):
+                if self.reads == 4:
+                    board.unplug()  # and never plugged back
+                return super().read()
+
+        rig.source = UnpluggedMidPress(board, images)
+        with pytest.raises(DeviceDisconnectedError, match=r"the board disconnected \(.*\) and did not come back"):
+            capture_press(rig, tmp_path / "p", SessionConfig(), _quiet()[0], index=1)
+    assert not (tmp_path / "p").exists()
+
+
+def test_a_board_silent_mid_press_is_named_by_the_command_that_failed(tmp_path):
+    """A board that stops answering: the error named OFF (the clean-up's), after waiting its tries a second time;
+    now ALL, the command that failed, and the clean-up is one short try; the controller keeps its settings."""
+    import time
+
+    from nlipscalib.device.controller import DeviceTimeoutError, LedController
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    rig, images = _rig()
+    board = VirtualBoard(N_LEDS)
+    with LedController.open(board.url, timeout=0.2, retries=3) as controller:
+        rig.controller = controller
+
+        class SilentMidPress(LitSource):
+            def read(self):
+                if self.reads == 4:
+                    board.mute(10**6)  # every line from now on is lost
+                return super().read()
+
+        rig.source = SilentMidPress(board, images)
+        start = time.monotonic()
+        with pytest.raises(DeviceTimeoutError) as info:
+            capture_press(rig, tmp_path / "p", SessionConfig(), _quiet()[0], index=1)
+        elapsed = time.monotonic() - start
+        assert (controller.timeout, controller.retries, controller.reconnect_s) == (0.2, 3, 5.0)
+    assert str(info.value) == f"{board.url}: no valid answer to ALL after 4 tries of 0.2 s each"
+    assert elapsed < 4 * 0.2 + 0.3 + 0.5  # the tries of ALL and one short try of OFF (was 4 + 4 tries)

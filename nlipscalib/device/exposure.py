@@ -1,0 +1,141 @@
+"""Exposure check of a captured press: LED frames that show no light, frames with much of the gel saturated.
+
+A capture session locks its exposure and LED levels when the reference is taken (a resumed session must keep
+them), so an exposure problem is best caught at once: :func:`check_exposure` runs on every press and the
+reference as they are captured (:func:`nlipscalib.device.session.capture_press`). It warns, one line per
+problem naming the files, when LED frames are black (no light above the dark frame: LEDs off, lens cap) or
+a large share of the gel is saturated (a shorter ``--exposure-ms`` or a lower LED level needed), and refuses
+a reference whose LED frames are all black or saturated, which nothing downstream can use. Thresholds:
+:mod:`nlipscalib.core.tolerances` (``EXPOSURE_*``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..core.capture import SensorResponse
+from ..core.tolerances import (
+    EXPOSURE_LIGHT_FRACTION,
+    EXPOSURE_LIT_SHARE,
+    EXPOSURE_SATURATED_SHARE,
+    EXPOSURE_UNUSABLE_SHARE,
+)
+from ..errors import CaptureError, require
+
+NAMED = 3
+"""Most files a warning names (then "and N more")."""
+
+
+def check_exposure(
+    frames: dict[str, np.ndarray],
+    response: SensorResponse,
+    folder: str | Path,
+    gel: np.ndarray | None = None,
+    reference: bool = False,
+) -> list[str]:
+    """The exposure warnings of one captured press (none when it is well exposed).
+
+    Parameters
+    ----------
+    frames : dict name -> (H, W, 3) uint16 stored image
+        What :func:`nlipscalib.device.session.capture_frames` returns: ``tricolor``, ``dark``, ``led_01`` ...
+    response : SensorResponse
+        Black and white level of the stored values.
+    folder : path
+        The press folder, for the messages (its files are named as :func:`nlipscalib.core.write_press` names them).
+    gel : (H, W) bool, optional
+        The pixels that see the gel (``np.isfinite(reference.depth)``); the whole frame when None.
+    reference : bool
+        The session's reference: wholly black or wholly saturated is a CaptureError, not a warning.
+
+    Returns
+    -------
+    list of str
+        At most two lines: the black LED frames, the over-exposed frames.
+
+    Raises
+    ------
+    CaptureError
+        ``reference`` and nothing usable: every LED frame black or saturated.
+    """
+    cv2 = require("cv2", "opencv-python-headless", "The exposure check")
+    folder = Path(folder)
+    names = sorted(name for name in frames if name.startswith("led_"))
+    shape = frames["dark"].shape[:2]
+    has_gel = gel is not None and gel.shape == shape and bool(gel.any())
+    gel = gel if has_gel else np.ones(shape, bool)
+    where = "of the gel" if has_gel else "of the pixels"
+    scale = np.float32(response.white_level - response.black_level)
+    dark = frames["dark"].astype(np.float32)
+
+    def saturated(image):
+        return float((image >= response.white_level).any(axis=2)[gel].mean())
+
+    def lit(image):
+        light = cv2.blur(((image.astype(np.float32) - dark) / scale).mean(axis=2), (5, 5))
+        return float((light[gel] > EXPOSURE_LIGHT_FRACTION).mean())
+
+    clipped = {f"{name}.png": saturated(frames[name]) for name in names}
+    clipped["tricolor.png"] = saturated(frames["tricolor"])
+    black = [
+        name
+        for name in names
+        if clipped[f"{name}.png"] < EXPOSURE_UNUSABLE_SHARE and lit(frames[name]) < EXPOSURE_LIT_SHARE
+    ]
+    if reference:
+        _refuse_unusable(folder, names, black, clipped, where)
+    lines = []
+    if black:
+        lines.append(_black_line(folder, names, black))
+    over = sorted((share, name) for name, share in clipped.items() if share > EXPOSURE_SATURATED_SHARE)[::-1]
+    if over:
+        share, name = over[0]
+        others = ", ".join(f"{other} {100 * part:.0f} %" for part, other in over[1:NAMED])
+        if len(over) > NAMED:
+            others += f" and {len(over) - NAMED} more frames"
+        also = f" ({others} also over {100 * EXPOSURE_SATURATED_SHARE:.0f} %)" if others else ""
+        hint = " (--tricolor-level for tricolor.png)" if any(other == "tricolor.png" for _, other in over) else ""
+        lines.append(
+            f"{folder / name}: {100 * share:.0f} % {where} saturated{also}: saturated pixels are left out of every "
+            f"fit; lower --exposure-ms or the LED level{hint}"
+        )
+    return lines
+
+
+def _black_line(folder: Path, names: list[str], black: list[str]) -> str:
+    if len(black) == len(names):
+        return (
+            f"{folder}: no LED frame shows light above the dark frame ({names[0]}.png .. {names[-1]}.png against "
+            "dark.png): LEDs off or not driven (the right --port?), lens cap on, or the camera not looking at the gel"
+        )
+    listed = ", ".join(f"{name}.png" for name in black[:NAMED]) + (
+        f" and {len(black) - NAMED} more" if len(black) > NAMED else ""
+    )
+    return (
+        f"{folder}/{listed}: no light above the dark frame (dark.png): is that LED lit and wired "
+        "(`nlips leds PORT test`)?"
+    )
+
+
+def _refuse_unusable(folder: Path, names: list[str], black: list[str], clipped: dict, where: str) -> None:
+    """CaptureError when the reference holds nothing usable: every LED frame black or saturated (the LED
+    calibration and NLiPs, whose solves label NLiPsNet's training, read only the LED frames; a saturated
+    tri-colour frame alone is warned about)."""
+    saturated = [name for name in names if clipped[f"{name}.png"] >= EXPOSURE_UNUSABLE_SHARE]
+    tail = (
+        "; nothing downstream can use it, so it was not written: fix it and capture again (the session's settings "
+        "are fixed only once the reference is written)"
+    )
+    if len(black) == len(names):
+        raise CaptureError(
+            f"{folder}: the reference is black: no LED frame shows light above the dark frame: LEDs off or not "
+            f"driven (the right --port?), lens cap on, or the camera not looking at the gel{tail}"
+        )
+    if len(saturated) + len(black) == len(names):
+        raise CaptureError(
+            f"{folder}: the reference is saturated: every LED frame has at least "
+            f"{100 * EXPOSURE_UNUSABLE_SHARE:.0f} % {where} at the white level (or no light): lower --exposure-ms or "
+            f"the LED level{tail}"
+        )

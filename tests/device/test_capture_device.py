@@ -1,0 +1,199 @@
+"""`nlips capture` on the real-sensor path (LED port + camera) when things go wrong: the board lost or silent
+mid-session, recorded frames that are black or saturated, an LED file or camera calibration of another sensor.
+
+The board is the in-process virtual board (faults injected), the camera a folder of recorded frames."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+cv2 = pytest.importorskip("cv2")
+
+from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.device import virtual_board  # noqa: E402
+from nlipscalib.device.controller import LedController  # noqa: E402
+from nlipscalib.device.virtual_board import VirtualBoard  # noqa: E402
+
+W, H = 64, 48
+SEQUENCE = 15
+"""Frames of one press with the design's 12 LEDs: tri-colour, dark, LED 1..12, the tri-colour again."""
+
+
+def camera_file(tmp_path):
+    from nlipscalib.core import Camera
+
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps({"camera": Camera.from_fov(W, H, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    return path
+
+
+def frames_folder(tmp_path, presses: int, value=None, name: str = "frames"):
+    """Recorded 8-bit frames for the reference and ``presses`` presses: ``value(k)`` is frame k's grey level
+    within its sequence (default: well exposed, the dark frame at 40, LED k at 60 + 10 k, the check frame the
+    tri-colour one's 150)."""
+    value = value or (lambda k: 40 if k == 1 else 150 if k in (0, SEQUENCE - 1) else 60 + 10 * k)
+    folder = tmp_path / name
+    folder.mkdir()
+    for i in range(SEQUENCE * (presses + 1)):
+        cv2.imwrite(str(folder / f"{i:04d}.png"), np.full((H, W, 3), value(i % SEQUENCE), np.uint8))
+    return folder
+
+
+def capture_args(board_url, frames, camera, out, presses: int):
+    args = ["capture", "--port", board_url, "--camera", str(frames), "--camera-calibration", str(camera), "--yes"]
+    return args + ["--presses", str(presses), "--out", str(out)]
+
+
+def errors(err: str) -> list[str]:
+    return [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+
+
+@pytest.fixture
+def impatient(monkeypatch):
+    """LedController.open with a short reply timeout and reconnect wait (the command opens it with the
+    defaults: 1 s per try, 5 s for an unplugged board to come back)."""
+    real = LedController.open.__func__
+
+    def open_quickly(cls, url, **kwargs):
+        return real(cls, url, **{**kwargs, "timeout": 0.2, "reconnect_s": 0.3})
+
+    monkeypatch.setattr(LedController, "open", classmethod(open_quickly))
+
+
+def fault_on_all(monkeypatch, number: int, fault):
+    """Run ``fault(board)`` as the board executes its ``number``-th ALL (its reply still goes out)."""
+    seen = []
+    real = virtual_board._COMMANDS["ALL"]
+
+    def all_command(board, args):
+        seen.append(1)
+        if len(seen) == number:
+            fault(board)
+        return real(board, args)
+
+    monkeypatch.setitem(virtual_board._COMMANDS, "ALL", all_command)
+
+
+def test_a_board_unplugged_mid_capture_is_reported_as_such(tmp_path, capsys, monkeypatch, impatient):
+    """Reported as "the LED controller is closed": the clean-up's lights-off failed on the port the failed
+    reconnect had closed, and its error replaced the real one."""
+    board = VirtualBoard(12)
+    fault_on_all(monkeypatch, SEQUENCE + 4, lambda b: b.unplug())  # mid-way through press 1
+    out = tmp_path / "s"
+    assert main(capture_args(board.url, frames_folder(tmp_path, 1), camera_file(tmp_path), out, 1)) == 2
+    err = capsys.readouterr().err
+    assert len(errors(err)) == 1, err
+    assert errors(err)[0].startswith(f"nlips capture: error: {board.url}: the board disconnected (")
+    assert "did not come back within 0.3 s" in err and "closed" not in err
+    assert (out / "reference").is_dir() and not (out / "press_0001").exists()
+
+
+def test_a_board_silent_mid_capture_is_named_by_the_command_that_failed(tmp_path, capsys, monkeypatch, impatient):
+    """Reported as "no valid answer to OFF after 4 tries of 1 s each" after 8.9 s: the clean-up's OFF waited its
+    own 4 tries after ALL had failed."""
+    board = VirtualBoard(12)
+    fault_on_all(monkeypatch, SEQUENCE + 4, lambda b: b.mute(10**6))
+    args = capture_args(board.url, frames_folder(tmp_path, 1), camera_file(tmp_path), tmp_path / "s", 1)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert errors(err) == [f"nlips capture: error: {board.url}: no valid answer to ALL after 4 tries of 0.2 s each"]
+
+
+def _led_file(path, leds, camera_path):
+    """An LED file as `nlips calibrate-leds` writes it: the LEDs and the sensor they were calibrated on (the
+    camera of ``camera_path`` with ``leds`` as its design LEDs)."""
+    from nlipscalib.core import Camera, SensorResponse
+    from nlipscalib.core.sensor_record import describe_sensor
+    from nlipscalib.solver.io import save_leds
+
+    camera = Camera.from_dict(json.loads(camera_path.read_text())["camera"])
+    return save_leds(path, leds, {"sensor": describe_sensor(camera, leds, SensorResponse())})
+
+
+def test_an_led_file_of_another_sensor_is_refused_as_solve_refuses_it(tmp_path, capsys):
+    """`nlips capture --leds FILE` took LEDs calibrated on another sensor (fingertip's, for an nlipstac capture)
+    and wrote them into every press, which `nlips solve` then used; `nlips solve --leds FILE` refuses that file."""
+    import dataclasses
+
+    from nlipscalib.core import load_press
+    from nlipscalib.sim.scene import load_scene
+
+    camera = camera_file(tmp_path)
+    other = _led_file(tmp_path / "fingertip_leds.json", load_scene("fingertip").led_models(), camera)
+    board = VirtualBoard(12)
+    frames = frames_folder(tmp_path, 0)
+    out = tmp_path / "s"
+    assert main([*capture_args(board.url, frames, camera, out, 0), "--leds", str(other)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(
+        f"nlips capture: error: {other}: calibrated on another sensor than the one captured here, the design "
+        f"nlipstac with the camera of {camera} (LED 1 is 1.50 mm and 10.0 deg from its counterpart)"
+    )
+    assert err.count("\n") == 1 and not out.exists() and not board.executed  # refused before the board is opened
+    # a calibration of this sensor (its LEDs 0.2 mm from the design's) is taken, and recorded in the capture
+    design = load_scene("nlipstac").led_models()
+    moved = tuple(dataclasses.replace(led, position=tuple(led.position + np.array([0.2, 0, 0]))) for led in design)
+    ours = _led_file(tmp_path / "our_leds.json", design, camera)
+    ours.write_text(json.dumps(json.loads(ours.read_text()) | {"leds": [led.to_dict() for led in moved]}))
+    assert main([*capture_args(board.url, frames, camera, out, 0), "--leds", str(ours)]) == 0
+    capsys.readouterr()
+    np.testing.assert_allclose(load_press(out / "reference").leds[0].position, moved[0].position, atol=1e-6)
+
+
+def test_frames_of_another_size_than_the_calibration_name_the_camera_and_where_the_calibration_came_from(
+    tmp_path, capsys
+):
+    """ "the camera gives 64x48 frames but its calibration is 640x480" named neither the camera nor the design
+    whose camera it was."""
+    board = VirtualBoard(12)
+    frames = frames_folder(tmp_path, 0)
+    args = ["capture", "--port", board.url, "--camera", str(frames), "--yes", "--presses", "0"]
+    assert main([*args, "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"nlips capture: error: {frames} gives 64x48 frames but the camera of the design nlipstac (no "
+        "--camera-calibration) is 640x480: calibrate this camera at 64x48 (`nlips calibrate-camera`, then "
+        "--camera-calibration), or capture at 640x480\n"
+    )
+
+
+def test_a_black_reference_is_refused_and_can_be_captured_again_at_another_exposure(tmp_path, capsys):
+    """A session of black frames (LEDs off, a lens cap) was captured without a word, and every later command
+    failed with "no usable pixel to fit the interreflection term on"."""
+    board = VirtualBoard(12)
+    camera, out = camera_file(tmp_path), tmp_path / "s"
+    black = frames_folder(tmp_path, 1, value=lambda k: 0, name="black")
+    assert main(capture_args(board.url, black, camera, out, 1)) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"nlips capture: error: {out / 'reference'}: the reference is black: no LED frame shows ")
+    assert err.count("\n") == 1 and not (out / "reference").exists() and board.latched.sum() == 0
+    # nothing was captured, so the session is not bound to its settings yet: another exposure is taken
+    good = frames_folder(tmp_path, 1)
+    assert main([*capture_args(board.url, good, camera, out, 1), "--exposure-ms", "5"]) == 0
+    assert "press_0001: captured" in capsys.readouterr().out
+
+
+def test_an_over_exposed_press_is_captured_with_a_warning_naming_the_file(tmp_path, capsys, caplog):
+    """53 % of an LED frame clipped at the white level was captured silently; its light is lost to every fit."""
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(2 * SEQUENCE):  # the reference well exposed; press 1's LED 3 clipped over the top half
+        k = i % SEQUENCE
+        image = np.full((H, W, 3), 40 if k == 1 else 150 if k in (0, SEQUENCE - 1) else 60 + 10 * k, np.uint8)
+        if i == SEQUENCE + 4:  # press 1, LED 3
+            image[: H // 2] = 255
+        cv2.imwrite(str(frames / f"{i:04d}.png"), image)
+    board = VirtualBoard(12)
+    out = tmp_path / "s"
+    assert main(capture_args(board.url, frames, camera_file(tmp_path), out, 1)) == 0
+    captured = capsys.readouterr()
+    assert "press_0001: captured" in captured.out
+    warnings = [r.getMessage() for r in caplog.records if "saturated" in r.getMessage()]
+    assert warnings == [
+        f"{out / 'press_0001' / 'led_03.png'}: 50 % of the gel saturated: saturated pixels are left out of every fit; "
+        "lower --exposure-ms or the LED level"
+    ]
+    assert not [r for r in caplog.records if "reference" in r.getMessage()]  # the reference was well exposed

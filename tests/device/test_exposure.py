@@ -1,0 +1,93 @@
+"""The exposure check of a captured press: black LED frames, saturated frames, an unusable reference."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("cv2")
+
+from nlipscalib.core import SensorResponse  # noqa: E402
+from nlipscalib.device.exposure import check_exposure  # noqa: E402
+from nlipscalib.errors import CaptureError  # noqa: E402
+
+H, W, L = 24, 32, 6
+RESPONSE = SensorResponse(bit_depth=16, black_level=0.0, white_level=65535.0)
+
+
+def _frames(led=20000, dark=1000, tricolor=30000):
+    """A press's frames (uint16): uniform grey levels; ``led`` one level or one per LED."""
+    levels = np.broadcast_to(led, (L,))
+
+    def img(v):
+        return np.full((H, W, 3), v, np.uint16)
+
+    frames = {"tricolor": img(tricolor), "dark": img(dark)}
+    frames |= {f"led_{i + 1:02d}": img(levels[i]) for i in range(L)}
+    return frames
+
+
+def test_a_well_exposed_press_says_nothing(tmp_path):
+    assert check_exposure(_frames(), RESPONSE, tmp_path / "press_0001") == []
+    assert check_exposure(_frames(), RESPONSE, tmp_path / "reference", reference=True) == []
+
+
+def test_black_led_frames_are_named(tmp_path):
+    """LEDs off, a lens cap: the LED frames hold no light above the dark frame (noise aside)."""
+    rng = np.random.default_rng(0)
+    frames = _frames(led=1000)
+    for name, image in frames.items():  # 1 % of full scale of noise per pixel: not light
+        frames[name] = np.clip(image + rng.normal(0, 650, image.shape), 0, 65535).astype(np.uint16)
+    lines = check_exposure(frames, RESPONSE, tmp_path / "press_0001")
+    assert lines == [
+        f"{tmp_path / 'press_0001'}: no LED frame shows light above the dark frame (led_01.png .. led_06.png against "
+        "dark.png): LEDs off or not driven (the right --port?), lens cap on, or the camera not looking at the gel"
+    ]
+    one_dead = check_exposure(_frames(led=[20000, 20000, 1000, 20000, 20000, 1000]), RESPONSE, tmp_path / "p")
+    assert one_dead == [
+        f"{tmp_path / 'p'}/led_03.png, led_06.png: no light above the dark frame (dark.png): is that LED lit and wired "
+        "(`nlips leds PORT test`)?"
+    ]
+
+
+def test_saturated_frames_are_named_with_their_share(tmp_path):
+    frames = _frames()
+    frames["led_03"][: int(0.53 * H)] = 65535  # 53 % of the rows clipped
+    frames["tricolor"][: int(0.88 * H), :, 0] = 65535  # one channel is enough
+    frames["led_05"][:2] = 65535  # 8 %
+    frames["led_01"][:1] = 65535  # 4 %: under the limit
+    (line,) = check_exposure(frames, RESPONSE, tmp_path / "press_0001")
+    assert line == (
+        f"{tmp_path / 'press_0001' / 'tricolor.png'}: 88 % of the pixels saturated (led_03.png 50 %, led_05.png 8 % "
+        "also over 5 %): saturated pixels are left out of every fit; lower --exposure-ms or the LED level "
+        "(--tricolor-level for tricolor.png)"
+    )
+
+
+def test_the_gel_is_what_counts(tmp_path):
+    """Pixels off the gel (the corners of a fisheye view) neither hide nor make a saturated share."""
+    frames = _frames()
+    frames["led_02"][:, : W // 2] = 65535
+    gel = np.zeros((H, W), bool)
+    gel[:, : W // 2] = True
+    (line,) = check_exposure(frames, RESPONSE, tmp_path / "p", gel)
+    assert line.startswith(f"{tmp_path / 'p' / 'led_02.png'}: 100 % of the gel saturated")
+    gel[:] = False
+    gel[:, W // 2 :] = True
+    assert check_exposure(frames, RESPONSE, tmp_path / "p", gel) == []
+
+
+@pytest.mark.parametrize(
+    "frames, message",
+    [
+        (_frames(led=1000), "the reference is black: no LED frame shows light above the dark frame"),
+        (_frames(led=65535, dark=65535, tricolor=65535), "the reference is saturated: every LED frame has at least 99"),
+        (_frames(led=[65535, 1000, 65535, 65535, 1000, 65535]), "the reference is saturated"),
+    ],
+)
+def test_a_reference_with_nothing_usable_is_refused(tmp_path, frames, message):
+    with pytest.raises(CaptureError) as info:
+        check_exposure(frames, RESPONSE, tmp_path / "reference", reference=True)
+    assert str(info.value).startswith(f"{tmp_path / 'reference'}: {message}")
+    assert "so it was not written" in str(info.value)
+    assert check_exposure(frames, RESPONSE, tmp_path / "press_0001")  # a press: warned about, not refused
