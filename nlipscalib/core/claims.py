@@ -81,9 +81,15 @@ def claim(target: str | Path, *, stale_s: float = 60.0) -> Iterator[bool]:
     # registered before the file exists: a signal handler exiting right after the link still removes it
     # (a claim this process already holds stays registered as its holder's: claims are not re-entrant)
     registered = _HELD.setdefault(path, me) is me
-    if not _acquire(path, me, stale_s):
-        if registered:
+    try:
+        acquired = _acquire(path, me, stale_s)
+    except BaseException:  # disk full, permission: no claim, and no registration left to mislead release_all
+        acquired = False
+        raise
+    finally:
+        if registered and not acquired:
             _HELD.pop(path, None)
+    if not acquired:
         yield False
         return
     beat = _Heartbeat(path, me, interval=max(0.05, stale_s / 4))

@@ -191,3 +191,25 @@ def test_a_signal_handler_exiting_while_a_claim_is_made_leaves_no_file(tmp_path,
     with pytest.raises(SystemExit), claim(tmp_path / "item"):
         pass
     assert seen == []  # neither the claim nor its temporary outlived the handler
+
+
+def test_a_claim_that_could_not_be_written_leaves_no_registration(tmp_path, monkeypatch):
+    """A claim whose file could not be written (disk full) stayed registered: the next claim of that path was
+    then not the registered one, and release_all on SIGTERM left its file behind."""
+    import errno
+
+    import nlipscalib.core.claims as claims
+
+    real_link = os.link
+
+    def disk_full(src, dst):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(claims.os, "link", disk_full)
+    with pytest.raises(OSError), claim(tmp_path / "item"):
+        pass
+    monkeypatch.setattr(claims.os, "link", real_link)
+    with claim(tmp_path / "item") as mine:
+        assert mine
+        claims.release_all()  # what a SIGTERM handler does before exiting
+        assert not claim_path(tmp_path / "item").exists()
