@@ -18,7 +18,12 @@ from .tolerances import SURFACE_SCALE_RATIO, UNIT_NORMAL_TOL
 
 FACING_STRIDE = 8
 """The facing and scale checks look at every this-many-th pixel in both directions (a statistic; 4,800
-pixels at 640x480, unprojected in a few milliseconds, where the whole frame's rays cost 75 ms)."""
+pixels at 640x480, unprojected in a few milliseconds, where the whole frame's rays cost 75 ms)..."""
+FACING_MIN_SAMPLES = 100
+"""... or at every pixel of the gel when that grid holds fewer than this many of them (a small gel or image)."""
+FACING_AWAY_MAJORITY = 0.5
+"""Normals are flipped when more than this share of the sampled gel faces away from the camera (a convention,
+not a tolerance: a file that follows it faces the camera everywhere, one with flipped normals nowhere)."""
 
 
 def surface_problem(
@@ -46,12 +51,13 @@ def surface_problem(
     bad = int(np.count_nonzero(valid & ~(np.abs(squared - 1.0) <= 2 * UNIT_NORMAL_TOL)))
     if bad:
         return f"array 'normals' is not a unit vector on {bad} of its {total} gel pixels"
-    rows, cols = np.nonzero(valid[::FACING_STRIDE, ::FACING_STRIDE])
-    rows, cols = rows * FACING_STRIDE, cols * FACING_STRIDE
+    rows, cols = _sample(valid & np.isfinite(depth))
+    if rows.size == 0:  # no finite depth on the gel: nothing to tell the orientation or the scale from
+        return None
     rays = camera.unproject(np.stack([cols, rows], axis=-1).astype(np.float64))
     points = depth_to_points(depth[rows, cols].astype(np.float64), rays)
     facing_away = np.einsum("ij,ij->i", normals[rows, cols].astype(np.float64), points) >= 0
-    if facing_away.mean() > 0.5:
+    if facing_away.mean() > FACING_AWAY_MAJORITY:
         return (
             f"array 'normals' points away from the camera on {100 * facing_away.mean():.0f} % of the gel "
             "(flipped? normals point toward the camera, docs/conventions.md)"
@@ -64,3 +70,11 @@ def surface_problem(
             "from it: depth must be in millimetres"
         )
     return None
+
+
+def _sample(where: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the pixels of ``where`` ((H, W) bool) that the facing and scale checks look at."""
+    rows, cols = np.nonzero(where[::FACING_STRIDE, ::FACING_STRIDE])
+    if rows.size >= FACING_MIN_SAMPLES:
+        return rows * FACING_STRIDE, cols * FACING_STRIDE
+    return np.nonzero(where)

@@ -293,3 +293,18 @@ def test_surfaces_that_break_the_formats_promise_are_named(tmp_path, name, chang
     _edit_surface(folder, name, change)
     with pytest.raises(CaptureError, match=f"{name}: array {message}"):
         load_press(folder)
+
+
+def test_a_gel_that_misses_the_sampling_grid_is_checked_on_all_its_pixels():
+    """A gel of a few pixels off the every-8th-pixel grid was refused: "puts the gel nan mm from the camera"."""
+    from nlipscalib.core.surface_checks import surface_problem
+
+    cam = Camera.from_fov(W, H, 90.0)
+    leds = [Led(position=(5.0, 0.0, 0.0))]
+    depth = np.full((H, W), 10.0, np.float32)
+    normals = np.tile(np.float32([0, 0, -1]), (H, W, 1))
+    valid = np.zeros((H, W), bool)
+    valid[5:7, 9:11] = True  # 4 pixels, none on rows/columns 0, 8
+    assert surface_problem(depth, normals, valid, cam, leds) is None
+    assert "points away" in surface_problem(depth, -normals, valid, cam, leds)
+    assert surface_problem(np.full((H, W), np.nan, np.float32), normals, valid, cam, leds) is None
