@@ -289,9 +289,9 @@ def contact_box(
     spread = _box_fraction(region, valid)
     if not note and spread >= tolerances.ROI_LARGE_FRACTION:
         note = (
-            f"--roi auto: the images differ from the undeformed model over {100 * spread:.0f} % of the gel "
-            f"(a press that large, or LEDs / reference that do not fit this sensor: try nlips calibrate-leds or "
-            f"--reference); pass --roi X0 Y0 W H to choose the region"
+            f"--roi auto: the pixels whose images differ from the undeformed model span {100 * spread:.0f} % of "
+            f"the gel's extent (its bounding box): a press that large, or LEDs / reference that do not fit this "
+            f"sensor (try nlips calibrate-leds or --reference); pass --roi X0 Y0 W H to choose the region"
         )
     return box, note
 
