@@ -410,8 +410,18 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
                     return "changed", _changed_error(scene, job, out)
                 missing = _missing_files(folder)
                 if missing:
+                    busy = _live_claim_inside(folder)
+                    if busy:
+                        return "failed", f"{folder}: {missing[0]} missing, but {busy}; run again when it is done"
                     more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
-                    log.warning("%s: %s%s missing; rendering it again", folder, ", ".join(missing[:3]), more)
+                    results = _results_inside(folder)
+                    log.warning(
+                        "%s: %s%s missing; rendering it again%s",
+                        folder,
+                        ", ".join(missing[:3]),
+                        more,
+                        f" (its results {', '.join(results)} go with it)" if results else "",
+                    )
                     replace = True
             elif folder.exists():
                 busy = _live_claim_inside(folder)
@@ -449,6 +459,11 @@ def _live_claim_inside(folder: Path) -> str | None:
         if owner is not None:
             return f"process {owner.pid} on {owner.host} holds {path.name} in it"
     return None
+
+
+def _results_inside(folder: Path) -> list[str]:
+    """Names of the result folders inside a press folder (``nlips/``, ``nlipsnet/``, a solve's ``--out``)."""
+    return sorted(p.name + "/" for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
 def _remove_incomplete(folder: Path) -> None:

@@ -281,3 +281,25 @@ def test_a_press_that_lost_a_file_is_rendered_again_not_counted_as_there(tmp_pat
     assert not [p for p in out.rglob("*") if p.name.startswith((".tmp-", ".claim-"))]
     calls.clear()
     assert main(args) == 0 and calls == []  # whole again
+
+
+def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_path, monkeypatch, capsys, caplog):
+    """Rendering it again swapped the whole folder away under a running `nlips solve` (its result went with it,
+    said by nothing but "led_02.png missing"): now the press waits for the next run, like an incomplete one."""
+    from nlipscalib.cli import main
+    from nlipscalib.core.claims import claim
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(ds, "_run_one", _whole_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
+    assert main(args) == 0
+    (out / "press_0000" / "led_02.png").unlink()
+    (out / "press_0000" / "nlips").mkdir()  # a result of an earlier solve
+    calls.clear()
+    with claim(out / "press_0000" / "nlips") as mine:  # a solve at work in it (this process stands for it)
+        assert mine
+        assert main(args) == 1
+    said = capsys.readouterr()
+    assert calls == [] and "led_02.png missing, but process" in said.out + said.err
+    assert main(args) == 0 and calls == ["press_0000"]
+    assert "(its results nlips/ go with it)" in caplog.text
