@@ -33,6 +33,7 @@ from pathlib import Path
 from . import __version__
 from .core.atomic import TMP_PREFIX
 from .core.reconstruction import (
+    REPORT_FILE,
     Reconstruction,
     check_replaceable,
     content_problem,
@@ -264,15 +265,27 @@ def solve_presses(
     if not isinstance(workers, int) or workers < 1:
         raise ConfigError(f"workers must be a whole number >= 1, got {workers!r}")
     names = _names(folders)
-    if workers == 1 or len(folders) <= 1:
-        statuses = _solve_serially(folders, names, settings, overwrite, progress, figures, wait)
-    else:
-        statuses = _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures, wait)
+    started = _fs_clock(folders)
+    statuses = _solve_batch(folders, names, settings, workers, overwrite, progress, figures, wait)
     busy = [f for f in folders if statuses[f] == BUSY]  # another run's: left to it, now waited for
     if busy:
         log.info("%d presses were being solved by another process; waiting for them", len(busy))
-        statuses |= _solve_serially(busy, names, settings, overwrite, False, figures, wait=True)
+        # --overwrite: what another run of these settings published meanwhile is fresh, not solved a third time
+        statuses |= _solve_batch(busy, names, settings, workers, overwrite, progress, figures, True, started)
     return {names[f]: statuses[f] for f in folders}
+
+
+def _solve_batch(folders, names, settings, workers, overwrite, progress, figures, wait, fresh_since=None):
+    if workers == 1 or len(folders) <= 1:
+        return _solve_serially(folders, names, settings, overwrite, progress, figures, wait, fresh_since)
+    return _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures, wait, fresh_since)
+
+
+def _fs_clock(folders) -> float | None:
+    """Now by the clock of the file system holding the presses (results' mtimes are compared with it)."""
+    from .core.claims import fs_now
+
+    return fs_now(Path(folders[0]).parent) if folders else None
 
 
 def solve_one(
@@ -286,9 +299,12 @@ def solve_one(
     want_result: bool = True,
     announce_reuse: bool = True,
     wait: bool = False,
+    fresh_since: float | None = None,
 ) -> tuple[Reconstruction | None, str]:
     """:func:`solve_folder` with prepared settings; ``want_result=False`` skips loading a reused result;
-    ``wait``: as in :func:`solve_presses` (a press being solved by another process is waited for)."""
+    ``wait``: as in :func:`solve_presses` (a press being solved by another process is waited for);
+    ``fresh_since``: with ``overwrite``, a result of these settings published at or after this time (file-system
+    clock; another run of the same command, waited for) is reused, not solved again."""
     from .report import figure_level, figures_missing
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
@@ -306,7 +322,7 @@ def solve_one(
         with _claim(out) as mine:
             if mine:
                 _clean_interrupted(out)
-                if not overwrite:  # the result may have appeared while we waited for the claim
+                if not overwrite or _published_since(out, fresh_since):  # it may have appeared while we waited
                     reused = _reuse(out, provenance, want_result, quiet=False, announce=announce_reuse)
                     if reused is not None:
                         _write_missing_figures(folder, out, reused[0], figures)
@@ -316,6 +332,16 @@ def solve_one(
             log.info("%s: being solved by another process; left to it for now", folder)
             return None, BUSY
         _wait_for_release(folder, out)  # then claimed here: its result reused when made with these settings
+
+
+def _published_since(out: Path, since: float | None) -> bool:
+    """Whether ``out``'s result was published at or after ``since`` (file-system clock; False without one)."""
+    if since is None:
+        return False
+    try:
+        return (out / REPORT_FILE).stat().st_mtime >= since
+    except OSError:
+        return False
 
 
 def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | None, figures) -> None:
@@ -687,7 +713,9 @@ def _names(folders: Sequence[Path]) -> dict[Path, str]:
     return {f: f.name if counts[f.name] == 1 else str(f) for f in folders}
 
 
-def _status_of(folder: Path, settings: SolveSettings, overwrite: bool, progress: bool, figures, wait=False) -> str:
+def _status_of(
+    folder: Path, settings: SolveSettings, overwrite: bool, progress: bool, figures, wait=False, fresh_since=None
+) -> str:
     """One press's status; a bad capture or bad settings become "failed: ...".
 
     File-system errors (disk full, read-only, permission) propagate: every later press would fail
@@ -695,14 +723,21 @@ def _status_of(folder: Path, settings: SolveSettings, overwrite: bool, progress:
     """
     try:
         return solve_one(
-            folder, settings, overwrite=overwrite, progress=progress, figures=figures, want_result=False, wait=wait
+            folder,
+            settings,
+            overwrite=overwrite,
+            progress=progress,
+            figures=figures,
+            want_result=False,
+            wait=wait,
+            fresh_since=fresh_since,
         )[1]
     except NlipsError as exc:
         log.error("%s: %s", folder.name, exc)
         return f"{FAILED}: {exc}"
 
 
-def _solve_serially(folders, names, settings, overwrite, progress, figures, wait=False) -> dict[Path, str]:
+def _solve_serially(folders, names, settings, overwrite, progress, figures, wait=False, fresh=None) -> dict[Path, str]:
     from .progress import track
 
     single = len(folders) == 1
@@ -710,11 +745,13 @@ def _solve_serially(folders, names, settings, overwrite, progress, figures, wait
     bar = track(folders, enabled=progress and not single, desc="presses", unit="press")
     for folder in bar:
         bar.set_postfix_str(names[folder], refresh=False)
-        statuses[folder] = _status_of(folder, settings, overwrite, progress and single, figures, wait)
+        statuses[folder] = _status_of(folder, settings, overwrite, progress and single, figures, wait, fresh)
     return statuses
 
 
-def _solve_in_processes(folders, names, settings, workers, overwrite, progress, figures, wait=False) -> dict[Path, str]:
+def _solve_in_processes(
+    folders, names, settings, workers, overwrite, progress, figures, wait=False, fresh=None
+) -> dict[Path, str]:
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
@@ -734,7 +771,7 @@ def _solve_in_processes(folders, names, settings, workers, overwrite, progress, 
         initializer=_worker_init,
         initargs=worker_logging(),
     ) as pool:
-        futures = {pool.submit(_status_of, f, settings, overwrite, False, figures, wait): f for f in folders}
+        futures = {pool.submit(_status_of, f, settings, overwrite, False, figures, wait, fresh): f for f in folders}
         bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
         try:
             for done in as_completed(futures):

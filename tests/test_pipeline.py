@@ -341,6 +341,28 @@ def test_wait_reuses_what_another_process_was_solving(press, tmp_path, caplog, w
     thread.join()
 
 
+def test_overwrite_runs_sharing_a_folder_do_not_solve_each_others_presses_again(press, tmp_path, caplog):
+    """Two `nlips solve DATASET --overwrite` runs (cluster jobs on one folder): a press the other run held was
+    waited for and then solved a second time; what that run published meanwhile with these settings is fresh."""
+    solve_folder(press, options=FAST, figures=False)
+    finished = tmp_path / "finished"
+    (press / "nlips").rename(finished)
+    import os
+    import time
+
+    later = time.time() + 60  # the other run publishes after this run started (set, not raced)
+    os.utime(finished / "report.json", (later, later))
+    thread = _held_by_another_process(press / "nlips", 0.5, publish=finished)
+    caplog.set_level(logging.INFO)
+    statuses = solve_presses([press], options=FAST, progress=False, figures=False, overwrite=True)
+    thread.join()
+    assert statuses == {"press": "skipped"} and "identical result exists" in caplog.text
+    # a result published before this run started is not fresh: --overwrite solves it again
+    earlier = time.time() - 3600
+    os.utime(press / "nlips" / "report.json", (earlier, earlier))
+    assert solve_presses([press], options=FAST, progress=False, figures=False, overwrite=True) == {"press": "solved"}
+
+
 def test_a_batch_re_solves_a_result_damaged_inside(press_set, tmp_path, caplog):
     """A batch reuses results without loading them (nlips solve, nlips calibrate): still, damage inside
     result.npz is found and the press re-solved, not skipped for `nlips calibrate` to fail on."""

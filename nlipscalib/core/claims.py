@@ -36,7 +36,7 @@ HOST = socket.gethostname()
 _HELD: dict[Path, Owner] = {}
 """Claims this process holds now (released by ``release_all`` when it is terminated)."""
 _PROBES: set[Path] = set()
-"""Files this process is writing now: clock probes (:func:`_fs_now`) and claim files' temporaries (:func:`_create`)."""
+"""Files this process is writing now: clock probes (:func:`fs_now`) and claim files' temporaries (:func:`_create`)."""
 
 
 @dataclass(frozen=True)
@@ -111,7 +111,7 @@ def holder(target: str | Path, *, stale_s: float = 60.0) -> Owner | None:
     owner = _read_owner(path)
     if owner is None and not path.exists():
         return None
-    if _is_stale(path, owner, stale_s, now=_fs_now(path.parent)):
+    if _is_stale(path, owner, stale_s, now=fs_now(path.parent)):
         return None
     return owner or UNKNOWN_OWNER
 
@@ -157,7 +157,7 @@ def _acquire(path: Path, me: Owner, stale_s: float) -> bool:
         if _create(path, me):
             return True
         owner = _read_owner(path)
-        now = _fs_now(path.parent)
+        now = fs_now(path.parent)
         if not _is_stale(path, owner, stale_s, now):
             return False
         log.info("taking over stale claim %s (owner %s)", path, owner)
@@ -213,7 +213,7 @@ def _is_stale(path: Path, owner: Owner | None, stale_s: float, now: float) -> bo
     return age > stale_s
 
 
-def _fs_now(folder: Path) -> float:
+def fs_now(folder: Path) -> float:
     """The current time by the file system's clock (matters when machines' clocks disagree)."""
     probe = folder / f"{CLAIM_PREFIX}probe.{HOST}.{os.getpid()}.{secrets.token_hex(4)}"
     _PROBES.add(probe)  # a signal handler exiting meanwhile removes it (release_all): no finally runs then

@@ -168,7 +168,7 @@ def test_release_all_removes_a_clock_probe_being_written(tmp_path, monkeypatch):
         return stat(path, *args, **kwargs)
 
     monkeypatch.setattr(claims.Path, "stat", signal_while_probing)
-    claims._fs_now(tmp_path)
+    claims.fs_now(tmp_path)
     monkeypatch.undo()
     assert before and not after
 
