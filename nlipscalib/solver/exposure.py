@@ -12,9 +12,6 @@ import numpy as np
 from ..core import tolerances
 from ..core.capture import Press
 
-LIT_LEVEL = 1e-3
-"""An LED image gives light when its bright end on the gel (``solver.contact.led_levels``: the 99th percentile) is
-at least this, linear units (full scale 1) above the dark frame; a dead LED's image says nothing about the light."""
 REMEDY_SATURATED = "lower the exposure (`nlips capture --exposure-ms`) or the LEDs' drive, and capture again"
 """What to do about saturated LED images."""
 REMEDY_BLACK = "LEDs off, lens cap on, the camera not streaming?"
@@ -66,6 +63,7 @@ def led_files(press: Press) -> str:
 
 
 def dark_file(press: Press) -> str:
+    """The name of the capture's dark frame, as its meta.json lists it ("dark.png" when it lists none)."""
     name = (press.meta.get("images") or {}).get("dark")
     return name if isinstance(name, str) else "dark.png"
 
@@ -115,7 +113,7 @@ def nothing_to_fit(press: Press, gel: np.ndarray | None = None) -> str:
     gel = gel_of(press) if gel is None else gel
     if not gel.any():
         return no_light_reason(press, gel, np.zeros(len(press.leds), bool))
-    live = led_levels(press.linear_led_images, gel) >= LIT_LEVEL
+    live = led_levels(press.linear_led_images, gel) >= tolerances.LIT_LEVEL
     if _unsaturated_sample(press, gel, live):
         return ""
     return no_light_reason(press, gel, live) or ": no LED image holds an unsaturated sample lit above the dark frame"

@@ -94,8 +94,9 @@ def test_the_saturated_share_and_what_is_left_to_fit_count_every_clipped_sample(
     """Both compare an image with the white level only when its brightest value reaches it (a glint made every
     solve ~35 ms slower, the full comparison ran on every calibration): the same share and verdict as counting
     every sample of the gel, with the dark frame's clipped samples counted once per LED image."""
+    from nlipscalib.core.tolerances import LIT_LEVEL
     from nlipscalib.solver.contact import led_levels
-    from nlipscalib.solver.exposure import LIT_LEVEL, nothing_to_fit
+    from nlipscalib.solver.exposure import nothing_to_fit
 
     press = load_press(captures["good"])
     white, gel = press.response.white_level, np.isfinite(press.reference.depth)
