@@ -46,6 +46,22 @@ def test_the_same_exception_without_ctrl_c_is_not_hidden(monkeypatch, default_si
 
 TERMINATED = "nlips solve: terminated; finished work is kept, run again to resume"
 
+BATCH = 36
+"""Presses of the solve batches below: when the first result appears, 34 or more are left for two workers, over
+a second of solving (0.1-0.3 s a press), so the batch cannot end before the signal does (with 6, it could)."""
+
+
+def _batch(root) -> None:
+    """:data:`BATCH` 64x48 presses in ``root``: six rendered, the others copies of them (copying costs nothing)."""
+    import shutil
+
+    from tests.solver import synth
+
+    for i in range(6):
+        synth.make_press(root / f"p{i:02d}", "sphere" if i % 2 else "cube", depth=1.0 + 0.1 * i, size=(64, 48))
+    for i in range(6, BATCH):
+        shutil.copytree(root / f"p{i % 6:02d}", root / f"p{i:02d}")
+
 
 def test_sigterm_of_a_parallel_solve_is_one_line_without_leaked_semaphore_warnings(tmp_path):
     """`kill -TERM -PGID` of `nlips solve DATASET --workers 2`: the one line, exit 143, nothing after it.
@@ -58,10 +74,7 @@ def test_sigterm_of_a_parallel_solve_is_one_line_without_leaked_semaphore_warnin
     import sys
     import time
 
-    from tests.solver import synth
-
-    for i in range(6):  # enough presses that the pool is still busy when the first result appears
-        synth.make_press(tmp_path / f"p{i}", "sphere" if i % 2 else "cube", depth=1.0 + 0.1 * i, size=(64, 48))
+    _batch(tmp_path)  # enough presses that the pool is still busy when the first result appears
     command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
     argv = [sys.executable, "-c", command, "--no-progress", "solve", str(tmp_path), "--workers", "2", "--no-figures"]
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -115,10 +128,7 @@ def test_sigterm_of_the_command_alone_stops_its_workers(tmp_path):
     import sys
     import time
 
-    from tests.solver import synth
-
-    for i in range(6):
-        synth.make_press(tmp_path / f"p{i}", "sphere" if i % 2 else "cube", depth=1.0 + 0.1 * i, size=(64, 48))
+    _batch(tmp_path)
     command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
     argv = [sys.executable, "-c", command, "--no-progress", "solve", str(tmp_path), "--workers", "2", "--no-figures"]
     log = tmp_path / "stderr.txt"
