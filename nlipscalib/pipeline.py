@@ -47,9 +47,9 @@ from .errors import CaptureError, ConfigError, NlipsError
 log = logging.getLogger(__name__)
 
 SOLVED, SKIPPED, FAILED = "solved", "skipped", "failed"
+"""Statuses of one press (a failure reads "failed: reason")."""
 BUSY = "busy"
 """Internal status: another live process holds the press's claim (left to it, then waited for)."""
-"""Statuses of one press (a failure reads "failed: reason")."""
 CLAIM_STALE_S = 60.0
 """A claim on PRESS/nlips without heartbeat for this long is taken over (its owner died)."""
 BROKEN = f"{FAILED}: not solved, a solver process was killed (by a signal or for lack of memory); run again"

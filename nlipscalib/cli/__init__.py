@@ -93,7 +93,7 @@ def plain_text(text: str | None) -> str | None:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    previous = _terminate_cleanly(args.command)
+    previous = _terminate_cleanly(args.command, args)
     previous_int = _note_interrupts()
     try:
         return _run(args)
@@ -132,20 +132,25 @@ _INTERRUPTED: list[int] = []
 """SIGINT numbers received while a command ran (see :func:`_note_interrupts`)."""
 
 
-STOPPED = {
-    "live": "the stream stopped (a live stream does not resume; maps already saved with --save are kept)",
-}
-"""What an interrupted or terminated command says it left, where "finished work is kept, run again to resume"
-(:func:`_stopped`) is not true: a live stream cannot continue where it stopped."""
+RESUMABLE = "finished work is kept, run again to resume"
+"""What an interrupted or terminated command says it left, unless its arguments say otherwise (:func:`_stopped`)."""
 
 
-def _stopped(command: str) -> str:
-    """The end of the line an interrupted or terminated ``nlips COMMAND`` prints (:data:`STOPPED`)."""
-    return STOPPED.get(command, "finished work is kept, run again to resume")
+def _stopped(args) -> str:
+    """The end of the line an interrupted or terminated command prints: :data:`RESUMABLE`, or what a command that
+    cannot resume left, chosen from its arguments by the ``stopped`` its parser sets (a line, or a function of
+    the arguments giving a line or None): a stream (``nlips live``; ``nlips infer`` from a camera, the emulated
+    sensor or a video) cannot continue where it stopped. ``args`` None: :data:`RESUMABLE`."""
+    stopped = getattr(args, "stopped", None)
+    try:
+        line = stopped(args) if callable(stopped) else stopped
+    except Exception:  # on the way out (a signal handler): never an error of its own
+        line = None
+    return line or RESUMABLE
 
 
 def _interrupted(args) -> int:
-    print(f"nlips {args.command}: interrupted; {_stopped(args.command)}", file=sys.stderr)
+    print(f"nlips {args.command}: interrupted; {_stopped(args)}", file=sys.stderr)
     return 130
 
 
@@ -169,9 +174,9 @@ def _note_interrupts():
     return signal.signal(signal.SIGINT, handler)
 
 
-def _terminate_cleanly(command: str):
+def _terminate_cleanly(command: str, args=None):
     """On SIGTERM (a scheduler's time limit, `kill`) stop the worker processes, release claims and
-    temporaries, then exit 143.
+    temporaries, then exit 143, saying what is left (:func:`_stopped` of ``args``, the parsed arguments).
 
     Done in the handler and ended with os._exit rather than by raising: an exception raised at an
     arbitrary point can land inside a native library (Mitsuba, drjit) and abort the process.
@@ -188,7 +193,7 @@ def _terminate_cleanly(command: str):
         claims.release_all()
         atomic.remove_in_progress()
         _release_multiprocessing_resources()
-        print(f"nlips {command}: terminated; {_stopped(command)}", file=sys.stderr)
+        print(f"nlips {command}: terminated; {_stopped(args)}", file=sys.stderr)
         sys.stderr.flush()
         sys.stdout.flush()
         os._exit(143)

@@ -262,7 +262,7 @@ def _run_emulated(args):
 
 
 def _run_device(args):
-    from ..core.capture import SensorResponse
+    from ..core.capture import SensorResponse, white_level_of
     from ..core.dome import reference_surface
     from ..device.camera import CameraSettings, open_source
     from ..device.controller import BAUD_RATE, lights_out_on_exit
@@ -301,7 +301,7 @@ def _run_device(args):
         response = SensorResponse(
             bit_depth=source.bit_depth,
             black_level=float(args.black_level) * (1 << shift),
-            white_level=float(((1 << source.bit_depth) - 1) << shift),
+            white_level=float(white_level_of(source.bit_depth)),
             exposure_ms=args.exposure_ms,
             gain=args.gain,
         )

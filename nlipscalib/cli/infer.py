@@ -27,6 +27,8 @@ log = logging.getLogger(__name__)
 STILL_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
 """Files taken as single tri-colour frames (any case; device.camera.IMAGE_SUFFIXES, what a folder source reads);
 any other file is opened as a video."""
+STREAM_STOPPED = "the stream stopped (a stream does not resume; frames already saved with --out are kept)"
+"""What ``nlips infer`` of a stream, interrupted or terminated, says it left (:func:`stopped`)."""
 
 
 def register(subparsers) -> None:
@@ -64,7 +66,20 @@ def register(subparsers) -> None:
     add_device_arguments(p)
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
     p.add_argument("--every", type=int, help="stream with --out: keep every N-th frame (default 1)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, stopped=stopped)
+
+
+def stopped(args) -> str | None:
+    """What ``nlips infer`` says it left when interrupted or terminated (``cli._stopped``): :data:`STREAM_STOPPED`
+    for a stream (a camera, the emulated sensor, ``--port nlipsemu://ID`` alone, a video or an image sequence),
+    which run again starts over; None (finished work is kept, run again to resume) for presses and frames."""
+    from ..device.virtual_board import url_board_id
+
+    if args.camera is not None or args.emulate:  # --port nlipsemu://ID alone sets emulate once run starts
+        return STREAM_STOPPED
+    if not args.inputs and url_board_id(args.port) is not None:  # ... and before
+        return STREAM_STOPPED
+    return STREAM_STOPPED if _stream_input(args) is not None else None
 
 
 def run(args) -> int:

@@ -28,6 +28,9 @@ CAMERA_SOURCE_OPTIONS = ("port", "adalight", "baud", "camera", "tricolor_level",
 """Source flags of a camera stream: the emulated sensor has its own camera and LED board."""
 EMULATED_SOURCE_OPTIONS = ("script", "frames_per_press", "width", "height")
 """Source flags of the emulated sensor alone."""
+STOPPED = "the stream stopped (a live stream does not resume; maps already saved with --save are kept)"
+"""What ``nlips live`` interrupted or terminated says it left (``cli._stopped``), not "run again to resume": a live
+stream cannot continue where it stopped."""
 
 
 def register(subparsers) -> None:
@@ -59,7 +62,7 @@ def register(subparsers) -> None:
     p.add_argument("--save", help="folder for every frame's normal map (PNG) and arrays (npz)")
     p.add_argument("--every", type=int, help="save every N-th frame (default 1)")
     p.add_argument("--no-window", action="store_true", help="do not open a window even if a display is present")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, stopped=STOPPED)
 
 
 def add_source_arguments(p, camera_default: str | None) -> None:

@@ -79,8 +79,12 @@ def check_writable(folder: str | Path, longest_name: int = 0) -> None:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     probe = folder / (tmp_prefix("x" * longest_name) + "probe")
-    probe.mkdir()
-    probe.rmdir()
+    _IN_PROGRESS.add(probe)  # a signal handler exiting meanwhile removes it (remove_in_progress): no finally runs then
+    try:
+        probe.mkdir()
+        probe.rmdir()
+    finally:
+        _IN_PROGRESS.discard(probe)
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

@@ -51,6 +51,38 @@ def led_image_name(index: int) -> str:
     return f"led_{index + 1:02d}.png"
 
 
+def white_level_of(bit_depth: int) -> int:
+    """The stored white level of a ``bit_depth``-bit sensor: its largest value shifted up to 16 bits, as stored
+    values are (``DN << (16 - bit_depth)``, docs/formats.md; ``device.camera.to_stored``): 0xFF00 at 8 bits."""
+    return ((1 << bit_depth) - 1) << (16 - bit_depth)
+
+
+LEAST_BIT_DEPTH = 8
+"""Fewest bits a sensor's values have (:attr:`SensorResponse.bit_depth`): an 8-bit camera, video or image file."""
+CLIPPED_VALUE = white_level_of(LEAST_BIT_DEPTH)
+"""Stored values from here up count as clipped in a frame from any source (``nlips infer``'s images and streams),
+even below the sensor's white level: the white level of the fewest bits a frame has, an 8-bit frame's 255 shifted
+up to 16 bits (0xFF00)."""
+
+
+def linearise(image: np.ndarray, dark: np.ndarray, black_level: float, white_level: float) -> np.ndarray:
+    """Dark-subtracted linear intensity, scaled so the sensor's full range is 1: the one conversion of stored
+    values to light (:meth:`Press.linear`, NLiPsNet's frames, the capture's exposure check).
+
+    Parameters
+    ----------
+    image : (..., H, W, 3) stored values (uint16), or any array broadcasting against ``dark``
+    dark : (H, W, 3) the dark frame's stored values (uint16, or float32 already)
+    black_level, white_level : the sensor's levels (:class:`SensorResponse`), 16-bit units
+
+    Returns
+    -------
+    (..., H, W, 3) float32, 0 = dark frame, 1 = full scale: ``(image - dark) / (white_level - black_level)``
+    """
+    scale = np.float32(white_level - black_level)
+    return (np.asarray(image).astype(np.float32, copy=False) - np.asarray(dark).astype(np.float32, copy=False)) / scale
+
+
 @dataclasses.dataclass(frozen=True)
 class SensorResponse:
     """How stored 16-bit values relate to light."""
@@ -79,13 +111,17 @@ class SensorResponse:
             raise CaptureError(
                 f"sensor.exposure_ms must be > 0 and sensor.gain >= 0, got {self.exposure_ms}, {self.gain}"
             )
-        if not 8 <= self.bit_depth <= 16:
-            raise CaptureError(f"sensor.bit_depth must be 8..16, got {self.bit_depth}")
+        if not LEAST_BIT_DEPTH <= self.bit_depth <= 16:
+            raise CaptureError(f"sensor.bit_depth must be {LEAST_BIT_DEPTH}..16, got {self.bit_depth}")
         if not 0 <= self.black_level < self.white_level <= 65535:
             raise CaptureError(
                 f"sensor levels must satisfy 0 <= black_level < white_level <= 65535, "
                 f"got {self.black_level}, {self.white_level}"
             )
+
+    def saturated(self, image: np.ndarray) -> np.ndarray:
+        """(..., H, W, 3) bool -- stored value at or above the white level."""
+        return image >= self.white_level
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,8 +205,7 @@ class Press:
         -------
         (..., H, W, 3) float32, linear, 0 = dark frame, 1 = full scale
         """
-        scale = self.response.white_level - self.response.black_level
-        return (image.astype(np.float32) - self.dark[tuple(window)].astype(np.float32)) / np.float32(scale)
+        return linearise(image, self.dark[tuple(window)], self.response.black_level, self.response.white_level)
 
     @functools.cached_property
     def linear_led_images(self) -> np.ndarray:
@@ -181,8 +216,8 @@ class Press:
         return lin
 
     def saturated(self, image: np.ndarray) -> np.ndarray:
-        """(..., H, W, 3) bool -- stored value at or above the white level."""
-        return image >= self.response.white_level
+        """(..., H, W, 3) bool -- stored value at or above the white level (:meth:`SensorResponse.saturated`)."""
+        return self.response.saturated(image)
 
 
 def write_press(
@@ -322,6 +357,8 @@ def _reference(folder: Path, meta: dict, camera: Camera, leds) -> Reference | No
 
 
 def _check_surface(path: Path, problem: str | None) -> None:
+    """CaptureError naming the file when ``problem`` (:func:`nlipscalib.core.surface_checks.surface_problem` of
+    its depth and normals) says what is wrong with the surface it holds; nothing when ``problem`` is None."""
     if problem:
         raise CaptureError(f"{path}: {problem}")
 

@@ -18,6 +18,19 @@ leave those samples out of their fits, the brightest LEDs of a pixel first, so i
 (the audit's over-exposed session: 48 % of the gel's samples clipped, its LEDs calibrated to 3.5 times the images'
 noise, without a word on why). ``nlips infer`` and ``live`` say it of a frame with this share of the gel's pixels
 clipped."""
+LIT_LEVEL = 1e-3
+"""An LED image gives light when its bright end on the gel (``solver.contact.led_levels``: the 99th percentile of
+its samples) is at least this, linear units (full scale 1) above the dark frame; a dead LED's image says nothing
+about the light, and the solvers and the LED calibration leave it out.
+
+Not the capture's exposure check (:data:`EXPOSURE_LIGHT_FRACTION`, :data:`EXPOSURE_LIT_SHARE`), on purpose: that
+one asks, while the session can still be fixed, whether an LED is lit as driven, on raw frames of a camera that
+may have 8 bits, where this level is a quarter of one step (1/255) and a lens cap's noise would pass it; it
+blurs the noise away and asks for 2 % of full scale (5 steps at 8 bits), 20 times this. This one asks, of a
+capture that can no longer be retaken, whether an image holds any light to fit: a dim LED still constrains the
+normals (the fit weighs it against the images' noise), so only an image with almost nothing above the dark frame
+is dropped. The capture check is the stricter: a frame it calls lit has 1 % of the gel 20 times above this level,
+and one between the two is warned about at capture but still fitted."""
 NORMAL_EPS = 1e-9
 """Norms below this are treated as zero when normalising."""
 EXPERIMENT_CHECK_ABS = {"aae_deg": 0.5, "mabse": 0.005, "depth_rmse_mm": 0.05}
@@ -70,6 +83,12 @@ FRAME_MISMATCH_FRACTION = 0.04
 fraction of the reference's brightness differs almost everywhere (twin frames of presses: 0.009-0.011, 8-bit
 ones too; 5 % brighter: 0.052; red and blue swapped: 0.28; a dark frame: 1.0), so its changed pixels cannot be
 told apart and the result is warned about."""
+FRAME_BLACK_FRACTION = 0.01
+"""NLiPsNet: a frame that differs from the calibration's reference frame over most of the gel
+(:data:`FRAME_MISMATCH_FRACTION`) and whose median brightness on the gel is at most this fraction of the
+reference's is called black in the warning (no light above the black level: LEDs off, a lens cap, a camera not
+streaming); a black frame below the calibration's dark frame would otherwise read as a negative number of times
+as bright."""
 UNIT_NORMAL_TOL = 1e-3
 """A stored normal's length may differ from 1 by this much (float32 storage rounds at ~1e-7)."""
 SURFACE_SCALE_RATIO = 20.0
@@ -79,7 +98,8 @@ EXPOSURE_LIGHT_FRACTION = 0.02
 """Capture exposure check: a pixel is lit by an LED when its LED frame exceeds the dark frame by more than this
 fraction of full scale (mean of the channels after a 5x5 box blur, which averages the sensor noise away; an
 8-bit camera: 5 DN). The emulated nlipstac sensor's dimmest LED lights 99 % of the gel above 0.11, a median
-pixel at 0.23; a frame with the LEDs off, or a lens cap, stays within noise of the dark frame."""
+pixel at 0.23; a frame with the LEDs off, or a lens cap, stays within noise of the dark frame. Twenty times the
+solver's :data:`LIT_LEVEL`, which asks another question (why: there)."""
 EXPOSURE_LIT_SHARE = 0.01
 """... an LED frame is black (no light above the dark frame: the LED off or dead, a lens cap, the camera not
 looking at the gel) when fewer than this fraction of the gel's pixels are lit by it (a lit LED of the shipped

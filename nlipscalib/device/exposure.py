@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.capture import SensorResponse
+from ..core.capture import SensorResponse, linearise
 from ..core.tolerances import (
     EXPOSURE_LIGHT_FRACTION,
     EXPOSURE_LIT_SHARE,
@@ -60,51 +60,73 @@ def check_exposure(
     CaptureError
         ``reference`` and nothing usable: every LED frame black or saturated.
     """
-    cv2 = require("cv2", "opencv-python-headless", "The exposure check")
+    require("cv2", "opencv-python-headless", "The exposure check")
     folder = Path(folder)
     names = sorted(name for name in frames if name.startswith("led_"))
-    shape = frames["dark"].shape[:2]
-    has_gel = gel is not None and gel.shape == shape and bool(gel.any())
-    gel = gel if has_gel else np.ones(shape, bool)
-    where = "of the gel" if has_gel else "of the pixels"
-    scale = np.float32(response.white_level - response.black_level)
-    dark = frames["dark"].astype(np.float32)
-
-    def saturated(image):
-        return float((image >= response.white_level).any(axis=2)[gel].mean())
-
-    def lit(image):
-        light = cv2.blur(((image.astype(np.float32) - dark) / scale).mean(axis=2), (5, 5))
-        return float((light[gel] > EXPOSURE_LIGHT_FRACTION).mean())
-
-    clipped = {f"{name}.png": saturated(frames[name]) for name in names}
-    clipped["tricolor.png"] = saturated(frames["tricolor"])
+    gel, where = _gel(gel, frames["dark"].shape[:2])
+    clipped = {f"{name}.png": _saturated_share(frames[name], response, gel) for name in names}
+    clipped["tricolor.png"] = _saturated_share(frames["tricolor"], response, gel)
+    dark = frames["dark"].astype(np.float32)  # once for all the LED frames
     black = [
         name
         for name in names
-        if clipped[f"{name}.png"] < EXPOSURE_UNUSABLE_SHARE and lit(frames[name]) < EXPOSURE_LIT_SHARE
+        if clipped[f"{name}.png"] < EXPOSURE_UNUSABLE_SHARE and not _lit(frames[name], dark, response, gel)
     ]
     if reference:
         _refuse_unusable(folder, names, black, clipped, where)
-    lines = []
-    if black:
-        lines.append(_black_line(folder, names, black))
+    lines = [_black_line(folder, names, black)] if black else []
+    over = _over_line(folder, clipped, where)
+    return lines + ([over] if over else [])
+
+
+def _gel(gel: np.ndarray | None, shape: tuple[int, int]) -> tuple[np.ndarray, str]:
+    """The pixels checked, and what the messages call them: the gel's when ``gel`` marks some of a frame of
+    ``shape``, else every pixel."""
+    if gel is not None and gel.shape == shape and bool(gel.any()):
+        return gel, "of the gel"
+    return np.ones(shape, bool), "of the pixels"
+
+
+def _saturated_share(image: np.ndarray, response: SensorResponse, gel: np.ndarray) -> float:
+    """Share of the ``gel`` pixels with a channel at the white level in one stored frame."""
+    return float(response.saturated(image).any(axis=2)[gel].mean())
+
+
+def _lit(image: np.ndarray, dark: np.ndarray, response: SensorResponse, gel: np.ndarray) -> bool:
+    """Whether an LED frame shows light above the dark frame: at least :data:`EXPOSURE_LIT_SHARE` of the ``gel``
+    pixels above :data:`EXPOSURE_LIGHT_FRACTION` of full scale, the channels' mean after a 5x5 box blur.
+
+    Not the solver's test of a lit LED image (:data:`nlipscalib.core.tolerances.LIT_LEVEL`, its 99th percentile
+    on the gel at 0.1 % of full scale), on purpose: this one runs while the session can still be fixed, on raw
+    frames of a camera that may have 8 bits, where 0.1 % is a quarter of one step and a lens cap's noise would
+    pass it; the blur averages that noise away and the level is 20 times higher. The solver asks of a capture that
+    can no longer be retaken whether an image holds any light to fit, and keeps a dim LED that this check warns
+    about (LIT_LEVEL says more)."""
+    cv2 = require("cv2", "opencv-python-headless", "The exposure check")
+    light = linearise(image, dark, response.black_level, response.white_level).mean(axis=2)
+    return float((cv2.blur(light, (5, 5))[gel] > EXPOSURE_LIGHT_FRACTION).mean()) >= EXPOSURE_LIT_SHARE
+
+
+def _over_line(folder: Path, clipped: dict[str, float], where: str) -> str | None:
+    """The warning naming the over-exposed frames (more than :data:`EXPOSURE_SATURATED_SHARE` saturated), the
+    worst first; None when there is none."""
     over = sorted((share, name) for name, share in clipped.items() if share > EXPOSURE_SATURATED_SHARE)[::-1]
-    if over:
-        share, name = over[0]
-        others = ", ".join(f"{other} {100 * part:.0f} %" for part, other in over[1:NAMED])
-        if len(over) > NAMED:
-            others += f" and {len(over) - NAMED} more frames"
-        also = f" ({others} also over {100 * EXPOSURE_SATURATED_SHARE:.0f} %)" if others else ""
-        hint = " (--tricolor-level for tricolor.png)" if any(other == "tricolor.png" for _, other in over) else ""
-        lines.append(
-            f"{folder / name}: {100 * share:.0f} % {where} saturated{also}: saturated pixels are left out of every "
-            f"fit; lower --exposure-ms or the LED level{hint}"
-        )
-    return lines
+    if not over:
+        return None
+    share, name = over[0]
+    others = ", ".join(f"{other} {100 * part:.0f} %" for part, other in over[1:NAMED])
+    if len(over) > NAMED:
+        others += f" and {len(over) - NAMED} more frames"
+    also = f" ({others} also over {100 * EXPOSURE_SATURATED_SHARE:.0f} %)" if others else ""
+    hint = " (--tricolor-level for tricolor.png)" if any(other == "tricolor.png" for _, other in over) else ""
+    return (
+        f"{folder / name}: {100 * share:.0f} % {where} saturated{also}: saturated pixels are left out of every "
+        f"fit; lower --exposure-ms or the LED level{hint}"
+    )
 
 
 def _black_line(folder: Path, names: list[str], black: list[str]) -> str:
+    """The warning naming the LED frames without light (``black``, of ``names``): all of them, or which."""
     if len(black) == len(names):
         return (
             f"{folder}: no LED frame shows light above the dark frame ({names[0]}.png .. {names[-1]}.png against "

@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from ..core.camera import Camera, depth_to_points
+from ..core.capture import CLIPPED_VALUE, linearise
 from ..core.sensor_record import check_sensor, sensor_of
-from ..core.tolerances import FRAME_MISMATCH_FRACTION, SATURATED_SHARE_WARN
+from ..core.tolerances import FRAME_BLACK_FRACTION, FRAME_MISMATCH_FRACTION, SATURATED_SHARE_WARN
 from ..errors import CaptureError, ConfigError, ShapeError
 from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
@@ -30,14 +31,6 @@ onnxruntime with dynamic int8 quantisation (about 1.5x faster for the paper's ne
 BRIGHTNESS_OFF = 0.15
 """A mismatched frame whose median brightness is off the reference's by more than this fraction is called darker or
 brighter in the warning (another exposure, LED level or bit depth); otherwise the colours differ."""
-
-BLACK_FRACTION = 0.01
-"""A mismatched frame whose median brightness on the gel is at most this fraction of the reference's is called black
-in the warning (no light above the black level: LEDs off, a lens cap, a camera not streaming); a black frame below
-the calibration's dark frame would otherwise read as a negative number of times as bright."""
-CLIPPED_VALUE = 0xFF00
-"""Stored values from here up count as clipped even below the sensor's white level: an 8-bit frame's 255, shifted up
-to 16 bits as frames are (docs/formats.md)."""
 
 RESULT_DIR = "nlipsnet"
 """Reconstruction folder name inside a press (core reconstruction format, like PRESS/nlips)."""
@@ -197,7 +190,7 @@ class Predictor:
                 f"{where}: image is {image.shape[1]}x{image.shape[0]}, the model was calibrated for {w}x{h} images"
             )
         s = self.model.sensor
-        return (image.astype(np.float32) - self.dark) / np.float32(s["white_level"] - s["black_level"])
+        return linearise(image, self.dark, s["black_level"], s["white_level"])
 
     # ------------------------------------------------------------------ one frame
     def predict(self, tricolor: np.ndarray) -> Frame:
@@ -239,14 +232,15 @@ class Predictor:
         """(brightness, saturated) of a linear frame (:class:`Frame`): its median brightness on the gel over the
         reference frame's (1: as bright; 0 when no brighter than the calibration's dark frame, never negative), and
         the share of the gel's pixels with a channel clipped (stored at the white level, or at
-        :data:`CLIPPED_VALUE`)."""
+        :data:`~nlipscalib.core.capture.CLIPPED_VALUE`)."""
         gel = tricolor[self.valid]
         level = float(np.median(self.ref_tricolor[self.valid].sum(-1)))
         brightness = max(0.0, float(np.median(gel.sum(-1))) / level) if level > 0 else float("nan")
         s = self.model.sensor
-        stored = gel * np.float32(s["white_level"] - s["black_level"]) + self.dark[self.valid]
-        top = min(float(s["white_level"]), CLIPPED_VALUE) - 0.5  # linear values are float32: half a step of slack
-        saturated = float((stored >= top).any(-1).mean()) if len(gel) else 0.0
+        # the clipping level at each gel pixel, linearised as the frame was; half a step below it for float32 rounding
+        top = min(float(s["white_level"]), CLIPPED_VALUE) - 0.5
+        clipped = linearise(np.float32(top), self.dark[self.valid], s["black_level"], s["white_level"])
+        saturated = float((gel >= clipped).any(-1).mean()) if len(gel) else 0.0
         return brightness, saturated
 
     def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
@@ -281,7 +275,7 @@ def mismatch_warning(frame: Frame, where) -> str | None:
         return None
     brightness = 0.0 if frame.brightness < 0 else frame.brightness  # never a negative ratio (NaN stays NaN)
     off = abs(brightness - 1) > BRIGHTNESS_OFF
-    if brightness <= BLACK_FRACTION:
+    if brightness <= FRAME_BLACK_FRACTION:
         question = "the frame is black (no light above the black level: LEDs off, lens cap, camera not streaming?)"
     elif frame.saturated >= SATURATED_SHARE_WARN:
         times = f", and it is {brightness:.2g} times as bright" if off else ""
@@ -374,6 +368,5 @@ def load_tricolor(folder) -> tuple[np.ndarray, dict]:
         img = read_png16(folder / name)
         if img.shape != camera.shape + (3,):
             raise CaptureError(f"{folder / name}: image is {img.shape}, the camera in meta.json is {camera.shape}")
-        images.append(img.astype(np.float32))
-    scale = np.float32(response.white_level - response.black_level)
-    return (images[0] - images[1]) / scale, sensor
+        images.append(img)
+    return linearise(images[0], images[1], response.black_level, response.white_level), sensor

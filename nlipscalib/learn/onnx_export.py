@@ -35,6 +35,8 @@ def export_hint(model_path, again: bool = False) -> str:
 
 
 def bytes_digest(data: bytes) -> str:
+    """The digest a model file's bytes are known by: the first 16 hex digits of their SHA-256 (an ONNX export
+    records its model's, and inference compares it with the model it is run with)."""
     return hashlib.sha256(data).hexdigest()[:16]
 
 

@@ -32,7 +32,7 @@ from ..core.sensor import DomeConfig
 from ..errors import CaptureError, ConfigError
 from . import radiosity, reuse, threads
 from .contact import led_levels
-from .exposure import LIT_LEVEL, no_light_reason
+from .exposure import no_light_reason
 
 PATCH_TARGET = 80
 """Patches along the image's long side (the patch side is the long side over this, at least 2 px)."""
@@ -448,7 +448,7 @@ def _fit_inputs(reference: Press, leds, shading) -> dict:
     lin = reference.linear_led_images
     usable = (~reference.saturated(reference.led_images)).astype(np.float32)
     usable[:, ~surf.valid] = 0.0
-    live = led_levels(lin, surf.valid) >= LIT_LEVEL
+    live = led_levels(lin, surf.valid) >= tolerances.LIT_LEVEL
     usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
     return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
 

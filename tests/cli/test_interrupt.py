@@ -46,6 +46,22 @@ def test_the_same_exception_without_ctrl_c_is_not_hidden(monkeypatch, default_si
 
 TERMINATED = "nlips solve: terminated; finished work is kept, run again to resume"
 
+BATCH = 36
+"""Presses of the solve batches below: when the first result appears, 34 or more are left for two workers, over
+a second of solving (0.1-0.3 s a press), so the batch cannot end before the signal does (with 6, it could)."""
+
+
+def _batch(root) -> None:
+    """:data:`BATCH` 64x48 presses in ``root``: six rendered, the others copies of them (copying costs nothing)."""
+    import shutil
+
+    from tests.solver import synth
+
+    for i in range(6):
+        synth.make_press(root / f"p{i:02d}", "sphere" if i % 2 else "cube", depth=1.0 + 0.1 * i, size=(64, 48))
+    for i in range(6, BATCH):
+        shutil.copytree(root / f"p{i % 6:02d}", root / f"p{i:02d}")
+
 
 def test_sigterm_of_a_parallel_solve_is_one_line_without_leaked_semaphore_warnings(tmp_path):
     """`kill -TERM -PGID` of `nlips solve DATASET --workers 2`: the one line, exit 143, nothing after it.
@@ -58,10 +74,7 @@ def test_sigterm_of_a_parallel_solve_is_one_line_without_leaked_semaphore_warnin
     import sys
     import time
 
-    from tests.solver import synth
-
-    for i in range(6):  # enough presses that the pool is still busy when the first result appears
-        synth.make_press(tmp_path / f"p{i}", "sphere" if i % 2 else "cube", depth=1.0 + 0.1 * i, size=(64, 48))
+    _batch(tmp_path)  # enough presses that the pool is still busy when the first result appears
     command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
     argv = [sys.executable, "-c", command, "--no-progress", "solve", str(tmp_path), "--workers", "2", "--no-figures"]
     proc = subprocess.Popen(argv, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -115,10 +128,7 @@ def test_sigterm_of_the_command_alone_stops_its_workers(tmp_path):
     import sys
     import time
 
-    from tests.solver import synth
-
-    for i in range(6):
-        synth.make_press(tmp_path / f"p{i}", "sphere" if i % 2 else "cube", depth=1.0 + 0.1 * i, size=(64, 48))
+    _batch(tmp_path)
     command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
     argv = [sys.executable, "-c", command, "--no-progress", "solve", str(tmp_path), "--workers", "2", "--no-figures"]
     log = tmp_path / "stderr.txt"
@@ -206,3 +216,52 @@ def test_sigterm_of_a_dataset_run_ends_its_render_workers_which_release_their_cl
             os.killpg(proc.pid, signal.SIGKILL)
     assert log.read_text().strip() == "nlips dataset: terminated; finished work is kept, run again to resume"
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
+
+
+INFER_STREAM = "the stream stopped (a stream does not resume; frames already saved with --out are kept)"
+
+
+def test_infer_of_a_stream_says_the_stream_stopped_not_run_again_to_resume(tmp_path, monkeypatch, capsys):
+    """`nlips infer MODEL --camera 0` (or --emulate, --port nlipsemu://ID, a video) stopped by SIGTERM or Ctrl-C
+    said "finished work is kept, run again to resume": a stream starts over when run again. The line is chosen
+    from the arguments; presses and frames keep theirs."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from nlipscalib.cli import build_parser, infer
+
+    (tmp_path / "clip.mp4").write_bytes(b"")
+    (tmp_path / "frame.png").write_bytes(b"")
+    streams = [
+        ["--camera", "0"],
+        ["--emulate", "nlipstac"],
+        ["--port", "nlipsemu://stopped"],
+        [str(tmp_path / "clip.mp4")],
+        [str(tmp_path / "img_%04d.png")],
+    ]
+    for inputs in streams:
+        assert cli._stopped(build_parser().parse_args(["infer", "m.pt", *inputs])) == INFER_STREAM, inputs
+    for inputs in ([str(tmp_path / "frame.png")], [str(tmp_path)]):
+        assert cli._stopped(build_parser().parse_args(["infer", "m.pt", *inputs])) == cli.RESUMABLE, inputs
+    assert cli._stopped(build_parser().parse_args(["solve", "x"])) == cli.RESUMABLE
+    assert cli._stopped(build_parser().parse_args(["live"])).startswith("the stream stopped")
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(infer, "run", interrupted)  # Ctrl-C before the stream's own loop (loading the model)
+    assert main(["infer", "m.pt", "--camera", "0"]) == 130
+    assert capsys.readouterr().err.strip() == f"nlips infer: interrupted; {INFER_STREAM}"
+
+    code = (
+        "import os, signal, sys, time\nfrom nlipscalib.cli import infer, main\n"
+        "def run(args):\n    os.kill(os.getpid(), signal.SIGTERM)\n    time.sleep(30)\n"
+        "infer.run = run\nsys.exit(main(sys.argv[1:]))"
+    )
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    for inputs, line in ((["--emulate", "nlipstac"], INFER_STREAM), ([str(tmp_path / "frame.png")], cli.RESUMABLE)):
+        argv = [sys.executable, "-c", code, "infer", "m.pt", *inputs]
+        proc = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=60)
+        assert proc.returncode == 128 + signal.SIGTERM, proc.stderr
+        assert proc.stderr.strip().splitlines()[-1] == f"nlips infer: terminated; {line}"

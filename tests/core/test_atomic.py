@@ -253,3 +253,22 @@ def test_a_temporary_folder_removed_and_made_again_is_not_published(tmp_path):
             tmp.mkdir()  # e.g. an os.makedirs of a writer
             (tmp / "summary.png").write_text("png")
     assert not final.exists()
+
+
+def test_a_writability_probe_goes_with_the_temporaries_removed_on_termination(tmp_path, monkeypatch):
+    """A solve worker terminated between check_writable's mkdir and rmdir left its probe folder
+    (``.tmp-xxxxx~HOST~PID~probe``) in the press: seen by tests/cli/test_interrupt.py once the kill came right after
+    a press was published, as the worker began the next one."""
+    from pathlib import Path
+
+    from nlipscalib.core import atomic
+
+    def terminated(self):  # the SIGTERM handler's clean-up, then os._exit: the rmdir never runs
+        atomic.remove_in_progress()
+        raise SystemExit(143)
+
+    monkeypatch.setattr(Path, "rmdir", terminated)
+    with pytest.raises(SystemExit):
+        atomic.check_writable(tmp_path / "press", longest_name=len("nlips"))
+    monkeypatch.undo()
+    assert list((tmp_path / "press").iterdir()) == []

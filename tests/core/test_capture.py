@@ -308,3 +308,20 @@ def test_a_gel_that_misses_the_sampling_grid_is_checked_on_all_its_pixels():
     assert surface_problem(depth, normals, valid, cam, leds) is None
     assert "points away" in surface_problem(depth, -normals, valid, cam, leds)
     assert surface_problem(np.full((H, W), np.nan, np.float32), normals, valid, cam, leds) is None
+
+
+def test_one_conversion_of_stored_values_to_light_and_one_white_level_per_bit_depth():
+    """Press.linear, NLiPsNet's frames and the capture's exposure check each had their own copy of
+    (image - dark) / (white - black), and infer hard-coded an 8-bit frame's white level (0xFF00)."""
+    from nlipscalib.core.capture import CLIPPED_VALUE, linearise, white_level_of
+
+    assert white_level_of(8) == CLIPPED_VALUE == 255 << 8 and white_level_of(12) == SensorResponse().white_level
+    assert white_level_of(16) == 65535
+    rng = np.random.default_rng(0)
+    dark = rng.integers(200, 300, (4, 5, 3)).astype(np.uint16)
+    images = rng.integers(300, 65535, (2, 4, 5, 3)).astype(np.uint16)
+    response = SensorResponse(black_level=256.0, white_level=65520.0)
+    lin = linearise(images, dark, response.black_level, response.white_level)
+    assert lin.dtype == np.float32
+    np.testing.assert_array_equal(lin, (images.astype(np.float32) - dark) / np.float32(65520.0 - 256.0))
+    np.testing.assert_array_equal(response.saturated(images), images >= 65520.0)
