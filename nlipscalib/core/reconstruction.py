@@ -26,7 +26,7 @@ from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
 from .formatfile import read_arrays, read_format_json
 from .imageio import save_npz
-from .tolerances import UNIT_NORMAL_TOL
+from .surface_checks import non_unit_count
 
 FORMAT_NAME = "nlipscalib.reconstruction"
 FORMAT_VERSION = 1
@@ -263,12 +263,10 @@ def content_problem(arrays: dict) -> str | None:
     a hand-made file -- would otherwise be reused, and scored on the pixels where it is not NaN)."""
     done = np.asarray(arrays["reconstructed"], bool)
     n = int(done.sum())
-    depth, normals = arrays["depth"][done], arrays["normals"][done]
-    bad = int((~np.isfinite(depth)).sum())
+    bad = int(np.count_nonzero(done & ~np.isfinite(arrays["depth"])))
     if bad:
         return f"array 'depth' is not finite on {bad} of its {n} reconstructed pixels"
-    length = np.linalg.norm(normals.astype(np.float64), axis=-1)
-    bad = int((~(np.abs(length - 1.0) <= UNIT_NORMAL_TOL)).sum())  # NaN compares False: counted
+    bad = non_unit_count(arrays["normals"], done)
     if bad:
         return f"array 'normals' is not a finite unit vector on {bad} of its {n} reconstructed pixels"
     return None

@@ -46,9 +46,7 @@ def surface_problem(
     total = int(valid.sum())
     if total == 0:
         return None
-    # squared length on the whole grid, no gather (every load of a press runs this): |n|^2 - 1 ~ 2 (|n| - 1)
-    squared = np.einsum("hwk,hwk->hw", normals, normals)
-    bad = int(np.count_nonzero(valid & ~(np.abs(squared - 1.0) <= 2 * UNIT_NORMAL_TOL)))
+    bad = non_unit_count(normals, valid)
     if bad:
         return f"array 'normals' is not a unit vector on {bad} of its {total} gel pixels"
     rows, cols = _sample(valid & np.isfinite(depth))
@@ -78,3 +76,18 @@ def _sample(where: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if rows.size >= FACING_MIN_SAMPLES:
         return rows * FACING_STRIDE, cols * FACING_STRIDE
     return np.nonzero(where)
+
+
+def non_unit_count(normals: np.ndarray, where: np.ndarray) -> int:
+    """How many of ``where``'s normals are not finite unit vectors (length 1 within ``UNIT_NORMAL_TOL``).
+
+    Parameters
+    ----------
+    normals : (..., 3) float
+    where : (...) bool -- the pixels that must hold a unit normal
+
+    The squared length on the whole grid, no gather (every load of a press and every reused result runs this):
+    |n|^2 - 1 ~ 2 (|n| - 1); NaN compares False and is counted.
+    """
+    squared = np.einsum("...k,...k->...", normals, normals)
+    return int(np.count_nonzero(where & ~(np.abs(squared - 1.0) <= 2 * UNIT_NORMAL_TOL)))
