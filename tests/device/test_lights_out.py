@@ -74,14 +74,19 @@ def test_ctrl_c_during_leds_test_leaves_no_led_lit(monkeypatch, capsys):
     assert board.latched.sum() == 0
 
 
+def _grey_frames(cv2, folder, count: int):
+    """A folder of ``count`` grey 16x12 PNG frames, named in stream order."""
+    folder.mkdir()
+    for k in range(count):
+        cv2.imwrite(str(folder / f"{k:03d}.png"), np.full((12, 16, 3), 90, np.uint8))
+    return folder
+
+
 def test_live_switches_the_leds_off_when_the_stream_ends(tmp_path, monkeypatch, capsys):
     cv2 = pytest.importorskip("cv2")
     from tests.device import fakes
 
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for k in range(3):
-        cv2.imwrite(str(frames / f"{k}.png"), np.full((12, 16, 3), 90, np.uint8))
+    frames = _grey_frames(cv2, tmp_path / "frames", 3)
     board = VirtualBoard(12)
     lit = []
 
@@ -144,10 +149,7 @@ def test_live_summarises_its_frames_when_the_board_is_lost_before_the_lights_off
     cv2 = pytest.importorskip("cv2")
     from tests.device import fakes
 
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for k in range(3):
-        cv2.imwrite(str(frames / f"{k}.png"), np.full((12, 16, 3), 90, np.uint8))
+    frames = _grey_frames(cv2, tmp_path / "frames", 3)
     board = VirtualBoard(12)
     real_open = LedController.open.__func__
     monkeypatch.setattr(  # the command waits 5 s for an unplugged board to come back
@@ -171,10 +173,7 @@ def test_live_summarises_its_frames_when_the_board_is_lost_before_the_lights_off
 def test_sigterm_of_live_says_the_stream_stopped_not_run_again_to_resume(tmp_path):
     """A live stream cannot resume: "finished work is kept, run again to resume" promised what it cannot do."""
     cv2 = pytest.importorskip("cv2")
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for k in range(200):
-        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((12, 16, 3), 90, np.uint8))
+    frames = _grey_frames(cv2, tmp_path / "frames", 200)
     started = tmp_path / "started"
     code = (
         "import os, sys, time; from tests.device import fakes; from nlipscalib.cli import main\n"
