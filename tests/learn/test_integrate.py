@@ -55,3 +55,51 @@ def test_grazing_or_back_facing_normals_give_a_finite_surface(twin_presses, meth
     for normals in (grazing, rays):  # along the ray: faces away
         _, _, unknown, depth = _dent(press, normals, method)
         assert np.isfinite(depth[unknown]).all()
+
+
+def _sphere_pressed_into_the_dome(design, polar, azimuth, radius, depth):
+    """Exact depth and normals of a sphere (radius mm) pressed ``depth`` mm into the undeformed dome at
+    (polar, azimuth) deg: the nearer of the dome and the sphere along every ray (ray-sphere intersection)."""
+    from nlipscalib.core.dome import dome_surface_point, reference_surface
+
+    rays = design.camera_model().rays
+    ref = reference_surface(design)
+    apex, inward = dome_surface_point(design.dome, polar, azimuth)
+    centre = apex - np.asarray(design.camera.position) + inward * (depth - radius)
+    b = rays @ centre
+    disc = b * b - (centre @ centre - radius**2)
+    ref_range = ref.depth / rays[..., 2]
+    with np.errstate(invalid="ignore"):
+        near = b - np.sqrt(disc)
+    hit = np.isfinite(ref.depth) & (disc > 0) & (near > 0) & (near < ref_range)
+    points = np.where(hit, near, ref_range)[..., None] * rays
+    normals = np.where(hit[..., None], (points - centre) / radius, ref.normals)
+    return ref, rays, hit, points, normals
+
+
+@pytest.mark.parametrize(("polar", "azimuth", "radius", "depth"), [(0, 0, 4.0, 1.0), (30, 90, 7.0, 2.0)])
+def test_a_wide_contact_at_full_size_keeps_its_depth_on_either_path(polar, azimuth, radius, depth):
+    # 7,000-24,000 px contacts at 640x480, the second reaching the image border (where "auto" takes the
+    # sparse path): a pull toward the undeformed dome on every unknown made them 4-14 % too shallow
+    from nlipscalib.core.sensor import SensorDesign
+
+    ref, rays, hit, points, normals = _sphere_pressed_into_the_dome(SensorDesign(), polar, azimuth, radius, depth)
+    unknown = ndimage.binary_dilation(hit, iterations=3) & np.isfinite(ref.depth)
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    true_dent = ref.depth - points[..., 2]
+    for method in ("auto", "sparse"):
+        got, _ = integrate_on_dome(normals, unknown, geo, method)
+        dent = ref.depth - got
+        assert dent[unknown].max() == pytest.approx(true_dent[unknown].max(), rel=0.01), method
+        assert np.abs(dent - true_dent)[unknown].mean() < 0.01 * true_dent.max(), method
+
+
+def test_a_region_touching_no_known_pixel_is_held_at_the_reference_level():
+    # every pixel unknown: the Poisson equation fixes the shape only; the anchor sets the level
+    from nlipscalib.core.sensor import SensorDesign
+
+    ref, rays, _, _, _ = _sphere_pressed_into_the_dome(SensorDesign(), 0, 0, 4.0, 1.0)
+    on_gel = np.isfinite(ref.depth)
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    got, _ = integrate_on_dome(ref.normals, on_gel, geo, "sparse")
+    assert np.abs(got - ref.depth)[on_gel].max() < 0.05  # mm
