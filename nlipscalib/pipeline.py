@@ -355,7 +355,8 @@ def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | Non
         return
     if result is None:
         result = load_reconstruction(out)
-    write_reconstruction_figures(out, result, load_press(folder).ground_truth, figures)
+    press = load_press(folder)
+    write_reconstruction_figures(out, result, press.ground_truth, figures, *_figure_context(press))
     log.info("%s: figures (%s) added to the existing result", out, figures)
 
 
@@ -610,12 +611,21 @@ def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance
     result.report["command_seconds"] = {"load": round(t1 - t0, 3), "solve": round(t2 - t1, 3)}
     if problem := content_problem(result.arrays()):  # never published: every later run would re-solve it
         raise CaptureError(f"{folder}: the solve gave an unusable result ({problem})")
-    gt = press.ground_truth
+    gt, context = press.ground_truth, _figure_context(press)
     save_result(
-        result, out, overwrite=True, extra_files=lambda tmp: write_reconstruction_figures(tmp, result, gt, level)
+        result,
+        out,
+        overwrite=True,
+        extra_files=lambda tmp: write_reconstruction_figures(tmp, result, gt, level, *context),
     )
     _log_solved(folder, out, result.report, time.perf_counter() - t2)
     return result
+
+
+def _figure_context(press) -> tuple:
+    """What the figures of ``press``'s result take beside it: the undeformed depth (reference.npz; None when the
+    capture has none), so depth.png shows the indentation, and the press's name for the summary's title."""
+    return (press.reference.depth if press.reference is not None else None), Path(press.folder).resolve().name
 
 
 @functools.lru_cache(maxsize=2)

@@ -156,15 +156,23 @@ def test_figures_off_maps_and_full(press):
         solve_folder(press, options=FAST, figures="some")
 
 
-def test_maps_show_the_solved_box(press):
+def test_maps_show_the_solved_box(press, monkeypatch):
     import cv2
 
-    from nlipscalib.report.maps import BAR_WIDTH
+    from nlipscalib.core.capture import load_press
+    from nlipscalib.report import reconstruction
+    from nlipscalib.report.maps import BAR_WIDTH, bar_min_height
 
+    views, depth_view = [], reconstruction.depth_view
+    keep = lambda rec, ref, box: views.append(ref) or depth_view(rec, ref, box)  # noqa: E731
+    monkeypatch.setattr(reconstruction, "depth_view", keep)
     solve_folder(press, options=FAST, roi=(10, 12, 30, 20))
     depth = cv2.imread(str(press / "nlips" / "depth.png"), cv2.IMREAD_COLOR)
     normals = cv2.imread(str(press / "nlips" / "normals.png"), cv2.IMREAD_COLOR)
-    assert depth.shape == (20, 30 + BAR_WIDTH, 3) and normals.shape == (20, 30, 3)
+    # 20 rows of map, white rows under them so that the colour bar's range and unit fit
+    assert depth.shape == (bar_min_height("indentation, mm"), 30 + BAR_WIDTH, 3) and normals.shape == (20, 30, 3)
+    # the press's undeformed surface reached the figures: depth.png shows the indentation
+    np.testing.assert_array_equal(views[0], load_press(press).reference.depth)
 
 
 def test_parallel_solve_matches_serial(press_set, tmp_path):

@@ -22,11 +22,12 @@ def test_contact_sheet_writes_a_png(tmp_path):
 def test_scalar_map_colours_range_and_missing_values(tmp_path):
     import cv2
 
-    from nlipscalib.report.maps import BAR_WIDTH, NO_VALUE_BGR, scalar_map_png
+    from nlipscalib.report.maps import BAR_WIDTH, NO_VALUE_BGR, bar_min_height, scalar_map_png
 
     values = np.array([[0.0, 10.0, np.nan], [5.0, 20.0, -3.0]])
     img = cv2.imread(str(scalar_map_png(tmp_path / "m.png", values, "gray", "deg", 0, 10)), cv2.IMREAD_COLOR)
-    assert img.shape == (2, 3 + BAR_WIDTH, 3)  # the image grid kept, the colour bar beside it
+    # the image grid kept from the top-left corner, the colour bar beside it, white rows below for its text
+    assert img.shape == (bar_min_height("deg"), 3 + BAR_WIDTH, 3) and np.all(img[2:, :3] == 255)
     assert tuple(img[0, 0]) == (0, 0, 0) and tuple(img[0, 1]) == (255, 255, 255)  # vmin black, vmax white
     assert tuple(img[1, 0]) in ((128, 128, 128), (127, 127, 127))  # half way
     assert tuple(img[1, 1]) == (255, 255, 255) and tuple(img[1, 2]) == (0, 0, 0)  # clipped to the range
@@ -104,3 +105,204 @@ def test_an_experiment_chart_legend_covers_no_bar(tmp_path, monkeypatch):
     series = {label: (h, [0.0, 0.0]) for label, h in heights.items()}
     path = experiments.grouped_bars(["seen", "unseen"], series, "AAE (deg)", tmp_path / "bars.png", {"paper": 3.3})
     assert path.is_file() and drawn["overlaps"] == []
+
+
+def _reconstruction(h=6, w=8, depth=15.0, method="nlips"):
+    from nlipscalib.core.reconstruction import Reconstruction
+
+    normals = np.zeros((h, w, 3), np.float32)
+    normals[..., 2] = -1.0
+    return Reconstruction(
+        depth=np.full((h, w), depth, np.float32),
+        points=np.zeros((h, w, 3), np.float32),
+        normals=normals,
+        albedo=np.ones((h, w, 3), np.float32),
+        residual=np.full((h, w), 0.001, np.float32),
+        confidence=np.ones((h, w), np.float32),
+        usable_leds=np.full((h, w), 12, np.int16),
+        mask=np.ones((h, w), bool),
+        reconstructed=np.ones((h, w), bool),
+        report={"method": method},
+    )
+
+
+def _down_tilt_coverage(cells=1):
+    """A coverage dict whose only filled bins hold tilts toward the image's bottom (+v, camera +y)."""
+    from nlipscalib.learn.coverage import AZIMUTH_SECTORS, TILT_EDGES_DEG, direction_bins
+
+    ref = np.tile([[0.0, 0.0, -1.0]], (4, 1))  # the undeformed normal faces the camera
+    tilt = np.radians([5.0, 15.0, 30.0, 50.0])  # one sample in each ring
+    d = np.array([0.3, 1.0]) / np.hypot(0.3, 1.0)  # toward the image's bottom, a little to its right
+    tilted = np.stack([np.sin(tilt) * d[0], np.sin(tilt) * d[1], -np.cos(tilt)], axis=1)
+    counts = np.zeros((cells, cells, (len(TILT_EDGES_DEG) - 1) * AZIMUTH_SECTORS), int)
+    counts[..., direction_bins(tilted, ref)] = 100
+    return {
+        "cells": cells,
+        "min_samples": 20,
+        "tilt_edges_deg": list(TILT_EDGES_DEG),
+        "azimuth_sectors": AZIMUTH_SECTORS,
+        "counts": counts,
+        "gel": np.ones((cells, cells), bool),
+        "covered_fraction": 0.1,
+        "next_press": {"region": [0, 0], "indenter": "sphere", "centre_uv": [10, 10]},
+    }
+
+
+def test_coverage_plots_are_oriented_like_the_image(tmp_path, monkeypatch):
+    """A tilt toward the image's bottom is drawn below the plot's centre (matplotlib's default polar axes,
+    counter-clockwise with y up, drew it at the top)."""
+    from nlipscalib.report import learn
+
+    drawn = {}
+    save = learn._save
+
+    def keep(fig, path):
+        fig.canvas.draw()
+        ax = fig.axes[0]
+        rgba = np.asarray(fig.canvas.buffer_rgba())
+        box = ax.get_window_extent()
+        top = rgba.shape[0] - int(box.y1)  # display y counts from the bottom, image rows from the top
+        crop = rgba[top : top + int(box.height), int(box.x0) : int(box.x1), :3].astype(int)
+        drawn["filled"] = np.argwhere((crop[..., 0] > 200) & (crop[..., 1] > 200) & (crop[..., 2] < 100))  # yellow
+        drawn["centre"] = np.array(crop.shape[:2]) / 2
+        return save(fig, path)
+
+    monkeypatch.setattr(learn, "_save", keep)
+    learn.coverage_figure(_down_tilt_coverage(), tmp_path / "coverage.png")
+    row, col = drawn["filled"].mean(axis=0) - drawn["centre"]
+    assert len(drawn["filled"]) > 100
+    assert row > 0.15 * drawn["centre"][0]  # below the centre: toward the image's bottom
+    assert col > 0  # and a little to its right, as the tilt
+
+
+def test_depth_figures_show_the_indentation_when_the_undeformed_surface_is_known():
+    from nlipscalib.report.reconstruction import depth_view
+
+    rec = _reconstruction(depth=15.0)
+    depth = rec.depth.copy()
+    depth[2:4, 3:5] -= 0.8  # pressed 0.8 mm in, toward the camera
+    rec = dataclasses_replace(rec, depth=depth)
+    reference = np.full(depth.shape, 15.0)
+    box = (slice(None), slice(None))
+    values, label, vmin = depth_view(rec, reference, box)
+    assert label == "indentation, mm" and vmin == 0.0
+    np.testing.assert_allclose(values[2, 3], 0.8, atol=1e-5) and np.testing.assert_allclose(values[0, 0], 0.0)
+    values, label, vmin = depth_view(rec, None, box)  # no undeformed surface: camera z, said so
+    assert label == "camera z, mm" and vmin is None and values[0, 0] == 15.0
+
+
+def dataclasses_replace(obj, **changes):
+    import dataclasses
+
+    return dataclasses.replace(obj, **changes)
+
+
+def test_summary_names_press_and_method_and_error_maps_share_one_colour_map(tmp_path, monkeypatch):
+    from nlipscalib.core.capture import GroundTruth
+    from nlipscalib.report import figures, write_reconstruction_figures
+
+    sheets = {}
+    monkeypatch.setattr(figures, "contact_sheet", lambda rows, path, **kw: sheets.update(rows=rows, **kw) or path)
+    rec = _reconstruction(method="nlipsnet")
+    gt = GroundTruth(rec.depth, rec.points, rec.normals, rec.reconstructed, rec.reconstructed)
+    write_reconstruction_figures(tmp_path, rec, gt, "full", reference_depth=rec.depth + 0.1, name="press_0002")
+    assert sheets["title"] == "press_0002, NLiPsNet"
+    assert sheets["caption"] == figures.NORMALS_KEY  # the normal colours explained
+    panels = sheets["rows"][0][1]
+    assert panels[1].label == "indentation, mm" and panels[2].label == "linear intensity"
+    assert panels[3].cmap == figures.ERROR_CMAP
+
+
+def _text_columns(strip: np.ndarray) -> np.ndarray:
+    """Columns of a colour-bar strip (BGR) that hold dark text pixels, right of the gradient."""
+    from nlipscalib.report.maps import RAMP_COLS
+
+    dark = (strip.max(axis=-1) < 120)[:, RAMP_COLS[1] :]
+    return np.nonzero(dark.any(axis=0))[0] + RAMP_COLS[1]
+
+
+def test_colour_bar_text_fits_on_short_and_tall_maps(tmp_path):
+    import cv2
+
+    from nlipscalib.report.maps import BAR_WIDTH, bar_min_height, scalar_map_png
+
+    rng = np.random.default_rng(2)
+    # a 40-px error map (a small ROI): the bar had no numbers and no unit
+    short = rng.uniform(0, 14, (40, 30))
+    img = cv2.imread(str(scalar_map_png(tmp_path / "e.png", short, "inferno", "deg", 0, 10)), cv2.IMREAD_COLOR)
+    assert img.shape[0] == bar_min_height("deg") >= 40  # white rows under the map, the map's grid kept
+    assert np.all(img[40:, :30] == 255)
+    strip = img[:, 30:]
+    assert len(_text_columns(strip[:30])) > 10  # the range beside the gradient ("10+", "0")
+    assert (strip[-12:].max(axis=-1) < 120).any()  # the unit under it
+    # a 480-px residual map with 7-character numbers: they ran past the strip's right edge
+    tall = rng.uniform(0.00204, 0.00596, (480, 40))
+    img = cv2.imread(str(scalar_map_png(tmp_path / "r.png", tall, "magma", "linear intensity")), cv2.IMREAD_COLOR)
+    columns = _text_columns(img[:, 40:])
+    assert len(columns) > 10 and columns.max() < BAR_WIDTH - 1
+
+
+def test_colour_bar_numbers_are_compact():
+    from nlipscalib.report.maps import _fmt
+
+    assert _fmt(1.234e-5) == "1.23e-5" and _fmt(0.00596) == "0.00596" and _fmt(17.94) == "17.9" and _fmt(10) == "10"
+
+
+def test_saturated_error_colours_are_marked(tmp_path):
+    import cv2
+
+    from nlipscalib.report.figures import Panel, _over
+    from nlipscalib.report.maps import scalar_map_png
+
+    err = np.array([[1.0, 25.0], [np.nan, 3.0]])
+    assert _over(Panel("e", err, vmin=0, vmax=10)) and not _over(Panel("e", err, vmin=0, vmax=30))
+    assert not _over(Panel("e", err))  # the data's own range saturates nothing
+    size = (60, 60)
+    over = cv2.imread(str(scalar_map_png(tmp_path / "o.png", np.resize(err, size), "inferno", "deg", 0, 10)))
+    within = cv2.imread(str(scalar_map_png(tmp_path / "w.png", np.resize(err, size), "inferno", "deg", 0, 30)))
+    assert _text_columns(over[:14, 60:]).max() > _text_columns(within[:14, 60:]).max()  # "10+" is wider than "30"
+
+
+def test_bar_chart_marks_missing_values_and_draws_no_unmeasured_error_bars(tmp_path, monkeypatch):
+    from nlipscalib.report import experiments
+
+    drawn = {}
+    save = experiments._save
+
+    def keep(fig, path):
+        ax = fig.axes[0]
+        drawn["texts"] = [(t.get_text().strip(), t.get_position()[0]) for t in ax.texts]
+        drawn["error_bars"] = [c for c in ax.containers if c.__class__.__name__ == "ErrorbarContainer"]
+        return save(fig, path)
+
+    monkeypatch.setattr(experiments, "_save", keep)
+    series = {"lut": ([np.nan, 7.0], [0.0, 0.0]), "nlips": ([1.0, np.nan], [0.0, 0.0])}
+    experiments.grouped_bars(["seen", "unseen"], series, "AAE (deg)", tmp_path / "bars.png")
+    assert [text for text, _ in drawn["texts"]] == ["n/a", "n/a"]
+    assert drawn["texts"][0][1] < 0.5 < drawn["texts"][1][1]  # the "seen" slot of lut, the "unseen" of nlips
+    assert drawn["error_bars"] == []  # no spread measured: no +-0 caps
+
+
+def test_error_map_sheets_are_readable_and_small(tmp_path):
+    from PIL import Image
+
+    from nlipscalib.report.experiments import error_maps
+
+    rng = np.random.default_rng(3)
+    n = np.zeros((48, 64, 3))
+    n[..., 2] = -1.0
+    rows = [(f"press {i}", n, n, rng.uniform(0, 4, (48, 64))) for i in range(2)]
+    path = error_maps(rows, tmp_path / "maps.png")
+    assert Image.open(path).size[0] >= 950  # 3 panels of 3.2 in at >= 100 dpi (60 dpi: 576 px, unreadable ticks)
+    assert path.stat().st_size < 150_000
+
+
+def test_demo_sheet_error_panel_fits_small_errors_and_prints_the_aae():
+    from nlipscalib.cli.demo import _error_panel
+    from nlipscalib.report.figures import ERROR_CMAP
+
+    err = np.random.default_rng(4).uniform(0, 1.2, (8, 8))
+    err[0, 0] = np.nan  # not scored
+    panel = _error_panel(err)
+    assert panel.vmax == 2.0 and panel.cmap == ERROR_CMAP  # not a fixed 10: half-degree errors are not black
+    assert panel.title == f"angular error, AAE {np.nanmean(err):.2f}°"

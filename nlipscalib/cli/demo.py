@@ -79,8 +79,9 @@ def run(args) -> int:
         if result is not None:
             table.append((job.name, job.press.indenter.kind, _scores(press, result)))
     from ..report import contact_sheet
+    from ..report.figures import NORMALS_KEY
 
-    sheet = contact_sheet(rows, out / "contact_sheet.png")
+    sheet = contact_sheet(rows, out / "contact_sheet.png", caption=NORMALS_KEY)
     _print_table(table)
     print(f"contact sheet: {sheet}")
     return 1 if failed else 0
@@ -120,9 +121,23 @@ def _panels(press, result):
         err = np.where(shown, angular_error_map(result.normals, gt.normals), np.nan)
         panels[3:] = [
             Panel("NLiPs normals", normals_to_rgb(result.normals, shown)),
-            Panel("angular error", err, cmap="inferno", label="degrees", vmin=0, vmax=10),
+            _error_panel(err),
         ]
     return panels
+
+
+def _error_panel(err):
+    """The angular error panel of one press (err: (H, W) float, degrees, NaN where not scored), titled with its AAE
+    (over the same pixels, as the summary figure prints it), in a colour range fitted to this press's errors
+    (``error_scale``): a fixed 0-10 deg, or one range shared with a coin's 20-deg edges, showed the sphere's and
+    the cube's half-degree errors as black squares. The rows compare by their AAE and colour bars."""
+    import numpy as np
+
+    from ..report import Panel
+    from ..report.figures import ERROR_CMAP, error_scale
+
+    title = f"angular error, AAE {np.nanmean(err):.2f}°"
+    return Panel(title, err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=error_scale([err]))
 
 
 def _print_table(table) -> None:

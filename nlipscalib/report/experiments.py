@@ -8,10 +8,13 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes
-from .figures import Panel, contact_sheet, normals_to_rgb
+from .figures import ERROR_CMAP, NORMALS_KEY, Panel, contact_sheet, error_scale, normals_to_rgb
 
 DPI = 80
 """Reports are committed to the repository: keep the PNGs small."""
+MAPS_DPI = 100
+"""Resolution of the error-map sheets: at 60 dpi their 7-pt colour-bar numbers were 4-5 px tall and could not be
+read; at 100 they are 8-10 px, and the palette PNG keeps the sheet small (see ``test_report``)."""
 
 
 def _save(fig, path: str | Path) -> Path:
@@ -78,21 +81,25 @@ def grouped_bars(
     Parameters
     ----------
     categories : group names on the x axis
-    series : label -> (means, stds), each of len(categories); NaN bars are left out
+    series : label -> (means, stds), each of len(categories); a NaN mean is marked "n/a", a std of 0 or NaN
+        draws no error bar
     lines : label -> value drawn as a dashed horizontal line (e.g. the paper's real-sensor number)
     """
     fig, ax = _figure(max(4.0, 1.1 * len(categories) + 2), 3.2)
     x = np.arange(len(categories))
     width = 0.8 / max(len(series), 1)
     for i, (label, (mean, std)) in enumerate(series.items()):
-        ax.bar(
-            x + (i - (len(series) - 1) / 2) * width,
-            np.nan_to_num(mean),
-            width,
-            yerr=np.nan_to_num(std),
-            label=label,
-            capsize=2,
+        xpos = x + (i - (len(series) - 1) / 2) * width
+        mean, std = np.asarray(mean, float), np.asarray(std, float)
+        missing = ~np.isfinite(mean)
+        # no error bar where no spread was measured (one sample, or none given): a zero-length cap reads as +-0
+        spread = np.where(np.isfinite(std) & (std > 0) & ~missing, std, 0.0)
+        bars = ax.bar(
+            xpos, np.where(missing, 0.0, mean), width, yerr=spread if spread.any() else None, label=label, capsize=2
         )
+        for pos in xpos[missing]:  # an empty slot would read as 0: say that there is no value
+            colour = bars.patches[0].get_facecolor()
+            ax.text(pos, 0, " n/a", rotation=90, ha="center", va="bottom", fontsize=7, color=colour)
     for j, (label, value) in enumerate((lines or {}).items()):
         ax.axhline(value, ls="--", lw=1, color=f"C{len(series) + j}", label=label)
     ax.set_xticks(x, categories, fontsize=8)
@@ -130,18 +137,6 @@ def sweep(
     return _save(fig, path)
 
 
-ERROR_SCALES_DEG = (1.0, 2.0, 5.0, 10.0, 20.0, 45.0)
-"""Upper ends the angular-error colour bar chooses from (:func:`error_scale`)."""
-
-
-def error_scale(errors) -> float:
-    """The colour bar's upper end for angular error maps: the smallest of ``ERROR_SCALES_DEG`` at or above
-    the 99th percentile of all their finite values (a fixed 20 deg shows half-degree errors as black)."""
-    values = np.concatenate([np.asarray(e, float)[np.isfinite(e)].ravel() for e in errors] or [np.zeros(0)])
-    top = float(np.percentile(values, 99)) if values.size else 0.0
-    return next((v for v in ERROR_SCALES_DEG if v >= top), ERROR_SCALES_DEG[-1])
-
-
 def error_maps(
     rows: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]], path: str | Path, vmax: float | None = None
 ) -> Path:
@@ -162,11 +157,11 @@ def error_maps(
                 [
                     Panel("true normals", normals_to_rgb(true, shown)),
                     Panel("NLiPs normals", normals_to_rgb(est, shown)),
-                    Panel("angular error", err, cmap="inferno", label="degrees", vmin=0, vmax=vmax),
+                    Panel("angular error", err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=vmax),
                 ],
             )
         )
-    contact_sheet(sheet, path, dpi=60)
+    contact_sheet(sheet, path, dpi=MAPS_DPI, caption=NORMALS_KEY)
     return write_bytes(path, _palette_png(Path(path).read_bytes()))
 
 
@@ -197,9 +192,9 @@ def nlipsnet_maps(
                     Panel("object (tri-colour image)", np.clip(rgb / scale, 0.0, 1.0)),
                     Panel("ground-truth normals", normals_to_rgb(v["true"], shown)),
                     Panel(f"{method} normals", normals_to_rgb(v["estimate"], shown)),
-                    Panel("angular error", v["error"], cmap="inferno", label="degrees", vmin=0, vmax=vmax),
+                    Panel("angular error", v["error"], cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=vmax),
                 ],
             )
         )
-    contact_sheet(sheet, path, dpi=60)
+    contact_sheet(sheet, path, dpi=MAPS_DPI, caption=NORMALS_KEY)
     return write_bytes(path, _palette_png(Path(path).read_bytes()))

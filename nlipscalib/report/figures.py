@@ -10,6 +10,29 @@ import numpy as np
 
 from ..core.atomic import write_bytes
 
+ERROR_CMAP = "inferno"
+"""Colour map of angular error in every figure (OpenCV maps, summaries, the demo and experiment sheets), so the
+same error looks the same everywhere; dark = small error."""
+NORMALS_KEY = (
+    "normal colours: RGB = ((n_x, -n_y, -n_z) + 1) / 2, camera frame: red = right, green = up, blue = toward the camera"
+)
+"""Caption of sheets that show normal maps (:func:`normals_to_rgb`'s convention, docs/conventions.md)."""
+ERROR_SCALES_DEG = (1.0, 2.0, 5.0, 10.0, 20.0, 45.0)
+"""Upper ends the angular-error colour bar chooses from (:func:`error_scale`)."""
+
+
+def error_scale(errors) -> float:
+    """The colour bar's upper end for angular error maps: the smallest of ``ERROR_SCALES_DEG`` at or above
+    the 99th percentile of all their finite values (a fixed 20 deg shows half-degree errors as black).
+
+    Parameters
+    ----------
+    errors : iterable of (h, w) float arrays, degrees, NaN = no value
+    """
+    values = np.concatenate([np.asarray(e, float)[np.isfinite(e)].ravel() for e in errors] or [np.zeros(0)])
+    top = float(np.percentile(values, 99)) if values.size else 0.0
+    return next((v for v in ERROR_SCALES_DEG if v >= top), ERROR_SCALES_DEG[-1])
+
 
 def normals_to_rgb(normals: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
     """Normal map as an image, in the usual normal-map colours: a surface facing the camera is blue.
@@ -51,13 +74,17 @@ class Panel:
     vmax: float | None = None
 
 
-def contact_sheet(rows: list[tuple[str, list[Panel]]], path: str | Path, dpi: int = 110) -> Path:
+def contact_sheet(
+    rows: list[tuple[str, list[Panel]]], path: str | Path, dpi: int = 110, caption: str = "", title: str = ""
+) -> Path:
     """Save a grid of panels (one row per press) as a PNG, atomically.
 
     Parameters
     ----------
     rows : list of (row title, panels)
     path : output .png
+    caption : one line under the grid, e.g. :data:`NORMALS_KEY` on sheets with normal maps
+    title : one line over the grid
     """
     import matplotlib
 
@@ -74,7 +101,12 @@ def contact_sheet(rows: list[tuple[str, list[Panel]]], path: str | Path, dpi: in
                 continue
             _draw(fig, ax, panels[c])
         axes[r, 0].text(-0.08, 0.5, row_title, transform=axes[r, 0].transAxes, rotation=90, va="center", ha="right")
-    fig.tight_layout()
+    if title:
+        fig.suptitle(title, fontsize=10)
+    if caption:
+        fig.text(0.5, 0.005, caption, ha="center", va="bottom", fontsize=8)
+    # room for the caption line at the bottom (a quarter inch)
+    fig.tight_layout(rect=(0, 0.25 / fig.get_figheight() if caption else 0, 1, 1))
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     plt.close(fig)
@@ -91,7 +123,14 @@ def _draw(fig, ax, panel: Panel) -> None:
     # pixels without a value (NaN) in light grey, not the colour of zero
     cmap = matplotlib.colormaps[panel.cmap].with_extremes(bad="0.85")
     im = ax.imshow(panel.image, cmap=cmap, vmin=panel.vmin, vmax=panel.vmax)
-    bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
+    bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, extend="max" if _over(panel) else "neither")
     bar.ax.tick_params(labelsize=7)
     if panel.label:
         bar.set_label(panel.label, fontsize=8)
+
+
+def _over(panel: Panel) -> bool:
+    """Whether a scalar panel has values above a ``vmax`` it was given (a percentile range, or a fixed one): they
+    show in its colour, so the bar gets an arrow, and 25 deg does not read as 10 (the OpenCV maps write "10+")."""
+    values = panel.image[np.isfinite(panel.image)]
+    return panel.vmax is not None and bool(np.any(values > panel.vmax))

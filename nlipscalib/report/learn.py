@@ -26,8 +26,17 @@ def _save(fig, path, dpi=110) -> Path:
     return write_bytes(path, buf.getvalue())
 
 
+THETA_SUBSTEPS = 8
+"""Angular steps drawn per azimuth sector, so the rings are round (with one step per sector, octagons)."""
+RING_TICKS_DEG = (10.0, 25.0, 45.0)
+"""Tilt rings labelled in the coverage figure (the inner 2-deg ring is too small to label)."""
+
+
 def coverage_figure(cov: dict, path) -> Path:
     """One polar histogram of tilt directions per image region, laid out like the image, next press marked.
+
+    Each plot is oriented like the image: a tilt toward the image's right is drawn right, toward its bottom
+    drawn at the bottom (:func:`image_polar_axes`); its radius is the tilt from the undeformed normal.
 
     Parameters
     ----------
@@ -35,24 +44,34 @@ def coverage_figure(cov: dict, path) -> Path:
     path : output .png
     """
     plt = _plt()
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
     cells, counts, gel = cov["cells"], np.asarray(cov["counts"]), np.asarray(cov["gel"])
-    edges = np.radians(cov["tilt_edges_deg"][:-1] + [60.0])  # outer ring drawn to 60 deg
+    rings = np.array(cov["tilt_edges_deg"][:-1] + [60.0])  # outer ring drawn to 60 deg
     sectors = cov["azimuth_sectors"]
-    theta = np.linspace(-np.pi, np.pi, sectors + 1)
+    # learn.coverage's sector k spans atan2(d_y, d_x) from -pi + k * 2 pi / sectors
+    theta = np.linspace(-np.pi, np.pi, sectors * THETA_SUBSTEPS + 1)
     nxt = tuple(cov["next_press"]["region"])
-    vmax = max(int(counts.max()), 1)
-    fig = plt.figure(figsize=(2.2 * cells, 2.2 * cells + 0.8))
+    norm = Normalize(0, np.log1p(max(int(counts.max()), 1)))
+    fig = plt.figure(figsize=(2.2 * cells + 1.0, 2.2 * cells + 1.2))
+    keyed = False
     for r in range(cells):
         for c in range(cells):
             ax = fig.add_subplot(cells, cells, r * cells + c + 1, projection="polar")
+            image_polar_axes(ax)
             ax.set_xticks([])
-            ax.set_yticks([])
+            ax.set_yticks(RING_TICKS_DEG, [] if keyed or not gel[r, c] else [f"{t:.0f}°" for t in RING_TICKS_DEG])
+            ax.tick_params(labelsize=6, colors="white")
+            ax.grid(color="white", alpha=0.3, lw=0.5)
             if not gel[r, c]:
                 ax.set_facecolor("0.9")
                 continue
-            grid = counts[r, c].reshape(-1, sectors)
-            ax.pcolormesh(theta, np.degrees(edges), np.log1p(grid), cmap="viridis", vmin=0, vmax=np.log1p(vmax))
-            covered = (grid >= cov["min_samples"]).mean()
+            keyed = True  # ring labels on the first gel plot only
+            grid = np.repeat(counts[r, c].reshape(-1, sectors), THETA_SUBSTEPS, axis=1)
+            ax.pcolormesh(theta, rings, np.log1p(grid), cmap="viridis", norm=norm)
+            ax.set_ylim(0, rings[-1])
+            covered = (counts[r, c] >= cov["min_samples"]).mean()
             ax.set_title(f"{covered * 100:.0f}%", fontsize=8, color="red" if (r, c) == nxt else "black")
             if (r, c) == nxt:
                 ax.spines["polar"].set_color("red")
@@ -60,11 +79,29 @@ def coverage_figure(cov: dict, path) -> Path:
     fig.suptitle(
         f"normal-direction coverage per image region ({cov['covered_fraction'] * 100:.0f}% of bins)\n"
         f"press next (red): {cov['next_press']['indenter']} at u~{cov['next_press']['centre_uv'][0]:.0f}, "
-        f"v~{cov['next_press']['centre_uv'][1]:.0f}" + _steep_line(cov.get("steep")),
-        fontsize=9,
+        f"v~{cov['next_press']['centre_uv'][1]:.0f}" + _steep_line(cov.get("steep")) + "\n"
+        "each plot: tilt direction as in the image (right = +u, down = +v), radius = tilt from the undeformed normal\n"
+        f"(rings {'/'.join(f'{t:g}' for t in cov['tilt_edges_deg'])}°, outer ring drawn to 60°); "
+        f"title = share of its direction bins with ≥ {cov['min_samples']} samples",
+        fontsize=8,
     )
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1 - 0.9 / fig.get_figwidth(), 1))
+    bar = fig.colorbar(
+        ScalarMappable(norm, "viridis"), cax=fig.add_axes((1 - 0.75 / fig.get_figwidth(), 0.15, 0.015, 0.6))
+    )
+    ticks = [n for n in (0, 1, 10, 100, 1000, 10000, 100000) if np.log1p(n) <= norm.vmax]
+    bar.set_ticks(np.log1p(ticks), labels=[str(n) for n in ticks])
+    bar.ax.tick_params(labelsize=7)
+    bar.set_label("samples per bin (log scale)", fontsize=8)
     return _save(fig, path)
+
+
+def image_polar_axes(ax) -> None:
+    """Orient polar axes like the image (x right, y down): angle ``atan2(d_y, d_x)`` of a camera-frame direction
+    is drawn where that direction points in the image. Matplotlib's default (counter-clockwise, y up) drew a
+    tilt toward the image's bottom at the top."""
+    ax.set_theta_zero_location("E")
+    ax.set_theta_direction(-1)
 
 
 def _steep_line(steep: dict | None) -> str:

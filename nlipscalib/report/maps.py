@@ -60,27 +60,41 @@ def scalar_map_png(
 ) -> Path:
     """Write a scalar map in a colour map with a colour bar (range and unit) on the right, as an 8-bit PNG.
 
+    The map keeps the image's pixel grid from its top-left corner; a map shorter than its colour bar needs
+    (:func:`bar_min_height`) gets white rows below it, so its range and unit stay readable.
+
     Parameters
     ----------
     path : output .png
     values : (H, W) float, any unit (named by ``label``); NaN = no value (grey)
     cmap : one of :data:`COLORMAPS`
-    label : unit shown under the colour bar, e.g. "mm" or "deg"
-    vmin, vmax : colour range; default the 1st and 99th percentiles of the finite values
+    label : unit shown under the colour bar, e.g. "mm" or "deg" (wrapped at spaces to the bar's width)
+    vmin, vmax : colour range; default the 1st and 99th percentiles of the finite values. Values above ``vmax``
+        show in its colour, and the bar's top number says so ("10+")
     """
     if values.ndim != 2:
         raise ShapeError(f"scalar_map_png needs (H, W) values, got {values.shape}")
     if cmap not in COLORMAPS:
         raise ShapeError(f"unknown colour map {cmap!r}; choose one of {sorted(COLORMAPS)}")
-    vmin, vmax = _range(values, vmin, vmax)
+    vmin, vmax = colour_range(values, vmin, vmax)
     finite = np.isfinite(values)
+    over = bool(np.any(values[finite] > vmax))
     level = np.clip((np.nan_to_num(values) - vmin) / (vmax - vmin), 0.0, 1.0)
     bgr = _colour(np.round(level * 255).astype(np.uint8), cmap)
     bgr[~finite] = NO_VALUE_BGR
-    return _write_png(path, np.concatenate([bgr, _colour_bar(values.shape[0], cmap, vmin, vmax, label)], axis=1))
+    height = max(values.shape[0], bar_min_height(label))
+    bgr = np.concatenate([bgr, np.full((height - values.shape[0],) + bgr.shape[1:], 255, np.uint8)], axis=0)
+    return _write_png(path, np.concatenate([bgr, _colour_bar(height, cmap, vmin, vmax, label, over)], axis=1))
 
 
-def _range(values: np.ndarray, vmin, vmax) -> tuple[float, float]:
+def colour_range(values: np.ndarray, vmin: float | None = None, vmax: float | None = None) -> tuple[float, float]:
+    """The colour range of a scalar map: ``vmin``/``vmax`` where given, else the 1st/99th percentile of the finite
+    values (one outlier pixel does not take the whole scale); a constant map still gets a non-empty range.
+
+    Parameters
+    ----------
+    values : (H, W) float, NaN = no value
+    """
     finite = values[np.isfinite(values)]
     if vmin is None:
         vmin = float(np.percentile(finite, 1)) if finite.size else 0.0
@@ -89,6 +103,9 @@ def _range(values: np.ndarray, vmin, vmax) -> tuple[float, float]:
     if not vmax > vmin:
         vmax = vmin + (abs(vmin) * 1e-3 or 1.0)  # a constant map still gets a readable bar
     return float(vmin), float(vmax)
+
+
+_range = colour_range  # the name before colour_range was public
 
 
 def _colour(levels: np.ndarray, cmap: str) -> np.ndarray:
@@ -100,28 +117,74 @@ def _colour(levels: np.ndarray, cmap: str) -> np.ndarray:
     return cv2.applyColorMap(levels, getattr(cv2, name))
 
 
-def _colour_bar(height: int, cmap: str, vmin: float, vmax: float, label: str) -> np.ndarray:
-    """(height, BAR_WIDTH, 3) uint8 BGR: a vertical gradient (vmax at the top) with its range and unit."""
-    cv2 = _cv2()
+LINE_PX = 12
+"""Height of one line of colour-bar text, pixels (a Hershey font at scale 0.3-0.4 is 8-11 px tall)."""
+FONT_SCALES = (0.4, 0.35, 0.3)
+"""Hershey font scales a colour-bar text may use, largest first: the largest that fits the strip's width is used
+(0.3 is the smallest that stays legible; "-1.23e-5" needs 43 px at 0.3)."""
+RAMP_COLS = (4, 16)
+"""Columns of the gradient within the strip; the numbers start 2 px right of it."""
+
+
+def bar_min_height(label: str = "") -> int:
+    """Pixels a labelled colour bar needs: a gradient two lines tall (vmax beside its top, vmin beside its bottom)
+    and ``label``'s lines under it, with margins."""
+    return (2 + len(_unit_lines(label))) * LINE_PX + 8
+
+
+def _colour_bar(height: int, cmap: str, vmin: float, vmax: float, label: str, over: bool = False) -> np.ndarray:
+    """(height, BAR_WIDTH, 3) uint8 BGR: a vertical gradient (vmax at the top) with its range and unit.
+
+    Shorter than :func:`bar_min_height`: the gradient alone (:func:`scalar_map_png` pads maps so that this does
+    not happen). ``over``: values above ``vmax`` exist and show in its colour; its number reads "10+".
+    """
     bar = np.full((height, BAR_WIDTH, 3), 255, np.uint8)
-    text_h = 12
-    labelled = height >= 4 * text_h  # too short for text: the gradient alone
-    top, bottom = (text_h + 2, height - text_h - 4) if labelled else (0, height)
+    lines = _unit_lines(label)
+    labelled = height >= bar_min_height(label)
+    top, bottom = (2, height - LINE_PX * len(lines) - 4) if labelled else (0, height)
     ramp = np.linspace(255, 0, bottom - top).round().astype(np.uint8)
-    bar[top:bottom, 6:20] = _colour(np.repeat(ramp[:, None], 14, axis=1), cmap)
+    left, right = RAMP_COLS
+    bar[top:bottom, left:right] = _colour(np.repeat(ramp[:, None], right - left, axis=1), cmap)
     if not labelled:
         return bar
-    scale = max(0.3, min(0.4, height / 600))  # small images keep legible, tiny labels
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    for text, y in ((_fmt(vmax), top + 8), (_fmt(vmin), bottom)):
-        cv2.putText(bar, text, (22, y), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
-    if label:
-        cv2.putText(bar, label, (4, height - 3), font, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    largest = max(FONT_SCALES[-1], min(FONT_SCALES[0], height / 600))  # small maps: small, still legible text
+    _put(bar, _fmt(vmax) + ("+" if over else ""), right + 2, top + LINE_PX - 2, largest)
+    _put(bar, _fmt(vmin), right + 2, bottom - 1, largest)
+    for i, text in enumerate(lines):
+        _put(bar, text, 2, height - 3 - LINE_PX * (len(lines) - 1 - i), largest)
     return bar
 
 
+def _put(bar: np.ndarray, text: str, x: int, y: int, largest: float) -> None:
+    """Write ``text`` at (x, baseline y) in the largest of ``FONT_SCALES`` (at most ``largest``) that ends inside
+    the strip."""
+    cv2 = _cv2()
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    scales = [s for s in FONT_SCALES if s <= largest] or [FONT_SCALES[-1]]
+    fits = [s for s in scales if x + cv2.getTextSize(text, font, s, 1)[0][0] < bar.shape[1]]
+    cv2.putText(bar, text, (x, y), font, (fits or scales[-1:])[0], (0, 0, 0), 1, cv2.LINE_AA)
+
+
+def _unit_lines(label: str) -> list[str]:
+    """``label`` split at spaces into lines that fit the strip at the smallest font scale ([] for no label)."""
+    cv2 = _cv2()
+    lines: list[str] = []
+    for word in label.split():
+        joined = f"{lines[-1]} {word}" if lines else word
+        width = cv2.getTextSize(joined, cv2.FONT_HERSHEY_SIMPLEX, FONT_SCALES[-1], 1)[0][0]
+        if lines and 2 + width < BAR_WIDTH:
+            lines[-1] = joined
+        else:
+            lines.append(word)
+    return lines
+
+
 def _fmt(v: float) -> str:
-    return f"{v:.3g}"
+    """A colour-bar number in at most three significant digits, exponent without padding ("1.23e-5", not
+    "1.23e-05"): the numbers have 45 px of the strip."""
+    text = f"{v:.3g}"
+    mantissa, _, exponent = text.partition("e")
+    return f"{mantissa}e{int(exponent)}" if exponent else text
 
 
 def _write_png(path: str | Path, bgr: np.ndarray) -> Path:

@@ -21,7 +21,12 @@ from ..cpus import usable_cores
 FIGURE_LEVELS = ("none", "maps", "full")
 """Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""
 ERROR_RANGE_DEG = (0.0, 10.0)
-"""Colour range of angular error maps, degrees: the same in every figure so they compare."""
+"""Colour range of angular error maps, degrees: the same in every figure so they compare (larger errors show in
+the top colour, and the colour bar says "10+")."""
+RESIDUAL_UNIT = "linear intensity"
+"""Unit of the residual maps: linear image units, the sensor's full range = 1 (``Press.linear``)."""
+METHOD_NAMES = {"nlips": "NLiPs", "nlipsnet": "NLiPsNet"}
+"""How the summary's title names the method of ``report.json``'s ``method``."""
 NORMALS_PNG, SUMMARY_PNG = "normals.png", "summary.png"
 """The normal map (written at every level but "none") and the "full" level's summary sheet."""
 
@@ -51,7 +56,9 @@ def figures_missing(folder: str | Path, level) -> bool:
     return any(not (Path(folder) / name).is_file() for name in needed)
 
 
-def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, level="maps") -> list[Path]:
+def write_reconstruction_figures(
+    folder: str | Path, rec, ground_truth=None, level="maps", reference_depth=None, name: str = ""
+) -> list[Path]:
     """Write the figures of ``rec`` into ``folder``; returns the files written.
 
     Parameters
@@ -60,7 +67,11 @@ def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, lev
     rec : Reconstruction -- maps over the full (H, W) image, camera frame
     ground_truth : GroundTruth or None -- adds error.png (angular error, degrees)
     level : "none", "maps" or "full" (or a bool), see the module docstring
+    reference_depth : (H, W) float, mm, camera z of the undeformed surface (the press's reference.npz), or None --
+        depth.png then shows the indentation (:func:`depth_view`), else camera z
+    name : the press's name, for the summary's title
     """
+    from .figures import ERROR_CMAP
     from .maps import normal_map_png, scalar_map_png
 
     level = figure_level(level)
@@ -70,19 +81,47 @@ def write_reconstruction_figures(folder: str | Path, rec, ground_truth=None, lev
     box = solved_box(rec)
     shown = rec.reconstructed[box]
     err = error_map(rec, ground_truth, box)
+    depth, depth_label, depth_min = depth_view(rec, reference_depth, box)
     jobs = [
         (normal_map_png, folder / NORMALS_PNG, rec.normals[box], shown),
-        (scalar_map_png, folder / "depth.png", _masked(rec.depth[box], shown), "viridis", "mm"),
-        (scalar_map_png, folder / "residual.png", _masked(rec.residual[box], shown), "magma", "lin."),
+        (scalar_map_png, folder / "depth.png", depth, "viridis", depth_label, depth_min),
+        (scalar_map_png, folder / "residual.png", _masked(rec.residual[box], shown), "magma", RESIDUAL_UNIT),
     ]
     if err is not None:
-        jobs.append((scalar_map_png, folder / "error.png", err, "jet", "deg", *ERROR_RANGE_DEG))
+        jobs.append((scalar_map_png, folder / "error.png", err, ERROR_CMAP, "deg", *ERROR_RANGE_DEG))
     # PNG encoding releases the GIL: the maps are written side by side
     with ThreadPoolExecutor(max_workers=min(len(jobs), usable_cores())) as pool:
         written = list(pool.map(lambda job: job[0](*job[1:]), jobs))
     if level == "full":
-        written.append(_summary(folder / SUMMARY_PNG, rec, box, err))
+        title = ", ".join(filter(None, [name, METHOD_NAMES.get(rec.report.get("method"), "")]))
+        written.append(_summary(folder / SUMMARY_PNG, rec, box, err, (depth, depth_label, depth_min), title))
     return written
+
+
+def depth_view(rec, reference_depth, box) -> tuple[np.ndarray, str, float | None]:
+    """The depth map a figure shows over ``box``, its unit label and the lower end of its colour range.
+
+    With the undeformed surface known, the indentation: how far the gel was pushed in from it, toward the
+    camera (``reference_depth - depth``, mm, >= 0 in the contact), from 0 up: in camera z the dome's own
+    curvature (a few mm across a region) takes the colour range and a 1 mm press is a faint ghost. Without
+    it, camera z itself, labelled so.
+
+    Parameters
+    ----------
+    rec : Reconstruction
+    reference_depth : (H, W) float, mm, camera z of the undeformed surface, or None
+    box : (rows, cols) slices
+
+    Returns
+    -------
+    values : (h, w) float, mm, NaN where not reconstructed
+    label : unit label of the colour bar
+    vmin : 0 for the indentation, None (the maps' percentile rule) for camera z
+    """
+    shown = rec.reconstructed[box]
+    if reference_depth is None:
+        return _masked(rec.depth[box], shown), "camera z, mm", None
+    return _masked(reference_depth[box] - rec.depth[box], shown), "indentation, mm", 0.0
 
 
 def solved_box(rec) -> tuple[slice, slice]:
@@ -116,17 +155,21 @@ def _masked(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.where(mask, values, np.nan)
 
 
-def _summary(path: Path, rec, box, err) -> Path:
-    """One matplotlib sheet of the result over the solved box."""
-    from .figures import Panel, contact_sheet, normals_to_rgb
+def _summary(path: Path, rec, box, err, depth_view: tuple, title: str) -> Path:
+    """One matplotlib sheet of the result over the solved box, titled with the press and the method."""
+    from .figures import ERROR_CMAP, NORMALS_KEY, Panel, contact_sheet, normals_to_rgb
+    from .maps import colour_range
 
     shown = rec.reconstructed[box]
+    depth, depth_label, depth_min = depth_view
+    residual = _masked(rec.residual[box], shown)
     panels = [
         Panel("normals", normals_to_rgb(rec.normals[box], shown)),
-        Panel("depth", _masked(rec.depth[box], shown), "viridis", "mm"),
-        Panel("RMS residual", _masked(rec.residual[box], shown), "magma", "linear intensity"),
+        # the maps' colour range rule, so depth.png and this panel show the same scale
+        Panel(depth_label.split(",")[0], depth, "viridis", depth_label, *colour_range(depth, depth_min)),
+        Panel("RMS residual", residual, "magma", RESIDUAL_UNIT, *colour_range(residual)),
     ]
     if err is not None:
-        title = f"angular error, AAE {np.nanmean(err):.2f} deg"  # err is NaN off the scored pixels
-        panels.append(Panel(title, err, "jet", "deg", *ERROR_RANGE_DEG))
-    return contact_sheet([("", panels)], path, dpi=150)
+        error_title = f"angular error, AAE {np.nanmean(err):.2f} deg"  # err is NaN off the scored pixels
+        panels.append(Panel(error_title, err, ERROR_CMAP, "deg", *ERROR_RANGE_DEG))
+    return contact_sheet([("", panels)], path, dpi=150, caption=NORMALS_KEY, title=title)
