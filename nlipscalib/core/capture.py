@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import __version__
 from ..cpus import usable_cores
-from ..errors import CaptureError
+from ..errors import CaptureError, ShapeError
 from .atomic import TMP_PREFIX, atomic_dir, write_json
 from .camera import Camera
 from .formatfile import read_arrays, read_format_json
@@ -71,16 +71,20 @@ def linearise(image: np.ndarray, dark: np.ndarray, black_level: float, white_lev
 
     Parameters
     ----------
-    image : (..., H, W, 3) stored values (uint16), or any array broadcasting against ``dark``
-    dark : (H, W, 3) the dark frame's stored values (uint16, or float32 already)
+    image : (..., H, W, 3) stored values (uint16), or a scalar (one stored level, e.g. the clipping value)
+    dark : (H, W, 3) the dark frame's stored values (uint16, or float32 already); any shape that ``image``
+        ends with (e.g. (N, 3), the gel's pixels)
     black_level, white_level : the sensor's levels (:class:`SensorResponse`), 16-bit units
 
     Returns
     -------
     (..., H, W, 3) float32, 0 = dark frame, 1 = full scale: ``(image - dark) / (white_level - black_level)``
     """
+    image, dark = np.asarray(image), np.asarray(dark)
+    if image.ndim and image.shape[image.ndim - dark.ndim :] != dark.shape:  # (H, W, 3) - (1, W, 3) broadcast silently
+        raise ShapeError(f"image {image.shape} must end with the dark frame's shape {dark.shape}")
     scale = np.float32(white_level - black_level)
-    return (np.asarray(image).astype(np.float32, copy=False) - np.asarray(dark).astype(np.float32, copy=False)) / scale
+    return (image.astype(np.float32, copy=False) - dark.astype(np.float32, copy=False)) / scale
 
 
 @dataclasses.dataclass(frozen=True)
