@@ -124,7 +124,16 @@ class SensorResponse:
             )
 
     def saturated(self, image: np.ndarray) -> np.ndarray:
-        """(..., H, W, 3) bool -- stored value at or above the white level."""
+        """Which stored values are at or above the white level (clipped).
+
+        Parameters
+        ----------
+        image : (..., H, W, 3) uint16 (or float) -- stored 16-bit values, not linearised.
+
+        Returns
+        -------
+        (..., H, W, 3) bool, per channel.
+        """
         return image >= self.white_level
 
 
@@ -220,7 +229,16 @@ class Press:
         return lin
 
     def saturated(self, image: np.ndarray) -> np.ndarray:
-        """(..., H, W, 3) bool -- stored value at or above the white level (:meth:`SensorResponse.saturated`)."""
+        """Which stored values are at or above the white level (:meth:`SensorResponse.saturated`).
+
+        Parameters
+        ----------
+        image : (..., H, W, 3) uint16 -- stored 16-bit values of this press (e.g. ``led_images``), not linearised.
+
+        Returns
+        -------
+        (..., H, W, 3) bool, per channel.
+        """
         return self.response.saturated(image)
 
 
@@ -244,7 +262,10 @@ def write_press(
     ----------
     folder : path of the press folder to create
     camera, leds, response : the capture's optics and sensor response
-    dark : (H, W, 3) uint16 ; led_images : (L, H, W, 3) uint16 ; tricolor : (H, W, 3) uint16
+    dark : (H, W, 3) uint16 -- stored values (``DN << (16 - bit_depth)``) with all LEDs off
+    led_images : (L, H, W, 3) uint16 -- stored values, one image per LED lit alone in white, in the order of ``leds``
+    tricolor : (H, W, 3) uint16 -- stored values with the LED groups (:func:`~nlipscalib.core.leds.tricolor_groups`)
+        lit in red, green and blue at once
     provenance : extra JSON-able metadata (source, scene, indenter, press, seed ...)
     design : the sensor design (``dome``, ``camera``, ``leds`` as in a scene file) that ``reference`` was computed
         from, written as meta.json's ``design``: the solver models the dome beyond the view from it
