@@ -193,8 +193,11 @@ class Press:
     folder: Path
     """Where it was loaded from."""
     camera: Camera
+    """Intrinsics and lens of the camera that took the images (meta.json ``camera``); ``camera.shape`` = (H, W)."""
     leds: tuple[Led, ...]
+    """The L LEDs, camera frame, mm, in the order of ``led_images`` (meta.json ``leds``)."""
     response: SensorResponse
+    """How the stored values relate to light: bit depth, black and white levels (meta.json ``sensor``)."""
     dark: np.ndarray
     """(H, W, 3) uint16, stored values, RGB."""
     led_images: np.ndarray
@@ -204,7 +207,9 @@ class Press:
     meta: dict
     """The whole meta.json (provenance: scene, indenter, press pose, seed, software version)."""
     reference: Reference | None = None
+    """The undeformed surface (reference.npz), or None when the folder has none."""
     ground_truth: GroundTruth | None = None
+    """Per-pixel truth (gt.npz, synthetic presses only), or None."""
 
     def linear(self, image: np.ndarray, window=(slice(None), slice(None))) -> np.ndarray:
         """Dark-subtracted linear intensity, scaled so the sensor's full range is 1.

@@ -128,7 +128,9 @@ class DatasetSpec:
     camera: dict = dataclasses.field(default_factory=dict)
     """Overrides of the scene's [camera] section, e.g. {width = 160, height = 120} for previews."""
     grid: GridSpec | None = None
+    """``[grid]``: every combination of the listed indenters, locations, depths and spins (or None)."""
     random: RandomSpec | None = None
+    """``[random]``: ``count`` presses drawn from ranges with the spec's ``seed`` (or None)."""
 
     def __post_init__(self):
         if (self.grid is None) == (self.random is None):
