@@ -50,12 +50,8 @@ SOLVED, SKIPPED, FAILED = "solved", "skipped", "failed"
 """Statuses of one press (a failure reads "failed: reason")."""
 BUSY = "busy"
 """Internal status: another live process holds the press's claim (left to it, then waited for)."""
-CLAIM_STALE_S = 60.0
-"""A claim on PRESS/nlips without heartbeat for this long is taken over (its owner died)."""
 BROKEN = f"{FAILED}: not solved, a solver process was killed (by a signal or for lack of memory); run again"
 """Status of the presses a parallel batch could not finish because one of its processes died."""
-CLAIM_POLL_S = 0.5
-"""How often ``wait=True`` checks whether another process has finished the press it is solving."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -365,11 +361,11 @@ def _wait_for_release(folder: Path, out: Path) -> None:
     a dead owner's claim goes stale and is taken over)."""
     import time
 
-    from .core.claims import holder
+    from .core import claims
 
     log.info("%s: being solved by another process; waiting for it", folder)
-    while holder(out, stale_s=CLAIM_STALE_S) is not None:
-        time.sleep(CLAIM_POLL_S)
+    while claims.holder(out) is not None:
+        time.sleep(claims.CLAIM_POLL_S)  # read here, so a test's patch of it holds
 
 
 def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
@@ -493,7 +489,7 @@ def _bars(requested: bool) -> bool:
 def _claim(target: Path):
     from .core.claims import claim
 
-    return claim(target, stale_s=CLAIM_STALE_S)
+    return claim(target)
 
 
 def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce: bool = True):

@@ -274,7 +274,10 @@ def depth_to_points(depth: np.ndarray, rays: np.ndarray) -> np.ndarray:
     -------
     (..., 3) float, mm, camera frame.
     """
-    return np.asarray(depth)[..., None] / rays[..., 2:3] * rays
+    depth = np.asarray(depth)
+    if rays.shape[-1:] != (3,) or depth.shape != rays.shape[:-1]:  # a (H, 1) depth broadcast silently
+        raise ShapeError(f"depth must be (...) and rays (..., 3), one (...), got {depth.shape} and {rays.shape}")
+    return depth[..., None] / rays[..., 2:3] * rays
 
 
 def _check_last_dim(arr, n: int, name: str) -> np.ndarray:

@@ -26,7 +26,7 @@ import numpy as np
 
 from .. import __version__
 from ..cpus import usable_cores
-from ..errors import CaptureError
+from ..errors import CaptureError, ShapeError
 from .atomic import TMP_PREFIX, atomic_dir, write_json
 from .camera import Camera
 from .formatfile import read_arrays, read_format_json
@@ -71,16 +71,20 @@ def linearise(image: np.ndarray, dark: np.ndarray, black_level: float, white_lev
 
     Parameters
     ----------
-    image : (..., H, W, 3) stored values (uint16), or any array broadcasting against ``dark``
-    dark : (H, W, 3) the dark frame's stored values (uint16, or float32 already)
+    image : (..., H, W, 3) stored values (uint16), or a scalar (one stored level, e.g. the clipping value)
+    dark : (H, W, 3) the dark frame's stored values (uint16, or float32 already); any shape that ``image``
+        ends with (e.g. (N, 3), the gel's pixels)
     black_level, white_level : the sensor's levels (:class:`SensorResponse`), 16-bit units
 
     Returns
     -------
     (..., H, W, 3) float32, 0 = dark frame, 1 = full scale: ``(image - dark) / (white_level - black_level)``
     """
+    image, dark = np.asarray(image), np.asarray(dark)
+    if image.ndim and image.shape[image.ndim - dark.ndim :] != dark.shape:  # (H, W, 3) - (1, W, 3) broadcast silently
+        raise ShapeError(f"image {image.shape} must end with the dark frame's shape {dark.shape}")
     scale = np.float32(white_level - black_level)
-    return (np.asarray(image).astype(np.float32, copy=False) - np.asarray(dark).astype(np.float32, copy=False)) / scale
+    return (image.astype(np.float32, copy=False) - dark.astype(np.float32, copy=False)) / scale
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,7 +124,16 @@ class SensorResponse:
             )
 
     def saturated(self, image: np.ndarray) -> np.ndarray:
-        """(..., H, W, 3) bool -- stored value at or above the white level."""
+        """Which stored values are at or above the white level (clipped).
+
+        Parameters
+        ----------
+        image : (..., H, W, 3) uint16 (or float) -- stored 16-bit values, not linearised.
+
+        Returns
+        -------
+        (..., H, W, 3) bool, per channel.
+        """
         return image >= self.white_level
 
 
@@ -180,8 +193,11 @@ class Press:
     folder: Path
     """Where it was loaded from."""
     camera: Camera
+    """Intrinsics and lens of the camera that took the images (meta.json ``camera``); ``camera.shape`` = (H, W)."""
     leds: tuple[Led, ...]
+    """The L LEDs, camera frame, mm, in the order of ``led_images`` (meta.json ``leds``)."""
     response: SensorResponse
+    """How the stored values relate to light: bit depth, black and white levels (meta.json ``sensor``)."""
     dark: np.ndarray
     """(H, W, 3) uint16, stored values, RGB."""
     led_images: np.ndarray
@@ -191,7 +207,9 @@ class Press:
     meta: dict
     """The whole meta.json (provenance: scene, indenter, press pose, seed, software version)."""
     reference: Reference | None = None
+    """The undeformed surface (reference.npz), or None when the folder has none."""
     ground_truth: GroundTruth | None = None
+    """Per-pixel truth (gt.npz, synthetic presses only), or None."""
 
     def linear(self, image: np.ndarray, window=(slice(None), slice(None))) -> np.ndarray:
         """Dark-subtracted linear intensity, scaled so the sensor's full range is 1.
@@ -216,7 +234,16 @@ class Press:
         return lin
 
     def saturated(self, image: np.ndarray) -> np.ndarray:
-        """(..., H, W, 3) bool -- stored value at or above the white level (:meth:`SensorResponse.saturated`)."""
+        """Which stored values are at or above the white level (:meth:`SensorResponse.saturated`).
+
+        Parameters
+        ----------
+        image : (..., H, W, 3) uint16 -- stored 16-bit values of this press (e.g. ``led_images``), not linearised.
+
+        Returns
+        -------
+        (..., H, W, 3) bool, per channel.
+        """
         return self.response.saturated(image)
 
 
@@ -240,7 +267,10 @@ def write_press(
     ----------
     folder : path of the press folder to create
     camera, leds, response : the capture's optics and sensor response
-    dark : (H, W, 3) uint16 ; led_images : (L, H, W, 3) uint16 ; tricolor : (H, W, 3) uint16
+    dark : (H, W, 3) uint16 -- stored values (``DN << (16 - bit_depth)``) with all LEDs off
+    led_images : (L, H, W, 3) uint16 -- stored values, one image per LED lit alone in white, in the order of ``leds``
+    tricolor : (H, W, 3) uint16 -- stored values with the LED groups (:func:`~nlipscalib.core.leds.tricolor_groups`)
+        lit in red, green and blue at once
     provenance : extra JSON-able metadata (source, scene, indenter, press, seed ...)
     design : the sensor design (``dome``, ``camera``, ``leds`` as in a scene file) that ``reference`` was computed
         from, written as meta.json's ``design``: the solver models the dome beyond the view from it

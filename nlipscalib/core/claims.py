@@ -32,6 +32,13 @@ log = logging.getLogger(__name__)
 
 CLAIM_PREFIX = ".claim-"
 """Prefix of claim files (never starts with core.atomic.TMP_PREFIX, so cleaners leave them alone)."""
+CLAIM_STALE_S = 60.0
+"""A claim without heartbeat for this long (s) is abandoned (its owner died) and taken over. One value for every
+process sharing a folder: it is an agreement between them (a build waiting on a solver's claim judged the solver
+dead, or alive, by its own copy), so callers use this default rather than their own. The heartbeat beats every
+quarter of it, so a live owner looks dead only after missing three beats."""
+CLAIM_POLL_S = 0.5
+"""How often (s) a process waiting for another's claim to be released checks it again (short against a solve)."""
 HOST = socket.gethostname()
 _HELD: dict[Path, Owner] = {}
 """Claims this process holds now (released by ``release_all`` when it is terminated)."""
@@ -59,13 +66,14 @@ def claim_path(target: str | Path) -> Path:
 
 
 @contextlib.contextmanager
-def claim(target: str | Path, *, stale_s: float = 60.0) -> Iterator[bool]:
+def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Iterator[bool]:
     """Claim exclusive work on ``target`` for the duration of the block.
 
     Parameters
     ----------
     target : folder (or file) this process means to produce; its parent is created if missing.
-    stale_s : seconds without heartbeat after which another process's claim counts as abandoned.
+    stale_s : seconds without heartbeat after which another process's claim counts as abandoned; keep the
+        default (:data:`CLAIM_STALE_S`) unless every process sharing the folder passes the same value.
 
     Yields
     ------
@@ -102,7 +110,7 @@ def claim(target: str | Path, *, stale_s: float = 60.0) -> Iterator[bool]:
         _HELD.pop(path, None)
 
 
-def holder(target: str | Path, *, stale_s: float = 60.0) -> Owner | None:
+def holder(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Owner | None:
     """The live owner of ``target``'s claim, or None when it is unclaimed or the claim is stale.
 
     A fresh claim file that cannot be read yet (being written) gives ``UNKNOWN_OWNER``.

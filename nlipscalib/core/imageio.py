@@ -16,7 +16,17 @@ def _cv2():
 
 
 def write_png16(path: str | Path, image: np.ndarray) -> Path:
-    """Write an (H, W) or (H, W, 3) RGB uint16 image as a 16-bit PNG, atomically."""
+    """Write a 16-bit PNG, atomically (ShapeError for any other shape or dtype).
+
+    Parameters
+    ----------
+    path : the PNG file to write (replaced whole if it exists)
+    image : (H, W) or (H, W, 3) uint16 -- stored values; channels in RGB order (written as PNG's RGB)
+
+    Returns
+    -------
+    Path of the written file.
+    """
     image = np.asarray(image)
     if image.dtype != np.uint16 or image.ndim not in (2, 3) or (image.ndim == 3 and image.shape[2] != 3):
         raise ShapeError(f"write_png16 needs (H, W) or (H, W, 3) uint16, got {image.shape} {image.dtype}")

@@ -26,14 +26,34 @@ def _u8(mask: np.ndarray) -> np.ndarray:
 
 
 def erode(mask: np.ndarray, iterations: int = 1) -> np.ndarray:
-    """(H, W) bool -- ``mask`` eroded ``iterations`` times by the cross, outside the image counting as False."""
+    """``mask`` eroded ``iterations`` times by the cross, outside the image counting as False.
+
+    Parameters
+    ----------
+    mask : (H, W) bool (or any dtype: nonzero is on) -- image pixels.
+    iterations : erosions, >= 0 (0 returns the mask).
+
+    Returns
+    -------
+    (H, W) bool.
+    """
     cv2 = _cv2()
     out = cv2.erode(_u8(mask), CROSS, iterations=iterations, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return out.view(bool)
 
 
 def dilate(mask: np.ndarray, iterations: int = 1) -> np.ndarray:
-    """(H, W) bool -- ``mask`` dilated ``iterations`` times by the cross."""
+    """``mask`` dilated ``iterations`` times by the cross (nothing grows in from outside the image).
+
+    Parameters
+    ----------
+    mask : (H, W) bool (or any dtype: nonzero is on) -- image pixels.
+    iterations : dilations, >= 0 (0 returns the mask).
+
+    Returns
+    -------
+    (H, W) bool.
+    """
     cv2 = _cv2()
     out = cv2.dilate(_u8(mask), CROSS, iterations=iterations, borderType=cv2.BORDER_CONSTANT, borderValue=0)
     return out.view(bool)
@@ -41,6 +61,10 @@ def dilate(mask: np.ndarray, iterations: int = 1) -> np.ndarray:
 
 def components(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """4-connected components of ``mask``.
+
+    Parameters
+    ----------
+    mask : (H, W) bool (or any dtype: nonzero is on) -- image pixels.
 
     Returns
     -------
@@ -57,9 +81,19 @@ STATISTIC_PIXELS = 20_000
 
 
 def sample_grid(mask: np.ndarray, min_pixels: int = STATISTIC_PIXELS) -> np.ndarray:
-    """(H, W) bool -- ``mask`` on the coarsest regular grid (every 4th, 2nd or 1st row and column) that keeps
-    at least ``min_pixels`` of its pixels (the whole mask when none does): where image statistics (percentiles,
-    a noise MAD) are taken. Such a statistic of 2 x 10^4 pixels is within ~1 % of the one of all of them."""
+    """``mask`` on the coarsest regular grid (every 4th, 2nd or 1st row and column) that keeps at least
+    ``min_pixels`` of its pixels (the whole mask when none does): where image statistics (percentiles, a noise
+    MAD) are taken. Such a statistic of 2 x 10^4 pixels is within ~1 % of the one of all of them.
+
+    Parameters
+    ----------
+    mask : (H, W) bool -- image pixels the statistic may use.
+    min_pixels : pixels the grid keeps at least, where the mask has them.
+
+    Returns
+    -------
+    (H, W) bool -- a subset of ``mask``.
+    """
     for rows, cols in ((4, 4), (4, 2), (2, 2), (2, 1)):
         grid = np.zeros_like(mask, dtype=bool)
         grid[::rows, ::cols] = mask[::rows, ::cols]

@@ -44,7 +44,18 @@ def angular_error_map(normals: np.ndarray, gt_normals: np.ndarray) -> np.ndarray
 
 
 def aae(normals: np.ndarray, gt_normals: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """Average angular error, degrees, over ``mask`` ((...) bool) and finite pixels."""
+    """Average angular error over ``mask`` and the pixels where both normals are finite.
+
+    Parameters
+    ----------
+    normals : (..., 3) float, unit, camera frame -- the estimate (``SolveResult.normals``).
+    gt_normals : (..., 3) float, unit, the same frame as ``normals`` -- the truth (``GroundTruth.normals``).
+    mask : (...) bool or None -- pixels to average over (None: all).
+
+    Returns
+    -------
+    float, degrees; NaN when no pixel is left.
+    """
     est, gt, m = _check(normals, gt_normals, mask, "aae", 3)
     if not m.any():
         return float("nan")
@@ -53,7 +64,18 @@ def aae(normals: np.ndarray, gt_normals: np.ndarray, mask: np.ndarray | None = N
 
 
 def mabse(normals: np.ndarray, gt_normals: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """Mean absolute error of normal components: 1/(3|M|) sum ||n_hat - n||_1 (unitless)."""
+    """Mean absolute error of normal components: 1/(3|M|) sum ||n_hat - n||_1 over ``mask`` and finite pixels.
+
+    Parameters
+    ----------
+    normals : (..., 3) float, unit, camera frame -- the estimate.
+    gt_normals : (..., 3) float, unit, the same frame as ``normals`` -- the truth.
+    mask : (...) bool or None -- pixels to average over (None: all).
+
+    Returns
+    -------
+    float, unitless (a component difference, 0..2); NaN when no pixel is left.
+    """
     est, gt, m = _check(normals, gt_normals, mask, "mabse", 3)
     if not m.any():
         return float("nan")
@@ -61,7 +83,18 @@ def mabse(normals: np.ndarray, gt_normals: np.ndarray, mask: np.ndarray | None =
 
 
 def depth_rmse(depth: np.ndarray, gt_depth: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """Root mean square depth error, mm, over ``mask`` and finite pixels."""
+    """Root mean square depth error over ``mask`` and the pixels where both depths are finite.
+
+    Parameters
+    ----------
+    depth : (...) float, mm -- the estimate's z in the camera frame (not range along the ray).
+    gt_depth : (...) float, mm -- the truth's z in the camera frame (``GroundTruth.depth``; NaN off the gel).
+    mask : (...) bool or None -- pixels to average over (None: all).
+
+    Returns
+    -------
+    float, mm; NaN when no pixel is left.
+    """
     est, gt, m = _check(depth, gt_depth, mask, "depth_rmse", None)
     if not m.any():
         return float("nan")
@@ -71,8 +104,20 @@ def depth_rmse(depth: np.ndarray, gt_depth: np.ndarray, mask: np.ndarray | None 
 def evaluate(result, ground_truth, mask: np.ndarray | None = None) -> dict:
     """AAE, MabsE, depth RMSE (and pixel counts) of a SolveResult-like object against a GroundTruth.
 
-    The mask defaults to pixels that are valid in the truth and reconstructed; ``contact`` metrics use
-    the truth's contact region as well.
+    The pixels scored are those valid in the truth and reconstructed (and in ``mask`` when given); the
+    ``contact`` figures keep only the truth's contact region of them.
+
+    Parameters
+    ----------
+    result : SolveResult-like -- ``normals`` (H, W, 3) float, unit, camera frame; ``depth`` (H, W) float, mm,
+        camera-frame z; ``reconstructed`` (H, W) bool.
+    ground_truth : :class:`~nlipscalib.core.capture.GroundTruth` of the same (H, W) image.
+    mask : (H, W) bool or None -- further restricts the pixels scored.
+
+    Returns
+    -------
+    dict: {"all": ..., "contact": ...}, each {"pixels": int, "aae_deg": degrees, "mabse": unitless,
+    "depth_rmse_mm": mm} (NaN figures where no pixel is scored).
     """
     base = ground_truth.valid & result.reconstructed
     if mask is not None:

@@ -145,8 +145,11 @@ class SensorDesign:
     """What the sensor is made of, as designed (CAD): enough to compute its undeformed surface."""
 
     dome: DomeConfig = DomeConfig()
+    """The gel's outer surface (shape, size) and thickness, in the dome frame."""
     camera: CameraConfig = CameraConfig()
+    """The camera: image size, field of view, lens model, and its position in the dome frame."""
     leds: LedConfig = LedConfig()
+    """The LEDs' positions and principal directions in the dome frame (:meth:`led_models`: camera frame)."""
 
     def camera_model(self) -> Camera:
         """The camera's intrinsics and lens model."""

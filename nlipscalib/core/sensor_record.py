@@ -13,11 +13,9 @@ import math
 
 from ..errors import CaptureError
 from .leds import led_geometry_mismatch, tricolor_groups
+from .tolerances import SAME_DISTORTION_ABS, SAME_INTRINSICS_ABS_PX, SAME_INTRINSICS_RTOL
 
 log = logging.getLogger(__name__)
-
-INTRINSICS_RTOL = 1e-3
-"""Relative tolerance on focal lengths and principal point when matching a capture to a model."""
 
 
 def sensor_of(press) -> dict:
@@ -53,9 +51,9 @@ def sensor_mismatch(expected: dict, actual: dict) -> str | None:
     if ce["model"] != ca["model"]:
         return f"lens model {ca['model']!r}, calibrated for {ce['model']!r}"
     for key in ("fx", "fy", "cx", "cy"):
-        if not math.isclose(ce[key], ca[key], rel_tol=INTRINSICS_RTOL, abs_tol=1e-6):
+        if not math.isclose(ce[key], ca[key], rel_tol=SAME_INTRINSICS_RTOL, abs_tol=SAME_INTRINSICS_ABS_PX):
             return f"camera {key} = {ca[key]:.4g}, calibrated for {ce[key]:.4g}"
-    if any(not math.isclose(a, b, abs_tol=1e-3) for a, b in zip(ce["dist"], ca["dist"])):
+    if any(not math.isclose(a, b, abs_tol=SAME_DISTORTION_ABS) for a, b in zip(ce["dist"], ca["dist"])):
         return f"lens distortion {ca['dist']}, calibrated for {ce['dist']}"
     if expected["n_leds"] != actual["n_leds"] or expected["tricolor_groups"] != actual["tricolor_groups"]:
         return f"{actual['n_leds']} LEDs in groups {actual['tricolor_groups']}, calibrated for {expected['n_leds']}"

@@ -9,6 +9,17 @@ SAME_LED_DEG = 3.0
 """... and points within this angle (degrees) of it (a re-calibration: 1-2 deg; fingertip vs NLiPsTac: 10 deg)."""
 SAME_SURFACE_MM = 0.05
 """... and their undeformed surfaces (reference.npz depth) agree within this median distance (mm)."""
+SAME_INTRINSICS_RTOL = 1e-3
+"""A capture is of the sensor a model or LED file was calibrated for only if its camera's fx, fy, cx, cy each agree
+within this fraction (``core.sensor_record``): about a third of a pixel at 640x480 (fx 355 px, cx 320 px), so
+every pixel's ray, and the (u, v) the network was trained on, stay within that; values copied from one calibration
+(up to the decimals a meta.json keeps) pass, another camera's, or a re-calibration that moved them more, do not."""
+SAME_INTRINSICS_ABS_PX = 1e-6
+"""... or within this many pixels: the floor for a value at or near 0 (a hand-written principal point), where the
+relative tolerance alone would demand exact equality. Float rounding, not a physical allowance."""
+SAME_DISTORTION_ABS = 1e-3
+"""... and each lens distortion coefficient within this (unitless): moves the 640x480 default fisheye's corner
+pixels by 0.35 px (k1 0.05 + 1e-3), the same third of a pixel as :data:`SAME_INTRINSICS_RTOL`."""
 MIN_LEDS_PER_PIXEL = 3
 """A pixel needs at least this many usable (lit, unsaturated) LEDs to be reconstructed."""
 SATURATED_SHARE_WARN = 0.05

@@ -84,14 +84,13 @@ def train_model(data, names: list[str], stamps: dict, cfg, out: Path, progress: 
     AAE, training seconds, history (per epoch)
     """
     from ..core.claims import claim
-    from .tasks import CLAIM_STALE_S
 
     key, path, record = model_files(out, names, stamps, cfg)
     waited = False
     while (done := _finished(path, record, key)) is None:
         # another run sharing the folder may be training this model: wait for its record rather than train it
         # a second time over the same checkpoint and score a model file that the other run then replaces
-        with claim(path, stale_s=CLAIM_STALE_S) as mine:
+        with claim(path) as mine:
             if mine:
                 return _finished(path, record, key) or _train(data, names, cfg, key, path, record, out, progress)
         if not waited:

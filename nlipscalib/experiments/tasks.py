@@ -25,8 +25,6 @@ from ..errors import ConfigError
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
 SOLVES_DIR = "solves"
 """PRESS/solves/<variant hash>/: the pipeline's reconstruction of each solve variant of a press."""
-CLAIM_STALE_S = 60.0
-"""A task claimed by a process that stopped its heartbeat this long ago (seconds) is taken over."""
 REUSED = "reused"
 """What :func:`execute` returns for a task another run sharing the folder finished."""
 
@@ -151,8 +149,8 @@ def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = 
     out = Path(out)
     while load_result(out, task) is None:
         # another process or machine sharing the folder may be on this task: wait for it (its claim goes
-        # stale at once if it died on this host, after CLAIM_STALE_S elsewhere), never run it twice
-        with claim(result_path(out, task.id), stale_s=CLAIM_STALE_S) as mine:
+        # stale at once if it died on this host, after core.claims.CLAIM_STALE_S elsewhere), never run it twice
+        with claim(result_path(out, task.id)) as mine:
             if mine:
                 return _execute_claimed(task, out, threads, keep_presses)
         time.sleep(1.0)

@@ -61,10 +61,6 @@ SENSOR_KEYS = ("tricolor", "dark", "depth", "normals", "valid")
 SOURCE_NLIPS, SOURCE_REFERENCE = 0, 1
 ENTRY_KEY = "entry"
 """Shard array holding the press's index entry (UTF-8 JSON bytes), so a build resumes without index.json."""
-CLAIM_STALE_S = 60.0
-"""A claim on PRESS/<result_dir> without heartbeat for this long is abandoned (as pipeline.CLAIM_STALE_S)."""
-CLAIM_POLL_S = 0.5
-"""How often a build checks whether another process has finished solving a press it needs."""
 
 log = logging.getLogger(__name__)
 
@@ -393,14 +389,14 @@ def _wait_for_solver(result: Path) -> None:
     run to publish it (or to die: its claim then goes stale and the wait ends; a press still unsolved is
     then reported by :func:`_result_stamp`).
     """
-    from ..core.claims import holder
+    from ..core import claims
 
     said = False
-    while holder(result, stale_s=CLAIM_STALE_S) is not None:
+    while claims.holder(result) is not None:  # the solver's own staleness: one value for both (core.claims)
         if not said:
             log.info("%s: being solved by another process; waiting for its result", result.parent)
             said = True
-        time.sleep(CLAIM_POLL_S)
+        time.sleep(claims.CLAIM_POLL_S)  # read here, so a test's patch of it holds
 
 
 # ---------------------------------------------------------------------- reading

@@ -16,7 +16,6 @@ import numpy as np
 
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import CLIPPED_VALUE, linearise
-from ..core.sensor_record import check_sensor, sensor_of
 from ..core.tolerances import FRAME_BLACK_FRACTION, FRAME_MISMATCH_FRACTION, SATURATED_SHARE_WARN
 from ..errors import CaptureError, ConfigError, ShapeError
 from .change import ChangeDetector
@@ -172,10 +171,6 @@ class Predictor:
         return self.model.shape
 
     # ------------------------------------------------------------------ inputs
-    def check_press(self, press) -> None:
-        """Refuse a capture from another sensor (CaptureError naming the press folder)."""
-        check_sensor(self.model.sensor, sensor_of(press), press.folder)
-
     def linear(self, image: np.ndarray, where="frame") -> np.ndarray:
         """Linear tri-colour image from stored 16-bit values, with the calibration's dark frame and levels.
 

@@ -29,6 +29,7 @@ import numpy as np
 from ..config import check_count, check_range, from_mapping, read_config_file
 from ..core.atomic import check_writable, clean_interrupted, write_if_changed
 from ..core.capture import META_FILE, REFERENCE_FOLDER, is_press_folder
+from ..core.claims import CLAIM_STALE_S
 from ..cpus import usable_cores
 from ..errors import CaptureError, ConfigError, NlipsError
 from ..progress import configure_worker, progress_bar, worker_logging
@@ -127,7 +128,9 @@ class DatasetSpec:
     camera: dict = dataclasses.field(default_factory=dict)
     """Overrides of the scene's [camera] section, e.g. {width = 160, height = 120} for previews."""
     grid: GridSpec | None = None
+    """``[grid]``: every combination of the listed indenters, locations, depths and spins (or None)."""
     random: RandomSpec | None = None
+    """``[random]``: ``count`` presses drawn from ranges with the spec's ``seed`` (or None)."""
 
     def __post_init__(self):
         if (self.grid is None) == (self.random is None):
@@ -212,7 +215,7 @@ def run_dataset(
     workers: int = 0,
     progress=True,
     overwrite: bool = False,
-    stale_s: float = 60.0,
+    stale_s: float = CLAIM_STALE_S,
 ) -> dict:
     """Render every job not yet done into ``out``; returns {"rendered", "skipped", "failed"} lists.
 
@@ -227,7 +230,8 @@ def run_dataset(
     ----------
     workers : processes (0 = one per two cores, at least 1); each gets cores // workers threads.
     overwrite : re-render presses whose folder was made from a different spec (else that is an error)
-    stale_s : seconds without heartbeat after which another process's claim is taken over
+    stale_s : seconds without heartbeat after which another process's claim is taken over (every process
+        rendering into ``out`` must use the same: keep the default, :data:`nlipscalib.core.claims.CLAIM_STALE_S`)
     """
     out = Path(out)
     if workers < 0:

@@ -233,11 +233,17 @@ class SceneConfig:
     name: str = "nlipstac"
     """Scene name, stored with every capture."""
     dome: DomeConfig = DomeConfig()
+    """The gel's shape and thickness (scene file ``[dome]``); part of the sensor's :attr:`design`."""
     camera: CameraConfig = CameraConfig()
+    """The camera inside the dome: image size, field of view, lens, position (``[camera]``); part of the design."""
     leds: LedConfig = LedConfig()
+    """The LED ring or explicit LEDs, in the dome frame (``[leds]``); part of the design."""
     coating: CoatingConfig = CoatingConfig()
+    """The gel's reflective coat: albedo, its variation, a specular lobe (``[coating]``)."""
     noise: NoiseConfig = NoiseConfig()
+    """The image sensor: shot and read noise, bit depth, black level, exposure (``[noise]``)."""
     render: RenderConfig = RenderConfig()
+    """Mitsuba's settings: samples per pixel, interreflection bounces, variant, seed (``[render]``)."""
     led_package: LedPackageConfig = LedPackageConfig()
     """Extended LEDs (off: point LEDs, the NLiPs model)."""
     camera_effects: CameraEffectsConfig = CameraEffectsConfig()

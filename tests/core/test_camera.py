@@ -88,3 +88,16 @@ def test_bad_camera_configs_name_the_problem():
         Camera.from_dict({"width": 64, "height": 48, "fx": 1, "fy": 1, "cx": 0, "cy": 0, "fov": 3})
     with pytest.raises(ShapeError, match=r"\(\.\.\., 3\)"):
         Camera.from_fov(64, 48).project(np.zeros((4, 2)))
+
+
+def test_depth_to_points_rejects_a_depth_that_does_not_match_the_rays():
+    """A (H, 1) or (1, W) depth broadcast silently against (H, W, 3) rays into a wrong point cloud."""
+    from nlipscalib.core.camera import depth_to_points
+
+    rays = Camera.from_fov(8, 6).rays
+    np.testing.assert_allclose(depth_to_points(np.full((6, 8), 10.0), rays)[..., 2], 10.0)
+    for depth in (np.full((6, 1), 10.0), np.full((8, 6), 10.0), np.float64(10.0)):
+        with pytest.raises(ShapeError, match="depth must be"):
+            depth_to_points(depth, rays)
+    with pytest.raises(ShapeError, match="rays"):
+        depth_to_points(np.full((6, 8), 10.0), rays[..., :2])

@@ -325,3 +325,17 @@ def test_one_conversion_of_stored_values_to_light_and_one_white_level_per_bit_de
     assert lin.dtype == np.float32
     np.testing.assert_array_equal(lin, (images.astype(np.float32) - dark) / np.float32(65520.0 - 256.0))
     np.testing.assert_array_equal(response.saturated(images), images >= 65520.0)
+
+
+def test_linearise_rejects_an_image_that_does_not_end_with_the_dark_frames_shape():
+    """A (1, W, 3) dark frame (or a (H, W, 1) image) broadcast silently, and a transposed frame raised numpy's
+    "operands could not be broadcast"; a scalar level against the gel's dark values stays allowed (infer)."""
+    from nlipscalib.core.capture import linearise
+    from nlipscalib.errors import ShapeError
+
+    dark = np.full((4, 5, 3), 256, np.uint16)
+    assert linearise(np.full((2, 4, 5, 3), 512, np.uint16), dark, 256.0, 512.0).shape == (2, 4, 5, 3)
+    assert linearise(np.float32(512.0), dark[0], 256.0, 512.0).shape == (5, 3)
+    for image, dark_ in ((np.zeros((4, 5, 3)), dark[:1]), (np.zeros((4, 5, 1)), dark), (np.zeros((5, 4, 3)), dark)):
+        with pytest.raises(ShapeError, match="must end with the dark frame's shape"):
+            linearise(image, dark_, 256.0, 512.0)

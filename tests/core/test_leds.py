@@ -107,3 +107,14 @@ def test_shading_in_cache_sized_blocks_equals_each_point_alone(monkeypatch):
     np.testing.assert_array_equal(out, blocked)
     with pytest.raises(ShapeError, match="out must be"):
         led_shading(points, normals, leds, out=np.empty((3, 5, 7, 3)))
+
+
+def test_disk_shading_checks_points_and_normals_like_led_shading():
+    """Pinned (the audit read no check in disk_shading): every path goes through led_shading's."""
+    from nlipscalib.core.leds import disk_shading
+
+    led = Led((0.0, 0.0, 0.0), (0.0, 0.0, 1.0))
+    for points, normals in ((np.zeros((4, 3)), np.zeros((5, 3))), (np.zeros((4, 2)), np.zeros((4, 2)))):
+        for leds, radius in (([led], 1.8), ([], 1.8), ([led], 0.0)):
+            with pytest.raises(ShapeError, match=r"\(\.\.\., 3\)"):
+                disk_shading(points, normals, leds, radius)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.cli import main
+from nlipscalib.core import claims as claims_module
 from nlipscalib.core.atomic import TMP_PREFIX
 from nlipscalib.core.claims import HOST, claim
 from nlipscalib.errors import CaptureError
@@ -93,7 +94,7 @@ def test_a_build_waits_for_a_press_another_process_is_solving(solved, tmp_path, 
             time.sleep(1.0)
             finished.rename(root / "b_cube" / "nlips")
 
-    monkeypatch.setattr(dataset_module, "CLAIM_POLL_S", 0.05)
+    monkeypatch.setattr(claims_module, "CLAIM_POLL_S", 0.05)
     thread = threading.Thread(target=other_run)
     thread.start()
     holding.wait()
