@@ -193,7 +193,8 @@ def open_frames(args, stack, loop: bool = False):
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     source = stack.enter_context(open_source(camera, CameraSettings(exposure_ms=args.exposure_ms)))
     if args.port:
-        from ..device.controller import BAUD_RATE, lights_out_on_exit
+        from ..device.lights_out import lights_out_on_exit
+        from ..device.port import BAUD_RATE
         from ..device.virtual_board import start_board
         from .capture import DEFAULT_DESIGN, open_leds
 
