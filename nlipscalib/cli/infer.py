@@ -164,7 +164,7 @@ def _run_stream(args, what: str) -> int:
 
     from ..device.live import ReadAhead, SaveSink, stream
     from ..errors import CaptureError, DeviceError, require
-    from ..report import normals_to_rgb
+    from ..report.live import NormalMapPng
     from ._stream import MismatchWatch, check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
@@ -191,7 +191,7 @@ def _run_stream(args, what: str) -> int:
             stages = _StageTimes()
             sinks = []
             if args.out:
-                sinks.append(SaveSink(args.out, normals_to_rgb, args.every))
+                sinks.append(SaveSink(args.out, args.every, pictures=NormalMapPng()))
                 if args.ply or args.mesh:
                     sinks.append(_PlySink(args.out, args.every, args.mesh))
             elif args.ply or args.mesh:

@@ -126,8 +126,8 @@ def _checked_first_call(spec: str, predict):
 
 
 def run(args) -> int:
-    from ..device.live import display_available
     from ..errors import ConfigError, DeviceError
+    from ..report.live import display_available
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
@@ -156,8 +156,8 @@ def _run_stream(args, window: bool, done: dict) -> None:
     the stream ended, before what it opened is closed (the LED board switched off)."""
     import contextlib
 
-    from ..device.live import SaveSink, WindowSink, stream
-    from ..report import normals_to_rgb
+    from ..device.live import SaveSink, StopLive, stream
+    from ..report.live import NormalMapPng, WindowSink
 
     with contextlib.ExitStack() as stack:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
@@ -169,9 +169,9 @@ def _run_stream(args, window: bool, done: dict) -> None:
             predict, reference_depth = _plugged(args.predictor, source.shape)
         sinks = []
         if args.save:
-            sinks.append(SaveSink(args.save, normals_to_rgb, args.every))
+            sinks.append(SaveSink(args.save, args.every, pictures=NormalMapPng()))
         if window:
-            sinks.append(WindowSink(normals_to_rgb, reference_depth))
+            sinks.append(WindowSink(StopLive, reference_depth))
         elif not args.save:
             why = "--no-window" if args.no_window else "no display"
             print(f"{why}: maps are not shown; use --save DIR to keep them", file=sys.stderr)

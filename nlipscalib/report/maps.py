@@ -73,11 +73,31 @@ def scalar_map_png(
     if cmap not in COLORMAPS:
         raise ShapeError(f"unknown colour map {cmap!r}; choose one of {sorted(COLORMAPS)}")
     vmin, vmax = _range(values, vmin, vmax)
+    bgr = colour_scalars(values, vmin, vmax, cmap)
+    return _write_png(path, np.concatenate([bgr, _colour_bar(values.shape[0], cmap, vmin, vmax, label)], axis=1))
+
+
+def colour_scalars(
+    values: np.ndarray, vmin: float, vmax: float, cmap: str = "viridis", no_value=NO_VALUE_BGR
+) -> np.ndarray:
+    """A scalar map in a colour map: ``vmin`` to ``vmax`` spread over its 256 colours, clipped at both ends.
+
+    Parameters
+    ----------
+    values : (H, W) float, any unit; NaN = no value
+    vmin, vmax : float, the colour range, in ``values``' unit (vmax > vmin)
+    cmap : one of :data:`COLORMAPS`
+    no_value : BGR of the pixels without a value (default :data:`NO_VALUE_BGR`)
+
+    Returns
+    -------
+    (H, W, 3) uint8, BGR (OpenCV's order)
+    """
     finite = np.isfinite(values)
     level = np.clip((np.nan_to_num(values) - vmin) / (vmax - vmin), 0.0, 1.0)
     bgr = _colour(np.round(level * 255).astype(np.uint8), cmap)
-    bgr[~finite] = NO_VALUE_BGR
-    return _write_png(path, np.concatenate([bgr, _colour_bar(values.shape[0], cmap, vmin, vmax, label)], axis=1))
+    bgr[~finite] = no_value
+    return bgr
 
 
 def _range(values: np.ndarray, vmin, vmax) -> tuple[float, float]:
