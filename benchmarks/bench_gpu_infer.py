@@ -224,7 +224,7 @@ def stream_step(args) -> None:
     """Step 3: the streaming command's frames/s with 1, 2, 4 decoding threads, and the whole command."""
     import torch
 
-    from nlipscalib.cli.live import MismatchWatch
+    from nlipscalib.cli._stream import MismatchWatch
     from nlipscalib.device.camera import SequenceSource
     from nlipscalib.device.live import ReadAhead, decoding_workers, stream
     from nlipscalib.learn.infer import Predictor

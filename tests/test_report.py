@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from nlipscalib.report import Panel, contact_sheet, normals_to_rgb
 
@@ -306,3 +307,46 @@ def test_demo_sheet_error_panel_fits_small_errors_and_prints_the_aae():
     panel = _error_panel(err)
     assert panel.vmax == 2.0 and panel.cmap == ERROR_CMAP  # not a fixed 10: half-degree errors are not black
     assert panel.title == f"angular error, AAE {np.nanmean(err):.2f}°"
+
+
+def test_live_depth_colours_black_off_the_gel():
+    from nlipscalib.report.live import depth_to_rgb
+
+    depth = np.array([[np.nan, 10.0], [10.5, 12.0]], np.float32)
+    rgb = depth_to_rgb(depth, reference=np.full((2, 2), 10.0))
+    assert rgb.shape == (2, 2, 3) and rgb[0, 0].sum() == 0 and rgb[1, 1].sum() > 0
+
+
+def test_live_depth_colours_are_the_scalar_maps_colours():
+    """The live window's depth had a colour mapping of its own (cv2 viridis on truncated levels) beside the scalar
+    maps' (rounded levels): one colour mapping now, report.maps.colour_scalars, black off the gel."""
+    from nlipscalib.report.live import depth_to_rgb
+    from nlipscalib.report.maps import colour_scalars
+
+    reference = np.full((2, 3), 10.0)
+    depth = reference + np.array([[np.nan, 0.25, 0.5], [1.0, 2.5, -1.0]])  # levels 31.9 and 63.75: rounded up
+    expected = colour_scalars(depth - reference, 0.0, 2.0, "viridis", no_value=(0, 0, 0))[..., ::-1]
+    np.testing.assert_array_equal(depth_to_rgb(depth, reference, span_mm=2.0), expected)
+    expected = colour_scalars(depth, 9.0, 12.5, "viridis", no_value=(0, 0, 0))[..., ::-1]  # its own range
+    np.testing.assert_array_equal(depth_to_rgb(depth), expected)
+
+
+def test_live_window_shows_normals_beside_depth_and_q_ends_the_stream(monkeypatch):
+    import cv2
+
+    from nlipscalib.device.live import LiveResult, StopLive
+    from nlipscalib.report.live import WindowSink, depth_to_rgb
+
+    shown, keys = [], [-1, ord("q")]
+    monkeypatch.setattr(cv2, "imshow", lambda name, bgr: shown.append(bgr))
+    monkeypatch.setattr(cv2, "waitKey", lambda ms: keys.pop(0))
+    normals = np.zeros((4, 5, 3), np.float32)
+    normals[..., 2] = -1.0  # facing the camera
+    result = LiveResult(normals, np.full((4, 5), 10.5, np.float32))
+    sink = WindowSink(StopLive, reference_depth=np.full((4, 5), 10.0))
+    sink(0, None, result)
+    assert shown[0].shape == (4, 10, 3)
+    assert tuple(shown[0][0, 0]) == (255, 127, 127)  # BGR of the camera-facing blue, as the saved normal maps
+    np.testing.assert_array_equal(shown[0][:, 5:, ::-1], depth_to_rgb(result.depth, np.full((4, 5), 10.0)))
+    with pytest.raises(StopLive):
+        sink(1, None, result)

@@ -265,7 +265,8 @@ def _run_device(args):
     from ..core.capture import SensorResponse, white_level_of
     from ..core.dome import reference_surface
     from ..device.camera import CameraSettings, open_source
-    from ..device.controller import BAUD_RATE, lights_out_on_exit
+    from ..device.lights_out import lights_out_on_exit
+    from ..device.port import BAUD_RATE
     from ..device.session import Operator, Rig, run_session
     from ..device.virtual_board import start_board
 
@@ -331,7 +332,8 @@ def open_leds(port: str, adalight: int | None = None, baudrate: int | None = Non
     """The LED controller on ``port`` at ``baudrate`` (default the firmware's, 115200): the nlips firmware, or a
     stock Adalight board with ``adalight`` LEDs (no acknowledgement: it waits a settle delay after each frame
     instead, and the camera flushes)."""
-    from ..device.controller import BAUD_RATE, LedController
+    from ..device.controller import LedController
+    from ..device.port import BAUD_RATE
 
     baudrate = BAUD_RATE if baudrate is None else baudrate
     if adalight is not None:

@@ -3,7 +3,7 @@
 Inputs are press folders (PRESS/nlipsnet/ in the reconstruction format), tri-colour PNG files or folders
 of them, or a stream: a video file, an image-sequence pattern, a live camera (``--camera``) or the
 emulated sensor (``--emulate``). Streams are opened and run exactly as ``nlips live`` runs them
-(cli/live.py's source flags, device/live.py's loop): the running frame rate goes to stderr once per
+(cli/_stream.py's source flags, device/live.py's loop): the running frame rate goes to stderr once per
 second on a terminal, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
 frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud.
 """
@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import sys
 
-from .live import (
+from ._stream import (
     add_device_arguments,
     add_source_arguments,
     check_output_arguments,
@@ -164,8 +164,8 @@ def _run_stream(args, what: str) -> int:
 
     from ..device.live import ReadAhead, SaveSink, stream
     from ..errors import CaptureError, DeviceError, require
-    from ..report import normals_to_rgb
-    from .live import MismatchWatch, check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
+    from ..report.live import NormalMapPng
+    from ._stream import MismatchWatch, check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better
@@ -191,7 +191,7 @@ def _run_stream(args, what: str) -> int:
             stages = _StageTimes()
             sinks = []
             if args.out:
-                sinks.append(SaveSink(args.out, normals_to_rgb, args.every))
+                sinks.append(SaveSink(args.out, args.every, pictures=NormalMapPng()))
                 if args.ply or args.mesh:
                     sinks.append(_PlySink(args.out, args.every, args.mesh))
             elif args.ply or args.mesh:
@@ -334,7 +334,7 @@ def _run_stills(args) -> int:
     import numpy as np
 
     from ..learn.infer import mismatch_warning
-    from .live import nlipsnet_predictor
+    from ._stream import nlipsnet_predictor
 
     t_start = time.perf_counter()
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)

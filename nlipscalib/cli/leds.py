@@ -89,7 +89,7 @@ def run(args) -> int:
     with _named_as_typed(args.port, url), _connect(args, url) as leds:
         if args.action != "test":
             return _ACTIONS[args.action](leds, args)
-        from ..device.controller import lights_out_on_exit
+        from ..device.lights_out import lights_out_on_exit
 
         with lights_out_on_exit(leds):  # a test stopped halfway (Ctrl-C, SIGTERM) leaves no LED lit
             return _test(leds, args)
@@ -146,7 +146,7 @@ def add_baud_argument(p) -> None:
 
 def check_baud(args) -> int:
     """The rate of ``--baud`` (default the firmware's), or one line naming --baud (ConfigError)."""
-    from ..device.controller import BAUD_RATE, check_baudrate
+    from ..device.port import BAUD_RATE, check_baudrate
 
     return check_baudrate(BAUD_RATE if args.baud is None else args.baud, "--baud")
 
@@ -160,7 +160,7 @@ def _refuse(message: str):
 
 def _board(args):
     """The URL to open for PORT, and the virtual board started for it (None for a real port)."""
-    from ..device.controller import BAUD_RATE
+    from ..device.port import BAUD_RATE
     from ..device.virtual_board import VirtualBoard, start_board
 
     url = args.port
@@ -248,7 +248,7 @@ def _off(leds, args) -> int:
 def _set(leds, args) -> int:
     number, *rgb = args.values
     if number > leds.n_leds:
-        from ..device.controller import LedIndexError
+        from ..device.errors import LedIndexError
 
         raise LedIndexError(f"set: there is no LED {number}: the board has {leds.n_leds} LEDs (1..{leds.n_leds})")
     leds.set_led(number - 1, rgb)  # the protocol counts from 0

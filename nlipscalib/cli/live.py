@@ -13,21 +13,21 @@ that maps a stored frame ((H, W, 3) uint16) to ``nlipscalib.device.live.LiveResu
 from __future__ import annotations
 
 import importlib
-import logging
 import sys
 
-from .leds import add_baud_argument, check_baud
-from .options import fill_defaults, option, typed
+from ._stream import (
+    MismatchWatch,
+    add_device_arguments,
+    add_source_arguments,
+    check_emulated_sensor,
+    check_output_arguments,
+    check_source_arguments,
+    emulate_behind_port,
+    nlipsnet_predictor,
+    open_frames,
+    size_emulator_for,
+)
 
-log = logging.getLogger(__name__)
-
-SOURCE_DEFAULTS = {"tricolor_level": 255, "exposure_ms": 10.0, "frames_per_press": 10}
-"""Real defaults of the source flags whose presence is checked (argparse leaves them None, so one typed at its
-default value still counts as given; cli/options.py)."""
-CAMERA_SOURCE_OPTIONS = ("port", "adalight", "baud", "camera", "tricolor_level", "exposure_ms")
-"""Source flags of a camera stream: the emulated sensor has its own camera and LED board."""
-EMULATED_SOURCE_OPTIONS = ("script", "frames_per_press", "width", "height")
-"""Source flags of the emulated sensor alone."""
 STOPPED = "the stream stopped (a live stream does not resume; maps already saved with --save are kept)"
 """What ``nlips live`` interrupted or terminated says it left (``cli._stopped``), not "run again to resume": a live
 stream cannot continue where it stopped."""
@@ -65,233 +65,6 @@ def register(subparsers) -> None:
     p.set_defaults(func=run, stopped=STOPPED)
 
 
-def add_source_arguments(p, camera_default: str | None) -> None:
-    """The frame-source flags shared by ``nlips live`` and ``nlips infer`` (one way to open a stream).
-
-    The flags whose presence is checked have no argparse default (:func:`check_source_arguments` fills in
-    :data:`SOURCE_DEFAULTS`; ``--camera`` stays None when not given and ``camera_default`` is opened then)."""
-    default = f" (default {camera_default})" if camera_default else ""
-    what = "camera index, device path, folder of frames or video"
-    # parsed as None when not given (open_frames falls back to default_camera): whether a camera was given
-    # decides what --port nlipsemu://ID starts, and --emulate refuses one
-    p.add_argument("--camera", help=what + default)
-    p.set_defaults(default_camera=camera_default)
-    p.add_argument(
-        "--port",
-        help="LED controller port/URL: lit in the tri-colour pattern while streaming (nlipsemu://ID: a virtual "
-        "board, started here when this process has none)",
-    )
-    p.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
-    add_baud_argument(p)
-    p.add_argument("--tricolor-level", type=int, help="LED drive of the tri-colour pattern, 1-255 (default 255)")
-    p.add_argument("--exposure-ms", type=float, help="fixed exposure of a live camera, ms (default 10)")
-    p.add_argument("--emulate", metavar="SCENE", help="stream from the emulated sensor of this scene")
-    p.add_argument("--script", help="emulated press script (TOML/YAML [[press]] tables)")
-    p.add_argument("--frames-per-press", type=int, help="emulated frames per scripted press (default 10)")
-    p.add_argument("--width", type=int, help="emulated image width, pixels")
-    p.add_argument("--height", type=int, help="emulated image height, pixels")
-
-
-def emulate_behind_port(args, scene: str | None = None) -> None:
-    """``--port nlipsemu://ID`` without ``--camera`` and ``--emulate``: stream from the emulated sensor.
-
-    Why: the URL names a virtual board, which exists only inside the process that starts it, and a virtual
-    board lights no real camera; asked for from the command line it means the emulated sensor (``scene``,
-    default the nlipstac design) with its board at that URL. Sets ``args.emulate``, ``args.board_id`` and
-    ``args.emulated_port`` (the URL, for the note the stream prints) and consumes ``--port``. Nothing changes
-    for a board this process already has.
-    """
-    from ..device.virtual_board import board_missing, check_board_url
-    from .capture import DEFAULT_DESIGN
-
-    if args.emulate or args.camera is not None or not board_missing(args.port):
-        return
-    args.board_id = check_board_url(args.port)
-    args.emulate, args.emulated_port, args.port = scene or DEFAULT_DESIGN, args.port, None
-
-
-def check_source_arguments(args) -> None:
-    """One line naming the option when a flag of :func:`add_source_arguments` is out of range, or is not
-    used by the chosen source (the real sensor's with ``--emulate``, the emulator's without it); then the
-    defaults of :data:`SOURCE_DEFAULTS` are filled in.
-
-    A flag counts as given when it was typed, also at its default value (``--tricolor-level 255`` with
-    ``--emulate`` is refused like ``--tricolor-level 100``: the emulated sensor lights its own board).
-    """
-    from ..config import check_count
-    from ..errors import ConfigError
-
-    port = getattr(args, "emulated_port", None)  # set by emulate_behind_port: name what the user typed
-    how = f"--port {port} and no --camera (the emulated sensor of {args.emulate})" if port else "--emulate"
-    for dest in typed(args, CAMERA_SOURCE_OPTIONS):
-        if args.emulate:
-            raise ConfigError(
-                f"{option(dest)} is not used with {how}: the emulated sensor has its own virtual LED board and "
-                f"camera; drop {option(dest)}"
-            )
-    for dest in typed(args, EMULATED_SOURCE_OPTIONS):
-        if not args.emulate:
-            raise ConfigError(
-                f"{option(dest)} is only used with --emulate SCENE (the emulated sensor; or --port nlipsemu://ID "
-                "without --camera)"
-            )
-    for dest in typed(args, ("adalight", "baud", "tricolor_level")):
-        if not args.port:
-            raise ConfigError(f"{option(dest)} describes the LED board: give its --port too (or drop {option(dest)})")
-    if typed(args, ("exposure_ms",)) and not args.emulate and not _live_camera(args):
-        raise ConfigError(
-            "--exposure-ms sets a live camera's exposure (--camera N or /dev/videoN); recorded frames keep theirs: "
-            "drop --exposure-ms"
-        )
-    fill_defaults(args, SOURCE_DEFAULTS)
-    if args.port:  # only then: pyserial is not needed to infer on files
-        args.baud = check_baud(args)
-    check_count("--frames-per-press", args.frames_per_press, minimum=1)
-    if not 1 <= args.tricolor_level <= 255:
-        raise ConfigError(f"--tricolor-level must be 1-255, got {args.tricolor_level}")
-    if not args.exposure_ms > 0:
-        raise ConfigError(f"--exposure-ms must be > 0, got {args.exposure_ms}")
-    for dest in ("adalight", "width", "height"):
-        if getattr(args, dest) is not None:
-            check_count(option(dest), getattr(args, dest), minimum=1)
-
-
-def _live_camera(args) -> bool:
-    """Whether the stream's camera is a device (a number or /dev/...), not a recording (file, folder, pattern)."""
-    camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
-    return camera is not None and (str(camera).isdigit() or str(camera).startswith("/dev/"))
-
-
-def check_output_arguments(args, out: str | None) -> None:
-    """``--every`` >= 1 (0 would keep every frame), and said to do nothing without ``out`` (the output folder
-    flag's value); ``--threads`` >= 0 (0: the default). Shared with infer."""
-    from ..config import check_count
-
-    if typed(args, ("every",)) and not out:
-        log.warning("--every without an output folder: no frames are kept")
-    fill_defaults(args, {"every": 1})
-    check_count("--every", args.every, minimum=1)
-    check_count("--threads", args.threads, minimum=0)
-
-
-def open_frames(args, stack, loop: bool = False):
-    """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
-
-    The emulated sensor when ``--emulate``, else ``--camera`` (camera, folder or video) with the LED board
-    at ``--port`` lit in the tri-colour pattern (``nlipsemu://ID``: a virtual board of that id, started here
-    when this process has none).
-
-    The emulated sensor's stream is its script once (the undeformed dome, then each press, for
-    ``--frames-per-press`` frames each) and then ends, as a recording does; it loops when ``loop`` (a window
-    shows it: until q) or a frame limit (``--frames``, ``--max-frames``) asks for more.
-    """
-    from ..device.camera import CameraSettings, open_source
-
-    if args.emulate:
-        limited = getattr(args, "frames", None) is not None or getattr(args, "max_frames", None) is not None
-        return _emulated_source(args, stack, loop=loop or limited)
-    camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
-    source = stack.enter_context(open_source(camera, CameraSettings(exposure_ms=args.exposure_ms)))
-    if args.port:
-        from ..device.controller import BAUD_RATE, lights_out_on_exit
-        from ..device.virtual_board import start_board
-        from .capture import DEFAULT_DESIGN, open_leds
-
-        n_leds = args.adalight or _design_leds(DEFAULT_DESIGN)
-        board = start_board(args.port, n_leds, adalight=args.adalight is not None, baudrate=BAUD_RATE)
-        if board is not None:
-            stack.enter_context(board)  # held while the stream runs: its URL reaches it while it lives
-        controller = stack.enter_context(open_leds(args.port, args.adalight, args.baud))
-        # dark again when the stream ends (its end, q, Ctrl-C, SIGTERM, an error): nothing drives them afterwards
-        _light_tricolor(stack.enter_context(lights_out_on_exit(controller)), args.tricolor_level)
-    return source, None
-
-
-def size_emulator_for(args, shape: tuple[int, int]) -> None:
-    """The emulated sensor (``--emulate``) renders at a model's image size ``shape`` (H, W) unless ``--width`` /
-    ``--height`` say otherwise; a size that differs is refused now, not after rendering the script (~20 s)."""
-    from ..errors import ConfigError
-
-    if not args.emulate:
-        return
-    h, w = shape
-    if args.width is None and args.height is None:
-        args.width, args.height = w, h
-    elif (args.width or w, args.height or h) != (w, h):
-        given = " ".join(f"--{k} {v}" for k, v in (("width", args.width), ("height", args.height)) if v is not None)
-        raise ConfigError(
-            f"{given}: the model {args.model} was calibrated for {w}x{h} images; give --width {w} --height {h}, "
-            "or leave both out"
-        )
-
-
-def check_emulated_sensor(args, sensor: dict) -> None:
-    """Refuse ``--emulate SCENE`` when its sensor (camera at the size streamed, LEDs) is not the one the model was
-    calibrated for (``sensor``, the model's record), as ``nlips infer`` refuses presses of another sensor (the
-    same check: :func:`nlipscalib.core.sensor_record.sensor_mismatch`). Called after :func:`size_emulator_for`,
-    before anything is rendered.
-
-    Why: the emulated scene's geometry is known, yet only the brightness heuristic (:class:`MismatchWatch`) spoke,
-    and a scene of similar brightness streamed another sensor's frames through the model without a word.
-    """
-    from ..core.sensor_record import describe_sensor, sensor_mismatch
-    from ..errors import CaptureError
-    from ..sim.scene import load_scene
-
-    if not args.emulate:
-        return
-    scene = load_scene(args.emulate)
-    scene = scene.replace(camera={k: v for k, v in {"width": args.width, "height": args.height}.items() if v})
-    why = sensor_mismatch(sensor, describe_sensor(scene.camera_model(), scene.led_models(), scene.noise.response()))
-    if why:
-        raise CaptureError(
-            f"--emulate {args.emulate}: the emulated sensor of {args.emulate} is another sensor than the model "
-            f"{args.model} was calibrated for ({why}); stream the scene the model was calibrated on"
-        )
-
-
-def _design_leds(name: str) -> int:
-    from ..sim.scene import load_scene
-
-    return len(load_scene(name).led_models())
-
-
-def add_device_arguments(p) -> None:
-    """``--device`` and ``--full-frame``, shared with ``nlips infer``."""
-    p.add_argument(
-        "--device",
-        default="cpu",
-        help="where frames are inferred: cpu (default) or cuda / cuda:N: every step on that GPU with PyTorch "
-        "(the same change rule and results as on the CPU; ~240-360 frames/s at 640x480 on an H200)",
-    )
-    p.add_argument(
-        "--full-frame",
-        action="store_true",
-        help="the network's normals on every gel pixel and depth over the whole gel, not only where the frame "
-        "changed (meant for a GPU: on a CPU about 10x slower than the default)",
-    )
-
-
-def nlipsnet_predictor(args, depth: bool = True):
-    """The NLiPsNet of ``args.model`` (``--backend``, ``--threads``, ``--device``, ``--full-frame``) for a stream;
-    its ``predict_stored`` maps a stored frame ((H, W, 3) uint16) to a result with ``normals`` and ``depth`` (what
-    the live sinks show)."""
-    from ..errors import ConfigError
-
-    try:
-        from ..learn.infer import Predictor
-    except ModuleNotFoundError:
-        raise ConfigError("--model needs NLiPsNet (nlipscalib.learn.infer), which this installation lacks") from None
-    return Predictor(
-        args.model,
-        backend=args.backend,
-        threads=args.threads,
-        depth=depth,
-        device=args.device,
-        full_frame=args.full_frame,
-    )
-
-
 def _nlipsnet(args):
     predictor = nlipsnet_predictor(args)
     return MismatchWatch(predictor, source_name(args)), predictor.ref_depth.astype("float32")
@@ -303,49 +76,6 @@ def source_name(args) -> str:
         return "emulated sensor"
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     return f"camera {camera}" if str(camera).isdigit() or str(camera).startswith("/dev/") else str(camera)
-
-
-class MismatchWatch:
-    """An NLiPsNet predictor of stored frames that warns when frames differ from the calibration's reference
-    over the whole gel (``learn.infer.mismatch_warning``: BGR stored as RGB, another exposure or sensor).
-
-    Why: such a frame leaves the change rule nothing to find, so the maps silently show the undeformed dome.
-    The warning is logged once per stream (a stream of such frames would repeat it every frame);
-    :meth:`report` logs at the end how many frames it concerned, as ``nlips infer`` does.
-
-    Parameters
-    ----------
-    predictor : learn.infer.Predictor
-    name : str -- the source, for the warning (``"camera 0"``, a video's path, ``"emulated sensor"``)
-    """
-
-    def __init__(self, predictor, name: str):
-        self.predictor, self.name = predictor, name
-        self.frames = 0
-        self.mismatched = 0
-
-    def __call__(self, frame):
-        """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
-        from ..core.tolerances import FRAME_MISMATCH_FRACTION
-        from ..learn.infer import mismatch_warning
-
-        result = self.predictor.predict_stored(frame, self.name)
-        index, self.frames = self.frames, self.frames + 1
-        if not self.mismatched and (why := mismatch_warning(result, f"{self.name} frame {index}")):
-            log.warning("%s", why)
-        if result.mismatch > FRAME_MISMATCH_FRACTION:
-            self.mismatched += 1
-        return result
-
-    def report(self) -> None:
-        """The count of frames warned about, when there were any (after the stream)."""
-        if self.mismatched:
-            log.warning(
-                "%d of %d frames differed from the calibration's reference over most of the gel (see the warning "
-                "above): their results are unreliable",
-                self.mismatched,
-                self.frames,
-            )
 
 
 def _plugged(spec: str, shape):
@@ -395,50 +125,9 @@ def _checked_first_call(spec: str, predict):
     return first
 
 
-def _emulated_source(args, stack, loop: bool):
-    from ..device.live import StopLive
-    from ..emulator import EmulatedCamera, TwinRenders, default_script, load_script, tricolor_level
-    from ..sim.scene import load_scene
-
-    scene = load_scene(args.emulate)
-    scene = scene.replace(camera={k: v for k, v in {"width": args.width, "height": args.height}.items() if v})
-    script = load_script(args.script) if args.script else default_script(3)
-    from ..device.controller import LedController
-    from ..device.virtual_board import VirtualBoard
-
-    board_id = getattr(args, "board_id", None)
-    if board_id is not None:
-        from ..device.virtual_board import emulated_sensor_note
-
-        print(emulated_sensor_note(args.emulated_port, args.emulate), file=sys.stderr)
-    board = stack.enter_context(VirtualBoard(len(scene.led_models()), board_id=board_id))
-    controller = stack.enter_context(LedController.open(board.url))
-    renders = TwinRenders(scene)
-    camera = EmulatedCamera(renders, lambda: board.latched, flush_frames=0)
-    _light_tricolor(controller, tricolor_level(renders))
-    surfaces = [None] + [s.press for s in script]
-    for surface in surfaces:  # render now, so the frame rate measures the stream, not the twin
-        renders.images(surface)
-
-    def before_frame(i):
-        if not loop and i >= len(surfaces) * args.frames_per_press:
-            raise StopLive  # the script was streamed once: the input ended
-        camera.show(surfaces[(i // args.frames_per_press) % len(surfaces)])
-
-    return camera, before_frame
-
-
-def _light_tricolor(controller, level: int) -> None:
-    import numpy as np
-
-    from ..core.leds import TRICOLOR_COLORS, tricolor_groups
-
-    controller.set_all((TRICOLOR_COLORS[tricolor_groups(controller.n_leds)] * level).astype(np.uint8))
-
-
 def run(args) -> int:
-    from ..device.live import display_available
     from ..errors import ConfigError, DeviceError
+    from ..report.live import display_available
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
@@ -450,7 +139,7 @@ def run(args) -> int:
     window = not args.no_window and display_available()
     done = {}
     try:
-        _stream(args, window, done)
+        _run_stream(args, window, done)
     except DeviceError:
         if "stats" not in done:
             raise
@@ -462,13 +151,13 @@ def run(args) -> int:
     return 0
 
 
-def _stream(args, window: bool, done: dict) -> None:
+def _run_stream(args, window: bool, done: dict) -> None:
     """Open the source, the predictor and the sinks, and stream; ``done`` gets ``stats`` and ``predict`` once
     the stream ended, before what it opened is closed (the LED board switched off)."""
     import contextlib
 
-    from ..device.live import SaveSink, WindowSink, stream
-    from ..report import normals_to_rgb
+    from ..device.live import SaveSink, StopLive, stream
+    from ..report.live import NormalMapPng, WindowSink
 
     with contextlib.ExitStack() as stack:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
@@ -480,9 +169,9 @@ def _stream(args, window: bool, done: dict) -> None:
             predict, reference_depth = _plugged(args.predictor, source.shape)
         sinks = []
         if args.save:
-            sinks.append(SaveSink(args.save, normals_to_rgb, args.every))
+            sinks.append(SaveSink(args.save, args.every, pictures=NormalMapPng()))
         if window:
-            sinks.append(WindowSink(normals_to_rgb, reference_depth))
+            sinks.append(WindowSink(StopLive, reference_depth))
         elif not args.save:
             why = "--no-window" if args.no_window else "no display"
             print(f"{why}: maps are not shown; use --save DIR to keep them", file=sys.stderr)

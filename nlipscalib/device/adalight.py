@@ -18,15 +18,9 @@ import time
 import numpy as np
 
 from ..errors import DeviceError
-from .controller import (
-    BAUD_RATE,
-    DeviceDisconnectedError,
-    _check_colours,
-    _check_index,
-    _serial,
-    check_baudrate,
-    open_port,
-)
+from .controller import _check_colours, _check_index
+from .errors import DeviceDisconnectedError
+from .port import BAUD_RATE, _serial, check_baudrate, open_port
 
 log = logging.getLogger(__name__)
 

@@ -10,198 +10,61 @@ Usage::
     with LedController.open("/dev/ttyACM0") as leds:      # or loop://, socket://host:port, nlipsemu://1
         leds.set_led(3, (255, 255, 255))
         leds.set_all(np.zeros((leds.n_leds, 3), np.uint8))
+
+The port is opened by :mod:`.port`, the errors are in :mod:`.errors`, switching the LEDs off on the way out is
+:mod:`.lights_out`; their public names are importable from here too.
 """
 
 from __future__ import annotations
 
-import contextlib
-import errno
 import logging
-import signal
 import threading
 import time
 
 import numpy as np
 
-from ..errors import ConfigError, DeviceError, ShapeError, require
+from ..errors import DeviceError, ShapeError
 from . import protocol as p
+from .errors import (
+    BoardError,
+    BoardResetError,
+    DeviceDisconnectedError,
+    DeviceTimeoutError,
+    LedIndexError,
+    PortBusyError,
+    PortNotFoundError,
+    PortPermissionError,
+    ProtocolVersionError,
+    WrongDeviceError,
+)
+from .lights_out import LIGHTS_OUT_TIMEOUT_S, lights_out_on_exit, off_quietly
+from .port import BAUD_RATE, _serial, check_baudrate, open_port
+
+__all__ = [
+    "BAUD_RATE",
+    "LIGHTS_OUT_TIMEOUT_S",
+    "BoardError",
+    "BoardResetError",
+    "DeviceDisconnectedError",
+    "DeviceTimeoutError",
+    "LedController",
+    "LedIndexError",
+    "PortBusyError",
+    "PortNotFoundError",
+    "PortPermissionError",
+    "ProtocolVersionError",
+    "WrongDeviceError",
+    "check_baudrate",
+    "lights_out_on_exit",
+    "off_quietly",
+    "open_port",
+]
 
 log = logging.getLogger(__name__)
 
 SUPPORTED_FIRMWARE_MAJOR = 1
 """Firmware major version this driver works with (the firmware in firmware/ reports 1.x.y)."""
-BAUD_RATE = 115200
-"""Line rate of the nlips LED firmware (firmware/src/uart.h) and of Adalight-FastLED, baud; the default of
-every command that opens the LED port (``--baud``)."""
-READ_SLICE_S = 0.02
-"""Longest single blocking read, so deadlines are checked often."""
 MAX_RX_BUFFER = 8192
-
-
-class PortNotFoundError(DeviceError):
-    """The serial port (or URL) does not exist."""
-
-
-class PortPermissionError(DeviceError):
-    """The serial port exists but this user may not open it."""
-
-
-class PortBusyError(DeviceError):
-    """Another program holds the serial port."""
-
-
-class DeviceTimeoutError(DeviceError):
-    """The board did not answer (after all retries)."""
-
-
-class WrongDeviceError(DeviceError):
-    """Something answers on the port, but it is not the nlips LED firmware."""
-
-
-class ProtocolVersionError(DeviceError):
-    """The board runs a firmware or protocol version this driver does not speak."""
-
-
-class LedIndexError(DeviceError):
-    """An LED index outside 0..n_leds-1."""
-
-
-class BoardError(DeviceError):
-    """The board answered a command with an error code."""
-
-    def __init__(self, message: str, code: int):
-        super().__init__(message)
-        self.code = code
-
-
-class BoardResetError(DeviceError):
-    """The board rebooted during the session (its LEDs went dark; frames taken meanwhile may be wrong)."""
-
-
-class DeviceDisconnectedError(DeviceError):
-    """The port vanished (cable pulled) and did not come back in time."""
-
-
-def _serial():
-    serial = require("serial", "pyserial", "The LED controller")
-    if "nlipscalib.device" not in serial.protocol_handler_packages:
-        serial.protocol_handler_packages.append("nlipscalib.device")  # nlipsemu:// (virtual board)
-    return serial
-
-
-def check_baudrate(baudrate, where: str = "baudrate") -> int:
-    """``baudrate`` as an int when it is one of pyserial's standard rates (``serial.SerialBase.BAUDRATES``).
-
-    Why: pyserial refuses a non-positive rate with a ValueError that reads like a bad port name, and a
-    non-standard one fails differently per platform (some only when the port opens); a rate outside the
-    standard set is a typo far more often than a board's real setting.
-
-    Parameters
-    ----------
-    baudrate : int or str
-        Line rate, baud (the command line passes the text typed after ``--baud``).
-    where : str
-        What to name in the message (``--baud``, ``/dev/ttyACM0: baudrate``).
-
-    Raises
-    ------
-    ConfigError
-        One line naming ``where``, the standard rates and the firmware's.
-    """
-    rates = _serial().SerialBase.BAUDRATES
-    try:
-        value = int(str(baudrate).strip())  # str(): 9600.5 is refused, not truncated
-    except ValueError:
-        value = None
-    if isinstance(baudrate, bool) or value not in rates:
-        raise ConfigError(
-            f"{where}: must be a standard serial rate, one of {', '.join(map(str, rates))} "
-            f"(the nlips LED firmware runs at {BAUD_RATE}), got {baudrate!r}"
-        )
-    return value
-
-
-def open_port(url: str, *, baudrate: int = BAUD_RATE, write_timeout: float = 1.0):
-    """Open ``url`` with ``serial.serial_for_url`` at ``baudrate``, turning failures into one clear error.
-
-    Raises
-    ------
-    PortNotFoundError, PortPermissionError, PortBusyError, DeviceError
-    ConfigError
-        ``baudrate`` is not a standard rate (:func:`check_baudrate`).
-    """
-    serial = _serial()
-    baudrate = check_baudrate(baudrate, f"{url}: baudrate")
-    try:
-        port = serial.serial_for_url(
-            url, baudrate=baudrate, timeout=READ_SLICE_S, write_timeout=write_timeout, exclusive=True
-        )
-        _keep_dtr_after_close(port)
-        return port
-    except ValueError as exc:  # unknown URL scheme or bad settings
-        raise PortNotFoundError(
-            f"{url}: {exc} (use a device such as /dev/ttyACM0 or COM3, or loop://, socket://HOST:PORT, nlipsemu://ID)"
-        ) from None
-    except serial.SerialException as exc:
-        raise _open_error(url, exc) from None
-
-
-def _keep_dtr_after_close(port) -> None:
-    """Clear HUPCL on a POSIX serial port, so DTR stays up when the port closes.
-
-    Why: an Arduino Uno resets on DTR's rising edge, and a USB serial port drops DTR on close (HUPCL is the
-    kernel's default), so every ``nlips leds`` command reset the board and found its LEDs dark: ``set`` then
-    ``state`` reported nothing lit. With DTR kept up the next open finds it up and the board keeps its LEDs and
-    session; the first open after plugging in still resets it (HELLO is resent until the bootloader is done).
-    Other ports (``loop://``, ``socket://``, ``nlipsemu://``, Windows) have no such flag and are left alone."""
-    fd = getattr(port, "fd", None)
-    try:
-        import termios
-    except ImportError:  # Windows
-        return
-    if not isinstance(fd, int):
-        return
-    try:
-        attrs = termios.tcgetattr(fd)
-        if attrs[2] & termios.HUPCL:
-            attrs[2] &= ~termios.HUPCL
-            termios.tcsetattr(fd, termios.TCSANOW, attrs)
-    except (OSError, termios.error):  # not a terminal device: nothing to keep
-        return
-
-
-def _open_error(url: str, exc: Exception) -> DeviceError:
-    code = getattr(exc, "errno", None)
-    if code in (errno.EACCES, errno.EPERM):
-        return PortPermissionError(
-            f"{url}: permission denied. Add yourself to the group that owns the port "
-            "(Debian/Ubuntu: sudo usermod -aG dialout $USER; Arch: uucp), then log out and back in"
-        )
-    if code in (errno.EBUSY, errno.EAGAIN) or "lock" in str(exc).lower():
-        return PortBusyError(f"{url}: port busy: another program has it open (an Arduino serial monitor?)")
-    if "no such virtual board" in str(exc):
-        return PortNotFoundError(
-            f"{url}: no virtual board with this id in this process (nlipsemu://ID reaches a VirtualBoard of the "
-            "same Python process: create it first, e.g. virtual_board.start_board(url, n_leds); the nlips commands "
-            "start theirs)"
-        )
-    if code in (errno.ENOTTY, errno.EISDIR) or "Inappropriate ioctl" in str(exc) or "Is a directory" in str(exc):
-        return PortNotFoundError(
-            f"{url}: not a serial port (boards appear as /dev/ttyACM0, /dev/ttyUSB0, COM3). {_ports_present()}"
-        )
-    if code == errno.ENOENT or "no such" in str(exc).lower():
-        return PortNotFoundError(f"{url}: no such serial port (is the board plugged in?). {_ports_present()}")
-    return DeviceError(f"{url}: could not open the port: {exc}")
-
-
-def _ports_present() -> str:
-    try:
-        from serial.tools import list_ports
-
-        names = sorted(port.device for port in list_ports.comports())
-    except Exception:  # noqa: BLE001 - listing is only a hint
-        return ""
-    return f"Serial ports present: {', '.join(names)}" if names else "No serial ports are present."
 
 
 class LedController:
@@ -600,97 +463,6 @@ class LedController:
                 f"{self.url}: board reset detected ({reason}). The LEDs were dark meanwhile and have been restored "
                 "to the last acknowledged colours; retake any frame captured since the previous command"
             )
-
-
-LIGHTS_OUT_TIMEOUT_S = 0.3
-"""How long switching the LEDs off on SIGTERM may wait for the board's acknowledgement, s (one try)."""
-
-
-@contextlib.contextmanager
-def lights_out_on_exit(controller):
-    """Switch the LEDs off when the block ends: normally, by an exception (Ctrl-C too), or by SIGTERM.
-
-    Why: the LEDs keep whatever they show when nothing drives them any more; a capture or a live stream
-    stopped halfway would leave the sensor lit (a single WS2812 at full white heats the gel for hours).
-    The ``nlips`` command ends a SIGTERM'd process with ``os._exit`` (see cli/__init__.py), which runs no
-    ``finally`` block, so a SIGTERM handler is chained in front of the current one for the block: it
-    switches the LEDs off (one try, a short timeout: a board that does not answer must not hold the exit
-    up), then hands the signal on. Off the main thread no handler can be installed; the other exits still
-    switch the LEDs off.
-
-    Parameters
-    ----------
-    controller : LedController, AdalightController or anything with ``off()``
-    """
-    previous = _chain_sigterm(lambda: _off_quickly(controller))
-    try:
-        yield controller
-    except BaseException:
-        _restore_sigterm(previous)
-        off_quietly(controller)  # the error in flight is the one to report (an unplugged board, Ctrl-C)
-        raise
-    _restore_sigterm(previous)
-    controller.off()
-
-
-def _restore_sigterm(previous) -> None:
-    if previous is not None:
-        signal.signal(signal.SIGTERM, previous)
-
-
-def _chain_sigterm(first):
-    """Install a SIGTERM handler that calls ``first()`` and then the handler installed before; returns that."""
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    previous = signal.getsignal(signal.SIGTERM)
-    if previous == signal.SIG_IGN:  # the process is not to be terminated: nothing to do on the way out
-        return None
-    if previous is None:  # installed from outside Python: restoring it is impossible, the default is close
-        previous = signal.SIG_DFL
-
-    def handler(signum, frame):
-        with contextlib.suppress(Exception):  # best effort on the way out
-            first()
-        signal.signal(signal.SIGTERM, previous)
-        if callable(previous):
-            previous(signum, frame)
-        else:  # the default action: terminate, as if this handler had not been there
-            signal.raise_signal(signal.SIGTERM)
-
-    signal.signal(signal.SIGTERM, handler)
-    return previous
-
-
-def _off_quickly(controller) -> None:
-    """``controller.off()`` with one short try (LedController), for a process about to exit."""
-    if hasattr(controller, "retries"):
-        controller.timeout, controller.retries, controller.reconnect_s = LIGHTS_OUT_TIMEOUT_S, 0, 0.0
-    controller.off()
-
-
-def off_quietly(controller) -> None:
-    """Switch the LEDs off while another error is on its way to the user: best effort, never an error.
-
-    One try with a short timeout (:data:`LIGHTS_OUT_TIMEOUT_S`, no reconnect wait), its own failure
-    suppressed; the controller's timeout, retries and reconnect wait are put back afterwards, so a session
-    that goes on (a press retaken after a board reset) keeps its patience.
-
-    Why: a clean-up ``off()`` in a ``finally`` replaced the error in flight by its own. After an unplugged
-    board did not come back, the capture reported "the LED controller is closed"; after a board went silent,
-    "no valid answer to OFF after 4 tries" (the failing command was ALL), having waited the tries a second
-    time. The user needs the cause, once.
-
-    Parameters
-    ----------
-    controller : LedController, AdalightController or anything with ``off()``
-    """
-    saved = {k: getattr(controller, k) for k in ("timeout", "retries", "reconnect_s") if hasattr(controller, k)}
-    try:
-        with contextlib.suppress(Exception):
-            _off_quickly(controller)
-    finally:
-        for key, value in saved.items():
-            setattr(controller, key, value)
 
 
 QUOTED_CHARS = 60

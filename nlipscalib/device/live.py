@@ -2,23 +2,23 @@
 
 The LEDs stay lit in the tri-colour pattern, so frames stream without flushing. The predictor is
 pluggable: any callable taking a stored frame ((H, W, 3) uint16) and returning a :class:`LiveResult`
-(``nlips live`` plugs in a trained NLiPsNet). Outputs are sinks: an OpenCV window when a display is
-present (:class:`WindowSink`), or normal and depth maps written to a folder (:class:`SaveSink`).
+(``nlips live`` plugs in a trained NLiPsNet). Outputs are sinks, callables given each frame and its result:
+:class:`SaveSink` keeps the arrays in a folder. This module draws nothing: the pictures (an OpenCV window, PNG
+normal maps) are report/live.py's, and the CLI passes them in.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
 
-from ..core.atomic import write_bytes
+from ..core.atomic import write_by_name
 from ..core.imageio import save_npz
-from ..errors import ConfigError, require
+from ..errors import ConfigError
 from .camera import EndOfFrames
 
 
@@ -180,82 +180,36 @@ def stream(
     return stats
 
 
-def depth_to_rgb(depth: np.ndarray, reference: np.ndarray | None = None, span_mm: float = 2.0) -> np.ndarray:
-    """Depth map for viewing: indentation below the reference (or depth itself) on a colour scale.
+class SaveSink:
+    """Every ``every``-th frame's arrays (npz: normals, depth), after its pictures when ``pictures`` is given.
 
     Parameters
     ----------
-    depth : (H, W) float, mm, NaN off the gel
-    reference : (H, W) float, mm, the undeformed depth (None: the map's own range)
-    span_mm : indentation shown at full colour
-
-    Returns
-    -------
-    (H, W, 3) uint8, RGB; black off the gel
+    folder : where ``frame_NNNNNN.npz`` go (made when missing)
+    every : keep frames 0, every, 2 * every, ...
+    pictures : ``pictures(stem, result)`` writes the frame's pictures beside its arrays (``stem``: the folder and
+        ``frame_NNNNNN``), e.g. ``report.live.NormalMapPng``; the CLI passes it in: device/ draws nothing
     """
-    cv2 = require("cv2", "opencv-python-headless", "Showing depth maps")
-    valid = np.isfinite(depth)
-    if reference is not None:
-        value = np.clip((depth - reference) / span_mm, 0, 1)
-    else:
-        lo, hi = (np.nanmin(depth), np.nanmax(depth)) if valid.any() else (0.0, 1.0)
-        value = (depth - lo) / max(hi - lo, 1e-9)
-    grey = np.where(valid, np.nan_to_num(value) * 255, 0).astype(np.uint8)
-    rgb = cv2.applyColorMap(grey, cv2.COLORMAP_VIRIDIS)[..., ::-1].copy()
-    rgb[~valid] = 0
-    return rgb
 
-
-def display_available() -> bool:
-    """True when an OpenCV window can be opened (a display, and an OpenCV built with a GUI)."""
-    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or os.name == "nt"):
-        return False
-    cv2 = require("cv2", "opencv-python-headless", "Showing live maps")
-    try:
-        cv2.namedWindow("nlips live", cv2.WINDOW_NORMAL)
-    except cv2.error:
-        return False  # opencv-python-headless: no GUI
-    return True
-
-
-class WindowSink:
-    """Normals and depth side by side in an OpenCV window; q or Esc ends the stream."""
-
-    def __init__(self, colour_normals, reference_depth=None):
-        self.cv2 = require("cv2", "opencv-python-headless", "Showing live maps")
-        self.colour_normals = colour_normals
-        self.reference_depth = reference_depth
-
-    def __call__(self, index: int, frame: np.ndarray, result: LiveResult) -> None:
-        normals = (self.colour_normals(result.normals) * 255).astype(np.uint8)
-        view = np.concatenate([normals, depth_to_rgb(result.depth, self.reference_depth)], axis=1)
-        self.cv2.imshow("nlips live", view[..., ::-1])
-        if self.cv2.waitKey(1) & 0xFF in (ord("q"), 27):
-            raise StopLive
-
-
-class SaveSink:
-    """Every ``every``-th frame's normal map (PNG, normal-map colours) and arrays (npz: normals, depth)."""
-
-    def __init__(self, folder: str | Path, colour_normals, every: int = 1):
+    def __init__(
+        self,
+        folder: str | Path,
+        every: int = 1,
+        pictures: Callable[[Path, LiveResult], None] | None = None,
+    ):
         if isinstance(every, bool) or not isinstance(every, int) or every < 1:
             raise ConfigError(f"every must be an integer >= 1 (1: every frame), got {every!r}")
-        self.cv2 = require("cv2", "opencv-python-headless", "Saving live maps")
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
-        self.colour_normals = colour_normals
         self.every = every
+        self.pictures = pictures
 
     def __call__(self, index: int, frame: np.ndarray, result: LiveResult) -> None:
         if index % self.every:
             return
         stem = self.folder / f"frame_{index:06d}"
-        rgb = (self.colour_normals(result.normals) * 255).astype(np.uint8)
-        ok, png = self.cv2.imencode(".png", np.ascontiguousarray(rgb[..., ::-1]))
-        if ok:
-            write_bytes(stem.with_name(stem.name + "_normals.png"), png.tobytes())
-        from ..core.atomic import write_by_name
-
+        if self.pictures is not None:
+            self.pictures(stem, result)
         arrays = {"normals": result.normals.astype(np.float32), "depth": result.depth.astype(np.float32)}
         # a temporary of this process's own (streams into one folder never share one), removed on SIGTERM
         write_by_name(stem.with_suffix(".npz"), lambda tmp: save_npz(tmp, arrays))

@@ -174,14 +174,14 @@ def capture_frames(rig: Rig, cfg: SessionConfig) -> dict[str, np.ndarray]:
     """Light each state of :func:`frame_sequence` and capture it; LEDs off afterwards.
 
     When the sequence fails (the board unplugged or silent, a camera error, Ctrl-C), the LEDs are switched
-    off best effort (:func:`nlipscalib.device.controller.off_quietly`: one short try, its failure
+    off best effort (:func:`nlipscalib.device.lights_out.off_quietly`: one short try, its failure
     suppressed), so the error reported is the one that stopped the sequence, not the clean-up's.
 
     Returns
     -------
     dict name -> (H, W, 3) uint16 stored image
     """
-    from .controller import off_quietly
+    from .lights_out import off_quietly
 
     frames = {}
     try:
@@ -231,7 +231,7 @@ def capture_press(
     dict with ``folder``, ``attempts``, ``moved`` (fraction of moved pixels per attempt; None for an attempt
     cut short by a reset of the LED board), ``seconds``
     """
-    from .controller import BoardResetError
+    from .errors import BoardResetError
     from .exposure import check_exposure
 
     moved = []

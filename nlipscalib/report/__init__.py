@@ -2,8 +2,9 @@
 
 Computing packages (sim/, solver/, learn/, device/) return arrays; only this package draws them.
 One module per subject: ``figures`` holds the matplotlib building blocks (normal-map colouring,
-panels, contact sheets), ``maps`` the cheap OpenCV maps (normal, scalar with colour bar), and
-``reconstruction`` the figures of one reconstruction.
+panels, contact sheets), ``maps`` the cheap OpenCV maps (normal, scalar with colour bar),
+``reconstruction`` the figures of one reconstruction, and ``live`` the pictures of a live stream (its window, its
+saved normal maps; imported from there).
 """
 
 from .figures import Panel, contact_sheet, display_image, normals_to_rgb

@@ -77,14 +77,34 @@ def scalar_map_png(
     if cmap not in COLORMAPS:
         raise ShapeError(f"unknown colour map {cmap!r}; choose one of {sorted(COLORMAPS)}")
     vmin, vmax = colour_range(values, vmin, vmax)
-    finite = np.isfinite(values)
-    over = bool(np.any(values[finite] > vmax))
-    level = np.clip((np.nan_to_num(values) - vmin) / (vmax - vmin), 0.0, 1.0)
-    bgr = _colour(np.round(level * 255).astype(np.uint8), cmap)
-    bgr[~finite] = NO_VALUE_BGR
+    bgr = colour_scalars(values, vmin, vmax, cmap)
+    over = bool(np.any(values[np.isfinite(values)] > vmax))
     height = max(values.shape[0], bar_min_height(label))
     bgr = np.concatenate([bgr, np.full((height - values.shape[0],) + bgr.shape[1:], 255, np.uint8)], axis=0)
     return _write_png(path, np.concatenate([bgr, _colour_bar(height, cmap, vmin, vmax, label, over)], axis=1))
+
+
+def colour_scalars(
+    values: np.ndarray, vmin: float, vmax: float, cmap: str = "viridis", no_value=NO_VALUE_BGR
+) -> np.ndarray:
+    """A scalar map in a colour map: ``vmin`` to ``vmax`` spread over its 256 colours, clipped at both ends.
+
+    Parameters
+    ----------
+    values : (H, W) float, any unit; NaN = no value
+    vmin, vmax : float, the colour range, in ``values``' unit (vmax > vmin)
+    cmap : one of :data:`COLORMAPS`
+    no_value : BGR of the pixels without a value (default :data:`NO_VALUE_BGR`)
+
+    Returns
+    -------
+    (H, W, 3) uint8, BGR (OpenCV's order)
+    """
+    finite = np.isfinite(values)
+    level = np.clip((np.nan_to_num(values) - vmin) / (vmax - vmin), 0.0, 1.0)
+    bgr = _colour(np.round(level * 255).astype(np.uint8), cmap)
+    bgr[~finite] = no_value
+    return bgr
 
 
 def colour_range(values: np.ndarray, vmin: float | None = None, vmax: float | None = None) -> tuple[float, float]:
@@ -103,9 +123,6 @@ def colour_range(values: np.ndarray, vmin: float | None = None, vmax: float | No
     if not vmax > vmin:
         vmax = vmin + (abs(vmin) * 1e-3 or 1.0)  # a constant map still gets a readable bar
     return float(vmin), float(vmax)
-
-
-_range = colour_range  # the name before colour_range was public
 
 
 def _colour(levels: np.ndarray, cmap: str) -> np.ndarray:

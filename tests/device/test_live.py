@@ -7,7 +7,7 @@ cv2 = pytest.importorskip("cv2")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.device.camera import FolderSource, SequenceSource  # noqa: E402
-from nlipscalib.device.live import ReadAhead, StopLive, depth_to_rgb, stream  # noqa: E402
+from nlipscalib.device.live import ReadAhead, StopLive, stream  # noqa: E402
 from nlipscalib.errors import CaptureError  # noqa: E402
 
 from .fakes import flat_predictor  # noqa: E402
@@ -102,12 +102,6 @@ def test_read_ahead_decodes_image_files_on_several_threads_in_order(tmp_path):
                 seen.append(int(ahead.read()[0, 0, 0]))
     assert seen == [1000 * (k + 1) for k in range(6)]
     assert len(src.threads) >= 2
-
-
-def test_depth_colours_black_off_the_gel():
-    depth = np.array([[np.nan, 10.0], [10.5, 12.0]], np.float32)
-    rgb = depth_to_rgb(depth, reference=np.full((2, 2), 10.0))
-    assert rgb.shape == (2, 2, 3) and rgb[0, 0].sum() == 0 and rgb[1, 1].sum() > 0
 
 
 def test_live_cli_saves_maps_with_a_plugged_predictor(frames, tmp_path, capsys):

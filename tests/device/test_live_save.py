@@ -10,6 +10,7 @@ import pytest
 from nlipscalib.core import atomic
 from nlipscalib.device import live
 from nlipscalib.device.live import LiveResult, SaveSink
+from nlipscalib.report.live import NormalMapPng
 
 
 def _result() -> LiveResult:
@@ -19,7 +20,7 @@ def _result() -> LiveResult:
 
 
 def _sink(folder: Path) -> SaveSink:
-    return SaveSink(folder, colour_normals=lambda n: (n + 1) / 2)
+    return SaveSink(folder, pictures=NormalMapPng())
 
 
 def test_streams_saving_into_one_folder_never_share_a_temporary(tmp_path):

@@ -10,6 +10,7 @@ import pytest
 import serial
 
 from nlipscalib.device import controller as c
+from nlipscalib.device import port
 from nlipscalib.device.virtual_board import VirtualBoard
 from nlipscalib.errors import ConfigError, DeviceError, NlipsError, ShapeError
 
@@ -26,7 +27,7 @@ def test_unknown_url_scheme():
 
 def test_permission_denied_says_how_to_fix_it():
     exc = serial.SerialException(errno.EACCES, "could not open port /dev/ttyACM0: [Errno 13] Permission denied")
-    error = c._open_error("/dev/ttyACM0", exc)
+    error = port._open_error("/dev/ttyACM0", exc)
     assert isinstance(error, c.PortPermissionError)
     assert "usermod -aG dialout" in str(error)
 
