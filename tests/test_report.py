@@ -312,7 +312,7 @@ def test_demo_sheet_error_panel_fits_small_errors_and_prints_the_aae():
 def test_live_depth_colours_black_off_the_gel():
     from nlipscalib.report.live import depth_to_rgb
 
-    depth = np.array([[np.nan, 10.0], [10.5, 12.0]], np.float32)
+    depth = np.array([[np.nan, 10.0], [9.5, 8.0]], np.float32)
     rgb = depth_to_rgb(depth, reference=np.full((2, 2), 10.0))
     assert rgb.shape == (2, 2, 3) and rgb[0, 0].sum() == 0 and rgb[1, 1].sum() > 0
 
@@ -324,11 +324,20 @@ def test_live_depth_colours_are_the_scalar_maps_colours():
     from nlipscalib.report.maps import colour_scalars
 
     reference = np.full((2, 3), 10.0)
-    depth = reference + np.array([[np.nan, 0.25, 0.5], [1.0, 2.5, -1.0]])  # levels 31.9 and 63.75: rounded up
-    expected = colour_scalars(depth - reference, 0.0, 2.0, "viridis", no_value=(0, 0, 0))[..., ::-1]
+    depth = reference - np.array([[np.nan, 0.25, 0.5], [1.0, 2.5, -1.0]])  # levels 31.9 and 63.75: rounded up
+    expected = colour_scalars(reference - depth, 0.0, 2.0, "viridis", no_value=(0, 0, 0))[..., ::-1]
     np.testing.assert_array_equal(depth_to_rgb(depth, reference, span_mm=2.0), expected)
-    expected = colour_scalars(depth, 9.0, 12.5, "viridis", no_value=(0, 0, 0))[..., ::-1]  # its own range
+    expected = colour_scalars(depth, 7.5, 11.0, "viridis", no_value=(0, 0, 0))[..., ::-1]  # its own range
     np.testing.assert_array_equal(depth_to_rgb(depth), expected)
+
+
+def test_live_depth_shows_a_press_toward_the_camera():
+    # inside the dome a press moves the gel toward the camera (depth below the reference): it was clipped to 0
+    from nlipscalib.report.live import depth_to_rgb
+
+    reference = np.full((1, 3), 15.0)
+    rgb = depth_to_rgb(reference - np.array([[0.0, 1.0, 2.0]]), reference, span_mm=2.0)
+    assert len({tuple(c) for c in rgb[0]}) == 3  # three indentations, three colours
 
 
 def test_live_window_shows_normals_beside_depth_and_q_ends_the_stream(monkeypatch):
@@ -342,7 +351,7 @@ def test_live_window_shows_normals_beside_depth_and_q_ends_the_stream(monkeypatc
     monkeypatch.setattr(cv2, "waitKey", lambda ms: keys.pop(0))
     normals = np.zeros((4, 5, 3), np.float32)
     normals[..., 2] = -1.0  # facing the camera
-    result = LiveResult(normals, np.full((4, 5), 10.5, np.float32))
+    result = LiveResult(normals, np.full((4, 5), 9.5, np.float32))
     sink = WindowSink(StopLive, reference_depth=np.full((4, 5), 10.0))
     sink(0, None, result)
     assert shown[0].shape == (4, 10, 3)

@@ -39,7 +39,8 @@ def depth_to_rgb(depth: np.ndarray, reference: np.ndarray | None = None, span_mm
     (H, W, 3) uint8, RGB; black off the gel
     """
     if reference is not None:
-        values, vmin, vmax = depth - reference, 0.0, span_mm
+        # a press pushes the gel toward the camera inside the dome: the indentation is reference - depth
+        values, vmin, vmax = reference - depth, 0.0, span_mm
     else:
         valid = np.isfinite(depth)
         lo, hi = (float(np.nanmin(depth)), float(np.nanmax(depth))) if valid.any() else (0.0, 1.0)
