@@ -29,8 +29,9 @@ from ..core import masks
 from ..core.camera import Camera
 from ..core.leds import led_arrays
 from ..core.reconstruction import Reconstruction
+from ..core.robust_scale import mad_scale
 from ..errors import ConfigError
-from . import geometry, reuse, robust
+from . import geometry, reuse
 from .blas import blas_threads
 from .inputs import check_inputs
 from .kernel import Backend, make_model
@@ -614,7 +615,7 @@ def _robust_scale(be: Backend, r, images: np.ndarray, usable: np.ndarray, opts: 
         return 1e-12
     med_i = float(np.median(images.reshape(-1)[::step][u]))
     r_sub = be.numpy(r.reshape(-1)[::step])[u]
-    return max(opts.robust_scale * robust.mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
+    return max(opts.robust_scale * mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
 
 
 def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
