@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from ..core import masks
 from ..core.camera import Camera
 from ..core.leds import led_arrays
+from ..core.metrics import angle_deg
 from ..core.reconstruction import Reconstruction
 from ..core.robust_scale import mad_scale
 from ..errors import ConfigError
@@ -564,7 +565,7 @@ class _Level:
             F_new, dF_new = self.shade(t_new, True)
         self.t, self.F, self.dF, self.albedo, self.r = t_new, F_new, dF_new, alb_new, r_new
         nrm_new = self.normals(t_new)
-        change = float(np.degrees(np.median(np.arccos(np.clip(np.sum(self.nrm * nrm_new, 1), -1, 1)))))
+        change = float(np.median(angle_deg(self.nrm, nrm_new)))
         self.nrm = nrm_new
         self.info["normal_change_deg"].append(change)
         rel = (self.e_cur - e_new) / max(self.e_cur, 1e-300)
