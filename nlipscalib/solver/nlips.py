@@ -299,6 +299,7 @@ def _full_image(t_state, out: dict, lv: dict, data: _LevelData, mask, crop, opts
     )
     return SolveResult(
         depth=paste(depth),
+        # core.camera.depth_to_points with the rays pre-divided by their z (q = ray / ray_z, geometry.py)
         points=paste(depth[:, None] * lv["q"]),
         normals=paste(out["normals"]),
         albedo=paste(out["albedo"].T * data.scale),
