@@ -26,6 +26,7 @@ from common import write_section
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nlipscalib.core import Led, load_press  # noqa: E402
+from nlipscalib.core.metrics import angle_deg  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
@@ -85,7 +86,7 @@ def perturbed(leds, rng):
 
 def led_errors(cal, true) -> tuple[float, float]:
     """(max direction error deg, max position error mm)."""
-    ang = max(np.degrees(np.arccos(min(1.0, float(np.dot(c.direction, t.direction))))) for c, t in zip(cal, true))
+    ang = max(float(angle_deg(c.direction, t.direction)) for c, t in zip(cal, true))
     pos = max(float(np.linalg.norm(np.subtract(c.position, t.position))) for c, t in zip(cal, true))
     return float(ang), pos
 

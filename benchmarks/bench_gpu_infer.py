@@ -68,9 +68,10 @@ def _frames(path):
 
 
 def _angles(a, b, where):
-    """Degrees between unit vectors (atan2 of sine and cosine: exact near 0, where arccos of a cosine is not)."""
-    a, b = a[where].astype(np.float64), b[where].astype(np.float64)
-    return np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), (a * b).sum(-1)))
+    """Degrees between the vectors of ``a`` and ``b`` ((H, W, 3)) on ``where`` ((H, W) bool), (N,) float64."""
+    from nlipscalib.core.metrics import angle_deg
+
+    return angle_deg(a[where], b[where])
 
 
 def _timed(predictor, frames: list, repeats: int) -> dict:

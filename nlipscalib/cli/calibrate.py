@@ -62,6 +62,7 @@ def run(args) -> int:
 
     from ..config import check_count
     from ..core.capture import load_press
+    from ..core.metrics import angle_deg
     from ..core.sensor_record import sensor_of
     from ..errors import ConfigError
     from ..progress import track, working
@@ -97,7 +98,7 @@ def run(args) -> int:
         print(f"LEDs as {args.led_diameter:g} mm disks (the physical centre and axis, written as emitters):")
         for i, (disk, led) in enumerate(zip(cal.emitters, cal.leds)):
             shift = np.subtract(led.position, disk.position)
-            tilt = np.degrees(np.arccos(min(1.0, float(np.dot(disk.direction, led.direction)))))
+            tilt = float(angle_deg(disk.direction, led.direction))
             along = float(shift @ np.asarray(disk.direction))
             print(
                 f"{i + 1:>3} centre ({', '.join(f'{c:.3f}' for c in disk.position)}) mm; the point LED sits "

@@ -46,9 +46,14 @@ GT_KEYS = {"depth": 2, "points": 3, "normals": 3, "valid": 2, "contact": 2}
 """Ground-truth arrays and their number of dimensions; all (H, W[, 3]) in the camera frame."""
 
 
+def led_frame_name(index: int) -> str:
+    """Name of LED ``index``'s (0-based) frame: led_01 for the first LED (a capture's frame, its image's stem)."""
+    return f"led_{index + 1:02d}"
+
+
 def led_image_name(index: int) -> str:
     """File name of LED ``index`` (0-based) image: led_01.png for the first LED."""
-    return f"led_{index + 1:02d}.png"
+    return f"{led_frame_name(index)}.png"
 
 
 def white_level_of(bit_depth: int) -> int:

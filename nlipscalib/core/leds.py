@@ -17,6 +17,7 @@ import numpy as np
 
 from ..config import is_number
 from ..errors import ConfigError, ShapeError
+from .metrics import angle_deg
 
 TRICOLOR_COLORS = np.eye(3)
 """Colour of each tri-colour group: group 0 red, 1 green, 2 blue."""
@@ -97,8 +98,7 @@ def led_geometry_mismatch(positions_a, directions_a, positions_b, directions_b) 
     if pa.shape != pb.shape:
         return f"{len(pb)} LEDs against {len(pa)}"
     gap = np.linalg.norm(pa - pb, axis=1)
-    cos = np.sum(np.asarray(directions_a, float) * np.asarray(directions_b, float), axis=1)
-    turn = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    turn = angle_deg(directions_a, directions_b)
     off = np.flatnonzero((gap > tolerances.SAME_LED_MM) | (turn > tolerances.SAME_LED_DEG))
     if off.size:
         i = int(off[0])

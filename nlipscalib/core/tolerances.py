@@ -107,10 +107,14 @@ SURFACE_SCALE_RATIO = 20.0
 median distance from the camera (the shipped sensors: 1.3-2.4 times; depth written in metres: 1/1000)."""
 EXPOSURE_LIGHT_FRACTION = 0.02
 """Capture exposure check: a pixel is lit by an LED when its LED frame exceeds the dark frame by more than this
-fraction of full scale (mean of the channels after a 5x5 box blur, which averages the sensor noise away; an
-8-bit camera: 5 DN). The emulated nlipstac sensor's dimmest LED lights 99 % of the gel above 0.11, a median
-pixel at 0.23; a frame with the LEDs off, or a lens cap, stays within noise of the dark frame. Twenty times the
-solver's :data:`LIT_LEVEL`, which asks another question (why: there)."""
+fraction of full scale (mean of the channels after the :data:`CAPTURE_CHECK_BLUR` box blur, which averages the
+sensor noise away; an 8-bit camera: 5 DN). The emulated nlipstac sensor's dimmest LED lights 99 % of the gel
+above 0.11, a median pixel at 0.23; a frame with the LEDs off, or a lens cap, stays within noise of the dark
+frame. Twenty times the solver's :data:`LIT_LEVEL`, which asks another question (why: there)."""
+CAPTURE_CHECK_BLUR = 5
+"""Side, pixels, of the box blur of a capture's checks on raw frames (the exposure check's lit pixels, the
+session's movement check): 25 pixels averaged cut the sensor noise 5 times, while a lit gel or a moved edge,
+many pixels wide, keeps its level."""
 EXPOSURE_LIT_SHARE = 0.01
 """... an LED frame is black (no light above the dark frame: the LED off or dead, a lens cap, the camera not
 looking at the gel) when fewer than this fraction of the gel's pixels are lit by it (a lit LED of the shipped

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..core.capture import SensorResponse, linearise
 from ..core.tolerances import (
+    CAPTURE_CHECK_BLUR,
     EXPOSURE_LIGHT_FRACTION,
     EXPOSURE_LIT_SHARE,
     EXPOSURE_SATURATED_SHARE,
@@ -94,7 +95,8 @@ def _saturated_share(image: np.ndarray, response: SensorResponse, gel: np.ndarra
 
 def _lit(image: np.ndarray, dark: np.ndarray, response: SensorResponse, gel: np.ndarray) -> bool:
     """Whether an LED frame shows light above the dark frame: at least :data:`EXPOSURE_LIT_SHARE` of the ``gel``
-    pixels above :data:`EXPOSURE_LIGHT_FRACTION` of full scale, the channels' mean after a 5x5 box blur.
+    pixels above :data:`EXPOSURE_LIGHT_FRACTION` of full scale, the channels' mean after a :data:`CAPTURE_CHECK_BLUR`
+    box blur.
 
     Not the solver's test of a lit LED image (:data:`nlipscalib.core.tolerances.LIT_LEVEL`, its 99th percentile
     on the gel at 0.1 % of full scale), on purpose: this one runs while the session can still be fixed, on raw
@@ -104,7 +106,8 @@ def _lit(image: np.ndarray, dark: np.ndarray, response: SensorResponse, gel: np.
     about (LIT_LEVEL says more)."""
     cv2 = require("cv2", "opencv-python-headless", "The exposure check")
     light = linearise(image, dark, response.black_level, response.white_level).mean(axis=2)
-    return float((cv2.blur(light, (5, 5))[gel] > EXPOSURE_LIGHT_FRACTION).mean()) >= EXPOSURE_LIT_SHARE
+    blurred = cv2.blur(light, (CAPTURE_CHECK_BLUR, CAPTURE_CHECK_BLUR))
+    return float((blurred[gel] > EXPOSURE_LIGHT_FRACTION).mean()) >= EXPOSURE_LIT_SHARE
 
 
 def _over_line(folder: Path, clipped: dict[str, float], where: str) -> str | None:

@@ -32,8 +32,17 @@ import numpy as np
 
 from ..core.atomic import clean_interrupted, write_json
 from ..core.camera import Camera
-from ..core.capture import REFERENCE_FOLDER, Reference, SensorResponse, is_press_folder, write_press
+from ..core.capture import (
+    REFERENCE_FOLDER,
+    Reference,
+    SensorResponse,
+    is_press_folder,
+    led_frame_name,
+    linearise,
+    write_press,
+)
 from ..core.leds import TRICOLOR_COLORS, Led, tricolor_groups
+from ..core.tolerances import CAPTURE_CHECK_BLUR
 from ..errors import CaptureError, ConfigError, require
 
 log = logging.getLogger(__name__)
@@ -62,7 +71,7 @@ class SessionConfig:
     would saturate at the exposure chosen for single LEDs."""
     movement_threshold: float = 0.02
     """A pixel moved when the repeated tri-colour frame differs by more than this fraction of full scale
-    (after a 5x5 box blur that averages the sensor noise away)."""
+    (after the box blur of ``core.tolerances.CAPTURE_CHECK_BLUR``, which averages the sensor noise away)."""
     movement_area: float = 0.001
     """The press moved when more than this fraction of the pixels moved."""
     max_retakes: int = 3
@@ -165,7 +174,7 @@ def frame_sequence(n_leds: int, cfg: SessionConfig) -> list[tuple[str, np.ndarra
     for i in range(n_leds):
         colors = np.zeros((n_leds, 3), np.uint8)
         colors[i] = cfg.white_level
-        seq.append((f"led_{i + 1:02d}", colors))
+        seq.append((led_frame_name(i), colors))
     seq.append(("check", tri))
     return seq
 
@@ -204,12 +213,13 @@ def change_map(first: np.ndarray, last: np.ndarray, response: SensorResponse) ->
 
     Returns
     -------
-    (H, W) float32 map of the 5x5-box-blurred largest channel difference, fraction of full scale
+    (H, W) float32 map of the box-blurred (:data:`~nlipscalib.core.tolerances.CAPTURE_CHECK_BLUR`) largest channel
+    difference, fraction of full scale
     """
     cv2 = require("cv2", "opencv-python-headless", "The movement check")
-    scale = np.float32(response.white_level - response.black_level)
-    diff = np.abs(last.astype(np.float32) - first.astype(np.float32)) / scale
-    return cv2.blur(diff, (5, 5)).max(axis=2)
+    # a difference of two linear frames: the dark frame cancels, so ``first`` takes its place
+    diff = np.abs(linearise(last, first, response.black_level, response.white_level))
+    return cv2.blur(diff, (CAPTURE_CHECK_BLUR, CAPTURE_CHECK_BLUR)).max(axis=2)
 
 
 def movement(frames: dict[str, np.ndarray], response: SensorResponse, cfg: SessionConfig) -> float:
@@ -270,7 +280,7 @@ def capture_press(
     gel = None if rig.reference is None else np.isfinite(rig.reference.depth)
     for line in check_exposure(frames, rig.response, folder, gel, reference=index == 0):
         log.warning("%s", line)
-    leds = np.stack([frames[f"led_{i + 1:02d}"] for i in range(len(rig.leds))])
+    leds = np.stack([frames[led_frame_name(i)] for i in range(len(rig.leds))])
     write_press(
         folder,
         rig.camera,

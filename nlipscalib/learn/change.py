@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import masks
+from ..core.robust_scale import mad_scale
 from ..errors import ShapeError, require
 
 RULE_VERSION = 2
@@ -74,7 +75,7 @@ class ChangeDetector:
         # the rule below finds what differs from the rest of the frame: when the whole frame differs (another
         # exposure, LEDs off, channels swapped), nothing does, and the caller is told through this figure
         self.mismatch = median / self._sample_level if self._sample_level > 0 else 0.0
-        sigma = 1.4826 * float(np.median(np.abs(sample - median))) + 1e-6
+        sigma = mad_scale(sample, center=median, dtype=np.float32) + 1e-6
         hit = self._valid_blocks & (diff > median + NOISE_SIGMAS * sigma) & (diff > MIN_REL_CHANGE * self._level)
         hit = masks.dilate(masks.erode(hit))  # opening: isolated blocks are noise
         if DILATE_BLOCKS > 0:

@@ -258,6 +258,7 @@ class _ChangeRule:
         diff = F.avg_pool2d(padded, self.smooth, stride=1)[0].abs().sum(0)
         sample = diff.flatten()[self.sample]
         median = _median(sample)
+        # core.robust_scale.mad_scale on the GPU (the CPU rule, learn.change, calls it; parity-tested)
         sigma = 1.4826 * _median((sample - median).abs()) + 1e-6
         hit = self.on & (diff > median + self.sigmas * sigma) & (diff > self.floor)
         hit = _cross(_cross(hit, torch.amin), torch.amax)  # opening: isolated blocks are noise

@@ -30,6 +30,7 @@ import functools
 
 import numpy as np
 
+from ..core.camera import depth_to_points
 from ..errors import ShapeError
 
 ANCHOR_WEIGHT = 1e-4
@@ -68,7 +69,7 @@ class RayGeometry:
         d_v, d_u = np.gradient(rays, axis=(0, 1))
         with np.errstate(invalid="ignore", divide="ignore"):
             log_range = np.log(reference_depth / rays[..., 2])
-        points = (np.exp(log_range)[..., None] * rays).astype(np.float32)
+            points = depth_to_points(reference_depth, rays).astype(np.float32)
         return cls(rays, d_u, d_v, log_range, points)
 
     # float32 copies for the per-frame box solver, made once per sensor

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.metrics import angle_deg
 from ..cpus import usable_cores
 from ..errors import CaptureError, require
 
@@ -197,10 +198,8 @@ class OnnxNet:
 
 def max_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """Largest angle between corresponding unit vectors of (N, 3) arrays, degrees."""
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    # atan2(|a x b|, a . b) stays accurate for tiny angles, where arccos of a rounded cosine does not
-    ang = np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, -1))
-    return float(np.degrees(ang).max()) if len(ang) else 0.0
+    ang = angle_deg(a, b)  # accurate for the tiny angles a parity check measures
+    return float(ang.max()) if len(ang) else 0.0
 
 
 PARITY_LIMIT_DEG = 0.1

@@ -369,6 +369,7 @@ def _validate(net, x, y, contact) -> tuple[float, float]:
     net.eval()
     with torch.no_grad():
         cos = (net(x) * y).sum(-1).clamp(-1, 1)
+    # core.metrics.angle_deg's angle, on the training device (arccos: a running figure, not the reported AAE)
     ang = torch.rad2deg(torch.arccos(cos))
     contact_aae = float(ang[contact].mean()) if bool(contact.any()) else float("nan")
     return float(ang.mean()), contact_aae

@@ -25,6 +25,7 @@ from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, disk_shading, led_shading
+from ..core.robust_scale import mad_scale
 from ..errors import CaptureError, ConfigError
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 
@@ -375,7 +376,7 @@ def _fit_all(leds, x, n, img, ok, loss, model=_model):
             return ((model(params, x, n) - img[i]) / scale)[use]
 
         r0 = resid(p0)
-        f_scale = max(3 * 1.4826 * float(np.median(np.abs(r0 - np.median(r0)))), 1e-3)
+        f_scale = max(3 * mad_scale(r0), 1e-3)
         res = least_squares(resid, p0, loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
         dof = max(len(res.fun) - len(p0), 1)
         s2 = float(np.sum(res.fun**2) / dof)
@@ -488,7 +489,7 @@ def fit_quality(presses, fitted, x, n, img, ok, model=_model) -> dict:
     residual = []
     for i, (params, _, _) in enumerate(fitted):
         r = (model(params, x, n) - img[i])[_fit_samples(img[i], ok[i])]
-        residual.append(1.4826 * float(np.median(np.abs(r - np.median(r)))) if r.size else float("nan"))
+        residual.append(mad_scale(r) if r.size else float("nan"))
     ratio = np.asarray(residual) / noise
     median = float(np.nanmedian(ratio))
     return {

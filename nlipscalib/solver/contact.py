@@ -20,6 +20,7 @@ from ..core import masks, tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import led_shading
+from ..core.robust_scale import mad_scale
 from ..errors import CaptureError
 from . import reuse, threads
 
@@ -109,7 +110,7 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
         filtered = cv2.filter2D(np.asarray(img, np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
         out = []
         for f in np.moveaxis(filtered[sample], -1, 0):
-            out.append(1.4826 * float(np.median(np.abs(f - np.median(f)))) / 6.0)
+            out.append(mad_scale(f, dtype=np.float32) / 6.0)  # float32: the filtered image's precision
         return out
 
     est = [e for per in threads.map_items(per_image, images) for e in per]

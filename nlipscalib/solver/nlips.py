@@ -28,9 +28,11 @@ import scipy.sparse as sp
 from ..core import masks
 from ..core.camera import Camera
 from ..core.leds import led_arrays
+from ..core.metrics import angle_deg
 from ..core.reconstruction import Reconstruction
+from ..core.robust_scale import mad_scale
 from ..errors import ConfigError
-from . import geometry, reuse, robust
+from . import geometry, reuse
 from .blas import blas_threads
 from .inputs import check_inputs
 from .kernel import Backend, make_model
@@ -297,6 +299,7 @@ def _full_image(t_state, out: dict, lv: dict, data: _LevelData, mask, crop, opts
     )
     return SolveResult(
         depth=paste(depth),
+        # core.camera.depth_to_points with the rays pre-divided by their z (q = ray / ray_z, geometry.py)
         points=paste(depth[:, None] * lv["q"]),
         normals=paste(out["normals"]),
         albedo=paste(out["albedo"].T * data.scale),
@@ -563,7 +566,7 @@ class _Level:
             F_new, dF_new = self.shade(t_new, True)
         self.t, self.F, self.dF, self.albedo, self.r = t_new, F_new, dF_new, alb_new, r_new
         nrm_new = self.normals(t_new)
-        change = float(np.degrees(np.median(np.arccos(np.clip(np.sum(self.nrm * nrm_new, 1), -1, 1)))))
+        change = float(np.median(angle_deg(self.nrm, nrm_new)))
         self.nrm = nrm_new
         self.info["normal_change_deg"].append(change)
         rel = (self.e_cur - e_new) / max(self.e_cur, 1e-300)
@@ -614,7 +617,7 @@ def _robust_scale(be: Backend, r, images: np.ndarray, usable: np.ndarray, opts: 
         return 1e-12
     med_i = float(np.median(images.reshape(-1)[::step][u]))
     r_sub = be.numpy(r.reshape(-1)[::step])[u]
-    return max(opts.robust_scale * robust.mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
+    return max(opts.robust_scale * mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
 
 
 def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:

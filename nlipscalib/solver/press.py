@@ -29,6 +29,7 @@ import numpy as np
 from ..core import diskcache, masks, tolerances
 from ..core.capture import Press
 from ..core.leds import led_geometry_mismatch
+from ..core.metrics import angle_deg
 from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box
@@ -727,8 +728,7 @@ def _median_change_deg(a: SolveResult, b: SolveResult, where: np.ndarray) -> flo
     both = a.reconstructed & b.reconstructed & where
     if not both.any():
         return 0.0
-    cos = np.clip(np.sum(a.normals[both] * b.normals[both], axis=-1), -1.0, 1.0)
-    return float(np.degrees(np.median(np.arccos(cos))))
+    return float(np.median(angle_deg(a.normals[both], b.normals[both])))
 
 
 # inspect.signature(solve_press) shows _solve_press's keywords (the pipeline records them with their defaults)

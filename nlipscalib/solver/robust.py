@@ -41,11 +41,3 @@ def weight(r, lam: float, estimator: str, xp=np):
         s = 1 - a2 / lam**2
         return xp.where(s > 0, s, 0 * s) ** 2
     raise ValueError(f"unknown estimator {estimator!r}; expected one of {ESTIMATORS}")
-
-
-def mad_scale(residuals: np.ndarray) -> float:
-    """1.4826 * median absolute deviation: a robust standard deviation (0 for an empty input)."""
-    r = np.asarray(residuals, dtype=np.float64).ravel()
-    if r.size == 0:
-        return 0.0
-    return float(1.4826 * np.median(np.abs(r - np.median(r))))

@@ -159,6 +159,26 @@ def test_relaxation_is_one_over_one_plus_the_indirect_share():
     np.testing.assert_allclose(omega[0, ..., 0], 1.0 / (1.0 + g), rtol=1e-5)
 
 
+def test_the_outer_loops_normal_change_is_exact_on_float32_normals():
+    """A pass's median normal change is compared with OUTER_TOL_DEG (0.05 deg): arccos of a float32 cosine was
+    off by up to ~0.02 deg there."""
+    from types import SimpleNamespace
+
+    from nlipscalib.solver.press import _median_change_deg
+
+    rng = np.random.default_rng(4)
+    a = rng.normal(size=(40, 50, 3)) * [0.3, 0.3, 1] - [0, 0, 3]
+    a /= np.linalg.norm(a, axis=-1, keepdims=True)
+    turn = np.radians(0.01)  # about y: every normal in the x-z plane turns by 0.01 deg; the others by less
+    c, s = np.cos(turn), np.sin(turn)
+    b = np.stack([c * a[..., 0] + s * a[..., 2], a[..., 1], -s * a[..., 0] + c * a[..., 2]], -1)
+    exact = np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), (a * b).sum(-1)))
+    rec = np.ones(a.shape[:2], bool)
+    first = SimpleNamespace(normals=a.astype(np.float32), reconstructed=rec)
+    second = SimpleNamespace(normals=b.astype(np.float32), reconstructed=rec)
+    assert _median_change_deg(first, second, rec) == pytest.approx(np.median(exact), abs=1e-4)
+
+
 def test_the_relaxed_outer_loop_settles_where_the_plain_one_oscillates(bounce1):
     """The plain iteration alternates around its answer (the subtracted light feeds back through the
     albedo); the per-pixel relaxation lands near the fixed point in two passes."""
