@@ -123,7 +123,7 @@ def classify_contact(
     undeformed_images: np.ndarray | None = None,
     undeformed_light: np.ndarray | None = None,
     indirect: np.ndarray | None = None,
-    dead_level: float = 1e-3,
+    dead_level: float = tolerances.LIT_LEVEL,
     undeformed_noise: bool = False,
     blur_px: float = 1.5,
     cache: dict | None = None,
@@ -142,7 +142,8 @@ def classify_contact(
         the scale of ``blur_px``. Kept apart so the smoothed ``undeformed_images`` -- a sensor's direct
         shading -- is computed once and reused by the next classification against it.
     indirect : (L, H, W, 3) float or None -- light to subtract from the press's images first.
-    dead_level : an LED whose image's 99th percentile (linear) is below this is dead and left out.
+    dead_level : an LED whose image's 99th percentile (linear) is below this is dead and left out
+        (``SolverOptions.dead_led_level`` in a solve).
     undeformed_noise : ``undeformed_images`` is a capture with its own noise (the noise-only misfit is
         then sqrt(2) times larger).
     blur_px : Gaussian sigma, pixels, of the smoothing before the fit (0: none).

@@ -197,7 +197,9 @@ def _solve_press(
     if isinstance(roi, str) and roi != "auto":
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
-    light = _light_and_contact(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces)
+    light = _light_and_contact(
+        press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, options.dead_led_level
+    )
     model, cmap = light.model, light.cmap
     if model is not None and model.enabled and coating_albedo is not None:
         model = model.with_reflectance(coating_albedo)
@@ -259,10 +261,12 @@ class _Light:
     """The contact classifications."""
 
 
-def _light_and_contact(press: Press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces) -> _Light:
+def _light_and_contact(
+    press: Press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, dead_level: float
+) -> _Light:
     """Fit the indirect term, then classify the contact against the undeformed model with it (when the press
     stands in for the undeformed capture: a rough fit finds the contact, the term is fitted again without it
-    and the classification redone)."""
+    and the classification redone). ``dead_level``: ``SolverOptions.dead_led_level``, the classification's too."""
     prior = press.reference.depth if press.reference is not None else None
     t0 = time.perf_counter()
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
@@ -275,13 +279,14 @@ def _light_and_contact(press: Press, leds, ref_capture, fixed_light, explicit_ro
     t0 = time.perf_counter()
     cmap, refit = None, 0.0
     if press.reference is not None:
-        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading, fit.contact_cache if fit else {})
+        cache = fit.contact_cache if fit else {}
+        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading, dead_level, cache)
         if fit is not None and fit.refits and model.enabled:
             # the press stands in for the undeformed capture: fit again without its contact
             t1 = time.perf_counter()
             model = fit.again(exclude=_contact_pixels(cmap))
             refit = time.perf_counter() - t1
-            cmap = _contact(press, leds, None, None, model, shading, fit.contact_cache)
+            cmap = _contact(press, leds, None, None, model, shading, dead_level, fit.contact_cache)
     t_contact = time.perf_counter() - t0 - refit
     return _Light(model, cmap, shading, t_indirect + refit, t_contact)
 
@@ -678,18 +683,18 @@ def _box_mask(roi, shape) -> np.ndarray:
     return box
 
 
-def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache=None) -> ContactMap:
+def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, dead_level: float, cache=None) -> ContactMap:
     """The one contact classification: against the undeformed capture, or the model with its indirect term.
 
-    ``shading``: :func:`direct_shading` of the reference surface; ``cache``: the press's side of the
-    classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
+    ``shading``: :func:`direct_shading` of the reference surface; ``dead_level``: ``SolverOptions.dead_led_level``,
+    the fit's level of a dead LED; ``cache``: the press's side of the classification, shared by the
+    classifications of one solve (``classify_contact(cache=...)``)."""
+    classify = functools.partial(classify_contact, press, leds, dead_level=dead_level, cache=cache)
     if ref_capture is not None:
-        und = _undeformed_images(ref_capture)
-        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, cache=cache)
+        return classify(undeformed_images=_undeformed_images(ref_capture), undeformed_noise=True)
     if model is not None and model.enabled:
-        light = model.undeformed_light(press.camera.shape)
-        return classify_contact(press, leds, undeformed_images=shading, undeformed_light=light, cache=cache)
-    return classify_contact(press, leds, undeformed_images=shading, indirect=fixed_light, cache=cache)
+        return classify(undeformed_images=shading, undeformed_light=model.undeformed_light(press.camera.shape))
+    return classify(undeformed_images=shading, indirect=fixed_light)
 
 
 def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, ref_surface: Surface) -> np.ndarray:
