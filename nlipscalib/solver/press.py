@@ -31,7 +31,7 @@ from ..core.capture import Press
 from ..core.leds import led_geometry_mismatch
 from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
-from .contact import ContactMap, anchor_weights, classify_contact, contact_box
+from .contact import ContactMap, anchor_weights, classify_contact, contact_box, contact_hits
 from .contact import auto_roi as _auto_roi_box
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
@@ -584,11 +584,8 @@ def _merged(whole: SolveResult, part: SolveResult, focus: np.ndarray) -> SolveRe
 
 
 def _contact_pixels(cmap: ContactMap, margin: int = 4) -> np.ndarray:
-    """(H, W) bool -- the pixels the auto ROI would box (its components), dilated by ``margin``."""
-    mis = cmap.misfit
-    valid = np.isfinite(mis)
-    floor = np.maximum(cmap.expected, float(np.median(mis[valid])) if valid.any() else 0.0)
-    hit = valid & (np.nan_to_num(mis) > 3.0 * np.maximum(floor, 1e-9))
+    """(H, W) bool -- the pixels the auto ROI would box (:func:`contact_hits`), dilated by ``margin``."""
+    hit = contact_hits(cmap)
     return masks.dilate(hit, iterations=margin) if hit.any() else hit
 
 
