@@ -32,7 +32,6 @@ from ..core.leds import led_geometry_mismatch
 from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box, contact_hits
-from .contact import auto_roi as _auto_roi_box
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
     Surface,
@@ -54,32 +53,6 @@ MIN_ROI_SIDE = 4
 """Smallest width and height of an explicit ROI box, pixels (the API's and --roi's checks both state it)."""
 OUTER_TOL_DEG = 0.05
 """The outer interreflection loop stops when the median normal change of a pass is below this, degrees."""
-
-
-def contact_misfit(
-    press: Press, indirect: np.ndarray | None = None, reference: Press | None = None, window=(slice(None), slice(None))
-) -> np.ndarray:
-    """Per-pixel misfit of the undeformed dome to the LED images, relative to the noise-only misfit.
-
-    Kept for callers of the earlier API; :func:`nlipscalib.solver.contact.classify_contact` is the one
-    computation. ``window`` cuts the result.
-
-    Returns
-    -------
-    (h, w) float64 -- misfit / noise-only misfit; NaN off the gel.
-    """
-    und = reference.linear(reference.led_images) if reference is not None else None
-    cmap = classify_contact(press, undeformed_images=und, indirect=indirect, undeformed_noise=reference is not None)
-    return cmap.ratio[tuple(window)]
-
-
-def auto_roi(press: Press, indirect: np.ndarray | None = None, reference: Press | None = None, leds=None, **kwargs):
-    """Bounding box (x0, y0, w, h) of the contact (:func:`nlipscalib.solver.contact.auto_roi`)."""
-    und = reference.linear(reference.led_images) if reference is not None else None
-    cmap = classify_contact(
-        press, leds, undeformed_images=und, indirect=indirect, undeformed_noise=reference is not None
-    )
-    return _auto_roi_box(cmap, press.camera.shape, folder=press.folder, **kwargs)
 
 
 def solve_press(press: Press, **kwargs) -> SolveResult:
