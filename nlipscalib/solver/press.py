@@ -51,8 +51,17 @@ log = logging.getLogger(__name__)
 INTERREFLECTION_MODES = ("auto", "on", "off")
 MIN_ROI_SIDE = 4
 """Smallest width and height of an explicit ROI box, pixels (the API's and --roi's checks both state it)."""
-OUTER_TOL_DEG = 0.05
-"""The outer interreflection loop stops when the median normal change of a pass is below this, degrees."""
+RELAXATION_MAX_RATIO = 3.0
+"""Largest indirect/direct light ratio g that :func:`_relaxation` uses, so every pixel moves at least 1 / (1 + 3) of
+the way to its gathered light per pass. Why a cap: g is 0.3-0.5 in a dent (benchmarks/RESULTS.md), where it does not
+bind; it binds where the images hold (next to) no direct light -- a cast shadow, or a subtracted light that reaches
+the images -- where g is a ratio of small, noisy numbers and an unbounded one would all but freeze the pixel's light
+at its first (undeformed-surface) value. The value 3 itself has no recorded measurement (commit 32a19f9)."""
+RELAXATION_DIRECT_FLOOR = 1e-3
+"""Least direct light of a pixel in :func:`_relaxation`, as a fraction of its indirect light: where the subtracted
+light reaches or exceeds the images, the direct light (images minus it) would be zero or negative and g infinite or
+negative; with the floor g is 1 / this, above :data:`RELAXATION_MAX_RATIO`, so such a pixel gets the capped,
+slowest relaxation."""
 
 
 def solve_press(press: Press, **kwargs) -> SolveResult:
@@ -484,7 +493,7 @@ class _OuterLoop:
             result = new
             if last:
                 break
-            settled = change < OUTER_TOL_DEG  # then one refined pass over the whole mask ends the loop
+            settled = change < tolerances.OUTER_TOL_DEG  # then one refined pass over the whole mask ends the loop
         return result
 
     def _update(self, light: np.ndarray, gathered: np.ndarray) -> np.ndarray:
@@ -692,8 +701,8 @@ def _relaxation(image_total: np.ndarray, light: np.ndarray) -> np.ndarray:
     0.8 deg). The update L + (gathered - L) / (1 + g) cancels that first-order feedback (the same press:
     2.27, 0.16, 0.02 deg)."""
     indirect = light.sum(axis=(0, 3))
-    direct = np.maximum(image_total - indirect, 1e-3 * np.maximum(indirect, 1e-30))
-    g = np.clip(indirect / direct, 0.0, 3.0)
+    direct = np.maximum(image_total - indirect, RELAXATION_DIRECT_FLOOR * np.maximum(indirect, 1e-30))
+    g = np.clip(indirect / direct, 0.0, RELAXATION_MAX_RATIO)
     return (1.0 / (1.0 + g))[None, ..., None].astype(np.float32)
 
 
