@@ -55,6 +55,15 @@ undeformed dome (median over the gel) is at least this; below it the capture has
 ANCHOR_NOISE_FACTOR = 3.0
 """Anchoring: a pixel is undeformed when its misfit to the undeformed model is within this many times the
 misfit that the estimated image noise alone explains."""
+CONTACT_MISFIT_FACTOR = 3.0
+"""Contact: a pixel is hit (in or at the contact: ``--roi auto``'s box, the dent focus of the outer interreflection
+loop, the pixels a press's own indirect fit leaves out; :func:`nlipscalib.solver.contact.contact_hits`) when its
+misfit exceeds this many times the larger of its noise-only misfit and the misfit's median over the gel. Why: the
+floor is at least the noise-only misfit, so a hit pixel is never one anchoring calls undeformed (as long as this is
+at least :data:`ANCHOR_NOISE_FACTOR`); the median raises it where the undeformed model is not exact on a real
+sensor (then most of the gel misfits above noise level and only a dent's misfit stands out by this factor); and the
+RMS of noise alone over a pixel's LEDs and channels (tens of samples) stays well within 3 times its expected value,
+so noise alone does not make hits."""
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""
@@ -66,6 +75,12 @@ MAX_MEDIAN_DISPLACEMENT_MM = 3.0
 """A solve whose median distance to the undeformed surface exceeds this (mm; the default gel is 3 mm thick,
 and a median over a region around a contact is far below the deepest point) has left the physically
 possible range: :func:`nlipscalib.solver.solve_press` re-solves without the noise-adapted smoothness."""
+OUTER_TOL_DEG = 0.05
+"""The outer interreflection loop (:func:`nlipscalib.solver.solve_press`) is settled when the median normal change
+of a pass falls below this, degrees; one refined pass over the whole mask then ends it. Why: the relaxed loop's
+changes fall by a factor of about 0.1-0.3 per pass (2.55, 0.29, 0.04 deg on the 640x480 twin's sphere press,
+benchmarks/RESULTS.md), so a pass that moved the normals by less than this leaves them within about 0.02 deg of the
+loop's fixed point, below what a further NLiPs solve is worth."""
 DENT_FOCUS_MARGIN = 0.05
 """The outer interreflection loop's passes before the last solve the auto ROI's box widened by this fraction of the
 image's short side (24 px at 640x480): the dent's light changes most around it."""

@@ -10,7 +10,7 @@ from .indirect import IndirectModel, fit_indirect
 from .io import load_leds, load_result, save_leds, save_result
 from .nlips import SolveResult, exclusions, solve
 from .options import SolverOptions
-from .press import auto_roi, solve_press
+from .press import solve_press
 
 __all__ = [
     "ContactMap",
@@ -22,7 +22,6 @@ __all__ = [
     "SolverOptions",
     "aae",
     "angular_error_map",
-    "auto_roi",
     "calibrate_leds",
     "depth_rmse",
     "evaluate",

@@ -124,7 +124,7 @@ def classify_contact(
     undeformed_images: np.ndarray | None = None,
     undeformed_light: np.ndarray | None = None,
     indirect: np.ndarray | None = None,
-    dead_level: float = 1e-3,
+    dead_level: float = tolerances.LIT_LEVEL,
     undeformed_noise: bool = False,
     blur_px: float = 1.5,
     cache: dict | None = None,
@@ -143,7 +143,8 @@ def classify_contact(
         the scale of ``blur_px``. Kept apart so the smoothed ``undeformed_images`` -- a sensor's direct
         shading -- is computed once and reused by the next classification against it.
     indirect : (L, H, W, 3) float or None -- light to subtract from the press's images first.
-    dead_level : an LED whose image's 99th percentile (linear) is below this is dead and left out.
+    dead_level : an LED whose image's 99th percentile (linear) is below this is dead and left out
+        (``SolverOptions.dead_led_level`` in a solve).
     undeformed_noise : ``undeformed_images`` is a capture with its own noise (the noise-only misfit is
         then sqrt(2) times larger).
     blur_px : Gaussian sigma, pixels, of the smoothing before the fit (0: none).
@@ -228,16 +229,15 @@ def contact_box(
     shape: tuple[int, int],
     margin: int = 8,
     min_size: int = 32,
-    threshold: float = 3.0,
+    threshold: float = tolerances.CONTACT_MISFIT_FACTOR,
     min_component: float = 0.05,
     folder="",
 ) -> tuple[tuple[int, int, int, int], str]:
     """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome, and a note.
 
-    Candidates are pixels whose misfit exceeds ``threshold`` times the larger of its noise-only value
-    and its median over the gel (the undeformed model is never exact on a real sensor); of their
-    connected components only those at least ``min_component`` times the largest are kept, so isolated
-    misfits (cast shadows far from the dent, silhouette aliasing, hot pixels) do not stretch the box.
+    Candidates are the pixels :func:`contact_hits` calls hit (with ``threshold``); of their connected
+    components only those at least ``min_component`` times the largest are kept, so isolated misfits (cast
+    shadows far from the dent, silhouette aliasing, hot pixels) do not stretch the box.
 
     When that box would cover most of the gel (:data:`tolerances.ROI_LARGE_FRACTION` of the gel's bounding
     box), the components along the gel's edge are left out if a large one remains inside
@@ -252,12 +252,10 @@ def contact_box(
     box : (x0, y0, w, h) pixels
     note : str -- empty, or what was left out, or a warning that the box still covers most of the gel.
     """
-    mis = contact.misfit
-    valid = np.isfinite(mis)
+    valid = np.isfinite(contact.misfit)
     if not valid.any():
         raise CaptureError(f"{folder}: no pixel sees the gel; nothing to reconstruct")
-    floor = np.maximum(contact.expected, float(np.median(mis[valid])))
-    hit = valid & (np.nan_to_num(mis) > threshold * np.maximum(floor, 1e-9))
+    hit = contact_hits(contact, threshold)
     if not hit.any():
         raise CaptureError(f"{folder}: --roi auto found no contact (images match the undeformed dome)")
     labels, sizes = masks.components(hit)
@@ -295,6 +293,27 @@ def contact_box(
             f"sensor (try nlips calibrate-leds or --reference); pass --roi X0 Y0 W H to choose the region"
         )
     return box, note
+
+
+def contact_hits(contact: ContactMap, threshold: float = tolerances.CONTACT_MISFIT_FACTOR) -> np.ndarray:
+    """Pixels in or at the contact: misfit above ``threshold`` times the larger of its noise-only value and the
+    misfit's median over the gel (the undeformed model is never exact on a real sensor).
+
+    Parameters
+    ----------
+    contact : ContactMap
+    threshold : float -- see :data:`nlipscalib.core.tolerances.CONTACT_MISFIT_FACTOR`.
+
+    Returns
+    -------
+    (H, W) bool -- all False when no pixel sees the gel.
+    """
+    mis = contact.misfit
+    valid = np.isfinite(mis)
+    if not valid.any():
+        return valid
+    floor = np.maximum(contact.expected, float(np.median(mis[valid])))
+    return valid & (np.nan_to_num(mis) > threshold * np.maximum(floor, 1e-9))
 
 
 def _box_fraction(region: np.ndarray, valid: np.ndarray) -> float:

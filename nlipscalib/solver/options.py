@@ -65,8 +65,10 @@ class SolverOptions:
     """Step halvings tried before a Gauss-Newton step is rejected (energy must not increase)."""
     shadow_level: float = 0.01
     """Observed intensity below this fraction of the LED image's 99th percentile is shadow: excluded."""
-    dead_led_level: float = 1e-3
-    """An LED whose image's 99th percentile (linear, full scale 1) is below this is dead: excluded."""
+    dead_led_level: float = tolerances.LIT_LEVEL
+    """An LED whose image's 99th percentile (linear, full scale 1) is below this is dead: excluded from the
+    Gauss-Newton fit and from :func:`nlipscalib.solver.solve_press`'s contact classification (auto ROI,
+    anchoring)."""
     dead_pixel_level: float = 1e-4
     """A pixel at or below this in every LED image and channel is dead: excluded."""
     min_leds: int = tolerances.MIN_LEDS_PER_PIXEL

@@ -32,8 +32,7 @@ from ..core.leds import led_geometry_mismatch
 from ..core.metrics import angle_deg
 from ..errors import CaptureError, ConfigError, ShapeError
 from . import reuse
-from .contact import ContactMap, anchor_weights, classify_contact, contact_box
-from .contact import auto_roi as _auto_roi_box
+from .contact import ContactMap, anchor_weights, classify_contact, contact_box, contact_hits
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
     Surface,
@@ -53,34 +52,17 @@ log = logging.getLogger(__name__)
 INTERREFLECTION_MODES = ("auto", "on", "off")
 MIN_ROI_SIDE = 4
 """Smallest width and height of an explicit ROI box, pixels (the API's and --roi's checks both state it)."""
-OUTER_TOL_DEG = 0.05
-"""The outer interreflection loop stops when the median normal change of a pass is below this, degrees."""
-
-
-def contact_misfit(
-    press: Press, indirect: np.ndarray | None = None, reference: Press | None = None, window=(slice(None), slice(None))
-) -> np.ndarray:
-    """Per-pixel misfit of the undeformed dome to the LED images, relative to the noise-only misfit.
-
-    Kept for callers of the earlier API; :func:`nlipscalib.solver.contact.classify_contact` is the one
-    computation. ``window`` cuts the result.
-
-    Returns
-    -------
-    (h, w) float64 -- misfit / noise-only misfit; NaN off the gel.
-    """
-    und = reference.linear(reference.led_images) if reference is not None else None
-    cmap = classify_contact(press, undeformed_images=und, indirect=indirect, undeformed_noise=reference is not None)
-    return cmap.ratio[tuple(window)]
-
-
-def auto_roi(press: Press, indirect: np.ndarray | None = None, reference: Press | None = None, leds=None, **kwargs):
-    """Bounding box (x0, y0, w, h) of the contact (:func:`nlipscalib.solver.contact.auto_roi`)."""
-    und = reference.linear(reference.led_images) if reference is not None else None
-    cmap = classify_contact(
-        press, leds, undeformed_images=und, indirect=indirect, undeformed_noise=reference is not None
-    )
-    return _auto_roi_box(cmap, press.camera.shape, folder=press.folder, **kwargs)
+RELAXATION_MAX_RATIO = 3.0
+"""Largest indirect/direct light ratio g that :func:`_relaxation` uses, so every pixel moves at least 1 / (1 + 3) of
+the way to its gathered light per pass. Why a cap: g is 0.3-0.5 in a dent (benchmarks/RESULTS.md), where it does not
+bind; it binds where the images hold (next to) no direct light -- a cast shadow, or a subtracted light that reaches
+the images -- where g is a ratio of small, noisy numbers and an unbounded one would all but freeze the pixel's light
+at its first (undeformed-surface) value. The value 3 itself has no recorded measurement (commit 32a19f9)."""
+RELAXATION_DIRECT_FLOOR = 1e-3
+"""Least direct light of a pixel in :func:`_relaxation`, as a fraction of its indirect light: where the subtracted
+light reaches or exceeds the images, the direct light (images minus it) would be zero or negative and g infinite or
+negative; with the floor g is 1 / this, above :data:`RELAXATION_MAX_RATIO`, so such a pixel gets the capped,
+slowest relaxation."""
 
 
 def solve_press(press: Press, **kwargs) -> SolveResult:
@@ -198,7 +180,9 @@ def _solve_press(
     if isinstance(roi, str) and roi != "auto":
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
-    light = _light_and_contact(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces)
+    light = _light_and_contact(
+        press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, options.dead_led_level
+    )
     model, cmap = light.model, light.cmap
     if model is not None and model.enabled and coating_albedo is not None:
         model = model.with_reflectance(coating_albedo)
@@ -260,10 +244,12 @@ class _Light:
     """The contact classifications."""
 
 
-def _light_and_contact(press: Press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces) -> _Light:
+def _light_and_contact(
+    press: Press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, dead_level: float
+) -> _Light:
     """Fit the indirect term, then classify the contact against the undeformed model with it (when the press
     stands in for the undeformed capture: a rough fit finds the contact, the term is fitted again without it
-    and the classification redone)."""
+    and the classification redone). ``dead_level``: ``SolverOptions.dead_led_level``, the classification's too."""
     prior = press.reference.depth if press.reference is not None else None
     t0 = time.perf_counter()
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
@@ -276,13 +262,14 @@ def _light_and_contact(press: Press, leds, ref_capture, fixed_light, explicit_ro
     t0 = time.perf_counter()
     cmap, refit = None, 0.0
     if press.reference is not None:
-        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading, fit.contact_cache if fit else {})
+        cache = fit.contact_cache if fit else {}
+        cmap = _contact(press, leds, ref_capture, fixed_light, model, shading, dead_level, cache)
         if fit is not None and fit.refits and model.enabled:
             # the press stands in for the undeformed capture: fit again without its contact
             t1 = time.perf_counter()
             model = fit.again(exclude=_contact_pixels(cmap))
             refit = time.perf_counter() - t1
-            cmap = _contact(press, leds, None, None, model, shading, fit.contact_cache)
+            cmap = _contact(press, leds, None, None, model, shading, dead_level, fit.contact_cache)
     t_contact = time.perf_counter() - t0 - refit
     return _Light(model, cmap, shading, t_indirect + refit, t_contact)
 
@@ -507,7 +494,7 @@ class _OuterLoop:
             result = new
             if last:
                 break
-            settled = change < OUTER_TOL_DEG  # then one refined pass over the whole mask ends the loop
+            settled = change < tolerances.OUTER_TOL_DEG  # then one refined pass over the whole mask ends the loop
         return result
 
     def _update(self, light: np.ndarray, gathered: np.ndarray) -> np.ndarray:
@@ -580,11 +567,8 @@ def _merged(whole: SolveResult, part: SolveResult, focus: np.ndarray) -> SolveRe
 
 
 def _contact_pixels(cmap: ContactMap, margin: int = 4) -> np.ndarray:
-    """(H, W) bool -- the pixels the auto ROI would box (its components), dilated by ``margin``."""
-    mis = cmap.misfit
-    valid = np.isfinite(mis)
-    floor = np.maximum(cmap.expected, float(np.median(mis[valid])) if valid.any() else 0.0)
-    hit = valid & (np.nan_to_num(mis) > 3.0 * np.maximum(floor, 1e-9))
+    """(H, W) bool -- the pixels the auto ROI would box (:func:`contact_hits`), dilated by ``margin``."""
+    hit = contact_hits(cmap)
     return masks.dilate(hit, iterations=margin) if hit.any() else hit
 
 
@@ -679,18 +663,18 @@ def _box_mask(roi, shape) -> np.ndarray:
     return box
 
 
-def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, cache=None) -> ContactMap:
+def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, dead_level: float, cache=None) -> ContactMap:
     """The one contact classification: against the undeformed capture, or the model with its indirect term.
 
-    ``shading``: :func:`direct_shading` of the reference surface; ``cache``: the press's side of the
-    classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
+    ``shading``: :func:`direct_shading` of the reference surface; ``dead_level``: ``SolverOptions.dead_led_level``,
+    the fit's level of a dead LED; ``cache``: the press's side of the classification, shared by the
+    classifications of one solve (``classify_contact(cache=...)``)."""
+    classify = functools.partial(classify_contact, press, leds, dead_level=dead_level, cache=cache)
     if ref_capture is not None:
-        und = _undeformed_images(ref_capture)
-        return classify_contact(press, leds, undeformed_images=und, undeformed_noise=True, cache=cache)
+        return classify(undeformed_images=_undeformed_images(ref_capture), undeformed_noise=True)
     if model is not None and model.enabled:
-        light = model.undeformed_light(press.camera.shape)
-        return classify_contact(press, leds, undeformed_images=shading, undeformed_light=light, cache=cache)
-    return classify_contact(press, leds, undeformed_images=shading, indirect=fixed_light, cache=cache)
+        return classify(undeformed_images=shading, undeformed_light=model.undeformed_light(press.camera.shape))
+    return classify(undeformed_images=shading, indirect=fixed_light)
 
 
 def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, ref_surface: Surface) -> np.ndarray:
@@ -718,8 +702,8 @@ def _relaxation(image_total: np.ndarray, light: np.ndarray) -> np.ndarray:
     0.8 deg). The update L + (gathered - L) / (1 + g) cancels that first-order feedback (the same press:
     2.27, 0.16, 0.02 deg)."""
     indirect = light.sum(axis=(0, 3))
-    direct = np.maximum(image_total - indirect, 1e-3 * np.maximum(indirect, 1e-30))
-    g = np.clip(indirect / direct, 0.0, 3.0)
+    direct = np.maximum(image_total - indirect, RELAXATION_DIRECT_FLOOR * np.maximum(indirect, 1e-30))
+    g = np.clip(indirect / direct, 0.0, RELAXATION_MAX_RATIO)
     return (1.0 / (1.0 + g))[None, ..., None].astype(np.float32)
 
 

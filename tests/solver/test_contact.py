@@ -75,6 +75,19 @@ def test_dead_led_with_auto_roi(tmp_path):
     assert evaluate(result, press.ground_truth)["contact"]["aae_deg"] < 2.0
 
 
+def test_dead_led_level_reaches_the_contact_classification(tmp_path):
+    """``SolverOptions.dead_led_level`` decides the dead LEDs of the contact classification (auto ROI, anchoring)
+    as well as the fit's: an LED at 1 % of the others' intensity (its image's bright end ~0.006) is live at the
+    default level and dead, in both, at 0.02 (the classification used its own 1e-3 and kept it)."""
+    leds = list(synth.ring_leds())
+    leds[4] = Led(leds[4].position, leds[4].direction, leds[4].mu, (0.01, 0.01, 0.01))
+    press = load_press(synth.make_press(tmp_path / "dim", "sphere", leds=tuple(leds)))
+    default = solve_press(press, roi="auto", options=SolverOptions(max_iters=2))
+    assert default.report["dead_leds_contact"] == [] and 4 not in default.report["dead_leds"]
+    raised = solve_press(press, roi="auto", options=SolverOptions(max_iters=2, dead_led_level=0.02))
+    assert raised.report["dead_leds_contact"] == [4] and 4 in raised.report["dead_leds"]
+
+
 def test_nothing_reconstructable_is_an_error_with_the_reason(tmp_path, capsys):
     folder = synth.make_press(tmp_path / "dark", "sphere", lin_hook=lambda lin: np.zeros_like(lin))
     with pytest.raises(CaptureError, match="lit|reconstruct"):
