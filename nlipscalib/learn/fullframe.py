@@ -138,12 +138,12 @@ class FullFrame:
     def _box_points(self, normals, changed: np.ndarray):
         """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels' box
         solved (:class:`BoxIntegrator`; only the box comes back from the device), or the whole gel solved where
-        that box would leave the gel or touch the image border."""
+        that box would leave the gel or touch the image border (its level from the unchanged pixels)."""
         if not changed.any():
             return self.ref_points_host.copy()
         box = self.box_integrator.box(changed)
         if box is None:
-            return self.integrator(normals)
+            return self.integrator(normals, self.torch.from_numpy(~changed).to(self.device))
         points = self.ref_points_host.copy()
         points[box] = self.box_integrator(normals, box).cpu().numpy()
         return points
@@ -161,7 +161,7 @@ class FullFrame:
         normals.view(-1, 3)[self.flat] = self.net(x)
         changed, mismatch = self.change(frame)
         if not self.keep_reference:  # the network's normals everywhere, integrated over the whole gel
-            whole = self.integrator(normals) if self.integrator is not None else self.ref_points
+            whole = self.integrator(normals, ~changed) if self.integrator is not None else self.ref_points
             return normals, self.change.valid, mismatch, whole
         # the reference normals where nothing changed; the box is integrated after (its shape changes per frame)
         return torch.where(changed[..., None], normals, self.ref_normals), changed, mismatch, self.ref_points

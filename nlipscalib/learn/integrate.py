@@ -206,11 +206,20 @@ def box_rhs(normals, rays, d_u, d_v, x):
     return f
 
 
-def box_eigenvalues(m: int, n: int) -> np.ndarray:
-    """(m, n) float64 eigenvalues of the 5-point Dirichlet Laplacian of an (m, n) box, in the DST-I basis."""
-    return (2 - 2 * np.cos(np.pi * np.arange(1, m + 1) / (m + 1)))[:, None] + (
-        2 - 2 * np.cos(np.pi * np.arange(1, n + 1) / (n + 1))
-    )[None, :]
+def box_eigenvalues(m: int, n: int, neumann: tuple[bool, bool] = (False, False)) -> np.ndarray:
+    """(m, n) float64 eigenvalues of the 5-point Laplacian of an (m, n) box, in its transforms' basis.
+
+    Per axis (rows, columns): zero beyond both ends (Dirichlet; the type-I DST basis), or with ``neumann`` no
+    neighbour beyond them (natural boundary; the type-II DCT basis, whose first eigenvalue, the constant's, is 0).
+    """
+    return _path_eigenvalues(m, neumann[0])[:, None] + _path_eigenvalues(n, neumann[1])[None, :]
+
+
+def _path_eigenvalues(n: int, neumann: bool) -> np.ndarray:
+    """(n,) float64 eigenvalues of the 1-D 3-point Laplacian on n points (:func:`box_eigenvalues`)."""
+    if neumann:
+        return 2 - 2 * np.cos(np.pi * np.arange(n) / n)
+    return 2 - 2 * np.cos(np.pi * np.arange(1, n + 1) / (n + 1))
 
 
 def _gradient32(normals, rays, d_u, d_v):

@@ -6,15 +6,21 @@ rays, gradients averaged on each pixel pair; :func:`.integrate.box_rhs` is share
 - :class:`BoxIntegrator`: the CPU's box solver (the changed pixels' box, its outer ring at the reference),
   its type-I sine transforms by torch's FFT on a CPU and by dense matrix products on a GPU (no cuFFT plan per
   box size).
-- :class:`DomeIntegrator`: every gel pixel whose four neighbours are on the gel; the gel's outermost pixel
-  ring is the Dirichlet boundary, held at the undeformed reference (the gel is fixed where it meets the
-  dome's base; where the gel fills the image, the ring is the image border). Where that domain is not a
-  rectangle, the fast sine-transform solver of its bounding box is corrected on the boundary ring with a
-  precomputed capacitance matrix -- the capacitance-matrix method for the discrete Poisson equation on
-  irregular regions (Buzbee, Dorr, George & Golub, SIAM J. Numer. Anal. 8(4), 1971): per frame two box
-  solves and one (b, b) matrix-vector product (b: ring pixels inside the box), exact up to rounding, no
-  iterations; set up once per sensor with b box solves (batched: under a second on a GPU, about a minute
-  on two CPU cores at 640x480). A gel that fills the image needs one box solve and no set-up.
+- :class:`DomeIntegrator`: every gel pixel whose neighbours in the image are all on the gel. The gel pixels
+  next to them that meet the dome's base (an off-gel pixel) are the Dirichlet boundary, held at the undeformed
+  reference: the gel is fixed there. The image border is a natural (Neumann) boundary: the surface there is
+  free (a contact that reaches the border displaces it; holding it at the reference made such contacts
+  1.4-2.6 % too shallow at 640x480) and only the pixel pairs inside the image enter the equation, as on
+  the CPU's sparse path. A box whose side is at the image border is solved with the type-II cosine
+  transform along that axis, one whose sides are held with the type-I sine transform. Where the domain is
+  not that rectangle, the box solver is corrected on the held pixels inside it with a precomputed
+  capacitance matrix -- the capacitance-matrix method for the discrete Poisson equation on irregular
+  regions (Buzbee, Dorr, George & Golub, SIAM J. Numer. Anal. 8(4), 1971): per frame two box solves and
+  one (b, b) matrix-vector product (b: held pixels inside the box), exact up to rounding, no iterations;
+  set up once per sensor with b box solves (batched: under a second on a GPU, about a minute on two CPU
+  cores at 640x480). A gel that fills the image has no held pixel: one box solve, no set-up, and nothing
+  fixes its level but the pixels that did not change, whose mean change is set to zero (the least-squares
+  level shift over them).
 """
 
 from __future__ import annotations
@@ -54,6 +60,43 @@ def dst1(x, dim: int):
     return out.movedim(-1, dim)
 
 
+def dct2(x, dim: int):
+    """Orthonormal type-II discrete cosine transform of a torch tensor along ``dim``; :func:`idct2` inverts it.
+
+    Through one complex FFT of length n of the reordered [x0, x2, x4, ..., x5, x3, x1] (Makhoul, IEEE Trans.
+    ASSP 28(1), 1980): torch has no DCT; equals ``scipy.fft.dct(x, type=2, norm="ortho", axis=dim)``.
+    """
+    torch = _torch()
+    x = x.movedim(dim, -1)
+    n = x.shape[-1]
+    v = torch.cat([x[..., 0::2], x[..., 1::2].flip(-1)], dim=-1)
+    out = (torch.fft.fft(v, dim=-1) * _twiddle(n, -1.0, x)).real * math.sqrt(2.0 / n)
+    out[..., 0] *= math.sqrt(0.5)
+    return out.movedim(-1, dim)
+
+
+def idct2(y, dim: int):
+    """Inverse of :func:`dct2` (the orthonormal type-III DCT) along ``dim``, by one complex inverse FFT."""
+    torch = _torch()
+    y = y.movedim(dim, -1)
+    n = y.shape[-1]
+    c = torch.cat([y[..., :1] * math.sqrt(n), y[..., 1:] * math.sqrt(n / 2.0)], dim=-1)  # sum x_j cos(...)
+    mirrored = torch.cat([torch.zeros_like(c[..., :1]), c[..., 1:].flip(-1)], dim=-1)  # c[n - k], c[n] = 0
+    v = torch.fft.ifft(_twiddle(n, 1.0, y) * torch.complex(c, -mirrored), dim=-1).real
+    half = (n + 1) // 2
+    x = torch.empty_like(v)
+    x[..., 0::2] = v[..., :half]
+    x[..., 1::2] = v[..., half:].flip(-1)
+    return x.movedim(-1, dim)
+
+
+def _twiddle(n: int, sign: float, like):
+    """(n,) complex exp(sign i pi k / 2n) of ``like``'s dtype and device."""
+    torch = _torch()
+    k = torch.arange(n, dtype=like.dtype, device=like.device)
+    return torch.polar(torch.ones_like(k), k * (sign * math.pi / (2 * n)))
+
+
 @functools.lru_cache(maxsize=64)
 def dst1_matrix(n: int, device, dtype):
     """(n, n) matrix of the orthonormal type-I DST (symmetric, its own inverse): ``S @ x`` is :func:`dst1` along
@@ -65,25 +108,55 @@ def dst1_matrix(n: int, device, dtype):
     return s.to(device=device, dtype=dtype)
 
 
-class BoxPoisson:
-    """Solver of the 5-point Dirichlet Laplacian (4 x_i - sum of neighbours = f) on an (m, n) box, zero outside.
+@functools.lru_cache(maxsize=64)
+def dct2_matrix(n: int, device, dtype):
+    """(n, n) matrix of the orthonormal type-II DCT (its transpose inverts it): ``C @ x`` is :func:`dct2` along
+    the first axis. Its cosines are taken of exact arguments (the index product reduced modulo the period)."""
+    torch = _torch()
+    k = torch.arange(n, dtype=torch.int64)
+    phase = (k[:, None] * (2 * k[None, :] + 1)) % (4 * n)
+    c = math.sqrt(2.0 / n) * torch.cos(phase.to(torch.float64) * (math.pi / (2 * n)))
+    c[0] *= math.sqrt(0.5)
+    return c.to(device=device, dtype=dtype)
 
-    ``dense``: the sine transforms as matrix products (:func:`dst1_matrix`) instead of FFTs. On a GPU a box of a
-    new size then costs no cuFFT plan: 34 ms the first time a size came on an H200, against 1 ms once planned,
-    and a moving contact brings a new box size nearly every frame (benchmarks/RESULTS.md). On a CPU the FFT is
-    the faster.
+
+class BoxPoisson:
+    """Solver of the 5-point Laplacian (deg x_i - sum of neighbours = f) on an (m, n) box.
+
+    Per axis (rows, columns): zero beyond both ends (Dirichlet: the type-I sine transform, deg 4 in the box's
+    interior), or with ``neumann`` no neighbour beyond them (natural boundary: the type-II cosine transform;
+    a pixel's degree counts its neighbours in the box). Neumann on both axes leaves the constant free: the
+    solve then drops it (the least-norm solution, zero mean; exact where ``f`` sums to zero).
+
+    ``dense``: the transforms as matrix products (:func:`dst1_matrix`, :func:`dct2_matrix`) instead of FFTs.
+    On a GPU a box of a new size then costs no cuFFT plan: 34 ms the first time a size came on an H200,
+    against 1 ms once planned, and a moving contact brings a new box size nearly every frame
+    (benchmarks/RESULTS.md). On a CPU the FFT is the faster.
     """
 
-    def __init__(self, m: int, n: int, device, dtype, dense: bool = False):
-        self.lam = _torch().as_tensor(box_eigenvalues(m, n), dtype=dtype, device=device)
-        self.dense = (dst1_matrix(m, device, dtype), dst1_matrix(n, device, dtype)) if dense else None
+    def __init__(self, m: int, n: int, device, dtype, dense: bool = False, neumann: tuple[bool, bool] = (False, False)):
+        lam = box_eigenvalues(m, n, neumann)
+        lam[0, 0] = np.inf if all(neumann) else lam[0, 0]  # the constant's eigenvalue 0: its coefficient dropped
+        self.lam = _torch().as_tensor(lam, dtype=dtype, device=device)
+        self.neumann = neumann
+        self.dense = [_axis_matrices(k, neumann[i], device, dtype) for i, k in enumerate((m, n))] if dense else None
 
     def __call__(self, f):
         """x with L x = f; ``f`` is (..., m, n)."""
         if self.dense is not None:
-            s_m, s_n = self.dense
-            return s_m @ ((s_m @ f @ s_n) / self.lam) @ s_n
-        return dst1(dst1(dst1(dst1(f, -2), -1) / self.lam, -2), -1)
+            (c_m, ct_m), (c_n, ct_n) = self.dense  # C x along the rows; x C^T along the columns
+            return ct_m @ ((c_m @ f @ ct_n) / self.lam) @ c_n
+        (fwd_m, inv_m), (fwd_n, inv_n) = ((dct2, idct2) if nm else (dst1, dst1) for nm in self.neumann)
+        return inv_n(inv_m(fwd_n(fwd_m(f, -2), -1) / self.lam, -2), -1)
+
+
+def _axis_matrices(n: int, neumann: bool, device, dtype):
+    """(C, C^T): one axis's (n, n) orthonormal transform matrix of :class:`BoxPoisson` and its inverse."""
+    if not neumann:
+        s = dst1_matrix(n, device, dtype)
+        return s, s
+    c = dct2_matrix(n, device, dtype)
+    return c, c.mT.contiguous()
 
 
 class BoxIntegrator:
@@ -186,8 +259,10 @@ class BoxIntegrator:
 class DomeIntegrator:
     """Log-range of the whole gel from a normal map, on a torch device (module docstring).
 
-    The box solver works on the bounding box of the inner gel pixels, whose outer frame is ring or off the
-    gel; the ring pixels inside the box (where the gel's outline is not that rectangle) are held by the
+    The box solver works on the bounding box of the solved pixels. Along an axis where they stay inside the
+    image, the box's frame beyond them is held (the sine transform); along one where they reach the image
+    border, the box's sides have no neighbour beyond (the cosine transform) and the box spans the held pixels
+    too. The held pixels inside the box (where the gel's outline is not that rectangle) are held by the
     capacitance correction. A gel that fills the image needs none: one box solve per frame, no set-up.
 
     Parameters
@@ -200,52 +275,59 @@ class DomeIntegrator:
         torch = _torch()
         self.device, dt = device, torch.float64
         on_gel = np.isfinite(geo.log_range)
-        inner = _inner(on_gel)
-        if not inner.any():
-            raise ShapeError("the gel has no pixel whose four neighbours are on the gel: nothing to integrate")
-        rows, cols = np.nonzero(inner)
-        r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
-        self.box = (slice(r0, r1), slice(c0, c1))
-        # the box and its frame (inner pixels never touch the image border, so the frame is in the image)
-        self.framed = (slice(r0 - 1, r1 + 1), slice(c0 - 1, c1 + 1))
+        solved = _solved(on_gel)
+        if not solved.any():
+            raise ShapeError("no gel pixel has all its neighbours in the image on the gel: nothing to integrate")
+        held = _dilate4(solved) & ~solved  # the gel pixels next to the solved ones that meet the base
+        spans = [_span(solved.any(1 - axis), held.any(1 - axis)) for axis in (0, 1)]
+        self.box, self.framed, self.in_frame = (tuple(s[i] for s in spans) for i in range(3))
+        # natural sides along an axis where the box needs no frame
+        self.neumann = tuple(inside == slice(None) for inside in self.in_frame)
 
         def put(a):
             return torch.as_tensor(np.ascontiguousarray(a), device=device)
 
         ref = np.where(on_gel, geo.log_range, 0.0)
         self.ref = put(ref[self.box])
-        self.inner = put(inner[self.box])
-        ring = _dilate4(inner) & ~inner
-        self.ring = put(np.flatnonzero(ring[self.box]))  # ring pixels inside the box
+        self.solved = put(solved[self.box])
+        self.held = put(np.flatnonzero(held[self.box]))  # held pixels inside the box
         # the framed box's rays and their derivatives, for the log-range gradient of a normal map
         self.rays, self.d_u, self.d_v = (put(a[self.framed]).to(dt) for a in (geo.rays, geo.d_u, geo.d_v))
         self.points_ref = put(np.where(on_gel[..., None], geo.points, np.nan).astype(np.float32))
-        self.solve = BoxPoisson(*self.ref.shape, device, dt)
-        self.ref_laplacian = _laplacian(put(ref[self.framed]))[1:-1, 1:-1] * self.inner
-        self.capacitance_inverse = self._capacitance_inverse() if len(self.ring) else None
-        # the inner pixels by index (boolean-mask indexing waits for the device; a CUDA graph cannot)
-        self.inner_in_box = put(np.flatnonzero(inner[self.box]))
-        self.inner_in_image = put(np.flatnonzero(inner))
-        self.inner_rays = put(geo.rays[inner])
+        self.solve = BoxPoisson(*self.ref.shape, device, dt, neumann=self.neumann)
+        framed_ref = put(ref[self.framed])
+        ref_div = self._divergence(framed_ref[:, 1:] - framed_ref[:, :-1], framed_ref[1:] - framed_ref[:-1])
+        self.ref_divergence = ref_div * self.solved
+        self.capacitance_inverse = self._capacitance_inverse() if len(self.held) else None
+        # the solved pixels by index (boolean-mask indexing waits for the device; a CUDA graph cannot)
+        self.solved_in_box = put(np.flatnonzero(solved[self.box]))
+        self.solved_in_image = put(np.flatnonzero(solved))
+        self.solved_rays = put(geo.rays[solved])
 
     def _capacitance_inverse(self):
-        """(b, b) inverse of the box solver's response at the ring to unit sources at the ring."""
+        """(b, b) inverse of the box solver's response at the held pixels to unit sources there; (b + 1, b + 1)
+        with the level as a last unknown where the box solve leaves the constant free (both axes natural)."""
         torch = _torch()
         m, n = self.ref.shape
-        b = len(self.ring)
+        b = len(self.held)
         chunk = max(1, min(b, SETUP_BATCH_BYTES // (8 * 4 * (m + 1) * (n + 1))))
-        green = torch.empty((b, b), dtype=torch.float64, device=self.device)
+        free = all(self.neumann)
+        green = torch.zeros((b + free, b + free), dtype=torch.float64, device=self.device)
         for start in range(0, b, chunk):
-            idx = self.ring[start : start + chunk]
+            idx = self.held[start : start + chunk]
             sources = torch.zeros((len(idx), m * n), dtype=torch.float64, device=self.device)
             sources[torch.arange(len(idx), device=self.device), idx] = 1.0
-            green[start : start + len(idx)] = self.solve(sources.view(-1, m, n)).view(-1, m * n)[:, self.ring]
+            green[start : start + len(idx), :b] = self.solve(sources.view(-1, m, n)).view(-1, m * n)[:, self.held]
+        if free:  # x = solve(f + sources) + level, held at zero; the sources make f + sources sum to zero
+            green[:b, b] = green[b, :b] = 1.0
         return torch.linalg.inv(green)
 
-    def log_range(self, normals):
+    def log_range(self, normals, unchanged=None):
         """(m, n) float64 log-range over :attr:`box` from ``normals`` ((H, W, 3) float tensor, unit, camera frame).
 
-        Inner gel pixels are solved, the ring and the rest of the gel keep the reference.
+        Solved gel pixels are solved, the held ones and the rest of the gel keep the reference. ``unchanged``
+        ((H, W) bool tensor, or None: every pixel) sets the level where nothing holds it (a gel that fills the
+        image): the mean change of the unchanged solved pixels is zero (of all of them where none is unchanged).
         """
         torch = _torch()
         nb = normals[self.framed].to(torch.float64)
@@ -253,31 +335,84 @@ class DomeIntegrator:
         p = -(nb * self.d_u).sum(-1) / den
         q = -(nb * self.d_v).sum(-1) / den
         # f = (incoming - outgoing edge gradients) at each pixel of the box; the reference to the right-hand side
-        gu = 0.5 * (p[1:-1, :-1] + p[1:-1, 1:])  # edge (r, c) -> (r, c + 1)
-        gv = 0.5 * (q[:-1, 1:-1] + q[1:, 1:-1])  # edge (r, c) -> (r + 1, c)
-        f = gu[:, :-1] - gu[:, 1:] + gv[:-1, :] - gv[1:, :]
-        rhs = (f - self.ref_laplacian) * self.inner  # the change from the reference: zero on the ring
+        f = self._divergence(0.5 * (p[:, :-1] + p[:, 1:]), 0.5 * (q[:-1] + q[1:]))
+        rhs = (f - self.ref_divergence) * self.solved  # the change from the reference: zero on the held pixels
         change = self.solve(rhs)
-        if self.capacitance_inverse is not None:  # sources on the ring that bring the change there back to zero
-            held = -(self.capacitance_inverse @ change.flatten()[self.ring])
-            change = self.solve(rhs.flatten().index_add(0, self.ring, held).view_as(rhs))
-        return self.ref + change * self.inner
+        if self.capacitance_inverse is not None:
+            change = self._hold(rhs, change)
+        elif all(self.neumann):
+            change = change - self._level(change, unchanged)
+        return self.ref + change * self.solved
 
-    def __call__(self, normals):
-        """(H, W, 3) float32 tensor: the surface points, mm, camera frame (NaN off the gel); depth is their z."""
+    def __call__(self, normals, unchanged=None):
+        """(H, W, 3) float32 tensor: the surface points, mm, camera frame (NaN off the gel); depth is their z.
+
+        ``unchanged``: (H, W) bool tensor of the pixels that did not change, or None (:meth:`log_range`).
+        """
         torch = _torch()
         points = self.points_ref.clone()
-        lr = self.log_range(normals).flatten()[self.inner_in_box]
-        points.view(-1, 3)[self.inner_in_image] = (torch.exp(lr)[:, None] * self.inner_rays).to(torch.float32)
+        lr = self.log_range(normals, unchanged).flatten()[self.solved_in_box]
+        points.view(-1, 3)[self.solved_in_image] = (torch.exp(lr)[:, None] * self.solved_rays).to(torch.float32)
         return points
 
+    def _divergence(self, along_u, along_v):
+        """(m, n): incoming minus outgoing edge values at each pixel of the box, from the framed box's edges
+        along u ((mf, nf - 1), pixel (r, c) to (r, c + 1)) and along v ((mf - 1, nf)). On a natural side no
+        edge leaves the box (the 5-point Laplacian's row of the pixel counts its neighbours in the image)."""
+        torch = _torch()
+        rows, cols = self.in_frame
+        gu, gv = along_u[rows], along_v[:, cols]
+        if self.neumann[1]:
+            gu = torch.nn.functional.pad(gu, (1, 1))
+        if self.neumann[0]:
+            gv = torch.nn.functional.pad(gv, (0, 0, 1, 1))
+        return gu[:, :-1] - gu[:, 1:] + gv[:-1, :] - gv[1:, :]
 
-def _inner(on_gel: np.ndarray) -> np.ndarray:
-    """Gel pixels whose four neighbours are gel pixels (none on the image border)."""
-    inner = on_gel.copy()
-    inner[0, :] = inner[-1, :] = inner[:, 0] = inner[:, -1] = False
-    inner[1:-1, 1:-1] &= on_gel[:-2, 1:-1] & on_gel[2:, 1:-1] & on_gel[1:-1, :-2] & on_gel[1:-1, 2:]
-    return inner
+    def _hold(self, rhs, change):
+        """The box solve again, with sources on the held pixels that bring their change (``change``: the solve
+        without them) back to zero; where the box leaves the level free, with the level that does too."""
+        flat = rhs.flatten()
+        held = -change.flatten()[self.held]
+        if not all(self.neumann):
+            return self.solve(flat.index_add(0, self.held, self.capacitance_inverse @ held).view_as(rhs))
+        sources = self.capacitance_inverse @ _torch().cat([held, -flat.sum()[None]])
+        return self.solve(flat.index_add(0, self.held, sources[:-1]).view_as(rhs)) + sources[-1]
+
+    def _level(self, change, unchanged):
+        """The constant whose removal makes the mean change over the unchanged solved pixels zero (the
+        least-squares level shift; over every solved pixel where ``unchanged`` is None or holds none of them)."""
+        torch = _torch()
+        weight = self.solved if unchanged is None else self.solved & unchanged[self.box]
+        # a where, not an if: nothing waits for the device (a CUDA graph records the whole-gel solve)
+        weight = torch.where(weight.sum() > 0, weight, self.solved).to(change.dtype)
+        return (change * weight).sum() / weight.sum()
+
+
+def _solved(on_gel: np.ndarray) -> np.ndarray:
+    """Gel pixels whose neighbours in the image are all gel pixels (beyond the image border: no neighbour)."""
+    padded = np.pad(on_gel, 1, constant_values=True)
+    return on_gel & padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:]
+
+
+def _span(solved: np.ndarray, held: np.ndarray) -> tuple[slice, slice, slice]:
+    """(box, framed box, the box within the framed box) along one axis, from where the solved and the held pixels
+    are on it ((n,) bool each).
+
+    Solved pixels inside the image: the box is theirs, its frame one pixel beyond each end (held or off the
+    gel: Dirichlet). Solved pixels that reach the image border: a natural boundary, no frame; the box spans
+    the held pixels too (a box side off the border then has no solved pixel on it).
+    """
+    lo, hi = _extent(solved)
+    if lo > 0 and hi < len(solved):
+        return slice(lo, hi), slice(lo - 1, hi + 1), slice(1, -1)
+    lo, hi = _extent(solved | held)
+    return slice(lo, hi), slice(lo, hi), slice(None)
+
+
+def _extent(mask: np.ndarray) -> tuple[int, int]:
+    """[lo, hi) of the True entries of a 1-D mask."""
+    idx = np.flatnonzero(mask)
+    return int(idx[0]), int(idx[-1]) + 1
 
 
 def _dilate4(mask: np.ndarray) -> np.ndarray:
@@ -286,14 +421,4 @@ def _dilate4(mask: np.ndarray) -> np.ndarray:
     out[:-1] |= mask[1:]
     out[:, 1:] |= mask[:, :-1]
     out[:, :-1] |= mask[:, 1:]
-    return out
-
-
-def _laplacian(x):
-    """4 x_i - sum of the four neighbours (zero beyond the array), as :class:`BoxPoisson` defines it."""
-    out = 4 * x
-    out[1:] -= x[:-1]
-    out[:-1] -= x[1:]
-    out[:, 1:] -= x[:, :-1]
-    out[:, :-1] -= x[:, 1:]
     return out

@@ -1,5 +1,5 @@
-"""Whole-frame inference in PyTorch (learn.fullframe): DST, the capacitance-matrix integration, parity with the
-changed-pixel path, and the CLI's --full-frame / --device."""
+"""Whole-frame inference in PyTorch (learn.fullframe): DST and DCT, the capacitance-matrix integration (the image
+border a natural boundary), parity with the changed-pixel path, and the CLI's --full-frame / --device."""
 
 import numpy as np
 import pytest
@@ -10,7 +10,7 @@ from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import load_press  # noqa: E402
 from nlipscalib.learn.infer import Predictor  # noqa: E402
 from nlipscalib.learn.integrate import RayGeometry, log_range_gradient  # noqa: E402
-from nlipscalib.learn.integrate_torch import RECORD_AFTER, BoxPoisson, DomeIntegrator, dst1  # noqa: E402
+from nlipscalib.learn.integrate_torch import RECORD_AFTER, BoxPoisson, DomeIntegrator, dct2, dst1, idct2  # noqa: E402
 
 CPU = torch.device("cpu")
 DEVICES = [
@@ -28,17 +28,33 @@ def test_dst1_is_scipys_orthonormal_type_i_along_either_axis():
         np.testing.assert_allclose(got, dst(x, type=1, norm="ortho", axis=axis), atol=1e-12)
 
 
+def test_dct2_is_scipys_orthonormal_type_ii_and_idct2_inverts_it():
+    from scipy.fft import dct
+
+    for shape in ((7, 11), (1, 8), (480, 3)):
+        x = np.random.default_rng(shape[0]).normal(size=shape)
+        for axis in (0, 1):
+            got = dct2(torch.from_numpy(x), axis)
+            np.testing.assert_allclose(got.numpy(), dct(x, type=2, norm="ortho", axis=axis), atol=1e-12)
+            np.testing.assert_allclose(idct2(got, axis).numpy(), x, atol=1e-12)
+
+
 @pytest.mark.parametrize("device", DEVICES)
-def test_the_box_solve_by_matrix_products_is_the_fft_one(device):
-    """The GPU's box solve (dense sine transforms: no cuFFT plan per box size) against the FFT one and against
-    the 5-point Laplacian it inverts."""
+@pytest.mark.parametrize("neumann", [(False, False), (True, False), (True, True)])
+def test_the_box_solve_by_matrix_products_is_the_fft_one(device, neumann):
+    """The GPU's box solve (dense transforms: no cuFFT plan per box size) against the FFT one and against the
+    5-point Laplacian it inverts: zero beyond a Dirichlet axis's ends, no neighbour beyond a natural one's."""
     f = np.random.default_rng(4).normal(size=(37, 53))
+    f -= f.mean() if all(neumann) else 0.0  # natural on all sides: solvable where f sums to zero
     for dtype, tol in ((torch.float64, 1e-12), (torch.float32, 2e-5)):
         x = torch.from_numpy(f).to(device=device, dtype=dtype)
-        dense = BoxPoisson(37, 53, torch.device(device), dtype, dense=True)(x).cpu().double().numpy()
-        fft = BoxPoisson(37, 53, torch.device(device), dtype)(x).cpu().double().numpy()
+        dense = BoxPoisson(37, 53, torch.device(device), dtype, dense=True, neumann=neumann)(x).cpu().double().numpy()
+        fft = BoxPoisson(37, 53, torch.device(device), dtype, neumann=neumann)(x).cpu().double().numpy()
         np.testing.assert_allclose(dense, fft, atol=tol * np.abs(fft).max())
-    padded = np.pad(dense, 1)
+    padded = dense
+    for axis, natural in enumerate(neumann):  # a copy of the end beyond a natural side: a zero difference
+        width = [(1, 1) if a == axis else (0, 0) for a in (0, 1)]
+        padded = np.pad(padded, width, mode="edge" if natural else "constant")
     laplacian = 4 * dense - padded[:-2, 1:-1] - padded[2:, 1:-1] - padded[1:-1, :-2] - padded[1:-1, 2:]
     np.testing.assert_allclose(laplacian, f, atol=1e-3)
 
@@ -97,38 +113,54 @@ def _normals_of(log_range, rays):
 
 
 @pytest.mark.parametrize("device", DEVICES)
-def test_whole_gel_integration_is_the_exact_solution_of_the_dirichlet_problem(device):
-    """Capacitance + box DST equals a sparse direct solve of the same 5-point system on the disk."""
+@pytest.mark.parametrize("radius, sides_at_the_border", [(17, 0), (21, 2), (24, 3), (99, 4)])  # 99: all the image
+def test_whole_gel_integration_is_the_exact_solution_of_the_5_point_system(device, radius, sides_at_the_border):
+    """Capacitance + box transforms equal a sparse direct solve of the same 5-point system on the gel: the
+    pixels whose neighbours in the image are all on the gel solved, the gel's other pixels at the reference,
+    no neighbour beyond the image border; a gel that fills the image has its level from the unchanged pixels."""
     from scipy.sparse import lil_matrix
     from scipy.sparse.linalg import spsolve
 
-    geo, on_gel, _ = _dome()
+    geo, on_gel, _ = _dome(radius=radius)
     rng = np.random.default_rng(1)
     normals = _normals_of(np.nan_to_num(geo.log_range), geo.rays) + rng.normal(0, 0.05, geo.rays.shape)
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    unchanged = np.ones(on_gel.shape, bool)
+    unchanged[10:30, 15:40] = False
     integrator = DomeIntegrator(geo, torch.device(device))
-    got = geo.log_range.copy()  # the box covers the inner pixels; the rest of the gel is the reference
-    got[integrator.box] = integrator.log_range(torch.from_numpy(normals).to(device)).cpu().numpy()
+    got = geo.log_range.copy()  # the box covers the solved pixels; the rest of the gel is the reference
+    lr = integrator.log_range(torch.from_numpy(normals).to(device), torch.from_numpy(unchanged).to(device))
+    got[integrator.box] = lr.cpu().numpy()
 
-    inner = on_gel.copy()
-    inner[1:-1, 1:-1] &= on_gel[:-2, 1:-1] & on_gel[2:, 1:-1] & on_gel[1:-1, :-2] & on_gel[1:-1, 2:]
+    H, W = on_gel.shape
+    padded = np.pad(on_gel, 1, constant_values=True)
+    solved = on_gel & padded[:-2, 1:-1] & padded[2:, 1:-1] & padded[1:-1, :-2] & padded[1:-1, 2:]
     p, q = log_range_gradient(normals, geo)
     index = -np.ones(on_gel.shape, int)
-    index[inner] = np.arange(inner.sum())
-    A, b = lil_matrix((inner.sum(), inner.sum())), np.zeros(inner.sum())
-    for r, c in zip(*np.nonzero(inner)):
+    n = int(solved.sum())
+    index[solved] = np.arange(n)
+    free = on_gel.all()  # no held pixel: one more row, the mean change of the unchanged pixels is zero
+    A, b = lil_matrix((n + free, n + free)), np.zeros(n + free)
+    for r, c in zip(*np.nonzero(solved)):
         i = index[r, c]
-        A[i, i] = 4
         for dr, dc, g in ((0, 1, p), (0, -1, p), (1, 0, q), (-1, 0, q)):
             rr, cc = r + dr, c + dc
+            if not (0 <= rr < H and 0 <= cc < W):
+                continue  # the image border: no pixel pair beyond it
+            A[i, i] += 1
             b[i] -= (dr + dc) * 0.5 * (g[r, c] + g[rr, cc])  # edge gradient toward the neighbour, signed
             if index[rr, cc] >= 0:
                 A[i, index[rr, cc]] = -1
             else:
                 b[i] += geo.log_range[rr, cc]
+    if free:  # a Lagrange multiplier (zero: the equations are compatible) for the level
+        level = (solved & unchanged)[solved].astype(float)
+        A[n, :n], A[:n, n] = level[None], level[:, None]
+        b[n] = level @ geo.log_range[solved]
     want = geo.log_range.copy()
-    want[inner] = spsolve(A.tocsr(), b)
-    assert inner.sum() > 500 and not inner.all()
+    want[solved] = spsolve(A.tocsr(), b)[:n]
+    assert sum(side.any() for side in (solved[0], solved[-1], solved[:, 0], solved[:, -1])) == sides_at_the_border
+    assert n > 500
     np.testing.assert_allclose(got[on_gel], want[on_gel], atol=1e-10)
 
 
@@ -147,6 +179,30 @@ def test_exact_normals_of_a_known_indentation_give_its_depth(device):
     err = np.abs(depth.numpy() - true_depth)
     assert np.nanmax(err) < 0.05 * np.nanmax(change), (np.nanmax(err), np.nanmax(change))
     assert np.isnan(depth.numpy()[~on_gel]).all()
+
+
+@pytest.mark.parametrize(("polar", "azimuth", "radius", "depth"), [(30, 90, 7.0, 2.0), (50, 0, 4.0, 1.0)])
+def test_a_contact_that_reaches_the_image_border_keeps_its_depth_on_the_whole_gel(polar, azimuth, radius, depth):
+    """Exact normals of spheres pressed into the default dome (its gel fills the 640x480 image) where the
+    contact reaches the image border: holding the border at the undeformed dome made them 2.6 % and 1.4 %
+    too shallow; with a natural boundary there, the level from the unchanged pixels, they agree with the
+    truth and with the CPU's sparse path."""
+    from scipy import ndimage
+
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.learn.integrate import integrate_on_dome
+    from tests.learn.test_integrate import _sphere_pressed_into_the_dome
+
+    ref, rays, hit, points, normals = _sphere_pressed_into_the_dome(SensorDesign(), polar, azimuth, radius, depth)
+    assert hit[0].any() or hit[-1].any() or hit[:, 0].any() or hit[:, -1].any()  # the contact reaches the border
+    changed = ndimage.binary_dilation(hit, iterations=3) & np.isfinite(ref.depth)
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    got = DomeIntegrator(geo, CPU)(torch.from_numpy(normals.astype(np.float32)), torch.from_numpy(~changed))
+    dent, true_dent = ref.depth - got[..., 2].numpy(), ref.depth - points[..., 2]
+    assert dent[changed].max() == pytest.approx(true_dent[changed].max(), rel=0.01)
+    assert np.abs(dent - true_dent)[changed].mean() < 0.01 * true_dent.max()
+    cpu, _ = integrate_on_dome(normals, changed, geo, "sparse")
+    assert np.abs(got[..., 2].numpy() - cpu)[changed].max() < 0.01 * true_dent.max()
 
 
 def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_elsewhere(trained, twin_presses):
@@ -173,8 +229,16 @@ def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_els
     border = np.zeros(cpu_predictor.valid.shape, bool)
     border[:10, :10] = True
     whole = device_path._box_points(normals, border)
-    np.testing.assert_allclose(whole, device_path.integrator(normals).numpy())
+    np.testing.assert_allclose(whole, device_path.integrator(normals, torch.from_numpy(~border)).numpy())
     assert not np.allclose(whole, device_path.ref_points_host)
+    # the network's normals everywhere (--full-frame): the whole gel's level from the pixels the rule left unchanged
+    whole_path = FullFrame(cpu_predictor.model, CPU, cpu_predictor.geo, keep_reference=False)
+    frame = torch.from_numpy(press.linear(press.tricolor))
+    with torch.no_grad():
+        normals, _, _, points = whole_path._compute(frame, stored=False)
+        changed, _ = whole_path.change(frame)
+    assert 0 < changed.sum() < changed.numel()
+    np.testing.assert_array_equal(points.numpy(), whole_path.integrator(normals, ~changed).numpy())
 
 
 def test_whole_frame_path_matches_the_changed_pixel_path_where_it_changed(trained, twin_presses):
