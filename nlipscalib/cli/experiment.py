@@ -4,6 +4,9 @@ Runs (or resumes) the experiment's per-press tasks into --out, then writes --rep
 results.json, PNG figures). Local processes by default; --scheduler tcp://HOST:PORT uses a running
 Dask cluster, --scheduler local:N starts a LocalCluster of N workers. --check BASELINE exits 1 with a
 table of the accuracy figures that got worse than the baseline by more than their tolerance.
+--redraw REPORT draws a report's figures and report.md again from its results.json alone (its config
+included; no work folder, nothing run): what the current drawing code makes of the stored numbers. The
+figures drawn from the work folder's per-press arrays (error maps, normal maps) are kept as they are.
 """
 
 from __future__ import annotations
@@ -26,9 +29,9 @@ def register(sub) -> None:
     # no argparse default: `--size quick --config F` must be refused like `--size full --config F`
     p.add_argument("--size", help="quick (CI), medium or full (default quick)")
     p.add_argument("--config", help="TOML/YAML file with the experiment's config fields (instead of --size)")
-    p.add_argument("--out", default="out/experiments", help="work folder: per-task results (default out/experiments)")
+    p.add_argument("--out", help="work folder: per-task results (default out/experiments)")
     p.add_argument("--report", help="report folder (default OUT/NAME-SIZE/report); with 'all' one subfolder each")
-    p.add_argument("--workers", type=int, default=1, help="local worker processes (default 1)")
+    p.add_argument("--workers", type=int, help="local worker processes (default 1)")
     p.add_argument("--scheduler", help="Dask scheduler address tcp://HOST:PORT, or local:N for a LocalCluster")
     p.add_argument(
         "--solver-option",
@@ -41,6 +44,12 @@ def register(sub) -> None:
     p.add_argument("--write-baseline", help="write this run's accuracy figures as a baseline JSON")
     p.add_argument("--plan", action="store_true", help="only print how many tasks the experiment has (and done)")
     p.add_argument("--keep-presses", action="store_true", help="keep the rendered press folders")
+    p.add_argument(
+        "--redraw",
+        metavar="REPORT",
+        help="draw the figures and report.md of this report folder again from its results.json, without the "
+        "work folder (error maps and normal maps are kept); no other option",
+    )
     p.set_defaults(func=run)
 
 
@@ -71,6 +80,8 @@ def run(args) -> int:
     from ..experiments.summary import clean
     from .options import fill_defaults
 
+    if args.redraw is not None:
+        return _redraw(args)
     if args.name == "all" and (args.check or args.write_baseline or args.config):
         raise ConfigError("--check, --write-baseline and --config need one experiment, not 'all'")
     if args.config and args.size is not None:
@@ -78,7 +89,7 @@ def run(args) -> int:
             f"--size {args.size} and --config {args.config}: the config file replaces the size's settings; "
             "give one of them"
         )
-    fill_defaults(args, {"size": "quick"})
+    fill_defaults(args, {"size": "quick", "out": "out/experiments", "workers": 1})
     check_count("--workers", args.workers, minimum=1)
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)
@@ -128,6 +139,46 @@ def run(args) -> int:
         for name, why in UNAVAILABLE.items():
             print(f"{name}: not run: {why}", file=sys.stderr)
     return code
+
+
+RUN_OPTIONS = (
+    "size",
+    "config",
+    "out",
+    "report",
+    "workers",
+    "scheduler",
+    "solver_option",
+    "check",
+    "write_baseline",
+    "plan",
+    "keep_presses",
+)
+"""Options of a run, which ``--redraw`` refuses: it draws from the report's results.json alone, config included."""
+
+
+def _redraw(args) -> int:
+    """``--redraw REPORT``: the report's figures and report.md drawn again from its results.json."""
+    from ..errors import ConfigError
+    from ..experiments import get
+    from ..experiments.redraw import RESULTS, redraw
+    from .options import option
+
+    if args.name == "all":
+        raise ConfigError("--redraw needs the one experiment that wrote the report, not 'all'")
+    given = [option(d) for d in RUN_OPTIONS if getattr(args, d) not in (None, False, [])]
+    if given:
+        raise ConfigError(
+            f"--redraw takes everything (the config too) from the report's {RESULTS}; drop {', '.join(given)}"
+        )
+    report = Path(args.redraw)
+    if report.name == RESULTS and report.is_file():  # the file itself named: its folder
+        report = report.parent
+    done = redraw(get(args.name), report)
+    print(f"{args.name}: redrew {', '.join(done.drawn)} in {report} from its {RESULTS}")
+    for f in done.kept:
+        print(f"{args.name}: kept {f.file}: drawn from {f.needs}, which {RESULTS} does not hold")
+    return 0
 
 
 def _writable_folder(option: str, given, folder: Path, probe: bool = True) -> None:

@@ -75,7 +75,7 @@ class Ablation(Experiment):
             Table("ablation_by_indenter", "By number of LEDs and indenter", ("leds", "indenter"), per),
         ]
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
+    def figures(self, cfg, rows, tables, folder: Path, learned=None):
         main = tables[0].rows
         x = [r["leds"] for r in main]
         paper = {"paper (real sensor)": (list(PAPER_AAE), list(PAPER_AAE.values()))}

@@ -6,12 +6,17 @@ from pathlib import Path
 
 import numpy as np
 
+from ..report import experiments as fig
 from ..sim.indenters import IndenterConfig
+from .framework import WorkFigure
 from .summary import aggregate
 
 SPHERE = IndenterConfig(kind="sphere", size=6.0)
 CUBE = IndenterConfig(kind="cube", size=5.0)
 SCREW = IndenterConfig(kind="screw", size=4.0, length=10.0)
+
+MAPS_NEED = "the presses' true and NLiPs normal maps (work folder maps/*.npz)"
+"""What an error-map figure is drawn from (said when a redraw keeps it)."""
 
 QUICK_TWIN = {"width": 96, "height": 72, "spp": 8, "bounces": 1, "reference_spp": 64}
 """CI size: tiny images, few samples (noisy numbers; they test the plumbing and catch gross regressions); the
@@ -49,3 +54,14 @@ def map_rows(rows: list[dict], out: Path, key: tuple[str, ...], limit: int = 6) 
             title = ", ".join(str(v) for v in name) + f"\n{r['press']}"
             picked.append((title, z["true"], z["estimate"], z["error"]))
     return picked
+
+
+def draw_error_maps(
+    rows: list[dict], out: Path, key: tuple[str, ...], figure: WorkFigure, folder: Path, limit: int = 6
+) -> list[WorkFigure]:
+    """The error-map figure of :func:`map_rows` drawn into ``folder``: ``[figure]``, or [] without any map."""
+    maps = map_rows(rows, out, key, limit)
+    if not maps:
+        return []
+    fig.error_maps(maps, Path(folder) / figure.file)
+    return [figure]

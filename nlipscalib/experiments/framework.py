@@ -1,8 +1,9 @@
 """An experiment = a frozen-dataclass config with named sizes, expanded into per-press tasks, run, reported.
 
 Subclasses of :class:`Experiment` say what to evaluate (``evaluations``), how to tabulate it
-(``tables``), what to draw (``figures``) and which table the regression check reads; running,
-resuming, the report's JSON and Markdown are common.
+(``tables``), what to draw (``figures`` from the numbers, ``draw_work_figures`` from the work folder's
+per-press arrays) and which table the regression check reads; running, resuming, the report's JSON and
+Markdown are common.
 """
 
 from __future__ import annotations
@@ -38,6 +39,17 @@ class Table:
     are not per-press NLiPs metrics, e.g. NLiPsNet scores)."""
 
 
+@dataclasses.dataclass(frozen=True)
+class WorkFigure:
+    """A figure drawn from the work folder's per-press arrays (error maps, normal maps), not from results.json."""
+
+    file: str
+    """PNG name in the report folder."""
+    caption: str
+    needs: str
+    """What of the work folder it is drawn from: why a redraw from results.json (``redraw``) keeps it as it is."""
+
+
 class Experiment:
     """Base of every experiment (subclasses set the class attributes and the three methods)."""
 
@@ -56,6 +68,8 @@ class Experiment:
     work_name: str = ""
     """Work folder OUT/<work_name>-SIZE shared with another experiment whose tasks this one reuses
     (default: its own name)."""
+    work_figures: tuple[WorkFigure, ...] = ()
+    """Every figure ``draw_work_figures`` may draw."""
 
     def evaluations(self, cfg) -> list[tuple[dict, dict, dict, dict]]:
         raise NotImplementedError
@@ -71,9 +85,13 @@ class Experiment:
     def tables(self, cfg, rows: list[dict], learned: dict) -> list[Table]:
         raise NotImplementedError
 
-    def figures(
-        self, cfg, rows: list[dict], tables: list[Table], out: Path, folder: Path, learned: dict
-    ) -> list[tuple[str, str]]:
+    def figures(self, cfg, rows: list[dict], tables: list[Table], folder: Path, learned: dict) -> list[tuple[str, str]]:
+        """Draw into ``folder`` the figures that come from the numbers alone (all of them are in results.json, so
+        ``redraw`` can draw them again without the work folder); (caption, file name) each, in report order."""
+        return []
+
+    def draw_work_figures(self, cfg, rows: list[dict], out: Path, folder: Path, learned: dict) -> list[WorkFigure]:
+        """Draw into ``folder`` those of ``work_figures`` that the work folder ``out`` has the arrays for."""
         return []
 
     # ------------------------------------------------------------------ common machinery
@@ -156,7 +174,8 @@ def run_experiment(
     rows = evaluation_rows(tasks, out)
     tables = exp.tables(cfg, rows, learned)
     report.mkdir(parents=True, exist_ok=True)
-    figures = exp.figures(cfg, rows, tables, out, report, learned)
+    figures = exp.figures(cfg, rows, tables, report, learned)
+    figures += [(f.caption, f.file) for f in exp.draw_work_figures(cfg, rows, out, report, learned)]
     main = next((t for t in tables if t.name == exp.check_table), tables[0] if tables else None)
     doc = {
         "experiment": exp.name,

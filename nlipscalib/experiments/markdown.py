@@ -45,7 +45,8 @@ def _plain_table(t) -> str:
     return "\n".join(lines)
 
 
-def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
+def report(exp, doc: dict, tables, figures: list[tuple[str, str]], note: str = "") -> str:
+    """The report page; ``note``: a paragraph after the introduction (what redrew the figures)."""
     cfg, mach, sw = doc["config"], doc["machine"], doc["software"]
     twin = cfg.get("twin", {})
     tasks = doc["tasks"]
@@ -65,6 +66,7 @@ def report(exp, doc: dict, tables, figures: list[tuple[str, str]]) -> str:
         "Every number, the exact configuration and the machine are in `results.json`.",
         "",
     ]
+    parts += [note, ""] if note else []
     parts += _calibration_lines(doc.get("calibrations", []))
     if doc["solver_option_overrides"]:
         parts += [f"Solver option overrides: `{doc['solver_option_overrides']}`.", ""]

@@ -50,6 +50,10 @@ class PressCount(Q2):
     paper = {"note": "the paper used 50 presses and did not vary their number"} | PAPER
     check_table = "counts"
     work_name = "q2"
+    work_figures = ()  # Q2's normals figure is Q2's
+
+    def draw_work_figures(self, cfg, rows, out: Path, folder: Path, learned=None):
+        return []
 
     def learn(self, cfg: PressCountConfig, tasks, out: Path, progress: bool = True) -> dict:
         from . import learning
@@ -106,7 +110,7 @@ class PressCount(Q2):
         )
         return [counts, training]
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
+    def figures(self, cfg, rows, tables, folder: Path, learned=None):
         if not learned or "error" in learned:
             return []
         series = {}

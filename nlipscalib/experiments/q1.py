@@ -6,10 +6,14 @@ import dataclasses
 from pathlib import Path
 
 from ..report import experiments as fig
-from .common import CUBE, FULL_TWIN, MEDIUM_TWIN, QUICK_TWIN, SPHERE, map_rows, series_by
-from .framework import Experiment, Table
+from .common import CUBE, FULL_TWIN, MAPS_NEED, MEDIUM_TWIN, QUICK_TWIN, SPHERE, draw_error_maps, series_by
+from .framework import Experiment, Table, WorkFigure
 from .plan import PressGrid, TwinConfig, solve_dict
 from .summary import aggregate
+
+ERROR_MAPS = WorkFigure(
+    "q1_error_maps.png", "True normals, NLiPs normals and angular error (first press of each kind)", MAPS_NEED
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,6 +57,7 @@ class Q1(Experiment):
     }
     paper = {"source": "Quéau-style NLiPs on the real NLiPsTac sensor (paper, Q1)", "aae_deg": 7.04, "mabse": 0.0588}
     check_table = "q1"
+    work_figures = (ERROR_MAPS,)
 
     def evaluations(self, cfg: Q1Config):
         scene = cfg.twin.scene_dict()
@@ -74,19 +79,15 @@ class Q1(Experiment):
         paper_cols = {"paper_aae_deg": "paper AAE (°, real sensor)", "paper_mabse": "paper MabsE"}
         return [Table("q1", "NLiPs on the twin vs the paper's real sensor", ("indenter", "leds"), main, paper_cols)]
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
+    def figures(self, cfg, rows, tables, folder: Path, learned=None):
         cats, aae = series_by(rows, "indenter", "leds", "aae_deg")
         fig.grouped_bars(cats, aae, "AAE in the contact (°)", folder / "q1_aae.png", {"paper, real sensor": 7.04})
         cats, mab = series_by(rows, "indenter", "leds", "mabse")
         fig.grouped_bars(cats, mab, "MabsE in the contact", folder / "q1_mabse.png", {"paper, real sensor": 0.0588})
-        maps = map_rows(rows, out, ("indenter", "leds"))
-        out_figs = [
+        return [
             ("AAE per indenter and LED source", "q1_aae.png"),
             ("MabsE per indenter and LED source", "q1_mabse.png"),
         ]
-        if maps:
-            fig.error_maps(maps, folder / "q1_error_maps.png")
-            out_figs.append(
-                ("True normals, NLiPs normals and angular error (first press of each kind)", "q1_error_maps.png")
-            )
-        return out_figs
+
+    def draw_work_figures(self, cfg, rows, out: Path, folder: Path, learned=None):
+        return draw_error_maps(rows, out, ("indenter", "leds"), ERROR_MAPS, folder)

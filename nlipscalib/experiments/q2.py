@@ -15,7 +15,7 @@ from ..learn.train import TrainConfig
 from ..report import experiments as fig
 from ..sim.indenters import IndenterConfig
 from .common import CUBE, FULL_TWIN, MEDIUM_TWIN, QUICK_TWIN, SPHERE
-from .framework import Experiment, Table
+from .framework import Experiment, Table, WorkFigure
 from .plan import PressSet, TwinConfig, solve_dict
 from .summary import aggregate
 
@@ -60,6 +60,11 @@ TRAINING_COLUMNS = (
     ("train_seconds", "seconds", 1),
 )
 """The training columns of the Q2 and press-count tables (after each table's own ones)."""
+NORMALS = WorkFigure(
+    "q2_normals.png",
+    "Test presses: object, ground-truth normals, NLiPsNet normals, angular error",
+    "the trained NLiPsNet (work folder learned/*.pt) and the test presses' crops (views/*.npz)",
+)
 
 
 def training_summary(model: dict) -> dict:
@@ -152,6 +157,7 @@ class Q2(Experiment):
     sizes = {"quick": QUICK, "medium": MEDIUM, "full": Q2Config()}
     paper = PAPER
     check_table = "nlips"
+    work_figures = (NORMALS,)
 
     # ------------------------------------------------------------------ tasks
     def roles(self, cfg) -> dict[str, list[dict]]:
@@ -271,11 +277,10 @@ class Q2(Experiment):
         )
         return tables
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
+    def figures(self, cfg, rows, tables, folder: Path, learned=None):
         if not learned or "error" in learned:
             return []
         from ..report.learn import training_curve
-        from . import learning
 
         figs = []
         scores = learned["scores"]
@@ -292,6 +297,15 @@ class Q2(Experiment):
                 series[m] = ([_nan(found.get(s)) for s in splits], [0.0] * len(splits))
             fig.grouped_bars(splits, series, f"AAE {label} (°)", folder / name, lines)
             figs.append((f"AAE on the test presses' contact samples {label}", name))
+        training_curve(learned["histories"]["nlipsnet"], folder / "q2_training.png", METHODS["nlipsnet"])
+        figs.append(("Training curve of NLiPsNet (validation presses)", "q2_training.png"))
+        return figs
+
+    def draw_work_figures(self, cfg, rows, out: Path, folder: Path, learned=None):
+        if not learned or "error" in learned:
+            return []
+        from . import learning
+
         predict = learning.net_predictor(out, learned["models"]["nlipsnet"])
         titles = {
             n: f"{role}: {n.split('-p')[0]}"
@@ -299,14 +313,10 @@ class Q2(Experiment):
             for n in learned["names"][role][: cfg.figure_presses]
         }
         views = learning.predicted_views(out, predict, list(titles))
-        if views:
-            fig.nlipsnet_maps([(titles[n], v) for n, v in views], folder / "q2_normals.png")
-            figs.append(
-                ("Test presses: object, ground-truth normals, NLiPsNet normals, angular error", "q2_normals.png")
-            )
-        training_curve(learned["histories"]["nlipsnet"], folder / "q2_training.png", METHODS["nlipsnet"])
-        figs.append(("Training curve of NLiPsNet (validation presses)", "q2_training.png"))
-        return figs
+        if not views:
+            return []
+        fig.nlipsnet_maps([(titles[n], v) for n, v in views], folder / NORMALS.file)
+        return [NORMALS]
 
 
 def _by_indenter(data, splits: dict[str, list[str]]) -> dict[str, list[str]]:

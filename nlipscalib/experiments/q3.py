@@ -7,13 +7,16 @@ from pathlib import Path
 
 from ..report import experiments as fig
 from ..sim.scene import SCENES_DIR
-from .common import CUBE, FULL_TWIN, MEDIUM_TWIN, QUICK_TWIN, SCREW, SPHERE, map_rows, series_by
-from .framework import Experiment, Table
+from .common import CUBE, FULL_TWIN, MAPS_NEED, MEDIUM_TWIN, QUICK_TWIN, SCREW, SPHERE, draw_error_maps, series_by
+from .framework import Experiment, Table, WorkFigure
 from .plan import PressGrid, TwinConfig, solve_dict
 from .summary import aggregate
 
 PAPER_BOUND_DEG = 10.0
 """The paper: AAE below 10° on each of its three dome shapes."""
+SCREW_MAPS = WorkFigure(
+    "q3_screw_maps.png", "A screw pressed into each dome shape: true normals, NLiPs, angular error", MAPS_NEED
+)
 
 
 def shipped_shapes() -> tuple[str, ...]:
@@ -71,6 +74,7 @@ class Q3(Experiment):
     }
     paper = {"aae_deg_below": PAPER_BOUND_DEG, "shapes": 3, "source": "paper, three real dome shapes"}
     check_table = "q3"
+    work_figures = (SCREW_MAPS,)
 
     def evaluations(self, cfg: Q3Config):
         out = []
@@ -104,7 +108,7 @@ class Q3(Experiment):
             ),
         ]
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
+    def figures(self, cfg, rows, tables, folder: Path, learned=None):
         true_rows = [r for r in rows if r["leds"] == cfg.leds[0]]
         cats, aae = series_by(true_rows, "shape", "indenter", "aae_deg")
         fig.grouped_bars(
@@ -114,13 +118,8 @@ class Q3(Experiment):
             folder / "q3_aae.png",
             {"paper bound": PAPER_BOUND_DEG},
         )
-        maps = map_rows(
-            [r for r in true_rows if r["indenter"] == "screw"], out, ("shape", "indenter"), limit=len(cfg.shapes)
-        )
-        figs = [("AAE per dome shape and indenter", "q3_aae.png")]
-        if maps:
-            fig.error_maps(maps, folder / "q3_screw_maps.png")
-            figs.append(
-                ("A screw pressed into each dome shape: true normals, NLiPs, angular error", "q3_screw_maps.png")
-            )
-        return figs
+        return [("AAE per dome shape and indenter", "q3_aae.png")]
+
+    def draw_work_figures(self, cfg, rows, out: Path, folder: Path, learned=None):
+        screws = [r for r in rows if r["leds"] == cfg.leds[0] and r["indenter"] == "screw"]
+        return draw_error_maps(screws, out, ("shape", "indenter"), SCREW_MAPS, folder, limit=len(cfg.shapes))

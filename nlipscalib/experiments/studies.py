@@ -144,7 +144,7 @@ class Studies(Experiment):
             getattr(cfg, {"led_position": "led_position_mm", "led_direction": "led_direction_deg"}.get(study, study))
         )
 
-    def figures(self, cfg, rows, tables, out: Path, folder: Path, learned=None):
+    def figures(self, cfg, rows, tables, folder: Path, learned=None):
         figs = []
         for t in tables:
             if t.name.startswith("led_"):

@@ -42,6 +42,12 @@ def evaluation_rows(tasks: list[Task], out: Path) -> list[dict]:
     return rows
 
 
+def rows_from_json(rows: list[dict]) -> list[dict]:
+    """Evaluation rows read back from a results.json: the NaN of a failed solve, which JSON stores as null
+    (:func:`clean`), is NaN again, as :func:`aggregate` and the figures expect."""
+    return [r | {k: math.nan for k in METRICS + ("roi_aae_deg", "roi_mabse") if k in r and r[k] is None} for r in rows]
+
+
 def aggregate(rows: list[dict], by: tuple[str, ...]) -> list[dict]:
     """Mean, standard deviation and count of the contact metrics per group, groups in first-seen order.
 

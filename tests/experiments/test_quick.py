@@ -4,24 +4,14 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import pytest
 
 from nlipscalib.cli import main
 
-BASELINE = Path(__file__).resolve().parents[2] / "nlipscalib" / "experiments" / "baselines" / "q1_quick.json"
-
 
 def _finite_numbers(doc: dict) -> list[float]:
     return [e["aae_deg"] for e in doc["evaluations"] if e["aae_deg"] is not None and math.isfinite(e["aae_deg"])]
-
-
-@pytest.fixture(scope="module")
-def q1(tmp_path_factory):
-    out = tmp_path_factory.mktemp("q1")
-    argv = ["experiment", "q1", "--out", str(out), "--keep-presses", "--check", str(BASELINE)]
-    return out, argv, main(argv)
 
 
 def test_q1_quick_writes_report_json_and_passes_the_stored_baseline(q1, capsys):
