@@ -85,16 +85,17 @@ def _redraw(exp: Experiment, doc: dict, report: Path) -> Redrawn:
     rows = rows_from_json(doc["evaluations"])
     learned = doc.get("learned") or {}
     tables = exp.tables(cfg, rows, learned)
+    by = software()  # before drawing: the figures rewritten in a checkout would mark it "+dirty"
     figures = exp.figures(cfg, rows, tables, report, learned)
     kept = [f for f in exp.work_figures if (report / f.file).is_file()]
     listed = figures + [(f.caption, f.file) for f in kept]  # the order of a run's report
-    write_text(report / "report.md", markdown.report(exp, doc, tables, listed, _note(kept)))
+    write_text(report / "report.md", markdown.report(exp, doc, tables, listed, _note(kept, by)))
     return Redrawn([name for _, name in figures] + ["report.md"], kept)
 
 
-def _note(kept: list[WorkFigure]) -> str:
-    """The report's line saying that its figures are newer than its numbers (and which ones are not)."""
-    sw = software()
+def _note(kept: list[WorkFigure], sw: dict) -> str:
+    """The report's line saying that its figures are newer than its numbers (and which ones are not); ``sw``:
+    :func:`.provenance.software` of this process, taken before anything was written."""
     note = f"Figures and page redrawn from `results.json` by nlipscalib {sw['nlipscalib']} at `{sw['git_commit']}`"
     if kept:
         note += "; kept as the run drew them (from its work folder): " + ", ".join(f"`{f.file}`" for f in kept)

@@ -145,3 +145,17 @@ def test_a_damaged_results_json_is_one_line_and_draws_nothing(edit, text, expect
     err = capsys.readouterr().err.strip()
     assert expected in err and len(err.splitlines()) == 1
     assert [p.name for p in report.iterdir()] == ["results.json"]
+
+
+def test_the_commit_named_is_the_one_before_the_redraw_wrote(tmp_path, monkeypatch):
+    # redrawing a report inside a checkout rewrites tracked files: a commit taken after drawing said "+dirty"
+    from nlipscalib.experiments import redraw as module
+
+    report = tmp_path / "q1"
+    shutil.copytree(DOCS / "q1", report)
+    drawn = []
+    figures = Q1.figures
+    monkeypatch.setattr(Q1, "figures", lambda self, *a: drawn.append(1) or figures(self, *a))
+    monkeypatch.setattr(module, "software", lambda: {"nlipscalib": "0", "git_commit": "after" if drawn else "before"})
+    module.redraw(get("q1"), report)
+    assert drawn and "at `before`" in (report / "report.md").read_text()
