@@ -359,3 +359,24 @@ def test_live_window_shows_normals_beside_depth_and_q_ends_the_stream(monkeypatc
     np.testing.assert_array_equal(shown[0][:, 5:, ::-1], depth_to_rgb(result.depth, np.full((4, 5), 10.0)))
     with pytest.raises(StopLive):
         sink(1, None, result)
+
+
+def test_training_curve_ticks_whole_epochs(tmp_path, monkeypatch):
+    import matplotlib.figure
+
+    from nlipscalib.report.learn import training_curve
+
+    ticks = []
+    save = matplotlib.figure.Figure.savefig
+
+    def savefig(fig, *args, **kwargs):
+        ticks.extend(t for ax in fig.axes for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1])
+        return save(fig, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig)
+    history = [
+        {"epoch": e, "train_loss": 1.0 / (e + 1), "val_aae_deg": 2.0 - 0.05 * e, "val_contact_aae_deg": 2.1 - 0.05 * e}
+        for e in range(18)
+    ]
+    training_curve(history, tmp_path / "curve.png")
+    assert ticks and all(float(t).is_integer() for t in ticks)

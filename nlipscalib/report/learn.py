@@ -136,6 +136,8 @@ def training_curve(history: list[dict], path, title: str = "NLiPsNet") -> Path:
     a2.set_ylabel("AAE, deg")
     a2.legend(fontsize=8)
     a2.set_title(f"best epoch {best['epoch'] + 1}: {best['val_aae_deg']:.2f} deg", fontsize=9)
+    for ax in (a1, a2):  # epochs are whole numbers (matplotlib would tick 2.5, 7.5, ...)
+        ax.xaxis.set_major_locator(plt.MaxNLocator(integer=True))
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
