@@ -12,6 +12,7 @@ images, the solver recovers rho up to that scale. Everything is in millimetres, 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -68,6 +69,10 @@ class Led:
         return cls(**d)
 
 
+Leds = Sequence[Led]
+"""The LEDs of one sensor, in order (LED i lights image i): a list or tuple of :class:`Led`."""
+
+
 def tricolor_groups(n_leds: int) -> np.ndarray:
     """Colour group (0 red, 1 green, 2 blue) of each LED in the tri-colour image.
 
@@ -83,7 +88,9 @@ def tricolor_groups(n_leds: int) -> np.ndarray:
     return (np.arange(n_leds) * 3) // n_leds
 
 
-def led_geometry_mismatch(positions_a, directions_a, positions_b, directions_b) -> str | None:
+def led_geometry_mismatch(
+    positions_a: np.ndarray, directions_a: np.ndarray, positions_b: np.ndarray, directions_b: np.ndarray
+) -> str | None:
     """Why two LED sets are not one sensor's LEDs (count, or an LED more than ``tolerances.SAME_LED_MM`` /
     ``SAME_LED_DEG`` away from its counterpart, numbered from 1), or None when they match.
 
@@ -106,7 +113,7 @@ def led_geometry_mismatch(positions_a, directions_a, positions_b, directions_b) 
     return None
 
 
-def led_arrays(leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def led_arrays(leds: Leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Stack LEDs into arrays.
 
     Returns
@@ -125,7 +132,7 @@ def led_arrays(leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     )
 
 
-def led_shading(points: np.ndarray, normals: np.ndarray, leds, out: np.ndarray | None = None) -> np.ndarray:
+def led_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, out: np.ndarray | None = None) -> np.ndarray:
     """Near-light shading factor of every LED at every point (the image model without albedo).
 
     Parameters
@@ -194,7 +201,7 @@ DISK_RULE_WEIGHTS = np.array([0.25] + [0.125] * 6)
 """(7,) their weights, summing to 1."""
 
 
-def disk_shading(points: np.ndarray, normals: np.ndarray, leds, radius: float) -> np.ndarray:
+def disk_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: float) -> np.ndarray:
     """The image model of LEDs that emit from a flat disk instead of a point (an LED package's light cup).
 
     Every area element dA of a disk of ``radius`` centred on ``x_s`` and perpendicular to ``n_s`` emits
