@@ -15,6 +15,7 @@ import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..config import is_number
 from ..errors import ConfigError, ShapeError
@@ -89,7 +90,7 @@ def tricolor_groups(n_leds: int) -> np.ndarray:
 
 
 def led_geometry_mismatch(
-    positions_a: np.ndarray, directions_a: np.ndarray, positions_b: np.ndarray, directions_b: np.ndarray
+    positions_a: ArrayLike, directions_a: ArrayLike, positions_b: ArrayLike, directions_b: ArrayLike
 ) -> str | None:
     """Why two LED sets are not one sensor's LEDs (count, or an LED more than ``tolerances.SAME_LED_MM`` /
     ``SAME_LED_DEG`` away from its counterpart, numbered from 1), or None when they match.
@@ -172,7 +173,15 @@ times faster than whole-image temporaries at 640x480 with 12 LEDs (0.12 against 
 4096 to 65536 time alike."""
 
 
-def _shade_block(points, normals, pos, dirs, mu, psi, out) -> None:
+def _shade_block(
+    points: np.ndarray,
+    normals: np.ndarray,
+    pos: np.ndarray,
+    dirs: np.ndarray,
+    mu: np.ndarray,
+    psi: np.ndarray,
+    out: list[np.ndarray],
+) -> None:
     """:func:`led_shading` of (P, 3) points and normals into ``out``, L arrays (P, 3)."""
     # one contiguous plane per coordinate, in place where possible: products summed over a length-3
     # last axis are several times slower in NumPy (this runs over every pixel of every LED image)
@@ -238,7 +247,7 @@ def disk_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: fl
     return np.stack(out) if out else led_shading(points, normals, leds)
 
 
-def _vec3(v, name: str) -> tuple[float, float, float]:
+def _vec3(v: object, name: str) -> tuple[float, float, float]:
     if not isinstance(v, (list, tuple, np.ndarray)) or not all(is_number(c) for c in np.ravel(np.asarray(v, object))):
         raise ConfigError(f"{name} must be 3 finite numbers, got {v!r}")
     arr = np.asarray(v, dtype=np.float64)
