@@ -18,7 +18,9 @@ import secrets
 import shutil
 import tempfile
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 from .claims import CLAIM_PREFIX, HOST, holder, pid_alive
 
@@ -92,7 +94,7 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     return write_with(path, lambda f: f.write(data))
 
 
-def write_with(path: str | Path, writer) -> Path:
+def write_with(path: str | Path, writer: Callable[[BinaryIO], object]) -> Path:
     """Atomically write what ``writer(f)`` writes to the binary file ``f`` (e.g. ``pickle.dump(value, f)``:
     no copy of a large result in memory first) to ``path`` (temp file in the same folder, then rename)."""
 
@@ -103,7 +105,7 @@ def write_with(path: str | Path, writer) -> Path:
     return write_by_name(path, write_file)
 
 
-def write_by_name(path: str | Path, write) -> Path:
+def write_by_name(path: str | Path, write: Callable[[Path], object]) -> Path:
     """Atomically write the file that ``write(tmp)`` creates at the path ``tmp`` it is given (for writers
     that open the file themselves, e.g. ``imageio.save_npz``); then rename it to ``path``.
 
@@ -135,7 +137,7 @@ def write_text(path: str | Path, text: str) -> Path:
     return write_bytes(path, text.encode("utf-8"))
 
 
-def write_json(path: str | Path, obj) -> Path:
+def write_json(path: str | Path, obj: object) -> Path:
     return write_text(path, json.dumps(obj, indent=2, sort_keys=False) + "\n")
 
 
@@ -153,7 +155,7 @@ def write_if_changed(path: str | Path, text: str) -> bool:
 
 
 @contextlib.contextmanager
-def atomic_dir(final: str | Path, overwrite: bool = False):
+def atomic_dir(final: str | Path, overwrite: bool = False) -> Iterator[Path]:
     """Build a folder under a temporary name and move it to ``final`` only if the block succeeds.
 
     Yields the temporary folder's path. On error the temporary folder is removed, so an interrupted
@@ -188,7 +190,7 @@ def atomic_dir(final: str | Path, overwrite: bool = False):
 
 
 @contextlib.contextmanager
-def scratch_dir(final: str | Path):
+def scratch_dir(final: str | Path) -> Iterator[Path]:
     """A temporary folder beside ``final`` to assemble several files in, removed when the block ends.
 
     Named as this process's temporary of ``final`` (``.tmp-NAME~host~pid~...``): a killed run's is removed by

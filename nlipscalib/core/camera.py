@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from functools import cached_property
 
 import numpy as np
@@ -33,7 +34,7 @@ _NEWTON_STEP_TOL = 1e-15
 """Largest step, relative to the largest unknown (radians or normalised coordinates), that ends a Newton loop."""
 
 
-def _converged(steps, values) -> bool:
+def _converged(steps: Sequence[np.ndarray], values: Sequence[np.ndarray]) -> bool:
     """No step of ``steps`` exceeds _NEWTON_STEP_TOL times the largest of ``values`` (and 1)."""
     size = max(1.0, max(float(np.max(np.abs(v), initial=0.0)) for v in values))
     return all(float(np.max(np.abs(d), initial=0.0)) <= _NEWTON_STEP_TOL * size for d in steps)
@@ -280,7 +281,7 @@ def depth_to_points(depth: np.ndarray, rays: np.ndarray) -> np.ndarray:
     return depth[..., None] / rays[..., 2:3] * rays
 
 
-def _check_last_dim(arr, n: int, name: str) -> np.ndarray:
+def _check_last_dim(arr: np.ndarray, n: int, name: str) -> np.ndarray:
     arr = np.asarray(arr, dtype=np.float64)
     if arr.ndim < 1 or arr.shape[-1] != n:
         raise ShapeError(f"{name} must have shape (..., {n}), got {arr.shape}")

@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import logging
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -31,7 +32,7 @@ from .atomic import TMP_PREFIX, atomic_dir, write_json
 from .camera import Camera
 from .formatfile import read_arrays, read_format_json
 from .imageio import read_png16, save_npz, write_png16
-from .leds import Led
+from .leds import Led, Leds
 from .surface_checks import surface_problem
 
 FORMAT_NAME = "nlipscalib.press"
@@ -216,7 +217,7 @@ class Press:
     ground_truth: GroundTruth | None = None
     """Per-pixel truth (gt.npz, synthetic presses only), or None."""
 
-    def linear(self, image: np.ndarray, window=(slice(None), slice(None))) -> np.ndarray:
+    def linear(self, image: np.ndarray, window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray:
         """Dark-subtracted linear intensity, scaled so the sensor's full range is 1.
 
         Parameters
@@ -255,7 +256,7 @@ class Press:
 def write_press(
     folder: str | Path,
     camera: Camera,
-    leds,
+    leds: Leds,
     response: SensorResponse,
     dark: np.ndarray,
     led_images: np.ndarray,
@@ -341,7 +342,7 @@ def read_optics(folder: str | Path) -> CaptureOptics:
     return CaptureOptics(folder=folder, camera=camera, leds=tuple(leds), reference=reference)
 
 
-def load_press(folder: str | Path, led_subset=None) -> Press:
+def load_press(folder: str | Path, led_subset: Sequence[int] | None = None) -> Press:
     """Load and validate a press folder; every problem is reported naming the file.
 
     Parameters
@@ -381,7 +382,7 @@ def load_press(folder: str | Path, led_subset=None) -> Press:
     )
 
 
-def _reference(folder: Path, meta: dict, camera: Camera, leds) -> Reference | None:
+def _reference(folder: Path, meta: dict, camera: Camera, leds: Leds) -> Reference | None:
     """The capture's reference.npz, checked against the format's promise; None when it has none."""
     if not meta.get("reference"):
         return None
@@ -451,7 +452,7 @@ def _check_file_names(meta: dict, path: Path) -> None:
             _check_name(meta[key], key, path)
 
 
-def _check_name(name, key: str, path: Path) -> None:
+def _check_name(name: object, key: str, path: Path) -> None:
     if not isinstance(name, str) or not name:
         raise CaptureError(f"{path}: '{key}' must be a file name, got {name!r}")
 
@@ -565,7 +566,7 @@ def parse_optics(meta: dict, path: Path) -> tuple[Camera, list[Led], SensorRespo
     return camera, leds, response
 
 
-def _led(entry, index: int) -> Led:
+def _led(entry: object, index: int) -> Led:
     """LED ``index`` of meta.json's ``leds``; a bad value names its place (``leds[3]``) as well as its key."""
     try:
         return Led.from_dict(entry)
@@ -588,12 +589,12 @@ def _load_image(folder: Path, name: str, camera: Camera) -> np.ndarray:
     return img
 
 
-def _check_image(img: np.ndarray, shape, name: str) -> None:
+def _check_image(img: np.ndarray, shape: tuple[int, int], name: str) -> None:
     if img.dtype != np.uint16 or img.shape != tuple(shape) + (3,):
         raise CaptureError(f"{name}: expected ({shape[0]}, {shape[1]}, 3) uint16, got {img.shape} {img.dtype}")
 
 
-def _check_subset(subset, n: int, folder: Path) -> list[int]:
+def _check_subset(subset: Sequence[int], n: int, folder: Path) -> list[int]:
     subset = [int(i) for i in subset]
     bad = [i for i in subset if not 0 <= i < n]
     if bad or len(set(subset)) != len(subset) or not subset:

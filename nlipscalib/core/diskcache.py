@@ -116,7 +116,7 @@ def digest(*arrays: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def stable_key(obj) -> str:
+def stable_key(obj: object) -> str:
     """A text that names ``obj`` the same way in every process: tuples, lists, dicts and dataclasses field
     by field, arrays by content digest, everything else by ``repr`` (numbers, strings, None)."""
     if isinstance(obj, np.ndarray):
@@ -133,7 +133,7 @@ def stable_key(obj) -> str:
     return repr(obj)
 
 
-def entry(kind: str, key) -> Path | None:
+def entry(kind: str, key: object) -> Path | None:
     """The file that holds (or would hold) the result of ``kind`` under ``key``; None when the tier is off."""
     root = folder()
     if root is None:
@@ -145,7 +145,7 @@ def entry(kind: str, key) -> Path | None:
     return root / kind.replace(" ", "_") / (h.hexdigest() + SUFFIX)
 
 
-def load(path: Path):
+def load(path: Path) -> object:
     """The result stored at ``path``; raises KeyError when there is none or it cannot be read."""
     try:
         with open(path, "rb") as f:
@@ -166,7 +166,7 @@ def load(path: Path):
     return stored[1]
 
 
-def store(path: Path, value) -> None:
+def store(path: Path, value: object) -> None:
     """Write ``value`` to ``path`` atomically, then keep the folder within its size bound. A failed write
     (read-only or full disk, a value that cannot be pickled) only costs the next process the computation:
     it is logged, not raised."""

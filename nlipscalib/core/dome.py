@@ -17,8 +17,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import ConfigError
+from .camera import Camera
 from .capture import Reference
-from .sensor import DomeConfig
+from .sensor import DomeConfig, SensorDesign
 from .tolerances import NORMAL_EPS
 
 
@@ -92,7 +93,7 @@ def _capsule_hit(cfg: DomeConfig, d: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return p, np.where(on_wall[:, None], n_wall, n_cap)
 
 
-def _direction(polar_deg, azimuth_deg) -> np.ndarray:
+def _direction(polar_deg: float | np.ndarray, azimuth_deg: float | np.ndarray) -> np.ndarray:
     th, ph = np.radians(polar_deg), np.radians(azimuth_deg)
     return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
 
@@ -166,7 +167,7 @@ def dome_inward_normals(cfg: DomeConfig, points: np.ndarray) -> np.ndarray:
     return _ray_hit(cfg, d)[1]
 
 
-def reference_surface(design, camera=None) -> Reference:
+def reference_surface(design: SensorDesign, camera: Camera | None = None) -> Reference:
     """The undeformed gel surface of a design as the camera sees it, computed analytically.
 
     Every pixel's viewing ray (:attr:`Camera.rays`, exact lens model) leaves the camera centre at
@@ -225,7 +226,7 @@ def _first_hit(cfg: DomeConfig, origin: np.ndarray, d: np.ndarray) -> np.ndarray
     return _nearest(origin, d, roots, 0.0, np.inf)
 
 
-def _quadric_hits(origin, d, scale, centre, rhs) -> np.ndarray:
+def _quadric_hits(origin: np.ndarray, d: np.ndarray, scale: np.ndarray, centre: np.ndarray, rhs: float) -> np.ndarray:
     """(N, 2) roots t of sum_k scale_k (o + t d - centre)_k^2 = rhs; NaN where the ray misses."""
     o = origin - centre
     a = (scale * d * d).sum(1)
@@ -238,7 +239,7 @@ def _quadric_hits(origin, d, scale, centre, rhs) -> np.ndarray:
     return roots
 
 
-def _nearest(origin, d, roots, z_lo, z_hi) -> np.ndarray:
+def _nearest(origin: np.ndarray, d: np.ndarray, roots: np.ndarray, z_lo: float, z_hi: float) -> np.ndarray:
     """(N,) the smallest root in front of the camera whose point lies in z_lo <= z <= z_hi; inf if none."""
     z = origin[2] + roots * d[:, 2:3]
     ok = (roots > 0) & (z >= z_lo) & (z <= z_hi)

@@ -4,12 +4,15 @@ checked once, and the .npz archives of arrays, with every problem one error nami
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
 
 from ..errors import CaptureError
 
 
-def read_format_json(path: str | Path, name: str, version: int, *, required=(), missing_hint: str = "") -> dict:
+def read_format_json(
+    path: str | Path, name: str, version: int, *, required: Iterable[str] = (), missing_hint: str = ""
+) -> dict:
     """Read a JSON file of format ``name`` and version ``version``; every problem names the file.
 
     Parameters
@@ -42,7 +45,7 @@ def read_format_json(path: str | Path, name: str, version: int, *, required=(), 
     return data
 
 
-def read_arrays(path: str | Path, keys=(), unreadable: str = "damaged or truncated .npz") -> dict:
+def read_arrays(path: str | Path, keys: Iterable[str] = (), unreadable: str = "damaged or truncated .npz") -> dict:
     """Every array of a .npz file (:func:`nlipscalib.core.imageio.read_npz`), any damage one CaptureError.
 
     ``read_npz`` names a missing file, a truncated archive (no zip directory) and a bad CRC; a flipped

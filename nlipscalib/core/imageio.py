@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import zipfile
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -100,7 +101,9 @@ def _check_png_ends(path: Path) -> None:
         raise CaptureError(f"{path}: truncated PNG image (cut short: copy or capture it again)")
 
 
-def read_npz(path: str | Path, keys=(), unreadable: str = "damaged or truncated .npz") -> dict[str, np.ndarray]:
+def read_npz(
+    path: str | Path, keys: Iterable[str] = (), unreadable: str = "damaged or truncated .npz"
+) -> dict[str, np.ndarray]:
     """Every array of a .npz file, checked to be readable and to hold ``keys``.
 
     ``unreadable`` words the problem when numpy cannot read the file (what the file was meant to be).

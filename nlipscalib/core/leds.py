@@ -12,8 +12,10 @@ images, the solver recovers rho up to that scale. Everything is in millimetres, 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..config import is_number
 from ..errors import ConfigError, ShapeError
@@ -68,6 +70,10 @@ class Led:
         return cls(**d)
 
 
+Leds = Sequence[Led]
+"""The LEDs of one sensor, in order (LED i lights image i): a list or tuple of :class:`Led`."""
+
+
 def tricolor_groups(n_leds: int) -> np.ndarray:
     """Colour group (0 red, 1 green, 2 blue) of each LED in the tri-colour image.
 
@@ -83,7 +89,9 @@ def tricolor_groups(n_leds: int) -> np.ndarray:
     return (np.arange(n_leds) * 3) // n_leds
 
 
-def led_geometry_mismatch(positions_a, directions_a, positions_b, directions_b) -> str | None:
+def led_geometry_mismatch(
+    positions_a: ArrayLike, directions_a: ArrayLike, positions_b: ArrayLike, directions_b: ArrayLike
+) -> str | None:
     """Why two LED sets are not one sensor's LEDs (count, or an LED more than ``tolerances.SAME_LED_MM`` /
     ``SAME_LED_DEG`` away from its counterpart, numbered from 1), or None when they match.
 
@@ -106,7 +114,7 @@ def led_geometry_mismatch(positions_a, directions_a, positions_b, directions_b) 
     return None
 
 
-def led_arrays(leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def led_arrays(leds: Leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Stack LEDs into arrays.
 
     Returns
@@ -125,7 +133,7 @@ def led_arrays(leds) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     )
 
 
-def led_shading(points: np.ndarray, normals: np.ndarray, leds, out: np.ndarray | None = None) -> np.ndarray:
+def led_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, out: np.ndarray | None = None) -> np.ndarray:
     """Near-light shading factor of every LED at every point (the image model without albedo).
 
     Parameters
@@ -165,7 +173,15 @@ times faster than whole-image temporaries at 640x480 with 12 LEDs (0.12 against 
 4096 to 65536 time alike."""
 
 
-def _shade_block(points, normals, pos, dirs, mu, psi, out) -> None:
+def _shade_block(
+    points: np.ndarray,
+    normals: np.ndarray,
+    pos: np.ndarray,
+    dirs: np.ndarray,
+    mu: np.ndarray,
+    psi: np.ndarray,
+    out: list[np.ndarray],
+) -> None:
     """:func:`led_shading` of (P, 3) points and normals into ``out``, L arrays (P, 3)."""
     # one contiguous plane per coordinate, in place where possible: products summed over a length-3
     # last axis are several times slower in NumPy (this runs over every pixel of every LED image)
@@ -194,7 +210,7 @@ DISK_RULE_WEIGHTS = np.array([0.25] + [0.125] * 6)
 """(7,) their weights, summing to 1."""
 
 
-def disk_shading(points: np.ndarray, normals: np.ndarray, leds, radius: float) -> np.ndarray:
+def disk_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: float) -> np.ndarray:
     """The image model of LEDs that emit from a flat disk instead of a point (an LED package's light cup).
 
     Every area element dA of a disk of ``radius`` centred on ``x_s`` and perpendicular to ``n_s`` emits
@@ -231,7 +247,7 @@ def disk_shading(points: np.ndarray, normals: np.ndarray, leds, radius: float) -
     return np.stack(out) if out else led_shading(points, normals, leds)
 
 
-def _vec3(v, name: str) -> tuple[float, float, float]:
+def _vec3(v: object, name: str) -> tuple[float, float, float]:
     if not isinstance(v, (list, tuple, np.ndarray)) or not all(is_number(c) for c in np.ravel(np.asarray(v, object))):
         raise ConfigError(f"{name} must be 3 finite numbers, got {v!r}")
     arr = np.asarray(v, dtype=np.float64)

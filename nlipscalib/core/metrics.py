@@ -8,12 +8,18 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..errors import ShapeError
 
+if TYPE_CHECKING:  # names in hints only: importing them here would make an import cycle
+    from .capture import GroundTruth
+    from .reconstruction import Reconstruction
 
-def _check(est: np.ndarray, gt: np.ndarray, mask, name: str, last: int | None):
+
+def _check(est: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, name: str, last: int | None):
     est, gt = np.asarray(est, dtype=np.float64), np.asarray(gt, dtype=np.float64)
     if est.shape != gt.shape or (last is not None and est.shape[-1] != last):
         raise ShapeError(
@@ -127,7 +133,7 @@ def depth_rmse(depth: np.ndarray, gt_depth: np.ndarray, mask: np.ndarray | None 
     return float(np.sqrt(np.mean((est[m] - gt[m]) ** 2)))
 
 
-def evaluate(result, ground_truth, mask: np.ndarray | None = None) -> dict:
+def evaluate(result: Reconstruction, ground_truth: GroundTruth, mask: np.ndarray | None = None) -> dict:
     """AAE, MabsE, depth RMSE (and pixel counts) of a SolveResult-like object against a GroundTruth.
 
     The pixels scored are those valid in the truth and reconstructed (and in ``mask`` when given); the

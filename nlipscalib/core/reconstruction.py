@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -205,7 +206,12 @@ def _damaged_member(zf: zipfile.ZipFile) -> tuple[str, str] | None:
     return None
 
 
-def save_reconstruction(rec: Reconstruction, folder: str | Path, overwrite: bool = False, extra_files=None) -> Path:
+def save_reconstruction(
+    rec: Reconstruction,
+    folder: str | Path,
+    overwrite: bool = False,
+    extra_files: Callable[[Path], object] | None = None,
+) -> Path:
     """Write ``rec`` atomically into ``folder``.
 
     Parameters
@@ -276,7 +282,7 @@ def _read_report(path: Path) -> dict:
     return read_format_json(path, FORMAT_NAME, FORMAT_VERSION, missing_hint="an incomplete reconstruction folder")
 
 
-def jsonable(obj):
+def jsonable(obj: object) -> object:
     """A copy of ``obj`` that json can write (numpy scalars and arrays become Python numbers and lists)."""
     if isinstance(obj, dict):
         return {str(k): jsonable(v) for k, v in obj.items()}

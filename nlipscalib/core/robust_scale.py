@@ -9,7 +9,7 @@ MAD_TO_SIGMA = 1.4826
 """1 / Phi^-1(3/4): the median absolute deviation of a normal sample times this is its standard deviation."""
 
 
-def mad_scale(values: np.ndarray, center: float | None = None, dtype=np.float64) -> float:
+def mad_scale(values: np.ndarray, center: float | None = None, dtype: type[np.floating] = np.float64) -> float:
     """Robust standard deviation: 1.4826 x the median absolute deviation (0 for an empty input).
 
     Parameters

@@ -124,7 +124,7 @@ class LedConfig:
         if self.directions and len(self.directions) != len(self.positions):
             raise ConfigError("leds.directions must have one entry per leds.positions entry")
 
-    def leds(self, camera_position) -> tuple[Led, ...]:
+    def leds(self, camera_position: tuple[float, float, float]) -> tuple[Led, ...]:
         """The LEDs in the camera frame."""
         cam = np.asarray(camera_position, dtype=float)
         if self.positions:

@@ -10,20 +10,26 @@ from __future__ import annotations
 
 import logging
 import math
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import CaptureError
-from .leds import led_geometry_mismatch, tricolor_groups
+from .leds import Leds, led_geometry_mismatch, tricolor_groups
 from .tolerances import SAME_DISTORTION_ABS, SAME_INTRINSICS_ABS_PX, SAME_INTRINSICS_RTOL
+
+if TYPE_CHECKING:  # names in hints only: this module imports the camera where it checks one
+    from .camera import Camera
+    from .capture import Press, SensorResponse
 
 log = logging.getLogger(__name__)
 
 
-def sensor_of(press) -> dict:
+def sensor_of(press: Press) -> dict:
     """The sensor description of a capture (``core.Press``): :func:`describe_sensor` of its optics."""
     return describe_sensor(press.camera, press.leds, press.response)
 
 
-def describe_sensor(camera, leds, response=None) -> dict:
+def describe_sensor(camera: Camera, leds: Leds, response: SensorResponse | None = None) -> dict:
     """Camera, LED count, tri-colour groups, sensor levels and LED geometry (positions, mm, and directions,
     camera frame) of a sensor: what a calibration dataset and a model are valid for.
 
@@ -64,7 +70,7 @@ def sensor_mismatch(expected: dict, actual: dict) -> str | None:
     return None
 
 
-def leds_file_mismatch(recorded: dict, file_leds, actual: dict) -> str | None:
+def leds_file_mismatch(recorded: dict, file_leds: Leds, actual: dict) -> str | None:
     """Why an LED file from ``nlips calibrate-leds`` was calibrated on another sensor than ``actual``, or None.
 
     Parameters
@@ -93,14 +99,14 @@ def leds_file_mismatch(recorded: dict, file_leds, actual: dict) -> str | None:
     return sensor_mismatch(recorded, actual)
 
 
-def check_sensor(expected: dict, actual: dict, where) -> None:
+def check_sensor(expected: dict, actual: dict, where: str | Path) -> None:
     """Raise CaptureError naming ``where`` when ``actual`` is another sensor than ``expected``."""
     why = sensor_mismatch(expected, actual)
     if why:
         raise CaptureError(f"{where}: captured with another sensor than the model was calibrated for ({why})")
 
 
-def check_sensor_record(sensor, where, remedy: str = "") -> dict:
+def check_sensor_record(sensor: object, where: str | Path, remedy: str = "") -> dict:
     """``sensor`` as read back from a file (index.json, a model file), checked to be a sensor description.
 
     Such files are written by this package, but a hand edit or another tool's file would otherwise fail

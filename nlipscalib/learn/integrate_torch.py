@@ -27,11 +27,15 @@ from __future__ import annotations
 
 import functools
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import ShapeError, require
 from .integrate import MIN_FACING, RayGeometry, _box, box_eigenvalues, box_rhs
+
+if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
+    import torch
 
 RECORD_AFTER = 3
 """A box size is recorded as a CUDA graph when it comes the third time, solved eagerly before: a contact that
@@ -45,7 +49,7 @@ def _torch():
     return require("torch", "torch", "Normal integration in PyTorch")
 
 
-def dst1(x, dim: int):
+def dst1(x: torch.Tensor, dim: int) -> torch.Tensor:
     """Orthonormal type-I discrete sine transform of a torch tensor along ``dim`` (its own inverse).
 
     Through a real FFT of the odd extension [0, x, 0, -reversed x] (length 2(n + 1)): torch has no DST;
@@ -60,7 +64,7 @@ def dst1(x, dim: int):
     return out.movedim(-1, dim)
 
 
-def dct2(x, dim: int):
+def dct2(x: torch.Tensor, dim: int) -> torch.Tensor:
     """Orthonormal type-II discrete cosine transform of a torch tensor along ``dim``; :func:`idct2` inverts it.
 
     Through one complex FFT of length n of the reordered [x0, x2, x4, ..., x5, x3, x1] (Makhoul, IEEE Trans.
@@ -75,7 +79,7 @@ def dct2(x, dim: int):
     return out.movedim(-1, dim)
 
 
-def idct2(y, dim: int):
+def idct2(y: torch.Tensor, dim: int) -> torch.Tensor:
     """Inverse of :func:`dct2` (the orthonormal type-III DCT) along ``dim``, by one complex inverse FFT."""
     torch = _torch()
     y = y.movedim(dim, -1)
@@ -98,7 +102,7 @@ def _twiddle(n: int, sign: float, like):
 
 
 @functools.lru_cache(maxsize=64)
-def dst1_matrix(n: int, device, dtype):
+def dst1_matrix(n: int, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
     """(n, n) matrix of the orthonormal type-I DST (symmetric, its own inverse): ``S @ x`` is :func:`dst1` along
     the first axis. Its sines are taken of exact arguments (the index product reduced modulo the period)."""
     torch = _torch()
@@ -109,7 +113,7 @@ def dst1_matrix(n: int, device, dtype):
 
 
 @functools.lru_cache(maxsize=64)
-def dct2_matrix(n: int, device, dtype):
+def dct2_matrix(n: int, device: torch.device, dtype: torch.dtype) -> torch.Tensor:
     """(n, n) matrix of the orthonormal type-II DCT (its transpose inverts it): ``C @ x`` is :func:`dct2` along
     the first axis. Its cosines are taken of exact arguments (the index product reduced modulo the period)."""
     torch = _torch()
@@ -134,14 +138,22 @@ class BoxPoisson:
     (benchmarks/RESULTS.md). On a CPU the FFT is the faster.
     """
 
-    def __init__(self, m: int, n: int, device, dtype, dense: bool = False, neumann: tuple[bool, bool] = (False, False)):
+    def __init__(
+        self,
+        m: int,
+        n: int,
+        device: torch.device,
+        dtype: torch.dtype,
+        dense: bool = False,
+        neumann: tuple[bool, bool] = (False, False),
+    ):
         lam = box_eigenvalues(m, n, neumann)
         lam[0, 0] = np.inf if all(neumann) else lam[0, 0]  # the constant's eigenvalue 0: its coefficient dropped
         self.lam = _torch().as_tensor(lam, dtype=dtype, device=device)
         self.neumann = neumann
         self.dense = [_axis_matrices(k, neumann[i], device, dtype) for i, k in enumerate((m, n))] if dense else None
 
-    def __call__(self, f):
+    def __call__(self, f: torch.Tensor) -> torch.Tensor:
         """x with L x = f; ``f`` is (..., m, n)."""
         if self.dense is not None:
             (c_m, ct_m), (c_n, ct_n) = self.dense  # C x along the rows; x C^T along the columns
@@ -169,7 +181,7 @@ class BoxIntegrator:
     device : torch device
     """
 
-    def __init__(self, geo: RayGeometry, device):
+    def __init__(self, geo: RayGeometry, device: torch.device):
         torch = _torch()
         self.seen: dict[tuple[int, int], int] = {}
         """How often each box size (h, w) has come (recorded at :data:`RECORD_AFTER`)."""
@@ -181,11 +193,11 @@ class BoxIntegrator:
         )
         self.device = device
 
-    def box(self, changed: np.ndarray):
+    def box(self, changed: np.ndarray) -> tuple[slice, slice] | None:
         """The box for ``changed`` ((H, W) bool on the gel), or None when it leaves the gel or touches the border."""
         return _box(changed, self.on_gel)
 
-    def __call__(self, normals, box):
+    def __call__(self, normals: torch.Tensor, box: tuple[slice, slice]) -> torch.Tensor:
         """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor).
 
         On a GPU, a box size that keeps coming is recorded as a CUDA graph (the box's place is an input) at its
@@ -202,7 +214,7 @@ class BoxIntegrator:
         place.fill_(offset)
         return replay()
 
-    def warm_up(self, normals) -> None:
+    def warm_up(self, normals: torch.Tensor) -> None:
         """Solve one small box in the gel's middle, uncounted: the first box of a stream would otherwise load the
         path's GPU kernels (CUDA loads a kernel on its first use; a stream's first box took 0.36-0.58 s on an
         H200, benchmarks/RESULTS.md). ``normals``: an (H, W, 3) tensor on the device."""
@@ -271,7 +283,7 @@ class DomeIntegrator:
     device : torch device
     """
 
-    def __init__(self, geo: RayGeometry, device):
+    def __init__(self, geo: RayGeometry, device: torch.device):
         torch = _torch()
         self.device, dt = device, torch.float64
         on_gel = np.isfinite(geo.log_range)
@@ -322,7 +334,7 @@ class DomeIntegrator:
             green[:b, b] = green[b, :b] = 1.0
         return torch.linalg.inv(green)
 
-    def log_range(self, normals, unchanged=None):
+    def log_range(self, normals: torch.Tensor, unchanged: torch.Tensor | None = None) -> torch.Tensor:
         """(m, n) float64 log-range over :attr:`box` from ``normals`` ((H, W, 3) float tensor, unit, camera frame).
 
         Solved gel pixels are solved, the held ones and the rest of the gel keep the reference. ``unchanged``
@@ -344,7 +356,7 @@ class DomeIntegrator:
             change = change - self._level(change, unchanged)
         return self.ref + change * self.solved
 
-    def __call__(self, normals, unchanged=None):
+    def __call__(self, normals: torch.Tensor, unchanged: torch.Tensor | None = None) -> torch.Tensor:
         """(H, W, 3) float32 tensor: the surface points, mm, camera frame (NaN off the gel); depth is their z.
 
         ``unchanged``: (H, W) bool tensor of the pixels that did not change, or None (:meth:`log_range`).

@@ -21,12 +21,17 @@ dark frame, depth, normals) that inference compares frames with and integrates d
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from fractions import Fraction
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import CaptureError, require
+
+if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
+    import torch
 
 MODEL_FORMAT = "nlipscalib.nlipsnet"
 MODEL_VERSION = 1
@@ -39,7 +44,9 @@ def _torch():
     return require("torch", "torch", "NLiPsNet")
 
 
-def build_net(hidden=PAPER_HIDDEN, dropout: float = PAPER_DROPOUT, width: int = 640, height: int = 480):
+def build_net(
+    hidden: Sequence[int] = PAPER_HIDDEN, dropout: float = PAPER_DROPOUT, width: int = 640, height: int = 480
+) -> torch.nn.Module:
     """A fresh NLiPsNet (torch.nn.Module) for ``width`` x ``height`` images; forward((N, 5)) -> (N, 3) unit."""
     torch = _torch()
     nn = torch.nn
@@ -88,7 +95,7 @@ def build_net(hidden=PAPER_HIDDEN, dropout: float = PAPER_DROPOUT, width: int = 
     return NLiPsNet()
 
 
-def fused_net(net):
+def fused_net(net: torch.nn.Module) -> torch.nn.Module:
     """The same network in eval mode with every affine step folded into the linear layers (for inference).
 
     The input normalisation folds into the first layer (W' = W / scale, b' = b - W' offset) and each
@@ -130,7 +137,7 @@ def fused_net(net):
     return FusedNLiPsNet().eval()
 
 
-def set_colour_normalisation(net, rgb: np.ndarray) -> None:
+def set_colour_normalisation(net: torch.nn.Module, rgb: np.ndarray) -> None:
     """Standardise r, g, b with the mean and standard deviation of ``rgb`` ((N, 3) float, linear)."""
     torch = _torch()
     mean, std = rgb.mean(0), rgb.std(0) + 1e-6
@@ -144,14 +151,22 @@ def model_inputs(pixel: np.ndarray, rgb: np.ndarray) -> np.ndarray:
     return np.concatenate([pixel.astype(np.float32), rgb.astype(np.float32)], axis=1)
 
 
-def cosine_loss(pred, target):
+def cosine_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Mean of 1 - n_hat . n (both (N, 3) unit)."""
     return (1.0 - (pred * target).sum(-1)).mean()
 
 
 # ---------------------------------------------------------------------- model file
 def save_model(
-    path, net, *, hidden, dropout, sensor: dict, reference: dict, info: dict, smoothing_px: float = 0.0
+    path: str | Path,
+    net: torch.nn.Module,
+    *,
+    hidden: Sequence[int],
+    dropout: float,
+    sensor: dict,
+    reference: dict,
+    info: dict,
+    smoothing_px: float = 0.0,
 ) -> Path:
     """Write the model file atomically (see module docstring); ``smoothing_px``: the inputs' prefilter sigma."""
     import io
@@ -180,7 +195,7 @@ class LoadedModel:
     of the file's bytes these came from (``learn.onnx_export.bytes_digest``; by default, of the file at ``path``
     now), which an ONNX export records and inference checks."""
 
-    def __init__(self, path, net, payload: dict, digest: str | None = None):
+    def __init__(self, path: str | Path, net: torch.nn.Module, payload: dict, digest: str | None = None):
         from .onnx_export import file_digest
 
         self.path = Path(path)
@@ -198,7 +213,7 @@ class LoadedModel:
         return (cam["height"], cam["width"])
 
 
-def load_model(path) -> LoadedModel:
+def load_model(path: str | Path) -> LoadedModel:
     """Load and validate a model file; every problem is one CaptureError naming the file."""
     from ..core.sensor_record import check_sensor_record
     from ..errors import ConfigError
@@ -296,7 +311,7 @@ def _check_model_path(path: Path) -> None:
         raise CaptureError(f"{path}: model file is missing")
 
 
-def read_torch_file(path, what: str):
+def read_torch_file(path: str | Path, what: str) -> object:
     """``torch.load(path, weights_only=True)`` on the CPU; a damaged file is one CaptureError saying how.
 
     ``what`` names the file the caller expects, with its article ("an NLiPsNet model file").
@@ -309,7 +324,7 @@ def read_torch_file(path, what: str):
     return _read_torch_bytes(path, what)[0]
 
 
-def _read_torch_bytes(path, what: str) -> tuple[object, bytes]:
+def _read_torch_bytes(path: str | Path, what: str) -> tuple[object, bytes]:
     """:func:`read_torch_file`, and the bytes it loaded: the file is read once, so both are of one version of it
     even while another process replaces the file."""
     import io

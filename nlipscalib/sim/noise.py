@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.leds import TRICOLOR_COLORS, led_shading, tricolor_groups
+from ..core.leds import TRICOLOR_COLORS, Leds, led_shading, tricolor_groups
 
 EXPOSURE_TARGET = 0.8
 """Auto exposure puts the 99.5th percentile of the brightest single-LED image at this fraction."""
@@ -88,7 +88,14 @@ def dark_frame(shape, cfg, rng: np.random.Generator | None, effects=None) -> np.
     return apply_noise(np.zeros(tuple(shape) + (3,)), 1.0, cfg, rng, effects)
 
 
-def auto_exposure(points: np.ndarray, normals: np.ndarray, leds, albedo, scale: float = 1.0, tricolor=False) -> float:
+def auto_exposure(
+    points: np.ndarray,
+    normals: np.ndarray,
+    leds: Leds,
+    albedo: tuple[float, float, float],
+    scale: float = 1.0,
+    tricolor: bool = False,
+) -> float:
     """Exposure making the undeformed dome well exposed, the same for every press of a scene.
 
     Parameters

@@ -15,6 +15,8 @@ import functools
 import json
 import logging
 import zlib
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,17 +28,26 @@ from .dome import make_dome
 from .noise import apply_noise, auto_exposure, dark_frame
 from .render.groundtruth import reference_from
 
+if TYPE_CHECKING:  # names in hints only: the functions import the scene and render modules where they use them
+    import trimesh
+
+    from ..core.capture import GroundTruth
+    from ..core.sensor import DomeConfig
+    from .indent import PressConfig
+    from .render.surface import RenderResult
+    from .scene import SceneConfig
+
 log = logging.getLogger(__name__)
 CACHE_SIZE = 8
 """Scenes whose undeformed ground truth and exposures stay in memory (a dataset uses one scene)."""
 
 
-def undeformed_mesh(dome_cfg):
+def undeformed_mesh(dome_cfg: DomeConfig) -> trimesh.Trimesh:
     """The undeformed gel mesh (dome frame, mm, faces wound inward)."""
     return make_dome(dome_cfg)
 
 
-def reference_ground_truth(scene):
+def reference_ground_truth(scene: SceneConfig) -> GroundTruth:
     """Ground truth of the undeformed dome: the Reference every press carries and the exposure's source.
 
     Rendered through the same path as the presses (``render_surface`` without images) and cached per
@@ -75,7 +86,7 @@ def _reference_ground_truth(geometry):
     return gt
 
 
-def scene_exposure(scene, tricolor: bool = False) -> float:
+def scene_exposure(scene: SceneConfig, tricolor: bool = False) -> float:
     """Scale from linear radiance to fraction of full scale for this scene (see ``noise.auto_exposure``).
 
     The tri-colour image (``tricolor=True``) gets its own, shorter exposure: each of its channels sums
@@ -131,7 +142,7 @@ def check_polar(where: str, value: float) -> float:
     return value
 
 
-def render_spec_hash(scene, press=None, seed=None) -> str:
+def render_spec_hash(scene: SceneConfig, press: PressConfig | None = None, seed: int | None = None) -> str:
     """Hash of everything that determines a render (scene, press, seed; not the thread count).
 
     Stored as ``provenance.spec_hash`` so re-runs can tell a matching press folder from a stale one. A user
@@ -146,7 +157,7 @@ def render_spec_hash(scene, press=None, seed=None) -> str:
     return _spec_digest(scene.to_dict(), press_dict, seed, mesh_file_digest(press))
 
 
-def mesh_file_digest(press) -> str | None:
+def mesh_file_digest(press: PressConfig | None) -> str | None:
     """SHA-256 (hex, first 16 digits) of the file of a press's mesh indenter; None for any other press.
 
     Parameters
@@ -193,7 +204,14 @@ def _spec_digest(scene_dict: dict, press_dict: dict | None, seed: int, mesh_dige
     return digest(spec)
 
 
-def render_press(scene, press=None, out_folder=None, seed=None, overwrite=False, return_result=False):
+def render_press(
+    scene: SceneConfig,
+    press: PressConfig | None = None,
+    out_folder: str | Path | None = None,
+    seed: int | None = None,
+    overwrite: bool = False,
+    return_result: bool = False,
+) -> Path | tuple[Path, RenderResult]:
     """Render one press (or the undeformed dome when ``press`` is None) into a press folder.
 
     Parameters
@@ -277,7 +295,9 @@ def _warn_if_unseen(folder, press, gt) -> None:
     )
 
 
-def camera_capture(scene, images: np.ndarray, seed: int):
+def camera_capture(
+    scene: SceneConfig, images: np.ndarray, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
     """What the camera stores of linear LED images: dark frame, LED images, tri-colour image.
 
     Parameters
@@ -302,7 +322,7 @@ def camera_capture(scene, images: np.ndarray, seed: int):
     return dark, leds, tri, exposure, tri_exposure
 
 
-def gel_surface(scene, press):
+def gel_surface(scene: SceneConfig, press: PressConfig | None) -> tuple[trimesh.Trimesh, np.ndarray, dict | None]:
     """The gel's surface: (mesh, per-vertex contact (V,) bool, press description or None).
 
     The mesh is in the dome frame (mm), faces wound inward; the undeformed dome when ``press`` is None.

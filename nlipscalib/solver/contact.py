@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from pathlib import Path
 
 import numpy as np
 
 from ..core import masks, tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
-from ..core.leds import led_shading
+from ..core.leds import Leds, led_shading
 from ..core.robust_scale import mad_scale
 from ..errors import CaptureError
 from . import reuse, threads
@@ -119,7 +120,7 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
 
 def classify_contact(
     press: Press,
-    leds=None,
+    leds: Leds | None = None,
     *,
     undeformed_images: np.ndarray | None = None,
     undeformed_light: np.ndarray | None = None,
@@ -231,7 +232,7 @@ def contact_box(
     min_size: int = 32,
     threshold: float = tolerances.CONTACT_MISFIT_FACTOR,
     min_component: float = 0.05,
-    folder="",
+    folder: str | Path = "",
 ) -> tuple[tuple[int, int, int, int], str]:
     """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome, and a note.
 
@@ -351,7 +352,7 @@ def anchor_weights(
     factor: float,
     min_fraction: float = 0.02,
     max_relative: float = 0.05,
-):
+) -> tuple[np.ndarray | None, str]:
     """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed.
 
     Parameters

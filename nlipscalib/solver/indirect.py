@@ -27,7 +27,7 @@ import numpy as np
 from ..core import masks, tolerances
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import Press
-from ..core.leds import led_shading
+from ..core.leds import Leds, led_shading
 from ..core.sensor import DomeConfig
 from ..errors import CaptureError, ConfigError
 from . import radiosity, reuse, threads
@@ -64,7 +64,7 @@ class IndirectModel:
     """(kappa G (L, h, w, 3) float32 on the fitted capture's patches, patch side): the undeformed
     dome's indirect light per unit receiver albedo."""
 
-    def with_reflectance(self, reflectance) -> IndirectModel:
+    def with_reflectance(self, reflectance: float | tuple[float, float, float]) -> IndirectModel:
         """This model with the coating's reflectance set (one value or per channel, in (0, 1]) instead of
         fitted: kappa = a / the typical albedo, the fitted light scaled alike (exact for one bounce; with two,
         the second bounce keeps the fitted kappa's share)."""
@@ -102,7 +102,7 @@ class IndirectModel:
         }
 
 
-def checked_reflectance(reflectance) -> np.ndarray:
+def checked_reflectance(reflectance: float | tuple[float, float, float]) -> np.ndarray:
     """(3,) float -- a coating reflectance given as one value or per channel, each in (0, 1]; else ConfigError."""
     a = np.broadcast_to(np.asarray(reflectance, float), (3,))
     if not np.all((a > 0) & (a <= 1)):
@@ -137,7 +137,7 @@ def fit_patch_size(camera: Camera) -> int:
     return max(2, round(max(camera.shape) / FIT_PATCH_TARGET))
 
 
-def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def direct_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """Direct shading of a surface at every pixel (``core.leds.led_shading``), 0 off the gel.
 
     Computed once per solve for the reference surface and shared by the indirect fit, the contact
@@ -168,7 +168,7 @@ def direct_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray)
     return out
 
 
-def reference_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def reference_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
     """:func:`direct_shading` of the undeformed surface, reused for the next press of the same sensor, in
     this process and the next (:mod:`nlipscalib.solver.reuse`); read-only."""
     leds = tuple(leds)
@@ -176,7 +176,14 @@ def reference_shading(camera: Camera, leds, depth: np.ndarray, normals: np.ndarr
     return reuse.reused("shading", key, lambda: direct_shading(camera, leds, depth, normals), persist=True)
 
 
-def reference_surface(camera: Camera, leds, depth, normals, size: int | None = None, shading=None) -> Surface:
+def reference_surface(
+    camera: Camera,
+    leds: Leds,
+    depth: np.ndarray,
+    normals: np.ndarray,
+    size: int | None = None,
+    shading: np.ndarray | None = None,
+) -> Surface:
     """:class:`Surface` of the undeformed surface, reused for the next press of the same sensor (in this
     process and the next); its arrays are read-only (:meth:`Surface.replaced` copies what it changes)."""
     leds = tuple(leds)
@@ -204,7 +211,15 @@ class Surface:
         has it already (None: computed here).
     """
 
-    def __init__(self, camera: Camera, leds, depth, normals, size: int | None = None, shading=None):
+    def __init__(
+        self,
+        camera: Camera,
+        leds: Leds,
+        depth: np.ndarray,
+        normals: np.ndarray,
+        size: int | None = None,
+        shading: np.ndarray | None = None,
+    ):
         self.camera, self.leds = camera, tuple(leds)
         self.valid = np.isfinite(depth)
         self.depth, self.normals = np.asarray(depth), np.asarray(normals)
@@ -302,7 +317,7 @@ def _gather_all(surface: Surface, rho_patch, off_unit, off_albedo, bounces: int,
 
 def fit_indirect(
     reference: Press,
-    leds=None,
+    leds: Leds | None = None,
     *,
     mode: str = "auto",
     bounces: int = 1,
@@ -428,7 +443,7 @@ def _alternate(img, S, ok, surf: Surface, off_unit, bounces: int, iterations: in
     return kappa, G, off_albedo
 
 
-def _fit_inputs(reference: Press, leds, shading) -> dict:
+def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | None) -> dict:
     """What :func:`fit_indirect` needs besides ``exclude``: the surface as patches, the off-view dome
     and its light for a unit albedo (both the sensor's alone: reused, :mod:`.reuse`), the linear
     images, the usable samples and the live LEDs."""
@@ -453,7 +468,7 @@ def _fit_inputs(reference: Press, leds, shading) -> dict:
     return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
 
 
-def _off_view_light(camera: Camera, leds, surf: Surface, design) -> tuple[dict, np.ndarray]:
+def _off_view_light(camera: Camera, leds: Leds, surf: Surface, design) -> tuple[dict, np.ndarray]:
     """The dome beyond the view as patches, and its direct light gathered at ``surf`` for a unit albedo."""
     off = radiosity.off_view_patches(design[0], design[1], camera, surf.valid, step_deg=3.0)
     off_s = led_shading(off["points"], off["normals"], tuple(leds))
@@ -507,7 +522,7 @@ def _profile_kappa(img, S, G, ok, kappa_max: float | None = None, steps: int = 4
 def surface_indirect(
     model: IndirectModel,
     camera: Camera,
-    leds,
+    leds: Leds,
     depth: np.ndarray,
     normals: np.ndarray,
     albedo: np.ndarray,

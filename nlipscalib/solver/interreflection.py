@@ -12,11 +12,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.capture import Press
+from ..core.leds import Leds
 from ..errors import CaptureError, ShapeError
 from .indirect import fit_indirect
 
 
-def estimate_indirect(reference: Press, leds=None, *, mode: str = "on", bounces: int = 1) -> np.ndarray:
+def estimate_indirect(reference: Press, leds: Leds | None = None, *, mode: str = "on", bounces: int = 1) -> np.ndarray:
     """Indirect (interreflected) light of every LED and pixel of a capture of the undeformed dome.
 
     Parameters

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import NamedTuple
 
-from ..core.leds import Led
+from ..core.leds import Led, Leds
 from ..core.reconstruction import (
     Reconstruction,
     load_reconstruction,
@@ -29,7 +29,7 @@ def load_result(folder: str | Path) -> Reconstruction:
     return load_reconstruction(folder)
 
 
-def save_leds(path: str | Path, leds, extra: dict | None = None) -> Path:
+def save_leds(path: str | Path, leds: Leds, extra: dict | None = None) -> Path:
     """Write an LED file: {"leds": [Led.to_dict() ...], ...extra} (``nlips solve --leds FILE``)."""
     from ..core.atomic import write_json
 

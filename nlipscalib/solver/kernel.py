@@ -11,9 +11,18 @@ Model (Quéau et al. 2018), LED i, channel c, log-depth t, x = exp(t) q, N = -(t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, TypeAlias
+
 import numpy as np
 
 from . import robust
+
+if TYPE_CHECKING:  # torch is optional and slow to import: named for the type checker only
+    import torch
+
+Array: TypeAlias = "np.ndarray | torch.Tensor"
+"""An array on a :class:`Backend`: a numpy array (numpy backend) or a torch tensor (torch backend)."""
 
 
 class Backend:
@@ -36,7 +45,7 @@ class Backend:
 
             raise ConfigError(f"backend must be 'numpy' or 'torch', got {name!r}")
 
-    def asarray(self, a):
+    def asarray(self, a: np.ndarray) -> Array:
         if self.name == "numpy":
             # rows contiguous is enough for the element-wise work: a pixel chunk of an (L, 3, N) array stays
             # a view (a copy of a 640x480 level's images and usable samples per chunk costs ~0.2 s)
@@ -44,22 +53,22 @@ class Backend:
             return a if a.ndim == 0 or a.strides[-1] == a.itemsize else np.ascontiguousarray(a)
         return self.xp.as_tensor(np.ascontiguousarray(a), dtype=self.dtype, device=self.device)
 
-    def numpy(self, a) -> np.ndarray:
+    def numpy(self, a: Array) -> np.ndarray:
         if self.name == "numpy":
             return np.asarray(a, dtype=np.float64)
         return a.detach().to("cpu", self.xp.float64).numpy()
 
-    def pixel_sums(self, a) -> np.ndarray:
+    def pixel_sums(self, a: Array) -> np.ndarray:
         """(N,) float64 numpy -- ``a`` (L, 3, N) summed over LEDs and channels in float64 (no float64 copy of
         ``a`` itself: 88 MB at 640x480 with 12 LEDs)."""
         if self.name == "numpy":
             return np.sum(a, axis=(0, 1), dtype=np.float64)
         return a.sum(dim=(0, 1), dtype=self.xp.float64).detach().to("cpu").numpy()
 
-    def relu(self, a):
+    def relu(self, a: Array) -> Array:
         return np.maximum(a, 0) if self.name == "numpy" else self.xp.clamp(a, min=0)
 
-    def total(self, a) -> float:
+    def total(self, a: Array) -> float:
         """Sum in float64 whatever the working precision."""
         if self.name == "numpy":
             return float(np.sum(a, dtype=np.float64))
@@ -69,7 +78,20 @@ class Backend:
 class Model:
     """The image model on one pyramid level, with data held on the backend."""
 
-    def __init__(self, be: Backend, q, A, B, C, positions, directions, mu, psi, images, usable):
+    def __init__(
+        self,
+        be: Backend,
+        q: np.ndarray,
+        A: np.ndarray,
+        B: np.ndarray,
+        C: np.ndarray,
+        positions: np.ndarray,
+        directions: np.ndarray,
+        mu: np.ndarray,
+        psi: np.ndarray,
+        images: np.ndarray,
+        usable: np.ndarray,
+    ):
         """q, A, B, C : (N, 3); positions, directions : (L, 3); mu : (L,); psi : (L, 3);
         images, usable : (L, 3, N) (usable as 0/1)."""
         self.be = be
@@ -84,7 +106,9 @@ class Model:
         self.images = be.asarray(images)
         self.usable = be.asarray(usable)
 
-    def shading(self, t, tu, tv, derivatives: bool = False):
+    def shading(
+        self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
+    ) -> Array | tuple[Array, Array, Array, Array]:
         """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit)."""
         be, xp = self.be, self.be.xp
         t, tu, tv = be.asarray(t), be.asarray(tu), be.asarray(tv)
@@ -119,23 +143,23 @@ class Model:
         dlog_v = -bv / safe_vn + nb
         return F, F * dlog_t, F * dlog_u, F * dlog_v
 
-    def residuals(self, F, albedo):
+    def residuals(self, F: Array, albedo: Array) -> Array:
         """r : (L, 3, N) = rho_c Psi_ic F_i - I_ic (albedo : (3, N) on the backend)."""
         return albedo[None] * self.psi * F[:, None] - self.images
 
-    def data_energy(self, r, lam: float, estimator: str) -> float:
+    def data_energy(self, r: Array, lam: float, estimator: str) -> float:
         """Robust data energy of residuals ``r`` (L, 3, N) over the usable samples, summed in float64."""
         return self.be.total(self.usable * robust.rho(r, lam, estimator, self.be.xp))
 
-    def energy(self, F, albedo, lam: float, estimator: str) -> float:
+    def energy(self, F: Array, albedo: Array, lam: float, estimator: str) -> float:
         """Robust data energy at shading ``F`` (L, N) and albedo (3, N)."""
         return self.data_energy(self.residuals(F, albedo), lam, estimator)
 
-    def weights(self, r, lam: float, estimator: str):
+    def weights(self, r: Array, lam: float, estimator: str) -> Array:
         """IRLS weights, zero on excluded samples: (L, 3, N)."""
         return self.usable * robust.weight(r, lam, estimator, self.be.xp)
 
-    def albedo(self, F, w):
+    def albedo(self, F: Array, w: Array) -> Array:
         """Closed-form per-pixel, per-channel albedo minimising the data term weighted by ``w``: (3, N).
 
         Parameters
@@ -150,23 +174,25 @@ class Model:
         ok = den > 1e-30
         return xp.where(ok, num / xp.where(ok, den, 0 * den + 1), 0 * den)
 
-    def gradient_curvature(self, dF, albedo, w) -> np.ndarray:
+    def gradient_curvature(self, dF: Sequence[Array], albedo: Array, w: Array) -> np.ndarray:
         """Data-term curvature along the log-depth gradient, (N,) float64 numpy: the plain (not
         projected) Gauss-Newton diagonal sum over LEDs and channels of w (rho Psi)^2 (dF_u^2 + dF_v^2)."""
         g2 = (w * (albedo[None] * self.psi) ** 2).sum(1)  # (L, N)
         return self.be.numpy((g2 * (dF[1] * dF[1] + dF[2] * dF[2])).sum(0))
 
-    def fit_sums(self, r, lam: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
+    def fit_sums(self, r: Array, lam: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
         """(N,) float64 numpy each: the usable samples' squared residuals and their IRLS weights, summed over
         LEDs and channels (a level's residual and confidence maps)."""
         return self.be.pixel_sums(self.usable * r * r), self.be.pixel_sums(self.weights(r, lam, estimator))
 
     @staticmethod
-    def whole(a):
+    def whole(a: Array | tuple) -> Array | tuple:
         """``a`` as one array (a :class:`ChunkedModel` keeps its results in chunks; this model does not)."""
         return a
 
-    def gauss_newton_blocks(self, F, dF, r, w, albedo):
+    def gauss_newton_blocks(
+        self, F: Array, dF: Sequence[Array], r: Array, w: Array, albedo: Array
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Variable-projection Gauss-Newton blocks of the data term, summed over LEDs and channels.
 
         The albedo is eliminated (it is the closed-form weighted least-squares fit at every depth), so
@@ -243,7 +269,20 @@ class ChunkedModel:
     as whole arrays.
     """
 
-    def __init__(self, be: Backend, q, A, B, C, positions, directions, mu, psi, images, usable):
+    def __init__(
+        self,
+        be: Backend,
+        q: np.ndarray,
+        A: np.ndarray,
+        B: np.ndarray,
+        C: np.ndarray,
+        positions: np.ndarray,
+        directions: np.ndarray,
+        mu: np.ndarray,
+        psi: np.ndarray,
+        images: np.ndarray,
+        usable: np.ndarray,
+    ):
         from . import threads
 
         self._threads = threads
@@ -285,7 +324,7 @@ class ChunkedModel:
             return tuple(Parts(list(group)) for group in zip(*outs))
         return Parts(outs)
 
-    def whole(self, a):
+    def whole(self, a: Array | Parts | tuple) -> Array | tuple:
         """``a`` as one array (a :class:`Parts` joined; tuples element-wise; anything else as it is)."""
         if isinstance(a, Parts):
             return np.concatenate(a.arrays, axis=-1)
@@ -293,35 +332,44 @@ class ChunkedModel:
             return tuple(self.whole(x) for x in a)
         return a
 
-    def shading(self, t, tu, tv, derivatives: bool = False):
+    def shading(
+        self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
+    ) -> Parts | tuple[Parts, Parts, Parts, Parts]:
         return self._parts(self._map("shading", t, tu, tv, derivatives))
 
-    def residuals(self, F, albedo):
+    def residuals(self, F: Array | Parts, albedo: Array | Parts) -> Parts:
         return self._parts(self._map("residuals", F, albedo))
 
-    def data_energy(self, r, lam: float, estimator: str) -> float:
+    def data_energy(self, r: Array | Parts, lam: float, estimator: str) -> float:
         return float(sum(self._map("data_energy", r, lam, estimator)))
 
-    def energy(self, F, albedo, lam: float, estimator: str) -> float:
+    def energy(self, F: Array | Parts, albedo: Array | Parts, lam: float, estimator: str) -> float:
         return float(sum(self._map("energy", F, albedo, lam, estimator)))
 
-    def weights(self, r, lam: float, estimator: str):
+    def weights(self, r: Array | Parts, lam: float, estimator: str) -> Parts:
         return self._parts(self._map("weights", r, lam, estimator))
 
-    def albedo(self, F, w):
+    def albedo(self, F: Array | Parts, w: Array | Parts) -> Parts:
         return self._parts(self._map("albedo", F, w))
 
-    def gradient_curvature(self, dF, albedo, w) -> np.ndarray:
+    def gradient_curvature(self, dF: Sequence[Array | Parts], albedo: Array | Parts, w: Array | Parts) -> np.ndarray:
         return self._join(self._map("gradient_curvature", dF, albedo, w))
 
-    def fit_sums(self, r, lam: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
+    def fit_sums(self, r: Array | Parts, lam: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
         return self._join(self._map("fit_sums", r, lam, estimator))
 
-    def gauss_newton_blocks(self, F, dF, r, w, albedo):
+    def gauss_newton_blocks(
+        self,
+        F: Array | Parts,
+        dF: Sequence[Array | Parts],
+        r: Array | Parts,
+        w: Array | Parts,
+        albedo: Array | Parts,
+    ) -> tuple[np.ndarray, np.ndarray]:
         return self._join(self._map("gauss_newton_blocks", F, dF, r, w, albedo))
 
 
-def make_model(be: Backend, q, *args) -> Model | ChunkedModel:
+def make_model(be: Backend, q: np.ndarray, *args: np.ndarray) -> Model | ChunkedModel:
     """:class:`ChunkedModel` for large levels on the numpy backend, else :class:`Model`."""
     if be.name == "numpy" and q.shape[0] >= PARALLEL_MIN_PIXELS:
         return ChunkedModel(be, q, *args)

@@ -27,7 +27,7 @@ import scipy.sparse as sp
 
 from ..core import masks
 from ..core.camera import Camera
-from ..core.leds import led_arrays
+from ..core.leds import Leds, led_arrays
 from ..core.metrics import angle_deg
 from ..core.reconstruction import Reconstruction
 from ..core.robust_scale import mad_scale
@@ -49,7 +49,7 @@ SolveResult = Reconstruction
 
 def exclusions(
     images: np.ndarray, saturated: np.ndarray | None, options: SolverOptions, whole: np.ndarray | None = None
-):
+) -> tuple[np.ndarray, dict]:
     """Which (LED, pixel, channel) samples the data term may use, and why others are excluded.
 
     Parameters
@@ -93,7 +93,7 @@ def exclusions(
 def solve(
     images: np.ndarray,
     camera: Camera,
-    leds,
+    leds: Leds,
     *,
     prior_depth: np.ndarray | None = None,
     prior_weights: np.ndarray | None = None,

@@ -5,12 +5,18 @@ Normalised so that every estimator behaves like r^2 for small residuals; lambda 
 
 from __future__ import annotations
 
+from types import ModuleType
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from .kernel import Array
 
 ESTIMATORS = ("cauchy", "ls", "huber", "tukey")
 
 
-def rho(r, lam: float, estimator: str, xp=np):
+def rho(r: Array, lam: float, estimator: str, xp: ModuleType = np) -> Array:
     """Per-residual energy (same array type as ``r``; ``xp`` is numpy or torch)."""
     a2 = r * r
     if estimator == "ls":
@@ -27,7 +33,7 @@ def rho(r, lam: float, estimator: str, xp=np):
     raise ValueError(f"unknown estimator {estimator!r}; expected one of {ESTIMATORS}")
 
 
-def weight(r, lam: float, estimator: str, xp=np):
+def weight(r: Array, lam: float, estimator: str, xp: ModuleType = np) -> Array:
     """IRLS weight w(r) = rho'(r) / (2 r), in [0, 1]."""
     a2 = r * r
     if estimator == "ls":

@@ -2,7 +2,13 @@
 
 from __future__ import annotations
 
+from types import ModuleType
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``variant.load_mitsuba``), passed as ``mi``
+    import mitsuba
 
 CONTACT_ATTR = "vertex_contact"
 COLOR_ATTR = "vertex_color"
@@ -11,7 +17,9 @@ _ALBEDO_SEED = 12345
 """Fixed: the coating pattern belongs to the sensor, not to a press, so it never changes with the seed."""
 
 
-def albedo_per_vertex(points_dome: np.ndarray, albedo, variation: float, scale: float) -> np.ndarray:
+def albedo_per_vertex(
+    points_dome: np.ndarray, albedo: tuple[float, float, float], variation: float, scale: float
+) -> np.ndarray:
     """Smooth spatial albedo variation of the coating.
 
     Parameters
@@ -37,7 +45,15 @@ def albedo_per_vertex(points_dome: np.ndarray, albedo, variation: float, scale: 
     return np.clip(albedo * (1 + variation * g[:, None]), 0, 1).astype(np.float32)
 
 
-def to_mitsuba_mesh(mi, vertices, faces, normals, contact, colors=None, name="gel"):
+def to_mitsuba_mesh(
+    mi: ModuleType,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    normals: np.ndarray,
+    contact: np.ndarray,
+    colors: np.ndarray | None = None,
+    name: str = "gel",
+) -> mitsuba.Mesh:
     """Build a ``mi.Mesh`` with vertex normals and attributes.
 
     Parameters

@@ -3,14 +3,21 @@
 from __future__ import annotations
 
 import math
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ...core.camera import Camera
+from ...core.leds import Leds
 from .emitter import PLUGIN as LED_PLUGIN
 from .integrator import PLUGIN as INTEGRATOR_PLUGIN
 from .mesh import COLOR_ATTR, to_mitsuba_mesh
 from .sensor import PLUGIN as CAMERA_PLUGIN
 from .sensor import camera_props
+
+if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``variant.load_mitsuba``), passed as ``mi``
+    import mitsuba
 
 REFRACT_CONE_DEG = 30.0
 """Largest half-angle of the cone in which a coat vertex looks for each LED through a refracting gel, degrees."""
@@ -18,7 +25,7 @@ REFRACT_CONE_MARGIN = 1.3
 """That cone's half-angle over the LED's angular radius seen in a straight line (see the integrator)."""
 
 
-def led_entries(mi, leds, only=None, shape="point", size=0.0) -> dict:
+def led_entries(mi: ModuleType, leds: Leds, only: int | None = None, shape: str = "point", size: float = 0.0) -> dict:
     """Scene-dict entries of the LED emitters (``only``: keep just that 0-based LED; ``shape``/``size``: see
     :mod:`.emitter`)."""
     out = {}
@@ -38,7 +45,7 @@ def led_entries(mi, leds, only=None, shape="point", size=0.0) -> dict:
     return out
 
 
-def sensor_entry(camera, spp: int) -> dict:
+def sensor_entry(camera: Camera, spp: int) -> dict:
     """The distorted camera with a box filter so every sample stays in its own pixel."""
     root = math.isqrt(spp)
     if root * root == spp:
@@ -55,7 +62,12 @@ def sensor_entry(camera, spp: int) -> dict:
     return {"type": CAMERA_PLUGIN, **camera_props(camera), "film": film, "sampler": sampler}
 
 
-def coating_bsdf(colors=None, albedo=(0.8, 0.8, 0.8), specular=0.0, roughness=0.3) -> dict:
+def coating_bsdf(
+    colors: np.ndarray | None = None,
+    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8),
+    specular: float = 0.0,
+    roughness: float = 0.3,
+) -> dict:
     """Scene-dict entry of the coat: Lambertian, plus a rough specular lobe when ``specular`` > 0.
 
     The lobe is a GGX rough mirror (``roughconductor``, reflectance 1) blended in with weight
@@ -74,26 +86,26 @@ def coating_bsdf(colors=None, albedo=(0.8, 0.8, 0.8), specular=0.0, roughness=0.
 
 
 def build_scene(
-    mi,
-    camera,
-    leds,
-    vertices,
-    faces,
-    normals,
-    contact,
-    colors=None,
-    albedo=(0.8, 0.8, 0.8),
-    spp=4,
-    bounces=0,
-    integrator="multi",
-    only_led=None,
-    led_shape="point",
-    led_size=0.0,
-    specular=0.0,
-    roughness=0.3,
-    interface=None,
-    split_bounces=False,
-):
+    mi: ModuleType,
+    camera: Camera,
+    leds: Leds,
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    normals: np.ndarray,
+    contact: np.ndarray,
+    colors: np.ndarray | None = None,
+    albedo: tuple[float, float, float] = (0.8, 0.8, 0.8),
+    spp: int = 4,
+    bounces: int = 0,
+    integrator: str = "multi",
+    only_led: int | None = None,
+    led_shape: str = "point",
+    led_size: float = 0.0,
+    specular: float = 0.0,
+    roughness: float = 0.3,
+    interface: tuple[np.ndarray, np.ndarray, float, float] | None = None,
+    split_bounces: bool = False,
+) -> mitsuba.Scene:
     """Load the scene.
 
     Parameters
@@ -128,7 +140,9 @@ def build_scene(
     return mi.load_dict(scene)
 
 
-def interface_shape(mi, vertices, faces, gel_ior, housing_ior):
+def interface_shape(
+    mi: ModuleType, vertices: np.ndarray, faces: np.ndarray, gel_ior: float, housing_ior: float
+) -> mitsuba.Mesh:
     """The gel's inner surface as a smooth ``dielectric``: gel inside, housing on the side its normals face."""
     import trimesh
 
