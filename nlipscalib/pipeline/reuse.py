@@ -27,13 +27,10 @@ def _published_since(out: Path, since: float | None) -> bool:
 def _wait_for_release(folder: Path, out: Path) -> None:
     """Wait until no live process holds the claim on ``out`` (it published its result, failed, or died:
     a dead owner's claim goes stale and is taken over)."""
-    import time
-
-    from ..core import claims
+    from ..core.claims import wait_for_release
 
     log.info("%s: being solved by another process; waiting for it", folder)
-    while claims.holder(out) is not None:
-        time.sleep(claims.CLAIM_POLL_S)  # read here, so a test's patch of it holds
+    wait_for_release(out)
 
 
 def _claim(target: Path):
