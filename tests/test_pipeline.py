@@ -251,11 +251,11 @@ def test_reference_is_used_not_solved_and_is_part_of_the_identity(press_set, tmp
 WORKER = """
 import sys, time
 from pathlib import Path
-from nlipscalib import pipeline
 from nlipscalib.core.atomic import atomic_dir
 from nlipscalib.core.claims import claim
+from nlipscalib.pipeline.workers import _worker_signals
 
-pipeline._worker_signals()
+_worker_signals()
 target = Path(sys.argv[1]) / "nlips"
 with claim(target), atomic_dir(target):
     print("solving", flush=True)
@@ -474,13 +474,13 @@ def test_cleaning_an_output_leaves_the_live_temporary_of_an_output_named_like_it
     """`--out res` removed `.tmp-res-2~host~pid~*`, the live temporary folder of a solve writing `--out res-2`
     (a glob `.tmp-res-*` meant for untagged leftovers of older versions); that solve then published a result
     without result.npz. Only `res`'s own untagged leftovers go."""
-    from nlipscalib import pipeline
     from nlipscalib.core.atomic import tmp_prefix
+    from nlipscalib.pipeline.reuse import _clean_interrupted
 
     sibling = tmp_path / (tmp_prefix("res-2") + "0s9ec5e9")  # this (live) process writes res-2
     sibling_legacy = tmp_path / ".tmp-res-2-k2j3x9ab"  # an older version's leftover of res-2: not res's to remove
     legacy = tmp_path / ".tmp-res-k2j3x9ab"  # an older version's leftover of res
     for tmp in (sibling, sibling_legacy, legacy):
         tmp.mkdir()
-    pipeline._clean_interrupted(tmp_path / "res")
+    _clean_interrupted(tmp_path / "res")
     assert sibling.is_dir() and sibling_legacy.is_dir() and not legacy.exists()

@@ -101,7 +101,7 @@ def run(args) -> int:
     workers = args.workers or usable_cores()
     status = solve_all(presses, reference, workers=workers, progress=not args.no_progress, leds=args.leds)
     solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]
-    # each failure was logged with its cause as it happened (pipeline._status_of): listed by name at the end only
+    # each failure was logged with its cause as it happened (pipeline.solve._status_of): listed by name at the end only
     failed = {k: v for k, v in status.items() if v not in ("solved", "skipped")}
     if not solved:
         raise ConfigError(f"{root}: no press could be solved")

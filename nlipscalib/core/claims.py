@@ -24,7 +24,7 @@ import secrets
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -122,6 +122,19 @@ def holder(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Owner | Non
     if _is_stale(path, owner, stale_s, now=fs_now(path.parent)):
         return None
     return owner or UNKNOWN_OWNER
+
+
+def wait_for_release(target: str | Path, on_wait: Callable[[], None] | None = None) -> None:
+    """Return once no live process holds ``target``'s claim (its owner released it, or died: a dead owner's claim
+    goes stale). Judged with the default staleness, the value every process sharing a folder agrees on.
+
+    ``on_wait`` is called once, before the first pause, when there is something to wait for (to say so).
+    """
+    while holder(target) is not None:
+        if on_wait is not None:
+            on_wait()
+            on_wait = None
+        time.sleep(CLAIM_POLL_S)  # read at each pass, so a test's patch of it holds
 
 
 def release_all() -> None:

@@ -200,7 +200,7 @@ class _WorkerSlots:
     @staticmethod
     def _stop(slots, finished: bool) -> None:
         """End the workers: idle ones when all is done; on Ctrl-C (or an error here) at once, with SIGTERM, which
-        makes a worker release its claim and remove its temporaries first (``pipeline._worker_signals``)."""
+        makes a worker release its claim and remove its temporaries first (``pipeline.workers._worker_signals``)."""
         for proc, inbox in slots:
             if finished:
                 inbox.put(None)
@@ -226,7 +226,7 @@ class _WorkerSlots:
 def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool, logging_args=None) -> None:
     """Body of a local worker process: run tasks from ``inbox`` until it gets None (logging like the parent,
     to its ``--log-file`` too)."""
-    from ..pipeline import _worker_signals
+    from ..pipeline.workers import _worker_signals
 
     _worker_signals()  # Ctrl-C is the parent's to handle; SIGTERM releases this worker's claim first
     if logging_args is not None:

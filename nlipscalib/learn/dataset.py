@@ -34,7 +34,6 @@ import dataclasses
 import hashlib
 import json
 import logging
-import time
 from pathlib import Path
 
 import numpy as np
@@ -389,14 +388,10 @@ def _wait_for_solver(result: Path) -> None:
     run to publish it (or to die: its claim then goes stale and the wait ends; a press still unsolved is
     then reported by :func:`_result_stamp`).
     """
-    from ..core import claims
+    from ..core.claims import wait_for_release
 
-    said = False
-    while claims.holder(result) is not None:  # the solver's own staleness: one value for both (core.claims)
-        if not said:
-            log.info("%s: being solved by another process; waiting for its result", result.parent)
-            said = True
-        time.sleep(claims.CLAIM_POLL_S)  # read here, so a test's patch of it holds
+    say = lambda: log.info("%s: being solved by another process; waiting for its result", result.parent)  # noqa: E731
+    wait_for_release(result, on_wait=say)  # the solver's own staleness and poll: one value for both (core.claims)
 
 
 # ---------------------------------------------------------------------- reading

@@ -213,3 +213,30 @@ def test_a_claim_that_could_not_be_written_leaves_no_registration(tmp_path, monk
         assert mine
         claims.release_all()  # what a SIGTERM handler does before exiting
         assert not claim_path(tmp_path / "item").exists()
+
+
+def test_wait_for_release_returns_when_the_holder_lets_go_and_says_so_once(tmp_path, monkeypatch):
+    """The one wait on another's claim (the solve pipeline's and a dataset build's): returns once the claim is
+    released, with ``on_wait`` called once while it was held, and not at all when nothing holds it."""
+    import threading
+
+    from nlipscalib.core import claims
+
+    monkeypatch.setattr(claims, "CLAIM_POLL_S", 0.01)
+    target, said = tmp_path / "nlips", []
+    claims.wait_for_release(target, on_wait=lambda: said.append("free"))
+    assert said == []
+    holding = threading.Event()
+
+    def other():  # a thread standing for another process (claims are per process)
+        with claim(target):
+            holding.set()
+            time.sleep(0.3)
+
+    thread = threading.Thread(target=other)
+    thread.start()
+    holding.wait()
+    t0 = time.monotonic()
+    claims.wait_for_release(target, on_wait=lambda: said.append("held"))
+    assert time.monotonic() - t0 > 0.1 and holder(target) is None and said == ["held"]
+    thread.join()

@@ -1,0 +1,64 @@
+"""Provenance of a result: the settings and input identities (content hashes) that made it, and their key."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .. import __version__
+from ..errors import CaptureError
+
+if TYPE_CHECKING:
+    from .settings import SolveSettings
+
+
+def make_provenance(folder: Path, settings: SolveSettings) -> dict:
+    """What makes the reconstruction of ``folder`` with ``settings``: settings, input identities, and their key.
+
+    Input identities are content hashes (SHA-256) of the capture files the solver reads (meta.json,
+    the images, reference.npz), so a moved or copied press keeps its identity and a re-captured one
+    does not.
+    """
+    inputs = {
+        "press": capture_identity(folder),
+        "reference": None if settings.reference is None else capture_identity(settings.reference),
+    }
+    described = settings.describe()
+    keyed = {k: v for k, v in described.items() if k not in ("leds_file", "reference")}  # paths: not content
+    key_source = {"settings": keyed, "inputs": inputs, "software_version": __version__}
+    key = hashlib.sha256(json.dumps(key_source, sort_keys=True).encode()).hexdigest()
+    return {"key": key, "software_version": __version__, "settings": described, "inputs": inputs}
+
+
+@functools.lru_cache(maxsize=16)
+def _capture_identity_cached(folder: str, stamp: tuple) -> str:
+    from ..core.capture import META_FILE, read_meta
+
+    meta = read_meta(folder)
+    digest = hashlib.sha256((Path(folder) / META_FILE).read_bytes())
+    images = meta["images"]
+    for name in [images["dark"], images["tricolor"], *images["leds"], meta.get("reference")]:
+        if not name:
+            continue
+        path = Path(folder) / name
+        try:
+            digest.update(name.encode() + b"\0" + path.read_bytes())
+        except FileNotFoundError:
+            raise CaptureError(f"{path}: listed in {META_FILE} but missing") from None
+    return digest.hexdigest()
+
+
+def capture_identity(folder: str | Path) -> str:
+    """SHA-256 (hex) of a press folder's solver inputs: meta.json, images and reference.npz contents."""
+    from ..core.capture import META_FILE
+
+    meta = Path(folder) / META_FILE
+    try:
+        st = meta.stat()
+    except FileNotFoundError:
+        raise CaptureError(f"{meta}: missing; {folder} is not a complete press folder") from None
+    # cached per process while meta.json is the same file (press folders are replaced whole, atomically)
+    return _capture_identity_cached(str(Path(folder).resolve()), (st.st_ino, st.st_mtime_ns, st.st_size))

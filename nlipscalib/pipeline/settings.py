@@ -1,0 +1,243 @@
+"""Solve settings: the arguments of a solve checked and normalised (:class:`SolveSettings`), read back from a
+report.json, and checked against a capture before anything is solved."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+from ..errors import CaptureError, ConfigError
+
+log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
+
+
+@dataclasses.dataclass(frozen=True)
+class SolveSettings:
+    """Everything besides the press that decides a reconstruction (recorded and hashed in report.json)."""
+
+    roi: str | tuple[int, int, int, int] | None = "auto"
+    """"auto" (around the contact), (x0, y0, w, h) pixels, or None (the whole visible gel)."""
+    led_subset: tuple[int, ...] | None = None
+    """0-based LED indices to use (an ablation), or None for all."""
+    leds: tuple | None = None
+    """Calibrated LEDs (core.leds.Led) replacing the capture's, or None."""
+    leds_file: str | None = None
+    """Where ``leds`` were read from (informational; their values are what counts)."""
+    leds_sensor: dict | None = None
+    """The sensor ``leds`` were calibrated on, as the LED file records it (core.sensor_record), or None:
+    a press of another sensor is refused."""
+    reference: Path | None = None
+    """Press folder of the undeformed dome (interreflection compensation, auto ROI), or None."""
+    options: object = None
+    """solver.SolverOptions (None: the defaults)."""
+    backend: str = "numpy"
+    """Solver backend: "numpy" or "torch"."""
+    solver_keywords: tuple[tuple[str, object], ...] = ()
+    """Further keyword arguments of solver.solve_press (name, value), e.g. dent_interreflection."""
+
+    def describe(self) -> dict:
+        """JSON-able record of the settings (paths as given; values that decide the result)."""
+        from ..core.reconstruction import jsonable
+
+        return jsonable(
+            {
+                "roi": list(self.roi) if isinstance(self.roi, tuple) else self.roi,
+                "led_subset": None if self.led_subset is None else [i + 1 for i in self.led_subset],
+                "leds": None if self.leds is None else [led.to_dict() for led in self.leds],
+                "leds_file": self.leds_file,
+                "reference": None if self.reference is None else str(self.reference),
+                "options": dataclasses.asdict(self.options) if self.options is not None else None,
+                "backend": self.backend,
+                "solver_keywords": dict(self.solver_keywords),
+            }
+        )
+
+
+def make_settings(
+    *,
+    reference: str | Path | None = None,
+    roi="auto",
+    leds=None,
+    options=None,
+    backend: str = "numpy",
+    solver_keywords: dict | None = None,
+) -> SolveSettings:
+    """Check and normalise solve arguments (see :func:`solve_presses`) into :class:`SolveSettings`."""
+    from ..solver import SolverOptions
+
+    if options is None:
+        options = SolverOptions()
+    elif not isinstance(options, SolverOptions):
+        raise ConfigError(f"options must be a SolverOptions, got {type(options).__name__}")
+    if backend not in ("numpy", "torch"):
+        raise ConfigError(f"backend must be 'numpy' or 'torch', got {backend!r}")
+    subset, led_values, leds_file, leds_sensor = _resolve_leds(leds)
+    reference = getattr(reference, "folder", reference)  # a loaded Press stands for its folder
+    return SolveSettings(
+        roi=_resolve_roi(roi),
+        led_subset=subset,
+        leds=led_values,
+        leds_file=leds_file,
+        leds_sensor=leds_sensor,
+        reference=None if reference is None else Path(reference),
+        options=options,
+        backend=backend,
+        solver_keywords=tuple(sorted(_solver_keywords(solver_keywords).items())),
+    )
+
+
+def settings_from_record(record: dict) -> SolveSettings:
+    """The :class:`SolveSettings` recorded in a report.json (``provenance.settings``), e.g. to re-make a result.
+
+    The LED file is not re-read: the recorded LED values are used.
+    """
+    from ..core.leds import Led
+    from ..solver import SolverOptions
+
+    try:
+        leds = None
+        if record.get("leds") is not None:
+            leds = tuple(Led.from_dict(d) for d in record["leds"])
+        elif record.get("led_subset") is not None:
+            leds = tuple(int(i) - 1 for i in record["led_subset"])
+        roi = record.get("roi")
+        options = SolverOptions(**record["options"]) if record.get("options") is not None else None
+        settings = make_settings(
+            reference=record.get("reference"),
+            roi=tuple(roi) if isinstance(roi, list) else roi,
+            leds=leds,
+            options=options,
+            backend=record.get("backend", "numpy"),
+            solver_keywords=record.get("solver_keywords") or {},
+        )
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"recorded solve settings are not usable ({exc})") from None
+    return dataclasses.replace(settings, leds_file=record.get("leds_file"))
+
+
+def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
+    """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json), a
+    reference captured by the same sensor; else ConfigError or CaptureError naming what does not fit (``nlips
+    calibrate --leds`` checks its LED file with it before any solving)."""
+    from ..core.capture import META_FILE, read_meta, read_optics
+    from ..solver.press import check_roi, check_undeformed
+
+    meta = read_meta(folder)
+    camera, leds = meta.get("camera") or {}, meta.get("leds") or []
+    if isinstance(settings.roi, tuple) and isinstance(camera, dict) and "width" in camera and "height" in camera:
+        check_roi(settings.roi, int(camera["width"]), int(camera["height"]))
+    n = len(leds)
+    if settings.led_subset is not None and not all(0 <= i < n for i in settings.led_subset):
+        raise ConfigError(f"leds {[i + 1 for i in settings.led_subset]}: {folder / META_FILE} has LEDs 1..{n}")
+    used = len(settings.led_subset) if settings.led_subset is not None else n
+    if settings.leds is not None and len(settings.leds) != used:
+        raise ConfigError(f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {used}")
+    if settings.leds is not None and settings.led_subset is None:
+        _check_leds_sensor(folder, meta, settings)
+    if settings.reference is not None:  # another sensor's capture: refused now, not after "re-solving" is logged
+        check_undeformed(read_optics(folder), read_optics(settings.reference))
+
+
+_WARNED_UNRECORDED: set[str] = set()
+"""LED files already warned about for recording no sensor (in this process)."""
+
+
+def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> None:
+    """Calibrated LEDs of another sensor are refused (the LED file records the sensor it was calibrated on).
+
+    An LED file that records no sensor (written before 2026-12-04) is compared with the capture's LEDs: far
+    from them, a warning -- not an error, since a calibration may rightly find a real sensor's LEDs millimetres
+    and degrees from its design. LED values passed in (an experiment's deliberately offset LEDs) are not.
+    """
+    from ..core.capture import META_FILE, parse_optics
+    from ..core.leds import led_geometry_mismatch
+    from ..core.sensor_record import describe_sensor, leds_file_mismatch
+
+    camera, leds, response = parse_optics(meta, folder / META_FILE)
+    where = settings.leds_file or "the calibrated LEDs"
+    if settings.leds_sensor is not None:  # the check `nlips capture --leds FILE` makes too
+        why = leds_file_mismatch(settings.leds_sensor, settings.leds, describe_sensor(camera, leds, response))
+        if why:
+            raise CaptureError(f"{where}: calibrated on another sensor than {folder} ({why})")
+        return
+    far = led_geometry_mismatch(
+        [led.position for led in leds],
+        [led.direction for led in leds],
+        [led.position for led in settings.leds],
+        [led.direction for led in settings.leds],
+    )
+    if far and settings.leds_file and where not in _WARNED_UNRECORDED:  # LED values passed in: the caller's
+        _WARNED_UNRECORDED.add(where)  # once per file, not once per press of a batch
+        log.warning(
+            "%s: records no sensor to check against %s, and its LEDs differ from the capture's (%s): make sure "
+            "they are a calibration of this sensor (a new `nlips calibrate-leds` records the sensor)",
+            where,
+            folder,
+            far,
+        )
+
+
+def _resolve_roi(roi):
+    if roi is None or roi == "auto":
+        return roi
+    if isinstance(roi, str):
+        raise ConfigError(f"roi must be 'auto', None or (x0, y0, w, h), got {roi!r}")
+    try:
+        box = tuple(int(v) for v in roi)
+    except (TypeError, ValueError):
+        box = ()
+    from ..solver.press import MIN_ROI_SIDE as side
+
+    if len(box) != 4 or min(box) < 0 or min(box[2:]) < side:  # the same minimum as the solver's check_roi
+        raise ConfigError(f"roi {roi!r} must be (x0, y0, w, h) with x0, y0 >= 0, at least {side}x{side} pixels")
+    return box
+
+
+def _resolve_leds(leds):
+    """(0-based subset or None, calibrated LEDs or None, LED file or None, the sensor the file records or None)
+    from the ``leds`` argument."""
+    from ..core.leds import Led
+    from ..solver.io import read_led_file
+
+    if leds is None:
+        return None, None, None, None
+    if isinstance(leds, (str, Path)):
+        path = Path(leds)
+        if path.suffix.lower() == ".json" or path.is_file():
+            led_file = read_led_file(path)
+            return None, led_file.leds, str(path), led_file.sensor
+        try:
+            return tuple(int(v) - 1 for v in str(leds).split(",")), None, None, None
+        except ValueError:
+            raise ConfigError(f"leds must be like '1,2,5' (1-based) or an LED .json file, got {leds!r}") from None
+    leds = tuple(leds)
+    if leds and all(isinstance(v, Led) for v in leds):
+        return None, leds, None, None
+    if leds and all(isinstance(v, int) for v in leds):
+        return leds, None, None, None
+    raise ConfigError("leds must be an LED file, '1,2,5', a sequence of Led, or a sequence of 0-based indices")
+
+
+def _solver_keywords(given: dict | None) -> dict:
+    """``given`` checked against solve_press's keywords and completed with their defaults.
+
+    Completing with the defaults makes "not given" and "given at its default" the same request (one key).
+    """
+    import inspect
+
+    from ..solver import solve_press
+    from ..solver.press import check_modes
+
+    own = {"press", "roi", "leds", "options", "backend", "progress", "indirect"}
+    params = {
+        name: p.default
+        for name, p in inspect.signature(solve_press).parameters.items()
+        if name not in own and p.default is not inspect.Parameter.empty
+    }
+    unknown = sorted(set(given or {}) - set(params))
+    if unknown:
+        raise ConfigError(f"unknown solver keywords {unknown}; solve_press accepts {sorted(params)}")
+    keywords = params | dict(given or {})
+    check_modes(*(keywords[k] for k in ("interreflection", "bounces", "outer_relaxation", "coating_albedo")))
+    return keywords

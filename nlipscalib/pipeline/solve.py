@@ -1,0 +1,342 @@
+"""Solving press folders into reconstruction folders: one press or a batch (serially or in worker processes),
+each result reused when identical, else solved and saved with its figures."""
+
+from __future__ import annotations
+
+import functools
+import logging
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+from ..core.reconstruction import (
+    Reconstruction,
+    check_replaceable,
+    content_problem,
+    load_reconstruction,
+    reconstruction_dir,
+)
+from ..errors import CaptureError, ConfigError, NlipsError
+from .provenance import capture_identity, make_provenance
+from .reuse import _claim, _clean_interrupted, _leftovers, _published_since, _reuse, _wait_for_release
+from .settings import SolveSettings, check_fits_capture, make_settings
+from .status import BUSY, FAILED, SOLVED
+from .workers import _solve_in_processes
+
+log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
+
+
+def solve_folder(
+    folder: str | Path,
+    *,
+    reference: str | Path | None = None,
+    roi="auto",
+    leds=None,
+    options=None,
+    backend: str = "numpy",
+    overwrite: bool = False,
+    progress: bool = True,
+    figures=True,
+    out: str | Path | None = None,
+    solver_keywords: dict | None = None,
+    announce_reuse: bool = True,
+) -> tuple[Reconstruction | None, str]:
+    """Solve one press folder into ``out`` (default PRESS/nlips), or reuse an identical result there.
+
+    Parameters are those of :func:`solve_presses`, plus ``out`` and ``announce_reuse`` (False: a reused
+    result is not logged, for a caller that solved the press itself a moment ago and only loads it).
+
+    Returns
+    -------
+    (reconstruction, status) : the result (solved now or reused) and "solved" or "skipped". When another
+        process is solving the press, this waits for it: its result is reused when made with these
+        settings, else the press is solved here.
+
+    Raises
+    ------
+    NlipsError (CaptureError, ConfigError, ShapeError) with one line naming the file and the problem.
+    """
+    settings = make_settings(
+        reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
+    )
+    return solve_one(
+        Path(folder),
+        settings,
+        out=out,
+        overwrite=overwrite,
+        progress=progress,
+        figures=figures,
+        announce_reuse=announce_reuse,
+        wait=True,
+    )
+
+
+def solve_presses(
+    folders: Iterable[str | Path],
+    *,
+    reference: str | Path | None = None,
+    roi="auto",
+    leds=None,
+    options=None,
+    backend: str = "numpy",
+    workers: int = 1,
+    overwrite: bool = False,
+    progress: bool = True,
+    figures=True,
+    solver_keywords: dict | None = None,
+    wait: bool = False,
+) -> dict[str, str]:
+    """Solve several press folders (each into PRESS/nlips), in parallel processes when ``workers > 1``.
+
+    Parameters
+    ----------
+    folders : press folders; the ``reference`` folder, if among them, is not solved
+    reference : press folder (or loaded Press) of the undeformed dome (same camera, LEDs, exposure):
+        interreflection compensation and auto ROI against it (solver.solve_press ``indirect``)
+    roi : "auto", (x0, y0, w, h) pixels, or None (the whole visible gel)
+    leds : None (the capture's LEDs); an LED JSON file from ``nlips calibrate-leds``; a string like
+        "1,2,5" (1-based LED subset); a sequence of core.leds.Led; or a sequence of 0-based int indices
+    options : solver.SolverOptions or None (defaults)
+    backend : "numpy" or "torch"
+    workers : processes solving presses at once (1: in this process)
+    overwrite : re-solve even when an identical result exists
+    progress : progress bars (shown only on a terminal)
+    figures : True/"maps" (cheap PNG maps), "full" (plus a matplotlib summary), False/"none"
+    solver_keywords : further keyword arguments of solver.solve_press (recorded and hashed too)
+    wait : a press another live process is solving is waited for at once (then its result is reused when it
+        was made with these settings, else the press is solved here); without it such presses are left to
+        that process first and waited for once this run's other presses are done (two runs on one folder
+        share the work, and each ends with a result of its own settings for every press)
+
+    Returns
+    -------
+    dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``. "skipped":
+    an identical result exists (made earlier, or by another process that held the press). Failures of one
+    press (bad capture, bad LED file) do not stop the others; a file-system error (disk full, read-only) stops
+    the batch (OSError naming the path). A result is reused only when its
+    arrays pass their checksums, so damage inside result.npz is re-computed too.
+    """
+    from ..report import figure_level
+
+    settings = make_settings(
+        reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
+    )
+    figure_level(figures)
+    folders = [Path(f) for f in folders]
+    if settings.reference is not None:  # the undeformed dome is the reference, not a press to solve
+        folders = [f for f in folders if f.resolve() != settings.reference.resolve()]
+    if not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"workers must be a whole number >= 1, got {workers!r}")
+    names = _names(folders)
+    started = _fs_clock(folders)
+    statuses = _solve_batch(folders, names, settings, workers, overwrite, progress, figures, wait)
+    busy = [f for f in folders if statuses[f] == BUSY]  # another run's: left to it, now waited for
+    if busy:
+        log.info("%d presses were being solved by another process; waiting for them", len(busy))
+        # --overwrite: what another run of these settings published meanwhile is fresh, not solved a third time
+        statuses |= _solve_batch(busy, names, settings, workers, overwrite, progress, figures, True, started)
+    return {names[f]: statuses[f] for f in folders}
+
+
+def _solve_batch(folders, names, settings, workers, overwrite, progress, figures, wait, fresh_since=None):
+    if workers == 1 or len(folders) <= 1:
+        return _solve_serially(folders, names, settings, overwrite, progress, figures, wait, fresh_since)
+    args = (settings, overwrite, False, figures, wait, fresh_since)  # a worker's press shows no bars of its own
+    return _solve_in_processes(_status_of, folders, names, workers, progress, args)
+
+
+def _fs_clock(folders) -> float | None:
+    """Now by the clock of the file system holding the presses (results' mtimes are compared with it)."""
+    from ..core.claims import fs_now
+
+    return fs_now(Path(folders[0]).parent) if folders else None
+
+
+def solve_one(
+    folder: Path,
+    settings: SolveSettings,
+    *,
+    out: str | Path | None = None,
+    overwrite: bool = False,
+    progress: bool = False,
+    figures=True,
+    want_result: bool = True,
+    announce_reuse: bool = True,
+    wait: bool = False,
+    fresh_since: float | None = None,
+) -> tuple[Reconstruction | None, str]:
+    """:func:`solve_folder` with prepared settings; ``want_result=False`` skips loading a reused result;
+    ``wait``: as in :func:`solve_presses` (a press being solved by another process is waited for);
+    ``fresh_since``: with ``overwrite``, a result of these settings published at or after this time (file-system
+    clock; another run of the same command, waited for) is reused, not solved again."""
+    from ..report import figure_level, figures_missing
+
+    figures = figure_level(figures)  # a bad value fails now, not after the solve
+    check_fits_capture(folder, settings)  # before anything is said about an earlier result
+    out = reconstruction_dir(folder, out).absolute()  # "." has no name to claim or write beside
+    check_replaceable(out)  # a dataset, a press or a user's folder at --out is never replaced by a result
+    provenance = make_provenance(folder, settings)
+    # leftovers are cleaned, and figures a reused result lacks are drawn, under the claim, below
+    if not overwrite and not _leftovers(out) and not figures_missing(out, figures):
+        reused = _reuse(out, provenance, want_result, quiet=True, announce=announce_reuse)
+        if reused is not None:
+            return reused
+    progress = _bars(progress)
+    while True:
+        with _claim(out) as mine:
+            if mine:
+                _clean_interrupted(out)
+                if not overwrite or _published_since(out, fresh_since):  # it may have appeared while we waited
+                    reused = _reuse(out, provenance, want_result, quiet=False, announce=announce_reuse)
+                    if reused is not None:
+                        _write_missing_figures(folder, out, reused[0], figures)
+                        return reused
+                return _solve_and_save(folder, out, settings, provenance, progress, figures), SOLVED
+        if not wait:
+            log.info("%s: being solved by another process; left to it for now", folder)
+            return None, BUSY
+        _wait_for_release(folder, out)  # then claimed here: its result reused when made with these settings
+
+
+def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | None, figures) -> None:
+    """Give a reused result the figures this run asks for that the run which made it did not write
+    (``--no-figures`` then, ``--figures full`` now): drawing them takes milliseconds, re-solving seconds.
+    Called under the result's claim, so no other process replaces the folder meanwhile."""
+    from ..core.capture import load_press
+    from ..report import figures_missing, write_reconstruction_figures
+
+    if not figures_missing(out, figures):
+        return
+    if result is None:
+        result = load_reconstruction(out)
+    press = load_press(folder)
+    write_reconstruction_figures(out, result, press.ground_truth, figures, *_figure_context(press))
+    log.info("%s: figures (%s) added to the existing result", out, figures)
+
+
+def _bars(requested: bool) -> bool:
+    from ..progress import bars_enabled
+
+    return bars_enabled(requested)
+
+
+def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance: dict, progress: bool, figures):
+    import time
+
+    from ..core.atomic import check_writable
+    from ..core.capture import load_press
+    from ..report import figure_level, write_reconstruction_figures
+    from ..solver import save_result, solve_press
+
+    level = figure_level(figures)
+    check_writable(out.parent, len(out.name))  # a read-only disk fails now, not after the solve
+    t0 = time.perf_counter()
+    press = load_press(folder, led_subset=settings.led_subset)
+    ref = None
+    if settings.reference is not None:
+        ref = _load_reference(settings.reference, settings.led_subset, capture_identity(settings.reference))
+    if settings.leds is not None and len(settings.leds) != len(press.leds):
+        raise ConfigError(
+            f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {len(press.leds)}"
+        )
+    t1 = time.perf_counter()
+    result = solve_press(
+        press,
+        roi=settings.roi,
+        leds=settings.leds,
+        options=settings.options,
+        backend=settings.backend,
+        progress=progress,
+        indirect=ref,
+        **dict(settings.solver_keywords),
+    )
+    t2 = time.perf_counter()
+    if settings.led_subset is not None:  # the solver numbers the LEDs it was given: back to the capture's
+        for key in ("leds_used", "dead_leds", "dead_leds_contact"):
+            if key in result.report:
+                result.report[key] = [settings.led_subset[i] for i in result.report[key]]
+    result.report["method"] = "nlips"
+    result.report["provenance"] = provenance
+    result.report["command_seconds"] = {"load": round(t1 - t0, 3), "solve": round(t2 - t1, 3)}
+    if problem := content_problem(result.arrays()):  # never published: every later run would re-solve it
+        raise CaptureError(f"{folder}: the solve gave an unusable result ({problem})")
+    gt, context = press.ground_truth, _figure_context(press)
+    save_result(
+        result,
+        out,
+        overwrite=True,
+        extra_files=lambda tmp: write_reconstruction_figures(tmp, result, gt, level, *context),
+    )
+    _log_solved(folder, out, result.report, time.perf_counter() - t2)
+    return result
+
+
+def _figure_context(press) -> tuple:
+    """What the figures of ``press``'s result take beside it: the undeformed depth (reference.npz; None when the
+    capture has none), so depth.png shows the indentation, and the press's name for the summary's title."""
+    return (press.reference.depth if press.reference is not None else None), Path(press.folder).resolve().name
+
+
+@functools.lru_cache(maxsize=2)
+def _load_reference(folder: Path, subset: tuple[int, ...] | None, identity: str):
+    """The reference capture, loaded once per process and identity (presses of a batch share it)."""
+    from ..core.capture import load_press
+
+    return load_press(folder, led_subset=subset)
+
+
+def _log_solved(folder: Path, out: Path, rep: dict, save_s: float) -> None:
+    log.info(
+        "%s: %s/%s pixels reconstructed, %s with too few LEDs, dead LEDs %s, solver %.1f s, saved in %.2f s -> %s",
+        folder.name,
+        rep.get("pixels_reconstructed", "?"),
+        rep.get("pixels_solved", "?"),
+        rep.get("pixels_too_few_leds", "?"),
+        [i + 1 for i in rep.get("dead_leds", [])],
+        rep.get("seconds", float("nan")),
+        save_s,
+        out,
+    )
+
+
+def _names(folders: Sequence[Path]) -> dict[Path, str]:
+    """Press names for the status table: the folder name, or the whole path where names repeat."""
+    counts: dict[str, int] = {}
+    for f in folders:
+        counts[f.name] = counts.get(f.name, 0) + 1
+    return {f: f.name if counts[f.name] == 1 else str(f) for f in folders}
+
+
+def _status_of(
+    folder: Path, settings: SolveSettings, overwrite: bool, progress: bool, figures, wait=False, fresh_since=None
+) -> str:
+    """One press's status; a bad capture or bad settings become "failed: ...".
+
+    File-system errors (disk full, read-only, permission) propagate: every later press would fail
+    alike, so the batch stops and the CLI prints one line naming the path.
+    """
+    try:
+        return solve_one(
+            folder,
+            settings,
+            overwrite=overwrite,
+            progress=progress,
+            figures=figures,
+            want_result=False,
+            wait=wait,
+            fresh_since=fresh_since,
+        )[1]
+    except NlipsError as exc:
+        log.error("%s: %s", folder.name, exc)
+        return f"{FAILED}: {exc}"
+
+
+def _solve_serially(folders, names, settings, overwrite, progress, figures, wait=False, fresh=None) -> dict[Path, str]:
+    from ..progress import track
+
+    single = len(folders) == 1
+    statuses = {}
+    bar = track(folders, enabled=progress and not single, desc="presses", unit="press")
+    for folder in bar:
+        bar.set_postfix_str(names[folder], refresh=False)
+        statuses[folder] = _status_of(folder, settings, overwrite, progress and single, figures, wait, fresh)
+    return statuses

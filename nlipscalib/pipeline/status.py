@@ -1,0 +1,12 @@
+"""Statuses of one press in a batch (what :func:`nlipscalib.pipeline.solve_presses` returns per press)."""
+
+from __future__ import annotations
+
+SOLVED, SKIPPED, FAILED = "solved", "skipped", "failed"
+"""Statuses of one press (a failure reads "failed: reason")."""
+
+BUSY = "busy"
+"""Internal status: another live process holds the press's claim (left to it, then waited for)."""
+
+BROKEN = f"{FAILED}: not solved, a solver process was killed (by a signal or for lack of memory); run again"
+"""Status of the presses a parallel batch could not finish because one of its processes died."""

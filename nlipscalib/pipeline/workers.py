@@ -1,0 +1,118 @@
+"""Solver processes: a pool solving presses in parallel, and the signal handling of its workers (Ctrl-C left to
+the parent; on SIGTERM a worker releases its claims and temporaries first)."""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from .status import BROKEN
+
+log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
+
+
+def _solve_in_processes(
+    status_of: Callable[..., str],
+    folders: Sequence[Path],
+    names: dict[Path, str],
+    workers: int,
+    progress: bool,
+    args: tuple,
+) -> dict[Path, str]:
+    """``status_of(folder, *args)`` of each of ``folders`` (a press's status), in up to ``workers`` processes.
+
+    ``status_of`` is passed in, not imported, so this module does not depend on the solving one that calls it; it
+    must be a module-level function (it is pickled by name). A bar counts the presses when ``progress``.
+    """
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    from ..progress import progress_bar, worker_logging
+
+    # forkserver: workers start from a clean process with the solver imported once, not from a fork of
+    # a caller that may hold threads (claims' heartbeats, progress monitors) or a multi-threaded BLAS
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    if "forkserver" in methods:
+        ctx.set_forkserver_preload(["nlipscalib.pipeline", "nlipscalib.solver"])
+    statuses = {}
+    with ProcessPoolExecutor(
+        max_workers=min(workers, len(folders)),
+        mp_context=ctx,
+        initializer=_worker_init,
+        initargs=worker_logging(),
+    ) as pool:
+        futures = {pool.submit(status_of, f, *args): f for f in folders}
+        bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
+        try:
+            for done in as_completed(futures):
+                folder = futures[done]
+                try:
+                    statuses[folder] = done.result()
+                except BrokenProcessPool:
+                    # a worker was killed (SIGKILL, the out-of-memory killer): the pool ends every other
+                    # worker (they release their claims, _worker_signals) and fails every press not done
+                    if not any(s == BROKEN for s in statuses.values()):
+                        log.error("a solver process was killed; the presses not finished are left for the next run")
+                    statuses[folder] = BROKEN
+                bar.set_postfix_str(names[folder], refresh=False)
+                bar.update()
+        except BaseException as exc:  # Ctrl-C, a bug: queued presses never start, running ones finish
+            if isinstance(exc, KeyboardInterrupt):  # the workers ignore Ctrl-C (_worker_signals)
+                log.warning("interrupted: the presses being solved are finished, the others are not started")
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        finally:
+            bar.close()
+    return statuses
+
+
+def _worker_init(log_level: int, log_file: str | None = None) -> None:
+    """Log like the parent (stderr and its ``--log-file``); one core per worker: the solver limits BLAS
+    itself, OpenCV's pool is limited here."""
+    from ..progress import configure_worker
+
+    configure_worker(log_level, log_file)
+    _worker_signals()
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    from ..solver import threads
+
+    threads.set_workers(1)
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except ImportError:  # pragma: no cover - OpenCV is a core dependency
+        pass
+
+
+def _worker_signals() -> None:
+    """Leave Ctrl-C to the parent; on SIGTERM release this worker's claims and temporaries, then exit.
+
+    Ctrl-C in a terminal reaches every process of the command. A worker waiting for its next press
+    dies of it with a traceback (concurrent.futures catches it only around a press), the pool counts
+    as broken and kills the other workers in the middle of their presses, leaving their claims
+    behind. Ignored here, the parent alone stops the batch: queued presses are cancelled, running
+    ones finish and release their claims (:func:`_solve_in_processes`).
+
+    SIGTERM (a scheduler's time limit, ``kill`` of the process group) would end a worker at once,
+    leaving its claim and its half-written ``.tmp-nlips~...`` folder for the next run to clean; the
+    handler removes both first, as ``nlips`` itself does (cli._terminate_cleanly). It runs when the
+    current native call (a sparse solve) returns, and ends the process with ``os._exit``: an
+    exception raised there could land inside a library.
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_terminated)
+
+
+def _worker_terminated(signum, frame) -> None:
+    from ..core import atomic, claims
+
+    claims.release_all()
+    atomic.remove_in_progress()
+    os._exit(128 + signum)
