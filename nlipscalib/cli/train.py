@@ -71,7 +71,8 @@ def run(args) -> int:
     from ..cpus import usable_cores
     from ..errors import ConfigError
     from ..learn.dataset import CalibrationDataset
-    from ..learn.train import TrainConfig, model_stage, publish_model, train
+    from ..learn.publish import model_stage, publish_model
+    from ..learn.train import TrainConfig, train
     from ..report.learn import training_curve
 
     try:

@@ -1,32 +1,31 @@
 """Training NLiPsNet on a calibration dataset: split by press, cosine loss, early stopping on validation AAE.
 
-Resumable: after every epoch the state (weights, optimiser, history, best weights) goes into a checkpoint
-beside the model named by the run (``MODEL.<run>.checkpoint.pt``, :func:`progress_checkpoint_path`: the options
-and the samples), so trainings of other runs into the same place never overwrite each other's progress; when the
-run ends, its last state is published as ``MODEL.checkpoint.pt`` with the model. A run with the same options on
-the same training and validation samples continues from its own checkpoint, or from the published one. Any other
-run (other options, another dataset, other presses held out for validation or excluded) trains afresh, saying why.
-
-A training's files (the model, its ONNX export, curve and final checkpoint) are written into one temporary
-folder beside the model (:func:`model_stage`) and published together (:func:`publish_model`), so runs into
-one model path leave the files of one run, the last to finish, never a mix.
+Resumable: every epoch's state goes into a checkpoint named by the run, and a run with the same options on the
+same samples continues from it (:mod:`.checkpoint`). A training's files are written into a stage and published
+together (:mod:`.publish`), so runs into one model path leave the files of one run, never a mix.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
-import io
 import logging
 import math
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ConfigError
+from .checkpoint import (
+    checkpoint_path,
+    data_key_of,
+    jsonable_config,
+    progress_checkpoint_path,
+    published_by,
+    resume,
+    save_checkpoint,
+)
 from .dataset import INDEX_FILE, CalibrationDataset
 from .model import (
     PAPER_DROPOUT,
@@ -37,9 +36,9 @@ from .model import (
     save_model,
     set_colour_normalisation,
 )
+from .publish import clean_interrupted_writes
 
 log = logging.getLogger(__name__)
-CHECKPOINT_FILE = "checkpoint.pt"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -153,7 +152,7 @@ class TrainResult:
     train_presses: list
     val_presses: list
     progress: Path | None = None
-    """This run's per-epoch checkpoint while its files wait in a stage: removed by :func:`publish_model`."""
+    """This run's per-epoch checkpoint while its files wait in a stage: removed by :func:`.publish.publish_model`."""
 
 
 def train(
@@ -174,42 +173,29 @@ def train(
     out : path of the model file (.pt)
     val_names : optional explicit validation presses
     exclude : presses kept out of training and validation (a test set)
-    stage : folder from :func:`model_stage`, optional
+    stage : folder from :func:`.publish.model_stage`, optional
         Write the model and a copy of the final checkpoint there, under their names beside ``out``, for
-        :func:`publish_model` to put in place with the other files of this run. The checkpoint of every epoch
+        :func:`.publish.publish_model` to put in place with the other files of this run. The checkpoint of every epoch
         still goes beside ``out`` (what an interrupted run resumes from).
     """
     import torch
 
     out = Path(out)
-    _clean_interrupted_writes(out)
-    train_names, val_names = _presses(dataset, cfg, val_names, exclude)
-    reference = dataset.reference()  # checked now, not after the whole training (the model file carries it)
-    x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels)
-    x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
-    if len(x_tr) < 2 or len(x_va) < 1:
-        raise ConfigError(f"{dataset.folder}: too few labelled samples to train ({len(x_tr)} train, {len(x_va)} val)")
-    if not (c_tr.any() or c_va.any()):
-        raise ConfigError(no_contact_error(dataset, len(train_names) + len(val_names), len(x_tr) + len(x_va)))
-    torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)
-    cam = dataset.sensor["camera"]
-    net = build_net(cfg.hidden, cfg.dropout, cam["width"], cam["height"])
-    set_colour_normalisation(net, x_tr[:, 2:])
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
-    sched = _scheduler(opt, cfg)
-    data_key = _data_key(x_tr, y_tr, x_va, y_va, c_va)
+    clean_interrupted_writes(out)
+    data = _training_data(dataset, cfg, val_names, exclude)
+    net, opt, sched = _fresh_training(cfg, dataset.sensor["camera"], data.x_tr)
+    data_key = data_key_of(*data.arrays())
     progress_path = progress_checkpoint_path(out, cfg, data_key)
-    _clean_interrupted_writes(out, progress_path.name)
-    state = _resume(out, progress_path, cfg, data_key, net, opt, sched)
-    if out.is_file() and not _published_by(out, cfg, data_key):  # a better model would go unnoticed otherwise
+    clean_interrupted_writes(out, progress_path.name)
+    state = resume(out, progress_path, cfg, data_key, net, opt, sched)
+    if out.is_file() and not published_by(out, cfg, data_key):  # a better model would go unnoticed otherwise
         log.warning(
             "%s: a model is already there (not this training's: its checkpoint was made with other options or "
             "samples, or is missing); it is replaced when this run ends: give another --out to keep it",
             out,
         )
-    samples = [torch.from_numpy(a) for a in (x_tr, y_tr, x_va, y_va, c_va)]
-    checkpoint = functools.partial(_save_checkpoint, progress_path, cfg, data_key, net, opt, sched)
+    samples = [torch.from_numpy(a) for a in data.arrays()]
+    checkpoint = functools.partial(save_checkpoint, progress_path, cfg, data_key, net, opt, sched)
     history, best, best_state = _epochs(net, opt, sched, samples, cfg, state, checkpoint, progress)
     if best_state is None:  # every epoch's validation error NaN: no weights worth a model file
         raise ConfigError(
@@ -221,29 +207,91 @@ def train(
     if stage is None:
         progress_path.unlink(missing_ok=True)
     net.load_state_dict(best_state)
+    model_file = out if stage is None else Path(stage) / out.name
+    _save_trained(model_file, net, dataset, cfg, data, exclude, history, best)
+    progress_file = progress_path if stage else None
+    return TrainResult(out, history, best["epoch"], data.train_names, data.val_names, progress_file)
+
+
+@dataclasses.dataclass(frozen=True)
+class _TrainingData:
+    """What one training runs on: the presses split for it, the dataset's reference, the labelled samples."""
+
+    train_names: list[str]
+    val_names: list[str]
+    reference: dict
+    """The undeformed reference arrays (``CalibrationDataset.reference``), which the model file carries."""
+    x_tr: np.ndarray
+    """(N, 5) float32 -- the training inputs (:func:`model_inputs`)."""
+    y_tr: np.ndarray
+    """(N, 3) float32, unit, camera frame -- the training targets (normals)."""
+    x_va: np.ndarray
+    """(M, 5) float32 -- the validation inputs."""
+    y_va: np.ndarray
+    """(M, 3) float32, unit, camera frame -- the validation targets."""
+    c_va: np.ndarray
+    """(M,) bool -- the validation samples in contact."""
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        """x_tr, y_tr, x_va, y_va, c_va: what the epochs run on and the checkpoint's data key digests."""
+        return self.x_tr, self.y_tr, self.x_va, self.y_va, self.c_va
+
+
+def _training_data(dataset: CalibrationDataset, cfg: TrainConfig, val_names, exclude) -> _TrainingData:
+    """The presses split for training (:func:`_presses`) and their labelled samples; ConfigError when too few
+    samples are labelled or none is in contact, and (from ``dataset.reference``) when the reference is unreadable."""
+    train_names, val_names = _presses(dataset, cfg, val_names, exclude)
+    reference = dataset.reference()  # checked now, not after the whole training (the model file carries it)
+    x_tr, y_tr, c_tr = training_arrays(dataset.arrays(train_names), cfg.labels)
+    x_va, y_va, c_va = training_arrays(dataset.arrays(val_names), cfg.labels)
+    if len(x_tr) < 2 or len(x_va) < 1:
+        raise ConfigError(f"{dataset.folder}: too few labelled samples to train ({len(x_tr)} train, {len(x_va)} val)")
+    if not (c_tr.any() or c_va.any()):
+        raise ConfigError(no_contact_error(dataset, len(train_names) + len(val_names), len(x_tr) + len(x_va)))
+    return _TrainingData(train_names, val_names, reference, x_tr, y_tr, x_va, y_va, c_va)
+
+
+def _fresh_training(cfg: TrainConfig, camera: dict, x_tr: np.ndarray):
+    """(net, optimiser, scheduler) of a training from scratch: torch's threads and seed set from ``cfg`` (the
+    weights' initialisation draws from it), the net sized for ``camera``'s image and its colour normalisation
+    taken from the training inputs ``x_tr`` (N, 5)."""
+    import torch
+
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    net = build_net(cfg.hidden, cfg.dropout, camera["width"], camera["height"])
+    set_colour_normalisation(net, x_tr[:, 2:])
+    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    return net, opt, _scheduler(opt, cfg)
+
+
+def _save_trained(
+    path: Path, net, dataset: CalibrationDataset, cfg: TrainConfig, data: _TrainingData, exclude, history, best
+) -> None:
+    """Write the model file ``path``: ``net`` (its best weights loaded), the sensor and reference it was trained for,
+    and what the training was (``info``: options, presses, samples, best epoch, history)."""
     info = {
         "labels": cfg.labels,
-        "config": _jsonable_config(cfg),
+        "config": jsonable_config(cfg),
         "dataset": str(dataset.folder.resolve()),
-        "train_presses": train_names,
-        "val_presses": val_names,
+        "train_presses": data.train_names,
+        "val_presses": data.val_names,
         "excluded_presses": sorted(exclude),
-        "train_samples": int(len(x_tr)),
+        "train_samples": int(len(data.x_tr)),
         "best_epoch": best["epoch"],
         "best_val_aae_deg": best["aae"],
         "history": history,
     }
     save_model(
-        out if stage is None else Path(stage) / out.name,
+        path,
         net,
         hidden=cfg.hidden,
         dropout=cfg.dropout,
         sensor=dataset.sensor,
-        reference=reference,
+        reference=data.reference,
         info=info,
         smoothing_px=dataset.smoothing_px,
     )
-    return TrainResult(out, history, best["epoch"], train_names, val_names, progress_path if stage else None)
 
 
 def no_contact_error(dataset: CalibrationDataset, presses: int, samples: int) -> str:
@@ -284,8 +332,9 @@ weights' initialisation (seed) and of the batch order (seed + k)."""
 
 
 def _epochs(net, opt, sched, samples, cfg: TrainConfig, state: dict, checkpoint, progress: bool):
-    """Train from ``state`` (:func:`_resume`) until early stopping, ``cfg.max_epochs`` or ``cfg.max_seconds``,
-    checkpointing every epoch (``checkpoint(history, best, best_state)``); returns (history, best, best_state).
+    """Train from ``state`` (:func:`.checkpoint.resume`) until early stopping, ``cfg.max_epochs`` or
+    ``cfg.max_seconds``, checkpointing every epoch (``checkpoint(history, best, best_state)``); returns (history,
+    best, best_state).
 
     ``samples``: tensors x_train, y_train, x_val, y_val, contact_val."""
     import torch
@@ -373,227 +422,3 @@ def _validate(net, x, y, contact) -> tuple[float, float]:
     ang = torch.rad2deg(torch.arccos(cos))
     contact_aae = float(ang[contact].mean()) if bool(contact.any()) else float("nan")
     return float(ang.mean()), contact_aae
-
-
-def _jsonable_config(cfg: TrainConfig) -> dict:
-    d = dataclasses.asdict(cfg)
-    d["hidden"] = list(cfg.hidden)
-    return d
-
-
-def _trajectory_options(cfg: TrainConfig) -> dict:
-    """The options that decide the weights epoch by epoch: every option but the thread count (how fast) and the
-    stopping limits (``max_seconds``, ``patience``, and ``max_epochs`` unless the cosine schedule is laid out
-    over it), which only decide where a run stops. A run stopped by a limit thus continues when only a limit
-    changes (``--max-minutes 10`` today, no limit tomorrow; ``--epochs 8`` then ``10``)."""
-    limits = {"threads", "max_seconds", "patience"} | ({"max_epochs"} if cfg.schedule != "cosine" else set())
-    return {k: v for k, v in _jsonable_config(cfg).items() if k not in limits}
-
-
-def _config_key(cfg: TrainConfig) -> str:
-    """What a checkpoint must match to be resumed: a digest of :func:`_trajectory_options`."""
-    return hashlib.sha1(repr(_trajectory_options(cfg)).encode()).hexdigest()[:16]
-
-
-def _options_changed(recorded, cfg: TrainConfig) -> str:
-    """'name old -> new, ...' of the trajectory options a checkpoint recorded and ``cfg`` differ in ("" when the
-    checkpoint records none: written before 2026-12-04)."""
-    if not isinstance(recorded, dict):
-        return ""
-    now = _trajectory_options(cfg)
-    return ", ".join(f"{k} {recorded.get(k)!r} -> {v!r}" for k, v in now.items() if recorded.get(k) != v)
-
-
-def _data_key(*arrays) -> str:
-    """What a checkpoint's samples must match: the training and validation arrays themselves (inputs, labels,
-    contact flags), so another dataset, a rebuilt shard, other validation presses or other excluded presses
-    all count as other data. Hashing them costs ~0.03 s per million samples, against seconds per epoch."""
-    digest = hashlib.sha1()
-    for a in arrays:
-        a = np.ascontiguousarray(a)
-        digest.update(f"{a.dtype.str}{a.shape}".encode())
-        digest.update(memoryview(a).cast("B"))
-    return digest.hexdigest()[:16]
-
-
-def checkpoint_path(out: Path) -> Path:
-    """``MODEL.checkpoint.pt`` beside the model file ``out``."""
-    return out.with_name(out.stem + "." + CHECKPOINT_FILE)
-
-
-def progress_checkpoint_path(out: Path, cfg, data_key: str) -> Path:
-    """``MODEL.<run>.checkpoint.pt`` beside the model file ``out``: the checkpoint of every epoch of the run of
-    these options on these samples (``<run>``: 12 hex digits of their keys)."""
-    run = hashlib.sha1(f"{_config_key(cfg)}:{data_key}".encode()).hexdigest()[:12]
-    return out.with_name(f"{out.stem}.{run}.{CHECKPOINT_FILE}")
-
-
-def model_file_names(out: Path) -> tuple[str, ...]:
-    """The files one training writes beside the model ``out``: the model, its checkpoint, ONNX export and curve."""
-    return (out.name, checkpoint_path(out).name, out.with_suffix(".onnx").name, out.stem + "_curve.png")
-
-
-PUBLISH_POLL_S = 0.05
-"""How often a finished training checks whether another one is still publishing its files into the same place, s."""
-
-
-def model_stage(out):
-    """A temporary folder beside the model path ``out`` to write one training's files into, removed afterwards
-    (:func:`nlipscalib.core.atomic.scratch_dir`: a killed run's is removed by the next training, a SIGTERM'd
-    one removes its own). Fill it with the files of :func:`model_file_names`, then :func:`publish_model`."""
-    from ..core.atomic import scratch_dir
-
-    return scratch_dir(out)
-
-
-def publish_model(stage, out, result: TrainResult | None = None) -> list[Path]:
-    """Put the files of one training (``stage``, from :func:`model_stage`) beside ``out``, together.
-
-    Why: two ``nlips train`` runs into one ``--out`` with different options each wrote their .pt, .onnx and
-    curve as they finished, so a .pt of one run could end up beside the .onnx of the other (which inference
-    refuses as exported from another model). Now each run publishes under a claim on the model path, so the
-    renames of two runs never interleave, and removes the files of :func:`model_file_names` it did not write
-    (an .onnx of an earlier run when this one has none): the last run to finish leaves its files, whole, and
-    nothing of another run beside them. The old .onnx goes first, so a reader in between finds the new model
-    with no export (PyTorch is used) rather than with a stale one.
-
-    ``result``: the training's :class:`TrainResult`; its per-epoch checkpoint is removed once its last state is
-    published.
-
-    Returns the published paths.
-    """
-    from ..core.claims import claim
-
-    stage, out = Path(stage), Path(out)
-    while True:
-        with claim(out) as mine:
-            if mine:
-                out.with_suffix(".onnx").unlink(missing_ok=True)  # first: see above
-                published = []
-                for name in model_file_names(out):  # the model before its export
-                    if (stage / name).exists():
-                        os.replace(stage / name, out.parent / name)
-                        published.append(out.parent / name)
-                    else:  # another run's file, or a file of this name made before
-                        (out.parent / name).unlink(missing_ok=True)
-                if result is not None and result.progress is not None:
-                    result.progress.unlink(missing_ok=True)
-                return published
-        time.sleep(PUBLISH_POLL_S)  # another run is publishing: a few renames, then it is this run's turn
-
-
-def _clean_interrupted_writes(out: Path, *names: str) -> None:
-    """Remove temporaries of killed writes of the model, its checkpoint, ONNX file and curve, or of the files
-    ``names`` (a run's per-epoch checkpoint) beside ``out`` (owner gone only).
-
-    Every file here is written atomically under an owner-tagged temporary name (core.atomic); a SIGKILL
-    in the middle of a write leaves that temporary, which no later write would otherwise remove.
-    """
-    from ..core.atomic import clean_interrupted
-
-    for name in names or model_file_names(out):
-        for gone in clean_interrupted(out.parent, item=name):
-            log.warning("%s: removed an interrupted write", gone)
-
-
-def _save_checkpoint(path: Path, cfg, data_key: str, net, opt, sched, history, best, best_state, to=None) -> None:
-    """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``."""
-    import torch
-
-    from ..core.atomic import write_bytes
-
-    buf = io.BytesIO()
-    torch.save(
-        {
-            "key": _config_key(cfg),
-            "options": _trajectory_options(cfg),  # so a refusal can say which option differs
-            "data_key": data_key,
-            "net": net.state_dict(),
-            "opt": opt.state_dict(),
-            "sched": sched.state_dict(),
-            "history": history,
-            "best": best,
-            "best_state": best_state,
-        },
-        buf,
-    )
-    write_bytes(path if to is None else Path(to), buf.getvalue())
-
-
-def _published_by(out: Path, cfg, data_key: str) -> bool:
-    """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options and
-    samples): a run resumed from its own progress may still replace another run's model, finished since."""
-    from .model import read_torch_file
-
-    try:
-        ck = read_torch_file(checkpoint_path(out), "a training checkpoint")
-    except Exception:  # missing or damaged: nothing says the model is this run's
-        return False
-    return isinstance(ck, dict) and ck.get("key") == _config_key(cfg) and ck.get("data_key") == data_key
-
-
-def _resume(out: Path, progress_path: Path, cfg, data_key: str, net, opt, sched) -> dict:
-    """Continue from the run's checkpoint (``progress_path``), else from ``MODEL.checkpoint.pt`` (a finished run's,
-    or one written before checkpoints were named by their run) when it was made with the same options on the same
-    samples.
-
-    A checkpoint of another run is not resumed (the log says which differs): resuming one trained on other
-    presses would report its validation AAE as if measured on this run's validation presses, and one that
-    had reached its epoch limit would be saved as the new model without a single epoch on the new data.
-    A damaged checkpoint only costs the progress it held (a warning, then training from scratch).
-    """
-    import copy
-
-    from .model import read_torch_file
-
-    fresh = {"history": [], "best": {"aae": float("inf"), "epoch": -1}, "best_state": None}
-    path = progress_path if progress_path.is_file() else checkpoint_path(out)
-    if not path.is_file():
-        return fresh
-    initial = copy.deepcopy((net.state_dict(), opt.state_dict(), sched.state_dict()))
-    try:
-        ck = read_torch_file(path, "a training checkpoint")
-        if not isinstance(ck, dict):
-            raise ValueError(f"a {type(ck).__name__}, not a checkpoint")
-        if ck.get("key") != _config_key(cfg):
-            if "options" not in ck:  # keyed before the stopping limits were left out of the key (2026-12-04)
-                log.info("%s: made by an older version of nlipscalib; training from scratch", path)
-            else:
-                changed = _options_changed(ck["options"], cfg)
-                log.info("%s: made with other training options (%s); training from scratch", path, changed)
-            return fresh
-        if len(ck.get("history") or ()) > cfg.max_epochs:  # a shorter run asked for: resuming would train none
-            log.info(
-                "%s: trained %d epochs, more than --epochs %d; training from scratch",
-                path,
-                len(ck["history"]),
-                cfg.max_epochs,
-            )
-            return fresh
-        if ck.get("data_key") != data_key:
-            log.info(
-                "%s: made on other samples (another dataset, other validation or excluded presses); "
-                "training from scratch",
-                path,
-            )
-            return fresh
-        history, best, best_state = ck["history"], ck["best"], ck["best_state"]
-        if not isinstance(history, list) or not history or not isinstance(best, dict) or best_state is None:
-            raise ValueError("no finished epoch recorded")
-        float(best["aae"]), int(best["epoch"])
-        build_net(cfg.hidden, cfg.dropout).load_state_dict(best_state)  # the weights it would save must fit
-        net.load_state_dict(ck["net"])
-        opt.load_state_dict(ck["opt"])
-        sched.load_state_dict(ck["sched"])
-    except Exception as exc:  # torch and the checks above raise many kinds; every one means "not usable"
-        if isinstance(exc, KeyError):
-            why = f"it lacks {exc}"
-        else:
-            why = str(exc).removeprefix(f"{path}: ") or type(exc).__name__
-        log.warning("%s: not resumable (%s); training from scratch", path, why)
-        net.load_state_dict(initial[0])  # nothing half-loaded carries over into the fresh run
-        opt.load_state_dict(initial[1])
-        sched.load_state_dict(initial[2])
-        return fresh
-    log.info("%s: resuming after epoch %d", path, len(history))
-    return {"history": history, "best": best, "best_state": best_state}

@@ -185,11 +185,54 @@ def _calibrate(
     presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance
 ) -> LedCalibration:
     """:func:`calibrate_leds` without its warnings (it calls itself once more after a reflectance profile)."""
-    from .indirect import checked_reflectance, fit_indirect
-
     first = presses[0]
-    leds0 = leds = tuple(initial) if initial is not None else first.leds
-    data = [_samples(p, first, len(leds), stride) for p in presses]
+    leds0 = tuple(initial) if initial is not None else first.leds
+    data = [_samples(p, first, len(leds0), stride) for p in presses]
+    _check_calibration_inputs(presses, data, stride, led_radius, coating_reflectance)
+    samples = _Samples(
+        x=np.concatenate([d[0] for d in data]),
+        n=np.concatenate([d[1] for d in data]),
+        img=np.concatenate([d[2] for d in data], axis=1),
+        ok=np.concatenate([d[3] for d in data], axis=1),
+        selections=[d[4] for d in data],
+    )
+    fitted, direct, models = _indirect_rounds(
+        presses, samples, leds0, loss, interreflection, bounces, rounds, coating_reflectance
+    )
+    models = [m.to_json() for m in models]
+    leds, albedo, std = _to_leds(fitted)
+    emitters, profile = _emitters_and_profile(leds, samples, direct, loss, led_radius, coating_reflectance, models)
+    if profile is not None:  # the whole calibration again with the profiled reflectance
+        chosen = tuple(profile["chosen"])
+        again = _calibrate(presses, leds, stride, loss, interreflection, bounces, rounds, led_radius, chosen)
+        return dataclasses.replace(again, reflectance_profile=profile)
+    rms = [f[2] for f in fitted]
+    quality = fit_quality(presses, fitted, samples.x, samples.n, direct, samples.ok)
+    return LedCalibration(leds, albedo, std, rms, models, emitters, float(led_radius), quality=quality)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Samples:
+    """The samples of every capture, pooled: what the LED fits run on."""
+
+    x: np.ndarray
+    """(N, 3) float64, mm, camera frame -- the samples' points on the reference surface."""
+    n: np.ndarray
+    """(N, 3) float64, unit, camera frame -- their normals."""
+    img: np.ndarray
+    """(L, N, 3) float64, linear image units -- the LED images at the samples."""
+    ok: np.ndarray
+    """(L, N, 3) bool -- usable (not saturated) samples."""
+    selections: list
+    """Per capture, (H, W) bool -- its pixels among the samples, in order."""
+
+
+def _check_calibration_inputs(presses, data, stride: int, led_radius: float, coating_reflectance) -> None:
+    """CaptureError or ConfigError before any fit: a capture with nothing to fit, a stride that leaves too few
+    samples (``data``: each capture's :func:`_samples`), a negative LED disk radius, a coating reflectance out of
+    range."""
+    from .indirect import checked_reflectance
+
     # black or saturated throughout: said here, not as a fit that fails further on. Asked of every capture, not
     # only after a failure: a black capture's noise is fitted without failing, or ends on "led.intensity must be
     # 3 finite numbers" (~40 ms per 640x480 capture; its linear images are the ones _samples made)
@@ -199,20 +242,27 @@ def _calibrate(
     used = sum(len(d[0]) for d in data)
     if used < tolerances.CALIBRATION_MIN_PIXELS:
         raise ConfigError(
-            f"{first.folder}: stride {stride} leaves {used} pixels of the gel; the LED fit needs at least "
+            f"{presses[0].folder}: stride {stride} leaves {used} pixels of the gel; the LED fit needs at least "
             f"{tolerances.CALIBRATION_MIN_PIXELS}: use a smaller stride"
         )
-    x, n = np.concatenate([d[0] for d in data]), np.concatenate([d[1] for d in data])
-    img, ok = np.concatenate([d[2] for d in data], axis=1), np.concatenate([d[3] for d in data], axis=1)
-    # A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on
-    # the twin), after which nothing correlates with the indirect term any more: the term is fitted
-    # with the starting LEDs first, and the LEDs are always fitted to the images minus it.
     if not led_radius >= 0:
         raise ConfigError(f"the LED disk radius must be >= 0 mm, got {led_radius}")
     if coating_reflectance is not None:
         checked_reflectance(coating_reflectance)  # before any fit
-    fitted = None
-    models = []
+
+
+def _indirect_rounds(presses, samples: _Samples, leds0, loss, interreflection, bounces, rounds, coating_reflectance):
+    """(per-LED fits as :func:`_fit_all` returns them, the images minus the indirect light they were fitted to,
+    the captures' last indirect terms) -- ``rounds`` alternations of indirect fit and LED fit, or one direct-only
+    LED fit from ``leds0`` when no term is on.
+
+    A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on the twin),
+    after which nothing correlates with the indirect term any more: the term is fitted with the starting LEDs
+    first, and the LEDs are always fitted to the images minus it."""
+    from .indirect import fit_indirect
+
+    x, n, img, ok = samples.x, samples.n, samples.img, samples.ok
+    leds, fitted, models = leds0, None, []
     direct = img  # the images minus the indirect light the last LED fit used
     for r in range(rounds if interreflection != "off" else 0):
         if r > 0:
@@ -226,32 +276,40 @@ def _calibrate(
             models = [m.with_reflectance(coating_reflectance) if m.enabled else m for m in models]
         if not any(m.enabled for m in models):
             break
-        light = []
-        for p, m, (_, _, _, _, sel) in zip(presses, models, data):
-            if not m.enabled:
-                light.append(np.zeros((len(leds), int(sel.sum()), 3)))
-                continue
-            # the fitted capture's own indirect light, at its typical albedo
-            light.append((m.undeformed_light(p.camera.shape) * np.asarray(m.off_view_albedo, np.float32))[:, sel])
-        direct = img - np.concatenate(light, axis=1)
+        direct = img - _sampled_indirect_light(presses, models, samples.selections, len(leds))
         fitted = _fit_all(leds, x, n, direct, ok, loss)
     if fitted is None or (models and not any(m.enabled for m in models)):
         direct = img
         fitted = _fit_all(leds0, x, n, img, ok, loss)
-    models = [m.to_json() for m in models]
-    leds, albedo, std = _to_leds(fitted)
-    rms = [f[2] for f in fitted]
-    quality = fit_quality(presses, fitted, x, n, direct, ok)
-    emitters = ()
-    if led_radius > 0:  # from the points (0.2 mm off at most): the disk fit only refines them
-        emitters = _to_leds(_fit_all(leds, x, n, direct, ok, loss, _disk_model(led_radius)))[0]
+    return fitted, direct, models
+
+
+def _sampled_indirect_light(presses, models, selections, count: int) -> np.ndarray:
+    """(L, N, 3) float -- each capture's own indirect light (its fitted term at its typical albedo; zero where the
+    term is off) at its samples, pooled as :class:`_Samples` pools them."""
+    light = []
+    for p, m, sel in zip(presses, models, selections):
+        if not m.enabled:
+            light.append(np.zeros((count, int(sel.sum()), 3)))
+            continue
+        light.append((m.undeformed_light(p.camera.shape) * np.asarray(m.off_view_albedo, np.float32))[:, sel])
+    return np.concatenate(light, axis=1)
+
+
+def _emitters_and_profile(leds, samples: _Samples, direct, loss, led_radius, coating_reflectance, models):
+    """(the LEDs fitted as disks of ``led_radius`` from the point ``leds``, or () without a radius; the
+    reflectance profile (:func:`_profiled_reflectance`) when the reflectance is to be profiled, else None).
+    ``models``: the captures' indirect terms as JSON."""
+    if not led_radius > 0:
+        return (), None
+    # from the points (0.2 mm off at most): the disk fit only refines them
+    x, n, ok = samples.x, samples.n, samples.ok
+    emitters = _to_leds(_fit_all(leds, x, n, direct, ok, loss, _disk_model(led_radius)))[0]
     fitted_reflectance = _fitted_reflectance(models)
-    if led_radius > 0 and coating_reflectance is None and fitted_reflectance is not None:
-        profile = _profiled_reflectance(emitters, x, n, img, direct, ok, loss, led_radius, fitted_reflectance)
-        chosen = tuple(profile["chosen"])
-        again = _calibrate(presses, leds, stride, loss, interreflection, bounces, rounds, led_radius, chosen)
-        return dataclasses.replace(again, reflectance_profile=profile)
-    return LedCalibration(leds, albedo, std, rms, models, emitters, float(led_radius), quality=quality)
+    if coating_reflectance is not None or fitted_reflectance is None:
+        return emitters, None
+    profile = _profiled_reflectance(emitters, x, n, samples.img, direct, ok, loss, led_radius, fitted_reflectance)
+    return emitters, profile
 
 
 def _fitted_reflectance(models: list[dict]) -> np.ndarray | None:

@@ -26,13 +26,12 @@ import time
 
 import numpy as np
 
-from ..core import diskcache, masks, tolerances
+from ..core import diskcache, tolerances
 from ..core.capture import Press
-from ..core.leds import led_geometry_mismatch
 from ..core.metrics import angle_deg
-from ..errors import CaptureError, ConfigError, ShapeError
+from ..errors import CaptureError, ShapeError
 from . import reuse
-from .contact import ContactMap, anchor_weights, classify_contact, contact_box, contact_hits
+from .contact import ContactMap, anchor_weights, classify_contact, contact_box
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
     Surface,
@@ -47,11 +46,13 @@ from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
 
+# the argument checks live in press_checks; the pipeline imports them (and MIN_ROI_SIDE) from here
+from .press_checks import MIN_ROI_SIDE as MIN_ROI_SIDE
+from .press_checks import check_modes, check_roi, check_undeformed
+from .roi import box_mask, box_of, contact_pixels, dent_focus, merge_focus
+
 log = logging.getLogger(__name__)
 
-INTERREFLECTION_MODES = ("auto", "on", "off")
-MIN_ROI_SIDE = 4
-"""Smallest width and height of an explicit ROI box, pixels (the API's and --roi's checks both state it)."""
 RELAXATION_MAX_RATIO = 3.0
 """Largest indirect/direct light ratio g that :func:`_relaxation` uses, so every pixel moves at least 1 / (1 + 3) of
 the way to its gathered light per pass. Why a cap: g is 0.3-0.5 in a dent (benchmarks/RESULTS.md), where it does not
@@ -192,7 +193,7 @@ def _solve_press(
     t0 = time.perf_counter()
     roi, roi_note = _region(press, roi, explicit_roi, cmap)
     if roi is not None:
-        mask &= _box_mask(roi, (H, W))
+        mask &= box_mask(roi, (H, W))
     weights, anchoring = (None, "anchoring off (no reference surface)")
     if cmap is not None:
         weights, anchoring = anchor_weights(cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR)
@@ -202,7 +203,7 @@ def _solve_press(
     images = press.linear_led_images
     run = _Runner(press, leds, images, prior, weights, mask, options, backend, progress, fixed_light)
     if model is not None and model.enabled:
-        focus = _dent_focus(cmap, mask) if cmap is not None and dent_interreflection else None
+        focus = dent_focus(cmap, mask) if cmap is not None and dent_interreflection else None
         loop = _OuterLoop(model, press, leds, images, mask, light.shading, outer_relaxation, focus)
         result = loop.run(run, max_outer if dent_interreflection else 0)
     else:
@@ -267,7 +268,7 @@ def _light_and_contact(
         if fit is not None and fit.refits and model.enabled:
             # the press stands in for the undeformed capture: fit again without its contact
             t1 = time.perf_counter()
-            model = fit.again(exclude=_contact_pixels(cmap))
+            model = fit.again(exclude=contact_pixels(cmap))
             refit = time.perf_counter() - t1
             cmap = _contact(press, leds, None, None, model, shading, dead_level, fit.contact_cache)
     t_contact = time.perf_counter() - t0 - refit
@@ -334,29 +335,12 @@ def _report_loop(rep: dict, loop) -> None:
     rep["dent_interreflection"] = bool(loop is not None and loop.passes > 0)
     rep["outer_passes"] = loop.passes if loop is not None else 0
     rep["outer_changes_deg"] = loop.changes if loop is not None else []
-    rep["outer_focus"] = _box_of(loop.focus) if loop is not None and loop.focus is not None else None
+    rep["outer_focus"] = box_of(loop.focus) if loop is not None and loop.focus is not None else None
     if loop is not None:  # the solver's timer over every NLiPs solve of the outer loop, and each one
         rep["seconds"], rep["pass_seconds"] = (
             float(sum(loop.solver_seconds)),
             [round(t, 3) for t in loop.solver_seconds],
         )
-
-
-def check_modes(interreflection: str, bounces: int, outer_relaxation, coating_albedo=None) -> None:
-    """ConfigError when one of :func:`solve_press`'s interreflection keywords is out of range (checked before any
-    work, also by the pipeline before it looks for an earlier result)."""
-    if interreflection not in INTERREFLECTION_MODES:
-        raise ConfigError(f"interreflection must be one of {INTERREFLECTION_MODES}, got {interreflection!r}")
-    if bounces not in (1, 2):
-        raise ConfigError(f"bounces must be 1 or 2, got {bounces}")
-    if outer_relaxation != "auto" and not (isinstance(outer_relaxation, (int, float)) and 0 < outer_relaxation <= 2):
-        raise ConfigError(f"outer_relaxation must be 'auto' or a number in (0, 2], got {outer_relaxation!r}")
-    if coating_albedo is not None:
-        values = np.atleast_1d(np.asarray(coating_albedo, float))
-        if values.size not in (1, 3) or not np.all((values > 0) & (values <= 1)):
-            raise ConfigError(
-                f"coating albedo (--coating-albedo) must be one value or three in (0, 1], got {coating_albedo!r}"
-            )
 
 
 @dataclasses.dataclass
@@ -381,7 +365,7 @@ def _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interr
         return None
     H, W = press.camera.shape
     source = ref_capture if ref_capture is not None else press
-    exclude = _box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
+    exclude = box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
     # a press without a known contact is fitted twice: the first fit only finds the contact
     rough = ref_capture is None and explicit_roi is None
     cache = {}
@@ -440,7 +424,7 @@ class _OuterLoop:
     the solved surface, under-relaxed per pixel (:func:`_relaxation`), until the normals stop changing.
 
     When the solve's mask is much larger than the dent (a whole frame), the passes before the last solve only
-    the ``focus`` (the dent's box, :func:`_dent_focus`), where the light changes most from pass to pass, and
+    the ``focus`` (the dent's box, :func:`dent_focus`), where the light changes most from pass to pass, and
     keep the rest of the last result; the last pass solves the whole mask. On the default twin's 640x480
     one-bounce sphere and cube presses that takes 11-12 s of solver time instead of 19-21 s, at contact AAE
     0.497 / 0.412 deg against 0.492 / 0.414 with every pass on the whole frame (all pixels 0.51 against 0.73:
@@ -451,7 +435,7 @@ class _OuterLoop:
         self.model, self.press, self.leds, self.mask, self.relaxation = model, press, leds, mask, relaxation
         self.focus = focus
         """(H, W) bool or None -- what the passes before the last solve (None: the mask)."""
-        x0, y0, w, h = _box_of(mask)
+        x0, y0, w, h = box_of(mask)
         self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
         # the images' per-pixel total, for the relaxation: the same in every pass
         self.image_total = images[:, self.box[0], self.box[1]].sum(axis=(0, 3))
@@ -486,7 +470,7 @@ class _OuterLoop:
             # a small change of the light: start from the last depth; refined (and on the whole mask) at the last
             new = solve_with(light, init=result.depth, unrefined=0 if last else rough, receivers=region)
             if region is not None:
-                new = _merged(result, new, region)
+                new = merge_focus(result, new, region)
             self.passes += 1
             change = _median_change_deg(result, new, self.mask if region is None else region)
             self.changes.append(round(change, 4))
@@ -527,49 +511,12 @@ class _BoxCompensation:
 
     def __call__(self, light: np.ndarray) -> np.ndarray:
         if self.buffer is None:  # on the first pass: a solve without the outer loop needs neither
-            x0, y0, w, h = _box_of(self.mask)
+            x0, y0, w, h = box_of(self.mask)
             self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
             self.buffer = np.array(self.images, np.float32)
         rows, cols = self.box
         self.buffer[:, rows, cols] = compensate(self.images[:, rows, cols], light[:, rows, cols])
         return self.buffer
-
-
-def _dent_focus(cmap: ContactMap, mask: np.ndarray) -> np.ndarray | None:
-    """(H, W) bool -- what the outer loop's passes before the last solve: the auto ROI's box widened by
-    ``tolerances.DENT_FOCUS_MARGIN`` of the image's short side, within ``mask``; None where that is
-    most of the mask anyway (an ROI around the contact) or where no contact is found."""
-    H, W = mask.shape
-    margin = int(round(tolerances.DENT_FOCUS_MARGIN * min(H, W)))
-    try:
-        box, _ = contact_box(cmap, (H, W), margin=margin)  # its note is for a user's --roi auto
-    except CaptureError:  # no contact: nothing to focus on
-        return None
-    focus = _box_mask(box, (H, W)) & mask
-    # a contact outside an explicit ROI leaves (next to) nothing to focus on
-    return focus if tolerances.DENT_FOCUS_MIN_PIXELS <= focus.sum() < tolerances.DENT_FOCUS_SHARE * mask.sum() else None
-
-
-def _merged(whole: SolveResult, part: SolveResult, focus: np.ndarray) -> SolveResult:
-    """``whole`` with ``part``'s pixels inside ``focus``. The report is ``part``'s (its levels, timer), with
-    ``whole``'s pixel counts (its mask is the solve's; a pass changes only the light subtracted inside the
-    focus) and the merged map's count of reconstructed pixels."""
-    fields = {}
-    for name, a in whole.arrays().items():
-        if name != "mask":
-            f = focus.reshape(focus.shape + (1,) * (a.ndim - focus.ndim))
-            fields[name] = np.where(f, getattr(part, name), a)
-    report = dict(part.report)
-    for key in ("pixels_solved", "pixels_too_few_leds", "pixels_no_gradient"):
-        report[key] = whole.report[key]
-    report["pixels_reconstructed"] = int(fields["reconstructed"].sum())
-    return dataclasses.replace(whole, report=report, **fields)
-
-
-def _contact_pixels(cmap: ContactMap, margin: int = 4) -> np.ndarray:
-    """(H, W) bool -- the pixels the auto ROI would box (:func:`contact_hits`), dilated by ``margin``."""
-    hit = contact_hits(cmap)
-    return masks.dilate(hit, iterations=margin) if hit.any() else hit
 
 
 def _noise_regularised(options: SolverOptions, press: Press, cmap: ContactMap | None):
@@ -601,66 +548,6 @@ def _split_indirect(press: Press, indirect):
     if light.shape != press.led_images.shape:
         raise ShapeError(f"indirect light {light.shape} must match the LED images {press.led_images.shape}")
     return None, light
-
-
-def check_undeformed(press, undeformed) -> None:
-    """CaptureError naming ``undeformed`` unless it is an undeformed capture of ``press``'s sensor.
-
-    Parameters
-    ----------
-    press, undeformed : core.Press or core.capture.CaptureOptics
-        Anything with ``folder``, ``camera``, ``leds`` and ``reference``: the pipeline checks the captures'
-        optics before it says anything about an earlier result, the solver the loaded presses.
-    """
-    if undeformed.camera != press.camera or len(undeformed.leds) != len(press.leds):
-        raise CaptureError(f"{undeformed.folder}: camera or LED count differs from {press.folder}")
-    if undeformed.reference is None:
-        raise CaptureError(f"{undeformed.folder}: the undeformed capture needs its reference surface (reference.npz)")
-    why = _other_sensor(press, undeformed)
-    if why:
-        raise CaptureError(f"{undeformed.folder}: not a capture of the sensor of {press.folder} ({why})")
-
-
-def _other_sensor(press, undeformed) -> str | None:
-    """Why ``undeformed`` is not a capture of ``press``'s sensor (LED geometry, undeformed surface), or None."""
-    why = led_geometry_mismatch(
-        [led.position for led in press.leds],
-        [led.direction for led in press.leds],
-        [led.position for led in undeformed.leds],
-        [led.direction for led in undeformed.leds],
-    )
-    if why or press.reference is None:
-        return why
-    a, b = press.reference.depth, undeformed.reference.depth
-    both = np.isfinite(a) & np.isfinite(b)
-    if not both.any():
-        return "their undeformed surfaces share no pixel"
-    gap = float(np.median(np.abs(a[both] - b[both])))
-    if gap > tolerances.SAME_SURFACE_MM:
-        return f"undeformed surfaces {gap:.2f} mm apart (median)"
-    return None
-
-
-def check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:
-    """(x0, y0, w, h) as ints; ShapeError unless the box lies inside the W x H image and is at least 4x4."""
-    x0, y0, w, h = (int(v) for v in roi)
-    if min(w, h) < MIN_ROI_SIDE or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
-        side = MIN_ROI_SIDE
-        raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least {side}x{side} pixels")
-    return x0, y0, w, h
-
-
-def _box_of(pixels: np.ndarray) -> list[int]:
-    """[x0, y0, w, h] -- the bounding box of the True pixels."""
-    rows, cols = np.nonzero(pixels.any(axis=1))[0], np.nonzero(pixels.any(axis=0))[0]
-    return [int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1)]
-
-
-def _box_mask(roi, shape) -> np.ndarray:
-    x0, y0, w, h = roi
-    box = np.zeros(shape, bool)
-    box[y0 : y0 + h, x0 : x0 + w] = True
-    return box
 
 
 def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, dead_level: float, cache=None) -> ContactMap:

@@ -16,9 +16,10 @@ from nlipscalib.core.atomic import TMP_PREFIX
 from nlipscalib.core.claims import HOST, claim
 from nlipscalib.errors import CaptureError
 from nlipscalib.learn import dataset as dataset_module
+from nlipscalib.learn.checkpoint import checkpoint_path
 from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
 from nlipscalib.learn.model import load_model
-from nlipscalib.learn.train import TrainConfig, checkpoint_path, train
+from nlipscalib.learn.train import TrainConfig, train
 from nlipscalib.pipeline import solve_folder
 from nlipscalib.solver import SolverOptions
 from tests.core.test_atomic import _dead_pid
@@ -188,14 +189,14 @@ def test_a_run_stopped_by_a_limit_continues_when_only_a_limit_changes_and_anothe
 def test_a_damaged_checkpoint_costs_only_its_progress(built, tmp_path, caplog):
     import torch
 
-    from nlipscalib.learn.train import _config_key
+    from nlipscalib.learn.checkpoint import config_key
 
     data, out = CalibrationDataset(built), tmp_path / "m.pt"
     train(data, TINY, out, progress=False)
     whole = checkpoint_path(out).read_bytes()
     caplog.set_level(logging.WARNING)
     hollow = tmp_path / "hollow.pt"
-    torch.save({"key": _config_key(TINY), "data_key": torch.load(checkpoint_path(out))["data_key"]}, hollow)
+    torch.save({"key": config_key(TINY), "data_key": torch.load(checkpoint_path(out))["data_key"]}, hollow)
     for damage, why in (
         (whole[: len(whole) // 2], "truncated or damaged"),
         (b"\x00" * 300, "not a training checkpoint"),
@@ -223,7 +224,7 @@ def test_a_terminated_training_removes_its_staging_folder(tmp_path):
     """The SIGTERM handler removes this process's temporaries (core.atomic.remove_in_progress): the staging folder
     of a training's files is one of them (it used to stay until the next training into that place)."""
     from nlipscalib.core import atomic
-    from nlipscalib.learn.train import model_stage
+    from nlipscalib.learn.publish import model_stage
 
     with model_stage(tmp_path / "m.pt") as stage:
         (stage / "m.pt").write_bytes(b"half a model")

@@ -162,7 +162,7 @@ def test_the_outer_passes_leave_unrefined_the_levels_finer_than_half_a_patch():
 
 
 def test_a_pass_on_the_dent_replaces_the_whole_frame_result_there_only(press):
-    from nlipscalib.solver.press import _merged
+    from nlipscalib.solver.roi import merge_focus
 
     lin = press.linear(press.led_images)
     prior = press.reference.depth
@@ -170,7 +170,7 @@ def test_a_pass_on_the_dent_replaces_the_whole_frame_result_there_only(press):
     focus = np.zeros(press.camera.shape, bool)
     focus[20:45, 30:61] = True
     part = solve(0.9 * lin, press.camera, press.leds, prior_depth=prior, mask=focus, init_depth=whole.depth)
-    merged = _merged(whole, part, focus)
+    merged = merge_focus(whole, part, focus)
     for name in ("depth", "normals", "albedo", "confidence", "reconstructed"):
         got, a, b = getattr(merged, name), getattr(whole, name), getattr(part, name)
         np.testing.assert_array_equal(got[focus], b[focus], err_msg=name)

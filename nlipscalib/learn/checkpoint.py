@@ -1,0 +1,185 @@
+"""A training's checkpoints: where they go, what they are keyed by, writing them and resuming from them.
+
+After every epoch the state (weights, optimiser, history, best weights) goes into a checkpoint beside the model
+named by the run (``MODEL.<run>.checkpoint.pt``, :func:`progress_checkpoint_path`: the options and the samples),
+so trainings of other runs into the same place never overwrite each other's progress; when the run ends, its
+last state is published as ``MODEL.checkpoint.pt`` with the model. A run with the same options on the same
+training and validation samples continues from its own checkpoint, or from the published one (:func:`resume`).
+Any other run (other options, another dataset, other presses held out for validation or excluded) trains
+afresh, saying why.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import io
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .model import build_net
+
+if TYPE_CHECKING:
+    from .train import TrainConfig
+
+log = logging.getLogger(__name__)
+CHECKPOINT_FILE = "checkpoint.pt"
+
+
+def jsonable_config(cfg: TrainConfig) -> dict:
+    d = dataclasses.asdict(cfg)
+    d["hidden"] = list(cfg.hidden)
+    return d
+
+
+def _trajectory_options(cfg: TrainConfig) -> dict:
+    """The options that decide the weights epoch by epoch: every option but the thread count (how fast) and the
+    stopping limits (``max_seconds``, ``patience``, and ``max_epochs`` unless the cosine schedule is laid out
+    over it), which only decide where a run stops. A run stopped by a limit thus continues when only a limit
+    changes (``--max-minutes 10`` today, no limit tomorrow; ``--epochs 8`` then ``10``)."""
+    limits = {"threads", "max_seconds", "patience"} | ({"max_epochs"} if cfg.schedule != "cosine" else set())
+    return {k: v for k, v in jsonable_config(cfg).items() if k not in limits}
+
+
+def config_key(cfg: TrainConfig) -> str:
+    """What a checkpoint must match to be resumed: a digest of :func:`_trajectory_options`."""
+    return hashlib.sha1(repr(_trajectory_options(cfg)).encode()).hexdigest()[:16]
+
+
+def _options_changed(recorded, cfg: TrainConfig) -> str:
+    """'name old -> new, ...' of the trajectory options a checkpoint recorded and ``cfg`` differ in ("" when the
+    checkpoint records none: written before 2026-12-04)."""
+    if not isinstance(recorded, dict):
+        return ""
+    now = _trajectory_options(cfg)
+    return ", ".join(f"{k} {recorded.get(k)!r} -> {v!r}" for k, v in now.items() if recorded.get(k) != v)
+
+
+def data_key_of(*arrays) -> str:
+    """What a checkpoint's samples must match: the training and validation arrays themselves (inputs, labels,
+    contact flags), so another dataset, a rebuilt shard, other validation presses or other excluded presses
+    all count as other data. Hashing them costs ~0.03 s per million samples, against seconds per epoch."""
+    digest = hashlib.sha1()
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        digest.update(f"{a.dtype.str}{a.shape}".encode())
+        digest.update(memoryview(a).cast("B"))
+    return digest.hexdigest()[:16]
+
+
+def checkpoint_path(out: Path) -> Path:
+    """``MODEL.checkpoint.pt`` beside the model file ``out``."""
+    return out.with_name(out.stem + "." + CHECKPOINT_FILE)
+
+
+def progress_checkpoint_path(out: Path, cfg, data_key: str) -> Path:
+    """``MODEL.<run>.checkpoint.pt`` beside the model file ``out``: the checkpoint of every epoch of the run of
+    these options on these samples (``<run>``: 12 hex digits of their keys)."""
+    run = hashlib.sha1(f"{config_key(cfg)}:{data_key}".encode()).hexdigest()[:12]
+    return out.with_name(f"{out.stem}.{run}.{CHECKPOINT_FILE}")
+
+
+def save_checkpoint(path: Path, cfg, data_key: str, net, opt, sched, history, best, best_state, to=None) -> None:
+    """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``."""
+    import torch
+
+    from ..core.atomic import write_bytes
+
+    buf = io.BytesIO()
+    torch.save(
+        {
+            "key": config_key(cfg),
+            "options": _trajectory_options(cfg),  # so a refusal can say which option differs
+            "data_key": data_key,
+            "net": net.state_dict(),
+            "opt": opt.state_dict(),
+            "sched": sched.state_dict(),
+            "history": history,
+            "best": best,
+            "best_state": best_state,
+        },
+        buf,
+    )
+    write_bytes(path if to is None else Path(to), buf.getvalue())
+
+
+def published_by(out: Path, cfg, data_key: str) -> bool:
+    """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options and
+    samples): a run resumed from its own progress may still replace another run's model, finished since."""
+    from .model import read_torch_file
+
+    try:
+        ck = read_torch_file(checkpoint_path(out), "a training checkpoint")
+    except Exception:  # missing or damaged: nothing says the model is this run's
+        return False
+    return isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
+
+
+def resume(out: Path, progress_path: Path, cfg, data_key: str, net, opt, sched) -> dict:
+    """Continue from the run's checkpoint (``progress_path``), else from ``MODEL.checkpoint.pt`` (a finished run's,
+    or one written before checkpoints were named by their run) when it was made with the same options on the same
+    samples.
+
+    A checkpoint of another run is not resumed (the log says which differs): resuming one trained on other
+    presses would report its validation AAE as if measured on this run's validation presses, and one that
+    had reached its epoch limit would be saved as the new model without a single epoch on the new data.
+    A damaged checkpoint only costs the progress it held (a warning, then training from scratch).
+    """
+    import copy
+
+    from .model import read_torch_file
+
+    fresh = {"history": [], "best": {"aae": float("inf"), "epoch": -1}, "best_state": None}
+    path = progress_path if progress_path.is_file() else checkpoint_path(out)
+    if not path.is_file():
+        return fresh
+    initial = copy.deepcopy((net.state_dict(), opt.state_dict(), sched.state_dict()))
+    try:
+        ck = read_torch_file(path, "a training checkpoint")
+        if not isinstance(ck, dict):
+            raise ValueError(f"a {type(ck).__name__}, not a checkpoint")
+        if ck.get("key") != config_key(cfg):
+            if "options" not in ck:  # keyed before the stopping limits were left out of the key (2026-12-04)
+                log.info("%s: made by an older version of nlipscalib; training from scratch", path)
+            else:
+                changed = _options_changed(ck["options"], cfg)
+                log.info("%s: made with other training options (%s); training from scratch", path, changed)
+            return fresh
+        if len(ck.get("history") or ()) > cfg.max_epochs:  # a shorter run asked for: resuming would train none
+            log.info(
+                "%s: trained %d epochs, more than --epochs %d; training from scratch",
+                path,
+                len(ck["history"]),
+                cfg.max_epochs,
+            )
+            return fresh
+        if ck.get("data_key") != data_key:
+            log.info(
+                "%s: made on other samples (another dataset, other validation or excluded presses); "
+                "training from scratch",
+                path,
+            )
+            return fresh
+        history, best, best_state = ck["history"], ck["best"], ck["best_state"]
+        if not isinstance(history, list) or not history or not isinstance(best, dict) or best_state is None:
+            raise ValueError("no finished epoch recorded")
+        float(best["aae"]), int(best["epoch"])
+        build_net(cfg.hidden, cfg.dropout).load_state_dict(best_state)  # the weights it would save must fit
+        net.load_state_dict(ck["net"])
+        opt.load_state_dict(ck["opt"])
+        sched.load_state_dict(ck["sched"])
+    except Exception as exc:  # torch and the checks above raise many kinds; every one means "not usable"
+        if isinstance(exc, KeyError):
+            why = f"it lacks {exc}"
+        else:
+            why = str(exc).removeprefix(f"{path}: ") or type(exc).__name__
+        log.warning("%s: not resumable (%s); training from scratch", path, why)
+        net.load_state_dict(initial[0])  # nothing half-loaded carries over into the fresh run
+        opt.load_state_dict(initial[1])
+        sched.load_state_dict(initial[2])
+        return fresh
+    log.info("%s: resuming after epoch %d", path, len(history))
+    return {"history": history, "best": best, "best_state": best_state}

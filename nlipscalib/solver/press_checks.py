@@ -1,0 +1,81 @@
+"""Checks of :func:`nlipscalib.solver.press.solve_press`'s arguments, made before any work.
+
+The pipeline makes the same checks before it looks for an earlier result (``pipeline.py``), so a bad
+argument is refused before a capture is loaded or a result reused.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core import tolerances
+from ..core.leds import led_geometry_mismatch
+from ..errors import CaptureError, ConfigError, ShapeError
+
+INTERREFLECTION_MODES = ("auto", "on", "off")
+MIN_ROI_SIDE = 4
+"""Smallest width and height of an explicit ROI box, pixels (the API's and --roi's checks both state it)."""
+
+
+def check_modes(interreflection: str, bounces: int, outer_relaxation, coating_albedo=None) -> None:
+    """ConfigError when one of :func:`.press.solve_press`'s interreflection keywords is out of range (checked before any
+    work, also by the pipeline before it looks for an earlier result)."""
+    if interreflection not in INTERREFLECTION_MODES:
+        raise ConfigError(f"interreflection must be one of {INTERREFLECTION_MODES}, got {interreflection!r}")
+    if bounces not in (1, 2):
+        raise ConfigError(f"bounces must be 1 or 2, got {bounces}")
+    if outer_relaxation != "auto" and not (isinstance(outer_relaxation, (int, float)) and 0 < outer_relaxation <= 2):
+        raise ConfigError(f"outer_relaxation must be 'auto' or a number in (0, 2], got {outer_relaxation!r}")
+    if coating_albedo is not None:
+        values = np.atleast_1d(np.asarray(coating_albedo, float))
+        if values.size not in (1, 3) or not np.all((values > 0) & (values <= 1)):
+            raise ConfigError(
+                f"coating albedo (--coating-albedo) must be one value or three in (0, 1], got {coating_albedo!r}"
+            )
+
+
+def check_undeformed(press, undeformed) -> None:
+    """CaptureError naming ``undeformed`` unless it is an undeformed capture of ``press``'s sensor.
+
+    Parameters
+    ----------
+    press, undeformed : core.Press or core.capture.CaptureOptics
+        Anything with ``folder``, ``camera``, ``leds`` and ``reference``: the pipeline checks the captures'
+        optics before it says anything about an earlier result, the solver the loaded presses.
+    """
+    if undeformed.camera != press.camera or len(undeformed.leds) != len(press.leds):
+        raise CaptureError(f"{undeformed.folder}: camera or LED count differs from {press.folder}")
+    if undeformed.reference is None:
+        raise CaptureError(f"{undeformed.folder}: the undeformed capture needs its reference surface (reference.npz)")
+    why = _other_sensor(press, undeformed)
+    if why:
+        raise CaptureError(f"{undeformed.folder}: not a capture of the sensor of {press.folder} ({why})")
+
+
+def _other_sensor(press, undeformed) -> str | None:
+    """Why ``undeformed`` is not a capture of ``press``'s sensor (LED geometry, undeformed surface), or None."""
+    why = led_geometry_mismatch(
+        [led.position for led in press.leds],
+        [led.direction for led in press.leds],
+        [led.position for led in undeformed.leds],
+        [led.direction for led in undeformed.leds],
+    )
+    if why or press.reference is None:
+        return why
+    a, b = press.reference.depth, undeformed.reference.depth
+    both = np.isfinite(a) & np.isfinite(b)
+    if not both.any():
+        return "their undeformed surfaces share no pixel"
+    gap = float(np.median(np.abs(a[both] - b[both])))
+    if gap > tolerances.SAME_SURFACE_MM:
+        return f"undeformed surfaces {gap:.2f} mm apart (median)"
+    return None
+
+
+def check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:
+    """(x0, y0, w, h) as ints; ShapeError unless the box lies inside the W x H image and is at least 4x4."""
+    x0, y0, w, h = (int(v) for v in roi)
+    if min(w, h) < MIN_ROI_SIDE or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:
+        side = MIN_ROI_SIDE
+        raise ShapeError(f"roi {tuple(roi)} must lie inside the {W}x{H} image and be at least {side}x{side} pixels")
+    return x0, y0, w, h
