@@ -121,7 +121,7 @@ def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
     reference captured by the same sensor; else ConfigError or CaptureError naming what does not fit (``nlips
     calibrate --leds`` checks its LED file with it before any solving)."""
     from ..core.capture import META_FILE, read_meta, read_optics
-    from ..solver.press import check_roi, check_undeformed
+    from ..solver.press_checks import check_roi, check_undeformed
 
     meta = read_meta(folder)
     camera, leds = meta.get("camera") or {}, meta.get("leds") or []
@@ -187,7 +187,7 @@ def _resolve_roi(roi):
         box = tuple(int(v) for v in roi)
     except (TypeError, ValueError):
         box = ()
-    from ..solver.press import MIN_ROI_SIDE as side
+    from ..solver.press_checks import MIN_ROI_SIDE as side
 
     if len(box) != 4 or min(box) < 0 or min(box[2:]) < side:  # the same minimum as the solver's check_roi
         raise ConfigError(f"roi {roi!r} must be (x0, y0, w, h) with x0, y0 >= 0, at least {side}x{side} pixels")
@@ -227,7 +227,7 @@ def _solver_keywords(given: dict | None) -> dict:
     import inspect
 
     from ..solver import solve_press
-    from ..solver.press import check_modes
+    from ..solver.press_checks import check_modes
 
     own = {"press", "roi", "leds", "options", "backend", "progress", "indirect"}
     params = {

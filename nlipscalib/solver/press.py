@@ -45,9 +45,6 @@ from .indirect import (
 from .interreflection import compensate
 from .nlips import SolveResult, solve
 from .options import SolverOptions
-
-# the argument checks live in press_checks; the pipeline imports them (and MIN_ROI_SIDE) from here
-from .press_checks import MIN_ROI_SIDE as MIN_ROI_SIDE
 from .press_checks import check_modes, check_roi, check_undeformed
 from .roi import box_mask, box_of, contact_pixels, dent_focus, merge_focus
 
