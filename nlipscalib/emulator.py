@@ -22,11 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import from_mapping, read_config_file, to_mapping
+from .core.config import from_mapping, read_config_file, to_mapping
 from .core.dome import reference_surface
+from .core.errors import ConfigError
 from .device.camera import FrameSource
 from .device.session import Operator, Rig
-from .errors import ConfigError
 from .sim.indent import PressConfig, apply_press
 from .sim.noise import apply_noise
 from .sim.press import press_seed, scene_exposure, undeformed_mesh

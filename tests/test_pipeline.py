@@ -7,8 +7,8 @@ import shutil
 import numpy as np
 import pytest
 
+from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.reconstruction import load_reconstruction, read_report
-from nlipscalib.errors import ConfigError
 from nlipscalib.pipeline import make_provenance, make_settings, solve_folder, solve_presses
 from nlipscalib.solver import SolverOptions
 from tests.solver import synth

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from .. import __version__, progress
-from ..errors import MissingDependencyError, NlipsError
+from ..core.errors import MissingDependencyError, NlipsError
 
 SUBCOMMAND_MODULES = (
     "render",

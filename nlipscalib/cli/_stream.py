@@ -75,8 +75,8 @@ def check_source_arguments(args) -> None:
     A flag counts as given when it was typed, also at its default value (``--tricolor-level 255`` with
     ``--emulate`` is refused like ``--tricolor-level 100``: the emulated sensor lights its own board).
     """
-    from ..config import check_count
-    from ..errors import ConfigError
+    from ..core.config import check_count
+    from ..core.errors import ConfigError
 
     port = getattr(args, "emulated_port", None)  # set by emulate_behind_port: name what the user typed
     how = f"--port {port} and no --camera (the emulated sensor of {args.emulate})" if port else "--emulate"
@@ -122,7 +122,7 @@ def _live_camera(args) -> bool:
 def check_output_arguments(args, out: str | None) -> None:
     """``--every`` >= 1 (0 would keep every frame), and said to do nothing without ``out`` (the output folder
     flag's value); ``--threads`` >= 0 (0: the default). Shared with infer."""
-    from ..config import check_count
+    from ..core.config import check_count
 
     if typed(args, ("every",)) and not out:
         log.warning("--every without an output folder: no frames are kept")
@@ -168,7 +168,7 @@ def open_frames(args, stack, loop: bool = False):
 def size_emulator_for(args, shape: tuple[int, int]) -> None:
     """The emulated sensor (``--emulate``) renders at a model's image size ``shape`` (H, W) unless ``--width`` /
     ``--height`` say otherwise; a size that differs is refused now, not after rendering the script (~20 s)."""
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     if not args.emulate:
         return
@@ -192,8 +192,8 @@ def check_emulated_sensor(args, sensor: dict) -> None:
     Why: the emulated scene's geometry is known, yet only the brightness heuristic (:class:`MismatchWatch`) spoke,
     and a scene of similar brightness streamed another sensor's frames through the model without a word.
     """
+    from ..core.errors import CaptureError
     from ..core.sensor_record import describe_sensor, sensor_mismatch
-    from ..errors import CaptureError
     from ..sim.scene import load_scene
 
     if not args.emulate:
@@ -234,7 +234,7 @@ def nlipsnet_predictor(args, depth: bool = True):
     """The NLiPsNet of ``args.model`` (``--backend``, ``--threads``, ``--device``, ``--full-frame``) for a stream;
     its ``predict_stored`` maps a stored frame ((H, W, 3) uint16) to a result with ``normals`` and ``depth`` (what
     the live sinks show)."""
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     try:
         from ..learn.infer import Predictor

@@ -60,11 +60,11 @@ def register(subparsers) -> None:
 def run(args) -> int:
     import numpy as np
 
-    from ..config import check_count
     from ..core.capture import load_press
+    from ..core.config import check_count
+    from ..core.errors import ConfigError
     from ..core.metrics import angle_deg
     from ..core.sensor_record import sensor_of
-    from ..errors import ConfigError
     from ..progress import track, working
     from ..solver import calibrate_leds, save_leds
 

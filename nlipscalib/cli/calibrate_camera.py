@@ -27,7 +27,7 @@ def register(subparsers) -> None:
 
 
 def _pattern(text: str) -> tuple[int, int]:
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     try:
         cols, rows = (int(v) for v in text.lower().split("x"))
@@ -41,7 +41,7 @@ def _pattern(text: str) -> tuple[int, int]:
 def _image_paths(items) -> list:
     from pathlib import Path
 
-    from ..errors import CaptureError
+    from ..core.errors import CaptureError
 
     paths = []
     for item in map(Path, items):
@@ -63,8 +63,8 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..core.atomic import write_json
+    from ..core.errors import ConfigError
     from ..device.camera_calibration import HIGH_RMS_PX, Target, calibrate_images
-    from ..errors import ConfigError
 
     log = logging.getLogger(__name__)
 

@@ -66,10 +66,10 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..config import check_count, options_named
     from ..core.capture import REFERENCE_FOLDER, no_presses_error, read_meta, split_reference
-    from ..cpus import usable_cores
-    from ..errors import ConfigError
+    from ..core.config import check_count, options_named
+    from ..core.cpus import usable_cores
+    from ..core.errors import ConfigError
     from ..learn.coverage import coverage, write_coverage_json
     from ..learn.dataset import DEFAULT_DIR, CalibrationDataset, SamplingConfig, build_dataset, check_min_leds
     from ..report.learn import coverage_figure
@@ -129,8 +129,8 @@ def own_reference_left_out(root: Path, given: Path) -> None:
     left out (it is the undeformed dome, never a press), or a ConfigError when the two are captures of different
     sensors (ROOT's presses would then not match GIVEN: the dataset build would refuse them after the solve)."""
     from ..core.capture import REFERENCE_FOLDER, is_press_folder, load_press
+    from ..core.errors import CaptureError, ConfigError
     from ..core.sensor_record import sensor_mismatch, sensor_of
-    from ..errors import CaptureError, ConfigError
 
     own = root / REFERENCE_FOLDER
     if is_press_folder(root) or not is_press_folder(own) or not is_press_folder(given):
@@ -155,8 +155,8 @@ def reference_fits(reference: Path, presses) -> None:
     the first readable press (every press's solve failed on it alike: one line per press). A press whose
     meta.json cannot be read is not compared: it fails alone, in its own line."""
     from ..core.capture import META_FILE, load_press, parse_optics, read_meta
+    from ..core.errors import CaptureError, ConfigError
     from ..core.sensor_record import describe_sensor, sensor_mismatch, sensor_of
-    from ..errors import CaptureError, ConfigError
 
     theirs = sensor_of(load_press(reference))
     for press in presses:
@@ -173,7 +173,7 @@ def led_file_fits(leds: str, reference: Path) -> None:
     """One line, before any solving, when ``--leds`` is not an LED file or was calibrated on another sensor than
     the undeformed capture's (whose sensor every press shares, :func:`reference_fits`): the checks of ``nlips solve
     --leds FILE`` (:func:`nlipscalib.pipeline.check_fits_capture`), made once instead of failing every press."""
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
     from ..pipeline import check_fits_capture, make_settings
 
     if Path(leds).suffix.lower() != ".json" and not Path(leds).is_file():

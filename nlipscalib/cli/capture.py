@@ -344,7 +344,7 @@ def open_leds(port: str, adalight: int | None = None, baudrate: int | None = Non
 
 
 def _usage(message: str):
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     return ConfigError(message)
 
@@ -361,7 +361,7 @@ def _calibrated_camera(path):
     import json
 
     from ..core.camera import Camera
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     try:
         return Camera.from_dict(json.loads(open(path).read())["camera"])
@@ -380,9 +380,9 @@ def _leds(args, camera, design):
         return None
     import logging
 
+    from ..core.errors import CaptureError
     from ..core.leds import led_geometry_mismatch
     from ..core.sensor_record import describe_sensor, leds_file_mismatch
-    from ..errors import CaptureError
     from ..solver.io import read_led_file
 
     led_file = read_led_file(args.leds)

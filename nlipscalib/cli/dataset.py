@@ -36,7 +36,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..config import check_count
+    from ..core.config import check_count
     from ..sim.dataset import (
         check_existing,
         expand_jobs,

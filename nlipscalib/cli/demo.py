@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..cpus import usable_cores
+from ..core.cpus import usable_cores
 
 DEMO_SPEC = Path(__file__).resolve().parents[1] / "scenes" / "datasets" / "demo.toml"
 
@@ -56,7 +56,7 @@ def run(args) -> int:
             print(f"{name}: {error}")
         return 1
     if args.solve_workers < 1:
-        from ..errors import ConfigError
+        from ..core.errors import ConfigError
 
         raise ConfigError(f"--solve-workers must be >= 1, got {args.solve_workers}")
     presses = [j for j in jobs if j.name != REFERENCE_NAME]

@@ -53,10 +53,10 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from ..errors import CaptureError
+    from ..core.errors import CaptureError
 
     if args.other_capture and not args.result:
-        from ..errors import ConfigError
+        from ..core.errors import ConfigError
 
         raise ConfigError("--other-capture is only used with --result DIR (a result from another folder)")
     if args.result:
@@ -93,8 +93,8 @@ def run(args) -> int:
 def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
     """(press folders, method): PATH as a reconstruction folder, a press, or a folder of presses."""
     from ..core.capture import is_press_folder, no_presses_error, split_reference
+    from ..core.errors import CaptureError
     from ..core.reconstruction import METHODS, is_reconstruction_dir
-    from ..errors import CaptureError
 
     if is_reconstruction_dir(path) and is_press_folder(path.parent):
         named = path.name if path.name in METHODS else None
@@ -133,8 +133,8 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
     ``path`` is a folder of presses, DIR/PRESS/<method> (what ``nlips infer PRESSES --out DIR`` writes) against
     each press PRESS of it."""
     from ..core.capture import is_press_folder, split_reference
+    from ..core.errors import CaptureError
     from ..core.reconstruction import METHODS, has_reconstruction
-    from ..errors import CaptureError
 
     if is_press_folder(path) or not path.is_dir() or has_reconstruction(result):  # one result: of one press
         presses, method = _result_target(path, result, method, other_capture)
@@ -160,8 +160,8 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
 def _result_target(press: Path, result: Path, method: str | None, other_capture: bool) -> tuple[list[Path], str]:
     """([press], method) for ``--result DIR``: DIR's reconstruction scored against the one press ``press``."""
     from ..core.capture import is_press_folder
+    from ..core.errors import CaptureError
     from ..core.reconstruction import METHODS, has_reconstruction, read_report
-    from ..errors import CaptureError
 
     if not is_press_folder(press):
         raise CaptureError(f"{press}: --result needs PATH to be the press folder the result was made from")
@@ -187,7 +187,7 @@ def _check_made_from(press: Path, result: Path, report: dict, other_capture: boo
     printed like a right one. Every kind records its input in ``provenance.inputs`` (docs/formats.md): NLiPs
     (``nlips solve``) and NLiPsNet of a press (``nlips infer``) the capture's identity (``press``), NLiPsNet of
     an image file the file's (``frame``, equal to the press's when it is the press's tri-colour image)."""
-    from ..errors import CaptureError
+    from ..core.errors import CaptureError
 
     recorded = _recorded_input(report)
     if recorded is None:  # nlipscalib before inputs were recorded for NLiPsNet, solver.save_result, a hand-made one
@@ -227,8 +227,8 @@ def _stale(press: Path, method: str) -> str | None:
 
     Why: scored against the new ground truth, a result of the old capture is a wrong number printed like a right
     one. Costs one hash of the press's inputs (~70 ms at 640x480)."""
+    from ..core.errors import CaptureError
     from ..core.reconstruction import read_report, reconstruction_dir
-    from ..errors import CaptureError
 
     out = reconstruction_dir(press, method=method)
     try:
@@ -271,8 +271,8 @@ def _tricolor_identity(press: Path) -> str:
 def _load(folder: Path, method: str, single: bool, out=None):
     """The reconstruction (in ``out``, default PRESS/<method>); None when there is none; a problem string when it
     is damaged beyond repair."""
+    from ..core.errors import CaptureError
     from ..core.reconstruction import has_reconstruction, load_reconstruction, reconstruction_dir
-    from ..errors import CaptureError
 
     out = reconstruction_dir(folder, out, method=method)
     if not has_reconstruction(out):
@@ -299,8 +299,8 @@ def _load(folder: Path, method: str, single: bool, out=None):
 def _infer_command(folder: Path, out: Path) -> str:
     """The `nlips infer` that re-makes the NLiPsNet result ``out`` of the press ``folder`` (its model when the
     report still names it)."""
+    from ..core.errors import CaptureError
     from ..core.reconstruction import read_report, reconstruction_dir
-    from ..errors import CaptureError
 
     try:
         model = read_report(out).get("model")
@@ -318,8 +318,8 @@ def _recorded_settings(out: Path):
     hand, or by ``solver.save_result`` outside the pipeline) leaves nothing to re-solve with: guessing the
     options would score a result the user never asked for.
     """
+    from ..core.errors import CaptureError, NlipsError
     from ..core.reconstruction import REPORT_FILE, read_report
-    from ..errors import CaptureError, NlipsError
     from ..pipeline import settings_from_record
 
     try:
@@ -338,7 +338,7 @@ def _recorded_settings(out: Path):
 def _recompute(folder: Path, out: Path, settings):
     """The result re-solved into ``out`` with the ``settings`` it was first made with; a problem string when
     that fails."""
-    from ..errors import NlipsError
+    from ..core.errors import NlipsError
     from ..pipeline import solve_one
 
     try:
@@ -349,8 +349,8 @@ def _recompute(folder: Path, out: Path, settings):
 
 
 def _scores(folder: Path, rec) -> dict:
+    from ..core.errors import CaptureError
     from ..core.metrics import evaluate
-    from ..errors import CaptureError
 
     gt = _ground_truth(folder)
     if gt is None:
@@ -364,7 +364,7 @@ def _ground_truth(folder: Path):
     """The press's GroundTruth or None, without decoding its images (only gt.npz is needed)."""
     from ..core.camera import Camera
     from ..core.capture import GroundTruth, read_meta
-    from ..errors import CaptureError
+    from ..core.errors import CaptureError
 
     meta = read_meta(folder)
     if not meta.get("ground_truth"):

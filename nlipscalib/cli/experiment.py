@@ -72,9 +72,9 @@ def _guide() -> str:
 
 
 def run(args) -> int:
-    from ..config import check_count
     from ..core.atomic import write_json
-    from ..errors import ConfigError
+    from ..core.config import check_count
+    from ..core.errors import ConfigError
     from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
     from ..experiments.framework import run_experiment
     from ..experiments.summary import clean
@@ -159,7 +159,7 @@ RUN_OPTIONS = (
 
 def _redraw(args) -> int:
     """``--redraw REPORT``: the report's figures and report.md drawn again from its results.json."""
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
     from ..experiments import get
     from ..experiments.redraw import RESULTS, redraw
     from .options import option
@@ -187,7 +187,7 @@ def _writable_folder(option: str, given, folder: Path, probe: bool = True) -> No
     cannot be written (read-only, permission)."""
     from ..core.atomic import check_writable
     from ..core.capture import is_press_folder
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     given = Path(given or folder)
     for part in (folder, *folder.parents):
@@ -209,7 +209,7 @@ def _writable_folder(option: str, given, folder: Path, probe: bool = True) -> No
 
 def _writable_file(option: str, path: Path, probe: bool = True) -> None:
     """``path`` can be written as a file: no folder has its name, its folder is writable."""
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     if path.is_dir():
         raise ConfigError(f"{option} {path}: is a folder; give a file name")
@@ -246,7 +246,7 @@ def _options(pairs: list[str]) -> dict:
     import dataclasses
     import json
 
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
     from ..solver import SolverOptions
 
     known = {f.name for f in dataclasses.fields(SolverOptions)}
@@ -261,7 +261,7 @@ def _options(pairs: list[str]) -> dict:
             out[key] = json.loads(value)
         except json.JSONDecodeError:
             out[key] = value
-    from ..config import from_mapping
+    from ..core.config import from_mapping
 
     try:
         from_mapping(SolverOptions, out, "--solver-option")

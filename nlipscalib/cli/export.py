@@ -26,7 +26,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
     from ..learn.model import load_model
     from ..learn.onnx_export import export_onnx
 

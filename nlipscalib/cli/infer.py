@@ -83,7 +83,7 @@ def stopped(args) -> str | None:
 
 
 def run(args) -> int:
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     if not args.inputs:
         emulate_behind_port(args)  # --port nlipsemu://ID alone: the emulated sensor, as nlips live streams it
@@ -117,7 +117,7 @@ def _stream_input(args):
     """What to stream from ("emulated", a camera spec or a video path), or None for still frames and presses."""
     from pathlib import Path
 
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     videos = [
         i
@@ -136,8 +136,8 @@ def _check_video(path: str) -> None:
     import os
     from pathlib import Path
 
+    from ..core.errors import CaptureError, require
     from ..core.imageio import opencv_path
-    from ..errors import CaptureError, require
 
     # FFmpeg prints its own parse errors ("moov atom not found") to stderr at OpenCV's default level; the
     # one-line error below names the file instead. Read once, when OpenCV first loads its FFmpeg backend.
@@ -162,8 +162,8 @@ def _run_stream(args, what: str) -> int:
     import contextlib
     import time
 
+    from ..core.errors import CaptureError, DeviceError, require
     from ..device.live import ReadAhead, SaveSink, stream
-    from ..errors import CaptureError, DeviceError, require
     from ..report.live import NormalMapPng
     from ._stream import MismatchWatch, check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
 
@@ -246,9 +246,9 @@ class _EndsCleanly:
         self.failure = None
 
     def read(self):
+        from ..core.errors import CaptureError
         from ..device.camera import EndOfFrames
         from ..device.live import StopLive
-        from ..errors import CaptureError
 
         try:
             return self.source.read()
@@ -366,7 +366,7 @@ def _frames(inputs):
     from pathlib import Path
 
     from ..core.capture import META_FILE, REFERENCE_FOLDER, find_presses, is_incomplete_press
-    from ..errors import CaptureError
+    from ..core.errors import CaptureError
 
     eight_bit = _EightBitNotice()
     for item in inputs:
@@ -437,10 +437,10 @@ def read_still(path, eight_bit=None):
     """
     from pathlib import Path
 
+    from ..core.errors import CaptureError
     from ..core.imageio import _check_png_ends as check_png_ends
     from ..core.imageio import read_image
     from ..device.camera import to_stored
-    from ..errors import CaptureError
 
     path = Path(path)
     if path.suffix.lower() == ".png":
@@ -484,8 +484,8 @@ def _destination(args, name, press_folder):
 def _check_destinations(args, frames) -> None:
     """One line, before any inference, when two inputs would write one result folder (the last would win), or
     when a destination holds something else than a result (a result replaces its folder whole)."""
+    from ..core.errors import ConfigError
     from ..core.reconstruction import check_replaceable
-    from ..errors import ConfigError
 
     seen = {}
     for name, _, press_folder, source in frames:
@@ -524,8 +524,8 @@ def _save(args, predictor, result, name, press_folder, source) -> None:
 
 def _say_what_is_replaced(folder, model: str) -> None:
     """Log it when ``folder`` holds a result of another model (a user comparing models would lose it unseen)."""
+    from ..core.errors import CaptureError
     from ..core.reconstruction import read_report
-    from ..errors import CaptureError
 
     try:
         old = read_report(folder).get("model")

@@ -113,7 +113,7 @@ def _named_as_typed(port: str, url: str):
     """
     import logging
 
-    from ..errors import NlipsError
+    from ..core.errors import NlipsError
 
     def rename(record: logging.LogRecord) -> bool:
         if isinstance(record.args, tuple):  # the drivers log "%s: ..." with the URL as an argument
@@ -153,7 +153,7 @@ def check_baud(args) -> int:
 
 def _refuse(message: str):
     """Bad input: one line, exit 2 (the nlips command prints it)."""
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     raise ConfigError(message)
 

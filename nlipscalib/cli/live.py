@@ -79,7 +79,7 @@ def source_name(args) -> str:
 
 
 def _plugged(spec: str, shape):
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     module, _, name = spec.partition(":")
     try:
@@ -102,7 +102,7 @@ def _plugged(spec: str, shape):
 def _checked_first_call(spec: str, predict):
     """``predict``, its first call's TypeError or a result without normals and depth made a ConfigError naming
     --predictor (later calls run unchecked: the check costs nothing per frame)."""
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     checked = False
 
@@ -126,7 +126,7 @@ def _checked_first_call(spec: str, predict):
 
 
 def run(args) -> int:
-    from ..errors import ConfigError, DeviceError
+    from ..core.errors import ConfigError, DeviceError
     from ..report.live import display_available
 
     if bool(args.model) == bool(args.predictor):

@@ -85,8 +85,8 @@ PRESS_OPTIONS = ("indenter", "size", "orientation", "mesh", "polar", "azimuth", 
 def _check_args(args) -> None:
     import math
 
-    from ..config import check_count, check_range
-    from ..errors import ConfigError
+    from ..core.config import check_count, check_range
+    from ..core.errors import ConfigError
 
     if args.undeformed:
         given = [name for name in PRESS_OPTIONS if getattr(args, name) is not None]
@@ -131,7 +131,7 @@ def _scene_keys_as_flags():
     Why: the scene file itself was checked when it loaded, so what ``scene.replace`` refuses is a value from the
     command line, and ``scene.camera: width: ...`` names a key the user never wrote.
     """
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     try:
         yield
@@ -154,7 +154,7 @@ def _check_depth(where: str, depth: float, scene) -> None:
     scene : SceneConfig
         The scene rendered: its gel thickness is the deepest press.
     """
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     thickness = scene.dome.thickness
     if not 0 < depth <= thickness:
@@ -166,8 +166,8 @@ def _check_depth(where: str, depth: float, scene) -> None:
 def _press(args):
     from pathlib import Path
 
-    from ..config import from_mapping, read_config_file
-    from ..errors import ConfigError
+    from ..core.config import from_mapping, read_config_file
+    from ..core.errors import ConfigError
     from ..sim.indent import PressConfig
     from ..sim.indenters import with_mesh_beside
 
@@ -236,7 +236,7 @@ def _up_to_date(out, scene, press, seed) -> bool:
     import json
 
     from ..core.capture import is_press_folder
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
     from ..sim.press import recorded_spec_hash, render_spec_hash
 
     if not out.exists():

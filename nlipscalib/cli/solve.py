@@ -83,7 +83,7 @@ SOLVER_KEYWORDS = ("dent_interreflection", "coating_albedo", "interreflection", 
 
 
 def parse_roi(values):
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     if not values:
         return None
@@ -100,9 +100,9 @@ def parse_roi(values):
 
 
 def run(args) -> int:
-    from ..config import from_mapping, read_config_file
     from ..core.capture import no_presses_error, read_meta, split_reference
-    from ..errors import ConfigError
+    from ..core.config import from_mapping, read_config_file
+    from ..core.errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..solver import SolverOptions
 
@@ -153,7 +153,7 @@ def _check_min_leds(options, press, config: str) -> None:
     check ("12 LEDs given; the solver needs at least min_leds=50") says neither where the value came from
     nor which press. The presses of one folder share a sensor, so the first stands for all."""
     from ..core.capture import read_meta
-    from ..errors import CaptureError, ConfigError
+    from ..core.errors import CaptureError, ConfigError
 
     try:
         leds = read_meta(press)["leds"]
@@ -166,7 +166,7 @@ def _check_min_leds(options, press, config: str) -> None:
 def _press_after_roi(args) -> None:
     """``nlips solve --roi auto PRESS``: the press folder follows --roi's values (it takes one or four), so
     argparse gave it to --roi; take it back."""
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     if args.press is None and args.roi and len(args.roi) in (2, 5):
         args.press = args.roi.pop()

@@ -67,9 +67,9 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..config import check_count, options_named
-    from ..cpus import usable_cores
-    from ..errors import ConfigError
+    from ..core.config import check_count, options_named
+    from ..core.cpus import usable_cores
+    from ..core.errors import ConfigError
     from ..learn.dataset import CalibrationDataset
     from ..learn.publish import model_stage, publish_model
     from ..learn.train import TrainConfig, train

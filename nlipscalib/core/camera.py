@@ -23,7 +23,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..errors import ConfigError, ShapeError
+from .errors import ConfigError, ShapeError
 
 LENS_MODELS = ("fisheye", "brown")
 _N_COEFFS = {"fisheye": 4, "brown": 5}
@@ -78,7 +78,7 @@ class Camera:
     def _check_types(self) -> None:
         """ConfigError naming the key whose value is of the wrong type (a hand-edited meta.json or model file),
         before a comparison fails with Python's "'<' not supported between instances of 'str' and 'int'"."""
-        from ..config import is_finite_number, is_number, is_whole_number
+        from .config import is_finite_number, is_number, is_whole_number
 
         for key in ("width", "height"):
             if not is_whole_number(getattr(self, key)):

@@ -26,10 +26,10 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..cpus import usable_cores
-from ..errors import CaptureError, ShapeError
 from .atomic import TMP_PREFIX, atomic_dir, write_json
 from .camera import Camera
+from .cpus import usable_cores
+from .errors import CaptureError, ShapeError
 from .formatfile import read_arrays, read_format_json
 from .imageio import read_png16, save_npz, write_png16
 from .leds import Led, Leds
@@ -109,7 +109,7 @@ class SensorResponse:
     """Analogue gain (informational); >= 0."""
 
     def __post_init__(self):
-        from ..config import is_finite_number, is_whole_number
+        from .config import is_finite_number, is_whole_number
 
         # types first: a string compared below would fail as "'<=' not supported ...", naming no key
         if not is_whole_number(self.bit_depth):

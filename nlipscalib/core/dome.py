@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ConfigError
 from .camera import Camera
 from .capture import Reference
+from .errors import ConfigError
 from .sensor import DomeConfig, SensorDesign
 from .tolerances import NORMAL_EPS
 

@@ -7,7 +7,7 @@ import json
 from collections.abc import Iterable
 from pathlib import Path
 
-from ..errors import CaptureError
+from .errors import CaptureError
 
 
 def read_format_json(

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CaptureError, ShapeError, require
 from .atomic import write_bytes
+from .errors import CaptureError, ShapeError, require
 
 
 def _cv2():
@@ -89,7 +89,7 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 def _check_png_ends(path: Path) -> None:
     """CaptureError for a file that is not a PNG or is cut short (no IEND chunk at its end: an interrupted copy
     or write), found from its first and last bytes: libpng would print its own error line on stderr first."""
-    from ..errors import CaptureError
+    from .errors import CaptureError
 
     with open(path, "rb") as f:
         head = f.read(len(PNG_SIGNATURE))
@@ -115,7 +115,7 @@ def read_npz(
     import zipfile
     import zlib
 
-    from ..errors import CaptureError
+    from .errors import CaptureError
 
     path = Path(path)
     if not path.is_file():

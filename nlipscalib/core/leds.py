@@ -17,8 +17,8 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from ..config import is_number
-from ..errors import ConfigError, ShapeError
+from .config import is_number
+from .errors import ConfigError, ShapeError
 from .metrics import angle_deg
 
 TRICOLOR_COLORS = np.eye(3)

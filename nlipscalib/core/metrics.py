@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import ShapeError
+from .errors import ShapeError
 
 if TYPE_CHECKING:  # names in hints only: importing them here would make an import cycle
     from .capture import GroundTruth

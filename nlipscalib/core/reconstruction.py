@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..errors import CaptureError
 from .atomic import atomic_dir, write_json
+from .errors import CaptureError
 from .formatfile import read_arrays, read_format_json
 from .imageio import save_npz
 from .surface_checks import non_unit_count

@@ -16,9 +16,9 @@ from typing import Literal
 
 import numpy as np
 
-from ..config import check_count, check_range
-from ..errors import ConfigError
 from .camera import Camera
+from .config import check_count, check_range
+from .errors import ConfigError
 from .leds import Led
 
 MIN_IMAGE_SIDE, MAX_IMAGE_SIDE = 8, 16384

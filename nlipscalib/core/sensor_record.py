@@ -13,7 +13,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..errors import CaptureError
+from .errors import CaptureError
 from .leds import Leds, led_geometry_mismatch, tricolor_groups
 from .tolerances import SAME_DISTORTION_ABS, SAME_INTRINSICS_ABS_PX, SAME_INTRINSICS_RTOL
 
@@ -120,9 +120,9 @@ def check_sensor_record(sensor: object, where: str | Path, remedy: str = "") -> 
     """
     import numpy as np
 
-    from ..config import is_finite_number
-    from ..errors import ConfigError
     from .camera import Camera
+    from .config import is_finite_number
+    from .errors import ConfigError
 
     try:
         if not isinstance(sensor, dict):

@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from ..errors import DeviceError
+from ..core.errors import DeviceError
 from .controller import _check_colours, _check_index
 from .errors import DeviceDisconnectedError
 from .port import BAUD_RATE, _serial, check_baudrate, open_port

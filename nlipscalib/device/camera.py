@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import CaptureError, ConfigError, require
 from ..core.imageio import opencv_path, read_image
-from ..errors import CaptureError, ConfigError, require
 
 log = logging.getLogger(__name__)
 

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.camera import Camera
+from ..core.errors import CaptureError, ConfigError, ShapeError, require
 from ..core.imageio import read_image
-from ..errors import CaptureError, ConfigError, ShapeError, require
 
 MIN_VIEWS = 3
 """Views with a detected board needed for a calibration (use 10-20 covering the whole field in practice)."""

@@ -23,7 +23,7 @@ import time
 
 import numpy as np
 
-from ..errors import DeviceError, ShapeError
+from ..core.errors import DeviceError, ShapeError
 from . import protocol as p
 from .errors import (
     BoardError,

@@ -3,7 +3,7 @@ differently, all of them ``DeviceError`` (exit 2, one line)."""
 
 from __future__ import annotations
 
-from ..errors import DeviceError
+from ..core.errors import DeviceError
 
 
 class PortNotFoundError(DeviceError):

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.capture import SensorResponse, linearise
+from ..core.errors import CaptureError, require
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
     EXPOSURE_LIGHT_FRACTION,
@@ -23,7 +24,6 @@ from ..core.tolerances import (
     EXPOSURE_SATURATED_SHARE,
     EXPOSURE_UNUSABLE_SHARE,
 )
-from ..errors import CaptureError, require
 
 NAMED = 3
 """Most files a warning names (then "and N more")."""

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_by_name
+from ..core.errors import ConfigError
 from ..core.imageio import save_npz
-from ..errors import ConfigError
 from .camera import EndOfFrames
 
 
@@ -116,7 +116,7 @@ class ReadAhead:
 def decoding_workers() -> int:
     """Threads :class:`ReadAhead` decodes image files with: the usable cores but one (the predictor's), at
     most 4 (four kept a 640x480 GPU stream fed at ~240-270 frames/s on an H200 host; two gave ~140), at least 1."""
-    from ..cpus import usable_cores
+    from ..core.cpus import usable_cores
 
     return max(1, min(4, usable_cores() - 1))
 

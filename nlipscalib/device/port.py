@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import errno
 
-from ..errors import ConfigError, DeviceError, require
+from ..core.errors import ConfigError, DeviceError, require
 from .errors import PortBusyError, PortNotFoundError, PortPermissionError
 
 BAUD_RATE = 115200

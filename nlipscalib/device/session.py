@@ -41,9 +41,9 @@ from ..core.capture import (
     linearise,
     write_press,
 )
+from ..core.errors import CaptureError, ConfigError, require
 from ..core.leds import TRICOLOR_COLORS, Led, tricolor_groups
 from ..core.tolerances import CAPTURE_CHECK_BLUR
-from ..errors import CaptureError, ConfigError, require
 
 log = logging.getLogger(__name__)
 

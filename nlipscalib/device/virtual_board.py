@@ -25,7 +25,7 @@ import weakref
 
 import numpy as np
 
-from ..errors import require
+from ..core.errors import require
 from . import protocol as p
 
 serial = require("serial", "pyserial", "The virtual LED board")
@@ -71,7 +71,7 @@ def check_board_url(url: str) -> str:
     The commands use it before starting a board, so ``nlipsemu://`` or ``nlipsemu://a/b`` is refused as
     the user's input, not as a failing port.
     """
-    from ..errors import ConfigError
+    from ..core.errors import ConfigError
 
     board_id = url_board_id(url)
     if not board_id or any(c in board_id for c in "/#"):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import importlib
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 EXPERIMENTS = {
     "q1": "q1:Q1",

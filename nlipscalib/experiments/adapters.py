@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import from_mapping
+from ..core.config import from_mapping
+from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led
-from ..errors import CaptureError, ConfigError
 
 SOLVER_RNG_SEED = 0
 """numpy's global generator is seeded with this before every solve and calibration: pyamg draws random

@@ -7,7 +7,7 @@ import math
 from pathlib import Path
 
 from ..core import tolerances
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .summary import METRICS
 
 

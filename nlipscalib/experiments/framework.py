@@ -12,9 +12,9 @@ import dataclasses
 import time
 from pathlib import Path
 
-from ..config import from_mapping, read_config_file, to_mapping
 from ..core.atomic import write_text
-from ..errors import ConfigError
+from ..core.config import from_mapping, read_config_file, to_mapping
+from ..core.errors import ConfigError
 from . import check, markdown
 from .plan import build_tasks
 from .provenance import machine, software

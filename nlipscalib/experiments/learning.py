@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_json
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from .tasks import Task, digest, load_result, reference_folder, samples_path, view_path
 
 log = logging.getLogger(__name__)
@@ -125,7 +125,7 @@ def _finished(path: Path, record: Path, key: str) -> dict | None:
 
 def _train(data, names: list[str], cfg, key: str, path: Path, record: Path, out: Path, progress: bool) -> dict:
     """Train the model ``key`` (resuming its checkpoint) and write its record; the caller holds its claim."""
-    from ..cpus import usable_cores
+    from ..core.cpus import usable_cores
     from ..learn.train import train
 
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -11,8 +11,8 @@ import dataclasses
 
 import numpy as np
 
-from ..config import check_count, to_mapping
-from ..errors import ConfigError
+from ..core.config import check_count, to_mapping
+from ..core.errors import ConfigError
 from ..sim.indent import PressConfig
 from ..sim.indenters import IndenterConfig
 from .tasks import SolveSpec, Task, calibration_id, digest, scene_key

@@ -12,7 +12,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 from ..report import experiments as fig
 from .framework import Table
 from .q2 import MEDIUM, PAPER, Q2, QUICK, TRAINING_COLUMNS, Q2Config, training_summary

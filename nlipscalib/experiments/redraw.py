@@ -13,9 +13,9 @@ import dataclasses
 import json
 from pathlib import Path
 
-from ..config import from_mapping
 from ..core.atomic import write_text
-from ..errors import ConfigError
+from ..core.config import from_mapping
+from ..core.errors import ConfigError
 from . import markdown
 from .framework import Experiment, WorkFigure
 from .provenance import software

@@ -16,8 +16,8 @@ import threading
 from multiprocessing import get_context
 from pathlib import Path
 
-from ..cpus import usable_cores
-from ..errors import ConfigError, MissingDependencyError
+from ..core.cpus import usable_cores
+from ..core.errors import ConfigError, MissingDependencyError
 from .tasks import REUSED, Task, execute, load_result
 
 log = logging.getLogger(__name__)

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes, write_json
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
 SOLVES_DIR = "solves"

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import masks
+from ..core.errors import ShapeError, require
 from ..core.robust_scale import mad_scale
-from ..errors import ShapeError, require
 
 RULE_VERSION = 2
 """Bumped whenever the rule changes, so calibration datasets re-sample their presses."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 
-from ..errors import require
+from ..core.errors import require
 
 log = logging.getLogger(__name__)
 

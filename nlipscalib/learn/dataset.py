@@ -40,10 +40,10 @@ import numpy as np
 
 from .. import __version__
 from ..core.atomic import write_by_name, write_json
+from ..core.errors import CaptureError, ConfigError
 from ..core.formatfile import read_arrays, read_format_json
 from ..core.imageio import save_npz
 from ..core.sensor_record import check_sensor, check_sensor_record, sensor_of
-from ..errors import CaptureError, ConfigError
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
 from .prefilter import Prefilter, check_sigma

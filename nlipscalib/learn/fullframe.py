@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from ..errors import ConfigError, require
+from ..core.errors import ConfigError, require
 from .cuda_graph import record
 from .integrate import RayGeometry
 from .integrate_torch import BoxIntegrator, DomeIntegrator

@@ -16,8 +16,8 @@ import numpy as np
 
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import CLIPPED_VALUE, linearise
+from ..core.errors import CaptureError, ConfigError, ShapeError
 from ..core.tolerances import FRAME_BLACK_FRACTION, FRAME_MISMATCH_FRACTION, SATURATED_SHARE_WARN
-from ..errors import CaptureError, ConfigError, ShapeError
 from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
 from .model import load_model

@@ -31,7 +31,7 @@ import functools
 import numpy as np
 
 from ..core.camera import depth_to_points
-from ..errors import ShapeError
+from ..core.errors import ShapeError
 
 ANCHOR_WEIGHT = 1e-4
 """Weak pull toward the reference log-range, on the unknown regions that touch no known pixel only (their

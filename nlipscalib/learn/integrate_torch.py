@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import ShapeError, require
+from ..core.errors import ShapeError, require
 from .integrate import MIN_FACING, RayGeometry, _box, box_eigenvalues, box_rhs
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only

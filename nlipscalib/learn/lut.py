@@ -13,7 +13,7 @@ import dataclasses
 
 import numpy as np
 
-from ..errors import ShapeError
+from ..core.errors import ShapeError
 
 
 @dataclasses.dataclass

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..errors import CaptureError, require
+from ..core.errors import CaptureError, require
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
     import torch
@@ -215,8 +215,8 @@ class LoadedModel:
 
 def load_model(path: str | Path) -> LoadedModel:
     """Load and validate a model file; every problem is one CaptureError naming the file."""
+    from ..core.errors import ConfigError
     from ..core.sensor_record import check_sensor_record
-    from ..errors import ConfigError
     from .prefilter import check_sigma
 
     torch = _torch()

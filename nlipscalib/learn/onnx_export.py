@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.cpus import usable_cores
+from ..core.errors import CaptureError, require
 from ..core.metrics import angle_deg
-from ..cpus import usable_cores
-from ..errors import CaptureError, require
 
 OPSET = 17
 IR_VERSION = 8

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes
-from ..errors import ShapeError
+from ..core.errors import ShapeError
 
 
 def grid_faces(valid: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from ..errors import ShapeError, require
+from ..core.errors import ShapeError, require
 
 MAX_SIGMA_PX = 50.0
 """Largest sigma accepted, px: a wider Gaussian averages the shading of most of the dome (the useful range
@@ -30,8 +30,8 @@ is 0-3 px), and OpenCV refuses a kernel of ~6 sigma once it exceeds an int ("Can
 def check_sigma(sigma_px, where: str) -> float:
     """``sigma_px`` as a float in [0, :data:`MAX_SIGMA_PX`]; else ConfigError naming ``where`` (an option or
     a file's key)."""
-    from ..config import is_finite_number
-    from ..errors import ConfigError
+    from ..core.config import is_finite_number
+    from ..core.errors import ConfigError
 
     if not (is_finite_number(sigma_px) and 0 <= sigma_px <= MAX_SIGMA_PX):
         raise ConfigError(f"{where} must be a sigma in [0, {MAX_SIGMA_PX:g}] px, got {sigma_px!r}")

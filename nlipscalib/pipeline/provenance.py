@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import __version__
-from ..errors import CaptureError
+from ..core.errors import CaptureError
 
 if TYPE_CHECKING:
     from .settings import SolveSettings

@@ -7,8 +7,8 @@ import logging
 from pathlib import Path
 
 from ..core.atomic import TMP_PREFIX
+from ..core.errors import CaptureError
 from ..core.reconstruction import REPORT_FILE, load_reconstruction, read_report, reconstruction_problem
-from ..errors import CaptureError
 from .status import SKIPPED
 
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"

@@ -7,7 +7,7 @@ import dataclasses
 import logging
 from pathlib import Path
 
-from ..errors import CaptureError, ConfigError
+from ..core.errors import CaptureError, ConfigError
 
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
 

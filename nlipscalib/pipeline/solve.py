@@ -8,6 +8,7 @@ import logging
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+from ..core.errors import CaptureError, ConfigError, NlipsError
 from ..core.reconstruction import (
     Reconstruction,
     check_replaceable,
@@ -15,7 +16,6 @@ from ..core.reconstruction import (
     load_reconstruction,
     reconstruction_dir,
 )
-from ..errors import CaptureError, ConfigError, NlipsError
 from .provenance import capture_identity, make_provenance
 from .reuse import _claim, _clean_interrupted, _leftovers, _published_since, _reuse, _wait_for_release
 from .settings import SolveSettings, check_fits_capture, make_settings

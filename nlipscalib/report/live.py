@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes
-from ..errors import require
+from ..core.errors import require
 from .figures import normals_to_rgb
 from .maps import colour_scalars
 

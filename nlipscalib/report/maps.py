@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes
-from ..errors import ShapeError, require
+from ..core.errors import ShapeError, require
 from .figures import normals_to_rgb
 
 COLORMAPS = {

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cpus import usable_cores
+from ..core.cpus import usable_cores
 
 FIGURE_LEVELS = ("none", "maps", "full")
 """Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""
@@ -38,7 +38,7 @@ def figure_level(figures) -> str:
     if figures is False or figures is None:
         return "none"
     if figures not in FIGURE_LEVELS:
-        from ..errors import ConfigError
+        from ..core.errors import ConfigError
 
         raise ConfigError(f"figures must be one of {FIGURE_LEVELS} (or True/False), got {figures!r}")
     return figures

@@ -11,7 +11,7 @@ import functools
 import numpy as np
 
 from ..core.camera import Camera
-from ..errors import require
+from ..core.errors import require
 
 SUPERSAMPLE = 8
 """Sub-pixel grid per pixel when rasterising the disk PSF: a radius of 0.3 px still blurs a little."""

@@ -26,12 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import check_count, check_range, from_mapping, read_config_file
 from ..core.atomic import check_writable, clean_interrupted, write_if_changed
 from ..core.capture import META_FILE, REFERENCE_FOLDER, is_press_folder
 from ..core.claims import CLAIM_STALE_S
-from ..cpus import usable_cores
-from ..errors import CaptureError, ConfigError, NlipsError
+from ..core.config import check_count, check_range, from_mapping, read_config_file
+from ..core.cpus import usable_cores
+from ..core.errors import CaptureError, ConfigError, NlipsError
 from ..progress import configure_worker, progress_bar, worker_logging
 from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
@@ -298,7 +298,7 @@ def check_space(out: Path, scene: SceneConfig, n_presses: int) -> None:
 
 def manifest_text(spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> str:
     """dataset.json's content: what was asked (the whole spec, whatever ``--limit`` renders)."""
-    from ..config import to_mapping
+    from ..core.config import to_mapping
 
     data = {
         "spec": to_mapping(spec),

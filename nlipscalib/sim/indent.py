@@ -25,9 +25,9 @@ import scipy.sparse.linalg as spla
 import trimesh
 from scipy.spatial import cKDTree
 
+from ..core.errors import ConfigError
 from ..core.sensor import DomeConfig
 from ..core.tolerances import CONTACT_MM, NORMAL_EPS
-from ..errors import ConfigError
 from .dome import check_dome, dome_surface_point, make_dome, project_to_dome
 from .indenters import HeightField, IndenterConfig, indenter_heightfield, make_indenter, mesh_file_stamp
 

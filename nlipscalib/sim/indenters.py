@@ -20,7 +20,7 @@ import trimesh
 from shapely import affinity
 from shapely.geometry import Point, Polygon, box
 
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 IndenterKind = Literal["sphere", "cube", "cylinder", "cone", "screw", "coin", "cap", "gear", "key", "brick", "mesh"]
 Orientation = Literal["default", "face", "edge", "corner", "side", "end"]

@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.capture import write_press
+from ..core.errors import ConfigError
 from ..core.leds import TRICOLOR_COLORS, tricolor_groups
-from ..errors import ConfigError
 from .camera_effects import apply_lens
 from .dome import make_dome
 from .noise import apply_noise, auto_exposure, dark_frame
@@ -150,7 +150,7 @@ def render_spec_hash(scene: SceneConfig, press: PressConfig | None = None, seed:
     the file's path, and an edited mesh must not reuse the press rendered from the old one. Every other
     press's hash is what it was before meshes were hashed, so existing datasets are not rendered again.
     """
-    from ..config import to_mapping
+    from ..core.config import to_mapping
 
     press_dict = None if press is None else to_mapping(press)
     seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
@@ -194,7 +194,7 @@ def recorded_spec_hash(provenance: dict) -> str | None:
 
 
 def _spec_digest(scene_dict: dict, press_dict: dict | None, seed: int, mesh_digest: str | None = None) -> str:
-    from ..config import digest
+    from ..core.config import digest
 
     data = dict(scene_dict)
     data["render"] = {k: v for k, v in data["render"].items() if k != "threads"}
@@ -330,7 +330,7 @@ def gel_surface(scene: SceneConfig, press: PressConfig | None) -> tuple[trimesh.
     if press is None:
         mesh = undeformed_mesh(scene.dome)
         return mesh, np.zeros(len(mesh.vertices), dtype=bool), None
-    from ..config import to_mapping
+    from ..core.config import to_mapping
     from .indent import apply_press
 
     gel = apply_press(scene.dome, press)

@@ -20,12 +20,12 @@ import dataclasses
 from pathlib import Path
 from typing import Literal
 
-from ..config import check_count, check_range, from_mapping, read_config_file, to_mapping
 from ..core.camera import Camera
 from ..core.capture import SensorResponse
+from ..core.config import check_count, check_range, from_mapping, read_config_file, to_mapping
+from ..core.errors import ConfigError
 from ..core.leds import Led
 from ..core.sensor import CameraConfig, DomeConfig, LedConfig, SensorDesign
-from ..errors import ConfigError
 from .render.denoise import DenoiseConfig
 from .render.variant import VARIANTS
 

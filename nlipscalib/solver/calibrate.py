@@ -24,9 +24,9 @@ import numpy as np
 from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
+from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, disk_shading, led_shading
 from ..core.robust_scale import mad_scale
-from ..errors import CaptureError, ConfigError
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 
 log = logging.getLogger(__name__)

@@ -20,9 +20,9 @@ import numpy as np
 from ..core import masks, tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
+from ..core.errors import CaptureError
 from ..core.leds import Leds, led_shading
 from ..core.robust_scale import mad_scale
-from ..errors import CaptureError
 from . import reuse, threads
 
 log = logging.getLogger(__name__)

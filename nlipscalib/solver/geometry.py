@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..core.camera import Camera
-from ..errors import ShapeError
+from ..core.errors import ShapeError
 
 
 def ray_tables(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

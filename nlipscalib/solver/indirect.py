@@ -27,9 +27,9 @@ import numpy as np
 from ..core import masks, tolerances
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import Press
+from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Leds, led_shading
 from ..core.sensor import DomeConfig
-from ..errors import CaptureError, ConfigError
 from . import radiosity, reuse, threads
 from .contact import led_levels
 from .exposure import no_light_reason

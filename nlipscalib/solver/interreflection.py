@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.capture import Press
+from ..core.errors import CaptureError, ShapeError
 from ..core.leds import Leds
-from ..errors import CaptureError, ShapeError
 from .indirect import fit_indirect
 
 

@@ -8,13 +8,13 @@ import json
 from pathlib import Path
 from typing import NamedTuple
 
+from ..core.errors import CaptureError
 from ..core.leds import Led, Leds
 from ..core.reconstruction import (
     Reconstruction,
     load_reconstruction,
     save_reconstruction,
 )
-from ..errors import CaptureError
 
 
 def save_result(result: Reconstruction, folder: str | Path, *, overwrite: bool = False, extra_files=None) -> Path:

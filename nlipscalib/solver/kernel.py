@@ -34,14 +34,14 @@ class Backend:
             self.xp = np
             self.dtype = np.dtype(dtype)
         elif name == "torch":
-            from ..errors import require
+            from ..core.errors import require
 
             torch = require("torch", "torch", "The torch solver backend")
             self.xp = torch
             self.dtype = getattr(torch, dtype)
             self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         else:
-            from ..errors import ConfigError
+            from ..core.errors import ConfigError
 
             raise ConfigError(f"backend must be 'numpy' or 'torch', got {name!r}")
 

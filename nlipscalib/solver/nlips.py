@@ -27,11 +27,11 @@ import scipy.sparse as sp
 
 from ..core import masks
 from ..core.camera import Camera
+from ..core.errors import ConfigError
 from ..core.leds import Leds, led_arrays
 from ..core.metrics import angle_deg
 from ..core.reconstruction import Reconstruction
 from ..core.robust_scale import mad_scale
-from ..errors import ConfigError
 from . import geometry, reuse
 from .blas import blas_threads
 from .inputs import check_inputs

@@ -1,4 +1,4 @@
-"""Options of the NLiPs solver (frozen dataclass; fill from TOML/YAML with :func:`nlipscalib.config.from_mapping`)."""
+"""NLiPs solver options: a frozen dataclass that :func:`nlipscalib.core.config.from_mapping` fills from TOML/YAML."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import dataclasses
 from typing import Literal
 
 from ..core import tolerances
-from ..errors import ConfigError
+from ..core.errors import ConfigError
 
 Estimator = Literal["cauchy", "ls", "huber", "tukey"]
 

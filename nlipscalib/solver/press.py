@@ -28,8 +28,8 @@ import numpy as np
 
 from ..core import diskcache, tolerances
 from ..core.capture import Press
+from ..core.errors import CaptureError, ShapeError
 from ..core.metrics import angle_deg
-from ..errors import CaptureError, ShapeError
 from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box
 from .exposure import nothing_to_fit, saturated_share, saturation_note

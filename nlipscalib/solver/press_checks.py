@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..core import tolerances
+from ..core.errors import CaptureError, ConfigError, ShapeError
 from ..core.leds import led_geometry_mismatch
-from ..errors import CaptureError, ConfigError, ShapeError
 
 INTERREFLECTION_MODES = ("auto", "on", "off")
 MIN_ROI_SIDE = 4

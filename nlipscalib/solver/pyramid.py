@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.camera import Camera
-from ..errors import ShapeError
+from ..core.errors import ShapeError
 from . import geometry
 from .options import SolverOptions
 

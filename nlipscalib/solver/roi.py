@@ -9,7 +9,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..core import masks, tolerances
-from ..errors import CaptureError
+from ..core.errors import CaptureError
 from .contact import ContactMap, contact_box, contact_hits
 from .nlips import SolveResult
 

@@ -14,7 +14,7 @@ import threading
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 
-from ..cpus import usable_cores
+from ..core.cpus import usable_cores
 
 _PREFIX = "nlips-pool"
 _workers: int | None = None

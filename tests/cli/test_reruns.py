@@ -126,7 +126,7 @@ def test_render_rerun_same_spec_skips_changed_spec_refuses(tmp_path, capsys):
 
 def test_press_from_before_spec_hashes_is_recognised():
     """Folders written before spec_hash existed: the hash is recomputed from their provenance."""
-    from nlipscalib.config import to_mapping
+    from nlipscalib.core.config import to_mapping
     from nlipscalib.sim.indent import PressConfig
     from nlipscalib.sim.press import recorded_spec_hash, render_spec_hash
     from nlipscalib.sim.scene import load_scene

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core.camera import Camera
-from nlipscalib.errors import ConfigError, ShapeError
+from nlipscalib.core.errors import ConfigError, ShapeError
 
 cv2 = pytest.importorskip("cv2")
 

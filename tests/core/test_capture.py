@@ -7,7 +7,7 @@ import pytest
 from nlipscalib.core import Camera, Led, Reference, SensorResponse, load_press, write_press
 from nlipscalib.core.atomic import TMP_PREFIX, atomic_dir, clean_interrupted
 from nlipscalib.core.capture import GroundTruth, find_presses
-from nlipscalib.errors import CaptureError
+from nlipscalib.core.errors import CaptureError
 
 H, W = 12, 16
 
@@ -331,7 +331,7 @@ def test_linearise_rejects_an_image_that_does_not_end_with_the_dark_frames_shape
     """A (1, W, 3) dark frame (or a (H, W, 1) image) broadcast silently, and a transposed frame raised numpy's
     "operands could not be broadcast"; a scalar level against the gel's dark values stays allowed (infer)."""
     from nlipscalib.core.capture import linearise
-    from nlipscalib.errors import ShapeError
+    from nlipscalib.core.errors import ShapeError
 
     dark = np.full((4, 5, 3), 256, np.uint16)
     assert linearise(np.full((2, 4, 5, 3), 512, np.uint16), dark, 256.0, 512.0).shape == (2, 4, 5, 3)

@@ -1,7 +1,7 @@
 import pytest
 
-from nlipscalib.config import from_mapping
-from nlipscalib.errors import ConfigError
+from nlipscalib.core.config import from_mapping
+from nlipscalib.core.errors import ConfigError
 from nlipscalib.sim.scene import SCENES_DIR, SceneConfig, load_scene
 
 
@@ -57,7 +57,7 @@ def test_yaml_and_unparsable_files(tmp_path):
 def test_a_yaml_file_that_does_not_parse_is_one_line_naming_file_and_place(tmp_path, text):
     """PyYAML's message spans several lines (quoting the file, a caret under the place): one line of an error
     message became five on the user's terminal."""
-    from nlipscalib.config import read_config_file
+    from nlipscalib.core.config import read_config_file
 
     bad = tmp_path / "exp.yaml"
     bad.write_text(text)
@@ -70,7 +70,7 @@ def test_a_yaml_file_that_does_not_parse_is_one_line_naming_file_and_place(tmp_p
 def test_an_empty_yaml_file_reads_as_an_empty_toml_file(tmp_path):
     """An empty (or comments-only) YAML config was refused ("the top level must be a table/mapping") while an
     empty TOML file gives every default."""
-    from nlipscalib.config import read_config_file
+    from nlipscalib.core.config import read_config_file
 
     (tmp_path / "a.yaml").write_text("# nothing changed yet\n")
     (tmp_path / "a.toml").write_text("# nothing changed yet\n")

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.core.imageio import read_npz, save_npz
-from nlipscalib.errors import CaptureError
 from tests.core.test_reconstruction import _spoil_deflated_member
 
 

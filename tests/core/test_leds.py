@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from nlipscalib.core.errors import ConfigError, ShapeError
 from nlipscalib.core.leds import Led, led_shading, tricolor_groups
-from nlipscalib.errors import ConfigError, ShapeError
 
 
 def test_shading_known_answer_directly_below_led():

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from nlipscalib.core.errors import ShapeError
 from nlipscalib.core.metrics import aae, angle_deg, angular_error_map, depth_rmse, mabse
-from nlipscalib.errors import ShapeError
 
 
 def test_metrics_values():

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.core.reconstruction import Reconstruction, load_reconstruction, save_reconstruction
-from nlipscalib.errors import CaptureError
 
 
 def _rec(h=4, w=5):

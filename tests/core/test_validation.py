@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from nlipscalib.cli import main
-from nlipscalib.errors import ConfigError, NlipsError
+from nlipscalib.core.errors import ConfigError, NlipsError
 from nlipscalib.sim.dataset import load_dataset_spec
 from nlipscalib.sim.scene import load_scene
 

@@ -11,9 +11,9 @@ import time
 import numpy as np
 import pytest
 
+from nlipscalib.core.errors import ShapeError
 from nlipscalib.device.adalight import AdalightController, adalight_frame, adalight_header
 from nlipscalib.device.controller import DeviceDisconnectedError, LedIndexError
-from nlipscalib.errors import ShapeError
 
 
 def parse_adalight_stream(stream: bytes) -> list[np.ndarray]:

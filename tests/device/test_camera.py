@@ -5,6 +5,7 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
+from nlipscalib.core.errors import CaptureError  # noqa: E402
 from nlipscalib.device.camera import (  # noqa: E402
     CameraSettings,
     FolderSource,
@@ -14,7 +15,6 @@ from nlipscalib.device.camera import (  # noqa: E402
     open_source,
     to_stored,
 )
-from nlipscalib.errors import CaptureError  # noqa: E402
 
 
 def test_folder_keeps_16_bit_and_rgb_order(tmp_path):

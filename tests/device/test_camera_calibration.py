@@ -8,6 +8,7 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 
 from nlipscalib.core import Camera  # noqa: E402
+from nlipscalib.core.errors import CaptureError  # noqa: E402
 from nlipscalib.device.camera_calibration import (  # noqa: E402
     Target,
     board_points,
@@ -15,7 +16,6 @@ from nlipscalib.device.camera_calibration import (  # noqa: E402
     calibrate_images,
     find_corners,
 )
-from nlipscalib.errors import CaptureError  # noqa: E402
 
 PATTERN, SQUARE = (8, 6), 3.0
 TRUE = Camera.from_fov(320, 240, 110.0, "fisheye", (0.06, -0.02, 0.004, -0.001))

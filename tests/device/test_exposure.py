@@ -8,8 +8,8 @@ import pytest
 pytest.importorskip("cv2")
 
 from nlipscalib.core import SensorResponse  # noqa: E402
+from nlipscalib.core.errors import CaptureError  # noqa: E402
 from nlipscalib.device.exposure import check_exposure  # noqa: E402
-from nlipscalib.errors import CaptureError  # noqa: E402
 
 H, W, L = 24, 32, 6
 RESPONSE = SensorResponse(bit_depth=16, black_level=0.0, white_level=65535.0)

@@ -6,9 +6,9 @@ import pytest
 cv2 = pytest.importorskip("cv2")
 
 from nlipscalib.cli import main  # noqa: E402
+from nlipscalib.core.errors import CaptureError  # noqa: E402
 from nlipscalib.device.camera import FolderSource, SequenceSource  # noqa: E402
 from nlipscalib.device.live import ReadAhead, StopLive, stream  # noqa: E402
-from nlipscalib.errors import CaptureError  # noqa: E402
 
 from .fakes import flat_predictor  # noqa: E402
 

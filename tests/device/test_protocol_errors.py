@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import serial
 
+from nlipscalib.core.errors import ConfigError, DeviceError, NlipsError, ShapeError
 from nlipscalib.device import controller as c
 from nlipscalib.device import port
 from nlipscalib.device.virtual_board import VirtualBoard
-from nlipscalib.errors import ConfigError, DeviceError, NlipsError, ShapeError
 
 
 def test_missing_port_names_it():

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core import Camera, Led, SensorResponse, load_press, tricolor_groups
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.device.session import (
     Operator,
     Rig,
@@ -12,7 +13,6 @@ from nlipscalib.device.session import (
     frame_sequence,
     run_session,
 )
-from nlipscalib.errors import CaptureError
 
 from .fakes import FakeController, LitSource
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from nlipscalib.cli import main
-from nlipscalib.config import from_mapping
+from nlipscalib.core.config import from_mapping
 from nlipscalib.experiments import get
 from nlipscalib.experiments.q1 import Q1
 

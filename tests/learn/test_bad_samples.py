@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.cli import main
-from nlipscalib.errors import CaptureError, ConfigError
+from nlipscalib.core.errors import CaptureError, ConfigError
 from nlipscalib.learn.dataset import CalibrationDataset, SamplingConfig
 from nlipscalib.learn.model import load_model
 from nlipscalib.learn.train import train

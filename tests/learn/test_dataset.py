@@ -9,7 +9,7 @@ import pytest
 
 from nlipscalib.cli import main
 from nlipscalib.core import load_press, load_reconstruction
-from nlipscalib.errors import CaptureError
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.learn.dataset import SOURCE_NLIPS, SOURCE_REFERENCE, CalibrationDataset, SamplingConfig
 from nlipscalib.learn.prefilter import Prefilter
 
@@ -139,7 +139,7 @@ def test_cli_calibrate_raw_colours_on_request_and_refuses_a_negative_sigma(twin_
     + [("rest_per_cell", -1), ("seed", -1), ("smoothing_px", float("nan")), ("min_leds", 2.5)],
 )
 def test_sampling_config_refuses_out_of_range_fields(field, value):
-    from nlipscalib.errors import ConfigError
+    from nlipscalib.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match=f"^{field} "):
         SamplingConfig(**{field: value})

@@ -5,8 +5,8 @@ import pytest
 
 from nlipscalib.cli import main
 from nlipscalib.core import load_press, load_reconstruction
+from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.metrics import evaluate
-from nlipscalib.errors import ConfigError
 from nlipscalib.learn.infer import Predictor
 from nlipscalib.learn.prefilter import Prefilter
 

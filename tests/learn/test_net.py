@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.cli import main
-from nlipscalib.errors import CaptureError
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.learn.evaluate import net_predict, sample_scores
 from nlipscalib.learn.lut import LookupTable
 from nlipscalib.learn.model import PAPER_HIDDEN, load_model
@@ -160,7 +160,7 @@ def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
 
 
 def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp_path, monkeypatch):
-    from nlipscalib.errors import ConfigError
+    from nlipscalib.core.errors import ConfigError
     from nlipscalib.learn import train as train_module
     from nlipscalib.learn.train import TrainConfig, train
 
@@ -206,7 +206,7 @@ def test_cli_train_refuses_out_of_range_options_in_one_line_naming_them(calib, t
     + [("patience", -1), ("threads", 0), ("seed", -1), ("max_epochs", 2.5), ("hidden", (16, 0))],
 )
 def test_train_config_refuses_out_of_range_fields(field, value):
-    from nlipscalib.errors import ConfigError
+    from nlipscalib.core.errors import ConfigError
     from nlipscalib.learn.train import TrainConfig
 
     with pytest.raises(ConfigError, match=f"^{field} "):

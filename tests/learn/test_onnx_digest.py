@@ -5,7 +5,7 @@ import shutil
 
 import pytest
 
-from nlipscalib.errors import CaptureError
+from nlipscalib.core.errors import CaptureError
 from tests.learn.test_fast_paths import _reference, _sensor, _trained_like_net
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nlipscalib.errors import ShapeError
+from nlipscalib.core.errors import ShapeError
 from nlipscalib.learn.prefilter import Prefilter, kernel_radius
 
 

@@ -14,7 +14,7 @@ from nlipscalib.cli import main
 from nlipscalib.core import claims as claims_module
 from nlipscalib.core.atomic import TMP_PREFIX
 from nlipscalib.core.claims import HOST, claim
-from nlipscalib.errors import CaptureError
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.learn import dataset as dataset_module
 from nlipscalib.learn.checkpoint import checkpoint_path
 from nlipscalib.learn.dataset import CalibrationDataset, build_dataset

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core.atomic import TMP_PREFIX
-from nlipscalib.errors import ConfigError
+from nlipscalib.core.errors import ConfigError
 from nlipscalib.sim import dataset as ds
 from nlipscalib.sim.dataset import DatasetSpec, expand_jobs, load_dataset_spec, run_dataset
 from nlipscalib.sim.press import render_spec_hash

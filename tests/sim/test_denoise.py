@@ -61,7 +61,7 @@ def test_light_is_not_blurred_across_an_edge_of_the_geometry(edge):
 
 
 def test_bad_settings_and_guides_are_refused():
-    from nlipscalib.errors import ConfigError
+    from nlipscalib.core.errors import ConfigError
 
     with pytest.raises(ConfigError):
         DenoiseConfig(iterations=9)

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nlipscalib.errors import ConfigError
+from nlipscalib.core.errors import ConfigError
 from nlipscalib.sim.dome import dome_inward_normals, dome_surface_point, make_dome
 from nlipscalib.sim.scene import DomeConfig, load_scene
 

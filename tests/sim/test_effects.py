@@ -6,8 +6,8 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from nlipscalib.core import led_shading, load_press  # noqa: E402
+from nlipscalib.core.errors import ConfigError  # noqa: E402
 from nlipscalib.core.leds import Led  # noqa: E402
-from nlipscalib.errors import ConfigError  # noqa: E402
 from nlipscalib.sim.camera_effects import defocus, disk_psf, vignetting_map  # noqa: E402
 from nlipscalib.sim.noise import apply_noise, dark_frame  # noqa: E402
 from nlipscalib.sim.press import render_press, undeformed_mesh  # noqa: E402

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from nlipscalib.errors import ConfigError
+from nlipscalib.core.errors import ConfigError
 from nlipscalib.sim.dome import make_dome
 from nlipscalib.sim.indent import PressConfig, _heightfield, apply_press
 from nlipscalib.sim.indenters import IndenterConfig

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nlipscalib.errors import ConfigError
+from nlipscalib.core.errors import ConfigError
 from nlipscalib.sim.indenters import _ORIENTATIONS, IndenterConfig, indenter_heightfield, make_indenter
 
 PYRAMID = Path(__file__).resolve().parents[2] / "scenes" / "indenters" / "pyramid.stl"

@@ -5,8 +5,8 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from nlipscalib.config import to_mapping  # noqa: E402
 from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.core.config import to_mapping  # noqa: E402
 from nlipscalib.sim.press import render_press, scene_exposure, tricolor_linear  # noqa: E402
 from nlipscalib.sim.scene import SceneConfig  # noqa: E402
 
@@ -58,7 +58,7 @@ def test_overwrite_guard(scene, tmp_path):
 def test_pressed_dome_has_contact_and_same_exposure(scene, tmp_path):
     indent = pytest.importorskip("nlipscalib.sim.indent")
     from nlipscalib.cli.render import DEFAULT_PRESS
-    from nlipscalib.config import from_mapping
+    from nlipscalib.core.config import from_mapping
 
     press = from_mapping(indent.PressConfig, DEFAULT_PRESS | {"indenter": {"kind": "sphere"}, "depth": 1.5}, "press")
     p = load_press(render_press(scene.replace(camera={"width": 80, "height": 60}), press, tmp_path / "p", seed=2))
@@ -79,7 +79,7 @@ def test_default_seed_differs_between_presses_and_repeats_for_one():
 def test_only_a_mesh_press_hashes_its_file_content(tmp_path):
     """Hashing a mesh indenter's file must leave every other press's spec hash as it was (values from the code
     before mesh content was hashed): a changed hash re-renders or refuses every existing dataset's presses."""
-    from nlipscalib.config import digest
+    from nlipscalib.core.config import digest
     from nlipscalib.sim.indent import IndenterConfig, PressConfig
     from nlipscalib.sim.press import press_seed, render_spec_hash
 

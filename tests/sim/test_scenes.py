@@ -31,7 +31,7 @@ def test_shipped_scene_sees_the_whole_gel_without_holes(tmp_path, name):
 
 def test_a_scene_name_that_is_neither_a_file_nor_shipped_says_so_and_lists_the_shipped_ones():
     """It read "nowhere: no such config file" (a scene name is not a config file the user wrote)."""
-    from nlipscalib.errors import ConfigError
+    from nlipscalib.core.errors import ConfigError
 
     with pytest.raises(ConfigError) as err:
         load_scene("nowhere")

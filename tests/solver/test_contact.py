@@ -6,7 +6,7 @@ import pytest
 
 from nlipscalib.cli import main
 from nlipscalib.core import Led, load_press
-from nlipscalib.errors import CaptureError
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.solver import SolverOptions, evaluate, solve_press
 from nlipscalib.solver.contact import classify_contact
 

@@ -10,8 +10,8 @@ import pytest
 
 from nlipscalib.cli import main
 from nlipscalib.core import load_press
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.core.tolerances import SATURATED_SHARE_WARN
-from nlipscalib.errors import CaptureError
 from nlipscalib.solver import calibrate_leds, solve_press
 from nlipscalib.solver.exposure import saturated_share
 from nlipscalib.solver.indirect import fit_indirect

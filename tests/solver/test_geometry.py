@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core import led_arrays
-from nlipscalib.errors import ShapeError
+from nlipscalib.core.errors import ShapeError
 from nlipscalib.solver import geometry
 from nlipscalib.solver.kernel import Backend, Model
 

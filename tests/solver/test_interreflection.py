@@ -196,7 +196,7 @@ def test_the_relaxed_outer_loop_settles_where_the_plain_one_oscillates(bounce1):
 
 
 def test_outer_relaxation_out_of_range_is_a_config_error(bounce1):
-    from nlipscalib.errors import ConfigError
+    from nlipscalib.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="outer_relaxation"):
         solve_press(bounce1[1], outer_relaxation=3.0)

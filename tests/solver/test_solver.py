@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core import load_press
-from nlipscalib.errors import CaptureError, ShapeError
+from nlipscalib.core.errors import CaptureError, ShapeError
 from nlipscalib.solver import SolverOptions, evaluate, solve, solve_press
 
 from . import synth

@@ -259,7 +259,7 @@ def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_inte
     np.testing.assert_allclose(
         half.undeformed_light((HEIGHT, WIDTH)), model.undeformed_light((HEIGHT, WIDTH)) / 2, rtol=1e-5, atol=1e-12
     )
-    from nlipscalib.errors import ConfigError
+    from nlipscalib.core.errors import ConfigError
 
     with pytest.raises(ConfigError, match="reflectance must be in"):
         model.with_reflectance(1.5)

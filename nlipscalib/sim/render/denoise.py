@@ -33,7 +33,7 @@ class DenoiseConfig:
     depth gradient predicts weighs exp(-1): slopes pass, steps (occlusion edges) do not."""
 
     def __post_init__(self):
-        from ...errors import ConfigError
+        from ...core.errors import ConfigError
 
         if not 0 <= self.iterations <= 6:
             raise ConfigError(f"denoise.iterations must be 0-6, got {self.iterations}")

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...core.capture import GroundTruth, Reference
-from ...errors import ConfigError
+from ...core.errors import ConfigError
 from .mesh import CONTACT_ATTR
 
 

@@ -13,8 +13,8 @@ import os
 import subprocess
 import sys
 
-from ...cpus import usable_cores
-from ...errors import ConfigError, require
+from ...core.cpus import usable_cores
+from ...core.errors import ConfigError, require
 
 log = logging.getLogger(__name__)
 

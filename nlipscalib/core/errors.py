@@ -4,6 +4,10 @@ All are ``ValueError`` subclasses so that callers who only know numpy-style erro
 the CLI turns them into one readable line instead of a traceback.
 """
 
+from __future__ import annotations
+
+from types import ModuleType
+
 
 class NlipsError(ValueError):
     """Base class of every error the workbench raises on purpose."""
@@ -29,7 +33,7 @@ class MissingDependencyError(ImportError):
     """An optional heavy dependency (mitsuba, OpenCV, onnxruntime, pyserial, torch) is not installed."""
 
 
-def require(module: str, extra: str, purpose: str):
+def require(module: str, extra: str, purpose: str) -> ModuleType:
     """Import an optional module or fail with a message saying how to install it.
 
     Parameters

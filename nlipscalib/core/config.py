@@ -15,9 +15,13 @@ import numbers
 import tomllib
 import types
 import typing
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any, TypeVar
 
 from .errors import ConfigError
+
+ConfigT = TypeVar("ConfigT")  # from_mapping returns an instance of the config class it is given
 
 
 def read_config_file(path: str | Path) -> dict:
@@ -56,7 +60,7 @@ def _parse_problem(exc: Exception) -> str:
     return " ".join(str(exc).split())
 
 
-def from_mapping(cls, data, where: str = ""):
+def from_mapping(cls: type[ConfigT], data: Any, where: str = "") -> ConfigT:
     """Build dataclass ``cls`` from ``data``, recursively, validating keys and types.
 
     Parameters
@@ -90,7 +94,7 @@ def from_mapping(cls, data, where: str = ""):
         raise ConfigError(f"{where}: {exc}") from None
 
 
-def _over_default(field: dataclasses.Field, value):
+def _over_default(field: dataclasses.Field, value: Any) -> Any:
     """A table given for a field whose default is a config (a dataclass instance): its keys over that default's.
 
     Why: a section sets what it names and keeps the rest of the *field's* default, not of its class; e.g. Q2's
@@ -106,7 +110,7 @@ def _over_default(field: dataclasses.Field, value):
     return _merged(default, value)
 
 
-def _merged(default, value):
+def _merged(default: Any, value: Any) -> Any:
     """``value`` (a mapping) over the fields of config instance ``default``, recursively; else ``value``."""
     if not isinstance(value, dict) or not dataclasses.is_dataclass(default) or isinstance(default, type):
         return value
@@ -116,10 +120,10 @@ def _merged(default, value):
     return out
 
 
-def to_mapping(obj) -> dict:
+def to_mapping(obj: Any) -> dict:
     """Plain JSON/TOML-able dict of a (nested) config dataclass."""
 
-    def plain(v):
+    def plain(v: Any) -> Any:
         if dataclasses.is_dataclass(v):
             return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
         if isinstance(v, (list, tuple)):
@@ -137,22 +141,24 @@ def check_count(name: str, value: int, minimum: int = 0, where: str = "") -> int
     return value
 
 
-def is_number(value) -> bool:
+def is_number(value: object) -> bool:
     """A real number as JSON, TOML or numpy give one (an int, a float, a numpy scalar); ``True`` is not one."""
     return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
-def is_finite_number(value) -> bool:
+def is_finite_number(value: object) -> bool:
     """:func:`is_number` and neither NaN nor infinite."""
     return is_number(value) and math.isfinite(value)
 
 
-def is_whole_number(value) -> bool:
+def is_whole_number(value: object) -> bool:
     """An integer (a Python or numpy int), not a bool nor a float such as 640.0."""
     return isinstance(value, numbers.Integral) and not isinstance(value, bool)
 
 
-def check_range(where: str, value: float, lo: float | None = None, hi: float | None = None, *, open_lo=False) -> float:
+def check_range(
+    where: str, value: float, lo: float | None = None, hi: float | None = None, *, open_lo: bool = False
+) -> float:
     """``value`` within [lo, hi] (``open_lo``: strictly above lo); else ConfigError naming ``where``."""
     below = lo is not None and (value <= lo if open_lo else value < lo)
     if below or (hi is not None and value > hi) or value != value:
@@ -163,7 +169,7 @@ def check_range(where: str, value: float, lo: float | None = None, hi: float | N
 
 
 @contextlib.contextmanager
-def options_named(option_of: dict[str, str]):
+def options_named(option_of: dict[str, str]) -> Iterator[None]:
     """Inside: a ConfigError whose message starts with a config field's name (as the frozen configs' checks
     word them) is raised again with the command-line option the user typed, e.g. ``max_epochs`` -> ``--epochs``."""
     try:
@@ -173,7 +179,7 @@ def options_named(option_of: dict[str, str]):
         raise ConfigError(f"{option_of.get(field, field)} {rest}") from None
 
 
-def digest(obj) -> str:
+def digest(obj: Any) -> str:
     """Short stable hash of a config (dataclass or JSON-able mapping): what made a result.
 
     Recorded with results so that a re-run with a changed spec is noticed instead of silently reusing
@@ -186,7 +192,7 @@ def digest(obj) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def _convert(tp, value, where: str):
+def _convert(tp: Any, value: Any, where: str) -> Any:
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
     if origin in (typing.Union, types.UnionType):

@@ -2,7 +2,7 @@
 
 import os
 
-from nlipscalib.cpus import usable_cores
+from nlipscalib.core.cpus import usable_cores
 
 
 def test_usable_cores_follows_the_affinity_and_falls_back_to_the_core_count(monkeypatch):
