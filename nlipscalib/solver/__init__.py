@@ -7,7 +7,7 @@ from ..core.metrics import aae, angular_error_map, depth_rmse, evaluate, mabse
 from .calibrate import LedCalibration, calibrate_leds
 from .contact import ContactMap, classify_contact
 from .indirect import IndirectModel, fit_indirect
-from .io import load_leds, load_result, save_leds, save_result
+from .io import load_leds, save_leds
 from .nlips import SolveResult, exclusions, solve
 from .options import SolverOptions
 from .press import solve_press
@@ -27,10 +27,8 @@ __all__ = [
     "evaluate",
     "exclusions",
     "load_leds",
-    "load_result",
     "mabse",
     "save_leds",
-    "save_result",
     "solve",
     "solve_press",
 ]

@@ -1,6 +1,4 @@
-"""Saving solver results next to a press (the core reconstruction format) and LED parameter files.
-
-No figures here: nlipscalib.report draws them (the CLI passes them in as ``extra_files``)."""
+"""LED parameter files (docs/formats.md "LED file")."""
 
 from __future__ import annotations
 
@@ -9,24 +7,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from ..core.leds import Led, Leds
-from ..core.reconstruction import (
-    Reconstruction,
-    load_reconstruction,
-    save_reconstruction,
-)
 from ..errors import CaptureError
-
-
-def save_result(result: Reconstruction, folder: str | Path, *, overwrite: bool = False, extra_files=None) -> Path:
-    """Write the reconstruction atomically into ``folder`` (core.reconstruction.save_reconstruction).
-
-    ``extra_files(tmp_folder)`` may add files (figures) that appear together with the result.
-    """
-    return save_reconstruction(result, folder, overwrite, extra_files)
-
-
-def load_result(folder: str | Path) -> Reconstruction:
-    return load_reconstruction(folder)
 
 
 def save_leds(path: str | Path, leds: Leds, extra: dict | None = None) -> Path:
