@@ -62,11 +62,12 @@ def run(args) -> int:
 
     from ..config import check_count
     from ..core.capture import load_press
+    from ..core.ledfile import save_leds
     from ..core.metrics import angle_deg
     from ..core.sensor_record import sensor_of
     from ..errors import ConfigError
     from ..progress import track, working
-    from ..solver import calibrate_leds, save_leds
+    from ..solver import calibrate_leds
 
     check_count("--stride", args.stride, minimum=1)
     if args.coating_reflectance is not None and not 0 < args.coating_reflectance <= 1:

@@ -7,7 +7,6 @@ from ..core.metrics import aae, angular_error_map, depth_rmse, evaluate, mabse
 from .calibrate import LedCalibration, calibrate_leds
 from .contact import ContactMap, classify_contact
 from .indirect import IndirectModel, fit_indirect
-from .io import load_leds, save_leds
 from .nlips import SolveResult, exclusions, solve
 from .options import SolverOptions
 from .press import solve_press
@@ -26,9 +25,7 @@ __all__ = [
     "depth_rmse",
     "evaluate",
     "exclusions",
-    "load_leds",
     "mabse",
-    "save_leds",
     "solve",
     "solve_press",
 ]

@@ -1,4 +1,7 @@
-"""LED parameter files (docs/formats.md "LED file")."""
+"""The LED file (docs/formats.md "LED file"): calibrated LEDs and the sensor they were calibrated on.
+
+Written by ``nlips calibrate-leds``, read by ``nlips solve|calibrate|capture --leds FILE``. In core with the
+other formats: the pipeline, the CLI and the device capture read it, the solver only gets its LEDs."""
 
 from __future__ import annotations
 
@@ -6,14 +9,15 @@ import json
 from pathlib import Path
 from typing import NamedTuple
 
-from ..core.leds import Led, Leds
 from ..errors import CaptureError
+from .atomic import write_json
+from .leds import Led, Leds
+from .sensor_record import check_sensor_record
 
 
 def save_leds(path: str | Path, leds: Leds, extra: dict | None = None) -> Path:
-    """Write an LED file: {"leds": [Led.to_dict() ...], ...extra} (``nlips solve --leds FILE``)."""
-    from ..core.atomic import write_json
-
+    """Write an LED file atomically: {"leds": [Led.to_dict() ...], ...extra}; ``extra`` holds the calibration's
+    other keys (``sensor``, ``quality``, ...). Returns ``path``."""
     return write_json(path, {"leds": [led.to_dict() for led in leds]} | (extra or {}))
 
 
@@ -27,15 +31,8 @@ class LedFile(NamedTuple):
     LED count and design geometry); None in files written before it was recorded (2026-12-04)."""
 
 
-def load_leds(path: str | Path) -> tuple[Led, ...]:
-    """The LEDs of an LED file (:func:`read_led_file`)."""
-    return read_led_file(path).leds
-
-
 def read_led_file(path: str | Path) -> LedFile:
     """Read an LED file from ``nlips calibrate-leds`` (CaptureError naming it when missing or malformed)."""
-    from ..core.sensor_record import check_sensor_record
-
     path = Path(path)
     try:
         data = json.loads(path.read_text())
