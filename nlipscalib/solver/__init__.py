@@ -3,7 +3,6 @@
 Never imports nlipscalib.sim or nlipscalib.device: it works from captures (``Press``) or plain arrays.
 """
 
-from ..core.metrics import aae, angular_error_map, depth_rmse, evaluate, mabse
 from .calibrate import LedCalibration, calibrate_leds
 from .contact import ContactMap, classify_contact
 from .indirect import IndirectModel, fit_indirect
@@ -19,13 +18,8 @@ __all__ = [
     "LedCalibration",
     "SolveResult",
     "SolverOptions",
-    "aae",
-    "angular_error_map",
     "calibrate_leds",
-    "depth_rmse",
-    "evaluate",
     "exclusions",
-    "mabse",
     "solve",
     "solve_press",
 ]

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from nlipscalib.core import load_press
+from nlipscalib.core.metrics import evaluate
 from nlipscalib.errors import CaptureError, ShapeError
-from nlipscalib.solver import SolverOptions, evaluate, solve, solve_press
+from nlipscalib.solver import SolverOptions, solve, solve_press
 
 from . import synth
 

@@ -12,11 +12,12 @@ pytest.importorskip("mitsuba")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import Led, load_press, load_reconstruction  # noqa: E402
+from nlipscalib.core.metrics import evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
-from nlipscalib.solver import calibrate_leds, evaluate, solve_press  # noqa: E402
+from nlipscalib.solver import calibrate_leds, solve_press  # noqa: E402
 from nlipscalib.solver.interreflection import estimate_indirect  # noqa: E402
 
 WIDTH, HEIGHT = 160, 120
