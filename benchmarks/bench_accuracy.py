@@ -26,12 +26,12 @@ from common import write_section
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nlipscalib.core import Led, load_press  # noqa: E402
-from nlipscalib.core.metrics import angle_deg  # noqa: E402
+from nlipscalib.core.metrics import angle_deg, evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
-from nlipscalib.solver import calibrate_leds, evaluate, solve_press  # noqa: E402
+from nlipscalib.solver import calibrate_leds, solve_press  # noqa: E402
 
 PRESSES = {
     "sphere": PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5),

@@ -115,7 +115,8 @@ mark("import nlipscalib.solver (numpy, scipy.sparse[.linalg])")
 from nlipscalib.core.capture import load_press
 from nlipscalib.pipeline import make_provenance, make_settings
 from nlipscalib.report import write_reconstruction_figures
-from nlipscalib.solver import save_result, solve_press
+from nlipscalib.core.reconstruction import save_reconstruction
+from nlipscalib.solver import solve_press
 mark("import pipeline, report")
 folder, roi = sys.argv[1], (None if sys.argv[2] == "full" else "auto")
 prov = make_provenance(folder, make_settings(roi=roi))
@@ -124,7 +125,7 @@ press = load_press(folder)
 mark("load_press (14 PNG + 2 npz)")
 res = solve_press(press, roi=roi)
 mark("solve_press: solver timer %.2f s wall" % res.report["seconds"])
-save_result(res, sys.argv[3], overwrite=True)
+save_reconstruction(res, sys.argv[3], overwrite=True)
 mark("save result.npz + report.json")
 write_reconstruction_figures(sys.argv[4], res, press.ground_truth)
 mark("figure maps (OpenCV)")

@@ -25,11 +25,12 @@ sys.path.insert(0, str(Path(__file__).parent))
 from common import write_section  # noqa: E402
 
 from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.core.metrics import evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
-from nlipscalib.solver import evaluate, solve_press  # noqa: E402
+from nlipscalib.solver import solve_press  # noqa: E402
 
 PRESSES = {
     "sphere": PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5),

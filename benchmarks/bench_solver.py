@@ -28,7 +28,8 @@ from bench_command import run_process  # noqa: E402
 from common import median_time, write_section  # noqa: E402
 
 from nlipscalib.core import load_press  # noqa: E402
-from nlipscalib.solver import evaluate, solve_press  # noqa: E402
+from nlipscalib.core.metrics import evaluate  # noqa: E402
+from nlipscalib.solver import solve_press  # noqa: E402
 from tests.solver import synth  # noqa: E402
 
 ROI_SIZE = 160

@@ -309,6 +309,52 @@ def test_demo_sheet_error_panel_fits_small_errors_and_prints_the_aae():
     assert panel.title == f"angular error, AAE {np.nanmean(err):.2f}°"
 
 
+def test_demo_sheet_contact_mask_is_named_in_a_legend_not_a_colour_bar():
+    """A binary mask drawn with a continuous 0-1 colour bar (figure audit, defect 11): two named colours instead."""
+    from types import SimpleNamespace
+
+    from matplotlib.figure import Figure
+
+    from nlipscalib.cli.demo import _panels
+    from nlipscalib.report.figures import _draw
+
+    contact = np.zeros((6, 8), bool)
+    contact[2:4, 3:5] = True
+    normals = np.zeros((6, 8, 3))
+    normals[..., 2] = -1.0
+    gt = SimpleNamespace(normals=normals, valid=np.ones((6, 8), bool), contact=contact)
+    img = np.ones((6, 8, 3))
+    press = SimpleNamespace(ground_truth=gt, tricolor=img, led_images=[img], linear=lambda x: x)
+    mask = _panels(press, None)[3]
+    fig = Figure()
+    ax = fig.subplots()
+    _draw(fig, ax, mask)
+    assert len(fig.axes) == 1  # no colour bar axes
+    keys = ax.get_legend()
+    assert [t.get_text() for t in keys.get_texts()] == ["no contact", "contact"]
+    colours = [tuple(h.get_facecolor()[:3]) for h in keys.legend_handles]
+    assert colours == [(0.0, 0.0, 0.0), (1.0, 1.0, 1.0)]  # the mask's own colours: black = no contact
+
+
+def test_nlipsnet_sheet_shows_the_object_as_the_demo_does(tmp_path, monkeypatch):
+    """The tri-colour image in the display gamma of the demo sheet, not linearly scaled (figure audit, defect 11)."""
+    from nlipscalib.report import display_image, experiments
+
+    sheets = []
+    draw = experiments.contact_sheet
+    monkeypatch.setattr(
+        experiments, "contact_sheet", lambda rows, path, **kw: sheets.append(rows) or draw(rows, path, **kw)
+    )
+    rng = np.random.default_rng(5)
+    n = np.zeros((6, 8, 3))
+    n[..., 2] = -1.0
+    rgb = rng.uniform(0, 0.3, (6, 8, 3))
+    experiments.nlipsnet_maps(
+        [("press", {"rgb": rgb, "true": n, "estimate": n, "error": np.ones((6, 8))})], tmp_path / "m.png"
+    )
+    np.testing.assert_allclose(sheets[0][0][1][0].image, display_image(rgb))
+
+
 def test_live_depth_colours_black_off_the_gel():
     from nlipscalib.report.live import depth_to_rgb
 

@@ -63,10 +63,11 @@ def run(args) -> int:
     from ..core.capture import load_press
     from ..core.config import check_count
     from ..core.errors import ConfigError
+    from ..core.ledfile import save_leds
     from ..core.metrics import angle_deg
     from ..core.sensor_record import sensor_of
     from ..progress import track, working
-    from ..solver import calibrate_leds, save_leds
+    from ..solver import calibrate_leds
 
     check_count("--stride", args.stride, minimum=1)
     if args.coating_reflectance is not None and not 0 < args.coating_reflectance <= 1:

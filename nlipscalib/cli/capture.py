@@ -381,9 +381,9 @@ def _leds(args, camera, design):
     import logging
 
     from ..core.errors import CaptureError
+    from ..core.ledfile import read_led_file
     from ..core.leds import led_geometry_mismatch
     from ..core.sensor_record import describe_sensor, leds_file_mismatch
-    from ..solver.io import read_led_file
 
     led_file = read_led_file(args.leds)
     sensor = describe_sensor(camera, design.led_models())

@@ -114,7 +114,7 @@ def _panels(press, result):
         Panel("tri-colour image", display_image(press.linear(press.tricolor))),
         Panel("LED 1 alone", display_image(press.linear(press.led_images[0]))),
         Panel("true normals", normals_to_rgb(gt.normals, gt.valid)),
-        Panel("contact mask (truth)", gt.contact.astype(float), cmap="gray"),
+        Panel("contact mask (truth)", gt.contact.astype(float), cmap="gray", legend=("no contact", "contact")),
     ]
     if result is not None:
         shown = result.reconstructed & gt.valid

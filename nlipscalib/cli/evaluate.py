@@ -190,7 +190,7 @@ def _check_made_from(press: Path, result: Path, report: dict, other_capture: boo
     from ..core.errors import CaptureError
 
     recorded = _recorded_input(report)
-    if recorded is None:  # nlipscalib before inputs were recorded for NLiPsNet, solver.save_result, a hand-made one
+    if recorded is None:  # nlipscalib before inputs were recorded for NLiPsNet, save_reconstruction, a hand-made one
         log.warning(
             "%s: its report.json records no input identity (written by an older nlipscalib or outside `nlips solve` "
             "and `nlips infer`): cannot check that it was made from %s; scoring it against that press's ground "
@@ -315,8 +315,8 @@ def _recorded_settings(out: Path):
     """The SolveSettings recorded in ``out``'s report.json, or why they cannot be known (a string naming the file).
 
     A damaged report.json (garbage, cut short) or one without a usable ``provenance.settings`` (written by
-    hand, or by ``solver.save_result`` outside the pipeline) leaves nothing to re-solve with: guessing the
-    options would score a result the user never asked for.
+    hand, or by ``core.reconstruction.save_reconstruction`` outside the pipeline) leaves nothing to re-solve
+    with: guessing the options would score a result the user never asked for.
     """
     from ..core.errors import CaptureError, NlipsError
     from ..core.reconstruction import REPORT_FILE, read_report

@@ -197,8 +197,8 @@ def _resolve_roi(roi):
 def _resolve_leds(leds):
     """(0-based subset or None, calibrated LEDs or None, LED file or None, the sensor the file records or None)
     from the ``leds`` argument."""
+    from ..core.ledfile import read_led_file
     from ..core.leds import Led
-    from ..solver.io import read_led_file
 
     if leds is None:
         return None, None, None, None

@@ -224,8 +224,9 @@ def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance
 
     from ..core.atomic import check_writable
     from ..core.capture import load_press
+    from ..core.reconstruction import save_reconstruction
     from ..report import figure_level, write_reconstruction_figures
-    from ..solver import save_result, solve_press
+    from ..solver import solve_press
 
     level = figure_level(figures)
     check_writable(out.parent, len(out.name))  # a read-only disk fails now, not after the solve
@@ -260,7 +261,7 @@ def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance
     if problem := content_problem(result.arrays()):  # never published: every later run would re-solve it
         raise CaptureError(f"{folder}: the solve gave an unusable result ({problem})")
     gt, context = press.ground_truth, _figure_context(press)
-    save_result(
+    save_reconstruction(
         result,
         out,
         overwrite=True,

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import write_bytes
-from .figures import ERROR_CMAP, NORMALS_KEY, Panel, contact_sheet, error_scale, normals_to_rgb
+from .figures import ERROR_CMAP, NORMALS_KEY, Panel, contact_sheet, display_image, error_scale, normals_to_rgb
 
 DPI = 80
 """Reports are committed to the repository: keep the PNGs small."""
@@ -183,13 +183,11 @@ def nlipsnet_maps(
     sheet = []
     for title, v in rows:
         shown = np.isfinite(v["error"])
-        rgb = np.nan_to_num(v["rgb"])
-        scale = np.percentile(rgb, 99.5) or 1.0
         sheet.append(
             (
                 title,
                 [
-                    Panel("object (tri-colour image)", np.clip(rgb / scale, 0.0, 1.0)),
+                    Panel("object (tri-colour image)", display_image(v["rgb"])),  # as the demo shows it
                     Panel("ground-truth normals", normals_to_rgb(v["true"], shown)),
                     Panel(f"{method} normals", normals_to_rgb(v["estimate"], shown)),
                     Panel("angular error", v["error"], cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=vmax),

@@ -72,6 +72,9 @@ class Panel:
     """Colour bar label (scalar panels)."""
     vmin: float | None = None
     vmax: float | None = None
+    legend: tuple[str, ...] = ()
+    """Names of the values 0, 1, ... of a categorical scalar panel (a mask: ("no contact", "contact")): drawn
+    as a legend of its colours instead of a colour bar, whose continuous 0-1 scale means nothing there."""
 
 
 def contact_sheet(
@@ -122,11 +125,25 @@ def _draw(fig, ax, panel: Panel) -> None:
 
     # pixels without a value (NaN) in light grey, not the colour of zero
     cmap = matplotlib.colormaps[panel.cmap].with_extremes(bad="0.85")
+    if panel.legend:
+        _draw_categories(ax, panel, cmap)
+        return
     im = ax.imshow(panel.image, cmap=cmap, vmin=panel.vmin, vmax=panel.vmax)
     bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, extend="max" if _over(panel) else "neither")
     bar.ax.tick_params(labelsize=7)
     if panel.label:
         bar.set_label(panel.label, fontsize=8)
+
+
+def _draw_categories(ax, panel: Panel, cmap) -> None:
+    """A categorical panel: value i in the colour of i on a 0..n-1 scale (fixed, so a mask with no contact
+    pixel is not drawn in the contact colour), named in a legend under the image."""
+    from matplotlib.patches import Patch
+
+    top = max(len(panel.legend) - 1, 1)
+    ax.imshow(panel.image, cmap=cmap, vmin=0, vmax=top)
+    keys = [Patch(facecolor=cmap(i / top), edgecolor="0.4", label=name) for i, name in enumerate(panel.legend)]
+    ax.legend(handles=keys, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=len(keys), fontsize=7, frameon=False)
 
 
 def _over(panel: Panel) -> bool:

@@ -3,11 +3,9 @@
 Never imports nlipscalib.sim or nlipscalib.device: it works from captures (``Press``) or plain arrays.
 """
 
-from ..core.metrics import aae, angular_error_map, depth_rmse, evaluate, mabse
 from .calibrate import LedCalibration, calibrate_leds
 from .contact import ContactMap, classify_contact
 from .indirect import IndirectModel, fit_indirect
-from .io import load_leds, load_result, save_leds, save_result
 from .nlips import SolveResult, exclusions, solve
 from .options import SolverOptions
 from .press import solve_press
@@ -20,17 +18,8 @@ __all__ = [
     "LedCalibration",
     "SolveResult",
     "SolverOptions",
-    "aae",
-    "angular_error_map",
     "calibrate_leds",
-    "depth_rmse",
-    "evaluate",
     "exclusions",
-    "load_leds",
-    "load_result",
-    "mabse",
-    "save_leds",
-    "save_result",
     "solve",
     "solve_press",
 ]

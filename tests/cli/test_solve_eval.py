@@ -334,7 +334,7 @@ def test_eval_refuses_a_result_of_another_press_unless_told(data, tmp_path, caps
 
 
 def test_eval_warns_that_a_result_recording_no_input_cannot_be_checked(data, tmp_path, capsys, caplog):
-    """A result written outside `nlips solve`/`nlips infer` (solver.save_result) or by an older nlipscalib: scored,
+    """A result written outside `nlips solve`/`nlips infer` (save_reconstruction) or by an older nlipscalib: scored,
     with a warning that says it was not checked."""
     root, cfg = data
     press, other = root / "press_a", tmp_path / "elsewhere"

@@ -168,12 +168,12 @@ def test_open_mesh_is_repaired_with_a_warning_or_refused(tmp_path, caplog):
 
 
 def test_led_file_with_a_word_for_leds_says_so(tmp_path):
-    from nlipscalib.solver.io import load_leds
+    from nlipscalib.core.ledfile import read_led_file
 
     path = tmp_path / "leds.json"
     path.write_text('{"leds": "twelve"}')
     with pytest.raises(NlipsError) as info:
-        load_leds(path)
+        read_led_file(path)
     assert "leds.json" in str(info.value) and "must be a list" in str(info.value)
     assert "['t']" not in str(info.value)
 

@@ -106,8 +106,8 @@ def _led_file(path, leds, camera_path):
     """An LED file as `nlips calibrate-leds` writes it: the LEDs and the sensor they were calibrated on (the
     camera of ``camera_path`` with ``leds`` as its design LEDs)."""
     from nlipscalib.core import Camera, SensorResponse
+    from nlipscalib.core.ledfile import save_leds
     from nlipscalib.core.sensor_record import describe_sensor
-    from nlipscalib.solver.io import save_leds
 
     camera = Camera.from_dict(json.loads(camera_path.read_text())["camera"])
     return save_leds(path, leds, {"sensor": describe_sensor(camera, leds, SensorResponse())})

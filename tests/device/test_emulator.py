@@ -6,11 +6,12 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.core.metrics import evaluate  # noqa: E402
 from nlipscalib.device.session import SessionConfig, run_session  # noqa: E402
 from nlipscalib.emulator import default_script, open_emulated_sensor  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
-from nlipscalib.solver import evaluate, solve_press  # noqa: E402
+from nlipscalib.solver import solve_press  # noqa: E402
 
 
 @pytest.fixture(scope="module")

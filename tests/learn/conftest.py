@@ -43,7 +43,8 @@ def small_twin(**camera):
 def twin_presses(tmp_path_factory):
     """Folder with reference/ and press_*/ rendered and NLiPs-solved (PRESS/nlips)."""
     from nlipscalib.core import load_press
-    from nlipscalib.solver import save_result, solve_press
+    from nlipscalib.core.reconstruction import save_reconstruction
+    from nlipscalib.solver import solve_press
 
     root = tmp_path_factory.mktemp("learn_twin")
     scene = small_twin()
@@ -52,7 +53,9 @@ def twin_presses(tmp_path_factory):
     for i, (name, cfg) in enumerate(PRESSES.items()):
         render_press(scene, cfg, root / name, seed=10 + i)
         press = load_press(root / name)
-        save_result(solve_press(press, roi="auto", indirect=ref, dent_interreflection=False), root / name / "nlips")
+        save_reconstruction(
+            solve_press(press, roi="auto", indirect=ref, dent_interreflection=False), root / name / "nlips"
+        )
     return root
 
 

@@ -1,7 +1,8 @@
 import numpy as np
 
 from nlipscalib.core import Led, load_press
-from nlipscalib.solver import SolverOptions, calibrate_leds, evaluate, solve_press
+from nlipscalib.core.metrics import evaluate
+from nlipscalib.solver import SolverOptions, calibrate_leds, solve_press
 
 from . import synth
 

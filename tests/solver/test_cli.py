@@ -3,7 +3,7 @@ import json
 import numpy as np
 
 from nlipscalib.cli import main
-from nlipscalib.solver import load_result
+from nlipscalib.core.reconstruction import load_reconstruction
 
 
 def test_solve_eval_calibrate_cli(presses, tmp_path, capsys):
@@ -43,7 +43,7 @@ def test_solve_eval_calibrate_cli(presses, tmp_path, capsys):
         )
         == 0
     )
-    assert np.isfinite(load_result(tmp_path / "o").normals).all()
+    assert np.isfinite(load_reconstruction(tmp_path / "o").normals).all()
     assert main(["solve", str(press), "--roi", "1", "2"]) == 2
 
 

@@ -7,7 +7,8 @@ import pytest
 from nlipscalib.cli import main
 from nlipscalib.core import Led, load_press
 from nlipscalib.core.errors import CaptureError
-from nlipscalib.solver import SolverOptions, evaluate, solve_press
+from nlipscalib.core.metrics import evaluate
+from nlipscalib.solver import SolverOptions, solve_press
 from nlipscalib.solver.contact import classify_contact
 
 from . import synth

@@ -12,11 +12,12 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.core.metrics import evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
-from nlipscalib.solver import SolverOptions, evaluate, solve_press  # noqa: E402
+from nlipscalib.solver import SolverOptions, solve_press  # noqa: E402
 from nlipscalib.solver.indirect import fit_indirect  # noqa: E402
 
 SPHERE = PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5)

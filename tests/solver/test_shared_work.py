@@ -6,7 +6,8 @@ import pytest
 
 from nlipscalib.core import load_press
 from nlipscalib.core.errors import ConfigError
-from nlipscalib.solver import SolverOptions, evaluate, solve, threads
+from nlipscalib.core.metrics import evaluate
+from nlipscalib.solver import SolverOptions, solve, threads
 from nlipscalib.solver.contact import classify_contact, led_levels
 from nlipscalib.solver.indirect import Surface, direct_shading, fit_indirect
 from nlipscalib.solver.nlips import exclusions

@@ -6,7 +6,8 @@ import pytest
 
 from nlipscalib.core import load_press
 from nlipscalib.core.errors import CaptureError, ShapeError
-from nlipscalib.solver import SolverOptions, evaluate, solve, solve_press
+from nlipscalib.core.metrics import evaluate
+from nlipscalib.solver import SolverOptions, solve, solve_press
 
 from . import synth
 

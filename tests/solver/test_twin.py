@@ -11,12 +11,13 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from nlipscalib.cli import main  # noqa: E402
-from nlipscalib.core import Led, load_press  # noqa: E402
+from nlipscalib.core import Led, load_press, load_reconstruction  # noqa: E402
+from nlipscalib.core.metrics import evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
-from nlipscalib.solver import calibrate_leds, evaluate, load_result, solve_press  # noqa: E402
+from nlipscalib.solver import calibrate_leds, solve_press  # noqa: E402
 from nlipscalib.solver.interreflection import estimate_indirect  # noqa: E402
 
 WIDTH, HEIGHT = 160, 120
@@ -169,7 +170,7 @@ def test_dent_interreflection_beats_reference_compensation(root, one_bounce):
         )
         == 0
     )
-    cli = load_result(out)
+    cli = load_reconstruction(out)
     assert cli.report["indirect_compensation"] is True and cli.report["dent_interreflection"] is True
     np.testing.assert_allclose(cli.normals, dent.normals, atol=1e-5, equal_nan=True)
 

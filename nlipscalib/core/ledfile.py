@@ -1,6 +1,7 @@
-"""Saving solver results next to a press (the core reconstruction format) and LED parameter files.
+"""The LED file (docs/formats.md "LED file"): calibrated LEDs and the sensor they were calibrated on.
 
-No figures here: nlipscalib.report draws them (the CLI passes them in as ``extra_files``)."""
+Written by ``nlips calibrate-leds``, read by ``nlips solve|calibrate|capture --leds FILE``. In core with the
+other formats: the pipeline, the CLI and the device capture read it, the solver only gets its LEDs."""
 
 from __future__ import annotations
 
@@ -8,31 +9,15 @@ import json
 from pathlib import Path
 from typing import NamedTuple
 
-from ..core.errors import CaptureError
-from ..core.leds import Led, Leds
-from ..core.reconstruction import (
-    Reconstruction,
-    load_reconstruction,
-    save_reconstruction,
-)
-
-
-def save_result(result: Reconstruction, folder: str | Path, *, overwrite: bool = False, extra_files=None) -> Path:
-    """Write the reconstruction atomically into ``folder`` (core.reconstruction.save_reconstruction).
-
-    ``extra_files(tmp_folder)`` may add files (figures) that appear together with the result.
-    """
-    return save_reconstruction(result, folder, overwrite, extra_files)
-
-
-def load_result(folder: str | Path) -> Reconstruction:
-    return load_reconstruction(folder)
+from .atomic import write_json
+from .errors import CaptureError
+from .leds import Led, Leds
+from .sensor_record import check_sensor_record
 
 
 def save_leds(path: str | Path, leds: Leds, extra: dict | None = None) -> Path:
-    """Write an LED file: {"leds": [Led.to_dict() ...], ...extra} (``nlips solve --leds FILE``)."""
-    from ..core.atomic import write_json
-
+    """Write an LED file atomically: {"leds": [Led.to_dict() ...], ...extra}; ``extra`` holds the calibration's
+    other keys (``sensor``, ``quality``, ...). Returns ``path``."""
     return write_json(path, {"leds": [led.to_dict() for led in leds]} | (extra or {}))
 
 
@@ -46,15 +31,8 @@ class LedFile(NamedTuple):
     LED count and design geometry); None in files written before it was recorded (2026-12-04)."""
 
 
-def load_leds(path: str | Path) -> tuple[Led, ...]:
-    """The LEDs of an LED file (:func:`read_led_file`)."""
-    return read_led_file(path).leds
-
-
 def read_led_file(path: str | Path) -> LedFile:
     """Read an LED file from ``nlips calibrate-leds`` (CaptureError naming it when missing or malformed)."""
-    from ..core.sensor_record import check_sensor_record
-
     path = Path(path)
     try:
         data = json.loads(path.read_text())
