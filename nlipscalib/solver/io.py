@@ -5,6 +5,7 @@ No figures here: nlipscalib.report draws them (the CLI passes them in as ``extra
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import NamedTuple
 
@@ -17,7 +18,13 @@ from ..core.reconstruction import (
 from ..errors import CaptureError
 
 
-def save_result(result: Reconstruction, folder: str | Path, *, overwrite: bool = False, extra_files=None) -> Path:
+def save_result(
+    result: Reconstruction,
+    folder: str | Path,
+    *,
+    overwrite: bool = False,
+    extra_files: Callable[[Path], object] | None = None,
+) -> Path:
     """Write the reconstruction atomically into ``folder`` (core.reconstruction.save_reconstruction).
 
     ``extra_files(tmp_folder)`` may add files (figures) that appear together with the result.
