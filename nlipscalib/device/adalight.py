@@ -14,13 +14,18 @@ from __future__ import annotations
 
 import logging
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..core.errors import DeviceError
 from .controller import _check_colours, _check_index
 from .errors import DeviceDisconnectedError
 from .port import BAUD_RATE, _serial, check_baudrate, open_port
+
+if TYPE_CHECKING:  # pyserial is imported where it is used (``_serial``): named for the hints only
+    import serial
 
 log = logging.getLogger(__name__)
 
@@ -62,7 +67,16 @@ class AdalightController:
     acknowledged = False
     firmware = "adalight"
 
-    def __init__(self, url: str, port, n_leds: int, settle_s: float, baudrate: int, boot_timeout: float, reconnect_s):
+    def __init__(
+        self,
+        url: str,
+        port: serial.SerialBase,
+        n_leds: int,
+        settle_s: float,
+        baudrate: int,
+        boot_timeout: float,
+        reconnect_s: float,
+    ):
         self.url, self._port, self.n_leds = url, port, int(n_leds)
         self.settle_s, self.baudrate = float(settle_s), baudrate
         self.boot_timeout, self.reconnect_s = float(boot_timeout), float(reconnect_s)
@@ -133,13 +147,13 @@ class AdalightController:
         return n_bytes * 10 / self.baudrate + self.n_leds * WS2812_US_PER_LED * 1e-6
 
     # --- the LedController interface ------------------------------------------------------------------
-    def set_led(self, index: int, rgb, *, show: bool = True) -> None:
+    def set_led(self, index: int, rgb: ArrayLike, *, show: bool = True) -> None:
         """Set LED ``index`` (0-based); Adalight has no single-LED command, so the whole frame is resent."""
         self._staged[_check_index(index, self.n_leds)] = _check_colours(np.asarray(rgb).reshape(1, 3), 1)[0]
         if show:
             self.show()
 
-    def set_all(self, colours) -> None:
+    def set_all(self, colours: ArrayLike) -> None:
         """Send one frame with every LED. ``colours : (N, 3) uint8, RGB``."""
         self._staged[:] = _check_colours(colours, self.n_leds)
         self.show()

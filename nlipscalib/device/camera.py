@@ -19,12 +19,18 @@ import logging
 import math
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.imageio import opencv_path, read_image
+
+if TYPE_CHECKING:  # OpenCV is imported where it is used (``_cv2``): named for the hints only
+    import cv2
 
 log = logging.getLogger(__name__)
 
@@ -315,7 +321,7 @@ class OpenCVSource(FrameSource):
 
 
 @contextlib.contextmanager
-def _quiet_opencv(cv2):
+def _quiet_opencv(cv2: ModuleType) -> Iterator[None]:
     """OpenCV's log at errors only for the block (a failure is then reported once, by us)."""
     logging_ = getattr(getattr(cv2, "utils", None), "logging", None)
     if logging_ is None:  # pragma: no cover - builds without cv2.utils.logging
@@ -356,7 +362,7 @@ def exposure_to_backend(exposure_ms: float, backend: str) -> float:
     return exposure_ms
 
 
-def apply_settings(cap, settings: CameraSettings) -> list[str]:
+def apply_settings(cap: cv2.VideoCapture, settings: CameraSettings) -> list[str]:
     """Set a live camera up for photometric stereo; returns one line per setting it refused.
 
     Each property is set, then read back: a camera that ignores a property (or clamps it) is reported,

@@ -13,13 +13,19 @@ recomputed with the core Camera's own projection, so it measures the model the w
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.camera import Camera
 from ..core.errors import CaptureError, ConfigError, ShapeError, require
 from ..core.imageio import read_image
+
+if TYPE_CHECKING:  # OpenCV is imported where it is used (``_cv2``): named for the hints only
+    import cv2
 
 MIN_VIEWS = 3
 """Views with a detected board needed for a calibration (use 10-20 covering the whole field in practice)."""
@@ -162,7 +168,7 @@ CHARUCO_MIN_CORNERS = 6
 """ChArUco views with fewer interpolated corners are skipped (too little to pin a pose)."""
 
 
-def charuco_board(target: Target):
+def charuco_board(target: Target) -> cv2.aruco.CharucoBoard:
     """The OpenCV CharucoBoard of a target (also to print one: ``board.generateImage``)."""
     cv2 = _cv2()
     name = target.dictionary.upper()
@@ -245,7 +251,7 @@ def calibrate(
     return Calibration(camera, rms, tuple(per_view), tuple(names[k] for k in used), rejected)
 
 
-def _unconstrained(K: np.ndarray, rvecs, size: tuple[int, int]) -> str | None:
+def _unconstrained(K: np.ndarray, rvecs: Sequence[np.ndarray], size: tuple[int, int]) -> str | None:
     """Why a fit is degenerate (boards all facing one way, a focal length or centre no camera has), or None."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     spread = tilt_spread_deg(rvecs)
@@ -256,7 +262,7 @@ def _unconstrained(K: np.ndarray, rvecs, size: tuple[int, int]) -> str | None:
     return None
 
 
-def tilt_spread_deg(rvecs) -> float:
+def tilt_spread_deg(rvecs: Sequence[np.ndarray]) -> float:
     """Largest angle between the board normals of any two views, deg.
 
     Parameters
@@ -269,7 +275,7 @@ def tilt_spread_deg(rvecs) -> float:
     return float(np.degrees(np.arccos(cosines.min())))
 
 
-def _fisheye_flag(cv2, name: str) -> int:
+def _fisheye_flag(cv2: ModuleType, name: str) -> int:
     # OpenCV 4 keeps the fisheye flags in cv2.fisheye (with their own values); OpenCV 5 unified them in cv2
     return int(getattr(cv2.fisheye, name, None) or getattr(cv2, name))
 

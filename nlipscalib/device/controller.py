@@ -20,8 +20,10 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..core.errors import DeviceError, ShapeError
 from . import protocol as p
@@ -230,21 +232,21 @@ class LedController:
     def session_id(self) -> str:
         return self.info.session_id
 
-    def set_led(self, index: int, rgb, *, show: bool = True) -> None:
+    def set_led(self, index: int, rgb: ArrayLike, *, show: bool = True) -> None:
         """Set LED ``index`` (0-based) to ``rgb`` (3 ints 0..255); latched unless ``show=False`` (staged)."""
         index = self._check_index(index)
         colour = _check_colours(np.asarray(rgb).reshape(1, 3), 1)[0]
 
-        def stage(staged):
+        def stage(staged: np.ndarray) -> None:
             staged[index] = colour
 
         self._command("SET" if show else "PUT", index, p.encode_colour(colour), stage=stage, latch=show)
 
-    def set_all(self, colours) -> None:
+    def set_all(self, colours: ArrayLike) -> None:
         """Set and latch every LED in one frame. ``colours : (N, 3) uint8, RGB``."""
         colours = _check_colours(colours, self.n_leds)
 
-        def stage(staged):
+        def stage(staged: np.ndarray) -> None:
             staged[:] = colours
 
         self._command("ALL", p.encode_colours(colours), stage=stage, latch=True)
@@ -293,7 +295,9 @@ class LedController:
         return _check_index(index, self.n_leds)
 
     # --- transactions ---------------------------------------------------------------------------------
-    def _command(self, command: str, *args, stage=None, latch: bool = False) -> p.Reply:
+    def _command(
+        self, command: str, *args: object, stage: Callable[[np.ndarray], None] | None = None, latch: bool = False
+    ) -> p.Reply:
         """Exchange one command; once acknowledged, apply ``stage`` to the host's copy of the staged colours
         and, when the command latched, copy them to the shown colours (what a reset restores)."""
         with self._lock:
@@ -353,7 +357,7 @@ class LedController:
             f"{self.url}: no valid answer to {command} after {tries} tries of {self.timeout:g} s each{failed}"
         )
 
-    def _board_error(self, command: str, args, reply: p.Reply) -> DeviceError:
+    def _board_error(self, command: str, args: tuple, reply: p.Reply) -> DeviceError:
         name = p.ERROR_NAMES.get(reply.error, "?")
         meaning = p.ERROR_MEANINGS.get(reply.error, "unknown error code")
         if reply.error == p.E_RANGE:
@@ -503,7 +507,7 @@ def _check_index(index: int, n_leds: int) -> int:
     return int(index)
 
 
-def _check_colours(colours, n_leds: int) -> np.ndarray:
+def _check_colours(colours: ArrayLike, n_leds: int) -> np.ndarray:
     """``(n_leds, 3)`` integers 0..255 -> uint8 array; ShapeError otherwise."""
     arr = np.asarray(colours)
     if arr.shape != (n_leds, 3):

@@ -6,13 +6,27 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+from collections.abc import Callable, Iterator
+from types import FrameType
+from typing import Protocol, TypeVar
 
 LIGHTS_OUT_TIMEOUT_S = 0.3
 """How long switching the LEDs off on SIGTERM may wait for the board's acknowledgement, s (one try)."""
 
 
+class Switchable(Protocol):
+    """What the LEDs are switched off through: LedController, AdalightController or anything with ``off()``."""
+
+    def off(self) -> None: ...
+
+
+C = TypeVar("C", bound=Switchable)
+SignalHandler = Callable[[int, FrameType | None], object] | int | None
+"""What ``signal.getsignal`` returns: a Python handler, SIG_DFL / SIG_IGN, or None (installed from outside Python)."""
+
+
 @contextlib.contextmanager
-def lights_out_on_exit(controller):
+def lights_out_on_exit(controller: C) -> Iterator[C]:
     """Switch the LEDs off when the block ends: normally, by an exception (Ctrl-C too), or by SIGTERM.
 
     Why: the LEDs keep whatever they show when nothing drives them any more; a capture or a live stream
@@ -38,12 +52,12 @@ def lights_out_on_exit(controller):
     controller.off()
 
 
-def _restore_sigterm(previous) -> None:
+def _restore_sigterm(previous: SignalHandler) -> None:
     if previous is not None:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _chain_sigterm(first):
+def _chain_sigterm(first: Callable[[], object]) -> SignalHandler:
     """Install a SIGTERM handler that calls ``first()`` and then the handler installed before; returns that."""
     if threading.current_thread() is not threading.main_thread():
         return None
@@ -53,7 +67,7 @@ def _chain_sigterm(first):
     if previous is None:  # installed from outside Python: restoring it is impossible, the default is close
         previous = signal.SIG_DFL
 
-    def handler(signum, frame):
+    def handler(signum: int, frame: FrameType | None) -> None:
         with contextlib.suppress(Exception):  # best effort on the way out
             first()
         signal.signal(signal.SIGTERM, previous)
@@ -66,14 +80,14 @@ def _chain_sigterm(first):
     return previous
 
 
-def _off_quickly(controller) -> None:
+def _off_quickly(controller: Switchable) -> None:
     """``controller.off()`` with one short try (LedController), for a process about to exit."""
     if hasattr(controller, "retries"):
         controller.timeout, controller.retries, controller.reconnect_s = LIGHTS_OUT_TIMEOUT_S, 0, 0.0
     controller.off()
 
 
-def off_quietly(controller) -> None:
+def off_quietly(controller: Switchable) -> None:
     """Switch the LEDs off while another error is on its way to the user: best effort, never an error.
 
     One try with a short timeout (:data:`LIGHTS_OUT_TIMEOUT_S`, no reconnect wait), its own failure

@@ -13,6 +13,7 @@ import dataclasses
 import time
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -20,6 +21,16 @@ from ..core.atomic import write_by_name
 from ..core.errors import ConfigError
 from ..core.imageio import save_npz
 from .camera import EndOfFrames
+
+
+class FrameReader(Protocol):
+    """What :func:`stream` and :class:`ReadAhead` read frames from: a :class:`.camera.FrameSource`, a ReadAhead, or a
+    wrapper of either."""
+
+    @property
+    def shape(self) -> tuple[int, int]: ...
+
+    def read(self) -> np.ndarray: ...
 
 
 @dataclasses.dataclass
@@ -76,7 +87,7 @@ class ReadAhead:
     workers : decoding threads for image files (default :func:`decoding_workers`); a video uses one
     """
 
-    def __init__(self, source, workers: int | None = None):
+    def __init__(self, source: FrameReader, workers: int | None = None):
         from collections import deque
         from concurrent.futures import ThreadPoolExecutor
 
@@ -126,7 +137,7 @@ class StopLive(Exception):
 
 
 def stream(
-    source,
+    source: FrameReader,
     predict: Callable[[np.ndarray], LiveResult],
     sinks: Iterable[Callable[[int, np.ndarray, LiveResult], None]],
     *,

@@ -4,9 +4,13 @@
 from __future__ import annotations
 
 import errno
+from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError, DeviceError, require
 from .errors import PortBusyError, PortNotFoundError, PortPermissionError
+
+if TYPE_CHECKING:  # pyserial is imported where it is used (``_serial``): named for the hints only
+    import serial
 
 BAUD_RATE = 115200
 """Line rate of the nlips LED firmware (firmware/src/uart.h) and of Adalight-FastLED, baud; the default of
@@ -22,7 +26,7 @@ def _serial():
     return serial
 
 
-def check_baudrate(baudrate, where: str = "baudrate") -> int:
+def check_baudrate(baudrate: int | str, where: str = "baudrate") -> int:
     """``baudrate`` as an int when it is one of pyserial's standard rates (``serial.SerialBase.BAUDRATES``).
 
     Why: pyserial refuses a non-positive rate with a ValueError that reads like a bad port name, and a
@@ -54,7 +58,7 @@ def check_baudrate(baudrate, where: str = "baudrate") -> int:
     return value
 
 
-def open_port(url: str, *, baudrate: int = BAUD_RATE, write_timeout: float = 1.0):
+def open_port(url: str, *, baudrate: int = BAUD_RATE, write_timeout: float = 1.0) -> serial.SerialBase:
     """Open ``url`` with ``serial.serial_for_url`` at ``baudrate``, turning failures into one clear error.
 
     Raises
@@ -79,7 +83,7 @@ def open_port(url: str, *, baudrate: int = BAUD_RATE, write_timeout: float = 1.0
         raise _open_error(url, exc) from None
 
 
-def _keep_dtr_after_close(port) -> None:
+def _keep_dtr_after_close(port: serial.SerialBase) -> None:
     """Clear HUPCL on a POSIX serial port, so DTR stays up when the port closes.
 
     Why: an Arduino Uno resets on DTR's rising edge, and a USB serial port drops DTR on close (HUPCL is the

@@ -13,6 +13,7 @@ import binascii
 import dataclasses
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 PROTOCOL_VERSION = 1
 """The protocol version this host speaks (the board's ``proto=`` must match)."""
@@ -69,7 +70,7 @@ def encode_command(seq: int, command: str, *args: str | int) -> bytes:
     return frame(COMMAND_START, body)
 
 
-def encode_colour(rgb) -> str:
+def encode_colour(rgb: ArrayLike) -> str:
     """``(r, g, b)`` 0..255 -> ``"rrggbb"``."""
     r, g, b = (int(c) for c in rgb)
     return f"{r:02x}{g:02x}{b:02x}"

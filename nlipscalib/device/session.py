@@ -395,7 +395,7 @@ def _capture_settings(rig: Rig, cfg: SessionConfig) -> dict:
     )
 
 
-def _first_difference(old, new, where: str = "") -> str | None:
+def _first_difference(old: object, new: object, where: str = "") -> str | None:
     """'key: old -> new' of the first (dotted) key where two JSON values differ, or None when equal."""
     if isinstance(old, dict) and isinstance(new, dict):
         for key in sorted(set(old) | set(new), key=str):

@@ -357,12 +357,12 @@ class VirtualBoard:
     def _latch(self) -> None:
         self._latched[:] = self._pending
 
-    def _cmd_hello(self, args):
+    def _cmd_hello(self, args: list[str]) -> str:
         _no_args(args)
         self._session = True
         return p.encode_info(self._info())
 
-    def _cmd_set(self, args, latch=True):
+    def _cmd_set(self, args: list[str], latch: bool = True) -> str:
         if len(args) != 2:
             raise _BoardError(p.E_SYNTAX)
         index, colour = _parse_index(args[0]), _parse_colours(args[1], 1)
@@ -373,10 +373,10 @@ class VirtualBoard:
             self._latch()
         return ""
 
-    def _cmd_put(self, args):
+    def _cmd_put(self, args: list[str]) -> str:
         return self._cmd_set(args, latch=False)
 
-    def _cmd_all(self, args):
+    def _cmd_all(self, args: list[str]) -> str:
         if len(args) != 1:
             raise _BoardError(p.E_SYNTAX)
         if len(args[0]) != 6 * self.n_leds:
@@ -385,18 +385,18 @@ class VirtualBoard:
         self._latch()
         return ""
 
-    def _cmd_off(self, args):
+    def _cmd_off(self, args: list[str]) -> str:
         _no_args(args)
         self._pending[:] = 0
         self._latch()
         return ""
 
-    def _cmd_show(self, args):
+    def _cmd_show(self, args: list[str]) -> str:
         _no_args(args)
         self._latch()
         return ""
 
-    def _cmd_state(self, args):
+    def _cmd_state(self, args: list[str]) -> str:
         _no_args(args)
         return p.encode_colours(self._latched)
 
@@ -425,7 +425,7 @@ def _error(seq: str, code: int) -> str:
     return f"{seq} E{code} {p.ERROR_NAMES[code]}"
 
 
-def _no_args(args) -> None:
+def _no_args(args: list[str]) -> None:
     if args:
         raise _BoardError(p.E_SYNTAX)
 
@@ -457,7 +457,7 @@ _COMMANDS = {
 class VirtualSerial(serial.SerialBase):
     """pyserial port class for ``nlipsemu://<id>`` (found through serial.protocol_handler_packages)."""
 
-    def open(self):
+    def open(self) -> None:
         if self.is_open:
             raise serial.SerialException("Port is already open.")
         board = self._board_for(self.portstr)
@@ -487,7 +487,7 @@ class VirtualSerial(serial.SerialBase):
             )
         return board
 
-    def close(self):
+    def close(self) -> None:
         if self.is_open:
             with self._board._cond:
                 if self._board._connection is self:
@@ -525,7 +525,7 @@ class VirtualSerial(serial.SerialBase):
             del board._out[:size]
         return _garbled(data) if self._rate_mismatch() else data
 
-    def write(self, data) -> int:
+    def write(self, data: bytes | bytearray | memoryview) -> int:
         self._check()
         data = bytes(data)
         if self._rate_mismatch():  # the board's UART reads framing errors: no line start, nothing executed
@@ -538,15 +538,15 @@ class VirtualSerial(serial.SerialBase):
         """True when the board runs at a fixed rate and this port is opened at another one."""
         return self._board.baudrate is not None and self.baudrate != self._board.baudrate
 
-    def reset_input_buffer(self):
+    def reset_input_buffer(self) -> None:
         self._check()
         with self._board._cond:
             self._board._out.clear()
 
-    def reset_output_buffer(self):
+    def reset_output_buffer(self) -> None:
         self._check()
 
-    def flush(self):
+    def flush(self) -> None:
         self._check()
 
 

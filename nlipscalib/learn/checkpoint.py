@@ -22,7 +22,9 @@ import numpy as np
 
 from .model import build_net
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
+    import torch
+
     from .train import TrainConfig
 
 log = logging.getLogger(__name__)
@@ -49,7 +51,7 @@ def config_key(cfg: TrainConfig) -> str:
     return hashlib.sha1(repr(_trajectory_options(cfg)).encode()).hexdigest()[:16]
 
 
-def _options_changed(recorded, cfg: TrainConfig) -> str:
+def _options_changed(recorded: object, cfg: TrainConfig) -> str:
     """'name old -> new, ...' of the trajectory options a checkpoint recorded and ``cfg`` differ in ("" when the
     checkpoint records none: written before 2026-12-04)."""
     if not isinstance(recorded, dict):
@@ -58,7 +60,7 @@ def _options_changed(recorded, cfg: TrainConfig) -> str:
     return ", ".join(f"{k} {recorded.get(k)!r} -> {v!r}" for k, v in now.items() if recorded.get(k) != v)
 
 
-def data_key_of(*arrays) -> str:
+def data_key_of(*arrays: np.ndarray) -> str:
     """What a checkpoint's samples must match: the training and validation arrays themselves (inputs, labels,
     contact flags), so another dataset, a rebuilt shard, other validation presses or other excluded presses
     all count as other data. Hashing them costs ~0.03 s per million samples, against seconds per epoch."""
@@ -75,14 +77,25 @@ def checkpoint_path(out: Path) -> Path:
     return out.with_name(out.stem + "." + CHECKPOINT_FILE)
 
 
-def progress_checkpoint_path(out: Path, cfg, data_key: str) -> Path:
+def progress_checkpoint_path(out: Path, cfg: TrainConfig, data_key: str) -> Path:
     """``MODEL.<run>.checkpoint.pt`` beside the model file ``out``: the checkpoint of every epoch of the run of
     these options on these samples (``<run>``: 12 hex digits of their keys)."""
     run = hashlib.sha1(f"{config_key(cfg)}:{data_key}".encode()).hexdigest()[:12]
     return out.with_name(f"{out.stem}.{run}.{CHECKPOINT_FILE}")
 
 
-def save_checkpoint(path: Path, cfg, data_key: str, net, opt, sched, history, best, best_state, to=None) -> None:
+def save_checkpoint(
+    path: Path,
+    cfg: TrainConfig,
+    data_key: str,
+    net: torch.nn.Module,
+    opt: torch.optim.Optimizer,
+    sched: torch.optim.lr_scheduler.LRScheduler,
+    history: list[dict],
+    best: dict,
+    best_state: dict | None,
+    to: str | Path | None = None,
+) -> None:
     """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``."""
     import torch
 
@@ -106,7 +119,7 @@ def save_checkpoint(path: Path, cfg, data_key: str, net, opt, sched, history, be
     write_bytes(path if to is None else Path(to), buf.getvalue())
 
 
-def published_by(out: Path, cfg, data_key: str) -> bool:
+def published_by(out: Path, cfg: TrainConfig, data_key: str) -> bool:
     """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options and
     samples): a run resumed from its own progress may still replace another run's model, finished since."""
     from .model import read_torch_file
@@ -118,7 +131,15 @@ def published_by(out: Path, cfg, data_key: str) -> bool:
     return isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
 
 
-def resume(out: Path, progress_path: Path, cfg, data_key: str, net, opt, sched) -> dict:
+def resume(
+    out: Path,
+    progress_path: Path,
+    cfg: TrainConfig,
+    data_key: str,
+    net: torch.nn.Module,
+    opt: torch.optim.Optimizer,
+    sched: torch.optim.lr_scheduler.LRScheduler,
+) -> dict:
     """Continue from the run's checkpoint (``progress_path``), else from ``MODEL.checkpoint.pt`` (a finished run's,
     or one written before checkpoints were named by their run) when it was made with the same options on the same
     samples.

@@ -18,11 +18,17 @@ empty everywhere, asks for a press with steep relief.
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..core.atomic import write_json
 from ..core.metrics import angular_error_map
 from ..core.reconstruction import jsonable
+
+if TYPE_CHECKING:  # named in hints only: the dataset module is not needed to measure one
+    from .dataset import CalibrationDataset
 
 TILT_EDGES_DEG = (2.0, 10.0, 25.0, 45.0, 90.0)
 """Tilt rings, degrees from the undeformed normal (below 2 deg counts as undeformed)."""
@@ -65,7 +71,7 @@ def tilt_deg(normals: np.ndarray, ref_normals: np.ndarray) -> np.ndarray:
     return angular_error_map(normals, ref_normals)  # the metric's angle, read as a tilt
 
 
-def coverage(dataset, cells: int = 4, min_samples: int = 20) -> dict:
+def coverage(dataset: CalibrationDataset, cells: int = 4, min_samples: int = 20) -> dict:
     """Coverage of ``dataset`` (CalibrationDataset): counts per (region, direction bin) and the next press.
 
     Returns
@@ -208,6 +214,6 @@ def _next_press(counts, covered, gel, kinds: dict, shape) -> dict:
     }
 
 
-def write_coverage_json(path, cov: dict):
+def write_coverage_json(path: str | Path, cov: dict) -> Path:
     """coverage.json: the dict of :func:`coverage` (arrays as nested lists)."""
     return write_json(path, jsonable(cov))

@@ -10,8 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from ..core.errors import require
+
+if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
+    import torch
 
 log = logging.getLogger(__name__)
 
@@ -30,13 +35,13 @@ class Replay:
     outputs: object
     """What the function returned while recorded: rewritten by every replay."""
 
-    def __call__(self):
+    def __call__(self) -> object:
         """Replay; returns :attr:`outputs`."""
         self.graph.replay()
         return self.outputs
 
 
-def record(function, inputs: tuple, device, what: str) -> Replay | None:
+def record(function: Callable[..., object], inputs: tuple, device: torch.device, what: str) -> Replay | None:
     """``function(*inputs)`` recorded as a CUDA graph on ``device``; None, with a warning naming ``what``, when this
     torch build cannot record one of its operations (the caller then runs it eagerly, with the same results)."""
     torch = require("torch", "torch", "Recording a CUDA graph")

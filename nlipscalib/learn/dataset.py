@@ -34,7 +34,9 @@ import dataclasses
 import hashlib
 import json
 import logging
+from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,6 +49,10 @@ from ..core.sensor_record import check_sensor, check_sensor_record, sensor_of
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
 from .prefilter import Prefilter, check_sigma
+
+if TYPE_CHECKING:  # named in hints only: the functions import the capture and reconstruction modules where used
+    from ..core.capture import Press
+    from ..core.reconstruction import Reconstruction
 
 DEFAULT_DIR = "calibration"
 """Where ``nlips calibrate PRESSES`` writes the dataset by default: ``PRESSES/calibration``."""
@@ -97,7 +103,7 @@ class SamplingConfig:
 
 
 # ---------------------------------------------------------------------- building
-def reference_arrays(reference_press) -> dict:
+def reference_arrays(reference_press: Press) -> dict:
     """The undeformed reference a calibration keeps: tri-colour (linear), dark frame, depth, normals, valid.
 
     Parameters
@@ -121,7 +127,7 @@ def reference_arrays(reference_press) -> dict:
     }
 
 
-def press_samples(press, rec, ref: dict, cfg: SamplingConfig) -> dict:
+def press_samples(press: Press, rec: Reconstruction, ref: dict, cfg: SamplingConfig) -> dict:
     """Samples of one solved press: every reliable NLiPs pixel of the contact, a stratified sample of the rest.
 
     Parameters
@@ -178,7 +184,7 @@ def _stratified(candidates: np.ndarray, cells: int, per_cell: int, rng) -> np.nd
     return out.reshape(H, W)
 
 
-def press_description(press) -> dict:
+def press_description(press: Press) -> dict:
     """What was pressed where (twin provenance), for the coverage report; null values for device captures, whose
     operator's object is unnamed (the coverage report calls it ``coverage.UNRECORDED_KIND``, "an object")."""
     prov = press.meta.get("provenance") or {}
@@ -218,9 +224,9 @@ def write_index(folder: Path, sensor: dict, cfg: SamplingConfig, entries: list[d
 
 
 def build_dataset(
-    press_folders,
-    reference_folder,
-    out,
+    press_folders: Iterable[str | Path],
+    reference_folder: str | Path,
+    out: str | Path,
     cfg: SamplingConfig | None = None,
     result_dir: str = "nlips",
     progress: bool = True,
@@ -285,7 +291,7 @@ def build_dataset(
     return out
 
 
-def check_min_leds(cfg: SamplingConfig, n_leds: int, where) -> None:
+def check_min_leds(cfg: SamplingConfig, n_leds: int, where: str | Path) -> None:
     """ConfigError when ``cfg.min_leds`` exceeds the sensor's LEDs: no NLiPs pixel could become a sample."""
     if cfg.min_leds > n_leds:
         raise ConfigError(f"min_leds must be at most the {n_leds} LEDs of {where}, got {cfg.min_leds}")
@@ -395,7 +401,7 @@ def _wait_for_solver(result: Path) -> None:
 
 
 # ---------------------------------------------------------------------- reading
-def check_reference_values(arrays: dict, where) -> None:
+def check_reference_values(arrays: dict, where: str | Path) -> None:
     """CaptureError naming ``where`` when the undeformed reference (:func:`reference_arrays`: sensor.npz, a
     model's ``reference``) holds values no capture gives: a tri-colour frame or normals that are NaN or
     infinite (inference would find no pixel changed and return the undeformed dome without a word), or
@@ -488,7 +494,7 @@ class CalibrationDataset:
             raise CaptureError(f"{path}: {n} samples, index.json says {self.entry(name)['samples']}")
         return {k: arrays[k] for k in SHARD_KEYS}
 
-    def arrays(self, names=None) -> dict:
+    def arrays(self, names: Iterable[str] | None = None) -> dict:
         """Samples of several presses concatenated, with ``press`` (N,) int16 = position in ``names``."""
         names = self.names if names is None else list(names)
         parts = [self.load(n) for n in names]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.metrics import aae
-from .model import model_inputs
+from .model import LoadedModel, model_inputs
 
 
-def net_predict(model, pixel: np.ndarray, rgb: np.ndarray, batch: int = 65536) -> np.ndarray:
+def net_predict(model: LoadedModel, pixel: np.ndarray, rgb: np.ndarray, batch: int = 65536) -> np.ndarray:
     """(N, 3) unit normals of a LoadedModel for samples at ``pixel`` ((N, 2) (u, v)) with colours ``rgb`` ((N, 3))."""
     import torch
 

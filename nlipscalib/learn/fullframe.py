@@ -15,6 +15,7 @@ whole gel inside it (``--full-frame``, or a change that reaches the image border
 from __future__ import annotations
 
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,12 +25,15 @@ from .integrate import RayGeometry
 from .integrate_torch import BoxIntegrator, DomeIntegrator
 from .prefilter import kernel_radius
 
+if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
+    import torch
+
 
 def _torch():
     return require("torch", "torch", "Inference with --device or --full-frame")
 
 
-def check_device(device: str):
+def check_device(device: str) -> torch.device:
     """The torch device ``device`` names ("cpu", "cuda", "cuda:1"), or ConfigError naming what is missing."""
     torch = _torch()
     try:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
 from .model import load_model
 from .prefilter import Prefilter
+
+if TYPE_CHECKING:  # named in hints only: to_reconstruction imports it where it makes one
+    from ..core.reconstruction import Reconstruction
 
 BACKENDS = ("auto", "torch", "onnx", "onnx-int8")
 """Network runtimes: auto (onnx when MODEL.onnx exists, else torch), PyTorch, onnxruntime float32, and
@@ -171,7 +175,7 @@ class Predictor:
         return self.model.shape
 
     # ------------------------------------------------------------------ inputs
-    def linear(self, image: np.ndarray, where="frame") -> np.ndarray:
+    def linear(self, image: np.ndarray, where: str | Path = "frame") -> np.ndarray:
         """Linear tri-colour image from stored 16-bit values, with the calibration's dark frame and levels.
 
         Parameters
@@ -243,7 +247,7 @@ class Predictor:
         rows, cols = slice(int(row[0]), int(row[-1]) + 1), slice(int(col.min()), int(col.max()) + 1)  # row is sorted
         return self.prefilter(tricolor, rows, cols)[row - rows.start, col - cols.start]
 
-    def predict_stored(self, image: np.ndarray, where="frame") -> Frame:
+    def predict_stored(self, image: np.ndarray, where: str | Path = "frame") -> Frame:
         """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""
         if self._full is not None and image.dtype == np.uint16 and image.shape == self.shape + (3,):
             return self._whole_frame(image, stored=True)  # converted on the device: half the bytes to move
@@ -258,7 +262,7 @@ class Predictor:
         return frame
 
 
-def mismatch_warning(frame: Frame, where) -> str | None:
+def mismatch_warning(frame: Frame, where: str | Path) -> str | None:
     """Why ``frame``'s result is not to be trusted when it differs from the reference frame almost everywhere.
 
     The change rule finds the pixels that differ from the rest of the frame; a frame unlike the calibration's
@@ -297,7 +301,7 @@ def mismatch_warning(frame: Frame, where) -> str | None:
     )
 
 
-def to_reconstruction(frame: Frame, predictor: Predictor, source: str, inputs: dict | None = None):
+def to_reconstruction(frame: Frame, predictor: Predictor, source: str, inputs: dict | None = None) -> Reconstruction:
     """The frame in the core reconstruction format (what ``nlips eval`` scores).
 
     Parameters
@@ -342,7 +346,7 @@ def to_reconstruction(frame: Frame, predictor: Predictor, source: str, inputs: d
     )
 
 
-def load_tricolor(folder) -> tuple[np.ndarray, dict]:
+def load_tricolor(folder: str | Path) -> tuple[np.ndarray, dict]:
     """The linear tri-colour frame and sensor description of a press folder, without its LED images.
 
     Returns

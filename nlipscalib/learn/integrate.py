@@ -27,11 +27,18 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
 from ..core.camera import depth_to_points
 from ..core.errors import ShapeError
+
+if TYPE_CHECKING:  # torch is optional (the full-frame path passes tensors): named for the type checker only
+    import torch
+
+Array: TypeAlias = "np.ndarray | torch.Tensor"
+"""A numpy array, or a torch tensor where :mod:`.fullframe` calls the shared arithmetic."""
 
 ANCHOR_WEIGHT = 1e-4
 """Weak pull toward the reference log-range, on the unknown regions that touch no known pixel only (their
@@ -179,7 +186,7 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
     return x
 
 
-def box_rhs(normals, rays, d_u, d_v, x):
+def box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array) -> Array:
     """Right-hand side of the box's interior equation, 4 x_i - sum of neighbours = f_i, with the box's outer ring
     (of ``x``, the reference) moved to it.
 
@@ -222,11 +229,11 @@ def _path_eigenvalues(n: int, neumann: bool) -> np.ndarray:
     return 2 - 2 * np.cos(np.pi * np.arange(1, n + 1) / (n + 1))
 
 
-def _gradient32(normals, rays, d_u, d_v):
+def _gradient32(normals: Array, rays: Array, d_u: Array, d_v: Array) -> tuple[Array, Array]:
     """:func:`log_range_gradient` in float32 over a box (every argument cropped to it); numpy or torch."""
     n0, n1, n2 = normals[..., 0], normals[..., 1], normals[..., 2]
 
-    def dot(v):
+    def dot(v: Array) -> Array:
         return n0 * v[..., 0] + n1 * v[..., 1] + n2 * v[..., 2]
 
     den = dot(rays).clip(max=-MIN_FACING)

@@ -36,7 +36,15 @@ class LookupTable:
     """region index -> (keys (K, 3) int bin indices, normals (K, 3) unit, scipy cKDTree over keys)."""
 
     @classmethod
-    def fit(cls, pixel, rgb, normal, reference, cells: int = 8, bins: int = 16) -> LookupTable:
+    def fit(
+        cls,
+        pixel: np.ndarray,
+        rgb: np.ndarray,
+        normal: np.ndarray,
+        reference: np.ndarray,
+        cells: int = 8,
+        bins: int = 16,
+    ) -> LookupTable:
         """Fit from samples.
 
         Parameters
@@ -54,7 +62,7 @@ class LookupTable:
         lut.tables[-1] = lut._table(keys, normal)  # all regions pooled: for regions without samples
         return lut
 
-    def predict(self, pixel, rgb) -> np.ndarray:
+    def predict(self, pixel: np.ndarray, rgb: np.ndarray) -> np.ndarray:
         """(N, 3) unit normals for samples at ``pixel`` ((N, 2) (u, v)) with colours ``rgb`` ((N, 3) linear)."""
         keys, region = self._keys(pixel, rgb), self._region(pixel)
         out = np.empty((len(keys), 3))
@@ -65,16 +73,16 @@ class LookupTable:
         return out
 
     # ------------------------------------------------------------------ internals
-    def _keys(self, pixel, rgb) -> np.ndarray:
+    def _keys(self, pixel: np.ndarray, rgb: np.ndarray) -> np.ndarray:
         delta = rgb - self.reference[pixel[:, 1], pixel[:, 0]]
         q = np.floor((delta - self.lo) / (self.hi - self.lo) * self.bins).astype(np.int64)
         return np.clip(q, 0, self.bins - 1)
 
-    def _region(self, pixel) -> np.ndarray:
+    def _region(self, pixel: np.ndarray) -> np.ndarray:
         H, W = self.shape
         return (pixel[:, 1].astype(np.int64) * self.cells // H) * self.cells + pixel[:, 0] * self.cells // W
 
-    def _table(self, keys, normals):
+    def _table(self, keys: np.ndarray, normals: np.ndarray) -> tuple:
         from scipy.spatial import cKDTree
 
         flat = (keys[:, 0] * self.bins + keys[:, 1]) * self.bins + keys[:, 2]

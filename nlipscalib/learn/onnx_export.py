@@ -13,8 +13,10 @@ import hashlib
 import json
 import logging
 import warnings
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,12 +24,15 @@ from ..core.cpus import usable_cores
 from ..core.errors import CaptureError, require
 from ..core.metrics import angle_deg
 
+if TYPE_CHECKING:  # named in hints only: the model module (and torch) are imported where an export needs them
+    from .model import LoadedModel
+
 OPSET = 17
 IR_VERSION = 8
 """ONNX IR version of the export: the oldest that carries opset 17 (onnxruntime >= 1.13 reads it)."""
 
 
-def export_hint(model_path, again: bool = False) -> str:
+def export_hint(model_path: str | Path, again: bool = False) -> str:
     """How to get the ONNX file of the model at ``model_path``, for the errors that find it missing or stale
     (``again``: damaged, so it is written again)."""
     if again:
@@ -41,11 +46,11 @@ def bytes_digest(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def file_digest(path) -> str:
+def file_digest(path: str | Path) -> str:
     return bytes_digest(Path(path).read_bytes())
 
 
-def export_onnx(model, out, check=None) -> Path:
+def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], object] | None = None) -> Path:
     """Write ``model`` (a LoadedModel) as an ONNX file ``out`` atomically; returns its path.
 
     ``check(path)``, when given, runs on the written file before it takes its name (e.g. the parity with
@@ -109,7 +114,7 @@ def export_onnx(model, out, check=None) -> Path:
     return write_by_name(out, write_and_check)
 
 
-def quantized_int8(path) -> bytes:
+def quantized_int8(path: str | Path) -> bytes:
     """The ONNX model at ``path`` with dynamic int8 quantisation (onnxruntime.quantization.quantize_dynamic).
 
     Weights int8 per output channel, activations quantised per call. The first layer stays float: its
@@ -153,7 +158,7 @@ class OnnxNet:
     MIN_SLICE = 4096
     """Fewest pixels worth a slice of their own (below, thread hand-over costs more than it saves)."""
 
-    def __init__(self, path, model=None, threads: int = 0, int8: bool = False):
+    def __init__(self, path: str | Path, model: LoadedModel | None = None, threads: int = 0, int8: bool = False):
         ort = require("onnxruntime", "onnxruntime", "ONNX inference")
         path = Path(path)
         if not path.is_file():
@@ -206,7 +211,7 @@ PARITY_LIMIT_DEG = 0.1
 """An ONNX export is accepted when onnxruntime's normals are within this angle (degrees) of PyTorch's."""
 
 
-def checked_parity(model, onnx_path, x: np.ndarray, threads: int = 0) -> float:
+def checked_parity(model: LoadedModel, onnx_path: str | Path, x: np.ndarray, threads: int = 0) -> float:
     """Largest angle (degrees) between onnxruntime's and PyTorch's normals on network inputs ``x``.
 
     Parameters

@@ -31,7 +31,7 @@ def grid_faces(valid: np.ndarray) -> np.ndarray:
     return np.concatenate([tri1, tri2]).astype(np.int32)
 
 
-def write_ply(path, points: np.ndarray, normals: np.ndarray | None = None, mesh: bool = False) -> Path:
+def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None = None, mesh: bool = False) -> Path:
     """Write the finite points (and their normals) of an (H, W, 3) map as a binary PLY, atomically.
 
     Parameters

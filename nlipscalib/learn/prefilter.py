@@ -27,7 +27,7 @@ MAX_SIGMA_PX = 50.0
 is 0-3 px), and OpenCV refuses a kernel of ~6 sigma once it exceeds an int ("Can't parse 'ksize'")."""
 
 
-def check_sigma(sigma_px, where: str) -> float:
+def check_sigma(sigma_px: object, where: str) -> float:
     """``sigma_px`` as a float in [0, :data:`MAX_SIGMA_PX`]; else ConfigError naming ``where`` (an option or
     a file's key)."""
     from ..core.config import is_finite_number

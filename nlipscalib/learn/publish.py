@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -30,7 +31,7 @@ PUBLISH_POLL_S = 0.05
 """How often a finished training checks whether another one is still publishing its files into the same place, s."""
 
 
-def model_stage(out):
+def model_stage(out: str | Path) -> AbstractContextManager[Path]:
     """A temporary folder beside the model path ``out`` to write one training's files into, removed afterwards
     (:func:`nlipscalib.core.atomic.scratch_dir`: a killed run's is removed by the next training, a SIGTERM'd
     one removes its own). Fill it with the files of :func:`model_file_names`, then :func:`publish_model`."""
@@ -39,7 +40,7 @@ def model_stage(out):
     return scratch_dir(out)
 
 
-def publish_model(stage, out, result: TrainResult | None = None) -> list[Path]:
+def publish_model(stage: str | Path, out: str | Path, result: TrainResult | None = None) -> list[Path]:
     """Put the files of one training (``stage``, from :func:`model_stage`) beside ``out``, together.
 
     Why: two ``nlips train`` runs into one ``--out`` with different options each wrote their .pt, .onnx and

@@ -12,6 +12,7 @@ import functools
 import logging
 import math
 import time
+from collections.abc import Collection, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -108,11 +109,13 @@ class TrainConfig:
             )
 
 
-def _is_int(value) -> bool:
+def _is_int(value: object) -> bool:
     return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
-def split_by_press(names, val_fraction: float, seed: int, val_names=None) -> tuple[list[str], list[str]]:
+def split_by_press(
+    names: Iterable[str], val_fraction: float, seed: int, val_names: Collection[str] | None = None
+) -> tuple[list[str], list[str]]:
     """Training and validation presses: no press has samples on both sides.
 
     ``val_names`` chooses the validation presses explicitly; otherwise a seeded random
@@ -158,9 +161,9 @@ class TrainResult:
 def train(
     dataset: CalibrationDataset,
     cfg: TrainConfig,
-    out,
-    val_names=None,
-    exclude=(),
+    out: str | Path,
+    val_names: Collection[str] | None = None,
+    exclude: Collection[str] = (),
     progress: bool = True,
     stage: Path | None = None,
 ) -> TrainResult:

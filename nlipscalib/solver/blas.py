@@ -8,6 +8,7 @@ threads). A product's last bits depend on BLAS's thread count, so results kept f
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterator
 
 _controller = None
 
@@ -25,7 +26,7 @@ def _blas():
 
 
 @contextlib.contextmanager
-def blas_threads(count: int):
+def blas_threads(count: int) -> Iterator[None]:
     """Limit the BLAS libraries' threads to ``count`` while the block runs.
 
     The solver's BLAS calls are vector dot products and norms inside CG (and small dense ones in

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -25,7 +26,7 @@ from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
-from ..core.leds import Led, disk_shading, led_shading
+from ..core.leds import Led, Leds, disk_shading, led_shading
 from ..core.robust_scale import mad_scale
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 
@@ -110,8 +111,8 @@ def _disk_model(radius: float):
 
 
 def calibrate_leds(
-    presses,
-    initial=None,
+    presses: Press | Sequence[Press],
+    initial: Leds | None = None,
     stride: int = 2,
     loss: str = "cauchy",
     *,
@@ -490,7 +491,15 @@ def _led_noise(presses) -> np.ndarray:
     return np.maximum(np.median(np.asarray(per, float), axis=0), step)
 
 
-def fit_quality(presses, fitted, x, n, img, ok, model=_model) -> dict:
+def fit_quality(
+    presses: Sequence[Press],
+    fitted: Sequence[tuple[np.ndarray, np.ndarray, float]],
+    x: np.ndarray,
+    n: np.ndarray,
+    img: np.ndarray,
+    ok: np.ndarray,
+    model: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = _model,
+) -> dict:
     """How much of the images the fitted LEDs leave unexplained, in units of the images' own noise.
 
     Each LED's residual scale (1.4826 x the median absolute deviation of model minus image over its fitted

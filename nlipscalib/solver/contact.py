@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -216,7 +217,7 @@ def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, bl
     }
 
 
-def auto_roi(contact: ContactMap, shape: tuple[int, int], **kwargs) -> tuple[int, int, int, int]:
+def auto_roi(contact: ContactMap, shape: tuple[int, int], **kwargs: Any) -> tuple[int, int, int, int]:
     """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome: :func:`contact_box`
     (the same keywords) without its note, which goes to the log as a warning."""
     box, note = contact_box(contact, shape, **kwargs)

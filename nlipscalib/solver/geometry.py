@@ -11,6 +11,8 @@ approximation is made: q, q_u, q_v come from the lens model's own per-pixel rays
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -82,7 +84,7 @@ def difference_operators(mask: np.ndarray, backward: bool = False) -> tuple[sp.c
         step = np.array([0, 1]) if axis == 1 else np.array([1, 0])
         s = -1 if backward else 1  # preferred direction
 
-        def nb(k, s=s, step=step):
+        def nb(k: int, s: int = s, step: np.ndarray = step) -> np.ndarray:
             return padded[rr + 2 + k * s * step[0], cc + 2 + k * s * step[1]]
 
         p1, m1, m2 = nb(1), nb(-1), nb(-2)
@@ -106,7 +108,9 @@ def difference_operators(mask: np.ndarray, backward: bool = False) -> tuple[sp.c
 
 
 def gradient_operators(
-    mask: np.ndarray, forward=None, backward=None
+    mask: np.ndarray,
+    forward: tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray] | None = None,
+    backward: tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray] | None = None,
 ) -> tuple[sp.csr_matrix, sp.csr_matrix, np.ndarray]:
     """Central differences (t[p+1] - t[p-1]) / 2 inside the mask, second-order one-sided at its edges.
 
@@ -179,7 +183,7 @@ class NormalMatrix:
     fixed : build the fixed-pattern map (see above).
     """
 
-    def __init__(self, ops, extras=(), fixed: bool = False):
+    def __init__(self, ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix] = (), fixed: bool = False):
         n = ops[0].shape[1]
         self.n, self.k = n, len(ops)
         self.sizes = [E.shape[0] for E in extras]
@@ -199,7 +203,7 @@ class NormalMatrix:
         self._indptr = self._indptr.astype(np.int32)
         self._shape = (k * n + m_extra, k * n + m_extra)
 
-    def assemble(self, M: np.ndarray, weights=()) -> sp.csr_matrix:
+    def assemble(self, M: np.ndarray, weights: Sequence[float] = ()) -> sp.csr_matrix:
         """H (N, N) CSR, float64, sorted indices, for blocks M (k, k, N) (symmetric in its first two axes)
         and the extras' weights."""
         if self.fixed is not None:
@@ -216,7 +220,7 @@ class _FixedPattern:
     """The fixed-pattern assembly of :class:`NormalMatrix`: H's pattern (the union of every term's), the map S
     from the blocks M (k, k, N), raveled, to H.data, and each extra's E_j^T E_j as (positions, values)."""
 
-    def __init__(self, ops, extras):
+    def __init__(self, ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix]) -> None:
         ops = [sp.csr_matrix(P) for P in ops]
         extras = [sp.csr_matrix(E) for E in extras]
         n, k = ops[0].shape[1], len(ops)
@@ -243,7 +247,7 @@ class _FixedPattern:
             EtE = (E.T @ E).tocoo()
             self.extras.append((_positions(where, EtE.row, EtE.col), EtE.data))
 
-    def assemble(self, M: np.ndarray, weights=()) -> sp.csr_matrix:
+    def assemble(self, M: np.ndarray, weights: Sequence[float] = ()) -> sp.csr_matrix:
         data = self.S @ np.ascontiguousarray(M, np.float64).ravel()
         for (position, values), w in zip(self.extras, weights):
             data[position] += float(w) * values
@@ -253,7 +257,7 @@ class _FixedPattern:
         return H
 
 
-def _union_pattern(ops, extras) -> sp.csr_matrix:
+def _union_pattern(ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix]) -> sp.csr_matrix:
     """The sparsity pattern of sum_ab P_a^T P_b + sum_j E_j^T E_j (absolute values: nothing cancels), sorted."""
     absolute = [abs(P) for P in ops]
     total = sum(absolute)

@@ -6,10 +6,19 @@ import numpy as np
 
 from ..core.camera import Camera
 from ..core.errors import ShapeError
+from ..core.leds import Leds
 from .options import SolverOptions
 
 
-def check_inputs(images, camera: Camera, leds: tuple, prior_depth, mask, saturated, opts: SolverOptions):
+def check_inputs(
+    images: np.ndarray,
+    camera: Camera,
+    leds: Leds,
+    prior_depth: np.ndarray | None,
+    mask: np.ndarray | None,
+    saturated: np.ndarray | None,
+    opts: SolverOptions,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Validate the solver's inputs; returns (images ndarray, prior_depth (H, W) float64, mask (H, W) bool).
 
     Raises ShapeError naming the offending argument.

@@ -23,6 +23,7 @@ import dataclasses
 import functools
 import logging
 import time
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +64,7 @@ negative; with the floor g is 1 / this, above :data:`RELAXATION_MAX_RATIO`, so s
 slowest relaxation."""
 
 
-def solve_press(press: Press, **kwargs) -> SolveResult:
+def solve_press(press: Press, **kwargs: Any) -> SolveResult:
     """Solve one press; see :func:`_solve_press` for the parameters (the same keywords).
 
     A guard against a failure seen on small, noisy captures: when the noise-adapted smoothness

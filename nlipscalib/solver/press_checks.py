@@ -6,18 +6,29 @@ argument is refused before a capture is loaded or a result reused.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..core import tolerances
 from ..core.errors import CaptureError, ConfigError, ShapeError
 from ..core.leds import led_geometry_mismatch
 
+if TYPE_CHECKING:  # names in hints only: the checks read the captures' attributes, whichever kind they are
+    from ..core.capture import CaptureOptics, Press
+
 INTERREFLECTION_MODES = ("auto", "on", "off")
 MIN_ROI_SIDE = 4
 """Smallest width and height of an explicit ROI box, pixels (the API's and --roi's checks both state it)."""
 
 
-def check_modes(interreflection: str, bounces: int, outer_relaxation, coating_albedo=None) -> None:
+def check_modes(
+    interreflection: str,
+    bounces: int,
+    outer_relaxation: str | float,
+    coating_albedo: float | Sequence[float] | None = None,
+) -> None:
     """ConfigError when one of :func:`.press.solve_press`'s interreflection keywords is out of range (checked before any
     work, also by the pipeline before it looks for an earlier result)."""
     if interreflection not in INTERREFLECTION_MODES:
@@ -34,7 +45,7 @@ def check_modes(interreflection: str, bounces: int, outer_relaxation, coating_al
             )
 
 
-def check_undeformed(press, undeformed) -> None:
+def check_undeformed(press: Press | CaptureOptics, undeformed: Press | CaptureOptics) -> None:
     """CaptureError naming ``undeformed`` unless it is an undeformed capture of ``press``'s sensor.
 
     Parameters
@@ -52,7 +63,7 @@ def check_undeformed(press, undeformed) -> None:
         raise CaptureError(f"{undeformed.folder}: not a capture of the sensor of {press.folder} ({why})")
 
 
-def _other_sensor(press, undeformed) -> str | None:
+def _other_sensor(press: Press | CaptureOptics, undeformed: Press | CaptureOptics) -> str | None:
     """Why ``undeformed`` is not a capture of ``press``'s sensor (LED geometry, undeformed surface), or None."""
     why = led_geometry_mismatch(
         [led.position for led in press.leds],
@@ -72,7 +83,7 @@ def _other_sensor(press, undeformed) -> str | None:
     return None
 
 
-def check_roi(roi, W: int, H: int) -> tuple[int, int, int, int]:
+def check_roi(roi: Sequence[int], W: int, H: int) -> tuple[int, int, int, int]:
     """(x0, y0, w, h) as ints; ShapeError unless the box lies inside the W x H image and is at least 4x4."""
     x0, y0, w, h = (int(v) for v in roi)
     if min(w, h) < MIN_ROI_SIDE or x0 < 0 or y0 < 0 or x0 + w > W or y0 + h > H:

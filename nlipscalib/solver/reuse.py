@@ -23,10 +23,13 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
+from typing import TypeVar
 
 import numpy as np
 
 from ..core import diskcache
+
+T = TypeVar("T")
 
 PER_KIND = 2
 """Results kept per kind (one sensor, and a second one for runs that alternate)."""
@@ -41,11 +44,11 @@ digest = diskcache.digest
 def reused(
     kind: str,
     key: Hashable,
-    compute: Callable,
+    compute: Callable[[], T],
     keep: object | None = None,
     most: int = PER_KIND,
     persist: bool = False,
-):
+) -> T:
     """``compute()``, or the result stored under ``(kind, key)`` by an earlier call.
 
     ``keep``: an object the key identifies by ``id`` (a loaded capture): it is stored with the result,
@@ -70,7 +73,7 @@ def reused(
     return value
 
 
-def origin(value) -> tuple[str, Hashable] | None:
+def origin(value: object) -> tuple[str, Hashable] | None:
     """(kind, key) under which :func:`reused` returned this very object, or None: a later computation
     from it can name its input by that key instead of hashing it again."""
     for kind, shelf in _store.items():
@@ -80,7 +83,7 @@ def origin(value) -> tuple[str, Hashable] | None:
     return None
 
 
-def _from_disk(kind: str, key, compute: Callable):
+def _from_disk(kind: str, key: Hashable, compute: Callable[[], T]) -> T:
     """The result on disk, else ``compute()`` written there (nothing on disk when the tier is off)."""
     path = diskcache.entry(kind, key)
     if path is None:
@@ -99,7 +102,7 @@ def clear() -> None:
     _store.clear()
 
 
-def freeze(*values) -> None:
+def freeze(*values: object) -> None:
     """Make the arrays in ``values`` (arrays, and dicts, tuples and lists of them) read-only."""
     for value in values:
         if isinstance(value, np.ndarray):

@@ -7,12 +7,21 @@ camera frame (OpenCV axes), so the ray origin is 0 and the direction needs no tr
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from types import ModuleType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``variant.load_mitsuba``), passed as ``mi``
+    import mitsuba
+
+    from ...core.camera import Camera
+
 PLUGIN = "nlips_camera"
 NEWTON_ITERS = 12
 """Unrolled Newton steps of the undistortion; converges to float32 precision well before this."""
 
 
-def camera_props(camera) -> dict:
+def camera_props(camera: Camera) -> dict:
     """Scene-dict entries describing ``camera`` (a core Camera) for the sensor plugin."""
     dist = list(camera.dist) + [0.0] * (5 - len(camera.dist))
     props = {"fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy, "lens": camera.model}
@@ -20,7 +29,9 @@ def camera_props(camera) -> dict:
     return props
 
 
-def unproject_fisheye(dr, mx, my, k):
+def unproject_fisheye(
+    dr: ModuleType, mx: mitsuba.Float, my: mitsuba.Float, k: Sequence[float]
+) -> tuple[mitsuba.Float, mitsuba.Float, mitsuba.Float]:
     """Unit ray (x, y, z) of normalised fisheye coordinates (drjit arrays)."""
     theta_d = dr.sqrt(mx * mx + my * my)
     theta = theta_d
@@ -33,7 +44,9 @@ def unproject_fisheye(dr, mx, my, k):
     return mx * s, my * s, dr.cos(theta)
 
 
-def unproject_brown(dr, mx, my, k):
+def unproject_brown(
+    dr: ModuleType, mx: mitsuba.Float, my: mitsuba.Float, k: Sequence[float]
+) -> tuple[mitsuba.Float, mitsuba.Float, mitsuba.Float]:
     """Unit ray of normalised Brown-Conrady coordinates; Newton with the analytic Jacobian."""
     k1, k2, p1, p2, k3 = k
     a, b = mx, my
@@ -53,21 +66,28 @@ def unproject_brown(dr, mx, my, k):
     return a / n, b / n, 1 / n
 
 
-def make_camera_class(mi):
+def make_camera_class(mi: ModuleType) -> type[mitsuba.Sensor]:
     """The distorted-camera sensor class for the active variant of ``mi``."""
     import drjit as dr
 
     class NlipsCamera(mi.Sensor):
         """Sensor with properties fx, fy, cx, cy (pixels, OpenCV), lens ("fisheye"/"brown"), k0..k4."""
 
-        def __init__(self, props):
+        def __init__(self, props: mitsuba.Properties):
             mi.Sensor.__init__(self, props)
             self.lens = str(props.get("lens", "fisheye"))
             self.intr = [float(props.get(n)) for n in ("fx", "fy", "cx", "cy")]
             self.k = [float(props.get(f"k{i}", 0.0)) for i in range(5)]
             self.size = self.film().size()
 
-        def sample_ray(self, time, wavelength_sample, position_sample, aperture_sample, active=True):
+        def sample_ray(
+            self,
+            time: mitsuba.Float,
+            wavelength_sample: mitsuba.Float,
+            position_sample: mitsuba.Point2f,
+            aperture_sample: mitsuba.Point2f,
+            active: mitsuba.Bool | bool = True,
+        ) -> tuple[mitsuba.Ray3f, mitsuba.Spectrum]:
             fx, fy, cx, cy = self.intr
             u = position_sample.x * float(self.size[0]) - 0.5
             v = position_sample.y * float(self.size[1]) - 0.5
@@ -83,14 +103,21 @@ def make_camera_class(mi):
             ray.time = time
             return ray, mi.Spectrum(1.0)
 
-        def sample_ray_differential(self, time, wavelength_sample, position_sample, aperture_sample, active=True):
+        def sample_ray_differential(
+            self,
+            time: mitsuba.Float,
+            wavelength_sample: mitsuba.Float,
+            position_sample: mitsuba.Point2f,
+            aperture_sample: mitsuba.Point2f,
+            active: mitsuba.Bool | bool = True,
+        ) -> tuple[mitsuba.RayDifferential3f, mitsuba.Spectrum]:
             ray, weight = self.sample_ray(time, wavelength_sample, position_sample, aperture_sample, active)
             return mi.RayDifferential3f(ray), weight
 
-        def bbox(self):
+        def bbox(self) -> mitsuba.ScalarBoundingBox3f:
             return mi.ScalarBoundingBox3f(mi.ScalarPoint3f(0.0))
 
-        def to_string(self):
+        def to_string(self) -> str:
             return f"NlipsCamera[{self.lens}, {self.size}]"
 
     return NlipsCamera
