@@ -426,3 +426,16 @@ def test_training_curve_ticks_whole_epochs(tmp_path, monkeypatch):
     ]
     training_curve(history, tmp_path / "curve.png")
     assert ticks and all(float(t).is_integer() for t in ticks)
+
+
+def test_the_colour_bar_marks_clipped_values_only_on_a_fixed_scale(tmp_path, monkeypatch):
+    # the default range is the 1st-99th percentile: 1 % lies above it by definition, so "+" would be on every bar
+    from nlipscalib.report import maps
+
+    marked = []
+    bar = maps._colour_bar
+    monkeypatch.setattr(maps, "_colour_bar", lambda *a, **k: marked.append(a[-1]) or bar(*a, **k))
+    values = np.linspace(0.0, 20.0, 64 * 64).reshape(64, 64)
+    maps.scalar_map_png(tmp_path / "auto.png", values, "inferno", "deg")
+    maps.scalar_map_png(tmp_path / "fixed.png", values, "inferno", "deg", vmin=0.0, vmax=10.0)
+    assert marked == [False, True]

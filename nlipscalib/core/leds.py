@@ -107,7 +107,8 @@ def led_geometry_mismatch(
         return f"{len(pb)} LEDs against {len(pa)}"
     gap = np.linalg.norm(pa - pb, axis=1)
     turn = angle_deg(directions_a, directions_b)
-    off = np.flatnonzero((gap > tolerances.SAME_LED_MM) | (turn > tolerances.SAME_LED_DEG))
+    # written as "not within" so that an angle without a value (a zero-length direction: NaN) is a mismatch
+    off = np.flatnonzero(~(gap <= tolerances.SAME_LED_MM) | ~(turn <= tolerances.SAME_LED_DEG))
     if off.size:
         i = int(off[0])
         return f"LED {i + 1} is {gap[i]:.2f} mm and {turn[i]:.1f} deg from its counterpart"

@@ -70,15 +70,17 @@ def scalar_map_png(
     cmap : one of :data:`COLORMAPS`
     label : unit shown under the colour bar, e.g. "mm" or "deg" (wrapped at spaces to the bar's width)
     vmin, vmax : colour range; default the 1st and 99th percentiles of the finite values. Values above ``vmax``
-        show in its colour, and the bar's top number says so ("10+")
+        show in its colour, and the bar's top number says so ("10+") when ``vmax`` was given (a fixed scale; the
+        default range leaves the top 1 % above it by definition)
     """
     if values.ndim != 2:
         raise ShapeError(f"scalar_map_png needs (H, W) values, got {values.shape}")
     if cmap not in COLORMAPS:
         raise ShapeError(f"unknown colour map {cmap!r}; choose one of {sorted(COLORMAPS)}")
+    fixed_top = vmax is not None
     vmin, vmax = colour_range(values, vmin, vmax)
     bgr = colour_scalars(values, vmin, vmax, cmap)
-    over = bool(np.any(values[np.isfinite(values)] > vmax))
+    over = fixed_top and bool(np.any(values[np.isfinite(values)] > vmax))
     height = max(values.shape[0], bar_min_height(label))
     bgr = np.concatenate([bgr, np.full((height - values.shape[0],) + bgr.shape[1:], 255, np.uint8)], axis=0)
     return _write_png(path, np.concatenate([bgr, _colour_bar(height, cmap, vmin, vmax, label, over)], axis=1))

@@ -1,6 +1,6 @@
 """Checks of :func:`nlipscalib.solver.press.solve_press`'s arguments, made before any work.
 
-The pipeline makes the same checks before it looks for an earlier result (``pipeline.py``), so a bad
+The pipeline makes the same checks before it looks for an earlier result (``nlipscalib.pipeline.settings``), so a bad
 argument is refused before a capture is loaded or a result reused.
 """
 

@@ -118,3 +118,14 @@ def test_disk_shading_checks_points_and_normals_like_led_shading():
         for leds, radius in (([led], 1.8), ([], 1.8), ([led], 0.0)):
             with pytest.raises(ShapeError, match=r"\(\.\.\., 3\)"):
                 disk_shading(points, normals, leds, radius)
+
+
+def test_an_led_direction_without_a_length_is_a_mismatch():
+    from nlipscalib.core.leds import led_geometry_mismatch
+
+    positions = np.array([[9.0, 0.0, 3.0], [0.0, 9.0, 3.0]])
+    directions = np.array([[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    assert led_geometry_mismatch(positions, directions, positions, directions) is None
+    broken = directions.copy()
+    broken[1] = 0.0
+    assert "LED 2" in led_geometry_mismatch(positions, directions, positions, broken)
