@@ -64,7 +64,8 @@ def run(args) -> int:
 
     from ..core.atomic import write_json
     from ..core.errors import ConfigError
-    from ..device.camera_calibration import HIGH_RMS_PX, Target, calibrate_images
+    from ..core.tolerances import CAMERA_CAL_HIGH_RMS_PX
+    from ..device.camera_calibration import Target, calibrate_images
 
     log = logging.getLogger(__name__)
 
@@ -84,13 +85,13 @@ def run(args) -> int:
         f"dist {', '.join(f'{d:.4g}' for d in c.dist)}"  # every digit is in the JSON file
     )
     print(f"reprojection error (RMS over {len(cal.used)} views): {cal.rms_px:.3f} px")
-    if cal.rms_px > HIGH_RMS_PX:
+    if cal.rms_px > CAMERA_CAL_HIGH_RMS_PX:
         worst = max(zip(cal.per_view_px, cal.used))[1]
         log.warning(
             "the reprojection error %.2f px is high (a good calibration is below %g px): check --pattern and "
             "--square, that the board is flat and sharp in every image, and the lens model (--model); worst view: %s",
             cal.rms_px,
-            HIGH_RMS_PX,
+            CAMERA_CAL_HIGH_RMS_PX,
             worst,
         )
     write_json(args.out, cal.to_dict())

@@ -139,7 +139,7 @@ def _names(option: str | None) -> list[str]:
 
 def export_and_check(model_path, dataset, names) -> tuple:
     """Export MODEL.onnx and return (path, max angle in degrees between onnxruntime and PyTorch normals) on the
-    samples of presses ``names``; CaptureError beyond ``learn.onnx_export.PARITY_LIMIT_DEG``."""
+    samples of presses ``names``; CaptureError beyond ``core.tolerances.ONNX_PARITY_DEG``."""
     from ..learn.model import load_model, model_inputs
     from ..learn.onnx_export import checked_parity, export_onnx
 

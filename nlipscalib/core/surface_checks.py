@@ -14,16 +14,13 @@ import numpy as np
 
 from .camera import Camera, depth_to_points
 from .leds import Led
-from .tolerances import SURFACE_SCALE_RATIO, UNIT_NORMAL_TOL
+from .tolerances import FACING_AWAY_MAJORITY, SURFACE_SCALE_RATIO, UNIT_NORMAL_TOL
 
 FACING_STRIDE = 8
 """The facing and scale checks look at every this-many-th pixel in both directions (a statistic; 4,800
 pixels at 640x480, unprojected in a few milliseconds, where the whole frame's rays cost 75 ms)..."""
 FACING_MIN_SAMPLES = 100
 """... or at every pixel of the gel when that grid holds fewer than this many of them (a small gel or image)."""
-FACING_AWAY_MAJORITY = 0.5
-"""Normals are flipped when more than this share of the sampled gel faces away from the camera (a convention,
-not a tolerance: a file that follows it faces the camera everywhere, one with flipped normals nowhere)."""
 
 
 def surface_problem(

@@ -52,6 +52,13 @@ EXPERIMENT_CHECK_REL = 0.10
 INDIRECT_MIN_SHARE = 0.02
 """Interreflection ``auto``: the indirect term is applied when its fitted share of the direct light on the
 undeformed dome (median over the gel) is at least this; below it the capture has no measurable indirect light."""
+INDIRECT_PATCH_USABLE = 0.99
+"""Interreflection fit (:func:`nlipscalib.solver.indirect.fit_indirect`): a patch enters the fit, for an LED and
+a channel, only when more than this share of its area is usable (on the gel, unsaturated, its LED lit, outside
+``exclude``): in effect, wholly usable. What it guards: the patch's mean image counts its unusable pixels as
+dark, so a partly usable patch (the gel's edge, a saturated glint, a contact's rim) would read too dim by the
+unusable share and pass for less light than it has; the margin below 1 keeps a wholly usable patch whose
+area-weighted mean rounds to just under 1. The value's own origin is not recorded."""
 ANCHOR_NOISE_FACTOR = 3.0
 """Anchoring: a pixel is undeformed when its misfit to the undeformed model is within this many times the
 misfit that the estimated image noise alone explains."""
@@ -115,8 +122,32 @@ FRAME_BLACK_FRACTION = 0.01
 reference's is called black in the warning (no light above the black level: LEDs off, a lens cap, a camera not
 streaming); a black frame below the calibration's dark frame would otherwise read as a negative number of times
 as bright."""
+FRAME_BRIGHTNESS_OFF = 0.15
+"""NLiPsNet: a mismatched frame (:data:`FRAME_MISMATCH_FRACTION`) whose median brightness is off the reference's by
+more than this fraction is called darker or brighter in the warning (another exposure, LED level or bit depth);
+otherwise the colours differ."""
+CHANGE_NOISE_SIGMAS = 5.0
+"""NLiPsNet's change rule (:mod:`nlipscalib.learn.change`, and its GPU copy in :mod:`nlipscalib.learn.fullframe`:
+the calibration dataset's contact, the pixels inference sends through the network): a block has changed when
+its averaged colour difference exceeds the median by this many noise sigmas."""
+CHANGE_MIN_REL = 0.005
+"""... and exceeds this fraction of the reference's intensity (shading noise floor)."""
+INTEGRATION_MIN_FACING = 0.05
+"""Least -n.d a normal is integrated with (:mod:`nlipscalib.learn.integrate` and its torch copy; it faces the
+camera at most ~87 deg from its ray). A visible surface faces the camera; a network's normal that is grazing or
+faces away (an untrained model, a frame of another sensor) would give a slope without bound and overflow the
+depth, so it is clipped to this grazing slope instead."""
+ONNX_PARITY_DEG = 0.1
+"""An ONNX export is accepted when onnxruntime's normals are within this angle (degrees) of PyTorch's
+(:func:`nlipscalib.learn.onnx_export.checked_parity`); at or beyond it the export is refused. What it guards: an
+export that computes something other than the network (a wrongly fused layer, a missing normalisation), while
+the two runtimes' float32 rounding passes. The value's own origin is not recorded."""
 UNIT_NORMAL_TOL = 1e-3
 """A stored normal's length may differ from 1 by this much (float32 storage rounds at ~1e-7)."""
+FACING_AWAY_MAJORITY = 0.5
+"""Normals are flipped when more than this share of the sampled gel faces away from the camera
+(:mod:`nlipscalib.core.surface_checks`; a convention, not a tolerance: a file that follows it faces the camera
+everywhere, one with flipped normals nowhere)."""
 SURFACE_SCALE_RATIO = 20.0
 """A capture's undeformed surface (reference.npz) and ground truth lie, in median, within this factor of its LEDs'
 median distance from the camera (the shipped sensors: 1.3-2.4 times; depth written in metres: 1/1000)."""
@@ -145,3 +176,26 @@ EXPOSURE_UNUSABLE_SHARE = 0.99
 again at another exposure) when every LED frame is black or has at least this fraction of the gel saturated:
 nothing downstream can use it (LED calibration and NLiPs read the LED frames, and NLiPs solves label NLiPsNet's
 training)."""
+CAMERA_SETTING_RTOL = 0.02
+"""A live camera's setting (exposure, gain, white balance, frame size, ...) is taken as applied when the value it
+reads back is within this fraction of the one asked for (:func:`nlipscalib.device.camera.apply_settings`);
+otherwise it is reported as refused. What it guards: a camera that ignores or clamps a setting is named rather
+than trusted, while one that stores the value in its own units and reads back a slightly rounded number passes.
+The value's own origin is not recorded."""
+CAMERA_SETTING_ABS = 1e-6
+"""... or within this absolute amount (the setting's own units): the floor for a value of 0 (raw frames off,
+auto exposure/gain/white balance off), where the relative tolerance alone would demand exact equality. Float
+rounding, not a physical allowance."""
+CAMERA_CAL_MIN_TILT_SPREAD_DEG = 5.0
+"""Camera calibration (:mod:`nlipscalib.device.camera_calibration`): views whose boards all face the same way
+(normals within this angle, deg) cannot separate the focal length from the board's distance: the fit then returns
+any focal length (4 copies of one view gave fx 2944 px for a 640 px wide camera, at 0.7 px error), so such a set
+is refused."""
+CAMERA_CAL_HIGH_RMS_PX = 1.0
+"""A camera calibration whose reprojection error (RMS, px) exceeds this is reported as poor (good ones: 0.02-0.3
+px)."""
+COVERAGE_GEL_SHARE = 0.25
+"""Coverage report (:mod:`nlipscalib.learn.coverage`): an image region counts as gel, and is asked to be covered
+by presses, when at least this share of its pixels sees the gel. What it guards: a region that only grazes the
+gel's edge would otherwise count as an empty region that no press can fill, and the next press would be sent
+there. The value's own origin is not recorded."""

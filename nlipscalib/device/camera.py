@@ -28,6 +28,7 @@ import numpy as np
 
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.imageio import opencv_path, read_image
+from ..core.tolerances import CAMERA_SETTING_ABS, CAMERA_SETTING_RTOL
 
 if TYPE_CHECKING:  # OpenCV is imported where it is used (``_cv2``): named for the hints only
     import cv2
@@ -393,7 +394,7 @@ def apply_settings(cap: cv2.VideoCapture, settings: CameraSettings) -> list[str]
     for name, prop, value in wanted:
         accepted = cap.set(prop, value)
         got = cap.get(prop)
-        if not accepted or not math.isclose(got, value, rel_tol=0.02, abs_tol=1e-6):
+        if not accepted or not math.isclose(got, value, rel_tol=CAMERA_SETTING_RTOL, abs_tol=CAMERA_SETTING_ABS):
             refused.append(f"{name}: asked {value:g}, camera reports {got:g}")
     return refused
 

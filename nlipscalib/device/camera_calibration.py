@@ -23,18 +23,13 @@ import numpy as np
 from ..core.camera import Camera
 from ..core.errors import CaptureError, ConfigError, ShapeError, require
 from ..core.imageio import read_image
+from ..core.tolerances import CAMERA_CAL_MIN_TILT_SPREAD_DEG
 
 if TYPE_CHECKING:  # OpenCV is imported where it is used (``_cv2``): named for the hints only
     import cv2
 
 MIN_VIEWS = 3
 """Views with a detected board needed for a calibration (use 10-20 covering the whole field in practice)."""
-MIN_TILT_SPREAD_DEG = 5.0
-"""Views whose boards all face the same way (normals within this angle, deg) cannot separate the focal length
-from the board's distance: the fit then returns any focal length (4 copies of one view gave fx 2944 px for a
-640 px wide camera, at 0.7 px error), so such a set is refused."""
-HIGH_RMS_PX = 1.0
-"""A calibration whose reprojection error (RMS, px) exceeds this is reported as poor (good ones: 0.02-0.3 px)."""
 
 
 def _cv2():
@@ -255,7 +250,7 @@ def _unconstrained(K: np.ndarray, rvecs: Sequence[np.ndarray], size: tuple[int, 
     """Why a fit is degenerate (boards all facing one way, a focal length or centre no camera has), or None."""
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     spread = tilt_spread_deg(rvecs)
-    if spread < MIN_TILT_SPREAD_DEG:
+    if spread < CAMERA_CAL_MIN_TILT_SPREAD_DEG:
         return f"the board normals lie within {spread:.1f} deg of each other"
     if not (fx > 0 and fy > 0 and 0 <= cx < size[0] and 0 <= cy < size[1]):
         return f"the fit diverged: fx {fx:.4g} fy {fy:.4g} px, centre ({cx:.4g}, {cy:.4g})"

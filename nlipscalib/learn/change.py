@@ -17,13 +17,10 @@ import numpy as np
 from ..core import masks
 from ..core.errors import ShapeError, require
 from ..core.robust_scale import mad_scale
+from ..core.tolerances import CHANGE_MIN_REL, CHANGE_NOISE_SIGMAS
 
 RULE_VERSION = 2
 """Bumped whenever the rule changes, so calibration datasets re-sample their presses."""
-NOISE_SIGMAS = 5.0
-"""A block has changed when its averaged colour difference exceeds the median by this many noise sigmas."""
-MIN_REL_CHANGE = 0.005
-"""... and exceeds this fraction of the reference's intensity (shading noise floor)."""
 SMOOTH_BLOCKS = 3
 """Side of the box (in 2x2 blocks, i.e. 6 pixels) the signed difference is averaged over."""
 DILATE_BLOCKS = 2
@@ -76,7 +73,7 @@ class ChangeDetector:
         # exposure, LEDs off, channels swapped), nothing does, and the caller is told through this figure
         self.mismatch = median / self._sample_level if self._sample_level > 0 else 0.0
         sigma = mad_scale(sample, center=median, dtype=np.float32) + 1e-6
-        hit = self._valid_blocks & (diff > median + NOISE_SIGMAS * sigma) & (diff > MIN_REL_CHANGE * self._level)
+        hit = self._valid_blocks & (diff > median + CHANGE_NOISE_SIGMAS * sigma) & (diff > CHANGE_MIN_REL * self._level)
         hit = masks.dilate(masks.erode(hit))  # opening: isolated blocks are noise
         if DILATE_BLOCKS > 0:
             hit = masks.dilate(hit, iterations=DILATE_BLOCKS)

@@ -26,6 +26,7 @@ import numpy as np
 from ..core.atomic import write_json
 from ..core.metrics import angular_error_map
 from ..core.reconstruction import jsonable
+from ..core.tolerances import COVERAGE_GEL_SHARE
 
 if TYPE_CHECKING:  # named in hints only: the dataset module is not needed to measure one
     from .dataset import CalibrationDataset
@@ -177,13 +178,13 @@ def _with_article(kind: str) -> str:
 
 
 def _gel_regions(valid: np.ndarray, cells: int) -> np.ndarray:
-    """Regions where at least a quarter of the pixels see the gel."""
+    """Regions where at least :data:`~nlipscalib.core.tolerances.COVERAGE_GEL_SHARE` of the pixels see the gel."""
     H, W = valid.shape
     rr = np.arange(H)[:, None] * cells // H
     cc = np.arange(W)[None, :] * cells // W
     frac = np.zeros((cells, cells))
     np.add.at(frac, (np.broadcast_to(rr, valid.shape), np.broadcast_to(cc, valid.shape)), valid)
-    return frac / (H * W / cells**2) >= 0.25
+    return frac / (H * W / cells**2) >= COVERAGE_GEL_SHARE
 
 
 def _next_press(counts, covered, gel, kinds: dict, shape) -> dict:

@@ -229,17 +229,18 @@ class _ChangeRule:
     (:attr:`.change.ChangeDetector.mismatch`)."""
 
     def __init__(self, reference: np.ndarray, valid: np.ndarray, device):
-        from .change import MIN_REL_CHANGE, NOISE_SIGMAS, NOISE_STRIDE, SMOOTH_BLOCKS
+        from ..core.tolerances import CHANGE_MIN_REL, CHANGE_NOISE_SIGMAS
+        from .change import NOISE_STRIDE, SMOOTH_BLOCKS
 
         torch = _torch()
-        self.smooth, self.sigmas = SMOOTH_BLOCKS, NOISE_SIGMAS
+        self.smooth, self.sigmas = SMOOTH_BLOCKS, CHANGE_NOISE_SIGMAS
         self.valid = torch.as_tensor(valid, device=device)
         h2, w2 = valid.shape[0] // 2, valid.shape[1] // 2
         self.crop = (slice(0, 2 * h2), slice(0, 2 * w2))
         ref = torch.as_tensor(np.where(valid[..., None], reference, 0).astype(np.float32), device=device)
         self.ref_blocks = self._blocks(ref)
         self.on = self._blocks(torch.as_tensor(valid.astype(np.float32), device=device)[..., None])[..., 0] == 1
-        self.floor = MIN_REL_CHANGE * self.ref_blocks.sum(-1)
+        self.floor = CHANGE_MIN_REL * self.ref_blocks.sum(-1)
         self.sample = torch.nonzero(self.on.flatten()).flatten()[::NOISE_STRIDE]
         level = self.ref_blocks.sum(-1).flatten()[self.sample]
         self.level = float(_median(level)) if len(level) else 0.0

@@ -18,7 +18,12 @@ import numpy as np
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import CLIPPED_VALUE, linearise
 from ..core.errors import CaptureError, ConfigError, ShapeError
-from ..core.tolerances import FRAME_BLACK_FRACTION, FRAME_MISMATCH_FRACTION, SATURATED_SHARE_WARN
+from ..core.tolerances import (
+    FRAME_BLACK_FRACTION,
+    FRAME_BRIGHTNESS_OFF,
+    FRAME_MISMATCH_FRACTION,
+    SATURATED_SHARE_WARN,
+)
 from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
 from .model import load_model
@@ -30,10 +35,6 @@ if TYPE_CHECKING:  # named in hints only: to_reconstruction imports it where it 
 BACKENDS = ("auto", "torch", "onnx", "onnx-int8")
 """Network runtimes: auto (onnx when MODEL.onnx exists, else torch), PyTorch, onnxruntime float32, and
 onnxruntime with dynamic int8 quantisation (about 1.5x faster for the paper's net, ~0.05 deg)."""
-
-BRIGHTNESS_OFF = 0.15
-"""A mismatched frame whose median brightness is off the reference's by more than this fraction is called darker or
-brighter in the warning (another exposure, LED level or bit depth); otherwise the colours differ."""
 
 RESULT_DIR = "nlipsnet"
 """Reconstruction folder name inside a press (core reconstruction format, like PRESS/nlips)."""
@@ -273,7 +274,7 @@ def mismatch_warning(frame: Frame, where: str | Path) -> str | None:
     if not frame.mismatch > FRAME_MISMATCH_FRACTION:
         return None
     brightness = 0.0 if frame.brightness < 0 else frame.brightness  # never a negative ratio (NaN stays NaN)
-    off = abs(brightness - 1) > BRIGHTNESS_OFF
+    off = abs(brightness - 1) > FRAME_BRIGHTNESS_OFF
     if brightness <= FRAME_BLACK_FRACTION:
         question = "the frame is black (no light above the black level: LEDs off, lens cap, camera not streaming?)"
     elif frame.saturated >= SATURATED_SHARE_WARN:

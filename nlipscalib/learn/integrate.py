@@ -33,6 +33,7 @@ import numpy as np
 
 from ..core.camera import depth_to_points
 from ..core.errors import ShapeError
+from ..core.tolerances import INTEGRATION_MIN_FACING
 
 if TYPE_CHECKING:  # torch is optional (the full-frame path passes tensors): named for the type checker only
     import torch
@@ -45,12 +46,6 @@ ANCHOR_WEIGHT = 1e-4
 Poisson equation fixes the shape but not the level). Never on a region with a known neighbour: a fixed
 weight there is a real bias, against the Laplacian's smallest eigenvalue ~2 (pi / L)^2 of a region L pixels
 across; at 1e-4 on every pixel, contacts 50-150 px across at 640x480 came out 4-14 % too shallow."""
-
-MIN_FACING = 0.05
-"""Least -n.d a normal is integrated with (it faces the camera at most ~87 deg from its ray). A
-visible surface faces the camera; a network's normal that is grazing or faces away (an untrained
-model, a frame of another sensor) would give a slope without bound and overflow the depth, so it is
-clipped to this grazing slope instead."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,7 +90,7 @@ class RayGeometry:
 
 def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
     """(p, q): d log(rho)/du and d log(rho)/dv, each (H, W) float64, from normals ((H, W, 3) unit, camera frame)."""
-    den = np.minimum(np.einsum("...k,...k->...", normals, geo.rays), -MIN_FACING)
+    den = np.minimum(np.einsum("...k,...k->...", normals, geo.rays), -INTEGRATION_MIN_FACING)
     return -np.einsum("...k,...k->...", normals, geo.d_u) / den, -np.einsum("...k,...k->...", normals, geo.d_v) / den
 
 
@@ -236,7 +231,7 @@ def _gradient32(normals: Array, rays: Array, d_u: Array, d_v: Array) -> tuple[Ar
     def dot(v: Array) -> Array:
         return n0 * v[..., 0] + n1 * v[..., 1] + n2 * v[..., 2]
 
-    den = dot(rays).clip(max=-MIN_FACING)
+    den = dot(rays).clip(max=-INTEGRATION_MIN_FACING)
     return -dot(d_u) / den, -dot(d_v) / den
 
 

@@ -32,7 +32,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.errors import ShapeError, require
-from .integrate import MIN_FACING, RayGeometry, _box, box_eigenvalues, box_rhs
+from ..core.tolerances import INTEGRATION_MIN_FACING
+from .integrate import RayGeometry, _box, box_eigenvalues, box_rhs
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
     import torch
@@ -343,7 +344,7 @@ class DomeIntegrator:
         """
         torch = _torch()
         nb = normals[self.framed].to(torch.float64)
-        den = torch.clamp_max((nb * self.rays).sum(-1), -MIN_FACING)
+        den = torch.clamp_max((nb * self.rays).sum(-1), -INTEGRATION_MIN_FACING)
         p = -(nb * self.d_u).sum(-1) / den
         q = -(nb * self.d_v).sum(-1) / den
         # f = (incoming - outgoing edge gradients) at each pixel of the box; the reference to the right-hand side

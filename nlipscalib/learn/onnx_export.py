@@ -23,6 +23,7 @@ import numpy as np
 from ..core.cpus import usable_cores
 from ..core.errors import CaptureError, require
 from ..core.metrics import angle_deg
+from ..core.tolerances import ONNX_PARITY_DEG
 
 if TYPE_CHECKING:  # named in hints only: the model module (and torch) are imported where an export needs them
     from .model import LoadedModel
@@ -207,10 +208,6 @@ def max_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(ang.max()) if len(ang) else 0.0
 
 
-PARITY_LIMIT_DEG = 0.1
-"""An ONNX export is accepted when onnxruntime's normals are within this angle (degrees) of PyTorch's."""
-
-
 def checked_parity(model: LoadedModel, onnx_path: str | Path, x: np.ndarray, threads: int = 0) -> float:
     """Largest angle (degrees) between onnxruntime's and PyTorch's normals on network inputs ``x``.
 
@@ -223,15 +220,15 @@ def checked_parity(model: LoadedModel, onnx_path: str | Path, x: np.ndarray, thr
 
     Raises
     ------
-    CaptureError naming ``onnx_path`` when the angle reaches :data:`PARITY_LIMIT_DEG`.
+    CaptureError naming ``onnx_path`` when the angle reaches :data:`~nlipscalib.core.tolerances.ONNX_PARITY_DEG`.
     """
     import torch
 
     with torch.inference_mode():
         expected = model.net(torch.from_numpy(x)).numpy()
     angle = max_angle_deg(OnnxNet(onnx_path, model, threads=threads)(x), expected)
-    if not angle < PARITY_LIMIT_DEG:
+    if not angle < ONNX_PARITY_DEG:
         raise CaptureError(
-            f"{onnx_path}: onnxruntime differs from PyTorch by {angle:.3f} deg (limit {PARITY_LIMIT_DEG})"
+            f"{onnx_path}: onnxruntime differs from PyTorch by {angle:.3f} deg (limit {ONNX_PARITY_DEG})"
         )
     return angle

@@ -362,7 +362,7 @@ def fit_indirect(
         cache.update(_fit_inputs(reference, leds, shading))
     surf, off = cache["surface"], cache["off"]
     img, frac = _patch_data(cache, exclude)
-    ok = frac > 0.99  # patches wholly usable for that LED and channel
+    ok = frac > tolerances.INDIRECT_PATCH_USABLE  # patches wholly usable for that LED and channel
     S = surf.shading[:, surf.keep]
     fitted = ok.any(axis=0)  # (K, 3) patches with data
     if not fitted.any():

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from nlipscalib.core import tolerances
 from nlipscalib.learn import change
 from nlipscalib.learn.model import build_net, fused_net
 
@@ -102,7 +103,11 @@ def _scipy_rule(frame, reference, valid):
     sample = diff.ravel()[np.flatnonzero(valid_b)[:: change.NOISE_STRIDE]]
     median = float(np.median(sample))
     sigma = 1.4826 * float(np.median(np.abs(sample - median))) + 1e-6
-    hit = valid_b & (diff > median + change.NOISE_SIGMAS * sigma) & (diff > change.MIN_REL_CHANGE * ref_b.sum(-1))
+    hit = (
+        valid_b
+        & (diff > median + tolerances.CHANGE_NOISE_SIGMAS * sigma)
+        & (diff > tolerances.CHANGE_MIN_REL * ref_b.sum(-1))
+    )
     hit = ndimage.binary_dilation(ndimage.binary_opening(hit), iterations=change.DILATE_BLOCKS)
     out = np.zeros(valid.shape, bool)
     out[: 2 * h2, : 2 * w2] = hit.repeat(2, 0).repeat(2, 1)
