@@ -20,6 +20,7 @@ from numpy.typing import ArrayLike
 from .config import is_number
 from .errors import ConfigError, ShapeError
 from .metrics import angle_deg
+from .tolerances import NORMAL_EPS
 
 TRICOLOR_COLORS = np.eye(3)
 """Colour of each tri-colour group: group 0 red, 1 green, 2 blue."""
@@ -42,7 +43,7 @@ class Led:
         pos = _vec3(self.position, "led.position")
         d = _vec3(self.direction, "led.direction")
         norm = float(np.linalg.norm(d))
-        if norm < 1e-12:
+        if norm < NORMAL_EPS:
             raise ConfigError("led.direction must be a non-zero vector")
         psi = _vec3(self.intensity, "led.intensity")
         if not is_number(self.mu):  # else numpy's "ufunc 'isfinite' not supported" names no key

@@ -43,7 +43,10 @@ normals (the fit weighs it against the images' noise), so only an image with alm
 is dropped. The capture check is the stricter: a frame it calls lit has 1 % of the gel 20 times above this level,
 and one between the two is warned about at capture but still fitted."""
 NORMAL_EPS = 1e-9
-"""Norms below this are treated as zero when normalising."""
+"""Norms below this are treated as zero when normalising (float64 vectors: an LED's direction, a LUT bin's mean
+normal, a radiosity patch's area-weighted normal; any real one is many orders of magnitude longer, so the
+value changes no number). The networks' float32 torch normalisation keeps its own 1e-8 (``learn.model``,
+mirrored as ``min_norm`` in the ONNX export, whose parity depends on it)."""
 EXPERIMENT_CHECK_ABS = {"aae_deg": 0.5, "mabse": 0.005, "depth_rmse_mm": 0.05}
 """``nlips experiment --check``: an accuracy figure is worse when it exceeds the baseline by more than
 max(this absolute amount, EXPERIMENT_CHECK_REL x baseline) (units: degrees, unitless, mm)."""

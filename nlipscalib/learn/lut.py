@@ -14,6 +14,7 @@ import dataclasses
 import numpy as np
 
 from ..core.errors import ShapeError
+from ..core.tolerances import NORMAL_EPS
 
 
 @dataclasses.dataclass
@@ -89,6 +90,6 @@ class LookupTable:
         uniq, inv = np.unique(flat, return_inverse=True)
         sums = np.zeros((len(uniq), 3))
         np.add.at(sums, inv, normals)
-        mean = sums / np.maximum(np.linalg.norm(sums, axis=-1, keepdims=True), 1e-12)
+        mean = sums / np.maximum(np.linalg.norm(sums, axis=-1, keepdims=True), NORMAL_EPS)
         ukeys = np.stack([uniq // self.bins**2, (uniq // self.bins) % self.bins, uniq % self.bins], -1)
         return ukeys, mean, cKDTree(ukeys)

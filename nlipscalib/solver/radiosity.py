@@ -27,6 +27,7 @@ import numpy as np
 from ..core.camera import Camera
 from ..core.dome import dome_inward_normals, project_to_dome
 from ..core.sensor import DomeConfig
+from ..core.tolerances import NORMAL_EPS
 from . import threads
 from .blas import blas_threads
 
@@ -103,7 +104,7 @@ def surface_patches(
     per_area = 1.0 / np.maximum(total, 1e-30)
     centroid = block_sum(np.where(valid[..., None], points, 0.0) * area[..., None], size) * per_area[..., None]
     mean_n = block_sum(np.where(valid[..., None], normals, 0.0) * area[..., None], size)
-    mean_n /= np.maximum(np.linalg.norm(mean_n, axis=-1, keepdims=True), 1e-30)
+    mean_n /= np.maximum(np.linalg.norm(mean_n, axis=-1, keepdims=True), NORMAL_EPS)
     return {
         "points": centroid,
         "normals": mean_n,
