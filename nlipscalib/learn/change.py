@@ -106,7 +106,7 @@ def _cv2():
     return require("cv2", "opencv-python-headless", "Detecting changed pixels")
 
 
-def _blocks(image: np.ndarray, crop) -> np.ndarray:
+def _blocks(image: np.ndarray, crop: tuple[slice, slice]) -> np.ndarray:
     """Means over 2x2 pixel blocks: (H, W[, C]) float32 -> (H // 2, W // 2[, C]).
 
     OpenCV's area resampling at an exact factor of 2 is that mean, four times faster than strided adds.

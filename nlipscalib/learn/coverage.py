@@ -187,7 +187,7 @@ def _gel_regions(valid: np.ndarray, cells: int) -> np.ndarray:
     return frac / (H * W / cells**2) >= COVERAGE_GEL_SHARE
 
 
-def _next_press(counts, covered, gel, kinds: dict, shape) -> dict:
+def _next_press(counts: np.ndarray, covered: np.ndarray, gel: np.ndarray, kinds: dict, shape: tuple[int, int]) -> dict:
     H, W = shape
     cells = counts.shape[0]
     empty = np.where(gel, (~covered).sum(-1), -1)

@@ -167,7 +167,7 @@ def press_samples(press: Press, rec: Reconstruction, ref: dict, cfg: SamplingCon
     }
 
 
-def _stratified(candidates: np.ndarray, cells: int, per_cell: int, rng) -> np.ndarray:
+def _stratified(candidates: np.ndarray, cells: int, per_cell: int, rng: np.random.Generator) -> np.ndarray:
     """(H, W) bool: at most ``per_cell`` random candidate pixels from each of cells x cells image cells."""
     H, W = candidates.shape
     cell = (np.arange(H)[:, None] * cells // H) * cells + (np.arange(W)[None, :] * cells // W)
@@ -415,7 +415,7 @@ def check_reference_values(arrays: dict, where: str | Path) -> None:
             raise CaptureError(f"{where}: reference array '{key}' is NaN or infinite at {bad} pixels")
 
 
-def _checked_entries(presses, path: Path) -> list[dict]:
+def _checked_entries(presses: object, path: Path) -> list[dict]:
     """index.json's ``presses``, checked: a list of entries, each with a plain file ``name`` and a ``samples``
     count (what reading the shards relies on); a hand-edited index is named here, not in a traceback."""
     if not isinstance(presses, list):
@@ -435,7 +435,7 @@ def _checked_entries(presses, path: Path) -> list[dict]:
     return presses
 
 
-def _checked_smoothing(sampling, path: Path) -> float:
+def _checked_smoothing(sampling: object, path: Path) -> float:
     """index.json's ``sampling.smoothing_px``, checked (0 when the dataset predates the option): a bad value
     is named here, not by inference reading the model that carries it ("prefilter sigma must be ...")."""
     if sampling is None:
@@ -451,7 +451,7 @@ def _checked_smoothing(sampling, path: Path) -> float:
 class CalibrationDataset:
     """A calibration dataset folder, validated on open; shards load on demand."""
 
-    def __init__(self, folder) -> None:
+    def __init__(self, folder: str | Path) -> None:
         self.folder = Path(folder)
         path = self.folder / INDEX_FILE
         inside = self.folder / DEFAULT_DIR / INDEX_FILE

@@ -15,6 +15,7 @@ whole gel inside it (``--full-frame``, or a change that reaches the image border
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,6 +28,8 @@ from .prefilter import kernel_radius
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
     import torch
+
+    from .model import LoadedModel
 
 
 def _torch():
@@ -65,7 +68,7 @@ class FullFrame:
         False: the network's normals on every gel pixel
     """
 
-    def __init__(self, model, device, geo: RayGeometry | None, keep_reference: bool = True):
+    def __init__(self, model: LoadedModel, device: torch.device, geo: RayGeometry | None, keep_reference: bool = True):
         from ..core.camera import Camera, depth_to_points
         from .model import fused_net
 
@@ -139,7 +142,7 @@ class FullFrame:
         seconds = {"upload": t1 - t0, "compute": t2 - t1, "download": t3 - t2, "total": t3 - t0}
         return normals, points[..., 2], points, changed, seconds, mismatch  # depth: the points' z, not downloaded
 
-    def _box_points(self, normals, changed: np.ndarray):
+    def _box_points(self, normals: torch.Tensor, changed: np.ndarray):
         """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels' box
         solved (:class:`BoxIntegrator`; only the box comes back from the device), or the whole gel solved where
         that box would leave the gel or touch the image border (its level from the unchanged pixels)."""
@@ -152,7 +155,7 @@ class FullFrame:
         points[box] = self.box_integrator(normals, box).cpu().numpy()
         return points
 
-    def _compute(self, frame, stored: bool):
+    def _compute(self, frame: torch.Tensor, stored: bool):
         """(normals (H, W, 3), changed (H, W), mismatch (), points (H, W, 3)) tensors of one frame on the device;
         with ``keep_reference`` the points are the reference's (the box is integrated after, not recorded)."""
         torch = self.torch
@@ -170,7 +173,7 @@ class FullFrame:
         # the reference normals where nothing changed; the box is integrated after (its shape changes per frame)
         return torch.where(changed[..., None], normals, self.ref_normals), changed, mismatch, self.ref_points
 
-    def _graph(self, host, stored: bool):
+    def _graph(self, host: torch.Tensor, stored: bool):
         """The frame's work recorded once as a CUDA graph and replayed per frame (one launch instead of ~100 small
         kernels: a frame's Python and launch overhead was as long as its arithmetic). None where recording
         fails (the eager path then runs, identical in results)."""
@@ -190,7 +193,7 @@ class _GelFilter:
     """:class:`.prefilter.Prefilter` on a torch device: blur(image * valid) / blur(valid), OpenCV's Gaussian
     kernel, reflected borders (torch's "reflect" is OpenCV's BORDER_REFLECT_101)."""
 
-    def __init__(self, valid: np.ndarray, sigma_px: float, device):
+    def __init__(self, valid: np.ndarray, sigma_px: float, device: torch.device):
         torch = _torch()
         self.radius = kernel_radius(sigma_px)
         self.valid = torch.as_tensor(valid, device=device)
@@ -199,7 +202,7 @@ class _GelFilter:
             self.kernel = [float(w) for w in cv2.getGaussianKernel(2 * self.radius + 1, sigma_px, cv2.CV_32F).ravel()]
             self.weight = self._blur(self.valid.to(torch.float32)[None]).clamp_min(1e-6)
 
-    def _blur(self, a):
+    def _blur(self, a: torch.Tensor):
         """(C, H, W) -> (C, H, W), separable Gaussian per channel.
 
         Weighted sums of shifted copies rather than a convolution: cuDNN convolves in TF32 by default (1e-3
@@ -212,7 +215,7 @@ class _GelFilter:
         rows = sum(w * a[:, i : i + H, :] for i, w in enumerate(self.kernel))
         return sum(w * rows[:, :, i : i + W] for i, w in enumerate(self.kernel))
 
-    def __call__(self, frame):
+    def __call__(self, frame: torch.Tensor):
         """(H, W, 3) -> (H, W, 3) float32 filtered; NaN-safe off the gel."""
         torch = _torch()
         if not self.radius:
@@ -228,7 +231,7 @@ class _ChangeRule:
     opening and growth with the 3x3 cross (zeros outside), back to full resolution. Also its whole-frame figure
     (:attr:`.change.ChangeDetector.mismatch`)."""
 
-    def __init__(self, reference: np.ndarray, valid: np.ndarray, device):
+    def __init__(self, reference: np.ndarray, valid: np.ndarray, device: torch.device):
         from ..core.tolerances import CHANGE_MIN_REL, CHANGE_NOISE_SIGMAS
         from .change import NOISE_STRIDE, SMOOTH_BLOCKS
 
@@ -245,11 +248,11 @@ class _ChangeRule:
         level = self.ref_blocks.sum(-1).flatten()[self.sample]
         self.level = float(_median(level)) if len(level) else 0.0
 
-    def _blocks(self, image):
+    def _blocks(self, image: torch.Tensor):
         F = _torch().nn.functional
         return F.avg_pool2d(image[self.crop].permute(2, 0, 1)[None], 2)[0].permute(1, 2, 0)
 
-    def __call__(self, frame):
+    def __call__(self, frame: torch.Tensor):
         """(changed (H, W) bool, mismatch 0-d) tensors for ``frame`` ((H, W, 3) linear)."""
         from .change import DILATE_BLOCKS
 
@@ -274,14 +277,14 @@ class _ChangeRule:
         return changed & self.valid, median / self.level
 
 
-def _median(x):
+def _median(x: torch.Tensor):
     """numpy's median of a 1-d tensor (the mean of the middle two of an even count), without leaving the device."""
     torch = _torch()
     n = len(x)
     return torch.sort(x).values[(n - 1) // 2 : n // 2 + 1].mean()
 
 
-def _cross(mask, reduce):
+def _cross(mask: torch.Tensor, reduce: Callable[..., torch.Tensor]):
     """Erosion (``torch.amin``) or dilation (``torch.amax``) of a bool mask by the 3x3 cross, zeros outside."""
     F = _torch().nn.functional
     m = F.pad(mask[None, None].to(_torch().uint8), (1, 1, 1, 1))[0, 0]

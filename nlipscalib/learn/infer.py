@@ -86,7 +86,7 @@ class Predictor:
 
     def __init__(
         self,
-        model_path,
+        model_path: str | Path,
         backend: str = "torch",
         threads: int = 0,
         depth: bool = True,
@@ -165,7 +165,7 @@ class Predictor:
             torch.set_num_threads(threads)
         net = fused_net(self.model.net)
 
-        def run(x):
+        def run(x: np.ndarray):
             with torch.inference_mode():
                 return net(torch.from_numpy(x)).numpy()
 

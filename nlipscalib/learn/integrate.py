@@ -168,7 +168,7 @@ def _fast_span(lo: int, hi: int, size: int) -> tuple[int, int]:
     return (new_lo, new_hi) if new_lo >= 0 else (lo, hi)
 
 
-def _solve_box(normals: np.ndarray, geo: RayGeometry, box) -> np.ndarray:
+def _solve_box(normals: np.ndarray, geo: RayGeometry, box: tuple[slice, slice]) -> np.ndarray:
     """Log-range over the box: Poisson solve on its interior, the outer ring fixed at the reference (DST-I)."""
     from scipy.fft import dstn
 
@@ -235,7 +235,7 @@ def _gradient32(normals: Array, rays: Array, d_u: Array, d_v: Array) -> tuple[Ar
     return -dot(d_u) / den, -dot(d_v) / den
 
 
-def _solve_sparse(normals, unknown, on_gel, geo: RayGeometry) -> np.ndarray:
+def _solve_sparse(normals: np.ndarray, unknown: np.ndarray, on_gel: np.ndarray, geo: RayGeometry) -> np.ndarray:
     """Log-range of the changed pixels ((n,) in ``unknown`` order): least squares on them only (any shape),
     SuperLU on the normal equations."""
     from scipy.sparse import coo_matrix, diags
@@ -266,7 +266,9 @@ def _unbounded(unknown: np.ndarray, on_gel: np.ndarray) -> np.ndarray:
     return unknown & ~bounded[labels]
 
 
-def _equations(unknown, on_gel, index, known_lr, p, q):
+def _equations(
+    unknown: np.ndarray, on_gel: np.ndarray, index: np.ndarray, known_lr: np.ndarray, p: np.ndarray, q: np.ndarray
+):
     """Rows of the least-squares system x_j - x_i = (g_i + g_j) / 2 over neighbour pairs touching an unknown."""
     rows, cols, vals, rhs = [], [], [], []
     n_eq = 0

@@ -95,7 +95,7 @@ def idct2(y: torch.Tensor, dim: int) -> torch.Tensor:
     return x.movedim(-1, dim)
 
 
-def _twiddle(n: int, sign: float, like):
+def _twiddle(n: int, sign: float, like: torch.Tensor):
     """(n,) complex exp(sign i pi k / 2n) of ``like``'s dtype and device."""
     torch = _torch()
     k = torch.arange(n, dtype=like.dtype, device=like.device)
@@ -163,7 +163,7 @@ class BoxPoisson:
         return inv_n(inv_m(fwd_n(fwd_m(f, -2), -1) / self.lam, -2), -1)
 
 
-def _axis_matrices(n: int, neumann: bool, device, dtype):
+def _axis_matrices(n: int, neumann: bool, device: torch.device, dtype: torch.dtype):
     """(C, C^T): one axis's (n, n) orthonormal transform matrix of :class:`BoxPoisson` and its inverse."""
     if not neumann:
         s = dst1_matrix(n, device, dtype)
@@ -237,7 +237,7 @@ class BoxIntegrator:
         self.seen[(h, w)] = self.seen.get((h, w), 0) + 1
         return self.seen[(h, w)] >= RECORD_AFTER
 
-    def _solve(self, normals, index):
+    def _solve(self, normals: torch.Tensor, index: torch.Tensor):
         """Points over the box whose flat pixel indices are ``index`` ((h, w) long tensor)."""
         torch = _torch()
         rays = self.rays[index]
@@ -297,7 +297,7 @@ class DomeIntegrator:
         # natural sides along an axis where the box needs no frame
         self.neumann = tuple(inside == slice(None) for inside in self.in_frame)
 
-        def put(a):
+        def put(a: np.ndarray):
             return torch.as_tensor(np.ascontiguousarray(a), device=device)
 
         ref = np.where(on_gel, geo.log_range, 0.0)
@@ -368,7 +368,7 @@ class DomeIntegrator:
         points.view(-1, 3)[self.solved_in_image] = (torch.exp(lr)[:, None] * self.solved_rays).to(torch.float32)
         return points
 
-    def _divergence(self, along_u, along_v):
+    def _divergence(self, along_u: torch.Tensor, along_v: torch.Tensor):
         """(m, n): incoming minus outgoing edge values at each pixel of the box, from the framed box's edges
         along u ((mf, nf - 1), pixel (r, c) to (r, c + 1)) and along v ((mf - 1, nf)). On a natural side no
         edge leaves the box (the 5-point Laplacian's row of the pixel counts its neighbours in the image)."""
@@ -381,7 +381,7 @@ class DomeIntegrator:
             gv = torch.nn.functional.pad(gv, (0, 0, 1, 1))
         return gu[:, :-1] - gu[:, 1:] + gv[:-1, :] - gv[1:, :]
 
-    def _hold(self, rhs, change):
+    def _hold(self, rhs: torch.Tensor, change: torch.Tensor):
         """The box solve again, with sources on the held pixels that bring their change (``change``: the solve
         without them) back to zero; where the box leaves the level free, with the level that does too."""
         flat = rhs.flatten()
@@ -391,7 +391,7 @@ class DomeIntegrator:
         sources = self.capacitance_inverse @ _torch().cat([held, -flat.sum()[None]])
         return self.solve(flat.index_add(0, self.held, sources[:-1]).view_as(rhs)) + sources[-1]
 
-    def _level(self, change, unchanged):
+    def _level(self, change: torch.Tensor, unchanged: torch.Tensor | None):
         """The constant whose removal makes the mean change over the unchanged solved pixels zero (the
         least-squares level shift; over every solved pixel where ``unchanged`` is None or holds none of them)."""
         torch = _torch()

@@ -68,7 +68,7 @@ def build_net(
             self.keep_from, self.draw_below = rate.numerator, rate.denominator
             self.keep_scale = 1.0 / (1.0 - float(rate)) if rate < 1 else 0.0
 
-        def forward(self, x):
+        def forward(self, x: torch.Tensor):
             if not self.training or self.keep_from == 0:
                 return x
             draw = torch.randint(0, self.draw_below, x.shape, dtype=torch.uint8, device=x.device)
@@ -88,7 +88,7 @@ def build_net(
             self.register_buffer("in_offset", torch.tensor(offset, dtype=torch.float32))
             self.register_buffer("in_scale", torch.tensor(scale, dtype=torch.float32))
 
-        def forward(self, x):
+        def forward(self, x: torch.Tensor):
             out = self.mlp((x - self.in_offset) / self.in_scale)
             return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True).clamp_min(1e-8)
 
@@ -130,7 +130,7 @@ def fused_net(net: torch.nn.Module) -> torch.nn.Module:
             super().__init__()
             self.mlp = nn.Sequential(*layers)
 
-        def forward(self, x):
+        def forward(self, x: torch.Tensor):
             out = self.mlp(x)
             return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True).clamp_min(1e-8)
 

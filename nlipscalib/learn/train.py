@@ -12,8 +12,9 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Collection, Iterable
+from collections.abc import Callable, Collection, Iterable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,6 +39,9 @@ from .model import (
     set_colour_normalisation,
 )
 from .publish import clean_interrupted_writes
+
+if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
+    import torch
 
 log = logging.getLogger(__name__)
 
@@ -240,7 +244,9 @@ class _TrainingData:
         return self.x_tr, self.y_tr, self.x_va, self.y_va, self.c_va
 
 
-def _training_data(dataset: CalibrationDataset, cfg: TrainConfig, val_names, exclude) -> _TrainingData:
+def _training_data(
+    dataset: CalibrationDataset, cfg: TrainConfig, val_names: Collection[str] | None, exclude: Collection[str]
+) -> _TrainingData:
     """The presses split for training (:func:`_presses`) and their labelled samples; ConfigError when too few
     samples are labelled or none is in contact, and (from ``dataset.reference``) when the reference is unreadable."""
     train_names, val_names = _presses(dataset, cfg, val_names, exclude)
@@ -269,7 +275,14 @@ def _fresh_training(cfg: TrainConfig, camera: dict, x_tr: np.ndarray):
 
 
 def _save_trained(
-    path: Path, net, dataset: CalibrationDataset, cfg: TrainConfig, data: _TrainingData, exclude, history, best
+    path: Path,
+    net: torch.nn.Module,
+    dataset: CalibrationDataset,
+    cfg: TrainConfig,
+    data: _TrainingData,
+    exclude: Collection[str],
+    history: list[dict],
+    best: dict,
 ) -> None:
     """Write the model file ``path``: ``net`` (its best weights loaded), the sensor and reference it was trained for,
     and what the training was (``info``: options, presses, samples, best epoch, history)."""
@@ -308,7 +321,9 @@ def no_contact_error(dataset: CalibrationDataset, presses: int, samples: int) ->
     )
 
 
-def _presses(dataset: CalibrationDataset, cfg: TrainConfig, val_names, exclude) -> tuple[list[str], list[str]]:
+def _presses(
+    dataset: CalibrationDataset, cfg: TrainConfig, val_names: Collection[str] | None, exclude: Collection[str]
+) -> tuple[list[str], list[str]]:
     """(training presses, validation presses): the dataset's presses with labels of ``cfg.labels`` (true
     normals need a press with ground truth), less ``exclude``, split by press."""
     unknown = sorted(set(exclude) - set(dataset.names))
@@ -334,7 +349,16 @@ EPOCH_SEED_STRIDE = 7919
 weights' initialisation (seed) and of the batch order (seed + k)."""
 
 
-def _epochs(net, opt, sched, samples, cfg: TrainConfig, state: dict, checkpoint, progress: bool):
+def _epochs(
+    net: torch.nn.Module,
+    opt: torch.optim.Optimizer,
+    sched: torch.optim.lr_scheduler.LRScheduler,
+    samples: Sequence[torch.Tensor],
+    cfg: TrainConfig,
+    state: dict,
+    checkpoint: Callable[..., None],
+    progress: bool,
+):
     """Train from ``state`` (:func:`.checkpoint.resume`) until early stopping, ``cfg.max_epochs`` or
     ``cfg.max_seconds``, checkpointing every epoch (``checkpoint(history, best, best_state)``); returns (history,
     best, best_state).
@@ -385,7 +409,7 @@ def _epochs(net, opt, sched, samples, cfg: TrainConfig, state: dict, checkpoint,
     return history, best, best_state
 
 
-def _scheduler(opt, cfg: TrainConfig):
+def _scheduler(opt: torch.optim.Optimizer, cfg: TrainConfig):
     import torch
 
     if cfg.schedule == "plateau":
@@ -395,7 +419,14 @@ def _scheduler(opt, cfg: TrainConfig):
     return torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.max_epochs, eta_min=cfg.lr * 0.05)
 
 
-def _epoch(net, opt, x, y, batch_size: int, gen) -> float:
+def _epoch(
+    net: torch.nn.Module,
+    opt: torch.optim.Optimizer,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    batch_size: int,
+    gen: torch.Generator,
+) -> float:
     import torch
 
     net.train()
@@ -414,7 +445,7 @@ def _epoch(net, opt, x, y, batch_size: int, gen) -> float:
     return total / max(count, 1)
 
 
-def _validate(net, x, y, contact) -> tuple[float, float]:
+def _validate(net: torch.nn.Module, x: torch.Tensor, y: torch.Tensor, contact: torch.Tensor) -> tuple[float, float]:
     """Validation AAE over all samples and over the contact samples, degrees."""
     import torch
 

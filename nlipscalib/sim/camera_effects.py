@@ -7,17 +7,21 @@ and the black-level error. Everything here is a per-pixel map or a convolution: 
 from __future__ import annotations
 
 import functools
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.camera import Camera
 from ..core.errors import require
 
+if TYPE_CHECKING:  # named in hints only
+    from .scene import CameraEffectsConfig
+
 SUPERSAMPLE = 8
 """Sub-pixel grid per pixel when rasterising the disk PSF: a radius of 0.3 px still blurs a little."""
 
 
-def vignetting_map(camera: Camera, cfg) -> np.ndarray:
+def vignetting_map(camera: Camera, cfg: CameraEffectsConfig) -> np.ndarray:
     """Relative illumination of every pixel (1 = no falloff).
 
     Parameters
@@ -89,7 +93,7 @@ def defocus(images: np.ndarray, radius_px: float) -> np.ndarray:
     return out.reshape(images.shape)
 
 
-def apply_lens(images: np.ndarray, camera: Camera, cfg) -> np.ndarray:
+def apply_lens(images: np.ndarray, camera: Camera, cfg: CameraEffectsConfig) -> np.ndarray:
     """Defocus, then vignetting, of linear images (what reaches the sensor).
 
     Parameters

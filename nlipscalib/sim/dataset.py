@@ -19,10 +19,12 @@ import os
 import secrets
 import shutil
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -35,6 +37,11 @@ from ..core.errors import CaptureError, ConfigError, NlipsError
 from ..progress import configure_worker, progress_bar, worker_logging
 from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
+
+if TYPE_CHECKING:  # named in hints only
+    from types import FrameType
+
+    from tqdm import tqdm
 
 log = logging.getLogger(__name__)
 REFERENCE_NAME = REFERENCE_FOLDER  # the name every folder of presses uses (core.capture)
@@ -90,7 +97,7 @@ class RandomSpec:
                 raise ConfigError(f"{name}: the range [{lo}, {hi}] is empty (low > high)")
 
 
-def _check_values(spec, ranges: bool) -> None:
+def _check_values(spec: GridSpec | RandomSpec, ranges: bool) -> None:
     """Shared range checks of grid values (``ranges`` False) and random ranges (True): polar angles, depths,
     indenters."""
     from .press import check_polar
@@ -213,7 +220,7 @@ def run_dataset(
     jobs: list[PressJob],
     out: str | Path,
     workers: int = 0,
-    progress=True,
+    progress: bool = True,
     overwrite: bool = False,
     stale_s: float = CLAIM_STALE_S,
 ) -> dict:
@@ -348,7 +355,7 @@ def _worker_init(log_level: int, log_file: str | None = None) -> None:
     signal.signal(signal.SIGTERM, _worker_terminated)
 
 
-def _worker_terminated(signum, frame) -> None:
+def _worker_terminated(signum: int, frame: FrameType | None) -> None:
     from ..core import atomic, claims
 
     claims.release_all()
@@ -356,7 +363,9 @@ def _worker_terminated(signum, frame) -> None:
     os._exit(128 + signum)
 
 
-def _rounds(todo: list[PressJob], start, result: dict, bar, pool: bool = False) -> None:
+def _rounds(
+    todo: list[PressJob], start: Callable[[PressJob], object], result: dict, bar: tqdm, pool: bool = False
+) -> None:
     """Run jobs; jobs busy in another process are retried until done or taken over (owner died)."""
     waited = False
     while todo:

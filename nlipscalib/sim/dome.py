@@ -96,7 +96,7 @@ def _zip_rings(fa: np.ndarray, fb: np.ndarray, oa: int, ob: int) -> np.ndarray:
     """
     na, nb = len(fa), len(fb)
 
-    def nearest(frac, ring):
+    def nearest(frac: np.ndarray, ring: np.ndarray):
         d = np.abs((frac[:, None] - ring[None, :] + 0.5) % 1.0 - 0.5)
         return np.argmin(d, axis=1)
 

@@ -186,7 +186,7 @@ def _footprint_radius(hf: HeightField, depth: float) -> float:
     return float(r.max() + hf.step)
 
 
-def _footprint_off_dome(dome_cfg, hf, depth, tip, rot) -> bool:
+def _footprint_off_dome(dome_cfg: DomeConfig, hf: HeightField, depth: float, tip: np.ndarray, rot: np.ndarray) -> bool:
     """Whether indenter material that reaches the gel lies below the base plane or beside the flat pad."""
     i, j = np.nonzero(hf.z > -depth)
     local = np.stack([hf.x0 + i * hf.step, hf.y0 + j * hf.step, hf.z[i, j]], 1)
@@ -204,7 +204,7 @@ def _push(hf: HeightField, vertices: np.ndarray, tip: np.ndarray, rot: np.ndarra
     return np.where(np.isfinite(push) & (push > 0), push, 0.0)
 
 
-def _refine_near(dome_cfg, vertices, faces, centre, radius):
+def _refine_near(dome_cfg: DomeConfig, vertices: np.ndarray, faces: np.ndarray, centre: np.ndarray, radius: float):
     """Subdivide faces near ``centre`` until their edges reach ``contact_edge_length``.
 
     Coarser levels reach further out, so each level's transition lies on faces that
@@ -248,7 +248,9 @@ def _boundary_vertices(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return out
 
 
-def _drape(vertices, faces, coarse_faces, push, free, length):
+def _drape(
+    vertices: np.ndarray, faces: np.ndarray, coarse_faces: np.ndarray, push: np.ndarray, free: np.ndarray, length: float
+):
     """Thin-plate draping of the gel around the contact: (V,) float, mm, along the press axis.
 
     The gel's displacement d minimises the discrete energy of a thin plate on an elastic foundation,
@@ -278,7 +280,7 @@ def _drape(vertices, faces, coarse_faces, push, free, length):
     return np.maximum(np.minimum(out, push.max()), push)
 
 
-def _plate(lap, mass, length):
+def _plate(lap: sp.csr_matrix, mass: np.ndarray, length: float):
     """Stiffness of a thin plate on an elastic foundation: L^T M^-1 L + M / length^4.
 
     The foundation (the gel's own elasticity over its rigid shell) confines the deformation to
@@ -287,14 +289,14 @@ def _plate(lap, mass, length):
     return (lap.T @ sp.diags(1.0 / mass) @ lap + sp.diags(mass / length**4)).tocsr()
 
 
-def _solve(q, known, unknown):
+def _solve(q: sp.csr_matrix, known: np.ndarray, unknown: np.ndarray):
     """Values on ``unknown`` minimising x^T q x with the rest held at ``known``."""
     ui = np.flatnonzero(unknown)
     rhs = -(q[ui] @ known)
     return spla.spsolve(q[ui][:, ui].tocsc(), rhs)
 
 
-def _active_set(q, obstacle, region, max_iter=30):
+def _active_set(q: sp.csr_matrix, obstacle: np.ndarray, region: np.ndarray, max_iter: int = 30):
     """(n,) bool: where the minimiser of x^T q x subject to x >= obstacle on ``region`` (x = 0 elsewhere) touches."""
     active = region & (obstacle > 0)
     for _ in range(max_iter):
@@ -309,7 +311,7 @@ def _active_set(q, obstacle, region, max_iter=30):
     return active
 
 
-def _restrict_max(vertices, values, region, n_coarse):
+def _restrict_max(vertices: np.ndarray, values: np.ndarray, region: np.ndarray, n_coarse: int):
     """(n_coarse,) float: the largest value of ``values`` among region vertices nearest each coarse vertex."""
     idx = np.flatnonzero(region)
     nearest = cKDTree(vertices[:n_coarse]).query(vertices[idx])[1]
@@ -318,7 +320,7 @@ def _restrict_max(vertices, values, region, n_coarse):
     return out
 
 
-def _cotan_laplacian(vertices, faces):
+def _cotan_laplacian(vertices: np.ndarray, faces: np.ndarray):
     """Cotangent stiffness matrix (V, V), positive semi-definite, and lumped vertex areas (V,) mm^2."""
     n = len(vertices)
     tri = vertices[faces]

@@ -156,24 +156,24 @@ def _pose_matrix(cfg: IndenterConfig) -> np.ndarray:
 # --- builders: natural pose, textured side toward +z --------------------------------------------
 
 
-def _sphere(cfg):
+def _sphere(cfg: IndenterConfig):
     return trimesh.creation.icosphere(subdivisions=5, radius=cfg.size / 2)
 
 
-def _cube(cfg):
+def _cube(cfg: IndenterConfig):
     return trimesh.creation.box(extents=[cfg.size] * 3)
 
 
-def _cylinder(cfg):
+def _cylinder(cfg: IndenterConfig):
     return trimesh.creation.cylinder(radius=cfg.size / 2, height=cfg.length_mm, sections=256)
 
 
-def _cone(cfg):
+def _cone(cfg: IndenterConfig):
     # trimesh's cone has its base at z = 0 and its apex at +height: apex first
     return trimesh.creation.cone(radius=cfg.size / 2, height=cfg.length_mm / 2, sections=256)
 
 
-def _screw(cfg):
+def _screw(cfg: IndenterConfig):
     """Threaded shaft along z: a tube whose radius follows a helical triangle wave."""
     r_out, depth = cfg.size / 2, min(cfg.relief_mm * 2, cfg.size / 4)
     turns = cfg.count or 8
@@ -211,7 +211,7 @@ def _ridged_disc(radius: float, depth: float, count: int, samples_per_ridge: int
     return Polygon(np.stack([r * np.cos(t), r * np.sin(t)], 1))
 
 
-def _extrude(poly, z0: float, z1: float) -> trimesh.Trimesh:
+def _extrude(poly: Polygon | shapely.MultiPolygon, z0: float, z1: float) -> trimesh.Trimesh:
     """Prism of a (multi)polygon between heights z0 < z1; disjoint pieces stay separate bodies."""
     parts = getattr(poly, "geoms", [poly])
     mesh = trimesh.util.concatenate([trimesh.creation.extrude_polygon(p, z1 - z0) for p in parts])
@@ -223,7 +223,7 @@ def _union(*meshes) -> trimesh.Trimesh:
     return trimesh.boolean.union(list(meshes), engine="manifold")
 
 
-def _coin(cfg):
+def _coin(cfg: IndenterConfig):
     """Coin: reeded edge, raised rim and an emblem of letter-like strokes and dots."""
     r, h, t = cfg.size / 2, cfg.relief_mm, 0.12 * cfg.size
     body = _extrude(_ridged_disc(r, 0.02 * cfg.size, cfg.count or 60), -t, 0.0)
@@ -242,7 +242,7 @@ def _coin(cfg):
     return _union(body, _extrude(emblem, -0.01 * t, h))
 
 
-def _cap(cfg):
+def _cap(cfg: IndenterConfig):
     """Knurled bottle cap: fine ridges round the side, a recessed top inside a rim."""
     r, height = cfg.size / 2, 0.4 * cfg.size
     body = _extrude(_ridged_disc(r, cfg.relief_mm, cfg.count or 48, 6), -height, 0.0)
@@ -250,7 +250,7 @@ def _cap(cfg):
     return trimesh.boolean.difference([body, recess], engine="manifold")
 
 
-def _gear(cfg):
+def _gear(cfg: IndenterConfig):
     """Spur gear with involute-flank teeth and a bore, face toward +z."""
     outline = _gear_outline(cfg.size / 2, cfg.count or 16)
     bore = Point(0, 0).buffer(0.15 * cfg.size, 64)
@@ -279,7 +279,7 @@ def _gear_outline(r_tip: float, teeth: int, pressure_deg: float = 20.0) -> Polyg
     return Polygon(np.concatenate(pts)).buffer(0)
 
 
-def _key(cfg):
+def _key(cfg: IndenterConfig):
     """Flat key: round bow with a hole, blade with bitting cuts on +y and a groove on the +z face."""
     L = cfg.size
     w, t = 0.2 * L, 0.07 * L
@@ -295,7 +295,7 @@ def _key(cfg):
     return trimesh.boolean.difference([body, groove], engine="manifold")
 
 
-def _brick(cfg):
+def _brick(cfg: IndenterConfig):
     """LEGO-like 2x4 brick, studs toward +z (pitch = size / 4)."""
     p = cfg.size / 4
     shell = _extrude(box(-2 * p, -p, 2 * p, p), -1.2 * p, 0.0)
@@ -321,7 +321,7 @@ _BUILDERS = {
 }
 
 
-def with_mesh_beside(indenter, folder: Path):
+def with_mesh_beside(indenter: object, folder: Path) -> object:
     """An indenter mapping whose relative ``mesh`` path is found beside the file that names it.
 
     A press file or dataset spec naming ``mesh = "indenters/pyramid.stl"`` means the file next to it, wherever
@@ -534,7 +534,7 @@ def indenter_heightfield(mesh: trimesh.Trimesh, resolution_mm: float) -> HeightF
     return HeightField(x0, y0, resolution_mm, z)
 
 
-def _chunks(tri, x0, y0, step, max_pairs=2_000_000):
+def _chunks(tri: np.ndarray, x0: float, y0: float, step: float, max_pairs: int = 2_000_000):
     """Split triangles so that each chunk tests about ``max_pairs`` (triangle, sample) pairs."""
     i0 = np.ceil((tri[:, :, 0].min(1) - x0) / step).astype(int)
     i1 = np.floor((tri[:, :, 0].max(1) - x0) / step).astype(int)
@@ -547,7 +547,7 @@ def _chunks(tri, x0, y0, step, max_pairs=2_000_000):
         yield tri[sel], i0[sel], j0[sel], ni[sel], nj[sel]
 
 
-def _rasterise(z, chunk, x0, y0, step):
+def _rasterise(z: np.ndarray, chunk: tuple[np.ndarray, ...], x0: float, y0: float, step: float):
     tri, i0, j0, ni, nj = chunk
     n = ni * nj
     t = np.repeat(np.arange(len(tri)), n)

@@ -15,9 +15,14 @@ frame carries the true black level, so dark-frame subtraction removes ``error``.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..core.leds import TRICOLOR_COLORS, Leds, led_shading, tricolor_groups
+
+if TYPE_CHECKING:  # named in hints only: the scene module imports the renderer's
+    from .scene import CameraEffectsConfig, NoiseConfig
 
 EXPOSURE_TARGET = 0.8
 """Auto exposure puts the 99.5th percentile of the brightest single-LED image at this fraction."""
@@ -26,11 +31,17 @@ _GAUSS_ABOVE = 1000.0
 """Above this many electrons shot noise is drawn from its normal approximation (same mean and variance)."""
 
 
-def _span(cfg) -> float:
+def _span(cfg: NoiseConfig) -> float:
     return float((1 << cfg.bit_depth) - 1) - cfg.black_level
 
 
-def apply_noise(linear: np.ndarray, exposure: float, cfg, rng: np.random.Generator | None, effects=None) -> np.ndarray:
+def apply_noise(
+    linear: np.ndarray,
+    exposure: float,
+    cfg: NoiseConfig,
+    rng: np.random.Generator | None,
+    effects: CameraEffectsConfig | None = None,
+) -> np.ndarray:
     """Turn linear radiance into stored sensor values.
 
     Parameters
@@ -60,7 +71,7 @@ def apply_noise(linear: np.ndarray, exposure: float, cfg, rng: np.random.Generat
     return dn << np.uint16(16 - cfg.bit_depth)
 
 
-def sensor_noise(x: np.ndarray, cfg, rng: np.random.Generator, black: float | None = None) -> np.ndarray:
+def sensor_noise(x: np.ndarray, cfg: NoiseConfig, rng: np.random.Generator, black: float | None = None) -> np.ndarray:
     """DN (float32, unquantised) of fractions of full scale ``x`` with shot and read noise.
 
     ``black`` is the true black level in DN (default ``cfg.black_level``).
@@ -83,7 +94,12 @@ def sensor_noise(x: np.ndarray, cfg, rng: np.random.Generator, black: float | No
     return dn
 
 
-def dark_frame(shape, cfg, rng: np.random.Generator | None, effects=None) -> np.ndarray:
+def dark_frame(
+    shape: tuple[int, int],
+    cfg: NoiseConfig,
+    rng: np.random.Generator | None,
+    effects: CameraEffectsConfig | None = None,
+) -> np.ndarray:
     """(H, W, 3) uint16: the true black level plus read noise (no light)."""
     return apply_noise(np.zeros(tuple(shape) + (3,)), 1.0, cfg, rng, effects)
 

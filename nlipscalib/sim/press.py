@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # names in hints only: the functions import the scene and ren
     import trimesh
 
     from ..core.capture import GroundTruth
-    from ..core.sensor import DomeConfig
+    from ..core.sensor import DomeConfig, LedConfig
     from .indent import PressConfig
     from .render.surface import RenderResult
     from .scene import SceneConfig
@@ -60,7 +60,7 @@ def reference_ground_truth(scene: SceneConfig) -> GroundTruth:
     return _reference_ground_truth(_geometry(scene))
 
 
-def _geometry(scene):
+def _geometry(scene: SceneConfig):
     """The scene reduced to what its ground truth depends on (a small, hashable cache key)."""
     from .scene import LedPackageConfig, RenderConfig, SceneConfig
 
@@ -75,7 +75,7 @@ def _geometry(scene):
 
 
 @functools.lru_cache(maxsize=CACHE_SIZE)
-def _reference_ground_truth(geometry):
+def _reference_ground_truth(geometry: SceneConfig):
     from .render.surface import render_surface
 
     gt = render_surface(geometry, undeformed_mesh(geometry.dome), images=False).gt
@@ -96,7 +96,13 @@ def scene_exposure(scene: SceneConfig, tricolor: bool = False) -> float:
 
 
 @functools.lru_cache(maxsize=4 * CACHE_SIZE)
-def _exposure(geometry, leds_cfg, albedo, scale, tricolor) -> float:
+def _exposure(
+    geometry: SceneConfig,
+    leds_cfg: LedConfig,
+    albedo: tuple[float, float, float],
+    scale: float,
+    tricolor: bool,
+) -> float:
     # ~1 s of numpy at 640x480: once per scene, not per press
     gt = _reference_ground_truth(geometry)
     v = gt.valid
@@ -275,7 +281,7 @@ def render_press(
     return (path, result) if return_result else path
 
 
-def _warn_if_unseen(folder, press, gt) -> None:
+def _warn_if_unseen(folder: str | Path, press: PressConfig, gt: GroundTruth) -> None:
     """One warning when no pixel shows the press's contact: the capture then looks like the undeformed gel.
 
     Why: a press beyond the camera's view (the default fisheye sees the hemisphere up to a polar angle of about

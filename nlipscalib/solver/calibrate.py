@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,6 +30,11 @@ from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds, disk_shading, led_shading
 from ..core.robust_scale import mad_scale
 from .exposure import nothing_to_fit, saturated_share, saturation_note
+
+if TYPE_CHECKING:  # named in hints only: the functions import the indirect module where they use it
+    from pathlib import Path
+
+    from .indirect import IndirectModel
 
 log = logging.getLogger(__name__)
 
@@ -85,18 +91,18 @@ class LedCalibration:
         return out
 
 
-def _unit(theta, phi):
+def _unit(theta: float, phi: float):
     return np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
 
 
-def _led(params) -> Led:
+def _led(params: np.ndarray) -> Led:
     """The Led a parameter vector (log K (3), mu, polar, azimuth of n_s, x_s (3)) stands for."""
     return Led(
         tuple(params[6:9]), tuple(_unit(params[4], params[5])), max(float(params[3]), 0.0), tuple(np.exp(params[:3]))
     )
 
 
-def _model(params, x, n):
+def _model(params: np.ndarray, x: np.ndarray, n: np.ndarray):
     """(N, 3) model images of one LED: the one LED image model, ``core.leds.led_shading``."""
     return led_shading(x, n, (_led(params),))[0]
 
@@ -104,7 +110,7 @@ def _model(params, x, n):
 def _disk_model(radius: float):
     """``_model`` for an LED emitting from a disk of ``radius`` mm (``core.leds.disk_shading``)."""
 
-    def model(params, x, n):
+    def model(params: np.ndarray, x: np.ndarray, n: np.ndarray):
         return disk_shading(x, n, (_led(params),), radius)[0]
 
     return model
@@ -174,7 +180,7 @@ def calibrate_leds(
     return dataclasses.replace(cal, warnings=tuple(notes), saturated_share=tuple(round(v, 4) for v in shares))
 
 
-def _check_finite(cal: LedCalibration, folder) -> None:
+def _check_finite(cal: LedCalibration, folder: Path) -> None:
     """CaptureError naming the capture when a fitted LED is not finite (the fit ran off): never written."""
     for i, led in enumerate(cal.leds + tuple(cal.emitters or ())):
         values = [*led.position, *led.direction, led.mu, *led.intensity]
@@ -183,7 +189,15 @@ def _check_finite(cal: LedCalibration, folder) -> None:
 
 
 def _calibrate(
-    presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance
+    presses: Sequence[Press],
+    initial: Leds | None,
+    stride: int,
+    loss: str,
+    interreflection: str,
+    bounces: int,
+    rounds: int,
+    led_radius: float,
+    coating_reflectance: float | tuple[float, float, float] | None,
 ) -> LedCalibration:
     """:func:`calibrate_leds` without its warnings (it calls itself once more after a reflectance profile)."""
     first = presses[0]
@@ -228,7 +242,13 @@ class _Samples:
     """Per capture, (H, W) bool -- its pixels among the samples, in order."""
 
 
-def _check_calibration_inputs(presses, data, stride: int, led_radius: float, coating_reflectance) -> None:
+def _check_calibration_inputs(
+    presses: Sequence[Press],
+    data: Sequence[tuple],
+    stride: int,
+    led_radius: float,
+    coating_reflectance: float | tuple[float, float, float] | None,
+) -> None:
     """CaptureError or ConfigError before any fit: a capture with nothing to fit, a stride that leaves too few
     samples (``data``: each capture's :func:`_samples`), a negative LED disk radius, a coating reflectance out of
     range."""
@@ -252,7 +272,16 @@ def _check_calibration_inputs(presses, data, stride: int, led_radius: float, coa
         checked_reflectance(coating_reflectance)  # before any fit
 
 
-def _indirect_rounds(presses, samples: _Samples, leds0, loss, interreflection, bounces, rounds, coating_reflectance):
+def _indirect_rounds(
+    presses: Sequence[Press],
+    samples: _Samples,
+    leds0: Leds,
+    loss: str,
+    interreflection: str,
+    bounces: int,
+    rounds: int,
+    coating_reflectance: float | tuple[float, float, float] | None,
+):
     """(per-LED fits as :func:`_fit_all` returns them, the images minus the indirect light they were fitted to,
     the captures' last indirect terms) -- ``rounds`` alternations of indirect fit and LED fit, or one direct-only
     LED fit from ``leds0`` when no term is on.
@@ -285,7 +314,9 @@ def _indirect_rounds(presses, samples: _Samples, leds0, loss, interreflection, b
     return fitted, direct, models
 
 
-def _sampled_indirect_light(presses, models, selections, count: int) -> np.ndarray:
+def _sampled_indirect_light(
+    presses: Sequence[Press], models: Sequence[IndirectModel], selections: Sequence[np.ndarray], count: int
+) -> np.ndarray:
     """(L, N, 3) float -- each capture's own indirect light (its fitted term at its typical albedo; zero where the
     term is off) at its samples, pooled as :class:`_Samples` pools them."""
     light = []
@@ -297,7 +328,15 @@ def _sampled_indirect_light(presses, models, selections, count: int) -> np.ndarr
     return np.concatenate(light, axis=1)
 
 
-def _emitters_and_profile(leds, samples: _Samples, direct, loss, led_radius, coating_reflectance, models):
+def _emitters_and_profile(
+    leds: Leds,
+    samples: _Samples,
+    direct: np.ndarray,
+    loss: str,
+    led_radius: float,
+    coating_reflectance: float | tuple[float, float, float] | None,
+    models: list[dict],
+):
     """(the LEDs fitted as disks of ``led_radius`` from the point ``leds``, or () without a radius; the
     reflectance profile (:func:`_profiled_reflectance`) when the reflectance is to be profiled, else None).
     ``models``: the captures' indirect terms as JSON."""
@@ -332,7 +371,17 @@ capture at stride 2 has ~55,000; every second of a 160x120 capture's ~3,400 move
 0.78 to 0.75, and its LED positions by 0.03 mm)."""
 
 
-def _profiled_reflectance(emitters, x, n, img, direct, ok, loss, radius, fitted) -> dict:
+def _profiled_reflectance(
+    emitters: Leds,
+    x: np.ndarray,
+    n: np.ndarray,
+    img: np.ndarray,
+    direct: np.ndarray,
+    ok: np.ndarray,
+    loss: str,
+    radius: float,
+    fitted: np.ndarray,
+) -> dict:
     """The coating reflectance whose LED disk fit leaves the least residual, as a multiple of ``fitted``.
 
     Why: a ring-wide tilt of the LED axes trades against the indirect term's magnitude, and the alternation
@@ -381,7 +430,7 @@ def _profiled_reflectance(emitters, x, n, img, direct, ok, loss, radius, fitted)
     }
 
 
-def _decide(model):
+def _decide(model: IndirectModel):
     """The calibration's auto decision (:data:`tolerances.CALIBRATION_MIN_SHARE`) on a model fitted with the
     starting LEDs."""
     import dataclasses
@@ -410,7 +459,15 @@ def _samples(p: Press, first: Press, count: int, stride: int):
     return x, n, p.linear_led_images[:, sel].astype(np.float64), ~p.saturated(p.led_images[:, sel]), sel
 
 
-def _fit_all(leds, x, n, img, ok, loss, model=_model):
+def _fit_all(
+    leds: Leds,
+    x: np.ndarray,
+    n: np.ndarray,
+    img: np.ndarray,
+    ok: np.ndarray,
+    loss: str,
+    model: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = _model,
+):
     """[(params, std, rms)] per LED: robust non-linear least squares of ``model`` from ``leds``."""
     from scipy.optimize import least_squares  # imported here: ~0.5 s that `nlips solve` never needs
 
@@ -431,7 +488,7 @@ def _fit_all(leds, x, n, img, ok, loss, model=_model):
         use = _fit_samples(img[i], ok[i])
         scale = float(np.percentile(img[i][use], 90)) if use.any() else 1.0
 
-        def resid(params, i=i, use=use, scale=scale):
+        def resid(params: np.ndarray, i: int = i, use: np.ndarray = use, scale: float = scale):
             return ((model(params, x, n) - img[i]) / scale)[use]
 
         r0 = resid(p0)
@@ -447,7 +504,7 @@ def _fit_all(leds, x, n, img, ok, loss, model=_model):
     return out
 
 
-def _to_leds(fitted):
+def _to_leds(fitted: Sequence[tuple[np.ndarray, np.ndarray, float]]):
     """(LEDs in the gauge mean Psi = 1 per channel, albedo (3,), std dicts) from per-LED fits."""
     K = np.exp(np.array([f[0][:3] for f in fitted]))  # (L, 3)
     albedo = K.mean(axis=0)
@@ -475,7 +532,7 @@ def _fit_samples(img: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return ok & (img > 0.01 * np.percentile(img, 99, axis=0))
 
 
-def _led_noise(presses) -> np.ndarray:
+def _led_noise(presses: Sequence[Press]) -> np.ndarray:
     """(L,) float -- the white noise of each LED's images, linear units: Immerkaer's estimate
     (:func:`nlipscalib.solver.contact.image_noise`) on the gel, median over the captures, at least one ADC step
     (a noise-free capture holds only quantisation, where the estimate says nothing)."""
@@ -570,7 +627,16 @@ def fit_quality(
 
 
 def _with_term_if_needed(
-    cal, presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance
+    cal: LedCalibration,
+    presses: Sequence[Press],
+    initial: Leds | None,
+    stride: int,
+    loss: str,
+    interreflection: str,
+    bounces: int,
+    rounds: int,
+    led_radius: float,
+    coating_reflectance: float | tuple[float, float, float] | None,
 ):
     """``cal``, or the calibration with the indirect term on when "auto" left it off and that fit did not explain
     the images (:func:`fit_quality` unreliable) while the term makes it reliable.
@@ -611,7 +677,9 @@ def _no_interreflection(models: list[dict], interreflection: str) -> str | None:
     )
 
 
-def _unused_reflectance(models: list[dict], interreflection: str, led_radius: float, reflectance) -> list[str]:
+def _unused_reflectance(
+    models: list[dict], interreflection: str, led_radius: float, reflectance: float | tuple[float, float, float] | None
+) -> list[str]:
     """The warnings for a coating reflectance given but not used, or not profiled (with ``led_radius``).
 
     Not honoured on purpose: the reflectance sets the magnitude of the indirect term, and with the term off

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -107,7 +108,7 @@ def image_noise(images: np.ndarray, valid: np.ndarray) -> float:
     sample = masks.sample_grid(inner, NOISE_SAMPLES)
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
-    def per_image(img):
+    def per_image(img: np.ndarray):
         # the kernel is symmetric: correlation (OpenCV) = convolution; replicated border = scipy's "nearest"
         filtered = cv2.filter2D(np.asarray(img, np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
         out = []
@@ -184,7 +185,9 @@ def classify_contact(
     return ContactMap(np.where(valid, misfit, np.nan), expected, tuple(live), side["dead"], noise, side["level"])
 
 
-def _press_side(press: Press, valid: np.ndarray, indirect, dead_level: float, blur_px: float) -> dict:
+def _press_side(
+    press: Press, valid: np.ndarray, indirect: np.ndarray | None, dead_level: float, blur_px: float
+) -> dict:
     """The press's half of :func:`classify_contact`: live LEDs, smoothed images and their level, noise."""
     img = press.linear_led_images
     level = led_levels(img, valid)
@@ -321,14 +324,16 @@ def contact_hits(contact: ContactMap, threshold: float = tolerances.CONTACT_MISF
 def _box_fraction(region: np.ndarray, valid: np.ndarray) -> float:
     """Area of ``region``'s bounding box over that of the gel's (``valid``), both (H, W) bool."""
 
-    def area(mask):
+    def area(mask: np.ndarray):
         rows, cols = np.nonzero(mask)
         return 0 if rows.size == 0 else (rows.max() - rows.min() + 1) * (cols.max() - cols.min() + 1)
 
     return area(region) / max(area(valid), 1)
 
 
-def _inner_regions(labels, sizes, valid: np.ndarray, join: int, min_component: float) -> np.ndarray | None:
+def _inner_regions(
+    labels: np.ndarray, sizes: np.ndarray, valid: np.ndarray, join: int, min_component: float
+) -> np.ndarray | None:
     """(H, W) bool -- the misfit components that do not touch the gel's edge (the gel's silhouette or the image
     border), at least ``min_component`` times the largest of them and :data:`tolerances.ROI_MIN_INNER_FRACTION`
     of the gel, plus the edge components that come within ``join`` pixels of them; None when no such inner
@@ -413,7 +418,7 @@ def _sum_squares(stack: np.ndarray, ok: np.ndarray | None) -> np.ndarray:
     return np.einsum("lhwc,lhwc->hw", masked, masked)
 
 
-def _smoothed_undeformed(images, live, valid: np.ndarray, sigma: float) -> np.ndarray:
+def _smoothed_undeformed(images: np.ndarray, live: Sequence[int], valid: np.ndarray, sigma: float) -> np.ndarray:
     """:func:`_smooth` of ``images[live]`` (float32). When ``images`` is read-only (the sensor's direct
     shading, shared by the solves of its presses through ``solver.reuse``) the result is kept for the next
     classification against that same array (and on disk for the next process when the array is one that
@@ -444,7 +449,7 @@ def _smooth(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
     inv = np.where(valid, 1.0 / np.maximum(w, 1e-6), 0.0)[..., None]
     out = np.empty(stack.shape, np.float32)
 
-    def blur(i):
+    def blur(i: int):
         out[i] = cv2.GaussianBlur(np.where(valid[..., None], stack[i], 0).astype(np.float32), (0, 0), sigma) * inv
 
     threads.map_items(blur, range(len(stack)))

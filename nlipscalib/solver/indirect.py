@@ -160,7 +160,7 @@ def direct_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.nd
     leds = tuple(leds)
     out = np.empty((len(leds),) + depth.shape + (3,))
 
-    def rows(block):  # written in place by blocks of rows, one per thread: no (L, H, W, 3) temporaries
+    def rows(block: slice):  # written in place by blocks of rows, one per thread: no (L, H, W, 3) temporaries
         led_shading(pts[block], nrm[block], leds, out=out[:, block])
         out[:, block][:, ~valid[block]] = 0.0
 
@@ -292,14 +292,21 @@ def _patch_window(pixels: np.ndarray, size: int) -> tuple[slice, slice, tuple[sl
     return pr, pc, (slice(pr.start * size, min(pr.stop * size, H)), slice(pc.start * size, min(pc.stop * size, W)))
 
 
-def _window_mean(patches: dict, values: np.ndarray, pr: slice, pc: slice, win) -> np.ndarray:
+def _window_mean(patches: dict, values: np.ndarray, pr: slice, pc: slice, win: tuple[slice, slice]) -> np.ndarray:
     """:func:`radiosity.patch_mean` over the patches [pr, pc] only: ``values`` (L, h, w, 3) are the
     pixels of their window ``win`` (from :func:`_patch_window`); the same numbers as the whole image's."""
     sub = {"pixel_area": patches["pixel_area"][win], "area": patches["area"][pr, pc], "size": patches["size"]}
     return radiosity.patch_mean(sub, values)
 
 
-def _gather_all(surface: Surface, rho_patch, off_unit, off_albedo, bounces: int, kappa=None):
+def _gather_all(
+    surface: Surface,
+    rho_patch: np.ndarray,
+    off_unit: np.ndarray | None,
+    off_albedo: np.ndarray,
+    bounces: int,
+    kappa: np.ndarray | None = None,
+):
     """G (L, K, 3) at the surface's patches: the visible patches' and the off-view dome's direct light,
     gathered once (and, with bounces=2, the first bounce's light gathered again, scaled by kappa).
     ``off_unit``: the off-view dome's gather for a unit albedo (linear in it), or None."""
@@ -417,7 +424,15 @@ def _patch_data(cache: dict, exclude: np.ndarray | None) -> tuple[np.ndarray, np
     return img[:, surf.keep], frac[:, surf.keep]
 
 
-def _alternate(img, S, ok, surf: Surface, off_unit, bounces: int, iterations: int):
+def _alternate(
+    img: np.ndarray,
+    S: np.ndarray,
+    ok: np.ndarray,
+    surf: Surface,
+    off_unit: np.ndarray | None,
+    bounces: int,
+    iterations: int,
+):
     """Alternate the per-patch albedo and kappa ``iterations`` times (G depends on the emitters' albedo):
     (kappa (3,), G (L, K, 3) the gathered light per unit kappa, the off-view dome's albedo (3,)).
 
@@ -427,7 +442,7 @@ def _alternate(img, S, ok, surf: Surface, off_unit, bounces: int, iterations: in
     rho = _albedo(img, S, ok)
     G = np.zeros_like(S)
 
-    def typical(values):  # median over the patches with data; the others take it as their albedo
+    def typical(values: np.ndarray):  # median over the patches with data; the others take it as their albedo
         return np.array([np.median(values[fitted[:, c], c]) if fitted[:, c].any() else 0.0 for c in range(3)])
 
     off_albedo = typical(rho)
@@ -468,21 +483,25 @@ def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | None) -> dic
     return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
 
 
-def _off_view_light(camera: Camera, leds: Leds, surf: Surface, design) -> tuple[dict, np.ndarray]:
+def _off_view_light(
+    camera: Camera, leds: Leds, surf: Surface, design: tuple[DomeConfig, np.ndarray]
+) -> tuple[dict, np.ndarray]:
     """The dome beyond the view as patches, and its direct light gathered at ``surf`` for a unit albedo."""
     off = radiosity.off_view_patches(design[0], design[1], camera, surf.valid, step_deg=3.0)
     off_s = led_shading(off["points"], off["normals"], tuple(leds))
     return off, radiosity.gather(*surf.receivers(), off, off_s)
 
 
-def _albedo(img, model, ok) -> np.ndarray:
+def _albedo(img: np.ndarray, model: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """(K, 3) least-squares albedo per patch and channel of img ~ rho * model over the LEDs."""
     num = (img * model * ok).sum(0)
     den = (model * model * ok).sum(0)
     return num / np.maximum(den, 1e-30)
 
 
-def _profile_kappa(img, S, G, ok, kappa_max: float | None = None, steps: int = 400) -> np.ndarray:
+def _profile_kappa(
+    img: np.ndarray, S: np.ndarray, G: np.ndarray, ok: np.ndarray, kappa_max: float | None = None, steps: int = 400
+) -> np.ndarray:
     """(3,) kappa >= 0 minimising the residual of img ~ rho_p (S + kappa G) with every patch's rho_p
     profiled out (its least-squares value for that kappa): a 1-D search per channel, exact for the
     per-patch albedo (alternating rho and kappa would crawl: G and S are strongly correlated over LEDs).
@@ -587,7 +606,7 @@ def _dilate(mask: np.ndarray) -> np.ndarray:
     return masks.dilate(mask, iterations=1)
 
 
-def _gather_at(surf: Surface, rho_patch, model: IndirectModel, want) -> np.ndarray:
+def _gather_at(surf: Surface, rho_patch: np.ndarray, model: IndirectModel, want: np.ndarray) -> np.ndarray:
     """(L, n, 3) G at the patches ``want`` (visible surface and off-view dome as emitters)."""
     keep = surf.keep
     emit = surf.emitters()

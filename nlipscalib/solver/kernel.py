@@ -296,7 +296,7 @@ class ChunkedModel:
         self.images = be.asarray(images)
         self.usable = be.asarray(usable)
 
-    def _cut(self, a, k: int):
+    def _cut(self, a: object, k: int):
         """Chunk ``k`` of an argument: a :class:`Parts`' own array, a slice of a per-pixel array."""
         if isinstance(a, Parts):
             return a.arrays[k]
@@ -313,13 +313,13 @@ class ChunkedModel:
         )
 
     @staticmethod
-    def _join(outs):
+    def _join(outs: Sequence[Array | tuple]):
         if isinstance(outs[0], tuple):
             return tuple(np.concatenate(group, axis=-1) for group in zip(*outs))
         return np.concatenate(outs, axis=-1)
 
     @staticmethod
-    def _parts(outs):
+    def _parts(outs: Sequence[Array | tuple]):
         if isinstance(outs[0], tuple):
             return tuple(Parts(list(group)) for group in zip(*outs))
         return Parts(outs)

@@ -46,7 +46,7 @@ class Krylov:
         """Approximate solution of Hm x = rhs to ``|r| <= rtol |rhs|``; returns x and CG iterations."""
         count = [0]
 
-        def cb(_):
+        def cb(_: np.ndarray):
             count[0] += 1
 
         x = None
@@ -117,7 +117,7 @@ def _compiled_bsr_dedup():
             original = cls.sum_duplicates
             _dedup_users[1] = original
 
-            def sum_duplicates(self):
+            def sum_duplicates(self: sp.bsr_array | sp.bsr_matrix):  # installed as the BSR classes' method
                 if not self.has_canonical_format:
                     self.sort_indices()
                     if not _has_duplicates(self.indptr, self.indices):

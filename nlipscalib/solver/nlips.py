@@ -21,6 +21,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
@@ -35,10 +37,13 @@ from ..core.robust_scale import mad_scale
 from . import geometry, reuse
 from .blas import blas_threads
 from .inputs import check_inputs
-from .kernel import Backend, make_model
+from .kernel import Array, Backend, Parts, make_model
 from .krylov import Krylov, forcing
 from .options import SolverOptions
 from .pyramid import build_pyramid, checked_prior_weights, resize
+
+if TYPE_CHECKING:  # named in hints only: tqdm is imported where a progress bar is asked for
+    from tqdm import tqdm
 
 log = logging.getLogger(__name__)
 
@@ -210,7 +215,17 @@ class _LevelData:
     """:func:`exclusions`' report (its counts are the crop's)."""
 
     @classmethod
-    def of(cls, images, saturated, mask, crop, prior_depth, prior_weights, leds, opts: SolverOptions) -> _LevelData:
+    def of(
+        cls,
+        images: np.ndarray,
+        saturated: np.ndarray | None,
+        mask: np.ndarray,
+        crop: tuple[slice, slice],
+        prior_depth: np.ndarray,
+        prior_weights: np.ndarray | None,
+        leds: Leds,
+        opts: SolverOptions,
+    ) -> _LevelData:
         whole = images
         H, W = mask.shape
         # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
@@ -242,7 +257,14 @@ class _LevelData:
         )
 
 
-def _pyramid(cam: Camera, data: _LevelData, init_depth, crop, opts: SolverOptions, unrefined: int):
+def _pyramid(
+    cam: Camera,
+    data: _LevelData,
+    init_depth: np.ndarray | None,
+    crop: tuple[slice, slice],
+    opts: SolverOptions,
+    unrefined: int,
+):
     """The levels to solve, and the log-depth the first of them starts from (None: the prior).
 
     A warm start (``init_depth``) solves the finest level from it; with ``unrefined`` levels, the one below
@@ -269,7 +291,15 @@ def _pyramid(cam: Camera, data: _LevelData, init_depth, crop, opts: SolverOption
     return levels, t_first
 
 
-def _full_image(t_state, out: dict, lv: dict, data: _LevelData, mask, crop, opts: SolverOptions) -> SolveResult:
+def _full_image(
+    t_state: np.ndarray,
+    out: dict,
+    lv: dict,
+    data: _LevelData,
+    mask: np.ndarray,
+    crop: tuple[slice, slice],
+    opts: SolverOptions,
+) -> SolveResult:
     """The finest level's solution pasted into the whole image (NaN where not reconstructed: off the mask,
     no gradient, fewer than ``opts.min_leds`` usable LEDs); adds the pixel counts to ``data.report``."""
     H, W = mask.shape
@@ -280,7 +310,7 @@ def _full_image(t_state, out: dict, lv: dict, data: _LevelData, mask, crop, opts
     sub[lm] = n_ok
     rec[crop] = sub
 
-    def paste(values, fill=np.nan):
+    def paste(values: np.ndarray, fill: float = np.nan):
         full = np.full((H, W) + values.shape[1:], fill, np.float32)
         block = np.full(lm.shape + values.shape[1:], fill, np.float32)
         vals = values.astype(np.float32).copy()
@@ -312,7 +342,19 @@ def _full_image(t_state, out: dict, lv: dict, data: _LevelData, mask, crop, opts
     )
 
 
-def _coarse_to_fine(levels, pos, dirs, mu, psi, opts, be, bar, report, t_first=None, refine_finest=True):
+def _coarse_to_fine(
+    levels: list[dict],
+    pos: np.ndarray,
+    dirs: np.ndarray,
+    mu: np.ndarray,
+    psi: np.ndarray,
+    opts: SolverOptions,
+    be: Backend,
+    bar: tqdm | None,
+    report: dict,
+    t_first: np.ndarray | None = None,
+    refine_finest: bool = True,
+):
     """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest.
 
     ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve).
@@ -410,7 +452,18 @@ def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
 
 
 def _solve_level(
-    lv, t_init, pos, dirs, mu, psi, opts: SolverOptions, be: Backend, bar, est: str, coarse=False, iterate=True
+    lv: dict,
+    t_init: np.ndarray,
+    pos: np.ndarray,
+    dirs: np.ndarray,
+    mu: np.ndarray,
+    psi: np.ndarray,
+    opts: SolverOptions,
+    be: Backend,
+    bar: tqdm | None,
+    est: str,
+    coarse: bool = False,
+    iterate: bool = True,
 ):
     """Minimise the energy on one pyramid level from log-depth ``t_init`` (H, W) of that level.
 
@@ -445,7 +498,9 @@ class _Level:
     """One pyramid level's energy and the Gauss-Newton state on it: log-depth t on the mask's pixels, the
     shading F and its derivatives dF, the albedo, the residuals r, the energy, the normals."""
 
-    def __init__(self, lv: dict, t_init, leds: tuple, opts: SolverOptions, be: Backend, est: str, iterate):
+    def __init__(
+        self, lv: dict, t_init: np.ndarray, leds: tuple, opts: SolverOptions, be: Backend, est: str, iterate: bool
+    ):
         self.tm = _Timer()
         self.lv, self.opts, self.be, self.est = lv, opts, be, est
         self.mk = mk = lv["mask"]
@@ -488,24 +543,24 @@ class _Level:
         self.tm.lap("init")
 
     # ------------------------------------------------------------------ the energy's parts
-    def shade(self, tt, derivatives=False):
+    def shade(self, tt: np.ndarray, derivatives: bool = False):
         out = self.model.shading(tt, self.ops["Du"] @ tt, self.ops["Dv"] @ tt, derivatives)
         return (out[0], out[1:]) if derivatives else (out, None)
 
-    def prior(self, tt) -> float:
+    def prior(self, tt: np.ndarray) -> float:
         return float(np.sum(self.zeta * (tt - self.t0) ** 2)) + self.gamma * float(tt @ (self.ops["lap"] @ tt))
 
-    def refit(self, F, alb):
+    def refit(self, F: Array | Parts, alb: Array | Parts | None):
         """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise."""
         model, est = self.model, self.est
         w = model.usable if est == "ls" or alb is None else model.weights(model.residuals(F, alb), self.lam, est)
         alb = model.albedo(F, w)
         return alb, model.residuals(F, alb)
 
-    def normals(self, tt):
+    def normals(self, tt: np.ndarray):
         return geometry.normals_from_gradient(self.ops["Du"] @ tt, self.ops["Dv"] @ tt, self.A, self.B, self.C)
 
-    def energy(self, r, tt) -> float:
+    def energy(self, r: Array | Parts, tt: np.ndarray) -> float:
         return self.model.data_energy(r, self.lam, self.est) + self.prior(tt)
 
     # ------------------------------------------------------------------ one iteration
@@ -545,7 +600,7 @@ class _Level:
         self.tm.lap("cg")
         return delta, g, Hm
 
-    def _line_search(self, delta, converged: bool):
+    def _line_search(self, delta: np.ndarray, converged: bool):
         """Backtracking on the joint energy, the albedo refitted at each trial depth: (t, F, dF or None,
         albedo, r, energy) of the first step that does not raise the energy, or None."""
         for k in range(1 if converged else self.opts.line_search_steps + 1):
@@ -560,7 +615,16 @@ class _Level:
         self.tm.lap("line_search")
         return None
 
-    def _accept(self, t_new, F_new, dF_new, alb_new, r_new, e_new, converged: bool) -> str | None:
+    def _accept(
+        self,
+        t_new: np.ndarray,
+        F_new: Array | Parts,
+        dF_new: Sequence[Array | Parts] | None,
+        alb_new: Array | Parts,
+        r_new: Array | Parts,
+        e_new: float,
+        converged: bool,
+    ) -> str | None:
         """Move to the accepted depth; the reason to stop there (energy or normals no longer change) or None."""
         if dF_new is None:
             F_new, dF_new = self.shade(t_new, True)
@@ -602,7 +666,7 @@ class _Level:
         return _embed(self.t, self.mk), result, self.info
 
 
-def _robust_scale(be: Backend, r, images: np.ndarray, usable: np.ndarray, opts: SolverOptions) -> float:
+def _robust_scale(be: Backend, r: Array, images: np.ndarray, usable: np.ndarray, opts: SolverOptions) -> float:
     """Estimator scale lambda from the residuals of the usable samples, floored relative to the images.
 
     Parameters

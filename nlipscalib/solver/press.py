@@ -23,7 +23,8 @@ import dataclasses
 import functools
 import logging
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -35,6 +36,7 @@ from . import reuse
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
+    IndirectModel,
     Surface,
     design_of,
     fit_indirect,
@@ -48,6 +50,10 @@ from .nlips import SolveResult, solve
 from .options import SolverOptions
 from .press_checks import check_modes, check_roi, check_undeformed
 from .roi import box_mask, box_of, contact_pixels, dent_focus, merge_focus
+
+if TYPE_CHECKING:  # named in hints only
+    from ..core.camera import Camera
+    from ..core.leds import Leds
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +125,7 @@ def _solve_press(
     press: Press,
     *,
     roi: tuple[int, int, int, int] | str | None = None,
-    leds=None,
+    leds: Leds | None = None,
     options: SolverOptions | None = None,
     backend: str = "numpy",
     progress: bool = False,
@@ -244,7 +250,14 @@ class _Light:
 
 
 def _light_and_contact(
-    press: Press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, dead_level: float
+    press: Press,
+    leds: Leds,
+    ref_capture: Press | None,
+    fixed_light: np.ndarray | None,
+    explicit_roi: tuple[int, int, int, int] | None,
+    interreflection: str,
+    bounces: int,
+    dead_level: float,
 ) -> _Light:
     """Fit the indirect term, then classify the contact against the undeformed model with it (when the press
     stands in for the undeformed capture: a rough fit finds the contact, the term is fitted again without it
@@ -273,7 +286,12 @@ def _light_and_contact(
     return _Light(model, cmap, shading, t_indirect + refit, t_contact)
 
 
-def _region(press: Press, roi, explicit_roi, cmap: ContactMap | None):
+def _region(
+    press: Press,
+    roi: tuple[int, int, int, int] | str | None,
+    explicit_roi: tuple[int, int, int, int] | None,
+    cmap: ContactMap | None,
+):
     """The box to solve, (x0, y0, w, h) or None for the whole gel, and what ``--roi auto`` left out or warns
     about ("" when nothing)."""
     if roi != "auto":
@@ -290,20 +308,38 @@ class _Runner:
     """One NLiPs solve of the press's images, minus an indirect light (none, a fixed light, or the outer
     loop's on the mask's bounding box): ``runner(light, init=None, unrefined=0, receivers=None)``."""
 
-    def __init__(self, press: Press, leds, images, prior, weights, mask, options, backend, progress, fixed_light):
+    def __init__(
+        self,
+        press: Press,
+        leds: Leds,
+        images: np.ndarray,
+        prior: np.ndarray | None,
+        weights: np.ndarray | None,
+        mask: np.ndarray,
+        options: SolverOptions,
+        backend: str,
+        progress: bool,
+        fixed_light: np.ndarray | None,
+    ):
         self.press, self.leds, self.images, self.prior, self.weights = press, leds, images, prior, weights
         self.mask, self.options, self.backend, self.progress = mask, options, backend, progress
         self.fixed_light = fixed_light
         self.saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
         self.boxed = _BoxCompensation(images, mask)
 
-    def compensated(self, light):
+    def compensated(self, light: np.ndarray | None):
         if light is None:
             return self.images
         # a fixed light may be anything; the outer loop's is zero outside the mask's box
         return compensate(self.images, light) if light is self.fixed_light else self.boxed(light)
 
-    def __call__(self, light, init=None, unrefined=0, receivers=None) -> SolveResult:
+    def __call__(
+        self,
+        light: np.ndarray | None,
+        init: np.ndarray | None = None,
+        unrefined: int = 0,
+        receivers: np.ndarray | None = None,
+    ) -> SolveResult:
         result = solve(
             self.compensated(light),
             self.press.camera,
@@ -328,7 +364,7 @@ class _Runner:
         return result
 
 
-def _report_loop(rep: dict, loop) -> None:
+def _report_loop(rep: dict, loop: _OuterLoop | None) -> None:
     """The outer interreflection loop's entries of a solve's report (``loop``: an :class:`_OuterLoop` or None)."""
     rep["dent_interreflection"] = bool(loop is not None and loop.passes > 0)
     rep["outer_passes"] = loop.passes if loop is not None else 0
@@ -357,7 +393,16 @@ class _IndirectFitter:
     """The press's side of the contact classification, shared by the classifications of one solve."""
 
 
-def _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, shading):
+def _indirect_fitter(
+    press: Press,
+    leds: Leds,
+    ref_capture: Press | None,
+    fixed_light: np.ndarray | None,
+    explicit_roi: tuple[int, int, int, int] | None,
+    interreflection: str,
+    bounces: int,
+    shading: np.ndarray | None,
+):
     """The :class:`_IndirectFitter` of a solve; None when no term is fitted (a fixed light, no reference)."""
     if fixed_light is not None or press.reference is None:
         return None
@@ -429,7 +474,17 @@ class _OuterLoop:
     fewer refined passes leave the frame's border better off; benchmarks/RESULTS.md). The light is updated
     on the mask's bounding box (outside it both the light and the gathered light are zero)."""
 
-    def __init__(self, model, press: Press, leds, images, mask, shading, relaxation, focus=None):
+    def __init__(
+        self,
+        model: IndirectModel,
+        press: Press,
+        leds: Leds,
+        images: np.ndarray,
+        mask: np.ndarray,
+        shading: np.ndarray | None,
+        relaxation: float | str,
+        focus: np.ndarray | None = None,
+    ):
         self.model, self.press, self.leds, self.mask, self.relaxation = model, press, leds, mask, relaxation
         self.focus = focus
         """(H, W) bool or None -- what the passes before the last solve (None: the mask)."""
@@ -440,7 +495,7 @@ class _OuterLoop:
         self.shading = shading
         self.passes, self.changes, self.solver_seconds, self.seconds = 0, [], [], 0.0
 
-    def run(self, solve_with, max_passes: int) -> SolveResult:
+    def run(self, solve_with: Callable[..., SolveResult], max_passes: int) -> SolveResult:
         """``solve_with(light, init=None, unrefined=0, receivers=None)`` -> SolveResult, called once per
         pass (``receivers``: the pixels to solve, None for the mask); returns the last result. Every pass but
         the last leaves the finest levels unrefined (:func:`_unrefined_levels`: its light is a gather over
@@ -488,7 +543,7 @@ class _OuterLoop:
         return light
 
 
-def _unrefined_levels(camera) -> int:
+def _unrefined_levels(camera: Camera) -> int:
     """How many of the finest pyramid levels the outer loop's passes before the last leave unrefined: the finest
     iterated level keeps two pixels along an indirect-light patch's side (the gather reads the patch's mean), and
     it is at least the next-to-finest. 640x480: 8 px patches, 2 levels (the solve iterates up to 160x120); 320x240
@@ -535,7 +590,7 @@ def _noise_regularised(options: SolverOptions, press: Press, cmap: ContactMap | 
     return dataclasses.replace(options, smoothness=gamma), rel
 
 
-def _split_indirect(press: Press, indirect):
+def _split_indirect(press: Press, indirect: np.ndarray | Press | None):
     """(reference capture or None, fixed light array or None) from ``solve_press``'s ``indirect``."""
     if indirect is None:
         return None, None
@@ -548,7 +603,16 @@ def _split_indirect(press: Press, indirect):
     return None, light
 
 
-def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, dead_level: float, cache=None) -> ContactMap:
+def _contact(
+    press: Press,
+    leds: Leds,
+    ref_capture: Press | None,
+    fixed_light: np.ndarray | None,
+    model: IndirectModel | None,
+    shading: np.ndarray | None,
+    dead_level: float,
+    cache: dict | None = None,
+) -> ContactMap:
     """The one contact classification: against the undeformed capture, or the model with its indirect term.
 
     ``shading``: :func:`direct_shading` of the reference surface; ``dead_level``: ``SolverOptions.dead_led_level``,
@@ -562,7 +626,9 @@ def _contact(press: Press, leds, ref_capture, fixed_light, model, shading, dead_
     return classify(undeformed_images=shading, indirect=fixed_light)
 
 
-def _solved_surface_light(model, press: Press, leds, result: SolveResult, mask, ref_surface: Surface) -> np.ndarray:
+def _solved_surface_light(
+    model: IndirectModel, press: Press, leds: Leds, result: SolveResult, mask: np.ndarray, ref_surface: Surface
+) -> np.ndarray:
     """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere
     (``ref_surface``, the reference as patches, is recomputed around the solved pixels only)."""
     ref = press.reference

@@ -93,7 +93,9 @@ def denoise_indirect(
     return np.where(valid[None, ..., None], out, 0.0).astype(np.float32)
 
 
-def _apply(img: np.ndarray, taps, den: np.ndarray) -> np.ndarray:
+def _apply(
+    img: np.ndarray, taps: list[tuple[tuple[slice, slice], tuple[slice, slice], np.ndarray]], den: np.ndarray
+) -> np.ndarray:
     """One a-trous level: the weighted taps summed over channel blocks in two threads (NumPy releases the
     GIL in these loops), normalised by the weights' sum; a pixel with no weight keeps its value."""
     from concurrent.futures import ThreadPoolExecutor

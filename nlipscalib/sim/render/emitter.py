@@ -19,19 +19,25 @@ extended LEDs only.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from types import ModuleType
+    from typing import Any  # the plugin's values are Dr.Jit/Mitsuba types of the variant loaded at run time
+
 PLUGIN = "nlips_led"
 SHAPES = ("point", "disk", "square")
 """Emitting area of an LED: a point (the NLiPs model), a disk of diameter ``size`` or a square of side ``size``."""
 
 
-def make_led_class(mi):
+def make_led_class(mi: ModuleType) -> type:
     """The LED emitter class for the active variant of ``mi`` (a subclass of ``mi.Emitter``)."""
     import drjit as dr
 
     class NlipsLed(mi.Emitter):
         """LED; properties: index (int), position, direction (ScalarVector3f), mu, intensity, shape, size (mm)."""
 
-        def __init__(self, props):
+        def __init__(self, props: Any):
             mi.Emitter.__init__(self, props)
             self.index = int(props.get("index", 0))
             self.m_flags = int(mi.EmitterFlags.DeltaPosition)
@@ -52,29 +58,29 @@ def make_led_class(mi):
             # Opaque: a new LED layout reuses the compiled kernel instead of baking in literals.
             dr.make_opaque(self.position, self.direction, self.mu, self.intensity, self.axis_s, self.axis_t, self.half)
 
-        def emitting_point(self, sample):
+        def emitting_point(self, sample: Any):
             """A point of the emitting area, uniform in area, for a 2D sample in [0, 1)^2 (the centre if a point)."""
             if not self.extended:
                 return self.position
             return self.to_world_point(self.local_point(sample))
 
-        def emitting_points(self, sample):
+        def emitting_points(self, sample: Any):
             """An antithetic pair of points of the emitting area for one 2D sample: a uniform point and its
             mirror image through the LED's centre (disk and square map onto themselves)."""
             a = self.local_point(sample)
             return [self.to_world_point(a), self.to_world_point(-a)]
 
-        def local_point(self, sample):
+        def local_point(self, sample: Any):
             """Point2f, mm, in the emitting plane's (axis_s, axis_t) coordinates: uniform over the area."""
             if self.shape == "disk":
                 return mi.warp.square_to_uniform_disk_concentric(sample) * self.half
             return (sample * 2.0 - 1.0) * self.half
 
-        def to_world_point(self, local):
+        def to_world_point(self, local: Any):
             """Point3f of emitting-plane coordinates ``local`` (mm)."""
             return self.position + self.axis_s * local.x + self.axis_t * local.y
 
-        def radiance_weight(self, p, active=True, source=None):
+        def radiance_weight(self, p: Any, active: Any = True, source: Any = None):
             """Psi (n_s . d)^mu / r^2 toward points ``p`` from ``source`` (default: the LED's centre), and the
             unit vector and distance from p to the source."""
             to_led = (self.position if source is None else source) - p
@@ -86,7 +92,7 @@ def make_led_class(mi):
             radial = dr.select(self.mu > 0, dr.power(cos_led, self.mu), 1.0)
             return self.intensity * (radial / dist2), d, dist
 
-        def sample_direction(self, it, sample, active=True):
+        def sample_direction(self, it: Any, sample: Any, active: Any = True):
             source = self.emitting_point(sample)
             weight, d, dist = self.radiance_weight(it.p, active, source)
             ds = dr.zeros(mi.DirectionSample3f)
@@ -99,14 +105,14 @@ def make_led_class(mi):
             ds.emitter = mi.EmitterPtr(self)
             return ds, dr.select(active, mi.Spectrum(weight), 0.0)
 
-        def pdf_direction(self, it, ds, active=True):
+        def pdf_direction(self, it: Any, ds: Any, active: Any = True):
             return mi.Float(0.0)
 
-        def eval_direction(self, it, ds, active=True):
+        def eval_direction(self, it: Any, ds: Any, active: Any = True):
             weight, _, _ = self.radiance_weight(it.p, active)
             return dr.select(active, mi.Spectrum(weight), 0.0)
 
-        def eval(self, si, active=True):
+        def eval(self, si: Any, active: Any = True):
             return mi.Spectrum(0.0)
 
         def bbox(self):

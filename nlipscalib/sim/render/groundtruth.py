@@ -9,14 +9,24 @@ coat point it then meets: the point the pixel really sees.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ...core.capture import GroundTruth, Reference
 from ...core.errors import ConfigError
 from .mesh import CONTACT_ATTR
 
+if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``variant.load_mitsuba``), passed as ``mi``
+    from collections.abc import Callable
+    from types import ModuleType
 
-def trace_ground_truth(mi, scene, camera, eta: float | None = None) -> GroundTruth:
+    import mitsuba
+
+    from ...core.camera import Camera
+
+
+def trace_ground_truth(mi: ModuleType, scene: mitsuba.Scene, camera: Camera, eta: float | None = None) -> GroundTruth:
     """Ground truth of ``scene`` as seen by ``camera``.
 
     Parameters
@@ -59,7 +69,7 @@ PINHOLE_NUDGE_RAD = 1e-5
 """How far a missed ray is turned to be traced again (:func:`_retrace_pinholes`): 0.2 um at 20 mm."""
 
 
-def _retrace_pinholes(trace, rays: np.ndarray, valid: np.ndarray, out: tuple) -> None:
+def _retrace_pinholes(trace: Callable[[np.ndarray], tuple], rays: np.ndarray, valid: np.ndarray, out: tuple) -> None:
     """Trace again, slightly turned, the rays that missed a surface their four neighbours all hit.
 
     Single-precision ray-triangle tests are not watertight: a ray through a shared edge or vertex of the
@@ -91,13 +101,13 @@ REFRACTIONS = 2
 """Interface crossings followed per ground-truth ray (in through the gel's inner surface, and a spare)."""
 
 
-def _gel_shape(scene):
+def _gel_shape(scene: mitsuba.Scene):
     """The coated gel mesh of a scene built by ``build_scene`` (other shapes: the refracting interface)."""
     shapes = [s for s in scene.shapes() if s.id() == "gel"] or list(scene.shapes()[:1])
     return shapes[0] if shapes else None
 
 
-def _trace_vector(mi, scene, rays, eta=None):
+def _trace_vector(mi: ModuleType, scene: mitsuba.Scene, rays: np.ndarray, eta: float | None = None):
     import drjit as dr
 
     ray = mi.Ray3f(mi.Point3f(0.0), mi.Vector3f(np.ascontiguousarray(rays.T)))
@@ -116,7 +126,7 @@ def _trace_vector(mi, scene, rays, eta=None):
     return np.array(valid, dtype=bool), _to_n3(si.p), _to_n3(si.sh_frame.n), contact
 
 
-def _trace_scalar(mi, scene, rays):
+def _trace_scalar(mi: ModuleType, scene: mitsuba.Scene, rays: np.ndarray):
     # scalar_rgb fallback only: one Python call per pixel (seconds at 640x480)
     n = len(rays)
     valid, contact = np.zeros(n, bool), np.zeros(n, bool)
@@ -132,6 +142,6 @@ def _trace_scalar(mi, scene, rays):
     return valid, points, normals, contact
 
 
-def _to_n3(vec) -> np.ndarray:
+def _to_n3(vec: mitsuba.Point3f | mitsuba.Normal3f) -> np.ndarray:
     # drjit 3-vectors convert to (3, N) in numpy
     return np.ascontiguousarray(np.array(vec, dtype=np.float32).T)

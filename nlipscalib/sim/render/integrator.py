@@ -19,6 +19,12 @@ the LED as seen through the interface.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from types import ModuleType
+    from typing import Any  # the plugin's values are Dr.Jit/Mitsuba types of the variant loaded at run time
+
 PLUGIN = "nlips_multiled"
 MAX_SPECULAR = 3
 """Specular (interface) vertices a path may pass between two coat vertices; longer paths are dropped."""
@@ -35,7 +41,7 @@ def aov_names(n_leds: int, split: bool = False) -> list[str]:
     return names + ([f"ind{k + 1:02d}.{c}" for k in range(n_leds) for c in "RGB"] if split else [])
 
 
-def make_integrator_class(mi, led_class):
+def make_integrator_class(mi: ModuleType, led_class: type) -> type:
     """The multi-LED integrator class for the active variant of ``mi``."""
     import drjit as dr
 
@@ -44,7 +50,7 @@ def make_integrator_class(mi, led_class):
         cone_deg (half-angle of the per-LED direction cone when refracting), split (bool: the bounces'
         light in AOVs of its own, :func:`aov_names`)."""
 
-        def __init__(self, props):
+        def __init__(self, props: Any):
             mi.SamplingIntegrator.__init__(self, props)
             self.n_leds = int(props.get("n_leds"))
             self.bounces = int(props.get("bounces", 0))
@@ -57,13 +63,13 @@ def make_integrator_class(mi, led_class):
         def aov_names(self):
             return aov_names(self.n_leds, self.split)
 
-        def _leds(self, scene):
+        def _leds(self, scene: Any):
             leds = sorted((e for e in scene.emitters() if isinstance(e, led_class)), key=lambda e: e.index)
             if [e.index for e in leds] != list(range(self.n_leds)):
                 raise ValueError(f"scene LEDs {[e.index for e in leds]} do not match n_leds={self.n_leds}")
             return leds
 
-        def sample(self, scene, sampler, ray, medium=None, active=True):
+        def sample(self, scene: Any, sampler: Any, ray: Any, medium: Any = None, active: Any = True):
             leds = self._leds(scene)
             acc = [mi.Spectrum(0.0) for _ in leds]
             bounced = [mi.Spectrum(0.0) for _ in leds]  # the later vertices' light, when split
@@ -92,21 +98,25 @@ def make_integrator_class(mi, led_class):
             aovs = [channel for a in acc + (bounced if self.split else []) for channel in (a[0], a[1], a[2])]
             return total, hit_first, aovs
 
-        def _next_coat_vertex(self, scene, sampler, ray, throughput, active):
+        def _next_coat_vertex(self, scene: Any, sampler: Any, ray: Any, throughput: Any, active: Any):
             """The coat point ``ray`` reaches: its first hit, or past the interface when refracting."""
             if self.refract:
                 return self._walk_to_coat(scene, sampler, ray, throughput, active)
             si = scene.ray_intersect(ray, active)
             return si, ray, throughput, active & si.is_valid()
 
-        def _led_light(self, scene, sampler, si, bsdf, led, throughput, active, first):
+        def _led_light(
+            self, scene: Any, sampler: Any, si: Any, bsdf: Any, led: Any, throughput: Any, active: Any, first: bool
+        ):
             """One estimate of the light of ``led`` that coat vertex ``si`` sends back along the path
             (``first``: the vertex the camera sees)."""
             if self.refract:
                 return self._led_through_interface(scene, sampler, si, bsdf, led, throughput, active)
             return self._led_direct(scene, sampler, si, bsdf, led, throughput, active, first)
 
-        def _led_direct(self, scene, sampler, si, bsdf, led, throughput, active, first):
+        def _led_direct(
+            self, scene: Any, sampler: Any, si: Any, bsdf: Any, led: Any, throughput: Any, active: Any, first: bool
+        ):
             """Shadow rays to the LED: its centre (point LED) or points of its area, an antithetic pair at
             the vertex the camera sees and one point at later vertices, whose light the bounce direction's
             own sampling noise already dominates (one shadow ray per LED there, as for a point LED)."""
@@ -126,7 +136,7 @@ def make_integrator_class(mi, led_class):
                 light += dr.select(visible, throughput * f * weight, 0.0)
             return light / len(sources)
 
-        def _walk_to_coat(self, scene, sampler, ray, throughput, active):
+        def _walk_to_coat(self, scene: Any, sampler: Any, ray: Any, throughput: Any, active: Any):
             """Follow ``ray`` through specular (interface) vertices to the next coat vertex."""
             ctx = mi.BSDFContext()
             for _ in range(MAX_SPECULAR):
@@ -142,7 +152,9 @@ def make_integrator_class(mi, led_class):
             active &= si.is_valid() & ~mi.has_flag(si.bsdf(ray).flags(), mi.BSDFFlags.Delta)
             return si, ray, throughput, active
 
-        def _led_through_interface(self, scene, sampler, si, bsdf, led, throughput, active):
+        def _led_through_interface(
+            self, scene: Any, sampler: Any, si: Any, bsdf: Any, led: Any, throughput: Any, active: Any
+        ):
             """One-sample estimate of the light of ``led`` reaching coat vertex ``si`` through the interface."""
             aim, cos_cone = self._arrival_cone(scene, si, led, active)
             local = mi.warp.square_to_uniform_cone(sampler.next_2d(active), cos_cone)
@@ -174,7 +186,7 @@ def make_integrator_class(mi, led_class):
             gain = (1 - fresnel) * self.eta * self.eta / pdf
             return dr.select(ok, throughput * f * radiance * gain, 0.0)
 
-        def _arrival_cone(self, scene, si, led, active):
+        def _arrival_cone(self, scene: Any, si: Any, led: Any, active: Any):
             """Axis (unit, from ``si``) and cosine of the half-angle of a cone holding the LED as seen
             from ``si`` through the interface.
 

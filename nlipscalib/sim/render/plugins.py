@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from .emitter import PLUGIN as LED_PLUGIN
 from .emitter import make_led_class
 from .integrator import PLUGIN as INTEGRATOR_PLUGIN
@@ -9,10 +11,13 @@ from .integrator import make_integrator_class
 from .sensor import PLUGIN as CAMERA_PLUGIN
 from .sensor import make_camera_class
 
+if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``variant.load_mitsuba``), passed as ``mi``
+    from types import ModuleType
+
 _registered: dict[str, dict] = {}
 
 
-def register_plugins(mi) -> dict:
+def register_plugins(mi: ModuleType) -> dict:
     """Register LED emitter, distorted camera and multi-LED integrator for the active variant.
 
     Returns

@@ -5,7 +5,12 @@ Used by tests and as a stand-in when the full dome generator (``sim.dome``) is u
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:  # trimesh is imported where a surface is made: named for the hints only
+    import trimesh
 
 
 def _grid_faces(rows: int, cols: int) -> np.ndarray:
@@ -15,7 +20,7 @@ def _grid_faces(rows: int, cols: int) -> np.ndarray:
     return np.concatenate([np.stack([a, b, c], 1), np.stack([b, d, c], 1)])
 
 
-def plate(z: float = 10.0, half: float = 40.0, n: int = 41):
+def plate(z: float = 10.0, half: float = 40.0, n: int = 41) -> trimesh.Trimesh:
     """Flat square plate at height ``z`` facing -z (toward a camera below it).
 
     Returns
@@ -34,7 +39,7 @@ def plate(z: float = 10.0, half: float = 40.0, n: int = 41):
     return trimesh.Trimesh(verts, np.ascontiguousarray(faces), process=False)
 
 
-def hemisphere(radius: float = 15.0, n_polar: int = 48, n_azimuth: int = 96):
+def hemisphere(radius: float = 15.0, n_polar: int = 48, n_azimuth: int = 96) -> trimesh.Trimesh:
     """Hemisphere of ``radius`` centred at the origin, apex at +z, faces wound inward.
 
     Returns

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,6 +15,14 @@ from .groundtruth import trace_ground_truth
 from .mesh import albedo_per_vertex
 from .scene import build_scene
 from .variant import load_mitsuba
+
+if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``variant.load_mitsuba``), passed as ``mi``
+    from types import ModuleType
+
+    import mitsuba
+    import trimesh
+
+    from ..scene import SceneConfig
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,18 +44,18 @@ class RenderResult:
 
 
 def render_surface(
-    scene_cfg,
-    mesh,
-    contact_per_vertex=None,
+    scene_cfg: SceneConfig,
+    mesh: trimesh.Trimesh,
+    contact_per_vertex: np.ndarray | None = None,
     *,
-    spp=None,
-    bounces=None,
-    variant=None,
-    threads=None,
-    seed=None,
-    integrator="multi",
-    only_led=None,
-    images=True,
+    spp: int | None = None,
+    bounces: int | None = None,
+    variant: str | None = None,
+    threads: int | None = None,
+    seed: int | None = None,
+    integrator: str = "multi",
+    only_led: int | None = None,
+    images: bool = True,
 ) -> RenderResult:
     """Render every LED's image of ``mesh`` in one pass, plus the ground truth.
 
@@ -108,7 +117,9 @@ def render_surface(
     return RenderResult(stack, gt, chosen, spp, bounces, seed, time.perf_counter() - t0)
 
 
-def _render_images(mi, scene, shape, spp, seed, integrator) -> np.ndarray:
+def _render_images(
+    mi: ModuleType, scene: mitsuba.Scene, shape: tuple[int, int], spp: int, seed: int, integrator: str
+) -> np.ndarray:
     """(L, H, W, 3) float32 linear images: one per LED from the AOVs, or the path tracer's one image."""
     with _no_interrupt_notice(mi):
         out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
@@ -119,7 +130,7 @@ def _render_images(mi, scene, shape, spp, seed, integrator) -> np.ndarray:
 
 
 @contextlib.contextmanager
-def _no_interrupt_notice(mi):
+def _no_interrupt_notice(mi: ModuleType):
     """Mitsuba's warnings held back (its errors shown) while it renders.
 
     Mitsuba puts a Ctrl-C handler of its own in place around a render (``Integrator.render``'s binding): it
@@ -140,7 +151,7 @@ def _no_interrupt_notice(mi):
         logger.set_log_level(level)
 
 
-def _interface(scene_cfg):
+def _interface(scene_cfg: SceneConfig):
     """(vertices camera frame, faces, gel_ior, housing_ior) of the refracting inner surface, or None."""
     optics = scene_cfg.gel_optics
     if not optics.enabled:

@@ -12,9 +12,13 @@ import logging
 import os
 import subprocess
 import sys
+from typing import TYPE_CHECKING
 
 from ...core.cpus import usable_cores
 from ...core.errors import ConfigError, require
+
+if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``load_mitsuba``), passed as ``mi``
+    from types import ModuleType
 
 log = logging.getLogger(__name__)
 
@@ -76,7 +80,7 @@ def llvm_usable() -> bool:
     return ok
 
 
-def _cuda_usable(mi) -> bool:
+def _cuda_usable(mi: ModuleType) -> bool:
     if "cuda_ad_rgb" not in mi.variants():
         return False
     import drjit as dr
@@ -108,7 +112,7 @@ def pick_variant(name: str = "auto") -> str:
     return chosen
 
 
-def load_mitsuba(variant: str = "auto", threads: int = 0):
+def load_mitsuba(variant: str = "auto", threads: int = 0) -> tuple[ModuleType, str]:
     """Import mitsuba, set the variant and thread count, register the workbench plugins.
 
     Parameters
