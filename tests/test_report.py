@@ -306,7 +306,7 @@ def test_demo_sheet_error_panel_fits_small_errors_and_prints_the_aae():
     err[0, 0] = np.nan  # not scored
     panel = _error_panel(err)
     assert panel.vmax == 2.0 and panel.cmap == ERROR_CMAP  # not a fixed 10: half-degree errors are not black
-    assert panel.title == f"angular error, AAE {np.nanmean(err):.2f}°"
+    assert panel.title == f"angular error, AAE roi {np.nanmean(err):.2f}°"
 
 
 def test_demo_sheet_contact_mask_is_named_in_a_legend_not_a_colour_bar():

@@ -136,7 +136,7 @@ def _error_panel(err):
     from ..report import Panel
     from ..report.figures import ERROR_CMAP, error_scale
 
-    title = f"angular error, AAE {np.nanmean(err):.2f}°"
+    title = f"angular error, AAE roi {np.nanmean(err):.2f}°"  # the table's "AAE roi": every scored pixel
     return Panel(title, err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=error_scale([err]))
 
 
