@@ -18,6 +18,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import logging
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -120,8 +121,14 @@ class EmulatedCamera(FrameSource):
     """
 
     def __init__(
-        self, renders: TwinRenders, latched, seed: int = 0, latency_frames: int = 1, flush_frames: int = 2, average=1
-    ):
+        self,
+        renders: TwinRenders,
+        latched: Callable[[], np.ndarray],
+        seed: int = 0,
+        latency_frames: int = 1,
+        flush_frames: int = 2,
+        average: int = 1,
+    ) -> None:
         self.renders = renders
         self.latched = latched
         self.rng = np.random.default_rng(seed)
@@ -161,7 +168,9 @@ class EmulatedCamera(FrameSource):
 class ScriptedOperator(Operator):
     """The emulated person: presses what the script says when the session asks for a press."""
 
-    def __init__(self, camera: EmulatedCamera, script: list[ScriptedPress], echo=print):
+    def __init__(
+        self, camera: EmulatedCamera, script: list[ScriptedPress], echo: Callable[[str], None] = print
+    ) -> None:
         super().__init__(interactive=False, echo=echo)
         self.camera = camera
         self.script = script
@@ -232,7 +241,7 @@ def open_emulated_sensor(
     seed: int = 0,
     latency_frames: int = 1,
     flush_frames: int = 2,
-    echo=print,
+    echo: Callable[[str], None] = print,
     board_id: str | None = None,
 ) -> EmulatedSensor:
     """The virtual LED board (opened through the real host driver) and the virtual camera for ``scene``.

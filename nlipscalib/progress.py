@@ -11,7 +11,13 @@ import io
 import logging
 import os
 import sys
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, TextIO
+
+if TYPE_CHECKING:  # named in hints only: tqdm is imported when a bar is made
+    from tqdm import tqdm
 
 _enabled = True
 _log_file: str | None = None
@@ -108,7 +114,7 @@ def file_log(level: int, message: str) -> None:
 
 
 @contextlib.contextmanager
-def results_to_log_file():
+def results_to_log_file() -> Iterator[None]:
     """While active, every line printed on stdout (a command's results: summaries, tables, scores) also goes
     to the ``--log-file``, at INFO (a cluster job's log then holds the outcome, not only the warnings).
     Nothing changes without a log file."""
@@ -129,7 +135,7 @@ def results_to_log_file():
 class _LinesToLog(io.TextIOBase):
     """A text stream that writes through to ``real`` and hands each finished line to :func:`file_log`."""
 
-    def __init__(self, real):
+    def __init__(self, real: TextIO) -> None:
         self.real, self._partial = real, ""
 
     def write(self, text: str) -> int:
@@ -159,7 +165,7 @@ class _LinesToLog(io.TextIOBase):
     def errors(self):
         return self.real.errors
 
-    def __getattr__(self, name):  # buffer, errors, ...: the real stream's
+    def __getattr__(self, name: str) -> Any:  # buffer, errors, ...: the real stream's
         return getattr(self.real, name)
 
     def fileno(self) -> int:
@@ -177,7 +183,7 @@ def bars_enabled(requested: bool = True) -> bool:
     return bool(requested and _enabled and sys.stderr.isatty())
 
 
-def progress_bar(total: int | None = None, *, enabled: bool = True, **kwargs):
+def progress_bar(total: int | None = None, *, enabled: bool = True, **kwargs: Any) -> tqdm:
     """A tqdm bar (usable as a context manager), silent unless :func:`bars_enabled`.
 
     Parameters
@@ -191,7 +197,7 @@ def progress_bar(total: int | None = None, *, enabled: bool = True, **kwargs):
     return tqdm(total=total, disable=not bars_enabled(enabled), **kwargs)
 
 
-def track(iterable, *, enabled: bool = True, **kwargs):
+def track(iterable: Iterable, *, enabled: bool = True, **kwargs: Any) -> tqdm:
     """Iterate with a progress bar (see :func:`progress_bar`)."""
     from tqdm.auto import tqdm
 
@@ -228,7 +234,9 @@ class working:  # noqa: N801 - used like a function: ``with working("rendering")
         while not self._stop.wait(0.5):
             self.bar.refresh()
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> bool:
         import time
 
         seconds = time.perf_counter() - self.t0

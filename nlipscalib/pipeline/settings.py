@@ -5,9 +5,15 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import CaptureError, ConfigError
+
+if TYPE_CHECKING:  # named in hints only: the solver is imported when settings are made
+    from ..core.leds import Led
+    from ..solver import SolverOptions
 
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
 
@@ -57,9 +63,9 @@ class SolveSettings:
 def make_settings(
     *,
     reference: str | Path | None = None,
-    roi="auto",
-    leds=None,
-    options=None,
+    roi: str | Sequence[int] | None = "auto",
+    leds: str | Path | Sequence[int] | Sequence[Led] | None = None,
+    options: SolverOptions | None = None,
     backend: str = "numpy",
     solver_keywords: dict | None = None,
 ) -> SolveSettings:
@@ -178,7 +184,7 @@ def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> Non
         )
 
 
-def _resolve_roi(roi):
+def _resolve_roi(roi: str | Sequence[int] | None) -> str | tuple[int, ...] | None:
     if roi is None or roi == "auto":
         return roi
     if isinstance(roi, str):
@@ -194,7 +200,9 @@ def _resolve_roi(roi):
     return box
 
 
-def _resolve_leds(leds):
+def _resolve_leds(
+    leds: str | Path | Sequence[int] | Sequence[Led] | None,
+) -> tuple[tuple[int, ...] | None, tuple[Led, ...] | None, str | None, dict | None]:
     """(0-based subset or None, calibrated LEDs or None, LED file or None, the sensor the file records or None)
     from the ``leds`` argument."""
     from ..core.ledfile import read_led_file

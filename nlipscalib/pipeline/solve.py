@@ -7,6 +7,7 @@ import functools
 import logging
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import CaptureError, ConfigError, NlipsError
 from ..core.reconstruction import (
@@ -22,6 +23,11 @@ from .settings import SolveSettings, check_fits_capture, make_settings
 from .status import BUSY, FAILED, SOLVED
 from .workers import _solve_in_processes
 
+if TYPE_CHECKING:  # named in hints only: the solver and captures are imported when a press is solved
+    from ..core.capture import Press
+    from ..core.leds import Led
+    from ..solver import SolverOptions
+
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
 
 
@@ -29,13 +35,13 @@ def solve_folder(
     folder: str | Path,
     *,
     reference: str | Path | None = None,
-    roi="auto",
-    leds=None,
-    options=None,
+    roi: str | Sequence[int] | None = "auto",
+    leds: str | Path | Sequence[int] | Sequence[Led] | None = None,
+    options: SolverOptions | None = None,
     backend: str = "numpy",
     overwrite: bool = False,
     progress: bool = True,
-    figures=True,
+    figures: bool | str = True,
     out: str | Path | None = None,
     solver_keywords: dict | None = None,
     announce_reuse: bool = True,
@@ -74,14 +80,14 @@ def solve_presses(
     folders: Iterable[str | Path],
     *,
     reference: str | Path | None = None,
-    roi="auto",
-    leds=None,
-    options=None,
+    roi: str | Sequence[int] | None = "auto",
+    leds: str | Path | Sequence[int] | Sequence[Led] | None = None,
+    options: SolverOptions | None = None,
     backend: str = "numpy",
     workers: int = 1,
     overwrite: bool = False,
     progress: bool = True,
-    figures=True,
+    figures: bool | str = True,
     solver_keywords: dict | None = None,
     wait: bool = False,
 ) -> dict[str, str]:
@@ -137,14 +143,24 @@ def solve_presses(
     return {names[f]: statuses[f] for f in folders}
 
 
-def _solve_batch(folders, names, settings, workers, overwrite, progress, figures, wait, fresh_since=None):
+def _solve_batch(
+    folders: list[Path],
+    names: dict[Path, str],
+    settings: SolveSettings,
+    workers: int,
+    overwrite: bool,
+    progress: bool,
+    figures: bool | str,
+    wait: bool,
+    fresh_since: float | None = None,
+) -> dict[Path, str]:
     if workers == 1 or len(folders) <= 1:
         return _solve_serially(folders, names, settings, overwrite, progress, figures, wait, fresh_since)
     args = (settings, overwrite, False, figures, wait, fresh_since)  # a worker's press shows no bars of its own
     return _solve_in_processes(_status_of, folders, names, workers, progress, args)
 
 
-def _fs_clock(folders) -> float | None:
+def _fs_clock(folders: Sequence[Path]) -> float | None:
     """Now by the clock of the file system holding the presses (results' mtimes are compared with it)."""
     from ..core.claims import fs_now
 
@@ -158,7 +174,7 @@ def solve_one(
     out: str | Path | None = None,
     overwrite: bool = False,
     progress: bool = False,
-    figures=True,
+    figures: bool | str = True,
     want_result: bool = True,
     announce_reuse: bool = True,
     wait: bool = False,
@@ -197,7 +213,7 @@ def solve_one(
         _wait_for_release(folder, out)  # then claimed here: its result reused when made with these settings
 
 
-def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | None, figures) -> None:
+def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | None, figures: str) -> None:
     """Give a reused result the figures this run asks for that the run which made it did not write
     (``--no-figures`` then, ``--figures full`` now): drawing them takes milliseconds, re-solving seconds.
     Called under the result's claim, so no other process replaces the folder meanwhile."""
@@ -219,7 +235,9 @@ def _bars(requested: bool) -> bool:
     return bars_enabled(requested)
 
 
-def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance: dict, progress: bool, figures):
+def _solve_and_save(
+    folder: Path, out: Path, settings: SolveSettings, provenance: dict, progress: bool, figures: bool | str
+) -> Reconstruction:
     import time
 
     from ..core.atomic import check_writable
@@ -271,7 +289,7 @@ def _solve_and_save(folder: Path, out: Path, settings: SolveSettings, provenance
     return result
 
 
-def _figure_context(press) -> tuple:
+def _figure_context(press: Press) -> tuple:
     """What the figures of ``press``'s result take beside it: the undeformed depth (reference.npz; None when the
     capture has none), so depth.png shows the indentation, and the press's name for the summary's title."""
     return (press.reference.depth if press.reference is not None else None), Path(press.folder).resolve().name
@@ -308,7 +326,13 @@ def _names(folders: Sequence[Path]) -> dict[Path, str]:
 
 
 def _status_of(
-    folder: Path, settings: SolveSettings, overwrite: bool, progress: bool, figures, wait=False, fresh_since=None
+    folder: Path,
+    settings: SolveSettings,
+    overwrite: bool,
+    progress: bool,
+    figures: bool | str,
+    wait: bool = False,
+    fresh_since: float | None = None,
 ) -> str:
     """One press's status; a bad capture or bad settings become "failed: ...".
 
@@ -331,7 +355,16 @@ def _status_of(
         return f"{FAILED}: {exc}"
 
 
-def _solve_serially(folders, names, settings, overwrite, progress, figures, wait=False, fresh=None) -> dict[Path, str]:
+def _solve_serially(
+    folders: list[Path],
+    names: dict[Path, str],
+    settings: SolveSettings,
+    overwrite: bool,
+    progress: bool,
+    figures: bool | str,
+    wait: bool = False,
+    fresh: float | None = None,
+) -> dict[Path, str]:
     from ..progress import track
 
     single = len(folders) == 1

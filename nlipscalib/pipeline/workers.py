@@ -7,6 +7,7 @@ import logging
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from types import FrameType
 
 from .status import BROKEN
 
@@ -110,7 +111,7 @@ def _worker_signals() -> None:
     signal.signal(signal.SIGTERM, _worker_terminated)
 
 
-def _worker_terminated(signum, frame) -> None:
+def _worker_terminated(signum: int, frame: FrameType | None) -> None:
     from ..core import atomic, claims
 
     claims.release_all()
