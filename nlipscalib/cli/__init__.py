@@ -13,7 +13,9 @@ import importlib
 import logging
 import re
 import sys
+from collections.abc import Sequence
 from pathlib import Path
+from types import FrameType
 
 from .. import __version__, progress
 from ..core.errors import MissingDependencyError, NlipsError
@@ -91,7 +93,7 @@ def plain_text(text: str | None) -> str | None:
     return _MARKUP.sub(lambda m: m.group(1) or m.group(2), text)
 
 
-def main(argv=None) -> int:
+def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     previous = _terminate_cleanly(args.command, args)
     previous_int = _note_interrupts()
@@ -106,7 +108,7 @@ def main(argv=None) -> int:
             signal.signal(signal.SIGINT, previous_int)
 
 
-def _run(args) -> int:
+def _run(args: argparse.Namespace) -> int:
     try:
         progress.configure(
             progress=not (args.global_no_progress or getattr(args, "no_progress", False)),
@@ -136,7 +138,7 @@ RESUMABLE = "finished work is kept, run again to resume"
 """What an interrupted or terminated command says it left, unless its arguments say otherwise (:func:`_stopped`)."""
 
 
-def _stopped(args) -> str:
+def _stopped(args: argparse.Namespace) -> str:
     """The end of the line an interrupted or terminated command prints: :data:`RESUMABLE`, or what a command that
     cannot resume left, chosen from its arguments by the ``stopped`` its parser sets (a line, or a function of
     the arguments giving a line or None): a stream (``nlips live``; ``nlips infer`` from a camera, the emulated
@@ -149,7 +151,7 @@ def _stopped(args) -> str:
     return line or RESUMABLE
 
 
-def _interrupted(args) -> int:
+def _interrupted(args: argparse.Namespace) -> int:
     print(f"nlips {args.command}: interrupted; {_stopped(args)}", file=sys.stderr)
     return 130
 
@@ -167,14 +169,14 @@ def _note_interrupts():
         return None  # ignored (a background job) or handled by the embedding program: leave it so
     _INTERRUPTED.clear()
 
-    def handler(signum, frame):
+    def handler(signum: int, frame: FrameType | None) -> None:
         _INTERRUPTED.append(signum)
         signal.default_int_handler(signum, frame)
 
     return signal.signal(signal.SIGINT, handler)
 
 
-def _terminate_cleanly(command: str, args=None):
+def _terminate_cleanly(command: str, args: argparse.Namespace | None = None):
     """On SIGTERM (a scheduler's time limit, `kill`) stop the worker processes, release claims and
     temporaries, then exit 143, saying what is left (:func:`_stopped` of ``args``, the parsed arguments).
 
@@ -188,7 +190,7 @@ def _terminate_cleanly(command: str, args=None):
 
     from ..core import atomic, claims
 
-    def handler(signum, frame):
+    def handler(signum: int, frame: FrameType | None) -> None:
         _stop_workers()
         claims.release_all()
         atomic.remove_in_progress()
@@ -262,7 +264,7 @@ def _release_multiprocessing_resources() -> None:
         pass
 
 
-def describe_os_error(exc: OSError, overwrite_flag: bool = False, where=None) -> str:
+def describe_os_error(exc: OSError, overwrite_flag: bool = False, where: str | Path | None = None) -> str:
     """One line naming the path and the cause of a file-system error: the entry the user asked for, not a
     hidden temporary or claim beside it; ``where`` (the command's output or input) when the error names no
     path (a full disk found while writing)."""
@@ -283,7 +285,7 @@ def describe_os_error(exc: OSError, overwrite_flag: bool = False, where=None) ->
     return f"{' -> '.join(map(str, paths))}: {cause}" if paths else cause
 
 
-def _file_in_the_way(name, where) -> bool:
+def _file_in_the_way(name: str | Path | None, where: str | Path | None) -> bool:
     """Whether ``name`` is a file at or above the output folder ``where`` (``--out FILE``, ``--out FILE/sub``): a
     folder cannot be made there, and --overwrite would not help."""
     if name is None or where is None or not Path(name).is_file():
@@ -291,7 +293,7 @@ def _file_in_the_way(name, where) -> bool:
     return Path(where).absolute().is_relative_to(Path(name).absolute())
 
 
-def _fail(args, message: str) -> int:
+def _fail(args: argparse.Namespace, message: str) -> int:
     print(f"nlips {args.command}: error: {message}", file=sys.stderr)
     progress.file_log(logging.ERROR, f"nlips {args.command}: {message}")
     return 2

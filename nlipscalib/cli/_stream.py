@@ -5,11 +5,23 @@ or the emulated sensor), the NLiPsNet predictor and its calibration-mismatch wat
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import logging
 import sys
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
+
+if TYPE_CHECKING:  # named in hints only: imported when a stream is opened
+    import numpy as np
+
+    from ..device.camera import FrameSource
+    from ..emulator import EmulatedCamera
+    from ..learn.infer import Frame, Predictor
+    from .leds import LedBoard
 
 log = logging.getLogger(__name__)
 
@@ -22,7 +34,7 @@ EMULATED_SOURCE_OPTIONS = ("script", "frames_per_press", "width", "height")
 """Source flags of the emulated sensor alone."""
 
 
-def add_source_arguments(p, camera_default: str | None) -> None:
+def add_source_arguments(p: argparse.ArgumentParser, camera_default: str | None) -> None:
     """The frame-source flags shared by ``nlips live`` and ``nlips infer`` (one way to open a stream).
 
     The flags whose presence is checked have no argparse default (:func:`check_source_arguments` fills in
@@ -49,7 +61,7 @@ def add_source_arguments(p, camera_default: str | None) -> None:
     p.add_argument("--height", type=int, help="emulated image height, pixels")
 
 
-def emulate_behind_port(args, scene: str | None = None) -> None:
+def emulate_behind_port(args: argparse.Namespace, scene: str | None = None) -> None:
     """``--port nlipsemu://ID`` without ``--camera`` and ``--emulate``: stream from the emulated sensor.
 
     Why: the URL names a virtual board, which exists only inside the process that starts it, and a virtual
@@ -67,7 +79,7 @@ def emulate_behind_port(args, scene: str | None = None) -> None:
     args.emulate, args.emulated_port, args.port = scene or DEFAULT_DESIGN, args.port, None
 
 
-def check_source_arguments(args) -> None:
+def check_source_arguments(args: argparse.Namespace) -> None:
     """One line naming the option when a flag of :func:`add_source_arguments` is out of range, or is not
     used by the chosen source (the real sensor's with ``--emulate``, the emulator's without it); then the
     defaults of :data:`SOURCE_DEFAULTS` are filled in.
@@ -113,13 +125,13 @@ def check_source_arguments(args) -> None:
             check_count(option(dest), getattr(args, dest), minimum=1)
 
 
-def _live_camera(args) -> bool:
+def _live_camera(args: argparse.Namespace) -> bool:
     """Whether the stream's camera is a device (a number or /dev/...), not a recording (file, folder, pattern)."""
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     return camera is not None and (str(camera).isdigit() or str(camera).startswith("/dev/"))
 
 
-def check_output_arguments(args, out: str | None) -> None:
+def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
     """``--every`` >= 1 (0 would keep every frame), and said to do nothing without ``out`` (the output folder
     flag's value); ``--threads`` >= 0 (0: the default). Shared with infer."""
     from ..core.config import check_count
@@ -131,7 +143,9 @@ def check_output_arguments(args, out: str | None) -> None:
     check_count("--threads", args.threads, minimum=0)
 
 
-def open_frames(args, stack, loop: bool = False):
+def open_frames(
+    args: argparse.Namespace, stack: contextlib.ExitStack, loop: bool = False
+) -> tuple[FrameSource, Callable[[int], None] | None]:
     """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
 
     The emulated sensor when ``--emulate``, else ``--camera`` (camera, folder or video) with the LED board
@@ -165,7 +179,7 @@ def open_frames(args, stack, loop: bool = False):
     return source, None
 
 
-def size_emulator_for(args, shape: tuple[int, int]) -> None:
+def size_emulator_for(args: argparse.Namespace, shape: tuple[int, int]) -> None:
     """The emulated sensor (``--emulate``) renders at a model's image size ``shape`` (H, W) unless ``--width`` /
     ``--height`` say otherwise; a size that differs is refused now, not after rendering the script (~20 s)."""
     from ..core.errors import ConfigError
@@ -183,7 +197,7 @@ def size_emulator_for(args, shape: tuple[int, int]) -> None:
         )
 
 
-def check_emulated_sensor(args, sensor: dict) -> None:
+def check_emulated_sensor(args: argparse.Namespace, sensor: dict) -> None:
     """Refuse ``--emulate SCENE`` when its sensor (camera at the size streamed, LEDs) is not the one the model was
     calibrated for (``sensor``, the model's record), as ``nlips infer`` refuses presses of another sensor (the
     same check: :func:`nlipscalib.core.sensor_record.sensor_mismatch`). Called after :func:`size_emulator_for`,
@@ -214,7 +228,7 @@ def _design_leds(name: str) -> int:
     return len(load_scene(name).led_models())
 
 
-def add_device_arguments(p) -> None:
+def add_device_arguments(p: argparse.ArgumentParser) -> None:
     """``--device`` and ``--full-frame``, shared with ``nlips infer``."""
     p.add_argument(
         "--device",
@@ -230,7 +244,7 @@ def add_device_arguments(p) -> None:
     )
 
 
-def nlipsnet_predictor(args, depth: bool = True):
+def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predictor:
     """The NLiPsNet of ``args.model`` (``--backend``, ``--threads``, ``--device``, ``--full-frame``) for a stream;
     its ``predict_stored`` maps a stored frame ((H, W, 3) uint16) to a result with ``normals`` and ``depth`` (what
     the live sinks show)."""
@@ -264,12 +278,12 @@ class MismatchWatch:
     name : str -- the source, for the warning (``"camera 0"``, a video's path, ``"emulated sensor"``)
     """
 
-    def __init__(self, predictor, name: str):
+    def __init__(self, predictor: Predictor, name: str) -> None:
         self.predictor, self.name = predictor, name
         self.frames = 0
         self.mismatched = 0
 
-    def __call__(self, frame):
+    def __call__(self, frame: np.ndarray) -> Frame:
         """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
         from ..core.tolerances import FRAME_MISMATCH_FRACTION
         from ..learn.infer import mismatch_warning
@@ -293,7 +307,9 @@ class MismatchWatch:
             )
 
 
-def _emulated_source(args, stack, loop: bool):
+def _emulated_source(
+    args: argparse.Namespace, stack: contextlib.ExitStack, loop: bool
+) -> tuple[EmulatedCamera, Callable[[int], None]]:
     from ..device.live import StopLive
     from ..emulator import EmulatedCamera, TwinRenders, default_script, load_script, tricolor_level
     from ..sim.scene import load_scene
@@ -318,7 +334,7 @@ def _emulated_source(args, stack, loop: bool):
     for surface in surfaces:  # render now, so the frame rate measures the stream, not the twin
         renders.images(surface)
 
-    def before_frame(i):
+    def before_frame(i: int) -> None:
         if not loop and i >= len(surfaces) * args.frames_per_press:
             raise StopLive  # the script was streamed once: the input ended
         camera.show(surfaces[(i // args.frames_per_press) % len(surfaces)])
@@ -326,7 +342,7 @@ def _emulated_source(args, stack, loop: bool):
     return camera, before_frame
 
 
-def _light_tricolor(controller, level: int) -> None:
+def _light_tricolor(controller: LedBoard, level: int) -> None:
     import numpy as np
 
     from ..core.leds import TRICOLOR_COLORS, tricolor_groups

@@ -10,8 +10,10 @@ else ``~/.cache/nlipscalib``; it holds at most ``$NLIPS_CACHE_MB`` megabytes (de
 
 from __future__ import annotations
 
+import argparse
 
-def register(subparsers) -> None:
+
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "cache", help="show (or --clear) the sensor-level results kept between commands", description=__doc__
     )
@@ -19,7 +21,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     import os
 
     from ..core import diskcache

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import argparse
 
-def register(subparsers) -> None:
+
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "calibrate-leds",
         help="estimate LED Psi, mu, n_s, x_s from undeformed-dome captures",
@@ -57,7 +59,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..core.capture import load_press

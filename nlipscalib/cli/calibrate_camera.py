@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Iterable
+
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm")
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "calibrate-camera",
         help="camera intrinsics and distortion (fisheye or standard) from checkerboard images -> camera JSON",
@@ -38,7 +41,7 @@ def _pattern(text: str) -> tuple[int, int]:
     return cols, rows
 
 
-def _image_paths(items) -> list:
+def _image_paths(items: Iterable[str]) -> list:
     from pathlib import Path
 
     from ..core.errors import CaptureError
@@ -58,7 +61,7 @@ def _image_paths(items) -> list:
     return list({p.resolve(): p for p in paths}.values())
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     import logging
     from pathlib import Path
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -17,7 +19,7 @@ OPTION_OF = {
 """The option of `nlips calibrate` that sets each SamplingConfig field (its validation messages name the field)."""
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "calibrate",
         help="NLiPs-solve a folder of presses and pair tri-colour pixels with the normals (NLiPsNet training data)",
@@ -65,7 +67,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.capture import REFERENCE_FOLDER, no_presses_error, read_meta, split_reference
     from ..core.config import check_count, options_named
     from ..core.cpus import usable_cores
@@ -150,7 +152,7 @@ def own_reference_left_out(root: Path, given: Path) -> None:
     log.info("%s: left out (not a press); the undeformed dome of --reference %s is used", own, given)
 
 
-def reference_fits(reference: Path, presses) -> None:
+def reference_fits(reference: Path, presses: Sequence[Path]) -> None:
     """One line, before any solving, when the undeformed capture cannot be read or is of another sensor than
     the first readable press (every press's solve failed on it alike: one line per press). A press whose
     meta.json cannot be read is not compared: it fails alone, in its own line."""
@@ -184,7 +186,9 @@ def led_file_fits(leds: str, reference: Path) -> None:
     check_fits_capture(reference, make_settings(leds=leds))
 
 
-def solve_all(presses, reference: Path, workers: int = 1, progress: bool = True, leds=None) -> dict[str, str]:
+def solve_all(
+    presses: Sequence[Path], reference: Path, workers: int = 1, progress: bool = True, leds: str | None = None
+) -> dict[str, str]:
     """NLiPs results for every press (PRESS/nlips) via the pipeline: parallel, resumable, concurrency-safe;
     presses already solved with the same options and inputs are skipped. ``leds``: an LED file from ``nlips
     calibrate-leds`` to solve with (None: each capture's LEDs); its LED values are part of a result's settings,

@@ -17,15 +17,23 @@ camera), with ``--camera`` only the board (recorded frames, the host driver exer
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import math
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from ..progress import bars_enabled
 from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
+
+if TYPE_CHECKING:  # named in hints only: imported when a session runs
+    from ..core.camera import Camera
+    from ..core.leds import Led
+    from ..core.sensor import SensorDesign
+    from .leds import LedBoard
 
 DEFAULTS = {
     "presses": 10,
@@ -42,7 +50,7 @@ fills them in (cli/options.py). --camera stays None when not given (camera 0 is 
 whether one was given also decides what --port nlipsemu://ID starts."""
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "capture",
         help="capture a session of presses (undeformed reference first) from the sensor or its emulator",
@@ -133,7 +141,7 @@ WHY_NOT_EMULATED = {
 }
 
 
-def emulate_behind_port(args) -> None:
+def emulate_behind_port(args: argparse.Namespace) -> None:
     """Turn ``--port nlipsemu://ID`` without ``--camera`` into the emulated sensor of ``--design``.
 
     Why: the URL names a virtual board, which exists only inside the process that starts it, and a virtual
@@ -152,14 +160,14 @@ def emulate_behind_port(args) -> None:
     args.port = args.design = None
 
 
-def _emulated_how(args) -> str:
+def _emulated_how(args: argparse.Namespace) -> str:
     """How the user asked for the emulated sensor, for messages."""
     if getattr(args, "emulated_port", None):
         return f"--port {args.emulated_port} and no --camera (the emulated sensor of {args.emulate})"
     return "--emulate"
 
 
-def check_options(args) -> None:
+def check_options(args: argparse.Namespace) -> None:
     """Refuse, in one line, options the chosen sensor would not use and numbers out of range (ConfigError);
     then fill in the defaults of :data:`DEFAULTS`.
 
@@ -220,13 +228,13 @@ def check_options(args) -> None:
             raise _usage(f"{option(dest)} must be >= 0, got {value:g}")
 
 
-def _at_least(args, dest: str, minimum: int, what: str) -> None:
+def _at_least(args: argparse.Namespace, dest: str, minimum: int, what: str) -> None:
     value = getattr(args, dest)
     if value is not None and value < minimum:
         raise _usage(f"{option(dest)} must be >= {minimum} ({what}), got {value}")
 
 
-def _session_config(args, tricolor_level: int | None):
+def _session_config(args: argparse.Namespace, tricolor_level: int | None):
     from ..device.session import SessionConfig
 
     level = args.tricolor_level or tricolor_level or 255  # check_options refused 0
@@ -238,7 +246,7 @@ def _session_config(args, tricolor_level: int | None):
     )
 
 
-def _run_emulated(args):
+def _run_emulated(args: argparse.Namespace):
     from ..device.session import run_session
     from ..emulator import default_script, load_script, open_emulated_sensor
     from ..sim.scene import load_scene
@@ -261,7 +269,7 @@ def _run_emulated(args):
         return run_session(sensor.rig, args.out, cfg, sensor.operator, progress=bars_enabled())
 
 
-def _run_device(args):
+def _run_device(args: argparse.Namespace):
     from ..core.capture import SensorResponse, white_level_of
     from ..core.dome import reference_surface
     from ..device.camera import CameraSettings, open_source
@@ -328,7 +336,7 @@ def _run_device(args):
         return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
 
 
-def open_leds(port: str, adalight: int | None = None, baudrate: int | None = None):
+def open_leds(port: str, adalight: int | None = None, baudrate: int | None = None) -> LedBoard:
     """The LED controller on ``port`` at ``baudrate`` (default the firmware's, 115200): the nlips firmware, or a
     stock Adalight board with ``adalight`` LEDs (no acknowledgement: it waits a settle delay after each frame
     instead, and the camera flushes)."""
@@ -349,13 +357,13 @@ def _usage(message: str):
     return ConfigError(message)
 
 
-def _design(name):
+def _design(name: str | None) -> SensorDesign:
     from ..sim.scene import load_scene  # the scene file's dome/camera/leds sections are the design
 
     return load_scene(name).design
 
 
-def _calibrated_camera(path):
+def _calibrated_camera(path: str | None) -> Camera | None:
     if not path:
         return None
     import json
@@ -371,7 +379,7 @@ def _calibrated_camera(path):
         raise ConfigError(f"{path}: not a camera calibration file ({exc})") from None
 
 
-def _leds(args, camera, design):
+def _leds(args: argparse.Namespace, camera: Camera, design: SensorDesign) -> tuple[Led, ...] | None:
     """The LEDs of ``--leds FILE`` (None without it), refused in one line when the file was calibrated on
     another sensor than the one captured here: the design's LEDs with ``camera`` (the same check as
     ``nlips solve --leds``: :func:`nlipscalib.core.sensor_record.leds_file_mismatch`). A file that records no
@@ -414,7 +422,7 @@ def _leds(args, camera, design):
     return led_file.leds
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     emulate_behind_port(args)
     check_options(args)
     t0 = time.perf_counter()

@@ -7,14 +7,23 @@ Resumable: presses and solutions already on disk are reused.
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.cpus import usable_cores
+
+if TYPE_CHECKING:  # named in hints only: imported when the demo runs
+    import numpy as np
+
+    from ..core.capture import Press
+    from ..core.reconstruction import Reconstruction
+    from ..report import Panel
 
 DEMO_SPEC = Path(__file__).resolve().parents[1] / "scenes" / "datasets" / "demo.toml"
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
         help="render presses on the default scene, reconstruct them with NLiPs, write a contact sheet",
@@ -41,7 +50,7 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.capture import load_press
     from ..sim.dataset import REFERENCE_NAME, expand_jobs, load_dataset_spec, run_dataset, write_manifest
 
@@ -87,7 +96,7 @@ def run(args) -> int:
     return 1 if failed else 0
 
 
-def _solve(press, figures: bool):
+def _solve(press: Press, figures: bool) -> Reconstruction | None:
     """NLiPs around the contact, through the shared pipeline: an identical result in PRESS/nlips/ is
     reused, a damaged or differently made one is re-solved."""
     from ..pipeline import solve_folder
@@ -97,13 +106,13 @@ def _solve(press, figures: bool):
     return result
 
 
-def _scores(press, result) -> dict:
+def _scores(press: Press, result: Reconstruction) -> dict:
     from ..core.metrics import evaluate
 
     return evaluate(result, press.ground_truth)  # reconstructed pixels: all of the ROI, and its contact part
 
 
-def _panels(press, result):
+def _panels(press: Press, result: Reconstruction | None) -> list[Panel]:
     import numpy as np
 
     from ..core.metrics import angular_error_map
@@ -126,7 +135,7 @@ def _panels(press, result):
     return panels
 
 
-def _error_panel(err):
+def _error_panel(err: np.ndarray) -> Panel:
     """The angular error panel of one press (err: (H, W) float, degrees, NaN where not scored), titled with its AAE
     (over the same pixels, as the summary figure prints it), in a colour range fitted to this press's errors
     (``error_scale``): a fixed 0-10 deg, or one range shared with a coin's 20-deg edges, showed the sphere's and
@@ -140,7 +149,7 @@ def _error_panel(err):
     return Panel(title, err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=error_scale([err]))
 
 
-def _print_table(table) -> None:
+def _print_table(table: list[tuple[str, str, dict]]) -> None:
     if not table:
         return
     print(f"{'press':<12} {'indenter':<10} {'AAE roi':>8} {'MabsE roi':>10} {'AAE contact':>12} {'depth RMSE':>11}")

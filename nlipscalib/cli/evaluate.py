@@ -11,15 +11,21 @@ the press is reported with the `nlips solve PRESS --overwrite` that re-makes it.
 
 from __future__ import annotations
 
+import argparse
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only: imported when a result is scored
+    from ..core.reconstruction import Reconstruction
+    from ..pipeline import SolveSettings
 
 log = logging.getLogger(__name__)
 MAKES = {"nlips": "`nlips solve {path}`", "nlipsnet": "`nlips infer MODEL.pt {path}`"}
 """The command that writes each method's result, for the "no result yet" errors (``{path}``: the folder given)."""
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "eval", help="score reconstructions (NLiPs or NLiPsNet) against the ground truth", description=__doc__
     )
@@ -52,7 +58,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.errors import CaptureError
 
     if args.other_capture and not args.result:
@@ -268,7 +274,7 @@ def _tricolor_identity(press: Path) -> str:
     return frame_identity(press / read_meta(press)["images"]["tricolor"])
 
 
-def _load(folder: Path, method: str, single: bool, out=None):
+def _load(folder: Path, method: str, single: bool, out: str | Path | None = None) -> Reconstruction | str | None:
     """The reconstruction (in ``out``, default PRESS/<method>); None when there is none; a problem string when it
     is damaged beyond repair."""
     from ..core.errors import CaptureError
@@ -335,7 +341,7 @@ def _recorded_settings(out: Path):
         return f"{out / REPORT_FILE}: {exc}"
 
 
-def _recompute(folder: Path, out: Path, settings):
+def _recompute(folder: Path, out: Path, settings: SolveSettings) -> Reconstruction | str | None:
     """The result re-solved into ``out`` with the ``settings`` it was first made with; a problem string when
     that fails."""
     from ..core.errors import NlipsError
@@ -348,7 +354,7 @@ def _recompute(folder: Path, out: Path, settings):
     return result
 
 
-def _scores(folder: Path, rec) -> dict:
+def _scores(folder: Path, rec: Reconstruction) -> dict:
     from ..core.errors import CaptureError
     from ..core.metrics import evaluate
 
@@ -392,7 +398,7 @@ def _scored(path: Path, pairs: list, method: str, result: str | None) -> str:
     return str(path / "*" / method)
 
 
-def _print(rows, scored: str) -> None:
+def _print(rows: list[tuple[str, dict]], scored: str) -> None:
     import numpy as np
 
     if not rows:

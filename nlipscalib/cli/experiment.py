@@ -11,11 +11,16 @@ figures drawn from the work folder's per-press arrays (error maps, normal maps) 
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only: imported when an experiment runs
+    from ..experiments.framework import Experiment
 
 
-def register(sub) -> None:
+def register(sub: argparse._SubParsersAction) -> None:
     import argparse
 
     p = sub.add_parser(
@@ -71,7 +76,7 @@ def _guide() -> str:
     return "\n".join(lines)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.atomic import write_json
     from ..core.config import check_count
     from ..core.errors import ConfigError
@@ -157,7 +162,7 @@ RUN_OPTIONS = (
 """Options of a run, which ``--redraw`` refuses: it draws from the report's results.json alone, config included."""
 
 
-def _redraw(args) -> int:
+def _redraw(args: argparse.Namespace) -> int:
     """``--redraw REPORT``: the report's figures and report.md drawn again from its results.json."""
     from ..core.errors import ConfigError
     from ..experiments import get
@@ -181,7 +186,7 @@ def _redraw(args) -> int:
     return 0
 
 
-def _writable_folder(option: str, given, folder: Path, probe: bool = True) -> None:
+def _writable_folder(option: str, given: str | Path | None, folder: Path, probe: bool = True) -> None:
     """``folder`` (under the option's value ``given``) can be made and written: ConfigError naming the option
     when a file stands in its way; with ``probe``, OSError naming the folder (one line from the CLI) when it
     cannot be written (read-only, permission)."""
@@ -225,7 +230,7 @@ def _summary(tasks: dict) -> str:
     )
 
 
-def _print_plan(name: str, size: str, exp, cfg, work: Path, options: dict) -> None:
+def _print_plan(name: str, size: str, exp: Experiment, cfg: object, work: Path, options: dict) -> None:
     from ..experiments.tasks import load_result
 
     tasks = exp.tasks(cfg, options)

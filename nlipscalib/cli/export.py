@@ -6,11 +6,18 @@ it, or retrained), or a copy elsewhere (``--out``); checked against PyTorch like
 
 from __future__ import annotations
 
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only: torch is imported when a model is exported
+    from ..learn.model import LoadedModel
+
 CHECK_PIXELS = 20000
 """At most this many of the reference frame's gel pixels check the export."""
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "export",
         help="write the ONNX file of a trained NLiPsNet model (for --backend onnx / onnx-int8)",
@@ -23,7 +30,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.errors import ConfigError
@@ -48,7 +55,7 @@ def run(args) -> int:
     return 0
 
 
-def parity_deg(model, onnx_path) -> float:
+def parity_deg(model: LoadedModel, onnx_path: Path) -> float:
     """Largest angle (degrees) between onnxruntime's and PyTorch's normals on the model's reference gel pixels, their
     colours as they are and 10 % darker and brighter (a contact changes them); CaptureError beyond the limit."""
     import numpy as np

@@ -10,8 +10,11 @@ frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its 
 
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING
 
 from ._stream import (
     add_device_arguments,
@@ -22,6 +25,18 @@ from ._stream import (
 )
 from .options import option, typed
 
+if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are imported when frames are inferred
+    from pathlib import Path
+
+    import numpy as np
+
+    from ..device.live import FrameReader, LiveStats
+    from ..learn.infer import Frame, Predictor
+    from ._stream import MismatchWatch
+
+    StillInput = tuple[str, Callable[[Predictor], np.ndarray], Path | None, Path]
+    """(name, loader(predictor) -> linear frame, press folder or None, source path): one still input."""
+
 log = logging.getLogger(__name__)
 
 STILL_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
@@ -31,7 +46,7 @@ STREAM_STOPPED = "the stream stopped (a stream does not resume; frames already s
 """What ``nlips infer`` of a stream, interrupted or terminated, says it left (:func:`stopped`)."""
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "infer",
         help="NLiPsNet normals + depth (+ PLY) from tri-colour frames: presses, PNG frames, a video or a camera",
@@ -69,7 +84,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run, stopped=stopped)
 
 
-def stopped(args) -> str | None:
+def stopped(args: argparse.Namespace) -> str | None:
     """What ``nlips infer`` says it left when interrupted or terminated (``cli._stopped``): :data:`STREAM_STOPPED`
     for a stream (a camera, the emulated sensor, ``--port nlipsemu://ID`` alone, a video or an image sequence),
     which run again starts over; None (finished work is kept, run again to resume) for presses and frames."""
@@ -82,7 +97,7 @@ def stopped(args) -> str | None:
     return STREAM_STOPPED if _stream_input(args) is not None else None
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
 
     if not args.inputs:
@@ -113,7 +128,7 @@ def run(args) -> int:
 
 
 # ---------------------------------------------------------------------- streams
-def _stream_input(args):
+def _stream_input(args: argparse.Namespace):
     """What to stream from ("emulated", a camera spec or a video path), or None for still frames and presses."""
     from pathlib import Path
 
@@ -158,7 +173,7 @@ def _check_video(path: str) -> None:
         cap.release()
 
 
-def _run_stream(args, what: str) -> int:
+def _run_stream(args: argparse.Namespace, what: str) -> int:
     import contextlib
     import time
 
@@ -199,7 +214,7 @@ def _run_stream(args, what: str) -> int:
 
             watch = MismatchWatch(predictor, name)
 
-            def predict(frame):
+            def predict(frame: np.ndarray) -> Frame:
                 return stages.add(watch(frame))
 
             cpu0 = time.process_time()
@@ -226,7 +241,15 @@ def _run_stream(args, what: str) -> int:
     return 0
 
 
-def _finish_stream(args, name, predictor, stats, stages, cpu, watch) -> None:
+def _finish_stream(
+    args: argparse.Namespace,
+    name: str,
+    predictor: Predictor,
+    stats: LiveStats,
+    stages: _StageTimes,
+    cpu: float,
+    watch: MismatchWatch,
+) -> None:
     """A stream's summary lines, its mismatch count and (with --out) its stream.json."""
     print(stats.summary())
     print(stages.summary(predictor, cpu, stats.frames, args.no_depth))
@@ -240,7 +263,7 @@ class _EndsCleanly:
     that cannot be read (a damaged file) ends it too, and is kept in ``failure`` to be raised after the summary
     (the frames before it are inferred and saved)."""
 
-    def __init__(self, source):
+    def __init__(self, source: FrameReader) -> None:
         self.source = source
         self.shape = source.shape
         self.failure = None
@@ -262,10 +285,10 @@ class _EndsCleanly:
 class _StageTimes:
     """Each frame's stage times (change, network, integrate, total), for the summary."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.seconds: list[dict] = []
 
-    def add(self, frame):
+    def add(self, frame: Frame) -> Frame:
         self.seconds.append(frame.seconds)
         return frame
 
@@ -274,7 +297,7 @@ class _StageTimes:
 
         return {k: float(np.median([s[k] for s in self.seconds])) for k in self.seconds[0]} if self.seconds else {}
 
-    def summary(self, predictor, cpu_s: float, frames: int, no_depth: bool) -> str:
+    def summary(self, predictor: Predictor, cpu_s: float, frames: int, no_depth: bool) -> str:
         med = self.medians()
         if not med:
             return "no frames"
@@ -293,19 +316,21 @@ class _StageTimes:
 class _PlySink:
     """Every ``every``-th frame's point cloud (PLY, with normals; grid triangles with ``mesh``)."""
 
-    def __init__(self, folder, every: int, mesh: bool):
+    def __init__(self, folder: str | Path, every: int, mesh: bool) -> None:
         from pathlib import Path
 
         self.folder, self.every, self.mesh = Path(folder), max(int(every), 1), mesh
 
-    def __call__(self, index, frame, result) -> None:
+    def __call__(self, index: int, frame: np.ndarray, result: Frame) -> None:
         from ..learn.ply import write_ply
 
         if index % self.every == 0:
             write_ply(self.folder / f"frame_{index:06d}.ply", result.points, result.normals, mesh=self.mesh)
 
 
-def _write_stream_report(out, name, predictor, stats, stages, cpu_s) -> None:
+def _write_stream_report(
+    out: str | Path, name: str, predictor: Predictor, stats: LiveStats, stages: _StageTimes, cpu_s: float
+) -> None:
     import json
     import os
     from pathlib import Path
@@ -328,7 +353,7 @@ def _write_stream_report(out, name, predictor, stats, stages, cpu_s) -> None:
 
 
 # ---------------------------------------------------------------------- presses and still frames
-def _run_stills(args) -> int:
+def _run_stills(args: argparse.Namespace) -> int:
     import time
 
     import numpy as np
@@ -361,7 +386,7 @@ def _run_stills(args) -> int:
     return 0
 
 
-def _frames(inputs):
+def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
     """(name, loader(predictor) -> linear frame, press folder or None, source path) for every input, in order."""
     from pathlib import Path
 
@@ -402,10 +427,10 @@ def _frames(inputs):
 class _EightBitNotice:
     """Says once per command that 8-bit frames were scaled up (and JPEG's loss), not once per frame."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.said = False
 
-    def __call__(self, path) -> None:
+    def __call__(self, path: Path) -> None:
         if self.said:
             return
         self.said = True
@@ -420,14 +445,14 @@ class _EightBitNotice:
         )
 
 
-def _image_loader(path, eight_bit):
-    def load(predictor):
+def _image_loader(path: Path, eight_bit: Callable[[Path], None] | None) -> Callable[[Predictor], np.ndarray]:
+    def load(predictor: Predictor) -> np.ndarray:
         return predictor.linear(read_still(path, eight_bit), path)
 
     return load
 
 
-def read_still(path, eight_bit=None):
+def read_still(path: str | Path, eight_bit: Callable[[Path], None] | None = None) -> np.ndarray:
     """A tri-colour frame stored as an image file, as stored 16-bit RGB values ((H, W, 3) uint16).
 
     The capture format (16-bit PNG) or any image OpenCV reads (8 or 16 bits, BGR or BGRA as OpenCV returns
@@ -457,8 +482,8 @@ def read_still(path, eight_bit=None):
     return image
 
 
-def _press_loader(folder):
-    def load(predictor):
+def _press_loader(folder: Path) -> Callable[[Predictor], np.ndarray]:
+    def load(predictor: Predictor) -> np.ndarray:
         from ..core.sensor_record import check_sensor
         from ..learn.infer import load_tricolor
 
@@ -469,7 +494,7 @@ def _press_loader(folder):
     return load
 
 
-def _destination(args, name, press_folder):
+def _destination(args: argparse.Namespace, name: str, press_folder: Path | None) -> Path | None:
     """The result folder of one input: PRESS/nlipsnet, OUT/PRESS/nlipsnet or OUT/FRAME; None for a frame
     without --out."""
     from pathlib import Path
@@ -481,7 +506,7 @@ def _destination(args, name, press_folder):
     return Path(args.out) / name if args.out else None
 
 
-def _check_destinations(args, frames) -> None:
+def _check_destinations(args: argparse.Namespace, frames: Sequence[StillInput]) -> None:
     """One line, before any inference, when two inputs would write one result folder (the last would win), or
     when a destination holds something else than a result (a result replaces its folder whole)."""
     from ..core.errors import ConfigError
@@ -499,8 +524,9 @@ def _check_destinations(args, frames) -> None:
             )
 
 
-def _save(args, predictor, result, name, press_folder, source) -> None:
-    from pathlib import Path
+def _save(
+    args: argparse.Namespace, predictor: Predictor, result: Frame, name: str, press_folder: Path | None, source: Path
+) -> None:
 
     from ..core.reconstruction import save_reconstruction
     from ..learn.infer import to_reconstruction
@@ -522,7 +548,7 @@ def _save(args, predictor, result, name, press_folder, source) -> None:
     save_reconstruction(reconstruction, folder, overwrite=True, extra_files=extra)
 
 
-def _say_what_is_replaced(folder, model: str) -> None:
+def _say_what_is_replaced(folder: Path, model: str) -> None:
     """Log it when ``folder`` holds a result of another model (a user comparing models would lose it unseen)."""
     from ..core.errors import CaptureError
     from ..core.reconstruction import read_report
@@ -535,7 +561,7 @@ def _say_what_is_replaced(folder, model: str) -> None:
         log.info("%s: replacing the result of another model (%s)", folder, old)
 
 
-def input_identity(press_folder, source) -> dict:
+def input_identity(press_folder: Path | None, source: Path) -> dict:
     """What an NLiPsNet result records of its input (report ``provenance.inputs``, docs/formats.md), so that
     ``nlips eval PRESS --result`` can tell a result of PRESS from one of another capture.
 
@@ -549,7 +575,7 @@ def input_identity(press_folder, source) -> dict:
     return {"frame": frame_identity(source)}
 
 
-def frame_identity(path) -> str:
+def frame_identity(path: str | Path) -> str:
     """SHA-256 (hex) of an image file's bytes: the identity of a tri-colour frame stored as a file."""
     import hashlib
     from pathlib import Path

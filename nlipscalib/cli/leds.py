@@ -13,7 +13,16 @@ protocol and the Python API number them from 0 (docs/protocol.md), translated in
 
 from __future__ import annotations
 
+import argparse
 import contextlib
+from typing import TYPE_CHECKING, TypeAlias
+
+if TYPE_CHECKING:  # named in hints only: pyserial is imported when a board is opened
+    from ..device.adalight import AdalightController
+    from ..device.controller import LedController
+
+    LedBoard: TypeAlias = LedController | AdalightController
+    """An opened LED board: the nlips firmware, or a stock Adalight board (which acknowledges nothing)."""
 
 ACTIONS = {
     "info": 0,
@@ -27,7 +36,7 @@ ACTIONS = {
 DEFAULT_VIRTUAL_LEDS = 12
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "leds",
         help="check or drive the LED controller (info, test, set, all, off, state)",
@@ -55,7 +64,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     expected = ACTIONS[args.action]
     if len(args.values) != expected:
         _refuse(f"{args.action} takes {expected} numbers, got {len(args.values)}")
@@ -135,7 +144,7 @@ def _named_as_typed(port: str, url: str):
             logger.removeFilter(rename)
 
 
-def add_baud_argument(p) -> None:
+def add_baud_argument(p: argparse.ArgumentParser) -> None:
     """``--baud RATE``: the LED board's line rate, shared by every command that opens the LED port."""
     p.add_argument(
         "--baud",
@@ -144,7 +153,7 @@ def add_baud_argument(p) -> None:
     )
 
 
-def check_baud(args) -> int:
+def check_baud(args: argparse.Namespace) -> int:
     """The rate of ``--baud`` (default the firmware's), or one line naming --baud (ConfigError)."""
     from ..device.port import BAUD_RATE, check_baudrate
 
@@ -158,7 +167,7 @@ def _refuse(message: str):
     raise ConfigError(message)
 
 
-def _board(args):
+def _board(args: argparse.Namespace):
     """The URL to open for PORT, and the virtual board started for it (None for a real port)."""
     from ..device.port import BAUD_RATE
     from ..device.virtual_board import VirtualBoard, start_board
@@ -173,7 +182,7 @@ def _board(args):
     return url, start_board(url, n_leds, adalight=adalight, baudrate=BAUD_RATE)
 
 
-def _connect(args, url: str):
+def _connect(args: argparse.Namespace, url: str) -> LedBoard:
     from ..device.adalight import AdalightController
     from ..device.controller import LedController
 
@@ -182,7 +191,7 @@ def _connect(args, url: str):
     return LedController.open(url, timeout=args.timeout, baudrate=args.baud)
 
 
-def _info(leds, args) -> int:
+def _info(leds: LedBoard, args: argparse.Namespace) -> int:
     if not leds.acknowledged:
         print(f"Adalight board, {leds.n_leds} LEDs (no acknowledgement: settle delay {leds.settle_s * 1e3:.0f} ms)")
         return 0
@@ -191,7 +200,7 @@ def _info(leds, args) -> int:
     return 0
 
 
-def _test(leds, args) -> int:
+def _test(leds: LedBoard, args: argparse.Namespace) -> int:
     import time
 
     import numpy as np
@@ -233,19 +242,19 @@ def _one_lit(n_leds: int, index: int, level: int):
     return frame
 
 
-def _state(leds, args) -> int:
+def _state(leds: LedBoard, args: argparse.Namespace) -> int:
     for number, (r, g, b) in enumerate(leds.state(), 1):
         print(f"LED {number}: {r} {g} {b}")
     return 0
 
 
-def _off(leds, args) -> int:
+def _off(leds: LedBoard, args: argparse.Namespace) -> int:
     leds.off()
     _done(leds, f"all {leds.n_leds} LEDs off")
     return 0
 
 
-def _set(leds, args) -> int:
+def _set(leds: LedBoard, args: argparse.Namespace) -> int:
     number, *rgb = args.values
     if number > leds.n_leds:
         from ..device.errors import LedIndexError
@@ -256,7 +265,7 @@ def _set(leds, args) -> int:
     return 0
 
 
-def _all(leds, args) -> int:
+def _all(leds: LedBoard, args: argparse.Namespace) -> int:
     import numpy as np
 
     leds.set_all(np.tile(np.array(args.values, np.uint8), (leds.n_leds, 1)))
@@ -264,7 +273,7 @@ def _all(leds, args) -> int:
     return 0
 
 
-def _done(leds, what: str) -> None:
+def _done(leds: LedBoard, what: str) -> None:
     """Confirm a change on one line; an Adalight board acknowledges nothing, so say the frame was only sent."""
     print(what if leds.acknowledged else f"{what} (sent; Adalight does not acknowledge)")
 

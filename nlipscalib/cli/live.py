@@ -12,8 +12,11 @@ that maps a stored frame ((H, W, 3) uint16) to ``nlipscalib.device.live.LiveResu
 
 from __future__ import annotations
 
+import argparse
 import importlib
 import sys
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TypeAlias
 
 from ._stream import (
     MismatchWatch,
@@ -28,12 +31,20 @@ from ._stream import (
     size_emulator_for,
 )
 
+if TYPE_CHECKING:  # named in hints only: numpy and the device loop are imported when a stream runs
+    import numpy as np
+
+    from ..device.live import LiveResult, LiveStats
+
+    Predict: TypeAlias = Callable[[np.ndarray], LiveResult]
+    """A stream's predictor: a stored frame ((H, W, 3) uint16) -> its LiveResult (normals, depth)."""
+
 STOPPED = "the stream stopped (a live stream does not resume; maps already saved with --save are kept)"
 """What ``nlips live`` interrupted or terminated says it left (``cli._stopped``), not "run again to resume": a live
 stream cannot continue where it stopped."""
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "live",
         help="live normal and depth maps from tri-colour frames (NLiPsNet)",
@@ -65,12 +76,12 @@ def register(subparsers) -> None:
     p.set_defaults(func=run, stopped=STOPPED)
 
 
-def _nlipsnet(args):
+def _nlipsnet(args: argparse.Namespace):
     predictor = nlipsnet_predictor(args)
     return MismatchWatch(predictor, source_name(args)), predictor.ref_depth.astype("float32")
 
 
-def source_name(args) -> str:
+def source_name(args: argparse.Namespace) -> str:
     """What a stream's frames are named after in messages: the emulated sensor, a camera, or the file read."""
     if args.emulate:
         return "emulated sensor"
@@ -78,7 +89,7 @@ def source_name(args) -> str:
     return f"camera {camera}" if str(camera).isdigit() or str(camera).startswith("/dev/") else str(camera)
 
 
-def _plugged(spec: str, shape):
+def _plugged(spec: str, shape: tuple[int, int]) -> tuple[Predict, None]:
     from ..core.errors import ConfigError
 
     module, _, name = spec.partition(":")
@@ -99,14 +110,14 @@ def _plugged(spec: str, shape):
     return _checked_first_call(spec, predict), None
 
 
-def _checked_first_call(spec: str, predict):
+def _checked_first_call(spec: str, predict: Predict) -> Predict:
     """``predict``, its first call's TypeError or a result without normals and depth made a ConfigError naming
     --predictor (later calls run unchecked: the check costs nothing per frame)."""
     from ..core.errors import ConfigError
 
     checked = False
 
-    def first(frame):
+    def first(frame: np.ndarray) -> LiveResult:
         nonlocal checked
         if checked:
             return predict(frame)
@@ -125,7 +136,7 @@ def _checked_first_call(spec: str, predict):
     return first
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError, DeviceError
     from ..report.live import display_available
 
@@ -151,7 +162,7 @@ def run(args) -> int:
     return 0
 
 
-def _run_stream(args, window: bool, done: dict) -> None:
+def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
     """Open the source, the predictor and the sinks, and stream; ``done`` gets ``stats`` and ``predict`` once
     the stream ended, before what it opened is closed (the LED board switched off)."""
     import contextlib
@@ -186,7 +197,7 @@ def _run_stream(args, window: bool, done: dict) -> None:
         done["predict"] = predict
 
 
-def _summarise(stats, predict) -> None:
+def _summarise(stats: LiveStats, predict: Predict) -> None:
     """The stream's summary line (stdout), and how many frames differed from the calibration (a warning)."""
     print(stats.summary())
     if isinstance(predict, MismatchWatch):

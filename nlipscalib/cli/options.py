@@ -10,13 +10,16 @@ table of their real defaults: :func:`typed` says which of them the user typed, t
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Iterable
+
 TYPED = "typed_options"
 """Attribute of the parsed arguments: the options (dests) the user typed, recorded by :func:`fill_defaults`."""
 DEFAULTED = "defaulted_options"
 """Attribute of the parsed arguments: the options :func:`fill_defaults` gave their default (not typed)."""
 
 
-def typed(args, dests) -> list[str]:
+def typed(args: argparse.Namespace, dests: Iterable[str]) -> list[str]:
     """The options among ``dests`` that the user typed, in the order of ``dests``.
 
     Parameters
@@ -33,7 +36,7 @@ def typed(args, dests) -> list[str]:
     return [d for d in dests if d in given or (d not in defaulted and getattr(args, d, None) is not None)]
 
 
-def fill_defaults(args, defaults: dict) -> None:
+def fill_defaults(args: argparse.Namespace, defaults: dict) -> None:
     """Give every option of ``defaults`` that the user did not type its real default, remembering the typed ones.
 
     Parameters

@@ -2,14 +2,22 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import re
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only: the twin (Mitsuba) is imported when a press is rendered
+    from pathlib import Path
+
+    from ..sim.indent import PressConfig
+    from ..sim.scene import SceneConfig
 
 DEFAULT_PRESS = {"indenter": "sphere", "polar_deg": 20.0, "azimuth_deg": 0.0, "spin_deg": 0.0, "depth": 1.0}
 """The press rendered when no indenter, pose or press file is given: a sphere 1 mm deep, 20 deg off the apex."""
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "render",
         help="render one press of the digital twin into a press folder",
@@ -82,7 +90,7 @@ PRESS_OPTIONS = ("indenter", "size", "orientation", "mesh", "polar", "azimuth", 
 """Options that describe the press: --undeformed renders none, so they do not apply to it."""
 
 
-def _check_args(args) -> None:
+def _check_args(args: argparse.Namespace) -> None:
     import math
 
     from ..core.config import check_count, check_range
@@ -110,7 +118,7 @@ def _check_args(args) -> None:
         raise ConfigError(f"--mesh is for --indenter mesh, not --indenter {args.indenter}: drop one of them")
 
 
-def _scene(args):
+def _scene(args: argparse.Namespace) -> SceneConfig:
     from ..sim.scene import load_scene
 
     _check_args(args)
@@ -142,7 +150,7 @@ def _scene_keys_as_flags():
         raise ConfigError(f"--{found[1]}: {found[2]}") from None
 
 
-def _check_depth(where: str, depth: float, scene) -> None:
+def _check_depth(where: str, depth: float, scene: SceneConfig) -> None:
     """The press depth within (0, gel thickness], checked before the render starts (and its INFO line).
 
     Parameters
@@ -163,7 +171,7 @@ def _check_depth(where: str, depth: float, scene) -> None:
         )
 
 
-def _press(args):
+def _press(args: argparse.Namespace) -> PressConfig:
     from pathlib import Path
 
     from ..core.config import from_mapping, read_config_file
@@ -192,7 +200,7 @@ def _press(args):
         raise ConfigError(f"press: {exc}") from None
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.atomic import check_writable
@@ -231,7 +239,7 @@ def run(args) -> int:
     return 0
 
 
-def _up_to_date(out, scene, press, seed) -> bool:
+def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: int | None) -> bool:
     """True when ``out`` holds this very render; an existing folder from another spec is an error."""
     import json
 

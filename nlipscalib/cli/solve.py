@@ -4,11 +4,18 @@ from __future__ import annotations
 
 import argparse
 import logging
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only: the solver is imported when a press is solved
+    from pathlib import Path
+
+    from ..solver import SolverOptions
 
 log = logging.getLogger(__name__)
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "solve",
         help="reconstruct depth/normals of a press with near-light photometric stereo",
@@ -82,7 +89,7 @@ SOLVER_KEYWORDS = ("dent_interreflection", "coating_albedo", "interreflection", 
 """Flags of this parser passed as keywords to solver.solve_press (add a flag above, then its name here)."""
 
 
-def parse_roi(values):
+def parse_roi(values: Sequence[str] | None) -> str | tuple[int, ...] | None:
     from ..core.errors import ConfigError
 
     if not values:
@@ -99,7 +106,7 @@ def parse_roi(values):
     return roi
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from ..core.capture import no_presses_error, read_meta, split_reference
     from ..core.config import from_mapping, read_config_file
     from ..core.errors import ConfigError
@@ -148,7 +155,7 @@ def run(args) -> int:
     return _summary(statuses)
 
 
-def _check_min_leds(options, press, config: str) -> None:
+def _check_min_leds(options: SolverOptions, press: Path, config: str) -> None:
     """ConfigError naming the config file when its ``min_leds`` exceeds the capture's LEDs: the solver's own
     check ("12 LEDs given; the solver needs at least min_leds=50") says neither where the value came from
     nor which press. The presses of one folder share a sensor, so the first stands for all."""
@@ -163,7 +170,7 @@ def _check_min_leds(options, press, config: str) -> None:
         raise ConfigError(f"{config}: solver.min_leds = {options.min_leds} exceeds the {len(leds)} LEDs of {press}")
 
 
-def _press_after_roi(args) -> None:
+def _press_after_roi(args: argparse.Namespace) -> None:
     """``nlips solve --roi auto PRESS``: the press folder follows --roi's values (it takes one or four), so
     argparse gave it to --roi; take it back."""
     from ..core.errors import ConfigError

@@ -2,6 +2,15 @@
 
 from __future__ import annotations
 
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only: torch is imported when a model is trained
+    from ..learn.dataset import CalibrationDataset
+    from ..learn.train import TrainConfig, TrainResult
+
 OPTION_OF = {
     "hidden": "--hidden",
     "dropout": "--dropout",
@@ -18,7 +27,7 @@ OPTION_OF = {
 """The option of `nlips train` that sets each TrainConfig field (its validation messages name the field)."""
 
 
-def register(subparsers) -> None:
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "train",
         help="train NLiPsNet (u, v, r, g, b) -> normal on a calibration dataset from `nlips calibrate`",
@@ -64,7 +73,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
+def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.config import check_count, options_named
@@ -137,7 +146,7 @@ def _names(option: str | None) -> list[str]:
     return [name.strip() for name in (option or "").split(",") if name.strip()]
 
 
-def export_and_check(model_path, dataset, names) -> tuple:
+def export_and_check(model_path: Path, dataset: CalibrationDataset, names: Sequence[str]) -> tuple[Path, float]:
     """Export MODEL.onnx and return (path, max angle in degrees between onnxruntime and PyTorch normals) on the
     samples of presses ``names``; CaptureError beyond ``core.tolerances.ONNX_PARITY_DEG``."""
     from ..learn.model import load_model, model_inputs
@@ -154,14 +163,14 @@ def export_and_check(model_path, dataset, names) -> tuple:
     return path, angles[0]
 
 
-def _contact_figure(aae) -> str:
+def _contact_figure(aae: float | None) -> str:
     """'contact 3.20 deg', or 'no contact samples' when the validation presses hold none (their AAE is NaN)."""
     import math
 
     return f"contact {aae:.2f} deg" if aae is not None and math.isfinite(aae) else "no contact samples"
 
 
-def _why_stopped(result, cfg) -> str:
+def _why_stopped(result: TrainResult, cfg: TrainConfig) -> str:
     """What ended the training: the epoch limit, early stopping, or the time limit (--max-minutes)."""
     done = len(result.history)
     if done >= cfg.max_epochs:
