@@ -8,8 +8,12 @@ Dask cluster with identical numbers, and an interrupted run resumes. See docs/ex
 from __future__ import annotations
 
 import importlib
+from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
+
+if TYPE_CHECKING:  # named in hints only: the experiment modules load when one is asked for
+    from .framework import Experiment
 
 EXPERIMENTS = {
     "q1": "q1:Q1",
@@ -54,7 +58,7 @@ UNAVAILABLE: dict[str, str] = {}
 """Experiments of the issue that cannot run yet, with the reason."""
 
 
-def get(name: str):
+def get(name: str) -> Experiment:
     """The experiment object of that name (ConfigError naming the known ones otherwise)."""
     if name in UNAVAILABLE:
         raise ConfigError(f"experiment {name}: not available: {UNAVAILABLE[name]}")

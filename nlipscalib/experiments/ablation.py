@@ -51,7 +51,7 @@ class Ablation(Experiment):
     paper = {"aae_deg_by_leds": PAPER_AAE, "source": "paper, real NLiPsTac sensor, LED subsets"}
     check_table = "ablation"
 
-    def evaluations(self, cfg: AblationConfig):
+    def evaluations(self, cfg: AblationConfig) -> list[tuple[dict, dict, dict, dict]]:
         out = []
         for n in cfg.counts:
             scene = cfg.twin.scene_dict(leds={"count": n})
@@ -59,7 +59,7 @@ class Ablation(Experiment):
             out += [(scene, p, {"leds": n, "indenter": p["indenter"]["kind"]}, solve) for p in cfg.presses.presses()]
         return out
 
-    def tables(self, cfg, rows, learned=None):
+    def tables(self, cfg: AblationConfig, rows: list[dict], learned: dict | None = None) -> list[Table]:
         main = aggregate(rows, ("leds",))
         for r in main:
             r["paper_aae_deg"] = PAPER_AAE.get(r["leds"])
@@ -75,7 +75,9 @@ class Ablation(Experiment):
             Table("ablation_by_indenter", "By number of LEDs and indenter", ("leds", "indenter"), per),
         ]
 
-    def figures(self, cfg, rows, tables, folder: Path, learned=None):
+    def figures(
+        self, cfg: AblationConfig, rows: list[dict], tables: list[Table], folder: Path, learned: dict | None = None
+    ) -> list[tuple[str, str]]:
         main = tables[0].rows
         x = [r["leds"] for r in main]
         paper = {"paper (real sensor)": (list(PAPER_AAE), list(PAPER_AAE.values()))}

@@ -9,12 +9,19 @@ sim/, solver/ and learn/ together.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.config import from_mapping
 from ..core.errors import CaptureError, ConfigError
-from ..core.leds import Led
+from ..core.leds import Led, Leds
+
+if TYPE_CHECKING:  # named in hints only: each function imports what it uses
+    from ..core.capture import GroundTruth, Press
+    from ..core.reconstruction import Reconstruction
+    from ..sim.scene import SceneConfig
+    from ..solver import SolverOptions
 
 SOLVER_RNG_SEED = 0
 """numpy's global generator is seeded with this before every solve and calibration: pyamg draws random
@@ -24,7 +31,7 @@ ROI_MARGIN_PX = 8
 """Margin around the true contact's bounding box for ``roi = "truth"``, pixels."""
 
 
-def build_scene(scene: dict, reference: bool = False):
+def build_scene(scene: dict, reference: bool = False) -> SceneConfig:
     """SceneConfig from a full scene mapping (as stored in a task); ``reference``: the one its undeformed
     reference is rendered with (``plan.REFERENCE_RENDER`` applied)."""
     from ..sim.scene import SceneConfig
@@ -50,13 +57,13 @@ def render(scene: dict, press: dict | None, folder: Path, threads: int = 0) -> P
     return render_press(cfg, press_cfg, folder, overwrite=True)
 
 
-def load(folder: Path):
+def load(folder: Path) -> Press:
     from ..core.capture import load_press
 
     return load_press(folder)
 
 
-def perturb_leds(leds, position_mm: float = 0.0, direction_deg: float = 0.0, seed: int = 0) -> tuple[Led, ...]:
+def perturb_leds(leds: Leds, position_mm: float = 0.0, direction_deg: float = 0.0, seed: int = 0) -> tuple[Led, ...]:
     """LEDs as a CAD with errors would give them: each moved by exactly ``position_mm`` in a random
     direction and its axis tilted by exactly ``direction_deg`` about a random perpendicular axis.
 
@@ -93,7 +100,7 @@ def perturb_leds(leds, position_mm: float = 0.0, direction_deg: float = 0.0, see
     return tuple(out)
 
 
-def calibrate(reference_folder: Path, initial) -> tuple[tuple[Led, ...], dict]:
+def calibrate(reference_folder: Path, initial: Leds) -> tuple[tuple[Led, ...], dict]:
     """LED self-calibration from the undeformed dome's capture, starting from ``initial`` LEDs.
 
     Returns the calibrated LEDs (camera frame) and a JSON-able summary (RMS residual per LED, the fit's
@@ -107,13 +114,13 @@ def calibrate(reference_folder: Path, initial) -> tuple[tuple[Led, ...], dict]:
     return cal.leds, {"rms": [float(r) for r in cal.rms], "albedo": list(cal.albedo), "quality": quality}
 
 
-def solver_options(overrides: dict):
+def solver_options(overrides: dict) -> SolverOptions:
     from ..solver import SolverOptions
 
     return from_mapping(SolverOptions, dict(overrides), "solver options")
 
 
-def truth_roi(press, margin: int = ROI_MARGIN_PX) -> tuple[int, int, int, int]:
+def truth_roi(press: Press, margin: int = ROI_MARGIN_PX) -> tuple[int, int, int, int]:
     """(x0, y0, w, h) around the true contact: solver accuracy without the contact detector's errors."""
     contact = press.ground_truth.contact & press.ground_truth.valid
     if not contact.any():
@@ -126,16 +133,16 @@ def truth_roi(press, margin: int = ROI_MARGIN_PX) -> tuple[int, int, int, int]:
 
 
 def solve(
-    press,
+    press: Press,
     *,
     out: Path,
-    leds=None,
+    leds: Leds | None = None,
     interreflection: str,
     reference: Path | None = None,
     roi: str = "truth",
-    options=None,
-    albedo=None,
-):
+    options: SolverOptions | None = None,
+    albedo: float | tuple[float, float, float] | None = None,
+) -> Reconstruction:
     """NLiPs on one press through the one solving path (``pipeline.solve_folder``) into ``out``.
 
     The pipeline records what made the result (settings, input hashes) and reuses an identical one:
@@ -186,14 +193,14 @@ def solve(
     return load_reconstruction(out, press.camera.shape)
 
 
-def score(result, ground_truth) -> dict:
+def score(result: Reconstruction, ground_truth: GroundTruth) -> dict:
     """AAE / MabsE / depth RMSE over the solved region ("all") and its true contact ("contact")."""
     from ..core.metrics import evaluate
 
     return evaluate(result, ground_truth)
 
 
-def error_crop(result, ground_truth) -> dict[str, np.ndarray]:
+def error_crop(result: Reconstruction, ground_truth: GroundTruth) -> dict[str, np.ndarray]:
     """Arrays for the error-map figures, cut to the solved region's bounding box.
 
     Returns
@@ -213,7 +220,7 @@ def error_crop(result, ground_truth) -> dict[str, np.ndarray]:
     return {"true": gt.astype(np.float32), "estimate": est.astype(np.float32), "error": err.astype(np.float32)}
 
 
-def calibration_samples(press, rec, reference: Path, sampling: dict) -> dict[str, np.ndarray]:
+def calibration_samples(press: Press, rec: Reconstruction, reference: Path, sampling: dict) -> dict[str, np.ndarray]:
     """NLiPsNet calibration samples of one solved press, as ``nlips calibrate`` makes them.
 
     Parameters
@@ -238,7 +245,7 @@ def write_samples(path: Path, arrays: dict) -> None:
     write_shard(Path(path), arrays)
 
 
-def figure_view(press, reference: Path, sampling: dict, margin: int = ROI_MARGIN_PX) -> dict[str, np.ndarray]:
+def figure_view(press: Press, reference: Path, sampling: dict, margin: int = ROI_MARGIN_PX) -> dict[str, np.ndarray]:
     """A crop around the true contact for the NLiPsNet figure (objects / true / predicted / error).
 
     Parameters

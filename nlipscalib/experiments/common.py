@@ -27,7 +27,14 @@ FULL_TWIN = {"width": 640, "height": 480, "spp": 16, "bounces": 1}
 """The default twin's full resolution."""
 
 
-def series_by(rows: list[dict], category: str, series: str, metric: str, categories=None, labels=None):
+def series_by(
+    rows: list[dict],
+    category: str,
+    series: str,
+    metric: str,
+    categories: list | None = None,
+    labels: list | None = None,
+) -> tuple[list, dict[str, tuple[list[float], list[float]]]]:
     """Means and standard deviations of ``metric`` per (series label, category) for bar charts and sweeps."""
     agg = aggregate(rows, (series, category))
     categories = categories or list(dict.fromkeys(r[category] for r in rows))

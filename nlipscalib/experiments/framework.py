@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from ..core.atomic import write_text
 from ..core.config import from_mapping, read_config_file, to_mapping
@@ -20,6 +21,9 @@ from .plan import build_tasks
 from .provenance import machine, software
 from .runner import run_tasks
 from .summary import dumps, evaluation_rows
+
+if TYPE_CHECKING:  # named in hints only
+    from .tasks import Task
 
 
 @dataclasses.dataclass
@@ -71,31 +75,34 @@ class Experiment:
     work_figures: tuple[WorkFigure, ...] = ()
     """Every figure ``draw_work_figures`` may draw."""
 
-    def evaluations(self, cfg) -> list[tuple[dict, dict, dict, dict]]:
+    # ``cfg: Any``: each subclass's methods take its own ``config_cls`` (an instance of it), which they name
+    def evaluations(self, cfg: Any) -> list[tuple[dict, dict, dict, dict]]:
         raise NotImplementedError
 
-    def samples(self, cfg) -> dict | None:
+    def samples(self, cfg: Any) -> dict | None:
         """SamplingConfig mapping when press tasks must write NLiPsNet calibration samples (else None)."""
         return None
 
-    def learn(self, cfg, tasks, out: Path, progress: bool = True) -> dict:
+    def learn(self, cfg: Any, tasks: list[Task], out: Path, progress: bool = True) -> dict:
         """Work after the press tasks, in this process (NLiPsNet training); JSON-able results or {}."""
         return {}
 
-    def tables(self, cfg, rows: list[dict], learned: dict) -> list[Table]:
+    def tables(self, cfg: Any, rows: list[dict], learned: dict) -> list[Table]:
         raise NotImplementedError
 
-    def figures(self, cfg, rows: list[dict], tables: list[Table], folder: Path, learned: dict) -> list[tuple[str, str]]:
+    def figures(
+        self, cfg: Any, rows: list[dict], tables: list[Table], folder: Path, learned: dict
+    ) -> list[tuple[str, str]]:
         """Draw into ``folder`` the figures that come from the numbers alone (all of them are in results.json, so
         ``redraw`` can draw them again without the work folder); (caption, file name) each, in report order."""
         return []
 
-    def draw_work_figures(self, cfg, rows: list[dict], out: Path, folder: Path, learned: dict) -> list[WorkFigure]:
+    def draw_work_figures(self, cfg: Any, rows: list[dict], out: Path, folder: Path, learned: dict) -> list[WorkFigure]:
         """Draw into ``folder`` those of ``work_figures`` that the work folder ``out`` has the arrays for."""
         return []
 
     # ------------------------------------------------------------------ common machinery
-    def config(self, size: str = "quick", config_file: str | Path | None = None):
+    def config(self, size: str = "quick", config_file: str | Path | None = None) -> Any:
         """The config of a named size, or read from a TOML/YAML file (fields of ``config_cls``)."""
         if config_file is not None:
             cfg = from_mapping(self.config_cls, read_config_file(config_file), str(config_file))
@@ -110,11 +117,11 @@ class Experiment:
             raise ConfigError(f"experiment {self.name}: unknown size {size!r} (known: {', '.join(self.sizes)})")
         return self.sizes[size]
 
-    def tasks(self, cfg, solver_options: dict | None = None):
+    def tasks(self, cfg: Any, solver_options: dict | None = None) -> list[Task]:
         return build_tasks(with_solver_options(self.evaluations(cfg), solver_options or {}), self.samples(cfg))
 
 
-def _task_seconds(tasks, out: Path) -> dict:
+def _task_seconds(tasks: list[Task], out: Path) -> dict:
     """Seconds the finished tasks took, summed per kind (kept across resumes, unlike this run's wall time)."""
     from .tasks import load_result
 
@@ -126,7 +133,7 @@ def _task_seconds(tasks, out: Path) -> dict:
     return {k: round(v, 1) for k, v in total.items()} | {"all": round(sum(total.values()), 1)}
 
 
-def _calibrations(tasks, out: Path) -> list[dict]:
+def _calibrations(tasks: list[Task], out: Path) -> list[dict]:
     """Each LED self-calibration's id and fit quality (``adapters.calibrate``; None for older results)."""
     from .tasks import load_result
 
@@ -138,7 +145,9 @@ def _calibrations(tasks, out: Path) -> list[dict]:
     return found
 
 
-def with_solver_options(evaluations, options: dict):
+def with_solver_options(
+    evaluations: list[tuple[dict, dict, dict, dict]], options: dict
+) -> list[tuple[dict, dict, dict, dict]]:
     """The same evaluations with extra SolverOptions overrides in every solve (e.g. a worsened solver)."""
     if not options:
         return evaluations
@@ -151,7 +160,7 @@ def with_solver_options(evaluations, options: dict):
 
 def run_experiment(
     exp: Experiment,
-    cfg,
+    cfg: Any,
     out: Path,
     report: Path,
     *,

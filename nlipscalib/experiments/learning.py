@@ -13,7 +13,9 @@ import dataclasses
 import json
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,12 +23,20 @@ from ..core.atomic import write_json
 from ..core.errors import ConfigError
 from .tasks import Task, digest, load_result, reference_folder, samples_path, view_path
 
+if TYPE_CHECKING:  # named in hints only: each function imports the learn/ modules it uses
+    from ..learn.dataset import CalibrationDataset
+    from ..learn.lut import LookupTable
+    from ..learn.train import TrainConfig
+
 log = logging.getLogger(__name__)
 DATASET_DIR = "calibration"
 MODELS_DIR = "learned"
+Predictor = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""A calibration method as :func:`score` compares them: (pixel (N, 2) int, u and v; rgb (N, 3) float, the
+samples' colours) -> (N, 3) float unit normals, camera frame."""
 
 
-def assemble_dataset(out: Path, tasks: list[Task], sampling: dict):
+def assemble_dataset(out: Path, tasks: list[Task], sampling: dict) -> tuple[CalibrationDataset, dict[str, str]]:
     """The finished press tasks' samples as a learn.dataset calibration folder ``OUT/calibration``.
 
     Returns
@@ -75,7 +85,9 @@ def assemble_dataset(out: Path, tasks: list[Task], sampling: dict):
     return CalibrationDataset(folder), stamps
 
 
-def train_model(data, names: list[str], stamps: dict, cfg, out: Path, progress: bool = True) -> dict:
+def train_model(
+    data: CalibrationDataset, names: list[str], stamps: dict, cfg: TrainConfig, out: Path, progress: bool = True
+) -> dict:
     """Train NLiPsNet on the presses ``names`` (split by press into training and validation), or reuse it.
 
     Returns
@@ -101,7 +113,7 @@ def train_model(data, names: list[str], stamps: dict, cfg, out: Path, progress: 
     return done
 
 
-def model_files(out: Path, names: list[str], stamps: dict, cfg) -> tuple[str, Path, Path]:
+def model_files(out: Path, names: list[str], stamps: dict, cfg: TrainConfig) -> tuple[str, Path, Path]:
     """Key, model file and record of the model trained with ``cfg`` on the presses ``names``.
 
     The key hashes the training options and each press's sample identity (``stamps``), so a changed press
@@ -123,7 +135,16 @@ def _finished(path: Path, record: Path, key: str) -> dict | None:
     return done if done.get("key") == key else None
 
 
-def _train(data, names: list[str], cfg, key: str, path: Path, record: Path, out: Path, progress: bool) -> dict:
+def _train(
+    data: CalibrationDataset,
+    names: list[str],
+    cfg: TrainConfig,
+    key: str,
+    path: Path,
+    record: Path,
+    out: Path,
+    progress: bool,
+) -> dict:
     """Train the model ``key`` (resuming its checkpoint) and write its record; the caller holds its claim."""
     from ..core.cpus import usable_cores
     from ..learn.train import train
@@ -151,7 +172,7 @@ def _train(data, names: list[str], cfg, key: str, path: Path, record: Path, out:
     return done
 
 
-def fit_lookup_table(data, names: list[str]):
+def fit_lookup_table(data: CalibrationDataset, names: list[str]) -> LookupTable:
     """The GelSight-style lookup-table baseline fitted on the samples of ``names`` (NLiPs labels)."""
     from ..learn.lut import LookupTable
 
@@ -159,13 +180,13 @@ def fit_lookup_table(data, names: list[str]):
     return LookupTable.fit(s["pixel"], s["rgb"], s["normal"], data.filtered_reference())
 
 
-def undeformed_predictor(data):
+def undeformed_predictor(data: CalibrationDataset) -> Predictor:
     """(pixel, rgb) -> the undeformed dome's normals there: what "no calibration at all" predicts."""
     normals = data.reference()["normals"]
     return lambda pixel, rgb: normals[pixel[:, 1], pixel[:, 0]]
 
 
-def score(data, predictors: dict, test_sets: dict[str, list[str]]) -> list[dict]:
+def score(data: CalibrationDataset, predictors: dict[str, Predictor], test_sets: dict[str, list[str]]) -> list[dict]:
     """AAE of every predictor on the contact samples of every test set, against NLiPs labels and true normals.
 
     Parameters
@@ -204,7 +225,7 @@ def score(data, predictors: dict, test_sets: dict[str, list[str]]) -> list[dict]
     return rows
 
 
-def steepness(data, groups: dict[str, list[str]], tilts_deg: tuple[float, ...]) -> list[dict]:
+def steepness(data: CalibrationDataset, groups: dict[str, list[str]], tilts_deg: tuple[float, ...]) -> list[dict]:
     """How steep the true normals of each group's contact samples are, relative to the undeformed surface.
 
     NLiPsNet maps colour to normal pixel by pixel and extrapolates past the tilts its calibration presses
@@ -241,7 +262,7 @@ def steepness(data, groups: dict[str, list[str]], tilts_deg: tuple[float, ...]) 
     return rows
 
 
-def net_predictor(out: Path, record: dict):
+def net_predictor(out: Path, record: dict) -> Predictor:
     """(pixel, rgb) -> normals of a trained model (its record from :func:`train_model`)."""
     from ..learn.evaluate import net_predict
     from ..learn.model import load_model
@@ -250,7 +271,7 @@ def net_predictor(out: Path, record: dict):
     return lambda pixel, rgb: net_predict(model, pixel, rgb)
 
 
-def predicted_views(out: Path, predict, names: list[str]) -> list[tuple[str, dict]]:
+def predicted_views(out: Path, predict: Predictor, names: list[str]) -> list[tuple[str, dict]]:
     """Per press name with a stored crop: object image, true and predicted normals, angular error (degrees)."""
     from ..core.metrics import angular_error_map
 

@@ -3,9 +3,13 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only: the framework imports this module
+    from .framework import Experiment, Table
 
 
-def fmt(value, digits: int = 3) -> str:
+def fmt(value: object, digits: int = 3) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "–"
     if isinstance(value, float):
@@ -16,7 +20,7 @@ def fmt(value, digits: int = 3) -> str:
 METRIC_HEADERS = (("aae_deg", "AAE (°)", 2), ("mabse", "MabsE", 4), ("depth_rmse_mm", "depth RMSE (mm)", 3))
 
 
-def table(t) -> str:
+def table(t: Table) -> str:
     if t.columns:
         return _plain_table(t)
     heads = _by_heads(t) + ["n"] + [h for _, h, _ in METRIC_HEADERS] + ["AAE ROI (°)"] + list(t.paper.values())
@@ -29,12 +33,12 @@ def table(t) -> str:
     return "\n".join(lines)
 
 
-def _by_heads(t) -> list[str]:
+def _by_heads(t: Table) -> list[str]:
     """Headers of the group columns: their row keys in words ("calibration_presses" -> "calibration presses")."""
     return [k.replace("_", " ") for k in t.by]
 
 
-def _plain_table(t) -> str:
+def _plain_table(t: Table) -> str:
     """A table of named columns (``Table.columns``) and the paper's columns."""
     heads = _by_heads(t) + [h for _, h, _ in t.columns] + list(t.paper.values())
     lines = [f"**{t.caption}**", "", "| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
@@ -45,7 +49,7 @@ def _plain_table(t) -> str:
     return "\n".join(lines)
 
 
-def report(exp, doc: dict, tables, figures: list[tuple[str, str]], note: str = "") -> str:
+def report(exp: Experiment, doc: dict, tables: list[Table], figures: list[tuple[str, str]], note: str = "") -> str:
     """The report page; ``note``: a paragraph after the introduction (what redrew the figures)."""
     cfg, mach, sw = doc["config"], doc["machine"], doc["software"]
     twin = cfg.get("twin", {})

@@ -82,7 +82,9 @@ class PressGrid:
     depth: tuple[float, ...] = (1.0,)
     """Indentation depths, mm."""
 
-    def presses(self, indenters=None, depth=None) -> list[dict]:
+    def presses(
+        self, indenters: tuple[IndenterConfig, ...] | None = None, depth: tuple[float, ...] | None = None
+    ) -> list[dict]:
         out = []
         for ind in indenters or self.indenters:
             for polar in self.polar_deg:

@@ -11,11 +11,16 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
 from ..report import experiments as fig
 from .framework import Table
 from .q2 import MEDIUM, PAPER, Q2, QUICK, TRAINING_COLUMNS, Q2Config, training_summary
+
+if TYPE_CHECKING:  # named in hints only
+    from .framework import WorkFigure
+    from .tasks import Task
 
 METHODS = ("NLiPsNet", "lookup table")
 
@@ -52,10 +57,12 @@ class PressCount(Q2):
     work_name = "q2"
     work_figures = ()  # Q2's normals figure is Q2's
 
-    def draw_work_figures(self, cfg, rows, out: Path, folder: Path, learned=None):
+    def draw_work_figures(
+        self, cfg: PressCountConfig, rows: list[dict], out: Path, folder: Path, learned: dict | None = None
+    ) -> list[WorkFigure]:
         return []
 
-    def learn(self, cfg: PressCountConfig, tasks, out: Path, progress: bool = True) -> dict:
+    def learn(self, cfg: PressCountConfig, tasks: list[Task], out: Path, progress: bool = True) -> dict:
         from . import learning
 
         data, stamps = learning.assemble_dataset(out, tasks, self.samples(cfg))
@@ -78,7 +85,7 @@ class PressCount(Q2):
             models[k] = {key: v for key, v in model.items() if key != "history"}
         return {"presses": {r: len(v) for r, v in names.items()}, "counts": counts, "scores": rows, "models": models}
 
-    def tables(self, cfg, rows, learned=None):
+    def tables(self, cfg: PressCountConfig, rows: list[dict], learned: dict | None = None) -> list[Table]:
         if not learned or "error" in learned:
             return []
         scores = sorted(
@@ -110,7 +117,9 @@ class PressCount(Q2):
         )
         return [counts, training]
 
-    def figures(self, cfg, rows, tables, folder: Path, learned=None):
+    def figures(
+        self, cfg: PressCountConfig, rows: list[dict], tables: list[Table], folder: Path, learned: dict | None = None
+    ) -> list[tuple[str, str]]:
         if not learned or "error" in learned:
             return []
         series = {}

@@ -59,7 +59,7 @@ class Q1(Experiment):
     check_table = "q1"
     work_figures = (ERROR_MAPS,)
 
-    def evaluations(self, cfg: Q1Config):
+    def evaluations(self, cfg: Q1Config) -> list[tuple[dict, dict, dict, dict]]:
         scene = cfg.twin.scene_dict()
         return [
             (
@@ -72,14 +72,16 @@ class Q1(Experiment):
             for leds in cfg.leds
         ]
 
-    def tables(self, cfg, rows, learned=None):
+    def tables(self, cfg: Q1Config, rows: list[dict], learned: dict | None = None) -> list[Table]:
         main = aggregate(rows, ("indenter", "leds"))
         for r in main:
             r["paper_aae_deg"], r["paper_mabse"] = self.paper["aae_deg"], self.paper["mabse"]
         paper_cols = {"paper_aae_deg": "paper AAE (°, real sensor)", "paper_mabse": "paper MabsE"}
         return [Table("q1", "NLiPs on the twin vs the paper's real sensor", ("indenter", "leds"), main, paper_cols)]
 
-    def figures(self, cfg, rows, tables, folder: Path, learned=None):
+    def figures(
+        self, cfg: Q1Config, rows: list[dict], tables: list[Table], folder: Path, learned: dict | None = None
+    ) -> list[tuple[str, str]]:
         cats, aae = series_by(rows, "indenter", "leds", "aae_deg")
         fig.grouped_bars(cats, aae, "AAE in the contact (°)", folder / "q1_aae.png", {"paper, real sensor": 7.04})
         cats, mab = series_by(rows, "indenter", "leds", "mabse")
@@ -89,5 +91,7 @@ class Q1(Experiment):
             ("MabsE per indenter and LED source", "q1_mabse.png"),
         ]
 
-    def draw_work_figures(self, cfg, rows, out: Path, folder: Path, learned=None):
+    def draw_work_figures(
+        self, cfg: Q1Config, rows: list[dict], out: Path, folder: Path, learned: dict | None = None
+    ) -> list[WorkFigure]:
         return draw_error_maps(rows, out, ("indenter", "leds"), ERROR_MAPS, folder)

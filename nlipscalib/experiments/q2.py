@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..learn.dataset import SamplingConfig
 from ..learn.train import TrainConfig
@@ -18,6 +19,10 @@ from .common import CUBE, FULL_TWIN, MEDIUM_TWIN, QUICK_TWIN, SPHERE
 from .framework import Experiment, Table, WorkFigure
 from .plan import PressSet, TwinConfig, solve_dict
 from .summary import aggregate
+
+if TYPE_CHECKING:  # named in hints only
+    from ..learn.dataset import CalibrationDataset
+    from .tasks import Task
 
 CYLINDER = IndenterConfig(kind="cylinder", size=4.0)
 CONE = IndenterConfig(kind="cone", size=6.0)
@@ -160,11 +165,11 @@ class Q2(Experiment):
     work_figures = (NORMALS,)
 
     # ------------------------------------------------------------------ tasks
-    def roles(self, cfg) -> dict[str, list[dict]]:
+    def roles(self, cfg: Q2Config) -> dict[str, list[dict]]:
         """Press mappings per role: train, seen (test), unseen (test)."""
         return {"train": cfg.train.presses(), "seen": cfg.seen.presses(), "unseen": cfg.unseen.presses()}
 
-    def evaluations(self, cfg: Q2Config):
+    def evaluations(self, cfg: Q2Config) -> list[tuple[dict, dict, dict, dict]]:
         scene = cfg.twin.scene_dict()
         solve = solve_dict(leds=cfg.leds, interreflection=cfg.interreflection, roi=cfg.roi)
         return [
@@ -177,7 +182,7 @@ class Q2(Experiment):
         return dataclasses.asdict(cfg.sampling)
 
     # ------------------------------------------------------------------ learning
-    def learn(self, cfg: Q2Config, tasks, out: Path, progress: bool = True) -> dict:
+    def learn(self, cfg: Q2Config, tasks: list[Task], out: Path, progress: bool = True) -> dict:
         from . import learning
 
         data, stamps = learning.assemble_dataset(out, tasks, self.samples(cfg))
@@ -210,7 +215,7 @@ class Q2(Experiment):
         }
 
     @staticmethod
-    def names_by_role(tasks, stamps: dict) -> dict[str, list[str]]:
+    def names_by_role(tasks: list[Task], stamps: dict) -> dict[str, list[str]]:
         """Press task ids that have samples, per role (train, seen, unseen), in task order."""
         out = {"train": [], "seen": [], "unseen": []}
         for t in tasks:
@@ -219,7 +224,7 @@ class Q2(Experiment):
         return out
 
     # ------------------------------------------------------------------ report
-    def tables(self, cfg, rows, learned=None):
+    def tables(self, cfg: Q2Config, rows: list[dict], learned: dict | None = None) -> list[Table]:
         nlips = aggregate(rows, ("role", "indenter"))
         tables = [Table("nlips", "NLiPs (the training labels) against the true normals", ("role", "indenter"), nlips)]
         if not learned or "error" in learned:
@@ -277,7 +282,9 @@ class Q2(Experiment):
         )
         return tables
 
-    def figures(self, cfg, rows, tables, folder: Path, learned=None):
+    def figures(
+        self, cfg: Q2Config, rows: list[dict], tables: list[Table], folder: Path, learned: dict | None = None
+    ) -> list[tuple[str, str]]:
         if not learned or "error" in learned:
             return []
         from ..report.learn import training_curve
@@ -301,7 +308,9 @@ class Q2(Experiment):
         figs.append(("Training curve of NLiPsNet (validation presses)", "q2_training.png"))
         return figs
 
-    def draw_work_figures(self, cfg, rows, out: Path, folder: Path, learned=None):
+    def draw_work_figures(
+        self, cfg: Q2Config, rows: list[dict], out: Path, folder: Path, learned: dict | None = None
+    ) -> list[WorkFigure]:
         if not learned or "error" in learned:
             return []
         from . import learning
@@ -319,7 +328,7 @@ class Q2(Experiment):
         return [NORMALS]
 
 
-def _by_indenter(data, splits: dict[str, list[str]]) -> dict[str, list[str]]:
+def _by_indenter(data: CalibrationDataset, splits: dict[str, list[str]]) -> dict[str, list[str]]:
     """ "split/indenter" -> the split's press names of that indenter kind, kinds in order of appearance."""
     return {
         f"{split}/{kind}": [n for n in names if data.entry(n)["press"]["indenter"] == kind]
@@ -328,5 +337,5 @@ def _by_indenter(data, splits: dict[str, list[str]]) -> dict[str, list[str]]:
     }
 
 
-def _nan(value) -> float:
+def _nan(value: float | None) -> float:
     return float("nan") if value is None else float(value)

@@ -76,7 +76,7 @@ class Q3(Experiment):
     check_table = "q3"
     work_figures = (SCREW_MAPS,)
 
-    def evaluations(self, cfg: Q3Config):
+    def evaluations(self, cfg: Q3Config) -> list[tuple[dict, dict, dict, dict]]:
         out = []
         for shape in cfg.shapes:
             scene = cfg.twin.scene_dict(scene=shape)
@@ -88,7 +88,7 @@ class Q3(Experiment):
                     )
         return out
 
-    def tables(self, cfg, rows, learned=None):
+    def tables(self, cfg: Q3Config, rows: list[dict], learned: dict | None = None) -> list[Table]:
         by_shape = aggregate(rows, ("shape", "leds"))
         for r in by_shape:
             r["paper_below"] = f"< {PAPER_BOUND_DEG:g}"
@@ -108,7 +108,9 @@ class Q3(Experiment):
             ),
         ]
 
-    def figures(self, cfg, rows, tables, folder: Path, learned=None):
+    def figures(
+        self, cfg: Q3Config, rows: list[dict], tables: list[Table], folder: Path, learned: dict | None = None
+    ) -> list[tuple[str, str]]:
         true_rows = [r for r in rows if r["leds"] == cfg.leds[0]]
         cats, aae = series_by(true_rows, "shape", "indenter", "aae_deg")
         fig.grouped_bars(
@@ -120,6 +122,8 @@ class Q3(Experiment):
         )
         return [("AAE per dome shape and indenter", "q3_aae.png")]
 
-    def draw_work_figures(self, cfg, rows, out: Path, folder: Path, learned=None):
+    def draw_work_figures(
+        self, cfg: Q3Config, rows: list[dict], out: Path, folder: Path, learned: dict | None = None
+    ) -> list[WorkFigure]:
         screws = [r for r in rows if r["leds"] == cfg.leds[0] and r["indenter"] == "screw"]
         return draw_error_maps(screws, out, ("shape", "indenter"), SCREW_MAPS, folder, limit=len(cfg.shapes))

@@ -15,10 +15,19 @@ import signal
 import threading
 from multiprocessing import get_context
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
 from .tasks import REUSED, Task, execute, load_result
+
+if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
+    from multiprocessing.context import SpawnProcess
+    from multiprocessing.queues import Queue
+
+    from distributed import Worker
+    from distributed.diagnostics.plugin import WorkerPlugin
+    from tqdm import tqdm
 
 log = logging.getLogger(__name__)
 MAX_ATTEMPTS = 3
@@ -71,13 +80,13 @@ def run_tasks(
     return status
 
 
-def _bar(total: int, initial: int, progress: bool):
+def _bar(total: int, initial: int, progress: bool) -> tqdm:
     from ..progress import progress_bar
 
     return progress_bar(total, enabled=progress, initial=initial, unit="task")
 
 
-def _record(status: RunStatus, task_id: str, outcome: str, bar) -> None:
+def _record(status: RunStatus, task_id: str, outcome: str, bar: tqdm) -> None:
     if outcome == "done":
         status.done.append(task_id)
     elif outcome == REUSED:  # another run sharing the folder did it while this one waited
@@ -126,7 +135,7 @@ class _backend:
         if self.cluster is not None:
             self.cluster.close()
 
-    def _local(self, tasks, out, keep, status, bar):
+    def _local(self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm) -> None:
         threads = max(1, usable_cores() // self.workers)
         if self.workers == 1 or len(tasks) == 1:
             for t in tasks:
@@ -134,7 +143,7 @@ class _backend:
             return
         _WorkerSlots(min(self.workers, len(tasks)), str(out), threads, keep).run(tasks, status, bar)
 
-    def _dask(self, tasks, out, keep, status, bar):
+    def _dask(self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm) -> None:
         from distributed import as_completed as dask_completed
 
         futures = {
@@ -164,14 +173,14 @@ class _WorkerSlots:
         self.n, self.args = n, (out, threads, keep, worker_logging())
         self.results = self.ctx.Queue()
 
-    def _start(self, slot: int):
+    def _start(self, slot: int) -> tuple[SpawnProcess, Queue]:
         inbox = self.ctx.Queue()
         proc = self.ctx.Process(target=_worker_loop, args=(slot, inbox, self.results, *self.args), daemon=True)
         with _sigint_ignored():  # inherited through exec: the worker ignores Ctrl-C from its first instruction
             proc.start()
         return proc, inbox
 
-    def run(self, tasks: list[Task], status: RunStatus, bar) -> None:
+    def run(self, tasks: list[Task], status: RunStatus, bar: tqdm) -> None:
         queue, attempts = list(tasks), dict.fromkeys((t.id for t in tasks), 0)
         slots = [self._start(i) for i in range(self.n)]
         busy: dict[int, Task] = {}  # slot -> task
@@ -198,7 +207,7 @@ class _WorkerSlots:
             self._stop(slots, finished)
 
     @staticmethod
-    def _stop(slots, finished: bool) -> None:
+    def _stop(slots: list[tuple[SpawnProcess, Queue]], finished: bool) -> None:
         """End the workers: idle ones when all is done; on Ctrl-C (or an error here) at once, with SIGTERM, which
         makes a worker release its claim and remove its temporaries first (``pipeline.workers._worker_signals``)."""
         for proc, inbox in slots:
@@ -211,7 +220,7 @@ class _WorkerSlots:
             if proc.is_alive():  # inside a long native call (a render): its claim is stale at once, being ours
                 proc.kill()
 
-    def _collect(self, busy: dict[int, Task], status: RunStatus, bar) -> None:
+    def _collect(self, busy: dict[int, Task], status: RunStatus, bar: tqdm) -> None:
         import queue as queue_mod
 
         try:
@@ -223,7 +232,15 @@ class _WorkerSlots:
             _record(status, task_id, outcome, bar)
 
 
-def _worker_loop(slot: int, inbox, results, out: str, threads: int, keep: bool, logging_args=None) -> None:
+def _worker_loop(
+    slot: int,
+    inbox: Queue,
+    results: Queue,
+    out: str,
+    threads: int,
+    keep: bool,
+    logging_args: tuple[int, str | None] | None = None,
+) -> None:
     """Body of a local worker process: run tasks from ``inbox`` until it gets None (logging like the parent,
     to its ``--log-file`` too)."""
     from ..pipeline.workers import _worker_signals
@@ -261,14 +278,14 @@ def import_native_libraries() -> None:
         import pymeshlab  # noqa: F401
 
 
-def _main_thread_imports():
+def _main_thread_imports() -> WorkerPlugin:
     """A Dask worker plugin running :func:`import_native_libraries` in each worker's main (event loop) thread."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
     class MainThreadImports(WorkerPlugin):
         name = "nlipscalib-main-thread-imports"
 
-        def setup(self, worker):
+        def setup(self, worker: Worker) -> None:
             import_native_libraries()
 
     return MainThreadImports()

@@ -92,12 +92,14 @@ class Studies(Experiment):
     paper = {"note": "the paper has no ground-truth normals for these factors"}
     check_table = "noise"
 
-    def evaluations(self, cfg: StudiesConfig):
+    def evaluations(self, cfg: StudiesConfig) -> list[tuple[dict, dict, dict, dict]]:
         twin, presses = cfg.twin, cfg.presses.presses()
         base_solve = {"interreflection": cfg.correction, "roi": cfg.roi}
         out = []
 
-        def add(study, value, scene, solve, plist=presses, **extra):
+        def add(
+            study: str, value: float | str, scene: dict, solve: dict, plist: list[dict] = presses, **extra: str
+        ) -> None:
             out.extend((scene, p, {"study": study, "value": value} | extra, solve) for p in plist)
 
         base = twin.scene_dict()
@@ -120,7 +122,7 @@ class Studies(Experiment):
             add("albedo", a, twin.scene_dict(coating={"albedo": [a, a, a]}), solve_dict(leds="true", **base_solve))
         return out
 
-    def tables(self, cfg, rows, learned=None):
+    def tables(self, cfg: StudiesConfig, rows: list[dict], learned: dict | None = None) -> list[Table]:
         tables = []
         for study in XLABELS:
             mine = [r for r in rows if r["study"] == study]
@@ -136,7 +138,7 @@ class Studies(Experiment):
         return tables
 
     @staticmethod
-    def _order(cfg, study: str) -> list:
+    def _order(cfg: StudiesConfig, study: str) -> list:
         """Sweep values in the order the config lists them."""
         if study == "interreflection":
             return [label for _, _, label in INTERREFLECTION_CASES]
@@ -144,7 +146,9 @@ class Studies(Experiment):
             getattr(cfg, {"led_position": "led_position_mm", "led_direction": "led_direction_deg"}.get(study, study))
         )
 
-    def figures(self, cfg, rows, tables, folder: Path, learned=None):
+    def figures(
+        self, cfg: StudiesConfig, rows: list[dict], tables: list[Table], folder: Path, learned: dict | None = None
+    ) -> list[tuple[str, str]]:
         figs = []
         for t in tables:
             if t.name.startswith("led_"):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -68,7 +69,7 @@ def aggregate(rows: list[dict], by: tuple[str, ...]) -> list[dict]:
     return out
 
 
-def clean(obj):
+def clean(obj: Any) -> Any:
     """JSON-safe copy: NaN and infinities become None (JSON has no NaN), numpy scalars become floats."""
     if isinstance(obj, dict):
         return {str(k): clean(v) for k, v in obj.items()}
@@ -81,5 +82,5 @@ def clean(obj):
     return obj
 
 
-def dumps(obj) -> str:
+def dumps(obj: Any) -> str:
     return json.dumps(clean(obj), indent=2) + "\n"

@@ -16,11 +16,19 @@ import json
 import shutil
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.atomic import write_bytes, write_json
 from ..core.errors import ConfigError
+
+if TYPE_CHECKING:  # named in hints only
+    from types import ModuleType
+
+    from ..core.capture import Press
+    from ..core.leds import Led
+    from ..core.reconstruction import Reconstruction
 
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
 SOLVES_DIR = "solves"
@@ -29,7 +37,7 @@ REUSED = "reused"
 """What :func:`execute` returns for a task another run sharing the folder finished."""
 
 
-def digest(obj, n: int = 10) -> str:
+def digest(obj: object, n: int = 10) -> str:
     """Short content hash of a JSON-able object (stable across processes and machines)."""
     return hashlib.sha1(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:n]
 
@@ -258,7 +266,9 @@ def view_path(out: Path, task_id: str) -> Path:
     return Path(out) / "views" / f"{task_id}.npz"
 
 
-def _write_samples(adapters, out: Path, task: Task, press, reference: Path, rec) -> dict:
+def _write_samples(
+    adapters: ModuleType, out: Path, task: Task, press: Press, reference: Path, rec: Reconstruction | None
+) -> dict:
     """Write the press's calibration samples (from the NLiPs labels ``rec``) and its figure crop."""
     if rec is None:  # the label solve failed: this press gives no samples (like ``nlips calibrate``)
         return {"file": None, "error": "the NLiPs label solve failed"}
@@ -277,7 +287,9 @@ def _write_samples(adapters, out: Path, task: Task, press, reference: Path, rec)
     }
 
 
-def _solve_one(adapters, out, task, press, reference: Path, spec: dict, key: str) -> dict:
+def _solve_one(
+    adapters: ModuleType, out: Path, task: Task, press: Press, reference: Path, spec: dict, key: str
+) -> dict:
     """Solve one variant into PRESS/solves/<key> (pipeline) and score it; a failure is a result too."""
     t = time.perf_counter()
     try:
@@ -305,7 +317,7 @@ def _solve_one(adapters, out, task, press, reference: Path, spec: dict, key: str
     }
 
 
-def _solver_leds(adapters, out, task, press, spec: dict):
+def _solver_leds(adapters: ModuleType, out: Path, task: Task, press: Press, spec: dict) -> tuple[Led, ...] | None:
     err = {
         "position_mm": spec["position_error_mm"],
         "direction_deg": spec["direction_error_deg"],

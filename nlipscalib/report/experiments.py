@@ -4,11 +4,16 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.atomic import write_bytes
 from .figures import ERROR_CMAP, NORMALS_KEY, Panel, contact_sheet, display_image, error_scale, normals_to_rgb
+
+if TYPE_CHECKING:  # named in hints only: matplotlib is imported where a figure is drawn
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
 
 DPI = 80
 """Reports are committed to the repository: keep the PNGs small."""
@@ -17,7 +22,7 @@ MAPS_DPI = 100
 read; at 100 they are 8-10 px, and the palette PNG keeps the sheet small (see ``test_report``)."""
 
 
-def _save(fig, path: str | Path) -> Path:
+def _save(fig: Figure, path: str | Path) -> Path:
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
@@ -61,7 +66,7 @@ LEGEND_WIDTH_IN = 2.3
 """Width (inches) added to a chart for its legend, which stands right of the axes."""
 
 
-def _legend_outside(fig, ax) -> None:
+def _legend_outside(fig: Figure, ax: Axes) -> None:
     """The legend right of the axes: inside, matplotlib's best place still covered the tallest bars of a chart of
     five methods (the first quick Q2 report hid the lookup table's and the undeformed dome's bars)."""
     width, height = fig.get_size_inches()

@@ -4,11 +4,18 @@ from __future__ import annotations
 
 import dataclasses
 import io
+from collections.abc import Iterable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.atomic import write_bytes
+
+if TYPE_CHECKING:  # named in hints only: matplotlib is imported where a figure is drawn
+    from matplotlib.axes import Axes
+    from matplotlib.colors import Colormap
+    from matplotlib.figure import Figure
 
 ERROR_CMAP = "inferno"
 """Colour map of angular error in every figure (OpenCV maps, summaries, the demo and experiment sheets), so the
@@ -21,7 +28,7 @@ ERROR_SCALES_DEG = (1.0, 2.0, 5.0, 10.0, 20.0, 45.0)
 """Upper ends the angular-error colour bar chooses from (:func:`error_scale`)."""
 
 
-def error_scale(errors) -> float:
+def error_scale(errors: Iterable[np.ndarray]) -> float:
     """The colour bar's upper end for angular error maps: the smallest of ``ERROR_SCALES_DEG`` at or above
     the 99th percentile of all their finite values (a fixed 20 deg shows half-degree errors as black).
 
@@ -116,7 +123,7 @@ def contact_sheet(
     return write_bytes(path, buf.getvalue())
 
 
-def _draw(fig, ax, panel: Panel) -> None:
+def _draw(fig: Figure, ax: Axes, panel: Panel) -> None:
     ax.set_title(panel.title, fontsize=9)
     if panel.image.ndim == 3:
         ax.imshow(panel.image)
@@ -135,7 +142,7 @@ def _draw(fig, ax, panel: Panel) -> None:
         bar.set_label(panel.label, fontsize=8)
 
 
-def _draw_categories(ax, panel: Panel, cmap) -> None:
+def _draw_categories(ax: Axes, panel: Panel, cmap: Colormap) -> None:
     """A categorical panel: value i in the colour of i on a 0..n-1 scale (fixed, so a mask with no contact
     pixel is not drawn in the contact colour), named in a legend under the image."""
     from matplotlib.patches import Patch

@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.atomic import write_bytes
+
+if TYPE_CHECKING:  # named in hints only: matplotlib is imported where a figure is drawn
+    from matplotlib.figure import Figure
+    from matplotlib.projections.polar import PolarAxes
 
 
 def _plt():
@@ -19,7 +24,7 @@ def _plt():
     return plt
 
 
-def _save(fig, path, dpi=110) -> Path:
+def _save(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     _plt().close(fig)
@@ -32,7 +37,7 @@ RING_TICKS_DEG = (10.0, 25.0, 45.0)
 """Tilt rings labelled in the coverage figure (the inner 2-deg ring is too small to label)."""
 
 
-def coverage_figure(cov: dict, path) -> Path:
+def coverage_figure(cov: dict, path: str | Path) -> Path:
     """One polar histogram of tilt directions per image region, laid out like the image, next press marked.
 
     Each plot is oriented like the image: a tilt toward the image's right is drawn right, toward its bottom
@@ -96,7 +101,7 @@ def coverage_figure(cov: dict, path) -> Path:
     return _save(fig, path)
 
 
-def image_polar_axes(ax) -> None:
+def image_polar_axes(ax: PolarAxes) -> None:
     """Orient polar axes like the image (x right, y down): angle ``atan2(d_y, d_x)`` of a camera-frame direction
     is drawn where that direction points in the image. Matplotlib's default (counter-clockwise, y up) drew a
     tilt toward the image's bottom at the top."""
@@ -114,7 +119,7 @@ def _steep_line(steep: dict | None) -> str:
     return line
 
 
-def training_curve(history: list[dict], path, title: str = "NLiPsNet") -> Path:
+def training_curve(history: list[dict], path: str | Path, title: str = "NLiPsNet") -> Path:
     """Training loss and validation AAE per epoch, best epoch marked; epochs numbered from 1, as `nlips train` says.
 
     Parameters

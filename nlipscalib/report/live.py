@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -15,6 +16,9 @@ from ..core.atomic import write_bytes
 from ..core.errors import require
 from .figures import normals_to_rgb
 from .maps import colour_scalars
+
+if TYPE_CHECKING:  # named in hints only: at run time report/ imports no computing package
+    from ..device.live import LiveResult
 
 WINDOW = "nlips live"
 """Title of the OpenCV window."""
@@ -79,7 +83,7 @@ class WindowSink:
         self.cv2 = require("cv2", "opencv-python-headless", "Showing live maps")
         self.stop, self.reference_depth = stop, reference_depth
 
-    def __call__(self, index: int, frame: np.ndarray, result) -> None:
+    def __call__(self, index: int, frame: np.ndarray, result: LiveResult) -> None:
         normals = normals_to_rgb8(result.normals)
         view = np.concatenate([normals, depth_to_rgb(result.depth, self.reference_depth)], axis=1)
         self.cv2.imshow(WINDOW, view[..., ::-1])
@@ -94,7 +98,7 @@ class NormalMapPng:
     def __init__(self):
         self.cv2 = require("cv2", "opencv-python-headless", "Saving live maps")
 
-    def __call__(self, stem: Path, result) -> None:
+    def __call__(self, stem: Path, result: LiveResult) -> None:
         ok, png = self.cv2.imencode(".png", np.ascontiguousarray(normals_to_rgb8(result.normals)[..., ::-1]))
         if ok:
             write_bytes(stem.with_name(stem.name + "_normals.png"), png.tobytes())

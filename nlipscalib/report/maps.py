@@ -87,7 +87,11 @@ def scalar_map_png(
 
 
 def colour_scalars(
-    values: np.ndarray, vmin: float, vmax: float, cmap: str = "viridis", no_value=NO_VALUE_BGR
+    values: np.ndarray,
+    vmin: float,
+    vmax: float,
+    cmap: str = "viridis",
+    no_value: tuple[int, int, int] = NO_VALUE_BGR,
 ) -> np.ndarray:
     """A scalar map in a colour map: ``vmin`` to ``vmax`` spread over its 256 colours, clipped at both ends.
 

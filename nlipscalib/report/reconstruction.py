@@ -13,10 +13,15 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core.cpus import usable_cores
+
+if TYPE_CHECKING:  # named in hints only
+    from ..core.capture import GroundTruth
+    from ..core.reconstruction import Reconstruction
 
 FIGURE_LEVELS = ("none", "maps", "full")
 """Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""
@@ -31,7 +36,7 @@ NORMALS_PNG, SUMMARY_PNG = "normals.png", "summary.png"
 """The normal map (written at every level but "none") and the "full" level's summary sheet."""
 
 
-def figure_level(figures) -> str:
+def figure_level(figures: bool | str | None) -> str:
     """Normalise a ``figures`` argument (bool or one of :data:`FIGURE_LEVELS`) to a level name."""
     if figures is True:
         return "maps"
@@ -44,7 +49,7 @@ def figure_level(figures) -> str:
     return figures
 
 
-def figures_missing(folder: str | Path, level) -> bool:
+def figures_missing(folder: str | Path, level: bool | str | None) -> bool:
     """True when ``folder`` lacks figures that ``level`` writes (e.g. a result solved with --no-figures).
 
     Parameters
@@ -57,7 +62,12 @@ def figures_missing(folder: str | Path, level) -> bool:
 
 
 def write_reconstruction_figures(
-    folder: str | Path, rec, ground_truth=None, level="maps", reference_depth=None, name: str = ""
+    folder: str | Path,
+    rec: Reconstruction,
+    ground_truth: GroundTruth | None = None,
+    level: bool | str | None = "maps",
+    reference_depth: np.ndarray | None = None,
+    name: str = "",
 ) -> list[Path]:
     """Write the figures of ``rec`` into ``folder``; returns the files written.
 
@@ -98,7 +108,9 @@ def write_reconstruction_figures(
     return written
 
 
-def depth_view(rec, reference_depth, box) -> tuple[np.ndarray, str, float | None]:
+def depth_view(
+    rec: Reconstruction, reference_depth: np.ndarray | None, box: tuple[slice, slice]
+) -> tuple[np.ndarray, str, float | None]:
     """The depth map a figure shows over ``box``, its unit label and the lower end of its colour range.
 
     With the undeformed surface known, the indentation: how far the gel was pushed in from it, toward the
@@ -124,7 +136,7 @@ def depth_view(rec, reference_depth, box) -> tuple[np.ndarray, str, float | None
     return _masked(reference_depth[box] - rec.depth[box], shown), "indentation, mm", 0.0
 
 
-def solved_box(rec) -> tuple[slice, slice]:
+def solved_box(rec: Reconstruction) -> tuple[slice, slice]:
     """(rows, cols) slices of the bounding box of the solved pixels (``rec.mask``; the whole image if none).
 
     Figures show this box: a region-of-interest result is drawn at full resolution without a field of
@@ -137,7 +149,9 @@ def solved_box(rec) -> tuple[slice, slice]:
     return slice(int(rows.min()), int(rows.max()) + 1), slice(int(cols.min()), int(cols.max()) + 1)
 
 
-def error_map(rec, ground_truth, box=(slice(None), slice(None))) -> np.ndarray | None:
+def error_map(
+    rec: Reconstruction, ground_truth: GroundTruth | None, box: tuple[slice, slice] = (slice(None), slice(None))
+) -> np.ndarray | None:
     """Angular error, degrees, where reconstructed and valid in the truth (NaN elsewhere).
 
     Returns (h, w) float64 over ``box`` ((rows, cols) slices; default the whole (H, W) image), or None
@@ -155,7 +169,9 @@ def _masked(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.where(mask, values, np.nan)
 
 
-def _summary(path: Path, rec, box, err, depth_view: tuple, title: str) -> Path:
+def _summary(
+    path: Path, rec: Reconstruction, box: tuple[slice, slice], err: np.ndarray | None, depth_view: tuple, title: str
+) -> Path:
     """One matplotlib sheet of the result over the solved box, titled with the press and the method."""
     from .figures import ERROR_CMAP, NORMALS_KEY, Panel, contact_sheet, normals_to_rgb
     from .maps import colour_range
