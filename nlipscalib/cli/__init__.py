@@ -11,6 +11,7 @@ import argparse
 import errno
 import importlib
 import logging
+import os
 import re
 import sys
 from collections.abc import Sequence
@@ -120,8 +121,7 @@ def _run(args: argparse.Namespace) -> int:
     except (NlipsError, MissingDependencyError) as exc:
         return _fail(args, str(exc))
     except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
-        where = next((getattr(args, k) for k in ("out", "press", "presses") if getattr(args, k, None)), None)
-        return _fail(args, describe_os_error(exc, overwrite_flag=hasattr(args, "overwrite"), where=where))
+        return _fail(args, describe_os_error(exc, overwrite_flag=hasattr(args, "overwrite"), where=_path_of(args)))
     except KeyboardInterrupt:
         return _interrupted(args)
     except Exception:
@@ -262,6 +262,16 @@ def _release_multiprocessing_resources() -> None:
         util._run_finalizers(0)
     except Exception:  # best effort on the way out: the tracker still unlinks what is left
         pass
+
+
+def _path_of(args: argparse.Namespace) -> str | None:
+    """The command's output (or input) folder for an error line: the first of --out, PRESS, PRESSES that is one
+    path (``calibrate-leds`` takes a list of presses and ``capture --presses`` a count: neither names one)."""
+    for key in ("out", "press", "presses"):
+        value = getattr(args, key, None)
+        if isinstance(value, str | os.PathLike):
+            return os.fspath(value)
+    return None
 
 
 def describe_os_error(exc: OSError, overwrite_flag: bool = False, where: str | Path | None = None) -> str:

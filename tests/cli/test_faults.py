@@ -209,3 +209,15 @@ def test_a_file_where_the_output_folder_needs_a_folder_is_named_as_such(tmp_path
         itself = describe_os_error(exc, overwrite_flag=True, where=blocker)  # --out FILE itself
     assert line == f"{blocker}: a file where a folder is needed (choose another --out, or move the file)"
     assert itself == line
+
+
+def test_an_os_error_line_names_a_path_only_when_the_command_has_one():
+    # calibrate-leds takes a list of presses and capture --presses a count: Path(list) raised a TypeError (a traceback)
+    import argparse
+
+    from nlipscalib.cli import _path_of
+
+    assert _path_of(argparse.Namespace(out=None, presses=["a", "b"])) is None
+    assert _path_of(argparse.Namespace(out=None, presses=5)) is None
+    assert _path_of(argparse.Namespace(out="res", press="p")) == "res"
+    assert _path_of(argparse.Namespace(press="p")) == "p"
