@@ -281,6 +281,26 @@ def depth_to_points(depth: np.ndarray, rays: np.ndarray) -> np.ndarray:
     return depth[..., None] / rays[..., 2:3] * rays
 
 
+def pixel_derivatives(table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Derivatives of a per-pixel table along u (columns) and v (rows): the one stencil for ray tables.
+
+    Second-order differences, one-sided (second order too) at the image border: the lens is smooth at the
+    pixel scale, so the O(h^2) error is far below image noise, and the border has no first-order bias.
+
+    Parameters
+    ----------
+    table : (H, W, ...) float -- e.g. ``Camera.rays`` or rays over their z.
+
+    Returns
+    -------
+    d_u, d_v : (H, W, ...) float64 -- per pixel.
+    """
+    table = np.asarray(table, np.float64)
+    if table.ndim < 2 or min(table.shape[:2]) < 3:  # edge_order 2 needs three samples along each axis
+        raise ShapeError(f"a per-pixel table needs at least 3 x 3 pixels, got {table.shape}")
+    return np.gradient(table, axis=1, edge_order=2), np.gradient(table, axis=0, edge_order=2)
+
+
 def _check_last_dim(arr: np.ndarray, n: int, name: str) -> np.ndarray:
     arr = np.asarray(arr, dtype=np.float64)
     if arr.ndim < 1 or arr.shape[-1] != n:

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
-from ..core.camera import depth_to_points
+from ..core.camera import depth_to_points, pixel_derivatives
 from ..core.errors import ShapeError
 from ..core.tolerances import INTEGRATION_MIN_FACING
 
@@ -68,7 +68,7 @@ class RayGeometry:
         """From ``Camera.rays`` and the reference depth ((H, W) mm, z; NaN off the gel)."""
         if rays.shape != reference_depth.shape + (3,):
             raise ShapeError(f"rays {rays.shape} and reference depth {reference_depth.shape} do not match")
-        d_v, d_u = np.gradient(rays, axis=(0, 1))
+        d_u, d_v = pixel_derivatives(rays)
         with np.errstate(invalid="ignore", divide="ignore"):
             log_range = np.log(reference_depth / rays[..., 2])
             points = depth_to_points(reference_depth, rays).astype(np.float32)

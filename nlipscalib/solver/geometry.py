@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from ..core.camera import Camera
+from ..core.camera import Camera, pixel_derivatives
 from ..core.errors import ShapeError
 
 
@@ -29,10 +29,7 @@ def ray_tables(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     omega = camera.rays
     q = omega / omega[..., 2:3]
-    # Second-order differences of the exact ray table (one unprojection only; the lens is smooth at
-    # the pixel scale, so the O(h^2) error is far below the image noise).
-    q_u = np.gradient(q, axis=1, edge_order=2)
-    q_v = np.gradient(q, axis=0, edge_order=2)
+    q_u, q_v = pixel_derivatives(q)  # of the exact ray table: one unprojection only
     return q, q_u, q_v
 
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.camera import Camera
+from ..core.camera import Camera, pixel_derivatives
 from ..core.dome import dome_inward_normals, project_to_dome
 from ..core.sensor import DomeConfig
 from ..core.tolerances import NORMAL_EPS
@@ -37,10 +37,10 @@ def pixel_solid_angle(camera: Camera) -> np.ndarray:
 
     Returns
     -------
-    (H, W) float64, steradians -- |d ray/du x d ray/dv| of the unit rays (central differences).
+    (H, W) float64, steradians -- |d ray/du x d ray/dv| of the unit rays (:func:`pixel_derivatives`).
     """
-    rays = camera.rays
-    return np.linalg.norm(np.cross(np.gradient(rays, axis=1), np.gradient(rays, axis=0)), axis=-1)
+    d_u, d_v = pixel_derivatives(camera.rays)
+    return np.linalg.norm(np.cross(d_u, d_v), axis=-1)
 
 
 def block_sum(a: np.ndarray, size: int) -> np.ndarray:

@@ -3,7 +3,7 @@ import math
 import numpy as np
 import pytest
 
-from nlipscalib.core.camera import Camera
+from nlipscalib.core.camera import Camera, pixel_derivatives
 from nlipscalib.core.errors import ConfigError, ShapeError
 
 cv2 = pytest.importorskip("cv2")
@@ -101,3 +101,17 @@ def test_depth_to_points_rejects_a_depth_that_does_not_match_the_rays():
             depth_to_points(depth, rays)
     with pytest.raises(ShapeError, match="rays"):
         depth_to_points(np.full((6, 8), 10.0), rays[..., :2])
+
+
+def test_pixel_derivatives_exact_on_a_quadratic_table_border_included():
+    # second-order stencils, one-sided at the border: exact for a quadratic in u and v everywhere
+    v, u = np.mgrid[0:7, 0:9].astype(float)
+    table = np.stack([u**2 + 3 * u * v, v**2 - u, 2 * v], axis=-1)
+    d_u, d_v = pixel_derivatives(table)
+    np.testing.assert_allclose(d_u, np.stack([2 * u + 3 * v, -np.ones_like(u), 0 * u], -1), atol=1e-12)
+    np.testing.assert_allclose(d_v, np.stack([3 * u, 2 * v, 2 + 0 * u], -1), atol=1e-12)
+
+
+def test_pixel_derivatives_refuses_a_table_too_small_for_the_stencil():
+    with pytest.raises(ShapeError, match="3 x 3"):
+        pixel_derivatives(np.zeros((2, 5, 3)))
