@@ -11,11 +11,24 @@ case "${1:-}" in
   --force) FORCE=1 ;;
   *) echo "setup: unknown argument '$1' (usage: bash setup.sh [--force])" >&2; exit 2 ;;
 esac
+SUDO=""; [ "$(id -u)" != 0 ] && command -v sudo >/dev/null && SUDO="sudo"
+
+# pyproject.toml's requires-python, checked before anything is installed: pip would refuse the package only
+# after torch's download (Ubuntu 22.04's python3 is 3.10).
+PY=${PYTHON:-python3}
+VENV_PY=.venv/bin/python; [ -x "$VENV_PY" ] || VENV_PY=$PY
+if ! "$VENV_PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
+  FOUND=$("$VENV_PY" --version 2>/dev/null) || FOUND="not installed"
+  echo "setup: nlipscalib needs Python >= 3.11; $VENV_PY is $FOUND" \
+    "(PYTHON=python3.11 bash setup.sh uses another; rm -r .venv if it was made with an older one)" >&2
+  exit 1
+fi
 
 # drjit's LLVM backend aborts the whole process with Debian 12's default LLVM 15
 # ("Cannot select ... fminimum"); LLVM 19 works. Without it we fall back to the slow scalar_rgb.
-if ! ldconfig -p 2>/dev/null | grep -qE 'libLLVM(\.so\.|-)(1[6-9]|2[0-9])'; then
-  SUDO=""; [ "$(id -u)" != 0 ] && command -v sudo >/dev/null && SUDO="sudo"
+# ldconfig is in /sbin, which Debian leaves off a user's PATH: without it every run would install again.
+LDCONFIG=$(command -v ldconfig || echo /sbin/ldconfig)
+if ! "$LDCONFIG" -p 2>/dev/null | grep -qE 'libLLVM(\.so\.|-)(1[6-9]|2[0-9])'; then
   if command -v apt-get >/dev/null; then
     echo "setup: installing libllvm19 for Mitsuba's LLVM backend"
     $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libllvm19 >/dev/null \
@@ -29,7 +42,6 @@ fi
 # The firmware tests skip without these (and fail when NLIPS_REQUIRE_DEVICE_TOOLS=1, as in CI).
 if ! { command -v avr-g++ >/dev/null && [ -e /usr/lib/avr/include/avr/io.h ] \
        && [ -e /usr/include/simavr/sim_avr.h ] && command -v cc >/dev/null && command -v make >/dev/null; }; then
-  SUDO=""; [ "$(id -u)" != 0 ] && command -v sudo >/dev/null && SUDO="sudo"
   if command -v apt-get >/dev/null; then
     echo "setup: installing the AVR toolchain and simavr for the LED firmware"
     { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq gcc-avr avr-libc binutils-avr simavr \
@@ -40,7 +52,13 @@ if ! { command -v avr-g++ >/dev/null && [ -e /usr/lib/avr/include/avr/io.h ] \
   fi
 fi
 
-PY=${PYTHON:-python3}
+# Debian's and Ubuntu's Python makes no venv without its pythonX.Y-venv package (no ensurepip).
+if [ ! -x .venv/bin/python ] && ! "$PY" -c 'import ensurepip, venv' 2>/dev/null && command -v apt-get >/dev/null; then
+  VENV_PKG=$("$PY" -c 'import sys; print("python%d.%d-venv" % sys.version_info[:2])')
+  echo "setup: installing $VENV_PKG ($PY cannot make a venv without it)"
+  { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq "$VENV_PKG" >/dev/null; } \
+    || echo "setup: warning: could not install $VENV_PKG; making .venv will fail" >&2
+fi
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 PIP=(.venv/bin/python -m pip install -q --disable-pip-version-check)
 # Install torch's CPU build first, from PyTorch's CPU index: PyPI's Linux torch wheels are CUDA builds

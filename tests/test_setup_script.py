@@ -63,8 +63,8 @@ PYTHONPATH="{repo}" exec "{sys.executable}" "$@"
     return repo, log, stubs
 
 
-def _setup(repo: Path, stubs: Path, *args: str) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PATH=f"{stubs}{os.pathsep}{os.environ['PATH']}")
+def _setup(repo: Path, stubs: Path, *args: str, path: str | None = None, **env: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PATH=f"{stubs}{os.pathsep}{path or os.environ['PATH']}", **env)
     env.pop("PYTHONPATH", None)
     return subprocess.run(["bash", str(repo / "setup.sh"), *args], env=env, capture_output=True, text=True, timeout=300)
 
@@ -157,3 +157,57 @@ def test_torch_falls_back_to_the_configured_index_when_the_cpu_index_fails(check
     torch_calls = [line for line in log.read_text().splitlines() if "torch==" in line]
     assert len(torch_calls) == 2 and "--index-url" in torch_calls[0] and "--index-url" not in torch_calls[1]
     assert "setup: warning: torch's CPU build is not reachable" in res.stderr
+
+
+def test_a_python_older_than_3_11_is_refused_in_one_line_before_anything_is_installed(checkout, tmp_path):
+    """Ubuntu 22.04's python3 is 3.10: pip refused the package only after downloading torch, and a missing venv
+    made the run end on `.venv/bin/python: No such file or directory`."""
+    repo, log, stubs = checkout
+    (repo / ".venv" / "bin" / "python").unlink()
+    old = tmp_path / "python3.10"
+    _exe(old, '#!/bin/sh\n[ "$1" = --version ] && echo "Python 3.10.12" && exit 0\n[ "$1" = -c ] && exit 1\nexit 0\n')
+    res = _setup(repo, stubs, PYTHON=str(old))
+    assert res.returncode == 1 and res.stderr.strip().count("\n") == 0, res.stderr
+    assert "needs Python >= 3.11" in res.stderr and "is Python 3.10.12" in res.stderr
+    assert not log.exists(), log.read_text()  # neither apt-get nor pip ran
+
+
+def test_a_python_without_its_venv_package_gets_it_before_the_venv_is_made(checkout, tmp_path):
+    """Debian's and Ubuntu's python3 has no ensurepip until pythonX.Y-venv is installed: `python3 -m venv`
+    failed on a fresh machine, the first command of the README."""
+    repo, log, stubs = checkout
+    wrapper = repo / ".venv" / "bin" / "python"
+    saved = tmp_path / "venv-python"
+    shutil.move(wrapper, saved)
+    bare = tmp_path / "python3"
+    _exe(
+        bare,
+        f"""#!/bin/sh
+case "$*" in
+  *ensurepip*) [ -e "{tmp_path}/venv-installed" ] || exit 1 ;;
+  "-m venv .venv") cp "{saved}" .venv/bin/python; exit 0 ;;
+esac
+exec "{sys.executable}" "$@"
+""",
+    )
+    res = _setup(repo, stubs, PYTHON=str(bare))
+    assert res.returncode == 0, res.stderr
+    package = f"python{sys.version_info[0]}.{sys.version_info[1]}-venv"
+    assert f"apt-get install -y -qq {package}" in log.read_text()
+    assert _installs(log) == 1
+
+
+def test_ldconfig_off_the_path_as_for_debians_users_still_finds_llvm(checkout):
+    """/sbin is not on a Debian user's PATH: `ldconfig` was not found, so LLVM looked missing and every run
+    installed libllvm19 again (apt-get update included), contrary to "a second run only checks"."""
+    ldconfig = next((p for p in ("/sbin/ldconfig", "/usr/sbin/ldconfig") if os.access(p, os.X_OK)), None)
+    if ldconfig is None or "libLLVM" not in subprocess.run([ldconfig, "-p"], capture_output=True, text=True).stdout:
+        pytest.skip("no ldconfig in /sbin listing an LLVM here")
+    listing = subprocess.run([ldconfig, "-p"], capture_output=True, text=True).stdout
+    if not any(f"libLLVM-{v}" in listing or f"libLLVM.so.{v}" in listing for v in range(16, 30)):
+        pytest.skip("no LLVM >= 16 installed here")
+    repo, log, stubs = checkout
+    path = os.pathsep.join(d for d in os.environ["PATH"].split(os.pathsep) if not d.rstrip("/").endswith("sbin"))
+    res = _setup(repo, stubs, path=path)
+    assert res.returncode == 0, res.stderr
+    assert "libllvm19" not in (log.read_text() if log.exists() else "")

@@ -19,7 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "runs (terminals, cluster array jobs, machines sharing the disk) may fill one folder at once: each "
         "press is claimed by one of them and rendered exactly once.",
     )
-    p.add_argument("spec", help="dataset spec file, e.g. scenes/datasets/train50.toml")
+    p.add_argument(
+        "spec", help="dataset spec file, or a shipped spec's name: train50 (~50 presses) or demo (the demo's)"
+    )
     p.add_argument("--out", required=True, help="folder that receives one press folder per press")
     p.add_argument("--workers", type=int, default=0, help="render processes (default: one per two cores)")
     p.add_argument(
@@ -48,10 +50,11 @@ def run(args: argparse.Namespace) -> int:
         warn_unlisted,
         write_manifest,
     )
+    from ..sim.scene import dataset_spec_path
 
     check_count("--workers", args.workers, minimum=0)
     check_count("--limit", args.limit, minimum=0)
-    spec, scene = load_dataset_spec(args.spec)
+    spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
     jobs = expand_jobs(spec)
     todo = limit_presses(jobs, args.limit) if args.limit else jobs
     out = Path(args.out)

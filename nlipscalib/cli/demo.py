@@ -20,8 +20,6 @@ if TYPE_CHECKING:  # named in hints only: imported when the demo runs
     from ..core.reconstruction import Reconstruction
     from ..report import Panel
 
-DEMO_SPEC = Path(__file__).resolve().parents[1] / "scenes" / "datasets" / "demo.toml"
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -31,7 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     p.add_argument(
-        "--spec", default=str(DEMO_SPEC), help="dataset spec to render (default: the shipped scenes/datasets/demo.toml)"
+        "--spec",
+        default="demo",
+        help="dataset spec to render: a file or a shipped spec's name (default: demo, scenes/datasets/demo.toml)",
     )
     p.add_argument("--workers", type=int, default=1, help="render processes (default 1: all cores to one)")
     p.add_argument(
@@ -53,9 +53,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..core.capture import load_press
     from ..sim.dataset import REFERENCE_NAME, expand_jobs, load_dataset_spec, run_dataset, write_manifest
+    from ..sim.scene import dataset_spec_path
 
     out = Path(args.out)
-    spec, scene = load_dataset_spec(args.spec)
+    spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
     jobs = expand_jobs(spec)
     out.mkdir(parents=True, exist_ok=True)
     write_manifest(out, spec, scene, jobs)

@@ -13,9 +13,22 @@ from .. import __version__
 PACKAGES = ("numpy", "scipy", "pyamg", "mitsuba", "drjit", "torch", "dask", "distributed")
 
 
+def checkout_root() -> Path | None:
+    """The checkout the package was imported from, or None for an installed copy (or a checkout without git).
+
+    An installed copy sits in site-packages; git asked there would name whatever repository holds the
+    environment (a lab's own project with its .venv inside), not the version of nlipscalib that ran.
+    """
+    repo = Path(__file__).resolve().parents[2]
+    return repo if (repo / ".git").exists() else None  # a file, not a folder, in a git worktree
+
+
 def git_commit(repo: Path | None = None) -> str | None:
-    """HEAD commit of the checkout the package was imported from (with "+dirty" for local changes)."""
-    repo = repo or Path(__file__).resolve().parents[2]
+    """HEAD commit of the checkout the package was imported from (with "+dirty" for local changes); None when
+    it was not imported from a git checkout."""
+    repo = repo or checkout_root()
+    if repo is None:
+        return None
     try:
         head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
         if head.returncode != 0:

@@ -32,6 +32,8 @@ from .render.variant import VARIANTS
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 """The shipped scenes (nlipscalib/scenes links to the repository's scenes/; installs carry a copy)."""
 DEFAULT_SCENE = SCENES_DIR / "nlipstac.toml"
+DATASETS_DIR = SCENES_DIR / "datasets"
+"""The shipped dataset specs (``nlips dataset train50`` names one)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -290,6 +292,25 @@ class SceneConfig:
                 raise ConfigError(f"scene has no section '{section}'")
             data[section] = data[section] | changes if isinstance(changes, dict) else changes
         return from_mapping(SceneConfig, data, "scene")
+
+
+def dataset_spec_path(spec: str | Path) -> Path:
+    """The dataset spec file ``spec`` names: a path as given, or a bare name such as ``"train50"`` looked up
+    in the shipped ``scenes/datasets/`` folder (an installed package has no checkout to name it by path).
+
+    Raises
+    ------
+    ConfigError
+        A bare name that is no file here nor a shipped spec (the line lists the shipped ones).
+    """
+    path = Path(spec)
+    if path.is_file() or path.suffix:  # a path (load_dataset_spec says what is wrong with it); a folder
+        # named like a shipped spec is not one: `nlips dataset train50 --out train50` resumes
+        return path
+    if not (DATASETS_DIR / f"{path}.toml").is_file():
+        shipped = ", ".join(sorted(p.stem for p in DATASETS_DIR.glob("*.toml")))
+        raise ConfigError(f"dataset spec {str(path)!r}: no such file, nor a shipped dataset spec ({shipped})")
+    return DATASETS_DIR / f"{path}.toml"
 
 
 def load_scene(path: str | Path | None = None) -> SceneConfig:
