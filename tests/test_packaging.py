@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "nlipscalib"
 NOT_SOURCE = ("__pycache__", ".pytest_cache", ".ruff_cache", "*.egg-info", "*.py[cod]")
 """What the package folder may hold that is not part of it (caches, build metadata)."""
-PROJECT = ("README.md", "pyproject.toml", "setup.sh", "scenes", "docs", "firmware", "tests", "benchmarks")
+PROJECT = ("README.md", "LICENSE", "pyproject.toml", "setup.sh", "scenes", "docs", "firmware", "tests", "benchmarks")
 """What an sdist carries besides the package: the firmware to flash, the docs the commands name, the tests."""
 
 
