@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import errno
+import hashlib
 import itertools
 import json
 import logging
@@ -19,7 +20,7 @@ import os
 import secrets
 import shutil
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
@@ -46,6 +47,8 @@ if TYPE_CHECKING:  # named in hints only
 log = logging.getLogger(__name__)
 REFERENCE_NAME = REFERENCE_FOLDER  # the name every folder of presses uses (core.capture)
 MANIFEST = "dataset.json"
+FOLDER_CLAIM = "dataset"
+"""Target of the folder's claim by the runs of one spec (:func:`claim_folder`): files ``.claim-dataset*`` in it."""
 GT_BYTES_PER_PIXEL = 4 + 12 + 12 + 2 + 4 + 12
 """gt.npz (depth, points, normals, masks) and reference.npz (depth, normals) per pixel, uncompressed."""
 BUSY_POLL_S = 1.0
@@ -318,6 +321,45 @@ def manifest_text(spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -
 def write_manifest(out: Path, spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> bool:
     """Write dataset.json beside the presses, only if its content changes (read-only re-checks work)."""
     return write_if_changed(out / MANIFEST, manifest_text(spec, scene, jobs))
+
+
+def spec_digest(spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> str:
+    """What tells one spec's dataset from another's (hex, 16 digits): the manifest, and each press's render hash
+    (which also counts the content of an indenter's mesh file, the manifest naming only its path)."""
+    from .press import render_spec_hash
+
+    digest = hashlib.sha256(manifest_text(spec, scene, jobs).encode())
+    for job in jobs:
+        digest.update(render_spec_hash(scene, job.press, job.seed).encode())
+    return digest.hexdigest()[:16]
+
+
+@contextlib.contextmanager
+def claim_folder(out: Path, digest: str) -> Iterator[None]:
+    """Hold ``out`` for the spec of ``digest`` while the block runs; a ConfigError, before anything is written, when
+    a live run of another spec holds it.
+
+    Why: two runs of different specs started together into one folder each published presses before either found
+    the other's, and left a dataset of two specs. Runs of one spec share the folder (they split its presses); a
+    killed run's claim goes stale (core.claims), and ``--overwrite`` does not pass a live run of another spec (it
+    re-renders what a finished run left). A folder that cannot hold a claim file (read-only media, disk full) is
+    not claimed: nothing can be published there either, and the checks that follow say why in their own words.
+    """
+    from ..core.claims import claim_shared
+
+    with contextlib.ExitStack() as stack:
+        try:
+            other = stack.enter_context(claim_shared(out / FOLDER_CLAIM, digest))
+        except OSError as exc:
+            log.debug("%s: not claimed for this spec (%s)", out, exc.strerror or exc)
+            other = None
+        if other is not None:
+            who = f"process {other.pid} on {other.host}" if other.pid else "another process"
+            raise ConfigError(
+                f"{out}: a run of a different spec is rendering into it ({who}); wait until it ends, "
+                "or render into a new folder"
+            )
+        yield
 
 
 # ---------------------------------------------------------------------- internals

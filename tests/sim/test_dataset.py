@@ -303,3 +303,38 @@ def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_pa
     assert calls == [] and "led_02.png missing, but process" in said.out + said.err
     assert main(args) == 0 and calls == ["press_0000"]
     assert "(its results nlips/ go with it)" in caplog.text
+
+
+def test_a_live_run_of_another_spec_keeps_the_folder_even_from_overwrite_and_a_killed_one_does_not(
+    tmp_path, monkeypatch, capsys
+):
+    """Runs of different specs at work in one folder at once each published presses and left a dataset of two
+    specs. A run now claims the folder for its spec first: another spec's run is refused before it writes
+    anything (``--overwrite`` too: it re-renders what a finished run left, it does not race a live one); the claim
+    of a killed run does not count."""
+    import subprocess
+    import sys
+
+    from nlipscalib.cli import main
+    from nlipscalib.core.claims import HOST, claim_shared
+    from tests.cli.test_faults import _fake_render
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "1"]
+    with claim_shared(out / ds.FOLDER_CLAIM, "0123456789abcdef") as other:  # this process stands for the other run
+        assert other is None
+        for extra in ([], ["--overwrite"]):
+            assert main([*args, *extra]) == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert err == [
+                f"nlips dataset: error: {out}: a run of a different spec is rendering into it (process {os.getpid()} "
+                f"on {HOST}); wait until it ends, or render into a new folder"
+            ], err
+    assert calls == [] and [p.name for p in out.iterdir()] == []  # nothing written, not even dataset.json
+    killed = subprocess.Popen([sys.executable, "-c", "pass"])
+    killed.wait(30)
+    stale = out / ".claim-dataset~0123456789abcdef~0011223344556677"
+    stale.write_text(json.dumps({"host": HOST, "pid": killed.pid, "token": "x"}))
+    assert main(args) == 0 and calls == ["reference", "press_0000"]
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "press_0000", "reference"]  # its claim swept
