@@ -9,7 +9,7 @@ import pytest
 
 from nlipscalib import progress
 from nlipscalib.cli import main
-from nlipscalib.sim import dataset as ds
+from nlipscalib.sim import dataset_pool
 from tests.cli.test_faults import SPEC, _fake_render
 
 
@@ -48,7 +48,7 @@ def test_working_logs_start_and_end_when_not_a_terminal(caplog):
 def test_dataset_log_file_without_carriage_returns(tmp_path, monkeypatch, capsys):
     spec, out, log = tmp_path / "spec.toml", tmp_path / "out", tmp_path / "logs" / "run.log"
     spec.write_text(SPEC)
-    monkeypatch.setattr(ds, "_run_one", _fake_render([]))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render([]))
     assert main(["-v", "--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
     text = log.read_text()
     assert "press press_0003: rendered" in text and "\r" not in text

@@ -6,6 +6,13 @@ import argparse
 import contextlib
 import logging
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # named in hints only
+    from pathlib import Path
+
+    from ..sim.dataset import DatasetSpec, PressJob
+    from ..sim.scene import SceneConfig
 
 log = logging.getLogger(__name__)
 
@@ -16,8 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render many presses from a dataset spec (grid or random), in parallel, resumable",
         description="Render every press of a dataset spec (TOML/YAML, see scenes/datasets/). "
         "Presses already rendered are skipped, so an interrupted run resumes where it stopped. Several "
-        "runs (terminals, cluster array jobs, machines sharing the disk) may fill one folder at once: each "
-        "press is claimed by one of them and rendered exactly once.",
+        "runs of one spec (terminals, cluster array jobs, machines sharing the disk) may fill one folder at once: "
+        "each press is claimed by one of them and rendered exactly once. A run of another spec is refused while "
+        "one is at work in the folder, so that it never holds presses of two specs.",
     )
     p.add_argument(
         "spec", help="dataset spec file, or a shipped spec's name: train50 (~50 presses) or demo (the demo's)"
@@ -31,7 +39,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="render only the first N presses of the spec (0 = all); the reference, when the spec asks for one, "
         "is rendered too and not counted",
     )
-    p.add_argument("--overwrite", action="store_true", help="re-render presses made from a different spec")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="re-render presses made from a different spec (by a run that has ended)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -40,16 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.config import check_count
-    from ..sim.dataset import (
-        check_existing,
-        expand_jobs,
-        is_complete,
-        limit_presses,
-        load_dataset_spec,
-        run_dataset,
-        warn_unlisted,
-        write_manifest,
-    )
+    from ..sim.dataset import claim_folder, expand_jobs, limit_presses, load_dataset_spec, spec_digest
     from ..sim.scene import dataset_spec_path
 
     check_count("--workers", args.workers, minimum=0)
@@ -58,6 +61,28 @@ def run(args: argparse.Namespace) -> int:
     jobs = expand_jobs(spec)
     todo = limit_presses(jobs, args.limit) if args.limit else jobs
     out = Path(args.out)
+    with claim_folder(out, spec_digest(spec, scene, jobs)):  # a run of another spec at work there: refused now
+        result = _render(args, spec, scene, jobs, todo, out)
+    print(
+        f"{out}: {len(result['rendered'])} rendered, {len(result['skipped'])} already there, "
+        f"{len(result['failed'])} failed"
+    )
+    for name, error in result["failed"]:
+        print(f"  {name}: {error}", file=sys.stderr)
+    return 1 if result["failed"] else 0
+
+
+def _render(
+    args: argparse.Namespace,
+    spec: DatasetSpec,
+    scene: SceneConfig,
+    jobs: list[PressJob],
+    todo: list[PressJob],
+    out: Path,
+) -> dict:
+    """Check the folder, write the manifest, render ``todo`` (the folder claimed for the spec); run_dataset's result."""
+    from ..sim.dataset import check_existing, is_complete, run_dataset, warn_unlisted, write_manifest
+
     check_existing(scene, jobs, out, args.overwrite)  # before anything is written
     if out.is_dir():
         warn_unlisted(jobs, out)
@@ -69,13 +94,7 @@ def run(args: argparse.Namespace) -> int:
         log.warning("%s: could not write dataset.json (%s); the presses are complete", out, exc.strerror)
     progress = not args.no_progress
     result = run_dataset(scene, todo, out, workers=args.workers, progress=progress, overwrite=args.overwrite)
-    if not result["failed"]:  # a run of another spec, refused meanwhile, may have written its own
+    if not result["failed"]:  # a run that takes no folder claim (an older nlips) may have written its own
         with contextlib.suppress(OSError):
             write_manifest(out, spec, scene, jobs)
-    print(
-        f"{out}: {len(result['rendered'])} rendered, {len(result['skipped'])} already there, "
-        f"{len(result['failed'])} failed"
-    )
-    for name, error in result["failed"]:
-        print(f"  {name}: {error}", file=sys.stderr)
-    return 1 if result["failed"] else 0
+    return result

@@ -52,23 +52,30 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.capture import load_press
-    from ..sim.dataset import REFERENCE_NAME, expand_jobs, load_dataset_spec, run_dataset, write_manifest
+    from ..core.config import check_count
+    from ..sim.dataset import (
+        REFERENCE_NAME,
+        claim_folder,
+        expand_jobs,
+        load_dataset_spec,
+        run_dataset,
+        spec_digest,
+        write_manifest,
+    )
     from ..sim.scene import dataset_spec_path
 
+    check_count("--solve-workers", args.solve_workers, minimum=1)  # before minutes of rendering, not after
     out = Path(args.out)
     spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
     jobs = expand_jobs(spec)
     out.mkdir(parents=True, exist_ok=True)
-    write_manifest(out, spec, scene, jobs)
-    rendered = run_dataset(scene, jobs, out, workers=args.workers, overwrite=args.overwrite)
+    with claim_folder(out, spec_digest(spec, scene, jobs)):  # a `nlips dataset` of another spec there: refused
+        write_manifest(out, spec, scene, jobs)
+        rendered = run_dataset(scene, jobs, out, workers=args.workers, overwrite=args.overwrite)
     if rendered["failed"]:
         for name, error in rendered["failed"]:
             print(f"{name}: {error}")
         return 1
-    if args.solve_workers < 1:
-        from ..core.errors import ConfigError
-
-        raise ConfigError(f"--solve-workers must be >= 1, got {args.solve_workers}")
     presses = [j for j in jobs if j.name != REFERENCE_NAME]
     failed = set()
     if not args.no_solve:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import glob
 import json
 import logging
 import os
@@ -39,6 +40,9 @@ dead, or alive, by its own copy), so callers use this default rather than their 
 quarter of it, so a live owner looks dead only after missing three beats."""
 CLAIM_POLL_S = 0.5
 """How often (s) a process waiting for another's claim to be released checks it again (short against a solve)."""
+SHARE_SEP = "~"
+"""Joins a shared claim's target name, key and token into its holder's claim (``.claim-NAME~KEY~TOKEN``). Not a dot:
+a name with a dot after ``.claim-`` is a claim's short-lived sibling to the cleaners (core.atomic), not a claim."""
 HOST = socket.gethostname()
 _HELD: dict[Path, Owner] = {}
 """Claims this process holds now (released by ``release_all`` when it is terminated)."""
@@ -108,6 +112,39 @@ def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Iterator[boo
         beat.stop()
         _release(path, me)
         _HELD.pop(path, None)
+
+
+@contextlib.contextmanager
+def claim_shared(target: str | Path, key: str, *, stale_s: float = CLAIM_STALE_S) -> Iterator[Owner | None]:
+    """Hold ``target`` for the duration of the block together with every process holding it for the same ``key``.
+
+    Processes of one key share the target (runs of one dataset spec filling one folder); a process of another
+    key is refused while any live process holds it. Each holder has a claim of its own,
+    ``.claim-NAME~KEY~TOKEN``, with the heartbeat and staleness of :func:`claim` (a killed holder stops counting).
+    Looking at the other holders and adding this one happen under ``target``'s own exclusive claim, held for
+    milliseconds: two keys arriving at once are put in order, so the first holds the target and the second is
+    refused, where each could otherwise see no one else and both go on.
+
+    Parameters
+    ----------
+    target : what the holders share (e.g. a folder's ``OUT/dataset``: its claim files are ``OUT/.claim-dataset*``)
+    key : what the holders of one group have in common (e.g. a spec digest); no ``~``, ``.`` or ``/``
+    stale_s : as for :func:`claim`; keep the default
+
+    Yields
+    ------
+    Owner or None
+        None when this process holds the target (released when the block exits); else a live holder of another
+        key, and nothing is held.
+    """
+    if not key or any(c in key for c in (SHARE_SEP, ".", "/", os.sep)):
+        raise ValueError(f"a shared claim's key must be non-empty, without '~', '.' or '/': got {key!r}")
+    target = Path(target)
+    with contextlib.ExitStack() as stack:
+        other = _join(stack, target, key, stale_s)
+        if other is None:  # on leaving: a killed holder's claim goes, its heartbeat stopped (once nobody needs it)
+            stack.callback(_sweep_shared, target, stale_s)
+        yield other
 
 
 def holder(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Owner | None:
@@ -184,6 +221,52 @@ def _acquire(path: Path, me: Owner, stale_s: float) -> bool:
         log.info("taking over stale claim %s (owner %s)", path, owner)
         _remove_if_same(path, owner)
     return False
+
+
+def _join(stack: contextlib.ExitStack, target: Path, key: str, stale_s: float) -> Owner | None:
+    """Add this process to ``target``'s holders of ``key`` (its claim entered into ``stack``), unless a live holder of
+    another key holds it (returned)."""
+    while True:
+        with claim(target, stale_s=stale_s) as mine:
+            if mine:
+                other = _shared_holder(target, stale_s, unlike=key)
+                if other is None:
+                    member = target.with_name(SHARE_SEP.join((target.name, key, secrets.token_hex(8))))
+                    stack.enter_context(claim(member, stale_s=stale_s))  # a name of its own: always acquired
+                return other
+        time.sleep(CLAIM_POLL_S)  # another process is adding or looking: milliseconds
+
+
+def _shared_members(target: Path) -> Iterator[tuple[str, Path]]:
+    """(key, member target) of each claim of a holder of ``target`` (:func:`claim_shared`), live or not."""
+    prefix = CLAIM_PREFIX + target.name + SHARE_SEP
+    for path in target.parent.glob(glob.escape(prefix) + "*"):
+        rest = path.name[len(prefix) :]
+        if "." not in rest and SHARE_SEP in rest:  # NAME~KEY~TOKEN.x: a claim's temporary or one moved aside
+            yield rest.rsplit(SHARE_SEP, 1)[0], path.with_name(path.name[len(CLAIM_PREFIX) :])
+
+
+def _shared_holder(target: Path, stale_s: float, unlike: str) -> Owner | None:
+    """A live holder of ``target`` whose key is not ``unlike``, or None."""
+    for key, member in _shared_members(target):
+        owner = holder(member, stale_s=stale_s) if key != unlike else None
+        if owner is not None:
+            return owner
+    return None
+
+
+def _sweep_shared(target: Path, stale_s: float) -> None:
+    """Remove the claims of ``target``'s dead holders (and a dead process's claim of ``target`` itself, taken over
+    here), so that a killed run leaves nothing behind once a later one ends. Best effort: a failed write here (a
+    disk filled meanwhile) must not turn the work done under the claim into an error."""
+    with contextlib.suppress(OSError), claim(target, stale_s=stale_s) as mine:
+        if not mine:
+            return  # another process is joining: the next one to leave sweeps
+        for _, member in _shared_members(target):
+            path = claim_path(member)
+            owner = _read_owner(path)
+            if owner is not None and _is_stale(path, owner, stale_s, now=fs_now(path.parent)):
+                _remove_if_same(path, owner)
 
 
 def _create(path: Path, me: Owner) -> bool:

@@ -17,7 +17,7 @@ import pytest
 
 from nlipscalib.cli import main
 from nlipscalib.core.capture import load_press
-from nlipscalib.sim import dataset as ds
+from nlipscalib.sim import dataset_pool
 from tests.specs import TINY_SPEC as SPEC
 
 
@@ -62,7 +62,7 @@ def _fake_render(calls, fail_at=None, error=errno.ENOSPC):
 def test_unwritable_output_fails_before_any_render(spec, tmp_path, monkeypatch, capsys, code, cause):
     out = tmp_path / "out"
     calls = []
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     real_mkdir = os.mkdir
 
     def mkdir(path, *args, **kwargs):
@@ -79,7 +79,7 @@ def test_unwritable_output_fails_before_any_render(spec, tmp_path, monkeypatch, 
 def test_disk_full_mid_run_stops_at_first_failure(spec, tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
     calls = []
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls, fail_at=2))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls, fail_at=2))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
     _one_line_error(capsys.readouterr().err, "led_03.png", "No space left on device", "disk is full")
     assert len(calls) == 2  # the rest is not rendered only to fail writing
@@ -142,7 +142,7 @@ def test_no_room_for_one_press_fails_before_rendering(spec, tmp_path, monkeypatc
 
     usage = namedtuple("usage", "total used free")
     calls = []
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 1000, 1000))
     out = tmp_path / "out"
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2

@@ -158,12 +158,12 @@ from pathlib import Path
 
 from nlipscalib import cli
 from nlipscalib.progress import worker_logging
-from nlipscalib.sim import dataset
+from nlipscalib.sim import dataset_pool
 from tests.cli.test_interrupt import _render_forever
 
 cli._terminate_cleanly("dataset")  # as `nlips dataset` runs: its handler, its pool
 out = Path(sys.argv[1])
-context, init = get_context("spawn"), dataset._worker_init
+context, init = get_context("spawn"), dataset_pool._worker_init
 with ProcessPoolExecutor(2, mp_context=context, initializer=init, initargs=worker_logging()) as pool:
     for future in [pool.submit(_render_forever, out / f"press_{i:04d}") for i in range(2)]:
         future.result()

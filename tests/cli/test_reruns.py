@@ -8,7 +8,7 @@ import logging
 import pytest
 
 from nlipscalib.cli import main
-from nlipscalib.sim import dataset as ds
+from nlipscalib.sim import dataset_pool
 from tests.cli.test_faults import SPEC, _fake_render
 
 
@@ -16,7 +16,7 @@ def test_dataset_rerun_with_changed_spec_is_not_silent(tmp_path, monkeypatch, ca
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
     spec.write_text(SPEC)
     calls = []
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]) == 0
     assert calls == ["reference", "press_0000", "press_0001"]  # --limit counts presses; the reference comes too
     manifest = (out / "dataset.json").read_text()
@@ -31,7 +31,7 @@ def test_dataset_rerun_with_changed_spec_is_not_silent(tmp_path, monkeypatch, ca
     assert str(out) in err and "different scene or spec" in err and "--overwrite" in err
     assert calls == [] and (out / "dataset.json").read_text() == manifest  # nothing touched
 
-    monkeypatch.setattr(ds, "_run_one", _overwriting_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _overwriting_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--overwrite"]) == 0
     assert len(calls) == 5 and (out / "dataset.json").read_text() != manifest
 
@@ -40,7 +40,7 @@ def test_dataset_rerenders_a_press_folder_without_meta_json(tmp_path, monkeypatc
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
     spec.write_text(SPEC)
     calls = []
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
     (out / "press_0002" / "meta.json").unlink()  # an interrupted copy: images, no meta.json
     (out / "press_0002" / "led_01.png").write_bytes(b"partial")
@@ -62,7 +62,7 @@ def test_dataset_leaves_an_incomplete_folder_a_live_process_works_in(tmp_path, m
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
     spec.write_text(SPEC)
     calls = []
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     (out / "press_0001").mkdir(parents=True)
     (out / "press_0001" / "dark.png").write_bytes(b"x")
     with claim(out / "press_0001" / "nlips") as mine:  # a live process working inside it
@@ -79,7 +79,7 @@ def test_dataset_names_a_damaged_meta_json(tmp_path, monkeypatch, capsys):
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
     spec.write_text(SPEC)
     calls = []
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
     (out / "press_0002" / "meta.json").write_text("{\n")
     calls.clear()
@@ -91,7 +91,7 @@ def test_dataset_names_a_damaged_meta_json(tmp_path, monkeypatch, capsys):
     assert str(out / "press_0002" / "meta.json") in err and "not valid JSON" in err
     assert "different scene or spec" not in err and "--overwrite" in err and "delete" in err
     assert calls == []
-    monkeypatch.setattr(ds, "_run_one", _overwriting_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _overwriting_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--overwrite"]) == 0
     assert calls == ["press_0002"] and json.loads((out / "press_0002" / "meta.json").read_text())
 

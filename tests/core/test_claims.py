@@ -240,3 +240,31 @@ def test_wait_for_release_returns_when_the_holder_lets_go_and_says_so_once(tmp_p
     claims.wait_for_release(target, on_wait=lambda: said.append("held"))
     assert time.monotonic() - t0 > 0.1 and holder(target) is None and said == ["held"]
     thread.join()
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait(30)
+    return proc.pid
+
+
+def test_a_shared_claim_holds_for_its_key_refuses_another_and_forgets_a_dead_holder(tmp_path):
+    """claim_shared: holders of one key share the target; a holder of another key is refused while one lives, and
+    gets it once they have left; a killed holder's claim does not count, and the last to leave removes it."""
+    from nlipscalib.core.claims import HOST, claim_shared
+
+    target = tmp_path / "dataset"
+    dead = tmp_path / ".claim-dataset~cccc~0123456789abcdef"  # a run of key "cccc" killed while it held the folder
+    dead.write_text(json.dumps({"host": HOST, "pid": _dead_pid(), "token": "x"}))
+    with claim_shared(target, "aaaa") as first, claim_shared(target, "aaaa") as second:
+        assert first is None and second is None  # one key: both hold it
+        assert len(list(tmp_path.glob(".claim-dataset~aaaa~*"))) == 2
+        with claim_shared(target, "bbbb") as other:
+            assert other is not None and other.pid == os.getpid()  # refused, naming a holder
+        assert not list(tmp_path.glob(".claim-dataset~bbbb~*"))  # and nothing held
+    assert not list(tmp_path.glob(".claim-*"))  # released, the dead holder's claim swept, no mutex left
+    with claim_shared(target, "bbbb") as other:
+        assert other is None
+    with pytest.raises(ValueError, match="key"):
+        with claim_shared(target, "a.b"):
+            pass

@@ -7,6 +7,7 @@ import pytest
 from nlipscalib.core.atomic import TMP_PREFIX
 from nlipscalib.core.errors import ConfigError
 from nlipscalib.sim import dataset as ds
+from nlipscalib.sim import dataset_pool
 from nlipscalib.sim.dataset import DatasetSpec, expand_jobs, load_dataset_spec, run_dataset
 from nlipscalib.sim.press import render_spec_hash
 from nlipscalib.sim.scene import SCENES_DIR
@@ -88,7 +89,7 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
         meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
         (folder / "meta.json").write_text(json.dumps(meta))
 
-    monkeypatch.setattr(ds, "_run_one", fake_render)
+    monkeypatch.setattr(dataset_pool, "_run_one", fake_render)
     out = tmp_path / "out"
     (out / (TMP_PREFIX + "press_0001-x")).mkdir(parents=True)  # an interrupted earlier write (old naming)
     os.utime(out / (TMP_PREFIX + "press_0001-x"), (0, 0))
@@ -133,7 +134,7 @@ def test_an_edited_indenter_mesh_makes_its_presses_stale_and_only_those(tmp_path
     )
     out, calls = tmp_path / "out", []
     monkeypatch.chdir(tmp_path)  # the mesh is found beside the spec, not in the working directory
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
     assert calls == ["reference", "press_0000", "press_0001", "press_0002", "press_0003"]
     calls.clear()
@@ -144,7 +145,7 @@ def test_an_edited_indenter_mesh_makes_its_presses_stale_and_only_those(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "press_0002, press_0003 were rendered" in err[0] and "mesh file" in err[0], err
     assert calls == []
-    monkeypatch.setattr(ds, "_run_one", _rerender(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _rerender(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--overwrite"]) == 0
     assert calls == ["press_0002", "press_0003"]  # the mesh's presses only
 
@@ -225,8 +226,9 @@ def test_a_press_another_spec_rendered_meanwhile_is_refused_not_counted_as_there
         if len(checks) == 2:  # just after the start-up checks (the command's, run_dataset's), before any claim
             _publish_as_another_run(other_scene, other_job, out)
 
-    monkeypatch.setattr(ds, "check_existing", checked_then_the_other_run_publishes)
-    monkeypatch.setattr(ds, "_run_one", _fake_render(calls))
+    monkeypatch.setattr(ds, "check_existing", checked_then_the_other_run_publishes)  # the command's
+    monkeypatch.setattr(dataset_pool, "check_existing", checked_then_the_other_run_publishes)  # run_dataset's
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -236,7 +238,7 @@ def test_a_press_another_spec_rendered_meanwhile_is_refused_not_counted_as_there
     ], err
     assert calls == ["reference", "press_0000"]  # found under press_0001's claim, not before the run
     calls.clear()
-    monkeypatch.setattr(ds, "_run_one", _rerender(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _rerender(calls))
     assert main([*args, "--overwrite"]) == 0 and calls == ["press_0001"]  # --overwrite renders it again
 
 
@@ -267,7 +269,7 @@ def test_a_press_that_lost_a_file_is_rendered_again_not_counted_as_there(tmp_pat
     from nlipscalib.cli import main
 
     spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
-    monkeypatch.setattr(ds, "_run_one", _whole_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
     args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
     assert main(args) == 0 and calls == ["reference", "press_0000", "press_0001"]
     (out / "press_0000" / "led_02.png").unlink()
@@ -290,7 +292,7 @@ def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_pa
     from nlipscalib.core.claims import claim
 
     spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
-    monkeypatch.setattr(ds, "_run_one", _whole_render(calls))
+    monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
     args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
     assert main(args) == 0
     (out / "press_0000" / "led_02.png").unlink()
@@ -303,3 +305,38 @@ def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_pa
     assert calls == [] and "led_02.png missing, but process" in said.out + said.err
     assert main(args) == 0 and calls == ["press_0000"]
     assert "(its results nlips/ go with it)" in caplog.text
+
+
+def test_a_live_run_of_another_spec_keeps_the_folder_even_from_overwrite_and_a_killed_one_does_not(
+    tmp_path, monkeypatch, capsys
+):
+    """Runs of different specs at work in one folder at once each published presses and left a dataset of two
+    specs. A run now claims the folder for its spec first: another spec's run is refused before it writes
+    anything (``--overwrite`` too: it re-renders what a finished run left, it does not race a live one); the claim
+    of a killed run does not count."""
+    import subprocess
+    import sys
+
+    from nlipscalib.cli import main
+    from nlipscalib.core.claims import HOST, claim_shared
+    from tests.cli.test_faults import _fake_render
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "1"]
+    with claim_shared(out / ds.FOLDER_CLAIM, "0123456789abcdef") as other:  # this process stands for the other run
+        assert other is None
+        for extra in ([], ["--overwrite"]):
+            assert main([*args, *extra]) == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert err == [
+                f"nlips dataset: error: {out}: a run of a different spec is rendering into it (process {os.getpid()} "
+                f"on {HOST}); wait until it ends, or render into a new folder"
+            ], err
+    assert calls == [] and [p.name for p in out.iterdir()] == []  # nothing written, not even dataset.json
+    killed = subprocess.Popen([sys.executable, "-c", "pass"])
+    killed.wait(30)
+    stale = out / ".claim-dataset~0123456789abcdef~0011223344556677"
+    stale.write_text(json.dumps({"host": HOST, "pid": killed.pid, "token": "x"}))
+    assert main(args) == 0 and calls == ["reference", "press_0000"]
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "press_0000", "reference"]  # its claim swept

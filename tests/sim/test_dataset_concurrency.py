@@ -99,3 +99,50 @@ def test_terminated_run_releases_its_claims(tmp_path):
     err = proc.communicate(timeout=120)[1]
     assert proc.returncode == 143 and "terminated" in err and "Traceback" not in err, err
     assert not list(out.glob(".claim-*")) and not list(out.glob(".tmp-*"))
+
+
+def test_concurrent_runs_of_different_specs_leave_one_spec(tmp_path):
+    """Two runs of specs differing in their seed, into one folder at once, both exited 2 ("rendered from a
+    different scene or spec") and left the presses each had published: a dataset of two specs. Now the first
+    claims the folder for its spec and finishes; the second is refused before it writes anything. To make both
+    start before either publishes, this process holds every press's claim until each run waits or has exited."""
+    import contextlib
+
+    from nlipscalib.core.claims import claim
+    from nlipscalib.sim.dataset import expand_jobs, load_dataset_spec
+    from nlipscalib.sim.press import recorded_spec_hash, render_spec_hash
+
+    out, specs, logs = tmp_path / "out", [tmp_path / "a.toml", tmp_path / "b.toml"], []
+    for path, seed in zip(specs, ("1", "2")):
+        path.write_text(SPEC.replace("seed = 1", f"seed = {seed}").replace("[0.0, 15.0]", "[0.0]"))
+    with contextlib.ExitStack() as held:
+        for name in ("reference", "press_0000", "press_0001"):
+            assert held.enter_context(claim(out / name))
+        procs = []
+        for i, path in enumerate(specs):
+            logs.append(tmp_path / f"log{i}.txt")
+            procs.append(_start(path, out, logs[-1]))
+        deadline = time.time() + 300
+        while not all(p.poll() is not None or "waiting for" in _text(log) for p, log in zip(procs, logs)):
+            assert time.time() < deadline, "neither waited on the held presses nor exited"
+            time.sleep(0.1)
+    errs = [p.communicate(timeout=600)[1] for p in procs]
+    assert sorted(p.returncode for p in procs) == [0, 2], errs
+    winner, loser = (0, 1) if procs[0].returncode == 0 else (1, 0)
+    lines = [line for line in errs[loser].splitlines() if not line.startswith(("DEBUG ", "INFO "))]  # -v logs
+    assert len(lines) == 1 and "a run of a different spec is rendering into it" in lines[0], errs[loser]
+    assert "rendered" not in _text(logs[loser])  # refused before it published anything
+    spec, scene = load_dataset_spec(specs[winner])
+    expected = {j.name: render_spec_hash(scene, j.press, j.seed) for j in expand_jobs(spec)}
+    found = {
+        p.name: recorded_spec_hash(json.loads((p / "meta.json").read_text())["provenance"])
+        for p in out.iterdir()
+        if p.is_dir() and not p.name.startswith(".")
+    }
+    assert found == expected  # every press of the winner's spec, none of the other's
+    assert json.loads((out / "dataset.json").read_text())["spec"]["seed"] == spec.seed
+    assert not list(out.glob(".claim-*")) and not list(out.glob(".tmp-*"))
+
+
+def _text(path: Path) -> str:
+    return path.read_text() if path.exists() else ""

@@ -1,0 +1,137 @@
+"""What a dataset folder already holds, judged against a spec: a press complete (its meta.json records this very
+spec and every file it lists is there), rendered from another spec or damaged (an error before a run), or not
+named by the spec at all (a warning)."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+from ..core.capture import META_FILE, is_press_folder
+from ..core.errors import CaptureError, ConfigError, NlipsError
+from .dataset_spec import PressJob
+from .scene import SceneConfig
+
+log = logging.getLogger(__name__)
+
+
+def is_complete(scene: SceneConfig, job: PressJob, out: Path) -> bool:
+    """A whole folder rendered from this very spec: meta.json records the spec, and every file it lists is there."""
+    folder = out / job.name
+    return is_press_folder(folder) and same_spec(scene, job, out) and not missing_files(folder)
+
+
+def same_spec(scene: SceneConfig, job: PressJob, out: Path) -> bool:
+    """Whether the press folder of ``job`` in ``out`` records this very spec."""
+    return _recorded_hash(out / job.name) == _expected_hash(scene, job)
+
+
+def missing_files(folder: Path) -> list[str]:
+    """Files ``folder``'s meta.json lists that are gone (deleted or lost since it was rendered); [] when whole, or
+    when meta.json cannot say (its format is for the commands that load the press to judge)."""
+    from ..core.capture import listed_files
+
+    try:
+        names = listed_files(json.loads((folder / META_FILE).read_bytes()))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return []
+    return [name for name in names if not (folder / name).is_file()]
+
+
+def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:
+    """Finished presses made from another spec, or with a damaged meta.json, are an error (or
+    re-rendered with ``overwrite``)."""
+    if overwrite:
+        return
+    damaged = [p for p in (_meta_problem(out / j.name) for j in jobs if is_press_folder(out / j.name)) if p]
+    if damaged:
+        more = f" ({len(damaged) - 1} more press folders are damaged too)" if len(damaged) > 1 else ""
+        raise CaptureError(
+            f"{damaged[0]}; the press folder is damaged{more}: delete it to render it again, or use --overwrite"
+        )
+    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not same_spec(scene, j, out)]
+    if changed:
+        names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+        meshes = any(j.press is not None and j.press.indenter.kind == "mesh" for j in jobs if j.name in changed)
+        edited = " (or from another version of an indenter's mesh file: its content counts)" if meshes else ""
+        raise ConfigError(
+            f"{out}: {names} were rendered from a different scene or spec{edited}; render into a new folder, "
+            "or use --overwrite to re-render them"
+        )
+
+
+def changed_error(scene: SceneConfig, job: PressJob, out: Path) -> str:
+    """The line :func:`check_existing` gives for ``job``'s folder, rendered from another spec (or damaged)."""
+    try:
+        check_existing(scene, [job], out, overwrite=False)
+    except NlipsError as exc:
+        return str(exc)
+    return f"{out}: {job.name} was rendered meanwhile from a different scene or spec"  # and replaced since
+
+
+def warn_unlisted(jobs: list[PressJob], out: Path) -> list[str]:
+    """Warn about press folders in ``out`` that the spec does not name (left by an earlier, longer spec, or a
+    reference the spec no longer asks for): every later command on the folder (solve, calibrate) still takes
+    them as part of the dataset. Returns their names."""
+    named = {j.name for j in jobs}
+    extra = sorted(p.name for p in out.iterdir() if p.is_dir() and p.name not in named and is_press_folder(p))
+    if extra:
+        more = f" and {len(extra) - 3} more" if len(extra) > 3 else ""
+        log.warning(
+            "%s: %s%s are not in this spec (left from an earlier one); later commands on the folder still use "
+            "them: remove them, or render into a new folder",
+            out,
+            ", ".join(extra[:3]),
+            more,
+        )
+    return extra
+
+
+def live_claim_inside(folder: Path) -> str | None:
+    """Who works inside ``folder`` now (a live claim there, e.g. a solve's ``.claim-nlips``), or None."""
+    from ..core.claims import CLAIM_PREFIX, holder
+
+    if not folder.is_dir():
+        return None
+    for path in folder.glob(CLAIM_PREFIX + "*"):
+        name = path.name[len(CLAIM_PREFIX) :]
+        owner = holder(folder / name) if "." not in name else None  # NAME.token, NAME.stale.x: not claims
+        if owner is not None:
+            return f"process {owner.pid} on {owner.host} holds {path.name} in it"
+    return None
+
+
+def results_inside(folder: Path) -> list[str]:
+    """Names of the result folders inside a press folder (``nlips/``, ``nlipsnet/``, a solve's ``--out``)."""
+    return sorted(p.name + "/" for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+
+# ---------------------------------------------------------------------- internals
+def _meta_problem(folder: Path) -> str | None:
+    """Why ``folder``'s meta.json cannot be read as JSON (unreadable, not JSON, not an object), or None."""
+    path = folder / META_FILE
+    try:
+        meta = json.loads(path.read_bytes())
+    except OSError as exc:
+        return f"{path}: cannot be read ({exc.strerror or exc})"
+    except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
+        return f"{path}: not valid JSON ({exc})"
+    if not isinstance(meta, dict):
+        return f"{path}: not a JSON object"
+    return None
+
+
+def _recorded_hash(folder: Path) -> str | None:
+    from .press import recorded_spec_hash
+
+    try:
+        return recorded_spec_hash(json.loads((folder / "meta.json").read_text())["provenance"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+
+
+def _expected_hash(scene: SceneConfig, job: PressJob) -> str:
+    from .press import render_spec_hash
+
+    return render_spec_hash(scene, job.press, job.seed)

@@ -1,0 +1,283 @@
+"""Rendering a dataset's jobs into its folder: parallel (worker processes, each with its share of the cores) and
+resumable, from several processes at once.
+
+A press whose folder is complete is never rendered again, and interrupted writes leave only ``.tmp-*``
+folders, which are cleaned before the run. A press folder without meta.json (a partial copy, a
+deleted file) is incomplete: the process that claims the press removes it and renders it again; so is
+one that lost a file its meta.json lists (an image, reference.npz, gt.npz), rendered again in its place.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import logging
+import os
+import secrets
+import shutil
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import get_context
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..core.atomic import check_writable, clean_interrupted
+from ..core.capture import META_FILE, is_press_folder
+from ..core.claims import CLAIM_STALE_S
+from ..core.cpus import usable_cores
+from ..core.errors import ConfigError, NlipsError
+from ..progress import configure_worker, progress_bar, worker_logging
+from .dataset_folder import (
+    changed_error,
+    check_existing,
+    is_complete,
+    live_claim_inside,
+    missing_files,
+    results_inside,
+    same_spec,
+)
+from .dataset_spec import PressJob
+from .scene import SceneConfig
+
+if TYPE_CHECKING:  # named in hints only
+    from types import FrameType
+
+    from tqdm import tqdm
+
+log = logging.getLogger(__name__)
+GT_BYTES_PER_PIXEL = 4 + 12 + 12 + 2 + 4 + 12
+"""gt.npz (depth, points, normals, masks) and reference.npz (depth, normals) per pixel, uncompressed."""
+BUSY_POLL_S = 1.0
+"""Seconds between checks on presses another process is rendering."""
+
+
+def run_dataset(
+    scene: SceneConfig,
+    jobs: list[PressJob],
+    out: str | Path,
+    workers: int = 0,
+    progress: bool = True,
+    overwrite: bool = False,
+    stale_s: float = CLAIM_STALE_S,
+) -> dict:
+    """Render every job not yet done into ``out``; returns {"rendered", "skipped", "failed"} lists.
+
+    Several processes (terminals, cluster array jobs, machines sharing the disk) may run this on one
+    folder at once: each press is claimed (core.claims) before it is rendered, a press another live
+    process holds is left to it (and waited for, in case that process dies), and a finished press is
+    never rendered again nor replaced. An OSError (disk full, read-only, permission, name too long)
+    stops the run at the first failure and is raised; other per-press errors are reported in
+    ``failed`` and the rest goes on.
+
+    Parameters
+    ----------
+    workers : processes (0 = one per two cores, at least 1); each gets cores // workers threads.
+    overwrite : re-render presses whose folder was made from a different spec (else that is an error)
+    stale_s : seconds without heartbeat after which another process's claim is taken over (every process
+        rendering into ``out`` must use the same: keep the default, :data:`nlipscalib.core.claims.CLAIM_STALE_S`)
+    """
+    out = Path(out)
+    if workers < 0:
+        raise ConfigError(f"workers must be >= 0 (0 = automatic), got {workers}")
+    check_existing(scene, jobs, out, overwrite)
+    todo = [j for j in jobs if not is_complete(scene, j, out)]
+    result = {"rendered": [], "skipped": [j.name for j in jobs if j not in todo], "failed": []}
+    if not todo:
+        return result
+    check_writable(out, longest_name=max(len(j.name) for j in todo))
+    check_space(out, scene, len(todo))
+    for stale in clean_interrupted(out):
+        log.info("removed interrupted write %s", stale.name)
+    cores = usable_cores()
+    workers = min(len(todo), workers or max(1, cores // 2))
+    scene = scene.replace(render={"threads": max(1, cores // workers)})
+    with progress_bar(
+        total=len(jobs), initial=len(result["skipped"]), unit="press", desc="rendering", enabled=progress
+    ) as bar:
+        if workers == 1:
+            _rounds(todo, lambda job: _render_job(scene, job, out, overwrite, stale_s), result, bar)
+        else:
+            with ProcessPoolExecutor(
+                workers, mp_context=get_context("spawn"), initializer=_worker_init, initargs=worker_logging()
+            ) as pool:
+                submit = lambda job: pool.submit(_render_job, scene, job, out, overwrite, stale_s)  # noqa: E731
+                try:
+                    _rounds(todo, submit, result, bar, pool=True)
+                except BrokenProcessPool:
+                    raise NlipsError(
+                        f"{out}: a render process died (out of memory, or killed); finished presses are kept, "
+                        "run again to resume (fewer --workers needs less memory)"
+                    ) from None
+                except BaseException:
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    raise
+    return result
+
+
+def press_bytes(scene: SceneConfig) -> int:
+    """Rough upper bound of one press folder's size on disk: 16-bit RGB images + ground truth + reference."""
+    pixels = scene.camera.width * scene.camera.height
+    n_images = len(scene.led_models()) + 2  # LEDs, dark, tri-colour
+    return pixels * (n_images * 6 + GT_BYTES_PER_PIXEL)
+
+
+def check_space(out: Path, scene: SceneConfig, n_presses: int) -> None:
+    """No room for even one press: fail now (ENOSPC). Room for some only: warn that the run will stop."""
+    free = shutil.disk_usage(out).free
+    need = press_bytes(scene)
+    if free < need:
+        raise OSError(
+            errno.ENOSPC, f"No space left on device ({free >> 10} KiB free, a press needs ~{need >> 10} KiB)", str(out)
+        )
+    if free < need * n_presses:
+        log.warning(
+            "%s: %d MiB free, the %d presses may need up to %d MiB: the run will stop when the disk is full",
+            out,
+            free >> 20,
+            n_presses,
+            (need * n_presses) >> 20,
+        )
+
+
+# ---------------------------------------------------------------------- internals
+def _worker_init(log_level: int, log_file: str | None = None) -> None:
+    """A render process: logs like the parent; on SIGTERM (sent by a terminated ``nlips dataset``, or to the whole
+    process group) releases its claim and removes its half-written press folder, then exits, as the parent
+    does. The handler runs when the current native call (a Mitsuba render) returns; ended with ``os._exit``, as
+    an exception raised there could land inside the library."""
+    import signal
+
+    configure_worker(log_level, log_file)
+    signal.signal(signal.SIGTERM, _worker_terminated)
+
+
+def _worker_terminated(signum: int, frame: FrameType | None) -> None:
+    from ..core import atomic, claims
+
+    claims.release_all()
+    atomic.remove_in_progress()
+    os._exit(128 + signum)
+
+
+def _rounds(
+    todo: list[PressJob], start: Callable[[PressJob], object], result: dict, bar: tqdm, pool: bool = False
+) -> None:
+    """Run jobs; jobs busy in another process are retried until done or taken over (owner died)."""
+    waited = False
+    while todo:
+        if pool:
+            futures = {start(job): job for job in todo}
+            outcomes = ((futures[f], f.result()) for f in as_completed(futures))
+        else:
+            outcomes = ((job, start(job)) for job in todo)
+        busy = []
+        for job, (status, detail) in outcomes:
+            if status == "oserror":
+                raise OSError(*detail)
+            if status == "changed":  # another run published it from its own spec: refused, as before a run
+                raise ConfigError(detail)
+            if status == "busy":
+                busy.append(job)
+                continue
+            result["failed" if status == "failed" else status].append(
+                (job.name, detail) if status == "failed" else job.name
+            )
+            if status == "failed":
+                log.error("%s failed: %s", job.name, detail)
+            log.debug("press %s: %s", job.name, status)
+            bar.update(1)
+        if busy:
+            (log.info if not waited else log.debug)(
+                "waiting for %d press(es) another process is rendering (taken over if it dies)", len(busy)
+            )
+            waited = True
+            time.sleep(BUSY_POLL_S)
+        todo = busy
+
+
+def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, stale_s: float) -> tuple[str, object]:
+    """Worker body: claim, render, release. Returns (status, detail); errors must not kill the pool.
+
+    status is "rendered", "skipped" (finished meanwhile by another process), "busy" (another live
+    process holds it), "changed" (detail: the error line; without ``overwrite``, the press was rendered
+    meanwhile by a run of another spec), "failed" (detail: the error text) or "oserror" (detail: errno,
+    text, path).
+    """
+    from ..core.claims import claim
+
+    try:
+        with claim(out / job.name, stale_s=stale_s) as mine:
+            if not mine:
+                return "busy", None
+            if is_complete(scene, job, out):
+                return "skipped", None
+            clean_interrupted(out, item=job.name)  # a dead owner's half-written folder, if any
+            folder = out / job.name
+            replace = overwrite
+            if is_press_folder(folder):
+                if not overwrite and not same_spec(scene, job, out):
+                    return "changed", changed_error(scene, job, out)
+                missing = missing_files(folder)
+                if missing:
+                    busy = live_claim_inside(folder)
+                    if busy:
+                        return "failed", f"{folder}: {missing[0]} missing, but {busy}; run again when it is done"
+                    more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+                    results = results_inside(folder)
+                    log.warning(
+                        "%s: %s%s missing; rendering it again%s",
+                        folder,
+                        ", ".join(missing[:3]),
+                        more,
+                        f" (its results {', '.join(results)} go with it)" if results else "",
+                    )
+                    replace = True
+            elif folder.exists():
+                busy = live_claim_inside(folder)
+                if busy:
+                    return "failed", f"{folder}: incomplete (no {META_FILE}), but {busy}; run again when it is done"
+                log.warning("%s: incomplete press folder (no %s): removed, rendering it again", folder, META_FILE)
+                _remove_incomplete(folder)
+            _run_one(scene, job, out, replace)
+            return "rendered", None
+    except FileExistsError:  # published by a process that lost its claim: the folder is whole
+        if is_press_folder(out / job.name) and not overwrite and not same_spec(scene, job, out):
+            return "changed", changed_error(scene, job, out)
+        return "skipped", None
+    except OSError as exc:
+        return "oserror", (exc.errno, exc.strerror or str(exc), exc.filename or str(out / job.name))
+    except Exception as exc:  # reported per press; the other presses go on
+        return "failed", f"{type(exc).__name__}: {exc}"
+
+
+def _run_one(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = False) -> None:
+    from .press import render_press
+
+    render_press(scene, job.press, out / job.name, seed=job.seed, overwrite=overwrite)
+
+
+def _remove_incomplete(folder: Path) -> None:
+    """Remove a press folder without meta.json; the caller holds the press's claim.
+
+    The folder is first renamed to a temporary name owned by this process (so a clean-up elsewhere
+    removes what is left if this process dies while deleting), then deleted. A complete folder that
+    another process published in the instant between the check and the rename (possible only over an
+    empty folder) is put back.
+    """
+    from ..core.atomic import tmp_prefix
+
+    aside = folder.with_name(tmp_prefix(folder.name) + "incomplete-" + secrets.token_hex(4))
+    try:
+        os.rename(folder, aside)
+    except FileNotFoundError:
+        return
+    if is_press_folder(aside):
+        with contextlib.suppress(OSError):  # else a duplicate: cleaned as this process's leftover
+            os.rename(aside, folder)
+        return
+    if aside.is_dir() and not aside.is_symlink():
+        shutil.rmtree(aside)
+    else:
+        aside.unlink()
