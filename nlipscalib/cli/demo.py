@@ -52,8 +52,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.capture import load_press
+    from ..core.config import check_count
     from ..sim.dataset import REFERENCE_NAME, expand_jobs, load_dataset_spec, run_dataset, write_manifest
 
+    check_count("--solve-workers", args.solve_workers, minimum=1)  # before the renders, not after them
     out = Path(args.out)
     spec, scene = load_dataset_spec(args.spec)
     jobs = expand_jobs(spec)
@@ -64,10 +66,6 @@ def run(args: argparse.Namespace) -> int:
         for name, error in rendered["failed"]:
             print(f"{name}: {error}")
         return 1
-    if args.solve_workers < 1:
-        from ..core.errors import ConfigError
-
-        raise ConfigError(f"--solve-workers must be >= 1, got {args.solve_workers}")
     presses = [j for j in jobs if j.name != REFERENCE_NAME]
     failed = set()
     if not args.no_solve:
