@@ -121,7 +121,8 @@ def _run(args: argparse.Namespace) -> int:
     except (NlipsError, MissingDependencyError) as exc:
         return _fail(args, str(exc))
     except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
-        return _fail(args, describe_os_error(exc, overwrite_flag=hasattr(args, "overwrite"), where=_path_of(args)))
+        where, option = _path_of(args), _output_option(args)
+        return _fail(args, describe_os_error(exc, hasattr(args, "overwrite"), where=where, option=option))
     except KeyboardInterrupt:
         return _interrupted(args)
     except Exception:
@@ -265,28 +266,41 @@ def _release_multiprocessing_resources() -> None:
 
 
 def _path_of(args: argparse.Namespace) -> str | None:
-    """The command's output (or input) folder for an error line: the first of --out, PRESS, PRESSES that is one
-    path (``calibrate-leds`` takes a list of presses and ``capture --presses`` a count: neither names one)."""
-    for key in ("out", "press", "presses"):
+    """The command's output (or input) folder for an error line: the first of --out, --save (``nlips live``),
+    PRESS, PRESSES that is one path (``calibrate-leds`` takes a list of presses and ``capture --presses`` a
+    count: neither names one)."""
+    for key in ("out", "save", "press", "presses"):
         value = getattr(args, key, None)
         if isinstance(value, str | os.PathLike):
             return os.fspath(value)
     return None
 
 
-def describe_os_error(exc: OSError, overwrite_flag: bool = False, where: str | Path | None = None) -> str:
+def _output_option(args: argparse.Namespace) -> str:
+    """The option that names the command's output, for the remedy of an error line: ``--save`` for ``nlips live``
+    (it has no --out), else ``--out``."""
+    return "--save" if getattr(args, "out", None) is None and getattr(args, "save", None) else "--out"
+
+
+def describe_os_error(
+    exc: OSError, overwrite_flag: bool = False, where: str | Path | None = None, option: str = "--out"
+) -> str:
     """One line naming the path and the cause of a file-system error: the entry the user asked for, not a
     hidden temporary or claim beside it; ``where`` (the command's output or input) when the error names no
-    path (a full disk found while writing)."""
+    path (a full disk found while writing); ``option``: the flag naming the output, for the remedy."""
     from ..core.atomic import named_target
 
     cause = exc.strerror or str(exc)
+    in_the_way = f"a file where a folder is needed (choose another {option}, or move the file)"
     if exc.errno == errno.ENOSPC:
-        cause += " (the disk is full: free space or choose another --out)"
+        cause += f" (the disk is full: free space or choose another {option})"
     elif exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
         cause += " (choose a writable output folder)"
     elif isinstance(exc, FileExistsError) and _file_in_the_way(exc.filename, where):
-        cause = "a file where a folder is needed (choose another --out, or move the file)"
+        cause = in_the_way
+    elif exc.errno == errno.ENOTDIR and (blocker := _file_above(exc.filename)) is not None:
+        # "OUT/press/nlipsnet: Not a directory" named a path below the file the user gave
+        return f"{blocker}: {in_the_way}"
     elif isinstance(exc, FileExistsError) and overwrite_flag:
         cause += " (use --overwrite to replace it)"
     paths = [named_target(p) for p in (exc.filename, exc.filename2) if p is not None]
@@ -301,6 +315,16 @@ def _file_in_the_way(name: str | Path | None, where: str | Path | None) -> bool:
     if name is None or where is None or not Path(name).is_file():
         return False
     return Path(where).absolute().is_relative_to(Path(name).absolute())
+
+
+def _file_above(name: str | Path | None) -> Path | None:
+    """The file at or above ``name`` that a path was made through as if it were a folder (ENOTDIR), or None."""
+    if name is None:
+        return None
+    for part in (Path(name), *Path(name).parents):
+        if part.is_file():
+            return part
+    return None
 
 
 def _fail(args: argparse.Namespace, message: str) -> int:

@@ -60,8 +60,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
     import numpy as np
 
+    from ..core.atomic import check_writable
     from ..core.capture import load_press
     from ..core.config import check_count
     from ..core.errors import ConfigError
@@ -76,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--coating-reflectance must be in (0, 1], got {args.coating_reflectance}")
     if not 0 <= args.led_diameter < 50:
         raise ConfigError(f"--led-diameter must be 0-50 mm, got {args.led_diameter}")
+    if Path(args.out).is_dir():  # found after the fit as "OUT -> OUT: Is a directory"
+        raise ConfigError(f"--out {args.out}: a folder; give the LED file to write (e.g. {args.out}/leds.json)")
+    check_writable(Path(args.out).parent)  # a file in its place or a read-only disk: before the fit, not after it
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
     with working(f"calibrating {len(presses[0].leds)} LEDs from {len(presses)} capture(s)"):
         cal = calibrate_leds(

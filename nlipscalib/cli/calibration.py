@@ -68,6 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..core.atomic import check_writable
     from ..core.capture import REFERENCE_FOLDER, no_presses_error, read_meta, split_reference
     from ..core.config import check_count, options_named
     from ..core.cpus import usable_cores
@@ -100,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
     reference_fits(reference, presses)
     if args.leds is not None:
         led_file_fits(args.leds, reference)
+    out = Path(args.out) if args.out else root / DEFAULT_DIR
+    check_writable(out)  # a file in its place or a read-only disk: one line now, not after solving every press
     workers = args.workers or usable_cores()
     status = solve_all(presses, reference, workers=workers, progress=not args.no_progress, leds=args.leds)
     solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]
@@ -107,7 +110,6 @@ def run(args: argparse.Namespace) -> int:
     failed = {k: v for k, v in status.items() if v not in ("solved", "skipped")}
     if not solved:
         raise ConfigError(f"{root}: no press could be solved")
-    out = Path(args.out) if args.out else root / DEFAULT_DIR
     build_dataset(solved, reference, out, cfg, progress=not args.no_progress)
     data = CalibrationDataset(out)
     cov = coverage(data)

@@ -367,14 +367,24 @@ def _calibrated_camera(path: str | None) -> Camera | None:
     if not path:
         return None
     import json
+    from pathlib import Path
 
     from ..core.camera import Camera
     from ..core.errors import ConfigError
 
+    made_by = "the JSON file from `nlips calibrate-camera`"
     try:
-        return Camera.from_dict(json.loads(open(path).read())["camera"])
+        doc = json.loads(Path(path).read_text())
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such camera calibration file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: a folder, not a camera calibration file ({made_by})") from None
+    except ValueError as exc:  # not JSON, not UTF-8
+        raise ConfigError(f"{path}: not a camera calibration file ({exc})") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("camera"), dict):  # a list, an LED file, ...
+        raise ConfigError(f"{path}: not a camera calibration file (no 'camera' block; {made_by} has one)")
+    try:
+        return Camera.from_dict(doc["camera"])
     except (ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{path}: not a camera calibration file ({exc})") from None
 

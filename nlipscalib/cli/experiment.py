@@ -179,6 +179,8 @@ def _redraw(args: argparse.Namespace) -> int:
     report = Path(args.redraw)
     if report.name == RESULTS and report.is_file():  # the file itself named: its folder
         report = report.parent
+    if report.is_file():  # was "no such folder", of a path that exists
+        raise ConfigError(f"{report}: a file, not a report folder of nlips experiment (the folder holding {RESULTS})")
     done = redraw(get(args.name), report)
     print(f"{args.name}: redrew {', '.join(done.drawn)} in {report} from its {RESULTS}")
     for f in done.kept:

@@ -506,12 +506,17 @@ def listed_files(meta: dict) -> list[str]:
 
 def no_presses_error(root: str | Path) -> CaptureError:
     """The error for a ``root`` in which :func:`find_presses` found no press: a press folder that lacks its
-    meta.json says so (not "no press folders found", which sends the user looking for the wrong thing)."""
+    meta.json says so (not "no press folders found", which sends the user looking for the wrong thing), and so
+    does a reconstruction folder."""
     if is_incomplete_press(root):
         return CaptureError(
             f"{Path(root) / META_FILE}: missing; {root} holds press images but no {META_FILE} (an interrupted "
             "write or a deleted file): capture or render it again"
         )
+    from .reconstruction import RESULT_FILE
+
+    if (Path(root) / RESULT_FILE).is_file():  # PRESS/nlips given for PRESS: "no press folders found" said no more
+        return CaptureError(f"{root}: a reconstruction folder ({RESULT_FILE}), not a press: give the press folder")
     return CaptureError(f"{root}: no press folders found")
 
 

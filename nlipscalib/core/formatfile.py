@@ -27,8 +27,13 @@ def read_format_json(
     CaptureError -- missing, not JSON, another format or version, or a required key missing.
     """
     path = Path(path)
+    hint = f"; {missing_hint}" if missing_hint else ""
+    if path.parent.is_file():  # "FILE/index.json: missing" sent the user looking inside a file
+        raise CaptureError(f"{path.parent}: a file, not a folder{hint}")
+    if not path.parent.exists():
+        raise CaptureError(f"{path.parent}: no such folder")
     if not path.is_file():
-        raise CaptureError(f"{path}: missing" + (f"; {missing_hint}" if missing_hint else ""))
+        raise CaptureError(f"{path}: missing{hint}")
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -43,6 +43,8 @@ def read_led_file(path: str | Path) -> LedFile:
         leds = tuple(Led.from_dict(d) for d in data["leds"])
     except FileNotFoundError:
         raise CaptureError(f"{path}: no such LED file") from None
+    except IsADirectoryError:
+        raise CaptureError(f"{path}: a folder, not an LED file (the .json from `nlips calibrate-leds`)") from None
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
         raise CaptureError(f"{path}: not a valid LED file ({exc})") from None
     sensor = data.get("sensor")

@@ -45,6 +45,11 @@ if TYPE_CHECKING:  # torch is optional and imported where it is used: named for 
 
 log = logging.getLogger(__name__)
 
+MAX_HIDDEN_WIDTH = 4096
+"""Widest hidden layer TrainConfig accepts: 16x the paper's 256. Two such layers already hold 64 MB of weights
+(256 MB with Adam's moments) and a batch of 1024 samples 16 MB of activations per layer; a wider one is a slip
+(``--hidden 100000000``), which ran out of memory in the first batch, a traceback after loading the dataset."""
+
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
@@ -93,6 +98,8 @@ class TrainConfig:
             raise ConfigError(f"labels must be 'nlips' or 'true', got {self.labels!r}")
         if not self.hidden or any(not _is_int(h) or h < 1 for h in self.hidden):
             raise ConfigError(f"hidden must list positive layer widths, got {self.hidden}")
+        if max(self.hidden) > MAX_HIDDEN_WIDTH:
+            raise ConfigError(f"hidden must list layer widths of at most {MAX_HIDDEN_WIDTH}, got {self.hidden}")
         if not 0 <= self.dropout < 1:
             raise ConfigError(f"dropout must be in [0, 1), got {self.dropout}")
         for name, minimum in (("max_epochs", 1), ("patience", 0), ("batch_size", 1), ("seed", 0), ("threads", 1)):

@@ -212,7 +212,7 @@ def _resolve_leds(
         return None, None, None, None
     if isinstance(leds, (str, Path)):
         path = Path(leds)
-        if path.suffix.lower() == ".json" or path.is_file():
+        if path.suffix.lower() == ".json" or path.exists():  # a folder too: read_led_file says what it is
             led_file = read_led_file(path)
             return None, led_file.leds, str(path), led_file.sensor
         try:

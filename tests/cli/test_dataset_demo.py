@@ -89,15 +89,6 @@ def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
     assert "spec.toml" in capsys.readouterr().err
 
 
-def test_demo_refuses_a_bad_solve_worker_count_before_rendering(tmp_path, capsys):
-    spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC)
-    out = tmp_path / "demo"
-    assert main(["demo", "--spec", str(spec), "--out", str(out), "--solve-workers", "0"]) == 2
-    assert "--solve-workers" in capsys.readouterr().err
-    assert not out.exists() or not any(out.iterdir())  # nothing rendered first
-
-
 def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
     spec = tmp_path / "demo.toml"
     spec.write_text(

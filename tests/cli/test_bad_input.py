@@ -1,0 +1,176 @@
+"""Bad input found by a hostile audit of every `nlips` command: one line naming the file and the problem, exit 2,
+and refused before the long work (renders, solves, fits) rather than after it.
+
+Tiny presses (3 LEDs, 16x12, no rendering): each test takes well under a second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import json
+from pathlib import Path
+
+import pytest
+
+from nlipscalib.cli import describe_os_error, main
+from tests.core.test_capture import _press
+
+
+def _one_line_error(err: str, *needles: str) -> str:
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture
+def presses(tmp_path) -> Path:
+    """A folder of presses: reference/ and one press, p1/."""
+    root = tmp_path / "presses"
+    _press(root / "reference")
+    _press(root / "p1")
+    return root
+
+
+@pytest.fixture
+def a_file(tmp_path) -> Path:
+    path = tmp_path / "a file"
+    path.write_text("notes")
+    return path
+
+
+# ---------------------------------------------------------------------- a file where an output folder goes
+@pytest.mark.parametrize("below", ["x", "press/nlipsnet", "samples/.tmp-a.npz~host~1~x"])
+def test_a_path_made_through_a_file_names_the_file(a_file, below):
+    """`nlips infer PRESS --out FILE` said "FILE/press: Not a directory", `nlips calibrate --out FILE`
+    "FILE/samples: Not a directory": paths the user never typed, with no word of what to do."""
+    try:
+        (a_file / below).mkdir(parents=True)
+    except NotADirectoryError as exc:
+        line = describe_os_error(exc, where=a_file)
+    assert line == f"{a_file}: a file where a folder is needed (choose another --out, or move the file)"
+
+
+def test_lives_save_folder_is_the_option_named(a_file):
+    """`nlips live --save FILE` said "FILE: File exists" (live has no --out to name in the remedy)."""
+    from nlipscalib.cli import _output_option
+
+    args = argparse.Namespace(save=str(a_file))
+    try:
+        a_file.mkdir(parents=True, exist_ok=True)  # what the save sink does first
+    except FileExistsError as exc:
+        line = describe_os_error(exc, where=str(a_file), option=_output_option(args))
+    assert line == f"{a_file}: a file where a folder is needed (choose another --save, or move the file)"
+    assert _output_option(argparse.Namespace(out="o", save=None)) == "--out"
+
+
+# ---------------------------------------------------------------------- refused before the long work
+def test_calibrates_out_is_checked_before_any_press_is_solved(presses, a_file, monkeypatch, capsys):
+    """`nlips calibrate PRESSES --out FILE` solved every press, then failed naming FILE/samples."""
+    from nlipscalib.cli import calibration
+
+    monkeypatch.setattr(calibration, "solve_all", lambda *a, **k: pytest.fail("presses solved"))
+    assert main(["--no-progress", "calibrate", str(presses), "--out", str(a_file), "--min-leds", "3"]) == 2
+    _one_line_error(capsys.readouterr().err, f"{a_file}: a file where a folder is needed")
+
+
+@pytest.mark.parametrize("value", ["0", "-1"])
+def test_demos_solve_workers_is_checked_before_rendering(tmp_path, monkeypatch, capsys, value):
+    """`nlips demo --solve-workers -1` rendered every press (a minute and more) before refusing the option."""
+    from nlipscalib.sim import dataset
+
+    rendered = []
+    monkeypatch.setattr(dataset, "run_dataset", lambda *a, **k: rendered.append(a) or {"failed": []})
+    assert main(["--no-progress", "demo", "--solve-workers", value, "--out", str(tmp_path / "demo")]) == 2
+    _one_line_error(capsys.readouterr().err, f"--solve-workers: must be an integer >= 1, got {value}")
+    assert rendered == []
+
+
+@pytest.mark.parametrize("out", ["folder", "a file/leds.json"])
+def test_calibrate_leds_out_is_checked_before_the_fit(presses, a_file, monkeypatch, capsys, out):
+    """`nlips calibrate-leds --out FOLDER` fitted the LEDs, then said "FOLDER -> FOLDER: Is a directory"."""
+    from nlipscalib import solver
+
+    (presses.parent / "folder").mkdir()
+    monkeypatch.setattr(solver, "calibrate_leds", lambda *a, **k: pytest.fail("the fit ran"))
+    target = presses.parent / out
+    assert main(["--no-progress", "calibrate-leds", str(presses / "reference"), "--out", str(target)]) == 2
+    problem = "a folder; give the LED file to write" if out == "folder" else "a file where a folder is needed"
+    _one_line_error(capsys.readouterr().err, problem)
+
+
+def test_a_hidden_width_out_of_reach_is_refused_before_loading_the_dataset(tmp_path, capsys):
+    """`--hidden 100000000` loaded the dataset, then ran out of memory in the first batch: a torch traceback."""
+    assert main(["train", str(tmp_path / "missing"), "--out", str(tmp_path / "m.pt"), "--hidden", "64,100000000"]) == 2
+    _one_line_error(capsys.readouterr().err, "--hidden must list layer widths of at most 4096, got (64, 100000000)")
+
+
+# ---------------------------------------------------------------------- a file of the wrong kind named as such
+@pytest.mark.parametrize(
+    "content,problem",
+    [
+        ("[1, 2]", "not a camera calibration file (no 'camera' block"),  # was "list indices must be integers"
+        ('{"leds": []}', "not a camera calibration file (no 'camera' block"),  # an LED file: was "('camera')"
+        (None, "a folder, not a camera calibration file"),  # was "Is a directory"
+    ],
+)
+def test_a_camera_calibration_of_the_wrong_kind_says_what_it_is(tmp_path, content, problem):
+    from nlipscalib.cli.capture import _calibrated_camera
+    from nlipscalib.core.errors import ConfigError
+
+    path = tmp_path / "cam.json"
+    path.mkdir() if content is None else path.write_text(content)
+    with pytest.raises(ConfigError) as caught:
+        _calibrated_camera(str(path))
+    assert str(caught.value).startswith(f"{path}: {problem}"), caught.value
+
+
+def test_an_led_file_that_is_a_folder_is_called_a_folder(presses, tmp_path, capsys):
+    """`nlips solve --leds FOLDER` said "leds must be like '1,2,5'", capture --leds FOLDER "Is a directory"."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.core.ledfile import read_led_file
+
+    folder = tmp_path / "leds"
+    folder.mkdir()
+    with pytest.raises(CaptureError, match="a folder, not an LED file"):
+        read_led_file(folder)
+    assert main(["--no-progress", "solve", str(presses / "p1"), "--leds", str(folder)]) == 2
+    _one_line_error(capsys.readouterr().err, f"{folder}: a folder, not an LED file")
+
+
+@pytest.mark.parametrize(
+    "given,problem",
+    [
+        ("missing", "{path}: no such folder"),  # was "missing/index.json: missing; ..."
+        ("a file", "{path}: a file, not a folder; {path} is not a calibration dataset"),  # was "a file/index.json"
+    ],
+)
+def test_a_calibration_dataset_that_is_no_folder_says_so(tmp_path, a_file, capsys, given, problem):
+    path = tmp_path / given
+    assert main(["train", str(path), "--out", str(tmp_path / "m.pt")]) == 2
+    _one_line_error(capsys.readouterr().err, problem.format(path=path))
+
+
+def test_a_report_folder_that_is_a_file_is_called_a_file(a_file, capsys):
+    """`nlips experiment q1 --redraw FILE` said "FILE: no such folder" of a path that exists."""
+    assert main(["experiment", "q1", "--redraw", str(a_file)]) == 2
+    _one_line_error(capsys.readouterr().err, f"{a_file}: a file, not a report folder")
+
+
+def test_a_reconstruction_folder_given_as_a_press_is_named(presses, capsys):
+    """`nlips solve PRESS/nlips` said "no press folders found"."""
+    from nlipscalib.core.reconstruction import RESULT_FILE
+
+    result = presses / "p1" / "nlips"
+    result.mkdir()
+    (result / RESULT_FILE).write_bytes(b"PK")
+    (result / "report.json").write_text(json.dumps({}))
+    assert main(["--no-progress", "solve", str(result)]) == 2
+    _one_line_error(capsys.readouterr().err, f"{result}: a reconstruction folder (result.npz), not a press")
+
+
+def test_an_enotdir_below_no_file_keeps_the_systems_words(tmp_path):
+    exc = NotADirectoryError(errno.ENOTDIR, "Not a directory", str(tmp_path / "gone" / "x"))
+    assert describe_os_error(exc) == f"{tmp_path / 'gone' / 'x'}: Not a directory"
