@@ -115,7 +115,7 @@ class EmulatedCamera(FrameSource):
     ----------
     renders : TwinRenders
     latched : callable returning the board's latched colours, (L, 3) uint8
-    seed : noise seed of the frame sequence
+    seed : noise seed of the frame sequence (of each press's frames: :meth:`show` with its ``index``)
     latency_frames : frames between exposure and delivery (a real camera's buffer)
     flush_frames, average : as :class:`nlipscalib.device.camera.CameraSettings`
     """
@@ -131,6 +131,7 @@ class EmulatedCamera(FrameSource):
     ) -> None:
         self.renders = renders
         self.latched = latched
+        self.seed = seed
         self.rng = np.random.default_rng(seed)
         self.latency_frames = int(latency_frames)
         self.flush_frames = int(flush_frames)
@@ -145,8 +146,17 @@ class EmulatedCamera(FrameSource):
     def shape(self) -> tuple[int, int]:
         return self.renders.scene.camera_model().shape
 
-    def show(self, surface: PressConfig | None, moves_to: PressConfig | None = None, after: int = 0) -> None:
-        """The gel now looks like ``surface``; if ``moves_to``, it changes to that after ``after`` more frames."""
+    def show(
+        self, surface: PressConfig | None, moves_to: PressConfig | None = None, after: int = 0, index: int | None = None
+    ) -> None:
+        """The gel now looks like ``surface``; if ``moves_to``, it changes to that after ``after`` more frames.
+
+        ``index``: the session's press number (0: the reference). Its frames' noise then starts from the seed and
+        that number alone, not from the frames read before: a session resumed in a new process (after a kill)
+        captures each press as one uninterrupted run does, where a single stream gave every press after the
+        resume other noise."""
+        if index is not None:
+            self.rng = np.random.default_rng((self.seed, index))
         self.surface = surface
         self.pending = (self.frames_read + after, moves_to) if moves_to is not None else None
 
@@ -177,12 +187,12 @@ class ScriptedOperator(Operator):
 
     def reference(self) -> None:
         super().reference()
-        self.camera.show(None)
+        self.camera.show(None, index=0)
 
     def press(self, index: int, total: int) -> None:
         super().press(index, total)
         step = self._step(index)
-        self.camera.show(step.press, step.moved, step.move_after_frames)
+        self.camera.show(step.press, step.moved, step.move_after_frames, index=index)
 
     def retake(self, index: int, reason: str) -> None:
         super().retake(index, reason)

@@ -484,3 +484,42 @@ def test_cleaning_an_output_leaves_the_live_temporary_of_an_output_named_like_it
         tmp.mkdir()
     _clean_interrupted(tmp_path / "res")
     assert sibling.is_dir() and sibling_legacy.is_dir() and not legacy.exists()
+
+
+KILLED_AFTER_PUBLISHING = """
+import sys, time
+from nlipscalib.pipeline import solve as pipeline_solve
+from nlipscalib.pipeline import solve_folder
+from nlipscalib.solver import SolverOptions
+
+
+def published(*args):  # the result is in place, its claim not yet released: the moment the kill comes
+    print("published", flush=True)
+    time.sleep(60)
+
+
+pipeline_solve._log_solved = published
+solve_folder(sys.argv[1], options=SolverOptions(max_iters=6), figures=False)
+"""
+
+
+def test_a_result_kept_after_a_kill_loses_the_dead_runs_claim(press):
+    """A laptop dying between a press's publish and the release of its claim: the re-run reused the result
+    (rightly) but left the dead run's ``.claim-nlips`` beside it for good, as the only thing a re-run never
+    cleaned. Now a stale claim sends the re-run the claimed way, which takes it over and removes it."""
+    import signal
+    import subprocess
+    import sys
+
+    argv = [sys.executable, "-c", KILLED_AFTER_PUBLISHING, str(press)]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "published"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert (press / ".claim-nlips").exists()  # what the dead run left
+    assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"  # not solved again
+    assert not [p.name for p in press.iterdir() if p.name.startswith((".claim-", ".tmp-"))]

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
-from .tasks import REUSED, Task, execute, load_result
+from .tasks import REUSED, Task, clean_leftovers, execute, load_result
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
     from multiprocessing.context import SpawnProcess
@@ -65,6 +65,7 @@ def run_tasks(
     """
     out = Path(out)
     (out / "tasks").mkdir(parents=True, exist_ok=True)
+    clean_leftovers(out)  # a killed run's claim beside a task it finished: that task is skipped below
     status = RunStatus()
     todo = []
     for t in tasks:

@@ -11,8 +11,10 @@ worker that dies loses only the task it was running.
 from __future__ import annotations
 
 import dataclasses
+import glob
 import hashlib
 import json
+import logging
 import shutil
 import time
 from pathlib import Path
@@ -30,6 +32,7 @@ if TYPE_CHECKING:  # named in hints only
     from ..core.leds import Led
     from ..core.reconstruction import Reconstruction
 
+log = logging.getLogger(__name__)
 STAGES = {"reference": 0, "calibration": 1, "press": 2}
 SOLVES_DIR = "solves"
 """PRESS/solves/<variant hash>/: the pipeline's reconstruction of each solve variant of a press."""
@@ -143,6 +146,26 @@ def load_result(out: Path, task: Task) -> dict | None:
     except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
         return None
     return data if data.get("task_hash") == task.hash and data.get("status") == "done" else None
+
+
+def clean_leftovers(out: Path) -> None:
+    """Remove what killed runs left beside the task results in ``out/tasks``: temporaries of a result being
+    written, and claims whose owner is gone.
+
+    Why here, once per run: a run killed between writing a task's result and releasing its claim leaves a
+    finished task with a dead claim beside it, and a finished task is never claimed again (:func:`run_tasks`
+    skips it), so nothing else would ever remove that claim. A live run's claim and temporaries stay."""
+    from ..core.atomic import clean_interrupted
+    from ..core.claims import CLAIM_PREFIX, claim, holder
+
+    folder = Path(out) / "tasks"
+    for gone in clean_interrupted(folder):
+        log.warning("%s: removed (left by an interrupted run)", gone)
+    for stale in folder.glob(glob.escape(CLAIM_PREFIX) + "*.json"):
+        target = stale.with_name(stale.name[len(CLAIM_PREFIX) :])
+        if stale.exists() and holder(target) is None:
+            with claim(target):  # takes the dead owner's claim over (logged); releasing it removes the file
+                pass
 
 
 def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = False) -> str:

@@ -262,7 +262,7 @@ def build_dataset(
     ref = reference_arrays(ref_press)
     write_shard(out / SENSOR_FILE, ref)
     old = _old_entries(out)
-    entries = []
+    entries, kept_names = [], []
     for folder in track(list(press_folders), enabled=progress, desc="samples", unit="press"):
         folder = Path(folder)
         _wait_for_solver(folder / result_dir)
@@ -271,6 +271,7 @@ def build_dataset(
         kept = _kept_entry(shard, stamp, old.get(folder.name))
         if kept is not None:
             entries.append(kept)  # resumed: made from the same reconstruction and options
+            kept_names.append(folder.name)
             continue
         press = load_press(folder)
         check_sensor(sensor, sensor_of(press), folder)
@@ -287,6 +288,15 @@ def build_dataset(
         }
         write_shard(shard, samples | {ENTRY_KEY: _entry_bytes(entry)})
         entries.append(entry)
+    if kept_names:  # what a resumed build reused, as solve and experiment say theirs
+        shown = ", ".join(kept_names[:5]) + (f" and {len(kept_names) - 5} more" if len(kept_names) > 5 else "")
+        log.info(
+            "%s: samples of %d of %d presses kept (made from the same results and options): %s",
+            out,
+            len(kept_names),
+            len(entries),
+            shown,
+        )
     write_index(out, sensor, cfg, entries, str(Path(reference_folder).resolve()))
     return out
 

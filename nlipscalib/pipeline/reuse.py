@@ -85,8 +85,16 @@ def _what_changed(old: dict, new: dict) -> str:
 
 
 def _leftovers(out: Path) -> bool:
-    """Whether temporary entries of ``out`` (live or interrupted writes) lie beside it."""
-    return any(out.parent.glob(f"{TMP_PREFIX}{out.name}[~-]*"))
+    """Whether temporary entries of ``out`` (live or interrupted writes) or a dead run's claim lie beside it.
+
+    Why the claim: a run killed between publishing ``out`` and releasing its claim leaves a sound result with
+    the claim beside it; reusing the result without the claimed way (which takes a stale claim over and removes
+    it) left that claim there for good."""
+    from ..core.claims import claim_path, holder
+
+    if any(out.parent.glob(f"{TMP_PREFIX}{out.name}[~-]*")):
+        return True
+    return claim_path(out).exists() and holder(out) is None  # a live run's claim: its result is reused as it is
 
 
 def _clean_interrupted(out: Path) -> None:

@@ -50,3 +50,33 @@ def test_flushing_gives_the_current_light_and_surface():
     levels = [_level(cam.read(), resp) for _ in range(6)]
     # one stale "pressed" frame, then the undeformed gel until it moves after 3 reads, delivered 1 frame late
     assert np.allclose(levels, [0.2, 0.1, 0.1, 0.1, 0.2, 0.2], atol=1e-3)
+
+
+def _operator(seed):
+    from nlipscalib.emulator import ScriptedOperator, default_script
+
+    scene = SceneConfig().replace(camera={"width": 10, "height": 8}, noise={"enabled": True})
+    board = FakeController(12)
+    cam = EmulatedCamera(StubRenders(scene, 12), lambda: board.latched, seed=seed)
+    board.set_all(np.tile([[255, 255, 255]], (12, 1)))
+    return ScriptedOperator(cam, default_script(3), echo=lambda line: None), cam
+
+
+def test_a_session_resumed_in_a_new_process_captures_each_press_as_an_uninterrupted_one():
+    """`nlips capture --emulate` killed after press 1, then run again: the new process started the camera's noise
+    stream afresh at press 2, so every press after the resume had other noise than one uninterrupted session of
+    the same --seed gives (the images differed bit for bit). Each press's noise now starts from the seed and its
+    number."""
+    whole, cam = _operator(seed=5)
+    whole.reference()
+    cam.capture()
+    whole.press(1, 3)
+    cam.capture()
+    whole.press(2, 3)
+    uninterrupted = cam.capture()
+    resumed, cam = _operator(seed=5)  # the new process: the reference and press 1 are kept on disk
+    resumed.press(2, 3)
+    assert np.array_equal(cam.capture(), uninterrupted)
+    other, cam = _operator(seed=6)
+    other.press(2, 3)
+    assert not np.array_equal(cam.capture(), uninterrupted)  # the seed still decides the noise

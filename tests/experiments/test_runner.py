@@ -114,3 +114,45 @@ def test_a_worker_ends_when_the_command_that_started_it_is_killed(tmp_path):
     finally:
         with contextlib.suppress(psutil.Error):
             worker.kill()
+
+
+KILLED_AFTER_A_TASK = """
+import sys, time
+from nlipscalib.experiments import tasks
+from nlipscalib.experiments.tasks import Task, execute
+
+write = tasks.write_json
+
+
+def written_then_killed(path, obj):  # the task's result is in place, its claim not yet released
+    write(path, obj)
+    print("written", flush=True)
+    time.sleep(60)
+
+
+tasks.write_json = written_then_killed
+tasks._run_reference = lambda task, out, threads, keep: {}  # no render: the kill's moment is what matters
+execute(Task(kind="reference", id="ref-none", scene={}), sys.argv[1])
+"""
+
+
+def test_a_task_kept_after_a_kill_loses_the_dead_runs_claim(tmp_path):
+    """A laptop dying between a task's result and the release of its claim: the re-run reused the result
+    (rightly) but left the dead run's ``tasks/.claim-ID.json`` there for good. Now the re-run removes it."""
+    from nlipscalib.experiments.runner import run_tasks
+    from nlipscalib.experiments.tasks import Task
+
+    argv = [sys.executable, "-c", KILLED_AFTER_A_TASK, str(tmp_path)]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "written"
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    finally:
+        proc.kill()
+        proc.wait()
+    tasks = tmp_path / "tasks"
+    assert (tasks / ".claim-ref-none.json").exists()  # what the dead run left
+    status = run_tasks([Task(kind="reference", id="ref-none", scene={})], tmp_path, progress=False)
+    assert status.skipped == ["ref-none"] and not status.done  # reused, not run again
+    assert not [p.name for p in tasks.iterdir() if p.name.startswith((".claim-", ".tmp-"))]

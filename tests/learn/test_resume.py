@@ -417,3 +417,15 @@ def _interrupted_after_two_epochs(monkeypatch, run) -> None:
         patch.setattr(train_module, "_epoch", interrupted)
         with pytest.raises(KeyboardInterrupt):
             run()
+
+
+def test_a_resumed_build_says_which_presses_samples_it_kept(solved, built, caplog):
+    """`nlips calibrate` run again after a kill kept the finished shards without a word, where `nlips solve` and
+    `nlips experiment` say what they reused."""
+    (built / "index.json").unlink()  # killed before its index
+    (built / "samples" / "b_cube.npz").unlink()  # ... and before b_cube's shard
+    caplog.set_level(logging.INFO)
+    _build(solved, built)
+    assert "samples of 2 of 3 presses kept (made from the same results and options): a_sphere, c_sphere_deep" in (
+        caplog.text
+    )
