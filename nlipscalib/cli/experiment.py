@@ -82,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
     from ..experiments.framework import run_experiment
+    from ..experiments.runner import check_scheduler
     from ..experiments.summary import clean
     from .options import fill_defaults
 
@@ -96,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         )
     fill_defaults(args, {"size": "quick", "out": "out/experiments", "workers": 1})
     check_count("--workers", args.workers, minimum=1)
+    check_scheduler(args.scheduler)  # before anything: --plan never reached the runner, which checked it
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)
     size = "custom" if args.config else args.size

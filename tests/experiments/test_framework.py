@@ -111,6 +111,22 @@ def test_bad_input_is_one_line_and_exit_2(argv, message, capsys, tmp_path):
     assert len(err) == 1 and message in err[0]
 
 
+@pytest.mark.parametrize("scheduler, message", [("garbage", "give tcp://HOST:PORT or local:N"), ("local:0", ">= 1")])
+def test_a_malformed_scheduler_is_refused_up_front_with_plan_too(scheduler, message, tmp_path, monkeypatch, capsys):
+    """With --plan a malformed --scheduler exited 0 (the run refused it, once its tasks started)."""
+    from nlipscalib.experiments import framework
+
+    def ran(*args, **kwargs):
+        raise AssertionError("the experiment ran")
+
+    monkeypatch.setattr(framework, "run_experiment", ran)
+    for plan in ([], ["--plan"]):
+        assert main(["experiment", "q1", "--scheduler", scheduler, "--out", str(tmp_path / "work"), *plan]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("nlips experiment: error: --scheduler") and message in err[0], err
+    assert not (tmp_path / "work").exists()
+
+
 @pytest.mark.parametrize(
     "option, value, message",
     [
