@@ -87,6 +87,24 @@ def test_a_baseline_of_another_size_is_refused(tmp_path, capsys):
     assert "baseline of size 'medium', this run is 'quick'" in capsys.readouterr().err
 
 
+def test_a_shipped_baseline_is_named_by_its_name(tmp_path, capsys):
+    """--check took a path only: an installed wheel's user had no path to give for the shipped baseline."""
+    import argparse
+
+    from nlipscalib.cli import build_parser
+
+    from .conftest import BASELINE
+
+    assert check.baseline_path("q1_quick").read_bytes() == BASELINE.read_bytes()
+    assert main(["experiment", "q1", "--check", "q1_quick", "--out", str(tmp_path), "--plan"]) == 0
+    capsys.readouterr()
+    assert main(["experiment", "q1", "--check", "q1_slow", "--out", str(tmp_path), "--plan"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["nlips experiment: error: baseline 'q1_slow': no such file, nor a shipped baseline (q1_quick)"]
+    subs = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert "shipped with nlipscalib (q1_quick)" in " ".join(subs.choices["experiment"].format_help().split())
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
