@@ -173,3 +173,31 @@ def test_a_bare_name_is_a_shipped_dataset_spec_even_beside_a_folder_of_that_name
     assert dataset_spec_path("specs/x.toml") == Path("specs/x.toml")  # load_dataset_spec says it is missing
     with pytest.raises(ConfigError, match=r"^dataset spec 'train5O': no such file, nor a shipped dataset spec"):
         dataset_spec_path("train5O")
+
+
+def test_messages_naming_checkout_files_say_where_they_are():
+    """An error line "Is the nlips LED firmware flashed (firmware/README.md)?" sent a wheel's user to a file it
+    lacks. Every string the code shows (not a docstring) that names docs/, firmware/, scenes/ or the README says
+    where it is, or is help text of a command's ``register`` (whose help then carries ``cli.SOURCE_NOTE``,
+    tests/cli/test_help.py)."""
+    import ast
+    import re
+
+    names = re.compile(r"\b(docs|firmware|scenes|benchmarks)/|README")
+    found = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        skip = set()  # docstrings, and the strings of the commands' register functions
+        for node in ast.walk(tree):
+            body = getattr(node, "body", None)
+            for st in body if isinstance(body, list) else []:
+                if isinstance(st, ast.Expr) and isinstance(st.value, ast.Constant):
+                    skip.add(id(st.value))
+            if isinstance(node, ast.FunctionDef) and node.name == "register" and path.parent.name == "cli":
+                skip |= {id(n) for n in ast.walk(node)}
+        for node in ast.walk(tree):
+            text = node.value if isinstance(node, ast.Constant) else None
+            if isinstance(text, str) and id(node) not in skip and names.search(text):
+                if "source distribution" not in text:
+                    found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {text!r}")
+    assert not found, "\n".join(found)

@@ -67,7 +67,24 @@ def build_parser() -> argparse.ArgumentParser:
         module.register(sub)
     for command in sub.choices.values():
         command.description, command.epilog = plain_text(command.description), plain_text(command.epilog)
+        if _names_source_files(command):
+            command.epilog = f"{command.epilog}\n\n{SOURCE_NOTE}" if command.epilog else SOURCE_NOTE
     return parser
+
+
+SOURCE_FILES = re.compile(r"\b(docs|firmware)/")
+"""Paths of the checkout a help text may name (docs/formats.md, firmware/README.md)."""
+SOURCE_NOTE = (
+    "Files under docs/ or firmware/ named here are in the nlipscalib source distribution or repository, not in an "
+    "installed wheel."
+)
+"""Said under a command's help that names such a path: a wheel's user looked for it in vain."""
+
+
+def _names_source_files(command: argparse.ArgumentParser) -> bool:
+    """Whether the command's description, epilog or an option's help names a path of the checkout."""
+    texts = [command.description, command.epilog, *(a.help for a in command._actions)]
+    return any(SOURCE_FILES.search(t) for t in texts if isinstance(t, str))
 
 
 _MARKUP = re.compile(r":\w+:`([^`]+)`|``([^`]+)``")

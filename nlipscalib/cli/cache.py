@@ -11,6 +11,7 @@ else ``~/.cache/nlipscalib``; it holds at most ``$NLIPS_CACHE_MB`` megabytes (de
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -26,6 +27,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ..core import diskcache
 
+    if args.clear:
+        _check_clearable(diskcache.configured_folder())
     root = diskcache.folder()
     if root is None:
         print(f"cache: off ({diskcache.ENV_DIR}={os.environ.get(diskcache.ENV_DIR)!r})")
@@ -38,3 +41,19 @@ def run(args: argparse.Namespace) -> int:
     limit = diskcache.limit_bytes() / 2**20
     print(f"cache: {root}: {entries} entries, {size / 2**20:.1f} MB (at most {limit:.0f} MB)")
     return 0
+
+
+def _check_clearable(root: Path | None) -> None:
+    """--clear asked for, and a file where the cache folder should be: an error (solves only warn and go on
+    without the cache), naming the variable that says where the cache is."""
+    import os
+
+    from ..core import diskcache
+    from ..core.errors import ConfigError
+
+    if root is None or not root.exists() or root.is_dir():
+        return
+    where = f"{diskcache.ENV_DIR}={root}" if os.environ.get(diskcache.ENV_DIR) else f"{root} (the default cache folder)"
+    raise ConfigError(
+        f"{where}: a file, not a folder; nothing to clear (set {diskcache.ENV_DIR} to a folder, or to 'off')"
+    )

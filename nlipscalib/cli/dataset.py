@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "dataset",
         help="render many presses from a dataset spec (grid or random), in parallel, resumable",
-        description="Render every press of a dataset spec (TOML/YAML, see scenes/datasets/). "
+        description="Render every press of a dataset spec (a TOML/YAML file, or a shipped spec's name). "
         "Presses already rendered are skipped, so an interrupted run resumes where it stopped. Several "
         "runs of one spec (terminals, cluster array jobs, machines sharing the disk) may fill one folder at once: "
         "each press is claimed by one of them and rendered exactly once. A run of another spec is refused while "

@@ -1,4 +1,4 @@
-"""``nlips demo``: the README's main job on the built-in default scene.
+"""``nlips demo``: the main job (render, reconstruct, score) on the built-in default scene.
 
 Renders the undeformed NLiPsTac dome and a few presses with the digital twin, reconstructs each press
 with NLiPs around its contact, compares with the ground truth and writes a contact sheet PNG.
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--spec",
         default="demo",
-        help="dataset spec to render: a file or a shipped spec's name (default: demo, scenes/datasets/demo.toml)",
+        help="dataset spec to render: a file or a shipped spec's name (default: demo)",
     )
     p.add_argument("--workers", type=int, default=1, help="render processes (default 1: all cores to one)")
     p.add_argument(

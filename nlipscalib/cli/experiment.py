@@ -23,6 +23,8 @@ if TYPE_CHECKING:  # named in hints only: imported when an experiment runs
 def register(sub: argparse._SubParsersAction) -> None:
     import argparse
 
+    from ..experiments import shipped_baselines
+
     p = sub.add_parser(
         "experiment",
         help="run an experiment (q1, q2, ablation, q3, studies, presses, all) and write its report",
@@ -45,7 +47,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="KEY=VALUE",
         help="override a SolverOptions field in every solve (repeatable), e.g. max_iters=2",
     )
-    p.add_argument("--check", help="baseline JSON: exit 1 when an accuracy figure got worse than it")
+    p.add_argument(
+        "--check",
+        metavar="BASELINE",
+        help="baseline JSON file, or the name of one shipped with nlipscalib "
+        f"({', '.join(shipped_baselines())}): exit 1 when an accuracy figure got worse than it",
+    )
     p.add_argument("--write-baseline", help="write this run's accuracy figures as a baseline JSON")
     p.add_argument("--plan", action="store_true", help="only print how many tasks the experiment has (and done)")
     p.add_argument("--keep-presses", action="store_true", help="keep the rendered press folders")
@@ -82,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
     from ..experiments.framework import run_experiment
+    from ..experiments.runner import check_scheduler
     from ..experiments.summary import clean
     from .options import fill_defaults
 
@@ -96,10 +104,12 @@ def run(args: argparse.Namespace) -> int:
         )
     fill_defaults(args, {"size": "quick", "out": "out/experiments", "workers": 1})
     check_count("--workers", args.workers, minimum=1)
+    check_scheduler(args.scheduler)  # before anything: --plan never reached the runner, which checked it
     names = list(EXPERIMENTS) if args.name == "all" else [args.name]
     options = _options(args.solver_option)
     size = "custom" if args.config else args.size
-    baseline = check.load_baseline(Path(args.check), args.name, size) if args.check else None  # fail fast
+    # fail fast: a missing or unfit baseline is refused before the run, not after it
+    baseline = check.load_baseline(check.baseline_path(args.check), args.name, size) if args.check else None
     runs = []
     for name in names:
         exp = get(name)

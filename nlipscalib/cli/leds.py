@@ -77,9 +77,11 @@ def run(args: argparse.Namespace) -> int:
     if args.adalight is not None and args.adalight < 1:
         _refuse("--adalight needs the strip's LED count (>= 1)")
     if args.action == "state" and args.adalight is not None:
+        from ..device.controller import FIRMWARE_GUIDE
+
         _refuse(
             "state: an Adalight board cannot report what its LEDs show (its protocol has no replies); look at the "
-            "LEDs, or flash firmware/ (the nlips LED firmware reads them back: firmware/README.md)"
+            f"LEDs, or flash the nlips LED firmware, which reads them back ({FIRMWARE_GUIDE})"
         )
     if not args.timeout > 0 or not args.dwell >= 0:
         _refuse(f"--timeout must be > 0 and --dwell >= 0 seconds, got {args.timeout:g} and {args.dwell:g}")

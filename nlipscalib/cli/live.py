@@ -54,7 +54,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "frames stop looking like the model's calibration.",
     )
     p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
-    p.add_argument("--predictor", help="other predictor, module:function (see `nlips live` in the README)")
+    p.add_argument(
+        "--predictor", help=f"other predictor, module:function: a {PREDICTOR_USAGE} (nlipscalib.device.live)"
+    )
     p.add_argument(
         "--backend",
         default="auto",
@@ -89,6 +91,10 @@ def source_name(args: argparse.Namespace) -> str:
     return f"camera {camera}" if str(camera).isdigit() or str(camera).startswith("/dev/") else str(camera)
 
 
+PREDICTOR_USAGE = "function(camera_shape) returning a callable: stored frame -> LiveResult"
+"""What --predictor names, as its help and its errors say it (the help pointed to the README, not in a wheel)."""
+
+
 def _plugged(spec: str, shape: tuple[int, int]) -> tuple[Predict, None]:
     from ..core.errors import ConfigError
 
@@ -97,7 +103,7 @@ def _plugged(spec: str, shape: tuple[int, int]) -> tuple[Predict, None]:
         factory = getattr(importlib.import_module(module), name)
     except (ImportError, AttributeError, ValueError) as exc:
         raise ConfigError(f"--predictor {spec}: cannot load it ({exc}); give module:function") from None
-    usage = "function(camera_shape) returning a callable: stored frame -> LiveResult"
+    usage = PREDICTOR_USAGE
     if not callable(factory):
         raise ConfigError(f"--predictor {spec}: {type(factory).__name__} is not callable; give a {usage}")
     try:

@@ -427,9 +427,7 @@ def _check_units(meta: dict, path: Path) -> None:
         raise CaptureError(f"{path}: 'units' is {units!r}; captures are in millimetres ('mm'): convert the file")
     frame = meta.get("frame", "camera")
     if not (isinstance(frame, str) and frame.startswith("camera")):
-        raise CaptureError(
-            f"{path}: 'frame' is {frame!r}; captures are in the camera frame ('camera', docs/conventions.md)"
-        )
+        raise CaptureError(f"{path}: 'frame' is {frame!r}; captures are in the camera frame ('camera')")
 
 
 def _check_file_names(meta: dict, path: Path) -> None:

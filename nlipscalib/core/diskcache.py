@@ -68,18 +68,24 @@ def _warn_once(message: str, *args) -> None:
 
 
 def folder() -> Path | None:
-    """The cache folder, or None when the disk tier is off."""
+    """The cache folder, or None when the disk tier is off (a file in its place turns it off, said once)."""
+    root = configured_folder()
+    return None if root is None else _usable(root)
+
+
+def configured_folder() -> Path | None:
+    """The cache folder the environment names, whatever is there (a file, nothing yet); None when it is off."""
     env = os.environ.get(ENV_DIR)
     if env is not None:
         env = env.strip()
-        return None if env.lower() in ("", "off", "0", "none") else _usable(Path(env).expanduser())
+        return None if env.lower() in ("", "off", "0", "none") else Path(env).expanduser()
     base = os.environ.get("XDG_CACHE_HOME", "").strip()
     if not base:
         try:
             base = Path.home() / ".cache"
         except RuntimeError:  # no home folder (a bare service account): no disk tier
             return None
-    return _usable(Path(base) / "nlipscalib")
+    return Path(base) / "nlipscalib"
 
 
 def _usable(root: Path) -> Path | None:

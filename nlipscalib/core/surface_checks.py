@@ -55,7 +55,7 @@ def surface_problem(
     if facing_away.mean() > FACING_AWAY_MAJORITY:
         return (
             f"array 'normals' points away from the camera on {100 * facing_away.mean():.0f} % of the gel "
-            "(flipped? normals point toward the camera, docs/conventions.md)"
+            "(flipped? normals point toward the camera)"
         )
     gel_mm = float(np.median(np.linalg.norm(points, axis=-1)))
     led_mm = float(np.median([np.linalg.norm(led.position) for led in leds]))

@@ -278,7 +278,10 @@ class OpenCVSource(FrameSource):
         else:
             self.exposure_ms, self.gain = None, None
         self.average = settings.average
-        frame = self._grab()
+        try:
+            frame = self._grab()
+        except EndOfFrames:  # opened, yet not one frame: a file OpenCV took for a video or image but cannot decode
+            raise CaptureError(_not_opened(device, self.live)) from None
         self._shape = frame.shape[:2]
         self._first = frame  # the probe frame is handed out first, so files lose nothing
 
@@ -340,7 +343,7 @@ def _not_opened(device: int | str, live: bool) -> str:
     """Why OpenCV could not open ``device``: a file it cannot decode, or a camera; on Linux with the cameras
     present (``/dev/video*``)."""
     if not live:
-        return f"{device}: OpenCV cannot read it as a video (not a video file, damaged, or a codec it lacks)"
+        return f"{device}: OpenCV cannot read it as video or images (another kind of file, damaged, or a missing codec)"
     if not Path("/dev").is_dir():  # not Linux: OpenCV numbers the cameras itself
         return f"camera {device}: OpenCV could not open it (no such camera, unplugged, busy, or no permission)"
     video = sorted(Path("/dev").glob("video*"), key=lambda p: (len(p.name), p.name))

@@ -66,6 +66,9 @@ log = logging.getLogger(__name__)
 
 SUPPORTED_FIRMWARE_MAJOR = 1
 """Firmware major version this driver works with (the firmware in firmware/ reports 1.x.y)."""
+FIRMWARE_GUIDE = "firmware/README.md in the nlipscalib source distribution or repository"
+"""Where flashing the nlips LED firmware is explained, as messages name it: the firmware and its guide come with
+the sdist and the repository, not with an installed wheel, where a bare "firmware/README.md" is found nowhere."""
 MAX_RX_BUFFER = 8192
 
 
@@ -189,7 +192,8 @@ class LedController:
         if any(line.startswith(b"Ada") for line in self._foreign):
             return WrongDeviceError(
                 f"{self.url}: this board prints 'Ada': it runs Adalight firmware, not the nlips LED firmware. "
-                "Drive it with nlipscalib.device.adalight.AdalightController, or flash firmware/ (see its README)"
+                "Drive it with nlipscalib.device.adalight.AdalightController, or flash the nlips LED firmware "
+                f"({FIRMWARE_GUIDE})"
             )
         tries = f"{self.url}: no answer to HELLO after {self.retries + 1} tries of {self.timeout:g} s"
         if self._echoes and not heard:  # loop:// or a wire from TX to RX: the line rate cannot be the cause
@@ -200,7 +204,7 @@ class LedController:
         unreadable = self._unreadable + len(self._rx)  # with the half line left over
         if heard:
             return DeviceTimeoutError(
-                f'{tries}. It printed "{heard}". Is the nlips LED firmware flashed (firmware/README.md)? '
+                f'{tries}. It printed "{heard}". Is the nlips LED firmware flashed ({FIRMWARE_GUIDE})? '
                 f"{_rate_hint(self.baudrate)}"
             )
         if self._bad_checksums:  # protocol lines, so the line rate is right; each is answered by a resend at once
@@ -215,7 +219,7 @@ class LedController:
                 f"line rate does. {_rate_hint(self.baudrate)}"
             )
         return DeviceTimeoutError(
-            f"{tries}: nothing came back. Is the nlips LED firmware flashed (firmware/README.md) and the board on "
+            f"{tries}: nothing came back. Is the nlips LED firmware flashed ({FIRMWARE_GUIDE}) and the board on "
             f"this port? {_rate_hint(self.baudrate)}"
         )
 
@@ -423,7 +427,7 @@ class LedController:
             except p.FrameError as exc:  # its checksum held: not noise but a board describing itself wrongly
                 raise WrongDeviceError(
                     f"{self.url}: unexpected boot banner: {exc}. Is the nlips LED firmware of this version flashed "
-                    "(firmware/README.md)?"
+                    f"({FIRMWARE_GUIDE})?"
                 ) from None
             log.debug("%s: board booted (session %s)", self.url, info.session_id)
             self._reset_seen = True
@@ -491,13 +495,13 @@ def _check_versions(url: str, info: p.BoardInfo) -> None:
     if info.protocol != p.PROTOCOL_VERSION:
         raise ProtocolVersionError(
             f"{url}: the board speaks LED protocol {info.protocol}, this nlipscalib speaks {p.PROTOCOL_VERSION}: "
-            "flash the firmware shipped with this version (firmware/README.md) or update nlipscalib"
+            f"flash the firmware of this version ({FIRMWARE_GUIDE}) or update nlipscalib"
         )
     major = info.firmware.split(".", 1)[0]
     if not major.isdigit() or int(major) != SUPPORTED_FIRMWARE_MAJOR:
         raise ProtocolVersionError(
             f"{url}: firmware {info.firmware} is not a {SUPPORTED_FIRMWARE_MAJOR}.x nlips LED firmware: "
-            "flash firmware/ from this version of nlipscalib (firmware/README.md)"
+            f"flash the nlips LED firmware of this version of nlipscalib ({FIRMWARE_GUIDE})"
         )
 
 

@@ -8,6 +8,7 @@ Dask cluster with identical numbers, and an interrupted run resumes. See docs/ex
 from __future__ import annotations
 
 import importlib
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError
@@ -56,6 +57,13 @@ GUIDE = {
 ``--workers 2`` on a shared 2-core machine (docs/experiments/RESULTS.md; a GPU or more cores take less)."""
 UNAVAILABLE: dict[str, str] = {}
 """Experiments of the issue that cannot run yet, with the reason."""
+BASELINES_DIR = Path(__file__).resolve().parent / "baselines"
+"""Baselines shipped in the package (``--check NAME``): an installed wheel has no checkout to name them by path."""
+
+
+def shipped_baselines() -> list[str]:
+    """Names of the shipped baselines (``q1_quick``), for ``nlips experiment --check NAME``."""
+    return sorted(p.stem for p in BASELINES_DIR.glob("*.json"))
 
 
 def get(name: str) -> Experiment:

@@ -27,6 +27,26 @@ def baseline_document(experiment: str, size: str, figures: dict[str, float]) -> 
     return {"experiment": experiment, "size": size, "figures": figures, "tolerances": tol}
 
 
+def baseline_path(given: str | Path) -> Path:
+    """The baseline file ``given`` names: a path as given, or a bare name such as ``"q1_quick"`` looked up in the
+    shipped baselines (as ``nlips dataset train50`` finds a shipped spec: ``sim.scene.dataset_spec_path``).
+
+    Raises
+    ------
+    ConfigError
+        A bare name that is no file here nor a shipped baseline (the line lists the shipped ones).
+    """
+    from . import BASELINES_DIR, shipped_baselines
+
+    path = Path(given)
+    if path.is_file() or path.suffix or len(path.parts) > 1:  # a path: load_baseline says what is wrong with it
+        return path
+    if not (BASELINES_DIR / f"{path}.json").is_file():
+        shipped = ", ".join(shipped_baselines())
+        raise ConfigError(f"baseline {str(path)!r}: no such file, nor a shipped baseline ({shipped})")
+    return BASELINES_DIR / f"{path}.json"
+
+
 def load_baseline(path: Path, experiment: str, size: str | None = None) -> dict:
     """The baseline document at ``path``: ConfigError (naming it) unless it is one of ``experiment`` at ``size``
     (a baseline of another size holds other figures: a quick run checked against a medium one passed unsaid)."""

@@ -114,14 +114,12 @@ class _backend:
             raise MissingDependencyError(
                 "--scheduler needs dask.distributed: pip install 'nlipscalib[cluster]'"
             ) from None
-        if self.scheduler.startswith("local:"):
-            n = _count(self.scheduler.removeprefix("local:"))
+        n = check_scheduler(self.scheduler)
+        if n is not None:
             self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
             self.client = Client(self.cluster)
             self.threads = max(1, usable_cores() // n)
         else:
-            if "://" not in self.scheduler:
-                raise ConfigError(f"--scheduler {self.scheduler!r}: give tcp://HOST:PORT or local:N")
             try:
                 self.client = Client(self.scheduler, timeout="30s")
             except (OSError, TimeoutError) as exc:
@@ -304,6 +302,22 @@ def _sigint_ignored():
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+def check_scheduler(scheduler: str | None) -> int | None:
+    """The form of ``--scheduler``, checked before any work (``--plan`` included; nothing is contacted).
+
+    Returns
+    -------
+    N of "local:N"; None for no scheduler or a scheduler's address ("tcp://host:8786")
+    """
+    if scheduler is None:
+        return None
+    if scheduler.startswith("local:"):
+        return _count(scheduler.removeprefix("local:"))
+    if "://" not in scheduler:
+        raise ConfigError(f"--scheduler {scheduler!r}: give tcp://HOST:PORT or local:N")
+    return None
 
 
 def _count(text: str) -> int:

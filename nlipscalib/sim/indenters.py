@@ -349,6 +349,8 @@ def with_mesh_beside(indenter: object, folder: Path) -> object:
 def _load_mesh(cfg: IndenterConfig) -> trimesh.Trimesh:
     """Read a user's indenter mesh; it must be a closed solid (small holes are repaired, with a warning)."""
     path = Path(cfg.mesh).expanduser()
+    if path.is_dir():
+        raise ConfigError(f"indenter mesh {path}: a folder, not a mesh file (give one file: {', '.join(MESH_TYPES)})")
     if not path.is_file():
         raise ConfigError(f"indenter mesh {path}: no such file")
     suffix = path.suffix.lower().lstrip(".")

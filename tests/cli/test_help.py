@@ -30,3 +30,16 @@ def test_eval_help_names_the_region_default(capsys):
         main(["eval", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "pixels to score: all (default:" in text
+
+
+@pytest.mark.parametrize("name", sorted(_commands()))
+def test_help_says_where_the_checkout_files_it_names_are(name):
+    """Help naming docs/formats.md or firmware/README.md was a dead end for a wheel's user (those come with the
+    sdist or the repository only); scenes/ paths and the README have built-in alternatives (a shipped name, the
+    text itself)."""
+    from nlipscalib.cli import SOURCE_NOTE
+
+    text = " ".join(_commands()[name].format_help().split())
+    assert "scenes/" not in text and "README" not in text.replace("firmware/README.md", "")
+    if "docs/" in text or "firmware/" in text:
+        assert " ".join(SOURCE_NOTE.split()) in text

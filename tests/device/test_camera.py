@@ -187,7 +187,27 @@ def test_a_camera_that_is_not_there_is_one_line_without_opencv_warnings(command,
     assert main(args + [str(tmp_path / "garbage.avi")]) == 2
     err = capfd.readouterr().err.splitlines()
     assert err == [
-        f"nlips {command}: error: {tmp_path / 'garbage.avi'}: OpenCV cannot read it as a video (not a "
-        "video file, damaged, or a codec it lacks)"
+        f"nlips {command}: error: {tmp_path / 'garbage.avi'}: OpenCV cannot read it as video or images (another "
+        "kind of file, damaged, or a missing codec)"
     ]
     assert not (tmp_path / "s").exists()  # nothing captured
+
+
+def test_a_file_opencv_opens_but_gives_no_frame_is_named_unreadable(tmp_path):
+    """A file with an image's name but not an image: OpenCV opens it, then gives no frame; that was called
+    "camera FILE: no frame (end of file)". In its own process: FFmpeg's log level (which keeps its "Invalid PNG
+    signature" line off stderr) is read once, when a process first loads FFmpeg, perhaps by an earlier test here."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    fake = tmp_path / "fake.png"
+    fake.write_text("not an image")
+    argv = ["live", "--predictor", "tests.device.fakes:flat_predictor", "--no-window", "--camera", str(fake)]
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, "-m", "nlipscalib", *argv], capture_output=True, text=True, cwd=root)
+    assert done.returncode == 2
+    assert done.stderr.splitlines() == [
+        f"nlips live: error: {fake}: OpenCV cannot read it as video or images (another kind of file, damaged, or "
+        "a missing codec)"
+    ]

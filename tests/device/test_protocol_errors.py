@@ -59,8 +59,10 @@ def test_wrong_protocol_version():
 
 def test_wrong_firmware_version():
     board = VirtualBoard(4, firmware="2.0.0")
-    with pytest.raises(c.ProtocolVersionError, match="firmware 2.0.0"):
+    with pytest.raises(c.ProtocolVersionError, match="firmware 2.0.0") as raised:
         c.LedController.open(board.url, timeout=0.2)
+    # it said "(firmware/README.md)": an installed wheel has no firmware/ to look in
+    assert str(raised.value).endswith("(firmware/README.md in the nlipscalib source distribution or repository)")
 
 
 def test_wrong_led_count():

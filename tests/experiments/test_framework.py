@@ -87,6 +87,24 @@ def test_a_baseline_of_another_size_is_refused(tmp_path, capsys):
     assert "baseline of size 'medium', this run is 'quick'" in capsys.readouterr().err
 
 
+def test_a_shipped_baseline_is_named_by_its_name(tmp_path, capsys):
+    """--check took a path only: an installed wheel's user had no path to give for the shipped baseline."""
+    import argparse
+
+    from nlipscalib.cli import build_parser
+
+    from .conftest import BASELINE
+
+    assert check.baseline_path("q1_quick").read_bytes() == BASELINE.read_bytes()
+    assert main(["experiment", "q1", "--check", "q1_quick", "--out", str(tmp_path), "--plan"]) == 0
+    capsys.readouterr()
+    assert main(["experiment", "q1", "--check", "q1_slow", "--out", str(tmp_path), "--plan"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["nlips experiment: error: baseline 'q1_slow': no such file, nor a shipped baseline (q1_quick)"]
+    subs = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert "shipped with nlipscalib (q1_quick)" in " ".join(subs.choices["experiment"].format_help().split())
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [
@@ -109,6 +127,22 @@ def test_bad_input_is_one_line_and_exit_2(argv, message, capsys, tmp_path):
     assert main(argv + ["--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
+
+
+@pytest.mark.parametrize("scheduler, message", [("garbage", "give tcp://HOST:PORT or local:N"), ("local:0", ">= 1")])
+def test_a_malformed_scheduler_is_refused_up_front_with_plan_too(scheduler, message, tmp_path, monkeypatch, capsys):
+    """With --plan a malformed --scheduler exited 0 (the run refused it, once its tasks started)."""
+    from nlipscalib.experiments import framework
+
+    def ran(*args, **kwargs):
+        raise AssertionError("the experiment ran")
+
+    monkeypatch.setattr(framework, "run_experiment", ran)
+    for plan in ([], ["--plan"]):
+        assert main(["experiment", "q1", "--scheduler", scheduler, "--out", str(tmp_path / "work"), *plan]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("nlips experiment: error: --scheduler") and message in err[0], err
+    assert not (tmp_path / "work").exists()
 
 
 @pytest.mark.parametrize(

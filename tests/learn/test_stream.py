@@ -109,6 +109,12 @@ def test_unreadable_video_and_missing_camera_are_named(trained, tmp_path, capsys
     assert "broken.mp4" in _one_line_error(capsys)
     assert main(["infer", str(trained), "--camera", "/dev/nlips-no-such-camera"]) != 0
     assert "camera /dev/nlips-no-such-camera" in _one_line_error(capsys)
+    fake = tmp_path / "fake.png"  # OpenCV opens it, then gives no frame: was "no frame (end of file)"
+    fake.write_bytes(b"not an image" * 100)
+    assert main(["infer", str(trained), "--camera", str(fake)]) != 0
+    assert _one_line_error(capsys).endswith(
+        f"{fake}: OpenCV cannot read it as video or images (another kind of file, damaged, or a missing codec)"
+    )
 
 
 def test_a_stream_is_not_mixed_with_other_inputs(trained, twin_presses, video, capsys):

@@ -76,6 +76,16 @@ def test_render_indenter_option_mistakes_are_one_line(tmp_path, capsys, argv, me
     assert not out.exists()
 
 
+def test_a_folder_given_as_the_mesh_is_named_a_folder(tmp_path, capsys):
+    """A folder given to --mesh was said to be "no such file", though it exists."""
+    folder = tmp_path / "meshes"
+    folder.mkdir()
+    assert main(["render", "--mesh", str(folder), *TINY, "--out", str(tmp_path / "press")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"nlips render: error: indenter mesh {folder}: a folder, not a mesh")
+    assert not (tmp_path / "press").exists()
+
+
 def test_a_press_no_pixel_shows_is_rendered_with_a_warning(tmp_path, caplog):
     """A press beyond the camera's view (polar 80 deg: the fisheye sees up to about 60) rendered silently, its
     images the undeformed gel's; a press in view gives no warning."""
