@@ -168,7 +168,9 @@ def _check_video(path: str) -> None:
     cap = cv2.VideoCapture(opencv_path(path))
     try:
         if not cap.isOpened() or not cap.grab():
-            raise CaptureError(f"{path}: not a readable video (OpenCV cannot decode it)")
+            from ..device.camera import unreadable_file
+
+            raise CaptureError(unreadable_file(path))
     finally:
         cap.release()
 

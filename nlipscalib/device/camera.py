@@ -339,11 +339,16 @@ def _quiet_opencv(cv2: ModuleType) -> Iterator[None]:
         logging_.setLogLevel(level)
 
 
+def unreadable_file(path: int | str) -> str:
+    """The one line for a file OpenCV cannot decode (``live``, ``capture``, and ``infer``'s own video check)."""
+    return f"{path}: OpenCV cannot read it as video or images (another kind of file, damaged, or a missing codec)"
+
+
 def _not_opened(device: int | str, live: bool) -> str:
     """Why OpenCV could not open ``device``: a file it cannot decode, or a camera; on Linux with the cameras
     present (``/dev/video*``)."""
     if not live:
-        return f"{device}: OpenCV cannot read it as video or images (another kind of file, damaged, or a missing codec)"
+        return unreadable_file(device)
     if not Path("/dev").is_dir():  # not Linux: OpenCV numbers the cameras itself
         return f"camera {device}: OpenCV could not open it (no such camera, unplugged, busy, or no permission)"
     video = sorted(Path("/dev").glob("video*"), key=lambda p: (len(p.name), p.name))

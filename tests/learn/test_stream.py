@@ -105,8 +105,10 @@ def test_video_of_another_size_is_refused_in_one_line(trained, twin_presses, tmp
 def test_unreadable_video_and_missing_camera_are_named(trained, tmp_path, capsys):
     bad = tmp_path / "broken.mp4"
     bad.write_bytes(b"not a video" * 100)
-    assert main(["infer", str(trained), str(bad)]) != 0
-    assert "broken.mp4" in _one_line_error(capsys)
+    assert main(["infer", str(trained), str(bad)]) != 0  # the same line as `--camera FILE` below
+    assert _one_line_error(capsys).endswith(
+        f"{bad}: OpenCV cannot read it as video or images (another kind of file, damaged, or a missing codec)"
+    )
     assert main(["infer", str(trained), "--camera", "/dev/nlips-no-such-camera"]) != 0
     assert "camera /dev/nlips-no-such-camera" in _one_line_error(capsys)
     fake = tmp_path / "fake.png"  # OpenCV opens it, then gives no frame: was "no frame (end of file)"
