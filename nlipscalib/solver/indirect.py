@@ -568,6 +568,7 @@ def surface_indirect(
     size: int | None = None,
     shading: np.ndarray | None = None,
     surface: Surface | None = None,
+    window: tuple[slice, slice] | None = None,
 ) -> np.ndarray:
     """Indirect light ``B = kappa rho_p G(p)`` of a surface, at the receiver pixels.
 
@@ -587,10 +588,14 @@ def surface_indirect(
         has it; None: computed here.
     surface : Surface or None -- this surface as patches when the caller has it (e.g. from
         :meth:`Surface.replaced`); ``depth``, ``normals``, ``size`` and ``shading`` are then not read.
+    window : (rows, columns) slices or None -- the part of the frame to return; it holds every receiver (the
+        outer loop's box: no whole-frame array per pass, whose pages cost ~35 ms to touch at 640x480). None:
+        the whole frame.
 
     Returns
     -------
-    (L, H, W, 3) float32 -- linear image units (``Press.linear`` scale); 0 outside ``receivers``.
+    (L, H, W, 3) float32, or (L, h, w, 3) over ``window`` -- linear image units (``Press.linear`` scale); 0
+    outside ``receivers``.
     """
     surf = surface if surface is not None else Surface(camera, leds, depth, normals, size, shading)
     albedo = np.where(surf.valid[..., None], np.nan_to_num(albedo), 0.0)
@@ -606,7 +611,10 @@ def surface_indirect(
     G_all = _gather_at(surf, rho_patch, model, want)
     g = np.zeros((len(surf.leds), h, w, 3), np.float32)
     g[:, want] = G_all
-    B = np.zeros((len(surf.leds), H, W, 3), np.float32)
+    rows, cols = (range(H), range(W)) if window is None else (range(H)[window[0]], range(W)[window[1]])
+    if receivers[rows.start : rows.stop, cols.start : cols.stop].sum() != receivers.sum():
+        raise ValueError(f"the window {window} must hold every receiver")
+    B = np.zeros((len(surf.leds), len(rows), len(cols), 3), np.float32)
     if not receivers.any():
         return B
     # upsample only the patches around the receivers (one patch of margin: the bilinear weights of every
@@ -617,7 +625,11 @@ def surface_indirect(
     up = radiosity.upsample(g[:, pr, pc], (win[0].stop - win[0].start, win[1].stop - win[1].start), size)
     block = np.asarray(model.kappa, np.float32) * albedo[win].astype(np.float32)[None] * up
     block[:, ~receivers[win]] = 0.0
-    B[:, win[0], win[1]] = block
+    # the patch window's part inside the returned one (outside it: no receiver, no light)
+    r0, r1 = max(win[0].start, rows.start), min(win[0].stop, rows.stop)
+    c0, c1 = max(win[1].start, cols.start), min(win[1].stop, cols.stop)
+    part = block[:, r0 - win[0].start : r1 - win[0].start, c0 - win[1].start : c1 - win[1].start]
+    B[:, r0 - rows.start : r1 - rows.start, c0 - cols.start : c1 - cols.start] = part
     return B
 
 
