@@ -410,18 +410,34 @@ def _patch_data(cache: dict, exclude: np.ndarray | None) -> tuple[np.ndarray, np
     patches over the excluded pixels are recomputed."""
     surf, lin, usable = cache["surface"], cache["linear"], cache["usable"]
     if "image_means" not in cache:
-        cache["image_means"] = radiosity.patch_mean(surf.patches, lin * usable)
-        cache["usable_means"] = radiosity.patch_mean(surf.patches, usable)
+        if usable is None:  # every sample of the gel usable: the patch weights, zero off the gel, mask alone
+            cache["image_means"] = radiosity.patch_mean(surf.patches, lin)
+            one = radiosity.patch_mean(surf.patches, _usable(cache, (slice(None), slice(None))))
+            cache["usable_means"] = np.broadcast_to(one, (len(lin),) + one.shape[1:])  # each LED's alike
+        else:
+            cache["image_means"] = radiosity.patch_mean(surf.patches, lin * usable)
+            cache["usable_means"] = radiosity.patch_mean(surf.patches, usable)
     img, frac = cache["image_means"], cache["usable_means"]
     if exclude is not None and exclude.any():
         pr, pc, win = _patch_window(exclude, surf.size)
-        usable = usable[:, win[0], win[1]].copy()
+        usable = _usable(cache, win)  # a copy
         usable[:, exclude[win]] = 0.0
         sub_lin = lin[:, win[0], win[1]]
         img, frac = img.copy(), frac.copy()
         img[:, pr, pc] = _window_mean(surf.patches, sub_lin * usable, pr, pc, win)
         frac[:, pr, pc] = _window_mean(surf.patches, usable, pr, pc, win)
     return img[:, surf.keep], frac[:, surf.keep]
+
+
+def _usable(cache: dict, window: tuple[slice, slice]) -> np.ndarray:
+    """(L, h, w, 3) or (1, h, w, 3) float32, a new array -- 1 where a sample of the pixels in ``window`` (rows,
+    columns) is usable, else 0 (off the gel, saturated, or of a dead LED): ``cache["usable"]`` there, or, when that
+    is None (every sample of the gel usable), the gel's mask, the same for every LED."""
+    usable = cache["usable"]
+    if usable is not None:
+        return usable[:, window[0], window[1]].copy()
+    gel = cache["surface"].valid[window]
+    return np.repeat(gel[None, ..., None], 3, axis=3).astype(np.float32)
 
 
 def _alternate(
@@ -476,10 +492,13 @@ def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | None) -> dic
     # float32 (as loaded) is enough: the patch means multiply by float64 areas and sum in float64, and
     # a 0/1 usable mask multiplies exactly; float64 copies of these (L, H, W, 3) arrays cost 0.25 s
     lin = reference.linear_led_images
-    usable = (~reference.saturated(reference.led_images)).astype(np.float32)
-    usable[:, ~surf.valid] = 0.0
     live = led_levels(lin, surf.valid) >= tolerances.LIT_LEVEL
-    usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
+    saturated = reference.saturated(reference.led_images)
+    usable = None  # the usual case, every LED live and nothing saturated on the gel: no (L, H, W, 3) mask
+    if not live.all() or (saturated.any() and saturated[:, surf.valid].any()):
+        usable = (~saturated).astype(np.float32)
+        usable[:, ~surf.valid] = 0.0
+        usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
     return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
 
 
@@ -549,6 +568,7 @@ def surface_indirect(
     size: int | None = None,
     shading: np.ndarray | None = None,
     surface: Surface | None = None,
+    window: tuple[slice, slice] | None = None,
 ) -> np.ndarray:
     """Indirect light ``B = kappa rho_p G(p)`` of a surface, at the receiver pixels.
 
@@ -568,10 +588,14 @@ def surface_indirect(
         has it; None: computed here.
     surface : Surface or None -- this surface as patches when the caller has it (e.g. from
         :meth:`Surface.replaced`); ``depth``, ``normals``, ``size`` and ``shading`` are then not read.
+    window : (rows, columns) slices or None -- the part of the frame to return; it holds every receiver (the
+        outer loop's box: no whole-frame array per pass, whose pages cost ~35 ms to touch at 640x480). None:
+        the whole frame.
 
     Returns
     -------
-    (L, H, W, 3) float32 -- linear image units (``Press.linear`` scale); 0 outside ``receivers``.
+    (L, H, W, 3) float32, or (L, h, w, 3) over ``window`` -- linear image units (``Press.linear`` scale); 0
+    outside ``receivers``.
     """
     surf = surface if surface is not None else Surface(camera, leds, depth, normals, size, shading)
     albedo = np.where(surf.valid[..., None], np.nan_to_num(albedo), 0.0)
@@ -587,7 +611,10 @@ def surface_indirect(
     G_all = _gather_at(surf, rho_patch, model, want)
     g = np.zeros((len(surf.leds), h, w, 3), np.float32)
     g[:, want] = G_all
-    B = np.zeros((len(surf.leds), H, W, 3), np.float32)
+    rows, cols = (range(H), range(W)) if window is None else (range(H)[window[0]], range(W)[window[1]])
+    if receivers[rows.start : rows.stop, cols.start : cols.stop].sum() != receivers.sum():
+        raise ValueError(f"the window {window} must hold every receiver")
+    B = np.zeros((len(surf.leds), len(rows), len(cols), 3), np.float32)
     if not receivers.any():
         return B
     # upsample only the patches around the receivers (one patch of margin: the bilinear weights of every
@@ -598,7 +625,11 @@ def surface_indirect(
     up = radiosity.upsample(g[:, pr, pc], (win[0].stop - win[0].start, win[1].stop - win[1].start), size)
     block = np.asarray(model.kappa, np.float32) * albedo[win].astype(np.float32)[None] * up
     block[:, ~receivers[win]] = 0.0
-    B[:, win[0], win[1]] = block
+    # the patch window's part inside the returned one (outside it: no receiver, no light)
+    r0, r1 = max(win[0].start, rows.start), min(win[0].stop, rows.stop)
+    c0, c1 = max(win[1].start, cols.start), min(win[1].stop, cols.stop)
+    part = block[:, r0 - win[0].start : r1 - win[0].start, c0 - win[1].start : c1 - win[1].start]
+    B[:, r0 - rows.start : r1 - rows.start, c0 - cols.start : c1 - cols.start] = part
     return B
 
 

@@ -490,6 +490,7 @@ class _OuterLoop:
         """(H, W) bool or None -- what the passes before the last solve (None: the mask)."""
         x0, y0, w, h = box_of(mask)
         self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
+        """The mask's bounding box (rows, columns): the lights of the passes are held on it alone."""
         # the images' per-pixel total, for the relaxation: the same in every pass
         self.image_total = images[:, self.box[0], self.box[1]].sum(axis=(0, 3))
         self.shading = shading
@@ -497,7 +498,8 @@ class _OuterLoop:
 
     def run(self, solve_with: Callable[..., SolveResult], max_passes: int) -> SolveResult:
         """``solve_with(light, init=None, unrefined=0, receivers=None)`` -> SolveResult, called once per
-        pass (``receivers``: the pixels to solve, None for the mask); returns the last result. Every pass but
+        pass (``light``: (L, h, w, 3) on ``self.box``; ``receivers``: the pixels to solve, None for the mask);
+        returns the last result. Every pass but
         the last leaves the finest levels unrefined (:func:`_unrefined_levels`: its light is a gather over
         patches several pixels wide, which finer detail does not change); the last solves the finest level of
         the whole mask from the depth before it, so the result is refined everywhere."""
@@ -506,7 +508,15 @@ class _OuterLoop:
         albedo0 = np.broadcast_to(np.asarray(self.model.off_view_albedo), (*press.camera.shape, 3))
         ref_surface = reference_surface(press.camera, self.leds, ref.depth, ref.normals, shading=self.shading)
         light = surface_indirect(
-            self.model, press.camera, self.leds, ref.depth, ref.normals, albedo0, self.mask, surface=ref_surface
+            self.model,
+            press.camera,
+            self.leds,
+            ref.depth,
+            ref.normals,
+            albedo0,
+            self.mask,
+            surface=ref_surface,
+            window=self.box,
         )
         self.seconds += time.perf_counter() - t0
         rough = _unrefined_levels(press.camera)
@@ -515,7 +525,7 @@ class _OuterLoop:
         settled = False
         for k in range(max_passes):
             t0 = time.perf_counter()
-            gathered = _solved_surface_light(self.model, press, self.leds, result, self.mask, ref_surface)
+            gathered = _solved_surface_light(self.model, press, self.leds, result, self.mask, ref_surface, self.box)
             light = self._update(light, gathered)
             self.seconds += time.perf_counter() - t0
             last = settled or k == max_passes - 1
@@ -535,11 +545,9 @@ class _OuterLoop:
         return result
 
     def _update(self, light: np.ndarray, gathered: np.ndarray) -> np.ndarray:
-        """The next pass's light ``L + w (gathered - L)``, clipped at 0, on the mask's bounding box."""
-        rows, cols = self.box
-        now, new = light[:, rows, cols], gathered[:, rows, cols]
-        omega = _relaxation(self.image_total, now) if self.relaxation == "auto" else float(self.relaxation)
-        light[:, rows, cols] = np.maximum(now + omega * (new - now), 0.0)
+        """The next pass's light ``L + w (gathered - L)``, clipped at 0 (all three on the mask's bounding box)."""
+        omega = _relaxation(self.image_total, light) if self.relaxation == "auto" else float(self.relaxation)
+        light[:] = np.maximum(light + omega * (gathered - light), 0.0)
         return light
 
 
@@ -554,21 +562,22 @@ def _unrefined_levels(camera: Camera) -> int:
 
 
 class _BoxCompensation:
-    """The images minus an indirect light that is zero outside the mask's bounding box (the outer loop's):
+    """The images minus an indirect light given on the mask's bounding box (the outer loop's, zero outside it):
     ``compensate`` on that box only, written into one copy of the images kept across the passes. The same
-    array as ``compensate(images, light)`` for such a light, without a whole-frame pass per solve (an auto
-    ROI's box is a sixth of a 640x480 frame)."""
+    array as ``compensate(images, light)`` for the whole-frame light, without a whole-frame pass per solve (an
+    auto ROI's box is a sixth of a 640x480 frame)."""
 
     def __init__(self, images: np.ndarray, mask: np.ndarray):
         self.images, self.mask, self.buffer, self.box = images, mask, None, None
 
     def __call__(self, light: np.ndarray) -> np.ndarray:
+        """``light``: (L, h, w, 3) on the mask's bounding box."""
         if self.buffer is None:  # on the first pass: a solve without the outer loop needs neither
             x0, y0, w, h = box_of(self.mask)
             self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
             self.buffer = np.array(self.images, np.float32)
         rows, cols = self.box
-        self.buffer[:, rows, cols] = compensate(self.images[:, rows, cols], light[:, rows, cols])
+        self.buffer[:, rows, cols] = compensate(self.images[:, rows, cols], light)
         return self.buffer
 
 
@@ -627,10 +636,17 @@ def _contact(
 
 
 def _solved_surface_light(
-    model: IndirectModel, press: Press, leds: Leds, result: SolveResult, mask: np.ndarray, ref_surface: Surface
+    model: IndirectModel,
+    press: Press,
+    leds: Leds,
+    result: SolveResult,
+    mask: np.ndarray,
+    ref_surface: Surface,
+    window: tuple[slice, slice],
 ) -> np.ndarray:
-    """Indirect light of the solved surface: solved pixels where reconstructed, the reference elsewhere
-    (``ref_surface``, the reference as patches, is recomputed around the solved pixels only)."""
+    """Indirect light of the solved surface at the ``mask``'s pixels, (L, h, w, 3) on ``window`` (rows,
+    columns; it holds the mask): solved pixels where reconstructed, the reference elsewhere (``ref_surface``,
+    the reference as patches, is recomputed around the solved pixels only)."""
     ref = press.reference
     rec = result.reconstructed
     depth = np.where(rec, result.depth, ref.depth)
@@ -638,7 +654,7 @@ def _solved_surface_light(
     typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
     albedo = np.where(rec[..., None], result.albedo, typical)
     solved = ref_surface.replaced(depth, normals, rec)
-    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, surface=solved)
+    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, surface=solved, window=window)
 
 
 def _relaxation(image_total: np.ndarray, light: np.ndarray) -> np.ndarray:

@@ -209,3 +209,73 @@ def test_auto_roi_does_not_warn_when_only_its_margin_makes_the_box_large(caplog)
         x0, y0, w, h = auto_roi(_contact_map(misfit), shape, folder="press_x")
     assert w * h / (72 * 96) > 0.5
     assert "press_x" not in caplog.text
+
+
+def _noisy_press(folder, gain: float, seed: int):
+    """A 192x144 sphere press with white image noise (sigma 0.004, full scale 1), the images scaled by ``gain``."""
+    rng = np.random.default_rng(seed)
+
+    def noisy(lin):
+        return gain * lin + rng.normal(0.0, 0.004, lin.shape)
+
+    return load_press(synth.make_press(folder, "sphere", size=(192, 144), lin_hook=noisy))
+
+
+def _agree_on_blocks(press, **kwargs):
+    """The per-pixel and the 2 x 2 block classification of ``press``: (per pixel, on blocks)."""
+    return classify_contact(press, block=1, **kwargs), classify_contact(press, block=2, **kwargs)
+
+
+def test_classifying_on_blocks_gives_the_box_and_anchored_pixels_of_every_pixel(tmp_path):
+    """Known answer for the 2 x 2 block classification (640x480 frames, ``classify_block``): on a noisy twin press
+    whose gel does not fill the frame (its edge cuts blocks), the auto ROI box is the per-pixel one within 2 px,
+    the contact hits and the anchored pixels agree but for a few pixels along their borders, the noise-only misfit
+    and the image level are the per-pixel ones, and the misfit is finite on exactly the gel's pixels."""
+    import dataclasses
+
+    from nlipscalib.solver.contact import anchor_weights, contact_box, contact_hits
+
+    press = _noisy_press(tmp_path / "p", 1.0, 0)
+    rows, cols = np.indices(press.camera.shape)
+    gel = (rows - 60) ** 2 + (cols - 100) ** 2 < 85**2
+    ref = press.reference
+    press = dataclasses.replace(press, reference=dataclasses.replace(ref, depth=np.where(gel, ref.depth, np.nan)))
+    full, half = _agree_on_blocks(press)
+    gel &= np.isfinite(ref.depth)
+    np.testing.assert_array_equal(np.isfinite(half.misfit), gel)
+    box_full, box_half = contact_box(full, gel.shape)[0], contact_box(half, gel.shape)[0]
+    np.testing.assert_allclose(box_half, box_full, atol=2)
+    hits_full, hits_half = contact_hits(full), contact_hits(half)
+    assert (hits_full ^ hits_half).sum() <= 0.05 * hits_full.sum()
+    anchored_full = anchor_weights(full, gel, 1.0, 3.0)[0] > 1
+    anchored_half = anchor_weights(half, gel, 1.0, 3.0)[0] > 1
+    assert anchored_full.sum() > 0.8 * gel.sum()  # the premise: most of the gel is undeformed and anchored
+    assert (anchored_full ^ anchored_half).sum() <= 0.01 * gel.sum()
+    assert half.noise == full.noise
+    np.testing.assert_allclose(np.median(half.expected[gel]), np.median(full.expected[gel]), rtol=0.02)
+    np.testing.assert_allclose(np.median(half.level[gel]), np.median(full.level[gel]), rtol=1e-3)
+
+
+def test_classifying_on_blocks_leaves_out_saturated_samples_and_subtracts_a_fixed_light(tmp_path):
+    """The block classification with saturated samples (a block is usable where all its samples are) and a light
+    subtracted (from the block means): the box and the hits of the per-pixel classification."""
+    from nlipscalib.solver.contact import contact_box, contact_hits
+
+    press = _noisy_press(tmp_path / "p", 1.5, 1)
+    assert press.saturated(press.led_images).mean() > 0.005  # the premise
+    light = np.full(press.led_images.shape, 0.01, np.float32)
+    full, half = _agree_on_blocks(press, indirect=light)
+    shape = press.camera.shape
+    np.testing.assert_allclose(contact_box(half, shape)[0], contact_box(full, shape)[0], atol=2)
+    hits_full = contact_hits(full)
+    assert (hits_full ^ contact_hits(half)).sum() <= 0.05 * hits_full.sum()
+
+
+def test_frames_from_480_lines_up_are_classified_on_blocks(sphere_press, monkeypatch):
+    from nlipscalib.solver import contact
+
+    assert contact.classify_block((480, 640)) == 2 and contact.classify_block((960, 1280)) == 2
+    assert contact.classify_block((360, 480)) == 1 and contact.classify_block((481, 640)) == 1
+    monkeypatch.setattr(contact, "BLOCK_MIN_SIDE", 72)  # the 96x72 press: its default is then blocks
+    np.testing.assert_array_equal(classify_contact(sphere_press).misfit, classify_contact(sphere_press, block=2).misfit)
+    assert not np.array_equal(classify_contact(sphere_press).misfit, classify_contact(sphere_press, block=1).misfit)

@@ -205,3 +205,26 @@ def test_the_indirect_light_at_a_receiver_does_not_depend_on_the_other_receivers
     assert whole[:, box].min() > 0  # the premise: light everywhere in the box
     np.testing.assert_allclose(part[:, box], whole[:, box], rtol=1e-6)
     assert not part[:, ~box].any()
+
+
+def test_the_indirect_light_on_a_window_is_the_whole_frames_cut_to_it(press):
+    """surface_indirect(window=...) (the outer loop's box) returns the whole frame's light cut to the window, the
+    same numbers; a window that leaves out a receiver is refused."""
+    from nlipscalib.solver.indirect import IndirectModel, surface_indirect
+
+    model = IndirectModel((0.01, 0.01, 0.01), (0.8, 0.8, 0.8), 0.3, 1, True, "test")
+    ref = press.reference
+    box = np.zeros(press.camera.shape, bool)
+    box[22:47, 31:58] = True
+    box &= np.isfinite(ref.depth)
+    albedo = np.full(press.camera.shape + (3,), 80.0)
+
+    def light(window=None):
+        cam, leds = press.camera, press.leds
+        return surface_indirect(model, cam, leds, ref.depth, ref.normals, albedo, box, size=4, window=window)
+
+    whole = light()
+    for window in ((slice(22, 47), slice(31, 58)), (slice(20, 60), slice(0, 96))):
+        np.testing.assert_array_equal(light(window), whole[:, window[0], window[1]])
+    with pytest.raises(ValueError, match="receiver"):
+        light((slice(22, 40), slice(31, 58)))
