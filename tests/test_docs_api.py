@@ -1,0 +1,107 @@
+"""docs/api.md: every ```python block runs, in order, in one namespace, so the page cannot rot.
+
+The page's first block sets the paths a user sets to their own; here the same names point at a tiny exact-data
+sensor (tests/solver/synth.py, 64x48, no rendering), its model trained as tests/learn/test_infer.py's ``tiny_model``
+is (seconds), a folder of its tri-colour frames as the camera, and an in-process virtual LED board as the port. The
+twin block renders two 64x48 presses with Mitsuba (a few seconds).
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+API = Path(__file__).resolve().parents[1] / "docs" / "api.md"
+N_FRAMES = 3
+"""Frames of the test's 'camera' folder: the page's loops read N_FRAMES of them."""
+
+
+def python_blocks(text: str) -> list[tuple[int, str]]:
+    """(line of the block's first code line in the page, code) of every ```python block, in order."""
+    fences = re.finditer(r"^```python\n(.*?)^```", text, re.S | re.M)
+    return [(text.count("\n", 0, m.start(1)) + 1, m.group(1)) for m in fences]
+
+
+def assigned_names(code: str) -> set[str]:
+    """The names a block assigns at its top level."""
+    return {t.id for node in ast.parse(code).body if isinstance(node, ast.Assign) for t in node.targets}
+
+
+def run_block(line: int, code: str, namespace: dict) -> None:
+    """Run one block in ``namespace``; a traceback names docs/api.md and the page's own line numbers."""
+    exec(compile("\n" * (line - 1) + code, str(API), "exec"), namespace)
+
+
+@pytest.fixture(scope="module")
+def tiny_sensor(tmp_path_factory) -> dict:
+    """The page's path variables: an unsolved exact-data press, its reference, a tiny model of its sensor, a folder
+    of tri-colour frames (CAMERA), N_FRAMES, and OUT (PORT is the test's own virtual board)."""
+    from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
+    from nlipscalib.learn.train import train
+    from nlipscalib.pipeline import solve_folder
+    from nlipscalib.solver import SolverOptions
+    from tests.learn.test_resume import NAMES, TINY
+    from tests.solver import synth
+
+    root = tmp_path_factory.mktemp("docs_api")
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    for name, kind in zip(NAMES, ("sphere", "cube", "sphere")):
+        synth.make_press(root / name, kind, size=(64, 48))
+        solve_folder(root / name, options=SolverOptions(max_iters=6), figures=False, progress=False)
+    build_dataset([root / n for n in NAMES], root / "reference", root / "calib", progress=False)
+    train(CalibrationDataset(root / "calib"), TINY, root / "model.pt", progress=False)
+    synth.make_press(root / "press", "cube", depth=1.8, size=(64, 48))  # not seen in training, not solved
+    frames = root / "frames"
+    frames.mkdir()
+    for i, name in enumerate([*NAMES, "press"][:N_FRAMES]):
+        shutil.copy(root / name / "tricolor.png", frames / f"frame_{i:02d}.png")
+    return {
+        "PRESS": root / "press",
+        "REFERENCE": root / "reference",
+        "MODEL": root / "model.pt",
+        "CAMERA": str(frames),
+        "N_FRAMES": N_FRAMES,
+        "OUT": root / "out",
+    }
+
+
+def test_the_first_block_sets_the_paths_the_examples_read(tiny_sensor):
+    """The page's 'set these' block names exactly the variables the test sets (PORT: the test's virtual board)."""
+    (line, code), *_ = python_blocks(API.read_text())
+    assert assigned_names(code) == set(tiny_sensor) | {"PORT"}
+    namespace = {}
+    run_block(line, code, namespace)  # valid as written: plain paths and numbers
+    assert namespace["N_FRAMES"] >= 1
+
+
+def test_every_python_block_of_the_page_runs_in_order(tiny_sensor):
+    pytest.importorskip("torch")
+    pytest.importorskip("cv2")
+    pytest.importorskip("mitsuba")  # the twin block renders; .ci/run turns this skip into a failure
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    blocks = python_blocks(API.read_text())
+    assert len(blocks) >= 9  # every section's example was found (a fence change would otherwise pass silently)
+    out = tiny_sensor["OUT"]
+    with VirtualBoard(12) as board:
+        namespace = dict(tiny_sensor, PORT=board.url)
+        for line, code in blocks[1:]:
+            run_block(line, code, namespace)
+        assert not board.latched.any()  # the camera blocks switched the LEDs off when they ended
+    assert (out / "nlips" / "result.npz").is_file() and (out / "nlips_points.ply").is_file()
+    assert (out / "twin" / "sphere" / "meta.json").is_file() and (out / "nlipsnet_points.ply").is_file()
+    assert sorted(p.name for p in (out / "stream").glob("*.npz")) == ["frame_000000.npz"]  # every 10th of 3 frames
+    frame = namespace["frame"]
+    assert frame.depth.shape == (48, 64) and np.isfinite(namespace["depth_at_centre"])
+    assert namespace["stats"].frames == N_FRAMES
+    assert namespace["contact"]["aae_deg"] < 10  # the solve ran and was scored (exact data: far below this)
+
+
+def test_the_page_links_only_files_that_exist():
+    links = re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", API.read_text())
+    assert links and [link for link in links if not (API.parent / link).exists()] == []
