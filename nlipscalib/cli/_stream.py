@@ -345,6 +345,6 @@ def _emulated_source(
 def _light_tricolor(controller: LedBoard, level: int) -> None:
     import numpy as np
 
-    from ..core.leds import TRICOLOR_COLORS, tricolor_groups
+    from ..core.leds import tricolor_colors
 
-    controller.set_all((TRICOLOR_COLORS[tricolor_groups(controller.n_leds)] * level).astype(np.uint8))
+    controller.set_all((tricolor_colors(controller.n_leds) * level).astype(np.uint8))

@@ -15,7 +15,7 @@ from .capture import (
     load_press,
     write_press,
 )
-from .leds import Led, disk_shading, led_arrays, led_shading, tricolor_groups
+from .leds import Led, disk_shading, led_arrays, led_shading, tricolor_colors, tricolor_groups
 from .reconstruction import Reconstruction, load_reconstruction, save_reconstruction
 from .sensor import CameraConfig, DomeConfig, LedConfig, SensorDesign
 
@@ -39,6 +39,7 @@ __all__ = [
     "load_press",
     "load_reconstruction",
     "save_reconstruction",
+    "tricolor_colors",
     "tricolor_groups",
     "write_press",
 ]

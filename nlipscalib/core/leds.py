@@ -90,6 +90,16 @@ def tricolor_groups(n_leds: int) -> np.ndarray:
     return (np.arange(n_leds) * 3) // n_leds
 
 
+def tricolor_colors(n_leds: int) -> np.ndarray:
+    """Colour of each LED in the tri-colour image: its group's (:func:`tricolor_groups`) unit RGB.
+
+    Returns
+    -------
+    colors : (n_leds, 3) float, 0 or 1 per channel -- e.g. times a PWM level for the LED controller.
+    """
+    return TRICOLOR_COLORS[tricolor_groups(n_leds)]
+
+
 def led_geometry_mismatch(
     positions_a: ArrayLike, directions_a: ArrayLike, positions_b: ArrayLike, directions_b: ArrayLike
 ) -> str | None:

@@ -42,7 +42,7 @@ from ..core.capture import (
     write_press,
 )
 from ..core.errors import CaptureError, ConfigError, require
-from ..core.leds import TRICOLOR_COLORS, Led, tricolor_groups
+from ..core.leds import Led, tricolor_colors
 from ..core.tolerances import CAPTURE_CHECK_BLUR
 
 log = logging.getLogger(__name__)
@@ -169,7 +169,7 @@ def frame_sequence(n_leds: int, cfg: SessionConfig) -> list[tuple[str, np.ndarra
     -------
     list of (name, colors) with colors (n_leds, 3) uint8: "tricolor", "dark", "led_01" ..., "check"
     """
-    tri = (TRICOLOR_COLORS[tricolor_groups(n_leds)] * cfg.tricolor_level).astype(np.uint8)
+    tri = (tricolor_colors(n_leds) * cfg.tricolor_level).astype(np.uint8)
     seq = [("tricolor", tri), ("dark", np.zeros((n_leds, 3), np.uint8))]
     for i in range(n_leds):
         colors = np.zeros((n_leds, 3), np.uint8)

@@ -50,7 +50,7 @@ def write_ply(path: str | Path, points: np.ndarray, normals: np.ndarray | None =
         cols.append(normals.reshape(-1, 3)[keep].astype(np.float32))
         props += ["nx", "ny", "nz"]
     vertices = np.ascontiguousarray(np.concatenate(cols, 1))
-    header = ["ply", "format binary_little_endian 1.0", "comment nlipscalib NLiPsNet, mm, camera frame"]
+    header = ["ply", "format binary_little_endian 1.0", "comment nlipscalib, mm, camera frame"]
     header += [f"element vertex {len(keep)}"] + [f"property float {p}" for p in props]
     body = vertices.astype("<f4").tobytes()
     if mesh:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.leds import TRICOLOR_COLORS, Leds, led_shading, tricolor_groups
+from ..core.leds import Leds, led_shading, tricolor_colors
 
 if TYPE_CHECKING:  # named in hints only: the scene module imports the renderer's
     from .scene import CameraEffectsConfig, NoiseConfig
@@ -129,7 +129,7 @@ def auto_exposure(
     """
     lin = led_shading(points, normals, leds) * (np.asarray(albedo, dtype=np.float64) / np.pi)  # (L, N, 3)
     if tricolor:
-        colours = TRICOLOR_COLORS[tricolor_groups(len(lin))]  # (L, 3)
+        colours = tricolor_colors(len(lin))  # (L, 3)
         lin = np.einsum("lnc,lc->nc", lin, colours)[None]
     per_led = np.percentile(lin.max(axis=-1), EXPOSURE_PERCENTILE, axis=1)
     return float(scale * EXPOSURE_TARGET / per_led.max())

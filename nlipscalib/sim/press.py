@@ -22,7 +22,7 @@ import numpy as np
 
 from ..core.capture import write_press
 from ..core.errors import ConfigError
-from ..core.leds import TRICOLOR_COLORS, tricolor_groups
+from ..core.leds import tricolor_colors
 from .camera_effects import apply_lens
 from .dome import make_dome
 from .noise import apply_noise, auto_exposure, dark_frame
@@ -126,7 +126,7 @@ def tricolor_linear(images: np.ndarray) -> np.ndarray:
     -------
     (H, W, 3) float64, linear
     """
-    colours = TRICOLOR_COLORS[tricolor_groups(len(images))]  # (L, 3)
+    colours = tricolor_colors(len(images))  # (L, 3)
     return np.einsum("lhwc,lc->hwc", images, colours, dtype=np.float64)
 
 

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core.errors import ConfigError, ShapeError
-from nlipscalib.core.leds import Led, led_shading, tricolor_groups
+from nlipscalib.core.leds import Led, led_shading, tricolor_colors, tricolor_groups
 
 
 def test_shading_known_answer_directly_below_led():
@@ -129,3 +129,10 @@ def test_an_led_direction_without_a_length_is_a_mismatch():
     broken = directions.copy()
     broken[1] = 0.0
     assert "LED 2" in led_geometry_mismatch(positions, directions, positions, broken)
+
+
+def test_tricolor_colors_light_leds_1_to_4_red_5_to_8_green_9_to_12_blue():
+    colors = tricolor_colors(12)
+    assert colors.shape == (12, 3)
+    np.testing.assert_array_equal(colors.argmax(axis=1), [0] * 4 + [1] * 4 + [2] * 4)
+    np.testing.assert_array_equal(colors.sum(axis=1), np.ones(12))  # one channel each, fully on
