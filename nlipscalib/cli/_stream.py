@@ -16,11 +16,9 @@ from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
 
 if TYPE_CHECKING:  # named in hints only: imported when a stream is opened
-    import numpy as np
-
     from ..device.camera import FrameSource
     from ..emulator import EmulatedCamera
-    from ..learn.infer import Frame, Predictor
+    from ..learn.infer import Predictor
     from .leds import LedBoard
 
 log = logging.getLogger(__name__)
@@ -203,7 +201,7 @@ def check_emulated_sensor(args: argparse.Namespace, sensor: dict) -> None:
     same check: :func:`nlipscalib.core.sensor_record.sensor_mismatch`). Called after :func:`size_emulator_for`,
     before anything is rendered.
 
-    Why: the emulated scene's geometry is known, yet only the brightness heuristic (:class:`MismatchWatch`) spoke,
+    Why: the emulated scene's geometry is known, yet only the brightness heuristic (`learn.watch.MismatchWatch`) spoke,
     and a scene of similar brightness streamed another sensor's frames through the model without a word.
     """
     from ..core.errors import CaptureError
@@ -262,49 +260,6 @@ def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predicto
         device=args.device,
         full_frame=args.full_frame,
     )
-
-
-class MismatchWatch:
-    """An NLiPsNet predictor of stored frames that warns when frames differ from the calibration's reference
-    over the whole gel (``learn.infer.mismatch_warning``: BGR stored as RGB, another exposure or sensor).
-
-    Why: such a frame leaves the change rule nothing to find, so the maps silently show the undeformed dome.
-    The warning is logged once per stream (a stream of such frames would repeat it every frame);
-    :meth:`report` logs at the end how many frames it concerned, as ``nlips infer`` does.
-
-    Parameters
-    ----------
-    predictor : learn.infer.Predictor
-    name : str -- the source, for the warning (``"camera 0"``, a video's path, ``"emulated sensor"``)
-    """
-
-    def __init__(self, predictor: Predictor, name: str) -> None:
-        self.predictor, self.name = predictor, name
-        self.frames = 0
-        self.mismatched = 0
-
-    def __call__(self, frame: np.ndarray) -> Frame:
-        """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
-        from ..core.tolerances import FRAME_MISMATCH_FRACTION
-        from ..learn.infer import mismatch_warning
-
-        result = self.predictor.predict_stored(frame, self.name)
-        index, self.frames = self.frames, self.frames + 1
-        if not self.mismatched and (why := mismatch_warning(result, f"{self.name} frame {index}")):
-            log.warning("%s", why)
-        if result.mismatch > FRAME_MISMATCH_FRACTION:
-            self.mismatched += 1
-        return result
-
-    def report(self) -> None:
-        """The count of frames warned about, when there were any (after the stream)."""
-        if self.mismatched:
-            log.warning(
-                "%d of %d frames differed from the calibration's reference over most of the gel (see the warning "
-                "above): their results are unreliable",
-                self.mismatched,
-                self.frames,
-            )
 
 
 def _emulated_source(

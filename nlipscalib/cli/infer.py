@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are 
 
     from ..device.live import FrameReader, LiveStats
     from ..learn.infer import Frame, Predictor
-    from ._stream import MismatchWatch
+    from ..learn.watch import MismatchWatch
 
     StillInput = tuple[str, Callable[[Predictor], np.ndarray], Path | None, Path]
     """(name, loader(predictor) -> linear frame, press folder or None, source path): one still input."""
@@ -181,8 +181,9 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
 
     from ..core.errors import CaptureError, DeviceError, require
     from ..device.live import ReadAhead, SaveSink, stream
+    from ..learn.watch import MismatchWatch
     from ..report.live import NormalMapPng
-    from ._stream import MismatchWatch, check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
+    from ._stream import check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better

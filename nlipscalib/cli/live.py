@@ -19,7 +19,6 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, TypeAlias
 
 from ._stream import (
-    MismatchWatch,
     add_device_arguments,
     add_source_arguments,
     check_emulated_sensor,
@@ -79,6 +78,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _nlipsnet(args: argparse.Namespace):
+    from ..learn.watch import MismatchWatch
+
     predictor = nlipsnet_predictor(args)
     return MismatchWatch(predictor, source_name(args)), predictor.ref_depth.astype("float32")
 
@@ -206,5 +207,6 @@ def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
 def _summarise(stats: LiveStats, predict: Predict) -> None:
     """The stream's summary line (stdout), and how many frames differed from the calibration (a warning)."""
     print(stats.summary())
-    if isinstance(predict, MismatchWatch):
+    watch = sys.modules.get("nlipscalib.learn.watch")  # not imported: an NLiPsNet-free stream, nothing to report
+    if watch is not None and isinstance(predict, watch.MismatchWatch):
         predict.report()

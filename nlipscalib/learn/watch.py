@@ -1,0 +1,52 @@
+"""A stream's watch for frames unlike the calibration's reference: warned about once, counted to the end."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ..core.tolerances import FRAME_MISMATCH_FRACTION
+from .infer import Frame, Predictor, mismatch_warning
+
+log = logging.getLogger(__name__)
+
+
+class MismatchWatch:
+    """An NLiPsNet predictor of stored frames that warns when frames differ from the calibration's reference
+    over the whole gel (``learn.infer.mismatch_warning``: BGR stored as RGB, another exposure or sensor).
+
+    Why: such a frame leaves the change rule nothing to find, so the maps silently show the undeformed dome.
+    The warning is logged once per stream (a stream of such frames would repeat it every frame);
+    :meth:`report` logs at the end how many frames it concerned, as ``nlips infer`` does.
+
+    Parameters
+    ----------
+    predictor : learn.infer.Predictor
+    name : str -- the source, for the warning (``"camera 0"``, a video's path, ``"emulated sensor"``)
+    """
+
+    def __init__(self, predictor: Predictor, name: str) -> None:
+        self.predictor, self.name = predictor, name
+        self.frames = 0
+        self.mismatched = 0
+
+    def __call__(self, frame: np.ndarray) -> Frame:
+        """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
+        result = self.predictor.predict_stored(frame, self.name)
+        index, self.frames = self.frames, self.frames + 1
+        if not self.mismatched and (why := mismatch_warning(result, f"{self.name} frame {index}")):
+            log.warning("%s", why)
+        if result.mismatch > FRAME_MISMATCH_FRACTION:
+            self.mismatched += 1
+        return result
+
+    def report(self) -> None:
+        """The count of frames warned about, when there were any (after the stream)."""
+        if self.mismatched:
+            log.warning(
+                "%d of %d frames differed from the calibration's reference over most of the gel (see the warning "
+                "above): their results are unreliable",
+                self.mismatched,
+                self.frames,
+            )
