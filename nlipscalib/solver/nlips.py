@@ -489,7 +489,7 @@ def _solve_level(
         if stop:
             level.info["stop"] = stop
             break
-    level.info["iterations"] = len(level.info["energy"]) - 1
+    level.info["iterations"] = len(level.info["normal_change_deg"])  # one per accepted step
     level.info["amg_setups"] = pcg.setups
     return level.finish()
 
@@ -512,26 +512,31 @@ class _Level:
         self.model = model = make_model(be, lv["q"], self.A, self.B, self.C, *leds, lv["images"], lv["usable"])
         self.tm.lap("setup")
 
-        F, dF = self.shade(t, True)
+        # A level only evaluated (not iterated) needs no derivatives, no smoothness weight and no energy:
+        # its normals, albedo and diagnostics come from the shading alone.
+        F, dF = self.shade(t, iterate)
         self.lam = None
         albedo, r = self.refit(F, None)
         self.lam = _robust_scale(be, model.whole(r), lv["images"], lv["usable"] > 0, opts)
         # The smoothness weight is relative to the data term's curvature along the gradient of t (least
         # squares, starting depth).
-        self.gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
+        self.gamma = (
+            opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable))) if iterate else None
+        )
         if est != "ls":
             albedo, r = self.refit(F, albedo)
-        w = model.weights(r, self.lam, est)
-        self.M, self.b = model.gauss_newton_blocks(F, dF, r, w, albedo) if iterate else (None, None)
+        self.M = self.b = None
+        if iterate:
+            self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
         self.t, self.F, self.dF, self.albedo, self.r = t, F, dF, albedo, r
-        self.e_cur = model.data_energy(r, self.lam, est) + self.prior(t)
+        self.e_cur = model.data_energy(r, self.lam, est) + self.prior(t) if iterate else None
         self.info = {
             "shape": list(mk.shape),
             "estimator": est,
             "gamma": self.gamma,
             "pixels": len(t),
             "lambda": self.lam,
-            "energy": [self.e_cur],
+            "energy": [self.e_cur] if iterate else [],
             "cg_iters": [],
             "cg_rtol": [],
             "normal_change_deg": [],
@@ -581,6 +586,8 @@ class _Level:
         (the forcing term loosens CG while the gradient is still large); (step, gradient, normal matrix)."""
         model, ops, opts, t = self.model, self.ops, self.opts, self.t
         if self.M is None:
+            if self.dF is None:  # the accepted step's derivatives, deferred until a step needs them
+                self.F, self.dF = self.shade(t, True)
             w = model.weights(self.r, self.lam, self.est)
             self.M, self.b = model.gauss_newton_blocks(self.F, self.dF, self.r, w, self.albedo)
             self.tm.lap("blocks")
@@ -605,7 +612,9 @@ class _Level:
         albedo, r, energy) of the first step that does not raise the energy, or None."""
         for k in range(1 if converged else self.opts.line_search_steps + 1):
             t_new = self.t + 0.5**k * delta
-            F_new, dF_new = self.shade(t_new, derivatives=k == 0)
+            # the full step's derivatives with its shading (one pass); none after a converged step, which ends
+            # the level
+            F_new, dF_new = self.shade(t_new, derivatives=k == 0 and not converged)
             alb_new, r_new = self.refit(F_new, self.albedo)
             e_new = self.energy(r_new, t_new)
             if e_new <= self.e_cur:
@@ -626,8 +635,7 @@ class _Level:
         converged: bool,
     ) -> str | None:
         """Move to the accepted depth; the reason to stop there (energy or normals no longer change) or None."""
-        if dF_new is None:
-            F_new, dF_new = self.shade(t_new, True)
+        # dF_new None (a halved step, or one that ends the level): derived in the next step, if there is one
         self.t, self.F, self.dF, self.albedo, self.r = t_new, F_new, dF_new, alb_new, r_new
         nrm_new = self.normals(t_new)
         change = float(np.median(angle_deg(self.nrm, nrm_new)))

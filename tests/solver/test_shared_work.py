@@ -205,3 +205,26 @@ def test_the_indirect_light_at_a_receiver_does_not_depend_on_the_other_receivers
     assert whole[:, box].min() > 0  # the premise: light everywhere in the box
     np.testing.assert_allclose(part[:, box], whole[:, box], rtol=1e-6)
     assert not part[:, ~box].any()
+
+
+def test_shading_derivatives_only_for_the_gauss_newton_steps(press, monkeypatch):
+    """A level evaluated, not iterated, and a step that ends its level never use dF: one derivative shading per
+    Gauss-Newton system solved, none else (each costs about two shadings at 640x480)."""
+    from nlipscalib.solver import kernel
+
+    calls = []
+    plain = kernel.Model.shading
+
+    def counted(self, t, tu, tv, derivatives=False):
+        calls.append(derivatives)
+        return plain(self, t, tu, tv, derivatives)
+
+    monkeypatch.setattr(kernel.Model, "shading", counted)
+    lin = press.linear(press.led_images)
+    two = SolverOptions(pyramid_levels=2)
+    rough = solve(lin, press.camera, press.leds, prior_depth=press.reference.depth, options=two, unrefined=1)
+    levels = rough.report["levels"]
+    assert levels[-1]["iterations"] == 0 and levels[-1]["gamma"] is None and levels[-1]["energy"] == []
+    assert levels[-2]["stop"] == "energy_rtol"  # a converged step ended that level
+    assert sum(calls) == sum(len(lv["cg_iters"]) for lv in levels)
+    assert len(calls) > sum(calls)  # line-search trials and the evaluated level shade without derivatives
