@@ -40,6 +40,7 @@ from .inputs import check_inputs
 from .kernel import Array, Backend, Parts, make_model
 from .krylov import Krylov, forcing
 from .options import SolverOptions
+from .pages import ordinary_pages
 from .pyramid import build_pyramid, checked_prior_weights, resize
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a progress bar is asked for
@@ -146,6 +147,49 @@ def solve(
     if unrefined < 0:
         raise ConfigError(f"unrefined must be >= 0 levels, got {unrefined}")
     t_start = time.perf_counter()
+    with ordinary_pages():  # this VM's transparent huge pages cost a third of a whole frame's CPU (pages.py)
+        result = _solve_checked(
+            images,
+            camera,
+            leds,
+            prior_depth,
+            prior_weights,
+            mask,
+            saturated,
+            opts,
+            backend,
+            progress,
+            init_depth,
+            unrefined,
+        )
+    report = result.report
+    report.update({"backend": backend, "seconds": time.perf_counter() - t_start})
+    if report["pixels_too_few_leds"]:
+        log.warning(
+            "%d pixels have fewer than %d usable LEDs: not reconstructed (NaN)",
+            report["pixels_too_few_leds"],
+            opts.min_leds,
+        )
+    if report["dead_leds"]:
+        log.warning("dead LEDs excluded (1-based): %s", [i + 1 for i in report["dead_leds"]])
+    return result
+
+
+def _solve_checked(
+    images: np.ndarray,
+    camera: Camera,
+    leds: tuple,
+    prior_depth: np.ndarray,
+    prior_weights: np.ndarray | None,
+    mask: np.ndarray,
+    saturated: np.ndarray | None,
+    opts: SolverOptions,
+    backend: str,
+    progress: bool,
+    init_depth: np.ndarray | None,
+    unrefined: int,
+) -> SolveResult:
+    """:func:`solve` on checked inputs (see there), without its timer and warnings."""
     # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
     crop, cam = _crop_to_mask(mask, camera)
     data = _LevelData.of(images, saturated, mask, crop, prior_depth, prior_weights, leds, opts)
@@ -168,15 +212,7 @@ def solve(
         bar.close()
     report.update({"leds_used": [int(i) for i in data.kept], "pixels_solved": int(mask.sum())})
     result = _full_image(t_state, out, levels[-1], data, mask, crop, opts)
-    report.update({"intensity_scale": data.scale, "backend": backend, "seconds": time.perf_counter() - t_start})
-    if report["pixels_too_few_leds"]:
-        log.warning(
-            "%d pixels have fewer than %d usable LEDs: not reconstructed (NaN)",
-            report["pixels_too_few_leds"],
-            opts.min_leds,
-        )
-    if report["dead_leds"]:
-        log.warning("dead LEDs excluded (1-based): %s", [i + 1 for i in report["dead_leds"]])
+    report["intensity_scale"] = data.scale
     return result
 
 
