@@ -270,18 +270,19 @@ class _LevelData:
         sat = None if saturated is None else saturated[:, crop[0], crop[1]]
         # the exclusions' thresholds are statistics of the whole images; outside the mask nothing is usable
         use, report = exclusions(images, sat, opts, whole=whole)
-        use &= mask[crop][None, :, :, None]
+        m = mask[crop]
+        if not m.all():
+            use &= m[None, :, :, None]
         usable_leds = np.zeros((H, W), np.int16)
         usable_leds[crop] = (use[..., 0] | use[..., 1] | use[..., 2]).sum(axis=0, dtype=np.int16)
-        scale = float(np.percentile(images[use], 99)) if use.any() else 1.0  # usable lies inside the crop
-        scale = scale if scale > 0 else 1.0
+        scale = _high_level(images, use)  # usable lies inside the crop
         images = images / np.float32(scale) if images.dtype == np.float32 else images / scale
-        m = mask[crop]
         kept = [i for i in range(len(leds)) if i not in report["dead_leds"]]
+        every = len(kept) == len(leds)  # then no copy of the images and samples
         pos, dirs, mu, psi = led_arrays(leds)
         return cls(
-            images=images[kept],
-            usable=use[kept],
+            images=images if every else images[kept],
+            usable=use if every else use[kept],
             mask=m,
             t0=np.log(np.where(m, prior_depth[crop], 1.0)),
             w0=checked_prior_weights(prior_weights, (H, W))[crop],
@@ -291,6 +292,22 @@ class _LevelData:
             scale=scale,
             report=report,
         )
+
+
+def _high_level(images: np.ndarray, usable: np.ndarray) -> float:
+    """The images' 99th percentile over the usable samples (1 where there is none or it is not positive).
+
+    Parameters
+    ----------
+    images : (L, h, w, 3) float; usable : (L, h, w, 3) bool
+    """
+    if not usable.any():
+        return 1.0
+    # a flat boolean index: indexing the (L, h, w, 3) array with a mask that selects every sample took 0.11 s
+    # at 640x480 against 0.01 s; the same values in the same order, so the same percentile
+    values = images.reshape(-1)[usable.reshape(-1)]
+    scale = float(np.percentile(values, 99, overwrite_input=True))
+    return scale if scale > 0 else 1.0
 
 
 def _pyramid(
