@@ -69,8 +69,13 @@ class Krylov:
         return x, count[0]
 
 
-def _amg_preconditioner(Hm: sp.csr_matrix):
-    """A smoothed-aggregation AMG V-cycle for ``Hm``, the same in every run and process.
+def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:
+    """A smoothed-aggregation AMG V-cycle for ``Hm`` (:func:`_hierarchy`, :class:`_VCycle`)."""
+    return _VCycle(_hierarchy(Hm)).operator()
+
+
+def _hierarchy(Hm: sp.csr_matrix) -> object:
+    """pyamg's smoothed-aggregation hierarchy of ``Hm``, the same in every run and process.
 
     The Jacobi prolongation smoother is weighted row by row from Gershgorin bounds (pyamg's ``"local"``
     weighting) instead of by an estimate of the spectral radius of D^-1 A: that estimate (a few
@@ -84,7 +89,7 @@ def _amg_preconditioner(Hm: sp.csr_matrix):
     # improve_candidates=None: the constant near-null space is right for this operator, and
     # the smoothing of candidates cost a third of the setup for no gain in convergence.
     with _compiled_bsr_dedup():
-        ml = pyamg.smoothed_aggregation_solver(
+        return pyamg.smoothed_aggregation_solver(
             Hm,
             symmetry="symmetric",
             max_coarse=300,
@@ -92,7 +97,51 @@ def _amg_preconditioner(Hm: sp.csr_matrix):
             improve_candidates=None,
             smooth=("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
         )
-    return ml.aspreconditioner(cycle="V")
+
+
+class _VCycle:
+    """One V-cycle of a pyamg hierarchy from a zero start: the CG preconditioner.
+
+    pyamg's own (``aspreconditioner``) runs its solver for one cycle, which also computes the residual norm
+    before and after the cycle: two products with the finest matrix per application that nothing reads (the
+    same cycle otherwise, operation for operation). And pyamg keeps its coarse levels, restrictions and
+    prolongations as BSR matrices of 1x1 blocks, whose products and Gauss-Seidel sweeps run slower than the
+    same matrices' CSR ones; they are converted once here. On the 307,200-pixel finest level of a 640x480
+    whole frame one application took 30 ms instead of 44 ms (2 cores' machine), the CG iterations unchanged
+    and the iterates equal to ~1e-13 (a CSR sweep divides by the diagonal where BSR multiplies by its
+    inverse)."""
+
+    def __init__(self, ml: object):
+        self.levels = ml.levels
+        self.coarse_solver = ml.coarse_solver
+        self.A = [level.A.tocsr() for level in self.levels]
+        self.R = [level.R.tocsr() for level in self.levels[:-1]]
+        self.P = [level.P.tocsr() for level in self.levels[:-1]]
+
+    def operator(self) -> spla.LinearOperator:
+        return spla.LinearOperator(self.A[0].shape, matvec=self.apply, dtype=np.float64)
+
+    def apply(self, b: np.ndarray) -> np.ndarray:
+        """(n,) float64 -- the cycle's approximation of A^-1 b."""
+        b = np.ravel(b)
+        if len(self.levels) == 1:
+            return self.coarse_solver(self.levels[0].A, b)
+        x = np.zeros_like(b)
+        self._cycle(0, x, b)
+        return x
+
+    def _cycle(self, k: int, x: np.ndarray, b: np.ndarray) -> None:
+        """Improve ``x`` (in place) toward the solution of level k's system with right-hand side ``b``."""
+        A, level = self.A[k], self.levels[k]
+        level.presmoother(A, x, b)
+        coarse_b = self.R[k] @ (b - A @ x)
+        coarse_x = np.zeros_like(coarse_b)
+        if k == len(self.levels) - 2:
+            coarse_x[:] = self.coarse_solver(self.levels[-1].A, coarse_b)
+        else:
+            self._cycle(k + 1, coarse_x, coarse_b)
+        x += self.P[k] @ coarse_x
+        level.postsmoother(A, x, b)
 
 
 _dedup_lock = threading.Lock()

@@ -22,7 +22,7 @@ def rho(r: Array, lam: float, estimator: str, xp: ModuleType = np) -> Array:
     if estimator == "ls":
         return a2
     if estimator == "cauchy":
-        return lam**2 * xp.log1p(a2 / lam**2)
+        return lam**2 * _log1p(a2 / lam**2, xp)
     absr = xp.abs(r)
     if estimator == "huber":
         return xp.where(absr <= lam, a2, 2 * lam * absr - lam**2)
@@ -47,3 +47,19 @@ def weight(r: Array, lam: float, estimator: str, xp: ModuleType = np) -> Array:
         s = 1 - a2 / lam**2
         return xp.where(s > 0, s, 0 * s) ** 2
     raise ValueError(f"unknown estimator {estimator!r}; expected one of {ESTIMATORS}")
+
+
+def _log1p(x: Array, xp: ModuleType) -> Array:
+    """log(1 + x) for x >= 0, to within a few units in the last place of its dtype.
+
+    NumPy's float32 ``log1p`` is a scalar loop and its ``log`` a vectorised one (7x faster): log(u) with
+    u = 1 + x rounded, corrected by the rounding error (u - 1) - x to first order. The data energy of a
+    640x480 level (12 LEDs, 11 million samples) took 45 instead of 78 ms per evaluation; only the energies'
+    last digits move (the line search's comparisons, not the steps: the depth of the 640x480 sphere press
+    was bit-identical)."""
+    if xp is not np:
+        return xp.log1p(x)
+    u = 1 + x
+    with np.errstate(invalid="ignore"):  # x = inf: log(u) is inf, the correction nan
+        out = np.log(u) - ((u - 1) - x) / u
+    return np.where(np.isfinite(x), out, x) if not np.isfinite(out).all() else out

@@ -135,3 +135,11 @@ def test_variable_projection_blocks_match_reduced_jacobian():
         r = reduced(t)[:, :, p]
         np.testing.assert_allclose(M[0, 0, p], np.sum(w[:, :, p] * J * J), rtol=1e-3)
         np.testing.assert_allclose(b[0, p], np.sum(w[:, :, p] * J * r), rtol=1e-2)
+
+
+def test_the_normal_basis_is_numpys_cross_products_to_the_bit():
+    rng = np.random.default_rng(3)
+    q, qu, qv = (rng.standard_normal((500, 3)) for _ in range(3))
+    A, B, C = geometry.normal_basis(q, qu, qv)
+    for got, (a, b) in zip((A, B, C), ((q, qv), (qu, q), (qu, qv))):
+        np.testing.assert_array_equal(got, np.cross(a, b))

@@ -94,3 +94,21 @@ def test_masked_planes_are_the_masked_pixels_per_led_and_channel():
     np.testing.assert_array_equal(planes, np.moveaxis(images[:, mask], 2, 1))
     usable = masked_planes(images > 0.5, mask, np.float32)  # bool samples cast to the working dtype
     np.testing.assert_array_equal(usable, np.moveaxis(images[:, mask] > 0.5, 2, 1).astype(np.float32))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_cauchy_energy_is_log1p_to_a_few_units_in_the_last_place(dtype):
+    """The Cauchy energy's log(1 + x) through the vectorised log: within 4 ulp of log1p, small x included."""
+    from nlipscalib.solver import robust
+
+    x = np.concatenate([[0.0], np.logspace(-12, 12, 2001), [np.inf]]).astype(dtype)
+    exact = np.log1p(x.astype(np.float64))
+    got = robust._log1p(x, np).astype(np.float64)
+    finite = np.isfinite(exact)
+    ulp = np.spacing(np.abs(exact[finite]).astype(dtype)).astype(np.float64)
+    assert np.all(np.abs(got[finite] - exact[finite]) <= 4 * np.maximum(ulp, np.finfo(dtype).tiny))
+    assert got[-1] == np.inf and got[0] == 0.0
+    lam = 0.03
+    r = np.linspace(-1, 1, 101).astype(dtype)
+    expected = lam**2 * np.log1p(r * r / lam**2)
+    np.testing.assert_allclose(robust.rho(r, lam, "cauchy"), expected, rtol=4 * np.finfo(dtype).eps)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from nlipscalib.solver import krylov
 
@@ -47,3 +48,37 @@ def test_dedup_shortcut_nested_or_overlapping_restores_scipy_once_the_last_leave
     assert type(_unsorted_bsr(False)).sum_duplicates is installed
     inner.__exit__(None, None, None)
     assert type(_unsorted_bsr(False)).sum_duplicates is original
+
+
+def _laplacian(side: int) -> sp.csr_matrix:
+    """A 2-D five-point Laplacian plus a small diagonal: SPD, several AMG levels at side >= 40."""
+    d = sp.diags([-np.ones(side - 1), 2 * np.ones(side), -np.ones(side - 1)], [-1, 0, 1])
+    eye = sp.identity(side)
+    return (sp.kron(d, eye) + sp.kron(eye, d) + 1e-3 * sp.identity(side * side)).tocsr()
+
+
+def test_the_v_cycle_is_pyamgs_one_cycle_preconditioner():
+    """The preconditioner skips pyamg's residual norms and runs on CSR copies of the levels: the same cycle."""
+    rng = np.random.default_rng(0)
+    for side in (60, 10):  # several levels; one level (below max_coarse: the coarse solver alone)
+        A = _laplacian(side)
+        ml = krylov._hierarchy(A)
+        b = rng.standard_normal(A.shape[0])
+        expected = ml.aspreconditioner(cycle="V") @ b
+        cycle = krylov._VCycle(ml)
+        assert (len(ml.levels) > 2) == (side == 60)
+        assert all(m.format == "csr" for m in cycle.A + cycle.R + cycle.P)
+        np.testing.assert_allclose(cycle.apply(b), expected, rtol=1e-10, atol=1e-12 * np.abs(expected).max())
+
+
+def test_cg_with_the_v_cycle_converges_as_with_pyamgs():
+    A = _laplacian(60)
+    b = np.random.default_rng(1).standard_normal(A.shape[0])
+    ml = krylov._hierarchy(A)
+    counts = []
+    for M in (ml.aspreconditioner(cycle="V"), krylov._VCycle(ml).operator()):
+        iterates = []
+        x, status = spla.cg(A, b, rtol=1e-8, M=M, callback=iterates.append)
+        assert status == 0 and np.linalg.norm(A @ x - b) <= 1e-8 * np.linalg.norm(b)
+        counts.append(len(iterates))
+    assert counts[0] == counts[1]

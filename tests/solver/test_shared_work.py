@@ -228,3 +228,55 @@ def test_the_indirect_light_on_a_window_is_the_whole_frames_cut_to_it(press):
         np.testing.assert_array_equal(light(window), whole[:, window[0], window[1]])
     with pytest.raises(ValueError, match="receiver"):
         light((slice(22, 40), slice(31, 58)))
+
+
+def test_shading_derivatives_only_for_the_gauss_newton_steps(press, monkeypatch):
+    """A level evaluated, not iterated, and a step that ends its level never use dF: one derivative shading per
+    Gauss-Newton system solved, none else (each costs about two shadings at 640x480)."""
+    from nlipscalib.solver import kernel
+
+    calls = []
+    plain = kernel.Model.shading
+
+    def counted(self, t, tu, tv, derivatives=False):
+        calls.append(derivatives)
+        return plain(self, t, tu, tv, derivatives)
+
+    monkeypatch.setattr(kernel.Model, "shading", counted)
+    lin = press.linear(press.led_images)
+    two = SolverOptions(pyramid_levels=2)
+    rough = solve(lin, press.camera, press.leds, prior_depth=press.reference.depth, options=two, unrefined=1)
+    levels = rough.report["levels"]
+    assert levels[-1]["iterations"] == 0 and levels[-1]["gamma"] is None and levels[-1]["energy"] == []
+    assert levels[-2]["stop"] == "energy_rtol"  # a converged step ended that level
+    assert sum(calls) == sum(len(lv["cg_iters"]) for lv in levels)
+    assert len(calls) > sum(calls)  # line-search trials and the evaluated level shade without derivatives
+
+
+def test_the_intensity_scale_is_the_percentile_of_the_usable_samples(press):
+    from nlipscalib.solver.nlips import _high_level
+
+    lin = press.linear(press.led_images).astype(np.float32)
+    for usable in (np.ones(lin.shape, bool), lin > np.median(lin), np.zeros(lin.shape, bool)):
+        expected = float(np.percentile(lin[usable], 99)) if usable.any() else 1.0
+        assert _high_level(lin, usable) == expected
+    crop = lin[:, 10:50, 20:70]  # a crop of the images: not contiguous
+    assert _high_level(crop, crop > 0.1) == float(np.percentile(crop[crop > 0.1], 99))
+
+
+def test_a_levels_geometry_is_kept_and_equals_a_fresh_one(press):
+    from nlipscalib.solver import geometry, reuse
+    from nlipscalib.solver.pyramid import level_geometry
+
+    reuse.clear()
+    mask = np.isfinite(press.reference.depth)
+    q, basis = level_geometry(press.camera, mask)
+    fq, fqu, fqv = geometry.ray_tables(press.camera)
+    np.testing.assert_array_equal(q, fq[mask])
+    for got, fresh in zip(basis, geometry.normal_basis(fq[mask], fqu[mask], fqv[mask])):
+        np.testing.assert_array_equal(got, fresh)
+    again = level_geometry(press.camera, mask.copy())  # the same mask's content: the kept arrays, read-only
+    assert again[0] is q and not q.flags.writeable
+    other = mask.copy()
+    other[0, :] = False
+    assert len(level_geometry(press.camera, other)[0]) == other.sum()
