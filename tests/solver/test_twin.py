@@ -209,12 +209,13 @@ def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_pat
         assert np.linalg.norm(np.subtract(disk.position, t.position)) < 0.05
         assert np.degrees(np.arccos(min(1.0, np.dot(disk.direction, t.direction)))) < 0.3
         assert abs(disk.mu / t.mu - 1) < 0.05
-    # the command writes the disks next to the point LEDs the solver reads
+    # the command writes the disks next to the point LEDs the solver reads. At --stride 4 (1/4 of the default's
+    # pixels): what is asserted here is the file's layout and the printed line, not the fit's accuracy (checked
+    # above); on this capture strides 2, 4 and 8 take the same path (term off, no profile, same warnings), and the
+    # command's fit takes 10-15 s of CPU at stride 4 where it took 25-30 s at the default 2
     out = tmp_path / "leds.json"
-    assert (
-        main(["--no-progress", "calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--led-diameter", "3.6"])
-        == 0
-    )
+    argv = ["--no-progress", "calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--stride", "4"]
+    assert main([*argv, "--led-diameter", "3.6"]) == 0
     data = json.loads(out.read_text())
     assert data["emitters"]["radius_mm"] == 1.8 and len(data["emitters"]["leds"]) == len(true)
     assert "as 3.6 mm disks" in capsys.readouterr().out
