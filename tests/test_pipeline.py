@@ -507,19 +507,9 @@ def test_a_result_kept_after_a_kill_loses_the_dead_runs_claim(press):
     """A laptop dying between a press's publish and the release of its claim: the re-run reused the result
     (rightly) but left the dead run's ``.claim-nlips`` beside it for good, as the only thing a re-run never
     cleaned. Now a stale claim sends the re-run the claimed way, which takes it over and removes it."""
-    import signal
-    import subprocess
-    import sys
+    from tests.processes import kill_when_it_says
 
-    argv = [sys.executable, "-c", KILLED_AFTER_PUBLISHING, str(press)]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "published"
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-    finally:
-        proc.kill()
-        proc.wait()
+    kill_when_it_says(KILLED_AFTER_PUBLISHING, str(press), line="published")
     assert (press / ".claim-nlips").exists()  # what the dead run left
     assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"  # not solved again
     assert not [p.name for p in press.iterdir() if p.name.startswith((".claim-", ".tmp-"))]

@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+from tests.processes import kill_when_it_says
+
 COMMAND = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
 TINY = """
 counts = [12]
@@ -142,15 +144,7 @@ def test_a_task_kept_after_a_kill_loses_the_dead_runs_claim(tmp_path):
     from nlipscalib.experiments.runner import run_tasks
     from nlipscalib.experiments.tasks import Task
 
-    argv = [sys.executable, "-c", KILLED_AFTER_A_TASK, str(tmp_path)]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "written"
-        proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=10)
-    finally:
-        proc.kill()
-        proc.wait()
+    kill_when_it_says(KILLED_AFTER_A_TASK, str(tmp_path), line="written")
     tasks = tmp_path / "tasks"
     assert (tasks / ".claim-ref-none.json").exists()  # what the dead run left
     status = run_tasks([Task(kind="reference", id="ref-none", scene={})], tmp_path, progress=False)
