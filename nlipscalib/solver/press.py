@@ -241,8 +241,8 @@ class _Light:
     """IndirectModel or None (a fixed light, or no reference surface)."""
     cmap: ContactMap | None
     """The contact classification (None without a reference surface)."""
-    shading: np.ndarray | None
-    """The reference surface's direct shading (:func:`reference_shading`), or None."""
+    shading: reuse.Deferred | None
+    """The reference surface's direct shading (:func:`reference_shading`, deferred), or None."""
     indirect_seconds: float
     """The term's fits."""
     contact_seconds: float
@@ -265,8 +265,11 @@ def _light_and_contact(
     prior = press.reference.depth if press.reference is not None else None
     t0 = time.perf_counter()
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
-    # (and the next press of the same sensor: solver.reuse)
-    shading = reference_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
+    # (and the next press of the same sensor: solver.reuse). Deferred: when they all find their own results
+    # kept (a warm process), it is only named in their keys, and the 88 MB (640x480) array is never loaded
+    shading = None
+    if prior is not None:
+        shading = reference_shading(press.camera, leds, prior, press.reference.normals, defer=True)
     fit = _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, shading)
     model = fit.first() if fit is not None else None
     t_indirect = time.perf_counter() - t0
@@ -401,7 +404,7 @@ def _indirect_fitter(
     explicit_roi: tuple[int, int, int, int] | None,
     interreflection: str,
     bounces: int,
-    shading: np.ndarray | None,
+    shading: reuse.Deferred | None,
 ):
     """The :class:`_IndirectFitter` of a solve; None when no term is fitted (a fixed light, no reference)."""
     if fixed_light is not None or press.reference is None:
@@ -481,7 +484,7 @@ class _OuterLoop:
         leds: Leds,
         images: np.ndarray,
         mask: np.ndarray,
-        shading: np.ndarray | None,
+        shading: reuse.Deferred | None,
         relaxation: float | str,
         focus: np.ndarray | None = None,
     ):
@@ -618,15 +621,15 @@ def _contact(
     ref_capture: Press | None,
     fixed_light: np.ndarray | None,
     model: IndirectModel | None,
-    shading: np.ndarray | None,
+    shading: reuse.Deferred | None,
     dead_level: float,
     cache: dict | None = None,
 ) -> ContactMap:
     """The one contact classification: against the undeformed capture, or the model with its indirect term.
 
-    ``shading``: :func:`direct_shading` of the reference surface; ``dead_level``: ``SolverOptions.dead_led_level``,
-    the fit's level of a dead LED; ``cache``: the press's side of the classification, shared by the
-    classifications of one solve (``classify_contact(cache=...)``)."""
+    ``shading``: :func:`reference_shading` of the reference surface, deferred; ``dead_level``:
+    ``SolverOptions.dead_led_level``, the fit's level of a dead LED; ``cache``: the press's side of the
+    classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
     classify = functools.partial(classify_contact, press, leds, dead_level=dead_level, cache=cache)
     if ref_capture is not None:
         return classify(undeformed_images=_undeformed_images(ref_capture), undeformed_noise=True)
