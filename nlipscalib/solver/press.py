@@ -650,14 +650,15 @@ def _solved_surface_light(
     """Indirect light of the solved surface at the ``mask``'s pixels, (L, h, w, 3) on ``window`` (rows,
     columns; it holds the mask): solved pixels where reconstructed, the reference elsewhere (``ref_surface``,
     the reference as patches, is recomputed around the solved pixels only)."""
-    ref = press.reference
     rec = result.reconstructed
-    depth = np.where(rec, result.depth, ref.depth)
-    normals = np.where(rec[..., None], result.normals, ref.normals)
     typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
     albedo = np.where(rec[..., None], result.albedo, typical)
-    solved = ref_surface.replaced(depth, normals, rec)
-    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, surface=solved, window=window)
+    # replaced() reads the solved depth and normals at the reconstructed pixels only, in their box: no
+    # whole-frame merge with the reference first; its surface holds that merge (the reference elsewhere)
+    solved = ref_surface.replaced(result.depth, result.normals, rec)
+    return surface_indirect(
+        model, press.camera, leds, solved.depth, solved.normals, albedo, mask, surface=solved, window=window
+    )
 
 
 def _relaxation(image_total: np.ndarray, light: np.ndarray) -> np.ndarray:
