@@ -458,11 +458,12 @@ def _capture_key(capture: Press) -> tuple:
     return reuse.reused("capture key", id(capture), key, keep=capture)
 
 
-def _undeformed_images(capture: Press) -> np.ndarray:
-    """(L, H, W, 3) float32, read-only -- the undeformed capture's linear images, returned through
-    :mod:`.reuse` under its content key: the contact classification's blur of them (0.13-0.25 s at 640x480)
-    then names them by that key and is kept on disk for the next process (``contact._smoothed_undeformed``)."""
-    return reuse.reused("undeformed capture", _capture_key(capture), lambda: capture.linear_led_images)
+def _undeformed_images(capture: Press) -> reuse.Deferred:
+    """The undeformed capture's linear images ((L, H, W, 3) float32, read-only), deferred (:func:`reuse.deferred`)
+    under its content key: the contact classification's blur of them (0.13-0.25 s at 640x480) names them by that
+    key and is kept on disk for the next process (``contact._smoothed_undeformed``), which then does not
+    linearise them at all (a 44 MB array at 640x480 with 12 LEDs)."""
+    return reuse.deferred("undeformed capture", _capture_key(capture), lambda: capture.linear_led_images)
 
 
 class _OuterLoop:

@@ -203,6 +203,25 @@ def test_a_warm_solve_whose_consumers_all_hit_does_not_load_the_shading(tmp_path
         np.testing.assert_array_equal(later[key], first[key], err_msg=key)
 
 
+def test_a_warm_solve_against_an_undeformed_capture_does_not_linearise_its_images(tmp_path, disk):
+    """The contact's blur of the undeformed capture's images is kept on disk under the capture's content key: a
+    later process that finds it names the images by that key and never linearises them (44 MB at 640x480)."""
+    folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere")}
+
+    def solve(undeformed):
+        np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
+        result = solve_press(load_press(folders["sphere"]), roi="auto", indirect=undeformed, interreflection="on")
+        return {key: getattr(result, key) for key in ("depth", "normals", "albedo")}
+
+    first = solve(load_press(folders["none"]))
+    reuse.clear()  # a new process: only the disk remembers
+    undeformed = load_press(folders["none"])
+    later = solve(undeformed)
+    assert "linear_led_images" not in vars(undeformed)  # the cached property was never computed
+    for key in first:
+        np.testing.assert_array_equal(later[key], first[key], err_msg=key)
+
+
 def _solve_fields(press, undeformed):
     np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
     result = solve_press(press, indirect=undeformed, interreflection="on")  # the whole gel: its operators recur
