@@ -124,7 +124,7 @@ def classify_contact(
     press: Press,
     leds: Leds | None = None,
     *,
-    undeformed_images: np.ndarray | None = None,
+    undeformed_images: np.ndarray | reuse.Deferred | None = None,
     undeformed_light: np.ndarray | None = None,
     indirect: np.ndarray | None = None,
     dead_level: float = tolerances.LIT_LEVEL,
@@ -139,9 +139,9 @@ def classify_contact(
     ----------
     press : Press -- with ``reference``.
     leds : sequence of Led or None -- the LED model (calibrated LEDs when given), default ``press.leds``.
-    undeformed_images : (L, H, W, 3) float or None -- what the undeformed dome looks like under each
-        LED up to a per-pixel albedo (a capture of it: linear images; or the model with its indirect
-        term). None: the direct model on ``press.reference`` with ``leds``.
+    undeformed_images : (L, H, W, 3) float, a ``solver.reuse.Deferred`` of it, or None -- what the undeformed
+        dome looks like under each LED up to a per-pixel albedo (a capture of it: linear images; or the model
+        with its indirect term). None: the direct model on ``press.reference`` with ``leds``.
     undeformed_light : (L, H, W, 3) float or None -- added to ``undeformed_images`` (e.g. the fitted
         indirect light of the undeformed dome added to its direct shading), unsmoothed: it must be smooth at
         the scale of ``blur_px``. Kept apart so the smoothed ``undeformed_images`` -- a sensor's direct
@@ -520,20 +520,21 @@ def _sum_squares(stack: np.ndarray, ok: np.ndarray | None) -> np.ndarray:
     return np.einsum("lhwc,lhwc->hw", masked, masked)
 
 
-def _smoothed_undeformed(images: np.ndarray, live: Sequence[int], grid: _Grid) -> np.ndarray:
-    """``grid.smooth`` of ``grid.means(images, live)`` (float32). When ``images`` is read-only (the sensor's
-    direct shading, shared by the solves of its presses through ``solver.reuse``) the result is kept for the
-    next classification against that same array (and on disk for the next process when the array is one that
-    ``solver.reuse`` returned, so its key names it by content); a writable array could change in place, so it
-    is smoothed anew."""
+def _smoothed_undeformed(images: np.ndarray | reuse.Deferred, live: Sequence[int], grid: _Grid) -> np.ndarray:
+    """``grid.smooth`` of ``grid.means(images, live)`` (float32). When ``images`` is one that ``solver.reuse``
+    returned or defers (the sensor's direct shading, shared by the solves of its presses) the result is kept
+    under its key, in this process and on disk for the next (a deferred ``images`` is then read only when the
+    result is not kept); when it is another read-only array, for the next classification against that same
+    array; a writable array could change in place, so it is smoothed anew."""
 
     def smooth():
-        return grid.smooth(grid.means(images, live))
+        return grid.smooth(grid.means(reuse.values(images), live))
 
-    if not isinstance(images, np.ndarray) or images.flags.writeable:
+    kept = isinstance(images, reuse.Deferred) or (isinstance(images, np.ndarray) and not images.flags.writeable)
+    if not kept:
         return smooth()
-    made = (tuple(live), float(grid.sigma), reuse.digest(grid.pixels), grid.block)
     origin = reuse.origin(images)  # the sensor's shading: named by its own key, kept on disk too
+    made = (tuple(live), float(grid.sigma), reuse.digest(grid.pixels), grid.block)
     if origin is not None:
         return reuse.reused("smoothed undeformed", (origin, *made), smooth, persist=True)
     return reuse.reused("smoothed undeformed", (id(images), *made), smooth, keep=images)

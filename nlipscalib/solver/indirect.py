@@ -168,12 +168,20 @@ def direct_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.nd
     return out
 
 
-def reference_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray) -> np.ndarray:
+def reference_shading(
+    camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray, defer: bool = False
+) -> np.ndarray | reuse.Deferred:
     """:func:`direct_shading` of the undeformed surface, reused for the next press of the same sensor, in
-    this process and the next (:mod:`nlipscalib.solver.reuse`); read-only."""
+    this process and the next (:mod:`nlipscalib.solver.reuse`); read-only.
+
+    ``defer``: return a :class:`~nlipscalib.solver.reuse.Deferred` instead, which names the shading by its key
+    and loads or computes it only when a consumer needs its values (:func:`reuse.values`): a warm process whose
+    consumers (:func:`reference_surface`, the contact's smoothed undeformed images) all find their own results
+    kept does not load the 88 MB (640x480) array at all."""
     leds = tuple(leds)
     key = (camera, leds, reuse.digest(depth, normals))
-    return reuse.reused("shading", key, lambda: direct_shading(camera, leds, depth, normals), persist=True)
+    shading = reuse.deferred("shading", key, lambda: direct_shading(camera, leds, depth, normals), persist=True)
+    return shading if defer else shading.values()
 
 
 def reference_surface(
@@ -182,15 +190,17 @@ def reference_surface(
     depth: np.ndarray,
     normals: np.ndarray,
     size: int | None = None,
-    shading: np.ndarray | None = None,
+    shading: np.ndarray | reuse.Deferred | None = None,
 ) -> Surface:
     """:class:`Surface` of the undeformed surface, reused for the next press of the same sensor (in this
-    process and the next); its arrays are read-only (:meth:`Surface.replaced` copies what it changes)."""
+    process and the next); its arrays are read-only (:meth:`Surface.replaced` copies what it changes).
+    ``shading``: its :func:`direct_shading` (or :func:`reference_shading`'s deferred one, read only when the
+    surface is made here), or None."""
     leds = tuple(leds)
     size = patch_size(camera) if size is None else int(size)
 
     def make() -> Surface:
-        surf = Surface(camera, leds, np.array(depth), np.array(normals), size, shading)
+        surf = Surface(camera, leds, np.array(depth), np.array(normals), size, reuse.values(shading))
         reuse.freeze(surf.patches, surf.shading, surf.keep, surf.valid, surf.depth, surf.normals)
         return surf
 
@@ -347,8 +357,9 @@ def fit_indirect(
     iterations : alternations of rho and kappa.
     exclude : (H, W) bool or None -- pixels not to fit on (a press's contact, when the press itself
         stands in for the undeformed capture); they still emit light.
-    shading : (L, H, W, 3) float64 or None -- :func:`direct_shading` of the reference surface with
-        ``leds``, when the caller has it (None: computed here).
+    shading : (L, H, W, 3) float64, a :class:`~nlipscalib.solver.reuse.Deferred` of it, or None --
+        :func:`direct_shading` of the reference surface with ``leds``, when the caller has it (None: computed
+        here; a deferred one is read only when the surface's patches are not kept, :func:`reference_surface`).
     cache : dict or None -- shared by fits of the same capture with the same ``leds`` (e.g. a rough
         fit and a refit with a different ``exclude``): holds what does not depend on ``exclude``
         (patches, the off-view dome's light, the linear images), filled by the first fit.
@@ -474,7 +485,7 @@ def _alternate(
     return kappa, G, off_albedo
 
 
-def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | None) -> dict:
+def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | reuse.Deferred | None) -> dict:
     """What :func:`fit_indirect` needs besides ``exclude``: the surface as patches, the off-view dome
     and its light for a unit albedo (both the sensor's alone: reused, :mod:`.reuse`), the linear
     images, the usable samples and the live LEDs."""

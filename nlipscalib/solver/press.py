@@ -241,8 +241,8 @@ class _Light:
     """IndirectModel or None (a fixed light, or no reference surface)."""
     cmap: ContactMap | None
     """The contact classification (None without a reference surface)."""
-    shading: np.ndarray | None
-    """The reference surface's direct shading (:func:`reference_shading`), or None."""
+    shading: reuse.Deferred | None
+    """The reference surface's direct shading (:func:`reference_shading`, deferred), or None."""
     indirect_seconds: float
     """The term's fits."""
     contact_seconds: float
@@ -265,8 +265,11 @@ def _light_and_contact(
     prior = press.reference.depth if press.reference is not None else None
     t0 = time.perf_counter()
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
-    # (and the next press of the same sensor: solver.reuse)
-    shading = reference_shading(press.camera, leds, prior, press.reference.normals) if prior is not None else None
+    # (and the next press of the same sensor: solver.reuse). Deferred: when they all find their own results
+    # kept (a warm process), it is only named in their keys, and the 88 MB (640x480) array is never loaded
+    shading = None
+    if prior is not None:
+        shading = reference_shading(press.camera, leds, prior, press.reference.normals, defer=True)
     fit = _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, shading)
     model = fit.first() if fit is not None else None
     t_indirect = time.perf_counter() - t0
@@ -401,7 +404,7 @@ def _indirect_fitter(
     explicit_roi: tuple[int, int, int, int] | None,
     interreflection: str,
     bounces: int,
-    shading: np.ndarray | None,
+    shading: reuse.Deferred | None,
 ):
     """The :class:`_IndirectFitter` of a solve; None when no term is fitted (a fixed light, no reference)."""
     if fixed_light is not None or press.reference is None:
@@ -455,11 +458,12 @@ def _capture_key(capture: Press) -> tuple:
     return reuse.reused("capture key", id(capture), key, keep=capture)
 
 
-def _undeformed_images(capture: Press) -> np.ndarray:
-    """(L, H, W, 3) float32, read-only -- the undeformed capture's linear images, returned through
-    :mod:`.reuse` under its content key: the contact classification's blur of them (0.13-0.25 s at 640x480)
-    then names them by that key and is kept on disk for the next process (``contact._smoothed_undeformed``)."""
-    return reuse.reused("undeformed capture", _capture_key(capture), lambda: capture.linear_led_images)
+def _undeformed_images(capture: Press) -> reuse.Deferred:
+    """The undeformed capture's linear images ((L, H, W, 3) float32, read-only), deferred (:func:`reuse.deferred`)
+    under its content key: the contact classification's blur of them (0.13-0.25 s at 640x480) names them by that
+    key and is kept on disk for the next process (``contact._smoothed_undeformed``), which then does not
+    linearise them at all (a 44 MB array at 640x480 with 12 LEDs)."""
+    return reuse.deferred("undeformed capture", _capture_key(capture), lambda: capture.linear_led_images)
 
 
 class _OuterLoop:
@@ -481,7 +485,7 @@ class _OuterLoop:
         leds: Leds,
         images: np.ndarray,
         mask: np.ndarray,
-        shading: np.ndarray | None,
+        shading: reuse.Deferred | None,
         relaxation: float | str,
         focus: np.ndarray | None = None,
     ):
@@ -618,15 +622,15 @@ def _contact(
     ref_capture: Press | None,
     fixed_light: np.ndarray | None,
     model: IndirectModel | None,
-    shading: np.ndarray | None,
+    shading: reuse.Deferred | None,
     dead_level: float,
     cache: dict | None = None,
 ) -> ContactMap:
     """The one contact classification: against the undeformed capture, or the model with its indirect term.
 
-    ``shading``: :func:`direct_shading` of the reference surface; ``dead_level``: ``SolverOptions.dead_led_level``,
-    the fit's level of a dead LED; ``cache``: the press's side of the classification, shared by the
-    classifications of one solve (``classify_contact(cache=...)``)."""
+    ``shading``: :func:`reference_shading` of the reference surface, deferred; ``dead_level``:
+    ``SolverOptions.dead_led_level``, the fit's level of a dead LED; ``cache``: the press's side of the
+    classification, shared by the classifications of one solve (``classify_contact(cache=...)``)."""
     classify = functools.partial(classify_contact, press, leds, dead_level=dead_level, cache=cache)
     if ref_capture is not None:
         return classify(undeformed_images=_undeformed_images(ref_capture), undeformed_noise=True)
@@ -647,14 +651,15 @@ def _solved_surface_light(
     """Indirect light of the solved surface at the ``mask``'s pixels, (L, h, w, 3) on ``window`` (rows,
     columns; it holds the mask): solved pixels where reconstructed, the reference elsewhere (``ref_surface``,
     the reference as patches, is recomputed around the solved pixels only)."""
-    ref = press.reference
     rec = result.reconstructed
-    depth = np.where(rec, result.depth, ref.depth)
-    normals = np.where(rec[..., None], result.normals, ref.normals)
     typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
     albedo = np.where(rec[..., None], result.albedo, typical)
-    solved = ref_surface.replaced(depth, normals, rec)
-    return surface_indirect(model, press.camera, leds, depth, normals, albedo, mask, surface=solved, window=window)
+    # replaced() reads the solved depth and normals at the reconstructed pixels only, in their box: no
+    # whole-frame merge with the reference first; its surface holds that merge (the reference elsewhere)
+    solved = ref_surface.replaced(result.depth, result.normals, rec)
+    return surface_indirect(
+        model, press.camera, leds, solved.depth, solved.normals, albedo, mask, surface=solved, window=window
+    )
 
 
 def _relaxation(image_total: np.ndarray, light: np.ndarray) -> np.ndarray:

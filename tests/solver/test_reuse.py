@@ -115,7 +115,9 @@ def test_presses_of_one_sensor_solve_alike_with_reused_sensor_work(tmp_path):
         shared = solve(press)
         for key in ("depth", "normals", "albedo"):
             np.testing.assert_array_equal(getattr(shared, key), getattr(fresh, key), err_msg=key)
-    assert {"shading", "surface", "fit", "operators"} <= set(reuse._store)  # the work was in fact reused
+    # the work was in fact reused (the shading is not among it: with an undeformed capture the fit and the
+    # contact do not read it, and the outer loop's surface is the fit's, made from its own capture)
+    assert {"surface", "fit", "operators"} <= set(reuse._store)
 
 
 def test_solves_on_one_mask_share_its_difference_operators(tmp_path, monkeypatch):
@@ -159,6 +161,67 @@ def test_a_persisted_result_is_computed_once_for_later_processes_and_served_read
     assert reuse.origin(reuse.reused("k", key, compute)) == ("k", (key, blas_setting()))
 
 
+def test_a_deferred_result_is_named_by_its_key_and_computed_only_when_its_values_are_needed():
+    calls = []
+
+    def compute():
+        calls.append(1)
+        return np.arange(3.0)
+
+    later = reuse.deferred("k", ("a",), compute)
+    assert not calls and reuse.values(later) is reuse.values(later) and len(calls) == 1
+    assert reuse.origin(later) == reuse.origin(reuse.reused("k", ("a",), compute))  # the stored values' name
+    assert reuse.values(later) is reuse.reused("k", ("a",), compute) and len(calls) == 1
+    plain = np.ones(2)
+    assert reuse.values(plain) is plain
+
+
+def test_a_warm_solve_whose_consumers_all_hit_does_not_load_the_shading(tmp_path, disk, monkeypatch):
+    """The undeformed surface's direct shading (88 MB at 640x480, ~0.08 s to load) is only part of the keys of
+    its consumers (the fit's and the outer loop's surfaces, the contact's smoothed undeformed images) when
+    each finds its own result on disk: a later process does not load it, and solves alike."""
+    from nlipscalib.solver import indirect
+
+    press = load_press(synth.make_press(tmp_path / "sphere", "sphere", size=(96, 72)))
+
+    def solve():
+        np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
+        result = solve_press(press, roi="auto", interreflection="on")  # the press stands in for the undeformed
+        return {key: getattr(result, key) for key in ("depth", "normals", "albedo")}
+
+    first = solve()
+    assert any((disk / "shading").iterdir())  # the first process needed it: computed and kept
+    reuse.clear()  # a new process: only the disk remembers
+    loaded, shaded = [], []
+    load, direct = diskcache.load, indirect.direct_shading
+    monkeypatch.setattr(diskcache, "load", lambda path: loaded.append(path.parent.name) or load(path))
+    monkeypatch.setattr(indirect, "direct_shading", lambda *a, **k: shaded.append(1) or direct(*a, **k))
+    later = solve()
+    assert "surface" in loaded and "smoothed_undeformed" in loaded  # its consumers' own results came from disk
+    assert "shading" not in loaded and not shaded  # and the shading was neither loaded nor computed
+    for key in first:
+        np.testing.assert_array_equal(later[key], first[key], err_msg=key)
+
+
+def test_a_warm_solve_against_an_undeformed_capture_does_not_linearise_its_images(tmp_path, disk):
+    """The contact's blur of the undeformed capture's images is kept on disk under the capture's content key: a
+    later process that finds it names the images by that key and never linearises them (44 MB at 640x480)."""
+    folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere")}
+
+    def solve(undeformed):
+        np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
+        result = solve_press(load_press(folders["sphere"]), roi="auto", indirect=undeformed, interreflection="on")
+        return {key: getattr(result, key) for key in ("depth", "normals", "albedo")}
+
+    first = solve(load_press(folders["none"]))
+    reuse.clear()  # a new process: only the disk remembers
+    undeformed = load_press(folders["none"])
+    later = solve(undeformed)
+    assert "linear_led_images" not in vars(undeformed)  # the cached property was never computed
+    for key in first:
+        np.testing.assert_array_equal(later[key], first[key], err_msg=key)
+
+
 def _solve_fields(press, undeformed):
     np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
     result = solve_press(press, indirect=undeformed, interreflection="on")  # the whole gel: its operators recur
@@ -178,7 +241,9 @@ def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, dis
     reuse.clear()
     first = _solve_fields(press, undeformed)
     kinds = {p.name for p in disk.iterdir() if any(p.iterdir())}
-    assert {"shading", "surface", "fit", "operators", "smoothed_undeformed"} <= kinds
+    # no "shading": with an undeformed capture the fit and the contact do not read it, and at this size the
+    # outer loop's surface is the fit's (the same patch side), made from the capture
+    assert {"surface", "fit", "operators", "smoothed_undeformed"} <= kinds
     reuse.clear()  # a new process: only the disk remembers
     shaded, blurred = [], []
     direct, blur = indirect.direct_shading, contact._smooth
