@@ -225,6 +225,26 @@ def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_pat
     assert "--coating-reflectance" in capsys.readouterr().err
 
 
+def test_a_bounce_free_capture_keeps_the_term_off_from_perturbed_leds_without_a_reflectance_profile(
+    tmp_path, monkeypatch
+):
+    """The auto decision does not hang on the starting LEDs: from LEDs 0.3-0.5 mm / 5 deg off, a bounce-free
+    capture's indirect share with them (0.04-0.08) passed the old gate that the true LEDs (0.014) did not, and
+    the term-on calibration ran with its reflectance profile (~110 s of the disk test) only to be rejected. The
+    term is now tried on the point LEDs only, rejected there, and the LED file says so."""
+    from nlipscalib.solver import calibrate as module
+
+    def no_profile(*args, **kwargs):
+        raise AssertionError("the reflectance profile ran on a bounce-free capture")
+
+    monkeypatch.setattr(module, "_profiled_reflectance", no_profile)
+    scene = twin().replace(camera={"width": 80, "height": 60})  # noise-free: the direct fit leaves 1.5x the noise
+    flat = load_press(render_press(scene, None, tmp_path / "flat", seed=3))
+    cal = calibrate_leds(flat, initial=perturbed(flat.leds, np.random.default_rng(1)), stride=2, led_radius=1.8)
+    (model,) = cal.interreflection
+    assert not model["enabled"] and "tried on:" in model["reason"], (model["reason"], cal.quality)
+
+
 def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_interreflecting_capture(root):
     """Issue 6's LED acceptance on the default twin (3.6 mm disk LEDs, one bounce, noise): a ring-wide tilt of
     the LED axes trades against the indirect term's magnitude, and the freely fitted reflectance comes out high
