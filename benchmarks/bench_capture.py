@@ -100,7 +100,7 @@ def main() -> None:
     sensor.close()
 
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, "-c", "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"]
+        cmd = [sys.executable, "-c", "import sys; from nlipscalib.cli import command; sys.exit(command())"]
         cmd += ["capture", "--emulate", "nlipstac", "--presses", "3", "--out", str(Path(tmp) / "s")]
         cmd += ["--width", str(args.width), "--height", str(args.height)]
         t0 = time.perf_counter()

@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(ROOT))
 from common import write_section  # noqa: E402
 
-CLI = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+CLI = "import sys; from nlipscalib.cli import command; sys.exit(command())"
 GOALS = {"full": 4.0, "auto ROI": 1.5}
 
 

@@ -43,7 +43,7 @@ def _claim_once(folder: Path) -> None:
 
 
 def _dataset_wall(spec: Path, out: Path, processes: int) -> float:
-    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    code = "import sys; from nlipscalib.cli import command; sys.exit(command())"
     cmd = [sys.executable, "-c", code, "--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1"]
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     t0 = time.perf_counter()

@@ -220,7 +220,7 @@ def stream_command(model_paths: dict, folder: Path, out: Path, repeats: int) -> 
             cmd = [
                 sys.executable,
                 "-c",
-                "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))",
+                "import sys; from nlipscalib.cli import command; sys.exit(command())",
                 "infer",
                 str(out / f"{key}_640.pt"),
                 str(video),

@@ -52,7 +52,7 @@ def time_commands(url: str, repeats: int) -> dict[str, float]:
 def cli_wall_time(url: str) -> float:
     start = time.perf_counter()
     subprocess.run(
-        [sys.executable, "-c", "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"]
+        [sys.executable, "-c", "import sys; from nlipscalib.cli import command; sys.exit(command())"]
         + ["leds", url, "test", "--dwell", "0"],
         check=True,
         capture_output=True,

@@ -111,6 +111,18 @@ def plain_text(text: str | None) -> str | None:
     return _MARKUP.sub(lambda m: m.group(1) or m.group(2), text)
 
 
+def command() -> int:
+    """The ``nlips`` command (console script, ``python -m nlipscalib``): :func:`main` in a process of its own.
+
+    Only here, not in :func:`main` (which tests and Python programs call in their own process): settings that
+    hold for the rest of the process and the processes it starts -- NumPy's arrays on ordinary pages
+    (:func:`nlipscalib.core.pages.ordinary_pages_for_command`)."""
+    from ..core.pages import ordinary_pages_for_command
+
+    ordinary_pages_for_command()
+    return main()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     previous = _terminate_cleanly(args.command, args)

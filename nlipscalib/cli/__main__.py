@@ -2,6 +2,6 @@
 
 import sys
 
-from . import main
+from . import command
 
-sys.exit(main(sys.argv[1:]))
+sys.exit(command())

@@ -32,6 +32,7 @@ from ..core.camera import Camera
 from ..core.errors import ConfigError
 from ..core.leds import Leds, led_arrays
 from ..core.metrics import angle_deg
+from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
 from ..core.robust_scale import mad_scale
 from . import geometry, reuse
@@ -40,7 +41,6 @@ from .inputs import check_inputs
 from .kernel import Array, Backend, Parts, make_model
 from .krylov import Krylov, forcing
 from .options import SolverOptions
-from .pages import ordinary_pages
 from .pyramid import build_pyramid, checked_prior_weights, resize
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a progress bar is asked for

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from nlipscalib.solver import pages, solve
+from nlipscalib.core import pages
+from nlipscalib.solver import solve
 
 from . import synth
 

@@ -1,4 +1,5 @@
-"""NumPy's large arrays on ordinary pages while the solver runs (no transparent huge pages).
+"""NumPy's large arrays on ordinary pages (no transparent huge pages): while the solver runs, or for a whole
+``nlips`` command.
 
 NumPy asks the kernel for transparent huge pages (``madvise(MADV_HUGEPAGE)``) on every array of 4 MiB or more.
 With the kernel's usual THP defrag setting ("madvise"), a first touch of such an array then compacts memory
@@ -7,16 +8,25 @@ whole-frame solve's CPU time system time. The solver's (L, 3, N) arrays and spar
 allocated afresh by every level and pass, and read a few times each; ordinary 4 KiB pages cost more faults
 and less time (the three NLiPs solves of a 640x480 one-bounce press: system time 2.7-3.5 s -> 1.2-1.4 s,
 benchmarks/RESULTS.md).
+
+The rest of a command allocates the same way (the press's images, their linearisation, the contact classification,
+the interreflection fits), so the ``nlips`` command switches the advice off for its whole process and the processes
+it starts (:func:`ordinary_pages_for_command`). A user who sets ``NUMPY_MADVISE_HUGEPAGE`` (NumPy's own switch, read
+when NumPy is imported) keeps that choice: neither function then changes anything.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
 from collections.abc import Iterator
 
 _lock = threading.Lock()
 _state = [0, None]  # [solves inside the block now, NumPy's setting when the first entered]
+
+ADVICE_VARIABLE = "NUMPY_MADVISE_HUGEPAGE"
+"""NumPy's environment switch of its huge-page advice ("0" off, "1" on), read when NumPy is imported."""
 
 
 def _setter():
@@ -36,7 +46,7 @@ def ordinary_pages() -> Iterator[None]:
     """Within the block, NumPy does not advise huge pages for its arrays; its setting is back once the last
     block (of any thread) has left. The same numbers: only how the kernel backs the memory changes."""
     setter = _setter()
-    if setter is None:
+    if setter is None or _users_choice():
         yield
         return
     with _lock:
@@ -50,3 +60,22 @@ def ordinary_pages() -> Iterator[None]:
             _state[0] -= 1
             if _state[0] == 0:
                 setter(_state[1])
+
+
+def ordinary_pages_for_command() -> None:
+    """Switch NumPy's huge-page advice off for the rest of this process and, through the environment, for the
+    processes it starts (solver workers, dataset renderers, Dask's local workers): the ``nlips`` command calls
+    it first. Why the whole command: on the 2-core VM the benchmarks run on, a warm ``nlips solve --roi auto``
+    spent 1.5-2.3 s of system time with the advice against 0.55 s without it at 640x480 (4.8 -> 1.3 s at
+    1280x960), the same user time, the same numbers (benchmarks/RESULTS.md). Nothing changes when the user set
+    :data:`ADVICE_VARIABLE` themselves."""
+    setter = _setter()
+    if setter is None or _users_choice():
+        return
+    os.environ[ADVICE_VARIABLE] = "0"
+    setter(False)
+
+
+def _users_choice() -> bool:
+    """Whether :data:`ADVICE_VARIABLE` asks for the advice (set by the user: "0" is this module's own value)."""
+    return os.environ.get(ADVICE_VARIABLE, "0").strip() != "0"

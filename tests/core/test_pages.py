@@ -1,0 +1,56 @@
+"""The ``nlips`` command's NumPy arrays on ordinary pages, for its process and the processes it starts, unless the
+user chose NumPy's huge-page advice themselves."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from nlipscalib.core import pages
+
+pytestmark = pytest.mark.skipif(pages._setter() is None, reason="this NumPy has no huge-page switch")
+
+CHILD_ADVICE = "from nlipscalib.core import pages; print(pages._setter()(True))"
+
+
+@pytest.fixture
+def advice():
+    """NumPy's advice as it was, restored after the test (the switch is process-wide)."""
+    setter = pages._setter()
+    original = setter(True)
+    setter(original)
+    yield setter
+    setter(original)
+
+
+def test_the_command_turns_the_advice_off_here_and_in_the_processes_it_starts(advice, monkeypatch):
+    monkeypatch.delenv(pages.ADVICE_VARIABLE, raising=False)
+    advice(True)
+    pages.ordinary_pages_for_command()
+    assert advice(False) is False  # off in this process
+    child = subprocess.run([sys.executable, "-c", CHILD_ADVICE], capture_output=True, text=True, check=True)
+    assert child.stdout.strip() == "False"  # and in a worker started from it
+    assert os.environ[pages.ADVICE_VARIABLE] == "0"
+
+
+def test_a_users_own_choice_of_the_advice_is_kept(advice, monkeypatch):
+    monkeypatch.setenv(pages.ADVICE_VARIABLE, "1")
+    advice(True)
+    pages.ordinary_pages_for_command()
+    with pages.ordinary_pages():  # the solver's block respects it too
+        assert advice(True) is True
+    assert os.environ[pages.ADVICE_VARIABLE] == "1"
+
+
+def test_python_dash_m_runs_the_command_entry(tmp_path):
+    """``python -m nlipscalib`` goes through the console script's entry (the process-wide settings included)."""
+    code = (
+        "import runpy, sys; from nlipscalib.core import pages; sys.argv = ['nlips', '--version'];\n"
+        "try:\n    runpy.run_module('nlipscalib', run_name='__main__')\n"
+        "except SystemExit:\n    pass\n"
+        "print('advice', pages._setter()(True))"
+    )
+    env = {k: v for k, v in os.environ.items() if k != pages.ADVICE_VARIABLE}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert "advice False" in out.stdout, out.stderr
