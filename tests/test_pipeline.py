@@ -144,6 +144,75 @@ def test_a_press_another_process_holds_is_left_to_it_then_waited_for(press_set, 
     thread.join()
 
 
+def test_two_runs_of_other_settings_on_one_press_one_solves_and_the_other_is_refused(press, tmp_path):
+    """Two `nlips solve PRESS` runs with other settings (--roi auto, whole gel) started together: the one that
+    found the press held waited, then replaced the other's result ("made with other settings, re-solving"), both
+    exit 0, the press keeping whichever finished last. Now the first to hold the press solves it and the other is
+    refused in one line naming the press, its output and the other run's settings, exit 2. To make both start
+    before either solves, this process holds the press's claim until each run waits for it or has exited."""
+    import json
+    import os
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from nlipscalib.core.claims import claim
+
+    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    logs = [tmp_path / "auto.log", tmp_path / "whole.log"]
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    procs = []
+    with claim(press / "nlips"):
+        for log_file, roi in zip(logs, (["--roi", "auto"], [])):
+            argv = ["--no-progress", "--log-file", str(log_file), "solve", str(press), *roi, "--no-figures"]
+            procs.append(
+                subprocess.Popen([sys.executable, "-c", code, *argv], env=env, stderr=subprocess.PIPE, text=True)
+            )
+        deadline = time.time() + 120
+        while not all(p.poll() is not None or "waiting for it" in _text(f) for p, f in zip(procs, logs)):
+            assert time.time() < deadline, "neither waited on the held press nor exited"
+            time.sleep(0.1)
+    errs = [p.communicate(timeout=300)[1] for p in procs]
+    assert sorted(p.returncode for p in procs) == [0, 2], errs
+    winner, loser = (0, 1) if procs[0].returncode == 0 else (1, 0)
+    lines = [line for line in errs[loser].splitlines() if not line.startswith(("DEBUG ", "INFO "))]
+    roi = ("auto", "none")[winner]
+    assert len(lines) == 1, errs[loser]
+    assert f"{press / 'nlips'}: another run is solving {press} into it with other settings (roi {roi}" in lines[0]
+    assert "re-solving" not in _text(logs[loser]) and "reconstructed" not in _text(logs[loser])
+    recorded = json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["roi"]
+    assert recorded == ("auto", None)[winner]
+    assert not list(press.glob(".claim-*")) and not list(press.glob(".tmp-*"))
+
+
+def test_a_batch_keeps_its_presses_from_a_run_of_other_settings_until_it_ends(press_set, tmp_path):
+    """A press a live run of other settings holds is failed in one line naming it and that run's settings, the
+    others solved; the run's presses are held until it ends (a batch reaching them once released replaced them)."""
+    from nlipscalib.pipeline.provenance import run_record
+    from nlipscalib.pipeline.reuse import _hold
+
+    root = tmp_path / "presses"
+    shutil.copytree(press_set / "a_sphere", root / "a")
+    shutil.copytree(press_set / "b_cube", root / "b")
+    other = run_record(make_settings(roi="auto", options=FAST))
+    with _hold(root / "a", root / "a" / "nlips", other):  # another run's hold (claims are per file, not per process)
+        statuses = solve_presses([root / "a", root / "b"], roi=None, options=FAST, progress=False, figures=False)
+        assert statuses["b"] == "solved" and not (root / "a" / "nlips").exists()
+        assert statuses["a"].startswith(f"failed: {root / 'a' / 'nlips'}: another run is solving {root / 'a'} into")
+        assert "with other settings (roi auto (this run: none);" in statuses["a"]
+        with pytest.raises(ConfigError, match="another run is solving"):
+            solve_folder(root / "a", roi=None, options=FAST, figures=False)
+        # a run of the same settings shares the press
+        assert solve_folder(root / "a", roi="auto", options=FAST, figures=False)[1] == "solved"
+    assert solve_presses([root / "a"], roi=None, options=FAST, progress=False, figures=False) == {"a": "solved"}
+    assert not list(root.rglob(".claim-*"))
+
+
+def _text(path) -> str:
+    return path.read_text() if path.exists() else ""
+
+
 def test_figures_off_maps_and_full(press):
     solve_folder(press, options=FAST, figures=False)
     assert not list((press / "nlips").glob("*.png"))

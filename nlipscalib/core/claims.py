@@ -26,7 +26,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -57,6 +57,9 @@ class Owner:
     host: str
     pid: int
     token: str
+    note: dict | None = field(default=None, compare=False, repr=False)
+    """What the owner wrote into its claim for others to read (e.g. a solve's settings), or None. Not part of who
+    owns it: a claim is compared by host, pid and token alone."""
 
 
 UNKNOWN_OWNER = Owner("unknown", 0, "")
@@ -70,7 +73,7 @@ def claim_path(target: str | Path) -> Path:
 
 
 @contextlib.contextmanager
-def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Iterator[bool]:
+def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S, note: dict | None = None) -> Iterator[bool]:
     """Claim exclusive work on ``target`` for the duration of the block.
 
     Parameters
@@ -78,6 +81,7 @@ def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Iterator[boo
     target : folder (or file) this process means to produce; its parent is created if missing.
     stale_s : seconds without heartbeat after which another process's claim counts as abandoned; keep the
         default (:data:`CLAIM_STALE_S`) unless every process sharing the folder passes the same value.
+    note : JSON-able dict written into the claim file, for other processes to read as the holder's ``note``
 
     Yields
     ------
@@ -89,7 +93,7 @@ def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Iterator[boo
         raise ValueError(f"stale_s must be > 0, got {stale_s}")
     path = claim_path(target)
     path.parent.mkdir(parents=True, exist_ok=True)
-    me = Owner(HOST, os.getpid(), secrets.token_hex(8))
+    me = Owner(HOST, os.getpid(), secrets.token_hex(8), note)
     # registered before the file exists: a signal handler exiting right after the link still removes it
     # (a claim this process already holds stays registered as its holder's: claims are not re-entrant)
     registered = _HELD.setdefault(path, me) is me
@@ -115,7 +119,9 @@ def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Iterator[boo
 
 
 @contextlib.contextmanager
-def claim_shared(target: str | Path, key: str, *, stale_s: float = CLAIM_STALE_S) -> Iterator[Owner | None]:
+def claim_shared(
+    target: str | Path, key: str, *, stale_s: float = CLAIM_STALE_S, note: dict | None = None
+) -> Iterator[Owner | None]:
     """Hold ``target`` for the duration of the block together with every process holding it for the same ``key``.
 
     Processes of one key share the target (runs of one dataset spec filling one folder); a process of another
@@ -130,18 +136,19 @@ def claim_shared(target: str | Path, key: str, *, stale_s: float = CLAIM_STALE_S
     target : what the holders share (e.g. a folder's ``OUT/dataset``: its claim files are ``OUT/.claim-dataset*``)
     key : what the holders of one group have in common (e.g. a spec digest); no ``~``, ``.`` or ``/``
     stale_s : as for :func:`claim`; keep the default
+    note : as for :func:`claim`, in this holder's claim (what a refused process of another key is told)
 
     Yields
     ------
     Owner or None
         None when this process holds the target (released when the block exits); else a live holder of another
-        key, and nothing is held.
+        key (with its ``note``), and nothing is held.
     """
     if not key or any(c in key for c in (SHARE_SEP, ".", "/", os.sep)):
         raise ValueError(f"a shared claim's key must be non-empty, without '~', '.' or '/': got {key!r}")
     target = Path(target)
     with contextlib.ExitStack() as stack:
-        other = _join(stack, target, key, stale_s)
+        other = _join(stack, target, key, stale_s, note)
         if other is None:  # on leaving: a killed holder's claim goes, its heartbeat stopped (once nobody needs it)
             stack.callback(_sweep_shared, target, stale_s)
         yield other
@@ -223,7 +230,7 @@ def _acquire(path: Path, me: Owner, stale_s: float) -> bool:
     return False
 
 
-def _join(stack: contextlib.ExitStack, target: Path, key: str, stale_s: float) -> Owner | None:
+def _join(stack: contextlib.ExitStack, target: Path, key: str, stale_s: float, note: dict | None) -> Owner | None:
     """Add this process to ``target``'s holders of ``key`` (its claim entered into ``stack``), unless a live holder of
     another key holds it (returned)."""
     while True:
@@ -232,7 +239,7 @@ def _join(stack: contextlib.ExitStack, target: Path, key: str, stale_s: float) -
                 other = _shared_holder(target, stale_s, unlike=key)
                 if other is None:
                     member = target.with_name(SHARE_SEP.join((target.name, key, secrets.token_hex(8))))
-                    stack.enter_context(claim(member, stale_s=stale_s))  # a name of its own: always acquired
+                    stack.enter_context(claim(member, stale_s=stale_s, note=note))  # a name of its own: always acquired
                 return other
         time.sleep(CLAIM_POLL_S)  # another process is adding or looking: milliseconds
 
@@ -271,7 +278,8 @@ def _sweep_shared(target: Path, stale_s: float) -> None:
 
 def _create(path: Path, me: Owner) -> bool:
     """Atomically create the claim file holding ``me``; False if it exists already."""
-    data = json.dumps({"host": me.host, "pid": me.pid, "token": me.token}).encode()
+    fields = {"host": me.host, "pid": me.pid, "token": me.token}
+    data = json.dumps(fields if me.note is None else fields | {"note": me.note}).encode()
     tmp = path.with_name(f"{path.name}.{me.token}")
     _PROBES.add(tmp)  # a signal handler exiting meanwhile removes it (release_all): no finally runs then
     try:
@@ -302,8 +310,9 @@ def _create_exclusive(path: Path, data: bytes) -> bool:
 def _read_owner(path: Path) -> Owner | None:
     try:
         d = json.loads(path.read_bytes())
-        return Owner(str(d["host"]), int(d["pid"]), str(d["token"]))
-    except (OSError, ValueError, KeyError, TypeError):
+        note = d.get("note")
+        return Owner(str(d["host"]), int(d["pid"]), str(d["token"]), note if isinstance(note, dict) else None)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None  # missing, or being written by an O_EXCL creator
 
 

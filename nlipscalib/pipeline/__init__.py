@@ -12,8 +12,10 @@ The one place that turns press folders into reconstruction folders (PRESS/nlips/
 - **Damaged results** (truncated result.npz, an array failing its checksum, broken report.json) are
   re-computed with a warning.
 - **Concurrency.** Work on PRESS/nlips is claimed (:func:`nlipscalib.core.claims.claim`): a press that
-  another live process is solving is left to it and waited for at the end, and interrupted writes
-  (``.tmp-nlips-*``) are removed only by the claim's holder, i.e. when no live process can own them.
+  another live process of the same settings is solving is left to it and waited for at the end, and interrupted
+  writes (``.tmp-nlips-*``) are removed only by the claim's holder, i.e. when no live process can own them. A run
+  holds its outputs for its settings until it ends (:func:`nlipscalib.core.claims.claim_shared`): a run of other
+  settings is refused those presses, one line each, never replacing a live run's result.
 - **Parallel.** ``workers > 1`` solves presses in separate processes (the solver runs single-threaded
   BLAS, so one process per core is the efficient split). Ctrl-C stops the batch in the parent: queued
   presses are not started, running ones finish; a SIGTERM'd worker removes its claim and temporary first.

@@ -27,10 +27,27 @@ def make_provenance(folder: Path, settings: SolveSettings) -> dict:
         "reference": None if settings.reference is None else capture_identity(settings.reference),
     }
     described = settings.describe()
-    keyed = {k: v for k, v in described.items() if k not in ("leds_file", "reference")}  # paths: not content
-    key_source = {"settings": keyed, "inputs": inputs, "software_version": __version__}
-    key = hashlib.sha256(json.dumps(key_source, sort_keys=True).encode()).hexdigest()
+    key = _key(_keyed(described), inputs)
     return {"key": key, "software_version": __version__, "settings": described, "inputs": inputs}
+
+
+def run_record(settings: SolveSettings) -> dict:
+    """What ``settings`` make of any press, for runs sharing an output (pipeline.reuse._hold): the settings that
+    decide a result, the reference capture's identity and the software version (as in a result's provenance,
+    less the press), and ``key`` hashing them: two runs of one key make identical results."""
+    inputs = {"reference": None if settings.reference is None else capture_identity(settings.reference)}
+    keyed = _keyed(settings.describe())
+    return {"key": _key(keyed, inputs), "software_version": __version__, "settings": keyed, "inputs": inputs}
+
+
+def _keyed(described: dict) -> dict:
+    """The settings that decide a result: paths are left out (their content is an input or a setting's value)."""
+    return {k: v for k, v in described.items() if k not in ("leds_file", "reference")}
+
+
+def _key(keyed: dict, inputs: dict) -> str:
+    key_source = {"settings": keyed, "inputs": inputs, "software_version": __version__}
+    return hashlib.sha256(json.dumps(key_source, sort_keys=True).encode()).hexdigest()
 
 
 @functools.lru_cache(maxsize=16)

@@ -3,13 +3,19 @@ waited for, interrupted writes beside it cleaned."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
+from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..core.atomic import TMP_PREFIX
-from ..core.errors import CaptureError
+from ..core.errors import CaptureError, ConfigError
 from ..core.reconstruction import REPORT_FILE, load_reconstruction, read_report, reconstruction_problem
 from .status import SKIPPED
+
+if TYPE_CHECKING:
+    from ..core.claims import Owner
 
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
 
@@ -37,6 +43,44 @@ def _claim(target: Path):
     from ..core.claims import claim
 
     return claim(target)
+
+
+RUN_HOLD = "~run"
+"""Suffix of the name under which runs hold an output for their settings (``PRESS/.claim-nlips~run~KEY~TOKEN``,
+:func:`_hold`): not the output's own name, whose exclusive claim a process solving the press holds for seconds."""
+
+
+@contextlib.contextmanager
+def _hold(folder: Path, out: Path, record: dict) -> Iterator[None]:
+    """Hold ``out`` for the settings of ``record`` (provenance.run_record) while the block runs, together with every
+    run of the same settings (core.claims.claim_shared): runs of one settings share the press as before.
+
+    Raises ConfigError naming the press, ``out`` and the other run's settings when a live run of other settings holds
+    it. Why refuse rather than wait and then replace: two runs of other settings each replaced what the other had
+    just made (the later one's, by timing, each exiting 0), and a batch of both left a folder of mixed settings. A
+    folder that cannot hold a claim file (read-only media) is not held: a result there can still be reused, and a
+    solve says why it cannot write.
+    """
+    from ..core.claims import claim_shared
+
+    with contextlib.ExitStack() as stack:
+        try:
+            other = stack.enter_context(claim_shared(out.with_name(out.name + RUN_HOLD), record["key"], note=record))
+        except OSError as exc:
+            log.debug("%s: not held for this run's settings (%s)", out, exc.strerror or exc)
+            other = None
+        if other is not None:
+            raise ConfigError(_held_elsewhere(folder, out, other, record))
+        yield
+
+
+def _held_elsewhere(folder: Path, out: Path, other: Owner, record: dict) -> str:
+    who = f"process {other.pid} on {other.host}" if other.pid else "another process"
+    theirs = other.note if isinstance(other.note, dict) else {}
+    return (
+        f"{out}: another run is solving {folder} into it with other settings ({_in_words(theirs, record)}; {who}); "
+        "left to it: run again once it has ended, or solve into another --out"
+    )
 
 
 def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce: bool = True):
@@ -74,14 +118,43 @@ def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce
 def _what_changed(old: dict, new: dict) -> str:
     if not old:
         return "no record of them"
+    return ", ".join(name for name, _, _ in _differences(old, new)) or "record differs"
+
+
+def _in_words(old: dict, new: dict) -> str:
+    """:func:`_what_changed` with the old values where they are short: "roi auto (this run: none)"."""
+    if not old:
+        return "settings unknown"
+    words = []
+    for name, was, now in _differences(old, new):
+        if isinstance(was, dict) and isinstance(now, dict):  # options: the fields that differ
+            words += [_word(f"{name}.{k}", was.get(k), v) for k, v in now.items() if was.get(k) != v]
+        else:
+            words.append(_word(name, was, now))
+    return ", ".join(words) or "record differs"
+
+
+def _word(name: str, was: object, now: object) -> str:
+    text = lambda v: "none" if v is None else str(v)  # noqa: E731
+    if len(text(was)) + len(text(now)) > 40:  # calibrated LEDs, a capture's hash: the name says enough
+        return name
+    return f"{name} {text(was)} (this run: {text(now)})"
+
+
+def _differences(old: dict, new: dict) -> list[tuple[str, object, object]]:
+    """(name, old value, new value) of what differs between the provenance record ``old`` and ``new``."""
     settings, inputs = old.get("settings"), old.get("inputs")
     settings = settings if isinstance(settings, dict) else {}
     inputs = inputs if isinstance(inputs, dict) else {}
-    changed = [k for k, v in new["settings"].items() if k not in ("leds_file", "reference") and settings.get(k) != v]
-    changed += [f"{k} capture" for k, v in new["inputs"].items() if inputs.get(k) != v]
+    changed = [
+        (k, settings.get(k), v)
+        for k, v in new["settings"].items()
+        if k not in ("leds_file", "reference") and settings.get(k) != v
+    ]
+    changed += [(f"{k} capture", inputs.get(k), v) for k, v in new["inputs"].items() if inputs.get(k) != v]
     if old.get("software_version") != new["software_version"]:
-        changed.append("software version")
-    return ", ".join(changed) or "record differs"
+        changed.append(("software version", old.get("software_version"), new["software_version"]))
+    return changed
 
 
 def _leftovers(out: Path) -> bool:

@@ -3,6 +3,7 @@ each result reused when identical, else solved and saved with its figures."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 from collections.abc import Iterable, Sequence
@@ -17,8 +18,8 @@ from ..core.reconstruction import (
     load_reconstruction,
     reconstruction_dir,
 )
-from .provenance import capture_identity, make_provenance
-from .reuse import _claim, _clean_interrupted, _leftovers, _published_since, _reuse, _wait_for_release
+from .provenance import capture_identity, make_provenance, run_record
+from .reuse import _claim, _clean_interrupted, _hold, _leftovers, _published_since, _reuse, _wait_for_release
 from .settings import SolveSettings, check_fits_capture, make_settings
 from .status import BUSY, FAILED, SOLVED
 from .workers import _solve_in_processes
@@ -54,12 +55,14 @@ def solve_folder(
     Returns
     -------
     (reconstruction, status) : the result (solved now or reused) and "solved" or "skipped". When another
-        process is solving the press, this waits for it: its result is reused when made with these
-        settings, else the press is solved here.
+        process of these settings is solving the press, this waits for it and reuses its result (or solves the
+        press when it failed).
 
     Raises
     ------
-    NlipsError (CaptureError, ConfigError, ShapeError) with one line naming the file and the problem.
+    NlipsError (CaptureError, ConfigError, ShapeError) with one line naming the file and the problem;
+    ConfigError naming the press, ``out`` and the other run's settings when a live run of other settings holds
+    ``out`` (its result is never replaced while it runs; see :func:`solve_presses`).
     """
     settings = make_settings(
         reference=reference, roi=roi, leds=leds, options=options, backend=backend, solver_keywords=solver_keywords
@@ -108,15 +111,18 @@ def solve_presses(
     progress : progress bars (shown only on a terminal)
     figures : True/"maps" (cheap PNG maps), "full" (plus a matplotlib summary), False/"none"
     solver_keywords : further keyword arguments of solver.solve_press (recorded and hashed too)
-    wait : a press another live process is solving is waited for at once (then its result is reused when it
-        was made with these settings, else the press is solved here); without it such presses are left to
-        that process first and waited for once this run's other presses are done (two runs on one folder
-        share the work, and each ends with a result of its own settings for every press)
+    wait : a press another live process of these settings is solving is waited for at once (then its result
+        is reused, or the press solved here when that process failed); without it such presses are left to
+        that process first and waited for once this run's other presses are done (two runs of one settings on
+        one folder share the work)
 
     Returns
     -------
     dict press name -> "solved" | "skipped" | "failed: reason", in the order of ``folders``. "skipped":
-    an identical result exists (made earlier, or by another process that held the press). Failures of one
+    an identical result exists (made earlier, or by another process that held the press). A press whose output
+    a live run of other settings holds (from its start to its end, each press's ``PRESS/.claim-nlips~run~...``)
+    is "failed: PRESS/nlips: another run is solving PRESS into it with other settings (roi auto (this run:
+    none); process PID on HOST); ...": left to that run, never replaced while it runs. Failures of one
     press (bad capture, bad LED file) do not stop the others; a file-system error (disk full, read-only) stops
     the batch (OSError naming the path). A result is reused only when its
     arrays pass their checksums, so damage inside result.npz is re-computed too.
@@ -134,13 +140,32 @@ def solve_presses(
         raise ConfigError(f"workers must be a whole number >= 1, got {workers!r}")
     names = _names(folders)
     started = _fs_clock(folders)
-    statuses = _solve_batch(folders, names, settings, workers, overwrite, progress, figures, wait)
-    busy = [f for f in folders if statuses[f] == BUSY]  # another run's: left to it, now waited for
-    if busy:
-        log.info("%d presses were being solved by another process; waiting for them", len(busy))
-        # --overwrite: what another run of these settings published meanwhile is fresh, not solved a third time
-        statuses |= _solve_batch(busy, names, settings, workers, overwrite, progress, figures, True, started)
+    with contextlib.ExitStack() as held:  # every press held for these settings until the batch ends
+        statuses = _hold_presses(held, folders, settings)  # those a run of other settings holds: failed
+        todo = [f for f in folders if f not in statuses]
+        statuses |= _solve_batch(todo, names, settings, workers, overwrite, progress, figures, wait)
+        busy = [f for f in todo if statuses[f] == BUSY]  # another run's: left to it, now waited for
+        if busy:
+            log.info("%d presses were being solved by another process; waiting for them", len(busy))
+            # --overwrite: what another run of these settings published meanwhile is fresh, not solved a third time
+            statuses |= _solve_batch(busy, names, settings, workers, overwrite, progress, figures, True, started)
     return {names[f]: statuses[f] for f in folders}
+
+
+def _hold_presses(held: contextlib.ExitStack, folders: list[Path], settings: SolveSettings) -> dict[Path, str]:
+    """Hold every press's output for ``settings`` in ``held`` (pipeline.reuse._hold), for the whole batch: a result
+    this run made stays its own until the run ends (another run of other settings reaching the press later, once
+    it was released, replaced it while this run went on). Returns the failed status of each press a live run of
+    other settings holds."""
+    record = run_record(settings)
+    refused = {}
+    for folder in folders:
+        try:
+            held.enter_context(_hold(folder, reconstruction_dir(folder, None).absolute(), record))
+        except NlipsError as exc:
+            log.error("%s: %s", folder.name, exc)
+            refused[folder] = f"{FAILED}: {exc}"
+    return refused
 
 
 def _solve_batch(
@@ -184,13 +209,45 @@ def solve_one(
     ``wait``: as in :func:`solve_presses` (a press being solved by another process is waited for);
     ``fresh_since``: with ``overwrite``, a result of these settings published at or after this time (file-system
     clock; another run of the same command, waited for) is reused, not solved again."""
-    from ..report import figure_level, figures_missing
+    from ..report import figure_level
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
     check_fits_capture(folder, settings)  # before anything is said about an earlier result
     out = reconstruction_dir(folder, out).absolute()  # "." has no name to claim or write beside
     check_replaceable(out)  # a dataset, a press or a user's folder at --out is never replaced by a result
     provenance = make_provenance(folder, settings)
+    with _hold(folder, out, run_record(settings)):  # a live run of other settings keeps its press: refused here
+        return _reuse_or_solve(
+            folder,
+            out,
+            settings,
+            provenance,
+            overwrite,
+            progress,
+            figures,
+            want_result,
+            announce_reuse,
+            wait,
+            fresh_since,
+        )
+
+
+def _reuse_or_solve(
+    folder: Path,
+    out: Path,
+    settings: SolveSettings,
+    provenance: dict,
+    overwrite: bool,
+    progress: bool,
+    figures: str,
+    want_result: bool,
+    announce_reuse: bool,
+    wait: bool,
+    fresh_since: float | None,
+) -> tuple[Reconstruction | None, str]:
+    """:func:`solve_one` once ``out`` is held for its settings."""
+    from ..report import figures_missing
+
     # leftovers are cleaned, and figures a reused result lacks are drawn, under the claim, below
     if not overwrite and not _leftovers(out) and not figures_missing(out, figures):
         reused = _reuse(out, provenance, want_result, quiet=True, announce=announce_reuse)
@@ -210,7 +267,7 @@ def solve_one(
         if not wait:
             log.info("%s: being solved by another process; left to it for now", folder)
             return None, BUSY
-        _wait_for_release(folder, out)  # then claimed here: its result reused when made with these settings
+        _wait_for_release(folder, out)  # then claimed here: its result reused (a run of these settings made it)
 
 
 def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | None, figures: str) -> None:

@@ -268,3 +268,19 @@ def test_a_shared_claim_holds_for_its_key_refuses_another_and_forgets_a_dead_hol
     with pytest.raises(ValueError, match="key"):
         with claim_shared(target, "a.b"):
             pass
+
+
+def test_a_shared_holders_note_reaches_the_process_it_refuses_and_is_not_part_of_who_owns_it(tmp_path):
+    """A solve refused for another run's settings names them (pipeline.reuse._hold): the holder's ``note`` is read
+    back with its claim, and comparing owners (release, takeover) still goes by host, pid and token alone."""
+    from nlipscalib.core.claims import Owner, _read_owner, claim_shared
+
+    target = tmp_path / "nlips~run"
+    with claim_shared(target, "aaaa", note={"settings": {"roi": "auto"}}):
+        with claim_shared(target, "bbbb", note={"settings": {"roi": None}}) as other:
+            assert other is not None and other.note == {"settings": {"roi": "auto"}}
+        (member,) = tmp_path.glob(".claim-nlips~run~aaaa~*")
+        assert _read_owner(member) == Owner(other.host, other.pid, other.token)  # the note aside
+    assert not list(tmp_path.glob(".claim-*"))
+    (tmp_path / ".claim-x").write_text("[1, 2]")  # not an object: no owner, not an AttributeError
+    assert _read_owner(tmp_path / ".claim-x") is None
