@@ -12,17 +12,25 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
 from .camera import Camera
-from .config import check_count, check_range
+from .config import check_count, check_range, from_mapping, read_config_file
 from .errors import ConfigError
 from .leds import Led
 
 MIN_IMAGE_SIDE, MAX_IMAGE_SIDE = 8, 16384
 """Image sides, pixels, the camera accepts."""
+SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
+"""The shipped scenes (nlipscalib/scenes links to the repository's scenes/; installs carry a copy): their ``dome``,
+``camera`` and ``leds`` sections are the designs ``nlips capture --design NAME`` names."""
+DESIGN_SECTIONS = ("dome", "camera", "leds")
+"""The sections of a scene file (and of meta.json's ``design``) that make up a :class:`SensorDesign`."""
+NO_DESIGN = "no sensor design in the capture: the dome beyond the view is not modelled"
+"""What the interreflection fit reports when a capture records no design it can read."""
 DomeShape = Literal["hemisphere", "fingertip", "oblate", "capsule", "flat"]
 
 
@@ -158,3 +166,71 @@ class SensorDesign:
     def led_models(self) -> tuple[Led, ...]:
         """The LEDs in the camera frame."""
         return self.leds.leds(self.camera.position)
+
+
+def shipped_design(name: object) -> SensorDesign | None:
+    """The design of the scene shipped as ``name`` (``"nlipstac"``: scenes/nlipstac.toml), or None when ``name`` is
+    not the bare name of a shipped scene (a path, a file name, another sensor's own scene file).
+
+    Only bare names: a path recorded by a capture names a file that may have changed or gone since, a shipped
+    name names the package's copy (the shipped designs' sections have not changed since they were added)."""
+    if not isinstance(name, str) or not name or Path(name).name != name or Path(name).suffix:
+        return None
+    path = SCENES_DIR / f"{name}.toml"
+    if not path.is_file():
+        return None
+    data = read_config_file(path)
+    return from_mapping(SensorDesign, {k: data[k] for k in DESIGN_SECTIONS if k in data}, str(path))
+
+
+def design_dome(sections: object) -> tuple[DomeConfig, np.ndarray] | None:
+    """The dome and the camera's position of a design given as scene-file sections, or None when they hold no
+    readable dome (absent, or not a mapping of the dome's fields).
+
+    Returns
+    -------
+    (DomeConfig, (3,) float64 camera position, mm, dome frame) or None
+    """
+    if not (isinstance(sections, dict) and isinstance(sections.get("dome"), dict)):
+        return None
+    try:
+        dome = DomeConfig(**sections["dome"])
+        position = np.asarray((sections.get("camera") or {}).get("position", CameraConfig.position), float)
+    except (TypeError, ValueError):
+        return None
+    return dome, position
+
+
+def capture_design(meta: dict) -> tuple[tuple[DomeConfig, np.ndarray] | None, str]:
+    """The sensor design a capture was made with (:func:`design_dome` of it), and how it was found, for the report.
+
+    Looks at meta.json's ``design`` (device captures since 2026-12-04), ``provenance.scene`` (the twin, the
+    emulated sensor), then ``provenance.design`` when it names a shipped design (:func:`shipped_design`): device
+    captures before 2026-12-04 recorded only the name, and their dome is the shipped one, so a lab need not
+    capture them again. The named design is taken only when its LED count is the capture's.
+
+    Parameters
+    ----------
+    meta : dict -- a press folder's meta.json (``core.capture.read_meta``).
+
+    Returns
+    -------
+    (design_dome or None, note): the note is "" for a design recorded whole, says that the design was taken by
+    name, or, with None, why there is none (:data:`NO_DESIGN`, naming a named design that does not ship).
+    """
+    provenance = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
+    for source in (meta.get("design"), provenance.get("scene")):
+        found = design_dome(source)
+        if found is not None:
+            return found, ""
+    name = provenance.get("design")
+    if name is None:
+        return None, NO_DESIGN
+    design = shipped_design(name)
+    if design is None:
+        return None, f"{NO_DESIGN} (it names the design {name!r}, which does not ship with nlipscalib)"
+    n, designed = len(meta["leds"]), len(design.led_models())  # meta's leds: a list (core.capture.parse_optics)
+    if n != designed:  # not the sensor captured, whatever the name says
+        return None, f"{NO_DESIGN} (it names the design {name!r}, whose {designed} LEDs are not its {n})"
+    found = design_dome(dataclasses.asdict(design))
+    return found, f"sensor design taken by name: the shipped {name!r} (the capture records its name only)"

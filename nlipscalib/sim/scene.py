@@ -25,12 +25,10 @@ from ..core.capture import SensorResponse
 from ..core.config import check_count, check_range, from_mapping, read_config_file, to_mapping
 from ..core.errors import ConfigError
 from ..core.leds import Led
-from ..core.sensor import CameraConfig, DomeConfig, LedConfig, SensorDesign
+from ..core.sensor import SCENES_DIR, CameraConfig, DomeConfig, LedConfig, SensorDesign
 from .render.denoise import DenoiseConfig
 from .render.variant import VARIANTS
 
-SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
-"""The shipped scenes (nlipscalib/scenes links to the repository's scenes/; installs carry a copy)."""
 DEFAULT_SCENE = SCENES_DIR / "nlipstac.toml"
 DATASETS_DIR = SCENES_DIR / "datasets"
 """The shipped dataset specs (``nlips dataset train50`` names one)."""

@@ -29,7 +29,7 @@ from ..core.camera import Camera, depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Leds, led_shading
-from ..core.sensor import DomeConfig
+from ..core.sensor import DomeConfig, capture_design
 from . import radiosity, reuse, threads
 from .contact import led_levels
 from .exposure import no_light_reason
@@ -111,20 +111,13 @@ def checked_reflectance(reflectance: float | tuple[float, float, float]) -> np.n
 
 
 def design_of(press: Press) -> tuple[DomeConfig, np.ndarray] | None:
-    """The sensor design's dome and camera position recorded in a capture's meta, or None.
+    """The sensor design's dome and camera position (mm, dome frame) a capture was made with, or None.
 
-    Looks at ``meta["design"]`` (device captures: ``nlips capture --port``) and ``meta["provenance"]["scene"]``
-    (twin, emulated sensor).
+    From its meta (:func:`nlipscalib.core.sensor.capture_design`): ``meta["design"]`` (device captures:
+    ``nlips capture --port``), ``meta["provenance"]["scene"]`` (twin, emulated sensor), or the shipped design
+    that ``meta["provenance"]["design"]`` names (device captures made before the design was recorded).
     """
-    for source in (press.meta.get("design"), (press.meta.get("provenance") or {}).get("scene")):
-        if isinstance(source, dict) and isinstance(source.get("dome"), dict):
-            try:
-                dome = DomeConfig(**source["dome"])
-                position = np.asarray((source.get("camera") or {}).get("position", (0.0, 0.0, -3.0)), float)
-            except (TypeError, ValueError):
-                continue
-            return dome, position
-    return None
+    return capture_design(press.meta)[0]
 
 
 def patch_size(camera: Camera) -> int:
@@ -395,7 +388,7 @@ def fit_indirect(
     reason = (
         f"interreflection {'on' if enabled else 'off'}: fitted indirect share {share:.3f} of the direct light "
         f"(auto threshold {tolerances.INDIRECT_MIN_SHARE}), coating reflectance {np.round(reflectance, 3).tolist()}"
-        + ("" if off is not None else "; no sensor design in the capture: the dome beyond the view is not modelled")
+        + (f"; {cache['design_note']}" if cache["design_note"] else "")
     )
     if mode == "on":
         reason += " (forced on)"
@@ -493,7 +486,7 @@ def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | reuse.Deferr
     surf = reference_surface(
         reference.camera, leds, ref.depth, ref.normals, size=fit_patch_size(reference.camera), shading=shading
     )
-    design = design_of(reference)
+    design, design_note = capture_design(reference.meta)
     off = off_unit = None
     if design is not None:
         key = (reference.camera, tuple(leds), surf.size, repr(design[0]), tuple(design[1]), reuse.digest(ref.depth))
@@ -510,7 +503,15 @@ def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | reuse.Deferr
         usable = (~saturated).astype(np.float32)
         usable[:, ~surf.valid] = 0.0
         usable[~live] = 0.0  # a dead LED's dark image says nothing about the light
-    return {"surface": surf, "off": off, "off_unit": off_unit, "linear": lin, "usable": usable, "live": live}
+    return {
+        "surface": surf,
+        "off": off,
+        "off_unit": off_unit,
+        "design_note": design_note,
+        "linear": lin,
+        "usable": usable,
+        "live": live,
+    }
 
 
 def _off_view_light(
