@@ -108,12 +108,11 @@ def claim(target: str | Path, *, stale_s: float = CLAIM_STALE_S, note: dict | No
     if not acquired:
         yield False
         return
-    beat = _Heartbeat(path, me, interval=max(0.05, stale_s / 4))
-    beat.start()
+    _HEARTBEATS.add(path, me, interval=max(0.05, stale_s / 4))
     try:
         yield True
     finally:
-        beat.stop()
+        _HEARTBEATS.remove(path)
         _release(path, me)
         _HELD.pop(path, None)
 
@@ -358,24 +357,74 @@ def _release(path: Path, me: Owner) -> None:
         path.unlink(missing_ok=True)
 
 
-class _Heartbeat(threading.Thread):
-    """Refreshes the claim file's mtime; notices (and logs) a claim lost to a takeover."""
+class _Heartbeats:
+    """One thread that refreshes the mtime of every claim this process holds, each at its own interval, and notices
+    (and logs) a claim lost to a takeover. Why one: a batch of solves holds a claim per press for the whole run
+    (pipeline.reuse._hold), and a thread per claim would be hundreds of threads for a large folder."""
 
-    def __init__(self, path: Path, me: Owner, interval: float):
-        super().__init__(name=f"claim-heartbeat-{path.name}", daemon=True)
-        self.path, self.me, self.interval = path, me, interval
-        self._stop_event = threading.Event()
-        self.lost = False
+    def __init__(self) -> None:
+        self._lock = threading.Lock()  # held for a whole round of beats: remove() returns between rounds
+        self._changed = threading.Condition(threading.Lock())
+        self._due: dict[Path, tuple[Owner, float, float]] = {}  # path -> (owner, interval, next beat's time)
+        self._thread: threading.Thread | None = None
 
-    def run(self) -> None:
-        while not self._stop_event.wait(self.interval):
-            if _read_owner(self.path) != self.me:
-                self.lost = True
-                log.warning("claim %s was taken over by another process", self.path)
-                return
-            with contextlib.suppress(OSError):
-                os.utime(self.path)
+    def add(self, path: Path, me: Owner, interval: float) -> None:
+        with self._changed:
+            self._due[path] = (me, interval, time.monotonic() + interval)
+            if self._thread is None or not self._thread.is_alive():
+                self._thread = threading.Thread(target=self._run, name="claim-heartbeats", daemon=True)
+                self._thread.start()
+            self._changed.notify()
 
-    def stop(self) -> None:
-        self._stop_event.set()
-        self.join()
+    def remove(self, path: Path) -> None:
+        """Stop beating ``path``; once this returns no beat of it is under way (its file can be released)."""
+        with self._lock, self._changed:
+            self._due.pop(path, None)
+            self._changed.notify()
+
+    def count(self) -> int:
+        with self._changed:
+            return len(self._due)
+
+    def _run(self) -> None:
+        while True:
+            with self._changed:
+                if not self._due:
+                    self._thread = None  # ends; the next add() starts another
+                    return
+                now = time.monotonic()
+                wait = min(due for _, _, due in self._due.values()) - now
+                if wait > 0:
+                    self._changed.wait(wait)
+                    continue
+            with self._lock:
+                for path in self._take_due():
+                    self._beat(path)
+
+    def _take_due(self) -> list[Path]:
+        """The claims due for a beat now, their next beat scheduled."""
+        with self._changed:
+            now, due = time.monotonic(), []
+            for path, (me, interval, at) in list(self._due.items()):
+                if at <= now:
+                    self._due[path] = (me, interval, now + interval)
+                    due.append(path)
+            return due
+
+    def _beat(self, path: Path) -> None:
+        with self._changed:
+            entry = self._due.get(path)
+        if entry is None:
+            return
+        if _read_owner(path) != entry[0]:
+            log.warning("claim %s was taken over by another process", path)
+            with self._changed:
+                self._due.pop(path, None)  # no longer ours: not refreshed
+            return
+        with contextlib.suppress(OSError):
+            os.utime(path)
+
+
+_HEARTBEATS = _Heartbeats()
+# a forked child holds none of its parent's claims (the parent's heartbeat thread is not copied into it either)
+os.register_at_fork(after_in_child=lambda: _HEARTBEATS.__init__())

@@ -115,6 +115,42 @@ def test_heartbeat_keeps_a_long_claim_alive(tmp_path):
     owner.wait(30)
 
 
+def test_many_claims_held_at_once_share_one_heartbeat_thread_and_all_stay_fresh(tmp_path):
+    """A batch holds a claim per press for its whole run: one thread keeps them all fresh, not one thread each."""
+    import threading
+    from contextlib import ExitStack
+
+    from nlipscalib.core.claims import claim_path
+
+    targets = [tmp_path / f"press_{i:03d}" for i in range(40)]
+    before = threading.active_count()
+    with ExitStack() as stack:
+        assert all(stack.enter_context(claim(t, stale_s=0.4)) for t in targets)
+        assert threading.active_count() <= before + 1
+        start = time.time()
+        time.sleep(0.9)  # two stale periods: only the beats keep them fresh
+        assert all(os.stat(claim_path(t)).st_mtime > start for t in targets)
+    assert not any(claim_path(t).exists() for t in targets)
+    time.sleep(0.3)
+    assert threading.active_count() <= before  # the thread ends with the last claim
+
+
+def test_a_claim_taken_over_is_no_longer_refreshed(tmp_path, caplog):
+    from nlipscalib.core.claims import claim_path
+
+    target = tmp_path / "item"
+    with claim(target, stale_s=0.4) as mine:
+        assert mine
+        path = claim_path(target)
+        path.write_text(json.dumps({"host": "elsewhere", "pid": 1, "token": "theirs"}))
+        old = time.time() - 60
+        os.utime(path, (old, old))
+        time.sleep(0.5)  # a beat comes due: it finds another owner
+        assert os.stat(path).st_mtime < time.time() - 30  # not refreshed
+    assert "taken over" in caplog.text
+    assert path.exists()  # not ours: left as it is
+
+
 @pytest.mark.parametrize("n", [3])
 def test_racing_processes_get_one_claim_each_item(tmp_path, n):
     """n processes race over 6 items: each item is produced by exactly one of them."""
