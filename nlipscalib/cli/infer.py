@@ -5,7 +5,9 @@ of them, or a stream: a video file, an image-sequence pattern, a live camera (``
 emulated sensor (``--emulate``). Streams are opened and run exactly as ``nlips live`` runs them
 (cli/_stream.py's source flags, device/live.py's loop): the running frame rate goes to stderr once per
 second on a terminal, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
-frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud.
+frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud. Presses and frames
+resume instead: a result made from the same input with the same model file and options is kept (its report's
+``provenance.key``, :func:`still_provenance`), any other is inferred again, ``--overwrite`` infers all.
 """
 
 from __future__ import annotations
@@ -56,7 +58,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "or on a stream: a video file, "
         "an image-sequence pattern (frames/img_%04d.png), a camera (--camera 0) or the emulated sensor "
         "(--emulate SCENE). Only pixels that differ from the calibration's reference frame go through the "
-        "network; depth integrates the normals on the dome. Prints frames per second and where the time goes.",
+        "network; depth integrates the normals on the dome. Prints frames per second and where the time goes. "
+        "A press's or frame's result made from the same input with the same model file and options is kept (a "
+        "re-run resumes; the summary counts them); others are inferred again, and the log says what changed.",
     )
     p.add_argument("model", help="model file (.pt) from `nlips train`")
     p.add_argument(
@@ -77,6 +81,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ply", action="store_true", help="also write a PLY point cloud per frame")
     p.add_argument("--mesh", action="store_true", help="PLY with grid triangles (implies --ply)")
     p.add_argument("--no-depth", action="store_true", help="normals only (skip the integration)")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="presses and frames: infer again even where an identical result exists (by default a result made "
+        "from the same input with the same model file and options is kept, so an interrupted run resumes)",
+    )
     p.add_argument("--threads", type=int, default=0, help="CPU threads for the network (0: all this process may use)")
     add_device_arguments(p)
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
@@ -120,6 +130,11 @@ def run(args: argparse.Namespace) -> int:
                 f"{option(dest)} is for a stream (a video, --camera, --emulate): press folders and image files "
                 "are each inferred once; drop it"
             )
+    elif args.overwrite:  # a stream always starts over: there is nothing the flag would change
+        raise ConfigError(
+            "--overwrite is for press folders and image frames (their identical results are kept otherwise); a "
+            "stream does not resume: it writes its frames anew on every run"
+        )
     check_source_arguments(args)
     check_output_arguments(args, args.out)
     if stream_input is not None:
@@ -359,8 +374,6 @@ def _write_stream_report(
 def _run_stills(args: argparse.Namespace) -> int:
     import time
 
-    import numpy as np
-
     from ..learn.infer import mismatch_warning
     from ._stream import nlipsnet_predictor
 
@@ -370,23 +383,47 @@ def _run_stills(args: argparse.Namespace) -> int:
     _check_destinations(args, frames)
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
         log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
-    inner, n = [], 0
+    settings = output_settings(args, predictor)
+    inner, kept = [], 0
     for name, load, press_folder, source in frames:
-        frame_linear = load(predictor)
-        result = predictor.predict(frame_linear)
+        folder = _destination(args, name, press_folder)
+        provenance = None
+        if folder is not None and not args.overwrite and _has_entries(folder):  # else it is inferred anyway
+            provenance = still_provenance(settings, input_identity(press_folder, source))
+            if _kept(folder, provenance):
+                kept += 1
+                continue
+        result = predictor.predict(load(predictor))
         if why := mismatch_warning(result, source):
             log.warning("%s", why)
         inner.append(result.seconds["total"])
-        n += 1
-        _save(args, predictor, result, name, press_folder, source)
-    wall = time.perf_counter() - t_start
-    med = float(np.median(inner))
-    print(
-        f"{n} frame(s), {predictor.backend}, net {'-'.join(map(str, predictor.model.hidden))}: "
-        f"median {med * 1000:.1f} ms/frame = {1 / med:.1f} frames/s (normals{'' if args.no_depth else ' + depth'}); "
-        f"whole command {wall:.1f} s"
-    )
+        if folder is not None:
+            provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
+            _save(args, predictor, result, name, folder, provenance)
+    print(_stills_summary(args, predictor, inner, kept, time.perf_counter() - t_start))
     return 0
+
+
+def _stills_summary(
+    args: argparse.Namespace, predictor: Predictor, seconds: Sequence[float], kept: int, wall_s: float
+) -> str:
+    """The stills' one summary line: frames inferred (and kept), and the frame rate of the inferred ones only
+    (a kept result took no inference time; counting it would overstate the rate)."""
+    import numpy as np
+
+    n = len(seconds)
+    counts = f"{n} frame(s)"
+    if kept:
+        counts += f" inferred, {kept} kept (identical results; --overwrite infers them again)"
+    if not n:
+        return f"{counts}; whole command {wall_s:.1f} s"
+    med = float(np.median(seconds))
+    over = f" over the {n} inferred" if kept else ""
+    return (
+        f"{counts}, {predictor.backend}, net {'-'.join(map(str, predictor.model.hidden))}: "
+        f"median {med * 1000:.1f} ms/frame = {1 / med:.1f} frames/s{over} "
+        f"(normals{'' if args.no_depth else ' + depth'}); whole command {wall_s:.1f} s"
+    )
 
 
 def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
@@ -527,18 +564,91 @@ def _check_destinations(args: argparse.Namespace, frames: Sequence[StillInput]) 
             )
 
 
-def _save(
-    args: argparse.Namespace, predictor: Predictor, result: Frame, name: str, press_folder: Path | None, source: Path
-) -> None:
+def output_settings(args: argparse.Namespace, predictor: Predictor) -> dict:
+    """What, besides its input, decides a still's saved result (report ``provenance.settings``, docs/formats.md).
 
+    The model by its content (``model_digest``, the first 16 hex digits of the .pt's SHA-256: a copy elsewhere is the
+    same model, a retrained one at the same path is not; its reference frame is inside it), the runtime that
+    ran it (``backend`` as resolved from auto, ``device``, ``full_frame``: their numbers differ slightly), ``depth``
+    (False with --no-depth) and ``ply`` (null, "points" or "mesh": the files written). ``--threads`` changes only
+    the speed, so it is not recorded.
+    """
+    return {
+        "model_digest": predictor.model.digest,
+        "backend": predictor.backend,
+        "device": str(predictor.device or "cpu"),
+        "full_frame": bool(predictor.full_frame),
+        "depth": not args.no_depth,
+        "ply": "mesh" if args.mesh else "points" if args.ply else None,
+    }
+
+
+def still_provenance(settings: dict, inputs: dict) -> dict:
+    """What made a still's result (report ``provenance``): ``settings`` (:func:`output_settings`), ``inputs``
+    (:func:`input_identity`), the software version, and ``key``, the SHA-256 (hex) of all three: a result whose
+    key equals a new request's is kept (:func:`_kept`)."""
+    import hashlib
+    import json
+
+    from .. import __version__
+
+    keyed = {"settings": settings, "inputs": inputs, "software_version": __version__}
+    key = hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()
+    return {"key": key, "software_version": __version__, "settings": settings, "inputs": inputs}
+
+
+def _has_entries(folder: Path) -> bool:
+    """Whether ``folder`` or an interrupted write of it is there: only then is there something to keep or to say
+    (elsewhere the input is identified after it is read, so a broken one is named as reading it names it)."""
+    return folder.exists() or _interrupted_write(folder)
+
+
+def _interrupted_write(folder: Path) -> bool:
+    """Whether a temporary entry of ``folder`` (core.atomic's ``.tmp-NAME~host~pid~*``) lies beside it.
+
+    Its name is split as core.atomic splits it, so ``.tmp-frame-2~...`` (the write of frame-2) is not frame's."""
+    import glob
+
+    from ..core.atomic import OWNER_SEP, TMP_PREFIX
+
+    beside = folder.parent.glob(glob.escape(f"{TMP_PREFIX}{folder.name}{OWNER_SEP}") + "*")
+    return any(p.name[len(TMP_PREFIX) :].rsplit(OWNER_SEP, 3)[0] == folder.name for p in beside)
+
+
+def _kept(folder: Path, provenance: dict) -> bool:
+    """Whether ``folder`` holds a whole result made with ``provenance``'s key (then it is kept, not inferred again).
+
+    Not when a write of it was interrupted beside it (inferring it again publishes a result and removes the
+    leftover, core.atomic), when it is damaged (every array read and checked, as ``nlips solve`` checks a result it
+    keeps: a warning), when it lacks the points.ply its settings name (removed since), or when its key differs
+    (:func:`_save` says what changed as it replaces it)."""
+    from ..core.reconstruction import read_report, reconstruction_problem
+
+    if _interrupted_write(folder):
+        log.info("%s: an interrupted write of it lies beside it; inferring it again", folder)
+        return False
+    if not folder.is_dir() or not any(folder.iterdir()):
+        return False
+    if (problem := reconstruction_problem(folder, verify=True)) is not None:
+        log.warning("%s; inferring it again", problem)
+        return False
+    old = read_report(folder).get("provenance")
+    if not isinstance(old, dict) or old.get("key") != provenance["key"]:
+        return False
+    if provenance["settings"]["ply"] and not (folder / "points.ply").is_file():
+        log.info("%s: its points.ply is missing; inferring it again", folder)
+        return False
+    log.debug("%s: identical result exists, kept (--overwrite infers it again)", folder)
+    return True
+
+
+def _save(
+    args: argparse.Namespace, predictor: Predictor, result: Frame, name: str, folder: Path, provenance: dict
+) -> None:
+    """Write ``result`` into ``folder`` (with its points.ply when asked), recording ``provenance``."""
     from ..core.reconstruction import save_reconstruction
     from ..learn.infer import to_reconstruction
     from ..learn.ply import write_ply
-
-    folder = _destination(args, name, press_folder)
-    if folder is None:
-        return  # image frames without --out: only the frame rate is reported
-    inputs = input_identity(press_folder, source)
 
     def ply(tmp: Path) -> None:
         # written into the temporary folder, so the result is published with its points.ply or not at all: a
@@ -546,22 +656,52 @@ def _save(
         write_ply(tmp / "points.ply", result.points, result.normals, mesh=args.mesh)
 
     extra = ply if args.ply or args.mesh else None
-    reconstruction = to_reconstruction(result, predictor, name, inputs)
-    _say_what_is_replaced(folder, reconstruction.report["model"])
+    reconstruction = to_reconstruction(result, predictor, name, provenance)
+    _say_what_is_replaced(folder, reconstruction.report)
     save_reconstruction(reconstruction, folder, overwrite=True, extra_files=extra)
 
 
-def _say_what_is_replaced(folder: Path, model: str) -> None:
-    """Log it when ``folder`` holds a result of another model (a user comparing models would lose it unseen)."""
+def _say_what_is_replaced(folder: Path, report: dict) -> None:
+    """Log what made the result in ``folder`` differently from the ``report`` about to replace it (another model,
+    options, input or nlipscalib), so that a user comparing models or options does not lose it unseen."""
     from ..core.errors import CaptureError
     from ..core.reconstruction import read_report
 
     try:
-        old = read_report(folder).get("model")
+        old = read_report(folder)
     except CaptureError:  # none there, or not readable: nothing of value is replaced
         return
-    if old is not None and old != model:
-        log.info("%s: replacing the result of another model (%s)", folder, old)
+    if changes := _what_changed(old, report):
+        log.info("%s: replacing the result of %s", folder, "; ".join(changes))
+
+
+def _what_changed(old: dict, new: dict) -> list[str]:
+    """What differs between the report ``old`` and ``new`` in what made them (empty: nothing, or only the model
+    file's path while its content is the same)."""
+    record, made = old.get("provenance"), new["provenance"]
+    record = record if isinstance(record, dict) else {}
+    settings = record.get("settings") if isinstance(record.get("settings"), dict) else None
+    if settings is None:  # an older nlipscalib's result: the model's path is all it records of what made it
+        other = [f"another model ({old.get('model')})"] if old.get("model") != new["model"] else []
+        return other + ["an older nlipscalib (it records no options)"]
+    if record.get("key") == made["key"]:
+        return []
+    changes = []
+    if settings.get("model_digest") != made["settings"]["model_digest"]:
+        changes.append(f"another model ({old.get('model')})")
+    options = [
+        f"{k} {settings.get(k)!r}, now {v!r}"
+        for k, v in made["settings"].items()
+        if k != "model_digest" and settings.get(k) != v
+    ]
+    if options:
+        changes.append(f"other options ({', '.join(options)})")
+    inputs = record.get("inputs") if isinstance(record.get("inputs"), dict) else {}
+    if inputs != made["inputs"]:
+        changes.append("another input (the press's files or the frame's file changed since)")
+    if record.get("software_version") != made["software_version"]:
+        changes.append(f"nlipscalib {record.get('software_version')} (now {made['software_version']})")
+    return changes or ["a record that differs"]
 
 
 def input_identity(press_folder: Path | None, source: Path) -> dict:

@@ -302,7 +302,9 @@ def mismatch_warning(frame: Frame, where: str | Path) -> str | None:
     )
 
 
-def to_reconstruction(frame: Frame, predictor: Predictor, source: str, inputs: dict | None = None) -> Reconstruction:
+def to_reconstruction(
+    frame: Frame, predictor: Predictor, source: str, provenance: dict | None = None
+) -> Reconstruction:
     """The frame in the core reconstruction format (what ``nlips eval`` scores).
 
     Parameters
@@ -311,9 +313,10 @@ def to_reconstruction(frame: Frame, predictor: Predictor, source: str, inputs: d
     predictor : Predictor
     source : str
         The name of the press or image frame it read (report ``source``).
-    inputs : dict, optional
-        The identity of what it read, recorded as the report's ``provenance.inputs`` (docs/formats.md):
-        ``{"press": capture identity}`` or ``{"frame": SHA-256 of the image file}``, which ``nlips eval
+    provenance : dict, optional
+        What made it, recorded as the report's ``provenance`` (docs/formats.md; ``nlips infer`` writes ``key``,
+        ``software_version``, ``settings`` and ``inputs``). Its ``inputs``, the identity of what it read
+        (``{"press": capture identity}`` or ``{"frame": SHA-256 of the image file}``), is what ``nlips eval
         PRESS --result`` compares with PRESS. None: nothing recorded (eval then warns it cannot check).
     """
     from ..core.reconstruction import Reconstruction
@@ -343,7 +346,7 @@ def to_reconstruction(frame: Frame, predictor: Predictor, source: str, inputs: d
             "changed_pixels": int(frame.changed.sum()),
             "seconds": frame.seconds,
         }
-        | ({"provenance": {"inputs": dict(inputs)}} if inputs else {}),
+        | ({"provenance": dict(provenance)} if provenance else {}),
     )
 
 

@@ -389,6 +389,8 @@ def test_a_destination_holding_other_things_is_refused_and_another_models_result
     import logging
     import shutil
 
+    import torch
+
     press = tmp_path / "press"
     shutil.copytree(twin_presses / HELD_OUT, press, ignore=shutil.ignore_patterns("nlips*"))
     (press / "nlipsnet").mkdir()
@@ -399,8 +401,10 @@ def test_a_destination_holding_other_things_is_refused_and_another_models_result
     assert (press / "nlipsnet" / "notes.txt").read_text() == "mine"
 
     shutil.rmtree(press / "nlipsnet")
+    payload = torch.load(trained, weights_only=True)
+    payload["info"]["note"] = "another model"  # a copy of the same bytes is the same model: its result is kept
     other = tmp_path / "other.pt"
-    shutil.copy(trained, other)
+    torch.save(payload, other)
     caplog.set_level(logging.INFO)
     assert main(["infer", str(other), str(press)]) == 0
     assert "replacing the result of another model" not in caplog.text
@@ -493,3 +497,140 @@ def test_black_and_saturated_frames_are_called_so_never_a_negative_brightness(ti
     assert "the frame is black" in mismatch_warning(odd, "x")
     dim = Frame(*(np.zeros(1),) * 4, {}, brightness=0.3, saturated=0.01, mismatch=1.0)
     assert "0.3 times as bright" in mismatch_warning(dim, "x") and "saturated" not in mismatch_warning(dim, "x")
+
+
+def _stamps(folder):
+    """(inode, mtime) of every file under ``folder``: a result kept as it was keeps both."""
+    return {p.relative_to(folder): (p.stat().st_ino, p.stat().st_mtime_ns) for p in folder.rglob("*") if p.is_file()}
+
+
+def _frames_and_a_press(tiny_model, tmp_path):
+    """`nlips infer MODEL FRAMES PRESS --out OUT` on the tiny model: three frames and a press (four results)."""
+    import shutil
+
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for name in NAMES:
+        shutil.copy(root / name / "tricolor.png", frames / f"{name}.png")
+    shutil.copytree(root / NAMES[0], tmp_path / "press", ignore=shutil.ignore_patterns("nlips*"))
+    out = tmp_path / "out"
+    return ["infer", str(model), str(frames), str(tmp_path / "press"), "--out", str(out)], out
+
+
+def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_frames(tiny_model, tmp_path, capsys):
+    """A re-run of `nlips infer MODEL FRAMES... --out DIR` inferred every frame again, so an interrupted long run
+    did not resume. Now a result made from the same input with the same model file (its content: a copy elsewhere
+    is the same model) and options is kept untouched, and the summary says how many were kept."""
+    import json
+    import shutil
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    assert main(command) == 0
+    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    first = _stamps(out)
+    assert len(first) == 8  # result.npz and report.json of three frames and a press
+    report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text())
+    assert set(report["provenance"]) == {"key", "software_version", "settings", "inputs"}
+    assert report["provenance"]["settings"]["depth"] is True and report["provenance"]["settings"]["ply"] is None
+    assert main(command) == 0
+    assert capsys.readouterr().out.startswith(
+        "0 frame(s) inferred, 4 kept (identical results; --overwrite infers them again); whole command"
+    )
+    assert _stamps(out) == first
+    copy = tmp_path / "copy.pt"
+    shutil.copy(command[1], copy)
+    assert main(["infer", str(copy), *command[2:]]) == 0
+    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    assert _stamps(out) == first
+    (out / "a_sphere" / "report.json").unlink()  # one result gone: only it is inferred, the rate is of it alone
+    assert main(command) == 0
+    assert " frames/s over the 1 inferred " in capsys.readouterr().out
+    assert main([*command, "--overwrite"]) == 0  # --overwrite, as `nlips solve`'s: every result made again
+    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    again = _stamps(out)
+    assert again.keys() == first.keys() and all(again[p] != first[p] for p in first)
+
+
+def test_another_model_option_or_input_is_inferred_again_saying_what_changed(tiny_model, tmp_path, capsys, caplog):
+    import logging
+    import shutil
+    from pathlib import Path
+
+    import torch
+
+    caplog.set_level(logging.INFO)
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    model = command[1]
+    assert main(command) == 0
+    payload = torch.load(model, weights_only=True)
+    payload["info"]["note"] = "retrained"  # another model file: another content
+    other = tmp_path / "other.pt"
+    torch.save(payload, other)
+    capsys.readouterr()
+    assert main(["infer", str(other), *command[2:]]) == 0
+    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert f"{out / 'b_cube'}: replacing the result of another model ({Path(model).resolve()})" in caplog.text
+    caplog.clear()
+    assert main([*command, "--no-depth", "--ply"]) == 0
+    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert "other options (depth True, now False, ply None, now 'points')" in caplog.text
+    assert main([*command, "--no-depth", "--ply"]) == 0
+    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    kept = _stamps(out)
+    frames = tmp_path / "frames"
+    shutil.copy(frames / "a_sphere.png", frames / "b_cube.png")  # another frame under that name
+    caplog.clear()
+    assert main([*command, "--no-depth", "--ply"]) == 0
+    assert capsys.readouterr().out.startswith("1 frame(s) inferred, 3 kept")
+    assert f"{out / 'b_cube'}: replacing the result of another input" in caplog.text
+    now = _stamps(out)
+    assert [p for p in kept if now[p] != kept[p]] == [p for p in kept if p.parts[0] == "b_cube"]
+
+
+def test_an_interrupted_run_infers_again_only_what_it_did_not_finish(tiny_model, tmp_path, capsys, caplog):
+    """A result missing, a killed write's temporary folder beside one, a damaged one, a missing points.ply."""
+    import logging
+    import shutil
+    import subprocess
+    import sys
+
+    from nlipscalib.core.claims import HOST
+
+    caplog.set_level(logging.INFO)
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    command.append("--ply")
+    assert main(command) == 0
+    first = _stamps(out)
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    leftover = out / f".tmp-c_sphere_deep~{HOST}~{int(dead.stdout)}~x1y2"  # a run killed while writing it
+    leftover.mkdir()
+    (leftover / "report.json").write_text("{")
+    shutil.rmtree(out / "a_sphere")  # not written yet when the run was stopped
+    (out / "b_cube" / "points.ply").unlink()
+    with open(out / "press" / "nlipsnet" / "result.npz", "r+b") as f:
+        f.truncate(100)
+    capsys.readouterr()
+    assert main(command) == 0
+    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert f"{out / 'c_sphere_deep'}: an interrupted write of it lies beside it; inferring it again" in caplog.text
+    assert f"{out / 'b_cube'}: its points.ply is missing; inferring it again" in caplog.text
+    assert "result.npz: damaged or truncated reconstruction" in caplog.text
+    assert not leftover.exists()
+    assert main(command) == 0
+    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    shutil.rmtree(out / "a_sphere")
+    again = _stamps(out)
+    assert main(command) == 0  # only the missing one: the others keep their files
+    assert capsys.readouterr().out.startswith("1 frame(s) inferred, 3 kept")
+    now = _stamps(out)
+    assert {p: now[p] for p in again} == again and len(now) == len(first)
+
+
+def test_overwrite_is_refused_for_a_stream(capsys):
+    """A stream never resumes (STREAM_STOPPED): --overwrite would change nothing there, so it is refused."""
+    assert main(["infer", "m.pt", "--camera", "0", "--overwrite"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--overwrite is for press folders and image frames" in err[0], err
