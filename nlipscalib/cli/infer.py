@@ -587,13 +587,10 @@ def still_provenance(settings: dict, inputs: dict) -> dict:
     """What made a still's result (report ``provenance``): ``settings`` (:func:`output_settings`), ``inputs``
     (:func:`input_identity`), the software version, and ``key``, the SHA-256 (hex) of all three: a result whose
     key equals a new request's is kept (:func:`_kept`)."""
-    import hashlib
-    import json
-
     from .. import __version__
+    from ..core.reconstruction import provenance_key
 
-    keyed = {"settings": settings, "inputs": inputs, "software_version": __version__}
-    key = hashlib.sha256(json.dumps(keyed, sort_keys=True).encode()).hexdigest()
+    key = provenance_key(settings, inputs)
     return {"key": key, "software_version": __version__, "settings": settings, "inputs": inputs}
 
 

@@ -86,6 +86,17 @@ class Reconstruction:
         return tuple(self.depth.shape)
 
 
+def provenance_key(settings: dict, inputs: dict) -> str:
+    """The key of a result's provenance (its report's ``provenance.key``): SHA-256 (hex) of the settings that decide
+    it, the identities of its inputs and the software version, as sorted JSON. A kept result whose key equals a new
+    request's is reused (``nlips solve``, ``nlips infer``); one formula for both, so their records read alike."""
+    import hashlib
+    import json
+
+    source = {"settings": settings, "inputs": inputs, "software_version": __version__}
+    return hashlib.sha256(json.dumps(source, sort_keys=True).encode()).hexdigest()
+
+
 def reconstruction_dir(press_folder: str | Path, out: str | Path | None = None, method: str = RESULT_DIR) -> Path:
     """Where the reconstruction of ``press_folder`` lives (``out`` when given, else PRESS/<method>)."""
     if method not in METHODS:

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import __version__
 from ..core.errors import CaptureError
+from ..core.reconstruction import provenance_key
 
 if TYPE_CHECKING:
     from .settings import SolveSettings
@@ -27,7 +27,7 @@ def make_provenance(folder: Path, settings: SolveSettings) -> dict:
         "reference": None if settings.reference is None else capture_identity(settings.reference),
     }
     described = settings.describe()
-    key = _key(_keyed(described), inputs)
+    key = provenance_key(_keyed(described), inputs)
     return {"key": key, "software_version": __version__, "settings": described, "inputs": inputs}
 
 
@@ -37,17 +37,12 @@ def run_record(settings: SolveSettings) -> dict:
     less the press), and ``key`` hashing them: two runs of one key make identical results."""
     inputs = {"reference": None if settings.reference is None else capture_identity(settings.reference)}
     keyed = _keyed(settings.describe())
-    return {"key": _key(keyed, inputs), "software_version": __version__, "settings": keyed, "inputs": inputs}
+    return {"key": provenance_key(keyed, inputs), "software_version": __version__, "settings": keyed, "inputs": inputs}
 
 
 def _keyed(described: dict) -> dict:
     """The settings that decide a result: paths are left out (their content is an input or a setting's value)."""
     return {k: v for k, v in described.items() if k not in ("leds_file", "reference")}
-
-
-def _key(keyed: dict, inputs: dict) -> str:
-    key_source = {"settings": keyed, "inputs": inputs, "software_version": __version__}
-    return hashlib.sha256(json.dumps(key_source, sort_keys=True).encode()).hexdigest()
 
 
 @functools.lru_cache(maxsize=16)
