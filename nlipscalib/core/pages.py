@@ -1,5 +1,5 @@
-"""NumPy's large arrays on ordinary pages (no transparent huge pages): while the solver runs, or for a whole
-``nlips`` command.
+"""NumPy's large arrays on ordinary pages (no transparent huge pages) while the solver runs; for a whole ``nlips``
+command also glibc's allocator reusing freed memory.
 
 NumPy asks the kernel for transparent huge pages (``madvise(MADV_HUGEPAGE)``) on every array of 4 MiB or more.
 With the kernel's usual THP defrag setting ("madvise"), a first touch of such an array then compacts memory
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import threading
 from collections.abc import Iterator
 
@@ -63,17 +64,48 @@ def ordinary_pages() -> Iterator[None]:
 
 
 def ordinary_pages_for_command() -> None:
-    """Switch NumPy's huge-page advice off for the rest of this process and, through the environment, for the
-    processes it starts (solver workers, dataset renderers, Dask's local workers): the ``nlips`` command calls
-    it first. Why the whole command: on the 2-core VM the benchmarks run on, a warm ``nlips solve --roi auto``
-    spent 1.5-2.3 s of system time with the advice against 0.55 s without it at 640x480 (4.8 -> 1.3 s at
-    1280x960), the same user time, the same numbers (benchmarks/RESULTS.md). Nothing changes when the user set
-    :data:`ADVICE_VARIABLE` themselves."""
+    """Memory settings for the rest of this process and, through the environment, the processes it starts (solver
+    workers, dataset renderers, Dask's local workers): the ``nlips`` command calls it first.
+
+    - NumPy's huge-page advice off. Why the whole command: on the 2-core VM the benchmarks run on, a warm
+      ``nlips solve --roi auto`` spent 1.5-2.3 s of system time with the advice against 0.55 s without it at
+      640x480 (4.8 -> 1.3 s at 1280x960), the same user time. Kept when the user set :data:`ADVICE_VARIABLE`.
+    - glibc's allocator keeps freed memory for the next array (:func:`_reuse_freed_memory`). Kept when the user set
+      ``GLIBC_TUNABLES``.
+
+    The same numbers either way: only how the kernel backs the memory changes (benchmarks/RESULTS.md)."""
+    _reuse_freed_memory()
     setter = _setter()
     if setter is None or _users_choice():
         return
     os.environ[ADVICE_VARIABLE] = "0"
     setter(False)
+
+
+KEEP_FREED_BYTES = 1 << 30
+"""glibc's mmap and trim thresholds under :func:`_reuse_freed_memory`, bytes: above every array a 640x480 solve
+allocates (the largest are ~350 MB at 1280x960), so each comes from the heap and goes back to it."""
+
+
+def _reuse_freed_memory() -> None:
+    """glibc's allocator serves large arrays from its heap and keeps them there when freed, instead of mapping fresh
+    pages for each one and unmapping them on free (its default above 32 MB at most): the solver allocates its
+    (L, 3, N) arrays afresh per level and pass, and each fresh mapping is page faults again. A whole 640x480
+    frame: 0.81 M -> 0.37 M minor faults, system time 2.2 -> 1.1 s, peak memory +2 %. Linux with glibc only; in
+    this process by ``mallopt`` and for the processes it starts by ``GLIBC_TUNABLES`` (read when they start)."""
+    if "GLIBC_TUNABLES" in os.environ or not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt  # the C library already loaded (no search: ctypes.util spawns ldconfig)
+    except (OSError, AttributeError):  # a C library without it: its own allocator, left as it is
+        return
+    mallopt(-3, KEEP_FREED_BYTES)  # M_MMAP_THRESHOLD
+    mallopt(-1, KEEP_FREED_BYTES)  # M_TRIM_THRESHOLD
+    os.environ["GLIBC_TUNABLES"] = (
+        f"glibc.malloc.mmap_threshold={KEEP_FREED_BYTES}:glibc.malloc.trim_threshold={KEEP_FREED_BYTES}"
+    )
 
 
 def _users_choice() -> bool:

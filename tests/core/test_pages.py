@@ -26,6 +26,7 @@ def advice():
 
 def test_the_command_turns_the_advice_off_here_and_in_the_processes_it_starts(advice, monkeypatch):
     monkeypatch.delenv(pages.ADVICE_VARIABLE, raising=False)
+    monkeypatch.setattr(pages, "_reuse_freed_memory", lambda: None)  # this test process's allocator left alone
     advice(True)
     pages.ordinary_pages_for_command()
     assert advice(False) is False  # off in this process
@@ -36,6 +37,7 @@ def test_the_command_turns_the_advice_off_here_and_in_the_processes_it_starts(ad
 
 def test_a_users_own_choice_of_the_advice_is_kept(advice, monkeypatch):
     monkeypatch.setenv(pages.ADVICE_VARIABLE, "1")
+    monkeypatch.setattr(pages, "_reuse_freed_memory", lambda: None)
     advice(True)
     pages.ordinary_pages_for_command()
     with pages.ordinary_pages():  # the solver's block respects it too
@@ -54,3 +56,40 @@ def test_python_dash_m_runs_the_command_entry(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != pages.ADVICE_VARIABLE}
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert "advice False" in out.stdout, out.stderr
+
+
+FAULTS_OF_REPEATED_ARRAYS = """
+import resource, numpy as np
+a = np.ones(8 << 20); del a  # 64 MB: above glibc's largest default mmap threshold (32 MB)
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(6):
+    a = np.ones(8 << 20); del a
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+IN_A_COMMAND = (
+    "import subprocess, sys; from nlipscalib.core import pages; pages.ordinary_pages_for_command(); "
+    "exec(sys.argv[1]); sys.stdout.flush(); subprocess.run([sys.executable, '-c', sys.argv[1]], check=True)"
+)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator settings")
+def test_the_command_and_its_workers_reuse_freed_memory_instead_of_faulting_fresh_pages(monkeypatch):
+    """Six 64 MB arrays one after another: by default each is mapped afresh (16 k page faults each); in the
+    command's process and the processes it starts, freed memory is reused."""
+    monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
+    monkeypatch.setenv(pages.ADVICE_VARIABLE, "0")  # the same pages either way: only the allocator differs
+
+    def faults(code: str, *args: str) -> list[int]:
+        out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=True)
+        return [int(line) for line in out.stdout.split()]
+
+    (plain,) = faults(FAULTS_OF_REPEATED_ARRAYS)
+    command, worker = faults(IN_A_COMMAND, FAULTS_OF_REPEATED_ARRAYS)
+    assert plain > 6 * 16_000 * 0.9  # 6 x 64 MB of fresh 4 KiB pages
+    assert command < plain / 4 and worker < plain / 4
+
+
+def test_a_users_own_allocator_settings_are_kept(monkeypatch):
+    monkeypatch.setenv("GLIBC_TUNABLES", "glibc.malloc.arena_max=1")
+    pages._reuse_freed_memory()
+    assert os.environ["GLIBC_TUNABLES"] == "glibc.malloc.arena_max=1"
