@@ -1,8 +1,10 @@
-"""A process killed at a controlled moment, for tests of interrupted work (no timing guesses)."""
+"""Processes at controlled moments, for tests of interrupted and concurrent work (no timing guesses)."""
 
 import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 
 def kill_when_it_says(code: str, *args: str, line: str) -> None:
@@ -15,3 +17,16 @@ def kill_when_it_says(code: str, *args: str, line: str) -> None:
     finally:
         proc.kill()
         proc.wait()
+
+
+def until_each_waits_or_exits(procs: list, logs: list[Path], says: str, timeout: float) -> None:
+    """Return once each process of ``procs`` has exited or written ``says`` into its log file (the same index of
+    ``logs``): e.g. both runs of a race have met an item the test holds. Fails after ``timeout`` seconds."""
+    deadline = time.time() + timeout
+    while not all(p.poll() is not None or says in _text(log) for p, log in zip(procs, logs)):
+        assert time.time() < deadline, f"no process said {says!r} nor exited within {timeout} s"
+        time.sleep(0.1)
+
+
+def _text(path: Path) -> str:
+    return path.read_text() if path.exists() else ""

@@ -11,6 +11,7 @@ from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.reconstruction import load_reconstruction, read_report
 from nlipscalib.pipeline import make_provenance, make_settings, solve_folder, solve_presses
 from nlipscalib.solver import SolverOptions
+from tests.processes import until_each_waits_or_exits
 from tests.solver import synth
 
 FAST = SolverOptions(max_iters=6)
@@ -154,7 +155,6 @@ def test_two_runs_of_other_settings_on_one_press_one_solves_and_the_other_is_ref
     import os
     import subprocess
     import sys
-    import time
     from pathlib import Path
 
     from nlipscalib.core.claims import claim
@@ -169,10 +169,7 @@ def test_two_runs_of_other_settings_on_one_press_one_solves_and_the_other_is_ref
             procs.append(
                 subprocess.Popen([sys.executable, "-c", code, *argv], env=env, stderr=subprocess.PIPE, text=True)
             )
-        deadline = time.time() + 120
-        while not all(p.poll() is not None or "waiting for it" in _text(f) for p, f in zip(procs, logs)):
-            assert time.time() < deadline, "neither waited on the held press nor exited"
-            time.sleep(0.1)
+        until_each_waits_or_exits(procs, logs, "waiting for it", timeout=120)
     errs = [p.communicate(timeout=300)[1] for p in procs]
     assert sorted(p.returncode for p in procs) == [0, 2], errs
     winner, loser = (0, 1) if procs[0].returncode == 0 else (1, 0)

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 from nlipscalib.core.capture import load_press
+from tests.processes import until_each_waits_or_exits
 from tests.specs import TINY_SPEC as SPEC
 
 pytest.importorskip("mitsuba")
@@ -122,10 +123,7 @@ def test_concurrent_runs_of_different_specs_leave_one_spec(tmp_path):
         for i, path in enumerate(specs):
             logs.append(tmp_path / f"log{i}.txt")
             procs.append(_start(path, out, logs[-1]))
-        deadline = time.time() + 300
-        while not all(p.poll() is not None or "waiting for" in _text(log) for p, log in zip(procs, logs)):
-            assert time.time() < deadline, "neither waited on the held presses nor exited"
-            time.sleep(0.1)
+        until_each_waits_or_exits(procs, logs, "waiting for", timeout=300)
     errs = [p.communicate(timeout=600)[1] for p in procs]
     assert sorted(p.returncode for p in procs) == [0, 2], errs
     winner, loser = (0, 1) if procs[0].returncode == 0 else (1, 0)
