@@ -209,16 +209,23 @@ class StoredImages(Loader):
     name the same content, whatever happens to the files later.
     """
 
-    def __init__(self, paths: Sequence[Path], data: Sequence[np.ndarray], camera: Camera, stacked: bool):
+    def __init__(
+        self, paths: Sequence[Path], data: Sequence[np.ndarray], camera: Camera, stacked: bool, named: bool = True
+    ):
         super().__init__(lambda: decode_together(self)[0])
         self._paths, self._data, self._camera, self._stacked = list(paths), list(data), camera, stacked
         self._images, self._lock = None, threading.Lock()
-        h = hashlib.blake2b(digest_size=16)
-        for d in self._data:  # lengths too: the same bytes cut between two files otherwise would not differ
-            h.update(len(d).to_bytes(8, "little"))
-            h.update(memoryview(d))
-        self.digest = f"png:{h.hexdigest()}"
-        """Digest of the files' raw bytes, in order."""
+        self.digest = _bytes_digest(self._data) if named else None
+        """Digest of the files' raw bytes, in order; None when not ``named`` (images decoded at once: ~25 ms
+        of hashing at 640x480 that nothing reads)."""
+
+
+def _bytes_digest(data: Sequence[np.ndarray]) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for d in data:  # lengths too: the same bytes cut between two files otherwise would not differ
+        h.update(len(d).to_bytes(8, "little"))
+        h.update(memoryview(d))
+    return f"png:{h.hexdigest()}"
 
 
 def decode_together(*sources: StoredImages) -> list[np.ndarray]:
@@ -299,7 +306,7 @@ class Press:
         when :func:`load_press` deferred them (:class:`StoredImages`: nothing decoded to name them), else of the
         arrays (:func:`nlipscalib.core.diskcache.digest`)."""
         sources = self.__dict__["dark_source"], self.__dict__["led_images_source"]
-        if all(isinstance(src, StoredImages) for src in sources):
+        if all(isinstance(src, StoredImages) and src.digest for src in sources):
             return "+".join(src.digest for src in sources)
         from .diskcache import digest
 
@@ -453,7 +460,8 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
         raise CaptureError(f"{folder / META_FILE}: {len(leds)} LEDs but {len(names)} LED images listed")
     keep = range(len(leds)) if led_subset is None else _check_subset(led_subset, len(leds), folder)
     stored = _read_stored(folder, [images["dark"]] + [names[i] for i in keep], camera)
-    dark, led_images = StoredImages(*stored[0], camera, stacked=False), StoredImages(*stored[1], camera, stacked=True)
+    dark = StoredImages(*stored[0], camera, stacked=False, named=not decode)
+    led_images = StoredImages(*stored[1], camera, stacked=True, named=not decode)
     if decode:
         dark, led_images = decode_together(dark, led_images)
     return Press(
