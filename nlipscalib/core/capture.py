@@ -18,8 +18,10 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import logging
-from collections.abc import Sequence
+import threading
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -31,7 +33,7 @@ from .camera import Camera
 from .cpus import usable_cores
 from .errors import CaptureError, ShapeError
 from .formatfile import read_arrays, read_format_json
-from .imageio import read_png16, save_npz, write_png16
+from .imageio import decode_png16, png_size, read_png_bytes, save_npz, write_png16
 from .leds import Led, Leds
 from .surface_checks import surface_problem
 
@@ -192,6 +194,88 @@ class Reference:
         return cls(depth=arrays["depth"], normals=arrays["normals"])
 
 
+class Loader:
+    """A value of a :class:`Press` field given before it is loaded: ``load()`` makes it at the first read of the
+    field (:class:`_LoadedOnRead`), and any error it raises (a CaptureError naming the file) comes out there."""
+
+    def __init__(self, load: Callable[[], object]):
+        self.load = load
+
+
+class StoredImages(Loader):
+    """Stored images of a capture read from their PNG files now, decoded at the first read.
+
+    The files' bytes are read once and kept until decoded, so the decoded images and :attr:`digest` always
+    name the same content, whatever happens to the files later.
+    """
+
+    def __init__(
+        self, paths: Sequence[Path], data: Sequence[np.ndarray], camera: Camera, stacked: bool, named: bool = True
+    ):
+        super().__init__(lambda: decode_together(self)[0])
+        self._paths, self._data, self._camera, self._stacked = list(paths), list(data), camera, stacked
+        self._images, self._lock = None, threading.Lock()
+        self.digest = _bytes_digest(self._data) if named else None
+        """Digest of the files' raw bytes, in order; None when not ``named`` (images decoded at once: ~25 ms
+        of hashing at 640x480 that nothing reads)."""
+
+
+def _bytes_digest(data: Sequence[np.ndarray]) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for d in data:  # lengths too: the same bytes cut between two files otherwise would not differ
+        h.update(len(d).to_bytes(8, "little"))
+        h.update(memoryview(d))
+    return f"png:{h.hexdigest()}"
+
+
+def decode_together(*sources: StoredImages) -> list[np.ndarray]:
+    """The images of ``sources``, each (H, W, 3) or stacked (N, H, W, 3) uint16, decoded on one thread pool
+    (libpng and zlib release the GIL) once for all reads of them; a problem names its file (:func:`_load_image`'s
+    errors)."""
+    for src in sources:  # in order, always: two threads reading two fields at once wait for each other
+        src._lock.acquire()
+    try:
+        todo = [src for src in sources if src._images is None]
+        jobs = [(_decode_image, p, d, src._camera) for src in todo for p, d in zip(src._paths, src._data)]
+        decoded = iter(_in_threads(jobs) if jobs else [])
+        for src in todo:
+            images = [next(decoded) for _ in src._paths]
+            src._images = np.stack(images) if src._stacked else images[0]
+            src._data = []  # the bytes are no longer needed
+        return [src._images for src in sources]
+    finally:
+        for src in sources:
+            src._lock.release()
+
+
+class _LoadedOnRead:
+    """A :class:`Press` field that takes its value or a :class:`Loader` of it: the value is loaded at the
+    first read and kept. Why: a solve reads neither the tri-colour image nor the ground truth, and a solve that
+    reuses the undeformed capture's results never reads its images (decoding them is most of a warm process's
+    loading)."""
+
+    def __init__(self, default: object = dataclasses.MISSING):
+        self.default = default
+
+    def __set_name__(self, owner: type, name: str):
+        self.name = name
+
+    def __get__(self, obj: object, owner: type | None = None) -> object:
+        if obj is None:  # the dataclass asks for the field's default
+            if self.default is dataclasses.MISSING:
+                raise AttributeError(self.name)
+            return self.default
+        value = obj.__dict__[self.name]
+        if isinstance(value, Loader):
+            value = value.load()
+            obj.__dict__[self.name] = value  # the Loader stays in the source: what the value was read from
+        return value
+
+    def __set__(self, obj: object, value: object) -> None:  # __init__ only: the frozen Press refuses others
+        obj.__dict__[self.name] = value
+        obj.__dict__[f"{self.name}_source"] = value if isinstance(value, Loader) else None
+
+
 @dataclasses.dataclass(frozen=True)
 class Press:
     """One press: everything the solver and the network need, loaded and validated."""
@@ -204,18 +288,29 @@ class Press:
     """The L LEDs, camera frame, mm, in the order of ``led_images`` (meta.json ``leds``)."""
     response: SensorResponse
     """How the stored values relate to light: bit depth, black and white levels (meta.json ``sensor``)."""
-    dark: np.ndarray
-    """(H, W, 3) uint16, stored values, RGB."""
-    led_images: np.ndarray
-    """(L, H, W, 3) uint16, stored values, RGB, one per LED lit alone in white."""
-    tricolor: np.ndarray
-    """(H, W, 3) uint16, stored values, RGB."""
+    dark: np.ndarray = _LoadedOnRead()
+    """(H, W, 3) uint16, stored values, RGB (may be given as a :class:`Loader`: loaded at the first read)."""
+    led_images: np.ndarray = _LoadedOnRead()
+    """(L, H, W, 3) uint16, stored values, RGB, one per LED lit alone in white (may be given deferred)."""
+    tricolor: np.ndarray = _LoadedOnRead()
+    """(H, W, 3) uint16, stored values, RGB (may be given deferred: a solve does not read it)."""
     meta: dict
     """The whole meta.json (provenance: scene, indenter, press pose, seed, software version)."""
     reference: Reference | None = None
     """The undeformed surface (reference.npz), or None when the folder has none."""
-    ground_truth: GroundTruth | None = None
-    """Per-pixel truth (gt.npz, synthetic presses only), or None."""
+    ground_truth: GroundTruth | None = _LoadedOnRead(None)
+    """Per-pixel truth (gt.npz, synthetic presses only), or None (may be given deferred)."""
+
+    def images_digest(self) -> str:
+        """A digest naming the stored dark and LED images: of the raw bytes of the files they are decoded from
+        when :func:`load_press` deferred them (:class:`StoredImages`: nothing decoded to name them), else of the
+        arrays (:func:`nlipscalib.core.diskcache.digest`)."""
+        sources = self.__dict__["dark_source"], self.__dict__["led_images_source"]
+        if all(isinstance(src, StoredImages) and src.digest for src in sources):
+            return "+".join(src.digest for src in sources)
+        from .diskcache import digest
+
+        return digest(self.led_images, self.dark)
 
     def linear(self, image: np.ndarray, window: tuple[slice, slice] = (slice(None), slice(None))) -> np.ndarray:
         """Dark-subtracted linear intensity, scaled so the sensor's full range is 1.
@@ -342,32 +437,33 @@ def read_optics(folder: str | Path) -> CaptureOptics:
     return CaptureOptics(folder=folder, camera=camera, leds=tuple(leds), reference=reference)
 
 
-def load_press(folder: str | Path, led_subset: Sequence[int] | None = None) -> Press:
+def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, decode: bool = True) -> Press:
     """Load and validate a press folder; every problem is reported naming the file.
+
+    The tri-colour image and the ground truth (gt.npz) are loaded at their first read (a solve reads neither):
+    a problem with them is reported then, naming the file.
 
     Parameters
     ----------
     folder : path of the press folder
     led_subset : optional sequence of 0-based LED indices to keep (for ablations)
+    decode : False: the dark and LED images are read and checked to be whole PNGs of the camera's size now,
+        and decoded at their first read (:class:`StoredImages`; a capture whose results may be reused under
+        :meth:`Press.images_digest`, such as the undeformed dome's, is then never decoded)
     """
     folder = Path(folder)
     meta = read_meta(folder)
     camera, leds, response = parse_optics(meta, folder / META_FILE)
     images = meta["images"]
-    dark = _load_image(folder, images["dark"], camera)
-    tricolor = _load_image(folder, images["tricolor"], camera)
     names = images["leds"]
     if len(names) != len(leds):
         raise CaptureError(f"{folder / META_FILE}: {len(leds)} LEDs but {len(names)} LED images listed")
     keep = range(len(leds)) if led_subset is None else _check_subset(led_subset, len(leds), folder)
-    led_images = np.stack(_in_threads([(_load_image, folder, names[i], camera) for i in keep]))
-    reference = _reference(folder, meta, camera, leds)
-    ground_truth = None
-    if meta.get("ground_truth"):
-        path = _existing(folder, meta["ground_truth"])
-        ground_truth = GroundTruth.load(path, camera.shape)
-        gt = ground_truth
-        _check_surface(path, surface_problem(gt.depth, gt.normals, gt.valid.astype(bool), camera, leds))
+    stored = _read_stored(folder, [images["dark"]] + [names[i] for i in keep], camera)
+    dark = StoredImages(*stored[0], camera, stacked=False, named=not decode)
+    led_images = StoredImages(*stored[1], camera, stacked=True, named=not decode)
+    if decode:
+        dark, led_images = decode_together(dark, led_images)
     return Press(
         folder=folder,
         camera=camera,
@@ -375,11 +471,33 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None) -> P
         response=response,
         dark=dark,
         led_images=led_images,
-        tricolor=tricolor,
+        tricolor=Loader(functools.partial(_load_image, folder, images["tricolor"], camera)),
         meta=meta,
-        reference=reference,
-        ground_truth=ground_truth,
+        reference=_reference(folder, meta, camera, leds),
+        ground_truth=Loader(functools.partial(_ground_truth, folder, meta, camera, leds)),
     )
+
+
+def _read_stored(folder: Path, names: list[str], camera: Camera) -> tuple[tuple[list, list], tuple[list, list]]:
+    """((paths, bytes) of the first image, (paths, bytes) of the others) of ``names`` in ``folder``, each checked to
+    be a whole PNG of the camera's size (:func:`_load_image`'s errors, before decoding)."""
+    paths = [_existing(folder, name) for name in names]
+    data = [read_png_bytes(path) for path in paths]
+    for path, d in zip(paths, data):
+        if png_size(d) != camera.shape:
+            (h, w), (H, W) = png_size(d), camera.shape
+            raise CaptureError(f"{path}: image is {w}x{h} pixels, but the camera in {META_FILE} is {W}x{H}")
+    return (paths[:1], data[:1]), (paths[1:], data[1:])
+
+
+def _ground_truth(folder: Path, meta: dict, camera: Camera, leds: Leds) -> GroundTruth | None:
+    """The capture's gt.npz, checked against the format's promise; None when it has none."""
+    if not meta.get("ground_truth"):
+        return None
+    path = _existing(folder, meta["ground_truth"])
+    gt = GroundTruth.load(path, camera.shape)
+    _check_surface(path, surface_problem(gt.depth, gt.normals, gt.valid.astype(bool), camera, leds))
+    return gt
 
 
 def _reference(folder: Path, meta: dict, camera: Camera, leds: Leds) -> Reference | None:
@@ -586,7 +704,12 @@ def _existing(folder: Path, name: str) -> Path:
 
 def _load_image(folder: Path, name: str, camera: Camera) -> np.ndarray:
     path = _existing(folder, name)
-    img = read_png16(path)
+    return _decode_image(path, read_png_bytes(path), camera)
+
+
+def _decode_image(path: Path, data: np.ndarray, camera: Camera) -> np.ndarray:
+    """(H, W, 3) uint16 of a capture's PNG read from ``path`` (``data``: its bytes), checked against the camera."""
+    img = decode_png16(data, path)
     if img.shape != camera.shape + (3,):
         raise CaptureError(f"{path}: image is {img.shape}, but the camera in {META_FILE} is {camera.shape + (3,)}")
     return img

@@ -67,11 +67,29 @@ def read_image(path: str | Path) -> np.ndarray | None:
 
 def read_png16(path: str | Path) -> np.ndarray:
     """Read a 16-bit PNG written by :func:`write_png16`; returns (H, W[, 3]) uint16, RGB."""
+    return decode_png16(read_png_bytes(path), path)
+
+
+def read_png_bytes(path: str | Path) -> np.ndarray:
+    """The bytes of a PNG file ((n,) uint8), checked to be a whole PNG (:func:`png_problem`) but not decoded:
+    CaptureError naming the file when it is missing, not a PNG or cut short."""
     path = Path(path)
     if not path.is_file():
         raise CaptureError(f"{path}: image file is missing")
-    _check_png_ends(path)
-    img = read_image(path)
+    data = np.fromfile(path, np.uint8)
+    if problem := png_problem(data):
+        raise CaptureError(f"{path}: {problem}")
+    return data
+
+
+def decode_png16(data: np.ndarray, path: str | Path) -> np.ndarray:
+    """Decode a 16-bit PNG's bytes (:func:`read_png_bytes`) read from ``path`` (named in errors).
+
+    Returns
+    -------
+    (H, W[, 3]) uint16, stored values, RGB.
+    """
+    img = _cv2().imdecode(data, _cv2().IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise CaptureError(f"{path}: not a readable PNG image")
     if img.dtype != np.uint16:
@@ -83,14 +101,30 @@ def read_png16(path: str | Path) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+def png_size(data: np.ndarray) -> tuple[int, int]:
+    """(H, W) pixels of a PNG from its header (the IHDR chunk, bytes 16-23), without decoding it: ``data``
+    (n,) uint8 as :func:`read_png_bytes` returns (a whole PNG)."""
+    head = data[16:24].tobytes()
+    return int.from_bytes(head[4:8], "big"), int.from_bytes(head[0:4], "big")
+
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def _check_png_ends(path: Path) -> None:
-    """CaptureError for a file that is not a PNG or is cut short (no IEND chunk at its end: an interrupted copy
-    or write), found from its first and last bytes: libpng would print its own error line on stderr first."""
-    from .errors import CaptureError
+def png_problem(data: np.ndarray) -> str | None:
+    """What is wrong with ``data`` ((n,) uint8, a file's bytes) as a PNG, from its first and last bytes: no PNG
+    signature, or cut short (no IEND chunk at its end: an interrupted copy or write); None for a whole PNG.
+    libpng would print its own error line on stderr before the caller's one line."""
+    if data[: len(PNG_SIGNATURE)].tobytes() != PNG_SIGNATURE:
+        return "not a readable PNG image (no PNG signature)"
+    if b"IEND" not in data[-64:].tobytes():
+        return "truncated PNG image (cut short: copy or capture it again)"
+    return None
 
+
+def _check_png_ends(path: Path) -> None:
+    """CaptureError for a file that is not a PNG or is cut short (:func:`png_problem`), found from its first and
+    last bytes only."""
     with open(path, "rb") as f:
         head = f.read(len(PNG_SIGNATURE))
         f.seek(max(f.seek(0, 2) - 64, 0))

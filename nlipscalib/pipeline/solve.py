@@ -354,10 +354,11 @@ def _figure_context(press: Press) -> tuple:
 
 @functools.lru_cache(maxsize=2)
 def _load_reference(folder: Path, subset: tuple[int, ...] | None, identity: str):
-    """The reference capture, loaded once per process and identity (presses of a batch share it)."""
+    """The reference capture, loaded once per process and identity (presses of a batch share it); its images are
+    read but decoded only when a solve needs them: a warm process finds its results on disk by their bytes."""
     from ..core.capture import load_press
 
-    return load_press(folder, led_subset=subset)
+    return load_press(folder, led_subset=subset, decode=False)
 
 
 def _log_solved(folder: Path, out: Path, rep: dict, save_s: float) -> None:

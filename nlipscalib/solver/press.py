@@ -446,14 +446,21 @@ def _indirect_fitter(
 
 def _capture_key(capture: Press) -> tuple:
     """What an indirect fit reads of a capture, named by content: camera, response, a digest of the stored
-    images and the reference surface, and the sensor design (the dome beyond the view). A fit on the
-    undeformed dome is the sensor's, so it is kept for later presses and processes under this key. Worked out
-    once per loaded capture (hashing its images takes ~30 ms at 640x480)."""
+    images (:meth:`Press.images_digest`) and of the reference surface, and the sensor design (the dome beyond
+    the view). A fit on the undeformed dome is the sensor's, so it is kept for later presses and processes
+    under this key. Worked out once per loaded capture.
+
+    The images are named by the raw bytes of their files when the capture was loaded undecoded (``load_press(...,
+    decode=False)``), not by a stamp (size, mtime, inode): a file replaced in place by one of the same size, with
+    its time kept (``cp -p``, ``rsync -t``) or within the clock's tick, would keep its stamp and be served the
+    old file's fit. Hashing the bytes costs ~10 ms at 640x480; decoding them to hash the arrays 0.2-0.3 s, for a
+    warm process that then reads nothing else of the capture (its fit and blurred images are on disk)."""
 
     def key():
         ref = capture.reference
-        arrays = reuse.digest(capture.led_images, capture.dark, ref.depth, ref.normals)
-        return capture.camera, capture.response, arrays, diskcache.stable_key(design_of(capture))
+        surface = reuse.digest(ref.depth, ref.normals)
+        design = diskcache.stable_key(design_of(capture))
+        return capture.camera, capture.response, capture.images_digest(), surface, design
 
     return reuse.reused("capture key", id(capture), key, keep=capture)
 

@@ -363,3 +363,18 @@ def test_eval_does_not_score_a_result_its_press_was_recaptured_since(data, capsy
     out = capsys.readouterr().out
     assert "press_b" in out and f"outdated, not scored: press_a: {press / 'nlips'} was made from another capture" in out
     assert f"remake it: `nlips solve {press} --overwrite`" in out
+
+
+def test_a_press_whose_tricolor_image_is_corrupt_still_solves(data, capsys):
+    """`nlips solve` reads no tri-colour image (it is loaded at its first read, ~60 ms at 640x480 saved); the
+    dataset builder, which does, still says which file is broken, in one line."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.learn.dataset import reference_arrays
+
+    root, cfg = data
+    press = root / "press_a"
+    (press / "tricolor.png").write_bytes(b"garbage")
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    assert (press / "nlips" / "result.npz").is_file()
+    with pytest.raises(CaptureError, match=r"tricolor\.png: not a readable PNG image \(no PNG signature\)$"):
+        reference_arrays(load_press(press))

@@ -4,7 +4,7 @@ import os
 import numpy as np
 import pytest
 
-from nlipscalib.core import Camera, Led, Reference, SensorResponse, load_press, write_press
+from nlipscalib.core import Camera, Led, Reference, SensorResponse, capture, load_press, write_press
 from nlipscalib.core.atomic import TMP_PREFIX, atomic_dir, clean_interrupted
 from nlipscalib.core.capture import GroundTruth, find_presses
 from nlipscalib.core.errors import CaptureError
@@ -131,15 +131,68 @@ def test_interrupted_folder_write_leaves_nothing(tmp_path):
         (lambda f: (f / "led_03.png").write_bytes((f / "led_03.png").read_bytes()[:-200]), "led_03.png: truncated PNG"),
         (lambda f: (f / "reference.npz").write_bytes(b"garbage"), "reference.npz: not a readable"),
         (lambda f: _spoil_deflated(f / "gt.npz", "normals.npy"), "gt.npz: not a readable .npz file (compressed"),
+        (lambda f: (f / "tricolor.png").write_bytes(b"garbage"), "tricolor.png: not a readable PNG"),
     ],
 )
-def test_broken_folders_are_reported_precisely(tmp_path, breakage, message, capfd):
+@pytest.mark.parametrize("decode", [True, False])
+def test_broken_folders_are_reported_precisely(tmp_path, breakage, message, capfd, decode):
     folder = _press(tmp_path / "p")
     breakage(folder)
     with pytest.raises(CaptureError, match=message.replace("(", r"\(").replace(".", r"\.")) as caught:
-        load_press(folder)
+        _read_every_file(folder, decode)
     assert "allow_pickle" not in str(caught.value)  # numpy's advice for a pickle, not for a broken file
     assert capfd.readouterr().err == ""  # nothing printed by the decoders (libpng) besides the one error
+
+
+def _read_every_file(folder, decode=True):
+    """``load_press`` and a read of each field it may load at its first read (the tri-colour image, the ground
+    truth, and the images of an undecoded capture)."""
+    press = load_press(folder, decode=decode)
+    return press.dark, press.led_images, press.tricolor, press.ground_truth
+
+
+def _spoil_png(path):
+    """A PNG whose signature and end are whole but whose image data is not: found only by decoding it."""
+    data = bytearray(path.read_bytes())
+    data[40:-40] = bytes(len(data) - 80)
+    path.write_bytes(bytes(data))
+
+
+def test_a_press_loads_without_reading_its_tricolor_image_nor_its_ground_truth(tmp_path):
+    """A solve reads neither (~60 ms at 640x480): they are loaded at their first read, and a problem with them
+    is reported then, as one line naming the file."""
+    folder = _press(tmp_path / "p")
+    (folder / "tricolor.png").write_bytes(b"garbage")
+    (folder / "gt.npz").write_bytes(b"not npz")
+    press = load_press(folder)
+    assert press.led_images.shape == (3, H, W, 3) and press.reference is not None
+    with pytest.raises(CaptureError, match="tricolor.png: not a readable PNG"):
+        _ = press.tricolor
+    with pytest.raises(CaptureError, match="gt.npz: not a readable"):
+        _ = press.ground_truth
+    whole = load_press(_press(tmp_path / "q"))
+    assert whole.tricolor.shape == (H, W, 3) and whole.ground_truth.depth.shape == (H, W)
+    assert load_press(_press(tmp_path / "r", with_gt=False)).ground_truth is None
+
+
+def test_an_undecoded_capture_checks_its_images_now_and_decodes_them_at_first_read(tmp_path):
+    folder = _press(tmp_path / "p")
+    decoded = load_press(folder, led_subset=[0, 2])
+    later = load_press(folder, led_subset=[0, 2], decode=False)
+    assert isinstance(vars(later)["led_images"], capture.StoredImages)  # nothing decoded yet
+    np.testing.assert_array_equal(later.led_images, decoded.led_images)
+    np.testing.assert_array_equal(later.dark, decoded.dark)
+    assert later.images_digest() != decoded.images_digest()  # the files' bytes, not the arrays
+    assert later.images_digest() == load_press(folder, led_subset=[0, 2], decode=False).images_digest()
+    assert later.images_digest() != load_press(folder, led_subset=[0, 1], decode=False).images_digest()
+    _edit_meta(folder, lambda m: m["camera"].update(width=99))
+    with pytest.raises(CaptureError, match=f"dark.png: image is {W}x{H} pixels, but the camera in meta.json is 99x"):
+        load_press(folder, decode=False)  # the size is in the PNG's header: refused before any decoding
+    _edit_meta(folder, lambda m: m["camera"].update(width=W))
+    _spoil_png(folder / "led_02.png")
+    spoilt = load_press(folder, decode=False)  # whole at both ends: found by decoding it
+    with pytest.raises(CaptureError, match="led_02.png: not a readable PNG"):
+        _ = spoilt.led_images
 
 
 def _spoil_deflated(path, member):
@@ -292,7 +345,7 @@ def test_surfaces_that_break_the_formats_promise_are_named(tmp_path, name, chang
     folder = _press(tmp_path / "p")
     _edit_surface(folder, name, change)
     with pytest.raises(CaptureError, match=f"{name}: array {message}"):
-        load_press(folder)
+        _read_every_file(folder)
 
 
 def test_a_gel_that_misses_the_sampling_grid_is_checked_on_all_its_pixels():

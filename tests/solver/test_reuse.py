@@ -222,6 +222,69 @@ def test_a_warm_solve_against_an_undeformed_capture_does_not_linearise_its_image
         np.testing.assert_array_equal(later[key], first[key], err_msg=key)
 
 
+def test_a_warm_solve_against_an_undeformed_capture_does_not_decode_its_images(tmp_path, disk, monkeypatch):
+    """The undeformed capture's results on disk are named by its files' bytes (``Press.images_digest``): a later
+    process loads the capture undecoded (``nlips solve --reference``), finds them, and never decodes its PNGs
+    (0.2-0.3 s at 640x480, only to name them); it solves alike."""
+    from nlipscalib.core import capture
+
+    folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere")}
+    first = _solve_auto(folders["sphere"], load_press(folders["none"], decode=False))
+    reuse.clear()  # a new process: only the disk remembers
+    decoded, decode = [], capture.decode_png16
+    monkeypatch.setattr(capture, "decode_png16", lambda data, path: decoded.append(path) or decode(data, path))
+    later = _solve_auto(folders["sphere"], load_press(folders["none"], decode=False))
+    assert decoded and not [p for p in decoded if folders["none"] in p.parents]  # the press's own: decoded
+    for key in first:
+        np.testing.assert_array_equal(later[key], first[key], err_msg=key)
+
+
+def test_an_undeformed_capture_file_replaced_in_place_is_not_served_the_old_files_results(tmp_path, disk, monkeypatch):
+    """An LED image of the undeformed capture overwritten in place (same name, inode and size, its time kept, as
+    ``cp -p`` leaves it): the results on disk named by the old bytes are not served for the new ones."""
+    folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere")}
+    old = _solve_auto(folders["sphere"], load_press(folders["none"], decode=False))
+    image = folders["none"] / "led_02.png"
+    stat = image.stat()
+    dimmer = (load_press(folders["none"]).led_images[1] * 0.8).astype(np.uint16)
+    data = _png_of_size(dimmer, stat.st_size)
+    with open(image, "r+b") as f:  # in place: the same inode
+        f.write(data)
+    os.utime(image, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    now = image.stat()
+    assert (now.st_ino, now.st_size, now.st_mtime_ns) == (stat.st_ino, stat.st_size, stat.st_mtime_ns)
+    reuse.clear()  # a new process: only the disk remembers
+    later = _solve_auto(folders["sphere"], load_press(folders["none"], decode=False))
+    reuse.clear()
+    monkeypatch.setenv(diskcache.ENV_DIR, "off")
+    fresh = _solve_auto(folders["sphere"], load_press(folders["none"]))
+    assert not np.array_equal(fresh["normals"], old["normals"], equal_nan=True)  # the change shows in the result
+    for key in fresh:
+        np.testing.assert_array_equal(later[key], fresh[key], err_msg=key)
+
+
+def _png_of_size(image: np.ndarray, size: int) -> bytes:
+    """``image`` as a 16-bit PNG of exactly ``size`` bytes (padded with an ancillary chunk; shorter ones only)."""
+    import struct
+    import zlib
+
+    import cv2
+
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    data = buf.tobytes()
+    pad = size - len(data) - 12  # a chunk: length, type, data, CRC
+    assert ok and pad >= 0
+    body = b"teXt" + b"p" * pad
+    chunk = struct.pack(">I", pad) + body + struct.pack(">I", zlib.crc32(body))
+    return data[:33] + chunk + data[33:]  # after the signature and IHDR
+
+
+def _solve_auto(folder, undeformed):
+    np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
+    result = solve_press(load_press(folder), roi="auto", indirect=undeformed, interreflection="on")
+    return {key: getattr(result, key) for key in ("depth", "normals", "albedo")}
+
+
 def _solve_fields(press, undeformed):
     np.random.seed(0)  # pyamg draws random start vectors from numpy's global generator
     result = solve_press(press, indirect=undeformed, interreflection="on")  # the whole gel: its operators recur
