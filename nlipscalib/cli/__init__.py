@@ -17,6 +17,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
+from typing import NoReturn
 
 from .. import __version__, progress
 from ..core.errors import MissingDependencyError, NlipsError
@@ -111,19 +112,27 @@ def plain_text(text: str | None) -> str | None:
     return _MARKUP.sub(lambda m: m.group(1) or m.group(2), text)
 
 
-def command() -> int:
-    """The ``nlips`` command (console script, ``python -m nlipscalib``): :func:`main` in a process of its own.
+def command() -> NoReturn:
+    """The ``nlips`` command (console script, ``python -m nlipscalib``): :func:`main` in a process of its own,
+    which it ends (:func:`_exit`).
 
     Only here, not in :func:`main` (which tests and Python programs call in their own process): settings that
     hold for the rest of the process and the processes it starts -- NumPy's arrays on ordinary pages
-    (:func:`nlipscalib.core.pages.ordinary_pages_for_command`)."""
+    (:func:`nlipscalib.core.pages.ordinary_pages_for_command`) -- and Ctrl-C or SIGTERM after the work ended
+    (:func:`_after_the_work`)."""
     from ..core.pages import ordinary_pages_for_command
 
     ordinary_pages_for_command()
-    return main()
+    _exit(_main(None, own_process=True))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    return _main(argv, own_process=False)
+
+
+def _main(argv: Sequence[str] | None, own_process: bool) -> int:
+    """Run the command of ``argv``; ``own_process``: the process ends after it (:func:`command`), so its signal
+    handlers are not put back but replaced by :func:`_after_the_work`'s."""
     args = build_parser().parse_args(argv)
     previous = _terminate_cleanly(args.command, args)
     previous_int = _note_interrupts()
@@ -132,10 +141,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         import signal
 
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-        if previous_int is not None:
-            signal.signal(signal.SIGINT, previous_int)
+        if own_process:
+            _after_the_work(args.command)
+        else:
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+            if previous_int is not None:
+                signal.signal(signal.SIGINT, previous_int)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -214,25 +226,81 @@ def _terminate_cleanly(command: str, args: argparse.Namespace | None = None):
     arbitrary point can land inside a native library (Mitsuba, drjit) and abort the process.
     Returns the previous handler.
     """
-    import os
     import signal
     import threading
 
-    from ..core import atomic, claims
-
     def handler(signum: int, frame: FrameType | None) -> None:
-        _stop_workers()
-        claims.release_all()
-        atomic.remove_in_progress()
-        _release_multiprocessing_resources()
-        print(f"nlips {command}: terminated; {_stopped(args)}", file=sys.stderr)
-        sys.stderr.flush()
-        sys.stdout.flush()
-        os._exit(143)
+        _end_at_once(f"nlips {command}: terminated; {_stopped(args)}", 143)
 
     if threading.current_thread() is not threading.main_thread():
         return None
     return signal.signal(signal.SIGTERM, handler)
+
+
+AFTER_THE_WORK = "after its work ended; what it wrote is kept"
+"""What a command says of a Ctrl-C or SIGTERM that came once its work was done (:func:`_after_the_work`)."""
+
+
+def _after_the_work(command: str) -> None:
+    """Ctrl-C or SIGTERM once the command's work ended (its result line printed), until its process ends: the line
+    "nlips COMMAND: interrupted (terminated) after its work ended; what it wrote is kept", exit 130 (143).
+
+    The work's handlers were put back to Python's defaults when :func:`main` returned: Ctrl-C while the process
+    exited (a slow library's teardown, e.g. torch's second after ``nlips export`` printed its line) printed an
+    "Exception ignored in atexit callback" traceback and exited 0, or killed the process with no line, as SIGTERM
+    always did. The status stays the signal's, as for an interrupt during the work: a shell loop or a scheduler
+    must still see that the user stopped it; the line says that nothing was lost. Ended with os._exit as
+    :func:`_terminate_cleanly` is, for the same reason.
+    """
+    import signal
+    import threading
+
+    def handler(signum: int, frame: FrameType | None) -> None:
+        how = "interrupted" if signum == signal.SIGINT else "terminated"
+        _end_at_once(f"nlips {command}: {how} {AFTER_THE_WORK}", 128 + signum)
+
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(signum) not in (signal.SIG_IGN, None):  # an ignored Ctrl-C (a background job) stays
+                signal.signal(signum, handler)
+
+
+def _end_at_once(line: str, code: int) -> NoReturn:
+    """End the process from a signal handler: its worker processes stopped, its claims released and temporaries
+    removed, ``line`` on stderr, exit ``code``."""
+    from ..core import atomic, claims
+
+    _stop_workers()
+    claims.release_all()
+    atomic.remove_in_progress()
+    _release_multiprocessing_resources()
+    print(line, file=sys.stderr)
+    sys.stderr.flush()
+    sys.stdout.flush()
+    os._exit(code)
+
+
+def _exit(code: int) -> NoReturn:
+    """End the command's process with ``code`` as the interpreter would -- its other non-daemon threads joined, the
+    ``atexit`` functions run (logging's flush, multiprocessing's, coverage's), stdout and stderr flushed -- without
+    the teardown of its modules that follows.
+
+    Why: Python puts SIGINT and SIGTERM back to their defaults before that teardown, so :func:`_after_the_work`'s
+    handlers no longer hold there, and a signal during it (a second for torch and onnxruntime) killed the process
+    with no line. The teardown frees nothing a process about to end needs freed; skipping it also ends sooner.
+    """
+    import atexit
+    import contextlib
+    import threading
+
+    for thread in threading.enumerate():
+        if thread is not threading.current_thread() and not thread.daemon:
+            thread.join()
+    atexit._run_exitfuncs()  # what the interpreter runs at exit; exceptions in them are printed, as they are there
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # a closed pipe (`nlips ... | head`)
+            stream.flush()
+    os._exit(code)
 
 
 WORKER_GRACE_S = 5.0

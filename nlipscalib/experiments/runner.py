@@ -74,9 +74,15 @@ def run_tasks(
         else:
             todo.append(t)
     bar = _bar(len(tasks), len(status.skipped), progress)
-    with _backend(scheduler, workers) as backend:
-        for stage in sorted({t.stage for t in todo}):
-            backend([t for t in todo if t.stage == stage], out, keep_presses, status, bar)
+    try:
+        with _backend(scheduler, workers) as backend:
+            for stage in sorted({t.stage for t in todo}):
+                backend([t for t in todo if t.stage == stage], out, keep_presses, status, bar)
+    finally:
+        if check_scheduler(scheduler) is not None:
+            # a LocalCluster closed mid-task (Ctrl-C) kills its busy workers (SIGKILL after Dask's grace): each
+            # left its task's claim, which no one else would remove until the next run
+            clean_leftovers(out)
     bar.close()
     return status
 

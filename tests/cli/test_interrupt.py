@@ -265,3 +265,46 @@ def test_infer_of_a_stream_says_the_stream_stopped_not_run_again_to_resume(tmp_p
         proc = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=60)
         assert proc.returncode == 128 + signal.SIGTERM, proc.stderr
         assert proc.stderr.strip().splitlines()[-1] == f"nlips infer: terminated; {line}"
+
+
+AFTER_THE_WORK = """
+import atexit, sys, time
+from nlipscalib.cli import cache, command
+
+def exiting():  # a slow exit (a library's teardown, e.g. torch's after `nlips export` printed its line)
+    print("exiting", flush=True)
+    time.sleep(30)
+
+cache.run = lambda args: 0
+atexit.register(exiting)
+sys.exit(command())
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_after_the_work_ended_is_one_line_and_the_signals_status(signum):
+    """Ctrl-C after `nlips export` printed its line (the process still exiting) printed an "Exception ignored in
+    atexit callback" traceback and exited 0, or no line at all (exit 130) in the interpreter's teardown; SIGTERM
+    then killed it with no line. Now both say the work had ended and keep the signal's status."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    proc = subprocess.Popen(
+        [sys.executable, "-c", AFTER_THE_WORK, "cache"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's command has it
+    )
+    try:
+        assert proc.stdout.readline() == "exiting\n"
+        proc.send_signal(signum)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    how = "interrupted" if signum == signal.SIGINT else "terminated"
+    assert err.strip() == f"nlips cache: {how} {cli.AFTER_THE_WORK}", err
+    assert proc.returncode == 128 + signum

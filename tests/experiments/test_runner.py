@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from tests.processes import kill_when_it_says
 
 COMMAND = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
@@ -75,6 +77,33 @@ def test_ctrl_c_with_worker_processes_is_one_line_and_a_rerun_resumes(tmp_path):
     assert again.returncode == 0, err
     assert "3 tasks" in stdout and "0 failed" in stdout, stdout
     assert len(list(tasks.glob("*.json"))) == 3
+
+
+def test_ctrl_c_with_a_dask_local_cluster_leaves_no_claim(tmp_path):
+    """Ctrl-C of `nlips experiment --scheduler local:2` while both workers held a press: closing the LocalCluster
+    kills its busy workers (SIGKILL after Dask's grace, mid-render), and each left its task's claim behind until
+    the next run. Now the command removes them on its way out."""
+    pytest.importorskip("distributed")
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY)
+    out = tmp_path / "out"
+    proc = _nlips("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(out))
+    tasks = out / "ablation-custom" / "tasks"
+    try:
+        deadline = time.monotonic() + 180
+        while len(list(tasks.glob(".claim-sphere*"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)  # both workers hold a press
+        assert proc.poll() is None, "the run ended before the workers took the presses"
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    # the last line: Dask's worker processes log a cancelled task's warning in a format of their own before it
+    assert _not_log(err)[-1] == "nlips experiment: interrupted; finished work is kept, run again to resume", err
+    left = [p for p in Path(out).rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
+    assert not left, left
 
 
 def test_a_second_run_says_it_reused_the_finished_tasks(tmp_path):

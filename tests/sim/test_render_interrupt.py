@@ -55,3 +55,31 @@ def test_ctrl_c_during_a_mitsuba_render_is_our_one_line_alone(tmp_path):
     assert not_log == ["nlips render: interrupted; finished work is kept, run again to resume"], proc.stderr
     assert proc.stdout == ""  # where Mitsuba's log goes
     assert not (tmp_path / "p").exists()
+
+
+def test_mitsuba_warnings_of_a_render_are_logged_once_each_without_its_interrupt_notice(caplog, capfd):
+    """Mitsuba's warnings were held back while it rendered (the log level raised to errors, to hide the notice its
+    Ctrl-C handler logs). Now each is logged as ours, once however many renders (presses) repeat it; the notice
+    alone is dropped, and Mitsuba's log goes back to where it was after the render."""
+    import logging
+    import uuid
+
+    from nlipscalib.sim.render import surface
+    from nlipscalib.sim.render.variant import load_mitsuba
+
+    mi, _ = load_mitsuba("scalar_rgb", 1)
+    tag = uuid.uuid4().hex  # this test's messages: each is logged once per process
+    with caplog.at_level(logging.WARNING, logger=surface.__name__):
+        for _ in range(2):  # two presses' renders
+            with surface._warnings_relayed(mi):
+                mi.Log(mi.LogLevel.Warn, f"{tag} first\nits second line")
+                mi.Log(mi.LogLevel.Warn, f"{tag} first\nits second line")
+                mi.Log(mi.LogLevel.Warn, f"{surface.MITSUBA_INTERRUPT_NOTICE}.. {tag}")
+                mi.Log(mi.LogLevel.Warn, f"{tag} second")
+    logged = [r.getMessage() for r in caplog.records if tag in r.getMessage()]
+    assert len(logged) == 2, logged
+    assert logged[0].startswith("Mitsuba: ") and logged[0].endswith(f"{tag} first\nits second line")
+    assert logged[1].endswith(f"{tag} second")
+    assert capfd.readouterr().out == ""  # none on stdout, where Mitsuba logs
+    mi.Log(mi.LogLevel.Warn, f"{tag} after the render")
+    assert f"{tag} after the render" in capfd.readouterr().out

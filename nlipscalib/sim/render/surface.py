@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
+import re
+import tempfile
 import time
+from collections.abc import Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -15,6 +20,8 @@ from .groundtruth import trace_ground_truth
 from .mesh import albedo_per_vertex
 from .scene import build_scene
 from .variant import load_mitsuba
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``variant.load_mitsuba``), passed as ``mi``
     from types import ModuleType
@@ -121,7 +128,7 @@ def _render_images(
     mi: ModuleType, scene: mitsuba.Scene, shape: tuple[int, int], spp: int, seed: int, integrator: str
 ) -> np.ndarray:
     """(L, H, W, 3) float32 linear images: one per LED from the AOVs, or the path tracer's one image."""
-    with _no_interrupt_notice(mi):
+    with _warnings_relayed(mi):
         out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
     h, w = shape
     if integrator == "multi":
@@ -129,26 +136,58 @@ def _render_images(
     return np.ascontiguousarray(out[None, ..., :3])
 
 
+MITSUBA_INTERRUPT_NOTICE = "Received interrupt signal, winding down"
+"""The warning Mitsuba's own Ctrl-C handler logs as it cancels a render; ``nlips`` says its one line instead."""
+_MITSUBA_LINE = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d (?:TRACE|DEBUG|INFO|WARN|ERROR)\s+(?:\[[^]]*\]\s*)?(.*)$")
+"""The start of a message in Mitsuba's log (DefaultFormatter: date, time, level, ``[file:line] text``): its text
+is kept, without the source location (one warning from two places is one to the user)."""
+_RELAYED: set[str] = set()
+"""Mitsuba's render warnings this process has logged (each is logged once, not once a press)."""
+
+
 @contextlib.contextmanager
-def _no_interrupt_notice(mi: ModuleType):
-    """Mitsuba's warnings held back (its errors shown) while it renders.
+def _warnings_relayed(mi: ModuleType) -> Iterator[None]:
+    """Mitsuba's warnings of a render logged as ours (``log.warning``), each once per process, after it.
 
     Mitsuba puts a Ctrl-C handler of its own in place around a render (``Integrator.render``'s binding): it
     cancels the render, hands the signal on to Python (``nlips`` then prints its one line "interrupted; ...",
-    exit 130), and first logs "Received interrupt signal, winding down.." as a warning, in ANSI colours even
-    into a file. The handler cannot be left out, nor its line told apart from other warnings (a filter in
-    Python would run inside a C signal handler); the scene's warnings come when it is built, before this.
+    exit 130), and first logs :data:`MITSUBA_INTERRUPT_NOTICE` as a warning, in ANSI colours on stdout (even
+    into a file). Python cannot filter it there (it would run inside a C signal handler), so while Mitsuba
+    renders its log goes to a file, by its own C++ appender, and is read once the render has ended: the
+    notice dropped, every other warning logged -- they used to be held back with it (the log level raised to
+    errors). Errors are raised as exceptions, not logged. The scene's warnings come when it is built, before this.
     """
     logger = mi.logger() if hasattr(mi, "logger") else mi.Thread.thread().logger()
-    level = logger.log_level() if logger is not None else None
-    if level is None or level >= mi.LogLevel.Error:
+    if logger is None:
         yield
         return
-    logger.set_log_level(mi.LogLevel.Error)
-    try:
-        yield
-    finally:
-        logger.set_log_level(level)
+    shown = [logger.appender(i) for i in range(logger.appender_count())]
+    with tempfile.TemporaryDirectory(prefix="nlips-mitsuba-log-") as folder:
+        path = Path(folder) / "render.log"
+        logger.clear_appenders()
+        logger.add_appender(mi.StreamAppender(str(path)))
+        try:
+            yield
+        finally:
+            logger.clear_appenders()  # the file's appender goes (closing the file), stdout's comes back
+            for appender in shown:
+                logger.add_appender(appender)
+            _relay(path.read_text(errors="replace") if path.exists() else "")
+
+
+def _relay(text: str) -> None:
+    """Log each warning of Mitsuba's log ``text`` not logged before, but the interrupt notice."""
+    messages: list[str] = []
+    for line in text.splitlines():
+        start = _MITSUBA_LINE.match(line)
+        if start is not None:
+            messages.append(start.group(1).strip())
+        elif messages and line.strip():  # a message of several lines
+            messages[-1] += "\n" + line.rstrip()
+    for message in messages:
+        if MITSUBA_INTERRUPT_NOTICE not in message and message not in _RELAYED:
+            _RELAYED.add(message)
+            log.warning("Mitsuba: %s", message)
 
 
 def _interface(scene_cfg: SceneConfig):
