@@ -293,9 +293,16 @@ def _exit(code: int) -> NoReturn:
     import contextlib
     import threading
 
-    for thread in threading.enumerate():
-        if thread is not threading.current_thread() and not thread.daemon:
-            thread.join()
+    shutdown = getattr(threading, "_shutdown", None)
+    if shutdown is not None:
+        # the interpreter's own first step at exit: the callbacks of threading._register_atexit (which tell
+        # concurrent.futures' idle pool threads, e.g. the solver's, to end), then every non-daemon thread joined.
+        # Joining those pool threads without the callbacks waited forever.
+        shutdown()
+    else:  # not CPython: the threads it has, joined
+        for thread in threading.enumerate():
+            if thread is not threading.current_thread() and not thread.daemon:
+                thread.join()
     atexit._run_exitfuncs()  # what the interpreter runs at exit; exceptions in them are printed, as they are there
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):  # a closed pipe (`nlips ... | head`)

@@ -19,3 +19,20 @@ def test_python_dash_m_runs_the_nlips_command(module, tmp_path):
     )
     assert bad.returncode != 0 and "Traceback" not in bad.stderr
     assert "missing" in bad.stderr
+
+
+def test_the_command_ends_once_its_work_is_done_with_the_solvers_thread_pool_idle(tmp_path):
+    """The solver's threads are a concurrent.futures pool kept for the process: ``command()`` ends the process
+    itself (cli._exit), and joining those idle threads without telling them to end waited forever."""
+    from tests.solver import synth
+
+    press = synth.make_press(tmp_path / "p", "sphere", size=(48, 36))
+    run = subprocess.run(
+        [sys.executable, "-m", "nlipscalib", "--no-progress", "solve", str(press), "--no-figures"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert (press / "nlips" / "result.npz").exists()
