@@ -297,6 +297,13 @@ def _emulated_source(
     return camera, before_frame
 
 
+def saved_line(folder: str, frames: int, every: int, extra: str = "") -> str:
+    """Where a stream's saved maps went (``nlips live --save``, ``nlips infer ... --out``), said after its summary:
+    the summary gave frame rates only, and a new user looked for the results. ``extra``: more files named."""
+    kept = -(-frames // every)  # frames 0, every, 2 * every, ... (device.live.SaveSink)
+    return f"saved: {kept} of {frames} frames' normals and depth in {folder} (frame_NNNNNN.npz, _normals.png{extra})"
+
+
 def _light_tricolor(controller: LedBoard, level: int) -> None:
     import numpy as np
 

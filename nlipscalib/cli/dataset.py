@@ -25,7 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Presses already rendered are skipped, so an interrupted run resumes where it stopped. Several "
         "runs of one spec (terminals, cluster array jobs, machines sharing the disk) may fill one folder at once: "
         "each press is claimed by one of them and rendered exactly once. A run of another spec is refused while "
-        "one is at work in the folder, so that it never holds presses of two specs.",
+        "one is at work in the folder, so that it never holds presses of two specs. A spec's keys, and a small "
+        'try-out spec (six presses at 160x120): docs/formats.md, "Dataset spec".',
     )
     p.add_argument(
         "spec", help="dataset spec file, or a shipped spec's name: train50 (~50 presses) or demo (the demo's)"

@@ -24,6 +24,7 @@ from ._stream import (
     check_output_arguments,
     check_source_arguments,
     emulate_behind_port,
+    saved_line,
 )
 from .options import option, typed
 
@@ -274,6 +275,8 @@ def _finish_stream(
     watch.report()
     if args.out and stats.frames:
         _write_stream_report(args.out, name, predictor, stats, stages, cpu)
+        ply = ", .ply" if args.ply or args.mesh else ""
+        print(saved_line(args.out, stats.frames, args.every, f"{ply}; stream.json"))
 
 
 class _EndsCleanly:

@@ -27,6 +27,7 @@ from ._stream import (
     emulate_behind_port,
     nlipsnet_predictor,
     open_frames,
+    saved_line,
     size_emulator_for,
 )
 
@@ -163,9 +164,9 @@ def run(args: argparse.Namespace) -> int:
             raise
         # the LED board failed only as the stream closed (unplugged or killed: its lights-off got no answer):
         # the frames were streamed, so their summary comes before the one error line (exit 2)
-        _summarise(done["stats"], done["predict"])
+        _summarise(done["stats"], done["predict"], args)
         raise
-    _summarise(done["stats"], done["predict"])
+    _summarise(done["stats"], done["predict"], args)
     return 0
 
 
@@ -204,9 +205,12 @@ def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
         done["predict"] = predict
 
 
-def _summarise(stats: LiveStats, predict: Predict) -> None:
-    """The stream's summary line (stdout), and how many frames differed from the calibration (a warning)."""
+def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace) -> None:
+    """The stream's summary line (stdout), where --save put its maps, and how many frames differed from the
+    calibration (a warning)."""
     print(stats.summary())
+    if args.save and stats.frames:
+        print(saved_line(args.save, stats.frames, args.every))
     watch = sys.modules.get("nlipscalib.learn.watch")  # not imported: an NLiPsNet-free stream, nothing to report
     if watch is not None and isinstance(predict, watch.MismatchWatch):
         predict.report()

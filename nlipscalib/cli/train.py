@@ -138,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
     print(summary)
     if angle is not None:
         print(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
+    print(f"next: nlips infer {out} INPUT (press folders, tri-colour frames, a video or --camera N)")
     return 0
 
 

@@ -43,6 +43,7 @@ def test_calibrate_solves_with_the_led_file_and_again_when_the_leds_change(sessi
     assert len(resolved) == 2, caplog.text
     out = capsys.readouterr().out
     assert "2 presses" in out and "press next: an object in image region" in out  # was "an unknown"
+    assert f"next: nlips train {root / 'calibration'} --out MODEL.pt" in out  # a new user's next step, with its folder
     caplog.clear()
     assert main(["calibrate", str(root), "--leds", str(leds), "--workers", "1", "--no-progress"]) == 0
     assert "identical result exists" in caplog.text and "re-solving" not in caplog.text

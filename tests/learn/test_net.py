@@ -228,6 +228,7 @@ def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch,
     assert main([*args, "--no-onnx", "--no-progress"]) == 0
     printed = capsys.readouterr().out
     assert f"best epoch {best} of 3," in printed and "stopped at the epoch limit (--epochs 3)" in printed
+    assert printed.splitlines()[-1].startswith(f"next: nlips infer {out} ")  # what a new user does with the model
     curve = figures[0].axes[1]
     assert curve.get_title().startswith(f"best epoch {best}:")
     assert list(curve.lines[0].get_xdata()) == [1, 2, 3]

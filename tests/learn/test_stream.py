@@ -61,7 +61,9 @@ def test_video_frames_give_what_the_predictor_gives_on_those_frames(trained, twi
 def test_max_frames_and_every(trained, video, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(video), "--max-frames", "2", "--out", str(out), "--every", "2"]) == 0
-    assert "2 frames in" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "2 frames in" in printed
+    assert f"saved: 1 of 2 frames' normals and depth in {out} " in printed  # the summary said nothing of where
     assert sorted(p.name for p in out.glob("*.npz")) == ["frame_000000.npz"]
 
 
