@@ -125,13 +125,7 @@ def _in_words(old: dict, new: dict) -> str:
     """:func:`_what_changed` with the old values where they are short: "roi auto (this run: none)"."""
     if not old:
         return "settings unknown"
-    words = []
-    for name, was, now in _differences(old, new):
-        if isinstance(was, dict) and isinstance(now, dict):  # options: the fields that differ
-            words += [_word(f"{name}.{k}", was.get(k), v) for k, v in now.items() if was.get(k) != v]
-        else:
-            words.append(_word(name, was, now))
-    return ", ".join(words) or "record differs"
+    return ", ".join(_word(name, was, now) for name, was, now in _differences(old, new)) or "record differs"
 
 
 def _word(name: str, was: object, now: object) -> str:
@@ -146,11 +140,16 @@ def _differences(old: dict, new: dict) -> list[tuple[str, object, object]]:
     settings, inputs = old.get("settings"), old.get("inputs")
     settings = settings if isinstance(settings, dict) else {}
     inputs = inputs if isinstance(inputs, dict) else {}
-    changed = [
-        (k, settings.get(k), v)
-        for k, v in new["settings"].items()
-        if k not in ("leds_file", "reference") and settings.get(k) != v
-    ]
+    changed = []
+    for k, v in new["settings"].items():
+        was = settings.get(k)
+        if k in ("leds_file", "reference") or was == v:
+            continue
+        if isinstance(was, dict) and isinstance(v, dict):  # options, solver keywords: the fields that differ,
+            # by the names a user gives them (--interreflection), not the record's grouping ("solver_keywords")
+            changed += [(f, was.get(f), v.get(f)) for f in sorted(set(was) | set(v)) if was.get(f) != v.get(f)]
+        else:
+            changed.append((k, was, v))
     changed += [(f"{k} capture", inputs.get(k), v) for k, v in new["inputs"].items() if inputs.get(k) != v]
     if old.get("software_version") != new["software_version"]:
         changed.append(("software version", old.get("software_version"), new["software_version"]))

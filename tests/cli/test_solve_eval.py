@@ -65,6 +65,10 @@ def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys
     ]
     used = json.loads((press / "nlips" / "report.json").read_text())["leds_used"]
     assert used == [0, 2, 4, 6, 8, 10]  # the capture's 0-based LED indices, not positions in the subset
+    flags = ["--leds", "1,3,5,7,9,11", "--interreflection", "off", "--no-progress"]
+    assert main(["solve", str(press), "--config", str(cfg), *flags]) == 0
+    # named as the user gives it (--interreflection), not by the record's grouping (solver_keywords)
+    assert "made with other settings or inputs (interreflection), re-solving" in _log(caplog, capsys)
 
 
 def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys, caplog):
