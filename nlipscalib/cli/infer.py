@@ -387,9 +387,10 @@ def _run_stills(args: argparse.Namespace) -> int:
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
         log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
     settings = output_settings(args, predictor)
-    inner, kept = [], 0
+    inner, kept, written = [], 0, []
     for name, load, press_folder, source in frames:
         folder = _destination(args, name, press_folder)
+        written += [folder] if folder is not None else []
         provenance = None
         if folder is not None and not args.overwrite and _has_entries(folder):  # else it is inferred anyway
             provenance = still_provenance(settings, input_identity(press_folder, source))
@@ -404,7 +405,17 @@ def _run_stills(args: argparse.Namespace) -> int:
             provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
             _save(args, predictor, result, name, folder, provenance)
     print(_stills_summary(args, predictor, inner, kept, time.perf_counter() - t_start))
+    if written:
+        print(_where_saved(written, bool(args.ply or args.mesh)))
     return 0
+
+
+def _where_saved(folders: Sequence[Path], ply: bool) -> str:
+    """Where the stills' results are (a new user looked for them after the frame-rate line): one folder each."""
+    parents = {f.parent for f in folders}
+    where = f"{folders[0].parent}/" if len(parents) == 1 else f"each press's {folders[0].name}/ (e.g. {folders[0]})"
+    files = "result.npz, report.json" + (", points.ply" if ply else "")
+    return f"saved: {len(folders)} result folder(s) in {where} ({files}; nlips eval scores them)"
 
 
 def _stills_summary(

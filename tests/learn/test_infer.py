@@ -16,7 +16,9 @@ from .conftest import HELD_OUT
 def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_presses, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(out), "--mesh"]) == 0
-    assert "frames/s" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert "frames/s" in said
+    assert f"saved: 1 result folder(s) in {out / HELD_OUT}/ (result.npz, report.json, points.ply;" in said
     press = load_press(twin_presses / HELD_OUT)
     rec = load_reconstruction(out / HELD_OUT / "nlipsnet", press.camera.shape)
     scores = evaluate(rec, press.ground_truth)["contact"]
@@ -284,7 +286,9 @@ def test_a_folder_of_presses_infers_its_presses_not_its_reference(trained, twin_
     for name in ("reference", "press_a", "press_b"):
         shutil.copytree(twin_presses / name, root / name, ignore=shutil.ignore_patterns("nlips"))
     assert main(["infer", str(trained), str(root)]) == 0
-    assert capsys.readouterr().out.startswith("2 frame(s)")
+    said = capsys.readouterr().out
+    assert said.startswith("2 frame(s)")
+    assert f"saved: 2 result folder(s) in each press's nlipsnet/ (e.g. {root / 'press_a' / 'nlipsnet'})" in said
     assert (root / "press_a" / "nlipsnet").is_dir() and not (root / "reference" / "nlipsnet").exists()
     assert main(["infer", str(trained), str(root / "reference")]) == 0  # named itself, it is inferred
     assert (root / "reference" / "nlipsnet" / "result.npz").is_file()
