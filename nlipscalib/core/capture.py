@@ -212,12 +212,20 @@ class StoredImages(Loader):
     def __init__(
         self, paths: Sequence[Path], data: Sequence[np.ndarray], camera: Camera, stacked: bool, named: bool = True
     ):
-        super().__init__(lambda: decode_together(self)[0])
         self._paths, self._data, self._camera, self._stacked = list(paths), list(data), camera, stacked
         self._images, self._lock = None, threading.Lock()
         self.digest = _bytes_digest(self._data) if named else None
         """Digest of the files' raw bytes, in order; None when not ``named`` (images decoded at once: ~25 ms
         of hashing at 640x480 that nothing reads)."""
+
+    def load(self) -> np.ndarray:
+        return decode_together(self)[0]
+
+    def __getstate__(self) -> dict:  # a Press sent to another process (a worker): the lock is this process's
+        return {k: v for k, v in self.__dict__.items() if k != "_lock"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state, _lock=threading.Lock())
 
 
 def _bytes_digest(data: Sequence[np.ndarray]) -> str:

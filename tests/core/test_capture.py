@@ -195,6 +195,19 @@ def test_an_undecoded_capture_checks_its_images_now_and_decodes_them_at_first_re
         _ = spoilt.led_images
 
 
+def test_a_press_not_yet_decoded_or_read_can_be_sent_to_another_process(tmp_path):
+    """Pickled (a worker's argument) before its images are decoded or its tri-colour image read: the other
+    process decodes and reads them, the same arrays."""
+    import pickle
+
+    folder = _press(tmp_path / "p")
+    for press in (load_press(folder, decode=False), load_press(folder)):
+        copy = pickle.loads(pickle.dumps(press))
+        np.testing.assert_array_equal(copy.led_images, press.led_images)
+        np.testing.assert_array_equal(copy.tricolor, press.tricolor)
+        assert copy.images_digest() == press.images_digest()
+
+
 def _spoil_deflated(path, member):
     from tests.core.test_reconstruction import _spoil_deflated_member
 
