@@ -20,6 +20,7 @@ import dataclasses
 import functools
 import hashlib
 import logging
+import os
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -508,6 +509,15 @@ def _reference(folder: Path, meta: dict, camera: Camera, leds: Leds) -> Referenc
     ref = Reference.load(path, camera.shape)
     _check_surface(path, surface_problem(ref.depth, ref.normals, np.isfinite(ref.depth), camera, leds))
     return ref
+
+
+def file_stamp(path: str | os.PathLike) -> tuple[int, ...]:
+    """What tells that a file's content may have changed without reading it, for caches of what a process read
+    from a capture: device and inode (replaced by a rename), size, and modification and change times in ns
+    (written in place; the change time too, as a copy that keeps the old modification time still sets it).
+    FileNotFoundError when there is none. A stat: microseconds (os.stat of a str: half pathlib's cost)."""
+    st = os.stat(path)
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
 
 
 def _check_surface(path: Path, problem: str | None) -> None:
