@@ -44,7 +44,7 @@ def test_identical_request_skips_and_a_changed_one_re_solves(press, caplog):
 
     caplog.set_level(logging.INFO)
     _, status = solve_folder(press, options=SolverOptions(max_iters=7), figures=False)
-    assert status == "solved" and "options" in caplog.text  # the log says what changed
+    assert status == "solved" and "(max_iters)" in caplog.text  # the log names the option that changed
     assert read_report(press / "nlips")["provenance"]["settings"]["options"]["max_iters"] == 7
     _, status = solve_folder(press, options=SolverOptions(max_iters=7), roi=(10, 10, 30, 20), figures=False)
     assert status == "solved"
@@ -69,6 +69,26 @@ def test_provenance_records_inputs_and_changes_with_them(press_set, tmp_path):
     assert make_provenance(press_set / "a_sphere", explicit)["key"] == a["key"]
     with pytest.raises(ConfigError, match="unknown solver keywords"):
         make_settings(solver_keywords={"no_such_flag": 1})
+
+
+def test_identity_notices_an_image_replaced_in_place(press, tmp_path):
+    """The identity is cached per process: keyed on meta.json alone, it stayed the old one after an LED image
+    was rewritten in place (meta.json untouched), and so did the reference loaded under it (a notebook, or
+    ``nlips calibrate`` solving many presses, solved against the old images)."""
+    from nlipscalib.pipeline import capture_identity
+
+    before = capture_identity(press)
+    meta = (press / "meta.json").stat()
+    other = (press / "led_02.png").read_bytes()
+    assert len(other) != (press / "led_01.png").stat().st_size  # noticed whatever the file clock's resolution
+    with open(press / "led_01.png", "r+b") as f:  # in place: the same file (inode), new content
+        f.write(other)
+        f.truncate()
+    assert (press / "meta.json").stat() == meta
+    after = capture_identity(press)
+    assert after != before
+    shutil.copytree(press, tmp_path / "fresh")  # another folder: hashed anew, not served from the cache
+    assert capture_identity(tmp_path / "fresh") == after
 
 
 def test_damaged_result_is_recomputed_with_a_warning(press, caplog):

@@ -20,6 +20,7 @@ import dataclasses
 import functools
 import hashlib
 import logging
+import os
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -305,7 +306,8 @@ class Press:
     meta: dict
     """The whole meta.json (provenance: scene, indenter, press pose, seed, software version)."""
     reference: Reference | None = None
-    """The undeformed surface (reference.npz), or None when the folder has none."""
+    """The undeformed surface (reference.npz), or None when the folder has none; its arrays are read-only (one
+    load per process is shared by every press loaded from the file)."""
     ground_truth: GroundTruth | None = _LoadedOnRead(None)
     """Per-pixel truth (gt.npz, synthetic presses only), or None (may be given deferred)."""
 
@@ -429,7 +431,7 @@ class CaptureOptics:
     camera: Camera
     leds: tuple[Led, ...]
     reference: Reference | None
-    """The undeformed surface (reference.npz), when the capture has one."""
+    """The undeformed surface (reference.npz), when the capture has one (read-only arrays, as in :class:`Press`)."""
 
 
 def read_optics(folder: str | Path) -> CaptureOptics:
@@ -513,9 +515,28 @@ def _reference(folder: Path, meta: dict, camera: Camera, leds: Leds) -> Referenc
     if not meta.get("reference"):
         return None
     path = _existing(folder, meta["reference"])
+    return _checked_reference(path, file_stamp(path), camera, tuple(leds))
+
+
+@functools.lru_cache(maxsize=4)
+def _checked_reference(path: Path, stamp: tuple, camera: Camera, leds: tuple[Led, ...]) -> Reference:
+    """The reference.npz at ``path``, checked, its arrays read-only: loaded once per process while the file is the
+    same file, size and times (``stamp``, :func:`file_stamp`). Why: a solve with a reference reads each capture's
+    file twice (the settings check's :func:`read_optics`, then :func:`load_press`), ~35 ms each at 640x480."""
     ref = Reference.load(path, camera.shape)
     _check_surface(path, surface_problem(ref.depth, ref.normals, np.isfinite(ref.depth), camera, leds))
+    for array in (ref.depth, ref.normals):  # shared by every Press loaded from the file
+        array.setflags(write=False)
     return ref
+
+
+def file_stamp(path: str | os.PathLike) -> tuple[int, ...]:
+    """What tells that a file's content may have changed without reading it, for caches of what a process read
+    from a capture: device and inode (replaced by a rename), size, and modification and change times in ns
+    (written in place; the change time too, as a copy that keeps the old modification time still sets it).
+    FileNotFoundError when there is none. A stat: microseconds (os.stat of a str: half pathlib's cost)."""
+    st = os.stat(path)
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns
 
 
 def _check_surface(path: Path, problem: str | None) -> None:

@@ -214,6 +214,28 @@ def _spoil_deflated(path, member):
     _spoil_deflated_member(path, member)  # a flipped block inside an array: zlib fails, not the zip layer
 
 
+def test_a_reference_is_read_once_per_file_and_again_when_it_changes(tmp_path, monkeypatch):
+    """``nlips solve --reference`` decompressed each reference.npz twice (the settings check's ``read_optics``,
+    then ``load_press``; ~30 ms each at 640x480): once per process now, shared read-only, and read again when
+    the file is rewritten in place."""
+    from nlipscalib.core.capture import read_optics
+
+    folder = _press(tmp_path / "p")
+    loads, load = [], Reference.load
+    monkeypatch.setattr(Reference, "load", lambda path, shape: loads.append(path) or load(path, shape))
+    first = read_optics(folder).reference
+    assert load_press(folder).reference is first and load_press(folder, led_subset=[1]).reference is first
+    assert len(loads) == 1
+    assert not first.depth.flags.writeable and not first.normals.flags.writeable  # shared: nobody writes into it
+    with pytest.raises(ValueError, match="read-only"):
+        first.depth[0, 0] = 1.0
+    with np.load(folder / "reference.npz") as d:
+        depth, normals = d["depth"], d["normals"]
+    np.savez(folder / "reference.npz", depth=depth + 1, normals=normals)  # in place, stored: another size
+    again = load_press(folder).reference
+    assert len(loads) == 2 and np.array_equal(again.depth, depth + 1)
+
+
 def test_nan_in_reference_normals_is_rejected(tmp_path):
     folder = _press(tmp_path / "p")
     with np.load(folder / "reference.npz") as d:
