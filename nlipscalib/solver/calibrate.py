@@ -468,7 +468,14 @@ def _fit_all(
     loss: str,
     model: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = _model,
 ):
-    """[(params, std, rms)] per LED: robust non-linear least squares of ``model`` from ``leds``."""
+    """[(params, std, rms)] per LED: robust non-linear least squares of ``model`` from ``leds``.
+
+    The unknowns are the parameters' offsets from the start: trf's first trust region is the start's norm in its
+    scaled units (scipy's ``Delta = norm(x0 * scale_inv)``), so with positions in camera coordinates (the ring 9 mm
+    off the axis) its first step could carry an LED 9.8 mm, behind the camera, into another minimum: on the
+    bounce-free twin at 80x60, from LEDs 0.4-0.8 mm / 5-10 deg off, 6 of 24 starts left one LED 11-97 deg and
+    4-7 mm off at a median quality like a good fit's (160x120 with noise: that LED 1.08x the noise, the others
+    0.99-1.02x). From offsets the first region is 1 (its norm when zero): none of them (benchmarks/RESULTS.md)."""
     from scipy.optimize import least_squares  # imported here: ~0.5 s that `nlips solve` never needs
 
     out = []
@@ -488,19 +495,19 @@ def _fit_all(
         use = _fit_samples(img[i], ok[i])
         scale = float(np.percentile(img[i][use], 90)) if use.any() else 1.0
 
-        def resid(params: np.ndarray, i: int = i, use: np.ndarray = use, scale: float = scale):
-            return ((model(params, x, n) - img[i]) / scale)[use]
+        def resid(step: np.ndarray, i: int = i, use: np.ndarray = use, scale: float = scale, p0: np.ndarray = p0):
+            return ((model(p0 + step, x, n) - img[i]) / scale)[use]
 
-        r0 = resid(p0)
+        r0 = resid(np.zeros_like(p0))
         f_scale = max(3 * mad_scale(r0), 1e-3)
-        res = least_squares(resid, p0, loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
+        res = least_squares(resid, np.zeros_like(p0), loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
         dof = max(len(res.fun) - len(p0), 1)
         s2 = float(np.sum(res.fun**2) / dof)
         try:
             sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0))
         except np.linalg.LinAlgError:
             sd = np.full(len(p0), np.nan)
-        out.append((res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * scale))
+        out.append((p0 + res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * scale))
     return out
 
 
