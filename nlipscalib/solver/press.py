@@ -330,11 +330,11 @@ class _Runner:
         self.saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
         self.boxed = _BoxCompensation(images, mask)
 
-    def compensated(self, light: np.ndarray | None):
+    def compensated(self, light: np.ndarray | None, receivers: np.ndarray | None = None):
         if light is None:
             return self.images
         # a fixed light may be anything; the outer loop's is zero outside the mask's box
-        return compensate(self.images, light) if light is self.fixed_light else self.boxed(light)
+        return compensate(self.images, light) if light is self.fixed_light else self.boxed(light, receivers)
 
     def __call__(
         self,
@@ -344,7 +344,7 @@ class _Runner:
         receivers: np.ndarray | None = None,
     ) -> SolveResult:
         result = solve(
-            self.compensated(light),
+            self.compensated(light, receivers),
             self.press.camera,
             self.leds,
             prior_depth=self.prior,
@@ -483,7 +483,12 @@ class _OuterLoop:
     one-bounce sphere and cube presses that takes 11-12 s of solver time instead of 19-21 s, at contact AAE
     0.497 / 0.412 deg against 0.492 / 0.414 with every pass on the whole frame (all pixels 0.51 against 0.73:
     fewer refined passes leave the frame's border better off; benchmarks/RESULTS.md). The light is updated
-    on the mask's bounding box (outside it both the light and the gathered light are zero)."""
+    on the mask's bounding box (outside it both the light and the gathered light are zero).
+
+    The gathers before those focus passes compute the light at the focus only (what they solve), and the
+    surface the last gather reads is the previous one with the focus's pixels replaced (all else is the same
+    result); the light outside the focus then catches up at the last gather with one relaxed update per pass
+    it missed (:meth:`_update`)."""
 
     def __init__(
         self,
@@ -534,32 +539,71 @@ class _OuterLoop:
         result = solve_with(light, unrefined=0 if max_passes == 0 else rough)
         self.solver_seconds.append(result.report["seconds"])
         settled = False
+        before = None  # (surface, focus, reconstructed) of the last gather, when a focus pass followed it
+        missed = 0  # focus passes whose gather left the light outside the focus as it was
         for k in range(max_passes):
-            t0 = time.perf_counter()
-            gathered = _solved_surface_light(self.model, press, self.leds, result, self.mask, ref_surface, self.box)
-            light = self._update(light, gathered)
-            self.seconds += time.perf_counter() - t0
             last = settled or k == max_passes - 1
             region = None if last else self.focus
+            t0 = time.perf_counter()
+            surface = _solved_surface(ref_surface, result, before)
+            where = self.mask if region is None else region
+            window = self.box if region is None else _slices(box_of(region))
+            gathered = _solved_surface_light(self.model, press, self.leds, result, where, surface, window)
+            light = self._update(light, gathered, window, region, 0 if region is not None else missed)
+            missed = missed + 1 if region is not None else 0
+            self.seconds += time.perf_counter() - t0
             # a small change of the light: start from the last depth; refined (and on the whole mask) at the last
             new = solve_with(light, init=result.depth, unrefined=0 if last else rough, receivers=region)
             if region is not None:
                 new = merge_focus(result, new, region)
             self.passes += 1
-            change = _median_change_deg(result, new, self.mask if region is None else region)
+            change = _median_change_deg(result, new, where)
             self.changes.append(round(change, 4))
             self.solver_seconds.append(new.report["seconds"])
+            before = (surface, region, result.reconstructed) if region is not None else None
             result = new
             if last:
                 break
             settled = change < tolerances.OUTER_TOL_DEG  # then one refined pass over the whole mask ends the loop
         return result
 
-    def _update(self, light: np.ndarray, gathered: np.ndarray) -> np.ndarray:
-        """The next pass's light ``L + w (gathered - L)``, clipped at 0 (all three on the mask's bounding box)."""
-        omega = _relaxation(self.image_total, light) if self.relaxation == "auto" else float(self.relaxation)
-        light[:] = np.maximum(light + omega * (gathered - light), 0.0)
+    def _update(
+        self,
+        light: np.ndarray,
+        gathered: np.ndarray,
+        window: tuple[slice, slice],
+        focus: np.ndarray | None,
+        missed: int,
+    ) -> np.ndarray:
+        """The next pass's light ``L + w (gathered - L)``, clipped at 0, written into ``light`` (on the mask's
+        bounding box) and returned.
+
+        ``gathered`` : (L, h, w, 3) on ``window`` (rows, columns of the frame, inside the box); ``focus`` : (H, W)
+        bool, the pixels gathered when not the whole mask (None); ``missed`` : focus passes since the light
+        outside the focus was last updated: it takes that many more updates with this ``gathered``, standing in
+        for the gathers it missed (the surface changed only in the focus since; against the light left as it
+        was, contact AAE moved 0.005 deg on the twin's sphere press, with them 0.0016; benchmarks/RESULTS.md)."""
+        rows, cols = _within(window, self.box)
+        part, total = light[:, rows, cols], self.image_total[rows, cols]
+        new = self._relaxed(part, gathered, total)
+        if focus is None:
+            part[:] = new
+        else:  # the window is the focus's box: its other pixels were not gathered
+            np.copyto(part, new, where=focus[window][None, ..., None])
+        if missed:
+            outside = ~self.focus[self.box][None, ..., None]
+            for _ in range(missed):
+                np.copyto(light, self._relaxed(light, gathered, self.image_total), where=outside)
         return light
+
+    def _relaxed(self, light: np.ndarray, gathered: np.ndarray, total: np.ndarray) -> np.ndarray:
+        """``max(L + w (gathered - L), 0)``, a new array (``total``: the images' per-pixel total there)."""
+        omega = _relaxation(total, light) if self.relaxation == "auto" else float(self.relaxation)
+        # in one buffer (the same bits as the expression): at 640x480 each temporary is 44 MB of fresh pages
+        step = gathered - light
+        step *= omega
+        step += light
+        return np.maximum(step, 0.0, out=step)
 
 
 def _unrefined_levels(camera: Camera) -> int:
@@ -581,14 +625,17 @@ class _BoxCompensation:
     def __init__(self, images: np.ndarray, mask: np.ndarray):
         self.images, self.mask, self.buffer, self.box = images, mask, None, None
 
-    def __call__(self, light: np.ndarray) -> np.ndarray:
-        """``light``: (L, h, w, 3) on the mask's bounding box."""
+    def __call__(self, light: np.ndarray, receivers: np.ndarray | None = None) -> np.ndarray:
+        """``light``: (L, h, w, 3) on the mask's bounding box; ``receivers``: (H, W) bool, the pixels the solve
+        reads when not the whole mask (a focus pass): only their box is compensated (the solve crops to it),
+        the rest of the buffer is left as the last call wrote it."""
         if self.buffer is None:  # on the first pass: a solve without the outer loop needs neither
             x0, y0, w, h = box_of(self.mask)
             self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
             self.buffer = np.array(self.images, np.float32)
-        rows, cols = self.box
-        self.buffer[:, rows, cols] = compensate(self.images[:, rows, cols], light)
+        window = self.box if receivers is None else _slices(box_of(receivers))
+        rows, cols = _within(window, self.box)
+        self.buffer[:, window[0], window[1]] = compensate(self.images[:, window[0], window[1]], light[:, rows, cols])
         return self.buffer
 
 
@@ -646,24 +693,50 @@ def _contact(
     return classify(undeformed_images=shading, indirect=fixed_light)
 
 
+def _slices(box: list[int]) -> tuple[slice, slice]:
+    """(rows, columns) of the box [x0, y0, w, h]."""
+    x0, y0, w, h = box
+    return slice(y0, y0 + h), slice(x0, x0 + w)
+
+
+def _within(window: tuple[slice, slice], box: tuple[slice, slice]) -> tuple[slice, slice]:
+    """(rows, columns) of ``window`` in an array held on ``box`` (both frame slices, the window inside the box)."""
+    return tuple(slice(w.start - b.start, w.stop - b.start) for w, b in zip(window, box))
+
+
+def _solved_surface(
+    ref_surface: Surface, result: SolveResult, before: tuple[Surface, np.ndarray, np.ndarray] | None = None
+) -> Surface:
+    """The solved surface as patches: ``result``'s depth and normals where reconstructed, the reference
+    (``ref_surface``) elsewhere.
+
+    ``before`` : (surface, focus, reconstructed) -- the surface of the result that ``result`` merged a focus
+    pass into, that pass's pixels ((H, W) bool) and what that result reconstructed; the surface is then the
+    former one recomputed around the focus only (the same numbers). None, or a focus pixel reconstructed
+    before but not now (it goes back to the reference): made from the reference."""
+    rec = result.reconstructed
+    if before is not None:
+        surface, focus, was = before
+        if not (focus & was & ~rec).any():
+            # replaced() reads the solved depth and normals at the changed pixels only, in their box
+            return surface.replaced(result.depth, result.normals, focus & rec)
+    return ref_surface.replaced(result.depth, result.normals, rec)
+
+
 def _solved_surface_light(
     model: IndirectModel,
     press: Press,
     leds: Leds,
     result: SolveResult,
     mask: np.ndarray,
-    ref_surface: Surface,
+    solved: Surface,
     window: tuple[slice, slice],
 ) -> np.ndarray:
-    """Indirect light of the solved surface at the ``mask``'s pixels, (L, h, w, 3) on ``window`` (rows,
-    columns; it holds the mask): solved pixels where reconstructed, the reference elsewhere (``ref_surface``,
-    the reference as patches, is recomputed around the solved pixels only)."""
+    """Indirect light of the solved surface (``solved``, from :func:`_solved_surface`) at the ``mask``'s pixels,
+    (L, h, w, 3) on ``window`` (rows, columns; it holds the mask)."""
     rec = result.reconstructed
     typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
     albedo = np.where(rec[..., None], result.albedo, typical)
-    # replaced() reads the solved depth and normals at the reconstructed pixels only, in their box: no
-    # whole-frame merge with the reference first; its surface holds that merge (the reference elsewhere)
-    solved = ref_surface.replaced(result.depth, result.normals, rec)
     return surface_indirect(
         model, press.camera, leds, solved.depth, solved.normals, albedo, mask, surface=solved, window=window
     )

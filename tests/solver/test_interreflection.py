@@ -201,3 +201,50 @@ def test_outer_relaxation_out_of_range_is_a_config_error(bounce1):
 
     with pytest.raises(ConfigError, match="outer_relaxation"):
         solve_press(bounce1[1], outer_relaxation=3.0)
+
+
+def test_a_whole_frames_gathers_before_the_last_pass_light_the_focus_only(bounce1, monkeypatch):
+    """The passes before the last solve the dent's focus alone: their gathers compute the light there only; the
+    last gather lights the whole mask (and the surface it reads is the one before, the focus recomputed)."""
+    from nlipscalib.solver import press as press_mod
+
+    _, press = bounce1
+    receivers = []
+    gather = press_mod.surface_indirect
+
+    def spy(*args, **kwargs):
+        receivers.append(args[6].copy())
+        return gather(*args, **kwargs)
+
+    monkeypatch.setattr(press_mod, "surface_indirect", spy)
+    whole = solve_press(press, max_outer=2)
+    x0, y0, w, h = whole.report["outer_focus"]
+    mask = whole.mask
+    first, focus_gather, last = receivers  # the undeformed surface's light, then one gather per outer pass
+    assert first.sum() == last.sum() == mask.sum()
+    assert focus_gather.sum() == mask[y0 : y0 + h, x0 : x0 + w].sum() < 0.5 * mask.sum()
+
+
+def test_the_light_outside_the_focus_catches_up_on_the_updates_it_missed():
+    """At the last gather, the pixels outside the focus take one relaxed update per focus pass they missed,
+    with that gather's light; the focus takes one."""
+    from nlipscalib.solver.press import _OuterLoop, _relaxation
+
+    rng = np.random.default_rng(2)
+    H, W = 6, 8
+    loop = object.__new__(_OuterLoop)
+    loop.box, loop.relaxation = (slice(1, 5), slice(1, 7)), "auto"
+    loop.focus = np.zeros((H, W), bool)
+    loop.focus[2:4, 3:5] = True
+    loop.image_total = rng.uniform(5.0, 9.0, (4, 6))
+    light = rng.uniform(0.0, 1.0, (2, 4, 6, 3)).astype(np.float32)
+    gathered = rng.uniform(0.0, 1.0, (2, 4, 6, 3)).astype(np.float32)
+
+    def step(values):
+        return np.maximum(values + _relaxation(loop.image_total, values) * (gathered - values), 0.0)
+
+    once, twice = step(light), step(step(light))
+    out = loop._update(light.copy(), gathered, loop.box, None, missed=1)
+    inside = loop.focus[loop.box]
+    np.testing.assert_array_equal(out[:, inside], once[:, inside])
+    np.testing.assert_array_equal(out[:, ~inside], twice[:, ~inside])
