@@ -308,6 +308,41 @@ def test_a_press_whose_meta_json_names_an_image_by_a_number_fails_alone(press_se
     assert statuses["b_cube"] == f"failed: {root / 'b_cube' / 'meta.json'}: 'images.dark' must be a file name, got 5"
 
 
+def test_a_batchs_log_lines_name_each_press_as_the_user_gave_it(press_set, tmp_path):
+    """`nlips solve x --workers 2` named one press `x/press_0001` (the solver's lines), `press_0001` (its summary
+    line, its failure) and by an absolute path (its result): now the path given, `x/press_0001`, on every line."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    for name in ("a_sphere", "b_cube"):
+        shutil.copytree(press_set / name, tmp_path / "x" / name)
+    (tmp_path / "fast.toml").write_text("max_iters = 6\n")
+    code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+
+    def solve(*extra: str) -> list[str]:
+        argv = ["--no-progress", "solve", "x", "--roi", "auto", "--workers", "2", "--no-figures", *extra]
+        run = subprocess.run([sys.executable, "-c", code, *argv], cwd=tmp_path, env=env, capture_output=True, text=True)
+        return [line for line in run.stderr.splitlines() if "a_sphere" in line or "b_cube" in line]
+
+    lines = solve("--config", "fast.toml")  # solved
+    lines += solve()  # other options: re-solved
+    lines += solve()  # reused
+    meta = json.loads((tmp_path / "x" / "b_cube" / "meta.json").read_text())
+    meta["images"]["dark"] = 5
+    (tmp_path / "x" / "b_cube" / "meta.json").write_text(json.dumps(meta))
+    lines += solve("--overwrite")  # one press fails
+    said = " ".join(lines)
+    assert "reconstructed" in said and "re-solving" in said and "identical result" in said and "ERROR" in said
+    for line in lines:
+        assert str(tmp_path) not in line, line
+        message = line.split(" ", 1)[1]
+        assert message.startswith(("x/a_sphere", "x/b_cube")) and " a_sphere" not in line and " b_cube" not in line
+
+
 def test_reference_is_used_not_solved_and_is_part_of_the_identity(press_set, tmp_path):
     root = tmp_path / "set"
     root.mkdir()

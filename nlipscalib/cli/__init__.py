@@ -162,8 +162,7 @@ def _run(args: argparse.Namespace) -> int:
     except (NlipsError, MissingDependencyError) as exc:
         return _fail(args, str(exc))
     except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
-        where, option = _path_of(args), _output_option(args)
-        return _fail(args, describe_os_error(exc, hasattr(args, "overwrite"), where=where, option=option))
+        return _fail(args, describe_os_error(exc, hasattr(args, "overwrite"), where=_path_of(args)))
     except KeyboardInterrupt:
         return _interrupted(args)
     except Exception:
@@ -370,20 +369,14 @@ def _release_multiprocessing_resources() -> None:
 
 
 def _path_of(args: argparse.Namespace) -> str | None:
-    """The command's output (or input) folder for an error line: the first of --out, --save (``nlips live``),
-    PRESS, PRESSES that is one path (``calibrate-leds`` takes a list of presses and ``capture --presses`` a
-    count: neither names one)."""
-    for key in ("out", "save", "press", "presses"):
+    """The command's output (or input) folder for an error line: the first of --out (``nlips live --save`` too),
+    PRESS, PRESSES that is one path (``calibrate-leds`` takes a list of presses and ``capture --presses`` a count:
+    neither names one)."""
+    for key in ("out", "press", "presses"):
         value = getattr(args, key, None)
         if isinstance(value, str | os.PathLike):
             return os.fspath(value)
     return None
-
-
-def _output_option(args: argparse.Namespace) -> str:
-    """The option that names the command's output, for the remedy of an error line: ``--save`` for ``nlips live``
-    (it has no --out), else ``--out``."""
-    return "--save" if getattr(args, "out", None) is None and getattr(args, "save", None) else "--out"
 
 
 def describe_os_error(

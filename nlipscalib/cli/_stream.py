@@ -152,13 +152,12 @@ def open_frames(
 
     The emulated sensor's stream is its script once (the undeformed dome, then each press, for
     ``--frames-per-press`` frames each) and then ends, as a recording does; it loops when ``loop`` (a window
-    shows it: until q) or a frame limit (``--frames``, ``--max-frames``) asks for more.
+    shows it: until q) or a frame limit (``--max-frames``) asks for more.
     """
     from ..device.camera import CameraSettings, open_source
 
     if args.emulate:
-        limited = getattr(args, "frames", None) is not None or getattr(args, "max_frames", None) is not None
-        return _emulated_source(args, stack, loop=loop or limited)
+        return _emulated_source(args, stack, loop=loop or args.max_frames is not None)
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     source = stack.enter_context(open_source(camera, CameraSettings(exposure_ms=args.exposure_ms)))
     if args.port:
@@ -298,7 +297,7 @@ def _emulated_source(
 
 
 def saved_line(folder: str, frames: int, every: int, extra: str = "") -> str:
-    """Where a stream's saved maps went (``nlips live --save``, ``nlips infer ... --out``), said after its summary:
+    """Where a stream's saved maps went (``nlips live --out``, ``nlips infer ... --out``), said after its summary:
     the summary gave frame rates only, and a new user looked for the results. ``extra``: more files named."""
     kept = -(-frames // every)  # frames 0, every, 2 * every, ... (device.live.SaveSink)
     return f"saved: {kept} of {frames} frames' normals and depth in {folder} (frame_NNNNNN.npz, _normals.png{extra})"

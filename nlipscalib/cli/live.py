@@ -39,7 +39,7 @@ if TYPE_CHECKING:  # named in hints only: numpy and the device loop are imported
     Predict: TypeAlias = Callable[[np.ndarray], LiveResult]
     """A stream's predictor: a stored frame ((H, W, 3) uint16) -> its LiveResult (normals, depth)."""
 
-STOPPED = "the stream stopped (a live stream does not resume; maps already saved with --save are kept)"
+STOPPED = "the stream stopped (a live stream does not resume; maps already saved with --out are kept)"
 """What ``nlips live`` interrupted or terminated says it left (``cli._stopped``), not "run again to resume": a live
 stream cannot continue where it stopped."""
 
@@ -50,7 +50,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="live normal and depth maps from tri-colour frames (NLiPsNet)",
         description="Stream tri-colour frames (a camera with the LED board lighting the tri-colour pattern, a video "
         "or image folder, or --emulate SCENE) through NLiPsNet (--model) or your own --predictor: normals, depth "
-        "integrated on the dome, frames per second; shown in a window, and/or saved with --save. Warns when the "
+        "integrated on the dome, frames per second; shown in a window, and/or saved with --out. Warns when the "
         "frames stop looking like the model's calibration.",
     )
     p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
@@ -66,14 +66,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
     add_device_arguments(p)
     add_source_arguments(p, camera_default="0")
+    # the names of `nlips infer` (and, for --out, of every other command); the first names stay accepted
     p.add_argument(
+        "--max-frames",
         "--frames",
+        dest="max_frames",
         type=int,
-        help="stop after this many frames (default: until the input ends, q in the window or Ctrl-C; the "
-        "emulated sensor's input is its script once, looped while a window shows it)",
+        metavar="N",
+        help="stop after N frames (default: until the input ends, q in the window or Ctrl-C; the emulated "
+        "sensor's input is its script once, looped while a window shows it); --frames: its former name",
     )
-    p.add_argument("--save", help="folder for every frame's normal map (PNG) and arrays (npz)")
-    p.add_argument("--every", type=int, help="save every N-th frame (default 1)")
+    p.add_argument(
+        "--out",
+        "--save",
+        dest="out",
+        metavar="DIR",
+        help="folder for every frame's normal map (PNG) and arrays (npz); --save: its former name",
+    )
+    p.add_argument("--every", type=int, help="with --out: keep every N-th frame (default 1)")
     p.add_argument("--no-window", action="store_true", help="do not open a window even if a display is present")
     p.set_defaults(func=run, stopped=STOPPED)
 
@@ -152,9 +162,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
     emulate_behind_port(args)
     check_source_arguments(args)
-    check_output_arguments(args, args.save)
-    if args.frames is not None and args.frames < 1:
-        raise ConfigError(f"--frames must be >= 1, got {args.frames}")
+    check_output_arguments(args, args.out)
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
     window = not args.no_window and display_available()
     done = {}
     try:
@@ -187,18 +197,18 @@ def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
         if not args.model:
             predict, reference_depth = _plugged(args.predictor, source.shape)
         sinks = []
-        if args.save:
-            sinks.append(SaveSink(args.save, args.every, pictures=NormalMapPng()))
+        if args.out:
+            sinks.append(SaveSink(args.out, args.every, pictures=NormalMapPng()))
         if window:
             sinks.append(WindowSink(StopLive, reference_depth))
-        elif not args.save:
+        elif not args.out:
             why = "--no-window" if args.no_window else "no display"
-            print(f"{why}: maps are not shown; use --save DIR to keep them", file=sys.stderr)
+            print(f"{why}: maps are not shown; use --out DIR to keep them", file=sys.stderr)
         done["stats"] = stream(
             source,
             predict,
             sinks,
-            max_frames=args.frames,
+            max_frames=args.max_frames,
             before_frame=before_frame,
             report=lambda line: print(line, file=sys.stderr),
         )
@@ -206,11 +216,11 @@ def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
 
 
 def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace) -> None:
-    """The stream's summary line (stdout), where --save put its maps, and how many frames differed from the
+    """The stream's summary line (stdout), where --out put its maps, and how many frames differed from the
     calibration (a warning)."""
     print(stats.summary())
-    if args.save and stats.frames:
-        print(saved_line(args.save, stats.frames, args.every))
+    if args.out and stats.frames:
+        print(saved_line(args.out, stats.frames, args.every))
     watch = sys.modules.get("nlipscalib.learn.watch")  # not imported: an NLiPsNet-free stream, nothing to report
     if watch is not None and isinstance(predict, watch.MismatchWatch):
         predict.report()

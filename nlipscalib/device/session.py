@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -132,7 +133,8 @@ class Operator:
     """The person at the sensor: told what to do before the reference, each press and each retake.
 
     ``interactive`` waits for Enter after each instruction; otherwise the instruction is only printed
-    (scripts, tests, a robot pressing on its own schedule).
+    (scripts, tests, a robot pressing on its own schedule). Either way ``--log-file`` gets each instruction: these
+    lines are the session's only word on a retake (a log line said it too, so the operator read it twice).
     """
 
     def __init__(self, interactive: bool = False, echo: Callable[[str], None] = print):
@@ -141,6 +143,12 @@ class Operator:
 
     def _say(self, text: str) -> None:
         if self.interactive:
+            if sys.stdin.isatty() and sys.stdout.isatty():
+                # input() then writes the prompt to the terminal itself, past the copy of stdout that --log-file
+                # gets (progress.results_to_log_file); otherwise the prompt goes through sys.stdout and that copy
+                from ..progress import file_log
+
+                file_log(logging.INFO, text)
             try:
                 input(f"{text} [Enter] ")
             except EOFError:  # Ctrl-D or a closed stdin: stop like Ctrl-C, keeping what is captured
@@ -266,7 +274,6 @@ def capture_press(
                 f"{folder}: the object kept moving ({moved[-1]:.2%} of the pixels changed in the last of "
                 f"{attempt + 1} attempts); hold it still, or raise movement_threshold"
             )
-        log.warning("%s: %.2f%% of the pixels changed during the sequence: retaking", folder, 100 * moved[-1])
         operator.retake(index, f"the object moved ({moved[-1]:.2%} of the pixels changed)")
     provenance = dict(rig.provenance) | {
         "source": "device",

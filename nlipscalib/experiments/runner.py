@@ -110,6 +110,7 @@ class _backend:
     def __init__(self, scheduler: str | None, workers: int):
         self.scheduler, self.workers = scheduler, max(1, int(workers))
         self.client = self.cluster = None
+        self._levels: dict[str, int] = {}  # dask.distributed's log levels before this run quieted them
 
     def __enter__(self):
         if self.scheduler is None:
@@ -120,25 +121,46 @@ class _backend:
             raise MissingDependencyError(
                 "--scheduler needs dask.distributed: pip install 'nlipscalib[cluster]'"
             ) from None
+        self._levels = _quiet_distributed()  # imported above: its import set its own level, INFO
+        try:
+            self._connect(Client, LocalCluster)
+        except BaseException:
+            _restore_levels(self._levels)
+            raise
+        return self._dask
+
+    def _connect(self, client: type, local_cluster: type) -> None:
         n = check_scheduler(self.scheduler)
         if n is not None:
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
-            self.client = Client(self.cluster)
+            # the scheduler's HTTP pages (no dashboard: dashboard_address None) on a free port of this machine only,
+            # not on 8787, which another run or a user's dashboard may hold
+            local = {"dashboard_address": LOCAL_HTTP}
+            self.cluster = local_cluster(
+                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, scheduler_kwargs=local
+            )
+            self.client = client(self.cluster)
+            self.client.register_plugin(_quiet_workers())  # only our own workers: a shared cluster's stay as they are
             self.threads = max(1, usable_cores() // n)
         else:
             try:
-                self.client = Client(self.scheduler, timeout="30s")
+                self.client = client(self.scheduler, timeout="30s")
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"--scheduler {self.scheduler}: cannot reach the Dask scheduler ({exc})") from None
             self.threads = 0  # a remote worker renders with all its cores
         self.client.register_plugin(_main_thread_imports())  # also on workers that join later
-        return self._dask
 
-    def __exit__(self, *exc):
-        if self.client is not None:
-            self.client.close()
-        if self.cluster is not None:
-            self.cluster.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt) and self.cluster is not None:
+            # Ctrl-C: closing the cluster kills workers mid-render; distributed's errors and warnings about that
+            # (a worker still alive, killed; a nanny's cancelled close) are of the stop the user asked for
+            _quiet_distributed(logging.CRITICAL)
+        try:
+            if self.client is not None:
+                self.client.close()
+            if self.cluster is not None:
+                self.cluster.close()
+        finally:
+            _restore_levels(self._levels)
 
     def _local(self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm) -> None:
         threads = max(1, usable_cores() // self.workers)
@@ -281,6 +303,48 @@ def import_native_libraries() -> None:
     """
     with contextlib.suppress(ImportError):  # without it the twin cannot render presses: nothing to protect
         import pymeshlab  # noqa: F401
+
+
+LOCAL_HTTP = "127.0.0.1:0"
+"""Where a local cluster's scheduler serves its HTTP pages (always started; the dashboard is not): a free port of
+the loopback interface."""
+DISTRIBUTED_LOGGERS = ("distributed", "distributed.client")
+"""Loggers of dask.distributed set to WARNING in this process unless -v: its import sets "distributed" to INFO, so a
+local cluster printed ~40 lines of its own start and stop (and its "dashboard at" link)."""
+
+
+def _quiet_distributed(level: int = logging.WARNING) -> dict[str, int]:
+    """Raise dask.distributed's loggers of this process to ``level`` unless -v (this process logs DEBUG); returns
+    their levels before, for :func:`_restore_levels`."""
+    loggers = {name: logging.getLogger(name) for name in DISTRIBUTED_LOGGERS}
+    before = {name: logger.level for name, logger in loggers.items()}
+    if not logging.getLogger().isEnabledFor(logging.DEBUG):
+        for logger in loggers.values():
+            logger.setLevel(max(level, logger.level))
+    return before
+
+
+def _restore_levels(levels: dict[str, int]) -> None:
+    for name, level in levels.items():
+        logging.getLogger(name).setLevel(level)
+
+
+def _quiet_workers() -> WorkerPlugin:
+    """A Dask worker plugin that, unless -v, keeps a local cluster's workers from logging that a task was cancelled
+    as the cluster closed (Ctrl-C): "Async instruction for <Task ...> ended with CancelledError", distributed's only
+    warning of its worker state machine, logged only as a worker closes. Its errors still show."""
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    verbose = logging.getLogger().isEnabledFor(logging.DEBUG)
+
+    class QuietWorkers(WorkerPlugin):
+        name = "nlipscalib-quiet-workers"
+
+        def setup(self, worker: Worker) -> None:
+            if not verbose:
+                logging.getLogger("distributed.worker.state_machine").setLevel(logging.ERROR)
+
+    return QuietWorkers()
 
 
 def _main_thread_imports() -> WorkerPlugin:

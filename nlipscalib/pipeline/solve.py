@@ -161,9 +161,9 @@ def _hold_presses(held: contextlib.ExitStack, folders: list[Path], settings: Sol
     refused = {}
     for folder in folders:
         try:
-            held.enter_context(_hold(folder, reconstruction_dir(folder, None).absolute(), record))
+            held.enter_context(_hold(folder, _result_dir(folder, None), record))
         except NlipsError as exc:
-            log.error("%s: %s", folder.name, exc)
+            log.error("%s", _failure_line(folder, exc))
             refused[folder] = f"{FAILED}: {exc}"
     return refused
 
@@ -213,7 +213,7 @@ def solve_one(
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
     check_fits_capture(folder, settings)  # before anything is said about an earlier result
-    out = reconstruction_dir(folder, out).absolute()  # "." has no name to claim or write beside
+    out = _result_dir(folder, out)
     check_replaceable(out)  # a dataset, a press or a user's folder at --out is never replaced by a result
     provenance = make_provenance(folder, settings)
     with _hold(folder, out, run_record(settings)):  # a live run of other settings keeps its press: refused here
@@ -230,6 +230,21 @@ def solve_one(
             wait,
             fresh_since,
         )
+
+
+def _result_dir(folder: Path, out: str | Path | None) -> Path:
+    """Where ``folder``'s result goes, named from the press as the user gave it (or ``out``): the log lines name it
+    so, beside the press's own (``x/press_0001/nlips`` for ``x/press_0001``, not an absolute path among relative
+    ones); absolute only for ``--out .``, which has no name to claim or write beside."""
+    out = reconstruction_dir(folder, out)
+    return out if out.name else out.absolute()
+
+
+def _failure_line(folder: Path, exc: Exception) -> str:
+    """A press's failure for the log, naming the press as the user gave it, once: the error's own line when it
+    starts with the press (its file: ``x/press_0001/meta.json: ...``), else that line after the press."""
+    line = str(exc)
+    return line if line.startswith(str(folder)) else f"{folder}: {line}"
 
 
 def _reuse_or_solve(
@@ -364,7 +379,7 @@ def _load_reference(folder: Path, subset: tuple[int, ...] | None, identity: str)
 def _log_solved(folder: Path, out: Path, rep: dict, save_s: float) -> None:
     log.info(
         "%s: %s/%s pixels reconstructed, %s with too few LEDs, dead LEDs %s, solver %.1f s, saved in %.2f s -> %s",
-        folder.name,
+        folder,
         rep.get("pixels_reconstructed", "?"),
         rep.get("pixels_solved", "?"),
         rep.get("pixels_too_few_leds", "?"),
@@ -409,7 +424,7 @@ def _status_of(
             fresh_since=fresh_since,
         )[1]
     except NlipsError as exc:
-        log.error("%s: %s", folder.name, exc)
+        log.error("%s", _failure_line(folder, exc))
         return f"{FAILED}: {exc}"
 
 

@@ -6,7 +6,6 @@ Tiny presses (3 LEDs, 16x12, no rendering): each test takes well under a second.
 
 from __future__ import annotations
 
-import argparse
 import errno
 import json
 from pathlib import Path
@@ -51,19 +50,6 @@ def test_a_path_made_through_a_file_names_the_file(a_file, below):
     except NotADirectoryError as exc:
         line = describe_os_error(exc, where=a_file)
     assert line == f"{a_file}: a file where a folder is needed (choose another --out, or move the file)"
-
-
-def test_lives_save_folder_is_the_option_named(a_file):
-    """`nlips live --save FILE` said "FILE: File exists" (live has no --out to name in the remedy)."""
-    from nlipscalib.cli import _output_option
-
-    args = argparse.Namespace(save=str(a_file))
-    try:
-        a_file.mkdir(parents=True, exist_ok=True)  # what the save sink does first
-    except FileExistsError as exc:
-        line = describe_os_error(exc, where=str(a_file), option=_output_option(args))
-    assert line == f"{a_file}: a file where a folder is needed (choose another --save, or move the file)"
-    assert _output_option(argparse.Namespace(out="o", save=None)) == "--out"
 
 
 # ---------------------------------------------------------------------- refused before the long work

@@ -10,11 +10,14 @@ from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import find_presses, load_press  # noqa: E402
 
 
-def test_emulated_session_from_the_cli_resumes(tmp_path, capsys):
+def test_emulated_session_from_the_cli_resumes(tmp_path, capsys, caplog):
     args = ["capture", "--emulate", "nlipstac", "--width", "64", "--height", "48", "--spp", "1", "--out"]
     assert main(args + [str(tmp_path / "s"), "--presses", "1", "--move-press", "1"]) == 0
     out = capsys.readouterr().out
     assert "press_0001: captured" in out and "2 attempt(s)" in out
+    # the press that moved is said once, by the operator's line (it was a WARNING log line too)
+    assert sum("Press 1: the object moved" in line for line in out.splitlines()) == 1
+    assert "pixels changed" not in caplog.text
     assert main(args + [str(tmp_path / "s"), "--presses", "2"]) == 0
     out = capsys.readouterr().out
     assert "reference: kept" in out and "press_0001: kept" in out and "press_0002: captured" in out

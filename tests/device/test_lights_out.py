@@ -199,6 +199,6 @@ def test_sigterm_of_live_says_the_stream_stopped_not_run_again_to_resume(tmp_pat
             os.kill(proc.pid, signal.SIGKILL)
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert err.splitlines()[-1] == (
-        "nlips live: terminated; the stream stopped (a live stream does not resume; maps already saved with --save "
+        "nlips live: terminated; the stream stopped (a live stream does not resume; maps already saved with --out "
         "are kept)"
     )

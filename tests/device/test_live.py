@@ -107,7 +107,7 @@ def test_read_ahead_decodes_image_files_on_several_threads_in_order(tmp_path):
 def test_live_cli_saves_maps_with_a_plugged_predictor(frames, tmp_path, capsys):
     out = tmp_path / "maps"
     args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor"]
-    assert main(args + ["--save", str(out), "--every", "2", "--no-window"]) == 0
+    assert main(args + ["--out", str(out), "--every", "2", "--no-window"]) == 0
     printed = capsys.readouterr().out
     assert "5 frames in" in printed and f"saved: 3 of 5 frames' normals and depth in {out} " in printed
     assert sorted(p.name for p in out.iterdir()) == [
@@ -118,6 +118,38 @@ def test_live_cli_saves_maps_with_a_plugged_predictor(frames, tmp_path, capsys):
     normals_png = cv2.imread(str(out / "frame_000000_normals.png"))
     assert tuple(normals_png[0, 0]) == (255, 127, 127)  # BGR of the camera-facing blue
     assert main(["live", "--camera", str(frames)]) == 2  # no predictor: one clear error
+
+
+def test_live_takes_infers_names_for_its_output_and_frame_limit_and_its_own_as_aliases(frames, tmp_path, capsys):
+    """`nlips live` had --save DIR / --frames N where `nlips infer` (and every other command, for --out) has
+    --out DIR / --max-frames N; the old names stay accepted, and the help says which is which."""
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    for out_flag, limit_flag in (("--out", "--max-frames"), ("--save", "--frames")):
+        out = tmp_path / out_flag.strip("-")
+        assert main([*args, out_flag, str(out), limit_flag, "2"]) == 0
+        assert "2 frames in" in capsys.readouterr().out
+        assert sorted(p.name for p in out.glob("*.npz")) == ["frame_000000.npz", "frame_000001.npz"]
+    live, infer = _help("live", capsys), _help("infer", capsys)
+    assert "--max-frames N, --frames N" in live and "--frames: its former name" in live
+    assert "--out DIR, --save DIR" in live and "--save: its former name" in live
+    assert "--max-frames" in infer and "--out" in infer and "--save" not in infer
+
+
+def test_live_names_a_file_given_for_its_folder_with_out_either_way(frames, tmp_path, capsys):
+    """`nlips live --save FILE` said "FILE: File exists"; the remedy names --out, the option's name now."""
+    a_file = tmp_path / "a file"
+    a_file.write_text("notes")
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    for flag in ("--out", "--save"):
+        assert main([*args, flag, str(a_file)]) == 2
+        line = _one_line(capsys.readouterr().err)
+        assert line.endswith(f"{a_file}: a file where a folder is needed (choose another --out, or move the file)")
+
+
+def _help(command: str, capsys) -> str:
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    return " ".join(capsys.readouterr().out.split())
 
 
 def _one_line(err: str, *needles: str) -> str:
@@ -139,25 +171,25 @@ def _one_line(err: str, *needles: str) -> str:
     ],
 )
 def test_live_names_a_predictor_that_cannot_predict(frames, tmp_path, capsys, spec, problem):
-    args = ["live", "--camera", str(frames), "--predictor", spec, "--frames", "1", "--no-window"]
-    assert main([*args, "--save", str(tmp_path / "maps")]) == 2
+    args = ["live", "--camera", str(frames), "--predictor", spec, "--max-frames", "1", "--no-window"]
+    assert main([*args, "--out", str(tmp_path / "maps")]) == 2
     _one_line(capsys.readouterr().err, f"--predictor {spec}", problem)
     assert not list((tmp_path / "maps").glob("frame_*"))
 
 
 def test_live_without_a_window_nor_save_says_why_nothing_is_shown(frames, capsys):
-    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--frames", "1"]
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--max-frames", "1"]
     assert main([*args, "--no-window"]) == 0
     err = capsys.readouterr().err
-    assert "--no-window: maps are not shown; use --save DIR" in err and "no display" not in err  # it said no display
+    assert "--no-window: maps are not shown; use --out DIR" in err and "no display" not in err  # it said no display
 
 
 @pytest.mark.parametrize(
-    "option", [("--every", "0"), ("--threads", "-1"), ("--frames", "0"), ("--frames-per-press", "0")]
+    "option", [("--every", "0"), ("--threads", "-1"), ("--max-frames", "0"), ("--frames-per-press", "0")]
 )
 def test_live_refuses_out_of_range_options_before_streaming(frames, tmp_path, capsys, option):
     args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
-    assert main([*args, "--save", str(tmp_path / "maps"), *option]) == 2
+    assert main([*args, "--out", str(tmp_path / "maps"), *option]) == 2
     _one_line(capsys.readouterr().err, option[0])
     assert not (tmp_path / "maps").exists()  # refused before anything was written
 
@@ -204,14 +236,14 @@ def test_camera_flags_a_recording_does_not_use_are_refused(frames, tmp_path, cap
 
 def test_every_without_a_folder_to_save_in_is_warned_about(frames, capsys, caplog):
     args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
-    assert main([*args, "--every", "2", "--frames", "2"]) == 0
+    assert main([*args, "--every", "2", "--max-frames", "2"]) == 0
     assert "--every without an output folder" in caplog.text
 
 
 @pytest.mark.parametrize("option", [("--frames-per-press", "10"), ("--script", "s.toml"), ("--width", "64")])
 def test_emulated_stream_flags_are_refused_without_emulate(frames, tmp_path, capsys, option):
     args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
-    assert main([*args, "--save", str(tmp_path / "maps"), *option]) == 2
+    assert main([*args, "--out", str(tmp_path / "maps"), *option]) == 2
     _one_line(capsys.readouterr().err, f"{option[0]} is only used with --emulate SCENE")
     assert not (tmp_path / "maps").exists()
     assert main(["infer", "model.pt", str(frames), *option]) == 2
@@ -225,7 +257,7 @@ def test_live_lights_the_led_board_at_the_rate_of_baud(frames, capsys):
 
     board = VirtualBoard(12, baudrate=57600)
     args = ["live", "--camera", str(frames), "--port", board.url, "--predictor", "tests.device.fakes:flat_predictor"]
-    args += ["--no-window", "--frames", "1"]
+    args += ["--no-window", "--max-frames", "1"]
     assert main([*args, "--baud", "57600"]) == 0
     assert [body.split(" ")[1] for body in board.executed] == ["HELLO", "ALL", "OFF"]  # lit, then dark at the end
     capsys.readouterr()

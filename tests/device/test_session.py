@@ -88,6 +88,36 @@ def test_movement_is_retaken_then_refused(tmp_path):
     assert not (tmp_path / "q").exists()
 
 
+@pytest.mark.parametrize("interactive", [False, True])
+def test_a_retake_is_said_once_to_the_operator_and_kept_in_the_log_file(tmp_path, monkeypatch, capsys, interactive):
+    """A press that moved was reported twice: a WARNING log line and the operator's line. Now only the operator's
+    line says it (printed, or the prompt at the terminal), and --log-file still gets it."""
+    import sys
+
+    from nlipscalib import progress
+
+    rig, images = _rig()
+    moved = images.copy()
+    moved[:, 2:8, 3:9] *= 1.5
+    rig.source.change_at = (4, moved)
+    prompts = []
+    monkeypatch.setattr("builtins.input", prompts.append)
+    for stream in (sys.stdin, sys.stdout):  # input() writes its prompt to the terminal itself, past the log's copy
+        monkeypatch.setattr(stream, "isatty", lambda: True, raising=False)
+    log = tmp_path / "run.log"
+    progress.configure(progress=False, log_file=log)
+    try:
+        with progress.results_to_log_file():
+            capture_press(rig, tmp_path / "p", SessionConfig(), Operator(interactive=interactive), index=2)
+    finally:
+        progress.configure(progress=True)  # closes the file
+    said = "Press 2: the object moved"
+    shown = prompts if interactive else capsys.readouterr().out.splitlines()
+    assert sum(said in line for line in shown) == 1
+    logged = [line.split(" ", 2)[2] for line in log.read_text().splitlines() if "changed" in line]
+    assert len(logged) == 1 and logged[0].startswith(f"INFO nlipscalib: {said} (") and "retaking" in logged[0]
+
+
 def test_noise_alone_is_not_movement(tmp_path):
     rig, _ = _rig(noise=0.01)  # 1% of full scale per pixel, like a real sensor at mid range
     rec = capture_press(rig, tmp_path / "p", SessionConfig(), _quiet()[0])

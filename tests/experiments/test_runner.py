@@ -82,7 +82,7 @@ def test_ctrl_c_with_worker_processes_is_one_line_and_a_rerun_resumes(tmp_path):
 def test_ctrl_c_with_a_dask_local_cluster_leaves_no_claim(tmp_path):
     """Ctrl-C of `nlips experiment --scheduler local:2` while both workers held a press: closing the LocalCluster
     kills its busy workers (SIGKILL after Dask's grace, mid-render), and each left its task's claim behind until
-    the next run. Now the command removes them on its way out."""
+    the next run. Now the command removes them on its way out; its workers no longer warn of the cancelled tasks."""
     pytest.importorskip("distributed")
     config = tmp_path / "tiny.toml"
     config.write_text(TINY)
@@ -100,10 +100,43 @@ def test_ctrl_c_with_a_dask_local_cluster_leaves_no_claim(tmp_path):
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, err
-    # the last line: Dask's worker processes log a cancelled task's warning in a format of their own before it
+    # the last line: a worker process that Ctrl-C reached mid-task may print its traceback before it
     assert _not_log(err)[-1] == "nlips experiment: interrupted; finished work is kept, run again to resume", err
+    assert "ended with CancelledError" not in err, err  # Dask's workers' warning, in a format of their own
     left = [p for p in Path(out).rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
     assert not left, left
+
+
+def test_a_dask_local_cluster_run_prints_none_of_distributeds_info_lines(tmp_path):
+    """`--scheduler local:2` printed ~40 INFO lines of distributed's own (its start and stop, "dashboard at:
+    http://127.0.0.1:8787/status"); -v shows them."""
+    pytest.importorskip("distributed")
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY)
+    args = ("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(tmp_path / "out"))
+    proc = _nlips(*args)
+    stdout, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert "3 tasks (3 run now, 0 reused), 0 failed" in stdout
+    assert not [line for line in err.splitlines() if line.startswith("INFO ")], err
+    assert "dashboard" not in err and "8787" not in err, err
+
+
+def test_a_local_cluster_serves_no_dashboard_and_no_fixed_port_and_leaves_distributeds_log_levels():
+    """dashboard_address=None keeps the dashboard off, but the scheduler still served its HTTP pages on 8787 (all
+    runs at once on one port: "Port 8787 is already in use"); now on a free port of the loopback only."""
+    import logging
+
+    pytest.importorskip("distributed")
+    from nlipscalib.experiments.runner import _backend
+
+    before = logging.getLogger("distributed").level
+    backend = _backend("local:1", 1)
+    with backend:
+        scheduler = backend.cluster.scheduler
+        assert scheduler.http_server.address == "127.0.0.1" and scheduler.http_server.port != 8787
+        assert logging.getLogger("distributed").level == logging.WARNING
+    assert logging.getLogger("distributed").level == before
 
 
 def test_a_second_run_says_it_reused_the_finished_tasks(tmp_path):
