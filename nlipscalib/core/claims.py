@@ -167,6 +167,24 @@ def holder(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Owner | Non
     return owner or UNKNOWN_OWNER
 
 
+def remove_dead_claims(folder: str | Path) -> list[Path]:
+    """Remove every claim under ``folder`` (at any depth: exclusive claims, shared holders' claims, their
+    temporaries) whose owner is gone, and return their paths. Live owners' claims stay.
+
+    Why: a run killed while holding a claim on finished work (an experiment's Dask worker closed mid-task, its
+    press's solve hold) leaves it where nothing claims again; each is taken over and released here, as
+    :func:`claim` does with a stale claim (logged)."""
+    removed = []
+    for path in sorted(Path(folder).rglob(glob.escape(CLAIM_PREFIX) + "*")):
+        target = path.with_name(path.name[len(CLAIM_PREFIX) :])
+        if path.is_file() and _read_owner(path) is not None and holder(target) is None:
+            with contextlib.suppress(OSError), claim(target):  # taken over; releasing it removes the file
+                pass
+            if not path.exists():
+                removed.append(path)
+    return removed
+
+
 def wait_for_release(target: str | Path, on_wait: Callable[[], None] | None = None) -> None:
     """Return once no live process holds ``target``'s claim (its owner released it, or died: a dead owner's claim
     goes stale). Judged with the default staleness, the value every process sharing a folder agrees on.

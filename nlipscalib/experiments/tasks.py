@@ -11,7 +11,6 @@ worker that dies loses only the task it was running.
 from __future__ import annotations
 
 import dataclasses
-import glob
 import hashlib
 import json
 import logging
@@ -149,23 +148,21 @@ def load_result(out: Path, task: Task) -> dict | None:
 
 
 def clean_leftovers(out: Path) -> None:
-    """Remove what killed runs left beside the task results in ``out/tasks``: temporaries of a result being
-    written, and claims whose owner is gone.
+    """Remove what killed runs left in ``out``: temporaries of a task result being written (``out/tasks``), and
+    claims whose owner is gone, anywhere in ``out`` (the tasks' and the presses' solves').
 
     Why here, once per run: a run killed between writing a task's result and releasing its claim leaves a
     finished task with a dead claim beside it, and a finished task is never claimed again (:func:`run_tasks`
-    skips it), so nothing else would ever remove that claim. A live run's claim and temporaries stay."""
+    skips it), so nothing else would ever remove that claim; a worker killed in a press's solve leaves that
+    solve's hold (pipeline.reuse._hold) likewise. A live run's claims and temporaries stay."""
     from ..core.atomic import clean_interrupted
-    from ..core.claims import CLAIM_PREFIX, claim, holder
+    from ..core.claims import remove_dead_claims
 
     folder = Path(out) / "tasks"
     for gone in clean_interrupted(folder):
         log.warning("%s: removed (left by an interrupted run)", gone)
-    for stale in folder.glob(glob.escape(CLAIM_PREFIX) + "*.json"):
-        target = stale.with_name(stale.name[len(CLAIM_PREFIX) :])
-        if stale.exists() and holder(target) is None:
-            with claim(target):  # takes the dead owner's claim over (logged); releasing it removes the file
-                pass
+    if Path(out).is_dir():
+        remove_dead_claims(out)
 
 
 def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = False) -> str:

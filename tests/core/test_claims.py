@@ -320,3 +320,25 @@ def test_a_shared_holders_note_reaches_the_process_it_refuses_and_is_not_part_of
     assert not list(tmp_path.glob(".claim-*"))
     (tmp_path / ".claim-x").write_text("[1, 2]")  # not an object: no owner, not an AttributeError
     assert _read_owner(tmp_path / ".claim-x") is None
+
+
+def test_dead_owners_claims_anywhere_under_a_folder_are_removed_and_live_ones_kept(tmp_path):
+    """An experiment's Dask worker killed mid-task leaves its task's claim and its press's solve hold
+    (``.claim-nlips~run~KEY~TOKEN`` deep in the presses' folders): all removed, a live claim kept."""
+    from nlipscalib.core.claims import HOST, claim_shared, remove_dead_claims
+
+    dead = json.dumps({"host": HOST, "pid": _dead_pid(), "token": "dead"})
+    task = tmp_path / "tasks" / ".claim-t1.json"
+    hold = tmp_path / "presses" / "p1" / "solves" / ".claim-nlips~run~abc~dead"
+    for path in (task, hold):
+        path.parent.mkdir(parents=True)
+        path.write_text(dead)
+    other = tmp_path / "presses" / ".claim-notes"  # not a claim (no owner in it): left alone
+    other.write_text("notes")
+    with claim(tmp_path / "tasks" / "t2.json") as mine, claim_shared(tmp_path / "presses" / "p2", "k") as held:
+        assert mine and held is None
+        removed = remove_dead_claims(tmp_path)
+        assert sorted(removed) == sorted([task, hold])
+        assert claim_path(tmp_path / "tasks" / "t2.json").exists()  # live: kept
+        assert list((tmp_path / "presses").glob(".claim-p2~k~*"))
+    assert not task.exists() and not hold.exists() and other.exists()
