@@ -200,7 +200,33 @@ class Loader:
     field (:class:`_LoadedOnRead`), and any error it raises (a CaptureError naming the file) comes out there."""
 
     def __init__(self, load: Callable[[], object]):
-        self.load = load
+        self._load = load
+
+    def load(self) -> object:
+        return self._load()
+
+
+class FileLoader(Loader):
+    """A :class:`Loader` of one file of the capture, which must still be the file that was there when the press
+    was loaded: a press is what its folder held then, and a file replaced since (the folder rendered or captured
+    again) would mix two presses in one object. Such a read is refused, naming the file."""
+
+    def __init__(self, path: Path, load: Callable[[], object]):
+        super().__init__(load)
+        self.path = path
+        self.stamp = _stamp_or_none(path)
+
+    def load(self) -> object:
+        if _stamp_or_none(self.path) != self.stamp:
+            raise CaptureError(f"{self.path}: changed since the press was loaded; load the press again")
+        return self._load()
+
+
+def _stamp_or_none(path: Path) -> tuple[int, ...] | None:
+    try:
+        return file_stamp(path)
+    except OSError:  # missing: the loader names it at the read, as it would have at the load
+        return None
 
 
 class StoredImages(Loader):
@@ -481,10 +507,12 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
         response=response,
         dark=dark,
         led_images=led_images,
-        tricolor=Loader(functools.partial(_load_image, folder, images["tricolor"], camera)),
+        tricolor=FileLoader(
+            folder / images["tricolor"], functools.partial(_load_image, folder, images["tricolor"], camera)
+        ),
         meta=meta,
         reference=_reference(folder, meta, camera, leds),
-        ground_truth=Loader(functools.partial(_ground_truth, folder, meta, camera, leds)),
+        ground_truth=_ground_truth_loader(folder, meta, camera, leds),
     )
 
 
@@ -498,6 +526,13 @@ def _read_stored(folder: Path, names: list[str], camera: Camera) -> tuple[tuple[
             (h, w), (H, W) = png_size(d), camera.shape
             raise CaptureError(f"{path}: image is {w}x{h} pixels, but the camera in {META_FILE} is {W}x{H}")
     return (paths[:1], data[:1]), (paths[1:], data[1:])
+
+
+def _ground_truth_loader(folder: Path, meta: dict, camera: Camera, leds: Leds) -> Loader:
+    """The press's ground truth, loaded at its first read (:func:`_ground_truth`)."""
+    load = functools.partial(_ground_truth, folder, meta, camera, leds)
+    name = meta.get("ground_truth")
+    return FileLoader(folder / name, load) if name and isinstance(name, str) else Loader(load)
 
 
 def _ground_truth(folder: Path, meta: dict, camera: Camera, leds: Leds) -> GroundTruth | None:

@@ -195,6 +195,23 @@ def test_an_undecoded_capture_checks_its_images_now_and_decodes_them_at_first_re
         _ = spoilt.led_images
 
 
+def test_a_file_replaced_after_the_press_was_loaded_is_not_read_into_it(tmp_path):
+    """The tri-colour image and the ground truth are read at first use: one replaced since the load (the folder
+    rendered again) would mix two presses in one object, so the read is refused, naming the file."""
+    import shutil
+
+    folder, other = _press(tmp_path / "p"), _press(tmp_path / "q")
+    press = load_press(folder)
+    for name in ("tricolor.png", "gt.npz"):
+        shutil.copyfile(other / name, folder / name)
+    with pytest.raises(CaptureError, match="tricolor.png: changed since the press was loaded"):
+        _ = press.tricolor
+    with pytest.raises(CaptureError, match="gt.npz: changed since the press was loaded"):
+        _ = press.ground_truth
+    again = load_press(folder)
+    assert again.tricolor.shape == (H, W, 3) and again.ground_truth is not None
+
+
 def test_a_press_not_yet_decoded_or_read_can_be_sent_to_another_process(tmp_path):
     """Pickled (a worker's argument) before its images are decoded or its tri-colour image read: the other
     process decodes and reads them, the same arrays."""
