@@ -55,18 +55,8 @@ def test_ctrl_c_with_worker_processes_is_one_line_and_a_rerun_resumes(tmp_path):
     config.write_text(TINY)
     out = tmp_path / "out"
     args = ("ablation", "--config", str(config), "--workers", "2", "--out", str(out))
-    proc = _nlips(*args)
     tasks = out / "ablation-custom" / "tasks"
-    try:
-        deadline = time.monotonic() + 120
-        while not list(tasks.glob(".claim-sphere*")) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)  # a worker holds a press: it is rendering or solving it
-        assert proc.poll() is None, "the run ended before a worker took a press"
-        os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
+    proc, err = _interrupted_once_held(args, tasks, presses=1, timeout=120)  # a worker renders or solves a press
     assert proc.returncode == 130, err
     assert _not_log(err) == ["nlips experiment: interrupted; finished work is kept, run again to resume"], err
     left = [p for p in Path(out).rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
@@ -79,6 +69,24 @@ def test_ctrl_c_with_worker_processes_is_one_line_and_a_rerun_resumes(tmp_path):
     assert len(list(tasks.glob("*.json"))) == 3
 
 
+def _interrupted_once_held(args: tuple, tasks: Path, presses: int, timeout: float):
+    """Run ``nlips ARGS``, Ctrl-C its process group once its workers hold ``presses`` presses' claims in ``tasks``;
+    (process, stderr)."""
+    proc = _nlips(*args)
+    try:
+        deadline = time.monotonic() + timeout
+        while len(list(tasks.glob(".claim-sphere*"))) < presses and proc.poll() is None:
+            assert time.monotonic() < deadline, f"no worker held {presses} press(es) within {timeout} s"
+            time.sleep(0.05)
+        assert proc.poll() is None, "the run ended before its workers took the presses"
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=timeout)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    return proc, err
+
+
 def test_ctrl_c_with_a_dask_local_cluster_leaves_no_claim(tmp_path):
     """Ctrl-C of `nlips experiment --scheduler local:2` while both workers held a press: closing the LocalCluster
     kills its busy workers (SIGKILL after Dask's grace, mid-render), and each left its task's claim behind until
@@ -87,18 +95,9 @@ def test_ctrl_c_with_a_dask_local_cluster_leaves_no_claim(tmp_path):
     config = tmp_path / "tiny.toml"
     config.write_text(TINY)
     out = tmp_path / "out"
-    proc = _nlips("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(out))
     tasks = out / "ablation-custom" / "tasks"
-    try:
-        deadline = time.monotonic() + 180
-        while len(list(tasks.glob(".claim-sphere*"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)  # both workers hold a press
-        assert proc.poll() is None, "the run ended before the workers took the presses"
-        os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(proc.pid, signal.SIGKILL)
+    args = ("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(out))
+    proc, err = _interrupted_once_held(args, tasks, presses=2, timeout=180)  # both workers hold a press
     assert proc.returncode == 130, err
     # the last line: a worker process that Ctrl-C reached mid-task may print its traceback before it
     assert _not_log(err)[-1] == "nlips experiment: interrupted; finished work is kept, run again to resume", err
