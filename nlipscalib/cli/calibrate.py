@@ -121,13 +121,23 @@ def run(args: argparse.Namespace) -> int:
         )
     for i, model in enumerate(cal.interreflection):
         print(f"capture {i + 1}: {model.get('reason', '')}")
-    q = cal.quality
-    print(
-        f"fit: residual {q['median_ratio']:.2f}x the images' noise (median over the LEDs; reliable up to "
-        f"{q['threshold']}): {'reliable' if q['reliable'] else 'UNRELIABLE, see the warning'}"
-    )
+    print(_fit_line(cal.quality))
     # the warnings were logged while calibrating, above the table: say so where the user looks last
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
     albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
     print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
     return 0
+
+
+def _fit_line(q: dict) -> str:
+    """The fit's quality in one line: the median ratio decides, and the worst LED is named beside it (one LED far
+    off shows only there: the median of 12 hides it)."""
+    import numpy as np
+
+    ratio = np.asarray(q["ratio"], float)
+    worst = int(np.nanargmax(ratio))
+    return (
+        f"fit: residual {q['median_ratio']:.2f}x the images' noise and the LED model's own error (median over the "
+        f"LEDs; reliable up to {q['threshold']}; worst LED {worst + 1} {ratio[worst]:.2f}x): "
+        f"{'reliable' if q['reliable'] else 'UNRELIABLE, see the warning'}"
+    )

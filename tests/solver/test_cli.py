@@ -95,3 +95,13 @@ def test_a_stride_that_leaves_too_few_pixels_is_refused(presses, tmp_path, capsy
     assert main(["calibrate-leds", str(presses["none"]), "--out", str(out), "--stride", "10000"]) == 2
     err = capsys.readouterr().err
     assert "stride 10000 leaves 1 pixels of the gel" in err and "smaller stride" in err and not out.exists()
+
+
+def test_calibrate_leds_names_its_worst_led_beside_the_median_that_decides():
+    """One LED fitted far worse than the others is hidden by the median of 12: the fit's line names it."""
+    from nlipscalib.cli.calibrate import _fit_line
+
+    ratios = [0.8] * 12
+    ratios[2] = 2.1
+    line = _fit_line({"ratio": ratios, "median_ratio": 0.8, "threshold": 1.15, "reliable": True})
+    assert line.startswith("fit: residual 0.80x") and "worst LED 3 2.10x" in line and line.endswith(": reliable")
