@@ -261,7 +261,8 @@ def capture_press(
             # the LEDs went dark for a while: frames since the last command may be wrong, so retake all
             if attempt == cfg.max_retakes:
                 raise
-            log.warning("%s: %s", folder, exc)
+            # said once to the operator (the controller logged the reset and its cause): not a third time here
+            log.debug("%s: %s", folder, exc)
             moved.append(None)
             operator.retake(index, "the LED board reset")
             continue

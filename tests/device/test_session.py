@@ -188,8 +188,12 @@ def test_rig_check_names_the_mismatch():
         rig.check()
 
 
-def test_board_reset_mid_press_is_retaken(tmp_path):
-    """A reset of the real virtual board during a press (detected by the host driver) makes the press retake."""
+def test_board_reset_mid_press_is_retaken(tmp_path, caplog):
+    """A reset of the real virtual board during a press (detected by the host driver) makes the press retake; it is
+    said twice, each once: the driver's warning with its cause, and the operator's line."""
+    import logging
+
+    caplog.set_level(logging.WARNING)
     from nlipscalib.device.controller import LedController
     from nlipscalib.device.virtual_board import VirtualBoard
 
@@ -208,7 +212,9 @@ def test_board_reset_mid_press_is_retaken(tmp_path):
         op, lines = _quiet()
         rec = capture_press(rig, tmp_path / "p", SessionConfig(), op, index=1)
     assert rec["attempts"] == 2 and rec["moved"][0] is None and rec["moved"][1] == 0
-    assert any("LED board reset" in line for line in lines)
+    assert sum("LED board reset" in line for line in lines) == 1
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(warnings) == 1 and "board reset detected" in warnings[0], warnings
     p = load_press(tmp_path / "p")
     np.testing.assert_allclose(p.linear(p.led_images), images, atol=2e-5)
 
