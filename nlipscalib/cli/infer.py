@@ -7,7 +7,8 @@ emulated sensor (``--emulate``). Streams are opened and run exactly as ``nlips l
 second on a terminal, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
 frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud. Presses and frames
 resume instead: a result made from the same input with the same model file and options is kept (its report's
-``provenance.key``, :func:`still_provenance`), any other is inferred again, ``--overwrite`` infers all.
+``provenance.key``, :func:`still_provenance`), any other is inferred again, ``--overwrite`` infers all; a re-run
+whose results are all kept says so at once, without loading the model (:func:`_settings_before_loading`).
 """
 
 from __future__ import annotations
@@ -381,22 +382,32 @@ def _run_stills(args: argparse.Namespace) -> int:
     from ._stream import nlipsnet_predictor
 
     t_start = time.perf_counter()
-    predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     frames = list(_frames(args.inputs))
     _check_destinations(args, frames)
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
         log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
+    early = _settings_before_loading(args)
+    looked = _look_before_loading(args, frames, early) if early is not None else {}
+    if sum(is_kept for _, is_kept in looked.values()) == len(frames):
+        # a finished run again: said at once, without loading the model (torch or onnxruntime: seconds)
+        print(_stills_summary(args, None, [], len(frames), time.perf_counter() - t_start))
+        print(_where_saved(list(looked), bool(args.ply or args.mesh)))
+        return 0
+    predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     settings = output_settings(args, predictor)
+    if settings != early:  # the model file replaced since it was read above: what was looked at is looked at again
+        looked = {}
     inner, kept, written = [], 0, []
     for name, load, press_folder, source in frames:
         folder = _destination(args, name, press_folder)
         written += [folder] if folder is not None else []
-        provenance = None
-        if folder is not None and not args.overwrite and _has_entries(folder):  # else it is inferred anyway
+        provenance, is_kept = looked.get(folder, (None, False))
+        if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
             provenance = still_provenance(settings, input_identity(press_folder, source))
-            if _kept(folder, provenance):
-                kept += 1
-                continue
+            is_kept = _kept(folder, provenance)
+        if is_kept:
+            kept += 1
+            continue
         result = predictor.predict(load(predictor))
         if why := mismatch_warning(result, source):
             log.warning("%s", why)
@@ -410,6 +421,38 @@ def _run_stills(args: argparse.Namespace) -> int:
     return 0
 
 
+def _settings_before_loading(args: argparse.Namespace) -> dict | None:
+    """:func:`output_settings` as the model of ``args`` will give them, found without loading it (no torch, no
+    onnxruntime); None where only the loaded model can tell: on a GPU or with --full-frame (torch names the
+    device), or when the model is no file (its load names the problem)."""
+    from pathlib import Path
+
+    from ..learn.infer import resolved_backend
+    from ..learn.onnx_export import file_digest
+
+    if args.device != "cpu" or args.full_frame or not Path(args.model).is_file():
+        return None
+    return _settings(args, file_digest(args.model), resolved_backend(args.model, args.backend), "cpu", False)
+
+
+def _look_before_loading(
+    args: argparse.Namespace, frames: Sequence[StillInput], settings: dict
+) -> dict[Path, tuple[dict, bool]]:
+    """{result folder: (provenance, kept)} of the inputs, in order, up to the first one to infer (then the model
+    is loaded anyway, and each of the others is looked at as it comes): every input when a re-run finds all its
+    results kept (:func:`_kept`). Empty with --overwrite, or when the first input has no result to keep."""
+    looked = {}
+    for name, _, press_folder, source in frames:
+        folder = _destination(args, name, press_folder)
+        if folder is None or args.overwrite or not _has_entries(folder):
+            break
+        provenance = still_provenance(settings, input_identity(press_folder, source))
+        looked[folder] = (provenance, _kept(folder, provenance))
+        if not looked[folder][1]:
+            break
+    return looked
+
+
 def _where_saved(folders: Sequence[Path], ply: bool) -> str:
     """Where the stills' results are (a new user looked for them after the frame-rate line): one folder each."""
     parents = {f.parent for f in folders}
@@ -419,10 +462,11 @@ def _where_saved(folders: Sequence[Path], ply: bool) -> str:
 
 
 def _stills_summary(
-    args: argparse.Namespace, predictor: Predictor, seconds: Sequence[float], kept: int, wall_s: float
+    args: argparse.Namespace, predictor: Predictor | None, seconds: Sequence[float], kept: int, wall_s: float
 ) -> str:
     """The stills' one summary line: frames inferred (and kept), and the frame rate of the inferred ones only
-    (a kept result took no inference time; counting it would overstate the rate)."""
+    (a kept result took no inference time; counting it would overstate the rate). ``predictor``: None when every
+    result was kept (the model was not loaded)."""
     import numpy as np
 
     n = len(seconds)
@@ -587,11 +631,18 @@ def output_settings(args: argparse.Namespace, predictor: Predictor) -> dict:
     (False with --no-depth) and ``ply`` (null, "points" or "mesh": the files written). ``--threads`` changes only
     the speed, so it is not recorded.
     """
+    return _settings(
+        args, predictor.model.digest, predictor.backend, str(predictor.device or "cpu"), bool(predictor.full_frame)
+    )
+
+
+def _settings(args: argparse.Namespace, model_digest: str, backend: str, device: str, full_frame: bool) -> dict:
+    """:func:`output_settings` of a model known by its digest and resolved runtime, ``device`` and ``full_frame``."""
     return {
-        "model_digest": predictor.model.digest,
-        "backend": predictor.backend,
-        "device": str(predictor.device or "cpu"),
-        "full_frame": bool(predictor.full_frame),
+        "model_digest": model_digest,
+        "backend": backend,
+        "device": device,
+        "full_frame": full_frame,
         "depth": not args.no_depth,
         "ply": "mesh" if args.mesh else "points" if args.ply else None,
     }

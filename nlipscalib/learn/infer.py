@@ -145,12 +145,9 @@ class Predictor:
                 integrate_on_dome(self.ref_normals, unknown, self.geo)
 
     def _backend(self, backend: str, threads: int):
+        self.backend = backend = resolved_backend(self.model.path, backend, on_cpu=self.device is None)
         if self.device is not None:  # a GPU or the whole frame: PyTorch, run by .fullframe
-            self.backend = "torch"
             return None
-        if backend == "auto":  # onnxruntime when the model was exported (nlips train does), else PyTorch
-            backend = "onnx" if Path(self.model.path).with_suffix(".onnx").is_file() else "torch"
-            self.backend = backend
         if backend in ("onnx", "onnx-int8"):
             from .onnx_export import OnnxNet
 
@@ -261,6 +258,21 @@ class Predictor:
         if frame.mismatch > FRAME_MISMATCH_FRACTION:
             frame.brightness, frame.saturated = self._exposure(self.linear(tricolor) if stored else tricolor)
         return frame
+
+
+def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True) -> str:
+    """The runtime a :class:`Predictor` of ``model_path`` with ``backend`` runs (what its results record).
+
+    PyTorch off the CPU path (``on_cpu`` False: a GPU or the whole frame, run by :mod:`.fullframe`); "auto" is
+    onnxruntime ("onnx") when the model was exported beside it (MODEL.onnx: ``nlips train`` writes one), else
+    PyTorch; any other as given. Found from the file names alone, so ``nlips infer`` can tell that a re-run's
+    results are all kept without loading the model or importing either runtime.
+    """
+    if not on_cpu:
+        return "torch"
+    if backend == "auto":
+        return "onnx" if Path(model_path).with_suffix(".onnx").is_file() else "torch"
+    return backend
 
 
 def mismatch_warning(frame: Frame, where: str | Path) -> str | None:

@@ -633,6 +633,55 @@ def test_an_interrupted_run_infers_again_only_what_it_did_not_finish(tiny_model,
     assert {p: now[p] for p in again} == again and len(now) == len(first)
 
 
+FINISHED_RUN = """
+import sys
+
+from nlipscalib.cli import main
+
+code = main(sys.argv[1:])
+print(sorted({"torch", "onnxruntime"} & set(sys.modules)))  # what the run imported of the network runtimes
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("backend", ["torch", "onnx"])
+def test_a_finished_run_again_says_so_without_loading_the_model(tiny_model, tmp_path, capsys, backend):
+    """`nlips infer MODEL FRAMES --out OUT` again once every result is there loaded the model, and torch or
+    onnxruntime with it (seconds), before finding that every result was kept. Now it looks at the results first
+    (the model known by its file's digest, the runtime by the files beside it, as the loaded model records them)
+    and says so at once, importing neither runtime; a run with a result to make still loads the model."""
+    import os
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    model = tmp_path / "m.pt"  # a copy: the export below must not change the module's model for other tests
+    shutil.copy(command[1], model)
+    command[1] = str(model)
+    if backend == "onnx":
+        assert main(["export", str(model)]) == 0  # MODEL.onnx beside it: --backend auto runs onnxruntime
+    assert main(command) == 0
+    assert f"4 frame(s), {backend}" in capsys.readouterr().out
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+
+    def again(*extra):
+        run = subprocess.run(
+            [sys.executable, "-c", FINISHED_RUN, *command, *extra], capture_output=True, text=True, env=env
+        )
+        assert run.returncode == 0, run.stderr
+        return run.stdout.splitlines()
+
+    lines = again()
+    assert lines[0].startswith("0 frame(s) inferred, 4 kept (identical results; --overwrite infers them again)")
+    assert lines[1].startswith("saved: 4 result folder(s)") and lines[-1] == "[]", lines
+    shutil.rmtree(out / "c_sphere_deep")  # one result to make: the model is loaded, the others still kept
+    lines = again()
+    assert lines[0].startswith("1 frame(s) inferred, 3 kept") and lines[-1] != "[]", lines
+
+
 def test_overwrite_is_refused_for_a_stream(capsys):
     """A stream never resumes (STREAM_STOPPED): --overwrite would change nothing there, so it is refused."""
     assert main(["infer", "m.pt", "--camera", "0", "--overwrite"]) == 2
