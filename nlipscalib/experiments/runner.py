@@ -124,8 +124,8 @@ class _backend:
         self._levels = _quiet_distributed()  # imported above: its import set its own level, INFO
         try:
             self._connect(Client, LocalCluster)
-        except BaseException:
-            _restore_levels(self._levels)
+        except BaseException as exc:  # Ctrl-C as the cluster started included: what was started is closed
+            self.__exit__(type(exc), exc, exc.__traceback__)
             raise
         return self._dask
 
@@ -135,9 +135,11 @@ class _backend:
             # the scheduler's HTTP pages (no dashboard: dashboard_address None) on a free port of this machine only,
             # not on 8787, which another run or a user's dashboard may hold
             local = {"dashboard_address": LOCAL_HTTP}
-            self.cluster = local_cluster(
-                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, scheduler_kwargs=local
-            )
+            with _sigint_held():  # its worker processes never see Ctrl-C; one pressed meanwhile comes after
+                self.cluster = local_cluster(
+                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, scheduler_kwargs=local
+                )
+            _LOCAL_CLUSTERS.append(self.cluster)
             self.client = client(self.cluster)
             self.client.register_plugin(_quiet_workers())  # only our own workers: a shared cluster's stay as they are
             self.threads = max(1, usable_cores() // n)
@@ -160,6 +162,8 @@ class _backend:
             if self.cluster is not None:
                 self.cluster.close()
         finally:
+            if self.cluster in _LOCAL_CLUSTERS:
+                _LOCAL_CLUSTERS.remove(self.cluster)
             _restore_levels(self._levels)
 
     def _local(self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm) -> None:
@@ -329,10 +333,19 @@ def _restore_levels(levels: dict[str, int]) -> None:
         logging.getLogger(name).setLevel(level)
 
 
+SHUTDOWN_RACE = "Scheduler was unaware of this worker"
+"""The start of the warning a local cluster's worker logs when its heartbeat reaches the scheduler after the
+scheduler let it go: as the cluster closes (Ctrl-C), a race distributed itself calls common, not news."""
+
+
 def _quiet_workers() -> WorkerPlugin:
-    """A Dask worker plugin that, unless -v, keeps a local cluster's workers from logging that a task was cancelled
-    as the cluster closed (Ctrl-C): "Async instruction for <Task ...> ended with CancelledError", distributed's only
-    warning of its worker state machine, logged only as a worker closes. Its errors still show."""
+    """A Dask worker plugin for a local cluster's workers (run in each worker's main thread): the signals of the
+    command's own worker processes (``pipeline.workers._worker_signals``: Ctrl-C left to the command; SIGTERM, which
+    the command sends its workers as it is terminated, releases the worker's claims and temporaries first, where
+    the worker died at once and left them for the next run), and, unless -v, none of distributed's lines about
+    the cluster closing under a task (Ctrl-C): "Async instruction for <Task ...> ended with CancelledError" (its
+    worker state machine's only warning, logged only as a worker closes) and :data:`SHUTDOWN_RACE`. Errors still
+    show."""
     from distributed.diagnostics.plugin import WorkerPlugin
 
     verbose = logging.getLogger().isEnabledFor(logging.DEBUG)
@@ -341,10 +354,37 @@ def _quiet_workers() -> WorkerPlugin:
         name = "nlipscalib-quiet-workers"
 
         def setup(self, worker: Worker) -> None:
+            from ..pipeline.workers import _worker_signals
+
+            _worker_signals()
             if not verbose:
                 logging.getLogger("distributed.worker.state_machine").setLevel(logging.ERROR)
+                logging.getLogger("distributed.worker").addFilter(
+                    lambda record: not record.getMessage().startswith(SHUTDOWN_RACE)
+                )
 
     return QuietWorkers()
+
+
+_LOCAL_CLUSTERS: list = []
+"""The Dask local clusters this process runs now (:class:`_backend`), for :func:`stop_restarting_workers`."""
+
+
+def stop_restarting_workers() -> None:
+    """Keep this process's local clusters from replacing a worker process that ends, for a command about to end
+    (``cli._end_at_once``, on SIGTERM) before it terminates its worker processes.
+
+    A local cluster's nanny starts a new worker process when one ends while the cluster runs: terminated with the
+    command, each was replaced at once, and the new ones failed to start (a traceback each) once the command had
+    gone. Marked closing, as closing the cluster would mark them (which a signal handler cannot wait for), the
+    nannies let their workers end.
+    """
+    from distributed.core import Status
+
+    for cluster in list(_LOCAL_CLUSTERS):
+        for nanny in list(getattr(cluster, "workers", {}).values()):
+            with contextlib.suppress(Exception):  # on the way out: best effort
+                nanny.status = Status.closing
 
 
 def _main_thread_imports() -> WorkerPlugin:
@@ -372,6 +412,21 @@ def _sigint_ignored():
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _sigint_held():
+    """Ctrl-C held back (blocked, not lost) while a local cluster starts: the thread and the worker processes it
+    starts inherit the block (through exec too), so Ctrl-C never reaches a worker, which died of it mid-task with a
+    traceback of its own; one pressed meanwhile reaches the command once the cluster is up (then closed at once)."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def check_scheduler(scheduler: str | None) -> int | None:

@@ -99,9 +99,67 @@ def test_ctrl_c_with_a_dask_local_cluster_leaves_no_claim(tmp_path):
     args = ("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(out))
     proc, err = _interrupted_once_held(args, tasks, presses=2, timeout=180)  # both workers hold a press
     assert proc.returncode == 130, err
-    # the last line: a worker process that Ctrl-C reached mid-task may print its traceback before it
-    assert _not_log(err)[-1] == "nlips experiment: interrupted; finished work is kept, run again to resume", err
-    assert "ended with CancelledError" not in err, err  # Dask's workers' warning, in a format of their own
+    # the one line: Ctrl-C no longer reaches a worker process (it could print a traceback of its own before it)
+    assert _not_log(err) == ["nlips experiment: interrupted; finished work is kept, run again to resume"], err
+    assert "ended with CancelledError" not in err, err  # Dask's workers' warnings, in a format of their own
+    assert "Scheduler was unaware of this worker" not in err, err
+    left = [p for p in Path(out).rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
+    assert not left, left
+
+
+def _worker_signals_state() -> tuple[bool, bool]:
+    """(Ctrl-C can reach this process, SIGTERM has a handler of its own): run in a Dask worker's main thread."""
+    import signal
+
+    blocked = signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    reachable = not blocked and signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
+    return reachable, callable(signal.getsignal(signal.SIGTERM))
+
+
+def test_a_local_clusters_workers_leave_ctrl_c_to_the_command_and_release_their_claims_on_sigterm():
+    """A terminal's Ctrl-C reached `--scheduler local:2`'s worker processes too, which could die of it mid-task with
+    a traceback of their own; and SIGTERM, which the terminated command sends its workers, killed them at once with
+    their claims left. Now Ctrl-C is blocked from before they start, and SIGTERM releases a worker's claims first
+    (pipeline.workers._worker_signals, as the local workers do)."""
+    pytest.importorskip("distributed")
+    from nlipscalib.experiments.runner import _backend
+
+    backend = _backend("local:1", 1)
+    with backend:
+        states = backend.client.run(_worker_signals_state)
+    assert list(states.values()) == [(False, True)], states
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads the process table from /proc")
+@pytest.mark.parametrize("group", [True, False], ids=["kill-group", "kill-pid"])
+def test_sigterm_with_a_dask_local_cluster_is_one_line_and_leaves_no_claim(tmp_path, group):
+    """SIGTERM of `nlips experiment --scheduler local:2` while both workers held a press: the command terminated its
+    worker processes, each died with its claim left for the next run, and the cluster's nannies started new ones,
+    which failed with a traceback each once the command was gone. Now each worker releases its claim and the
+    nannies start none: the one line, exit 143, nothing left."""
+    pytest.importorskip("distributed")
+    from tests.cli.test_interrupt import _wait_until_gone
+
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY)
+    out = tmp_path / "out"
+    tasks = out / "ablation-custom" / "tasks"
+    proc = _nlips("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(out))
+    try:
+        deadline = time.monotonic() + 180
+        while len(list(tasks.glob(".claim-sphere*"))) < 2 and proc.poll() is None:
+            assert time.monotonic() < deadline, "no two workers held a press within 180 s"
+            time.sleep(0.05)
+        assert proc.poll() is None, "the run ended before its workers took the presses"
+        (os.killpg if group else os.kill)(proc.pid, signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+        assert _wait_until_gone(proc.pid, 30) == []  # no worker left, none started anew
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert _not_log(err) == ["nlips experiment: terminated; finished work is kept, run again to resume"], err
+    assert "Restarting worker" not in err, err
     left = [p for p in Path(out).rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
     assert not left, left
 
