@@ -328,6 +328,9 @@ def _stop_workers() -> None:
     mp = sys.modules.get("multiprocessing")
     if mp is None:  # no worker was ever started
         return
+    runner = sys.modules.get("nlipscalib.experiments.runner")
+    if runner is not None:  # a Dask local cluster's nannies would replace each worker ended below
+        runner.stop_restarting_workers()
     try:
         workers = mp.active_children()
     except Exception:  # best effort on the way out
