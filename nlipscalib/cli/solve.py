@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
@@ -69,6 +70,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="array library of the solver's per-pixel model: numpy (default) or torch (the same equations and "
         "results, on a GPU when present; measured 4x slower there than numpy: the sparse solves stay on the CPU)",
     )
+    p.add_argument(
+        "--normals",
+        choices=("depth", "refined"),
+        default=None,
+        help="normals of the result: depth (the solved depth's gradient; default) or refined (each pixel's refitted "
+        "to its own images where they reject the depth's, the depth kept: for steep relief such as a coin's; "
+        "solver.normals in --config)",
+    )
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
@@ -115,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
 
     _press_after_roi(args)
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
+    if args.normals is not None:  # the flag over the config's value
+        options = dataclasses.replace(options or SolverOptions(), normals=args.normals)
     if args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     presses, reference = split_reference(args.press, args.reference)
@@ -122,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
         raise no_presses_error(args.press)
     if reference is not None:
         read_meta(reference)  # a missing or broken --reference is one line now, not one failure per press
-    if options is not None:
+    if args.config:  # --normals alone sets no min_leds
         _check_min_leds(options, presses[0], args.config)
     if args.out and len(presses) > 1:
         raise ConfigError("--out only applies to a single press")

@@ -213,3 +213,20 @@ COVERAGE_GEL_SHARE = 0.25
 by presses, when at least this share of its pixels sees the gel. What it guards: a region that only grazes the
 gel's edge would otherwise count as an empty region that no press can fill, and the next press would be sent
 there. The value's own origin is not recorded."""
+REFINE_LED_SHARE = 2 / 3
+"""Per-pixel normal refinement (:mod:`nlipscalib.solver.refine`, ``SolverOptions.normals = "refined"``): the share
+of the (live) LEDs fitted at each pixel, its brightest ones. Why: next to a relief's wall the grazing LEDs are in
+cast shadow, which the solve's shadow threshold (1 % of an image's bright end) keeps and a robust weight only
+halves. On the default twin's three 640x480 one-bounce coin presses (prototype, auto ROI, contact AAE) 8 of 12
+LEDs gave 3.85 / 3.99 / 3.83 deg, 9 of 12 3.91 / 4.08 / 3.98, 7 of 12 within 0.02 deg of 8; all 12 (the first
+press) 4.21; the plain solve 4.69 / 4.79 / 4.64 (benchmarks/RESULTS.md)."""
+REFINE_GATE = 2.0
+"""... a pixel takes the refined normal only when it lowers the Cauchy energy of the fitted samples by more than
+this (energy / lambda^2). Why: the depth's normal is right to a few tenths of a degree on smooth contact, the
+per-pixel fit only to the images' noise (ungated: the twin's sphere and cube presses 0.52 -> 1.02 and 0.43 -> 0.95
+deg). With lambda ~3 sigma a correct depth normal gains ~chi2(2) / 9 from the fit's two extra degrees of freedom,
+so 2 is a chi-square of ~18 (p ~1e-4). Measured: 1 switched 0.5 % of the sphere's and cube's contact (+0.01 deg),
+2 none of the sphere's and 2 of the cube's 90 000 pixels; on the coin 1 and 2 scored alike, 4 lost 0.07 deg."""
+REFINE_ITERATIONS = 6
+"""... reweighting iterations of each pixel's fit, from the depth's normal. Why: 12 moved the coin press's contact
+AAE by 0.02 deg against 6 (without the gate); each costs one 3x3 solve per pixel."""

@@ -162,8 +162,15 @@ def solve(
             init_depth,
             unrefined,
         )
+    refined = opts.normals == "refined" and unrefined == 0  # an unrefined pass only feeds the next one
+    if refined:
+        from .refine import refine_result  # refine imports this module
+
+        result = refine_result(result, images, saturated, leds, opts)
     report = result.report
-    report.update({"backend": backend, "seconds": time.perf_counter() - t_start})
+    report.update(
+        {"backend": backend, "seconds": time.perf_counter() - t_start, "normals": "refined" if refined else "depth"}
+    )
     if report["pixels_too_few_leds"]:
         log.warning(
             "%d pixels have fewer than %d usable LEDs: not reconstructed (NaN)",

@@ -9,6 +9,7 @@ from ..core import tolerances
 from ..core.errors import ConfigError
 
 Estimator = Literal["cauchy", "ls", "huber", "tukey"]
+Normals = Literal["depth", "refined"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,6 +79,12 @@ class SolverOptions:
     system is always assembled and solved in float64; energies are summed in float64). float32 halves
     the memory traffic of these (L, 3, N) arrays and gives the same depth and normals to well below
     the noise of a 16-bit image."""
+    normals: Normals = "depth"
+    """Which normals the result holds: "depth" (the gradient of the solved depth) or "refined" (each pixel's
+    normal refitted to its own images at the solved point where they reject the depth's,
+    :mod:`nlipscalib.solver.refine`; the depth kept). "refined" is for steep relief with walls a pixel or two
+    wide: the default twin's 640x480 coin presses 4.7 -> 3.8-4.0 deg contact AAE, smooth indenters unchanged
+    (benchmarks/RESULTS.md)."""
 
     def __post_init__(self):
         self._check_finite()
@@ -104,6 +111,8 @@ class SolverOptions:
         # evidence of a dead LED, and a threshold of 1 or more marks every LED dead (nothing left to solve)
         if not 0 <= self.dead_led_level < 1:
             raise ConfigError(f"solver.dead_led_level must be in [0, 1) of full scale, got {self.dead_led_level}")
+        if self.normals not in ("depth", "refined"):
+            raise ConfigError(f"solver.normals must be depth or refined, got {self.normals!r}")
         if self.anchor_threshold < 0:
             raise ConfigError(f"solver.anchor_threshold must be >= 0, got {self.anchor_threshold}")
 
