@@ -115,6 +115,9 @@ class Q2Config:
     """Region NLiPs solves: auto (its contact detector, as ``nlips calibrate``), truth or full."""
     interreflection: str = "dent"
     """Interreflection correction of the label solves: off, reference or dent."""
+    normals: str = "depth"
+    """Normals of the label solves (``SolverOptions.normals``): depth (the solved depth's gradient, as the paper)
+    or refined (each pixel's refitted to its images where they reject the depth's: steep relief)."""
     sampling: SamplingConfig = SamplingConfig()
     """Which pixels of a solved press become samples (as ``nlips calibrate``)."""
     net: TrainConfig = TrainConfig()
@@ -171,7 +174,9 @@ class Q2(Experiment):
 
     def evaluations(self, cfg: Q2Config) -> list[tuple[dict, dict, dict, dict]]:
         scene = cfg.twin.scene_dict()
-        solve = solve_dict(leds=cfg.leds, interreflection=cfg.interreflection, roi=cfg.roi)
+        # the default adds no option, so the tasks (and their kept results) of earlier runs keep their names
+        options = {} if cfg.normals == "depth" else {"normals": cfg.normals}
+        solve = solve_dict(leds=cfg.leds, interreflection=cfg.interreflection, roi=cfg.roi, options=options)
         return [
             (scene, press, {"role": role, "indenter": press["indenter"]["kind"]}, solve)
             for role, presses in self.roles(cfg).items()
