@@ -6,6 +6,7 @@ unseen-indenter test presses), a 64-64-64 net for 30 epochs.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -121,3 +122,15 @@ def test_too_few_calibration_presses_are_reported_not_fatal(tmp_path):
     doc = json.loads((report / "results.json").read_text())
     assert "need 2" in doc["learned"]["error"]
     assert "## Not computed" in (report / "report.md").read_text()
+
+
+def test_label_normals_reach_the_solves_and_the_default_adds_no_option():
+    """``normals = "refined"`` solves every label with SolverOptions.normals; the default leaves the solve spec as
+    earlier runs wrote it (their kept tasks keep their names)."""
+    from nlipscalib.experiments.q2 import Q2, QUICK
+
+    def options(cfg):
+        return {tuple(sorted(dict(solve["options"]).items())) for *_, solve in Q2().evaluations(cfg)}
+
+    assert options(QUICK) == {()}
+    assert options(dataclasses.replace(QUICK, normals="refined")) == {(("normals", "refined"),)}
