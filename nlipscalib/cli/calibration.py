@@ -40,6 +40,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "solved again (default: the LEDs each capture records)",
     )
     p.add_argument(
+        "--normals",
+        choices=("depth", "refined"),
+        default="depth",
+        help="normals of the labels: depth (the solved depth's gradient; default) or refined (each pixel's refitted "
+        "to its own images where they reject the depth's, as `nlips solve --normals refined`: steep relief)",
+    )
+    p.add_argument(
         "--workers", type=int, default=0, help="solver processes (default 0: one per core this process may use)"
     )
     p.add_argument(
@@ -104,7 +111,9 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else root / DEFAULT_DIR
     check_writable(out)  # a file in its place or a read-only disk: one line now, not after solving every press
     workers = args.workers or usable_cores()
-    status = solve_all(presses, reference, workers=workers, progress=not args.no_progress, leds=args.leds)
+    status = solve_all(
+        presses, reference, workers=workers, progress=not args.no_progress, leds=args.leds, normals=args.normals
+    )
     solved = [p for p in presses if status.get(p.name) in ("solved", "skipped")]
     # each failure was logged with its cause as it happened (pipeline.solve._status_of): listed by name at the end only
     failed = {k: v for k, v in status.items() if v not in ("solved", "skipped")}
@@ -191,12 +200,18 @@ def led_file_fits(leds: str, reference: Path) -> None:
 
 
 def solve_all(
-    presses: Sequence[Path], reference: Path, workers: int = 1, progress: bool = True, leds: str | None = None
+    presses: Sequence[Path],
+    reference: Path,
+    workers: int = 1,
+    progress: bool = True,
+    leds: str | None = None,
+    normals: str = "depth",
 ) -> dict[str, str]:
     """NLiPs results for every press (PRESS/nlips) via the pipeline: parallel, resumable, concurrency-safe;
     presses already solved with the same options and inputs are skipped. ``leds``: an LED file from ``nlips
     calibrate-leds`` to solve with (None: each capture's LEDs); its LED values are part of a result's settings,
-    so a result solved with other LEDs is solved again.
+    so a result solved with other LEDs is solved again. ``normals``: ``SolverOptions.normals`` of the labels
+    (a result with the other normals is solved again).
 
     The dataset needs every press's result, so a press another run (a second ``nlips calibrate`` or
     ``nlips solve`` on the folder) is solving is waited for (``wait=True``) rather than skipped: its
@@ -204,12 +219,14 @@ def solve_all(
     failed, died or used other settings.
     """
     from ..pipeline import solve_presses
+    from ..solver import SolverOptions
 
     return solve_presses(
         presses,
         reference=reference,
         roi="auto",
         leds=leds,
+        options=SolverOptions(normals=normals),
         workers=workers,
         progress=progress,
         figures=False,

@@ -77,3 +77,20 @@ def test_calibrate_leds_help_names_both_commands(capsys):
         main(["calibrate-leds", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "`nlips solve --leds FILE` or `nlips calibrate --leds FILE`" in text
+
+
+def test_calibrate_normals_refined_reaches_every_label_solve(tmp_path):
+    """`nlips calibrate --normals refined`: each press's result holds the refined normals (as `nlips solve
+    --normals refined`), and a later default run solves it again with the depth's normals."""
+    root = tmp_path / "presses"
+    synth.make_press(root / "reference", "none", size=SIZE)
+    synth.make_press(root / "press_0001", "sphere", size=SIZE)
+    synth.make_press(root / "press_0002", "cube", size=SIZE)
+
+    def normals(name):
+        return json.loads((root / name / "nlips" / "report.json").read_text())["normals"]
+
+    assert main(["calibrate", str(root), "--normals", "refined", "--workers", "1", "--no-progress"]) == 0
+    assert [normals(n) for n in ("press_0001", "press_0002")] == ["refined", "refined"]
+    assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0
+    assert [normals(n) for n in ("press_0001", "press_0002")] == ["depth", "depth"]
