@@ -650,22 +650,28 @@ def _dilate(mask: np.ndarray) -> np.ndarray:
 
 
 def _gather_at(surf: Surface, rho_patch: np.ndarray, model: IndirectModel, want: np.ndarray) -> np.ndarray:
-    """(L, n, 3) G at the patches ``want`` (visible surface and off-view dome as emitters)."""
+    """(L, n, 3) G at the patches ``want`` (visible surface and off-view dome as emitters).
+
+    The visible surface's light goes through :func:`radiosity.gather_grid` (far patches grouped: a fifth of the
+    pairwise terms at 640x480, the light within ~1 % of the exact gather's); the fit on the undeformed dome
+    (:func:`_gather_all`) keeps the exact gather, on its coarser patches."""
     keep = surf.keep
-    emit = surf.emitters()
-    direct = rho_patch[keep][None] * surf.shading[:, keep]
-    pts, nrm = surf.patches["points"][want], surf.patches["normals"][want]
-    g = radiosity.gather(pts, nrm, emit, direct)
+    area = np.where(keep, surf.patches["area"], 0.0)
+    points, normals = surf.patches["points"], surf.patches["normals"]
+    direct = rho_patch[None] * surf.shading
+    direct[:, ~keep] = 0.0
+    g = radiosity.gather_grid(points, normals, area, direct, want)
     off = model.off_view
     off_direct = None
     if off is not None:
         off_direct = led_shading(off["points"], off["normals"], surf.leds) * np.asarray(model.off_view_albedo)
-        g = g + radiosity.gather(pts, nrm, off, off_direct)
+        g = g + radiosity.gather(points[want], normals[want], off, off_direct)
     if model.bounces >= 2:
         # second bounce: the first bounce's light over the whole visible surface, gathered again
-        g1 = radiosity.gather(emit["points"], emit["normals"], emit, direct)
+        g1 = radiosity.gather_grid(points, normals, area, direct, keep)
         if off is not None:
-            g1 = g1 + radiosity.gather(emit["points"], emit["normals"], off, off_direct)
-        second = np.asarray(model.kappa)[None, None] * rho_patch[keep][None] * g1
-        g = g + radiosity.gather(pts, nrm, emit, second)
+            g1 = g1 + radiosity.gather(points[keep], normals[keep], off, off_direct)
+        second = np.zeros_like(direct)
+        second[:, keep] = np.asarray(model.kappa)[None, None] * rho_patch[keep][None] * g1
+        g = g + radiosity.gather_grid(points, normals, area, second, want)
     return g
