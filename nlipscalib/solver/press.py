@@ -155,8 +155,9 @@ def _solve_press(
         fitted one (None: fitted from the data).
     interreflection : "auto" (apply the term when the data show indirect light), "on", "off".
     bounces : diffuse bounces in the indirect term (1 or 2).
-    max_outer : most outer passes (solves after the first). Two reach the loop's fixed point within
-        0.01 deg on the default twin's sphere and cube presses with ``outer_relaxation="auto"``.
+    max_outer : most outer passes (solves after the first). Two are not the loop's fixed point on the default
+        twin's 640x480 sphere and cube presses since the passes before the last leave levels unrefined: a third
+        moves their contact AAE by 0.02-0.08 deg (benchmarks/RESULTS.md, s16-a).
     outer_relaxation : "auto" (per pixel 1 / (1 + indirect / direct light), see :func:`_relaxation`) or a
         number: the light of each outer pass is ``L + w (gathered - L)``; 1.0 is the plain iteration.
 
@@ -606,8 +607,9 @@ def _first_light(model: IndirectModel, mask: np.ndarray, box: tuple[slice, slice
 
     Why not a gather: the fit has just gathered this light (on its coarser patches), and the loop's first pass only
     seeds the relaxed passes that follow. Gathering it again on the loop's patches with a uniform albedo took
-    0.1-0.15 s of a warm 640x480 auto-ROI solve; the fitted light moved the default twin's one-bounce sphere and cube
-    presses' contact AAE by <= 0.0002 deg (benchmarks/RESULTS.md)."""
+    0.07-0.15 s of CPU in a warm 640x480 auto-ROI solve; the fitted light moved the default twin's one-bounce sphere
+    and cube presses' contact AAE by <= 0.0003 deg with an auto ROI, <= 0.0014 deg on the whole frame
+    (benchmarks/RESULTS.md)."""
     light, size = model.fitted_light
     H, W = mask.shape
     # bilinear upsampling of the patches around the box only: one patch of margin holds every box pixel's
