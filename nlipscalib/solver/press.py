@@ -32,7 +32,7 @@ from ..core import diskcache, tolerances
 from ..core.capture import Press
 from ..core.errors import CaptureError, ShapeError
 from ..core.metrics import angle_deg
-from . import reuse
+from . import radiosity, reuse
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
@@ -155,8 +155,9 @@ def _solve_press(
         fitted one (None: fitted from the data).
     interreflection : "auto" (apply the term when the data show indirect light), "on", "off".
     bounces : diffuse bounces in the indirect term (1 or 2).
-    max_outer : most outer passes (solves after the first). Two reach the loop's fixed point within
-        0.01 deg on the default twin's sphere and cube presses with ``outer_relaxation="auto"``.
+    max_outer : most outer passes (solves after the first). Two are not the loop's fixed point on the default
+        twin's 640x480 sphere and cube presses since the passes before the last leave levels unrefined: a third
+        moves their contact AAE by 0.02-0.08 deg (benchmarks/RESULTS.md, s16-a).
     outer_relaxation : "auto" (per pixel 1 / (1 + indirect / direct light), see :func:`_relaxation`) or a
         number: the light of each outer pass is ``L + w (gathered - L)``; 1.0 is the plain iteration.
 
@@ -521,23 +522,14 @@ class _OuterLoop:
         the whole mask from the depth before it, so the result is refined everywhere."""
         t0 = time.perf_counter()
         press, ref = self.press, self.press.reference
-        albedo0 = np.broadcast_to(np.asarray(self.model.off_view_albedo), (*press.camera.shape, 3))
-        ref_surface = reference_surface(press.camera, self.leds, ref.depth, ref.normals, shading=self.shading)
-        light = surface_indirect(
-            self.model,
-            press.camera,
-            self.leds,
-            ref.depth,
-            ref.normals,
-            albedo0,
-            self.mask,
-            surface=ref_surface,
-            window=self.box,
-        )
+        light = _first_light(self.model, self.mask, self.box)
         self.seconds += time.perf_counter() - t0
         rough = _unrefined_levels(press.camera)
         result = solve_with(light, unrefined=0 if max_passes == 0 else rough)
         self.solver_seconds.append(result.report["seconds"])
+        t0 = time.perf_counter()
+        ref_surface = reference_surface(press.camera, self.leds, ref.depth, ref.normals, shading=self.shading)
+        self.seconds += time.perf_counter() - t0
         settled = False
         before = None  # (surface, focus, reconstructed) of the last gather, when a focus pass followed it
         missed = 0  # focus passes whose gather left the light outside the focus as it was
@@ -604,6 +596,32 @@ class _OuterLoop:
         step *= omega
         step += light
         return np.maximum(step, 0.0, out=step)
+
+
+def _first_light(model: IndirectModel, mask: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:
+    """The outer loop's first light: the undeformed dome's indirect light as its fit left it (``model.fitted_light``,
+    per unit receiver albedo, times the fit's typical albedo ``off_view_albedo``), on ``box``.
+
+    ``mask`` : (H, W) bool, the solve's pixels; ``box`` : (rows, columns) slices of the frame, the mask's bounding
+    box. Returns (L, h, w, 3) float32 on ``box``, 0 off the mask.
+
+    Why not a gather: the fit has just gathered this light (on its coarser patches), and the loop's first pass only
+    seeds the relaxed passes that follow. Gathering it again on the loop's patches with a uniform albedo took
+    0.07-0.15 s of CPU in a warm 640x480 auto-ROI solve; the fitted light moved the default twin's one-bounce sphere
+    and cube presses' contact AAE by <= 0.0003 deg with an auto ROI, <= 0.0014 deg on the whole frame
+    (benchmarks/RESULTS.md)."""
+    light, size = model.fitted_light
+    H, W = mask.shape
+    # bilinear upsampling of the patches around the box only: one patch of margin holds every box pixel's
+    # neighbours, so the numbers are those of the whole frame's upsampling cut to the box
+    pr = slice(max(box[0].start // size - 1, 0), min((box[0].stop - 1) // size + 2, light.shape[1]))
+    pc = slice(max(box[1].start // size - 1, 0), min((box[1].stop - 1) // size + 2, light.shape[2]))
+    r0, c0 = pr.start * size, pc.start * size
+    up = radiosity.upsample(light[:, pr, pc], (min(pr.stop * size, H) - r0, min(pc.stop * size, W) - c0), size)
+    rows, cols = slice(box[0].start - r0, box[0].stop - r0), slice(box[1].start - c0, box[1].stop - c0)
+    out = up[:, rows, cols] * np.asarray(model.off_view_albedo, np.float32)
+    out[:, ~mask[box]] = 0.0
+    return out
 
 
 def _unrefined_levels(camera: Camera) -> int:

@@ -205,7 +205,8 @@ def test_outer_relaxation_out_of_range_is_a_config_error(bounce1):
 
 def test_a_whole_frames_gathers_before_the_last_pass_light_the_focus_only(bounce1, monkeypatch):
     """The passes before the last solve the dent's focus alone: their gathers compute the light there only; the
-    last gather lights the whole mask (and the surface it reads is the one before, the focus recomputed)."""
+    last gather lights the whole mask (and the surface it reads is the one before, the focus recomputed). The
+    first pass subtracts the fit's light of the undeformed dome: no gather before it."""
     from nlipscalib.solver import press as press_mod
 
     _, press = bounce1
@@ -220,9 +221,37 @@ def test_a_whole_frames_gathers_before_the_last_pass_light_the_focus_only(bounce
     whole = solve_press(press, max_outer=2)
     x0, y0, w, h = whole.report["outer_focus"]
     mask = whole.mask
-    first, focus_gather, last = receivers  # the undeformed surface's light, then one gather per outer pass
-    assert first.sum() == last.sum() == mask.sum()
+    focus_gather, last = receivers  # one gather per outer pass
+    assert last.sum() == mask.sum()
     assert focus_gather.sum() == mask[y0 : y0 + h, x0 : x0 + w].sum() < 0.5 * mask.sum()
+
+
+def test_the_outer_loops_first_light_is_the_fits_light_cut_to_the_box(bounce1):
+    """The first pass subtracts the fit's undeformed light times the fit's typical albedo: on the mask's box the
+    same numbers as the whole frame's upsampled light cut to it, zero off the mask; it agrees with a gather of
+    the undeformed surface on the loop's finer patches to a per cent."""
+    from nlipscalib.solver.indirect import surface_indirect
+    from nlipscalib.solver.press import _first_light
+
+    flat, press = bounce1
+    model = fit_indirect(flat, mode="on")
+    ref = press.reference
+    valid = np.isfinite(ref.depth)
+    H, W = press.camera.shape
+    whole = model.undeformed_light((H, W)) * np.asarray(model.off_view_albedo, np.float32)
+    albedo = np.broadcast_to(np.asarray(model.off_view_albedo), (H, W, 3))
+    for y0, y1, x0, x1 in ((22, 47, 31, 58), (0, H, 0, W), (50, H, 100, W), (3, 9, 5, 17)):
+        box = (slice(y0, y1), slice(x0, x1))
+        mask = np.zeros((H, W), bool)
+        mask[box] = True
+        mask &= valid
+        light = _first_light(model, mask, box)
+        assert light.dtype == np.float32 and light.shape == (len(press.leds), y1 - y0, x1 - x0, 3)
+        expected = np.where(mask[box][None, ..., None], whole[:, box[0], box[1]], 0.0)
+        np.testing.assert_array_equal(light, expected)
+    light = _first_light(model, valid, (slice(0, H), slice(0, W)))
+    gathered = surface_indirect(model, press.camera, press.leds, ref.depth, ref.normals, albedo, valid)
+    np.testing.assert_allclose(light[:, valid], gathered[:, valid], rtol=0.01)
 
 
 def test_the_light_outside_the_focus_catches_up_on_the_updates_it_missed():
