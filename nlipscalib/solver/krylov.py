@@ -157,11 +157,11 @@ SMOOTHER_BLOCKS = 4
 """Row blocks of a large level's Gauss-Seidel sweeps (:class:`_BlockGaussSeidel`). Fixed, not the thread count:
 the sweep's order, and so the solution's last bits, are then the same on 1, 2 or 4 threads (a result kept for
 reuse need not record them). Each interior boundary adds a separator of twice the matrix's bandwidth to the
-serial part: ~1,300 of 307,200 rows each on a 640x480 level."""
+serial part: 2,564 of 307,200 rows each on a 640x480 level."""
 SMOOTHER_MIN_ROWS = 50_000
-"""Levels with at least this many rows smooth by blocks (:class:`_BlockGaussSeidel`): a 640x480 level's
-symmetric sweep takes ~10 ms, 60 % of a CG iteration; a 20,000-row level's well under a millisecond, and its
-aggregates' numbering has no narrow band to cut it along."""
+"""Levels with at least this many rows smooth by blocks (:class:`_BlockGaussSeidel`): a 640x480 level's two
+symmetric sweeps per cycle take ~20 of a CG iteration's 32 ms of CPU; the next level's (20,483 rows) ~2.5 ms, too
+little to be worth moving its iterates off pyamg's."""
 
 
 class _BlockGaussSeidel:
@@ -178,8 +178,7 @@ class _BlockGaussSeidel:
     its iterates differ from pyamg's in the last bits, not in the CG iterations (benchmarks/RESULTS.md).
     """
 
-    def __init__(self, A: sp.csr_matrix, blocks: list[tuple[int, int]], separators: list[tuple[int, int]]):
-        self.A = A
+    def __init__(self, blocks: list[tuple[int, int]], separators: list[tuple[int, int]]):
         self.blocks, self.separators = blocks, separators
 
     @classmethod
@@ -196,7 +195,7 @@ class _BlockGaussSeidel:
             return None
         starts = [0] + [c + width for c in cuts]
         stops = [c - width for c in cuts] + [n]
-        return cls(A, list(zip(starts, stops)), [(c - width, c + width) for c in cuts])
+        return cls(list(zip(starts, stops)), [(c - width, c + width) for c in cuts])
 
     def __call__(self, A: sp.csr_matrix, x: np.ndarray, b: np.ndarray) -> None:
         """One symmetric sweep on ``x`` (n,) float64, in place, for the system ``A x = b`` (pyamg's smoother's
