@@ -35,7 +35,7 @@ from ..core.metrics import angle_deg
 from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
 from ..core.robust_scale import mad_scale
-from . import geometry, reuse
+from . import geometry, reuse, threads
 from .blas import blas_threads
 from .inputs import check_inputs
 from .kernel import Array, Backend, Parts, make_model
@@ -72,7 +72,6 @@ def exclusions(
     report : dict -- dead_leds (0-based list), dead_pixels, saturated_samples, shadow_samples (counts)
     """
     L = images.shape[0]
-    sat = np.zeros(images.shape, bool) if saturated is None else saturated
     # The thresholds are image statistics: a regular subgrid of the whole images gives the same 99th
     # percentiles as all pixels at a fraction of the cost (this dominated small ROI solves).
     source = images if whole is None else whole
@@ -80,20 +79,47 @@ def exclusions(
     sample = np.stack([image.reshape(-1, 3)[index] for image in source]).astype(images.dtype, copy=False)
     per_led_high = np.percentile(sample.reshape(L, -1), 99, axis=1)
     dead_leds = [i for i in range(L) if per_led_high[i] < options.dead_led_level]
-    # max over LEDs first (a reduction along the contiguous leading axis), then over the channels
-    dead_px = images.max(axis=0).max(axis=-1) <= options.dead_pixel_level
     # Shadow threshold per LED and channel, relative to that image's bright end.
-    high_c = np.percentile(sample, 99, axis=1)  # (L, 3)
-    shadow = images < options.shadow_level * high_c[:, None, None, :]
-    usable = ~sat & ~shadow & ~dead_px[None, :, :, None]
+    shadow_level = options.shadow_level * np.percentile(sample, 99, axis=1)  # (L, 3)
+    usable = np.empty(images.shape, bool)
+
+    def rows(part: slice) -> tuple[int, int, int]:
+        sat = None if saturated is None else saturated[:, part]
+        return _usable_rows(images[:, part], sat, shadow_level, options.dead_pixel_level, usable[:, part])
+
+    # elementwise over (L, H, W, 3): row blocks on the thread pool, the counts (integers) added up
+    counts = np.sum(threads.map_items(rows, threads.chunks(images.shape[1])), axis=0, dtype=np.int64)
     usable[dead_leds] = False
     report = {
         "dead_leds": dead_leds,
-        "dead_pixels": int(dead_px.sum()),
-        "saturated_samples": int(sat.sum()),
-        "shadow_samples": int((shadow & ~sat).sum()),
+        "dead_pixels": int(counts[0]),
+        "saturated_samples": int(counts[1]),
+        "shadow_samples": int(counts[2]),
     }
     return usable, report
+
+
+def _usable_rows(
+    images: np.ndarray, saturated: np.ndarray | None, shadow_level: np.ndarray, dead_level: float, out: np.ndarray
+) -> tuple[int, int, int]:
+    """:func:`exclusions`' samples on a block of rows, written to ``out``; (dead pixels, saturated samples,
+    shadow samples not saturated) counted there.
+
+    Parameters
+    ----------
+    images : (L, h, W, 3) float; saturated : (L, h, W, 3) bool or None
+    shadow_level : (L, 3) float -- a sample below its LED's and channel's level is in shadow.
+    dead_level : a pixel no LED lights above this in any channel is dead.
+    out : (L, h, W, 3) bool, written.
+    """
+    # max over LEDs first (a reduction along the contiguous leading axis), then over the channels
+    dead_px = images.max(axis=0).max(axis=-1) <= dead_level
+    shadow = images < shadow_level[:, None, None, :]
+    np.logical_and(~shadow, ~dead_px[None, :, :, None], out=out)
+    if saturated is None:
+        return int(dead_px.sum()), 0, int(shadow.sum())
+    out &= ~saturated
+    return int(dead_px.sum()), int(saturated.sum()), int((shadow & ~saturated).sum())
 
 
 def solve(

@@ -82,3 +82,84 @@ def test_cg_with_the_v_cycle_converges_as_with_pyamgs():
         assert status == 0 and np.linalg.norm(A @ x - b) <= 1e-8 * np.linalg.norm(b)
         counts.append(len(iterates))
     assert counts[0] == counts[1]
+
+
+def test_row_block_products_are_the_products(monkeypatch):
+    """Products by row blocks on two threads: the same bits as the matrix's own, blocks or not."""
+    from nlipscalib.solver import threads
+
+    A = sp.random(3000, 2500, density=0.004, format="csr", random_state=np.random.default_rng(2))
+    x = np.random.default_rng(3).standard_normal(2500)
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    before = threads.workers()
+    for count, blocks in ((2, 2), (1, 0)):
+        threads.set_workers(count)
+        try:
+            products = threads.RowBlocks(A)
+            assert len(products.blocks) == blocks
+            np.testing.assert_array_equal(products.dot(x), A @ x)
+        finally:
+            threads.set_workers(before)
+
+
+def _sequential_gauss_seidel(A: sp.csr_matrix, x: np.ndarray, b: np.ndarray, order: np.ndarray) -> None:
+    """Gauss-Seidel over the rows in ``order``, each row's sum in its stored order (pyamg's arithmetic)."""
+    for i in order:
+        cols, vals = A.indices[A.indptr[i] : A.indptr[i + 1]], A.data[A.indptr[i] : A.indptr[i + 1]]
+        off = cols != i
+        x[i] = (b[i] - np.sum(vals[off] * x[cols[off]]) if off.any() else b[i]) / vals[~off][0]
+
+
+def test_block_smoother_is_symmetric_gauss_seidel_in_its_order_on_any_threads(monkeypatch):
+    """The large levels' smoother: blocks that share no entry (in parallel), then the separators, forward and
+    back; on one or two threads the same bits as that order swept row by row."""
+    from nlipscalib.solver import threads
+
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    A = _laplacian(40)  # 1600 rows, bandwidth 40: four blocks of 400 rows, separators of 80
+    smoother = krylov._BlockGaussSeidel.of(A)
+    assert smoother is not None and len(smoother.blocks) == krylov.SMOOTHER_BLOCKS
+    order = np.concatenate([np.arange(a, b) for a, b in smoother.blocks + smoother.separators])
+    assert np.array_equal(np.sort(order), np.arange(1600))
+    rng = np.random.default_rng(4)
+    b, x0 = rng.standard_normal(1600), rng.standard_normal(1600)
+    expected = x0.copy()
+    # Python sums round unlike pyamg's loop: compare to a tight tolerance, and the threads' results bit for bit
+    _sequential_gauss_seidel(A, expected, b, order)
+    _sequential_gauss_seidel(A, expected, b, order[::-1])
+    results, before = [], threads.workers()
+    for count in (1, 2):
+        threads.set_workers(count)
+        try:
+            x = x0.copy()
+            smoother(A, x, b)
+            results.append(x)
+        finally:
+            threads.set_workers(before)
+    np.testing.assert_allclose(results[0], expected, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(results[0], results[1])
+
+
+def test_block_smoother_only_on_large_narrow_levels(monkeypatch):
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    assert krylov._BlockGaussSeidel.of(_laplacian(30)) is None  # 900 rows
+    wide = _laplacian(40).tolil()
+    wide[0, 1599] = wide[1599, 0] = -1e-3  # one entry across the whole matrix: no block shares nothing
+    assert krylov._BlockGaussSeidel.of(wide.tocsr()) is None
+
+
+def test_cg_with_block_smoothing_converges_as_with_pyamgs(monkeypatch):
+    """The large levels' smoother in its block order: CG's iterations as with pyamg's own cycle."""
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    A = _laplacian(80)
+    b = np.random.default_rng(5).standard_normal(A.shape[0])
+    ml = krylov._hierarchy(A)
+    cycle = krylov._VCycle(ml)
+    assert cycle.smoothers[0] is not None
+    counts = []
+    for M in (ml.aspreconditioner(cycle="V"), cycle.operator()):
+        iterates = []
+        x, status = spla.cg(A, b, rtol=1e-8, M=M, callback=iterates.append)
+        assert status == 0 and np.linalg.norm(A @ x - b) <= 1e-8 * np.linalg.norm(b)
+        counts.append(len(iterates))
+    assert abs(counts[0] - counts[1]) <= 1

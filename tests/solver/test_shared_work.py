@@ -4,7 +4,7 @@ each shortcut against the computation it replaces, on exact-data presses from te
 import numpy as np
 import pytest
 
-from nlipscalib.core import load_press
+from nlipscalib.core import load_press, masks
 from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.metrics import evaluate
 from nlipscalib.solver import SolverOptions, solve, threads
@@ -86,6 +86,34 @@ def test_exclusions_on_a_crop_equal_the_whole_images_cropped(press):
     whole, _ = exclusions(lin, sat, SolverOptions())
     part, _ = exclusions(lin[:, crop[0], crop[1]], sat[:, crop[0], crop[1]], SolverOptions(), whole=lin)
     assert np.array_equal(part, whole[:, crop[0], crop[1]])
+
+
+def test_exclusions_by_row_blocks_are_the_whole_arrays_rule(press):
+    """Usable samples and counts, computed by row blocks on the pool: the rule on the whole arrays."""
+    lin = press.linear(press.led_images).astype(np.float32)
+    lin[:, 5, 7] = 0.0  # a dead pixel
+    sat = press.saturated(press.led_images)
+    sat[2, 30:33, 40:44, 1] = True
+    opts = SolverOptions()
+    before = threads.workers()
+    for count in (1, 2):
+        threads.set_workers(count)
+        try:
+            for saturated in (sat, None):
+                usable, report = exclusions(lin, saturated, opts)
+                marked = np.zeros(lin.shape, bool) if saturated is None else saturated
+                index = np.flatnonzero(masks.sample_grid(np.ones(lin.shape[1:3], bool)))
+                shadow_level = opts.shadow_level * np.percentile(lin.reshape(len(lin), -1, 3)[:, index], 99, axis=1)
+                dead = lin.max(axis=(0, 3)) <= opts.dead_pixel_level
+                shadow = lin < shadow_level[:, None, None, :]
+                assert report["dead_pixels"] == int(dead.sum()) >= 1
+                assert report["saturated_samples"] == int(marked.sum())
+                assert report["shadow_samples"] == int((shadow & ~marked).sum())
+                expected = ~marked & ~shadow & ~dead[None, :, :, None]
+                expected[report["dead_leds"]] = False
+                assert np.array_equal(usable, expected)
+        finally:
+            threads.set_workers(before)
 
 
 def test_a_warm_start_from_the_solution_stays_there(press):
