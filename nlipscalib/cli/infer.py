@@ -383,7 +383,7 @@ def _run_stills(args: argparse.Namespace) -> int:
 
     t_start = time.perf_counter()
     frames = list(_frames(args.inputs))
-    _check_destinations(args, frames)
+    saved = _check_destinations(args, frames)
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
         log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
     early = _settings_before_loading(args)
@@ -391,16 +391,15 @@ def _run_stills(args: argparse.Namespace) -> int:
     if sum(is_kept for _, is_kept in looked.values()) == len(frames):
         # a finished run again: said at once, without loading the model (torch or onnxruntime: seconds)
         print(_stills_summary(args, None, [], len(frames), time.perf_counter() - t_start))
-        print(_where_saved(list(looked), bool(args.ply or args.mesh)))
+        print(_where_saved(saved, bool(args.ply or args.mesh)))
         return 0
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     settings = output_settings(args, predictor)
     if settings != early:  # the model file replaced since it was read above: what was looked at is looked at again
         looked = {}
-    inner, kept, written = [], 0, []
+    inner, kept = [], 0
     for name, load, press_folder, source in frames:
         folder = _destination(args, name, press_folder)
-        written += [folder] if folder is not None else []
         provenance, is_kept = looked.get(folder, (None, False))
         if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
             provenance = still_provenance(settings, input_identity(press_folder, source))
@@ -416,8 +415,8 @@ def _run_stills(args: argparse.Namespace) -> int:
             provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
             _save(args, predictor, result, name, folder, provenance)
     print(_stills_summary(args, predictor, inner, kept, time.perf_counter() - t_start))
-    if written:
-        print(_where_saved(written, bool(args.ply or args.mesh)))
+    if saved:
+        print(_where_saved(saved, bool(args.ply or args.mesh)))
     return 0
 
 
@@ -453,12 +452,25 @@ def _look_before_loading(
     return looked
 
 
-def _where_saved(folders: Sequence[Path], ply: bool) -> str:
-    """Where the stills' results are (a new user looked for them after the frame-rate line): one folder each."""
-    parents = {f.parent for f in folders}
-    where = f"{folders[0].parent}/" if len(parents) == 1 else f"each press's {folders[0].name}/ (e.g. {folders[0]})"
+def _where_saved(saved: Sequence[tuple[Path, bool]], ply: bool) -> str:
+    """Where the stills' results are (a new user looked for them after the frame-rate line): one folder each.
+
+    ``saved``: (result folder, whether it is a press's) of every input written; frames' and presses' are said
+    apart when both are there (a frame's is OUT/FRAME, a press's OUT/PRESS/nlipsnet or PRESS/nlipsnet)."""
+    frames = [folder for folder, press in saved if not press]
+    presses = [folder for folder, press in saved if press]
+    if frames and presses:
+        where = f": {len(frames)} for frames in {_where(frames)}, {len(presses)} for presses in {_where(presses)}"
+    else:
+        where = f" in {_where(frames or presses)}"
     files = "result.npz, report.json" + (", points.ply" if ply else "")
-    return f"saved: {len(folders)} result folder(s) in {where} ({files}; nlips eval scores them)"
+    return f"saved: {len(saved)} result folder(s){where} ({files}; nlips eval scores them)"
+
+
+def _where(folders: Sequence[Path]) -> str:
+    """The folder that holds ``folders`` (a frame's or press's result folders), else where each press keeps its."""
+    parents = {f.parent for f in folders}
+    return f"{folders[0].parent}/" if len(parents) == 1 else f"each press's {folders[0].name}/ (e.g. {folders[0]})"
 
 
 def _stills_summary(
@@ -604,22 +616,55 @@ def _destination(args: argparse.Namespace, name: str, press_folder: Path | None)
     return Path(args.out) / name if args.out else None
 
 
-def _check_destinations(args: argparse.Namespace, frames: Sequence[StillInput]) -> None:
-    """One line, before any inference, when two inputs would write one result folder (the last would win), or
-    when a destination holds something else than a result (a result replaces its folder whole)."""
+def _check_destinations(args: argparse.Namespace, frames: Sequence[StillInput]) -> list[tuple[Path, bool]]:
+    """(result folder, whether it is a press's) of each input that has one, in order; one line, before any
+    inference, when two inputs would write one result folder (the last would win) or one inside the other's (a
+    frame and a press of one name under one --out: OUT/X and OUT/X/nlipsnet), or when a destination holds
+    something else than a result (a result replaces its folder whole) or nests with one."""
     from ..core.errors import ConfigError
     from ..core.reconstruction import check_replaceable
 
     seen = {}
     for name, _, press_folder, source in frames:
         folder = _destination(args, name, press_folder)
-        if folder is not None:
-            check_replaceable(folder)
-        if folder is not None and seen.setdefault(folder, source) != source:
+        if folder is None:
+            continue
+        if seen.setdefault(folder, (source, press_folder is None))[0] != source:
             raise ConfigError(
-                f"{seen[folder]} and {source} would both be written to {folder}: infer them into separate --out "
+                f"{seen[folder][0]} and {source} would both be written to {folder}: infer them into separate --out "
                 "folders (or rename one)"
             )
+    # refused, not given other paths: a result's folder stays the one its input alone names, whatever else is
+    # on the command line, so a re-run resumes it and `nlips eval PRESS --result OUT` finds it
+    for folder, (source, _) in seen.items():
+        if outer := next((p for p in folder.parents if p in seen), None):
+            raise ConfigError(
+                f"{seen[outer][0]} and {source} would be written one inside the other ({folder} inside {outer}: a "
+                "frame and a press of one name): infer them into separate --out folders (or rename one)"
+            )
+    for folder, (source, frame) in seen.items():
+        _check_not_nested(folder, frame, source)
+        check_replaceable(folder)
+    return [(folder, not frame) for folder, (_, frame) in seen.items()]
+
+
+def _check_not_nested(folder: Path, frame: bool, source: Path) -> None:
+    """One line naming ``source`` when an earlier run's result and its result ``folder`` would nest: ``folder``
+    inside a result (a press's OUT/X/nlipsnet in a frame's OUT/X), or a ``frame``'s folder holding a press's."""
+    from ..core.errors import ConfigError
+    from ..core.reconstruction import is_reconstruction_dir
+    from ..learn.infer import RESULT_DIR
+
+    if is_reconstruction_dir(folder.parent):
+        raise ConfigError(
+            f"{source}: its result {folder} would lie inside the result folder {folder.parent}: choose another "
+            "--out (or move that result away)"
+        )
+    if frame and is_reconstruction_dir(folder / RESULT_DIR):
+        raise ConfigError(
+            f"{source}: its result would replace {folder}, which holds a press's result ({folder / RESULT_DIR}): "
+            "choose another --out (or move that result away)"
+        )
 
 
 def output_settings(args: argparse.Namespace, predictor: Predictor) -> dict:

@@ -687,3 +687,48 @@ def test_overwrite_is_refused_for_a_stream(capsys):
     assert main(["infer", "m.pt", "--camera", "0", "--overwrite"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--overwrite is for press folders and image frames" in err[0], err
+
+
+def test_a_frame_and_a_press_of_one_name_are_refused_before_anything_is_written(tiny_model, tmp_path, capsys):
+    """`nlips infer MODEL FRAMES PRESSES --out OUT` with frames/a_sphere.png and presses/a_sphere wrote the press's
+    result into OUT/a_sphere/nlipsnet inside the frame's OUT/a_sphere (exit 0); the next run then refused OUT/a_sphere
+    as holding "other things than a reconstruction". Now one line names both inputs and nothing is written, in
+    either order; results of an earlier run nest neither (each way: one line naming the input, nothing written)."""
+    import shutil
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    model, frames = command[1], command[2]
+    press = tmp_path / "presses" / "a_sphere"
+    shutil.copytree(tmp_path / "press", press)
+    for inputs in ([frames, str(press)], [str(press), frames]):
+        assert main(["infer", model, *inputs, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{tmp_path / 'frames' / 'a_sphere.png'} and {press} would be written one " in err[0]
+        assert f"({out / 'a_sphere' / 'nlipsnet'} inside {out / 'a_sphere'}: a frame and a press of one" in err[0]
+        assert not out.exists()
+    assert main(["infer", model, frames, "--out", str(out)]) == 0  # the frames first, the press in a later run
+    capsys.readouterr()
+    first = _stamps(out)
+    assert main(["infer", model, str(press), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    nested = out / "a_sphere" / "nlipsnet"
+    assert len(err) == 1 and f"{press}: its result {nested} would lie inside the result folder" in err[0], err
+    assert _stamps(out) == first
+    shutil.rmtree(out)  # the press first, the frame in a later run
+    assert main(["infer", model, str(press), "--out", str(out)]) == 0
+    capsys.readouterr()
+    first = _stamps(out)
+    assert main(["infer", model, frames, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "a_sphere.png: its result would replace" in err[0] and "holds a press's result" in err[0]
+    assert _stamps(out) == first
+
+
+def test_the_saved_line_says_where_frames_and_presses_results_are(tiny_model, tmp_path, capsys):
+    """A mix of frames and a press said "saved: 4 result folder(s) in each press's a_sphere/ (e.g. OUT/a_sphere)",
+    a frame's folder named as a press's. Now frames and presses are said apart, inferred or all kept."""
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    line = f"saved: 4 result folder(s): 3 for frames in {out}/, 1 for presses in {out / 'press'}/ (result.npz, "
+    for _ in range(2):  # inferred, then all kept (said without loading the model)
+        assert main(command) == 0
+        assert capsys.readouterr().out.splitlines()[1].startswith(line)
