@@ -156,8 +156,10 @@ def _solve_press(
     interreflection : "auto" (apply the term when the data show indirect light), "on", "off".
     bounces : diffuse bounces in the indirect term (1 or 2).
     max_outer : most outer passes (solves after the first). Two are not the loop's fixed point on the default
-        twin's 640x480 sphere and cube presses since the passes before the last leave levels unrefined: a third
-        moves their contact AAE by 0.02-0.08 deg (benchmarks/RESULTS.md, s16-a).
+        twin's 640x480 sphere and cube presses: a third moves their contact AAE by 0.02-0.08 deg. The cause is
+        not the levels the passes before the last leave unrefined (with every pass refined the AAE follows the
+        same sequence within 0.004 deg): on the cube the relaxed loop alternates (:func:`_relaxation`), and two
+        passes stop on its good side, 0.03-0.05 deg better than the fixed point (benchmarks/RESULTS.md, s16-f).
     outer_relaxation : "auto" (per pixel 1 / (1 + indirect / direct light), see :func:`_relaxation`) or a
         number: the light of each outer pass is ``L + w (gathered - L)``; 1.0 is the plain iteration.
 
@@ -770,7 +772,10 @@ def _relaxation(image_total: np.ndarray, light: np.ndarray) -> np.ndarray:
     images minus that light, so an error dL of the light comes back as about -g dL: the plain iteration
     alternates around the answer with rate g (measured 0.49 per pass on a 640x480 sphere press: 3.4, 1.7,
     0.8 deg). The update L + (gathered - L) / (1 + g) cancels that first-order feedback (the same press:
-    2.27, 0.16, 0.02 deg)."""
+    2.27, 0.16, 0.02 deg). Not the feedback through the solved geometry: on the default twin's 640x480 cube
+    press the loop still alternates, each step of the light about -0.5 times the one before, over the whole box
+    and not only the dent's slopes. With the gathers' geometry held fixed it converges without alternating; with
+    their albedo held fixed it alternates only weakly (benchmarks/RESULTS.md, s16-f)."""
     indirect = light.sum(axis=(0, 3))
     direct = np.maximum(image_total - indirect, RELAXATION_DIRECT_FLOOR * np.maximum(indirect, 1e-30))
     g = np.clip(indirect / direct, 0.0, RELAXATION_MAX_RATIO)
