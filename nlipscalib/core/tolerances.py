@@ -99,9 +99,11 @@ possible range: :func:`nlipscalib.solver.solve_press` re-solves without the nois
 OUTER_TOL_DEG = 0.05
 """The outer interreflection loop (:func:`nlipscalib.solver.solve_press`) is settled when the median normal change
 of a pass falls below this, degrees; one refined pass over the whole mask then ends it. Why: the relaxed loop's
-changes fall by a factor of about 0.1-0.3 per pass (2.55, 0.29, 0.04 deg on the 640x480 twin's sphere press,
-benchmarks/RESULTS.md), so a pass that moved the normals by less than this leaves them within about 0.02 deg of the
-loop's fixed point, below what a further NLiPs solve is worth."""
+changes fall by a factor of about 0.1-0.3 per pass on a smooth dent (2.55, 0.29, 0.04 deg on the 640x480 twin's
+sphere press, benchmarks/RESULTS.md), so a pass that moved the normals by less than this leaves them within about
+0.02 deg of the loop's fixed point, below what a further NLiPs solve is worth. On the cube press they fall by only
+about 0.5 per pass, alternating (the light feeds back through the solved shape as well as the albedo, which the
+relaxation does not hold: s16-f's section), and the default ``max_outer`` ends the loop before this is reached."""
 DENT_FOCUS_MARGIN = 0.05
 """The outer interreflection loop's passes before the last solve the auto ROI's box widened by this fraction of the
 image's short side (24 px at 640x480): the dent's light changes most around it."""
