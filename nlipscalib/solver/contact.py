@@ -76,8 +76,17 @@ def led_levels(images: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """
     if not valid.any():
         return np.zeros(len(images))
-    index = np.flatnonzero(masks.sample_grid(valid, NOISE_SAMPLES))
-    return np.array([np.percentile(image.reshape(-1, image.shape[-1])[index], 99) for image in images])
+
+    def levels() -> np.ndarray:
+        index = np.flatnonzero(masks.sample_grid(valid, NOISE_SAMPLES))
+        return np.array([np.percentile(image.reshape(-1, image.shape[-1])[index], 99) for image in images])
+
+    if not isinstance(images, np.ndarray) or images.flags.writeable:
+        return levels()
+    # a press's read-only linear images (``Press.linear_led_images``): a press fitted on itself asks twice, for
+    # its indirect fit and its contact classification (13 ms each at 640x480). The store holds the images: no
+    # other array takes their id while it does.
+    return reuse.reused("led levels", (id(images), reuse.digest(valid)), levels, keep=images, most=1)
 
 
 NOISE_SAMPLES = masks.STATISTIC_PIXELS
@@ -105,14 +114,14 @@ def image_noise(images: np.ndarray | Sequence[np.ndarray], valid: np.ndarray) ->
     inner = masks.erode(valid, iterations=2)
     if inner.sum() < 16:
         return 0.0
-    sample = masks.sample_grid(inner, NOISE_SAMPLES)
+    index = np.flatnonzero(masks.sample_grid(inner, NOISE_SAMPLES))
     kernel = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
     def per_image(img: np.ndarray):
         # the kernel is symmetric: correlation (OpenCV) = convolution; replicated border = scipy's "nearest"
         filtered = cv2.filter2D(np.asarray(img, np.float32), -1, kernel, borderType=cv2.BORDER_REPLICATE)
         out = []
-        for f in np.moveaxis(filtered[sample], -1, 0):
+        for f in filtered.reshape(-1, filtered.shape[-1])[index].T:  # flat indices: a third of a mask's cost
             out.append(mad_scale(f, dtype=np.float32) / 6.0)  # float32: the filtered image's precision
         return out
 
@@ -207,9 +216,10 @@ def _press_side(press: Press, grid: _Grid, indirect: np.ndarray | None, dead_lev
             f"{press.folder}: only {len(live)} LED images are lit (dead: {[i + 1 for i in dead]}); "
             f"nothing can be reconstructed{why}"
         )
-    ok = ~press.saturated(press.led_images[live])
+    # every LED live (the usual case): the stored stack itself, not a copy of it
+    sat = press.saturated(press.led_images if len(live) == len(img) else press.led_images[live])
     # nothing saturated (the usual case): no mask to multiply by; else a block is usable where all its samples are
-    ok = None if ok.all() else (ok if grid.block == 1 else grid.means(~ok, range(len(live))) <= 0)
+    ok = None if not sat.any() else (~sat if grid.block == 1 else grid.means(sat, range(len(live))) <= 0)
     # Deformation changes the shading coherently over many pixels, noise does not: classify on
     # smoothed images (normalised convolution inside the gel) and scale the noise alike.
     if grid.block == 1:

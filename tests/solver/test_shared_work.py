@@ -7,9 +7,9 @@ import pytest
 from nlipscalib.core import load_press, masks
 from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.metrics import evaluate
-from nlipscalib.solver import SolverOptions, solve, threads
+from nlipscalib.solver import SolverOptions, reuse, solve, threads
 from nlipscalib.solver.contact import classify_contact, led_levels
-from nlipscalib.solver.indirect import Surface, direct_shading, fit_indirect
+from nlipscalib.solver.indirect import Surface, direct_shading, fit_indirect, surface_digest
 from nlipscalib.solver.nlips import exclusions
 
 from . import synth
@@ -77,6 +77,35 @@ def test_led_levels_find_a_dead_led(press):
     lin[3] = 0.0
     levels = led_levels(lin, np.isfinite(press.reference.depth))
     assert levels[3] < 1e-3 and (np.delete(levels, 3) > 0.1).all()
+
+
+def test_led_levels_of_read_only_images_are_kept_per_mask(press):
+    """The levels of a press's read-only linear images are worked out once per mask (the indirect fit and the
+    contact classification both ask): a second mask gets its own, writable images are read anew."""
+    lin = press.linear(press.led_images).copy()
+    lin.flags.writeable = False
+    gel = np.isfinite(press.reference.depth)
+    half = gel.copy()
+    half[:, : gel.shape[1] // 2] = False
+    first = led_levels(lin, gel)
+    assert led_levels(lin, gel) is first  # kept
+    np.testing.assert_array_equal(led_levels(lin, half), led_levels(lin.copy(), half))
+    assert not np.array_equal(led_levels(lin, half), first)  # the premise: the mask matters
+    writable = lin.copy()
+    before = led_levels(writable, gel)
+    writable[3] = 0.0
+    assert led_levels(writable, gel)[3] < before[3]
+
+
+def test_surface_digest_is_the_digest_and_follows_writable_arrays(press):
+    ref = press.reference
+    assert not ref.depth.flags.writeable and not ref.normals.flags.writeable  # a loaded reference is read-only
+    assert surface_digest(ref.depth, ref.normals) == reuse.digest(ref.depth, ref.normals)
+    assert surface_digest(ref.depth, ref.normals) == reuse.digest(ref.depth, ref.normals)  # kept
+    normals = np.array(ref.normals)
+    first = surface_digest(ref.depth, normals)
+    normals[10, 10] = (0.0, 0.0, 1.0)
+    assert surface_digest(ref.depth, normals) == reuse.digest(ref.depth, normals) != first
 
 
 def test_exclusions_on_a_crop_equal_the_whole_images_cropped(press):
