@@ -21,6 +21,13 @@ A pixel keeps the depth's normal unless the refined one fits those samples bette
 :data:`~nlipscalib.core.tolerances.REFINE_GATE` (Cauchy energy / lambda^2): per pixel the fit is noisier than the
 depth's normal, which the whole surface constrains (ungated: the sphere press's contact 0.52 -> 1.0 deg), so it
 replaces it only where the images reject the latter.
+
+Cost (benchmarks/RESULTS.md, s16-h): a pixel is fitted only when a cheap bound on the gate's gain (the depth
+normal's least-squares residual on its support) leaves it a chance, only on its brightest LEDs' samples, with the
+model factored per LED rather than per (LED, channel); blocks of pixels run on the thread pool. The skip and the
+choice of samples change no number (the bound is exact; the sums drop only zero terms); the per-LED sums and the
+written-out 3x3 solve move the float64 fit by rounding only (the float32 normals and albedo of the twin's coin,
+sphere and cube presses were bit-identical to the fit over every sample).
 """
 
 from __future__ import annotations
@@ -31,8 +38,8 @@ import time
 import numpy as np
 
 from ..core import tolerances
-from ..core.leds import SHADING_BLOCK, Leds, led_shading
-from . import robust
+from ..core.leds import SHADING_BLOCK, Leds, led_arrays, led_shading
+from . import robust, threads
 from .nlips import SolveResult, exclusions
 from .options import SolverOptions
 
@@ -121,12 +128,17 @@ def refine_normals(
     out_n = np.array(normals, np.float32)
     out_rho = np.array(albedo, np.float32)
     changed = np.zeros(len(points), bool)
-    for start in range(0, len(points), SHADING_BLOCK):
-        block = slice(start, start + SHADING_BLOCK)
-        n, rho, ok = _refine_block(
-            images[:, block], usable[:, block], points[block], normals[block], albedo[block], leds, scale, brightest
+
+    def block(part: slice) -> None:
+        # pixels are independent: a block's numbers do not depend on the others or on the thread
+        n, rho, ok, idx = _refine_block(
+            images[:, part], usable[:, part], points[part], normals[part], albedo[part], leds, scale, brightest
         )
-        out_n[block][ok], out_rho[block][ok], changed[block] = n[ok], rho[ok], ok
+        at = idx[ok] + part.start
+        out_n[at], out_rho[at], changed[at] = n[ok], rho[ok], True
+
+    blocks = [slice(start, start + SHADING_BLOCK) for start in range(0, len(points), SHADING_BLOCK)]
+    threads.map_items(block, blocks)
     return out_n, out_rho, changed
 
 
@@ -139,82 +151,141 @@ def _refine_block(
     leds: Leds,
     scale: float,
     brightest: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`refine_normals` on one block of pixels: (normals, albedo, whether the gate lets them replace the
-    depth's), the first two defined where the third is True."""
-    # pixels last: every per-pixel sum below is over the leading (LED, channel) axes
-    I = np.ascontiguousarray(np.moveaxis(np.asarray(images, np.float64), 1, -1))  # (L, 3, N)
-    use = np.ascontiguousarray(np.moveaxis(np.asarray(usable, bool), 1, -1))
+    depth's, which of the block's pixels they are), the first two defined where the third is True.
+
+    Only the pixels :func:`_may_pass_gate` keeps are fitted. The model factors per LED: m_ic = Psi_ic g_i (g: the
+    LED's light vector at unit intensity), so I_ic = q_ic (g_i . b) with q_ic = Psi_ic k_c, and the fit's sums
+    over (LED, channel) are sums over LEDs of per-LED sums over channels: a third of the products."""
+    # channel first, pixels last: a channel's (L, N) plane is contiguous (numpy's sums over a middle axis of
+    # length 3 are slow), every per-pixel sum is over the leading axes
+    I = np.asarray(images, np.float64).transpose(2, 0, 1).copy()  # (3, L, N)
+    use = np.asarray(usable, bool).transpose(2, 0, 1).copy()
     n0 = np.asarray(normals, np.float64).T  # (3, N)
     rho0 = np.asarray(albedo, np.float64).T
     k = rho0 / np.maximum(rho0.mean(axis=0), 1e-30)  # (3, N) the channels' albedo ratios
-    A = [m * k for m in _light_vectors(points, leds)]  # per component j: (L, 3, N)
-    support = use & _brightest(I, use, brightest)[:, None]
+    top = _brightest(I, use, brightest)
+    support = use & top
+    shade0 = led_shading(np.asarray(points, np.float64), n0.T, leds).transpose(2, 0, 1) * k[:, None]  # max(0, A.n0)
+    idx = np.flatnonzero(_may_pass_gate(I, support, shade0, scale))
+    n0, rho0, k, points = n0[:, idx], rho0[:, idx], k[:, idx], np.asarray(points, np.float64)[idx]
+    # only the brightest LEDs' samples can be fitted: each pixel's, in LED order (the sums' order, so their
+    # numbers are those over all LEDs, whose other terms are zeros)
+    top = top[:, idx]
+    order = np.argsort(~top, axis=0, kind="stable")[: int(top.sum(axis=0).max(initial=0))][None]  # (1, K, N)
+    I, support = np.take_along_axis(I[..., idx], order, 1), np.take_along_axis(support[..., idx], order, 1)
+    g = np.take_along_axis(_light_vectors(points, leds), order, 1)  # (3, K, N)
+    q = led_arrays(leds)[3].T[:, order[0]] * k[:, None]  # (3, K, N) Psi_ic k_c
+    qq, qI = q * q, q * I
+    gg = {(i, j): g[i] * g[j] for i in range(3) for j in range(i, 3)}
     b = n0 * rho0.mean(axis=0)
     for _ in range(tolerances.REFINE_ITERATIONS):
-        shade = _shade(A, b)
+        shade = _along(g, b) * q
         w = support * (shade > 0) * robust.weight(I - shade, scale, "cauchy")
-        b = _weighted_fit(A, I, w)
+        b = _weighted_fit(g, gg, _channel_sum(w * qq), _channel_sum(w * qI))
     fitted = w > 0
     rho_n = np.sqrt((b * b).sum(axis=0))
     n1 = b / np.maximum(rho_n, 1e-30)
-    b0 = n0 * _albedo_along(A, I, fitted, n0)
-    gain = _energy(A, I, b0, fitted, scale) - _energy(A, I, b, fitted, scale)
-    leds_fitted = fitted.any(axis=1).sum(axis=0)
-    facing = (n1 * -np.asarray(points, np.float64).T).sum(axis=0) > 0  # toward the camera
+    b0 = n0 * _albedo_along(g, q, I, fitted, n0)
+    gain = _energy(g, q, I, b0, fitted, scale) - _energy(g, q, I, b, fitted, scale)
+    leds_fitted = fitted.any(axis=0).sum(axis=0)
+    facing = (n1 * -points.T).sum(axis=0) > 0  # toward the camera
     ok = (gain > tolerances.REFINE_GATE) & (leds_fitted >= tolerances.MIN_LEDS_PER_PIXEL) & facing
     ok &= np.isfinite(n1).all(axis=0)
-    return n1.T.astype(np.float32), (k * rho_n).T.astype(np.float32), ok
+    return n1.T.astype(np.float32), (k * rho_n).T.astype(np.float32), ok, idx
 
 
-def _light_vectors(points: np.ndarray, leds: Leds) -> list[np.ndarray]:
-    """m_ic = Psi_ic (n_s . d)^mu (x_s - x) / |x_s - x|^3 by component: three (L, 3, N) float64 -- the shading of a
-    normal n is max(0, m_ic . n). Read off the one shading formula (:func:`nlipscalib.core.leds.led_shading`),
-    which is m . e_j for the axis e_j when positive and 0 otherwise: m_j = shading(e_j) - shading(-e_j)."""
-    points = np.asarray(points, np.float64)
-    parts = []
-    for axis in np.eye(3):
+def _may_pass_gate(images: np.ndarray, support: np.ndarray, shade: np.ndarray, scale: float) -> np.ndarray:
+    """(N,) bool -- False where the gate cannot let a refined normal in, whatever the fit finds.
+
+    The gate's gain is E_f(rho_f n0) - E_f(b) <= E_f(rho_f n0), E_f the Cauchy energy / lambda^2 on the fitted
+    samples f (a subset of ``support``), rho_f the depth normal's least-squares albedo on them. With
+    log(1 + x) <= x and rho_f the least-squares minimiser on f, that is at most the squared residual / lambda^2 of
+    the depth normal at its least-squares albedo on all of ``support``: where that is below the gate, the pixel
+    keeps its depth normal without a fit. Exact only for rho_f >= 0 (the model's max(0, .) then commutes with it),
+    so a pixel with a negative support sample (noise) is fitted; the relative 1e-9 covers rounding.
+
+    images, support, shade : (3, L, N) -- the samples, the fit's support, max(0, A . n0) of the depth normal.
+    """
+    s = shade * support
+    rho = (s * images).sum(axis=(0, 1)) / np.maximum((s * s).sum(axis=(0, 1)), 1e-300)
+    r = (images - s * rho) * support
+    bound = (r * r).sum(axis=(0, 1)) / (scale * scale)
+    return (bound > tolerances.REFINE_GATE * (1 - 1e-9)) | (support & (images < 0)).any(axis=(0, 1))
+
+
+def _light_vectors(points: np.ndarray, leds: Leds) -> np.ndarray:
+    """(3, L, N) float64 g by component, g = (n_s . d)^mu (x_s - x) / |x_s - x|^3 at unit intensity (m_ic = Psi_ic
+    g_i) -- the shading of a normal n is max(0, Psi_ic g_i . n). Read off the one shading formula
+    (:func:`nlipscalib.core.leds.led_shading`), which is g . e_j for the axis e_j when positive and 0 otherwise:
+    g_j = shading(e_j) - shading(-e_j), with Psi = 1."""
+    unit = [dataclasses.replace(led, intensity=(1.0, 1.0, 1.0)) for led in leds]
+    g = np.empty((3, len(leds), len(points)))
+    for j, axis in enumerate(np.eye(3)):
         e = np.broadcast_to(axis, points.shape)
-        m = led_shading(points, e, leds) - led_shading(points, -e, leds)  # (L, N, 3)
-        parts.append(np.ascontiguousarray(np.moveaxis(m, 1, -1)))
-    return parts
+        g[j] = led_shading(points, e, unit)[..., 0] - led_shading(points, -e, unit)[..., 0]
+    return g
 
 
-def _shade(A: list[np.ndarray], b: np.ndarray) -> np.ndarray:
-    """(L, 3, N) A . b, without the model's max(0, .) (b: (3, N))."""
-    return A[0] * b[0] + A[1] * b[1] + A[2] * b[2]
+def _along(g: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(L, N) g . b per LED and pixel, without the model's max(0, .) (b: (3, N))."""
+    return g[0] * b[0] + g[1] * b[1] + g[2] * b[2]
+
+
+def _channel_sum(a: np.ndarray) -> np.ndarray:
+    """(L, N) the sum of (3, L, N) ``a`` over its channels."""
+    return a[0] + a[1] + a[2]
 
 
 def _brightest(images: np.ndarray, usable: np.ndarray, count: int) -> np.ndarray:
-    """(L, N) bool -- each pixel's ``count`` brightest LEDs (usable samples summed over channels; ties kept)."""
-    total = np.where(usable, images, 0.0).sum(axis=1)
+    """(L, N) bool -- each pixel's ``count`` brightest LEDs (usable samples (3, L, N) summed over channels; ties
+    kept)."""
+    total = _channel_sum(np.where(usable, images, 0.0))
     if count >= len(total):
         return np.ones(total.shape, bool)
     kth = -np.partition(-total, count - 1, axis=0)[count - 1]
     return total >= kth
 
 
-def _weighted_fit(A: list[np.ndarray], images: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(3, N) b minimising sum w (I - A . b)^2 per pixel (3x3 normal equations; a relative 1e-12 ridge keeps a
-    pixel with too few samples solvable, the gate's LED count then rejects it)."""
-    wA = [w * a for a in A]
-    M = np.empty((images.shape[-1], 3, 3))
+def _weighted_fit(g: np.ndarray, gg: dict, wqq: np.ndarray, wqI: np.ndarray) -> np.ndarray:
+    """(3, N) b minimising sum_ic w_ic (I_ic - q_ic g_i . b)^2 per pixel, from its per-LED sums over channels
+    ``wqq`` = sum_c w q^2 and ``wqI`` = sum_c w q I (L, N); ``gg``: g_i g_j by (i, j), i <= j. 3x3 normal
+    equations; a relative 1e-12 ridge keeps a pixel with too few samples solvable, the gate's LED count then
+    rejects it."""
+    M = {ij: (wqq * p).sum(axis=0) for ij, p in gg.items()}
+    rhs = [(wqI * gi).sum(axis=0) for gi in g]
+    ridge = 1e-12 * np.maximum(M[0, 0] + M[1, 1] + M[2, 2], 1e-300)
     for i in range(3):
-        for j in range(i, 3):
-            M[:, i, j] = M[:, j, i] = (wA[i] * A[j]).sum(axis=(0, 1))
-    rhs = np.stack([(wa * images).sum(axis=(0, 1)) for wa in wA], axis=-1)
-    ridge = 1e-12 * np.maximum(np.trace(M, axis1=1, axis2=2), 1e-300)
-    M += ridge[:, None, None] * np.eye(3)
-    return np.linalg.solve(M, rhs[..., None])[..., 0].T
+        M[i, i] = M[i, i] + ridge
+    return _solve_spd3(M, rhs)
 
 
-def _albedo_along(A: list[np.ndarray], images: np.ndarray, where: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """(N,) the least-squares albedo of normal ``n`` (3, N) on the samples ``where`` (L, 3, N)."""
-    shade = np.maximum(_shade(A, n), 0.0) * where
+def _solve_spd3(M: dict, rhs: list[np.ndarray]) -> np.ndarray:
+    """(3, N) x with M x = rhs per pixel, M symmetric positive definite given by its upper triangle M[i, j]
+    (N,) -- LDL^T written out: a pixel's 3x3 solve is a dozen array operations instead of LAPACK's per-matrix
+    call (np.linalg.solve took a third of the fit)."""
+    d1 = M[0, 0]
+    l21, l31 = M[0, 1] / d1, M[0, 2] / d1
+    d2 = M[1, 1] - l21 * M[0, 1]
+    l32 = (M[1, 2] - l31 * M[0, 1]) / d2
+    d3 = M[2, 2] - l31 * M[0, 2] - l32 * l32 * d2
+    y2 = rhs[1] - l21 * rhs[0]
+    y3 = rhs[2] - l31 * rhs[0] - l32 * y2
+    x3 = y3 / d3
+    x2 = y2 / d2 - l32 * x3
+    return np.stack([rhs[0] / d1 - l21 * x2 - l31 * x3, x2, x3])
+
+
+def _albedo_along(g: np.ndarray, q: np.ndarray, images: np.ndarray, where: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(N,) the least-squares albedo of normal ``n`` (3, N) on the samples ``where`` (3, L, N)."""
+    shade = np.maximum(_along(g, n), 0.0) * q * where
     return (shade * images).sum(axis=(0, 1)) / np.maximum((shade * shade).sum(axis=(0, 1)), 1e-300)
 
 
-def _energy(A: list[np.ndarray], images: np.ndarray, b: np.ndarray, where: np.ndarray, scale: float) -> np.ndarray:
+def _energy(
+    g: np.ndarray, q: np.ndarray, images: np.ndarray, b: np.ndarray, where: np.ndarray, scale: float
+) -> np.ndarray:
     """(N,) Cauchy energy / scale^2 of b = rho n (3, N) on the samples ``where``: the model's max(0, .) kept."""
-    r = images - np.maximum(_shade(A, b), 0.0)
+    r = images - np.maximum(_along(g, b), 0.0) * q
     return (robust.rho(r, scale, "cauchy") * where).sum(axis=(0, 1)) / (scale * scale)

@@ -10,7 +10,7 @@ from nlipscalib.cli import main
 from nlipscalib.core import load_press
 from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.metrics import angle_deg, evaluate
-from nlipscalib.solver import SolverOptions, solve_press
+from nlipscalib.solver import SolverOptions, refine, solve_press
 from nlipscalib.solver.refine import refine_normals
 
 from . import synth
@@ -49,19 +49,46 @@ def test_exact_images_give_the_true_normals_and_albedo():
     np.testing.assert_allclose(rho, np.broadcast_to(ALBEDO, rho.shape), rtol=1e-5)
 
 
-def test_a_smooth_surface_keeps_its_normals_where_they_fit_and_is_corrected_where_not():
+def _noisy_sphere():
+    """The sphere's exact images with the twin's noise; one pixel in 7 starts 12 deg off (a wall's depth normal)."""
     images, points, truth, leds = _surface("sphere")
     rng = np.random.default_rng(1)
     sigma = 0.02 * float(np.median(images[images > 0]))  # the twin's noise: 2 % of the median level
     noisy = images + rng.normal(0.0, sigma, images.shape)
     start = truth.copy()
-    off = np.arange(len(truth)) % 7 == 0  # one pixel in 7 starts 12 deg off (a wall's depth normal)
+    off = np.arange(len(truth)) % 7 == 0
     start[off] = _tilted(truth[off], 12.0)
+    return noisy, points, truth, start, off, leds, sigma
+
+
+def test_a_smooth_surface_keeps_its_normals_where_they_fit_and_is_corrected_where_not():
+    noisy, points, truth, start, off, leds, sigma = _noisy_sphere()
     n, _, changed = _refined(noisy, points, truth, start, leds, sigma)
     kept = ~off & ~changed
     assert kept.sum() >= 0.999 * (~off).sum()  # the right normals stay (the gate)
     np.testing.assert_array_equal(n[kept], start[kept].astype(np.float32))
     assert changed[off].mean() > 0.99 and np.mean(angle_deg(n[off], truth[off])) < 1.0
+
+
+def test_pixels_whose_images_cannot_reject_their_normal_are_not_fitted_and_the_numbers_are_those_of_fitting_all(
+    monkeypatch,
+):
+    noisy, points, truth, start, off, leds, sigma = _noisy_sphere()
+    fitted = []
+    light_vectors = refine._light_vectors
+
+    def counted(pts, leds_):
+        fitted.append(len(pts))
+        return light_vectors(pts, leds_)
+
+    monkeypatch.setattr(refine, "_light_vectors", counted)
+    skipping = _refined(noisy, points, truth, start, leds, sigma)
+    assert off.sum() <= sum(fitted) < 0.9 * len(points)  # the 12-deg-off pixels fitted, many others not
+    monkeypatch.setattr(refine, "_may_pass_gate", lambda images, *_: np.ones(images.shape[-1], bool))
+    every = _refined(noisy, points, truth, start, leds, sigma)
+    assert sum(fitted) > len(points)  # ... this time all of them
+    for a, b in zip(skipping, every):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_solve_with_refined_normals_keeps_the_depth_and_does_no_harm(presses):
