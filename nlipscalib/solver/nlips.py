@@ -118,18 +118,17 @@ def _usable_rows(
     # (a reduction along the 3-long last axis took 12 ms of a whole frame's 15)
     brightest = images.max(axis=0)
     dead_px = functools.reduce(np.maximum, [brightest[..., k] for k in range(c)]) <= dead_level
-    # Each LED's rows as (w * c,) runs, its per-channel levels repeated along them: elementwise loops along a
-    # 3-long last axis took 30 ms of a whole frame's 40. In ``out`` itself, counted as it goes (count_nonzero,
-    # no temporaries); the images are finite, so not in shadow is ``>=`` the level.
-    lit = np.reshape(out, (L, h, w * c), copy=False)
-    np.greater_equal(images.reshape(L, h, w * c), np.tile(shadow_level, (1, w))[:, None, :], out=lit)
+    # The per-channel levels repeated along a row, so that NumPy's loops run along whole (w, c) rows: broadcast
+    # along a 3-long last axis they took 30 ms of a whole frame's 40. In ``out`` itself, counted as it goes
+    # (count_nonzero, no temporaries); the images are finite, so not in shadow is ``>=`` the level.
+    np.greater_equal(images, np.tile(shadow_level, (1, w)).reshape(L, 1, w, c), out=out)
     if saturated is None:
         n_sat, shadow = 0, out.size - np.count_nonzero(out)
     else:
         np.greater(out, saturated, out=out)  # lit and not saturated (booleans: a > b is a and not b)
         n_sat = np.count_nonzero(saturated)
         shadow = out.size - n_sat - np.count_nonzero(out)  # shadow and not saturated: neither lit nor saturated
-    lit &= np.repeat(~dead_px, c, axis=-1)[None]
+    out &= np.repeat(~dead_px, c, axis=-1).reshape(1, h, w, c)
     return int(dead_px.sum()), int(n_sat), int(shadow)
 
 
