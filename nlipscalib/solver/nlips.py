@@ -19,6 +19,7 @@ in float64.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import time
 from collections.abc import Sequence
@@ -60,7 +61,7 @@ def exclusions(
 
     Parameters
     ----------
-    images : (L, H, W, 3) float, linear, dark-subtracted, full scale 1
+    images : (L, H, W, 3) float, linear, dark-subtracted, full scale 1, finite
     saturated : (L, H, W, 3) bool or None
     options : SolverOptions
     whole : (L, H', W', 3) float or None -- the whole images when ``images`` is a crop of them: the
@@ -112,14 +113,23 @@ def _usable_rows(
     dead_level : a pixel no LED lights above this in any channel is dead.
     out : (L, h, W, 3) bool, written.
     """
-    # max over LEDs first (a reduction along the contiguous leading axis), then over the channels
-    dead_px = images.max(axis=0).max(axis=-1) <= dead_level
-    shadow = images < shadow_level[:, None, None, :]
-    np.logical_and(~shadow, ~dead_px[None, :, :, None], out=out)
+    L, h, w, c = images.shape
+    # max over LEDs first (a reduction along the contiguous leading axis), then over the channels one by one
+    # (a reduction along the 3-long last axis took 12 ms of a whole frame's 15)
+    brightest = images.max(axis=0)
+    dead_px = functools.reduce(np.maximum, [brightest[..., k] for k in range(c)]) <= dead_level
+    # The per-channel levels repeated along a row, so that NumPy's loops run along whole (w, c) rows: broadcast
+    # along a 3-long last axis they took 30 ms of a whole frame's 40. In ``out`` itself, counted as it goes
+    # (count_nonzero, no temporaries); the images are finite, so not in shadow is ``>=`` the level.
+    np.greater_equal(images, np.tile(shadow_level, (1, w)).reshape(L, 1, w, c), out=out)
     if saturated is None:
-        return int(dead_px.sum()), 0, int(shadow.sum())
-    out &= ~saturated
-    return int(dead_px.sum()), int(saturated.sum()), int((shadow & ~saturated).sum())
+        n_sat, shadow = 0, out.size - np.count_nonzero(out)
+    else:
+        np.greater(out, saturated, out=out)  # lit and not saturated (booleans: a > b is a and not b)
+        n_sat = np.count_nonzero(saturated)
+        shadow = out.size - n_sat - np.count_nonzero(out)  # shadow and not saturated: neither lit nor saturated
+    out &= np.repeat(~dead_px, c, axis=-1).reshape(1, h, w, c)
+    return int(dead_px.sum()), int(n_sat), int(shadow)
 
 
 def solve(
@@ -263,7 +273,7 @@ class _LevelData:
     kept (dead ones dropped), their usable samples, the log-depth prior and its weights."""
 
     images: np.ndarray
-    """(L', h, w, 3) float, divided by ``scale``."""
+    """(L', h, w, 3) float, as given: the pyramid's levels hold them divided by ``scale`` (:func:`build_pyramid`)."""
     usable: np.ndarray
     """(L', h, w, 3) bool."""
     mask: np.ndarray
@@ -309,7 +319,6 @@ class _LevelData:
         usable_leds = np.zeros((H, W), np.int16)
         usable_leds[crop] = (use[..., 0] | use[..., 1] | use[..., 2]).sum(axis=0, dtype=np.int16)
         scale = _high_level(images, use)  # usable lies inside the crop
-        images = images / np.float32(scale) if images.dtype == np.float32 else images / scale
         kept = [i for i in range(len(leds)) if i not in report["dead_leds"]]
         every = len(kept) == len(leds)  # then no copy of the images and samples
         pos, dirs, mu, psi = led_arrays(leds)
@@ -328,19 +337,56 @@ class _LevelData:
 
 
 def _high_level(images: np.ndarray, usable: np.ndarray) -> float:
-    """The images' 99th percentile over the usable samples (1 where there is none or it is not positive).
+    """The images' 99th percentile over the usable samples (1 where there is none or it is not positive): the
+    value of ``np.percentile(images[usable], 99)``, to the bit.
 
     Parameters
     ----------
     images : (L, h, w, 3) float; usable : (L, h, w, 3) bool
     """
-    if not usable.any():
+    n = int(np.count_nonzero(usable))
+    if n == 0:
         return 1.0
-    # a flat boolean index: indexing the (L, h, w, 3) array with a mask that selects every sample took 0.11 s
-    # at 640x480 against 0.01 s; the same values in the same order, so the same percentile
-    values = images.reshape(-1)[usable.reshape(-1)]
-    scale = float(np.percentile(values, 99, overwrite_input=True))
+    # numpy's linear method: the order statistics at floor(v) and the next, v = (n - 1) q, interpolated
+    virtual = (n - 1) * (99 / 100)
+    below = int(np.floor(virtual))
+    top, n_under = _top_samples(images, usable, n, below)
+    ranks = sorted({below - n_under, min(below + 1, n - 1) - n_under})
+    top.partition(ranks)
+    scale = float(_lerp(top[ranks[0]], top[ranks[-1]], virtual - below))
     return scale if scale > 0 else 1.0
+
+
+def _top_samples(images: np.ndarray, usable: np.ndarray, n: int, rank: int) -> tuple[np.ndarray, int]:
+    """The usable samples from a bound at or below the one of order ``rank`` (0-based, of ``n``) up, and how many
+    usable samples lie under that bound: an order statistic of the few percent at the top is that of all of them.
+
+    A partition of every usable sample of a 640x480 frame (~10^7) took 0.05 s of each NLiPs call, and gathering
+    them 0.03 s more; the bound is a lower percentile of a 1-in-64 subsample. Where it is not low enough (a sample
+    unlike the whole), every usable sample is returned, under a bound of 0.
+
+    Returns
+    -------
+    (k,) float, a new array (any order); the count of usable samples under it.
+    """
+    sub = images[:, ::8, ::8][usable[:, ::8, ::8]]
+    if sub.size:
+        bound = np.percentile(sub, 98)
+        above = images >= bound
+        above &= usable
+        top = images[above]
+        if n - top.size <= rank:
+            return top, n - top.size
+    # a flat boolean index: indexing the (L, h, w, 3) array with a mask that selects every sample took 0.11 s
+    # at 640x480 against 0.01 s
+    return images.reshape(-1)[usable.reshape(-1)], 0
+
+
+def _lerp(a: np.floating, b: np.floating, t: float) -> np.floating:
+    """numpy's interpolation of a percentile between its order statistics ``a <= b`` at ``t`` in [0, 1), in their
+    dtype, the same bits (``numpy.lib._function_base_impl._lerp``: from the nearer end)."""
+    diff = b - a
+    return b - diff * (1 - t) if t >= 0.5 else a + diff * t
 
 
 def _pyramid(
@@ -369,6 +415,7 @@ def _pyramid(
         data.w0,
         opts if t_first is None else dataclasses.replace(opts, pyramid_levels=unrefined + 1),
         skip=range(1, unrefined),
+        scale=data.images.dtype.type(data.scale),
     )
     if t_first is not None and len(levels) > 1:
         shape = levels[0]["camera"].shape
@@ -398,11 +445,9 @@ def _full_image(
 
     def paste(values: np.ndarray, fill: float = np.nan):
         full = np.full((H, W) + values.shape[1:], fill, np.float32)
-        block = np.full(lm.shape + values.shape[1:], fill, np.float32)
-        vals = values.astype(np.float32).copy()
+        vals = values.astype(np.float32)  # a copy
         vals[~n_ok] = fill
-        block[lm] = vals
-        full[crop] = block
+        full[crop][lm] = vals  # the crop is a view of the whole image: written through, no block of its own
         return full
 
     depth = np.exp(t_state[lm])

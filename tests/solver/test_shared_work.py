@@ -321,6 +321,29 @@ def test_the_intensity_scale_is_the_percentile_of_the_usable_samples(press):
     assert _high_level(crop, crop > 0.1) == float(np.percentile(crop[crop > 0.1], 99))
 
 
+def test_the_intensity_scale_from_the_top_samples_is_numpys_percentile_to_the_bit():
+    from nlipscalib.solver import nlips
+
+    rng = np.random.default_rng(3)
+    for k in range(40):
+        dtype = np.float32 if k % 2 else np.float64
+        shape = (int(rng.integers(1, 6)), int(rng.integers(8, 40)), int(rng.integers(8, 40)), 3)
+        images = rng.gamma(2.0, 0.1, shape).astype(dtype)
+        if k % 5 == 0:
+            images = np.round(images, 2)  # ties
+        usable = rng.random(shape) < rng.uniform(0.01, 1.0)
+        expected = float(np.percentile(images[usable], 99)) if usable.any() else 1.0
+        assert nlips._high_level(images, usable) == expected
+    # a subsample unlike the whole (the bound above the percentile): every usable sample is partitioned
+    images = np.zeros((2, 16, 16, 3), np.float32)
+    images[:, ::8, ::8] = 1.0
+    images[:, 1:, 1:] += np.linspace(0.0, 0.5, 15, dtype=np.float32)[:, None, None]
+    usable = np.ones(images.shape, bool)
+    top, under = nlips._top_samples(images, usable, usable.size, int(0.99 * (usable.size - 1)))
+    assert under == 0 and top.size == usable.size
+    assert nlips._high_level(images, usable) == float(np.percentile(images, 99))
+
+
 def test_a_levels_geometry_is_kept_and_equals_a_fresh_one(press):
     from nlipscalib.solver import geometry, reuse
     from nlipscalib.solver.pyramid import level_geometry
