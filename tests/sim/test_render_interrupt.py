@@ -128,11 +128,13 @@ WITHIN_S = 5.0
 def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum):
     """Ctrl-C or SIGTERM during a render (640x480, 16 spp, one bounce: tens of seconds) ended the command only when
     the render did: Python handles a signal in the main thread, which the native render call held. It now ends
-    within a second, with its one line, its status, and no press folder."""
+    within a second, with its one line, its status, and no press folder or temporary left."""
     traced = tmp_path / "traced"
     out = tmp_path / "p"
     args = ["--no-progress", "render", "--width", "16", "--height", "12", "--spp", "1", "--threads", "1"]
-    env = dict(os.environ, RENDER_TRACED=str(traced))
+    temporaries = tmp_path / "tmp"  # the command's TMPDIR (Mitsuba's log while it renders)
+    temporaries.mkdir()
+    env = dict(os.environ, RENDER_TRACED=str(traced), TMPDIR=str(temporaries))
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
     proc = subprocess.Popen(
         [sys.executable, "-c", ENDLESS_RENDER, *args, "--out", str(out)],
@@ -167,3 +169,4 @@ def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum
     assert not_log == [f"nlips render: {how}; finished work is kept, run again to resume"], stderr
     assert stdout == ""
     assert not out.exists()
+    assert list(temporaries.iterdir()) == []  # SIGTERM left the log's folder in /tmp

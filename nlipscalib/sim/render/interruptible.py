@@ -7,8 +7,8 @@ One Mitsuba render in drjit's LLVM backend (tracing, compiling and running its k
 Neither library stops a kernel that runs (Mitsuba's Ctrl-C handler cancels its scalar render loop, not a drjit
 kernel). With the work on another thread the main thread only waits, and wakes often enough to run the handlers: the
 command's SIGTERM handler ends the process at once (``os._exit``), and Ctrl-C's KeyboardInterrupt unwinds the caller
-(its temporaries removed and claims released as usual) while the abandoned work, a daemon thread, dies with the
-process.
+(its temporaries removed and claims released as usual) while the abandoned work goes on; ``nlips`` then ends its
+process without waiting for it (:func:`abandoned_work_running`).
 """
 
 from __future__ import annotations
@@ -44,15 +44,16 @@ def abandoned_work_running() -> bool:
 
 
 def call_interruptibly(work: Callable[[], T]) -> T:
-    """``work()``, run on a daemon thread while the main thread waits, handling signals every :data:`POLL_S`.
+    """``work()``, run on a thread of its own while the main thread waits, handling signals every :data:`POLL_S`.
 
     Its result is returned and its exception raised here, as if it had run here. Called from another thread than
     the main one (a Dask worker's, a pool's) it simply runs here: signals are not handled there anyway.
 
     When a signal handler raises in the main thread (Ctrl-C: KeyboardInterrupt) that exception leaves this call at
-    once and ``work`` goes on alone, its result dropped; a command's process then ends without waiting for it
-    (:func:`abandoned_work_running`), a Python program keeps it running until it finishes (and its exit waits for
-    it). ``work`` must therefore write no file of its own: results are written by the caller, after this returns.
+    once and ``work`` goes on alone, its result dropped. ``nlips`` then ends its process without waiting for it
+    (:func:`abandoned_work_running`); a Python program goes on, and its exit waits for the work to end (the thread
+    is not a daemon: drjit's teardown under a render that still ran aborted the interpreter). ``work`` must
+    therefore write no file of its own: results are written by the caller, after this returns.
 
     Parameters
     ----------
@@ -77,7 +78,7 @@ def call_interruptibly(work: Callable[[], T]) -> T:
 
     # waited for by an Event, not Thread.join: a KeyboardInterrupt inside join (Python 3.11) marks the thread as
     # ended while it runs (the bpo-45274 fix releases the running thread's lock), and it would seem to have ended
-    threading.Thread(target=run, name="nlips-render", daemon=True).start()
+    threading.Thread(target=run, name="nlips-render").start()
     try:
         while not done.wait(POLL_S):
             pass

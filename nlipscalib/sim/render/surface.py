@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ...core import atomic
 from ...core.capture import GroundTruth
 from .denoise import denoise_indirect
 from .groundtruth import trace_ground_truth
@@ -191,8 +192,9 @@ def _warnings_relayed(mi: ModuleType) -> Iterator[None]:
         yield
         return
     shown = [logger.appender(i) for i in range(logger.appender_count())]
-    with tempfile.TemporaryDirectory(prefix="nlips-mitsuba-log-") as folder:
-        path = Path(folder) / "render.log"
+    # a scratch folder of core.atomic, not a TemporaryDirectory: SIGTERM's handler removes it before os._exit
+    with atomic.scratch_dir(Path(tempfile.gettempdir()) / "nlips-mitsuba-log") as folder:
+        path = folder / "render.log"
         logger.clear_appenders()
         logger.add_appender(mi.StreamAppender(str(path)))
         try:
