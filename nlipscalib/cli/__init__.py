@@ -264,16 +264,17 @@ def _after_the_work(command: str) -> None:
                 signal.signal(signum, handler)
 
 
-def _end_at_once(line: str, code: int) -> NoReturn:
+def _end_at_once(line: str | None, code: int) -> NoReturn:
     """End the process from a signal handler: its worker processes stopped, its claims released and temporaries
-    removed, ``line`` on stderr, exit ``code``."""
+    removed, ``line`` on stderr (None: none), exit ``code``."""
     from ..core import atomic, claims
 
     _stop_workers()
     claims.release_all()
     atomic.remove_in_progress()
     _release_multiprocessing_resources()
-    print(line, file=sys.stderr)
+    if line is not None:
+        print(line, file=sys.stderr)
     sys.stderr.flush()
     sys.stdout.flush()
     os._exit(code)
@@ -287,11 +288,18 @@ def _exit(code: int) -> NoReturn:
     Why: Python puts SIGINT and SIGTERM back to their defaults before that teardown, so :func:`_after_the_work`'s
     handlers no longer hold there, and a signal during it (a second for torch and onnxruntime) killed the process
     with no line. The teardown frees nothing a process about to end needs freed; skipping it also ends sooner.
+
+    After Ctrl-C during a render (its line printed), the render left running on a thread of its own
+    (:func:`_render_left_running`), the process ends as on SIGTERM instead (:func:`_end_at_once`, no second line):
+    drjit's exit function waits for the kernels that run, so the interpreter's exit waited for the render, tens
+    of seconds.
     """
     import atexit
     import contextlib
     import threading
 
+    if _render_left_running():
+        _end_at_once(None, code)
     shutdown = getattr(threading, "_shutdown", None)
     if shutdown is not None:
         # the interpreter's own first step at exit: the callbacks of threading._register_atexit (which tell
@@ -307,6 +315,13 @@ def _exit(code: int) -> NoReturn:
         with contextlib.suppress(Exception):  # a closed pipe (`nlips ... | head`)
             stream.flush()
     os._exit(code)
+
+
+def _render_left_running() -> bool:
+    """Whether a render that Ctrl-C stopped waiting for still runs
+    (:func:`nlipscalib.sim.render.interruptible.abandoned_work_running`; False when nothing was rendered)."""
+    interruptible = sys.modules.get("nlipscalib.sim.render.interruptible")
+    return interruptible is not None and interruptible.abandoned_work_running()
 
 
 WORKER_GRACE_S = 5.0

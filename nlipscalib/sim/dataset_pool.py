@@ -145,8 +145,8 @@ def check_space(out: Path, scene: SceneConfig, n_presses: int) -> None:
 def _worker_init(log_level: int, log_file: str | None = None) -> None:
     """A render process: logs like the parent; on SIGTERM (sent by a terminated ``nlips dataset``, or to the whole
     process group) releases its claim and removes its half-written press folder, then exits, as the parent
-    does. The handler runs when the current native call (a Mitsuba render) returns; ended with ``os._exit``, as
-    an exception raised there could land inside the library."""
+    does. The handler runs at once, a render being on a thread of its own (``sim.render.interruptible``); ended with
+    ``os._exit``, as an exception raised there could land inside the library."""
     import signal
 
     configure_worker(log_level, log_file)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import logging
 import re
 import tempfile
@@ -14,9 +15,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ...core import atomic
 from ...core.capture import GroundTruth
 from .denoise import denoise_indirect
 from .groundtruth import trace_ground_truth
+from .interruptible import call_interruptibly
 from .mesh import albedo_per_vertex
 from .scene import build_scene
 from .variant import load_mitsuba
@@ -84,9 +87,35 @@ def render_surface(
     bounces = r.bounces if bounces is None else int(bounces)
     seed = r.seed if seed is None else int(seed)
     mi, chosen = load_mitsuba(variant or r.variant, r.threads if threads is None else threads)
+    t0 = time.perf_counter()
+    work = functools.partial(
+        _render_and_trace, mi, scene_cfg, mesh, contact_per_vertex, spp, bounces, seed, integrator, only_led, images
+    )
+    # off the main thread: a render holds the thread that calls it for tens of seconds, and Ctrl-C or SIGTERM is
+    # handled by the main thread alone (see .interruptible). Mitsuba's log is redirected here, in the main thread,
+    # so that an interrupted render leaves no log file behind (the abandoned thread would never remove it).
+    with _warnings_relayed(mi):
+        stack, gt = call_interruptibly(work)
+    return RenderResult(stack, gt, chosen, spp, bounces, seed, time.perf_counter() - t0)
+
+
+def _render_and_trace(
+    mi: ModuleType,
+    scene_cfg: SceneConfig,
+    mesh: trimesh.Trimesh,
+    contact_per_vertex: np.ndarray | None,
+    spp: int,
+    bounces: int,
+    seed: int,
+    integrator: str,
+    only_led: int | None,
+    images: bool,
+) -> tuple[np.ndarray | None, GroundTruth]:
+    """:func:`render_surface`'s work once Mitsuba is loaded: the scene built, the images rendered (``images``;
+    else None) and the ground truth traced. Writes nothing (it may be abandoned, :func:`call_interruptibly`)."""
+    r = scene_cfg.render
     # the bounce light comes in AOVs of its own to be denoised (RenderConfig.denoise_indirect)
     split = r.denoise_indirect and bounces > 0 and integrator == "multi"
-    t0 = time.perf_counter()
     camera = scene_cfg.camera_model()
     leds = scene_cfg.led_models()
     verts_dome = np.asarray(mesh.vertices, dtype=np.float64)
@@ -121,15 +150,14 @@ def render_surface(
     if split and stack is not None:  # the direct light, then every LED's bounce light filtered along the surface
         n = len(stack) // 2
         stack = stack[:n] + denoise_indirect(stack[n:], gt.normals, gt.depth, gt.valid, r.denoise)
-    return RenderResult(stack, gt, chosen, spp, bounces, seed, time.perf_counter() - t0)
+    return stack, gt
 
 
 def _render_images(
     mi: ModuleType, scene: mitsuba.Scene, shape: tuple[int, int], spp: int, seed: int, integrator: str
 ) -> np.ndarray:
     """(L, H, W, 3) float32 linear images: one per LED from the AOVs, or the path tracer's one image."""
-    with _warnings_relayed(mi):
-        out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
+    out = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
     h, w = shape
     if integrator == "multi":
         return np.ascontiguousarray(out[..., 3:].reshape(h, w, -1, 3).transpose(2, 0, 1, 3))
@@ -147,7 +175,8 @@ _RELAYED: set[str] = set()
 
 @contextlib.contextmanager
 def _warnings_relayed(mi: ModuleType) -> Iterator[None]:
-    """Mitsuba's warnings of a render logged as ours (``log.warning``), each once per process, after it.
+    """Mitsuba's warnings of a render (the scene's build, the images, the ground truth) logged as ours
+    (``log.warning``), each once per process, after it.
 
     Mitsuba puts a Ctrl-C handler of its own in place around a render (``Integrator.render``'s binding): it
     cancels the render, hands the signal on to Python (``nlips`` then prints its one line "interrupted; ...",
@@ -155,15 +184,17 @@ def _warnings_relayed(mi: ModuleType) -> Iterator[None]:
     into a file). Python cannot filter it there (it would run inside a C signal handler), so while Mitsuba
     renders its log goes to a file, by its own C++ appender, and is read once the render has ended: the
     notice dropped, every other warning logged -- they used to be held back with it (the log level raised to
-    errors). Errors are raised as exceptions, not logged. The scene's warnings come when it is built, before this.
+    errors). Errors are raised as exceptions, not logged. Mitsuba's logger is the process's, so the render may run
+    on another thread (:func:`call_interruptibly`) while this runs in the caller's.
     """
     logger = mi.logger() if hasattr(mi, "logger") else mi.Thread.thread().logger()
     if logger is None:
         yield
         return
     shown = [logger.appender(i) for i in range(logger.appender_count())]
-    with tempfile.TemporaryDirectory(prefix="nlips-mitsuba-log-") as folder:
-        path = Path(folder) / "render.log"
+    # a scratch folder of core.atomic, not a TemporaryDirectory: SIGTERM's handler removes it before os._exit
+    with atomic.scratch_dir(Path(tempfile.gettempdir()) / "nlips-mitsuba-log") as folder:
+        path = folder / "render.log"
         logger.clear_appenders()
         logger.add_appender(mi.StreamAppender(str(path)))
         try:
