@@ -381,6 +381,11 @@ def stop_restarting_workers() -> None:
     """
     from distributed.core import Status
 
+    if _LOCAL_CLUSTERS and not logging.getLogger().isEnabledFor(logging.DEBUG):
+        # the nannies' watchers then log the ends of the workers the command terminates ("process N exit status
+        # was already read, will report exitcode 255"): news of our own doing, not the user's (-v shows them)
+        for name in ("distributed.process", "distributed.nanny"):
+            logging.getLogger(name).setLevel(logging.ERROR)
     for cluster in list(_LOCAL_CLUSTERS):
         for nanny in list(getattr(cluster, "workers", {}).values()):
             with contextlib.suppress(Exception):  # on the way out: best effort

@@ -12,7 +12,7 @@ from nlipscalib.core.errors import CaptureError, ConfigError
 from nlipscalib.learn.dataset import CalibrationDataset, SamplingConfig
 from nlipscalib.learn.model import load_model
 from nlipscalib.learn.train import train
-from tests.learn.test_resume import NAMES, TINY, built, solved  # noqa: F401 (fixtures)
+from tests.learn.test_resume import NAMES, TINY, a_frame, built, solved  # noqa: F401 (fixtures)
 
 
 def _edit_npz(path, change) -> None:
@@ -133,7 +133,7 @@ def test_a_model_with_a_nan_reference_or_a_bad_sigma_is_named(built, tmp_path, c
         with pytest.raises(CaptureError) as caught:
             load_model(path)
         assert str(caught.value) == f"{path}: {problem}"
-        assert main(["infer", str(path), str(built)]) == 2
+        assert main(["infer", str(path), str(a_frame(tmp_path))]) == 2
         _one_line(capsys, f"{path}: {problem}")
 
 

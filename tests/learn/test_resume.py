@@ -268,9 +268,20 @@ def test_damaged_and_foreign_model_files_are_one_line(built, tmp_path, capsys):
         path.write_bytes(data)
         with pytest.raises(CaptureError, match=f"{name}.pt: {problem}"):
             load_model(path)
-        assert main(["infer", str(path), str(built)]) == 2
+        assert main(["infer", str(path), str(a_frame(tmp_path))]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"{name}.pt" in err[0], err
+
+
+def a_frame(folder):
+    """A folder with one blank tri-colour frame of the sensor's size: an input `nlips infer` has to infer, so the
+    model is read (the inputs are checked before it)."""
+    from nlipscalib.core.imageio import write_png16
+
+    frames = folder / "frames"
+    frames.mkdir(exist_ok=True)
+    write_png16(frames / "f.png", np.zeros((48, 64, 3), np.uint16))
+    return frames
 
 
 EXPORT_WAITS = """
