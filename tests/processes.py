@@ -7,6 +7,19 @@ import time
 from pathlib import Path
 
 
+def as_from_a_terminal(argv: list[str], **kw) -> subprocess.Popen:
+    """``argv`` started as a terminal's command is (Ctrl-C not ignored, whatever the test runner's own setting),
+    stdout and stderr piped as text; ``kw`` to :class:`subprocess.Popen` (env, start_new_session, ...)."""
+    return subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        **kw,
+    )
+
+
 def kill_when_it_says(code: str, *args: str, line: str) -> None:
     """Run ``python -c code *args``, wait until it prints ``line`` (the moment to kill it at), then SIGKILL it."""
     proc = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE, text=True)

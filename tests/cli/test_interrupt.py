@@ -286,19 +286,13 @@ def test_a_signal_after_the_work_ended_is_one_line_and_the_signals_status(signum
     """Ctrl-C after `nlips export` printed its line (the process still exiting) printed an "Exception ignored in
     atexit callback" traceback and exited 0, or no line at all (exit 130) in the interpreter's teardown; SIGTERM
     then killed it with no line. Now both say the work had ended and keep the signal's status."""
-    import subprocess
     import sys
     from pathlib import Path
 
+    from tests.processes import as_from_a_terminal
+
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-    proc = subprocess.Popen(
-        [sys.executable, "-c", AFTER_THE_WORK, "cache"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's command has it
-    )
+    proc = as_from_a_terminal([sys.executable, "-c", AFTER_THE_WORK, "cache"], env=env)
     try:
         assert proc.stdout.readline() == "exiting\n"
         proc.send_signal(signum)

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.processes import as_from_a_terminal
+
 pytest.importorskip("mitsuba")
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -136,14 +138,7 @@ def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum
     temporaries.mkdir()
     env = dict(os.environ, RENDER_TRACED=str(traced), TMPDIR=str(temporaries))
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
-    proc = subprocess.Popen(
-        [sys.executable, "-c", ENDLESS_RENDER, *args, "--out", str(out)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # as a terminal's command has it
-    )
+    proc = as_from_a_terminal([sys.executable, "-c", ENDLESS_RENDER, *args, "--out", str(out)], env=env)
     try:
         deadline = time.monotonic() + 300
         while not traced.exists() and proc.poll() is None and time.monotonic() < deadline:
