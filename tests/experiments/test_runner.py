@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.processes import kill_when_it_says
+from tests.processes import as_from_a_terminal, kill_when_it_says
 
 COMMAND = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
 TINY = """
@@ -32,16 +32,8 @@ azimuth_deg = [30.0]
 
 def _nlips(*args: str, **kw) -> subprocess.Popen:
     argv = [sys.executable, "-c", COMMAND, "--no-progress", "experiment", *args]
-    return subprocess.Popen(
-        argv,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        # as a shell with job control starts it: Ctrl-C not ignored, the command its own process group
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-        start_new_session=True,
-        **kw,
-    )
+    # as a shell with job control starts it: Ctrl-C not ignored, the command its own process group
+    return as_from_a_terminal(argv, start_new_session=True, **kw)
 
 
 def _not_log(err: str) -> list[str]:
