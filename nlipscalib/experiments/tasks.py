@@ -77,6 +77,10 @@ class SolveSpec:
         for name, allowed in SOLVE_CHOICES.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(f"{name}: must be one of {list(allowed)}, got {getattr(self, name)!r}")
+        if self.options:  # a bad solver option (e.g. Q2's normals) too, not once per press after its render
+            from .adapters import solver_options
+
+            solver_options(dict(self.options))
 
     def led_error(self) -> dict:
         return {

@@ -134,3 +134,13 @@ def test_label_normals_reach_the_solves_and_the_default_adds_no_option():
 
     assert options(QUICK) == {()}
     assert options(dataclasses.replace(QUICK, normals="refined")) == {(("normals", "refined"),)}
+
+
+def test_a_bad_label_normals_value_is_one_line_naming_the_config_before_any_work(tmp_path, capsys):
+    """``normals = "bogus"`` was planned and would have failed every press after its render."""
+    cfg = tmp_path / "q2_bad.toml"
+    cfg.write_text('normals = "bogus"\n')
+    assert main(["experiment", "q2", "--config", str(cfg), "--plan", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(cfg) in err[0] and "normals" in err[0] and "bogus" in err[0], err
+    assert not (tmp_path / "out").exists()
