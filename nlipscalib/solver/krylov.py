@@ -36,12 +36,19 @@ class Krylov:
     (or once a hierarchy exists) CG preconditioned by AMG V-cycles continues from that iterate. The
     matrix changes little between iterations (weights and shading drift), so the hierarchy is kept
     and rebuilt only when its convergence factor per CG iteration degrades past 0.85.
+
+    Jacobi is not tried where the level's last Jacobi solve predicts it would not reach the tolerance within
+    its cap (:func:`jacobi_predicted`): on the warm-started 640x480 level of a whole frame's last outer pass,
+    the second step's 30 Jacobi iterations (~0.15 s of CPU) left the residual where AMG alone takes it in the
+    same 9 iterations from zero (benchmarks/RESULTS.md, s17-b).
     """
 
     def __init__(self, opts: SolverOptions):
         self.opts = opts
         self.amg = None
         self.setups = 0
+        self.jacobi_rate: float | None = None
+        """Residual reduction per iteration of this level's last Jacobi solve, bounded above (1: it failed)."""
 
     def solve(self, Hm: sp.csr_matrix, rhs: np.ndarray, rtol: float) -> tuple[np.ndarray, int]:
         """Approximate solution of Hm x = rhs to ``|r| <= rtol |rhs|``; returns x and CG iterations."""
@@ -55,10 +62,13 @@ class Krylov:
         products = threads.RowBlocks(Hm)
         op = spla.LinearOperator(Hm.shape, matvec=lambda v: products.dot(v.ravel()), dtype=np.float64)
         # Jacobi only for loose solves: below 1e-2 it needed more iterations than it is worth.
-        if self.amg is None and self.opts.cg_jacobi_iters > 0 and rtol >= 1e-2:
+        cap = self.opts.cg_jacobi_iters
+        if self.amg is None and cap > 0 and rtol >= 1e-2 and jacobi_predicted(self.jacobi_rate, rtol) <= cap:
             inv_diag = 1.0 / Hm.diagonal()
             jac = spla.LinearOperator(Hm.shape, matvec=lambda v: inv_diag * v.ravel(), dtype=np.float64)
-            x, status = spla.cg(op, rhs, rtol=rtol, maxiter=self.opts.cg_jacobi_iters, M=jac, callback=cb)
+            x, status = spla.cg(op, rhs, rtol=rtol, maxiter=cap, M=jac, callback=cb)
+            # converged: rtol^(1/iterations) bounds its rate from above (the residual reached rtol or less)
+            self.jacobi_rate = rtol ** (1 / max(count[0], 1)) if status == 0 else 1.0
             if status == 0:
                 return x, count[0]
         if self.amg is None:
@@ -71,6 +81,21 @@ class Krylov:
         if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > 0.85:
             self.amg = None  # the matrix drifted away from the one the hierarchy was built for
         return x, count[0]
+
+
+def jacobi_predicted(rate: float | None, rtol: float) -> float:
+    """Jacobi-preconditioned CG iterations to reduce the residual by ``rtol`` at a residual reduction of ``rate`` per
+    iteration (the level's last Jacobi solve; None: none yet, 0 predicted; 1: it failed, infinitely many).
+
+    A prediction from the last solve's average rate is optimistic: Jacobi's CG slows down as the smooth error is
+    left (the 640x480 level's first step reached 0.1 in 23 iterations, 0.05 only in 56), so a solve predicted
+    beyond the cap would not converge within it.
+    """
+    if rate is None:
+        return 0.0
+    if rate >= 1.0:
+        return float("inf")
+    return float(np.log(rtol) / np.log(max(rate, 1e-300)))
 
 
 def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:

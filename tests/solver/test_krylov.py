@@ -163,3 +163,49 @@ def test_cg_with_block_smoothing_converges_as_with_pyamgs(monkeypatch):
         assert status == 0 and np.linalg.norm(A @ x - b) <= 1e-8 * np.linalg.norm(b)
         counts.append(len(iterates))
     assert abs(counts[0] - counts[1]) <= 1
+
+
+def _scaled_poisson(n: int) -> sp.csr_matrix:
+    """A 2-D Poisson matrix on an n x n grid, slightly shifted and diagonally scaled: Jacobi-preconditioned CG
+    reaches 0.1 within its cap and slows down past it, as on a whole frame's warm-started level."""
+    lap1 = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(n, n))
+    eye = sp.identity(n)
+    scale = sp.diags(np.linspace(1.0, 3.0, n * n))
+    return (scale @ (sp.kron(lap1, eye) + sp.kron(eye, lap1) + 1e-3 * sp.identity(n * n)) @ scale).tocsr()
+
+
+def test_jacobi_prediction_from_the_last_rate():
+    assert krylov.jacobi_predicted(None, 0.01) == 0.0  # no Jacobi solve yet: try it
+    assert krylov.jacobi_predicted(1.0, 0.05) == np.inf  # it failed: never again on this level
+    # the 640x480 level's first step: 0.1 in 23 iterations; its second step's 0.038 then lies beyond 30
+    assert 30 < krylov.jacobi_predicted(0.1 ** (1 / 23), 0.038) < 34
+
+
+def test_jacobi_not_tried_where_its_last_rate_predicts_failure():
+    """A tighter solve that Jacobi's last rate puts beyond its cap goes to AMG at once: no capped Jacobi
+    iterations spent first (they were 30 of the step's 39 on a whole frame's last pass)."""
+    from nlipscalib.solver.options import SolverOptions
+
+    H = _scaled_poisson(40)
+    rhs = np.random.default_rng(0).standard_normal(H.shape[0])
+    opts = SolverOptions()
+    pcg = krylov.Krylov(opts)
+    _, first = pcg.solve(H, rhs, 0.1)
+    assert first < opts.cg_jacobi_iters and pcg.setups == 0  # Jacobi converged
+    assert krylov.jacobi_predicted(pcg.jacobi_rate, 0.02) > opts.cg_jacobi_iters
+    x, second = pcg.solve(H, rhs, 0.02)
+    assert pcg.setups == 1 and second < 10  # AMG alone (30 Jacobi iterations and AMG's before)
+    assert np.linalg.norm(rhs - H @ x) <= 0.02 * np.linalg.norm(rhs)
+
+
+def test_a_failed_jacobi_solve_is_not_tried_again():
+    from nlipscalib.solver.options import SolverOptions
+
+    H = _scaled_poisson(40)
+    rhs = np.random.default_rng(1).standard_normal(H.shape[0])
+    pcg = krylov.Krylov(SolverOptions(cg_jacobi_iters=3))
+    _, first = pcg.solve(H, rhs, 0.1)
+    assert first > 3 and pcg.jacobi_rate == 1.0  # capped, then AMG
+    pcg.amg = None  # as after a drift: the hierarchy is rebuilt, Jacobi is not tried
+    _, second = pcg.solve(H, rhs, 0.1)
+    assert second < 3 and pcg.setups == 2
