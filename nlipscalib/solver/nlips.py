@@ -647,7 +647,8 @@ class _Level:
         # its normals, albedo and diagnostics come from the shading alone.
         F, dF = self.shade(t, iterate)
         self.lam = None
-        albedo, r = self.refit(F, None)
+        # least squares' energy does not depend on the scale lambda (not known yet): taken in this refit
+        albedo, r, e_data = self.refit(F, None, energy=iterate and est == "ls")
         self.lam = _robust_scale(be, model.whole(r), lv["images"], lv["usable"] > 0, opts)
         # The smoothness weight is relative to the data term's curvature along the gradient of t (least
         # squares, starting depth).
@@ -655,12 +656,12 @@ class _Level:
             opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable))) if iterate else None
         )
         if est != "ls":
-            albedo, r = self.refit(F, albedo)
+            albedo, r, e_data = self.refit(F, albedo, energy=iterate)
         self.M = self.b = None
         if iterate:
             self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
         self.t, self.F, self.dF, self.albedo, self.r = t, F, dF, albedo, r
-        self.e_cur = model.data_energy(r, self.lam, est) + self.prior(t) if iterate else None
+        self.e_cur = e_data + self.prior(t) if iterate else None
         self.info = {
             "shape": list(mk.shape),
             "estimator": est,
@@ -686,18 +687,14 @@ class _Level:
     def prior(self, tt: np.ndarray) -> float:
         return float(np.sum(self.zeta * (tt - self.t0) ** 2)) + self.gamma * float(tt @ (self.ops["lap"] @ tt))
 
-    def refit(self, F: Array | Parts, alb: Array | Parts | None):
-        """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise."""
-        model, est = self.model, self.est
-        w = model.usable if est == "ls" or alb is None else model.weights(model.residuals(F, alb), self.lam, est)
-        alb = model.albedo(F, w)
-        return alb, model.residuals(F, alb)
+    def refit(self, F: Array | Parts, alb: Array | Parts | None, energy: bool = False):
+        """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise; (albedo,
+        residuals, the data energy there or None) (:meth:`nlipscalib.solver.kernel.Model.refit`)."""
+        start = None if self.est == "ls" else alb
+        return self.model.refit(F, start, self.lam, self.est, energy)
 
     def normals(self, tt: np.ndarray):
         return geometry.normals_from_gradient(self.ops["Du"] @ tt, self.ops["Dv"] @ tt, self.A, self.B, self.C)
-
-    def energy(self, r: Array | Parts, tt: np.ndarray) -> float:
-        return self.model.data_energy(r, self.lam, self.est) + self.prior(tt)
 
     # ------------------------------------------------------------------ one iteration
     def iterate(self, pcg: Krylov, coarse: bool) -> str | None:
@@ -746,8 +743,8 @@ class _Level:
             # the full step's derivatives with its shading (one pass); none after a converged step, which ends
             # the level
             F_new, dF_new = self.shade(t_new, derivatives=k == 0 and not converged)
-            alb_new, r_new = self.refit(F_new, self.albedo)
-            e_new = self.energy(r_new, t_new)
+            alb_new, r_new, e_data = self.refit(F_new, self.albedo, energy=True)
+            e_new = e_data + self.prior(t_new)
             if e_new <= self.e_cur:
                 self.tm.lap("line_search")
                 return t_new, F_new, dF_new, alb_new, r_new, e_new
@@ -786,7 +783,7 @@ class _Level:
     def finish(self):
         """Final albedo and per-pixel diagnostics at the accepted depth (the refit cannot raise the energy):
         (log-depth (H, W), per-pixel results, the level's report entry)."""
-        albedo, r = self.refit(self.F, self.albedo)
+        albedo, r, _ = self.refit(self.F, self.albedo)
         albedo = self.model.whole(albedo)
         u_np = self.lv["usable"]
         cnt = u_np.sum(axis=(0, 1))

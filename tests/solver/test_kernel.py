@@ -112,3 +112,36 @@ def test_cauchy_energy_is_log1p_to_a_few_units_in_the_last_place(dtype):
     r = np.linspace(-1, 1, 101).astype(dtype)
     expected = lam**2 * np.log1p(r * r / lam**2)
     np.testing.assert_allclose(robust.rho(r, lam, "cauchy"), expected, rtol=4 * np.finfo(dtype).eps)
+
+
+@pytest.mark.parametrize("estimator", ["ls", "cauchy"])
+def test_refit_in_one_pass_is_the_sequence_of_its_steps(monkeypatch, level, estimator):
+    """Model.refit (and ChunkedModel's, in one pass over the chunks) gives the bits of its steps called one by one:
+    weights at the start's residuals (none: the usable samples), albedo, residuals, energy."""
+    monkeypatch.setattr(kernel, "CHUNK_PIXELS", 96)
+    args, (t, tu, tv) = level
+    be = kernel.Backend("numpy", "float32")
+    whole, chunked = kernel.Model(be, *args), kernel.ChunkedModel(be, *args)
+    F = whole.shading(t, tu, tv)
+    start = np.full((3, len(t)), 0.5, be.dtype)
+    for alb in (None, start):
+        w = whole.usable if alb is None else whole.weights(whole.residuals(F, alb), 0.1, estimator)
+        fit = whole.albedo(F, w)
+        r = whole.residuals(F, fit)
+        energy = whole.data_energy(r, 0.1, estimator)
+        one = whole.refit(F, alb, 0.1, estimator, energy=True)
+        np.testing.assert_array_equal(one[0], fit)
+        np.testing.assert_array_equal(one[1], r)
+        assert one[2] == energy
+        assert whole.refit(F, alb, 0.1, estimator)[2] is None
+        Fc = chunked.shading(t, tu, tv)
+        rc = chunked.residuals(
+            Fc,
+            chunked.albedo(
+                Fc, chunked.usable if alb is None else chunked.weights(chunked.residuals(Fc, alb), 0.1, estimator)
+            ),
+        )
+        parts = chunked.refit(Fc, alb, 0.1, estimator, energy=True)
+        np.testing.assert_array_equal(chunked.whole(parts[0]), fit)
+        np.testing.assert_array_equal(chunked.whole(parts[1]), chunked.whole(rc))
+        assert parts[2] == chunked.data_energy(rc, 0.1, estimator)
