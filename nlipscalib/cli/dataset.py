@@ -54,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..core.config import check_count
     from ..sim.dataset import (
+        check_not_in_press,
         claim_folder,
         expand_jobs,
         first_press_number,
@@ -67,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     check_count("--limit", args.limit, minimum=0)
     spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
     out = Path(args.out)
+    check_not_in_press(out)
     jobs = expand_jobs(spec, first=first_press_number(out))  # an old folder numbered from press_0000 keeps it
     todo = limit_presses(jobs, args.limit) if args.limit else jobs
     with claim_folder(out, spec_digest(spec, scene, jobs)):  # a run of another spec at work there: refused now

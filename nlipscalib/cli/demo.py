@@ -55,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count
     from ..sim.dataset import (
         REFERENCE_NAME,
+        check_not_in_press,
         claim_folder,
         expand_jobs,
         first_press_number,
@@ -67,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
     check_count("--solve-workers", args.solve_workers, minimum=1)  # before minutes of rendering, not after
     out = Path(args.out)
+    check_not_in_press(out)
     spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
     jobs = expand_jobs(spec, first=first_press_number(out))  # an earlier demo's press_0000, ... are reused
     out.mkdir(parents=True, exist_ok=True)

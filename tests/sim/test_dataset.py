@@ -368,3 +368,21 @@ def test_presses_are_numbered_from_1_as_a_capture_session_s_and_an_old_folder_ke
     assert ds.first_press_number(old) == 0 and ds.first_press_number(new) == 1
     names = sorted(p.name for p in old.iterdir() if p.is_dir())
     assert names == ["press_0000", "press_0001", "press_0002", "reference"]
+
+
+def test_a_dataset_into_a_press_folder_is_refused_before_anything_is_written(tmp_path, monkeypatch, capsys):
+    """`nlips dataset SPEC --out out/press` (a press folder) rendered its reference/ and presses among the press's
+    images, exit 0; so did `nlips demo --out` there. Now one line naming the folder, exit 2, nothing written."""
+    from nlipscalib.cli import main
+
+    spec, calls = _write(tmp_path, GRID), []
+    monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
+    press = tmp_path / "press"
+    press.mkdir()
+    (press / "meta.json").write_text("{}")
+    for out, command in [(press, ["dataset", str(spec)]), (press / "sub", ["dataset", str(spec)]), (press, ["demo"])]:
+        capsys.readouterr()
+        assert main(["--no-progress", *command, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "is a press folder" in err and str(press) in err and len(err.splitlines()) == 1, err
+    assert calls == [] and sorted(p.name for p in press.iterdir()) == ["meta.json"]
