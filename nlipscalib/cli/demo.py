@@ -55,7 +55,6 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count
     from ..sim.dataset import (
         REFERENCE_NAME,
-        check_not_in_press,
         claim_folder,
         expand_jobs,
         first_press_number,
@@ -65,10 +64,11 @@ def run(args: argparse.Namespace) -> int:
         write_manifest,
     )
     from ..sim.scene import dataset_spec_path
+    from .folders import check_not_in_press
 
     check_count("--solve-workers", args.solve_workers, minimum=1)  # before minutes of rendering, not after
     out = Path(args.out)
-    check_not_in_press(out)
+    check_not_in_press(out, "render the demo")
     spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
     jobs = expand_jobs(spec, first=first_press_number(out))  # an earlier demo's press_0000, ... are reused
     out.mkdir(parents=True, exist_ok=True)

@@ -10,7 +10,7 @@ The public names of datasets, each from the module that does one job:
 
 from __future__ import annotations
 
-from .dataset_folder import check_existing, check_not_in_press, is_complete, warn_unlisted
+from .dataset_folder import check_existing, is_complete, warn_unlisted
 from .dataset_manifest import (
     FOLDER_CLAIM,
     MANIFEST,
@@ -43,7 +43,6 @@ __all__ = [
     "PressJob",
     "RandomSpec",
     "check_existing",
-    "check_not_in_press",
     "check_space",
     "claim_folder",
     "expand_jobs",

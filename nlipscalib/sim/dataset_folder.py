@@ -39,20 +39,6 @@ def missing_files(folder: Path) -> list[str]:
     return [name for name in names if not (folder / name).is_file()]
 
 
-def check_not_in_press(out: Path) -> None:
-    """A ConfigError when ``out`` is, or lies inside, a press folder: the dataset's reference/ and press folders
-    would be written among a capture's images (``nlips dataset SPEC --out out/press`` did so, exit 0), and every
-    later command takes that folder for the one press it was."""
-    for part in (out, *out.parents):
-        if is_press_folder(part):
-            where = "" if part == out else f"lies in {part}, which "
-            raise ConfigError(
-                f"{out}: {where}is a press folder (it has {META_FILE}); render the dataset into another folder"
-            )
-        if part.exists():
-            return
-
-
 def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:
     """Finished presses made from another spec, or with a damaged meta.json, are an error (or
     re-rendered with ``overwrite``)."""

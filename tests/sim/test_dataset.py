@@ -372,7 +372,8 @@ def test_presses_are_numbered_from_1_as_a_capture_session_s_and_an_old_folder_ke
 
 def test_a_dataset_into_a_press_folder_is_refused_before_anything_is_written(tmp_path, monkeypatch, capsys):
     """`nlips dataset SPEC --out out/press` (a press folder) rendered its reference/ and presses among the press's
-    images, exit 0; so did `nlips demo --out` there. Now one line naming the folder, exit 2, nothing written."""
+    images, exit 0; so did `nlips demo --out` and `nlips capture --out` there (an emulated session of 10 presses).
+    Now one line naming the folder, exit 2, nothing written."""
     from nlipscalib.cli import main
 
     spec, calls = _write(tmp_path, GRID), []
@@ -386,3 +387,6 @@ def test_a_dataset_into_a_press_folder_is_refused_before_anything_is_written(tmp
         err = capsys.readouterr().err.strip()
         assert "is a press folder" in err and str(press) in err and len(err.splitlines()) == 1, err
     assert calls == [] and sorted(p.name for p in press.iterdir()) == ["meta.json"]
+    assert main(["capture", "--emulate", "nlipstac", "--out", str(press), "--yes"]) == 2  # a session alike
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("is a press folder (it has meta.json); capture the session into another folder"), err
