@@ -196,6 +196,12 @@ def test_press_folders_a_shorter_spec_no_longer_names_are_warned_about(tmp_path,
     jobs = [SimpleNamespace(name="press_0001"), SimpleNamespace(name="press_0002")]
     assert warn_unlisted(jobs, tmp_path) == ["press_0003", "reference"]
     assert "press_0003, reference are not in this spec" in caplog.text
+    caplog.clear()
+    assert warn_unlisted([*jobs, SimpleNamespace(name="reference")], tmp_path) == ["press_0003"]
+    assert (
+        "press_0003 is not in this spec (left from an earlier one); later commands on the folder still use it: "
+        "remove it," in caplog.text
+    )  # one folder: "is", "it" ("press_0003 are not ...; remove them" was the line)
 
 
 def _publish_as_another_run(scene, job, out):
