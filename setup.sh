@@ -16,6 +16,13 @@ SUDO=""; [ "$(id -u)" != 0 ] && command -v sudo >/dev/null && SUDO="sudo"
 # pyproject.toml's requires-python, checked before anything is installed: pip would refuse the package only
 # after torch's download (Ubuntu 22.04's python3 is 3.10).
 PY=${PYTHON:-python3}
+# A minimal Debian/Ubuntu image (a container, a cloud VM) has no python3 at all: Debian 12's is 3.11, Ubuntu 24.04's
+# 3.12 (an older one is refused below, in one line).
+if [ -z "${PYTHON:-}" ] && [ ! -x .venv/bin/python ] && ! command -v python3 >/dev/null && command -v apt-get >/dev/null; then
+  echo "setup: installing python3 (none on the PATH)"
+  { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq python3 >/dev/null; } \
+    || echo "setup: warning: could not install python3" >&2
+fi
 VENV_PY=.venv/bin/python; [ -x "$VENV_PY" ] || VENV_PY=$PY
 if ! "$VENV_PY" -c 'import sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null; then
   FOUND=$("$VENV_PY" --version 2>/dev/null) || FOUND="not installed"

@@ -60,5 +60,5 @@ def test_the_dataset_spec_section_documents_every_key_and_its_example_loads(tmp_
     (tmp_path / "tiny.toml").write_text(example)
     spec, scene = load_dataset_spec(tmp_path / "tiny.toml")
     jobs = expand_jobs(spec)
-    assert [j.name for j in jobs] == ["reference"] + [f"press_{i:04d}" for i in range(6)]  # as the text says
+    assert [j.name for j in jobs] == ["reference"] + [f"press_{i:04d}" for i in range(1, 7)]  # as the text says
     assert (scene.camera.width, scene.camera.height, scene.render.bounces) == (160, 120, 1)

@@ -211,3 +211,32 @@ def test_ldconfig_off_the_path_as_for_debians_users_still_finds_llvm(checkout):
     res = _setup(repo, stubs, path=path)
     assert res.returncode == 0, res.stderr
     assert "libllvm19" not in (log.read_text() if log.exists() else "")
+
+
+def test_a_machine_without_python3_gets_debians_before_anything_else(checkout, tmp_path):
+    """A minimal Debian image (docker's debian:12, a bare cloud VM) has no python3: the README's first command
+    ended on "needs Python >= 3.11; python3 is not installed". setup.sh installs the distribution's python3 as it
+    installs the other system packages (Debian 12's is 3.11)."""
+    repo, log, stubs = checkout
+    saved = tmp_path / "venv-python"
+    shutil.move(repo / ".venv" / "bin" / "python", saved)
+    bare = tmp_path / "bin-without-python"  # the system's tools, every python* left out
+    bare.mkdir()
+    for folder in ("/usr/bin", "/bin"):
+        for tool in Path(folder).iterdir():
+            if not tool.name.startswith("python") and not (bare / tool.name).exists():
+                (bare / tool.name).symlink_to(tool)
+    _exe(  # apt-get installing python3 puts one on the PATH; the venv it makes is setup's own wrapper again
+        stubs / "apt-get",
+        f"""#!/bin/sh
+echo "apt-get $*" >>"{log}"
+case "$*" in
+  *"install -y -qq python3") printf '#!/bin/sh\\n[ "$1 $2" = "-m venv" ] && exec cp "{saved}" .venv/bin/python\\n'\\
+'exec "{sys.executable}" "$@"\\n' >"{stubs}/python3"; chmod +x "{stubs}/python3" ;;
+esac
+""",
+    )
+    res = _setup(repo, stubs, path=str(bare))
+    assert "apt-get install -y -qq python3" in log.read_text(), (res.stderr, log.read_text())
+    assert "installing python3 (none on the PATH)" in res.stdout
+    assert res.returncode == 0 and _installs(log) == 1, res.stderr

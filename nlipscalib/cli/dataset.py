@@ -53,15 +53,24 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.config import check_count
-    from ..sim.dataset import claim_folder, expand_jobs, limit_presses, load_dataset_spec, spec_digest
+    from ..sim.dataset import (
+        claim_folder,
+        expand_jobs,
+        first_press_number,
+        limit_presses,
+        load_dataset_spec,
+        spec_digest,
+    )
     from ..sim.scene import dataset_spec_path
+    from .folders import check_not_in_press
 
     check_count("--workers", args.workers, minimum=0)
     check_count("--limit", args.limit, minimum=0)
     spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
-    jobs = expand_jobs(spec)
-    todo = limit_presses(jobs, args.limit) if args.limit else jobs
     out = Path(args.out)
+    check_not_in_press(out, "render the dataset")
+    jobs = expand_jobs(spec, first=first_press_number(out))  # an old folder numbered from press_0000 keeps it
+    todo = limit_presses(jobs, args.limit) if args.limit else jobs
     with claim_folder(out, spec_digest(spec, scene, jobs)):  # a run of another spec at work there: refused now
         result = _render(args, spec, scene, jobs, todo, out)
     print(

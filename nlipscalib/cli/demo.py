@@ -57,17 +57,20 @@ def run(args: argparse.Namespace) -> int:
         REFERENCE_NAME,
         claim_folder,
         expand_jobs,
+        first_press_number,
         load_dataset_spec,
         run_dataset,
         spec_digest,
         write_manifest,
     )
     from ..sim.scene import dataset_spec_path
+    from .folders import check_not_in_press
 
     check_count("--solve-workers", args.solve_workers, minimum=1)  # before minutes of rendering, not after
     out = Path(args.out)
+    check_not_in_press(out, "render the demo")
     spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
-    jobs = expand_jobs(spec)
+    jobs = expand_jobs(spec, first=first_press_number(out))  # an earlier demo's press_0000, ... are reused
     out.mkdir(parents=True, exist_ok=True)
     with claim_folder(out, spec_digest(spec, scene, jobs)):  # a `nlips dataset` of another spec there: refused
         write_manifest(out, spec, scene, jobs)

@@ -45,6 +45,9 @@ def read_led_file(path: str | Path) -> LedFile:
         raise CaptureError(f"{path}: no such LED file") from None
     except IsADirectoryError:
         raise CaptureError(f"{path}: a folder, not an LED file (the .json from `nlips calibrate-leds`)") from None
+    except UnicodeDecodeError:  # a binary file (a model .pt, an image): the decoder's byte offsets tell a user nothing
+        hint = "give the .json from `nlips calibrate-leds`"
+        raise CaptureError(f"{path}: not an LED file (binary, not JSON): {hint}") from None
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
         raise CaptureError(f"{path}: not a valid LED file ({exc})") from None
     sensor = data.get("sensor")

@@ -11,9 +11,18 @@ The public names of datasets, each from the module that does one job:
 from __future__ import annotations
 
 from .dataset_folder import check_existing, is_complete, warn_unlisted
-from .dataset_manifest import FOLDER_CLAIM, MANIFEST, claim_folder, manifest_text, spec_digest, write_manifest
+from .dataset_manifest import (
+    FOLDER_CLAIM,
+    MANIFEST,
+    claim_folder,
+    first_press_number,
+    manifest_text,
+    spec_digest,
+    write_manifest,
+)
 from .dataset_pool import check_space, press_bytes, run_dataset
 from .dataset_spec import (
+    FIRST_PRESS,
     REFERENCE_NAME,
     DatasetSpec,
     GridSpec,
@@ -25,6 +34,7 @@ from .dataset_spec import (
 )
 
 __all__ = [
+    "FIRST_PRESS",
     "FOLDER_CLAIM",
     "MANIFEST",
     "REFERENCE_NAME",
@@ -36,6 +46,7 @@ __all__ = [
     "check_space",
     "claim_folder",
     "expand_jobs",
+    "first_press_number",
     "is_complete",
     "limit_presses",
     "load_dataset_spec",

@@ -78,12 +78,16 @@ def warn_unlisted(jobs: list[PressJob], out: Path) -> list[str]:
     extra = sorted(p.name for p in out.iterdir() if p.is_dir() and p.name not in named and is_press_folder(p))
     if extra:
         more = f" and {len(extra) - 3} more" if len(extra) > 3 else ""
+        are, them = ("is", "it") if len(extra) == 1 else ("are", "them")
         log.warning(
-            "%s: %s%s are not in this spec (left from an earlier one); later commands on the folder still use "
-            "them: remove them, or render into a new folder",
+            "%s: %s%s %s not in this spec (left from an earlier one); later commands on the folder still use "
+            "%s: remove %s, or render into a new folder",
             out,
             ", ".join(extra[:3]),
             more,
+            are,
+            them,
+            them,
         )
     return extra
 

@@ -38,6 +38,23 @@ def write_manifest(out: Path, spec: DatasetSpec, scene: SceneConfig, jobs: list[
     return write_if_changed(out / MANIFEST, manifest_text(spec, scene, jobs))
 
 
+def first_press_number(out: Path) -> int:
+    """The number of the first press in dataset folder ``out``: 0 when it holds a dataset numbered from
+    ``press_0000`` (rendered before :data:`.dataset_spec.FIRST_PRESS` was 1: its press folder or its dataset.json
+    says so), so that a run resumes it under its own names instead of refusing every press as another spec's;
+    else :data:`.dataset_spec.FIRST_PRESS`."""
+    from .dataset_spec import FIRST_PRESS
+
+    old = "press_0000"
+    if (out / old).is_dir():
+        return 0
+    try:
+        names = {press["name"] for press in json.loads((out / MANIFEST).read_bytes())["presses"]}
+    except (OSError, ValueError, KeyError, TypeError):  # no (readable) manifest: a new folder
+        return FIRST_PRESS
+    return 0 if old in names else FIRST_PRESS
+
+
 def spec_digest(spec: DatasetSpec, scene: SceneConfig, jobs: list[PressJob]) -> str:
     """What tells one spec's dataset from another's (hex, 16 digits): the manifest, and each press's render hash
     (which also counts the content of an indenter's mesh file, the manifest naming only its path)."""

@@ -16,6 +16,10 @@ from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
 
 REFERENCE_NAME = REFERENCE_FOLDER  # the name every folder of presses uses (core.capture)
+FIRST_PRESS = 1
+"""Number of a dataset's first press (``press_0001``): presses count from 1, as a capture session's do and as LEDs
+do (docs/conventions.md), so the first press of a rendered dataset and of a captured session have one name.
+Datasets rendered before this numbered from 0; their folders keep it (:func:`.dataset_manifest.first_press_number`)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -165,11 +169,12 @@ def _check_presses(spec: DatasetSpec, scene: SceneConfig, path: Path) -> None:
         raise ConfigError(f"{path}: {mode}.depth: {max(depths)} mm exceeds the gel thickness {scene.dome.thickness} mm")
 
 
-def expand_jobs(spec: DatasetSpec) -> list[PressJob]:
-    """The presses of a spec, in a fixed order, each with its own seed."""
+def expand_jobs(spec: DatasetSpec, first: int = FIRST_PRESS) -> list[PressJob]:
+    """The presses of a spec, in a fixed order, each with its own seed, named ``press_0001``, ... (from ``first``:
+    0 for a folder rendered before presses were numbered from 1, :func:`.dataset_manifest.first_press_number`)."""
     presses = _grid_presses(spec.grid) if spec.grid else _random_presses(spec.random, spec.seed)
     seeds = np.random.SeedSequence(spec.seed).generate_state(len(presses) + 1)
-    jobs = [PressJob(f"press_{i:04d}", p, int(s)) for i, (p, s) in enumerate(zip(presses, seeds[1:]))]
+    jobs = [PressJob(f"press_{first + i:04d}", p, int(s)) for i, (p, s) in enumerate(zip(presses, seeds[1:]))]
     if spec.reference:
         jobs.insert(0, PressJob(REFERENCE_NAME, None, int(seeds[0])))
     return jobs

@@ -33,7 +33,7 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "2", "--no-progress"]) == 0
     assert "3 rendered, 0 already there, 0 failed" in capsys.readouterr().out
     presses = find_presses(out)
-    assert [p.name for p in presses] == ["press_0000", "press_0001", "reference"]
+    assert [p.name for p in presses] == ["press_0001", "press_0002", "reference"]
     a, b = (load_press(p) for p in presses[:2])
     assert a.camera.shape == (60, 80) and a.ground_truth.contact.any()
     assert a.meta["provenance"]["press"]["azimuth_deg"] != b.meta["provenance"]["press"]["azimuth_deg"]
@@ -43,34 +43,34 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
 
     # press folders without meta.json (interrupted copies) are removed and rendered again by the
     # worker processes, which say so in the --log-file too
-    for name in ("press_0000", "press_0001"):
+    for name in ("press_0001", "press_0002"):
         (out / name / "meta.json").unlink()
     log = tmp_path / "run.log"
     args = ["--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "2", "--no-progress"]
     assert main(args) == 0
     assert "2 rendered, 1 already there, 0 failed" in capsys.readouterr().out
     text = log.read_text()
-    for name in ("press_0000", "press_0001"):
+    for name in ("press_0001", "press_0002"):
         assert f"{name}: incomplete press folder" in text, text
         assert load_press(out / name).camera.shape == (60, 80)
 
     # solving the whole dataset folder: the reference is used, not solved; a broken press is
     # reported and the others are still solved
-    (out / "press_0001" / "led_03.png").write_bytes(b"broken")
+    (out / "press_0002" / "led_03.png").write_bytes(b"broken")
     code = main(["solve", str(out), "--roi", "auto", "--reference", str(out / "reference")])
     assert code == 1
-    assert (out / "press_0000" / "nlips" / "result.npz").is_file()
-    assert not (out / "press_0001" / "nlips").exists() and not (out / "reference" / "nlips").exists()
+    assert (out / "press_0001" / "nlips" / "result.npz").is_file()
+    assert not (out / "press_0002" / "nlips").exists() and not (out / "reference" / "nlips").exists()
     # without --reference, the dataset's own reference/ is the reference: used, not solved
-    first = json.loads((out / "press_0000" / "nlips" / "report.json").read_text())["provenance"]
+    first = json.loads((out / "press_0001" / "nlips" / "report.json").read_text())["provenance"]
     assert main(["solve", str(out), "--roi", "auto", "--overwrite"]) == 1
-    again = json.loads((out / "press_0000" / "nlips" / "report.json").read_text())["provenance"]
+    again = json.loads((out / "press_0001" / "nlips" / "report.json").read_text())["provenance"]
     assert again["settings"]["reference"] == str(out / "reference") and again["key"] == first["key"]
     assert not (out / "reference" / "nlips").exists()
     capsys.readouterr()
     assert main(["eval", str(out)]) == 0  # scores what was solved, names what was not
     table = capsys.readouterr().out
-    assert "press_0000" in table and "not solved, skipped: press_0001\n" in table  # the reference is no press
+    assert "press_0001" in table and "not solved, skipped: press_0002\n" in table  # the reference is no press
 
 
 def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
@@ -83,7 +83,7 @@ def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
     spec.write_text(rim.replace("seed = 5", "seed = 5\nreference = false"))
     assert main(["dataset", str(spec), "--out", str(tmp_path / "d"), "--workers", "1", "--no-progress"]) == 1
     err = capsys.readouterr().err  # found only while rendering: reported per press, the others go on
-    assert "press_0000" in err and "rim" in err
+    assert "press_0001" in err and "rim" in err
     spec.write_text("[grid]\nindenter = []\n")
     assert main(["dataset", str(spec), "--out", str(tmp_path / "e")]) == 2
     assert "spec.toml" in capsys.readouterr().err
@@ -99,9 +99,9 @@ def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
         assert main(["demo", "--spec", str(spec), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert (out / "contact_sheet.png").stat().st_size > 10_000
-    assert "press_0000" in text and "sphere" in text
-    assert (out / "press_0000" / "nlips" / "result.npz").is_file()
-    aae = float(text.split("press_0000")[1].split()[1].rstrip("°"))
+    assert "press_0001" in text and "sphere" in text
+    assert (out / "press_0001" / "nlips" / "result.npz").is_file()
+    aae = float(text.split("press_0001")[1].split()[1].rstrip("°"))
     assert aae < 10.0  # a tiny noisy image still gives a sensible reconstruction
     reused = [r for r in caplog.records if "identical result exists" in r.getMessage()]
     assert not reused  # solved just now: loading it for the scores is not reported as a skip

@@ -18,7 +18,7 @@ def test_dataset_rerun_with_changed_spec_is_not_silent(tmp_path, monkeypatch, ca
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]) == 0
-    assert calls == ["reference", "press_0000", "press_0001"]  # --limit counts presses; the reference comes too
+    assert calls == ["reference", "press_0001", "press_0002"]  # --limit counts presses; the reference comes too
     manifest = (out / "dataset.json").read_text()
     assert len(json.loads(manifest)["presses"]) == 5  # the whole spec, whatever --limit renders
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
@@ -42,17 +42,17 @@ def test_dataset_rerenders_a_press_folder_without_meta_json(tmp_path, monkeypatc
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    (out / "press_0002" / "meta.json").unlink()  # an interrupted copy: images, no meta.json
-    (out / "press_0002" / "led_01.png").write_bytes(b"partial")
+    (out / "press_0003" / "meta.json").unlink()  # an interrupted copy: images, no meta.json
+    (out / "press_0003" / "led_01.png").write_bytes(b"partial")
     calls.clear()
     capsys.readouterr()
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
     captured = capsys.readouterr()
     assert "1 rendered, 4 already there, 0 failed" in captured.out
-    assert calls == ["press_0002"] and (out / "press_0002" / "meta.json").is_file()
-    assert not (out / "press_0002" / "led_01.png").exists()  # the old folder went, not merged
+    assert calls == ["press_0003"] and (out / "press_0003" / "meta.json").is_file()
+    assert not (out / "press_0003" / "led_01.png").exists()  # the old folder went, not merged
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
-    assert any("press_0002" in w and "no meta.json" in w for w in warnings), warnings
+    assert any("press_0003" in w and "no meta.json" in w for w in warnings), warnings
     assert [p.name for p in out.iterdir() if p.name.startswith(".")] == []  # no temporary or claim left
 
 
@@ -63,16 +63,16 @@ def test_dataset_leaves_an_incomplete_folder_a_live_process_works_in(tmp_path, m
     spec.write_text(SPEC)
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
-    (out / "press_0001").mkdir(parents=True)
-    (out / "press_0001" / "dark.png").write_bytes(b"x")
-    with claim(out / "press_0001" / "nlips") as mine:  # a live process working inside it
+    (out / "press_0002").mkdir(parents=True)
+    (out / "press_0002" / "dark.png").write_bytes(b"x")
+    with claim(out / "press_0002" / "nlips") as mine:  # a live process working inside it
         assert mine
         assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 1
     err = capsys.readouterr().err
-    assert "press_0001" in err and ".claim-nlips" in err and "run again" in err
-    assert "press_0001" not in calls and (out / "press_0001" / "dark.png").read_bytes() == b"x"
+    assert "press_0002" in err and ".claim-nlips" in err and "run again" in err
+    assert "press_0002" not in calls and (out / "press_0002" / "dark.png").read_bytes() == b"x"
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0  # released: rendered now
-    assert calls.count("press_0001") == 1 and (out / "press_0001" / "meta.json").is_file()
+    assert calls.count("press_0002") == 1 and (out / "press_0002" / "meta.json").is_file()
 
 
 def test_dataset_names_a_damaged_meta_json(tmp_path, monkeypatch, capsys):
@@ -81,19 +81,19 @@ def test_dataset_names_a_damaged_meta_json(tmp_path, monkeypatch, capsys):
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    (out / "press_0002" / "meta.json").write_text("{\n")
+    (out / "press_0003" / "meta.json").write_text("{\n")
     calls.clear()
     capsys.readouterr()
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
     err = capsys.readouterr().err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in err, err
-    assert str(out / "press_0002" / "meta.json") in err and "not valid JSON" in err
+    assert str(out / "press_0003" / "meta.json") in err and "not valid JSON" in err
     assert "different scene or spec" not in err and "--overwrite" in err and "delete" in err
     assert calls == []
     monkeypatch.setattr(dataset_pool, "_run_one", _overwriting_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--overwrite"]) == 0
-    assert calls == ["press_0002"] and json.loads((out / "press_0002" / "meta.json").read_text())
+    assert calls == ["press_0003"] and json.loads((out / "press_0003" / "meta.json").read_text())
 
 
 def _overwriting_render(calls):

@@ -136,3 +136,16 @@ def test_tricolor_colors_light_leds_1_to_4_red_5_to_8_green_9_to_12_blue():
     assert colors.shape == (12, 3)
     np.testing.assert_array_equal(colors.argmax(axis=1), [0] * 4 + [1] * 4 + [2] * 4)
     np.testing.assert_array_equal(colors.sum(axis=1), np.ones(12))  # one channel each, fully on
+
+
+def test_a_binary_file_given_as_an_led_file_is_named_without_the_decoders_byte_offsets(tmp_path):
+    """`nlips solve PRESS --leds out/nlipsnet.pt` (a model, not the LED JSON) said "not a valid LED file ('utf-8'
+    codec can't decode byte 0x80 in position 64: invalid start byte)"."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.core.ledfile import read_led_file
+
+    model = tmp_path / "nlipsnet.pt"
+    model.write_bytes(b"PK\x03\x04" + bytes(range(256)))
+    with pytest.raises(CaptureError) as err:
+        read_led_file(model)
+    assert str(err.value) == f"{model}: not an LED file (binary, not JSON): give the .json from `nlips calibrate-leds`"

@@ -82,7 +82,7 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
 
     def fake_render(scene, job, out, overwrite=False):
         calls.append(job.name)
-        if job.name == "press_0002":
+        if job.name == "press_0003":
             raise ConfigError("indenter off the dome")
         folder = out / job.name
         folder.mkdir()
@@ -91,15 +91,15 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
 
     monkeypatch.setattr(dataset_pool, "_run_one", fake_render)
     out = tmp_path / "out"
-    (out / (TMP_PREFIX + "press_0001-x")).mkdir(parents=True)  # an interrupted earlier write (old naming)
-    os.utime(out / (TMP_PREFIX + "press_0001-x"), (0, 0))
+    (out / (TMP_PREFIX + "press_0002-x")).mkdir(parents=True)  # an interrupted earlier write (old naming)
+    os.utime(out / (TMP_PREFIX + "press_0002-x"), (0, 0))
     first = run_dataset(scene, jobs, out, workers=1, progress=False)
-    assert sorted(first["rendered"]) == ["press_0000", "press_0001", "reference"]
-    assert first["failed"][0][0] == "press_0002" and "off the dome" in first["failed"][0][1]
+    assert sorted(first["rendered"]) == ["press_0001", "press_0002", "reference"]
+    assert first["failed"][0][0] == "press_0003" and "off the dome" in first["failed"][0][1]
     assert not list(out.glob(TMP_PREFIX + "*"))
     calls.clear()
     second = run_dataset(scene, jobs, out, workers=1, progress=False)
-    assert calls == ["press_0002"]  # finished presses are never rendered twice
+    assert calls == ["press_0003"]  # finished presses are never rendered twice
     assert len(second["skipped"]) == 3
 
 
@@ -136,18 +136,18 @@ def test_an_edited_indenter_mesh_makes_its_presses_stale_and_only_those(tmp_path
     monkeypatch.chdir(tmp_path)  # the mesh is found beside the spec, not in the working directory
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    assert calls == ["reference", "press_0000", "press_0001", "press_0002", "press_0003"]
+    assert calls == ["reference", "press_0001", "press_0002", "press_0003", "press_0004"]
     calls.clear()
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0 and calls == []  # unchanged
     trimesh.creation.box(extents=[4.0, 4.0, 3.0]).export(folder / "part.stl")
     capsys.readouterr()
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "press_0002, press_0003 were rendered" in err[0] and "mesh file" in err[0], err
+    assert len(err) == 1 and "press_0003, press_0004 were rendered" in err[0] and "mesh file" in err[0], err
     assert calls == []
     monkeypatch.setattr(dataset_pool, "_run_one", _rerender(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--overwrite"]) == 0
-    assert calls == ["press_0002", "press_0003"]  # the mesh's presses only
+    assert calls == ["press_0003", "press_0004"]  # the mesh's presses only
 
 
 def _rerender(calls):
@@ -189,13 +189,19 @@ def test_press_folders_a_shorter_spec_no_longer_names_are_warned_about(tmp_path,
 
     from nlipscalib.sim.dataset import warn_unlisted
 
-    for name in ("press_0000", "press_0002", "reference", "notes"):
+    for name in ("press_0001", "press_0003", "reference", "notes"):
         (tmp_path / name).mkdir()
         if name != "notes":
             (tmp_path / name / "meta.json").write_text("{}")
-    jobs = [SimpleNamespace(name="press_0000"), SimpleNamespace(name="press_0001")]
-    assert warn_unlisted(jobs, tmp_path) == ["press_0002", "reference"]
-    assert "press_0002, reference are not in this spec" in caplog.text
+    jobs = [SimpleNamespace(name="press_0001"), SimpleNamespace(name="press_0002")]
+    assert warn_unlisted(jobs, tmp_path) == ["press_0003", "reference"]
+    assert "press_0003, reference are not in this spec" in caplog.text
+    caplog.clear()
+    assert warn_unlisted([*jobs, SimpleNamespace(name="reference")], tmp_path) == ["press_0003"]
+    assert (
+        "press_0003 is not in this spec (left from an earlier one); later commands on the folder still use it: "
+        "remove it," in caplog.text
+    )  # one folder: "is", "it" ("press_0003 are not ...; remove them" was the line)
 
 
 def _publish_as_another_run(scene, job, out):
@@ -233,13 +239,13 @@ def test_a_press_another_spec_rendered_meanwhile_is_refused_not_counted_as_there
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [
-        f"nlips dataset: error: {out}: press_0001 were rendered from a different scene or spec; render into a new "
+        f"nlips dataset: error: {out}: press_0002 were rendered from a different scene or spec; render into a new "
         "folder, or use --overwrite to re-render them"
     ], err
-    assert calls == ["reference", "press_0000"]  # found under press_0001's claim, not before the run
+    assert calls == ["reference", "press_0001"]  # found under press_0002's claim, not before the run
     calls.clear()
     monkeypatch.setattr(dataset_pool, "_run_one", _rerender(calls))
-    assert main([*args, "--overwrite"]) == 0 and calls == ["press_0001"]  # --overwrite renders it again
+    assert main([*args, "--overwrite"]) == 0 and calls == ["press_0002"]  # --overwrite renders it again
 
 
 def _whole_render(calls):
@@ -271,13 +277,13 @@ def test_a_press_that_lost_a_file_is_rendered_again_not_counted_as_there(tmp_pat
     spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
     monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
     args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
-    assert main(args) == 0 and calls == ["reference", "press_0000", "press_0001"]
-    (out / "press_0000" / "led_02.png").unlink()
+    assert main(args) == 0 and calls == ["reference", "press_0001", "press_0002"]
+    (out / "press_0001" / "led_02.png").unlink()
     (out / "reference" / "reference.npz").unlink()
     calls.clear()
     capsys.readouterr()
     assert main(args) == 0
-    assert calls == ["reference", "press_0000"]
+    assert calls == ["reference", "press_0001"]
     assert capsys.readouterr().out.strip() == f"{out}: 2 rendered, 1 already there, 0 failed"
     assert "led_02.png missing; rendering it again" in caplog.text
     assert not [p for p in out.rglob("*") if p.name.startswith((".tmp-", ".claim-"))]
@@ -295,15 +301,15 @@ def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_pa
     monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
     args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
     assert main(args) == 0
-    (out / "press_0000" / "led_02.png").unlink()
-    (out / "press_0000" / "nlips").mkdir()  # a result of an earlier solve
+    (out / "press_0001" / "led_02.png").unlink()
+    (out / "press_0001" / "nlips").mkdir()  # a result of an earlier solve
     calls.clear()
-    with claim(out / "press_0000" / "nlips") as mine:  # a solve at work in it (this process stands for it)
+    with claim(out / "press_0001" / "nlips") as mine:  # a solve at work in it (this process stands for it)
         assert mine
         assert main(args) == 1
     said = capsys.readouterr()
     assert calls == [] and "led_02.png missing, but process" in said.out + said.err
-    assert main(args) == 0 and calls == ["press_0000"]
+    assert main(args) == 0 and calls == ["press_0001"]
     assert "(its results nlips/ go with it)" in caplog.text
 
 
@@ -338,5 +344,55 @@ def test_a_live_run_of_another_spec_keeps_the_folder_even_from_overwrite_and_a_k
     killed.wait(30)
     stale = out / ".claim-dataset~0123456789abcdef~0011223344556677"
     stale.write_text(json.dumps({"host": HOST, "pid": killed.pid, "token": "x"}))
-    assert main(args) == 0 and calls == ["reference", "press_0000"]
-    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "press_0000", "reference"]  # its claim swept
+    assert main(args) == 0 and calls == ["reference", "press_0001"]
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "press_0001", "reference"]  # its claim swept
+
+
+def test_presses_are_numbered_from_1_as_a_capture_session_s_and_an_old_folder_keeps_its_numbering(
+    tmp_path, monkeypatch, capsys
+):
+    """`nlips dataset` named its presses press_0000, ... while `nlips capture` starts at press_0001 (and LEDs count
+    from 1): a dataset now starts at press_0001 too. A folder rendered from press_0000 (an older nlips) resumes under
+    its own names: numbered afresh, its every press would be refused as rendered from another spec."""
+    from nlipscalib.cli import main
+
+    spec, calls = _write(tmp_path, GRID), []
+    monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
+    new, old = tmp_path / "new", tmp_path / "old"
+    args = ["--no-progress", "dataset", str(spec), "--workers", "1", "--limit", "2", "--out"]
+    assert main([*args, str(new)]) == 0 and calls == ["reference", "press_0001", "press_0002"]
+    assert [j.name for j in expand_jobs(load_dataset_spec(spec)[0])][:3] == ["reference", "press_0001", "press_0002"]
+
+    spec_, scene = load_dataset_spec(spec)
+    old.mkdir()
+    for job in ds.limit_presses(expand_jobs(spec_, first=0), 2):  # what an older nlips rendered
+        _whole_render([])(scene, job, old)
+    calls.clear()
+    capsys.readouterr()
+    assert main([*args, str(old), "--limit", "3"]) == 0 and calls == ["press_0002"]  # its third press, old name
+    assert capsys.readouterr().out.strip() == f"{old}: 1 rendered, 3 already there, 0 failed"
+    assert ds.first_press_number(old) == 0 and ds.first_press_number(new) == 1
+    names = sorted(p.name for p in old.iterdir() if p.is_dir())
+    assert names == ["press_0000", "press_0001", "press_0002", "reference"]
+
+
+def test_a_dataset_into_a_press_folder_is_refused_before_anything_is_written(tmp_path, monkeypatch, capsys):
+    """`nlips dataset SPEC --out out/press` (a press folder) rendered its reference/ and presses among the press's
+    images, exit 0; so did `nlips demo --out` and `nlips capture --out` there (an emulated session of 10 presses).
+    Now one line naming the folder, exit 2, nothing written."""
+    from nlipscalib.cli import main
+
+    spec, calls = _write(tmp_path, GRID), []
+    monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
+    press = tmp_path / "press"
+    press.mkdir()
+    (press / "meta.json").write_text("{}")
+    for out, command in [(press, ["dataset", str(spec)]), (press / "sub", ["dataset", str(spec)]), (press, ["demo"])]:
+        capsys.readouterr()
+        assert main(["--no-progress", *command, "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "is a press folder" in err and str(press) in err and len(err.splitlines()) == 1, err
+    assert calls == [] and sorted(p.name for p in press.iterdir()) == ["meta.json"]
+    assert main(["capture", "--emulate", "nlipstac", "--out", str(press), "--yes"]) == 2  # a session alike
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("is a press folder (it has meta.json); capture the session into another folder"), err

@@ -21,7 +21,7 @@ from tests.specs import TINY_SPEC as SPEC
 pytest.importorskip("mitsuba")
 
 ROOT = Path(__file__).resolve().parents[2]
-NAMES = ["reference", "press_0000", "press_0001", "press_0002", "press_0003"]
+NAMES = ["reference", "press_0001", "press_0002", "press_0003", "press_0004"]
 
 
 def _start(spec: Path, out: Path, log: Path) -> subprocess.Popen:
@@ -117,7 +117,7 @@ def test_concurrent_runs_of_different_specs_leave_one_spec(tmp_path):
     for path, seed in zip(specs, ("1", "2")):
         path.write_text(SPEC.replace("seed = 1", f"seed = {seed}").replace("[0.0, 15.0]", "[0.0]"))
     with contextlib.ExitStack() as held:
-        for name in ("reference", "press_0000", "press_0001"):
+        for name in ("reference", "press_0001", "press_0002"):
             assert held.enter_context(claim(out / name))
         procs = []
         for i, path in enumerate(specs):
