@@ -21,6 +21,7 @@ from typing import NoReturn
 
 from .. import __version__, progress
 from ..core.errors import MissingDependencyError, NlipsError
+from ..core.processes import end_processes  # here, not in the signal handler that uses it
 
 SUBCOMMAND_MODULES = (
     "render",
@@ -324,22 +325,15 @@ def _render_left_running() -> bool:
     return interruptible is not None and interruptible.abandoned_work_running()
 
 
-WORKER_GRACE_S = 5.0
-"""Seconds a terminated command gives its worker processes to release their claims and exit before killing them."""
-
-
 def _stop_workers() -> None:
     """End the command's worker processes (``--workers N`` pools of solve, calibrate, dataset; experiment tasks).
 
     A plain ``kill PID`` signals this process alone (a scheduler or ``timeout`` signals the whole group): its
     workers, reparented to init, went on publishing results after the "terminated" line and then waited forever
     for tasks. Each gets SIGTERM (its handler releases its claims and temporaries and exits), and SIGKILL if it
-    has not ended within :data:`WORKER_GRACE_S` (a long native call, e.g. one Mitsuba render; what it leaves, a
-    dead process's claim and temporary, the next run takes over and removes).
+    has not ended within :data:`nlipscalib.core.processes.WORKER_GRACE_S` (a long native call of its main thread;
+    what it leaves, a dead process's claim and temporary, the next run takes over and removes).
     """
-    import contextlib
-    import time
-
     mp = sys.modules.get("multiprocessing")
     if mp is None:  # no worker was ever started
         return
@@ -350,18 +344,7 @@ def _stop_workers() -> None:
         workers = mp.active_children()
     except Exception:  # best effort on the way out
         return
-    for worker in workers:
-        with contextlib.suppress(Exception):
-            worker.terminate()
-    deadline = time.monotonic() + WORKER_GRACE_S
-    for worker in workers:
-        with contextlib.suppress(Exception):
-            worker.join(max(0.0, deadline - time.monotonic()))
-    for worker in workers:
-        with contextlib.suppress(Exception):
-            if worker.is_alive():
-                worker.kill()
-                worker.join(1.0)
+    end_processes(workers)
 
 
 def _release_multiprocessing_resources() -> None:

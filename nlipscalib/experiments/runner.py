@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
+from ..core.processes import sigint_held
 from .tasks import REUSED, Task, clean_leftovers, execute, load_result
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
@@ -135,7 +136,7 @@ class _backend:
             # the scheduler's HTTP pages (no dashboard: dashboard_address None) on a free port of this machine only,
             # not on 8787, which another run or a user's dashboard may hold
             local = {"dashboard_address": LOCAL_HTTP}
-            with _sigint_held():  # its worker processes never see Ctrl-C; one pressed meanwhile comes after
+            with sigint_held():  # its worker processes never see Ctrl-C; one pressed meanwhile comes after
                 self.cluster = local_cluster(
                     n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, scheduler_kwargs=local
                 )
@@ -417,21 +418,6 @@ def _sigint_ignored():
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
-
-
-@contextlib.contextmanager
-def _sigint_held():
-    """Ctrl-C held back (blocked, not lost) while a local cluster starts: the thread and the worker processes it
-    starts inherit the block (through exec too), so Ctrl-C never reaches a worker, which died of it mid-task with a
-    traceback of its own; one pressed meanwhile reaches the command once the cluster is up (then closed at once)."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def check_scheduler(scheduler: str | None) -> int | None:
