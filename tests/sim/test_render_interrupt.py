@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.processes import as_from_a_terminal
+from tests.processes import ENDLESS_PATCH, as_from_a_terminal, endless_renders
 
 pytest.importorskip("mitsuba")
 
@@ -91,35 +91,6 @@ def test_mitsuba_warnings_of_a_render_are_logged_once_each_without_its_interrupt
     assert f"{tag} after the render" in capfd.readouterr().out
 
 
-ENDLESS_PATCH = """
-import contextlib
-import os
-
-import drjit as dr
-
-from nlipscalib.sim.render import plugins
-
-make = plugins.make_integrator_class
-
-
-def endless(mi, led):
-    class Endless(make(mi, led)):
-        def sample(self, *args, **kwargs):  # traced once, into a kernel that runs for minutes
-            total, valid, aovs = super().sample(*args, **kwargs)
-            width = dr.width(total[0])
-            # x <- x^2 / 2 + 1/4, 2^32 - 1 times in every lane: no compiler computes it in closed form
-            state = (dr.zeros(mi.UInt32, width), dr.full(mi.Float, 0.25, width))
-            x = dr.while_loop(state, lambda i, x: i < 0xFFFFFFFF, lambda i, x: (i + 1, dr.fma(x * 0.5, x, 0.25)))[1]
-            open(os.path.join(os.environ["RENDER_TRACED"], str(os.getpid())), "w").close()
-            return total + dr.select(x < 0, 1.0, 0.0), valid, aovs
-
-    return Endless
-
-
-plugins.make_integrator_class = endless
-"""
-"""Every render of the process endless; each process that traced one marks it by a file (its pid) in the folder
-``$RENDER_TRACED``."""
 ENDLESS_RENDER = f"""
 import signal
 
@@ -187,17 +158,14 @@ def test_ctrl_c_during_a_datasets_worker_renders_ends_the_run_at_once_and_a_reru
     from tests.cli.test_interrupt import _wait_until_gone
     from tests.specs import TINY_SPEC
 
-    spec, out, traced, patch = tmp_path / "spec.toml", tmp_path / "out", tmp_path / "traced", tmp_path / "patch"
+    spec, out = tmp_path / "spec.toml", tmp_path / "out"
     spec.write_text(TINY_SPEC)  # the reference and four presses
-    traced.mkdir()
-    patch.mkdir()
-    (patch / "sitecustomize.py").write_text(ENDLESS_PATCH)  # imported by every Python process the run starts
     path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
     command = [sys.executable, "-m", "nlipscalib", "--no-progress", "dataset", str(spec), "--out", str(out)]
     done = subprocess.run([*command, "--limit", "1", "--workers", "1"], env=dict(os.environ, PYTHONPATH=path))
     assert done.returncode == 0  # the reference and press_0000 rendered
 
-    env = dict(os.environ, RENDER_TRACED=str(traced), PYTHONPATH=os.pathsep.join([str(patch), path]))
+    env, traced = endless_renders(dict(os.environ, PYTHONPATH=path), tmp_path)
     proc = as_from_a_terminal([*command, "--workers", "2"], env=env, start_new_session=True)
     try:
         deadline = time.monotonic() + 300
