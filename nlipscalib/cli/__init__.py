@@ -270,10 +270,10 @@ def _end_at_once(line: str | None, code: int) -> NoReturn:
     removed, ``line`` on stderr (None: none), exit ``code``."""
     from ..core import atomic, claims
 
+    _release_multiprocessing_resources()  # first: before the workers end (see there)
     _stop_workers()
     claims.release_all()
     atomic.remove_in_progress()
-    _release_multiprocessing_resources()
     if line is not None:
         print(line, file=sys.stderr)
     sys.stderr.flush()
@@ -359,6 +359,14 @@ def _release_multiprocessing_resources() -> None:
     multiprocessing runs first at exit (priority >= 0: unlink and unregister each semaphore, close
     the queues' feeders, neither of which waits for a worker) frees them here, so nothing leaks and
     the tracker has nothing to report. Silencing the tracker instead would hide real leaks.
+
+    Run before the workers are ended, not after: a worker's end makes another thread free its queues -- a Dask
+    local cluster's nanny (its event loop thread) lets go of the worker's two queues, whose finalizers then run in
+    that thread or in a queue's feeder thread. A finalizer runs once, in the thread that first calls it; one such
+    thread between ``sem_unlink`` and the unregistering when ``os._exit`` came left the semaphore registered but
+    gone, and the tracker warned in four lines ("1 leaked semaphore objects", "'/mp-...': [Errno 2] No such file
+    or directory"): 2 runs in 4 of a terminated ``--scheduler local:2`` at load 8. Run first, in this thread,
+    every finalizer is done when the workers end, and later calls elsewhere find nothing to do.
     """
     util = sys.modules.get("multiprocessing.util")
     if util is None:  # no pool was ever made in this process: nothing to free
