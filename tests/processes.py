@@ -1,5 +1,6 @@
 """Processes at controlled moments, for tests of interrupted and concurrent work (no timing guesses)."""
 
+import os
 import signal
 import subprocess
 import sys
@@ -43,3 +44,45 @@ def until_each_waits_or_exits(procs: list, logs: list[Path], says: str, timeout:
 
 def _text(path: Path) -> str:
     return path.read_text() if path.exists() else ""
+
+
+ENDLESS_PATCH = """
+import os
+
+import drjit as dr
+
+from nlipscalib.sim.render import plugins
+
+make = plugins.make_integrator_class
+
+
+def endless(mi, led):
+    class Endless(make(mi, led)):
+        def sample(self, *args, **kwargs):  # traced once, into a kernel that runs for minutes
+            total, valid, aovs = super().sample(*args, **kwargs)
+            width = dr.width(total[0])
+            # x <- x^2 / 2 + 1/4, 2^32 - 1 times in every lane: no compiler computes it in closed form
+            state = (dr.zeros(mi.UInt32, width), dr.full(mi.Float, 0.25, width))
+            x = dr.while_loop(state, lambda i, x: i < 0xFFFFFFFF, lambda i, x: (i + 1, dr.fma(x * 0.5, x, 0.25)))[1]
+            open(os.path.join(os.environ["RENDER_TRACED"], str(os.getpid())), "w").close()
+            return total + dr.select(x < 0, 1.0, 0.0), valid, aovs
+
+    return Endless
+
+
+plugins.make_integrator_class = endless
+"""
+"""Every render of the process endless; each process that traced one marks it by a file (its pid) in the folder
+``$RENDER_TRACED``."""
+
+
+def endless_renders(env: dict[str, str], folder: Path) -> tuple[dict[str, str], Path]:
+    """``env`` for a command whose every Mitsuba render, in each of its processes, is endless (:data:`ENDLESS_PATCH`
+    as a ``sitecustomize`` module in ``folder``, first on PYTHONPATH); and the folder where each process that traced
+    a render marks it (a file named by its pid)."""
+    patch, traced = folder / "endless", folder / "traced"
+    patch.mkdir()
+    traced.mkdir()
+    (patch / "sitecustomize.py").write_text(ENDLESS_PATCH)  # imported by every Python process the command starts
+    path = os.pathsep.join([str(patch), env.get("PYTHONPATH", "")])
+    return dict(env, PYTHONPATH=path, RENDER_TRACED=str(traced)), traced

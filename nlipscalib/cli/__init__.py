@@ -21,6 +21,7 @@ from typing import NoReturn
 
 from .. import __version__, progress
 from ..core.errors import MissingDependencyError, NlipsError
+from ..core.processes import end_processes  # here, not in the signal handler that uses it
 
 SUBCOMMAND_MODULES = (
     "render",
@@ -269,10 +270,10 @@ def _end_at_once(line: str | None, code: int) -> NoReturn:
     removed, ``line`` on stderr (None: none), exit ``code``."""
     from ..core import atomic, claims
 
+    _release_multiprocessing_resources()  # first: before the workers end (see there)
     _stop_workers()
     claims.release_all()
     atomic.remove_in_progress()
-    _release_multiprocessing_resources()
     if line is not None:
         print(line, file=sys.stderr)
     sys.stderr.flush()
@@ -324,22 +325,15 @@ def _render_left_running() -> bool:
     return interruptible is not None and interruptible.abandoned_work_running()
 
 
-WORKER_GRACE_S = 5.0
-"""Seconds a terminated command gives its worker processes to release their claims and exit before killing them."""
-
-
 def _stop_workers() -> None:
     """End the command's worker processes (``--workers N`` pools of solve, calibrate, dataset; experiment tasks).
 
     A plain ``kill PID`` signals this process alone (a scheduler or ``timeout`` signals the whole group): its
     workers, reparented to init, went on publishing results after the "terminated" line and then waited forever
     for tasks. Each gets SIGTERM (its handler releases its claims and temporaries and exits), and SIGKILL if it
-    has not ended within :data:`WORKER_GRACE_S` (a long native call, e.g. one Mitsuba render; what it leaves, a
-    dead process's claim and temporary, the next run takes over and removes).
+    has not ended within :data:`nlipscalib.core.processes.WORKER_GRACE_S` (a long native call of its main thread;
+    what it leaves, a dead process's claim and temporary, the next run takes over and removes).
     """
-    import contextlib
-    import time
-
     mp = sys.modules.get("multiprocessing")
     if mp is None:  # no worker was ever started
         return
@@ -350,18 +344,7 @@ def _stop_workers() -> None:
         workers = mp.active_children()
     except Exception:  # best effort on the way out
         return
-    for worker in workers:
-        with contextlib.suppress(Exception):
-            worker.terminate()
-    deadline = time.monotonic() + WORKER_GRACE_S
-    for worker in workers:
-        with contextlib.suppress(Exception):
-            worker.join(max(0.0, deadline - time.monotonic()))
-    for worker in workers:
-        with contextlib.suppress(Exception):
-            if worker.is_alive():
-                worker.kill()
-                worker.join(1.0)
+    end_processes(workers)
 
 
 def _release_multiprocessing_resources() -> None:
@@ -376,6 +359,14 @@ def _release_multiprocessing_resources() -> None:
     multiprocessing runs first at exit (priority >= 0: unlink and unregister each semaphore, close
     the queues' feeders, neither of which waits for a worker) frees them here, so nothing leaks and
     the tracker has nothing to report. Silencing the tracker instead would hide real leaks.
+
+    Run before the workers are ended, not after: a worker's end makes another thread free its queues -- a Dask
+    local cluster's nanny (its event loop thread) lets go of the worker's two queues, whose finalizers then run in
+    that thread or in a queue's feeder thread. A finalizer runs once, in the thread that first calls it; one such
+    thread between ``sem_unlink`` and the unregistering when ``os._exit`` came left the semaphore registered but
+    gone, and the tracker warned in four lines ("1 leaked semaphore objects", "'/mp-...': [Errno 2] No such file
+    or directory"): 2 runs in 4 of a terminated ``--scheduler local:2`` at load 8. Run first, in this thread,
+    every finalizer is done when the workers end, and later calls elsewhere find nothing to do.
     """
     util = sys.modules.get("multiprocessing.util")
     if util is None:  # no pool was ever made in this process: nothing to free

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
+from ..core.processes import end_processes, sigint_held
 from .tasks import REUSED, Task, clean_leftovers, execute, load_result
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
@@ -135,7 +136,7 @@ class _backend:
             # the scheduler's HTTP pages (no dashboard: dashboard_address None) on a free port of this machine only,
             # not on 8787, which another run or a user's dashboard may hold
             local = {"dashboard_address": LOCAL_HTTP}
-            with _sigint_held():  # its worker processes never see Ctrl-C; one pressed meanwhile comes after
+            with sigint_held():  # its worker processes never see Ctrl-C; one pressed meanwhile comes after
                 self.cluster = local_cluster(
                     n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, scheduler_kwargs=local
                 )
@@ -153,9 +154,10 @@ class _backend:
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         if exc_type is not None and issubclass(exc_type, KeyboardInterrupt) and self.cluster is not None:
-            # Ctrl-C: closing the cluster kills workers mid-render; distributed's errors and warnings about that
-            # (a worker still alive, killed; a nanny's cancelled close) are of the stop the user asked for
+            # Ctrl-C: the workers are ended mid-render; distributed's errors and warnings about that (a worker
+            # still alive, killed; a nanny's cancelled close) are of the stop the user asked for
             _quiet_distributed(logging.CRITICAL)
+            _end_local_workers(self.cluster)
         try:
             if self.client is not None:
                 self.client.close()
@@ -240,15 +242,17 @@ class _WorkerSlots:
     @staticmethod
     def _stop(slots: list[tuple[SpawnProcess, Queue]], finished: bool) -> None:
         """End the workers: idle ones when all is done; on Ctrl-C (or an error here) at once, with SIGTERM, which
-        makes a worker release its claim and remove its temporaries first (``pipeline.workers._worker_signals``)."""
-        for proc, inbox in slots:
-            if finished:
-                inbox.put(None)
-            elif proc.is_alive():
-                proc.terminate()
+        makes a worker release its claim and remove its temporaries first (``pipeline.workers._worker_signals``),
+        then SIGKILL for one that has not ended within the grace (:func:`nlipscalib.core.processes.end_processes`;
+        its claim is stale at once, being ours)."""
+        if not finished:
+            end_processes(proc for proc, _ in slots)
+            return
+        for _, inbox in slots:
+            inbox.put(None)
         for proc, _ in slots:
             proc.join(timeout=5)
-            if proc.is_alive():  # inside a long native call (a render): its claim is stale at once, being ours
+            if proc.is_alive():
                 proc.kill()
 
     def _collect(self, busy: dict[int, Task], status: RunStatus, bar: tqdm) -> None:
@@ -377,11 +381,15 @@ def stop_restarting_workers() -> None:
     A local cluster's nanny starts a new worker process when one ends while the cluster runs: terminated with the
     command, each was replaced at once, and the new ones failed to start (a traceback each) once the command had
     gone. Marked closing, as closing the cluster would mark them (which a signal handler cannot wait for), the
-    nannies let their workers end.
+    nannies let their workers end. Without a local cluster (``--workers N``, a remote scheduler) nothing is done, nor
+    dask.distributed imported: that import, ~0.8 s of the terminated command's end, came before its workers got
+    their SIGTERM.
     """
+    if not _LOCAL_CLUSTERS:
+        return
     from distributed.core import Status
 
-    if _LOCAL_CLUSTERS and not logging.getLogger().isEnabledFor(logging.DEBUG):
+    if not logging.getLogger().isEnabledFor(logging.DEBUG):
         # the nannies' watchers then log the ends of the workers the command terminates ("process N exit status
         # was already read, will report exitcode 255"): news of our own doing, not the user's (-v shows them)
         for name in ("distributed.process", "distributed.nanny"):
@@ -390,6 +398,24 @@ def stop_restarting_workers() -> None:
         for nanny in list(getattr(cluster, "workers", {}).values()):
             with contextlib.suppress(Exception):  # on the way out: best effort
                 nanny.status = Status.closing
+
+
+def _end_local_workers(cluster: object) -> None:
+    """Ctrl-C: end each worker process of a local cluster now, with SIGTERM (its handler, run at once in its main
+    thread, releases its claims and temporaries and exits: ``pipeline.workers._worker_signals``), its nanny first
+    told to start no other; closing the cluster then finds them ended.
+
+    Why: closing the cluster asked each worker to close, which waited for the task it ran (a render, on a thread
+    that cannot be stopped) until its nanny's grace ran out and it killed the worker: ~4 s after Ctrl-C at 320x240.
+    """
+    import os
+
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        with contextlib.suppress(Exception):  # on the way out: best effort (a worker that already ended)
+            nanny.close_gracefully(reason="nlips-interrupted")  # its status only: no replacement for the worker
+            pid = nanny.process.pid if nanny.process is not None else None
+            if pid is not None:
+                os.kill(pid, signal.SIGTERM)
 
 
 def _main_thread_imports() -> WorkerPlugin:
@@ -417,21 +443,6 @@ def _sigint_ignored():
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
-
-
-@contextlib.contextmanager
-def _sigint_held():
-    """Ctrl-C held back (blocked, not lost) while a local cluster starts: the thread and the worker processes it
-    starts inherit the block (through exec too), so Ctrl-C never reaches a worker, which died of it mid-task with a
-    traceback of its own; one pressed meanwhile reaches the command once the cluster is up (then closed at once)."""
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
-        yield
-        return
-    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def check_scheduler(scheduler: str | None) -> int | None:

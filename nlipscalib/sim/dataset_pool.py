@@ -17,7 +17,7 @@ import secrets
 import shutil
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
@@ -28,6 +28,7 @@ from ..core.capture import META_FILE, is_press_folder
 from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, NlipsError
+from ..core.processes import end_processes, sigint_held
 from ..progress import configure_worker, progress_bar, worker_logging
 from .dataset_folder import (
     changed_error,
@@ -102,7 +103,11 @@ def run_dataset(
             with ProcessPoolExecutor(
                 workers, mp_context=get_context("spawn"), initializer=_worker_init, initargs=worker_logging()
             ) as pool:
-                submit = lambda job: pool.submit(_render_job, scene, job, out, overwrite, stale_s)  # noqa: E731
+
+                def submit(job: PressJob) -> Future:
+                    with sigint_held():  # a render process it starts never sees Ctrl-C (_worker_init)
+                        return pool.submit(_render_job, scene, job, out, overwrite, stale_s)
+
                 try:
                     _rounds(todo, submit, result, bar, pool=True)
                 except BrokenProcessPool:
@@ -110,7 +115,10 @@ def run_dataset(
                         f"{out}: a render process died (out of memory, or killed); finished presses are kept, "
                         "run again to resume (fewer --workers needs less memory)"
                     ) from None
-                except BaseException:
+                except KeyboardInterrupt:
+                    _stop_pool(pool)
+                    raise
+                except BaseException:  # an error: the renders under way finish (and are kept)
                     pool.shutdown(wait=True, cancel_futures=True)
                     raise
     return result
@@ -142,14 +150,28 @@ def check_space(out: Path, scene: SceneConfig, n_presses: int) -> None:
 
 
 # ---------------------------------------------------------------------- internals
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Ctrl-C: end the render processes now (each releases its claim and removes its half-written press folder,
+    :func:`_worker_terminated`) and start no other press.
+
+    Why not ``pool.shutdown(wait=True)``: it waited for the renders under way, tens of seconds each at 640x480.
+    Finished presses are kept; the interrupted ones are rendered again by the next run.
+    """
+    end_processes(list(pool._processes.values()))  # the pool's processes: no public accessor before Python 3.14
+    pool.shutdown(wait=True, cancel_futures=True)  # its manager thread, which finds them gone, ends
+
+
 def _worker_init(log_level: int, log_file: str | None = None) -> None:
-    """A render process: logs like the parent; on SIGTERM (sent by a terminated ``nlips dataset``, or to the whole
-    process group) releases its claim and removes its half-written press folder, then exits, as the parent
+    """A render process: logs like the parent; ignores Ctrl-C, which the parent answers by ending it (a terminal
+    sends Ctrl-C to every process of the command: a render process died of it with a traceback of its own, or
+    waited at its exit for the render it interrupted); on SIGTERM (sent by a stopped ``nlips dataset``, or to the
+    whole process group) releases its claim and removes its half-written press folder, then exits, as the parent
     does. The handler runs at once, a render being on a thread of its own (``sim.render.interruptible``); ended with
     ``os._exit``, as an exception raised there could land inside the library."""
     import signal
 
     configure_worker(log_level, log_file)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_terminated)
 
 

@@ -3,6 +3,7 @@ warning before it."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.processes import as_from_a_terminal
+from tests.processes import ENDLESS_PATCH, as_from_a_terminal, endless_renders
 
 pytest.importorskip("mitsuba")
 
@@ -90,32 +91,11 @@ def test_mitsuba_warnings_of_a_render_are_logged_once_each_without_its_interrupt
     assert f"{tag} after the render" in capfd.readouterr().out
 
 
-ENDLESS_RENDER = """
-import os, signal, sys
+ENDLESS_RENDER = f"""
+import signal
 
 signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal
-import drjit as dr
-
-from nlipscalib.sim.render import plugins
-
-make = plugins.make_integrator_class
-
-
-def endless(mi, led):
-    class Endless(make(mi, led)):
-        def sample(self, *args, **kwargs):  # traced once, into a kernel that runs for minutes
-            total, valid, aovs = super().sample(*args, **kwargs)
-            width = dr.width(total[0])
-            # x <- x^2 / 2 + 1/4, 2^32 - 1 times in every lane: no compiler computes it in closed form
-            state = (dr.zeros(mi.UInt32, width), dr.full(mi.Float, 0.25, width))
-            x = dr.while_loop(state, lambda i, x: i < 0xFFFFFFFF, lambda i, x: (i + 1, dr.fma(x * 0.5, x, 0.25)))[1]
-            open(os.environ["RENDER_TRACED"], "w").close()
-            return total + dr.select(x < 0, 1.0, 0.0), valid, aovs
-
-    return Endless
-
-
-plugins.make_integrator_class = endless
+{ENDLESS_PATCH}
 from nlipscalib.cli import command
 
 command()
@@ -132,6 +112,7 @@ def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum
     the render did: Python handles a signal in the main thread, which the native render call held. It now ends
     within a second, with its one line, its status, and no press folder or temporary left."""
     traced = tmp_path / "traced"
+    traced.mkdir()
     out = tmp_path / "p"
     args = ["--no-progress", "render", "--width", "16", "--height", "12", "--spp", "1", "--threads", "1"]
     temporaries = tmp_path / "tmp"  # the command's TMPDIR (Mitsuba's log while it renders)
@@ -141,9 +122,9 @@ def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum
     proc = as_from_a_terminal([sys.executable, "-c", ENDLESS_RENDER, *args, "--out", str(out)], env=env)
     try:
         deadline = time.monotonic() + 300
-        while not traced.exists() and proc.poll() is None and time.monotonic() < deadline:
+        while not any(traced.iterdir()) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert traced.exists(), proc.communicate()[1] if proc.poll() is not None else "never rendered"
+        assert any(traced.iterdir()), proc.communicate()[1] if proc.poll() is not None else "never rendered"
         time.sleep(1.0)  # the kernel compiled and running: the main thread used to be inside it
         assert proc.poll() is None
         proc.send_signal(signum)
@@ -165,3 +146,52 @@ def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum
     assert stdout == ""
     assert not out.exists()
     assert list(temporaries.iterdir()) == []  # SIGTERM left the log's folder in /tmp
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads the process table from /proc")
+def test_ctrl_c_during_a_datasets_worker_renders_ends_the_run_at_once_and_a_rerun_resumes(tmp_path):
+    """Ctrl-C from a terminal (SIGINT to the whole process group) of `nlips dataset --workers 2` while both render
+    processes rendered: each died of it with a traceback or went on (its exit waited for the render it had left on
+    a thread of its own), and the command waited for them: tens of seconds at 640x480, here forever. Now the render
+    processes ignore Ctrl-C and the command ends them: its one line, exit 130 within seconds, no claim, temporary
+    or process left; the next run keeps the presses done and renders the interrupted ones."""
+    from tests.cli.test_interrupt import _wait_until_gone
+    from tests.specs import TINY_SPEC
+
+    spec, out = tmp_path / "spec.toml", tmp_path / "out"
+    spec.write_text(TINY_SPEC)  # the reference and four presses
+    path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
+    command = [sys.executable, "-m", "nlipscalib", "--no-progress", "dataset", str(spec), "--out", str(out)]
+    done = subprocess.run([*command, "--limit", "1", "--workers", "1"], env=dict(os.environ, PYTHONPATH=path))
+    assert done.returncode == 0  # the reference and press_0000 rendered
+
+    env, traced = endless_renders(dict(os.environ, PYTHONPATH=path), tmp_path)
+    proc = as_from_a_terminal([*command, "--workers", "2"], env=env, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while len(list(traced.iterdir())) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(list(traced.iterdir())) == 2, proc.communicate()[1] if proc.poll() is not None else "no 2 renders"
+        time.sleep(1.0)  # both kernels compiled and running
+        assert proc.poll() is None
+        os.killpg(proc.pid, signal.SIGINT)
+        sent = time.monotonic()
+        try:
+            stdout, stderr = proc.communicate(timeout=WITHIN_S)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"still running {WITHIN_S} s after Ctrl-C")
+        took = time.monotonic() - sent
+        assert _wait_until_gone(proc.pid, 10) == []  # no render process left
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stderr
+    assert took < WITHIN_S
+    not_log = [line for line in stderr.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+    assert not_log == ["nlips dataset: interrupted; finished work is kept, run again to resume"], stderr
+    assert not [p.name for p in out.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "press_0000", "reference"]
+
+    again = subprocess.run(command, env=dict(os.environ, PYTHONPATH=path), capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr
+    assert "3 rendered, 2 already there, 0 failed" in again.stdout, again.stdout

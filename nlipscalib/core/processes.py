@@ -1,0 +1,76 @@
+"""Worker processes a command starts: Ctrl-C kept from them as they start, and ended at once when the command stops.
+
+Why: a terminal sends Ctrl-C to every process of the command. A worker that died of it printed a traceback of its
+own, and one whose render it interrupted waited at its exit for the render, abandoned on a thread of its own
+(``sim.render.interruptible``), to end: tens of seconds. The command alone handles Ctrl-C; it ends its workers with
+SIGTERM, whose handler in each worker releases the worker's claims and removes its half-written temporaries before
+the worker exits (``sim.dataset_pool._worker_init``, ``pipeline.workers._worker_signals``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+from collections.abc import Iterable, Iterator
+from typing import Protocol
+
+WORKER_GRACE_S = 5.0
+"""Seconds a stopped command gives its worker processes to release their claims and exit before killing them.
+
+Why this much: a worker's SIGTERM handler runs within ~0.1 s (its render on a thread of its own) unless its main
+thread is inside a long native call of its own (importing Mitsuba, ~1 s on a loaded machine); one still alive after
+that is killed, and what it leaves (a dead process's claim and temporary) the next run takes over and removes."""
+
+
+class Worker(Protocol):
+    """What :func:`end_processes` needs of a process: :class:`multiprocessing.Process` has it."""
+
+    def terminate(self) -> None: ...
+
+    def kill(self) -> None: ...
+
+    def join(self, timeout: float | None = None) -> None: ...
+
+    def is_alive(self) -> bool: ...
+
+
+def end_processes(workers: Iterable[Worker], grace_s: float = WORKER_GRACE_S) -> None:
+    """End ``workers`` now: SIGTERM to each, then SIGKILL to those still alive ``grace_s`` seconds later.
+
+    They are signalled all at once and waited for together, so the whole takes about the slowest one's handler,
+    not their sum. Errors (a process already reaped) are ignored: this runs on the way out.
+    """
+    workers = list(workers)
+    for worker in workers:
+        with contextlib.suppress(Exception):
+            worker.terminate()
+    deadline = time.monotonic() + grace_s
+    for worker in workers:
+        with contextlib.suppress(Exception):
+            worker.join(max(0.0, deadline - time.monotonic()))
+    for worker in workers:
+        with contextlib.suppress(Exception):
+            if worker.is_alive():
+                worker.kill()
+                worker.join(1.0)
+
+
+@contextlib.contextmanager
+def sigint_held() -> Iterator[None]:
+    """Ctrl-C held back (blocked, not lost) in this thread while worker processes start.
+
+    The threads and processes started meanwhile inherit the block (processes through exec too), so Ctrl-C never
+    reaches a worker, which died of it with a traceback of its own, before it has set its own handling (ignored:
+    the command stops it); one pressed meanwhile reaches the command when the block ends. Outside the main thread,
+    or without ``pthread_sigmask``, nothing is changed.
+    """
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
