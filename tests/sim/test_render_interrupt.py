@@ -163,7 +163,7 @@ def test_ctrl_c_during_a_datasets_worker_renders_ends_the_run_at_once_and_a_reru
     path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
     command = [sys.executable, "-m", "nlipscalib", "--no-progress", "dataset", str(spec), "--out", str(out)]
     done = subprocess.run([*command, "--limit", "1", "--workers", "1"], env=dict(os.environ, PYTHONPATH=path))
-    assert done.returncode == 0  # the reference and press_0000 rendered
+    assert done.returncode == 0  # the reference and press_0001 rendered
 
     env, traced = endless_renders(dict(os.environ, PYTHONPATH=path), tmp_path)
     proc = as_from_a_terminal([*command, "--workers", "2"], env=env, start_new_session=True)
@@ -190,7 +190,7 @@ def test_ctrl_c_during_a_datasets_worker_renders_ends_the_run_at_once_and_a_reru
     not_log = [line for line in stderr.splitlines() if not line.startswith(("INFO ", "WARNING "))]
     assert not_log == ["nlips dataset: interrupted; finished work is kept, run again to resume"], stderr
     assert not [p.name for p in out.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
-    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "press_0000", "reference"]
+    assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "press_0001", "reference"]
 
     again = subprocess.run(command, env=dict(os.environ, PYTHONPATH=path), capture_output=True, text=True)
     assert again.returncode == 0, again.stderr
