@@ -29,6 +29,7 @@ from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds, disk_shading, led_shading
 from ..core.robust_scale import mad_scale
+from .blas import blas_threads
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 
 if TYPE_CHECKING:  # named in hints only: the functions import the indirect module where they use it
@@ -479,35 +480,38 @@ def _fit_all(
     from scipy.optimize import least_squares  # imported here: ~0.5 s that `nlips solve` never needs
 
     out = []
-    for i, led in enumerate(leds):
-        d = np.asarray(led.direction)
-        p0 = np.concatenate(
-            [
-                np.log(np.maximum(led.intensity, 1e-12)),
-                [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])],
-                led.position,
-            ]
-        )
-        # initial intensity: least-squares scale of the model
-        geo = model(p0, x, n) / np.exp(p0[:3])
-        k0 = (geo * img[i] * ok[i]).sum(0) / np.maximum((geo * geo * ok[i]).sum(0), 1e-30)
-        p0[:3] = np.log(np.maximum(k0, 1e-12))
-        use = _fit_samples(img[i], ok[i])
-        scale = float(np.percentile(img[i][use], 90)) if use.any() else 1.0
+    # one BLAS thread: trf's SVD of each step's (N, 9) Jacobian took 4-6x the CPU on 2 threads of a loaded
+    # machine, the same bits (s17-d, benchmarks/RESULTS.md)
+    with blas_threads(1):
+        for i, led in enumerate(leds):
+            d = np.asarray(led.direction)
+            p0 = np.concatenate(
+                [
+                    np.log(np.maximum(led.intensity, 1e-12)),
+                    [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])],
+                    led.position,
+                ]
+            )
+            # initial intensity: least-squares scale of the model
+            geo = model(p0, x, n) / np.exp(p0[:3])
+            k0 = (geo * img[i] * ok[i]).sum(0) / np.maximum((geo * geo * ok[i]).sum(0), 1e-30)
+            p0[:3] = np.log(np.maximum(k0, 1e-12))
+            use = _fit_samples(img[i], ok[i])
+            scale = float(np.percentile(img[i][use], 90)) if use.any() else 1.0
 
-        def resid(step: np.ndarray, i: int = i, use: np.ndarray = use, scale: float = scale, p0: np.ndarray = p0):
-            return ((model(p0 + step, x, n) - img[i]) / scale)[use]
+            def resid(step: np.ndarray, i: int = i, use: np.ndarray = use, scale: float = scale, p0: np.ndarray = p0):
+                return ((model(p0 + step, x, n) - img[i]) / scale)[use]
 
-        r0 = resid(np.zeros_like(p0))
-        f_scale = max(3 * mad_scale(r0), 1e-3)
-        res = least_squares(resid, np.zeros_like(p0), loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
-        dof = max(len(res.fun) - len(p0), 1)
-        s2 = float(np.sum(res.fun**2) / dof)
-        try:
-            sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0))
-        except np.linalg.LinAlgError:
-            sd = np.full(len(p0), np.nan)
-        out.append((p0 + res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * scale))
+            r0 = resid(np.zeros_like(p0))
+            f_scale = max(3 * mad_scale(r0), 1e-3)
+            res = least_squares(resid, np.zeros_like(p0), loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
+            dof = max(len(res.fun) - len(p0), 1)
+            s2 = float(np.sum(res.fun**2) / dof)
+            try:
+                sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0))
+            except np.linalg.LinAlgError:
+                sd = np.full(len(p0), np.nan)
+            out.append((p0 + res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * scale))
     return out
 
 
