@@ -132,7 +132,7 @@ and the term then left the worst LED 7.4-11.9 deg off (direct-only 0.45-0.67). W
 fits noise gains about a chi-squared with its 3 parameters (the reflectance per channel): 16 is its 99.9 % point.
 Measured (s17-d, benchmarks/RESULTS.md; 160x120 stride 4 one bounce, stride 2 bounce-free): one-bounce twin, 12
 seeds x 3 starts, 407-1757 (log: mean 7.0, sd 0.46 over the seeds: 9 sd above ln 16; in the gain itself 2.6 sd);
-bounce-free with noise, 6 seeds x 6 starts that turned the term on, -4717 to -1670; noise-free -1.8e5 and below;
+bounce-free with noise, 6 seeds x 6 starts that turned the term on, -5117 to -1670; noise-free -1.8e5 and below;
 the 640x480 one-bounce reference 2262-2480."""
 CALIBRATION_MODEL_ERROR = 0.003
 """LED calibration quality (:func:`nlipscalib.solver.calibrate.fit_quality`): the error the LED model itself is
