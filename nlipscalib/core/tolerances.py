@@ -123,6 +123,17 @@ its share of the direct light is at least this. The starting LEDs' own errors po
 indirect light (a nominal ring 0.3 mm / 5 deg off: 3 %); a coated dome interreflects far more (the
 twin: 31 %). The images cannot decide it after the fact: a direct-only fit absorbs the indirect light
 into wrong LED parameters (17 deg off on the twin) and then fits as well as the right model."""
+CALIBRATION_MIN_TERM_GAIN = 16.0
+"""LED calibration, interreflection auto, the term on by :data:`CALIBRATION_MIN_SHARE`: it is kept when, converged,
+it lowers the point LED fits' summed squared residual by more than this many noise variances against a
+direct-only fit on the same samples (:func:`nlipscalib.solver.calibrate._term_gain`); otherwise the LEDs are fitted
+as direct light. Why: starting LEDs 0.8 mm / 10 deg off pose as 11-20 % of indirect light on a bounce-free capture,
+and the term then left the worst LED 7.4-11.9 deg off (direct-only 0.45-0.67). Why this value: a term that only
+fits noise gains about a chi-squared with its 3 parameters (the reflectance per channel): 16 is its 99.9 % point.
+Measured (s17-d, benchmarks/RESULTS.md; 160x120 stride 4 one bounce, stride 2 bounce-free): one-bounce twin, 12
+seeds x 3 starts, 407-1757 (log: mean 7.0, sd 0.46 over the seeds: 9 sd above ln 16; in the gain itself 2.6 sd);
+bounce-free with noise, 6 seeds x 6 starts that turned the term on, -5117 to -1670; noise-free -1.8e5 and below;
+the 640x480 one-bounce reference 2262-2480."""
 CALIBRATION_MODEL_ERROR = 0.003
 """LED calibration quality (:func:`nlipscalib.solver.calibrate.fit_quality`): the error the LED model itself is
 allowed, as a fraction of each LED's median lit sample, added to the images' noise in quadrature. Why: the model

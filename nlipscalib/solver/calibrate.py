@@ -29,6 +29,7 @@ from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds, disk_shading, led_shading
 from ..core.robust_scale import mad_scale
+from .blas import blas_threads
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 
 if TYPE_CHECKING:  # named in hints only: the functions import the indirect module where they use it
@@ -141,7 +142,9 @@ def calibrate_leds(
     initial : sequence of Led or None -- starting values (default: the capture's LEDs).
     stride : use every ``stride``-th pixel in u and v (speed).
     loss : scipy robust loss ("cauchy", "soft_l1", "huber", "linear").
-    interreflection : "auto" (subtract the indirect term when the data show it), "on", "off".
+    interreflection : "auto" (subtract the indirect term when the data show it: its share with the starting LEDs
+        turns it on, and it is kept when, converged, it explains the images better than direct light alone,
+        :func:`_term_gain`), "on", "off".
     bounces : diffuse bounces of the indirect term (1 or 2).
     rounds : LED fit / indirect term alternations (with the term on).
     led_radius : radius of each LED's emitting disk, mm (a WS2812B's light cup: 1.8); > 0 adds a last
@@ -215,6 +218,12 @@ def _calibrate(
         presses, samples, leds0, loss, interreflection, bounces, rounds, coating_reflectance
     )
     models = [m.to_json() for m in models]
+    quality = fit_quality(presses, fitted, samples.x, samples.n, direct, samples.ok)
+    if interreflection == "auto" and any(m["enabled"] for m in models):  # on by the share with the starting LEDs
+        gain = _term_gain(samples, fitted, direct, loss, quality)
+        if gain <= tolerances.CALIBRATION_MIN_TERM_GAIN:
+            return _direct_after_all(presses, initial, stride, loss, bounces, rounds, led_radius, models, gain)
+        models = [dict(m, term_gain=round(gain, 1)) for m in models]
     leds, albedo, std = _to_leds(fitted)
     emitters, profile = _emitters_and_profile(leds, samples, direct, loss, led_radius, coating_reflectance, models)
     if profile is not None:  # the whole calibration again with the profiled reflectance
@@ -222,7 +231,6 @@ def _calibrate(
         again = _calibrate(presses, leds, stride, loss, interreflection, bounces, rounds, led_radius, chosen)
         return dataclasses.replace(again, reflectance_profile=profile)
     rms = [f[2] for f in fitted]
-    quality = fit_quality(presses, fitted, samples.x, samples.n, direct, samples.ok)
     return LedCalibration(leds, albedo, std, rms, models, emitters, float(led_radius), quality=quality)
 
 
@@ -479,35 +487,38 @@ def _fit_all(
     from scipy.optimize import least_squares  # imported here: ~0.5 s that `nlips solve` never needs
 
     out = []
-    for i, led in enumerate(leds):
-        d = np.asarray(led.direction)
-        p0 = np.concatenate(
-            [
-                np.log(np.maximum(led.intensity, 1e-12)),
-                [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])],
-                led.position,
-            ]
-        )
-        # initial intensity: least-squares scale of the model
-        geo = model(p0, x, n) / np.exp(p0[:3])
-        k0 = (geo * img[i] * ok[i]).sum(0) / np.maximum((geo * geo * ok[i]).sum(0), 1e-30)
-        p0[:3] = np.log(np.maximum(k0, 1e-12))
-        use = _fit_samples(img[i], ok[i])
-        scale = float(np.percentile(img[i][use], 90)) if use.any() else 1.0
+    # one BLAS thread: trf's SVD of each step's (N, 9) Jacobian took 4-6x the CPU on 2 threads of a loaded
+    # machine, the same bits (s17-d, benchmarks/RESULTS.md)
+    with blas_threads(1):
+        for i, led in enumerate(leds):
+            d = np.asarray(led.direction)
+            p0 = np.concatenate(
+                [
+                    np.log(np.maximum(led.intensity, 1e-12)),
+                    [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])],
+                    led.position,
+                ]
+            )
+            # initial intensity: least-squares scale of the model
+            geo = model(p0, x, n) / np.exp(p0[:3])
+            k0 = (geo * img[i] * ok[i]).sum(0) / np.maximum((geo * geo * ok[i]).sum(0), 1e-30)
+            p0[:3] = np.log(np.maximum(k0, 1e-12))
+            use = _fit_samples(img[i], ok[i])
+            scale = float(np.percentile(img[i][use], 90)) if use.any() else 1.0
 
-        def resid(step: np.ndarray, i: int = i, use: np.ndarray = use, scale: float = scale, p0: np.ndarray = p0):
-            return ((model(p0 + step, x, n) - img[i]) / scale)[use]
+            def resid(step: np.ndarray, i: int = i, use: np.ndarray = use, scale: float = scale, p0: np.ndarray = p0):
+                return ((model(p0 + step, x, n) - img[i]) / scale)[use]
 
-        r0 = resid(np.zeros_like(p0))
-        f_scale = max(3 * mad_scale(r0), 1e-3)
-        res = least_squares(resid, np.zeros_like(p0), loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
-        dof = max(len(res.fun) - len(p0), 1)
-        s2 = float(np.sum(res.fun**2) / dof)
-        try:
-            sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0))
-        except np.linalg.LinAlgError:
-            sd = np.full(len(p0), np.nan)
-        out.append((p0 + res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * scale))
+            r0 = resid(np.zeros_like(p0))
+            f_scale = max(3 * mad_scale(r0), 1e-3)
+            res = least_squares(resid, np.zeros_like(p0), loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
+            dof = max(len(res.fun) - len(p0), 1)
+            s2 = float(np.sum(res.fun**2) / dof)
+            try:
+                sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0))
+            except np.linalg.LinAlgError:
+                sd = np.full(len(p0), np.nan)
+            out.append((p0 + res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * scale))
     return out
 
 
@@ -691,6 +702,8 @@ def _with_term_if_needed(
     ``reason``."""
     if interreflection != "auto" or cal.quality["reliable"] or _no_interreflection(cal.interreflection, "auto") is None:
         return cal
+    if any("term_gain" in m for m in cal.interreflection):  # the term was fitted and compared already (_term_gain)
+        return cal
     tried = _calibrate(presses, initial, stride, loss, "on", bounces, rounds, 0.0, coating_reflectance)
     on = tried
     if _term_wins(cal, tried) and led_radius > 0:
@@ -709,6 +722,82 @@ def _with_term_if_needed(
     return dataclasses.replace(on, interreflection=models)
 
 
+TERM_CHECK_SAMPLES = 2500
+"""The term's check (:func:`_term_gain`) fits every k-th sample, k the smallest that leaves at most this many: its
+cost stays that of a 160x120 capture at stride 2-4 (1,200-4,800 samples, where its gain was measured) on larger
+captures (test_interreflection.py's stride 1: ~19,000), and the gain, which grows with the samples, stays on the
+scale it was measured on."""
+
+
+def _term_gain(
+    samples: _Samples,
+    fitted: Sequence[tuple[np.ndarray, np.ndarray, float]],
+    direct: np.ndarray,
+    loss: str,
+    quality: dict,
+) -> float:
+    """How much the indirect term lowers the point LED fits' summed squared residual against a direct-only fit, in
+    units of each LED's noise variance (its noise and model error in quadrature, ``quality`` of :func:`fit_quality`).
+
+    Both fits converged, on the same samples (every k-th, :data:`TERM_CHECK_SAMPLES`), from the term's LEDs: the
+    term's fit again on them (when they are a subsample: neither fit then fits noise the other does not see) and a
+    direct-only fit of the images. A term that only fits noise gains about a chi-squared with its 3 parameters; one
+    that subtracts light that is not there loses (negative): LEDs started 0.8 mm / 10 deg off pose as 12-20 % of
+    indirect light on a bounce-free capture, the term then fits every LED worse than direct light alone; on an
+    interreflecting one it gains hundreds of variances although its direct-only LEDs end 17 deg off
+    (benchmarks/RESULTS.md, s15-m and s17-d).
+
+    Parameters
+    ----------
+    samples : the calibration's samples; fitted : per LED (params, std, rms), the term's fit (:func:`_fit_all`).
+    direct : (L, N, 3) float -- the images minus the term's indirect light, linear.
+    loss : the LED fit's robust loss; quality : :func:`fit_quality` of ``fitted``.
+    """
+    every = slice(None, None, -(-len(samples.x) // TERM_CHECK_SAMPLES))
+    x, n, img, ok, lit = (
+        samples.x[every],
+        samples.n[every],
+        samples.img[:, every],
+        samples.ok[:, every],
+        direct[:, every],
+    )
+    leds = _to_leds(fitted)[0]
+    on = fitted if every.step == 1 else _fit_all(leds, x, n, lit, ok, loss)
+    off = _fit_all(leds, x, n, img, ok, loss)
+    variance = np.asarray(quality["noise"]) ** 2 + np.asarray(quality["model_error"]) ** 2
+    uses = [_fit_samples(img[i], ok[i]) for i in range(len(leds))]  # the images' lit samples, for both fits
+
+    def squares(fits: list, images: np.ndarray) -> np.ndarray:
+        return np.array([np.sum((_model(f[0], x, n) - im)[u] ** 2) for f, im, u in zip(fits, images, uses)])
+
+    return float(np.sum((squares(off, img) - squares(on, lit)) / variance))
+
+
+def _direct_after_all(
+    presses: Sequence[Press],
+    initial: Leds | None,
+    stride: int,
+    loss: str,
+    bounces: int,
+    rounds: int,
+    led_radius: float,
+    models: list[dict],
+    gain: float,
+) -> LedCalibration:
+    """The direct-only calibration (as ``interreflection="off"``, disks with ``led_radius``) after "auto" turned the
+    indirect term on (``models``, JSON) and it gained ``gain`` noise variances, at most
+    :data:`tolerances.CALIBRATION_MIN_TERM_GAIN`: the terms are reported off, with why."""
+    log.info("interreflection term not used after all: it lowered the LED fits' residual by %.0f noise variances", gain)
+    note = (
+        f"; not used after all: against the direct-only fit it lowered the LED fits' squared residual by {gain:.0f} "
+        f"noise variances (negative: raised it), at most {tolerances.CALIBRATION_MIN_TERM_GAIN:g}"
+    )
+    off = [m["reason"].replace("interreflection on:", "interreflection off:") + note for m in models]
+    cal = _calibrate(presses, initial, stride, loss, "off", bounces, rounds, led_radius, None)
+    terms = [dict(m, enabled=False, term_gain=round(gain, 1), reason=r) for m, r in zip(models, off)]
+    return dataclasses.replace(cal, interreflection=terms)
+
+
 def _term_wins(direct: LedCalibration, on: LedCalibration) -> bool:
     """Whether the calibration with the indirect term explains the images (reliable) and better than ``direct``."""
     return on.quality["reliable"] and on.quality["median_ratio"] < direct.quality["median_ratio"]
@@ -721,6 +810,11 @@ def _no_interreflection(models: list[dict], interreflection: str) -> str | None:
     if interreflection == "off" or not models:
         return "the interreflection term is off (requested)"
     share = max(m["indirect_share"] for m in models)
+    if any("term_gain" in m for m in models):  # on by the share, then off by _term_gain
+        return (
+            f"the interreflection term did not explain the images better than direct light (fitted indirect share "
+            f"{share:.3f} with the starting LEDs)"
+        )
     return (
         f"no capture shows interreflection (fitted indirect share {share:.3f} with the starting LEDs, below "
         f"{tolerances.CALIBRATION_MIN_SHARE})"
