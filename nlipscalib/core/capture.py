@@ -486,8 +486,89 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
     decode : False: the dark and LED images are read and checked to be whole PNGs of the camera's size now,
         and decoded at their first read (:class:`StoredImages`; a capture whose results may be reused under
         :meth:`Press.images_digest`, such as the undeformed dome's, is then never decoded)
+
+    Returns
+    -------
+    Press -- the one :func:`read_ahead` loaded, when it was asked for this folder (as spelt here) and LED
+    subset and none of the folder's files changed since it began; else loaded now.
     """
-    folder = Path(folder)
+    if decode and (press := _taken_ahead(folder, led_subset)) is not None:
+        return press
+    return _load_press(Path(folder), led_subset, decode)
+
+
+def read_ahead(folder: str | Path, led_subset: Sequence[int] | None = None) -> None:
+    """Begin :func:`load_press` of ``folder`` on a thread of its own, with the press's linear LED images
+    (:attr:`Press.linear_led_images`), for this process's next ``load_press(folder, led_subset)``.
+
+    Why: ``nlips solve PRESS`` spends its first ~0.2 s importing the solver (SciPy, pyamg), one core's work, and
+    then ~0.3 s reading, decoding (libpng and zlib release the GIL) and linearising the press's images, which
+    do not need the solver; on two cores the two overlap. That ``load_press`` takes this press only when no file
+    of the folder changed since this began (:func:`file_stamp` of meta.json and every file it lists), else it
+    loads the folder again; whatever goes wrong here (a missing or damaged file) is left to it to find again and
+    report as it always does. One press is read ahead at a time (a new call forgets an earlier one not taken).
+    """
+    job = _ReadAhead(Path(folder), led_subset)
+    _AHEAD.clear()
+    _AHEAD[job.key] = job
+    job.start()
+
+
+class _ReadAhead(threading.Thread):
+    """:func:`read_ahead`'s thread: ``value`` is (stamps, press) once it ended well, else None. A daemon: a
+    command that fails before it reads the press does not wait for it."""
+
+    def __init__(self, folder: Path, led_subset: Sequence[int] | None):
+        super().__init__(name="nlips-read-ahead", daemon=True)
+        self.folder, self.led_subset = folder, led_subset
+        self.key = _ahead_key(folder, led_subset)
+        self.value: tuple[tuple, Press] | None = None
+
+    def run(self) -> None:
+        try:
+            stamps = _folder_stamps(self.folder)  # before anything is read: a file changed after it differs
+            press = _load_press(self.folder, self.led_subset, decode=True)
+            press.linear_led_images  # noqa: B018 -- computed here, kept on the press
+            self.value = stamps, press
+        except Exception:  # load_press finds it again on its caller's thread and reports it there
+            self.value = None
+
+
+_AHEAD: dict[tuple, _ReadAhead] = {}
+"""The press :func:`read_ahead` is loading or has loaded, under :func:`_ahead_key`, until ``load_press`` takes it."""
+
+
+def _ahead_key(folder: str | Path, led_subset: Sequence[int] | None) -> tuple:
+    return Path(folder), None if led_subset is None else tuple(int(i) for i in led_subset)
+
+
+def _taken_ahead(folder: str | Path, led_subset: Sequence[int] | None) -> Press | None:
+    """The press :func:`read_ahead` loaded for this call of :func:`load_press` (waited for), or None: none was
+    asked for, it failed, or a file of the folder changed since it began."""
+    if not _AHEAD:
+        return None
+    job = _AHEAD.pop(_ahead_key(folder, led_subset), None)
+    if job is None:
+        return None
+    job.join()
+    if job.value is None:
+        return None
+    stamps, press = job.value
+    return press if stamps is not None and _folder_stamps(job.folder) == stamps else None
+
+
+def _folder_stamps(folder: Path) -> tuple | None:
+    """:func:`file_stamp` of a press folder's meta.json and of every file it lists; None when one is missing or
+    meta.json is unreadable (no press is kept: load_press reports it)."""
+    try:
+        meta = read_meta(folder)
+        return tuple(file_stamp(folder / name) for name in (META_FILE, *listed_files(meta)))
+    except (CaptureError, OSError, KeyError, TypeError):
+        return None
+
+
+def _load_press(folder: Path, led_subset: Sequence[int] | None, decode: bool) -> Press:
+    """:func:`load_press`, read from the files now."""
     meta = read_meta(folder)
     camera, leds, response = parse_optics(meta, folder / META_FILE)
     images = meta["images"]

@@ -382,3 +382,30 @@ def test_a_press_whose_tricolor_image_is_corrupt_still_solves(data, capsys):
     assert (press / "nlips" / "result.npz").is_file()
     with pytest.raises(CaptureError, match=r"tricolor\.png: not a readable PNG image \(no PNG signature\)$"):
         reference_arrays(load_press(press))
+
+
+def test_the_press_is_read_ahead_only_when_it_will_be_solved_and_solves_the_same(data, monkeypatch, tmp_path):
+    """``nlips solve PRESS`` loads its one press on a thread while it imports the solver (``read_ahead``): when it
+    will solve it (--overwrite, or no result yet), not to reuse a result, nor with --leds (its subset is known
+    later). The result is the one of a press loaded on the command's own thread."""
+    import numpy as np
+
+    from nlipscalib.core import capture
+
+    root, cfg = data
+    press, asked, real = root / "press_a", [], capture.read_ahead
+    monkeypatch.setattr(capture, "read_ahead", lambda folder, subset=None: (asked.append(folder), real(folder, subset)))
+
+    def solve(*flags):
+        return main(["solve", str(press), "--config", str(cfg), "--no-progress", *flags])
+
+    assert solve() == 0 and asked == [press]
+    assert solve() == 0 and asked == [press]  # an identical result is reused: nothing read
+    assert solve("--overwrite", "--leds", "1,3,5,7,9,11") == 0 and asked == [press]
+    assert solve("--overwrite", "--out", str(tmp_path / "ahead")) == 0 and len(asked) == 2
+    assert not capture._AHEAD  # taken by the solve
+    monkeypatch.setattr(capture, "read_ahead", lambda folder, subset=None: None)
+    assert solve("--overwrite", "--out", str(tmp_path / "here")) == 0
+    ahead, here = load_reconstruction(tmp_path / "ahead"), load_reconstruction(tmp_path / "here")
+    for name, value in ahead.arrays().items():
+        np.testing.assert_array_equal(value, here.arrays()[name], err_msg=name)
