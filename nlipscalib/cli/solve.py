@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     }
     progress = not args.no_progress
     if len(presses) == 1:  # one press: its errors are the command's (one line, exit 2)
-        _read_ahead(presses[0], args)  # while the solver is imported (make_settings) on this thread
+        _read_ahead(presses[0], reference, args)  # while the solver is imported (make_settings) on this thread
         settings = make_settings(**given)
         solve_one(
             presses[0],
@@ -177,16 +177,18 @@ def _options(args: argparse.Namespace) -> SolverOptions | None:
     return options
 
 
-def _read_ahead(press: Path, args: argparse.Namespace) -> None:
-    """Begin loading the one press this command solves (``core.capture.read_ahead``) when it will be solved: with
-    --overwrite, or when its output holds no result to reuse yet (a result there is checked first, and often
-    reused: then its images are never read). Not with --leds: its LED subset is known only once the settings
-    are made."""
+def _read_ahead(press: Path, reference: Path | None, args: argparse.Namespace) -> None:
+    """Begin loading the one press this command solves, and its reference undecoded as the pipeline loads it
+    (``core.capture.read_ahead``), when it will be solved: with --overwrite, or when its output holds no result
+    to reuse yet (a result there is checked first, and often reused: then its images are never read). Not with
+    --leds: its LED subset is known only once the settings are made."""
     from ..core.capture import read_ahead
     from ..core.reconstruction import has_reconstruction, reconstruction_dir
 
     if args.leds is None and (args.overwrite or not has_reconstruction(reconstruction_dir(press, args.out))):
         read_ahead(press)
+        if reference is not None:
+            read_ahead(reference, decode=False)
 
 
 def _check_min_leds(options: SolverOptions, press: Path, config: str) -> None:

@@ -216,11 +216,12 @@ def test_a_file_replaced_after_the_press_was_loaded_is_not_read_into_it(tmp_path
     assert again.tricolor.shape == (H, W, 3) and again.ground_truth is not None
 
 
-def _read_ahead_done(folder, led_subset=None):
-    """``capture.read_ahead`` of the press, waited for (as a command's solver import would)."""
-    capture.read_ahead(folder, led_subset)
+def _read_ahead_done(folder, led_subset=None, decode=True):
+    """``capture.read_ahead`` of the press, waited for (as a command's solver import would); the press it read."""
+    capture.read_ahead(folder, led_subset, decode)
     for job in list(capture._AHEAD.values()):
         job.join()
+    return capture._AHEAD[capture._ahead_key(folder, led_subset, decode)].value[1]
 
 
 def test_a_press_read_ahead_is_the_one_load_press_gives(tmp_path):
@@ -238,6 +239,27 @@ def test_a_press_read_ahead_is_the_one_load_press_gives(tmp_path):
     np.testing.assert_array_equal(ahead.ground_truth.normals, now.ground_truth.normals)
     assert (ahead.folder, ahead.leds, ahead.meta, ahead.camera) == (now.folder, now.leds, now.meta, now.camera)
     assert "linear_led_images" not in vars(load_press(folder, led_subset=[0, 2]))  # taken: read again
+
+
+def test_an_undecoded_capture_read_ahead_is_taken_by_an_undecoded_load_only(tmp_path):
+    """``nlips solve --reference REF`` reads the reference ahead as the pipeline loads it: undecoded."""
+    folder = _press(tmp_path / "p")
+    ahead = _read_ahead_done(folder, decode=False)
+    assert isinstance(vars(ahead)["led_images"], capture.StoredImages)
+    assert load_press(folder) is not ahead  # a decoded load: read now, the undecoded one kept
+    assert load_press(folder, decode=False) is ahead
+    assert load_press(folder, decode=False) is not ahead  # taken once
+
+
+def test_read_ahead_keeps_the_last_two_captures_not_taken(tmp_path):
+    """A solve's press and its reference; an older one not taken (a failed command's) is dropped, not kept."""
+    first, second, third = (_press(tmp_path / name) for name in "pqr")
+    _read_ahead_done(first)
+    _read_ahead_done(second, decode=False)
+    _read_ahead_done(third)
+    assert list(capture._AHEAD) == [capture._ahead_key(second, None, False), capture._ahead_key(third, None, True)]
+    assert "linear_led_images" in vars(load_press(third)) and "linear_led_images" not in vars(load_press(first))
+    capture._AHEAD.clear()
 
 
 @pytest.mark.parametrize("name", ["led_02.png", "dark.png", "meta.json", "gt.npz"])
