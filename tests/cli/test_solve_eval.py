@@ -400,6 +400,7 @@ def test_the_press_is_read_ahead_only_when_it_will_be_solved_and_solves_the_same
         real(folder, led_subset, decode)
 
     monkeypatch.setattr(capture, "read_ahead", read_ahead)
+    monkeypatch.setattr(capture, "_AHEAD", {})  # not what earlier tests' failed commands left
 
     def solve(*flags):
         return main(["solve", str(press), "--config", str(cfg), "--no-progress", *flags])
