@@ -117,11 +117,15 @@ def parse_roi(values: Sequence[str] | None) -> str | tuple[int, ...] | None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.capture import no_presses_error, read_meta, split_reference
+    from ..core.config import from_mapping, read_config_file
     from ..core.errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
+    from ..solver import SolverOptions
 
     _press_after_roi(args)
-    options = _options(args)
+    options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
+    if args.normals is not None:  # the flag over the config's value
+        options = dataclasses.replace(options or SolverOptions(), normals=args.normals)
     if args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     presses, reference = split_reference(args.press, args.reference)
@@ -145,7 +149,6 @@ def run(args: argparse.Namespace) -> int:
     }
     progress = not args.no_progress
     if len(presses) == 1:  # one press: its errors are the command's (one line, exit 2)
-        _read_ahead(presses[0], reference, args)  # while the solver is imported (make_settings) on this thread
         settings = make_settings(**given)
         solve_one(
             presses[0],
@@ -161,34 +164,6 @@ def run(args: argparse.Namespace) -> int:
         presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
     )
     return _summary(statuses)
-
-
-def _options(args: argparse.Namespace) -> SolverOptions | None:
-    """The solver options of --config and --normals, or None (the defaults). Imports the solver only when one is
-    given: otherwise it is imported later, while the press is read (:func:`_read_ahead`)."""
-    if not args.config and args.normals is None:
-        return None
-    from ..core.config import from_mapping, read_config_file
-    from ..solver import SolverOptions
-
-    options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
-    if args.normals is not None:  # the flag over the config's value
-        options = dataclasses.replace(options or SolverOptions(), normals=args.normals)
-    return options
-
-
-def _read_ahead(press: Path, reference: Path | None, args: argparse.Namespace) -> None:
-    """Begin loading the one press this command solves, and its reference undecoded as the pipeline loads it
-    (``core.capture.read_ahead``), when it will be solved: with --overwrite, or when its output holds no result
-    to reuse yet (a result there is checked first, and often reused: then its images are never read). Not with
-    --leds: its LED subset is known only once the settings are made."""
-    from ..core.capture import read_ahead
-    from ..core.reconstruction import has_reconstruction, reconstruction_dir
-
-    if args.leds is None and (args.overwrite or not has_reconstruction(reconstruction_dir(press, args.out))):
-        read_ahead(press)
-        if reference is not None:
-            read_ahead(reference, decode=False)
 
 
 def _check_min_leds(options: SolverOptions, press: Path, config: str) -> None:

@@ -263,16 +263,16 @@ def _bytes_digest(data: Sequence[np.ndarray]) -> str:
     return f"png:{h.hexdigest()}"
 
 
-def decode_together(*sources: StoredImages, workers: int | None = None) -> list[np.ndarray]:
+def decode_together(*sources: StoredImages) -> list[np.ndarray]:
     """The images of ``sources``, each (H, W, 3) or stacked (N, H, W, 3) uint16, decoded on one thread pool
-    (libpng and zlib release the GIL; ``workers`` threads, default one per usable core; 1: on this thread) once
-    for all reads of them; a problem names its file (:func:`_load_image`'s errors)."""
+    (libpng and zlib release the GIL) once for all reads of them; a problem names its file (:func:`_load_image`'s
+    errors)."""
     for src in sources:  # in order, always: two threads reading two fields at once wait for each other
         src._lock.acquire()
     try:
         todo = [src for src in sources if src._images is None]
         jobs = [(_decode_image, p, d, src._camera) for src in todo for p, d in zip(src._paths, src._data)]
-        decoded = iter(_in_threads(jobs, workers) if jobs else [])
+        decoded = iter(_in_threads(jobs) if jobs else [])
         for src in todo:
             images = [next(decoded) for _ in src._paths]
             src._images = np.stack(images) if src._stacked else images[0]
@@ -486,103 +486,8 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
     decode : False: the dark and LED images are read and checked to be whole PNGs of the camera's size now,
         and decoded at their first read (:class:`StoredImages`; a capture whose results may be reused under
         :meth:`Press.images_digest`, such as the undeformed dome's, is then never decoded)
-
-    Returns
-    -------
-    Press -- the one :func:`read_ahead` loaded, when it was asked for this folder (as spelt here) and LED
-    subset and none of the folder's files changed since it began; else loaded now.
     """
-    if (press := _taken_ahead(folder, led_subset, decode)) is not None:
-        return press
-    return _load_press(Path(folder), led_subset, decode)
-
-
-def read_ahead(folder: str | Path, led_subset: Sequence[int] | None = None, decode: bool = True) -> None:
-    """Begin :func:`load_press` of ``folder`` on a thread of its own (with the press's linear LED images,
-    :attr:`Press.linear_led_images`, when ``decode``), for this process's next ``load_press(folder, led_subset,
-    decode)``.
-
-    Why: ``nlips solve PRESS`` spends its first ~0.2 s importing the solver (SciPy, pyamg), one core's work, and
-    then ~0.3 s reading, decoding (libpng and zlib release the GIL) and linearising the press's images, and
-    ~0.05 s reading its ``--reference`` (``decode=False``: the files' bytes and their digest, reference.npz),
-    which do not need the solver; on two cores they overlap. That ``load_press`` takes this press only when no
-    file of the folder changed since this began (:func:`file_stamp` of meta.json and every file it lists), else
-    it loads the folder again; whatever goes wrong here (a missing or damaged file) is left to it to find again
-    and report as it always does. The last :data:`AHEAD_KEPT` captures read ahead and not yet taken are kept.
-    """
-    job = _ReadAhead(Path(folder), led_subset, decode)
-    _AHEAD.pop(job.key, None)
-    while len(_AHEAD) >= AHEAD_KEPT:  # the oldest first (dicts keep their order)
-        _AHEAD.pop(next(iter(_AHEAD)))
-    _AHEAD[job.key] = job
-    job.start()
-
-
-AHEAD_KEPT = 2
-"""Captures :func:`read_ahead` keeps until ``load_press`` takes them: a solve's press and its reference. Why a
-bound: one not taken (a command that failed before it read it, or a program's own calls) holds its decoded
-images (~60 MB at 640x480 with 12 LEDs) until the process ends."""
-
-
-class _ReadAhead(threading.Thread):
-    """:func:`read_ahead`'s thread: ``value`` is (stamps, press) once it ended well, else None. A daemon: a
-    command that fails before it reads the press does not wait for it."""
-
-    def __init__(self, folder: Path, led_subset: Sequence[int] | None, decode: bool):
-        super().__init__(name="nlips-read-ahead", daemon=True)
-        self.folder, self.led_subset, self.decode = folder, led_subset, decode
-        self.key = _ahead_key(folder, led_subset, decode)
-        self.value: tuple[tuple, Press] | None = None
-
-    def run(self) -> None:
-        try:
-            stamps = _folder_stamps(self.folder)  # before anything is read: a file changed after it differs
-            # one core left to the command's own thread (importing the solver); on two cores none in a pool,
-            # whose threads a command that fails meanwhile would wait for at its exit (they are not daemons)
-            press = _load_press(self.folder, self.led_subset, self.decode, workers=max(usable_cores() - 1, 1))
-            if self.decode:
-                press.linear_led_images  # noqa: B018 -- computed here, kept on the press
-            self.value = stamps, press
-        except Exception:  # load_press finds it again on its caller's thread and reports it there
-            self.value = None
-
-
-_AHEAD: dict[tuple, _ReadAhead] = {}
-"""The captures :func:`read_ahead` is loading or has loaded, under :func:`_ahead_key`, until ``load_press`` takes
-them."""
-
-
-def _ahead_key(folder: str | Path, led_subset: Sequence[int] | None, decode: bool) -> tuple:
-    return Path(folder), None if led_subset is None else tuple(int(i) for i in led_subset), bool(decode)
-
-
-def _taken_ahead(folder: str | Path, led_subset: Sequence[int] | None, decode: bool) -> Press | None:
-    """The press :func:`read_ahead` loaded for this call of :func:`load_press` (waited for), or None: none was
-    asked for, it failed, or a file of the folder changed since it began."""
-    if not _AHEAD:
-        return None
-    job = _AHEAD.pop(_ahead_key(folder, led_subset, decode), None)
-    if job is None:
-        return None
-    job.join()
-    if job.value is None:
-        return None
-    stamps, press = job.value
-    return press if stamps is not None and _folder_stamps(job.folder) == stamps else None
-
-
-def _folder_stamps(folder: Path) -> tuple | None:
-    """:func:`file_stamp` of a press folder's meta.json and of every file it lists; None when one is missing or
-    meta.json is unreadable (no press is kept: load_press reports it)."""
-    try:
-        meta = read_meta(folder)
-        return tuple(file_stamp(folder / name) for name in (META_FILE, *listed_files(meta)))
-    except (CaptureError, OSError, KeyError, TypeError):
-        return None
-
-
-def _load_press(folder: Path, led_subset: Sequence[int] | None, decode: bool, workers: int | None = None) -> Press:
-    """:func:`load_press`, read from the files now (``workers``: :func:`decode_together`'s)."""
+    folder = Path(folder)
     meta = read_meta(folder)
     camera, leds, response = parse_optics(meta, folder / META_FILE)
     images = meta["images"]
@@ -594,7 +499,7 @@ def _load_press(folder: Path, led_subset: Sequence[int] | None, decode: bool, wo
     dark = StoredImages(*stored[0], camera, stacked=False, named=not decode)
     led_images = StoredImages(*stored[1], camera, stacked=True, named=not decode)
     if decode:
-        dark, led_images = decode_together(dark, led_images, workers=workers)
+        dark, led_images = decode_together(dark, led_images)
     return Press(
         folder=folder,
         camera=camera,
@@ -823,13 +728,9 @@ def split_reference(root: str | Path, reference: str | Path | None = None) -> tu
 
 
 # ---------------------------------------------------------------------- helpers
-def _in_threads(jobs: list[tuple], workers: int | None = None) -> list:
-    """Run (func, *args) jobs on a thread pool of ``workers`` threads (default one per usable core; 1: on this
-    thread, in order): PNG and zlib coding release the GIL, so this scales."""
-    workers = min(len(jobs), usable_cores() if workers is None else workers)
-    if workers <= 1:
-        return [job[0](*job[1:]) for job in jobs]
-    with ThreadPoolExecutor(max_workers=workers) as pool:
+def _in_threads(jobs: list[tuple]) -> list:
+    """Run (func, *args) jobs on a thread pool: PNG and zlib coding release the GIL, so this scales."""
+    with ThreadPoolExecutor(max_workers=min(len(jobs), usable_cores()) or 1) as pool:
         return list(pool.map(lambda job: job[0](*job[1:]), jobs))
 
 

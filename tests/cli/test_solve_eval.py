@@ -382,39 +382,3 @@ def test_a_press_whose_tricolor_image_is_corrupt_still_solves(data, capsys):
     assert (press / "nlips" / "result.npz").is_file()
     with pytest.raises(CaptureError, match=r"tricolor\.png: not a readable PNG image \(no PNG signature\)$"):
         reference_arrays(load_press(press))
-
-
-def test_the_press_is_read_ahead_only_when_it_will_be_solved_and_solves_the_same(data, monkeypatch, tmp_path):
-    """``nlips solve PRESS`` loads its one press (and its --reference, undecoded) on threads while it imports the
-    solver (``read_ahead``): when it will solve it (--overwrite, or no result yet), not to reuse a result, nor
-    with --leds (its subset is known later). The result is the one of a press loaded on the command's thread."""
-    import numpy as np
-
-    from nlipscalib.core import capture
-
-    root, cfg = data
-    press, asked, real = root / "press_a", [], capture.read_ahead
-
-    def read_ahead(folder, led_subset=None, decode=True):
-        asked.append((folder, decode))
-        real(folder, led_subset, decode)
-
-    monkeypatch.setattr(capture, "read_ahead", read_ahead)
-    monkeypatch.setattr(capture, "_AHEAD", {})  # not what earlier tests' failed commands left
-
-    def solve(*flags):
-        return main(["solve", str(press), "--config", str(cfg), "--no-progress", *flags])
-
-    assert solve() == 0 and asked == [(press, True)]
-    assert solve() == 0 and asked == [(press, True)]  # an identical result is reused: nothing read
-    assert solve("--overwrite", "--leds", "1,3,5,7,9,11") == 0 and asked == [(press, True)]
-    assert solve("--overwrite", "--out", str(tmp_path / "ahead")) == 0 and len(asked) == 2
-    assert not capture._AHEAD  # taken by the solve
-    reference = synth.make_press(tmp_path / "reference", "none", size=(64, 48))
-    assert solve("--overwrite", "--reference", str(reference), "--out", str(tmp_path / "r")) == 0
-    assert asked[2:] == [(press, True), (reference, False)] and not capture._AHEAD
-    monkeypatch.setattr(capture, "read_ahead", lambda *args, **kwargs: None)
-    assert solve("--overwrite", "--out", str(tmp_path / "here")) == 0
-    ahead, here = load_reconstruction(tmp_path / "ahead"), load_reconstruction(tmp_path / "here")
-    for name, value in ahead.arrays().items():
-        np.testing.assert_array_equal(value, here.arrays()[name], err_msg=name)

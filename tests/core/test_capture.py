@@ -134,7 +134,7 @@ def test_interrupted_folder_write_leaves_nothing(tmp_path):
         (lambda f: (f / "tricolor.png").write_bytes(b"garbage"), "tricolor.png: not a readable PNG"),
     ],
 )
-@pytest.mark.parametrize("decode", [True, False, "ahead"])
+@pytest.mark.parametrize("decode", [True, False])
 def test_broken_folders_are_reported_precisely(tmp_path, breakage, message, capfd, decode):
     folder = _press(tmp_path / "p")
     breakage(folder)
@@ -146,11 +146,7 @@ def test_broken_folders_are_reported_precisely(tmp_path, breakage, message, capf
 
 def _read_every_file(folder, decode=True):
     """``load_press`` and a read of each field it may load at its first read (the tri-colour image, the ground
-    truth, and the images of an undecoded capture); ``decode="ahead"``: the press read ahead first
-    (``capture.read_ahead``), whose failure load_press finds again and reports."""
-    if decode == "ahead":
-        capture.read_ahead(folder)
-        decode = True
+    truth, and the images of an undecoded capture)."""
     press = load_press(folder, decode=decode)
     return press.dark, press.led_images, press.tricolor, press.ground_truth
 
@@ -214,75 +210,6 @@ def test_a_file_replaced_after_the_press_was_loaded_is_not_read_into_it(tmp_path
         _ = press.ground_truth
     again = load_press(folder)
     assert again.tricolor.shape == (H, W, 3) and again.ground_truth is not None
-
-
-def _read_ahead_done(folder, led_subset=None, decode=True):
-    """``capture.read_ahead`` of the press, waited for (as a command's solver import would); the press it read."""
-    capture.read_ahead(folder, led_subset, decode)
-    for job in list(capture._AHEAD.values()):
-        job.join()
-    return capture._AHEAD[capture._ahead_key(folder, led_subset, decode)].value[1]
-
-
-def test_a_press_read_ahead_is_the_one_load_press_gives(tmp_path):
-    """``nlips solve`` loads its press on a thread while it imports the solver (``read_ahead``): the next
-    ``load_press`` of that folder and LED subset takes it, linear images made, the same as a load now; once."""
-    folder = _press(tmp_path / "p")
-    now = load_press(folder, led_subset=[0, 2])
-    _read_ahead_done(folder, [0, 2])
-    assert "linear_led_images" not in vars(load_press(folder))  # another LED subset: loaded now
-    ahead = load_press(folder, led_subset=[0, 2])
-    assert "linear_led_images" in vars(ahead)  # made on the thread
-    for name in ("led_images", "dark", "linear_led_images", "tricolor"):
-        np.testing.assert_array_equal(getattr(ahead, name), getattr(now, name))
-    np.testing.assert_array_equal(ahead.reference.depth, now.reference.depth)
-    np.testing.assert_array_equal(ahead.ground_truth.normals, now.ground_truth.normals)
-    assert (ahead.folder, ahead.leds, ahead.meta, ahead.camera) == (now.folder, now.leds, now.meta, now.camera)
-    assert "linear_led_images" not in vars(load_press(folder, led_subset=[0, 2]))  # taken: read again
-
-
-def test_an_undecoded_capture_read_ahead_is_taken_by_an_undecoded_load_only(tmp_path):
-    """``nlips solve --reference REF`` reads the reference ahead as the pipeline loads it: undecoded."""
-    folder = _press(tmp_path / "p")
-    ahead = _read_ahead_done(folder, decode=False)
-    assert isinstance(vars(ahead)["led_images"], capture.StoredImages)
-    assert load_press(folder) is not ahead  # a decoded load: read now, the undecoded one kept
-    assert load_press(folder, decode=False) is ahead
-    assert load_press(folder, decode=False) is not ahead  # taken once
-
-
-def test_read_ahead_keeps_the_last_two_captures_not_taken(tmp_path):
-    """A solve's press and its reference; an older one not taken (a failed command's) is dropped, not kept."""
-    first, second, third = (_press(tmp_path / name) for name in "pqr")
-    _read_ahead_done(first)
-    _read_ahead_done(second, decode=False)
-    _read_ahead_done(third)
-    assert list(capture._AHEAD) == [capture._ahead_key(second, None, False), capture._ahead_key(third, None, True)]
-    assert "linear_led_images" in vars(load_press(third)) and "linear_led_images" not in vars(load_press(first))
-    capture._AHEAD.clear()
-
-
-@pytest.mark.parametrize("name", ["led_02.png", "dark.png", "meta.json", "gt.npz"])
-def test_a_press_read_ahead_is_not_taken_once_a_file_of_it_changed(tmp_path, name):
-    """A file of the folder written after the press was read ahead (rendered or captured again): the press is
-    loaded again, with the new file (not a mix of two presses)."""
-    import shutil
-
-    folder = _press(tmp_path / "p")
-    _read_ahead_done(folder)
-    other = _press(tmp_path / "q")
-    if name.endswith(".png"):  # the same seed draws the same images: new ones
-        image = np.random.default_rng(1).integers(0, 60000, size=(H, W, 3), dtype=np.uint16)
-        capture.write_png16(other / name, image)
-    elif name == "meta.json":
-        _edit_meta(other, lambda m: m["provenance"].update(source="again"))
-    shutil.copyfile(other / name, folder / name)
-    press = load_press(folder)
-    assert "linear_led_images" not in vars(press)  # loaded now
-    fresh = load_press(other)
-    np.testing.assert_array_equal(press.led_images, fresh.led_images)
-    np.testing.assert_array_equal(press.dark, fresh.dark)
-    assert press.meta == fresh.meta and press.ground_truth is not None
 
 
 def test_a_press_not_yet_decoded_or_read_can_be_sent_to_another_process(tmp_path):
