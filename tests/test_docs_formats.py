@@ -62,3 +62,102 @@ def test_the_dataset_spec_section_documents_every_key_and_its_example_loads(tmp_
     jobs = expand_jobs(spec)
     assert [j.name for j in jobs] == ["reference"] + [f"press_{i:04d}" for i in range(1, 7)]  # as the text says
     assert (scene.camera.width, scene.camera.height, scene.render.bounces) == (160, 120, 1)
+
+
+def _literal_keys(module: str, function: str, variable: str | None = None) -> list[str]:
+    """The string keys of the dict literal(s) assigned to ``variable`` (None: returned) in ``function`` of ``module``
+    (a dotted name under nlipscalib/), nested dicts included: what a writer puts into its file, read from its
+    source, for writers that need a whole run (a training, an experiment, a stream) to produce the file."""
+    import ast
+
+    source = Path(__file__).resolve().parents[1] / "nlipscalib" / (module.replace(".", "/") + ".py")
+    tree = ast.parse(source.read_text())
+    (func,) = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef) and n.name == function]
+    values = [
+        n.value
+        for n in ast.walk(func)
+        if (isinstance(n, ast.Return) and variable is None)
+        or (isinstance(n, ast.Assign) and any(isinstance(t, ast.Name) and t.id == variable for t in n.targets))
+    ]
+    assert values, f"{module}.{function} makes no {variable or 'return value'}"
+    return [
+        k.value
+        for value in values
+        for d in ast.walk(value)
+        if isinstance(d, ast.Dict)
+        for k in d.keys
+        if isinstance(k, ast.Constant) and isinstance(k.value, str)
+    ]
+
+
+def test_a_twin_press_provenance_and_dataset_json_keys_are_documented(tmp_path):
+    """meta.json's `provenance.press` and dataset.json were "indenter and place" and "the spec, the scene and every
+    press": a lab's tool reading them had to guess the key names."""
+    from nlipscalib.core.config import to_mapping
+    from nlipscalib.sim.dataset import expand_jobs, load_dataset_spec
+    from nlipscalib.sim.dataset_manifest import manifest_text
+
+    (example,) = re.findall(r"```toml\n(.*?)```", _section("# Dataset spec", "# Reconstruction format"), re.S)
+    (tmp_path / "tiny.toml").write_text(example)
+    spec, scene = load_dataset_spec(tmp_path / "tiny.toml")
+    jobs = expand_jobs(spec)
+    press = to_mapping(jobs[1].press)  # as sim.press writes it into provenance.press
+    meta_section = _section("## meta.json", "## reference.npz")
+    assert _undocumented(press, meta_section) == []
+    assert _undocumented(press["indenter"], meta_section) == []
+    manifest = json.loads(manifest_text(spec, scene, jobs))
+    dataset_json = _section("`dataset.json` beside", "## Images")
+    assert _undocumented(manifest, dataset_json) == []
+    assert _undocumented(manifest["presses"][1], dataset_json) == []
+
+
+def test_led_file_sensor_description_and_camera_calibration_keys_are_documented():
+    from nlipscalib.core import Camera, Led
+    from nlipscalib.core.sensor_record import describe_sensor
+    from nlipscalib.device.camera_calibration import Calibration
+    from nlipscalib.solver.calibrate import LedCalibration
+
+    led = Led((1.0, 0.0, 0.0))
+    cal = LedCalibration(
+        leds=(led,), albedo=(1.0, 1.0, 1.0), std=[{}], rms=[0.0], emitters=(led,), led_radius=1.8,
+        reflectance_profile={}, quality={},
+    )  # fmt: skip
+    led_file = _section("## LED file", "## Camera calibration")
+    assert _undocumented(cal.to_json(), led_file) == []
+    assert _undocumented(["leds", "sensor"], led_file) == []  # core.ledfile.save_leds's and cli.calibrate's
+    assert _undocumented(_literal_keys("solver.calibrate", "fit_quality"), led_file) == []
+    camera = Camera(4, 3, 2.0, 2.0, 1.5, 1.0)
+    sensor = describe_sensor(camera, [led] * 3, SensorResponse())
+    assert _undocumented(sensor, _section("## Sensor description", "# Dataset spec")) == []
+    calibration = Calibration(camera, 0.1, (0.1,), ("a.png",), ())
+    assert _undocumented(calibration.to_dict(), _section("## Camera calibration", "## Sensor description")) == []
+
+
+def test_report_json_interreflection_model_onnx_stream_and_experiment_keys_are_documented():
+    report_json = _section("## report.json", "`provenance` (written by")
+    assert _undocumented(_literal_keys("solver.indirect", "to_json"), report_json) == []
+    model = _section("# NLiPsNet model file", "`MODEL.onnx` beside it")
+    assert _undocumented(_literal_keys("learn.model", "save_model", "payload"), model) == []
+    onnx = _section("`MODEL.onnx` beside it", "The ONNX graph")
+    assert _undocumented(_literal_keys("learn.onnx_export", "export_onnx", "meta"), onnx) == []
+    stream = _section("`nlips infer MODEL VIDEO", "## PLY")
+    assert _undocumented(_literal_keys("cli.infer", "_write_stream_report", "report"), stream) == []
+    results = _section("# Experiment report", "# Disk cache")
+    assert _undocumented(_literal_keys("experiments.framework", "run_experiment", "doc"), results) == []
+
+
+def test_the_ply_section_describes_what_write_ply_writes(tmp_path):
+    from nlipscalib.learn.ply import write_ply
+
+    points = np.zeros((2, 2, 3), np.float32)
+    points[0, 0] = np.nan
+    path = write_ply(tmp_path / "p.ply", points, points, mesh=True)
+    header = path.read_bytes().split(b"end_header\n")[0].decode().splitlines()
+    section = _section("## PLY", "# Experiment report")
+    assert "binary little-endian PLY 1.0" in section and header[1] == "format binary_little_endian 1.0"
+    (comment,) = [line.removeprefix("comment ") for line in header if line.startswith("comment ")]
+    assert f"`{comment}`" in section
+    properties = [line.split()[-1] for line in header if line.startswith("property")]
+    assert properties == ["x", "y", "z", "nx", "ny", "nz", "vertex_indices"]
+    assert "`float x, y, z`" in section and "`float nx, ny, nz`" in section
+    assert "`list uchar int vertex_indices`" in section
