@@ -161,3 +161,9 @@ def test_the_ply_section_describes_what_write_ply_writes(tmp_path):
     assert properties == ["x", "y", "z", "nx", "ny", "nz", "vertex_indices"]
     assert "`float x, y, z`" in section and "`float nx, ny, nz`" in section
     assert "`list uchar int vertex_indices`" in section
+
+
+def test_every_coverage_json_key_is_documented():
+    section = _section("coverage.json (", "# NLiPsNet model file")
+    for function in ("coverage", "steep_gap", "_next_press"):
+        assert _undocumented(_literal_keys("learn.coverage", function), section) == [], function
