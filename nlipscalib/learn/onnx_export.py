@@ -97,7 +97,7 @@ def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], obj
     proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="nlipscalib")
     proto.ir_version = IR_VERSION  # the installed onnx would write its newest, which older onnxruntimes refuse
     onnx.checker.check_model(proto)
-    meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": str(model.hidden)}
+    meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": json.dumps(list(model.hidden))}
     for key, value in meta.items():
         entry = proto.metadata_props.add()
         entry.key, entry.value = key, value

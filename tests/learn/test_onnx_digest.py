@@ -62,3 +62,18 @@ def test_inference_compares_the_export_with_the_model_it_loaded_not_the_file_the
     os.replace(tmp_path / "publishing.pt", path)  # ... while the new one is published again
     with pytest.raises(CaptureError, match="exported from another model"):
         OnnxNet(tmp_path / "m.onnx", loaded)
+
+
+def test_the_onnx_metadata_is_json_a_labs_tool_can_read(tmp_path):
+    """The ONNX file's `hidden` entry was Python's tuple text, "(32, 16)", beside a JSON `sensor`: a tool reading
+    the metadata had to parse Python. Every entry but the digest is JSON now."""
+    import json
+
+    onnx = pytest.importorskip("onnx")
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    out = export_onnx(load_model(_save(tmp_path / "m.pt")), tmp_path / "m.onnx")
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert json.loads(meta["hidden"]) == [32, 16]
+    assert json.loads(meta["sensor"])["camera"]["width"] == 64
