@@ -29,7 +29,8 @@ def empty_store(monkeypatch):
 def disk(tmp_path, monkeypatch):
     folder = tmp_path / "cache"
     monkeypatch.setenv(diskcache.ENV_DIR, str(folder))
-    return folder
+    yield folder
+    diskcache.wait()  # the test's background writes, before its folder goes
 
 
 def test_digest_tells_content_shape_and_dtype_apart():
@@ -190,6 +191,7 @@ def test_a_warm_solve_whose_consumers_all_hit_does_not_load_the_shading(tmp_path
         return {key: getattr(result, key) for key in ("depth", "normals", "albedo")}
 
     first = solve()
+    diskcache.wait()
     assert any((disk / "shading").iterdir())  # the first process needed it: computed and kept
     reuse.clear()  # a new process: only the disk remembers
     loaded, shaded = [], []
@@ -303,6 +305,7 @@ def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, dis
     monkeypatch.setenv(diskcache.ENV_DIR, str(disk))
     reuse.clear()
     first = _solve_fields(press, undeformed)
+    diskcache.wait()
     kinds = {p.name for p in disk.iterdir() if any(p.iterdir())}
     # no "shading": with an undeformed capture the fit and the contact do not read it, and at this size the
     # outer loop's surface is the fit's (the same patch side), made from the capture
