@@ -62,7 +62,7 @@ ENV_DIR = "NLIPS_CACHE_DIR"
 ENV_MB = "NLIPS_CACHE_MB"
 """Environment variable: the most megabytes the cache folder may hold."""
 DEFAULT_MB = 2048
-"""Default size bound, MB: a 640x480 sensor's entries take about 350 MB."""
+"""Default size bound, MB: a 640x480 sensor's entries take about 250 MB (sphere1: 251 MB)."""
 SUFFIX = ".pkl"
 TAG = "nlipscalib.diskcache.entry/2"
 """First item of every stored (TAG, value) pair: an entry without it was not written by :func:`store`."""

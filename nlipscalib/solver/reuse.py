@@ -20,8 +20,8 @@ inputs by content, never by the identity of an object in this process, and neith
 holding their arrays may be changed once returned (their arrays are made read-only).
 
 A result that later computations mostly use as part of their own keys (the undeformed surface's direct
-shading: 88 MB at 640x480, ~0.08 s to load) is handed out :func:`deferred`: named by its key, its values
-loaded or computed only when a consumer misses its own cache and needs them (:func:`values`).
+shading: 88 MB at 640x480) is handed out :func:`deferred`: named by its key, its values loaded or computed only
+when a consumer misses its own cache and needs them (:func:`values`).
 """
 
 from __future__ import annotations
