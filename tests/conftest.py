@@ -45,6 +45,11 @@ def pytest_configure(config):
 
 
 def pytest_unconfigure(config):
+    import sys
+
+    diskcache = sys.modules.get("nlipscalib.core.diskcache")
+    if diskcache is not None:
+        diskcache.wait()  # its background writes into the folder, before it goes
     if _CACHE_DIR is not None:
         shutil.rmtree(_CACHE_DIR, ignore_errors=True)
 

@@ -11,13 +11,22 @@ a process; this module keeps them on disk between processes.
 - **Keys:** a digest of the result's kind, its key (camera, LEDs, digests of the arrays it is computed from,
   the BLAS setting), and a digest of the package's own source, NumPy's and SciPy's versions: a changed
   formula or library never serves an old result.
-- **Entries:** ``<dir>/<kind>/<digest>.pkl``, pickled (protocol 5), written atomically (temporary file, then
-  rename: :func:`nlipscalib.core.atomic.write_bytes`), so processes sharing the folder never read a partial
-  entry; two writing the same key write the same result and the last rename wins. Pickles stream to the file:
-  no in-memory copy of a 100 MB result. An entry that cannot be
-  read (truncated, another Python) is treated as missing, recomputed and replaced; one that reads but holds
-  no result of this package (another program's pickle under that name) is removed with a warning and
-  recomputed: each entry carries :data:`TAG`.
+- **Entries:** ``<dir>/<kind>/<digest>.pkl``: :data:`MAGIC`, a table of sizes, the pickle (protocol 5) of
+  (:data:`TAG`, value) with its arrays' bytes out of band, then those bytes as they are in memory
+  (:func:`_serialised`). Written atomically (temporary file, then rename:
+  :func:`nlipscalib.core.atomic.write_with`), so processes sharing the folder never read a partial entry; two
+  writing the same key write the same result and the last rename wins. An entry that cannot be read (truncated,
+  another Python) is treated as missing, recomputed and replaced; one that reads but holds no result of this
+  package (another program's file under that name) is removed with a warning and recomputed.
+- **Writes in the background** (:func:`store_later`, what :mod:`nlipscalib.solver.reuse` uses): the entry's
+  structure is pickled by the caller (milliseconds: the arrays are only referenced; a kept result is never
+  changed once made, :mod:`nlipscalib.solver.reuse`), its bytes written by a thread of their own while the
+  solve goes on. Writing a 640x480 sensor's entries cost a cold command's main thread 1.5-2 s, nearly all of it the
+  kernel giving the file's page cache fresh pages on the 2-core VM this project runs on
+  (benchmarks/RESULTS.md, s17-f). The thread is not a daemon: the interpreter's exit, and
+  :func:`nlipscalib.cli._exit`'s ``threading._shutdown``, wait for it; a signal that ends the process at once
+  (:func:`nlipscalib.cli._end_at_once`) removes its temporary file (:func:`nlipscalib.core.atomic.remove_in_progress`),
+  so a write cut short never leaves an entry. :func:`load` of an entry this process is still writing waits for it.
 - **Size:** at most ``$NLIPS_CACHE_MB`` (default :data:`DEFAULT_MB`) megabytes; after a write the least
   recently used entries (reads touch them) are removed.
 - **Trust:** entries are pickles, loaded only from the user's own cache folder (as joblib's ``Memory`` does);
@@ -36,8 +45,11 @@ import hashlib
 import logging
 import os
 import pickle
+import struct
 import sys
+import threading
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -50,12 +62,21 @@ ENV_DIR = "NLIPS_CACHE_DIR"
 ENV_MB = "NLIPS_CACHE_MB"
 """Environment variable: the most megabytes the cache folder may hold."""
 DEFAULT_MB = 2048
-"""Default size bound, MB: a 640x480 sensor's entries take about 300 MB."""
+"""Default size bound, MB: a 640x480 sensor's entries take about 250 MB (sphere1: 251 MB)."""
 SUFFIX = ".pkl"
-TAG = "nlipscalib.diskcache.entry/1"
+TAG = "nlipscalib.diskcache.entry/2"
 """First item of every stored (TAG, value) pair: an entry without it was not written by :func:`store`."""
+MAGIC = b"nlipscalib.diskcache/2\n"
+"""First bytes of every entry file (:func:`_serialised`): a file without them is another program's."""
+_SIZES = struct.Struct("<QQ")
+"""(bytes of the pickle, number of out-of-band buffers) after :data:`MAGIC`; then each buffer's bytes as ``<Q``."""
 
 _salt: str | None = None
+_pending: dict[Path, threading.Thread] = {}
+"""Entries this process is writing in the background (:func:`store_later`), by path."""
+_pending_lock = threading.Lock()
+_one_writer = threading.Lock()
+"""Held by a background write: one entry's pages at a time, not all of them competing with the solve at once."""
 _warned: set[str] = set()
 """Warnings given once per process (a bad setting is read before every entry)."""
 
@@ -152,10 +173,13 @@ def entry(kind: str, key: object) -> Path | None:
 
 
 def load(path: Path) -> object:
-    """The result stored at ``path``; raises KeyError when there is none or it cannot be read."""
+    """The result stored at ``path``; raises KeyError when there is none or it cannot be read. An entry this
+    process is writing in the background (:func:`store_later`) is waited for."""
+    wait(path)
     try:
         with open(path, "rb") as f:
-            stored = pickle.load(f)
+            ours = f.read(len(MAGIC)) == MAGIC
+            stored = _read_entry(f) if ours else None
     except FileNotFoundError:
         raise KeyError(str(path)) from None
     except Exception as exc:  # a truncated or foreign entry is a miss, not an error: it is recomputed
@@ -172,12 +196,99 @@ def load(path: Path) -> object:
     return stored[1]
 
 
+def _read_entry(f: BinaryIO) -> object:
+    """The (TAG, value) of an entry file ``f``, read past :data:`MAGIC`: each out-of-band buffer is read into an
+    array of its own, which the value's arrays then view (no second copy). ValueError when the file is short or
+    long (truncated, or not written by :func:`_serialised`)."""
+    head = f.read(_SIZES.size)
+    if len(head) != _SIZES.size:
+        raise ValueError("truncated")
+    size, count = _SIZES.unpack(head)
+    table = f.read(8 * count)
+    if len(table) != 8 * count:
+        raise ValueError("truncated")
+    pickled = f.read(size)
+    buffers = []
+    for n in struct.unpack(f"<{count}Q", table):
+        buf = np.empty(n, np.uint8)
+        if f.readinto(memoryview(buf)) != n:
+            raise ValueError("truncated")
+        buffers.append(buf)
+    if len(pickled) != size or f.read(1):
+        raise ValueError("truncated or too long")
+    return pickle.loads(pickled, buffers=buffers)
+
+
+def _serialised(value: object) -> list:
+    """The pieces of ``value``'s entry file, in order: :data:`MAGIC` and the sizes, the pickle of (TAG, value)
+    with its contiguous arrays out of band (protocol 5), then those arrays' bytes as views of their memory (no
+    copy). Pickling errors (a value that cannot be pickled) are raised here, in the caller's thread."""
+    buffers: list[pickle.PickleBuffer] = []
+    pickled = pickle.dumps((TAG, value), protocol=5, buffer_callback=buffers.append)
+    raw = [b.raw() for b in buffers]
+    sizes = struct.pack(f"<{len(raw)}Q", *(r.nbytes for r in raw))
+    return [MAGIC + _SIZES.pack(len(pickled), len(raw)) + sizes, pickled, *raw]
+
+
 def store(path: Path, value: object) -> None:
     """Write ``value`` to ``path`` atomically, then keep the folder within its size bound. A failed write
     (read-only or full disk, a value that cannot be pickled) only costs the next process the computation:
     it is logged, not raised."""
     try:
-        atomic.write_with(path, lambda f: pickle.dump((TAG, value), f, protocol=5))
+        parts = _serialised(value)
+    except (pickle.PicklingError, TypeError, AttributeError) as exc:
+        log.debug("could not write cache entry %s: %s", path, exc)
+        return
+    _write(path, parts)
+
+
+def store_later(path: Path, value: object) -> None:
+    """:func:`store` on a thread of its own: ``value`` is pickled now (its arrays only referenced: neither they
+    nor the objects holding them may change afterwards), its bytes written while the caller goes on. The
+    process's exit waits for the write (a non-daemon thread); :func:`wait` waits for it sooner."""
+    try:
+        parts = _serialised(value)
+    except (pickle.PicklingError, TypeError, AttributeError) as exc:
+        log.debug("could not write cache entry %s: %s", path, exc)
+        return
+
+    def write() -> None:
+        try:
+            with _one_writer:
+                _write(path, parts)
+        finally:
+            with _pending_lock:
+                if _pending.get(path) is threading.current_thread():
+                    del _pending[path]
+
+    thread = threading.Thread(target=write, name=f"nlips cache write {path.parent.name}")
+    with _pending_lock:
+        earlier = _pending.get(path)
+        _pending[path] = thread
+    if earlier is not None:  # the same key written twice (its result evicted, then computed again): in order
+        earlier.join()
+    thread.start()
+
+
+def wait(path: Path | None = None) -> None:
+    """Wait for this process's background writes (:func:`store_later`) of ``path``, or of every entry (None)."""
+    with _pending_lock:
+        threads = list(_pending.values()) if path is None else [_pending.get(path)]
+    for thread in threads:
+        if thread is not None and thread is not threading.current_thread():
+            thread.join()
+
+
+def _write(path: Path, parts: list) -> None:
+    """Write an entry's ``parts`` (:func:`_serialised`) to ``path`` atomically, then trim the folder; a failed
+    write is logged once, not raised."""
+
+    def write_parts(f: BinaryIO) -> None:
+        for part in parts:
+            f.write(part)
+
+    try:
+        atomic.write_with(path, write_parts)
         trim(path.parent.parent, limit_bytes())
     except OSError as exc:  # a folder that cannot be written (read-only, /proc, full): every command recomputes
         _warn_once(
@@ -187,8 +298,6 @@ def store(path: Path, value: object) -> None:
             exc.strerror or exc,
             ENV_DIR,
         )
-    except (pickle.PicklingError, TypeError, AttributeError) as exc:
-        log.debug("could not write cache entry %s: %s", path, exc)
 
 
 def trim(root: Path, limit: int) -> int:
@@ -215,6 +324,7 @@ def trim(root: Path, limit: int) -> int:
 
 def clear(root: Path | None = None) -> int:
     """Remove every entry (and leftover temporary file) of the cache folder; returns the bytes freed."""
+    wait()
     root = folder() if root is None else root
     freed = 0
     if root is None or not root.is_dir():
@@ -229,7 +339,8 @@ def clear(root: Path | None = None) -> int:
 
 
 def usage(root: Path | None = None) -> tuple[int, int]:
-    """(entries, bytes) in the cache folder."""
+    """(entries, bytes) in the cache folder (this process's background writes finished first)."""
+    wait()
     root = folder() if root is None else root
     if root is None or not root.is_dir():
         return 0, 0

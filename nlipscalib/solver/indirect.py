@@ -164,16 +164,21 @@ def direct_shading(camera: Camera, leds: Leds, depth: np.ndarray, normals: np.nd
 def reference_shading(
     camera: Camera, leds: Leds, depth: np.ndarray, normals: np.ndarray, defer: bool = False
 ) -> np.ndarray | reuse.Deferred:
-    """:func:`direct_shading` of the undeformed surface, reused for the next press of the same sensor, in
-    this process and the next (:mod:`nlipscalib.solver.reuse`); read-only.
+    """:func:`direct_shading` of the undeformed surface, reused for the next press of the same sensor in this
+    process (:mod:`nlipscalib.solver.reuse`); read-only.
 
     ``defer``: return a :class:`~nlipscalib.solver.reuse.Deferred` instead, which names the shading by its key
-    and loads or computes it only when a consumer needs its values (:func:`reuse.values`): a warm process whose
-    consumers (:func:`reference_surface`, the contact's smoothed undeformed images) all find their own results
-    kept does not load the 88 MB (640x480) array at all."""
+    and computes it only when a consumer needs its values (:func:`reuse.values`): a warm process whose consumers
+    (:func:`reference_surface`, the contact's smoothed undeformed images) all find their own results on disk
+    does not compute the 88 MB (640x480) array at all.
+
+    Not kept on disk: only a process that misses those consumers' entries needs it (a cold one, which computes
+    them from it), and there it costs ~0.2 s to compute against ~0.08 s to read, while writing it cost every
+    cold 640x480 command 0.1-0.8 s of system time and took a third of the sensor's cache (benchmarks/RESULTS.md,
+    s17-f)."""
     leds = tuple(leds)
     key = (camera, leds, surface_digest(depth, normals))
-    shading = reuse.deferred("shading", key, lambda: direct_shading(camera, leds, depth, normals), persist=True)
+    shading = reuse.deferred("shading", key, lambda: direct_shading(camera, leds, depth, normals))
     return shading if defer else shading.values()
 
 

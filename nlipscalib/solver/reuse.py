@@ -15,12 +15,13 @@ be served a result an earlier call computed under two. Stored arrays are made re
 would modify one fails loudly instead of corrupting the next press's solve.
 
 Results that depend on the sensor alone are also kept on disk for the next process
-(``persist=True``; :mod:`nlipscalib.core.diskcache`): their keys must name their inputs by content, never
-by the identity of an object in this process.
+(``persist=True``; :mod:`nlipscalib.core.diskcache`, written in the background): their keys must name their
+inputs by content, never by the identity of an object in this process, and neither they nor the objects
+holding their arrays may be changed once returned (their arrays are made read-only).
 
 A result that later computations mostly use as part of their own keys (the undeformed surface's direct
-shading: 88 MB at 640x480, ~0.08 s to load) is handed out :func:`deferred`: named by its key, its values
-loaded or computed only when a consumer misses its own cache and needs them (:func:`values`).
+shading: 88 MB at 640x480) is handed out :func:`deferred`: named by its key, its values loaded or computed only
+when a consumer misses its own cache and needs them (:func:`values`).
 """
 
 from __future__ import annotations
@@ -133,7 +134,10 @@ def _from_disk(kind: str, key: Hashable, compute: Callable[[], T]) -> T:
     except KeyError:
         pass
     value = compute()
-    diskcache.store(path, value)
+    freeze(value)  # before the background write references its arrays' memory
+    # written on a thread of its own while the solve goes on: a cold 640x480 command's ~250 MB cost it 1-2 s of
+    # wall on the main thread, nearly all of it fresh page-cache pages (benchmarks/RESULTS.md, s17-f)
+    diskcache.store_later(path, value)
     return value
 
 

@@ -82,7 +82,10 @@ def test_another_source_salt_misses_every_earlier_entry(cache_dir, monkeypatch):
 def test_a_write_that_fails_costs_only_the_computation(cache_dir):
     path = diskcache.entry("k", ("lambda",))
     diskcache.store(path, {"f": lambda: 1})  # not picklable: logged, not raised
-    assert not path.exists() and not list(path.parent.iterdir())  # no half-written entry either
+    assert not path.exists() and not (path.parent.exists() and list(path.parent.iterdir()))  # nor half an entry
+    diskcache.store_later(path, {"f": lambda: 1})  # in the background: the same
+    diskcache.wait()
+    assert not path.exists() and not (path.parent.exists() and list(path.parent.iterdir()))
     blocked = diskcache.entry("blocked", ("x",))
     cache_dir.mkdir(parents=True, exist_ok=True)
     (cache_dir / "blocked").write_text("a file where the kind's folder should be")
@@ -224,3 +227,71 @@ def test_usage_skips_an_entry_removed_while_it_is_counted(cache_dir, monkeypatch
     listed = Path.glob
     monkeypatch.setattr(Path, "glob", lambda self, pattern: [*listed(self, pattern), gone])
     assert diskcache.usage(cache_dir) == (1, path.stat().st_size)
+
+
+def test_a_background_write_is_waited_for_by_a_read_of_its_entry(cache_dir, monkeypatch):
+    """``store_later`` returns before the entry is written; a read of it in the same process waits, and the
+    entry holds every array as it was, bit for bit (out-of-band buffers), in C and Fortran order."""
+    release = threading.Event()
+    write = diskcache._write
+
+    def slow(path, parts):
+        release.wait(10)
+        write(path, parts)
+
+    monkeypatch.setattr(diskcache, "_write", slow)
+    path = diskcache.entry("k", ("later",))
+    value = {"a": np.random.default_rng(0).normal(size=(300, 7)), "f": np.asfortranarray(np.ones((4, 5), np.float32))}
+    value["t"] = (value["a"][::2], "text", 3)  # not contiguous: pickled in band
+    diskcache.store_later(path, value)
+    assert not path.exists()  # still being written
+    threading.Timer(0.2, release.set).start()
+    back = diskcache.load(path)  # waits for the write
+    for key in ("a", "f"):
+        np.testing.assert_array_equal(back[key], value[key])
+        assert back[key].dtype == value[key].dtype and back[key].flags.f_contiguous == value[key].flags.f_contiguous
+    np.testing.assert_array_equal(back["t"][0], value["t"][0])
+    assert back["t"][1:] == ("text", 3)
+    assert not diskcache._pending
+
+
+def test_an_entry_is_the_arrays_bytes_and_a_short_header(cache_dir):
+    """No pickled copy of the arrays next to them: the entry is their bytes plus a header of a few hundred bytes."""
+    path = diskcache.entry("k", ("size",))
+    value = {"a": np.zeros(100_000), "b": np.zeros((100, 3), np.int32)}
+    diskcache.store(path, value)
+    assert 0 <= path.stat().st_size - (value["a"].nbytes + value["b"].nbytes) < 1000
+
+
+@pytest.mark.parametrize(
+    "ending, complete",
+    [
+        ("import os; os._exit(0)", False),  # the end a signal handler takes (cli._end_at_once): no wait
+        ("pass", True),  # the interpreter's own exit waits for the non-daemon writer
+        ("from nlipscalib.cli import _exit; _exit(0)", True),  # the nlips command's exit path
+    ],
+)
+def test_a_process_that_ends_while_writing_leaves_a_whole_entry_or_none(cache_dir, ending, complete):
+    """A background write cut short by the process's end never leaves a partial entry; a normal exit, and the
+    ``nlips`` command's (:func:`nlipscalib.cli._exit`), wait for it."""
+    import subprocess
+    import sys
+    import textwrap
+
+    size = 5_000_000  # 40 MB: tens of milliseconds to write
+    code = textwrap.dedent(f"""
+        import numpy as np
+        from nlipscalib.core import diskcache
+        path = diskcache.entry("k", ("big",))
+        diskcache.store_later(path, np.arange({size}, dtype=np.float64))
+        {ending}
+    """)
+    env = dict(os.environ, **{diskcache.ENV_DIR: str(cache_dir)})
+    subprocess.run([sys.executable, "-c", code], env=env, check=True, timeout=300)
+    path = diskcache.entry("k", ("big",))
+    if complete or path.exists():  # os._exit: the entry whole (had the write been that quick) or none
+        np.testing.assert_array_equal(diskcache.load(path), np.arange(size, dtype=np.float64))
+    if not complete:  # its temporary file, if any, is a dead process's: the next write removes it
+        small = diskcache.entry("k", ("small",))
+        diskcache.store(small, 1)
+        assert {p.name for p in path.parent.iterdir()} <= {small.name, path.name}
