@@ -25,13 +25,14 @@ from common import write_section
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from nlipscalib.core import Led, load_press  # noqa: E402
+from nlipscalib.core import load_press  # noqa: E402
 from nlipscalib.core.metrics import angle_deg, evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
 from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
 from nlipscalib.solver import calibrate_leds, solve_press  # noqa: E402
+from tests.solver.twin_helpers import perturbed  # noqa: E402
 
 PRESSES = {
     "sphere": PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5),
@@ -60,28 +61,6 @@ def timed(fn):
     t0 = time.perf_counter()
     out = fn()
     return out, time.perf_counter() - t0
-
-
-def perturbed(leds, rng):
-    """LEDs 0.3-0.5 mm, 5 deg, mu x1.3, Psi x0.8 off: a calibration's starting point (as tests/solver/test_twin)."""
-    out = []
-    for led in leds:
-        offset = rng.normal(size=3)
-        offset *= rng.uniform(0.3, 0.5) / np.linalg.norm(offset)
-        d = np.asarray(led.direction)
-        axis = np.cross(d, rng.normal(size=3))
-        axis /= np.linalg.norm(axis)
-        t = np.radians(5.0)
-        direction = np.cos(t) * d + np.sin(t) * axis
-        out.append(
-            Led(
-                tuple(np.add(led.position, offset)),
-                tuple(direction),
-                led.mu * 1.3,
-                tuple(0.8 * np.asarray(led.intensity)),
-            )
-        )
-    return out
 
 
 def led_errors(cal, true) -> tuple[float, float]:

@@ -134,11 +134,11 @@ def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
     flag's value); ``--threads`` >= 0 (0: the default). Shared with infer."""
     from ..core.config import check_count
 
-    if typed(args, ("every",)) and not out:
-        log.warning("--every without an output folder: no frames are kept")
     fill_defaults(args, {"every": 1})
     check_count("--every", args.every, minimum=1)
     check_count("--threads", args.threads, minimum=0)
+    if typed(args, ("every",)) and not out:  # after the checks: a refused value's error line comes alone
+        log.warning("--every without an output folder: no frames are kept")
 
 
 def open_frames(

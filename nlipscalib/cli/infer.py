@@ -110,6 +110,7 @@ def stopped(args: argparse.Namespace) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..core.config import check_count
     from ..core.errors import ConfigError
 
     if not args.inputs:
@@ -119,8 +120,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(
             "give inputs (presses, PNG frames or a video), --camera SPEC, --emulate SCENE or --port nlipsemu://ID"
         )
-    if args.max_frames is not None and args.max_frames < 1:
-        raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
+    if args.max_frames is not None:
+        check_count("--max-frames", args.max_frames, minimum=1)
     if stream_input is None:  # only a stream lights the LED board, or has frames to count or skip
         for dest in typed(args, ("port", "adalight", "baud", "tricolor_level")):
             raise ConfigError(

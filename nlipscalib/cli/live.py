@@ -155,6 +155,7 @@ def _checked_first_call(spec: str, predict: Predict) -> Predict:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..core.config import check_count
     from ..core.errors import ConfigError, DeviceError
     from ..report.live import display_available
 
@@ -163,8 +164,8 @@ def run(args: argparse.Namespace) -> int:
     emulate_behind_port(args)
     check_source_arguments(args)
     check_output_arguments(args, args.out)
-    if args.max_frames is not None and args.max_frames < 1:
-        raise ConfigError(f"--max-frames must be >= 1, got {args.max_frames}")
+    if args.max_frames is not None:
+        check_count("--max-frames", args.max_frames, minimum=1)
     window = not args.no_window and display_available()
     done = {}
     try:

@@ -4,16 +4,19 @@ Why: a terminal sends Ctrl-C to every process of the command. A worker that died
 own, and one whose render it interrupted waited at its exit for the render, abandoned on a thread of its own
 (``sim.render.interruptible``), to end: tens of seconds. The command alone handles Ctrl-C; it ends its workers with
 SIGTERM, whose handler in each worker releases the worker's claims and removes its half-written temporaries before
-the worker exits (``sim.dataset_pool._worker_init``, ``pipeline.workers._worker_signals``).
+the worker exits (:func:`worker_signals`, set by ``sim.dataset_pool._worker_init`` and
+``pipeline.workers._worker_signals``).
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 import time
 from collections.abc import Iterable, Iterator
+from types import FrameType
 from typing import Protocol
 
 WORKER_GRACE_S = 5.0
@@ -55,6 +58,23 @@ def end_processes(workers: Iterable[Worker], grace_s: float = WORKER_GRACE_S) ->
             if worker.is_alive():
                 worker.kill()
                 worker.join(1.0)
+
+
+def worker_signals() -> None:
+    """In a worker process: Ctrl-C ignored (the command answers it by ending the worker), and SIGTERM releasing the
+    worker's claims and removing its half-written temporaries before it exits (:func:`_worker_terminated`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, _worker_terminated)
+
+
+def _worker_terminated(signum: int, frame: FrameType | None) -> None:
+    """SIGTERM in a worker: ended with ``os._exit``, as an exception raised in a handler could land inside a
+    library's native call."""
+    from . import atomic, claims
+
+    claims.release_all()
+    atomic.remove_in_progress()
+    os._exit(128 + signum)
 
 
 @contextlib.contextmanager

@@ -7,7 +7,6 @@ import logging
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from types import FrameType
 
 from .status import BROKEN
 
@@ -105,15 +104,6 @@ def _worker_signals() -> None:
     current native call (a sparse solve) returns, and ends the process with ``os._exit``: an
     exception raised there could land inside a library.
     """
-    import signal
+    from ..core.processes import worker_signals
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _worker_terminated)
-
-
-def _worker_terminated(signum: int, frame: FrameType | None) -> None:
-    from ..core import atomic, claims
-
-    claims.release_all()
-    atomic.remove_in_progress()
-    os._exit(128 + signum)
+    worker_signals()

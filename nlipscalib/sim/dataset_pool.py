@@ -28,7 +28,7 @@ from ..core.capture import META_FILE, is_press_folder
 from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, NlipsError
-from ..core.processes import end_processes, sigint_held
+from ..core.processes import end_processes, sigint_held, worker_signals
 from ..progress import configure_worker, progress_bar, worker_logging
 from .dataset_folder import (
     changed_error,
@@ -43,8 +43,6 @@ from .dataset_spec import PressJob
 from .scene import SceneConfig
 
 if TYPE_CHECKING:  # named in hints only
-    from types import FrameType
-
     from tqdm import tqdm
 
 log = logging.getLogger(__name__)
@@ -152,7 +150,7 @@ def check_space(out: Path, scene: SceneConfig, n_presses: int) -> None:
 # ---------------------------------------------------------------------- internals
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
     """Ctrl-C: end the render processes now (each releases its claim and removes its half-written press folder,
-    :func:`_worker_terminated`) and start no other press.
+    :func:`nlipscalib.core.processes.worker_signals`) and start no other press.
 
     Why not ``pool.shutdown(wait=True)``: it waited for the renders under way, tens of seconds each at 640x480.
     Finished presses are kept; the interrupted ones are rendered again by the next run.
@@ -168,19 +166,8 @@ def _worker_init(log_level: int, log_file: str | None = None) -> None:
     whole process group) releases its claim and removes its half-written press folder, then exits, as the parent
     does. The handler runs at once, a render being on a thread of its own (``sim.render.interruptible``); ended with
     ``os._exit``, as an exception raised there could land inside the library."""
-    import signal
-
     configure_worker(log_level, log_file)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _worker_terminated)
-
-
-def _worker_terminated(signum: int, frame: FrameType | None) -> None:
-    from ..core import atomic, claims
-
-    claims.release_all()
-    atomic.remove_in_progress()
-    os._exit(128 + signum)
+    worker_signals()
 
 
 def _rounds(

@@ -287,22 +287,11 @@ class ChunkedModel:
     as whole arrays.
     """
 
-    def __init__(
-        self,
-        be: Backend,
-        q: np.ndarray,
-        A: np.ndarray,
-        B: np.ndarray,
-        C: np.ndarray,
-        positions: np.ndarray,
-        directions: np.ndarray,
-        mu: np.ndarray,
-        psi: np.ndarray,
-        images: np.ndarray,
-        usable: np.ndarray,
-    ):
+    def __init__(self, be: Backend, q: np.ndarray, *args: np.ndarray):
+        """The arguments of :class:`Model`; each chunk's model gets the per-pixel ones cut to its pixels."""
         from . import threads
 
+        A, B, C, positions, directions, mu, psi, images, usable = args
         self._threads = threads
         self.n = q.shape[0]
         self.slices = threads.chunks(self.n, max(threads.workers(), -(-self.n // CHUNK_PIXELS)))

@@ -250,7 +250,7 @@ def _solve_checked(
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
     be = Backend(backend, opts.dtype)
     with blas_threads(1):
-        t_state, out = _coarse_to_fine(levels, *data.leds, opts, be, bar, report, t_first, unrefined == 0)
+        t_state, out = _coarse_to_fine(levels, data.leds, opts, be, bar, report, t_first, unrefined == 0)
     if bar is not None:
         bar.close()
     report.update({"leds_used": [int(i) for i in data.kept], "pixels_solved": int(mask.sum())})
@@ -475,10 +475,7 @@ def _full_image(
 
 def _coarse_to_fine(
     levels: list[dict],
-    pos: np.ndarray,
-    dirs: np.ndarray,
-    mu: np.ndarray,
-    psi: np.ndarray,
+    leds: tuple,
     opts: SolverOptions,
     be: Backend,
     bar: tqdm | None,
@@ -488,6 +485,7 @@ def _coarse_to_fine(
 ):
     """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest.
 
+    ``leds``: (positions, directions, mu, psi) of the LEDs kept (``_LevelData.leds``).
     ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve).
     ``refine_finest``: False: the finest level (of several) is evaluated at its starting depth, not iterated."""
     t_state = out = None
@@ -502,13 +500,11 @@ def _coarse_to_fine(
         if k == 0 and opts.estimator != "ls" and t_first is None:
             # Least squares first on the coarsest level: from the undeformed prior, the contact's
             # residuals are large and a robust estimator would treat the dent itself as outliers.
-            t_init, _, info = _solve_level(lv, t_init, pos, dirs, mu, psi, opts, be, bar, "ls", coarse=True)
+            t_init, _, info = _solve_level(lv, t_init, leds, opts, be, bar, "ls", coarse=True)
             report["levels"].append(info)
         coarse = k < len(levels) - 1
         iterate = refine_finest or coarse or k == 0
-        t_state, out, info = _solve_level(
-            lv, t_init, pos, dirs, mu, psi, opts, be, bar, opts.estimator, coarse, iterate
-        )
+        t_state, out, info = _solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse, iterate)
         report["levels"].append(info)
     return t_state, out
 
@@ -585,10 +581,7 @@ def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
 def _solve_level(
     lv: dict,
     t_init: np.ndarray,
-    pos: np.ndarray,
-    dirs: np.ndarray,
-    mu: np.ndarray,
-    psi: np.ndarray,
+    leds: tuple,
     opts: SolverOptions,
     be: Backend,
     bar: tqdm | None,
@@ -611,7 +604,7 @@ def _solve_level(
     (H, W) float64 log-depth (0 off the mask), the per-pixel results (normals, albedo, residual, confidence,
     has_gradient), the level's report entry.
     """
-    level = _Level(lv, t_init, (pos, dirs, mu, psi), opts, be, est, iterate)
+    level = _Level(lv, t_init, leds, opts, be, est, iterate)
     pcg = Krylov(opts)
     for _ in range(opts.max_iters if iterate else 0):
         stop = level.iterate(pcg, coarse)

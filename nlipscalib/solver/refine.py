@@ -80,14 +80,16 @@ def refine_result(
         lam = result.report["levels"][-1]["lambda"] * result.report["intensity_scale"]
         alive = len(leds) - len(report["dead_leds"])
         n_new, rho_new, changed = refine_normals(
-            images[:, box[0], box[1]][:, inside],
-            usable[:, inside],
-            result.points[box][inside],
-            result.normals[box][inside],
-            result.albedo[box][inside],
-            leds,
-            lam,
-            brightest=max(tolerances.MIN_LEDS_PER_PIXEL, round(tolerances.REFINE_LED_SHARE * alive)),
+            RefitInputs(
+                images[:, box[0], box[1]][:, inside],
+                usable[:, inside],
+                result.points[box][inside],
+                result.normals[box][inside],
+                result.albedo[box][inside],
+                leds,
+                lam,
+                brightest=max(tolerances.MIN_LEDS_PER_PIXEL, round(tolerances.REFINE_LED_SHARE * alive)),
+            )
         )
         normals[box][inside] = n_new
         albedo[box][inside] = rho_new
@@ -96,28 +98,46 @@ def refine_result(
     return dataclasses.replace(result, normals=normals, albedo=albedo, report=report)
 
 
-def refine_normals(
-    images: np.ndarray,
-    usable: np.ndarray,
-    points: np.ndarray,
-    normals: np.ndarray,
-    albedo: np.ndarray,
-    leds: Leds,
-    scale: float,
-    brightest: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@dataclasses.dataclass(frozen=True)
+class RefitInputs:
+    """What the per-pixel refit of N pixels reads (see the module's docstring)."""
+
+    images: np.ndarray
+    """(L, N, 3) float, linear -- the pixels' samples per LED and channel."""
+    usable: np.ndarray
+    """(L, N, 3) bool -- samples the fit may use (:func:`nlipscalib.solver.exclusions`)."""
+    points: np.ndarray
+    """(N, 3) float, mm, camera frame -- the solved surface points, kept."""
+    normals: np.ndarray
+    """(N, 3) float, unit, camera frame, toward the camera -- the depth's normals, where the fit starts."""
+    albedo: np.ndarray
+    """(N, 3) float, linear units -- the solve's albedo per channel (its ratios are kept)."""
+    leds: Leds
+    """Sequence of Led, length L."""
+    scale: float
+    """Linear image units -- lambda of the Cauchy reweighting (the solve's)."""
+    brightest: int
+    """LEDs fitted at each pixel, the brightest there (summed over its usable channels)."""
+
+    def pixels(self, part: slice) -> RefitInputs:
+        """The same refit on the pixels ``part`` only."""
+        return dataclasses.replace(
+            self,
+            images=self.images[:, part],
+            usable=self.usable[:, part],
+            points=self.points[part],
+            normals=self.normals[part],
+            albedo=self.albedo[part],
+        )
+
+
+def refine_normals(fit: RefitInputs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each pixel's normal and albedo refitted to its images at its point (see the module's docstring).
 
     Parameters
     ----------
-    images : (L, N, 3) float, linear -- the pixels' samples per LED and channel.
-    usable : (L, N, 3) bool -- samples the fit may use (:func:`nlipscalib.solver.exclusions`).
-    points : (N, 3) float, mm, camera frame -- the solved surface points, kept.
-    normals : (N, 3) float, unit, camera frame, toward the camera -- the depth's normals, where the fit starts.
-    albedo : (N, 3) float, linear units -- the solve's albedo per channel (its ratios are kept).
-    leds : sequence of Led, length L.
-    scale : float, linear image units -- lambda of the Cauchy reweighting (the solve's).
-    brightest : LEDs fitted at each pixel, the brightest there (summed over its usable channels).
+    fit : RefitInputs -- the N pixels' samples, points, depth normals and albedo, the LEDs, lambda and how many
+        LEDs to fit at each pixel.
 
     Returns
     -------
@@ -125,33 +145,22 @@ def refine_normals(
     albedo : (N, 3) float32 -- likewise.
     changed : (N,) bool.
     """
-    out_n = np.array(normals, np.float32)
-    out_rho = np.array(albedo, np.float32)
-    changed = np.zeros(len(points), bool)
+    out_n = np.array(fit.normals, np.float32)
+    out_rho = np.array(fit.albedo, np.float32)
+    changed = np.zeros(len(fit.points), bool)
 
     def block(part: slice) -> None:
         # pixels are independent: a block's numbers do not depend on the others or on the thread
-        n, rho, ok, idx = _refine_block(
-            images[:, part], usable[:, part], points[part], normals[part], albedo[part], leds, scale, brightest
-        )
+        n, rho, ok, idx = _refine_block(fit.pixels(part))
         at = idx[ok] + part.start
         out_n[at], out_rho[at], changed[at] = n[ok], rho[ok], True
 
-    blocks = [slice(start, start + SHADING_BLOCK) for start in range(0, len(points), SHADING_BLOCK)]
+    blocks = [slice(start, start + SHADING_BLOCK) for start in range(0, len(fit.points), SHADING_BLOCK)]
     threads.map_items(block, blocks)
     return out_n, out_rho, changed
 
 
-def _refine_block(
-    images: np.ndarray,
-    usable: np.ndarray,
-    points: np.ndarray,
-    normals: np.ndarray,
-    albedo: np.ndarray,
-    leds: Leds,
-    scale: float,
-    brightest: int,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _refine_block(fit: RefitInputs) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`refine_normals` on one block of pixels: (normals, albedo, whether the gate lets them replace the
     depth's, which of the block's pixels they are), the first two defined where the third is True.
 
@@ -160,16 +169,18 @@ def _refine_block(
     over (LED, channel) are sums over LEDs of per-LED sums over channels: a third of the products."""
     # channel first, pixels last: a channel's (L, N) plane is contiguous (numpy's sums over a middle axis of
     # length 3 are slow), every per-pixel sum is over the leading axes
-    I = np.asarray(images, np.float64).transpose(2, 0, 1).copy()  # (3, L, N)
-    use = np.asarray(usable, bool).transpose(2, 0, 1).copy()
-    n0 = np.asarray(normals, np.float64).T  # (3, N)
-    rho0 = np.asarray(albedo, np.float64).T
+    leds, scale = fit.leds, fit.scale
+    I = np.asarray(fit.images, np.float64).transpose(2, 0, 1).copy()  # (3, L, N)
+    use = np.asarray(fit.usable, bool).transpose(2, 0, 1).copy()
+    n0 = np.asarray(fit.normals, np.float64).T  # (3, N)
+    rho0 = np.asarray(fit.albedo, np.float64).T
     k = rho0 / np.maximum(rho0.mean(axis=0), 1e-30)  # (3, N) the channels' albedo ratios
-    top = _brightest(I, use, brightest)
+    top = _brightest(I, use, fit.brightest)
     support = use & top
-    shade0 = led_shading(np.asarray(points, np.float64), n0.T, leds).transpose(2, 0, 1) * k[:, None]  # max(0, A.n0)
+    points = np.asarray(fit.points, np.float64)
+    shade0 = led_shading(points, n0.T, leds).transpose(2, 0, 1) * k[:, None]  # max(0, A.n0)
     idx = np.flatnonzero(_may_pass_gate(I, support, shade0, scale))
-    n0, rho0, k, points = n0[:, idx], rho0[:, idx], k[:, idx], np.asarray(points, np.float64)[idx]
+    n0, rho0, k, points = n0[:, idx], rho0[:, idx], k[:, idx], points[idx]
     # only the brightest LEDs' samples can be fitted: each pixel's, in LED order (the sums' order, so their
     # numbers are those over all LEDs, whose other terms are zeros)
     top = top[:, idx]

@@ -93,6 +93,22 @@ def test_a_hidden_width_out_of_reach_is_refused_before_loading_the_dataset(tmp_p
     _one_line_error(capsys.readouterr().err, "--hidden must list layer widths of at most 4096, got (64, 100000000)")
 
 
+@pytest.mark.parametrize(
+    "option, line",
+    [
+        (("--every", "0"), "nlips infer: error: --every: must be an integer >= 1, got 0"),
+        (("--max-frames", "0"), "nlips infer: error: --max-frames: must be an integer >= 1, got 0"),
+    ],
+)
+def test_a_streams_count_out_of_range_is_one_line_in_the_clis_wording(tmp_path, capsys, caplog, option, line):
+    """A user trial: `nlips infer fast.pt video.avi --every 0` warned "--every without an output folder" before its
+    error line, and --max-frames said "must be >= 1" where every other count says "must be an integer >= 1"."""
+    (tmp_path / "video.avi").write_bytes(b"")  # refused before the video or the model is read
+    assert main(["infer", str(tmp_path / "fast.pt"), str(tmp_path / "video.avi"), *option]) == 2
+    logged = caplog.text + capsys.readouterr().err  # the log goes to pytest's handler (or to stderr)
+    assert _one_line_error(logged) == line
+
+
 # ---------------------------------------------------------------------- a file of the wrong kind named as such
 @pytest.mark.parametrize(
     "content,problem",

@@ -20,6 +20,8 @@ from nlipscalib.sim.scene import load_scene  # noqa: E402
 from nlipscalib.solver import SolverOptions, solve_press  # noqa: E402
 from nlipscalib.solver.indirect import fit_indirect  # noqa: E402
 
+from .twin_helpers import contact_box, perturbed  # noqa: E402
+
 SPHERE = PressConfig(IndenterConfig(kind="sphere", size=6.0), polar_deg=15, azimuth_deg=30, depth=1.5)
 
 
@@ -30,13 +32,6 @@ def scene(bounces, spp, noise, variation=0.0):
         camera={"width": 160, "height": 120},
         coating={"variation": variation},
     )
-
-
-def contact_box(contact, margin=8):
-    rows, cols = np.nonzero(contact)
-    y0, x0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
-    y1, x1 = min(rows.max() + 1 + margin, contact.shape[0]), min(cols.max() + 1 + margin, contact.shape[1])
-    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
 
 
 @pytest.fixture(scope="module")
@@ -133,8 +128,6 @@ def test_led_calibration_on_an_interreflecting_capture(bounce1):
     """Acceptance: on a bounces-1 + noise capture of the undeformed dome, LED directions within 2 deg,
     positions within 0.3 mm, and NLiPs with the calibrated LEDs within 0.3 deg of NLiPs with the true ones."""
     from nlipscalib.solver import calibrate_leds
-
-    from .test_twin import perturbed
 
     flat, press = bounce1
     true = flat.leds

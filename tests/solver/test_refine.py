@@ -11,7 +11,7 @@ from nlipscalib.core import load_press
 from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.metrics import angle_deg, evaluate
 from nlipscalib.solver import SolverOptions, refine, solve_press
-from nlipscalib.solver.refine import refine_normals
+from nlipscalib.solver.refine import RefitInputs, refine_normals
 
 from . import synth
 
@@ -38,7 +38,7 @@ def _refined(images, points, normals, start, leds, sigma=0.0):
     lit = images > 0  # exact data: the solve's shadow exclusion is the model's max(0, .)
     scale = max(3 * sigma, 0.02 * float(np.median(images[lit])))  # the solve's lambda: 3 sigma, its floor
     albedo = np.broadcast_to(ALBEDO * 1.1, normals.shape)  # its ratios right, its level not
-    return refine_normals(images, lit, points, start, albedo, leds, scale, brightest=8)
+    return refine_normals(RefitInputs(images, lit, points, start, albedo, leds, scale, brightest=8))
 
 
 def test_exact_images_give_the_true_normals_and_albedo():

@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from nlipscalib.cli import main  # noqa: E402
-from nlipscalib.core import Led, load_press, load_reconstruction  # noqa: E402
+from nlipscalib.core import load_press, load_reconstruction  # noqa: E402
 from nlipscalib.core.metrics import evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
@@ -19,6 +19,8 @@ from nlipscalib.sim.press import render_press  # noqa: E402
 from nlipscalib.sim.scene import load_scene  # noqa: E402
 from nlipscalib.solver import calibrate_leds, solve_press  # noqa: E402
 from nlipscalib.solver.interreflection import estimate_indirect  # noqa: E402
+
+from .twin_helpers import contact_box, perturbed  # noqa: E402
 
 WIDTH, HEIGHT = 160, 120
 PRESSES = {
@@ -60,29 +62,6 @@ def test_twin_contact_aae_within_2_degrees(direct_presses, sphere_true_leds, kin
     assert metrics["aae_deg"] <= 2.0, metrics
 
 
-def perturbed(leds, rng, mm=(0.3, 0.5), deg=5.0):
-    """The scene's LEDs off by ``mm`` (0.3-0.5 mm), ``deg`` (5 deg), mu x1.3, Psi x0.8: a calibration's starting
-    point."""
-    out = []
-    for led in leds:
-        offset = rng.normal(size=3)
-        offset *= rng.uniform(*mm) / np.linalg.norm(offset)
-        d = np.asarray(led.direction)
-        axis = np.cross(d, rng.normal(size=3))
-        axis /= np.linalg.norm(axis)
-        tilt = np.radians(deg)
-        direction = np.cos(tilt) * d + np.sin(tilt) * axis  # axis is perpendicular to d
-        out.append(
-            Led(
-                tuple(np.add(led.position, offset)),
-                tuple(direction),
-                led.mu * 1.3,
-                tuple(0.8 * np.asarray(led.intensity)),
-            )
-        )
-    return out
-
-
 @pytest.mark.parametrize("noise", [False, True])
 def test_led_self_calibration_on_twin(root, direct_presses, sphere_true_leds, noise):
     # the ideal scene's point LEDs: the true LEDs it must recover (a 3.6 mm disk LED's best-fitting point
@@ -109,14 +88,6 @@ def test_led_self_calibration_on_twin(root, direct_presses, sphere_true_leds, no
     a = evaluate(sphere_true_leds, press.ground_truth)["contact"]["aae_deg"]
     b = evaluate(solve_press(press, roi=roi, leds=cal.leds), press.ground_truth)["contact"]["aae_deg"]
     assert abs(a - b) < 0.5, (a, b)
-
-
-def contact_box(contact, margin=8):
-    """(x0, y0, w, h) around the true contact: auto ROI is unreliable on noisy one-bounce renders."""
-    rows, cols = np.nonzero(contact)
-    y0, x0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
-    y1, x1 = min(rows.max() + 1 + margin, contact.shape[0]), min(cols.max() + 1 + margin, contact.shape[1])
-    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
 
 
 @pytest.fixture(scope="module")

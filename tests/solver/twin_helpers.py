@@ -1,0 +1,40 @@
+"""Helpers of the tests and benchmarks on the digital twin's renders (tests/solver/test_twin.py,
+test_interreflection.py, benchmarks/bench_accuracy.py): LEDs off as a calibration starts from them, and a box
+around the true contact."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from nlipscalib.core import Led
+
+
+def perturbed(leds, rng, mm=(0.3, 0.5), deg=5.0):
+    """The scene's LEDs off by ``mm`` (0.3-0.5 mm), ``deg`` (5 deg), mu x1.3, Psi x0.8: a calibration's starting
+    point."""
+    out = []
+    for led in leds:
+        offset = rng.normal(size=3)
+        offset *= rng.uniform(*mm) / np.linalg.norm(offset)
+        d = np.asarray(led.direction)
+        axis = np.cross(d, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        tilt = np.radians(deg)
+        direction = np.cos(tilt) * d + np.sin(tilt) * axis  # axis is perpendicular to d
+        out.append(
+            Led(
+                tuple(np.add(led.position, offset)),
+                tuple(direction),
+                led.mu * 1.3,
+                tuple(0.8 * np.asarray(led.intensity)),
+            )
+        )
+    return out
+
+
+def contact_box(contact, margin=8):
+    """(x0, y0, w, h) around the true contact: auto ROI is unreliable on noisy one-bounce renders."""
+    rows, cols = np.nonzero(contact)
+    y0, x0 = max(rows.min() - margin, 0), max(cols.min() - margin, 0)
+    y1, x1 = min(rows.max() + 1 + margin, contact.shape[0]), min(cols.max() + 1 + margin, contact.shape[1])
+    return int(x0), int(y0), int(x1 - x0), int(y1 - y0)
