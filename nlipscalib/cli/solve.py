@@ -117,7 +117,7 @@ def parse_roi(values: Sequence[str] | None) -> str | tuple[int, ...] | None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.capture import no_presses_error, read_meta, split_reference
-    from ..core.config import from_mapping, read_config_file
+    from ..core.config import check_count, from_mapping, read_config_file
     from ..core.errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..solver import SolverOptions
@@ -126,8 +126,7 @@ def run(args: argparse.Namespace) -> int:
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
     if args.normals is not None:  # the flag over the config's value
         options = dataclasses.replace(options or SolverOptions(), normals=args.normals)
-    if args.workers < 1:
-        raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+    check_count("--workers", args.workers, minimum=1)
     presses, reference = split_reference(args.press, args.reference)
     if not presses:
         raise no_presses_error(args.press)

@@ -230,7 +230,7 @@ def test_figures_flags(data):
 def test_bad_arguments_are_one_line(data, capsys):
     root, cfg = data
     assert main(["solve", str(root), "--workers", "0"]) == 2
-    assert "--workers must be >= 1" in capsys.readouterr().err
+    assert "--workers: must be an integer >= 1, got 0" in capsys.readouterr().err
     assert main(["solve", str(root / "press_a"), "--leds", "one"]) == 2
     assert "leds must be like '1,2,5'" in capsys.readouterr().err
     assert main(["solve", str(root / "press_a"), "--roi", "1", "2"]) == 2
