@@ -86,3 +86,14 @@ def endless_renders(env: dict[str, str], folder: Path) -> tuple[dict[str, str], 
     (patch / "sitecustomize.py").write_text(ENDLESS_PATCH)  # imported by every Python process the command starts
     path = os.pathsep.join([str(patch), env.get("PYTHONPATH", "")])
     return dict(env, PYTHONPATH=path, RENDER_TRACED=str(traced)), traced
+
+
+def claim_mark_and_wait(folder: Path) -> None:
+    """A worker's task that never ends: claims ``folder/held`` (``folder/.claim-held``), marks that it runs by a file
+    named by its pid in ``folder``, then sleeps; picklable by name, for pools whose workers a test watches."""
+    from nlipscalib.core.claims import claim
+
+    with claim(folder / "held"):
+        (folder / str(os.getpid())).write_text("")
+        while True:
+            time.sleep(60)

@@ -218,6 +218,7 @@ def run(args: argparse.Namespace) -> int:
 
         make_indenter(press.indenter)  # a missing or unreadable mesh is named now, not taken for an edited one
     out = Path(args.out)
+    _check_replaceable(out)
     if not args.overwrite and _up_to_date(out, scene, press, args.seed):
         print(f"{out}: already rendered from this scene and press, nothing to do")
         return 0
@@ -237,6 +238,28 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print(f"rendered {what} to {path}")
     return 0
+
+
+def _check_replaceable(out: Path) -> None:
+    """Refuse an ``--out`` that is a file or a folder holding other things than a press, with or without
+    ``--overwrite`` (ConfigError naming it); a new path, an empty folder or a press folder pass.
+
+    Why: ``--overwrite`` replaced whatever was there with the rendered press: ``nlips render --out out/train50
+    --overwrite`` deleted a whole dataset, ``--out notes.txt --overwrite`` the user's file (``nlips solve --out``
+    refuses the same, tests/test_pipeline.py)."""
+    from ..core.capture import is_press_folder
+    from ..core.errors import ConfigError
+
+    if not (out.exists() or out.is_symlink()):
+        return
+    if out.is_dir() and (is_press_folder(out) or not any(out.iterdir())):
+        return
+    if out.is_dir():
+        raise ConfigError(
+            f"{out}: a folder holding other things than a press (no meta.json); nothing is replaced, even with "
+            "--overwrite: choose another --out"
+        )
+    raise ConfigError(f"{out}: a file where a folder is needed (choose another --out, or move the file)")
 
 
 def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: int | None) -> bool:

@@ -59,15 +59,25 @@ def tmp_prefix(name: str) -> str:
 def named_target(path: str | Path) -> Path:
     """The entry a user asked for, given one of the hidden entries written beside it (a temporary
     ``.tmp-NAME~host~pid~...`` or a claim ``.claim-NAME[.token]``): for error messages, which should name
-    what the user knows. Any other path is returned as it is."""
+    what the user knows; a file inside a temporary folder (``.tmp-press~host~pid~.../led_03.png``, a write that
+    failed on a full disk) is named inside the folder it becomes (``press/led_03.png``). Any other path is returned
+    as it is."""
     p = Path(path)
+    folders = [_item_of(part) or part for part in p.parent.parts]
+    p = Path(*folders, p.name) if folders else p
     if p.name.startswith(TMP_PREFIX):
-        item = p.name[len(TMP_PREFIX) :].split(OWNER_SEP, 1)[0]
+        item = _item_of(p.name)
         return p.with_name(item) if item else p.parent  # no item: check_writable's probe of the folder itself
     if p.name.startswith(CLAIM_PREFIX):
         item = re.sub(r"\.(stale\.)?[0-9a-f]{8,16}$", "", p.name[len(CLAIM_PREFIX) :])
         return p.parent if item.startswith("probe.") else p.with_name(item)
     return p
+
+
+def _item_of(name: str) -> str | None:
+    """The item a temporary entry's name ``.tmp-NAME~host~pid~...`` is written for (NAME; "" for a folder's probe),
+    or None for any other name."""
+    return name[len(TMP_PREFIX) :].split(OWNER_SEP, 1)[0] if name.startswith(TMP_PREFIX) else None
 
 
 def check_writable(folder: str | Path, longest_name: int = 0) -> None:

@@ -27,6 +27,13 @@ thread is inside a long native call of its own (importing Mitsuba, ~1 s on a loa
 that is killed, and what it leaves (a dead process's claim and temporary) the next run takes over and removes."""
 
 
+PARENT_POLL_S = 1.0
+"""Seconds between a worker's checks that the command that started it still runs (:func:`end_with_parent`).
+
+Why this often: a worker left behind keeps its memory (the solver, Mitsuba) until it notices; a check is one
+``kill(pid, 0)`` and a read of ``/proc/PID/stat``, nothing beside a second of a solve or a render."""
+
+
 class Worker(Protocol):
     """What :func:`end_processes` needs of a process: :class:`multiprocessing.Process` has it."""
 
@@ -94,3 +101,32 @@ def sigint_held() -> Iterator[None]:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def end_with_parent(poll_s: float = PARENT_POLL_S) -> None:
+    """In a worker process of a pool: SIGTERM this process once the command that started it is gone.
+
+    Why: a command killed with SIGKILL (the out-of-memory killer, ``kill -9 PID``) cannot end its workers. A pool's
+    worker waits for its next task on a queue whose write end it holds itself, so it waited forever, its memory
+    kept (and a forkserver, held by the workers, with it); one in the middle of a press published it for nobody.
+    On SIGTERM the worker's own handler (``pipeline.workers._worker_signals``, ``sim.dataset_pool._worker_init``,
+    set before this call) releases its claims and removes its temporaries, then exits: what it
+    was doing is left for the next run, as when the whole process group is killed. The command is
+    :func:`multiprocessing.parent_process` (the process that made the pool, also under forkserver, whose workers'
+    parent is the fork server); its pid is checked every ``poll_s`` seconds by a daemon thread. Outside a
+    multiprocessing child nothing is done.
+    """
+    import multiprocessing  # here: the command's own start (nlips --help) imports this module
+
+    from .claims import pid_alive
+
+    parent = multiprocessing.parent_process()
+    if parent is None or parent.pid is None:
+        return
+
+    def watch(pid: int) -> None:
+        while pid_alive(pid):
+            time.sleep(poll_s)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, args=(parent.pid,), name="parent-watch", daemon=True).start()

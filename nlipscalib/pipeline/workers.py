@@ -8,6 +8,7 @@ import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from ..core.processes import end_with_parent
 from .status import BROKEN
 
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
@@ -77,6 +78,7 @@ def _worker_init(log_level: int, log_file: str | None = None) -> None:
 
     configure_worker(log_level, log_file)
     _worker_signals()
+    end_with_parent()  # a command killed with SIGKILL cannot end this worker: it ends itself
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     from ..solver import threads
 

@@ -28,7 +28,7 @@ from ..core.capture import META_FILE, is_press_folder
 from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, NlipsError
-from ..core.processes import end_processes, sigint_held, worker_signals
+from ..core.processes import end_processes, end_with_parent, sigint_held, worker_signals
 from ..progress import configure_worker, progress_bar, worker_logging
 from .dataset_folder import (
     changed_error,
@@ -168,6 +168,7 @@ def _worker_init(log_level: int, log_file: str | None = None) -> None:
     ``os._exit``, as an exception raised there could land inside the library."""
     configure_worker(log_level, log_file)
     worker_signals()
+    end_with_parent()  # a command killed with SIGKILL cannot end this render process: it ends itself
 
 
 def _rounds(

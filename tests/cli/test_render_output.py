@@ -65,3 +65,33 @@ def test_a_read_only_output_folder_is_named_as_the_user_gave_it(tmp_path, monkey
     assert capsys.readouterr().err == (
         f"nlips render: error: {out}: Read-only file system (choose a writable output folder)\n"
     )
+
+
+@pytest.mark.parametrize("overwrite", [[], ["--overwrite"]], ids=["plain", "overwrite"])
+def test_a_file_or_a_folder_of_other_things_is_never_replaced_by_a_render(tmp_path, monkeypatch, capsys, overwrite):
+    """`nlips render --out out/train50 --overwrite` replaced the whole dataset with the press, `--out notes.txt
+    --overwrite` the user's file, and the refusal without --overwrite advised --overwrite; an empty folder or a
+    press folder is still rendered into with --overwrite."""
+    rendered = []
+
+    def render_press(scene, press, out_folder, seed=None, overwrite=False):
+        rendered.append(Path(out_folder))
+        return Path(out_folder)
+
+    monkeypatch.setattr(sim_press, "render_press", render_press)
+    notes, dataset = tmp_path / "notes.txt", tmp_path / "train50"
+    notes.write_text("mine")
+    (dataset / "press_0001").mkdir(parents=True)
+    (dataset / "press_0001" / "meta.json").write_text("{}")
+    refusals = ((notes, "a file where a folder is needed"), (dataset, "a folder holding other things than a press"))
+    for out, says in refusals:
+        assert main([*TINY, "--out", str(out), *overwrite]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"nlips render: error: {out}: {says}"), err
+        assert "use --overwrite" not in err[0]
+    assert rendered == [] and notes.read_text() == "mine" and (dataset / "press_0001" / "meta.json").exists()
+    if overwrite:
+        (tmp_path / "empty").mkdir()
+        for out in (tmp_path / "empty", dataset / "press_0001"):
+            assert main([*TINY, "--out", str(out), *overwrite]) == 0
+        assert rendered == [tmp_path / "empty", dataset / "press_0001"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -108,6 +109,11 @@ def test_error_messages_name_the_entry_the_user_asked_for_not_its_hidden_sibling
     assert named_target(tmp_path / ".claim-probe.host.12.abcd1234") == tmp_path
     assert named_target(tmp_path / (tmp_prefix("") + "probe")) == tmp_path  # check_writable(folder)'s own probe
     assert named_target(tmp_path / "led_01.png") == tmp_path / "led_01.png"
+    inside = tmp_path / (tmp_prefix("press") + "abc") / "led_03.png"  # a file of a folder being written
+    assert named_target(inside) == tmp_path / "press" / "led_03.png"
+    assert named_target(Path("rel") / (tmp_prefix("press") + "abc") / "sub" / "a.png") == Path("rel/press/sub/a.png")
+    full_inside = OSError(errno.ENOSPC, "No space left on device", str(inside))
+    assert describe_os_error(full_inside).startswith(f"{tmp_path / 'press' / 'led_03.png'}: No space left")
     denied = PermissionError(errno.EACCES, "Permission denied", str(tmp_path / ".claim-nlips.667b44a0096d6a8b"))
     assert describe_os_error(denied).startswith(f"{out}: Permission denied")
     full = OSError(errno.ENOSPC, "No space left on device")  # found while writing: no path in the error
