@@ -169,10 +169,8 @@ def calibrate_leds(
     presses = [presses] if isinstance(presses, Press) else list(presses)
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
-    cal = _calibrate(presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance)
-    cal = _with_term_if_needed(
-        cal, presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance
-    )
+    settings = _Settings(initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance)
+    cal = _with_term_if_needed(_calibrate(presses, settings), presses, settings)
     _check_finite(cal, presses[0].folder)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
     notes = [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
@@ -191,22 +189,27 @@ def _check_finite(cal: LedCalibration, folder: Path) -> None:
             raise CaptureError(f"{folder}: the fit of LED {i % len(cal.leds) + 1} did not converge (not finite)")
 
 
-def _calibrate(
-    presses: Sequence[Press],
-    initial: Leds | None,
-    stride: int,
-    loss: str,
-    interreflection: str,
-    bounces: int,
-    rounds: int,
-    led_radius: float,
-    coating_reflectance: float | tuple[float, float, float] | None,
-) -> LedCalibration:
+@dataclasses.dataclass(frozen=True)
+class _Settings:
+    """What :func:`calibrate_leds` was asked (its arguments but the captures): one bundle for the steps that run the
+    calibration again with one of them changed (``dataclasses.replace``)."""
+
+    initial: Leds | None
+    stride: int
+    loss: str
+    interreflection: str
+    bounces: int
+    rounds: int
+    led_radius: float
+    coating_reflectance: float | tuple[float, float, float] | None
+
+
+def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
     """:func:`calibrate_leds` without its warnings (it calls itself once more after a reflectance profile)."""
     first = presses[0]
-    leds0 = tuple(initial) if initial is not None else first.leds
-    data = [_samples(p, first, len(leds0), stride) for p in presses]
-    _check_calibration_inputs(presses, data, stride, led_radius, coating_reflectance)
+    leds0 = tuple(s.initial) if s.initial is not None else first.leds
+    data = [_samples(p, first, len(leds0), s.stride) for p in presses]
+    _check_calibration_inputs(presses, data, s.stride, s.led_radius, s.coating_reflectance)
     samples = _Samples(
         x=np.concatenate([d[0] for d in data]),
         n=np.concatenate([d[1] for d in data]),
@@ -215,23 +218,24 @@ def _calibrate(
         selections=[d[4] for d in data],
     )
     fitted, direct, models = _indirect_rounds(
-        presses, samples, leds0, loss, interreflection, bounces, rounds, coating_reflectance
+        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance
     )
     models = [m.to_json() for m in models]
     quality = fit_quality(presses, fitted, samples.x, samples.n, direct, samples.ok)
-    if interreflection == "auto" and any(m["enabled"] for m in models):  # on by the share with the starting LEDs
-        gain = _term_gain(samples, fitted, direct, loss, quality)
+    if s.interreflection == "auto" and any(m["enabled"] for m in models):  # on by the share with the starting LEDs
+        gain = _term_gain(samples, fitted, direct, s.loss, quality)
         if gain <= tolerances.CALIBRATION_MIN_TERM_GAIN:
-            return _direct_after_all(presses, initial, stride, loss, bounces, rounds, led_radius, models, gain)
+            return _direct_after_all(presses, s, models, gain)
         models = [dict(m, term_gain=round(gain, 1)) for m in models]
     leds, albedo, std = _to_leds(fitted)
-    emitters, profile = _emitters_and_profile(leds, samples, direct, loss, led_radius, coating_reflectance, models)
+    emitters, profile = _emitters_and_profile(
+        leds, samples, direct, s.loss, s.led_radius, s.coating_reflectance, models
+    )
     if profile is not None:  # the whole calibration again with the profiled reflectance
-        chosen = tuple(profile["chosen"])
-        again = _calibrate(presses, leds, stride, loss, interreflection, bounces, rounds, led_radius, chosen)
+        again = _calibrate(presses, dataclasses.replace(s, initial=leds, coating_reflectance=tuple(profile["chosen"])))
         return dataclasses.replace(again, reflectance_profile=profile)
     rms = [f[2] for f in fitted]
-    return LedCalibration(leds, albedo, std, rms, models, emitters, float(led_radius), quality=quality)
+    return LedCalibration(leds, albedo, std, rms, models, emitters, float(s.led_radius), quality=quality)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -671,18 +675,7 @@ def fit_quality(
     }
 
 
-def _with_term_if_needed(
-    cal: LedCalibration,
-    presses: Sequence[Press],
-    initial: Leds | None,
-    stride: int,
-    loss: str,
-    interreflection: str,
-    bounces: int,
-    rounds: int,
-    led_radius: float,
-    coating_reflectance: float | tuple[float, float, float] | None,
-):
+def _with_term_if_needed(cal: LedCalibration, presses: Sequence[Press], s: _Settings) -> LedCalibration:
     """``cal``, or the calibration with the indirect term on when "auto" left it off and that fit did not explain
     the images (:func:`fit_quality` unreliable) while the term makes it reliable.
 
@@ -700,14 +693,15 @@ def _with_term_if_needed(
     the point LEDs' (no disks, no reflectance profile: 50 s on that twin where the profile took ~110 s); only when
     the term wins there is the whole calibration with it run and compared. A term not used says why in its
     ``reason``."""
-    if interreflection != "auto" or cal.quality["reliable"] or _no_interreflection(cal.interreflection, "auto") is None:
+    if s.interreflection != "auto" or cal.quality["reliable"]:
+        return cal
+    if _no_interreflection(cal.interreflection, "auto") is None:
         return cal
     if any("term_gain" in m for m in cal.interreflection):  # the term was fitted and compared already (_term_gain)
         return cal
-    tried = _calibrate(presses, initial, stride, loss, "on", bounces, rounds, 0.0, coating_reflectance)
-    on = tried
-    if _term_wins(cal, tried) and led_radius > 0:
-        on = _calibrate(presses, initial, stride, loss, "on", bounces, rounds, led_radius, coating_reflectance)
+    on = _calibrate(presses, dataclasses.replace(s, interreflection="on", led_radius=0.0))
+    if _term_wins(cal, on) and s.led_radius > 0:
+        on = _calibrate(presses, dataclasses.replace(s, interreflection="on"))
     if not _term_wins(cal, on):
         note = f"; tried on: {on.quality['median_ratio']:.2f}x the noise against {cal.quality['median_ratio']:.2f}x"
         models = [dict(m, reason=m["reason"] + note) for m in cal.interreflection]
@@ -773,19 +767,9 @@ def _term_gain(
     return float(np.sum((squares(off, img) - squares(on, lit)) / variance))
 
 
-def _direct_after_all(
-    presses: Sequence[Press],
-    initial: Leds | None,
-    stride: int,
-    loss: str,
-    bounces: int,
-    rounds: int,
-    led_radius: float,
-    models: list[dict],
-    gain: float,
-) -> LedCalibration:
-    """The direct-only calibration (as ``interreflection="off"``, disks with ``led_radius``) after "auto" turned the
-    indirect term on (``models``, JSON) and it gained ``gain`` noise variances, at most
+def _direct_after_all(presses: Sequence[Press], s: _Settings, models: list[dict], gain: float) -> LedCalibration:
+    """The direct-only calibration (``s`` with ``interreflection="off"``, disks with its ``led_radius``) after "auto"
+    turned the indirect term on (``models``, JSON) and it gained ``gain`` noise variances, at most
     :data:`tolerances.CALIBRATION_MIN_TERM_GAIN`: the terms are reported off, with why."""
     log.info("interreflection term not used after all: it lowered the LED fits' residual by %.0f noise variances", gain)
     note = (
@@ -793,7 +777,7 @@ def _direct_after_all(
         f"noise variances (negative: raised it), at most {tolerances.CALIBRATION_MIN_TERM_GAIN:g}"
     )
     off = [m["reason"].replace("interreflection on:", "interreflection off:") + note for m in models]
-    cal = _calibrate(presses, initial, stride, loss, "off", bounces, rounds, led_radius, None)
+    cal = _calibrate(presses, dataclasses.replace(s, interreflection="off", coating_reflectance=None))
     terms = [dict(m, enabled=False, term_gain=round(gain, 1), reason=r) for m, r in zip(models, off)]
     return dataclasses.replace(cal, interreflection=terms)
 
