@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core import tolerances
+from ..core import masks, tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
@@ -73,6 +73,9 @@ class LedCalibration:
     with many saturated samples."""
     saturated_share: tuple[float, ...] = ()
     """Per capture, the share of the gel's samples left out as saturated (:func:`.exposure.saturated_share`)."""
+    contact_pixels: tuple[int, ...] = ()
+    """With ``allow_contact``, per capture, the pixels left out of the fit as a contact (:func:`_contact_regions`);
+    empty when no capture showed one."""
 
     def to_json(self) -> dict:
         out = {
@@ -89,6 +92,8 @@ class LedCalibration:
             out["emitters"] = {"radius_mm": self.led_radius, "leds": [led.to_dict() for led in self.emitters]}
         if self.reflectance_profile is not None:
             out["reflectance_profile"] = self.reflectance_profile
+        if self.contact_pixels:
+            out["contact_pixels"] = list(self.contact_pixels)
         return out
 
 
@@ -128,6 +133,7 @@ def calibrate_leds(
     rounds: int = 3,
     led_radius: float = 0.0,
     coating_reflectance: float | tuple[float, float, float] | None = None,
+    allow_contact: bool = False,
 ) -> LedCalibration:
     """Estimate Psi_c, mu, n_s and x_s of every LED from undeformed captures.
 
@@ -160,20 +166,25 @@ def calibrate_leds(
         it is profiled instead (:func:`_profiled_reflectance`): the reflectance whose disk fit leaves the
         least residual, then the whole calibration again with it. Not used when no capture's indirect term
         is on (``interreflection`` "off", or "auto" on a capture without interreflection): a warning says so.
+    allow_contact : a capture that shows a contact (a press, :func:`_contact_regions`) is refused (CaptureError)
+        unless this is set; then its contact's pixels are left out of the LED fit, with a warning.
 
     Returns
     -------
     LedCalibration -- with ``quality`` (:func:`fit_quality`) and ``warnings``, each also logged as a warning:
-    a ``coating_reflectance`` not used, a reflectance not profiled, an unreliable fit.
+    a ``coating_reflectance`` not used, a reflectance not profiled, an unreliable fit, a contact left out.
     """
     presses = [presses] if isinstance(presses, Press) else list(presses)
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
-    settings = _Settings(initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance)
+    settings = _Settings(
+        initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance, allow_contact
+    )
     cal = _with_term_if_needed(_calibrate(presses, settings), presses, settings)
     _check_finite(cal, presses[0].folder)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
     notes = [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
+    notes += _contact_notes(presses, cal.contact_pixels)
     notes += _unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
     notes += _quality_warning(cal.quality, cal.interreflection, interreflection)
     for note in notes:
@@ -202,13 +213,19 @@ class _Settings:
     rounds: int
     led_radius: float
     coating_reflectance: float | tuple[float, float, float] | None
+    allow_contact: bool = False
+    left_out: tuple[np.ndarray, ...] | None = None
+    """Per capture, (H, W) bool: its pixels left out of the fit (a contact, with ``allow_contact``); None: not
+    looked for yet (:func:`_contact_regions`, after the first fit)."""
 
 
 def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
-    """:func:`calibrate_leds` without its warnings (it calls itself once more after a reflectance profile)."""
+    """:func:`calibrate_leds` without its warnings (it calls itself once more after a reflectance profile, and after
+    a contact found with ``allow_contact``)."""
     first = presses[0]
     leds0 = tuple(s.initial) if s.initial is not None else first.leds
-    data = [_samples(p, first, len(leds0), s.stride) for p in presses]
+    left_out = s.left_out or (None,) * len(presses)
+    data = [_samples(p, first, len(leds0), s.stride, out) for p, out in zip(presses, left_out)]
     _check_calibration_inputs(presses, data, s.stride, s.led_radius, s.coating_reflectance)
     samples = _Samples(
         x=np.concatenate([d[0] for d in data]),
@@ -220,6 +237,13 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
     fitted, direct, models = _indirect_rounds(
         presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance
     )
+    if s.left_out is None:  # once per calibration: the reruns below keep the verdict
+        s = dataclasses.replace(s, left_out=_contact_regions(presses, _to_leds(fitted)[0], models))
+        if any(region.any() for region in s.left_out):
+            if not s.allow_contact:
+                raise CaptureError(_contact_refusal(presses, s.left_out))
+            again = _calibrate(presses, s)  # the same fit without the contact's pixels
+            return dataclasses.replace(again, contact_pixels=tuple(int(r.sum()) for r in s.left_out))
     models = [m.to_json() for m in models]
     quality = fit_quality(presses, fitted, samples.x, samples.n, direct, samples.ok)
     if s.interreflection == "auto" and any(m["enabled"] for m in models):  # on by the share with the starting LEDs
@@ -324,6 +348,63 @@ def _indirect_rounds(
         direct = img
         fitted = _fit_all(leds0, x, n, img, ok, loss)
     return fitted, direct, models
+
+
+def _contact_regions(presses: Sequence[Press], leds: Leds, models: Sequence[IndirectModel]) -> tuple[np.ndarray, ...]:
+    """Per capture, (H, W) bool: where it shows a contact -- the connected regions of pixels that the fitted
+    undeformed model (``leds`` and the capture's indirect term when on) misfits far beyond the images' noise
+    (:func:`nlipscalib.solver.contact.contact_hits`, the solver's own classification of a press), each at least
+    :data:`tolerances.CALIBRATION_CONTACT_FRACTION` of the gel. All False on a capture of the undeformed dome.
+
+    Why from the fit: the capture holds no ground truth (a real sensor has none), and its LEDs are what the
+    calibration finds; the robust loss keeps a dent from pulling them far, so the dent is what they misfit.
+    Dilated by :data:`CONTACT_MARGIN_PX`: the dent's rim misfits just below the hit threshold.
+    """
+    from .contact import classify_contact, contact_hits
+
+    out = []
+    for p, m in zip(presses, list(models) or [None] * len(presses)):
+        light = m.undeformed_light(p.camera.shape) if m is not None and m.enabled else None
+        contact = classify_contact(p, leds, undeformed_light=light)
+        labels, sizes = masks.components(contact_hits(contact))
+        gel = int(np.isfinite(contact.misfit).sum())
+        large = np.flatnonzero(sizes >= tolerances.CALIBRATION_CONTACT_FRACTION * gel) + 1
+        region = np.isin(labels, large)
+        out.append(masks.dilate(region, iterations=CONTACT_MARGIN_PX) & np.isfinite(contact.misfit))
+    return tuple(out)
+
+
+CONTACT_MARGIN_PX = 2
+"""Pixels by which a contact found in a calibration capture is grown before it is left out (``allow_contact``):
+its rim misfits less than the threshold of a hit yet still shows the dent."""
+
+
+def _contact_refusal(presses: Sequence[Press], regions: Sequence[np.ndarray]) -> str:
+    """The one line that refuses captures showing a contact (``regions``: :func:`_contact_regions`)."""
+    found = [(p, r) for p, r in zip(presses, regions) if r.any()]
+    p, region = found[0]
+    gel = max(int(np.isfinite(p.reference.depth).sum()), 1)
+    rows, cols = np.nonzero(region)
+    more = f" (and {len(found) - 1} more of the captures)" if len(found) > 1 else ""
+    return (
+        f"{p.folder}: not a capture of the undeformed dome{more}: {100 * region.sum() / gel:.1f} % of the gel, around "
+        f"pixel ({int(np.median(cols))}, {int(np.median(rows))}), differs from the fitted undeformed model far beyond "
+        "the images' noise, as a press does; calibrate the LEDs on the undeformed dome (a session's reference/), or "
+        "pass --allow-contact to fit without those pixels"
+    )
+
+
+def _contact_notes(presses: Sequence[Press], pixels: Sequence[int]) -> list[str]:
+    """The warnings for contacts left out of the fit (``pixels``: ``LedCalibration.contact_pixels``)."""
+    notes = []
+    for p, count in zip(presses, pixels):
+        if count:
+            gel = max(int(np.isfinite(p.reference.depth).sum()), 1)
+            notes.append(
+                f"{p.folder}: shows a contact (a press?): its {count} pixels ({100 * count / gel:.1f} % of the gel) "
+                "were left out of the LED fit (--allow-contact); the rest of the gel was taken as undeformed"
+            )
+    return notes
 
 
 def _sampled_indirect_light(
@@ -454,8 +535,9 @@ def _decide(model: IndirectModel):
     return dataclasses.replace(model, enabled=on, reason=reason + note)
 
 
-def _samples(p: Press, first: Press, count: int, stride: int):
-    """Points, normals, linear images, usable flags and the pixel selection of one capture."""
+def _samples(p: Press, first: Press, count: int, stride: int, left_out: np.ndarray | None = None):
+    """Points, normals, linear images, usable flags and the pixel selection of one capture (without the pixels
+    ``left_out``, (H, W) bool, when given)."""
     if p.reference is None:
         raise CaptureError(f"{p.folder}: LED calibration needs the undeformed reference (reference.npz)")
     if p.camera != first.camera or len(p.leds) != count:
@@ -464,6 +546,8 @@ def _samples(p: Press, first: Press, count: int, stride: int):
     sub = np.zeros_like(valid)
     sub[::stride, ::stride] = True
     sel = valid & sub
+    if left_out is not None:
+        sel &= ~left_out
     rays = p.camera.rays[sel]
     x = depth_to_points(p.reference.depth[sel].astype(np.float64), rays)
     n = p.reference.normals[sel].astype(np.float64)
