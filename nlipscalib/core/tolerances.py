@@ -142,7 +142,9 @@ CALIBRATION_CONTACT_FRACTION = 0.005
 the largest such region of an undeformed capture holds at most 0.15 % of the gel (the oblate twin's, direct-only fit
 leaving its interreflection; 0-0.03 % on the default twin bounce-free or one-bounce, 80x60 to 640x480, the
 realistic twin and the emulator's reference), that of a press at least 3 % (a 3 mm sphere 0.5 mm deep at polar 30
-deg, 160x120; 10-23 % for the default sphere, coin and cube presses): a factor 3 or more either side."""
+deg, 160x120; 10-23 % for the default sphere, coin and cube presses): a factor 3 or more either side. Noise-free
+renders: 0 % undeformed (the LED model's own error, :data:`CALIBRATION_MODEL_ERROR`, counted as noise), 3.4 % for
+that small press at 80x60."""
 CALIBRATION_MODEL_ERROR = 0.003
 """LED calibration quality (:func:`nlipscalib.solver.calibrate.fit_quality`): the error the LED model itself is
 allowed, as a fraction of each LED's median lit sample, added to the images' noise in quadrature. Why: the model

@@ -257,9 +257,23 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
     )
     if profile is not None:  # the whole calibration again with the profiled reflectance
         again = _calibrate(presses, dataclasses.replace(s, initial=leds, coating_reflectance=tuple(profile["chosen"])))
-        return dataclasses.replace(again, reflectance_profile=profile)
+        return _with_profile(again, profile)
     rms = [f[2] for f in fitted]
     return LedCalibration(leds, albedo, std, rms, models, emitters, float(s.led_radius), quality=quality)
+
+
+def _with_profile(again: LedCalibration, profile: dict) -> LedCalibration:
+    """The calibration rerun with the profiled reflectance (``profile``: :func:`_profiled_reflectance`), carrying the
+    profile while its term is on. With "auto" the rerun checks the term again (:func:`_term_gain`, now at the profiled
+    reflectance); when that drops it, the result is direct-only LEDs, which a reflectance scales nothing of: the
+    profile is not attached (it read as the reflectance the LEDs were fitted with), and the terms' ``reason`` says
+    what it chose."""
+    if any(m.get("enabled") for m in again.interreflection):
+        return dataclasses.replace(again, reflectance_profile=profile)
+    chosen = np.round(profile["chosen"], 3).tolist()
+    note = f"; the reflectance profile had chosen {chosen}, with which the term was then not used"
+    models = [dict(m, reason=m["reason"] + note) for m in again.interreflection]
+    return dataclasses.replace(again, interreflection=models)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -366,6 +380,10 @@ def _contact_regions(presses: Sequence[Press], leds: Leds, models: Sequence[Indi
     for p, m in zip(presses, list(models) or [None] * len(presses)):
         light = m.undeformed_light(p.camera.shape) if m is not None and m.enabled else None
         contact = classify_contact(p, leds, undeformed_light=light)
+        # the LED model's own error counts as noise, as in fit_quality: without it a noise-free render's edge (its
+        # noise the ADC step) misfit as a contact (80x60 bounce-free twin: 1.4 % of the gel; with it none)
+        model_error = tolerances.CALIBRATION_MODEL_ERROR * np.nan_to_num(contact.level)
+        contact = dataclasses.replace(contact, expected=np.hypot(contact.expected, model_error))
         labels, sizes = masks.components(contact_hits(contact))
         gel = int(np.isfinite(contact.misfit).sum())
         large = np.flatnonzero(sizes >= tolerances.CALIBRATION_CONTACT_FRACTION * gel) + 1
