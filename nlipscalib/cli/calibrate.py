@@ -56,6 +56,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "interreflection term's magnitude, which the LED axes otherwise trade against; default: fitted, and with "
         "--led-diameter chosen where the disk fit leaves the least residual",
     )
+    p.add_argument(
+        "--allow-contact",
+        action="store_true",
+        help="calibrate on a capture that shows a press after all, its contact's pixels left out of the fit (with a "
+        "warning); default: such a capture is refused, as it is not the undeformed dome",
+    )
     p.set_defaults(func=run)
 
 
@@ -92,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
             bounces=args.bounces,
             led_radius=args.led_diameter / 2,
             coating_reflectance=args.coating_reflectance,
+            allow_contact=args.allow_contact,
         )
     # the sensor it was calibrated on: `nlips solve/calibrate --leds` refuse the file for a capture of another one
     save_leds(args.out, cal.leds, cal.to_json() | {"sensor": sensor_of(presses[0])})

@@ -134,6 +134,17 @@ Measured (s17-d, benchmarks/RESULTS.md; 160x120 stride 4 one bounce, stride 2 bo
 seeds x 3 starts, 407-1757 (log: mean 7.0, sd 0.46 over the seeds: 9 sd above ln 16; in the gain itself 2.6 sd);
 bounce-free with noise, 6 seeds x 6 starts that turned the term on, -5117 to -1670; noise-free -1.8e5 and below;
 the 640x480 one-bounce reference 2262-2480."""
+CALIBRATION_CONTACT_FRACTION = 0.005
+"""LED calibration: a capture is taken to show a contact (a press, not the undeformed dome it must be; refused unless
+``--allow-contact``) when a connected region of pixels that the fitted undeformed model misfits
+(:func:`nlipscalib.solver.contact.contact_hits`) holds at least this fraction of the gel's pixels (as
+:data:`ROI_MIN_INNER_FRACTION` for ``--roi auto``). Why: measured with the LEDs the calibration fits (2026-12-06),
+the largest such region of an undeformed capture holds at most 0.15 % of the gel (the oblate twin's, direct-only fit
+leaving its interreflection; 0-0.03 % on the default twin bounce-free or one-bounce, 80x60 to 640x480, the
+realistic twin and the emulator's reference), that of a press at least 3 % (a 3 mm sphere 0.5 mm deep at polar 30
+deg, 160x120; 10-23 % for the default sphere, coin and cube presses): a factor 3 or more either side. Noise-free
+renders: 0 % undeformed (the LED model's own error, :data:`CALIBRATION_MODEL_ERROR`, counted as noise), 3.4 % for
+that small press at 80x60."""
 CALIBRATION_MODEL_ERROR = 0.003
 """LED calibration quality (:func:`nlipscalib.solver.calibrate.fit_quality`): the error the LED model itself is
 allowed, as a fraction of each LED's median lit sample, added to the images' noise in quadrature. Why: the model

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core import tolerances
+from ..core import masks, tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
@@ -73,6 +73,9 @@ class LedCalibration:
     with many saturated samples."""
     saturated_share: tuple[float, ...] = ()
     """Per capture, the share of the gel's samples left out as saturated (:func:`.exposure.saturated_share`)."""
+    contact_pixels: tuple[int, ...] = ()
+    """With ``allow_contact``, per capture, the pixels left out of the fit as a contact (:func:`_contact_regions`);
+    empty when no capture showed one."""
 
     def to_json(self) -> dict:
         out = {
@@ -89,6 +92,8 @@ class LedCalibration:
             out["emitters"] = {"radius_mm": self.led_radius, "leds": [led.to_dict() for led in self.emitters]}
         if self.reflectance_profile is not None:
             out["reflectance_profile"] = self.reflectance_profile
+        if self.contact_pixels:
+            out["contact_pixels"] = list(self.contact_pixels)
         return out
 
 
@@ -128,6 +133,7 @@ def calibrate_leds(
     rounds: int = 3,
     led_radius: float = 0.0,
     coating_reflectance: float | tuple[float, float, float] | None = None,
+    allow_contact: bool = False,
 ) -> LedCalibration:
     """Estimate Psi_c, mu, n_s and x_s of every LED from undeformed captures.
 
@@ -160,22 +166,25 @@ def calibrate_leds(
         it is profiled instead (:func:`_profiled_reflectance`): the reflectance whose disk fit leaves the
         least residual, then the whole calibration again with it. Not used when no capture's indirect term
         is on (``interreflection`` "off", or "auto" on a capture without interreflection): a warning says so.
+    allow_contact : a capture that shows a contact (a press, :func:`_contact_regions`) is refused (CaptureError)
+        unless this is set; then its contact's pixels are left out of the LED fit, with a warning.
 
     Returns
     -------
     LedCalibration -- with ``quality`` (:func:`fit_quality`) and ``warnings``, each also logged as a warning:
-    a ``coating_reflectance`` not used, a reflectance not profiled, an unreliable fit.
+    a ``coating_reflectance`` not used, a reflectance not profiled, an unreliable fit, a contact left out.
     """
     presses = [presses] if isinstance(presses, Press) else list(presses)
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
-    cal = _calibrate(presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance)
-    cal = _with_term_if_needed(
-        cal, presses, initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance
+    settings = _Settings(
+        initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance, allow_contact
     )
+    cal = _with_term_if_needed(_calibrate(presses, settings), presses, settings)
     _check_finite(cal, presses[0].folder)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
     notes = [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
+    notes += _contact_notes(presses, cal.contact_pixels)
     notes += _unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
     notes += _quality_warning(cal.quality, cal.interreflection, interreflection)
     for note in notes:
@@ -191,22 +200,33 @@ def _check_finite(cal: LedCalibration, folder: Path) -> None:
             raise CaptureError(f"{folder}: the fit of LED {i % len(cal.leds) + 1} did not converge (not finite)")
 
 
-def _calibrate(
-    presses: Sequence[Press],
-    initial: Leds | None,
-    stride: int,
-    loss: str,
-    interreflection: str,
-    bounces: int,
-    rounds: int,
-    led_radius: float,
-    coating_reflectance: float | tuple[float, float, float] | None,
-) -> LedCalibration:
-    """:func:`calibrate_leds` without its warnings (it calls itself once more after a reflectance profile)."""
+@dataclasses.dataclass(frozen=True)
+class _Settings:
+    """What :func:`calibrate_leds` was asked (its arguments but the captures): one bundle for the steps that run the
+    calibration again with one of them changed (``dataclasses.replace``)."""
+
+    initial: Leds | None
+    stride: int
+    loss: str
+    interreflection: str
+    bounces: int
+    rounds: int
+    led_radius: float
+    coating_reflectance: float | tuple[float, float, float] | None
+    allow_contact: bool = False
+    left_out: tuple[np.ndarray, ...] | None = None
+    """Per capture, (H, W) bool: its pixels left out of the fit (a contact, with ``allow_contact``); None: not
+    looked for yet (:func:`_contact_regions`, after the first fit)."""
+
+
+def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
+    """:func:`calibrate_leds` without its warnings (it calls itself once more after a reflectance profile, and after
+    a contact found with ``allow_contact``)."""
     first = presses[0]
-    leds0 = tuple(initial) if initial is not None else first.leds
-    data = [_samples(p, first, len(leds0), stride) for p in presses]
-    _check_calibration_inputs(presses, data, stride, led_radius, coating_reflectance)
+    leds0 = tuple(s.initial) if s.initial is not None else first.leds
+    left_out = s.left_out or (None,) * len(presses)
+    data = [_samples(p, first, len(leds0), s.stride, out) for p, out in zip(presses, left_out)]
+    _check_calibration_inputs(presses, data, s.stride, s.led_radius, s.coating_reflectance)
     samples = _Samples(
         x=np.concatenate([d[0] for d in data]),
         n=np.concatenate([d[1] for d in data]),
@@ -215,23 +235,45 @@ def _calibrate(
         selections=[d[4] for d in data],
     )
     fitted, direct, models = _indirect_rounds(
-        presses, samples, leds0, loss, interreflection, bounces, rounds, coating_reflectance
+        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance
     )
+    if s.left_out is None:  # once per calibration: the reruns below keep the verdict
+        s = dataclasses.replace(s, left_out=_contact_regions(presses, _to_leds(fitted)[0], models))
+        if any(region.any() for region in s.left_out):
+            if not s.allow_contact:
+                raise CaptureError(_contact_refusal(presses, s.left_out))
+            again = _calibrate(presses, s)  # the same fit without the contact's pixels
+            return dataclasses.replace(again, contact_pixels=tuple(int(r.sum()) for r in s.left_out))
     models = [m.to_json() for m in models]
     quality = fit_quality(presses, fitted, samples.x, samples.n, direct, samples.ok)
-    if interreflection == "auto" and any(m["enabled"] for m in models):  # on by the share with the starting LEDs
-        gain = _term_gain(samples, fitted, direct, loss, quality)
+    if s.interreflection == "auto" and any(m["enabled"] for m in models):  # on by the share with the starting LEDs
+        gain = _term_gain(samples, fitted, direct, s.loss, quality)
         if gain <= tolerances.CALIBRATION_MIN_TERM_GAIN:
-            return _direct_after_all(presses, initial, stride, loss, bounces, rounds, led_radius, models, gain)
+            return _direct_after_all(presses, s, models, gain)
         models = [dict(m, term_gain=round(gain, 1)) for m in models]
     leds, albedo, std = _to_leds(fitted)
-    emitters, profile = _emitters_and_profile(leds, samples, direct, loss, led_radius, coating_reflectance, models)
+    emitters, profile = _emitters_and_profile(
+        leds, samples, direct, s.loss, s.led_radius, s.coating_reflectance, models
+    )
     if profile is not None:  # the whole calibration again with the profiled reflectance
-        chosen = tuple(profile["chosen"])
-        again = _calibrate(presses, leds, stride, loss, interreflection, bounces, rounds, led_radius, chosen)
-        return dataclasses.replace(again, reflectance_profile=profile)
+        again = _calibrate(presses, dataclasses.replace(s, initial=leds, coating_reflectance=tuple(profile["chosen"])))
+        return _with_profile(again, profile)
     rms = [f[2] for f in fitted]
-    return LedCalibration(leds, albedo, std, rms, models, emitters, float(led_radius), quality=quality)
+    return LedCalibration(leds, albedo, std, rms, models, emitters, float(s.led_radius), quality=quality)
+
+
+def _with_profile(again: LedCalibration, profile: dict) -> LedCalibration:
+    """The calibration rerun with the profiled reflectance (``profile``: :func:`_profiled_reflectance`), carrying the
+    profile while its term is on. With "auto" the rerun checks the term again (:func:`_term_gain`, now at the profiled
+    reflectance); when that drops it, the result is direct-only LEDs, which a reflectance scales nothing of: the
+    profile is not attached (it read as the reflectance the LEDs were fitted with), and the terms' ``reason`` says
+    what it chose."""
+    if any(m.get("enabled") for m in again.interreflection):
+        return dataclasses.replace(again, reflectance_profile=profile)
+    chosen = np.round(profile["chosen"], 3).tolist()
+    note = f"; the reflectance profile had chosen {chosen}, with which the term was then not used"
+    models = [dict(m, reason=m["reason"] + note) for m in again.interreflection]
+    return dataclasses.replace(again, interreflection=models)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -320,6 +362,67 @@ def _indirect_rounds(
         direct = img
         fitted = _fit_all(leds0, x, n, img, ok, loss)
     return fitted, direct, models
+
+
+def _contact_regions(presses: Sequence[Press], leds: Leds, models: Sequence[IndirectModel]) -> tuple[np.ndarray, ...]:
+    """Per capture, (H, W) bool: where it shows a contact -- the connected regions of pixels that the fitted
+    undeformed model (``leds`` and the capture's indirect term when on) misfits far beyond the images' noise
+    (:func:`nlipscalib.solver.contact.contact_hits`, the solver's own classification of a press), each at least
+    :data:`tolerances.CALIBRATION_CONTACT_FRACTION` of the gel. All False on a capture of the undeformed dome.
+
+    Why from the fit: the capture holds no ground truth (a real sensor has none), and its LEDs are what the
+    calibration finds; the robust loss keeps a dent from pulling them far, so the dent is what they misfit.
+    Dilated by :data:`CONTACT_MARGIN_PX`: the dent's rim misfits just below the hit threshold.
+    """
+    from .contact import classify_contact, contact_hits
+
+    out = []
+    for p, m in zip(presses, list(models) or [None] * len(presses)):
+        light = m.undeformed_light(p.camera.shape) if m is not None and m.enabled else None
+        contact = classify_contact(p, leds, undeformed_light=light)
+        # the LED model's own error counts as noise, as in fit_quality: without it a noise-free render's edge (its
+        # noise the ADC step) misfit as a contact (80x60 bounce-free twin: 1.4 % of the gel; with it none)
+        model_error = tolerances.CALIBRATION_MODEL_ERROR * np.nan_to_num(contact.level)
+        contact = dataclasses.replace(contact, expected=np.hypot(contact.expected, model_error))
+        labels, sizes = masks.components(contact_hits(contact))
+        gel = int(np.isfinite(contact.misfit).sum())
+        large = np.flatnonzero(sizes >= tolerances.CALIBRATION_CONTACT_FRACTION * gel) + 1
+        region = np.isin(labels, large)
+        out.append(masks.dilate(region, iterations=CONTACT_MARGIN_PX) & np.isfinite(contact.misfit))
+    return tuple(out)
+
+
+CONTACT_MARGIN_PX = 2
+"""Pixels by which a contact found in a calibration capture is grown before it is left out (``allow_contact``):
+its rim misfits less than the threshold of a hit yet still shows the dent."""
+
+
+def _contact_refusal(presses: Sequence[Press], regions: Sequence[np.ndarray]) -> str:
+    """The one line that refuses captures showing a contact (``regions``: :func:`_contact_regions`)."""
+    found = [(p, r) for p, r in zip(presses, regions) if r.any()]
+    p, region = found[0]
+    gel = max(int(np.isfinite(p.reference.depth).sum()), 1)
+    rows, cols = np.nonzero(region)
+    more = f" (and {len(found) - 1} more of the captures)" if len(found) > 1 else ""
+    return (
+        f"{p.folder}: not a capture of the undeformed dome{more}: {100 * region.sum() / gel:.1f} % of the gel, around "
+        f"pixel ({int(np.median(cols))}, {int(np.median(rows))}), differs from the fitted undeformed model far beyond "
+        "the images' noise, as a press does; calibrate the LEDs on the undeformed dome (a session's reference/), or "
+        "pass --allow-contact to fit without those pixels"
+    )
+
+
+def _contact_notes(presses: Sequence[Press], pixels: Sequence[int]) -> list[str]:
+    """The warnings for contacts left out of the fit (``pixels``: ``LedCalibration.contact_pixels``)."""
+    notes = []
+    for p, count in zip(presses, pixels):
+        if count:
+            gel = max(int(np.isfinite(p.reference.depth).sum()), 1)
+            notes.append(
+                f"{p.folder}: shows a contact (a press?): its {count} pixels ({100 * count / gel:.1f} % of the gel) "
+                "were left out of the LED fit (--allow-contact); the rest of the gel was taken as undeformed"
+            )
+    return notes
 
 
 def _sampled_indirect_light(
@@ -450,8 +553,9 @@ def _decide(model: IndirectModel):
     return dataclasses.replace(model, enabled=on, reason=reason + note)
 
 
-def _samples(p: Press, first: Press, count: int, stride: int):
-    """Points, normals, linear images, usable flags and the pixel selection of one capture."""
+def _samples(p: Press, first: Press, count: int, stride: int, left_out: np.ndarray | None = None):
+    """Points, normals, linear images, usable flags and the pixel selection of one capture (without the pixels
+    ``left_out``, (H, W) bool, when given)."""
     if p.reference is None:
         raise CaptureError(f"{p.folder}: LED calibration needs the undeformed reference (reference.npz)")
     if p.camera != first.camera or len(p.leds) != count:
@@ -460,6 +564,8 @@ def _samples(p: Press, first: Press, count: int, stride: int):
     sub = np.zeros_like(valid)
     sub[::stride, ::stride] = True
     sel = valid & sub
+    if left_out is not None:
+        sel &= ~left_out
     rays = p.camera.rays[sel]
     x = depth_to_points(p.reference.depth[sel].astype(np.float64), rays)
     n = p.reference.normals[sel].astype(np.float64)
@@ -671,18 +777,7 @@ def fit_quality(
     }
 
 
-def _with_term_if_needed(
-    cal: LedCalibration,
-    presses: Sequence[Press],
-    initial: Leds | None,
-    stride: int,
-    loss: str,
-    interreflection: str,
-    bounces: int,
-    rounds: int,
-    led_radius: float,
-    coating_reflectance: float | tuple[float, float, float] | None,
-):
+def _with_term_if_needed(cal: LedCalibration, presses: Sequence[Press], s: _Settings) -> LedCalibration:
     """``cal``, or the calibration with the indirect term on when "auto" left it off and that fit did not explain
     the images (:func:`fit_quality` unreliable) while the term makes it reliable.
 
@@ -700,14 +795,15 @@ def _with_term_if_needed(
     the point LEDs' (no disks, no reflectance profile: 50 s on that twin where the profile took ~110 s); only when
     the term wins there is the whole calibration with it run and compared. A term not used says why in its
     ``reason``."""
-    if interreflection != "auto" or cal.quality["reliable"] or _no_interreflection(cal.interreflection, "auto") is None:
+    if s.interreflection != "auto" or cal.quality["reliable"]:
+        return cal
+    if _no_interreflection(cal.interreflection, "auto") is None:
         return cal
     if any("term_gain" in m for m in cal.interreflection):  # the term was fitted and compared already (_term_gain)
         return cal
-    tried = _calibrate(presses, initial, stride, loss, "on", bounces, rounds, 0.0, coating_reflectance)
-    on = tried
-    if _term_wins(cal, tried) and led_radius > 0:
-        on = _calibrate(presses, initial, stride, loss, "on", bounces, rounds, led_radius, coating_reflectance)
+    on = _calibrate(presses, dataclasses.replace(s, interreflection="on", led_radius=0.0))
+    if _term_wins(cal, on) and s.led_radius > 0:
+        on = _calibrate(presses, dataclasses.replace(s, interreflection="on"))
     if not _term_wins(cal, on):
         note = f"; tried on: {on.quality['median_ratio']:.2f}x the noise against {cal.quality['median_ratio']:.2f}x"
         models = [dict(m, reason=m["reason"] + note) for m in cal.interreflection]
@@ -773,19 +869,9 @@ def _term_gain(
     return float(np.sum((squares(off, img) - squares(on, lit)) / variance))
 
 
-def _direct_after_all(
-    presses: Sequence[Press],
-    initial: Leds | None,
-    stride: int,
-    loss: str,
-    bounces: int,
-    rounds: int,
-    led_radius: float,
-    models: list[dict],
-    gain: float,
-) -> LedCalibration:
-    """The direct-only calibration (as ``interreflection="off"``, disks with ``led_radius``) after "auto" turned the
-    indirect term on (``models``, JSON) and it gained ``gain`` noise variances, at most
+def _direct_after_all(presses: Sequence[Press], s: _Settings, models: list[dict], gain: float) -> LedCalibration:
+    """The direct-only calibration (``s`` with ``interreflection="off"``, disks with its ``led_radius``) after "auto"
+    turned the indirect term on (``models``, JSON) and it gained ``gain`` noise variances, at most
     :data:`tolerances.CALIBRATION_MIN_TERM_GAIN`: the terms are reported off, with why."""
     log.info("interreflection term not used after all: it lowered the LED fits' residual by %.0f noise variances", gain)
     note = (
@@ -793,7 +879,7 @@ def _direct_after_all(
         f"noise variances (negative: raised it), at most {tolerances.CALIBRATION_MIN_TERM_GAIN:g}"
     )
     off = [m["reason"].replace("interreflection on:", "interreflection off:") + note for m in models]
-    cal = _calibrate(presses, initial, stride, loss, "off", bounces, rounds, led_radius, None)
+    cal = _calibrate(presses, dataclasses.replace(s, interreflection="off", coating_reflectance=None))
     terms = [dict(m, enabled=False, term_gain=round(gain, 1), reason=r) for m, r in zip(models, off)]
     return dataclasses.replace(cal, interreflection=terms)
 

@@ -37,3 +37,27 @@ def test_led_self_calibration_recovers_parameters(tmp_path):
     a = evaluate(solve_press(press, options=opts), press.ground_truth)["all"]["aae_deg"]
     b = evaluate(solve_press(press, leds=cal.leds, options=opts), press.ground_truth)["all"]["aae_deg"]
     assert abs(a - b) < 0.5
+
+
+def test_a_pressed_capture_is_refused_as_the_undeformed_reference_unless_contact_is_allowed(presses):
+    """A press's capture given as the undeformed dome was calibrated and called reliable without a word (the dent's
+    pixels fitted as if undeformed). The contact is found from the fitted model's misfit and refused; with
+    ``allow_contact`` its pixels are left out of the fit, and the user is told."""
+    import pytest
+
+    from nlipscalib.core.errors import CaptureError
+
+    press = load_press(presses["sphere"])
+    with pytest.raises(CaptureError, match=r"not a capture of the undeformed dome: .* % of the gel.*--allow-contact"):
+        calibrate_leds(press, stride=3)
+    cal = calibrate_leds(press, stride=3, allow_contact=True)
+    (count,) = cal.contact_pixels
+    assert count >= press.ground_truth.contact.sum() / 2, (count, press.ground_truth.contact.sum())
+    (note,) = cal.warnings
+    assert "left out of the LED fit (--allow-contact)" in note and cal.to_json()["contact_pixels"] == [count]
+    for led, t in zip(cal.leds, press.leds):  # exact data: the rest of the gel gives the LEDs
+        assert np.degrees(np.arccos(min(1.0, np.dot(led.direction, t.direction)))) < 0.5
+        assert np.linalg.norm(np.subtract(led.position, t.position)) < 0.05
+    # the undeformed dome is taken as it is, flag or not
+    flat = load_press(presses["none"])
+    assert calibrate_leds(flat, stride=3, allow_contact=True).contact_pixels == ()

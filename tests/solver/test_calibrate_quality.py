@@ -117,6 +117,33 @@ def test_a_noisy_capture_is_reported_unreliable(captures, tmp_path, caplog, caps
     assert ang > 2.0 or pos > 0.5, (ang, pos)
 
 
+def test_calibrate_leds_refuses_a_pressed_capture_and_fits_around_its_contact_when_allowed(captures, tmp_path, capsys):
+    """A fresh-eyes trial: a press's folder given as the undeformed reference was calibrated and called reliable
+    without a word, and every later solve with those LEDs would be off. The command refuses it (the undeformed
+    captures of this module's other tests, bounce-free and one-bounce, pass the same check); ``--allow-contact``
+    fits without the contact's pixels and says so."""
+    from nlipscalib.sim.indent import PressConfig
+    from nlipscalib.sim.indenters import IndenterConfig
+
+    scene = load_scene().replace(camera={"width": 160, "height": 120})
+    coin = PressConfig(IndenterConfig(kind="coin", size=6.0), polar_deg=15, azimuth_deg=0, depth=1.0)
+    pressed = render_press(scene, coin, tmp_path / "pressed", seed=21)
+    out = tmp_path / "leds.json"
+    argv = ["--no-progress", "calibrate-leds", str(pressed), "--out", str(out), "--stride", str(STRIDE)]
+    assert main(argv) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"nlips calibrate-leds: error: {pressed}: not a capture of the undeformed dome: "), line
+    assert "--allow-contact" in line and not out.exists()
+    assert main([*argv, "--allow-contact"]) == 0
+    data = json.loads(out.read_text())
+    (count,) = data["contact_pixels"]
+    assert count > 0 and any("left out of the LED fit" in w for w in data["warnings"]), data["warnings"]
+    assert data["quality"]["reliable"], data["quality"]
+    # the undeformed captures: accepted, nothing left out
+    for name in ("direct", "good"):
+        assert calibrate_leds(load_press(captures[name]), stride=STRIDE).contact_pixels == ()
+
+
 def test_a_weakly_interreflecting_dome_gets_the_term_when_light_alone_leaves_more_than_noise(tmp_path):
     # the oblate dome interreflects less (share ~0.09 with the starting LEDs, below the calibration's 0.1): the
     # share decision leaves the term off, the direct-only fit does not explain the images, the term does

@@ -263,6 +263,11 @@ def test_a_bounce_free_capture_keeps_the_term_off_from_perturbed_leds_without_a_
     monkeypatch.setattr(module, "_profiled_reflectance", no_profile)
     # without the model's own error the noise-free direct fit leaves 1.56x the noise: the rescue path is taken
     monkeypatch.setattr(tolerances, "CALIBRATION_MODEL_ERROR", 0.0)
+    # which also takes it from the contact check, where this noise-free capture's edge then misfits as a contact:
+    # not what is tested here
+    monkeypatch.setattr(
+        module, "_contact_regions", lambda presses, *a: tuple(np.zeros(p.camera.shape, bool) for p in presses)
+    )
     flat = small_flat
     cal = calibrate_leds(flat, initial=perturbed(flat.leds, np.random.default_rng(1)), stride=2, led_radius=1.8)
     (model,) = cal.interreflection
@@ -309,3 +314,26 @@ def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_inte
 
     with pytest.raises(ConfigError, match="reflectance must be in"):
         model.with_reflectance(1.5)
+
+
+def test_a_profile_rerun_that_drops_the_term_returns_direct_only_leds_without_the_profile(root, monkeypatch):
+    """With ``led_radius`` the reflectance profile reruns the calibration, and "auto" checks the term there again
+    (calibrate._term_gain). When that rerun drops it, the result was direct-only LEDs still carrying the profile,
+    which the command printed as the coating reflectance "from the images alone". Forced here: the term gains on the
+    first fit, not on the rerun (the profile itself stubbed: its disk fits are not what is tested)."""
+    from nlipscalib.core import tolerances
+    from nlipscalib.solver import calibrate as module
+
+    flat = load_press(
+        render_press(twin(bounces=1, spp=16).replace(camera={"width": 80, "height": 60}), None, root / "b1_80", seed=3)
+    )
+    gains = iter([10 * tolerances.CALIBRATION_MIN_TERM_GAIN, 0.0])
+    monkeypatch.setattr(module, "_term_gain", lambda *args: next(gains))
+    profile = {"fitted": [0.9] * 3, "scales": [0.9, 1.0], "residuals": [1.0, 2.0], "chosen": [0.81] * 3}
+    monkeypatch.setattr(module, "_profiled_reflectance", lambda *args: dict(profile))
+    cal = calibrate_leds(flat, stride=2, led_radius=1.8)
+    (model,) = cal.interreflection
+    assert not model["enabled"] and "not used after all" in model["reason"], model["reason"]
+    assert cal.reflectance_profile is None and "reflectance_profile" not in cal.to_json()
+    assert "the reflectance profile had chosen [0.81, 0.81, 0.81]" in model["reason"]
+    assert len(cal.emitters) == len(flat.leds)  # the disks of the direct-only fit
