@@ -167,7 +167,8 @@ def calibrate_leds(
         least residual, then the whole calibration again with it. Not used when no capture's indirect term
         is on (``interreflection`` "off", or "auto" on a capture without interreflection): a warning says so.
     allow_contact : a capture that shows a contact (a press, :func:`_contact_regions`) is refused (CaptureError)
-        unless this is set; then its contact's pixels are left out of the LED fit, with a warning.
+        unless this is set; then its contact's pixels are left out of the LED fit and of the indirect term's, with
+        a warning.
 
     Returns
     -------
@@ -235,7 +236,7 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         selections=[d[4] for d in data],
     )
     fitted, direct, models = _indirect_rounds(
-        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance
+        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out
     )
     if s.left_out is None:  # once per calibration: the reruns below keep the verdict
         s = dataclasses.replace(s, left_out=_contact_regions(presses, _to_leds(fitted)[0], models))
@@ -331,10 +332,13 @@ def _indirect_rounds(
     bounces: int,
     rounds: int,
     coating_reflectance: float | tuple[float, float, float] | None,
+    left_out: Sequence[np.ndarray | None],
 ):
     """(per-LED fits as :func:`_fit_all` returns them, the images minus the indirect light they were fitted to,
     the captures' last indirect terms) -- ``rounds`` alternations of indirect fit and LED fit, or one direct-only
-    LED fit from ``leds0`` when no term is on.
+    LED fit from ``leds0`` when no term is on. ``left_out``: per capture, (H, W) bool or None -- pixels the term's
+    fit leaves out as the LED fit does (a contact, ``allow_contact``): a dent's light fitted as the undeformed
+    dome's would bias the term's reflectance, and through it every LED fitted to the images minus it.
 
     A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on the twin),
     after which nothing correlates with the indirect term any more: the term is fitted with the starting LEDs
@@ -347,7 +351,10 @@ def _indirect_rounds(
     for r in range(rounds if interreflection != "off" else 0):
         if r > 0:
             leds = _to_leds(fitted)[0]
-        models = [fit_indirect(p, leds, mode=interreflection, bounces=bounces) for p in presses]
+        models = [
+            fit_indirect(p, leds, mode=interreflection, bounces=bounces, exclude=out)
+            for p, out in zip(presses, left_out)
+        ]
         if r == 0 and interreflection == "auto":
             models = [_decide(m) for m in models]
         if coating_reflectance is not None and r > 0:

@@ -61,3 +61,26 @@ def test_a_pressed_capture_is_refused_as_the_undeformed_reference_unless_contact
     # the undeformed dome is taken as it is, flag or not
     flat = load_press(presses["none"])
     assert calibrate_leds(flat, stride=3, allow_contact=True).contact_pixels == ()
+
+
+def test_a_contact_left_out_of_the_led_fit_is_left_out_of_the_indirect_terms_fit_too(presses, monkeypatch):
+    """With ``allow_contact`` only the LED fit left the contact's pixels out: the indirect term was fitted to the whole
+    capture, dent included (its light taken as the undeformed dome's), and the LEDs then fitted to the images minus
+    that term. Every fit of the term after the contact is found now leaves out the same pixels as the LED fit."""
+    from nlipscalib.solver import indirect
+
+    real, excluded = indirect.fit_indirect, []
+
+    def spy(*args, exclude=None, **kwargs):
+        excluded.append(None if exclude is None else exclude.copy())
+        return real(*args, exclude=exclude, **kwargs)
+
+    monkeypatch.setattr(indirect, "fit_indirect", spy)
+    press = load_press(presses["sphere"])
+    cal = calibrate_leds(press, stride=3, interreflection="on", rounds=2, allow_contact=True)
+    (count,) = cal.contact_pixels
+    before, after = excluded[:2], excluded[2:]  # the first fit's 2 rounds, before the contact is known: whole
+    assert before == [None, None] and len(after) == 2, len(excluded)
+    for mask in after:  # the contact's pixels (the dent and its margin), exactly those the LED fit left out
+        assert mask is not None and mask.shape == press.camera.shape and int(mask.sum()) == count
+    assert (after[0] & press.ground_truth.contact).sum() >= press.ground_truth.contact.sum() / 2
