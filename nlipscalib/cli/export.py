@@ -31,20 +31,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from contextlib import nullcontext
     from pathlib import Path
 
     from ..core.errors import ConfigError
     from ..learn.model import load_model
     from ..learn.onnx_export import export_onnx
+    from ..learn.publish import model_files_held
 
     out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
     if out.suffix.lower() != ".onnx":
         raise ConfigError(f"--out {out}: the ONNX file must end in .onnx")
-    model = load_model(args.model)
-    angles = []  # checked on the written file before it takes its name: a failed or interrupted check publishes none
-    path = export_onnx(model, out, check=lambda tmp: angles.append(parity_deg(model, tmp)))
+    beside = out.resolve() == Path(args.model).resolve().with_suffix(".onnx")
+    # beside the model, its ONNX file is one of a training's files: read and written while no training publishes
+    # its own (learn.publish), or an export of the model it replaced would land beside the new one
+    with model_files_held(args.model) if beside else nullcontext():
+        model = load_model(args.model)
+        angles = []  # checked on the written file before it takes its name: a failed or interrupted check publishes
+        # none
+        path = export_onnx(model, out, check=lambda tmp: angles.append(parity_deg(model, tmp)))
     angle = angles[0]
-    beside = path.resolve() == Path(args.model).resolve().with_suffix(".onnx")
     default = Path(model.path).with_suffix(".onnx")
     used = (
         "`nlips infer` and `nlips live` use it by default"

@@ -33,8 +33,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="train NLiPsNet (u, v, r, g, b) -> normal on a calibration dataset from `nlips calibrate`",
         description="Train the paper's NLiPsNet (MLP 256-256-128, BatchNorm, ReLU, dropout 0.2, cosine loss) with "
         "a split by press and early stopping on validation AAE; writes MODEL.pt, MODEL.onnx, MODEL_curve.png and "
-        "a resumable MODEL.checkpoint.pt, published together when it ends (another run into the same --out: the "
-        "files of the one that ends last).",
+        "a resumable MODEL.checkpoint.pt, published together when it ends. The same training run again (same options "
+        "and samples) reuses its finished model; started while it trains, it waits for it first. Another training "
+        "into an --out that one trains into is refused until that one ends (then it replaces the model, saying so).",
     )
     p.add_argument("dataset", help="calibration dataset folder (from `nlips calibrate`)")
     p.add_argument("--out", required=True, help="model file to write (.pt)")
@@ -79,8 +80,9 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count, options_named
     from ..core.cpus import usable_cores
     from ..core.errors import ConfigError
+    from ..learn.checkpoint import training_run
     from ..learn.dataset import CalibrationDataset
-    from ..learn.publish import model_stage, publish_model
+    from ..learn.publish import hold_training, model_stage, publish_model
     from ..learn.train import TrainConfig, train
     from ..report.learn import training_curve
 
@@ -113,10 +115,21 @@ def run(args: argparse.Namespace) -> int:
     exclude = _names(args.exclude)
     onnx_path = out.with_suffix(".onnx")
     curve = out.with_name(out.stem + "_curve.png")
-    # this run's files are made in a folder of their own and published together: another run into the same --out
-    # (other options) leaves the files of whichever finishes last, never its .pt beside the other's .onnx
-    with model_stage(out) as stage:
-        result = train(data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress, stage=stage)
+    # held for the whole run: the same training started twice waits (then reuses the model), another is refused;
+    # this run's files are made in a folder of their own and published together, never a .pt beside another's .onnx
+    with hold_training(out, training_run(cfg, data.folder, val, exclude)), model_stage(out) as stage:
+        reuse = args.no_onnx or onnx_path.is_file()  # a finished model whose export is missing: exported again
+        result = train(
+            data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress, stage=stage, reuse=reuse
+        )
+        if result.reused:
+            best = result.history[result.best_epoch]
+            print(
+                f"{out}: reused, trained before with the same options on the same samples (best epoch "
+                f"{result.best_epoch + 1} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg); "
+                "other options or --out train another"
+            )
+            return 0
         training_curve(result.history, stage / curve.name, f"NLiPsNet {args.hidden}")
         best = result.history[result.best_epoch]
         summary = (  # epochs numbered from 1 here (the stored history counts from 0)

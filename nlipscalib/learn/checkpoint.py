@@ -14,7 +14,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import io
+import json
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -72,6 +74,22 @@ def data_key_of(*arrays: np.ndarray) -> str:
     return digest.hexdigest()[:16]
 
 
+def training_run(
+    cfg: TrainConfig, dataset: str | Path, val_names: Sequence[str] | None, exclude: Sequence[str]
+) -> dict:
+    """What a training is before its samples are read (``key``: a digest of the rest): the options that decide its
+    weights (:func:`_trajectory_options`), the dataset folder, the validation presses asked for (None: the seeded
+    split) and the excluded ones. Two runs of one key into one model path are the same training
+    (:func:`.publish.hold_training`); their samples are compared when read (:func:`data_key_of`)."""
+    record = {
+        "options": _trajectory_options(cfg),
+        "dataset": str(Path(dataset).resolve()),
+        "val_presses": sorted(val_names) if val_names else None,
+        "excluded_presses": sorted(exclude),
+    }
+    return record | {"key": hashlib.sha1(json.dumps(record, sort_keys=True).encode()).hexdigest()[:16]}
+
+
 def checkpoint_path(out: Path) -> Path:
     """``MODEL.checkpoint.pt`` beside the model file ``out``."""
     return out.with_name(out.stem + "." + CHECKPOINT_FILE)
@@ -122,13 +140,22 @@ def save_checkpoint(
 def published_by(out: Path, cfg: TrainConfig, data_key: str) -> bool:
     """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options and
     samples): a run resumed from its own progress may still replace another run's model, finished since."""
+    return published_state(out, cfg, data_key) is not None
+
+
+def published_state(out: Path, cfg: TrainConfig, data_key: str) -> dict | None:
+    """The checkpoint published with the model at ``out`` (:func:`save_checkpoint`'s fields) when the model is there
+    and this run's (its options and samples), else None."""
     from .model import read_torch_file
 
+    if not out.is_file():
+        return None
     try:
         ck = read_torch_file(checkpoint_path(out), "a training checkpoint")
     except Exception:  # missing or damaged: nothing says the model is this run's
-        return False
-    return isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
+        return None
+    mine = isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
+    return ck if mine else None
 
 
 def resume(

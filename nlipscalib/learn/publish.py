@@ -7,16 +7,20 @@ one model path leave the files of one run, the last to finish, never a mix.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
+from collections.abc import Iterator
 from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.errors import ConfigError
 from .checkpoint import checkpoint_path
 
 if TYPE_CHECKING:
+    from ..core.claims import Owner
     from .train import TrainResult
 
 log = logging.getLogger(__name__)
@@ -56,24 +60,97 @@ def publish_model(stage: str | Path, out: str | Path, result: TrainResult | None
 
     Returns the published paths.
     """
+    stage, out = Path(stage), Path(out)
+    with model_files_held(out):
+        out.with_suffix(".onnx").unlink(missing_ok=True)  # first: see above
+        published = []
+        for name in model_file_names(out):  # the model before its export
+            if (stage / name).exists():
+                os.replace(stage / name, out.parent / name)
+                published.append(out.parent / name)
+            else:  # another run's file, or a file of this name made before
+                (out.parent / name).unlink(missing_ok=True)
+        if result is not None and result.progress is not None:
+            result.progress.unlink(missing_ok=True)
+        return published
+
+
+@contextlib.contextmanager
+def model_files_held(out: str | Path) -> Iterator[None]:
+    """Hold the claim on the model path ``out`` (its own, ``.claim-MODEL.pt``) while the block runs, after another
+    process's turn: what :func:`publish_model` holds for its renames and ``nlips export`` while it reads the model
+    and writes its ONNX file beside it, so that neither runs in the middle of the other."""
     from ..core.claims import claim
 
-    stage, out = Path(stage), Path(out)
     while True:
         with claim(out) as mine:
             if mine:
-                out.with_suffix(".onnx").unlink(missing_ok=True)  # first: see above
-                published = []
-                for name in model_file_names(out):  # the model before its export
-                    if (stage / name).exists():
-                        os.replace(stage / name, out.parent / name)
-                        published.append(out.parent / name)
-                    else:  # another run's file, or a file of this name made before
-                        (out.parent / name).unlink(missing_ok=True)
-                if result is not None and result.progress is not None:
-                    result.progress.unlink(missing_ok=True)
-                return published
-        time.sleep(PUBLISH_POLL_S)  # another run is publishing: a few renames, then it is this run's turn
+                yield
+                return
+        time.sleep(PUBLISH_POLL_S)  # another run is publishing or exporting: seconds at most, then it is this one's
+
+
+TRAIN_HOLD = "~train"
+"""Suffix of the name under which a training holds its model path for its whole run (``.claim-MODEL.pt~train``,
+:func:`hold_training`): not the model's own claim, which :func:`model_files_held` takes for seconds."""
+
+
+@contextlib.contextmanager
+def hold_training(out: str | Path, run: dict) -> Iterator[None]:
+    """Hold the model path ``out`` for the training ``run`` (:func:`.checkpoint.training_run`) while the block runs.
+
+    Another live process training into ``out``:
+
+    - the same training (``run``'s key: the options that decide the weights, the dataset, the validation and
+      excluded presses): waited for, saying so in one line; then the block runs and finds its model (reused,
+      :func:`.train.train` ``reuse``) or its progress (resumed, e.g. when the other stopped at its time limit);
+    - another training: ConfigError naming what differs, at once.
+
+    Why refuse another training rather than queue it: both cannot keep their model at one path; queued, the second
+    would replace the first's model when it ends (and the user would wait to lose it), while refused the user
+    trains into another --out straight away, as ``nlips solve`` and ``nlips dataset`` refuse a run of other
+    settings. A killed holder's claim goes stale (core.claims): the next run takes it over and resumes its
+    progress checkpoint (named by the run, :func:`.checkpoint.progress_checkpoint_path`).
+    """
+    from ..core.claims import claim, holder, wait_for_release
+
+    target = Path(out).with_name(Path(out).name + TRAIN_HOLD)
+    while True:
+        with claim(target, note=run) as mine:
+            if mine:
+                yield
+                return
+        other = holder(target)
+        if other is None or other.note is None:  # released or died meanwhile, or its claim being written
+            time.sleep(PUBLISH_POLL_S)
+            continue
+        if other.note.get("key") != run["key"]:
+            raise ConfigError(_trained_elsewhere(Path(out), other, run))
+        log.info(
+            "%s: process %d on %s is training the same model (same options and samples); waiting for it, "
+            "then its model is reused",
+            out,
+            other.pid,
+            other.host,
+        )
+        wait_for_release(target)
+
+
+def _trained_elsewhere(out: Path, other: Owner, run: dict) -> str:
+    theirs = other.note or {}
+    changed = []
+    for k, v in run.get("options", {}).items():
+        was = (theirs.get("options") or {}).get(k)
+        if was != v:
+            changed.append(f"{k} {was} (this run: {v})")
+    for k in ("dataset", "val_presses", "excluded_presses"):
+        if theirs.get(k) != run.get(k):
+            changed.append(f"{k} {theirs.get(k)} (this run: {run.get(k)})")
+    return (
+        f"{out}: process {other.pid} on {other.host} is training another model into it "
+        f"({', '.join(changed) or 'other settings'}); left to it: train into another --out, or run again once it "
+        "has ended (its model is then replaced)"
+    )
 
 
 def clean_interrupted_writes(out: Path, *names: str) -> None:

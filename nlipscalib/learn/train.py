@@ -25,6 +25,7 @@ from .checkpoint import (
     jsonable_config,
     progress_checkpoint_path,
     published_by,
+    published_state,
     resume,
     save_checkpoint,
 )
@@ -167,6 +168,8 @@ class TrainResult:
     val_presses: list
     progress: Path | None = None
     """This run's per-epoch checkpoint while its files wait in a stage: removed by :func:`.publish.publish_model`."""
+    reused: bool = False
+    """The model at ``model_path`` is this training's, finished before (``train(reuse=True)``): nothing was written."""
 
 
 def train(
@@ -177,6 +180,7 @@ def train(
     exclude: Collection[str] = (),
     progress: bool = True,
     stage: Path | None = None,
+    reuse: bool = False,
 ) -> TrainResult:
     """Train NLiPsNet on ``dataset`` and write ``out`` (the model file) and ``checkpoint.pt`` beside it.
 
@@ -191,6 +195,10 @@ def train(
         Write the model and a copy of the final checkpoint there, under their names beside ``out``, for
         :func:`.publish.publish_model` to put in place with the other files of this run. The checkpoint of every epoch
         still goes beside ``out`` (what an interrupted run resumes from).
+    reuse : when the model at ``out`` is this training's (options and samples) and finished (:func:`_finished`),
+        return it as it is (``TrainResult.reused``), writing nothing; else train (resuming what there is).
+        Why: a second identical ``nlips train`` waits for the first (:func:`.publish.hold_training`), then had
+        nothing left to train but wrote the same model, checkpoint and ONNX file again.
     """
     import torch
 
@@ -201,6 +209,8 @@ def train(
     data_key = data_key_of(*data.arrays())
     progress_path = progress_checkpoint_path(out, cfg, data_key)
     clean_interrupted_writes(out, progress_path.name)
+    if reuse and (done := published_state(out, cfg, data_key)) is not None and _finished(done, cfg):
+        return TrainResult(out, done["history"], done["best"]["epoch"], data.train_names, data.val_names, reused=True)
     state = resume(out, progress_path, cfg, data_key, net, opt, sched)
     if out.is_file() and not published_by(out, cfg, data_key):  # a better model would go unnoticed otherwise
         log.warning(
@@ -225,6 +235,17 @@ def train(
     _save_trained(model_file, net, dataset, cfg, data, exclude, history, best)
     progress_file = progress_path if stage else None
     return TrainResult(out, history, best["epoch"], data.train_names, data.val_names, progress_file)
+
+
+def _finished(state: dict, cfg: TrainConfig) -> bool:
+    """Whether a checkpoint's ``state`` (its ``history`` and ``best``) leaves no epoch for ``cfg`` to train: it reached
+    ``cfg.max_epochs``, or stopped early by ``cfg.patience`` (the rules of :func:`_epochs`). A run stopped by its
+    time limit is not finished: run again, it continues, as :func:`.checkpoint.resume` lets it."""
+    try:
+        done, best = len(state["history"]), int(state["best"]["epoch"])
+    except (KeyError, TypeError, ValueError):  # not a finished run's checkpoint: trained (resume says why)
+        return False
+    return done == cfg.max_epochs or (0 < done < cfg.max_epochs and done - 1 - best >= cfg.patience)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -300,10 +300,13 @@ sys.exit(main(sys.argv[1:]))
 """`nlips train` whose ONNX export waits for a file ``go`` in the folder given first (and says it waits)."""
 
 
-def test_two_trainings_into_one_out_leave_the_files_of_the_last_to_finish_whole(built, tmp_path):
-    """Run A (8 wide) reaches its export, run B (4 wide) runs start to end, then A finishes. A wrote its .pt as it
-    finished training, B replaced it, A wrote its .onnx: B's .pt beside A's .onnx, which inference refused. Now
-    each run's files are published together: A's, the last to finish, whole, and nothing of B beside them."""
+def test_the_same_training_started_twice_waits_and_reuses_the_model_and_another_into_its_out_is_refused(
+    built, tmp_path
+):
+    """Run A (8 wide) holds in its export. Two identical `nlips train` runs started at once both trained every epoch
+    (nothing stopped the second) and the last to write won. Now B, the same command, waits for A, then reuses its
+    model in one line, training and writing nothing; C, another training into A's --out, is refused at once in one
+    line naming what differs (before: it ran start to end and A, finishing last, replaced its model)."""
     import os
     import subprocess
     import sys
@@ -312,43 +315,141 @@ def test_two_trainings_into_one_out_leave_the_files_of_the_last_to_finish_whole(
     import torch
 
     from nlipscalib.learn.onnx_export import OnnxNet
+    from tests.processes import until_each_waits_or_exits
 
     out = tmp_path / "models" / "m.pt"
     flags = tmp_path / "flags"
     flags.mkdir()
-    train_args = ["train", str(built), "--out", str(out), "--epochs", "2", "--threads", "1", "--no-progress"]
+    args = ["train", str(built), "--out", str(out), "--epochs", "2", "--threads", "1", "--no-progress"]
     env = os.environ | {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}
     run_a = subprocess.Popen(
-        [sys.executable, "-c", EXPORT_WAITS, str(flags), *train_args, "--hidden", "8", "--dropout", "0"],
+        [sys.executable, "-c", EXPORT_WAITS, str(flags), *args, "--hidden", "8", "--dropout", "0"],
         env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
+    cli = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+    b_log = tmp_path / "b.log"
+    run_b = None
     try:
         deadline = time.monotonic() + 120
         while not (flags / "exporting").exists():
             assert run_a.poll() is None, run_a.communicate()
             assert time.monotonic() < deadline
             time.sleep(0.05)
-        cli = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
-        run_b = subprocess.run(
-            [sys.executable, "-c", cli, *train_args, "--hidden", "4"], env=env, capture_output=True, text=True
+        run_c = subprocess.run(
+            [sys.executable, "-c", cli, *args, "--hidden", "4"], env=env, capture_output=True, text=True, timeout=120
         )
-        assert run_b.returncode == 0, run_b.stderr
+        assert run_c.returncode == 2, run_c.stderr
+        (line,) = run_c.stderr.strip().splitlines()
+        assert f"{out}: process {run_a.pid} on " in line and "is training another model into it" in line, line
+        assert "hidden [8] (this run: [4])" in line and "another --out" in line, line
+        with b_log.open("w") as log_file:
+            run_b = subprocess.Popen(
+                [sys.executable, "-c", cli, *args, "--hidden", "8", "--dropout", "0"],
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=log_file,
+                text=True,
+            )
+        until_each_waits_or_exits([run_b], [b_log], "is training the same model", timeout=120)
+        assert run_b.poll() is None, b_log.read_text()
         (flags / "go").touch()
         stdout, stderr = run_a.communicate(timeout=120)
+        assert run_a.returncode == 0, stderr
+        published = _model_files(out.parent)
+        b_out = run_b.communicate(timeout=120)[0]
     finally:
-        run_a.kill()
-        run_a.wait()
-    assert run_a.returncode == 0, stderr
+        for proc in (run_a, run_b):
+            if proc is not None:
+                proc.kill()
+                proc.wait()
+    assert run_b.returncode == 0, b_log.read_text()
+    waited = [line for line in b_log.read_text().splitlines() if "waiting for it" in line]
+    assert len(waited) == 1 and f"process {run_a.pid} on" in waited[0], b_log.read_text()
+    assert f"{out}: reused, trained before with the same options on the same samples" in b_out, b_out
+    assert "resuming" not in b_log.read_text()  # no epoch trained, nothing written again
+    assert _model_files(out.parent) == published
     model = load_model(out)
-    assert model.hidden == (8,)  # A's
-    OnnxNet(out.with_suffix(".onnx"), model)  # exported from this very .pt (it raised: "from another model")
+    assert model.hidden == (8,)  # A's, whole: its .pt, .onnx and checkpoint
+    OnnxNet(out.with_suffix(".onnx"), model)
     checkpoint = torch.load(checkpoint_path(out), weights_only=False)
-    assert checkpoint["history"] == model.info["history"]  # A's last state, not B's
+    assert checkpoint["history"] == model.info["history"]
     assert sorted(p.name for p in out.parent.iterdir()) == ["m.checkpoint.pt", "m.onnx", "m.pt", "m_curve.png"]
     assert f"{out}: best epoch" in stdout and f"{out.with_suffix('.onnx')}: onnxruntime vs PyTorch" in stdout
+
+
+def _model_files(folder):
+    """{name: modification time} of a training's files in ``folder`` (not the claims and stages of runs at work)."""
+    return {p.name: p.stat().st_mtime_ns for p in folder.iterdir() if not p.name.startswith(".")}
+
+
+def test_a_killed_trainings_hold_is_taken_over_and_its_progress_resumed(built, tmp_path, monkeypatch, capsys, caplog):
+    """`nlips train` killed (-9) mid-run leaves its hold on the model path: the next run of the same training does not
+    wait for it (its owner is gone), and continues from its checkpoint."""
+    import json as json_module
+
+    from nlipscalib.learn.checkpoint import training_run
+    from nlipscalib.learn.publish import TRAIN_HOLD
+
+    out = tmp_path / "m.pt"
+    cfg = TrainConfig(hidden=(8,), dropout=0.0, max_epochs=4, patience=10, threads=1)
+    data = CalibrationDataset(built)
+    _interrupted_after_two_epochs(monkeypatch, lambda: train(data, cfg, out, progress=False))
+    run = training_run(cfg, built, None, [])
+    hold = tmp_path / f".claim-m.pt{TRAIN_HOLD}"
+    hold.write_text(json_module.dumps({"host": HOST, "pid": _dead_pid(), "token": "k9", "note": run}))
+    caplog.set_level(logging.INFO)
+    args = ["train", str(built), "--out", str(out), "--epochs", "4", "--patience", "10", "--hidden", "8"]
+    assert main([*args, "--dropout", "0", "--threads", "1", "--no-progress", "--no-onnx"]) == 0
+    assert "resuming after epoch 2" in caplog.text and "waiting" not in caplog.text
+    assert len(load_model(out).info["history"]) == 4 and not hold.exists()
+    capsys.readouterr()
+    assert main([*args, "--dropout", "0", "--threads", "1", "--no-progress", "--no-onnx"]) == 0  # done: reused
+    assert f"{out}: reused, trained before" in capsys.readouterr().out
+
+
+def test_an_export_beside_the_model_is_never_of_the_model_a_training_replaced_meanwhile(built, tmp_path, monkeypatch):
+    """`nlips export m.pt` read the model, a training published another m.pt (and its .onnx) meanwhile, then the export
+    put the old model's .onnx beside the new .pt (inference refused it). The export now reads and writes while no
+    training publishes into that place (their claim on the model path), so its .onnx is of the .pt beside it."""
+    from nlipscalib.learn import model as model_module
+    from nlipscalib.learn.onnx_export import OnnxNet
+    from nlipscalib.learn.publish import model_files_held
+
+    data, out = CalibrationDataset(built), tmp_path / "m.pt"
+    train(data, TINY, out, progress=False)
+    other = tmp_path / "other" / "m.pt"
+    train(data, TrainConfig(hidden=(4,), dropout=0.0, max_epochs=1, threads=1), other, progress=False)
+    loaded, replaced, real_load = threading.Event(), threading.Event(), model_module.load_model
+
+    def load_then_stall(*args, **kwargs):  # the model read: give a publish the moment to run (on the old code)
+        model = real_load(*args, **kwargs)
+        loaded.set()
+        replaced.wait(timeout=3)
+        return model
+
+    monkeypatch.setattr(model_module, "load_model", load_then_stall)
+
+    def publish_another():  # what publish_model does, under the same claim
+        with model_files_held(out):
+            held.set()
+            loaded.wait(timeout=2)  # the export cannot read the model now: it waits for this claim
+            out.with_suffix(".onnx").unlink(missing_ok=True)
+            shutil.copy(other, out)
+            replaced.set()
+
+    held = threading.Event()
+    publisher = threading.Thread(target=publish_another)
+    publisher.start()
+    held.wait(timeout=10)
+    try:
+        assert main(["export", str(out)]) == 0
+    finally:
+        publisher.join()
+    assert load_model(out).hidden == (4,)
+    OnnxNet(out.with_suffix(".onnx"), real_load(out))  # exported from the .pt beside it ("from another model" before)
 
 
 def test_a_training_without_onnx_removes_the_export_of_the_model_it_replaces(built, tmp_path, capsys):
