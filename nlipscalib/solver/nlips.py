@@ -236,9 +236,10 @@ def _solve_checked(
     # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
     crop, cam = _crop_to_mask(mask, camera)
     data = _LevelData.of(images, saturated, mask, crop, prior_depth, prior_weights, leds, opts)
-    levels, t_first = _pyramid(cam, data, init_depth, crop, opts, unrefined)
-    # the sensor's whole gel: every whole-frame press solves on it, so its large levels' operators recur
+    # the sensor's whole gel: every whole-frame press solves on it, so its levels' rays and large levels'
+    # operators recur
     whole_gel = bool(np.array_equal(mask, np.isfinite(prior_depth)))
+    levels, t_first = _pyramid(cam, data, init_depth, crop, opts, unrefined, whole_gel)
     for lv in levels:
         lv["recurs"] = whole_gel
     report = data.report
@@ -396,11 +397,13 @@ def _pyramid(
     crop: tuple[slice, slice],
     opts: SolverOptions,
     unrefined: int,
+    whole_gel: bool = False,
 ):
     """The levels to solve, and the log-depth the first of them starts from (None: the prior).
 
     A warm start (``init_depth``) solves the finest level from it; with ``unrefined`` levels, the one below
-    them, from it brought down (the start's change from the prior, averaged inside the mask)."""
+    them, from it brought down (the start's change from the prior, averaged inside the mask). ``whole_gel``: the
+    mask is the sensor's whole gel (:func:`build_pyramid` keeps its levels' rays on disk)."""
     m, t0 = data.mask, data.t0
     t_first = None
     if init_depth is not None:
@@ -416,6 +419,7 @@ def _pyramid(
         opts if t_first is None else dataclasses.replace(opts, pyramid_levels=unrefined + 1),
         skip=range(1, unrefined),
         scale=data.images.dtype.type(data.scale),
+        whole_gel=whole_gel,
     )
     if t_first is not None and len(levels) > 1:
         shape = levels[0]["camera"].shape

@@ -57,10 +57,16 @@ GEOMETRY_LEVELS = 8
 their operators): a pyramid's four to six, and a spare."""
 
 
-def level_geometry(camera: Camera, mask: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def level_geometry(
+    camera: Camera, mask: np.ndarray, persist: bool = False
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """A level's rays q and normal basis (A, B, C) on its mask's pixels (:mod:`nlipscalib.solver.geometry`),
     kept for the next solve on the same camera and mask (solver.reuse; read-only): the outer interreflection loop's
     passes and a dataset's whole-frame presses solve on the same levels, and at 640x480 they cost ~0.2 s.
+
+    ``persist``: also keep them on disk for the next process (a level of the sensor's whole gel, which every
+    whole-frame press solves on): a 640x480 pyramid's levels take 0.08 s of CPU to compute and 0.004 s to read back
+    (39 MB; benchmarks/RESULTS.md, s17-k). An ROI's levels (one per press) are computed in the process.
 
     Returns
     -------
@@ -71,7 +77,7 @@ def level_geometry(camera: Camera, mask: np.ndarray) -> tuple[np.ndarray, tuple[
         q, qu, qv = geometry.ray_tables(camera)
         return q[mask], geometry.normal_basis(q[mask], qu[mask], qv[mask])
 
-    return reuse.reused("level geometry", (camera, reuse.digest(mask)), make, most=GEOMETRY_LEVELS)
+    return reuse.reused("level geometry", (camera, reuse.digest(mask)), make, most=GEOMETRY_LEVELS, persist=persist)
 
 
 def build_pyramid(
@@ -84,11 +90,13 @@ def build_pyramid(
     opts: SolverOptions,
     skip: Container[int] = (),
     scale: float = 1.0,
+    whole_gel: bool = False,
 ) -> list[dict]:
     """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, zeta, rays.
 
     ``data``: (L, H, W, 3) float; the levels hold ``data / scale`` (``scale``: a scalar of ``data``'s dtype).
-    ``skip``: levels not built, counted from the finest (0); they still count in ``opts.pyramid_levels``."""
+    ``skip``: levels not built, counted from the finest (0); they still count in ``opts.pyramid_levels``.
+    ``whole_gel``: ``mask`` is the sensor's whole gel, so the levels' rays are kept on disk (:func:`level_geometry`)."""
     n_levels = opts.pyramid_levels
     if n_levels == 0:
         n_levels = 1
@@ -117,7 +125,7 @@ def build_pyramid(
             wk = resize(w0.astype(np.float32), c.shape)
         if mk.sum() < 16:
             break
-        q, (A, B, C) = level_geometry(c, mk)
+        q, (A, B, C) = level_geometry(c, mk, persist=whole_gel)
         planes = masked_planes(d, mk, d.dtype)
         if k == 0:
             planes /= scale

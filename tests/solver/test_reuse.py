@@ -311,7 +311,7 @@ def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, dis
     kinds = {p.name for p in disk.iterdir() if any(p.iterdir())}
     # no "shading": with an undeformed capture the fit and the contact do not read it, and at this size the
     # outer loop's surface is the fit's (the same patch side), made from the capture
-    assert {"surface", "fit", "operators", "smoothed_undeformed"} <= kinds
+    assert {"surface", "fit", "operators", "smoothed_undeformed", "level_geometry"} <= kinds
     reuse.clear()  # a new process: only the disk remembers
     shaded, blurred = [], []
     direct, blur = indirect.direct_shading, contact._smooth
@@ -323,6 +323,29 @@ def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, dis
     for key in fresh:
         np.testing.assert_array_equal(first[key], fresh[key], err_msg=key)
         np.testing.assert_array_equal(later[key], fresh[key], err_msg=key)
+
+
+def test_the_whole_gels_level_rays_are_read_back_by_a_later_process_an_rois_not_kept(tmp_path, disk, monkeypatch):
+    from nlipscalib.solver import geometry, pyramid
+
+    press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(96, 72)))
+    gel = np.isfinite(press.reference.depth)
+    first = pyramid.level_geometry(press.camera, gel, persist=True)
+    diskcache.wait()
+    reuse.clear()  # a new process: only the disk remembers
+    made = []
+    rays = geometry.ray_tables
+    monkeypatch.setattr(geometry, "ray_tables", lambda *a, **k: made.append(1) or rays(*a, **k))
+    later = pyramid.level_geometry(press.camera, gel, persist=True)
+    assert not made
+    for a, b in zip((first[0], *first[1]), (later[0], *later[1])):
+        np.testing.assert_array_equal(b, a)
+        assert not b.flags.writeable
+    for entry in (disk / "level_geometry").iterdir():
+        entry.unlink()
+    solve_press(press, roi=(10, 10, 60, 40), interreflection="off")  # an ROI's levels: not the whole gel
+    diskcache.wait()
+    assert made and not any((disk / "level_geometry").iterdir())
 
 
 def test_solve_commands_in_separate_processes_share_the_disk_cache(tmp_path, disk):
