@@ -6,6 +6,10 @@ import argparse
 import logging
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..learn.dataset import SamplingConfig
 
 log = logging.getLogger(__name__)
 
@@ -17,6 +21,9 @@ OPTION_OF = {
     "smoothing_px": "--smoothing",
 }
 """The option of `nlips calibrate` that sets each SamplingConfig field (its validation messages name the field)."""
+SOLVE_OPTION_OF = {"normals": "--normals", "leds": "--leds", "reference": "--reference"}
+"""The option of `nlips calibrate` that sets each other thing a dataset's samples depend on
+(learn.dataset.dataset_run), for the line refusing a build of other samples into the same --out."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -78,11 +85,8 @@ def run(args: argparse.Namespace) -> int:
     from ..core.atomic import check_writable
     from ..core.capture import REFERENCE_FOLDER, no_presses_error, read_meta, split_reference
     from ..core.config import check_count, options_named
-    from ..core.cpus import usable_cores
     from ..core.errors import ConfigError
-    from ..learn.coverage import coverage, write_coverage_json
-    from ..learn.dataset import DEFAULT_DIR, CalibrationDataset, SamplingConfig, build_dataset, check_min_leds
-    from ..report.learn import coverage_figure
+    from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
 
     check_count("--workers", args.workers, minimum=0)
     smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
@@ -110,6 +114,29 @@ def run(args: argparse.Namespace) -> int:
         led_file_fits(args.leds, reference)
     out = Path(args.out) if args.out else root / DEFAULT_DIR
     check_writable(out)  # a file in its place or a read-only disk: one line now, not after solving every press
+    leds = str(Path(args.leds).resolve()) if args.leds is not None else None
+    run = dataset_run(presses, reference, cfg, solve={"normals": args.normals, "leds": leds})
+    # held from before the solves: a build of other samples into this --out is refused now, not after them
+    with hold_dataset(out, run, option_of=OPTION_OF | SOLVE_OPTION_OF):
+        return _solve_and_build(args, root, presses, reference, out, cfg, run)
+
+
+def _solve_and_build(
+    args: argparse.Namespace,
+    root: Path,
+    presses: list[Path],
+    reference: Path,
+    out: Path,
+    cfg: SamplingConfig,
+    run: dict,
+) -> int:
+    """The solves, the dataset and its coverage report, and the summary lines (exit status)."""
+    from ..core.cpus import usable_cores
+    from ..core.errors import ConfigError
+    from ..learn.coverage import coverage, write_coverage_json
+    from ..learn.dataset import CalibrationDataset, build_dataset
+    from ..report.learn import coverage_figure
+
     workers = args.workers or usable_cores()
     status = solve_all(
         presses, reference, workers=workers, progress=not args.no_progress, leds=args.leds, normals=args.normals
@@ -119,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     failed = {k: v for k, v in status.items() if v not in ("solved", "skipped")}
     if not solved:
         raise ConfigError(f"{root}: no press could be solved")
-    build_dataset(solved, reference, out, cfg, progress=not args.no_progress)
+    build_dataset(solved, reference, out, cfg, progress=not args.no_progress, run=run)
     data = CalibrationDataset(out)
     cov = coverage(data)
     write_coverage_json(out / "coverage.json", cov)

@@ -25,16 +25,19 @@ Shards load one press at a time (:meth:`CalibrationDataset.load`), so training h
 never the 12 LED images of each press. Every file is written atomically (owner-tagged temporary
 names, core.atomic), so several builds may share a folder; an interrupted build resumes: a shard
 whose recorded stamp matches is kept (index.json is written last, so the shards carry their own
-entries), a missing, damaged or outdated one is made again.
+entries), a missing, damaged or outdated one is made again. The builds of one dataset (the same presses,
+reference, sampling and solve options) hold the folder together and make each shard once, under its claim;
+a build of another dataset into a held folder is refused (:func:`hold_dataset`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
 import logging
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -42,6 +45,7 @@ import numpy as np
 
 from .. import __version__
 from ..core.atomic import write_by_name, write_json
+from ..core.claims import wait_for_release
 from ..core.errors import CaptureError, ConfigError
 from ..core.formatfile import read_arrays, read_format_json
 from ..core.imageio import save_npz
@@ -52,6 +56,7 @@ from .prefilter import Prefilter, check_sigma
 
 if TYPE_CHECKING:  # named in hints only: the functions import the capture and reconstruction modules where used
     from ..core.capture import Press
+    from ..core.claims import Owner
     from ..core.reconstruction import Reconstruction
 
 DEFAULT_DIR = "calibration"
@@ -230,6 +235,7 @@ def build_dataset(
     cfg: SamplingConfig | None = None,
     result_dir: str = "nlips",
     progress: bool = True,
+    run: dict | None = None,
 ) -> Path:
     """Pair every solved press's tri-colour image with its NLiPs normals into a calibration dataset.
 
@@ -240,43 +246,122 @@ def build_dataset(
     out : dataset folder to write (created; existing shards made from the same reconstruction are kept)
     cfg : SamplingConfig
     result_dir : reconstruction folder name inside each press
+    run : :func:`dataset_run` the caller holds ``out`` for (``nlips calibrate``: from before its solves, with its
+        solve options); None: this build's own. The build holds ``out`` for it (:func:`hold_dataset`)
 
     Returns
     -------
     Path of the dataset folder. Raises CaptureError naming the press when one is unsolved or from
-    another sensor.
+    another sensor, ConfigError when another live build of other samples holds ``out``.
     """
-    from ..core.atomic import clean_interrupted
     from ..core.capture import load_press
-    from ..core.reconstruction import load_reconstruction
 
     cfg = cfg or SamplingConfig()
     out = Path(out)
-    (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
-    for folder in (out, out / SHARD_DIR):  # temporaries of killed builds (only those whose owner is gone)
+    folders = [Path(f) for f in press_folders]
+    run = run or dataset_run(folders, reference_folder, cfg, result_dir)
+    with hold_dataset(out, run):
+        (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
+        _clean_interrupted(out)
+        ref_press = load_press(reference_folder)
+        check_min_leds(cfg, len(ref_press.leds), reference_folder)
+        build = _Build(out, cfg, result_dir, sensor_of(ref_press), reference_arrays(ref_press))
+        write_shard(out / SENSOR_FILE, build.ref)
+        entries = build.entries(folders, progress)
+        if build.kept:  # what a resumed build reused, as solve and experiment say theirs
+            names = build.kept
+            shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+            log.info(
+                "%s: samples of %d of %d presses kept (made from the same results and options): %s",
+                out,
+                len(names),
+                len(entries),
+                shown,
+            )
+        write_index(out, build.sensor, cfg, entries, str(Path(reference_folder).resolve()))
+    return out
+
+
+def _clean_interrupted(out: Path) -> None:
+    """Remove the temporaries and claims of killed builds in ``out`` (only those whose owner is gone)."""
+    from ..core.atomic import clean_interrupted
+
+    for folder in (out, out / SHARD_DIR):
         for gone in clean_interrupted(folder):
             log.warning("%s: removed an interrupted write", gone)
-    ref_press = load_press(reference_folder)
-    check_min_leds(cfg, len(ref_press.leds), reference_folder)
-    sensor = sensor_of(ref_press)
-    ref = reference_arrays(ref_press)
-    write_shard(out / SENSOR_FILE, ref)
-    old = _old_entries(out)
-    entries, kept_names = [], []
-    for folder in track(list(press_folders), enabled=progress, desc="samples", unit="press"):
-        folder = Path(folder)
-        _wait_for_solver(folder / result_dir)
-        stamp = _result_stamp(folder / result_dir, cfg)
-        shard = out / SHARD_DIR / f"{folder.name}.npz"
-        kept = _kept_entry(shard, stamp, old.get(folder.name))
-        if kept is not None:
-            entries.append(kept)  # resumed: made from the same reconstruction and options
-            kept_names.append(folder.name)
-            continue
+
+
+@dataclasses.dataclass
+class _Build:
+    """One build's samples, press by press: kept when whole and made from the same inputs, else made under the
+    shard's claim, so two builds of one dataset sharing the folder make each shard once."""
+
+    out: Path
+    cfg: SamplingConfig
+    result_dir: str
+    sensor: dict
+    ref: dict
+    kept: list[str] = dataclasses.field(default_factory=list)
+    """Names of the presses whose shard was found made (by an earlier build, or another one at work)."""
+    ref_digest: str = dataclasses.field(init=False)
+    """:func:`arrays_digest` of ``ref``: part of every shard's stamp."""
+    old: dict = dataclasses.field(init=False)
+    """The previous index.json's entries by press name (for shards that carry none)."""
+
+    def __post_init__(self) -> None:
+        self.ref_digest = arrays_digest(self.ref)
+        self.old = _old_entries(self.out)
+
+    def entries(self, folders: list[Path], progress: bool) -> list[dict]:
+        """The index entries of ``folders``' shards, in their order; a shard another live build is making is left
+        for the end, then waited for (and made here when that build dies or fails)."""
+        done: dict[Path, dict] = {}
+        later = []
+        for folder in track(folders, enabled=progress, desc="samples", unit="press"):
+            _wait_for_solver(folder / self.result_dir)
+            entry = self.attempt(folder)
+            if entry is None:
+                later.append(folder)
+            else:
+                done[folder] = entry
+        for folder in later:
+            done[folder] = self.wait_for(folder)
+        return [done[f] for f in folders]
+
+    def wait_for(self, folder: Path) -> dict:
+        """``folder``'s entry once no other live process holds its shard (made by it, or here if it died or failed)."""
+        shard = self.shard(folder)
+        say = lambda: log.info("%s: being sampled by another process; waiting for its shard", shard)  # noqa: E731
+        while (entry := self.attempt(folder)) is None:
+            wait_for_release(shard, on_wait=say)
+            say = None
+        return entry
+
+    def shard(self, folder: Path) -> Path:
+        return self.out / SHARD_DIR / f"{folder.name}.npz"
+
+    def attempt(self, folder: Path) -> dict | None:
+        """``folder``'s entry: its shard kept, or made under its claim; None while another live process holds it."""
+        from ..core.claims import claim
+
+        shard, stamp = self.shard(folder), shard_stamp(folder / self.result_dir, self.cfg, self.ref_digest)
+        with claim(shard) as mine:
+            if not mine:
+                return None
+            kept = _kept_entry(shard, stamp, self.old.get(folder.name))
+            if kept is not None:  # resumed, or made meanwhile by another build of this dataset
+                self.kept.append(folder.name)
+                return kept
+            return self.make(folder, shard, stamp)
+
+    def make(self, folder: Path, shard: Path, stamp: str) -> dict:
+        from ..core.capture import load_press
+        from ..core.reconstruction import load_reconstruction
+
         press = load_press(folder)
-        check_sensor(sensor, sensor_of(press), folder)
-        rec = load_reconstruction(folder / result_dir, press.camera.shape)
-        samples = press_samples(press, rec, ref, cfg)
+        check_sensor(self.sensor, sensor_of(press), folder)
+        rec = load_reconstruction(folder / self.result_dir, press.camera.shape)
+        samples = press_samples(press, rec, self.ref, self.cfg)
         entry = {
             "name": folder.name,
             "folder": str(folder.resolve()),
@@ -287,18 +372,90 @@ def build_dataset(
             "stamp": stamp,
         }
         write_shard(shard, samples | {ENTRY_KEY: _entry_bytes(entry)})
-        entries.append(entry)
-    if kept_names:  # what a resumed build reused, as solve and experiment say theirs
-        shown = ", ".join(kept_names[:5]) + (f" and {len(kept_names) - 5} more" if len(kept_names) > 5 else "")
-        log.info(
-            "%s: samples of %d of %d presses kept (made from the same results and options): %s",
-            out,
-            len(kept_names),
-            len(entries),
-            shown,
-        )
-    write_index(out, sensor, cfg, entries, str(Path(reference_folder).resolve()))
-    return out
+        return entry
+
+
+# ---------------------------------------------------------------------- holding the folder
+HOLD_NAME = "calibration"
+"""Target of the claims by which the builds of one dataset hold its folder (:func:`hold_dataset`):
+``OUT/.claim-calibration~KEY~TOKEN``, one per build."""
+
+
+def dataset_run(
+    press_folders: Iterable[str | Path],
+    reference_folder: str | Path,
+    cfg: SamplingConfig,
+    result_dir: str = "nlips",
+    solve: dict | None = None,
+) -> dict:
+    """What decides a calibration dataset's samples, for :func:`hold_dataset`.
+
+    Parameters
+    ----------
+    press_folders, reference_folder, cfg, result_dir : as for :func:`build_dataset`
+    solve : JSON-able options that decide the presses' results (``nlips calibrate``: ``normals``, ``leds``), or None
+
+    Returns
+    -------
+    dict: ``key`` (hex, 16 digits: the same for every build of the same samples), ``options`` (the sampling
+    options, the reference folder, ``solve``) and ``presses`` (``count``, ``first`` and ``digest`` of their folders)
+    """
+    folders = [str(Path(f).resolve()) for f in press_folders]
+    options = dataclasses.asdict(cfg) | {"reference": str(Path(reference_folder).resolve())} | (solve or {})
+    presses = {
+        "count": len(folders),
+        "first": folders[0] if folders else None,
+        "digest": hashlib.sha256(json.dumps(folders).encode()).hexdigest()[:16],
+    }
+    what = {"options": options, "presses": presses, "result_dir": result_dir, "rule": RULE_VERSION}
+    return {"key": hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:16]} | what
+
+
+@contextlib.contextmanager
+def hold_dataset(out: str | Path, run: dict, option_of: dict[str, str] | None = None) -> Iterator[None]:
+    """Hold the dataset folder ``out`` for the build ``run`` (:func:`dataset_run`) while the block runs.
+
+    Builds of the same run share the folder: each shard is made by one of them (its claim) and reused by the
+    others. A live build of another run holding ``out``: ConfigError at once naming what differs (``option_of``: the
+    command-line option of each option's name), before anything is written.
+
+    Why: two builds of different sampling options (or presses, or reference) into one folder each replaced the
+    other's shards, and the index.json written last could list shards the other build had made; refused, the
+    user builds into another folder straight away, as ``nlips dataset`` and ``nlips train`` refuse another spec or
+    training. A killed build's claim goes stale (core.claims) and stops counting. A folder that cannot hold a claim
+    file (read-only media, disk full) is not claimed: nothing can be written there either, and the writes say why.
+    """
+    from ..core.claims import claim_shared
+
+    out = Path(out)
+    with contextlib.ExitStack() as stack:
+        try:
+            other = stack.enter_context(claim_shared(out / HOLD_NAME, run["key"], note=run))
+        except OSError as exc:
+            log.debug("%s: not claimed for this build (%s)", out, exc.strerror or exc)
+            other = None
+        if other is not None:
+            raise ConfigError(_built_elsewhere(out, other, run, option_of or {}))
+        yield
+
+
+def _built_elsewhere(out: Path, other: Owner, run: dict, option_of: dict[str, str]) -> str:
+    theirs = other.note or {}
+    changed = []
+    mine, was_all = run.get("options") or {}, theirs.get("options") or {}
+    for k in sorted(set(mine) | set(was_all)):
+        if was_all.get(k) != mine.get(k):
+            changed.append(f"{option_of.get(k, k)} {was_all.get(k)} (this run: {mine.get(k)})")
+    ours, was = run.get("presses") or {}, theirs.get("presses") or {}
+    if ours.get("digest") != was.get("digest"):
+        before, now = (f"{p.get('count')} from {p.get('first')}" for p in (was, ours))
+        changed.append(f"presses {before} (this run: {now})")
+    who = f"process {other.pid} on {other.host}" if other.pid else "another process"
+    return (
+        f"{out}: {who} is building a calibration dataset of other samples into it "
+        f"({', '.join(changed) or 'other settings'}); left to it: write into another --out, or run again once it "
+        "has ended (its samples are then replaced)"
+    )
 
 
 def check_min_leds(cfg: SamplingConfig, n_leds: int, where: str | Path) -> None:
@@ -307,16 +464,33 @@ def check_min_leds(cfg: SamplingConfig, n_leds: int, where: str | Path) -> None:
         raise ConfigError(f"min_leds must be at most the {n_leds} LEDs of {where}, got {cfg.min_leds}")
 
 
-def _result_stamp(folder: Path, cfg: SamplingConfig) -> str:
-    """Changes when the reconstruction or the sampling options change (resume key)."""
+def shard_stamp(result: Path, cfg: SamplingConfig, reference_digest: str) -> str:
+    """What made a shard (its resume key, ``stamp``): a digest of the reconstruction's content, the sampling options,
+    the undeformed reference's arrays (:func:`arrays_digest`) and the change-detection rule's version.
+
+    Why content, not the file's size and time: a result replaced by another of the same size with its time kept
+    (``cp -p``, ``rsync -t``, within the clock's tick) kept the old samples; and the reference decides which pixels
+    count as contact and the rest's labels.
+    """
     from ..core.reconstruction import RESULT_FILE
 
-    path = folder / RESULT_FILE
+    path = result / RESULT_FILE
     if not path.is_file():
         raise CaptureError(f"{path}: press not solved (no NLiPs reconstruction)")
-    st = path.stat()
-    key = f"{st.st_size}:{st.st_mtime_ns}:{dataclasses.asdict(cfg)}:change-rule-{RULE_VERSION}"
-    return hashlib.sha1(key.encode()).hexdigest()[:16]
+    with path.open("rb") as f:
+        content = hashlib.file_digest(f, "sha256").hexdigest()
+    key = f"{content}:{json.dumps(dataclasses.asdict(cfg), sort_keys=True)}:{reference_digest}:rule-{RULE_VERSION}"
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+def arrays_digest(arrays: dict) -> str:
+    """SHA-256 (hex) of named arrays: names, dtypes, shapes and bytes, in name order."""
+    digest = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        digest.update(f"{name}:{a.dtype.str}:{a.shape}".encode())
+        digest.update(a.tobytes())
+    return digest.hexdigest()
 
 
 def _old_entries(out: Path) -> dict:
@@ -333,8 +507,9 @@ def _entry_bytes(entry: dict) -> np.ndarray:
 def _kept_entry(shard: Path, stamp: str, indexed: dict | None) -> dict | None:
     """The index entry of ``shard`` when it is whole and was made with ``stamp``; None when it must be made.
 
-    The entry comes from the previous index.json, or, after a build that was interrupted before writing
-    it, from the shard itself (``entry``). A damaged shard (a disk fault, a hand edit) is made again
+    The entry is the one the shard carries (``entry``): what made it, whichever build wrote it (another build of
+    other options may have replaced the shard after index.json was written, keeping its sample count); the previous
+    index.json's record only for a shard without one. A damaged shard (a disk fault, a hand edit) is made again
     with a warning, as ``nlips solve`` re-computes a damaged result.
     """
     if not shard.is_file():
@@ -344,16 +519,21 @@ def _kept_entry(shard: Path, stamp: str, indexed: dict | None) -> dict | None:
     except CaptureError as exc:
         log.warning("%s; making it again", exc)
         return None
-    entries = [indexed] if isinstance(indexed, dict) else []
-    if ENTRY_KEY in arrays:
-        try:
-            entries.append(json.loads(arrays[ENTRY_KEY].tobytes().decode()))
-        except (UnicodeDecodeError, ValueError):
-            pass
-    for entry in entries:
-        if isinstance(entry, dict) and entry.get("stamp") == stamp and entry.get("samples") == len(arrays["rgb"]):
-            return entry
+    entry = _shard_entry(arrays) or indexed
+    if isinstance(entry, dict) and entry.get("stamp") == stamp and entry.get("samples") == len(arrays["rgb"]):
+        return entry
     return None
+
+
+def _shard_entry(arrays: dict) -> dict | None:
+    """The index entry a shard carries (``entry``), or None (a shard of an older build, or of an experiment)."""
+    if ENTRY_KEY not in arrays:
+        return None
+    try:
+        entry = json.loads(arrays[ENTRY_KEY].tobytes().decode())
+    except (UnicodeDecodeError, ValueError):
+        return None
+    return entry if isinstance(entry, dict) else None
 
 
 SHARD_KINDS = {"pixel": "iu", "rgb": "f", "normal": "f", "true_normal": "f", "contact": "b", "source": "iu"}
@@ -404,8 +584,6 @@ def _wait_for_solver(result: Path) -> None:
     run to publish it (or to die: its claim then goes stale and the wait ends; a press still unsolved is
     then reported by :func:`_result_stamp`).
     """
-    from ..core.claims import wait_for_release
-
     say = lambda: log.info("%s: being solved by another process; waiting for its result", result.parent)  # noqa: E731
     wait_for_release(result, on_wait=say)  # the solver's own staleness and poll: one value for both (core.claims)
 
@@ -499,9 +677,16 @@ class CalibrationDataset:
         path = self.folder / SHARD_DIR / f"{name}.npz"
         arrays = _checked_shard(path)
         _check_pixels(arrays["pixel"], self.sensor["camera"], path)
-        n = len(arrays["rgb"])
-        if n != self.entry(name)["samples"]:
-            raise CaptureError(f"{path}: {n} samples, index.json says {self.entry(name)['samples']}")
+        n, entry = len(arrays["rgb"]), self.entry(name)
+        if n != entry["samples"]:
+            raise CaptureError(f"{path}: {n} samples, index.json says {entry['samples']}")
+        made = (_shard_entry(arrays) or {}).get("stamp")
+        if made is not None and entry.get("stamp") is not None and made != entry["stamp"]:
+            # a build of other options (or results) replaced it after index.json was written: never mixed in
+            raise CaptureError(
+                f"{path}: made from other results or sampling options than index.json records (another build "
+                "replaced it); run `nlips calibrate` on its presses again"
+            )
         return {k: arrays[k] for k in SHARD_KEYS}
 
     def arrays(self, names: Iterable[str] | None = None) -> dict:

@@ -17,7 +17,7 @@ from nlipscalib.core.claims import HOST, claim
 from nlipscalib.core.errors import CaptureError
 from nlipscalib.learn import dataset as dataset_module
 from nlipscalib.learn.checkpoint import checkpoint_path
-from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
+from nlipscalib.learn.dataset import CalibrationDataset, SamplingConfig, build_dataset
 from nlipscalib.learn.model import load_model
 from nlipscalib.learn.train import TrainConfig, train
 from nlipscalib.pipeline import solve_folder
@@ -541,3 +541,154 @@ def test_a_resumed_build_says_which_presses_samples_it_kept(solved, built, caplo
     assert "samples of 2 of 3 presses kept (made from the same results and options): a_sphere, c_sphere_deep" in (
         caplog.text
     )
+
+
+# ---------------------------------------------------------------------- builds sharing a dataset folder
+SAMPLES_WAIT = """
+import pathlib, sys, time
+from nlipscalib.learn import dataset
+flags, gated, make = pathlib.Path(sys.argv.pop(1)), sys.argv.pop(1) == "gated", dataset.press_samples
+def counted(press, *args):  # each press's samples made: a line in FLAGS/made; gated: held until FLAGS/go
+    if gated:
+        (flags / "sampling").touch()
+        while not (flags / "go").exists():
+            time.sleep(0.02)
+    with open(flags / "made", "a") as f:
+        f.write(press.folder.name + "\\n")
+    return make(press, *args)
+dataset.press_samples = counted
+from nlipscalib.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+"""`nlips calibrate` counting the presses whose samples it makes (FLAGS/made); ``gated``: each waits for FLAGS/go."""
+
+
+@pytest.fixture(scope="module")
+def cli_solved(tmp_path_factory):
+    """The undeformed dome and three exact-data presses solved by `nlips calibrate` (its dataset removed), so that
+    later runs reuse every result and only build samples."""
+    root = tmp_path_factory.mktemp("cli_presses") / "presses"
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    for name, kind in zip(NAMES, ("sphere", "cube", "sphere")):
+        synth.make_press(root / name, kind, size=(64, 48))
+    assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0
+    shutil.rmtree(root / "calibration")
+    return root
+
+
+def test_the_same_calibration_twice_makes_each_shard_once_and_one_of_other_samples_is_refused(cli_solved, tmp_path):
+    """Run A holds in its first press's samples. Before, the sample build took no claim: B, the same command, made
+    every press's samples a second time, and C, another --smoothing into the same --out, replaced shards under A's
+    index.json. Now B makes the presses A is not at, waits for the one A is making (one line) and reuses it; C is
+    refused at once in one line naming what differs, exit 2."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tests.processes import until_each_waits_or_exits
+
+    root = tmp_path / "presses"
+    shutil.copytree(cli_solved, root)
+    out, flags = root / "calibration", tmp_path / "flags"
+    flags.mkdir()
+    env = os.environ | {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    args = ["calibrate", str(root), "--workers", "1", "--no-progress"]
+
+    def start(gated: str, log_file) -> subprocess.Popen:
+        code = [sys.executable, "-c", SAMPLES_WAIT, str(flags), gated, *args]
+        return subprocess.Popen(code, env=env, stdout=subprocess.PIPE, stderr=log_file, text=True)
+
+    a_log, b_log = tmp_path / "a.log", tmp_path / "b.log"
+    run_a = run_b = None
+    try:
+        with a_log.open("w") as log_file:
+            run_a = start("gated", log_file)
+        deadline = time.monotonic() + 120
+        while not (flags / "sampling").exists():
+            assert run_a.poll() is None, a_log.read_text()
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        cli = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
+        run_c = subprocess.run(
+            [sys.executable, "-c", cli, *args, "--smoothing", "0"], env=env, capture_output=True, text=True, timeout=120
+        )
+        assert run_c.returncode == 2, run_c.stderr
+        (line,) = run_c.stderr.strip().splitlines()
+        assert f"{out}: process {run_a.pid} on " in line and "of other samples into it" in line, line
+        assert "--smoothing 1.0 (this run: 0.0)" in line and "another --out" in line, line
+        with b_log.open("w") as log_file:
+            run_b = start("free", log_file)
+        until_each_waits_or_exits([run_b], [b_log], "waiting for its shard", timeout=120)
+        assert run_b.poll() is None, b_log.read_text()
+        (flags / "go").touch()
+        assert run_a.wait(timeout=120) == 0, a_log.read_text()
+        assert run_b.wait(timeout=120) == 0, b_log.read_text()
+    finally:
+        for proc in (run_a, run_b):
+            if proc is not None:
+                proc.kill()
+                proc.wait()
+    made = (flags / "made").read_text().split()
+    assert sorted(made) == sorted(NAMES), made  # each press's samples made once, by one run or the other
+    waited = [line for line in b_log.read_text().splitlines() if "being sampled by another process" in line]
+    assert len(waited) == 1 and f"{NAMES[0]}.npz" in waited[0], b_log.read_text()
+    data = CalibrationDataset(out)
+    assert data.names == list(NAMES) and len(data.arrays()["rgb"]) == sum(e["samples"] for e in data.entries)
+    assert not [p for p in out.rglob(".*") if p.name.startswith((".claim-", TMP_PREFIX))]
+
+
+def test_a_killed_builds_claims_are_taken_over_and_its_finished_shards_reused(solved, built, monkeypatch, caplog):
+    """`nlips calibrate` killed (-9) mid-build, of other samples: its hold on the folder and its claim on the shard
+    it was making are a dead process's; the next build neither waits for them nor is refused by them."""
+    from nlipscalib.learn.dataset import HOLD_NAME
+
+    (built / "index.json").unlink()
+    dead = {"host": HOST, "pid": _dead_pid(), "token": "k9"}
+    hold = built / f".claim-{HOLD_NAME}~0123456789abcdef~k9"
+    hold.write_text(json.dumps(dead | {"note": {"key": "0123456789abcdef", "options": {"smoothing_px": 0.0}}}))
+    shard_claim = built / "samples" / ".claim-b_cube.npz"
+    shard_claim.write_text(json.dumps(dead))
+
+    def never(*args):
+        raise AssertionError("a finished shard was made again")
+
+    monkeypatch.setattr(dataset_module, "press_samples", never)
+    caplog.set_level(logging.INFO)
+    _build(solved, built)
+    assert "samples of 3 of 3 presses kept" in caplog.text and "waiting" not in caplog.text
+    assert CalibrationDataset(built).names == list(NAMES)
+    assert not hold.exists() and not shard_claim.exists()
+
+
+def test_a_shard_another_build_replaced_is_never_mixed_in_and_is_made_again(solved, built, tmp_path, monkeypatch):
+    """A build of other sampling options (--smoothing 0) into the folder, killed after one shard, left that shard
+    beside the earlier build's index.json: the same sample count, other colours. Training read it as the index's, and
+    the next build kept it (the index's record matched, and only the count was compared). Now a shard records what
+    made it: reading it is refused, and the next build makes it again."""
+    raw, presses = tmp_path / "raw", [solved / n for n in NAMES]
+    build_dataset(presses, solved / "reference", raw, SamplingConfig(smoothing_px=0.0), progress=False)
+    name = NAMES[-1]
+    shutil.copy(raw / "samples" / f"{name}.npz", built / "samples" / f"{name}.npz")  # what the killed build left
+    assert len(CalibrationDataset(raw).load(name)["rgb"]) == CalibrationDataset(built).entry(name)["samples"]
+    with pytest.raises(CaptureError, match=rf"{name}\.npz: made from other results or sampling options"):
+        CalibrationDataset(built).load(name)
+    made, real = [], dataset_module.press_samples
+    monkeypatch.setattr(dataset_module, "press_samples", lambda p, *a: made.append(p.folder.name) or real(p, *a))
+    _build(solved, built)
+    assert made == [name]
+    CalibrationDataset(built).arrays()
+
+
+def test_samples_are_made_again_against_another_undeformed_reference(solved, built, tmp_path, monkeypatch):
+    """The reference frame decides which pixels are contact and the rest's labels, but a shard's stamp held only the
+    result's size and time and the options: a build against another reference kept every shard."""
+    other = tmp_path / "reference"
+    synth.make_press(other, "none", size=(64, 48), lin_hook=lambda lin: lin * 1.02)  # another lamp current, say
+    made, real = [], dataset_module.press_samples
+    monkeypatch.setattr(dataset_module, "press_samples", lambda p, *a: made.append(p.folder.name) or real(p, *a))
+    build_dataset([solved / n for n in NAMES], other, built, progress=False)
+    assert made == list(NAMES)
+    made.clear()
+    build_dataset([solved / n for n in NAMES], other, built, progress=False)  # the same again: kept
+    assert made == []
