@@ -188,9 +188,8 @@ def _solve_press(
     if isinstance(roi, str) and roi != "auto":
         raise ShapeError(f"roi must be (x0, y0, w, h) or 'auto', got {roi!r}")
 
-    light = _light_and_contact(
-        press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, options.dead_led_level
-    )
+    sources = _Sources(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces)
+    light = _light_and_contact(sources, options.dead_led_level)
     model, cmap = light.model, light.cmap
     if model is not None and model.enabled and coating_albedo is not None:
         model = model.with_reflectance(coating_albedo)
@@ -252,19 +251,31 @@ class _Light:
     """The contact classifications."""
 
 
-def _light_and_contact(
-    press: Press,
-    leds: Leds,
-    ref_capture: Press | None,
-    fixed_light: np.ndarray | None,
-    explicit_roi: tuple[int, int, int, int] | None,
-    interreflection: str,
-    bounces: int,
-    dead_level: float,
-) -> _Light:
+@dataclasses.dataclass(frozen=True, eq=False)
+class _Sources:
+    """What the indirect term's fit and the contact classification read of a solve's arguments (the same for
+    both: :func:`_light_and_contact`, :func:`_indirect_fitter`)."""
+
+    press: Press
+    leds: Leds
+    """The LEDs the solve uses (``solve_press``'s ``leds`` or the press's)."""
+    ref_capture: Press | None
+    """The undeformed dome's capture to fit the term on, or None (the press itself, away from its contact)."""
+    fixed_light: np.ndarray | None
+    """(L, H, W, 3) float32 -- a light to subtract as is (no term fitted), or None."""
+    explicit_roi: tuple[int, int, int, int] | None
+    """(x0, y0, w, h) pixels of an explicit ROI (the press's own fit leaves it out), or None."""
+    interreflection: str
+    """The term's mode: "auto", "on" or "off"."""
+    bounces: int
+    """Diffuse bounces in the term (1 or 2)."""
+
+
+def _light_and_contact(sources: _Sources, dead_level: float) -> _Light:
     """Fit the indirect term, then classify the contact against the undeformed model with it (when the press
     stands in for the undeformed capture: a rough fit finds the contact, the term is fitted again without it
     and the classification redone). ``dead_level``: ``SolverOptions.dead_led_level``, the classification's too."""
+    press, leds, ref_capture, fixed_light = sources.press, sources.leds, sources.ref_capture, sources.fixed_light
     prior = press.reference.depth if press.reference is not None else None
     t0 = time.perf_counter()
     # the reference surface's direct shading, computed once: the fit, the contact and the outer loop share it
@@ -273,7 +284,7 @@ def _light_and_contact(
     shading = None
     if prior is not None:
         shading = reference_shading(press.camera, leds, prior, press.reference.normals, defer=True)
-    fit = _indirect_fitter(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces, shading)
+    fit = _indirect_fitter(sources, shading)
     model = fit.first() if fit is not None else None
     t_indirect = time.perf_counter() - t0
 
@@ -399,18 +410,11 @@ class _IndirectFitter:
     """The press's side of the contact classification, shared by the classifications of one solve."""
 
 
-def _indirect_fitter(
-    press: Press,
-    leds: Leds,
-    ref_capture: Press | None,
-    fixed_light: np.ndarray | None,
-    explicit_roi: tuple[int, int, int, int] | None,
-    interreflection: str,
-    bounces: int,
-    shading: reuse.Deferred | None,
-):
+def _indirect_fitter(sources: _Sources, shading: reuse.Deferred | None) -> _IndirectFitter | None:
     """The :class:`_IndirectFitter` of a solve; None when no term is fitted (a fixed light, no reference)."""
-    if fixed_light is not None or press.reference is None:
+    press, leds, ref_capture, explicit_roi = sources.press, sources.leds, sources.ref_capture, sources.explicit_roi
+    interreflection, bounces = sources.interreflection, sources.bounces
+    if sources.fixed_light is not None or press.reference is None:
         return None
     H, W = press.camera.shape
     source = ref_capture if ref_capture is not None else press
