@@ -4,6 +4,8 @@
 import json
 import logging
 import shutil
+import subprocess
+import sys
 import threading
 import time
 
@@ -308,8 +310,6 @@ def test_the_same_training_started_twice_waits_and_reuses_the_model_and_another_
     model in one line, training and writing nothing; C, another training into A's --out, is refused at once in one
     line naming what differs (before: it ran start to end and A, finishing last, replaced its model)."""
     import os
-    import subprocess
-    import sys
     from pathlib import Path
 
     import torch
@@ -338,11 +338,7 @@ def test_the_same_training_started_twice_waits_and_reuses_the_model_and_another_
             assert run_a.poll() is None, run_a.communicate()
             assert time.monotonic() < deadline
             time.sleep(0.05)
-        run_c = subprocess.run(
-            [sys.executable, "-c", cli, *args, "--hidden", "4"], env=env, capture_output=True, text=True, timeout=120
-        )
-        assert run_c.returncode == 2, run_c.stderr
-        (line,) = run_c.stderr.strip().splitlines()
+        line = _refused_in_one_line(cli, [*args, "--hidden", "4"], env)
         assert f"{out}: process {run_a.pid} on " in line and "is training another model into it" in line, line
         assert "hidden [8] (this run: [4])" in line and "another --out" in line, line
         with b_log.open("w") as log_file:
@@ -582,8 +578,6 @@ def test_the_same_calibration_twice_makes_each_shard_once_and_one_of_other_sampl
     index.json. Now B makes the presses A is not at, waits for the one A is making (one line) and reuses it; C is
     refused at once in one line naming what differs, exit 2."""
     import os
-    import subprocess
-    import sys
     from pathlib import Path
 
     from tests.processes import until_each_waits_or_exits
@@ -610,11 +604,7 @@ def test_the_same_calibration_twice_makes_each_shard_once_and_one_of_other_sampl
             assert time.monotonic() < deadline
             time.sleep(0.05)
         cli = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
-        run_c = subprocess.run(
-            [sys.executable, "-c", cli, *args, "--smoothing", "0"], env=env, capture_output=True, text=True, timeout=120
-        )
-        assert run_c.returncode == 2, run_c.stderr
-        (line,) = run_c.stderr.strip().splitlines()
+        line = _refused_in_one_line(cli, [*args, "--smoothing", "0"], env)
         assert f"{out}: process {run_a.pid} on " in line and "of other samples into it" in line, line
         assert "--smoothing 1.0 (this run: 0.0)" in line and "another --out" in line, line
         with b_log.open("w") as log_file:
@@ -692,3 +682,11 @@ def test_samples_are_made_again_against_another_undeformed_reference(solved, bui
     made.clear()
     build_dataset([solved / n for n in NAMES], other, built, progress=False)  # the same again: kept
     assert made == []
+
+
+def _refused_in_one_line(cli: str, args: list[str], env: dict) -> str:
+    """Run ``python -c cli ARGS``, which must be refused: exit 2 and one line on stderr, returned."""
+    run = subprocess.run([sys.executable, "-c", cli, *args], env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    (line,) = run.stderr.strip().splitlines()
+    return line

@@ -106,6 +106,25 @@ WITHIN_S = 5.0
 """Seconds from the signal to the process's end allowed: ~0.1 s here (2 busy cores); it was the whole render."""
 
 
+def _signalled_while_rendering(proc: subprocess.Popen, traced, renders: int, send) -> tuple[str, str, float]:
+    """Wait until ``renders`` renders of ``proc`` began (files in ``traced``) and ran a second, ``send()`` the
+    signal; returns stdout, stderr and the seconds the process took to end after it (fails past WITHIN_S)."""
+    deadline = time.monotonic() + 300
+    while len(list(traced.iterdir())) < renders and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    began = len(list(traced.iterdir()))
+    assert began == renders, proc.communicate()[1] if proc.poll() is not None else f"{began} of {renders} renders"
+    time.sleep(1.0)
+    assert proc.poll() is None
+    send()
+    sent = time.monotonic()
+    try:
+        stdout, stderr = proc.communicate(timeout=WITHIN_S)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"still running {WITHIN_S} s after the signal")
+    return stdout, stderr, time.monotonic() - sent
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum):
     """Ctrl-C or SIGTERM during a render (640x480, 16 spp, one bounce: tens of seconds) ended the command only when
@@ -121,19 +140,8 @@ def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
     proc = as_from_a_terminal([sys.executable, "-c", ENDLESS_RENDER, *args, "--out", str(out)], env=env)
     try:
-        deadline = time.monotonic() + 300
-        while not any(traced.iterdir()) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert any(traced.iterdir()), proc.communicate()[1] if proc.poll() is not None else "never rendered"
-        time.sleep(1.0)  # the kernel compiled and running: the main thread used to be inside it
-        assert proc.poll() is None
-        proc.send_signal(signum)
-        sent = time.monotonic()
-        try:
-            stdout, stderr = proc.communicate(timeout=WITHIN_S)
-        except subprocess.TimeoutExpired:
-            pytest.fail(f"still running {WITHIN_S} s after the signal")
-        took = time.monotonic() - sent
+        # once the kernel compiled and runs: the main thread used to be inside it
+        stdout, stderr, took = _signalled_while_rendering(proc, traced, 1, lambda: proc.send_signal(signum))
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -167,20 +175,8 @@ def test_ctrl_c_during_a_datasets_worker_renders_ends_the_run_at_once_and_a_reru
 
     env, traced = endless_renders(dict(os.environ, PYTHONPATH=path), tmp_path)
     proc = as_from_a_terminal([*command, "--workers", "2"], env=env, start_new_session=True)
-    try:
-        deadline = time.monotonic() + 300
-        while len(list(traced.iterdir())) < 2 and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert len(list(traced.iterdir())) == 2, proc.communicate()[1] if proc.poll() is not None else "no 2 renders"
-        time.sleep(1.0)  # both kernels compiled and running
-        assert proc.poll() is None
-        os.killpg(proc.pid, signal.SIGINT)
-        sent = time.monotonic()
-        try:
-            stdout, stderr = proc.communicate(timeout=WITHIN_S)
-        except subprocess.TimeoutExpired:
-            pytest.fail(f"still running {WITHIN_S} s after Ctrl-C")
-        took = time.monotonic() - sent
+    try:  # Ctrl-C once both kernels compiled and run
+        stdout, stderr, took = _signalled_while_rendering(proc, traced, 2, lambda: os.killpg(proc.pid, signal.SIGINT))
         assert _wait_until_gone(proc.pid, 10) == []  # no render process left
     finally:
         with contextlib.suppress(ProcessLookupError):
