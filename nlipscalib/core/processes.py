@@ -27,6 +27,15 @@ thread is inside a long native call of its own (importing Mitsuba, ~1 s on a loa
 that is killed, and what it leaves (a dead process's claim and temporary) the next run takes over and removes."""
 
 
+LOCAL_WORKER_GRACE_S = 1.0
+"""Seconds a stopped command gives a Dask local cluster's worker processes, sent SIGTERM, to run their handler and
+exit before it kills them (``experiments.runner._end_local_workers``).
+
+Why this short: the handler runs within ~0.2 s, its main thread being the worker's event loop (the task's render on
+another thread). Under load a worker was seen not to run it for seconds (its claim left, the run ending only when
+its nanny killed it ~4.2 s after Ctrl-C); what a killed worker leaves the command removes on its way out."""
+
+
 PARENT_POLL_S = 1.0
 """Seconds between a worker's checks that the command that started it still runs (:func:`end_with_parent`).
 
@@ -65,6 +74,24 @@ def end_processes(workers: Iterable[Worker], grace_s: float = WORKER_GRACE_S) ->
             if worker.is_alive():
                 worker.kill()
                 worker.join(1.0)
+
+
+def kill_unless_ended(pids: Iterable[int], grace_s: float) -> None:
+    """SIGKILL each process of ``pids`` (already sent SIGTERM) still alive ``grace_s`` seconds from now.
+
+    For processes this one did not start itself (no :class:`Worker` handle: a Dask nanny's); a zombie counts as
+    ended. Errors (a process gone meanwhile) are ignored: this runs on the way out.
+    """
+    from .claims import pid_alive
+
+    pids = list(pids)
+    deadline = time.monotonic() + grace_s
+    while any(pid_alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    for pid in pids:
+        if pid_alive(pid):
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
 
 
 def worker_signals() -> None:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
-from ..core.processes import end_processes, sigint_held
+from ..core.processes import LOCAL_WORKER_GRACE_S, end_processes, kill_unless_ended, sigint_held
 from .tasks import REUSED, Task, clean_leftovers, execute, load_result
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
@@ -407,15 +407,20 @@ def _end_local_workers(cluster: object) -> None:
 
     Why: closing the cluster asked each worker to close, which waited for the task it ran (a render, on a thread
     that cannot be stopped) until its nanny's grace ran out and it killed the worker: ~4 s after Ctrl-C at 320x240.
+    A worker that has not ended :data:`LOCAL_WORKER_GRACE_S` after its SIGTERM is killed (under load one was seen not
+    to run its handler for seconds): its claim, left, the command removes on its way out.
     """
     import os
 
+    signalled = []
     for nanny in list(getattr(cluster, "workers", {}).values()):
         with contextlib.suppress(Exception):  # on the way out: best effort (a worker that already ended)
             nanny.close_gracefully(reason="nlips-interrupted")  # its status only: no replacement for the worker
             pid = nanny.process.pid if nanny.process is not None else None
             if pid is not None:
                 os.kill(pid, signal.SIGTERM)
+                signalled.append(pid)
+    kill_unless_ended(signalled, LOCAL_WORKER_GRACE_S)
 
 
 def _main_thread_imports() -> WorkerPlugin:
