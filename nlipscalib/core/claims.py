@@ -61,6 +61,11 @@ class Owner:
     """What the owner wrote into its claim for others to read (e.g. a solve's settings), or None. Not part of who
     owns it: a claim is compared by host, pid and token alone."""
 
+    @property
+    def who(self) -> str:
+        """The owner in words, for a message: "process PID on HOST" (or "another process" while unknown)."""
+        return f"process {self.pid} on {self.host}" if self.pid else "another process"
+
 
 UNKNOWN_OWNER = Owner("unknown", 0, "")
 """Owner of a fresh claim file whose content is not written yet."""
@@ -151,6 +156,30 @@ def claim_shared(
         if other is None:  # on leaving: a killed holder's claim goes, its heartbeat stopped (once nobody needs it)
             stack.callback(_sweep_shared, target, stale_s)
         yield other
+
+
+@contextlib.contextmanager
+def held_for(
+    target: str | Path, key: str, refusal: Callable[[Owner], str], *, note: dict | None = None
+) -> Iterator[None]:
+    """Hold ``target`` for ``key`` while the block runs (:func:`claim_shared`), or refuse before anything is done.
+
+    A live holder of another key: ConfigError with ``refusal(holder)`` (the message naming what differs). A folder
+    that cannot hold a claim file (read-only media, disk full) is not held: nothing can be written there either,
+    and the writes that follow say why in their own words. Used by the runs that share an output for one set of
+    settings (``nlips solve``'s results, ``nlips dataset``'s folder, ``nlips calibrate``'s samples).
+    """
+    from .errors import ConfigError
+
+    with contextlib.ExitStack() as stack:
+        try:
+            other = stack.enter_context(claim_shared(target, key, note=note))
+        except OSError as exc:
+            log.debug("%s: not held for %s (%s)", target, key, exc.strerror or exc)
+            other = None
+        if other is not None:
+            raise ConfigError(refusal(other))
+        yield
 
 
 def holder(target: str | Path, *, stale_s: float = CLAIM_STALE_S) -> Owner | None:

@@ -425,17 +425,11 @@ def hold_dataset(out: str | Path, run: dict, option_of: dict[str, str] | None = 
     training. A killed build's claim goes stale (core.claims) and stops counting. A folder that cannot hold a claim
     file (read-only media, disk full) is not claimed: nothing can be written there either, and the writes say why.
     """
-    from ..core.claims import claim_shared
+    from ..core.claims import held_for
 
     out = Path(out)
-    with contextlib.ExitStack() as stack:
-        try:
-            other = stack.enter_context(claim_shared(out / HOLD_NAME, run["key"], note=run))
-        except OSError as exc:
-            log.debug("%s: not claimed for this build (%s)", out, exc.strerror or exc)
-            other = None
-        if other is not None:
-            raise ConfigError(_built_elsewhere(out, other, run, option_of or {}))
+    refusal = lambda other: _built_elsewhere(out, other, run, option_of or {})  # noqa: E731
+    with held_for(out / HOLD_NAME, run["key"], refusal, note=run):
         yield
 
 
@@ -450,9 +444,8 @@ def _built_elsewhere(out: Path, other: Owner, run: dict, option_of: dict[str, st
     if ours.get("digest") != was.get("digest"):
         before, now = (f"{p.get('count')} from {p.get('first')}" for p in (was, ours))
         changed.append(f"presses {before} (this run: {now})")
-    who = f"process {other.pid} on {other.host}" if other.pid else "another process"
     return (
-        f"{out}: {who} is building a calibration dataset of other samples into it "
+        f"{out}: {other.who} is building a calibration dataset of other samples into it "
         f"({', '.join(changed) or 'other settings'}); left to it: write into another --out, or run again once it "
         "has ended (its samples are then replaced)"
     )

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.atomic import TMP_PREFIX
-from ..core.errors import CaptureError, ConfigError
+from ..core.errors import CaptureError
 from ..core.reconstruction import REPORT_FILE, load_reconstruction, read_report, reconstruction_problem
 from .status import SKIPPED
 
@@ -61,24 +61,18 @@ def _hold(folder: Path, out: Path, record: dict) -> Iterator[None]:
     folder that cannot hold a claim file (read-only media) is not held: a result there can still be reused, and a
     solve says why it cannot write.
     """
-    from ..core.claims import claim_shared
+    from ..core.claims import held_for
 
-    with contextlib.ExitStack() as stack:
-        try:
-            other = stack.enter_context(claim_shared(out.with_name(out.name + RUN_HOLD), record["key"], note=record))
-        except OSError as exc:
-            log.debug("%s: not held for this run's settings (%s)", out, exc.strerror or exc)
-            other = None
-        if other is not None:
-            raise ConfigError(_held_elsewhere(folder, out, other, record))
+    refusal = lambda other: _held_elsewhere(folder, out, other, record)  # noqa: E731
+    with held_for(out.with_name(out.name + RUN_HOLD), record["key"], refusal, note=record):
         yield
 
 
 def _held_elsewhere(folder: Path, out: Path, other: Owner, record: dict) -> str:
-    who = f"process {other.pid} on {other.host}" if other.pid else "another process"
     theirs = other.note if isinstance(other.note, dict) else {}
     return (
-        f"{out}: another run is solving {folder} into it with other settings ({_in_words(theirs, record)}; {who}); "
+        f"{out}: another run is solving {folder} into it with other settings ({_in_words(theirs, record)}; "
+        f"{other.who}); "
         "left to it: run again once it has ended, or solve into another --out"
     )
 

@@ -11,7 +11,6 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ..core.atomic import write_if_changed
-from ..core.errors import ConfigError
 from .dataset_spec import DatasetSpec, PressJob
 from .scene import SceneConfig
 
@@ -77,18 +76,13 @@ def claim_folder(out: Path, digest: str) -> Iterator[None]:
     re-renders what a finished run left). A folder that cannot hold a claim file (read-only media, disk full) is
     not claimed: nothing can be published there either, and the checks that follow say why in their own words.
     """
-    from ..core.claims import claim_shared
+    from ..core.claims import Owner, held_for
 
-    with contextlib.ExitStack() as stack:
-        try:
-            other = stack.enter_context(claim_shared(out / FOLDER_CLAIM, digest))
-        except OSError as exc:
-            log.debug("%s: not claimed for this spec (%s)", out, exc.strerror or exc)
-            other = None
-        if other is not None:
-            who = f"process {other.pid} on {other.host}" if other.pid else "another process"
-            raise ConfigError(
-                f"{out}: a run of a different spec is rendering into it ({who}); wait until it ends, "
-                "or render into a new folder"
-            )
+    def refusal(other: Owner) -> str:
+        return (
+            f"{out}: a run of a different spec is rendering into it ({other.who}); wait until it ends, "
+            "or render into a new folder"
+        )
+
+    with held_for(out / FOLDER_CLAIM, digest, refusal):
         yield

@@ -342,3 +342,21 @@ def test_dead_owners_claims_anywhere_under_a_folder_are_removed_and_live_ones_ke
         assert claim_path(tmp_path / "tasks" / "t2.json").exists()  # live: kept
         assert list((tmp_path / "presses").glob(".claim-p2~k~*"))
     assert not task.exists() and not hold.exists() and other.exists()
+
+
+def test_held_for_shares_one_key_and_refuses_another_with_the_callers_words(tmp_path):
+    """held_for, the one copy of what `nlips solve`, `nlips dataset` and `nlips calibrate` each wrote around
+    claim_shared: the same key holds together, another key is a ConfigError of the caller's message naming the
+    holder, and a folder where no claim file can be made is not held (its writes say why)."""
+    from nlipscalib.core.claims import held_for
+    from nlipscalib.core.errors import ConfigError
+
+    target = tmp_path / "out"
+    with held_for(target, "aaaa", lambda o: "unused"), held_for(target, "aaaa", lambda o: "unused"):
+        with pytest.raises(ConfigError, match=rf"^held by process {os.getpid()} on "):
+            with held_for(target, "bbbb", lambda other: f"held by {other.who}"):
+                pass
+    with held_for(target, "bbbb", lambda o: "unused"):  # the first key's holders left
+        pass
+    with held_for(tmp_path / "missing" / "out", "aaaa", lambda o: "unused"):  # no folder for the claim file
+        pass
