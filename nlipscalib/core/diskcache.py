@@ -234,22 +234,26 @@ def store(path: Path, value: object) -> None:
     """Write ``value`` to ``path`` atomically, then keep the folder within its size bound. A failed write
     (read-only or full disk, a value that cannot be pickled) only costs the next process the computation:
     it is logged, not raised."""
+    parts = _pieces_or_none(path, value)
+    if parts is not None:
+        _write(path, parts)
+
+
+def _pieces_or_none(path: Path, value: object) -> list | None:
+    """:func:`_serialised` of ``value``, or None (logged) when it cannot be pickled: a cache entry is never needed."""
     try:
-        parts = _serialised(value)
+        return _serialised(value)
     except (pickle.PicklingError, TypeError, AttributeError) as exc:
         log.debug("could not write cache entry %s: %s", path, exc)
-        return
-    _write(path, parts)
+        return None
 
 
 def store_later(path: Path, value: object) -> None:
     """:func:`store` on a thread of its own: ``value`` is pickled now (its arrays only referenced: neither they
     nor the objects holding them may change afterwards), its bytes written while the caller goes on. The
     process's exit waits for the write (a non-daemon thread); :func:`wait` waits for it sooner."""
-    try:
-        parts = _serialised(value)
-    except (pickle.PicklingError, TypeError, AttributeError) as exc:
-        log.debug("could not write cache entry %s: %s", path, exc)
+    parts = _pieces_or_none(path, value)
+    if parts is None:
         return
 
     def write() -> None:
