@@ -34,8 +34,11 @@ fi
 # drjit's LLVM backend aborts the whole process with Debian 12's default LLVM 15
 # ("Cannot select ... fminimum"); LLVM 19 works. Without it we fall back to the slow scalar_rgb.
 # ldconfig is in /sbin, which Debian leaves off a user's PATH: without it every run would install again.
+# The listing is read whole before grep: with pipefail, `ldconfig -p | grep -q` fails when grep stops at the first
+# match while ldconfig still writes (SIGPIPE), and LLVM then looked missing at random (seen in CI).
 LDCONFIG=$(command -v ldconfig || echo /sbin/ldconfig)
-if ! "$LDCONFIG" -p 2>/dev/null | grep -qE 'libLLVM(\.so\.|-)(1[6-9]|2[0-9])'; then
+LIBRARIES=$("$LDCONFIG" -p 2>/dev/null || true)
+if ! grep -qE 'libLLVM(\.so\.|-)(1[6-9]|2[0-9])' <<<"$LIBRARIES"; then
   if command -v apt-get >/dev/null; then
     echo "setup: installing libllvm19 for Mitsuba's LLVM backend"
     $SUDO apt-get update -qq && $SUDO apt-get install -y -qq libllvm19 >/dev/null \

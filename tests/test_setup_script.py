@@ -240,3 +240,17 @@ esac
     assert "apt-get install -y -qq python3" in log.read_text(), (res.stderr, log.read_text())
     assert "installing python3 (none on the PATH)" in res.stdout
     assert res.returncode == 0 and _installs(log) == 1, res.stderr
+
+
+def test_an_ldconfig_still_writing_when_grep_has_its_match_does_not_look_like_missing_llvm(checkout):
+    """With pipefail, `ldconfig -p | grep -q` failed whenever grep stopped at its match before ldconfig had written
+    the rest (SIGPIPE): LLVM looked missing at random and the run installed libllvm19 again (seen in CI)."""
+    repo, log, stubs = checkout
+    _exe(
+        stubs / "ldconfig",
+        '#!/bin/sh\necho "\tlibLLVM.so.19.1 (libc6,x86-64) => /lib/libLLVM.so.19.1"\nsleep 0.3\n'
+        'i=0; while [ $i -lt 2000 ]; do echo "\tlibother$i.so => /lib/libother$i.so"; i=$((i+1)); done\n',
+    )
+    res = _setup(repo, stubs)
+    assert res.returncode == 0, res.stderr
+    assert "libllvm19" not in (log.read_text() if log.exists() else "")
