@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -19,18 +20,21 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def _spawn(code: str) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(ROOT))
-    return subprocess.Popen([sys.executable, "-c", textwrap.dedent(code)], env=env, stdout=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-c", textwrap.dedent(code)], env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
 
 
-def _hold(target: Path, seconds: float, stale_s: float = 60.0) -> subprocess.Popen:
-    """A child process that claims ``target``, prints its verdict, then sleeps holding it."""
+def _hold(target: Path, stale_s: float = 60.0) -> subprocess.Popen:
+    """A child process that claims ``target``, prints its verdict, then holds it until its stdin closes (the test's
+    ``communicate()``): not for a fixed time, which a loaded machine's start of the next process could outlast."""
     return _spawn(
         f"""
-        import time
+        import sys
         from nlipscalib.core.claims import claim
         with claim({str(target)!r}, stale_s={stale_s}) as mine:
             print("held" if mine else "busy", flush=True)
-            time.sleep({seconds})
+            sys.stdin.read()
         """
     )
 
@@ -49,21 +53,21 @@ def test_claim_is_exclusive_and_released(tmp_path):
 
 def test_second_process_is_refused_while_first_holds(tmp_path):
     target = tmp_path / "item"
-    first = _hold(target, 3.0)
+    first = _hold(target)
     assert first.stdout.readline().strip() == "held"
-    second = _hold(target, 0.0)
+    second = _hold(target)
     assert second.stdout.readline().strip() == "busy"
-    second.wait(30)
+    second.communicate(timeout=30)
     with claim(target) as mine:
         assert not mine
-    first.wait(30)
+    first.communicate(timeout=30)
     with claim(target) as mine:  # released on exit
         assert mine
 
 
 def test_killed_owner_is_taken_over(tmp_path):
     target = tmp_path / "item"
-    owner = _hold(target, 60.0)
+    owner = _hold(target)
     assert owner.stdout.readline().strip() == "held"
     owner.kill()
     owner.wait(30)
@@ -80,7 +84,7 @@ def test_a_killed_owner_not_yet_reaped_is_taken_over(tmp_path):
     import signal
 
     target = tmp_path / "item"
-    owner = _hold(target, 60.0)
+    owner = _hold(target)
     assert owner.stdout.readline().strip() == "held"
     os.kill(owner.pid, signal.SIGKILL)
     deadline = time.monotonic() + 30
@@ -107,12 +111,12 @@ def test_claim_without_heartbeat_is_stale(tmp_path):
 
 def test_heartbeat_keeps_a_long_claim_alive(tmp_path):
     target = tmp_path / "item"
-    owner = _hold(target, 2.0, stale_s=0.5)
+    owner = _hold(target, stale_s=0.5)
     assert owner.stdout.readline().strip() == "held"
     time.sleep(1.2)  # several stale periods: only the heartbeat keeps the claim fresh
     with claim(target, stale_s=0.5) as mine:
         assert not mine
-    owner.wait(30)
+    owner.communicate(timeout=30)
 
 
 def test_many_claims_held_at_once_share_one_heartbeat_thread_and_all_stay_fresh(tmp_path):
@@ -131,8 +135,7 @@ def test_many_claims_held_at_once_share_one_heartbeat_thread_and_all_stay_fresh(
         time.sleep(0.9)  # two stale periods: only the beats keep them fresh
         assert all(os.stat(claim_path(t)).st_mtime > start for t in targets)
     assert not any(claim_path(t).exists() for t in targets)
-    time.sleep(0.3)
-    assert threading.active_count() <= before  # the thread ends with the last claim
+    assert _within(30, lambda: threading.active_count() <= before)  # the thread ends with the last claim
 
 
 def test_a_claim_taken_over_is_no_longer_refreshed(tmp_path, caplog):
@@ -145,9 +148,8 @@ def test_a_claim_taken_over_is_no_longer_refreshed(tmp_path, caplog):
         path.write_text(json.dumps({"host": "elsewhere", "pid": 1, "token": "theirs"}))
         old = time.time() - 60
         os.utime(path, (old, old))
-        time.sleep(0.5)  # a beat comes due: it finds another owner
+        assert _within(30, lambda: "taken over" in caplog.text)  # a beat came due (0.1 s): it found another owner
         assert os.stat(path).st_mtime < time.time() - 30  # not refreshed
-    assert "taken over" in caplog.text
     assert path.exists()  # not ours: left as it is
 
 
@@ -262,20 +264,36 @@ def test_wait_for_release_returns_when_the_holder_lets_go_and_says_so_once(tmp_p
     target, said = tmp_path / "nlips", []
     claims.wait_for_release(target, on_wait=lambda: said.append("free"))
     assert said == []
-    holding = threading.Event()
+    holding, waiting = threading.Event(), threading.Event()
 
     def other():  # a thread standing for another process (claims are per process)
         with claim(target):
             holding.set()
+            waiting.wait(30)  # released only once the wait has begun: a late main thread cannot miss the claim
             time.sleep(0.3)
+
+    def on_wait():
+        said.append("held")
+        waiting.set()
 
     thread = threading.Thread(target=other)
     thread.start()
     holding.wait()
     t0 = time.monotonic()
-    claims.wait_for_release(target, on_wait=lambda: said.append("held"))
+    claims.wait_for_release(target, on_wait=on_wait)
     assert time.monotonic() - t0 > 0.1 and holder(target) is None and said == ["held"]
     thread.join()
+
+
+def _within(seconds: float, done: Callable[[], bool]) -> bool:
+    """Whether ``done()`` came true within ``seconds``, polled: a background thread acts when it is scheduled, which
+    on a loaded machine is not within any fixed sleep."""
+    deadline = time.monotonic() + seconds
+    while not done():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
 
 
 def _dead_pid() -> int:
