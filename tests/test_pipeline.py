@@ -3,6 +3,7 @@
 import contextlib
 import logging
 import shutil
+import threading
 
 import numpy as np
 import pytest
@@ -123,9 +124,12 @@ def test_interrupted_writes_are_cleaned_but_not_live_ones(press):
     assert not killed.exists() and (press / "nlips" / "result.npz").is_file()
 
 
-def _held_by_another_process(target, seconds: float, publish=None):
+def _held_by_another_process(target, until, publish=None):
     """A thread standing for another process (a claim is per process and not re-entrant): it claims
-    ``target``, holds it ``seconds``, moves ``publish`` (a finished result) to ``target`` if given, releases."""
+    ``target``, holds it until ``until()`` is true (polled; 60 s at most), moves ``publish`` (a finished result)
+    to ``target`` if given, releases. ``until``, e.g. "this process's log says it met the claim", rather than a
+    fixed time: a main thread late on a loaded machine found the claim already gone, and the log line the
+    test expects was never written."""
     import threading
     import time
 
@@ -136,7 +140,9 @@ def _held_by_another_process(target, seconds: float, publish=None):
     def other_process():
         with claim(target):
             holding.set()
-            time.sleep(seconds)
+            deadline = time.monotonic() + 60  # the code under test never met the claim: its asserts say so
+            while not until() and time.monotonic() < deadline:
+                time.sleep(0.01)
             if publish is not None:
                 publish.rename(target)
 
@@ -154,15 +160,20 @@ def test_a_press_another_process_holds_is_left_to_it_then_waited_for(press_set, 
     shutil.copytree(press_set / "a_sphere", root / "a")
     shutil.copytree(press_set / "b_cube", root / "b")
     caplog.set_level(logging.INFO)
-    thread = _held_by_another_process(root / "a" / "nlips", 1.0)  # it fails, or holds other settings' result
+    left = lambda: "left to it for now" in caplog.text  # noqa: E731
+    thread = _held_by_another_process(root / "a" / "nlips", left)  # it fails, or holds other settings' result
     statuses = solve_presses([root / "a", root / "b"], options=FAST, progress=False, figures=False)
     assert statuses == {"a": "solved", "b": "solved"}
     assert "left to it for now" in caplog.text and "waiting for them" in caplog.text
     assert load_reconstruction(root / "a" / "nlips").reconstructed.any()
     thread.join()
-    thread = _held_by_another_process(root / "a" / "nlips", 0.5)
-    assert solve_folder(root / "a", options=FAST, figures=False)[1] == "skipped"  # waited, then reused
-    thread.join()
+    done = threading.Event()
+    thread = _held_by_another_process(root / "a" / "nlips", done.is_set)  # held throughout the call
+    try:
+        assert solve_folder(root / "a", options=FAST, figures=False)[1] == "skipped"  # its identical result reused
+    finally:
+        done.set()
+        thread.join()
 
 
 def test_two_runs_of_other_settings_on_one_press_one_solves_and_the_other_is_refused(press, tmp_path):
@@ -462,8 +473,8 @@ def test_wait_reuses_what_another_process_was_solving(press, tmp_path, caplog, w
     solve_folder(press, options=FAST, figures=False)
     finished = tmp_path / "finished"
     (press / "nlips").rename(finished)
-    thread = _held_by_another_process(press / "nlips", 1.0, publish=finished)
     caplog.set_level(logging.INFO)
+    thread = _held_by_another_process(press / "nlips", lambda: "waiting for" in caplog.text, publish=finished)
     assert solve_presses([press], options=FAST, progress=False, figures=False, wait=wait) == {"press": "skipped"}
     assert "waiting for" in caplog.text and "identical result exists" in caplog.text
     load_reconstruction(press / "nlips")
@@ -481,8 +492,8 @@ def test_overwrite_runs_sharing_a_folder_do_not_solve_each_others_presses_again(
 
     later = time.time() + 60  # the other run publishes after this run started (set, not raced)
     os.utime(finished / "report.json", (later, later))
-    thread = _held_by_another_process(press / "nlips", 0.5, publish=finished)
     caplog.set_level(logging.INFO)
+    thread = _held_by_another_process(press / "nlips", lambda: "waiting for" in caplog.text, publish=finished)
     statuses = solve_presses([press], options=FAST, progress=False, figures=False, overwrite=True)
     thread.join()
     assert statuses == {"press": "skipped"} and "identical result exists" in caplog.text
