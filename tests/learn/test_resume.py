@@ -90,18 +90,21 @@ def test_a_build_waits_for_a_press_another_process_is_solving(solved, tmp_path, 
     finished = tmp_path / "finished"
     (root / "b_cube" / "nlips").rename(finished)
     holding = threading.Event()
+    caplog.set_level(logging.INFO)
 
     def other_run():
         with claim(root / "b_cube" / "nlips"):  # a thread standing for the other run (claims are per process)
             holding.set()
-            time.sleep(1.0)
+            # until the build met the claim, not a fixed time: a build late on a loaded machine found it gone
+            deadline = time.monotonic() + 60
+            while "waiting for its result" not in caplog.text and time.monotonic() < deadline:
+                time.sleep(0.01)
             finished.rename(root / "b_cube" / "nlips")
 
     monkeypatch.setattr(claims_module, "CLAIM_POLL_S", 0.05)
     thread = threading.Thread(target=other_run)
     thread.start()
     holding.wait()
-    caplog.set_level(logging.INFO)
     build_dataset([root / n for n in NAMES], root / "reference", tmp_path / "calib", progress=False)
     thread.join()
     assert "waiting for its result" in caplog.text
