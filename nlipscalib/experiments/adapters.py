@@ -238,11 +238,23 @@ def calibration_samples(press: Press, rec: Reconstruction, reference: Path, samp
     return press_samples(press, rec, reference_arrays(load(reference)), cfg)
 
 
-def write_samples(path: Path, arrays: dict) -> None:
-    """Write a calibration shard atomically (learn.dataset's writer)."""
+def write_samples(path: Path, arrays: dict, entry: dict) -> None:
+    """Write a calibration shard atomically, carrying its index ``entry`` (learn.dataset's writer)."""
     from ..learn.dataset import write_shard
 
-    write_shard(Path(path), arrays)
+    write_shard(Path(path), arrays, entry)
+
+
+def samples_entry(path: Path) -> tuple[dict | None, int]:
+    """The index entry a calibration shard carries (None: written before shards carried one) and its sample count.
+
+    Raises
+    ------
+    CaptureError -- naming the file: missing, damaged, truncated or inconsistent.
+    """
+    from ..learn.dataset import shard_entry
+
+    return shard_entry(Path(path))
 
 
 def figure_view(press: Press, reference: Path, sampling: dict, margin: int = ROI_MARGIN_PX) -> dict[str, np.ndarray]:

@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.atomic import write_json
-from ..core.errors import ConfigError
-from .tasks import Task, digest, load_result, reference_folder, samples_path, view_path
+from ..core.errors import CaptureError, ConfigError
+from .tasks import Task, dataset_entry, digest, reference_folder, samples_problem, stored_result, view_path
 
 if TYPE_CHECKING:  # named in hints only: each function imports the learn/ modules it uses
     from ..learn.dataset import CalibrationDataset
@@ -53,33 +53,20 @@ def assemble_dataset(out: Path, tasks: list[Task], sampling: dict) -> tuple[Cali
     scenes = {json.dumps(t.scene, sort_keys=True) for t in press_tasks}
     if len(scenes) != 1:
         raise ConfigError(f"an NLiPsNet dataset needs presses of one sensor (scene), got {len(scenes)}")
+    entries, stamps = [], {}
+    for t in press_tasks:
+        result = stored_result(out, t)
+        info = (result or {}).get("samples") or {}
+        if not info.get("file"):  # task failed or not done (the report lists it), or its label solve failed
+            continue
+        if problem := samples_problem(out, t, result):
+            # checked as the tasks were run: another run of other settings rewrote it since, or the disk damaged it
+            raise CaptureError(f"{problem}; run the experiment again to make it anew")
+        stamps[t.id] = t.hash
+        entries.append(dataset_entry(out, t, info))
     ref_folder = reference_folder(out, press_tasks[0].scene)
     ref_press = load_press(ref_folder)
     write_shard(folder / "sensor.npz", reference_arrays(ref_press))
-    entries, stamps = [], {}
-    for t in press_tasks:
-        result = load_result(out, t)
-        info = (result or {}).get("samples") or {}
-        if not info.get("file") or not samples_path(out, t.id).is_file():
-            continue
-        stamps[t.id] = t.hash
-        ind = t.press["indenter"]
-        entries.append(
-            {
-                "name": t.id,
-                "folder": str(out / "presses" / t.id),
-                "samples": info["count"],
-                "contact_samples": info["contact"],
-                "has_truth": info["has_truth"],
-                "press": {
-                    "indenter": ind["kind"],
-                    "polar_deg": t.press["polar_deg"],
-                    "azimuth_deg": t.press["azimuth_deg"],
-                    "depth_mm": t.press["depth"],
-                },
-                "stamp": t.hash,
-            }
-        )
     cfg = SamplingConfig(**sampling)
     write_index(folder, sensor_of(ref_press), cfg, entries, str(ref_folder.resolve()))
     return CalibrationDataset(folder), stamps

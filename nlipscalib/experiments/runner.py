@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
 from ..core.processes import LOCAL_WORKER_GRACE_S, end_processes, kill_unless_ended, sigint_held
-from .tasks import REUSED, Task, clean_leftovers, execute, load_result
+from .tasks import REUSED, Task, clean_leftovers, execute, samples_problem, stored_result
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
     from multiprocessing.context import SpawnProcess
@@ -70,10 +70,14 @@ def run_tasks(
     status = RunStatus()
     todo = []
     for t in tasks:
-        if load_result(out, t) is not None:
+        result = stored_result(out, t)
+        problem = samples_problem(out, t, result) if result is not None else None
+        if result is not None and problem is None:
             status.skipped.append(t.id)
-        else:
-            todo.append(t)
+            continue
+        if problem is not None:  # said once here: execute() re-checks it quietly (load_result)
+            log.warning("%s; running %s again", problem, t.id)
+        todo.append(t)
     bar = _bar(len(tasks), len(status.skipped), progress)
     try:
         with _backend(scheduler, workers) as backend:

@@ -142,7 +142,15 @@ def result_path(out: Path, task_id: str) -> Path:
 
 
 def load_result(out: Path, task: Task) -> dict | None:
-    """The task's stored result, or None when missing, unreadable or from a different task content."""
+    """The task's stored result, or None when missing, unreadable, from a different task content, or naming
+    samples that are not whole and this task's (:func:`samples_problem`): such a task is run again."""
+    data = stored_result(out, task)
+    return data if data is not None and samples_problem(out, task, data) is None else None
+
+
+def stored_result(out: Path, task: Task) -> dict | None:
+    """The task's stored result JSON, or None when missing, unreadable or from a different task content (its
+    samples unchecked)."""
     path = result_path(out, task.id)
     try:
         data = json.loads(path.read_text())
@@ -151,9 +159,37 @@ def load_result(out: Path, task: Task) -> dict | None:
     return data if data.get("task_hash") == task.hash and data.get("status") == "done" else None
 
 
+def samples_problem(out: Path, task: Task, result: dict) -> str | None:
+    """Why the samples file that a press task's ``result`` names cannot be used, or None (no samples, or whole
+    and written by this task).
+
+    The file is named by the press alone (:func:`samples_path`), not by the settings: a run of other settings
+    (sampling, solver options) rewrites it, and one killed between writing it and writing its task's result left
+    it beside the result of the settings before, which a later run used as theirs. Hence each file carries its
+    task's hash (``stamp`` of its entry, :func:`dataset_entry`); a file written before files carried one is kept
+    when its sample count is the result's.
+    """
+    from ..core.errors import CaptureError
+    from . import adapters
+
+    info = result.get("samples") if task.samples is not None else None
+    if not info or not info.get("file"):
+        return None
+    path = samples_path(out, task.id)
+    try:
+        entry, count = adapters.samples_entry(path)
+    except CaptureError as exc:
+        return str(exc)
+    stamp, recorded = (entry.get("stamp"), entry.get("samples")) if entry else (task.hash, info.get("count"))
+    if stamp != task.hash or recorded != count:
+        return f"{path}: samples of this press written by a run of other settings"
+    return None
+
+
 def clean_leftovers(out: Path) -> None:
-    """Remove what killed runs left in ``out``: temporaries of a task result being written (``out/tasks``), and
-    claims whose owner is gone, anywhere in ``out`` (the tasks' and the presses' solves').
+    """Remove what killed runs left in ``out``: temporaries of a task's files being written (its result in
+    ``out/tasks``, its samples, figure crop and error maps), and claims whose owner is gone, anywhere in ``out``
+    (the tasks' and the presses' solves').
 
     Why here, once per run: a run killed between writing a task's result and releasing its claim leaves a
     finished task with a dead claim beside it, and a finished task is never claimed again (:func:`run_tasks`
@@ -162,9 +198,10 @@ def clean_leftovers(out: Path) -> None:
     from ..core.atomic import clean_interrupted
     from ..core.claims import remove_dead_claims
 
-    folder = Path(out) / "tasks"
-    for gone in clean_interrupted(folder):
-        log.warning("%s: removed (left by an interrupted run)", gone)
+    # the folders the tasks write into: a run killed in a write leaves its temporary there
+    for folder in (Path(out) / "tasks", samples_path(out, "-").parent, view_path(out, "-").parent, Path(out) / "maps"):
+        for gone in clean_interrupted(folder):
+            log.warning("%s: removed (left by an interrupted run)", gone)
     if Path(out).is_dir():
         remove_dead_claims(out)
 
@@ -299,15 +336,37 @@ def _write_samples(
     arrays = adapters.calibration_samples(press, rec, reference, task.samples)
     path = samples_path(out, task.id)
     path.parent.mkdir(parents=True, exist_ok=True)
-    adapters.write_samples(path, arrays)
-    view = adapters.figure_view(press, reference, task.samples)
-    if view:
-        _save_maps(view_path(out, task.id), view)
-    return {
+    info = {
         "file": str(path.relative_to(out)),
         "count": int(len(arrays["rgb"])),
         "contact": int(arrays["contact"].sum()),
         "has_truth": bool(press.ground_truth is not None),
+    }
+    adapters.write_samples(path, arrays, dataset_entry(out, task, info))
+    view = adapters.figure_view(press, reference, task.samples)
+    if view:
+        _save_maps(view_path(out, task.id), view)
+    return info
+
+
+def dataset_entry(out: Path, task: Task, info: dict) -> dict:
+    """A press task's entry in the experiment's calibration dataset (learn.dataset's index.json), from the
+    ``samples`` record of its result; ``stamp``, the identity of its samples, is the task's hash (its press, scene,
+    solves and sampling)."""
+    ind = task.press["indenter"]
+    return {
+        "name": task.id,
+        "folder": str(Path(out) / "presses" / task.id),
+        "samples": info["count"],
+        "contact_samples": info["contact"],
+        "has_truth": info["has_truth"],
+        "press": {
+            "indenter": ind["kind"],
+            "polar_deg": task.press["polar_deg"],
+            "azimuth_deg": task.press["azimuth_deg"],
+            "depth_mm": task.press["depth"],
+        },
+        "stamp": task.hash,
     }
 
 

@@ -203,13 +203,15 @@ def press_description(press: Press) -> dict:
     }
 
 
-def write_shard(path: Path, samples: dict) -> None:
+def write_shard(path: Path, samples: dict, entry: dict | None = None) -> None:
     """Write arrays (one press's samples, or the reference) as .npz atomically (temporary name, then rename).
 
+    ``entry``: the press's index entry, carried in the shard (``entry``) so that a reader can tell what made it.
     The temporary name carries this process (core.atomic.write_by_name): two builds writing the same
     shard never write into one temporary file, and a killed build's leftover is cleaned by the next.
     """
-    write_by_name(path, lambda tmp: save_npz(tmp, samples))
+    arrays = samples if entry is None else samples | {ENTRY_KEY: _entry_bytes(entry)}
+    write_by_name(path, lambda tmp: save_npz(tmp, arrays))
 
 
 def write_index(folder: Path, sensor: dict, cfg: SamplingConfig, entries: list[dict], reference: str) -> Path:
@@ -371,7 +373,7 @@ class _Build:
             "press": press_description(press),
             "stamp": stamp,
         }
-        write_shard(shard, samples | {ENTRY_KEY: _entry_bytes(entry)})
+        write_shard(shard, samples, entry)
         return entry
 
 
@@ -508,14 +510,26 @@ def _kept_entry(shard: Path, stamp: str, indexed: dict | None) -> dict | None:
     if not shard.is_file():
         return None
     try:
-        arrays = _checked_shard(shard)
+        made, count = shard_entry(shard)
     except CaptureError as exc:
         log.warning("%s; making it again", exc)
         return None
-    entry = _shard_entry(arrays) or indexed
-    if isinstance(entry, dict) and entry.get("stamp") == stamp and entry.get("samples") == len(arrays["rgb"]):
+    entry = made or indexed
+    if isinstance(entry, dict) and entry.get("stamp") == stamp and entry.get("samples") == count:
         return entry
     return None
+
+
+def shard_entry(shard: Path) -> tuple[dict | None, int]:
+    """The index entry a shard carries (None: written before shards carried one) and its sample count, read
+    in full and checked (:func:`_checked_shard`).
+
+    Raises
+    ------
+    CaptureError -- naming the file: missing, damaged, truncated or inconsistent.
+    """
+    arrays = _checked_shard(shard)
+    return _shard_entry(arrays), len(arrays["rgb"])
 
 
 def _shard_entry(arrays: dict) -> dict | None:

@@ -1,0 +1,145 @@
+"""The NLiPsNet samples a press task writes: each file carries the identity of the task that wrote it, and a run
+uses only its own task's samples, whole (no render: the task's result and samples are written here)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from nlipscalib.core.atomic import tmp_prefix, write_json
+from nlipscalib.core.errors import CaptureError
+from nlipscalib.experiments import learning, tasks
+from nlipscalib.experiments.runner import run_tasks
+from nlipscalib.experiments.tasks import Task, dataset_entry, load_result, result_path, samples_path
+from nlipscalib.learn.dataset import SamplingConfig, write_shard
+
+PRESS = {"indenter": {"kind": "sphere", "size": 6.0}, "polar_deg": 10.0, "azimuth_deg": 30.0, "depth": 1.0}
+SAMPLING = dataclasses.asdict(SamplingConfig())
+
+
+def _task(**sampling) -> Task:
+    return Task(kind="press", id="sphere-p10", scene={}, press=PRESS, samples=SAMPLING | sampling)
+
+
+def _arrays(n: int = 5) -> dict:
+    normal = np.tile(np.array([0, 0, -1], np.float32), (n, 1))
+    return {
+        "pixel": np.zeros((n, 2), np.int16),
+        "rgb": np.full((n, 3), 0.5, np.float32),
+        "normal": normal,
+        "true_normal": normal,
+        "contact": np.ones(n, bool),
+        "source": np.zeros(n, np.uint8),
+    }
+
+
+def _info(n: int = 5) -> dict:
+    return {"file": "calibration/samples/sphere-p10.npz", "count": n, "contact": n, "has_truth": True}
+
+
+def _finish(out, task: Task, written_by: Task | None = None, entry: bool = True) -> None:
+    """Store ``task`` as done, with samples written by ``written_by`` (default: itself; entry=False: a file of
+    before samples carried their entry)."""
+    writer = written_by or task
+    write_shard(samples_path(out, task.id), _arrays(), dataset_entry(out, writer, _info()) if entry else None)
+    body = {"id": task.id, "kind": "press", "task_hash": task.hash, "status": "done", "samples": _info()}
+    write_json(result_path(out, task.id), body)
+
+
+def test_samples_rewritten_by_a_run_of_other_settings_are_not_taken_as_this_tasks(tmp_path, monkeypatch, caplog):
+    """q2 run with smoothing_px = 2, then again with 1 and killed between writing a press's samples and its
+    result: a third run with 2 found its own result beside the other run's samples (same sample count) and
+    trained and scored on them without a word. Now the task is run again, with one line naming the file."""
+    mine, other = _task(smoothing_px=2.0), _task(smoothing_px=1.0)
+    _finish(tmp_path, mine, written_by=other)
+    assert load_result(tmp_path, mine) is None
+    ran = []
+
+    def run_press(task, out, threads, keep):
+        ran.append(task.id)
+        write_shard(samples_path(out, task.id), _arrays(), dataset_entry(out, task, _info()))
+        return {"samples": _info()}
+
+    monkeypatch.setattr(tasks, "_run_press", run_press)
+    with caplog.at_level("WARNING", logger="nlipscalib.experiments"):
+        status = run_tasks([mine], tmp_path, progress=False)
+    assert ran == status.done == [mine.id]
+    lines = [r.getMessage() for r in caplog.records if "other settings" in r.getMessage()]
+    assert len(lines) == 1 and str(samples_path(tmp_path, mine.id)) in lines[0], lines
+    assert load_result(tmp_path, mine) is not None
+    assert run_tasks([mine], tmp_path, progress=False).skipped == [mine.id]
+
+
+@pytest.mark.parametrize("damage", ["truncated", "flipped"])
+def test_damaged_samples_make_their_task_run_again(tmp_path, damage, monkeypatch, caplog):
+    """A truncated samples file stopped the report with an error that said nothing of what to do, every run."""
+    task = _task()
+    _finish(tmp_path, task)
+    path = samples_path(tmp_path, task.id)
+    data = bytearray(path.read_bytes())
+    if damage == "truncated":
+        data = data[: len(data) // 2]
+    else:  # a byte of a stored array
+        data[len(data) // 3] ^= 0xFF
+    path.write_bytes(bytes(data))
+    assert load_result(tmp_path, task) is None
+    monkeypatch.setattr(tasks, "_run_press", lambda *a: {"samples": None})  # the label solve failed, say
+    with caplog.at_level("WARNING", logger="nlipscalib.experiments"):
+        assert run_tasks([task], tmp_path, progress=False).done == [task.id]
+    assert f"{path}: damaged or truncated" in caplog.text
+
+
+def test_samples_written_before_files_carried_their_task_are_kept_when_the_counts_agree(tmp_path):
+    """A work folder of an earlier version is not made again for want of the stamp (as ``nlips calibrate`` keeps
+    its older shards); one whose count is not its result's is."""
+    task = _task()
+    _finish(tmp_path, task, entry=False)
+    assert load_result(tmp_path, task) is not None
+    write_shard(samples_path(tmp_path, task.id), _arrays(7))
+    assert load_result(tmp_path, task) is None
+
+
+def test_the_dataset_refuses_samples_rewritten_after_the_tasks_ran(tmp_path):
+    """Another run of other settings rewriting a press's samples between this run's tasks and its training:
+    one line naming the file, never those samples under this run's stamp."""
+    mine, other = _task(smoothing_px=2.0), _task(smoothing_px=1.0)
+    _finish(tmp_path, mine, written_by=other)
+    with pytest.raises(CaptureError, match=rf"{samples_path(tmp_path, mine.id)}: samples of this press written by"):
+        learning.assemble_dataset(tmp_path, [mine], mine.samples)
+
+
+def test_a_press_task_writes_samples_carrying_its_entry_and_stamp(tmp_path):
+    """What the dataset checks a shard by (learn.dataset: the stamp it carries against index.json's) is there for
+    the experiment's shards too: the task's entry, stamped with its hash."""
+    from nlipscalib.experiments import adapters
+
+    task = _task()
+    fake = SimpleNamespace(
+        calibration_samples=lambda *a: _arrays(),
+        write_samples=adapters.write_samples,
+        figure_view=lambda *a: {},
+    )
+    info = tasks._write_samples(fake, tmp_path, task, SimpleNamespace(ground_truth=None), tmp_path, rec=object())
+    entry, count = adapters.samples_entry(samples_path(tmp_path, task.id))
+    assert entry == dataset_entry(tmp_path, task, info) and entry["stamp"] == task.hash and count == 5
+
+
+def test_a_killed_runs_temporary_samples_are_removed_by_the_next_run(tmp_path):
+    """A run killed while writing a press's samples (or its figure crop, its error map) left its temporary file
+    there for good: only the tasks' folder was cleaned."""
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    pid = int(dead.stdout)
+    left = []
+    for path in (samples_path(tmp_path, "p"), tasks.view_path(tmp_path, "p"), tmp_path / "maps" / "p-key.npz"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.parent / (tmp_prefix(path.name).replace(f"~{os.getpid()}~", f"~{pid}~") + "x")
+        tmp.write_bytes(b"half")
+        left.append(tmp)
+    tasks.clean_leftovers(tmp_path)
+    assert not [p for p in left if p.exists()]
