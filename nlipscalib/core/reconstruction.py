@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import zipfile
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -232,19 +231,16 @@ def save_reconstruction(
     folder : output folder (created; replaced when ``overwrite``). CaptureError when something else than
         a reconstruction is there (:func:`replace_problem`): it is never replaced.
     extra_files : optional callable ``f(tmp_folder)`` that adds files (figures) before the folder is
-        moved into place, so they appear together with the result or not at all; run on a thread of its own
-        while the arrays are written (it only reads ``rec``).
+        moved into place, so they appear together with the result or not at all.
     """
     folder = Path(folder).absolute()  # "." has no name to write beside
     check_replaceable(folder)
-    with atomic_dir(folder, overwrite=overwrite) as tmp, ThreadPoolExecutor(max_workers=1) as pool:
-        # the figures' PNG encoding beside the arrays' deflating: both release the GIL, so on two cores they overlap
-        extra = pool.submit(extra_files, tmp) if extra_files is not None else None
+    with atomic_dir(folder, overwrite=overwrite) as tmp:
         save_npz(tmp / RESULT_FILE, rec.arrays(), compress="auto")  # dense float maps stored: 10x faster
         head = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "software_version": __version__}
         write_json(tmp / REPORT_FILE, head | jsonable(rec.report))
-        if extra is not None:
-            extra.result()  # its failure is the save's: nothing is published
+        if extra_files is not None:
+            extra_files(tmp)
     return folder
 
 

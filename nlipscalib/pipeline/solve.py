@@ -352,8 +352,7 @@ def _solve_and_save(
         raise CaptureError(f"{folder}: the solve gave an unusable result ({problem})")
     context = _figure_context(press)
 
-    def figures(tmp: Path) -> None:  # the ground truth (error.png) read here: beside the arrays' writing, and only
-        # for figures (a solve reads none of it)
+    def figures(tmp: Path) -> None:  # the ground truth (error.png) read here, only for figures: a solve reads none
         write_reconstruction_figures(tmp, result, press.ground_truth, level, *context)
 
     save_reconstruction(result, out, overwrite=True, extra_files=figures if level != "none" else None)

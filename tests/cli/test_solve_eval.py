@@ -385,8 +385,8 @@ def test_a_press_whose_tricolor_image_is_corrupt_still_solves(data, capsys):
 
 
 def test_a_solve_without_figures_reads_no_ground_truth(data, capsys):
-    """gt.npz is read for error.png only (on the figures' thread, beside the arrays' writing): `--no-figures` solves a
-    press whose gt.npz is damaged; with figures the damage is one line naming the file, and nothing is published."""
+    """gt.npz is read for error.png only: `--no-figures` solves a press whose gt.npz is damaged (~0.06 s of CPU less at
+    640x480); with figures the damage is one line naming the file, and nothing is published."""
     root, cfg = data
     press = root / "press_a"
     (press / "gt.npz").write_bytes(b"PK garbage")
