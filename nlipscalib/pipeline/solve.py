@@ -350,13 +350,12 @@ def _solve_and_save(
     result.report["command_seconds"] = {"load": round(t1 - t0, 3), "solve": round(t2 - t1, 3)}
     if problem := content_problem(result.arrays()):  # never published: every later run would re-solve it
         raise CaptureError(f"{folder}: the solve gave an unusable result ({problem})")
-    gt, context = press.ground_truth, _figure_context(press)
-    save_reconstruction(
-        result,
-        out,
-        overwrite=True,
-        extra_files=lambda tmp: write_reconstruction_figures(tmp, result, gt, level, *context),
-    )
+    context = _figure_context(press)
+
+    def figures(tmp: Path) -> None:  # the ground truth (error.png) read here, only for figures: a solve reads none
+        write_reconstruction_figures(tmp, result, press.ground_truth, level, *context)
+
+    save_reconstruction(result, out, overwrite=True, extra_files=figures if level != "none" else None)
     _log_solved(folder, out, result.report, time.perf_counter() - t2)
     return result
 

@@ -236,7 +236,12 @@ def test_a_warm_solve_against_an_undeformed_capture_does_not_decode_its_images(t
     first = _solve_auto(folders["sphere"], load_press(folders["none"], decode=False))
     reuse.clear()  # a new process: only the disk remembers
     decoded, decode = [], capture.decode_png16
-    monkeypatch.setattr(capture, "decode_png16", lambda data, path: decoded.append(path) or decode(data, path))
+
+    def spy(data, path, **kw):
+        decoded.append(path)
+        return decode(data, path, **kw)
+
+    monkeypatch.setattr(capture, "decode_png16", spy)
     later = _solve_auto(folders["sphere"], load_press(folders["none"], decode=False))
     assert decoded and not [p for p in decoded if folders["none"] in p.parents]  # the press's own: decoded
     for key in first:
