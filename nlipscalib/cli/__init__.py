@@ -119,44 +119,12 @@ def command() -> NoReturn:
 
     Only here, not in :func:`main` (which tests and Python programs call in their own process): settings that
     hold for the rest of the process and the processes it starts -- NumPy's arrays on ordinary pages
-    (:func:`nlipscalib.core.pages.ordinary_pages_for_command`) -- NumPy's tool packages loaded at their first use
-    (:func:`_defer_numpy_tools`), and Ctrl-C or SIGTERM after the work ended (:func:`_after_the_work`)."""
+    (:func:`nlipscalib.core.pages.ordinary_pages_for_command`) -- and Ctrl-C or SIGTERM after the work ended
+    (:func:`_after_the_work`)."""
     from ..core.pages import ordinary_pages_for_command
 
     ordinary_pages_for_command()
-    _defer_numpy_tools()
     _exit(_main(None, own_process=True))
-
-
-NUMPY_TOOLS = ("numpy.f2py", "numpy.testing")
-"""NumPy packages no command uses, which SciPy's import loads: :func:`_defer_numpy_tools`."""
-
-
-def _defer_numpy_tools() -> None:
-    """Make :data:`NUMPY_TOOLS` lazy modules (``importlib.util.LazyLoader``), loaded at their first attribute read.
-
-    Why: importing ``scipy.sparse`` (the solver, ``nlips solve``) clones NumPy's namespace for SciPy's array API
-    layer, reading every attribute of ``numpy``, which imports these two packages (36 modules, unittest among them):
-    ~0.03 s of the ~0.43 s of CPU the command's imports take (SciPy 1.17, NumPy 2.4, benchmarks/RESULTS.md), for
-    modules nothing then reads. Only in the command's own process: a program or test that imports nlipscalib keeps
-    NumPy as it is. Python 3.11's lazy modules are not thread-safe at their first read, so a package that a
-    command's threads used would not belong here.
-    """
-    import importlib.util
-
-    import numpy
-
-    for name in NUMPY_TOOLS:
-        if name in sys.modules:
-            continue
-        spec = importlib.util.find_spec(name)
-        if spec is None or spec.loader is None:
-            continue
-        spec.loader = importlib.util.LazyLoader(spec.loader)
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)  # nothing runs now: the module's code runs at its first attribute read
-        setattr(numpy, name.rpartition(".")[2], module)  # as an import binds it (NumPy's __getattr__ would recurse)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

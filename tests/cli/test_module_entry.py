@@ -36,28 +36,3 @@ def test_the_command_ends_once_its_work_is_done_with_the_solvers_thread_pool_idl
     )
     assert run.returncode == 0, run.stderr
     assert (press / "nlips" / "result.npz").exists()
-
-
-def test_a_solve_imports_none_of_numpys_tools_that_scipy_reads(tmp_path):
-    """``nlips solve`` imports SciPy, whose array API layer reads every attribute of ``numpy``: in the command's
-    process numpy.f2py and numpy.testing are lazy modules (cli._defer_numpy_tools, ~0.03 s of CPU), never run
-    by a solve, and work as ever at their first read."""
-    from tests.solver import synth
-
-    press = synth.make_press(tmp_path / "p", "sphere", size=(48, 36))
-    run = subprocess.run(
-        [sys.executable, "-X", "importtime", "-m", "nlipscalib", "--no-progress", "solve", str(press), "--no-figures"],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=300,
-    )
-    assert run.returncode == 0, run.stderr
-    imported = {line.rsplit("|", 1)[1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
-    assert "scipy.sparse" in imported and not imported & {"numpy.f2py", "numpy.testing"}
-    first_read = (
-        "from nlipscalib.cli import _defer_numpy_tools; _defer_numpy_tools(); import scipy.sparse, numpy; "
-        "numpy.testing.assert_array_equal([1], [1]); print(numpy.f2py.get_include())"
-    )
-    read = subprocess.run([sys.executable, "-c", first_read], capture_output=True, text=True, cwd=ROOT)
-    assert read.returncode == 0 and "f2py" in read.stdout, read.stderr
