@@ -8,8 +8,12 @@ Markdown are common.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
+import json
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,7 +27,12 @@ from .runner import run_tasks
 from .summary import dumps, evaluation_rows
 
 if TYPE_CHECKING:  # named in hints only
+    from ..core.claims import Owner
     from .tasks import Task
+
+WORK_HOLD = "run"
+"""Target of the claims by which the runs of one set of tasks hold their work folder (:func:`hold_outputs`):
+``OUT/NAME-SIZE/.claim-run~KEY~TOKEN``, one per run."""
 
 
 @dataclasses.dataclass
@@ -177,40 +186,106 @@ def run_experiment(
     """
     start = time.perf_counter()
     tasks = exp.tasks(cfg, solver_options)
-    status = run_tasks(tasks, out, workers=workers, scheduler=scheduler, keep_presses=keep_presses, progress=progress)
-    learned = exp.learn(cfg, tasks, out, progress=progress)
-    run_s = time.perf_counter() - start
-    rows = evaluation_rows(tasks, out)
-    tables = exp.tables(cfg, rows, learned)
-    report.mkdir(parents=True, exist_ok=True)
-    figures = exp.figures(cfg, rows, tables, report, learned)
-    figures += [(f.caption, f.file) for f in exp.draw_work_figures(cfg, rows, out, report, learned)]
-    main = next((t for t in tables if t.name == exp.check_table), tables[0] if tables else None)
-    doc = {
-        "experiment": exp.name,
-        "title": exp.title,
-        "size": size,
-        "config": to_mapping(cfg),
-        "solver_option_overrides": solver_options or {},
-        "software": software(),
-        "machine": machine(),
-        "execution": {"workers": workers, "scheduler": scheduler, "output": str(out)},
-        "paper": exp.paper,
-        "tables": {t.name: {"caption": t.caption, "by": list(t.by), "rows": t.rows} for t in tables},
-        "check_figures": check.headline(main.rows, main.by) if main else {},
-        "calibrations": _calibrations(tasks, out),
-        "evaluations": rows,
-        **({"learned": learned} if learned else {}),
-        "tasks": {
-            "total": len(tasks),
-            "run_now": len(status.done),
-            "already_done": len(status.skipped),
-            "failed": status.failed,
-        },
-        "wall_seconds": round(run_s, 1),
-        "task_seconds": _task_seconds(tasks, out),
-        "not_done": list(exp.not_done),
-    }
-    write_text(report / "results.json", dumps(doc))
-    write_text(report / "report.md", markdown.report(exp, doc, tables, figures))
-    return doc
+    settings = run_settings(exp, cfg, size, solver_options)
+    with hold_outputs(tasks, settings, out, report):
+        status = run_tasks(
+            tasks, out, workers=workers, scheduler=scheduler, keep_presses=keep_presses, progress=progress
+        )
+        learned = exp.learn(cfg, tasks, out, progress=progress)
+        run_s = time.perf_counter() - start
+        rows = evaluation_rows(tasks, out)
+        tables = exp.tables(cfg, rows, learned)
+        report.mkdir(parents=True, exist_ok=True)
+        figures = exp.figures(cfg, rows, tables, report, learned)
+        figures += [(f.caption, f.file) for f in exp.draw_work_figures(cfg, rows, out, report, learned)]
+        main = next((t for t in tables if t.name == exp.check_table), tables[0] if tables else None)
+        doc = {
+            "experiment": exp.name,
+            "title": exp.title,
+            "size": size,
+            "config": to_mapping(cfg),
+            "solver_option_overrides": solver_options or {},
+            "software": software(),
+            "machine": machine(),
+            "execution": {"workers": workers, "scheduler": scheduler, "output": str(out)},
+            "paper": exp.paper,
+            "tables": {t.name: {"caption": t.caption, "by": list(t.by), "rows": t.rows} for t in tables},
+            "check_figures": check.headline(main.rows, main.by) if main else {},
+            "calibrations": _calibrations(tasks, out),
+            "evaluations": rows,
+            **({"learned": learned} if learned else {}),
+            "tasks": {
+                "total": len(tasks),
+                "run_now": len(status.done),
+                "already_done": len(status.skipped),
+                "failed": status.failed,
+            },
+            "wall_seconds": round(run_s, 1),
+            "task_seconds": _task_seconds(tasks, out),
+            "not_done": list(exp.not_done),
+        }
+        write_text(report / "results.json", dumps(doc))
+        write_text(report / "report.md", markdown.report(exp, doc, tables, figures))
+        return doc
+
+
+def run_settings(exp: Experiment, cfg: Any, size: str, solver_options: dict | None) -> dict:
+    """What decides a run's report: the experiment, its size and config, the solver option overrides (as JSON
+    gives them back, so a holder's note compares equal to them)."""
+    settings = {"experiment": exp.name, "size": size, "config": to_mapping(cfg), "solver_options": solver_options or {}}
+    return json.loads(json.dumps(settings, default=str))
+
+
+@contextlib.contextmanager
+def hold_outputs(tasks: list[Task], settings: dict, out: Path, report: Path) -> Iterator[None]:
+    """Hold the work folder ``out`` for these ``tasks`` and the folder ``report`` for these ``settings``
+    (:func:`run_settings`) while the block runs; ConfigError, before anything is run, when a live run of other
+    tasks or settings holds either (core.claims.held_for).
+
+    Why: the task claims split the tasks between runs, but nothing else in the folder is a task's: each run writes
+    the NLiPsNet dataset (``calibration/index.json``, ``sensor.npz``) from its own tasks and reads it while it
+    trains and scores, and the report folder (``NAME-custom/report`` for every --config) is written last by each.
+    Two configs at once (other twins) exited 0 with one report, and one run's ``sensor.npz`` could replace the
+    other's in the middle of its training; two of one press but other sampling took turns rewriting its task
+    result and samples. Runs of the same tasks share the work folder as before (a second terminal; ``presses``
+    beside ``q2``, whose tasks it reuses), runs of the same settings the report.
+    """
+    from ..core.claims import held_for
+    from .tasks import digest
+
+    out, report = Path(out), Path(report)
+    holds = (
+        (out / WORK_HOLD, digest(sorted(t.hash for t in tasks), 16), out, "--out"),
+        # the report's claims beside it: a claim file inside would travel with a copied report
+        (report, digest(settings, 16), report, "--report"),
+    )
+    with contextlib.ExitStack() as stack:
+        for target, key, folder, option in holds:
+            refusal = functools.partial(_held_elsewhere, folder, option, settings=settings)
+            stack.enter_context(held_for(target, key, refusal, note=settings))
+        yield
+
+
+def _held_elsewhere(folder: Path, option: str, other: Owner, *, settings: dict) -> str:
+    """The refusal of a run whose ``folder`` a live run of other settings (``other``, its note theirs) holds."""
+    theirs = other.note if isinstance(other.note, dict) else {}
+    mine, was = _flat(settings), _flat(theirs)
+    changed = [
+        f"{k} {was.get(k)} (this run: {mine.get(k)})" for k in sorted(set(mine) | set(was)) if was.get(k) != mine.get(k)
+    ]
+    said = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
+    return (
+        f"{folder}: {other.who} is running an experiment of other settings into it ({said or 'other settings'}); "
+        f"left to it: give another {option}, or run again once it has ended"
+    )
+
+
+def _flat(mapping: dict, prefix: str = "") -> dict:
+    """Nested mappings as one of dotted keys (``config.twin.seed``)."""
+    flat = {}
+    for k, v in mapping.items():
+        if isinstance(v, dict) and v:
+            flat |= _flat(v, f"{prefix}{k}.")
+        else:
+            flat[f"{prefix}{k}"] = v
+    return flat

@@ -45,7 +45,14 @@ def assemble_dataset(out: Path, tasks: list[Task], sampling: dict) -> tuple[Cali
     """
     from ..core.capture import load_press
     from ..core.sensor_record import sensor_of
-    from ..learn.dataset import CalibrationDataset, SamplingConfig, reference_arrays, write_index, write_shard
+    from ..learn.dataset import (
+        EXPERIMENT_MAKER,
+        CalibrationDataset,
+        SamplingConfig,
+        reference_arrays,
+        write_index,
+        write_shard,
+    )
 
     out = Path(out)
     folder = out / DATASET_DIR
@@ -68,7 +75,7 @@ def assemble_dataset(out: Path, tasks: list[Task], sampling: dict) -> tuple[Cali
     ref_press = load_press(ref_folder)
     write_shard(folder / "sensor.npz", reference_arrays(ref_press))
     cfg = SamplingConfig(**sampling)
-    write_index(folder, sensor_of(ref_press), cfg, entries, str(ref_folder.resolve()))
+    write_index(folder, sensor_of(ref_press), cfg, entries, str(ref_folder.resolve()), made_by=EXPERIMENT_MAKER)
     return CalibrationDataset(folder), stamps
 
 

@@ -37,6 +37,11 @@ SOLVES_DIR = "solves"
 """PRESS/solves/<variant hash>/: the pipeline's reconstruction of each solve variant of a press."""
 REUSED = "reused"
 """What :func:`execute` returns for a task another run sharing the folder finished."""
+RULES_HASHED_SILENTLY = {"rule": 2}
+"""learn.dataset.SAMPLE_RULES when press tasks' hashes began to hold them (2026-12-05): at these versions a hash
+leaves them out, so the work folders of earlier runs, whose samples these rules made, keep their tasks (a full Q2
+is hours of renders and solves) rather than make them all again for a code that did not change. Never updated:
+any other versions enter the hash."""
 
 
 def digest(obj: object, n: int = 10) -> str:
@@ -121,9 +126,16 @@ class Task:
 
     @property
     def hash(self) -> str:
+        """Content hash: the task's fields and, for a task writing samples, the versions of the code that decides
+        them (learn.dataset.SAMPLE_RULES, as ``nlips calibrate``'s shard stamps), so a bumped rule makes them anew.
+        """
+        from ..learn.dataset import SAMPLE_RULES
+
         d = dataclasses.asdict(self)
         if d["samples"] is None:  # tasks without samples keep the hashes they had before the field existed
             del d["samples"]
+        elif SAMPLE_RULES != RULES_HASHED_SILENTLY:
+            d["sample_rules"] = SAMPLE_RULES
         return digest(d)
 
 

@@ -68,6 +68,15 @@ SENSOR_FILE = "sensor.npz"
 SHARD_DIR = "samples"
 SHARD_KEYS = {"pixel": 2, "rgb": 2, "normal": 2, "true_normal": 2, "contact": 1, "source": 1}
 SENSOR_KEYS = ("tricolor", "dark", "depth", "normals", "valid")
+EXPERIMENT_MAKER = "nlips experiment"
+"""index.json's ``made_by`` in a dataset that ``nlips experiment`` assembled from its press tasks' samples (absent:
+``nlips calibrate``'s): what a refusal tells the user to run again (:func:`remake_advice`)."""
+SAMPLE_RULES: dict[str, int] = {"rule": RULE_VERSION}
+"""Versions of the code that decides a press's samples beyond its reconstruction and the sampling options (name ->
+version; today the change-detection rule's, :mod:`.change`). The one list: part of every shard's stamp
+(:func:`shard_stamp`), of a build's key (:func:`dataset_run`) and of an experiment's press task
+(experiments.tasks.Task.hash), so a bumped version remakes the samples wherever they were made. A rule whose code
+decides samples adds its version here."""
 SOURCE_NLIPS, SOURCE_REFERENCE = 0, 1
 ENTRY_KEY = "entry"
 """Shard array holding the press's index entry (UTF-8 JSON bytes), so a build resumes without index.json."""
@@ -214,20 +223,32 @@ def write_shard(path: Path, samples: dict, entry: dict | None = None) -> None:
     write_by_name(path, lambda tmp: save_npz(tmp, arrays))
 
 
-def write_index(folder: Path, sensor: dict, cfg: SamplingConfig, entries: list[dict], reference: str) -> Path:
-    """index.json: written last, so its presence marks a usable dataset."""
-    return write_json(
-        folder / INDEX_FILE,
-        {
-            "format": FORMAT_NAME,
-            "format_version": FORMAT_VERSION,
-            "software_version": __version__,
-            "sensor": sensor,
-            "reference": reference,
-            "sampling": dataclasses.asdict(cfg),
-            "presses": entries,
-        },
-    )
+def write_index(
+    folder: Path, sensor: dict, cfg: SamplingConfig, entries: list[dict], reference: str, made_by: str | None = None
+) -> Path:
+    """index.json: written last, so its presence marks a usable dataset. ``made_by``: :data:`EXPERIMENT_MAKER` for
+    an experiment's dataset (None: ``nlips calibrate``'s), so that its refusals say what makes it anew."""
+    index = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "software_version": __version__,
+        "sensor": sensor,
+        "reference": reference,
+        "sampling": dataclasses.asdict(cfg),
+        "presses": entries,
+    }
+    return write_json(folder / INDEX_FILE, index | ({"made_by": made_by} if made_by else {}))
+
+
+def remake_advice(folder: Path, made_by: object) -> str:
+    """How the user makes the dataset ``folder`` anew, in the words of what wrote it (index.json's ``made_by``).
+
+    Why: an experiment's dataset is assembled by each run of ``nlips experiment`` from its press tasks' samples;
+    ``nlips calibrate`` cannot make it again (the experiment deletes its rendered presses after scoring them, and
+    calibrate writes a dataset of its own beside its presses), yet its refusals told the user to run it."""
+    if made_by == EXPERIMENT_MAKER:
+        return f"run the experiment again on its work folder {folder.parent}"
+    return "run `nlips calibrate` on its presses again"
 
 
 def build_dataset(
@@ -409,7 +430,7 @@ def dataset_run(
         "first": folders[0] if folders else None,
         "digest": hashlib.sha256(json.dumps(folders).encode()).hexdigest()[:16],
     }
-    what = {"options": options, "presses": presses, "result_dir": result_dir, "rule": RULE_VERSION}
+    what = {"options": options, "presses": presses, "result_dir": result_dir, **SAMPLE_RULES}
     return {"key": hashlib.sha256(json.dumps(what, sort_keys=True).encode()).hexdigest()[:16]} | what
 
 
@@ -461,7 +482,7 @@ def check_min_leds(cfg: SamplingConfig, n_leds: int, where: str | Path) -> None:
 
 def shard_stamp(result: Path, cfg: SamplingConfig, reference_digest: str) -> str:
     """What made a shard (its resume key, ``stamp``): a digest of the reconstruction's content, the sampling options,
-    the undeformed reference's arrays (:func:`arrays_digest`) and the change-detection rule's version.
+    the undeformed reference's arrays (:func:`arrays_digest`) and the sampling code's versions (:data:`SAMPLE_RULES`).
 
     Why content, not the file's size and time: a result replaced by another of the same size with its time kept
     (``cp -p``, ``rsync -t``, within the clock's tick) kept the old samples; and the reference decides which pixels
@@ -474,7 +495,8 @@ def shard_stamp(result: Path, cfg: SamplingConfig, reference_digest: str) -> str
         raise CaptureError(f"{path}: press not solved (no NLiPs reconstruction)")
     with path.open("rb") as f:
         content = hashlib.file_digest(f, "sha256").hexdigest()
-    key = f"{content}:{json.dumps(dataclasses.asdict(cfg), sort_keys=True)}:{reference_digest}:rule-{RULE_VERSION}"
+    rules = ":".join(f"{name}-{version}" for name, version in SAMPLE_RULES.items())
+    key = f"{content}:{json.dumps(dataclasses.asdict(cfg), sort_keys=True)}:{reference_digest}:{rules}"
     return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
@@ -663,7 +685,9 @@ class CalibrationDataset:
             missing_hint=f"{self.folder} is not a calibration dataset (run `nlips calibrate`)",
         )
         self.index = index
-        remedy = "run `nlips calibrate` on its presses again to record it (the samples are kept)"
+        self.remake: str = remake_advice(self.folder, index.get("made_by"))
+        """How the user makes this dataset anew (:func:`remake_advice`), the remedy its refusals give."""
+        remedy = f"{self.remake} to record it (the samples are kept)"
         self.sensor: dict = check_sensor_record(index["sensor"], path, remedy)
         self.entries: list[dict] = _checked_entries(index["presses"], path)
         self.smoothing_px: float = _checked_smoothing(index.get("sampling"), path)
@@ -691,8 +715,8 @@ class CalibrationDataset:
         if made is not None and entry.get("stamp") is not None and made != entry["stamp"]:
             # a build of other options (or results) replaced it after index.json was written: never mixed in
             raise CaptureError(
-                f"{path}: made from other results or sampling options than index.json records (another build "
-                "replaced it); run `nlips calibrate` on its presses again"
+                f"{path}: made from other results or sampling options than index.json records (another run "
+                f"replaced it); {self.remake}"
             )
         return {k: arrays[k] for k in SHARD_KEYS}
 

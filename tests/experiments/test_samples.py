@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 from nlipscalib.core.atomic import tmp_prefix, write_json
-from nlipscalib.core.errors import CaptureError
-from nlipscalib.experiments import learning, tasks
-from nlipscalib.experiments.runner import run_tasks
+from nlipscalib.core.errors import CaptureError, ConfigError
+from nlipscalib.experiments import framework, learning, tasks
+from nlipscalib.experiments.framework import Experiment
+from nlipscalib.experiments.runner import RunStatus, run_tasks
 from nlipscalib.experiments.tasks import Task, dataset_entry, load_result, result_path, samples_path
 from nlipscalib.learn.dataset import SamplingConfig, write_shard
 
@@ -143,3 +144,119 @@ def test_a_killed_runs_temporary_samples_are_removed_by_the_next_run(tmp_path):
         left.append(tmp)
     tasks.clean_leftovers(tmp_path)
     assert not [p for p in left if p.exists()]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Config:
+    seed: int = 0
+    """Decides the tasks (a twin's seed, say)."""
+    hidden: int = 16
+    """Decides only what is trained and reported from the tasks (a net's layers, say)."""
+
+
+class _Study(Experiment):
+    """An experiment of one reference task per seed, whose learn phase starts another run into the same folders."""
+
+    name, title, description, config_cls = "study", "Study", "", _Config
+
+    def __init__(self, inner: _Config | None = None):
+        self.inner, self.outcome = inner, None
+
+    def tasks(self, cfg: _Config, solver_options: dict | None = None) -> list[Task]:
+        return [Task(kind="reference", id=f"ref-{cfg.seed}", scene={"seed": cfg.seed})]
+
+    def learn(self, cfg: _Config, tasks: list[Task], out, progress: bool = True) -> dict:
+        if self.inner is not None:  # while this run trains: another run of ``inner`` into the same folders
+            try:
+                framework.run_experiment(_Study(), self.inner, out, out / "report", size="custom", progress=False)
+                self.outcome = "ran"
+            except ConfigError as exc:
+                self.outcome = str(exc)
+        return {}
+
+    def tables(self, cfg: _Config, rows: list[dict], learned: dict) -> list:
+        return []
+
+
+@pytest.mark.parametrize(
+    ("inner", "refused"),
+    [(_Config(seed=1), ("--out", "config.seed 0 (this run: 1)")), (_Config(hidden=32), ("--report", "hidden 16"))],
+)
+def test_a_run_of_other_settings_is_refused_while_another_holds_the_folder(tmp_path, monkeypatch, inner, refused):
+    """``nlips experiment q2 --config X`` and ``--config Y`` at once on one --out: both exited 0 with one report (the
+    last one's) in q2-custom/report, and with other twins one run's calibration/sensor.npz could replace the
+    other's while it trained. Now the second is refused in one line naming the folder, what differs and what to do:
+    other tasks by the work folder (--out), the same tasks but other settings (the net) by the report (--report)."""
+    monkeypatch.setattr(framework, "run_tasks", lambda tasks, out, **kw: RunStatus())  # no render: tasks "done"
+    first = _Study(inner)
+    framework.run_experiment(first, _Config(), tmp_path, tmp_path / "report", size="custom", progress=False)
+    folder, option = (tmp_path, "--out") if refused[0] == "--out" else (tmp_path / "report", "--report")
+    assert first.outcome is not None and "\n" not in first.outcome, first.outcome
+    assert first.outcome.startswith(f"{folder}: process {os.getpid()} on ") and "other settings" in first.outcome
+    assert refused[1] in first.outcome and f"give another {option}" in first.outcome, first.outcome
+    assert not list(tmp_path.glob(".claim-*")) and not list(tmp_path.glob("report/.claim-*"))  # released at the end
+
+
+def test_runs_of_the_same_settings_share_the_folders(tmp_path, monkeypatch):
+    """A second terminal running the same config (or ``presses`` beside ``q2``, whose tasks it reuses) goes on as
+    before: the tasks' claims split the work."""
+    monkeypatch.setattr(framework, "run_tasks", lambda tasks, out, **kw: RunStatus())
+    first = _Study(_Config())
+    framework.run_experiment(first, _Config(), tmp_path, tmp_path / "report", size="custom", progress=False)
+    assert first.outcome == "ran"
+
+
+def test_an_experiments_dataset_tells_to_run_the_experiment_again(tmp_path, monkeypatch):
+    """A shard of an experiment's dataset rewritten after its index.json: ``CalibrationDataset.load`` (training,
+    scoring, ``nlips train``) said "run `nlips calibrate` on its presses again", which knows nothing of the
+    experiment's tasks and made a dataset elsewhere. Now one line naming the file says to run the experiment."""
+    from nlipscalib.core import capture, sensor_record
+    from nlipscalib.learn import dataset
+
+    sensor = _sensor()
+    cam = sensor["camera"]
+    monkeypatch.setattr(capture, "load_press", lambda folder: SimpleNamespace(folder=folder))
+    monkeypatch.setattr(sensor_record, "sensor_of", lambda press: sensor)
+    plane = np.zeros((cam["height"], cam["width"]), np.float32)
+    colour = np.zeros(plane.shape + (3,), np.float32)
+    arrays = {"tricolor": colour, "dark": colour, "depth": plane, "normals": colour, "valid": plane > 0}
+    monkeypatch.setattr(dataset, "reference_arrays", lambda press: arrays)
+    mine, other = _task(smoothing_px=2.0), _task(smoothing_px=1.0)
+    _finish(tmp_path, mine)
+    data, _ = learning.assemble_dataset(tmp_path, [mine], mine.samples)
+    assert data.load(mine.id)["rgb"].shape == (5, 3)
+    write_shard(samples_path(tmp_path, mine.id), _arrays(), dataset_entry(tmp_path, other, _info()))
+    with pytest.raises(CaptureError) as caught:
+        data.load(mine.id)
+    said = str(caught.value)
+    assert said.startswith(f"{samples_path(tmp_path, mine.id)}: made from other") and "\n" not in said, said
+    assert "nlips calibrate" not in said and f"run the experiment again on its work folder {tmp_path}" in said, said
+
+
+def _sensor() -> dict:
+    """The default design's sensor description (what index.json records)."""
+    from nlipscalib.core.capture import SensorResponse
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.core.sensor_record import describe_sensor
+
+    design = SensorDesign()
+    return describe_sensor(design.camera_model(), design.led_models(), SensorResponse())
+
+
+def test_a_bumped_sampling_rule_makes_the_press_tasks_samples_anew(tmp_path, monkeypatch):
+    """``nlips calibrate``'s shard stamp holds the change-detection rule's version, so a changed rule re-samples its
+    presses; an experiment's press task hash did not, and its samples stayed the old rule's for good. Both now take
+    the one list (learn.dataset.SAMPLE_RULES); today's versions leave the hash as it was (earlier work folders keep
+    their tasks), and tasks without samples are untouched."""
+    from nlipscalib.learn import dataset
+
+    task, plain = _task(), Task(kind="reference", id="ref-x", scene={})
+    assert task.hash == tasks.digest(dataclasses.asdict(task))
+    _finish(tmp_path, task)
+    assert load_result(tmp_path, task) is not None
+    run = dataset.dataset_run([], tmp_path, SamplingConfig())
+    was = {"task": task.hash, "plain": plain.hash, "run": run["key"]}
+    monkeypatch.setattr(dataset, "SAMPLE_RULES", dataset.SAMPLE_RULES | {"rule": dataset.RULE_VERSION + 1})
+    assert task.hash != was["task"] and plain.hash == was["plain"]
+    assert dataset.dataset_run([], tmp_path, SamplingConfig())["key"] != was["run"]
+    assert load_result(tmp_path, task) is None  # the run makes it again
