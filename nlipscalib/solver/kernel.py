@@ -208,6 +208,11 @@ class Model:
         """``a`` as one array (a :class:`ChunkedModel` keeps its results in chunks; this model does not)."""
         return a
 
+    @staticmethod
+    def every(a: Array, step: int) -> Array:
+        """``a.reshape(-1)[::step]`` of an (L, 3, N) per-sample array: a regular subsample of it."""
+        return a.reshape(-1)[::step]
+
     def gauss_newton_blocks(
         self, F: Array, dF: Sequence[Array], r: Array, w: Array, albedo: Array
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -338,6 +343,19 @@ class ChunkedModel:
         if isinstance(a, tuple):
             return tuple(self.whole(x) for x in a)
         return a
+
+    def every(self, a: Array | Parts, step: int) -> Array:
+        """:meth:`Model.every` of an (L, 3, N) array or its :class:`Parts`, the same values: read from the chunks
+        where they lie, not from a joined copy (44 MB of fresh pages per level at 640x480 with 12 LEDs)."""
+        if not isinstance(a, Parts):
+            return a.reshape(-1)[::step]
+        planes = a.arrays[0].shape[0] * a.arrays[0].shape[1]
+        plane, pixel = np.divmod(np.arange(0, planes * self.n, step), self.n)
+        out = np.empty(len(plane), a.arrays[0].dtype)
+        for s, part in zip(self.slices, a.arrays):
+            here = (pixel >= s.start) & (pixel < s.stop)
+            out[here] = part.reshape(planes, -1)[plane[here], pixel[here] - s.start]
+        return out
 
     def shading(
         self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False

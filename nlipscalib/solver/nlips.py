@@ -39,7 +39,7 @@ from ..core.robust_scale import mad_scale
 from . import geometry, reuse, threads
 from .blas import blas_threads
 from .inputs import check_inputs
-from .kernel import Array, Backend, Parts, make_model
+from .kernel import Array, Backend, ChunkedModel, Model, Parts, make_model
 from .krylov import Krylov, forcing
 from .options import SolverOptions
 from .pyramid import build_pyramid, checked_prior_weights, resize
@@ -646,7 +646,7 @@ class _Level:
         self.lam = None
         # least squares' energy does not depend on the scale lambda (not known yet): taken in this refit
         albedo, r, e_data = self.refit(F, None, energy=iterate and est == "ls")
-        self.lam = _robust_scale(be, model.whole(r), lv["images"], lv["usable"] > 0, opts)
+        self.lam = _robust_scale(be, model, r, lv["images"], lv["usable"], opts)
         # The smoothness weight is relative to the data term's curvature along the gradient of t (least
         # squares, starting depth).
         self.gamma = (
@@ -799,21 +799,29 @@ class _Level:
         return _embed(self.t, self.mk), result, self.info
 
 
-def _robust_scale(be: Backend, r: Array, images: np.ndarray, usable: np.ndarray, opts: SolverOptions) -> float:
+def _robust_scale(
+    be: Backend,
+    model: Model | ChunkedModel,
+    r: Array | Parts,
+    images: np.ndarray,
+    usable: np.ndarray,
+    opts: SolverOptions,
+) -> float:
     """Estimator scale lambda from the residuals of the usable samples, floored relative to the images.
 
     Parameters
     ----------
-    r : (L, 3, N) residuals on the backend; images : (L, 3, N) normalised images; usable : (L, 3, N) bool
+    model : the level's model; r : (L, 3, N) residuals on the backend, as ``model`` returned them (chunks too)
+    images : (L, 3, N) normalised images; usable : (L, 3, N) usable samples as 0/1
     """
     # Medians over a regular subsample: up to 10^7 samples at full resolution, and a median of
-    # 2 10^5 is as good a scale estimate as it needs to be.
+    # 2 10^5 is as good a scale estimate as it needs to be. Only the subsample is read (no whole copies).
     step = max(1, usable.size // 200_000)
-    u = usable.reshape(-1)[::step]
+    u = usable.reshape(-1)[::step] > 0
     if not u.any():
         return 1e-12
     med_i = float(np.median(images.reshape(-1)[::step][u]))
-    r_sub = be.numpy(r.reshape(-1)[::step])[u]
+    r_sub = be.numpy(model.every(r, step))[u]
     return max(opts.robust_scale * mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
 
 
