@@ -110,10 +110,11 @@ def _row_view(A: sp.csr_matrix | sp.csr_array, rows: slice) -> sp.csr_matrix:
     """Rows ``rows`` of CSR ``A`` as a CSR matrix whose values and column indices are views of ``A``'s own.
 
     Not ``csr_matrix((data[a:b], indices[a:b], indptr))``: SciPy's constructor checks the format, and its check
-    copies a value or index array that views less than half of its base (``prune``), so one block in two was a
-    copy of half of ``A``. For a whole 640x480 frame's fixed-pattern map that was 92 MB copied (and page-faulted)
-    per normal-matrix assembly, 24 MB per linear solve's system (benchmarks/RESULTS.md, s18-d). The block is made
-    empty (its check copies nothing) and given the views after it."""
+    copies a value or index array that views less than half of its base's elements (``prune``): one block in two,
+    and every block of an array read from the disk cache into a byte buffer. A whole 640x480 frame's fixed-pattern
+    map (7.7 M entries) was copied whole, 92 MB of fresh pages, per normal-matrix assembly, and half of each linear
+    solve's system (benchmarks/RESULTS.md, s18-d). The block is made empty (its check copies nothing) and given the
+    views after it."""
     a, b = int(A.indptr[rows.start]), int(A.indptr[rows.stop])
     block = sp.csr_matrix((rows.stop - rows.start, A.shape[1]), dtype=A.dtype)
     block.data, block.indices = A.data[a:b], A.indices[a:b]
