@@ -657,8 +657,9 @@ class _Level:
         self.M = self.b = None
         if iterate:
             self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
-        # the derivatives are in the blocks now: not held through the linear solve (:meth:`_newton_step`)
-        self.t, self.F, self.dF, self.albedo, self.r = t, F, None, albedo, r
+        # the derivatives and residuals are in the blocks now: not held through the linear solve and the line search
+        # (:meth:`_newton_step`); the level's result is refitted from F and the albedo (:meth:`finish`)
+        self.t, self.F, self.dF, self.albedo, self.r = t, F, None, albedo, None
         self.e_cur = e_data + self.prior(t) if iterate else None
         self.info = {
             "shape": list(mk.shape),
@@ -716,11 +717,12 @@ class _Level:
                 self.F, self.dF = self.shade(t, True)
             w = model.weights(self.r, self.lam, self.est)
             self.M, self.b = model.gauss_newton_blocks(self.F, self.dF, self.r, w, self.albedo)
-            # What the blocks are made from is not held through the assembly and the linear solve, where a whole
-            # frame's memory peaks (AMG's set-up): the weights and the derivatives, 44 MB each at 640x480 with
-            # 12 LEDs. The next blocks come from the accepted depth's derivatives (:meth:`_accept`).
+            # What the blocks are made from is not held through the assembly, the linear solve (AMG's set-up) and
+            # the line search (a trial's shading, derivatives and residuals), where a whole frame's memory peaks:
+            # the weights, the derivatives and the residuals, 44 MB each at 640x480 with 12 LEDs. The next blocks
+            # come from the accepted depth's (:meth:`_accept`).
             del w
-            self.dF = None
+            self.dF = self.r = None
             self.tm.lap("blocks")
         M, b, zeta, gamma = self.M, self.b, self.zeta, self.gamma
         self.M = self.b = None  # used; the next iteration's blocks come from the accepted depth
