@@ -12,8 +12,9 @@ a process; this module keeps them on disk between processes.
   the BLAS setting), and a digest of the package's own source, NumPy's and SciPy's versions: a changed
   formula or library never serves an old result.
 - **Entries:** ``<dir>/<kind>/<digest>.pkl``: :data:`MAGIC`, a table of sizes, the pickle (protocol 5) of
-  (:data:`TAG`, value) with its arrays' bytes out of band, then those bytes as they are in memory
-  (:func:`_serialised`). Written atomically (temporary file, then rename:
+  (:data:`TAG`, value) with its arrays' bytes out of band, then those bytes as they are in memory, each from an
+  offset that is a multiple of :data:`ALIGN` (:func:`_serialised`). Read, the file is mapped and the arrays
+  view the mapping (:func:`load`): no copy of them is made. Written atomically (temporary file, then rename:
   :func:`nlipscalib.core.atomic.write_with`), so processes sharing the folder never read a partial entry; two
   writing the same key write the same result and the last rename wins. An entry that cannot be read (truncated,
   another Python) is treated as missing, recomputed and replaced; one that reads but holds no result of this
@@ -43,11 +44,13 @@ import contextlib
 import dataclasses
 import hashlib
 import logging
+import mmap
 import os
 import pickle
 import struct
 import sys
 import threading
+from collections.abc import Sequence
 from pathlib import Path
 from typing import BinaryIO
 
@@ -64,12 +67,16 @@ ENV_MB = "NLIPS_CACHE_MB"
 DEFAULT_MB = 2048
 """Default size bound, MB: a 640x480 sensor's entries take about 250 MB (sphere1: 251 MB)."""
 SUFFIX = ".pkl"
-TAG = "nlipscalib.diskcache.entry/2"
+TAG = "nlipscalib.diskcache.entry/3"
 """First item of every stored (TAG, value) pair: an entry without it was not written by :func:`store`."""
-MAGIC = b"nlipscalib.diskcache/2\n"
+MAGIC = b"nlipscalib.diskcache/3\n"
 """First bytes of every entry file (:func:`_serialised`): a file without them is another program's."""
 _SIZES = struct.Struct("<QQ")
 """(bytes of the pickle, number of out-of-band buffers) after :data:`MAGIC`; then each buffer's bytes as ``<Q``."""
+ALIGN = 64
+"""Every out-of-band buffer starts at a multiple of this many bytes from the file's start (zeros pad the gaps): the
+arrays viewing a mapped entry are aligned as NumPy and SciPy's kernels want them (a page-aligned mapping, a
+cache line apart), never copied for it."""
 
 _salt: str | None = None
 _pending: dict[Path, threading.Thread] = {}
@@ -174,7 +181,14 @@ def entry(kind: str, key: object) -> Path | None:
 
 def load(path: Path) -> object:
     """The result stored at ``path``; raises KeyError when there is none or it cannot be read. An entry this
-    process is writing in the background (:func:`store_later`) is waited for."""
+    process is writing in the background (:func:`store_later`) is waited for.
+
+    The file is mapped (copy on write: an array changed in place changes this process's page, never the file) and
+    the result's arrays view the mapping. Why not read it into memory: a whole 640x480 frame's entries are ~300 MB,
+    and read they were as many fresh pages to fault in and a copy from the page cache; mapped, the pages are the
+    page cache's own, faulted in 64 KiB at a time (benchmarks/RESULTS.md, s18-d). An entry is replaced by renaming
+    a new file over it (:mod:`nlipscalib.core.atomic`), never written in place, so a mapping always sees whole,
+    unchanging bytes."""
     wait(path)
     try:
         with open(path, "rb") as f:
@@ -197,9 +211,9 @@ def load(path: Path) -> object:
 
 
 def _read_entry(f: BinaryIO) -> object:
-    """The (TAG, value) of an entry file ``f``, read past :data:`MAGIC`: each out-of-band buffer is read into an
-    array of its own, which the value's arrays then view (no second copy). ValueError when the file is short or
-    long (truncated, or not written by :func:`_serialised`)."""
+    """The (TAG, value) of an entry file ``f``, read past :data:`MAGIC`: the file is mapped and each out-of-band
+    buffer is a view of the mapping, which the value's arrays then view (no copy). ValueError when the file is
+    short or long (truncated, or not written by :func:`_serialised`)."""
     head = f.read(_SIZES.size)
     if len(head) != _SIZES.size:
         raise ValueError("truncated")
@@ -208,26 +222,46 @@ def _read_entry(f: BinaryIO) -> object:
     if len(table) != 8 * count:
         raise ValueError("truncated")
     pickled = f.read(size)
-    buffers = []
-    for n in struct.unpack(f"<{count}Q", table):
-        buf = np.empty(n, np.uint8)
-        if f.readinto(memoryview(buf)) != n:
-            raise ValueError("truncated")
-        buffers.append(buf)
-    if len(pickled) != size or f.read(1):
+    if len(pickled) != size:
+        raise ValueError("truncated")
+    lengths = struct.unpack(f"<{count}Q", table)
+    starts = _buffer_starts(f.tell(), lengths)
+    end = starts[-1] + lengths[-1] if count else f.tell()
+    if os.fstat(f.fileno()).st_size != end:
         raise ValueError("truncated or too long")
+    buffers = []
+    if count:
+        whole = memoryview(mmap.mmap(f.fileno(), end, access=mmap.ACCESS_COPY))
+        buffers = [whole[a : a + n] for a, n in zip(starts, lengths)]
     return pickle.loads(pickled, buffers=buffers)
+
+
+def _buffer_starts(offset: int, lengths: Sequence[int]) -> list[int]:
+    """File offsets of the out-of-band buffers of ``lengths`` bytes that follow the pickle, which ends at
+    ``offset``: each at the next multiple of :data:`ALIGN`."""
+    starts = []
+    for n in lengths:
+        offset = -(-offset // ALIGN) * ALIGN
+        starts.append(offset)
+        offset += n
+    return starts
 
 
 def _serialised(value: object) -> list:
     """The pieces of ``value``'s entry file, in order: :data:`MAGIC` and the sizes, the pickle of (TAG, value)
     with its contiguous arrays out of band (protocol 5), then those arrays' bytes as views of their memory (no
-    copy). Pickling errors (a value that cannot be pickled) are raised here, in the caller's thread."""
+    copy), each after the zeros that start it at a multiple of :data:`ALIGN`. Pickling errors (a value that cannot
+    be pickled) are raised here, in the caller's thread."""
     buffers: list[pickle.PickleBuffer] = []
     pickled = pickle.dumps((TAG, value), protocol=5, buffer_callback=buffers.append)
     raw = [b.raw() for b in buffers]
-    sizes = struct.pack(f"<{len(raw)}Q", *(r.nbytes for r in raw))
-    return [MAGIC + _SIZES.pack(len(pickled), len(raw)) + sizes, pickled, *raw]
+    lengths = [r.nbytes for r in raw]
+    head = MAGIC + _SIZES.pack(len(pickled), len(raw)) + struct.pack(f"<{len(raw)}Q", *lengths)
+    parts, offset = [head, pickled], len(head) + len(pickled)
+    for r, start in zip(raw, _buffer_starts(offset, lengths)):
+        parts += [bytes(start - offset), r]
+        offset = start + r.nbytes
+    return parts
 
 
 def store(path: Path, value: object) -> None:

@@ -208,8 +208,19 @@ class Model:
         """``a`` as one array (a :class:`ChunkedModel` keeps its results in chunks; this model does not)."""
         return a
 
+    @staticmethod
+    def every(a: Array, step: int) -> Array:
+        """``a.reshape(-1)[::step]`` of an (L, 3, N) per-sample array: a regular subsample of it."""
+        return a.reshape(-1)[::step]
+
     def gauss_newton_blocks(
-        self, F: Array, dF: Sequence[Array], r: Array, w: Array, albedo: Array
+        self,
+        F: Array,
+        dF: Sequence[Array],
+        r: Array,
+        w: Array,
+        albedo: Array,
+        out: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Variable-projection Gauss-Newton blocks of the data term, summed over LEDs and channels.
 
@@ -225,6 +236,7 @@ class Model:
         ----------
         F : (L, N) shading; dF : 3 arrays (L, N), its derivatives along t, t_u, t_v.
         r, w : (L, 3, N) residuals and IRLS weights; albedo : (3, N).
+        out : (M, b) arrays of the shapes returned, written and returned (None: new ones).
 
         Returns
         -------
@@ -240,8 +252,7 @@ class Model:
         e = xp.einsum("lcn,ln->cn", wr, F)  # (3, N): <r, s>_W, zero when rho is the exact fit
         a = [xp.einsum("lcn,ln->cn", Wp, F * dFa) for dFa in dF]  # <s, ds_a>_W
         N = F.shape[1]
-        M = np.empty((3, 3, N))
-        b = np.empty((3, N))
+        M, b = out if out is not None else (np.empty((3, 3, N)), np.empty((3, N)))
         for i in range(3):
             # projected gradient: <r, rho (ds_a - s <s, ds_a>/<s, s>)>_W
             gi = albedo * (xp.einsum("lcn,ln->cn", wr, dF[i]) - e * a[i] * inv_d)
@@ -339,6 +350,19 @@ class ChunkedModel:
             return tuple(self.whole(x) for x in a)
         return a
 
+    def every(self, a: Array | Parts, step: int) -> Array:
+        """:meth:`Model.every` of an (L, 3, N) array or its :class:`Parts`, the same values: read from the chunks
+        where they lie, not from a joined copy (44 MB of fresh pages per level at 640x480 with 12 LEDs)."""
+        if not isinstance(a, Parts):
+            return a.reshape(-1)[::step]
+        planes = a.arrays[0].shape[0] * a.arrays[0].shape[1]
+        plane, pixel = np.divmod(np.arange(0, planes * self.n, step), self.n)
+        out = np.empty(len(plane), a.arrays[0].dtype)
+        for s, part in zip(self.slices, a.arrays):
+            here = (pixel >= s.start) & (pixel < s.stop)
+            out[here] = part.reshape(planes, -1)[plane[here], pixel[here] - s.start]
+        return out
+
     def shading(
         self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
     ) -> Parts | tuple[Parts, Parts, Parts, Parts]:
@@ -383,7 +407,16 @@ class ChunkedModel:
         w: Array | Parts,
         albedo: Array | Parts,
     ) -> tuple[np.ndarray, np.ndarray]:
-        return self._join(self._map("gauss_newton_blocks", F, dF, r, w, albedo))
+        """:meth:`Model.gauss_newton_blocks`, each chunk's written into its pixels of the whole blocks (no chunk
+        arrays joined: 29 MB of float64 at 640x480 made twice, where a whole frame's memory peaks)."""
+        M, b = np.empty((3, 3, self.n)), np.empty((3, self.n))
+        self._threads.map_items(
+            lambda k: self.parts[k].gauss_newton_blocks(
+                *(self._cut(a, k) for a in (F, dF, r, w, albedo)), out=(M[..., self.slices[k]], b[:, self.slices[k]])
+            ),
+            range(len(self.parts)),
+        )
+        return M, b
 
 
 def make_model(be: Backend, q: np.ndarray, *args: np.ndarray) -> Model | ChunkedModel:

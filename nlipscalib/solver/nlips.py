@@ -39,7 +39,7 @@ from ..core.robust_scale import mad_scale
 from . import geometry, reuse, threads
 from .blas import blas_threads
 from .inputs import check_inputs
-from .kernel import Array, Backend, Parts, make_model
+from .kernel import Array, Backend, ChunkedModel, Model, Parts, make_model
 from .krylov import Krylov, forcing
 from .options import SolverOptions
 from .pyramid import build_pyramid, checked_prior_weights, resize
@@ -646,7 +646,7 @@ class _Level:
         self.lam = None
         # least squares' energy does not depend on the scale lambda (not known yet): taken in this refit
         albedo, r, e_data = self.refit(F, None, energy=iterate and est == "ls")
-        self.lam = _robust_scale(be, model.whole(r), lv["images"], lv["usable"] > 0, opts)
+        self.lam = _robust_scale(be, model, r, lv["images"], lv["usable"], opts)
         # The smoothness weight is relative to the data term's curvature along the gradient of t (least
         # squares, starting depth).
         self.gamma = (
@@ -657,7 +657,9 @@ class _Level:
         self.M = self.b = None
         if iterate:
             self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
-        self.t, self.F, self.dF, self.albedo, self.r = t, F, dF, albedo, r
+        # the derivatives and residuals are in the blocks now: not held through the linear solve and the line search
+        # (:meth:`_newton_step`); the level's result is refitted from F and the albedo (:meth:`finish`)
+        self.t, self.F, self.dF, self.albedo, self.r = t, F, None, albedo, None
         self.e_cur = e_data + self.prior(t) if iterate else None
         self.info = {
             "shape": list(mk.shape),
@@ -715,12 +717,19 @@ class _Level:
                 self.F, self.dF = self.shade(t, True)
             w = model.weights(self.r, self.lam, self.est)
             self.M, self.b = model.gauss_newton_blocks(self.F, self.dF, self.r, w, self.albedo)
+            # What the blocks are made from is not held through the assembly, the linear solve (AMG's set-up) and
+            # the line search (a trial's shading, derivatives and residuals), where a whole frame's memory peaks:
+            # the weights, the derivatives and the residuals, 44 MB each at 640x480 with 12 LEDs. The next blocks
+            # come from the accepted depth's (:meth:`_accept`).
+            del w
+            self.dF = self.r = None
             self.tm.lap("blocks")
         M, b, zeta, gamma = self.M, self.b, self.zeta, self.gamma
+        self.M = self.b = None  # used; the next iteration's blocks come from the accepted depth
         g = b[0] + ops["Du"].T @ b[1] + ops["Dv"].T @ b[2] + zeta * (t - self.t0) + gamma * (ops["lap"] @ t)
         M[0, 0] += zeta + 1e-12 * max(float(np.mean(M[0, 0])), 1e-30)  # the prior; definite if zeta = 0
         Hm = ops["normal"].assemble(M, (gamma, gamma))
-        self.M = None  # used; the next iteration's blocks come from the accepted depth
+        del M, b  # (3, 3, N) and (3, N) float64: in Hm and g now
         self.tm.lap("assemble")
         g_norm = float(np.linalg.norm(g))
         eta = forcing(g_norm, self.g_prev, self.eta, opts)
@@ -799,21 +808,29 @@ class _Level:
         return _embed(self.t, self.mk), result, self.info
 
 
-def _robust_scale(be: Backend, r: Array, images: np.ndarray, usable: np.ndarray, opts: SolverOptions) -> float:
+def _robust_scale(
+    be: Backend,
+    model: Model | ChunkedModel,
+    r: Array | Parts,
+    images: np.ndarray,
+    usable: np.ndarray,
+    opts: SolverOptions,
+) -> float:
     """Estimator scale lambda from the residuals of the usable samples, floored relative to the images.
 
     Parameters
     ----------
-    r : (L, 3, N) residuals on the backend; images : (L, 3, N) normalised images; usable : (L, 3, N) bool
+    model : the level's model; r : (L, 3, N) residuals on the backend, as ``model`` returned them (chunks too)
+    images : (L, 3, N) normalised images; usable : (L, 3, N) usable samples as 0/1
     """
     # Medians over a regular subsample: up to 10^7 samples at full resolution, and a median of
-    # 2 10^5 is as good a scale estimate as it needs to be.
+    # 2 10^5 is as good a scale estimate as it needs to be. Only the subsample is read (no whole copies).
     step = max(1, usable.size // 200_000)
-    u = usable.reshape(-1)[::step]
+    u = usable.reshape(-1)[::step] > 0
     if not u.any():
         return 1e-12
     med_i = float(np.median(images.reshape(-1)[::step][u]))
-    r_sub = be.numpy(r.reshape(-1)[::step])[u]
+    r_sub = be.numpy(model.every(r, step))[u]
     return max(opts.robust_scale * mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
 
 

@@ -75,8 +75,8 @@ below ~20,000 rows a product is a fraction of a millisecond, as little as handin
 class RowBlocks:
     """``A @ x`` for a CSR matrix, one contiguous block of rows per thread.
 
-    Each block is a CSR view of ``A``'s own rows (no copy), and SciPy computes every row's sum over its
-    entries in the same order whatever the rows around it, so the product has the same bits as ``A @ x``.
+    Each block is a CSR view of ``A``'s own rows (no copy, :func:`_row_view`), and SciPy computes every row's sum
+    over its entries in the same order whatever the rows around it, so the product has the same bits as ``A @ x``.
     One thread, or fewer than :data:`PRODUCT_MIN_ROWS` rows: ``A @ x`` itself.
 
     Parameters
@@ -90,11 +90,7 @@ class RowBlocks:
         m = A.shape[0]
         self.blocks: list[tuple[slice, sp.csr_matrix]] = []
         if workers() > 1 and m >= PRODUCT_MIN_ROWS:
-            for s in chunks(m):
-                a, b = int(A.indptr[s.start]), int(A.indptr[s.stop])
-                indptr = A.indptr[s.start : s.stop + 1] - A.indptr[s.start]
-                view = (A.data[a:b], A.indices[a:b], indptr)
-                self.blocks.append((s, sp.csr_matrix(view, shape=(s.stop - s.start, A.shape[1]), copy=False)))
+            self.blocks = [(s, _row_view(A, s)) for s in chunks(m)]
 
     def dot(self, x: np.ndarray) -> np.ndarray:
         """(m,) -- ``A @ x`` for (n,) ``x``."""
@@ -108,3 +104,19 @@ class RowBlocks:
 
         map_items(block, self.blocks)
         return out
+
+
+def _row_view(A: sp.csr_matrix | sp.csr_array, rows: slice) -> sp.csr_matrix:
+    """Rows ``rows`` of CSR ``A`` as a CSR matrix whose values and column indices are views of ``A``'s own.
+
+    Not ``csr_matrix((data[a:b], indices[a:b], indptr))``: SciPy's constructor checks the format, and its check
+    copies a value or index array that views less than half of its base's elements (``prune``): one block in two,
+    and every block of an array read from the disk cache into a byte buffer. A whole 640x480 frame's fixed-pattern
+    map (7.7 M entries) was copied whole, 92 MB of fresh pages, per normal-matrix assembly, and half of each linear
+    solve's system (benchmarks/RESULTS.md, s18-d). The block is made empty (its check copies nothing) and given the
+    views after it."""
+    a, b = int(A.indptr[rows.start]), int(A.indptr[rows.stop])
+    block = sp.csr_matrix((rows.stop - rows.start, A.shape[1]), dtype=A.dtype)
+    block.data, block.indices = A.data[a:b], A.indices[a:b]
+    block.indptr = A.indptr[rows.start : rows.stop + 1] - A.indptr[rows.start]
+    return block

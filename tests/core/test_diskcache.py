@@ -263,6 +263,29 @@ def test_an_entry_is_the_arrays_bytes_and_a_short_header(cache_dir):
     assert 0 <= path.stat().st_size - (value["a"].nbytes + value["b"].nbytes) < 1000
 
 
+def test_a_loaded_entry_views_the_mapped_file_aligned_and_copy_on_write(cache_dir):
+    """Loading maps the file: the arrays are not read into memory of their own (a whole 640x480 frame's entries
+    are ~300 MB of fresh pages otherwise), each starts aligned, and changing one in place leaves the file as it
+    was."""
+    import tracemalloc
+
+    path = diskcache.entry("k", ("mapped",))
+    value = {"odd": np.arange(3, dtype=np.uint8), "a": np.arange(1_000_000.0), "b": np.arange(7, dtype=np.int32)}
+    diskcache.store(path, value)
+    tracemalloc.start()
+    try:
+        back = diskcache.load(path)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < value["a"].nbytes // 10  # 8 MB of values, not allocated
+    for name, array in value.items():
+        np.testing.assert_array_equal(back[name], array)
+        assert back[name].ctypes.data % diskcache.ALIGN == 0
+    back["a"][:] = -1.0  # copy on write: this process's pages only
+    np.testing.assert_array_equal(diskcache.load(path)["a"], value["a"])
+
+
 @pytest.mark.parametrize(
     "ending, complete",
     [
