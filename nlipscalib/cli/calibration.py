@@ -24,6 +24,9 @@ OPTION_OF = {
 SOLVE_OPTION_OF = {"normals": "--normals", "leds": "--leds", "reference": "--reference"}
 """The option of `nlips calibrate` that sets each other thing a dataset's samples depend on
 (learn.dataset.dataset_run), for the line refusing a build of other samples into the same --out."""
+COVERAGE_FILES = ("coverage.json", "coverage.png")
+"""The coverage report beside the dataset: its numbers (written last: their presence marks the report whole), its
+figure."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -146,11 +149,16 @@ def _solve_and_build(
     failed = {k: v for k, v in status.items() if v not in ("solved", "skipped")}
     if not solved:
         raise ConfigError(f"{root}: no press could be solved")
+    # the coverage report is of the dataset it was made from: removed before the build, and coverage.json (which
+    # marks it whole) written after its figure, so that a run killed in between leaves none rather than the
+    # earlier dataset's report (or half of it) beside this one's index.json
+    for name in COVERAGE_FILES:
+        (out / name).unlink(missing_ok=True)
     build_dataset(solved, reference, out, cfg, progress=not args.no_progress, run=run)
     data = CalibrationDataset(out)
     cov = coverage(data)
-    write_coverage_json(out / "coverage.json", cov)
-    coverage_figure(cov, out / "coverage.png")
+    coverage_figure(cov, out / COVERAGE_FILES[1])
+    write_coverage_json(out / COVERAGE_FILES[0], cov)
     n = sum(e["samples"] for e in data.entries)
     print(
         f"{out}: {len(data.entries)} presses, {n} samples ({sum(e['contact_samples'] for e in data.entries)} contact)"

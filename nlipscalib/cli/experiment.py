@@ -84,11 +84,11 @@ def _guide() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.atomic import write_json
+    from ..core.atomic import check_replaceable, write_json
     from ..core.config import check_count
     from ..core.errors import ConfigError
     from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
-    from ..experiments.framework import run_experiment
+    from ..experiments.framework import RESULTS, run_experiment
     from ..experiments.runner import check_scheduler
     from ..experiments.summary import clean
     from .options import fill_defaults
@@ -120,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
     for _, _, _, work, report in runs:  # every output checked before hours of work, not at the first report
         _writable_folder("--out", args.out, work, probe=not args.plan)
         _writable_folder("--report", args.report, report, probe=not args.plan)
+        if not args.plan:  # the report replaces the folder whole: never a folder of other files
+            check_replaceable(report, RESULTS)
     if args.write_baseline:
         _writable_file("--write-baseline", Path(args.write_baseline), probe=not args.plan)
     code = 0

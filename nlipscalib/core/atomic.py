@@ -200,6 +200,40 @@ def atomic_dir(final: str | Path, overwrite: bool = False) -> Iterator[Path]:
 
 
 @contextlib.contextmanager
+def whole_dir(final: str | Path, marker: str) -> Iterator[Path]:
+    """Build a folder of one run's files (a report: a page, its data, its figures) under a temporary name and put
+    it in place of ``final`` whole when the block succeeds (:func:`atomic_dir` with ``overwrite``).
+
+    Why: a report written file by file into ``final`` kept the files of an earlier run that this one does not
+    write (a figure of a config with more figure presses, or whose training then worked) beside the new page, and
+    a run killed half way left some new files beside the old page: a copied folder was a mix of runs. Now the
+    folder is always one run's complete output: the earlier one until the swap, this one after it (the last to
+    finish when two runs swap theirs at once). ``final`` is refused (:func:`check_replaceable`) when it holds
+    files of something else, which the swap would remove.
+
+    ``marker``: the file every such folder holds (``results.json``), by which an existing one is recognised.
+    """
+    check_replaceable(final, marker)
+    with atomic_dir(final, overwrite=True) as tmp:
+        yield tmp
+
+
+def check_replaceable(final: str | Path, marker: str) -> None:
+    """ConfigError unless ``final`` is absent, an empty folder, or a folder holding ``marker`` (one that
+    :func:`whole_dir` may replace): a folder of other files (a user's ``--report .``) would be removed whole."""
+    from .errors import ConfigError
+
+    final = Path(final)
+    if final.is_file():
+        raise ConfigError(f"{final}: a file, not a folder")
+    if final.is_dir() and not (final / marker).is_file() and any(final.iterdir()):
+        raise ConfigError(
+            f"{final}: holds files but no {marker}, so it is not a folder this command writes, and writing it "
+            "replaces the whole folder; give a new or empty folder"
+        )
+
+
+@contextlib.contextmanager
 def scratch_dir(final: str | Path) -> Iterator[Path]:
     """A temporary folder beside ``final`` to assemble several files in, removed when the block ends.
 

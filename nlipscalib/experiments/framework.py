@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ..core.atomic import write_text
+from ..core.atomic import whole_dir, write_text
 from ..core.config import from_mapping, read_config_file, to_mapping
 from ..core.errors import ConfigError
 from . import check, markdown
@@ -30,6 +30,9 @@ if TYPE_CHECKING:  # named in hints only
     from ..core.claims import Owner
     from .tasks import Task
 
+RESULTS = "results.json"
+"""The report's numbers (and config), which every report folder holds: what ``--redraw`` reads, and how an existing
+report folder is told from a folder of other files (core.atomic.whole_dir)."""
 WORK_HOLD = "run"
 """Target of the claims by which the runs of one set of tasks hold their work folder (:func:`hold_outputs`):
 ``OUT/NAME-SIZE/.claim-run~KEY~TOKEN``, one per run."""
@@ -195,9 +198,6 @@ def run_experiment(
         run_s = time.perf_counter() - start
         rows = evaluation_rows(tasks, out)
         tables = exp.tables(cfg, rows, learned)
-        report.mkdir(parents=True, exist_ok=True)
-        figures = exp.figures(cfg, rows, tables, report, learned)
-        figures += [(f.caption, f.file) for f in exp.draw_work_figures(cfg, rows, out, report, learned)]
         main = next((t for t in tables if t.name == exp.check_table), tables[0] if tables else None)
         doc = {
             "experiment": exp.name,
@@ -224,8 +224,11 @@ def run_experiment(
             "task_seconds": _task_seconds(tasks, out),
             "not_done": list(exp.not_done),
         }
-        write_text(report / "results.json", dumps(doc))
-        write_text(report / "report.md", markdown.report(exp, doc, tables, figures))
+        with whole_dir(report, RESULTS) as folder:  # the earlier report stays whole until this one is complete
+            figures = exp.figures(cfg, rows, tables, folder, learned)
+            figures += [(f.caption, f.file) for f in exp.draw_work_figures(cfg, rows, out, folder, learned)]
+            write_text(folder / RESULTS, dumps(doc))
+            write_text(folder / "report.md", markdown.report(exp, doc, tables, figures))
         return doc
 
 

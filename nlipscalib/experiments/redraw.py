@@ -11,18 +11,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 from pathlib import Path
 
-from ..core.atomic import write_text
+from ..core.atomic import whole_dir, write_text
 from ..core.config import from_mapping
 from ..core.errors import ConfigError
 from . import markdown
-from .framework import Experiment, WorkFigure
+from .framework import RESULTS, Experiment, WorkFigure
 from .provenance import software
 from .summary import rows_from_json
-
-RESULTS = "results.json"
-"""The report file a redraw reads (written by ``framework.run_experiment``)."""
 
 
 @dataclasses.dataclass
@@ -41,7 +39,9 @@ def redraw(exp: Experiment, report: Path) -> Redrawn:
     Parameters
     ----------
     exp : the experiment that wrote the report (a results.json of another one is refused)
-    report : report folder holding results.json; figures and report.md are written into it, atomically
+    report : report folder holding results.json; replaced whole (core.atomic.whole_dir) by one holding results.json,
+        the figures drawn from the work folder that it held, and the figures and report.md drawn now: none of a
+        figure the current code no longer draws is left, and a redraw that fails leaves the folder as it was
 
     Returns
     -------
@@ -86,10 +86,13 @@ def _redraw(exp: Experiment, doc: dict, report: Path) -> Redrawn:
     learned = doc.get("learned") or {}
     tables = exp.tables(cfg, rows, learned)
     by = software()  # before drawing: the figures rewritten in a checkout would mark it "+dirty"
-    figures = exp.figures(cfg, rows, tables, report, learned)
     kept = [f for f in exp.work_figures if (report / f.file).is_file()]
-    listed = figures + [(f.caption, f.file) for f in kept]  # the order of a run's report
-    write_text(report / "report.md", markdown.report(exp, doc, tables, listed, _note(kept, by)))
+    with whole_dir(report, RESULTS) as folder:
+        for name in (RESULTS, *(f.file for f in kept)):  # what the new folder keeps of the old one
+            shutil.copy2(report / name, folder / name)
+        figures = exp.figures(cfg, rows, tables, folder, learned)
+        listed = figures + [(f.caption, f.file) for f in kept]  # the order of a run's report
+        write_text(folder / "report.md", markdown.report(exp, doc, tables, listed, _note(kept, by)))
     return Redrawn([name for _, name in figures] + ["report.md"], kept)
 
 

@@ -159,3 +159,39 @@ def test_the_commit_named_is_the_one_before_the_redraw_wrote(tmp_path, monkeypat
     monkeypatch.setattr(module, "software", lambda: {"nlipscalib": "0", "git_commit": "after" if drawn else "before"})
     module.redraw(get("q1"), report)
     assert drawn and "at `before`" in (report / "report.md").read_text()
+
+
+def test_a_redraw_leaves_one_report_no_figure_the_code_no_longer_draws(tmp_path):
+    # the redraw rewrote the files it draws into the folder: a figure an older code drew stayed beside the new page
+    report = tmp_path / "q1"
+    shutil.copytree(DOCS / "q1", report)
+    (report / "q1_retired.png").write_bytes(b"drawn by an older nlipscalib")
+    done = redraw_module().redraw(get("q1"), report)
+    written = [*done.drawn, *(f.file for f in done.kept), "results.json"]
+    assert sorted(p.name for p in report.iterdir()) == sorted(written)
+    assert (report / "results.json").read_bytes() == (DOCS / "q1" / "results.json").read_bytes()
+
+
+def test_a_redraw_that_fails_half_way_leaves_the_report_as_it_was(tmp_path, monkeypatch):
+    report = tmp_path / "q1"
+    shutil.copytree(DOCS / "q1", report)
+    for png in ("q1_aae.png", "q1_mabse.png"):  # drawn by an older code: the current one draws them otherwise
+        (report / png).write_bytes(b"older drawing")
+    before = {p.name: p.read_bytes() for p in report.iterdir()}
+    figures = Q1.figures
+
+    def killed(self, cfg, rows, tables, folder, learned):
+        figures(self, cfg, rows, tables, folder, learned)  # the figures drawn anew, then report.md never written
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Q1, "figures", killed)
+    with pytest.raises(KeyboardInterrupt):
+        redraw_module().redraw(get("q1"), report)
+    assert {p.name: p.read_bytes() for p in report.iterdir()} == before
+    assert [p.name for p in tmp_path.iterdir()] == ["q1"]  # no temporary folder left
+
+
+def redraw_module():
+    from nlipscalib.experiments import redraw
+
+    return redraw

@@ -249,3 +249,26 @@ def test_a_captured_press_records_no_indenter_kind(tmp_path):
 
     press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(32, 24)))
     assert press_description(press) == {"indenter": None, "polar_deg": None, "azimuth_deg": None, "depth_mm": None}
+
+
+def test_cli_calibrate_killed_while_reporting_coverage_leaves_no_report_of_another_dataset(
+    twin_presses, tmp_path, monkeypatch
+):
+    # coverage.json was written before coverage.png: a run killed between them (or while computing the coverage)
+    # left the earlier dataset's report, or half of it, beside the new index.json
+    from nlipscalib.report import learn as report_learn
+
+    root = tmp_path / "presses"
+    for name in ("reference", "press_a"):
+        shutil.copytree(twin_presses / name, root / name)
+    assert main(["calibrate", str(root), "--no-progress"]) == 0
+    shutil.copytree(twin_presses / "press_b", root / "press_b")
+
+    def killed(cov, path):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report_learn, "coverage_figure", killed)
+    assert main(["calibrate", str(root), "--no-progress"]) == 130  # Ctrl-C's exit status
+    assert CalibrationDataset(root / "calibration").names == ["press_a", "press_b"]
+    assert not (root / "calibration" / "coverage.json").exists()
+    assert not (root / "calibration" / "coverage.png").exists()
