@@ -3,6 +3,7 @@ killed in the middle of the sweep (its press is re-run elsewhere, nothing else i
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import signal
@@ -34,12 +35,14 @@ def _in_thread(fn) -> tuple[threading.Thread, dict]:
     return thread, box
 
 
-def _wait(predicate, timeout: float = 600.0) -> None:
+def _wait(predicate, timeout: float = 600.0):
+    """``predicate()``'s first true value."""
     end = time.monotonic() + timeout
-    while not predicate():
+    while not (value := predicate()):
         if time.monotonic() > end:
             raise TimeoutError("the sweep did not get there in time")
-        time.sleep(0.2)
+        time.sleep(0.05)
+    return value
 
 
 def _worker_processes() -> list:
@@ -54,9 +57,19 @@ def _worker_processes() -> list:
     return found
 
 
-def _presses_started(out: Path) -> bool:
-    """Stage 2 (presses) has begun: the calibration's result is written."""
-    return any((out / "tasks").glob("cal-*.json"))
+def _pid_in_a_press(out: Path, pids) -> int | None:
+    """A process of ``pids`` that holds a press task's claim now, i.e. is in the middle of that press (killing
+    one after a fixed delay could hit a worker between tasks, or find the sweep already over on a fast machine)."""
+    for path in (out / "tasks").glob(".claim-*"):
+        if path.name.startswith(".claim-cal-"):
+            continue
+        try:
+            pid = json.loads(path.read_text())["pid"]
+        except (OSError, ValueError, KeyError):  # released or being written meanwhile
+            continue
+        if pid in pids:
+            return pid
+    return None
 
 
 def _sweep(out: Path, **kw) -> dict:
@@ -78,10 +91,7 @@ def local_run(tmp_path_factory):
     logging.getLogger("nlipscalib.experiments.runner").addHandler(handler)
     progress.configure(progress=False, log_file=out / "log.txt")  # --log-file: the workers append to it too
     thread, box = _in_thread(lambda: _sweep(out, workers=2))  # noqa: B023
-    _wait(lambda: _presses_started(out))
-    _wait(lambda: _worker_processes())
-    time.sleep(1.0)  # mid-task: a press renders for seconds
-    _worker_processes()[0].send_signal(signal.SIGKILL)
+    os.kill(_wait(lambda: _pid_in_a_press(out, {w.pid for w in _worker_processes()})), signal.SIGKILL)
     thread.join(timeout=900)
     progress.configure(progress=False, log_file=None)
     logging.getLogger("nlipscalib.experiments.runner").removeHandler(handler)
@@ -105,10 +115,9 @@ def test_dask_cluster_gives_identical_numbers_despite_a_killed_worker(local_run,
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         with Client(cluster) as client:
             thread, box = _in_thread(lambda: _sweep(tmp_path, scheduler=cluster.scheduler_address))
-            _wait(lambda: _presses_started(tmp_path))
-            time.sleep(1.0)
-            pids = client.run(os.getpid)  # worker address -> pid
-            os.kill(next(iter(pids.values())), signal.SIGKILL)  # the nanny restarts it; its task runs again
+            pids = set(client.run(os.getpid).values())
+            # the nanny restarts it; its task runs again
+            os.kill(_wait(lambda: _pid_in_a_press(tmp_path, pids)), signal.SIGKILL)
             thread.join(timeout=900)
     assert "error" not in box, box.get("error")
     doc = box["doc"]
