@@ -98,9 +98,20 @@ def jacobi_predicted(rate: float | None, rtol: float) -> float:
     return float(np.log(rtol) / np.log(max(rate, 1e-300)))
 
 
+PRECONDITIONER_DTYPE = np.float32
+"""Precision of the AMG hierarchy's matrices and its V-cycle (:func:`_amg_preconditioner`); CG itself (iterates,
+residuals, the system's products) stays float64. A preconditioner need only approximate A^-1: single precision's
+rounding (~6e-8 relative) lies far below what a cycle leaves (CG's residual falls ~0.7 per AMG-preconditioned
+iteration on a 640x480 level) and below CG's tightest tolerance (``cg_rtol``, 1e-4). Each level's values take half
+the bytes: on a whole frame's 640x480 level a cycle took ~26.5 ms instead of ~31 (its Gauss-Seidel sweeps, two
+thirds of it, gained only ~8 %, the products ~25 %), every Gauss-Newton step of sphere1 and cube1
+took the same CG iterations, and the contact AAE moved by under 1e-4 deg (benchmarks/RESULTS.md, s18-h)."""
+
+
 def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:
-    """A smoothed-aggregation AMG V-cycle for ``Hm`` (:func:`_hierarchy`, :class:`_VCycle`)."""
-    return _VCycle(_hierarchy(Hm)).operator()
+    """A smoothed-aggregation AMG V-cycle for ``Hm`` (:func:`_hierarchy`, :class:`_VCycle`), in
+    :data:`PRECONDITIONER_DTYPE`."""
+    return _VCycle(_hierarchy(Hm.astype(PRECONDITIONER_DTYPE))).operator()
 
 
 def _hierarchy(Hm: sp.csr_matrix) -> object:
@@ -154,13 +165,15 @@ class _VCycle:
         return spla.LinearOperator(self.A[0].shape, matvec=self.apply, dtype=np.float64)
 
     def apply(self, b: np.ndarray) -> np.ndarray:
-        """(n,) float64 -- the cycle's approximation of A^-1 b."""
-        b = np.ravel(b)
+        """(n,) float64 -- the cycle's approximation of A^-1 b for (n,) ``b``, computed in the hierarchy's precision
+        (``b`` rounded to it, the result widened back)."""
+        b = np.ravel(b).astype(self.A[0].dtype, copy=False)
         if len(self.levels) == 1:
-            return self.coarse_solver(self.levels[0].A, b)
-        x = np.zeros_like(b)
-        self._cycle(0, x, b)
-        return x
+            x = self.coarse_solver(self.levels[0].A, b)
+        else:
+            x = np.zeros_like(b)
+            self._cycle(0, x, b)
+        return np.asarray(x, dtype=np.float64)
 
     def _cycle(self, k: int, x: np.ndarray, b: np.ndarray) -> None:
         """Improve ``x`` (in place) toward the solution of level k's system with right-hand side ``b``."""
@@ -223,7 +236,7 @@ class _BlockGaussSeidel:
         return cls(list(zip(starts, stops)), [(c - width, c + width) for c in cuts])
 
     def __call__(self, A: sp.csr_matrix, x: np.ndarray, b: np.ndarray) -> None:
-        """One symmetric sweep on ``x`` (n,) float64, in place, for the system ``A x = b`` (pyamg's smoother's
+        """One symmetric sweep on ``x`` (n,) of ``A``'s dtype, in place, for the system ``A x = b`` (pyamg's smoother's
         signature; ``A`` is the level's matrix this smoother was made for)."""
         from pyamg import amg_core
 

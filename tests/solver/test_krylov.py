@@ -84,6 +84,58 @@ def test_cg_with_the_v_cycle_converges_as_with_pyamgs():
     assert counts[0] == counts[1]
 
 
+def test_the_preconditioner_cycles_in_single_precision_for_a_double_precision_cg(monkeypatch):
+    """The hierarchy and its V-cycle in float32 (half the bytes of each level's values), taking and returning
+    float64: within float32's rounding of the float64 cycle, and CG (float64) reaches the same tolerance in the
+    same iterations as with that cycle, on a system of known answer; the same bits on one thread or two."""
+    from nlipscalib.solver import threads
+    from nlipscalib.solver.options import SolverOptions
+
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)  # the finest level smooths by blocks, as at 640x480
+    A = _laplacian(60)
+    x_true = np.random.default_rng(6).standard_normal(A.shape[0])
+    b = A @ x_true
+    cycles = []
+
+    class Recorded(krylov._VCycle):  # the cycles the solver makes
+        def __init__(self, ml: object):
+            super().__init__(ml)
+            cycles.append(self)
+
+    monkeypatch.setattr(krylov, "_VCycle", Recorded)
+    M = krylov._amg_preconditioner(A)
+    cycle = cycles[-1]
+    assert len(cycle.levels) > 2 and cycle.smoothers[0] is not None
+    assert all(m.dtype == np.float32 for m in cycle.A + cycle.R + cycle.P)
+    assert M.dtype == np.float64 and M.matvec(b).dtype == np.float64
+    double = krylov._VCycle(krylov._hierarchy(A))
+    expected = double.apply(b)
+    np.testing.assert_allclose(M.matvec(b), expected, rtol=0, atol=1e-5 * np.abs(expected).max())
+    before = threads.workers()
+    results = []
+    for count in (1, 2):
+        threads.set_workers(count)
+        try:
+            results.append(krylov._amg_preconditioner(A).matvec(b))
+        finally:
+            threads.set_workers(before)
+    np.testing.assert_array_equal(results[0], results[1])
+
+    counts = []
+    for precond in (M, double.operator()):
+        iterates = []
+        x, status = spla.cg(A, b, rtol=1e-8, M=precond, callback=iterates.append)
+        assert status == 0 and np.linalg.norm(A @ x - b) <= 1e-8 * np.linalg.norm(b)
+        counts.append(len(iterates))
+    assert abs(counts[0] - counts[1]) <= 1
+    # the solver's own path: AMG at its tightest tolerance (no Jacobi), the answer to that tolerance
+    pcg = krylov.Krylov(SolverOptions(cg_jacobi_iters=0))
+    x, iters = pcg.solve(A, b, SolverOptions().cg_rtol)
+    assert pcg.setups == 1 and cycles[-1].A[0].dtype == np.float32 and iters <= counts[1]
+    assert np.linalg.norm(A @ x - b) <= SolverOptions().cg_rtol * np.linalg.norm(b)
+    assert np.linalg.norm(x - x_true) <= 1e-3 * np.linalg.norm(x_true)
+
+
 def test_row_block_products_are_the_products(monkeypatch):
     """Products by row blocks on two threads: the same bits as the matrix's own, blocks or not."""
     from nlipscalib.solver import threads
