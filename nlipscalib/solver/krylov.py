@@ -103,9 +103,10 @@ PRECONDITIONER_DTYPE = np.float32
 residuals, the system's products) stays float64. A preconditioner need only approximate A^-1: single precision's
 rounding (~6e-8 relative) lies far below what a cycle leaves (CG's residual falls ~0.7 per AMG-preconditioned
 iteration on a 640x480 level) and below CG's tightest tolerance (``cg_rtol``, 1e-4). Each level's values take half
-the bytes: on a whole frame's 640x480 level a cycle took ~26.5 ms instead of ~31 (its Gauss-Seidel sweeps, two
-thirds of it, gained only ~8 %, the products ~25 %), every Gauss-Newton step of sphere1 and cube1
-took the same CG iterations, and the contact AAE moved by under 1e-4 deg (benchmarks/RESULTS.md, s18-h)."""
+the bytes: on a whole frame's 640x480 level a cycle took ~26.5 ms instead of ~31 (its Gauss-Seidel sweeps then, two
+thirds of it, gained only ~8 %, the products ~25 %; :class:`_L1Jacobi` has since replaced the large levels' sweeps),
+every Gauss-Newton step of sphere1 and cube1 took the same CG iterations, and the contact AAE moved by under 1e-4 deg
+(benchmarks/RESULTS.md, s18-h)."""
 
 
 def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:
@@ -157,9 +158,9 @@ class _VCycle:
         self.A = [level.A.tocsr() for level in self.levels]
         self.R = [level.R.tocsr() for level in self.levels[:-1]]
         self.P = [level.P.tocsr() for level in self.levels[:-1]]
-        # the large levels' products by row blocks, and their smoothing by independent blocks, on both cores
+        # the large levels' products, their smoothers' included, by row blocks on both cores
         self.products = [tuple(threads.RowBlocks(m) for m in ops) for ops in zip(self.A, self.R, self.P)]
-        self.smoothers = [_BlockGaussSeidel.of(A) for A in self.A[:-1]]
+        self.smoothers = [_L1Jacobi.of(A, ops[0]) for A, ops in zip(self.A[:-1], self.products)]
 
     def operator(self) -> spla.LinearOperator:
         return spla.LinearOperator(self.A[0].shape, matvec=self.apply, dtype=np.float64)
@@ -191,64 +192,54 @@ class _VCycle:
         postsmoother(A, x, b)
 
 
-SMOOTHER_BLOCKS = 4
-"""Row blocks of a large level's Gauss-Seidel sweeps (:class:`_BlockGaussSeidel`). Fixed, not the thread count:
-the sweep's order, and so the solution's last bits, are then the same on 1, 2 or 4 threads (a result kept for
-reuse need not record them). Each interior boundary adds a separator of twice the matrix's bandwidth to the
-serial part: 2,564 of 307,200 rows each on a 640x480 level."""
 SMOOTHER_MIN_ROWS = 50_000
-"""Levels with at least this many rows smooth by blocks (:class:`_BlockGaussSeidel`): a 640x480 level's two
-symmetric sweeps per cycle take ~20 of a CG iteration's 32 ms of CPU; the next level's (20,483 rows) ~2.5 ms, too
-little to be worth moving its iterates off pyamg's."""
+"""Levels with at least this many rows smooth by l1-Jacobi (:class:`_L1Jacobi`), the smaller ones by pyamg's own
+symmetric Gauss-Seidel (one sweep before and after): on a 640x480 level (307,200 rows) Gauss-Seidel's two symmetric
+sweeps were two thirds of a cycle's 26 ms; the next level's (20,483 rows) take ~2.5 ms, and l1-Jacobi there cost
+more CG iterations than it saved (benchmarks/RESULTS.md, s18-k)."""
+SMOOTHER_OMEGA = 1.8
+"""Damping of :class:`_L1Jacobi`. Its scaled matrix's eigenvalues lie in (0, 1] (Gershgorin), so any weight below 2
+converges and keeps the cycle positive definite; the 640x480 levels' largest is ~0.95, at which 1.8 leaves the
+highest-frequency error a factor 0.71 per sweep and took fewer CG iterations than 1.6 or 1.3 (s18-k)."""
 
 
-class _BlockGaussSeidel:
-    """Symmetric Gauss-Seidel (forward sweep, then backward) in a row order whose first part runs on several
-    threads: :data:`SMOOTHER_BLOCKS` blocks of rows that share no entry, then the separators between them.
+class _L1Jacobi:
+    """One damped l1-Jacobi sweep, ``x += omega D^-1 (b - A x)`` with ``D_ii = sum_j |a_ij|``: a large level's smoother.
 
-    pyamg's smoother of the hierarchy (:func:`_hierarchy`: one symmetric sweep before and after) visits the rows
-    in their own order, one after another. Cutting the rows at ``SMOOTHER_BLOCKS - 1`` points and setting aside
-    a separator of the bandwidth ``w`` (the largest ``|i - j|`` of an entry) either side of each cut leaves
-    blocks no row of which reads another block's unknowns: their forward sweeps in parallel are the sequential
-    sweep in the order (block 0, ..., block B-1, separators), whatever the threads (pyamg's compiled sweep over
-    a row range, which releases the GIL). The backward sweep runs that order in reverse, so the smoother stays
-    symmetric and CG's preconditioner symmetric positive definite. The same smoother in another row order:
-    its iterates differ from pyamg's in the last bits, not in the CG iterations (benchmarks/RESULTS.md).
+    A product with ``A`` (by row blocks, on both cores: :class:`threads.RowBlocks`) and elementwise work, instead of
+    Gauss-Seidel's row-by-row sweep, which waits on the rows before it (latency, not bandwidth) and so gained ~8 %
+    from single precision where the products gained ~25 %. The l1 row sums bound the spectrum of ``D^-1 A`` by 1
+    without an eigenvalue estimate (a set-up cost, and pyamg's is random). The same symmetric operator before and
+    after the coarse correction: CG's preconditioner stays symmetric positive definite. A weaker smoother than a
+    symmetric Gauss-Seidel sweep: the 640x480 levels took ~1.3-1.5x the CG iterations at ~40 % of the cycle's CPU
+    (benchmarks/RESULTS.md, s18-k). Elementwise and by rows: the same bits on any number of threads.
+
+    Parameters
+    ----------
+    A : (n, n) scipy.sparse CSR matrix, float32 or float64 -- the level's matrix, symmetric positive definite.
+    product : :class:`threads.RowBlocks` of ``A`` -- the cycle's own, shared.
     """
 
-    def __init__(self, blocks: list[tuple[int, int]], separators: list[tuple[int, int]]):
-        self.blocks, self.separators = blocks, separators
+    def __init__(self, A: sp.csr_matrix, product: threads.RowBlocks):
+        self.product = product
+        # every row holds its positive diagonal (A is SPD): reduceat sums each row, none empty
+        row_sums = np.add.reduceat(np.abs(A.data, dtype=np.float64), A.indptr[:-1])
+        self.scale = (SMOOTHER_OMEGA / row_sums).astype(A.dtype)
+        """(n,) A's dtype -- omega / D_ii."""
 
     @classmethod
-    def of(cls, A: sp.csr_matrix) -> _BlockGaussSeidel | None:
-        """The smoother of level matrix ``A`` (CSR), or None where pyamg's own serves: a level under
-        :data:`SMOOTHER_MIN_ROWS` rows, or one too wide a band for blocks of at least twice its separators."""
-        n = A.shape[0]
-        if n < SMOOTHER_MIN_ROWS:
-            return None
-        rows = np.repeat(np.arange(n, dtype=A.indices.dtype), np.diff(A.indptr))
-        width = int(np.abs(A.indices - rows).max()) if A.nnz else 0
-        cuts = [round(k * n / SMOOTHER_BLOCKS) for k in range(1, SMOOTHER_BLOCKS)]
-        if n < SMOOTHER_BLOCKS * 4 * width:
-            return None
-        starts = [0] + [c + width for c in cuts]
-        stops = [c - width for c in cuts] + [n]
-        return cls(list(zip(starts, stops)), [(c - width, c + width) for c in cuts])
+    def of(cls, A: sp.csr_matrix, product: threads.RowBlocks) -> _L1Jacobi | None:
+        """The smoother of level matrix ``A`` (CSR, ``product`` its RowBlocks), or None where pyamg's own serves:
+        a level under :data:`SMOOTHER_MIN_ROWS` rows."""
+        return cls(A, product) if A.shape[0] >= SMOOTHER_MIN_ROWS else None
 
     def __call__(self, A: sp.csr_matrix, x: np.ndarray, b: np.ndarray) -> None:
-        """One symmetric sweep on ``x`` (n,) of ``A``'s dtype, in place, for the system ``A x = b`` (pyamg's smoother's
-        signature; ``A`` is the level's matrix this smoother was made for)."""
-        from pyamg import amg_core
-
-        def sweep(first: int, stop: int, step: int) -> None:
-            amg_core.gauss_seidel(A.indptr, A.indices, A.data, x, b, first, stop, step)
-
-        threads.map_items(lambda r: sweep(r[0], r[1], 1), self.blocks)
-        for start, stop in self.separators:
-            sweep(start, stop, 1)
-        for start, stop in self.separators[::-1]:
-            sweep(stop - 1, start - 1, -1)
-        threads.map_items(lambda r: sweep(r[1] - 1, r[0] - 1, -1), self.blocks)
+        """One sweep on ``x`` (n,) of ``A``'s dtype, in place, for the system ``A x = b`` (pyamg's smoother's
+        signature; ``A`` is the level's matrix this smoother was made for). From a zero ``x`` (the pre-smoother)
+        the residual is ``b`` itself: the product is skipped, the bits the same."""
+        r = b - self.product.dot(x) if x.any() else b.copy()
+        r *= self.scale
+        x += r
 
 
 _dedup_lock = threading.Lock()

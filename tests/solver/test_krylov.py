@@ -91,7 +91,7 @@ def test_the_preconditioner_cycles_in_single_precision_for_a_double_precision_cg
     from nlipscalib.solver import threads
     from nlipscalib.solver.options import SolverOptions
 
-    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)  # the finest level smooths by blocks, as at 640x480
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)  # the finest level smooths by l1-Jacobi, as at 640x480
     A = _laplacian(60)
     x_true = np.random.default_rng(6).standard_normal(A.shape[0])
     b = A @ x_true
@@ -173,67 +173,78 @@ def test_row_blocks_view_the_matrix_without_copying_it(monkeypatch):
         np.testing.assert_array_equal(block.toarray(), A[rows].toarray())
 
 
-def _sequential_gauss_seidel(A: sp.csr_matrix, x: np.ndarray, b: np.ndarray, order: np.ndarray) -> None:
-    """Gauss-Seidel over the rows in ``order``, each row's sum in its stored order (pyamg's arithmetic)."""
-    for i in order:
-        cols, vals = A.indices[A.indptr[i] : A.indptr[i + 1]], A.data[A.indptr[i] : A.indptr[i + 1]]
-        off = cols != i
-        x[i] = (b[i] - np.sum(vals[off] * x[cols[off]]) if off.any() else b[i]) / vals[~off][0]
-
-
-def test_block_smoother_is_symmetric_gauss_seidel_in_its_order_on_any_threads(monkeypatch):
-    """The large levels' smoother: blocks that share no entry (in parallel), then the separators, forward and
-    back; on one or two threads the same bits as that order swept row by row."""
+def test_large_levels_smooth_by_one_l1_jacobi_sweep_on_any_threads(monkeypatch):
+    """A large level's smoother: x + omega (b - A x) / sum_j |a_ij|, from a zero x omega b / sum_j |a_ij|; on one
+    or two threads (the product by row blocks) the same bits."""
     from nlipscalib.solver import threads
 
     monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
-    A = _laplacian(40)  # 1600 rows, bandwidth 40: four blocks of 400 rows, separators of 80
-    smoother = krylov._BlockGaussSeidel.of(A)
-    assert smoother is not None and len(smoother.blocks) == krylov.SMOOTHER_BLOCKS
-    order = np.concatenate([np.arange(a, b) for a, b in smoother.blocks + smoother.separators])
-    assert np.array_equal(np.sort(order), np.arange(1600))
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    A = _laplacian(40)  # 1600 rows: row sums |a_ij| 8.001 inside, less on the border
     rng = np.random.default_rng(4)
     b, x0 = rng.standard_normal(1600), rng.standard_normal(1600)
-    expected = x0.copy()
-    # Python sums round unlike pyamg's loop: compare to a tight tolerance, and the threads' results bit for bit
-    _sequential_gauss_seidel(A, expected, b, order)
-    _sequential_gauss_seidel(A, expected, b, order[::-1])
+    dense = A.toarray()
+    l1 = np.abs(dense).sum(axis=1)
+    omega = krylov.SMOOTHER_OMEGA
     results, before = [], threads.workers()
     for count in (1, 2):
         threads.set_workers(count)
         try:
-            x = x0.copy()
+            smoother = krylov._VCycle(krylov._hierarchy(A)).smoothers[0]
+            assert isinstance(smoother, krylov._L1Jacobi)
+            assert len(smoother.product.blocks) == (2 if count == 2 else 0)
+            x, zero = x0.copy(), np.zeros(1600)
             smoother(A, x, b)
-            results.append(x)
+            smoother(A, zero, b)
+            results.append((x, zero))
         finally:
             threads.set_workers(before)
-    np.testing.assert_allclose(results[0], expected, rtol=1e-12, atol=1e-12)
-    np.testing.assert_array_equal(results[0], results[1])
+    np.testing.assert_allclose(results[0][0], x0 + omega * (b - dense @ x0) / l1, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(results[0][1], omega * b / l1, rtol=1e-15, atol=0)
+    for one, two in zip(*results):
+        np.testing.assert_array_equal(one, two)
 
 
-def test_block_smoother_only_on_large_narrow_levels(monkeypatch):
+def test_large_level_smoother_only_from_its_row_count(monkeypatch):
     monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
-    assert krylov._BlockGaussSeidel.of(_laplacian(30)) is None  # 900 rows
-    wide = _laplacian(40).tolil()
-    wide[0, 1599] = wide[1599, 0] = -1e-3  # one entry across the whole matrix: no block shares nothing
-    assert krylov._BlockGaussSeidel.of(wide.tocsr()) is None
+    cycle = krylov._VCycle(krylov._hierarchy(_laplacian(40)))  # 1600 rows, the next level under 1000
+    assert isinstance(cycle.smoothers[0], krylov._L1Jacobi)
+    assert all(s is None for s in cycle.smoothers[1:])  # pyamg's symmetric Gauss-Seidel there
 
 
-def test_cg_with_block_smoothing_converges_as_with_pyamgs(monkeypatch):
-    """The large levels' smoother in its block order: CG's iterations as with pyamg's own cycle."""
+def test_the_cycle_with_l1_jacobi_is_symmetric_positive_definite(monkeypatch):
+    """CG needs a symmetric positive definite preconditioner: the cycle's matrix (its columns, float64 hierarchy)
+    is symmetric to rounding and its eigenvalues positive, with the l1-Jacobi weight up to just below 2."""
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    A = _laplacian(34)  # 1156 rows, two levels or more
+    for omega in (krylov.SMOOTHER_OMEGA, 1.99):
+        monkeypatch.setattr(krylov, "SMOOTHER_OMEGA", omega)
+        cycle = krylov._VCycle(krylov._hierarchy(A))
+        assert len(cycle.levels) >= 2 and isinstance(cycle.smoothers[0], krylov._L1Jacobi)
+        M = np.column_stack([cycle.apply(e) for e in np.eye(A.shape[0])])
+        np.testing.assert_allclose(M, M.T, rtol=0, atol=1e-12 * np.abs(M).max())
+        assert np.linalg.eigvalsh((M + M.T) / 2).min() > 0
+
+
+def test_cg_with_l1_jacobi_smoothing_converges_on_a_known_answer(monkeypatch):
+    """The large levels' l1-Jacobi sweep is weaker than pyamg's symmetric Gauss-Seidel sweep: CG reaches 1e-8 on a
+    known answer within twice the iterations of pyamg's own cycle (13 against 7 here; ~1.3-1.5x on 640x480 levels,
+    where the cycle costs ~40 % of the CPU)."""
     monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
     A = _laplacian(80)
-    b = np.random.default_rng(5).standard_normal(A.shape[0])
+    x_true = np.random.default_rng(5).standard_normal(A.shape[0])
+    b = A @ x_true
     ml = krylov._hierarchy(A)
     cycle = krylov._VCycle(ml)
-    assert cycle.smoothers[0] is not None
+    assert isinstance(cycle.smoothers[0], krylov._L1Jacobi)
     counts = []
     for M in (ml.aspreconditioner(cycle="V"), cycle.operator()):
         iterates = []
         x, status = spla.cg(A, b, rtol=1e-8, M=M, callback=iterates.append)
         assert status == 0 and np.linalg.norm(A @ x - b) <= 1e-8 * np.linalg.norm(b)
+        assert np.linalg.norm(x - x_true) <= 1e-5 * np.linalg.norm(x_true)
         counts.append(len(iterates))
-    assert abs(counts[0] - counts[1]) <= 1
+    assert counts[0] < counts[1] <= 2 * counts[0]
 
 
 def _scaled_poisson(n: int) -> sp.csr_matrix:
