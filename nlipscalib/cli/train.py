@@ -67,7 +67,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--exclude", help="comma-separated presses kept out of training and validation (a test set)")
     p.add_argument("--max-minutes", type=float, default=0.0, help="stop training after this long (0: no limit)")
     p.add_argument(
-        "--threads", type=int, default=0, help="PyTorch CPU threads (default 0: every core this process may use)"
+        "--threads",
+        type=int,
+        help="PyTorch CPU threads (default 1: faster than more whenever another process uses a core, and the same "
+        "model on every machine; 0: every core this process may use, fastest on an idle machine)",
     )
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export (`nlips export MODEL` makes it later)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (none either when not on a terminal)")
@@ -94,7 +97,8 @@ def run(args: argparse.Namespace) -> int:
     if out.suffix != ".pt":
         raise ConfigError(f"--out {out}: the model file must end in .pt")
     given = {k: v for k, v in (("patience", args.patience), ("schedule", args.schedule)) if v is not None}
-    check_count("--threads", args.threads, minimum=0)
+    if args.threads is not None:  # else TrainConfig's default
+        given["threads"] = check_count("--threads", args.threads, minimum=0) or usable_cores()
     if not args.max_minutes >= 0:  # NaN too
         raise ConfigError(f"--max-minutes must be >= 0 (0: no limit), got {args.max_minutes}")
     with options_named(OPTION_OF):  # TrainConfig names its field; the user typed the option
@@ -108,7 +112,6 @@ def run(args: argparse.Namespace) -> int:
             lr=args.lr,
             seed=args.seed,
             max_seconds=args.max_minutes * 60,
-            threads=args.threads or usable_cores(),
         )
     data = CalibrationDataset(args.dataset)
     val = _names(args.val_presses) or None

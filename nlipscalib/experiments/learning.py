@@ -140,15 +140,14 @@ def _train(
     progress: bool,
 ) -> dict:
     """Train the model ``key`` (resuming its checkpoint) and write its record; the caller holds its claim."""
-    from ..core.cpus import usable_cores
     from ..learn.train import train
 
     path.parent.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
     others = [n for n in data.names if n not in set(names)]
-    # training runs in this (the client's) process once the press tasks are done: every core is free for it;
-    # the key above keeps the configured count, so the thread count never makes a model look new
-    res = train(data, dataclasses.replace(cfg, threads=usable_cores()), path, exclude=others, progress=progress)
+    # on cfg.threads as configured (1 unless the config says), which the key holds: every core of the client was
+    # 2.5-25x slower on a shared machine, and made a model that differs with the machine's core count
+    res = train(data, cfg, path, exclude=others, progress=progress)
     done = {
         "key": key,
         "model": str(path.relative_to(out)),

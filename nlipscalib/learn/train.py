@@ -7,12 +7,13 @@ together (:mod:`.publish`), so runs into one model path leave the files of one r
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import logging
 import math
 import time
-from collections.abc import Callable, Collection, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -89,9 +90,16 @@ class TrainConfig:
     max_seconds: float = 0.0
     """Stop after this much training time (0: no limit)."""
     threads: int = 1
-    """CPU threads for PyTorch. 1 here, for experiment workers that share a machine; ``nlips train`` passes
-    every core the process may use (two threads make a step of the paper's net ~20 % faster on 2 cores).
-    Not part of what a checkpoint must match to be resumed."""
+    """CPU threads for PyTorch while training (``torch.set_num_threads``; the process's count is restored after).
+    1 by default, for ``nlips train`` and the experiments alike, whatever the machine or its load: a step is
+    hundreds of small ops, each an OpenMP fork/join whose threads spin waiting for each other, so when another
+    process holds a core every op waits for a descheduled thread. On the shared 2-core VM a step of the paper's
+    net took 16-57 ms on 1 thread and 14-600 ms on 2 (the quick 64-64-64 net at batch 256: 2-9 ms against
+    28-470 ms); two threads gained ~15 % only when the machine was nearly idle (benchmarks/RESULTS.md, s18-i).
+    The count also changes the weights (summation order; after 20 steps they differ by up to 0.03), so a fixed
+    default gives the same model on every machine. ``nlips train --threads N`` asks for more. Not part of what a
+    checkpoint must match to be resumed (a run resumed on another count goes on with the same training, rounded
+    otherwise); the experiments' model key holds it (experiments.learning.model_files)."""
 
     def __post_init__(self):
         # every message starts with the field's name: `nlips train` names its option instead (cli/train.py)
@@ -200,9 +208,38 @@ def train(
         Why: a second identical ``nlips train`` waits for the first (:func:`.publish.hold_training`), then had
         nothing left to train but wrote the same model, checkpoint and ONNX file again.
     """
+    with torch_threads(cfg.threads):
+        return _train(dataset, cfg, Path(out), val_names, exclude, progress, stage, reuse)
+
+
+@contextlib.contextmanager
+def torch_threads(count: int) -> Iterator[None]:
+    """PyTorch's CPU threads set to ``count`` in the block, then back to the process's: a training's count must
+    not stay the process's, or what runs after it (the experiments score their models in the same process) would
+    run on another count after a training than after reusing its model."""
     import torch
 
-    out = Path(out)
+    before = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def _train(
+    dataset: CalibrationDataset,
+    cfg: TrainConfig,
+    out: Path,
+    val_names: Collection[str] | None,
+    exclude: Collection[str],
+    progress: bool,
+    stage: Path | None,
+    reuse: bool,
+) -> TrainResult:
+    """:func:`train`'s work, on the threads it set."""
+    import torch
+
     clean_interrupted_writes(out)
     data = _training_data(dataset, cfg, val_names, exclude)
     net, opt, sched = _fresh_training(cfg, dataset.sensor["camera"], data.x_tr)
@@ -289,12 +326,11 @@ def _training_data(
 
 
 def _fresh_training(cfg: TrainConfig, camera: dict, x_tr: np.ndarray):
-    """(net, optimiser, scheduler) of a training from scratch: torch's threads and seed set from ``cfg`` (the
-    weights' initialisation draws from it), the net sized for ``camera``'s image and its colour normalisation
-    taken from the training inputs ``x_tr`` (N, 5)."""
+    """(net, optimiser, scheduler) of a training from scratch: torch's seed set from ``cfg`` (the weights'
+    initialisation draws from it), the net sized for ``camera``'s image and its colour normalisation taken from the
+    training inputs ``x_tr`` (N, 5)."""
     import torch
 
-    torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     net = build_net(cfg.hidden, cfg.dropout, camera["width"], camera["height"])
     set_colour_normalisation(net, x_tr[:, 2:])

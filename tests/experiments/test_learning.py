@@ -53,3 +53,24 @@ def test_a_model_trained_before_is_reused_and_the_log_says_so(tmp_path, monkeypa
     with caplog.at_level("INFO", logger="nlipscalib.experiments.learning"):
         assert learning.train_model(None, names, stamps, cfg, tmp_path, progress=False)["key"] == key
     assert f"{path}: reused" in caplog.text
+
+
+def test_a_model_trains_on_the_threads_its_key_holds_not_every_core(tmp_path, monkeypatch):
+    """`_train` trained on every core of the client whatever the configured count: 2.5-25x slower on a shared
+    machine (each small op waits for a descheduled thread), and a model that differs with the core count."""
+    from types import SimpleNamespace
+
+    from nlipscalib.core import cpus
+
+    names, stamps, cfg = ["a", "b"], {"a": "1", "b": "2"}, TrainConfig(hidden=(8,))
+    used = []
+
+    def fake_train(data, cfg, path, **kwargs):
+        used.append(cfg)
+        path.write_bytes(b"model")
+        return SimpleNamespace(train_presses=["a"], val_presses=["b"], history=[], best_epoch=0)
+
+    monkeypatch.setattr(cpus, "usable_cores", lambda: 7)
+    monkeypatch.setattr(train_module, "train", fake_train)
+    learning.train_model(SimpleNamespace(names=names), names, stamps, cfg, tmp_path, progress=False)
+    assert used == [cfg] and cfg.threads == 1
