@@ -42,3 +42,34 @@ def test_a_truncated_png_read_as_a_frame_is_named_before_libpng_speaks(tmp_path,
     with pytest.raises(CaptureError, match="b.png: truncated PNG image"):
         read_image(cut)
     assert "libpng" not in capfd.readouterr().err
+
+
+def _png_row_filters(data: bytes, row_bytes: int) -> set[int]:
+    """The filter type byte of every row of a non-interlaced PNG (its IDAT chunks inflated)."""
+    import struct
+    import zlib
+
+    idat, pos = b"", 8
+    while pos < len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        if data[pos + 4 : pos + 8] == b"IDAT":
+            idat += data[pos + 8 : pos + 8 + length]
+        pos += 12 + length
+    raw = zlib.decompress(idat)
+    return set(raw[:: row_bytes + 1])
+
+
+def test_a_noisy_capture_image_is_written_losslessly_with_every_row_sub_filtered(tmp_path):
+    """A capture's noisy 16-bit images gain nothing from libpng trying every filter on each row, which took ~3x the
+    CPU time of one fixed filter and run-length deflate (the twin's 640x480 images, benchmarks/RESULTS.md, s18-j)."""
+    import cv2
+
+    from nlipscalib.core.imageio import read_png16, write_png16
+
+    rng = np.random.default_rng(0)
+    smooth = np.linspace(0, 40000, 64 * 48).reshape(48, 64, 1) * np.array([1.0, 0.8, 0.6])
+    image = (np.clip(smooth + rng.normal(0, 300, smooth.shape), 0, 65535).astype(np.uint16) >> 4) << 4
+    path = write_png16(tmp_path / "led_01.png", image)
+    np.testing.assert_array_equal(read_png16(path), image)
+    if hasattr(cv2, "IMWRITE_PNG_FILTER"):
+        assert _png_row_filters(path.read_bytes(), 64 * 3 * 2) == {1}  # PNG filter type 1: SUB

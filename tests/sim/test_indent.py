@@ -115,3 +115,20 @@ def test_bad_presses_raise(press, match):
 def test_non_positive_depth_raises():
     with pytest.raises(ConfigError, match="depth"):
         PressConfig(depth=0.0)
+
+
+def test_the_plate_solve_matches_a_dense_solve():
+    """The draping's sparse solve (SuperLU in symmetric mode, diagonal pivots) is the plate's exact minimiser."""
+    from nlipscalib.sim.indent import _cotan_laplacian, _plate, _solve
+
+    dome = make_dome(DomeConfig(edge_length=3.0))
+    lap, mass = _cotan_laplacian(dome.vertices, dome.faces)
+    q = _plate(lap, mass, 1.0)
+    apex = np.argmax(dome.vertices[:, 2])
+    near = np.linalg.norm(dome.vertices - dome.vertices[apex], axis=1)
+    known = np.where(near < 4.0, 1.0, 0.0)
+    unknown = (near >= 4.0) & (near < 12.0)
+    ui = np.flatnonzero(unknown)
+    dense = q.toarray()
+    expected = np.linalg.solve(dense[np.ix_(ui, ui)], -dense[ui] @ known)
+    np.testing.assert_allclose(_solve(q, known, unknown), expected, rtol=0, atol=1e-10)
