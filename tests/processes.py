@@ -97,3 +97,14 @@ def claim_mark_and_wait(folder: Path) -> None:
         (folder / str(os.getpid())).write_text("")
         while True:
             time.sleep(60)
+
+
+def wait_until(predicate, timeout: float = 2.0):
+    """``predicate()``'s first true value, polled until ``timeout`` s passed (then its last, false, value): another
+    thread or process acts when it is scheduled, which on a loaded machine is not within any fixed sleep."""
+    deadline = time.monotonic() + timeout
+    while not (value := predicate()):
+        if time.monotonic() > deadline:
+            return value
+        time.sleep(0.01)
+    return value

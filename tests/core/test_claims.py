@@ -8,12 +8,12 @@ import subprocess
 import sys
 import textwrap
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from nlipscalib.core.claims import claim, claim_path, holder
+from tests.processes import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -135,7 +135,7 @@ def test_many_claims_held_at_once_share_one_heartbeat_thread_and_all_stay_fresh(
         time.sleep(0.9)  # two stale periods: only the beats keep them fresh
         assert all(os.stat(claim_path(t)).st_mtime > start for t in targets)
     assert not any(claim_path(t).exists() for t in targets)
-    assert _within(30, lambda: threading.active_count() <= before)  # the thread ends with the last claim
+    assert wait_until(lambda: threading.active_count() <= before, 30)  # the thread ends with the last claim
 
 
 def test_a_claim_taken_over_is_no_longer_refreshed(tmp_path, caplog):
@@ -148,7 +148,7 @@ def test_a_claim_taken_over_is_no_longer_refreshed(tmp_path, caplog):
         path.write_text(json.dumps({"host": "elsewhere", "pid": 1, "token": "theirs"}))
         old = time.time() - 60
         os.utime(path, (old, old))
-        assert _within(30, lambda: "taken over" in caplog.text)  # a beat came due (0.1 s): it found another owner
+        assert wait_until(lambda: "taken over" in caplog.text, 30)  # a beat came due (0.1 s): it found another owner
         assert os.stat(path).st_mtime < time.time() - 30  # not refreshed
     assert path.exists()  # not ours: left as it is
 
@@ -283,17 +283,6 @@ def test_wait_for_release_returns_when_the_holder_lets_go_and_says_so_once(tmp_p
     claims.wait_for_release(target, on_wait=on_wait)
     assert time.monotonic() - t0 > 0.1 and holder(target) is None and said == ["held"]
     thread.join()
-
-
-def _within(seconds: float, done: Callable[[], bool]) -> bool:
-    """Whether ``done()`` came true within ``seconds``, polled: a background thread acts when it is scheduled, which
-    on a loaded machine is not within any fixed sleep."""
-    deadline = time.monotonic() + seconds
-    while not done():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
 
 
 def _dead_pid() -> int:

@@ -22,8 +22,9 @@ from nlipscalib.device.controller import (
     PortBusyError,
     open_port,
 )
+from tests.processes import wait_until
 
-from .ledboards import SimavrUnderTest, VirtualUnderTest, firmware_build, wait_until
+from .ledboards import SimavrUnderTest, VirtualUnderTest, firmware_build
 
 TIMEOUT = 0.5  # s; generous enough for a loaded CI machine, short enough for fast timeout tests
 

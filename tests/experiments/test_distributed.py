@@ -8,7 +8,6 @@ import logging
 import os
 import signal
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -16,6 +15,7 @@ import pytest
 from nlipscalib import progress
 from nlipscalib.experiments import get
 from nlipscalib.experiments.framework import run_experiment
+from tests.processes import wait_until
 
 psutil = pytest.importorskip("psutil")
 distributed = pytest.importorskip("distributed")
@@ -35,13 +35,10 @@ def _in_thread(fn) -> tuple[threading.Thread, dict]:
     return thread, box
 
 
-def _wait(predicate, timeout: float = 600.0):
-    """``predicate()``'s first true value."""
-    end = time.monotonic() + timeout
-    while not (value := predicate()):
-        if time.monotonic() > end:
-            raise TimeoutError("the sweep did not get there in time")
-        time.sleep(0.05)
+def _wait(predicate):
+    """``predicate()``'s first true value (600 s at most)."""
+    value = wait_until(predicate, 600.0)
+    assert value, "the sweep did not get there in time"
     return value
 
 
