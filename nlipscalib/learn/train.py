@@ -95,7 +95,8 @@ class TrainConfig:
     hundreds of small ops, each an OpenMP fork/join whose threads spin waiting for each other, so when another
     process holds a core every op waits for a descheduled thread. On the shared 2-core VM a step of the paper's
     net took 16-57 ms on 1 thread and 14-600 ms on 2 (the quick 64-64-64 net at batch 256: 2-9 ms against
-    28-470 ms); two threads gained ~15 % only when the machine was nearly idle (benchmarks/RESULTS.md, s18-i).
+    28-470 ms); on the idle machine two threads took 0.73-0.81x the wall of one (2 epochs of the paper's net on
+    Q2's dataset: 74-86 s against 101-106 s) for 40 % more CPU (benchmarks/RESULTS.md, s18-i and the lead's runs).
     The count also changes the weights (summation order; after 20 steps they differ by up to 0.03), so a fixed
     default gives the same model on every machine. ``nlips train --threads N`` asks for more. Not part of what a
     checkpoint must match to be resumed (a run resumed on another count goes on with the same training, rounded
