@@ -135,11 +135,11 @@ class Experiment:
 
 def _task_seconds(tasks: list[Task], out: Path) -> dict:
     """Seconds the finished tasks took, summed per kind (kept across resumes, unlike this run's wall time)."""
-    from .tasks import load_result
+    from .tasks import stored_result
 
     total: dict[str, float] = {}
     for t in tasks:
-        result = load_result(out, t)
+        result = stored_result(out, t)  # its timing: the samples were checked as the tasks ran
         if result is not None:
             total[t.kind] = total.get(t.kind, 0.0) + result.get("timing", {}).get("task_seconds", 0.0)
     return {k: round(v, 1) for k, v in total.items()} | {"all": round(sum(total.values()), 1)}

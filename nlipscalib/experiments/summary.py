@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from .plan import press_name
-from .tasks import Task, load_result
+from .tasks import Task, stored_result
 
 METRICS = ("aae_deg", "mabse", "depth_rmse_mm")
 """Accuracy figures of the true contact region (the paper's numbers are over the contact)."""
@@ -29,7 +29,9 @@ def evaluation_rows(tasks: list[Task], out: Path) -> list[dict]:
     for task in tasks:
         if task.kind != "press":
             continue
-        result = load_result(out, task)
+        # the result alone: its samples were checked as the run ran its tasks (runner.run_tasks), and its
+        # evaluations do not depend on them; reading every press's shard again cost a full read per report
+        result = stored_result(out, task)
         if result is None:
             continue
         for ev in result["evaluations"]:
