@@ -171,9 +171,10 @@ def atomic_dir(final: str | Path, overwrite: bool = False) -> Iterator[Path]:
     Yields the temporary folder's path. On error the temporary folder is removed, so an interrupted
     run leaves either the complete folder or nothing. Without ``overwrite``, the final rename never
     replaces an existing complete folder, even one another process published meanwhile
-    (:class:`FileExistsError` then, and this process's folder is dropped).
+    (:class:`FileExistsError` then, and this process's folder is dropped). A ``final`` that is a symbolic link is
+    written where it points, and the link stays (:func:`_link_target`).
     """
-    final = Path(final)
+    final = _link_target(Path(final))
     if final.exists() and not overwrite:
         raise FileExistsError(errno.EEXIST, "already exists", str(final))
     final.parent.mkdir(parents=True, exist_ok=True)
@@ -199,6 +200,21 @@ def atomic_dir(final: str | Path, overwrite: bool = False) -> Iterator[Path]:
         os.close(held)
 
 
+def _link_target(final: Path) -> Path:
+    """Where a folder given as a symbolic link lives (its target, even one not made yet); any other path as given.
+
+    Why: a folder is published by renaming a new one onto its name, and a rename onto a link replaces the link:
+    ``--report reports/latest`` (a link to ``reports/run-7``) turned the link into a real folder and left the run's
+    folder as it was. A link that cannot be followed (a loop) is left to fail where it is used.
+    """
+    if not final.is_symlink():
+        return final
+    try:
+        return final.resolve()
+    except (OSError, RuntimeError):  # RuntimeError: a loop of links (Python 3.11)
+        return final
+
+
 @contextlib.contextmanager
 def whole_dir(final: str | Path, marker: str) -> Iterator[Path]:
     """Build a folder of one run's files (a report: a page, its data, its figures) under a temporary name and put
@@ -213,6 +229,7 @@ def whole_dir(final: str | Path, marker: str) -> Iterator[Path]:
 
     ``marker``: the file every such folder holds (``results.json``), by which an existing one is recognised.
     """
+    final = _link_target(Path(final))
     check_replaceable(final, marker)
     with atomic_dir(final, overwrite=True) as tmp:
         yield tmp

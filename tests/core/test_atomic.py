@@ -278,3 +278,27 @@ def test_a_writability_probe_goes_with_the_temporaries_removed_on_termination(tm
         atomic.check_writable(tmp_path / "press", longest_name=len("nlips"))
     monkeypatch.undo()
     assert list((tmp_path / "press").iterdir()) == []
+
+
+def test_a_folder_given_as_a_link_is_written_where_it_points_and_the_link_stays(tmp_path):
+    """``--report reports/latest`` where latest is a link to a run's folder: the swap renamed the new folder onto
+    the link, so the link became a real folder and the folder it named kept the old report."""
+    from nlipscalib.core.atomic import whole_dir
+
+    run = tmp_path / "runs" / "run-7"
+    run.mkdir(parents=True)
+    (run / "results.json").write_text("old")
+    (run / "stale.png").write_text("old figure")
+    latest = tmp_path / "latest"
+    latest.symlink_to(run, target_is_directory=True)
+    with whole_dir(latest, "results.json") as tmp:
+        (tmp / "results.json").write_text("new")
+    assert latest.is_symlink() and latest.resolve() == run.resolve()
+    assert (run / "results.json").read_text() == "new"
+    assert not (run / "stale.png").exists()  # the target is one run's whole report
+
+    later = tmp_path / "later"
+    later.symlink_to(tmp_path / "runs" / "run-8", target_is_directory=True)  # a link to a folder not made yet
+    with atomic_dir(later) as tmp:
+        (tmp / "a.txt").write_text("a")
+    assert later.is_symlink() and (tmp_path / "runs" / "run-8" / "a.txt").read_text() == "a"
