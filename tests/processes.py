@@ -58,12 +58,15 @@ make = plugins.make_integrator_class
 
 def endless(mi, led):
     class Endless(make(mi, led)):
-        def sample(self, *args, **kwargs):  # traced once, into a kernel that runs for minutes
+        def sample(self, *args, **kwargs):  # traced once, into a kernel that never ends
             total, valid, aovs = super().sample(*args, **kwargs)
             width = dr.width(total[0])
-            # x <- x^2 / 2 + 1/4, 2^32 - 1 times in every lane: no compiler computes it in closed form
-            state = (dr.zeros(mi.UInt32, width), dr.full(mi.Float, 0.25, width))
-            x = dr.while_loop(state, lambda i, x: i < 0xFFFFFFFF, lambda i, x: (i + 1, dr.fma(x * 0.5, x, 0.25)))[1]
+            # x <- x^2 / 2 + 1/4 while x > 0: from 1/4 it stays in [1/4, 1 - 1/sqrt(2)], so the loop never ends,
+            # which no compiler can tell (it would have to bound a float recurrence)
+            def step(x):
+                return (dr.fma(x * 0.5, x, 0.25),)
+
+            x = dr.while_loop((dr.full(mi.Float, 0.25, width),), lambda x: x > 0, step)[0]
             open(os.path.join(os.environ["RENDER_TRACED"], str(os.getpid())), "w").close()
             return total + dr.select(x < 0, 1.0, 0.0), valid, aovs
 
@@ -72,8 +75,8 @@ def endless(mi, led):
 
 plugins.make_integrator_class = endless
 """
-"""Every render of the process endless; each process that traced one marks it by a file (its pid) in the folder
-``$RENDER_TRACED``."""
+"""Every render of the process endless: only a signal ends it, so a test of the signal's path needs no clock; each
+process that traced one marks it by a file (its pid) in the folder ``$RENDER_TRACED``."""
 
 
 def endless_renders(env: dict[str, str], folder: Path) -> tuple[dict[str, str], Path]:

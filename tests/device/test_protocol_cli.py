@@ -3,7 +3,6 @@
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -119,11 +118,10 @@ def test_unknown_nlipsemu_board_says_what_the_url_reaches():
     assert "plugged in" not in str(info.value)
 
 
-def test_adalight_on_the_virtual_board(capsys):
+def test_adalight_on_the_virtual_board(capsys, caplog):
     """--adalight with the virtual board: it runs Adalight (greets with Ada, latches frames), no banner wait."""
-    start = time.monotonic()
     assert main(["leds", "virtual", "test", "--adalight", "4", "--dwell", "0"]) == 0
-    assert time.monotonic() - start < 2.5  # no 3 s wait for a banner that never comes
+    assert "banner" not in caplog.text  # it greeted: no 3 s wait for a banner that never comes, then a warning
     out = capsys.readouterr().out.splitlines()
     sent = " (sent; Adalight does not acknowledge)"
     assert out[:5] == [f"LED {k}{sent}" for k in range(1, 5)] + [f"all red{sent}"]

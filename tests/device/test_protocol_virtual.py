@@ -1,6 +1,7 @@
 """Fault injection of the virtual board (the shared suite in test_protocol_boards.py covers the rest)."""
 
 import time
+import types
 
 import pytest
 
@@ -27,12 +28,24 @@ def test_a_damaged_or_lost_line_costs_one_resend(board_and_leds, fault):
     assert len(board.executed) - before == (1 if fault == "mute" else 2)
 
 
-def test_reply_comes_after_the_board_delay():
+def test_reply_comes_after_the_board_delay(monkeypatch):
+    """A board that answers late: it waits its delay before the reply, and the controller waits for that reply
+    (within its timeout) rather than failing. The board's wait is recorded, not clocked."""
+    from nlipscalib.device import virtual_board
+
+    slept = []
+
+    def sleep(seconds: float) -> None:
+        slept.append(seconds)
+        time.sleep(seconds)
+
     board = VirtualBoard(2, reply_delay_s=0.05)
     with LedController.open(board.url, timeout=1.0) as leds:
-        start = time.monotonic()
+        monkeypatch.setattr(virtual_board, "time", types.SimpleNamespace(**{**vars(time), "sleep": sleep}))
+        before = len(board.executed)
         leds.off()
-        assert time.monotonic() - start >= 0.05
+        assert [body.split()[1:] for body in board.executed[before:]] == [["OFF"]]  # executed once: no retry
+    assert slept == [0.05]  # its one reply came after the delay
 
 
 def test_unplugged_board_cannot_be_opened():

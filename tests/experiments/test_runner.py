@@ -99,28 +99,60 @@ def test_ctrl_c_with_a_dask_local_cluster_leaves_no_claim(tmp_path):
     assert not left, left
 
 
-DASK_CTRL_C_WITHIN_S = 3.0
-"""Seconds from Ctrl-C to the end of a local cluster's run whose worker renders: ~0.2 s, and at most ~1.2 s (the
-worker killed :data:`~nlipscalib.core.processes.LOCAL_WORKER_GRACE_S` after its SIGTERM) under load; it was at least
-4 s (the nanny waited 0.8 x its 5 s close timeout before it killed the busy worker), ~4.4 s under load."""
+HANG_GUARD_S = 60.0
+"""Seconds after Ctrl-C before a test calls the command hung: a guard, not the claim (the run ends ~0.2 s after it,
+~1.2 s under load, when its workers end on their SIGTERM or are killed
+:data:`~nlipscalib.core.processes.LOCAL_WORKER_GRACE_S` after it)."""
 
-DEAF_TO_SIGTERM = """
+TRACED_SIGTERM = """
+import os
+
 from nlipscalib.core import processes
 
-processes._worker_terminated = lambda signum, frame: None  # installed, and never ending the worker
+_ends = processes._worker_terminated
+
+
+def _traced(signum, frame):  # marks the process that got SIGTERM, then ends it as before (unless deaf)
+    open(os.path.join(os.environ["SIGTERM_TRACED"], str(os.getpid())), "w").close()
+    if not os.environ.get("SIGTERM_DEAF"):
+        _ends(signum, frame)
+
+
+processes._worker_terminated = _traced  # what worker_signals() installs
 """
-"""Appended to the endless renders' ``sitecustomize``: each worker's SIGTERM handler does nothing, as when its main
-thread does not get to run it (seen under load)."""
+"""Appended to the endless renders' ``sitecustomize``: each worker's SIGTERM handler marks its pid in
+``$SIGTERM_TRACED``; with ``$SIGTERM_DEAF`` set it does nothing else, as when a worker's main thread does not get to
+run it (seen under load: the worker then has to be killed)."""
+
+PATIENT_NANNY = """
+from distributed import nanny
+
+_kill = nanny.WorkerProcess.kill
+
+
+async def _patient(self, timeout=5, executor_wait=True, reason="workerprocess-kill"):
+    return await _kill(self, timeout=3600, executor_wait=executor_wait, reason=reason)
+
+
+def dask_setup(this_nanny):
+    nanny.WorkerProcess.kill = _patient
+"""
+"""A Dask nanny preload (``distributed.nanny.preload``): closing a nanny asks its worker to close and kills it only an
+hour later, not 0.8 x 5 s later. A busy worker then ends in time only by what the command itself does."""
 
 
 @pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads the process table from /proc")
 @pytest.mark.parametrize("deaf", [False, True], ids=["handler-runs", "handler-never-runs"])
 def test_ctrl_c_with_a_dask_local_cluster_ends_its_busy_workers_at_once(tmp_path, deaf):
     """Ctrl-C of `nlips experiment --scheduler local:2` while a worker renders (here without end): closing the
-    cluster asked the worker to close, which waited for its task until the nanny's grace ran out. Now the command
-    ends its workers with SIGTERM first (each releases its claim): its one line within seconds, nothing left.
-    A worker that does not answer its SIGTERM (under load one did not for seconds) is killed soon after, its claim
-    removed by the command."""
+    cluster asked the worker to close, which waited for its task until the nanny's grace ran out and it killed the
+    worker (~4 s). Now the command ends its workers with SIGTERM first (each releases its claim): its one line,
+    nothing left. A worker that does not answer its SIGTERM (under load one did not for seconds) is killed by the
+    command soon after, its claim removed by the command.
+
+    No clock: the render never ends and the nannies here wait an hour before they kill a worker
+    (:data:`PATIENT_NANNY`), so a run that ends at all was ended by the command's SIGTERM (and, for a deaf worker, by
+    its kill); the workers' handlers mark that they got it while they rendered (:data:`TRACED_SIGTERM`)."""
     pytest.importorskip("distributed")
     pytest.importorskip("mitsuba")
     from tests.cli.test_interrupt import _wait_until_gone
@@ -130,9 +162,16 @@ def test_ctrl_c_with_a_dask_local_cluster_ends_its_busy_workers_at_once(tmp_path
     config.write_text(TINY)
     out = tmp_path / "out"
     env, traced = endless_renders(dict(os.environ), tmp_path)
+    with (tmp_path / "endless" / "sitecustomize.py").open("a") as patch:
+        patch.write(TRACED_SIGTERM)
+    (tmp_path / "patient_nanny.py").write_text(PATIENT_NANNY)
+    sigtermed = tmp_path / "sigtermed"
+    sigtermed.mkdir()
+    env.update(
+        SIGTERM_TRACED=str(sigtermed), DASK_DISTRIBUTED__NANNY__PRELOAD=repr([str(tmp_path / "patient_nanny.py")])
+    )
     if deaf:
-        with (tmp_path / "endless" / "sitecustomize.py").open("a") as patch:
-            patch.write(DEAF_TO_SIGTERM)
+        env["SIGTERM_DEAF"] = "1"
     proc = _nlips("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(out), env=env)
     try:
         deadline = time.monotonic() + 300
@@ -142,15 +181,17 @@ def test_ctrl_c_with_a_dask_local_cluster_ends_its_busy_workers_at_once(tmp_path
         time.sleep(1.0)
         assert proc.poll() is None, proc.communicate()[1]
         os.killpg(proc.pid, signal.SIGINT)
-        sent = time.monotonic()
-        _, err = proc.communicate(timeout=60)
-        took = time.monotonic() - sent
-        assert _wait_until_gone(proc.pid, 10) == []  # no worker left, none started anew
+        try:
+            _, err = proc.communicate(timeout=HANG_GUARD_S)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"still running {HANG_GUARD_S:g} s after Ctrl-C: its busy worker was left to its nanny")
+        assert _wait_until_gone(proc.pid, HANG_GUARD_S) == []  # no worker left, none started anew
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, err
-    assert took < DASK_CTRL_C_WITHIN_S, err
+    rendering = {p.name for p in traced.iterdir()}
+    assert rendering <= {p.name for p in sigtermed.iterdir()}, "a rendering worker never got the command's SIGTERM"
     assert _not_log(err) == ["nlips experiment: interrupted; finished work is kept, run again to resume"], err
     left = [p for p in Path(out).rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
     assert not left, left
@@ -158,10 +199,12 @@ def test_ctrl_c_with_a_dask_local_cluster_ends_its_busy_workers_at_once(tmp_path
 
 def test_kill_unless_ended_kills_only_the_processes_that_outlive_their_sigterm():
     """The backstop of a local cluster's Ctrl-C: a process that ends on its SIGTERM is left to it; one that does
-    not (its handler not run) is killed once the grace is over, not later."""
+    not (its handler not run) is killed once the grace is over, not waited for (it would sleep for an hour)."""
+    import threading
+
     from nlipscalib.core.processes import kill_unless_ended
 
-    code = "import signal, sys, time; signal.signal(signal.SIGTERM, {}); print('ready', flush=True); time.sleep(60)"
+    code = "import signal, sys, time; signal.signal(signal.SIGTERM, {}); print('ready', flush=True); time.sleep(3600)"
     deaf, obeys = (
         subprocess.Popen([sys.executable, "-c", code.format(handler)], stdout=subprocess.PIPE, text=True)
         for handler in ("signal.SIG_IGN", "signal.SIG_DFL")
@@ -171,11 +214,14 @@ def test_kill_unless_ended_kills_only_the_processes_that_outlive_their_sigterm()
             assert proc.stdout.readline().strip() == "ready"
             os.kill(proc.pid, signal.SIGTERM)
         start = time.monotonic()
-        kill_unless_ended([deaf.pid, obeys.pid], grace_s=0.5)
-        took = time.monotonic() - start
-        assert deaf.wait(timeout=10) == -signal.SIGKILL
-        assert obeys.wait(timeout=10) == -signal.SIGTERM
-        assert 0.5 <= took < 5.0
+        # on a thread, so that a call waiting for the deaf process's own end fails the test instead of hanging it
+        call = threading.Thread(target=kill_unless_ended, args=([deaf.pid, obeys.pid], 2.0), daemon=True)
+        call.start()
+        call.join(HANG_GUARD_S)
+        assert not call.is_alive(), f"still waiting {HANG_GUARD_S:g} s later for a process deaf to SIGTERM"
+        assert time.monotonic() - start >= 2.0  # the grace given first (a lower bound: load only lengthens it)
+        assert deaf.wait(timeout=HANG_GUARD_S) == -signal.SIGKILL
+        assert obeys.wait(timeout=HANG_GUARD_S) == -signal.SIGTERM  # ended of its SIGTERM within the 2 s grace
     finally:
         for proc in (deaf, obeys):
             proc.kill()

@@ -100,15 +100,17 @@ from nlipscalib.cli import command
 
 command()
 """
-"""``nlips render`` (as the ``nlips`` command, which ends its own process) whose render's kernel runs for minutes."""
+"""``nlips render`` (as the ``nlips`` command, which ends its own process) whose render's kernel never ends."""
 
-WITHIN_S = 5.0
-"""Seconds from the signal to the process's end allowed: ~0.1 s here (2 busy cores); it was the whole render."""
+HANG_GUARD_S = 120.0
+"""Seconds after the signal before a test calls the command hung: a guard, not the claim. The renders never end
+(:data:`~tests.processes.ENDLESS_PATCH`), so a command that ends at all was ended by the signal (~0.1 s here, on 2
+busy cores); before, it waited for the render."""
 
 
-def _signalled_while_rendering(proc: subprocess.Popen, traced, renders: int, send) -> tuple[str, str, float]:
-    """Wait until ``renders`` renders of ``proc`` began (files in ``traced``) and ran a second, ``send()`` the
-    signal; returns stdout, stderr and the seconds the process took to end after it (fails past WITHIN_S)."""
+def _signalled_while_rendering(proc: subprocess.Popen, traced, renders: int, send) -> tuple[str, str]:
+    """Wait until ``renders`` endless renders of ``proc`` began (files in ``traced``) and ran a second, ``send()`` the
+    signal; returns stdout and stderr once the process ended (fails if it still runs :data:`HANG_GUARD_S` later)."""
     deadline = time.monotonic() + 300
     while len(list(traced.iterdir())) < renders and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -117,19 +119,18 @@ def _signalled_while_rendering(proc: subprocess.Popen, traced, renders: int, sen
     time.sleep(1.0)
     assert proc.poll() is None
     send()
-    sent = time.monotonic()
     try:
-        stdout, stderr = proc.communicate(timeout=WITHIN_S)
+        return proc.communicate(timeout=HANG_GUARD_S)
     except subprocess.TimeoutExpired:
-        pytest.fail(f"still running {WITHIN_S} s after the signal")
-    return stdout, stderr, time.monotonic() - sent
+        pytest.fail(f"still running {HANG_GUARD_S:g} s after the signal: it waits for its endless render")
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum):
     """Ctrl-C or SIGTERM during a render (640x480, 16 spp, one bounce: tens of seconds) ended the command only when
     the render did: Python handles a signal in the main thread, which the native render call held. It now ends
-    within a second, with its one line, its status, and no press folder or temporary left."""
+    (the render here never does: its end is the signal's doing), with its one line, its status, and no press
+    folder or temporary left."""
     traced = tmp_path / "traced"
     traced.mkdir()
     out = tmp_path / "p"
@@ -141,14 +142,13 @@ def test_a_signal_during_a_long_render_ends_the_command_at_once(tmp_path, signum
     proc = as_from_a_terminal([sys.executable, "-c", ENDLESS_RENDER, *args, "--out", str(out)], env=env)
     try:
         # once the kernel compiled and runs: the main thread used to be inside it
-        stdout, stderr, took = _signalled_while_rendering(proc, traced, 1, lambda: proc.send_signal(signum))
+        stdout, stderr = _signalled_while_rendering(proc, traced, 1, lambda: proc.send_signal(signum))
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
     how = "interrupted" if signum == signal.SIGINT else "terminated"
     assert proc.returncode == 128 + signum, stderr
-    assert took < WITHIN_S
     not_log = [line for line in stderr.splitlines() if not line.startswith(("INFO ", "WARNING "))]
     assert not_log == [f"nlips render: {how}; finished work is kept, run again to resume"], stderr
     assert stdout == ""
@@ -161,8 +161,9 @@ def test_ctrl_c_during_a_datasets_worker_renders_ends_the_run_at_once_and_a_reru
     """Ctrl-C from a terminal (SIGINT to the whole process group) of `nlips dataset --workers 2` while both render
     processes rendered: each died of it with a traceback or went on (its exit waited for the render it had left on
     a thread of its own), and the command waited for them: tens of seconds at 640x480, here forever. Now the render
-    processes ignore Ctrl-C and the command ends them: its one line, exit 130 within seconds, no claim, temporary
-    or process left; the next run keeps the presses done and renders the interrupted ones."""
+    processes ignore Ctrl-C and the command ends them: its one line, exit 130 (the renders here never end: that the
+    command and its render processes end at all is its doing), no claim, temporary or process left; the next run
+    keeps the presses done and renders the interrupted ones."""
     from tests.cli.test_interrupt import _wait_until_gone
     from tests.specs import TINY_SPEC
 
@@ -176,13 +177,12 @@ def test_ctrl_c_during_a_datasets_worker_renders_ends_the_run_at_once_and_a_reru
     env, traced = endless_renders(dict(os.environ, PYTHONPATH=path), tmp_path)
     proc = as_from_a_terminal([*command, "--workers", "2"], env=env, start_new_session=True)
     try:  # Ctrl-C once both kernels compiled and run
-        stdout, stderr, took = _signalled_while_rendering(proc, traced, 2, lambda: os.killpg(proc.pid, signal.SIGINT))
-        assert _wait_until_gone(proc.pid, 10) == []  # no render process left
+        stdout, stderr = _signalled_while_rendering(proc, traced, 2, lambda: os.killpg(proc.pid, signal.SIGINT))
+        assert _wait_until_gone(proc.pid, 60) == []  # no render process left (60 s: a guard, gone at once)
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, stderr
-    assert took < WITHIN_S
     not_log = [line for line in stderr.splitlines() if not line.startswith(("INFO ", "WARNING "))]
     assert not_log == ["nlips dataset: interrupted; finished work is kept, run again to resume"], stderr
     assert not [p.name for p in out.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
