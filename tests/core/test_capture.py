@@ -196,7 +196,7 @@ def test_an_undecoded_capture_checks_its_images_now_and_decodes_them_at_first_re
 
 
 def test_a_capture_decoded_in_the_background_holds_the_images_decoded_at_once(tmp_path):
-    """``decode="background"`` (``nlips solve`` imports the solver meanwhile): the first read waits for the
+    """``decode="background"`` (``nlips solve`` reads reference.npz meanwhile): the first read waits for the
     decoding thread and gives the arrays of a load that decoded them at once; a bad PNG is raised at that read,
     naming its file."""
     folder = _press(tmp_path / "p")
