@@ -231,16 +231,24 @@ def save_reconstruction(
     folder : output folder (created; replaced when ``overwrite``). CaptureError when something else than
         a reconstruction is there (:func:`replace_problem`): it is never replaced.
     extra_files : optional callable ``f(tmp_folder)`` that adds files (figures) before the folder is
-        moved into place, so they appear together with the result or not at all.
+        moved into place, so they appear together with the result or not at all. It runs on a thread of its
+        own while the arrays are written (it must not write result.npz or report.json).
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     folder = Path(folder).absolute()  # "." has no name to write beside
     check_replaceable(folder)
-    with atomic_dir(folder, overwrite=overwrite) as tmp:
+    # the pool is left (its thread joined) before the folder is published or, on an error, removed
+    with atomic_dir(folder, overwrite=overwrite) as tmp, ThreadPoolExecutor(1, "save-extra") as pool:
+        # beside the arrays' deflating: both it and the figures' PNG encoding (and the ground truth's inflating
+        # for error.png) release the GIL, so the two take one wall instead of two (an auto-ROI 640x480 result:
+        # ~0.06 s of deflating, ~0.05 s of figures and ground truth)
+        extra = pool.submit(extra_files, tmp) if extra_files is not None else None
         save_npz(tmp / RESULT_FILE, rec.arrays(), compress="auto")  # dense float maps stored: 10x faster
         head = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "software_version": __version__}
         write_json(tmp / REPORT_FILE, head | jsonable(rec.report))
-        if extra_files is not None:
-            extra_files(tmp)
+        if extra is not None:
+            extra.result()  # its error, if any, is the save's
     return folder
 
 

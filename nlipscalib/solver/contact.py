@@ -151,8 +151,9 @@ def classify_contact(
     undeformed_images : (L, H, W, 3) float, a ``solver.reuse.Deferred`` of it, or None -- what the undeformed
         dome looks like under each LED up to a per-pixel albedo (a capture of it: linear images; or the model
         with its indirect term). None: the direct model on ``press.reference`` with ``leds``.
-    undeformed_light : (L, H, W, 3) float or None -- added to ``undeformed_images`` (e.g. the fitted
-        indirect light of the undeformed dome added to its direct shading), unsmoothed: it must be smooth at
+    undeformed_light : (L, H, W, 3) float, a sequence of L (H, W, 3) float images made as they are read
+        (:class:`nlipscalib.solver.radiosity.Upsampled`), or None -- added to ``undeformed_images`` (e.g. the
+        fitted indirect light of the undeformed dome added to its direct shading), unsmoothed: it must be smooth at
         the scale of ``blur_px``. Kept apart so the smoothed ``undeformed_images`` -- a sensor's direct
         shading -- is computed once and reused by the next classification against it.
     indirect : (L, H, W, 3) float or None -- light to subtract from the press's images first.
@@ -177,11 +178,9 @@ def classify_contact(
     leds = press.leds if leds is None else tuple(leds)
     ref = press.reference
     valid = np.isfinite(ref.depth)
-    grid = _Grid.of(valid, classify_block(valid.shape) if block is None else int(block), blur_px)
+    grid = _grid_of(press, blur_px, block)
     side = cache if cache is not None and indirect is None else {}
-    if side.get("block") != grid.block:  # empty, or filled at another block size
-        side.clear()
-        side.update(_press_side(press, grid, indirect, dead_level))
+    _fill_press_side(side, press, grid, indirect, dead_level)
     live, img, ok, count = side["live"], side["images"], side["ok"], side["count"]
     if undeformed_images is not None:
         S = _smoothed_undeformed(undeformed_images, live, grid)
@@ -199,6 +198,37 @@ def classify_contact(
     expected = grid.per_pixel(np.full(grid.valid.shape, noise_blurred) * np.sqrt(dof))
     misfit = np.where(valid, grid.per_pixel(misfit), np.nan)
     return ContactMap(misfit, expected, tuple(live), side["dead"], noise, grid.per_pixel(side["level"]))
+
+
+def prepare_press_side(
+    press: Press,
+    cache: dict,
+    *,
+    dead_level: float = tolerances.LIT_LEVEL,
+    blur_px: float = 1.5,
+    block: int | None = None,
+) -> None:
+    """Fill ``cache`` with the press's side of :func:`classify_contact` (live LEDs, smoothed images, noise), as
+    its first call with ``cache`` and the same keywords would; that call then only fits the undeformed model.
+
+    Why apart: that side does not depend on the undeformed model, so a solve makes it while it fits the indirect
+    term that the model needs (:func:`nlipscalib.solver.press._light_and_contact`, on a second core)."""
+    if press.reference is None:
+        raise CaptureError(f"{press.folder}: --roi auto and anchoring need the capture's reference (undeformed dome)")
+    _fill_press_side(cache, press, _grid_of(press, blur_px, block), None, dead_level)
+
+
+def _grid_of(press: Press, blur_px: float, block: int | None) -> _Grid:
+    """The :class:`_Grid` that :func:`classify_contact` works on for ``press`` (its reference's gel pixels)."""
+    valid = np.isfinite(press.reference.depth)
+    return _Grid.of(valid, classify_block(valid.shape) if block is None else int(block), blur_px)
+
+
+def _fill_press_side(side: dict, press: Press, grid: _Grid, indirect: np.ndarray | None, dead_level: float) -> None:
+    """:func:`_press_side` into ``side`` unless it holds it already for ``grid``'s block size."""
+    if side.get("block") != grid.block:  # empty, or filled at another block size
+        side.clear()
+        side.update(_press_side(press, grid, indirect, dead_level))
 
 
 def _press_side(press: Press, grid: _Grid, indirect: np.ndarray | None, dead_level: float) -> dict:
@@ -297,7 +327,8 @@ class _Grid:
         return cls(pixels, block, valid, sigma, _gain(sigma) / block)
 
     def means(self, stack: np.ndarray, index: Sequence[int]) -> np.ndarray:
-        """(n, h, w, 3) float32 -- the images ``stack[index]`` ((L, H, W, 3), any real or bool dtype) averaged
+        """(n, h, w, 3) float32 -- the images ``stack[index]`` ((L, H, W, 3), or a sequence of L (H, W, 3) images
+        read one at a time, :class:`radiosity.Upsampled`; any real or bool dtype) averaged
         over each block's gel pixels (0 where it has none); ``stack[index]`` as float32 on a grid of pixels."""
         if self.block == 1:
             return np.asarray(stack, np.float32)[list(index)]

@@ -85,10 +85,15 @@ class IndirectModel:
     def undeformed_light(self, shape: tuple[int, int]) -> np.ndarray:
         """(L, H, W, 3) float32 -- the fitted capture's indirect light per unit receiver albedo
         (multiply by the pixel's albedo; add to the direct shading for the undeformed model)."""
+        return np.asarray(self.undeformed_light_per_led(shape))
+
+    def undeformed_light_per_led(self, shape: tuple[int, int]) -> radiosity.Upsampled:
+        """:meth:`undeformed_light` upsampled one LED at a time as it is read (:class:`radiosity.Upsampled`), for
+        a reader that takes one LED's (H, W, 3) image at a time (the contact classification)."""
         if self.fitted_light is None:
             raise CaptureError("this interreflection model holds no fitted light")
         light, size = self.fitted_light
-        return radiosity.upsample(light, shape, size)
+        return radiosity.Upsampled(light, shape, size)
 
     def to_json(self) -> dict:
         return {

@@ -391,15 +391,43 @@ def _clusters(points: np.ndarray, normals: np.ndarray, area: np.ndarray, rad: np
 def upsample(patch_values: np.ndarray, shape: tuple[int, int], size: int) -> np.ndarray:
     """Bilinear upsampling of (L, h, w, 3) patch values to (L, H, W, 3) pixels (patch centres at
     (i + 0.5) * size - 0.5, cv2's INTER_LINEAR convention for an integer factor)."""
+    H, W = shape
+    out = np.empty((len(patch_values), H, W, 3), np.float32)
+    for i in range(len(patch_values)):
+        out[i] = _upsample_one(patch_values[i], shape, size)
+    return out
+
+
+def _upsample_one(patch_values: np.ndarray, shape: tuple[int, int], size: int) -> np.ndarray:
+    """(H, W, 3) float32 -- :func:`upsample` of one LED's (h, w, 3) patch values (a view of cv2's result)."""
     import cv2
 
     H, W = shape
-    L, h, w = patch_values.shape[:3]
-    out = np.empty((L, H, W, 3), np.float32)
-    for i in range(L):
-        big = cv2.resize(np.asarray(patch_values[i], np.float32), (w * size, h * size), interpolation=cv2.INTER_LINEAR)
-        out[i] = big[:H, :W]
-    return out
+    h, w = patch_values.shape[:2]
+    big = cv2.resize(np.asarray(patch_values, np.float32), (w * size, h * size), interpolation=cv2.INTER_LINEAR)
+    return big[:H, :W]
+
+
+class Upsampled:
+    """:func:`upsample` of (L, h, w, 3) patch values read one LED at a time: ``stack[i]`` is LED i's (H, W, 3) float32
+    image, the same numbers as ``upsample(...)[i]``; ``np.asarray(stack)`` the whole (L, H, W, 3) array.
+
+    Why: a reader that takes the images one by one (the contact classification's block means) then never holds the
+    whole stack, a fresh 44 MB array at 640x480 with 12 LEDs whose first touch (page faults) cost more than the
+    upsampling itself, and the images are upsampled on the threads that read them."""
+
+    def __init__(self, patch_values: np.ndarray, shape: tuple[int, int], size: int):
+        self.patch_values, self.image_shape, self.size = patch_values, tuple(shape), size
+
+    def __len__(self) -> int:
+        return len(self.patch_values)
+
+    def __getitem__(self, index: int) -> np.ndarray:
+        return _upsample_one(self.patch_values[index], self.image_shape, self.size)
+
+    def __array__(self, dtype: np.typing.DTypeLike = None, copy: bool | None = None) -> np.ndarray:
+        out = upsample(self.patch_values, self.image_shape, self.size)
+        return out if dtype is None else out.astype(dtype, copy=False)
 
 
 __all__ = [
@@ -411,4 +439,5 @@ __all__ = [
     "pixel_solid_angle",
     "surface_patches",
     "upsample",
+    "Upsampled",
 ]

@@ -134,7 +134,7 @@ def test_interrupted_folder_write_leaves_nothing(tmp_path):
         (lambda f: (f / "tricolor.png").write_bytes(b"garbage"), "tricolor.png: not a readable PNG"),
     ],
 )
-@pytest.mark.parametrize("decode", [True, False])
+@pytest.mark.parametrize("decode", [True, False, "background"])
 def test_broken_folders_are_reported_precisely(tmp_path, breakage, message, capfd, decode):
     folder = _press(tmp_path / "p")
     breakage(folder)
@@ -193,6 +193,25 @@ def test_an_undecoded_capture_checks_its_images_now_and_decodes_them_at_first_re
     spoilt = load_press(folder, decode=False)  # whole at both ends: found by decoding it
     with pytest.raises(CaptureError, match="led_02.png: not a readable PNG"):
         _ = spoilt.led_images
+
+
+def test_a_capture_decoded_in_the_background_holds_the_images_decoded_at_once(tmp_path):
+    """``decode="background"`` (``nlips solve`` reads reference.npz meanwhile): the first read waits for the
+    decoding thread and gives the arrays of a load that decoded them at once; a bad PNG is raised at that read,
+    naming its file."""
+    folder = _press(tmp_path / "p")
+    decoded = load_press(folder, led_subset=[0, 2])
+    background = load_press(folder, led_subset=[0, 2], decode="background")
+    np.testing.assert_array_equal(background.led_images, decoded.led_images)
+    np.testing.assert_array_equal(background.dark, decoded.dark)
+    np.testing.assert_array_equal(background.linear_led_images, decoded.linear_led_images)
+    assert background.images_digest() == decoded.images_digest()  # the arrays', as for a press decoded at once
+    _spoil_png(folder / "led_02.png")
+    spoilt = load_press(folder, decode="background")
+    with pytest.raises(CaptureError, match="led_02.png: not a readable PNG"):
+        _ = spoilt.led_images
+    with pytest.raises(ValueError, match="decode must be True, False or 'background'"):
+        load_press(folder, decode="later")
 
 
 def test_a_file_replaced_after_the_press_was_loaded_is_not_read_into_it(tmp_path):

@@ -28,6 +28,28 @@ def test_round_trip_keeps_maps_and_report(tmp_path):
     assert back.report["format"] == "nlipscalib.reconstruction"
 
 
+def test_extra_files_are_published_with_the_result_or_nothing_is(tmp_path):
+    """``extra_files`` (the figures) runs on a thread beside the arrays' writing: its files appear with the result,
+    and its error is the save's, the folder then not published (an earlier result left as it was)."""
+    import threading
+
+    def figure(tmp):
+        (tmp / "figure.png").write_bytes(threading.current_thread().name.encode())
+
+    folder = save_reconstruction(_rec(), tmp_path / "nlips", extra_files=figure)
+    assert (folder / "figure.png").read_bytes().startswith(b"save-extra")  # not the caller's thread
+    assert load_reconstruction(folder).report["dead_leds"] == [3]
+
+    def broken(tmp):
+        (tmp / "half.png").write_bytes(b"x")
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError, match="No space left"):
+        save_reconstruction(_rec(3, 3), folder, overwrite=True, extra_files=broken)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["nlips"]  # no temporary folder left
+    assert load_reconstruction(folder).shape == (4, 5) and (folder / "figure.png").is_file()
+
+
 def test_damaged_or_mismatched_reconstruction_names_the_file(tmp_path):
     folder = save_reconstruction(_rec(), tmp_path / "nlips")
     with pytest.raises(CaptureError, match="result.npz.*expected"):

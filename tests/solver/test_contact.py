@@ -129,6 +129,28 @@ def test_undeformed_light_kept_apart_gives_the_classification_of_the_sum(sphere_
     assert np.nanmedian(np.abs(plain.misfit - first.misfit)) > 1e-4
 
 
+@pytest.mark.parametrize("block", [1, 2])
+def test_a_prepared_press_side_and_a_light_read_per_led_give_the_same_classification(sphere_press, block):
+    """:func:`prepare_press_side` fills the cache that a classification then reads (a solve makes it beside the
+    indirect fit), and the undeformed light given one LED at a time (:class:`radiosity.Upsampled`) is the light
+    given whole: the same maps, bit for bit, per pixel and on 2 x 2 blocks."""
+    from nlipscalib.solver import radiosity
+    from nlipscalib.solver.contact import prepare_press_side
+
+    shading = _direct_shading(sphere_press)
+    light = radiosity.Upsampled(0.05 * shading[:, ::8, ::8], sphere_press.camera.shape, 8)
+    plain = classify_contact(sphere_press, undeformed_images=shading, undeformed_light=np.asarray(light), block=block)
+    cache = {}
+    prepare_press_side(sphere_press, cache, block=block)
+    assert cache["block"] == block and len(cache["live"]) == len(sphere_press.leds)
+    prepared = classify_contact(
+        sphere_press, undeformed_images=shading, undeformed_light=light, cache=cache, block=block
+    )
+    for name in ("misfit", "expected", "level"):
+        np.testing.assert_array_equal(getattr(prepared, name), getattr(plain, name))
+    assert prepared.live_leds == plain.live_leds and prepared.noise == plain.noise
+
+
 def test_misfit_leaves_out_saturated_samples_like_the_plain_sums():
     """The einsum form against the textbook one: per-pixel albedo fitted on usable samples only."""
     from nlipscalib.solver.contact import _misfit

@@ -51,6 +51,19 @@ def _pairs(monkeypatch) -> list:
     return counts
 
 
+def test_upsampled_one_led_at_a_time_is_the_whole_upsampling_bit_for_bit():
+    """:class:`radiosity.Upsampled` (the contact classification reads the fitted light so, one LED at a time)
+    gives each LED's image of :func:`radiosity.upsample`, also where the frame cuts the last patches."""
+    patches = np.random.default_rng(3).random((4, 7, 9, 3)).astype(np.float32)
+    whole = radiosity.upsample(patches, (52, 70), 8)  # 7 x 8 = 56 rows and 9 x 8 = 72 columns cut to 52 x 70
+    stack = radiosity.Upsampled(patches, (52, 70), 8)
+    assert len(stack) == 4 and whole.shape == (4, 52, 70, 3)
+    for i in range(len(stack)):
+        np.testing.assert_array_equal(stack[i], whole[i])
+    np.testing.assert_array_equal(np.asarray(stack), whole)
+    assert np.asarray(stack, np.float64).dtype == np.float64
+
+
 def test_grouped_gather_on_a_domes_inside_matches_the_exact_one(monkeypatch):
     """The inside of a sphere: a point-to-patch form factor there does not depend on the distance, so the
     aggregates are all but exact (2e-5 on the 640x480 twin, 1.5e-4 on this coarser grid with nearer LEDs); with a
