@@ -266,6 +266,24 @@ def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_sai
     assert "re-solving" not in caplog.text and "identical result" not in caplog.text
 
 
+def test_a_capture_of_another_image_size_says_which_sizes(data, tmp_path, capsys):
+    """`nlips solve PRESS --reference REF` and `nlips calibrate-leds A B` with REF or B rendered at another
+    --width/--height said only "camera or LED count differs", leaving the user to find which."""
+    root, cfg = data
+    press = root / "press_a"  # 64x48
+    small = synth.make_press(tmp_path / "small_reference", "none", size=(32, 24))
+    assert main(["solve", str(press), "--reference", str(small), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(
+        f"{small}: not a capture of the sensor of {press} (its images are 32x24 pixels, those of {press} 64x48)"
+    ), err
+    reference = synth.make_press(tmp_path / "reference", "none", size=(64, 48))
+    leds = tmp_path / "leds.json"
+    assert main(["--no-progress", "calibrate-leds", str(reference), str(small), "--out", str(leds)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "its images are 32x24 pixels, those of" in err[0] and not leds.exists(), err
+
+
 @pytest.mark.parametrize("roi", [["0,0,0,0"], ["10", "10", "3", "3"], ["60", "10", "10", "10"]])
 def test_a_roi_too_small_or_outside_states_the_one_true_minimum(data, capsys, roi):
     """`--roi 0,0,0,0` said "w, h >= 1" while `--roi 150 110 20 20` said "at least 4x4"."""
