@@ -90,6 +90,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count, options_named
     from ..core.errors import ConfigError
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
+    from .folders import check_one_capture
 
     check_count("--workers", args.workers, minimum=0)
     smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
@@ -103,6 +104,8 @@ def run(args: argparse.Namespace) -> int:
             smoothing_px=smoothing,
         )
         root = Path(args.presses)
+        if args.reference is not None:
+            check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
         presses, reference = split_reference(root, args.reference)
         if reference is not None:  # a missing or broken --reference: one line naming it, before any solving
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)

@@ -179,14 +179,17 @@ def test_an_enotdir_below_no_file_keeps_the_systems_words(tmp_path):
 
 
 # ---------------------------------------------------------------------- a folder of presses for one capture
-@pytest.mark.parametrize("command", ["calibrate-leds", "solve --reference"])
+@pytest.mark.parametrize("command", ["calibrate-leds", "solve --reference", "calibrate --reference"])
 def test_a_folder_of_presses_for_the_undeformed_capture_names_its_reference(presses, tmp_path, capsys, command):
-    """`nlips calibrate-leds DATASET` and `nlips solve PRESS --reference DATASET` said "DATASET/meta.json: missing;
-    DATASET is not a complete press folder", not that the dome they wanted is DATASET/reference."""
+    """`nlips calibrate-leds DATASET`, `nlips solve PRESS --reference DATASET` and `nlips calibrate PRESSES --reference
+    DATASET` said "DATASET/meta.json: missing; DATASET is not a complete press folder", not that the dome they
+    wanted is DATASET/reference."""
     if command == "calibrate-leds":
         args = ["calibrate-leds", str(presses), "--out", str(tmp_path / "leds.json")]
-    else:
+    elif command == "solve --reference":
         args = ["solve", str(presses / "p1"), "--reference", str(presses)]
+    else:
+        args = ["calibrate", str(presses), "--reference", str(presses), "--out", str(tmp_path / "calibration")]
     assert main(["--no-progress", *args]) == 2
     _one_line_error(
         capsys.readouterr().err,
@@ -194,6 +197,7 @@ def test_a_folder_of_presses_for_the_undeformed_capture_names_its_reference(pres
         f"its undeformed dome is {presses / 'reference'} (give that)",
     )
     assert not (tmp_path / "leds.json").exists() and not (presses / "p1" / "nlips").exists()
+    assert not (tmp_path / "calibration").exists()
 
 
 def test_a_folder_of_presses_without_a_reference_asks_for_one_capture(presses, tmp_path, capsys):
