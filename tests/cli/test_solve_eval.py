@@ -258,6 +258,12 @@ def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_sai
     assert main(["solve", str(press), "--leds", "1,2,40", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has LEDs 1..12" in err[0]
+    # two LEDs: the solver loaded the press and said "only 2 LED images are lit (dead: [])"
+    assert main(["solve", str(press), "--leds", "1,7", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "nlips solve: error: leds [1, 7]: 2 LED(s); NLiPs needs at least 3 (a normal and an albedo per pixel)"
+    ]
     other = root.parent / "other_sensor"  # an undeformed capture of another LED ring
     synth.make_press(other, "none", size=(64, 48), leds=synth.ring_leds(tilt_deg=40))
     assert main(["solve", str(press), "--reference", str(other), "--no-progress"]) == 2
