@@ -420,3 +420,21 @@ def test_a_solve_without_figures_reads_no_ground_truth(data, capsys):
     assert main(["solve", str(press), "--config", str(cfg), "--out", str(out), "--no-progress"]) == 2
     assert "gt.npz: " in capsys.readouterr().err.strip().splitlines()[-1]
     assert not out.exists()
+
+
+def test_eval_of_a_captured_press_says_only_twin_renders_carry_ground_truth(data, capsys):
+    """`nlips eval SESSION` (a capture session's presses) said "PRESS: no ground truth (gt.npz) to evaluate against",
+    leaving the user to wonder what made gt.npz go missing: a captured press never has one."""
+    root, cfg = data
+    press = root / "press_a"
+    meta = json.loads((press / "meta.json").read_text())
+    meta["ground_truth"] = None  # as `nlips capture` writes it
+    (press / "meta.json").write_text(json.dumps(meta))
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(press)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips eval: error: {press}: no ground truth (gt.npz) to evaluate against: only twin renders (nlips render, "
+        "dataset, demo) carry one; a captured press has none"
+    ], err
