@@ -205,3 +205,15 @@ def test_a_folder_of_presses_without_a_reference_asks_for_one_capture(presses, t
     (presses / "reference").rename(presses / "p0")
     assert main(["--no-progress", "calibrate-leds", str(presses), "--out", str(tmp_path / "leds.json")]) == 2
     _one_line_error(capsys.readouterr().err, f"{presses}: a folder of presses, not ", "give one capture's folder")
+
+
+def test_calibrate_on_one_press_of_a_dataset_names_the_dataset(presses, tmp_path, capsys):
+    """`nlips calibrate DATASET/p1` said "no reference/ capture of the undeformed dome; name one with --reference",
+    and following it calibrated that one press alone (too few to train on)."""
+    out = tmp_path / "calibration"
+    assert main(["--no-progress", "calibrate", str(presses / "p1"), "--out", str(out)]) == 2
+    _one_line_error(
+        capsys.readouterr().err,
+        f"{presses / 'p1'}: one press, not a folder of presses; its folder {presses} holds them and their reference/",
+    )
+    assert not out.exists()
