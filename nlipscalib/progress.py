@@ -63,6 +63,12 @@ def _setup(level: int, log_file: str | Path | None) -> None:
         _add(root, logging.StreamHandler(sys.stderr), STDERR_FORMAT)
     _log_file = None
     if log_file:
+        if Path(log_file).is_dir():  # os.open said only "out: Is a directory", naming no option
+            from .core.errors import ConfigError
+
+            raise ConfigError(
+                f"--log-file {log_file}: a folder; give the file to append the log to (e.g. {log_file}/nlips.log)"
+            )
         Path(log_file).parent.mkdir(parents=True, exist_ok=True)
         _add(root, AppendFileHandler(log_file), FILE_FORMAT)
         _log_file = str(Path(log_file).absolute())

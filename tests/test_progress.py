@@ -132,3 +132,16 @@ def test_the_log_tee_forwards_what_it_does_not_handle_and_steps_aside_without_st
     monkeypatch.setattr(sys, "stdout", None)  # fd 1 closed: print writes nothing, and must not fail
     with progress.results_to_log_file():
         print("lost")
+
+
+def test_a_folder_given_as_the_log_file_is_one_line_naming_the_option(tmp_path, capsys):
+    """`nlips --log-file out eval ...` said "nlips eval: error: out: Is a directory", naming no option."""
+    folder = tmp_path / "out"
+    folder.mkdir()
+    assert main(["--log-file", str(folder), "cache"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips cache: error: --log-file {folder}: a folder; give the file to append the log to (e.g. "
+        f"{folder}/nlips.log)"
+    ], err
+    assert list(folder.iterdir()) == []

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from .leds import add_baud_argument, check_baud
-from .options import fill_defaults, option, typed
+from .options import check_size_pair, fill_defaults, option, typed
 
 if TYPE_CHECKING:  # named in hints only: imported when a stream is opened
     from ..device.camera import FrameSource
@@ -184,14 +184,13 @@ def size_emulator_for(args: argparse.Namespace, shape: tuple[int, int]) -> None:
     if not args.emulate:
         return
     h, w = shape
-    if args.width is None and args.height is None:
-        args.width, args.height = w, h
-    elif (args.width or w, args.height or h) != (w, h):
+    if (args.width or w, args.height or h) != (w, h):
         given = " ".join(f"--{k} {v}" for k, v in (("width", args.width), ("height", args.height)) if v is not None)
         raise ConfigError(
             f"{given}: the model {args.model} was calibrated for {w}x{h} images; give --width {w} --height {h}, "
             "or leave both out"
         )
+    args.width, args.height = w, h  # one side typed, at the model's: the other is the model's too, not the scene's
 
 
 def check_emulated_sensor(args: argparse.Namespace, sensor: dict) -> None:
@@ -269,6 +268,7 @@ def _emulated_source(
     from ..sim.scene import load_scene
 
     scene = load_scene(args.emulate)
+    check_size_pair(args.width, args.height, (scene.camera.width, scene.camera.height))
     scene = scene.replace(camera={k: v for k, v in {"width": args.width, "height": args.height}.items() if v})
     script = load_script(args.script) if args.script else default_script(3)
     from ..device.controller import LedController

@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.sensor_record import sensor_of
     from ..progress import track, working
     from ..solver import calibrate_leds
+    from .folders import check_one_capture
 
     check_count("--stride", args.stride, minimum=1)
     if args.coating_reflectance is not None and not 0 < args.coating_reflectance <= 1:
@@ -88,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
     if Path(args.out).is_dir():  # found after the fit as "OUT -> OUT: Is a directory"
         raise ConfigError(f"--out {args.out}: a folder; give the LED file to write (e.g. {args.out}/leds.json)")
     check_writable(Path(args.out).parent)  # a file in its place or a read-only disk: before the fit, not after it
+    for folder in args.presses:
+        check_one_capture(folder, "a capture of the undeformed dome")
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
     with working(f"calibrating {len(presses[0].leds)} LEDs from {len(presses)} capture(s)"):
         cal = calibrate_leds(

@@ -86,10 +86,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.atomic import check_writable
-    from ..core.capture import REFERENCE_FOLDER, no_presses_error, read_meta, split_reference
+    from ..core.capture import REFERENCE_FOLDER, is_press_folder, no_presses_error, read_meta, split_reference
     from ..core.config import check_count, options_named
     from ..core.errors import ConfigError
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
+    from .folders import check_one_capture
 
     check_count("--workers", args.workers, minimum=0)
     smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
@@ -103,11 +104,19 @@ def run(args: argparse.Namespace) -> int:
             smoothing_px=smoothing,
         )
         root = Path(args.presses)
+        if args.reference is not None:
+            check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
         presses, reference = split_reference(root, args.reference)
         if reference is not None:  # a missing or broken --reference: one line naming it, before any solving
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
     if args.reference is not None:
         own_reference_left_out(root, Path(args.reference))
+    if reference is None and is_press_folder(root) and is_press_folder(root.parent / REFERENCE_FOLDER):
+        # one press of a dataset given for the dataset: "name one with --reference" calibrated that press alone
+        raise ConfigError(
+            f"{root}: one press, not a folder of presses; its folder {root.parent} holds them and their "
+            f"{REFERENCE_FOLDER}/ (give that), or name the undeformed capture with --reference to use this press alone"
+        )
     if reference is None:
         raise ConfigError(f"{root}: no {REFERENCE_FOLDER}/ capture of the undeformed dome; name one with --reference")
     if not presses:

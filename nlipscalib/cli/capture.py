@@ -250,8 +250,10 @@ def _run_emulated(args: argparse.Namespace):
     from ..device.session import run_session
     from ..emulator import default_script, load_script, open_emulated_sensor
     from ..sim.scene import load_scene
+    from .options import check_size_pair
 
     scene = load_scene(args.emulate)
+    check_size_pair(args.width, args.height, (scene.camera.width, scene.camera.height))
     camera = {k: v for k, v in {"width": args.width, "height": args.height}.items() if v}
     scene = scene.replace(camera=camera, render={"spp": args.spp} if args.spp else {})
     script = load_script(args.script) if args.script else default_script(args.presses, args.move_press)

@@ -360,7 +360,10 @@ def _scores(folder: Path, rec: Reconstruction) -> dict:
 
     gt = _ground_truth(folder)
     if gt is None:
-        raise CaptureError(f"{folder}: no ground truth (gt.npz) to evaluate against")
+        raise CaptureError(
+            f"{folder}: no ground truth (gt.npz) to evaluate against: only twin renders (nlips render, dataset, "
+            "demo) carry one; a captured press has none"
+        )
     if rec.shape != gt.depth.shape:
         raise CaptureError(f"{folder}: reconstruction is {rec.shape}, the capture {gt.depth.shape}")
     return evaluate(rec, gt)

@@ -1,10 +1,10 @@
-"""Checks of the folders a command is told to write into, shared by the commands that write many press folders."""
+"""Checks of the folders a command is told to read from or write into, shared by the commands."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..core.capture import META_FILE, is_press_folder
+from ..core.capture import META_FILE, REFERENCE_FOLDER, find_presses, is_press_folder
 from ..core.errors import ConfigError
 
 
@@ -21,3 +21,21 @@ def check_not_in_press(out: Path, what: str) -> None:
             raise ConfigError(f"{out}: {where}is a press folder (it has {META_FILE}); {what} into another folder")
         if part.exists():
             return
+
+
+def check_one_capture(folder: str | Path, role: str) -> None:
+    """A ConfigError when ``folder`` is a folder of presses (a dataset, a session) where one capture is expected.
+
+    Why: ``nlips calibrate-leds out/train50`` and ``nlips solve PRESS --reference out/train50`` said only
+    "out/train50/meta.json: missing; out/train50 is not a complete press folder", and left the user to find that
+    the folder's undeformed dome is its ``reference/``. ``role`` names what was expected: "the undeformed dome's
+    capture". Anything else (a capture, a missing folder, a broken press) is left to the loader's own message.
+    """
+    folder = Path(folder)
+    if is_press_folder(folder) or not folder.is_dir():
+        return
+    reference = folder / REFERENCE_FOLDER
+    if is_press_folder(reference):
+        raise ConfigError(f"{folder}: a folder of presses, not {role}; its undeformed dome is {reference} (give that)")
+    if find_presses(folder):
+        raise ConfigError(f"{folder}: a folder of presses, not {role}; give one capture's folder")

@@ -503,6 +503,7 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
 
     from ..core.capture import META_FILE, REFERENCE_FOLDER, find_presses, is_incomplete_press
     from ..core.errors import CaptureError
+    from ..learn.dataset import INDEX_FILE, SENSOR_FILE
 
     eight_bit = _EightBitNotice()
     for item in inputs:
@@ -515,6 +516,11 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
             for folder in presses:
                 yield folder.name, _press_loader(folder), folder, folder
         elif path.is_dir():
+            if (path / INDEX_FILE).is_file() and (path / SENSOR_FILE).is_file():  # its coverage.png is no frame
+                raise CaptureError(
+                    f"{path}: a calibration dataset (`nlips calibrate`), not presses or frames: infer the presses it "
+                    f"was made from (e.g. {path.parent}), or give the dataset to `nlips train`"
+                )
             images = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in STILL_SUFFIXES)
             if not images:
                 raise CaptureError(f"{path}: no press folders and no image frames ({', '.join(STILL_SUFFIXES)}) in it")

@@ -120,16 +120,19 @@ def _check_args(args: argparse.Namespace) -> None:
 
 def _scene(args: argparse.Namespace) -> SceneConfig:
     from ..sim.scene import load_scene
+    from .options import check_size_pair
 
     _check_args(args)
     scene = load_scene(args.scene)
     render = {k: getattr(args, k) for k in ("spp", "bounces", "variant", "threads", "seed")}
     camera = {"width": args.width, "height": args.height}
     with _scene_keys_as_flags():
-        return scene.replace(
+        changed = scene.replace(
             render={k: v for k, v in render.items() if v is not None},
             camera={k: v for k, v in camera.items() if v is not None},
         )
+    check_size_pair(args.width, args.height, (scene.camera.width, scene.camera.height))  # after the ranges
+    return changed
 
 
 @contextlib.contextmanager

@@ -121,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..solver import SolverOptions
+    from .folders import check_one_capture
 
     _press_after_roi(args)
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
@@ -130,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
     presses, reference = split_reference(args.press, args.reference)
     if not presses:
         raise no_presses_error(args.press)
+    if args.reference is not None:
+        check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
     if reference is not None:
         read_meta(reference)  # a missing or broken --reference is one line now, not one failure per press
     if args.config:  # --normals alone sets no min_leds

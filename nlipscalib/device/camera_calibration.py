@@ -206,9 +206,14 @@ def calibrate(
     used = [k for k, v in enumerate(views) if v is not None]
     rejected = tuple(names[k] for k, v in enumerate(views) if v is None)
     if len(used) < MIN_VIEWS:
+        # found in every image given: the pattern is right and more views are what is missing
+        why = (
+            "take more pictures of it, in different poses over the whole image"
+            if len(used) == len(views)
+            else "check --pattern: inner corners of a checkerboard, squares of a ChArUco board, columns x rows"
+        )
         raise CaptureError(
-            f"{target_name} was found in {len(used)} of {len(views)} images; at least {MIN_VIEWS} are needed "
-            "(check --pattern: inner corners of a checkerboard, squares of a ChArUco board, columns x rows)"
+            f"{target_name} was found in {len(used)} of {len(views)} images; at least {MIN_VIEWS} are needed ({why})"
         )
     # (1, N, 3) / (1, N, 2) float32: the layout both OpenCV 4 and 5 accept in fisheye.calibrate
     objs = [np.asarray(views[k][0], np.float32).reshape(1, -1, 3) for k in used]

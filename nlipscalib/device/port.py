@@ -119,8 +119,8 @@ def _open_error(url: str, exc: Exception) -> DeviceError:
     if "no such virtual board" in str(exc):
         return PortNotFoundError(
             f"{url}: no virtual board with this id in this process (nlipsemu://ID reaches a VirtualBoard of the "
-            "same Python process: create it first, e.g. virtual_board.start_board(url, n_leds); the nlips commands "
-            "start theirs)"
+            "same Python process: create it first and keep it, e.g. board = virtual_board.start_board(url, n_leds), "
+            "as the process holds boards weakly; the nlips commands start theirs)"
         )
     if code in (errno.ENOTTY, errno.EISDIR) or "Inappropriate ioctl" in str(exc) or "Is a directory" in str(exc):
         return PortNotFoundError(

@@ -677,6 +677,11 @@ class CalibrationDataset:
                 f"{self.folder}: a folder of presses, not a calibration dataset; its calibration dataset is "
                 f"{inside.parent} (give that folder)"
             )
+        if not path.is_file() and (self.folder.parent / INDEX_FILE).is_file():  # its samples/ (or another sub-folder)
+            raise CaptureError(
+                f"{self.folder}: a folder inside a calibration dataset, not one; the dataset is {self.folder.parent} "
+                "(give that folder)"
+            )
         index = read_format_json(
             path,
             FORMAT_NAME,

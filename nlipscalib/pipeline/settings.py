@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core import tolerances
 from ..core.errors import CaptureError, ConfigError
 
 if TYPE_CHECKING:  # named in hints only: the solver is imported when settings are made
@@ -137,6 +138,11 @@ def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
     if settings.led_subset is not None and not all(0 <= i < n for i in settings.led_subset):
         raise ConfigError(f"leds {[i + 1 for i in settings.led_subset]}: {folder / META_FILE} has LEDs 1..{n}")
     used = len(settings.led_subset) if settings.led_subset is not None else n
+    if settings.led_subset is not None and used < tolerances.MIN_LEDS_PER_PIXEL:  # "only 2 LED images are lit"
+        raise ConfigError(
+            f"leds {[i + 1 for i in settings.led_subset]}: {used} LED(s); NLiPs needs at least "
+            f"{tolerances.MIN_LEDS_PER_PIXEL} (a normal and an albedo per pixel)"
+        )
     if settings.leds is not None and len(settings.leds) != used:
         raise ConfigError(f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {used}")
     if settings.leds is not None and settings.led_subset is None:

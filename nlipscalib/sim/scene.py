@@ -306,6 +306,8 @@ def dataset_spec_path(spec: str | Path) -> Path:
         # named like a shipped spec is not one: `nlips dataset train50 --out train50` resumes
         return path
     if not (DATASETS_DIR / f"{path}.toml").is_file():
+        if path.is_dir():  # a dataset's folder given for its spec: "no such file" was untrue; the reader says so
+            return path
         shipped = ", ".join(sorted(p.stem for p in DATASETS_DIR.glob("*.toml")))
         raise ConfigError(f"dataset spec {str(path)!r}: no such file, nor a shipped dataset spec ({shipped})")
     return DATASETS_DIR / f"{path}.toml"

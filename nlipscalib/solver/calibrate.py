@@ -31,6 +31,7 @@ from ..core.leds import Led, Leds, disk_shading, led_shading
 from ..core.robust_scale import mad_scale
 from .blas import blas_threads
 from .exposure import nothing_to_fit, saturated_share, saturation_note
+from .press_checks import optics_difference
 
 if TYPE_CHECKING:  # named in hints only: the functions import the indirect module where they use it
     from pathlib import Path
@@ -566,7 +567,8 @@ def _samples(p: Press, first: Press, count: int, stride: int, left_out: np.ndarr
     if p.reference is None:
         raise CaptureError(f"{p.folder}: LED calibration needs the undeformed reference (reference.npz)")
     if p.camera != first.camera or len(p.leds) != count:
-        raise CaptureError(f"{p.folder}: camera or LED count differs from {first.folder}")
+        why = optics_difference(p, first) or f"it has {len(p.leds)} LEDs, the starting LEDs {count}"
+        raise CaptureError(f"{p.folder}: not a capture of the sensor of {first.folder} ({why})")
     valid = np.isfinite(p.reference.depth)
     sub = np.zeros_like(valid)
     sub[::stride, ::stride] = True

@@ -54,13 +54,30 @@ def check_undeformed(press: Press | CaptureOptics, undeformed: Press | CaptureOp
         Anything with ``folder``, ``camera``, ``leds`` and ``reference``: the pipeline checks the captures'
         optics before it says anything about an earlier result, the solver the loaded presses.
     """
-    if undeformed.camera != press.camera or len(undeformed.leds) != len(press.leds):
-        raise CaptureError(f"{undeformed.folder}: camera or LED count differs from {press.folder}")
+    why = optics_difference(undeformed, press)
+    if why:
+        raise CaptureError(f"{undeformed.folder}: not a capture of the sensor of {press.folder} ({why})")
     if undeformed.reference is None:
         raise CaptureError(f"{undeformed.folder}: the undeformed capture needs its reference surface (reference.npz)")
     why = _other_sensor(press, undeformed)
     if why:
         raise CaptureError(f"{undeformed.folder}: not a capture of the sensor of {press.folder} ({why})")
+
+
+def optics_difference(capture: Press | CaptureOptics, other: Press | CaptureOptics) -> str | None:
+    """How ``capture``'s camera or LED count differs from ``other``'s, in words, or None when they are the same.
+
+    Why: "camera or LED count differs" left the user to find which, when the usual cause is a capture of another
+    image size (``--width 160 --height 120`` on one command and not on the other).
+    """
+    a, b = capture.camera, other.camera
+    if (a.width, a.height) != (b.width, b.height):
+        return f"its images are {a.width}x{a.height} pixels, those of {other.folder} {b.width}x{b.height}"
+    if a != b:
+        return f"its camera's intrinsics or lens distortion differ from those of {other.folder}"
+    if len(capture.leds) != len(other.leds):
+        return f"it has {len(capture.leds)} LEDs, {other.folder} {len(other.leds)}"
+    return None
 
 
 def _other_sensor(press: Press | CaptureOptics, undeformed: Press | CaptureOptics) -> str | None:

@@ -176,3 +176,44 @@ def test_a_reconstruction_folder_given_as_a_press_is_named(presses, capsys):
 def test_an_enotdir_below_no_file_keeps_the_systems_words(tmp_path):
     exc = NotADirectoryError(errno.ENOTDIR, "Not a directory", str(tmp_path / "gone" / "x"))
     assert describe_os_error(exc) == f"{tmp_path / 'gone' / 'x'}: Not a directory"
+
+
+# ---------------------------------------------------------------------- a folder of presses for one capture
+@pytest.mark.parametrize("command", ["calibrate-leds", "solve --reference", "calibrate --reference"])
+def test_a_folder_of_presses_for_the_undeformed_capture_names_its_reference(presses, tmp_path, capsys, command):
+    """`nlips calibrate-leds DATASET`, `nlips solve PRESS --reference DATASET` and `nlips calibrate PRESSES --reference
+    DATASET` said "DATASET/meta.json: missing; DATASET is not a complete press folder", not that the dome they
+    wanted is DATASET/reference."""
+    if command == "calibrate-leds":
+        args = ["calibrate-leds", str(presses), "--out", str(tmp_path / "leds.json")]
+    elif command == "solve --reference":
+        args = ["solve", str(presses / "p1"), "--reference", str(presses)]
+    else:
+        args = ["calibrate", str(presses), "--reference", str(presses), "--out", str(tmp_path / "calibration")]
+    assert main(["--no-progress", *args]) == 2
+    _one_line_error(
+        capsys.readouterr().err,
+        f"{presses}: a folder of presses, not ",
+        f"its undeformed dome is {presses / 'reference'} (give that)",
+    )
+    assert not (tmp_path / "leds.json").exists() and not (presses / "p1" / "nlips").exists()
+    assert not (tmp_path / "calibration").exists()
+
+
+def test_a_folder_of_presses_without_a_reference_asks_for_one_capture(presses, tmp_path, capsys):
+    """Without reference/ (a folder of presses of the user's own) the line still says what the folder is."""
+    (presses / "reference").rename(presses / "p0")
+    assert main(["--no-progress", "calibrate-leds", str(presses), "--out", str(tmp_path / "leds.json")]) == 2
+    _one_line_error(capsys.readouterr().err, f"{presses}: a folder of presses, not ", "give one capture's folder")
+
+
+def test_calibrate_on_one_press_of_a_dataset_names_the_dataset(presses, tmp_path, capsys):
+    """`nlips calibrate DATASET/p1` said "no reference/ capture of the undeformed dome; name one with --reference",
+    and following it calibrated that one press alone (too few to train on)."""
+    out = tmp_path / "calibration"
+    assert main(["--no-progress", "calibrate", str(presses / "p1"), "--out", str(out)]) == 2
+    _one_line_error(
+        capsys.readouterr().err,
+        f"{presses / 'p1'}: one press, not a folder of presses; its folder {presses} holds them and their reference/",
+    )
+    assert not out.exists()

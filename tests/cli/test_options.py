@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+import pytest
+
 from nlipscalib.cli.options import fill_defaults, option, typed
 
 DEFAULTS = {"seed": 0, "camera": "0"}
@@ -60,3 +62,31 @@ def test_every_command_has_a_description_and_every_option_a_help_text():
 
     walk(build_parser(), "nlips")
     assert not missing
+
+
+@pytest.mark.parametrize(
+    "width, height, line",
+    [
+        (
+            160,
+            None,
+            "--width 160 without --height: the images would be 160x480 pixels (the scene's other side kept, "
+            "not its 640x480 shape); give both, e.g. --width 160 --height 120",
+        ),
+        (
+            None,
+            90,
+            "--height 90 without --width: the images would be 640x90 pixels (the scene's other side kept, "
+            "not its 640x480 shape); give both, e.g. --width 120 --height 90",
+        ),
+    ],
+)
+def test_one_image_side_alone_is_refused_with_both_to_give(width, height, line):
+    from nlipscalib.cli.options import check_size_pair
+    from nlipscalib.core.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        check_size_pair(width, height, (640, 480))
+    assert str(err.value) == line
+    check_size_pair(None, None, (640, 480))  # neither: the scene's size
+    check_size_pair(160, 480, (640, 480))  # both, whatever their shape: as typed

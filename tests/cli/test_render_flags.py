@@ -17,6 +17,12 @@ from nlipscalib.cli import main
         # the flag typed, not the scene key it sets (was "scene.camera: width: ...")
         (["--width", "100000"], "--width: must be in [8, 16384], got 100000"),
         (["--height", "20000"], "--height: must be in [8, 16384], got 20000"),
+        # one side alone kept the scene's other: 160x480 images of a small disc in a black strip, without a word
+        (
+            ["--width", "160"],
+            "--width 160 without --height: the images would be 160x480 pixels (the scene's other side",
+        ),
+        (["--height", "120"], "--height 120 without --width: the images would be 640x120 pixels"),
         (["--variant", "fast"], "--variant: must be one of ['auto', 'cuda_ad_rgb', 'llvm_ad_rgb', 'scalar_rgb']"),
         # press options with --undeformed were silently ignored
         (["--undeformed", "--indenter", "coin"], "--indenter is not used with --undeformed: the undeformed dome has"),

@@ -258,12 +258,36 @@ def test_settings_that_do_not_fit_the_capture_are_refused_before_anything_is_sai
     assert main(["solve", str(press), "--leds", "1,2,40", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has LEDs 1..12" in err[0]
+    # two LEDs: the solver loaded the press and said "only 2 LED images are lit (dead: [])"
+    assert main(["solve", str(press), "--leds", "1,7", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "nlips solve: error: leds [1, 7]: 2 LED(s); NLiPs needs at least 3 (a normal and an albedo per pixel)"
+    ]
     other = root.parent / "other_sensor"  # an undeformed capture of another LED ring
     synth.make_press(other, "none", size=(64, 48), leds=synth.ring_leds(tilt_deg=40))
     assert main(["solve", str(press), "--reference", str(other), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{other}: not a capture of the sensor of {press}" in err[0]
     assert "re-solving" not in caplog.text and "identical result" not in caplog.text
+
+
+def test_a_capture_of_another_image_size_says_which_sizes(data, tmp_path, capsys):
+    """`nlips solve PRESS --reference REF` and `nlips calibrate-leds A B` with REF or B rendered at another
+    --width/--height said only "camera or LED count differs", leaving the user to find which."""
+    root, cfg = data
+    press = root / "press_a"  # 64x48
+    small = synth.make_press(tmp_path / "small_reference", "none", size=(32, 24))
+    assert main(["solve", str(press), "--reference", str(small), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith(
+        f"{small}: not a capture of the sensor of {press} (its images are 32x24 pixels, those of {press} 64x48)"
+    ), err
+    reference = synth.make_press(tmp_path / "reference", "none", size=(64, 48))
+    leds = tmp_path / "leds.json"
+    assert main(["--no-progress", "calibrate-leds", str(reference), str(small), "--out", str(leds)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "its images are 32x24 pixels, those of" in err[0] and not leds.exists(), err
 
 
 @pytest.mark.parametrize("roi", [["0,0,0,0"], ["10", "10", "3", "3"], ["60", "10", "10", "10"]])
@@ -396,3 +420,21 @@ def test_a_solve_without_figures_reads_no_ground_truth(data, capsys):
     assert main(["solve", str(press), "--config", str(cfg), "--out", str(out), "--no-progress"]) == 2
     assert "gt.npz: " in capsys.readouterr().err.strip().splitlines()[-1]
     assert not out.exists()
+
+
+def test_eval_of_a_captured_press_says_only_twin_renders_carry_ground_truth(data, capsys):
+    """`nlips eval SESSION` (a capture session's presses) said "PRESS: no ground truth (gt.npz) to evaluate against",
+    leaving the user to wonder what made gt.npz go missing: a captured press never has one."""
+    root, cfg = data
+    press = root / "press_a"
+    meta = json.loads((press / "meta.json").read_text())
+    meta["ground_truth"] = None  # as `nlips capture` writes it
+    (press / "meta.json").write_text(json.dumps(meta))
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(press)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips eval: error: {press}: no ground truth (gt.npz) to evaluate against: only twin renders (nlips render, "
+        "dataset, demo) carry one; a captured press has none"
+    ], err

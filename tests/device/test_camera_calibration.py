@@ -119,8 +119,21 @@ def test_board_points_follow_opencv_order():
 def test_too_few_views_is_a_clear_error():
     blank = np.full((60, 80), 128, np.uint8)
     assert find_corners(blank, PATTERN) is None
-    with pytest.raises(CaptureError, match="found in 0 of 2 images"):
+    with pytest.raises(CaptureError, match=r"found in 0 of 2 images; at least 3 are needed \(check --pattern"):
         calibrate([None, None], (80, 60))
+
+
+def test_too_few_images_each_showing_the_board_asks_for_more_not_for_another_pattern(views):
+    """`nlips calibrate-camera one.png` (the board found in 1 of 1 images) was told to check --pattern."""
+    detected = Target(PATTERN, SQUARE).detect(views[0])
+    assert detected is not None
+    with pytest.raises(CaptureError) as err:
+        calibrate([detected], (TRUE.width, TRUE.height))
+    assert str(err.value).endswith(
+        "found in 1 of 1 images; at least 3 are needed (take more pictures of it, in different poses over the whole "
+        "image)"
+    )
+    assert "--pattern" not in str(err.value)
 
 
 def test_cli_writes_the_camera_block(views, tmp_path, capsys):

@@ -82,6 +82,8 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
         (["--emulate", "nlipstac", "--presses", "-1"], "--presses must be >= 0"),
         (["--emulate", "nlipstac", "--width", "4"], "--width must be 8..16384 pixels, got 4"),
         (["--emulate", "nlipstac", "--height", "0"], "--height must be 8..16384 pixels, got 0"),
+        (["--emulate", "nlipstac", "--height", "120"], "--height 120 without --width: the images would be 640x120"),
+        (["--port", "nlipsemu://7", "--width", "160"], "give both, e.g. --width 160 --height 120"),
         (["--emulate", "nlipstac", "--spp", "0"], "--spp must be >= 1"),
         (["--emulate", "nlipstac", "--seed", "-3"], "--seed must be >= 0"),
         (["--emulate", "nlipstac", "--flush", "-1"], "--flush must be >= 0"),

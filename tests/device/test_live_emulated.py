@@ -68,6 +68,7 @@ def test_live_on_nlipsemu_port_with_recorded_frames_starts_the_board_alone(tmp_p
         (["--emulate", "nlipstac", "--camera", "0"], "--camera is not used with --emulate"),
         (["--emulate", "nlipstac", "--adalight", "12"], "--adalight is not used with --emulate"),
         (["--camera", "0", "--width", "64"], "--width is only used with --emulate SCENE"),
+        (["--emulate", "nlipstac", "--width", "64"], "--width 64 without --height: the images would be 64x480 pixels"),
         (["--port", "nlipsemu://4", "--frames", "0"], "--max-frames: must be an integer >= 1"),  # --frames: old name
     ],
 )

@@ -118,6 +118,24 @@ def test_unknown_nlipsemu_board_says_what_the_url_reaches():
     assert "plugged in" not in str(info.value)
 
 
+def test_a_started_board_not_kept_is_gone_and_the_line_says_to_keep_it():
+    """docs/api.md's way to try the LED examples without hardware: `start_board(url, n)` whose board was not kept
+    is garbage-collected (the process holds boards weakly), and the line said only "create it first"."""
+    import gc
+
+    from nlipscalib.device.controller import LedController, PortNotFoundError
+    from nlipscalib.device.virtual_board import start_board
+
+    board = start_board("nlipsemu://kept", 4)
+    with LedController.open("nlipsemu://kept", timeout=1.0) as leds:
+        assert leds.n_leds == 4
+    start_board("nlipsemu://not-kept", 4)
+    gc.collect()
+    with pytest.raises(PortNotFoundError, match="create it first and keep it, e.g. board = virtual_board.start_board"):
+        LedController.open("nlipsemu://not-kept", timeout=0.1)
+    board.close()
+
+
 def test_adalight_on_the_virtual_board(capsys, caplog):
     """--adalight with the virtual board: it runs Adalight (greets with Ada, latches frames), no banner wait."""
     assert main(["leds", "virtual", "test", "--adalight", "4", "--dwell", "0"]) == 0

@@ -81,6 +81,20 @@ def test_cli_train_on_the_folder_of_presses_names_its_calibration_dataset(calib,
     assert not (tmp_path / "m.pt").exists()
 
 
+def test_cli_train_on_the_samples_folder_names_the_dataset_above_it(calib, tmp_path, capsys):
+    """`nlips train DATASET/samples` said "DATASET/samples/index.json: missing; ... not a calibration dataset (run
+    `nlips calibrate`)": the dataset was there, one folder up."""
+    dataset = tmp_path / "calibration"
+    shutil.copytree(calib.folder, dataset)
+    assert main(["train", str(dataset / "samples"), "--out", str(tmp_path / "m.pt")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips train: error: {dataset / 'samples'}: a folder inside a calibration dataset, not one; the dataset is "
+        f"{dataset} (give that folder)"
+    ], err
+    assert not (tmp_path / "m.pt").exists()
+
+
 def test_a_dataset_without_led_geometry_opens_with_a_warning(calib, tmp_path, caplog):
     """index.json written before 2026-12-03 lacks led_positions/led_directions: usable, said once, not silent."""
     import logging

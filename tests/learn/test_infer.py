@@ -461,6 +461,20 @@ def tiny_model(tmp_path_factory):
     return out, root
 
 
+def test_a_calibration_dataset_given_as_input_is_named_as_such(tiny_model, tmp_path, capsys):
+    """`nlips infer MODEL DATASET/calibration` took the calibration dataset for a folder of frames: two warnings
+    (no --out, coverage.png 8-bit), then "coverage.png: image is 1078x1100, the model was calibrated for ..."."""
+    model, root = tiny_model
+    out = tmp_path / "out"
+    assert main(["--no-progress", "infer", str(model), str(root / "calib"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips infer: error: {root / 'calib'}: a calibration dataset (`nlips calibrate`), not presses or frames: "
+        f"infer the presses it was made from (e.g. {root}), or give the dataset to `nlips train`"
+    ], err
+    assert not out.exists()
+
+
 def test_black_and_saturated_frames_are_called_so_never_a_negative_brightness(tiny_model, tmp_path, caplog, capsys):
     """A black frame (all 0, below the calibration's dark frame) was "-0.037 times as bright"; a saturated one "2.3
     times as bright", with no word of clipping (the audit's frames_black, frames_sat, video_black.avi)."""

@@ -39,3 +39,16 @@ def test_a_scene_name_that_is_neither_a_file_nor_shipped_says_so_and_lists_the_s
     assert "fingertip" in str(err.value) and "nlipstac" in str(err.value)
     with pytest.raises(ConfigError, match="no such config file"):
         load_scene("missing.toml")  # a file name keeps its message
+
+
+def test_a_dataset_folder_given_for_its_spec_is_called_a_folder(tmp_path, monkeypatch, capsys):
+    """`nlips dataset out/small --out ...` (the rendered folder, not its spec) said "dataset spec 'out/small': no
+    such file, nor a shipped dataset spec": the folder is there, and the line sent the user looking for it."""
+    from nlipscalib.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "out" / "small" / "press_0001").mkdir(parents=True)
+    assert main(["--no-progress", "dataset", "out/small", "--out", "out/again"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["nlips dataset: error: out/small: a folder, not a config file (.toml, .yaml)"], err
+    assert not (tmp_path / "out" / "again").exists()
