@@ -171,11 +171,11 @@ def solve(
         whose images differ only by a small change of the indirect light): the finest level alone is
         solved from it, no pyramid (with ``unrefined`` k > 0: the level k below the finest, from it
         averaged down). NaN pixels start from the prior.
-    unrefined : how many of the finest levels are not iterated (0: all are). The finest is then only
-        evaluated (normals, albedo) at the depth brought up from the finest iterated level, the levels
-        between are skipped -- a pass of the outer interreflection loop before its last, whose indirect
-        light is gathered on patches several pixels wide, needs no more. The coarsest level is always
-        iterated.
+    unrefined : how many of the finest levels are not iterated (0: all are). The finest level's depth is then
+        the finest iterated level's brought up (bilinear), its normals that depth's, and its albedo, residual
+        and confidence the iterated level's brought up too (:func:`_brought_up`); the levels between are
+        skipped -- a pass of the outer interreflection loop before its last, whose indirect light is gathered
+        on patches several pixels wide, needs no more. The coarsest level is always iterated.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -420,6 +420,7 @@ def _pyramid(
         skip=range(1, unrefined),
         scale=data.images.dtype.type(data.scale),
         whole_gel=whole_gel,
+        bare=(0,) if unrefined else (),  # the finest level is then brought up (:func:`_brought_up`), not solved
     )
     if t_first is not None and len(levels) > 1:
         shape = levels[0]["camera"].shape
@@ -491,7 +492,8 @@ def _coarse_to_fine(
 
     ``leds``: (positions, directions, mu, psi) of the LEDs kept (``_LevelData.leds``).
     ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve).
-    ``refine_finest``: False: the finest level (of several) is evaluated at its starting depth, not iterated."""
+    ``refine_finest``: False: the finest level (of several) is not iterated but brought up from the one before it
+    (:func:`_brought_up`)."""
     t_state = out = None
     for k, lv in enumerate(levels):
         if t_state is None:
@@ -501,16 +503,93 @@ def _coarse_to_fine(
             delta = np.where(prev["mask"], t_state - prev["t0"], 0.0)
             delta = resize(delta, lv["camera"].shape, linear=True)
             t_init = lv["t0"] + delta
+        if k > 0 and not refine_finest and k == len(levels) - 1:
+            t_state, out, info = _brought_up(levels[k - 1], lv, t_init, out, opts.estimator)
+            report["levels"].append(info)
+            break
         if k == 0 and opts.estimator != "ls" and t_first is None:
             # Least squares first on the coarsest level: from the undeformed prior, the contact's
             # residuals are large and a robust estimator would treat the dent itself as outliers.
             t_init, _, info = _solve_level(lv, t_init, leds, opts, be, bar, "ls", coarse=True)
             report["levels"].append(info)
         coarse = k < len(levels) - 1
-        iterate = refine_finest or coarse or k == 0
-        t_state, out, info = _solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse, iterate)
+        t_state, out, info = _solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse)
         report["levels"].append(info)
     return t_state, out
+
+
+def _brought_up(prev: dict, lv: dict, t_init: np.ndarray, out: dict, estimator: str):
+    """Level ``lv``'s result without iterating or evaluating its model: the depth ``t_init`` (the coarser level
+    ``prev``'s brought up), the normals of that depth, and ``prev``'s per-pixel results ``out`` (albedo, residual,
+    confidence) brought up to ``lv``'s mask (:func:`_upsampled`). An outer pass before the last needs no more:
+    its light is gathered on patches several pixels wide, and the last pass starts from its depth alone.
+
+    Why not the level's model at that depth (as before, s19-b): the albedo fit there took three IRLS refits of the
+    level's (L, 3, N) samples, 0.65 s of CPU (~0.35 s of wall on 2 cores) of a 640x480 whole frame's first pass;
+    the default twin's one-bounce sphere and cube presses came out within 0.0012 deg of contact AAE of it
+    (benchmarks/RESULTS.md, s19-b). The residual and confidence are those of the coarser level's averaged images
+    (lower than the level's own): only the last pass's, always iterated, reach a saved result.
+
+    Returns
+    -------
+    (H, W) float64 log-depth (0 off the mask), the per-pixel results (as :func:`_solve_level`'s), the level's
+    report entry (no iterations, no energy).
+    """
+    t0 = time.perf_counter()
+    mk = lv["mask"]
+    ops = _operators(lv)
+    t = t_init[mk]
+    result = {
+        "normals": geometry.normals_from_gradient(ops["Du"] @ t, ops["Dv"] @ t, *lv["ABC"]),
+        "albedo": _upsampled(out["albedo"].T, prev["mask"], mk).T,
+        "residual": _upsampled(out["residual"], prev["mask"], mk),
+        "confidence": _upsampled(out["confidence"], prev["mask"], mk),
+        "has_gradient": ops["has_grad"],
+    }
+    info = {
+        "shape": list(mk.shape),
+        "estimator": estimator,
+        "gamma": None,
+        "pixels": len(t),
+        "lambda": None,
+        "energy": [],
+        "cg_iters": [],
+        "cg_rtol": [],
+        "normal_change_deg": [],
+        "rejected_steps": 0,
+        "stop": "brought_up",
+        "iterations": 0,
+        "amg_setups": 0,
+        "seconds": {"brought_up": round(time.perf_counter() - t0, 4)},
+    }
+    return _embed(t, mk), result, info
+
+
+def _upsampled(values: np.ndarray, coarse_mask: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per-pixel values of a coarse level brought up to a finer level's mask: bilinear, after each coarse pixel off
+    the mask (or without a finite value) took its nearest valid pixel's value, so that the fine mask's edge, which
+    the coarse mask leaves out (a coarse pixel is in only where all of its fine pixels are), reads valid values.
+
+    Parameters
+    ----------
+    values : (n,) or (n, k) float -- on ``coarse_mask``'s pixels, row-major; NaN: no value.
+    coarse_mask : (h, w) bool; mask : (H, W) bool -- the finer level's.
+
+    Returns
+    -------
+    (N,) or (N, k) float64 on ``mask``'s pixels (NaN where the coarse level has no valid pixel at all).
+    """
+    from scipy.ndimage import distance_transform_edt
+
+    grid = np.full(coarse_mask.shape + values.shape[1:], np.nan)
+    grid[coarse_mask] = values
+    valid = np.isfinite(grid) if grid.ndim == 2 else np.isfinite(grid).all(axis=-1)
+    if not valid.any():
+        return np.full((int(mask.sum()),) + values.shape[1:], np.nan)
+    if not valid.all():
+        rows, cols = distance_transform_edt(~valid, return_distances=False, return_indices=True)
+        grid = grid[rows, cols]
+    return resize(grid, mask.shape, linear=True)[mask]
 
 
 # ---------------------------------------------------------------------- one level
@@ -591,7 +670,6 @@ def _solve_level(
     bar: tqdm | None,
     est: str,
     coarse: bool = False,
-    iterate: bool = True,
 ):
     """Minimise the energy on one pyramid level from log-depth ``t_init`` (H, W) of that level.
 
@@ -600,17 +678,16 @@ def _solve_level(
 
     Each iteration (:meth:`_Level.iterate`): variable-projection Gauss-Newton step on t (albedo eliminated),
     solved inexactly by AMG-preconditioned CG, then a backtracking line search on the joint energy with the
-    albedo refitted (IRLS) at the trial depth: the energy never increases. ``iterate`` False: no iteration,
-    the level's normals, albedo and diagnostics at ``t_init``.
+    albedo refitted (IRLS) at the trial depth: the energy never increases.
 
     Returns
     -------
     (H, W) float64 log-depth (0 off the mask), the per-pixel results (normals, albedo, residual, confidence,
     has_gradient), the level's report entry.
     """
-    level = _Level(lv, t_init, leds, opts, be, est, iterate)
+    level = _Level(lv, t_init, leds, opts, be, est)
     pcg = Krylov(opts)
-    for _ in range(opts.max_iters if iterate else 0):
+    for _ in range(opts.max_iters):
         stop = level.iterate(pcg, coarse)
         if bar is not None:
             bar.update(1)
@@ -626,9 +703,7 @@ class _Level:
     """One pyramid level's energy and the Gauss-Newton state on it: log-depth t on the mask's pixels, the
     shading F and its derivatives dF, the albedo, the residuals r, the energy, the normals."""
 
-    def __init__(
-        self, lv: dict, t_init: np.ndarray, leds: tuple, opts: SolverOptions, be: Backend, est: str, iterate: bool
-    ):
+    def __init__(self, lv: dict, t_init: np.ndarray, leds: tuple, opts: SolverOptions, be: Backend, est: str):
         self.tm = _Timer()
         self.lv, self.opts, self.be, self.est = lv, opts, be, est
         self.mk = mk = lv["mask"]
@@ -640,34 +715,28 @@ class _Level:
         self.model = model = make_model(be, lv["q"], self.A, self.B, self.C, *leds, lv["images"], lv["usable"])
         self.tm.lap("setup")
 
-        # A level only evaluated (not iterated) needs no derivatives, no smoothness weight and no energy:
-        # its normals, albedo and diagnostics come from the shading alone.
-        F, dF = self.shade(t, iterate)
+        F, dF = self.shade(t, True)
         self.lam = None
         # least squares' energy does not depend on the scale lambda (not known yet): taken in this refit
-        albedo, r, e_data = self.refit(F, None, energy=iterate and est == "ls")
+        albedo, r, e_data = self.refit(F, None, energy=est == "ls")
         self.lam = _robust_scale(be, model, r, lv["images"], lv["usable"], opts)
         # The smoothness weight is relative to the data term's curvature along the gradient of t (least
         # squares, starting depth).
-        self.gamma = (
-            opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable))) if iterate else None
-        )
+        self.gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
         if est != "ls":
-            albedo, r, e_data = self.refit(F, albedo, energy=iterate)
-        self.M = self.b = None
-        if iterate:
-            self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
+            albedo, r, e_data = self.refit(F, albedo, energy=True)
+        self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
         # the derivatives and residuals are in the blocks now: not held through the linear solve and the line search
         # (:meth:`_newton_step`); the level's result is refitted from F and the albedo (:meth:`finish`)
         self.t, self.F, self.dF, self.albedo, self.r = t, F, None, albedo, None
-        self.e_cur = e_data + self.prior(t) if iterate else None
+        self.e_cur = e_data + self.prior(t)
         self.info = {
             "shape": list(mk.shape),
             "estimator": est,
             "gamma": self.gamma,
             "pixels": len(t),
             "lambda": self.lam,
-            "energy": [self.e_cur] if iterate else [],
+            "energy": [self.e_cur],
             "cg_iters": [],
             "cg_rtol": [],
             "normal_change_deg": [],
