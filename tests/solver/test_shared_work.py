@@ -418,3 +418,32 @@ def test_a_levels_geometry_is_kept_and_equals_a_fresh_one(press):
     other = mask.copy()
     other[0, :] = False
     assert len(level_geometry(press.camera, other)[0]) == other.sum()
+
+
+def test_a_large_levels_normals_and_their_change_by_pixel_blocks_have_the_plain_bits():
+    """nlips._normals and _pixelwise run a large level's per-pixel work by blocks on the pool (row blocks of the
+    difference operators' products): the bits of the one-piece computation, on one thread or two."""
+    from nlipscalib.core.metrics import angle_deg
+    from nlipscalib.solver import geometry
+    from nlipscalib.solver.kernel import PARALLEL_MIN_PIXELS
+    from nlipscalib.solver.nlips import PIXELWISE_PIXELS, _make_operators, _normals, _pixelwise
+
+    mask = np.ones((300, 260), bool)
+    mask[100:140, 30:90] = False
+    n = int(mask.sum())
+    assert n > max(PARALLEL_MIN_PIXELS, PIXELWISE_PIXELS, threads.PRODUCT_MIN_ROWS)  # blocks on the pool
+    ops = _make_operators(mask)
+    rng = np.random.default_rng(7)
+    t = np.log(15.0) + 0.05 * rng.standard_normal(n)
+    A, B, C = (rng.standard_normal((n, 3)) for _ in range(3))
+    plain = geometry.normals_from_gradient(ops["Du"] @ t, ops["Dv"] @ t, A, B, C)
+    other = geometry.normals_from_gradient(ops["Du"] @ (1.01 * t), ops["Dv"] @ (1.01 * t), A, B, C)
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            np.testing.assert_array_equal(_normals(ops, t, A, B, C), plain)
+            change = _pixelwise(lambda p: angle_deg(plain[p], other[p]), n)
+            np.testing.assert_array_equal(change, angle_deg(plain, other))
+    finally:
+        threads.set_workers(before)
