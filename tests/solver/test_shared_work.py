@@ -239,7 +239,7 @@ def test_an_unrefined_finest_level_runs_no_model_and_brings_up_the_coarser_level
 
 def test_values_brought_up_to_a_finer_mask_interpolate_and_reach_its_edge():
     """:func:`nlips._upsampled`: bilinear inside the coarse mask (a constant stays that constant, the same as
-    cv2's resize of the whole field), the fine mask's edge from the nearest coarse values (no NaN, no zeros
+    cv2's resize of the whole field), the fine mask's edge from its valid coarse neighbours (no NaN, no zeros
     pulled in from off the mask), NaN only where the coarse level has no value at all."""
     from nlipscalib.solver.nlips import _upsampled
     from nlipscalib.solver.pyramid import resize
