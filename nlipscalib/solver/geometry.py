@@ -223,8 +223,9 @@ class NormalMatrix:
 
 
 class _FixedPattern:
-    """The fixed-pattern assembly of :class:`NormalMatrix`: H's pattern (the union of every term's), the map S
-    from the blocks M (k, k, N), raveled, to H.data, and each extra's E_j^T E_j as (positions, values)."""
+    """The fixed-pattern assembly of :class:`NormalMatrix`: H's pattern (the union of every term's) and the map S
+    from the blocks M (k, k, N), raveled, and the extras' weights to H.data: each extra's E_j^T E_j is one more
+    column of S (:func:`_with_extras`)."""
 
     def __init__(self, ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix]) -> None:
         ops = [sp.csr_matrix(P) for P in ops]
@@ -247,21 +248,43 @@ class _FixedPattern:
         # M.ravel()[(a * k + b) * n + i] = M[a, b, i]: the loop made S's columns in that order, each contiguous
         indptr = np.concatenate([[0], np.cumsum(np.concatenate(counts))])
         position = _positions(where, np.concatenate(rows), np.concatenate(cols))
-        self.S = sp.csc_matrix((np.concatenate(coef), position, indptr), shape=(pattern.nnz, k * k * n)).tocsr()
-        self.extras = []
-        for E in extras:
-            EtE = (E.T @ E).tocoo()
-            self.extras.append((_positions(where, EtE.row, EtE.col), EtE.data))
+        S = sp.csc_matrix((np.concatenate(coef), position, indptr), shape=(pattern.nnz, k * k * n)).tocsr()
+        self.S = _with_extras(S, [(_positions(where, EtE.row, EtE.col), EtE.data) for EtE in _gram(extras)])
+        self.n_extras = len(extras)
 
     def assemble(self, M: np.ndarray, weights: Sequence[float] = ()) -> sp.csr_matrix:
-        # by row blocks on both cores: the same bits as S @ m (threads.RowBlocks)
-        data = threads.RowBlocks(self.S).dot(np.ascontiguousarray(M, np.float64).ravel())
-        for (position, values), w in zip(self.extras, weights):
-            data[position] += float(w) * values
+        # the extras' weights after the blocks (absent ones 0: not added); by row blocks on both cores, the same bits
+        # as S @ x (threads.RowBlocks)
+        extra = np.zeros(self.n_extras)
+        extra[: len(weights)] = weights[: self.n_extras]
+        data = threads.RowBlocks(self.S).dot(np.concatenate([np.ascontiguousarray(M, np.float64).ravel(), extra]))
         H = sp.csr_matrix((data, self.indices.copy(), self.indptr.copy()), shape=self.shape)
         H.has_sorted_indices = True
-        H.eliminate_zeros()  # as the products leave them out: the same pattern for AMG's set-up
+        if not data.all():
+            H.eliminate_zeros()  # as the products leave them out: the same pattern for AMG's set-up
         return H
+
+
+def _gram(extras: Sequence[sp.csr_matrix]) -> list[sp.coo_matrix]:
+    """E_j^T E_j of each extra operator, COO."""
+    return [(E.T @ E).tocoo() for E in extras]
+
+
+def _with_extras(S: sp.csr_matrix, extras: Sequence[tuple[np.ndarray, np.ndarray]]) -> sp.csr_matrix:
+    """S with one column per extra, ``(positions, values)`` (unique positions into the pattern's data): the extra's
+    values at its positions' rows, after each row's entries of S.
+
+    Why: ``S @ [m, w_1, ...]`` then sums each row's blocks' terms, then adds w_1 v_1, then w_2 v_2, in that order, as
+    the assembly's former ``data[position] += w_j * values`` after ``S @ m`` did, so H has the same bits; but as one
+    product by row blocks on both cores, where those two scatters (1.5 M entries each at 640x480) took ~60 ms of one
+    core per assembly (benchmarks/RESULTS.md, s19-b)."""
+    rows = S.shape[0]
+    cols = [
+        sp.csr_matrix((values, (positions, np.zeros(len(positions), np.int32))), shape=(rows, 1))
+        for positions, values in extras
+    ]
+    out = sp.hstack([S, *cols], format="csr")
+    return out
 
 
 def _union_pattern(ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix]) -> sp.csr_matrix:

@@ -77,7 +77,7 @@ class Krylov:
         start = count[0]
         x, _ = spla.cg(op, rhs, x0=x, rtol=rtol, maxiter=self.opts.cg_maxiter, M=self.amg, callback=cb)
         iters = max(count[0] - start, 1)
-        achieved = float(np.linalg.norm(rhs - Hm @ x)) / max(float(np.linalg.norm(rhs)), 1e-300)
+        achieved = float(np.linalg.norm(rhs - products.dot(x))) / max(float(np.linalg.norm(rhs)), 1e-300)
         if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > 0.85:
             self.amg = None  # the matrix drifted away from the one the hierarchy was built for
         return x, count[0]

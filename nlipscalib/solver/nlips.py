@@ -22,7 +22,7 @@ import dataclasses
 import functools
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -39,7 +39,7 @@ from ..core.robust_scale import mad_scale
 from . import geometry, reuse, threads
 from .blas import blas_threads
 from .inputs import check_inputs
-from .kernel import Array, Backend, ChunkedModel, Model, Parts, make_model
+from .kernel import PARALLEL_MIN_PIXELS, Array, Backend, ChunkedModel, Model, Parts, make_model
 from .krylov import Krylov, forcing
 from .options import SolverOptions
 from .pyramid import build_pyramid, checked_prior_weights, resize
@@ -171,11 +171,11 @@ def solve(
         whose images differ only by a small change of the indirect light): the finest level alone is
         solved from it, no pyramid (with ``unrefined`` k > 0: the level k below the finest, from it
         averaged down). NaN pixels start from the prior.
-    unrefined : how many of the finest levels are not iterated (0: all are). The finest is then only
-        evaluated (normals, albedo) at the depth brought up from the finest iterated level, the levels
-        between are skipped -- a pass of the outer interreflection loop before its last, whose indirect
-        light is gathered on patches several pixels wide, needs no more. The coarsest level is always
-        iterated.
+    unrefined : how many of the finest levels are not iterated (0: all are). The finest level's depth is then
+        the finest iterated level's brought up (bilinear), its normals that depth's, and its albedo, residual
+        and confidence the iterated level's brought up too (:func:`_brought_up`); the levels between are
+        skipped -- a pass of the outer interreflection loop before its last, whose indirect light is gathered
+        on patches several pixels wide, needs no more. The coarsest level is always iterated.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -420,6 +420,7 @@ def _pyramid(
         skip=range(1, unrefined),
         scale=data.images.dtype.type(data.scale),
         whole_gel=whole_gel,
+        bare=(0,) if unrefined else (),  # the finest level is then brought up (:func:`_brought_up`), not solved
     )
     if t_first is not None and len(levels) > 1:
         shape = levels[0]["camera"].shape
@@ -491,7 +492,8 @@ def _coarse_to_fine(
 
     ``leds``: (positions, directions, mu, psi) of the LEDs kept (``_LevelData.leds``).
     ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve).
-    ``refine_finest``: False: the finest level (of several) is evaluated at its starting depth, not iterated."""
+    ``refine_finest``: False: the finest level (of several) is not iterated but brought up from the one before it
+    (:func:`_brought_up`)."""
     t_state = out = None
     for k, lv in enumerate(levels):
         if t_state is None:
@@ -501,16 +503,109 @@ def _coarse_to_fine(
             delta = np.where(prev["mask"], t_state - prev["t0"], 0.0)
             delta = resize(delta, lv["camera"].shape, linear=True)
             t_init = lv["t0"] + delta
+        if k > 0 and not refine_finest and k == len(levels) - 1:
+            t_state, out, info = _brought_up(levels[k - 1], lv, t_init, out, opts.estimator)
+            report["levels"].append(info)
+            break
         if k == 0 and opts.estimator != "ls" and t_first is None:
             # Least squares first on the coarsest level: from the undeformed prior, the contact's
             # residuals are large and a robust estimator would treat the dent itself as outliers.
             t_init, _, info = _solve_level(lv, t_init, leds, opts, be, bar, "ls", coarse=True)
             report["levels"].append(info)
         coarse = k < len(levels) - 1
-        iterate = refine_finest or coarse or k == 0
-        t_state, out, info = _solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse, iterate)
+        t_state, out, info = _solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse)
         report["levels"].append(info)
     return t_state, out
+
+
+def _brought_up(prev: dict, lv: dict, t_init: np.ndarray, out: dict, estimator: str):
+    """Level ``lv``'s result without iterating or evaluating its model: the depth ``t_init`` (the coarser level
+    ``prev``'s brought up), the normals of that depth, and ``prev``'s per-pixel results ``out`` (albedo, residual,
+    confidence) brought up to ``lv``'s mask (:func:`_upsampled`). An outer pass before the last needs no more:
+    its light is gathered on patches several pixels wide, and the last pass starts from its depth alone.
+
+    Why not the level's model at that depth (as before, s19-b): the albedo fit there took three IRLS refits of the
+    level's (L, 3, N) samples, 0.65 s of CPU (~0.35 s of wall on 2 cores) of a 640x480 whole frame's first pass;
+    the default twin's one-bounce sphere and cube presses came out within 0.0012 deg of contact AAE of it
+    (benchmarks/RESULTS.md, s19-b). The residual and confidence are those of the coarser level's averaged images
+    (lower than the level's own): only the last pass's, always iterated, reach a saved result.
+
+    Returns
+    -------
+    (H, W) float64 log-depth (0 off the mask), the per-pixel results (as :func:`_solve_level`'s), the level's
+    report entry (no iterations, no energy).
+    """
+    t0 = time.perf_counter()
+    mk = lv["mask"]
+    ops = _operators(lv)
+    t = t_init[mk]
+    result = {
+        "normals": _normals(ops, t, *lv["ABC"]),
+        "albedo": _upsampled(out["albedo"].T, prev["mask"], mk).T,
+        "residual": _upsampled(out["residual"], prev["mask"], mk),
+        "confidence": _upsampled(out["confidence"], prev["mask"], mk),
+        "has_gradient": ops["has_grad"],
+    }
+    info = {
+        "shape": list(mk.shape),
+        "estimator": estimator,
+        "gamma": None,
+        "pixels": len(t),
+        "lambda": None,
+        "energy": [],
+        "cg_iters": [],
+        "cg_rtol": [],
+        "normal_change_deg": [],
+        "rejected_steps": 0,
+        "stop": "brought_up",
+        "iterations": 0,
+        "amg_setups": 0,
+        "seconds": {"brought_up": round(time.perf_counter() - t0, 4)},
+    }
+    return _embed(t, mk), result, info
+
+
+def _upsampled(values: np.ndarray, coarse_mask: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per-pixel values of a coarse level brought up to a finer level's mask: bilinear, after the coarse pixels off
+    the mask (or without a finite value) took their valid neighbours' values (:func:`_filled`), so that the fine
+    mask's edge, which the coarse mask leaves out (a coarse pixel is in only where all of its fine pixels are), reads
+    valid values.
+
+    Parameters
+    ----------
+    values : (n,) or (n, k) float, k <= 4 -- on ``coarse_mask``'s pixels, row-major; NaN: no value.
+    coarse_mask : (h, w) bool; mask : (H, W) bool -- the finer level's.
+
+    Returns
+    -------
+    (N,) or (N, k) float64 on ``mask``'s pixels (NaN where the coarse level has no valid pixel at all).
+    """
+    grid = np.full(coarse_mask.shape + values.shape[1:], np.nan)
+    grid[coarse_mask] = values
+    valid = np.isfinite(grid) if grid.ndim == 2 else np.isfinite(grid).all(axis=-1)
+    if not valid.any():
+        return np.full((int(mask.sum()),) + values.shape[1:], np.nan)
+    return resize(_filled(grid, valid), mask.shape, linear=True)[mask]
+
+
+def _filled(grid: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``grid`` (h, w) or (h, w, k) float with its invalid pixels filled ring by ring from the valid ones: each takes
+    the mean of its valid 3x3 neighbours, until none is left (``valid`` (h, w) bool, at least one True). OpenCV's box
+    filter on the level's small grid: SciPy's nearest-pixel distance transform would import scipy.ndimage (~0.05-0.08
+    s) into a command that has no other use for it."""
+    import cv2
+
+    shape = grid.shape
+    grid = np.where(valid if grid.ndim == 2 else valid[..., None], grid, 0.0).reshape(shape[0], shape[1], -1)
+    valid = valid.copy()
+    while not valid.all():
+        weight = valid.astype(np.float64)
+        sums = cv2.boxFilter(grid * weight[..., None], -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        counts = cv2.boxFilter(weight, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        ring = ~valid & (counts > 0)
+        grid[ring] = sums.reshape(grid.shape)[ring] / counts[ring][:, None]
+        valid |= ring
+    return grid.reshape(shape)
 
 
 # ---------------------------------------------------------------------- one level
@@ -591,7 +686,6 @@ def _solve_level(
     bar: tqdm | None,
     est: str,
     coarse: bool = False,
-    iterate: bool = True,
 ):
     """Minimise the energy on one pyramid level from log-depth ``t_init`` (H, W) of that level.
 
@@ -600,17 +694,16 @@ def _solve_level(
 
     Each iteration (:meth:`_Level.iterate`): variable-projection Gauss-Newton step on t (albedo eliminated),
     solved inexactly by AMG-preconditioned CG, then a backtracking line search on the joint energy with the
-    albedo refitted (IRLS) at the trial depth: the energy never increases. ``iterate`` False: no iteration,
-    the level's normals, albedo and diagnostics at ``t_init``.
+    albedo refitted (IRLS) at the trial depth: the energy never increases.
 
     Returns
     -------
     (H, W) float64 log-depth (0 off the mask), the per-pixel results (normals, albedo, residual, confidence,
     has_gradient), the level's report entry.
     """
-    level = _Level(lv, t_init, leds, opts, be, est, iterate)
+    level = _Level(lv, t_init, leds, opts, be, est)
     pcg = Krylov(opts)
-    for _ in range(opts.max_iters if iterate else 0):
+    for _ in range(opts.max_iters):
         stop = level.iterate(pcg, coarse)
         if bar is not None:
             bar.update(1)
@@ -626,9 +719,7 @@ class _Level:
     """One pyramid level's energy and the Gauss-Newton state on it: log-depth t on the mask's pixels, the
     shading F and its derivatives dF, the albedo, the residuals r, the energy, the normals."""
 
-    def __init__(
-        self, lv: dict, t_init: np.ndarray, leds: tuple, opts: SolverOptions, be: Backend, est: str, iterate: bool
-    ):
+    def __init__(self, lv: dict, t_init: np.ndarray, leds: tuple, opts: SolverOptions, be: Backend, est: str):
         self.tm = _Timer()
         self.lv, self.opts, self.be, self.est = lv, opts, be, est
         self.mk = mk = lv["mask"]
@@ -640,34 +731,28 @@ class _Level:
         self.model = model = make_model(be, lv["q"], self.A, self.B, self.C, *leds, lv["images"], lv["usable"])
         self.tm.lap("setup")
 
-        # A level only evaluated (not iterated) needs no derivatives, no smoothness weight and no energy:
-        # its normals, albedo and diagnostics come from the shading alone.
-        F, dF = self.shade(t, iterate)
+        F, dF = self.shade(t, True)
         self.lam = None
         # least squares' energy does not depend on the scale lambda (not known yet): taken in this refit
-        albedo, r, e_data = self.refit(F, None, energy=iterate and est == "ls")
+        albedo, r, e_data = self.refit(F, None, energy=est == "ls")
         self.lam = _robust_scale(be, model, r, lv["images"], lv["usable"], opts)
         # The smoothness weight is relative to the data term's curvature along the gradient of t (least
         # squares, starting depth).
-        self.gamma = (
-            opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable))) if iterate else None
-        )
+        self.gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
         if est != "ls":
-            albedo, r, e_data = self.refit(F, albedo, energy=iterate)
-        self.M = self.b = None
-        if iterate:
-            self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
+            albedo, r, e_data = self.refit(F, albedo, energy=True)
+        self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
         # the derivatives and residuals are in the blocks now: not held through the linear solve and the line search
         # (:meth:`_newton_step`); the level's result is refitted from F and the albedo (:meth:`finish`)
         self.t, self.F, self.dF, self.albedo, self.r = t, F, None, albedo, None
-        self.e_cur = e_data + self.prior(t) if iterate else None
+        self.e_cur = e_data + self.prior(t)
         self.info = {
             "shape": list(mk.shape),
             "estimator": est,
             "gamma": self.gamma,
             "pixels": len(t),
             "lambda": self.lam,
-            "energy": [self.e_cur] if iterate else [],
+            "energy": [self.e_cur],
             "cg_iters": [],
             "cg_rtol": [],
             "normal_change_deg": [],
@@ -680,7 +765,7 @@ class _Level:
 
     # ------------------------------------------------------------------ the energy's parts
     def shade(self, tt: np.ndarray, derivatives: bool = False):
-        out = self.model.shading(tt, self.ops["Du"] @ tt, self.ops["Dv"] @ tt, derivatives)
+        out = self.model.shading(tt, *_gradient(self.ops, tt), derivatives)
         return (out[0], out[1:]) if derivatives else (out, None)
 
     def prior(self, tt: np.ndarray) -> float:
@@ -693,7 +778,7 @@ class _Level:
         return self.model.refit(F, start, self.lam, self.est, energy)
 
     def normals(self, tt: np.ndarray):
-        return geometry.normals_from_gradient(self.ops["Du"] @ tt, self.ops["Dv"] @ tt, self.A, self.B, self.C)
+        return _normals(self.ops, tt, self.A, self.B, self.C)
 
     # ------------------------------------------------------------------ one iteration
     def iterate(self, pcg: Krylov, coarse: bool) -> str | None:
@@ -772,7 +857,7 @@ class _Level:
         # dF_new None (a halved step, or one that ends the level): derived in the next step, if there is one
         self.t, self.F, self.dF, self.albedo, self.r = t_new, F_new, dF_new, alb_new, r_new
         nrm_new = self.normals(t_new)
-        change = float(np.median(angle_deg(self.nrm, nrm_new)))
+        change = float(np.median(_pixelwise(lambda p: angle_deg(self.nrm[p], nrm_new[p]), len(t_new))))
         self.nrm = nrm_new
         self.info["normal_change_deg"].append(change)
         rel = (self.e_cur - e_new) / max(self.e_cur, 1e-300)
@@ -832,6 +917,32 @@ def _robust_scale(
     med_i = float(np.median(images.reshape(-1)[::step][u]))
     r_sub = be.numpy(model.every(r, step))[u]
     return max(opts.robust_scale * mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
+
+
+PIXELWISE_PIXELS = 65_536
+"""Pixels per task of a level's per-pixel work outside its model (:func:`_pixelwise`): normals and their change
+per iteration. Levels under :data:`nlipscalib.solver.kernel.PARALLEL_MIN_PIXELS` pixels run it in one piece."""
+
+
+def _pixelwise(fn: Callable[[slice], np.ndarray], n: int) -> np.ndarray:
+    """``fn(slice(0, n))`` of a per-pixel ``fn`` (its result's first axis the pixels'), by pixel blocks on the thread
+    pool on a large level: the same bits. On a 640x480 level an iteration's normals and their change from the last
+    ones took ~15-20 ms of one core."""
+    if n < PARALLEL_MIN_PIXELS:
+        return fn(slice(0, n))
+    return np.concatenate(threads.map_items(fn, threads.chunks(n, max(threads.workers(), -(-n // PIXELWISE_PIXELS)))))
+
+
+def _gradient(ops: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(t_u, t_v), (N,) each, of a level's log-depth t (N,): its difference operators' products (``ops``:
+    :func:`_operators`), by row blocks on the pool on a large level (:class:`threads.RowBlocks`, the same bits)."""
+    return threads.RowBlocks(ops["Du"]).dot(t), threads.RowBlocks(ops["Dv"]).dot(t)
+
+
+def _normals(ops: dict, t: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """(N, 3) unit normals of a level's log-depth t (N,) (:func:`geometry.normals_from_gradient`, by pixel blocks)."""
+    tu, tv = _gradient(ops, t)
+    return _pixelwise(lambda p: geometry.normals_from_gradient(tu[p], tv[p], A[p], B[p], C[p]), len(t))
 
 
 def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -33,7 +33,7 @@ from ..core import diskcache, tolerances
 from ..core.capture import Press
 from ..core.errors import CaptureError, ShapeError
 from ..core.metrics import angle_deg
-from . import radiosity, reuse
+from . import radiosity, reuse, threads
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box, prepare_press_side
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
@@ -591,18 +591,29 @@ class _OuterLoop:
         bool, the pixels gathered when not the whole mask (None); ``missed`` : focus passes since the light
         outside the focus was last updated: it takes that many more updates with this ``gathered``, standing in
         for the gathers it missed (the surface changed only in the focus since; against the light left as it
-        was, contact AAE moved 0.005 deg on the twin's sphere press, with them 0.0016; benchmarks/RESULTS.md)."""
+        was, contact AAE moved 0.005 deg on the twin's sphere press, with them 0.0016; benchmarks/RESULTS.md).
+
+        Per pixel, so by blocks of rows on the thread pool (:data:`UPDATE_ROWS` each, the same bits as the whole
+        window at once): on a 640x480 whole frame's last pass, one relaxed update and one catching up, each
+        several passes over (L, H, W, 3) float32 arrays of 44 MB, took ~0.25 s of CPU on one core, and their
+        temporaries as many fresh pages."""
         rows, cols = _within(window, self.box)
         part, total = light[:, rows, cols], self.image_total[rows, cols]
-        new = self._relaxed(part, gathered, total)
-        if focus is None:
-            part[:] = new
-        else:  # the window is the focus's box: its other pixels were not gathered
-            np.copyto(part, new, where=focus[window][None, ..., None])
-        if missed:
-            outside = ~self.focus[self.box][None, ..., None]
+        # the pixels updated (None: all of the window's); a focus pass's window is the focus's box, whose other
+        # pixels were not gathered
+        updated = None if focus is None else focus[window][None, ..., None]
+        # catching up happens on the last pass, whose window is the whole box
+        outside = ~self.focus[self.box][None, ..., None] if missed else None
+
+        def block(r: slice) -> None:
+            here, gathered_here, total_here = part[:, r], gathered[:, r], total[r]
+            np.copyto(
+                here, self._relaxed(here, gathered_here, total_here), where=True if updated is None else updated[:, r]
+            )
             for _ in range(missed):
-                np.copyto(light, self._relaxed(light, gathered, self.image_total), where=outside)
+                np.copyto(here, self._relaxed(here, gathered_here, total_here), where=outside[:, r])
+
+        threads.map_items(block, threads.chunks(part.shape[1], -(-part.shape[1] // UPDATE_ROWS)))
         return light
 
     def _relaxed(self, light: np.ndarray, gathered: np.ndarray, total: np.ndarray) -> np.ndarray:
@@ -613,6 +624,11 @@ class _OuterLoop:
         step *= omega
         step += light
         return np.maximum(step, 0.0, out=step)
+
+
+UPDATE_ROWS = 16
+"""Rows of the outer loop's light per task of its relaxed update (:meth:`_OuterLoop._update`): at 640 columns and 12
+LEDs a block's temporaries take 1.5 MB and stay in the cache."""
 
 
 def _first_light(model: IndirectModel, mask: np.ndarray, box: tuple[slice, slice]) -> np.ndarray:

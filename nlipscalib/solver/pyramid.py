@@ -91,12 +91,16 @@ def build_pyramid(
     skip: Container[int] = (),
     scale: float = 1.0,
     whole_gel: bool = False,
+    bare: Container[int] = (),
 ) -> list[dict]:
     """Levels from coarse to fine; each: camera, images (L, 3, N), usable, mask, t0, zeta, rays.
 
     ``data``: (L, H, W, 3) float; the levels hold ``data / scale`` (``scale``: a scalar of ``data``'s dtype).
     ``skip``: levels not built, counted from the finest (0); they still count in ``opts.pyramid_levels``.
-    ``whole_gel``: ``mask`` is the sensor's whole gel, so the levels' rays are kept on disk (:func:`level_geometry`)."""
+    ``whole_gel``: ``mask`` is the sensor's whole gel, so the levels' rays are kept on disk (:func:`level_geometry`).
+    ``bare``: levels built without images and usable samples, counted from the finest: levels brought up from a
+    coarser one, not solved (an outer pass's finest: 88 MB gathered at 640x480 with 12 LEDs); a level that ends up
+    the only one is given them all the same."""
     n_levels = opts.pyramid_levels
     if n_levels == 0:
         n_levels = 1
@@ -126,20 +130,26 @@ def build_pyramid(
         if mk.sum() < 16:
             break
         q, (A, B, C) = level_geometry(c, mk, persist=whole_gel)
-        planes = masked_planes(d, mk, d.dtype)
-        if k == 0:
-            planes /= scale
-        levels.append(
-            {
-                "camera": c,
-                "mask": mk,
-                # (L, 3, N), contiguous: the model's pixel chunks are then views, not copies
-                "images": planes,
-                "usable": masked_planes(u, mk, d.dtype),
-                "t0": tk,
-                "zeta": opts.prior_weight * wk[mk].astype(np.float64),  # (N,) per-pixel prior weight
-                "q": q,
-                "ABC": (A, B, C),
-            }
-        )
+        level = {
+            "camera": c,
+            "mask": mk,
+            "t0": tk,
+            "zeta": opts.prior_weight * wk[mk].astype(np.float64),  # (N,) per-pixel prior weight
+            "q": q,
+            "ABC": (A, B, C),
+        }
+        if k not in bare:
+            level.update(_samples(d, u, mk, scale if k == 0 else None))
+        levels.append(level)
+    if len(levels) == 1 and "images" not in levels[0]:  # nothing coarser to bring it up from: it is solved
+        levels[0].update(_samples(data, use, mask, scale))
     return levels[::-1]
+
+
+def _samples(images: np.ndarray, usable: np.ndarray, mask: np.ndarray, scale: float | None) -> dict:
+    """A level's images and usable samples on its mask, (L, 3, N) contiguous each (the model's pixel chunks are
+    then views, not copies), the images divided by ``scale`` (None: already divided)."""
+    planes = masked_planes(images, mask, images.dtype)
+    if scale is not None:
+        planes /= scale
+    return {"images": planes, "usable": masked_planes(usable, mask, images.dtype)}

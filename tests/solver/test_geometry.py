@@ -96,6 +96,41 @@ def test_normal_matrix_assembly():
     assert abs(Hfz - Hz).max() < 1e-12 and Hfz.nnz == Hz.nnz
 
 
+def test_the_fixed_pattern_adds_each_weighted_extra_after_the_blocks_to_the_bit():
+    """The extras' weights are S's last columns (one product on both cores): each entry of H is its blocks' terms
+    summed, then w_1 e_1 added, then w_2 e_2, the bits of adding each weighted extra's values at its positions after
+    the blocks' product (the assembly before); weights not given count as 0."""
+    import scipy.sparse as sp
+
+    mask = np.ones((13, 17), bool)
+    mask[4:7, 5:9] = False
+    du, dv, _ = geometry.gradient_operators(mask)
+    n = int(mask.sum())
+    extras = [(du - dv).tocsr(), (du @ du + dv).tocsr()]
+    rng = np.random.default_rng(4)
+    M = rng.normal(size=(3, 3, n))
+    M = M + M.transpose(1, 0, 2)
+    fixed = geometry.NormalMatrix((sp.identity(n, format="csr"), du, dv), extras, fixed=True)
+    blocks = fixed.assemble(M)  # weights not given: 0, the extras' entries left out as zeros
+    zero = fixed.assemble(M, (0.0, 0.0))
+    assert np.array_equal(zero.data, blocks.data) and np.array_equal(zero.indices, blocks.indices)
+    weights = (0.37, 2.9e-3)
+    H = fixed.assemble(M, weights)
+    assert H.nnz > blocks.nnz
+    pattern = fixed.fixed
+    data = pattern.S[:, : 9 * n] @ M.ravel()  # the blocks' terms alone, on the whole pattern
+    rows = np.repeat(np.arange(n), np.diff(pattern.indptr))
+    slot = {(i, j): k for k, (i, j) in enumerate(zip(rows, pattern.indices))}
+    for E, w in zip(extras, weights):
+        EtE = (E.T @ E).tocoo()
+        data[[slot[i, j] for i, j in zip(EtE.row, EtE.col)]] += w * EtE.data
+    expected = sp.csr_matrix((data, pattern.indices, pattern.indptr), shape=H.shape)
+    expected.eliminate_zeros()
+    assert np.array_equal(H.data, expected.data) and np.array_equal(H.indices, expected.indices)
+    ref = geometry.NormalMatrix((sp.identity(n, format="csr"), du, dv), extras).assemble(M, weights)
+    assert abs(H - ref).max() < 1e-12
+
+
 def test_variable_projection_blocks_match_reduced_jacobian():
     """M and b are J^T W J and J^T W r of the residual with the albedo refitted at every depth."""
     cam = synth.camera(12, 10)

@@ -270,3 +270,48 @@ def test_the_light_outside_the_focus_catches_up_on_the_updates_it_missed():
     inside = loop.focus[loop.box]
     np.testing.assert_array_equal(out[:, inside], once[:, inside])
     np.testing.assert_array_equal(out[:, ~inside], twice[:, ~inside])
+
+
+def test_the_outer_loops_update_by_blocks_of_rows_has_the_bits_of_the_whole_window_at_once():
+    """:meth:`_OuterLoop._update` runs by blocks of rows on the thread pool (per pixel): a focus pass's update and
+    the last pass's catching up give the bits of the same updates on the whole arrays, on one thread or several."""
+    from nlipscalib.solver import threads
+    from nlipscalib.solver.press import UPDATE_ROWS, _OuterLoop, _slices
+    from nlipscalib.solver.roi import box_of
+
+    rng = np.random.default_rng(5)
+    H, W, L = 7 * UPDATE_ROWS, 50, 3
+    loop = object.__new__(_OuterLoop)
+    loop.box, loop.relaxation = (slice(2, H - 3), slice(1, W - 2)), "auto"
+    h, w = H - 5, W - 3
+    loop.focus = np.zeros((H, W), bool)
+    loop.focus[20:70, 10:30] = True
+    loop.focus[40:45, 12:14] = False  # a focus that does not fill its box
+    loop.image_total = rng.uniform(0.5, 9.0, (h, w))
+    light = rng.uniform(0.0, 3.0, (L, h, w, 3)).astype(np.float32)
+    window = _slices(box_of(loop.focus))
+    in_focus = rng.uniform(0.0, 3.0, (L, window[0].stop - window[0].start, window[1].stop - window[1].start, 3))
+    whole = rng.uniform(0.0, 3.0, (L, h, w, 3)).astype(np.float32)
+
+    def at_once(values, gathered, rows, cols, where):
+        new = loop._relaxed(values[:, rows, cols], gathered, loop.image_total[rows, cols])
+        np.copyto(values[:, rows, cols], new, where=where)
+
+    expected = light.copy()
+    rows, cols = slice(window[0].start - 2, window[0].stop - 2), slice(window[1].start - 1, window[1].stop - 1)
+    at_once(expected, in_focus.astype(np.float32), rows, cols, loop.focus[window][None, ..., None])
+    focus_pass = expected.copy()
+    all_rows, all_cols = slice(0, h), slice(0, w)
+    at_once(expected, whole, all_rows, all_cols, True)
+    for _ in range(2):
+        at_once(expected, whole, all_rows, all_cols, ~loop.focus[loop.box][None, ..., None])
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            got = loop._update(light.copy(), in_focus.astype(np.float32), window, loop.focus, 0)
+            np.testing.assert_array_equal(got, focus_pass)
+            np.testing.assert_array_equal(loop._update(got, whole, loop.box, None, 2), expected)
+    finally:
+        threads.set_workers(before)
+    assert not np.array_equal(focus_pass, light) and not np.array_equal(expected, focus_pass)

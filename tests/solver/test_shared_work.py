@@ -204,6 +204,64 @@ def test_two_unrefined_levels_skip_the_one_between_and_stay_near_the_answer(pres
         solve(lin, press.camera, press.leds, prior_depth=prior, unrefined=-1)
 
 
+def test_an_unrefined_finest_level_runs_no_model_and_brings_up_the_coarser_levels_fit(press, monkeypatch):
+    """A pass left unrefined brings its finest level up from the finest iterated one: no model is made on it (its
+    albedo fit cost 0.65 s of CPU per 640x480 pass), its depth is the coarser one's brought up, its normals that
+    depth's, its albedo the coarser level's brought up (the image's albedo is uniform here: near it)."""
+    from nlipscalib.solver import kernel, nlips
+
+    sizes = []
+    plain = kernel.make_model
+
+    def counted(be, q, *args):
+        sizes.append(q.shape[0])
+        return plain(be, q, *args)
+
+    monkeypatch.setattr(nlips, "make_model", counted)
+    lin = press.linear(press.led_images)
+    two = SolverOptions(pyramid_levels=2)
+    rough = solve(lin, press.camera, press.leds, prior_depth=press.reference.depth, options=two, unrefined=1)
+    finest = rough.report["levels"][-1]
+    assert finest["stop"] == "brought_up" and finest["iterations"] == 0 and finest["pixels"] not in sizes
+    assert finest["shape"] == list(press.camera.shape) and all(n < finest["pixels"] for n in sizes)
+    rec = rough.reconstructed
+    assert rec.sum() == finest["pixels"] - rough.report["pixels_no_gradient"] - rough.report["pixels_too_few_leds"]
+    # the normals are the brought-up depth's: unit, facing the camera, near the truth (the dent included)
+    n = rough.normals[rec]
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-5)
+    assert evaluate(rough, press.ground_truth)["all"]["aae_deg"] < 5.0
+    # the albedo: finite on every reconstructed pixel, the mask's edge too (the coarse mask leaves it out)
+    assert np.isfinite(rough.albedo[rec]).all() and (rough.albedo[rec] > 0).all()
+    full = solve(lin, press.camera, press.leds, prior_depth=press.reference.depth, options=two)
+    both = rec & full.reconstructed
+    np.testing.assert_allclose(np.median(rough.albedo[both], axis=0), np.median(full.albedo[both], axis=0), rtol=0.02)
+
+
+def test_values_brought_up_to_a_finer_mask_interpolate_and_reach_its_edge():
+    """:func:`nlips._upsampled`: bilinear inside the coarse mask (a constant stays that constant, the same as
+    cv2's resize of the whole field), the fine mask's edge from its valid coarse neighbours (no NaN, no zeros
+    pulled in from off the mask), NaN only where the coarse level has no value at all."""
+    from nlipscalib.solver.nlips import _upsampled
+    from nlipscalib.solver.pyramid import resize
+
+    fine = np.zeros((40, 48), bool)
+    fine[5:35, 7:44] = True
+    coarse = resize(fine.astype(np.float32), (20, 24)) > 0.999
+    cover = resize(coarse.astype(np.float32), fine.shape, linear=True)
+    assert (fine & (cover < 0.5)).any()  # the premise: the fine mask's edge interpolates mostly off the coarse mask
+    const = np.full((int(coarse.sum()), 3), [0.5, 0.25, 2.0])
+    np.testing.assert_allclose(_upsampled(const, coarse, fine), np.broadcast_to([0.5, 0.25, 2.0], (fine.sum(), 3)))
+    ramp = np.add.outer(np.arange(20.0), 2 * np.arange(24.0))
+    got = _upsampled(ramp[coarse], coarse, fine)
+    inner = cover > 0.999  # fine pixels whose coarse neighbours are all on the coarse mask
+    np.testing.assert_allclose(got[inner[fine]], resize(ramp, fine.shape, linear=True)[inner & fine], rtol=1e-6)
+    assert np.isfinite(got).all() and got.min() >= ramp[coarse].min() - 1e-9
+    some = ramp[coarse].copy()
+    some[::3] = np.nan  # missing values are filled from their neighbours, not spread
+    assert np.isfinite(_upsampled(some, coarse, fine)).all()
+    assert np.isnan(_upsampled(np.full(int(coarse.sum()), np.nan), coarse, fine)).all()
+
+
 def test_the_outer_passes_leave_unrefined_the_levels_finer_than_half_a_patch():
     from nlipscalib.core.camera import Camera
     from nlipscalib.solver.press import _unrefined_levels
@@ -360,3 +418,32 @@ def test_a_levels_geometry_is_kept_and_equals_a_fresh_one(press):
     other = mask.copy()
     other[0, :] = False
     assert len(level_geometry(press.camera, other)[0]) == other.sum()
+
+
+def test_a_large_levels_normals_and_their_change_by_pixel_blocks_have_the_plain_bits():
+    """nlips._normals and _pixelwise run a large level's per-pixel work by blocks on the pool (row blocks of the
+    difference operators' products): the bits of the one-piece computation, on one thread or two."""
+    from nlipscalib.core.metrics import angle_deg
+    from nlipscalib.solver import geometry
+    from nlipscalib.solver.kernel import PARALLEL_MIN_PIXELS
+    from nlipscalib.solver.nlips import PIXELWISE_PIXELS, _make_operators, _normals, _pixelwise
+
+    mask = np.ones((300, 260), bool)
+    mask[100:140, 30:90] = False
+    n = int(mask.sum())
+    assert n > max(PARALLEL_MIN_PIXELS, PIXELWISE_PIXELS, threads.PRODUCT_MIN_ROWS)  # blocks on the pool
+    ops = _make_operators(mask)
+    rng = np.random.default_rng(7)
+    t = np.log(15.0) + 0.05 * rng.standard_normal(n)
+    A, B, C = (rng.standard_normal((n, 3)) for _ in range(3))
+    plain = geometry.normals_from_gradient(ops["Du"] @ t, ops["Dv"] @ t, A, B, C)
+    other = geometry.normals_from_gradient(ops["Du"] @ (1.01 * t), ops["Dv"] @ (1.01 * t), A, B, C)
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            np.testing.assert_array_equal(_normals(ops, t, A, B, C), plain)
+            change = _pixelwise(lambda p: angle_deg(plain[p], other[p]), n)
+            np.testing.assert_array_equal(change, angle_deg(plain, other))
+    finally:
+        threads.set_workers(before)
