@@ -222,7 +222,9 @@ def test_a_whole_frames_gathers_before_the_last_pass_light_the_focus_only(bounce
 def test_the_outer_loops_first_light_is_the_fits_light_cut_to_the_box(bounce1):
     """The first pass subtracts the fit's undeformed light times the fit's typical albedo: on the mask's box the
     same numbers as the whole frame's upsampled light cut to it, zero off the mask; it agrees with a gather of
-    the undeformed surface on the loop's finer patches to a per cent."""
+    the undeformed surface on the loop's finer patches to a per cent. One LED per pool task: the same bits on one
+    thread and on two."""
+    from nlipscalib.solver import threads
     from nlipscalib.solver.indirect import surface_indirect
     from nlipscalib.solver.press import _first_light
 
@@ -238,10 +240,16 @@ def test_the_outer_loops_first_light_is_the_fits_light_cut_to_the_box(bounce1):
         mask = np.zeros((H, W), bool)
         mask[box] = True
         mask &= valid
-        light = _first_light(model, mask, box)
-        assert light.dtype == np.float32 and light.shape == (len(press.leds), y1 - y0, x1 - x0, 3)
         expected = np.where(mask[box][None, ..., None], whole[:, box[0], box[1]], 0.0)
-        np.testing.assert_array_equal(light, expected)
+        before = threads.workers()
+        try:
+            for count in (1, 2):
+                threads.set_workers(count)
+                light = _first_light(model, mask, box)
+                assert light.dtype == np.float32 and light.shape == (len(press.leds), y1 - y0, x1 - x0, 3)
+                np.testing.assert_array_equal(light, expected)
+        finally:
+            threads.set_workers(before)
     light = _first_light(model, valid, (slice(0, H), slice(0, W)))
     gathered = surface_indirect(model, press.camera, press.leds, ref.depth, ref.normals, albedo, valid)
     np.testing.assert_allclose(light[:, valid], gathered[:, valid], rtol=0.01)
