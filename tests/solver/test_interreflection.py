@@ -240,6 +240,7 @@ def test_the_outer_loops_first_light_is_the_fits_light_cut_to_the_box(bounce1):
         mask = np.zeros((H, W), bool)
         mask[box] = True
         mask &= valid
+        mask[(y0 + y1) // 2, x0:x1] = False  # pixels of the box off the mask: their light is 0
         expected = np.where(mask[box][None, ..., None], whole[:, box[0], box[1]], 0.0)
         before = threads.workers()
         try:
