@@ -683,7 +683,10 @@ class _BoxCompensation:
     """The images minus an indirect light given on the mask's bounding box (the outer loop's, zero outside it):
     ``compensate`` on that box only, written into one copy of the images kept across the passes. The same
     array as ``compensate(images, light)`` for the whole-frame light, without a whole-frame pass per solve (an
-    auto ROI's box is a sixth of a 640x480 frame)."""
+    auto ROI's box is a sixth of a 640x480 frame).
+
+    One LED per pool task (the same bits): on a 640x480 whole frame the first call's copy of the images and each
+    call's subtraction and clipping over the whole box, 44 MB arrays with 12 LEDs, ran in the main thread."""
 
     def __init__(self, images: np.ndarray, mask: np.ndarray):
         self.images, self.mask, self.buffer, self.box = images, mask, None, None
@@ -692,13 +695,21 @@ class _BoxCompensation:
         """``light``: (L, h, w, 3) on the mask's bounding box; ``receivers``: (H, W) bool, the pixels the solve
         reads when not the whole mask (a focus pass): only their box is compensated (the solve crops to it),
         the rest of the buffer is left as the last call wrote it."""
-        if self.buffer is None:  # on the first pass: a solve without the outer loop needs neither
+        first = self.buffer is None  # on the first pass: a solve without the outer loop needs neither
+        if first:
             x0, y0, w, h = box_of(self.mask)
             self.box = (slice(y0, y0 + h), slice(x0, x0 + w))
-            self.buffer = np.array(self.images, np.float32)
+            self.buffer = np.empty(np.shape(self.images), np.float32)
         window = self.box if receivers is None else _slices(box_of(receivers))
         rows, cols = _within(window, self.box)
-        compensate(self.images[:, window[0], window[1]], light[:, rows, cols], out=self.buffer[:, window[0], window[1]])
+
+        def one_led(i: int) -> None:
+            if first:
+                self.buffer[i] = self.images[i]  # outside the box the images themselves
+            here = (slice(i, i + 1), window[0], window[1])
+            compensate(self.images[here], light[i : i + 1, rows, cols], out=self.buffer[here])
+
+        threads.map_items(one_led, range(len(self.buffer)))
         return self.buffer
 
 

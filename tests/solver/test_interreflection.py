@@ -324,3 +324,37 @@ def test_the_outer_loops_update_by_blocks_of_rows_has_the_bits_of_the_whole_wind
     finally:
         threads.set_workers(before)
     assert not np.array_equal(focus_pass, light) and not np.array_equal(expected, focus_pass)
+
+
+def test_the_box_compensation_is_the_whole_frames_on_one_thread_and_on_two():
+    """The outer loop's compensated images: the images minus the light given on the mask's box (zero outside it),
+    clipped at 0, as ``compensate`` of the whole frame; a focus pass rewrites its receivers' box only. One LED per
+    pool task: the same bits on one thread and on two."""
+    from nlipscalib.solver import threads
+    from nlipscalib.solver.interreflection import compensate
+    from nlipscalib.solver.press import _BoxCompensation
+
+    rng = np.random.default_rng(3)
+    L, H, W = 3, 9, 12
+    images = rng.uniform(0.0, 1.0, (L, H, W, 3)).astype(np.float32)
+    mask = np.zeros((H, W), bool)
+    mask[2:7, 3:10] = True
+    light = rng.uniform(0.0, 1.0, (L, 5, 7, 3)).astype(np.float32)  # on the box; above the images in places
+    frame_light = np.zeros_like(images)
+    frame_light[:, 2:7, 3:10] = light
+    receivers = np.zeros((H, W), bool)
+    receivers[3:5, 4:6] = True
+    focus_light = rng.uniform(0.0, 1.0, light.shape).astype(np.float32)
+    expected = compensate(images, frame_light)
+    after_focus = expected.copy()
+    after_focus[:, 3:5, 4:6] = compensate(images[:, 3:5, 4:6], focus_light[:, 1:3, 1:3])
+    assert (expected == 0).any() and not np.array_equal(after_focus, expected)
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            boxed = _BoxCompensation(images, mask)
+            np.testing.assert_array_equal(boxed(light), expected)
+            np.testing.assert_array_equal(boxed(focus_light, receivers), after_focus)
+    finally:
+        threads.set_workers(before)
