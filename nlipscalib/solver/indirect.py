@@ -700,15 +700,37 @@ def surface_indirect(
     pr, pc, _ = _patch_window(receivers, size)
     pr, pc = slice(max(pr.start - 1, 0), min(pr.stop + 1, h)), slice(max(pc.start - 1, 0), min(pc.stop + 1, w))
     win = (slice(pr.start * size, min(pr.stop * size, H)), slice(pc.start * size, min(pc.stop * size, W)))
-    up = radiosity.upsample(g[:, pr, pc], (win[0].stop - win[0].start, win[1].stop - win[1].start), size)
-    block = np.asarray(model.kappa, np.float32) * albedo[win].astype(np.float32)[None] * up
-    block[:, ~receivers[win]] = 0.0
+    per_led = radiosity.Upsampled(g[:, pr, pc], (win[0].stop - win[0].start, win[1].stop - win[1].start), size)
     # the patch window's part inside the returned one (outside it: no receiver, no light)
     r0, r1 = max(win[0].start, rows.start), min(win[0].stop, rows.stop)
     c0, c1 = max(win[1].start, cols.start), min(win[1].stop, cols.stop)
-    part = block[:, r0 - win[0].start : r1 - win[0].start, c0 - win[1].start : c1 - win[1].start]
-    B[:, r0 - rows.start : r1 - rows.start, c0 - cols.start : c1 - cols.start] = part
+    _scaled_into(
+        B[:, r0 - rows.start : r1 - rows.start, c0 - cols.start : c1 - cols.start],
+        per_led,
+        (slice(r0 - win[0].start, r1 - win[0].start), slice(c0 - win[1].start, c1 - win[1].start)),
+        np.asarray(model.kappa, np.float32) * albedo[r0:r1, c0:c1].astype(np.float32),
+        ~receivers[r0:r1, c0:c1],
+    )
     return B
+
+
+def _scaled_into(
+    out: np.ndarray, per_led: radiosity.Upsampled, part: tuple[slice, slice], scale: np.ndarray, dark: np.ndarray
+) -> None:
+    """``out[i] = scale * per_led[i][part]``, 0 where ``dark``, one LED per task on the thread pool.
+
+    ``out`` (L, h, w, 3) float32, written; ``per_led`` the upsampled patch light; ``part`` (rows, columns) of its
+    images that ``out`` holds; ``scale`` (h, w, 3) float32, kappa times the albedo; ``dark`` (h, w) bool, no
+    receiver. Why: on a 640x480 whole frame the upsampling, the product, the zeroing and the copy into the
+    result, each over (L, H, W, 3) float32 arrays of 44 MB, took 0.13-0.21 s of one core in the last outer pass
+    while the other waited (0.10 s now, both cores; sphere1). Per LED the same operations in the same order, so
+    the same bits as all LEDs at once."""
+
+    def one_led(i: int) -> None:
+        np.multiply(scale, per_led[i][part], out=out[i])
+        out[i][dark] = 0.0
+
+    threads.map_items(one_led, range(len(per_led)))
 
 
 def _dilate(mask: np.ndarray) -> np.ndarray:

@@ -345,6 +345,36 @@ def test_the_indirect_light_on_a_window_is_the_whole_frames_cut_to_it(press):
         light((slice(22, 40), slice(31, 58)))
 
 
+def test_the_indirect_light_per_led_on_the_pool_has_the_same_bits_on_one_thread_and_on_two(press):
+    """surface_indirect scales, masks and writes its upsampled light one LED per pool task: the same bits on one
+    thread and on two, with an albedo that varies per pixel and a window that cuts the patches' window."""
+    from nlipscalib.solver.indirect import IndirectModel, surface_indirect
+
+    model = IndirectModel((0.01, 0.02, 0.015), (0.8, 0.8, 0.8), 0.3, 1, True, "test")
+    ref = press.reference
+    receivers = np.zeros(press.camera.shape, bool)
+    receivers[20:50, 30:61] = True
+    receivers[33, 35:50] = False  # receivers that do not fill their box: the pixels between get no light
+    receivers &= np.isfinite(ref.depth)
+    albedo = np.random.default_rng(4).uniform(60.0, 90.0, press.camera.shape + (3,))
+    window = (slice(20, 50), slice(30, 61))  # inside the patch window (one patch of margin): cut on every side
+    before = threads.workers()
+    try:
+        got = []
+        for count in (1, 2):
+            threads.set_workers(count)
+            got.append(
+                surface_indirect(
+                    model, press.camera, press.leds, ref.depth, ref.normals, albedo, receivers, size=4, window=window
+                )
+            )
+    finally:
+        threads.set_workers(before)
+    np.testing.assert_array_equal(got[0], got[1])
+    inside = receivers[window]
+    assert got[0][:, inside].min() > 0 and not got[0][:, ~inside].any()
+
+
 def test_shading_derivatives_only_for_the_gauss_newton_steps(press, monkeypatch):
     """A level evaluated, not iterated, and a step that ends its level never use dF: one derivative shading per
     Gauss-Newton system solved, none else (each costs about two shadings at 640x480)."""
