@@ -145,6 +145,60 @@ def test_exclusions_by_row_blocks_are_the_whole_arrays_rule(press):
             threads.set_workers(before)
 
 
+def test_the_exclusions_bright_ends_per_led_on_the_pool_are_the_stacks_percentiles(press):
+    """exclusions' thresholds, the 99th percentiles of each LED image (over pixels and channels, and per channel)
+    taken one LED per pool task: the bits of the percentiles along the axes of the whole sampled stack, on one
+    thread and on two, in float32 and in float64."""
+    from nlipscalib.solver.nlips import _bright_ends
+
+    lin = press.linear(press.led_images).astype(np.float32)
+    lin[3] *= 0.25  # LEDs of different brightness: a swapped result would show
+    index = np.flatnonzero(masks.sample_grid(np.ones(lin.shape[1:3], bool)))
+    before = threads.workers()
+    try:
+        for dtype in (np.float32, np.float64):
+            sample = lin.reshape(len(lin), -1, 3)[:, index].astype(dtype)
+            per_led = np.percentile(sample.reshape(len(lin), -1), 99, axis=1)
+            per_channel = np.percentile(sample, 99, axis=1)
+            for count in (1, 2):
+                threads.set_workers(count)
+                got_led, got_channel = _bright_ends(lin, dtype)
+                assert got_led.dtype == got_channel.dtype == dtype
+                np.testing.assert_array_equal(got_led, per_led)
+                np.testing.assert_array_equal(got_channel, per_channel)
+    finally:
+        threads.set_workers(before)
+    assert per_led[3] < 0.5 * per_led[2]
+
+
+def test_the_kappa_search_per_channel_on_the_pool_has_the_same_bits_on_one_thread_and_on_two():
+    """_profile_kappa searches its three channels one per pool task: the same bits on one thread and on two; each
+    channel finds the kappa its data were made with (img = rho (S + kappa G) exactly), and a channel with no
+    usable patch gets 0."""
+    from nlipscalib.solver.indirect import _profile_kappa
+
+    rng = np.random.default_rng(7)
+    L, K = 12, 300
+    S = rng.uniform(0.5, 1.5, (L, K, 3))
+    G = rng.uniform(0.1, 0.4, (L, K, 3))
+    rho = rng.uniform(0.6, 0.9, (1, K, 3))
+    truth = np.array([0.3, 0.5, 0.7])
+    img = rho * (S + truth * G)
+    ok = np.ones((L, K, 3), bool)
+    ok[:, :, 2] = False  # no data in the last channel
+    before = threads.workers()
+    try:
+        got = []
+        for count in (1, 2):
+            threads.set_workers(count)
+            got.append(_profile_kappa(img, S, G, ok, kappa_max=2.0))
+    finally:
+        threads.set_workers(before)
+    np.testing.assert_array_equal(got[0], got[1])
+    np.testing.assert_allclose(got[0][:2], truth[:2], rtol=1e-3)
+    assert got[0][2] == 0.0
+
+
 def test_a_warm_start_from_the_solution_stays_there(press):
     lin = press.linear(press.led_images)
     prior = press.reference.depth
