@@ -246,8 +246,8 @@ def _press_side(press: Press, grid: _Grid, indirect: np.ndarray | None, dead_lev
             f"{press.folder}: only {len(live)} LED images are lit (dead: {[i + 1 for i in dead]}); "
             f"nothing can be reconstructed{why}"
         )
-    # every LED live (the usual case): the stored stack itself, not a copy of it
-    sat = press.saturated(press.led_images if len(live) == len(img) else press.led_images[live])
+    # the press's own mask, made once per press; every LED live (the usual case): that mask, not a copy of it
+    sat = press.saturated_led_images if len(live) == len(img) else press.saturated_led_images[live]
     # nothing saturated (the usual case): no mask to multiply by; else a block is usable where all its samples are
     ok = None if not sat.any() else (~sat if grid.block == 1 else grid.means(sat, range(len(live))) <= 0)
     # Deformation changes the shading coherently over many pixels, noise does not: classify on

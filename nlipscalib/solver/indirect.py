@@ -539,7 +539,7 @@ def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | reuse.Deferr
     # a 0/1 usable mask multiplies exactly; float64 copies of these (L, H, W, 3) arrays cost 0.25 s
     lin = reference.linear_led_images
     live = led_levels(lin, surf.valid) >= tolerances.LIT_LEVEL
-    saturated = reference.saturated(reference.led_images)
+    saturated = reference.saturated_led_images
     usable = None  # the usual case, every LED live and nothing saturated on the gel: no (L, H, W, 3) mask
     if not live.all() or (saturated.any() and saturated[:, surf.valid].any()):
         usable = (~saturated).astype(np.float32)

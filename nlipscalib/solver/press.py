@@ -351,7 +351,7 @@ class _Runner:
         self.press, self.leds, self.images, self.prior, self.weights = press, leds, images, prior, weights
         self.mask, self.options, self.backend, self.progress = mask, options, backend, progress
         self.fixed_light = fixed_light
-        self.saturated = press.saturated(press.led_images) | press.saturated(press.dark)[None]
+        self.saturated = press.saturated_led_images | press.saturated(press.dark)[None]
         self.boxed = _BoxCompensation(images, mask)
 
     def compensated(self, light: np.ndarray | None, receivers: np.ndarray | None = None):

@@ -214,6 +214,21 @@ def test_a_capture_decoded_in_the_background_holds_the_images_decoded_at_once(tm
         load_press(folder, decode="later")
 
 
+def test_a_press_masks_its_saturated_led_samples_once_read_only(tmp_path):
+    """``Press.saturated_led_images`` (read by the contact classification, the indirect fit and the solve): the
+    LED images' samples at or above the white level, made once per press and read-only."""
+    cam = Camera.from_fov(W, H, 90.0)
+    leds = [Led(position=(float(i), 0.0, 0.0)) for i in range(2)]
+    images = np.random.default_rng(1).integers(0, 65536, size=(2, H, W, 3), dtype=np.uint16)
+    images[1, 2:5, 3:7] = 65535  # clipped
+    dark = np.zeros((H, W, 3), np.uint16)
+    press = load_press(write_press(tmp_path / "p", cam, leds, SensorResponse(), dark, images, dark))
+    mask = press.saturated_led_images
+    assert mask[1, 2:5, 3:7].all() and not mask.all()  # the premise: values on both sides of the white level
+    np.testing.assert_array_equal(mask, images >= SensorResponse().white_level)
+    assert press.saturated_led_images is mask and not mask.flags.writeable
+
+
 def test_a_file_replaced_after_the_press_was_loaded_is_not_read_into_it(tmp_path):
     """The tri-colour image and the ground truth are read at first use: one replaced since the load (the folder
     rendered again) would mix two presses in one object, so the read is refused, naming the file."""
