@@ -92,6 +92,27 @@ def test_identity_notices_an_image_replaced_in_place(press, tmp_path):
     assert capture_identity(tmp_path / "fresh") == after
 
 
+def test_an_identity_hashed_in_the_background_is_the_one_a_later_call_gets_without_hashing_again(press, tmp_path):
+    """``nlips solve`` hashes the press (and --reference) on a thread while it imports the solver: the later call
+    gets that identity, hashed once; a folder that is not a press fails there silently and is reported by the
+    call that needs it."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.pipeline import capture_identity, provenance
+
+    shutil.copytree(press, tmp_path / "copy")  # a folder this process has not hashed yet
+    original = capture_identity(press)
+    hashed = provenance._capture_identity_cached.cache_info().misses
+    threads_before = set(threading.enumerate())
+    provenance.identity_in_background(tmp_path / "copy", None, tmp_path / "nowhere")
+    for thread in set(threading.enumerate()) - threads_before:
+        thread.join(timeout=30)
+    assert provenance._capture_identity_cached.cache_info().misses == hashed + 1
+    assert capture_identity(tmp_path / "copy") == original
+    assert provenance._capture_identity_cached.cache_info().misses == hashed + 1  # the copy's: not hashed again
+    with pytest.raises(CaptureError, match="meta.json: missing"):
+        capture_identity(tmp_path / "nowhere")
+
+
 def test_damaged_result_is_recomputed_with_a_warning(press, caplog):
     solve_folder(press, options=FAST, figures=False)
     npz = press / "nlips" / "result.npz"

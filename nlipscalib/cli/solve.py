@@ -120,10 +120,13 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count, from_mapping, read_config_file
     from ..core.errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
-    from ..solver import SolverOptions
+    from ..pipeline.provenance import identity_in_background
     from .folders import check_one_capture
 
     _press_after_roi(args)
+    identity_in_background(args.press, args.reference)  # beside the solver's import, which follows
+    from ..solver import SolverOptions
+
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
     if args.normals is not None:  # the flag over the config's value
         options = dataclasses.replace(options or SolverOptions(), normals=args.normals)
