@@ -76,6 +76,13 @@ def reused(
     return value
 
 
+def stored(kind: str, key: Hashable) -> bool:
+    """Whether :func:`reused` would serve ``(kind, key)`` from this process's store (a result without ``keep``):
+    a caller that would compute it ahead of time, on another thread, need not."""
+    hit = _store.get(kind, {}).get(_with_setting(key))
+    return hit is not None and hit[0] is None
+
+
 def _with_setting(key: Hashable) -> tuple:
     """``key`` with the BLAS thread setting it is computed under: the full key of a stored result."""
     from .blas import blas_setting

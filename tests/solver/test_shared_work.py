@@ -291,6 +291,47 @@ def test_an_unrefined_finest_level_runs_no_model_and_brings_up_the_coarser_level
     np.testing.assert_allclose(np.median(rough.albedo[both], axis=0), np.median(full.albedo[both], axis=0), rtol=0.02)
 
 
+def test_the_finest_levels_operators_made_ahead_on_a_thread_are_made_once_and_give_the_same_bits(press, monkeypatch):
+    """A pass left unrefined makes its finest level's operators on a thread of its own while the coarser level is
+    solved (:func:`nlips._operators_ahead`): once, and the same result as on one core, where they are made in
+    place; not again when this process keeps them."""
+    import threading
+
+    from nlipscalib.solver import nlips
+
+    made = []
+    make = nlips._make_operators
+
+    def recorded(mk, **kw):
+        made.append((int(mk.sum()), threading.current_thread().name))
+        return make(mk, **kw)
+
+    monkeypatch.setattr(nlips, "_make_operators", recorded)
+    lin = press.linear(press.led_images)
+    two = SolverOptions(pyramid_levels=2)
+    finest = int(np.isfinite(press.reference.depth).sum())
+    before = threads.workers()
+    results = {}
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            reuse.clear()
+            made.clear()
+            results[count] = solve(
+                lin, press.camera, press.leds, prior_depth=press.reference.depth, options=two, unrefined=1
+            )
+            where = [name for n, name in made if n == finest]
+            assert len(where) == 1, made
+            assert where[0].startswith("nlips-operators") == (count == 2), where
+        made.clear()
+        solve(lin, press.camera, press.leds, prior_depth=press.reference.depth, options=two, unrefined=1)
+        assert made == []  # kept: nothing made, ahead or in place
+    finally:
+        threads.set_workers(before)
+    for key in ("depth", "normals", "albedo", "confidence"):
+        np.testing.assert_array_equal(results[1].arrays()[key], results[2].arrays()[key], err_msg=key)
+
+
 def test_values_brought_up_to_a_finer_mask_interpolate_and_reach_its_edge():
     """:func:`nlips._upsampled`: bilinear inside the coarse mask (a constant stays that constant, the same as
     cv2's resize of the whole field), the fine mask's edge from its valid coarse neighbours (no NaN, no zeros
