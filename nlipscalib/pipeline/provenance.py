@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -89,10 +90,8 @@ def identity_in_background(*folders: str | Path | None) -> None:
     def hash_all() -> None:
         for folder in folders:
             if folder is not None:
-                try:
+                with contextlib.suppress(Exception):  # said, with its context, by the call that needs the identity
                     capture_identity(folder)
-                except Exception:  # said, with its context, by the call that needs the identity
-                    pass
 
     threading.Thread(target=hash_all, name="capture-identity", daemon=True).start()
 
