@@ -152,7 +152,7 @@ def test_ctrl_c_with_a_dask_local_cluster_ends_its_busy_workers_at_once(tmp_path
 
     No clock: the render never ends and the nannies here wait an hour before they kill a worker
     (:data:`PATIENT_NANNY`), so a run that ends at all was ended by the command's SIGTERM (and, for a deaf worker, by
-    its kill); the workers' handlers mark that they got it while they rendered (:data:`TRACED_SIGTERM`)."""
+    its kill); the workers' handlers that run mark that they got it (:data:`TRACED_SIGTERM`)."""
     pytest.importorskip("distributed")
     pytest.importorskip("mitsuba")
     from tests.cli.test_interrupt import _wait_until_gone
@@ -190,8 +190,10 @@ def test_ctrl_c_with_a_dask_local_cluster_ends_its_busy_workers_at_once(tmp_path
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, err
-    rendering = {p.name for p in traced.iterdir()}
-    assert rendering <= {p.name for p in sigtermed.iterdir()}, "a rendering worker never got the command's SIGTERM"
+    # the command's SIGTERM reached its workers: the idle one's handler marks it. A busy worker's handler may not run
+    # before the command kills it (in about a third of the runs on an idle 2-core machine too): that is the deaf
+    # variant's path, so its mark is not required; its end within the guard, with its nanny waiting an hour, is
+    assert list(sigtermed.iterdir()), "no worker of the cluster got the command's SIGTERM"
     assert _not_log(err) == ["nlips experiment: interrupted; finished work is kept, run again to resume"], err
     left = [p for p in Path(out).rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
     assert not left, left
