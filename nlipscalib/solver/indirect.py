@@ -710,7 +710,7 @@ def surface_indirect(
     # the patch window's part inside the returned one (outside it: no receiver, no light)
     r0, r1 = max(win[0].start, rows.start), min(win[0].stop, rows.stop)
     c0, c1 = max(win[1].start, cols.start), min(win[1].stop, cols.stop)
-    _scaled_into(
+    scaled_into(
         B[:, r0 - rows.start : r1 - rows.start, c0 - cols.start : c1 - cols.start],
         per_led,
         (slice(r0 - win[0].start, r1 - win[0].start), slice(c0 - win[1].start, c1 - win[1].start)),
@@ -720,17 +720,19 @@ def surface_indirect(
     return B
 
 
-def _scaled_into(
+def scaled_into(
     out: np.ndarray, per_led: radiosity.Upsampled, part: tuple[slice, slice], scale: np.ndarray, dark: np.ndarray
 ) -> None:
     """``out[i] = scale * per_led[i][part]``, 0 where ``dark``, one LED per task on the thread pool.
 
     ``out`` (L, h, w, 3) float32, written; ``per_led`` the upsampled patch light; ``part`` (rows, columns) of its
-    images that ``out`` holds; ``scale`` (h, w, 3) float32, kappa times the albedo; ``dark`` (h, w) bool, no
-    receiver. Why: on a 640x480 whole frame the upsampling, the product, the zeroing and the copy into the
-    result, each over (L, H, W, 3) float32 arrays of 44 MB, took 0.13-0.21 s of one core in the last outer pass
-    while the other waited (0.10 s now, both cores; sphere1). Per LED the same operations in the same order, so
-    the same bits as all LEDs at once."""
+    images that ``out`` holds; ``scale`` (h, w, 3) or (3,) float32, e.g. kappa times the albedo; ``dark`` (h, w)
+    bool, no receiver. Also the outer loop's first light (``press._first_light``).
+
+    Why: on a 640x480 whole frame the upsampling, the product, the zeroing and the copy into the result, each over
+    (L, H, W, 3) float32 arrays of 44 MB, took 0.13-0.21 s of one core in the last outer pass while the other waited
+    (0.10 s now, both cores; sphere1). Per LED the same operations in the same order, so the same bits as all LEDs
+    at once."""
 
     def one_led(i: int) -> None:
         np.multiply(scale, per_led[i][part], out=out[i])

@@ -44,6 +44,7 @@ from .indirect import (
     patch_size,
     reference_shading,
     reference_surface,
+    scaled_into,
     surface_indirect,
 )
 from .interreflection import compensate
@@ -644,9 +645,9 @@ def _first_light(model: IndirectModel, mask: np.ndarray, box: tuple[slice, slice
     and cube presses' contact AAE by <= 0.0003 deg with an auto ROI, <= 0.0014 deg on the whole frame
     (benchmarks/RESULTS.md).
 
-    One LED per task on the thread pool (the same bits as all LEDs at once): on a 640x480 whole frame the upsampling,
-    the albedo's product and the zeroing off the mask, each over an (L, H, W, 3) float32 array of 44 MB, took ~0.13 s
-    of one core while the other waited."""
+    One LED per task on the thread pool (:func:`.indirect.scaled_into`, the same bits as all LEDs at once): on a
+    640x480 whole frame the upsampling, the albedo's product and the zeroing off the mask, each over an (L, H, W, 3)
+    float32 array of 44 MB, took ~0.13 s of one core while the other waited."""
     light, size = model.fitted_light
     H, W = mask.shape
     # bilinear upsampling of the patches around the box only: one patch of margin holds every box pixel's
@@ -656,16 +657,9 @@ def _first_light(model: IndirectModel, mask: np.ndarray, box: tuple[slice, slice
     r0, c0 = pr.start * size, pc.start * size
     shape = (min(pr.stop * size, H) - r0, min(pc.stop * size, W) - c0)
     rows, cols = slice(box[0].start - r0, box[0].stop - r0), slice(box[1].start - c0, box[1].stop - c0)
-    albedo = np.asarray(model.off_view_albedo, np.float32)
-    off_mask = ~mask[box]
     out = np.empty((len(light), box[0].stop - box[0].start, box[1].stop - box[1].start, 3), np.float32)
-
-    def one_led(i: int) -> None:
-        up = radiosity.upsample(light[i : i + 1, pr, pc], shape, size)[0]
-        np.multiply(up[rows, cols], albedo, out=out[i])
-        out[i][off_mask] = 0.0
-
-    threads.map_items(one_led, range(len(light)))
+    albedo = np.asarray(model.off_view_albedo, np.float32)
+    scaled_into(out, radiosity.Upsampled(light[:, pr, pc], shape, size), (rows, cols), albedo, ~mask[box])
     return out
 
 
