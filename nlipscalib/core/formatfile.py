@@ -11,14 +11,19 @@ from .errors import CaptureError
 
 
 def read_format_json(
-    path: str | Path, name: str, version: int, *, required: Iterable[str] = (), missing_hint: str = ""
+    path: str | Path,
+    name: str,
+    version: int | tuple[int, ...],
+    *,
+    required: Iterable[str] = (),
+    missing_hint: str = "",
 ) -> dict:
-    """Read a JSON file of format ``name`` and version ``version``; every problem names the file.
+    """Read a JSON file of format ``name`` and version ``version`` (or one of several); every problem names the file.
 
     Parameters
     ----------
     path : the JSON file (meta.json, report.json, index.json ...)
-    name, version : the expected ``format`` and ``format_version`` values
+    name, version : the expected ``format`` and ``format_version`` values (a tuple: the versions still read)
     required : top-level keys that must be present
     missing_hint : appended to the message when the file does not exist (what the user should run)
 
@@ -40,9 +45,11 @@ def read_format_json(
         raise CaptureError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != name:
         raise CaptureError(f"{path}: 'format' must be {name!r}")
-    if data.get("format_version") != version:
+    versions = version if isinstance(version, tuple) else (version,)
+    if data.get("format_version") not in versions:
+        expected = " or ".join(str(v) for v in versions)
         raise CaptureError(
-            f"{path}: format_version {data.get('format_version')!r} is not supported (expected {version})"
+            f"{path}: format_version {data.get('format_version')!r} is not supported (expected {expected})"
         )
     for key in required:
         if key not in data:

@@ -4,13 +4,14 @@ A reconstruction folder (``PRESS/nlips/`` from NLiPs, ``PRESS/nlipsnet/`` from N
 docs/formats.md)::
 
     nlips/
-      result.npz     the maps below, over the full image grid
+      result.npz     the maps below, on the result's box (format_version 2; version 1: the full image grid)
       report.json    format, format_version, software_version, method, and what made it
                      (provenance: settings and input identities, their hash; timings; exclusions)
       *.png          optional figures (nlipscalib.report), never read back
 
 Written atomically (the folder appears complete or not at all); :func:`load_reconstruction`
-validates format, version, keys, shapes and dtypes and names the file and the problem.
+validates format, version, keys, box, shapes and dtypes, names the file and the problem, and pastes the box
+back into full-frame maps, so every reader sees what a version 1 file (full-frame maps) gave it.
 """
 
 from __future__ import annotations
@@ -30,7 +31,10 @@ from .imageio import save_npz
 from .surface_checks import non_unit_count
 
 FORMAT_NAME = "nlipscalib.reconstruction"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""Version 2 stores the maps on the result's box (:func:`result_box`); version 1 over the full image."""
+READ_VERSIONS = (1, FORMAT_VERSION)
+"""The versions :func:`load_reconstruction` reads (version 1 files are pasted as they are: full-frame maps)."""
 RESULT_DIR = "nlips"
 METHODS = ("nlips", "nlipsnet")
 """Reconstruction methods; each writes PRESS/<method>/ in this format."""
@@ -49,6 +53,10 @@ ARRAYS = {
     "mask": (2, "b"),
     "reconstructed": (2, "b"),
 }
+FILL = {"confidence": 0.0, "usable_leds": 0, "mask": False, "reconstructed": False}
+"""What a map holds outside the solved pixels, and so outside a version 2 file's box; NaN for the maps not listed."""
+BOX_ARRAYS = ("box", "frame")
+"""Version 2's extra arrays: ``box`` (4,) int64 [x0, y0, w, h] pixels, ``frame`` (2,) int64 [H, W] of the image."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -169,7 +177,7 @@ def reconstruction_problem(folder: str | Path, verify: bool = False) -> str | No
     if not path.is_file():
         return f"{path}: missing"
     try:
-        read_report(folder)
+        version = read_report(folder)["format_version"]
         with zipfile.ZipFile(path) as zf:
             names = {n.removesuffix(".npy") for n in zf.namelist()}
             bad = _damaged_member(zf) if verify else None
@@ -179,24 +187,29 @@ def reconstruction_problem(folder: str | Path, verify: bool = False) -> str | No
         return f"{path}: damaged or truncated reconstruction ({exc})"
     if bad is not None:
         return f"{path}: damaged reconstruction (array {bad[0].removesuffix('.npy')!r}: {bad[1]})"
-    missing = sorted(set(ARRAYS) - names)
+    missing = sorted(set(_stored_arrays(version)) - names)
     if missing:
         return f"{path}: missing arrays {missing}"
-    return _verified_content(path) if verify else None
+    return _verified_content(path, version) if verify else None
 
 
-def _verified_content(path: Path) -> str | None:
-    """:func:`content_problem` of the result.npz at ``path`` (its members already checked to inflate)."""
+def _stored_arrays(version: int) -> tuple[str, ...]:
+    """The arrays a result.npz of format ``version`` holds."""
+    return tuple(ARRAYS) + (BOX_ARRAYS if version >= 2 else ())
+
+
+def _verified_content(path: Path, version: int) -> str | None:
+    """Box, shapes and :func:`content_problem` of the result.npz at ``path`` (its members already checked to
+    inflate), reading only the arrays they need."""
+    names = ("depth", "normals", "reconstructed") + (BOX_ARRAYS if version >= 2 else ())
     try:
         with np.load(path) as npz:
-            arrays = {name: npz[name] for name in ("depth", "normals", "reconstructed")}
+            arrays = {name: npz[name] for name in names}
+        _box_checked(path, arrays, version)
+    except CaptureError as exc:
+        return str(exc)
     except (ValueError, OSError, KeyError) as exc:  # object arrays (pickled), a hand-made file
         return f"{path}: damaged or foreign reconstruction ({exc})"
-    if (
-        arrays["normals"].shape != arrays["depth"].shape + (3,)
-        or arrays["reconstructed"].shape != arrays["depth"].shape
-    ):
-        return f"{path}: arrays 'depth', 'normals' and 'reconstructed' differ in shape"
     problem = content_problem(arrays)
     return f"{path}: {problem}" if problem else None
 
@@ -244,9 +257,10 @@ def save_reconstruction(
         # for error.png) release the GIL, so the two take one wall instead of two (an auto-ROI 640x480 result:
         # ~0.06 s of deflating, ~0.05 s of figures and ground truth)
         extra = pool.submit(extra_files, tmp) if extra_files is not None else None
-        save_npz(tmp / RESULT_FILE, rec.arrays(), compress="auto")  # dense float maps stored: 10x faster
+        save_npz(tmp / RESULT_FILE, boxed_arrays(rec), compress="auto")  # dense float maps stored: 10x faster
         head = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "software_version": __version__}
-        write_json(tmp / REPORT_FILE, head | jsonable(rec.report))
+        # the header last too: a loaded result's report carries the version of the file it was read from
+        write_json(tmp / REPORT_FILE, head | jsonable(rec.report) | head)
         if extra is not None:
             extra.result()  # its error, if any, is the save's
     return folder
@@ -270,16 +284,116 @@ def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None
     if not path.is_file():
         raise CaptureError(f"{path}: no reconstruction there (run `nlips solve` first)")
     report = _read_report(rpath)
-    arrays = read_arrays(path, ARRAYS, unreadable="damaged or truncated reconstruction")
-    grid = tuple(arrays["depth"].shape) if shape is None else tuple(shape)
+    version = report["format_version"]
+    arrays = read_arrays(path, _stored_arrays(version), unreadable="damaged or truncated reconstruction")
+    box, frame = _box_checked(path, arrays, version, shape)
+    if problem := content_problem(arrays):  # on the box: nothing outside it is reconstructed
+        raise CaptureError(f"{path}: {problem}")
+    if version >= 2 and box != (0, 0, frame[1], frame[0]):  # a whole-frame box is read as it is: no copy
+        arrays = {name: pasted(arrays[name], box, frame, FILL.get(name, np.nan)) for name in ARRAYS}
+    return Reconstruction(**{k: arrays[k] for k in ARRAYS}, report=report)
+
+
+def result_box(arrays: dict) -> tuple[int, int, int, int]:
+    """Where a result says anything: what a version 2 result.npz stores.
+
+    Parameters
+    ----------
+    arrays : the full-frame maps by name (:meth:`Reconstruction.arrays`), each (H, W[, 3])
+
+    Returns
+    -------
+    (x0, y0, w, h) pixels, image frame: the bounding box of ``mask`` (the ROI on the gel, or the whole gel),
+    widened over any pixel where another map is not its fill (:data:`FILL`), compared bit for bit -- so that pasting
+    the box back into filled maps gives the same bytes, even for a NaN of another sign; (0, 0, 0, 0) when
+    nothing is.
+    """
+    H, W = np.shape(arrays["mask"])
+    rows, cols = np.zeros(H, bool), np.zeros(W, bool)
+    for name, a in arrays.items():
+        # each map's rows and columns, not a union of maps: ~10x faster (no (H, W, 3) reduction over channels)
+        said = _not_fill(a, FILL.get(name, np.nan))
+        rows |= said.reshape(H, -1).any(axis=1)
+        in_cols = said.any(axis=0)
+        cols |= in_cols.any(axis=1) if in_cols.ndim == 2 else in_cols
+    rows, cols = np.flatnonzero(rows), np.flatnonzero(cols)
+    if rows.size == 0:
+        return (0, 0, 0, 0)
+    return (int(cols[0]), int(rows[0]), int(cols[-1] - cols[0] + 1), int(rows[-1] - rows[0] + 1))
+
+
+def _not_fill(a: np.ndarray, fill: float) -> np.ndarray:
+    """(H, W[, 3]) bool: where ``a`` ((H, W[, 3])) differs from ``fill`` in its bits (a NaN of another sign
+    or payload differs from NaN; a mask's True from False)."""
+    a = np.asarray(a)
+    bits = np.dtype(f"u{a.dtype.itemsize}")
+    return a.view(bits) != np.array(fill, a.dtype).view(bits)
+
+
+def boxed_arrays(rec: Reconstruction) -> dict:
+    """What a version 2 result.npz holds: every map cut to :func:`result_box` (views, no copy), with ``box``
+    ((4,) int64 [x0, y0, w, h]) and ``frame`` ((2,) int64 [H, W], the full image)."""
+    arrays = rec.arrays()
+    x0, y0, w, h = box = result_box(arrays)
+    cut = {name: a[y0 : y0 + h, x0 : x0 + w] for name, a in arrays.items()}
+    return cut | {"box": np.array(box, np.int64), "frame": np.array(rec.shape, np.int64)}
+
+
+def pasted(a: np.ndarray, box: tuple[int, int, int, int], frame: tuple[int, int], fill: float) -> np.ndarray:
+    """``a`` ((h, w[, 3]), a map on ``box`` [x0, y0, w, h]) in a (H, W[, 3]) ``frame`` of ``fill``, same dtype."""
+    x0, y0, w, h = box
+    full = np.full(tuple(frame) + a.shape[2:], fill, a.dtype)
+    full[y0 : y0 + h, x0 : x0 + w] = a
+    return full
+
+
+MAX_FRAME_SIDE = 1 << 16
+"""The largest image side a result may claim: more is a damaged ``frame``, not a camera (pasting would exhaust
+memory)."""
+
+
+def _box_checked(
+    path: Path, arrays: dict, version: int, shape: tuple[int, int] | None = None
+) -> tuple[tuple[int, int, int, int], tuple[int, int]]:
+    """(box, frame) of a result.npz's ``arrays`` (those of :data:`ARRAYS` among them checked), or CaptureError
+    naming ``path``: a box not inside its frame, a frame other than ``shape``, a map of another shape than its
+    box or of another dtype kind. Version 1 files hold full-frame maps: their box is the whole frame."""
+    if version < 2:
+        frame = tuple(arrays["depth"].shape) if shape is None else tuple(shape)
+        box = (0, 0, frame[1], frame[0]) if len(frame) == 2 else (0, 0, 0, 0)
+        grid = frame
+    else:
+        box, frame = _stored_box(path, arrays)
+        if shape is not None and frame != tuple(shape):
+            raise CaptureError(f"{path}: a result of a {frame} image (H, W), expected {tuple(shape)}")
+        grid = (box[3], box[2])
     for name, (ndim, kind) in ARRAYS.items():
+        if name not in arrays:
+            continue
         a = arrays[name]
         want = grid + ((3,) if ndim == 3 else ())
         if a.shape != want or a.dtype.kind != kind:
-            raise CaptureError(f"{path}: array '{name}' is {a.shape} {a.dtype}, expected {want} of kind '{kind}'")
-    if problem := content_problem(arrays):
-        raise CaptureError(f"{path}: {problem}")
-    return Reconstruction(**{k: arrays[k] for k in ARRAYS}, report=report)
+            on = f" (its box [x0, y0, w, h] is {list(box)})" if version >= 2 else ""
+            raise CaptureError(f"{path}: array '{name}' is {a.shape} {a.dtype}, expected {want} of kind '{kind}'{on}")
+    return box, frame
+
+
+def _stored_box(path: Path, arrays: dict) -> tuple[tuple[int, int, int, int], tuple[int, int]]:
+    """The (box, frame) a version 2 result.npz records, checked to be integers and the box inside the frame."""
+    box, frame = arrays["box"], arrays["frame"]
+    if box.shape != (4,) or frame.shape != (2,) or box.dtype.kind not in "iu" or frame.dtype.kind not in "iu":
+        raise CaptureError(
+            f"{path}: damaged reconstruction (box {box.shape} {box.dtype} and frame {frame.shape} {frame.dtype}; "
+            "expected 4 and 2 integers)"
+        )
+    (x0, y0, w, h), (H, W) = (int(v) for v in box), (int(v) for v in frame)
+    if not (0 < H <= MAX_FRAME_SIDE and 0 < W <= MAX_FRAME_SIDE):
+        raise CaptureError(f"{path}: damaged reconstruction (frame [H, W] = {[H, W]} is not an image size)")
+    if min(x0, y0, w, h) < 0 or x0 + w > W or y0 + h > H:
+        raise CaptureError(
+            f"{path}: damaged reconstruction (box [x0, y0, w, h] = {[x0, y0, w, h]} is not inside its {H}x{W} frame)"
+        )
+    return (x0, y0, w, h), (H, W)
 
 
 def content_problem(arrays: dict) -> str | None:
@@ -298,7 +412,7 @@ def content_problem(arrays: dict) -> str | None:
 
 
 def _read_report(path: Path) -> dict:
-    return read_format_json(path, FORMAT_NAME, FORMAT_VERSION, missing_hint="an incomplete reconstruction folder")
+    return read_format_json(path, FORMAT_NAME, READ_VERSIONS, missing_hint="an incomplete reconstruction folder")
 
 
 def jsonable(obj: object) -> object:

@@ -1,3 +1,5 @@
+import re
+
 import numpy as np
 import pytest
 
@@ -162,3 +164,151 @@ def test_only_an_empty_folder_or_a_reconstruction_is_replaced(tmp_path):
     assert "other things" in replace_problem(old)
     with pytest.raises(CaptureError, match="other things"):
         save_reconstruction(_rec(), old, overwrite=True)
+
+
+def _roi_rec(h=12, w=16):
+    """A result solved on a box inside the frame: NaN, 0 and False outside its mask, as the solver writes it."""
+    rng = np.random.default_rng(1)
+    rec = _rec(h, w)
+    mask = np.zeros((h, w), bool)
+    mask[3:9, 4:11] = True
+    mask[3, 4] = False  # the box is the mask's bounding box, not its every pixel
+    for name, fill in (("depth", np.nan), ("residual", np.nan), ("confidence", 0), ("usable_leds", 0)):
+        a = getattr(rec, name)
+        a[mask] = rng.random(int(mask.sum())) * 5 + 1
+        a[~mask] = fill
+    for name in ("points", "normals", "albedo"):
+        getattr(rec, name)[~mask] = np.nan
+    rec.mask[...] = mask
+    rec.reconstructed[...] = mask
+    return rec
+
+
+def _same_bits(a: Reconstruction, b: Reconstruction) -> bool:
+    return all(
+        x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+        for x, y in zip(a.arrays().values(), b.arrays().values(), strict=True)
+    )
+
+
+def test_an_roi_result_is_stored_on_its_box_and_read_back_full_frame_bit_for_bit(tmp_path):
+    folder = save_reconstruction(_roi_rec(), tmp_path / "nlips")
+    with np.load(folder / "result.npz") as npz:
+        assert npz["box"].tolist() == [4, 3, 7, 6] and npz["frame"].tolist() == [12, 16]
+        assert npz["depth"].shape == (6, 7) and npz["normals"].shape == (6, 7, 3)
+    back = load_reconstruction(folder, shape=(12, 16))
+    assert _same_bits(back, _roi_rec()) and back.report["format_version"] == 2
+
+
+def test_the_box_covers_whatever_a_map_says_outside_the_mask(tmp_path):
+    """A value off the mask (here a NaN of the other sign, which compares equal to NaN but not bit for bit)
+    widens the box, so the maps still come back as they were written."""
+    rec = _roi_rec()
+    rec.albedo[10, 1, 2] = -np.float32(np.nan)
+    folder = save_reconstruction(rec, tmp_path / "nlips")
+    with np.load(folder / "result.npz") as npz:
+        assert npz["box"].tolist() == [1, 3, 10, 8]
+    assert _same_bits(load_reconstruction(folder), rec)
+
+
+def test_a_result_with_nothing_solved_has_an_empty_box(tmp_path):
+    rec = _roi_rec()
+    for name, a in rec.arrays().items():
+        a[...] = {"confidence": 0, "usable_leds": 0, "mask": False, "reconstructed": False}.get(name, np.nan)
+    folder = save_reconstruction(rec, tmp_path / "nlips")
+    with np.load(folder / "result.npz") as npz:
+        assert npz["box"].tolist() == [0, 0, 0, 0] and npz["depth"].shape == (0, 0)
+    assert _same_bits(load_reconstruction(folder, shape=(12, 16)), rec)
+
+
+def _save_version_1(rec: Reconstruction, folder):
+    """What the version 1 writer (nlipscalib up to 202cd61) wrote: full-frame maps, the same member compression."""
+    from nlipscalib import __version__
+    from nlipscalib.core.atomic import write_json
+    from nlipscalib.core.imageio import save_npz
+    from nlipscalib.core.reconstruction import FORMAT_NAME, jsonable
+
+    folder.mkdir()
+    save_npz(folder / "result.npz", rec.arrays(), compress="auto")
+    head = {"format": FORMAT_NAME, "format_version": 1, "software_version": __version__}
+    write_json(folder / "report.json", head | jsonable(rec.report))
+    return folder
+
+
+def test_version_1_results_still_load_and_are_rewritten_as_version_2(tmp_path):
+    from nlipscalib.core.reconstruction import reconstruction_problem
+
+    old = _save_version_1(_roi_rec(), tmp_path / "old")
+    with np.load(old / "result.npz") as npz:
+        assert npz["depth"].shape == (12, 16) and "box" not in npz.files
+    assert reconstruction_problem(old, verify=True) is None
+    back = load_reconstruction(old, shape=(12, 16))
+    assert _same_bits(back, _roi_rec()) and back.report["format_version"] == 1
+    with pytest.raises(CaptureError, match=r"result\.npz: array 'depth' is \(12, 16\) float32, expected \(8, 8\)"):
+        load_reconstruction(old, shape=(8, 8))
+    new = save_reconstruction(back, tmp_path / "new")  # its report says version 1: the header written wins
+    assert load_reconstruction(new).report["format_version"] == 2 and _same_bits(load_reconstruction(new), back)
+
+
+def _rewrite(folder, **changes):
+    """Replace arrays of ``folder``'s result.npz (a damaged or hand-made file)."""
+    from nlipscalib.core.imageio import save_npz
+
+    with np.load(folder / "result.npz") as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    save_npz(folder / "result.npz", arrays | changes)
+
+
+@pytest.mark.parametrize(
+    ("changes", "problem"),
+    [
+        ({"box": np.array([10, 3, 7, 6])}, r"box \[x0, y0, w, h\] = \[10, 3, 7, 6\] is not inside its 12x16 frame"),
+        ({"box": np.array([-1, 3, 7, 6])}, r"box \[x0, y0, w, h\] = \[-1, 3, 7, 6\] is not inside"),
+        ({"box": np.array([4, 3, 7])}, r"damaged reconstruction \(box \(3,\) int64 and frame"),
+        ({"box": np.array([4.0, 3, 7, 6])}, r"expected 4 and 2 integers"),
+        ({"frame": np.array([0, 16])}, r"frame \[H, W\] = \[0, 16\] is not an image size"),
+        (
+            {"box": np.array([4, 3, 7, 5])},
+            r"array 'depth' is \(6, 7\) float32, expected \(5, 7\) of kind 'f' \(its",
+        ),
+        ({"normals": np.zeros((6, 8, 3), np.float32)}, r"array 'normals' is \(6, 8, 3\) float32, expected \(6, 7, 3\)"),
+    ],
+)
+def test_a_damaged_or_inconsistent_box_is_named_with_the_file(tmp_path, changes, problem):
+    from nlipscalib.core.reconstruction import reconstruction_problem
+
+    folder = save_reconstruction(_roi_rec(), tmp_path / "nlips")
+    _rewrite(folder, **changes)
+    with pytest.raises(CaptureError, match=rf"nlips/result\.npz: .*{problem}"):
+        load_reconstruction(folder)
+    assert re.search(problem, reconstruction_problem(folder, verify=True))  # the reuse check says the same
+
+
+def test_a_box_result_of_another_image_size_is_refused(tmp_path):
+    from nlipscalib.core.reconstruction import reconstruction_problem
+
+    folder = save_reconstruction(_roi_rec(), tmp_path / "nlips")
+    with pytest.raises(
+        CaptureError, match=r"result\.npz: a result of a \(12, 16\) image \(H, W\), expected \(480, 640\)"
+    ):
+        load_reconstruction(folder, shape=(480, 640))
+    import zipfile
+
+    with zipfile.ZipFile(folder / "result.npz") as zf:  # a version 2 file without its box
+        arrays = {n: zf.read(n) for n in zf.namelist() if n != "box.npy"}
+    with zipfile.ZipFile(folder / "result.npz", "w") as zf:
+        for n, data in arrays.items():
+            zf.writestr(n, data)
+    assert "missing arrays ['box']" in reconstruction_problem(folder)
+    with pytest.raises(CaptureError, match=r"result\.npz: missing arrays \['box'\]"):
+        load_reconstruction(folder)
+
+
+def test_a_later_format_version_is_named(tmp_path):
+    import json
+
+    folder = save_reconstruction(_rec(), tmp_path / "nlips")
+    report = json.loads((folder / "report.json").read_text()) | {"format_version": 3}
+    (folder / "report.json").write_text(json.dumps(report))
+    with pytest.raises(CaptureError, match=r"report\.json: format_version 3 is not supported \(expected 1 or 2\)"):
+        load_reconstruction(folder)
