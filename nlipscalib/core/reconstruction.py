@@ -253,11 +253,13 @@ def save_reconstruction(
     check_replaceable(folder)
     # the pool is left (its thread joined) before the folder is published or, on an error, removed
     with atomic_dir(folder, overwrite=overwrite) as tmp, ThreadPoolExecutor(1, "save-extra") as pool:
-        # beside the arrays' deflating: both it and the figures' PNG encoding (and the ground truth's inflating
+        # beside the arrays' writing: both it and the figures' PNG encoding (and the ground truth's inflating
         # for error.png) release the GIL, so the two take one wall instead of two (an auto-ROI 640x480 result:
-        # ~0.06 s of deflating, ~0.05 s of figures and ground truth)
+        # ~0.01 s of writing its box, ~0.1 s of figures and ground truth)
         extra = pool.submit(extra_files, tmp) if extra_files is not None else None
-        save_npz(tmp / RESULT_FILE, boxed_arrays(rec), compress="auto")  # dense float maps stored: 10x faster
+        # on the box, not the frame: an ROI's maps are then dense, stored (10x faster than deflated), not deflated
+        # NaN around them (cube1's auto ROI: 0.13 s -> 0.01 s of the main thread, benchmarks/RESULTS.md s20-crop)
+        save_npz(tmp / RESULT_FILE, boxed_arrays(rec), compress="auto")
         head = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "software_version": __version__}
         # the header last too: a loaded result's report carries the version of the file it was read from
         write_json(tmp / REPORT_FILE, head | jsonable(rec.report) | head)
