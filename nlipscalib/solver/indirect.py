@@ -385,6 +385,7 @@ def fit_indirect(
     exclude: np.ndarray | None = None,
     shading: np.ndarray | None = None,
     cache: dict | None = None,
+    warm: bool = False,
 ) -> IndirectModel:
     """Fit the indirect term to a capture of the undeformed dome (known geometry ``reference.reference``).
 
@@ -407,6 +408,9 @@ def fit_indirect(
         fit and a refit with a different ``exclude``): holds what does not depend on ``exclude``
         (patches, the off-view dome's light, the linear images, the gathers' pairwise terms), filled by the
         first fit.
+    warm : start from the last fit that shared ``cache`` (its kappa and gathered light: the albedo starts as the
+        least-squares one of ``S + kappa G``) instead of kappa = 0; a refit without a press's contact then needs
+        an alternation fewer (``press.REFIT_ALTERNATIONS``). Without an earlier fit in ``cache``: from kappa = 0.
 
     Returns
     -------
@@ -430,7 +434,9 @@ def fit_indirect(
     if not fitted.any():
         why = no_light_reason(reference, surf.valid, cache["live"])
         raise CaptureError(f"{reference.folder}: no usable pixel to fit the interreflection term on{why}")
-    kappa, G, off_albedo = _alternate(img, S, ok, cache, bounces, iterations)
+    start = cache.get("last") if warm else None
+    kappa, G, off_albedo = _alternate(img, S, ok, cache, bounces, iterations, start)
+    cache["last"] = (kappa, G)
     # the receiver's albedo multiplies both terms: the share is kappa G / S
     on = fitted.all(axis=1)
     share = float(np.median((kappa * G)[:, on].sum(axis=(0, 2)) / np.maximum(S[:, on].sum(axis=(0, 2)), 1e-30)))
@@ -495,16 +501,23 @@ def _usable(cache: dict, window: tuple[slice, slice]) -> np.ndarray:
     return np.repeat(gel[None, ..., None], 3, axis=3).astype(np.float32)
 
 
-def _alternate(img: np.ndarray, S: np.ndarray, ok: np.ndarray, cache: dict, bounces: int, iterations: int):
+def _alternate(
+    img: np.ndarray,
+    S: np.ndarray,
+    ok: np.ndarray,
+    cache: dict,
+    bounces: int,
+    iterations: int,
+    start: tuple[np.ndarray, np.ndarray] | None = None,
+):
     """Alternate the per-patch albedo and kappa ``iterations`` times (G depends on the emitters' albedo):
     (kappa (3,), G (L, K, 3) the gathered light per unit kappa, the off-view dome's albedo (3,)).
 
     ``img`` (L, K, 3) patch means, ``S`` (L, K, 3) their direct shading, ``ok`` (L, K, 3) wholly usable;
     ``cache``: :func:`fit_indirect`'s (the surface, the off-view dome's unit light, the pairwise terms)."""
     fitted = ok.any(axis=0)
-    kappa = np.zeros(3)
-    rho = _albedo(img, S, ok)
-    G = np.zeros_like(S)
+    kappa, G = (np.zeros(3), np.zeros_like(S)) if start is None else start
+    rho = _albedo(img, S if start is None else S + kappa * G, ok)
 
     def typical(values: np.ndarray):  # median over the patches with data; the others take it as their albedo
         return np.array([np.median(values[fitted[:, c], c]) if fitted[:, c].any() else 0.0 for c in range(3)])
