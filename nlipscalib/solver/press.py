@@ -34,7 +34,7 @@ from ..core.capture import Press
 from ..core.errors import CaptureError, ShapeError
 from ..core.metrics import angle_deg
 from . import radiosity, reuse, threads
-from .contact import ContactMap, anchor_weights, classify_contact, contact_box, prepare_press_side
+from .contact import ContactMap, anchor_weights, classify_contact, contact_box, led_levels, prepare_press_side
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
     IndirectModel,
@@ -293,7 +293,9 @@ def _light_and_contact(sources: _Sources, dead_level: float) -> _Light:
         if fit is not None:  # a term to fit, so a reference surface to classify against
             # the press's side of the contact classification (its images' block means, blur and noise; ~0.08 s of
             # CPU at 640x480) does not depend on the term: made on the second core while the term is fitted
-            press.linear_led_images  # noqa: B018 -- made once here, not by both threads
+            # made once here, not by both threads (the fit's inputs and the contact's press side each ask for the
+            # LED levels on the gel; reuse.reused keeps them, but two threads asking at once both computed them)
+            led_levels(press.linear_led_images, np.isfinite(prior))
             side = pool.submit(prepare_press_side, press, cache, dead_level=dead_level)
         model = fit.first() if fit is not None else None
         if side is not None:
