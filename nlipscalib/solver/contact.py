@@ -79,7 +79,10 @@ def led_levels(images: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
     def levels() -> np.ndarray:
         index = np.flatnonzero(masks.sample_grid(valid, NOISE_SAMPLES))
-        return np.array([np.percentile(image.reshape(-1, image.shape[-1])[index], 99) for image in images])
+        # one LED per pool task (each its own percentile, so the same numbers): ~13 ms of one core at 640x480
+        return np.array(
+            threads.map_items(lambda image: np.percentile(image.reshape(-1, image.shape[-1])[index], 99), images)
+        )
 
     if not isinstance(images, np.ndarray) or images.flags.writeable:
         return levels()

@@ -344,6 +344,7 @@ def _window_mean(patches: dict, values: np.ndarray, pr: slice, pc: slice, win: t
 
 def _gather_all(
     surface: Surface,
+    factors: radiosity.FormFactors,
     rho_patch: np.ndarray,
     off_unit: np.ndarray | None,
     off_albedo: np.ndarray,
@@ -352,17 +353,26 @@ def _gather_all(
 ):
     """G (L, K, 3) at the surface's patches: the visible patches' and the off-view dome's direct light,
     gathered once (and, with bounces=2, the first bounce's light gathered again, scaled by kappa).
-    ``off_unit``: the off-view dome's gather for a unit albedo (linear in it), or None."""
-    recv_p, recv_n = surface.receivers()
+    ``factors``: the surface's kept patches' pairwise terms (:func:`_surface_factors`); ``off_unit``: the
+    off-view dome's gather for a unit albedo (linear in it), or None."""
     direct = rho_patch[None] * surface.shading[:, surface.keep]  # (L, K, 3)
-    emit = surface.emitters()
-    g = radiosity.gather(recv_p, recv_n, emit, direct)
+    g = factors.gather(direct)
     if off_unit is not None:
         g = g + off_unit * np.asarray(off_albedo)
     if bounces >= 2 and kappa is not None:
         first = np.asarray(kappa)[None, None] * rho_patch[None] * g  # light leaving after one bounce
-        g = g + radiosity.gather(recv_p, recv_n, emit, first)
+        g = g + factors.gather(first)
     return g
+
+
+def _surface_factors(cache: dict) -> radiosity.FormFactors:
+    """The pairwise terms of the fit's gathers (every kept patch of ``cache["surface"]`` lighting every other),
+    made at the first gather and kept in ``cache``: every alternation of every fit sharing the cache (a press's
+    rough fit and refit: four gathers) gathers over the same patches, only their light changes."""
+    if "factors" not in cache:
+        surf = cache["surface"]
+        cache["factors"] = radiosity.FormFactors(*surf.receivers(), surf.emitters())
+    return cache["factors"]
 
 
 def fit_indirect(
@@ -375,6 +385,7 @@ def fit_indirect(
     exclude: np.ndarray | None = None,
     shading: np.ndarray | None = None,
     cache: dict | None = None,
+    warm: bool = False,
 ) -> IndirectModel:
     """Fit the indirect term to a capture of the undeformed dome (known geometry ``reference.reference``).
 
@@ -395,7 +406,11 @@ def fit_indirect(
         here; a deferred one is read only when the surface's patches are not kept, :func:`reference_surface`).
     cache : dict or None -- shared by fits of the same capture with the same ``leds`` (e.g. a rough
         fit and a refit with a different ``exclude``): holds what does not depend on ``exclude``
-        (patches, the off-view dome's light, the linear images), filled by the first fit.
+        (patches, the off-view dome's light, the linear images, the gathers' pairwise terms), filled by the
+        first fit.
+    warm : start from the last fit that shared ``cache`` (its kappa and gathered light: the albedo starts as the
+        least-squares one of ``S + kappa G``) instead of kappa = 0; a refit without a press's contact then needs
+        an alternation fewer (``press.REFIT_ALTERNATIONS``). Without an earlier fit in ``cache``: from kappa = 0.
 
     Returns
     -------
@@ -419,7 +434,9 @@ def fit_indirect(
     if not fitted.any():
         why = no_light_reason(reference, surf.valid, cache["live"])
         raise CaptureError(f"{reference.folder}: no usable pixel to fit the interreflection term on{why}")
-    kappa, G, off_albedo = _alternate(img, S, ok, surf, cache["off_unit"], bounces, iterations)
+    start = cache.get("last") if warm else None
+    kappa, G, off_albedo = _alternate(img, S, ok, cache, bounces, iterations, start)
+    cache["last"] = (kappa, G)
     # the receiver's albedo multiplies both terms: the share is kappa G / S
     on = fitted.all(axis=1)
     share = float(np.median((kappa * G)[:, on].sum(axis=(0, 2)) / np.maximum(S[:, on].sum(axis=(0, 2)), 1e-30)))
@@ -488,19 +505,19 @@ def _alternate(
     img: np.ndarray,
     S: np.ndarray,
     ok: np.ndarray,
-    surf: Surface,
-    off_unit: np.ndarray | None,
+    cache: dict,
     bounces: int,
     iterations: int,
+    start: tuple[np.ndarray, np.ndarray] | None = None,
 ):
     """Alternate the per-patch albedo and kappa ``iterations`` times (G depends on the emitters' albedo):
     (kappa (3,), G (L, K, 3) the gathered light per unit kappa, the off-view dome's albedo (3,)).
 
-    ``img`` (L, K, 3) patch means, ``S`` (L, K, 3) their direct shading, ``ok`` (L, K, 3) wholly usable."""
+    ``img`` (L, K, 3) patch means, ``S`` (L, K, 3) their direct shading, ``ok`` (L, K, 3) wholly usable;
+    ``cache``: :func:`fit_indirect`'s (the surface, the off-view dome's unit light, the pairwise terms)."""
     fitted = ok.any(axis=0)
-    kappa = np.zeros(3)
-    rho = _albedo(img, S, ok)
-    G = np.zeros_like(S)
+    kappa, G = (np.zeros(3), np.zeros_like(S)) if start is None else start
+    rho = _albedo(img, S if start is None else S + kappa * G, ok)
 
     def typical(values: np.ndarray):  # median over the patches with data; the others take it as their albedo
         return np.array([np.median(values[fitted[:, c], c]) if fitted[:, c].any() else 0.0 for c in range(3)])
@@ -510,7 +527,7 @@ def _alternate(
     for _ in range(iterations):
         rho = np.where(fitted, rho, typical(rho))
         off_albedo = typical(rho)
-        G = _gather_all(surf, rho, off_unit, off_albedo, bounces, kappa)
+        G = _gather_all(cache["surface"], _surface_factors(cache), rho, cache["off_unit"], off_albedo, bounces, kappa)
         # reflectance = kappa x albedo is at most 1: on very noisy or tiny captures the free fit can
         # exceed it (seen: 1.16 at 96x72, 2 spp), and an unphysical term then derails the solve
         kappa = np.minimum(_profile_kappa(img, S, G, ok), 1.0 / np.maximum(off_albedo, 1e-30))
@@ -682,8 +699,7 @@ def surface_indirect(
     outside ``receivers``.
     """
     surf = surface if surface is not None else Surface(camera, leds, depth, normals, size, shading)
-    albedo = np.where(surf.valid[..., None], np.nan_to_num(albedo), 0.0)
-    rho_patch = radiosity.patch_mean(surf.patches, albedo)
+    albedo, rho_patch = _gel_albedo(surf, albedo)
     size = surf.size
     h, w = surf.patches["area"].shape
     H, W = camera.shape
@@ -718,6 +734,27 @@ def surface_indirect(
         ~receivers[r0:r1, c0:c1],
     )
     return B
+
+
+def _gel_albedo(surf: Surface, albedo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the albedo on the gel, NaN read as 0 and 0 off it, (H, W, 3); its patch means (h, w, 3) float64) of
+    ``albedo`` (H, W, 3) on ``surf``, by bands of patch rows on the thread pool.
+
+    Why: both are whole-frame passes, of an auto ROI's solve too, and ran on the main thread in each outer pass
+    while the other core waited (~6 ms of one core warm, 13-20 ms with the fresh pages of a solve, at 640x480).
+    Each pixel's own arithmetic, and each patch's mean from its own pixels (:func:`_window_mean`), so the same
+    numbers as over the whole frame at once."""
+    size, valid = surf.size, surf.valid
+    clean = np.empty(albedo.shape, np.result_type(albedo, 0.0))
+    rho_patch = np.empty(surf.patches["area"].shape + albedo.shape[2:])
+
+    def band(pr: slice) -> None:
+        rows = slice(pr.start * size, min(pr.stop * size, len(clean)))
+        clean[rows] = np.where(valid[rows][..., None], np.nan_to_num(albedo[rows]), 0.0)
+        rho_patch[pr] = _window_mean(surf.patches, clean[rows], pr, slice(None), (rows, slice(None)))
+
+    threads.map_items(band, threads.chunks(len(rho_patch)))
+    return clean, rho_patch
 
 
 def scaled_into(

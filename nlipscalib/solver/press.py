@@ -34,7 +34,7 @@ from ..core.capture import Press
 from ..core.errors import CaptureError, ShapeError
 from ..core.metrics import angle_deg
 from . import radiosity, reuse, threads
-from .contact import ContactMap, anchor_weights, classify_contact, contact_box, prepare_press_side
+from .contact import ContactMap, anchor_weights, classify_contact, contact_box, led_levels, prepare_press_side
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .indirect import (
     IndirectModel,
@@ -293,7 +293,9 @@ def _light_and_contact(sources: _Sources, dead_level: float) -> _Light:
         if fit is not None:  # a term to fit, so a reference surface to classify against
             # the press's side of the contact classification (its images' block means, blur and noise; ~0.08 s of
             # CPU at 640x480) does not depend on the term: made on the second core while the term is fitted
-            press.linear_led_images  # noqa: B018 -- made once here, not by both threads
+            # made once here, not by both threads (the fit's inputs and the contact's press side each ask for the
+            # LED levels on the gel; reuse.reused keeps them, but two threads asking at once both computed them)
+            led_levels(press.linear_led_images, np.isfinite(prior))
             side = pool.submit(prepare_press_side, press, cache, dead_level=dead_level)
         model = fit.first() if fit is not None else None
         if side is not None:
@@ -459,7 +461,20 @@ def _indirect_fitter(sources: _Sources, shading: reuse.Deferred | None) -> _Indi
         def first():
             return fit(exclude=exclude, iterations=1 if rough else 3)
 
-    return _IndirectFitter(first=first, again=lambda exclude: fit(exclude=exclude, iterations=3), refits=rough)
+    def again(exclude: np.ndarray) -> IndirectModel:
+        # on from the rough fit's kappa and light (warm): 2 alternations land as near the fixed point as 3 from
+        # kappa = 0 (kappa within 1e-6 of it on the twin's sphere, cube and coin presses, as close as a 4th
+        # alternation moves it), one kappa search and gather fewer
+        return fit(exclude=exclude, iterations=REFIT_ALTERNATIONS, warm=True)
+
+    return _IndirectFitter(first=first, again=again, refits=rough)
+
+
+REFIT_ALTERNATIONS = 2
+"""Alternations of a press's refit without its contact (:func:`_indirect_fitter`), started from the rough fit
+(``fit_indirect(warm=True)``). Measured (kappa relative to 3 alternations from kappa = 0, the refit before; the twin's
+one-bounce 640x480 presses sphere / cube / coin): 1 warm 8e-3 / 3e-2 / 9e-3, 2 warm 1e-6 / 3e-6 / 9e-7; 2 from kappa =
+0 2.6e-5 / 2.4e-5 / 1.7e-5; 4 from kappa = 0 1e-6 / 5e-7 / 4e-7 (benchmarks/RESULTS.md, s20-fixed)."""
 
 
 def _capture_key(capture: Press) -> tuple:

@@ -466,6 +466,18 @@ def test_one_conversion_of_stored_values_to_light_and_one_white_level_per_bit_de
     np.testing.assert_array_equal(response.saturated(images), images >= 65520.0)
 
 
+def test_the_linear_led_images_made_per_led_are_the_whole_stacks_linearisation(tmp_path):
+    """``Press.linear_led_images`` converts one LED per thread: the same bits as ``linearise`` of the whole stack,
+    read-only."""
+    from nlipscalib.core.capture import linearise
+
+    press = load_press(_press(tmp_path / "p"))
+    lin = press.linear_led_images
+    whole = linearise(press.led_images, press.dark, press.response.black_level, press.response.white_level)
+    assert lin.dtype == np.float32 and not lin.flags.writeable and np.ptp(lin) > 0
+    assert lin.tobytes() == whole.tobytes()
+
+
 def test_linearise_rejects_an_image_that_does_not_end_with_the_dark_frames_shape():
     """A (1, W, 3) dark frame (or a (H, W, 1) image) broadcast silently, and a transposed frame raised numpy's
     "operands could not be broadcast"; a scalar level against the gel's dark values stays allowed (infer)."""

@@ -62,6 +62,33 @@ def test_fit_recovers_the_coating_reflectance_and_the_share(bounce1):
     assert 0.25 < model.share < 0.37, model.share  # ~31 % measured by bounces-1 over bounces-0 renders
 
 
+def test_a_warm_refit_lands_where_a_longer_cold_one_does(bounce1):
+    """A press's refit without its contact starts from its rough fit (``warm``) and alternates
+    ``REFIT_ALTERNATIONS`` times: within 1e-6 of the fixed point, as three alternations from kappa = 0 (the refit
+    before), nearer than that many from kappa = 0."""
+    from nlipscalib.solver.press import REFIT_ALTERNATIONS
+
+    _, press = bounce1
+    exclude = np.zeros(press.camera.shape, bool)
+    exclude[40:80, 60:110] = True
+    cache = {}
+    rough = fit_indirect(press, iterations=1, cache=cache)
+    warm = fit_indirect(press, exclude=exclude, cache=cache, iterations=REFIT_ALTERNATIONS, warm=True)
+
+    def cold(iterations: int, **kwargs):
+        return fit_indirect(press, exclude=exclude, iterations=iterations, **kwargs).kappa
+
+    converged = np.asarray(cold(8))
+
+    def off(kappa) -> float:
+        return float(np.abs(np.divide(kappa, converged) - 1).max())
+
+    assert off(warm.kappa) < 1e-6 and off(cold(3)) < 1e-6
+    assert off(warm.kappa) < off(cold(REFIT_ALTERNATIONS))
+    assert off(rough.kappa) > 10 * off(warm.kappa)  # the premise: the rough fit is off
+    assert cold(3, cache={}, warm=True) == cold(3)  # with no earlier fit in its cache a warm fit is the cold one
+
+
 def test_fit_finds_no_interreflection_in_a_textured_bounce0_capture(textured):
     flat, _ = textured
     model = fit_indirect(flat)

@@ -90,6 +90,23 @@ def test_grouped_gather_on_a_dent_stays_within_the_aggregates_error():
     assert rel.max() > 1e-4  # the premise: the dent is what the aggregates miss
 
 
+def test_kept_form_factors_gather_the_same_bits_as_the_gather():
+    """:class:`radiosity.FormFactors` (the indirect fit's alternations gather over the same patches) gives
+    :func:`radiosity.gather`'s numbers bit for bit, for every radiance it is applied to, over several blocks."""
+    s = _dome(dent=1.0)
+    emit = {"points": s["points"].reshape(-1, 3), "normals": s["normals"].reshape(-1, 3), "area": s["area"].ravel()}
+    receivers = np.zeros(s["area"].shape, bool)
+    receivers[3:37, 5:44] = True
+    points, normals = s["points"][receivers], s["normals"][receivers]
+    factors = radiosity.FormFactors(points, normals, emit, chunk=97)  # 1,326 receivers: 14 blocks, the last short
+    light = s["radiance"].reshape(s["radiance"].shape[0], -1, 3)
+    for radiance in (light, light[:, :, ::-1] * 0.3 + 0.02):
+        kept = factors.gather(radiance)
+        assert kept.dtype == np.float32 and kept.shape == (3, receivers.sum(), 3)
+        np.testing.assert_array_equal(kept, radiosity.gather(points, normals, emit, radiance, chunk=97))
+    assert np.any(factors.gather(light) != factors.gather(light * 2))  # the light is read, not kept
+
+
 def test_no_grouping_is_the_exact_gather():
     s = _dome(dent=1.0)
     receivers = np.zeros(s["area"].shape, bool)

@@ -38,6 +38,26 @@ def test_a_replaced_surface_equals_a_new_surface_of_the_changed_geometry(press):
     assert not np.allclose(base.shading, fresh.shading)  # the premise: the change shows in the patches
 
 
+@pytest.mark.parametrize("size", [4, 5])
+def test_the_gels_albedo_and_its_patch_means_by_bands_are_the_whole_frames(press, size):
+    """``indirect._gel_albedo`` (the outer loop's albedo and its patch means, by bands of patch rows on the pool)
+    gives the whole frame's numbers bit for bit, NaN read as 0 and 0 off the gel; 5 px patches do not tile the
+    96x72 frame (padded last band)."""
+    from nlipscalib.solver import radiosity
+    from nlipscalib.solver.indirect import _gel_albedo
+
+    ref = press.reference
+    depth = ref.depth.copy()
+    depth[:, :7] = np.nan  # off the gel
+    surface = Surface(press.camera, press.leds, depth, ref.normals, size=size)
+    albedo = np.random.default_rng(1).uniform(0.2, 1.0, press.camera.shape + (3,))
+    albedo[10:14, 20:30] = np.nan
+    clean, means = _gel_albedo(surface, albedo)
+    whole = np.where(surface.valid[..., None], np.nan_to_num(albedo), 0.0)
+    assert clean.tobytes() == whole.tobytes() and (~surface.valid).any() and not np.isnan(clean).any()
+    assert means.tobytes() == radiosity.patch_mean(surface.patches, whole).tobytes()
+
+
 def test_direct_shading_is_the_led_image_model(press):
     from nlipscalib.core.camera import depth_to_points
     from nlipscalib.core.leds import led_shading
