@@ -12,6 +12,7 @@ Model (Quéau et al. 2018), LED i, channel c, log-depth t, x = exp(t) q, N = -(t
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import ModuleType
 from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
@@ -105,11 +106,19 @@ class Model:
         self.psi = be.asarray(psi[:, :, None])
         self.images = be.asarray(images)
         self.usable = be.asarray(usable)
+        # Factors of 1 multiply nothing: the products they would take a pass over (L, 3, N) for are skipped, with
+        # the same bits (x * 1 == x, x ** 1 == x). The default twin's LEDs and most pixel chunks are so.
+        self.mu_ones = bool(np.all(np.asarray(mu) == 1))
+        self.psi_ones = bool(np.all(np.asarray(psi) == 1))
+        self.all_usable = bool(np.all(np.asarray(usable) == 1))
 
     def shading(
         self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
     ) -> Array | tuple[Array, Array, Array, Array]:
-        """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit)."""
+        """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit).
+
+        Written with in-place operations in the order of the formulas' plain expressions (the same bits): an
+        (L, N) temporary is a pass over memory, and the fewer of them, the more of a chunk stays in cache."""
         be, xp = self.be, self.be.xp
         t, tu, tv = be.asarray(t), be.asarray(tu), be.asarray(tv)
         z = xp.exp(t)
@@ -118,38 +127,65 @@ class Model:
         nn2 = nv[0] ** 2 + nv[1] ** 2 + nv[2] ** 2
         nn = xp.sqrt(nn2)
         v = [p - xk for p, xk in zip(self.pos, x)]  # x_s - x, (L, N)
-        r2 = v[0] ** 2 + v[1] ** 2 + v[2] ** 2
+        r2 = _dot3(xp, v, v)
         r = xp.sqrt(r2)
-        vn = v[0] * nv[0] + v[1] * nv[1] + v[2] * nv[2]
-        nsv = self.dir[0] * v[0] + self.dir[1] * v[1] + self.dir[2] * v[2]
-        cos_led = -nsv / r
-        lit = (vn > 0) & (cos_led > 0)
-        aniso = be.relu(cos_led) ** self.mu
-        F = xp.where(lit, aniso * be.relu(vn) / (nn * r2 * r), 0 * r)
+        vn = _dot3(xp, v, nv)
+        nsv = _dot3(xp, self.dir, v)
+        cos_led = -nsv
+        cos_led /= r
+        lit = vn > 0
+        lit &= cos_led > 0
+        # where lit, cos_led and vn are positive: no clamp needed on what is kept
+        F = cos_led * vn if self.mu_ones else be.relu(cos_led) ** self.mu * vn
+        den = nn * r2
+        den *= r
+        F /= den
+        F = xp.where(lit, F, 0)
         if not derivatives:
             return F
-        safe_vn = xp.where(lit, vn, 0 * vn + 1)
-        safe_cos = xp.where(lit, cos_led, 0 * vn + 1)
-        vx = v[0] * x[0] + v[1] * x[1] + v[2] * x[2]
-        nsx = self.dir[0] * x[0] + self.dir[1] * x[1] + self.dir[2] * x[2]
-        xn = x[0] * nv[0] + x[1] * nv[1] + x[2] * nv[2]
-        dcos_dt = nsx / r - nsv * vx / (r2 * r)
-        dlog_t = self.mu * dcos_dt / safe_cos - xn / safe_vn + 3 * vx / r2
-        av = self.A[0] * v[0] + self.A[1] * v[1] + self.A[2] * v[2]
-        bv = self.B[0] * v[0] + self.B[1] * v[1] + self.B[2] * v[2]
-        na = (nv[0] * self.A[0] + nv[1] * self.A[1] + nv[2] * self.A[2]) / nn2
-        nb = (nv[0] * self.B[0] + nv[1] * self.B[1] + nv[2] * self.B[2]) / nn2
-        dlog_u = -av / safe_vn + na
-        dlog_v = -bv / safe_vn + nb
-        return F, F * dlog_t, F * dlog_u, F * dlog_v
+        safe_vn = xp.where(lit, vn, 1)
+        safe_cos = xp.where(lit, cos_led, 1)
+        del vn, cos_led, lit
+        vx = _dot3(xp, v, x)
+        dlog_t = _dot3(xp, self.dir, x)  # n_s . x
+        dlog_t /= r  # d cos_led / dt = n_s . x / r - nsv vx / r^3
+        nsv *= vx
+        xp.multiply(r2, r, out=den)
+        nsv /= den
+        dlog_t -= nsv
+        del nsv, r, den
+        if not self.mu_ones:
+            dlog_t *= self.mu
+        dlog_t /= safe_cos  # mu dcos/dt / cos - x.N / vn + 3 vx / r^2
+        dlog_t -= _dot3(xp, x, nv) / safe_vn
+        vx *= 3
+        vx /= r2
+        dlog_t += vx
+        del vx, r2, safe_cos
+        dlogs = [dlog_t]
+        for M in (self.A, self.B):  # -(M.v) / vn + (N.M) / |N|^2 for M = A, B
+            dlog = _dot3(xp, M, v)
+            xp.negative(dlog, out=dlog)
+            dlog /= safe_vn
+            dlog += _dot3(xp, nv, M) / nn2
+            dlogs.append(dlog)
+        for dlog in dlogs:
+            dlog *= F
+        return (F, *dlogs)
 
     def residuals(self, F: Array, albedo: Array) -> Array:
         """r : (L, 3, N) = rho_c Psi_ic F_i - I_ic (albedo : (3, N) on the backend)."""
-        return albedo[None] * self.psi * F[:, None] - self.images
+        if self.psi_ones:
+            r = albedo[None] * F[:, None]
+        else:
+            r = albedo[None] * self.psi
+            r *= F[:, None]
+        r -= self.images
+        return r
 
     def data_energy(self, r: Array, lam: float, estimator: str) -> float:
         """Robust data energy of residuals ``r`` (L, 3, N) over the usable samples, summed in float64."""
-        return self.be.total(self.usable * robust.rho(r, lam, estimator, self.be.xp))
+        return self.be.total(self._usable_times(robust.rho(r, lam, estimator, self.be.xp)))
 
     def energy(self, F: Array, albedo: Array, lam: float, estimator: str) -> float:
         """Robust data energy at shading ``F`` (L, N) and albedo (3, N)."""
@@ -157,7 +193,14 @@ class Model:
 
     def weights(self, r: Array, lam: float, estimator: str) -> Array:
         """IRLS weights, zero on excluded samples: (L, 3, N)."""
-        return self.usable * robust.weight(r, lam, estimator, self.be.xp)
+        return self._usable_times(robust.weight(r, lam, estimator, self.be.xp))
+
+    def _usable_times(self, a: Array) -> Array:
+        """``usable * a`` for an (L, 3, N) array ``a`` that no one else holds: ``a`` itself where every sample is
+        usable (a product by 1s), else zeroed in place on the excluded samples."""
+        if not self.all_usable:
+            a *= self.usable
+        return a
 
     def albedo(self, F: Array, w: Array) -> Array:
         """Closed-form per-pixel, per-channel albedo minimising the data term weighted by ``w``: (3, N).
@@ -167,10 +210,12 @@ class Model:
         F : (L, N) shading; w : (L, 3, N) sample weights (0 on excluded samples).
         """
         xp = self.be.xp
-        S = self.psi * F[:, None]
+        S = F[:, None] if self.psi_ones else self.psi * F[:, None]
         wS = w * S
-        num = (wS * self.images).sum(0)
-        den = (wS * S).sum(0)
+        prod = wS * self.images
+        num = prod.sum(0)
+        xp.multiply(wS, S, out=prod)
+        den = prod.sum(0)
         ok = den > 1e-30
         return xp.where(ok, num / xp.where(ok, den, 0 * den + 1), 0 * den)
 
@@ -201,7 +246,10 @@ class Model:
     def fit_sums(self, r: Array, lam: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
         """(N,) float64 numpy each: the usable samples' squared residuals and their IRLS weights, summed over
         LEDs and channels (a level's residual and confidence maps)."""
-        return self.be.pixel_sums(self.usable * r * r), self.be.pixel_sums(self.weights(r, lam, estimator))
+        sq = r * r if self.all_usable else self.usable * r
+        if not self.all_usable:
+            sq *= r
+        return self.be.pixel_sums(sq), self.be.pixel_sums(self.weights(r, lam, estimator))
 
     @staticmethod
     def whole(a: Array | tuple) -> Array | tuple:
@@ -244,11 +292,13 @@ class Model:
         and J^T W r = sum_a P_a^T b_a, where P = (identity, D_u, D_v).
         """
         xp = self.be.xp
-        Wp = w * self.psi * self.psi  # (L, 3, N): weights of the products of s = Psi F terms
+        Wp = w if self.psi_ones else w * self.psi * self.psi  # (L, 3, N): weights of the products of s = Psi F
         d = xp.einsum("lcn,ln->cn", Wp, F * F)  # (3, N): |s|_W^2, s = Psi F
         inv_d = xp.where(d > 1e-30, 1 / xp.where(d > 1e-30, d, 0 * d + 1), 0 * d)
         rho2 = albedo * albedo
-        wr = w * r * self.psi  # (L, 3, N)
+        wr = w * r  # (L, 3, N)
+        if not self.psi_ones:
+            wr *= self.psi
         e = xp.einsum("lcn,ln->cn", wr, F)  # (3, N): <r, s>_W, zero when rho is the exact fit
         a = [xp.einsum("lcn,ln->cn", Wp, F * dFa) for dFa in dF]  # <s, ds_a>_W
         N = F.shape[1]
@@ -267,10 +317,12 @@ class Model:
 PARALLEL_MIN_PIXELS = 20_000
 """Levels with at least this many pixels run the model on pixel chunks (numpy backend), in threads where
 there are several cores."""
-CHUNK_PIXELS = 16384
+CHUNK_PIXELS = 8192
 """Pixels per chunk of :class:`ChunkedModel`, many chunks per thread: the (L, chunk) temporaries of its array
 expressions then stay in the CPU's cache. The model's calls of a line-search step took 0.21 s instead of
-0.38 s with one chunk per thread (307,200 pixels, 12 LEDs; 8192-32768 time alike, 2048 as before)."""
+0.38 s with one chunk per thread (307,200 pixels, 12 LEDs; 8192-32768 time alike, 2048 as before). Since the
+model's expressions run in place (fewer live temporaries), 8192 takes ~10 % less CPU than 16384 (4096 as 8192,
+but :meth:`ChunkedModel.every` slows with the chunk count; s20 on the 2-core Xeon, benchmarks/RESULTS.md)."""
 
 
 class Parts:
@@ -424,3 +476,13 @@ def make_model(be: Backend, q: np.ndarray, *args: np.ndarray) -> Model | Chunked
     if be.name == "numpy" and q.shape[0] >= PARALLEL_MIN_PIXELS:
         return ChunkedModel(be, q, *args)
     return Model(be, q, *args)
+
+
+def _dot3(xp: ModuleType, a: Sequence[Array], b: Sequence[Array]) -> Array:
+    """``a[0] * b[0] + a[1] * b[1] + a[2] * b[2]`` (broadcast), summed in that order into one new array."""
+    out = a[0] * b[0]
+    term = a[1] * b[1]
+    out += term
+    xp.multiply(a[2], b[2], out=term)
+    out += term
+    return out
