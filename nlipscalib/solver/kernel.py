@@ -313,6 +313,21 @@ class Model:
                 M[i, j] = M[j, i] = self.be.numpy(mij)
         return M, b
 
+    def irls_blocks(
+        self,
+        F: Array,
+        dF: Sequence[Array],
+        r: Array,
+        albedo: Array,
+        lam: float,
+        estimator: str,
+        out: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`gauss_newton_blocks` with the IRLS weights of the residuals ``r`` (:meth:`weights`), made here:
+        a :class:`ChunkedModel` makes each chunk's weights while its residuals are in cache, and no level-sized
+        weights array (44 MB at 640x480 with 12 LEDs) is written and read back."""
+        return self.gauss_newton_blocks(F, dF, r, self.weights(r, lam, estimator), albedo, out)
+
 
 PARALLEL_MIN_PIXELS = 20_000
 """Levels with at least this many pixels run the model on pixel chunks (numpy backend), in threads where
@@ -461,10 +476,26 @@ class ChunkedModel:
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`Model.gauss_newton_blocks`, each chunk's written into its pixels of the whole blocks (no chunk
         arrays joined: 29 MB of float64 at 640x480 made twice, where a whole frame's memory peaks)."""
+        return self._blocks("gauss_newton_blocks", F, dF, r, w, albedo)
+
+    def irls_blocks(
+        self,
+        F: Array | Parts,
+        dF: Sequence[Array | Parts],
+        r: Array | Parts,
+        albedo: Array | Parts,
+        lam: float,
+        estimator: str,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`Model.irls_blocks` chunk by chunk, written into the whole blocks as :meth:`gauss_newton_blocks`."""
+        return self._blocks("irls_blocks", F, dF, r, albedo, lam, estimator)
+
+    def _blocks(self, name: str, *args) -> tuple[np.ndarray, np.ndarray]:
+        """Model method ``name`` (a blocks method taking ``out``) of each chunk, into its pixels of whole blocks."""
         M, b = np.empty((3, 3, self.n)), np.empty((3, self.n))
         self._threads.map_items(
-            lambda k: self.parts[k].gauss_newton_blocks(
-                *(self._cut(a, k) for a in (F, dF, r, w, albedo)), out=(M[..., self.slices[k]], b[:, self.slices[k]])
+            lambda k: getattr(self.parts[k], name)(
+                *(self._cut(a, k) for a in args), out=(M[..., self.slices[k]], b[:, self.slices[k]])
             ),
             range(len(self.parts)),
         )

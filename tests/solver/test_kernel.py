@@ -58,6 +58,14 @@ def test_chunked_model_equals_the_model_on_all_pixels(monkeypatch, level, dtype)
         whole.gauss_newton_blocks(F, dF, r, w, albedo), chunked.gauss_newton_blocks(Fc, dFc, rc, wc, albedo)
     ):
         np.testing.assert_array_equal(a, b)
+    # the blocks with the weights made inside, per chunk: the blocks of the weights made first
+    for a, b, c in zip(
+        whole.gauss_newton_blocks(F, dF, r, w, albedo),
+        whole.irls_blocks(F, dF, r, albedo, 0.1, "cauchy"),
+        chunked.irls_blocks(Fc, dFc, rc, albedo, 0.1, "cauchy"),
+    ):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
     for a, b in zip(whole.fit_sums(r, 0.1, "cauchy"), chunked.fit_sums(rc, 0.1, "cauchy")):
         np.testing.assert_array_equal(a, b)
     assert whole.whole(r) is r
