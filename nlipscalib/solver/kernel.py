@@ -210,12 +210,15 @@ class Model:
         F : (L, N) shading; w : (L, 3, N) sample weights (0 on excluded samples).
         """
         xp = self.be.xp
-        S = F[:, None] if self.psi_ones else self.psi * F[:, None]
-        wS = w * S
-        prod = wS * self.images
-        num = prod.sum(0)
-        xp.multiply(wS, S, out=prod)
-        den = prod.sum(0)
+        # sum_i w S I and sum_i w S^2 (S = Psi F) as three-operand einsums: the same products, summed over LEDs in
+        # the same order as (w * S * I).sum(0), with no (L, 3, N) temporaries (6x faster on a chunk)
+        if self.psi_ones:
+            num = xp.einsum("lcn,ln,lcn->cn", w, F, self.images)
+            den = xp.einsum("lcn,ln,ln->cn", w, F, F)
+        else:
+            S = self.psi * F[:, None]
+            num = xp.einsum("lcn,lcn,lcn->cn", w, S, self.images)
+            den = xp.einsum("lcn,lcn,lcn->cn", w, S, S)
         ok = den > 1e-30
         return xp.where(ok, num / xp.where(ok, den, 0 * den + 1), 0 * den)
 
@@ -291,26 +294,30 @@ class Model:
         M : (3, 3, N) float64 numpy, b : (3, N) float64 numpy, with J^T W J = sum_ab P_a^T diag(M_ab) P_b
         and J^T W r = sum_a P_a^T b_a, where P = (identity, D_u, D_v).
         """
-        xp = self.be.xp
+        xp, be = self.be.xp, self.be
         Wp = w if self.psi_ones else w * self.psi * self.psi  # (L, 3, N): weights of the products of s = Psi F
-        d = xp.einsum("lcn,ln->cn", Wp, F * F)  # (3, N): |s|_W^2, s = Psi F
-        inv_d = xp.where(d > 1e-30, 1 / xp.where(d > 1e-30, d, 0 * d + 1), 0 * d)
+        # The W-weighted sums over LEDs of the products of F and its derivatives, each a three-operand einsum: the
+        # same products (s_i s_j) W summed in the same order as einsum(W, s_i * s_j), with no (L, N) temporaries.
+        shades = (F, *dF)
+        sums = {(i, j): xp.einsum("ln,ln,lcn->cn", shades[i], shades[j], Wp) for i, j in _PAIRS}
+        d = sums[0, 0]  # (3, N): |s|_W^2, s = Psi F
+        a = [sums[0, i + 1] for i in range(3)]  # <s, ds_a>_W
+        inv_d = xp.where(d > 1e-30, 1 / xp.where(d > 1e-30, d, 1), 0)
         rho2 = albedo * albedo
         wr = w * r  # (L, 3, N)
         if not self.psi_ones:
             wr *= self.psi
         e = xp.einsum("lcn,ln->cn", wr, F)  # (3, N): <r, s>_W, zero when rho is the exact fit
-        a = [xp.einsum("lcn,ln->cn", Wp, F * dFa) for dFa in dF]  # <s, ds_a>_W
         N = F.shape[1]
         M, b = out if out is not None else (np.empty((3, 3, N)), np.empty((3, N)))
         for i in range(3):
             # projected gradient: <r, rho (ds_a - s <s, ds_a>/<s, s>)>_W
             gi = albedo * (xp.einsum("lcn,ln->cn", wr, dF[i]) - e * a[i] * inv_d)
-            b[i] = self.be.numpy(gi.sum(0))
+            b[i] = be.numpy(gi.sum(0))
             for j in range(i, 3):
-                Aij = xp.einsum("lcn,ln->cn", Wp, dF[i] * dF[j])
+                Aij = sums[i + 1, j + 1]
                 mij = (rho2 * (Aij - a[i] * a[j] * inv_d)).sum(0)
-                M[i, j] = M[j, i] = self.be.numpy(mij)
+                M[i, j] = M[j, i] = be.numpy(mij)
         return M, b
 
     def irls_blocks(
@@ -328,6 +335,9 @@ class Model:
         weights array (44 MB at 640x480 with 12 LEDs) is written and read back."""
         return self.gauss_newton_blocks(F, dF, r, self.weights(r, lam, estimator), albedo, out)
 
+
+_PAIRS = [(i, j) for i in range(4) for j in range(i, 4)]
+"""The products (i <= j) of the shading (0) and its derivatives along t, t_u, t_v (1-3) in the Gauss-Newton blocks."""
 
 PARALLEL_MIN_PIXELS = 20_000
 """Levels with at least this many pixels run the model on pixel chunks (numpy backend), in threads where
