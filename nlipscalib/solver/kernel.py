@@ -342,9 +342,10 @@ class Model:
 _PAIRS = [(i, j) for i in range(4) for j in range(i, 4)]
 """The products (i <= j) of the shading (0) and its derivatives along t, t_u, t_v (1-3) in the Gauss-Newton blocks."""
 
-PARALLEL_MIN_PIXELS = 20_000
+PARALLEL_MIN_PIXELS = 8192
 """Levels with at least this many pixels run the model on pixel chunks (numpy backend), in threads where
-there are several cores."""
+there are several cores. (20,000 before s20: a whole frame's passes solve 19,200- and 8,372-pixel levels
+on one core, ~0.25 s of their model's wall, while the pool's hand-off costs ~0.1 ms a call.)"""
 CHUNK_PIXELS = 8192
 """Pixels per chunk of :class:`ChunkedModel`, many chunks per thread: the (L, chunk) temporaries of its array
 expressions then stay in the CPU's cache. The model's calls of a line-search step took 0.21 s instead of
