@@ -12,6 +12,7 @@ Model (Quéau et al. 2018), LED i, channel c, log-depth t, x = exp(t) q, N = -(t
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import ModuleType
 from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
@@ -105,11 +106,19 @@ class Model:
         self.psi = be.asarray(psi[:, :, None])
         self.images = be.asarray(images)
         self.usable = be.asarray(usable)
+        # Factors of 1 multiply nothing: the products they would take a pass over (L, 3, N) for are skipped, with
+        # the same bits (x * 1 == x, x ** 1 == x). The default twin's LEDs and most pixel chunks are so.
+        self.mu_ones = bool(np.all(np.asarray(mu) == 1))
+        self.psi_ones = bool(np.all(np.asarray(psi) == 1))
+        self.all_usable = bool(np.all(np.asarray(usable) == 1))
 
     def shading(
         self, t: np.ndarray, tu: np.ndarray, tv: np.ndarray, derivatives: bool = False
     ) -> Array | tuple[Array, Array, Array, Array]:
-        """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit)."""
+        """F : (L, N) and, if asked, dF/dt, dF/dt_u, dF/dt_v : (L, N) each (zero where unlit).
+
+        Written with in-place operations in the order of the formulas' plain expressions (the same bits): an
+        (L, N) temporary is a pass over memory, and the fewer of them, the more of a chunk stays in cache."""
         be, xp = self.be, self.be.xp
         t, tu, tv = be.asarray(t), be.asarray(tu), be.asarray(tv)
         z = xp.exp(t)
@@ -118,38 +127,68 @@ class Model:
         nn2 = nv[0] ** 2 + nv[1] ** 2 + nv[2] ** 2
         nn = xp.sqrt(nn2)
         v = [p - xk for p, xk in zip(self.pos, x)]  # x_s - x, (L, N)
-        r2 = v[0] ** 2 + v[1] ** 2 + v[2] ** 2
+        r2 = _dot3(xp, v, v)
         r = xp.sqrt(r2)
-        vn = v[0] * nv[0] + v[1] * nv[1] + v[2] * nv[2]
-        nsv = self.dir[0] * v[0] + self.dir[1] * v[1] + self.dir[2] * v[2]
-        cos_led = -nsv / r
-        lit = (vn > 0) & (cos_led > 0)
-        aniso = be.relu(cos_led) ** self.mu
-        F = xp.where(lit, aniso * be.relu(vn) / (nn * r2 * r), 0 * r)
+        vn = _dot3(xp, v, nv)
+        nsv = _dot3(xp, self.dir, v)
+        cos_led = -nsv
+        cos_led /= r
+        lit = vn > 0
+        lit &= cos_led > 0
+        # where lit, cos_led and vn are positive: no clamp needed on what is kept
+        F = cos_led * vn if self.mu_ones else be.relu(cos_led) ** self.mu * vn
+        den = nn * r2
+        den *= r
+        F /= den
+        # a chunk lit by every LED (most of a level's) needs no masking: np.where is 3x a product's time
+        all_lit = bool(lit.all())
+        if not all_lit:
+            F = xp.where(lit, F, 0)
         if not derivatives:
             return F
-        safe_vn = xp.where(lit, vn, 0 * vn + 1)
-        safe_cos = xp.where(lit, cos_led, 0 * vn + 1)
-        vx = v[0] * x[0] + v[1] * x[1] + v[2] * x[2]
-        nsx = self.dir[0] * x[0] + self.dir[1] * x[1] + self.dir[2] * x[2]
-        xn = x[0] * nv[0] + x[1] * nv[1] + x[2] * nv[2]
-        dcos_dt = nsx / r - nsv * vx / (r2 * r)
-        dlog_t = self.mu * dcos_dt / safe_cos - xn / safe_vn + 3 * vx / r2
-        av = self.A[0] * v[0] + self.A[1] * v[1] + self.A[2] * v[2]
-        bv = self.B[0] * v[0] + self.B[1] * v[1] + self.B[2] * v[2]
-        na = (nv[0] * self.A[0] + nv[1] * self.A[1] + nv[2] * self.A[2]) / nn2
-        nb = (nv[0] * self.B[0] + nv[1] * self.B[1] + nv[2] * self.B[2]) / nn2
-        dlog_u = -av / safe_vn + na
-        dlog_v = -bv / safe_vn + nb
-        return F, F * dlog_t, F * dlog_u, F * dlog_v
+        safe_vn = vn if all_lit else xp.where(lit, vn, 1)
+        safe_cos = cos_led if all_lit else xp.where(lit, cos_led, 1)
+        del vn, cos_led, lit
+        vx = _dot3(xp, v, x)
+        dlog_t = _dot3(xp, self.dir, x)  # n_s . x
+        dlog_t /= r  # d cos_led / dt = n_s . x / r - nsv vx / r^3
+        nsv *= vx
+        xp.multiply(r2, r, out=den)
+        nsv /= den
+        dlog_t -= nsv
+        del nsv, r, den
+        if not self.mu_ones:
+            dlog_t *= self.mu
+        dlog_t /= safe_cos  # mu dcos/dt / cos - x.N / vn + 3 vx / r^2
+        dlog_t -= _dot3(xp, x, nv) / safe_vn
+        vx *= 3
+        vx /= r2
+        dlog_t += vx
+        del vx, r2, safe_cos
+        dlogs = [dlog_t]
+        for M in (self.A, self.B):  # -(M.v) / vn + (N.M) / |N|^2 for M = A, B
+            dlog = _dot3(xp, M, v)
+            xp.negative(dlog, out=dlog)
+            dlog /= safe_vn
+            dlog += _dot3(xp, nv, M) / nn2
+            dlogs.append(dlog)
+        for dlog in dlogs:
+            dlog *= F
+        return (F, *dlogs)
 
     def residuals(self, F: Array, albedo: Array) -> Array:
         """r : (L, 3, N) = rho_c Psi_ic F_i - I_ic (albedo : (3, N) on the backend)."""
-        return albedo[None] * self.psi * F[:, None] - self.images
+        if self.psi_ones:
+            r = albedo[None] * F[:, None]
+        else:
+            r = albedo[None] * self.psi
+            r *= F[:, None]
+        r -= self.images
+        return r
 
     def data_energy(self, r: Array, lam: float, estimator: str) -> float:
         """Robust data energy of residuals ``r`` (L, 3, N) over the usable samples, summed in float64."""
-        return self.be.total(self.usable * robust.rho(r, lam, estimator, self.be.xp))
+        return self.be.total(self._usable_times(robust.rho(r, lam, estimator, self.be.xp)))
 
     def energy(self, F: Array, albedo: Array, lam: float, estimator: str) -> float:
         """Robust data energy at shading ``F`` (L, N) and albedo (3, N)."""
@@ -157,7 +196,14 @@ class Model:
 
     def weights(self, r: Array, lam: float, estimator: str) -> Array:
         """IRLS weights, zero on excluded samples: (L, 3, N)."""
-        return self.usable * robust.weight(r, lam, estimator, self.be.xp)
+        return self._usable_times(robust.weight(r, lam, estimator, self.be.xp))
+
+    def _usable_times(self, a: Array) -> Array:
+        """``usable * a`` for an (L, 3, N) array ``a`` that no one else holds: ``a`` itself where every sample is
+        usable (a product by 1s), else zeroed in place on the excluded samples."""
+        if not self.all_usable:
+            a *= self.usable
+        return a
 
     def albedo(self, F: Array, w: Array) -> Array:
         """Closed-form per-pixel, per-channel albedo minimising the data term weighted by ``w``: (3, N).
@@ -167,10 +213,15 @@ class Model:
         F : (L, N) shading; w : (L, 3, N) sample weights (0 on excluded samples).
         """
         xp = self.be.xp
-        S = self.psi * F[:, None]
-        wS = w * S
-        num = (wS * self.images).sum(0)
-        den = (wS * S).sum(0)
+        # sum_i w S I and sum_i w S^2 (S = Psi F) as three-operand einsums: the same products, summed over LEDs in
+        # the same order as (w * S * I).sum(0), with no (L, 3, N) temporaries (6x faster on a chunk)
+        if self.psi_ones:
+            num = xp.einsum("lcn,ln,lcn->cn", w, F, self.images)
+            den = xp.einsum("lcn,ln,ln->cn", w, F, F)
+        else:
+            S = self.psi * F[:, None]
+            num = xp.einsum("lcn,lcn,lcn->cn", w, S, self.images)
+            den = xp.einsum("lcn,lcn,lcn->cn", w, S, S)
         ok = den > 1e-30
         return xp.where(ok, num / xp.where(ok, den, 0 * den + 1), 0 * den)
 
@@ -201,7 +252,10 @@ class Model:
     def fit_sums(self, r: Array, lam: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
         """(N,) float64 numpy each: the usable samples' squared residuals and their IRLS weights, summed over
         LEDs and channels (a level's residual and confidence maps)."""
-        return self.be.pixel_sums(self.usable * r * r), self.be.pixel_sums(self.weights(r, lam, estimator))
+        sq = r * r if self.all_usable else self.usable * r
+        if not self.all_usable:
+            sq *= r
+        return self.be.pixel_sums(sq), self.be.pixel_sums(self.weights(r, lam, estimator))
 
     @staticmethod
     def whole(a: Array | tuple) -> Array | tuple:
@@ -243,34 +297,61 @@ class Model:
         M : (3, 3, N) float64 numpy, b : (3, N) float64 numpy, with J^T W J = sum_ab P_a^T diag(M_ab) P_b
         and J^T W r = sum_a P_a^T b_a, where P = (identity, D_u, D_v).
         """
-        xp = self.be.xp
-        Wp = w * self.psi * self.psi  # (L, 3, N): weights of the products of s = Psi F terms
-        d = xp.einsum("lcn,ln->cn", Wp, F * F)  # (3, N): |s|_W^2, s = Psi F
-        inv_d = xp.where(d > 1e-30, 1 / xp.where(d > 1e-30, d, 0 * d + 1), 0 * d)
+        xp, be = self.be.xp, self.be
+        Wp = w if self.psi_ones else w * self.psi * self.psi  # (L, 3, N): weights of the products of s = Psi F
+        # The W-weighted sums over LEDs of the products of F and its derivatives, each a three-operand einsum: the
+        # same products (s_i s_j) W summed in the same order as einsum(W, s_i * s_j), with no (L, N) temporaries.
+        shades = (F, *dF)
+        sums = {(i, j): xp.einsum("ln,ln,lcn->cn", shades[i], shades[j], Wp) for i, j in _PAIRS}
+        d = sums[0, 0]  # (3, N): |s|_W^2, s = Psi F
+        a = [sums[0, i + 1] for i in range(3)]  # <s, ds_a>_W
+        inv_d = xp.where(d > 1e-30, 1 / xp.where(d > 1e-30, d, 1), 0)
         rho2 = albedo * albedo
-        wr = w * r * self.psi  # (L, 3, N)
+        wr = w * r  # (L, 3, N)
+        if not self.psi_ones:
+            wr *= self.psi
         e = xp.einsum("lcn,ln->cn", wr, F)  # (3, N): <r, s>_W, zero when rho is the exact fit
-        a = [xp.einsum("lcn,ln->cn", Wp, F * dFa) for dFa in dF]  # <s, ds_a>_W
         N = F.shape[1]
         M, b = out if out is not None else (np.empty((3, 3, N)), np.empty((3, N)))
         for i in range(3):
             # projected gradient: <r, rho (ds_a - s <s, ds_a>/<s, s>)>_W
             gi = albedo * (xp.einsum("lcn,ln->cn", wr, dF[i]) - e * a[i] * inv_d)
-            b[i] = self.be.numpy(gi.sum(0))
+            b[i] = be.numpy(gi.sum(0))
             for j in range(i, 3):
-                Aij = xp.einsum("lcn,ln->cn", Wp, dF[i] * dF[j])
+                Aij = sums[i + 1, j + 1]
                 mij = (rho2 * (Aij - a[i] * a[j] * inv_d)).sum(0)
-                M[i, j] = M[j, i] = self.be.numpy(mij)
+                M[i, j] = M[j, i] = be.numpy(mij)
         return M, b
 
+    def irls_blocks(
+        self,
+        F: Array,
+        dF: Sequence[Array],
+        r: Array,
+        albedo: Array,
+        lam: float,
+        estimator: str,
+        out: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`gauss_newton_blocks` with the IRLS weights of the residuals ``r`` (:meth:`weights`), made here:
+        a :class:`ChunkedModel` makes each chunk's weights while its residuals are in cache, and no level-sized
+        weights array (44 MB at 640x480 with 12 LEDs) is written and read back."""
+        return self.gauss_newton_blocks(F, dF, r, self.weights(r, lam, estimator), albedo, out)
 
-PARALLEL_MIN_PIXELS = 20_000
+
+_PAIRS = [(i, j) for i in range(4) for j in range(i, 4)]
+"""The products (i <= j) of the shading (0) and its derivatives along t, t_u, t_v (1-3) in the Gauss-Newton blocks."""
+
+PARALLEL_MIN_PIXELS = 8192
 """Levels with at least this many pixels run the model on pixel chunks (numpy backend), in threads where
-there are several cores."""
-CHUNK_PIXELS = 16384
+there are several cores. (20,000 before s20: a whole frame's passes solve 19,200- and 8,372-pixel levels
+on one core, ~0.25 s of their model's wall, while the pool's hand-off costs ~0.1 ms a call.)"""
+CHUNK_PIXELS = 8192
 """Pixels per chunk of :class:`ChunkedModel`, many chunks per thread: the (L, chunk) temporaries of its array
 expressions then stay in the CPU's cache. The model's calls of a line-search step took 0.21 s instead of
-0.38 s with one chunk per thread (307,200 pixels, 12 LEDs; 8192-32768 time alike, 2048 as before)."""
+0.38 s with one chunk per thread (307,200 pixels, 12 LEDs; 8192-32768 time alike, 2048 as before). Since the
+model's expressions run in place (fewer live temporaries), 8192 takes ~10 % less CPU than 16384 (4096 as 8192,
+but :meth:`ChunkedModel.every` slows with the chunk count; s20 on the 2-core Xeon, benchmarks/RESULTS.md)."""
 
 
 class Parts:
@@ -409,10 +490,26 @@ class ChunkedModel:
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`Model.gauss_newton_blocks`, each chunk's written into its pixels of the whole blocks (no chunk
         arrays joined: 29 MB of float64 at 640x480 made twice, where a whole frame's memory peaks)."""
+        return self._blocks("gauss_newton_blocks", F, dF, r, w, albedo)
+
+    def irls_blocks(
+        self,
+        F: Array | Parts,
+        dF: Sequence[Array | Parts],
+        r: Array | Parts,
+        albedo: Array | Parts,
+        lam: float,
+        estimator: str,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`Model.irls_blocks` chunk by chunk, written into the whole blocks as :meth:`gauss_newton_blocks`."""
+        return self._blocks("irls_blocks", F, dF, r, albedo, lam, estimator)
+
+    def _blocks(self, name: str, *args) -> tuple[np.ndarray, np.ndarray]:
+        """Model method ``name`` (a blocks method taking ``out``) of each chunk, into its pixels of whole blocks."""
         M, b = np.empty((3, 3, self.n)), np.empty((3, self.n))
         self._threads.map_items(
-            lambda k: self.parts[k].gauss_newton_blocks(
-                *(self._cut(a, k) for a in (F, dF, r, w, albedo)), out=(M[..., self.slices[k]], b[:, self.slices[k]])
+            lambda k: getattr(self.parts[k], name)(
+                *(self._cut(a, k) for a in args), out=(M[..., self.slices[k]], b[:, self.slices[k]])
             ),
             range(len(self.parts)),
         )
@@ -424,3 +521,13 @@ def make_model(be: Backend, q: np.ndarray, *args: np.ndarray) -> Model | Chunked
     if be.name == "numpy" and q.shape[0] >= PARALLEL_MIN_PIXELS:
         return ChunkedModel(be, q, *args)
     return Model(be, q, *args)
+
+
+def _dot3(xp: ModuleType, a: Sequence[Array], b: Sequence[Array]) -> Array:
+    """``a[0] * b[0] + a[1] * b[1] + a[2] * b[2]`` (broadcast), summed in that order into one new array."""
+    out = a[0] * b[0]
+    term = a[1] * b[1]
+    out += term
+    xp.multiply(a[2], b[2], out=term)
+    out += term
+    return out

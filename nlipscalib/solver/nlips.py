@@ -784,7 +784,7 @@ class _Level:
         self.gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
         if est != "ls":
             albedo, r, e_data = self.refit(F, albedo, energy=True)
-        self.M, self.b = model.gauss_newton_blocks(F, dF, r, model.weights(r, self.lam, est), albedo)
+        self.M, self.b = model.irls_blocks(F, dF, r, albedo, self.lam, est)
         # the derivatives and residuals are in the blocks now: not held through the linear solve and the line search
         # (:meth:`_newton_step`); the level's result is refitted from F and the albedo (:meth:`finish`)
         self.t, self.F, self.dF, self.albedo, self.r = t, F, None, albedo, None
@@ -812,7 +812,10 @@ class _Level:
         return (out[0], out[1:]) if derivatives else (out, None)
 
     def prior(self, tt: np.ndarray) -> float:
-        return float(np.sum(self.zeta * (tt - self.t0) ** 2)) + self.gamma * float(tt @ (self.ops["lap"] @ tt))
+        # the Laplacian's product by row blocks on the pool (the same bits): one per line-search trial, ~5 ms of
+        # one core at 640x480
+        lap_t = threads.RowBlocks(self.ops["lap"]).dot(tt)
+        return float(np.sum(self.zeta * (tt - self.t0) ** 2)) + self.gamma * float(tt @ lap_t)
 
     def refit(self, F: Array | Parts, alb: Array | Parts | None, energy: bool = False):
         """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise; (albedo,
@@ -843,13 +846,11 @@ class _Level:
         if self.M is None:
             if self.dF is None:  # the accepted step's derivatives, deferred until a step needs them
                 self.F, self.dF = self.shade(t, True)
-            w = model.weights(self.r, self.lam, self.est)
-            self.M, self.b = model.gauss_newton_blocks(self.F, self.dF, self.r, w, self.albedo)
+            self.M, self.b = model.irls_blocks(self.F, self.dF, self.r, self.albedo, self.lam, self.est)
             # What the blocks are made from is not held through the assembly, the linear solve (AMG's set-up) and
             # the line search (a trial's shading, derivatives and residuals), where a whole frame's memory peaks:
-            # the weights, the derivatives and the residuals, 44 MB each at 640x480 with 12 LEDs. The next blocks
-            # come from the accepted depth's (:meth:`_accept`).
-            del w
+            # the derivatives and the residuals, 44 MB each at 640x480 with 12 LEDs. The next blocks come from the
+            # accepted depth's (:meth:`_accept`).
             self.dF = self.r = None
             self.tm.lap("blocks")
         M, b, zeta, gamma = self.M, self.b, self.zeta, self.gamma

@@ -38,8 +38,10 @@ def weight(r: Array, lam: float, estimator: str, xp: ModuleType = np) -> Array:
     a2 = r * r
     if estimator == "ls":
         return 0 * r + 1
-    if estimator == "cauchy":
-        return 1 / (1 + a2 / lam**2)
+    if estimator == "cauchy":  # 1 / (1 + a2 / lam^2), in place on this call's own array (same bits, fewer passes)
+        w = a2 / lam**2
+        w += 1
+        return xp.reciprocal(w, out=w)
     absr = xp.abs(r)
     if estimator == "huber":
         return xp.where(absr <= lam, 0 * r + 1, lam / xp.where(absr > lam, absr, 0 * r + lam))
@@ -61,5 +63,9 @@ def _log1p(x: Array, xp: ModuleType) -> Array:
         return xp.log1p(x)
     u = 1 + x
     with np.errstate(invalid="ignore"):  # x = inf: log(u) is inf, the correction nan
-        out = np.log(u) - ((u - 1) - x) / u
+        error = u - 1  # ((u - 1) - x) / u, in place
+        error -= x
+        error /= u
+        out = np.log(u, out=u)
+        out -= error
     return np.where(np.isfinite(x), out, x) if not np.isfinite(out).all() else out

@@ -58,6 +58,14 @@ def test_chunked_model_equals_the_model_on_all_pixels(monkeypatch, level, dtype)
         whole.gauss_newton_blocks(F, dF, r, w, albedo), chunked.gauss_newton_blocks(Fc, dFc, rc, wc, albedo)
     ):
         np.testing.assert_array_equal(a, b)
+    # the blocks with the weights made inside, per chunk: the blocks of the weights made first
+    for a, b, c in zip(
+        whole.gauss_newton_blocks(F, dF, r, w, albedo),
+        whole.irls_blocks(F, dF, r, albedo, 0.1, "cauchy"),
+        chunked.irls_blocks(Fc, dFc, rc, albedo, 0.1, "cauchy"),
+    ):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
     for a, b in zip(whole.fit_sums(r, 0.1, "cauchy"), chunked.fit_sums(rc, 0.1, "cauchy")):
         np.testing.assert_array_equal(a, b)
     assert whole.whole(r) is r
@@ -148,3 +156,40 @@ def test_refit_in_one_pass_is_the_sequence_of_its_steps(monkeypatch, level, esti
         np.testing.assert_array_equal(chunked.whole(parts[0]), fit)
         np.testing.assert_array_equal(chunked.whole(parts[1]), chunked.whole(rc))
         assert parts[2] == chunked.data_energy(rc, 0.1, estimator)
+
+
+def test_shortcuts_give_the_general_paths_bits(level):
+    """A model whose pixels are all lit and usable, and whose LEDs have mu = 1 and psi = 1, skips the masking and
+    the products by 1s: on the same pixels, the model that takes the general path (with a pixel turned away from
+    some LEDs, an excluded sample, mu and psi arrays that are 1 but not known to be) gives the same bits."""
+    (q, A, B, C, pos, dirs, mu, psi, images, usable), (t, tu, tv) = level
+    be = kernel.Backend("numpy", "float32")
+    n = len(t)
+    ones = np.ones_like(mu), np.ones_like(psi)
+    every = np.ones_like(usable)
+    with_dark = [np.concatenate([a, a[:1]]) for a in (q, A, B, C, t, tu, tv)]
+    with_dark[5][-1] = 50.0  # steep: this pixel faces away from some LEDs
+    images_g = np.concatenate([images, images[..., :1]], axis=-1)
+    fast = kernel.Model(be, q, A, B, C, pos, dirs, *ones, images, every)
+    usable_g = np.concatenate([every, every[..., :1]], -1)
+    usable_g[0, 0, -1] = 0  # an excluded sample (on the extra pixel): the general path's usable products
+    general = kernel.Model(be, *with_dark[:4], pos, dirs, *ones, images_g, usable_g)
+    general.mu_ones = general.psi_ones = False  # the general path: powers and products by the 1s
+    assert fast.mu_ones and fast.psi_ones and fast.all_usable and not general.all_usable
+    F, *dF = fast.shading(t, tu, tv, True)
+    Fg, *dFg = general.shading(*with_dark[4:], True)
+    assert (F > 0).all() and (Fg[:, -1] == 0).any() and (Fg[:, -1] > 0).any()
+    for a, b in zip([F, *dF], [Fg, *dFg]):
+        np.testing.assert_array_equal(a, b[:, :n])
+    albedo = np.full((3, n), 0.5, be.dtype)
+    albedo_g = np.full((3, n + 1), 0.5, be.dtype)
+    r, rg = fast.residuals(F, albedo), general.residuals(Fg, albedo_g)
+    np.testing.assert_array_equal(r, rg[..., :n])
+    np.testing.assert_array_equal(fast.weights(r, 0.1, "cauchy"), general.weights(rg, 0.1, "cauchy")[..., :n])
+    for a, b in zip(fast.refit(F, albedo, 0.1, "cauchy")[:2], general.refit(Fg, albedo_g, 0.1, "cauchy")[:2]):
+        np.testing.assert_array_equal(a, b[..., :n])
+    blocks = fast.irls_blocks(F, dF, r, albedo, 0.1, "cauchy")
+    for a, b in zip(blocks, general.irls_blocks(Fg, dFg, rg, albedo_g, 0.1, "cauchy")):
+        np.testing.assert_array_equal(a, b[..., :n])
+    for a, b in zip(fast.fit_sums(r, 0.1, "cauchy"), general.fit_sums(rg, 0.1, "cauchy")):
+        np.testing.assert_array_equal(a, b[:n])
