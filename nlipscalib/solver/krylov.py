@@ -39,7 +39,7 @@ class Krylov:
     and rebuilt only when its convergence factor per CG iteration degrades past 0.85. One exception:
     a hierarchy made in the level's first solve (where Jacobi failed) is fitted to the second solve's
     matrix (:meth:`_VCycle.for_matrix`: its aggregates and transfers kept, its level matrices made again
-    by Galerkin products, a fifth of a set-up), because the first Gauss-Newton step moves the most.
+    by Galerkin products, about a third of a set-up), because the first Gauss-Newton step moves the most.
 
     Jacobi is not tried where the level's last Jacobi solve predicts it would not reach the tolerance within
     its cap (:func:`jacobi_predicted`): on the warm-started 640x480 level of a whole frame's last outer pass,
@@ -91,9 +91,9 @@ class Krylov:
         elif self._amg_solve == 1 and self._amg_matrix() is not Hm:
             # The first step's matrix is the furthest from the later ones (its step moves the depth, the weights
             # and the shading the most): on cube1's whole frame its hierarchy took steps 2 and 3 in 21 and 22 CG
-            # iterations, fitted to step 2's matrix 11 and 11 (as a set-up of its own) for 0.05-0.08 s. A later
-            # step's hierarchy is a step closer: fitting it saved 0-3 iterations (sphere1, coin1), about what
-            # fitting costs (benchmarks/RESULTS.md, s20-amg).
+            # iterations, fitted to step 2's matrix 11 and 14 (a set-up of its own at each step: 12 and 11), for
+            # 0.08 s of CPU against a set-up's 0.2. A later step's hierarchy is a step closer: fitting it too saved
+            # 0-3 iterations (sphere1, coin1, cube1's step 3), about what it costs (benchmarks/RESULTS.md, s20-amg).
             self.amg = self.amg.for_matrix(Hm.astype(PRECONDITIONER_DTYPE))
             self.refreshes += 1
             self._amg_matrix, self._amg_solve = weakref.ref(Hm), self.solves
@@ -209,8 +209,8 @@ class _VCycle:
         ``R A P`` (:func:`_galerkin`), the smoothers and the coarse solver's factors made from those.
 
         For the next Gauss-Newton step's matrix: weights and shading drift, the aggregates (the strength of
-        connections, the grid) hardly do. On a 640x480 level this costs a fifth of a set-up (cube1 ~0.08 s
-        against ~0.3-0.4 s) for the CG iterations of a set-up of its own (benchmarks/RESULTS.md). Symmetric
+        connections, the grid) hardly do. On a 640x480 level this costs about a third of a set-up (cube1 0.08 s
+        of CPU against 0.2 s) for the CG iterations of a set-up of its own (benchmarks/RESULTS.md). Symmetric
         positive definite as any Galerkin hierarchy of an SPD matrix; the products by rows, the same bits on
         any number of threads."""
         levels = [A]
@@ -256,11 +256,13 @@ def _galerkin(R: sp.csr_matrix, A: sp.csr_matrix, P: sp.csr_matrix) -> sp.csr_ma
 
 
 def _by_rows(L: sp.csr_matrix, M: sp.csr_matrix) -> sp.csr_matrix:
-    """``L @ M`` (CSR) by row blocks of ``L`` (:func:`threads.chunks`) on the pool, stacked without a copy of
-    SciPy's ``vstack`` checks; one block where there is one thread or ``L`` is small."""
-    if threads.workers() == 1 or L.shape[0] < threads.PRODUCT_MIN_ROWS:
+    """``L @ M`` (CSR) by the row blocks of :class:`threads.RowBlocks` (none where there is one thread or ``L`` is
+    small: one product) on the pool, stacked by hand: SciPy's ``vstack`` checks and copies took longer than the
+    second thread saved."""
+    blocks = threads.RowBlocks(L).blocks
+    if not blocks:
         return (L @ M).tocsr()
-    parts = threads.map_items(lambda rows: (threads._row_view(L, rows) @ M).tocsr(), threads.chunks(L.shape[0]))
+    parts = threads.map_items(lambda block: (block[1] @ M).tocsr(), blocks)
     indptr = [parts[0].indptr]
     for part in parts[1:]:
         indptr.append(part.indptr[1:] + indptr[-1][-1])
