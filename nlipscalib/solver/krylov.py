@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -35,7 +36,10 @@ class Krylov:
     smoothed-aggregation AMG hierarchy would cost more to build than the whole solve. Otherwise
     (or once a hierarchy exists) CG preconditioned by AMG V-cycles continues from that iterate. The
     matrix changes little between iterations (weights and shading drift), so the hierarchy is kept
-    and rebuilt only when its convergence factor per CG iteration degrades past 0.85.
+    and rebuilt only when its convergence factor per CG iteration degrades past 0.85. One exception:
+    a hierarchy made in the level's first solve (where Jacobi failed) is fitted to the second solve's
+    matrix (:meth:`_VCycle.for_matrix`: its aggregates and transfers kept, its level matrices made again
+    by Galerkin products, about a third of a set-up), because the first Gauss-Newton step moves the most.
 
     Jacobi is not tried where the level's last Jacobi solve predicts it would not reach the tolerance within
     its cap (:func:`jacobi_predicted`): on the warm-started 640x480 level of a whole frame's last outer pass,
@@ -45,8 +49,16 @@ class Krylov:
 
     def __init__(self, opts: SolverOptions):
         self.opts = opts
-        self.amg = None
+        self.amg: _VCycle | None = None
+        """The level's AMG cycle, None until the first AMG-preconditioned solve or after a drift."""
+        self._amg_matrix = None
+        """A weak reference to the matrix :attr:`amg`'s level matrices were made for."""
+        self._amg_solve = 0
+        """The solve (1: the level's first) whose matrix :attr:`amg`'s level matrices were made for."""
+        self.solves = 0
         self.setups = 0
+        self.refreshes = 0
+        """Hierarchies fitted to a later solve's matrix (:meth:`_VCycle.for_matrix`), set-ups not counted."""
         self.jacobi_rate: float | None = None
         """Residual reduction per iteration of this level's last Jacobi solve, bounded above (1: it failed)."""
 
@@ -57,6 +69,7 @@ class Krylov:
         def cb(_: np.ndarray):
             count[0] += 1
 
+        self.solves += 1
         x = None
         # the system's products on both cores; the same bits as Hm @ v (threads.RowBlocks)
         products = threads.RowBlocks(Hm)
@@ -72,10 +85,20 @@ class Krylov:
             if status == 0:
                 return x, count[0]
         if self.amg is None:
-            self.amg = _amg_preconditioner(Hm)
+            self.amg = _amg_cycle(Hm)
             self.setups += 1
+            self._amg_matrix, self._amg_solve = weakref.ref(Hm), self.solves
+        elif self._amg_solve == 1 and self._amg_matrix() is not Hm:
+            # The first step's matrix is the furthest from the later ones (its step moves the depth, the weights
+            # and the shading the most): on cube1's whole frame its hierarchy took steps 2 and 3 in 21 and 22 CG
+            # iterations, fitted to step 2's matrix 11 and 14 (a set-up of its own at each step: 12 and 11), for
+            # 0.08 s of CPU against a set-up's 0.2. A later step's hierarchy is a step closer: fitting it too saved
+            # 0-3 iterations (sphere1, coin1, cube1's step 3), about what it costs (benchmarks/RESULTS.md, s20-amg).
+            self.amg = self.amg.for_matrix(Hm.astype(PRECONDITIONER_DTYPE))
+            self.refreshes += 1
+            self._amg_matrix, self._amg_solve = weakref.ref(Hm), self.solves
         start = count[0]
-        x, _ = spla.cg(op, rhs, x0=x, rtol=rtol, maxiter=self.opts.cg_maxiter, M=self.amg, callback=cb)
+        x, _ = spla.cg(op, rhs, x0=x, rtol=rtol, maxiter=self.opts.cg_maxiter, M=self.amg.operator(), callback=cb)
         iters = max(count[0] - start, 1)
         achieved = float(np.linalg.norm(rhs - products.dot(x))) / max(float(np.linalg.norm(rhs)), 1e-300)
         if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > 0.85:
@@ -109,10 +132,19 @@ every Gauss-Newton step of sphere1 and cube1 took the same CG iterations, and th
 (benchmarks/RESULTS.md, s18-h)."""
 
 
-def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:
+def _amg_cycle(Hm: sp.csr_matrix) -> _VCycle:
     """A smoothed-aggregation AMG V-cycle for ``Hm`` (:func:`_hierarchy`, :class:`_VCycle`), in
     :data:`PRECONDITIONER_DTYPE`."""
-    return _VCycle(_hierarchy(Hm.astype(PRECONDITIONER_DTYPE))).operator()
+    return _VCycle(_hierarchy(Hm.astype(PRECONDITIONER_DTYPE)))
+
+
+def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:
+    """:func:`_amg_cycle` as a CG preconditioner."""
+    return _amg_cycle(Hm).operator()
+
+
+COARSE_SOLVER = "splu"
+"""pyamg's solver of the hierarchy's coarsest level (at most ``max_coarse`` = 300 unknowns)."""
 
 
 def _hierarchy(Hm: sp.csr_matrix) -> object:
@@ -134,7 +166,7 @@ def _hierarchy(Hm: sp.csr_matrix) -> object:
             Hm,
             symmetry="symmetric",
             max_coarse=300,
-            coarse_solver="splu",
+            coarse_solver=COARSE_SOLVER,
             improve_candidates=None,
             smooth=("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
         )
@@ -153,14 +185,40 @@ class _VCycle:
     inverse)."""
 
     def __init__(self, ml: object):
-        self.levels = ml.levels
-        self.coarse_solver = ml.coarse_solver
-        self.A = [level.A.tocsr() for level in self.levels]
-        self.R = [level.R.tocsr() for level in self.levels[:-1]]
-        self.P = [level.P.tocsr() for level in self.levels[:-1]]
+        self._set_levels(
+            [level.A.tocsr() for level in ml.levels],
+            [level.R.tocsr() for level in ml.levels[:-1]],
+            [level.P.tocsr() for level in ml.levels[:-1]],
+            ml.coarse_solver,
+        )
+
+    def _set_levels(self, A: list, R: list, P: list, coarse_solver: object) -> None:
+        self.A, self.R, self.P, self.coarse_solver = A, R, P, coarse_solver
         # the large levels' products, their smoothers' included, by row blocks on both cores
         self.products = [tuple(threads.RowBlocks(m) for m in ops) for ops in zip(self.A, self.R, self.P)]
-        self.smoothers = [_L1Jacobi.of(A, ops[0]) for A, ops in zip(self.A[:-1], self.products)]
+        self.smoothers = [_L1Jacobi.of(a, ops[0]) or _gauss_seidel for a, ops in zip(self.A[:-1], self.products)]
+
+    @property
+    def levels(self) -> list[sp.csr_matrix]:
+        """The level matrices, finest first."""
+        return self.A
+
+    def for_matrix(self, A: sp.csr_matrix) -> _VCycle:
+        """The cycle of this hierarchy's aggregates for another matrix ``A`` (CSR, SPD, this one's shape and
+        dtype): the same restrictions and prolongations, the coarse matrices their Galerkin products
+        ``R A P`` (:func:`_galerkin`), the smoothers and the coarse solver's factors made from those.
+
+        For the next Gauss-Newton step's matrix: weights and shading drift, the aggregates (the strength of
+        connections, the grid) hardly do. On a 640x480 level this costs about a third of a set-up (cube1 0.08 s
+        of CPU against 0.2 s) for the CG iterations of a set-up of its own (benchmarks/RESULTS.md). Symmetric
+        positive definite as any Galerkin hierarchy of an SPD matrix; the products by rows, the same bits on
+        any number of threads."""
+        levels = [A]
+        for R, P in zip(self.R, self.P):
+            levels.append(_galerkin(R, levels[-1], P))
+        cycle = object.__new__(_VCycle)
+        cycle._set_levels(levels, self.R, self.P, _coarse_solver())
+        return cycle
 
     def operator(self) -> spla.LinearOperator:
         return spla.LinearOperator(self.A[0].shape, matvec=self.apply, dtype=np.float64)
@@ -169,8 +227,8 @@ class _VCycle:
         """(n,) float64 -- the cycle's approximation of A^-1 b for (n,) ``b``, computed in the hierarchy's precision
         (``b`` rounded to it, the result widened back)."""
         b = np.ravel(b).astype(self.A[0].dtype, copy=False)
-        if len(self.levels) == 1:
-            x = self.coarse_solver(self.levels[0].A, b)
+        if len(self.A) == 1:
+            x = self.coarse_solver(self.A[0], b)
         else:
             x = np.zeros_like(b)
             self._cycle(0, x, b)
@@ -178,18 +236,56 @@ class _VCycle:
 
     def _cycle(self, k: int, x: np.ndarray, b: np.ndarray) -> None:
         """Improve ``x`` (in place) toward the solution of level k's system with right-hand side ``b``."""
-        A, level, (A_k, R_k, P_k) = self.A[k], self.levels[k], self.products[k]
-        presmoother = self.smoothers[k] or level.presmoother
-        postsmoother = self.smoothers[k] or level.postsmoother
-        presmoother(A, x, b)
+        A, smoother, (A_k, R_k, P_k) = self.A[k], self.smoothers[k], self.products[k]
+        smoother(A, x, b)
         coarse_b = R_k.dot(b - A_k.dot(x))
         coarse_x = np.zeros_like(coarse_b)
-        if k == len(self.levels) - 2:
-            coarse_x[:] = self.coarse_solver(self.levels[-1].A, coarse_b)
+        if k == len(self.A) - 2:
+            coarse_x[:] = self.coarse_solver(self.A[-1], coarse_b)
         else:
             self._cycle(k + 1, coarse_x, coarse_b)
         x += P_k.dot(coarse_x)
-        postsmoother(A, x, b)
+        smoother(A, x, b)
+
+
+def _galerkin(R: sp.csr_matrix, A: sp.csr_matrix, P: sp.csr_matrix) -> sp.csr_matrix:
+    """``R @ A @ P`` (CSR), computed as ``R @ (A @ P)`` with both products by row blocks on the pool's threads
+    (SciPy's sparse kernels release the GIL): each row of a product depends on that row of its left factor
+    alone, so the bits are those of one thread."""
+    return _by_rows(R, _by_rows(A, P))
+
+
+def _by_rows(L: sp.csr_matrix, M: sp.csr_matrix) -> sp.csr_matrix:
+    """``L @ M`` (CSR) by the row blocks of :class:`threads.RowBlocks` (none where there is one thread or ``L`` is
+    small: one product) on the pool, stacked by hand: SciPy's ``vstack`` checks and copies took longer than the
+    second thread saved."""
+    blocks = threads.RowBlocks(L).blocks
+    if not blocks:
+        return (L @ M).tocsr()
+    parts = threads.map_items(lambda block: (block[1] @ M).tocsr(), blocks)
+    indptr = [parts[0].indptr]
+    for part in parts[1:]:
+        indptr.append(part.indptr[1:] + indptr[-1][-1])
+    out = sp.csr_matrix((L.shape[0], M.shape[1]), dtype=parts[0].dtype)
+    out.data = np.concatenate([part.data for part in parts])
+    out.indices = np.concatenate([part.indices for part in parts])
+    out.indptr = np.concatenate(indptr)
+    return out
+
+
+def _gauss_seidel(A: sp.csr_matrix, x: np.ndarray, b: np.ndarray) -> None:
+    """One symmetric Gauss-Seidel sweep on ``x`` (in place) for ``A x = b``: the smaller levels' smoother, pyamg's
+    default for a smoothed-aggregation hierarchy (its ``block_gauss_seidel`` of 1x1 blocks is this)."""
+    from pyamg.relaxation.relaxation import gauss_seidel
+
+    gauss_seidel(A, x, b, iterations=1, sweep="symmetric")
+
+
+def _coarse_solver() -> object:
+    """The hierarchy's coarsest-level solver (a sparse LU, factored at its first call), as :func:`_hierarchy`'s."""
+    import pyamg
+
+    return pyamg.coarse_grid_solver(COARSE_SOLVER)
 
 
 SMOOTHER_MIN_ROWS = 50_000
@@ -229,8 +325,8 @@ class _L1Jacobi:
 
     @classmethod
     def of(cls, A: sp.csr_matrix, product: threads.RowBlocks) -> _L1Jacobi | None:
-        """The smoother of level matrix ``A`` (CSR, ``product`` its RowBlocks), or None where pyamg's own serves:
-        a level under :data:`SMOOTHER_MIN_ROWS` rows."""
+        """The smoother of level matrix ``A`` (CSR, ``product`` its RowBlocks), or None where symmetric Gauss-Seidel
+        (:func:`_gauss_seidel`) serves: a level under :data:`SMOOTHER_MIN_ROWS` rows."""
         return cls(A, product) if A.shape[0] >= SMOOTHER_MIN_ROWS else None
 
     def __call__(self, A: sp.csr_matrix, x: np.ndarray, b: np.ndarray) -> None:

@@ -209,7 +209,7 @@ def test_large_level_smoother_only_from_its_row_count(monkeypatch):
     monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
     cycle = krylov._VCycle(krylov._hierarchy(_laplacian(40)))  # 1600 rows, the next level under 1000
     assert isinstance(cycle.smoothers[0], krylov._L1Jacobi)
-    assert all(s is None for s in cycle.smoothers[1:])  # pyamg's symmetric Gauss-Seidel there
+    assert all(s is krylov._gauss_seidel for s in cycle.smoothers[1:])  # pyamg's symmetric Gauss-Seidel there
 
 
 def test_the_cycle_with_l1_jacobi_is_symmetric_positive_definite(monkeypatch):
@@ -291,3 +291,102 @@ def test_a_failed_jacobi_solve_is_not_tried_again():
     pcg.amg = None  # as after a drift: the hierarchy is rebuilt, Jacobi is not tried
     _, second = pcg.solve(H, rhs, 0.1)
     assert second < 3 and pcg.setups == 2
+
+
+def _weighted_laplacian(n: int, seed: int) -> sp.csr_matrix:
+    """A 2-D Laplacian on an n x n grid whose edges are weighted by a random positive field (as one Gauss-Newton
+    step's robust weights), plus a small shift: SPD; two seeds, two steps' matrices of one pattern."""
+    w = np.exp(np.random.default_rng(seed).standard_normal((n, n)))
+    diff = sp.diags([-1.0, 1.0], [0, 1], shape=(n - 1, n))
+    eye = sp.identity(n)
+    dx, dy = sp.kron(eye, diff), sp.kron(diff, eye)
+    wx, wy = sp.diags((w[:, :-1] + w[:, 1:]).ravel() / 2), sp.diags((w[:-1] + w[1:]).ravel() / 2)
+    return (dx.T @ wx @ dx + dy.T @ wy @ dy + 1e-3 * sp.identity(n * n)).tocsr()
+
+
+def test_a_hierarchy_for_another_matrix_is_its_galerkin_hierarchy(monkeypatch):
+    """``for_matrix``: the same transfers, the coarse matrices R A P of the new matrix (to rounding: pyamg multiplies
+    in another order), its own l1-Jacobi scaling, a coarse solver of its coarsest matrix; a symmetric positive
+    definite cycle; the same bits on one thread or two (the Galerkin products by row blocks)."""
+    from nlipscalib.solver import threads
+
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    A1, A2 = _weighted_laplacian(50, 0), _weighted_laplacian(50, 1)  # 2500 rows, three levels
+    first = krylov._VCycle(krylov._hierarchy(A1))
+    assert len(first.A) >= 3
+    again = first.for_matrix(A1)
+    for mine, pyamgs in zip(again.A, first.A):
+        np.testing.assert_allclose(mine.toarray(), pyamgs.toarray(), rtol=0, atol=1e-12 * abs(pyamgs).max())
+    b = np.random.default_rng(7).standard_normal(A1.shape[0])
+    np.testing.assert_allclose(again.apply(b), first.apply(b), rtol=0, atol=1e-10 * np.abs(first.apply(b)).max())
+
+    results, before = [], threads.workers()
+    for count in (1, 2):
+        threads.set_workers(count)
+        try:
+            cycle = first.for_matrix(A2)
+            results.append([m.toarray() for m in cycle.A] + [cycle.apply(b)])
+        finally:
+            threads.set_workers(before)
+    for one, two in zip(*results):
+        np.testing.assert_array_equal(one, two)
+    assert cycle.R is first.R and cycle.P is first.P and cycle.A[0] is A2
+    coarse = A2.toarray()
+    for k, (R, P) in enumerate(zip(first.R, first.P)):
+        coarse = R.toarray() @ coarse @ P.toarray()
+        np.testing.assert_allclose(cycle.A[k + 1].toarray(), coarse, rtol=0, atol=1e-12 * np.abs(coarse).max())
+    row_sums = np.abs(A2.toarray()).sum(axis=1)
+    np.testing.assert_allclose(cycle.smoothers[0].scale, krylov.SMOOTHER_OMEGA / row_sums, rtol=1e-14)
+    # the cycle's matrix (its columns) on a smaller pair: symmetric to rounding, positive definite
+    small = krylov._VCycle(krylov._hierarchy(_weighted_laplacian(34, 0))).for_matrix(_weighted_laplacian(34, 1))
+    M = np.column_stack([small.apply(e) for e in np.eye(small.A[0].shape[0])])
+    np.testing.assert_allclose(M, M.T, rtol=0, atol=1e-12 * np.abs(M).max())
+    assert len(small.A) >= 2 and np.linalg.eigvalsh((M + M.T) / 2).min() > 0
+
+
+def test_a_first_solves_hierarchy_is_fitted_to_the_second_solves_matrix(monkeypatch):
+    """The level's second Gauss-Newton matrix (other weights, one pattern): the hierarchy made in the first solve has
+    its level matrices made again from it, not a set-up, and CG converges within two iterations of a hierarchy of its
+    own, where the first matrix's levels took ten times as many. Later matrices keep the hierarchy as it is."""
+    from nlipscalib.solver.options import SolverOptions
+
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    A1, A2 = _weighted_laplacian(60, 0), _weighted_laplacian(60, 1)
+    A3 = (A2 + 1e-2 * sp.identity(A2.shape[0])).tocsr()  # a step later: closer
+    x_true = np.random.default_rng(8).standard_normal(A2.shape[0])
+    b = A2 @ x_true
+    rtol = 1e-8
+    pcg = krylov.Krylov(SolverOptions(cg_jacobi_iters=0))
+    pcg.solve(A1, A1 @ x_true, rtol)
+    first = pcg.amg
+    x, iters = pcg.solve(A2, b, rtol)
+    assert (pcg.setups, pcg.refreshes) == (1, 1) and pcg.amg is not first and pcg.amg.R is first.R
+    assert np.linalg.norm(A2 @ x - b) <= rtol * np.linalg.norm(b)
+    assert np.linalg.norm(x - x_true) <= 1e-5 * np.linalg.norm(x_true)
+
+    def iterations(M: spla.LinearOperator) -> int:
+        iterates = []
+        _, status = spla.cg(A2, b, rtol=rtol, M=M, callback=iterates.append, maxiter=1000)
+        assert status == 0
+        return len(iterates)
+
+    own = iterations(krylov._amg_preconditioner(A2))
+    stale = iterations(first.operator())
+    assert iters <= own + 2 and stale > 10 * iters
+    second = pcg.amg
+    x, _ = pcg.solve(A3, A3 @ x_true, rtol)  # the third matrix: the hierarchy kept as it is
+    assert pcg.amg is second and (pcg.setups, pcg.refreshes, pcg.solves) == (1, 1, 3)
+    assert np.linalg.norm(A3 @ x - A3 @ x_true) <= rtol * np.linalg.norm(A3 @ x_true)
+
+
+def test_a_first_solves_hierarchy_is_not_fitted_to_its_own_matrix_again():
+    from nlipscalib.solver.options import SolverOptions
+
+    A = _weighted_laplacian(30, 0)
+    b = np.ones(A.shape[0])
+    pcg = krylov.Krylov(SolverOptions(cg_jacobi_iters=0))
+    pcg.solve(A, b, 1e-6)
+    first = pcg.amg
+    pcg.solve(A, b, 1e-8)
+    assert pcg.amg is first and (pcg.setups, pcg.refreshes) == (1, 0)
