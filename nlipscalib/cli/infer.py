@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
 from ._stream import (
@@ -392,13 +392,13 @@ def _run_stills(args: argparse.Namespace) -> int:
     if sum(is_kept for _, is_kept in looked.values()) == len(frames):
         # a finished run again: said at once, without loading the model (torch or onnxruntime: seconds)
         print(_stills_summary(args, None, [], len(frames), time.perf_counter() - t_start))
-        print(_where_saved(saved, bool(args.ply or args.mesh)))
+        print(_where_saved(saved, {folder for folder, _ in saved}, bool(args.ply or args.mesh)))
         return 0
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     settings = output_settings(args, predictor)
     if settings != early:  # the model file replaced since it was read above: what was looked at is looked at again
         looked = {}
-    inner, kept = [], 0
+    inner, kept = [], set()
     for name, load, press_folder, source in frames:
         folder = _destination(args, name, press_folder)
         provenance, is_kept = looked.get(folder, (None, False))
@@ -406,7 +406,7 @@ def _run_stills(args: argparse.Namespace) -> int:
             provenance = still_provenance(settings, input_identity(press_folder, source))
             is_kept = _kept(folder, provenance)
         if is_kept:
-            kept += 1
+            kept.add(folder)
             continue
         result = predictor.predict(load(predictor))
         if why := mismatch_warning(result, source):
@@ -415,9 +415,9 @@ def _run_stills(args: argparse.Namespace) -> int:
         if folder is not None:
             provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
             _save(args, predictor, result, name, folder, provenance)
-    print(_stills_summary(args, predictor, inner, kept, time.perf_counter() - t_start))
+    print(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
     if saved:
-        print(_where_saved(saved, bool(args.ply or args.mesh)))
+        print(_where_saved(saved, kept, bool(args.ply or args.mesh)))
     return 0
 
 
@@ -453,11 +453,13 @@ def _look_before_loading(
     return looked
 
 
-def _where_saved(saved: Sequence[tuple[Path, bool]], ply: bool) -> str:
+def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply: bool) -> str:
     """Where the stills' results are (a new user looked for them after the frame-rate line): one folder each.
 
-    ``saved``: (result folder, whether it is a press's) of every input written; frames' and presses' are said
-    apart when both are there (a frame's is OUT/FRAME, a press's OUT/PRESS/nlipsnet or PRESS/nlipsnet)."""
+    ``saved``: (result folder, whether it is a press's) of every input with a result folder; frames' and
+    presses' are said apart when both are there (a frame's is OUT/FRAME, a press's OUT/PRESS/nlipsnet or
+    PRESS/nlipsnet). ``kept``: those of them left as they were (identical results): the line counts them apart
+    from the ones written (it said "saved" of a re-run that wrote nothing)."""
     frames = [folder for folder, press in saved if not press]
     presses = [folder for folder, press in saved if press]
     if frames and presses:
@@ -465,7 +467,14 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], ply: bool) -> str:
     else:
         where = f" in {_where(frames or presses)}"
     files = "result.npz, report.json" + (", points.ply" if ply else "")
-    return f"saved: {len(saved)} result folder(s){where} ({files}; nlips eval scores them)"
+    written = len(saved) - len(kept)
+    if not kept:
+        counts = f"saved: {written} result folder(s)"
+    elif not written:
+        counts = f"kept: {len(kept)} result folder(s) as they were (nothing written)"
+    else:
+        counts = f"saved: {written} result folder(s), kept {len(kept)} as they were, {len(saved)} in all"
+    return f"{counts}{where} ({files}; nlips eval scores them)"
 
 
 def _where(folders: Sequence[Path]) -> str:

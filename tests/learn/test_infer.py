@@ -690,10 +690,11 @@ def test_a_finished_run_again_says_so_without_loading_the_model(tiny_model, tmp_
 
     lines = again()
     assert lines[0].startswith("0 frame(s) inferred, 4 kept (identical results; --overwrite infers them again)")
-    assert lines[1].startswith("saved: 4 result folder(s)") and lines[-1] == "[]", lines
+    assert lines[1].startswith("kept: 4 result folder(s) as they were (nothing written)") and lines[-1] == "[]", lines
     shutil.rmtree(out / "c_sphere_deep")  # one result to make: the model is loaded, the others still kept
     lines = again()
     assert lines[0].startswith("1 frame(s) inferred, 3 kept") and lines[-1] != "[]", lines
+    assert lines[1].startswith("saved: 1 result folder(s), kept 3 as they were, 4 in all: 3 for frames in "), lines
 
 
 def test_overwrite_is_refused_for_a_stream(capsys):
@@ -740,9 +741,10 @@ def test_a_frame_and_a_press_of_one_name_are_refused_before_anything_is_written(
 
 def test_the_saved_line_says_where_frames_and_presses_results_are(tiny_model, tmp_path, capsys):
     """A mix of frames and a press said "saved: 4 result folder(s) in each press's a_sphere/ (e.g. OUT/a_sphere)",
-    a frame's folder named as a press's. Now frames and presses are said apart, inferred or all kept."""
+    a frame's folder named as a press's. Now frames and presses are said apart, inferred or all kept; a re-run that
+    keeps every result says so (it said "saved: 4 result folder(s)" of results it did not write)."""
     command, out = _frames_and_a_press(tiny_model, tmp_path)
-    line = f"saved: 4 result folder(s): 3 for frames in {out}/, 1 for presses in {out / 'press'}/ (result.npz, "
-    for _ in range(2):  # inferred, then all kept (said without loading the model)
-        assert main(command) == 0
-        assert capsys.readouterr().out.splitlines()[1].startswith(line)
+    where = f": 3 for frames in {out}/, 1 for presses in {out / 'press'}/ (result.npz, "
+    for counts in ("saved: 4 result folder(s)", "kept: 4 result folder(s) as they were (nothing written)"):
+        assert main(command) == 0  # inferred, then all kept (said without loading the model)
+        assert capsys.readouterr().out.splitlines()[1].startswith(counts + where)
