@@ -473,7 +473,7 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
     elif not written:
         counts = f"kept: {len(kept)} result folder(s) as they were (nothing written)"
     else:
-        counts = f"saved: {written} result folder(s), kept {len(kept)} as they were, {len(saved)} in all"
+        counts = f"saved: {written} result folder(s), kept {len(kept)} as they were; all {len(saved)}"
     return f"{counts}{where} ({files}; nlips eval scores them)"
 
 

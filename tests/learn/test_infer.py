@@ -694,7 +694,7 @@ def test_a_finished_run_again_says_so_without_loading_the_model(tiny_model, tmp_
     shutil.rmtree(out / "c_sphere_deep")  # one result to make: the model is loaded, the others still kept
     lines = again()
     assert lines[0].startswith("1 frame(s) inferred, 3 kept") and lines[-1] != "[]", lines
-    assert lines[1].startswith("saved: 1 result folder(s), kept 3 as they were, 4 in all: 3 for frames in "), lines
+    assert lines[1].startswith("saved: 1 result folder(s), kept 3 as they were; all 4: 3 for frames in "), lines
 
 
 def test_overwrite_is_refused_for_a_stream(capsys):
