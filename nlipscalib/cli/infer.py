@@ -379,6 +379,7 @@ def _write_stream_report(
 def _run_stills(args: argparse.Namespace) -> int:
     import time
 
+    from ..core.errors import CaptureError
     from ..learn.infer import mismatch_warning
     from ..progress import track
     from ._stream import nlipsnet_predictor
@@ -399,27 +400,44 @@ def _run_stills(args: argparse.Namespace) -> int:
     settings = output_settings(args, predictor)
     if settings != early:  # the model file replaced since it was read above: what was looked at is looked at again
         looked = {}
-    inner, kept = [], set()
+    inner, kept, failed = [], set(), {}
     # a bar on a terminal (a folder of 300 frames ran 10 s without a sign of life); quiet elsewhere (progress)
     for name, load, press_folder, source in track(frames, enabled=len(frames) > 1, desc="inferring", unit="frame"):
         folder = _destination(args, name, press_folder)
-        provenance, is_kept = looked.get(folder, (None, False))
-        if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
-            provenance = still_provenance(settings, input_identity(press_folder, source))
-            is_kept = _kept(folder, provenance)
-        if is_kept:
-            kept.add(folder)
+        try:
+            provenance, is_kept = looked.get(folder, (None, False))
+            if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
+                provenance = still_provenance(settings, input_identity(press_folder, source))
+                is_kept = _kept(folder, provenance)
+            if is_kept:
+                kept.add(folder)
+                continue
+            frame = load(predictor)
+            if folder is not None:
+                provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
+        except CaptureError as exc:
+            if len(frames) == 1:
+                raise
+            # a damaged or foreign input of many: said, and the others inferred, as `nlips solve DATASET` goes on
+            # (the first one stopped the whole run, leaving every input after it undone)
+            log.error("%s", exc)
+            failed[source] = (folder, str(exc))
             continue
-        result = predictor.predict(load(predictor))
+        result = predictor.predict(frame)
         if why := mismatch_warning(result, source):
             log.warning("%s", why)
         inner.append(result.seconds["total"])
         if folder is not None:
-            provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
             _save(args, predictor, result, name, folder, provenance)
     print(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
-    if saved:
-        print(_where_saved(saved, kept, bool(args.ply or args.mesh)))
+    not_written = {folder for folder, _ in failed.values()}
+    if written := [(folder, press) for folder, press in saved if folder not in not_written]:
+        print(_where_saved(written, kept, bool(args.ply or args.mesh)))
+    if failed:
+        print(f"failed: {len(failed)} of {len(frames)} input(s), not inferred (run again once fixed: the rest is kept)")
+        for source, (_, why) in failed.items():
+            print(f"  {source}: {why}")
+        return 1
     return 0
 
 
@@ -443,12 +461,17 @@ def _look_before_loading(
     """{result folder: (provenance, kept)} of the inputs, in order, up to the first one to infer (then the model
     is loaded anyway, and each of the others is looked at as it comes): every input when a re-run finds all its
     results kept (:func:`_kept`). Empty with --overwrite, or when the first input has no result to keep."""
+    from ..core.errors import CaptureError
+
     looked = {}
     for name, _, press_folder, source in frames:
         folder = _destination(args, name, press_folder)
         if folder is None or args.overwrite or not _has_entries(folder):
             break
-        provenance = still_provenance(settings, input_identity(press_folder, source))
+        try:
+            provenance = still_provenance(settings, input_identity(press_folder, source))
+        except CaptureError:  # a damaged input: said by the loop over the inputs, with the model loaded
+            break
         looked[folder] = (provenance, _kept(folder, provenance))
         if not looked[folder][1]:
             break

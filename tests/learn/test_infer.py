@@ -771,3 +771,29 @@ def test_stills_show_a_bar_on_a_terminal_and_none_elsewhere(tiny_model, tmp_path
     finally:
         progress.configure(progress=True)
     assert "\r" in tty.getvalue() and "inferring: 100%" in tty.getvalue() and "4/4" in tty.getvalue(), tty.getvalue()
+
+
+def test_a_damaged_input_among_many_is_said_and_the_others_are_inferred(tiny_model, tmp_path, capsys, caplog):
+    """`nlips infer MODEL DATASET` stopped at the first damaged press or frame (one line, exit 2), leaving every
+    input after it undone, where `nlips solve DATASET` solves the others. Now each damaged input is one line, the
+    others are inferred, the closing lines count them apart and the exit status is 1; a re-run keeps what was
+    made. A single damaged input is still the one line, exit 2."""
+    from tests.learn.test_resume import NAMES
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    damaged = tmp_path / "frames" / f"{NAMES[0]}.png"  # the first input: every other one came after it
+    damaged.write_bytes(damaged.read_bytes()[:300])
+    assert main(command) == 1
+    said = capsys.readouterr()
+    lines = said.out.splitlines()
+    assert lines[0].startswith("3 frame(s), torch") and lines[1].startswith("saved: 3 result folder(s): 2 for frames")
+    assert lines[2] == "failed: 1 of 4 input(s), not inferred (run again once fixed: the rest is kept)", lines
+    assert lines[3] == f"  {damaged}: {damaged}: truncated PNG image (cut short: copy or capture it again)", lines
+    assert f"{damaged}: truncated PNG image" in caplog.text and "Traceback" not in said.err + caplog.text
+    assert sorted(p.name for p in out.iterdir()) == sorted([*NAMES[1:], "press"])
+    assert (out / "press" / "nlipsnet" / "result.npz").is_file()
+    assert main(command) == 1  # again: the others kept, the damaged one said again
+    assert capsys.readouterr().out.splitlines()[1].startswith("kept: 3 result folder(s) as they were")
+    assert main(["infer", command[1], str(damaged), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"nlips infer: error: {damaged}: truncated PNG image (cut short: copy or capture it again)"], err
