@@ -145,6 +145,10 @@ class Operator:
         self.echo = echo
 
     def _say(self, text: str) -> None:
+        with _above_the_bar():
+            self._prompt(text)
+
+    def _prompt(self, text: str) -> None:
         if self.interactive:
             if sys.stdin.isatty() and sys.stdout.isatty():
                 # input() then writes the prompt to the terminal itself, past the copy of stdout that --log-file
@@ -170,7 +174,19 @@ class Operator:
         self._say(f"{what}: {reason}; hold still, retaking.")
 
     def release(self, index: int) -> None:
-        self.echo(f"Press {index} captured: release.")
+        with _above_the_bar():
+            self.echo(f"Press {index} captured: release.")
+
+
+def _above_the_bar() -> contextlib.AbstractContextManager:
+    """Clear the session's progress bar (a terminal's) while the operator reads a line, then draw it again below.
+
+    Why: the bar leaves the cursor at its end, so on a terminal each prompt was written onto the bar's line
+    ("capture:  33%|####      | 1/3 [00:00<00:01, 1.56press/s]Press 1/2: press the object now, hold still.").
+    No lock is held (``nolock``): input() may wait for the operator a long time."""
+    from tqdm import tqdm
+
+    return tqdm.external_write_mode(nolock=True)
 
 
 def frame_sequence(n_leds: int, cfg: SessionConfig) -> list[tuple[str, np.ndarray]]:
