@@ -387,8 +387,6 @@ def _run_stills(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     frames = list(_frames(args.inputs))
     saved = _check_destinations(args, frames)
-    if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
-        log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
     early = _settings_before_loading(args)
     looked = _look_before_loading(args, frames, early) if early is not None else {}
     if sum(is_kept for _, is_kept in looked.values()) == len(frames):
@@ -397,6 +395,9 @@ def _run_stills(args: argparse.Namespace) -> int:
         print(_where_saved(saved, {folder for folder, _ in saved}, bool(args.ply or args.mesh)))
         return 0
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
+    if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
+        # said once the model loaded: before, a missing or damaged model's one error line came after it
+        log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
     settings = output_settings(args, predictor)
     if settings != early:  # the model file replaced since it was read above: what was looked at is looked at again
         looked = {}

@@ -797,3 +797,17 @@ def test_a_damaged_input_among_many_is_said_and_the_others_are_inferred(tiny_mod
     assert main(["infer", command[1], str(damaged), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"nlips infer: error: {damaged}: truncated PNG image (cut short: copy or capture it again)"], err
+
+
+def test_a_missing_model_with_frames_without_out_is_the_one_error_line(tiny_model, tmp_path, capsys, caplog):
+    """`nlips infer nomodel.pt frame.png` warned "image frames without --out: their results are not written" and
+    then failed on the model: a warning about results of a run that could not start. Now the one error line alone;
+    the warning still comes when the model loads."""
+    _, root = tiny_model
+    frame = root / "a_sphere" / "tricolor.png"
+    assert main(["infer", str(tmp_path / "nomodel.pt"), str(frame)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("nlips infer: error: ") and "nomodel.pt" in err[0], err
+    assert "without --out" not in caplog.text
+    assert main(["infer", str(tiny_model[0]), str(frame)]) == 0
+    assert "image frames without --out: their results are not written" in caplog.text
