@@ -811,3 +811,22 @@ def test_a_missing_model_with_frames_without_out_is_the_one_error_line(tiny_mode
     assert "without --out" not in caplog.text
     assert main(["infer", str(tiny_model[0]), str(frame)]) == 0
     assert "image frames without --out: their results are not written" in caplog.text
+
+
+def test_a_press_folder_as_out_is_refused_before_anything_is_written(tiny_model, tmp_path, capsys):
+    """`nlips infer MODEL FRAMES --out PRESS` wrote the frames' result folders (a stream: its frame_N.npz files)
+    in among the press's images, exit 0, as `nlips capture`, `dataset` and `demo` no longer do. Now one line."""
+    import shutil
+
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    press = tmp_path / "press"
+    shutil.copytree(root / NAMES[0], press, ignore=shutil.ignore_patterns("nlips*"))
+    before = sorted(p.name for p in press.iterdir())
+    frame = str(root / NAMES[1] / "tricolor.png")
+    for inputs in ([frame], ["--camera", str(root / NAMES[1] / "tricolor.png")]):
+        assert main(["infer", str(model), *inputs, "--out", str(press)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{press}: is a press folder (it has meta.json); write the results into" in err[0]
+        assert sorted(p.name for p in press.iterdir()) == before
