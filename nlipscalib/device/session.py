@@ -53,8 +53,6 @@ REFERENCE_NAME = REFERENCE_FOLDER  # the name every folder of presses uses (core
 """Folder of the undeformed sensor's capture inside a session."""
 SESSION_FILE = "session.json"
 """The session's description (camera, LEDs, settings), written when the session starts."""
-SESSION_CLAIM = "session"
-"""Name the capture writing a session folder claims it under (``FOLDER/.claim-session``, core.claims)."""
 
 
 def press_name(index: int) -> str:
@@ -368,34 +366,27 @@ def claim_session(out: str | Path) -> Iterator[None]:
 
     Why: two captures started into one folder (two terminals, the emulator and the sensor) each captured what
     the other had not published yet: the session mixed both runs' presses under one reference, and the run that
-    lost a press's rename failed with "FOLDER/press_0002: already exists". A killed capture's claim goes stale
-    (core.claims), so a run after it resumes. A folder that cannot hold a claim file (read-only media, disk full)
-    is not held: nothing can be captured there either, and the write says why in its own words.
+    lost a press's rename failed with "FOLDER/press_0002: already exists". The claim is ``out``'s hidden sibling
+    (``.claim-NAME``, core.claims), so a capture refused or stopped before it captured leaves no folder. A killed
+    capture's claim goes stale, so a run after it resumes. A folder that cannot hold a claim file (read-only
+    media, disk full) is not held: nothing can be captured there either, and the write says why in its own words.
     """
     from ..core.claims import UNKNOWN_OWNER, claim, holder
 
     out = Path(out)
     with contextlib.ExitStack() as stack:
-        if not out.exists():  # a capture refused later (an option its sensor rejects) leaves no empty folder
-            stack.callback(_remove_if_empty, out)
         try:
-            held = stack.enter_context(claim(out / SESSION_CLAIM))
+            held = stack.enter_context(claim(out))
         except OSError as exc:
             log.debug("%s: not claimed (%s)", out, exc.strerror or exc)
             held = True
         if not held:
-            other = holder(out / SESSION_CLAIM)
+            other = holder(out)
             raise ConfigError(
                 f"{out}: another capture is writing this session ({(other or UNKNOWN_OWNER).who}); wait until it "
                 "ends (then run again to resume it), or capture into another --out folder"
             )
         yield
-
-
-def _remove_if_empty(folder: Path) -> None:
-    """Remove ``folder`` when nothing was written into it (another process may have: then it stays)."""
-    with contextlib.suppress(OSError):
-        folder.rmdir()
 
 
 def _damaged(folder: Path) -> str:

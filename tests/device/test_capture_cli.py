@@ -79,7 +79,6 @@ def test_a_second_capture_into_a_session_being_captured_is_refused_before_it_cap
 
     from nlipscalib.core import Camera
     from nlipscalib.core.claims import claim
-    from nlipscalib.device.session import SESSION_CLAIM
     from nlipscalib.device.virtual_board import VirtualBoard
 
     camera = Camera.from_fov(64, 48, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
@@ -92,15 +91,16 @@ def test_a_second_capture_into_a_session_being_captured_is_refused_before_it_cap
     out = tmp_path / "s"
     args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes", "--presses"]
     args += ["1", "--camera-calibration", str(tmp_path / "camera.json"), "--out", str(out)]
-    with claim(out / SESSION_CLAIM) as held:  # the capture already at work there (this process: it is alive)
+    with claim(out) as held:  # the capture already at work there (this process: it is alive)
         assert held
         assert main(args) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"{out}: another capture is writing this session (process {os.getpid()} on " in err[0]
-        assert sorted(p.name for p in out.iterdir()) == [".claim-session"] and board.latched.sum() == 0
+        assert not out.exists() and board.latched.sum() == 0
     assert main(args) == 0
     assert "press_0001: captured" in capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["press_0001", "reference", "session.json"]  # claim released
+    assert sorted(p.name for p in out.iterdir()) == ["press_0001", "reference", "session.json"]
+    assert not (tmp_path / ".claim-s").exists()  # released
 
 
 @pytest.mark.parametrize(
