@@ -374,14 +374,15 @@ def claim_session(out: str | Path) -> Iterator[None]:
     from ..core.claims import UNKNOWN_OWNER, claim, holder
 
     out = Path(out)
+    target = out.resolve()  # "--out ." is named by the folder's own name in its parent
     with contextlib.ExitStack() as stack:
         try:
-            held = stack.enter_context(claim(out))
+            held = stack.enter_context(claim(target))
         except OSError as exc:
             log.debug("%s: not claimed (%s)", out, exc.strerror or exc)
             held = True
         if not held:
-            other = holder(out)
+            other = holder(target)
             raise ConfigError(
                 f"{out}: another capture is writing this session ({(other or UNKNOWN_OWNER).who}); wait until it "
                 "ends (then run again to resume it), or capture into another --out folder"
