@@ -493,6 +493,8 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
     else:
         where = f" in {_where(frames or presses)}"
     files = "result.npz, report.json" + (", points.ply" if ply else "")
+    # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
+    scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
     written = len(saved) - len(kept)
     if not kept:
         counts = f"saved: {written} result folder(s)"
@@ -500,7 +502,7 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
         counts = f"kept: {len(kept)} result folder(s) as they were (nothing written)"
     else:
         counts = f"saved: {written} result folder(s), kept {len(kept)} as they were; all {len(saved)}"
-    return f"{counts}{where} ({files}; nlips eval scores them)"
+    return f"{counts}{where} ({files}; {scores})"
 
 
 def _where(folders: Sequence[Path]) -> str:

@@ -830,3 +830,18 @@ def test_a_press_folder_as_out_is_refused_before_anything_is_written(tiny_model,
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"{press}: is a press folder (it has meta.json); write the results into" in err[0]
         assert sorted(p.name for p in press.iterdir()) == before
+
+
+def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tmp_path, capsys):
+    """`nlips infer MODEL FRAMES --out DIR` said "nlips eval scores them", and `nlips eval DIR` then said only "DIR:
+    no press folders found". Now the saved line and eval's error both name the way: `nlips eval PRESS --result`."""
+    command, _ = _frames_and_a_press(tiny_model, tmp_path)
+    out = tmp_path / "frames-out"
+    assert main(["infer", command[1], command[2], "--out", str(out)]) == 0
+    assert "; a frame's: nlips eval PRESS --result FOLDER)" in capsys.readouterr().out
+    assert main(["eval", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        len(err) == 1 and f"{out}: no press folders found ({out} holds results of image frames, e.g. a_sphere" in err[0]
+    )
+    assert f"`nlips eval PRESS --result {out / 'a_sphere'}`" in err[0], err
