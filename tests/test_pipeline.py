@@ -113,6 +113,20 @@ def test_an_identity_hashed_in_the_background_is_the_one_a_later_call_gets_witho
         capture_identity(tmp_path / "nowhere")
 
 
+def test_a_file_missing_from_a_press_is_named_as_the_folder_was_given(press, tmp_path, monkeypatch):
+    """`nlips solve out/cs` said "/tmp/.../out/cs/press_0001/tricolor.png: listed in meta.json but missing": the
+    resolved path the identity is cached under, where every other line names the folder as typed."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.pipeline import capture_identity
+
+    shutil.copytree(press, tmp_path / "presses" / "p")
+    (tmp_path / "presses" / "p" / "tricolor.png").unlink()
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(CaptureError) as caught:
+        capture_identity("presses/p")
+    assert str(caught.value) == "presses/p/tricolor.png: listed in meta.json but missing"
+
+
 def test_damaged_result_is_recomputed_with_a_warning(press, caplog):
     solve_folder(press, options=FAST, figures=False)
     npz = press / "nlips" / "result.npz"

@@ -131,9 +131,19 @@ def _live_camera(args: argparse.Namespace) -> bool:
 
 def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
     """``--every`` >= 1 (0 would keep every frame), and said to do nothing without ``out`` (the output folder
-    flag's value); ``--threads`` >= 0 (0: the default). Shared with infer."""
-    from ..core.config import check_count
+    flag's value); ``--threads`` >= 0 (0: the default); ``out`` not a press folder. Shared with infer."""
+    from pathlib import Path
 
+    from ..core.capture import META_FILE, is_press_folder
+    from ..core.config import check_count
+    from ..core.errors import ConfigError
+
+    if out and is_press_folder(Path(out)):
+        # the frames' results went in among its images, exit 0 (`nlips capture`, `dataset` and `demo` refuse it too)
+        raise ConfigError(
+            f"{out}: is a press folder (it has {META_FILE}); write the results into another folder (a press's own "
+            "NLiPsNet result goes to PRESS/nlipsnet when no --out is given)"
+        )
     fill_defaults(args, {"every": 1})
     check_count("--every", args.every, minimum=1)
     check_count("--threads", args.threads, minimum=0)

@@ -437,13 +437,15 @@ def _leds(args: argparse.Namespace, camera: Camera, design: SensorDesign) -> tup
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from ..device.session import claim_session
     from .folders import check_not_in_press
 
     emulate_behind_port(args)
     check_options(args)
     check_not_in_press(Path(args.out), "capture the session")  # before the sensor (or its emulator) starts
     t0 = time.perf_counter()
-    status = _run_emulated(args) if args.emulate else _run_device(args)
+    with claim_session(args.out):  # another capture writing the folder: refused before the sensor starts
+        status = _run_emulated(args) if args.emulate else _run_device(args)
     for name, rec in status.items():
         if rec == "kept":
             print(f"{name}: kept (already captured)")

@@ -127,7 +127,15 @@ def _results_hint(path: Path) -> str:
         return ""
     found = next((d / m for d in sorted(path.iterdir()) for m in METHODS if has_reconstruction(d / m)), None)
     if found is None:
-        return ""
+        # `nlips infer MODEL FRAMES --out DIR` writes DIR/FRAME: a frame carries no ground truth, its press does
+        # (the bare "no press folders found" left the user guessing, after `nlips infer` said eval scores them)
+        frame = next((d for d in sorted(path.iterdir()) if has_reconstruction(d)), None)
+        if frame is None:
+            return ""
+        return (
+            f" ({path} holds results of image frames, e.g. {frame.name}, which carry no ground truth): score one "
+            f"against the press its frame shows with `nlips eval PRESS --result {frame}`"
+        )
     return (
         f" ({path} holds results, e.g. {found.relative_to(path)}): score them against their presses with "
         f"`nlips eval PRESSES --result {path}`"

@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
 from ._stream import (
@@ -379,45 +379,66 @@ def _write_stream_report(
 def _run_stills(args: argparse.Namespace) -> int:
     import time
 
+    from ..core.errors import CaptureError
     from ..learn.infer import mismatch_warning
+    from ..progress import track
     from ._stream import nlipsnet_predictor
 
     t_start = time.perf_counter()
     frames = list(_frames(args.inputs))
     saved = _check_destinations(args, frames)
-    if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
-        log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
     early = _settings_before_loading(args)
     looked = _look_before_loading(args, frames, early) if early is not None else {}
     if sum(is_kept for _, is_kept in looked.values()) == len(frames):
         # a finished run again: said at once, without loading the model (torch or onnxruntime: seconds)
         print(_stills_summary(args, None, [], len(frames), time.perf_counter() - t_start))
-        print(_where_saved(saved, bool(args.ply or args.mesh)))
+        print(_where_saved(saved, {folder for folder, _ in saved}, bool(args.ply or args.mesh)))
         return 0
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
+    if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
+        # said once the model loaded: before, a missing or damaged model's one error line came after it
+        log.warning("image frames without --out: their results are not written (give --out DIR to keep them)")
     settings = output_settings(args, predictor)
     if settings != early:  # the model file replaced since it was read above: what was looked at is looked at again
         looked = {}
-    inner, kept = [], 0
-    for name, load, press_folder, source in frames:
+    inner, kept, failed = [], set(), {}
+    # a bar on a terminal (a folder of 300 frames ran 10 s without a sign of life); quiet elsewhere (progress)
+    for name, load, press_folder, source in track(frames, enabled=len(frames) > 1, desc="inferring", unit="frame"):
         folder = _destination(args, name, press_folder)
-        provenance, is_kept = looked.get(folder, (None, False))
-        if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
-            provenance = still_provenance(settings, input_identity(press_folder, source))
-            is_kept = _kept(folder, provenance)
-        if is_kept:
-            kept += 1
+        try:
+            provenance, is_kept = looked.get(folder, (None, False))
+            if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
+                provenance = still_provenance(settings, input_identity(press_folder, source))
+                is_kept = _kept(folder, provenance)
+            if is_kept:
+                kept.add(folder)
+                continue
+            frame = load(predictor)
+            if folder is not None:
+                provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
+        except CaptureError as exc:
+            if len(frames) == 1:
+                raise
+            # a damaged or foreign input of many: said, and the others inferred, as `nlips solve DATASET` goes on
+            # (the first one stopped the whole run, leaving every input after it undone)
+            log.error("%s", exc)
+            failed[source] = (folder, str(exc))
             continue
-        result = predictor.predict(load(predictor))
+        result = predictor.predict(frame)
         if why := mismatch_warning(result, source):
             log.warning("%s", why)
         inner.append(result.seconds["total"])
         if folder is not None:
-            provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
             _save(args, predictor, result, name, folder, provenance)
-    print(_stills_summary(args, predictor, inner, kept, time.perf_counter() - t_start))
-    if saved:
-        print(_where_saved(saved, bool(args.ply or args.mesh)))
+    print(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
+    not_written = {folder for folder, _ in failed.values()}
+    if written := [(folder, press) for folder, press in saved if folder not in not_written]:
+        print(_where_saved(written, kept, bool(args.ply or args.mesh)))
+    if failed:
+        print(f"failed: {len(failed)} of {len(frames)} input(s), not inferred (run again once fixed: the rest is kept)")
+        for source, (_, why) in failed.items():
+            print(f"  {source}: {why}")
+        return 1
     return 0
 
 
@@ -441,23 +462,30 @@ def _look_before_loading(
     """{result folder: (provenance, kept)} of the inputs, in order, up to the first one to infer (then the model
     is loaded anyway, and each of the others is looked at as it comes): every input when a re-run finds all its
     results kept (:func:`_kept`). Empty with --overwrite, or when the first input has no result to keep."""
+    from ..core.errors import CaptureError
+
     looked = {}
     for name, _, press_folder, source in frames:
         folder = _destination(args, name, press_folder)
         if folder is None or args.overwrite or not _has_entries(folder):
             break
-        provenance = still_provenance(settings, input_identity(press_folder, source))
+        try:
+            provenance = still_provenance(settings, input_identity(press_folder, source))
+        except CaptureError:  # a damaged input: said by the loop over the inputs, with the model loaded
+            break
         looked[folder] = (provenance, _kept(folder, provenance))
         if not looked[folder][1]:
             break
     return looked
 
 
-def _where_saved(saved: Sequence[tuple[Path, bool]], ply: bool) -> str:
+def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply: bool) -> str:
     """Where the stills' results are (a new user looked for them after the frame-rate line): one folder each.
 
-    ``saved``: (result folder, whether it is a press's) of every input written; frames' and presses' are said
-    apart when both are there (a frame's is OUT/FRAME, a press's OUT/PRESS/nlipsnet or PRESS/nlipsnet)."""
+    ``saved``: (result folder, whether it is a press's) of every input with a result folder; frames' and
+    presses' are said apart when both are there (a frame's is OUT/FRAME, a press's OUT/PRESS/nlipsnet or
+    PRESS/nlipsnet). ``kept``: those of them left as they were (identical results): the line counts them apart
+    from the ones written (it said "saved" of a re-run that wrote nothing)."""
     frames = [folder for folder, press in saved if not press]
     presses = [folder for folder, press in saved if press]
     if frames and presses:
@@ -465,7 +493,16 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], ply: bool) -> str:
     else:
         where = f" in {_where(frames or presses)}"
     files = "result.npz, report.json" + (", points.ply" if ply else "")
-    return f"saved: {len(saved)} result folder(s){where} ({files}; nlips eval scores them)"
+    # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
+    scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
+    written = len(saved) - len(kept)
+    if not kept:
+        counts = f"saved: {written} result folder(s)"
+    elif not written:
+        counts = f"kept: {len(kept)} result folder(s) as they were (nothing written)"
+    else:
+        counts = f"saved: {written} result folder(s), kept {len(kept)} as they were; all {len(saved)}"
+    return f"{counts}{where} ({files}; {scores})"
 
 
 def _where(folders: Sequence[Path]) -> str:

@@ -16,7 +16,6 @@ import os
 import re
 import secrets
 import shutil
-import tempfile
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -54,6 +53,18 @@ DIR_MODE = 0o777 & ~_UMASK
 def tmp_prefix(name: str) -> str:
     """Prefix of this process's temporary entries for item ``name``."""
     return f"{TMP_PREFIX}{name}{OWNER_SEP}{HOST}{OWNER_SEP}{os.getpid()}{OWNER_SEP}"
+
+
+def _temporary_name(final: Path) -> Path:
+    """A name for this process's new temporary entry of ``final`` (``.tmp-NAME~host~pid~RANDOM`` beside it); no
+    entry is made.
+
+    Why not ``tempfile.mkstemp``/``mkdtemp``: they make the entry and only then return its name, so a Ctrl-C
+    landing between (its KeyboardInterrupt raised as the mkdir returns) left a temporary no one knew to remove:
+    3 of 16 Ctrl-C of `nlips infer FRAMES --out DIR` left a ``.tmp-FRAME~...`` in DIR. Callers register the
+    name in :data:`_IN_PROGRESS` and make the entry inside the ``try`` that removes it, so every moment it exists
+    it is known. 48 random bits under this process's own prefix: no other entry has the name."""
+    return final.parent / (tmp_prefix(final.name) + secrets.token_hex(6))
 
 
 def named_target(path: str | Path) -> Path:
@@ -125,11 +136,10 @@ def write_by_name(path: str | Path, write: Callable[[Path], object]) -> Path:
     """
     path = Path(path)
     _make_folder(path.parent)
-    fd, tmp = tempfile.mkstemp(prefix=tmp_prefix(path.name), dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
+    tmp = _temporary_name(path)
     _IN_PROGRESS.add(tmp)
     try:
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))  # made inside the try: see _temporary_name
         write(tmp)
         os.chmod(tmp, FILE_MODE)
         os.replace(tmp, path)
@@ -180,10 +190,11 @@ def atomic_dir(final: str | Path, overwrite: bool = False) -> Iterator[Path]:
     final.parent.mkdir(parents=True, exist_ok=True)
     with contextlib.suppress(OSError):  # leftovers of a killed earlier write of this folder (e.g. PRESS/nlips)
         clean_interrupted(final.parent, item=final.name)
-    tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(final.name), dir=final.parent))
-    held = os.open(tmp, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))  # keeps its inode number its own
+    tmp, held = _temporary_name(final), None
     _IN_PROGRESS.add(tmp)
     try:
+        os.mkdir(tmp, 0o700)  # made inside the try: an interrupt right after it still removes it (_temporary_name)
+        held = os.open(tmp, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))  # keeps its inode number its own
         yield tmp
         _check_same_folder(tmp, os.fstat(held))  # never publish a folder that lost what was written into it
         os.chmod(tmp, DIR_MODE)
@@ -197,7 +208,8 @@ def atomic_dir(final: str | Path, overwrite: bool = False) -> Iterator[Path]:
         raise
     finally:
         _IN_PROGRESS.discard(tmp)
-        os.close(held)
+        if held is not None:
+            os.close(held)
 
 
 def _link_target(final: Path) -> Path:
@@ -260,10 +272,11 @@ def scratch_dir(final: str | Path) -> Iterator[Path]:
     """
     final = Path(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=tmp_prefix(final.name), dir=final.parent))
-    os.chmod(tmp, DIR_MODE)
+    tmp = _temporary_name(final)
     _IN_PROGRESS.add(tmp)
     try:
+        os.mkdir(tmp, 0o700)  # made inside the try (_temporary_name)
+        os.chmod(tmp, DIR_MODE)
         yield tmp
     finally:
         _IN_PROGRESS.discard(tmp)

@@ -21,12 +21,13 @@ source is a :class:`nlipscalib.device.camera.FrameSource`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -142,6 +143,10 @@ class Operator:
         self.echo = echo
 
     def _say(self, text: str) -> None:
+        with _above_the_bar():
+            self._prompt(text)
+
+    def _prompt(self, text: str) -> None:
         if self.interactive:
             if sys.stdin.isatty() and sys.stdout.isatty():
                 # input() then writes the prompt to the terminal itself, past the copy of stdout that --log-file
@@ -167,7 +172,19 @@ class Operator:
         self._say(f"{what}: {reason}; hold still, retaking.")
 
     def release(self, index: int) -> None:
-        self.echo(f"Press {index} captured: release.")
+        with _above_the_bar():
+            self.echo(f"Press {index} captured: release.")
+
+
+def _above_the_bar() -> contextlib.AbstractContextManager:
+    """Clear the session's progress bar (a terminal's) while the operator reads a line, then draw it again below.
+
+    Why: the bar leaves the cursor at its end, so on a terminal each prompt was written onto the bar's line
+    ("capture:  33%|####      | 1/3 [00:00<00:01, 1.56press/s]Press 1/2: press the object now, hold still.").
+    No lock is held (``nolock``): input() may wait for the operator a long time."""
+    from tqdm import tqdm
+
+    return tqdm.external_write_mode(nolock=True)
 
 
 def frame_sequence(n_leds: int, cfg: SessionConfig) -> list[tuple[str, np.ndarray]]:
@@ -340,6 +357,37 @@ def run_session(
         if k > 0:
             operator.release(k)
     return status
+
+
+@contextlib.contextmanager
+def claim_session(out: str | Path) -> Iterator[None]:
+    """Hold the session folder ``out`` for this capture while the block runs; a ConfigError, before anything is
+    captured, while another live capture holds it.
+
+    Why: two captures started into one folder (two terminals, the emulator and the sensor) each captured what
+    the other had not published yet: the session mixed both runs' presses under one reference, and the run that
+    lost a press's rename failed with "FOLDER/press_0002: already exists". The claim is ``out``'s hidden sibling
+    (``.claim-NAME``, core.claims), so a capture refused or stopped before it captured leaves no folder. A killed
+    capture's claim goes stale, so a run after it resumes. A folder that cannot hold a claim file (read-only
+    media, disk full) is not held: nothing can be captured there either, and the write says why in its own words.
+    """
+    from ..core.claims import UNKNOWN_OWNER, claim, holder
+
+    out = Path(out)
+    target = out.resolve()  # "--out ." is named by the folder's own name in its parent
+    with contextlib.ExitStack() as stack:
+        try:
+            held = stack.enter_context(claim(target))
+        except OSError as exc:
+            log.debug("%s: not claimed (%s)", out, exc.strerror or exc)
+            held = True
+        if not held:
+            other = holder(target)
+            raise ConfigError(
+                f"{out}: another capture is writing this session ({(other or UNKNOWN_OWNER).who}); wait until it "
+                "ends (then run again to resume it), or capture into another --out folder"
+            )
+        yield
 
 
 def _damaged(folder: Path) -> str:

@@ -69,8 +69,8 @@ def capture_identity(folder: str | Path) -> str:
         path = os.path.join(where, name)
         try:
             stamps.append(file_stamp(path))
-        except FileNotFoundError:
-            raise CaptureError(f"{path}: listed in {META_FILE} but missing") from None
+        except FileNotFoundError:  # named as the folder was given (the resolved path is only the cache's key)
+            raise CaptureError(f"{Path(folder) / name}: listed in {META_FILE} but missing") from None
     # one hashing at a time: a call made while identity_in_background hashes these files waits for that result
     # (then cached) rather than reading and hashing them a second time
     with _hashing:

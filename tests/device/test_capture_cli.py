@@ -67,6 +67,42 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
     assert dome.radius == 15.0 and camera_position.tolist() == [0.0, 0.0, -3.0]
 
 
+def test_a_second_capture_into_a_session_being_captured_is_refused_before_it_captures(tmp_path, capsys):
+    """Two captures started into one folder each captured what the other had not published yet: the session
+    mixed both runs' presses under one reference, and the run that lost a press's rename failed with
+    "FOLDER/press_0002: already exists". Now the folder is held by the capture writing it: another is one line
+    naming the holder, before its sensor starts, and nothing is written; once the holder ends, a run captures."""
+    import os
+
+    import cv2
+    import numpy as np
+
+    from nlipscalib.core import Camera
+    from nlipscalib.core.claims import claim
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    camera = Camera.from_fov(64, 48, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
+    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(2 * 15):
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 100 + (k % 15) * (k % 15 != 14), np.uint8))
+    board = VirtualBoard(12)
+    out = tmp_path / "s"
+    args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes", "--presses"]
+    args += ["1", "--camera-calibration", str(tmp_path / "camera.json"), "--out", str(out)]
+    with claim(out) as held:  # the capture already at work there (this process: it is alive)
+        assert held
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{out}: another capture is writing this session (process {os.getpid()} on " in err[0]
+        assert not out.exists() and board.latched.sum() == 0
+    assert main(args) == 0
+    assert "press_0001: captured" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["press_0001", "reference", "session.json"]
+    assert not (tmp_path / ".claim-s").exists()  # released
+
+
 @pytest.mark.parametrize(
     "extra, message",
     [

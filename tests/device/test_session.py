@@ -295,3 +295,26 @@ def test_a_board_silent_mid_press_is_named_by_the_command_that_failed(tmp_path):
         assert (controller.timeout, controller.retries, controller.reconnect_s) == (0.2, 3, 5.0)
     assert str(info.value) == f"{board.url}: no valid answer to ALL after 4 tries of 0.2 s each"
     assert tries[-2:] == [("ALL", 4), ("OFF", 1)]  # the tries of ALL and one short try of OFF (was 4 + 4 tries)
+
+
+def test_on_a_terminal_the_operators_lines_start_their_own_line_not_the_bars(tmp_path, monkeypatch):
+    """The session's bar leaves the cursor at its end, so on a terminal each prompt was written onto the bar's
+    line ("capture:  33%|###   | 1/3 [00:00<00:01, 1.56press/s]Press 1/2: press the object now, hold still.").
+    Now the bar is cleared while the operator's line is written, and drawn again below it."""
+    import io
+    import sys
+
+    class Terminal(io.StringIO):  # stdout and stderr on one screen, as a terminal shows them
+        def isatty(self):
+            return True
+
+    screen = Terminal()
+    monkeypatch.setattr(sys, "stdout", screen)
+    monkeypatch.setattr(sys, "stderr", screen)
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=2), Operator(interactive=False), progress=True)
+    monkeypatch.undo()
+    shown = [line.rsplit("\r", 1)[-1] for line in screen.getvalue().split("\n")]  # what stays on each line
+    said = [line for line in shown if "Press " in line or "Do not touch" in line]
+    assert len(said) == 5 and all(line.startswith(("Press ", "Do not touch")) for line in said), said
+    assert "capture:" in screen.getvalue()  # the bar was drawn

@@ -690,10 +690,11 @@ def test_a_finished_run_again_says_so_without_loading_the_model(tiny_model, tmp_
 
     lines = again()
     assert lines[0].startswith("0 frame(s) inferred, 4 kept (identical results; --overwrite infers them again)")
-    assert lines[1].startswith("saved: 4 result folder(s)") and lines[-1] == "[]", lines
+    assert lines[1].startswith("kept: 4 result folder(s) as they were (nothing written)") and lines[-1] == "[]", lines
     shutil.rmtree(out / "c_sphere_deep")  # one result to make: the model is loaded, the others still kept
     lines = again()
     assert lines[0].startswith("1 frame(s) inferred, 3 kept") and lines[-1] != "[]", lines
+    assert lines[1].startswith("saved: 1 result folder(s), kept 3 as they were; all 4: 3 for frames in "), lines
 
 
 def test_overwrite_is_refused_for_a_stream(capsys):
@@ -740,9 +741,107 @@ def test_a_frame_and_a_press_of_one_name_are_refused_before_anything_is_written(
 
 def test_the_saved_line_says_where_frames_and_presses_results_are(tiny_model, tmp_path, capsys):
     """A mix of frames and a press said "saved: 4 result folder(s) in each press's a_sphere/ (e.g. OUT/a_sphere)",
-    a frame's folder named as a press's. Now frames and presses are said apart, inferred or all kept."""
+    a frame's folder named as a press's. Now frames and presses are said apart, inferred or all kept; a re-run that
+    keeps every result says so (it said "saved: 4 result folder(s)" of results it did not write)."""
     command, out = _frames_and_a_press(tiny_model, tmp_path)
-    line = f"saved: 4 result folder(s): 3 for frames in {out}/, 1 for presses in {out / 'press'}/ (result.npz, "
-    for _ in range(2):  # inferred, then all kept (said without loading the model)
-        assert main(command) == 0
-        assert capsys.readouterr().out.splitlines()[1].startswith(line)
+    where = f": 3 for frames in {out}/, 1 for presses in {out / 'press'}/ (result.npz, "
+    for counts in ("saved: 4 result folder(s)", "kept: 4 result folder(s) as they were (nothing written)"):
+        assert main(command) == 0  # inferred, then all kept (said without loading the model)
+        assert capsys.readouterr().out.splitlines()[1].startswith(counts + where)
+
+
+def test_stills_show_a_bar_on_a_terminal_and_none_elsewhere(tiny_model, tmp_path, capsys, monkeypatch):
+    """`nlips infer MODEL FRAMES --out DIR` on a folder of 300 frames ran 10 s on a terminal without a sign of
+    life. Now a bar counts the inputs there (stderr a terminal), and nothing of it reaches a pipe or a log."""
+    import io
+
+    from nlipscalib import progress
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    assert main(command) == 0
+    assert "\r" not in capsys.readouterr().err  # not a terminal: no bar
+    tty = Tty()
+    monkeypatch.setattr("sys.stderr", tty)
+    try:
+        assert main([*command, "--overwrite"]) == 0
+    finally:
+        progress.configure(progress=True)
+    assert "\r" in tty.getvalue() and "inferring: 100%" in tty.getvalue() and "4/4" in tty.getvalue(), tty.getvalue()
+
+
+def test_a_damaged_input_among_many_is_said_and_the_others_are_inferred(tiny_model, tmp_path, capsys, caplog):
+    """`nlips infer MODEL DATASET` stopped at the first damaged press or frame (one line, exit 2), leaving every
+    input after it undone, where `nlips solve DATASET` solves the others. Now each damaged input is one line, the
+    others are inferred, the closing lines count them apart and the exit status is 1; a re-run keeps what was
+    made. A single damaged input is still the one line, exit 2."""
+    from tests.learn.test_resume import NAMES
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    damaged = tmp_path / "frames" / f"{NAMES[0]}.png"  # the first input: every other one came after it
+    damaged.write_bytes(damaged.read_bytes()[:300])
+    assert main(command) == 1
+    said = capsys.readouterr()
+    lines = said.out.splitlines()
+    assert lines[0].startswith("3 frame(s), torch") and lines[1].startswith("saved: 3 result folder(s): 2 for frames")
+    assert lines[2] == "failed: 1 of 4 input(s), not inferred (run again once fixed: the rest is kept)", lines
+    assert lines[3] == f"  {damaged}: {damaged}: truncated PNG image (cut short: copy or capture it again)", lines
+    assert f"{damaged}: truncated PNG image" in caplog.text and "Traceback" not in said.err + caplog.text
+    assert sorted(p.name for p in out.iterdir()) == sorted([*NAMES[1:], "press"])
+    assert (out / "press" / "nlipsnet" / "result.npz").is_file()
+    assert main(command) == 1  # again: the others kept, the damaged one said again
+    assert capsys.readouterr().out.splitlines()[1].startswith("kept: 3 result folder(s) as they were")
+    assert main(["infer", command[1], str(damaged), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"nlips infer: error: {damaged}: truncated PNG image (cut short: copy or capture it again)"], err
+
+
+def test_a_missing_model_with_frames_without_out_is_the_one_error_line(tiny_model, tmp_path, capsys, caplog):
+    """`nlips infer nomodel.pt frame.png` warned "image frames without --out: their results are not written" and
+    then failed on the model: a warning about results of a run that could not start. Now the one error line alone;
+    the warning still comes when the model loads."""
+    _, root = tiny_model
+    frame = root / "a_sphere" / "tricolor.png"
+    assert main(["infer", str(tmp_path / "nomodel.pt"), str(frame)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("nlips infer: error: ") and "nomodel.pt" in err[0], err
+    assert "without --out" not in caplog.text
+    assert main(["infer", str(tiny_model[0]), str(frame)]) == 0
+    assert "image frames without --out: their results are not written" in caplog.text
+
+
+def test_a_press_folder_as_out_is_refused_before_anything_is_written(tiny_model, tmp_path, capsys):
+    """`nlips infer MODEL FRAMES --out PRESS` wrote the frames' result folders (a stream: its frame_N.npz files)
+    in among the press's images, exit 0, as `nlips capture`, `dataset` and `demo` no longer do. Now one line."""
+    import shutil
+
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    press = tmp_path / "press"
+    shutil.copytree(root / NAMES[0], press, ignore=shutil.ignore_patterns("nlips*"))
+    before = sorted(p.name for p in press.iterdir())
+    frame = str(root / NAMES[1] / "tricolor.png")
+    for inputs in ([frame], ["--camera", str(root / NAMES[1] / "tricolor.png")]):
+        assert main(["infer", str(model), *inputs, "--out", str(press)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{press}: is a press folder (it has meta.json); write the results into" in err[0]
+        assert sorted(p.name for p in press.iterdir()) == before
+
+
+def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tmp_path, capsys):
+    """`nlips infer MODEL FRAMES --out DIR` said "nlips eval scores them", and `nlips eval DIR` then said only "DIR:
+    no press folders found". Now the saved line and eval's error both name the way: `nlips eval PRESS --result`."""
+    command, _ = _frames_and_a_press(tiny_model, tmp_path)
+    out = tmp_path / "frames-out"
+    assert main(["infer", command[1], command[2], "--out", str(out)]) == 0
+    assert "; a frame's: nlips eval PRESS --result FOLDER)" in capsys.readouterr().out
+    assert main(["eval", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        len(err) == 1 and f"{out}: no press folders found ({out} holds results of image frames, e.g. a_sphere" in err[0]
+    )
+    assert f"`nlips eval PRESS --result {out / 'a_sphere'}`" in err[0], err
