@@ -111,9 +111,9 @@ class Krylov:
 
 JACOBI_ONCE_ROWS = 35_000
 """Levels with at least this many rows try Jacobi in their first solve only; their later solves go to AMG at once.
-Where the first step's Jacobi solve converged fast (3-25 iterations at 0.1), its rate predicted the second step's
+Where the first step's Jacobi solve converged fast (4-23 iterations at 0.1), its rate predicted the second step's
 tighter tolerance (0.02-0.07) within the cap, and Jacobi then failed at its cap of 30 on every such level measured
-(the 640x480 level of six of nine whole-frame presses, the last level of eight of nine auto ROIs, 39,600-307,200
+(the 640x480 level of six of nine whole-frame presses, the last level of seven of nine auto ROIs, 39,600-307,200
 rows), 30 wasted iterations before the AMG ones; a 34,224-row level (screw1's auto ROI) converged in 22-23. The
 first step keeps Jacobi: AMG there (3-4 iterations, a step closer to Newton's) moved the contact AAE by up to
 +0.034 deg, Jacobi only once by at most 0.001 (benchmarks/RESULTS.md, s20-jac)."""
