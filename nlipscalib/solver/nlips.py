@@ -190,13 +190,16 @@ def solve(
         the finest iterated level's brought up (bilinear), its normals that depth's, and its albedo, residual
         and confidence the iterated level's brought up too (:func:`_brought_up`); the levels between are
         skipped -- a pass of the outer interreflection loop before its last, whose indirect light is gathered
-        on patches several pixels wide, needs no more. The coarsest level is always iterated.
+        on patches several pixels wide, needs no more. The coarsest level is always iterated. From the prior (no
+        ``init_depth``) its levels stop at ``options.seed_energy_rtol`` instead of ``options.energy_rtol``.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
     images, prior_depth, mask = check_inputs(images, camera, leds, prior_depth, mask, saturated, opts)
     if unrefined < 0:
         raise ConfigError(f"unrefined must be >= 0 levels, got {unrefined}")
+    if unrefined and init_depth is None:  # the outer loop's first pass: it only seeds the passes after it
+        opts = dataclasses.replace(opts, energy_rtol=opts.seed_energy_rtol)
     t_start = time.perf_counter()
     with ordinary_pages():  # this VM's transparent huge pages cost a third of a whole frame's CPU (pages.py)
         result = _solve_checked(

@@ -51,6 +51,14 @@ class SolverOptions:
     the next step, falls below this. 1e-3: on the default twin's 640x480 presses the step that 1e-4 adds
     on the finest level moved the normals by 0.013 deg (median) at ~1.5 s, and the contact AAE stayed
     within 0.01 deg (benchmarks/RESULTS.md)."""
+    seed_energy_rtol: float = 1e-2
+    """``energy_rtol`` of a solve from the prior that leaves its finest levels unrefined
+    (:func:`nlipscalib.solver.solve` with ``unrefined`` > 0 and no ``init_depth``: the outer interreflection loop's
+    first pass, which only seeds its first gather and the passes after it). 1e-2: on the default twin's 640x480
+    one-bounce presses it saves a Gauss-Newton step on most of that pass's levels (two on the coin's and the screw's)
+    that moved the median normal by 0.001-0.01 deg; contact AAE, MabsE and depth RMSE of six presses in three modes
+    stayed within noise of 1e-3. Not the warm-started passes after it: there the screw's whole-frame contact AAE rose
+    0.03-0.05 deg (benchmarks/RESULTS.md, s20-passes)."""
     normal_tol_deg: float = 1e-3
     """Stop a level when the median normal change of an iteration falls below this, degrees."""
     cg_rtol: float = 1e-4
@@ -89,7 +97,15 @@ class SolverOptions:
 
     def __post_init__(self):
         self._check_finite()
-        positive = ("robust_scale", "nominal_distance", "energy_rtol", "normal_tol_deg", "cg_rtol", "cg_rtol_max")
+        positive = (
+            "robust_scale",
+            "nominal_distance",
+            "energy_rtol",
+            "seed_energy_rtol",
+            "normal_tol_deg",
+            "cg_rtol",
+            "cg_rtol_max",
+        )
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"solver.{name} must be > 0, got {getattr(self, name)}")

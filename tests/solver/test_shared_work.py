@@ -592,3 +592,29 @@ def test_a_large_levels_normals_and_their_change_by_pixel_blocks_have_the_plain_
             np.testing.assert_array_equal(change, angle_deg(plain, other))
     finally:
         threads.set_workers(before)
+
+
+def test_the_outer_loops_first_pass_stops_its_levels_at_the_seed_tolerance(press):
+    """An unrefined solve from the prior (the outer loop's first pass, which only seeds the passes after it) stops its
+    levels at ``seed_energy_rtol``, not ``energy_rtol``: the same bits as a solve whose ``energy_rtol`` is that value,
+    fewer Gauss-Newton steps than at the other passes' tolerance. A warm-started unrefined pass and a refined solve
+    do not read it."""
+    lin = press.linear(press.led_images)
+    prior = press.reference.depth
+
+    def run(unrefined: int, init: np.ndarray | None = None, **fields):
+        options = SolverOptions(pyramid_levels=3, **fields)
+        return solve(
+            lin, press.camera, press.leds, prior_depth=prior, options=options, unrefined=unrefined, init_depth=init
+        )
+
+    loose = run(1, seed_energy_rtol=0.05)
+    assert loose.depth.tobytes() == run(1, energy_rtol=0.05, seed_energy_rtol=0.05).depth.tobytes()
+    tight = run(1, seed_energy_rtol=1e-3)
+    steps = [sum(lv["iterations"] for lv in r.report["levels"]) for r in (loose, tight)]
+    assert 0 < steps[0] < steps[1], steps
+    for unrefined, init in ((1, tight.depth), (0, None)):
+        plain = run(unrefined, init).depth.tobytes()
+        assert run(unrefined, init, seed_energy_rtol=0.05).depth.tobytes() == plain, unrefined
+    with pytest.raises(ConfigError, match="seed_energy_rtol"):
+        SolverOptions(seed_energy_rtol=0.0)
