@@ -680,3 +680,33 @@ def test_a_result_kept_after_a_kill_loses_the_dead_runs_claim(press):
     assert (press / ".claim-nlips").exists()  # what the dead run left
     assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"  # not solved again
     assert not [p.name for p in press.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
+
+
+def test_ctrl_c_on_a_parallel_solve_starts_no_press_but_those_running(tmp_path, monkeypatch):
+    """The pool was given every press at once and moved workers + 1 of them into its call queue, where no cancel
+    reaches: after "interrupted: ... the others are not started", a 6-press set on 2 workers still solved the 4 it
+    had not finished (here 6 of 10 after the first). The parent now sets a stop event the workers check first."""
+    from nlipscalib import progress
+    from nlipscalib.pipeline.workers import _solve_in_processes
+    from tests.processes import sleepy_status
+
+    class CtrlCAtTheFirstPress:  # the progress bar's first update is where the Ctrl-C lands
+        def update(self, *args):
+            raise KeyboardInterrupt
+
+        def set_postfix_str(self, *args, **kwargs):
+            pass
+
+        def close(self):
+            pass
+
+    monkeypatch.setattr(progress, "progress_bar", lambda *args, **kwargs: CtrlCAtTheFirstPress())
+    folders = [tmp_path / f"press_{i}" for i in range(10)]
+    marks = tmp_path / "solved"
+    marks.mkdir()
+    with pytest.raises(KeyboardInterrupt):
+        _solve_in_processes(sleepy_status, folders, {f: f.name for f in folders}, 2, False, (str(marks),))
+    # the quick first press, the one running beside it, and perhaps the next one, had the first's worker taken it up
+    # as it ended, before the parent read its result and set the stop (5 before: the call queue's presses too)
+    solved = sorted(p.name for p in marks.iterdir())
+    assert solved in (["press_0", "press_1"], ["press_0", "press_1", "press_2"]), solved

@@ -439,3 +439,22 @@ def test_the_colour_bar_marks_clipped_values_only_on_a_fixed_scale(tmp_path, mon
     maps.scalar_map_png(tmp_path / "auto.png", values, "inferno", "deg")
     maps.scalar_map_png(tmp_path / "fixed.png", values, "inferno", "deg", vmin=0.0, vmax=10.0)
     assert marked == [False, True]
+
+
+def test_a_sweeps_highest_point_is_drawn_whole_below_the_frame(tmp_path, monkeypatch):
+    """Points that barely differ (the quick noise study: 1.13 and 1.11 deg) had the y axis end at the highest one,
+    its marker cut in half by the frame (the axis started at 0 with matplotlib's top of a 5 % data-range margin)."""
+    from nlipscalib.report import experiments
+
+    limits = {}
+    save = experiments._save
+
+    def keep(fig, path):
+        limits["y"] = fig.axes[0].get_ylim()
+        return save(fig, path)
+
+    monkeypatch.setattr(experiments, "_save", keep)
+    experiments.sweep({"AAE": ([0.0, 1.0], [1.13, 1.11], [0.0, 0.0])}, "noise", "AAE (deg)", tmp_path / "s.png")
+    assert limits["y"][0] == 0 and limits["y"][1] >= 1.13 * 1.05
+    experiments.sweep({"AAE": ([0.0, 1.0], [1.0, 2.0], [0.0, 0.5])}, "x", "AAE (deg)", tmp_path / "e.png")
+    assert limits["y"][0] == 0 and limits["y"][1] >= 2.5 * 1.05  # the error bar's top too

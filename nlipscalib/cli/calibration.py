@@ -216,15 +216,19 @@ def reference_fits(reference: Path, presses: Sequence[Path]) -> None:
     from ..core.capture import META_FILE, load_press, parse_optics, read_meta
     from ..core.errors import CaptureError, ConfigError
     from ..core.sensor_record import describe_sensor, sensor_mismatch, sensor_of
+    from ..pipeline.settings import twin_reference_problem
 
     theirs = sensor_of(load_press(reference))
     for press in presses:
         try:
-            ours = describe_sensor(*parse_optics(read_meta(press), press / META_FILE))
+            meta = read_meta(press)
+            ours = describe_sensor(*parse_optics(meta, press / META_FILE))
         except CaptureError:
             continue
         if why := sensor_mismatch(theirs, ours):
             raise ConfigError(f"--reference {reference}: not a capture of the sensor of {press} ({press}: {why})")
+        if why := twin_reference_problem(reference, read_meta(reference), press, meta):
+            raise ConfigError(f"--reference {why}")
         return
 
 

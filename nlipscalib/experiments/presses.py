@@ -76,7 +76,7 @@ class PressCount(Q2):
             subset = names["train"][:k]
             model = learning.train_model(data, subset, stamps, cfg.net, out, progress)
             lut = learning.fit_lookup_table(data, subset)
-            predictors = {METHODS[0]: learning.net_predictor(out, model), METHODS[1]: lut.predict}
+            predictors = {METHODS[0]: learning.net_predictor(out, model, cfg.net.threads), METHODS[1]: lut.predict}
             for r in learning.score(data, predictors, tests):
                 if r["method"] in METHODS:
                     rows.append({"calibration_presses": k} | r)

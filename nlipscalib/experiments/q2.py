@@ -199,7 +199,7 @@ class Q2(Experiment):
         if cfg.upper_bound:
             upper = dataclasses.replace(cfg.net, labels="true")
             models["upper"] = learning.train_model(data, names["train"], stamps, upper, out, progress)
-        predictors = {METHODS[k]: learning.net_predictor(out, m) for k, m in models.items()}
+        predictors = {METHODS[k]: learning.net_predictor(out, m, cfg.net.threads) for k, m in models.items()}
         lut = learning.fit_lookup_table(data, names["train"])
         predictors[METHODS["lut"]] = lut.predict
         predictors[METHODS["none"]] = learning.undeformed_predictor(data)
@@ -320,7 +320,7 @@ class Q2(Experiment):
             return []
         from . import learning
 
-        predict = learning.net_predictor(out, learned["models"]["nlipsnet"])
+        predict = learning.net_predictor(out, learned["models"]["nlipsnet"], cfg.net.threads)
         titles = {
             n: f"{role}: {n.split('-p')[0]}"
             for role in ("seen", "unseen")

@@ -100,7 +100,8 @@ class TrainConfig:
     The count also changes the weights (summation order; after 20 steps they differ by up to 0.03), so a fixed
     default gives the same model on every machine. ``nlips train --threads N`` asks for more. Not part of what a
     checkpoint must match to be resumed (a run resumed on another count goes on with the same training, rounded
-    otherwise); the experiments' model key holds it (experiments.learning.model_files)."""
+    otherwise: each epoch's count is in the history, and the resume says so); the experiments' model key holds it
+    (experiments.learning.model_files)."""
 
     def __post_init__(self):
         # every message starts with the field's name: `nlips train` names its option instead (cli/train.py)
@@ -459,6 +460,7 @@ def _epochs(
                 "val_contact_aae_deg": val_contact,
                 "lr": float(opt.param_groups[0]["lr"]),
                 "seconds": time.perf_counter() - t0,
+                "threads": cfg.threads,  # the count rounds the weights: a resume on another says so
             }
         )
         if val_aae < best["aae"]:

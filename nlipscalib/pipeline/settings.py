@@ -149,6 +149,66 @@ def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
         _check_leds_sensor(folder, meta, settings)
     if settings.reference is not None:  # another sensor's capture: refused now, not after "re-solving" is logged
         check_undeformed(read_optics(folder), read_optics(settings.reference))
+        if why := twin_reference_problem(settings.reference, read_meta(settings.reference), folder, meta):
+            raise CaptureError(why)
+
+
+def twin_reference_problem(reference: Path, reference_meta: dict, press: Path, press_meta: dict) -> str:
+    """The line refusing ``reference`` as the undeformed capture of ``press`` when both are twin renders of other
+    light settings (:func:`twin_render_difference`), else ""."""
+    why = twin_render_difference(reference_meta, press_meta)
+    if not why:
+        return ""
+    return (
+        f"{reference}: rendered with other twin settings than {press} ({why}): its light is not the press's "
+        "sensor's, so the interreflection term fitted on it and the contact found against it would be wrong; render "
+        "the reference as the press was (nlips render --undeformed with the press's scene and options: --bounces, "
+        "--spp, ...), or solve without --reference"
+    )
+
+
+TWIN_SETTINGS_OF_NO_LIGHT = frozenset({"name", "render.spp", "render.seed", "render.threads", "render.variant"})
+"""Scene settings two twin renders of one sensor may differ in (``provenance.scene`` of meta.json, "section.key"):
+the scene's name, the sample count (the experiments render their references at more samples per pixel than their
+presses), seeds, threads and the Mitsuba variant. Every other one changes the sensor's light."""
+
+
+def twin_render_difference(reference_meta: dict, press_meta: dict) -> str:
+    """'render.bounces 0 here, 1 for the press', naming up to three scene settings in which two twin renders differ
+    (:data:`TWIN_SETTINGS_OF_NO_LIGHT` aside); "" when they agree or one of them is no twin render (a real sensor's
+    capture, an older folder).
+
+    Why: `nlips render --undeformed` at the scene's defaults (direct light) as the reference of a press rendered with
+    ``--bounces 1 --spp 16`` (as README's NLiPsNet walk renders a press) fitted an indirect share of 0.014 (term off)
+    and then found no contact ("--roi auto found no contact (images match the undeformed dome)"), or, on the whole gel,
+    "anchoring off: weak evidence", exit 0."""
+    a, b = (_twin_scene(m) for m in (reference_meta, press_meta))
+    if a is None or b is None:
+        return ""
+    flat_a, flat_b = _flat(a), _flat(b)
+    keys = sorted(k for k in flat_a.keys() | flat_b.keys() if k not in TWIN_SETTINGS_OF_NO_LIGHT)
+    differ = [k for k in keys if flat_a.get(k) != flat_b.get(k)]
+    said = [f"{k} {flat_a.get(k)!r} here, {flat_b.get(k)!r} for the press" for k in differ[:3]]
+    return "; ".join(said) + (f"; and {len(differ) - 3} more" if len(differ) > 3 else "")
+
+
+def _twin_scene(meta: dict) -> dict | None:
+    provenance = meta.get("provenance")
+    if not isinstance(provenance, dict) or provenance.get("source") != "sim":
+        return None
+    scene = provenance.get("scene")
+    return scene if isinstance(scene, dict) else None
+
+
+def _flat(d: dict, prefix: str = "") -> dict:
+    """{"section.key": value} of a nested dict (lists kept whole)."""
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out |= _flat(v, f"{prefix}{k}.")
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
 
 
 _WARNED_UNRECORDED: set[str] = set()

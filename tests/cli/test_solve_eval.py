@@ -438,3 +438,36 @@ def test_eval_of_a_captured_press_says_only_twin_renders_carry_ground_truth(data
         f"nlips eval: error: {press}: no ground truth (gt.npz) to evaluate against: only twin renders (nlips render, "
         "dataset, demo) carry one; a captured press has none"
     ], err
+
+
+def _as_twin_render(folder, **render) -> None:
+    """Record ``folder`` as a twin render of the scene whose [render] section is ``render`` (meta.json provenance)."""
+    path = folder / "meta.json"
+    meta = json.loads(path.read_text())
+    meta["provenance"] = {"source": "sim", "scene": {"name": "nlipstac", "render": render, "noise": {"enabled": True}}}
+    path.write_text(json.dumps(meta))
+
+
+def test_a_twin_reference_rendered_with_other_light_settings_is_refused_in_one_line(data, tmp_path, capsys):
+    """`nlips render --undeformed` at the scene's defaults (direct light, 4 spp) given as --reference of a press
+    rendered with --bounces 1 --spp 16: the term fitted on it came out off (share 0.014), then "--roi auto found no
+    contact (images match the undeformed dome)", exit 2, or on the whole gel "anchoring off: weak evidence", exit 0.
+    Another sample count alone (the experiments' references have more) is the same sensor."""
+    root, _ = data
+    press = root / "press_a"
+    reference = synth.make_press(tmp_path / "reference", "none", size=(64, 48))
+    _as_twin_render(press, bounces=1, spp=16, seed=3)
+    _as_twin_render(reference, bounces=0, spp=4, seed=0)
+    assert main(["solve", str(press), "--reference", str(reference), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{reference}: rendered with other twin settings than {press}" in err[0], err
+    assert "(render.bounces 0 here, 1 for the press)" in err[0] and not (press / "nlips").exists()
+    # `nlips calibrate` says it once before solving (it failed every press alike, one ERROR line each)
+    _as_twin_render(root / "press_b", bounces=1, spp=16, seed=4)
+    assert main(["calibrate", str(root), "--reference", str(reference), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"nlips calibrate: error: --reference {reference}: rendered with"), err
+    assert not (press / "nlips").exists() and not (root / "calibration").exists()
+    _as_twin_render(reference, bounces=1, spp=64, seed=0)
+    assert main(["solve", str(press), "--reference", str(reference), "--no-progress"]) == 0
+    assert (press / "nlips" / "result.npz").is_file()

@@ -1,6 +1,7 @@
 """Interrupted, concurrent and damaged calibration datasets, checkpoints and model files (exact-data presses,
 64x48, no rendering: a few seconds)."""
 
+import dataclasses
 import json
 import logging
 import shutil
@@ -484,6 +485,31 @@ def test_an_interrupted_training_resumed_makes_the_model_an_uninterrupted_one_ma
     a, b = load_model(tmp_path / "whole" / "net.pt"), load_model(out)
     for (name, x), y in zip(a.net.state_dict().items(), b.net.state_dict().values()):
         assert torch.equal(x, y), name
+
+
+def test_a_training_resumed_on_another_thread_count_says_so_and_records_each_epochs_count(
+    built, tmp_path, monkeypatch, caplog
+):
+    """The thread count is left out of what a checkpoint must match (it only says how fast), but it sets the
+    summation order: a run interrupted on 1 thread and resumed on 2 made a model slightly other than either count's
+    uninterrupted one (up to 0.004 apart), said only "resuming after epoch 15", and its model file recorded
+    threads 2 for all 40 epochs."""
+    cfg = TrainConfig(hidden=(8,), dropout=0.2, max_epochs=4, patience=10, threads=1)
+    data = CalibrationDataset(built)
+    out = tmp_path / "net.pt"
+    _interrupted_after_two_epochs(monkeypatch, lambda: train(data, cfg, out, progress=False))
+    caplog.set_level(logging.INFO)
+    resumed = train(data, dataclasses.replace(cfg, threads=2), out, progress=False)
+    assert "resuming after epoch 2, trained on 1 thread(s) so far and on 2 from here" in caplog.text
+    assert "--threads 1 carries on bit for bit" in caplog.text
+    assert [h["threads"] for h in resumed.history] == [1, 1, 2, 2]
+    assert [h["threads"] for h in load_model(out).info["history"]] == [1, 1, 2, 2]
+
+    caplog.clear()
+    again = tmp_path / "again.pt"
+    _interrupted_after_two_epochs(monkeypatch, lambda: train(data, cfg, again, progress=False))
+    train(data, cfg, again, progress=False)  # the same count: nothing to say
+    assert "resuming after epoch 2\n" in caplog.text + "\n" and "thread(s) so far" not in caplog.text
 
 
 def test_a_training_interrupted_while_another_run_trains_into_the_same_out_resumes_its_own_progress(
