@@ -41,9 +41,8 @@ class Krylov:
     matrix (:meth:`_VCycle.for_matrix`: its aggregates and transfers kept, its level matrices made again
     by Galerkin products, about a third of a set-up), because the first Gauss-Newton step moves the most.
 
-    Jacobi is not tried after a large level's first solve (:data:`JACOBI_ONCE_ROWS`), nor where the level's last
-    Jacobi solve predicts it would not reach the tolerance within its cap (:func:`jacobi_predicted`): on the
-    warm-started 640x480 level of a whole frame's last outer pass,
+    Jacobi is not tried where the level's last Jacobi solve predicts it would not reach the tolerance within
+    its cap (:func:`jacobi_predicted`): on the warm-started 640x480 level of a whole frame's last outer pass,
     the second step's 30 Jacobi iterations (~0.15 s of CPU) left the residual where AMG alone takes it in the
     same 9 iterations from zero (benchmarks/RESULTS.md, s17-b).
     """
@@ -75,11 +74,9 @@ class Krylov:
         # the system's products on both cores; the same bits as Hm @ v (threads.RowBlocks)
         products = threads.RowBlocks(Hm)
         op = spla.LinearOperator(Hm.shape, matvec=lambda v: products.dot(v.ravel()), dtype=np.float64)
-        # Jacobi only for loose solves: below 1e-2 it needed more iterations than it is worth; on a large level only
-        # in its first solve (JACOBI_ONCE_ROWS)
+        # Jacobi only for loose solves: below 1e-2 it needed more iterations than it is worth.
         cap = self.opts.cg_jacobi_iters
-        jacobi = self.amg is None and cap > 0 and rtol >= 1e-2 and (self.solves == 1 or Hm.shape[0] < JACOBI_ONCE_ROWS)
-        if jacobi and jacobi_predicted(self.jacobi_rate, rtol) <= cap:
+        if self.amg is None and cap > 0 and rtol >= 1e-2 and jacobi_predicted(self.jacobi_rate, rtol) <= cap:
             inv_diag = 1.0 / Hm.diagonal()
             jac = spla.LinearOperator(Hm.shape, matvec=lambda v: inv_diag * v.ravel(), dtype=np.float64)
             x, status = spla.cg(op, rhs, rtol=rtol, maxiter=cap, M=jac, callback=cb)
@@ -107,16 +104,6 @@ class Krylov:
         if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > 0.85:
             self.amg = None  # the matrix drifted away from the one the hierarchy was built for
         return x, count[0]
-
-
-JACOBI_ONCE_ROWS = 35_000
-"""Levels with at least this many rows try Jacobi in their first solve only; their later solves go to AMG at once.
-Where the first step's Jacobi solve converged fast (4-23 iterations at 0.1), its rate predicted the second step's
-tighter tolerance (0.02-0.07) within the cap, and Jacobi then failed at its cap of 30 on every such level measured
-(the 640x480 level of six of nine whole-frame presses, the last level of seven of nine auto ROIs, 39,600-307,200
-rows), 30 wasted iterations before the AMG ones; a 34,224-row level (screw1's auto ROI) converged in 22-23. The
-first step keeps Jacobi: AMG there (3-4 iterations, a step closer to Newton's) moved the contact AAE by up to
-+0.034 deg, Jacobi only once by at most 0.001 (benchmarks/RESULTS.md, s20-jac)."""
 
 
 def jacobi_predicted(rate: float | None, rtol: float) -> float:

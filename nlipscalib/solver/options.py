@@ -67,8 +67,7 @@ class SolverOptions:
     """Loosest CG tolerance (inexact Newton forcing term): early Gauss-Newton steps, whose linear model
     is itself inaccurate, are solved to this; the tolerance tightens toward ``cg_rtol`` with the gradient."""
     cg_jacobi_iters: int = 30
-    """CG iterations tried with a Jacobi preconditioner before building an AMG hierarchy (0: AMG only); on levels of
-    ``krylov.JACOBI_ONCE_ROWS`` rows or more in the level's first solve only."""
+    """CG iterations tried with a Jacobi preconditioner before building an AMG hierarchy (0: AMG only)."""
     cg_maxiter: int = 200
     """Iteration cap of the conjugate gradient."""
     line_search_steps: int = 8

@@ -293,36 +293,6 @@ def test_a_failed_jacobi_solve_is_not_tried_again():
     assert second < 3 and pcg.setups == 2
 
 
-def test_a_large_level_tries_jacobi_in_its_first_solve_only(monkeypatch):
-    """On a level of JACOBI_ONCE_ROWS rows or more, a second solve that Jacobi's first rate predicts within the cap
-    goes to AMG at once (on the whole frames' 640x480 levels Jacobi then failed at its cap); a smaller level tries
-    Jacobi again."""
-    from nlipscalib.solver.options import SolverOptions
-
-    monkeypatch.setattr(krylov, "JACOBI_ONCE_ROWS", 1000)
-    opts = SolverOptions()
-    cg, jacobi_solves = krylov.spla.cg, []
-
-    def counted_cg(*args, **kwargs):  # Jacobi's solves are the ones capped at cg_jacobi_iters
-        jacobi_solves.append(kwargs["maxiter"] == opts.cg_jacobi_iters)
-        return cg(*args, **kwargs)
-
-    monkeypatch.setattr(krylov.spla, "cg", counted_cg)
-    for n, large in ((30, False), (40, True)):  # 900 and 1,600 rows
-        H = _scaled_poisson(n)
-        rng = np.random.default_rng(3)
-        pcg = krylov.Krylov(opts)
-        jacobi_solves.clear()
-        _, first = pcg.solve(H, rng.standard_normal(H.shape[0]), 0.1)
-        assert first < opts.cg_jacobi_iters and pcg.setups == 0  # Jacobi converged on both levels
-        assert krylov.jacobi_predicted(pcg.jacobi_rate, 0.1) <= opts.cg_jacobi_iters  # and predicts the next solve
-        rhs = rng.standard_normal(H.shape[0])
-        x, _ = pcg.solve(H, rhs, 0.1)
-        assert jacobi_solves == ([True, False] if large else [True, True])
-        assert pcg.setups == (1 if large else 0)
-        assert np.linalg.norm(rhs - H @ x) <= 0.1 * np.linalg.norm(rhs)
-
-
 def _weighted_laplacian(n: int, seed: int) -> sp.csr_matrix:
     """A 2-D Laplacian on an n x n grid whose edges are weighted by a random positive field (as one Gauss-Newton
     step's robust weights), plus a small shift: SPD; two seeds, two steps' matrices of one pattern."""
