@@ -7,6 +7,7 @@ import numpy as np
 from ..core.camera import Camera
 from ..core.errors import ShapeError
 from ..core.leds import Leds
+from . import threads
 from .options import SolverOptions
 
 
@@ -32,7 +33,7 @@ def check_inputs(
         raise ShapeError(f"{images.shape[0]} LED images but {len(leds)} LEDs")
     if len(leds) < opts.min_leds:
         raise ShapeError(f"{len(leds)} LEDs given; the solver needs at least min_leds={opts.min_leds}")
-    if not np.all(np.isfinite(images)):
+    if not all(threads.map_items(_all_finite, images)):
         raise ShapeError(
             f"images contain {int(np.sum(~np.isfinite(images)))} NaN/inf values; mark bad pixels "
             "with `mask` or `saturated` instead"
@@ -55,3 +56,10 @@ def check_inputs(
         raise ShapeError("the solve mask holds fewer than 4 pixels with a finite prior depth")
 
     return images, prior_depth, mask
+
+
+def _all_finite(image: np.ndarray) -> bool:
+    """Whether one LED's image (H, W, 3) holds no NaN or inf: :func:`check_inputs` checks the LEDs on the thread
+    pool (:func:`threads.map_items`). Why: the whole (L, H, W, 3) stack at once, ~6 ms of one core at 640x480 with
+    12 LEDs, ran on the main thread at every solve (three per press) while the other core waited."""
+    return bool(np.isfinite(image).all())

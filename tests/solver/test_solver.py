@@ -198,3 +198,27 @@ def test_an_undeformed_capture_of_another_sensor_is_refused(tmp_path):
     assert led_geometry_mismatch([[0, 0, 0]], [[0, 0, 1]], [[0.4, 0, 0]], [[0, 0.05, 0.9987]]) is None  # within
     turned = led_geometry_mismatch([[0, 0, 0]], [[0, 0, 1]], [[0, 0, 0]], [[0, 0.0872, 0.9962]])  # 5 deg
     assert turned == "LED 1 is 0.00 mm and 5.0 deg from its counterpart"
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_the_entry_check_finds_a_non_finite_value_in_any_leds_image_on_one_or_two_threads(workers):
+    """check_inputs checks the LEDs' images on the thread pool (one task per LED): a NaN or inf in the last LED's
+    image, or in the first's, is found on one thread and on two, and the message counts every one of them."""
+    from nlipscalib.solver import threads
+    from nlipscalib.solver.inputs import check_inputs
+
+    cam = synth.camera(12, 10)
+    leds = synth.ring_leds()
+    images = np.full((len(leds), 10, 12, 3), 0.5, np.float32)
+    before = threads.workers()
+    threads.set_workers(workers)
+    try:
+        assert check_inputs(images, cam, leds, None, None, None, SolverOptions())[0] is images
+        for where in [(-1, 9, 11, 2), (0, 0, 0, 0)]:
+            bad = images.copy()
+            bad[where] = np.inf
+            bad[1, 3, 4, 1] = np.nan
+            with pytest.raises(ShapeError, match="images contain 2 NaN/inf values"):
+                check_inputs(bad, cam, leds, None, None, None, SolverOptions())
+    finally:
+        threads.set_workers(before)
