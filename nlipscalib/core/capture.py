@@ -196,7 +196,7 @@ class Reference:
 
     @classmethod
     def load(cls, path: Path, shape: tuple[int, int]) -> Reference:
-        arrays = _load_npz(path, {"depth": 2, "normals": 3})
+        arrays = _load_npz_kept(path, {"depth": 2, "normals": 3})
         if arrays["depth"].shape != shape or arrays["normals"].shape != shape + (3,):
             raise CaptureError(f"{path}: reference arrays do not match the camera size {shape}")
         return cls(depth=arrays["depth"], normals=arrays["normals"])
@@ -849,6 +849,29 @@ def _check_subset(subset: Sequence[int], n: int, folder: Path) -> list[int]:
             f"is invalid for {n} LEDs: indices must be unique, in range and at least one"
         )
     return subset
+
+
+def _load_npz_kept(path: Path, keys: dict) -> dict:
+    """:func:`_load_npz`, its arrays kept in the disk tier (:mod:`nlipscalib.core.diskcache`) under a digest of the
+    file's bytes: the next process reading the same bytes maps them instead of inflating them.
+
+    Why: a sensor's presses carry the same reference.npz (the undeformed surface, the same bytes in every press
+    folder), and inflating its 4.3 MB took ~27 ms of one core at the start of every ``nlips solve`` (~0.16 s of the
+    main thread under load, beside the press's PNG decoding on the other core); reading and hashing the file
+    takes ~5 ms. The same arrays: those :func:`_load_npz` read and checked, stored as they are."""
+    from . import diskcache
+
+    entry = None
+    with contextlib.suppress(OSError):  # missing or unreadable: _load_npz names the file and the problem
+        content = hashlib.blake2b(path.read_bytes(), digest_size=16).hexdigest()
+        entry = diskcache.entry("npz arrays", (content, sorted(keys.items())))
+    if entry is not None:
+        with contextlib.suppress(KeyError):  # not kept yet, or unreadable: read again and kept
+            return diskcache.load(entry)
+    arrays = _load_npz(path, keys)
+    if entry is not None:
+        diskcache.store_later(entry, arrays)
+    return arrays
 
 
 def _load_npz(path: Path, keys: dict) -> dict:

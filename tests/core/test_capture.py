@@ -287,6 +287,36 @@ def test_a_reference_is_read_once_per_file_and_again_when_it_changes(tmp_path, m
     assert len(loads) == 2 and np.array_equal(again.depth, depth + 1)
 
 
+def test_a_reference_of_bytes_read_before_is_mapped_from_the_disk_tier_not_inflated(tmp_path, monkeypatch):
+    """A sensor's presses carry the same reference.npz bytes: a later process (nothing kept in memory) reading those
+    bytes in another press folder gets the arrays from the disk tier, the same arrays bit for bit, without
+    inflating the file; other bytes are read and inflated again."""
+    import shutil
+
+    from nlipscalib.core import diskcache
+
+    monkeypatch.setenv("NLIPS_CACHE_DIR", str(tmp_path / "cache"))
+    a = _press(tmp_path / "a")
+    b = tmp_path / "b"
+    shutil.copytree(a, b)
+    inflated, inflate = [], capture._load_npz
+    monkeypatch.setattr(capture, "_load_npz", lambda path, keys: inflated.append(path) or inflate(path, keys))
+    first = load_press(a).reference
+    diskcache.wait()  # the entry's background write
+    capture._checked_reference.cache_clear()  # as a new process: nothing kept in memory
+    second = load_press(b).reference
+    assert inflated == [a / "reference.npz"]
+    for x, y in [(first.depth, second.depth), (first.normals, second.normals)]:
+        assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    assert not second.depth.flags.writeable and not second.normals.flags.writeable
+    with np.load(b / "reference.npz") as d:
+        depth, normals = d["depth"], d["normals"]
+    np.savez(b / "reference.npz", depth=depth + 1, normals=normals)
+    capture._checked_reference.cache_clear()
+    assert np.array_equal(load_press(b).reference.depth, depth + 1) and inflated[-1] == b / "reference.npz"
+    assert len(inflated) == 2
+
+
 def test_nan_in_reference_normals_is_rejected(tmp_path):
     folder = _press(tmp_path / "p")
     with np.load(folder / "reference.npz") as d:
