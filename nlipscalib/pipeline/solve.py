@@ -317,6 +317,7 @@ def _solve_and_save(
     from ..core.reconstruction import save_reconstruction
     from ..report import figure_level, write_reconstruction_figures
     from ..solver import solve_press
+    from ..solver.krylov import import_amg_in_background
 
     level = figure_level(figures)
     check_writable(out.parent, len(out.name))  # a read-only disk fails now, not after the solve
@@ -324,6 +325,7 @@ def _solve_and_save(
     # the images decode on a thread of their own (PNG decoding releases the GIL) while the rest of the capture is
     # read and checked here: reference.npz, and with --reference the undeformed capture's files (0.1-0.2 s at
     # 640x480 one after the other); the load's seconds end once the images are decoded
+    import_amg_in_background()  # beside the loading, not at the solve's first AMG set-up (~25-70 ms)
     press = load_press(folder, led_subset=settings.led_subset, decode="background")
     ref = None
     if settings.reference is not None:

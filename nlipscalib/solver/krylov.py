@@ -147,6 +147,24 @@ COARSE_SOLVER = "splu"
 """pyamg's solver of the hierarchy's coarsest level (at most ``max_coarse`` = 300 unknowns)."""
 
 
+def import_amg_in_background() -> threading.Thread:
+    """Start importing pyamg on a thread of its own and return the thread; :func:`_hierarchy`'s own import then
+    finds the module imported, or waits for the thread (Python's import lock of the module).
+
+    Why: pyamg's import (~25 ms, ~70 ms cold; its ``gallery`` imports ``scipy.io``) came at the first AMG set-up,
+    inside a solve's pass, on the main thread while the other core waited; ``nlips solve`` starts it beside the
+    press's loading instead. An import that fails is not raised on the thread: the set-up's own import raises it.
+    Not a daemon: the process's exit waits for a started import rather than stopping it half done."""
+
+    def run() -> None:
+        with contextlib.suppress(Exception):  # raised again, by the set-up's own import, where it is needed
+            import pyamg  # noqa: F401
+
+    thread = threading.Thread(target=run, name="import-pyamg")
+    thread.start()
+    return thread
+
+
 def _hierarchy(Hm: sp.csr_matrix) -> object:
     """pyamg's smoothed-aggregation hierarchy of ``Hm``, the same in every run and process.
 

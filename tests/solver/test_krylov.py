@@ -390,3 +390,23 @@ def test_a_first_solves_hierarchy_is_not_fitted_to_its_own_matrix_again():
     first = pcg.amg
     pcg.solve(A, b, 1e-8)
     assert pcg.amg is first and (pcg.setups, pcg.refreshes) == (1, 0)
+
+
+def test_the_background_import_of_pyamg_imports_it_and_keeps_a_failure_off_its_thread(monkeypatch):
+    """``nlips solve`` imports pyamg beside the press's loading: the thread leaves the module imported; an import
+    that fails raises nothing on the thread (no traceback printed there), the set-up's own import raises it."""
+    import sys
+    import threading
+
+    import pytest
+
+    thread = krylov.import_amg_in_background()
+    thread.join()
+    assert "pyamg" in sys.modules and not thread.daemon
+    failures = []
+    monkeypatch.setattr(threading, "excepthook", failures.append)
+    monkeypatch.setitem(sys.modules, "pyamg", None)  # import pyamg now raises ImportError
+    krylov.import_amg_in_background().join()
+    assert failures == []
+    with pytest.raises(ImportError):
+        krylov._hierarchy(sp.identity(4, format="csr"))
