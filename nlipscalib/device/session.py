@@ -419,7 +419,11 @@ def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
         if not isinstance(before, dict):
             raise ValueError(f"expected a JSON object, got {type(before).__name__}")
     except (OSError, ValueError) as exc:
-        raise CaptureError(f"{path}: unreadable session description ({exc})") from None
+        # the presses are whole (each has its own meta.json): only the session's record of its settings is lost
+        raise CaptureError(
+            f"{path}: unreadable session description ({exc}); to resume with the settings these presses were "
+            f"captured with, remove or rename {SESSION_FILE} and run again, or capture into a new --out folder"
+        ) from None
     if {k: before.get(k) for k in ("camera", "n_leds")} != {k: described[k] for k in ("camera", "n_leds")}:
         raise CaptureError(
             f"{path}: this session folder was captured with another camera or LED count; use a new folder"

@@ -170,6 +170,23 @@ def test_resume_refuses_other_capture_settings_and_names_the_change(tmp_path):
     assert run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])["press_0002"]["attempts"] == 1
 
 
+def test_a_damaged_session_description_says_how_to_resume(tmp_path):
+    """A truncated session.json named the file and the problem but not what to do about it; removing it
+    resumes the session (its presses kept), recording the settings again."""
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    path = tmp_path / "s" / "session.json"
+    path.write_text(path.read_text()[:20])
+    with pytest.raises(CaptureError) as err:
+        run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    message = str(err.value)
+    assert message.startswith(f"{path}: unreadable session description") and "\n" not in message
+    assert "remove or rename session.json and run again" in message and "new --out folder" in message
+    path.unlink()
+    status = run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    assert status["press_0001"] == "kept" and status["press_0002"]["attempts"] == 1
+
+
 def test_resume_captures_again_a_press_whose_files_are_gone(tmp_path, caplog):
     """A captured press whose LED image was deleted was reported "kept (already captured)"."""
     rig, _ = _rig()
