@@ -380,7 +380,7 @@ def _run_stills(args: argparse.Namespace) -> int:
     import time
 
     from ..core.errors import CaptureError
-    from ..learn.infer import mismatch_warning
+    from ..learn.infer import capture_changes, mismatch_warning
     from ..progress import track
     from ._stream import nlipsnet_predictor
 
@@ -425,7 +425,8 @@ def _run_stills(args: argparse.Namespace) -> int:
             failed[source] = (folder, str(exc))
             continue
         result = predictor.predict(frame)
-        if why := mismatch_warning(result, source):
+        changes = capture_changes(predictor.model, press_folder) if press_folder is not None else []
+        if why := mismatch_warning(result, source, changes):
             log.warning("%s", why)
         inner.append(result.seconds["total"])
         if folder is not None:

@@ -70,6 +70,49 @@ def sensor_mismatch(expected: dict, actual: dict) -> str | None:
     return None
 
 
+CAPTURE_SETTINGS_UNRECORDED = ("name", "camera")
+"""Twin scene keys a capture's settings leave out: the name (a copy of a scene under another name renders the same
+images) and the camera (:func:`describe_sensor` holds it, and :func:`sensor_mismatch` compares it)."""
+RENDER_KEYS_UNRECORDED = ("variant", "threads", "seed")
+"""Twin render keys left out: the same images whichever Mitsuba variant or thread count, and every press its own
+noise seed."""
+
+
+def capture_settings(meta: dict) -> dict:
+    """What decides a capture's brightness and noise beside its sensor (:func:`describe_sensor`), from its meta.json:
+    the camera's exposure and gain, a device session's LED levels, and a twin's scene settings (render samples and
+    bounces, sensor noise and exposure, coating, LED ring and package, camera effects, gel optics, dome).
+
+    A model records its calibration reference's settings, so that ``nlips infer`` of a press taken otherwise names
+    what differs (a twin press rendered at other samples per pixel was blamed on the exposure). Values absent from
+    ``meta`` are None."""
+    sensor = meta.get("sensor") if isinstance(meta.get("sensor"), dict) else {}
+    prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
+    settings = {
+        "exposure_ms": sensor.get("exposure_ms"),
+        "gain": sensor.get("gain"),
+        "white_level": prov.get("white_level"),  # a device session's LED drive levels
+        "tricolor_level": prov.get("tricolor_level"),
+    }
+    scene = prov.get("scene")
+    if isinstance(scene, dict):
+        scene = {k: v for k, v in scene.items() if k not in CAPTURE_SETTINGS_UNRECORDED}
+        if isinstance(scene.get("render"), dict):
+            scene["render"] = {k: v for k, v in scene["render"].items() if k not in RENDER_KEYS_UNRECORDED}
+        settings["scene"] = scene
+    return settings
+
+
+def setting_differences(old: object, new: object, where: str = "") -> list[str]:
+    """'key: old -> new' of every (dotted) key where two JSON values differ, in key order; empty when equal."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        changes = []
+        for key in sorted(set(old) | set(new), key=str):
+            changes += setting_differences(old.get(key), new.get(key), f"{where}.{key}" if where else str(key))
+        return changes
+    return [] if old == new else [f"{where or 'value'}: {old!r} -> {new!r}"]
+
+
 def leds_file_mismatch(recorded: dict, file_leds: Leds, actual: dict) -> str | None:
     """Why an LED file from ``nlips calibrate-leds`` was calibrated on another sensor than ``actual``, or None.
 

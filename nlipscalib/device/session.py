@@ -45,6 +45,7 @@ from ..core.capture import (
 )
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.leds import Led, tricolor_colors
+from ..core.sensor_record import setting_differences
 from ..core.tolerances import CAPTURE_CHECK_BLUR
 
 log = logging.getLogger(__name__)
@@ -428,9 +429,9 @@ def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
         raise CaptureError(
             f"{path}: this session folder was captured with another camera or LED count; use a new folder"
         )
-    if "settings" in before and (change := _first_difference(before["settings"], described["settings"])):
+    if "settings" in before and (changes := setting_differences(before["settings"], described["settings"])):
         raise CaptureError(
-            f"{path}: this session was captured with other settings ({change}); resume it with the same "
+            f"{path}: this session was captured with other settings ({changes[0]}); resume it with the same "
             "settings, or capture into a new folder"
         )
 
@@ -453,13 +454,3 @@ def _capture_settings(rig: Rig, cfg: SessionConfig) -> dict:
             "scene": prov.get("scene"),
         }
     )
-
-
-def _first_difference(old: object, new: object, where: str = "") -> str | None:
-    """'key: old -> new' of the first (dotted) key where two JSON values differ, or None when equal."""
-    if isinstance(old, dict) and isinstance(new, dict):
-        for key in sorted(set(old) | set(new), key=str):
-            if change := _first_difference(old.get(key), new.get(key), f"{where}.{key}" if where else str(key)):
-                return change
-        return None
-    return None if old == new else f"{where or 'value'}: {old!r} -> {new!r}"

@@ -49,7 +49,7 @@ from ..core.claims import wait_for_release
 from ..core.errors import CaptureError, ConfigError
 from ..core.formatfile import read_arrays, read_format_json
 from ..core.imageio import save_npz
-from ..core.sensor_record import check_sensor, check_sensor_record, sensor_of
+from ..core.sensor_record import capture_settings, check_sensor, check_sensor_record, sensor_of
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
 from .prefilter import Prefilter, check_sigma
@@ -224,15 +224,23 @@ def write_shard(path: Path, samples: dict, entry: dict | None = None) -> None:
 
 
 def write_index(
-    folder: Path, sensor: dict, cfg: SamplingConfig, entries: list[dict], reference: str, made_by: str | None = None
+    folder: Path,
+    sensor: dict,
+    cfg: SamplingConfig,
+    entries: list[dict],
+    reference: str,
+    made_by: str | None = None,
+    capture: dict | None = None,
 ) -> Path:
     """index.json: written last, so its presence marks a usable dataset. ``made_by``: :data:`EXPERIMENT_MAKER` for
-    an experiment's dataset (None: ``nlips calibrate``'s), so that its refusals say what makes it anew."""
+    an experiment's dataset (None: ``nlips calibrate``'s), so that its refusals say what makes it anew. ``capture``:
+    the reference's capture settings (``core.sensor_record.capture_settings``), which a model trained on it keeps."""
     index = {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
         "software_version": __version__,
         "sensor": sensor,
+        "capture": capture,
         "reference": reference,
         "sampling": dataclasses.asdict(cfg),
         "presses": entries,
@@ -301,7 +309,8 @@ def build_dataset(
                 len(entries),
                 shown,
             )
-        write_index(out, build.sensor, cfg, entries, str(Path(reference_folder).resolve()))
+        capture = capture_settings(ref_press.meta)
+        write_index(out, build.sensor, cfg, entries, str(Path(reference_folder).resolve()), capture=capture)
     return out
 
 
@@ -697,6 +706,10 @@ class CalibrationDataset:
         self.entries: list[dict] = _checked_entries(index["presses"], path)
         self.smoothing_px: float = _checked_smoothing(index.get("sampling"), path)
         """Prefilter sigma the samples' colours were filtered with (0 for datasets made before the option)."""
+        capture = index.get("capture")
+        self.capture: dict | None = capture if isinstance(capture, dict) else None
+        """The reference's capture settings (``core.sensor_record.capture_settings``); None for datasets made
+        before they were recorded (2026-12-05)."""
 
     @property
     def names(self) -> list[str]:

@@ -30,7 +30,10 @@ from .model import load_model
 from .prefilter import Prefilter
 
 if TYPE_CHECKING:  # named in hints only: to_reconstruction imports it where it makes one
+    from collections.abc import Sequence
+
     from ..core.reconstruction import Reconstruction
+    from .model import LoadedModel
 
 BACKENDS = ("auto", "torch", "onnx", "onnx-int8")
 """Network runtimes: auto (onnx when MODEL.onnx exists, else torch), PyTorch, onnxruntime float32, and
@@ -275,19 +278,44 @@ def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True) 
     return backend
 
 
-def mismatch_warning(frame: Frame, where: str | Path) -> str | None:
+def capture_changes(model: LoadedModel, folder: str | Path) -> list[str]:
+    """'key: calibration's -> press's' of every capture setting (``core.sensor_record.capture_settings``) where the
+    press folder ``folder`` was taken otherwise than the model's calibration reference; empty when the same, or
+    when the model predates the record (2026-12-05) or the press's meta.json cannot be read (its load says why)."""
+    from ..core.capture import read_meta
+    from ..core.sensor_record import capture_settings, setting_differences
+
+    recorded = model.info.get("capture")
+    if not isinstance(recorded, dict):
+        return []
+    try:
+        meta = read_meta(Path(folder))
+    except (CaptureError, OSError, ValueError):
+        return []
+    return setting_differences(recorded, capture_settings(meta))
+
+
+def mismatch_warning(frame: Frame, where: str | Path, changes: Sequence[str] = ()) -> str | None:
     """Why ``frame``'s result is not to be trusted when it differs from the reference frame almost everywhere.
 
     The change rule finds the pixels that differ from the rest of the frame; a frame unlike the calibration's
     reference over the whole gel (another exposure, LEDs off or lit otherwise, red and blue swapped, another
     sensor) leaves it nothing to find, and the result would silently be the undeformed dome. None when the
-    frame is like the reference (:data:`nlipscalib.core.tolerances.FRAME_MISMATCH_FRACTION`).
+    frame is like the reference (:data:`nlipscalib.core.tolerances.FRAME_MISMATCH_FRACTION`). ``changes``: the
+    capture settings a press was taken with otherwise than the calibration (:func:`capture_changes`), named as the
+    cause instead of a guess from the brightness.
     """
     if not frame.mismatch > FRAME_MISMATCH_FRACTION:
         return None
     brightness = 0.0 if frame.brightness < 0 else frame.brightness  # never a negative ratio (NaN stays NaN)
     off = abs(brightness - 1) > FRAME_BRIGHTNESS_OFF
-    if brightness <= FRAME_BLACK_FRACTION:
+    if changes:  # recorded: what differs is known, no guess
+        shown = ", ".join(changes[:3]) + (f" and {len(changes) - 3} more" if len(changes) > 3 else "")
+        question = (
+            f"it was captured with other settings than the calibration's presses ({shown}): infer presses taken "
+            "with the calibration's settings, or calibrate on presses taken with these"
+        )
+    elif brightness <= FRAME_BLACK_FRACTION:
         question = "the frame is black (no light above the black level: LEDs off, lens cap, camera not streaming?)"
     elif frame.saturated >= SATURATED_SHARE_WARN:
         times = f", and it is {brightness:.2g} times as bright" if off else ""

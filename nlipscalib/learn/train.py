@@ -356,6 +356,7 @@ def _save_trained(
         "labels": cfg.labels,
         "config": jsonable_config(cfg),
         "dataset": str(dataset.folder.resolve()),
+        "capture": dataset.capture,  # what `nlips infer` names when a press was taken otherwise
         "train_presses": data.train_names,
         "val_presses": data.val_names,
         "excluded_presses": sorted(exclude),

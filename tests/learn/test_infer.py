@@ -228,6 +228,25 @@ def test_a_frame_unlike_the_reference_everywhere_is_warned_about(trained, twin_p
     assert "3 of 3 frames differed" in caplog.text
 
 
+def test_a_twin_press_rendered_otherwise_names_the_setting_not_the_exposure(trained, twin_presses, tmp_path, caplog):
+    """A press rendered with interreflections (the model's presses had none) was "1.2 times as bright: was it taken
+    at the calibration's exposure and LED level ...?"; the model records its presses' capture settings, so the
+    warning names the render setting that differs."""
+    import logging
+
+    from nlipscalib.sim.press import render_press
+
+    from .conftest import PRESSES, small_twin
+
+    caplog.set_level(logging.WARNING)
+    other = tmp_path / "bounced"
+    render_press(small_twin().replace(render={"bounces": 2}), PRESSES[HELD_OUT], other, seed=16)
+    assert main(["infer", str(trained), str(other), "--out", str(tmp_path / "o")]) == 0
+    assert f"{other}: differs from the calibration's reference" in caplog.text
+    assert "other settings than the calibration's presses (scene.render.bounces: 0 -> 2)" in caplog.text
+    assert "calibration's exposure" not in caplog.text
+
+
 def test_a_model_without_led_geometry_warns_and_infers_while_a_whole_one_refuses_another_ring(
     trained, twin_presses, tmp_path, caplog, capsys
 ):
