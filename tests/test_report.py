@@ -2,6 +2,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.report import Panel, contact_sheet, normals_to_rgb
+from nlipscalib.report.figures import NO_VALUE_GREY
 
 
 def test_normal_map_colours_known_answers():
@@ -9,7 +10,31 @@ def test_normal_map_colours_known_answers():
     rgb = normals_to_rgb(n, mask=np.array([[True, True, False]]))
     np.testing.assert_allclose(rgb[0, 0], [0.5, 0.5, 1.0])  # facing the camera: blue
     np.testing.assert_allclose(rgb[0, 1], [1.0, 0.5, 0.5])  # facing right: red
-    np.testing.assert_allclose(rgb[0, 2], [0.0, 0.0, 0.0])  # masked out
+    np.testing.assert_allclose(rgb[0, 2], [NO_VALUE_GREY] * 3)  # masked out: the grey of every "no value"
+    assert (normals_to_rgb(np.full((1, 1, 3), np.nan)) == NO_VALUE_GREY).all()  # NaN too, not mid grey
+
+
+def test_off_gel_pixels_are_one_grey_in_the_normal_and_error_panels_of_a_sheet(tmp_path):
+    """q3's error-map sheets drew off-gel pixels black in the normal panels and grey in the error panel beside
+    them (and black is a small error in the error colour map): every panel now draws them NO_VALUE_GREY."""
+    import cv2
+
+    from nlipscalib.report.experiments import error_maps
+    from nlipscalib.report.maps import NO_VALUE_BGR
+
+    h, w = 40, 40
+    normals = np.zeros((h, w, 3))
+    normals[..., 2] = -1.0
+    error = np.full((h, w), 3.0)
+    error[:, : w // 2] = np.nan  # the left half off the gel
+    path = error_maps([("press", normals, normals, error)], tmp_path / "maps.png")
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    grey = np.all(np.abs(img.astype(int) - NO_VALUE_BGR) <= 1, axis=-1)  # matplotlib rounds 0.85 * 255 down
+    black = np.all(img == 0, axis=-1)
+    # the three panels' left halves: grey, each a sizeable patch; and no black patch where they are
+    columns = np.flatnonzero(grey.sum(axis=0) > 20)
+    assert len(columns) > 3 * 20 and np.ptp(columns) > img.shape[1] // 2, len(columns)
+    assert black[:, columns].sum() < 0.01 * grey[:, columns].sum()
 
 
 def test_contact_sheet_writes_a_png(tmp_path):

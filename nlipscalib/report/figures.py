@@ -24,6 +24,10 @@ NORMALS_KEY = (
     "normal colours: RGB = ((n_x, -n_y, -n_z) + 1) / 2, camera frame: red = right, green = up, blue = toward the camera"
 )
 """Caption of sheets that show normal maps (:func:`normals_to_rgb`'s convention, docs/conventions.md)."""
+NO_VALUE_GREY = 0.85
+"""Grey level (0 black, 1 white) of pixels without a value (off the gel, not solved, NaN) in every figure: normal
+maps, scalar panels and the OpenCV maps alike. Not black: in the error colour map black is a small error, and q3's
+sheets drew off-gel pixels black in the normal panels beside grey in the error panel."""
 ERROR_SCALES_DEG = (1.0, 2.0, 5.0, 10.0, 20.0, 45.0)
 """Upper ends the angular-error colour bar chooses from (:func:`error_scale`)."""
 
@@ -47,7 +51,7 @@ def normals_to_rgb(normals: np.ndarray, mask: np.ndarray | None = None) -> np.nd
     Parameters
     ----------
     normals : (H, W, 3) float, unit, camera frame (toward the camera, docs/conventions.md)
-    mask : (H, W) bool, optional -- pixels outside are shown black
+    mask : (H, W) bool, optional -- pixels outside are shown :data:`NO_VALUE_GREY`, as are NaN normals
 
     Returns
     -------
@@ -55,8 +59,10 @@ def normals_to_rgb(normals: np.ndarray, mask: np.ndarray | None = None) -> np.nd
     """
     n = np.nan_to_num(normals)
     rgb = np.clip((np.stack([n[..., 0], -n[..., 1], -n[..., 2]], axis=-1) + 1.0) / 2.0, 0.0, 1.0)
+    missing = ~np.isfinite(normals).all(axis=-1)
     if mask is not None:
-        rgb[~mask] = 0.0
+        missing |= ~mask
+    rgb[missing] = NO_VALUE_GREY
     return rgb
 
 
@@ -131,7 +137,7 @@ def _draw(fig: Figure, ax: Axes, panel: Panel) -> None:
     import matplotlib
 
     # pixels without a value (NaN) in light grey, not the colour of zero
-    cmap = matplotlib.colormaps[panel.cmap].with_extremes(bad="0.85")
+    cmap = matplotlib.colormaps[panel.cmap].with_extremes(bad=str(NO_VALUE_GREY))
     if panel.legend:
         _draw_categories(ax, panel, cmap)
         return

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..core.atomic import write_bytes
 from ..core.errors import ShapeError, require
-from .figures import normals_to_rgb
+from .figures import NO_VALUE_GREY, normals_to_rgb
 
 COLORMAPS = {
     "viridis": "COLORMAP_VIRIDIS",
@@ -25,8 +25,8 @@ COLORMAPS = {
     "gray": None,
 }
 """Colour maps by their matplotlib names (the same ones the contact sheets use)."""
-NO_VALUE_BGR = (217, 217, 217)
-"""Pixels without a value (NaN, outside the mask): light grey, like the contact sheets."""
+NO_VALUE_BGR = (round(255 * NO_VALUE_GREY),) * 3
+"""Pixels without a value (NaN, outside the mask): :data:`.figures.NO_VALUE_GREY`, like the contact sheets."""
 BAR_WIDTH = 64
 """Width of the colour bar strip, pixels (gradient, tick labels and unit)."""
 
@@ -42,7 +42,7 @@ def normal_map_png(path: str | Path, normals: np.ndarray, mask: np.ndarray | Non
     ----------
     path : output .png
     normals : (H, W, 3) float, unit, camera frame
-    mask : (H, W) bool, optional -- pixels outside are black
+    mask : (H, W) bool, optional -- pixels outside are grey (:data:`NO_VALUE_BGR`)
     """
     if normals.ndim != 3 or normals.shape[2] != 3:
         raise ShapeError(f"normal_map_png needs (H, W, 3) normals, got {normals.shape}")
