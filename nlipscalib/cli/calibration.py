@@ -143,8 +143,10 @@ def _solve_and_build(
     run: dict,
 ) -> int:
     """The solves, the dataset and its coverage report, and the summary lines (exit status)."""
+    from ..core.capture import read_meta
     from ..core.cpus import usable_cores
     from ..core.errors import ConfigError
+    from ..core.sensor_record import camera_position_of
     from ..learn.coverage import coverage, write_coverage_json
     from ..learn.dataset import CalibrationDataset, build_dataset
     from ..report.learn import coverage_figure
@@ -165,7 +167,7 @@ def _solve_and_build(
         (out / name).unlink(missing_ok=True)
     build_dataset(solved, reference, out, cfg, progress=not args.no_progress, run=run)
     data = CalibrationDataset(out)
-    cov = coverage(data)
+    cov = coverage(data, camera_position=camera_position_of(read_meta(Path(reference))))
     coverage_figure(cov, out / COVERAGE_FILES[1])
     write_coverage_json(out / COVERAGE_FILES[0], cov)
     n = sum(e["samples"] for e in data.entries)

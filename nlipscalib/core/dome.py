@@ -98,6 +98,23 @@ def _direction(polar_deg: float | np.ndarray, azimuth_deg: float | np.ndarray) -
     return np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], -1)
 
 
+def press_angles(point: np.ndarray) -> tuple[float, float]:
+    """The press location ``(polar_deg, azimuth_deg)`` of a dome-frame point: the direction from the dome-frame
+    origin in which :func:`dome_surface_point` meets it (docs/conventions.md, ``nlips render --polar --azimuth``).
+
+    Parameters
+    ----------
+    point : (3,) float, mm, dome frame
+
+    Returns
+    -------
+    polar_deg : float, degrees from +z (0 = apex)
+    azimuth_deg : float, degrees from +x toward +y, in [0, 360)
+    """
+    x, y, z = (float(c) for c in point)
+    return float(np.degrees(np.arctan2(np.hypot(x, y), z))), float(np.degrees(np.arctan2(y, x)) % 360.0)
+
+
 def dome_surface_point(cfg: DomeConfig, polar_deg: float, azimuth_deg: float) -> tuple[np.ndarray, np.ndarray]:
     """Point of the surface seen from the dome-frame origin in a given direction.
 

@@ -103,6 +103,20 @@ def capture_settings(meta: dict) -> dict:
     return settings
 
 
+def camera_position_of(meta: dict) -> tuple[float, float, float] | None:
+    """The camera's position in the dome frame (mm, docs/conventions.md) a capture's meta.json records: a device
+    capture's ``design`` or a twin's (or the emulator's) ``provenance.scene``; None when neither records it."""
+    from .config import is_finite_number
+
+    prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
+    for holder in (meta.get("design"), prov.get("scene")):
+        camera = holder.get("camera") if isinstance(holder, dict) else None
+        position = camera.get("position") if isinstance(camera, dict) else None
+        if isinstance(position, list | tuple) and len(position) == 3 and all(is_finite_number(v) for v in position):
+            return (float(position[0]), float(position[1]), float(position[2]))
+    return None
+
+
 def setting_differences(old: object, new: object, where: str = "") -> list[str]:
     """'key: old -> new' of every (dotted) key where two JSON values differ, in key order; empty when equal."""
     if isinstance(old, dict) and isinstance(new, dict):

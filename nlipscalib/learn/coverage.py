@@ -29,6 +29,9 @@ from ..core.reconstruction import jsonable
 from ..core.tolerances import COVERAGE_GEL_SHARE
 
 if TYPE_CHECKING:  # named in hints only: the dataset module is not needed to measure one
+    from collections.abc import Callable
+
+    from ..core.camera import Camera
     from .dataset import CalibrationDataset
 
 TILT_EDGES_DEG = (2.0, 10.0, 25.0, 45.0, 90.0)
@@ -72,16 +75,25 @@ def tilt_deg(normals: np.ndarray, ref_normals: np.ndarray) -> np.ndarray:
     return angular_error_map(normals, ref_normals)  # the metric's angle, read as a tilt
 
 
-def coverage(dataset: CalibrationDataset, cells: int = 4, min_samples: int = 20) -> dict:
+def coverage(
+    dataset: CalibrationDataset,
+    cells: int = 4,
+    min_samples: int = 20,
+    camera_position: tuple[float, float, float] | None = None,
+) -> dict:
     """Coverage of ``dataset`` (CalibrationDataset): counts per (region, direction bin) and the next press.
+
+    ``camera_position``: the camera in the dome frame, mm (``core.sensor_record.camera_position_of`` the
+    reference's meta.json); given, the next press is also said as its press direction (polar, azimuth), the way
+    the twin (``nlips render --polar --azimuth``) and a lab's indenter stage place a press.
 
     Returns
     -------
     dict with ``counts`` (cells, cells, B) int (region row, region column, direction bin), ``gel``
     (cells, cells) bool (regions that see the gel), ``covered_fraction``, per-kind direction histograms
-    ``kinds``, ``next_press`` (region box in pixels, centre (u, v), indenter kind, advice text), ``steep``
-    (how steep the taught normals are, the advice when the steepest rings are empty: :func:`steep_gap`)
-    and the bin layout (tilt ring edges, sectors).
+    ``kinds``, ``next_press`` (region box in pixels, centre (u, v), press direction or None, indenter kind,
+    advice text), ``steep`` (how steep the taught normals are, the advice when the steepest rings are empty:
+    :func:`steep_gap`) and the bin layout (tilt ring edges, sectors).
     """
     ref = dataset.reference()
     H, W = ref["valid"].shape
@@ -103,6 +115,12 @@ def coverage(dataset: CalibrationDataset, cells: int = 4, min_samples: int = 20)
     gel = _gel_regions(ref["valid"], cells)
     covered = counts >= min_samples
     fraction = float(covered[gel].mean()) if gel.any() else 0.0
+    where = None
+    if camera_position is not None:
+        from ..core.camera import Camera
+
+        camera = Camera.from_dict(dataset.sensor["camera"])
+        where = lambda box: region_press_angles(box, ref["depth"], camera, camera_position)  # noqa: E731
     return {
         "cells": cells,
         "min_samples": min_samples,
@@ -113,7 +131,7 @@ def coverage(dataset: CalibrationDataset, cells: int = 4, min_samples: int = 20)
         "gel": gel,
         "covered_fraction": fraction,
         "kinds": {k: (h / max(h.sum(), 1)).round(4) for k, h in kinds.items()},
-        "next_press": _next_press(counts, covered, gel, kinds, (H, W)),
+        "next_press": _next_press(counts, covered, gel, kinds, (H, W), where),
         "steep": steep_gap(covered, gel, tilts),
     }
 
@@ -187,7 +205,41 @@ def _gel_regions(valid: np.ndarray, cells: int) -> np.ndarray:
     return frac / (H * W / cells**2) >= COVERAGE_GEL_SHARE
 
 
-def _next_press(counts: np.ndarray, covered: np.ndarray, gel: np.ndarray, kinds: dict, shape: tuple[int, int]) -> dict:
+def region_press_angles(
+    box: list[int], depth: np.ndarray, camera: Camera, camera_position: tuple[float, float, float]
+) -> tuple[float, float] | None:
+    """The press direction ``(polar_deg, azimuth_deg)`` (``core.dome.press_angles``) of the gel pixel nearest the
+    centre of an image region; None when no pixel of it sees the gel.
+
+    Parameters
+    ----------
+    box : [u0, v0, u1, v1], pixels, end exclusive
+    depth : (H, W) float, mm, camera-frame z of the undeformed gel; NaN off the gel
+    camera : core Camera of the sensor
+    camera_position : (3,) float, mm, the camera in the dome frame (``p_camera = p_dome - camera_position``)
+    """
+    from ..core.dome import press_angles
+
+    u0, v0, u1, v1 = box
+    window = depth[v0:v1, u0:u1]
+    v, u = np.nonzero(np.isfinite(window))
+    if len(u) == 0:
+        return None
+    nearest = int(np.argmin((u - (u1 - u0 - 1) / 2) ** 2 + (v - (v1 - v0 - 1) / 2) ** 2))
+    row, col = v0 + int(v[nearest]), u0 + int(u[nearest])
+    ray = camera.unproject(np.array([col, row], float))
+    point = ray * (depth[row, col] / ray[2])  # camera frame, on the gel
+    return press_angles(point + np.asarray(camera_position, float))
+
+
+def _next_press(
+    counts: np.ndarray,
+    covered: np.ndarray,
+    gel: np.ndarray,
+    kinds: dict,
+    shape: tuple[int, int],
+    where: Callable[[list[int]], tuple[float, float] | None] | None = None,
+) -> dict:
     H, W = shape
     cells = counts.shape[0]
     empty = np.where(gel, (~covered).sum(-1), -1)
@@ -200,14 +252,20 @@ def _next_press(counts: np.ndarray, covered: np.ndarray, gel: np.ndarray, kinds:
     kind = max(scores, key=scores.get) if scores else "any indenter"
     box = [c * W // cells, r * H // cells, (c + 1) * W // cells, (r + 1) * H // cells]
     centre = [(box[0] + box[2] - 1) / 2, (box[1] + box[3] - 1) / 2]
+    angles = where(box) if where is not None else None
+    # the twin's and an indenter stage's way to place a press, beside the image region
+    direction = f"; press direction polar {angles[0]:.0f}°, azimuth {angles[1]:.0f}°" if angles else ""
     advice = (
         f"{_with_article(kind)} in image region u {box[0]}-{box[2] - 1}, v {box[1]}-{box[3] - 1} "
-        f"(centre u={centre[0]:.0f}, v={centre[1]:.0f}): {int(gap.sum())} of {gap.size} direction bins empty there"
+        f"(centre u={centre[0]:.0f}, v={centre[1]:.0f}{direction}): {int(gap.sum())} of {gap.size} direction bins "
+        "empty there"
     )
     return {
         "region": [r, c],
         "box_u0_v0_u1_v1": box,
         "centre_uv": centre,
+        "polar_deg": None if angles is None else round(angles[0], 1),
+        "azimuth_deg": None if angles is None else round(angles[1], 1),
         "indenter": kind,
         "kind_scores": scores,
         "empty_bins": int(gap.sum()),

@@ -84,7 +84,10 @@ def coverage_figure(cov: dict, path: str | Path) -> Path:
     fig.suptitle(
         f"normal-direction coverage per image region ({cov['covered_fraction'] * 100:.0f}% of bins)\n"
         f"press next (red): {cov['next_press']['indenter']} at u~{cov['next_press']['centre_uv'][0]:.0f}, "
-        f"v~{cov['next_press']['centre_uv'][1]:.0f}" + _steep_line(cov.get("steep")) + "\n"
+        f"v~{cov['next_press']['centre_uv'][1]:.0f}"
+        + _press_direction(cov["next_press"])
+        + _steep_line(cov.get("steep"))
+        + "\n"
         "each plot: tilt direction as in the image (right = +u, down = +v), radius = tilt from the undeformed normal\n"
         f"(rings {'/'.join(f'{t:g}' for t in cov['tilt_edges_deg'])}°, outer ring drawn to 60°); "
         f"title = share of its direction bins with ≥ {cov['min_samples']} samples",
@@ -107,6 +110,13 @@ def image_polar_axes(ax: PolarAxes) -> None:
     tilt toward the image's bottom at the top."""
     ax.set_theta_zero_location("E")
     ax.set_theta_direction(-1)
+
+
+def _press_direction(next_press: dict) -> str:
+    """The next press's direction (polar, azimuth) for the title, "" when the coverage report has none."""
+    if next_press.get("polar_deg") is None:
+        return ""
+    return f" (polar {next_press['polar_deg']:.0f}°, azimuth {next_press['azimuth_deg']:.0f}°)"
 
 
 def _steep_line(steep: dict | None) -> str:

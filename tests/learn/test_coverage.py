@@ -1,5 +1,7 @@
 """Coverage report: known answers on synthetic calibration samples (no solver, no twin)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -85,3 +87,37 @@ def test_a_press_that_records_no_indenter_is_an_object(recorded):
     cov = coverage(data)
     assert list(cov["kinds"]) == ["object"] and cov["next_press"]["indenter"] == "object"
     assert cov["next_press"]["advice"].startswith("an object in image region")
+
+
+@pytest.mark.parametrize("shape", ["hemisphere", "flat"])
+@pytest.mark.parametrize(("polar", "azimuth"), [(0.0, 0.0), (15.0, 30.0), (25.0, 200.0), (35.0, 300.0)])
+def test_a_regions_press_direction_is_the_one_the_twin_presses_there(shape, polar, azimuth):
+    """The advice named an image region only; the press direction given for it must be the one whose press lands
+    there (``nlips render --polar --azimuth``): a press point projected into the image comes back as its angles."""
+    from nlipscalib.core.dome import dome_surface_point, reference_surface
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.learn.coverage import region_press_angles
+
+    design = SensorDesign()
+    design = dataclasses.replace(design, dome=dataclasses.replace(design.dome, shape=shape))
+    camera = design.camera_model()
+    position = np.asarray(design.camera.position, float)
+    point, _ = dome_surface_point(design.dome, polar, azimuth)
+    u, v = np.round(camera.project(point - position)).astype(int)
+    box = [u - 2, v - 2, u + 3, v + 3]  # centred on that pixel
+    got = region_press_angles(box, reference_surface(design, camera).depth, camera, tuple(position))
+    assert got is not None
+    assert got[0] == pytest.approx(polar, abs=0.5)
+    if polar > 0:  # the apex has no azimuth
+        assert (got[1] - azimuth + 180) % 360 - 180 == pytest.approx(0.0, abs=1.5)
+
+
+def test_the_advice_gives_the_press_direction_when_the_sensor_geometry_is_known():
+    from nlipscalib.learn.coverage import _next_press
+
+    covered, counts, gel = np.zeros((2, 2, 3), bool), np.zeros((2, 2, 3)), np.ones((2, 2), bool)
+    advice = _next_press(counts, covered, gel, {}, (20, 20), lambda box: (12.34, 251.6))
+    assert "(centre u=4, v=4; press direction polar 12°, azimuth 252°)" in advice["advice"]
+    assert (advice["polar_deg"], advice["azimuth_deg"]) == (12.3, 251.6)
+    unknown = _next_press(counts, covered, gel, {}, (20, 20))
+    assert "polar" not in unknown["advice"] and unknown["polar_deg"] is None

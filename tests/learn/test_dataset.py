@@ -125,11 +125,14 @@ def test_cli_calibrate_solves_samples_and_reports_coverage(twin_presses, tmp_pat
     cov = json.loads((root / "calibration" / "coverage.json").read_text())
     assert 0 < cov["covered_fraction"] < 1
     assert cov["next_press"]["indenter"] in ("sphere", "cube")
+    # the twin's reference records where its camera sits: the advice gives the press direction too
+    assert 0 <= cov["next_press"]["polar_deg"] < 90 and 0 <= cov["next_press"]["azimuth_deg"] < 360
+    assert "press direction polar" in cov["next_press"]["advice"]
     # a sphere and a cube tilt the gel by far less than 45 deg: the report asks for a press with steep relief
     assert 0 < cov["steep"]["taught_tilt_deg"] < 45 and cov["steep"]["untaught_from_deg"] <= 45
     assert (root / "calibration" / "coverage.png").stat().st_size > 1000
     printed = capsys.readouterr().out
-    assert "press next" in printed and "steep relief" in printed
+    assert "press next" in printed and "steep relief" in printed and "press direction polar" in printed
 
 
 def test_cli_calibrate_raw_colours_on_request_and_refuses_a_negative_sigma(twin_presses, tmp_path, capsys):
