@@ -3,10 +3,13 @@
 PATH is a press folder, a folder of presses, or a reconstruction folder (PRESS/nlips, PRESS/nlipsnet:
 the method is then taken from the folder's name). A result written elsewhere (`nlips solve PRESS --out
 DIR`) is scored with `nlips eval PRESS --result DIR`, which refuses a result made from another capture than PRESS
-(`--other-capture` scores it anyway). Both methods write the core reconstruction format
-(docs/formats.md), so they are scored alike. A damaged NLiPs result is re-computed from the settings
-recorded in its report.json, with a warning; when report.json is itself damaged or records no settings,
-the press is reported with the `nlips solve PRESS --overwrite` that re-makes it.
+(`--other-capture` scores it anyway). Several presses are scored together: one row each, then their mean (each
+press counts once) and the pooled figures (over all their scored pixels). Results of image frames (`nlips infer
+MODEL FRAMES --out DIR`) carry no ground truth: each is scored against the press its frame shows, one at a time
+(`nlips eval PRESS --result DIR/FRAME`); infer the press folders instead to score them together. Both methods
+write the core reconstruction format (docs/formats.md), so they are scored alike. A damaged NLiPs result is
+re-computed from the settings recorded in its report.json, with a warning; when report.json is itself damaged or
+records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it.
 """
 
 from __future__ import annotations
@@ -421,3 +424,34 @@ def _print(rows: list[tuple[str, dict]], scored: str) -> None:
     if len(rows) > 1:
         mean = {k: float(np.nanmean([s[k] for _, s in rows])) for k in ("aae_deg", "mabse", "depth_rmse_mm")}
         print(f"{'mean':<24} {'':>8} {mean['aae_deg']:>9.3f} {mean['mabse']:>8.4f} {mean['depth_rmse_mm']:>9.4f}")
+        p = pooled([s for _, s in rows])
+        print(f"{'pooled':<24} {p['pixels']:>8d} {p['aae_deg']:>9.3f} {p['mabse']:>8.4f} {p['depth_rmse_mm']:>9.4f}")
+
+
+def pooled(scores: list[dict]) -> dict:
+    """The figures of :func:`nlipscalib.core.metrics.evaluate` over all the presses' scored pixels together.
+
+    Why beside the mean of the presses' figures: the mean counts a press with a 300-pixel contact as much as one
+    with 3,000. Exact from each press's figures: every scored pixel has a finite estimate and truth (a result
+    with a NaN on a reconstructed pixel is refused as damaged), so each figure averages over its ``pixels``.
+
+    Parameters
+    ----------
+    scores : list of {"pixels": int, "aae_deg": degrees, "mabse": unitless, "depth_rmse_mm": mm}
+    """
+    import numpy as np
+
+    kept = [s for s in scores if s["pixels"] > 0]
+    n = np.array([s["pixels"] for s in kept], float)
+    if not n.sum():
+        return {"pixels": 0, "aae_deg": float("nan"), "mabse": float("nan"), "depth_rmse_mm": float("nan")}
+
+    def weighted(key: str, power: int = 1) -> float:
+        return float((np.array([s[key] for s in kept]) ** power * n).sum() / n.sum()) ** (1 / power)
+
+    return {
+        "pixels": int(n.sum()),
+        "aae_deg": weighted("aae_deg"),
+        "mabse": weighted("mabse"),
+        "depth_rmse_mm": weighted("depth_rmse_mm", power=2),
+    }

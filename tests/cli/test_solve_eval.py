@@ -174,6 +174,35 @@ def test_eval_header_names_what_is_scored(data, capsys):
         assert capsys.readouterr().out.splitlines()[0] == header
 
 
+def test_eval_of_several_presses_gives_their_mean_and_the_pooled_figures(data, capsys):
+    """A folder of presses ended with the mean of the per-press figures only (each press counted once, whatever
+    its size); the pooled row scores all their pixels together, checked against the pixels scored by hand."""
+    import numpy as np
+
+    from nlipscalib.core.metrics import angle_deg
+
+    root, cfg = data
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(root), "--region", "contact"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines[2:]] == ["press_a", "press_b", "mean", "pooled"]
+    pixels, aae, mabse, rmse = lines[-1].split()[1:]
+    angles, components, depth = [], [], []
+    for name in ("press_a", "press_b"):
+        gt, rec = load_press(root / name).ground_truth, load_reconstruction(root / name / "nlips")
+        m = gt.valid & rec.reconstructed & gt.contact
+        angles.append(angle_deg(rec.normals[m], gt.normals[m]))
+        components.append(np.abs(rec.normals[m] - gt.normals[m]).ravel())
+        depth.append(rec.depth[m] - gt.depth[m])
+    assert int(pixels) == sum(len(a) for a in angles)
+    assert float(aae) == pytest.approx(np.concatenate(angles).mean(), abs=1e-3)
+    assert float(mabse) == pytest.approx(np.concatenate(components).mean(), abs=1e-4)
+    assert float(rmse) == pytest.approx(np.sqrt(np.mean(np.concatenate(depth) ** 2)), abs=1e-4)
+    per_press = [float(line.split()[2]) for line in lines[2:4]]
+    assert per_press[0] != per_press[1]  # else mean and pooled could not differ
+
+
 def test_eval_scores_a_result_solved_into_another_folder(data, tmp_path, capsys):
     root, cfg = data
     press, other = root / "press_a", tmp_path / "elsewhere"
