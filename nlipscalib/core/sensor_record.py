@@ -83,9 +83,10 @@ def capture_settings(meta: dict) -> dict:
     the camera's exposure and gain, a device session's LED levels, and a twin's scene settings (render samples and
     bounces, sensor noise and exposure, coating, LED ring and package, camera effects, gel optics, dome).
 
-    A model records its calibration reference's settings, so that ``nlips infer`` of a press taken otherwise names
-    what differs (a twin press rendered at other samples per pixel was blamed on the exposure). Values absent from
-    ``meta`` are None."""
+    A model records its calibration presses' settings (:func:`common_settings`), so that ``nlips infer`` of a press
+    taken otherwise names what differs (a twin press rendered with other bounces was blamed on the exposure). Not
+    the reference's: it may be rendered at more samples per pixel than the presses (the experiments', 64). Values
+    absent from ``meta`` are None."""
     sensor = meta.get("sensor") if isinstance(meta.get("sensor"), dict) else {}
     prov = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
     settings = {
@@ -117,12 +118,29 @@ def camera_position_of(meta: dict) -> tuple[float, float, float] | None:
     return None
 
 
-def setting_differences(old: object, new: object, where: str = "") -> list[str]:
-    """'key: old -> new' of every (dotted) key where two JSON values differ, in key order; empty when equal."""
+def common_settings(settings: list[dict]) -> dict:
+    """The (nested) keys whose values all of ``settings`` share, with those values: what a set of captures (a
+    calibration's presses) was taken with alike; a key on which they differ, or that one lacks, is left out."""
+    if not settings:
+        return {}
+    common = {}
+    for key, value in settings[0].items():
+        values = [s.get(key) for s in settings if isinstance(s, dict)]
+        if len(values) == len(settings) and all(isinstance(v, dict) for v in values):
+            common[key] = common_settings(values)
+        elif all(v == value for v in values) and all(key in s for s in settings):
+            common[key] = value
+    return common
+
+
+def setting_differences(old: object, new: object, where: str = "", recorded_only: bool = False) -> list[str]:
+    """'key: old -> new' of every (dotted) key where two JSON values differ, in key order; empty when equal.
+    ``recorded_only``: only the keys ``old`` holds (a record of what its captures shared leaves out the rest)."""
     if isinstance(old, dict) and isinstance(new, dict):
         changes = []
-        for key in sorted(set(old) | set(new), key=str):
-            changes += setting_differences(old.get(key), new.get(key), f"{where}.{key}" if where else str(key))
+        for key in sorted(set(old) if recorded_only else set(old) | set(new), key=str):
+            where_key = f"{where}.{key}" if where else str(key)
+            changes += setting_differences(old.get(key), new.get(key), where_key, recorded_only)
         return changes
     return [] if old == new else [f"{where or 'value'}: {old!r} -> {new!r}"]
 

@@ -44,7 +44,7 @@ def assemble_dataset(out: Path, tasks: list[Task], sampling: dict) -> tuple[Cali
     (CalibrationDataset, stamps) : the dataset and, per press name (task id), the identity of its samples
     """
     from ..core.capture import load_press
-    from ..core.sensor_record import capture_settings, sensor_of
+    from ..core.sensor_record import sensor_of
     from ..learn.dataset import (
         EXPERIMENT_MAKER,
         CalibrationDataset,
@@ -75,15 +75,7 @@ def assemble_dataset(out: Path, tasks: list[Task], sampling: dict) -> tuple[Cali
     ref_press = load_press(ref_folder)
     write_shard(folder / "sensor.npz", reference_arrays(ref_press))
     cfg = SamplingConfig(**sampling)
-    write_index(
-        folder,
-        sensor_of(ref_press),
-        cfg,
-        entries,
-        str(ref_folder.resolve()),
-        made_by=EXPERIMENT_MAKER,
-        capture=capture_settings(ref_press.meta),
-    )
+    write_index(folder, sensor_of(ref_press), cfg, entries, str(ref_folder.resolve()), made_by=EXPERIMENT_MAKER)
     return CalibrationDataset(folder), stamps
 
 

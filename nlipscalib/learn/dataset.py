@@ -49,7 +49,7 @@ from ..core.claims import wait_for_release
 from ..core.errors import CaptureError, ConfigError
 from ..core.formatfile import read_arrays, read_format_json
 from ..core.imageio import save_npz
-from ..core.sensor_record import capture_settings, check_sensor, check_sensor_record, sensor_of
+from ..core.sensor_record import capture_settings, check_sensor, check_sensor_record, common_settings, sensor_of
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
 from .prefilter import Prefilter, check_sigma
@@ -234,7 +234,8 @@ def write_index(
 ) -> Path:
     """index.json: written last, so its presence marks a usable dataset. ``made_by``: :data:`EXPERIMENT_MAKER` for
     an experiment's dataset (None: ``nlips calibrate``'s), so that its refusals say what makes it anew. ``capture``:
-    the reference's capture settings (``core.sensor_record.capture_settings``), which a model trained on it keeps."""
+    the capture settings its presses share (``core.sensor_record.common_settings``), which a model trained on it
+    keeps; None when unknown."""
     index = {
         "format": FORMAT_NAME,
         "format_version": FORMAT_VERSION,
@@ -285,7 +286,7 @@ def build_dataset(
     Path of the dataset folder. Raises CaptureError naming the press when one is unsolved or from
     another sensor, ConfigError when another live build of other samples holds ``out``.
     """
-    from ..core.capture import load_press
+    from ..core.capture import load_press, read_meta
 
     cfg = cfg or SamplingConfig()
     out = Path(out)
@@ -309,7 +310,7 @@ def build_dataset(
                 len(entries),
                 shown,
             )
-        capture = capture_settings(ref_press.meta)
+        capture = common_settings([capture_settings(read_meta(folder)) for folder in folders])  # the presses' alike
         write_index(out, build.sensor, cfg, entries, str(Path(reference_folder).resolve()), capture=capture)
     return out
 
@@ -708,8 +709,8 @@ class CalibrationDataset:
         """Prefilter sigma the samples' colours were filtered with (0 for datasets made before the option)."""
         capture = index.get("capture")
         self.capture: dict | None = capture if isinstance(capture, dict) else None
-        """The reference's capture settings (``core.sensor_record.capture_settings``); None for datasets made
-        before they were recorded (2026-12-05)."""
+        """The capture settings its presses share (``core.sensor_record.common_settings``); None for datasets made
+        before they were recorded (2026-12-05) and for the experiments' (their rendered presses may be gone)."""
 
     @property
     def names(self) -> list[str]:

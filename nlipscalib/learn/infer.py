@@ -292,7 +292,7 @@ def capture_changes(model: LoadedModel, folder: str | Path) -> list[str]:
         meta = read_meta(Path(folder))
     except (CaptureError, OSError, ValueError):
         return []
-    return setting_differences(recorded, capture_settings(meta))
+    return setting_differences(recorded, capture_settings(meta), recorded_only=True)
 
 
 def mismatch_warning(frame: Frame, where: str | Path, changes: Sequence[str] = ()) -> str | None:
