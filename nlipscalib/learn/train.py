@@ -161,6 +161,10 @@ def split_by_press(
     return train, val
 
 
+TRAINING_BARS = {"nlips": "training on NLiPs labels", "true": "training on true normals"}
+"""The training bar's description for each kind of labels (:attr:`TrainConfig.labels`)."""
+
+
 def training_arrays(data: dict, labels: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(inputs (N, 5), targets (N, 3), contact (N,)) of the samples that have a finite label."""
     target = data["normal"] if labels == "nlips" else data["true_normal"]
@@ -438,7 +442,9 @@ def _epochs(
     xt, yt, xv, yv, cv = samples
     history, best, best_state = state["history"], state["best"], state["best_state"]
     start = time.perf_counter() - sum(h["seconds"] for h in history)
-    bar = progress_bar(cfg.max_epochs, enabled=progress, initial=len(history), desc="training", unit="epoch")
+    # the labels named: q2 trains on NLiPs labels, then on true normals, and two bare "training" bars read as a restart
+    desc = TRAINING_BARS.get(cfg.labels, "training")
+    bar = progress_bar(cfg.max_epochs, enabled=progress, initial=len(history), desc=desc, unit="epoch")
     for epoch in range(len(history), cfg.max_epochs):
         if history and epoch - 1 - best["epoch"] >= cfg.patience:
             break  # a resumed run that had already stopped early
