@@ -192,7 +192,13 @@ def run_experiment(
     settings = run_settings(exp, cfg, size, solver_options)
     with hold_outputs(tasks, settings, out, report):
         status = run_tasks(
-            tasks, out, workers=workers, scheduler=scheduler, keep_presses=keep_presses, progress=progress
+            tasks,
+            out,
+            workers=workers,
+            scheduler=scheduler,
+            keep_presses=keep_presses,
+            progress=progress,
+            name=exp.name,
         )
         learned = exp.learn(cfg, tasks, out, progress=progress)
         run_s = time.perf_counter() - start

@@ -55,6 +55,7 @@ def run_tasks(
     scheduler: str | None = None,
     keep_presses: bool = False,
     progress: bool = True,
+    name: str = "",
 ) -> RunStatus:
     """Run every task not yet done, stage by stage (references, calibrations, presses).
 
@@ -63,6 +64,7 @@ def run_tasks(
     workers : local worker processes (1 = in this process); ignored with ``scheduler``
     scheduler : None (local), "local:N" (start a Dask LocalCluster of N single-threaded worker
         processes) or the address of a running Dask scheduler ("tcp://host:8786")
+    name : the experiment's, on its progress bar ("q2 tasks"; ``nlips experiment all`` draws one bar each)
     """
     out = Path(out)
     (out / "tasks").mkdir(parents=True, exist_ok=True)
@@ -78,7 +80,7 @@ def run_tasks(
         if problem is not None:  # said once here: execute() re-checks it quietly (load_result)
             log.warning("%s; running %s again", problem, t.id)
         todo.append(t)
-    bar = _bar(len(tasks), len(status.skipped), progress)
+    bar = _bar(len(tasks), len(status.skipped), progress, f"{name} tasks" if name else "tasks")
     try:
         with _backend(scheduler, workers) as backend:
             for stage in sorted({t.stage for t in todo}):
@@ -92,10 +94,10 @@ def run_tasks(
     return status
 
 
-def _bar(total: int, initial: int, progress: bool) -> tqdm:
+def _bar(total: int, initial: int, progress: bool, desc: str) -> tqdm:
     from ..progress import progress_bar
 
-    return progress_bar(total, enabled=progress, initial=initial, unit="task")
+    return progress_bar(total, enabled=progress, initial=initial, desc=desc, unit="task")
 
 
 def _record(status: RunStatus, task_id: str, outcome: str, bar: tqdm) -> None:

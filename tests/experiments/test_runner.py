@@ -408,3 +408,25 @@ def test_a_task_kept_after_a_kill_loses_the_dead_runs_claim(tmp_path):
     status = run_tasks([Task(kind="reference", id="ref-none", scene={})], tmp_path, progress=False)
     assert status.skipped == ["ref-none"] and not status.done  # reused, not run again
     assert not [p.name for p in tasks.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
+
+
+def test_the_task_bar_names_its_experiment(tmp_path, monkeypatch):
+    """`nlips experiment all` on a terminal drew one unnamed task bar per experiment, then each one's training
+    bars: which experiment a bar counted showed only at its end. Each bar now says "NAME tasks"."""
+    import io
+
+    from nlipscalib import progress
+    from nlipscalib.experiments.runner import run_tasks
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty = Tty()
+    monkeypatch.setattr("sys.stderr", tty)
+    try:
+        progress.configure(progress=True)
+        run_tasks([], tmp_path, name="ablation")
+    finally:
+        progress.configure(progress=True)
+    assert "ablation tasks: " in tty.getvalue(), tty.getvalue()
