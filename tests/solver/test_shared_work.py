@@ -618,3 +618,17 @@ def test_the_outer_loops_first_pass_stops_its_levels_at_the_seed_tolerance(press
         assert run(unrefined, init, seed_energy_rtol=0.05).depth.tobytes() == plain, unrefined
     with pytest.raises(ConfigError, match="seed_energy_rtol"):
         SolverOptions(seed_energy_rtol=0.0)
+
+
+def test_the_led_and_channel_sum_has_numpys_bits():
+    """``press.led_channel_sum`` (the outer loop's relaxation and image total) equals ``stack.sum(axis=(0, 3))`` bit
+    for bit, on contiguous stacks and on windows of them (strided), float32 and float64, with -0.0 entries."""
+    from nlipscalib.solver.press import led_channel_sum
+
+    rng = np.random.default_rng(3)
+    for leds, h, w in [(1, 1, 1), (12, 16, 640), (5, 7, 33), (12, 40, 3)]:
+        for dtype in (np.float32, np.float64):
+            big = rng.lognormal(0.0, 2.0, (leds, h + 4, w + 6, 3)).astype(dtype)  # wide range: rounding shows
+            big[big < 0.05] = -0.0
+            for stack in (big, big[:, 2 : 2 + h, 3 : 3 + w], big[:, :h, 1:]):
+                assert led_channel_sum(stack).tobytes() == stack.sum(axis=(0, 3)).tobytes()
