@@ -39,6 +39,33 @@ def test_a_replaced_surface_equals_a_new_surface_of_the_changed_geometry(press):
 
 
 @pytest.mark.parametrize("size", [4, 5])
+def test_a_replaced_surface_by_bands_is_the_one_bands_bit_for_bit(press, monkeypatch, size):
+    """``Surface.replaced`` works by bands of patch rows on the pool (:data:`indirect.REPLACED_PATCH_ROWS`): every
+    array of the new surface is the same, bit for bit, as with one band over the whole box; 5 px patches do not
+    tile the 96x72 frame (a short last band), and the box leaves the frame's first rows and columns as they were."""
+    from nlipscalib.solver import indirect
+
+    ref, gt = press.reference, press.ground_truth
+    changed = np.zeros(press.camera.shape, bool)
+    changed[13:, 22:70] = True
+    changed &= gt.valid
+    base = Surface(press.camera, press.leds, ref.depth, ref.normals, size=size)
+
+    def arrays(rows: int) -> list[bytes]:
+        monkeypatch.setattr(indirect, "REPLACED_PATCH_ROWS", rows)
+        new = base.replaced(gt.depth, gt.normals, changed)
+        parts = [new.valid, new.depth, new.normals, new.shading, new.keep]
+        return [
+            np.ascontiguousarray(a).tobytes()
+            for a in parts + [new.patches[k] for k in sorted(new.patches) if k != "size"]
+        ]
+
+    one = arrays(1000)
+    assert arrays(1) == one and arrays(3) == one
+    assert one[3] != base.shading.tobytes()  # the premise: the shading changed
+
+
+@pytest.mark.parametrize("size", [4, 5])
 def test_the_gels_albedo_and_its_patch_means_by_bands_are_the_whole_frames(press, size):
     """``indirect._gel_albedo`` (the outer loop's albedo and its patch means, by bands of patch rows on the pool)
     gives the whole frame's numbers bit for bit, NaN read as 0 and 0 off the gel; 5 px patches do not tile the
