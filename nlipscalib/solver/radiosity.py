@@ -136,11 +136,15 @@ def patch_mean(patches: dict, values: np.ndarray) -> np.ndarray:
     """
     w, size = patches["pixel_area"], patches["size"]
     per_area = 1.0 / np.maximum(patches["area"], 1e-30)
+    per_pixel = values.shape[1:] if values.ndim == 4 else values.shape  # (H, W, ...) of one image
+    extra = (1,) * (len(per_pixel) - 2)
+    # the weights spelt out over the channels (the same products): broadcast along a length-1 last axis, NumPy
+    # multiplies three elements per inner loop (1.3 against 0.8 ms per 640x480 RGB image)
+    w = np.ascontiguousarray(np.broadcast_to(w.reshape(w.shape + extra), per_pixel))
+    per_area = per_area.reshape(per_area.shape + extra)
     if values.ndim == 4:
-        return np.stack(threads.map_items(lambda v: block_sum(v * w[..., None], size) * per_area[..., None], values))
-    return block_sum(values * w.reshape(w.shape + (1,) * (values.ndim - 2)), size) * per_area.reshape(
-        per_area.shape + (1,) * (values.ndim - 2)
-    )
+        return np.stack(threads.map_items(lambda v: block_sum(v * w, size) * per_area, values))
+    return block_sum(values * w, size) * per_area
 
 
 def off_view_patches(

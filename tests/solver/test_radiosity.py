@@ -186,3 +186,26 @@ def test_a_surfaces_indirect_light_groups_far_patches(tmp_path, monkeypatch):
     exact = light()
     lit = exact > 0.01 * exact.max()
     np.testing.assert_allclose(grouped[lit], exact[lit], rtol=2e-2)
+
+
+def test_patch_means_have_the_bits_of_the_broadcast_weights():
+    """``radiosity.patch_mean`` spells its pixel weights out over the channels: the same bits as weighting with the
+    (H, W, 1) weights broadcast, for an (L, H, W, 3) stack, one (H, W, 3) image and an (H, W) map; 5 px patches do
+    not tile 37 x 52 pixels (padded last patches)."""
+    rng = np.random.default_rng(7)
+    H, W, size = 37, 52, 5
+    weights = rng.uniform(0.0, 2.0, (H, W))
+    weights[:3] = 0.0  # off the gel
+    area = radiosity.block_sum(weights, size)
+    patches = {"pixel_area": weights, "area": area, "size": size}
+    per_area = 1.0 / np.maximum(area, 1e-30)
+    stack = rng.lognormal(0.0, 1.5, (4, H, W, 3)).astype(np.float32)
+    for values in (stack, stack[1], stack[2, ..., 0]):
+        extra = (1,) * (values.ndim - (3 if values.ndim == 4 else 2))
+        w, pa = weights.reshape(weights.shape + extra), per_area.reshape(per_area.shape + extra)
+        if values.ndim == 4:
+            expected = np.stack([radiosity.block_sum(v * w, size) * pa for v in values])
+        else:
+            expected = radiosity.block_sum(values * w, size) * pa
+        got = radiosity.patch_mean(patches, values)
+        assert got.shape == expected.shape and got.tobytes() == expected.tobytes()
