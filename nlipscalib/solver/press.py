@@ -824,12 +824,37 @@ def _solved_surface_light(
 ) -> np.ndarray:
     """Indirect light of the solved surface (``solved``, from :func:`_solved_surface`) at the ``mask``'s pixels,
     (L, h, w, 3) on ``window`` (rows, columns; it holds the mask)."""
-    rec = result.reconstructed
-    typical = np.median(result.albedo[rec], axis=0) if rec.any() else np.asarray(model.off_view_albedo)
-    albedo = np.where(rec[..., None], result.albedo, typical)
+    albedo = _filled_albedo(result, np.asarray(model.off_view_albedo))
     return surface_indirect(
         model, press.camera, leds, solved.depth, solved.normals, albedo, mask, surface=solved, window=window
     )
+
+
+def _filled_albedo(result: SolveResult, fallback: np.ndarray) -> np.ndarray:
+    """(H, W, 3) -- ``result``'s albedo where reconstructed, else its median there per channel (``fallback`` (3,)
+    when nothing is): the outer loop's gathers read the albedo of the whole visible surface.
+
+    On the thread pool, the same bits as ``np.where(rec[..., None], albedo, np.median(albedo[rec], axis=0))``: the
+    three channels' medians one per task (a median is the middle values, whatever order they are read in), the
+    filling by bands of rows. Why: both ran on the main thread before every outer gather while the other core
+    waited, 8 ms on a cube press's auto ROI, ~18 ms on a 640x480 frame."""
+    rec, values = result.reconstructed, result.albedo
+    if rec.any():
+        # each a NumPy scalar of the albedo's type, as np.median(axis=0) gives
+        typical = np.array(threads.map_items(lambda c: np.median(values[..., c][rec]), range(values.shape[-1])))
+    else:
+        typical = fallback
+    filled = np.empty(values.shape, np.result_type(values, typical))
+
+    def band(rows: slice) -> None:
+        filled[rows] = np.where(rec[rows][..., None], values[rows], typical)
+
+    threads.map_items(band, threads.chunks(len(values), -(-len(values) // FILL_ROWS)))
+    return filled
+
+
+FILL_ROWS = 64
+"""Rows per pool task of :func:`_filled_albedo`."""
 
 
 def _relaxation(image_total: np.ndarray, light: np.ndarray) -> np.ndarray:
