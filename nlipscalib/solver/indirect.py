@@ -239,6 +239,12 @@ def surface_digest(depth: np.ndarray, normals: np.ndarray) -> str:
     return kept[1]
 
 
+REPLACED_PATCH_ROWS = 2
+"""Patch rows per pool task of :meth:`Surface.replaced`: a band's direct shading (12 LEDs, 640 px wide, 8 px patches:
+16 rows) takes 3 MB of float64, averaged into its patches while still in the cache. 1 to 8 timed alike within the
+2-core VM's noise (53-63 ms of CPU for a cube press's auto ROI box)."""
+
+
 class Surface:
     """The (reference or solved) surface as patches, with its direct shading per patch.
 
@@ -280,6 +286,12 @@ class Surface:
         Only the patches over the changed pixels' bounding box are recomputed (geometry and direct
         shading); the numbers equal those of a new ``Surface`` of the whole changed surface.
 
+        By bands of :data:`REPLACED_PATCH_ROWS` patch rows on the thread pool, each band's pixels, patches and
+        shading's patch means made together (each pixel's and each patch's own arithmetic: the same bits as the
+        whole box at once). Why: the outer loop waits for it before every gather, and it ran the box's geometry
+        and patches on the main thread (18 ms of a cube press's 336x332 auto ROI, 28 ms of a 640x480 frame) and
+        wrote the box's per-pixel shading whole (32 MB and 88 MB of float64) before averaging it.
+
         Parameters
         ----------
         depth : (H, W) float, mm; normals : (H, W, 3) float, unit -- the new surface (read in the box).
@@ -292,29 +304,35 @@ class Surface:
         new = copy.copy(self)
         if not changed.any():
             return new
-        s = self.size
+        s, H = self.size, self.valid.shape[0]
         pr, pc, win = _patch_window(changed, s)
-        d = np.where(changed[win], np.asarray(depth)[win], self.depth[win])
-        n = np.where(changed[win][..., None], np.asarray(normals)[win], self.normals[win])
-        valid = np.isfinite(d)
-        pts = depth_to_points(np.where(valid, d, 0.0), self.camera.rays[win])
-        nrm = np.where(valid[..., None], n, 0.0).astype(np.float64)
-        sub = radiosity.surface_patches(
-            pts, nrm, valid, self.camera, s, window=win, solid_angle=self.patches["solid_angle"]
-        )
-        # on both cores: the outer loop's every pass before its solve waits for this (~20 ms of one core on a
-        # 640x480 auto ROI's box)
-        shade = _shading_on_threads(pts, nrm, valid, self.leds)
+        depth, normals = np.asarray(depth), np.asarray(normals)
         new.valid, new.depth, new.normals = self.valid.copy(), self.depth.copy(), self.normals.copy()
-        new.valid[win], new.depth[win], new.normals[win] = valid, d, n
         new.patches = dict(self.patches)
-        for key in ("points", "normals", "area"):
+        for key in ("points", "normals", "area", "pixel_area"):
             new.patches[key] = self.patches[key].copy()
-            new.patches[key][pr, pc] = sub[key]
-        new.patches["pixel_area"] = self.patches["pixel_area"].copy()
-        new.patches["pixel_area"][win] = sub["pixel_area"]
         new.shading = self.shading.copy()
-        new.shading[:, pr, pc] = radiosity.patch_mean(sub, shade)
+
+        def band(rows: slice) -> None:  # patch rows ``rows`` of the window: their pixels' geometry and shading
+            patch_rows = slice(pr.start + rows.start, pr.start + rows.stop)
+            px = (slice(patch_rows.start * s, min(patch_rows.stop * s, H)), win[1])
+            d = np.where(changed[px], depth[px], self.depth[px])
+            n = np.where(changed[px][..., None], normals[px], self.normals[px])
+            valid = np.isfinite(d)
+            pts = depth_to_points(np.where(valid, d, 0.0), self.camera.rays[px])
+            nrm = np.where(valid[..., None], n, 0.0).astype(np.float64)
+            sub = radiosity.surface_patches(
+                pts, nrm, valid, self.camera, s, window=px, solid_angle=self.patches["solid_angle"]
+            )
+            shade = led_shading(pts, nrm, self.leds)
+            shade[:, ~valid] = 0.0
+            new.valid[px], new.depth[px], new.normals[px] = valid, d, n
+            for key in ("points", "normals", "area"):
+                new.patches[key][patch_rows, pc] = sub[key]
+            new.patches["pixel_area"][px] = sub["pixel_area"]
+            new.shading[:, patch_rows, pc] = radiosity.patch_mean(sub, shade)
+
+        threads.map_items(band, threads.chunks(pr.stop - pr.start, -(-(pr.stop - pr.start) // REPLACED_PATCH_ROWS)))
         new.keep = new.patches["area"] > 0
         return new
 
@@ -769,11 +787,17 @@ def scaled_into(
     Why: on a 640x480 whole frame the upsampling, the product, the zeroing and the copy into the result, each over
     (L, H, W, 3) float32 arrays of 44 MB, took 0.13-0.21 s of one core in the last outer pass while the other waited
     (0.10 s now, both cores; sphere1). Per LED the same operations in the same order, so the same bits as all LEDs
-    at once."""
+    at once.
+
+    The scale and the dark pixels are spelt out per channel first, (h, w, 3): a product with a (3,) scale and a
+    zeroing by an (h, w) mask ran three elements per inner loop (1.3 and 1.4 ms per LED at 640x480, against 0.4
+    and 0.9 ms); the same values per element."""
+    scale = np.ascontiguousarray(np.broadcast_to(scale, out.shape[1:]))
+    dark = np.repeat(dark[..., None], out.shape[-1], axis=-1)
 
     def one_led(i: int) -> None:
         np.multiply(scale, per_led[i][part], out=out[i])
-        out[i][dark] = 0.0
+        np.copyto(out[i], 0.0, where=dark)
 
     threads.map_items(one_led, range(len(per_led)))
 

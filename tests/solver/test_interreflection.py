@@ -385,3 +385,32 @@ def test_the_box_compensation_is_the_whole_frames_on_one_thread_and_on_two():
             np.testing.assert_array_equal(boxed(focus_light, receivers), after_focus)
     finally:
         threads.set_workers(before)
+
+
+def test_the_gathers_filled_albedo_is_the_whole_frames_on_one_thread_and_on_two():
+    """``press._filled_albedo`` (the solved albedo, its per-channel median where not reconstructed; medians and
+    filling on the pool) gives the bits of ``np.where`` with ``np.median(axis=0)``, on one thread and on two, an
+    even count of reconstructed pixels (a median between two values) included; nothing reconstructed: the
+    fallback."""
+    from types import SimpleNamespace
+
+    from nlipscalib.solver import threads
+    from nlipscalib.solver.press import FILL_ROWS, _filled_albedo
+
+    rng = np.random.default_rng(6)
+    albedo = rng.lognormal(0.0, 1.0, (2 * FILL_ROWS + 9, 31, 3)).astype(np.float32)
+    rec = rng.uniform(size=albedo.shape[:2]) < 0.7
+    rec.flat[np.flatnonzero(rec)[0]] ^= bool(rec.sum() % 2)  # an even count
+    albedo[~rec] = np.nan
+    fallback = np.array([0.1, 0.2, 0.3])
+    expected = np.where(rec[..., None], albedo, np.median(albedo[rec], axis=0))
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            got = _filled_albedo(SimpleNamespace(reconstructed=rec, albedo=albedo), fallback)
+            assert got.dtype == np.float32 and got.tobytes() == expected.tobytes()
+            none = _filled_albedo(SimpleNamespace(reconstructed=np.zeros_like(rec), albedo=albedo), fallback)
+            assert np.array_equal(none, np.broadcast_to(fallback, albedo.shape))
+    finally:
+        threads.set_workers(before)

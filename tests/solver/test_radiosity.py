@@ -107,6 +107,26 @@ def test_kept_form_factors_gather_the_same_bits_as_the_gather():
     assert np.any(factors.gather(light) != factors.gather(light * 2))  # the light is read, not kept
 
 
+def test_the_pair_terms_by_blocks_are_the_whole_blocks_terms(monkeypatch):
+    """``radiosity._pair_factors`` computes its float64 steps by blocks of rows (:data:`PAIR_BLOCK_FLOATS` terms,
+    cache-sized): the terms are those of one block of all the rows, bit for bit, whatever the block (a short last
+    block included, and a one-row tail, which NumPy would multiply as a matrix-vector product), and a patch does
+    not light itself."""
+    s = _dome(dent=1.0)
+    pe, ne = s["points"].reshape(-1, 3), s["normals"].reshape(-1, 3)
+    ae = s["area"].ravel().astype(np.float32)
+    qq, nq_q = np.sum(pe * pe, axis=1), np.sum(ne * pe, axis=1)
+    pr, nr = pe[100:437], ne[100:437]  # 337 receivers among the emitters
+    args = (pr, nr, pe, ne, ae, qq, nq_q)
+    monkeypatch.setattr(radiosity, "PAIR_BLOCK_FLOATS", len(pr) * len(pe))
+    whole = radiosity._pair_factors(*args)
+    assert whole.dtype == np.float32 and whole.shape == (len(pr), len(pe)) and (whole > 0).mean() > 0.5
+    assert np.all(whole[np.arange(len(pr)), np.arange(100, 437)] == 0.0)  # itself
+    for rows in (1, 2, 7, 48, 64):  # 337 rows: tails of 1 (2, 7, 48) and 17 rows
+        monkeypatch.setattr(radiosity, "PAIR_BLOCK_FLOATS", rows * len(pe))
+        assert radiosity._pair_factors(*args).tobytes() == whole.tobytes()
+
+
 def test_no_grouping_is_the_exact_gather():
     s = _dome(dent=1.0)
     receivers = np.zeros(s["area"].shape, bool)
@@ -166,3 +186,26 @@ def test_a_surfaces_indirect_light_groups_far_patches(tmp_path, monkeypatch):
     exact = light()
     lit = exact > 0.01 * exact.max()
     np.testing.assert_allclose(grouped[lit], exact[lit], rtol=2e-2)
+
+
+def test_patch_means_have_the_bits_of_the_broadcast_weights():
+    """``radiosity.patch_mean`` spells its pixel weights out over the channels: the same bits as weighting with the
+    (H, W, 1) weights broadcast, for an (L, H, W, 3) stack, one (H, W, 3) image and an (H, W) map; 5 px patches do
+    not tile 37 x 52 pixels (padded last patches)."""
+    rng = np.random.default_rng(7)
+    H, W, size = 37, 52, 5
+    weights = rng.uniform(0.0, 2.0, (H, W))
+    weights[:3] = 0.0  # off the gel
+    area = radiosity.block_sum(weights, size)
+    patches = {"pixel_area": weights, "area": area, "size": size}
+    per_area = 1.0 / np.maximum(area, 1e-30)
+    stack = rng.lognormal(0.0, 1.5, (4, H, W, 3)).astype(np.float32)
+    for values in (stack, stack[1], stack[2, ..., 0]):
+        extra = (1,) * (values.ndim - (3 if values.ndim == 4 else 2))
+        w, pa = weights.reshape(weights.shape + extra), per_area.reshape(per_area.shape + extra)
+        if values.ndim == 4:
+            expected = np.stack([radiosity.block_sum(v * w, size) * pa for v in values])
+        else:
+            expected = radiosity.block_sum(values * w, size) * pa
+        got = radiosity.patch_mean(patches, values)
+        assert got.shape == expected.shape and got.tobytes() == expected.tobytes()

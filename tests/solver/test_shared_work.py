@@ -39,6 +39,33 @@ def test_a_replaced_surface_equals_a_new_surface_of_the_changed_geometry(press):
 
 
 @pytest.mark.parametrize("size", [4, 5])
+def test_a_replaced_surface_by_bands_is_the_one_bands_bit_for_bit(press, monkeypatch, size):
+    """``Surface.replaced`` works by bands of patch rows on the pool (:data:`indirect.REPLACED_PATCH_ROWS`): every
+    array of the new surface is the same, bit for bit, as with one band over the whole box; 5 px patches do not
+    tile the 96x72 frame (a short last band), and the box leaves the frame's first rows and columns as they were."""
+    from nlipscalib.solver import indirect
+
+    ref, gt = press.reference, press.ground_truth
+    changed = np.zeros(press.camera.shape, bool)
+    changed[13:, 22:70] = True
+    changed &= gt.valid
+    base = Surface(press.camera, press.leds, ref.depth, ref.normals, size=size)
+
+    def arrays(rows: int) -> list[bytes]:
+        monkeypatch.setattr(indirect, "REPLACED_PATCH_ROWS", rows)
+        new = base.replaced(gt.depth, gt.normals, changed)
+        parts = [new.valid, new.depth, new.normals, new.shading, new.keep]
+        return [
+            np.ascontiguousarray(a).tobytes()
+            for a in parts + [new.patches[k] for k in sorted(new.patches) if k != "size"]
+        ]
+
+    one = arrays(1000)
+    assert arrays(1) == one and arrays(3) == one
+    assert one[3] != base.shading.tobytes()  # the premise: the shading changed
+
+
+@pytest.mark.parametrize("size", [4, 5])
 def test_the_gels_albedo_and_its_patch_means_by_bands_are_the_whole_frames(press, size):
     """``indirect._gel_albedo`` (the outer loop's albedo and its patch means, by bands of patch rows on the pool)
     gives the whole frame's numbers bit for bit, NaN read as 0 and 0 off the gel; 5 px patches do not tile the
@@ -618,3 +645,17 @@ def test_the_outer_loops_first_pass_stops_its_levels_at_the_seed_tolerance(press
         assert run(unrefined, init, seed_energy_rtol=0.05).depth.tobytes() == plain, unrefined
     with pytest.raises(ConfigError, match="seed_energy_rtol"):
         SolverOptions(seed_energy_rtol=0.0)
+
+
+def test_the_led_and_channel_sum_has_numpys_bits():
+    """``press.led_channel_sum`` (the outer loop's relaxation and image total) equals ``stack.sum(axis=(0, 3))`` bit
+    for bit, on contiguous stacks and on windows of them (strided), float32 and float64, with -0.0 entries."""
+    from nlipscalib.solver.press import led_channel_sum
+
+    rng = np.random.default_rng(3)
+    for leds, h, w in [(1, 1, 1), (12, 16, 640), (5, 7, 33), (12, 40, 3)]:
+        for dtype in (np.float32, np.float64):
+            big = rng.lognormal(0.0, 2.0, (leds, h + 4, w + 6, 3)).astype(dtype)  # wide range: rounding shows
+            big[big < 0.05] = -0.0
+            for stack in (big, big[:, 2 : 2 + h, 3 : 3 + w], big[:, :h, 1:]):
+                assert led_channel_sum(stack).tobytes() == stack.sum(axis=(0, 3)).tobytes()
