@@ -223,11 +223,17 @@ def gather(
     r cos_q = n_q.p - n_q.q), so BLAS does the M x K work.
     """
     pairs = _Pairs(points, normals, emitters, chunk)
+    return _gather_blocks(pairs, pairs.factors, radiance)
+
+
+def _gather_blocks(pairs: _Pairs, factors_of: Callable[[int], np.ndarray], radiance: np.ndarray) -> np.ndarray:
+    """(L, M, 3) float32 -- each block's pairwise terms ``factors_of(s)`` (chunk, K) times the radiance rows, on
+    the pool: one copy for :func:`gather` (terms made per block) and :meth:`FormFactors.gather` (terms kept)."""
     rad = _radiance_rows(radiance)
     out = np.empty((pairs.receivers, rad.shape[1]), np.float32)
 
     def block(s: int) -> None:
-        out[s : s + pairs.chunk] = pairs.factors(s) @ rad
+        out[s : s + pairs.chunk] = factors_of(s) @ rad
 
     pairs.on_pool(block)
     return _gathered(out, len(radiance))
@@ -259,14 +265,7 @@ class FormFactors:
 
     def gather(self, radiance: np.ndarray) -> np.ndarray:
         """(L, M, 3) float32 -- :func:`gather` of ``radiance`` (L, K, 3) from these emitters at these receivers."""
-        rad = _radiance_rows(radiance)
-        out = np.empty((self._pairs.receivers, rad.shape[1]), np.float32)
-
-        def block(s: int) -> None:
-            out[s : s + self._pairs.chunk] = self._blocks[s] @ rad
-
-        self._pairs.on_pool(block)
-        return _gathered(out, len(radiance))
+        return _gather_blocks(self._pairs, self._blocks.__getitem__, radiance)
 
 
 class _Pairs:
