@@ -87,7 +87,7 @@ class Krylov:
             # iterations, fitted to step 2's matrix 11 and 14 (a set-up of its own at each step: 12 and 11), for
             # 0.08 s of CPU against a set-up's 0.2. A later step's hierarchy is a step closer: fitting it too saved
             # 0-3 iterations (sphere1, coin1, cube1's step 3), about what it costs (benchmarks/RESULTS.md, s20-amg).
-            self.amg = self.amg.for_matrix(Hm.astype(PRECONDITIONER_DTYPE))
+            self.amg = self.amg.for_matrix(_single(Hm))
             self.refreshes += 1
             self._amg_matrix, self._amg_solve = weakref.ref(Hm), self.solves
         x, _, amg_iters = pcg(products, rhs, x, rtol, self.opts.cg_maxiter, self.amg)
@@ -222,7 +222,28 @@ every Gauss-Newton step of sphere1 and cube1 took the same CG iterations, and th
 def _amg_cycle(Hm: sp.csr_matrix) -> _VCycle:
     """A smoothed-aggregation AMG V-cycle for ``Hm`` (:func:`_hierarchy`, :class:`_VCycle`), in
     :data:`PRECONDITIONER_DTYPE`."""
-    return _VCycle(_hierarchy(Hm.astype(PRECONDITIONER_DTYPE)))
+    return _VCycle(_hierarchy(_single(Hm)))
+
+
+def _single(Hm: sp.csr_matrix) -> sp.csr_matrix:
+    """``Hm.astype(PRECONDITIONER_DTYPE)`` (its own index arrays, the same bits), each row block's values and indices
+    copied on the pool (the rows cut as :class:`threads.RowBlocks` cuts them): ~20 ms of one core on a 640x480
+    level's 4 M entries, made at each AMG set-up and fit while the other core waited."""
+    Hm.sum_duplicates()  # as astype does first: a check of a canonical matrix
+    if threads.workers() == 1 or Hm.shape[0] < threads.PRODUCT_MIN_ROWS:
+        return Hm.astype(PRECONDITIONER_DTYPE)
+    data, indices = np.empty(Hm.nnz, PRECONDITIONER_DTYPE), np.empty_like(Hm.indices)
+
+    def copy(rows: slice) -> None:
+        entries = slice(int(Hm.indptr[rows.start]), int(Hm.indptr[rows.stop]))
+        data[entries] = Hm.data[entries]
+        indices[entries] = Hm.indices[entries]
+
+    threads.map_items(copy, threads.chunks(Hm.shape[0]))
+    out = sp.csr_matrix(Hm.shape, dtype=PRECONDITIONER_DTYPE)
+    out.data, out.indices, out.indptr = data, indices, Hm.indptr.copy()
+    out.has_canonical_format = True
+    return out
 
 
 def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:
@@ -475,7 +496,13 @@ class _L1Jacobi:
     def __init__(self, A: sp.csr_matrix, product: threads.RowBlocks):
         self.product = product
         # every row holds its positive diagonal (A is SPD): reduceat sums each row, none empty
-        row_sums = np.add.reduceat(np.abs(A.data, dtype=np.float64), A.indptr[:-1])
+        # each row block's sums on the pool (the same segments, the same bits): ~18 ms of one core at 640x480
+        parts = product.blocks or [(slice(0, A.shape[0]), A)]
+        row_sums = np.concatenate(
+            threads.map_items(
+                lambda part: np.add.reduceat(np.abs(part[1].data, dtype=np.float64), part[1].indptr[:-1]), parts
+            )
+        )
         self.scale = (SMOOTHER_OMEGA / row_sums).astype(A.dtype)
         """(n,) A's dtype -- omega / D_ii."""
 

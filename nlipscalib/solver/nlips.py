@@ -835,7 +835,8 @@ class _Level:
         delta, g, Hm = self._newton_step(pcg, coarse)
         # When the model predicts less than energy_rtol of decrease, the level has converged by that
         # criterion: the full step is taken if it does not raise the energy, and no halvings are tried.
-        predicted = -float(g @ delta) - 0.5 * float(delta @ (Hm @ delta))
+        # Hm's product by row blocks on the pool (the same bits): ~2.5 ms of one core at 640x480
+        predicted = -float(g @ delta) - 0.5 * float(delta @ threads.RowBlocks(Hm).dot(delta))
         converged = predicted < self.opts.energy_rtol * self.e_cur
         step = self._line_search(delta, converged)
         if step is None:

@@ -472,3 +472,24 @@ def test_the_fused_cycle_is_the_cycle(monkeypatch):
             z = cycle.finish(r).copy()
             assert z.dtype == np.float64
             np.testing.assert_array_equal(z, cycle.apply(r))
+
+
+def test_the_single_precision_copy_is_astypes_on_one_or_two_threads(monkeypatch):
+    """``_single``: the float32 copy AMG is set up from and fitted to, by row blocks on the pool: astype's values,
+    indices and row pointers, in arrays of its own."""
+    from nlipscalib.solver import threads
+
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    A = _weighted_laplacian(50, 8)
+    A.data *= np.pi  # values float32 rounds
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            single, expected = krylov._single(A), A.astype(np.float32)
+            assert single.dtype == np.float32 and single.has_sorted_indices
+            for name in ("data", "indices", "indptr"):
+                np.testing.assert_array_equal(getattr(single, name), getattr(expected, name))
+                assert not np.shares_memory(getattr(single, name), getattr(A, name))
+    finally:
+        threads.set_workers(before)
