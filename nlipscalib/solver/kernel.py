@@ -437,11 +437,17 @@ class ChunkedModel:
         if not isinstance(a, Parts):
             return a.reshape(-1)[::step]
         planes = a.arrays[0].shape[0] * a.arrays[0].shape[1]
-        plane, pixel = np.divmod(np.arange(0, planes * self.n, step), self.n)
-        out = np.empty(len(plane), a.arrays[0].dtype)
+        out = np.empty(-(-planes * self.n // step), a.arrays[0].dtype)
+        # Sample j is element j * step of the whole (planes, n) array: a chunk's samples in one plane are a strided
+        # slice of its rows and a contiguous run of ``out``. Not masks of every sample's plane and pixel per chunk:
+        # 38 chunks' masks over 200,000 samples took ~35 ms of the main thread per 640x480 level.
         for s, part in zip(self.slices, a.arrays):
-            here = (pixel >= s.start) & (pixel < s.stop)
-            out[here] = part.reshape(planes, -1)[plane[here], pixel[here] - s.start]
+            rows = part.reshape(planes, -1)
+            for plane in range(planes):
+                first, end = plane * self.n + s.start, plane * self.n + s.stop  # this chunk's part of the plane
+                j0, j1 = -(-first // step), -(-end // step)  # the samples in [first, end)
+                if j1 > j0:
+                    out[j0:j1] = rows[plane, j0 * step - first :: step]
         return out
 
     def shading(

@@ -64,26 +64,19 @@ class Krylov:
 
     def solve(self, Hm: sp.csr_matrix, rhs: np.ndarray, rtol: float) -> tuple[np.ndarray, int]:
         """Approximate solution of Hm x = rhs to ``|r| <= rtol |rhs|``; returns x and CG iterations."""
-        count = [0]
-
-        def cb(_: np.ndarray):
-            count[0] += 1
-
         self.solves += 1
         x = None
         # the system's products on both cores; the same bits as Hm @ v (threads.RowBlocks)
         products = threads.RowBlocks(Hm)
-        op = spla.LinearOperator(Hm.shape, matvec=lambda v: products.dot(v.ravel()), dtype=np.float64)
         # Jacobi only for loose solves: below 1e-2 it needed more iterations than it is worth.
         cap = self.opts.cg_jacobi_iters
+        jacobi_iters = 0
         if self.amg is None and cap > 0 and rtol >= 1e-2 and jacobi_predicted(self.jacobi_rate, rtol) <= cap:
-            inv_diag = 1.0 / Hm.diagonal()
-            jac = spla.LinearOperator(Hm.shape, matvec=lambda v: inv_diag * v.ravel(), dtype=np.float64)
-            x, status = spla.cg(op, rhs, rtol=rtol, maxiter=cap, M=jac, callback=cb)
+            x, status, jacobi_iters = pcg(products, rhs, None, rtol, cap, _Jacobi(Hm))
             # converged: rtol^(1/iterations) bounds its rate from above (the residual reached rtol or less)
-            self.jacobi_rate = rtol ** (1 / max(count[0], 1)) if status == 0 else 1.0
+            self.jacobi_rate = rtol ** (1 / max(jacobi_iters, 1)) if status == 0 else 1.0
             if status == 0:
-                return x, count[0]
+                return x, jacobi_iters
         if self.amg is None:
             self.amg = _amg_cycle(Hm)
             self.setups += 1
@@ -94,16 +87,110 @@ class Krylov:
             # iterations, fitted to step 2's matrix 11 and 14 (a set-up of its own at each step: 12 and 11), for
             # 0.08 s of CPU against a set-up's 0.2. A later step's hierarchy is a step closer: fitting it too saved
             # 0-3 iterations (sphere1, coin1, cube1's step 3), about what it costs (benchmarks/RESULTS.md, s20-amg).
-            self.amg = self.amg.for_matrix(Hm.astype(PRECONDITIONER_DTYPE))
+            self.amg = self.amg.for_matrix(_single(Hm))
             self.refreshes += 1
             self._amg_matrix, self._amg_solve = weakref.ref(Hm), self.solves
-        start = count[0]
-        x, _ = spla.cg(op, rhs, x0=x, rtol=rtol, maxiter=self.opts.cg_maxiter, M=self.amg.operator(), callback=cb)
-        iters = max(count[0] - start, 1)
+        x, _, amg_iters = pcg(products, rhs, x, rtol, self.opts.cg_maxiter, self.amg)
+        iters = max(amg_iters, 1)
         achieved = float(np.linalg.norm(rhs - products.dot(x))) / max(float(np.linalg.norm(rhs)), 1e-300)
         if iters >= 4 and min(max(achieved, 1e-16) ** (1 / iters), 1.0) > 0.85:
             self.amg = None  # the matrix drifted away from the one the hierarchy was built for
-        return x, count[0]
+        return x, jacobi_iters + amg_iters
+
+
+def pcg(
+    system: threads.RowBlocks,
+    b: np.ndarray,
+    x0: np.ndarray | None,
+    rtol: float,
+    maxiter: int,
+    preconditioner: _Jacobi | _VCycle,
+) -> tuple[np.ndarray, int, int]:
+    """Preconditioned conjugate gradient for ``A x = b`` until ``|r| < rtol |b|``: SciPy's ``cg``, operation for
+    operation (the same bits), with its vector work moved into the row-block tasks of the products.
+
+    SciPy's loop runs its vector updates (``x += alpha p``, ``r -= alpha q``, the preconditioner's own elementwise
+    work and conversions) on the calling thread, one pass over memory each, while the second core waits for the next
+    product: on a 640x480 level ~3 ms of a ~17 ms iteration. Here each row block's share of them runs on the pool
+    with that block's product (or in one extra hand-off per iteration: the updates of x and r with the
+    preconditioner's first step); the dot products stay whole (their summation order is BLAS's).
+
+    Parameters
+    ----------
+    system : :class:`threads.RowBlocks` of A -- (n, n) CSR, float64, symmetric positive definite.
+    b : (n,) float64 -- the right-hand side.
+    x0 : (n,) float64 or None (zero) -- the start, not written.
+    rtol : relative residual to reach; maxiter : iterations at most.
+    preconditioner : :class:`_Jacobi` or :class:`_VCycle` (its :meth:`_VCycle.begin` / :meth:`_VCycle.finish`).
+
+    Returns
+    -------
+    x : (n,) float64; status : 0 converged, else ``maxiter``; iterations : completed iterations (SciPy's callbacks).
+    """
+    n = b.shape[0]
+    bnrm2 = np.linalg.norm(b)
+    atol = max(0.0, float(rtol) * float(bnrm2))
+    if bnrm2 == 0:
+        return b.copy(), 0, 0
+    x = np.zeros(n) if x0 is None else np.array(x0, dtype=np.float64)
+    blocks = system.blocks or [(slice(0, n), system.A)]
+    r, q, scratch = np.empty(n), np.empty(n), np.empty(n)
+    start = x.any()
+
+    def first(part: tuple[slice, sp.csr_matrix]) -> None:
+        rows, A = part
+        if start:
+            np.subtract(b[rows], A @ x, out=r[rows])
+        else:
+            r[rows] = b[rows]
+        preconditioner.begin(r, rows)
+
+    threads.map_items(first, blocks)
+    p = rho_prev = alpha = None
+
+    def product(part: tuple[slice, sp.csr_matrix]) -> None:
+        rows, A = part
+        q[rows] = A @ p
+
+    def update(rows: slice) -> None:
+        np.multiply(alpha, p[rows], out=scratch[rows])
+        x[rows] += scratch[rows]
+        np.multiply(alpha, q[rows], out=scratch[rows])
+        r[rows] -= scratch[rows]
+        preconditioner.begin(r, rows)
+
+    for iteration in range(maxiter):
+        if np.linalg.norm(r) < atol:
+            return x, 0, iteration
+        z = preconditioner.finish(r)
+        rho_cur = np.dot(r, z)
+        if iteration > 0:
+            beta = rho_cur / rho_prev
+            p *= beta
+            p += z
+        else:
+            p = np.empty_like(r)
+            p[:] = z
+        threads.map_items(product, blocks)
+        alpha = rho_cur / np.dot(p, q)
+        threads.map_items(update, [rows for rows, _ in blocks])
+        rho_prev = rho_cur
+    return x, maxiter, maxiter
+
+
+class _Jacobi:
+    """The diagonal preconditioner of :func:`pcg`: ``z = r / diag(A)``, each row block's part made with the block's
+    update of r."""
+
+    def __init__(self, A: sp.csr_matrix):
+        self.inv_diag = 1.0 / A.diagonal()
+        self.z = np.empty(A.shape[0])
+
+    def begin(self, r: np.ndarray, rows: slice) -> None:
+        np.multiply(self.inv_diag[rows], r[rows], out=self.z[rows])
+
+    def finish(self, r: np.ndarray) -> np.ndarray:
+        return self.z
 
 
 def jacobi_predicted(rate: float | None, rtol: float) -> float:
@@ -135,7 +222,28 @@ every Gauss-Newton step of sphere1 and cube1 took the same CG iterations, and th
 def _amg_cycle(Hm: sp.csr_matrix) -> _VCycle:
     """A smoothed-aggregation AMG V-cycle for ``Hm`` (:func:`_hierarchy`, :class:`_VCycle`), in
     :data:`PRECONDITIONER_DTYPE`."""
-    return _VCycle(_hierarchy(Hm.astype(PRECONDITIONER_DTYPE)))
+    return _VCycle(_hierarchy(_single(Hm)))
+
+
+def _single(Hm: sp.csr_matrix) -> sp.csr_matrix:
+    """``Hm.astype(PRECONDITIONER_DTYPE)`` (its own index arrays, the same bits), each row block's values and indices
+    copied on the pool (the rows cut as :class:`threads.RowBlocks` cuts them): ~20 ms of one core on a 640x480
+    level's 4 M entries, made at each AMG set-up and fit while the other core waited."""
+    Hm.sum_duplicates()  # as astype does first: a check of a canonical matrix
+    if threads.workers() == 1 or Hm.shape[0] < threads.PRODUCT_MIN_ROWS:
+        return Hm.astype(PRECONDITIONER_DTYPE)
+    data, indices = np.empty(Hm.nnz, PRECONDITIONER_DTYPE), np.empty_like(Hm.indices)
+
+    def copy(rows: slice) -> None:
+        entries = slice(int(Hm.indptr[rows.start]), int(Hm.indptr[rows.stop]))
+        data[entries] = Hm.data[entries]
+        indices[entries] = Hm.indices[entries]
+
+    threads.map_items(copy, threads.chunks(Hm.shape[0]))
+    out = sp.csr_matrix(Hm.shape, dtype=PRECONDITIONER_DTYPE)
+    out.data, out.indices, out.indptr = data, indices, Hm.indptr.copy()
+    out.has_canonical_format = True
+    return out
 
 
 def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:
@@ -215,6 +323,12 @@ class _VCycle:
         # the large levels' products, their smoothers' included, by row blocks on both cores
         self.products = [tuple(threads.RowBlocks(m) for m in ops) for ops in zip(self.A, self.R, self.P)]
         self.smoothers = [_L1Jacobi.of(a, ops[0]) or _gauss_seidel for a, ops in zip(self.A[:-1], self.products)]
+        self.fused = len(self.A) >= 2 and isinstance(self.smoothers[0], _L1Jacobi)
+        """Whether :meth:`begin` and :meth:`finish` run the finest level in its products' row blocks (its smoother
+        l1-Jacobi, a coarser level below it); else :meth:`finish` is :meth:`apply`."""
+        if self.fused:  # their buffers: the finest level's iterate and residual, the result
+            n, dtype = self.A[0].shape[0], self.A[0].dtype
+            self._x, self._residual, self._z = np.empty(n, dtype), np.empty(n, dtype), np.empty(n)
 
     @property
     def levels(self) -> list[sp.csr_matrix]:
@@ -251,6 +365,51 @@ class _VCycle:
             x = np.zeros_like(b)
             self._cycle(0, x, b)
         return np.asarray(x, dtype=np.float64)
+
+    def begin(self, r: np.ndarray, rows: slice) -> None:
+        """:func:`pcg`'s first part of the cycle for (n,) float64 ``r``, on its rows ``rows`` (a row block's task):
+        the finest level's pre-smoothing sweep from zero, ``x = omega D^-1 r`` in the hierarchy's precision."""
+        if self.fused:
+            np.multiply(r[rows], self.smoothers[0].scale[rows], out=self._x[rows], dtype=self.A[0].dtype)
+
+    def finish(self, r: np.ndarray) -> np.ndarray:
+        """(n,) float64 -- :meth:`apply` of ``r`` (the same bits) once :meth:`begin` has run on all of its rows: the
+        finest level's residual, its post-smoothing and the result's widening in the row blocks of its products. The
+        array is this cycle's own, overwritten by the next call."""
+        if not self.fused:
+            return self.apply(r)
+        x, residual, z = self._x, self._residual, self._z
+        (A0, R0, P0), smoother, dtype = self.products[0], self.smoothers[0], self.A[0].dtype
+        blocks = A0.blocks or [(slice(0, len(x)), self.A[0])]
+        p_blocks = P0.blocks or [(slice(0, len(x)), self.P[0])]
+
+        def residual_rows(part: tuple[slice, sp.csr_matrix]) -> None:
+            rows, A = part
+            np.subtract(r[rows], A @ x, out=residual[rows], dtype=dtype)
+
+        threads.map_items(residual_rows, blocks)
+        coarse_b = R0.dot(residual)
+        coarse_x = np.zeros_like(coarse_b)
+        if len(self.A) == 2:
+            coarse_x[:] = self.coarse_solver(self.A[-1], coarse_b)
+        else:
+            self._cycle(1, coarse_x, coarse_b)
+
+        def correct(part: tuple[slice, sp.csr_matrix]) -> None:
+            rows, P = part
+            x[rows] += P @ coarse_x
+
+        threads.map_items(correct, p_blocks)
+
+        def post_smooth(part: tuple[slice, sp.csr_matrix]) -> None:
+            rows, A = part
+            sweep = np.subtract(r[rows], A @ x, dtype=dtype)
+            sweep *= smoother.scale[rows]
+            sweep += x[rows]
+            z[rows] = sweep
+
+        threads.map_items(post_smooth, blocks)
+        return z
 
     def _cycle(self, k: int, x: np.ndarray, b: np.ndarray) -> None:
         """Improve ``x`` (in place) toward the solution of level k's system with right-hand side ``b``."""
@@ -337,7 +496,13 @@ class _L1Jacobi:
     def __init__(self, A: sp.csr_matrix, product: threads.RowBlocks):
         self.product = product
         # every row holds its positive diagonal (A is SPD): reduceat sums each row, none empty
-        row_sums = np.add.reduceat(np.abs(A.data, dtype=np.float64), A.indptr[:-1])
+        # each row block's sums on the pool (the same segments, the same bits): ~18 ms of one core at 640x480
+        parts = product.blocks or [(slice(0, A.shape[0]), A)]
+        row_sums = np.concatenate(
+            threads.map_items(
+                lambda part: np.add.reduceat(np.abs(part[1].data, dtype=np.float64), part[1].indptr[:-1]), parts
+            )
+        )
         self.scale = (SMOOTHER_OMEGA / row_sums).astype(A.dtype)
         """(n,) A's dtype -- omega / D_ii."""
 

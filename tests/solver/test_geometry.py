@@ -178,3 +178,40 @@ def test_the_normal_basis_is_numpys_cross_products_to_the_bit():
     A, B, C = geometry.normal_basis(q, qu, qv)
     for got, (a, b) in zip((A, B, C), ((q, qv), (qu, q), (qu, qv))):
         np.testing.assert_array_equal(got, np.cross(a, b))
+
+
+def test_the_fixed_pattern_assembly_by_row_blocks_is_the_one_product(monkeypatch):
+    """Each row block's task makes its part of H (S's product, the indices' copy, the check for zeros): the bits of
+    S @ [M, w] in one product, on one thread or two, zeros left out alike; the arrays H's own."""
+    import scipy.sparse as sp
+
+    from nlipscalib.solver import threads
+
+    mask = np.ones((30, 40), bool)
+    mask[10:14, 12:20] = False
+    du, dv, _ = geometry.gradient_operators(mask)
+    n = int(mask.sum())
+    extra = (du - dv).tocsr()
+    rng = np.random.default_rng(9)
+    M = rng.normal(size=(3, 3, n))
+    M = M + M.transpose(1, 0, 2)
+    fixed = geometry.NormalMatrix((sp.identity(n, format="csr"), du, dv), [extra], fixed=True)
+    pattern = fixed.fixed
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    before = threads.workers()
+    try:
+        for blocks in (M, np.where(np.arange(n) < n // 3, 0.0, M)):  # all lit; a third unlit (zeros left out)
+            data = pattern.S @ np.concatenate([blocks.ravel(), [0.3]])
+            expected = sp.csr_matrix((data, pattern.indices.copy(), pattern.indptr.copy()), shape=(n, n))
+            expected.eliminate_zeros()
+            for count in (1, 2):
+                threads.set_workers(count)
+                assert len(threads.RowBlocks(pattern.S).blocks) == (2 if count == 2 else 0)
+                H = fixed.assemble(blocks, (0.3,))
+                for name in ("data", "indices", "indptr"):
+                    np.testing.assert_array_equal(getattr(H, name), getattr(expected, name))
+                assert not np.shares_memory(H.indices, pattern.indices)
+                assert not np.shares_memory(H.indptr, pattern.indptr)
+                assert H.has_sorted_indices
+    finally:
+        threads.set_workers(before)

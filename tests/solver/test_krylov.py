@@ -410,3 +410,86 @@ def test_the_background_import_of_pyamg_imports_it_and_keeps_a_failure_off_its_t
     assert failures == []
     with pytest.raises(ImportError):
         krylov._hierarchy(sp.identity(4, format="csr"))
+
+
+def _scipy_cg(A: sp.csr_matrix, b: np.ndarray, x0, rtol: float, maxiter: int, M: spla.LinearOperator):
+    """SciPy's cg as Krylov ran it before :func:`krylov.pcg`: (x, status, iterations)."""
+    count = []
+    x, status = spla.cg(A, b, x0=x0, rtol=rtol, maxiter=maxiter, M=M, callback=count.append)
+    return x, status, len(count)
+
+
+def test_pcg_is_scipys_cg_bit_for_bit_on_one_or_two_threads(monkeypatch):
+    """:func:`krylov.pcg` moves SciPy's vector updates and the cycle's finest-level work into the products' row
+    blocks: the same iterates to the last bit as SciPy's ``cg`` with the cycle's (or Jacobi's) operator, converged
+    or stopped at its cap, from zero or from a start, on one thread or two (row blocks of 1000 rows here)."""
+    from nlipscalib.solver import threads
+
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    A = _weighted_laplacian(60, 3)  # 3600 rows: an l1-Jacobi finest level and coarser ones
+    rng = np.random.default_rng(6)
+    b, x0 = rng.standard_normal(3600), rng.standard_normal(3600)
+    inv_diag = 1.0 / A.diagonal()
+    jacobi = spla.LinearOperator(A.shape, matvec=lambda v: inv_diag * v.ravel(), dtype=np.float64)
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            cycle = krylov._amg_cycle(A)
+            assert cycle.fused and len(cycle.levels) >= 3
+            assert len(threads.RowBlocks(A).blocks) == (2 if count == 2 else 0)
+            for start in (None, x0):
+                for rtol, cap in ((1e-6, 200), (1e-12, 5)):  # converged; stopped at the cap
+                    ours = krylov.pcg(threads.RowBlocks(A), b, start, rtol, cap, cycle)
+                    theirs = _scipy_cg(A, b, start, rtol, cap, cycle.operator())
+                    assert ours[1:] == theirs[1:] and (ours[1] == 0) == (rtol == 1e-6)
+                    np.testing.assert_array_equal(ours[0], theirs[0])
+                    ours = krylov.pcg(threads.RowBlocks(A), b, start, rtol, cap, krylov._Jacobi(A))
+                    theirs = _scipy_cg(A, b, start, rtol, cap, jacobi)
+                    assert ours[1:] == theirs[1:]
+                    np.testing.assert_array_equal(ours[0], theirs[0])
+            assert np.linalg.norm(b - A @ krylov.pcg(threads.RowBlocks(A), b, None, 1e-6, 200, cycle)[0]) <= (
+                1e-6 * np.linalg.norm(b)
+            )
+    finally:
+        threads.set_workers(before)
+
+
+def test_the_fused_cycle_is_the_cycle(monkeypatch):
+    """:meth:`_VCycle.finish` after :meth:`_VCycle.begin` on every row block is :meth:`_VCycle.apply`, bit for bit,
+    in the hierarchy's single precision; a cycle whose finest level smooths by Gauss-Seidel or that has one level is
+    not fused, and its ``finish`` is ``apply``."""
+    monkeypatch.setattr(krylov, "SMOOTHER_MIN_ROWS", 1000)
+    rng = np.random.default_rng(7)
+    for side, fused in ((60, True), (30, False), (10, False)):  # 3600 rows l1-Jacobi; 900 Gauss-Seidel; one level
+        cycle = krylov._amg_cycle(_weighted_laplacian(side, 4))
+        assert cycle.fused == fused and cycle.levels[0].dtype == np.float32
+        for _ in range(2):  # its buffers used again
+            r = rng.standard_normal(side * side)
+            for rows in (slice(0, 1000), slice(1000, None)):
+                cycle.begin(r, rows)
+            z = cycle.finish(r).copy()
+            assert z.dtype == np.float64
+            np.testing.assert_array_equal(z, cycle.apply(r))
+
+
+def test_the_single_precision_copy_is_astypes_on_one_or_two_threads(monkeypatch):
+    """``_single``: the float32 copy AMG is set up from and fitted to, by row blocks on the pool: astype's values,
+    indices and row pointers, in arrays of its own."""
+    from nlipscalib.solver import threads
+
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    A = _weighted_laplacian(50, 8)
+    A.data *= np.pi  # values float32 rounds
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            single, expected = krylov._single(A), A.astype(np.float32)
+            assert single.dtype == np.float32 and single.has_sorted_indices
+            for name in ("data", "indices", "indptr"):
+                np.testing.assert_array_equal(getattr(single, name), getattr(expected, name))
+                assert not np.shares_memory(getattr(single, name), getattr(A, name))
+    finally:
+        threads.set_workers(before)
