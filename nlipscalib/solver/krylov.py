@@ -209,7 +209,7 @@ def jacobi_predicted(rate: float | None, rtol: float) -> float:
 
 
 PRECONDITIONER_DTYPE = np.float32
-"""Precision of the AMG hierarchy's matrices and its V-cycle (:func:`_amg_preconditioner`); CG itself (iterates,
+"""Precision of the AMG hierarchy's matrices and its V-cycle (:func:`_amg_cycle`); CG itself (iterates,
 residuals, the system's products) stays float64. A preconditioner need only approximate A^-1: single precision's
 rounding (~6e-8 relative) lies far below what a cycle leaves (CG's residual falls ~0.7 per AMG-preconditioned
 iteration on a 640x480 level) and below CG's tightest tolerance (``cg_rtol``, 1e-4). Each level's values take half
@@ -244,11 +244,6 @@ def _single(Hm: sp.csr_matrix) -> sp.csr_matrix:
     out.data, out.indices, out.indptr = data, indices, Hm.indptr.copy()
     out.has_canonical_format = True
     return out
-
-
-def _amg_preconditioner(Hm: sp.csr_matrix) -> spla.LinearOperator:
-    """:func:`_amg_cycle` as a CG preconditioner."""
-    return _amg_cycle(Hm).operator()
 
 
 COARSE_SOLVER = "splu"

@@ -103,7 +103,7 @@ def test_the_preconditioner_cycles_in_single_precision_for_a_double_precision_cg
             cycles.append(self)
 
     monkeypatch.setattr(krylov, "_VCycle", Recorded)
-    M = krylov._amg_preconditioner(A)
+    M = krylov._amg_cycle(A).operator()
     cycle = cycles[-1]
     assert len(cycle.levels) > 2 and cycle.smoothers[0] is not None
     assert all(m.dtype == np.float32 for m in cycle.A + cycle.R + cycle.P)
@@ -116,7 +116,7 @@ def test_the_preconditioner_cycles_in_single_precision_for_a_double_precision_cg
     for count in (1, 2):
         threads.set_workers(count)
         try:
-            results.append(krylov._amg_preconditioner(A).matvec(b))
+            results.append(krylov._amg_cycle(A).operator().matvec(b))
         finally:
             threads.set_workers(before)
     np.testing.assert_array_equal(results[0], results[1])
@@ -371,7 +371,7 @@ def test_a_first_solves_hierarchy_is_fitted_to_the_second_solves_matrix(monkeypa
         assert status == 0
         return len(iterates)
 
-    own = iterations(krylov._amg_preconditioner(A2))
+    own = iterations(krylov._amg_cycle(A2).operator())
     stale = iterations(first.operator())
     assert iters <= own + 2 and stale > 10 * iters
     second = pcg.amg
