@@ -329,6 +329,11 @@ def _solve_and_save(
     # 640x480 one after the other); the load's seconds end once the images are decoded
     import_amg_in_background()  # beside the loading, not at the solve's first AMG set-up (~25-70 ms)
     press = load_press(folder, led_subset=settings.led_subset, decode="background")
+    # error.png's ground truth (a twin's gt.npz: ~0.06 s of CPU inflating and checking it at 640x480) is read from
+    # now on, beside the rest of the loading and the solve, on the core they leave idle (the images were decoded
+    # beside the solver's import: cli.solve), not at the end, where the figures waited for it and the command for
+    # them; a solve itself reads none
+    truth = _read_beside(lambda: press.ground_truth) if level != "none" else None
     ref = None
     if settings.reference is not None:
         ref = _load_reference(settings.reference, settings.led_subset, capture_identity(settings.reference))
@@ -337,10 +342,6 @@ def _solve_and_save(
             f"{settings.leds_file or 'leds'}: {len(settings.leds)} LEDs, but {folder} has {len(press.leds)}"
         )
     press.led_images  # noqa: B018 -- waits for the decoding (a bad PNG raises here, naming its file)
-    # error.png's ground truth (a twin's gt.npz: ~0.06 s of CPU inflating and checking it at 640x480) is read
-    # while the press is solved, on the core the solve leaves idle about half of the time, not at the end,
-    # where the figures waited for it and the command for them; a solve itself reads none
-    truth = _read_beside(lambda: press.ground_truth) if level != "none" else None
     t1 = time.perf_counter()
     result = solve_press(
         press,
