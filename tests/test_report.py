@@ -239,6 +239,28 @@ def test_summary_names_press_and_method_and_error_maps_share_one_colour_map(tmp_
     assert panels[3].cmap == figures.ERROR_CMAP
 
 
+def test_a_truth_read_at_first_use_draws_the_same_error_map(tmp_path):
+    """``nlips solve`` passes its press's truth as ``lambda: press.ground_truth`` (read on the figures' pool beside
+    the other maps): the same files and error.png as the truth itself; a press without one writes no error.png."""
+    from nlipscalib.core.capture import GroundTruth
+    from nlipscalib.report import write_reconstruction_figures
+
+    rec = _reconstruction()
+    tilted = rec.normals.copy()
+    tilted[:3] = [0.0, np.sin(0.1), -np.cos(0.1)]
+    gt = GroundTruth(rec.depth, rec.points, tilted, rec.reconstructed, rec.reconstructed)
+    given = write_reconstruction_figures(tmp_path / "given", rec, gt)
+    read = write_reconstruction_figures(tmp_path / "read", rec, lambda: gt)
+    assert (
+        [p.name for p in given] == [p.name for p in read] == ["normals.png", "depth.png", "residual.png", "error.png"]
+    )
+    for a, b in zip(given, read):
+        assert a.read_bytes() == b.read_bytes()
+    none = write_reconstruction_figures(tmp_path / "none", rec, lambda: None)
+    assert [p.name for p in none] == ["normals.png", "depth.png", "residual.png"]
+    assert not (tmp_path / "none" / "error.png").exists()
+
+
 def _text_columns(strip: np.ndarray) -> np.ndarray:
     """Columns of a colour-bar strip (BGR) that hold dark text pixels, right of the gradient."""
     from nlipscalib.report.maps import RAMP_COLS

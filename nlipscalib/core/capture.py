@@ -37,6 +37,9 @@ from .errors import CaptureError, ShapeError
 from .formatfile import read_arrays, read_format_json
 from .imageio import decode_png16, png_size, read_png_bytes, save_npz, write_png16
 from .leds import Led, Leds
+from .prefetch import prefetch_images
+from .prefetch import stop as stop_prefetching
+from .prefetch import take as take_prefetched
 from .surface_checks import surface_problem
 
 FORMAT_NAME = "nlipscalib.press"
@@ -286,6 +289,7 @@ def decode_together(*sources: StoredImages) -> list[np.ndarray]:
             for i, (p, d) in enumerate(zip(src._paths, src._data))
         ]
         if jobs:
+            stop_prefetching()  # what the prefetch has not begun is decoded here, on two threads
             _in_threads(jobs)
         for src, out in zip(todo, images):  # only now: a failed decode leaves the source undecoded
             src._images = out if src._stacked else out[0]
@@ -571,6 +575,20 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
     )
 
 
+def prefetch_press(folder: str | Path) -> None:
+    """Start decoding the dark and LED images of the press at ``folder`` on a thread of their own, for a
+    :func:`load_press` of it to come (:mod:`.prefetch`: it takes them when their bytes are the ones it reads).
+    Nothing happens, and nothing is raised, when ``folder``'s meta.json does not list its images: the load reports
+    what is wrong."""
+    try:
+        images = read_meta(folder)["images"]
+        names = [images["dark"], *images["leds"]]
+    except (CaptureError, KeyError, TypeError):
+        return
+    if all(isinstance(name, str) for name in names):
+        prefetch_images([Path(folder) / name for name in names])
+
+
 def _read_stored(folder: Path, names: list[str], camera: Camera) -> tuple[tuple[list, list], tuple[list, list]]:
     """((paths, bytes) of the first image, (paths, bytes) of the others) of ``names`` in ``folder``, each checked to
     be a whole PNG of the camera's size (:func:`_load_image`'s errors, before decoding)."""
@@ -828,8 +846,14 @@ def _load_image(folder: Path, name: str, camera: Camera) -> np.ndarray:
 
 def _decode_image(path: Path, data: np.ndarray, camera: Camera, out: np.ndarray | None = None) -> np.ndarray:
     """(H, W, 3) uint16 of a capture's PNG read from ``path`` (``data``: its bytes), checked against the camera;
-    written into ``out`` ((H, W, 3) uint16) when given."""
-    img = decode_png16(data, path, out=out)
+    written into ``out`` ((H, W, 3) uint16) when given. An image decoded ahead from these same bytes
+    (:mod:`.prefetch`) is taken rather than decoded again."""
+    img = take_prefetched(path, data)
+    if img is None:
+        img = decode_png16(data, path, out=out)
+    elif out is not None and out.shape == img.shape:
+        out[...] = img
+        img = out
     if img.shape != camera.shape + (3,):
         raise CaptureError(f"{path}: image is {img.shape}, but the camera in {META_FILE} is {camera.shape + (3,)}")
     return img

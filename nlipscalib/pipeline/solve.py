@@ -6,7 +6,9 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
-from collections.abc import Iterable, Sequence
+import threading
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import Future
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -327,6 +329,11 @@ def _solve_and_save(
     # 640x480 one after the other); the load's seconds end once the images are decoded
     import_amg_in_background()  # beside the loading, not at the solve's first AMG set-up (~25-70 ms)
     press = load_press(folder, led_subset=settings.led_subset, decode="background")
+    # error.png's ground truth (a twin's gt.npz: ~0.06 s of CPU inflating and checking it at 640x480) is read from
+    # now on, beside the rest of the loading and the solve, on the core they leave idle (the images were decoded
+    # beside the solver's import: cli.solve), not at the end, where the figures waited for it and the command for
+    # them; a solve itself reads none
+    truth = _read_beside(lambda: press.ground_truth) if level != "none" else None
     ref = None
     if settings.reference is not None:
         ref = _load_reference(settings.reference, settings.led_subset, capture_identity(settings.reference))
@@ -358,12 +365,26 @@ def _solve_and_save(
         raise CaptureError(f"{folder}: the solve gave an unusable result ({problem})")
     context = _figure_context(press)
 
-    def figures(tmp: Path) -> None:  # the ground truth (error.png) read here, only for figures: a solve reads none
-        write_reconstruction_figures(tmp, result, press.ground_truth, level, *context)
+    def figures(tmp: Path) -> None:  # the truth's error (raised by a bad gt.npz) is the figures', as before
+        write_reconstruction_figures(tmp, result, truth.result, level, *context)
 
     save_reconstruction(result, out, overwrite=True, extra_files=figures if level != "none" else None)
     _log_solved(folder, out, result.report, time.perf_counter() - t2)
     return result
+
+
+def _read_beside(read: Callable[[], object]) -> Future:
+    """``read()`` started on a daemon thread of its own; its value or error comes out of the returned future."""
+    future = Future()
+
+    def run() -> None:
+        try:
+            future.set_result(read())
+        except BaseException as exc:  # noqa: BLE001 -- raised again by future.result(), where it is needed
+            future.set_exception(exc)
+
+    threading.Thread(target=run, name="read-beside", daemon=True).start()
+    return future
 
 
 def _figure_context(press: Press) -> tuple:

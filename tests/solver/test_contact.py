@@ -233,6 +233,32 @@ def test_auto_roi_does_not_warn_when_only_its_margin_makes_the_box_large(caplog)
     assert "press_x" not in caplog.text
 
 
+def test_contact_hits_compare_the_misfit_with_the_larger_of_its_noise_and_its_median_over_the_gel():
+    """The definition, on a map with pixels off the gel (NaN) and a saturated one (inf); the median is taken once per
+    map (``ContactMap.median_misfit``) for the ROI, the dent's focus and the refit's exclusion."""
+    import warnings
+
+    from nlipscalib.solver.contact import contact_hits
+
+    rng = np.random.default_rng(3)
+    misfit = rng.uniform(0.5, 4.0, (30, 40))
+    misfit[:, :5] = np.nan  # off the gel
+    misfit[20:25, 30:35] = 20.0  # a dent
+    misfit[10, 20] = np.inf
+    cmap = _contact_map(misfit)
+    object.__setattr__(cmap, "expected", rng.uniform(0.5, 3.0, misfit.shape))
+    median = float(np.median(misfit[np.isfinite(misfit)]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no 'invalid value' warning from the NaN pixels
+        for threshold in (1.0, 1.5, 3.0):
+            hits = contact_hits(cmap, threshold)
+            want = np.isfinite(misfit) & (np.nan_to_num(misfit) > threshold * np.maximum(cmap.expected, median))
+            np.testing.assert_array_equal(hits, want)
+            assert want.any() and not want.all() and not hits[10, 20]  # not finite: off the gel too
+    assert cmap.median_misfit == median and "median_misfit" in vars(cmap)  # kept on the map
+    assert not contact_hits(_contact_map(np.full((4, 5), np.nan))).any()
+
+
 def _noisy_press(folder, gain: float, seed: int):
     """A 192x144 sphere press with white image noise (sigma 0.004, full scale 1), the images scaled by ``gain``."""
     rng = np.random.default_rng(seed)
