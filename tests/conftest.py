@@ -10,6 +10,7 @@ imports and renders with its LLVM backend, and turns every skip caused by a miss
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import shutil
@@ -93,3 +94,26 @@ def _fail_twin_skip(config, report) -> None:
     if TWIN_PARTS.search(reason):
         report.outcome = "failed"
         report.longrepr = f"twin test skipped under --require-twin: {reason}"
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+@pytest.fixture
+def as_terminal(monkeypatch):
+    """A function that, called in a test's body, replaces stderr with a text buffer that says it is a terminal and
+    turns progress bars on; it returns the buffer (what a user at a terminal sees is in its ``getvalue()``). Called
+    in the body, not done here: pytest's own capture puts its stderr back when the test's call begins. The progress
+    switch is restored afterwards."""
+    from nlipscalib import progress
+
+    def start() -> io.StringIO:
+        tty = _Terminal()
+        monkeypatch.setattr("sys.stderr", tty)
+        progress.configure(progress=True)
+        return tty
+
+    yield start
+    progress.configure(progress=True)

@@ -410,23 +410,11 @@ def test_a_task_kept_after_a_kill_loses_the_dead_runs_claim(tmp_path):
     assert not [p.name for p in tasks.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
 
 
-def test_the_task_bar_names_its_experiment(tmp_path, monkeypatch):
+def test_the_task_bar_names_its_experiment(tmp_path, as_terminal):
     """`nlips experiment all` on a terminal drew one unnamed task bar per experiment, then each one's training
     bars: which experiment a bar counted showed only at its end. Each bar now says "NAME tasks"."""
-    import io
-
-    from nlipscalib import progress
     from nlipscalib.experiments.runner import run_tasks
 
-    class Tty(io.StringIO):
-        def isatty(self):
-            return True
-
-    tty = Tty()
-    monkeypatch.setattr("sys.stderr", tty)
-    try:
-        progress.configure(progress=True)
-        run_tasks([], tmp_path, name="ablation")
-    finally:
-        progress.configure(progress=True)
+    tty = as_terminal()
+    run_tasks([], tmp_path, name="ablation")
     assert "ablation tasks: " in tty.getvalue(), tty.getvalue()

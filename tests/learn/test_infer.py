@@ -769,26 +769,14 @@ def test_the_saved_line_says_where_frames_and_presses_results_are(tiny_model, tm
         assert capsys.readouterr().out.splitlines()[1].startswith(counts + where)
 
 
-def test_stills_show_a_bar_on_a_terminal_and_none_elsewhere(tiny_model, tmp_path, capsys, monkeypatch):
+def test_stills_show_a_bar_on_a_terminal_and_none_elsewhere(tiny_model, tmp_path, capsys, as_terminal):
     """`nlips infer MODEL FRAMES --out DIR` on a folder of 300 frames ran 10 s on a terminal without a sign of
     life. Now a bar counts the inputs there (stderr a terminal), and nothing of it reaches a pipe or a log."""
-    import io
-
-    from nlipscalib import progress
-
-    class Tty(io.StringIO):
-        def isatty(self):
-            return True
-
     command, out = _frames_and_a_press(tiny_model, tmp_path)
     assert main(command) == 0
     assert "\r" not in capsys.readouterr().err  # not a terminal: no bar
-    tty = Tty()
-    monkeypatch.setattr("sys.stderr", tty)
-    try:
-        assert main([*command, "--overwrite"]) == 0
-    finally:
-        progress.configure(progress=True)
+    tty = as_terminal()
+    assert main([*command, "--overwrite"]) == 0
     assert "\r" in tty.getvalue() and "inferring: 100%" in tty.getvalue() and "4/4" in tty.getvalue(), tty.getvalue()
 
 

@@ -721,23 +721,11 @@ def _refused_in_one_line(cli: str, args: list[str], env: dict) -> str:
     return line
 
 
-def test_the_training_bar_names_its_labels(built, tmp_path, monkeypatch):
+def test_the_training_bar_names_its_labels(built, tmp_path, as_terminal):
     """q2 trains twice (NLiPs labels, then true normals) and showed two bars both called "training", which read as
     the training starting over; each bar now names what it learns."""
-    import io
-
-    from nlipscalib import progress
-
-    class Tty(io.StringIO):
-        def isatty(self):
-            return True
-
-    tty = Tty()
-    monkeypatch.setattr("sys.stderr", tty)
-    try:
-        progress.configure(progress=True)
-        for labels in ("nlips", "true"):
-            train(CalibrationDataset(built), dataclasses.replace(TINY, labels=labels), tmp_path / f"{labels}.pt")
-    finally:
-        progress.configure(progress=True)
-    assert "training on NLiPs labels: 100%" in tty.getvalue() and "training on true normals: 100%" in tty.getvalue()
+    tty = as_terminal()
+    for labels in ("nlips", "true"):
+        train(CalibrationDataset(built), dataclasses.replace(TINY, labels=labels), tmp_path / f"{labels}.pt")
+    shown = tty.getvalue()
+    assert "training on NLiPs labels: 100%" in shown and "training on true normals: 100%" in shown
