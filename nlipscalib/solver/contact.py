@@ -560,11 +560,25 @@ def _misfit(S: np.ndarray, img: np.ndarray, ok: np.ndarray | None, count: np.nda
     product temporaries (0.04 s against 0.11-0.17 s at 640x480 with 12 LEDs, the same numbers)."""
     Sk = S if ok is None else S * ok
     alb = np.einsum("lhwc,lhwc->hwc", Sk, img) / np.maximum(np.einsum("lhwc,lhwc->hwc", Sk, Sk), 1e-30)
-    res = alb * S
-    res -= img
-    if ok is not None:
-        res *= ok
-    return np.sqrt(_sum_squares(res, None) / count)
+    return np.sqrt(_residual_squares(alb, S, img, ok) / count)
+
+
+def _residual_squares(alb: np.ndarray, S: np.ndarray, img: np.ndarray, ok: np.ndarray | None) -> np.ndarray:
+    """(H, W) float32 -- sum over LEDs and channels of (``alb`` S - img)^2 where ``ok``, LED by LED in one (H, W, 3)
+    buffer: each LED's channels summed, (r_0^2 + r_1^2) + r_2^2, then added to the sum, the order in which
+    ``np.einsum("lhwc,lhwc->hw", res, res)`` of the whole residual stack sums them at a frame's size (the same bits
+    there, tests/solver/test_contact.py), without the stack's two (L, H, W, 3) temporaries: ~3 against ~7 ms of
+    one core per classification at 240 x 320 blocks with 12 LEDs (benchmarks/RESULTS.md, s21-cpu)."""
+    total = np.zeros(S.shape[1:3], np.float32)
+    res = np.empty(S.shape[1:], np.float32)
+    for k in range(len(S)):
+        np.multiply(alb, S[k], out=res)
+        res -= img[k]
+        if ok is not None:
+            res *= ok[k]
+        res *= res
+        total += (res[..., 0] + res[..., 1]) + res[..., 2]
+    return total
 
 
 def _sum_squares(stack: np.ndarray, ok: np.ndarray | None) -> np.ndarray:

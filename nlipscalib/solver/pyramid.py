@@ -75,7 +75,7 @@ def level_geometry(
 
     def make():
         q, qu, qv = geometry.ray_tables(camera)
-        return q[mask], geometry.normal_basis(q[mask], qu[mask], qv[mask])
+        return geometry.masked_basis(q, qu, qv, mask)
 
     return reuse.reused("level geometry", (camera, reuse.digest(mask)), make, most=GEOMETRY_LEVELS, persist=persist)
 

@@ -327,3 +327,22 @@ def test_frames_from_480_lines_up_are_classified_on_blocks(sphere_press, monkeyp
     monkeypatch.setattr(contact, "BLOCK_MIN_SIDE", 72)  # the 96x72 press: its default is then blocks
     np.testing.assert_array_equal(classify_contact(sphere_press).misfit, classify_contact(sphere_press, block=2).misfit)
     assert not np.array_equal(classify_contact(sphere_press).misfit, classify_contact(sphere_press, block=1).misfit)
+
+
+@pytest.mark.parametrize("with_ok", [False, True])
+def test_the_misfits_residual_sum_is_einsums_over_the_stack_at_a_frames_block_grid(with_ok):
+    from nlipscalib.solver.contact import _misfit
+
+    rng = np.random.default_rng(5)
+    shape = (12, 240, 320, 3)  # a 640x480 frame's 2 x 2 blocks
+    S = rng.random(shape, dtype=np.float32)
+    img = (0.7 * S + 0.01 * rng.normal(size=shape)).astype(np.float32)
+    ok = rng.random(shape) > 0.1 if with_ok else None
+    count = np.full(shape[1:3], 36)
+    Sk = S if ok is None else S * ok
+    alb = np.einsum("lhwc,lhwc->hwc", Sk, img) / np.maximum(np.einsum("lhwc,lhwc->hwc", Sk, Sk), 1e-30)
+    res = alb * S - img
+    if ok is not None:
+        res *= ok
+    want = np.sqrt(np.einsum("lhwc,lhwc->hw", res, res) / count)
+    assert np.array_equal(_misfit(S, img, ok, count), want)

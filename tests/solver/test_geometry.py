@@ -43,6 +43,18 @@ def test_normals_of_true_depth_match_analytic_normals():
     assert np.all(np.sum(n * q[valid], 1) < 0)  # facing the camera
 
 
+@pytest.mark.parametrize("every_pixel", [False, True])
+def test_masked_basis_is_the_gathered_normal_basis_to_the_bit(every_pixel):
+    cam = synth.camera(40, 30)
+    _, _, _, valid = synth.surface(cam, "sphere")
+    mask = np.ones_like(valid) if every_pixel else valid
+    q, qu, qv = geometry.ray_tables(cam)
+    got_q, got = geometry.masked_basis(q, qu, qv, mask)
+    assert np.array_equal(got_q, q[mask])
+    for g, want in zip(got, geometry.normal_basis(q[mask], qu[mask], qv[mask])):
+        assert g.shape == want.shape and np.array_equal(g, want)
+
+
 def test_kernel_matches_led_shading_and_its_derivatives():
     from nlipscalib.core import led_shading
 

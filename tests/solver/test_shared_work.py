@@ -659,3 +659,23 @@ def test_the_led_and_channel_sum_has_numpys_bits():
             big[big < 0.05] = -0.0
             for stack in (big, big[:, 2 : 2 + h, 3 : 3 + w], big[:, :h, 1:]):
                 assert led_channel_sum(stack).tobytes() == stack.sum(axis=(0, 3)).tobytes()
+
+
+@pytest.mark.parametrize("whole_crop", [False, True])
+@pytest.mark.parametrize("lost_any", [False, True])
+def test_a_levels_paste_is_the_filled_image_with_its_masked_assignment(whole_crop, lost_any):
+    from nlipscalib.solver.nlips import _pasted
+
+    rng = np.random.default_rng(3)
+    crop = (slice(5, 17), slice(0, 9))
+    mask = np.ones((12, 9), bool) if whole_crop else rng.random((12, 9)) > 0.3
+    n = int(mask.sum())
+    lost = rng.random(n) > 0.8 if lost_any else None
+    for values, fill in ((rng.normal(size=n), np.nan), (rng.normal(size=(n, 3)), 0.0)):
+        want = np.full((20, 11) + values.shape[1:], fill, np.float32)
+        vals = values.astype(np.float32)
+        if lost is not None:
+            vals[lost] = fill
+        want[crop][mask] = vals
+        got = _pasted(values, fill, (20, 11), crop, mask, lost)
+        assert got.dtype == np.float32 and np.array_equal(got, want, equal_nan=True)
