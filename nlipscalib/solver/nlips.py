@@ -36,7 +36,7 @@ from ..core.leds import Leds, led_arrays
 from ..core.metrics import angle_deg
 from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
-from ..core.robust_scale import mad_scale, median
+from ..core.robust_scale import mad_scale
 from . import geometry, reuse, threads
 from .blas import blas_threads
 from .inputs import check_inputs
@@ -998,7 +998,7 @@ def _robust_scale(
     u = usable.reshape(-1)[::step] > 0
     if not u.any():
         return 1e-12
-    med_i = float(median(images.reshape(-1)[::step][u]))
+    med_i = float(np.median(images.reshape(-1)[::step][u]))
     r_sub = be.numpy(model.every(r, step))[u]
     return max(opts.robust_scale * mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
 
