@@ -5,13 +5,16 @@ from __future__ import annotations
 import contextlib
 import threading
 import weakref
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from . import threads
 from .options import SolverOptions
+
+if TYPE_CHECKING:  # named in a hint only: scipy.sparse.linalg (~35 ms of import) is imported where it is used
+    import scipy.sparse.linalg as spla
 
 
 def forcing(g_norm: float, g_prev: float | None, eta_prev: float | None, opts: SolverOptions) -> float:
@@ -348,6 +351,9 @@ class _VCycle:
         return cycle
 
     def operator(self) -> spla.LinearOperator:
+        """The cycle as a SciPy operator (for SciPy's and pyamg's Krylov solvers; :func:`pcg` calls :meth:`finish`)."""
+        import scipy.sparse.linalg as spla  # here, not at the module's import: `nlips solve` never calls this
+
         return spla.LinearOperator(self.A[0].shape, matvec=self.apply, dtype=np.float64)
 
     def apply(self, b: np.ndarray) -> np.ndarray:
