@@ -8,12 +8,12 @@ import weakref
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from . import threads
 from .options import SolverOptions
 
-if TYPE_CHECKING:  # named in a hint only: scipy.sparse.linalg (~35 ms of import) is imported where it is used
+if TYPE_CHECKING:  # in hints; used, they are imported in the functions (import_amg_in_background says why)
+    import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
 
@@ -232,6 +232,8 @@ def _single(Hm: sp.csr_matrix) -> sp.csr_matrix:
     """``Hm.astype(PRECONDITIONER_DTYPE)`` (its own index arrays, the same bits), each row block's values and indices
     copied on the pool (the rows cut as :class:`threads.RowBlocks` cuts them): ~20 ms of one core on a 640x480
     level's 4 M entries, made at each AMG set-up and fit while the other core waited."""
+    import scipy.sparse as sp
+
     Hm.sum_duplicates()  # as astype does first: a check of a canonical matrix
     if threads.workers() == 1 or Hm.shape[0] < threads.PRODUCT_MIN_ROWS:
         return Hm.astype(PRECONDITIONER_DTYPE)
@@ -259,8 +261,12 @@ def import_amg_in_background() -> threading.Thread:
 
     Why: pyamg's import (~25 ms, ~70 ms cold; its ``gallery`` imports ``scipy.io``) came at the first AMG set-up,
     inside a solve's pass, on the main thread while the other core waited; ``nlips solve`` starts it beside the
-    press's loading instead. An import that fails is not raised on the thread: the set-up's own import raises it.
-    Not a daemon: the process's exit waits for a started import rather than stopping it half done."""
+    press's loading instead. It imports ``scipy.sparse`` first (~0.1 s of CPU, ~70 % of it SciPy's array-API
+    layer importing ``numpy.f2py``, ``numpy.testing`` and ``numpy.ma``), which the solver's modules import only in
+    the functions that use it: ``import nlipscalib.solver`` (on the main thread, beside the press's PNG decoding)
+    no longer waits for it, and this thread imports it while the press loads. An import that fails is not raised
+    on the thread: the set-up's own import raises it. Not a daemon: the process's exit waits for a started import
+    rather than stopping it half done."""
 
     def run() -> None:
         with contextlib.suppress(Exception):  # raised again, by the set-up's own import, where it is needed
@@ -437,6 +443,8 @@ def _by_rows(L: sp.csr_matrix, M: sp.csr_matrix) -> sp.csr_matrix:
     """``L @ M`` (CSR) by the row blocks of :class:`threads.RowBlocks` (none where there is one thread or ``L`` is
     small: one product) on the pool, stacked by hand: SciPy's ``vstack`` checks and copies took longer than the
     second thread saved."""
+    import scipy.sparse as sp
+
     blocks = threads.RowBlocks(L).blocks
     if not blocks:
         return (L @ M).tocsr()
@@ -538,6 +546,8 @@ def _compiled_bsr_dedup():
     result is the same matrix; the loop still runs if a duplicate exists. Set-ups in several threads share
     one installation (counted under a lock): SciPy's method is back once the last one leaves.
     """
+    import scipy.sparse as sp
+
     cls = next(c for c in type(sp.bsr_array((1, 1))).__mro__ if "sum_duplicates" in vars(c))
     with _dedup_lock:
         if _dedup_users[0] == 0:
