@@ -20,7 +20,7 @@ from ..core.camera import Camera, pixel_derivatives
 from ..core.errors import ShapeError
 from . import threads
 
-if TYPE_CHECKING:  # in hints; used, it is imported in the function (krylov.import_amg_in_background says why)
+if TYPE_CHECKING:  # in hints; used, it is imported in the function (solver/__init__.py says why)
     import scipy.sparse as sp
 
 

@@ -12,7 +12,7 @@ import numpy as np
 from . import threads
 from .options import SolverOptions
 
-if TYPE_CHECKING:  # in hints; used, they are imported in the functions (import_amg_in_background says why)
+if TYPE_CHECKING:  # in hints; used, they are imported in the functions (solver/__init__.py says why)
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
@@ -261,12 +261,10 @@ def import_amg_in_background() -> threading.Thread:
 
     Why: pyamg's import (~25 ms, ~70 ms cold; its ``gallery`` imports ``scipy.io``) came at the first AMG set-up,
     inside a solve's pass, on the main thread while the other core waited; ``nlips solve`` starts it beside the
-    press's loading instead. It imports ``scipy.sparse`` first (~0.1 s of CPU, ~70 % of it SciPy's array-API
-    layer importing ``numpy.f2py``, ``numpy.testing`` and ``numpy.ma``), which the solver's modules import only in
-    the functions that use it: ``import nlipscalib.solver`` (on the main thread, beside the press's PNG decoding)
-    no longer waits for it, and this thread imports it while the press loads. An import that fails is not raised
-    on the thread: the set-up's own import raises it. Not a daemon: the process's exit waits for a started import
-    rather than stopping it half done."""
+    press's loading instead. It also imports ``scipy.sparse.linalg`` (and ``scipy.linalg``), which the solver
+    itself no longer imports (solver/__init__.py). An import that fails is not raised on the thread: the set-up's
+    own import raises it. Not a daemon: the process's exit waits for a started import rather than stopping it half
+    done."""
 
     def run() -> None:
         with contextlib.suppress(Exception):  # raised again, by the set-up's own import, where it is needed

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..core.cpus import usable_cores
 
-if TYPE_CHECKING:  # in hints; used, it is imported in the function (krylov.import_amg_in_background says why)
+if TYPE_CHECKING:  # in hints; used, it is imported in the function (solver/__init__.py says why)
     import scipy.sparse as sp
 
 _PREFIX = "nlips-pool"
