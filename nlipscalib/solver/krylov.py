@@ -261,8 +261,8 @@ def import_amg_in_background() -> threading.Thread:
 
     Why: pyamg's import (~25 ms, ~70 ms cold; its ``gallery`` imports ``scipy.io``) came at the first AMG set-up,
     inside a solve's pass, on the main thread while the other core waited; ``nlips solve`` starts it beside the
-    press's loading instead. It also imports ``scipy.sparse.linalg`` (and ``scipy.linalg``), which the solver
-    itself no longer imports (solver/__init__.py). An import that fails is not raised on the thread: the set-up's
+    press's loading instead. It also imports SciPy's sparse modules where the command has not (the solver's
+    import does not: solver/__init__.py). An import that fails is not raised on the thread: the set-up's
     own import raises it. Not a daemon: the process's exit waits for a started import rather than stopping it half
     done."""
 
