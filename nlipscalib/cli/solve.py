@@ -175,7 +175,13 @@ def run(args: argparse.Namespace) -> int:
 def _decode_ahead(args: argparse.Namespace) -> None:
     """Start decoding the press's images on the second core while the solver is imported (GIL-bound, ~0.2 s of
     CPU on the main thread), when the command names one press that it will solve: without ``--overwrite`` a
-    result already at its output is most likely reused, and its images never read."""
+    result already at its output is most likely reused, and its images never read.
+
+    SciPy's sparse modules are imported here too, for the same reason: the solver's modules import them only where
+    they use them (a reused result, or ``import nlipscalib.solver``, never waits ~0.13 s for them), and a solve's
+    own first use would import them either on pyamg's background thread, competing for the GIL with the press's
+    loading and the solve's start (sphere1 auto 1.45 -> 1.48 s, benchmarks/RESULTS.md s21-imp), or on the main
+    thread later, where the decoding no longer runs beside them."""
     from ..core.capture import is_press_folder, prefetch_press
     from ..core.reconstruction import has_reconstruction, reconstruction_dir
 
@@ -183,6 +189,7 @@ def _decode_ahead(args: argparse.Namespace) -> None:
         args.overwrite or not has_reconstruction(reconstruction_dir(args.press, args.out))
     ):
         prefetch_press(args.press)
+        import scipy.sparse.linalg  # noqa: F401 -- beside the decoding, as the solver's import did (see above)
 
 
 def _check_min_leds(options: SolverOptions, press: Path, config: str) -> None:

@@ -38,11 +38,13 @@ def _solve_in_processes(
     from ..progress import progress_bar, worker_logging
 
     # forkserver: workers start from a clean process with the solver imported once, not from a fork of
-    # a caller that may hold threads (claims' heartbeats, progress monitors) or a multi-threaded BLAS
+    # a caller that may hold threads (claims' heartbeats, progress monitors) or a multi-threaded BLAS; SciPy's
+    # sparse modules with it, which the solver's modules import only where they use them (as the solver's import
+    # did before: pyamg preloaded too measured no faster, 4 presses on 2 workers, benchmarks/RESULTS.md s21-imp)
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
     if "forkserver" in methods:
-        ctx.set_forkserver_preload(["nlipscalib.pipeline", "nlipscalib.solver"])
+        ctx.set_forkserver_preload(["nlipscalib.pipeline", "nlipscalib.solver", "scipy.sparse.linalg"])
     statuses = {}
     # set on Ctrl-C: the presses the pool has already moved into its call queue (workers + 1 of them), which no
     # cancel reaches, return NOT_STARTED instead of being solved (a 6-press set on 2 workers solved all 4 it had

@@ -15,7 +15,8 @@ _controller = None
 
 def _blas():
     """threadpoolctl's controller of the loaded BLAS libraries (numpy's and SciPy's OpenBLAS), made once:
-    both are loaded by the time the solver runs (the solver imports scipy.sparse.linalg)."""
+    SciPy's is loaded here (``nlips solve`` may still be importing SciPy on pyamg's background thread,
+    :func:`.krylov.import_amg_in_background`: Python's import locks make either thread wait for the other)."""
     global _controller
     if _controller is None:
         import scipy.linalg  # noqa: F401  (loads SciPy's BLAS, so the controller sees it)

@@ -12,13 +12,16 @@ approximation is made: q, q_u, q_v come from the lens model's own per-pixel rays
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..core.camera import Camera, pixel_derivatives
 from ..core.errors import ShapeError
 from . import threads
+
+if TYPE_CHECKING:  # in hints; used, it is imported in the function (solver/__init__.py says why)
+    import scipy.sparse as sp
 
 
 def ray_tables(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -119,6 +122,8 @@ def difference_operators(mask: np.ndarray, backward: bool = False) -> tuple[sp.c
     Du, Dv : (N, N) scipy.sparse.csr_matrix, float64 -- d/du (columns) and d/dv (rows), per pixel.
     has_gradient : (N,) bool -- False where a pixel has no neighbour in u or in v (isolated).
     """
+    import scipy.sparse as sp
+
     mask = np.asarray(mask)
     if mask.ndim != 2 or mask.dtype != bool:
         raise ShapeError(f"mask must be a 2-D bool array, got {mask.shape} {mask.dtype}")
@@ -176,6 +181,8 @@ def gradient_operators(
     Du, Dv : (N, N) scipy.sparse.csr_matrix, float64, per pixel
     has_gradient : (N,) bool
     """
+    import scipy.sparse as sp
+
     du_f, dv_f, ok = difference_operators(mask) if forward is None else forward
     du_b, dv_b, _ = difference_operators(mask, backward=True) if backward is None else backward
     out = []
@@ -233,6 +240,8 @@ class NormalMatrix:
     """
 
     def __init__(self, ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix] = (), fixed: bool = False):
+        import scipy.sparse as sp
+
         n = ops[0].shape[1]
         self.n, self.k = n, len(ops)
         self.sizes = [E.shape[0] for E in extras]
@@ -255,6 +264,8 @@ class NormalMatrix:
     def assemble(self, M: np.ndarray, weights: Sequence[float] = ()) -> sp.csr_matrix:
         """H (N, N) CSR, float64, sorted indices, for blocks M (k, k, N) (symmetric in its first two axes)
         and the extras' weights."""
+        import scipy.sparse as sp
+
         if self.fixed is not None:
             return self.fixed.assemble(M, weights)
         parts = [np.ascontiguousarray(M.transpose(0, 2, 1)).ravel()]  # K[a*n + i, b*n + i] = M[a, b, i]
@@ -271,6 +282,8 @@ class _FixedPattern:
     column of S (:func:`_with_extras`)."""
 
     def __init__(self, ops: Sequence[sp.spmatrix], extras: Sequence[sp.spmatrix]) -> None:
+        import scipy.sparse as sp
+
         ops = [sp.csr_matrix(P) for P in ops]
         extras = [sp.csr_matrix(E) for E in extras]
         n, k = ops[0].shape[1], len(ops)
@@ -298,6 +311,8 @@ class _FixedPattern:
     def assemble(self, M: np.ndarray, weights: Sequence[float] = ()) -> sp.csr_matrix:
         # the extras' weights after the blocks (absent ones 0: not added); by row blocks on both cores, the same bits
         # as S @ x (threads.RowBlocks)
+        import scipy.sparse as sp
+
         extra = np.zeros(self.n_extras)
         extra[: len(weights)] = weights[: self.n_extras]
         blocks = np.ascontiguousarray(M, np.float64).reshape(-1)
@@ -338,6 +353,8 @@ def _with_extras(S: sp.csr_matrix, extras: Sequence[tuple[np.ndarray, np.ndarray
     the assembly's former ``data[position] += w_j * values`` after ``S @ m`` did, so H has the same bits; but as one
     product by row blocks on both cores, where those two scatters (1.5 M entries each at 640x480) took ~60 ms of one
     core per assembly (benchmarks/RESULTS.md, s19-b)."""
+    import scipy.sparse as sp
+
     rows = S.shape[0]
     cols = [
         sp.csr_matrix((values, (positions, np.zeros(len(positions), np.int32))), shape=(rows, 1))

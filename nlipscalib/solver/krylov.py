@@ -5,13 +5,16 @@ from __future__ import annotations
 import contextlib
 import threading
 import weakref
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from . import threads
 from .options import SolverOptions
+
+if TYPE_CHECKING:  # in hints; used, they are imported in the functions (solver/__init__.py says why)
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
 
 
 def forcing(g_norm: float, g_prev: float | None, eta_prev: float | None, opts: SolverOptions) -> float:
@@ -229,6 +232,8 @@ def _single(Hm: sp.csr_matrix) -> sp.csr_matrix:
     """``Hm.astype(PRECONDITIONER_DTYPE)`` (its own index arrays, the same bits), each row block's values and indices
     copied on the pool (the rows cut as :class:`threads.RowBlocks` cuts them): ~20 ms of one core on a 640x480
     level's 4 M entries, made at each AMG set-up and fit while the other core waited."""
+    import scipy.sparse as sp
+
     Hm.sum_duplicates()  # as astype does first: a check of a canonical matrix
     if threads.workers() == 1 or Hm.shape[0] < threads.PRODUCT_MIN_ROWS:
         return Hm.astype(PRECONDITIONER_DTYPE)
@@ -256,8 +261,10 @@ def import_amg_in_background() -> threading.Thread:
 
     Why: pyamg's import (~25 ms, ~70 ms cold; its ``gallery`` imports ``scipy.io``) came at the first AMG set-up,
     inside a solve's pass, on the main thread while the other core waited; ``nlips solve`` starts it beside the
-    press's loading instead. An import that fails is not raised on the thread: the set-up's own import raises it.
-    Not a daemon: the process's exit waits for a started import rather than stopping it half done."""
+    press's loading instead. It also imports SciPy's sparse modules where the command has not (the solver's
+    import does not: solver/__init__.py). An import that fails is not raised on the thread: the set-up's
+    own import raises it. Not a daemon: the process's exit waits for a started import rather than stopping it half
+    done."""
 
     def run() -> None:
         with contextlib.suppress(Exception):  # raised again, by the set-up's own import, where it is needed
@@ -348,6 +355,9 @@ class _VCycle:
         return cycle
 
     def operator(self) -> spla.LinearOperator:
+        """The cycle as a SciPy operator (for SciPy's and pyamg's Krylov solvers; :func:`pcg` calls :meth:`finish`)."""
+        import scipy.sparse.linalg as spla  # here, not at the module's import: `nlips solve` never calls this
+
         return spla.LinearOperator(self.A[0].shape, matvec=self.apply, dtype=np.float64)
 
     def apply(self, b: np.ndarray) -> np.ndarray:
@@ -431,6 +441,8 @@ def _by_rows(L: sp.csr_matrix, M: sp.csr_matrix) -> sp.csr_matrix:
     """``L @ M`` (CSR) by the row blocks of :class:`threads.RowBlocks` (none where there is one thread or ``L`` is
     small: one product) on the pool, stacked by hand: SciPy's ``vstack`` checks and copies took longer than the
     second thread saved."""
+    import scipy.sparse as sp
+
     blocks = threads.RowBlocks(L).blocks
     if not blocks:
         return (L @ M).tocsr()
@@ -532,6 +544,8 @@ def _compiled_bsr_dedup():
     result is the same matrix; the loop still runs if a duplicate exists. Set-ups in several threads share
     one installation (counted under a lock): SciPy's method is back once the last one leaves.
     """
+    import scipy.sparse as sp
+
     cls = next(c for c in type(sp.bsr_array((1, 1))).__mro__ if "sum_duplicates" in vars(c))
     with _dedup_lock:
         if _dedup_users[0] == 0:

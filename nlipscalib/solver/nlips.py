@@ -27,7 +27,6 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..core import masks
 from ..core.camera import Camera
@@ -733,6 +732,8 @@ def _operators_ahead(lv: dict) -> None:
 def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
     """Difference operators of a level's mask and its normal-matrix assembler (``fixed``: with the
     fixed-pattern map, :class:`nlipscalib.solver.geometry.NormalMatrix`)."""
+    import scipy.sparse as sp
+
     forward = geometry.difference_operators(mk)
     backward = geometry.difference_operators(mk, backward=True)
     Du, Dv, has_grad = geometry.gradient_operators(mk, forward, backward)

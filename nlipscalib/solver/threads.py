@@ -15,11 +15,14 @@ import os
 import threading
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..core.cpus import usable_cores
+
+if TYPE_CHECKING:  # in hints; used, it is imported in the function (solver/__init__.py says why)
+    import scipy.sparse as sp
 
 _PREFIX = "nlips-pool"
 _workers: int | None = None
@@ -115,6 +118,8 @@ def _row_view(A: sp.csr_matrix | sp.csr_array, rows: slice) -> sp.csr_matrix:
     map (7.7 M entries) was copied whole, 92 MB of fresh pages, per normal-matrix assembly, and half of each linear
     solve's system (benchmarks/RESULTS.md, s18-d). The block is made empty (its check copies nothing) and given the
     views after it."""
+    import scipy.sparse as sp
+
     a, b = int(A.indptr[rows.start]), int(A.indptr[rows.stop])
     block = sp.csr_matrix((rows.stop - rows.start, A.shape[1]), dtype=A.dtype)
     block.data, block.indices = A.data[a:b], A.indices[a:b]

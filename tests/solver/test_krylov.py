@@ -412,6 +412,25 @@ def test_the_background_import_of_pyamg_imports_it_and_keeps_a_failure_off_its_t
         krylov._hierarchy(sp.identity(4, format="csr"))
 
 
+def test_importing_the_solver_imports_no_scipy():
+    """``import nlipscalib.solver`` leaves SciPy to the functions that use it (a reused result's ``nlips solve``
+    never waits for its import); pyamg's background import brings what a solve needs."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import sys, nlipscalib.solver\n"
+        "assert not [m for m in sys.modules if m.split('.')[0] in ('scipy', 'pyamg')], 'scipy imported'\n"
+        "from nlipscalib.solver import krylov\n"
+        "krylov.import_amg_in_background().join()\n"
+        "assert {'scipy.sparse', 'scipy.sparse.linalg', 'pyamg'} <= set(sys.modules), 'not imported'\n"
+    )
+    root = Path(krylov.__file__).parents[2]  # the checkout under test: `python -c` imports from its directory
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root)
+    assert done.returncode == 0, done.stderr
+
+
 def _scipy_cg(A: sp.csr_matrix, b: np.ndarray, x0, rtol: float, maxiter: int, M: spla.LinearOperator):
     """SciPy's cg as Krylov ran it before :func:`krylov.pcg`: (x, status, iterations)."""
     count = []
