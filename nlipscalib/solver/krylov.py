@@ -275,18 +275,6 @@ def import_amg_in_background() -> threading.Thread:
     return thread
 
 
-STRENGTH_MIN_ROWS = 200_000
-"""Hierarchies of matrices with at least this many rows (a whole 640x480 frame's last level, 307,200) drop weak
-connections from their aggregates (:data:`STRENGTH_THETA`); smaller ones keep pyamg's default, every connection
-strong (theta 0). On cube1's and sphere1's whole frames the last pass's AMG-preconditioned steps took 12, 14 and 13, 13
-CG iterations at theta 0, 9, 12 and 11, 11 at 0.05 (level 1 22,271 rows instead of 20,483); on cube1's 111,552-row
-auto ROI level 0.05 saved 2 iterations but its level 1 grew from 7,441 to 12,559 rows and the solves took more CPU
-(benchmarks/RESULTS.md, s22-amg)."""
-STRENGTH_THETA = 0.05
-"""pyamg's symmetric strength of connection on large levels: ``|a_ij| >= theta sqrt(|a_ii a_jj|)`` is strong. At 0.08
-cube1's whole frame coarsened badly (level 1 43,476 rows, six levels, 18 and 16 iterations): keep it small."""
-
-
 def _hierarchy(Hm: sp.csr_matrix) -> object:
     """pyamg's smoothed-aggregation hierarchy of ``Hm``, the same in every run and process.
 
@@ -299,14 +287,12 @@ def _hierarchy(Hm: sp.csr_matrix) -> object:
     """
     import pyamg
 
-    theta = STRENGTH_THETA if Hm.shape[0] >= STRENGTH_MIN_ROWS else 0.0
     # improve_candidates=None: the constant near-null space is right for this operator, and
     # the smoothing of candidates cost a third of the setup for no gain in convergence.
     with _compiled_bsr_dedup():
         return pyamg.smoothed_aggregation_solver(
             Hm,
             symmetry="symmetric",
-            strength=("symmetric", {"theta": theta}),
             max_coarse=300,
             coarse_solver=COARSE_SOLVER,
             improve_candidates=None,

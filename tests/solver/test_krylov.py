@@ -512,38 +512,3 @@ def test_the_single_precision_copy_is_astypes_on_one_or_two_threads(monkeypatch)
                 assert not np.shares_memory(getattr(single, name), getattr(A, name))
     finally:
         threads.set_workers(before)
-
-
-def _anisotropic_laplacian(n: int, weak: float) -> sp.csr_matrix:
-    """(n*n, n*n) -- a grid Laplacian whose vertical couplings are ``weak`` times the horizontal ones."""
-    diff = sp.diags([-1.0, 1.0], [0, 1], shape=(n - 1, n))
-    eye = sp.identity(n)
-    dx, dy = sp.kron(eye, diff), sp.kron(diff, eye)
-    return (dx.T @ dx + weak * dy.T @ dy + 1e-3 * sp.identity(n * n)).tocsr()
-
-
-def test_only_large_hierarchies_drop_weak_connections(monkeypatch):
-    """At or above ``STRENGTH_MIN_ROWS`` rows the aggregates ignore connections weaker than ``STRENGTH_THETA``
-    (here the vertical ones: aggregates along rows, a larger coarse level); below it the hierarchy is pyamg's default
-    one (every connection strong), transfer for transfer."""
-    import pyamg
-
-    A = _anisotropic_laplacian(40, 1e-3)  # vertical couplings 1e-3 / 2 of the diagonal: weak at theta 0.05
-    small = krylov._hierarchy(A)
-    # a matrix of its own: pyamg keeps what it computes on the matrix it is given (a second set-up of one matrix
-    # differs from the first)
-    with krylov._compiled_bsr_dedup():
-        default = pyamg.smoothed_aggregation_solver(
-            _anisotropic_laplacian(40, 1e-3),
-            symmetry="symmetric",
-            max_coarse=300,
-            coarse_solver=krylov.COARSE_SOLVER,
-            improve_candidates=None,
-            smooth=("jacobi", {"omega": 4.0 / 3.0, "weighting": "local"}),
-        )
-    assert len(small.levels) == len(default.levels)
-    for mine, pyamgs in zip(small.levels[:-1], default.levels[:-1]):
-        np.testing.assert_array_equal(mine.P.toarray(), pyamgs.P.toarray())
-    monkeypatch.setattr(krylov, "STRENGTH_MIN_ROWS", A.shape[0])
-    large = krylov._hierarchy(_anisotropic_laplacian(40, 1e-3))
-    assert large.levels[1].A.shape[0] > small.levels[1].A.shape[0]
