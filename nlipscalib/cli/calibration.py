@@ -90,8 +90,10 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count, options_named
     from ..core.errors import ConfigError
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
+    from ..progress import BATCH, press_lines
     from .folders import check_one_capture
 
+    press_lines(BATCH)  # a line per solved press; how each was solved with -v
     check_count("--workers", args.workers, minimum=0)
     smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
     if not smoothing >= 0:

@@ -91,8 +91,10 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.framework import RESULTS, run_experiment
     from ..experiments.runner import check_scheduler
     from ..experiments.summary import clean
+    from ..progress import EXPERIMENT, press_lines
     from .options import fill_defaults
 
+    press_lines(EXPERIMENT)  # its task bar and report say how the presses went; each press's lines with -v
     if args.redraw is not None:
         return _redraw(args)
     if args.name == "all" and (args.check or args.write_baseline or args.config):

@@ -121,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..pipeline.provenance import identity_in_background
+    from ..progress import BATCH, press_lines
     from .folders import check_one_capture
 
     _press_after_roi(args)
@@ -166,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
             wait=True,  # the result asked for: another run's is waited for, and reused only when made alike
         )
         return 0
+    press_lines(BATCH)  # a line per press; how each was solved with -v
     statuses = solve_presses(
         presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
     )
