@@ -39,7 +39,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="work folder: per-task results (default out/experiments)")
     p.add_argument("--report", help="report folder (default OUT/NAME-SIZE/report); with 'all' one subfolder each")
     p.add_argument("--workers", type=int, help="local worker processes (default 1)")
-    p.add_argument("--scheduler", help="Dask scheduler address tcp://HOST:PORT, or local:N for a LocalCluster")
+    p.add_argument(
+        "--scheduler",
+        help="Dask scheduler address tcp://HOST:PORT, or local:N for a LocalCluster "
+        "(default: local processes, --workers)",
+    )
     p.add_argument(
         "--solver-option",
         action="append",

@@ -89,7 +89,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="presses and frames: infer again even where an identical result exists (by default a result made "
         "from the same input with the same model file and options is kept, so an interrupted run resumes)",
     )
-    p.add_argument("--threads", type=int, default=0, help="CPU threads for the network (0: all this process may use)")
+    p.add_argument(
+        "--threads", type=int, default=0, help="CPU threads for the network (default 0: all this process may use)"
+    )
     add_device_arguments(p)
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
     p.add_argument("--every", type=int, help="stream with --out: keep every N-th frame (default 1)")

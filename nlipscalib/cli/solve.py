@@ -32,7 +32,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="V",
         help="x0 y0 w h (pixels, as 4 values or x0,y0,w,h) or 'auto' (around the contact); default: the whole gel",
     )
-    p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
+    p.add_argument(
+        "--leds",
+        help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds "
+        "(default: every LED, as meta.json records them)",
+    )
     p.add_argument(
         "--reference",
         metavar="REF_PRESS",
