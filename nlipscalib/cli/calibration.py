@@ -181,7 +181,8 @@ def _solve_and_build(
     if cov["steep"]["advice"]:
         print(f"coverage: {cov['steep']['advice']}")
     if failed:
-        print(f"{len(failed)} presses failed to solve: {', '.join(sorted(failed))}")
+        count = f"{len(failed)} press{'es' if len(failed) > 1 else ''}"
+        print(f"{count} failed to solve: {', '.join(sorted(failed))}")
     # the step after this one, with this run's folder: the calibration dataset is what `nlips train` reads
     print(f"next: nlips train {out} --out MODEL.pt (NLiPsNet; --hidden 64,64,64 --dropout 0: the real-time variant)")
     return 1 if failed else 0

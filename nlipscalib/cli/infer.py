@@ -439,8 +439,8 @@ def _run_stills(args: argparse.Namespace) -> int:
         print(_where_saved(written, kept, bool(args.ply or args.mesh)))
     if failed:
         print(f"failed: {len(failed)} of {len(frames)} input(s), not inferred (run again once fixed: the rest is kept)")
-        for source, (_, why) in failed.items():
-            print(f"  {source}: {why}")
+        for source, (_, why) in failed.items():  # the error names its file mostly: said once
+            print(f"  {why}" if why.startswith(f"{source}:") else f"  {source}: {why}")
         return 1
     return 0
 
