@@ -52,8 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
         "-v",
         "--verbose",
         action="store_true",
-        help="show debug logging, and in batches of presses (a folder, `nlips calibrate`, experiments) how each press "
-        "was solved (interreflection term, anchoring), which they otherwise leave to --log-file",
+        help="show debug logging, and in batches of presses (a folder, `nlips calibrate`, demo, experiments) how each "
+        "press was solved (interreflection term, anchoring), which they otherwise leave to --log-file",
     )
     parser.add_argument(
         "--no-progress",

@@ -94,6 +94,7 @@ def command_stderr(monkeypatch):
         (["eval", "missing"], {"detail", "summary", "warning"}),  # not a batch: every line
         (["experiment", "q1", "--plan"], {"warning"}),  # the task bar and the report say how the presses went
         (["-v", "experiment", "q1", "--plan"], {"detail", "summary", "warning"}),
+        (["demo", "--solve-workers", "0"], {"summary", "warning"}),  # its table says the rest
     ],
 )
 def test_experiments_say_nothing_per_press_unless_verbose(command_stderr, tmp_path, capsys, argv, shown):
@@ -103,7 +104,7 @@ def test_experiments_say_nothing_per_press_unless_verbose(command_stderr, tmp_pa
     from nlipscalib.progress import PRESS_DETAIL, PRESS_SUMMARY
 
     command_stderr()
-    main([*argv, "--out", str(tmp_path)] if "--plan" in argv else [*argv[:-1], str(tmp_path / "missing")])
+    main([*argv, "--out", str(tmp_path)] if argv[-1] != "missing" else [*argv[:-1], str(tmp_path / "missing")])
     log = logging.getLogger("nlipscalib.solver.press")
     log.info("detail", extra=PRESS_DETAIL)
     log.info("summary", extra=PRESS_SUMMARY)
