@@ -21,6 +21,17 @@ if TYPE_CHECKING:  # named in hints only: tqdm is imported when a bar is made
 
 _enabled = True
 _log_file: str | None = None
+PRESS_DETAIL = {"press_line": 2}
+"""``extra`` of a log record saying how one press was solved (the interreflection term's and the anchoring's
+decisions): on stderr for a single press (``nlips solve PRESS``); in batches of presses only with ``-v``."""
+PRESS_SUMMARY = {"press_line": 1}
+"""``extra`` of a press's one summary line (pixels reconstructed, solver time, where it was saved): on stderr for a
+single press and per press of a batch (``nlips solve FOLDER``, ``nlips calibrate``); not in experiments, whose task
+bar and report say it (``-v`` shows it there)."""
+SINGLE, BATCH, EXPERIMENT = 2, 1, 0
+"""What :func:`press_lines` shows on stderr: every press line, the summaries only, none (the ``press_line``
+values of :data:`PRESS_DETAIL` and :data:`PRESS_SUMMARY` up to it)."""
+_press_lines = SINGLE
 """The ``log_file`` of the last :func:`configure` (handed to worker processes by :func:`worker_logging`)."""
 FILE_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 STDERR_FORMAT = "%(levelname)s %(message)s"
@@ -34,21 +45,35 @@ def configure(*, progress: bool = True, verbose: bool = False, log_file: str | P
     """
     global _enabled
     _enabled = progress
+    press_lines(SINGLE)  # until the command says it solves a batch
     _setup(logging.DEBUG if verbose else logging.INFO, log_file)
 
 
-def worker_logging() -> tuple[int, str | None]:
-    """``initargs`` for :func:`configure_worker` as a pool's ``initializer``: this process's level and log file."""
-    return logging.getLogger().getEffectiveLevel(), _log_file
+def press_lines(shown: int) -> None:
+    """Which per-press log lines reach stderr from now on, in this process and the workers it starts later:
+    :data:`SINGLE` (all: one press, the user wants to know what was decided), :data:`BATCH` (one summary line per
+    press) or :data:`EXPERIMENT` (none). Why: a batch logged three INFO lines per solved press, some 430 lines for
+    ``nlips experiment q1 --size full``, burying its warnings. ``-v`` shows them all; the ``--log-file`` gets
+    them all in any case."""
+    global _press_lines
+    _press_lines = shown
 
 
-def configure_worker(level: int, log_file: str | None = None) -> None:
-    """In a worker process (spawn, forkserver): log like the parent, to stderr and to its ``--log-file``.
+def worker_logging() -> tuple[int, str | None, int]:
+    """``initargs`` for :func:`configure_worker` as a pool's ``initializer``: this process's level, log file and
+    :func:`press_lines`."""
+    return logging.getLogger().getEffectiveLevel(), _log_file, _press_lines
+
+
+def configure_worker(level: int, log_file: str | None = None, shown_press_lines: int = SINGLE) -> None:
+    """In a worker process (spawn, forkserver): log like the parent, to stderr and to its ``--log-file``, with
+    the parent's :func:`press_lines`.
 
     Bars stay off: the parent draws the only one.
     """
     global _enabled
     _enabled = False
+    press_lines(shown_press_lines)
     _setup(level, log_file)
 
 
@@ -60,7 +85,9 @@ def _setup(level: int, log_file: str | Path | None) -> None:
         root.removeHandler(handler)
         handler.close()
     if not root.handlers:
-        _add(root, logging.StreamHandler(sys.stderr), STDERR_FORMAT)
+        stderr = logging.StreamHandler(sys.stderr)
+        stderr.addFilter(_shown_on_stderr)
+        _add(root, stderr, STDERR_FORMAT)
     _log_file = None
     if log_file:
         if Path(log_file).is_dir():  # os.open said only "out: Is a directory", naming no option
@@ -176,6 +203,12 @@ class _LinesToLog(io.TextIOBase):
 
     def fileno(self) -> int:
         return self.real.fileno()
+
+
+def _shown_on_stderr(record: logging.LogRecord) -> bool:
+    """Whether a record goes to stderr: any but a per-press line beyond :func:`press_lines`, unless ``-v``."""
+    line = getattr(record, "press_line", None)
+    return line is None or line <= _press_lines or logging.getLogger().getEffectiveLevel() <= logging.DEBUG
 
 
 def _add(root: logging.Logger, handler: logging.Handler, fmt: str) -> None:

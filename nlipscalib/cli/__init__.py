@@ -48,7 +48,13 @@ def build_parser() -> argparse.ArgumentParser:
         prog="nlips", description="NLiPsCalib: digital twin, NLiPs solver and NLiPsNet for curved tactile sensors."
     )
     parser.add_argument("--version", action="version", version=f"nlipscalib {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="show debug logging")
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="show debug logging, and in batches of presses (a folder, `nlips calibrate`, demo, experiments) how each "
+        "press was solved (interreflection term, anchoring), which they otherwise leave to --log-file",
+    )
     parser.add_argument(
         "--no-progress",
         dest="global_no_progress",

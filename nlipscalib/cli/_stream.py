@@ -53,10 +53,19 @@ def add_source_arguments(p: argparse.ArgumentParser, camera_default: str | None)
     p.add_argument("--tricolor-level", type=int, help="LED drive of the tri-colour pattern, 1-255 (default 255)")
     p.add_argument("--exposure-ms", type=float, help="fixed exposure of a live camera, ms (default 10)")
     p.add_argument("--emulate", metavar="SCENE", help="stream from the emulated sensor of this scene")
-    p.add_argument("--script", help="emulated press script (TOML/YAML [[press]] tables)")
+    p.add_argument(
+        "--script",
+        help="emulated press script (TOML/YAML [[press]] tables); default: the undeformed dome, then 3 presses",
+    )
     p.add_argument("--frames-per-press", type=int, help="emulated frames per scripted press (default 10)")
-    p.add_argument("--width", type=int, help="emulated image width, pixels")
-    p.add_argument("--height", type=int, help="emulated image height, pixels")
+    p.add_argument(
+        "--width", type=int, help="emulated image width, pixels (default: the model's images', else the scene's camera)"
+    )
+    p.add_argument(
+        "--height",
+        type=int,
+        help="emulated image height, pixels (default: the model's images', else the scene's camera)",
+    )
 
 
 def emulate_behind_port(args: argparse.Namespace, scene: str | None = None) -> None:

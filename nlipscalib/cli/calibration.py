@@ -90,8 +90,10 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count, options_named
     from ..core.errors import ConfigError
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
+    from ..progress import BATCH, press_lines
     from .folders import check_one_capture
 
+    press_lines(BATCH)  # a line per solved press; how each was solved with -v
     check_count("--workers", args.workers, minimum=0)
     smoothing = SamplingConfig.smoothing_px if args.smoothing is None else args.smoothing
     if not smoothing >= 0:
@@ -179,7 +181,8 @@ def _solve_and_build(
     if cov["steep"]["advice"]:
         print(f"coverage: {cov['steep']['advice']}")
     if failed:
-        print(f"{len(failed)} presses failed to solve: {', '.join(sorted(failed))}")
+        count = f"{len(failed)} press{'es' if len(failed) > 1 else ''}"
+        print(f"{count} failed to solve: {', '.join(sorted(failed))}")
     # the step after this one, with this run's folder: the calibration dataset is what `nlips train` reads
     print(f"next: nlips train {out} --out MODEL.pt (NLiPsNet; --hidden 64,64,64 --dropout 0: the real-time variant)")
     return 1 if failed else 0

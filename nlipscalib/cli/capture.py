@@ -85,9 +85,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     emu.add_argument("--emulate", metavar="SCENE", help="run against the emulated sensor of this scene (no hardware)")
     emu.add_argument("--script", help="press script (TOML/YAML [[press]] tables); default: sphere presses")
     emu.add_argument("--move-press", type=int, help="make this press (1-based) move during its sequence")
-    emu.add_argument("--width", type=int, help="emulated image width, pixels")
-    emu.add_argument("--height", type=int, help="emulated image height, pixels")
-    emu.add_argument("--spp", type=int, help="emulated render samples per pixel")
+    emu.add_argument("--width", type=int, help="emulated image width, pixels (default: the scene's camera)")
+    emu.add_argument("--height", type=int, help="emulated image height, pixels (default: the scene's camera)")
+    emu.add_argument("--spp", type=int, help="emulated render samples per pixel (default: the scene's [render] spp)")
     emu.add_argument("--seed", type=int, help="emulated sensor noise seed (default 0)")
     ses = p.add_argument_group("session")
     ses.add_argument(

@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--limit",
         type=int,
         default=0,
-        help="render only the first N presses of the spec (0 = all); the reference, when the spec asks for one, "
+        help="render only the first N presses of the spec (default 0: all); the reference, when the spec asks for one, "
         "is rendered too and not counted",
     )
     p.add_argument(

@@ -53,6 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..core.capture import load_press
     from ..core.config import check_count
+    from ..progress import BATCH, press_lines
     from ..sim.dataset import (
         REFERENCE_NAME,
         claim_folder,
@@ -66,6 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from ..sim.scene import dataset_spec_path
     from .folders import check_not_in_press
 
+    press_lines(BATCH)  # its table says how each press went; a line per solved press, how with -v
     check_count("--solve-workers", args.solve_workers, minimum=1)  # before minutes of rendering, not after
     out = Path(args.out)
     check_not_in_press(out, "render the demo")

@@ -359,7 +359,8 @@ def _recompute(folder: Path, out: Path, settings: SolveSettings) -> Reconstructi
     from ..pipeline import solve_one
 
     try:
-        result, _ = solve_one(folder, settings, out=out, progress=True, wait=True)
+        # overwrite: the result is known damaged (and said so); the solve's own check warned a second time
+        result, _ = solve_one(folder, settings, out=out, overwrite=True, progress=True, wait=True)
     except NlipsError as exc:
         return f"damaged, and re-solving failed: {exc}"
     return result

@@ -39,7 +39,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="work folder: per-task results (default out/experiments)")
     p.add_argument("--report", help="report folder (default OUT/NAME-SIZE/report); with 'all' one subfolder each")
     p.add_argument("--workers", type=int, help="local worker processes (default 1)")
-    p.add_argument("--scheduler", help="Dask scheduler address tcp://HOST:PORT, or local:N for a LocalCluster")
+    p.add_argument(
+        "--scheduler",
+        help="Dask scheduler address tcp://HOST:PORT, or local:N for a LocalCluster "
+        "(default: local processes, --workers)",
+    )
     p.add_argument(
         "--solver-option",
         action="append",
@@ -91,8 +95,10 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.framework import RESULTS, run_experiment
     from ..experiments.runner import check_scheduler
     from ..experiments.summary import clean
+    from ..progress import EXPERIMENT, press_lines
     from .options import fill_defaults
 
+    press_lines(EXPERIMENT)  # its task bar and report say how the presses went; each press's lines with -v
     if args.redraw is not None:
         return _redraw(args)
     if args.name == "all" and (args.check or args.write_baseline or args.config):

@@ -89,7 +89,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="presses and frames: infer again even where an identical result exists (by default a result made "
         "from the same input with the same model file and options is kept, so an interrupted run resumes)",
     )
-    p.add_argument("--threads", type=int, default=0, help="CPU threads for the network (0: all this process may use)")
+    p.add_argument(
+        "--threads", type=int, default=0, help="CPU threads for the network (default 0: all this process may use)"
+    )
     add_device_arguments(p)
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
     p.add_argument("--every", type=int, help="stream with --out: keep every N-th frame (default 1)")
@@ -437,8 +439,8 @@ def _run_stills(args: argparse.Namespace) -> int:
         print(_where_saved(written, kept, bool(args.ply or args.mesh)))
     if failed:
         print(f"failed: {len(failed)} of {len(frames)} input(s), not inferred (run again once fixed: the rest is kept)")
-        for source, (_, why) in failed.items():
-            print(f"  {source}: {why}")
+        for source, (_, why) in failed.items():  # the error names its file mostly: said once
+            print(f"  {why}" if why.startswith(f"{source}:") else f"  {source}: {why}")
         return 1
     return 0
 

@@ -32,7 +32,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="V",
         help="x0 y0 w h (pixels, as 4 values or x0,y0,w,h) or 'auto' (around the contact); default: the whole gel",
     )
-    p.add_argument("--leds", help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds")
+    p.add_argument(
+        "--leds",
+        help="LED subset '1,2,5' (1-based) or an LED JSON file from calibrate-leds "
+        "(default: every LED, as meta.json records them)",
+    )
     p.add_argument(
         "--reference",
         metavar="REF_PRESS",
@@ -121,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..pipeline.provenance import identity_in_background
+    from ..progress import BATCH, press_lines
     from .folders import check_one_capture
 
     _press_after_roi(args)
@@ -166,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
             wait=True,  # the result asked for: another run's is waited for, and reused only when made alike
         )
         return 0
+    press_lines(BATCH)  # a line per press; how each was solved with -v
     statuses = solve_presses(
         presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
     )

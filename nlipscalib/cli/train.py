@@ -39,12 +39,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("dataset", help="calibration dataset folder (from `nlips calibrate`)")
     p.add_argument("--out", required=True, help="model file to write (.pt)")
-    p.add_argument("--hidden", default="256,256,128", help="hidden widths (paper 256,256,128; fast 64,64,64)")
+    p.add_argument(
+        "--hidden", default="256,256,128", help="hidden widths (default 256,256,128: the paper's; fast 64,64,64)"
+    )
     p.add_argument(
         "--dropout",
         type=float,
         default=0.2,
-        help="dropout after each hidden layer (paper 0.2; 0 for the small real-time variants, which it underfits)",
+        help="dropout after each hidden layer (default 0.2: the paper's; 0 for the small real-time variants, "
+        "which it underfits)",
     )
     p.add_argument(
         "--labels",
@@ -65,7 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--val-presses", help="comma-separated validation presses (default: a seeded 20%% of them)")
     p.add_argument("--exclude", help="comma-separated presses kept out of training and validation (a test set)")
-    p.add_argument("--max-minutes", type=float, default=0.0, help="stop training after this long (0: no limit)")
+    p.add_argument("--max-minutes", type=float, default=0.0, help="stop training after this long (default 0: no limit)")
     p.add_argument(
         "--threads",
         type=int,

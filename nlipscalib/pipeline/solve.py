@@ -20,6 +20,7 @@ from ..core.reconstruction import (
     load_reconstruction,
     reconstruction_dir,
 )
+from ..progress import PRESS_SUMMARY
 from .provenance import capture_identity, make_provenance, run_record
 from .reuse import _claim, _clean_interrupted, _hold, _leftovers, _published_since, _reuse, _wait_for_release
 from .settings import SolveSettings, check_fits_capture, make_settings
@@ -413,6 +414,7 @@ def _log_solved(folder: Path, out: Path, rep: dict, save_s: float) -> None:
         rep.get("seconds", float("nan")),
         save_s,
         out,
+        extra=PRESS_SUMMARY,
     )
 
 

@@ -97,14 +97,15 @@ def _unless_stopped(status_of: Callable[..., str], folder: Path, *args: object) 
     return status_of(folder, *args)
 
 
-def _worker_init(log_level: int, log_file: str | None = None, stop: c_byte | None = None) -> None:
+def _worker_init(log_level: int, log_file: str | None, press_lines: int, stop: c_byte | None) -> None:
     """Log like the parent (stderr and its ``--log-file``); one core per worker: the solver limits BLAS
-    itself, OpenCV's pool is limited here; ``stop``: the batch's stop flag (:func:`_unless_stopped`)."""
+    itself, OpenCV's pool is limited here; ``press_lines``: the parent's (progress.press_lines);
+    ``stop``: the batch's stop flag (:func:`_unless_stopped`)."""
     from ..progress import configure_worker
 
     global _STOP
     _STOP = stop
-    configure_worker(log_level, log_file)
+    configure_worker(log_level, log_file, press_lines)
     _worker_signals()
     end_with_parent()  # a command killed with SIGKILL cannot end this worker: it ends itself
     os.environ.setdefault("OMP_NUM_THREADS", "1")

@@ -29,7 +29,7 @@ from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, NlipsError
 from ..core.processes import end_processes, end_with_parent, sigint_held, worker_signals
-from ..progress import configure_worker, progress_bar, worker_logging
+from ..progress import SINGLE, configure_worker, progress_bar, worker_logging
 from .dataset_folder import (
     changed_error,
     check_existing,
@@ -159,14 +159,14 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=True, cancel_futures=True)  # its manager thread, which finds them gone, ends
 
 
-def _worker_init(log_level: int, log_file: str | None = None) -> None:
+def _worker_init(log_level: int, log_file: str | None = None, press_lines: int = SINGLE) -> None:
     """A render process: logs like the parent; ignores Ctrl-C, which the parent answers by ending it (a terminal
     sends Ctrl-C to every process of the command: a render process died of it with a traceback of its own, or
     waited at its exit for the render it interrupted); on SIGTERM (sent by a stopped ``nlips dataset``, or to the
     whole process group) releases its claim and removes its half-written press folder, then exits, as the parent
     does. The handler runs at once, a render being on a thread of its own (``sim.render.interruptible``); ended with
     ``os._exit``, as an exception raised there could land inside the library."""
-    configure_worker(log_level, log_file)
+    configure_worker(log_level, log_file, press_lines)
     worker_signals()
     end_with_parent()  # a command killed with SIGKILL cannot end this render process: it ends itself
 

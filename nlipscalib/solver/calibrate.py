@@ -31,7 +31,7 @@ from ..core.leds import Led, Leds, disk_shading, led_shading
 from ..core.robust_scale import mad_scale
 from .blas import blas_threads
 from .exposure import nothing_to_fit, saturated_share, saturation_note
-from .press_checks import optics_difference
+from .press_checks import _other_sensor, optics_difference
 
 if TYPE_CHECKING:  # named in hints only: the functions import the indirect module where they use it
     from pathlib import Path
@@ -568,6 +568,10 @@ def _samples(p: Press, first: Press, count: int, stride: int, left_out: np.ndarr
         raise CaptureError(f"{p.folder}: LED calibration needs the undeformed reference (reference.npz)")
     if p.camera != first.camera or len(p.leds) != count:
         why = optics_difference(p, first) or f"it has {len(p.leds)} LEDs, the starting LEDs {count}"
+        raise CaptureError(f"{p.folder}: not a capture of the sensor of {first.folder} ({why})")
+    # the LED ring and the dome too: two sensors of one camera were fitted together and refused as "a press"
+    why = _other_sensor(first, p) if p is not first else None
+    if why:
         raise CaptureError(f"{p.folder}: not a capture of the sensor of {first.folder} ({why})")
     valid = np.isfinite(p.reference.depth)
     sub = np.zeros_like(valid)

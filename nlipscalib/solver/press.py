@@ -33,6 +33,7 @@ from ..core import diskcache, tolerances
 from ..core.capture import Press
 from ..core.errors import CaptureError, ShapeError
 from ..core.metrics import angle_deg
+from ..progress import PRESS_DETAIL
 from . import radiosity, reuse, threads
 from .contact import ContactMap, anchor_weights, classify_contact, contact_box, led_levels, prepare_press_side
 from .exposure import nothing_to_fit, saturated_share, saturation_note
@@ -231,8 +232,8 @@ def _solve_press(
     rep["smoothness"] = options.smoothness
     rep["indirect_seconds"] = light.indirect_seconds + (loop.seconds if loop is not None else 0.0)
     if model is not None:
-        log.info("%s: %s", press.folder, model.reason)
-    log.info("%s: %s", press.folder, anchoring)
+        log.info("%s: %s", press.folder, model.reason, extra=PRESS_DETAIL)
+    log.info("%s: %s", press.folder, anchoring, extra=PRESS_DETAIL)
     return result
 
 

@@ -20,4 +20,4 @@ def test_a_damaged_press_is_reported_once(tmp_path, capsys, caplog):
     logged = caplog.text + err  # pytest's handler receives the log; stderr has it when none is installed
     errors = [line for line in logged.splitlines() if "press_0001" in line and "truncated PNG" in line]
     assert len(errors) == 1 and "failed:" not in errors[0], errors
-    assert "1 presses failed to solve: press_0001" in out
+    assert "1 press failed to solve: press_0001" in out

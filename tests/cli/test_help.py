@@ -43,3 +43,21 @@ def test_help_says_where_the_checkout_files_it_names_are(name):
     assert "scenes/" not in text and "README" not in text.replace("firmware/README.md", "")
     if "docs/" in text or "firmware/" in text:
         assert " ".join(SOURCE_NOTE.split()) in text
+
+
+@pytest.mark.parametrize("name", sorted(_commands()))
+def test_every_option_with_a_value_by_default_names_it(name):
+    """A user reads only --help: `nlips train --hidden` said "paper 256,256,128", `--threads` "0: all", the
+    emulator's --width "emulated image width" (what is used when it is not given?). An option that has a value
+    when not given says "default" in its help; one without (None) means "not used" and may say so its own way."""
+    quiet = (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._StoreConstAction, argparse._HelpAction)
+    unnamed = [
+        action.option_strings[-1]
+        for action in _commands()[name]._actions
+        if action.option_strings
+        and not isinstance(action, quiet)
+        and not action.required
+        and action.default not in (None, [], argparse.SUPPRESS)
+        and "default" not in (action.help or "").lower()
+    ]
+    assert unnamed == []

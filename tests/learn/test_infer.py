@@ -795,7 +795,7 @@ def test_a_damaged_input_among_many_is_said_and_the_others_are_inferred(tiny_mod
     lines = said.out.splitlines()
     assert lines[0].startswith("3 frame(s), torch") and lines[1].startswith("saved: 3 result folder(s): 2 for frames")
     assert lines[2] == "failed: 1 of 4 input(s), not inferred (run again once fixed: the rest is kept)", lines
-    assert lines[3] == f"  {damaged}: {damaged}: truncated PNG image (cut short: copy or capture it again)", lines
+    assert lines[3] == f"  {damaged}: truncated PNG image (cut short: copy or capture it again)", lines
     assert f"{damaged}: truncated PNG image" in caplog.text and "Traceback" not in said.err + caplog.text
     assert sorted(p.name for p in out.iterdir()) == sorted([*NAMES[1:], "press"])
     assert (out / "press" / "nlipsnet" / "result.npz").is_file()

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from nlipscalib.core import Led, load_press
 from nlipscalib.core.metrics import evaluate
@@ -84,3 +85,20 @@ def test_a_contact_left_out_of_the_led_fit_is_left_out_of_the_indirect_terms_fit
     for mask in after:  # the contact's pixels (the dent and its margin), exactly those the LED fit left out
         assert mask is not None and mask.shape == press.camera.shape and int(mask.sum()) == count
     assert (after[0] & press.ground_truth.contact).sum() >= press.ground_truth.contact.sum() / 2
+
+
+def test_undeformed_captures_of_two_sensors_are_refused_before_the_fit(tmp_path):
+    """Two sensors of one camera and LED count (another dome's ring, 1.5 mm / 10 deg apart) were fitted together,
+    then refused as "not a capture of the undeformed dome ... as a press does": the wrong cause. Now the capture
+    of the other sensor is named with the difference; two captures of one sensor still calibrate together."""
+    import dataclasses
+
+    from nlipscalib.core.errors import CaptureError
+
+    first = load_press(synth.make_press(tmp_path / "first", "none", size=(48, 36)))
+    moved = tuple(dataclasses.replace(led, position=(led.position[0] * 1.17, *led.position[1:])) for led in first.leds)
+    other = load_press(synth.make_press(tmp_path / "other", "none", size=(48, 36), leds=moved))
+    with pytest.raises(CaptureError, match=r"other: not a capture of the sensor of .*first \(LED 1 is 1\.53 mm"):
+        calibrate_leds([first, other], stride=4)
+    again = load_press(synth.make_press(tmp_path / "again", "none", size=(48, 36)))
+    assert len(calibrate_leds([first, again], stride=4).leds) == len(first.leds)

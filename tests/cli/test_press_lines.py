@@ -1,0 +1,113 @@
+"""What a solved press says on stderr: everything for one press, one line per press in a batch, details with -v.
+
+Run as a user runs it (a process of its own): the filter sits on the command's own stderr handler, which pytest's
+handlers would replace in-process.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.solver import synth
+
+ROOT = Path(__file__).resolve().parents[2]
+DETAILS = ("anchored", "anchoring")  # the anchoring decision's line (anchored N of M pixels, or anchoring off)
+SUMMARY = "pixels reconstructed"
+
+
+@pytest.fixture(scope="module")
+def presses(tmp_path_factory):
+    root = tmp_path_factory.mktemp("press_lines")
+    for name, shape in (("press_a", "sphere"), ("press_b", "cube")):
+        synth.make_press(root / name, shape, size=(64, 48))
+    (root / "solver.toml").write_text("max_iters = 3\n")
+    return root
+
+
+def _nlips(*args: str) -> str:
+    run = subprocess.run(
+        [sys.executable, "-m", "nlipscalib", "--no-progress", *args], capture_output=True, text=True, cwd=ROOT
+    )
+    assert run.returncode == 0, run.stderr
+    return run.stderr
+
+
+def _lines(stderr: str, *words: str) -> list[str]:
+    return [line for line in stderr.splitlines() if any(w in line for w in words)]
+
+
+def test_one_press_says_what_was_decided(presses, tmp_path):
+    err = _nlips(
+        "solve", str(presses / "press_a"), "--out", str(tmp_path / "a"), "--config", str(presses / "solver.toml")
+    )
+    assert len(_lines(err, *DETAILS)) == 1 and len(_lines(err, SUMMARY)) == 1, err
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_folder_of_presses_says_one_line_per_press(presses, tmp_path, workers):
+    folder = tmp_path / "presses"
+    for name in ("press_a", "press_b"):
+        _copy(presses / name, folder / name)
+    log = tmp_path / "run.log"
+    err = _nlips(
+        "--log-file", str(log), "solve", str(folder), "--workers", workers, "--config", str(presses / "solver.toml")
+    )
+    assert _lines(err, *DETAILS) == [], err  # in the worker processes too
+    assert len(_lines(err, SUMMARY)) == 2, err
+    assert len(_lines(log.read_text(), *DETAILS)) == 2  # the log file keeps every line
+
+
+def test_verbose_shows_each_press_details_in_a_batch(presses, tmp_path):
+    folder = tmp_path / "presses"
+    for name in ("press_a", "press_b"):
+        _copy(presses / name, folder / name)
+    err = _nlips("-v", "solve", str(folder), "--config", str(presses / "solver.toml"))
+    assert len(_lines(err, *DETAILS)) == 2 and len(_lines(err, SUMMARY)) == 2, err
+
+
+def _copy(src: Path, dst: Path) -> None:
+    import shutil
+
+    shutil.copytree(src, dst)
+
+
+@pytest.fixture
+def command_stderr(monkeypatch):
+    """A function that empties the root logger's handlers as in a process of its own (pytest adds its own after
+    the fixtures), so the command adds its stderr handler; pytest's come back after the test."""
+    import logging
+
+    from nlipscalib import progress
+
+    yield lambda: monkeypatch.setattr(logging.getLogger(), "handlers", [])
+    monkeypatch.undo()
+    progress.configure(progress=True)
+
+
+@pytest.mark.parametrize(
+    ("argv", "shown"),
+    [
+        (["eval", "missing"], {"detail", "summary", "warning"}),  # not a batch: every line
+        (["experiment", "q1", "--plan"], {"warning"}),  # the task bar and the report say how the presses went
+        (["-v", "experiment", "q1", "--plan"], {"detail", "summary", "warning"}),
+        (["demo", "--solve-workers", "0"], {"summary", "warning"}),  # its table says the rest
+    ],
+)
+def test_experiments_say_nothing_per_press_unless_verbose(command_stderr, tmp_path, capsys, argv, shown):
+    import logging
+
+    from nlipscalib.cli import main
+    from nlipscalib.progress import PRESS_DETAIL, PRESS_SUMMARY
+
+    command_stderr()
+    main([*argv, "--out", str(tmp_path)] if argv[-1] != "missing" else [*argv[:-1], str(tmp_path / "missing")])
+    log = logging.getLogger("nlipscalib.solver.press")
+    log.info("detail", extra=PRESS_DETAIL)
+    log.info("summary", extra=PRESS_SUMMARY)
+    log.warning("warning")
+    err = capsys.readouterr().err
+    assert {word for word in ("detail", "summary", "warning") if f" {word}\n" in err} == shown, err
