@@ -28,7 +28,7 @@ from ..core import masks, tolerances
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
-from ..core.leds import Leds, led_shading
+from ..core.leds import Leds, led_arrays, led_falloff, led_shading
 from ..core.sensor import DomeConfig, capture_design
 from . import radiosity, reuse, threads
 from .contact import led_levels
@@ -284,7 +284,12 @@ class Surface:
         """This surface with ``depth`` and ``normals`` at the ``changed`` pixels (a solved region).
 
         Only the patches over the changed pixels' bounding box are recomputed (geometry and direct
-        shading); the numbers equal those of a new ``Surface`` of the whole changed surface.
+        shading); the numbers equal those of a new ``Surface`` of the whole changed surface (the shading's patch
+        means to ~1e-16 relative: they average each LED's channel-free falloff,
+        :func:`~nlipscalib.core.leds.led_falloff`, and multiply by its Psi after, where a new ``Surface`` averages
+        the three channels' shading; a third of the
+        per-pixel work, 57 -> 42 ms of CPU per call on a cube press's auto ROI, and the same result.npz on the
+        twin's presses, benchmarks/RESULTS.md s22-ind).
 
         By bands of :data:`REPLACED_PATCH_ROWS` patch rows on the thread pool, each band's pixels, patches and
         shading's patch means made together (each pixel's and each patch's own arithmetic: the same bits as the
@@ -312,6 +317,7 @@ class Surface:
         for key in ("points", "normals", "area", "pixel_area"):
             new.patches[key] = self.patches[key].copy()
         new.shading = self.shading.copy()
+        psi = led_arrays(self.leds)[3][:, None, None, :]  # (L, 1, 1, 3) each LED's intensity per channel
 
         def band(rows: slice) -> None:  # patch rows ``rows`` of the window: their pixels' geometry and shading
             patch_rows = slice(pr.start + rows.start, pr.start + rows.stop)
@@ -324,13 +330,14 @@ class Surface:
             sub = radiosity.surface_patches(
                 pts, nrm, valid, self.camera, s, window=px, solid_angle=self.patches["solid_angle"]
             )
-            shade = led_shading(pts, nrm, self.leds)
-            shade[:, ~valid] = 0.0
+            falloff = led_falloff(pts, nrm, self.leds)
+            falloff[:, ~valid] = 0.0
             new.valid[px], new.depth[px], new.normals[px] = valid, d, n
             for key in ("points", "normals", "area"):
                 new.patches[key][patch_rows, pc] = sub[key]
             new.patches["pixel_area"][px] = sub["pixel_area"]
-            new.shading[:, patch_rows, pc] = radiosity.patch_mean(sub, shade)
+            # the channels' shading is the falloff times each LED's Psi: averaged once, then scaled per channel
+            new.shading[:, patch_rows, pc] = radiosity.patch_mean(sub, falloff[..., None]) * psi
 
         threads.map_items(band, threads.chunks(pr.stop - pr.start, -(-(pr.stop - pr.start) // REPLACED_PATCH_ROWS)))
         new.keep = new.patches["area"] > 0
