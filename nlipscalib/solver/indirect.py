@@ -284,12 +284,11 @@ class Surface:
         """This surface with ``depth`` and ``normals`` at the ``changed`` pixels (a solved region).
 
         Only the patches over the changed pixels' bounding box are recomputed (geometry and direct
-        shading); the numbers equal those of a new ``Surface`` of the whole changed surface (the shading's patch
-        means to ~1e-16 relative: they average each LED's channel-free falloff,
-        :func:`~nlipscalib.core.leds.led_falloff`, and multiply by its Psi after, where a new ``Surface`` averages
-        the three channels' shading; a third of the
-        per-pixel work, 57 -> 42 ms of CPU per call on a cube press's auto ROI, and the same result.npz on the
-        twin's presses, benchmarks/RESULTS.md s22-ind).
+        shading); the numbers equal those of a new ``Surface`` of the whole changed surface, the shading's patch
+        means to ~1e-16 relative: they average each LED's channel-free falloff
+        (:func:`~nlipscalib.core.leds.led_falloff`) and multiply by its Psi after, where a new ``Surface`` averages
+        the three channels' shading. A third of the per-pixel work: 57 -> 42 ms of one core per call on a cube
+        press's auto ROI, and the same result.npz on the twin's presses (benchmarks/RESULTS.md, s22-ind).
 
         By bands of :data:`REPLACED_PATCH_ROWS` patch rows on the thread pool, each band's pixels, patches and
         shading's patch means made together (each pixel's and each patch's own arithmetic: the same bits as the
