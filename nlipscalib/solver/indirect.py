@@ -28,7 +28,7 @@ from ..core import masks, tolerances
 from ..core.camera import Camera, depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError, ConfigError
-from ..core.leds import Leds, led_shading
+from ..core.leds import Leds, led_arrays, led_falloff, led_shading
 from ..core.sensor import DomeConfig, capture_design
 from . import radiosity, reuse, threads
 from .contact import led_levels
@@ -284,7 +284,11 @@ class Surface:
         """This surface with ``depth`` and ``normals`` at the ``changed`` pixels (a solved region).
 
         Only the patches over the changed pixels' bounding box are recomputed (geometry and direct
-        shading); the numbers equal those of a new ``Surface`` of the whole changed surface.
+        shading); the numbers equal those of a new ``Surface`` of the whole changed surface, the shading's patch
+        means to ~1e-16 relative: they average each LED's channel-free falloff
+        (:func:`~nlipscalib.core.leds.led_falloff`) and multiply by its Psi after, where a new ``Surface`` averages
+        the three channels' shading. A third of the per-pixel work: 57 -> 42 ms of one core per call on a cube
+        press's auto ROI, and the same result.npz on the twin's presses (benchmarks/RESULTS.md, s22-ind).
 
         By bands of :data:`REPLACED_PATCH_ROWS` patch rows on the thread pool, each band's pixels, patches and
         shading's patch means made together (each pixel's and each patch's own arithmetic: the same bits as the
@@ -312,6 +316,7 @@ class Surface:
         for key in ("points", "normals", "area", "pixel_area"):
             new.patches[key] = self.patches[key].copy()
         new.shading = self.shading.copy()
+        psi = led_arrays(self.leds)[3][:, None, None, :]  # (L, 1, 1, 3) each LED's intensity per channel
 
         def band(rows: slice) -> None:  # patch rows ``rows`` of the window: their pixels' geometry and shading
             patch_rows = slice(pr.start + rows.start, pr.start + rows.stop)
@@ -324,13 +329,14 @@ class Surface:
             sub = radiosity.surface_patches(
                 pts, nrm, valid, self.camera, s, window=px, solid_angle=self.patches["solid_angle"]
             )
-            shade = led_shading(pts, nrm, self.leds)
-            shade[:, ~valid] = 0.0
+            falloff = led_falloff(pts, nrm, self.leds)
+            falloff[:, ~valid] = 0.0
             new.valid[px], new.depth[px], new.normals[px] = valid, d, n
             for key in ("points", "normals", "area"):
                 new.patches[key][patch_rows, pc] = sub[key]
             new.patches["pixel_area"][px] = sub["pixel_area"]
-            new.shading[:, patch_rows, pc] = radiosity.patch_mean(sub, shade)
+            # the channels' shading is the falloff times each LED's Psi: averaged once, then scaled per channel
+            new.shading[:, patch_rows, pc] = radiosity.patch_mean(sub, falloff[..., None]) * psi
 
         threads.map_items(band, threads.chunks(pr.stop - pr.start, -(-(pr.stop - pr.start) // REPLACED_PATCH_ROWS)))
         new.keep = new.patches["area"] > 0
@@ -608,7 +614,12 @@ def _albedo(img: np.ndarray, model: np.ndarray, ok: np.ndarray) -> np.ndarray:
 
 
 def _profile_kappa(
-    img: np.ndarray, S: np.ndarray, G: np.ndarray, ok: np.ndarray, kappa_max: float | None = None, steps: int = 400
+    img: np.ndarray,
+    S: np.ndarray,
+    G: np.ndarray,
+    ok: np.ndarray,
+    kappa_max: float | None = None,
+    steps: int | None = None,
 ) -> np.ndarray:
     """(3,) kappa >= 0 minimising the residual of img ~ rho_p (S + kappa G) with every patch's rho_p
     profiled out (its least-squares value for that kappa): a 1-D search per channel, exact for the
@@ -616,7 +627,11 @@ def _profile_kappa(
 
     With M = S + kappa G, the profiled residual of a patch is sum I^2 - (a + kappa b)^2 / (c + 2 kappa d
     + kappa^2 e) with a = sum I S, b = sum I G, c = sum S S, d = sum S G, e = sum G G over the LEDs.
+
+    ``steps``: points of the coarse grid that finds the best kappa's neighbourhood (default
+    :data:`KAPPA_GRID_STEPS`); Newton's method on the gain's slope then finishes it (:func:`_profile_channel`).
     """
+    steps = KAPPA_GRID_STEPS if steps is None else steps
     w = ok.astype(np.float64)
     a, b = (w * img * S).sum(0), (w * img * G).sum(0)
     c, d, e = (w * S * S).sum(0), (w * S * G).sum(0), (w * G * G).sum(0)
@@ -628,26 +643,63 @@ def _profile_kappa(
 
 def _profile_channel(sums: list[np.ndarray], kappa_max: float | None, steps: int) -> float:
     """:func:`_profile_kappa`'s search in one channel: ``sums`` the per-patch sums a .. e (K,) float64 of that
-    channel; 0 when no patch has both terms."""
+    channel; 0 when no patch has both terms, or when the gain falls from kappa = 0 on.
+
+    A coarse grid over [0, top] brackets the best kappa between the best grid point's neighbours; Newton's method
+    on the gain's slope (safeguarded by bisection of the bracket) then finds where the slope is zero, to
+    :data:`KAPPA_REL_TOL` of ``top``. Why not grids all the way: the 400-point grid and three 50-point
+    refinements it replaces took 15-17 ms of one core per call (three calls in a press's fits) for an answer
+    0.2-3.3e-6 (relative) from the gain's maximum; this takes ~1.3 ms (benchmarks/RESULTS.md, s22-ind)."""
     a, b, c, d, e = sums
     # kappa G comparable to S at most: search up to the ratio that makes them equal
     has = (c > 0) & (d > 0)
     if not has.any():
         return 0.0
     top = kappa_max or float(10 * np.median(c[has]) / np.median(d[has]))
-    # scratch for the (K, grid) terms, reused by every grid: no fresh pages per evaluation
-    wide, fine = [(np.empty((len(a), n)), np.empty((len(a), n))) for n in (steps, _KAPPA_REFINE_STEPS)]
     ks = np.linspace(0.0, top, steps)
-    gain = _profile_gain(*sums, ks, *wide)
-    for _ in range(3):  # grid, then three refinements around the best
-        i = int(np.argmax(gain))
-        ks = np.linspace(ks[max(i - 1, 0)], ks[min(i + 1, len(ks) - 1)], _KAPPA_REFINE_STEPS)
-        gain = _profile_gain(*sums, ks, *fine)
-    return float(ks[np.argmax(gain)])
+    gain = _profile_gain(*sums, ks, np.empty((len(a), steps)), np.empty((len(a), steps)))
+    i = int(np.argmax(gain))
+    low, high, kappa = ks[max(i - 1, 0)], ks[min(i + 1, steps - 1)], ks[i]
+    live = [x[(c > 0) | (e > 0)] for x in sums]  # a patch left out (no usable sample) has every sum 0
+    if i == 0 and _profile_slopes(*live, 0.0)[0] <= 0:
+        return 0.0  # the gain falls from kappa = 0: no indirect light in this channel
+    for _ in range(_KAPPA_NEWTON_STEPS):
+        slope, curvature = _profile_slopes(*live, kappa)
+        if slope > 0:
+            low = kappa
+        else:
+            high = kappa
+        step = kappa - slope / curvature if curvature < 0 else None
+        new = step if step is not None and low < step < high else 0.5 * (low + high)
+        done = abs(new - kappa) <= KAPPA_REL_TOL * top
+        kappa = new
+        if done:
+            break
+    return float(kappa)
 
 
-_KAPPA_REFINE_STEPS = 50
-"""Points of each refinement of :func:`_profile_kappa`'s search (between the best point's neighbours)."""
+KAPPA_GRID_STEPS = 100
+"""Points of :func:`_profile_kappa`'s coarse grid over [0, top] (top: kappa G ten times S). On the twin's one-bounce
+640x480 presses the best kappa is ~top / 30, so the best point's neighbours bracket it within ~a third of it."""
+KAPPA_REL_TOL = 1e-12
+"""Newton's last step in :func:`_profile_channel`, relative to the search's range, below which kappa is taken."""
+_KAPPA_NEWTON_STEPS = 60
+"""Most Newton (or bisection) steps of :func:`_profile_channel` (each halves the bracket at least when bisecting)."""
+
+
+def _profile_slopes(
+    a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, e: np.ndarray, kappa: float
+) -> tuple[float, float]:
+    """(first, second) derivative in kappa of :func:`_profile_gain`'s sum of (a + k b)^2 / (c + 2 k d + k^2 e) at
+    k = ``kappa``; ``a`` .. ``e`` (K,) float64 per-patch sums of patches with c > 0 or e > 0 (D > 0)."""
+    n = a + kappa * b
+    den = c + 2 * kappa * d + kappa * kappa * e
+    slope_den = 2 * (d + kappa * e)
+    first = 2 * n * b / den - n * n * slope_den / den**2
+    second = (
+        2 * b * b / den - 4 * n * b * slope_den / den**2 - 2 * n * n * e / den**2 + 2 * (n * slope_den) ** 2 / den**3
+    )
+    return float(first.sum()), float(second.sum())
 
 
 def _profile_gain(

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.core.errors import ConfigError, ShapeError
-from nlipscalib.core.leds import Led, led_shading, tricolor_colors, tricolor_groups
+from nlipscalib.core.leds import Led, led_arrays, led_falloff, led_shading, tricolor_colors, tricolor_groups
 
 
 def test_shading_known_answer_directly_below_led():
@@ -25,6 +25,28 @@ def test_shading_is_zero_in_attached_shadow():
     led = Led(position=(0, 0, 0))
     s = led_shading(np.array([[0.0, 0, 10]]), np.array([[0.0, 0, 1]]), [led])
     assert np.all(s == 0)
+
+
+def test_the_falloff_times_each_leds_intensity_is_the_shading_bit_for_bit():
+    """``led_falloff`` is ``led_shading`` without Psi: its product with each LED's per-channel intensity gives the
+    shading's very bits (the same products), for LEDs of other exponents (mu 0, 1 and not integer), points in
+    shadow and a (h, w) grid of points."""
+    rng = np.random.default_rng(4)
+    leds = [
+        Led(position=(5, 0, 0), direction=(-1, 0, 1), mu=0.0, intensity=(1.0, 0.7, 0.2)),
+        Led(position=(0, 5, 0), direction=(0, -1, 1), mu=1.0, intensity=(0.3, 1.1, 0.9)),
+        Led(position=(-4, -4, 1), direction=(1, 1, 2), mu=2.7, intensity=(2.0, 1.0, 0.5)),
+    ]
+    points = rng.normal(size=(9, 7, 3)) * 3 + [0, 0, 12]
+    normals = rng.normal(size=(9, 7, 3))
+    normals[..., 2] = -np.abs(normals[..., 2])
+    normals[0, :, 2] *= -1  # a row facing away: in attached shadow
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    shading = led_shading(points, normals, leds)
+    falloff = led_falloff(points, normals, leds)
+    assert falloff.shape == (3, 9, 7)
+    assert np.array_equal(falloff[..., None] * led_arrays(leds)[3][:, None, None], shading)
+    assert np.all(falloff[:, 0] == 0) and np.all(falloff[:, 1:] >= 0) and falloff[:, 1:].any()
 
 
 def test_tricolor_groups_nlipstac_and_general():

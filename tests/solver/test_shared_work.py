@@ -246,6 +246,36 @@ def test_the_kappa_search_per_channel_on_the_pool_has_the_same_bits_on_one_threa
     assert got[0][2] == 0.0
 
 
+def test_the_kappa_search_ends_at_the_gains_maximum_and_at_zero_without_indirect_light():
+    """_profile_kappa's Newton finish: on noisy data the kappa it returns is where the profiled gain is largest (no
+    kappa 1e-4 either side gains more, and Newton's next step from it is below 1e-9 of it; the grid
+    search it replaced stopped 0.2-3e-6 away on the twin's presses); with images whose best kappa would be negative
+    the gain falls from kappa = 0 on and the search returns 0 exactly."""
+    from nlipscalib.solver.indirect import _profile_gain, _profile_kappa, _profile_slopes
+
+    rng = np.random.default_rng(11)
+    L, K = 12, 400
+    S = rng.uniform(0.5, 1.5, (L, K, 3))
+    G = rng.uniform(0.1, 0.4, (L, K, 3))
+    rho = rng.uniform(0.6, 0.9, (1, K, 3))
+    img = rho * (S + np.array([0.02, 0.3, 0.6]) * G) * rng.normal(1.0, 0.01, (L, K, 3))
+    ok = rng.uniform(size=(L, K, 3)) > 0.05
+    ok[:, :7] = False  # patches with no usable sample at all
+    kappa = _profile_kappa(img, S, G, ok)
+    w = ok.astype(float)
+    for ch in range(3):
+        sums = [(w * x * y).sum(0)[:, ch] for x, y in ((img, S), (img, G), (S, S), (S, G), (G, G))]
+        near = kappa[ch] * np.array([1 - 1e-4, 1.0, 1 + 1e-4])
+        gain = _profile_gain(*sums, near, np.empty((K, 3)), np.empty((K, 3)))
+        assert gain[1] >= gain[0] and gain[1] >= gain[2], ch
+        live = [x[sums[2] > 0] for x in sums]
+        slope, curvature = _profile_slopes(*live, kappa[ch])
+        assert curvature < 0 and abs(slope / curvature) < 1e-9 * kappa[ch], ch  # Newton's next step: ~0
+    assert np.all(np.abs(kappa - [0.02, 0.3, 0.6]) < 0.05)
+    less = rho * (S - 0.1 * G)  # the best kappa would be negative
+    assert np.array_equal(_profile_kappa(less, S, G, np.ones((L, K, 3), bool)), [0, 0, 0])
+
+
 def test_a_warm_start_from_the_solution_stays_there(press):
     lin = press.linear(press.led_images)
     prior = press.reference.depth
