@@ -167,3 +167,19 @@ def test_every_coverage_json_key_is_documented():
     section = _section("coverage.json (", "# NLiPsNet model file")
     for function in ("coverage", "steep_gap", "_next_press"):
         assert _undocumented(_literal_keys("learn.coverage", function), section) == [], function
+
+
+def test_conventions_md_tricolor_rule_and_normal_map_colours():
+    """docs/conventions.md: the tri-colour grouping is given as a formula a lab's own capture tool can follow (it
+    only named the Python function), and the normal-map colours as a formula; both are checked against the code."""
+    from nlipscalib.core import tricolor_groups
+    from nlipscalib.report import normals_to_rgb
+
+    text = (FORMATS.parent / "conventions.md").read_text()
+    assert "group floor(3 i / L)" in text and "13 LEDs: 1-5 red, 6-9 green, 10-13 blue" in text
+    for n in range(3, 40):
+        assert tricolor_groups(n).tolist() == [3 * i // n for i in range(n)]
+    assert [list(tricolor_groups(13)).count(g) for g in range(3)] == [5, 4, 4]
+    assert "RGB = ((n_x, -n_y, -n_z) + 1) / 2" in text
+    n = np.array([[[0.6, 0.0, -0.8], [0.0, -0.6, -0.8]]])
+    np.testing.assert_allclose(normals_to_rgb(n), (n * [1, -1, -1] + 1) / 2, atol=1e-6)
