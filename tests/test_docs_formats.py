@@ -224,3 +224,23 @@ def test_a_press_written_from_formats_md_alone_loads(tmp_path):
     section = _section("## meta.json", "## reference.npz")
     assert "missing keys take the defaults 12, 256, 65520, 10, 1" in section
     assert "Other top-level keys are ignored" in section
+
+
+def test_session_times_are_written_as_formats_md_shows_them():
+    """docs/formats.md, "Capture sessions": `started` and `captured_at` are ISO 8601 with the offset written without
+    a colon (``time.strftime("%z")``); a lab parsing them needs the form, not only "ISO 8601"."""
+    import datetime
+
+    example = re.search(r"no colon: `([^`]+)`", _section("## Capture sessions", "## LED file")).group(1)
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d[+-]\d{4}", example)
+    assert datetime.datetime.fromisoformat(example).utcoffset() == datetime.timedelta(hours=1)
+    assert _literal_strftime("device.session") == {"%Y-%m-%dT%H:%M:%S%z"}
+
+
+def _literal_strftime(module: str) -> set[str]:
+    """The format strings ``module`` gives time.strftime."""
+    import ast
+
+    source = Path(__file__).resolve().parents[1] / "nlipscalib" / (module.replace(".", "/") + ".py")
+    calls = [n for n in ast.walk(ast.parse(source.read_text())) if isinstance(n, ast.Call)]
+    return {c.args[0].value for c in calls if getattr(c.func, "attr", "") == "strftime"}
