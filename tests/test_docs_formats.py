@@ -167,3 +167,80 @@ def test_every_coverage_json_key_is_documented():
     section = _section("coverage.json (", "# NLiPsNet model file")
     for function in ("coverage", "steep_gap", "_next_press"):
         assert _undocumented(_literal_keys("learn.coverage", function), section) == [], function
+
+
+def test_conventions_md_tricolor_rule_and_normal_map_colours():
+    """docs/conventions.md: the tri-colour grouping is given as a formula a lab's own capture tool can follow (it
+    only named the Python function), and the normal-map colours as a formula; both are checked against the code."""
+    from nlipscalib.core import tricolor_groups
+    from nlipscalib.report import normals_to_rgb
+
+    text = (FORMATS.parent / "conventions.md").read_text()
+    assert "group floor(3 i / L)" in text and "13 LEDs: 1-5 red, 6-9 green, 10-13 blue" in text
+    for n in range(3, 40):
+        assert tricolor_groups(n).tolist() == [3 * i // n for i in range(n)]
+    assert [list(tricolor_groups(13)).count(g) for g in range(3)] == [5, 4, 4]
+    assert "RGB = ((n_x, -n_y, -n_z) + 1) / 2" in text
+    n = np.array([[[0.6, 0.0, -0.8], [0.0, -0.6, -0.8]]])
+    np.testing.assert_allclose(normals_to_rgb(n), (n * [1, -1, -1] + 1) / 2, atol=1e-6)
+
+
+def test_a_press_written_from_formats_md_alone_loads(tmp_path):
+    """A lab's own capture tool writes press folders from docs/formats.md, not with write_press: the smallest folder
+    the page allows (the required keys, every default left out, a `brown` lens without `dist`, a key of the lab's
+    own, images written by OpenCV from BGR arrays, reference.npz by plain np.savez) must load as the page says."""
+    import cv2
+
+    from nlipscalib.core import load_press
+
+    h, w, n = 12, 16, 3
+    folder = tmp_path / "press_0001"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    rgb = {name: rng.integers(256, 60000, (h, w, 3), dtype=np.uint16) for name in ["dark", "tricolor", "led_01"]}
+    rgb |= {f"led_{i:02d}": rgb["led_01"] + 1000 * i for i in (2, 3)}
+    for name, image in rgb.items():
+        assert cv2.imwrite(str(folder / f"{name}.png"), image[..., ::-1])  # OpenCV's arrays are BGR
+    z = np.full((h, w), 10.0, np.float32)
+    np.savez(folder / "reference.npz", depth=z, normals=np.broadcast_to([0, 0, -1], (h, w, 3)).astype(np.float32))
+    meta = {
+        "format": "nlipscalib.press",
+        "format_version": 1,
+        "camera": {"width": w, "height": h, "fx": 12.0, "fy": 12.0, "cx": 7.5, "cy": 5.5, "model": "brown"},
+        "leds": [{"position": [5.0 * np.cos(a), 5.0 * np.sin(a), 0.0]} for a in (0.0, 2.1, 4.2)],
+        "sensor": {},
+        "images": {"dark": "dark.png", "leds": [f"led_{i:02d}.png" for i in (1, 2, 3)], "tricolor": "tricolor.png"},
+        "reference": "reference.npz",
+        "lab_station": "bench 2",  # formats.md: other top-level keys are ignored
+    }
+    (folder / "meta.json").write_text(json.dumps(meta))
+    press = load_press(folder)
+    np.testing.assert_array_equal(press.dark, rgb["dark"])  # RGB in memory as in the file
+    np.testing.assert_array_equal(press.led_images, np.stack([rgb[f"led_{i:02d}"] for i in (1, 2, 3)]))
+    assert press.camera.dist == (0.0,) * 5 and len(press.leds) == n
+    assert dataclasses.astuple(press.response) == (12, 256, 65520, 10, 1)  # the page's defaults
+    assert [led.direction for led in press.leds] == [(0.0, 0.0, 1.0)] * n and press.leds[0].mu == 1.0
+    np.testing.assert_array_equal(press.reference.depth, z)
+    section = _section("## meta.json", "## reference.npz")
+    assert "missing keys take the defaults 12, 256, 65520, 10, 1" in section
+    assert "Other top-level keys are ignored" in section
+
+
+def test_session_times_are_written_as_formats_md_shows_them():
+    """docs/formats.md, "Capture sessions": `started` and `captured_at` are ISO 8601 with the offset written without
+    a colon (``time.strftime("%z")``); a lab parsing them needs the form, not only "ISO 8601"."""
+    import datetime
+
+    example = re.search(r"no colon: `([^`]+)`", _section("## Capture sessions", "## LED file")).group(1)
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d[+-]\d{4}", example)
+    assert datetime.datetime.fromisoformat(example).utcoffset() == datetime.timedelta(hours=1)
+    assert _literal_strftime("device.session") == {"%Y-%m-%dT%H:%M:%S%z"}
+
+
+def _literal_strftime(module: str) -> set[str]:
+    """The format strings ``module`` gives time.strftime."""
+    import ast
+
+    source = Path(__file__).resolve().parents[1] / "nlipscalib" / (module.replace(".", "/") + ".py")
+    calls = [n for n in ast.walk(ast.parse(source.read_text())) if isinstance(n, ast.Call)]
+    return {c.args[0].value for c in calls if getattr(c.func, "attr", "") == "strftime"}

@@ -58,13 +58,16 @@ class Camera:
     """Principal point v, pixels."""
     model: str = "fisheye"
     """Lens model: ``"fisheye"`` (Kannala-Brandt, 4 coefficients) or ``"brown"`` (5 coefficients)."""
-    dist: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
-    """Distortion coefficients in OpenCV order for ``model``."""
+    dist: tuple[float, ...] | None = None
+    """Distortion coefficients in OpenCV order for ``model``; None (the default): zeros, as many as ``model``
+    takes (docs/formats.md: a meta.json without ``dist`` has an undistorted lens of either model)."""
 
     def __post_init__(self):
-        self._check_types()
         if self.model not in LENS_MODELS:
             raise ConfigError(f"camera.model must be one of {LENS_MODELS}, got {self.model!r}")
+        if self.dist is None:
+            object.__setattr__(self, "dist", (0.0,) * _N_COEFFS[self.model])
+        self._check_types()
         object.__setattr__(self, "dist", tuple(float(c) for c in self.dist))
         if len(self.dist) != _N_COEFFS[self.model]:
             raise ConfigError(

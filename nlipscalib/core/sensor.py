@@ -82,10 +82,12 @@ class CameraConfig:
         check_range("width", self.width, MIN_IMAGE_SIDE, MAX_IMAGE_SIDE)
         check_range("height", self.height, MIN_IMAGE_SIDE, MAX_IMAGE_SIDE)
         check_range("hfov_deg", self.hfov_deg, 0.0, 270.0, open_lo=True)
-        expected = {"fisheye": (4,), "brown": (4, 5, 8, 12, 14)}[self.model]
-        if len(self.dist) not in expected:
+        # core.Camera's models: OpenCV's fisheye k1..k4 and Brown-Conrady k1, k2, p1, p2, k3 (not OpenCV's 8, 12 or
+        # 14 rational and thin-prism terms, which the lens model does not have: they failed in Camera.from_fov)
+        expected = {"fisheye": "k1, k2, k3, k4", "brown": "k1, k2, p1, p2, k3"}[self.model]
+        if len(self.dist) != expected.count(",") + 1:
             raise ConfigError(
-                f"dist: the {self.model} model takes {' or '.join(map(str, expected))} coefficients, "
+                f"dist: the {self.model} model takes {expected.count(',') + 1} coefficients ({expected}), "
                 f"got {len(self.dist)}"
             )
 

@@ -115,3 +115,15 @@ def test_pixel_derivatives_exact_on_a_quadratic_table_border_included():
 def test_pixel_derivatives_refuses_a_table_too_small_for_the_stencil():
     with pytest.raises(ShapeError, match="3 x 3"):
         pixel_derivatives(np.zeros((2, 5, 3)))
+
+
+def test_a_camera_without_dist_has_an_undistorted_lens_of_either_model():
+    """docs/formats.md: meta.json's `dist` defaults to zeros; a `brown` camera without it was refused ("needs 5
+    coefficients, got 4": the fisheye's four zeros were the default for both models)."""
+    keys = {"width": 64, "height": 48, "fx": 50.0, "fy": 50.0, "cx": 31.5, "cy": 23.5}
+    assert Camera.from_dict(keys | {"model": "brown"}).dist == (0.0,) * 5
+    assert Camera.from_dict(keys).dist == (0.0,) * 4
+    brown, fisheye = Camera(**keys, model="brown"), Camera(**keys)
+    np.testing.assert_allclose(brown.project(brown.rays), fisheye.project(fisheye.rays), atol=1e-9)
+    with pytest.raises(ConfigError, match="coefficients"):
+        Camera(**keys, model="brown", dist=(0.0,) * 4)  # an explicit list is still checked against the model

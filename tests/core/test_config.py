@@ -122,3 +122,22 @@ def test_an_experiment_config_file_overrides_only_what_it_names(tmp_path):
     assert cfg.train.indenters[0].kind == "brick"
     assert (cfg.twin.width, cfg.twin.height, cfg.twin.spp) == (full.twin.width, full.twin.height, 4)
     assert cfg.seen == full.seen and cfg.net == full.net
+
+
+@pytest.mark.parametrize(
+    "camera,message",
+    [
+        ('model = "brown"', r"dist: the brown model takes 5 coefficients \(k1, k2, p1, p2, k3\), got 4"),
+        ('model = "brown"\ndist = [0, 0, 0, 0, 0, 0, 0, 0]', "brown model takes 5 coefficients .*got 8"),
+        ("dist = [0.05, -0.01, 0, 0, 0]", r"fisheye model takes 4 coefficients \(k1, k2, k3, k4\), got 5"),
+    ],
+)
+def test_a_scene_camera_with_the_wrong_number_of_lens_coefficients_is_one_line(tmp_path, camera, message):
+    """A brown [camera] with the default (fisheye's four) or OpenCV's eight coefficients passed the scene's check and
+    failed later in Camera.from_fov: "ValueError: not enough values to unpack (expected 5, got 4)", a traceback."""
+    scene = tmp_path / "lens.toml"
+    scene.write_text(f"[camera]\n{camera}\n")
+    with pytest.raises(ConfigError, match=r"lens\.toml.*" + message):
+        load_scene(scene).camera_model()
+    scene.write_text('[camera]\nmodel = "brown"\ndist = [-0.1, 0.01, 0, 0, 0]\n')
+    assert load_scene(scene).camera_model().dist == (-0.1, 0.01, 0.0, 0.0, 0.0)

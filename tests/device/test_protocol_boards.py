@@ -7,7 +7,9 @@ without them they skip, or fail when NLIPS_REQUIRE_DEVICE_TOOLS=1.
 
 from __future__ import annotations
 
+import re
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -229,3 +231,81 @@ def test_unplugged_for_good(board):
 def test_a_second_program_cannot_open_the_port(leds, board):
     with pytest.raises(PortBusyError, match="busy"):
         LedController.open(board.url, timeout=TIMEOUT)
+
+
+# --- docs/protocol.md: its example session and its numbers, against both boards and the firmware source ----------
+PROTOCOL_MD = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
+FIRMWARE_SRC = Path(__file__).resolve().parents[2] / "firmware" / "src"
+
+
+def example_session() -> list[tuple[str, bytes]]:
+    """docs/protocol.md's recorded session: ("->" host line | "<-" board line, the line with its newline)."""
+    text = PROTOCOL_MD.read_text()
+    block = text[text.index("Example session") :].split("```")[1]
+    return [(ln[:2], ln[3:].encode() + b"\n") for ln in block.splitlines() if ln[:2] in ("->", "<-")]
+
+
+def read_line(port, timeout: float = 2.0) -> bytes:
+    """The next whole line from the board (with its newline)."""
+    line = bytearray()
+    deadline = time.monotonic() + timeout
+    while not line.endswith(b"\n") and time.monotonic() < deadline:
+        line += port.read(1)
+    return bytes(line)
+
+
+def test_the_documented_example_session_is_what_the_board_answers(board):
+    """A lab writes its own host from docs/protocol.md: the page's session is replayed line by line and every reply
+    must be the page's, byte for byte (the HELLO answer but its firmware version and boot counter, which are the
+    board's own); every line of the page carries a CRC that holds."""
+    session = example_session()
+    assert [d for d, _ in session] == ["<-", "->", "<-", "->", "<-", "->", "<-", "->", "<-"]
+    for _, line in session:
+        assert p.frame(line[:1], p.check_frame(line[:-1])[1]) == line, line  # the CRCs are real
+    port = open_port(board.url)
+    try:
+        time.sleep(0.2)  # a booting board's banner, if any, then dropped: the page's HELLO comes first
+        port.reset_input_buffer()
+        for (_, sent), (_, expected) in zip(session[1::2], session[2::2]):
+            port.write(sent)
+            got = read_line(port)
+            while got.startswith(p.BANNER_START):
+                got = read_line(port)
+            if b"HELLO" in sent:
+                info = p.decode_info(p.decode_reply(p.check_frame(got[:-1])[1]).payload)
+                assert (info.firmware[:2], info.protocol, info.n_leds) == ("1.", 1, 12), got
+            else:
+                assert got == expected, sent
+    finally:
+        port.close()
+
+
+def test_an_led_index_of_at_most_three_digits_and_hex_in_either_case(board):
+    """docs/protocol.md, "Line format": the board reads an index of up to three decimal digits (leading zeros
+    allowed) and hex digits in upper or lower case; it writes lower case."""
+    port = open_port(board.url)
+    try:
+        assert raw_exchange(port, p.encode_command(1, "HELLO")).ok
+        assert raw_exchange(port, p.encode_command(2, "SET", "002", "A0B0C0")) == p.Reply("02", 0, "")
+        assert raw_exchange(port, p.encode_command(3, "SET", "0002", "a0b0c0")).error == p.E_SYNTAX
+        assert raw_exchange(port, p.encode_command(4, "STATE")).payload[12:18] == "a0b0c0"
+    finally:
+        port.close()
+
+
+def test_the_numbers_protocol_md_gives_are_the_firmware_s():
+    """Line length, rate, latch and version, read from firmware/src, and the error table against protocol.py."""
+    text = PROTOCOL_MD.read_text()
+    main_cpp = (FIRMWARE_SRC / "main.cpp").read_text()
+    assert "#define MAX_LINE (6 * NLEDS + 32)" in main_cpp and "`6 × LEDs + 32` bytes" in text
+    n = 12
+    all_line = p.encode_command(0xFF, "ALL", "00" * 3 * n)
+    assert len(all_line) - 2 == 6 * n + 12 and "`6 × LEDs + 12`" in text  # without '>' and the newline
+    assert "#define UART_BAUD 115200UL" in (FIRMWARE_SRC / "uart.h").read_text() and "UART 115200 baud" in text
+    assert "_delay_us(300)" in (FIRMWARE_SRC / "ws2812.cpp").read_text() and "low for 300 µs" in text
+    assert '#define FW_VERSION "1.' in main_cpp and '#define PROTOCOL_VERSION "1"' in main_cpp
+    rows = re.findall(r"^\| `E(\d)` \| `([A-Z]+)` \|", text, re.M)
+    assert {int(c): name for c, name in rows} == p.ERROR_NAMES
+    names = re.search(r"ERROR_NAMES\[\] = \{(.*?)\};", main_cpp).group(1)
+    assert re.findall(r'"([A-Z]*)"', names) == [""] + [p.ERROR_NAMES[c] for c in sorted(p.ERROR_NAMES)]
+    assert f"{p.crc16(b'123456789'):04x}" == "31c3" and "`123456789` = `31c3`" in text
