@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import json
 import re
@@ -244,3 +245,54 @@ def _literal_strftime(module: str) -> set[str]:
     source = Path(__file__).resolve().parents[1] / "nlipscalib" / (module.replace(".", "/") + ".py")
     calls = [n for n in ast.walk(ast.parse(source.read_text())) if isinstance(n, ast.Call)]
     return {c.args[0].value for c in calls if getattr(c.func, "attr", "") == "strftime"}
+
+
+def test_the_disk_cache_section_describes_an_entry_byte_for_byte_and_names_every_kept_kind(tmp_path):
+    """An entry written by ``diskcache.store`` is read back by the layout the page gives alone (magic line, sizes,
+    pickle, 64-byte aligned buffers), and every kind the package keeps on disk is one of the page's folders."""
+    import pickle
+    import struct
+
+    from nlipscalib.core import diskcache
+
+    section = FORMATS.read_text()[FORMATS.read_text().index("# Disk cache") :]
+    magic = re.search(r"the line `(nlipscalib\.diskcache/\d+)`", section).group(1)
+    tag = re.search(r'pickle \(protocol 5\) of \(`"([^"]+)"`', section).group(1)
+    align = int(re.search(r"multiple of (\d+) bytes", section).group(1))
+    value = {"a": np.arange(7, dtype=np.float32), "b": np.ones((3, 5)), "note": "x"}
+    path = tmp_path / "surface" / "entry.pkl"
+    path.parent.mkdir()
+    diskcache.store(path, value)
+    data = path.read_bytes()
+    head = (magic + "\n").encode()
+    assert data.startswith(head)
+    n_pickle, n_buffers = struct.unpack_from("<QQ", data, len(head))
+    offset = len(head) + 16
+    sizes = struct.unpack_from(f"<{n_buffers}Q", data, offset)
+    offset += 8 * n_buffers
+    pickled = data[offset : offset + n_pickle]
+    offset += n_pickle
+    buffers = []
+    for size in sizes:
+        start = -(-offset // align) * align
+        assert data[offset:start].strip(b"\0") == b""  # only zeros pad a buffer to its aligned start
+        buffers.append(data[start : start + size])
+        offset = start + size
+    assert offset == len(data)
+    read_tag, read = pickle.loads(pickled, buffers=buffers)
+    assert read_tag == tag
+    assert read["note"] == "x" and np.array_equal(read["a"], value["a"]) and np.array_equal(read["b"], value["b"])
+
+    folders = set(re.search(r"\n  (surface/<digest>\.pkl.*)\n", section).group(1).replace("<digest>.pkl", "").split())
+    persisted = set()  # kinds of reuse.reused(KIND, ..., persist=<not False>) and diskcache.entry(KIND, ...)
+    for file in (FORMATS.parents[1] / "nlipscalib").rglob("*.py"):
+        for node in ast.walk(ast.parse(file.read_text())):
+            if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.args):
+                continue
+            kind = node.args[0].value if isinstance(node.args[0], ast.Constant) else None
+            persist = [k.value for k in node.keywords if k.arg == "persist"]
+            kept = persist and not (isinstance(persist[0], ast.Constant) and persist[0].value is False)
+            if isinstance(kind, str) and (node.func.attr == "entry" or (node.func.attr == "reused" and kept)):
+                persisted.add(kind)
+    assert len(persisted) >= 7  # the source was read (a renamed call would otherwise pass silently)
+    assert {k.replace(" ", "_") + "/" for k in persisted} == folders
