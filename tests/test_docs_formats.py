@@ -296,3 +296,15 @@ def test_the_disk_cache_section_describes_an_entry_byte_for_byte_and_names_every
                 persisted.add(kind)
     assert len(persisted) >= 7  # the source was read (a renamed call would otherwise pass silently)
     assert {k.replace(" ", "_") + "/" for k in persisted} == folders
+
+
+def test_the_model_file_section_names_the_reference_arrays_and_the_onnx_versions_the_code_uses():
+    from nlipscalib.learn import onnx_export
+    from nlipscalib.learn.model import REFERENCE_ARRAYS
+
+    model = _section("# NLiPsNet model file", "`nlips infer` writes `PRESS/nlipsnet/`")
+    reference = re.search(
+        r"`reference` \(the sensor\.npz arrays inference reads.*?; change detection", model, re.S
+    ).group(0)
+    assert set(re.findall(r"`(\w+)`", reference)) - {"reference"} == set(REFERENCE_ARRAYS)
+    assert f"opset {onnx_export.OPSET}, IR version {onnx_export.IR_VERSION}" in model
