@@ -46,8 +46,9 @@ class CoatingConfig:
     """Spatial scale of the variation, mm."""
     specular: float = 0.0
     """Weight of a rough specular lobe on top of the diffuse coat (0 = perfectly Lambertian, the NLiPs
-    model; a sprayed matte coat is about 0.02-0.05, a satin one 0.1-0.3). Scales the lobe's Fresnel
-    reflectance (Mitsuba ``roughplastic``, ``specular_reflectance``)."""
+    model; a sprayed matte coat is about 0.02-0.05, a satin one 0.1-0.3): ``(1 - specular) * Lambert(albedo) +
+    specular * GGX(roughness)``, a Mitsuba ``blendbsdf`` of ``diffuse`` and a reflectance-1 ``roughconductor``
+    (:func:`nlipscalib.sim.render.scene.coating_bsdf`)."""
     roughness: float = 0.3
     """GGX roughness alpha of that lobe (0.01 = nearly mirror-like, 1 = very rough)."""
 
