@@ -90,17 +90,19 @@ def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys, caplog):
 
 
 def test_eval_of_a_result_whose_settings_are_unknown_says_how_to_re_solve_it(data, tmp_path, capsys, caplog):
-    """Garbage in report.json: nothing to re-compute from, so no "re-computing" and no "re-solving failed"."""
+    """Garbage in report.json: nothing to re-compute from, so no "re-computing" and no "re-solving failed". One
+    press: its one line on stderr, exit 2 (it was printed on stdout, exit 1, as a folder's table row)."""
     root, cfg = data
     press, other = root / "press_a", tmp_path / "elsewhere"
     assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
     (press / "nlips" / "report.json").write_text("garbage")
     caplog.set_level(logging.INFO)
     capsys.readouterr()
-    assert main(["eval", str(press)]) == 1
+    assert main(["eval", str(press)]) == 2
     captured = capsys.readouterr()
-    lines = [line for line in captured.out.splitlines() if line.strip()]
-    assert len(lines) == 1 and "Traceback" not in captured.err, captured
+    lines = [line for line in captured.err.splitlines() if line.strip()]
+    assert len(lines) == 1 and not captured.out.strip() and "Traceback" not in captured.err, captured
+    assert lines[0].startswith("nlips eval: error: ")
     assert str(press / "nlips" / "report.json") in lines[0] and "not valid JSON" in lines[0]
     assert "the settings it was solved with are unknown" in lines[0]
     assert f"`nlips solve {press} --overwrite`" in lines[0] and "re-solving failed" not in lines[0]
@@ -112,8 +114,8 @@ def test_eval_of_a_result_whose_settings_are_unknown_says_how_to_re_solve_it(dat
     (other / "report.json").write_text(json.dumps(report))
     (other / "result.npz").write_bytes(b"garbage")
     capsys.readouterr()
-    assert main(["eval", str(press), "--result", str(other)]) == 1
-    out = capsys.readouterr().out
+    assert main(["eval", str(press), "--result", str(other)]) == 2
+    out = capsys.readouterr().err
     assert "result.npz" in out and f"{other / 'report.json'} records no solve settings" in out
     assert f"`nlips solve {press} --out {other} --overwrite`" in out
 
@@ -156,8 +158,8 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     assert "damaged, not scored: press_a" in out and f"make it again with `nlips infer MODEL.pt {press}`" in out
     report = json.loads((press / "nlipsnet" / "report.json").read_text())
     (press / "nlipsnet" / "report.json").write_text(json.dumps(report | {"model": "/lab/models/net.pt"}))
-    assert main(["eval", str(press), "--method", "nlipsnet"]) == 1
-    assert f"make it again with `nlips infer /lab/models/net.pt {press}`" in capsys.readouterr().out
+    assert main(["eval", str(press), "--method", "nlipsnet"]) == 2  # one press: on stderr
+    assert f"make it again with `nlips infer /lab/models/net.pt {press}`" in capsys.readouterr().err
 
 
 def test_eval_header_names_what_is_scored(data, capsys):
