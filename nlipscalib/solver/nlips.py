@@ -228,12 +228,13 @@ def solve(
     report.update(
         {"backend": backend, "seconds": time.perf_counter() - t_start, "normals": "refined" if refined else "depth"}
     )
-    named = f"{where}: " if where is not None else ""
-    if n := report["pixels_too_few_leds"]:
-        pixels = f"{n} pixel has" if n == 1 else f"{n} pixels have"
-        log.warning("%s%s fewer than %d usable LEDs: not reconstructed (NaN)", named, pixels, opts.min_leds)
-    if report["dead_leds"]:
-        log.warning("%sdead LEDs excluded (1-based): %s", named, [i + 1 for i in report["dead_leds"]])
+    if unrefined == 0:  # said of the result, not of each pass of the outer interreflection loop feeding it
+        named = f"{where}: " if where is not None else ""
+        if n := report["pixels_too_few_leds"]:
+            pixels = f"{n} pixel has" if n == 1 else f"{n} pixels have"
+            log.warning("%s%s fewer than %d usable LEDs: not reconstructed (NaN)", named, pixels, opts.min_leds)
+        if report["dead_leds"]:
+            log.warning("%sdead LEDs excluded (1-based): %s", named, [i + 1 for i in report["dead_leds"]])
     return result
 
 
