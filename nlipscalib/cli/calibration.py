@@ -167,25 +167,26 @@ def _solve_and_build(
     # earlier dataset's report (or half of it) beside this one's index.json
     for name in COVERAGE_FILES:
         (out / name).unlink(missing_ok=True)
-    build_dataset(solved, reference, out, cfg, progress=not args.no_progress, run=run)
+    unsampled: dict[str, str] = {}  # a press whose tri-colour image is damaged fails alone, as a failed solve
+    build_dataset(solved, reference, out, cfg, progress=not args.no_progress, run=run, failed=unsampled)
     data = CalibrationDataset(out)
     cov = coverage(data, camera_position=camera_position_of(read_meta(Path(reference))))
     coverage_figure(cov, out / COVERAGE_FILES[1])
     write_coverage_json(out / COVERAGE_FILES[0], cov)
     n = sum(e["samples"] for e in data.entries)
-    print(
-        f"{out}: {len(data.entries)} presses, {n} samples ({sum(e['contact_samples'] for e in data.entries)} contact)"
-    )
+    n_contact = sum(e["contact_samples"] for e in data.entries)
+    pressed = f"{len(data.entries)} press{'es' if len(data.entries) != 1 else ''}"
+    print(f"{out}: {pressed}, {n} samples ({n_contact} contact)")
     nxt = cov["next_press"]
     print(f"coverage: {cov['covered_fraction'] * 100:.0f}% of (region, direction) bins; press next: {nxt['advice']}")
     if cov["steep"]["advice"]:
         print(f"coverage: {cov['steep']['advice']}")
-    if failed:
-        count = f"{len(failed)} press{'es' if len(failed) > 1 else ''}"
-        print(f"{count} failed to solve: {', '.join(sorted(failed))}")
+    for names, what in ((failed, "failed to solve"), (unsampled, "left out of the dataset (not sampled)")):
+        if names:
+            print(f"{len(names)} press{'es' if len(names) > 1 else ''} {what}: {', '.join(sorted(names))}")
     # the step after this one, with this run's folder: the calibration dataset is what `nlips train` reads
     print(f"next: nlips train {out} --out MODEL.pt (NLiPsNet; --hidden 64,64,64 --dropout 0: the real-time variant)")
-    return 1 if failed else 0
+    return 1 if failed or unsampled else 0
 
 
 def own_reference_left_out(root: Path, given: Path) -> None:

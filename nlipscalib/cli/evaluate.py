@@ -89,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
         raise CaptureError(
             f"{args.path}: no press has a {method} result yet (run {MAKES[method].format(path=args.path)} first)"
         )
+    if len(pairs) == 1 and (damaged or outdated):  # one press, nothing to tabulate: its error, on stderr, exit 2
+        raise CaptureError((damaged or outdated)[0][1])
     _print(rows, _scored(Path(args.path), pairs, method, args.result))
     if unsolved:
         print(f"not solved, skipped: {', '.join(unsolved)}")

@@ -249,7 +249,10 @@ def save_reconstruction(
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    folder = Path(folder).absolute()  # "." has no name to write beside
+    folder = Path(folder)
+    # "." has no name to write beside; any other folder stays as given, so that an error names it as the user did
+    # (an absolute path named `--out bad/../ro/inf` "/home/.../bad/../ro/inf")
+    folder = folder if folder.name else folder.absolute()
     check_replaceable(folder)
     # the pool is left (its thread joined) before the folder is published or, on an error, removed
     with atomic_dir(folder, overwrite=overwrite) as tmp, ThreadPoolExecutor(1, "save-extra") as pool:

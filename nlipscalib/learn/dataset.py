@@ -268,6 +268,7 @@ def build_dataset(
     result_dir: str = "nlips",
     progress: bool = True,
     run: dict | None = None,
+    failed: dict[str, str] | None = None,
 ) -> Path:
     """Pair every solved press's tri-colour image with its NLiPs normals into a calibration dataset.
 
@@ -280,11 +281,15 @@ def build_dataset(
     result_dir : reconstruction folder name inside each press
     run : :func:`dataset_run` the caller holds ``out`` for (``nlips calibrate``: from before its solves, with its
         solve options); None: this build's own. The build holds ``out`` for it (:func:`hold_dataset`)
+    failed : where a press that cannot be sampled (a damaged tri-colour image, another sensor: a CaptureError) is
+        left out of the dataset, its error logged and its name mapped to it here, as a batch's failed solve is
+        (``nlips calibrate``); None: the error is raised
 
     Returns
     -------
     Path of the dataset folder. Raises CaptureError naming the press when one is unsolved or from
-    another sensor, ConfigError when another live build of other samples holds ``out``.
+    another sensor (with ``failed``: only when every press is), ConfigError when another live build of other
+    samples holds ``out``.
     """
     from ..core.capture import load_press, read_meta
 
@@ -297,9 +302,12 @@ def build_dataset(
         _clean_interrupted(out)
         ref_press = load_press(reference_folder)
         check_min_leds(cfg, len(ref_press.leds), reference_folder)
-        build = _Build(out, cfg, result_dir, sensor_of(ref_press), reference_arrays(ref_press))
+        build = _Build(out, cfg, result_dir, sensor_of(ref_press), reference_arrays(ref_press), failed=failed)
         write_shard(out / SENSOR_FILE, build.ref)
         entries = build.entries(folders, progress)
+        folders = [folder for folder in folders if folder.name not in (failed or {})]
+        if not entries:  # every press left out: their lines were logged, this one ends the build
+            raise CaptureError(f"{out}: no press could be sampled (each one's error is above)")
         if build.kept:  # what a resumed build reused, as solve and experiment say theirs
             names = build.kept
             shown = ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
@@ -336,6 +344,8 @@ class _Build:
     ref: dict
     kept: list[str] = dataclasses.field(default_factory=list)
     """Names of the presses whose shard was found made (by an earlier build, or another one at work)."""
+    failed: dict[str, str] | None = None
+    """:func:`build_dataset`'s ``failed``: the presses left out, by name, with their errors (None: raise them)."""
     ref_digest: str = dataclasses.field(init=False)
     """:func:`arrays_digest` of ``ref``: part of every shard's stamp."""
     old: dict = dataclasses.field(init=False)
@@ -347,19 +357,36 @@ class _Build:
 
     def entries(self, folders: list[Path], progress: bool) -> list[dict]:
         """The index entries of ``folders``' shards, in their order; a shard another live build is making is left
-        for the end, then waited for (and made here when that build dies or fails)."""
+        for the end, then waited for (and made here when that build dies or fails). A press left out
+        (``failed``) has none."""
         done: dict[Path, dict] = {}
         later = []
         for folder in track(folders, enabled=progress, desc="samples", unit="press"):
             _wait_for_solver(folder / self.result_dir)
-            entry = self.attempt(folder)
+            try:
+                entry = self.attempt(folder)
+            except CaptureError as exc:
+                self._leave_out(folder, exc)
+                continue
             if entry is None:
                 later.append(folder)
             else:
                 done[folder] = entry
         for folder in later:
-            done[folder] = self.wait_for(folder)
-        return [done[f] for f in folders]
+            try:
+                done[folder] = self.wait_for(folder)
+            except CaptureError as exc:
+                self._leave_out(folder, exc)
+        return [done[f] for f in folders if f in done]
+
+    def _leave_out(self, folder: Path, exc: CaptureError) -> None:
+        """With ``failed``: ``folder`` left out, its error logged once, naming the file (``press/tricolor.png:
+        ...``) or else the press; without: ``exc`` raised."""
+        if self.failed is None:
+            raise exc
+        line = str(exc)
+        log.error("%s", line if line.startswith(str(folder)) else f"{folder}: {line}")
+        self.failed[folder.name] = line
 
     def wait_for(self, folder: Path) -> dict:
         """``folder``'s entry once no other live process holds its shard (made by it, or here if it died or failed)."""

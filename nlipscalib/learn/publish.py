@@ -116,7 +116,11 @@ def hold_training(out: str | Path, run: dict) -> Iterator[None]:
 
     target = Path(out).with_name(Path(out).name + TRAIN_HOLD)
     while True:
-        with claim(target, note=run) as mine:
+        with contextlib.ExitStack() as held:
+            try:
+                mine = held.enter_context(claim(target, note=run))
+            except OSError as exc:
+                raise _named_as(exc, target, Path(out)) from None
             if mine:
                 yield
                 return
@@ -134,6 +138,16 @@ def hold_training(out: str | Path, run: dict) -> Iterator[None]:
             other.host,
         )
         wait_for_release(target)
+
+
+def _named_as(exc: OSError, hold: Path, out: Path) -> OSError:
+    """``exc`` naming the model path ``out`` the user gave where it names its ``hold``'s claim (a read-only disk
+    said "x.pt~train: Read-only file system", a name the user never gave); any other error as it is."""
+    from ..core.atomic import named_target
+
+    if exc.filename is None or named_target(exc.filename) != hold:
+        return exc
+    return OSError(exc.errno, exc.strerror, str(out))  # the subclass of its errno, as the original
 
 
 def _trained_elsewhere(out: Path, other: Owner, run: dict) -> str:

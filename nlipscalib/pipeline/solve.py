@@ -28,7 +28,7 @@ from .status import BUSY, FAILED, SOLVED
 from .workers import _solve_in_processes
 
 if TYPE_CHECKING:  # named in hints only: the solver and captures are imported when a press is solved
-    from ..core.capture import Press
+    from ..core.capture import GroundTruth, Press
     from ..core.leds import Led
     from ..solver import SolverOptions
 
@@ -300,7 +300,8 @@ def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | Non
     if result is None:
         result = load_reconstruction(out)
     press = load_press(folder)
-    write_reconstruction_figures(out, result, press.ground_truth, figures, *_figure_context(press))
+    truth = _truth_or_none(lambda: press.ground_truth)
+    write_reconstruction_figures(out, result, truth, figures, *_figure_context(press))
     log.info("%s: figures (%s) added to the existing result", out, figures)
 
 
@@ -366,12 +367,22 @@ def _solve_and_save(
         raise CaptureError(f"{folder}: the solve gave an unusable result ({problem})")
     context = _figure_context(press)
 
-    def figures(tmp: Path) -> None:  # the truth's error (raised by a bad gt.npz) is the figures', as before
-        write_reconstruction_figures(tmp, result, truth.result, level, *context)
+    def figures(tmp: Path) -> None:
+        write_reconstruction_figures(tmp, result, _truth_or_none(truth.result), level, *context)
 
     save_reconstruction(result, out, overwrite=True, extra_files=figures if level != "none" else None)
     _log_solved(folder, out, result.report, time.perf_counter() - t2)
     return result
+
+
+def _truth_or_none(read: Callable[[], GroundTruth | None]) -> GroundTruth | None:
+    """The ground truth ``read()`` returns for the error figure; None, with one warning, when gt.npz is damaged:
+    the solve reads none, so a damaged one stopped a solve only for its figure (``--no-figures`` solved)."""
+    try:
+        return read()
+    except CaptureError as exc:
+        log.warning("%s: the ground truth is damaged; the error figure (error.png) is skipped", exc)
+        return None
 
 
 def _read_beside(read: Callable[[], object]) -> Future:

@@ -45,6 +45,8 @@ from .options import SolverOptions
 from .pyramid import build_pyramid, checked_prior_weights, resize
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a progress bar is asked for
+    from pathlib import Path
+
     from tqdm import tqdm
 
 log = logging.getLogger(__name__)
@@ -160,6 +162,7 @@ def solve(
     progress: bool = False,
     init_depth: np.ndarray | None = None,
     unrefined: int = 0,
+    where: str | Path | None = None,
 ) -> SolveResult:
     """Recover depth, normals and albedo from one image per LED.
 
@@ -191,6 +194,7 @@ def solve(
         skipped -- a pass of the outer interreflection loop before its last, whose indirect light is gathered
         on patches several pixels wide, needs no more. The coarsest level is always iterated. From the prior (no
         ``init_depth``) its levels stop at ``options.seed_energy_rtol`` instead of ``options.energy_rtol``.
+    where : what the warnings name first (the press folder, so that a batch's lines say which press); None: nothing.
     """
     opts = options or SolverOptions()
     leds = tuple(leds)
@@ -224,14 +228,13 @@ def solve(
     report.update(
         {"backend": backend, "seconds": time.perf_counter() - t_start, "normals": "refined" if refined else "depth"}
     )
-    if report["pixels_too_few_leds"]:
-        log.warning(
-            "%d pixels have fewer than %d usable LEDs: not reconstructed (NaN)",
-            report["pixels_too_few_leds"],
-            opts.min_leds,
-        )
-    if report["dead_leds"]:
-        log.warning("dead LEDs excluded (1-based): %s", [i + 1 for i in report["dead_leds"]])
+    if unrefined == 0:  # said of the result, not of each pass of the outer interreflection loop feeding it
+        named = f"{where}: " if where is not None else ""
+        if n := report["pixels_too_few_leds"]:
+            pixels = f"{n} pixel has" if n == 1 else f"{n} pixels have"
+            log.warning("%s%s fewer than %d usable LEDs: not reconstructed (NaN)", named, pixels, opts.min_leds)
+        if report["dead_leds"]:
+            log.warning("%sdead LEDs excluded (1-based): %s", named, [i + 1 for i in report["dead_leds"]])
     return result
 
 

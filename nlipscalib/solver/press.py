@@ -384,6 +384,7 @@ class _Runner:
             progress=self.progress,
             init_depth=init,
             unrefined=unrefined,
+            where=self.press.folder,
         )
         if receivers is None and not result.reconstructed.any():  # a focus pass is merged into the last result
             dead = [i + 1 for i in result.report["dead_leds"]]

@@ -312,3 +312,28 @@ def test_a_later_format_version_is_named(tmp_path):
     (folder / "report.json").write_text(json.dumps(report))
     with pytest.raises(CaptureError, match=r"report\.json: format_version 3 is not supported \(expected 1 or 2\)"):
         load_reconstruction(folder)
+
+
+def test_an_error_names_the_folder_as_given_not_its_absolute_path(tmp_path, monkeypatch):
+    """`nlips infer ... --out bad/../ro/inf` on read-only media said "/home/.../bad/../ro/inf: Read-only file
+    system": the folder was made absolute before any write."""
+    import errno
+    import os
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "bad").mkdir()
+    real_mkdir = os.mkdir
+
+    def mkdir(path, *args, **kwargs):
+        if "ro" in os.fspath(path).split(os.sep):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), os.fspath(path))
+        return real_mkdir(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "mkdir", mkdir)
+    with pytest.raises(OSError) as caught:
+        save_reconstruction(_rec(), "bad/../ro/inf")
+    assert str(caught.value.filename).startswith("bad/../ro"), caught.value.filename
+    (tmp_path / "here").mkdir()
+    monkeypatch.chdir(tmp_path / "here")
+    save_reconstruction(_rec(), ".", overwrite=True)  # "." still has a name to write beside: the working folder's
+    assert load_reconstruction(tmp_path / "here").shape == (4, 5)

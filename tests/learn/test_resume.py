@@ -729,3 +729,26 @@ def test_the_training_bar_names_its_labels(built, tmp_path, as_terminal):
         train(CalibrationDataset(built), dataclasses.replace(TINY, labels=labels), tmp_path / f"{labels}.pt")
     shown = tty.getvalue()
     assert "training on NLiPs labels: 100%" in shown and "training on true normals: 100%" in shown
+
+
+def test_a_read_only_model_folder_is_named_by_the_model_path_not_its_training_hold(
+    built, tmp_path, monkeypatch, capsys
+):
+    """`nlips train --out RO/x.pt` on read-only media said "RO/x.pt~train: Read-only file system": the name of the
+    training's hold, which the user never gave."""
+    import errno
+    import os
+    from pathlib import Path
+
+    out = tmp_path / "ro" / "x.pt"
+    real_write_bytes = Path.write_bytes
+
+    def write_bytes(self, data):
+        if self.parent == out.parent:  # the claim's first write: what a read-only mount refuses
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(self))
+        return real_write_bytes(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", write_bytes)
+    assert main(["--no-progress", "train", str(built), "--out", str(out), "--hidden", "8"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"nlips train: error: {out}: Read-only file system (choose a writable output folder)\n", err

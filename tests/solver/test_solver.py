@@ -241,3 +241,24 @@ def test_normals_of_a_shaded_depth_reuse_its_gradient_to_the_bit(sphere_press, m
     assert len(calls) - reused_calls == steps
     np.testing.assert_array_equal(reused.depth, again.depth)
     np.testing.assert_array_equal(reused.normals, again.normals)
+
+
+def test_the_too_few_leds_warning_names_the_press_and_counts_in_words(tmp_path, caplog):
+    """In a batch the warning "1 pixels have fewer than 3 usable LEDs" named no press, and one pixel was plural."""
+    import logging
+
+    def saturate_one_pixel(lin):
+        lin = lin.copy()
+        lin[:10, 20, 30, :] = 5.0  # saturated in 10 of the 12 LED images: 2 usable LEDs there
+        return lin
+
+    folder = synth.make_press(tmp_path / "p", "sphere", size=(64, 48), lin_hook=saturate_one_pixel)
+    caplog.set_level(logging.WARNING)
+    res = _solve(load_press(folder), options=SolverOptions(max_iters=3))
+    assert res.report["pixels_too_few_leds"] == 1
+    warned = [r.getMessage() for r in caplog.records if "usable LEDs" in r.getMessage()]
+    assert warned == [f"{folder}: 1 pixel has fewer than 3 usable LEDs: not reconstructed (NaN)"]
+    caplog.clear()  # the outer interreflection loop's passes: once, of the result (it was once per pass)
+    res = _solve(load_press(folder), options=SolverOptions(max_iters=3), interreflection="on")
+    assert res.report["pixels_too_few_leds"] == 1 and res.report["outer_passes"] > 0, res.report.get("outer_passes")
+    assert sum("usable LEDs" in r.getMessage() for r in caplog.records) == 1
