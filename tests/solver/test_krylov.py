@@ -331,9 +331,7 @@ def test_a_stalling_jacobi_solve_is_abandoned_for_amg(monkeypatch):
     rhs = np.random.default_rng(3).standard_normal(1600)
     made = []
     pcg = krylov.pcg
-    monkeypatch.setattr(
-        krylov, "pcg", lambda *args, **kw: (out := pcg(*args, **kw), made.append((args[5], out[2])))[0]
-    )
+    monkeypatch.setattr(krylov, "pcg", lambda *args, **kw: (out := pcg(*args, **kw), made.append((args[5], out[2])))[0])
     opts = SolverOptions()
     solver = krylov.Krylov(opts)
     _, first = solver.solve(easy, rhs, 0.1)
