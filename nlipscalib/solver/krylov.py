@@ -47,7 +47,8 @@ class Krylov:
     Jacobi is not tried where the level's last Jacobi solve predicts it would not reach the tolerance within
     its cap (:func:`jacobi_predicted`): on the warm-started 640x480 level of a whole frame's last outer pass,
     the second step's 30 Jacobi iterations (~0.15 s of CPU) left the residual where AMG alone takes it in the
-    same 9 iterations from zero (benchmarks/RESULTS.md, s17-b).
+    same 9 iterations from zero (benchmarks/RESULTS.md, s17-b). And a Jacobi solve that was tried is abandoned
+    once its residual lies far above the prediction's (:func:`jacobi_give_up_rate`); AMG continues from its iterate.
     """
 
     def __init__(self, opts: SolverOptions):
@@ -74,8 +75,10 @@ class Krylov:
         # Jacobi only for loose solves: below 1e-2 it needed more iterations than it is worth.
         cap = self.opts.cg_jacobi_iters
         jacobi_iters = 0
-        if self.amg is None and cap > 0 and rtol >= 1e-2 and jacobi_predicted(self.jacobi_rate, rtol) <= cap:
-            x, status, jacobi_iters = pcg(products, rhs, None, rtol, cap, _Jacobi(Hm))
+        predicted = jacobi_predicted(self.jacobi_rate, rtol)
+        if self.amg is None and cap > 0 and rtol >= 1e-2 and predicted <= cap:
+            give_up = jacobi_give_up_rate(predicted, rtol)
+            x, status, jacobi_iters = pcg(products, rhs, None, rtol, cap, _Jacobi(Hm), give_up)
             # converged: rtol^(1/iterations) bounds its rate from above (the residual reached rtol or less)
             self.jacobi_rate = rtol ** (1 / max(jacobi_iters, 1)) if status == 0 else 1.0
             if status == 0:
@@ -108,6 +111,7 @@ def pcg(
     rtol: float,
     maxiter: int,
     preconditioner: _Jacobi | _VCycle,
+    give_up_rate: float | None = None,
 ) -> tuple[np.ndarray, int, int]:
     """Preconditioned conjugate gradient for ``A x = b`` until ``|r| < rtol |b|``: SciPy's ``cg``, operation for
     operation (the same bits), with its vector work moved into the row-block tasks of the products.
@@ -125,10 +129,13 @@ def pcg(
     x0 : (n,) float64 or None (zero) -- the start, not written.
     rtol : relative residual to reach; maxiter : iterations at most.
     preconditioner : :class:`_Jacobi` or :class:`_VCycle` (its :meth:`_VCycle.begin` / :meth:`_VCycle.finish`).
+    give_up_rate : stop (as failed) after iteration k where ``|r_k| > give_up_rate^k |b|``; None: never. The norm is
+        the one the convergence test takes anyway: a solve that converges before it is met has the same bits.
 
     Returns
     -------
-    x : (n,) float64; status : 0 converged, else ``maxiter``; iterations : completed iterations (SciPy's callbacks).
+    x : (n,) float64; status : 0 converged, else the iterations made (``maxiter`` where not given up);
+    iterations : completed iterations (SciPy's callbacks).
     """
     n = b.shape[0]
     bnrm2 = np.linalg.norm(b)
@@ -163,8 +170,11 @@ def pcg(
         preconditioner.begin(r, rows)
 
     for iteration in range(maxiter):
-        if np.linalg.norm(r) < atol:
+        residual = np.linalg.norm(r)
+        if residual < atol:
             return x, 0, iteration
+        if give_up_rate is not None and iteration > 0 and residual > give_up_rate**iteration * bnrm2:
+            return x, iteration, iteration
         z = preconditioner.finish(r)
         rho_cur = np.dot(r, z)
         if iteration > 0:
@@ -194,6 +204,28 @@ class _Jacobi:
 
     def finish(self, r: np.ndarray) -> np.ndarray:
         return self.z
+
+
+JACOBI_PATIENCE = 10.0
+"""How much slower than predicted a Jacobi solve may converge before it is abandoned (:func:`jacobi_give_up_rate`).
+
+Why 10: over the 43 Jacobi solves with a prediction in 15 presses' solves (bench, extra and demo presses, auto ROI and
+whole frame), every one that converged stayed within 5.7 times the predicted slowness at every iteration (the most:
+cube1's whole-frame 160x120 level, 25 iterations predicted at 4.3), while the four that stalled for good (cube1,
+cyl1, sphere2 auto ROIs: the residual back up to 0.66-0.99 after a few iterations; cone1's) passed 10 after 6-8
+iterations (cone1 26) instead of running to the cap of 30 (benchmarks/RESULTS.md, s22-jac). The slow-but-converging
+solves are thus untouched, the same bits."""
+
+
+def jacobi_give_up_rate(predicted: float, rtol: float) -> float | None:
+    """The per-iteration residual bound beyond which a Jacobi solve predicted at ``predicted`` iterations
+    (:func:`jacobi_predicted`) to reach ``rtol`` is abandoned (:func:`pcg`'s ``give_up_rate``): the predicted rate
+    ``rtol^(1/predicted)`` slowed by :data:`JACOBI_PATIENCE`, i.e. after k iterations the residual must have fallen by
+    at least ``rtol^(k / (JACOBI_PATIENCE * predicted))``. None where there is no prediction (the level's first Jacobi
+    solve): it runs to the cap."""
+    if not 0.0 < predicted < float("inf"):
+        return None
+    return float(rtol ** (1.0 / (JACOBI_PATIENCE * predicted)))
 
 
 def jacobi_predicted(rate: float | None, rtol: float) -> float:

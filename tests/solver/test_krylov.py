@@ -293,6 +293,58 @@ def test_a_failed_jacobi_solve_is_not_tried_again():
     assert second < 3 and pcg.setups == 2
 
 
+def test_jacobi_give_up_bound_from_the_prediction():
+    assert krylov.jacobi_give_up_rate(0.0, 0.05) is None  # the level's first Jacobi solve: to the cap
+    assert krylov.jacobi_give_up_rate(np.inf, 0.05) is None
+    rate = krylov.jacobi_give_up_rate(6.47, 0.0241)  # cube1's auto ROI, last pass, step 2 (predicted 6.47)
+    assert rate == 0.0241 ** (1 / (krylov.JACOBI_PATIENCE * 6.47))
+    assert rate**6 < 0.9  # its residual was 0.99 after 6 iterations: abandoned there, not at 30
+    # cube1's whole-frame 160x120 level: predicted 4.25 for 0.0383, converged at 25 (residual 0.039 at 24)
+    assert krylov.jacobi_give_up_rate(4.25, 0.0383) ** 24 > 0.039
+
+
+def test_pcg_gives_up_only_past_the_bound():
+    """A bound the residual never crosses leaves the solve's bits alone; one it crosses stops the solve there, as
+    a cap of that many iterations would, reported as not converged."""
+    A = _scaled_poisson(30)
+    b = np.random.default_rng(2).standard_normal(A.shape[0])
+    system = krylov.threads.RowBlocks(A)
+    x, status, iters = krylov.pcg(system, b, None, 1e-3, 500, krylov._Jacobi(A))
+    assert status == 0 and iters > 20
+    loose = krylov.pcg(system, b, None, 1e-3, 500, krylov._Jacobi(A), give_up_rate=0.9999)
+    assert loose[1:] == (0, iters)
+    np.testing.assert_array_equal(loose[0], x)
+    stopped, status, made = krylov.pcg(system, b, None, 1e-3, 500, krylov._Jacobi(A), give_up_rate=0.7)
+    assert 0 < made < iters and status == made
+    assert np.linalg.norm(b - A @ stopped) > 0.7**made * np.linalg.norm(b)
+    capped = krylov.pcg(system, b, None, 1e-3, made, krylov._Jacobi(A))
+    np.testing.assert_array_equal(stopped, capped[0])
+
+
+def test_a_stalling_jacobi_solve_is_abandoned_for_amg(monkeypatch):
+    """A level whose first Jacobi solve was fast predicts a second one of a few iterations; where that one stalls
+    (here: a much harder matrix) it stops long before the cap and AMG continues from its iterate, to the tolerance."""
+    from nlipscalib.solver.options import SolverOptions
+
+    easy = (sp.identity(1600) + 0.05 * _scaled_poisson(40)).tocsr()
+    hard = _scaled_poisson(40)
+    rhs = np.random.default_rng(3).standard_normal(1600)
+    made = []
+    pcg = krylov.pcg
+    monkeypatch.setattr(krylov, "pcg", lambda *args, **kw: (out := pcg(*args, **kw), made.append((args[5], out[2])))[0])
+    opts = SolverOptions()
+    solver = krylov.Krylov(opts)
+    _, first = solver.solve(easy, rhs, 0.1)
+    assert solver.setups == 0 and first <= 4  # Jacobi converged fast: the next solve is predicted short
+    assert krylov.jacobi_predicted(solver.jacobi_rate, 0.05) < 6
+    made.clear()
+    x, second = solver.solve(hard, rhs, 0.05)
+    jacobi = [k for pre, k in made if isinstance(pre, krylov._Jacobi)]
+    assert len(jacobi) == 1 and 0 < jacobi[0] < opts.cg_jacobi_iters  # abandoned before the cap
+    assert solver.setups == 1 and solver.jacobi_rate == 1.0
+    assert np.linalg.norm(rhs - hard @ x) <= 0.05 * np.linalg.norm(rhs)
+
+
 def _weighted_laplacian(n: int, seed: int) -> sp.csr_matrix:
     """A 2-D Laplacian on an n x n grid whose edges are weighted by a random positive field (as one Gauss-Newton
     step's robust weights), plus a small shift: SPD; two seeds, two steps' matrices of one pattern."""
