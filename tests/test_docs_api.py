@@ -105,3 +105,17 @@ def test_every_python_block_of_the_page_runs_in_order(tiny_sensor):
 def test_the_page_links_only_files_that_exist():
     links = re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", API.read_text())
     assert links and [link for link in links if not (API.parent / link).exists()] == []
+
+
+def test_a_mesh_indenter_is_scaled_to_its_size_unless_told_to_keep_the_files_millimetres(tmp_path):
+    """The page: ``kind="mesh"`` scales the file's largest extent to ``size`` unless ``scale_to_size=False``."""
+    import trimesh
+
+    from nlipscalib.sim.indenters import IndenterConfig, make_indenter
+
+    part = tmp_path / "part.stl"
+    trimesh.creation.box(extents=(4.0, 2.0, 1.0)).export(part)  # mm: 4 mm its largest extent
+    scaled = make_indenter(IndenterConfig(kind="mesh", mesh=str(part)))  # size: its default
+    assert max(scaled.extents) == pytest.approx(IndenterConfig().size, rel=1e-6)
+    kept = make_indenter(IndenterConfig(kind="mesh", mesh=str(part), scale_to_size=False))
+    assert max(kept.extents) == pytest.approx(4.0, rel=1e-6)

@@ -61,3 +61,22 @@ def test_every_readme_command_parses():
 def test_a_command_the_cli_refuses_is_caught(line):
     (command,) = readme_commands(f"```bash\n{line}   # a comment\n```")
     assert parse_problem(command)
+
+
+def test_the_readme_led_commands_without_hardware_run_and_do_what_their_comments_say(capsys):
+    """The LED section's `nlips leds virtual ...` / `nlipsemu://1` lines run as typed (``--dwell 0``: no waiting)."""
+    from nlipscalib.cli import main
+
+    section = README.read_text().split("## LED controller (real sensor)")[1].split("\n## ")[0]
+    commands = [c for c in readme_commands(section) if c.split()[2].startswith(("virtual", "nlipsemu://"))]
+    assert len(commands) == 3
+    said = {}
+    for command in commands:
+        words = shlex.split(command)[1:]
+        assert main(words + (["--dwell", "0"] if words[2] == "test" else [])) == 0, command
+        said[command] = capsys.readouterr().out
+    info = next(out for c, out in said.items() if " info" in c)
+    assert re.search(r"firmware \S+, protocol \d+, 12 LEDs", info)  # "firmware, protocol and LED count"
+    adalight = next(out for c, out in said.items() if "--adalight" in c)
+    assert "nothing was checked" in adalight and ": lit" not in adalight  # each step only sent, none checked
+    assert main(["leds", "virtual", "state", "--adalight", "12"]) == 2  # "`state` is refused"

@@ -1,14 +1,15 @@
 """Monte Carlo noise of the rendered interreflections, filtered out before the camera.
 
-A path tracer estimates the light that reaches the coat after a bounce with a few random directions per
-pixel: at 16 spp the bounce light of a 640x480 press carries about 9 % noise per pixel, which on the
-default twin (indirect light ~24 % of the image) is more than the camera's own shot and read noise. That
-noise belongs to the renderer, not to a sensor, and the solver would read it as shading. The indirect
-light of a diffuse coat varies smoothly along the surface, so it is filtered spatially, never across an
-edge of the geometry: the edge-avoiding a-trous wavelet filter (Dammertz, Sewtz, Hanika & Lensch,
-"Edge-Avoiding A-Trous Wavelet Transform for fast Global Illumination Filtering", HPG 2010) with
-edge-stopping weights on the true normals and depth of each pixel (the ground truth the twin traces
-anyway), as used for the indirect light of real-time path tracers (Schied et al., SVGF, HPG 2017).
+A path tracer estimates the light that reaches the coat after a bounce with a few random directions per pixel:
+at 16 spp the bounce light carries about 27 % noise per pixel and LED image (RMS over its mean, against a
+256-spp render; benchmarks/RESULTS.md, s22-docs3), which on the default twin (indirect light ~24 % of the
+image) is more than the camera's own shot and read noise. That noise belongs to the renderer, not to a sensor,
+and the solver would read it as shading. The indirect light of a diffuse coat varies smoothly along the
+surface, so it is filtered spatially, never across an edge of the geometry: the edge-avoiding a-trous wavelet
+filter (Dammertz, Sewtz, Hanika & Lensch, "Edge-Avoiding A-Trous Wavelet Transform for fast Global
+Illumination Filtering", HPG 2010) with edge-stopping weights on the true normals and depth of each pixel (the
+ground truth the twin traces anyway), as used for the indirect light of real-time path tracers (Schied et al.,
+SVGF, HPG 2017).
 """
 
 from __future__ import annotations
