@@ -114,8 +114,18 @@ def wait_until(predicate, timeout: float = 2.0):
 
 
 def sleepy_status(folder, marks) -> str:
-    """A stand-in for a press's solve in a pool (pickled by name): 0.05 s for ``press_0``, 1 s for the others, then
+    """A stand-in for a press's solve in a pool (pickled by name): ``marks/started/NAME`` made; ``press_0`` then
+    waits (at most 10 s) until ``press_1`` has started on the other worker, so that one is running whatever the
+    machine's load (a worker process can take longer to start than a quick press), the others sleep 1 s; then
     ``marks/NAME`` made and "solved"."""
-    time.sleep(0.05 if Path(folder).name == "press_0" else 1.0)
-    (Path(marks) / Path(folder).name).touch()
+    name, started = Path(folder).name, Path(marks) / "started"
+    started.mkdir(exist_ok=True)
+    (started / name).touch()
+    if name == "press_0":
+        deadline = time.monotonic() + 10.0
+        while not (started / "press_1").exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+    else:
+        time.sleep(1.0)
+    (Path(marks) / name).touch()
     return "solved"
