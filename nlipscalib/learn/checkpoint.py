@@ -113,8 +113,11 @@ def save_checkpoint(
     best: dict,
     best_state: dict | None,
     to: str | Path | None = None,
+    *,
+    sampling: object = None,
 ) -> None:
-    """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``."""
+    """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``; ``sampling``: the
+    dataset's sampling record (index.json's), compared by :func:`published_state` and :func:`resume`."""
     import torch
 
     from ..core.atomic import write_bytes
@@ -125,6 +128,7 @@ def save_checkpoint(
             "key": config_key(cfg),
             "options": _trajectory_options(cfg),  # so a refusal can say which option differs
             "data_key": data_key,
+            "sampling": sampling,
             "net": net.state_dict(),
             "opt": opt.state_dict(),
             "sched": sched.state_dict(),
@@ -137,15 +141,16 @@ def save_checkpoint(
     write_bytes(path if to is None else Path(to), buf.getvalue())
 
 
-def published_by(out: Path, cfg: TrainConfig, data_key: str) -> bool:
-    """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options and
-    samples): a run resumed from its own progress may still replace another run's model, finished since."""
-    return published_state(out, cfg, data_key) is not None
+def published_by(out: Path, cfg: TrainConfig, data_key: str, sampling: object = None) -> bool:
+    """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options,
+    samples and sampling record): a run resumed from its own progress may still replace another run's model,
+    finished since."""
+    return published_state(out, cfg, data_key, sampling) is not None
 
 
-def published_state(out: Path, cfg: TrainConfig, data_key: str) -> dict | None:
+def published_state(out: Path, cfg: TrainConfig, data_key: str, sampling: object = None) -> dict | None:
     """The checkpoint published with the model at ``out`` (:func:`save_checkpoint`'s fields) when the model is there
-    and this run's (its options and samples), else None."""
+    and this run's (its options, samples and dataset's sampling record: :func:`sampling_changed`), else None."""
     from .model import read_torch_file
 
     if not out.is_file():
@@ -155,7 +160,25 @@ def published_state(out: Path, cfg: TrainConfig, data_key: str) -> dict | None:
     except Exception:  # missing or damaged: nothing says the model is this run's
         return None
     mine = isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
-    return ck if mine else None
+    return ck if mine and not sampling_changed(ck, sampling) else None
+
+
+def sampling_changed(checkpoint: dict, sampling: object) -> str:
+    """How the dataset's sampling record (index.json's ``sampling``) differs from the one ``checkpoint`` was
+    trained with ("smoothing_px 1.0, now 2.0"); "" when the same, or unknown (a checkpoint from before
+    2026-12-05 recorded none).
+
+    Why: the model file carries the record's ``smoothing_px`` (inference filters with it), which is not in the
+    samples the data key hashes; a hand-edited record reused a model that carried the old one."""
+    if "sampling" not in checkpoint:
+        return ""
+    was, now = checkpoint["sampling"], sampling
+    if was == now:
+        return ""
+    if not (isinstance(was, dict) and isinstance(now, dict)):
+        return f"{was}, now {now}"
+    keys = sorted(set(was) | set(now), key=str)
+    return "; ".join(f"{k} {was.get(k)}, now {now.get(k)}" for k in keys if was.get(k) != now.get(k))
 
 
 def resume(
@@ -166,6 +189,7 @@ def resume(
     net: torch.nn.Module,
     opt: torch.optim.Optimizer,
     sched: torch.optim.lr_scheduler.LRScheduler,
+    sampling: object = None,
 ) -> dict:
     """Continue from the run's checkpoint (``progress_path``), else from ``MODEL.checkpoint.pt`` (a finished run's,
     or one written before checkpoints were named by their run) when it was made with the same options on the same
@@ -210,6 +234,9 @@ def resume(
                 "training from scratch",
                 path,
             )
+            return fresh
+        if changed := sampling_changed(ck, sampling):
+            log.info("%s: made when the dataset's sampling record was other (%s); training from scratch", path, changed)
             return fresh
         history, best, best_state = ck["history"], ck["best"], ck["best_state"]
         if not isinstance(history, list) or not history or not isinstance(best, dict) or best_state is None:

@@ -149,6 +149,24 @@ def test_a_checkpoint_of_other_samples_is_not_resumed(built, tmp_path, caplog):
         assert load_model(out).info["val_presses"] == other["val_names"]
 
 
+def test_a_hand_edited_sampling_record_trains_again_with_it(built, tmp_path, caplog):
+    """The model file carries the dataset's sampling record's smoothing_px, which the samples' key does not hash:
+    after a hand edit of index.json's ``sampling``, `nlips train` reused the model that carried the old one."""
+    data, out = CalibrationDataset(built), tmp_path / "m.pt"
+    train(data, TINY, out, val_names=["a_sphere"], progress=False)
+    assert train(data, TINY, out, val_names=["a_sphere"], progress=False, reuse=True).reused
+    index = json.loads((built / "index.json").read_text())
+    was = index["sampling"]["smoothing_px"]
+    index["sampling"]["smoothing_px"] = was + 1.0
+    (built / "index.json").write_text(json.dumps(index))
+    caplog.set_level(logging.INFO)
+    again = train(CalibrationDataset(built), TINY, out, val_names=["a_sphere"], progress=False, reuse=True)
+    assert not again.reused and len(again.history) == TINY.max_epochs  # trained, not resumed from the old run
+    assert f"smoothing_px {was}, now {was + 1.0}" in caplog.text
+    assert load_model(out).smoothing_px == was + 1.0
+    assert train(CalibrationDataset(built), TINY, out, val_names=["a_sphere"], progress=False, reuse=True).reused
+
+
 def test_a_model_another_training_made_is_replaced_with_a_warning_a_resumed_one_without(built, tmp_path, caplog):
     """`nlips train` again into the same --out with a tweak replaced the earlier (maybe better) model unnoticed."""
     import dataclasses
