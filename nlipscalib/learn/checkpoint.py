@@ -117,7 +117,7 @@ def save_checkpoint(
     sampling: object = None,
 ) -> None:
     """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``; ``sampling``: the
-    dataset's sampling record (index.json's), compared by :func:`published_state` and :func:`resume`."""
+    dataset's sampling record (index.json's), compared by :func:`check_sampling_record`."""
     import torch
 
     from ..core.atomic import write_bytes
@@ -141,16 +141,15 @@ def save_checkpoint(
     write_bytes(path if to is None else Path(to), buf.getvalue())
 
 
-def published_by(out: Path, cfg: TrainConfig, data_key: str, sampling: object = None) -> bool:
-    """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options,
-    samples and sampling record): a run resumed from its own progress may still replace another run's model,
-    finished since."""
-    return published_state(out, cfg, data_key, sampling) is not None
+def published_by(out: Path, cfg: TrainConfig, data_key: str) -> bool:
+    """Whether the model at ``out`` is this run's (the checkpoint published with it has this run's options and
+    samples): a run resumed from its own progress may still replace another run's model, finished since."""
+    return published_state(out, cfg, data_key) is not None
 
 
-def published_state(out: Path, cfg: TrainConfig, data_key: str, sampling: object = None) -> dict | None:
+def published_state(out: Path, cfg: TrainConfig, data_key: str) -> dict | None:
     """The checkpoint published with the model at ``out`` (:func:`save_checkpoint`'s fields) when the model is there
-    and this run's (its options, samples and dataset's sampling record: :func:`sampling_changed`), else None."""
+    and this run's (its options and samples), else None."""
     from .model import read_torch_file
 
     if not out.is_file():
@@ -160,25 +159,51 @@ def published_state(out: Path, cfg: TrainConfig, data_key: str, sampling: object
     except Exception:  # missing or damaged: nothing says the model is this run's
         return None
     mine = isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
-    return ck if mine and not sampling_changed(ck, sampling) else None
+    return ck if mine else None
+
+
+def check_sampling_record(
+    out: Path, progress_path: Path, cfg: TrainConfig, data_key: str, dataset: Path, sampling: object
+) -> None:
+    """ConfigError when this run's checkpoint (its progress, or the one published with the model at ``out``) was
+    trained on the same samples while the dataset's sampling record (index.json's ``sampling``) said otherwise.
+
+    Why: the samples were made with the record of their build; a record edited by hand since makes none again,
+    yet the model file takes the record's ``smoothing_px`` (inference filters its inputs with it). `nlips train`
+    reused the model of the old record without a word; training again would pair the old samples with the new
+    record. Checkpoints from before 2026-12-05 recorded none: nothing to compare.
+    """
+    from ..core.errors import ConfigError
+    from .model import read_torch_file
+
+    for path in (progress_path, checkpoint_path(out)):
+        try:
+            ck = read_torch_file(path, "a training checkpoint")
+        except Exception:  # missing or damaged: resume() says so, if it matters
+            continue
+        mine = isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
+        if mine and (changed := sampling_changed(ck, sampling)):
+            raise ConfigError(
+                f"{dataset / 'index.json'}: sampling record changed since {out} was trained on these same samples "
+                f"({changed}); editing index.json does not make the samples again: make the dataset again with "
+                "those options (`nlips calibrate ... --smoothing`) or put the record back (--out ANOTHER.pt trains "
+                "with the record as it is)"
+            )
 
 
 def sampling_changed(checkpoint: dict, sampling: object) -> str:
-    """How the dataset's sampling record (index.json's ``sampling``) differs from the one ``checkpoint`` was
-    trained with ("smoothing_px 1.0, now 2.0"); "" when the same, or unknown (a checkpoint from before
-    2026-12-05 recorded none).
-
-    Why: the model file carries the record's ``smoothing_px`` (inference filters with it), which is not in the
-    samples the data key hashes; a hand-edited record reused a model that carried the old one."""
-    if "sampling" not in checkpoint:
-        return ""
-    was, now = checkpoint["sampling"], sampling
-    if was == now:
-        return ""
+    """How the dataset's sampling record ``sampling`` differs from the one ``checkpoint`` was trained with in what the
+    model file takes from it (:data:`MODEL_SAMPLING_FIELDS`): "smoothing_px 1.0, now 2.0"; "" when the same, or
+    unknown (a checkpoint from before 2026-12-05 recorded none). Its other options decide only the samples, which
+    the data key compares."""
+    was, now = checkpoint.get("sampling"), sampling
     if not (isinstance(was, dict) and isinstance(now, dict)):
-        return f"{was}, now {now}"
-    keys = sorted(set(was) | set(now), key=str)
-    return "; ".join(f"{k} {was.get(k)}, now {now.get(k)}" for k in keys if was.get(k) != now.get(k))
+        return ""
+    return "; ".join(f"{k} {was.get(k)}, now {now.get(k)}" for k in MODEL_SAMPLING_FIELDS if was.get(k) != now.get(k))
+
+
+MODEL_SAMPLING_FIELDS = ("smoothing_px",)
+"""The sampling options a model file carries (``smoothing_px``: inference filters its inputs with it)."""
 
 
 def resume(
@@ -189,7 +214,6 @@ def resume(
     net: torch.nn.Module,
     opt: torch.optim.Optimizer,
     sched: torch.optim.lr_scheduler.LRScheduler,
-    sampling: object = None,
 ) -> dict:
     """Continue from the run's checkpoint (``progress_path``), else from ``MODEL.checkpoint.pt`` (a finished run's,
     or one written before checkpoints were named by their run) when it was made with the same options on the same
@@ -234,9 +258,6 @@ def resume(
                 "training from scratch",
                 path,
             )
-            return fresh
-        if changed := sampling_changed(ck, sampling):
-            log.info("%s: made when the dataset's sampling record was other (%s); training from scratch", path, changed)
             return fresh
         history, best, best_state = ck["history"], ck["best"], ck["best_state"]
         if not isinstance(history, list) or not history or not isinstance(best, dict) or best_state is None:

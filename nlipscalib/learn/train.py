@@ -21,6 +21,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from .checkpoint import (
+    check_sampling_record,
     checkpoint_path,
     data_key_of,
     jsonable_config,
@@ -252,14 +253,14 @@ def _train(
     data_key, sampling = data_key_of(*data.arrays()), dataset.index.get("sampling")
     progress_path = progress_checkpoint_path(out, cfg, data_key)
     clean_interrupted_writes(out, progress_path.name)
-    if reuse and (done := published_state(out, cfg, data_key, sampling)) is not None and _finished(done, cfg):
+    check_sampling_record(out, progress_path, cfg, data_key, dataset.folder, sampling)
+    if reuse and (done := published_state(out, cfg, data_key)) is not None and _finished(done, cfg):
         return TrainResult(out, done["history"], done["best"]["epoch"], data.train_names, data.val_names, reused=True)
-    state = resume(out, progress_path, cfg, data_key, net, opt, sched, sampling)
-    if out.is_file() and not published_by(out, cfg, data_key, sampling):  # a better model would go unnoticed otherwise
+    state = resume(out, progress_path, cfg, data_key, net, opt, sched)
+    if out.is_file() and not published_by(out, cfg, data_key):  # a better model would go unnoticed otherwise
         log.warning(
-            "%s: a model is already there (not this training's: its checkpoint was made with other options, "
-            "samples or sampling record, or is missing); it is replaced when this run ends: give another --out to "
-            "keep it",
+            "%s: a model is already there (not this training's: its checkpoint was made with other options or "
+            "samples, or is missing); it is replaced when this run ends: give another --out to keep it",
             out,
         )
     samples = [torch.from_numpy(a) for a in data.arrays()]
