@@ -201,7 +201,12 @@ def _stopped(args: argparse.Namespace) -> str:
 
 def _interrupted(args: argparse.Namespace) -> int:
     print(f"nlips {args.command}: interrupted; {_stopped(args)}", file=sys.stderr)
+    _SAID_INTERRUPTED.append(args.command)
     return 130
+
+
+_SAID_INTERRUPTED: list[str] = []
+"""Commands whose interruption this process has reported (:func:`_interrupted`), for :func:`_after_the_work`."""
 
 
 def _note_interrupts():
@@ -261,9 +266,13 @@ def _after_the_work(command: str) -> None:
     import signal
     import threading
 
+    interrupted = command in _SAID_INTERRUPTED
+
     def handler(signum: int, frame: FrameType | None) -> None:
         how = "interrupted" if signum == signal.SIGINT else "terminated"
-        _end_at_once(f"nlips {command}: {how} {AFTER_THE_WORK}", 128 + signum)
+        # after an interruption (its line said what is kept), a second Ctrl-C as the process exits ends it with no
+        # other line: "after its work ended" would say the interrupted work had finished
+        _end_at_once(None if interrupted else f"nlips {command}: {how} {AFTER_THE_WORK}", 128 + signum)
 
     if threading.current_thread() is threading.main_thread():
         for signum in (signal.SIGINT, signal.SIGTERM):

@@ -149,6 +149,7 @@ class _backend:
             _LOCAL_CLUSTERS.append(self.cluster)
             self.client = client(self.cluster)
             self.client.register_plugin(_quiet_workers())  # only our own workers: a shared cluster's stay as they are
+            self.client.register_plugin(_worker_logging())
             self.threads = max(1, usable_cores() // n)
         else:
             try:
@@ -374,6 +375,35 @@ def _quiet_workers() -> WorkerPlugin:
                 )
 
     return QuietWorkers()
+
+
+def _worker_logging() -> WorkerPlugin:
+    """A Dask worker plugin for a local cluster's workers: log as this process does (``-v``, its ``--log-file``,
+    its :func:`nlipscalib.progress.press_lines`), as the command's own worker processes do.
+
+    Why: a Dask worker sets up only dask.distributed's loggers, so the tasks' INFO lines (``-v``'s press details
+    and summaries) went nowhere and none of their lines reached the ``--log-file``. The loggers that dask.distributed
+    gave a handler of their own stop passing records on to the root logger, whose handler would print each twice.
+    Not for a remote scheduler's workers: shared, on other machines (the log file's path is this machine's).
+    """
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    from ..progress import worker_logging
+
+    parent = worker_logging()
+
+    class WorkerLogging(WorkerPlugin):
+        name = "nlipscalib-worker-logging"
+
+        def setup(self, worker: Worker) -> None:
+            from ..progress import configure_worker
+
+            for logger in list(logging.Logger.manager.loggerDict.values()):
+                if isinstance(logger, logging.Logger) and logger.handlers:  # dask.distributed's own, with handlers
+                    logger.propagate = False
+            configure_worker(*parent)
+
+    return WorkerLogging()
 
 
 _LOCAL_CLUSTERS: list = []

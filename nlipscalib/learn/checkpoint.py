@@ -113,8 +113,11 @@ def save_checkpoint(
     best: dict,
     best_state: dict | None,
     to: str | Path | None = None,
+    *,
+    sampling: object = None,
 ) -> None:
-    """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``."""
+    """Write the training state to ``path`` (the run's per-epoch checkpoint), or to ``to``; ``sampling``: the
+    dataset's sampling record (index.json's), compared by :func:`check_sampling_record`."""
     import torch
 
     from ..core.atomic import write_bytes
@@ -125,6 +128,7 @@ def save_checkpoint(
             "key": config_key(cfg),
             "options": _trajectory_options(cfg),  # so a refusal can say which option differs
             "data_key": data_key,
+            "sampling": sampling,
             "net": net.state_dict(),
             "opt": opt.state_dict(),
             "sched": sched.state_dict(),
@@ -156,6 +160,50 @@ def published_state(out: Path, cfg: TrainConfig, data_key: str) -> dict | None:
         return None
     mine = isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
     return ck if mine else None
+
+
+def check_sampling_record(
+    out: Path, progress_path: Path, cfg: TrainConfig, data_key: str, dataset: Path, sampling: object
+) -> None:
+    """ConfigError when this run's checkpoint (its progress, or the one published with the model at ``out``) was
+    trained on the same samples while the dataset's sampling record (index.json's ``sampling``) said otherwise.
+
+    Why: the samples were made with the record of their build; a record edited by hand since makes none again,
+    yet the model file takes the record's ``smoothing_px`` (inference filters its inputs with it). `nlips train`
+    reused the model of the old record without a word; training again would pair the old samples with the new
+    record. Checkpoints from before 2026-12-05 recorded none: nothing to compare.
+    """
+    from ..core.errors import ConfigError
+    from .model import read_torch_file
+
+    for path in (progress_path, checkpoint_path(out)):
+        try:
+            ck = read_torch_file(path, "a training checkpoint")
+        except Exception:  # missing or damaged: resume() says so, if it matters
+            continue
+        mine = isinstance(ck, dict) and ck.get("key") == config_key(cfg) and ck.get("data_key") == data_key
+        if mine and (changed := sampling_changed(ck, sampling)):
+            raise ConfigError(
+                f"{dataset / 'index.json'}: sampling record changed since {out} was trained on these same samples "
+                f"({changed}); editing index.json does not make the samples again: make the dataset again with "
+                "those options (`nlips calibrate ... --smoothing`) or put the record back (--out ANOTHER.pt trains "
+                "with the record as it is)"
+            )
+
+
+def sampling_changed(checkpoint: dict, sampling: object) -> str:
+    """How the dataset's sampling record ``sampling`` differs from the one ``checkpoint`` was trained with in what the
+    model file takes from it (:data:`MODEL_SAMPLING_FIELDS`): "smoothing_px 1.0, now 2.0"; "" when the same, or
+    unknown (a checkpoint from before 2026-12-05 recorded none). Its other options decide only the samples, which
+    the data key compares."""
+    was, now = checkpoint.get("sampling"), sampling
+    if not (isinstance(was, dict) and isinstance(now, dict)):
+        return ""
+    return "; ".join(f"{k} {was.get(k)}, now {now.get(k)}" for k in MODEL_SAMPLING_FIELDS if was.get(k) != now.get(k))
+
+
+MODEL_SAMPLING_FIELDS = ("smoothing_px",)
+"""The sampling options a model file carries (``smoothing_px``: inference filters its inputs with it)."""
 
 
 def resume(

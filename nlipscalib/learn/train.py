@@ -21,6 +21,7 @@ import numpy as np
 
 from ..core.errors import ConfigError
 from .checkpoint import (
+    check_sampling_record,
     checkpoint_path,
     data_key_of,
     jsonable_config,
@@ -249,9 +250,10 @@ def _train(
     clean_interrupted_writes(out)
     data = _training_data(dataset, cfg, val_names, exclude)
     net, opt, sched = _fresh_training(cfg, dataset.sensor["camera"], data.x_tr)
-    data_key = data_key_of(*data.arrays())
+    data_key, sampling = data_key_of(*data.arrays()), dataset.index.get("sampling")
     progress_path = progress_checkpoint_path(out, cfg, data_key)
     clean_interrupted_writes(out, progress_path.name)
+    check_sampling_record(out, progress_path, cfg, data_key, dataset.folder, sampling)
     if reuse and (done := published_state(out, cfg, data_key)) is not None and _finished(done, cfg):
         return TrainResult(out, done["history"], done["best"]["epoch"], data.train_names, data.val_names, reused=True)
     state = resume(out, progress_path, cfg, data_key, net, opt, sched)
@@ -262,7 +264,7 @@ def _train(
             out,
         )
     samples = [torch.from_numpy(a) for a in data.arrays()]
-    checkpoint = functools.partial(save_checkpoint, progress_path, cfg, data_key, net, opt, sched)
+    checkpoint = functools.partial(save_checkpoint, progress_path, cfg, data_key, net, opt, sched, sampling=sampling)
     history, best, best_state = _epochs(net, opt, sched, samples, cfg, state, checkpoint, progress)
     if best_state is None:  # every epoch's validation error NaN: no weights worth a model file
         raise ConfigError(

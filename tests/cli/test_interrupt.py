@@ -336,3 +336,42 @@ def test_a_signal_after_the_work_ended_is_one_line_and_the_signals_status(signum
     how = "interrupted" if signum == signal.SIGINT else "terminated"
     assert err.strip() == f"nlips cache: {how} {cli.AFTER_THE_WORK}", err
     assert proc.returncode == 128 + signum
+
+
+INTERRUPTED_THEN_EXITING = """
+import atexit, os, signal, sys, time
+from nlipscalib.cli import cache, command
+
+def exiting():  # a slow exit after the interruption (torch's teardown after `nlips train` was interrupted)
+    print("exiting", flush=True)
+    time.sleep(30)
+
+def run(args):
+    os.kill(os.getpid(), signal.SIGINT)  # the first Ctrl-C, during the work
+    time.sleep(30)
+
+cache.run = run
+atexit.register(exiting)
+sys.exit(command())
+"""
+
+
+def test_a_second_ctrl_c_while_an_interrupted_command_exits_adds_no_line():
+    """A user's second Ctrl-C, as the interrupted `nlips train` was exiting, added "nlips train: interrupted after its
+    work ended; what it wrote is kept" under "interrupted; finished work is kept, run again to resume": the work had
+    not ended. Now the first line stands alone, and the status is still the interruption's."""
+    import sys
+    from pathlib import Path
+
+    from tests.processes import as_from_a_terminal
+
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    proc = as_from_a_terminal([sys.executable, "-c", INTERRUPTED_THEN_EXITING, "cache"], env=env)
+    try:
+        assert proc.stdout.readline() == "exiting\n"
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert err.strip() == f"nlips cache: interrupted; {cli.RESUMABLE}", err
+    assert proc.returncode == 130

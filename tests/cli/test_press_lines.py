@@ -111,3 +111,17 @@ def test_experiments_say_nothing_per_press_unless_verbose(command_stderr, tmp_pa
     log.warning("warning")
     err = capsys.readouterr().err
     assert {word for word in ("detail", "summary", "warning") if f" {word}\n" in err} == shown, err
+
+
+@pytest.mark.parametrize("verbose", [False, True])
+def test_a_local_dask_cluster_logs_as_the_command_says(tmp_path, verbose):
+    """Dask workers set up only dask.distributed's loggers: their presses' lines reached neither the --log-file nor,
+    with -v, stderr. Now they follow the command's choice (none on stderr in an experiment, all with -v)."""
+    pytest.importorskip("distributed")
+    log = tmp_path / "run.log"
+    flags = ["-v"] if verbose else []
+    args = ["--log-file", str(log), *flags, "experiment", "q1", "--scheduler", "local:1", "--out", str(tmp_path / "w")]
+    err = _nlips(*args, "--solver-option", "max_iters=2")
+    in_log = log.read_text()
+    assert len(_lines(in_log, SUMMARY)) == 4 and len(_lines(in_log, *DETAILS)) == 4, in_log
+    assert len(_lines(err, SUMMARY)) == (4 if verbose else 0), err

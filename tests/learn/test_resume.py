@@ -149,6 +149,33 @@ def test_a_checkpoint_of_other_samples_is_not_resumed(built, tmp_path, caplog):
         assert load_model(out).info["val_presses"] == other["val_names"]
 
 
+def test_a_hand_edited_sampling_record_is_refused_in_one_line_not_reused(built, tmp_path, capsys):
+    """The model file carries the dataset's sampling record's smoothing_px (inference filters with it), which the
+    samples' key does not hash: after a hand edit of index.json's ``sampling``, `nlips train` reused the model that
+    carried the old one (training again would pair the old samples with the new record). Now one line naming the
+    file and what differs; another --out trains with the record as it is."""
+    out = tmp_path / "m.pt"
+    args = ["train", str(built), "--out", str(out), "--hidden", "8", "--epochs", "2", "--no-onnx", "--no-progress"]
+    assert main(args) == 0
+    assert main(args) == 0 and "reused" in capsys.readouterr().out
+    index = json.loads((built / "index.json").read_text())
+    index["sampling"]["rest_cells"] += 1  # an option that decides only the samples, which are the same
+    (built / "index.json").write_text(json.dumps(index))
+    assert main(args) == 0 and "reused" in capsys.readouterr().out
+    was = index["sampling"]["smoothing_px"]
+    index["sampling"]["smoothing_px"] = was + 1.0
+    (built / "index.json").write_text(json.dumps(index))
+    before = out.read_bytes()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(built / "index.json") in err, err
+    assert f"smoothing_px {was}, now {was + 1.0}" in err and "--out ANOTHER.pt" in err, err
+    assert out.read_bytes() == before
+    other = tmp_path / "other.pt"
+    assert main([*args[:3], str(other), *args[4:]]) == 0
+    assert load_model(other).smoothing_px == was + 1.0
+
+
 def test_a_model_another_training_made_is_replaced_with_a_warning_a_resumed_one_without(built, tmp_path, caplog):
     """`nlips train` again into the same --out with a tweak replaced the earlier (maybe better) model unnoticed."""
     import dataclasses
