@@ -20,10 +20,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import nlipscalib.device.session as session_module
-from nlipscalib.device.session import Operator, SessionConfig, capture_press, frame_sequence
-from nlipscalib.emulator import default_script, open_emulated_sensor
-from nlipscalib.sim.scene import load_scene
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))  # this checkout's package, not an installed one
+
+import nlipscalib.device.session as session_module  # noqa: E402
+from nlipscalib.device.session import Operator, SessionConfig, capture_press, frame_sequence  # noqa: E402
+from nlipscalib.emulator import default_script, open_emulated_sensor  # noqa: E402
+from nlipscalib.sim.scene import load_scene  # noqa: E402
 
 
 class Timed:
@@ -104,7 +107,7 @@ def main() -> None:
         cmd += ["capture", "--emulate", "nlipstac", "--presses", "3", "--out", str(Path(tmp) / "s")]
         cmd += ["--width", str(args.width), "--height", str(args.height)]
         t0 = time.perf_counter()
-        subprocess.run(cmd, check=True, capture_output=True)
+        subprocess.run(cmd, check=True, capture_output=True, env=dict(os.environ, PYTHONPATH=str(ROOT)))
         print(
             f"whole command `nlips capture --emulate nlipstac --presses 3` ({args.width}x{args.height}): "
             f"{time.perf_counter() - t0:.1f} s wall (renders included)"

@@ -225,10 +225,10 @@ def stream_step(args) -> None:
     """Step 3: the streaming command's frames/s with 1, 2, 4 decoding threads, and the whole command."""
     import torch
 
-    from nlipscalib.cli._stream import MismatchWatch
     from nlipscalib.device.camera import SequenceSource
     from nlipscalib.device.live import ReadAhead, decoding_workers, stream
     from nlipscalib.learn.infer import Predictor
+    from nlipscalib.learn.watch import MismatchWatch
 
     _, presses = _frames(args.frames)
     stored = [p["tricolor"] for p in presses.values()]
@@ -422,7 +422,20 @@ def main() -> None:
         for option in needs:
             step.add_argument(option, **OPTIONS[option])
     args = ap.parse_args()
+    if args.step != "pack":
+        _check_device(args.step, args.device)
     (STEPS | {"pack": pack})[args.step](args)
+
+
+def _check_device(step: str, device: str) -> None:
+    """Exit with one line, before any work, when ``device`` is not here (no GPU, or a CPU build of torch)."""
+    from nlipscalib.core.errors import NlipsError
+    from nlipscalib.learn.fullframe import check_device
+
+    try:
+        check_device(device)
+    except (NlipsError, ImportError) as exc:  # ImportError: torch missing (MissingDependencyError)
+        raise SystemExit(f"bench_gpu_infer.py {step}: {exc}") from None
 
 
 if __name__ == "__main__":

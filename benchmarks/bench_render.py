@@ -21,6 +21,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's package, not an installed one
 from common import median_time, write_section  # noqa: E402
 
 CASES = ((0, 4, 2.0), (1, 16, 8.0))  # (bounces, spp, goal seconds)
