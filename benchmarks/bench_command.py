@@ -207,7 +207,8 @@ def main() -> None:
             if "bounces 1" in label:  # the real-sensor workflow: the term fitted on the undeformed capture
                 reference = ["--roi", "auto", "--reference", str(undeformed)]
                 cases.append((label + ", `--reference`", folder, "auto ROI", "maps (default)", reference))
-            if "bounces 0" in label:  # a one-bounce whole frame takes minutes (the outer loop on 300k pixels)
+            if "bounces 0" in label:  # whole frames on the direct-light press only: a one-bounce whole frame is
+                # timed by hand (benchmarks/RESULTS.md, the sessions' whole-command sections)
                 cases.append((label, folder, "full", "maps (default)", []))
         rows = []
         for label, folder, name, figs, extra in cases:

@@ -115,7 +115,7 @@ def main() -> None:
     lines = [
         f"12 LEDs, default SolverOptions; median of {args.repeats} runs after a warm-up. "
         f"Load average before {load_before[0]:.2f}, after {load_after[0]:.2f} (2 cores, shared).",
-        "Goals: full <= 10 s, ROI <= 1 s.",
+        "Goals (issue 6, process wall of `nlips solve` on 2 cores): whole 640x480 frame <= 4 s, auto ROI <= 1.5 s.",
         "",
         "| press | size | backend | solve_press wall s | solve_press CPU s | `nlips solve` process wall s "
         "| `nlips solve` process CPU s | iterations (finest) | AAE all (deg) | AAE contact (deg) | depth RMSE (mm) |",
