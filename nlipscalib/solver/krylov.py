@@ -216,12 +216,13 @@ frame's finest level (307,200 rows, the only level of the outer loop's last pass
 
 Why: after a first Jacobi solve at 0.1 in 15-22 iterations, its rate predicted the second step's tolerance
 (0.05-0.08) within the cap of 30, and Jacobi then ran to the cap and failed on every such whole frame (coin1,
-coin2, cone1, cube2, screw1, sphere2: 39-41 CG iterations, 30 of them Jacobi's, ~0.15-0.2 s of CPU), stalling too
+coin2, cone1, cube2, screw1, sphere2: 39-41 CG iterations, 30 of them Jacobi's, ~0.1-0.3 s of CPU a frame), stalling too
 slowly for :func:`jacobi_give_up_rate` to abandon it. AMG from zero then took 10-12 iterations for the same step,
 and the contact AAE moved by at most 0.001 deg (benchmarks/RESULTS.md, s22-jac1; s20-jac's rule on all levels of
 >= 35,000 rows moved the demo's cube press's 73,980-row auto ROI by 0.03 deg and was reverted). Jacobi is not
 dropped from the first solve: the 0.1 step AMG takes instead is a different step, which moved the relief presses'
-AAE by up to 0.03 deg (s20-jac, s22-jac1)."""
+AAE by up to 0.03 deg (s20-jac, s22-jac1) and saved no time even on cube1, whose first Jacobi solve fails at its cap
+(the later steps took more AMG iterations from AMG's first step)."""
 
 JACOBI_PATIENCE = 10.0
 """How much slower than predicted a Jacobi solve may converge before it is abandoned (:func:`jacobi_give_up_rate`).
