@@ -49,6 +49,7 @@ class Krylov:
     the second step's 30 Jacobi iterations (~0.15 s of CPU) left the residual where AMG alone takes it in the
     same 9 iterations from zero (benchmarks/RESULTS.md, s17-b). And a Jacobi solve that was tried is abandoned
     once its residual lies far above the prediction's (:func:`jacobi_give_up_rate`); AMG continues from its iterate.
+    A level of :data:`JACOBI_ONCE_ROWS` rows or more (a whole frame's finest) tries Jacobi in its first solve only.
     """
 
     def __init__(self, opts: SolverOptions):
@@ -76,7 +77,9 @@ class Krylov:
         cap = self.opts.cg_jacobi_iters
         jacobi_iters = 0
         predicted = jacobi_predicted(self.jacobi_rate, rtol)
-        if self.amg is None and cap > 0 and rtol >= 1e-2 and predicted <= cap:
+        # a large level's Jacobi attempts after its first failed at their cap (JACOBI_ONCE_ROWS)
+        once = Hm.shape[0] >= JACOBI_ONCE_ROWS and self.solves > 1
+        if self.amg is None and cap > 0 and rtol >= 1e-2 and predicted <= cap and not once:
             give_up = jacobi_give_up_rate(predicted, rtol)
             x, status, jacobi_iters = pcg(products, rhs, None, rtol, cap, _Jacobi(Hm), give_up)
             # converged: rtol^(1/iterations) bounds its rate from above (the residual reached rtol or less)
@@ -205,6 +208,21 @@ class _Jacobi:
     def finish(self, r: np.ndarray) -> np.ndarray:
         return self.z
 
+
+JACOBI_ONCE_ROWS = 200_000
+"""Levels with at least this many rows try Jacobi in their first solve only (:meth:`Krylov.solve`): a whole 640x480
+frame's finest level (307,200 rows, the only level of the outer loop's last pass). The auto ROI's levels (at most
+111,552 rows on the twelve presses studied) are below it and keep their solves, bit for bit.
+
+Why: after a first Jacobi solve at 0.1 in 15-22 iterations, its rate predicted the second step's tolerance
+(0.05-0.08) within the cap of 30, and Jacobi then ran to the cap and failed on every such whole frame (coin1,
+coin2, cone1, cube2, screw1, sphere2: 39-41 CG iterations, 30 of them Jacobi's, ~0.1-0.3 s of CPU a frame), stalling too
+slowly for :func:`jacobi_give_up_rate` to abandon it. AMG from zero then took 10-12 iterations for the same step,
+and the contact AAE moved by at most 0.001 deg (benchmarks/RESULTS.md, s22-jac1; s20-jac's rule on all levels of
+>= 35,000 rows moved the demo's cube press's 73,980-row auto ROI by 0.03 deg and was reverted). Jacobi is not
+dropped from the first solve: the 0.1 step AMG takes instead is a different step, which moved the relief presses'
+AAE by up to 0.03 deg (s20-jac, s22-jac1) and saved no time even on cube1, whose first Jacobi solve fails at its cap
+(the later steps took more AMG iterations from AMG's first step)."""
 
 JACOBI_PATIENCE = 10.0
 """How much slower than predicted a Jacobi solve may converge before it is abandoned (:func:`jacobi_give_up_rate`).

@@ -345,6 +345,30 @@ def test_a_stalling_jacobi_solve_is_abandoned_for_amg(monkeypatch):
     assert np.linalg.norm(rhs - hard @ x) <= 0.05 * np.linalg.norm(rhs)
 
 
+def test_a_large_level_tries_jacobi_in_its_first_solve_only(monkeypatch):
+    """On a level of JACOBI_ONCE_ROWS rows or more a second solve that Jacobi's first rate predicts within the cap goes
+    to AMG at once (on a whole frame it ran to the cap and failed); a smaller level tries Jacobi again."""
+    from nlipscalib.solver.options import SolverOptions
+
+    easy = (sp.identity(1600) + 0.05 * _scaled_poisson(40)).tocsr()
+    rhs = np.random.default_rng(4).standard_normal(1600)
+    made = []
+    pcg = krylov.pcg
+    monkeypatch.setattr(krylov, "pcg", lambda *args, **kw: (pcg(*args, **kw), made.append(args[5]))[0])
+    tried = {}
+    for once_rows in (1601, 1600):  # the level below the bound, then at it
+        monkeypatch.setattr(krylov, "JACOBI_ONCE_ROWS", once_rows)
+        solver = krylov.Krylov(SolverOptions())
+        solver.solve(easy, rhs, 0.1)
+        assert solver.setups == 0 and krylov.jacobi_predicted(solver.jacobi_rate, 0.05) < 10
+        made.clear()
+        x, _ = solver.solve(easy, rhs, 0.05)
+        tried[once_rows] = [type(pre) for pre in made]
+        assert np.linalg.norm(rhs - easy @ x) <= 0.05 * np.linalg.norm(rhs)
+    assert tried[1601] == [krylov._Jacobi]  # converged again by Jacobi, no set-up
+    assert tried[1600] == [krylov._VCycle]  # AMG alone
+
+
 def _weighted_laplacian(n: int, seed: int) -> sp.csr_matrix:
     """A 2-D Laplacian on an n x n grid whose edges are weighted by a random positive field (as one Gauss-Newton
     step's robust weights), plus a small shift: SPD; two seeds, two steps' matrices of one pattern."""
