@@ -161,10 +161,7 @@ def led_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, out: np.nda
     shading : (L, ..., 3) float64 -- Psi_ic (n_s.d)^mu max(0, cos) / r^2 per LED and channel;
         multiply by rho_c to get the linear image (``out`` when given).
     """
-    points = np.asarray(points, dtype=np.float64)
-    normals = np.asarray(normals, dtype=np.float64)
-    if points.shape[-1:] != (3,) or normals.shape != points.shape:
-        raise ShapeError(f"points and normals must both be (..., 3), got {points.shape} and {normals.shape}")
+    points, normals = _points_and_normals(points, normals)
     pos, dirs, mu, psi = led_arrays(leds)
     flat_points, flat_normals = points.reshape(-1, 3), normals.reshape(-1, 3)
     shape = (len(pos),) + points.shape
@@ -203,10 +200,7 @@ def led_falloff(points: np.ndarray, normals: np.ndarray, leds: Leds) -> np.ndarr
     -------
     (L, ...) float64 -- (n_s.d)^mu max(0, cos) / r^2 per LED.
     """
-    points = np.asarray(points, dtype=np.float64)
-    normals = np.asarray(normals, dtype=np.float64)
-    if points.shape[-1:] != (3,) or normals.shape != points.shape:
-        raise ShapeError(f"points and normals must both be (..., 3), got {points.shape} and {normals.shape}")
+    points, normals = _points_and_normals(points, normals)
     pos, dirs, mu, _ = led_arrays(leds)
     flat_points, flat_normals = points.reshape(-1, 3), normals.reshape(-1, 3)
     out = np.empty((len(pos), len(flat_points)), dtype=np.float64)
@@ -216,6 +210,15 @@ def led_falloff(points: np.ndarray, normals: np.ndarray, leds: Leds) -> np.ndarr
         for i in range(len(pos)):
             out[i, block] = _falloff(x, n, pos[i], dirs[i], mu[i])
     return out.reshape((len(pos),) + points.shape[:-1])
+
+
+def _points_and_normals(points: ArrayLike, normals: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """(..., 3) float64 points and normals of the same shape, or a ShapeError naming both shapes."""
+    points = np.asarray(points, dtype=np.float64)
+    normals = np.asarray(normals, dtype=np.float64)
+    if points.shape[-1:] != (3,) or normals.shape != points.shape:
+        raise ShapeError(f"points and normals must both be (..., 3), got {points.shape} and {normals.shape}")
+    return points, normals
 
 
 def _planes(points: np.ndarray, normals: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:

@@ -7,15 +7,22 @@ from nlipscalib.cli import main
 from tests.solver import synth
 
 
+def _presses(tmp_path, kinds, damaged):
+    """A reference and one synthetic press per kind (64x48), press_0001's image ``damaged`` cut to 300 bytes;
+    (the presses' folder, the damaged file)."""
+    root = tmp_path / "presses"
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    for i, kind in enumerate(kinds, 1):
+        synth.make_press(root / f"press_{i:04d}", kind, size=(64, 48))
+    png = root / "press_0001" / damaged
+    png.write_bytes(png.read_bytes()[:300])
+    return root, png
+
+
 def test_a_damaged_press_is_reported_once(tmp_path, capsys, caplog):
     """A truncated PNG printed `ERROR press_0001: ...` and then `ERROR press_0001: failed: ...`."""
     caplog.set_level(logging.INFO)
-    root = tmp_path / "presses"
-    synth.make_press(root / "reference", "none", size=(64, 48))
-    synth.make_press(root / "press_0001", "sphere", size=(64, 48))
-    synth.make_press(root / "press_0002", "cube", size=(64, 48))
-    png = root / "press_0001" / "led_03.png"
-    png.write_bytes(png.read_bytes()[:300])
+    root, _ = _presses(tmp_path, ("sphere", "cube"), "led_03.png")
     assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 1
     out, err = capsys.readouterr()
     logged = caplog.text + err  # pytest's handler receives the log; stderr has it when none is installed
@@ -28,12 +35,7 @@ def test_a_damaged_tricolour_image_fails_its_press_only(tmp_path, capsys, caplog
     """A truncated tricolor.png stopped the whole build after the solves (exit 2), where a damaged LED image
     fails only its press."""
     caplog.set_level(logging.INFO)
-    root = tmp_path / "presses"
-    synth.make_press(root / "reference", "none", size=(64, 48))
-    synth.make_press(root / "press_0001", "sphere", size=(64, 48))
-    synth.make_press(root / "press_0002", "cube", size=(64, 48))
-    png = root / "press_0001" / "tricolor.png"
-    png.write_bytes(png.read_bytes()[:300])
+    root, png = _presses(tmp_path, ("sphere", "cube"), "tricolor.png")
     assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 1
     out, err = capsys.readouterr()
     logged = caplog.text + err
@@ -46,11 +48,7 @@ def test_a_damaged_tricolour_image_fails_its_press_only(tmp_path, capsys, caplog
 
 
 def test_every_press_unsampled_fails_the_run(tmp_path, capsys):
-    root = tmp_path / "presses"
-    synth.make_press(root / "reference", "none", size=(64, 48))
-    synth.make_press(root / "press_0001", "sphere", size=(64, 48))
-    png = root / "press_0001" / "tricolor.png"
-    png.write_bytes(png.read_bytes()[:300])
+    root, _ = _presses(tmp_path, ("sphere",), "tricolor.png")
     assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert "no press could be sampled" in err and "Traceback" not in err
