@@ -21,6 +21,7 @@ if TYPE_CHECKING:  # named in hints only: tqdm is imported when a bar is made
 
 _enabled = True
 _log_file: str | None = None
+"""The ``log_file`` of the last :func:`configure` (handed to worker processes by :func:`worker_logging`)."""
 PRESS_DETAIL = {"press_line": 2}
 """``extra`` of a log record saying how one press was solved (the interreflection term's and the anchoring's
 decisions): on stderr for a single press (``nlips solve PRESS``); in batches of presses only with ``-v``."""
@@ -32,7 +33,7 @@ SINGLE, BATCH, EXPERIMENT = 2, 1, 0
 """What :func:`press_lines` shows on stderr: every press line, the summaries only, none (the ``press_line``
 values of :data:`PRESS_DETAIL` and :data:`PRESS_SUMMARY` up to it)."""
 _press_lines = SINGLE
-"""The ``log_file`` of the last :func:`configure` (handed to worker processes by :func:`worker_logging`)."""
+"""What :func:`press_lines` last chose (handed to worker processes by :func:`worker_logging`)."""
 FILE_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 STDERR_FORMAT = "%(levelname)s %(message)s"
 
