@@ -306,7 +306,7 @@ def build_dataset(
         write_shard(out / SENSOR_FILE, build.ref)
         entries = build.entries(folders, progress)
         folders = [folder for folder in folders if folder.name not in (failed or {})]
-        if not entries:  # every press left out: their lines were logged, this one ends the build
+        if failed and not entries:  # every press left out: their lines were logged, this one ends the build
             raise CaptureError(f"{out}: no press could be sampled (each one's error is above)")
         if build.kept:  # what a resumed build reused, as solve and experiment say theirs
             names = build.kept
