@@ -27,13 +27,20 @@ from common import median_time, write_section  # noqa: E402
 CASES = ((0, 4, 2.0), (1, 16, 8.0))  # (bounces, spp, goal seconds)
 
 
+def bench_press():
+    """The bench press: sphere 6 mm, polar 15 deg, azimuth 30 deg, 1 mm deep (also bench_gpu_render.py's)."""
+    from nlipscalib.sim.indent import IndenterConfig, PressConfig
+
+    return PressConfig(IndenterConfig("sphere", 6.0), polar_deg=15.0, azimuth_deg=30.0, depth=1.0)
+
+
 def bench(repeats: int, threads: int) -> list[str]:
-    from nlipscalib.sim.indent import IndenterConfig, PressConfig, apply_press
+    from nlipscalib.sim.indent import apply_press
     from nlipscalib.sim.press import render_press
     from nlipscalib.sim.render import render_surface
     from nlipscalib.sim.scene import load_scene
 
-    press = PressConfig(IndenterConfig("sphere", 6.0), polar_deg=15.0, azimuth_deg=30.0, depth=1.0)
+    press = bench_press()
     scenes = {"default": load_scene(), "ideal": load_scene("nlipstac_ideal")}
     t_indent, _ = median_time(lambda: apply_press(scenes["default"].dome, press), repeats)
     gel = apply_press(scenes["default"].dome, press)

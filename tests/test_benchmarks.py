@@ -18,7 +18,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted((ROOT / "benchmarks").glob("bench_*.py"))
-OURS = ("nlipscalib", "tests", "common", "bench_command")
+OURS = ("nlipscalib", "tests", "common", "bench_command", "bench_render")
 """Top-level modules of this checkout; any other missing module is an optional dependency not installed here."""
 GPU_STEPS = ("pack", "run", "stream", "boxes", "moving", "parity")
 
@@ -103,3 +103,18 @@ def test_gpu_step_without_a_gpu_says_so_in_one_line(tmp_path):
     assert "Traceback" not in done.stderr
     assert done.stderr.strip().splitlines() == [done.stderr.strip()]
     assert done.stderr.startswith("bench_gpu_infer.py boxes: --device cuda")
+
+
+def test_gpu_render_steps_answer_help_and_a_missing_gel_in_one_line(tmp_path):
+    for step in ("pack", "run"):
+        done = _script("benchmarks/bench_gpu_render.py", step, "--help")
+        assert done.returncode == 0, f"{step}: {done.stderr[-2000:]}"
+        assert "--out" in done.stdout
+    done = _script(
+        "benchmarks/bench_gpu_render.py", "run", "--gel", str(tmp_path / "absent.npz"), "--out", str(tmp_path)
+    )
+    assert done.returncode == 1
+    assert (
+        done.stderr.strip()
+        == f"bench_gpu_render.py run: {tmp_path / 'absent.npz'}: no such file (make it with the pack step)"
+    )
