@@ -75,6 +75,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="PyTorch CPU threads (default 1: faster than more whenever another process uses a core, and the same "
         "model on every machine; 0: every core this process may use, fastest on an idle machine)",
     )
+    p.add_argument(
+        "--device",
+        default="cpu",
+        help="where to train: cpu (default), cuda or cuda:N (a GPU: the samples are moved there once; the model, "
+        "checkpoint and ONNX files are the same kind as a CPU run's, and a run interrupted on one device resumes on "
+        "the other). A GPU run's weights differ slightly from a CPU run's (other rounding and dropout draws); the same "
+        "training run again reuses the finished model whichever device made it, and says so",
+    )
     p.add_argument("--no-onnx", action="store_true", help="skip the ONNX export (`nlips export MODEL` makes it later)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar (none either when not on a terminal)")
     p.set_defaults(func=run)
@@ -89,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from ..learn.checkpoint import training_run
     from ..learn.dataset import CalibrationDataset
     from ..learn.publish import hold_training, model_stage, publish_model
+    from ..learn.torch_device import check_device
     from ..learn.train import TrainConfig, train
     from ..report.learn import training_curve
 
@@ -116,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             max_seconds=args.max_minutes * 60,
         )
+    device = check_device(args.device)  # before the dataset loads: a machine without the GPU is told at once
     data = CalibrationDataset(args.dataset)
     val = _names(args.val_presses) or None
     exclude = _names(args.exclude)
@@ -126,14 +136,22 @@ def run(args: argparse.Namespace) -> int:
     with hold_training(out, training_run(cfg, data.folder, val, exclude)), model_stage(out) as stage:
         reuse = args.no_onnx or onnx_path.is_file()  # a finished model whose export is missing: exported again
         result = train(
-            data, cfg, out, val_names=val, exclude=exclude, progress=not args.no_progress, stage=stage, reuse=reuse
+            data,
+            cfg,
+            out,
+            val_names=val,
+            exclude=exclude,
+            progress=not args.no_progress,
+            stage=stage,
+            reuse=reuse,
+            device=str(device),
         )
         if result.reused:
             best = result.history[result.best_epoch]
             print(
                 f"{out}: reused, trained before with the same options on the same samples (best epoch "
                 f"{result.best_epoch + 1} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg); "
-                "other options or --out train another"
+                f"{_device_note(result.history, device.type)}other options or --out train another"
             )
             return 0
         training_curve(result.history, stage / curve.name, f"NLiPsNet {args.hidden}")
@@ -159,6 +177,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
     print(f"next: nlips infer {out} INPUT (press folders, tri-colour frames, a video or --camera N)")
     return 0
+
+
+def _device_note(history: list[dict], device: str) -> str:
+    """'trained on cpu, not cuda: ' when the reused model's last epoch ran on another device type than ``device``
+    (the one asked for), else "".
+
+    Why the device is not part of what makes two runs the same training (and so a CPU model is reused for a
+    `--device cuda` run and the other way round): the device decides how fast and how the weights round (and which
+    generator draws the dropout masks), not what is trained: the options and samples are the same, the validation
+    AAE alike, and training again would spend the time this rule saves on a model no better. ``--threads`` is
+    treated alike. Reused without a word, though, a user who asked for a GPU run (to time it, or to compare) would
+    take the CPU's model for the GPU's: the line says which device made it, and another --out trains anew."""
+    made = history[-1].get("device", "cpu") if history and isinstance(history[-1], dict) else "cpu"
+    return "" if made == device else f"trained on {made}, not {device} (another --out trains on {device}); "
 
 
 def _names(option: str | None) -> list[str]:

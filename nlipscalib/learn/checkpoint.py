@@ -124,21 +124,41 @@ def save_checkpoint(
 
     buf = io.BytesIO()
     torch.save(
-        {
-            "key": config_key(cfg),
-            "options": _trajectory_options(cfg),  # so a refusal can say which option differs
-            "data_key": data_key,
-            "sampling": sampling,
-            "net": net.state_dict(),
-            "opt": opt.state_dict(),
-            "sched": sched.state_dict(),
-            "history": history,
-            "best": best,
-            "best_state": best_state,
-        },
+        on_cpu(
+            {
+                "key": config_key(cfg),
+                "options": _trajectory_options(cfg),  # so a refusal can say which option differs
+                "data_key": data_key,
+                "sampling": sampling,
+                "net": net.state_dict(),
+                "opt": opt.state_dict(),
+                "sched": sched.state_dict(),
+                "history": history,
+                "best": best,
+                "best_state": best_state,
+            }
+        ),
         buf,
     )
     write_bytes(path if to is None else Path(to), buf.getvalue())
+
+
+def on_cpu(state: object) -> object:
+    """``state`` (dicts, lists and tuples of tensors and plain data: state dicts, an optimiser's) with every tensor
+    on the CPU: a checkpoint of a GPU training loads on a machine without one. Tensors already there are kept as
+    they are (no copy), so a CPU training's checkpoint is the one it wrote before."""
+    import torch
+
+    if isinstance(state, torch.Tensor):
+        return state.detach().cpu()
+    if isinstance(state, dict):
+        moved = type(state)((k, on_cpu(v)) for k, v in state.items())
+        if hasattr(state, "_metadata"):  # a state dict's layer versions, which load_state_dict reads
+            moved._metadata = state._metadata
+        return moved
+    if isinstance(state, (list, tuple)):
+        return type(state)(on_cpu(v) for v in state)
+    return state
 
 
 def published_by(out: Path, cfg: TrainConfig, data_key: str) -> bool:
@@ -214,6 +234,8 @@ def resume(
     net: torch.nn.Module,
     opt: torch.optim.Optimizer,
     sched: torch.optim.lr_scheduler.LRScheduler,
+    *,
+    device: str = "cpu",
 ) -> dict:
     """Continue from the run's checkpoint (``progress_path``), else from ``MODEL.checkpoint.pt`` (a finished run's,
     or one written before checkpoints were named by their run) when it was made with the same options on the same
@@ -223,6 +245,8 @@ def resume(
     presses would report its validation AAE as if measured on this run's validation presses, and one that
     had reached its epoch limit would be saved as the new model without a single epoch on the new data.
     A damaged checkpoint only costs the progress it held (a warning, then training from scratch).
+    ``device`` ("cpu" or "cuda"): the one this run trains on, ``net``'s; a checkpoint (CPU tensors, whatever device
+    made it) is loaded into ``net`` and ``opt`` there, and a resume on another device than its epochs' says so.
     """
     import copy
 
@@ -277,7 +301,8 @@ def resume(
         opt.load_state_dict(initial[1])
         sched.load_state_dict(initial[2])
         return fresh
-    log.info("%s: resuming after epoch %d%s", path, len(history), _thread_change(history, cfg.threads))
+    changes = _thread_change(history, cfg.threads) + _device_change(history, device)
+    log.info("%s: resuming after epoch %d%s", path, len(history), changes)
     return {"history": history, "best": best, "best_state": best_state}
 
 
@@ -293,4 +318,19 @@ def _thread_change(history: list[dict], threads: int) -> str:
         f", trained on {before} thread(s) so far and on {threads} from here: the weights now round otherwise, so "
         f"the model will differ slightly from one trained on one count throughout (--threads {before} carries on "
         "bit for bit)"
+    )
+
+
+def _device_change(history: list[dict], device: str) -> str:
+    """', trained on cpu so far and on cuda from here ...' when the epochs resumed ran on another device type than
+    ``device`` (recorded per epoch since 2026-12-05; before, every training ran on the CPU), else "". The device is
+    left out of what a checkpoint must match, as the thread count is: a run interrupted on a GPU goes on where there
+    is none (and back), but its weights from here round otherwise and its dropout masks come from the other device's
+    generator, so the model is not the one an uninterrupted run on either device makes (its validation AAE alike)."""
+    before = history[-1].get("device", "cpu") if isinstance(history[-1], dict) else None
+    if not isinstance(before, str) or before == device:
+        return ""
+    return (
+        f", trained on {before} so far and on {device} from here: the model will differ slightly from one trained "
+        f"on one device throughout (--device {before} carries on as it began)"
     )

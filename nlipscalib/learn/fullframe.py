@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.errors import ConfigError, require
+from ..core.errors import require
 from .cuda_graph import record
 from .integrate import RayGeometry
 from .integrate_torch import BoxIntegrator, DomeIntegrator
@@ -34,26 +34,6 @@ if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``
 
 def _torch():
     return require("torch", "torch", "Inference with --device or --full-frame")
-
-
-def check_device(device: str) -> torch.device:
-    """The torch device ``device`` names ("cpu", "cuda", "cuda:1"), or ConfigError naming what is missing."""
-    torch = _torch()
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError) as exc:
-        raise ConfigError(f"--device {device!r}: not a torch device ({exc}); use cpu, cuda or cuda:N") from None
-    if dev.type == "cuda":
-        if not torch.cuda.is_available():
-            raise ConfigError(
-                f"--device {device}: torch {torch.__version__} sees no CUDA device (a CPU build, or no GPU here); "
-                "use --device cpu"
-            )
-        if dev.index is not None and dev.index >= torch.cuda.device_count():
-            raise ConfigError(f"--device {device}: there are {torch.cuda.device_count()} CUDA device(s)")
-    elif dev.type != "cpu":
-        raise ConfigError(f"--device {device}: only cpu and cuda devices are supported")
-    return dev
 
 
 class FullFrame:

@@ -130,7 +130,7 @@ class Predictor:
                 f"--backend {backend} runs on the CPU alone: --device {device}"
                 f"{' and --full-frame run' if full_frame else ' runs'} the PyTorch backend (--backend torch)"
             )
-        from .fullframe import check_device
+        from .torch_device import check_device
 
         return check_device(device)
 

@@ -42,6 +42,7 @@ from .model import (
     set_colour_normalisation,
 )
 from .publish import clean_interrupted_writes
+from .torch_device import check_device
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
     import torch
@@ -196,6 +197,7 @@ def train(
     progress: bool = True,
     stage: Path | None = None,
     reuse: bool = False,
+    device: str = "cpu",
 ) -> TrainResult:
     """Train NLiPsNet on ``dataset`` and write ``out`` (the model file) and ``checkpoint.pt`` beside it.
 
@@ -214,9 +216,18 @@ def train(
         return it as it is (``TrainResult.reused``), writing nothing; else train (resuming what there is).
         Why: a second identical ``nlips train`` waits for the first (:func:`.publish.hold_training`), then had
         nothing left to train but wrote the same model, checkpoint and ONNX file again.
+    device : torch device to train on: "cpu" (default), "cuda", "cuda:N" (:func:`.torch_device.check_device`)
+        The net and every training and validation sample are moved there once; the files written hold CPU tensors
+        (they load anywhere) and a checkpoint of either device resumes on the other. Not a :class:`TrainConfig`
+        field: what a checkpoint must match and the experiments' model keys (``dataclasses.asdict`` of the config)
+        stay as they were, and the experiments train on the CPU. Like ``cfg.threads`` it decides how the weights
+        round, and more: dropout's masks come from the device's generator (CUDA's Philox, not the CPU's Mersenne
+        Twister), so a GPU run is another draw of the same training, its validation AAE alike but not its bits.
+        Each epoch's device is in the history (``"device"``: "cpu" or "cuda"); a resume on another says so.
     """
+    dev = check_device(device)
     with torch_threads(cfg.threads):
-        return _train(dataset, cfg, Path(out), val_names, exclude, progress, stage, reuse)
+        return _train(dataset, cfg, Path(out), val_names, exclude, progress, stage, reuse, dev)
 
 
 @contextlib.contextmanager
@@ -243,27 +254,29 @@ def _train(
     progress: bool,
     stage: Path | None,
     reuse: bool,
+    device: torch.device,
 ) -> TrainResult:
-    """:func:`train`'s work, on the threads it set."""
+    """:func:`train`'s work, on the threads it set and on ``device``."""
     import torch
 
     clean_interrupted_writes(out)
     data = _training_data(dataset, cfg, val_names, exclude)
-    net, opt, sched = _fresh_training(cfg, dataset.sensor["camera"], data.x_tr)
+    net, opt, sched = _fresh_training(cfg, dataset.sensor["camera"], data.x_tr, device)
     data_key, sampling = data_key_of(*data.arrays()), dataset.index.get("sampling")
     progress_path = progress_checkpoint_path(out, cfg, data_key)
     clean_interrupted_writes(out, progress_path.name)
     check_sampling_record(out, progress_path, cfg, data_key, dataset.folder, sampling)
     if reuse and (done := published_state(out, cfg, data_key)) is not None and _finished(done, cfg):
         return TrainResult(out, done["history"], done["best"]["epoch"], data.train_names, data.val_names, reused=True)
-    state = resume(out, progress_path, cfg, data_key, net, opt, sched)
+    state = resume(out, progress_path, cfg, data_key, net, opt, sched, device=device.type)
     if out.is_file() and not published_by(out, cfg, data_key):  # a better model would go unnoticed otherwise
         log.warning(
             "%s: a model is already there (not this training's: its checkpoint was made with other options or "
             "samples, or is missing); it is replaced when this run ends: give another --out to keep it",
             out,
         )
-    samples = [torch.from_numpy(a) for a in data.arrays()]
+    # moved once (~2M samples x 12 floats: ~100 MB); the batches are indexed on the device, never copied per batch
+    samples = [torch.from_numpy(a).to(device) for a in data.arrays()]
     checkpoint = functools.partial(save_checkpoint, progress_path, cfg, data_key, net, opt, sched, sampling=sampling)
     history, best, best_state = _epochs(net, opt, sched, samples, cfg, state, checkpoint, progress)
     if best_state is None:  # every epoch's validation error NaN: no weights worth a model file
@@ -275,7 +288,7 @@ def _train(
     checkpoint(history, best, best_state, stage / checkpoint_path(out).name if stage else checkpoint_path(out))
     if stage is None:
         progress_path.unlink(missing_ok=True)
-    net.load_state_dict(best_state)
+    net.to("cpu").load_state_dict(best_state)  # the model file's tensors and the ONNX export: on the CPU
     model_file = out if stage is None else Path(stage) / out.name
     _save_trained(model_file, net, dataset, cfg, data, exclude, history, best)
     progress_file = progress_path if stage else None
@@ -333,15 +346,16 @@ def _training_data(
     return _TrainingData(train_names, val_names, reference, x_tr, y_tr, x_va, y_va, c_va)
 
 
-def _fresh_training(cfg: TrainConfig, camera: dict, x_tr: np.ndarray):
-    """(net, optimiser, scheduler) of a training from scratch: torch's seed set from ``cfg`` (the weights'
-    initialisation draws from it), the net sized for ``camera``'s image and its colour normalisation taken from the
-    training inputs ``x_tr`` (N, 5)."""
+def _fresh_training(cfg: TrainConfig, camera: dict, x_tr: np.ndarray, device: torch.device):
+    """(net, optimiser, scheduler) of a training from scratch on ``device``: torch's seed set from ``cfg`` (the
+    weights' initialisation draws from it, on the CPU: the same initial weights on every device), the net sized for
+    ``camera``'s image and its colour normalisation taken from the training inputs ``x_tr`` (N, 5)."""
     import torch
 
     torch.manual_seed(cfg.seed)
     net = build_net(cfg.hidden, cfg.dropout, camera["width"], camera["height"])
     set_colour_normalisation(net, x_tr[:, 2:])
+    net.to(device)  # before the optimiser, whose state then lives beside the weights
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     return net, opt, _scheduler(opt, cfg)
 
@@ -470,11 +484,13 @@ def _epochs(
                 "lr": float(opt.param_groups[0]["lr"]),
                 "seconds": time.perf_counter() - t0,
                 "threads": cfg.threads,  # the count rounds the weights: a resume on another says so
+                "device": xt.device.type,  # so does the device, and it draws other dropout masks
             }
         )
         if val_aae < best["aae"]:
             best = {"aae": val_aae, "epoch": epoch}
-            best_state = {k: v.detach().clone() for k, v in net.state_dict().items()}
+            # a copy on the CPU (a clone there): what the checkpoint and the model file hold, whatever the device
+            best_state = {k: v.detach().to("cpu", copy=True) for k, v in net.state_dict().items()}
         checkpoint(history, best, best_state)
         bar.update(1)
         bar.set_postfix(val_aae=f"{val_aae:.2f}")
@@ -506,8 +522,11 @@ def _epoch(
     import torch
 
     net.train()
-    order = torch.randperm(len(x), generator=gen)
-    total, count = 0.0, 0
+    # drawn on the CPU (the same order on every device), then on the data's device once per epoch
+    order = torch.randperm(len(x), generator=gen).to(x.device)
+    # summed on the device in float64 (as Python's float did, so the CPU's sum is bit for bit the earlier one):
+    # reading each batch's loss would make the CPU wait for a GPU at every step
+    total, count = torch.zeros((), dtype=torch.float64, device=x.device), 0
     for start in range(0, len(x), batch_size):
         idx = order[start : start + batch_size]
         if len(idx) < 2:  # BatchNorm needs two samples
@@ -516,9 +535,9 @@ def _epoch(
         loss = cosine_loss(net(x[idx]), y[idx])
         loss.backward()
         opt.step()
-        total += float(loss.detach()) * len(idx)
+        total += loss.detach().double() * len(idx)
         count += len(idx)
-    return total / max(count, 1)
+    return float(total) / max(count, 1)
 
 
 def _validate(net: torch.nn.Module, x: torch.Tensor, y: torch.Tensor, contact: torch.Tensor) -> tuple[float, float]:

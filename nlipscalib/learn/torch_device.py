@@ -1,0 +1,31 @@
+"""The torch device a command runs on (``--device cpu|cuda|cuda:N``): checked once, before any work, for
+``nlips infer``, ``nlips live`` and ``nlips train`` alike."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from ..core.errors import ConfigError, require
+
+if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
+    import torch
+
+
+def check_device(device: str) -> torch.device:
+    """The torch device ``device`` names ("cpu", "cuda", "cuda:1"), or ConfigError naming what is missing."""
+    torch = require("torch", "torch", f"--device {device}")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError) as exc:
+        raise ConfigError(f"--device {device!r}: not a torch device ({exc}); use cpu, cuda or cuda:N") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError(
+                f"--device {device}: torch {torch.__version__} sees no CUDA device (a CPU build, or no GPU here); "
+                "use --device cpu"
+            )
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ConfigError(f"--device {device}: there are {torch.cuda.device_count()} CUDA device(s)")
+    elif dev.type != "cpu":
+        raise ConfigError(f"--device {device}: only cpu and cuda devices are supported")
+    return dev
