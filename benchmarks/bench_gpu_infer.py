@@ -263,9 +263,10 @@ def boxes_step(args) -> None:
     import torch
 
     from nlipscalib.learn import integrate_torch
-    from nlipscalib.learn.fullframe import FullFrame, check_device
+    from nlipscalib.learn.fullframe import FullFrame
     from nlipscalib.learn.infer import Predictor
     from nlipscalib.learn.integrate import _fast_span
+    from nlipscalib.learn.torch_device import check_device
 
     integrate_torch.RECORD_AFTER = 1  # a size's first call through the integrator records it, the next replays
     pred = Predictor(args.model[0])
@@ -430,7 +431,7 @@ def main() -> None:
 def _check_device(step: str, device: str) -> None:
     """Exit with one line, before any work, when ``device`` is not here (no GPU, or a CPU build of torch)."""
     from nlipscalib.core.errors import NlipsError
-    from nlipscalib.learn.fullframe import check_device
+    from nlipscalib.learn.torch_device import check_device
 
     try:
         check_device(device)

@@ -33,6 +33,16 @@ import time
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
 
 
+def _device(check_device, name: str):
+    """``check_device(name)``, or exit with its one line (no GPU here, a CPU build of torch), before any work."""
+    from nlipscalib.core.errors import NlipsError
+
+    try:
+        return check_device(name)
+    except NlipsError as exc:
+        raise SystemExit(f"bench_train_step.py: {exc}") from None
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--batch", type=int, default=1024)
@@ -55,7 +65,7 @@ def main() -> None:
 
     from nlipscalib.learn.torch_device import check_device
 
-    device = check_device(args.device)
+    device = _device(check_device, args.device)
 
     from nlipscalib.learn.model import build_net, cosine_loss
 
@@ -128,7 +138,7 @@ def epochs(args: argparse.Namespace) -> None:
     from nlipscalib.learn.torch_device import check_device
     from nlipscalib.learn.train import TrainConfig, train
 
-    devices = [str(check_device(d)) for d in args.devices.split(",")]
+    devices = [str(_device(check_device, d)) for d in args.devices.split(",")]
     hidden = tuple(int(h) for h in args.hidden.split(","))
     cfg = TrainConfig(hidden=hidden, max_epochs=args.epochs, patience=args.epochs, threads=args.threads)
     data, out = CalibrationDataset(args.dataset), Path(args.out)

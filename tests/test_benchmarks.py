@@ -105,6 +105,18 @@ def test_gpu_step_without_a_gpu_says_so_in_one_line(tmp_path):
     assert done.stderr.startswith("bench_gpu_infer.py boxes: --device cuda")
 
 
+@pytest.mark.parametrize("mode", [("--device", "cuda"), ("--dataset", "absent", "--devices", "cpu,cuda")])
+def test_train_timing_on_an_absent_gpu_says_so_in_one_line(mode):
+    torch = pytest.importorskip("torch")
+    if torch.cuda.is_available():
+        pytest.skip("a CUDA device is here")
+    done = _script("benchmarks/bench_train_step.py", *mode)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr
+    assert done.stderr.strip().splitlines() == [done.stderr.strip()]
+    assert done.stderr.startswith("bench_train_step.py: --device cuda")
+
+
 def test_gpu_render_steps_answer_help_and_a_missing_gel_in_one_line(tmp_path):
     for step in ("pack", "run"):
         done = _script("benchmarks/bench_gpu_render.py", step, "--help")
