@@ -29,12 +29,12 @@ GUIDE = {
     "q1": (
         "Q1 table: NLiPs normal and depth error (AAE, MabsE, depth RMSE) of sphere and cube presses against the "
         "true normals, with the true and with self-calibrated LEDs",
-        {"quick": "~30 s", "medium": "~6 min", "full": "~40 min"},
+        {"quick": "~10 s", "medium": "~6 min", "full": "~40 min"},
     ),
     "q2": (
         "Q2 table: NLiPsNet trained on NLiPs-solved presses of three indenters, AAE on seen and unseen indenters "
         "vs the NLiPs labels and the true normals, next to a lookup table and the undeformed dome",
-        {"quick": "~2-5 min", "medium": "~8 min", "full": "~25-40 min"},
+        {"quick": "~40 s", "medium": "~8 min", "full": "~25-40 min"},
     ),
     "ablation": (
         "LED ablation table: AAE and MabsE with 3 to 24 LEDs in the ring",
@@ -50,7 +50,7 @@ GUIDE = {
     ),
     "presses": (
         "how many calibration presses are enough: NLiPsNet and the lookup table trained on k of Q2's presses",
-        {"quick": "~1 min after q2", "medium": "~3 min after q2", "full": "~30 min with Q2's presses"},
+        {"quick": "~10 s after q2", "medium": "~3 min after q2", "full": "~30 min with Q2's presses"},
     ),
 }
 """Per experiment, for ``nlips experiment --help``: what its tables measure, and its wall time per size with
