@@ -27,6 +27,7 @@ Salzman & Aupperle 1991), a fifth of the pairs at 640x480 for an error of the li
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
@@ -273,20 +274,16 @@ class _Pairs:
     same blocks whatever the thread count, so the same bits)."""
 
     def __init__(self, points: np.ndarray, normals: np.ndarray, emitters: dict, chunk: int | None):
-        self.pe = np.asarray(emitters["points"], np.float64)
-        self.ne = np.asarray(emitters["normals"], np.float64)
-        self.ae = np.asarray(emitters["area"], np.float32)
+        self.emitters = _Emitters.of(emitters["points"], emitters["normals"], emitters["area"])
         self.pr = np.asarray(points, np.float64)
         self.nr = np.asarray(normals, np.float64)
         self.receivers = len(self.pr)
-        self.chunk = chunk or max(16, GATHER_BLOCK_FLOATS // max(len(self.pe), 1))
-        self.qq = np.sum(self.pe * self.pe, axis=1)
-        self.nq_q = np.sum(self.ne * self.pe, axis=1)
+        self.chunk = chunk or max(16, GATHER_BLOCK_FLOATS // max(len(self.emitters.points), 1))
 
     def factors(self, s: int) -> np.ndarray:
         """(chunk, K) float32 -- :func:`_pair_factors` of the receivers from ``s`` on."""
         c = self.chunk
-        return _pair_factors(self.pr[s : s + c], self.nr[s : s + c], self.pe, self.ne, self.ae, self.qq, self.nq_q)
+        return _pair_factors(self.pr[s : s + c], self.nr[s : s + c], self.emitters)
 
     def on_pool(self, block: Callable[[int], None]) -> None:
         """``block(s)`` for every block's first receiver ``s``: the blocks split over the thread pool, BLAS on one
@@ -312,25 +309,37 @@ def _gathered(rows: np.ndarray, leds: int) -> np.ndarray:
     return rows.reshape(-1, leds, 3).transpose(1, 0, 2) / np.float32(np.pi)
 
 
-def _pair_light(
-    pr: np.ndarray,
-    nr: np.ndarray,
-    pe: np.ndarray,
-    ne: np.ndarray,
-    ae: np.ndarray,
-    qq: np.ndarray,
-    nq_q: np.ndarray,
-    rad: np.ndarray,
-) -> np.ndarray:
+class _Emitters(NamedTuple):
+    """The k emitter patches of a gather, with the two per-emitter terms every receiver's pairs use."""
+
+    points: np.ndarray
+    """(k, 3) float64, mm."""
+    normals: np.ndarray
+    """(k, 3) float64, unit."""
+    area: np.ndarray
+    """(k,) float32, mm^2."""
+    sq_norm: np.ndarray
+    """(k,) float64: ``|q|^2`` of each point q."""
+    normal_dot_point: np.ndarray
+    """(k,) float64: ``n_q . q``."""
+
+    @classmethod
+    def of(cls, points: np.ndarray, normals: np.ndarray, area: np.ndarray) -> _Emitters:
+        pe, ne = np.asarray(points, np.float64), np.asarray(normals, np.float64)
+        return cls(pe, ne, np.asarray(area, np.float32), np.sum(pe * pe, axis=1), np.sum(ne * pe, axis=1))
+
+    def take(self, idx: np.ndarray) -> _Emitters:
+        """The emitters ``idx`` (an index array) of these."""
+        return _Emitters(*(a[idx] for a in self))
+
+
+def _pair_light(pr: np.ndarray, nr: np.ndarray, emitters: _Emitters, rad: np.ndarray) -> np.ndarray:
     """(m, L*3) float32 -- ``sum_q rad_q cos_p cos_q A_q / r^2`` (pi G) of m receivers over k emitters: pr, nr (m, 3)
-    float64 receiver points (mm) and normals; pe, ne (k, 3) float64 emitter points and normals, ae (k,) float32 areas;
-    qq = |pe|^2, nq_q = ne . pe (k,) float64; rad (k, L*3) float32."""
-    return _pair_factors(pr, nr, pe, ne, ae, qq, nq_q) @ rad
+    float64 receiver points (mm) and normals; rad (k, L*3) float32."""
+    return _pair_factors(pr, nr, emitters) @ rad
 
 
-def _pair_factors(
-    pr: np.ndarray, nr: np.ndarray, pe: np.ndarray, ne: np.ndarray, ae: np.ndarray, qq: np.ndarray, nq_q: np.ndarray
-) -> np.ndarray:
+def _pair_factors(pr: np.ndarray, nr: np.ndarray, emitters: _Emitters) -> np.ndarray:
     """(m, k) float32 -- the terms ``cos_p cos_q A_q / r^2`` of :func:`_pair_light` (its arguments but ``rad``).
 
     By blocks of :data:`PAIR_BLOCK_FLOATS` terms: each term is its pair's own arithmetic, so the same bits as the
@@ -339,13 +348,13 @@ def _pair_factors(
     call, but NumPy multiplies a single row as a matrix-vector product (gemv), whose last bits differ; a one-row
     tail joins the block before it."""
     m = len(pr)
-    out = np.empty((m, len(pe)), np.float32)
-    rows = max(2, PAIR_BLOCK_FLOATS // max(len(pe), 1))
+    out = np.empty((m, len(emitters.points)), np.float32)
+    rows = max(2, PAIR_BLOCK_FLOATS // max(len(emitters.points), 1))
     starts = list(range(0, m, rows))
     if len(starts) > 1 and m - starts[-1] == 1:
         starts.pop()
     for s, e in zip(starts, starts[1:] + [m]):
-        _pair_factors_into(out[s:e], pr[s:e], nr[s:e], pe, ne, ae, qq, nq_q)
+        _pair_factors_into(out[s:e], pr[s:e], nr[s:e], emitters)
     return out
 
 
@@ -355,20 +364,12 @@ alive at once) then stay in a core's 2 MiB L2 cache. The gather's blocks (:data:
 2 MiB each: 2.1 -> 1.5 ms per block of 197 x 1,324 terms (an auto ROI's off-view gather, 2-core Xeon VM)."""
 
 
-def _pair_factors_into(
-    out: np.ndarray,
-    pr: np.ndarray,
-    nr: np.ndarray,
-    pe: np.ndarray,
-    ne: np.ndarray,
-    ae: np.ndarray,
-    qq: np.ndarray,
-    nq_q: np.ndarray,
-) -> None:
+def _pair_factors_into(out: np.ndarray, pr: np.ndarray, nr: np.ndarray, emitters: _Emitters) -> None:
     """:func:`_pair_factors` of one block into ``out`` (m, k) float32; in place, each step the same operation
     as ``(|p|^2 + |q|^2 - 2 p.q)``, ``n_p.q - n_p.p``, ``n_q.p - n_q.q`` and ``cp * cq / (r2 * r2) * A``."""
+    pe, ne = emitters.points, emitters.normals
     # float64 for the cancelling differences, float32 for the products that follow
-    r2 = np.sum(pr * pr, axis=1)[:, None] + qq[None]
+    r2 = np.sum(pr * pr, axis=1)[:, None] + emitters.sq_norm[None]
     pq = pr @ pe.T
     pq *= 2.0
     r2 -= pq
@@ -377,7 +378,7 @@ def _pair_factors_into(
     cp -= np.sum(nr * pr, axis=1)[:, None]  # r cos_p
     cp = cp.astype(np.float32)
     cq = pr @ ne.T
-    cq -= nq_q[None]  # r cos_q
+    cq -= emitters.normal_dot_point[None]  # r cos_q
     cq = cq.astype(np.float32)
     np.maximum(cp, 0.0, out=cp)
     np.maximum(cq, 0.0, out=cq)
@@ -386,7 +387,7 @@ def _pair_factors_into(
     cp *= cq
     r2 *= r2
     cp /= r2
-    np.multiply(cp, ae, out=out)
+    np.multiply(cp, emitters.area, out=out)
     out[tiny] = 0.0
 
 
@@ -441,11 +442,12 @@ def gather_grid(
     emits = area > 0
     n_fine = int(emits.sum())
     coarse = _clusters(points, normals, area, rad, CLUSTER_SIZE)
-    pe = np.concatenate([points[emits], coarse["points"]]).astype(np.float64)
-    ne = np.concatenate([normals[emits], coarse["normals"]]).astype(np.float64)
-    ae = np.concatenate([area[emits], coarse["area"]]).astype(np.float32)
+    emitters = _Emitters.of(
+        np.concatenate([points[emits], coarse["points"]]),
+        np.concatenate([normals[emits], coarse["normals"]]),
+        np.concatenate([area[emits], coarse["area"]]),
+    )
     rad_all = np.ascontiguousarray(np.concatenate([rad[emits], coarse["radiance"]]), np.float32)
-    qq, nq_q = np.sum(pe * pe, axis=1), np.sum(ne * pe, axis=1)
     fine_id = np.full((h, w), -1)
     fine_id[emits] = np.arange(n_fine)
     members = _blocks(fine_id, CLUSTER_SIZE, -1)[coarse["index"]]  # (C, size^2) fine emitters of each cluster
@@ -464,7 +466,7 @@ def gather_grid(
         idx = np.concatenate([near[near >= 0], n_fine + np.flatnonzero(far)])
         rec = receivers[win]
         pr, nr = np.asarray(points[win][rec], np.float64), np.asarray(normals[win][rec], np.float64)
-        out[win][rec] = _pair_light(pr, nr, pe[idx], ne[idx], ae[idx], qq[idx], nq_q[idx], rad_all[idx])
+        out[win][rec] = _pair_light(pr, nr, emitters.take(idx), rad_all[idx])
 
     # one tile per task: the tiles near a dent hold more emitters than the rest (BLAS on one thread, as in gather)
     with blas_threads(1):

@@ -114,10 +114,9 @@ def test_the_pair_terms_by_blocks_are_the_whole_blocks_terms(monkeypatch):
     not light itself."""
     s = _dome(dent=1.0)
     pe, ne = s["points"].reshape(-1, 3), s["normals"].reshape(-1, 3)
-    ae = s["area"].ravel().astype(np.float32)
-    qq, nq_q = np.sum(pe * pe, axis=1), np.sum(ne * pe, axis=1)
+    emitters = radiosity._Emitters.of(pe, ne, s["area"].ravel())
     pr, nr = pe[100:437], ne[100:437]  # 337 receivers among the emitters
-    args = (pr, nr, pe, ne, ae, qq, nq_q)
+    args = (pr, nr, emitters)
     monkeypatch.setattr(radiosity, "PAIR_BLOCK_FLOATS", len(pr) * len(pe))
     whole = radiosity._pair_factors(*args)
     assert whole.dtype == np.float32 and whole.shape == (len(pr), len(pe)) and (whole > 0).mean() > 0.5
