@@ -839,10 +839,13 @@ class _Level:
             "cg_rtol": [],
             "normal_change_deg": [],
             "rejected_steps": 0,
+            "expanded_steps": 0,
             "stop": "max_iters",
         }
         self.nrm = self.normals(t)
         self.g_prev = self.eta = None
+        self._full_step = None
+        """The line search's full-step trial depth (the only one :meth:`_expanded` doubles), or None."""
         self.tm.lap("init")
 
     # ------------------------------------------------------------------ the energy's parts
@@ -879,6 +882,8 @@ class _Level:
         predicted = -float(g @ delta) - 0.5 * float(delta @ threads.RowBlocks(Hm).dot(delta))
         converged = predicted < self.opts.energy_rtol * self.e_cur
         step = self._line_search(delta, converged)
+        if step is not None and not converged:
+            step = self._expanded(delta, predicted, step)
         if step is None:
             return "energy_rtol" if converged else "no_descent"
         return self._accept(*step, converged)
@@ -919,6 +924,7 @@ class _Level:
         albedo, r, energy) of the first step that does not raise the energy, or None."""
         for k in range(1 if converged else self.opts.line_search_steps + 1):
             t_new = self.t + 0.5**k * delta
+            self._full_step = t_new if k == 0 else None
             # the full step's derivatives with its shading (one pass); none after a converged step, which ends
             # the level
             F_new, dF_new = self.shade(t_new, derivatives=k == 0 and not converged)
@@ -930,6 +936,25 @@ class _Level:
             self.info["rejected_steps"] += 1
         self.tm.lap("line_search")
         return None
+
+    def _expanded(self, delta: np.ndarray, predicted: float, step: tuple) -> tuple:
+        """The line search's accepted ``step`` (t, F, dF, albedo, r, energy), or the doubled step's where
+        :func:`expanded_step` takes it (its derivatives then left to the next step). Only a full step is doubled.
+        The doubled trial refits the albedo from the same start as the full one: the energies compare like for
+        like."""
+        if step[0] is not self._full_step:
+            return step
+
+        def trial(alpha: float) -> tuple:
+            t_far = self.t + alpha * delta
+            F_far, _ = self.shade(t_far)
+            alb_far, r_far, e_data = self.refit(F_far, self.albedo, energy=True)
+            return t_far, F_far, None, alb_far, r_far, e_data + self.prior(t_far)
+
+        out = expanded_step(trial, step, self.e_cur, predicted, self.opts.line_search_expand)
+        self.info["expanded_steps"] += out is not step
+        self.tm.lap("line_search")
+        return out
 
     def _accept(
         self,
@@ -979,6 +1004,38 @@ class _Level:
         self.tm.lap("finish")
         self.info["seconds"] = {k: round(v, 4) for k, v in self.tm.seconds.items()}
         return _embed(self.t, self.mk), result, self.info
+
+
+def expanded_step(
+    trial: Callable[[float], tuple], full: tuple, e_start: float, predicted: float, ratio: float
+) -> tuple:
+    """The doubled step's trial where the full step's energy decrease beat its model's prediction by more than
+    ``ratio`` times and the doubled step lowers the energy further; ``full`` otherwise.
+
+    Parameters
+    ----------
+    trial : callable
+        ``trial(alpha)``: a tuple whose last item is the energy at the step scaled by ``alpha``.
+    full : tuple
+        ``trial(1.0)``'s tuple (the full step, accepted by the line search).
+    e_start : float
+        Energy before the step.
+    predicted : float
+        The decrease the Gauss-Newton model predicts for the full step (> 0 for a descent step).
+    ratio : float
+        The factor of ``predicted`` the actual decrease must exceed; 0 = never expand.
+
+    Notes
+    -----
+    IRLS weights give a robust loss a quadratic model whose curvature bounds the loss's from above (the Cauchy
+    loss is concave in r^2), so the model's step falls short where residuals sit in the loss's bend; where its
+    model is exact (least squares at the solution's weights) the actual decrease equals the prediction and the
+    doubled step is never tried. One more energy evaluation, only where it is tried.
+    """
+    if not ratio or e_start - full[-1] <= ratio * max(predicted, 0.0):
+        return full
+    far = trial(2.0)
+    return far if far[-1] < full[-1] else full
 
 
 def _robust_scale(

@@ -161,6 +161,7 @@ def test_no_room_for_one_press_fails_before_rendering(spec, tmp_path, monkeypatc
         ("prior_weight = inf", "solver.prior_weight must be a finite number, got inf"),
         ("robust_scale = nan", "solver.robust_scale must be a finite number, got nan"),
         ("anchor_threshold = -1", "solver.anchor_threshold must be >= 0, got -1.0"),
+        ("line_search_expand = 0.5", "solver.line_search_expand must be 0 (off) or >= 1, got 0.5"),
         ("min_leds = 50", "solver.min_leds = 50 exceeds the 3 LEDs of"),
     ],
 )
