@@ -609,6 +609,7 @@ def _brought_up(prev: dict, lv: dict, t_init: np.ndarray, out: dict, estimator: 
         "cg_rtol": [],
         "normal_change_deg": [],
         "rejected_steps": 0,
+        "expanded_steps": 0,
         "stop": "brought_up",
         "iterations": 0,
         "amg_setups": 0,
