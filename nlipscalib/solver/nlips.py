@@ -610,7 +610,6 @@ def _brought_up(prev: dict, lv: dict, t_init: np.ndarray, out: dict, estimator: 
         "normal_change_deg": [],
         "rejected_steps": 0,
         "expanded_steps": 0,
-        "accelerated_steps": 0,
         "stop": "brought_up",
         "iterations": 0,
         "amg_setups": 0,
@@ -842,16 +841,12 @@ class _Level:
             "normal_change_deg": [],
             "rejected_steps": 0,
             "expanded_steps": 0,
-            "accelerated_steps": 0,
             "stop": "max_iters",
         }
         self.nrm = self.normals(t)
         self.g_prev = self.eta = None
         self._full_step = None
         """The line search's full-step trial depth (the only one :meth:`_expanded` doubles), or None."""
-        self._history: list[tuple[np.ndarray, np.ndarray]] = []
-        """(depth, accepted step from it) of the last accepted steps, for :meth:`_accelerated`."""
-        self._predicted_prev: float | None = None
         self.tm.lap("init")
 
     # ------------------------------------------------------------------ the energy's parts
@@ -890,8 +885,6 @@ class _Level:
         step = self._line_search(delta, converged)
         if step is not None and not converged:
             step = self._expanded(delta, predicted, step)
-            if not coarse and self.opts.anderson_memory:
-                step = self._accelerated(step, predicted)
         if step is None:
             return "energy_rtol" if converged else "no_descent"
         return self._accept(*step, converged)
@@ -953,31 +946,14 @@ class _Level:
         if step[0] is not self._full_step:
             return step
 
-        out = expanded_step(
-            lambda alpha: self._trial(self.t + alpha * delta), step, self.e_cur, predicted, self.opts.line_search_expand
-        )
+        def trial(alpha: float) -> tuple:
+            t_far = self.t + alpha * delta
+            F_far, _ = self.shade(t_far)
+            alb_far, r_far, e_data = self.refit(F_far, self.albedo, energy=True)
+            return t_far, F_far, None, alb_far, r_far, e_data + self.prior(t_far)
+
+        out = expanded_step(trial, step, self.e_cur, predicted, self.opts.line_search_expand)
         self.info["expanded_steps"] += out is not step
-        self.tm.lap("line_search")
-        return out
-
-    def _trial(self, t_far: np.ndarray) -> tuple:
-        """(t, F, None, albedo, r, energy) at depth ``t_far``, the albedo refitted from the current one (as the line
-        search's trials: energies compare like for like); no derivatives (left to the next step)."""
-        F_far, _ = self.shade(t_far)
-        alb_far, r_far, e_data = self.refit(F_far, self.albedo, energy=True)
-        return t_far, F_far, None, alb_far, r_far, e_data + self.prior(t_far)
-
-    def _accelerated(self, step: tuple, predicted: float) -> tuple:
-        """The accepted ``step``, or Anderson's extrapolated iterate (:func:`anderson_point`) where the level converges
-        linearly (the prediction fell by less than 1 / ``anderson_rate`` since the step before) and the iterate's
-        energy is below the step's (:func:`lower_energy`)."""
-        self._history = [*self._history, (self.t, step[0] - self.t)][-(self.opts.anderson_memory + 1) :]
-        previous, self._predicted_prev = self._predicted_prev, predicted
-        if len(self._history) < 2 or previous is None or predicted <= self.opts.anderson_rate * previous:
-            return step
-        t_aa = anderson_point([x for x, _ in self._history], [f for _, f in self._history])
-        out = lower_energy(self._trial(t_aa), step)
-        self.info["accelerated_steps"] += out is not step
         self.tm.lap("line_search")
         return out
 
@@ -1061,34 +1037,6 @@ def expanded_step(
         return full
     far = trial(2.0)
     return far if far[-1] < full[-1] else full
-
-
-def anderson_point(iterates: Sequence[np.ndarray], steps: Sequence[np.ndarray]) -> np.ndarray:
-    """Anderson acceleration (type II) of the fixed-point map x -> x + step(x), from its last m + 1 iterates.
-
-    Parameters
-    ----------
-    iterates : sequence of (N,) float64
-        x_0 ... x_m, oldest first.
-    steps : sequence of (N,) float64
-        The map's steps f_i = G(x_i) - x_i at those iterates.
-
-    Returns
-    -------
-    (N,) float64: x_m + f_m - (dX + dF) gamma, gamma the least-squares fit of f_m by dF (the differences of
-    consecutive steps; dX those of the iterates). Exact in one move for a linear map with m = 1 in one dimension
-    (or along one mode): x_m + f_m / (1 - rho) where f_m = rho f_{m-1}.
-    """
-    dX = np.stack([b - a for a, b in zip(iterates[:-1], iterates[1:])], axis=1)
-    dF = np.stack([b - a for a, b in zip(steps[:-1], steps[1:])], axis=1)
-    gamma = np.linalg.lstsq(dF, steps[-1], rcond=None)[0]
-    return iterates[-1] + steps[-1] - (dX + dF) @ gamma
-
-
-def lower_energy(candidate: tuple, plain: tuple) -> tuple:
-    """``candidate`` if its energy (the last item) is below ``plain``'s, else ``plain``: an accelerated iterate
-    never raises the energy over the plain step it replaces."""
-    return candidate if candidate[-1] < plain[-1] else plain
 
 
 def _robust_scale(

@@ -80,14 +80,6 @@ class SolverOptions:
     step saved a Gauss-Newton step there (benchmarks/RESULTS.md, s23-gn). 4: the smooth and flat-faced presses'
     steps stay below it (2.3-2.9x), so they never try it; a doubled step won on every large level where it was
     tried but one."""
-    anderson_memory: int = 0
-    """Anderson acceleration (type II) of the finest level's Gauss-Newton iteration on log-depth: this many earlier
-    accepted steps are mixed into an extrapolated iterate, tried once after an accepted step and kept only if its
-    energy is below that step's (0 = off). Only where the level converges linearly (``anderson_rate``)."""
-    anderson_rate: float = 0.15
-    """Anderson's guard: it is tried only after a step whose predicted decrease is more than this fraction of the
-    step before's (a linearly converging tail, IRLS on relief); the smooth presses' predictions fall by 15-60x a
-    step and never try it."""
     shadow_level: float = 0.01
     """Observed intensity below this fraction of the LED image's 99th percentile is shadow: excluded."""
     dead_led_level: float = tolerances.LIT_LEVEL
@@ -135,8 +127,6 @@ class SolverOptions:
             )
         if not (self.line_search_expand == 0 or self.line_search_expand >= 1):
             raise ConfigError(f"solver.line_search_expand must be 0 (off) or >= 1, got {self.line_search_expand}")
-        if self.anderson_memory < 0 or not 0 <= self.anderson_rate < 1:
-            raise ConfigError("solver.anderson_memory must be >= 0 and solver.anderson_rate in [0, 1)")
         if self.pyramid_levels < 0 or self.min_level_size < 4:
             raise ConfigError("solver.pyramid_levels must be >= 0 and solver.min_level_size >= 4")
         if self.min_leds < 1:
