@@ -564,7 +564,9 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
             images = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in STILL_SUFFIXES)
             if not images:
                 raise CaptureError(f"{path}: no press folders and no image frames ({', '.join(STILL_SUFFIXES)}) in it")
-            if is_incomplete_press(path):
+            # A press's dark and LED images are no frames; a tri-colour frame kept under the press's name
+            # (frames/tricolor.png, copied from a press) is one, so tricolor.png alone is inferred
+            if is_incomplete_press(path) and any(p.name == "dark.png" or p.name.startswith("led_") for p in images):
                 raise CaptureError(
                     f"{path}: looks like a press folder (dark.png, led_*.png) without its {META_FILE}: an "
                     "incomplete capture; capture it again (its dark and LED images are not tri-colour frames)"

@@ -852,3 +852,22 @@ def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tm
         len(err) == 1 and f"{out}: no press folders found ({out} holds results of image frames, e.g. a_sphere" in err[0]
     )
     assert f"`nlips eval PRESS --result {out / 'a_sphere'}`" in err[0], err
+
+
+def test_a_folder_holding_only_a_copied_tricolor_png_is_a_folder_of_frames(tiny_model, tmp_path, capsys):
+    """A folder holding one press's tricolor.png copied alone (the lab-2 walk: a held-out frame of another design)
+    was refused as "looks like a press folder (dark.png, led_*.png) without its meta.json", neither of which it held.
+    """
+    import shutil
+
+    model, root = tiny_model
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    shutil.copy(root / "reference" / "tricolor.png", frames / "tricolor.png")
+    out = tmp_path / "out"
+    assert main(["--no-progress", "infer", str(model), str(frames), "--out", str(out)]) == 0
+    assert "1 frame(s)" in capsys.readouterr().out
+    assert (out / "tricolor" / "result.npz").is_file()
+    shutil.copy(root / "reference" / "dark.png", frames / "dark.png")  # a press's own images: still refused
+    assert main(["--no-progress", "infer", str(model), str(frames), "--out", str(tmp_path / "o2")]) == 2
+    assert "without its meta.json" in capsys.readouterr().err
