@@ -492,9 +492,9 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
     frames = [folder for folder, press in saved if not press]
     presses = [folder for folder, press in saved if press]
     if frames and presses:
-        where = f": {len(frames)} for frames in {_where(frames)}, {len(presses)} for presses in {_where(presses)}"
+        where = f": {len(frames)} for frames in {_where(frames)}, {len(presses)} for presses in {_where(presses, True)}"
     else:
-        where = f" in {_where(frames or presses)}"
+        where = f" in {_where(frames or presses, not frames)}"
     files = "result.npz, report.json" + (", points.ply" if ply else "")
     # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
     scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
@@ -508,8 +508,12 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
     return f"{counts}{where} ({files}; {scores})"
 
 
-def _where(folders: Sequence[Path]) -> str:
-    """The folder that holds ``folders`` (a frame's or press's result folders), else where each press keeps its."""
+def _where(folders: Sequence[Path], presses: bool = False) -> str:
+    """The folder that holds ``folders`` (frames' result folders), a press's result folder itself (one press), else
+    where each press keeps its. A press's result is PRESS/nlipsnet (or OUT/PRESS/nlipsnet): naming the folder above
+    it ("in OUT/press/") sent ``nlips eval PRESS --result OUT/press`` to "no reconstruction there"."""
+    if presses and len(folders) == 1:
+        return f"{folders[0]}/"
     parents = {f.parent for f in folders}
     return f"{folders[0].parent}/" if len(parents) == 1 else f"each press's {folders[0].name}/ (e.g. {folders[0]})"
 
@@ -643,11 +647,18 @@ def read_still(path: str | Path, eight_bit: Callable[[Path], None] | None = None
 
 def _press_loader(folder: Path) -> Callable[[Predictor], np.ndarray]:
     def load(predictor: Predictor) -> np.ndarray:
-        from ..core.sensor_record import check_sensor
+        from ..core.capture import read_optics
+        from ..core.errors import CaptureError
+        from ..core.sensor_record import check_sensor, surface_mismatch
         from ..learn.infer import load_tricolor
 
         frame, sensor = load_tricolor(folder)
         check_sensor(predictor.model.sensor, sensor, folder)
+        # camera and LEDs alike, the dome may still be another (a design of one's own with another height): the
+        # model's normals and depth are then meaningless, so refused as another sensor, not only warned about
+        reference = read_optics(folder).reference
+        if reference is not None and (why := surface_mismatch(predictor.model.reference["depth"], reference.depth)):
+            raise CaptureError(f"{folder}: captured with another sensor than the model was calibrated for ({why})")
         return frame
 
     return load
