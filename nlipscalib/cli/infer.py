@@ -214,7 +214,7 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
     name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     size_emulator_for(args, predictor.shape)
-    check_emulated_sensor(args, predictor.model.sensor)
+    check_emulated_sensor(args, predictor.model.sensor, predictor.model.reference["depth"])
     stats = None
     try:
         with contextlib.ExitStack() as stack:
