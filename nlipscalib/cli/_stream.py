@@ -16,6 +16,8 @@ from .leds import add_baud_argument, check_baud
 from .options import check_size_pair, fill_defaults, option, typed
 
 if TYPE_CHECKING:  # named in hints only: imported when a stream is opened
+    import numpy as np
+
     from ..device.camera import FrameSource
     from ..emulator import EmulatedCamera
     from ..learn.infer import Predictor
@@ -212,17 +214,20 @@ def size_emulator_for(args: argparse.Namespace, shape: tuple[int, int]) -> None:
     args.width, args.height = w, h  # one side typed, at the model's: the other is the model's too, not the scene's
 
 
-def check_emulated_sensor(args: argparse.Namespace, sensor: dict) -> None:
-    """Refuse ``--emulate SCENE`` when its sensor (camera at the size streamed, LEDs) is not the one the model was
-    calibrated for (``sensor``, the model's record), as ``nlips infer`` refuses presses of another sensor (the
-    same check: :func:`nlipscalib.core.sensor_record.sensor_mismatch`). Called after :func:`size_emulator_for`,
-    before anything is rendered.
+def check_emulated_sensor(args: argparse.Namespace, sensor: dict, reference_depth: np.ndarray | None = None) -> None:
+    """Refuse ``--emulate SCENE`` when its sensor (camera at the size streamed, LEDs, undeformed dome) is not the one
+    the model was calibrated for (``sensor``, the model's record; ``reference_depth``, (H, W) float mm, its
+    calibration's undeformed surface), as ``nlips infer`` refuses presses of another sensor (the same checks:
+    :func:`nlipscalib.core.sensor_record.sensor_mismatch` and ``surface_mismatch``). Called after
+    :func:`size_emulator_for`, before anything is rendered.
 
     Why: the emulated scene's geometry is known, yet only the brightness heuristic (`learn.watch.MismatchWatch`) spoke,
-    and a scene of similar brightness streamed another sensor's frames through the model without a word.
+    and a scene of similar brightness streamed another sensor's frames through the model without a word; a scene of
+    another dome with the model's camera and LEDs (a copy of fingertip.toml with another height) still did.
     """
+    from ..core.dome import reference_surface
     from ..core.errors import CaptureError
-    from ..core.sensor_record import describe_sensor, sensor_mismatch
+    from ..core.sensor_record import describe_sensor, sensor_mismatch, surface_mismatch
     from ..sim.scene import load_scene
 
     if not args.emulate:
@@ -230,6 +235,8 @@ def check_emulated_sensor(args: argparse.Namespace, sensor: dict) -> None:
     scene = load_scene(args.emulate)
     scene = scene.replace(camera={k: v for k, v in {"width": args.width, "height": args.height}.items() if v})
     why = sensor_mismatch(sensor, describe_sensor(scene.camera_model(), scene.led_models(), scene.noise.response()))
+    if not why and reference_depth is not None:
+        why = surface_mismatch(reference_depth, reference_surface(scene.design).depth)
     if why:
         raise CaptureError(
             f"--emulate {args.emulate}: the emulated sensor of {args.emulate} is another sensor than the model "

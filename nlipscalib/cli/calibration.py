@@ -219,21 +219,28 @@ def reference_fits(reference: Path, presses: Sequence[Path]) -> None:
     """One line, before any solving, when the undeformed capture cannot be read or is of another sensor than
     the first readable press (every press's solve failed on it alike: one line per press). A press whose
     meta.json cannot be read is not compared: it fails alone, in its own line."""
-    from ..core.capture import META_FILE, load_press, parse_optics, read_meta
+    from ..core.capture import META_FILE, load_press, parse_optics, read_meta, read_optics
     from ..core.errors import CaptureError, ConfigError
-    from ..core.sensor_record import describe_sensor, sensor_mismatch, sensor_of
+    from ..core.sensor_record import describe_sensor, sensor_mismatch, sensor_of, surface_mismatch
     from ..pipeline.settings import twin_reference_problem
 
-    theirs = sensor_of(load_press(reference))
+    undeformed = load_press(reference)
+    theirs = sensor_of(undeformed)
     for press in presses:
         try:
             meta = read_meta(press)
             ours = describe_sensor(*parse_optics(meta, press / META_FILE))
+            surface = read_optics(press).reference
         except CaptureError:
             continue
-        if why := sensor_mismatch(theirs, ours):
+        why = sensor_mismatch(theirs, ours)
+        # camera and LEDs alike, the dome may be another (a design of one's own): said as `nlips solve --reference`
+        # says it, not as "other twin settings" with a remedy of re-rendering
+        if not why and surface is not None and undeformed.reference is not None:
+            why = surface_mismatch(surface.depth, undeformed.reference.depth)
+        if why:
             raise ConfigError(f"--reference {reference}: not a capture of the sensor of {press} ({press}: {why})")
-        if why := twin_reference_problem(reference, read_meta(reference), press, meta):
+        if why := twin_reference_problem(reference, read_meta(reference), press, meta, optional=False):
             raise ConfigError(f"--reference {why}")
         return
 

@@ -214,7 +214,7 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
     name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     size_emulator_for(args, predictor.shape)
-    check_emulated_sensor(args, predictor.model.sensor)
+    check_emulated_sensor(args, predictor.model.sensor, predictor.model.reference["depth"])
     stats = None
     try:
         with contextlib.ExitStack() as stack:
@@ -492,9 +492,9 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
     frames = [folder for folder, press in saved if not press]
     presses = [folder for folder, press in saved if press]
     if frames and presses:
-        where = f": {len(frames)} for frames in {_where(frames)}, {len(presses)} for presses in {_where(presses)}"
+        where = f": {len(frames)} for frames in {_where(frames)}, {len(presses)} for presses in {_where(presses, True)}"
     else:
-        where = f" in {_where(frames or presses)}"
+        where = f" in {_where(frames or presses, not frames)}"
     files = "result.npz, report.json" + (", points.ply" if ply else "")
     # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
     scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
@@ -508,8 +508,12 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
     return f"{counts}{where} ({files}; {scores})"
 
 
-def _where(folders: Sequence[Path]) -> str:
-    """The folder that holds ``folders`` (a frame's or press's result folders), else where each press keeps its."""
+def _where(folders: Sequence[Path], presses: bool = False) -> str:
+    """The folder that holds ``folders`` (frames' result folders), a press's result folder itself (one press), else
+    where each press keeps its. A press's result is PRESS/nlipsnet (or OUT/PRESS/nlipsnet): naming the folder above
+    it ("in OUT/press/") sent ``nlips eval PRESS --result OUT/press`` to "no reconstruction there"."""
+    if presses and len(folders) == 1:
+        return f"{folders[0]}/"
     parents = {f.parent for f in folders}
     return f"{folders[0].parent}/" if len(parents) == 1 else f"each press's {folders[0].name}/ (e.g. {folders[0]})"
 
@@ -564,7 +568,9 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
             images = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in STILL_SUFFIXES)
             if not images:
                 raise CaptureError(f"{path}: no press folders and no image frames ({', '.join(STILL_SUFFIXES)}) in it")
-            if is_incomplete_press(path):
+            # A press's dark and LED images are no frames; a tri-colour frame kept under the press's name
+            # (frames/tricolor.png, copied from a press) is one, so tricolor.png alone is inferred
+            if is_incomplete_press(path) and any(p.name == "dark.png" or p.name.startswith("led_") for p in images):
                 raise CaptureError(
                     f"{path}: looks like a press folder (dark.png, led_*.png) without its {META_FILE}: an "
                     "incomplete capture; capture it again (its dark and LED images are not tri-colour frames)"
@@ -641,11 +647,18 @@ def read_still(path: str | Path, eight_bit: Callable[[Path], None] | None = None
 
 def _press_loader(folder: Path) -> Callable[[Predictor], np.ndarray]:
     def load(predictor: Predictor) -> np.ndarray:
-        from ..core.sensor_record import check_sensor
+        from ..core.capture import read_optics
+        from ..core.errors import CaptureError
+        from ..core.sensor_record import check_sensor, surface_mismatch
         from ..learn.infer import load_tricolor
 
         frame, sensor = load_tricolor(folder)
         check_sensor(predictor.model.sensor, sensor, folder)
+        # camera and LEDs alike, the dome may still be another (a design of one's own with another height): the
+        # model's normals and depth are then meaningless, so refused as another sensor, not only warned about
+        reference = read_optics(folder).reference
+        if reference is not None and (why := surface_mismatch(predictor.model.reference["depth"], reference.depth)):
+            raise CaptureError(f"{folder}: captured with another sensor than the model was calibrated for ({why})")
         return frame
 
     return load

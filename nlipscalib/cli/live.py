@@ -193,7 +193,7 @@ def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
         if args.model:  # before the source: the emulated sensor then renders at the model's image size
             predict, reference_depth = _nlipsnet(args)
             size_emulator_for(args, predict.predictor.shape)
-            check_emulated_sensor(args, predict.predictor.model.sensor)
+            check_emulated_sensor(args, predict.predictor.model.sensor, predict.predictor.model.reference["depth"])
         source, before_frame = open_frames(args, stack, loop=window)
         if not args.model:
             predict, reference_depth = _plugged(args.predictor, source.shape)

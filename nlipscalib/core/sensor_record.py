@@ -15,9 +15,11 @@ from typing import TYPE_CHECKING
 
 from .errors import CaptureError
 from .leds import Leds, led_geometry_mismatch, tricolor_groups
-from .tolerances import SAME_DISTORTION_ABS, SAME_INTRINSICS_ABS_PX, SAME_INTRINSICS_RTOL
+from .tolerances import SAME_DISTORTION_ABS, SAME_INTRINSICS_ABS_PX, SAME_INTRINSICS_RTOL, SAME_SURFACE_MM
 
 if TYPE_CHECKING:  # names in hints only: this module imports the camera where it checks one
+    import numpy as np
+
     from .camera import Camera
     from .capture import Press, SensorResponse
 
@@ -67,6 +69,33 @@ def sensor_mismatch(expected: dict, actual: dict) -> str | None:
         return led_geometry_mismatch(
             expected["led_positions"], expected["led_directions"], actual["led_positions"], actual["led_directions"]
         )
+    return None
+
+
+def surface_mismatch(expected_depth: np.ndarray, actual_depth: np.ndarray) -> str | None:
+    """Why two captures' undeformed surfaces are not one sensor's, or None when they agree.
+
+    Parameters
+    ----------
+    expected_depth, actual_depth : (H, W) float array, mm, NaN off the gel
+        The undeformed gel surface's z, camera frame (reference.npz, or a model's calibration reference),
+        on one camera (same shape).
+
+    Why: the camera and LED ring alone let a capture of another dome pass (a user's design with the dome 4 mm
+    lower: a model of the original inferred it with a warning, 16 deg and 3.3 mm off). The median distance
+    over the pixels both show, against :data:`~nlipscalib.core.tolerances.SAME_SURFACE_MM`.
+    """
+    import numpy as np
+
+    a, b = np.asarray(expected_depth, float), np.asarray(actual_depth, float)
+    if a.shape != b.shape:
+        return f"undeformed surfaces of {b.shape[1]}x{b.shape[0]} and {a.shape[1]}x{a.shape[0]} pixels"
+    both = np.isfinite(a) & np.isfinite(b)
+    if not both.any():
+        return "their undeformed surfaces share no pixel"
+    gap = float(np.median(np.abs(a[both] - b[both])))
+    if gap > SAME_SURFACE_MM:
+        return f"undeformed surfaces {gap:.2f} mm apart (median)"
     return None
 
 

@@ -153,9 +153,12 @@ def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
             raise CaptureError(why)
 
 
-def twin_reference_problem(reference: Path, reference_meta: dict, press: Path, press_meta: dict) -> str:
+def twin_reference_problem(
+    reference: Path, reference_meta: dict, press: Path, press_meta: dict, optional: bool = True
+) -> str:
     """The line refusing ``reference`` as the undeformed capture of ``press`` when both are twin renders of other
-    light settings (:func:`twin_render_difference`), else ""."""
+    light settings (:func:`twin_render_difference`), else "". ``optional``: the command can solve without a
+    reference (``nlips solve``), so the line offers that; ``nlips calibrate`` always solves with one."""
     why = twin_render_difference(reference_meta, press_meta)
     if not why:
         return ""
@@ -163,7 +166,7 @@ def twin_reference_problem(reference: Path, reference_meta: dict, press: Path, p
         f"{reference}: rendered with other twin settings than {press} ({why}): its light is not the press's "
         "sensor's, so the interreflection term fitted on it and the contact found against it would be wrong; render "
         "the reference as the press was (nlips render --undeformed with the press's scene and options: --bounces, "
-        "--spp, ...), or solve without --reference"
+        "--spp, ...)" + (", or solve without --reference" if optional else "")
     )
 
 

@@ -325,7 +325,10 @@ def load_scene(path: str | Path | None = None) -> SceneConfig:
     if not path.exists() and not path.suffix:
         if not (SCENES_DIR / f"{path}.toml").exists():  # a typo'd name, not a missing "config file"
             shipped = ", ".join(sorted(p.stem for p in SCENES_DIR.glob("*.toml")))
-            raise ConfigError(f"scene {str(path)!r}: no such scene file, nor a shipped scene ({shipped})")
+            # a design of one's own named as the shipped ones are (`--scene mine` beside mine.toml): name the file
+            own = [str(path.with_suffix(s)) for s in (".toml", ".yaml", ".yml") if path.with_suffix(s).is_file()]
+            hint = f"; a scene file of one's own is named with its suffix: {own[0]}" if own else ""
+            raise ConfigError(f"scene {str(path)!r}: no such scene file, nor a shipped scene ({shipped}){hint}")
         path = SCENES_DIR / f"{path}.toml"
     data = read_config_file(path)
     return from_mapping(SceneConfig, data, str(path))

@@ -11,9 +11,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core import tolerances
 from ..core.errors import CaptureError, ConfigError, ShapeError
 from ..core.leds import led_geometry_mismatch
+from ..core.sensor_record import surface_mismatch
 
 if TYPE_CHECKING:  # names in hints only: the checks read the captures' attributes, whichever kind they are
     from ..core.capture import CaptureOptics, Press
@@ -90,14 +90,7 @@ def _other_sensor(press: Press | CaptureOptics, undeformed: Press | CaptureOptic
     )
     if why or press.reference is None:
         return why
-    a, b = press.reference.depth, undeformed.reference.depth
-    both = np.isfinite(a) & np.isfinite(b)
-    if not both.any():
-        return "their undeformed surfaces share no pixel"
-    gap = float(np.median(np.abs(a[both] - b[both])))
-    if gap > tolerances.SAME_SURFACE_MM:
-        return f"undeformed surfaces {gap:.2f} mm apart (median)"
-    return None
+    return surface_mismatch(press.reference.depth, undeformed.reference.depth)
 
 
 def check_roi(roi: Sequence[int], W: int, H: int) -> tuple[int, int, int, int]:

@@ -72,6 +72,27 @@ def test_an_led_file_of_another_sensor_or_an_led_subset_is_one_line_before_any_s
     assert not (fresh / "press_0001" / "nlips").exists() and not (fresh / "calibration").exists()
 
 
+def test_presses_of_another_dome_than_the_reference_are_one_line_naming_the_surfaces(tmp_path, capsys):
+    """The lab-2 walk: a press of one's own design (the fingertip with its dome 4 mm lower) beside the fingertip's
+    reference was refused as "rendered with other twin settings (dome.height ...)", with a remedy of re-rendering
+    the reference or solving without one; on a device session (no twin settings) each press failed alone. Now the
+    undeformed surfaces are compared first, as `nlips solve --reference` compares them."""
+    from nlipscalib.core import load_press
+    from nlipscalib.core.capture import Reference
+
+    root = tmp_path / "presses"
+    synth.make_press(root / "reference", "none", size=SIZE)
+    press = synth.make_press(root / "press_0001", "sphere", size=SIZE)
+    ref = Reference.load(press / "reference.npz", load_press(press).camera.shape)
+    Reference(depth=ref.depth * 1.05, normals=ref.normals).save(press / "reference.npz")  # a dome 5 % larger
+    assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1, err
+    assert err[0].startswith(f"nlips calibrate: error: --reference {root / 'reference'}: not a capture of the sensor")
+    assert "undeformed surfaces" in err[0] and "mm apart (median)" in err[0], err
+    assert not (press / "nlips").exists() and not (root / "calibration").exists()
+
+
 def test_calibrate_leds_help_names_both_commands(capsys):
     with pytest.raises(SystemExit):
         main(["calibrate-leds", "--help"])

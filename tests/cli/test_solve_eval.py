@@ -504,6 +504,7 @@ def test_a_twin_reference_rendered_with_other_light_settings_is_refused_in_one_l
     assert main(["calibrate", str(root), "--reference", str(reference), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"nlips calibrate: error: --reference {reference}: rendered with"), err
+    assert "solve without --reference" not in err[0]  # calibrate always solves with one (it offered that anyway)
     assert not (press / "nlips").exists() and not (root / "calibration").exists()
     _as_twin_render(reference, bounces=1, spp=64, seed=0)
     assert main(["solve", str(press), "--reference", str(reference), "--no-progress"]) == 0

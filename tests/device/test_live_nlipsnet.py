@@ -87,6 +87,27 @@ def test_a_model_of_another_sensor_is_refused_on_the_emulated_sensor(reference, 
     assert main([*args, "--emulate", "nlipstac", "--frames-per-press", "1"]) == 0  # its own sensor streams
 
 
+@pytest.mark.parametrize("command", ["live", "infer"])
+def test_a_scene_of_another_dome_with_the_models_camera_and_leds_is_refused(reference, tmp_path, capsys, command):
+    """The lab-2 walk: a user's copy of a scene with its dome changed alone (camera, LED ring as they were) passed
+    the camera and LED check and streamed with a brightness warning, exit 0. The undeformed surface is compared
+    too (the design's, as the emulator renders it, against the model's calibration reference)."""
+    from nlipscalib.core.sensor import SCENES_DIR
+
+    model = _untrained_model(reference, tmp_path / "net.pt")
+    scene = tmp_path / "mine.toml"
+    text = (SCENES_DIR / "nlipstac.toml").read_text()
+    assert "radius = 15.0" in text
+    scene.write_text(text.replace("radius = 15.0", "radius = 14.0", 1))  # the dome's; the LED ring is ring_radius
+    args = (
+        ["live", "--model", str(model), "--frames", "2", "--no-window"] if command == "live" else ["infer", str(model)]
+    )
+    assert main([*args, "--emulate", str(scene), "--width", "64", "--height", "48"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"nlips {command}: error: --emulate {scene}: the emulated sensor of {scene} is another ")
+    assert "undeformed surfaces" in err and "mm apart (median)" in err and err.count("\n") == 1, err
+
+
 def test_infer_keeps_its_summary_and_report_when_the_board_is_lost_before_the_lights_off(
     reference, tmp_path, capsys, monkeypatch
 ):

@@ -18,7 +18,8 @@ def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_pres
     assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(out), "--mesh"]) == 0
     said = capsys.readouterr().out
     assert "frames/s" in said
-    assert f"saved: 1 result folder(s) in {out / HELD_OUT}/ (result.npz, report.json, points.ply;" in said
+    # the result's own folder, which `nlips eval PRESS --result` takes (it named OUT/PRESS/, the folder above it)
+    assert f"saved: 1 result folder(s) in {out / HELD_OUT / 'nlipsnet'}/ (result.npz, report.json, points.ply;" in said
     press = load_press(twin_presses / HELD_OUT)
     rec = load_reconstruction(out / HELD_OUT / "nlipsnet", press.camera.shape)
     scores = evaluate(rec, press.ground_truth)["contact"]
@@ -763,7 +764,7 @@ def test_the_saved_line_says_where_frames_and_presses_results_are(tiny_model, tm
     a frame's folder named as a press's. Now frames and presses are said apart, inferred or all kept; a re-run that
     keeps every result says so (it said "saved: 4 result folder(s)" of results it did not write)."""
     command, out = _frames_and_a_press(tiny_model, tmp_path)
-    where = f": 3 for frames in {out}/, 1 for presses in {out / 'press'}/ (result.npz, "
+    where = f": 3 for frames in {out}/, 1 for presses in {out / 'press' / 'nlipsnet'}/ (result.npz, "
     for counts in ("saved: 4 result folder(s)", "kept: 4 result folder(s) as they were (nothing written)"):
         assert main(command) == 0  # inferred, then all kept (said without loading the model)
         assert capsys.readouterr().out.splitlines()[1].startswith(counts + where)
@@ -852,3 +853,46 @@ def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tm
         len(err) == 1 and f"{out}: no press folders found ({out} holds results of image frames, e.g. a_sphere" in err[0]
     )
     assert f"`nlips eval PRESS --result {out / 'a_sphere'}`" in err[0], err
+
+
+def test_a_folder_holding_only_a_copied_tricolor_png_is_a_folder_of_frames(tiny_model, tmp_path, capsys):
+    """A folder holding one press's tricolor.png copied alone (the lab-2 walk: a held-out frame of another design)
+    was refused as "looks like a press folder (dark.png, led_*.png) without its meta.json", neither of which it held.
+    """
+    import shutil
+
+    model, root = tiny_model
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    shutil.copy(root / "reference" / "tricolor.png", frames / "tricolor.png")
+    out = tmp_path / "out"
+    assert main(["--no-progress", "infer", str(model), str(frames), "--out", str(out)]) == 0
+    assert "1 frame(s)" in capsys.readouterr().out
+    assert (out / "tricolor" / "result.npz").is_file()
+    shutil.copy(root / "reference" / "dark.png", frames / "dark.png")  # a press's own images: still refused
+    assert main(["--no-progress", "infer", str(model), str(frames), "--out", str(tmp_path / "o2")]) == 2
+    assert "without its meta.json" in capsys.readouterr().err
+
+
+def test_a_press_of_another_dome_is_refused_as_another_sensor(tiny_model, tmp_path, capsys):
+    """The lab-2 walk: a design of one's own (the fingertip with its dome 4 mm lower, camera and LEDs as they were)
+    passed the model's camera and LED check; `nlips infer` only warned "captured with other settings" and wrote a
+    result 16 deg and 3.3 mm off, exit 0. The undeformed surface is compared too, as `nlips solve --reference` does."""
+    import shutil
+
+    from nlipscalib.core.capture import Reference
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    press = tmp_path / "other_dome"
+    shutil.copytree(root / NAMES[0], press, ignore=shutil.ignore_patterns("nlips"))
+    ref = Reference.load(press / "reference.npz", load_press(press).camera.shape)
+    Reference(depth=ref.depth * 1.05, normals=ref.normals).save(press / "reference.npz")  # a dome 5 % larger
+    out = tmp_path / "out"
+    assert main(["--no-progress", "infer", str(model), str(press), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"nlips infer: error: {press}: captured with another sensor than the model was calibrated")
+    assert "undeformed surfaces" in err[0] and "mm apart (median)" in err[0], err
+    assert not (out / press.name / "nlipsnet").exists()
+    assert main(["--no-progress", "infer", str(model), str(root / NAMES[0]), "--out", str(out)]) == 0  # its own dome

@@ -41,6 +41,23 @@ def test_a_scene_name_that_is_neither_a_file_nor_shipped_says_so_and_lists_the_s
         load_scene("missing.toml")  # a file name keeps its message
 
 
+def test_a_scene_file_named_without_its_suffix_is_named_in_the_error(tmp_path, monkeypatch):
+    """The lab-2 walk: a copy of fingertip.toml saved as myfinger.toml and given as `--scene myfinger` (as the
+    shipped scenes are named) was "no such scene file, nor a shipped scene (...)", the file beside it unnamed."""
+    from nlipscalib.core.errors import ConfigError
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "myfinger.toml").write_text((SCENES_DIR / "fingertip.toml").read_text())
+    with pytest.raises(ConfigError) as err:
+        load_scene("myfinger")
+    assert str(err.value).startswith("scene 'myfinger': no such scene file, nor a shipped scene (")
+    assert str(err.value).endswith("; a scene file of one's own is named with its suffix: myfinger.toml")
+    assert load_scene("myfinger.toml").dome.shape == "fingertip"
+    with pytest.raises(ConfigError) as err:
+        load_scene("nowhere")
+    assert "of one's own" not in str(err.value)  # no file of that name: no hint
+
+
 def test_a_dataset_folder_given_for_its_spec_is_called_a_folder(tmp_path, monkeypatch, capsys):
     """`nlips dataset out/small --out ...` (the rendered folder, not its spec) said "dataset spec 'out/small': no
     such file, nor a shipped dataset spec": the folder is there, and the line sent the user looking for it."""
