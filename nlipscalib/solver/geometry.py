@@ -230,7 +230,7 @@ class NormalMatrix:
       ``H.data = S m + sum_j w_j e_j`` with one sparse map S, built once. An assembly is then one sparse
       matrix-vector product: 0.04 s instead of 0.38-0.49 s at 307,200 pixels, for a build of 1.1-1.5 s. That
       pays where the level recurs: the large levels of the sensor's whole gel, whose operators are kept on disk
-      for every later press of the sensor (:data:`nlipscalib.solver.nlips.OPERATOR_PERSIST_PIXELS`).
+      for every later press of the sensor (:data:`nlipscalib.solver.operators.OPERATOR_PERSIST_PIXELS`).
 
     Parameters
     ----------

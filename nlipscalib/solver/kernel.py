@@ -2,7 +2,7 @@
 
 Everything here works on flat pixel lists (N pixels inside the solve mask) and is elementwise or a
 sum over LEDs, so the same code runs on numpy arrays (CPU) and torch tensors (CPU or GPU). The sparse
-assembly and the linear solve stay in scipy/pyamg (see :mod:`nlipscalib.solver.nlips`).
+assembly and the linear solve stay in scipy/pyamg (see :mod:`nlipscalib.solver.gauss_newton`).
 
 Model (Quéau et al. 2018), LED i, channel c, log-depth t, x = exp(t) q, N = -(t_u A + t_v B + C)::
 

@@ -53,7 +53,7 @@ def masked_planes(stack: np.ndarray, mask: np.ndarray, dtype: npt.DTypeLike) -> 
 
 
 GEOMETRY_LEVELS = 8
-"""Levels whose rays and normal basis a process keeps (as :data:`nlipscalib.solver.nlips.OPERATOR_LEVELS` keeps
+"""Levels whose rays and normal basis a process keeps (as :data:`nlipscalib.solver.operators.OPERATOR_LEVELS` keeps
 their operators): a pyramid's four to six, and a spare."""
 
 

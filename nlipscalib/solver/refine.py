@@ -40,8 +40,9 @@ import numpy as np
 from ..core import tolerances
 from ..core.leds import SHADING_BLOCK, Leds, led_arrays, led_shading
 from . import robust, threads
-from .nlips import SolveResult, exclusions
+from .nlips import SolveResult
 from .options import SolverOptions
+from .samples import exclusions
 
 
 def refine_result(

@@ -1,10 +1,10 @@
-"""The expanding line search (:func:`nlipscalib.solver.nlips.expanded_step`): a doubled Gauss-Newton step where the
-step's actual energy decrease beat its model's prediction by a wide margin."""
+"""The expanding line search (:func:`nlipscalib.solver.gauss_newton.expanded_step`): a doubled Gauss-Newton step
+where the step's actual energy decrease beat its model's prediction by a wide margin."""
 
 import pytest
 
 from nlipscalib.solver import SolverOptions
-from nlipscalib.solver.nlips import expanded_step
+from nlipscalib.solver.gauss_newton import expanded_step
 
 
 def _newton(energy, x0: float, g: float, h_model: float):

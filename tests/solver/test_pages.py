@@ -37,7 +37,7 @@ def test_ordinary_pages_inside_and_numpys_setting_back_after(before):
 @pytest.mark.skipif(pages._setter() is None, reason="this NumPy has no huge-page switch")
 def test_a_solve_runs_without_huge_pages_and_restores_the_setting(monkeypatch, tmp_path):
     from nlipscalib.core import load_press
-    from nlipscalib.solver import nlips
+    from nlipscalib.solver import nlips  # the entry calls _coarse_to_fine under its own name
 
     seen = []
     inner = nlips._coarse_to_fine

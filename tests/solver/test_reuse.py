@@ -122,11 +122,11 @@ def test_presses_of_one_sensor_solve_alike_with_reused_sensor_work(tmp_path):
 
 
 def test_solves_on_one_mask_share_its_difference_operators(tmp_path, monkeypatch):
-    from nlipscalib.solver import nlips
+    from nlipscalib.solver import operators
 
     made = []
-    make = nlips._make_operators
-    monkeypatch.setattr(nlips, "_make_operators", lambda mk, **kw: made.append(int(mk.sum())) or make(mk, **kw))
+    make = operators._make_operators
+    monkeypatch.setattr(operators, "_make_operators", lambda mk, **kw: made.append(int(mk.sum())) or make(mk, **kw))
     press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(96, 72)))
     first = solve_press(press, interreflection="off")
     levels = len(made)
@@ -301,10 +301,10 @@ def _solve_fields(press, undeformed):
 
 
 def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, disk, monkeypatch):
-    from nlipscalib.solver import contact, indirect, nlips
+    from nlipscalib.solver import contact, indirect, operators
 
     # the whole gel's levels this large keep their operators on disk, with the fixed-pattern map
-    monkeypatch.setattr(nlips, "OPERATOR_PERSIST_PIXELS", 1000)
+    monkeypatch.setattr(operators, "OPERATOR_PERSIST_PIXELS", 1000)
     folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere")}
     press, undeformed = load_press(folders["sphere"]), load_press(folders["none"])
     monkeypatch.setenv(diskcache.ENV_DIR, "off")
@@ -378,7 +378,7 @@ def test_solve_commands_in_separate_processes_share_the_disk_cache(tmp_path, dis
 
 def test_a_level_assembled_by_the_fixed_pattern_map_solves_as_with_products(tmp_path, monkeypatch):
     from nlipscalib.core.metrics import angular_error_map
-    from nlipscalib.solver import nlips
+    from nlipscalib.solver import operators
 
     press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(96, 72)))
 
@@ -388,10 +388,10 @@ def test_a_level_assembled_by_the_fixed_pattern_map_solves_as_with_products(tmp_
         return solve_press(press, interreflection="off")
 
     products = solve()
-    monkeypatch.setattr(nlips, "OPERATOR_PERSIST_PIXELS", 1000)  # the whole gel's levels but the coarsest
+    monkeypatch.setattr(operators, "OPERATOR_PERSIST_PIXELS", 1000)  # the whole gel's levels but the coarsest
     made = []
-    make = nlips._make_operators
-    monkeypatch.setattr(nlips, "_make_operators", lambda mk, **kw: made.append(make(mk, **kw)) or made[-1])
+    make = operators._make_operators
+    monkeypatch.setattr(operators, "_make_operators", lambda mk, **kw: made.append(make(mk, **kw)) or made[-1])
     fixed = solve()
     assert any(ops["normal"].fixed is not None for ops in made)
     made.clear()

@@ -10,7 +10,7 @@ from nlipscalib.core.metrics import evaluate
 from nlipscalib.solver import SolverOptions, reuse, solve, threads
 from nlipscalib.solver.contact import classify_contact, led_levels
 from nlipscalib.solver.indirect import Surface, direct_shading, fit_indirect, surface_digest
-from nlipscalib.solver.nlips import exclusions
+from nlipscalib.solver.samples import exclusions
 
 from . import synth
 
@@ -196,7 +196,7 @@ def test_the_exclusions_bright_ends_per_led_on_the_pool_are_the_stacks_percentil
     """exclusions' thresholds, the 99th percentiles of each LED image (over pixels and channels, and per channel)
     taken one LED per pool task: the bits of the percentiles along the axes of the whole sampled stack, on one
     thread and on two, in float32 and in float64."""
-    from nlipscalib.solver.nlips import _bright_ends
+    from nlipscalib.solver.samples import _bright_ends
 
     lin = press.linear(press.led_images).astype(np.float32)
     lin[3] *= 0.25  # LEDs of different brightness: a swapped result would show
@@ -339,7 +339,7 @@ def test_an_unrefined_finest_level_runs_no_model_and_brings_up_the_coarser_level
     """A pass left unrefined brings its finest level up from the finest iterated one: no model is made on it (its
     albedo fit cost 0.65 s of CPU per 640x480 pass), its depth is the coarser one's brought up, its normals that
     depth's, its albedo the coarser level's brought up (the image's albedo is uniform here: near it)."""
-    from nlipscalib.solver import kernel, nlips
+    from nlipscalib.solver import gauss_newton, kernel
 
     sizes = []
     plain = kernel.make_model
@@ -348,7 +348,7 @@ def test_an_unrefined_finest_level_runs_no_model_and_brings_up_the_coarser_level
         sizes.append(q.shape[0])
         return plain(be, q, *args)
 
-    monkeypatch.setattr(nlips, "make_model", counted)
+    monkeypatch.setattr(gauss_newton, "make_model", counted)
     lin = press.linear(press.led_images)
     two = SolverOptions(pyramid_levels=2)
     rough = solve(lin, press.camera, press.leds, prior_depth=press.reference.depth, options=two, unrefined=1)
@@ -370,20 +370,20 @@ def test_an_unrefined_finest_level_runs_no_model_and_brings_up_the_coarser_level
 
 def test_the_finest_levels_operators_made_ahead_on_a_thread_are_made_once_and_give_the_same_bits(press, monkeypatch):
     """A pass left unrefined makes its finest level's operators on a thread of its own while the coarser level is
-    solved (:func:`nlips._operators_ahead`): once, and the same result as on one core, where they are made in
+    solved (:func:`operators._operators_ahead`): once, and the same result as on one core, where they are made in
     place; not again when this process keeps them."""
     import threading
 
-    from nlipscalib.solver import nlips
+    from nlipscalib.solver import operators
 
     made = []
-    make = nlips._make_operators
+    make = operators._make_operators
 
     def recorded(mk, **kw):
         made.append((int(mk.sum()), threading.current_thread().name))
         return make(mk, **kw)
 
-    monkeypatch.setattr(nlips, "_make_operators", recorded)
+    monkeypatch.setattr(operators, "_make_operators", recorded)
     lin = press.linear(press.led_images)
     two = SolverOptions(pyramid_levels=2)
     finest = int(np.isfinite(press.reference.depth).sum())
@@ -410,10 +410,10 @@ def test_the_finest_levels_operators_made_ahead_on_a_thread_are_made_once_and_gi
 
 
 def test_values_brought_up_to_a_finer_mask_interpolate_and_reach_its_edge():
-    """:func:`nlips._upsampled`: bilinear inside the coarse mask (a constant stays that constant, the same as
+    """:func:`coarse_to_fine._upsampled`: bilinear inside the coarse mask (a constant stays that constant, the same as
     cv2's resize of the whole field), the fine mask's edge from its valid coarse neighbours (no NaN, no zeros
     pulled in from off the mask), NaN only where the coarse level has no value at all."""
-    from nlipscalib.solver.nlips import _upsampled
+    from nlipscalib.solver.coarse_to_fine import _upsampled
     from nlipscalib.solver.pyramid import resize
 
     fine = np.zeros((40, 48), bool)
@@ -571,7 +571,7 @@ def test_shading_derivatives_only_for_the_gauss_newton_steps(press, monkeypatch)
 
 
 def test_the_intensity_scale_is_the_percentile_of_the_usable_samples(press):
-    from nlipscalib.solver.nlips import _high_level
+    from nlipscalib.solver.samples import _high_level
 
     lin = press.linear(press.led_images).astype(np.float32)
     for usable in (np.ones(lin.shape, bool), lin > np.median(lin), np.zeros(lin.shape, bool)):
@@ -582,7 +582,7 @@ def test_the_intensity_scale_is_the_percentile_of_the_usable_samples(press):
 
 
 def test_the_intensity_scale_from_the_top_samples_is_numpys_percentile_to_the_bit():
-    from nlipscalib.solver import nlips
+    from nlipscalib.solver import samples
 
     rng = np.random.default_rng(3)
     for k in range(40):
@@ -593,15 +593,15 @@ def test_the_intensity_scale_from_the_top_samples_is_numpys_percentile_to_the_bi
             images = np.round(images, 2)  # ties
         usable = rng.random(shape) < rng.uniform(0.01, 1.0)
         expected = float(np.percentile(images[usable], 99)) if usable.any() else 1.0
-        assert nlips._high_level(images, usable) == expected
+        assert samples._high_level(images, usable) == expected
     # a subsample unlike the whole (the bound above the percentile): every usable sample is partitioned
     images = np.zeros((2, 16, 16, 3), np.float32)
     images[:, ::8, ::8] = 1.0
     images[:, 1:, 1:] += np.linspace(0.0, 0.5, 15, dtype=np.float32)[:, None, None]
     usable = np.ones(images.shape, bool)
-    top, under = nlips._top_samples(images, usable, usable.size, int(0.99 * (usable.size - 1)))
+    top, under = samples._top_samples(images, usable, usable.size, int(0.99 * (usable.size - 1)))
     assert under == 0 and top.size == usable.size
-    assert nlips._high_level(images, usable) == float(np.percentile(images, 99))
+    assert samples._high_level(images, usable) == float(np.percentile(images, 99))
 
 
 def test_a_levels_geometry_is_kept_and_equals_a_fresh_one(press):
@@ -623,12 +623,12 @@ def test_a_levels_geometry_is_kept_and_equals_a_fresh_one(press):
 
 
 def test_a_large_levels_normals_and_their_change_by_pixel_blocks_have_the_plain_bits():
-    """nlips._normals and _pixelwise run a large level's per-pixel work by blocks on the pool (row blocks of the
+    """operators._normals and _pixelwise run a large level's per-pixel work by blocks on the pool (row blocks of the
     difference operators' products): the bits of the one-piece computation, on one thread or two."""
     from nlipscalib.core.metrics import angle_deg
     from nlipscalib.solver import geometry
     from nlipscalib.solver.kernel import PARALLEL_MIN_PIXELS
-    from nlipscalib.solver.nlips import PIXELWISE_PIXELS, _make_operators, _normals, _pixelwise
+    from nlipscalib.solver.operators import PIXELWISE_PIXELS, _make_operators, _normals, _pixelwise
 
     mask = np.ones((300, 260), bool)
     mask[100:140, 30:90] = False
@@ -694,7 +694,7 @@ def test_the_led_and_channel_sum_has_numpys_bits():
 @pytest.mark.parametrize("whole_crop", [False, True])
 @pytest.mark.parametrize("lost_any", [False, True])
 def test_a_levels_paste_is_the_filled_image_with_its_masked_assignment(whole_crop, lost_any):
-    from nlipscalib.solver.nlips import _pasted
+    from nlipscalib.solver.crop import _pasted
 
     rng = np.random.default_rng(3)
     crop = (slice(5, 17), slice(0, 9))

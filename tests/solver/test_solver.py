@@ -230,15 +230,23 @@ def test_the_entry_check_finds_a_non_finite_value_in_any_leds_image_on_one_or_tw
 def test_normals_of_a_shaded_depth_reuse_its_gradient_to_the_bit(sphere_press, monkeypatch):
     """A level's normals at its start and at each accepted step come from the gradient its shading took (two sparse
     products fewer per step): the same bits as the normals computed from the depth again."""
-    from nlipscalib.solver import nlips
+    from nlipscalib.solver import gauss_newton, operators
 
     calls = []
-    gradient = nlips._gradient
-    monkeypatch.setattr(nlips, "_gradient", lambda ops, t: calls.append(1) or gradient(ops, t))
+    gradient = operators._gradient
+
+    def counted(ops, t):
+        calls.append(1)
+        return gradient(ops, t)
+
+    # the level's shading takes it (gauss_newton), and so do normals from a depth (operators._normals)
+    monkeypatch.setattr(gauss_newton, "_gradient", counted)
+    monkeypatch.setattr(operators, "_gradient", counted)
     reused = _solve(sphere_press)
     reused_calls = len(calls)
     calls.clear()
-    monkeypatch.setattr(nlips._Level, "normals", lambda self, tt: nlips._normals(self.ops, tt, self.A, self.B, self.C))
+    normals = operators._normals
+    monkeypatch.setattr(gauss_newton._Level, "normals", lambda self, tt: normals(self.ops, tt, self.A, self.B, self.C))
     again = _solve(sphere_press)
     steps = sum(len(level["normal_change_deg"]) + 1 for level in again.report["levels"])  # the start and each step
     assert len(calls) - reused_calls == steps

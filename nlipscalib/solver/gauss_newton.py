@@ -1,0 +1,348 @@
+"""One pyramid level's Gauss-Newton iteration on log-depth (:mod:`nlipscalib.solver.nlips` gives the energy): the
+variable-projection step with the albedo eliminated, solved inexactly by CG (:class:`.krylov.Krylov`), the
+backtracking and expanding line search on the joint energy, the robust scale, and the level's result."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..core.metrics import angle_deg
+from ..core.robust_scale import mad_scale
+from . import threads
+from .kernel import Array, Backend, ChunkedModel, Model, Parts, make_model
+from .krylov import Krylov, forcing
+from .operators import _gradient, _normals, _operators, _pixelwise, _unit_normals
+from .options import SolverOptions
+
+if TYPE_CHECKING:  # named in hints only: tqdm is imported where a progress bar is asked for
+    from tqdm import tqdm
+
+
+def _solve_level(
+    lv: dict,
+    t_init: np.ndarray,
+    leds: tuple,
+    opts: SolverOptions,
+    be: Backend,
+    bar: tqdm | None,
+    est: str,
+    coarse: bool = False,
+):
+    """Minimise the energy on one pyramid level from log-depth ``t_init`` (H, W) of that level.
+
+    On a ``coarse`` level (one whose result only starts the next), linear solves stop at a relative
+    residual of sqrt(cg_rtol): tighter solves there bought nothing the next level keeps.
+
+    Each iteration (:meth:`_Level.iterate`): variable-projection Gauss-Newton step on t (albedo eliminated),
+    solved inexactly by AMG-preconditioned CG, then a backtracking line search on the joint energy with the
+    albedo refitted (IRLS) at the trial depth: the energy never increases.
+
+    Returns
+    -------
+    (H, W) float64 log-depth (0 off the mask), the per-pixel results (normals, albedo, residual, confidence,
+    has_gradient), the level's report entry.
+    """
+    level = _Level(lv, t_init, leds, opts, be, est)
+    pcg = Krylov(opts)
+    for _ in range(opts.max_iters):
+        stop = level.iterate(pcg, coarse)
+        if bar is not None:
+            bar.update(1)
+        if stop:
+            level.info["stop"] = stop
+            break
+    level.info["iterations"] = len(level.info["normal_change_deg"])  # one per accepted step
+    level.info["amg_setups"] = pcg.setups
+    return level.finish()
+
+
+class _Level:
+    """One pyramid level's energy and the Gauss-Newton state on it: log-depth t on the mask's pixels, the
+    shading F and its derivatives dF, the albedo, the residuals r, the energy, the normals."""
+
+    def __init__(self, lv: dict, t_init: np.ndarray, leds: tuple, opts: SolverOptions, be: Backend, est: str):
+        self.tm = _Timer()
+        self.lv, self.opts, self.be, self.est = lv, opts, be, est
+        self.mk = mk = lv["mask"]
+        self.A, self.B, self.C = lv["ABC"]
+        self.ops = _operators(lv)
+        self.t0 = lv["t0"][mk]
+        self.zeta = lv["zeta"]
+        t = t_init[mk].copy()
+        self.model = model = make_model(be, lv["q"], self.A, self.B, self.C, *leds, lv["images"], lv["usable"])
+        self._gradient_of: tuple = (None,)
+        """(t, t_u, t_v) of the depth shaded last (:meth:`shade`)."""
+        self.tm.lap("setup")
+
+        F, dF = self.shade(t, True)
+        self.lam = None
+        # least squares' energy does not depend on the scale lambda (not known yet): taken in this refit
+        albedo, r, e_data = self.refit(F, None, energy=est == "ls")
+        self.lam = _robust_scale(be, model, r, lv["images"], lv["usable"], opts)
+        # The smoothness weight is relative to the data term's curvature along the gradient of t (least
+        # squares, starting depth).
+        self.gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
+        if est != "ls":
+            albedo, r, e_data = self.refit(F, albedo, energy=True)
+        self.M, self.b = model.irls_blocks(F, dF, r, albedo, self.lam, est)
+        # the derivatives and residuals are in the blocks now: not held through the linear solve and the line search
+        # (:meth:`_newton_step`); the level's result is refitted from F and the albedo (:meth:`finish`)
+        self.t, self.F, self.dF, self.albedo, self.r = t, F, None, albedo, None
+        self.e_cur = e_data + self.prior(t)
+        self.info = {
+            "shape": list(mk.shape),
+            "estimator": est,
+            "gamma": self.gamma,
+            "pixels": len(t),
+            "lambda": self.lam,
+            "energy": [self.e_cur],
+            "cg_iters": [],
+            "cg_rtol": [],
+            "normal_change_deg": [],
+            "rejected_steps": 0,
+            "expanded_steps": 0,
+            "stop": "max_iters",
+        }
+        self.nrm = self.normals(t)
+        self.g_prev = self.eta = None
+        self._full_step = None
+        """The line search's full-step trial depth (the only one :meth:`_expanded` doubles), or None."""
+        self.tm.lap("init")
+
+    # ------------------------------------------------------------------ the energy's parts
+    def shade(self, tt: np.ndarray, derivatives: bool = False):
+        # the gradient kept for the normals of the same depth (:meth:`normals`: the level's start, an accepted step)
+        self._gradient_of = (tt, *_gradient(self.ops, tt))
+        out = self.model.shading(tt, *self._gradient_of[1:], derivatives)
+        return (out[0], out[1:]) if derivatives else (out, None)
+
+    def prior(self, tt: np.ndarray) -> float:
+        # the Laplacian's product by row blocks on the pool (the same bits): one per line-search trial, ~5 ms of
+        # one core at 640x480
+        lap_t = threads.RowBlocks(self.ops["lap"]).dot(tt)
+        return float(np.sum(self.zeta * (tt - self.t0) ** 2)) + self.gamma * float(tt @ lap_t)
+
+    def refit(self, F: Array | Parts, alb: Array | Parts | None, energy: bool = False):
+        """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise; (albedo,
+        residuals, the data energy there or None) (:meth:`nlipscalib.solver.kernel.Model.refit`)."""
+        start = None if self.est == "ls" else alb
+        return self.model.refit(F, start, self.lam, self.est, energy)
+
+    def normals(self, tt: np.ndarray):
+        if self._gradient_of[0] is tt:  # shaded last: its gradient, not two sparse products again (the same bits)
+            return _unit_normals(*self._gradient_of[1:], self.A, self.B, self.C)
+        return _normals(self.ops, tt, self.A, self.B, self.C)
+
+    # ------------------------------------------------------------------ one iteration
+    def iterate(self, pcg: Krylov, coarse: bool) -> str | None:
+        """One Gauss-Newton iteration; the reason to stop (a report ``stop`` value) or None."""
+        delta, g, Hm = self._newton_step(pcg, coarse)
+        # When the model predicts less than energy_rtol of decrease, the level has converged by that
+        # criterion: the full step is taken if it does not raise the energy, and no halvings are tried.
+        # Hm's product by row blocks on the pool (the same bits): ~2.5 ms of one core at 640x480
+        predicted = -float(g @ delta) - 0.5 * float(delta @ threads.RowBlocks(Hm).dot(delta))
+        converged = predicted < self.opts.energy_rtol * self.e_cur
+        step = self._line_search(delta, converged)
+        if step is not None and not converged:
+            step = self._expanded(delta, predicted, step)
+        if step is None:
+            return "energy_rtol" if converged else "no_descent"
+        return self._accept(*step, converged)
+
+    def _newton_step(self, pcg: Krylov, coarse: bool):
+        """The Gauss-Newton step on log-depth with the IRLS weights of the current residuals, solved inexactly
+        (the forcing term loosens CG while the gradient is still large); (step, gradient, normal matrix)."""
+        model, ops, opts, t = self.model, self.ops, self.opts, self.t
+        if self.M is None:
+            if self.dF is None:  # the accepted step's derivatives, deferred until a step needs them
+                self.F, self.dF = self.shade(t, True)
+            self.M, self.b = model.irls_blocks(self.F, self.dF, self.r, self.albedo, self.lam, self.est)
+            # What the blocks are made from is not held through the assembly, the linear solve (AMG's set-up) and
+            # the line search (a trial's shading, derivatives and residuals), where a whole frame's memory peaks:
+            # the derivatives and the residuals, 44 MB each at 640x480 with 12 LEDs. The next blocks come from the
+            # accepted depth's (:meth:`_accept`).
+            self.dF = self.r = None
+            self.tm.lap("blocks")
+        M, b, zeta, gamma = self.M, self.b, self.zeta, self.gamma
+        self.M = self.b = None  # used; the next iteration's blocks come from the accepted depth
+        g = b[0] + ops["Du"].T @ b[1] + ops["Dv"].T @ b[2] + zeta * (t - self.t0) + gamma * (ops["lap"] @ t)
+        M[0, 0] += zeta + 1e-12 * max(float(np.mean(M[0, 0])), 1e-30)  # the prior; definite if zeta = 0
+        Hm = ops["normal"].assemble(M, (gamma, gamma))
+        del M, b  # (3, 3, N) and (3, N) float64: in Hm and g now
+        self.tm.lap("assemble")
+        g_norm = float(np.linalg.norm(g))
+        eta = forcing(g_norm, self.g_prev, self.eta, opts)
+        self.eta = max(eta, np.sqrt(opts.cg_rtol)) if coarse else eta
+        self.g_prev = g_norm
+        delta, iters = pcg.solve(Hm, -g, self.eta)
+        self.info["cg_iters"].append(iters)
+        self.info["cg_rtol"].append(self.eta)
+        self.tm.lap("cg")
+        return delta, g, Hm
+
+    def _line_search(self, delta: np.ndarray, converged: bool):
+        """Backtracking on the joint energy, the albedo refitted at each trial depth: (t, F, dF or None,
+        albedo, r, energy) of the first step that does not raise the energy, or None."""
+        for k in range(1 if converged else self.opts.line_search_steps + 1):
+            t_new = self.t + 0.5**k * delta
+            self._full_step = t_new if k == 0 else None
+            # the full step's derivatives with its shading (one pass); none after a converged step, which ends
+            # the level
+            F_new, dF_new = self.shade(t_new, derivatives=k == 0 and not converged)
+            alb_new, r_new, e_data = self.refit(F_new, self.albedo, energy=True)
+            e_new = e_data + self.prior(t_new)
+            if e_new <= self.e_cur:
+                self.tm.lap("line_search")
+                return t_new, F_new, dF_new, alb_new, r_new, e_new
+            self.info["rejected_steps"] += 1
+        self.tm.lap("line_search")
+        return None
+
+    def _expanded(self, delta: np.ndarray, predicted: float, step: tuple) -> tuple:
+        """The line search's accepted ``step`` (t, F, dF, albedo, r, energy), or the doubled step's where
+        :func:`expanded_step` takes it (its derivatives then left to the next step). Only a full step is doubled.
+        The doubled trial refits the albedo from the same start as the full one: the energies compare like for
+        like."""
+        if step[0] is not self._full_step:
+            return step
+
+        def trial(alpha: float) -> tuple:
+            t_far = self.t + alpha * delta
+            F_far, _ = self.shade(t_far)
+            alb_far, r_far, e_data = self.refit(F_far, self.albedo, energy=True)
+            return t_far, F_far, None, alb_far, r_far, e_data + self.prior(t_far)
+
+        out = expanded_step(trial, step, self.e_cur, predicted, self.opts.line_search_expand)
+        self.info["expanded_steps"] += out is not step
+        self.tm.lap("line_search")
+        return out
+
+    def _accept(
+        self,
+        t_new: np.ndarray,
+        F_new: Array | Parts,
+        dF_new: Sequence[Array | Parts] | None,
+        alb_new: Array | Parts,
+        r_new: Array | Parts,
+        e_new: float,
+        converged: bool,
+    ) -> str | None:
+        """Move to the accepted depth; the reason to stop there (energy or normals no longer change) or None."""
+        # dF_new None (a halved step, or one that ends the level): derived in the next step, if there is one
+        self.t, self.F, self.dF, self.albedo, self.r = t_new, F_new, dF_new, alb_new, r_new
+        nrm_new = self.normals(t_new)
+        change = float(np.median(_pixelwise(lambda p: angle_deg(self.nrm[p], nrm_new[p]), len(t_new))))
+        self.nrm = nrm_new
+        self.info["normal_change_deg"].append(change)
+        rel = (self.e_cur - e_new) / max(self.e_cur, 1e-300)
+        self.e_cur = e_new
+        self.info["energy"].append(e_new)
+        self.tm.lap("line_search")
+        if rel < self.opts.energy_rtol or converged:
+            return "energy_rtol"
+        if change < self.opts.normal_tol_deg:
+            return "normal_tol"
+        return None
+
+    # ------------------------------------------------------------------ the result
+    def finish(self):
+        """Final albedo and per-pixel diagnostics at the accepted depth (the refit cannot raise the energy):
+        (log-depth (H, W), per-pixel results, the level's report entry)."""
+        albedo, r, _ = self.refit(self.F, self.albedo)
+        albedo = self.model.whole(albedo)
+        u_np = self.lv["usable"]
+        cnt = u_np.sum(axis=(0, 1))
+        sq, wsum = self.model.fit_sums(r, self.lam, self.est)  # per chunk: no whole (L, 3, N) residual array
+        rms = np.sqrt(sq / np.maximum(cnt, 1))
+        conf = (cnt / (u_np.shape[0] * u_np.shape[1])) * (wsum / np.maximum(cnt, 1))
+        result = {
+            "normals": self.nrm,
+            "albedo": self.be.numpy(albedo),
+            "residual": np.where(cnt > 0, rms, np.nan),
+            "confidence": np.clip(conf, 0, 1),
+            "has_gradient": self.ops["has_grad"],
+        }
+        self.tm.lap("finish")
+        self.info["seconds"] = {k: round(v, 4) for k, v in self.tm.seconds.items()}
+        return _embed(self.t, self.mk), result, self.info
+
+
+def expanded_step(
+    trial: Callable[[float], tuple], full: tuple, e_start: float, predicted: float, ratio: float
+) -> tuple:
+    """The doubled step's trial where the full step's energy decrease beat its model's prediction by more than
+    ``ratio`` times and the doubled step lowers the energy further; ``full`` otherwise.
+
+    Parameters
+    ----------
+    trial : callable
+        ``trial(alpha)``: a tuple whose last item is the energy at the step scaled by ``alpha``.
+    full : tuple
+        ``trial(1.0)``'s tuple (the full step, accepted by the line search).
+    e_start : float
+        Energy before the step.
+    predicted : float
+        The decrease the Gauss-Newton model predicts for the full step (> 0 for a descent step).
+    ratio : float
+        The factor of ``predicted`` the actual decrease must exceed; 0 = never expand.
+
+    Notes
+    -----
+    IRLS weights give a robust loss a quadratic model whose curvature bounds the loss's from above (the Cauchy
+    loss is concave in r^2), so the model's step falls short where residuals sit in the loss's bend; where its
+    model is exact (least squares at the solution's weights) the actual decrease equals the prediction and the
+    doubled step is never tried. One more energy evaluation, only where it is tried.
+    """
+    if not ratio or e_start - full[-1] <= ratio * max(predicted, 0.0):
+        return full
+    far = trial(2.0)
+    return far if far[-1] < full[-1] else full
+
+
+def _robust_scale(
+    be: Backend,
+    model: Model | ChunkedModel,
+    r: Array | Parts,
+    images: np.ndarray,
+    usable: np.ndarray,
+    opts: SolverOptions,
+) -> float:
+    """Estimator scale lambda from the residuals of the usable samples, floored relative to the images.
+
+    Parameters
+    ----------
+    model : the level's model; r : (L, 3, N) residuals on the backend, as ``model`` returned them (chunks too)
+    images : (L, 3, N) normalised images; usable : (L, 3, N) usable samples as 0/1
+    """
+    # Medians over a regular subsample: up to 10^7 samples at full resolution, and a median of
+    # 2 10^5 is as good a scale estimate as it needs to be. Only the subsample is read (no whole copies).
+    step = max(1, usable.size // 200_000)
+    u = usable.reshape(-1)[::step] > 0
+    if not u.any():
+        return 1e-12
+    med_i = float(np.median(images.reshape(-1)[::step][u]))
+    r_sub = be.numpy(model.every(r, step))[u]
+    return max(opts.robust_scale * mad_scale(r_sub), opts.robust_floor * med_i, 1e-12)
+
+
+class _Timer:
+    """Accumulates wall time per named stage (reported per level, for profiling)."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+        self._t = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.seconds[name] = self.seconds.get(name, 0.0) + now - self._t
+        self._t = now
+
+
+def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    full = np.zeros(mask.shape)
+    full[mask] = values
+    return full
