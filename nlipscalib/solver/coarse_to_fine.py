@@ -10,10 +10,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.camera import Camera
-from .crop import _LevelData
-from .gauss_newton import _embed, _solve_level
+from .crop import LevelData
+from .gauss_newton import embed, solve_level
 from .kernel import Backend
-from .operators import _normals, _operators, _operators_ahead
+from .operators import depth_normals, level_operators, operators_ahead
 from .options import SolverOptions
 from .pyramid import build_pyramid, resize
 
@@ -21,15 +21,15 @@ if TYPE_CHECKING:  # named in hints only: tqdm is imported where a progress bar 
     from tqdm import tqdm
 
 
-def _pyramid(
+def level_pyramid(
     cam: Camera,
-    data: _LevelData,
+    data: LevelData,
     init_depth: np.ndarray | None,
     crop: tuple[slice, slice],
     opts: SolverOptions,
     unrefined: int,
     whole_gel: bool = False,
-):
+) -> tuple[list[dict], np.ndarray | None]:
     """The levels to solve, and the log-depth the first of them starts from (None: the prior).
 
     A warm start (``init_depth``) solves the finest level from it; with ``unrefined`` levels, the one below
@@ -60,7 +60,7 @@ def _pyramid(
     return levels, t_first
 
 
-def _coarse_to_fine(
+def solve_coarse_to_fine(
     levels: list[dict],
     leds: tuple,
     opts: SolverOptions,
@@ -69,16 +69,16 @@ def _coarse_to_fine(
     report: dict,
     t_first: np.ndarray | None = None,
     refine_finest: bool = True,
-):
+) -> tuple[np.ndarray, dict]:
     """Solve every level, coarse to fine, each from the previous one's depth change; returns the finest.
 
-    ``leds``: (positions, directions, mu, psi) of the LEDs kept (``_LevelData.leds``).
+    ``leds``: (positions, directions, mu, psi) of the LEDs kept (``LevelData.leds``).
     ``t_first``: log-depth to start the first level from (a warm start; no least-squares pre-solve).
     ``refine_finest``: False: the finest level (of several) is not iterated but brought up from the one before it
     (:func:`_brought_up`)."""
     t_state = out = None
     if not refine_finest and len(levels) > 1:
-        _operators_ahead(levels[-1])
+        operators_ahead(levels[-1])
     for k, lv in enumerate(levels):
         if t_state is None:
             t_init = lv["t0"] if t_first is None else t_first
@@ -94,10 +94,10 @@ def _coarse_to_fine(
         if k == 0 and opts.estimator != "ls" and t_first is None:
             # Least squares first on the coarsest level: from the undeformed prior, the contact's
             # residuals are large and a robust estimator would treat the dent itself as outliers.
-            t_init, _, info = _solve_level(lv, t_init, leds, opts, be, bar, "ls", coarse=True)
+            t_init, _, info = solve_level(lv, t_init, leds, opts, be, bar, "ls", coarse=True)
             report["levels"].append(info)
         coarse = k < len(levels) - 1
-        t_state, out, info = _solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse)
+        t_state, out, info = solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse)
         report["levels"].append(info)
     return t_state, out
 
@@ -116,15 +116,15 @@ def _brought_up(prev: dict, lv: dict, t_init: np.ndarray, out: dict, estimator: 
 
     Returns
     -------
-    (H, W) float64 log-depth (0 off the mask), the per-pixel results (as :func:`_solve_level`'s), the level's
+    (H, W) float64 log-depth (0 off the mask), the per-pixel results (as :func:`solve_level`'s), the level's
     report entry (no iterations, no energy).
     """
     t0 = time.perf_counter()
     mk = lv["mask"]
-    ops = _operators(lv)
+    ops = level_operators(lv)
     t = t_init[mk]
     result = {
-        "normals": _normals(ops, t, *lv["ABC"]),
+        "normals": depth_normals(ops, t, *lv["ABC"]),
         "albedo": _upsampled(out["albedo"].T, prev["mask"], mk).T,
         "residual": _upsampled(out["residual"], prev["mask"], mk),
         "confidence": _upsampled(out["confidence"], prev["mask"], mk),
@@ -147,7 +147,7 @@ def _brought_up(prev: dict, lv: dict, t_init: np.ndarray, out: dict, estimator: 
         "amg_setups": 0,
         "seconds": {"brought_up": round(time.perf_counter() - t0, 4)},
     }
-    return _embed(t, mk), result, info
+    return embed(t, mk), result, info
 
 
 def _upsampled(values: np.ndarray, coarse_mask: np.ndarray, mask: np.ndarray) -> np.ndarray:

@@ -13,10 +13,10 @@ from ..core.leds import Leds, led_arrays
 from ..core.reconstruction import Reconstruction as SolveResult  # the name nlips.py gives it
 from .options import SolverOptions
 from .pyramid import checked_prior_weights
-from .samples import _high_level, exclusions
+from .samples import exclusions, high_level
 
 
-def _crop_to_mask(mask: np.ndarray, camera: Camera) -> tuple[tuple[slice, slice], Camera]:
+def crop_to_mask(mask: np.ndarray, camera: Camera) -> tuple[tuple[slice, slice], Camera]:
     """The mask's bounding box as (rows, cols) slices, and the camera of that crop (the same lens, shifted)."""
     rows, cols = np.nonzero(mask)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
@@ -25,7 +25,7 @@ def _crop_to_mask(mask: np.ndarray, camera: Camera) -> tuple[tuple[slice, slice]
 
 
 @dataclasses.dataclass
-class _LevelData:
+class LevelData:
     """What the finest level is built from, on the mask's bounding box: the normalised images of the LEDs
     kept (dead ones dropped), their usable samples, the log-depth prior and its weights."""
 
@@ -62,7 +62,7 @@ class _LevelData:
         prior_weights: np.ndarray | None,
         leds: Leds,
         opts: SolverOptions,
-    ) -> _LevelData:
+    ) -> LevelData:
         whole = images
         H, W = mask.shape
         # Per-pixel work runs in opts.dtype; the images need no more precision than that (16-bit data).
@@ -76,7 +76,7 @@ class _LevelData:
             use &= m[None, :, :, None]
         usable_leds = np.zeros((H, W), np.int16)
         usable_leds[crop] = (use[..., 0] | use[..., 1] | use[..., 2]).sum(axis=0, dtype=np.int16)
-        scale = _high_level(images, use)  # usable lies inside the crop
+        scale = high_level(images, use)  # usable lies inside the crop
         kept = [i for i in range(len(leds)) if i not in report["dead_leds"]]
         every = len(kept) == len(leds)  # then no copy of the images and samples
         pos, dirs, mu, psi = led_arrays(leds)
@@ -94,11 +94,11 @@ class _LevelData:
         )
 
 
-def _full_image(
+def full_image(
     t_state: np.ndarray,
     out: dict,
     lv: dict,
-    data: _LevelData,
+    data: LevelData,
     mask: np.ndarray,
     crop: tuple[slice, slice],
     opts: SolverOptions,

@@ -15,14 +15,14 @@ from ..core.robust_scale import mad_scale
 from . import threads
 from .kernel import Array, Backend, ChunkedModel, Model, Parts, make_model
 from .krylov import Krylov, forcing
-from .operators import _gradient, _normals, _operators, _pixelwise, _unit_normals
+from .operators import depth_normals, level_operators, log_depth_gradient, pixelwise, unit_normals
 from .options import SolverOptions
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a progress bar is asked for
     from tqdm import tqdm
 
 
-def _solve_level(
+def solve_level(
     lv: dict,
     t_init: np.ndarray,
     leds: tuple,
@@ -31,7 +31,7 @@ def _solve_level(
     bar: tqdm | None,
     est: str,
     coarse: bool = False,
-):
+) -> tuple[np.ndarray, dict, dict]:
     """Minimise the energy on one pyramid level from log-depth ``t_init`` (H, W) of that level.
 
     On a ``coarse`` level (one whose result only starts the next), linear solves stop at a relative
@@ -69,7 +69,7 @@ class _Level:
         self.lv, self.opts, self.be, self.est = lv, opts, be, est
         self.mk = mk = lv["mask"]
         self.A, self.B, self.C = lv["ABC"]
-        self.ops = _operators(lv)
+        self.ops = level_operators(lv)
         self.t0 = lv["t0"][mk]
         self.zeta = lv["zeta"]
         t = t_init[mk].copy()
@@ -116,7 +116,7 @@ class _Level:
     # ------------------------------------------------------------------ the energy's parts
     def shade(self, tt: np.ndarray, derivatives: bool = False):
         # the gradient kept for the normals of the same depth (:meth:`normals`: the level's start, an accepted step)
-        self._gradient_of = (tt, *_gradient(self.ops, tt))
+        self._gradient_of = (tt, *log_depth_gradient(self.ops, tt))
         out = self.model.shading(tt, *self._gradient_of[1:], derivatives)
         return (out[0], out[1:]) if derivatives else (out, None)
 
@@ -134,8 +134,8 @@ class _Level:
 
     def normals(self, tt: np.ndarray):
         if self._gradient_of[0] is tt:  # shaded last: its gradient, not two sparse products again (the same bits)
-            return _unit_normals(*self._gradient_of[1:], self.A, self.B, self.C)
-        return _normals(self.ops, tt, self.A, self.B, self.C)
+            return unit_normals(*self._gradient_of[1:], self.A, self.B, self.C)
+        return depth_normals(self.ops, tt, self.A, self.B, self.C)
 
     # ------------------------------------------------------------------ one iteration
     def iterate(self, pcg: Krylov, coarse: bool) -> str | None:
@@ -235,7 +235,7 @@ class _Level:
         # dF_new None (a halved step, or one that ends the level): derived in the next step, if there is one
         self.t, self.F, self.dF, self.albedo, self.r = t_new, F_new, dF_new, alb_new, r_new
         nrm_new = self.normals(t_new)
-        change = float(np.median(_pixelwise(lambda p: angle_deg(self.nrm[p], nrm_new[p]), len(t_new))))
+        change = float(np.median(pixelwise(lambda p: angle_deg(self.nrm[p], nrm_new[p]), len(t_new))))
         self.nrm = nrm_new
         self.info["normal_change_deg"].append(change)
         rel = (self.e_cur - e_new) / max(self.e_cur, 1e-300)
@@ -268,7 +268,7 @@ class _Level:
         }
         self.tm.lap("finish")
         self.info["seconds"] = {k: round(v, 4) for k, v in self.tm.seconds.items()}
-        return _embed(self.t, self.mk), result, self.info
+        return embed(self.t, self.mk), result, self.info
 
 
 def expanded_step(
@@ -342,7 +342,7 @@ class _Timer:
         self._t = now
 
 
-def _embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def embed(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
     full = np.zeros(mask.shape)
     full[mask] = values
     return full

@@ -43,8 +43,8 @@ from ..core.leds import Leds
 from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
 from .blas import blas_threads
-from .coarse_to_fine import _coarse_to_fine, _pyramid
-from .crop import _crop_to_mask, _full_image, _LevelData
+from .coarse_to_fine import level_pyramid, solve_coarse_to_fine
+from .crop import LevelData, crop_to_mask, full_image
 from .gauss_newton import expanded_step
 from .inputs import check_inputs
 from .kernel import Backend
@@ -169,12 +169,12 @@ def _solve_checked(
 ) -> SolveResult:
     """:func:`solve` on checked inputs (see there), without its timer and warnings."""
     # Solve on the mask's bounding box only: a crop of the camera is the same lens, shifted.
-    crop, cam = _crop_to_mask(mask, camera)
-    data = _LevelData.of(images, saturated, mask, crop, prior_depth, prior_weights, leds, opts)
+    crop, cam = crop_to_mask(mask, camera)
+    data = LevelData.of(images, saturated, mask, crop, prior_depth, prior_weights, leds, opts)
     # the sensor's whole gel: every whole-frame press solves on it, so its levels' rays and large levels'
     # operators recur
     whole_gel = bool(np.array_equal(mask, np.isfinite(prior_depth)))
-    levels, t_first = _pyramid(cam, data, init_depth, crop, opts, unrefined, whole_gel)
+    levels, t_first = level_pyramid(cam, data, init_depth, crop, opts, unrefined, whole_gel)
     for lv in levels:
         lv["recurs"] = whole_gel
     report = data.report
@@ -186,10 +186,10 @@ def _solve_checked(
         bar = tqdm(total=len(levels) * opts.max_iters, desc="nlips", unit="it", leave=False)
     be = Backend(backend, opts.dtype)
     with blas_threads(1):
-        t_state, out = _coarse_to_fine(levels, data.leds, opts, be, bar, report, t_first, unrefined == 0)
+        t_state, out = solve_coarse_to_fine(levels, data.leds, opts, be, bar, report, t_first, unrefined == 0)
     if bar is not None:
         bar.close()
     report.update({"leds_used": [int(i) for i in data.kept], "pixels_solved": int(mask.sum())})
-    result = _full_image(t_state, out, levels[-1], data, mask, crop, opts)
+    result = full_image(t_state, out, levels[-1], data, mask, crop, opts)
     report["intensity_scale"] = data.scale
     return result

@@ -27,7 +27,7 @@ to build and ~0.15 s to read back, and its assemblies then take 0.04 s instead o
 map would cost more than the few assemblies it saves, and they rarely recur."""
 
 
-def _operators(lv: dict) -> dict:
+def level_operators(lv: dict) -> dict:
     """Difference operators and the normal-matrix assembler of a level (cached in ``lv``).
 
     They depend on the level's mask alone and cost 0.5-0.9 s at 640x480: kept for the next solve on the
@@ -36,7 +36,7 @@ def _operators(lv: dict) -> dict:
     if "ops" not in lv:
         mk = lv["mask"]
         recurs = _persists(lv)
-        ahead = lv.pop("ops_ahead", None)  # made on a thread of its own (:func:`_operators_ahead`)
+        ahead = lv.pop("ops_ahead", None)  # made on a thread of its own (:func:`operators_ahead`)
         lv["ops"] = reuse.reused(
             "operators",
             (reuse.digest(mk), recurs),
@@ -52,8 +52,8 @@ def _persists(lv: dict) -> bool:
     return lv.get("recurs", False) and int(lv["mask"].sum()) >= OPERATOR_PERSIST_PIXELS
 
 
-def _operators_ahead(lv: dict) -> None:
-    """Start making level ``lv``'s operators on a thread of its own (:func:`_operators` then waits for them),
+def operators_ahead(lv: dict) -> None:
+    """Start making level ``lv``'s operators on a thread of its own (:func:`level_operators` then waits for them),
     while the coarser levels are solved; nothing when they are kept (in this process or on disk) or when the
     solve has one core.
 
@@ -97,29 +97,29 @@ def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
     }
 
 
-def _gradient(ops: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def log_depth_gradient(ops: dict, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(t_u, t_v), (N,) each, of a level's log-depth t (N,): its difference operators' products (``ops``:
-    :func:`_operators`), by row blocks on the pool on a large level (:class:`threads.RowBlocks`, the same bits)."""
+    :func:`level_operators`), by row blocks on the pool on a large level (:class:`threads.RowBlocks`, the same bits)."""
     return threads.RowBlocks(ops["Du"]).dot(t), threads.RowBlocks(ops["Dv"]).dot(t)
 
 
-def _normals(ops: dict, t: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+def depth_normals(ops: dict, t: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
     """(N, 3) unit normals of a level's log-depth t (N,) (:func:`geometry.normals_from_gradient`, by pixel blocks)."""
-    return _unit_normals(*_gradient(ops, t), A, B, C)
+    return unit_normals(*log_depth_gradient(ops, t), A, B, C)
 
 
-def _unit_normals(tu: np.ndarray, tv: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+def unit_normals(tu: np.ndarray, tv: np.ndarray, A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
     """(N, 3) unit normals of a level's log-depth gradient (tu, tv) (N,) each (:func:`geometry.normals_from_gradient`,
     by pixel blocks)."""
-    return _pixelwise(lambda p: geometry.normals_from_gradient(tu[p], tv[p], A[p], B[p], C[p]), len(tu))
+    return pixelwise(lambda p: geometry.normals_from_gradient(tu[p], tv[p], A[p], B[p], C[p]), len(tu))
 
 
 PIXELWISE_PIXELS = 65_536
-"""Pixels per task of a level's per-pixel work outside its model (:func:`_pixelwise`): normals and their change
+"""Pixels per task of a level's per-pixel work outside its model (:func:`pixelwise`): normals and their change
 per iteration. Levels under :data:`nlipscalib.solver.kernel.PARALLEL_MIN_PIXELS` pixels run it in one piece."""
 
 
-def _pixelwise(fn: Callable[[slice], np.ndarray], n: int) -> np.ndarray:
+def pixelwise(fn: Callable[[slice], np.ndarray], n: int) -> np.ndarray:
     """``fn(slice(0, n))`` of a per-pixel ``fn`` (its result's first axis the pixels'), by pixel blocks on the thread
     pool on a large level: the same bits. On a 640x480 level an iteration's normals and their change from the last
     ones took ~15-20 ms of one core."""

@@ -104,7 +104,7 @@ def _usable_rows(
     return int(dead_px.sum()), int(n_sat), int(shadow)
 
 
-def _high_level(images: np.ndarray, usable: np.ndarray) -> float:
+def high_level(images: np.ndarray, usable: np.ndarray) -> float:
     """The images' 99th percentile over the usable samples (1 where there is none or it is not positive): the
     value of ``np.percentile(images[usable], 99)``, to the bit.
 

@@ -37,16 +37,16 @@ def test_ordinary_pages_inside_and_numpys_setting_back_after(before):
 @pytest.mark.skipif(pages._setter() is None, reason="this NumPy has no huge-page switch")
 def test_a_solve_runs_without_huge_pages_and_restores_the_setting(monkeypatch, tmp_path):
     from nlipscalib.core import load_press
-    from nlipscalib.solver import nlips  # the entry calls _coarse_to_fine under its own name
+    from nlipscalib.solver import nlips  # the entry calls solve_coarse_to_fine under its own name
 
     seen = []
-    inner = nlips._coarse_to_fine
+    inner = nlips.solve_coarse_to_fine
 
     def watched(*args, **kwargs):
         seen.append(_advice())
         return inner(*args, **kwargs)
 
-    monkeypatch.setattr(nlips, "_coarse_to_fine", watched)
+    monkeypatch.setattr(nlips, "solve_coarse_to_fine", watched)
     press = load_press(synth.make_press(tmp_path / "p", "sphere", size=(48, 36)))
     before = _advice()
     result = solve(press.linear(press.led_images), press.camera, press.leds, prior_depth=press.reference.depth)

@@ -370,7 +370,7 @@ def test_an_unrefined_finest_level_runs_no_model_and_brings_up_the_coarser_level
 
 def test_the_finest_levels_operators_made_ahead_on_a_thread_are_made_once_and_give_the_same_bits(press, monkeypatch):
     """A pass left unrefined makes its finest level's operators on a thread of its own while the coarser level is
-    solved (:func:`operators._operators_ahead`): once, and the same result as on one core, where they are made in
+    solved (:func:`operators.operators_ahead`): once, and the same result as on one core, where they are made in
     place; not again when this process keeps them."""
     import threading
 
@@ -571,14 +571,14 @@ def test_shading_derivatives_only_for_the_gauss_newton_steps(press, monkeypatch)
 
 
 def test_the_intensity_scale_is_the_percentile_of_the_usable_samples(press):
-    from nlipscalib.solver.samples import _high_level
+    from nlipscalib.solver.samples import high_level
 
     lin = press.linear(press.led_images).astype(np.float32)
     for usable in (np.ones(lin.shape, bool), lin > np.median(lin), np.zeros(lin.shape, bool)):
         expected = float(np.percentile(lin[usable], 99)) if usable.any() else 1.0
-        assert _high_level(lin, usable) == expected
+        assert high_level(lin, usable) == expected
     crop = lin[:, 10:50, 20:70]  # a crop of the images: not contiguous
-    assert _high_level(crop, crop > 0.1) == float(np.percentile(crop[crop > 0.1], 99))
+    assert high_level(crop, crop > 0.1) == float(np.percentile(crop[crop > 0.1], 99))
 
 
 def test_the_intensity_scale_from_the_top_samples_is_numpys_percentile_to_the_bit():
@@ -593,7 +593,7 @@ def test_the_intensity_scale_from_the_top_samples_is_numpys_percentile_to_the_bi
             images = np.round(images, 2)  # ties
         usable = rng.random(shape) < rng.uniform(0.01, 1.0)
         expected = float(np.percentile(images[usable], 99)) if usable.any() else 1.0
-        assert samples._high_level(images, usable) == expected
+        assert samples.high_level(images, usable) == expected
     # a subsample unlike the whole (the bound above the percentile): every usable sample is partitioned
     images = np.zeros((2, 16, 16, 3), np.float32)
     images[:, ::8, ::8] = 1.0
@@ -601,7 +601,7 @@ def test_the_intensity_scale_from_the_top_samples_is_numpys_percentile_to_the_bi
     usable = np.ones(images.shape, bool)
     top, under = samples._top_samples(images, usable, usable.size, int(0.99 * (usable.size - 1)))
     assert under == 0 and top.size == usable.size
-    assert samples._high_level(images, usable) == float(np.percentile(images, 99))
+    assert samples.high_level(images, usable) == float(np.percentile(images, 99))
 
 
 def test_a_levels_geometry_is_kept_and_equals_a_fresh_one(press):
@@ -623,12 +623,12 @@ def test_a_levels_geometry_is_kept_and_equals_a_fresh_one(press):
 
 
 def test_a_large_levels_normals_and_their_change_by_pixel_blocks_have_the_plain_bits():
-    """operators._normals and _pixelwise run a large level's per-pixel work by blocks on the pool (row blocks of the
+    """operators.depth_normals and pixelwise run a large level's per-pixel work by blocks on the pool (row blocks of the
     difference operators' products): the bits of the one-piece computation, on one thread or two."""
     from nlipscalib.core.metrics import angle_deg
     from nlipscalib.solver import geometry
     from nlipscalib.solver.kernel import PARALLEL_MIN_PIXELS
-    from nlipscalib.solver.operators import PIXELWISE_PIXELS, _make_operators, _normals, _pixelwise
+    from nlipscalib.solver.operators import PIXELWISE_PIXELS, _make_operators, depth_normals, pixelwise
 
     mask = np.ones((300, 260), bool)
     mask[100:140, 30:90] = False
@@ -644,8 +644,8 @@ def test_a_large_levels_normals_and_their_change_by_pixel_blocks_have_the_plain_
     try:
         for count in (1, 2):
             threads.set_workers(count)
-            np.testing.assert_array_equal(_normals(ops, t, A, B, C), plain)
-            change = _pixelwise(lambda p: angle_deg(plain[p], other[p]), n)
+            np.testing.assert_array_equal(depth_normals(ops, t, A, B, C), plain)
+            change = pixelwise(lambda p: angle_deg(plain[p], other[p]), n)
             np.testing.assert_array_equal(change, angle_deg(plain, other))
     finally:
         threads.set_workers(before)

@@ -233,19 +233,19 @@ def test_normals_of_a_shaded_depth_reuse_its_gradient_to_the_bit(sphere_press, m
     from nlipscalib.solver import gauss_newton, operators
 
     calls = []
-    gradient = operators._gradient
+    gradient = operators.log_depth_gradient
 
     def counted(ops, t):
         calls.append(1)
         return gradient(ops, t)
 
-    # the level's shading takes it (gauss_newton), and so do normals from a depth (operators._normals)
-    monkeypatch.setattr(gauss_newton, "_gradient", counted)
-    monkeypatch.setattr(operators, "_gradient", counted)
+    # the level's shading takes it (gauss_newton), and so do normals from a depth (operators.depth_normals)
+    monkeypatch.setattr(gauss_newton, "log_depth_gradient", counted)
+    monkeypatch.setattr(operators, "log_depth_gradient", counted)
     reused = _solve(sphere_press)
     reused_calls = len(calls)
     calls.clear()
-    normals = operators._normals
+    normals = operators.depth_normals
     monkeypatch.setattr(gauss_newton._Level, "normals", lambda self, tt: normals(self.ops, tt, self.A, self.B, self.C))
     again = _solve(sphere_press)
     steps = sum(len(level["normal_change_deg"]) + 1 for level in again.report["levels"])  # the start and each step
