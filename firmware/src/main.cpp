@@ -17,6 +17,14 @@
 #ifndef NLEDS
 #define NLEDS 12
 #endif
+// RAM of the ATmega328P is 2048 bytes: 15 per LED in the buffers below (pending, latched, wire, line), about 330
+// for the rest (UART ring buffer, strings) and the call stack with the receive interrupt on top. At 100 LEDs
+// 218 bytes are left for the stack; past ~113 the buffers do not link, and past 255 the byte-wide LED loops
+// would never end. Refused here, with the reason, instead of a board that crashes on its first ALL.
+#define NLEDS_MAX 100
+#if NLEDS < 1 || NLEDS > NLEDS_MAX
+#error "NLEDS must be 1..100 on the ATmega328P (2 KB RAM, 15 bytes per LED plus the stack): firmware/README.md"
+#endif
 #define FW_VERSION "1.0.0"
 #define PROTOCOL_VERSION "1"
 #define MAX_LINE (6 * NLEDS + 32)
@@ -26,7 +34,7 @@ static const char *const ERROR_NAMES[] = {"", "CRC", "SYNTAX", "UNKNOWN", "RANGE
 
 static uint8_t pending[NLEDS * 3];  // RGB, staged by SET/PUT/ALL/OFF
 static uint8_t latched[NLEDS * 3];  // RGB, what the LEDs show
-static uint8_t wire[NLEDS * 3];     // GRB, the order WS2812 expects
+static uint8_t wire[NLEDS * 3];     // GRB, the order WS2812 expects; ALL parses into it (latch() rewrites it)
 static char line[MAX_LINE + 1];
 static uint16_t line_len;
 static bool in_line, line_too_long, session_open;
@@ -178,9 +186,10 @@ static void execute(const char *seq, char *body) {
         if (n != 2) return reply_error(seq, E_SYNTAX);
         const uint16_t len = strlen(tok[1]);
         if (len != 6 * NLEDS) return reply_error(seq, len % 6 ? E_SYNTAX : E_COUNT);
-        uint8_t colours[NLEDS * 3];
-        if (!parse_hex(tok[1], colours, sizeof colours)) return reply_error(seq, E_SYNTAX);
-        memcpy(pending, colours, sizeof pending);
+        // parsed into `wire`, not a local array: 3 bytes per LED more on the stack crashed the board from 100
+        // LEDs (simavr), and `pending` stays untouched when a digit is bad
+        if (!parse_hex(tok[1], wire, sizeof wire)) return reply_error(seq, E_SYNTAX);
+        memcpy(pending, wire, sizeof pending);
         latch();
         return reply_ok(seq);
     }

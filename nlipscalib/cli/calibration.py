@@ -203,7 +203,7 @@ def own_reference_left_out(root: Path, given: Path) -> None:
     if own.resolve() == given.resolve():
         return
     try:
-        why = sensor_mismatch(sensor_of(load_press(given)), sensor_of(load_press(own)))
+        why = sensor_mismatch(sensor_of(load_press(given)), sensor_of(load_press(own)), f"{given} has")
     except CaptureError as exc:  # a damaged own reference is not used: say so, and go on with GIVEN
         log.info("%s: left out, --reference %s is used (it cannot be read: %s)", own, given, exc)
         return
@@ -233,7 +233,7 @@ def reference_fits(reference: Path, presses: Sequence[Path]) -> None:
             surface = read_optics(press).reference
         except CaptureError:
             continue
-        why = sensor_mismatch(theirs, ours)
+        why = sensor_mismatch(theirs, ours, f"{reference} has")
         # camera and LEDs alike, the dome may be another (a design of one's own): said as `nlips solve --reference`
         # says it, not as "other twin settings" with a remedy of re-rendering
         if not why and surface is not None and undeformed.reference is not None:

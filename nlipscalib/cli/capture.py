@@ -330,6 +330,7 @@ def _run_device(args: argparse.Namespace):
                 "design": args.design or DEFAULT_DESIGN,
             },
             source_name=f"camera {camera_spec}" if str(camera_spec).isdigit() else str(camera_spec),
+            leds_origin=f"the LED file {args.leds}" if args.leds else f"the design {args.design or DEFAULT_DESIGN}",
             camera_origin=f"the camera calibration {args.camera_calibration}"
             if args.camera_calibration
             else f"the camera of the design {args.design or DEFAULT_DESIGN} (no --camera-calibration)",

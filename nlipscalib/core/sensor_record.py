@@ -51,20 +51,23 @@ def describe_sensor(camera: Camera, leds: Leds, response: SensorResponse | None 
     }
 
 
-def sensor_mismatch(expected: dict, actual: dict) -> str | None:
-    """Why ``actual`` is not the sensor ``expected`` describes, or None when they match."""
-    ce, ca = expected["camera"], actual["camera"]
+def sensor_mismatch(expected: dict, actual: dict, expected_as: str = "calibrated for") -> str | None:
+    """Why ``actual`` is not the sensor ``expected`` describes, or None when they match.
+
+    ``expected_as`` introduces the expected value in the reason ("16 LEDs in groups [...], calibrated for 12"
+    for a model or dataset; a capture compared with a capture names it: ``"ref/ has"``)."""
+    ce, ca, was = expected["camera"], actual["camera"], expected_as
     if (ce["width"], ce["height"]) != (ca["width"], ca["height"]):
-        return f"image size {ca['width']}x{ca['height']}, calibrated for {ce['width']}x{ce['height']}"
+        return f"image size {ca['width']}x{ca['height']}, {was} {ce['width']}x{ce['height']}"
     if ce["model"] != ca["model"]:
-        return f"lens model {ca['model']!r}, calibrated for {ce['model']!r}"
+        return f"lens model {ca['model']!r}, {was} {ce['model']!r}"
     for key in ("fx", "fy", "cx", "cy"):
         if not math.isclose(ce[key], ca[key], rel_tol=SAME_INTRINSICS_RTOL, abs_tol=SAME_INTRINSICS_ABS_PX):
-            return f"camera {key} = {ca[key]:.4g}, calibrated for {ce[key]:.4g}"
+            return f"camera {key} = {ca[key]:.4g}, {was} {ce[key]:.4g}"
     if any(not math.isclose(a, b, abs_tol=SAME_DISTORTION_ABS) for a, b in zip(ce["dist"], ca["dist"])):
-        return f"lens distortion {ca['dist']}, calibrated for {ce['dist']}"
+        return f"lens distortion {ca['dist']}, {was} {ce['dist']}"
     if expected["n_leds"] != actual["n_leds"] or expected["tricolor_groups"] != actual["tricolor_groups"]:
-        return f"{actual['n_leds']} LEDs in groups {actual['tricolor_groups']}, calibrated for {expected['n_leds']}"
+        return f"{actual['n_leds']} LEDs in groups {actual['tricolor_groups']}, {was} {expected['n_leds']}"
     if "led_positions" in expected and "led_positions" in actual:  # models made before they were recorded: no check
         return led_geometry_mismatch(
             expected["led_positions"], expected["led_directions"], actual["led_positions"], actual["led_directions"]

@@ -117,12 +117,19 @@ class Rig:
     camera_origin: str = "its calibration"
     """Where ``camera`` comes from, for messages (``the camera calibration camera.json``, ``the design
     nlipstac's camera``)."""
+    leds_origin: str = "the sensor description"
+    """Where ``leds`` come from, for messages (``the design ring16.toml``, ``the LED file leds.json``)."""
 
     def check(self) -> None:
         """Raise CaptureError when the parts do not fit together."""
-        n = int(self.controller.n_leds)
-        if n != len(self.leds):
-            raise CaptureError(f"the LED board has {n} LEDs but the sensor description has {len(self.leds)}")
+        n, wanted = int(self.controller.n_leds), len(self.leds)
+        if n != wanted:
+            # the count is fixed in the board (firmware build or Adalight's N): say both ways out
+            raise CaptureError(
+                f"the LED board has {n} LEDs but {self.leds_origin} has {wanted}: give the board firmware built for "
+                f"{wanted} (`make NLEDS={wanted}`, firmware/README.md; stock Adalight: --adalight {wanted}), or "
+                f"capture with the design (--design) and LED file (--leds) of its {n} LEDs"
+            )
         if tuple(self.source.shape) != self.camera.shape:
             (h, w), (ch, cw) = self.source.shape, self.camera.shape
             raise CaptureError(

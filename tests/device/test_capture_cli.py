@@ -350,3 +350,34 @@ def test_help_names_the_tricolor_level_an_emulated_session_records(capsys):
     renders = type("Renders", (), {"scene": scene, "exposure": scene_exposure(scene)})
     assert f"--emulate: the drive giving the scene's tri-colour exposure, nlipstac {tricolor_level(renders)})" in text
     assert "1-255 (default 255;" in text
+
+
+@pytest.mark.parametrize("board_leds, design_leds", [(16, 12), (12, 16)])
+def test_a_board_with_another_led_count_than_the_design_is_one_line_naming_both_ways_out(
+    tmp_path, capsys, board_leds, design_leds
+):
+    """A 16-LED ring with the 12-LED firmware (or the reverse): refused before anything is captured, naming where
+    the design's count comes from and the firmware build that matches it."""
+    import cv2
+    import numpy as np
+
+    from nlipscalib.core import Camera
+    from nlipscalib.device.virtual_board import VirtualBoard
+    from nlipscalib.sim.scene import SCENES_DIR
+
+    design = tmp_path / f"ring{design_leds}.toml"
+    design.write_text((SCENES_DIR / "nlipstac.toml").read_text().replace("count = 12", f"count = {design_leds}"))
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(design_leds + 3):
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 50 + k, np.uint8))
+    board = VirtualBoard(board_leds)
+    args = ["capture", "--port", board.url, "--camera", str(frames), "--camera-calibration", str(camera), "--yes"]
+    assert main([*args, "--design", str(design), "--presses", "1", "--out", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("nlips capture: error: the LED board has "), err
+    assert f"has {board_leds} LEDs but the design {design} has {design_leds}" in err
+    assert f"`make NLEDS={design_leds}`" in err and f"--adalight {design_leds}" in err
+    assert not (tmp_path / "s").exists() and board.latched.sum() == 0

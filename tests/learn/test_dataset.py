@@ -237,6 +237,7 @@ def test_cli_calibrate_with_another_reference_leaves_the_folders_own_out(twin_pr
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "different sensors" in err[0] and "camera fx" in err[0], err
     assert str(root / "reference") in err[0] and str(foreign) in err[0]
+    assert f"{foreign} has " in err[0] and "calibrated for" not in err[0]  # a capture, not a model: named
     assert not (root / "press_a" / "nlips").exists() and not (root / "calibration").exists()  # before solving
 
     alone = tmp_path / "alone"  # a folder without its own reference, given a foreign one: one line, not one per press
@@ -245,6 +246,7 @@ def test_cli_calibrate_with_another_reference_leaves_the_folders_own_out(twin_pr
     assert main(["calibrate", str(alone), "--reference", str(foreign), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "not a capture of the sensor of" in err[0] and "camera fx" in err[0], err
+    assert f"{foreign} has " in err[0] and "calibrated for" not in err[0]
     assert not (alone / "press_a" / "nlips").exists()
 
     other = tmp_path / "other"  # the same sensor's undeformed dome, captured again
