@@ -206,3 +206,16 @@ def test_a_dataset_specs_camera_with_one_side_is_refused_in_one_line(tmp_path, c
     both = tmp_path / "both.toml"
     both.write_text(path.read_text().replace(camera, "width = 161\nheight = 121"))
     assert (load_dataset_spec(both)[1].camera.width, load_dataset_spec(both)[1].camera.height) == (161, 121)
+
+
+def test_a_scene_files_camera_with_one_side_is_refused_in_one_line(tmp_path):
+    """A scene file of one's own with `[camera] width = 1280` alone rendered 1280x480 images without a word."""
+    path = tmp_path / "mine.toml"
+    path.write_text("[camera]\nwidth = 1280\nhfov_deg = 100\n")
+    with pytest.raises(ConfigError) as info:
+        load_scene(path)
+    assert str(info.value).startswith(f"{path}: [camera] width = 1280 without height: the images would be 1280x480")
+    assert str(info.value).endswith("give both, e.g. width = 1280, height = 960")
+    path.write_text("[camera]\nwidth = 1280\nheight = 720\n")
+    camera = load_scene(path).camera
+    assert (camera.width, camera.height) == (1280, 720)
