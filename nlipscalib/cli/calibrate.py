@@ -22,7 +22,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         required=True,
         help="LED JSON file to write (use with `nlips solve --leds FILE` or `nlips calibrate --leds FILE`)",
     )
-    p.add_argument("--stride", type=int, default=2, help="use every N-th pixel (default 2)")
+    p.add_argument(
+        "--stride",
+        type=int,
+        default=None,
+        help="use every N-th pixel in u and v (default: 2 up to 640x480; on larger frames the stride that keeps as "
+        "many pixels, e.g. 3 at 1280x720, 4 at 1280x960)",
+    )
     p.add_argument(
         "--loss",
         default="cauchy",
@@ -81,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     from ..solver import calibrate_leds
     from .folders import check_one_capture
 
-    check_count("--stride", args.stride, minimum=1)
+    if args.stride is not None:
+        check_count("--stride", args.stride, minimum=1)
     if args.coating_reflectance is not None and not 0 < args.coating_reflectance <= 1:
         raise ConfigError(f"--coating-reflectance must be in (0, 1], got {args.coating_reflectance}")
     if not 0 <= args.led_diameter < 50:

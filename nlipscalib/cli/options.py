@@ -60,31 +60,8 @@ def option(dest: str) -> str:
 
 
 def check_size_pair(width: int | None, height: int | None, scene_size: tuple[int, int]) -> None:
-    """A ConfigError when only one of ``--width`` and ``--height`` was given.
+    """A ConfigError when only one of ``--width`` and ``--height`` was given, the other side the scene's
+    (:func:`nlipscalib.core.config.check_size_pair`; imported when called, as this module's other checks)."""
+    from ..core.config import check_size_pair as check
 
-    Why: the other side stayed the scene's, so ``nlips render --width 160`` rendered 160x480 images (the dome a
-    small disc in a tall black strip) and ``nlips capture --emulate nlipstac --height 120`` 640x120 ones, without a
-    word, and every later command took that odd camera for the sensor's.
-
-    Parameters
-    ----------
-    width, height : int or None
-        The typed ``--width`` and ``--height`` (None: not given).
-    scene_size : (int, int)
-        The scene's image size (width, height), pixels, for the line's example.
-    """
-    from ..core.errors import ConfigError
-
-    if (width is None) == (height is None):
-        return
-    scene_w, scene_h = scene_size
-    if width is not None:
-        given, missing, made = f"--width {width}", "--height", f"{width}x{scene_h}"
-        both = f"--width {width} --height {max(1, round(width * scene_h / scene_w))}"
-    else:
-        given, missing, made = f"--height {height}", "--width", f"{scene_w}x{height}"
-        both = f"--width {max(1, round(height * scene_w / scene_h))} --height {height}"
-    raise ConfigError(
-        f"{given} without {missing}: the images would be {made} pixels (the scene's other side kept, not its "
-        f"{scene_w}x{scene_h} shape); give both, e.g. {both}"
-    )
+    check(width, height, scene_size)

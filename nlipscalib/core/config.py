@@ -141,6 +141,48 @@ def check_count(name: str, value: int, minimum: int = 0, where: str = "") -> int
     return value
 
 
+def check_size_pair(
+    width: int | None,
+    height: int | None,
+    scene_size: tuple[int, int],
+    key: str = "--{}",
+    sep: str = " ",
+    join: str = " ",
+    where: str = "",
+) -> None:
+    """A ConfigError when only one of an image's width and height is given: the other side would stay the scene's,
+    and the images another shape than the scene's.
+
+    Why: ``nlips render --width 160`` rendered 160x480 images (the dome a small disc in a tall black strip), ``nlips
+    capture --emulate nlipstac --height 120`` 640x120 ones, and a dataset spec's ``[camera] width = 160`` 160x480
+    presses, without a word, and every later command took that odd camera for the sensor's.
+
+    Parameters
+    ----------
+    width, height : int or None
+        The given sides, pixels (None: not given).
+    scene_size : (int, int)
+        The scene's image size (width, height), pixels, for the line's example.
+    key, sep, join : how the line spells a side (``key.format("width")``), a side and its value, and two sides:
+        ``--width 160 --height 120`` on the command line, ``width = 160, height = 120`` in a file.
+    where : the line's prefix (a file and its section), empty for the command line.
+    """
+    if (width is None) == (height is None):
+        return
+    scene_w, scene_h = scene_size
+    if width is not None:
+        side, value, missing, made = "width", width, "height", f"{width}x{scene_h}"
+        pair = (width, max(1, round(width * scene_h / scene_w)))
+    else:
+        side, value, missing, made = "height", height, "width", f"{scene_w}x{height}"
+        pair = (max(1, round(height * scene_w / scene_h)), height)
+    both = join.join(f"{key.format(s)}{sep}{v}" for s, v in zip(("width", "height"), pair))
+    raise ConfigError(
+        f"{where}{key.format(side)}{sep}{value} without {key.format(missing)}: the images would be {made} pixels (the "
+        f"scene's other side kept, not its {scene_w}x{scene_h} shape); give both, e.g. {both}"
+    )
+
+
 def is_number(value: object) -> bool:
     """A real number as JSON, TOML or numpy give one (an int, a float, a numpy scalar); ``True`` is not one."""
     return isinstance(value, numbers.Real) and not isinstance(value, bool)

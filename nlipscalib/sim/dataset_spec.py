@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.capture import REFERENCE_FOLDER
-from ..core.config import check_count, check_range, from_mapping, read_config_file
+from ..core.config import check_count, check_range, check_size_pair, from_mapping, read_config_file
 from ..core.errors import ConfigError
 from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
@@ -133,6 +133,9 @@ def load_dataset_spec(path: str | Path) -> tuple[DatasetSpec, SceneConfig]:
         message = str(exc)
         raise ConfigError(message if message.startswith(str(path)) else f"{path}: {message}") from None
     sections = {k: v for k, v in (("render", spec.render), ("noise", spec.noise), ("camera", spec.camera)) if v}
+    # one side alone kept the scene's other: [camera] width = 160 rendered 160x480 presses without a word
+    size = (scene.camera.width, scene.camera.height)
+    check_size_pair(spec.camera.get("width"), spec.camera.get("height"), size, "{}", " = ", ", ", f"{path}: [camera] ")
     try:
         scene = scene.replace(**sections) if sections else scene
     except ConfigError as exc:  # an override out of range: name the spec file, not the scene

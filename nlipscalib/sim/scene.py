@@ -22,7 +22,7 @@ from typing import Literal
 
 from ..core.camera import Camera
 from ..core.capture import SensorResponse
-from ..core.config import check_count, check_range, from_mapping, read_config_file, to_mapping
+from ..core.config import check_count, check_range, check_size_pair, from_mapping, read_config_file, to_mapping
 from ..core.errors import ConfigError
 from ..core.leds import Led
 from ..core.sensor import SCENES_DIR, CameraConfig, DomeConfig, LedConfig, SensorDesign
@@ -331,4 +331,8 @@ def load_scene(path: str | Path | None = None) -> SceneConfig:
             raise ConfigError(f"scene {str(path)!r}: no such scene file, nor a shipped scene ({shipped}){hint}")
         path = SCENES_DIR / f"{path}.toml"
     data = read_config_file(path)
+    camera = data.get("camera")
+    if isinstance(camera, dict):  # one side alone kept the default other: `width = 1280` made 1280x480 images
+        size = (CameraConfig.width, CameraConfig.height)
+        check_size_pair(camera.get("width"), camera.get("height"), size, "{}", " = ", ", ", f"{path}: [camera] ")
     return from_mapping(SceneConfig, data, str(path))

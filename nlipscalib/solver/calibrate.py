@@ -123,10 +123,25 @@ def _disk_model(radius: float):
     return model
 
 
+FIT_PIXELS = 76_800
+"""Pixels of the frame that :func:`default_stride` keeps for the LED fit: a 640x480 capture at stride 2. Why: a
+larger camera's fit at stride 2 costs the frame's pixels and gains nothing. Measured at 1280x960 (one bounce, 2 spp,
+load 4-5 on the shared 2-core VM): stride 2 took 159 s of wall and 91 s of CPU, stride 4 32 s and 23 s, and their
+LEDs lie alike off the truth (median position 0.212 / 0.211 mm, axis 1.11 / 1.10 deg; the 640x480 capture's at
+stride 2: 0.215 mm, 1.09 deg; benchmarks/RESULTS.md, s24-hires)."""
+
+
+def default_stride(shape: tuple[int, int]) -> int:
+    """Stride, pixels, of the LED fit on frames of ``shape`` = (H, W): 2 up to 640x480 (and a few pixels more),
+    else about the one that keeps :data:`FIT_PIXELS` of the frame (1280x720: 3, 1280x960: 4, 1920x1080: 5)."""
+    H, W = shape
+    return max(2, round(np.sqrt(H * W / FIT_PIXELS)))
+
+
 def calibrate_leds(
     presses: Press | Sequence[Press],
     initial: Leds | None = None,
-    stride: int = 2,
+    stride: int | None = None,
     loss: str = "cauchy",
     *,
     interreflection: str = "auto",
@@ -147,7 +162,7 @@ def calibrate_leds(
     ----------
     presses : Press or sequence of Press -- undeformed dome, with ``reference``; same camera and LEDs.
     initial : sequence of Led or None -- starting values (default: the capture's LEDs).
-    stride : use every ``stride``-th pixel in u and v (speed).
+    stride : use every ``stride``-th pixel in u and v (speed); None: :func:`default_stride` of the captures' frame.
     loss : scipy robust loss ("cauchy", "soft_l1", "huber", "linear").
     interreflection : "auto" (subtract the indirect term when the data show it: its share with the starting LEDs
         turns it on, and it is kept when, converged, it explains the images better than direct light alone,
@@ -179,6 +194,8 @@ def calibrate_leds(
     presses = [presses] if isinstance(presses, Press) else list(presses)
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
+    if stride is None:
+        stride = default_stride(presses[0].camera.shape)
     settings = _Settings(
         initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance, allow_contact
     )

@@ -80,6 +80,10 @@ def solve_coarse_to_fine(
     if not refine_finest and len(levels) > 1:
         operators_ahead(levels[-1])
     for k, lv in enumerate(levels):
+        if bar is not None:
+            bar.set_description_str(
+                f"NLiPs level {k + 1} of {len(levels)} ({lv['camera'].width}x{lv['camera'].height})"
+            )
         if t_state is None:
             t_init = lv["t0"] if t_first is None else t_first
         else:

@@ -185,3 +185,37 @@ def test_a_spec_naming_an_unknown_scene_or_a_folder_given_as_spec_is_named(tmp_p
         load_dataset_spec(spec)
     with pytest.raises(ConfigError, match=f"^{tmp_path}: a folder, not a config file"):
         load_dataset_spec(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "camera,line",
+    [
+        ("width = 160", "[camera] width = 160 without height: the images would be 160x480 pixels"),
+        ("height = 720", "[camera] height = 720 without width: the images would be 640x720 pixels"),
+    ],
+)
+def test_a_dataset_specs_camera_with_one_side_is_refused_in_one_line(tmp_path, camera, line):
+    """`[camera] width = 160` alone kept the scene's height: `nlips dataset` rendered 160x480 presses without a word."""
+    path = tmp_path / "spec.toml"
+    path.write_text(f'[camera]\n{camera}\n[random]\ncount = 1\nindenters = [{{ kind = "sphere", size = 6.0 }}]\n')
+    with pytest.raises(ConfigError) as info:
+        load_dataset_spec(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: {line}"), message
+    assert message.endswith(("give both, e.g. width = 160, height = 120", "give both, e.g. width = 960, height = 720"))
+    both = tmp_path / "both.toml"
+    both.write_text(path.read_text().replace(camera, "width = 161\nheight = 121"))
+    assert (load_dataset_spec(both)[1].camera.width, load_dataset_spec(both)[1].camera.height) == (161, 121)
+
+
+def test_a_scene_files_camera_with_one_side_is_refused_in_one_line(tmp_path):
+    """A scene file of one's own with `[camera] width = 1280` alone rendered 1280x480 images without a word."""
+    path = tmp_path / "mine.toml"
+    path.write_text("[camera]\nwidth = 1280\nhfov_deg = 100\n")
+    with pytest.raises(ConfigError) as info:
+        load_scene(path)
+    assert str(info.value).startswith(f"{path}: [camera] width = 1280 without height: the images would be 1280x480")
+    assert str(info.value).endswith("give both, e.g. width = 1280, height = 960")
+    path.write_text("[camera]\nwidth = 1280\nheight = 720\n")
+    camera = load_scene(path).camera
+    assert (camera.width, camera.height) == (1280, 720)

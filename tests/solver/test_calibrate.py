@@ -102,3 +102,33 @@ def test_undeformed_captures_of_two_sensors_are_refused_before_the_fit(tmp_path)
         calibrate_leds([first, other], stride=4)
     again = load_press(synth.make_press(tmp_path / "again", "none", size=(48, 36)))
     assert len(calibrate_leds([first, again], stride=4).leds) == len(first.leds)
+
+
+def test_the_default_stride_keeps_about_a_640x480_frames_fit_pixels_on_larger_cameras():
+    """A 1280x960 capture's LED fit at stride 2 took 159 s and fitted the LEDs no better than stride 4 in 32 s."""
+    from nlipscalib.solver.calibrate import FIT_PIXELS, default_stride
+
+    sizes = {(120, 160): 2, (240, 320): 2, (480, 640): 2, (481, 642): 2, (720, 1280): 3, (960, 1280): 4}
+    assert {shape: default_stride(shape) for shape in sizes} == sizes
+    for shape, stride in sizes.items():
+        if stride > 2:  # within a factor of 1.5 of the pixels a 640x480 frame fits at stride 2
+            assert 1 / 1.5 < shape[0] * shape[1] / stride**2 / FIT_PIXELS < 1.5
+
+
+def test_calibrate_leds_without_a_stride_takes_the_frames_default(tmp_path, monkeypatch):
+    from nlipscalib.solver import calibrate as module
+
+    flat = load_press(synth.make_press(tmp_path / "ref", "none"))
+    strides = []
+
+    def samples(p, first, count, stride, left_out=None):
+        strides.append(stride)
+        raise RuntimeError("stop after the samples")
+
+    monkeypatch.setattr(module, "default_stride", lambda shape: 7 if shape == flat.camera.shape else 1)
+    monkeypatch.setattr(module, "_samples", samples)
+    with pytest.raises(RuntimeError, match="stop after the samples"):
+        calibrate_leds(flat)
+    with pytest.raises(RuntimeError):
+        calibrate_leds(flat, stride=3)
+    assert strides == [7, 3]

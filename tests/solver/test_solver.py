@@ -1,4 +1,5 @@
 import json
+import re
 import shutil
 
 import numpy as np
@@ -273,3 +274,16 @@ def test_the_too_few_leds_warning_names_the_press_and_counts_in_words(tmp_path, 
     res = _solve(load_press(folder), options=SolverOptions(max_iters=3), interreflection="on")
     assert res.report["pixels_too_few_leds"] == 1 and res.report["outer_passes"] > 0, res.report.get("outer_passes")
     assert sum("usable LEDs" in r.getMessage() for r in caplog.records) == 1
+
+
+def test_the_progress_line_names_the_level_and_counts_iterations_without_a_false_eta(sphere_press, capsys):
+    """The bar ran to levels x max_iters; levels stop on convergence long before, so it ended at 3-10 % with an
+    ETA of tens of seconds (a 1280x960 whole frame showed "1/30 [00:01<00:36]" and finished in 19 s)."""
+    res = _solve(sphere_press, progress=True)
+    shown = capsys.readouterr().err.replace("\r", "\n")
+    last = [
+        line for line in shown.splitlines() if re.match(r"NLiPs level (\d+) of \1 \(\d+x\d+\): \d+ iterations", line)
+    ]
+    assert last, shown
+    assert int(last[-1].split(": ")[1].split()[0]) > 0 and res.report["levels"][-1]["iterations"] > 0
+    assert "%" not in shown and "<" not in shown and "it/s" not in shown, shown
