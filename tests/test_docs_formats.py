@@ -126,7 +126,7 @@ def test_led_file_sensor_description_and_camera_calibration_keys_are_documented(
     led_file = _section("## LED file", "## Camera calibration")
     assert _undocumented(cal.to_json(), led_file) == []
     assert _undocumented(["leds", "sensor"], led_file) == []  # core.ledfile.save_leds's and cli.calibrate's
-    assert _undocumented(_literal_keys("solver.calibrate", "fit_quality"), led_file) == []
+    assert _undocumented(_literal_keys("solver.calibration_quality", "fit_quality"), led_file) == []
     camera = Camera(4, 3, 2.0, 2.0, 1.5, 1.0)
     sensor = describe_sensor(camera, [led] * 3, SensorResponse())
     assert _undocumented(sensor, _section("## Sensor description", "# Dataset spec")) == []

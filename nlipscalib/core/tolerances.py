@@ -126,14 +126,14 @@ into wrong LED parameters (17 deg off on the twin) and then fits as well as the 
 CALIBRATION_MIN_TERM_GAIN = 16.0
 """LED calibration, interreflection auto, the term on by :data:`CALIBRATION_MIN_SHARE`: it is kept when, converged,
 it lowers the point LED fits' summed squared residual by more than this many noise variances against a
-direct-only fit on the same samples (:func:`nlipscalib.solver.calibrate._term_gain`); otherwise the LEDs are fitted
-as direct light. Why: starting LEDs 0.8 mm / 10 deg off pose as 11-20 % of indirect light on a bounce-free capture,
-and the term then left the worst LED 7.4-11.9 deg off (direct-only 0.45-0.67). Why this value: a term that only
+direct-only fit on the same samples (:func:`nlipscalib.solver.calibration_term.term_gain`); otherwise the LEDs are
+fitted as direct light. Why: starting LEDs 0.8 mm / 10 deg off pose as 11-20 % of indirect light on a bounce-free
+capture, and the term then left the worst LED 7.4-11.9 deg off (direct-only 0.45-0.67). Why this value: a term that only
 fits noise gains about a chi-squared with its 3 parameters (the reflectance per channel): 16 is its 99.9 % point.
-Measured (s17-d, benchmarks/RESULTS.md; 160x120 stride 4 one bounce, stride 2 bounce-free): one-bounce twin, 12
-seeds x 3 starts, 407-1757 (log: mean 7.0, sd 0.46 over the seeds: 9 sd above ln 16; in the gain itself 2.6 sd);
-bounce-free with noise, 6 seeds x 6 starts that turned the term on, -5117 to -1670; noise-free -1.8e5 and below;
-the 640x480 one-bounce reference 2262-2480."""
+Measured (s17-d, benchmarks/RESULTS.md; 160x120 stride 4 one bounce, stride 2 bounce-free): one-bounce twin, 12 seeds x
+3 starts, 407-1757 (log: mean 7.0, sd 0.46 over the seeds: 9 sd above ln 16; in the gain itself 2.6 sd); bounce-free
+with noise, 6 seeds x 6 starts that turned the term on, -5117 to -1670; noise-free -1.8e5 and below; the 640x480
+one-bounce reference 2262-2480."""
 CALIBRATION_CONTACT_FRACTION = 0.005
 """LED calibration: a capture is taken to show a contact (a press, not the undeformed dome it must be; refused unless
 ``--allow-contact``) when a connected region of pixels that the fitted undeformed model misfits
@@ -146,8 +146,8 @@ deg, 160x120; 10-23 % for the default sphere, coin and cube presses): a factor 3
 renders: 0 % undeformed (the LED model's own error, :data:`CALIBRATION_MODEL_ERROR`, counted as noise), 3.4 % for
 that small press at 80x60."""
 CALIBRATION_MODEL_ERROR = 0.003
-"""LED calibration quality (:func:`nlipscalib.solver.calibrate.fit_quality`): the error the LED model itself is
-allowed, as a fraction of each LED's median lit sample, added to the images' noise in quadrature. Why: the model
+"""LED calibration quality (:func:`nlipscalib.solver.calibration_quality.fit_quality`): the error the LED model itself
+is allowed, as a fraction of each LED's median lit sample, added to the images' noise in quadrature. Why: the model
 samples the shading at the pixel's centre while a pixel integrates its footprint (and a render its few samples),
 a smooth error that Immerkaer's noise estimate cannot see; without noise it is all the residual there is. The
 twin's noise-free bounce-free renders (4 spp, 80x60 and 160x120, stride 2) leave 0.24-0.28 % with LEDs 0.43-0.61
@@ -155,11 +155,11 @@ deg off (points; disks 0.07-0.16 deg) and were rated 1.52-1.56x, unreliable; wit
 It stays small against what the verdict must catch: a noise-free one-bounce 16 spp render with the term on
 leaves 0.93 % (LEDs 1.7-3.1 deg, 0.31-0.36 mm off: still 2.9x), and on captures with the sensor's noise
 (2.2-3.8 % of that level) it moves the ratio by at most 0.01 (measured 2026-12-05: the table in
-:func:`nlipscalib.solver.calibrate.fit_quality`)."""
+:func:`nlipscalib.solver.calibration_quality.fit_quality`)."""
 FIT_NOISE_RATIO = 1.15
 """An LED calibration is reliable when its residual is at most this many times the images' own noise (with the
 model's own error, :data:`CALIBRATION_MODEL_ERROR`; median over the LEDs): measured 1.01-1.11 on good captures,
-1.19-1.63 on poor ones (the table in :func:`nlipscalib.solver.calibrate.fit_quality`)."""
+1.19-1.63 on poor ones (the table in :func:`nlipscalib.solver.calibration_quality.fit_quality`)."""
 FRAME_MISMATCH_FRACTION = 0.04
 """NLiPsNet: a frame whose median difference from the calibration's reference frame over the gel exceeds this
 fraction of the reference's brightness differs almost everywhere (twin frames of presses: 0.009-0.011, 8-bit

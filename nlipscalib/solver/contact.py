@@ -223,7 +223,7 @@ def prepare_press_side(
     its first call with ``cache`` and the same keywords would; that call then only fits the undeformed model.
 
     Why apart: that side does not depend on the undeformed model, so a solve makes it while it fits the indirect
-    term that the model needs (:func:`nlipscalib.solver.press._light_and_contact`, on a second core)."""
+    term that the model needs (:func:`nlipscalib.solver.light_and_contact.light_and_contact`, on a second core)."""
     if press.reference is None:
         raise CaptureError(f"{press.folder}: --roi auto and anchoring need the capture's reference (undeformed dome)")
     _fill_press_side(cache, press, _grid_of(press, blur_px, block), None, dead_level)

@@ -434,7 +434,8 @@ def fit_indirect(
         first fit.
     warm : start from the last fit that shared ``cache`` (its kappa and gathered light: the albedo starts as the
         least-squares one of ``S + kappa G``) instead of kappa = 0; a refit without a press's contact then needs
-        an alternation fewer (``press.REFIT_ALTERNATIONS``). Without an earlier fit in ``cache``: from kappa = 0.
+        an alternation fewer (``light_and_contact.REFIT_ALTERNATIONS``). Without an earlier fit in ``cache``: from
+        kappa = 0.
 
     Returns
     -------
@@ -834,7 +835,7 @@ def scaled_into(
 
     ``out`` (L, h, w, 3) float32, written; ``per_led`` the upsampled patch light; ``part`` (rows, columns) of its
     images that ``out`` holds; ``scale`` (h, w, 3) or (3,) float32, e.g. kappa times the albedo; ``dark`` (h, w)
-    bool, no receiver. Also the outer loop's first light (``press._first_light``).
+    bool, no receiver. Also the outer loop's first light (``outer_loop._first_light``).
 
     Why: on a 640x480 whole frame the upsampling, the product, the zeroing and the copy into the result, each over
     (L, H, W, 3) float32 arrays of 44 MB, took 0.13-0.21 s of one core in the last outer pass while the other waited

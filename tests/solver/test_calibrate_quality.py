@@ -1,5 +1,5 @@
 """What LED calibration (``nlips calibrate-leds``) tells the user: a coating reflectance it did not use, a
-reflectance it could not profile, and a fit too poor to trust (``solver.calibrate.fit_quality``).
+reflectance it could not profile, and a fit too poor to trust (``solver.calibration_quality.fit_quality``).
 
 CI-sized renders of the default twin's undeformed dome (160x120, the sensor's noise on, as ``nlips render
 --undeformed`` makes them), calibrated at stride 4 (a second each): direct light only, one bounce at 16 spp

@@ -66,7 +66,7 @@ def test_a_warm_refit_lands_where_a_longer_cold_one_does(bounce1):
     """A press's refit without its contact starts from its rough fit (``warm``) and alternates
     ``REFIT_ALTERNATIONS`` times: within 1e-6 of the fixed point, as three alternations from kappa = 0 (the refit
     before), nearer than that many from kappa = 0."""
-    from nlipscalib.solver.press import REFIT_ALTERNATIONS
+    from nlipscalib.solver.light_and_contact import REFIT_ALTERNATIONS
 
     _, press = bounce1
     exclude = np.zeros(press.camera.shape, bool)
@@ -171,7 +171,7 @@ def test_led_calibration_on_an_interreflecting_capture(bounce1):
 
 
 def test_relaxation_is_one_over_one_plus_the_indirect_share():
-    from nlipscalib.solver.press import _relaxation
+    from nlipscalib.solver.outer_loop import _relaxation
 
     direct = np.random.default_rng(0).uniform(0.2, 1.0, (4, 3, 5, 3)).astype(np.float32)
     g = np.linspace(0.0, 1.0, 15).reshape(3, 5)
@@ -185,7 +185,7 @@ def test_the_outer_loops_normal_change_is_exact_on_float32_normals():
     off by up to ~0.02 deg there."""
     from types import SimpleNamespace
 
-    from nlipscalib.solver.press import _median_change_deg
+    from nlipscalib.solver.outer_loop import _median_change_deg
 
     rng = np.random.default_rng(4)
     a = rng.normal(size=(40, 50, 3)) * [0.3, 0.3, 1] - [0, 0, 3]
@@ -227,17 +227,17 @@ def test_a_whole_frames_gathers_before_the_last_pass_light_the_focus_only(bounce
     """The passes before the last solve the dent's focus alone: their gathers compute the light there only; the
     last gather lights the whole mask (and the surface it reads is the one before, the focus recomputed). The
     first pass subtracts the fit's light of the undeformed dome: no gather before it."""
-    from nlipscalib.solver import press as press_mod
+    from nlipscalib.solver import outer_loop as loop_module  # the gathers' caller
 
     _, press = bounce1
     receivers = []
-    gather = press_mod.surface_indirect
+    gather = loop_module.surface_indirect
 
     def spy(*args, **kwargs):
         receivers.append(args[6].copy())
         return gather(*args, **kwargs)
 
-    monkeypatch.setattr(press_mod, "surface_indirect", spy)
+    monkeypatch.setattr(loop_module, "surface_indirect", spy)
     whole = solve_press(press, max_outer=2)
     x0, y0, w, h = whole.report["outer_focus"]
     mask = whole.mask
@@ -253,7 +253,7 @@ def test_the_outer_loops_first_light_is_the_fits_light_cut_to_the_box(bounce1):
     thread and on two."""
     from nlipscalib.solver import threads
     from nlipscalib.solver.indirect import surface_indirect
-    from nlipscalib.solver.press import _first_light
+    from nlipscalib.solver.outer_loop import _first_light
 
     flat, press = bounce1
     model = fit_indirect(flat, mode="on")
@@ -286,11 +286,11 @@ def test_the_outer_loops_first_light_is_the_fits_light_cut_to_the_box(bounce1):
 def test_the_light_outside_the_focus_catches_up_on_the_updates_it_missed():
     """At the last gather, the pixels outside the focus take one relaxed update per focus pass they missed,
     with that gather's light; the focus takes one."""
-    from nlipscalib.solver.press import _OuterLoop, _relaxation
+    from nlipscalib.solver.outer_loop import OuterLoop, _relaxation
 
     rng = np.random.default_rng(2)
     H, W = 6, 8
-    loop = object.__new__(_OuterLoop)
+    loop = object.__new__(OuterLoop)
     loop.box, loop.relaxation = (slice(1, 5), slice(1, 7)), "auto"
     loop.focus = np.zeros((H, W), bool)
     loop.focus[2:4, 3:5] = True
@@ -309,15 +309,15 @@ def test_the_light_outside_the_focus_catches_up_on_the_updates_it_missed():
 
 
 def test_the_outer_loops_update_by_blocks_of_rows_has_the_bits_of_the_whole_window_at_once():
-    """:meth:`_OuterLoop._update` runs by blocks of rows on the thread pool (per pixel): a focus pass's update and
+    """:meth:`OuterLoop._update` runs by blocks of rows on the thread pool (per pixel): a focus pass's update and
     the last pass's catching up give the bits of the same updates on the whole arrays, on one thread or several."""
     from nlipscalib.solver import threads
-    from nlipscalib.solver.press import UPDATE_ROWS, _OuterLoop, _slices
+    from nlipscalib.solver.outer_loop import UPDATE_ROWS, OuterLoop, _slices
     from nlipscalib.solver.roi import box_of
 
     rng = np.random.default_rng(5)
     H, W, L = 7 * UPDATE_ROWS, 50, 3
-    loop = object.__new__(_OuterLoop)
+    loop = object.__new__(OuterLoop)
     loop.box, loop.relaxation = (slice(2, H - 3), slice(1, W - 2)), "auto"
     h, w = H - 5, W - 3
     loop.focus = np.zeros((H, W), bool)
@@ -359,7 +359,7 @@ def test_the_box_compensation_is_the_whole_frames_on_one_thread_and_on_two():
     pool task: the same bits on one thread and on two."""
     from nlipscalib.solver import threads
     from nlipscalib.solver.interreflection import compensate
-    from nlipscalib.solver.press import _BoxCompensation
+    from nlipscalib.solver.outer_loop import BoxCompensation
 
     rng = np.random.default_rng(3)
     L, H, W = 3, 9, 12
@@ -380,7 +380,7 @@ def test_the_box_compensation_is_the_whole_frames_on_one_thread_and_on_two():
     try:
         for count in (1, 2):
             threads.set_workers(count)
-            boxed = _BoxCompensation(images, mask)
+            boxed = BoxCompensation(images, mask)
             np.testing.assert_array_equal(boxed(light), expected)
             np.testing.assert_array_equal(boxed(focus_light, receivers), after_focus)
     finally:
@@ -388,14 +388,14 @@ def test_the_box_compensation_is_the_whole_frames_on_one_thread_and_on_two():
 
 
 def test_the_gathers_filled_albedo_is_the_whole_frames_on_one_thread_and_on_two():
-    """``press._filled_albedo`` (the solved albedo, its per-channel median where not reconstructed; medians and
+    """``outer_loop._filled_albedo`` (the solved albedo, its per-channel median where not reconstructed; medians and
     filling on the pool) gives the bits of ``np.where`` with ``np.median(axis=0)``, on one thread and on two, an
     even count of reconstructed pixels (a median between two values) included; nothing reconstructed: the
     fallback."""
     from types import SimpleNamespace
 
     from nlipscalib.solver import threads
-    from nlipscalib.solver.press import FILL_ROWS, _filled_albedo
+    from nlipscalib.solver.outer_loop import FILL_ROWS, _filled_albedo
 
     rng = np.random.default_rng(6)
     albedo = rng.lognormal(0.0, 1.0, (2 * FILL_ROWS + 9, 31, 3)).astype(np.float32)

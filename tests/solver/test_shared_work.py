@@ -436,7 +436,7 @@ def test_values_brought_up_to_a_finer_mask_interpolate_and_reach_its_edge():
 
 def test_the_outer_passes_leave_unrefined_the_levels_finer_than_half_a_patch():
     from nlipscalib.core.camera import Camera
-    from nlipscalib.solver.press import _unrefined_levels
+    from nlipscalib.solver.outer_loop import _unrefined_levels
 
     def camera(w, h):
         return Camera(width=w, height=h, fx=w, fy=w, cx=w / 2, cy=h / 2)
@@ -678,9 +678,9 @@ def test_the_outer_loops_first_pass_stops_its_levels_at_the_seed_tolerance(press
 
 
 def test_the_led_and_channel_sum_has_numpys_bits():
-    """``press.led_channel_sum`` (the outer loop's relaxation and image total) equals ``stack.sum(axis=(0, 3))`` bit
-    for bit, on contiguous stacks and on windows of them (strided), float32 and float64, with -0.0 entries."""
-    from nlipscalib.solver.press import led_channel_sum
+    """``outer_loop.led_channel_sum`` (the outer loop's relaxation and image total) equals ``stack.sum(axis=(0, 3))``
+    bit for bit, on contiguous stacks and on windows of them (strided), float32 and float64, with -0.0 entries."""
+    from nlipscalib.solver.outer_loop import led_channel_sum
 
     rng = np.random.default_rng(3)
     for leds, h, w in [(1, 1, 1), (12, 16, 640), (5, 7, 33), (12, 40, 3)]:

@@ -223,7 +223,7 @@ def test_a_noise_free_bounce_free_capture_calibrates_as_reliable(small_flat, sta
 def test_a_start_a_few_tenths_of_a_mm_off_does_not_send_an_led_into_another_minimum(small_flat):
     """From these starting LEDs (0.3-0.5 mm / 5 deg off, rng 3) the LED fit's first trust-region step carried LED 3
     9 mm, behind the camera, and it settled 6.6 mm / 14 deg off at a median quality like a good fit's (0.80x): the
-    calibration was called reliable. The fit now solves for offsets from the start (calibrate._fit_all)."""
+    calibration was called reliable. The fit now solves for offsets from the start (led_fit.fit_leds)."""
     true = small_flat.leds
     cal = calibrate_leds(small_flat, initial=perturbed(true, np.random.default_rng(3)), stride=2)
     ang = [np.degrees(np.arccos(min(1.0, np.dot(a.direction, t.direction)))) for a, t in zip(cal.leds, true)]
@@ -236,7 +236,7 @@ def test_a_bounce_free_capture_keeps_the_term_off_from_leds_far_enough_off_to_po
     """From starting LEDs 0.8 mm / 10 deg off (rng 2) the bounce-free capture's indirect share with them is 0.16,
     over the calibration's 0.1: the term was used and subtracted light that is not there (160x120 with noise: worst
     LED 7.4-11.9 deg off from such starts; direct-only 0.45-0.67 deg). Converged, the term fits worse than direct
-    light alone (calibrate._term_gain negative), so it is dropped."""
+    light alone (calibration_term.term_gain negative), so it is dropped."""
     true = small_flat.leds
     cal = calibrate_leds(small_flat, initial=perturbed(true, np.random.default_rng(2), mm=(0.8, 0.8), deg=10), stride=2)
     (model,) = cal.interreflection
@@ -256,17 +256,18 @@ def test_a_bounce_free_capture_keeps_the_term_off_from_perturbed_leds_without_a_
     term is now tried on the point LEDs only, rejected there, and the LED file says so."""
     from nlipscalib.core import tolerances
     from nlipscalib.solver import calibrate as module
+    from nlipscalib.solver import calibration_term  # the profile's caller
 
     def no_profile(*args, **kwargs):
         raise AssertionError("the reflectance profile ran on a bounce-free capture")
 
-    monkeypatch.setattr(module, "_profiled_reflectance", no_profile)
+    monkeypatch.setattr(calibration_term, "_profiled_reflectance", no_profile)
     # without the model's own error the noise-free direct fit leaves 1.56x the noise: the rescue path is taken
     monkeypatch.setattr(tolerances, "CALIBRATION_MODEL_ERROR", 0.0)
     # which also takes it from the contact check, where this noise-free capture's edge then misfits as a contact:
     # not what is tested here
     monkeypatch.setattr(
-        module, "_contact_regions", lambda presses, *a: tuple(np.zeros(p.camera.shape, bool) for p in presses)
+        module, "contact_regions", lambda presses, *a: tuple(np.zeros(p.camera.shape, bool) for p in presses)
     )
     flat = small_flat
     cal = calibrate_leds(flat, initial=perturbed(flat.leds, np.random.default_rng(1)), stride=2, led_radius=1.8)
@@ -318,19 +319,20 @@ def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_inte
 
 def test_a_profile_rerun_that_drops_the_term_returns_direct_only_leds_without_the_profile(root, monkeypatch):
     """With ``led_radius`` the reflectance profile reruns the calibration, and "auto" checks the term there again
-    (calibrate._term_gain). When that rerun drops it, the result was direct-only LEDs still carrying the profile,
+    (calibration_term.term_gain). When that rerun drops it, the result was direct-only LEDs still carrying the profile,
     which the command printed as the coating reflectance "from the images alone". Forced here: the term gains on the
     first fit, not on the rerun (the profile itself stubbed: its disk fits are not what is tested)."""
     from nlipscalib.core import tolerances
     from nlipscalib.solver import calibrate as module
+    from nlipscalib.solver import calibration_term  # the profile's caller
 
     flat = load_press(
         render_press(twin(bounces=1, spp=16).replace(camera={"width": 80, "height": 60}), None, root / "b1_80", seed=3)
     )
     gains = iter([10 * tolerances.CALIBRATION_MIN_TERM_GAIN, 0.0])
-    monkeypatch.setattr(module, "_term_gain", lambda *args: next(gains))
+    monkeypatch.setattr(module, "term_gain", lambda *args: next(gains))
     profile = {"fitted": [0.9] * 3, "scales": [0.9, 1.0], "residuals": [1.0, 2.0], "chosen": [0.81] * 3}
-    monkeypatch.setattr(module, "_profiled_reflectance", lambda *args: dict(profile))
+    monkeypatch.setattr(calibration_term, "_profiled_reflectance", lambda *args: dict(profile))
     cal = calibrate_leds(flat, stride=2, led_radius=1.8)
     (model,) = cal.interreflection
     assert not model["enabled"] and "not used after all" in model["reason"], model["reason"]

@@ -1,0 +1,307 @@
+"""The interreflection term inside the LED calibration: its alternation with the LED fit, the auto decision (the
+share with the starting LEDs, then the gain over a direct-only fit), the coating reflectance profile of the LED
+disks, and the warnings for a reflectance given but not used."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..core import tolerances
+from ..core.capture import Press
+from ..core.leds import Led, Leds
+from .led_fit import Samples, disk_model, fit_leds, fit_samples, point_model, to_leds
+
+if TYPE_CHECKING:  # named in hints only: the functions import the indirect module where they use it
+    from .calibrate import LedCalibration
+    from .indirect import IndirectModel
+
+
+def indirect_rounds(
+    presses: Sequence[Press],
+    samples: Samples,
+    leds0: Leds,
+    loss: str,
+    interreflection: str,
+    bounces: int,
+    rounds: int,
+    coating_reflectance: float | tuple[float, float, float] | None,
+    left_out: Sequence[np.ndarray | None],
+) -> tuple[list[tuple[np.ndarray, np.ndarray, float]], np.ndarray, list[IndirectModel]]:
+    """(per-LED fits as :func:`fit_leds` returns them, the images minus the indirect light they were fitted to,
+    the captures' last indirect terms) -- ``rounds`` alternations of indirect fit and LED fit, or one direct-only
+    LED fit from ``leds0`` when no term is on. ``left_out``: per capture, (H, W) bool or None -- pixels the term's
+    fit leaves out as the LED fit does (a contact, ``allow_contact``): a dent's light fitted as the undeformed
+    dome's would bias the term's reflectance, and through it every LED fitted to the images minus it.
+
+    A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on the twin),
+    after which nothing correlates with the indirect term any more: the term is fitted with the starting LEDs
+    first, and the LEDs are always fitted to the images minus it."""
+    from .indirect import fit_indirect
+
+    x, n, img, ok = samples.x, samples.n, samples.img, samples.ok
+    leds, fitted, models = leds0, None, []
+    direct = img  # the images minus the indirect light the last LED fit used
+    for r in range(rounds if interreflection != "off" else 0):
+        if r > 0:
+            leds = to_leds(fitted)[0]
+        models = [
+            fit_indirect(p, leds, mode=interreflection, bounces=bounces, exclude=out)
+            for p, out in zip(presses, left_out)
+        ]
+        if r == 0 and interreflection == "auto":
+            models = [_decide(m) for m in models]
+        if coating_reflectance is not None and r > 0:
+            # not in the first round: with the starting LEDs a lower light than fitted let an LED fit run off
+            # (seen: one LED 6.6 mm away); from the first round's LEDs the known value only refines
+            models = [m.with_reflectance(coating_reflectance) if m.enabled else m for m in models]
+        if not any(m.enabled for m in models):
+            break
+        direct = img - _sampled_indirect_light(presses, models, samples.selections, len(leds))
+        fitted = fit_leds(leds, x, n, direct, ok, loss)
+    if fitted is None or (models and not any(m.enabled for m in models)):
+        direct = img
+        fitted = fit_leds(leds0, x, n, img, ok, loss)
+    return fitted, direct, models
+
+
+def _decide(model: IndirectModel):
+    """The calibration's auto decision (:data:`tolerances.CALIBRATION_MIN_SHARE`) on a model fitted with the
+    starting LEDs."""
+    import dataclasses
+
+    on = model.share >= tolerances.CALIBRATION_MIN_SHARE
+    limit = tolerances.CALIBRATION_MIN_SHARE
+    note = f"; calibration: {'used' if on else 'not used'} (threshold {limit} with the starting LEDs)"
+    reason = model.reason.replace("interreflection on:", "interreflection off:") if not on else model.reason
+    return dataclasses.replace(model, enabled=on, reason=reason + note)
+
+
+def _sampled_indirect_light(
+    presses: Sequence[Press], models: Sequence[IndirectModel], selections: Sequence[np.ndarray], count: int
+) -> np.ndarray:
+    """(L, N, 3) float -- each capture's own indirect light (its fitted term at its typical albedo; zero where the
+    term is off) at its samples, pooled as :class:`Samples` pools them."""
+    light = []
+    for p, m, sel in zip(presses, models, selections):
+        if not m.enabled:
+            light.append(np.zeros((count, int(sel.sum()), 3)))
+            continue
+        light.append((m.undeformed_light(p.camera.shape) * np.asarray(m.off_view_albedo, np.float32))[:, sel])
+    return np.concatenate(light, axis=1)
+
+
+TERM_CHECK_SAMPLES = 2500
+"""The term's check (:func:`term_gain`) fits every k-th sample, k the smallest that leaves at most this many: its
+cost stays that of a 160x120 capture at stride 2-4 (1,200-4,800 samples, where its gain was measured) on larger
+captures (test_interreflection.py's stride 1: ~19,000), and the gain, which grows with the samples, stays on the
+scale it was measured on."""
+
+
+def term_gain(
+    samples: Samples,
+    fitted: Sequence[tuple[np.ndarray, np.ndarray, float]],
+    direct: np.ndarray,
+    loss: str,
+    quality: dict,
+) -> float:
+    """How much the indirect term lowers the point LED fits' summed squared residual against a direct-only fit, in
+    units of each LED's noise variance (its noise and model error in quadrature, ``quality`` of
+    :func:`.calibration_quality.fit_quality`).
+
+    Both fits converged, on the same samples (every k-th, :data:`TERM_CHECK_SAMPLES`), from the term's LEDs: the
+    term's fit again on them (when they are a subsample: neither fit then fits noise the other does not see) and a
+    direct-only fit of the images. A term that only fits noise gains about a chi-squared with its 3 parameters; one
+    that subtracts light that is not there loses (negative): LEDs started 0.8 mm / 10 deg off pose as 12-20 % of
+    indirect light on a bounce-free capture, the term then fits every LED worse than direct light alone; on an
+    interreflecting one it gains hundreds of variances although its direct-only LEDs end 17 deg off
+    (benchmarks/RESULTS.md, s15-m and s17-d).
+
+    Parameters
+    ----------
+    samples : the calibration's samples; fitted : per LED (params, std, rms), the term's fit (:func:`fit_leds`).
+    direct : (L, N, 3) float -- the images minus the term's indirect light, linear.
+    loss : the LED fit's robust loss; quality : :func:`.calibration_quality.fit_quality` of ``fitted``.
+    """
+    every = slice(None, None, -(-len(samples.x) // TERM_CHECK_SAMPLES))
+    x, n, img, ok, lit = (
+        samples.x[every],
+        samples.n[every],
+        samples.img[:, every],
+        samples.ok[:, every],
+        direct[:, every],
+    )
+    leds = to_leds(fitted)[0]
+    on = fitted if every.step == 1 else fit_leds(leds, x, n, lit, ok, loss)
+    off = fit_leds(leds, x, n, img, ok, loss)
+    variance = np.asarray(quality["noise"]) ** 2 + np.asarray(quality["model_error"]) ** 2
+    uses = [fit_samples(img[i], ok[i]) for i in range(len(leds))]  # the images' lit samples, for both fits
+
+    def squares(fits: list, images: np.ndarray) -> np.ndarray:
+        return np.array([np.sum((point_model(f[0], x, n) - im)[u] ** 2) for f, im, u in zip(fits, images, uses)])
+
+    return float(np.sum((squares(off, img) - squares(on, lit)) / variance))
+
+
+def term_wins(direct: LedCalibration, on: LedCalibration) -> bool:
+    """Whether the calibration with the indirect term explains the images (reliable) and better than ``direct``."""
+    return on.quality["reliable"] and on.quality["median_ratio"] < direct.quality["median_ratio"]
+
+
+def no_interreflection(models: list[dict], interreflection: str) -> str | None:
+    """Why no capture's indirect term is on (one clause), or None when one is."""
+    if any(m.get("enabled") for m in models):
+        return None
+    if interreflection == "off" or not models:
+        return "the interreflection term is off (requested)"
+    share = max(m["indirect_share"] for m in models)
+    if any("term_gain" in m for m in models):  # on by the share, then off by term_gain
+        return (
+            f"the interreflection term did not explain the images better than direct light (fitted indirect share "
+            f"{share:.3f} with the starting LEDs)"
+        )
+    return (
+        f"no capture shows interreflection (fitted indirect share {share:.3f} with the starting LEDs, below "
+        f"{tolerances.CALIBRATION_MIN_SHARE})"
+    )
+
+
+def unused_reflectance(
+    models: list[dict], interreflection: str, led_radius: float, reflectance: float | tuple[float, float, float] | None
+) -> list[str]:
+    """The warnings for a coating reflectance given but not used, or not profiled (with ``led_radius``).
+
+    Not honoured on purpose: the reflectance sets the magnitude of the indirect term, and with the term off
+    there is nothing to scale. On a capture the auto decision found without interreflection (a bounce-free
+    render of the twin: share 0.014, where its one-bounce renders show 0.31-0.33) the term would subtract light
+    that is not there; ``interreflection="on"`` forces it with the given reflectance (there, 160x120, 4 spp: worst
+    LED 16.0 deg and 0.73 mm off against 0.54 deg and 0.25 mm, and :func:`.calibration_quality.fit_quality` cannot
+    tell: 1.04).
+    """
+    from .indirect import checked_reflectance
+
+    why = no_interreflection(models, interreflection)
+    if why is None:
+        return []
+    if reflectance is not None:
+        a = np.round(checked_reflectance(reflectance), 3)
+        shown = f"{a[0]:g}" if np.all(a == a[0]) else str(a.tolist())
+        force = "" if interreflection == "off" else "; --interreflection on forces the term with this reflectance"
+        return [
+            f"coating reflectance {shown} (--coating-reflectance) not used: {why}, so the LEDs were fitted to the "
+            f"images as direct light{force}"
+        ]
+    if led_radius > 0 and interreflection != "off":
+        return [
+            f"coating reflectance not profiled (--led-diameter without --coating-reflectance): {why}, so the LEDs "
+            "were fitted to the images as direct light"
+        ]
+    return []
+
+
+def emitters_and_profile(
+    leds: Leds,
+    samples: Samples,
+    direct: np.ndarray,
+    loss: str,
+    led_radius: float,
+    coating_reflectance: float | tuple[float, float, float] | None,
+    models: list[dict],
+) -> tuple[tuple[Led, ...], dict | None]:
+    """(the LEDs fitted as disks of ``led_radius`` from the point ``leds``, or () without a radius; the
+    reflectance profile (:func:`_profiled_reflectance`) when the reflectance is to be profiled, else None).
+    ``models``: the captures' indirect terms as JSON."""
+    if not led_radius > 0:
+        return (), None
+    # from the points (0.2 mm off at most): the disk fit only refines them
+    x, n, ok = samples.x, samples.n, samples.ok
+    emitters = to_leds(fit_leds(leds, x, n, direct, ok, loss, disk_model(led_radius)))[0]
+    fitted_reflectance = _fitted_reflectance(models)
+    if coating_reflectance is not None or fitted_reflectance is None:
+        return emitters, None
+    profile = _profiled_reflectance(emitters, x, n, samples.img, direct, ok, loss, led_radius, fitted_reflectance)
+    return emitters, profile
+
+
+def _fitted_reflectance(models: list[dict]) -> np.ndarray | None:
+    """(3,) the coating reflectance the indirect term was fitted with (the first capture's whose term is on),
+    or None when no capture's term is on."""
+    for m in models:
+        if m.get("enabled"):
+            return np.asarray(m["coating_reflectance"], float)
+    return None
+
+
+PROFILE_SCALES = (0.6, 1.15)
+"""Range of the reflectance profile, as multiples of the freely fitted reflectance (:func:`_profiled_reflectance`)."""
+
+
+PROFILE_XTOL = 0.01
+"""The profile's tolerance on that multiple."""
+
+
+PROFILE_SAMPLES = 20_000
+"""The profile's disk fits use every k-th sample, k the smallest that leaves at most this many (a 640x480
+capture at stride 2 has ~55,000; every second of a 160x120 capture's ~3,400 moved the chosen reflectance from
+0.78 to 0.75, and its LED positions by 0.03 mm)."""
+
+
+def _profiled_reflectance(
+    emitters: Leds,
+    x: np.ndarray,
+    n: np.ndarray,
+    img: np.ndarray,
+    direct: np.ndarray,
+    ok: np.ndarray,
+    loss: str,
+    radius: float,
+    fitted: np.ndarray,
+) -> dict:
+    """The coating reflectance whose LED disk fit leaves the least residual, as a multiple of ``fitted``.
+
+    Why: a ring-wide tilt of the LED axes trades against the indirect term's magnitude, and the alternation
+    of LED fit and indirect fit settles on the tilted side (on the twin: 0.89-0.91 for a true 0.8, start
+    dependent). The point LEDs cannot arbitrate (a point is not the disk the light comes from: their residual
+    keeps falling with the reflectance), but the disk model is the emitter's own: its residual, with the
+    indirect light scaled by s (exact for one bounce, linear in the reflectance), is least near the true
+    reflectance (twin, 160x120: 0.75-0.80 for 0.8; benchmarks/RESULTS.md). Bounded Brent search over s
+    (scipy.optimize.minimize_scalar), each step a disk fit from ``emitters`` on at most
+    :data:`PROFILE_SAMPLES` samples.
+
+    Parameters
+    ----------
+    emitters : sequence of Led -- the disks fitted to ``direct`` (the start of every fit).
+    x, n : (N, 3) float, mm / unit, camera frame -- the samples' points and normals.
+    img, direct : (L, N, 3) float -- the images, and the images minus the indirect light at ``fitted``.
+    ok : (L, N, 3) bool -- usable samples.
+    loss : the LED fit's robust loss; radius : the disks' radius, mm.
+    fitted : (3,) float -- the freely fitted coating reflectance.
+
+    Returns
+    -------
+    dict -- fitted (3,), scales, residuals (sum over LEDs of the disk fit's squared RMS, image units), chosen (3,).
+    """
+    from scipy.optimize import minimize_scalar
+
+    light = img - direct
+    every = slice(None, None, -(-len(x) // PROFILE_SAMPLES))
+    xs, ns, imgs, lights, oks = x[every], n[every], img[:, every], light[:, every], ok[:, every]
+    model = disk_model(radius)
+    tried: dict[float, float] = {}
+
+    def residual(s: float) -> float:
+        out = fit_leds(emitters, xs, ns, imgs - s * lights, oks, loss, model)
+        tried[float(s)] = float(sum(f[2] ** 2 for f in out))
+        return tried[float(s)]
+
+    top = min(PROFILE_SCALES[1], 1.0 / float(np.max(fitted)))
+    best = minimize_scalar(residual, bounds=(PROFILE_SCALES[0], top), method="bounded", options={"xatol": PROFILE_XTOL})
+    scales = sorted(tried)
+    return {
+        "fitted": [float(v) for v in fitted],
+        "scales": [round(s, 4) for s in scales],
+        "residuals": [tried[s] for s in scales],
+        "chosen": [float(v) for v in np.minimum(fitted * float(best.x), 1.0)],
+    }

@@ -1,0 +1,171 @@
+"""The LED model's fit (:func:`nlipscalib.solver.calibrate.calibrate_leds`): one capture's samples on the
+reference surface, the robust non-linear least squares of each LED's parameters (a point LED, or a disk of a given
+radius), and the LEDs in the gauge mean Psi = 1 per channel."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from ..core.camera import depth_to_points
+from ..core.capture import Press
+from ..core.errors import CaptureError
+from ..core.leds import Led, Leds, disk_shading, led_shading
+from ..core.robust_scale import mad_scale
+from .blas import blas_threads
+from .press_checks import _other_sensor, optics_difference
+
+
+def _unit(theta: float, phi: float):
+    return np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+
+
+def _led(params: np.ndarray) -> Led:
+    """The Led a parameter vector (log K (3), mu, polar, azimuth of n_s, x_s (3)) stands for."""
+    return Led(
+        tuple(params[6:9]), tuple(_unit(params[4], params[5])), max(float(params[3]), 0.0), tuple(np.exp(params[:3]))
+    )
+
+
+def point_model(params: np.ndarray, x: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """(N, 3) model images of one LED: the one LED image model, ``core.leds.led_shading``."""
+    return led_shading(x, n, (_led(params),))[0]
+
+
+def disk_model(radius: float) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    """``point_model`` for an LED emitting from a disk of ``radius`` mm (``core.leds.disk_shading``)."""
+
+    def model(params: np.ndarray, x: np.ndarray, n: np.ndarray):
+        return disk_shading(x, n, (_led(params),), radius)[0]
+
+    return model
+
+
+@dataclasses.dataclass(frozen=True)
+class Samples:
+    """The samples of every capture, pooled: what the LED fits run on."""
+
+    x: np.ndarray
+    """(N, 3) float64, mm, camera frame -- the samples' points on the reference surface."""
+    n: np.ndarray
+    """(N, 3) float64, unit, camera frame -- their normals."""
+    img: np.ndarray
+    """(L, N, 3) float64, linear image units -- the LED images at the samples."""
+    ok: np.ndarray
+    """(L, N, 3) bool -- usable (not saturated) samples."""
+    selections: list
+    """Per capture, (H, W) bool -- its pixels among the samples, in order."""
+
+
+def capture_samples(
+    p: Press, first: Press, count: int, stride: int, left_out: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points, normals, linear images, usable flags and the pixel selection of one capture (without the pixels
+    ``left_out``, (H, W) bool, when given)."""
+    if p.reference is None:
+        raise CaptureError(f"{p.folder}: LED calibration needs the undeformed reference (reference.npz)")
+    if p.camera != first.camera or len(p.leds) != count:
+        why = optics_difference(p, first) or f"it has {len(p.leds)} LEDs, the starting LEDs {count}"
+        raise CaptureError(f"{p.folder}: not a capture of the sensor of {first.folder} ({why})")
+    # the LED ring and the dome too: two sensors of one camera were fitted together and refused as "a press"
+    why = _other_sensor(first, p) if p is not first else None
+    if why:
+        raise CaptureError(f"{p.folder}: not a capture of the sensor of {first.folder} ({why})")
+    valid = np.isfinite(p.reference.depth)
+    sub = np.zeros_like(valid)
+    sub[::stride, ::stride] = True
+    sel = valid & sub
+    if left_out is not None:
+        sel &= ~left_out
+    rays = p.camera.rays[sel]
+    x = depth_to_points(p.reference.depth[sel].astype(np.float64), rays)
+    n = p.reference.normals[sel].astype(np.float64)
+    # the press's linear images, made once for it (nothing_to_fit, _led_noise and fit_indirect read them too)
+    return x, n, p.linear_led_images[:, sel].astype(np.float64), ~p.saturated(p.led_images[:, sel]), sel
+
+
+def fit_leds(
+    leds: Leds,
+    x: np.ndarray,
+    n: np.ndarray,
+    img: np.ndarray,
+    ok: np.ndarray,
+    loss: str,
+    model: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = point_model,
+) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """[(params, std, rms)] per LED: robust non-linear least squares of ``model`` from ``leds``.
+
+    The unknowns are the parameters' offsets from the start: trf's first trust region is the start's norm in its
+    scaled units (scipy's ``Delta = norm(x0 * scale_inv)``), so with positions in camera coordinates (the ring 9 mm
+    off the axis) its first step could carry an LED 9.8 mm, behind the camera, into another minimum: on the
+    bounce-free twin at 80x60, from LEDs 0.4-0.8 mm / 5-10 deg off, 6 of 24 starts left one LED 11-97 deg and
+    4-7 mm off at a median quality like a good fit's (160x120 with noise: that LED 1.08x the noise, the others
+    0.99-1.02x). From offsets the first region is 1 (its norm when zero): none of them (benchmarks/RESULTS.md)."""
+    from scipy.optimize import least_squares  # imported here: ~0.5 s that `nlips solve` never needs
+
+    out = []
+    # one BLAS thread: trf's SVD of each step's (N, 9) Jacobian took 4-6x the CPU on 2 threads of a loaded
+    # machine, the same bits (s17-d, benchmarks/RESULTS.md)
+    with blas_threads(1):
+        for i, led in enumerate(leds):
+            d = np.asarray(led.direction)
+            p0 = np.concatenate(
+                [
+                    np.log(np.maximum(led.intensity, 1e-12)),
+                    [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])],
+                    led.position,
+                ]
+            )
+            # initial intensity: least-squares scale of the model
+            geo = model(p0, x, n) / np.exp(p0[:3])
+            k0 = (geo * img[i] * ok[i]).sum(0) / np.maximum((geo * geo * ok[i]).sum(0), 1e-30)
+            p0[:3] = np.log(np.maximum(k0, 1e-12))
+            use = fit_samples(img[i], ok[i])
+            scale = float(np.percentile(img[i][use], 90)) if use.any() else 1.0
+
+            def resid(step: np.ndarray, i: int = i, use: np.ndarray = use, scale: float = scale, p0: np.ndarray = p0):
+                return ((model(p0 + step, x, n) - img[i]) / scale)[use]
+
+            r0 = resid(np.zeros_like(p0))
+            f_scale = max(3 * mad_scale(r0), 1e-3)
+            res = least_squares(resid, np.zeros_like(p0), loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
+            dof = max(len(res.fun) - len(p0), 1)
+            s2 = float(np.sum(res.fun**2) / dof)
+            try:
+                sd = np.sqrt(np.maximum(np.diag(np.linalg.inv(res.jac.T @ res.jac) * s2), 0))
+            except np.linalg.LinAlgError:
+                sd = np.full(len(p0), np.nan)
+            out.append((p0 + res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * scale))
+    return out
+
+
+def to_leds(
+    fitted: Sequence[tuple[np.ndarray, np.ndarray, float]],
+) -> tuple[tuple[Led, ...], tuple[float, ...], list[dict]]:
+    """(LEDs in the gauge mean Psi = 1 per channel, albedo (3,), std dicts) from per-LED fits."""
+    K = np.exp(np.array([f[0][:3] for f in fitted]))  # (L, 3)
+    albedo = K.mean(axis=0)
+    leds, std = [], []
+    for (f, sd, _), k in zip(fitted, K):
+        psi = k / albedo
+        leds.append(Led(tuple(f[6:9]), tuple(_unit(f[4], f[5])), float(max(f[3], 0.0)), tuple(psi)))
+        std.append(
+            {
+                "intensity": list(psi * sd[:3]),
+                "mu": float(sd[3]),
+                "direction_deg": float(np.degrees(np.hypot(sd[4], np.sin(f[4]) * sd[5]))),
+                "position_mm": list(sd[6:9]),
+            }
+        )
+    return tuple(leds), tuple(float(a) for a in albedo), std
+
+
+def fit_samples(img: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """(N, 3) bool -- the samples one LED is fitted on: usable and lit (above 1 % of its 99th percentile per
+    channel); :func:`.calibration_quality.fit_quality` judges the fit on the same samples.
+
+    img : (N, 3) float -- that LED's samples, linear; ok : (N, 3) bool -- usable.
+    """
+    return ok & (img > 0.01 * np.percentile(img, 99, axis=0))
