@@ -189,7 +189,9 @@ def _solve_checked(
 
         # no total: a level stops on convergence, mostly long before opts.max_iters, so a bar to levels x max_iters
         # stopped at 3-10 % with an ETA of tens of seconds (a 1280x960 whole frame's "1/30 [00:01<00:36]")
-        bar = tqdm(desc="NLiPs", leave=False, bar_format=LEVEL_BAR)
+        # drawn at every iteration (each takes 10 ms to seconds): with tqdm's default 0.1 s interval a short solve's
+        # line could stay at "0 iterations so far"
+        bar = tqdm(desc="NLiPs", leave=False, bar_format=LEVEL_BAR, mininterval=0, miniters=1)
     be = Backend(backend, opts.dtype)
     with blas_threads(1):
         t_state, out = solve_coarse_to_fine(levels, data.leds, opts, be, bar, report, t_first, unrefined == 0)

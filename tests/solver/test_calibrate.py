@@ -126,7 +126,7 @@ def test_calibrate_leds_without_a_stride_takes_the_frames_default(tmp_path, monk
         raise RuntimeError("stop after the samples")
 
     monkeypatch.setattr(module, "default_stride", lambda shape: 7 if shape == flat.camera.shape else 1)
-    monkeypatch.setattr(module, "_samples", samples)
+    monkeypatch.setattr(module, "capture_samples", samples)
     with pytest.raises(RuntimeError, match="stop after the samples"):
         calibrate_leds(flat)
     with pytest.raises(RuntimeError):
