@@ -53,7 +53,6 @@ def test_every_test_the_faults_table_names_exists():
 OTHER_TOOLS_OPTIONS = {
     "--require-twin": "pytest (tests/conftest.py)",
     "--force": "setup.sh",
-    "--no-deps": "pip",
     "--sdist": "python -m build",
     "--defaults": "benchmarks/bench_effects.py",
     "--now": "systemctl",

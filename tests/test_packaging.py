@@ -82,8 +82,21 @@ def built(tmp_path_factory):
     code = f"from setuptools import build_meta; print(build_meta.build_sdist({str(dist)!r}))"
     res = _run([sys.executable, "-c", code], src)
     assert res.returncode == 0, res.stdout + res.stderr
+    (tmp / "sdist.log").write_text(res.stdout + res.stderr)  # setuptools' warnings on pyproject.toml
     (wheel,) = dist.glob("*.whl")
     return wheel, dist / res.stdout.strip().splitlines()[-1]
+
+
+def test_pyproject_uses_no_setuptools_feature_with_an_end_date(built):
+    """setuptools 84 warned that `license = { text = "MIT" }` is deprecated and that builds stop working after
+    2027-02-18; its SPDX string (`license = "MIT"`, setuptools >= 77) is what it asks for."""
+    wheel, _ = built
+    log = (wheel.parent.parent / "sdist.log").read_text()
+    assert "deprecated" not in log.lower(), log
+    info = "-".join(wheel.name.split("-")[:2]) + ".dist-info"  # nlipscalib-0.1.0.dist-info
+    metadata = zipfile.ZipFile(wheel).read(f"{info}/METADATA").decode()
+    assert "License-Expression: MIT" in metadata.splitlines()
+    assert f"{info}/licenses/LICENSE" in zipfile.ZipFile(wheel).namelist()
 
 
 def test_the_wheel_holds_every_file_of_the_package_and_the_data_it_reads(built):

@@ -27,6 +27,9 @@ MIN_IMAGE_SIDE, MAX_IMAGE_SIDE = 8, 16384
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
 """The shipped scenes (nlipscalib/scenes links to the repository's scenes/; installs carry a copy): their ``dome``,
 ``camera`` and ``leds`` sections are the designs ``nlips capture --design NAME`` names."""
+EXAMPLE_MESH = SCENES_DIR / "indenters" / "pyramid.stl"
+"""The indenter mesh shipped as an example of a user's own (``nlips render --mesh PATH``): a path inside the
+installed package, which a wheel's user cannot guess, so a missing ``--mesh pyramid.stl`` prints it."""
 DESIGN_SECTIONS = ("dome", "camera", "leds")
 """The sections of a scene file (and of meta.json's ``design``) that make up a :class:`SensorDesign`."""
 NO_DESIGN = "no sensor design in the capture: the dome beyond the view is not modelled"

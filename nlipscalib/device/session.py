@@ -47,6 +47,7 @@ from ..core.errors import CaptureError, ConfigError, require
 from ..core.leds import Led, tricolor_colors
 from ..core.sensor_record import setting_differences
 from ..core.tolerances import CAPTURE_CHECK_BLUR
+from .controller import FIRMWARE_GUIDE
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +128,7 @@ class Rig:
             # the count is fixed in the board (firmware build or Adalight's N): say both ways out
             raise CaptureError(
                 f"the LED board has {n} LEDs but {self.leds_origin} has {wanted}: give the board firmware built for "
-                f"{wanted} (`make NLEDS={wanted}`, firmware/README.md; stock Adalight: --adalight {wanted}), or "
+                f"{wanted} (`make NLEDS={wanted}`, {FIRMWARE_GUIDE}; stock Adalight: --adalight {wanted}), or "
                 f"capture with the design (--design) and LED file (--leds) of its {n} LEDs"
             )
         if tuple(self.source.shape) != self.camera.shape:

@@ -21,6 +21,7 @@ from shapely import affinity
 from shapely.geometry import Point, Polygon, box
 
 from ..core.errors import ConfigError
+from ..core.sensor import EXAMPLE_MESH
 
 IndenterKind = Literal["sphere", "cube", "cylinder", "cone", "screw", "coin", "cap", "gear", "key", "brick", "mesh"]
 Orientation = Literal["default", "face", "edge", "corner", "side", "end"]
@@ -352,7 +353,10 @@ def _load_mesh(cfg: IndenterConfig) -> trimesh.Trimesh:
     if path.is_dir():
         raise ConfigError(f"indenter mesh {path}: a folder, not a mesh file (give one file: {', '.join(MESH_TYPES)})")
     if not path.is_file():
-        raise ConfigError(f"indenter mesh {path}: no such file")
+        # the shipped example named without its path (README: "under the installed package"): say where it is
+        named_example = path.name in (EXAMPLE_MESH.name, EXAMPLE_MESH.stem)
+        hint = f" (the example shipped with nlipscalib is {EXAMPLE_MESH}: --mesh takes a path)" if named_example else ""
+        raise ConfigError(f"indenter mesh {path}: no such file{hint}")
     suffix = path.suffix.lower().lstrip(".")
     if suffix not in MESH_TYPES:
         raise ConfigError(f"indenter mesh {path}: unknown mesh type '.{suffix}' (use {', '.join(MESH_TYPES)})")

@@ -86,6 +86,24 @@ def test_a_folder_given_as_the_mesh_is_named_a_folder(tmp_path, capsys):
     assert not (tmp_path / "press").exists()
 
 
+def test_the_shipped_example_mesh_is_named_where_it_is(tmp_path, capsys, monkeypatch):
+    """A wheel's user read "scenes/indenters/pyramid.stl under the installed package" and had to find
+    site-packages; `--mesh pyramid.stl` (or `pyramid`) that is not a file prints the example's path. (Not in
+    --help: argparse wraps a path at its hyphens, site-packages included.)"""
+    from nlipscalib.core.sensor import EXAMPLE_MESH
+
+    assert EXAMPLE_MESH.is_file()
+    monkeypatch.chdir(tmp_path)
+    for bare in ("pyramid.stl", "pyramid"):
+        assert main(["render", "--mesh", bare, *TINY, "--out", "press"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"nlips render: error: indenter mesh {bare}: no such file")
+        assert f"shipped with nlipscalib is {EXAMPLE_MESH}" in err[0], err
+    assert main(["render", "--mesh", "part.stl", *TINY, "--out", "press"]) == 2  # a user's own: no hint
+    assert capsys.readouterr().err.strip() == "nlips render: error: indenter mesh part.stl: no such file"
+    assert not (tmp_path / "press").exists()
+
+
 def test_a_press_no_pixel_shows_is_rendered_with_a_warning(tmp_path, caplog):
     """A press beyond the camera's view (polar 80 deg: the fisheye sees up to about 60) rendered silently, its
     images the undeformed gel's; a press in view gives no warning."""
