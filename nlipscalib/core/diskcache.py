@@ -70,11 +70,12 @@ DEFAULT_MB = 2048
 ENTRY_MAX_SHARE = 0.5
 """An entry whose file would take more than this share of the size bound (:func:`limit_bytes`) is not written: it
 is recomputed by every process instead. Why: written, it evicted most of the cache, and a sensor whose entries
-together exceed the bound evicted its own entries in turn, each run writing again what the last one removed (the
-1280x960 whole frame's difference operators are one 857 MB entry, its other entries ~310 MB; with
-``NLIPS_CACHE_MB=1000`` every run rewrote ~1 GB). At the default bound every entry of a 640x480 sensor (the largest
-~210 MB) and of a 1280x960 one is written: loading those operators takes a 1280x960 whole-frame solve 12.8 s
-against 19.0 s building them (benchmarks/RESULTS.md, s24-mem), so they are worth their room when there is room."""
+together exceed the bound evicted its own in turn, each run writing again what the last one removed (the 1280x960
+whole frame's difference operators are one 857 MB entry, its other entries ~310 MB: under ``NLIPS_CACHE_MB=1000``
+writing the operators evicted the oldest of those, which the next run wrote again). At the default bound every
+entry of a 640x480 sensor (the largest 214 MB) and of a 1280x960 one is written, as before: loaded, those operators
+take a 1280x960 whole-frame solve to 14.3-14.8 s against 19.9-23.4 s building them (benchmarks/RESULTS.md,
+s24-mem), so they are worth their room where there is room."""
 SUFFIX = ".pkl"
 TAG = "nlipscalib.diskcache.entry/3"
 """First item of every stored (TAG, value) pair: an entry without it was not written by :func:`store`."""
