@@ -32,7 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "spec", help="dataset spec file, or a shipped spec's name: train50 (~50 presses) or demo (the demo's)"
     )
     p.add_argument("--out", required=True, help="folder that receives one press folder per press")
-    p.add_argument("--workers", type=int, default=0, help="render processes (default: one per two cores)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="render processes (default: one per two cores, fewer where memory holds fewer)",
+    )
     p.add_argument(
         "--limit",
         type=int,

@@ -171,6 +171,12 @@ def run(args: argparse.Namespace) -> int:
             wait=True,  # the result asked for: another run's is waited for, and reused only when made alike
         )
         return 0
+    if args.workers > 1:  # the count asked for, said when it likely exceeds the memory available
+        from ..core.capture import image_size
+        from ..core.cpus import SOLVE_ROI_MEMORY, SOLVE_WHOLE_MEMORY, worker_count
+
+        memory = SOLVE_WHOLE_MEMORY if given["roi"] is None else SOLVE_ROI_MEMORY
+        worker_count(args.workers, 1, memory, *image_size(presses[0]))
     press_lines(BATCH)  # a line per press; how each was solved with -v
     statuses = solve_presses(
         presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given

@@ -674,6 +674,12 @@ def read_meta(folder: str | Path) -> dict:
     return meta
 
 
+def image_size(folder: str | Path) -> tuple[int, int]:
+    """(width, height) in pixels of a press folder's images, from its meta.json (:func:`read_meta`'s errors)."""
+    camera = Camera.from_dict(read_meta(folder)["camera"])
+    return camera.width, camera.height
+
+
 def _check_units(meta: dict, path: Path) -> None:
     """CaptureError when meta.json declares units or a frame other than the format's (millimetres, the camera
     frame): its numbers would be read as such and solve to a wrong result without a word. Both keys are optional."""

@@ -29,7 +29,8 @@ a process; this module keeps them on disk between processes.
   (:func:`nlipscalib.cli._end_at_once`) removes its temporary file (:func:`nlipscalib.core.atomic.remove_in_progress`),
   so a write cut short never leaves an entry. :func:`load` of an entry this process is still writing waits for it.
 - **Size:** at most ``$NLIPS_CACHE_MB`` (default :data:`DEFAULT_MB`) megabytes; after a write the least
-  recently used entries (reads touch them) are removed.
+  recently used entries (reads touch them) are removed. An entry above :data:`ENTRY_MAX_SHARE` of that bound is
+  not written at all (said at DEBUG): it would evict most of the others, a sensor's own included, each run.
 - **Trust:** entries are pickles, loaded only from the user's own cache folder (as joblib's ``Memory`` does);
   do not point ``NLIPS_CACHE_DIR`` at a folder others can write to.
 
@@ -66,6 +67,15 @@ ENV_MB = "NLIPS_CACHE_MB"
 """Environment variable: the most megabytes the cache folder may hold."""
 DEFAULT_MB = 2048
 """Default size bound, MB: a 640x480 sensor's entries take about 250 MB (sphere1: 251 MB)."""
+ENTRY_MAX_SHARE = 0.5
+"""An entry whose file would take more than this share of the size bound (:func:`limit_bytes`) is not written: it
+is recomputed by every process instead. Why: written, it evicted most of the cache, and a sensor whose entries
+together exceed the bound evicted its own in turn, each run writing again what the last one removed (the 1280x960
+whole frame's difference operators are one 857 MB entry, its other entries ~310 MB: under ``NLIPS_CACHE_MB=1000``
+writing the operators evicted the oldest of those, which the next run wrote again). At the default bound every
+entry of a 640x480 sensor (the largest 214 MB) and of a 1280x960 one is written, as before: loaded, those operators
+take a 1280x960 whole-frame solve to 14.3-14.8 s against 19.9-23.4 s building them (benchmarks/RESULTS.md,
+s24-mem), so they are worth their room where there is room."""
 SUFFIX = ".pkl"
 TAG = "nlipscalib.diskcache.entry/3"
 """First item of every stored (TAG, value) pair: an entry without it was not written by :func:`store`."""
@@ -269,7 +279,7 @@ def store(path: Path, value: object) -> None:
     (read-only or full disk, a value that cannot be pickled) only costs the next process the computation:
     it is logged, not raised."""
     parts = _pieces_or_none(path, value)
-    if parts is not None:
+    if parts is not None and _fits(path, parts):
         _write(path, parts)
 
 
@@ -282,12 +292,30 @@ def _pieces_or_none(path: Path, value: object) -> list | None:
         return None
 
 
+def _fits(path: Path, parts: list) -> bool:
+    """Whether an entry of ``parts`` (:func:`_serialised`) is at most :data:`ENTRY_MAX_SHARE` of the size bound;
+    one that is not is said at DEBUG (it is recomputed by the next process: no fault)."""
+    size = sum(memoryview(p).nbytes for p in parts)
+    limit = limit_bytes()
+    if size <= ENTRY_MAX_SHARE * limit:
+        return True
+    log.debug(
+        "cache entry %s not written: %.0f MB, more than %.0f %% of the cache's %.0f MB (%s)",
+        path,
+        size / 2**20,
+        100 * ENTRY_MAX_SHARE,
+        limit / 2**20,
+        ENV_MB,
+    )
+    return False
+
+
 def store_later(path: Path, value: object) -> None:
     """:func:`store` on a thread of its own: ``value`` is pickled now (its arrays only referenced: neither they
     nor the objects holding them may change afterwards), its bytes written while the caller goes on. The
     process's exit waits for the write (a non-daemon thread); :func:`wait` waits for it sooner."""
     parts = _pieces_or_none(path, value)
-    if parts is None:
+    if parts is None or not _fits(path, parts):
         return
 
     def write() -> None:

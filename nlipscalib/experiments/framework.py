@@ -170,6 +170,16 @@ def with_solver_options(
     return out
 
 
+def _check_memory(tasks: list[Task], workers: int) -> None:
+    """Warn when ``workers`` local processes likely need more memory than is available: each renders and solves
+    (on the whole frame: the larger of the two) its tasks' largest images."""
+    from ..core.cpus import SOLVE_WHOLE_MEMORY, worker_count
+
+    sizes = [(t.scene["camera"]["width"], t.scene["camera"]["height"]) for t in tasks if "camera" in t.scene]
+    if sizes:
+        worker_count(workers, 1, SOLVE_WHOLE_MEMORY, *max(sizes, key=lambda wh: wh[0] * wh[1]))
+
+
 def run_experiment(
     exp: Experiment,
     cfg: Any,
@@ -190,6 +200,8 @@ def run_experiment(
     start = time.perf_counter()
     tasks = exp.tasks(cfg, solver_options)
     settings = run_settings(exp, cfg, size, solver_options)
+    if workers > 1 and scheduler is None:  # the count asked for, said when it likely exceeds the memory available
+        _check_memory(tasks, workers)
     with hold_outputs(tasks, settings, out, report):
         status = run_tasks(
             tasks,

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 from ..core.atomic import check_writable, clean_interrupted
 from ..core.capture import META_FILE, is_press_folder
 from ..core.claims import CLAIM_STALE_S
-from ..core.cpus import usable_cores
+from ..core.cpus import RENDER_MEMORY, usable_cores, worker_count
 from ..core.errors import ConfigError, NlipsError
 from ..core.processes import end_processes, end_with_parent, sigint_held, worker_signals
 from ..progress import SINGLE, configure_worker, progress_bar, worker_logging
@@ -90,7 +90,9 @@ def run_dataset(
     for stale in clean_interrupted(out):
         log.info("removed interrupted write %s", stale.name)
     cores = usable_cores()
-    workers = min(len(todo), workers or max(1, cores // 2))
+    # one per two cores (each renders on two threads), fewer where memory holds fewer (1280x960: ~2.7 GB each)
+    each = worker_count(workers, max(1, cores // 2), RENDER_MEMORY, scene.camera.width, scene.camera.height)
+    workers = min(len(todo), each)
     scene = scene.replace(render={"threads": max(1, cores // workers)})
     with progress_bar(
         total=len(jobs), initial=len(result["skipped"]), unit="press", desc="rendering", enabled=progress

@@ -115,3 +115,15 @@ def test_calibrate_normals_refined_reaches_every_label_solve(tmp_path):
     assert [normals(n) for n in ("press_0001", "press_0002")] == ["refined", "refined"]
     assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0
     assert [normals(n) for n in ("press_0001", "press_0002")] == ["depth", "depth"]
+
+
+def test_calibrate_runs_as_many_solvers_as_memory_holds(session, monkeypatch, caplog):
+    """Without --workers, one solver per core unless the memory available holds fewer (one INFO line)."""
+    from nlipscalib.core import cpus
+
+    root, _ = session
+    monkeypatch.setattr(cpus, "usable_cores", lambda: 8)
+    monkeypatch.setattr(cpus, "available_memory", lambda: 10**8)  # 100 MB: not one 64x48 solver's ~0.16 GB
+    caplog.set_level(logging.INFO)
+    assert main(["calibrate", str(root), "--no-progress"]) == 0
+    assert "1 worker instead of 8: each solve, auto ROI worker may take ~0.2 GB at 64x48" in caplog.text

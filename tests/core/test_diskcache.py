@@ -1,6 +1,7 @@
 """The disk tier for sensor-level results (core/diskcache.py): keys by content, atomic entries, size bound."""
 
 import dataclasses
+import logging
 import os
 import threading
 
@@ -318,3 +319,21 @@ def test_a_process_that_ends_while_writing_leaves_a_whole_entry_or_none(cache_di
         small = diskcache.entry("k", ("small",))
         diskcache.store(small, 1)
         assert {p.name for p in path.parent.iterdir()} <= {small.name, path.name}
+
+
+def test_an_entry_above_half_the_size_bound_is_not_written_and_evicts_nothing(cache_dir, monkeypatch, caplog):
+    small = diskcache.entry("k", ("small",))
+    diskcache.store(small, np.zeros(100_000, np.uint8))
+    monkeypatch.setenv(diskcache.ENV_MB, str(300_000 / 2**20))  # 300 kB: an entry may take 150 kB
+    caplog.set_level(logging.DEBUG, logger="nlipscalib.core.diskcache")
+    big = diskcache.entry("k", ("big",))
+    diskcache.store(big, np.zeros(200_000, np.uint8))  # written, it would leave room for nothing else
+    diskcache.store_later(diskcache.entry("k", ("big later",)), np.zeros(200_000, np.uint8))
+    diskcache.wait()
+    assert not big.exists() and small.exists() and diskcache.usage()[0] == 1
+    assert "not written: 0 MB, more than 50 % of the cache's 0 MB (NLIPS_CACHE_MB)" in caplog.text
+    with pytest.raises(KeyError):
+        diskcache.load(big)  # a miss: the next process computes it again
+    medium = diskcache.entry("k", ("medium",))
+    diskcache.store(medium, np.zeros(140_000, np.uint8))  # within the share: written, the bound then trims
+    assert medium.exists()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 
 import numpy as np
 import pytest
@@ -328,3 +329,20 @@ def test_table_headers_name_group_columns_in_words():
     rows = [{"calibration_presses": 4, "split": "seen", "aae": 1.5}]
     text = table(Table("counts", "caption", ("calibration_presses", "split"), rows, columns=(("aae", "AAE", 2),)))
     assert "| calibration presses | split | AAE |" in text
+
+
+def test_local_workers_that_likely_exceed_memory_are_warned_about(monkeypatch, caplog):
+    """``nlips experiment --workers N``: kept, with a warning sized by the tasks' largest images (whole frames)."""
+    from types import SimpleNamespace
+
+    from nlipscalib.core import cpus
+    from nlipscalib.experiments import framework
+
+    tasks = [SimpleNamespace(scene={"camera": {"width": w, "height": h}}) for w, h in ((96, 72), (1280, 960))]
+    monkeypatch.setattr(cpus, "available_memory", lambda: 8 * 10**9)
+    caplog.set_level(logging.INFO, logger="nlipscalib.core.cpus")
+    framework._check_memory(tasks, 2)  # 2 x 6.8 GB at 1280x960
+    assert "--workers 2: each solve, whole frame worker may take ~6.8 GB at 1280x960" in caplog.text
+    caplog.clear()
+    framework._check_memory(tasks[:1], 8)  # 8 x 0.2 GB at 96x72: nothing said
+    assert caplog.text == ""

@@ -1,4 +1,5 @@
 import json
+import logging
 import os
 
 import numpy as np
@@ -396,3 +397,27 @@ def test_a_dataset_into_a_press_folder_is_refused_before_anything_is_written(tmp
     assert main(["capture", "--emulate", "nlipstac", "--out", str(press), "--yes"]) == 2  # a session alike
     err = capsys.readouterr().err.strip()
     assert err.endswith("is a press folder (it has meta.json); capture the session into another folder"), err
+
+
+def test_the_default_render_workers_are_as_many_as_memory_holds(tmp_path, monkeypatch, caplog):
+    """An 8-core PC renders on 4 processes by default; with 1 GB available only one fits (a render: ~0.9 GB at
+    640x480), said in one INFO line, and the renders run in this process."""
+    from nlipscalib.core import cpus
+
+    spec, scene = load_dataset_spec(_write(tmp_path, GRID))
+    jobs = expand_jobs(spec)[:2]
+    calls = []
+
+    def fake_render(scene, job, out, overwrite=False):
+        calls.append(job.name)
+        (out / job.name).mkdir()
+        meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
+        (out / job.name / "meta.json").write_text(json.dumps(meta))
+
+    monkeypatch.setattr(dataset_pool, "_run_one", fake_render)
+    monkeypatch.setattr(dataset_pool, "usable_cores", lambda: 8)
+    monkeypatch.setattr(cpus, "available_memory", lambda: 10**9)
+    caplog.set_level(logging.INFO, logger="nlipscalib.core.cpus")
+    result = run_dataset(scene, jobs, tmp_path / "out", workers=0, progress=False)
+    assert sorted(result["rendered"]) == sorted(calls) and len(calls) == 2  # in this process: the stand-in ran here
+    assert "1 worker instead of 4: each render worker" in caplog.text and "--workers N overrides" in caplog.text
