@@ -145,9 +145,10 @@ def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
     flag's value); ``--threads`` >= 0 (0: the default); ``out`` not a press folder. Shared with infer."""
     from pathlib import Path
 
-    from ..core.capture import META_FILE, is_press_folder
     from ..core.config import check_count
     from ..core.errors import ConfigError
+    from ..core.press_folders import is_press_folder
+    from ..core.press_meta import META_FILE
 
     if out and is_press_folder(Path(out)):
         # the frames' results went in among its images, exit 0 (`nlips capture`, `dataset` and `demo` refuse it too)

@@ -90,9 +90,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.atomic import check_writable
-    from ..core.capture import REFERENCE_FOLDER, is_press_folder, no_presses_error, read_meta, split_reference
     from ..core.config import check_count, options_named
     from ..core.errors import ConfigError
+    from ..core.press_folders import is_press_folder, no_presses_error, split_reference
+    from ..core.press_meta import REFERENCE_FOLDER, read_meta
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
     from ..progress import BATCH, press_lines
     from .folders import check_one_capture
@@ -149,9 +150,9 @@ def _solve_and_build(
     run: dict,
 ) -> int:
     """The solves, the dataset and its coverage report, and the summary lines (exit status)."""
-    from ..core.capture import image_size, read_meta
     from ..core.cpus import SOLVE_ROI_MEMORY, usable_cores, worker_count
     from ..core.errors import ConfigError
+    from ..core.press_meta import image_size, read_meta
     from ..core.sensor_record import camera_position_of
     from ..learn.coverage import coverage, write_coverage_json
     from ..learn.dataset import CalibrationDataset, build_dataset
@@ -198,8 +199,10 @@ def own_reference_left_out(root: Path, given: Path) -> None:
     """``nlips calibrate ROOT --reference GIVEN`` where ROOT holds its own ``reference/``: one info line that it is
     left out (it is the undeformed dome, never a press), or a ConfigError when the two are captures of different
     sensors (ROOT's presses would then not match GIVEN: the dataset build would refuse them after the solve)."""
-    from ..core.capture import REFERENCE_FOLDER, is_press_folder, load_press
+    from ..core.capture import load_press
     from ..core.errors import CaptureError, ConfigError
+    from ..core.press_folders import is_press_folder
+    from ..core.press_meta import REFERENCE_FOLDER
     from ..core.sensor_record import sensor_mismatch, sensor_of
 
     own = root / REFERENCE_FOLDER
@@ -224,8 +227,9 @@ def reference_fits(reference: Path, presses: Sequence[Path]) -> None:
     """One line, before any solving, when the undeformed capture cannot be read or is of another sensor than
     the first readable press (every press's solve failed on it alike: one line per press). A press whose
     meta.json cannot be read is not compared: it fails alone, in its own line."""
-    from ..core.capture import META_FILE, load_press, parse_optics, read_meta, read_optics
+    from ..core.capture import load_press, read_optics
     from ..core.errors import CaptureError, ConfigError
+    from ..core.press_meta import META_FILE, parse_optics, read_meta
     from ..core.sensor_record import describe_sensor, sensor_mismatch, sensor_of, surface_mismatch
     from ..pipeline.settings import twin_reference_problem
 

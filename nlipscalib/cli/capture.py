@@ -272,8 +272,8 @@ def _run_emulated(args: argparse.Namespace):
 
 
 def _run_device(args: argparse.Namespace):
-    from ..core.capture import SensorResponse, white_level_of
     from ..core.dome import reference_surface
+    from ..core.sensor_response import SensorResponse, white_level_of
     from ..device.camera import CameraSettings, open_source
     from ..device.lights_out import lights_out_on_exit
     from ..device.port import BAUD_RATE

@@ -103,8 +103,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _targets(path: Path, method: str | None) -> tuple[list[Path], str]:
     """(press folders, method): PATH as a reconstruction folder, a press, or a folder of presses."""
-    from ..core.capture import is_press_folder, no_presses_error, split_reference
     from ..core.errors import CaptureError
+    from ..core.press_folders import is_press_folder, no_presses_error, split_reference
     from ..core.reconstruction import METHODS, is_reconstruction_dir
 
     if is_reconstruction_dir(path) and is_press_folder(path.parent):
@@ -151,8 +151,8 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
     """([(press, result folder)], method) for ``--result DIR``: DIR scored against the press ``path``, or, when
     ``path`` is a folder of presses, DIR/PRESS/<method> (what ``nlips infer PRESSES --out DIR`` writes) against
     each press PRESS of it."""
-    from ..core.capture import is_press_folder, split_reference
     from ..core.errors import CaptureError
+    from ..core.press_folders import is_press_folder, split_reference
     from ..core.reconstruction import METHODS, has_reconstruction
 
     if is_press_folder(path) or not path.is_dir() or has_reconstruction(result):  # one result: of one press
@@ -178,8 +178,8 @@ def _result_targets(path: Path, result: Path, method: str | None, other_capture:
 
 def _result_target(press: Path, result: Path, method: str | None, other_capture: bool) -> tuple[list[Path], str]:
     """([press], method) for ``--result DIR``: DIR's reconstruction scored against the one press ``press``."""
-    from ..core.capture import is_press_folder
     from ..core.errors import CaptureError
+    from ..core.press_folders import is_press_folder
     from ..core.reconstruction import METHODS, has_reconstruction, read_report
 
     if not is_press_folder(press):
@@ -281,7 +281,7 @@ def _identity(press: Path) -> str:
 
 def _tricolor_identity(press: Path) -> str:
     """The identity of the press's tri-colour image file (what an NLiPsNet result of that file records)."""
-    from ..core.capture import read_meta
+    from ..core.press_meta import read_meta
     from .infer import frame_identity
 
     return frame_identity(press / read_meta(press)["images"]["tricolor"])
@@ -386,8 +386,9 @@ def _scores(folder: Path, rec: Reconstruction) -> dict:
 def _ground_truth(folder: Path):
     """The press's GroundTruth or None, without decoding its images (only gt.npz is needed)."""
     from ..core.camera import Camera
-    from ..core.capture import GroundTruth, read_meta
     from ..core.errors import CaptureError
+    from ..core.press_meta import read_meta
+    from ..core.surface_files import GroundTruth
 
     meta = read_meta(folder)
     if not meta.get("ground_truth"):

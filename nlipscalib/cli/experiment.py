@@ -211,8 +211,8 @@ def _writable_folder(option: str, given: str | Path | None, folder: Path, probe:
     when a file stands in its way; with ``probe``, OSError naming the folder (one line from the CLI) when it
     cannot be written (read-only, permission)."""
     from ..core.atomic import check_writable
-    from ..core.capture import is_press_folder
     from ..core.errors import ConfigError
+    from ..core.press_folders import is_press_folder
 
     given = Path(given or folder)
     for part in (folder, *folder.parents):

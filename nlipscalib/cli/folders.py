@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..core.capture import META_FILE, REFERENCE_FOLDER, find_presses, is_press_folder
 from ..core.errors import ConfigError
+from ..core.press_folders import find_presses, is_press_folder
+from ..core.press_meta import META_FILE, REFERENCE_FOLDER
 
 
 def check_not_in_press(out: Path, what: str) -> None:

@@ -545,8 +545,9 @@ def _frames(inputs: Iterable[str]) -> Iterator[StillInput]:
     """(name, loader(predictor) -> linear frame, press folder or None, source path) for every input, in order."""
     from pathlib import Path
 
-    from ..core.capture import META_FILE, REFERENCE_FOLDER, find_presses, is_incomplete_press
     from ..core.errors import CaptureError
+    from ..core.press_folders import find_presses, is_incomplete_press
+    from ..core.press_meta import META_FILE, REFERENCE_FOLDER
     from ..learn.dataset import INDEX_FILE, SENSOR_FILE
 
     eight_bit = _EightBitNotice()

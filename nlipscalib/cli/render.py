@@ -250,8 +250,8 @@ def _check_replaceable(out: Path) -> None:
     Why: ``--overwrite`` replaced whatever was there with the rendered press: ``nlips render --out out/train50
     --overwrite`` deleted a whole dataset, ``--out notes.txt --overwrite`` the user's file (``nlips solve --out``
     refuses the same, tests/test_pipeline.py)."""
-    from ..core.capture import is_press_folder
     from ..core.errors import ConfigError
+    from ..core.press_folders import is_press_folder
 
     if not (out.exists() or out.is_symlink()):
         return
@@ -269,8 +269,8 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
     """True when ``out`` holds this very render; an existing folder from another spec is an error."""
     import json
 
-    from ..core.capture import is_press_folder
     from ..core.errors import ConfigError
+    from ..core.press_folders import is_press_folder
     from ..sim.press import recorded_spec_hash, render_spec_hash
 
     if not out.exists():

@@ -120,9 +120,10 @@ def parse_roi(values: Sequence[str] | None) -> str | tuple[int, ...] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.capture import no_presses_error, read_meta, split_reference
     from ..core.config import check_count, from_mapping, read_config_file
     from ..core.errors import ConfigError
+    from ..core.press_folders import no_presses_error, split_reference
+    from ..core.press_meta import read_meta
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..pipeline.provenance import identity_in_background
     from ..progress import BATCH, press_lines
@@ -172,8 +173,8 @@ def run(args: argparse.Namespace) -> int:
         )
         return 0
     if args.workers > 1:  # the count asked for, said when it likely exceeds the memory available
-        from ..core.capture import image_size
         from ..core.cpus import SOLVE_ROI_MEMORY, SOLVE_WHOLE_MEMORY, worker_count
+        from ..core.press_meta import image_size
 
         memory = SOLVE_WHOLE_MEMORY if given["roi"] is None else SOLVE_ROI_MEMORY
         worker_count(args.workers, 1, memory, *image_size(presses[0]))
@@ -194,7 +195,8 @@ def _decode_ahead(args: argparse.Namespace) -> None:
     own first use would import them either on pyamg's background thread, competing for the GIL with the press's
     loading and the solve's start (sphere1 auto 1.45 -> 1.48 s, benchmarks/RESULTS.md s21-imp), or on the main
     thread later, where the decoding no longer runs beside them."""
-    from ..core.capture import is_press_folder, prefetch_press
+    from ..core.capture import prefetch_press
+    from ..core.press_folders import is_press_folder
     from ..core.reconstruction import has_reconstruction, reconstruction_dir
 
     if is_press_folder(args.press) and (
@@ -208,8 +210,8 @@ def _check_min_leds(options: SolverOptions, press: Path, config: str) -> None:
     """ConfigError naming the config file when its ``min_leds`` exceeds the capture's LEDs: the solver's own
     check ("12 LEDs given; the solver needs at least min_leds=50") says neither where the value came from
     nor which press. The presses of one folder share a sensor, so the first stands for all."""
-    from ..core.capture import read_meta
     from ..core.errors import CaptureError, ConfigError
+    from ..core.press_meta import read_meta
 
     try:
         leds = read_meta(press)["leds"]

@@ -5,19 +5,13 @@ heavy optional dependency at import time.
 """
 
 from .camera import Camera
-from .capture import (
-    GroundTruth,
-    Press,
-    Reference,
-    SensorResponse,
-    find_presses,
-    is_press_folder,
-    load_press,
-    write_press,
-)
+from .capture import Press, load_press, write_press
 from .leds import Led, disk_shading, led_arrays, led_shading, tricolor_colors, tricolor_groups
+from .press_folders import find_presses, is_press_folder
 from .reconstruction import Reconstruction, load_reconstruction, save_reconstruction
 from .sensor import CameraConfig, DomeConfig, LedConfig, SensorDesign
+from .sensor_response import SensorResponse
+from .surface_files import GroundTruth, Reference
 
 __all__ = [
     "Camera",

@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 
 from .camera import Camera
-from .capture import Reference
 from .errors import ConfigError
 from .sensor import DomeConfig, SensorDesign
+from .surface_files import Reference
 from .tolerances import NORMAL_EPS
 
 

@@ -15,8 +15,8 @@ import numpy as np
 from .errors import ShapeError
 
 if TYPE_CHECKING:  # names in hints only: importing them here would make an import cycle
-    from .capture import GroundTruth
     from .reconstruction import Reconstruction
+    from .surface_files import GroundTruth
 
 
 def _check(est: np.ndarray, gt: np.ndarray, mask: np.ndarray | None, name: str, last: int | None):
@@ -143,7 +143,7 @@ def evaluate(result: Reconstruction, ground_truth: GroundTruth, mask: np.ndarray
     ----------
     result : SolveResult-like -- ``normals`` (H, W, 3) float, unit, camera frame; ``depth`` (H, W) float, mm,
         camera-frame z; ``reconstructed`` (H, W) bool.
-    ground_truth : :class:`~nlipscalib.core.capture.GroundTruth` of the same (H, W) image.
+    ground_truth : :class:`~nlipscalib.core.surface_files.GroundTruth` of the same (H, W) image.
     mask : (H, W) bool or None -- further restricts the pixels scored.
 
     Returns

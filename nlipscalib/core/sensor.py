@@ -216,7 +216,7 @@ def capture_design(meta: dict) -> tuple[tuple[DomeConfig, np.ndarray] | None, st
 
     Parameters
     ----------
-    meta : dict -- a press folder's meta.json (``core.capture.read_meta``).
+    meta : dict -- a press folder's meta.json (``core.press_meta.read_meta``).
 
     Returns
     -------
@@ -234,7 +234,7 @@ def capture_design(meta: dict) -> tuple[tuple[DomeConfig, np.ndarray] | None, st
     design = shipped_design(name)
     if design is None:
         return None, f"{NO_DESIGN} (it names the design {name!r}, which does not ship with nlipscalib)"
-    n, designed = len(meta["leds"]), len(design.led_models())  # meta's leds: a list (core.capture.parse_optics)
+    n, designed = len(meta["leds"]), len(design.led_models())  # meta's leds: a list (core.press_meta.parse_optics)
     if n != designed:  # not the sensor captured, whatever the name says
         return None, f"{NO_DESIGN} (it names the design {name!r}, whose {designed} LEDs are not its {n})"
     found = design_dome(dataclasses.asdict(design))

@@ -21,7 +21,8 @@ if TYPE_CHECKING:  # names in hints only: this module imports the camera where i
     import numpy as np
 
     from .camera import Camera
-    from .capture import Press, SensorResponse
+    from .capture import Press
+    from .sensor_response import SensorResponse
 
 log = logging.getLogger(__name__)
 

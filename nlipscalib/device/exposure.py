@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.capture import SensorResponse, linearise
 from ..core.errors import CaptureError, require
+from ..core.sensor_response import SensorResponse, linearise
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
     EXPOSURE_LIGHT_FRACTION,

@@ -34,18 +34,14 @@ import numpy as np
 
 from ..core.atomic import clean_interrupted, write_json
 from ..core.camera import Camera
-from ..core.capture import (
-    REFERENCE_FOLDER,
-    Reference,
-    SensorResponse,
-    is_press_folder,
-    led_frame_name,
-    linearise,
-    write_press,
-)
+from ..core.capture import write_press
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.leds import Led, tricolor_colors
+from ..core.press_folders import is_press_folder
+from ..core.press_meta import REFERENCE_FOLDER, led_frame_name
 from ..core.sensor_record import setting_differences
+from ..core.sensor_response import SensorResponse, linearise
+from ..core.surface_files import Reference
 from ..core.tolerances import CAPTURE_CHECK_BLUR
 from .controller import FIRMWARE_GUIDE
 
@@ -402,7 +398,7 @@ def claim_session(out: str | Path) -> Iterator[None]:
 def _damaged(folder: Path) -> str:
     """Why a captured press folder cannot be kept ("" when it is whole): files its meta.json lists are gone
     (deleted or lost since), or meta.json itself is unreadable."""
-    from ..core.capture import missing_capture_files
+    from ..core.press_folders import missing_capture_files
 
     try:
         missing = missing_capture_files(folder)

@@ -18,8 +18,9 @@ from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
 
 if TYPE_CHECKING:  # named in hints only: each function imports what it uses
-    from ..core.capture import GroundTruth, Press
+    from ..core.capture import Press
     from ..core.reconstruction import Reconstruction
+    from ..core.surface_files import GroundTruth
     from ..sim.scene import SceneConfig
     from ..solver import SolverOptions
 

@@ -304,7 +304,7 @@ def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
 
     folder = out / "presses" / task.id
     t = time.perf_counter()
-    from ..core.capture import is_press_folder
+    from ..core.press_folders import is_press_folder
 
     if not is_press_folder(folder):  # a press rendered before an interruption is reused
         adapters.render(task.scene, task.press, folder, threads)

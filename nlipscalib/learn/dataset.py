@@ -291,7 +291,8 @@ def build_dataset(
     another sensor (with ``failed``: only when every press is), ConfigError when another live build of other
     samples holds ``out``.
     """
-    from ..core.capture import load_press, read_meta
+    from ..core.capture import load_press
+    from ..core.press_meta import read_meta
 
     cfg = cfg or SamplingConfig()
     out = Path(out)

@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.camera import Camera, depth_to_points
-from ..core.capture import CLIPPED_VALUE, linearise
 from ..core.errors import CaptureError, ConfigError, ShapeError
+from ..core.sensor_response import CLIPPED_VALUE, linearise
 from ..core.tolerances import (
     FRAME_BLACK_FRACTION,
     FRAME_BRIGHTNESS_OFF,
@@ -232,7 +232,7 @@ class Predictor:
         """(brightness, saturated) of a linear frame (:class:`Frame`): its median brightness on the gel over the
         reference frame's (1: as bright; 0 when no brighter than the calibration's dark frame, never negative), and
         the share of the gel's pixels with a channel clipped (stored at the white level, or at
-        :data:`~nlipscalib.core.capture.CLIPPED_VALUE`)."""
+        :data:`~nlipscalib.core.sensor_response.CLIPPED_VALUE`)."""
         gel = tricolor[self.valid]
         level = float(np.median(self.ref_tricolor[self.valid].sum(-1)))
         brightness = max(0.0, float(np.median(gel.sum(-1))) / level) if level > 0 else float("nan")
@@ -282,7 +282,7 @@ def capture_changes(model: LoadedModel, folder: str | Path) -> list[str]:
     """'key: calibration's -> press's' of every capture setting (``core.sensor_record.capture_settings``) where the
     press folder ``folder`` was taken otherwise than the model's calibration reference; empty when the same, or
     when the model predates the record (2026-12-05) or the press's meta.json cannot be read (its load says why)."""
-    from ..core.capture import read_meta
+    from ..core.press_meta import read_meta
     from ..core.sensor_record import capture_settings, setting_differences
 
     recorded = model.info.get("capture")
@@ -398,8 +398,8 @@ def load_tricolor(folder: str | Path) -> tuple[np.ndarray, dict]:
     frame : (H, W, 3) float32, linear (dark-subtracted, 1 = full scale)
     sensor : dict (:func:`nlipscalib.core.sensor_record.sensor_of` layout)
     """
-    from ..core.capture import META_FILE, parse_optics, read_meta
     from ..core.imageio import read_png16
+    from ..core.press_meta import META_FILE, parse_optics, read_meta
     from ..core.sensor_record import describe_sensor
 
     folder = Path(folder)

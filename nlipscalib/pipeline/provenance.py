@@ -51,11 +51,12 @@ def _keyed(described: dict) -> dict:
 def capture_identity(folder: str | Path) -> str:
     """SHA-256 (hex) of a press folder's solver inputs: meta.json, images and reference.npz contents.
 
-    Cached per process while every file it reads keeps its stamp (:func:`~nlipscalib.core.capture.file_stamp`):
+    Cached per process while every file it reads keeps its stamp (:func:`~nlipscalib.core.stored_images.file_stamp`):
     a long-lived process (a notebook, ``nlips calibrate``) notices a file replaced in place, and a warm call
     costs a stat per file (~60 us at 12 LEDs), not the hashing of every image (tens of ms).
     """
-    from ..core.capture import META_FILE, file_stamp
+    from ..core.press_meta import META_FILE
+    from ..core.stored_images import file_stamp
 
     meta = Path(folder) / META_FILE
     try:
@@ -100,7 +101,7 @@ def identity_in_background(*folders: str | Path | None) -> None:
 def _identity_files(folder: str, meta_stamp: tuple) -> tuple[str, ...]:
     """The files of ``folder`` whose contents the identity hashes after meta.json's, in order (read from
     meta.json, checked: its errors name it), per meta.json's stamp."""
-    from ..core.capture import read_meta
+    from ..core.press_meta import read_meta
 
     meta = read_meta(folder)
     images = meta["images"]
@@ -110,7 +111,7 @@ def _identity_files(folder: str, meta_stamp: tuple) -> tuple[str, ...]:
 @functools.lru_cache(maxsize=16)
 def _capture_identity_cached(folder: str, names: tuple[str, ...], stamps: tuple) -> str:
     """The identity of ``folder`` hashing meta.json and ``names``, per the files' ``stamps`` (the cache key)."""
-    from ..core.capture import META_FILE
+    from ..core.press_meta import META_FILE
 
     digest = hashlib.sha256((Path(folder) / META_FILE).read_bytes())
     for name in names:

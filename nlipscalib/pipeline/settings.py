@@ -127,7 +127,8 @@ def check_fits_capture(folder: Path, settings: SolveSettings) -> None:
     """A ROI inside the capture's image, an LED subset or LED file that fits its LEDs (read from meta.json), a
     reference captured by the same sensor; else ConfigError or CaptureError naming what does not fit (``nlips
     calibrate --leds`` checks its LED file with it before any solving)."""
-    from ..core.capture import META_FILE, read_meta, read_optics
+    from ..core.capture import read_optics
+    from ..core.press_meta import META_FILE, read_meta
     from ..solver.press_checks import check_roi, check_undeformed
 
     meta = read_meta(folder)
@@ -225,8 +226,8 @@ def _check_leds_sensor(folder: Path, meta: dict, settings: SolveSettings) -> Non
     from them, a warning -- not an error, since a calibration may rightly find a real sensor's LEDs millimetres
     and degrees from its design. LED values passed in (an experiment's deliberately offset LEDs) are not.
     """
-    from ..core.capture import META_FILE, parse_optics
     from ..core.leds import led_geometry_mismatch
+    from ..core.press_meta import META_FILE, parse_optics
     from ..core.sensor_record import describe_sensor, leds_file_mismatch
 
     camera, leds, response = parse_optics(meta, folder / META_FILE)

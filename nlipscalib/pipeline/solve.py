@@ -28,8 +28,9 @@ from .status import BUSY, FAILED, SOLVED
 from .workers import _solve_in_processes
 
 if TYPE_CHECKING:  # named in hints only: the solver and captures are imported when a press is solved
-    from ..core.capture import GroundTruth, Press
+    from ..core.capture import Press
     from ..core.leds import Led
+    from ..core.surface_files import GroundTruth
     from ..solver import SolverOptions
 
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"

@@ -21,8 +21,8 @@ import numpy as np
 from ..core.cpus import usable_cores
 
 if TYPE_CHECKING:  # named in hints only
-    from ..core.capture import GroundTruth
     from ..core.reconstruction import Reconstruction
+    from ..core.surface_files import GroundTruth
 
 FIGURE_LEVELS = ("none", "maps", "full")
 """Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""

@@ -8,8 +8,9 @@ import json
 import logging
 from pathlib import Path
 
-from ..core.capture import META_FILE, is_press_folder
 from ..core.errors import CaptureError, ConfigError, NlipsError
+from ..core.press_folders import is_press_folder
+from ..core.press_meta import META_FILE
 from .dataset_spec import PressJob
 from .scene import SceneConfig
 
@@ -30,7 +31,7 @@ def same_spec(scene: SceneConfig, job: PressJob, out: Path) -> bool:
 def missing_files(folder: Path) -> list[str]:
     """Files ``folder``'s meta.json lists that are gone (deleted or lost since it was rendered); [] when whole, or
     when meta.json cannot say (its format is for the commands that load the press to judge)."""
-    from ..core.capture import listed_files
+    from ..core.press_meta import listed_files
 
     try:
         names = listed_files(json.loads((folder / META_FILE).read_bytes()))

@@ -24,10 +24,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..core.atomic import check_writable, clean_interrupted
-from ..core.capture import META_FILE, is_press_folder
 from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import RENDER_MEMORY, usable_cores, worker_count
 from ..core.errors import ConfigError, NlipsError
+from ..core.press_folders import is_press_folder
+from ..core.press_meta import META_FILE
 from ..core.processes import end_processes, end_with_parent, sigint_held, worker_signals
 from ..progress import SINGLE, configure_worker, progress_bar, worker_logging
 from .dataset_folder import (

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.capture import REFERENCE_FOLDER
 from ..core.config import check_count, check_range, check_size_pair, from_mapping, read_config_file
 from ..core.errors import ConfigError
+from ..core.press_meta import REFERENCE_FOLDER
 from .indent import IndenterConfig, PressConfig
 from .scene import SceneConfig, load_scene
 

@@ -31,8 +31,8 @@ from .render.groundtruth import reference_from
 if TYPE_CHECKING:  # names in hints only: the functions import the scene and render modules where they use them
     import trimesh
 
-    from ..core.capture import GroundTruth
     from ..core.sensor import DomeConfig, LedConfig
+    from ..core.surface_files import GroundTruth
     from .indent import PressConfig
     from .render.surface import RenderResult
     from .scene import SceneConfig

@@ -21,11 +21,11 @@ from pathlib import Path
 from typing import Literal
 
 from ..core.camera import Camera
-from ..core.capture import SensorResponse
 from ..core.config import check_count, check_range, check_size_pair, from_mapping, read_config_file, to_mapping
 from ..core.errors import ConfigError
 from ..core.leds import Led
 from ..core.sensor import SCENES_DIR, CameraConfig, DomeConfig, LedConfig, SensorDesign
+from ..core.sensor_response import SensorResponse
 from .render.denoise import DenoiseConfig
 from .render.variant import VARIANTS
 

@@ -4,7 +4,7 @@ import os
 import numpy as np
 import pytest
 
-from nlipscalib.core import Camera, Led, Reference, SensorResponse, capture, load_press, write_press
+from nlipscalib.core import Camera, Led, Reference, SensorResponse, capture, load_press, surface_files, write_press
 from nlipscalib.core.atomic import TMP_PREFIX, atomic_dir, clean_interrupted
 from nlipscalib.core.capture import GroundTruth, find_presses
 from nlipscalib.core.errors import CaptureError
@@ -299,11 +299,11 @@ def test_a_reference_of_bytes_read_before_is_mapped_from_the_disk_tier_not_infla
     a = _press(tmp_path / "a")
     b = tmp_path / "b"
     shutil.copytree(a, b)
-    inflated, inflate = [], capture._load_npz
-    monkeypatch.setattr(capture, "_load_npz", lambda path, keys: inflated.append(path) or inflate(path, keys))
+    inflated, inflate = [], surface_files._load_npz
+    monkeypatch.setattr(surface_files, "_load_npz", lambda path, keys: inflated.append(path) or inflate(path, keys))
     first = load_press(a).reference
     diskcache.wait()  # the entry's background write
-    capture._checked_reference.cache_clear()  # as a new process: nothing kept in memory
+    surface_files._checked_reference.cache_clear()  # as a new process: nothing kept in memory
     second = load_press(b).reference
     assert inflated == [a / "reference.npz"]
     for x, y in [(first.depth, second.depth), (first.normals, second.normals)]:
@@ -312,7 +312,7 @@ def test_a_reference_of_bytes_read_before_is_mapped_from_the_disk_tier_not_infla
     with np.load(b / "reference.npz") as d:
         depth, normals = d["depth"], d["normals"]
     np.savez(b / "reference.npz", depth=depth + 1, normals=normals)
-    capture._checked_reference.cache_clear()
+    surface_files._checked_reference.cache_clear()
     assert np.array_equal(load_press(b).reference.depth, depth + 1) and inflated[-1] == b / "reference.npz"
     assert len(inflated) == 2
 
@@ -520,3 +520,25 @@ def test_linearise_rejects_an_image_that_does_not_end_with_the_dark_frames_shape
     for image, dark_ in ((np.zeros((4, 5, 3)), dark[:1]), (np.zeros((4, 5, 1)), dark), (np.zeros((5, 4, 3)), dark)):
         with pytest.raises(ShapeError, match="must end with the dark frame's shape"):
             linearise(image, dark_, 256.0, 512.0)
+
+
+# the public names core/capture.py defined before it was split into one file per job (session 24)
+FORMAT_NAMES = """CLIPPED_VALUE CaptureOptics FORMAT_NAME FORMAT_VERSION FileLoader GT_FILE GT_KEYS GroundTruth
+LEAST_BIT_DEPTH Loader META_FILE Press REFERENCE_FILE REFERENCE_FOLDER Reference SensorResponse StoredImages
+decode_in_background decode_together file_stamp find_presses is_incomplete_press is_press_folder led_frame_name
+led_image_name linearise listed_files load_press missing_capture_files no_presses_error parse_optics prefetch_press
+read_meta read_optics split_reference white_level_of write_press""".split()
+
+
+def test_every_public_name_of_the_format_is_still_importable_from_core_capture():
+    """core.capture is the format's module (docs/api.md, docs/formats.md): each name it held before the split is
+    there still, the very object its new home defines, and listed in ``__all__``."""
+    import importlib
+
+    missing = [name for name in FORMAT_NAMES if name not in capture.__all__ or not hasattr(capture, name)]
+    assert not missing, missing
+    for name in FORMAT_NAMES:
+        obj = getattr(capture, name)
+        home = getattr(obj, "__module__", None)
+        if home is not None and home.startswith("nlipscalib.core."):  # a class or function: the same object
+            assert getattr(importlib.import_module(home), name) is obj, name

@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
-from nlipscalib.core import capture, load_press, prefetch
+from nlipscalib.core import load_press, prefetch, stored_images
 from nlipscalib.core.errors import CaptureError
 
 from .test_capture import _press, _spoil_png
@@ -25,7 +25,7 @@ def _no_decoding(monkeypatch):
     def refuse(data, path, out=None):
         raise AssertionError(f"{path} decoded again")
 
-    monkeypatch.setattr(capture, "decode_png16", refuse)
+    monkeypatch.setattr(stored_images, "decode_png16", refuse)
 
 
 @pytest.mark.parametrize("decode", [True, "background"])

@@ -230,18 +230,18 @@ def test_a_warm_solve_against_an_undeformed_capture_does_not_decode_its_images(t
     """The undeformed capture's results on disk are named by its files' bytes (``Press.images_digest``): a later
     process loads the capture undecoded (``nlips solve --reference``), finds them, and never decodes its PNGs
     (0.2-0.3 s at 640x480, only to name them); it solves alike."""
-    from nlipscalib.core import capture
+    from nlipscalib.core import stored_images  # decodes the PNGs (core.capture re-exports its loaders)
 
     folders = {kind: synth.make_press(tmp_path / kind, kind, size=(96, 72)) for kind in ("none", "sphere")}
     first = _solve_auto(folders["sphere"], load_press(folders["none"], decode=False))
     reuse.clear()  # a new process: only the disk remembers
-    decoded, decode = [], capture.decode_png16
+    decoded, decode = [], stored_images.decode_png16
 
     def spy(data, path, **kw):
         decoded.append(path)
         return decode(data, path, **kw)
 
-    monkeypatch.setattr(capture, "decode_png16", spy)
+    monkeypatch.setattr(stored_images, "decode_png16", spy)
     later = _solve_auto(folders["sphere"], load_press(folders["none"], decode=False))
     assert decoded and not [p for p in decoded if folders["none"] in p.parents]  # the press's own: decoded
     for key in first:

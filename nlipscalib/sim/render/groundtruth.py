@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ...core.capture import GroundTruth, Reference
 from ...core.errors import ConfigError
+from ...core.surface_files import GroundTruth, Reference
 from .mesh import CONTACT_ATTR
 
 if TYPE_CHECKING:  # mitsuba is loaded at run time in a chosen variant (``variant.load_mitsuba``), passed as ``mi``

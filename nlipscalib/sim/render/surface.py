@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...core import atomic
-from ...core.capture import GroundTruth
+from ...core.surface_files import GroundTruth
 from .denoise import denoise_indirect
 from .groundtruth import trace_ground_truth
 from .interruptible import call_interruptibly

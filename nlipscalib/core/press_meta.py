@@ -1,0 +1,135 @@
+"""A press folder's names and its meta.json: the file names the capture format fixes (docs/formats.md), meta.json
+read and checked (:func:`read_meta`), the camera, LEDs and sensor response it records (:func:`parse_optics`) and
+the files it lists (:func:`listed_files`, :func:`existing_file`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .camera import Camera
+from .errors import CaptureError
+from .formatfile import read_format_json
+from .leds import Led
+from .sensor_response import SensorResponse
+
+FORMAT_NAME = "nlipscalib.press"
+FORMAT_VERSION = 1
+META_FILE = "meta.json"
+GT_FILE = "gt.npz"
+REFERENCE_FILE = "reference.npz"
+REFERENCE_FOLDER = "reference"
+"""A folder of presses (a twin dataset, a capture session) keeps the capture of its undeformed dome here."""
+
+
+def led_frame_name(index: int) -> str:
+    """Name of LED ``index``'s (0-based) frame: led_01 for the first LED (a capture's frame, its image's stem)."""
+    return f"led_{index + 1:02d}"
+
+
+def led_image_name(index: int) -> str:
+    """File name of LED ``index`` (0-based) image: led_01.png for the first LED."""
+    return f"{led_frame_name(index)}.png"
+
+
+def read_meta(folder: str | Path) -> dict:
+    """Read and check the top level of a press folder's meta.json."""
+    folder = Path(folder)
+    path = folder / META_FILE
+    if folder.exists() and not folder.is_dir():
+        raise CaptureError(f"{folder}: a file, not a press folder")
+    if not folder.is_dir():
+        raise CaptureError(f"{folder}: not a press folder (no such directory)")
+    meta = read_format_json(
+        path,
+        FORMAT_NAME,
+        FORMAT_VERSION,
+        required=("camera", "leds", "sensor", "images"),
+        missing_hint=f"{folder} is not a complete press folder",
+    )
+    _check_file_names(meta, path)
+    _check_units(meta, path)
+    return meta
+
+
+def image_size(folder: str | Path) -> tuple[int, int]:
+    """(width, height) in pixels of a press folder's images, from its meta.json (:func:`read_meta`'s errors)."""
+    camera = Camera.from_dict(read_meta(folder)["camera"])
+    return camera.width, camera.height
+
+
+def _check_units(meta: dict, path: Path) -> None:
+    """CaptureError when meta.json declares units or a frame other than the format's (millimetres, the camera
+    frame): its numbers would be read as such and solve to a wrong result without a word. Both keys are optional."""
+    units = meta.get("units", "mm")
+    if units != "mm":
+        raise CaptureError(f"{path}: 'units' is {units!r}; captures are in millimetres ('mm'): convert the file")
+    frame = meta.get("frame", "camera")
+    if not (isinstance(frame, str) and frame.startswith("camera")):
+        raise CaptureError(f"{path}: 'frame' is {frame!r}; captures are in the camera frame ('camera')")
+
+
+def _check_file_names(meta: dict, path: Path) -> None:
+    """CaptureError naming the key of meta.json whose file name is not a string (every reader joins them to the
+    folder, and the capture's identity hashes them before the press is loaded: else a TypeError traceback)."""
+    images = meta["images"]
+    if not isinstance(images, dict):
+        raise CaptureError(f"{path}: 'images' must be a mapping of image names, got {type(images).__name__}")
+    for key in ("dark", "leds", "tricolor"):
+        if key not in images:
+            raise CaptureError(f"{path}: missing key 'images.{key}'")
+    for key in ("dark", "tricolor"):
+        _check_name(images[key], f"images.{key}", path)
+    if not isinstance(images["leds"], list):
+        raise CaptureError(f"{path}: 'images.leds' must be a list of file names, got {images['leds']!r}")
+    for i, name in enumerate(images["leds"]):
+        _check_name(name, f"images.leds[{i}]", path)
+    for key in ("reference", "ground_truth"):  # optional files: null or absent when there is none
+        if meta.get(key) is not None:
+            _check_name(meta[key], key, path)
+
+
+def _check_name(name: object, key: str, path: Path) -> None:
+    if not isinstance(name, str) or not name:
+        raise CaptureError(f"{path}: '{key}' must be a file name, got {name!r}")
+
+
+def listed_files(meta: dict) -> list[str]:
+    """The files a press folder's meta.json lists: its images (dark, tri-colour, one per LED) and, when it
+    records them, its reference and ground-truth arrays (KeyError/TypeError when ``images`` is malformed)."""
+    images = meta["images"]
+    names = [images["dark"], images["tricolor"], *images["leds"]]
+    names += [meta[key] for key in ("reference", "ground_truth") if meta.get(key)]
+    return [str(name) for name in names]
+
+
+def parse_optics(meta: dict, path: Path) -> tuple[Camera, list[Led], SensorResponse]:
+    """(camera, LEDs, sensor response) of a press's meta.json (``read_meta``); CaptureError naming ``path``."""
+    try:
+        camera = Camera.from_dict(meta["camera"])
+        if not isinstance(meta["leds"], list):
+            raise ValueError(f"'leds' must be a list of LEDs, got {meta['leds']!r}")
+        leds = [_led(d, i) for i, d in enumerate(meta["leds"])]
+        if not isinstance(meta["sensor"], dict):
+            raise ValueError(f"'sensor' must be a mapping of sensor levels, got {meta['sensor']!r}")
+        response = SensorResponse(**meta["sensor"])
+    except (TypeError, ValueError) as exc:
+        raise CaptureError(f"{path}: {exc}") from None
+    if not leds:
+        raise CaptureError(f"{path}: 'leds' is empty")
+    return camera, leds, response
+
+
+def _led(entry: object, index: int) -> Led:
+    """LED ``index`` of meta.json's ``leds``; a bad value names its place (``leds[3]``) as well as its key."""
+    try:
+        return Led.from_dict(entry)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"leds[{index}]: {exc}") from None
+
+
+def existing_file(folder: Path, name: str) -> Path:
+    """``folder / name``, a file meta.json lists; CaptureError naming it when it is missing."""
+    path = folder / name
+    if not path.is_file():
+        raise CaptureError(f"{path}: listed in {META_FILE} but missing")
+    return path
