@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
@@ -39,6 +40,8 @@ if TYPE_CHECKING:  # torch is optional (the full-frame path passes tensors): nam
     import torch
 
 Array: TypeAlias = "np.ndarray | torch.Tensor"
+Bounds: TypeAlias = "Sequence[int]"
+"""Pixel bounds [r0, r1, c0, c1): rows r0 to r1 - 1, columns c0 to c1 - 1."""
 """A numpy array, or a torch tensor where :mod:`.fullframe` calls the shared arithmetic."""
 
 ANCHOR_WEIGHT = 1e-4
@@ -90,8 +93,13 @@ class RayGeometry:
 
 def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
     """(p, q): d log(rho)/du and d log(rho)/dv, each (H, W) float64, from normals ((H, W, 3) unit, camera frame)."""
-    den = np.minimum(np.einsum("...k,...k->...", normals, geo.rays), -INTEGRATION_MIN_FACING)
-    return -np.einsum("...k,...k->...", normals, geo.d_u) / den, -np.einsum("...k,...k->...", normals, geo.d_v) / den
+    return _gradient64(normals, geo.rays, geo.d_u), _gradient64(normals, geo.rays, geo.d_v)
+
+
+def _gradient64(normals: np.ndarray, rays: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """-(n . d) / (n . ray) per pixel, float64 (``d`` the ray's derivative along u or v; (..., 3) each)."""
+    den = np.minimum(np.einsum("...k,...k->...", normals, rays), -INTEGRATION_MIN_FACING)
+    return -np.einsum("...k,...k->...", normals, d) / den
 
 
 def integrate_on_dome(
@@ -121,17 +129,99 @@ def integrate_on_dome(
         raise ShapeError(f"method must be 'auto', 'box' or 'sparse', got {method!r}")
     points = geo.points.copy()
     if unknown.any():
-        box = _box(unknown, on_gel) if method != "sparse" else None
-        if method == "box" and box is None:
-            raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
+        boxes, sparse = _regions(unknown, on_gel, method)
         # only the solved pixels change: the rest keeps the reference surface
-        if box is not None:
+        for box in boxes:
             log_range = _solve_box(normals, geo, box)
             points[box] = np.exp(log_range.astype(np.float32))[..., None] * geo.rays32[box]
-        else:
-            log_range = _solve_sparse(normals, unknown, on_gel, geo)
-            points[unknown] = np.exp(log_range)[:, None] * geo.rays[unknown]
+        if sparse is not None:
+            log_range = _solve_sparse(normals, sparse, on_gel, geo)
+            points[sparse] = np.exp(log_range)[:, None] * geo.rays[sparse]
     return points[..., 2], points
+
+
+MAX_SPLIT_REGIONS = 256
+"""Most 4-connected regions of changed pixels that "auto" sorts into boxes one by one when their common box does
+not apply; beyond it (a frame flagged all over) every changed pixel takes the sparse path."""
+
+
+def _regions(
+    unknown: np.ndarray, on_gel: np.ndarray, method: str
+) -> tuple[list[tuple[slice, slice]], np.ndarray | None]:
+    """The boxes to solve with sines and the pixels ((H, W) bool, or None) to solve with SuperLU.
+
+    One box around every changed pixel where it applies. Where it does not ("auto": a speck of noise at the
+    image border, or a second contact there), the changed pixels split into 4-connected regions: the least-
+    squares equations of one region share no unknown with another's, so each region group is solved on its
+    own -- in a box where its box applies, else on the sparse path. Bounds (grown by the ring) that share a
+    pixel are merged first: one box's solved interior must not be another's fixed ring or a sparse region's
+    known neighbour, so a region whose box does not apply takes every box it overlaps to the sparse path.
+    A 1280x960 frame's contact with a few noise specks at the border is then a box solve of milliseconds and
+    a SuperLU solve of the specks, not a SuperLU solve of the whole contact.
+    """
+    if method == "sparse":
+        return [], unknown
+    box = _box(unknown, on_gel)
+    if box is not None:
+        return [box], None
+    if method == "box":
+        raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
+    from scipy import ndimage
+
+    labels, count = ndimage.label(unknown)
+    if count > MAX_SPLIT_REGIONS:
+        return [], unknown
+    # each region's bounds grown by one pixel (its ring): [r0, r1, c0, c1), with the regions it holds
+    groups = [
+        [s[0].start - 1, s[0].stop + 1, s[1].start - 1, s[1].stop + 1, [k + 1]]
+        for k, s in enumerate(ndimage.find_objects(labels))
+    ]
+    groups = _merge_overlapping(groups)
+    # merged bounds share no pixel: a group whose bounds do not fit took every group it overlapped to the sparse path
+    fits = [_fits(g[:4], on_gel) for g in groups]
+    rects = [tuple(g[:4]) for g in groups]
+    boxes = []
+    for i in np.flatnonzero(fits):  # grown one by one: each grown box kept clear of the others as they are now
+        box = _faster(rects[i], on_gel, rects[:i] + rects[i + 1 :])
+        rects[i] = (box[0].start, box[0].stop, box[1].start, box[1].stop)
+        boxes.append(box)
+    sparse_labels = [k for g, ok in zip(groups, fits) if not ok for k in g[4]]
+    if not sparse_labels:
+        return boxes, None
+    to_sparse = np.zeros(count + 1, bool)
+    to_sparse[sparse_labels] = True
+    return boxes, to_sparse[labels]
+
+
+def _merge_overlapping(groups: list[list]) -> list[list]:
+    """Groups ([r0, r1, c0, c1, labels]) merged until no two bounds share a pixel."""
+    merged = True
+    while merged:
+        merged = False
+        out: list[list] = []
+        for g in groups:
+            for o in out:
+                if _overlap(g, o):
+                    o[0], o[1], o[2], o[3] = min(o[0], g[0]), max(o[1], g[1]), min(o[2], g[2]), max(o[3], g[3])
+                    o[4] = o[4] + g[4]
+                    merged = True
+                    break
+            else:
+                out.append(g)
+        groups = out
+    return groups
+
+
+def _overlap(a: Bounds, b: Bounds) -> bool:
+    """Whether bounds a and b ([r0, r1, c0, c1), half-open) share a pixel."""
+    return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
+
+
+def _fits(rect: Bounds, on_gel: np.ndarray) -> bool:
+    """Whether bounds [r0, r1, c0, c1) lie inside the image and on the gel (a box solve applies)."""
+    r0, r1, c0, c1 = rect
+    H, W = on_gel.shape
+    return r0 >= 0 and c0 >= 0 and r1 <= H and c1 <= W and bool(on_gel[r0:r1, c0:c1].all())
 
 
 def _box(unknown: np.ndarray, on_gel: np.ndarray):
@@ -142,14 +232,20 @@ def _box(unknown: np.ndarray, on_gel: np.ndarray):
     a prime-sized transform is several times slower.
     """
     rows, cols = np.flatnonzero(unknown.any(1)), np.flatnonzero(unknown.any(0))  # no per-pixel index arrays
-    r0, r1, c0, c1 = int(rows[0]) - 1, int(rows[-1]) + 2, int(cols[0]) - 1, int(cols[-1]) + 2
-    H, W = unknown.shape
-    if r0 < 0 or c0 < 0 or r1 > H or c1 > W or not on_gel[r0:r1, c0:c1].all():
+    rect = (int(rows[0]) - 1, int(rows[-1]) + 2, int(cols[0]) - 1, int(cols[-1]) + 2)
+    if not _fits(rect, on_gel):
         return None
-    fr0, fr1 = _fast_span(r0, r1, H)
-    fc0, fc1 = _fast_span(c0, c1, W)
-    if on_gel[fr0:fr1, fc0:fc1].all():
-        r0, r1, c0, c1 = fr0, fr1, fc0, fc1
+    return _faster(rect, on_gel)
+
+
+def _faster(rect: Bounds, on_gel: np.ndarray, others: Sequence[Bounds] = ()) -> tuple[slice, slice]:
+    """(rows, cols) slices of bounds [r0, r1, c0, c1) grown to FFT-friendly sides (:func:`_fast_span`) where the
+    grown box stays on the gel and shares no pixel with any of ``others`` (bounds solved apart)."""
+    r0, r1, c0, c1 = rect
+    H, W = on_gel.shape
+    grown = (*_fast_span(r0, r1, H), *_fast_span(c0, c1, W))
+    if on_gel[grown[0] : grown[1], grown[2] : grown[3]].all() and not any(_overlap(grown, o) for o in others):
+        r0, r1, c0, c1 = grown
     return (slice(r0, r1), slice(c0, c1))
 
 
@@ -237,51 +333,64 @@ def _gradient32(normals: Array, rays: Array, d_u: Array, d_v: Array) -> tuple[Ar
 
 def _solve_sparse(normals: np.ndarray, unknown: np.ndarray, on_gel: np.ndarray, geo: RayGeometry) -> np.ndarray:
     """Log-range of the changed pixels ((n,) in ``unknown`` order): least squares on them only (any shape),
-    SuperLU on the normal equations."""
+    SuperLU on the normal equations.
+
+    Built from the changed pixels and their neighbours alone (flat indices), not from whole-image arrays: a few
+    hundred pixels of noise at a 1280x960 frame's border cost what their size says."""
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.linalg import splu
 
-    known_lr = geo.log_range
-    p, q = log_range_gradient(np.asarray(normals, np.float64), geo)
-    index = np.full(unknown.size, -1, np.int64)
-    index[np.flatnonzero(unknown)] = np.arange(int(unknown.sum()))
-    rows, cols, vals, rhs = _equations(unknown, on_gel, index, known_lr, p, q)
-    n = int(unknown.sum())
+    flat_lr = geo.log_range.ravel()
+    unknown_at = np.flatnonzero(unknown)
+    n = len(unknown_at)
+    rows, cols, vals, rhs = _equations(normals, unknown_at, on_gel, geo)
     A = coo_matrix((vals, (rows, cols)), shape=(len(rhs), n)).tocsr()
-    anchor = ANCHOR_WEIGHT * _unbounded(unknown, on_gel)[unknown]
+    anchor = ANCHOR_WEIGHT * _unbounded(n, rows, cols)
     normal_matrix = (A.T @ A + diags(anchor)).tocsc()
-    b = A.T @ rhs + anchor * known_lr[unknown]
+    b = A.T @ rhs + anchor * flat_lr[unknown_at]
     return splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
 
 
-def _unbounded(unknown: np.ndarray, on_gel: np.ndarray) -> np.ndarray:
-    """(H, W) bool -- the unknown pixels whose 4-connected region has no known on-gel neighbour (nothing
-    fixes its level: e.g. a region that covers the whole gel)."""
-    from scipy import ndimage
+def _unbounded(n: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(n,) bool -- the unknowns whose 4-connected region has no known on-gel neighbour (nothing fixes its
+    level: e.g. a region that covers the whole gel), from the equations' rows and unknown columns
+    (:func:`_equations`): an equation with one unknown has a known neighbour at its other end."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
 
-    labels, count = ndimage.label(unknown)
-    touching = ndimage.binary_dilation(on_gel & ~unknown) & unknown
-    bounded = np.zeros(count + 1, bool)
-    bounded[np.unique(labels[touching])] = True
-    return unknown & ~bounded[labels]
+    per_row = np.bincount(rows)
+    first = np.ones(len(rows), bool)
+    first[1:] = rows[1:] != rows[:-1]  # entries are grouped by row, at most two per row
+    lone = per_row[rows] == 1
+    pairs = ~lone & first
+    pair_cols = cols[pairs], cols[np.flatnonzero(pairs) + 1]
+    graph = coo_matrix((np.ones(len(pair_cols[0]), np.int8), pair_cols), shape=(n, n))
+    count, labels = connected_components(graph, directed=False)
+    bounded = np.zeros(count, bool)
+    bounded[labels[cols[lone]]] = True
+    return ~bounded[labels]
 
 
-def _equations(
-    unknown: np.ndarray, on_gel: np.ndarray, index: np.ndarray, known_lr: np.ndarray, p: np.ndarray, q: np.ndarray
-):
-    """Rows of the least-squares system x_j - x_i = (g_i + g_j) / 2 over neighbour pairs touching an unknown."""
+def _equations(normals: np.ndarray, unknown_at: np.ndarray, on_gel: np.ndarray, geo: RayGeometry):
+    """Rows of the least-squares system x_j - x_i = (g_i + g_j) / 2 over neighbour pairs touching an unknown.
+
+    ``unknown_at``: (n,) sorted flat indices of the unknowns. Returns the entries' equation rows, unknown
+    columns and values (grouped by equation), and each equation's right-hand side; the equations run over the
+    column pairs, then the row pairs, each in the order of their first pixel (row-major)."""
+    H, W = on_gel.shape
+    flat_gel = on_gel.ravel()
+    flat_lr = geo.log_range.ravel()
+    pixel_row, pixel_col = np.divmod(unknown_at, W)
     rows, cols, vals, rhs = [], [], [], []
     n_eq = 0
-    flat_lr = known_lr.ravel()
-    for axis, grad in ((1, p), (0, q)):
-        a = (slice(None), slice(None, -1)) if axis == 1 else (slice(None, -1), slice(None))
-        b = (slice(None), slice(1, None)) if axis == 1 else (slice(1, None), slice(None))
-        lin = np.arange(unknown.size).reshape(unknown.shape)
-        ia, ib = lin[a].ravel(), lin[b].ravel()
-        use = (on_gel[a] & on_gel[b] & (unknown[a] | unknown[b])).ravel()
+    for step, has_next, has_prev in ((1, pixel_col < W - 1, pixel_col > 0), (W, pixel_row < H - 1, pixel_row > 0)):
+        # pairs (a, a + step): an unknown first pixel, or an unknown second pixel
+        ia = np.union1d(unknown_at[has_next], unknown_at[has_prev] - step)
+        ib = ia + step
+        use = flat_gel[ia] & flat_gel[ib]
         ia, ib = ia[use], ib[use]
-        g = 0.5 * (grad.ravel()[ia] + grad.ravel()[ib])
-        ua, ub = index[ia], index[ib]
+        ua, ub = _position(unknown_at, ia), _position(unknown_at, ib)
+        g = 0.5 * (_gradient_at(normals, geo, ia, step) + _gradient_at(normals, geo, ib, step))
         eq = n_eq + np.arange(len(ia))
         # x_b - x_a = g ; a known endpoint moves to the right-hand side
         r = g.copy()
@@ -294,4 +403,19 @@ def _equations(
             vals.append(np.full(int(m.sum()), sign))
         rhs.append(r)
         n_eq += len(ia)
-    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), np.concatenate(rhs)
+    rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
+    order = np.argsort(rows, kind="stable")  # grouped by equation, for :func:`_unbounded`
+    return rows[order], cols[order], vals[order], np.concatenate(rhs)
+
+
+def _position(sorted_at: np.ndarray, flat: np.ndarray) -> np.ndarray:
+    """Position of each of ``flat`` in ``sorted_at`` (sorted flat indices), -1 where absent."""
+    pos = np.searchsorted(sorted_at, flat).clip(max=len(sorted_at) - 1)
+    return np.where(sorted_at[pos] == flat, pos, -1)
+
+
+def _gradient_at(normals: np.ndarray, geo: RayGeometry, flat: np.ndarray, step: int) -> np.ndarray:
+    """d log(rho)/du (``step`` 1) or d log(rho)/dv (else) at flat pixel indices (:func:`log_range_gradient`)."""
+    n = np.asarray(normals.reshape(-1, 3)[flat], np.float64)
+    d = (geo.d_u if step == 1 else geo.d_v).reshape(-1, 3)[flat]
+    return _gradient64(n, geo.rays.reshape(-1, 3)[flat], d)
