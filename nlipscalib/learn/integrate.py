@@ -129,26 +129,27 @@ def integrate_on_dome(
         raise ShapeError(f"method must be 'auto', 'box' or 'sparse', got {method!r}")
     points = geo.points.copy()
     if unknown.any():
-        boxes, sparse = _regions(unknown, on_gel, method)
+        boxes, sparse = _regions(unknown, on_gel, method)  # solved apart: no equation joins two of them
         # only the solved pixels change: the rest keeps the reference surface
         for box in boxes:
             log_range = _solve_box(normals, geo, box)
             points[box] = np.exp(log_range.astype(np.float32))[..., None] * geo.rays32[box]
-        if sparse is not None:
-            log_range = _solve_sparse(normals, sparse, on_gel, geo)
-            points[sparse] = np.exp(log_range)[:, None] * geo.rays[sparse]
+        for crop in sparse:
+            log_range = _solve_sparse(normals, unknown, on_gel, geo, crop)
+            points[crop][unknown[crop]] = np.exp(log_range)[:, None] * geo.rays[crop][unknown[crop]]
     return points[..., 2], points
 
 
 MAX_SPLIT_REGIONS = 256
 """Most 4-connected regions of changed pixels that "auto" sorts into boxes one by one when their common box does
-not apply; beyond it (a frame flagged all over) every changed pixel takes the sparse path."""
+not apply; beyond it (a frame flagged all over) every changed pixel takes the sparse path at once."""
 
 
 def _regions(
     unknown: np.ndarray, on_gel: np.ndarray, method: str
-) -> tuple[list[tuple[slice, slice]], np.ndarray | None]:
-    """The boxes to solve with sines and the pixels ((H, W) bool, or None) to solve with SuperLU.
+) -> tuple[list[tuple[slice, slice]], list[tuple[slice, slice]]]:
+    """The boxes to solve with sines, and the bounds whose changed pixels to solve with SuperLU (each on its own;
+    no changed pixel of a bounds is in another's, nor any of their neighbours).
 
     One box around every changed pixel where it applies. Where it does not ("auto": a speck of noise at the
     image border, or a second contact there), the changed pixels split into 4-connected regions: the least-
@@ -160,17 +161,17 @@ def _regions(
     a SuperLU solve of the specks, not a SuperLU solve of the whole contact.
     """
     if method == "sparse":
-        return [], unknown
+        return [], [_grown_bounds(unknown)]
     box = _box(unknown, on_gel)
     if box is not None:
-        return [box], None
+        return [box], []
     if method == "box":
         raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
     from scipy import ndimage
 
     labels, count = ndimage.label(unknown)
     if count > MAX_SPLIT_REGIONS:
-        return [], unknown
+        return [], [_grown_bounds(unknown)]
     # each region's bounds grown by one pixel (its ring): [r0, r1, c0, c1), with the regions it holds
     groups = [
         [s[0].start - 1, s[0].stop + 1, s[1].start - 1, s[1].stop + 1, [k + 1]]
@@ -185,12 +186,13 @@ def _regions(
         box = _faster(rects[i], on_gel, rects[:i] + rects[i + 1 :])
         rects[i] = (box[0].start, box[0].stop, box[1].start, box[1].stop)
         boxes.append(box)
-    sparse_labels = [k for g, ok in zip(groups, fits) if not ok for k in g[4]]
-    if not sparse_labels:
-        return boxes, None
-    to_sparse = np.zeros(count + 1, bool)
-    to_sparse[sparse_labels] = True
-    return boxes, to_sparse[labels]
+    H, W = unknown.shape
+    sparse = [
+        (slice(max(r0, 0), min(r1, H)), slice(max(c0, 0), min(c1, W)))
+        for (r0, r1, c0, c1), ok in zip(rects, fits)
+        if not ok
+    ]
+    return boxes, sparse
 
 
 def _merge_overlapping(groups: list[list]) -> list[list]:
@@ -331,66 +333,76 @@ def _gradient32(normals: Array, rays: Array, d_u: Array, d_v: Array) -> tuple[Ar
     return -dot(d_u) / den, -dot(d_v) / den
 
 
-def _solve_sparse(normals: np.ndarray, unknown: np.ndarray, on_gel: np.ndarray, geo: RayGeometry) -> np.ndarray:
+def _solve_sparse(
+    normals: np.ndarray,
+    unknown: np.ndarray,
+    on_gel: np.ndarray,
+    geo: RayGeometry,
+    crop: tuple[slice, slice] | None = None,
+) -> np.ndarray:
     """Log-range of the changed pixels ((n,) in ``unknown`` order): least squares on them only (any shape),
     SuperLU on the normal equations.
 
-    Built from the changed pixels and their neighbours alone (flat indices), not from whole-image arrays: a few
-    hundred pixels of noise at a 1280x960 frame's border cost what their size says."""
+    Built on ``crop`` (default: the changed pixels' bounds grown by one pixel, where every pair of pixels that
+    touches one lies), not the whole image: the same equations in the same order, and a group of noise specks
+    at a 1280x960 frame's border (:func:`_regions`) costs what its size says. Solves the changed pixels in
+    ``crop`` (in their order there); none of their neighbours may be changed pixels outside it.
+    """
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.linalg import splu
 
-    flat_lr = geo.log_range.ravel()
-    unknown_at = np.flatnonzero(unknown)
-    n = len(unknown_at)
-    rows, cols, vals, rhs = _equations(normals, unknown_at, on_gel, geo)
+    crop = _grown_bounds(unknown) if crop is None else crop
+    unknown, on_gel = unknown[crop], on_gel[crop]
+    known_lr = geo.log_range[crop]
+    normals64 = np.asarray(normals[crop], np.float64)
+    p = _gradient64(normals64, geo.rays[crop], geo.d_u[crop])
+    q = _gradient64(normals64, geo.rays[crop], geo.d_v[crop])
+    index = np.full(unknown.size, -1, np.int64)
+    index[np.flatnonzero(unknown)] = np.arange(int(unknown.sum()))
+    rows, cols, vals, rhs = _equations(unknown, on_gel, index, known_lr, p, q)
+    n = int(unknown.sum())
     A = coo_matrix((vals, (rows, cols)), shape=(len(rhs), n)).tocsr()
-    anchor = ANCHOR_WEIGHT * _unbounded(n, rows, cols)
+    anchor = ANCHOR_WEIGHT * _unbounded(unknown, on_gel)[unknown]
     normal_matrix = (A.T @ A + diags(anchor)).tocsc()
-    b = A.T @ rhs + anchor * flat_lr[unknown_at]
+    b = A.T @ rhs + anchor * known_lr[unknown]
     return splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
 
 
-def _unbounded(n: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """(n,) bool -- the unknowns whose 4-connected region has no known on-gel neighbour (nothing fixes its
-    level: e.g. a region that covers the whole gel), from the equations' rows and unknown columns
-    (:func:`_equations`): an equation with one unknown has a known neighbour at its other end."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    per_row = np.bincount(rows)
-    first = np.ones(len(rows), bool)
-    first[1:] = rows[1:] != rows[:-1]  # entries are grouped by row, at most two per row
-    lone = per_row[rows] == 1
-    pairs = ~lone & first
-    pair_cols = cols[pairs], cols[np.flatnonzero(pairs) + 1]
-    graph = coo_matrix((np.ones(len(pair_cols[0]), np.int8), pair_cols), shape=(n, n))
-    count, labels = connected_components(graph, directed=False)
-    bounded = np.zeros(count, bool)
-    bounded[labels[cols[lone]]] = True
-    return ~bounded[labels]
+def _grown_bounds(unknown: np.ndarray) -> tuple[slice, slice]:
+    """(rows, cols) slices of the bounds of ``unknown``'s pixels grown by one pixel, within the image."""
+    rows, cols = np.flatnonzero(unknown.any(1)), np.flatnonzero(unknown.any(0))
+    H, W = unknown.shape
+    return slice(max(rows[0] - 1, 0), min(rows[-1] + 2, H)), slice(max(cols[0] - 1, 0), min(cols[-1] + 2, W))
 
 
-def _equations(normals: np.ndarray, unknown_at: np.ndarray, on_gel: np.ndarray, geo: RayGeometry):
-    """Rows of the least-squares system x_j - x_i = (g_i + g_j) / 2 over neighbour pairs touching an unknown.
+def _unbounded(unknown: np.ndarray, on_gel: np.ndarray) -> np.ndarray:
+    """(H, W) bool -- the unknown pixels whose 4-connected region has no known on-gel neighbour (nothing
+    fixes its level: e.g. a region that covers the whole gel)."""
+    from scipy import ndimage
 
-    ``unknown_at``: (n,) sorted flat indices of the unknowns. Returns the entries' equation rows, unknown
-    columns and values (grouped by equation), and each equation's right-hand side; the equations run over the
-    column pairs, then the row pairs, each in the order of their first pixel (row-major)."""
-    H, W = on_gel.shape
-    flat_gel = on_gel.ravel()
-    flat_lr = geo.log_range.ravel()
-    pixel_row, pixel_col = np.divmod(unknown_at, W)
+    labels, count = ndimage.label(unknown)
+    touching = ndimage.binary_dilation(on_gel & ~unknown) & unknown
+    bounded = np.zeros(count + 1, bool)
+    bounded[np.unique(labels[touching])] = True
+    return unknown & ~bounded[labels]
+
+
+def _equations(
+    unknown: np.ndarray, on_gel: np.ndarray, index: np.ndarray, known_lr: np.ndarray, p: np.ndarray, q: np.ndarray
+):
+    """Rows of the least-squares system x_j - x_i = (g_i + g_j) / 2 over neighbour pairs touching an unknown."""
     rows, cols, vals, rhs = [], [], [], []
     n_eq = 0
-    for step, has_next, has_prev in ((1, pixel_col < W - 1, pixel_col > 0), (W, pixel_row < H - 1, pixel_row > 0)):
-        # pairs (a, a + step): an unknown first pixel, or an unknown second pixel
-        ia = np.union1d(unknown_at[has_next], unknown_at[has_prev] - step)
-        ib = ia + step
-        use = flat_gel[ia] & flat_gel[ib]
+    flat_lr = known_lr.ravel()
+    for axis, grad in ((1, p), (0, q)):
+        a = (slice(None), slice(None, -1)) if axis == 1 else (slice(None, -1), slice(None))
+        b = (slice(None), slice(1, None)) if axis == 1 else (slice(1, None), slice(None))
+        lin = np.arange(unknown.size).reshape(unknown.shape)
+        ia, ib = lin[a].ravel(), lin[b].ravel()
+        use = (on_gel[a] & on_gel[b] & (unknown[a] | unknown[b])).ravel()
         ia, ib = ia[use], ib[use]
-        ua, ub = _position(unknown_at, ia), _position(unknown_at, ib)
-        g = 0.5 * (_gradient_at(normals, geo, ia, step) + _gradient_at(normals, geo, ib, step))
+        g = 0.5 * (grad.ravel()[ia] + grad.ravel()[ib])
+        ua, ub = index[ia], index[ib]
         eq = n_eq + np.arange(len(ia))
         # x_b - x_a = g ; a known endpoint moves to the right-hand side
         r = g.copy()
@@ -403,19 +415,4 @@ def _equations(normals: np.ndarray, unknown_at: np.ndarray, on_gel: np.ndarray, 
             vals.append(np.full(int(m.sum()), sign))
         rhs.append(r)
         n_eq += len(ia)
-    rows, cols, vals = np.concatenate(rows), np.concatenate(cols), np.concatenate(vals)
-    order = np.argsort(rows, kind="stable")  # grouped by equation, for :func:`_unbounded`
-    return rows[order], cols[order], vals[order], np.concatenate(rhs)
-
-
-def _position(sorted_at: np.ndarray, flat: np.ndarray) -> np.ndarray:
-    """Position of each of ``flat`` in ``sorted_at`` (sorted flat indices), -1 where absent."""
-    pos = np.searchsorted(sorted_at, flat).clip(max=len(sorted_at) - 1)
-    return np.where(sorted_at[pos] == flat, pos, -1)
-
-
-def _gradient_at(normals: np.ndarray, geo: RayGeometry, flat: np.ndarray, step: int) -> np.ndarray:
-    """d log(rho)/du (``step`` 1) or d log(rho)/dv (else) at flat pixel indices (:func:`log_range_gradient`)."""
-    n = np.asarray(normals.reshape(-1, 3)[flat], np.float64)
-    d = (geo.d_u if step == 1 else geo.d_v).reshape(-1, 3)[flat]
-    return _gradient64(n, geo.rays.reshape(-1, 3)[flat], d)
+    return np.concatenate(rows), np.concatenate(cols), np.concatenate(vals), np.concatenate(rhs)
