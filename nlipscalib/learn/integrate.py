@@ -21,6 +21,10 @@ Two exact solvers of that same equation:
   gradient integration: the gradients are of log-range along the real rays.)
 - ``"sparse"``: only the changed pixels are unknown, any shape, SuperLU (scipy.sparse) on the
   normal equations; used when the box would leave the gel or touch the image border.
+
+``"auto"`` takes one box around all changed pixels where it applies; else it splits them into their
+4-connected regions (no equation joins two), each group a box where its box applies and the sparse path
+where not: a contact with a few noise specks at the border is a box solve and small sparse ones.
 """
 
 from __future__ import annotations
