@@ -21,12 +21,17 @@ Two exact solvers of that same equation:
   gradient integration: the gradients are of log-range along the real rays.)
 - ``"sparse"``: only the changed pixels are unknown, any shape, SuperLU (scipy.sparse) on the
   normal equations; used when the box would leave the gel or touch the image border.
+
+``"auto"`` takes one box around all changed pixels where it applies; else it splits them into their
+4-connected regions (no equation joins two), each group a box where its box applies and the sparse path
+where not: a contact with a few noise specks at the border is a box solve and small sparse ones.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
@@ -39,6 +44,8 @@ if TYPE_CHECKING:  # torch is optional (the full-frame path passes tensors): nam
     import torch
 
 Array: TypeAlias = "np.ndarray | torch.Tensor"
+Bounds: TypeAlias = "Sequence[int]"
+"""Pixel bounds [r0, r1, c0, c1): rows r0 to r1 - 1, columns c0 to c1 - 1."""
 """A numpy array, or a torch tensor where :mod:`.fullframe` calls the shared arithmetic."""
 
 ANCHOR_WEIGHT = 1e-4
@@ -90,8 +97,13 @@ class RayGeometry:
 
 def log_range_gradient(normals: np.ndarray, geo: RayGeometry) -> tuple[np.ndarray, np.ndarray]:
     """(p, q): d log(rho)/du and d log(rho)/dv, each (H, W) float64, from normals ((H, W, 3) unit, camera frame)."""
-    den = np.minimum(np.einsum("...k,...k->...", normals, geo.rays), -INTEGRATION_MIN_FACING)
-    return -np.einsum("...k,...k->...", normals, geo.d_u) / den, -np.einsum("...k,...k->...", normals, geo.d_v) / den
+    return _gradient64(normals, geo.rays, geo.d_u), _gradient64(normals, geo.rays, geo.d_v)
+
+
+def _gradient64(normals: np.ndarray, rays: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """-(n . d) / (n . ray) per pixel, float64 (``d`` the ray's derivative along u or v; (..., 3) each)."""
+    den = np.minimum(np.einsum("...k,...k->...", normals, rays), -INTEGRATION_MIN_FACING)
+    return -np.einsum("...k,...k->...", normals, d) / den
 
 
 def integrate_on_dome(
@@ -121,17 +133,101 @@ def integrate_on_dome(
         raise ShapeError(f"method must be 'auto', 'box' or 'sparse', got {method!r}")
     points = geo.points.copy()
     if unknown.any():
-        box = _box(unknown, on_gel) if method != "sparse" else None
-        if method == "box" and box is None:
-            raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
+        boxes, sparse = _regions(unknown, on_gel, method)  # solved apart: no equation joins two of them
         # only the solved pixels change: the rest keeps the reference surface
-        if box is not None:
+        for box in boxes:
             log_range = _solve_box(normals, geo, box)
             points[box] = np.exp(log_range.astype(np.float32))[..., None] * geo.rays32[box]
-        else:
-            log_range = _solve_sparse(normals, unknown, on_gel, geo)
-            points[unknown] = np.exp(log_range)[:, None] * geo.rays[unknown]
+        for crop in sparse:
+            log_range = _solve_sparse(normals, unknown, on_gel, geo, crop)
+            points[crop][unknown[crop]] = np.exp(log_range)[:, None] * geo.rays[crop][unknown[crop]]
     return points[..., 2], points
+
+
+MAX_SPLIT_REGIONS = 256
+"""Most 4-connected regions of changed pixels that "auto" sorts into boxes one by one when their common box does
+not apply; beyond it (a frame flagged all over) every changed pixel takes the sparse path at once."""
+
+
+def _regions(
+    unknown: np.ndarray, on_gel: np.ndarray, method: str
+) -> tuple[list[tuple[slice, slice]], list[tuple[slice, slice]]]:
+    """The boxes to solve with sines, and the bounds whose changed pixels to solve with SuperLU (each on its own;
+    no changed pixel of a bounds is in another's, nor any of their neighbours).
+
+    One box around every changed pixel where it applies. Where it does not ("auto": a speck of noise at the
+    image border, or a second contact there), the changed pixels split into 4-connected regions: the least-
+    squares equations of one region share no unknown with another's, so each region group is solved on its
+    own -- in a box where its box applies, else on the sparse path. Bounds (grown by the ring) that share a
+    pixel are merged first: one box's solved interior must not be another's fixed ring or a sparse region's
+    known neighbour, so a region whose box does not apply takes every box it overlaps to the sparse path.
+    A 1280x960 frame's contact with a few noise specks at the border is then a box solve of milliseconds and
+    a SuperLU solve of the specks, not a SuperLU solve of the whole contact.
+    """
+    if method == "sparse":
+        return [], [_grown_bounds(unknown)]
+    box = _box(unknown, on_gel)
+    if box is not None:
+        return [box], []
+    if method == "box":
+        raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
+    from scipy import ndimage
+
+    labels, count = ndimage.label(unknown)
+    if count > MAX_SPLIT_REGIONS:
+        return [], [_grown_bounds(unknown)]
+    # each region's bounds grown by one pixel (its ring): [r0, r1, c0, c1), with the regions it holds
+    groups = [
+        [s[0].start - 1, s[0].stop + 1, s[1].start - 1, s[1].stop + 1, [k + 1]]
+        for k, s in enumerate(ndimage.find_objects(labels))
+    ]
+    groups = _merge_overlapping(groups)
+    # merged bounds share no pixel: a group whose bounds do not fit took every group it overlapped to the sparse path
+    fits = [_fits(g[:4], on_gel) for g in groups]
+    rects = [tuple(g[:4]) for g in groups]
+    boxes = []
+    for i in np.flatnonzero(fits):  # grown one by one: each grown box kept clear of the others as they are now
+        box = _faster(rects[i], on_gel, rects[:i] + rects[i + 1 :])
+        rects[i] = (box[0].start, box[0].stop, box[1].start, box[1].stop)
+        boxes.append(box)
+    H, W = unknown.shape
+    sparse = [
+        (slice(max(r0, 0), min(r1, H)), slice(max(c0, 0), min(c1, W)))
+        for (r0, r1, c0, c1), ok in zip(rects, fits)
+        if not ok
+    ]
+    return boxes, sparse
+
+
+def _merge_overlapping(groups: list[list]) -> list[list]:
+    """Groups ([r0, r1, c0, c1, labels]) merged until no two bounds share a pixel."""
+    merged = True
+    while merged:
+        merged = False
+        out: list[list] = []
+        for g in groups:
+            for o in out:
+                if _overlap(g, o):
+                    o[0], o[1], o[2], o[3] = min(o[0], g[0]), max(o[1], g[1]), min(o[2], g[2]), max(o[3], g[3])
+                    o[4] = o[4] + g[4]
+                    merged = True
+                    break
+            else:
+                out.append(g)
+        groups = out
+    return groups
+
+
+def _overlap(a: Bounds, b: Bounds) -> bool:
+    """Whether bounds a and b ([r0, r1, c0, c1), half-open) share a pixel."""
+    return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
+
+
+def _fits(rect: Bounds, on_gel: np.ndarray) -> bool:
+    """Whether bounds [r0, r1, c0, c1) lie inside the image and on the gel (a box solve applies)."""
+    r0, r1, c0, c1 = rect
+    H, W = on_gel.shape
+    return r0 >= 0 and c0 >= 0 and r1 <= H and c1 <= W and bool(on_gel[r0:r1, c0:c1].all())
 
 
 def _box(unknown: np.ndarray, on_gel: np.ndarray):
@@ -142,14 +238,20 @@ def _box(unknown: np.ndarray, on_gel: np.ndarray):
     a prime-sized transform is several times slower.
     """
     rows, cols = np.flatnonzero(unknown.any(1)), np.flatnonzero(unknown.any(0))  # no per-pixel index arrays
-    r0, r1, c0, c1 = int(rows[0]) - 1, int(rows[-1]) + 2, int(cols[0]) - 1, int(cols[-1]) + 2
-    H, W = unknown.shape
-    if r0 < 0 or c0 < 0 or r1 > H or c1 > W or not on_gel[r0:r1, c0:c1].all():
+    rect = (int(rows[0]) - 1, int(rows[-1]) + 2, int(cols[0]) - 1, int(cols[-1]) + 2)
+    if not _fits(rect, on_gel):
         return None
-    fr0, fr1 = _fast_span(r0, r1, H)
-    fc0, fc1 = _fast_span(c0, c1, W)
-    if on_gel[fr0:fr1, fc0:fc1].all():
-        r0, r1, c0, c1 = fr0, fr1, fc0, fc1
+    return _faster(rect, on_gel)
+
+
+def _faster(rect: Bounds, on_gel: np.ndarray, others: Sequence[Bounds] = ()) -> tuple[slice, slice]:
+    """(rows, cols) slices of bounds [r0, r1, c0, c1) grown to FFT-friendly sides (:func:`_fast_span`) where the
+    grown box stays on the gel and shares no pixel with any of ``others`` (bounds solved apart)."""
+    r0, r1, c0, c1 = rect
+    H, W = on_gel.shape
+    grown = (*_fast_span(r0, r1, H), *_fast_span(c0, c1, W))
+    if on_gel[grown[0] : grown[1], grown[2] : grown[3]].all() and not any(_overlap(grown, o) for o in others):
+        r0, r1, c0, c1 = grown
     return (slice(r0, r1), slice(c0, c1))
 
 
@@ -235,14 +337,30 @@ def _gradient32(normals: Array, rays: Array, d_u: Array, d_v: Array) -> tuple[Ar
     return -dot(d_u) / den, -dot(d_v) / den
 
 
-def _solve_sparse(normals: np.ndarray, unknown: np.ndarray, on_gel: np.ndarray, geo: RayGeometry) -> np.ndarray:
+def _solve_sparse(
+    normals: np.ndarray,
+    unknown: np.ndarray,
+    on_gel: np.ndarray,
+    geo: RayGeometry,
+    crop: tuple[slice, slice] | None = None,
+) -> np.ndarray:
     """Log-range of the changed pixels ((n,) in ``unknown`` order): least squares on them only (any shape),
-    SuperLU on the normal equations."""
+    SuperLU on the normal equations.
+
+    Built on ``crop`` (default: the changed pixels' bounds grown by one pixel, where every pair of pixels that
+    touches one lies), not the whole image: the same equations in the same order, and a group of noise specks
+    at a 1280x960 frame's border (:func:`_regions`) costs what its size says. Solves the changed pixels in
+    ``crop`` (in their order there); none of their neighbours may be changed pixels outside it.
+    """
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.linalg import splu
 
-    known_lr = geo.log_range
-    p, q = log_range_gradient(np.asarray(normals, np.float64), geo)
+    crop = _grown_bounds(unknown) if crop is None else crop
+    unknown, on_gel = unknown[crop], on_gel[crop]
+    known_lr = geo.log_range[crop]
+    normals64 = np.asarray(normals[crop], np.float64)
+    p = _gradient64(normals64, geo.rays[crop], geo.d_u[crop])
+    q = _gradient64(normals64, geo.rays[crop], geo.d_v[crop])
     index = np.full(unknown.size, -1, np.int64)
     index[np.flatnonzero(unknown)] = np.arange(int(unknown.sum()))
     rows, cols, vals, rhs = _equations(unknown, on_gel, index, known_lr, p, q)
@@ -252,6 +370,13 @@ def _solve_sparse(normals: np.ndarray, unknown: np.ndarray, on_gel: np.ndarray, 
     normal_matrix = (A.T @ A + diags(anchor)).tocsc()
     b = A.T @ rhs + anchor * known_lr[unknown]
     return splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
+
+
+def _grown_bounds(unknown: np.ndarray) -> tuple[slice, slice]:
+    """(rows, cols) slices of the bounds of ``unknown``'s pixels grown by one pixel, within the image."""
+    rows, cols = np.flatnonzero(unknown.any(1)), np.flatnonzero(unknown.any(0))
+    H, W = unknown.shape
+    return slice(max(rows[0] - 1, 0), min(rows[-1] + 2, H)), slice(max(cols[0] - 1, 0), min(cols[-1] + 2, W))
 
 
 def _unbounded(unknown: np.ndarray, on_gel: np.ndarray) -> np.ndarray:

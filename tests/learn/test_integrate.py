@@ -103,3 +103,80 @@ def test_a_region_touching_no_known_pixel_is_held_at_the_reference_level():
     geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
     got, _ = integrate_on_dome(ref.normals, on_gel, geo, "sparse")
     assert np.abs(got - ref.depth)[on_gel].max() < 0.05  # mm
+
+
+def _dome_and_sphere():
+    from nlipscalib.core.sensor import SensorDesign
+
+    ref, rays, hit, points, normals = _sphere_pressed_into_the_dome(SensorDesign(), 0, 0, 4.0, 1.0)
+    on_gel = np.isfinite(ref.depth)
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    contact = ndimage.binary_dilation(hit, iterations=3) & on_gel
+    return ref, geo, on_gel, contact, normals
+
+
+def _pixels(bounds, unknown):
+    """The changed pixels inside the bounds ((rows, cols) slices) that take the sparse path."""
+    out = np.zeros_like(unknown)
+    for crop in bounds:
+        out[crop] |= unknown[crop]
+    return out
+
+
+def test_noise_specks_at_the_border_leave_the_contact_to_its_box():
+    # 2-spp frames at 1280x960 flag a few small regions at the image border: the one box around all changed
+    # pixels then touched the border, and the whole contact went to SuperLU (0.4-0.7 s a frame)
+    from nlipscalib.learn.integrate import _box, _regions
+
+    ref, geo, on_gel, contact, normals = _dome_and_sphere()
+    assert on_gel.all()  # the gel fills the default image: every border pixel is on it
+    specks = np.zeros_like(contact)
+    specks[0:4, 0:5] = specks[-3:, 300:306] = specks[200:206, -4:] = True
+    assert not (ndimage.binary_dilation(specks, iterations=2) & contact).any()
+    boxes, sparse = _regions(contact | specks, on_gel, "auto")
+    assert boxes == [_box(contact, on_gel)]  # the contact's own box, as without the specks
+    assert len(sparse) == 3  # each speck on its own
+    np.testing.assert_array_equal(_pixels(sparse, contact | specks), specks)
+    # and the depth: the contact's as if alone, the specks' as solved alone on the sparse path
+    got, _ = integrate_on_dome(normals, contact | specks, geo)
+    alone, _ = integrate_on_dome(normals, contact, geo)
+    specks_alone, _ = integrate_on_dome(normals, specks, geo, "sparse")
+    np.testing.assert_array_equal(got[~specks], alone[~specks])
+    np.testing.assert_array_equal(got[specks], specks_alone[specks])
+    assert np.abs(got - ref.depth)[specks].max() < 0.05  # mm: the dome's own normals there
+
+
+def test_regions_whose_bounds_overlap_are_solved_together():
+    from nlipscalib.learn.integrate import _regions
+
+    on_gel = np.ones((60, 80), bool)
+    near = np.zeros_like(on_gel)
+    near[20:25, 20:25] = near[20:25, 26:30] = True  # one column apart: their rings share pixels
+    boxes, sparse = _regions(near, on_gel, "auto")
+    assert sparse == [] and len(boxes) == 1  # the common box applies
+    # beside a region at the border: its bounds overlap theirs, so all three take the sparse path
+    touching = near.copy()
+    touching[20:25, 0:19] = True
+    boxes, sparse = _regions(touching, on_gel, "auto")
+    assert boxes == [] and len(sparse) == 1
+    np.testing.assert_array_equal(_pixels(sparse, touching), touching)
+    # far from it: the two keep their box, the border region alone is sparse
+    apart = near.copy()
+    apart[50:55, 0:3] = True
+    boxes, sparse = _regions(apart, on_gel, "auto")
+    assert len(boxes) == 1 and near[boxes[0]].sum() == near.sum()
+    np.testing.assert_array_equal(_pixels(sparse, apart), apart & ~near)
+
+
+def test_the_sparse_path_solves_separate_regions_as_if_each_were_alone():
+    # the split into regions rests on this: no equation joins two 4-connected regions
+    from nlipscalib.learn.integrate import _solve_sparse
+
+    _, geo, on_gel, contact, normals = _dome_and_sphere()
+    speck = np.zeros_like(contact)
+    speck[0:6, 0:6] = True
+    both = _solve_sparse(normals, contact | speck, on_gel, geo)
+    order = np.flatnonzero(contact | speck)
+    in_contact = np.isin(order, np.flatnonzero(contact))
+    np.testing.assert_allclose(both[in_contact], _solve_sparse(normals, contact, on_gel, geo), rtol=1e-12)
+    np.testing.assert_allclose(both[~in_contact], _solve_sparse(normals, speck, on_gel, geo), rtol=1e-12)
