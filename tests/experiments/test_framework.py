@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.cli import main
+from nlipscalib.core.errors import CaptureError
 from nlipscalib.core.leds import Led
 from nlipscalib.experiments import adapters, check, get
 from nlipscalib.experiments.plan import build_tasks
@@ -346,3 +347,30 @@ def test_local_workers_that_likely_exceed_memory_are_warned_about(monkeypatch, c
     caplog.clear()
     framework._check_memory(tasks[:1], 8)  # 8 x 0.2 GB at 96x72: nothing said
     assert caplog.text == ""
+
+
+@pytest.mark.parametrize(
+    "error, is_result",
+    [(CaptureError("x: --roi auto found no contact"), True), (OSError(28, "No space left on device"), False)],
+)
+def test_a_variant_that_fails_on_its_data_is_a_result_a_full_disk_fails_the_task(error, is_result, tmp_path):
+    """A solve that raised OSError (the disk full while a CI run wrote its results) was recorded like a variant
+    that found no contact: the run said "0 failed" and its study had three NaN points."""
+    import types
+
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    def solve(*args, **kwargs):
+        raise error
+
+    adapters = types.SimpleNamespace(solve=solve, solver_options=lambda options: None)
+    press = types.SimpleNamespace(folder=tmp_path / "press")
+    spec = {"leds": "true", "interreflection": "auto", "roi": "auto", "options": {}}
+    spec |= {"position_error_mm": 0, "direction_error_deg": 0, "error_seed": 0}
+    task = Task(kind="press", id="p-1", scene={"a": 1})
+    call = lambda: tasks_mod._solve_one(adapters, tmp_path, task, press, tmp_path / "ref", spec, "k")  # noqa: E731
+    if is_result:
+        assert "no contact" in call()["result"]["error"]
+    else:
+        with pytest.raises(OSError, match="No space left"):
+            call()
