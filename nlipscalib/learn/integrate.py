@@ -31,8 +31,8 @@ its solution is even about the border: each border pixel's equation is then the 
 
 ``"auto"`` takes one box around all changed pixels where it applies; else it splits them into their
 4-connected regions (no equation joins two), each group a box, an edge box where its box reaches the
-image border on one side of an axis (a contact pressed at the edge of the view: 5-15 ms, not the 0.15-0.36 s
-of SuperLU at 640x480), and the sparse path where neither applies (off the gel, or both sides of an axis).
+image border on one side of an axis (a contact pressed at the edge of the view: 5-9 ms at 640x480, not the
+0.16-0.37 s of SuperLU), and the sparse path where neither applies (off the gel, or both sides of an axis).
 """
 
 from __future__ import annotations
