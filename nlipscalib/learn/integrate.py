@@ -20,11 +20,19 @@ Two exact solvers of that same equation:
   (This is a fast solver for the curved-surface equation above, not a flat-sensor height-from-
   gradient integration: the gradients are of log-range along the real rays.)
 - ``"sparse"``: only the changed pixels are unknown, any shape, SuperLU (scipy.sparse) on the
-  normal equations; used when the box would leave the gel or touch the image border.
+  normal equations; used when the box would leave the gel.
+
+The image border is not the gel's boundary: nothing is known beyond it, and the least-squares problem has
+no pixel pair across it, so a changed pixel on the border row has one neighbour fewer -- a natural (Neumann)
+side, not a Dirichlet one. A box reaching the border (an "edge box") keeps that side: its arrays are
+mirrored across the border (the ray's derivative across the border changes sign, so the gradient across
+the mirror line is exactly 0), the doubled box has a Dirichlet ring all round and the same sine solve, and
+its solution is even about the border: each border pixel's equation is then the sparse path's.
 
 ``"auto"`` takes one box around all changed pixels where it applies; else it splits them into their
-4-connected regions (no equation joins two), each group a box where its box applies and the sparse path
-where not: a contact with a few noise specks at the border is a box solve and small sparse ones.
+4-connected regions (no equation joins two), each group a box, an edge box where its box reaches the
+image border on one side of an axis (a contact pressed at the edge of the view: 5-9 ms at 640x480, not the
+0.16-0.37 s of SuperLU), and the sparse path where neither applies (off the gel, or both sides of an axis).
 """
 
 from __future__ import annotations
@@ -116,7 +124,7 @@ def integrate_on_dome(
     normals : (H, W, 3) float, unit, camera frame, toward the camera (finite where ``unknown``)
     unknown : (H, W) bool -- pixels to solve for (the changed pixels); must lie on the gel
     geo : RayGeometry of the sensor
-    method : "auto" (box when it applies, else sparse), "box" or "sparse" (module docstring)
+    method : "auto" (box, else per region a box, an edge box or sparse), "box" or "sparse" (module docstring)
 
     Returns
     -------
@@ -133,10 +141,10 @@ def integrate_on_dome(
         raise ShapeError(f"method must be 'auto', 'box' or 'sparse', got {method!r}")
     points = geo.points.copy()
     if unknown.any():
-        boxes, sparse = _regions(unknown, on_gel, method)  # solved apart: no equation joins two of them
+        boxes, edge_boxes, sparse = _regions(unknown, on_gel, method)  # solved apart: no equation joins two
         # only the solved pixels change: the rest keeps the reference surface
-        for box in boxes:
-            log_range = _solve_box(normals, geo, box)
+        for box, edges in [(box, (0, 0)) for box in boxes] + edge_boxes:
+            log_range = _solve_box(normals, geo, box, edges)
             points[box] = np.exp(log_range.astype(np.float32))[..., None] * geo.rays32[box]
         for crop in sparse:
             log_range = _solve_sparse(normals, unknown, on_gel, geo, crop)
@@ -149,54 +157,59 @@ MAX_SPLIT_REGIONS = 256
 not apply; beyond it (a frame flagged all over) every changed pixel takes the sparse path at once."""
 
 
+Box: TypeAlias = "tuple[slice, slice]"
+"""(rows, cols) slices of a box: its interior and the ring of fixed reference pixels around it."""
+Edges: TypeAlias = "tuple[int, int]"
+"""Per axis (rows, columns), where an edge box meets the image border: -1 at index 0, +1 at the last, 0 not."""
+
+
 def _regions(
     unknown: np.ndarray, on_gel: np.ndarray, method: str
-) -> tuple[list[tuple[slice, slice]], list[tuple[slice, slice]]]:
-    """The boxes to solve with sines, and the bounds whose changed pixels to solve with SuperLU (each on its own;
-    no changed pixel of a bounds is in another's, nor any of their neighbours).
+) -> tuple[list[Box], list[tuple[Box, Edges]], list[Box]]:
+    """The boxes to solve with sines, the edge boxes (with their :data:`Edges`), and the bounds whose changed
+    pixels to solve with SuperLU (each on its own; no changed pixel of one is in another's, nor any of their
+    neighbours).
 
-    One box around every changed pixel where it applies. Where it does not ("auto": a speck of noise at the
-    image border, or a second contact there), the changed pixels split into 4-connected regions: the least-
-    squares equations of one region share no unknown with another's, so each region group is solved on its
-    own -- in a box where its box applies, else on the sparse path. Bounds (grown by the ring) that share a
-    pixel are merged first: one box's solved interior must not be another's fixed ring or a sparse region's
-    known neighbour, so a region whose box does not apply takes every box it overlaps to the sparse path.
-    A 1280x960 frame's contact with a few noise specks at the border is then a box solve of milliseconds and
-    a SuperLU solve of the specks, not a SuperLU solve of the whole contact.
+    One box around every changed pixel where it applies. Where it does not ("auto": a contact pressed at the
+    edge of the view, a speck of noise at the image border), the changed pixels split into 4-connected regions:
+    the least-squares equations of one region share no unknown with another's, so each region group is solved
+    on its own -- in a box where its box applies, in an edge box where its bounds pass the image border by the
+    ring on one side of an axis (module docstring), else on the sparse path. Bounds (grown by the ring) that
+    share a pixel are merged first: one box's solved interior must not be another's fixed ring or a sparse
+    region's known neighbour, so a region whose box does not apply takes every box it overlaps with it.
     """
     if method == "sparse":
-        return [], [_grown_bounds(unknown)]
+        return [], [], [_grown_bounds(unknown)]
     box = _box(unknown, on_gel)
     if box is not None:
-        return [box], []
+        return [box], [], []
     if method == "box":
         raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
     from scipy import ndimage
 
     labels, count = ndimage.label(unknown)
     if count > MAX_SPLIT_REGIONS:
-        return [], [_grown_bounds(unknown)]
+        return [], [], [_grown_bounds(unknown)]
     # each region's bounds grown by one pixel (its ring): [r0, r1, c0, c1), with the regions it holds
     groups = [
         [s[0].start - 1, s[0].stop + 1, s[1].start - 1, s[1].stop + 1, [k + 1]]
         for k, s in enumerate(ndimage.find_objects(labels))
     ]
     groups = _merge_overlapping(groups)
-    # merged bounds share no pixel: a group whose bounds do not fit took every group it overlapped to the sparse path
-    fits = [_fits(g[:4], on_gel) for g in groups]
-    rects = [tuple(g[:4]) for g in groups]
-    boxes = []
-    for i in np.flatnonzero(fits):  # grown one by one: each grown box kept clear of the others as they are now
-        box = _faster(rects[i], on_gel, rects[:i] + rects[i + 1 :])
-        rects[i] = (box[0].start, box[0].stop, box[1].start, box[1].stop)
-        boxes.append(box)
+    # merged bounds share no pixel: a group whose bounds do not fit took every group it overlapped with it
     H, W = unknown.shape
-    sparse = [
-        (slice(max(r0, 0), min(r1, H)), slice(max(c0, 0), min(c1, W)))
-        for (r0, r1, c0, c1), ok in zip(rects, fits)
-        if not ok
-    ]
-    return boxes, sparse
+    rects = [(max(g[0], 0), min(g[1], H), max(g[2], 0), min(g[3], W)) for g in groups]  # within the image
+    edges = [(0, 0) if _fits(g[:4], on_gel) else _edge_fits(g[:4], on_gel) for g in groups]
+    boxes, edge_boxes = [], []
+    for i in [i for i, e in enumerate(edges) if e is not None]:  # grown one by one, clear of the others as they are
+        box = _faster(rects[i], on_gel, rects[:i] + rects[i + 1 :], edges[i])
+        rects[i] = (box[0].start, box[0].stop, box[1].start, box[1].stop)
+        if edges[i] == (0, 0):
+            boxes.append(box)
+        else:
+            edge_boxes.append((box, edges[i]))
+    sparse = [(slice(r0, r1), slice(c0, c1)) for (r0, r1, c0, c1), e in zip(rects, edges) if e is None]
+    return boxes, edge_boxes, sparse
 
 
 def _merge_overlapping(groups: list[list]) -> list[list]:
@@ -230,6 +243,23 @@ def _fits(rect: Bounds, on_gel: np.ndarray) -> bool:
     return r0 >= 0 and c0 >= 0 and r1 <= H and c1 <= W and bool(on_gel[r0:r1, c0:c1].all())
 
 
+def _edge_fits(rect: Bounds, on_gel: np.ndarray) -> Edges | None:
+    """The :data:`Edges` of bounds [r0, r1, c0, c1) (changed pixels' bounds grown by the ring) that pass the image
+    border on one side of an axis or two, each by the ring only, and lie on the gel within the image; else None
+    (also where an axis passes both of its sides: that box would have no fixed pixel on it)."""
+    H, W = on_gel.shape
+    edges = tuple(
+        -1 if lo == -1 else 1 if hi == size + 1 else 0
+        for lo, hi, size in ((rect[0], rect[1], H), (rect[2], rect[3], W))
+    )
+    inside = all(lo >= -1 and hi <= size + 1 for lo, hi, size in ((rect[0], rect[1], H), (rect[2], rect[3], W)))
+    both_sides = (rect[0] == -1 and rect[1] == H + 1) or (rect[2] == -1 and rect[3] == W + 1)
+    if not inside or both_sides or edges == (0, 0):
+        return None
+    r0, r1, c0, c1 = max(rect[0], 0), min(rect[1], H), max(rect[2], 0), min(rect[3], W)
+    return edges if bool(on_gel[r0:r1, c0:c1].all()) else None
+
+
 def _box(unknown: np.ndarray, on_gel: np.ndarray):
     """(rows, cols) slices of the changed pixels' bounding box grown by one pixel, or None when that
     box touches the image border or holds a pixel off the gel.
@@ -244,12 +274,19 @@ def _box(unknown: np.ndarray, on_gel: np.ndarray):
     return _faster(rect, on_gel)
 
 
-def _faster(rect: Bounds, on_gel: np.ndarray, others: Sequence[Bounds] = ()) -> tuple[slice, slice]:
-    """(rows, cols) slices of bounds [r0, r1, c0, c1) grown to FFT-friendly sides (:func:`_fast_span`) where the
-    grown box stays on the gel and shares no pixel with any of ``others`` (bounds solved apart)."""
+def _faster(
+    rect: Bounds, on_gel: np.ndarray, others: Sequence[Bounds] = (), edges: Edges = (0, 0)
+) -> tuple[slice, slice]:
+    """(rows, cols) slices of bounds [r0, r1, c0, c1) grown to FFT-friendly sides (:func:`_fast_span`; an edge
+    box's mirrored axis :func:`_fast_mirrored_span`) where the grown box stays on the gel and shares no pixel
+    with any of ``others`` (bounds solved apart)."""
     r0, r1, c0, c1 = rect
     H, W = on_gel.shape
-    grown = (*_fast_span(r0, r1, H), *_fast_span(c0, c1, W))
+    grown = tuple(
+        x
+        for lo, hi, size, edge in ((r0, r1, H, edges[0]), (c0, c1, W, edges[1]))
+        for x in (_fast_mirrored_span(lo, hi, size, edge) if edge else _fast_span(lo, hi, size))
+    )
     if on_gel[grown[0] : grown[1], grown[2] : grown[3]].all() and not any(_overlap(grown, o) for o in others):
         r0, r1, c0, c1 = grown
     return (slice(r0, r1), slice(c0, c1))
@@ -270,17 +307,66 @@ def _fast_span(lo: int, hi: int, size: int) -> tuple[int, int]:
     return (new_lo, new_hi) if new_lo >= 0 else (lo, hi)
 
 
-def _solve_box(normals: np.ndarray, geo: RayGeometry, box: tuple[slice, slice]) -> np.ndarray:
-    """Log-range over the box: Poisson solve on its interior, the outer ring fixed at the reference (DST-I)."""
+def _fast_mirrored_span(lo: int, hi: int, size: int, edge: int) -> tuple[int, int]:
+    """[lo, hi) of an edge box's axis (at the image border on the ``edge`` side, the ring on the other) grown
+    inward so that the mirrored interior 2n has a fast DST-I: 2(2n + 1), with 2n + 1 odd, 11-smooth (pocketfft's
+    radix-7 and -11 passes cost little more than 2, 3, 5 ones; a large prime factor several times more)."""
+    from scipy.fft import next_fast_len
+
+    n = hi - lo - 1
+    target = n
+    while next_fast_len(2 * (2 * target + 1)) != 2 * (2 * target + 1):
+        target += 1
+    if target + 1 > size:
+        return lo, hi
+    return (0, target + 1) if edge < 0 else (size - target - 1, size)
+
+
+def _solve_box(normals: np.ndarray, geo: RayGeometry, box: tuple[slice, slice], edges: Edges = (0, 0)) -> np.ndarray:
+    """Log-range over the box: Poisson solve on its interior, the outer ring fixed at the reference (DST-I);
+    on an edge box's border sides (``edges``) no ring, a natural side (mirrored, module docstring)."""
     from scipy.fft import dstn
 
     # float32 like the transforms below: a gradient of log-range needs no more than 1e-7 relative
     x = geo.log_range[box].astype(np.float32)
-    f = box_rhs(np.asarray(normals[box], np.float32), geo.rays32[box], geo.d_u32[box], geo.d_v32[box], x)
+    arrays = [np.asarray(normals[box], np.float32), geo.rays32[box], geo.d_u32[box], geo.d_v32[box], x]
+    for axis, edge in enumerate(edges):
+        if edge:
+            arrays = _mirror_line(arrays, axis, edge)
+    f = box_rhs(*arrays)
+    half = f.shape
+    for axis, edge in enumerate(edges):  # the doubled box's right-hand side is even about the border
+        if edge:
+            f = np.concatenate((np.flip(f, axis), f) if edge < 0 else (f, np.flip(f, axis)), axis=axis)
     lam = box_eigenvalues(*f.shape).astype(np.float32)
     # float32 transforms: twice as fast, and 1e-7 relative error of a log-range is 1e-6 mm
-    x[1:-1, 1:-1] = dstn(dstn(f, type=1, norm="ortho") / lam, type=1, norm="ortho")
+    solved = dstn(dstn(f, type=1, norm="ortho") / lam, type=1, norm="ortho")
+    # the box's own half of the doubled box (the last along an axis mirrored before it, the first after it)
+    own = tuple(slice(-k, None) if edge < 0 else slice(0, k) for k, edge in zip(half, edges))
+    interior = tuple(slice(0, -1) if edge < 0 else slice(1, None) if edge > 0 else slice(1, -1) for edge in edges)
+    x[interior] = solved[own]
     return x
+
+
+def _mirror_line(arrays: list[np.ndarray], axis: int, edge: int) -> list[np.ndarray]:
+    """normals, rays, d_u, d_v and log-range over a box with one line beyond the image border joined (``edge`` -1:
+    before index 0 along ``axis``, +1: after the last): the border line's mirror image, in the place of a ring.
+
+    Its log-range is 0, so :func:`box_rhs` moves nothing known to the border pixels. Its ray derivative across
+    the border (d_v for rows, d_u for columns) is negated: the mirrored surface's log-range gradient across the
+    border is the negative, and the averaged gradient on the border pair exactly 0 -- the border pixels' rows
+    of the right-hand side are those of the doubled box, whose other half is their mirror image."""
+    across = 3 if axis == 0 else 2
+    line = (
+        (slice(0, 1) if edge < 0 else slice(-1, None),)
+        if axis == 0
+        else (slice(None), slice(0, 1) if edge < 0 else slice(-1, None))
+    )
+    out = []
+    for k, a in enumerate(arrays):
+        mirror = -a[line] if k == across else np.zeros_like(a[line]) if k == len(arrays) - 1 else a[line]
+        out.append(np.concatenate((mirror, a) if edge < 0 else (a, mirror), axis=axis))
+    return out
 
 
 def box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array) -> Array:

@@ -79,8 +79,8 @@ def _sphere_pressed_into_the_dome(design, polar, azimuth, radius, depth):
 
 @pytest.mark.parametrize(("polar", "azimuth", "radius", "depth"), [(0, 0, 4.0, 1.0), (30, 90, 7.0, 2.0)])
 def test_a_wide_contact_at_full_size_keeps_its_depth_on_either_path(polar, azimuth, radius, depth):
-    # 7,000-24,000 px contacts at 640x480, the second reaching the image border (where "auto" takes the
-    # sparse path): a pull toward the undeformed dome on every unknown made them 4-14 % too shallow
+    # 7,000-24,000 px contacts at 640x480, the second reaching the image border (where "auto" takes an edge
+    # box): a pull toward the undeformed dome on every unknown made them 4-14 % too shallow
     from nlipscalib.core.sensor import SensorDesign
 
     ref, rays, hit, points, normals = _sphere_pressed_into_the_dome(SensorDesign(), polar, azimuth, radius, depth)
@@ -116,7 +116,7 @@ def _dome_and_sphere():
 
 
 def _pixels(bounds, unknown):
-    """The changed pixels inside the bounds ((rows, cols) slices) that take the sparse path."""
+    """The changed pixels inside the bounds ((rows, cols) slices)."""
     out = np.zeros_like(unknown)
     for crop in bounds:
         out[crop] |= unknown[crop]
@@ -133,17 +133,15 @@ def test_noise_specks_at_the_border_leave_the_contact_to_its_box():
     specks = np.zeros_like(contact)
     specks[0:4, 0:5] = specks[-3:, 300:306] = specks[200:206, -4:] = True
     assert not (ndimage.binary_dilation(specks, iterations=2) & contact).any()
-    boxes, sparse = _regions(contact | specks, on_gel, "auto")
+    boxes, edge_boxes, sparse = _regions(contact | specks, on_gel, "auto")
     assert boxes == [_box(contact, on_gel)]  # the contact's own box, as without the specks
-    assert len(sparse) == 3  # each speck on its own
-    np.testing.assert_array_equal(_pixels(sparse, contact | specks), specks)
-    # and the depth: the contact's as if alone, the specks' as solved alone on the sparse path
+    assert sorted(edges for _, edges in edge_boxes) == [(-1, -1), (0, 1), (1, 0)] and sparse == []  # one each
+    np.testing.assert_array_equal(_pixels([box for box, _ in edge_boxes], contact | specks), specks)
+    # and the depth: the contact's as if alone, the specks' the dome's (their normals are the dome's)
     got, _ = integrate_on_dome(normals, contact | specks, geo)
     alone, _ = integrate_on_dome(normals, contact, geo)
-    specks_alone, _ = integrate_on_dome(normals, specks, geo, "sparse")
-    np.testing.assert_array_equal(got[~specks], alone[~specks])
-    np.testing.assert_array_equal(got[specks], specks_alone[specks])
-    assert np.abs(got - ref.depth)[specks].max() < 0.05  # mm: the dome's own normals there
+    np.testing.assert_array_equal(got[boxes[0]], alone[boxes[0]])
+    assert np.abs(got - ref.depth)[specks].max() < 0.05  # mm
 
 
 def test_regions_whose_bounds_overlap_are_solved_together():
@@ -152,20 +150,88 @@ def test_regions_whose_bounds_overlap_are_solved_together():
     on_gel = np.ones((60, 80), bool)
     near = np.zeros_like(on_gel)
     near[20:25, 20:25] = near[20:25, 26:30] = True  # one column apart: their rings share pixels
-    boxes, sparse = _regions(near, on_gel, "auto")
-    assert sparse == [] and len(boxes) == 1  # the common box applies
-    # beside a region at the border: its bounds overlap theirs, so all three take the sparse path
+    boxes, edge_boxes, sparse = _regions(near, on_gel, "auto")
+    assert sparse == edge_boxes == [] and len(boxes) == 1  # the common box applies
+    # beside a region across the whole width (no box: nothing fixed on either side of a row), their bounds
+    # overlap its, so all three take the sparse path
     touching = near.copy()
-    touching[20:25, 0:19] = True
-    boxes, sparse = _regions(touching, on_gel, "auto")
-    assert boxes == [] and len(sparse) == 1
+    touching[26:29, :] = True
+    boxes, edge_boxes, sparse = _regions(touching, on_gel, "auto")
+    assert boxes == edge_boxes == [] and len(sparse) == 1
     np.testing.assert_array_equal(_pixels(sparse, touching), touching)
-    # far from it: the two keep their box, the border region alone is sparse
+    # far from it: the two keep their box, the band alone is sparse
     apart = near.copy()
-    apart[50:55, 0:3] = True
-    boxes, sparse = _regions(apart, on_gel, "auto")
-    assert len(boxes) == 1 and near[boxes[0]].sum() == near.sum()
+    apart[50:53, :] = True
+    boxes, edge_boxes, sparse = _regions(apart, on_gel, "auto")
+    assert len(boxes) == 1 and near[boxes[0]].sum() == near.sum() and edge_boxes == []
     np.testing.assert_array_equal(_pixels(sparse, apart), apart & ~near)
+    # a region at the image border beside them: one edge box for all three
+    at_border = near.copy()
+    at_border[20:25, 0:19] = True
+    boxes, edge_boxes, sparse = _regions(at_border, on_gel, "auto")
+    assert boxes == sparse == [] and [edges for _, edges in edge_boxes] == [(0, -1)]
+    np.testing.assert_array_equal(_pixels([edge_boxes[0][0]], at_border), at_border)
+
+
+@pytest.mark.parametrize(
+    ("polar", "azimuth", "edges"), [(35, 90, (1, 0)), (50, 180, (0, -1)), (50, 0, (0, 1)), (55, 35, (1, 1))]
+)
+def test_exact_normals_of_a_contact_at_the_image_border_give_its_depth_in_an_edge_box(polar, azimuth, edges):
+    # a press at the edge of the view: its box passes the image border, where the least-squares problem has
+    # no pixel pair (a natural side); the edge box mirrors it there instead of leaving it to SuperLU
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.learn.integrate import _regions
+
+    ref, rays, hit, points, normals = _sphere_pressed_into_the_dome(SensorDesign(), polar, azimuth, 7.0, 2.0)
+    on_gel = np.isfinite(ref.depth)
+    unknown = ndimage.binary_dilation(hit, iterations=3) & on_gel
+    boxes, edge_boxes, sparse = _regions(unknown, on_gel, "auto")
+    assert boxes == sparse == [] and [e for _, e in edge_boxes] == [edges]
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    got, _ = integrate_on_dome(normals, unknown, geo)
+    dent, true_dent = ref.depth - got, ref.depth - points[..., 2]
+    assert true_dent[unknown].max() > 1.4  # mm: a real dent, 0.7-1 mm deep at the border
+    assert (true_dent[unknown] > 0.5)[_at_border(unknown)[unknown]].any()
+    assert dent[unknown].max() == pytest.approx(true_dent[unknown].max(), rel=0.05)
+    assert np.abs(dent - true_dent)[unknown].mean() < 0.05 * true_dent.max()
+    # the solved pixels beyond the contact keep the dome
+    box = edge_boxes[0][0]
+    in_box = np.zeros_like(unknown)
+    in_box[box] = True
+    assert np.abs(dent)[in_box & ~ndimage.binary_dilation(unknown, iterations=2)].max() < 0.02  # mm
+
+
+def _at_border(mask):
+    border = np.zeros_like(mask)
+    border[[0, -1], :] = border[:, [0, -1]] = True
+    return mask & border
+
+
+@pytest.mark.parametrize(("polar", "azimuth"), [(35, 90), (55, 35)])
+def test_an_edge_box_solves_the_sparse_paths_equations_on_its_pixels(polar, azimuth):
+    # the sparse path's equations at the image border have no pair across it: an edge box must solve exactly
+    # them over its pixels (every pixel in it unknown but its ring off the border), up to float32 rounding
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.learn.integrate import _regions
+
+    ref, rays, hit, _, normals = _sphere_pressed_into_the_dome(SensorDesign(), polar, azimuth, 7.0, 2.0)
+    on_gel = np.isfinite(ref.depth)
+    unknown = ndimage.binary_dilation(hit, iterations=3) & on_gel
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    (((rows, cols), edges),) = _regions(unknown, on_gel, "auto")[1]
+    inner = np.zeros_like(unknown)
+    inner[rows, cols] = True
+    H, W = unknown.shape
+    for side, at_edge in ((np.s_[rows.start, :], rows.start == 0), (np.s_[rows.stop - 1, :], rows.stop == H)):
+        inner[side] &= at_edge  # the ring off the border is the reference's, fixed
+    for side, at_edge in ((np.s_[:, cols.start], cols.start == 0), (np.s_[:, cols.stop - 1], cols.stop == W)):
+        inner[side] &= at_edge
+    assert _at_border(inner).sum() > 100
+    box, _ = integrate_on_dome(normals, unknown, geo)
+    sparse, _ = integrate_on_dome(normals, inner, geo, "sparse")
+    np.testing.assert_allclose(box[inner], sparse[inner], atol=5e-4)  # mm; the dent is 2 mm
+    # a Dirichlet side at the border (the reference held there) would be a different surface
+    assert np.abs(box - ref.depth)[_at_border(inner)].max() > 0.1
 
 
 def test_the_sparse_path_solves_separate_regions_as_if_each_were_alone():
