@@ -302,3 +302,44 @@ def test_a_frame_of_another_size_is_named_in_width_x_height(frames, tmp_path, ca
     assert (
         err == f"nlips live: error: {frames / 'f03.png'}: image is 32x24, the stream's first frame (f00.png) is 16x12"
     )
+
+
+def test_live_names_an_opencv_without_a_gui_not_a_missing_display(frames, capsys, monkeypatch):
+    # opencv-python-headless on a desktop: a display is there, OpenCV cannot open a window (it said "no display")
+    def no_gui(*args):
+        raise cv2.error("The function is not implemented")
+
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(cv2, "namedWindow", no_gui)
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--max-frames", "1"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "this OpenCV has no GUI (opencv-python-headless): maps are not shown" in err and "no display" not in err
+
+
+def _reports(monkeypatch) -> list:
+    """The ``report`` each stream of ``nlips live`` is given (None: quiet)."""
+    import nlipscalib.device.live as live
+
+    given, real = [], live.stream
+
+    def recording(*args, **kwargs):
+        given.append(kwargs.get("report"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(live, "stream", recording)
+    return given
+
+
+@pytest.mark.parametrize(
+    "terminal, flags, shown", [(False, [], False), (True, [], True), (True, ["--no-progress"], False)]
+)
+def test_live_prints_its_running_frame_rate_on_a_terminal_only(frames, monkeypatch, terminal, flags, shown):
+    # a "27.1 fps" line every second went into logs and pipes, and --no-progress did not quiet it
+    import sys
+
+    given = _reports(monkeypatch)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: terminal)
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main([*flags, *args]) == 0
+    assert len(given) == 1 and (given[0] is not None) == shown
