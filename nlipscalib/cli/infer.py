@@ -81,7 +81,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="output folder (frames and streams: required to save results; presses: PRESS/)")
     p.add_argument("--ply", action="store_true", help="also write a PLY point cloud per frame")
     p.add_argument("--mesh", action="store_true", help="PLY with grid triangles (implies --ply)")
-    p.add_argument("--no-depth", action="store_true", help="normals only (skip the integration)")
+    p.add_argument(
+        "--no-depth",
+        action="store_true",
+        help="normals only: the integration is skipped, and the depth (and --ply points) saved are the undeformed "
+        "dome's",
+    )
     p.add_argument(
         "--overwrite",
         action="store_true",

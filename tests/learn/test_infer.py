@@ -896,3 +896,23 @@ def test_a_press_of_another_dome_is_refused_as_another_sensor(tiny_model, tmp_pa
     assert "undeformed surfaces" in err[0] and "mm apart (median)" in err[0], err
     assert not (out / press.name / "nlipsnet").exists()
     assert main(["--no-progress", "infer", str(model), str(root / NAMES[0]), "--out", str(out)]) == 0  # its own dome
+
+
+def test_normals_only_frames_carry_the_undeformed_surface_made_once_not_per_frame(tiny_model, monkeypatch):
+    """`--no-depth` ("skip the integration") recomputed the dome's points from its depth on every frame: its
+    "integrate" stage took 2-8 ms a 640x480 frame, more than integrating the changed pixels did with depth."""
+    import nlipscalib.learn.infer as infer
+    from nlipscalib.core.camera import depth_to_points
+
+    model, root = tiny_model
+    predictor = Predictor(model, depth=False)
+    calls = []
+    monkeypatch.setattr(infer, "depth_to_points", lambda *a: calls.append(a) or depth_to_points(*a))
+    tricolor = load_press(root / "b_cube").tricolor
+    first, second = (predictor.predict_stored(tricolor) for _ in range(2))
+    assert not calls  # the surface was made when the predictor was
+    np.testing.assert_allclose(first.depth, predictor.ref_depth, rtol=1e-6)
+    np.testing.assert_allclose(first.points, depth_to_points(predictor.ref_depth, predictor.camera.rays), rtol=1e-6)
+    first.depth[...] = 0  # each frame's arrays are its own: changing one changes no other frame's
+    assert np.isfinite(second.depth).all() and not np.all(second.depth == 0)
+    np.testing.assert_allclose(predictor.predict_stored(tricolor).depth, predictor.ref_depth, rtol=1e-6)
