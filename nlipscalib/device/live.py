@@ -62,10 +62,15 @@ class LiveStats:
         return self.frames / self.seconds if self.seconds > 0 else 0.0
 
     def summary(self) -> str:
+        """The stream's line: frames, wall time, frame rate, and the mean time per frame of each step.
+
+        The steps are named for what they time: "read" (a camera, a video's or a file's decoding), "predictor" (the
+        whole predictor's call). They were "camera" and "network": a video has no camera, and ``nlips infer``'s next
+        line has a "network" stage that is only a part of that call (13 ms of 23)."""
         n = max(self.frames, 1)
         return (
             f"{self.frames} frames in {self.seconds:.2f} s: {self.fps:.1f} fps "
-            f"(per frame: camera {1e3 * self.read_s / n:.1f} ms, network {1e3 * self.predict_s / n:.1f} ms, "
+            f"(per frame: read {1e3 * self.read_s / n:.1f} ms, predictor {1e3 * self.predict_s / n:.1f} ms, "
             f"output {1e3 * self.output_s / n:.1f} ms)"
         )
 

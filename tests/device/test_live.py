@@ -28,6 +28,8 @@ def test_stream_runs_every_frame_until_the_input_ends(frames):
     assert stats.frames == 5 and stats.fps > 0
     np.testing.assert_allclose(seen, [1, 2, 3, 4, 5])
     assert "5 frames" in stats.summary()
+    # named for what they time: a video has no camera, and infer's "network" stage is a part of the predictor's call
+    assert "(per frame: read " in stats.summary() and ", predictor " in stats.summary()
 
 
 def test_stream_stops_at_max_frames_or_when_a_sink_says_so(frames):
