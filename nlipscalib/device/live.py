@@ -224,8 +224,15 @@ class SaveSink:
         if index % self.every:
             return
         stem = self.folder / f"frame_{index:06d}"
-        if self.pictures is not None:
-            self.pictures(stem, result)
-        arrays = {"normals": result.normals.astype(np.float32), "depth": result.depth.astype(np.float32)}
-        # a temporary of this process's own (streams into one folder never share one), removed on SIGTERM
-        write_by_name(stem.with_suffix(".npz"), lambda tmp: save_npz(tmp, arrays))
+        try:
+            if self.pictures is not None:
+                self.pictures(stem, result)
+            arrays = {"normals": result.normals.astype(np.float32), "depth": result.depth.astype(np.float32)}
+            # a temporary of this process's own (streams into one folder never share one), removed on SIGTERM
+            write_by_name(stem.with_suffix(".npz"), lambda tmp: save_npz(tmp, arrays))
+        except BaseException:
+            # a frame is kept whole or not at all: Ctrl-C (or a full disk) between its picture and its arrays left
+            # frame_N_normals.png without frame_N.npz, where the summary counts the frames saved before frame N
+            for written in (*self.folder.glob(f"{stem.name}.*"), *self.folder.glob(f"{stem.name}_*")):
+                written.unlink(missing_ok=True)
+            raise

@@ -50,3 +50,17 @@ def test_a_frame_being_written_is_removed_by_sigterm_and_an_interrupted_one_leav
         _sink(tmp_path)(0, np.zeros((6, 8, 3), np.uint8), _result())
     assert seen == [True]
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(atomic.TMP_PREFIX)]
+
+
+def test_a_frame_stopped_between_its_picture_and_its_arrays_leaves_neither(tmp_path, monkeypatch):
+    """Ctrl-C of `nlips live --out DIR` (s24 walk) left frame_000005_normals.png without frame_000005.npz, the
+    summary saying "5 of 5 frames" saved."""
+    _sink(tmp_path)(0, np.zeros((6, 8, 3), np.uint8), _result())
+
+    def interrupted(path, arrays, compress=True):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(live, "save_npz", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _sink(tmp_path)(1, np.zeros((6, 8, 3), np.uint8), _result())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_000000.npz", "frame_000000_normals.png"]
