@@ -228,8 +228,9 @@ class SaveSink:
             if self.pictures is not None:
                 self.pictures(stem, result)
             arrays = {"normals": result.normals.astype(np.float32), "depth": result.depth.astype(np.float32)}
-            # a temporary of this process's own (streams into one folder never share one), removed on SIGTERM
-            write_by_name(stem.with_suffix(".npz"), lambda tmp: save_npz(tmp, arrays))
+            # a temporary of this process's own (streams into one folder never share one), removed on SIGTERM;
+            # "auto": dense float maps stored, not deflated (112 of a 640x480 frame's 134 ms of saving, for 14 % less)
+            write_by_name(stem.with_suffix(".npz"), lambda tmp: save_npz(tmp, arrays, compress="auto"))
         except BaseException:
             # a frame is kept whole or not at all: Ctrl-C (or a full disk) between its picture and its arrays left
             # frame_N_normals.png without frame_N.npz, where the summary counts the frames saved before frame N
