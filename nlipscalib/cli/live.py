@@ -51,8 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="live normal and depth maps from tri-colour frames (NLiPsNet)",
         description="Stream tri-colour frames (a camera with the LED board lighting the tri-colour pattern, a video "
         "or image folder, or --emulate SCENE) through NLiPsNet (--model) or your own --predictor: normals, depth "
-        "integrated on the dome, frames per second; shown in a window, and/or saved with --out. Warns when the "
-        "frames stop looking like the model's calibration.",
+        "integrated on the dome, frames per second; shown in a window (on a display, with an OpenCV built with a GUI: "
+        "opencv-python in place of the opencv-python-headless installed with nlipscalib), and/or saved with --out. "
+        "Warns when the frames stop looking like the model's calibration.",
     )
     p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
     p.add_argument(

@@ -345,3 +345,10 @@ def test_live_prints_its_running_frame_rate_on_a_terminal_only(frames, monkeypat
     args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
     assert main([*flags, *args]) == 0
     assert len(given) == 1 and (given[0] is not None) == shown
+
+
+def test_live_help_says_a_window_needs_an_opencv_with_a_gui(capsys):
+    # the package installs opencv-python-headless: "shown in a window" never happened on an ordinary install
+    assert "with an OpenCV built with a GUI: opencv-python in place of the opencv-python-headless" in _help(
+        "live", capsys
+    )
