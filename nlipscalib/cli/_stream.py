@@ -323,6 +323,18 @@ def _emulated_source(
     return camera, before_frame
 
 
+def running_rate_report() -> Callable[[str], None] | None:
+    """Where a stream's running frame rate goes (``device.live.stream``'s ``report``, once per second): stderr on
+    a terminal, None (quiet) in a log or pipe and with ``--no-progress``, as for progress bars
+    (:func:`nlipscalib.progress.bars_enabled`).
+
+    Why: ``nlips live`` printed a "27.1 fps" line every second into non-TTY logs (``nlips infer`` checked only
+    for a terminal, and ignored ``--no-progress``); the summary line says the rate once the stream ends."""
+    from ..progress import bars_enabled
+
+    return (lambda line: print(line, file=sys.stderr)) if bars_enabled() else None
+
+
 def saved_line(folder: str, frames: int, every: int, extra: str = "") -> str:
     """Where a stream's saved maps went (``nlips live --out``, ``nlips infer ... --out``), said after its summary:
     the summary gave frame rates only, and a new user looked for the results. ``extra``: more files named."""

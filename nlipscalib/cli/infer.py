@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
@@ -82,7 +81,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="output folder (frames and streams: required to save results; presses: PRESS/)")
     p.add_argument("--ply", action="store_true", help="also write a PLY point cloud per frame")
     p.add_argument("--mesh", action="store_true", help="PLY with grid triangles (implies --ply)")
-    p.add_argument("--no-depth", action="store_true", help="normals only (skip the integration)")
+    p.add_argument(
+        "--no-depth",
+        action="store_true",
+        help="normals only: the integration is skipped, and the depth (and --ply points) saved are the undeformed "
+        "dome's",
+    )
     p.add_argument(
         "--overwrite",
         action="store_true",
@@ -203,7 +207,13 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
     from ..device.live import ReadAhead, SaveSink, stream
     from ..learn.watch import MismatchWatch
     from ..report.live import NormalMapPng
-    from ._stream import check_emulated_sensor, nlipsnet_predictor, open_frames, size_emulator_for
+    from ._stream import (
+        check_emulated_sensor,
+        nlipsnet_predictor,
+        open_frames,
+        running_rate_report,
+        size_emulator_for,
+    )
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better
@@ -247,8 +257,7 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
                 sinks,
                 max_frames=args.max_frames,
                 before_frame=before_frame,
-                # the running frame rate once per second on a terminal; logs and pipes get the summary only
-                report=(lambda line: print(line, file=sys.stderr)) if sys.stderr.isatty() else None,
+                report=running_rate_report(),
             )
             cpu = time.process_time() - cpu0
     except DeviceError:

@@ -27,6 +27,7 @@ from ._stream import (
     emulate_behind_port,
     nlipsnet_predictor,
     open_frames,
+    running_rate_report,
     saved_line,
     size_emulator_for,
 )
@@ -50,8 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="live normal and depth maps from tri-colour frames (NLiPsNet)",
         description="Stream tri-colour frames (a camera with the LED board lighting the tri-colour pattern, a video "
         "or image folder, or --emulate SCENE) through NLiPsNet (--model) or your own --predictor: normals, depth "
-        "integrated on the dome, frames per second; shown in a window, and/or saved with --out. Warns when the "
-        "frames stop looking like the model's calibration.",
+        "integrated on the dome, frames per second; shown in a window (on a display, with an OpenCV built with a GUI: "
+        "opencv-python in place of the opencv-python-headless installed with nlipscalib), and/or saved with --out. "
+        "Warns when the frames stop looking like the model's calibration.",
     )
     p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
     p.add_argument(
@@ -157,7 +159,7 @@ def _checked_first_call(spec: str, predict: Predict) -> Predict:
 def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count
     from ..core.errors import ConfigError, DeviceError
-    from ..report.live import display_available
+    from ..report.live import window_problem
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
@@ -166,10 +168,10 @@ def run(args: argparse.Namespace) -> int:
     check_output_arguments(args, args.out)
     if args.max_frames is not None:
         check_count("--max-frames", args.max_frames, minimum=1)
-    window = not args.no_window and display_available()
+    no_window = "--no-window" if args.no_window else window_problem()
     done = {}
     try:
-        _run_stream(args, window, done)
+        _run_stream(args, no_window, done)
     except DeviceError:
         if "stats" not in done:
             raise
@@ -181,9 +183,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
-    """Open the source, the predictor and the sinks, and stream; ``done`` gets ``stats`` and ``predict`` once
-    the stream ended, before what it opened is closed (the LED board switched off)."""
+def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict) -> None:
+    """Open the source, the predictor and the sinks, and stream; ``no_window``: why no window shows the maps (None:
+    one does); ``done`` gets ``stats`` and ``predict`` once the stream ended, before what it opened is closed (the
+    LED board switched off)."""
     import contextlib
 
     from ..device.live import SaveSink, StopLive, stream
@@ -194,6 +197,7 @@ def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
             predict, reference_depth = _nlipsnet(args)
             size_emulator_for(args, predict.predictor.shape)
             check_emulated_sensor(args, predict.predictor.model.sensor, predict.predictor.model.reference["depth"])
+        window = no_window is None
         source, before_frame = open_frames(args, stack, loop=window)
         if not args.model:
             predict, reference_depth = _plugged(args.predictor, source.shape)
@@ -203,15 +207,14 @@ def _run_stream(args: argparse.Namespace, window: bool, done: dict) -> None:
         if window:
             sinks.append(WindowSink(StopLive, reference_depth))
         elif not args.out:
-            why = "--no-window" if args.no_window else "no display"
-            print(f"{why}: maps are not shown; use --out DIR to keep them", file=sys.stderr)
+            print(f"{no_window}: maps are not shown; use --out DIR to keep them", file=sys.stderr)
         done["stats"] = stream(
             source,
             predict,
             sinks,
             max_frames=args.max_frames,
             before_frame=before_frame,
-            report=lambda line: print(line, file=sys.stderr),
+            report=running_rate_report(),
         )
         done["predict"] = predict
 

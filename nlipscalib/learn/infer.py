@@ -9,6 +9,7 @@ dome along the camera's real rays (:mod:`nlipscalib.learn.integrate`).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -80,7 +81,7 @@ class Predictor:
     backend : one of :data:`BACKENDS` ("onnx" and "onnx-int8" use the .onnx file beside the model, from
         ``nlips train``)
     threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch)
-    depth : integrate depth (False: normals only)
+    depth : integrate depth (False: normals only; each frame's depth and points are then the undeformed dome's)
     device : "cpu", or a torch GPU ("cuda", "cuda:N"): every step of a frame on that GPU (:mod:`.fullframe`, the
         PyTorch backend; the same change rule, box integration and results as the CPU path)
     full_frame : the network's normals on every gel pixel, not only where the frame changed (the rest keeps
@@ -109,6 +110,9 @@ class Predictor:
         self.ref_depth = ref["depth"].astype(np.float64)
         self.dark = ref["dark"].astype(np.float32)
         self.geo = RayGeometry.from_reference(self.camera.rays, self.ref_depth) if depth else None
+        # normals only: every frame's depth and points are the undeformed dome's; made once, not per frame (that
+        # cost 2-8 ms a 640x480 frame, more than integrating the changed pixels with depth)
+        self._reference_surface = None if depth else self._undeformed_surface()
         self.changed = ChangeDetector(self.ref_tricolor, self.valid)
         self.prefilter = Prefilter(self.valid, self.model.smoothing_px)
         self.backend = backend
@@ -119,6 +123,12 @@ class Predictor:
 
             self._full = FullFrame(self.model, self.device, self.geo, keep_reference=not full_frame)
         self._warm_up()
+
+    def _undeformed_surface(self) -> tuple[np.ndarray, np.ndarray]:
+        """(depth (H, W) float32 mm, points (H, W, 3) float32 mm, camera frame) of the calibration's undeformed dome:
+        what every frame gives without depth."""
+        depth = self.ref_depth.astype(np.float32)
+        return depth, depth_to_points(depth, self.camera.rays).astype(np.float32)
 
     @staticmethod
     def _device(device: str, backend: str, full_frame: bool):
@@ -218,9 +228,8 @@ class Predictor:
         t2 = time.perf_counter()
         if self.geo is not None:
             depth, points = integrate_on_dome(normals, changed, self.geo)
-        else:
-            depth = self.ref_depth.astype(np.float32)
-            points = depth_to_points(depth, self.camera.rays).astype(np.float32)
+        else:  # copies: a caller may change its frame's arrays
+            depth, points = (surface.copy() for surface in self._reference_surface)
         t3 = time.perf_counter()
         seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
         frame = Frame(normals, depth, points, changed, seconds, mismatch=self.changed.mismatch)
@@ -234,14 +243,21 @@ class Predictor:
         the share of the gel's pixels with a channel clipped (stored at the white level, or at
         :data:`~nlipscalib.core.sensor_response.CLIPPED_VALUE`)."""
         gel = tricolor[self.valid]
-        level = float(np.median(self.ref_tricolor[self.valid].sum(-1)))
+        level, clipped = self._exposure_levels
         brightness = max(0.0, float(np.median(gel.sum(-1))) / level) if level > 0 else float("nan")
+        saturated = float((gel >= clipped).any(-1).mean()) if len(gel) else 0.0
+        return brightness, saturated
+
+    @functools.cached_property
+    def _exposure_levels(self) -> tuple[float, np.ndarray]:
+        """(the reference frame's median brightness on the gel, (N, 3) float32 the clipping level at each gel pixel):
+        :meth:`_exposure`'s constants, made once, at its first call (they were made for every frame unlike the
+        calibration's: 11 of the 31 ms that check added to each such 640x480 frame of a stream)."""
+        level = float(np.median(self.ref_tricolor[self.valid].sum(-1)))
         s = self.model.sensor
         # the clipping level at each gel pixel, linearised as the frame was; half a step below it for float32 rounding
         top = min(float(s["white_level"]), CLIPPED_VALUE) - 0.5
-        clipped = linearise(np.float32(top), self.dark[self.valid], s["black_level"], s["white_level"])
-        saturated = float((gel >= clipped).any(-1).mean()) if len(gel) else 0.0
-        return brightness, saturated
+        return level, linearise(np.float32(top), self.dark[self.valid], s["black_level"], s["white_level"])
 
     def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         """(N, 3) network input colours at the changed pixels: the model's prefilter, on their bounding box only."""

@@ -59,14 +59,24 @@ def normals_to_rgb8(normals: np.ndarray) -> np.ndarray:
 
 def display_available() -> bool:
     """True when an OpenCV window can be opened (a display, and an OpenCV built with a GUI)."""
+    return window_problem() is None
+
+
+NO_GUI = "this OpenCV has no GUI (opencv-python-headless)"
+"""Why no window opens where a display is present but OpenCV was built without one: what the stream says, not
+"no display" (the user sees a display, and would look for one)."""
+
+
+def window_problem() -> str | None:
+    """Why an OpenCV window cannot be opened (no display; an OpenCV without a GUI), or None when it can."""
     if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or os.name == "nt"):
-        return False
+        return "no display"
     cv2 = require("cv2", "opencv-python-headless", "Showing live maps")
     try:
         cv2.namedWindow(WINDOW, cv2.WINDOW_NORMAL)
     except cv2.error:
-        return False  # opencv-python-headless: no GUI
-    return True
+        return NO_GUI
+    return None
 
 
 class WindowSink:

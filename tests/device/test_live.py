@@ -28,6 +28,8 @@ def test_stream_runs_every_frame_until_the_input_ends(frames):
     assert stats.frames == 5 and stats.fps > 0
     np.testing.assert_allclose(seen, [1, 2, 3, 4, 5])
     assert "5 frames" in stats.summary()
+    # named for what they time: a video has no camera, and infer's "network" stage is a part of the predictor's call
+    assert "(per frame: read " in stats.summary() and ", predictor " in stats.summary()
 
 
 def test_stream_stops_at_max_frames_or_when_a_sink_says_so(frames):
@@ -301,4 +303,52 @@ def test_a_frame_of_another_size_is_named_in_width_x_height(frames, tmp_path, ca
     err = capsys.readouterr().err.splitlines()[-1]
     assert (
         err == f"nlips live: error: {frames / 'f03.png'}: image is 32x24, the stream's first frame (f00.png) is 16x12"
+    )
+
+
+def test_live_names_an_opencv_without_a_gui_not_a_missing_display(frames, capsys, monkeypatch):
+    # opencv-python-headless on a desktop: a display is there, OpenCV cannot open a window (it said "no display")
+    def no_gui(*args):
+        raise cv2.error("The function is not implemented")
+
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setattr(cv2, "namedWindow", no_gui)
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--max-frames", "1"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "this OpenCV has no GUI (opencv-python-headless): maps are not shown" in err and "no display" not in err
+
+
+def _reports(monkeypatch) -> list:
+    """The ``report`` each stream of ``nlips live`` is given (None: quiet)."""
+    import nlipscalib.device.live as live
+
+    given, real = [], live.stream
+
+    def recording(*args, **kwargs):
+        given.append(kwargs.get("report"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(live, "stream", recording)
+    return given
+
+
+@pytest.mark.parametrize(
+    "terminal, flags, shown", [(False, [], False), (True, [], True), (True, ["--no-progress"], False)]
+)
+def test_live_prints_its_running_frame_rate_on_a_terminal_only(frames, monkeypatch, terminal, flags, shown):
+    # a "27.1 fps" line every second went into logs and pipes, and --no-progress did not quiet it
+    import sys
+
+    given = _reports(monkeypatch)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: terminal)
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main([*flags, *args]) == 0
+    assert len(given) == 1 and (given[0] is not None) == shown
+
+
+def test_live_help_says_a_window_needs_an_opencv_with_a_gui(capsys):
+    # the package installs opencv-python-headless: "shown in a window" never happened on an ordinary install
+    assert "with an OpenCV built with a GUI: opencv-python in place of the opencv-python-headless" in _help(
+        "live", capsys
     )

@@ -50,3 +50,34 @@ def test_a_frame_being_written_is_removed_by_sigterm_and_an_interrupted_one_leav
         _sink(tmp_path)(0, np.zeros((6, 8, 3), np.uint8), _result())
     assert seen == [True]
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(atomic.TMP_PREFIX)]
+
+
+def test_a_frame_stopped_between_its_picture_and_its_arrays_leaves_neither(tmp_path, monkeypatch):
+    """Ctrl-C of `nlips live --out DIR` (s24 walk) left frame_000005_normals.png without frame_000005.npz, the
+    summary saying "5 of 5 frames" saved."""
+    _sink(tmp_path)(0, np.zeros((6, 8, 3), np.uint8), _result())
+
+    def interrupted(path, arrays, compress=True):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(live, "save_npz", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _sink(tmp_path)(1, np.zeros((6, 8, 3), np.uint8), _result())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame_000000.npz", "frame_000000_normals.png"]
+
+
+def test_dense_maps_of_a_stream_are_stored_not_deflated(tmp_path):
+    """Deflating a 640x480 frame's normals and depth took 112 ms (s24 walk: `nlips live --out` saved 6 frames/s) for a
+    file 14 % smaller; stored, 6 ms."""
+    import zipfile
+
+    rng = np.random.default_rng(0)
+    normals = rng.normal(size=(6, 8, 3)).astype(np.float32)  # a frame's maps: dense, unlike _result()'s flat ones
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    depth = 20 + rng.normal(size=(6, 8)).astype(np.float32)
+    _sink(tmp_path)(0, np.zeros((6, 8, 3), np.uint8), LiveResult(normals, depth))
+    with zipfile.ZipFile(tmp_path / "frame_000000.npz") as saved:
+        assert {i.filename: i.compress_type for i in saved.infolist()} == {
+            "normals.npy": zipfile.ZIP_STORED,
+            "depth.npy": zipfile.ZIP_STORED,
+        }

@@ -896,3 +896,41 @@ def test_a_press_of_another_dome_is_refused_as_another_sensor(tiny_model, tmp_pa
     assert "undeformed surfaces" in err[0] and "mm apart (median)" in err[0], err
     assert not (out / press.name / "nlipsnet").exists()
     assert main(["--no-progress", "infer", str(model), str(root / NAMES[0]), "--out", str(out)]) == 0  # its own dome
+
+
+def test_normals_only_frames_carry_the_undeformed_surface_made_once_not_per_frame(tiny_model, monkeypatch):
+    """`--no-depth` ("skip the integration") recomputed the dome's points from its depth on every frame: its
+    "integrate" stage took 2-8 ms a 640x480 frame, more than integrating the changed pixels did with depth."""
+    import nlipscalib.learn.infer as infer
+    from nlipscalib.core.camera import depth_to_points
+
+    model, root = tiny_model
+    predictor = Predictor(model, depth=False)
+    calls = []
+    monkeypatch.setattr(infer, "depth_to_points", lambda *a: calls.append(a) or depth_to_points(*a))
+    tricolor = load_press(root / "b_cube").tricolor
+    first, second = (predictor.predict_stored(tricolor) for _ in range(2))
+    assert not calls  # the surface was made when the predictor was
+    np.testing.assert_allclose(first.depth, predictor.ref_depth, rtol=1e-6)
+    np.testing.assert_allclose(first.points, depth_to_points(predictor.ref_depth, predictor.camera.rays), rtol=1e-6)
+    first.depth[...] = 0  # each frame's arrays are its own: changing one changes no other frame's
+    assert np.isfinite(second.depth).all() and not np.all(second.depth == 0)
+    np.testing.assert_allclose(predictor.predict_stored(tricolor).depth, predictor.ref_depth, rtol=1e-6)
+
+
+def test_the_exposure_of_mismatched_frames_is_measured_against_constants_made_once(tiny_model, monkeypatch):
+    """Each frame unlike the calibration's (a dimmer exposure, the emulator of another render) remade the reference
+    frame's median brightness and the clipping levels: 11 of the 31 ms the check added to a 640x480 frame, while
+    the stage times said the frame took 3.6 ms (the s24 live walk's emulated stream: 11.6 frames/s)."""
+    import nlipscalib.learn.infer as infer
+
+    model, root = tiny_model
+    predictor = Predictor(model)
+    dim = (load_press(root / "b_cube").tricolor * 0.5).astype(np.uint16)
+    first = predictor.predict_stored(dim)
+    assert first.mismatch > infer.FRAME_MISMATCH_FRACTION and 0.3 < first.brightness < 0.7
+    linear = predictor.linear(dim)  # before the patch: the frame's own linearisation is not what is checked
+    remade = []
+    monkeypatch.setattr(infer, "linearise", lambda *a: remade.append(a) or pytest.fail("a constant was remade"))
+    again = predictor.predict(linear)
+    assert not remade and (again.brightness, again.saturated) == (first.brightness, first.saturated)
