@@ -52,9 +52,9 @@ if TYPE_CHECKING:  # torch is optional (the full-frame path passes tensors): nam
     import torch
 
 Array: TypeAlias = "np.ndarray | torch.Tensor"
+"""A numpy array, or a torch tensor where :mod:`.fullframe` calls the shared arithmetic."""
 Bounds: TypeAlias = "Sequence[int]"
 """Pixel bounds [r0, r1, c0, c1): rows r0 to r1 - 1, columns c0 to c1 - 1."""
-"""A numpy array, or a torch tensor where :mod:`.fullframe` calls the shared arithmetic."""
 
 ANCHOR_WEIGHT = 1e-4
 """Weak pull toward the reference log-range, on the unknown regions that touch no known pixel only (their
