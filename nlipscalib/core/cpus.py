@@ -13,6 +13,14 @@ log = logging.getLogger(__name__)
 MEMINFO = Path("/proc/meminfo")
 """Linux's memory table: its ``MemAvailable`` line is what new processes can take without swapping or the
 out-of-memory killer (page cache that can be dropped included)."""
+PROC_CGROUP = Path("/proc/self/cgroup")
+"""This process's control groups, one ``ID:controllers:path`` line a hierarchy (cgroup v2: ``0::path``)."""
+CGROUP_ROOT = Path("/sys/fs/cgroup")
+"""Where the control groups are mounted: cgroup v2's tree itself, or cgroup v1's one folder per controller
+(``memory/``)."""
+NO_CGROUP_LIMIT = 2**62
+"""cgroup v1 writes "no limit" as a huge count (``PAGE_COUNTER_MAX`` pages, 9223372036854771712 bytes): any limit
+at or above this is none."""
 
 
 def usable_cores() -> int:
@@ -23,11 +31,27 @@ def usable_cores() -> int:
         return os.cpu_count() or 1
 
 
-def available_memory(meminfo: Path = MEMINFO) -> int | None:
-    """Bytes of memory new processes can take now (``MemAvailable`` of ``meminfo``), or None where unknown
-    (not Linux, a kernel before 3.14, an unreadable file): callers then count cores alone, as before.
+def available_memory(
+    meminfo: Path | None = None, proc_cgroup: Path | None = None, cgroup_root: Path | None = None
+) -> int | None:
+    """Bytes of memory new processes can take now: the smaller of ``MemAvailable`` (``meminfo``) and the room left
+    under this process's cgroup memory limit, or None where neither is known (not Linux, a kernel before 3.14,
+    unreadable files): callers then count cores alone, as before.
 
-    Why not psutil: it is not a dependency, and its ``virtual_memory().available`` reads this same line on Linux."""
+    Why the cgroup: in a container (Docker, Kubernetes, a SLURM job) ``MemAvailable`` is the host's, far above what
+    the container may take, and the out-of-memory killer ends workers at the cgroup's limit instead.
+
+    Why not psutil: it is not a dependency, its ``virtual_memory().available`` reads this same line on Linux, and it
+    does not read cgroups. The paths (None: :data:`MEMINFO`, :data:`PROC_CGROUP`, :data:`CGROUP_ROOT`, looked up at
+    the call so that tests can point them at fake files) are for tests."""
+    meminfo_reading = _meminfo_available(MEMINFO if meminfo is None else meminfo)
+    cgroup_reading = cgroup_memory_room(proc_cgroup, cgroup_root)
+    readings = [m for m in (meminfo_reading, cgroup_reading) if m is not None]
+    return min(readings) if readings else None
+
+
+def _meminfo_available(meminfo: Path) -> int | None:
+    """``MemAvailable`` of ``meminfo`` in bytes, or None where the file or the line is missing."""
     try:
         text = meminfo.read_text()
     except OSError:
@@ -39,6 +63,82 @@ def available_memory(meminfo: Path = MEMINFO) -> int | None:
             if parts and parts[0].isdigit():
                 return int(parts[0]) * 1024 if len(parts) > 1 and parts[1] == "kB" else int(parts[0])
     return None
+
+
+def cgroup_memory_room(proc_cgroup: Path | None = None, cgroup_root: Path | None = None) -> int | None:
+    """Bytes this process's control group may still take before its memory limit, or None where no limit is set
+    or none can be read (no cgroups, no memory controller, unreadable files).
+
+    cgroup v2 (``0::path``): ``memory.max`` ("max": no limit) minus ``memory.current``; cgroup v1 (a ``memory``
+    hierarchy; it wins on hybrid systems, where v2 holds no memory controller): ``memory.limit_in_bytes`` (a huge
+    count: no limit) minus ``memory.usage_in_bytes``. The usage counts page cache, which the kernel drops before
+    it kills, so the file cache it could drop first (``inactive_file`` of ``memory.stat``, as ``docker stats``
+    subtracts) is not counted: the same idea as ``MemAvailable``. The group's ancestors are read too, up to the
+    mount's root (a Kubernetes pod's limit sits above its containers'), and the least room wins; this also reads
+    the limit where the group's own folder is missing (Docker on cgroup v1 without a cgroup namespace: the file
+    names the host's path, the mount is the container's own group)."""
+    proc_cgroup = PROC_CGROUP if proc_cgroup is None else proc_cgroup
+    cgroup_root = CGROUP_ROOT if cgroup_root is None else cgroup_root
+    try:
+        lines = proc_cgroup.read_text().splitlines()
+    except OSError:
+        return None
+    v1 = v2 = None
+    for line in lines:
+        hierarchy, _, rest = line.partition(":")
+        controllers, _, path = rest.partition(":")
+        if "memory" in controllers.split(","):
+            v1 = path
+        elif hierarchy == "0" and controllers == "":
+            v2 = path
+    if v1 is not None:
+        return _least_room(cgroup_root / "memory", v1, "memory.limit_in_bytes", "memory.usage_in_bytes")
+    if v2 is not None:
+        return _least_room(cgroup_root, v2, "memory.max", "memory.current")
+    return None
+
+
+def _least_room(mount: Path, group: str, limit_file: str, usage_file: str) -> int | None:
+    """The least room (limit minus usage less droppable file cache) over ``group`` and its ancestors under
+    ``mount``, None where none of them has a readable limit."""
+    folder = mount / group.strip("/")
+    rooms = []
+    while True:
+        room = _room(folder, limit_file, usage_file)
+        if room is not None:
+            rooms.append(room)
+        if folder == mount or mount not in folder.parents:
+            break
+        folder = folder.parent
+    return min(rooms) if rooms else None
+
+
+def _room(folder: Path, limit_file: str, usage_file: str) -> int | None:
+    """Limit minus usage of one group's ``folder`` (>= 0), None where it has no limit or a file is unreadable."""
+    try:
+        limit_text = (folder / limit_file).read_text().strip()
+        if limit_text == "max":
+            return None
+        limit = int(limit_text)
+        usage = int((folder / usage_file).read_text().strip())
+    except (OSError, ValueError):
+        return None
+    if limit >= NO_CGROUP_LIMIT:
+        return None
+    return max(0, limit - max(0, usage - _inactive_file(folder)))
+
+
+def _inactive_file(folder: Path) -> int:
+    """Bytes of file cache the kernel can drop first (``inactive_file`` of ``memory.stat``), 0 where unknown."""
+    try:
+        text = (folder / "memory.stat").read_text()
+    except OSError:
+        return 0
+    for line in text.splitlines():
+        name, _, value = line.partition(" ")
+        if name == "inactive_file" and value.strip().isdigit():
+            return int(value)
+    return 0
 
 
 @dataclass(frozen=True)

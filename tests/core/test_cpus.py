@@ -1,5 +1,5 @@
-"""The cores and memory a process may use (its CPU affinity, else every core; MemAvailable), and the worker
-processes that fit them."""
+"""The cores and memory a process may use (its CPU affinity, else every core; MemAvailable and the cgroup's memory
+limit), and the worker processes that fit them."""
 
 import logging
 import os
@@ -11,6 +11,7 @@ from nlipscalib.core.cpus import (
     SOLVE_WHOLE_MEMORY,
     WorkerMemory,
     available_memory,
+    cgroup_memory_room,
     usable_cores,
     worker_count,
 )
@@ -32,11 +33,12 @@ SOLVE = WorkerMemory("solve", base_bytes=0, per_pixel_bytes=1000)  # 1.2288 GB a
 
 def test_available_memory_reads_memavailable_in_bytes(tmp_path):
     meminfo = tmp_path / "meminfo"
+    no_cgroups = tmp_path / "missing"  # this machine's own cgroups (a container's limit) kept out of the test
     meminfo.write_text("MemTotal:       16318480 kB\nMemFree:         1000000 kB\nMemAvailable:   12000000 kB\n")
-    assert available_memory(meminfo) == 12_000_000 * 1024
+    assert available_memory(meminfo, no_cgroups) == 12_000_000 * 1024
     meminfo.write_text("MemTotal:       16318480 kB\nMemFree:         1000000 kB\n")  # a kernel before 3.14
-    assert available_memory(meminfo) is None
-    assert available_memory(tmp_path / "missing") is None  # not Linux
+    assert available_memory(meminfo, no_cgroups) is None
+    assert available_memory(tmp_path / "missing", no_cgroups) is None  # not Linux
 
 
 def test_the_default_count_is_lowered_to_what_memory_holds_and_said_once(caplog):
@@ -67,7 +69,10 @@ def test_an_explicit_count_is_kept_with_a_warning_when_it_likely_exceeds_memory(
 
 def test_without_a_memory_reading_the_cores_decide(monkeypatch, tmp_path):
     monkeypatch.setattr(cpus, "MEMINFO", tmp_path / "missing")
+    monkeypatch.setattr(cpus, "PROC_CGROUP", tmp_path / "missing")  # also where the tests run in a container
     assert worker_count(None, 6, SOLVE, 1280, 960) == 6
+    monkeypatch.setattr(cpus, "MEMINFO", _meminfo(tmp_path, available_kb=2_000_000))  # 2 GB: one 1.23 GB worker
+    assert worker_count(None, 6, SOLVE, 1280, 960) == 1
 
 
 def test_the_worker_models_grow_with_the_pixels_as_measured():
@@ -82,3 +87,98 @@ def test_the_worker_models_grow_with_the_pixels_as_measured():
         for (w, h), peak in peaks.items():
             share = 0.3 if w * h < 100_000 else 0.1
             assert abs(model.estimate(w, h) - peak) <= share * peak, (model.job, w, h)
+
+
+def _meminfo(tmp_path, available_kb=12_000_000):
+    meminfo = tmp_path / "meminfo"
+    meminfo.write_text(f"MemTotal:       16318480 kB\nMemAvailable:   {available_kb} kB\n")
+    return meminfo
+
+
+def _cgroup_files(folder, **files):
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, text in files.items():
+        (folder / name.replace("_", ".", 1)).write_text(text)
+
+
+def test_a_cgroup_v2_limit_below_memavailable_decides(tmp_path):
+    meminfo = _meminfo(tmp_path)  # the host: 12.3 GB available
+    proc_cgroup = tmp_path / "cgroup"
+    proc_cgroup.write_text("0::/kubepods/pod1/box\n")
+    root = tmp_path / "sys"
+    # the container: 2 GB limit, 0.5 GB used of which 0.1 GB droppable file cache
+    _cgroup_files(
+        root / "kubepods/pod1/box",
+        memory_max=f"{2 * GB}\n",
+        memory_current=f"{GB // 2}\n",
+        memory_stat=f"anon 400000000\ninactive_file {GB // 10}\nactive_file 0\n",
+    )
+    assert available_memory(meminfo, proc_cgroup, root) == 2 * GB - (GB // 2 - GB // 10)
+    # the pod above it has less room left (its other containers use memory): the least room wins
+    _cgroup_files(root / "kubepods/pod1", memory_max=f"{3 * GB}\n", memory_current=f"{2 * GB}\n")
+    assert available_memory(meminfo, proc_cgroup, root) == GB
+    # a group over its limit has no room, never a negative count
+    _cgroup_files(root / "kubepods/pod1", memory_max=f"{GB}\n", memory_current=f"{2 * GB}\n")
+    assert available_memory(meminfo, proc_cgroup, root) == 0
+    # the worker count follows: one worker where the container has no room
+    assert worker_count(None, 8, SOLVE, 1280, 960, available=available_memory(meminfo, proc_cgroup, root)) == 1
+
+
+def test_a_cgroup_v2_without_a_limit_leaves_memavailable(tmp_path):
+    meminfo = _meminfo(tmp_path)
+    proc_cgroup = tmp_path / "cgroup"
+    proc_cgroup.write_text("0::/user.slice/session-1.scope\n")
+    root = tmp_path / "sys"
+    _cgroup_files(root / "user.slice/session-1.scope", memory_max="max\n", memory_current="123456\n")
+    assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
+    assert cgroup_memory_room(proc_cgroup, root) is None
+    # a limit far above MemAvailable does not raise it
+    _cgroup_files(root / "user.slice", memory_max=f"{100 * GB}\n", memory_current="0\n")
+    assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
+
+
+def test_a_cgroup_v1_memory_hierarchy_is_read_and_its_huge_count_means_no_limit(tmp_path):
+    meminfo = _meminfo(tmp_path)
+    proc_cgroup = tmp_path / "cgroup"
+    # a hybrid system (as this project's VM): v1 holds the memory controller, v2's tree has none
+    proc_cgroup.write_text("4:memory:/slurm/job7\n3:cpu,cpuacct:/slurm/job7\n0::/\n")
+    root = tmp_path / "sys"
+    _cgroup_files(root / "memory/slurm/job7", memory_limit_in_bytes=f"{4 * GB}\n", memory_usage_in_bytes=f"{GB}\n")
+    _cgroup_files(root / "memory", memory_limit_in_bytes="9223372036854771712\n", memory_usage_in_bytes="6112911360\n")
+    assert available_memory(meminfo, proc_cgroup, root) == 3 * GB
+    (root / "memory/slurm/job7/memory.limit_in_bytes").write_text("9223372036854771712\n")  # no limit
+    assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
+    assert cgroup_memory_room(proc_cgroup, root) is None  # not 9.2e18 bytes of room
+
+
+def test_a_container_that_sees_its_group_as_the_mount_root_reads_the_root(tmp_path):
+    # Docker on cgroup v1 without a cgroup namespace: /proc/self/cgroup names the host's path, the mount is the
+    # container's own group
+    meminfo = _meminfo(tmp_path)
+    proc_cgroup = tmp_path / "cgroup"
+    proc_cgroup.write_text("9:memory:/docker/0123abcd\n")
+    root = tmp_path / "sys"
+    _cgroup_files(root / "memory", memory_limit_in_bytes=f"{GB}\n", memory_usage_in_bytes=f"{GB // 4}\n")
+    assert available_memory(meminfo, proc_cgroup, root) == GB - GB // 4
+
+
+def test_without_cgroups_or_with_unreadable_files_memavailable_alone_decides(tmp_path):
+    meminfo = _meminfo(tmp_path)
+    root = tmp_path / "sys"
+    assert available_memory(meminfo, tmp_path / "missing", root) == 12_000_000 * 1024  # not Linux, no cgroups
+    proc_cgroup = tmp_path / "cgroup"
+    proc_cgroup.write_text("0::/box\n")
+    assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024  # no cgroup files mounted
+    _cgroup_files(root / "box", memory_max=f"{GB}\n")  # memory.current missing: not a reading
+    assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
+    (root / "box/memory.current").write_text("garbled\n")
+    assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
+    (root / "box/memory.current").unlink()
+    (root / "box/memory.current").mkdir()  # unreadable (a folder: root reads any file mode)
+    assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
+    (root / "box/memory.current").rmdir()
+    # neither reading: unknown, the cores decide
+    assert available_memory(tmp_path / "missing", tmp_path / "missing", root) is None
+    # the cgroup alone (no MemAvailable line): its room is the answer
+    (root / "box/memory.current").write_text(f"{GB // 2}\n")
+    assert available_memory(tmp_path / "missing", proc_cgroup, root) == GB // 2
