@@ -284,7 +284,7 @@ def _finish_stream(
 ) -> None:
     """A stream's summary lines, its mismatch count and (with --out) its stream.json."""
     print(stats.summary())
-    print(stages.summary(predictor, cpu, stats.frames, args.no_depth))
+    print(stages.summary(predictor, cpu, stats, args.no_depth))
     watch.report()
     if args.out and stats.frames:
         _write_stream_report(args.out, name, predictor, stats, stages, cpu)
@@ -317,7 +317,7 @@ class _EndsCleanly:
 
 
 class _StageTimes:
-    """Each frame's stage times (change, network, integrate, total), for the summary."""
+    """Each frame's stage times (:attr:`learn.infer.Frame.seconds`), for the summary."""
 
     def __init__(self) -> None:
         self.seconds: list[dict] = []
@@ -329,21 +329,39 @@ class _StageTimes:
     def medians(self) -> dict:
         import numpy as np
 
-        return {k: float(np.median([s[k] for s in self.seconds])) for k in self.seconds[0]} if self.seconds else {}
+        return {k: float(np.median([s.get(k, 0.0) for s in self.seconds])) for k in self._names()}
 
-    def summary(self, predictor: Predictor, cpu_s: float, frames: int, no_depth: bool) -> str:
-        med = self.medians()
-        if not med:
+    def means(self) -> dict:
+        """Each stage's mean time per frame, s (0 in a frame that had no such stage)."""
+        n = max(len(self.seconds), 1)
+        return {k: sum(s.get(k, 0.0) for s in self.seconds) / n for k in self._names()}
+
+    def _names(self) -> list[str]:
+        """Every stage any frame had, in their order, "total" last."""
+        names = list(dict.fromkeys(k for s in self.seconds for k in s if k != "total"))
+        return names + ["total"] if self.seconds else []
+
+    def summary(self, predictor: Predictor, cpu_s: float, stats: LiveStats, no_depth: bool) -> str:
+        """The predictor's line: the mean time of each of its steps per frame, and the frame rate they add up to.
+
+        Means, not medians: they add up (a check that runs on some frames only is in the rate), and "other" (the
+        call's time outside the predictor's steps: the mismatch watch) makes them the stream's "predictor" time of
+        the line before, so the rate is the predictor's call alone, without reading and output."""
+        mean = self.means()
+        if not mean or not stats.frames:
             return "no frames"
         net = "-".join(map(str, predictor.model.hidden))
         where = f"{predictor.backend}{'' if predictor.device is None else f' on {predictor.device}'}"
-        # the stages each path times: the CPU path's, or the device path's (learn.fullframe: one recorded graph)
-        stages = ("upload", "compute", "download") if "upload" in med else ("change", "network", "integrate")
-        times = ", ".join(f"{k} {1e3 * med[k]:.1f} ms" for k in stages)
+        steps = {k: v for k, v in mean.items() if k != "total"}
+        call = stats.predict_s / stats.frames
+        steps["other"] = max(call - sum(steps.values()), 0.0)
+        per_frame = sum(steps.values())  # the call's mean time (its steps' sum, were "other" ever negative)
+        times = ", ".join(f"{k} {1e3 * v:.1f} ms" for k, v in steps.items())
+        rate = f"{1 / per_frame:.1f}" if per_frame > 0 else "inf"
         return (
-            f"NLiPsNet {net} ({where}), median per frame: {times} = "
-            f"{1 / med['total']:.1f} frames/s (normals{'' if no_depth else ' + depth'}); "
-            f"process CPU {1e3 * cpu_s / max(frames, 1):.1f} ms/frame"
+            f"NLiPsNet {net} ({where}), mean per frame: {times} = {1e3 * per_frame:.1f} ms = {rate} frames/s for the "
+            f"predictor alone, without read and output (normals{'' if no_depth else ' + depth'}); "
+            f"process CPU {1e3 * cpu_s / stats.frames:.1f} ms/frame"
         )
 
 
@@ -380,6 +398,7 @@ def _write_stream_report(
         "wall_s": stats.seconds,
         "fps": stats.fps,
         "median_stage_s": stages.medians(),
+        "mean_stage_s": stages.means(),
         "cpu_s_per_frame": cpu_s / stats.frames,
         "load_average": list(os.getloadavg()),
     }

@@ -55,7 +55,8 @@ class LiveStats:
     predict_s: float = 0.0
     """Time spent in the predictor, s."""
     output_s: float = 0.0
-    """Time spent showing or saving, s."""
+    """Time spent showing, saving or printing the running rate, s (read, predict and output cover each frame's
+    whole loop step; the wall time adds only the start and the read that found the end)."""
 
     @property
     def fps(self) -> float:
@@ -168,9 +169,9 @@ def stream(
     frames_at_report = 0
     try:
         while max_frames is None or stats.frames < max_frames:
+            t0 = time.perf_counter()  # "read" counts the emulator's change of press before it: a step of each frame
             if before_frame is not None:
                 before_frame(stats.frames)
-            t0 = time.perf_counter()
             try:
                 frame = source.read()
             except EndOfFrames:
@@ -182,14 +183,14 @@ def stream(
             t2 = time.perf_counter()
             for sink in sinks:
                 sink(stats.frames, frame, result)
-            t3 = time.perf_counter()
             stats.frames += 1
-            stats.read_s += t1 - t0
-            stats.predict_s += t2 - t1
-            stats.output_s += t3 - t2
+            t3 = time.perf_counter()
             if report is not None and t3 - last_report >= report_every_s:
                 report(f"{(stats.frames - frames_at_report) / (t3 - last_report):.1f} fps")
                 last_report, frames_at_report = t3, stats.frames
+            stats.read_s += t1 - t0
+            stats.predict_s += t2 - t1
+            stats.output_s += time.perf_counter() - t2  # the running rate's line is output too
     except (StopLive, KeyboardInterrupt):
         pass
     stats.seconds = time.perf_counter() - t_start

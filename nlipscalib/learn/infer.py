@@ -58,8 +58,9 @@ class Frame:
     """(H, W) bool -- pixels that differed from the reference frame: their normals are the network's, the rest
     keeps the reference's (every gel pixel with ``full_frame``)."""
     seconds: dict
-    """Time of each stage: change, network, integrate, total (the device path, :mod:`.fullframe`: upload,
-    compute, download, total)."""
+    """Time of each step of the predictor's call, s: linearise (a stored frame's, :meth:`Predictor.predict_stored`),
+    change, network, integrate, check (the exposure of a frame unlike the calibration's), and total: the whole call
+    (the device path, :mod:`.fullframe`: upload, compute, download, check, total)."""
     brightness: float = 1.0
     """Median brightness on the gel over the reference frame's, at least 0 (a frame below the calibration's dark frame
     is 0, not negative); measured only for a frame that differs over most of the gel (:func:`mismatch_warning`), else
@@ -231,10 +232,14 @@ class Predictor:
         else:  # copies: a caller may change its frame's arrays
             depth, points = (surface.copy() for surface in self._reference_surface)
         t3 = time.perf_counter()
-        seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "total": t3 - t0}
-        frame = Frame(normals, depth, points, changed, seconds, mismatch=self.changed.mismatch)
+        frame = Frame(normals, depth, points, changed, {}, mismatch=self.changed.mismatch)
         if frame.mismatch > FRAME_MISMATCH_FRACTION:  # only then: what the warning can say about it
             frame.brightness, frame.saturated = self._exposure(tricolor)
+        t4 = time.perf_counter()
+        # "check": the exposure of a frame unlike the calibration's (~20 ms of a 640x480 frame) is part of the
+        # frame's time; outside the stages, a stream's stage line said 155 frames/s for 11.6 (s24 live walk)
+        frame.seconds = {"change": t1 - t0, "network": t2 - t1, "integrate": t3 - t2, "check": t4 - t3}
+        frame.seconds["total"] = t4 - t0
         return frame
 
     def _exposure(self, tricolor: np.ndarray) -> tuple[float, float]:
@@ -268,14 +273,24 @@ class Predictor:
         """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""
         if self._full is not None and image.dtype == np.uint16 and image.shape == self.shape + (3,):
             return self._whole_frame(image, stored=True)  # converted on the device: half the bytes to move
-        return self.predict(self.linear(image, where))
+        t0 = time.perf_counter()
+        linear = self.linear(image, where)
+        t1 = time.perf_counter()
+        frame = self.predict(linear)
+        # the stored values' linearisation is a step of the frame too (a stream's frames are all stored)
+        frame.seconds = {"linearise": t1 - t0, **frame.seconds, "total": time.perf_counter() - t0}
+        return frame
 
     def _whole_frame(self, tricolor: np.ndarray, stored: bool) -> Frame:
         """:mod:`.fullframe`'s result as a Frame ("changed": every gel pixel with ``full_frame``)."""
         normals, depth, points, changed, seconds, mismatch = self._full(tricolor, stored)
         frame = Frame(normals, depth, points, changed, seconds, mismatch=mismatch)
+        t0 = time.perf_counter()
         if frame.mismatch > FRAME_MISMATCH_FRACTION:
             frame.brightness, frame.saturated = self._exposure(self.linear(tricolor) if stored else tricolor)
+        check = time.perf_counter() - t0
+        frame.seconds = {**{k: v for k, v in seconds.items() if k != "total"}, "check": check}
+        frame.seconds["total"] = seconds["total"] + check
         return frame
 
 

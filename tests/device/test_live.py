@@ -42,6 +42,26 @@ def test_stream_stops_at_max_frames_or_when_a_sink_says_so(frames):
     assert stream(FolderSource(frames), flat_predictor((12, 16)), [stop_at_third], report=None).frames == 2
 
 
+def test_each_frames_steps_cover_its_whole_loop_step_the_press_change_and_the_rate_line_included(frames):
+    """The emulator's change of press before each read, and the running rate's line, ran outside the timed steps;
+    each is made slow (a sleep) here: read and output count them, and the steps add up to no more than the wall."""
+    import time
+
+    predict = flat_predictor((12, 16))
+    stats = stream(
+        FolderSource(frames),
+        predict,
+        [],
+        max_frames=3,
+        before_frame=lambda index: time.sleep(0.02),
+        report=lambda line: time.sleep(0.02),
+        report_every_s=0.0,
+    )
+    assert stats.frames == 3
+    assert stats.read_s >= 3 * 0.02 and stats.output_s >= 3 * 0.02  # a sleep is never shorter than asked
+    assert stats.read_s + stats.predict_s + stats.output_s <= stats.seconds
+
+
 def test_read_ahead_gives_the_same_frames_in_order_and_ends_with_the_source(frames):
     seen = []
     with ReadAhead(FolderSource(frames)) as source:

@@ -313,6 +313,7 @@ def test_a_stream_through_the_device_path_prints_its_stage_times(trained, twin_p
     import cv2
 
     from nlipscalib.cli.infer import _StageTimes
+    from nlipscalib.device.live import LiveStats
 
     press = load_press(twin_presses / "press_g")
     for i in range(3):  # an image sequence, RGB stored as PNG (OpenCV writes BGR)
@@ -323,9 +324,11 @@ def test_a_stream_through_the_device_path_prints_its_stage_times(trained, twin_p
     assert "3 frames in" in out and "upload" in out and "compute" in out and "frames/s" in out, out
     stages = _StageTimes()
     device_predictor = Predictor(trained, full_frame=True)
-    stages.add(device_predictor.predict_stored(press.tricolor))
+    frame = stages.add(device_predictor.predict_stored(press.tricolor))
     device_predictor.full_frame = False  # as --device cuda alone: the device path's stages, not the whole frame
-    assert "compute" in stages.summary(device_predictor, 0.1, 1, no_depth=False)
+    stats = LiveStats(frames=1, predict_s=frame.seconds["total"])  # the stream's time of the predictor's call
+    line = stages.summary(device_predictor, 0.1, stats, no_depth=False)
+    assert "compute" in line and "check" in line, line
 
 
 def test_normals_only_on_the_device_path_keeps_the_reference_surface(trained, twin_presses):

@@ -934,3 +934,24 @@ def test_the_exposure_of_mismatched_frames_is_measured_against_constants_made_on
     monkeypatch.setattr(infer, "linearise", lambda *a: remade.append(a) or pytest.fail("a constant was remade"))
     again = predictor.predict(linear)
     assert not remade and (again.brightness, again.saturated) == (first.brightness, first.saturated)
+
+
+def test_a_stored_frames_seconds_time_its_linearisation_and_exposure_check_inside_its_total(tiny_model, monkeypatch):
+    """The linearisation of a stored frame and the exposure check of a frame unlike the calibration's ran outside
+    the timed stages (~20 ms of a 640x480 frame in a stream, s24 live walk): each is made slow here (a sleep)."""
+    import time
+
+    import nlipscalib.learn.infer as infer
+
+    model, root = tiny_model
+    predictor = Predictor(model)
+    dim = (load_press(root / "b_cube").tricolor * 0.5).astype(np.uint16)
+    linear, exposure = infer.Predictor.linear, infer.Predictor._exposure
+    monkeypatch.setattr(infer.Predictor, "linear", lambda *a: time.sleep(0.02) or linear(*a))
+    monkeypatch.setattr(infer.Predictor, "_exposure", lambda *a: time.sleep(0.03) or exposure(*a))
+    seconds = predictor.predict_stored(dim).seconds
+    assert list(seconds) == ["linearise", "change", "network", "integrate", "check", "total"]
+    assert seconds["linearise"] >= 0.02 and seconds["check"] >= 0.03  # a sleep is never shorter than asked
+    assert sum(v for k, v in seconds.items() if k != "total") <= seconds["total"]
+    like = predictor.predict(predictor.ref_tricolor).seconds  # a frame like the calibration's: nothing to check
+    assert like["check"] < 0.03 and sum(v for k, v in like.items() if k != "total") <= like["total"]

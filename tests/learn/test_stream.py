@@ -1,6 +1,7 @@
 """nlips infer on a stream: a video file, a camera (stand-in), Ctrl-C, and the one-line errors."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -185,3 +186,47 @@ def test_unreadable_video_prints_one_line_in_a_fresh_process(trained, tmp_path):
     assert run.returncode != 0
     lines = [line for line in run.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "broken.mp4" in lines[0], run.stderr
+
+
+def _printed_ms(line: str, step: str) -> float:
+    """The milliseconds the stage line printed for ``step`` ("check 31.2 ms")."""
+    return float(re.search(rf"\b{step} ([0-9.]+) ms", line).group(1))
+
+
+def test_the_stage_line_accounts_for_every_step_of_a_frame(trained, twin_presses, tmp_path, capsys, monkeypatch):
+    """The exposure check of frames unlike the calibration's (~20 ms of a 640x480 frame) ran outside the stage
+    times: `nlips infer`'s stage line said 155 frames/s for an emulated stream measured at 11.6 (s24 live walk).
+    Here the check is made slow (a 30 ms sleep in it) on a dimmed stream: the line prints it as a stage, its
+    steps add up to its per-frame time, its rate is that time's inverse, and the time is the stream's "predictor"."""
+    import time as clock
+
+    from nlipscalib.learn import infer
+
+    dim = tmp_path / "dim.avi"
+    _video(dim, [_eight_bit((read_png16(twin_presses / n / "tricolor.png") * 0.5).astype(np.uint16)) for n in FRAMES])
+    exposure = infer.Predictor._exposure
+
+    def slow_exposure(self, tricolor):
+        clock.sleep(0.03)
+        return exposure(self, tricolor)
+
+    monkeypatch.setattr(infer.Predictor, "_exposure", slow_exposure)
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), str(dim), "--out", str(out), "--every", "3"]) == 0
+    printed = capsys.readouterr().out
+    line = next(s for s in printed.splitlines() if s.startswith("NLiPsNet"))
+    stream_line = next(s for s in printed.splitlines() if " frames in " in s)
+    recorded = json.loads((out / "stream.json").read_text())["mean_stage_s"]
+    steps = ("linearise", "change", "network", "integrate", "check", "other")
+    shown = {step: _printed_ms(line, step) for step in steps}
+    for step in steps[:-1]:  # the printed means are the recorded stage times
+        assert shown[step] == pytest.approx(1e3 * recorded[step], abs=0.051), (step, line)
+    assert shown["check"] >= 30  # the sleep is in the check's stage (a sleep is never shorter than asked)
+    per_frame = float(re.search(r"= ([0-9.]+) ms = ([0-9.]+) frames/s", line).group(1))
+    rate = float(re.search(r"= ([0-9.]+) ms = ([0-9.]+) frames/s", line).group(2))
+    assert per_frame == pytest.approx(sum(shown.values()), abs=0.051 * len(steps))  # the steps add up
+    assert per_frame >= 1e3 * recorded["total"] - 0.051  # the predictor's own total is inside the call
+    assert rate == pytest.approx(1e3 / per_frame, rel=0.002, abs=0.051)  # the rate is the time's inverse
+    assert rate < 1e3 / 30  # so it cannot claim more than the slow check allows
+    assert per_frame == pytest.approx(_printed_ms(stream_line, "predictor"), abs=0.051)  # the line above's step
+    assert "predictor alone, without read and output" in line
