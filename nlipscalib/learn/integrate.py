@@ -27,12 +27,17 @@ no pixel pair across it, so a changed pixel on the border row has one neighbour 
 side, not a Dirichlet one. A box reaching the border (an "edge box") keeps that side: its arrays are
 mirrored across the border (the ray's derivative across the border changes sign, so the gradient across
 the mirror line is exactly 0), the doubled box has a Dirichlet ring all round and the same sine solve, and
-its solution is even about the border: each border pixel's equation is then the sparse path's.
+its solution is even about the border: each border pixel's equation is then the sparse path's. A box that
+spans an axis (a ridge across the whole width or height: the border on both sides) has a natural side at both
+ends of it, no fixed pixel: that axis is diagonalised by the type-II cosine transform (scipy.fft.dct; the
+Neumann path Laplacian), the other by the sine transform as before. Its first eigenvalue is 0 along the
+cosine axis only, so the other axis's fixed ring sets the level; a box spanning both axes has none.
 
 ``"auto"`` takes one box around all changed pixels where it applies; else it splits them into their
 4-connected regions (no equation joins two), each group a box, an edge box where its box reaches the
-image border on one side of an axis (a contact pressed at the edge of the view: 5-9 ms at 640x480, not the
-0.16-0.37 s of SuperLU), and the sparse path where neither applies (off the gel, or both sides of an axis).
+image border (a contact pressed at the edge of the view: 5-9 ms at 640x480, not the 0.16-0.37 s of SuperLU;
+across the image: 3-8 ms, not 0.2-1 s), and the sparse path where neither applies (off the gel, or across
+both axes).
 """
 
 from __future__ import annotations
@@ -160,7 +165,10 @@ not apply; beyond it (a frame flagged all over) every changed pixel takes the sp
 Box: TypeAlias = "tuple[slice, slice]"
 """(rows, cols) slices of a box: its interior and the ring of fixed reference pixels around it."""
 Edges: TypeAlias = "tuple[int, int]"
-"""Per axis (rows, columns), where an edge box meets the image border: -1 at index 0, +1 at the last, 0 not."""
+"""Per axis (rows, columns), where an edge box meets the image border: -1 at index 0, +1 at the last, 0 not,
+:data:`BOTH_SIDES` at both (the box spans that axis: a natural side at each end, a type-II cosine transform)."""
+BOTH_SIDES = 2
+"""The :data:`Edges` value of an axis whose box spans the whole image (a contact across its width or height)."""
 
 
 def _regions(
@@ -245,16 +253,15 @@ def _fits(rect: Bounds, on_gel: np.ndarray) -> bool:
 
 def _edge_fits(rect: Bounds, on_gel: np.ndarray) -> Edges | None:
     """The :data:`Edges` of bounds [r0, r1, c0, c1) (changed pixels' bounds grown by the ring) that pass the image
-    border on one side of an axis or two, each by the ring only, and lie on the gel within the image; else None
-    (also where an axis passes both of its sides: that box would have no fixed pixel on it)."""
+    border, each side by the ring only, and lie on the gel within the image; else None (also where both axes
+    pass both of their sides: that box would have no fixed pixel at all)."""
     H, W = on_gel.shape
     edges = tuple(
-        -1 if lo == -1 else 1 if hi == size + 1 else 0
+        BOTH_SIDES if lo == -1 and hi == size + 1 else -1 if lo == -1 else 1 if hi == size + 1 else 0
         for lo, hi, size in ((rect[0], rect[1], H), (rect[2], rect[3], W))
     )
     inside = all(lo >= -1 and hi <= size + 1 for lo, hi, size in ((rect[0], rect[1], H), (rect[2], rect[3], W)))
-    both_sides = (rect[0] == -1 and rect[1] == H + 1) or (rect[2] == -1 and rect[3] == W + 1)
-    if not inside or both_sides or edges == (0, 0):
+    if not inside or edges == (BOTH_SIDES, BOTH_SIDES) or edges == (0, 0):
         return None
     r0, r1, c0, c1 = max(rect[0], 0), min(rect[1], H), max(rect[2], 0), min(rect[3], W)
     return edges if bool(on_gel[r0:r1, c0:c1].all()) else None
@@ -285,7 +292,13 @@ def _faster(
     grown = tuple(
         x
         for lo, hi, size, edge in ((r0, r1, H, edges[0]), (c0, c1, W, edges[1]))
-        for x in (_fast_mirrored_span(lo, hi, size, edge) if edge else _fast_span(lo, hi, size))
+        for x in (
+            (0, size)  # already the whole axis
+            if edge == BOTH_SIDES
+            else _fast_mirrored_span(lo, hi, size, edge)
+            if edge
+            else _fast_span(lo, hi, size)
+        )
     )
     if on_gel[grown[0] : grown[1], grown[2] : grown[3]].all() and not any(_overlap(grown, o) for o in others):
         r0, r1, c0, c1 = grown
@@ -324,28 +337,40 @@ def _fast_mirrored_span(lo: int, hi: int, size: int, edge: int) -> tuple[int, in
 
 def _solve_box(normals: np.ndarray, geo: RayGeometry, box: tuple[slice, slice], edges: Edges = (0, 0)) -> np.ndarray:
     """Log-range over the box: Poisson solve on its interior, the outer ring fixed at the reference (DST-I);
-    on an edge box's border sides (``edges``) no ring, a natural side (mirrored, module docstring)."""
-    from scipy.fft import dstn
+    on an edge box's border sides (``edges``) no ring, a natural side (mirrored, module docstring); along an axis
+    that spans the image (:data:`BOTH_SIDES`) a natural side at both ends: the type-II cosine transform there."""
+    from scipy.fft import dct, dst, dstn, idct
 
     # float32 like the transforms below: a gradient of log-range needs no more than 1e-7 relative
     x = geo.log_range[box].astype(np.float32)
     arrays = [np.asarray(normals[box], np.float32), geo.rays32[box], geo.d_u32[box], geo.d_v32[box], x]
     for axis, edge in enumerate(edges):
-        if edge:
-            arrays = _mirror_line(arrays, axis, edge)
+        for side in (-1, 1) if edge == BOTH_SIDES else (edge,) if edge else ():
+            arrays = _mirror_line(arrays, axis, side)
     f = box_rhs(*arrays)
     half = f.shape
     for axis, edge in enumerate(edges):  # the doubled box's right-hand side is even about the border
-        if edge:
+        if edge in (-1, 1):
             f = np.concatenate((np.flip(f, axis), f) if edge < 0 else (f, np.flip(f, axis)), axis=axis)
-    lam = box_eigenvalues(*f.shape).astype(np.float32)
+    neumann = tuple(edge == BOTH_SIDES for edge in edges)
+    lam = box_eigenvalues(*f.shape, neumann=neumann).astype(np.float32)
     # float32 transforms: twice as fast, and 1e-7 relative error of a log-range is 1e-6 mm
-    solved = dstn(dstn(f, type=1, norm="ortho") / lam, type=1, norm="ortho")
+    if not any(neumann):
+        f = dstn(dstn(f, type=1, norm="ortho") / lam, type=1, norm="ortho")
+    else:  # one axis spans the image (_edge_fits: never both): its eigenvalues start at 0, the other's above it
+        (cos_axis,) = (axis for axis in (0, 1) if neumann[axis])
+        f = dst(dct(f, type=2, norm="ortho", axis=cos_axis), type=1, norm="ortho", axis=1 - cos_axis) / lam
+        f = idct(dst(f, type=1, norm="ortho", axis=1 - cos_axis), type=2, norm="ortho", axis=cos_axis)
     # the box's own half of the doubled box (the last along an axis mirrored before it, the first after it)
-    own = tuple(slice(-k, None) if edge < 0 else slice(0, k) for k, edge in zip(half, edges))
-    interior = tuple(slice(0, -1) if edge < 0 else slice(1, None) if edge > 0 else slice(1, -1) for edge in edges)
-    x[interior] = solved[own]
+    own = tuple(slice(-k, None) if edge == -1 else slice(0, k) for k, edge in zip(half, edges))
+    interior = tuple(_interior(edge) for edge in edges)
+    x[interior] = f[own]
     return x
+
+
+def _interior(edge: int) -> slice:
+    """The solved part of a box's axis: all but the ring, which an :data:`Edges` side at the border lacks."""
+    return {0: slice(1, -1), -1: slice(0, -1), 1: slice(1, None), BOTH_SIDES: slice(None)}[edge]
 
 
 def _mirror_line(arrays: list[np.ndarray], axis: int, edge: int) -> list[np.ndarray]:

@@ -145,26 +145,32 @@ def test_noise_specks_at_the_border_leave_the_contact_to_its_box():
 
 
 def test_regions_whose_bounds_overlap_are_solved_together():
-    from nlipscalib.learn.integrate import _regions
+    from nlipscalib.learn.integrate import BOTH_SIDES, _regions
 
     on_gel = np.ones((60, 80), bool)
     near = np.zeros_like(on_gel)
     near[20:25, 20:25] = near[20:25, 26:30] = True  # one column apart: their rings share pixels
     boxes, edge_boxes, sparse = _regions(near, on_gel, "auto")
     assert sparse == edge_boxes == [] and len(boxes) == 1  # the common box applies
-    # beside a region across the whole width (no box: nothing fixed on either side of a row), their bounds
-    # overlap its, so all three take the sparse path
+    # beside a region across the whole width (natural sides at both ends of a row: a cosine box), their bounds
+    # overlap its, so all three take its box
     touching = near.copy()
     touching[26:29, :] = True
     boxes, edge_boxes, sparse = _regions(touching, on_gel, "auto")
-    assert boxes == edge_boxes == [] and len(sparse) == 1
-    np.testing.assert_array_equal(_pixels(sparse, touching), touching)
-    # far from it: the two keep their box, the band alone is sparse
+    assert boxes == sparse == [] and [edges for _, edges in edge_boxes] == [(0, BOTH_SIDES)]
+    np.testing.assert_array_equal(_pixels([edge_boxes[0][0]], touching), touching)
+    # far from it: the two keep their box, the band has its own
     apart = near.copy()
     apart[50:53, :] = True
     boxes, edge_boxes, sparse = _regions(apart, on_gel, "auto")
-    assert len(boxes) == 1 and near[boxes[0]].sum() == near.sum() and edge_boxes == []
-    np.testing.assert_array_equal(_pixels(sparse, apart), apart & ~near)
+    assert len(boxes) == 1 and near[boxes[0]].sum() == near.sum() and sparse == []
+    np.testing.assert_array_equal(_pixels([edge_boxes[0][0]], apart), apart & ~near)
+    # a region across both axes: no fixed pixel in its box, the sparse path (its bounds hold the others)
+    crossed = apart.copy()
+    crossed[:, 70:72] = True
+    boxes, edge_boxes, sparse = _regions(crossed, on_gel, "auto")
+    assert boxes == edge_boxes == [] and len(sparse) == 1
+    np.testing.assert_array_equal(_pixels(sparse, crossed), crossed)
     # a region at the image border beside them: one edge box for all three
     at_border = near.copy()
     at_border[20:25, 0:19] = True
@@ -246,3 +252,95 @@ def test_the_sparse_path_solves_separate_regions_as_if_each_were_alone():
     in_contact = np.isin(order, np.flatnonzero(contact))
     np.testing.assert_allclose(both[in_contact], _solve_sparse(normals, contact, on_gel, geo), rtol=1e-12)
     np.testing.assert_allclose(both[~in_contact], _solve_sparse(normals, speck, on_gel, geo), rtol=1e-12)
+
+
+def _cylinder_pressed_into_the_gel(design, radius, depth, along):
+    """Exact depth and normals of a cylinder (radius mm, its axis ``along``, camera frame) pressed ``depth`` mm
+    into the undeformed gel at its apex: the nearer of the gel and the cylinder along every ray."""
+    from nlipscalib.core.dome import dome_surface_point, reference_surface
+
+    rays = design.camera_model().rays
+    ref = reference_surface(design)
+    apex, inward = dome_surface_point(design.dome, 0, 0)
+    axis = np.asarray(along, float) - (np.asarray(along, float) @ inward) * inward
+    axis /= np.linalg.norm(axis)
+    centre = apex - np.asarray(design.camera.position) + inward * (depth - radius)
+
+    def across(v):  # the part of v across the axis
+        return v - (v @ axis)[..., None] * axis
+
+    ray_across, centre_across = across(rays), across(centre[None])[0]
+    a, b = (ray_across * ray_across).sum(-1), ray_across @ centre_across
+    disc = b * b - a * (centre_across @ centre_across - radius**2)
+    ref_range = ref.depth / rays[..., 2]
+    with np.errstate(invalid="ignore"):
+        near = (b - np.sqrt(disc)) / a
+    hit = np.isfinite(ref.depth) & (disc > 0) & (near > 0) & (near < ref_range)
+    points = np.where(hit, near, ref_range)[..., None] * rays
+    normals = np.where(hit[..., None], across(points - centre) / radius, ref.normals)
+    return ref, rays, hit, points, normals
+
+
+def test_exact_normals_of_a_contact_across_the_image_give_its_depth_in_a_cosine_box():
+    # a ridge pressed into the flat pad spans the image's height: natural sides at both image borders, which
+    # used to leave the contact to SuperLU (27,000-75,000 px: 0.2-1 s); now a box with a type-II cosine axis
+    from nlipscalib.core.sensor import shipped_design
+    from nlipscalib.learn.integrate import BOTH_SIDES, _regions
+
+    ref, rays, hit, points, normals = _cylinder_pressed_into_the_gel(shipped_design("flat"), 3.0, 1.0, (0, 1, 0))
+    on_gel = np.isfinite(ref.depth)
+    unknown = ndimage.binary_dilation(hit, iterations=3) & on_gel
+    assert unknown[0].any() and unknown[-1].any()
+    boxes, edge_boxes, sparse = _regions(unknown, on_gel, "auto")
+    assert boxes == sparse == [] and [e for _, e in edge_boxes] == [(BOTH_SIDES, 0)]
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    got, _ = integrate_on_dome(normals, unknown, geo)
+    dent, true_dent = ref.depth - got, ref.depth - points[..., 2]
+    assert dent[unknown].max() == pytest.approx(true_dent[unknown].max(), rel=0.01)
+    assert np.abs(dent - true_dent)[unknown].mean() < 0.01 * true_dent[unknown].max()
+
+
+def _band(shape, axis, lo, hi):
+    """(H, W) bool: lines lo to hi - 1 across the whole image along ``axis`` (0: rows, a band spanning the width)."""
+    band = np.zeros(shape, bool)
+    band[(slice(lo, hi), slice(None)) if axis == 0 else (slice(None), slice(lo, hi))] = True
+    return band
+
+
+@pytest.mark.parametrize(
+    ("axis", "lo", "hi", "edges"), [(0, 100, 190, (0, 2)), (0, 0, 61, (-1, 2)), (1, 500, 640, (2, 1))]
+)
+def test_a_box_across_the_image_solves_the_sparse_paths_equations_on_its_pixels(axis, lo, hi, edges):
+    # random smooth normals over a band spanning the image (a side at an image border too): the cosine box must
+    # solve exactly the sparse path's equations over its pixels (every pixel but its ring off the border)
+    from nlipscalib.learn.integrate import _regions
+
+    ref, geo, on_gel, _, _ = _dome_and_sphere()
+    rng = np.random.default_rng(lo + hi)
+    unknown = _band(on_gel.shape, axis, lo, hi)
+    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (8, 8, 0)) * 20
+    normals = ref.normals + np.where(unknown[..., None], tilt, 0)
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    (((rows, cols), got_edges),) = _regions(unknown, on_gel, "auto")[1]
+    assert got_edges == edges
+    inner = np.zeros_like(unknown)
+    inner[rows, cols] = True
+    H, W = unknown.shape
+    for side, at_edge in ((np.s_[rows.start, :], rows.start == 0), (np.s_[rows.stop - 1, :], rows.stop == H)):
+        inner[side] &= at_edge  # the ring off the border is the reference's, fixed
+    for side, at_edge in ((np.s_[:, cols.start], cols.start == 0), (np.s_[:, cols.stop - 1], cols.stop == W)):
+        inner[side] &= at_edge
+    box, _ = integrate_on_dome(normals, unknown, geo)
+    sparse, _ = integrate_on_dome(normals, inner, geo, "sparse")
+    assert np.abs(sparse - ref.depth)[inner].max() > 0.1  # mm: a surface unlike the dome
+    np.testing.assert_allclose(box[inner], sparse[inner], atol=5e-4)  # mm: float32 against float64
+
+
+def test_a_band_across_both_axes_keeps_the_sparse_path():
+    # a cross spanning the width and the height has no fixed pixel in its box: the sparse path's anchor sets its level
+    from nlipscalib.learn.integrate import _regions
+
+    _, _, on_gel, _, _ = _dome_and_sphere()
+    cross = _band(on_gel.shape, 0, 200, 210) | _band(on_gel.shape, 1, 300, 310)
+    boxes, edge_boxes, sparse = _regions(cross, on_gel, "auto")
+    assert boxes == edge_boxes == [] and len(sparse) == 1
