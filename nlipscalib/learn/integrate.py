@@ -36,8 +36,8 @@ cosine axis only, so the other axis's fixed ring sets the level; a box spanning 
 ``"auto"`` takes one box around all changed pixels where it applies; else it splits them into their
 4-connected regions (no equation joins two), each group a box, an edge box where its box reaches the
 image border (a contact pressed at the edge of the view: 5-9 ms at 640x480, not the 0.16-0.37 s of SuperLU;
-across the image: 3-8 ms, not 0.2-1 s), and the sparse path where neither applies (off the gel, or across
-both axes).
+across the image: 14-31 ms, not 0.34-1.0 s, at load 9), and the sparse path where neither applies (off the
+gel, or across both axes).
 """
 
 from __future__ import annotations
