@@ -276,7 +276,7 @@ class working:  # noqa: N801 - used like a function: ``with working("rendering")
 
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> bool:
+    ) -> None:  # never swallows the exception
         import time
 
         seconds = time.perf_counter() - self.t0
@@ -286,4 +286,3 @@ class working:  # noqa: N801 - used like a function: ``with working("rendering")
             self.bar.close()
         elif exc_type is None:
             logging.getLogger("nlipscalib").info("%s done in %.1f s", self.desc, seconds)
-        return False

@@ -186,7 +186,7 @@ RESUMABLE = "finished work is kept, run again to resume"
 """What an interrupted or terminated command says it left, unless its arguments say otherwise (:func:`_stopped`)."""
 
 
-def _stopped(args: argparse.Namespace) -> str:
+def _stopped(args: argparse.Namespace | None) -> str:
     """The end of the line an interrupted or terminated command prints: :data:`RESUMABLE`, or what a command that
     cannot resume left, chosen from its arguments by the ``stopped`` its parser sets (a line, or a function of
     the arguments giving a line or None): a stream (``nlips live``; ``nlips infer`` from a camera, the emulated

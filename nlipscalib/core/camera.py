@@ -125,7 +125,11 @@ class Camera:
         return dataclasses.asdict(self) | {"dist": list(self.dist)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> Camera:
+    def from_dict(cls, d: object) -> Camera:
+        # ``d`` comes from a file (meta.json, camera.json, a model's sensor): set() of a number or a string said
+        # "'int' object is not iterable" or took the string's letters for unknown keys
+        if not isinstance(d, dict):
+            raise ConfigError(f"'camera' must be a mapping of intrinsics ('width', 'height', 'fx', ...), got {d!r}")
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(d) - known
         if unknown:

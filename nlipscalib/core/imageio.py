@@ -228,4 +228,4 @@ def _deflate(arr: np.ndarray, compress: bool | str) -> bool:
     if arr.dtype.kind != "f" or arr.size == 0:
         return True
     informative = np.isfinite(arr) & (arr != 0)  # NaN or zero outside a region of interest deflates well
-    return np.count_nonzero(informative) < 0.5 * arr.size
+    return bool(np.count_nonzero(informative) < 0.5 * arr.size)

@@ -59,7 +59,7 @@ class Led:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
 
     @classmethod
-    def from_dict(cls, d: dict) -> Led:
+    def from_dict(cls, d: object) -> Led:
         if not isinstance(d, dict):
             raise ConfigError(f"each led must be a mapping with 'position', ..., got {d!r}")
         known = {f.name for f in dataclasses.fields(cls)}

@@ -262,7 +262,7 @@ def load_model(path: str | Path) -> LoadedModel:
     return LoadedModel(path, net, payload, digest=bytes_digest(data))
 
 
-def _check_finite_weights(state: dict, path: Path) -> None:
+def _check_finite_weights(state: object, path: Path) -> None:
     """CaptureError naming the model file when a weight is NaN or infinite (a diverged training or a damaged
     file): such a net gives NaN normals, which nothing downstream could tell from a result."""
     torch = _torch()

@@ -378,6 +378,10 @@ def test_a_file_name_that_is_no_string_is_named_by_every_reader(tmp_path, change
         (lambda m: m["sensor"].update(exposure_ms=-5), "sensor.exposure_ms must be > 0"),
         (lambda m: m["sensor"].update(gain=-1), r"sensor.exposure_ms must be > 0 and sensor.gain >= 0, got 10.0, -1"),
         (lambda m: m.update(sensor="x"), "'sensor' must be a mapping of sensor levels, got 'x'"),
+        # Camera.from_dict took any value as a mapping: "'int' object is not iterable", and a string's letters
+        # as unknown keys ("camera has unknown keys ['e', 'f', 'h', ...]")
+        (lambda m: m.update(camera=640), "'camera' must be a mapping of intrinsics .*, got 640"),
+        (lambda m: m.update(camera="fisheye"), "'camera' must be a mapping of intrinsics .*, got 'fisheye'"),
         (lambda m: m["leds"][1].update(mu="one"), r"leds\[1\]: led.mu must be a number, got 'one'"),
         (lambda m: m["leds"][0].update(position=["a", 1, 2]), r"leds\[0\]: led.position must be 3 finite numbers"),
     ],
