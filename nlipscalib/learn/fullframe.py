@@ -124,15 +124,21 @@ class FullFrame:
 
     def _box_points(self, normals: torch.Tensor, changed: np.ndarray):
         """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels' box
-        solved (:class:`BoxIntegrator`; only the box comes back from the device), or the whole gel solved where
-        that box would leave the gel or touch the image border (its level from the unchanged pixels)."""
+        solved, else per region a box or an edge box at the image border, as on the CPU path
+        (:meth:`BoxIntegrator.boxes`; only the boxes come back from the device, in one copy), or the whole gel
+        solved where a region needs the CPU's sparse path (its level from the unchanged pixels)."""
         if not changed.any():
             return self.ref_points_host.copy()
-        box = self.box_integrator.box(changed)
-        if box is None:
+        boxes = self.box_integrator.boxes(changed)
+        if boxes is None:
             return self.integrator(normals, self.torch.from_numpy(~changed).to(self.device))
         points = self.ref_points_host.copy()
-        points[box] = self.box_integrator(normals, box).cpu().numpy()
+        solved = [self.box_integrator(normals, box, edges) for box, edges in boxes]  # queued on the device
+        flat = self.torch.cat([s.flatten() for s in solved]).cpu().numpy()  # the one wait for the device
+        start = 0
+        for (box, _), s in zip(boxes, solved):
+            points[box] = flat[start : start + s.numel()].reshape(s.shape)
+            start += s.numel()
         return points
 
     def _compute(self, frame: torch.Tensor, stored: bool):
