@@ -191,7 +191,7 @@ def _eager(predictor) -> None:
 
     predictor._full._graphs = {(torch.uint16, True): None, (torch.float32, False): None}
     if predictor._full.box_integrator is not None:
-        predictor._full.box_integrator._graph = lambda h, w: None
+        predictor._full.box_integrator._graph = lambda *size: None
 
 
 def _png_sequence(stored, args) -> str:

@@ -8,8 +8,9 @@ linearisation, the model's Gaussian prefilter (:mod:`.prefilter`'s normalised fi
 kernel), the network on every gel pixel, the change rule of :mod:`.change` (the same operations),
 the reference normals kept where nothing changed (as on the CPU path; ``keep_reference=False``
 keeps the network's everywhere: ``--full-frame``). Then :mod:`.integrate_torch` integrates the
-changed pixels' box as the CPU does, after the graph (the box's shape changes per frame), or the
-whole gel inside it (``--full-frame``, or a change that reaches the image border).
+changed pixels' boxes as the CPU does (per region where their common box does not apply, an edge box
+where one reaches the image border), after the graph (the box's shape changes per frame), or the whole gel
+inside it (``--full-frame``, or a region the CPU solves on its sparse path: off the gel, or across the image).
 """
 
 from __future__ import annotations
@@ -66,8 +67,8 @@ class FullFrame:
         self.x = torch.as_tensor(np.stack([col, row], 1).astype(np.float32), device=device)  # u = column, v = row
         self.net = fused_net(model.net).to(device)
         self.filter = _GelFilter(valid, model.smoothing_px, device)
-        # the whole gel (every pixel's normal from the network, or a change that reaches the image border) and the
-        # changed pixels' box (the reference elsewhere, as on the CPU path)
+        # the whole gel (every pixel's normal from the network, or a region the boxes cannot solve) and the
+        # changed pixels' boxes (the reference elsewhere, as on the CPU path)
         self.integrator = DomeIntegrator(geo, device) if geo is not None else None
         self.box_integrator = BoxIntegrator(geo, device) if geo is not None and keep_reference else None
         self.ref_points_host = depth_to_points(ref["depth"].astype(np.float32), camera.rays).astype(np.float32)
@@ -124,15 +125,21 @@ class FullFrame:
 
     def _box_points(self, normals: torch.Tensor, changed: np.ndarray):
         """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels' box
-        solved (:class:`BoxIntegrator`; only the box comes back from the device), or the whole gel solved where
-        that box would leave the gel or touch the image border (its level from the unchanged pixels)."""
+        solved, else per region a box or an edge box at the image border, as on the CPU path
+        (:meth:`BoxIntegrator.boxes`; only the boxes come back from the device, in one copy), or the whole gel
+        solved where a region needs the CPU's sparse path (its level from the unchanged pixels)."""
         if not changed.any():
             return self.ref_points_host.copy()
-        box = self.box_integrator.box(changed)
-        if box is None:
+        boxes = self.box_integrator.boxes(changed)
+        if boxes is None:
             return self.integrator(normals, self.torch.from_numpy(~changed).to(self.device))
         points = self.ref_points_host.copy()
-        points[box] = self.box_integrator(normals, box).cpu().numpy()
+        solved = [self.box_integrator(normals, box, edges) for box, edges in boxes]  # queued on the device
+        flat = self.torch.cat([s.flatten() for s in solved]).cpu().numpy()  # the one wait for the device
+        start = 0
+        for (box, _), s in zip(boxes, solved):
+            points[box] = flat[start : start + s.numel()].reshape(s.shape)
+            start += s.numel()
         return points
 
     def _compute(self, frame: torch.Tensor, stored: bool):

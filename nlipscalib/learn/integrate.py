@@ -343,15 +343,7 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box: tuple[slice, slice], 
 
     # float32 like the transforms below: a gradient of log-range needs no more than 1e-7 relative
     x = geo.log_range[box].astype(np.float32)
-    arrays = [np.asarray(normals[box], np.float32), geo.rays32[box], geo.d_u32[box], geo.d_v32[box], x]
-    for axis, edge in enumerate(edges):
-        for side in (-1, 1) if edge == BOTH_SIDES else (edge,) if edge else ():
-            arrays = _mirror_line(arrays, axis, side)
-    f = box_rhs(*arrays)
-    half = f.shape
-    for axis, edge in enumerate(edges):  # the doubled box's right-hand side is even about the border
-        if edge in (-1, 1):
-            f = np.concatenate((np.flip(f, axis), f) if edge < 0 else (f, np.flip(f, axis)), axis=axis)
+    f = edge_box_rhs(np.asarray(normals[box], np.float32), geo.rays32[box], geo.d_u32[box], geo.d_v32[box], x, edges)
     neumann = tuple(edge == BOTH_SIDES for edge in edges)
     lam = box_eigenvalues(*f.shape, neumann=neumann).astype(np.float32)
     # float32 transforms: twice as fast, and 1e-7 relative error of a log-range is 1e-6 mm
@@ -361,11 +353,35 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box: tuple[slice, slice], 
         (cos_axis,) = (axis for axis in (0, 1) if neumann[axis])
         f = dst(dct(f, type=2, norm="ortho", axis=cos_axis), type=1, norm="ortho", axis=1 - cos_axis) / lam
         f = idct(dst(f, type=1, norm="ortho", axis=1 - cos_axis), type=2, norm="ortho", axis=cos_axis)
-    # the box's own half of the doubled box (the last along an axis mirrored before it, the first after it)
-    own = tuple(slice(-k, None) if edge == -1 else slice(0, k) for k, edge in zip(half, edges))
-    interior = tuple(_interior(edge) for edge in edges)
+    own, interior = edge_box_parts(x.shape, edges)
     x[interior] = f[own]
     return x
+
+
+def edge_box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array, edges: Edges = (0, 0)) -> Array:
+    """:func:`box_rhs` of a box, or of an edge box's doubled box (mirrored across the image border on its
+    ``edges`` sides, module docstring; a :data:`BOTH_SIDES` axis mirrored at both ends, not doubled): the
+    right-hand side of the box solve; numpy or torch (shared with :mod:`.integrate_torch`). Arguments as
+    :func:`box_rhs`'s, over the box; :func:`edge_box_parts` takes the box's log-range from the solve."""
+    arrays = [normals, rays, d_u, d_v, x]
+    for axis, edge in enumerate(edges):
+        for side in (-1, 1) if edge == BOTH_SIDES else (edge,) if edge else ():
+            arrays = _mirror_line(arrays, axis, side)
+    f = box_rhs(*arrays)
+    for axis, edge in enumerate(edges):  # the doubled box's right-hand side is even about the border
+        if edge in (-1, 1):
+            f = _concat((_flip(f, axis), f) if edge < 0 else (f, _flip(f, axis)), axis)
+    return f
+
+
+def edge_box_parts(shape: tuple[int, int], edges: Edges = (0, 0)) -> tuple[Box, Box]:
+    """(own, interior): where the box of ``shape`` (h, w) finds its solved pixels in the solve of
+    :func:`edge_box_rhs` (the box's own half of the doubled box: the last along an axis mirrored before it, the
+    first after it; all of a :data:`BOTH_SIDES` axis), and where they go in the box (its interior: no ring on a
+    border side)."""
+    half = tuple(k if edge == BOTH_SIDES else k - 1 if edge else k - 2 for k, edge in zip(shape, edges))
+    own = tuple(slice(-k, None) if edge == -1 else slice(0, k) for k, edge in zip(half, edges))
+    return own, tuple(_interior(edge) for edge in edges)
 
 
 def _interior(edge: int) -> slice:
@@ -373,14 +389,28 @@ def _interior(edge: int) -> slice:
     return {0: slice(1, -1), -1: slice(0, -1), 1: slice(1, None), BOTH_SIDES: slice(None)}[edge]
 
 
-def _mirror_line(arrays: list[np.ndarray], axis: int, edge: int) -> list[np.ndarray]:
+def _concat(parts: Sequence[Array], axis: int) -> Array:
+    """numpy's concatenate, or torch's cat for tensors (no copy to the host)."""
+    if isinstance(parts[0], np.ndarray):
+        return np.concatenate(parts, axis=axis)
+    import torch
+
+    return torch.cat(tuple(parts), dim=axis)
+
+
+def _flip(a: Array, axis: int) -> Array:
+    """``a`` reversed along ``axis``; numpy or torch."""
+    return np.flip(a, axis) if isinstance(a, np.ndarray) else a.flip(axis)
+
+
+def _mirror_line(arrays: list[Array], axis: int, edge: int) -> list[Array]:
     """normals, rays, d_u, d_v and log-range over a box with one line beyond the image border joined (``edge`` -1:
     before index 0 along ``axis``, +1: after the last): the border line's mirror image, in the place of a ring.
 
     Its log-range is 0, so :func:`box_rhs` moves nothing known to the border pixels. Its ray derivative across
     the border (d_v for rows, d_u for columns) is negated: the mirrored surface's log-range gradient across the
     border is the negative, and the averaged gradient on the border pair exactly 0 -- the border pixels' rows
-    of the right-hand side are those of the doubled box, whose other half is their mirror image."""
+    of the right-hand side are those of the doubled box, whose other half is their mirror image. numpy or torch."""
     across = 3 if axis == 0 else 2
     line = (
         (slice(0, 1) if edge < 0 else slice(-1, None),)
@@ -389,8 +419,8 @@ def _mirror_line(arrays: list[np.ndarray], axis: int, edge: int) -> list[np.ndar
     )
     out = []
     for k, a in enumerate(arrays):
-        mirror = -a[line] if k == across else np.zeros_like(a[line]) if k == len(arrays) - 1 else a[line]
-        out.append(np.concatenate((mirror, a) if edge < 0 else (a, mirror), axis=axis))
+        mirror = -a[line] if k == across else 0 * a[line] if k == len(arrays) - 1 else a[line]
+        out.append(_concat((mirror, a) if edge < 0 else (a, mirror), axis))
     return out
 
 

@@ -1,11 +1,12 @@
 """Normal integration on the dome in PyTorch, on any device: the changed pixels' box, or the whole gel.
 
 Both solve the equation of :mod:`.integrate` (5-point Poisson in the log-range along the camera's real
-rays, gradients averaged on each pixel pair; :func:`.integrate.box_rhs` is shared).
+rays, gradients averaged on each pixel pair; :func:`.integrate.edge_box_rhs` is shared).
 
-- :class:`BoxIntegrator`: the CPU's box solver (the changed pixels' box, its outer ring at the reference),
-  its type-I sine transforms by torch's FFT on a CPU and by dense matrix products on a GPU (no cuFFT plan per
-  box size).
+- :class:`BoxIntegrator`: the CPU's box solver (the changed pixels' box, its outer ring at the reference;
+  else per region a box, or an edge box mirrored across the image border: the same boxes and equations as
+  :func:`.integrate.integrate_on_dome`'s "auto"), its type-I sine transforms by torch's FFT on a CPU and by
+  dense matrix products on a GPU (no cuFFT plan per box size).
 - :class:`DomeIntegrator`: every gel pixel whose neighbours in the image are all on the gel. The gel pixels
   next to them that meet the dome's base (an off-gel pixel) are the Dirichlet boundary, held at the undeformed
   reference: the gel is fixed there. The image border is a natural (Neumann) boundary: the surface there is
@@ -33,7 +34,7 @@ import numpy as np
 
 from ..core.errors import ShapeError, require
 from ..core.tolerances import INTEGRATION_MIN_FACING
-from .integrate import RayGeometry, _box, box_eigenvalues, box_rhs
+from .integrate import BOTH_SIDES, Edges, RayGeometry, _box, _regions, box_eigenvalues, edge_box_parts, edge_box_rhs
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
     import torch
@@ -174,15 +175,17 @@ def _axis_matrices(n: int, neumann: bool, device: torch.device, dtype: torch.dty
 
 class BoxIntegrator:
     """:mod:`.integrate`'s box solver on a torch device: the changed pixels' box (grown to fast transform sizes,
-    :func:`.integrate._box`), its interior solved with the outer ring at the reference, in float32 like the CPU's.
+    :func:`.integrate._box`), its interior solved with the outer ring at the reference, in float32 like the CPU's;
+    where that box does not apply, the CPU's boxes and edge boxes per region (:meth:`boxes`).
 
     Parameters
     ----------
     geo : RayGeometry of the sensor
     device : torch device
+    dense : the sine transforms as matrix products (:class:`BoxPoisson`); None: on a CUDA device
     """
 
-    def __init__(self, geo: RayGeometry, device: torch.device):
+    def __init__(self, geo: RayGeometry, device: torch.device, dense: bool | None = None):
         torch = _torch()
         self.seen: dict[tuple[int, int], int] = {}
         """How often each box size (h, w) has come (recorded at :data:`RECORD_AFTER`)."""
@@ -193,13 +196,26 @@ class BoxIntegrator:
             torch.as_tensor(a, device=device).reshape(-1, 3) for a in (geo.rays32, geo.d_u32, geo.d_v32)
         )
         self.device = device
+        # on a GPU as matrix products: a box of a new size would otherwise wait for its cuFFT plans
+        self.dense = device.type == "cuda" if dense is None else dense
 
     def box(self, changed: np.ndarray) -> tuple[slice, slice] | None:
         """The box for ``changed`` ((H, W) bool on the gel), or None when it leaves the gel or touches the border."""
         return _box(changed, self.on_gel)
 
-    def __call__(self, normals: torch.Tensor, box: tuple[slice, slice]) -> torch.Tensor:
-        """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor).
+    def boxes(self, changed: np.ndarray) -> list[tuple[tuple[slice, slice], Edges]] | None:
+        """The boxes and edge boxes (with their :data:`.integrate.Edges`) that solve ``changed`` ((H, W) bool on
+        the gel) as :func:`.integrate.integrate_on_dome` does, or None where a region needs its sparse path (its
+        box leaves the gel, or spans an axis from border to border). Decided on the host, like the CPU's."""
+        boxes, edge_boxes, sparse = _regions(changed, self.on_gel, "auto")
+        # a box across the image (BOTH_SIDES) is the CPU's cosine box; here the whole gel solves that equation
+        if sparse or any(BOTH_SIDES in edges for _, edges in edge_boxes):
+            return None
+        return [(b, (0, 0)) for b in boxes] + edge_boxes
+
+    def __call__(self, normals: torch.Tensor, box: tuple[slice, slice], edges: Edges = (0, 0)) -> torch.Tensor:
+        """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor); an edge
+        box (``edges`` of :meth:`boxes`) mirrored across the image border as on the CPU.
 
         On a GPU, a box size that keeps coming is recorded as a CUDA graph (the box's place is an input) at its
         :data:`RECORD_AFTER`-th frame; every later frame of that size is one launch. The others are solved
@@ -207,9 +223,9 @@ class BoxIntegrator:
         """
         h, w = box[0].stop - box[0].start, box[1].stop - box[1].start
         offset = box[0].start * self.width + box[1].start
-        replay = self._graph(h, w) if self._recorded(h, w) else None
+        replay = self._graph(h, w, edges) if self._recorded(h, w, edges) else None
         if replay is None:
-            return self._solve(normals, self._index(h, w) + offset)
+            return self._solve(normals, self._index(h, w) + offset, edges)
         frame_normals, place = replay.inputs
         frame_normals.copy_(normals)
         place.fill_(offset)
@@ -230,26 +246,29 @@ class BoxIntegrator:
             h, w = box[0].stop - box[0].start, box[1].stop - box[1].start
             self._solve(normals, self._index(h, w) + (box[0].start * self.width + box[1].start))
 
-    def _recorded(self, h: int, w: int) -> bool:
-        """Whether this frame's (h, w) box runs as a recorded graph (this frame counted)."""
+    def _recorded(self, h: int, w: int, edges: Edges = (0, 0)) -> bool:
+        """Whether this frame's (h, w) box (an edge box: with its ``edges``) runs as a recorded graph (this frame
+        counted)."""
         if self.device.type != "cuda":
             return False
-        self.seen[(h, w)] = self.seen.get((h, w), 0) + 1
-        return self.seen[(h, w)] >= RECORD_AFTER
+        key = (h, w) if edges == (0, 0) else (h, w, edges)
+        self.seen[key] = self.seen.get(key, 0) + 1
+        return self.seen[key] >= RECORD_AFTER
 
-    def _solve(self, normals: torch.Tensor, index: torch.Tensor):
-        """Points over the box whose flat pixel indices are ``index`` ((h, w) long tensor)."""
+    def _solve(self, normals: torch.Tensor, index: torch.Tensor, edges: Edges = (0, 0)):
+        """Points over the box whose flat pixel indices are ``index`` ((h, w) long tensor); an edge box mirrored
+        across the image border on its ``edges`` sides (:func:`.integrate.edge_box_rhs`, the CPU's arithmetic)."""
         torch = _torch()
         rays = self.rays[index]
         x = self.log_range[index]  # a copy: the reference, whose interior is replaced below
-        f = box_rhs(normals.reshape(-1, 3)[index], rays, self.d_u[index], self.d_v[index], x)
-        x[1:-1, 1:-1] = self._solver(*f.shape)(f)
+        f = edge_box_rhs(normals.reshape(-1, 3)[index], rays, self.d_u[index], self.d_v[index], x, edges)
+        own, interior = edge_box_parts(x.shape, edges)
+        x[interior] = self._solver(*f.shape)(f)[own]
         return torch.exp(x)[..., None] * rays
 
     @functools.lru_cache(maxsize=32)  # noqa: B019 -- one per box size; the instance lives as long as the model
     def _solver(self, m: int, n: int) -> BoxPoisson:
-        # on a GPU as matrix products: a box of a new size would otherwise wait for its cuFFT plans
-        return BoxPoisson(m, n, self.device, _torch().float32, dense=self.device.type == "cuda")
+        return BoxPoisson(m, n, self.device, _torch().float32, dense=self.dense)
 
     @functools.lru_cache(maxsize=32)  # noqa: B019
     def _index(self, h: int, w: int):
@@ -258,14 +277,15 @@ class BoxIntegrator:
         return torch.arange(h, device=self.device)[:, None] * self.width + torch.arange(w, device=self.device)
 
     @functools.lru_cache(maxsize=32)  # noqa: B019
-    def _graph(self, h: int, w: int):
-        """The solve of an (h, w) box recorded as a CUDA graph; inputs: the normal map and the box's flat place."""
+    def _graph(self, h: int, w: int, edges: Edges = (0, 0)):
+        """The solve of an (h, w) box (an edge box: with its ``edges``) recorded as a CUDA graph; inputs: the normal
+        map and the box's flat place."""
         torch = _torch()
         from .cuda_graph import record
 
         normals = torch.zeros(self.on_gel.shape + (3,), dtype=torch.float32, device=self.device)
         place = torch.zeros((), dtype=torch.long, device=self.device)
-        solve = lambda n, o: self._solve(n, self._index(h, w) + o)  # noqa: E731
+        solve = lambda n, o: self._solve(n, self._index(h, w) + o, edges)  # noqa: E731
         return record(solve, (normals, place), self.device, "The changed pixels' box solve")
 
 

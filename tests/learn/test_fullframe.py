@@ -205,6 +205,63 @@ def test_a_contact_that_reaches_the_image_border_keeps_its_depth_on_the_whole_ge
     assert np.abs(got[..., 2].numpy() - cpu)[changed].max() < 0.01 * true_dent.max()
 
 
+TWO_SPHERES = {  # (polar deg, azimuth deg, radius mm, depth mm) of each sphere, and the CPU's edge boxes' edges
+    "border": ([(50, 180, 7.0, 2.0)], [(0, -1)]),
+    "corner": ([(55, 35, 7.0, 2.0)], [(1, 1)]),
+    "middle and border": ([(0, 0, 5.0, 1.5), (50, 0, 7.0, 2.0)], [(0, 1)]),
+    "opposite borders": ([(50, 180, 7.0, 2.0), (50, 0, 7.0, 2.0)], [(0, -1), (0, 1)]),
+}
+
+
+def _pressed(spheres):
+    """Depth, normals and changed pixels of the default dome (640x480, its gel fills the image) with every sphere
+    of ``spheres`` pressed in (the nearer surface along each ray), the reference normals elsewhere."""
+    from scipy import ndimage
+
+    from nlipscalib.core.sensor import SensorDesign
+    from tests.learn.test_integrate import _sphere_pressed_into_the_dome
+
+    presses = [_sphere_pressed_into_the_dome(SensorDesign(), *sphere) for sphere in spheres]
+    ref, rays, hit, points, normals = presses[0]
+    for _, _, other_hit, other_points, other_normals in presses[1:]:
+        nearer = other_points[..., 2] < points[..., 2]  # along one ray: the surface nearer the camera is seen
+        hit = hit | other_hit
+        points = np.where(nearer[..., None], other_points, points)
+        normals = np.where(nearer[..., None], other_normals, normals)
+    changed = ndimage.binary_dilation(hit, iterations=3) & np.isfinite(ref.depth)
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    return ref, geo, changed, points[..., 2], np.where(changed[..., None], normals, ref.normals)
+
+
+@pytest.mark.parametrize("dense", [False, True], ids=["fft", "matrices"])
+@pytest.mark.parametrize("case", list(TWO_SPHERES))
+def test_the_device_path_solves_contacts_at_the_image_border_as_the_cpu_does(case, dense):
+    """Contacts at the image border, in its corner, and two regions apart: the torch path (as ``--device cuda``
+    runs it, here on the CPU; ``dense``: the GPU's sine transforms by matrix products) solves the CPU path's edge
+    boxes and boxes -- it solved the whole gel, 2-4e-3 mm off the CPU's -- and both find the exact normals' dent."""
+    from types import SimpleNamespace
+
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn.fullframe import FullFrame
+    from nlipscalib.learn.integrate import _regions, integrate_on_dome
+    from nlipscalib.learn.integrate_torch import BoxIntegrator
+
+    spheres, edges = TWO_SPHERES[case]
+    ref, geo, changed, true_depth, normals = _pressed(spheres)
+    cpu, _ = integrate_on_dome(normals, changed, geo)
+    assert [e for _, e in _regions(changed, np.isfinite(ref.depth), "auto")[1]] == edges
+    box_integrator = BoxIntegrator(geo, CPU, dense=dense)
+    assert box_integrator.boxes(changed) is not None  # not the whole gel
+    path = SimpleNamespace(box_integrator=box_integrator, torch=torch, device=CPU, ref_points_host=geo.points)
+    got = FullFrame._box_points(path, torch.from_numpy(normals.astype(np.float32)), changed)[..., 2]
+    np.testing.assert_allclose(got, cpu, atol=TORCH_INTEGRATION_PARITY_MM)
+    true_dent = (ref.depth - true_depth)[changed].max()
+    assert true_dent > 1.4  # mm: a real dent
+    for depth in (cpu, got):
+        assert (ref.depth - depth)[changed].max() == pytest.approx(true_dent, rel=0.05)
+        assert np.abs(depth - true_depth)[changed].mean() < 0.05 * true_dent
+
+
 def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_elsewhere(trained, twin_presses):
     """What a GPU runs (learn.fullframe with the change rule), here on the CPU: the CPU path's mask and normals."""
     from nlipscalib.learn.fullframe import FullFrame
@@ -223,14 +280,23 @@ def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_els
         np.testing.assert_allclose(depth, cpu.depth, atol=1e-4)  # the same box solve (torch's FFT, scipy's)
         np.testing.assert_allclose(points, cpu.points, atol=1e-4)
     assert cpu.changed.sum() == 0  # the reference itself: nothing changed
-    # a change that reaches the image border: no box, the whole gel is solved
+    # a change that reaches the image border: an edge box, a natural side there, as on the CPU path
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn.integrate import integrate_on_dome
+
     press = load_press(twin_presses / "press_g")
-    normals = torch.from_numpy(cpu_predictor.predict(press.linear(press.tricolor)).normals)
+    normals = cpu_predictor.predict(press.linear(press.tricolor)).normals
     border = np.zeros(cpu_predictor.valid.shape, bool)
     border[:10, :10] = True
-    whole = device_path._box_points(normals, border)
-    np.testing.assert_allclose(whole, device_path.integrator(normals, torch.from_numpy(~border)).numpy())
-    assert not np.allclose(whole, device_path.ref_points_host)
+    at_border = device_path._box_points(torch.from_numpy(normals), border)
+    _, want = integrate_on_dome(normals, border, cpu_predictor.geo)
+    np.testing.assert_allclose(at_border, want, atol=TORCH_INTEGRATION_PARITY_MM)
+    assert not np.allclose(at_border, device_path.ref_points_host)
+    # a change across the image from border to border (the CPU's sparse path): the whole gel is solved
+    band = np.zeros_like(border)
+    band[20:24, :] = True
+    whole = device_path._box_points(torch.from_numpy(normals), band)
+    np.testing.assert_allclose(whole, device_path.integrator(torch.from_numpy(normals), torch.from_numpy(~band)))
     # the network's normals everywhere (--full-frame): the whole gel's level from the pixels the rule left unchanged
     whole_path = FullFrame(cpu_predictor.model, CPU, cpu_predictor.geo, keep_reference=False)
     frame = torch.from_numpy(press.linear(press.tricolor))
