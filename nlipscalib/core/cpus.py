@@ -240,6 +240,27 @@ MEMORY_HEADROOM = 0.9
 progress bar, results; 0.2-0.6 GB) and what other programs take meanwhile."""
 
 
+SOLVE_THREADS = 2
+"""Threads one press's solve uses well: its per-LED whole-frame steps and the solver's pixel chunks and row-block
+products on :mod:`nlipscalib.solver.threads` nearly halve their wall time on 2 threads (benchmarks/RESULTS.md), the
+GIL-bound rest does not shrink. A folder of presses (``nlips solve FOLDER``) therefore runs one worker per this many
+cores by default (:func:`solve_workers_default`): one on a 2-core machine, where a second process also pays its
+start-up and imports again."""
+
+
+def solve_workers_default(cores: int | None = None) -> int:
+    """Worker processes ``nlips solve FOLDER`` starts when ``--workers`` is not given: one per
+    :data:`SOLVE_THREADS` usable cores (``cores``; None: :func:`usable_cores`), at least 1; the pool starts no
+    more than there are presses, and :func:`worker_count` lowers it to what memory holds."""
+    return max(1, (usable_cores() if cores is None else cores) // SOLVE_THREADS)
+
+
+def threads_per_worker(workers: int, cores: int | None = None) -> int:
+    """Threads each of ``workers`` processes solving side by side may use: the usable cores (``cores``; None:
+    :func:`usable_cores`) shared out, at least 1 (2 workers on 8 cores: 4 threads each; on 2 cores: 1)."""
+    return max(1, (usable_cores() if cores is None else cores) // max(1, workers))
+
+
 def worker_count(
     requested: int | None,
     default: int,

@@ -11,8 +11,10 @@ from nlipscalib.core.cpus import (
     SOLVE_WHOLE_MEMORY,
     WorkerMemory,
     available_memory,
-    cgroup_memory_room,
     cgroup_cpu_limit,
+    cgroup_memory_room,
+    solve_workers_default,
+    threads_per_worker,
     usable_cores,
     worker_count,
 )
@@ -259,3 +261,13 @@ def test_the_cpu_quota_lowers_the_pools_that_count_usable_cores(monkeypatch, tmp
     monkeypatch.delenv("NLIPS_THREADS", raising=False)
     monkeypatch.setattr(threads, "_workers", None)
     assert threads.workers() == 2
+
+
+def test_solver_workers_default_to_one_per_two_cores_and_share_the_cores_as_threads():
+    # a press's solve already runs on two threads: one worker on 2 or 3 cores, two on 4, four on 8
+    assert [solve_workers_default(cores) for cores in (1, 2, 3, 4, 8, 64)] == [1, 1, 1, 2, 4, 32]
+    # the cores shared out among the workers, never below one thread
+    assert threads_per_worker(2, cores=8) == 4  # two presses on an 8-core machine
+    assert threads_per_worker(1, cores=2) == 2
+    assert threads_per_worker(2, cores=2) == 1  # --workers 2 on this project's 2-core VM: one each, as before
+    assert threads_per_worker(8, cores=2) == 1
