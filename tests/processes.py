@@ -129,3 +129,12 @@ def sleepy_status(folder, marks) -> str:
         time.sleep(1.0)
     (Path(marks) / name).touch()
     return "solved"
+
+
+def threads_status(folder) -> str:
+    """A stand-in for a press's solve in a pool (pickled by name): the worker's solver and OpenCV thread counts."""
+    import cv2
+
+    from nlipscalib.solver import threads
+
+    return f"solver {threads.workers()} opencv {cv2.getNumThreads()}"

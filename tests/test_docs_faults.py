@@ -58,6 +58,7 @@ OTHER_TOOLS_OPTIONS = {
     "--now": "systemctl",
     "--gres": "SLURM",
     "--nthreads": "dask worker",
+    "--cpus": "docker run",
 }
 """Options the docs name that belong to other tools than ``nlips`` (each with its tool)."""
 

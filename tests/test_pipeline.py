@@ -682,6 +682,23 @@ def test_a_result_kept_after_a_kill_loses_the_dead_runs_claim(press):
     assert not [p.name for p in press.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
 
 
+def test_solver_workers_share_the_cores_out_as_threads(tmp_path, monkeypatch):
+    """Each worker took one thread whatever the cores: 2 presses on 2 workers of an 8-core machine left 6 idle.
+    Now the cores are shared out (2 workers of 8 cores: 4 threads each); as many workers as cores: one each."""
+    from nlipscalib.core import cpus
+    from nlipscalib.pipeline.workers import _solve_in_processes
+    from tests.processes import threads_status
+
+    folders = [tmp_path / "press_0", tmp_path / "press_1"]
+    names = {f: f.name for f in folders}
+    monkeypatch.setattr(cpus, "usable_cores", lambda: 8)  # the parent shares them out: the workers read none
+    statuses = _solve_in_processes(threads_status, folders, names, 2, False, ())
+    assert sorted(statuses.values()) == ["solver 4 opencv 4"] * 2
+    monkeypatch.setattr(cpus, "usable_cores", lambda: 2)
+    statuses = _solve_in_processes(threads_status, folders, names, 2, False, ())
+    assert sorted(statuses.values()) == ["solver 1 opencv 1"] * 2
+
+
 def test_ctrl_c_on_a_parallel_solve_starts_no_press_but_those_running(tmp_path, monkeypatch):
     """The pool was given every press at once and moved workers + 1 of them into its call queue, where no cancel
     reaches: after "interrupted: ... the others are not started", a 6-press set on 2 workers still solved the 4 it

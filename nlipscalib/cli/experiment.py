@@ -38,7 +38,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", help="TOML/YAML file with the experiment's config fields (instead of --size)")
     p.add_argument("--out", help="work folder: per-task results (default out/experiments)")
     p.add_argument("--report", help="report folder (default OUT/NAME-SIZE/report); with 'all' one subfolder each")
-    p.add_argument("--workers", type=int, help="local worker processes (default 1)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        help="local worker processes (default 1: one task at a time, rendering and solving on all usable cores' "
+        "threads; N workers share the cores out as threads, a container's CPU quota counted)",
+    )
     p.add_argument(
         "--scheduler",
         help="Dask scheduler address tcp://HOST:PORT, or local:N for a LocalCluster "

@@ -85,7 +85,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
-    p.add_argument("--workers", type=int, default=1, help="presses solved at once, one process each (default 1)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=0,
+        help="presses of a folder solved at once, one process each (default 0: one per two usable cores, a "
+        "container's CPU quota counted: 1 on a 2- or 3-core machine, where one process already solves each press "
+        "on both cores' threads; fewer where the memory available holds fewer); the cores are shared out as "
+        "threads among the workers",
+    )
     p.add_argument(
         "--figures",
         choices=("none", "maps", "full"),
@@ -137,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
     if args.normals is not None:  # the flag over the config's value
         options = dataclasses.replace(options or SolverOptions(), normals=args.normals)
-    check_count("--workers", args.workers, minimum=1)
+    check_count("--workers", args.workers, minimum=0)
     presses, reference = split_reference(args.press, args.reference)
     if not presses:
         raise no_presses_error(args.press)
@@ -172,15 +180,15 @@ def run(args: argparse.Namespace) -> int:
             wait=True,  # the result asked for: another run's is waited for, and reused only when made alike
         )
         return 0
-    if args.workers > 1:  # the count asked for, said when it likely exceeds the memory available
-        from ..core.cpus import SOLVE_ROI_MEMORY, SOLVE_WHOLE_MEMORY, worker_count
-        from ..core.press_meta import image_size
+    from ..core.cpus import SOLVE_ROI_MEMORY, SOLVE_WHOLE_MEMORY, solve_workers_default, worker_count
+    from ..core.press_meta import image_size
 
-        memory = SOLVE_WHOLE_MEMORY if given["roi"] is None else SOLVE_ROI_MEMORY
-        worker_count(args.workers, 1, memory, *image_size(presses[0]))
+    # the count asked for (said when it likely exceeds the memory available), else the cores' lowered to memory's
+    memory = SOLVE_WHOLE_MEMORY if given["roi"] is None else SOLVE_ROI_MEMORY
+    workers = worker_count(args.workers, solve_workers_default(), memory, *image_size(presses[0]))
     press_lines(BATCH)  # a line per press; how each was solved with -v
     statuses = solve_presses(
-        presses, workers=args.workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
+        presses, workers=workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
     )
     return _summary(statuses)
 

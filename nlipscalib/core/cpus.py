@@ -23,12 +23,54 @@ NO_CGROUP_LIMIT = 2**62
 at or above this is none."""
 
 
-def usable_cores() -> int:
-    """Cores this process may run on: its CPU affinity (a container's or ``taskset``'s limit), else all cores."""
+def usable_cores(proc_cgroup: Path | None = None, cgroup_root: Path | None = None) -> int:
+    """Cores this process may run on: its CPU affinity (``taskset``, a container's cpuset), else all cores, and no
+    more than its control group's CPU quota rounded up (:func:`cgroup_cpu_limit`), at least 1.
+
+    Why the quota: a container limited by ``docker run --cpus=2`` or a Kubernetes CPU limit keeps the host's
+    affinity (all 64 cores, say) and is throttled to 2 cores' time, so pools sized by the affinity alone run 30
+    threads where 2 cores' worth fit. Python 3.13's ``os.process_cpu_count()`` counts the affinity alone (with its
+    ``-X cpu_count`` override) and reads no quota either. The paths are :func:`cgroup_memory_room`'s, for tests."""
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cores = max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # no affinity outside Linux
-        return os.cpu_count() or 1
+        cores = os.cpu_count() or 1
+    quota = cgroup_cpu_limit(proc_cgroup, cgroup_root)
+    return cores if quota is None else max(1, min(cores, quota))
+
+
+def cgroup_cpu_limit(proc_cgroup: Path | None = None, cgroup_root: Path | None = None) -> int | None:
+    """Cores' worth of CPU time this process's control group may use, rounded up (a quota of 1.5 cores: 2), or None
+    where no quota is set or none can be read.
+
+    cgroup v2: ``cpu.max`` ("QUOTA PERIOD" in microseconds; "max": no quota); cgroup v1 (a ``cpu`` hierarchy,
+    often mounted as ``cpu,cpuacct``): ``cpu.cfs_quota_us`` (-1: no quota) over ``cpu.cfs_period_us``. The group
+    and its ancestors are read as for the memory limit (:func:`cgroup_memory_room`) and the smallest quota wins."""
+    found = _cgroup_folder("cpu", proc_cgroup, cgroup_root)
+    if found is None:
+        return None
+    mount, group, v1 = found
+    limits = [_cpu_quota(folder, v1) for folder in _group_and_ancestors(mount, group)]
+    limits = [n for n in limits if n is not None]
+    return min(limits) if limits else None
+
+
+def _cpu_quota(folder: Path, v1: bool) -> int | None:
+    """One group's CPU quota in whole cores (rounded up, >= 1), None where it has none or a file is unreadable."""
+    try:
+        if v1:
+            quota = int((folder / "cpu.cfs_quota_us").read_text().strip())
+            period = int((folder / "cpu.cfs_period_us").read_text().strip())
+        else:
+            quota_text, _, period_text = (folder / "cpu.max").read_text().strip().partition(" ")
+            if quota_text == "max":
+                return None
+            quota, period = int(quota_text), int(period_text)
+    except (OSError, ValueError):
+        return None
+    if quota <= 0 or period <= 0:  # v1's -1: no quota
+        return None
+    return max(1, -(-quota // period))
 
 
 def available_memory(
@@ -77,6 +119,27 @@ def cgroup_memory_room(proc_cgroup: Path | None = None, cgroup_root: Path | None
     mount's root (a Kubernetes pod's limit sits above its containers'), and the least room wins; this also reads
     the limit where the group's own folder is missing (Docker on cgroup v1 without a cgroup namespace: the file
     names the host's path, the mount is the container's own group)."""
+    found = _cgroup_folder("memory", proc_cgroup, cgroup_root)
+    if found is None:
+        return None
+    mount, group, v1 = found
+    limit_file, usage_file = (
+        ("memory.limit_in_bytes", "memory.usage_in_bytes") if v1 else ("memory.max", "memory.current")
+    )
+    rooms = [_room(folder, limit_file, usage_file) for folder in _group_and_ancestors(mount, group)]
+    rooms = [r for r in rooms if r is not None]
+    return min(rooms) if rooms else None
+
+
+def _cgroup_folder(
+    controller: str, proc_cgroup: Path | None = None, cgroup_root: Path | None = None
+) -> tuple[Path, str, bool] | None:
+    """Where ``controller``'s limits of this process's group are: (the hierarchy's mount, the group's path in it,
+    whether it is cgroup v1), or None where ``proc_cgroup`` is unreadable or lists no hierarchy for it.
+
+    A cgroup v1 hierarchy holding ``controller`` wins over v2's (hybrid systems, where v2 holds no such
+    controller); it is mounted as ``CGROUP_ROOT/controller`` or under the hierarchy's own name (``cpu,cpuacct``).
+    The paths (None: :data:`PROC_CGROUP`, :data:`CGROUP_ROOT`, looked up at the call) are for tests."""
     proc_cgroup = PROC_CGROUP if proc_cgroup is None else proc_cgroup
     cgroup_root = CGROUP_ROOT if cgroup_root is None else cgroup_root
     try:
@@ -87,30 +150,30 @@ def cgroup_memory_room(proc_cgroup: Path | None = None, cgroup_root: Path | None
     for line in lines:
         hierarchy, _, rest = line.partition(":")
         controllers, _, path = rest.partition(":")
-        if "memory" in controllers.split(","):
-            v1 = path
+        if controller in controllers.split(","):
+            v1 = (controllers, path)
         elif hierarchy == "0" and controllers == "":
             v2 = path
     if v1 is not None:
-        return _least_room(cgroup_root / "memory", v1, "memory.limit_in_bytes", "memory.usage_in_bytes")
+        controllers, path = v1
+        mount = cgroup_root / controller
+        if not mount.is_dir() and (cgroup_root / controllers).is_dir():
+            mount = cgroup_root / controllers
+        return mount, path, True
     if v2 is not None:
-        return _least_room(cgroup_root, v2, "memory.max", "memory.current")
+        return cgroup_root, v2, False
     return None
 
 
-def _least_room(mount: Path, group: str, limit_file: str, usage_file: str) -> int | None:
-    """The least room (limit minus usage less droppable file cache) over ``group`` and its ancestors under
-    ``mount``, None where none of them has a readable limit."""
+def _group_and_ancestors(mount: Path, group: str) -> list[Path]:
+    """The folders of ``group`` and of its ancestors under ``mount``, up to the mount's root (a Kubernetes pod's
+    limit sits above its containers'); a missing folder is listed too (its files read as no limit)."""
     folder = mount / group.strip("/")
-    rooms = []
-    while True:
-        room = _room(folder, limit_file, usage_file)
-        if room is not None:
-            rooms.append(room)
-        if folder == mount or mount not in folder.parents:
-            break
+    folders = [folder]
+    while folder != mount and mount in folder.parents:
         folder = folder.parent
-    return min(rooms) if rooms else None
+        folders.append(folder)
+    return folders
 
 
 def _room(folder: Path, limit_file: str, usage_file: str) -> int | None:
@@ -175,6 +238,27 @@ RENDER_MEMORY = WorkerMemory("render", 380 * 2**20, 1_950)
 MEMORY_HEADROOM = 0.9
 """Share of the available memory the workers are planned to take: the rest is the command's own process (its pool,
 progress bar, results; 0.2-0.6 GB) and what other programs take meanwhile."""
+
+
+SOLVE_THREADS = 2
+"""Threads one press's solve uses well: its per-LED whole-frame steps and the solver's pixel chunks and row-block
+products on :mod:`nlipscalib.solver.threads` nearly halve their wall time on 2 threads (benchmarks/RESULTS.md), the
+GIL-bound rest does not shrink. A folder of presses (``nlips solve FOLDER``) therefore runs one worker per this many
+cores by default (:func:`solve_workers_default`): one on a 2-core machine, where a second process also pays its
+start-up and imports again."""
+
+
+def solve_workers_default(cores: int | None = None) -> int:
+    """Worker processes ``nlips solve FOLDER`` starts when ``--workers`` is not given: one per
+    :data:`SOLVE_THREADS` usable cores (``cores``; None: :func:`usable_cores`), at least 1; the pool starts no
+    more than there are presses, and :func:`worker_count` lowers it to what memory holds."""
+    return max(1, (usable_cores() if cores is None else cores) // SOLVE_THREADS)
+
+
+def threads_per_worker(workers: int, cores: int | None = None) -> int:
+    """Threads each of ``workers`` processes solving side by side may use: the usable cores (``cores``; None:
+    :func:`usable_cores`) shared out, at least 1 (2 workers on 8 cores: 4 threads each; on 2 cores: 1)."""
+    return max(1, (usable_cores() if cores is None else cores) // max(1, workers))
 
 
 def worker_count(

@@ -295,6 +295,11 @@ def _worker_loop(
     import os
     import queue
 
+    from ..solver import threads as solver_threads
+
+    # the worker's share of the cores for its solves too, as for its renders (each took every usable core: N
+    # workers ran N x cores solver threads)
+    solver_threads.set_workers(threads)
     parent = os.getppid()
     while True:
         try:

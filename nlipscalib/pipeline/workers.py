@@ -9,6 +9,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core.cpus import threads_per_worker
 from ..core.processes import end_with_parent
 from .status import BROKEN
 
@@ -52,11 +53,12 @@ def _solve_in_processes(
     # wall (4.49 against 4.23 s, 6 presses of 160x120 on 2 workers, one A/B at load 3.7).
     # A byte in shared memory, no lock (one writer): no named semaphores for the exit to free, as an Event has
     stop = ctx.RawValue("b", 0)
+    count = min(workers, len(folders))
     with ProcessPoolExecutor(
-        max_workers=min(workers, len(folders)),
+        max_workers=count,
         mp_context=ctx,
         initializer=_worker_init,
-        initargs=(*worker_logging(), stop),
+        initargs=(*worker_logging(), stop, threads_per_worker(count)),
     ) as pool:
         futures = {pool.submit(_unless_stopped, status_of, f, *args): f for f in folders}
         bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
@@ -97,10 +99,14 @@ def _unless_stopped(status_of: Callable[..., str], folder: Path, *args: object) 
     return status_of(folder, *args)
 
 
-def _worker_init(log_level: int, log_file: str | None, press_lines: int, stop: c_byte | None) -> None:
-    """Log like the parent (stderr and its ``--log-file``); one core per worker: the solver limits BLAS
-    itself, OpenCV's pool is limited here; ``press_lines``: the parent's (progress.press_lines);
-    ``stop``: the batch's stop flag (:func:`_unless_stopped`)."""
+def _worker_init(
+    log_level: int, log_file: str | None, press_lines: int, stop: c_byte | None, thread_count: int = 1
+) -> None:
+    """Log like the parent (stderr and its ``--log-file``); ``thread_count`` threads for the solver's pool and
+    OpenCV's (the cores shared out among the workers, :func:`~nlipscalib.core.cpus.threads_per_worker`: one a worker
+    where there are as many workers as cores, so cores are not oversubscribed); the solver limits BLAS itself;
+    ``press_lines``: the parent's (progress.press_lines); ``stop``: the batch's stop flag
+    (:func:`_unless_stopped`)."""
     from ..progress import configure_worker
 
     global _STOP
@@ -109,13 +115,14 @@ def _worker_init(log_level: int, log_file: str | None, press_lines: int, stop: c
     _worker_signals()
     end_with_parent()  # a command killed with SIGKILL cannot end this worker: it ends itself
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    thread_count = max(1, int(thread_count))
     from ..solver import threads
 
-    threads.set_workers(1)
+    threads.set_workers(thread_count)
     try:
         import cv2
 
-        cv2.setNumThreads(1)
+        cv2.setNumThreads(thread_count)
     except ImportError:  # pragma: no cover - OpenCV is a core dependency
         pass
 

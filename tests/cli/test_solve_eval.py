@@ -261,8 +261,8 @@ def test_figures_flags(data):
 
 def test_bad_arguments_are_one_line(data, capsys):
     root, cfg = data
-    assert main(["solve", str(root), "--workers", "0"]) == 2
-    assert "--workers: must be an integer >= 1, got 0" in capsys.readouterr().err
+    assert main(["solve", str(root), "--workers", "-1"]) == 2
+    assert "--workers: must be an integer >= 0, got -1" in capsys.readouterr().err
     assert main(["solve", str(root / "press_a"), "--leds", "one"]) == 2
     assert "leds must be like '1,2,5'" in capsys.readouterr().err
     assert main(["solve", str(root / "press_a"), "--roi", "1", "2"]) == 2
@@ -509,3 +509,25 @@ def test_a_twin_reference_rendered_with_other_light_settings_is_refused_in_one_l
     _as_twin_render(reference, bounces=1, spp=64, seed=0)
     assert main(["solve", str(press), "--reference", str(reference), "--no-progress"]) == 0
     assert (press / "nlips" / "result.npz").is_file()
+
+
+def test_a_folders_default_worker_count_is_one_per_two_cores_lowered_to_memory(data, monkeypatch):
+    """``nlips solve FOLDER`` ran one worker whatever the cores. Now one per two usable cores (each press already
+    solves on two threads: one worker on a 2-core machine, as before), fewer where memory holds fewer; ``--workers``
+    is obeyed."""
+    import nlipscalib.pipeline as pipeline
+    from nlipscalib.core import cpus
+
+    root, cfg = data
+    asked = []
+    monkeypatch.setattr(pipeline, "solve_presses", lambda presses, workers, **kw: asked.append(workers) or {})
+    monkeypatch.setattr(cpus, "available_memory", lambda: 64 * 10**9)
+    for cores, workers in ((2, 1), (3, 1), (4, 2), (8, 4)):
+        monkeypatch.setattr(cpus, "usable_cores", lambda cores=cores: cores)
+        main(["solve", str(root), "--config", str(cfg), "--no-progress"])
+        assert asked.pop() == workers, cores
+    main(["solve", str(root), "--config", str(cfg), "--workers", "3", "--no-progress"])
+    assert asked.pop() == 3
+    monkeypatch.setattr(cpus, "available_memory", lambda: 10**8)  # 0.1 GB: one worker at most
+    main(["solve", str(root), "--config", str(cfg), "--no-progress"])
+    assert asked.pop() == 1

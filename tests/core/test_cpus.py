@@ -11,13 +11,17 @@ from nlipscalib.core.cpus import (
     SOLVE_WHOLE_MEMORY,
     WorkerMemory,
     available_memory,
+    cgroup_cpu_limit,
     cgroup_memory_room,
+    solve_workers_default,
+    threads_per_worker,
     usable_cores,
     worker_count,
 )
 
 
-def test_usable_cores_follows_the_affinity_and_falls_back_to_the_core_count(monkeypatch):
+def test_usable_cores_follows_the_affinity_and_falls_back_to_the_core_count(monkeypatch, tmp_path):
+    monkeypatch.setattr(cpus, "PROC_CGROUP", tmp_path / "missing")  # no CPU quota, also where tests run in one
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3}, raising=False)
     assert usable_cores() == 1  # a process pinned to one core (taskset, a container's cpuset)
     monkeypatch.delattr(os, "sched_getaffinity", raising=False)  # no affinity (macOS, Windows)
@@ -182,3 +186,88 @@ def test_without_cgroups_or_with_unreadable_files_memavailable_alone_decides(tmp
     # the cgroup alone (no MemAvailable line): its room is the answer
     (root / "box/memory.current").write_text(f"{GB // 2}\n")
     assert available_memory(tmp_path / "missing", proc_cgroup, root) == GB // 2
+
+
+def test_a_cgroup_v2_cpu_quota_caps_the_cores_rounded_up(monkeypatch, tmp_path):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)  # the host's 64 cores
+    proc_cgroup = tmp_path / "cgroup"
+    proc_cgroup.write_text("0::/kubepods/pod1/box\n")
+    root = tmp_path / "sys"
+    _cgroup_files(root / "kubepods/pod1/box", cpu_max="200000 100000\n")  # docker run --cpus=2
+    assert cgroup_cpu_limit(proc_cgroup, root) == 2
+    assert usable_cores(proc_cgroup, root) == 2
+    (root / "kubepods/pod1/box/cpu.max").write_text("150000 100000\n")  # 1.5 cores' time: two threads still help
+    assert usable_cores(proc_cgroup, root) == 2
+    (root / "kubepods/pod1/box/cpu.max").write_text("20000 100000\n")  # a fifth of a core: never below one
+    assert usable_cores(proc_cgroup, root) == 1
+    # the pod above it has the smaller quota: it decides
+    (root / "kubepods/pod1/box/cpu.max").write_text("800000 100000\n")
+    _cgroup_files(root / "kubepods/pod1", cpu_max="300000 100000\n")
+    assert usable_cores(proc_cgroup, root) == 3
+    # a quota above the affinity does not raise it (taskset to 4 cores in a 16-core container)
+    _cgroup_files(root / "kubepods", cpu_max="1600000 100000\n")
+    (root / "kubepods/pod1/cpu.max").write_text("max 100000\n")
+    (root / "kubepods/pod1/box/cpu.max").write_text("max 100000\n")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    assert usable_cores(proc_cgroup, root) == 4
+
+
+def test_a_cgroup_v2_without_a_cpu_quota_leaves_the_affinity(monkeypatch, tmp_path):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(8)), raising=False)
+    proc_cgroup = tmp_path / "cgroup"
+    proc_cgroup.write_text("0::/user.slice/session-1.scope\n")
+    root = tmp_path / "sys"
+    assert usable_cores(proc_cgroup, root) == 8  # no cgroup files mounted
+    _cgroup_files(root / "user.slice/session-1.scope", cpu_max="max 100000\n")  # "max": no quota
+    assert cgroup_cpu_limit(proc_cgroup, root) is None
+    assert usable_cores(proc_cgroup, root) == 8
+    _cgroup_files(root / "user.slice", cpu_max="garbled\n")  # unreadable: no reading, not a crash
+    assert usable_cores(proc_cgroup, root) == 8
+    assert usable_cores(tmp_path / "missing", root) == 8  # not Linux, no cgroups
+
+
+def test_a_cgroup_v1_cpu_quota_is_read_from_the_cpu_hierarchy(monkeypatch, tmp_path):
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
+    proc_cgroup = tmp_path / "cgroup"
+    # a hybrid system (as this project's VM): v1 holds the cpu controller (with cpuacct), v2's tree has none
+    proc_cgroup.write_text("5:memory:/docker/0123abcd\n3:cpu,cpuacct:/docker/0123abcd\n2:cpuset:/\n0::/\n")
+    root = tmp_path / "sys"
+    # mounted under the hierarchy's own name (no cpu -> cpu,cpuacct link)
+    _cgroup_files(root / "cpu,cpuacct/docker/0123abcd", cpu_cfs_quota_us="400000\n", cpu_cfs_period_us="100000\n")
+    _cgroup_files(root / "cpu,cpuacct", cpu_cfs_quota_us="-1\n", cpu_cfs_period_us="100000\n")  # the root: none
+    assert cgroup_cpu_limit(proc_cgroup, root) == 4
+    assert usable_cores(proc_cgroup, root) == 4
+    (root / "cpu,cpuacct/docker/0123abcd/cpu.cfs_quota_us").write_text("-1\n")  # no quota
+    assert cgroup_cpu_limit(proc_cgroup, root) is None
+    assert usable_cores(proc_cgroup, root) == 64
+    # Docker without a cgroup namespace: the file names the host's path, the mount ``cpu`` is the container's group
+    _cgroup_files(root / "cpu", cpu_cfs_quota_us="250000\n", cpu_cfs_period_us="100000\n")
+    assert usable_cores(proc_cgroup, root) == 3  # 2.5 cores rounded up
+    # the memory limit is still read from its own hierarchy
+    _cgroup_files(root / "memory", memory_limit_in_bytes=f"{GB}\n", memory_usage_in_bytes="0\n")
+    assert cgroup_memory_room(proc_cgroup, root) == GB
+
+
+def test_the_cpu_quota_lowers_the_pools_that_count_usable_cores(monkeypatch, tmp_path):
+    # the solver's thread pool follows usable_cores(): a --cpus=2 container on a 64-core host runs 2 threads
+    from nlipscalib.solver import threads
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
+    proc_cgroup = tmp_path / "cgroup"
+    proc_cgroup.write_text("0::/box\n")
+    _cgroup_files(tmp_path / "sys/box", cpu_max="200000 100000\n")
+    monkeypatch.setattr(cpus, "PROC_CGROUP", proc_cgroup)
+    monkeypatch.setattr(cpus, "CGROUP_ROOT", tmp_path / "sys")
+    monkeypatch.delenv("NLIPS_THREADS", raising=False)
+    monkeypatch.setattr(threads, "_workers", None)
+    assert threads.workers() == 2
+
+
+def test_solver_workers_default_to_one_per_two_cores_and_share_the_cores_as_threads():
+    # a press's solve already runs on two threads: one worker on 2 or 3 cores, two on 4, four on 8
+    assert [solve_workers_default(cores) for cores in (1, 2, 3, 4, 8, 64)] == [1, 1, 1, 2, 4, 32]
+    # the cores shared out among the workers, never below one thread
+    assert threads_per_worker(2, cores=8) == 4  # two presses on an 8-core machine
+    assert threads_per_worker(1, cores=2) == 2
+    assert threads_per_worker(2, cores=2) == 1  # --workers 2 on this project's 2-core VM: one each, as before
+    assert threads_per_worker(8, cores=2) == 1

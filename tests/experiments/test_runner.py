@@ -427,3 +427,22 @@ def test_the_task_bar_names_its_experiment(tmp_path, as_terminal):
     tty = as_terminal()
     run_tasks([], tmp_path, name="ablation")
     assert "ablation tasks: " in tty.getvalue(), tty.getvalue()
+
+
+def test_a_local_worker_solves_on_its_share_of_the_cores(monkeypatch, tmp_path):
+    """A local worker process rendered on its share of the cores (usable cores // workers) but solved on every
+    usable core: 2 workers on 8 cores ran 16 solver threads. Its solver pool now takes the same share."""
+    import queue
+
+    from nlipscalib.experiments.runner import _worker_loop
+    from nlipscalib.pipeline import workers
+    from nlipscalib.solver import threads
+
+    monkeypatch.setattr(workers, "_worker_signals", lambda: None)  # a worker's signal handlers: not in pytest
+    monkeypatch.setattr(threads, "_workers", None)  # restored after the test, as the pool below
+    monkeypatch.setattr(threads, "_pool", None)
+    inbox, results = queue.Queue(), queue.Queue()
+    inbox.put(None)  # no task: the loop sets itself up and returns
+    _worker_loop(0, inbox, results, str(tmp_path), 3, False)
+    assert threads.workers() == 3
+    assert results.empty()
