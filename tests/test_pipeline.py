@@ -54,6 +54,19 @@ def test_identical_request_skips_and_a_changed_one_re_solves(press, caplog):
     assert status == "solved"
 
 
+def test_an_empty_output_folder_or_a_symlink_to_one_is_solved_into_without_a_warning(press, tmp_path, caplog):
+    """`nlips solve PRESS --out DIR` into an empty DIR (or a symlink to one) warned "DIR/result.npz: missing;
+    re-computing it", as for a damaged result (s25 walk); the symlink is kept and the result lands in its target."""
+    empty, target = tmp_path / "empty", tmp_path / "target"
+    empty.mkdir(), target.mkdir()
+    (tmp_path / "link").symlink_to(target)
+    for out in (empty, tmp_path / "link"):
+        caplog.clear()
+        _, status = solve_folder(press, options=FAST, figures=False, out=out)
+        assert status == "solved" and not [r for r in caplog.records if r.levelno >= logging.WARNING]
+    assert (tmp_path / "link").is_symlink() and (target / "result.npz").is_file()
+
+
 def test_provenance_records_inputs_and_changes_with_them(press_set, tmp_path):
     settings = make_settings(options=FAST, leds="1,2,3,5,7,9")
     a = make_provenance(press_set / "a_sphere", settings)

@@ -158,6 +158,7 @@ def _main(argv: Sequence[str] | None, own_process: bool) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    _expand_home(args)
     try:
         progress.configure(
             progress=not (args.global_no_progress or getattr(args, "no_progress", False)),
@@ -176,6 +177,18 @@ def _run(args: argparse.Namespace) -> int:
         if _INTERRUPTED:  # Ctrl-C inside a native library (Mitsuba/drjit) surfaces as its own exception
             return _interrupted(args)
         raise
+
+
+def _expand_home(args: argparse.Namespace) -> None:
+    """Expand a leading ``~`` in the command's arguments (``--out=~/res``, a quoted ``'~/presses'``, a path from a
+    script), as the shell does for a bare one: the shell leaves ``~`` after ``=`` or inside quotes alone, and the
+    command made a folder named ``~`` in the working directory (``./~/res``) where the user meant the home folder.
+    Only values that start with ``~`` change (``os.path.expanduser`` leaves them as they are without a home)."""
+    for name, value in vars(args).items():
+        if isinstance(value, str) and value.startswith("~"):
+            setattr(args, name, os.path.expanduser(value))
+        elif isinstance(value, list) and any(isinstance(v, str) and v.startswith("~") for v in value):
+            setattr(args, name, [os.path.expanduser(v) if isinstance(v, str) else v for v in value])
 
 
 _INTERRUPTED: list[int] = []

@@ -31,6 +31,9 @@ SWAP_ATTEMPTS = 20
 """Tries to put an overwriting folder in place while other processes keep publishing theirs."""
 STALE_S = 600.0
 """Age (s) after which a temporary entry from another machine, with no live claim, counts as abandoned."""
+SCRATCH_MARK = "scratch-"
+"""Start of the random part of a :func:`scratch_dir` folder's name: its files are moved *beside* the entry it is
+named for, not into a folder of that name, and :func:`named_target` names them there."""
 
 
 _IN_PROGRESS: set[Path] = set()
@@ -55,7 +58,7 @@ def tmp_prefix(name: str) -> str:
     return f"{TMP_PREFIX}{name}{OWNER_SEP}{HOST}{OWNER_SEP}{os.getpid()}{OWNER_SEP}"
 
 
-def _temporary_name(final: Path) -> Path:
+def _temporary_name(final: Path, mark: str = "") -> Path:
     """A name for this process's new temporary entry of ``final`` (``.tmp-NAME~host~pid~RANDOM`` beside it); no
     entry is made.
 
@@ -64,17 +67,18 @@ def _temporary_name(final: Path) -> Path:
     3 of 16 Ctrl-C of `nlips infer FRAMES --out DIR` left a ``.tmp-FRAME~...`` in DIR. Callers register the
     name in :data:`_IN_PROGRESS` and make the entry inside the ``try`` that removes it, so every moment it exists
     it is known. 48 random bits under this process's own prefix: no other entry has the name."""
-    return final.parent / (tmp_prefix(final.name) + secrets.token_hex(6))
+    return final.parent / (tmp_prefix(final.name) + mark + secrets.token_hex(6))
 
 
 def named_target(path: str | Path) -> Path:
     """The entry a user asked for, given one of the hidden entries written beside it (a temporary
     ``.tmp-NAME~host~pid~...`` or a claim ``.claim-NAME[.token]``): for error messages, which should name
     what the user knows; a file inside a temporary folder (``.tmp-press~host~pid~.../led_03.png``, a write that
-    failed on a full disk) is named inside the folder it becomes (``press/led_03.png``). Any other path is returned
-    as it is."""
+    failed on a full disk) is named inside the folder it becomes (``press/led_03.png``); one inside a
+    :func:`scratch_dir` (``.tmp-net.pt~host~pid~scratch-.../net.pt``, a training's files) beside the entry it is named
+    for (``net.pt``), where it goes. Any other path is returned as it is."""
     p = Path(path)
-    folders = [_item_of(part) or part for part in p.parent.parts]
+    folders = [_item_of(part) or part for part in p.parent.parts if not _is_scratch(part)]
     p = Path(*folders, p.name) if folders else p
     if p.name.startswith(TMP_PREFIX):
         item = _item_of(p.name)
@@ -89,6 +93,11 @@ def _item_of(name: str) -> str | None:
     """The item a temporary entry's name ``.tmp-NAME~host~pid~...`` is written for (NAME; "" for a folder's probe),
     or None for any other name."""
     return name[len(TMP_PREFIX) :].split(OWNER_SEP, 1)[0] if name.startswith(TMP_PREFIX) else None
+
+
+def _is_scratch(name: str) -> bool:
+    """Whether ``name`` is a :func:`scratch_dir` folder's (``.tmp-NAME~host~pid~scratch-RANDOM``)."""
+    return name.startswith(TMP_PREFIX) and name.rsplit(OWNER_SEP, 1)[-1].startswith(SCRATCH_MARK)
 
 
 def check_writable(folder: str | Path, longest_name: int = 0) -> None:
@@ -272,7 +281,7 @@ def scratch_dir(final: str | Path) -> Iterator[Path]:
     """
     final = Path(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = _temporary_name(final)
+    tmp = _temporary_name(final, SCRATCH_MARK)
     _IN_PROGRESS.add(tmp)
     try:
         os.mkdir(tmp, 0o700)  # made inside the try (_temporary_name)

@@ -382,7 +382,8 @@ def fs_now(folder: Path) -> float:
     except OSError:
         return time.time()
     finally:
-        probe.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # a read-only disk refuses to unlink even a file that is not there
+            probe.unlink(missing_ok=True)
         _PROBES.discard(probe)
 
 

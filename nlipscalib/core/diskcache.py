@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import errno
 import hashlib
 import logging
 import mmap
@@ -357,6 +358,16 @@ def _write(path: Path, parts: list) -> None:
         atomic.write_with(path, write_parts)
         trim(path.parent.parent, limit_bytes())
     except OSError as exc:  # a folder that cannot be written (read-only, /proc, full): every command recomputes
+        if exc.errno == errno.ENOSPC:  # entries that fit were written: only those that do not are recomputed
+            _warn_once(
+                "the disk cache in %s is on a full disk (%s): sensor-level results that do not fit are computed "
+                "again by every command (free space, lower %s, or set %s to another folder, or to off)",
+                path.parent.parent,
+                exc.strerror or exc,
+                ENV_MB,
+                ENV_DIR,
+            )
+            return
         _warn_once(
             "the disk cache in %s cannot be written (%s): sensor-level results are computed again by every "
             "command (set %s to a writable folder, or to off)",

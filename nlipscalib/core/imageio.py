@@ -209,16 +209,24 @@ def save_npz(path: str | Path, arrays: dict[str, np.ndarray], compress: bool | s
     deflates only arrays that are mostly NaN or zero (outside a region of interest) and integer /
     boolean masks, and stores dense float maps, which deflate to ~85 % of their size at ~0.1 s per
     megabyte. The file is written in place (callers write inside an atomic folder).
+
+    A failed write (a full disk) raises OSError naming ``path``: the error of a write into the open file names
+    none, and the command's line named only the folder ("OUT/press: No space left on device").
     """
-    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
-        for name, arr in arrays.items():
-            arr = np.asanyarray(arr)
-            member = f"{name}.npy"
-            if not _deflate(arr, compress):
-                member = zipfile.ZipInfo(member, date_time=(1980, 1, 1, 0, 0, 0))
-                member.compress_type = zipfile.ZIP_STORED
-            with zf.open(member, "w", force_zip64=True) as f:
-                np.lib.format.write_array(f, arr, allow_pickle=False)
+    try:
+        with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+            for name, arr in arrays.items():
+                arr = np.asanyarray(arr)
+                member = f"{name}.npy"
+                if not _deflate(arr, compress):
+                    member = zipfile.ZipInfo(member, date_time=(1980, 1, 1, 0, 0, 0))
+                    member.compress_type = zipfile.ZIP_STORED
+                with zf.open(member, "w", force_zip64=True) as f:
+                    np.lib.format.write_array(f, arr, allow_pickle=False)
+    except OSError as exc:
+        if exc.filename is None and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc
+        raise
     return Path(path)
 
 

@@ -11,6 +11,7 @@ worker that dies loses only the task it was running.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import hashlib
 import json
 import logging
@@ -238,6 +239,19 @@ def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = 
     return REUSED
 
 
+def failure_text(exc: Exception) -> str:
+    """A task's failure in one line. A file-system error names the file the user knows, where it goes, and its
+    cause: "OUT/presses/ID/led_01.png: No space left on device (the disk is full: free space, then run again)"
+    (it was "OSError: [Errno 28] No space left on device: 'OUT/presses/.tmp-ID~HOST~PID~.../led_01.png'", the
+    hidden temporary that the failure removed); any other error as its type and message."""
+    from ..core.atomic import named_target
+
+    if not (isinstance(exc, OSError) and exc.filename is not None and exc.strerror):
+        return f"{type(exc).__name__}: {exc}"
+    cause = exc.strerror + (" (the disk is full: free space, then run again)" if exc.errno == errno.ENOSPC else "")
+    return f"{named_target(exc.filename)}: {cause}"
+
+
 def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) -> str:
     if load_result(out, task) is not None:  # finished by another process while we waited
         return REUSED
@@ -251,8 +265,9 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
     except Exception as exc:  # recorded, the sweep goes on
         if _from_ctrl_c(exc):  # Ctrl-C inside a native library: stop the sweep, not record a failed press
             raise KeyboardInterrupt from exc
-        write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": f"{type(exc).__name__}: {exc}"})
-        return f"failed: {type(exc).__name__}: {exc}"
+        error = failure_text(exc)
+        write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": error})
+        return f"failed: {error}"
     body["timing"] = body.get("timing", {}) | {"task_seconds": round(time.perf_counter() - start, 3)}
     write_json(
         result_path(out, task.id), {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done"} | body

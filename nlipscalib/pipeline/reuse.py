@@ -80,8 +80,9 @@ def _held_elsewhere(folder: Path, out: Path, other: Owner, record: dict) -> str:
 def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce: bool = True):
     """(result or None, "skipped") when ``out`` holds a sound result made with the same key; else None.
 
-    ``quiet``: no word on why a result is not reused; ``announce``: say that one is."""
-    if not out.exists():
+    ``quiet``: no word on why a result is not reused; ``announce``: say that one is. An empty folder (made for
+    the output, or a symlink to one) holds nothing to reuse, and is no damaged result to warn about."""
+    if not out.exists() or (out.is_dir() and next(out.iterdir(), None) is None):
         return None
     problem = reconstruction_problem(out, verify=not want_result)  # a loaded result is checked as it loads
     if problem is not None:

@@ -217,3 +217,16 @@ def test_calibrate_on_one_press_of_a_dataset_names_the_dataset(presses, tmp_path
         f"{presses / 'p1'}: one press, not a folder of presses; its folder {presses} holds them and their reference/",
     )
     assert not out.exists()
+
+
+# ---------------------------------------------------------------------- a path given with ~
+def test_a_tilde_the_shell_left_alone_is_the_home_folder_not_a_folder_named_tilde(presses, tmp_path, monkeypatch):
+    """`nlips solve PRESS --out=~/res` (bash expands no ~ after "=", nor inside quotes) made ./~/res in the working
+    folder (s25 walk); now the result goes to the home folder, and so does an input given so."""
+    home, work = tmp_path / "home", tmp_path / "work"
+    home.mkdir(), work.mkdir()
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(work)
+    (home / "presses").symlink_to(presses)
+    assert main(["solve", "~/presses/p1", "--out=~/res", "--no-figures", "--no-progress"]) == 0
+    assert (home / "res" / "result.npz").is_file() and not (work / "~").exists()

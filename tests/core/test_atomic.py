@@ -112,6 +112,10 @@ def test_error_messages_name_the_entry_the_user_asked_for_not_its_hidden_sibling
     inside = tmp_path / (tmp_prefix("press") + "abc") / "led_03.png"  # a file of a folder being written
     assert named_target(inside) == tmp_path / "press" / "led_03.png"
     assert named_target(Path("rel") / (tmp_prefix("press") + "abc") / "sub" / "a.png") == Path("rel/press/sub/a.png")
+    from nlipscalib.core.atomic import SCRATCH_MARK
+
+    staged = tmp_path / (tmp_prefix("net.pt") + SCRATCH_MARK + "abc") / "net_curve.png"  # scratch_dir: moved beside
+    assert named_target(staged) == tmp_path / "net_curve.png"
     full_inside = OSError(errno.ENOSPC, "No space left on device", str(inside))
     assert describe_os_error(full_inside).startswith(f"{tmp_path / 'press' / 'led_03.png'}: No space left")
     denied = PermissionError(errno.EACCES, "Permission denied", str(tmp_path / ".claim-nlips.667b44a0096d6a8b"))

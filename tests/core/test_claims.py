@@ -368,3 +368,23 @@ def test_held_for_shares_one_key_and_refuses_another_with_the_callers_words(tmp_
         pass
     with held_for(tmp_path / "missing" / "out", "aaaa", lambda o: "unused"):  # no folder for the claim file
         pass
+
+
+def test_the_file_systems_clock_on_a_read_only_disk_is_this_machines(tmp_path, monkeypatch):
+    """On a read-only mount the probe is never made, and unlinking it (even missing) raises EROFS: that error
+    stopped `nlips calibrate ro/ds --out writable/` and `nlips solve ro/ds` of presses all solved already, in one
+    line "ro/ds: Read-only file system" (s25 walk); only a write the run needs may fail there."""
+    import errno
+    import os
+    import time
+
+    from nlipscalib.core import claims
+
+    def read_only(path, *args, **kwargs):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(path))
+
+    monkeypatch.setattr(claims.Path, "write_bytes", read_only)
+    monkeypatch.setattr(claims.Path, "unlink", read_only)
+    before = time.time()
+    assert before <= claims.fs_now(tmp_path) <= time.time()
+    assert not claims._PROBES  # nothing left to remove on exit

@@ -217,6 +217,34 @@ def test_a_cache_folder_that_cannot_be_written_is_said_once(tmp_path, monkeypatc
     assert len(said) == 1 and str(tmp_path / "cache") in said[0].getMessage()
 
 
+def test_a_full_cache_disk_is_said_once_as_full_and_leaves_a_miss(tmp_path, monkeypatch, caplog):
+    """A cache on a full disk (s25 walk, a 3 MB tmpfs) was "cannot be written (No space left on device): ... set
+    NLIPS_CACHE_DIR to a writable folder" beside the entries that fit; it is said once as full, and the entry is a
+    miss (recomputed), never an error."""
+    import errno
+    import logging
+    import os
+
+    from nlipscalib.core import atomic
+
+    caplog.set_level(logging.WARNING)
+    monkeypatch.setattr(diskcache, "_warned", set())
+    monkeypatch.setenv(diskcache.ENV_DIR, str(tmp_path / "cache"))
+
+    def full(path, writer):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(atomic, "write_with", full)
+    for value in (1, 2):
+        path = diskcache.entry("k", (value,))
+        diskcache.store(path, value)
+        with pytest.raises(KeyError):  # a miss: recomputed, never a half entry
+            diskcache.load(path)
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and "is on a full disk (No space left on device)" in said[0], said
+    assert str(tmp_path / "cache") in said[0] and diskcache.ENV_MB in said[0]
+
+
 def test_usage_skips_an_entry_removed_while_it_is_counted(cache_dir, monkeypatch):
     """`nlips cache` next to a `--clear` or the size bound of another process: an entry listed, then removed,
     was a FileNotFoundError traceback."""

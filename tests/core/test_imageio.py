@@ -73,3 +73,23 @@ def test_a_noisy_capture_image_is_written_losslessly_with_every_row_sub_filtered
     np.testing.assert_array_equal(read_png16(path), image)
     if hasattr(cv2, "IMWRITE_PNG_FILTER"):
         assert _png_row_filters(path.read_bytes(), 64 * 3 * 2) == {1}  # PNG filter type 1: SUB
+
+
+def test_a_full_disk_while_an_npz_is_written_names_the_file_inside_the_press(tmp_path, monkeypatch):
+    """`nlips render --out OUT/press` on a full disk said "OUT/press: No space left on device" when gt.npz or
+    reference.npz filled it (s25 walk): the error of a write into the open zip names no file."""
+    import errno
+    import os
+
+    from nlipscalib.cli import describe_os_error
+    from nlipscalib.core.atomic import tmp_prefix
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(np.lib.format, "write_array", full)
+    staged = tmp_path / (tmp_prefix("press") + "abc")
+    staged.mkdir()
+    with pytest.raises(OSError) as caught:
+        save_npz(staged / "gt.npz", {"depth": np.zeros((4, 4))})
+    assert describe_os_error(caught.value).startswith(f"{tmp_path / 'press' / 'gt.npz'}: No space left on device")

@@ -374,3 +374,28 @@ def test_a_variant_that_fails_on_its_data_is_a_result_a_full_disk_fails_the_task
     else:
         with pytest.raises(OSError, match="No space left"):
             call()
+
+
+def test_a_task_failed_on_a_full_disk_names_the_file_where_it_goes_not_its_temporary(tmp_path, monkeypatch):
+    """`nlips experiment` on a full disk (s25 walk, 4 MB tmpfs) warned "ID: failed: OSError: [Errno 28] No space
+    left on device: 'OUT/presses/.tmp-ID~HOST~PID~.../tricolor.png'": a Python repr naming a hidden temporary the
+    failure had removed. The task's line and its .failed.json now name the press's file and the cause."""
+    import errno
+    import os
+
+    from nlipscalib.core.atomic import tmp_prefix
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    press = tmp_path / "presses" / "sphere-1"
+    inside = press.parent / (tmp_prefix(press.name) + "0123abcd") / "tricolor.png"
+
+    def full_disk(task, out, threads, keep):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(inside))
+
+    task = Task(kind="reference", id="ref-full", scene={"c": 1})
+    monkeypatch.setattr(tasks_mod, "_run_reference", full_disk)
+    outcome = tasks_mod.execute(task, tmp_path)
+    expected = f"{press / 'tricolor.png'}: No space left on device (the disk is full: free space, then run again)"
+    assert outcome == f"failed: {expected}"
+    assert json.loads((tmp_path / "tasks" / "ref-full.failed.json").read_text())["error"] == expected
+    assert tasks_mod.failure_text(ValueError("bad")) == "ValueError: bad"  # other errors as before

@@ -164,6 +164,41 @@ def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
     assert info["val_presses"] == ["press_a", "press_b"] and info["excluded_presses"] == [HELD_OUT]
 
 
+def test_a_full_disk_as_the_model_is_written_names_the_model_file_and_a_rerun_finishes(
+    calib, tmp_path, capsys, monkeypatch, caplog
+):
+    """The model's files are assembled in a scratch folder beside it; a full disk there was reported as
+    "OUT/net.pt/net.pt: No space left on device" (the folder named for net.pt, and the file inside it)."""
+    import errno
+    import os
+    from pathlib import Path
+
+    from nlipscalib.core import atomic
+
+    real_write_bytes = atomic.write_bytes
+
+    def full_for_the_model(path, data):
+        path = Path(path)
+        if path.name == "net.pt":  # fails as the real temporary file beside it would
+            tmp = path.parent / (atomic.tmp_prefix(path.name) + "0123abcd")
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp))
+        return real_write_bytes(path, data)
+
+    monkeypatch.setattr(atomic, "write_bytes", full_for_the_model)
+    out = tmp_path / "model" / "net.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8", "--dropout", "0", "--epochs", "1"]
+    assert main([*args, "--no-onnx", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        f"nlips train: error: {out}: No space left on device (the disk is full: free space or choose another --out)"
+    ]
+    assert not out.exists() and not list(out.parent.glob(".tmp-*"))  # nothing a later run could take as the model
+    monkeypatch.setattr(atomic, "write_bytes", real_write_bytes)
+    with caplog.at_level("INFO"):
+        assert main([*args, "--no-onnx", "--no-progress"]) == 0  # space freed: the run finishes from its checkpoint
+    assert "resuming after epoch 1" in caplog.text and load_model(out).info["train_samples"] > 0
+
+
 def test_plateau_schedule_lowers_the_rate_only_when_validation_stalls(calib, tmp_path, monkeypatch):
     from nlipscalib.core.errors import ConfigError
     from nlipscalib.learn import train as train_module
