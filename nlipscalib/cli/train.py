@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+import contextlib
+import logging
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -204,7 +206,8 @@ def export_and_check(model_path: Path, dataset: CalibrationDataset, names: Seque
     from ..learn.model import load_model, model_inputs
     from ..learn.onnx_export import checked_parity, export_onnx
 
-    model = load_model(model_path)
+    with _quiet_sensor_record():
+        model = load_model(model_path)
     s = dataset.arrays(names)
     angles = []  # on the written file, before it takes its name (export_onnx)
     path = export_onnx(
@@ -213,6 +216,20 @@ def export_and_check(model_path: Path, dataset: CalibrationDataset, names: Seque
         check=lambda tmp: angles.append(checked_parity(model, tmp, model_inputs(s["pixel"], s["rgb"]))),
     )
     return path, angles[0]
+
+
+@contextlib.contextmanager
+def _quiet_sensor_record() -> Iterator[None]:
+    """Without the sensor record's warnings while the fresh model is read back for its export: the model holds the
+    dataset's record, whose warning (an old dataset's missing LED geometry) the dataset's load gave already, and
+    here it named the model's temporary file, a path the user never sees (`.tmp-MODEL.pt~HOST~PID~.../MODEL.pt`)."""
+    record_log = logging.getLogger("nlipscalib.core.sensor_record")
+    level = record_log.level
+    record_log.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        record_log.setLevel(level)
 
 
 def _contact_figure(aae: float | None) -> str:

@@ -4,7 +4,7 @@ checked once, and the .npz archives of arrays, with every problem one error nami
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from .errors import CaptureError
@@ -17,6 +17,7 @@ def read_format_json(
     *,
     required: Iterable[str] = (),
     missing_hint: str = "",
+    remake: str | Callable[[dict], str] = "",
 ) -> dict:
     """Read a JSON file of format ``name`` and version ``version`` (or one of several); every problem names the file.
 
@@ -26,6 +27,9 @@ def read_format_json(
     name, version : the expected ``format`` and ``format_version`` values (a tuple: the versions still read)
     required : top-level keys that must be present
     missing_hint : appended to the message when the file does not exist (what the user should run)
+    remake : what makes the file anew with this nlipscalib (or a function of the file's content that says it),
+        appended when its version is one this code does not read; a version above those read is also said to
+        be a newer nlipscalib's
 
     Raises
     ------
@@ -47,14 +51,26 @@ def read_format_json(
         raise CaptureError(f"{path}: 'format' must be {name!r}")
     versions = version if isinstance(version, tuple) else (version,)
     if data.get("format_version") not in versions:
-        expected = " or ".join(str(v) for v in versions)
-        raise CaptureError(
-            f"{path}: format_version {data.get('format_version')!r} is not supported (expected {expected})"
-        )
+        raise CaptureError(version_problem(path, data, versions, remake))
     for key in required:
         if key not in data:
             raise CaptureError(f"{path}: missing key '{key}'")
     return data
+
+
+def version_problem(
+    path: str | Path, data: dict, versions: tuple[int, ...], remake: str | Callable[[dict], str] = ""
+) -> str:
+    """The one line refusing a file whose ``format_version`` is not among ``versions``: the file, its version,
+    those read, and what to do: upgrade nlipscalib for a newer file, ``remake`` (what makes it anew) for any."""
+    found = data.get("format_version")
+    expected = " or ".join(str(v) for v in versions)
+    line = f"{path}: format_version {found!r} is not supported (expected {expected})"
+    advice = remake(data) if callable(remake) else remake
+    if isinstance(found, int) and not isinstance(found, bool) and found > max(versions):
+        newer = "written by a newer nlipscalib: upgrade nlipscalib to read it"
+        return f"{line}; {newer}" + (f", or {advice}" if advice else "")
+    return line + (f"; {advice}" if advice else "")
 
 
 def read_arrays(path: str | Path, keys: Iterable[str] = (), unreadable: str = "damaged or truncated .npz") -> dict:

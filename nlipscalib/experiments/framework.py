@@ -12,6 +12,7 @@ import contextlib
 import dataclasses
 import functools
 import json
+import logging
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,7 +23,7 @@ from ..core.config import from_mapping, read_config_file, to_mapping
 from ..core.errors import ConfigError
 from . import check, markdown
 from .plan import build_tasks
-from .provenance import machine, software
+from .provenance import machine, made_by, software
 from .runner import run_tasks
 from .summary import dumps, evaluation_rows
 
@@ -237,6 +238,7 @@ def run_experiment(
                 "run_now": len(status.done),
                 "already_done": len(status.skipped),
                 "failed": status.failed,
+                "made_by_other_software": _made_by_other_software(tasks, out),
             },
             "wall_seconds": round(run_s, 1),
             "task_seconds": _task_seconds(tasks, out),
@@ -248,6 +250,44 @@ def run_experiment(
             write_text(folder / RESULTS, dumps(doc))
             write_text(folder / "report.md", markdown.report(exp, doc, tables, figures))
         return doc
+
+
+UNRECORDED_MAKER = "unrecorded (written before 2026-12-06)"
+"""How a task result without ``made_by`` (written before tasks recorded it) is named."""
+
+
+def _made_by_other_software(tasks: list[Task], out: Path) -> dict[str, str]:
+    """Task id -> the nlipscalib that made its result, for every finished task this code did not make.
+
+    The task hash holds what a task computes (scene, press, solve options), not the code that computed it, so
+    that a work folder resumes across commits; a resume by newer code therefore reuses older code's numbers, which
+    the report must not attribute to this run's commit. Logged as one warning, listed in results.json and
+    report.md."""
+    from .tasks import load_result
+
+    here = made_by()
+    other = {}
+    for task in tasks:
+        result = load_result(out, task)
+        maker = None if result is None else result.get("made_by")
+        if result is not None and maker != here:
+            other[task.id] = UNRECORDED_MAKER if not isinstance(maker, dict) else _maker_name(maker)
+    if other:
+        logging.getLogger(__name__).warning(
+            "%s: %d of %d tasks were made by another nlipscalib (%s), not %s: their numbers are that code's; "
+            "run with another --out (or delete %s) to make them all with this one",
+            out,
+            len(other),
+            len(tasks),
+            ", ".join(sorted(set(other.values()))),
+            _maker_name(here),
+            Path(out) / "tasks",
+        )
+    return other
+
+
+def _maker_name(maker: dict) -> str:
+    return f"nlipscalib {maker.get('nlipscalib')} at {maker.get('git_commit')}"
 
 
 def run_settings(exp: Experiment, cfg: Any, size: str, solver_options: dict | None) -> dict:

@@ -71,6 +71,7 @@ def report(exp: Experiment, doc: dict, tables: list[Table], figures: list[tuple[
         "",
     ]
     parts += [note, ""] if note else []
+    parts += _other_software_lines(tasks.get("made_by_other_software", {}))
     parts += _calibration_lines(doc.get("calibrations", []))
     if doc["solver_option_overrides"]:
         parts += [f"Solver option overrides: `{doc['solver_option_overrides']}`.", ""]
@@ -103,5 +104,17 @@ def _calibration_lines(calibrations: list[dict]) -> list[str]:
     return [
         f"LED self-calibration: residual {ratios}x the images' noise (reliable up to "
         f"{rated[0]['quality']['threshold']}): {verdict}.",
+        "",
+    ]
+
+
+def _other_software_lines(other: dict[str, str]) -> list[str]:
+    """The report's note on reused tasks made by another nlipscalib (framework._made_by_other_software)."""
+    if not other:
+        return []
+    makers = ", ".join(sorted(set(other.values())))
+    return [
+        f"**{len(other)} reused task(s) were made by another nlipscalib** ({makers}): their numbers are that code's, "
+        f"not this commit's ({', '.join(sorted(other))}).",
         "",
     ]

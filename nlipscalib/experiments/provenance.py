@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 import subprocess
@@ -42,6 +43,13 @@ def git_commit(repo: Path | None = None) -> str | None:
         return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return None
+
+
+@functools.cache
+def made_by() -> dict:
+    """The code that makes a task's result (recorded in it as ``made_by``): nlipscalib's version and git commit.
+    Cached: once per process, not two git calls per task."""
+    return {"nlipscalib": __version__, "git_commit": git_commit()}
 
 
 def software() -> dict:

@@ -269,6 +269,9 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
         write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": error})
         return f"failed: {error}"
     body["timing"] = body.get("timing", {}) | {"task_seconds": round(time.perf_counter() - start, 3)}
+    from .provenance import made_by
+
+    body["made_by"] = made_by()  # a resume by other code names this task as made elsewhere (framework)
     write_json(
         result_path(out, task.id), {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done"} | body
     )

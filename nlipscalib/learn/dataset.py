@@ -726,6 +726,7 @@ class CalibrationDataset:
             FORMAT_VERSION,
             required=("sensor", "presses"),
             missing_hint=f"{self.folder} is not a calibration dataset (run `nlips calibrate`)",
+            remake=lambda data: f"{remake_advice(self.folder, data.get('made_by'))} to make it with this version",
         )
         self.index = index
         self.remake: str = remake_advice(self.folder, index.get("made_by"))

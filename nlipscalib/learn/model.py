@@ -226,7 +226,10 @@ def load_model(path: str | Path) -> LoadedModel:
     if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
         raise CaptureError(f"{path}: not an NLiPsNet model file (format must be {MODEL_FORMAT!r})")
     if payload.get("format_version") != MODEL_VERSION:
-        raise CaptureError(f"{path}: model format_version {payload.get('format_version')!r} is not {MODEL_VERSION}")
+        from ..core.formatfile import version_problem
+
+        remake = "train it again (`nlips train`) on its calibration dataset"
+        raise CaptureError(version_problem(path, payload, (MODEL_VERSION,), remake))
     for key in ("hidden", "dropout", "state_dict", "sensor", "reference", "info"):
         if key not in payload:
             raise CaptureError(f"{path}: model file lacks '{key}'")

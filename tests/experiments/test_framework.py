@@ -399,3 +399,31 @@ def test_a_task_failed_on_a_full_disk_names_the_file_where_it_goes_not_its_tempo
     assert outcome == f"failed: {expected}"
     assert json.loads((tmp_path / "tasks" / "ref-full.failed.json").read_text())["error"] == expected
     assert tasks_mod.failure_text(ValueError("bad")) == "ValueError: bad"  # other errors as before
+
+
+def test_a_resume_names_the_tasks_an_older_nlipscalib_made_instead_of_crediting_this_commit(
+    tmp_path, monkeypatch, caplog
+):
+    # A work folder of an older version (its task results without `made_by`, as before 2026-12-06) keeps its task
+    # hashes, so a resume reuses its numbers; the report said "nlipscalib at <this commit>" over all of them.
+    from nlipscalib.experiments import framework, markdown
+    from nlipscalib.experiments import tasks as tasks_mod
+    from nlipscalib.experiments.provenance import made_by
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", lambda task, out, threads, keep: {"folder": "refs/x"})
+    old, other, new = (Task(kind="reference", id=f"ref-{n}", scene={"n": n}) for n in ("old", "other", "new"))
+    for task, maker in ((old, None), (other, {"nlipscalib": "0.0.9", "git_commit": "202cd61"})):
+        path = result_path(tmp_path, task.id)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        record = {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done", "folder": "refs/x"}
+        path.write_text(json.dumps(record | ({"made_by": maker} if maker else {})))
+    assert tasks_mod.execute(new, tmp_path) == "done"
+    assert load_result(tmp_path, new)["made_by"] == made_by()  # what a task made now records
+
+    with caplog.at_level(logging.WARNING):
+        named = framework._made_by_other_software([old, other, new], tmp_path)
+    assert named == {"ref-old": framework.UNRECORDED_MAKER, "ref-other": "nlipscalib 0.0.9 at 202cd61"}
+    assert "2 of 3 tasks were made by another nlipscalib" in caplog.text
+    lines = markdown._other_software_lines(named)
+    assert "2 reused task(s) were made by another nlipscalib" in lines[0] and "ref-old" in lines[0]
+    assert markdown._other_software_lines({}) == []
