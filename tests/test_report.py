@@ -299,12 +299,12 @@ def test_colour_bar_numbers_are_compact():
 def test_saturated_error_colours_are_marked(tmp_path):
     import cv2
 
-    from nlipscalib.report.figures import Panel, _over
+    from nlipscalib.report.figures import Panel, _extend
     from nlipscalib.report.maps import scalar_map_png
 
     err = np.array([[1.0, 25.0], [np.nan, 3.0]])
-    assert _over(Panel("e", err, vmin=0, vmax=10)) and not _over(Panel("e", err, vmin=0, vmax=30))
-    assert not _over(Panel("e", err))  # the data's own range saturates nothing
+    assert _extend(Panel("e", err, vmin=0, vmax=10)) == "max" and _extend(Panel("e", err, vmin=0, vmax=30)) == "neither"
+    assert _extend(Panel("e", err)) == "neither"  # the data's own range saturates nothing
     size = (60, 60)
     over = cv2.imread(str(scalar_map_png(tmp_path / "o.png", np.resize(err, size), "inferno", "deg", 0, 10)))
     within = cv2.imread(str(scalar_map_png(tmp_path / "w.png", np.resize(err, size), "inferno", "deg", 0, 30)))
@@ -505,3 +505,57 @@ def test_a_sweeps_highest_point_is_drawn_whole_below_the_frame(tmp_path, monkeyp
     assert limits["y"][0] == 0 and limits["y"][1] >= 1.13 * 1.05
     experiments.sweep({"AAE": ([0.0, 1.0], [1.0, 2.0], [0.0, 0.5])}, "x", "AAE (deg)", tmp_path / "e.png")
     assert limits["y"][0] == 0 and limits["y"][1] >= 2.5 * 1.05  # the error bar's top too
+
+
+def test_values_below_a_fixed_bottom_are_marked(tmp_path):
+    """The reference press's indentation is -0.01 to -0.24 mm everywhere (the solve behind the undeformed surface):
+    on a 0-based scale it drew as a uniform "0" with nothing saying so. The matplotlib bar now gets an arrow at
+    its bottom, the OpenCV bar's bottom number reads "<=0"."""
+    import cv2
+
+    from nlipscalib.report.figures import Panel, _extend
+    from nlipscalib.report.maps import scalar_map_png
+
+    dent = np.array([[-0.2, 1.5], [np.nan, 0.5]])
+    assert _extend(Panel("d", dent, vmin=0.0, vmax=1.0)) == "both"
+    assert _extend(Panel("d", dent, vmin=-0.5, vmax=1.0)) == "max"
+    assert _extend(Panel("d", dent, vmin=0.0, vmax=2.0)) == "min"
+    size = (60, 60)
+    under = cv2.imread(str(scalar_map_png(tmp_path / "u.png", np.resize(dent, size), label="mm", vmin=0.0)))
+    within = cv2.imread(str(scalar_map_png(tmp_path / "w.png", np.resize(np.abs(dent), size), label="mm", vmin=0.0)))
+    rows = slice(28, 46)  # the bottom number's line (baseline at 43 on a 60-row map), above the unit's line
+    assert _text_columns(under[rows, 60:]).max() > _text_columns(within[rows, 60:]).max()  # "<=0" is wider than "0"
+
+
+def test_summary_error_panel_gives_the_contact_aae_and_fits_its_colour_range_to_the_errors(tmp_path, monkeypatch):
+    """coin1's summary printed "AAE 3.40 deg" (every scored pixel of the box) while its contact AAE, the number
+    `nlips eval --region contact` and every report quote, is 4.64: the title now gives both. Its colour range is
+    error.png's fitted one (error_scale), not a fixed 0-10 deg that drew sphere1's half-degree errors black."""
+    import cv2
+
+    from nlipscalib.core.capture import GroundTruth
+    from nlipscalib.core.metrics import aae
+    from nlipscalib.report import figures, write_reconstruction_figures
+    from nlipscalib.report.figures import error_scale
+
+    sheets = {}
+    monkeypatch.setattr(figures, "contact_sheet", lambda rows, path, **kw: sheets.update(rows=rows, **kw) or path)
+    rec = _reconstruction()
+    truth_normals = rec.normals.copy()
+    tilt = np.radians(np.linspace(0.1, 0.9, rec.normals.shape[1]))  # 0.1 deg on the left to 0.9 on the right
+    truth_normals[...] = np.stack([np.sin(tilt), 0 * tilt, -np.cos(tilt)], axis=-1)[None]
+    contact = np.zeros(rec.mask.shape, bool)
+    contact[:, -2:] = True  # the two rightmost columns: the largest errors
+    gt = GroundTruth(rec.depth, rec.points, truth_normals, rec.reconstructed, contact)
+    written = write_reconstruction_figures(tmp_path, rec, gt, "full")
+    error = sheets["rows"][0][1][3]
+    everywhere, in_contact = aae(rec.normals, truth_normals), aae(rec.normals, truth_normals, contact)
+    assert error.title == f"angular error\nAAE {everywhere:.2f} deg, contact {in_contact:.2f} deg"
+    assert in_contact > everywhere + 0.2  # two different numbers, each named
+    assert (error.vmin, error.vmax) == (0.0, error_scale([error.image])) == (0.0, 1.0)
+    png = cv2.imread(str(next(p for p in written if p.name == "error.png")))
+    # errors of 0.1-0.9 deg are not drawn black on error.png either
+    assert png[: rec.mask.shape[0], : rec.mask.shape[1]].max() > 100
+    gt_no_contact = GroundTruth(rec.depth, rec.points, truth_normals, rec.reconstructed, np.zeros_like(contact))
+    write_reconstruction_figures(tmp_path / "flat", rec, gt_no_contact, "full")
+    assert sheets["rows"][0][1][3].title.endswith(", no contact")
