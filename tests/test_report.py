@@ -559,3 +559,11 @@ def test_summary_error_panel_gives_the_contact_aae_and_fits_its_colour_range_to_
     gt_no_contact = GroundTruth(rec.depth, rec.points, truth_normals, rec.reconstructed, np.zeros_like(contact))
     write_reconstruction_figures(tmp_path / "flat", rec, gt_no_contact, "full")
     assert sheets["rows"][0][1][3].title.endswith(", no contact")
+
+
+def test_training_curve_title_gives_the_best_epochs_contact_aae_as_train_prints_it():
+    from nlipscalib.report.learn import best_epoch_title
+
+    best = {"epoch": 1, "train_loss": 0.004, "val_aae_deg": 1.7241, "val_contact_aae_deg": 1.6789}
+    assert best_epoch_title(best) == "best epoch 2: 1.72 deg (contact 1.68 deg)"
+    assert best_epoch_title(best | {"val_contact_aae_deg": float("nan")}).endswith("(no contact samples)")
