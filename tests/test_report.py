@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -567,3 +569,26 @@ def test_training_curve_title_gives_the_best_epochs_contact_aae_as_train_prints_
     best = {"epoch": 1, "train_loss": 0.004, "val_aae_deg": 1.7241, "val_contact_aae_deg": 1.6789}
     assert best_epoch_title(best) == "best epoch 2: 1.72 deg (contact 1.68 deg)"
     assert best_epoch_title(best | {"val_contact_aae_deg": float("nan")}).endswith("(no contact samples)")
+
+
+def test_map_sheets_fit_each_rows_error_colour_range(tmp_path, monkeypatch):
+    """Q2's sheet drew every row on 0-20 deg (set by a coin's edges): the sphere's half-degree errors were black.
+    Each row now gets its own error_scale (its own colour bar), unless the caller fixes one."""
+    from nlipscalib.report import experiments
+
+    sheets = []
+    monkeypatch.setattr(experiments, "contact_sheet", lambda rows, path, **kw: sheets.append(rows) or Path(path))
+    monkeypatch.setattr(experiments, "write_bytes", lambda path, data: Path(path))
+    monkeypatch.setattr(experiments.Path, "read_bytes", lambda self: b"")
+    monkeypatch.setattr(experiments, "_palette_png", lambda png: png)
+    n = np.zeros((6, 8, 3))
+    n[..., 2] = -1.0
+    small, large = np.full((6, 8), 0.4), np.full((6, 8), 30.0)
+    experiments.error_maps([("sphere", n, n, small), ("coin", n, n, large)], tmp_path / "e.png")
+    experiments.nlipsnet_maps(
+        [(name, {"rgb": n, "true": n, "estimate": n, "error": e}) for name, e in (("sphere", small), ("coin", large))],
+        tmp_path / "n.png",
+    )
+    experiments.error_maps([("sphere", n, n, small), ("coin", n, n, large)], tmp_path / "f.png", vmax=10.0)
+    tops = [[row[1][-1].vmax for row in sheet] for sheet in sheets]
+    assert tops == [[1.0, 45.0], [1.0, 45.0], [10.0, 10.0]]

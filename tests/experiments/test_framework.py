@@ -374,3 +374,21 @@ def test_a_variant_that_fails_on_its_data_is_a_result_a_full_disk_fails_the_task
     else:
         with pytest.raises(OSError, match="No space left"):
             call()
+
+
+def test_error_map_rows_are_titled_with_the_contact_aae_of_the_report(tmp_path):
+    """The Q1/Q3 error-map sheets showed maps without a number to read them by: each row's title now ends with its
+    evaluation's contact AAE (the report tables' aae_deg); an evaluation without one adds no line."""
+    import numpy as np
+
+    from nlipscalib.experiments.common import map_rows
+
+    (tmp_path / "maps").mkdir()
+    n = np.zeros((2, 2, 3))
+    np.savez(tmp_path / "maps" / "a.npz", true=n, estimate=n, error=np.zeros((2, 2)))
+    rows = [
+        {"indenter": "sphere", "press": "sphere-p5", "aae_deg": 0.4355, "map": "maps/a.npz"},
+        {"indenter": "cube", "press": "cube-p5", "aae_deg": None, "map": "maps/a.npz"},
+    ]
+    titles = [r[0] for r in map_rows(rows, tmp_path, ("indenter",))]
+    assert titles == ["sphere\nsphere-p5\ncontact AAE 0.44 deg", "cube\ncube-p5"]
