@@ -353,9 +353,12 @@ def test_demo_sheet_error_panel_fits_small_errors_and_prints_the_aae():
 
     err = np.random.default_rng(4).uniform(0, 1.2, (8, 8))
     err[0, 0] = np.nan  # not scored
-    panel = _error_panel(err)
+    contact = np.zeros((8, 8), bool)
+    contact[4:] = True
+    panel = _error_panel(err, contact)
     assert panel.vmax == 2.0 and panel.cmap == ERROR_CMAP  # not a fixed 10: half-degree errors are not black
-    assert panel.title == f"angular error, AAE roi {np.nanmean(err):.2f}°"
+    # the table's AAE roi and AAE contact, worded as the solve's summary words them
+    assert panel.title == f"angular error\nAAE {np.nanmean(err):.2f} deg, contact {err[4:].mean():.2f} deg"
 
 
 def test_demo_sheet_contact_mask_is_named_in_a_legend_not_a_colour_bar():
