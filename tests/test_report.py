@@ -595,3 +595,22 @@ def test_map_sheets_fit_each_rows_error_colour_range(tmp_path, monkeypatch):
     experiments.error_maps([("sphere", n, n, small), ("coin", n, n, large)], tmp_path / "f.png", vmax=10.0)
     tops = [[row[1][-1].vmax for row in sheet] for sheet in sheets]
     assert tops == [[1.0, 45.0], [1.0, 45.0], [10.0, 10.0]]
+
+
+def test_contact_sheet_panels_keep_the_images_orientation(tmp_path):
+    """A sheet's panel shows the camera image as it is: its top-left corner at the top left (not flipped up-down, as
+    matplotlib's origin="lower" would, nor transposed)."""
+    from PIL import Image
+
+    rgb = np.zeros((20, 40, 3))
+    rgb[:10, :20] = [1.0, 0.0, 0.0]  # top-left quarter red, the rest black
+    path = contact_sheet([("", [Panel("quarter", rgb)])], tmp_path / "o.png")
+    img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    red = (img[..., 0] > 200) & (img[..., 1] < 60) & (img[..., 2] < 60)
+    dark = img.sum(axis=-1) < 60
+    rows, cols = np.nonzero(red)
+    top, left, height, width = rows.min(), cols.min(), rows.max() - rows.min() + 1, cols.max() - cols.min() + 1
+    assert abs(width / height - 2.0) < 0.1  # the 20 x 10 quarter, not transposed
+    # the rest of the image (black) lies below and right of the red quarter, the white page above and left of it
+    assert dark[top + height + height // 2, left + width // 2] and dark[top + height // 2, left + width + width // 2]
+    assert img[top - 3, left + width // 2].min() > 200 and img[top + height // 2, left - 3].min() > 200
