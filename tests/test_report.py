@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -299,12 +301,12 @@ def test_colour_bar_numbers_are_compact():
 def test_saturated_error_colours_are_marked(tmp_path):
     import cv2
 
-    from nlipscalib.report.figures import Panel, _over
+    from nlipscalib.report.figures import Panel, _extend
     from nlipscalib.report.maps import scalar_map_png
 
     err = np.array([[1.0, 25.0], [np.nan, 3.0]])
-    assert _over(Panel("e", err, vmin=0, vmax=10)) and not _over(Panel("e", err, vmin=0, vmax=30))
-    assert not _over(Panel("e", err))  # the data's own range saturates nothing
+    assert _extend(Panel("e", err, vmin=0, vmax=10)) == "max" and _extend(Panel("e", err, vmin=0, vmax=30)) == "neither"
+    assert _extend(Panel("e", err)) == "neither"  # the data's own range saturates nothing
     size = (60, 60)
     over = cv2.imread(str(scalar_map_png(tmp_path / "o.png", np.resize(err, size), "inferno", "deg", 0, 10)))
     within = cv2.imread(str(scalar_map_png(tmp_path / "w.png", np.resize(err, size), "inferno", "deg", 0, 30)))
@@ -351,9 +353,12 @@ def test_demo_sheet_error_panel_fits_small_errors_and_prints_the_aae():
 
     err = np.random.default_rng(4).uniform(0, 1.2, (8, 8))
     err[0, 0] = np.nan  # not scored
-    panel = _error_panel(err)
+    contact = np.zeros((8, 8), bool)
+    contact[4:] = True
+    panel = _error_panel(err, contact)
     assert panel.vmax == 2.0 and panel.cmap == ERROR_CMAP  # not a fixed 10: half-degree errors are not black
-    assert panel.title == f"angular error, AAE roi {np.nanmean(err):.2f}°"
+    # the table's AAE roi and AAE contact, worded as the solve's summary words them
+    assert panel.title == f"angular error\nAAE {np.nanmean(err):.2f} deg, contact {err[4:].mean():.2f} deg"
 
 
 def test_demo_sheet_contact_mask_is_named_in_a_legend_not_a_colour_bar():
@@ -505,3 +510,107 @@ def test_a_sweeps_highest_point_is_drawn_whole_below_the_frame(tmp_path, monkeyp
     assert limits["y"][0] == 0 and limits["y"][1] >= 1.13 * 1.05
     experiments.sweep({"AAE": ([0.0, 1.0], [1.0, 2.0], [0.0, 0.5])}, "x", "AAE (deg)", tmp_path / "e.png")
     assert limits["y"][0] == 0 and limits["y"][1] >= 2.5 * 1.05  # the error bar's top too
+
+
+def test_values_below_a_fixed_bottom_are_marked(tmp_path):
+    """The reference press's indentation is -0.01 to -0.24 mm everywhere (the solve behind the undeformed surface):
+    on a 0-based scale it drew as a uniform "0" with nothing saying so. The matplotlib bar now gets an arrow at
+    its bottom, the OpenCV bar's bottom number reads "<=0"."""
+    import cv2
+
+    from nlipscalib.report.figures import Panel, _extend
+    from nlipscalib.report.maps import scalar_map_png
+
+    dent = np.array([[-0.2, 1.5], [np.nan, 0.5]])
+    assert _extend(Panel("d", dent, vmin=0.0, vmax=1.0)) == "both"
+    assert _extend(Panel("d", dent, vmin=-0.5, vmax=1.0)) == "max"
+    assert _extend(Panel("d", dent, vmin=0.0, vmax=2.0)) == "min"
+    size = (60, 60)
+    under = cv2.imread(str(scalar_map_png(tmp_path / "u.png", np.resize(dent, size), label="mm", vmin=0.0)))
+    within = cv2.imread(str(scalar_map_png(tmp_path / "w.png", np.resize(np.abs(dent), size), label="mm", vmin=0.0)))
+    rows = slice(28, 46)  # the bottom number's line (baseline at 43 on a 60-row map), above the unit's line
+    assert _text_columns(under[rows, 60:]).max() > _text_columns(within[rows, 60:]).max()  # "<=0" is wider than "0"
+
+
+def test_summary_error_panel_gives_the_contact_aae_and_fits_its_colour_range_to_the_errors(tmp_path, monkeypatch):
+    """coin1's summary printed "AAE 3.40 deg" (every scored pixel of the box) while its contact AAE, the number
+    `nlips eval --region contact` and every report quote, is 4.64: the title now gives both. Its colour range is
+    error.png's fitted one (error_scale), not a fixed 0-10 deg that drew sphere1's half-degree errors black."""
+    import cv2
+
+    from nlipscalib.core.capture import GroundTruth
+    from nlipscalib.core.metrics import aae
+    from nlipscalib.report import figures, write_reconstruction_figures
+    from nlipscalib.report.figures import error_scale
+
+    sheets = {}
+    monkeypatch.setattr(figures, "contact_sheet", lambda rows, path, **kw: sheets.update(rows=rows, **kw) or path)
+    rec = _reconstruction()
+    truth_normals = rec.normals.copy()
+    tilt = np.radians(np.linspace(0.1, 0.9, rec.normals.shape[1]))  # 0.1 deg on the left to 0.9 on the right
+    truth_normals[...] = np.stack([np.sin(tilt), 0 * tilt, -np.cos(tilt)], axis=-1)[None]
+    contact = np.zeros(rec.mask.shape, bool)
+    contact[:, -2:] = True  # the two rightmost columns: the largest errors
+    gt = GroundTruth(rec.depth, rec.points, truth_normals, rec.reconstructed, contact)
+    written = write_reconstruction_figures(tmp_path, rec, gt, "full")
+    error = sheets["rows"][0][1][3]
+    everywhere, in_contact = aae(rec.normals, truth_normals), aae(rec.normals, truth_normals, contact)
+    assert error.title == f"angular error\nAAE {everywhere:.2f} deg, contact {in_contact:.2f} deg"
+    assert in_contact > everywhere + 0.2  # two different numbers, each named
+    assert (error.vmin, error.vmax) == (0.0, error_scale([error.image])) == (0.0, 1.0)
+    png = cv2.imread(str(next(p for p in written if p.name == "error.png")))
+    # errors of 0.1-0.9 deg are not drawn black on error.png either
+    assert png[: rec.mask.shape[0], : rec.mask.shape[1]].max() > 100
+    gt_no_contact = GroundTruth(rec.depth, rec.points, truth_normals, rec.reconstructed, np.zeros_like(contact))
+    write_reconstruction_figures(tmp_path / "flat", rec, gt_no_contact, "full")
+    assert sheets["rows"][0][1][3].title.endswith(", no contact")
+
+
+def test_training_curve_title_gives_the_best_epochs_contact_aae_as_train_prints_it():
+    from nlipscalib.report.learn import best_epoch_title
+
+    best = {"epoch": 1, "train_loss": 0.004, "val_aae_deg": 1.7241, "val_contact_aae_deg": 1.6789}
+    assert best_epoch_title(best) == "best epoch 2: 1.72 deg (contact 1.68 deg)"
+    assert best_epoch_title(best | {"val_contact_aae_deg": float("nan")}).endswith("(no contact samples)")
+
+
+def test_map_sheets_fit_each_rows_error_colour_range(tmp_path, monkeypatch):
+    """Q2's sheet drew every row on 0-20 deg (set by a coin's edges): the sphere's half-degree errors were black.
+    Each row now gets its own error_scale (its own colour bar), unless the caller fixes one."""
+    from nlipscalib.report import experiments
+
+    sheets = []
+    monkeypatch.setattr(experiments, "contact_sheet", lambda rows, path, **kw: sheets.append(rows) or Path(path))
+    monkeypatch.setattr(experiments, "write_bytes", lambda path, data: Path(path))
+    monkeypatch.setattr(experiments.Path, "read_bytes", lambda self: b"")
+    monkeypatch.setattr(experiments, "_palette_png", lambda png: png)
+    n = np.zeros((6, 8, 3))
+    n[..., 2] = -1.0
+    small, large = np.full((6, 8), 0.4), np.full((6, 8), 30.0)
+    experiments.error_maps([("sphere", n, n, small), ("coin", n, n, large)], tmp_path / "e.png")
+    experiments.nlipsnet_maps(
+        [(name, {"rgb": n, "true": n, "estimate": n, "error": e}) for name, e in (("sphere", small), ("coin", large))],
+        tmp_path / "n.png",
+    )
+    experiments.error_maps([("sphere", n, n, small), ("coin", n, n, large)], tmp_path / "f.png", vmax=10.0)
+    tops = [[row[1][-1].vmax for row in sheet] for sheet in sheets]
+    assert tops == [[1.0, 45.0], [1.0, 45.0], [10.0, 10.0]]
+
+
+def test_contact_sheet_panels_keep_the_images_orientation(tmp_path):
+    """A sheet's panel shows the camera image as it is: its top-left corner at the top left (not flipped up-down, as
+    matplotlib's origin="lower" would, nor transposed)."""
+    from PIL import Image
+
+    rgb = np.zeros((20, 40, 3))
+    rgb[:10, :20] = [1.0, 0.0, 0.0]  # top-left quarter red, the rest black
+    path = contact_sheet([("", [Panel("quarter", rgb)])], tmp_path / "o.png")
+    img = np.asarray(Image.open(path).convert("RGB")).astype(int)
+    red = (img[..., 0] > 200) & (img[..., 1] < 60) & (img[..., 2] < 60)
+    dark = img.sum(axis=-1) < 60
+    rows, cols = np.nonzero(red)
+    top, left, height, width = rows.min(), cols.min(), rows.max() - rows.min() + 1, cols.max() - cols.min() + 1
+    assert abs(width / height - 2.0) < 0.1  # the 20 x 10 quarter, not transposed
+    # the rest of the image (black) lies below and right of the red quarter, the white page above and left of it
+    assert dark[top + height + height // 2, left + width // 2] and dark[top + height // 2, left + width + width // 2]
+    assert img[top - 3, left + width // 2].min() > 200 and img[top + height // 2, left - 3].min() > 200

@@ -143,23 +143,23 @@ def _panels(press: Press, result: Reconstruction | None) -> list[Panel]:
         err = np.where(shown, angular_error_map(result.normals, gt.normals), np.nan)
         panels[3:] = [
             Panel("NLiPs normals", normals_to_rgb(result.normals, shown)),
-            _error_panel(err),
+            _error_panel(err, gt.contact),
         ]
     return panels
 
 
-def _error_panel(err: np.ndarray) -> Panel:
+def _error_panel(err: np.ndarray, contact: np.ndarray | None = None) -> Panel:
     """The angular error panel of one press (err: (H, W) float, degrees, NaN where not scored), titled with its AAE
     (over the same pixels, as the summary figure prints it), in a colour range fitted to this press's errors
     (``error_scale``): a fixed 0-10 deg, or one range shared with a coin's 20-deg edges, showed the sphere's and
-    the cube's half-degree errors as black squares. The rows compare by their AAE and colour bars."""
-    import numpy as np
-
+    the cube's half-degree errors as black squares. The rows compare by their AAE and colour bars. The title gives
+    the contact AAE too (``contact``: the truth's (H, W) bool contact region), as the table and the summary do."""
     from ..report import Panel
     from ..report.figures import ERROR_CMAP, error_scale
+    from ..report.reconstruction import error_title
 
-    title = f"angular error, AAE roi {np.nanmean(err):.2f}°"  # the table's "AAE roi": every scored pixel
-    return Panel(title, err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=error_scale([err]))
+    # the table's "AAE roi" (every scored pixel) and "AAE contact"
+    return Panel(error_title(err, contact), err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=error_scale([err]))
 
 
 def _print_table(table: list[tuple[str, str, dict]]) -> None:

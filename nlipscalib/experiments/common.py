@@ -50,7 +50,9 @@ def series_by(
 
 
 def map_rows(rows: list[dict], out: Path, key: tuple[str, ...], limit: int = 6) -> list:
-    """Error-map figure rows: the first evaluation of each distinct ``key`` labels (at most ``limit``)."""
+    """Error-map figure rows: the first evaluation of each distinct ``key`` labels (at most ``limit``), each titled
+    with its labels, its press and its contact AAE (``aae_deg``, the number of the report's tables: the sheets
+    showed error maps without a number to read them by)."""
     seen, picked = set(), []
     for r in rows:
         name = tuple(r[k] for k in key)
@@ -58,9 +60,14 @@ def map_rows(rows: list[dict], out: Path, key: tuple[str, ...], limit: int = 6) 
             continue
         seen.add(name)
         with np.load(Path(out) / r["map"]) as z:
-            title = ", ".join(str(v) for v in name) + f"\n{r['press']}"
+            title = ", ".join(str(v) for v in name) + f"\n{r['press']}" + _contact_line(r.get("aae_deg"))
             picked.append((title, z["true"], z["estimate"], z["error"]))
     return picked
+
+
+def _contact_line(aae_deg: float | None) -> str:
+    """An error-map row title's last line: the press's contact AAE ("" where the evaluation has none)."""
+    return f"\ncontact AAE {aae_deg:.2f} deg" if aae_deg is not None and np.isfinite(aae_deg) else ""
 
 
 def draw_error_maps(

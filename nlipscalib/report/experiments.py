@@ -166,9 +166,9 @@ def error_maps(
     Parameters
     ----------
     rows : (title, true (h, w, 3) float, estimate (h, w, 3) float, error (h, w) float degrees); NaN = not solved
-    vmax : upper end of the error colour bar, degrees (None: :func:`error_scale` of the maps)
+    vmax : upper end of every error colour bar, degrees (None: each row's :func:`error_scale`, see
+        :func:`row_error_scale`)
     """
-    vmax = error_scale([r[3] for r in rows]) if vmax is None else vmax
     sheet = []
     for title, true, est, err in rows:
         shown = np.isfinite(err)
@@ -178,7 +178,9 @@ def error_maps(
                 [
                     Panel("true normals", normals_to_rgb(true, shown)),
                     Panel("NLiPs normals", normals_to_rgb(est, shown)),
-                    Panel("angular error", err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=vmax),
+                    Panel(
+                        "angular error", err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=row_error_scale(err, vmax)
+                    ),
                 ],
             )
         )
@@ -198,9 +200,9 @@ def nlipsnet_maps(
     ----------
     rows : (title, {"rgb": (h, w, 3) linear tri-colour image, "true": (h, w, 3) unit normals,
         "estimate": (h, w, 3) unit normals, "error": (h, w) degrees}); NaN = off the gel
-    vmax : upper end of the error colour bar, degrees (None: :func:`error_scale` of the maps)
+    vmax : upper end of every error colour bar, degrees (None: each row's :func:`error_scale`, see
+        :func:`row_error_scale`)
     """
-    vmax = error_scale([v["error"] for _, v in rows]) if vmax is None else vmax
     sheet = []
     for title, v in rows:
         shown = np.isfinite(v["error"])
@@ -211,9 +213,29 @@ def nlipsnet_maps(
                     Panel("object (tri-colour image)", display_image(v["rgb"])),  # as the demo shows it
                     Panel("ground-truth normals", normals_to_rgb(v["true"], shown)),
                     Panel(f"{method} normals", normals_to_rgb(v["estimate"], shown)),
-                    Panel("angular error", v["error"], cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=vmax),
+                    Panel(
+                        "angular error",
+                        v["error"],
+                        cmap=ERROR_CMAP,
+                        label="degrees",
+                        vmin=0,
+                        vmax=row_error_scale(v["error"], vmax),
+                    ),
                 ],
             )
         )
     contact_sheet(sheet, path, dpi=MAPS_DPI, caption=NORMALS_KEY)
     return write_bytes(path, _palette_png(Path(path).read_bytes()))
+
+
+def row_error_scale(error: np.ndarray, vmax: float | None = None) -> float:
+    """The error colour bar's upper end of one row of a map sheet, degrees: ``vmax`` where given, else the row's own
+    :func:`error_scale`. Why not one range for the sheet: a coin's 20-45 deg edges set it, and the sphere's and
+    the cube's half-degree errors beside it were black squares (Q2's sheet: 0-20 deg on every row); each row has
+    its own colour bar, as the demo's sheet (cli/demo.py) does.
+
+    Parameters
+    ----------
+    error : (h, w) float, degrees, NaN = not scored
+    """
+    return error_scale([error]) if vmax is None else vmax

@@ -142,7 +142,7 @@ def _draw(fig: Figure, ax: Axes, panel: Panel) -> None:
         _draw_categories(ax, panel, cmap)
         return
     im = ax.imshow(panel.image, cmap=cmap, vmin=panel.vmin, vmax=panel.vmax)
-    bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, extend="max" if _over(panel) else "neither")
+    bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03, extend=_extend(panel))
     bar.ax.tick_params(labelsize=7)
     if panel.label:
         bar.set_label(panel.label, fontsize=8)
@@ -159,8 +159,12 @@ def _draw_categories(ax: Axes, panel: Panel, cmap: Colormap) -> None:
     ax.legend(handles=keys, loc="upper center", bbox_to_anchor=(0.5, 0.0), ncol=len(keys), fontsize=7, frameon=False)
 
 
-def _over(panel: Panel) -> bool:
-    """Whether a scalar panel has values above a ``vmax`` it was given (a percentile range, or a fixed one): they
-    show in its colour, so the bar gets an arrow, and 25 deg does not read as 10 (the OpenCV maps write "10+")."""
+def _extend(panel: Panel) -> str:
+    """The colour bar's arrows ("neither", "min", "max" or "both"): an arrow at each end beyond which a scalar panel
+    has values (a percentile range, or a fixed one): they show in that end's colour, so 25 deg does not read as 10
+    (the OpenCV maps write "10+"), nor an indentation of -0.2 mm (a result behind the undeformed surface) as 0
+    (the OpenCV maps write "<=0")."""
     values = panel.image[np.isfinite(panel.image)]
-    return panel.vmax is not None and bool(np.any(values > panel.vmax))
+    over = panel.vmax is not None and bool(np.any(values > panel.vmax))
+    under = panel.vmin is not None and bool(np.any(values < panel.vmin))
+    return {(False, False): "neither", (False, True): "max", (True, False): "min", (True, True): "both"}[(under, over)]

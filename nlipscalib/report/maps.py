@@ -71,19 +71,23 @@ def scalar_map_png(
     label : unit shown under the colour bar, e.g. "mm" or "deg" (wrapped at spaces to the bar's width)
     vmin, vmax : colour range; default the 1st and 99th percentiles of the finite values. Values above ``vmax``
         show in its colour, and the bar's top number says so ("10+") when ``vmax`` was given (a fixed scale; the
-        default range leaves the top 1 % above it by definition)
+        default range leaves the top 1 % above it by definition); likewise values below a given ``vmin`` ("<=0":
+        an indentation map's pixels behind the undeformed surface)
     """
     if values.ndim != 2:
         raise ShapeError(f"scalar_map_png needs (H, W) values, got {values.shape}")
     if cmap not in COLORMAPS:
         raise ShapeError(f"unknown colour map {cmap!r}; choose one of {sorted(COLORMAPS)}")
-    fixed_top = vmax is not None
+    fixed_bottom, fixed_top = vmin is not None, vmax is not None
     vmin, vmax = colour_range(values, vmin, vmax)
     bgr = colour_scalars(values, vmin, vmax, cmap)
-    over = fixed_top and bool(np.any(values[np.isfinite(values)] > vmax))
+    finite = values[np.isfinite(values)]
+    over = fixed_top and bool(np.any(finite > vmax))
+    under = fixed_bottom and bool(np.any(finite < vmin))
     height = max(values.shape[0], bar_min_height(label))
     bgr = np.concatenate([bgr, np.full((height - values.shape[0],) + bgr.shape[1:], 255, np.uint8)], axis=0)
-    return _write_png(path, np.concatenate([bgr, _colour_bar(height, cmap, vmin, vmax, label, over)], axis=1))
+    strip = _colour_bar(height, cmap, vmin, vmax, label, over, under=under)
+    return _write_png(path, np.concatenate([bgr, strip], axis=1))
 
 
 def colour_scalars(
@@ -155,11 +159,14 @@ def bar_min_height(label: str = "") -> int:
     return (2 + len(_unit_lines(label))) * LINE_PX + 8
 
 
-def _colour_bar(height: int, cmap: str, vmin: float, vmax: float, label: str, over: bool = False) -> np.ndarray:
+def _colour_bar(
+    height: int, cmap: str, vmin: float, vmax: float, label: str, over: bool = False, under: bool = False
+) -> np.ndarray:
     """(height, BAR_WIDTH, 3) uint8 BGR: a vertical gradient (vmax at the top) with its range and unit.
 
     Shorter than :func:`bar_min_height`: the gradient alone (:func:`scalar_map_png` pads maps so that this does
-    not happen). ``over``: values above ``vmax`` exist and show in its colour; its number reads "10+".
+    not happen). ``over``: values above ``vmax`` exist and show in its colour; its number reads "10+". ``under``:
+    values below ``vmin`` exist and show in its colour; its number reads "<=0".
     """
     bar = np.full((height, BAR_WIDTH, 3), 255, np.uint8)
     lines = _unit_lines(label)
@@ -172,7 +179,7 @@ def _colour_bar(height: int, cmap: str, vmin: float, vmax: float, label: str, ov
         return bar
     largest = max(FONT_SCALES[-1], min(FONT_SCALES[0], height / 600))  # small maps: small, still legible text
     _put(bar, _fmt(vmax) + ("+" if over else ""), right + 2, top + LINE_PX - 2, largest)
-    _put(bar, _fmt(vmin), right + 2, bottom - 1, largest)
+    _put(bar, ("<=" if under else "") + _fmt(vmin), right + 2, bottom - 1, largest)
     for i, text in enumerate(lines):
         _put(bar, text, 2, height - 3 - LINE_PX * (len(lines) - 1 - i), largest)
     return bar

@@ -427,3 +427,21 @@ def test_a_resume_names_the_tasks_an_older_nlipscalib_made_instead_of_crediting_
     lines = markdown._other_software_lines(named)
     assert "2 reused task(s) were made by another nlipscalib" in lines[0] and "ref-old" in lines[0]
     assert markdown._other_software_lines({}) == []
+
+
+def test_error_map_rows_are_titled_with_the_contact_aae_of_the_report(tmp_path):
+    """The Q1/Q3 error-map sheets showed maps without a number to read them by: each row's title now ends with its
+    evaluation's contact AAE (the report tables' aae_deg); an evaluation without one adds no line."""
+    import numpy as np
+
+    from nlipscalib.experiments.common import map_rows
+
+    (tmp_path / "maps").mkdir()
+    n = np.zeros((2, 2, 3))
+    np.savez(tmp_path / "maps" / "a.npz", true=n, estimate=n, error=np.zeros((2, 2)))
+    rows = [
+        {"indenter": "sphere", "press": "sphere-p5", "aae_deg": 0.4355, "map": "maps/a.npz"},
+        {"indenter": "cube", "press": "cube-p5", "aae_deg": None, "map": "maps/a.npz"},
+    ]
+    titles = [r[0] for r in map_rows(rows, tmp_path, ("indenter",))]
+    assert titles == ["sphere\nsphere-p5\ncontact AAE 0.44 deg", "cube\ncube-p5"]
