@@ -73,7 +73,7 @@ fi
 PIP=(.venv/bin/python -m pip install -q --disable-pip-version-check)
 # Install torch's CPU build first, from PyTorch's CPU index: PyPI's Linux torch wheels are CUDA builds
 # (several GB of nvidia-* packages), whatever the version pin. The project itself only asks for a range
-# (torch>=2.2,<3), which this satisfies, so nothing more is downloaded. Offline, pip's own find-links and
+# (torch>=2.6,<3), which this satisfies, so nothing more is downloaded. Offline, pip's own find-links and
 # extra indexes still serve it (after a retry warning); where pip cannot get it that way (a mirror set
 # as its index), the configured index is asked for the same version.
 TORCH_CPU_INDEX=https://download.pytorch.org/whl/cpu

@@ -216,7 +216,12 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
     )
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)  # our one-line errors say it better
+    # our one-line errors say it better; opencv-python-headless 4.8 has no cv2.utils.logging, only cv2.setLogLevel
+    opencv_log = getattr(cv2.utils, "logging", None)
+    if opencv_log is not None:
+        opencv_log.setLogLevel(opencv_log.LOG_LEVEL_ERROR)
+    else:
+        cv2.setLogLevel(2)  # OpenCV's LOG_LEVEL_ERROR
     video = what not in ("emulated", args.camera)
     if video:
         _check_video(what)

@@ -215,7 +215,9 @@ def _ridged_disc(radius: float, depth: float, count: int, samples_per_ridge: int
 def _extrude(poly: Polygon | shapely.MultiPolygon, z0: float, z1: float) -> trimesh.Trimesh:
     """Prism of a (multi)polygon between heights z0 < z1; disjoint pieces stay separate bodies."""
     parts = getattr(poly, "geoms", [poly])
-    mesh = trimesh.util.concatenate([trimesh.creation.extrude_polygon(p, z1 - z0) for p in parts])
+    # the caps triangulated by manifold3d (a sim dependency) by name: trimesh otherwise takes mapbox_earcut where it
+    # happens to be installed (other triangles, so other indenter meshes) and fails where neither is (trimesh < 4.4.2)
+    mesh = trimesh.util.concatenate([trimesh.creation.extrude_polygon(p, z1 - z0, engine="manifold") for p in parts])
     mesh.apply_translation([0, 0, z0])
     return mesh
 

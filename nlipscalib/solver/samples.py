@@ -66,7 +66,8 @@ def _bright_ends(images: np.ndarray, dtype: np.typing.DTypeLike) -> tuple[np.nda
 
     def one_led(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         sample = image.reshape(-1, 3)[index].astype(dtype, copy=False)
-        return np.percentile(sample, 99), np.percentile(sample, 99, axis=0)
+        # NumPy < 2 returns float64 percentiles of float32 samples: cast, so the caller gets ``dtype`` either way
+        return np.percentile(sample, 99).astype(dtype), np.percentile(sample, 99, axis=0).astype(dtype)
 
     per_led = threads.map_items(one_led, images)
     return np.array([high for high, _ in per_led]), np.stack([channels for _, channels in per_led])

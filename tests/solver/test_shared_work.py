@@ -205,8 +205,9 @@ def test_the_exclusions_bright_ends_per_led_on_the_pool_are_the_stacks_percentil
     try:
         for dtype in (np.float32, np.float64):
             sample = lin.reshape(len(lin), -1, 3)[:, index].astype(dtype)
-            per_led = np.percentile(sample.reshape(len(lin), -1), 99, axis=1)
-            per_channel = np.percentile(sample, 99, axis=1)
+            # NumPy < 2 takes float32 percentiles in float64: the function returns them rounded to ``dtype``
+            per_led = np.percentile(sample.reshape(len(lin), -1), 99, axis=1).astype(dtype)
+            per_channel = np.percentile(sample, 99, axis=1).astype(dtype)
             for count in (1, 2):
                 threads.set_workers(count)
                 got_led, got_channel = _bright_ends(lin, dtype)
