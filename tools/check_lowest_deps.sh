@@ -7,7 +7,7 @@
 #   bash tools/check_lowest_deps.sh tests/sim tests/learn
 #   KEEP=1 VENV=/tmp/lowest bash tools/check_lowest_deps.sh   # keep the venv (and uv's cache) for a rerun
 #
-# Not part of .ci/run: it needs PyPI and minutes, and about 6 GB of disk, most of it torch 2.2's CUDA packages
+# Not part of .ci/run: it needs PyPI and minutes, and about 6 GB of disk, most of it the CUDA packages of PyPI's torch
 # (PyPI's Linux torch wheels are CUDA builds). PYTHON picks the interpreter (default python3.11).
 set -euo pipefail
 
