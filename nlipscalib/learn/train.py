@@ -7,13 +7,12 @@ together (:mod:`.publish`), so runs into one model path leave the files of one r
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import functools
 import logging
 import math
 import time
-from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -42,7 +41,7 @@ from .model import (
     set_colour_normalisation,
 )
 from .publish import clean_interrupted_writes
-from .torch_device import check_device
+from .torch_device import check_device, torch_threads
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
     import torch
@@ -228,21 +227,6 @@ def train(
     dev = check_device(device)
     with torch_threads(cfg.threads):
         return _train(dataset, cfg, Path(out), val_names, exclude, progress, stage, reuse, dev)
-
-
-@contextlib.contextmanager
-def torch_threads(count: int) -> Iterator[None]:
-    """PyTorch's CPU threads set to ``count`` in the block, then back to the process's: a training's count must
-    not stay the process's, or what runs after it (the experiments score their models in the same process) would
-    run on another count after a training than after reusing its model."""
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(count)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
 
 
 def _train(
