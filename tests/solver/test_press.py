@@ -1,0 +1,37 @@
+"""solve_press as a script calls it: a Press or a press folder's path (str or Path), for the press and its reference
+(exact-data presses, 64x48)."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.core import load_press
+from nlipscalib.core.errors import CaptureError, ShapeError
+from nlipscalib.solver import SolverOptions, solve_press
+from tests.solver import synth
+
+FAST = SolverOptions(max_iters=6)
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    root = tmp_path_factory.mktemp("press_paths")
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    synth.make_press(root / "press", "cube", size=(64, 48))
+    return root / "press", root / "reference"
+
+
+def test_a_press_folders_path_solves_as_its_loaded_press(folders):
+    press, reference = folders
+    loaded = solve_press(load_press(press), roi="auto", indirect=load_press(reference), options=FAST)
+    by_path = solve_press(str(press), roi="auto", indirect=reference, options=FAST)
+    assert loaded.reconstructed.sum() > 0
+    for name in ("normals", "depth", "albedo", "reconstructed"):
+        np.testing.assert_array_equal(getattr(by_path, name), getattr(loaded, name), err_msg=name)
+
+
+def test_anything_else_is_one_clear_error(folders):
+    press, reference = folders
+    with pytest.raises(ShapeError, match="press must be a Press .* got int"):
+        solve_press(3)
+    with pytest.raises(CaptureError, match="nowhere: not a press folder"):
+        solve_press(press, indirect=reference.parent / "nowhere")
