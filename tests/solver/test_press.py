@@ -35,3 +35,14 @@ def test_anything_else_is_one_clear_error(folders):
         solve_press(3)
     with pytest.raises(CaptureError, match="nowhere: not a press folder"):
         solve_press(press, indirect=reference.parent / "nowhere")
+
+
+def test_the_solvers_bar_is_drawn_on_a_terminal_only(folders, capsys, as_terminal):
+    """progress=True in a notebook or a script logging to a file: no bar (it wrote a line per Gauss-Newton
+    iteration there); on a terminal the bar says the level and the iterations."""
+    press, reference = folders
+    solve_press(press, indirect=reference, options=FAST, progress=True)
+    assert capsys.readouterr().err == ""
+    terminal = as_terminal()
+    solve_press(press, indirect=reference, options=FAST, progress=True)
+    assert "iterations so far" in terminal.getvalue()
