@@ -88,6 +88,7 @@ def test_every_python_block_of_the_page_runs_in_order(tiny_sensor):
     blocks = python_blocks(API.read_text())
     assert len(blocks) >= 9  # every section's example was found (a fence change would otherwise pass silently)
     out = tiny_sensor["OUT"]
+    before = process_settings()
     with VirtualBoard(12) as board:
         namespace = dict(tiny_sensor, PORT=board.url)
         for line, code in blocks[1:]:
@@ -100,6 +101,28 @@ def test_every_python_block_of_the_page_runs_in_order(tiny_sensor):
     assert frame.depth.shape == (48, 64) and np.isfinite(namespace["depth_at_centre"])
     assert namespace["stats"].frames == N_FRAMES
     assert namespace["contact"]["aae_deg"] < 10  # the solve ran and was scored (exact data: far below this)
+    assert process_settings() == before  # a notebook that ran the page keeps its own settings
+
+
+def process_settings() -> dict:
+    """What a library must leave as the user's process had it: logging's root, signal handlers, torch's and BLAS's
+    thread counts, NumPy's print and error settings, the standard streams."""
+    import logging
+    import signal
+    import sys
+
+    import torch
+    from threadpoolctl import threadpool_info
+
+    root = logging.getLogger()
+    return {
+        "root logger": (list(root.handlers), root.level, root.disabled),
+        "signals": [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)],
+        "torch threads": torch.get_num_threads(),
+        "blas threads": sorted((i["filepath"], i["num_threads"]) for i in threadpool_info()),
+        "numpy": (np.get_printoptions(), np.geterr()),
+        "streams": (sys.stdout, sys.stderr),
+    }
 
 
 def test_the_page_links_only_files_that_exist():
