@@ -39,8 +39,9 @@ def run_block(line: int, code: str, namespace: dict) -> None:
 
 @pytest.fixture(scope="module")
 def tiny_sensor(tmp_path_factory) -> dict:
-    """The page's path variables: an unsolved exact-data press, its reference, a tiny model of its sensor, a folder
-    of tri-colour frames (CAMERA), N_FRAMES, and OUT (PORT is the test's own virtual board)."""
+    """The page's path variables: an unsolved exact-data press, its reference, three solved presses (PRESSES), a tiny
+    model of its sensor, a folder of tri-colour frames (CAMERA), N_FRAMES, and OUT (PORT is the test's own virtual
+    board)."""
     from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
     from nlipscalib.learn.train import train
     from nlipscalib.pipeline import solve_folder
@@ -63,6 +64,7 @@ def tiny_sensor(tmp_path_factory) -> dict:
     return {
         "PRESS": root / "press",
         "REFERENCE": root / "reference",
+        "PRESSES": [root / n for n in NAMES],
         "MODEL": root / "model.pt",
         "CAMERA": str(frames),
         "N_FRAMES": N_FRAMES,
@@ -95,6 +97,11 @@ def test_every_python_block_of_the_page_runs_in_order(tiny_sensor):
             run_block(line, code, namespace)
         assert not board.latched.any()  # the camera blocks switched the LEDs off when they ended
     assert (out / "nlips" / "result.npz").is_file() and (out / "nlips_points.ply").is_file()
+    assert (
+        (out / "leds.json").is_file()
+        and (out / "model.pt").is_file()
+        and set(namespace["statuses"].values()) == {"solved"}
+    )  # solved again: with the calibrated LEDs, other settings than the fixture's
     assert (out / "twin" / "sphere" / "meta.json").is_file() and (out / "nlipsnet_points.ply").is_file()
     assert sorted(p.name for p in (out / "stream").glob("*.npz")) == ["frame_000000.npz"]  # every 10th of 3 frames
     frame = namespace["frame"]

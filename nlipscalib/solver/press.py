@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core import tolerances
-from ..core.capture import Press, load_press
+from ..core.capture import Press, as_press
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
 from .contact import ContactMap, anchor_weights, contact_box
@@ -59,7 +59,7 @@ __all__ = ["FILL_ROWS", "REFIT_ALTERNATIONS", "UPDATE_ROWS", "led_channel_sum", 
 def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     """Solve one press; see :func:`_solve_press` for the parameters (the same keywords).
 
-    ``press`` and ``indirect`` may also be press folders' paths (str or Path), loaded with :func:`.load_press` (all
+    ``press`` and ``indirect`` may also be press folders' paths (str or Path), loaded by :func:`.as_press` (all
     their LEDs): a script's ``solve_press("out/press", indirect="out/reference")`` failed deep inside the solve
     (``'str' object has no attribute 'leds'``, ``could not convert string to float``).
 
@@ -70,9 +70,9 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     96x72 and a 160x120 twin capture with a tight box around a sphere press: depth 13 mm off, AAE 18 deg;
     without the raised smoothness 0.05 mm and 7.7 deg.
     """
-    press = _loaded(press, "press")
+    press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
-        kwargs["indirect"] = _loaded(kwargs["indirect"], "indirect")
+        kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
     result = _solve_press(press, **kwargs)
     drift = _median_displacement(result, press)
     options = kwargs.get("options") or SolverOptions()
@@ -112,16 +112,6 @@ def _median_displacement(result: SolveResult, press: Press) -> float:
     diff = result.depth[result.reconstructed] - press.reference.depth[result.reconstructed]
     diff = diff[np.isfinite(diff)]
     return float(np.median(np.abs(diff))) if diff.size else 0.0
-
-
-def _loaded(press: Press | str | os.PathLike, name: str) -> Press:
-    """``press`` itself, or the press folder it names loaded; ShapeError for anything else."""
-    if isinstance(press, Press):
-        return press
-    if isinstance(press, (str, os.PathLike)):
-        return load_press(press)
-    kind = type(press).__name__
-    raise ShapeError(f"{name} must be a Press (load_press(folder)) or a press folder's path, got {kind}")
 
 
 def _solve_press(
