@@ -39,8 +39,9 @@ def run_block(line: int, code: str, namespace: dict) -> None:
 
 @pytest.fixture(scope="module")
 def tiny_sensor(tmp_path_factory) -> dict:
-    """The page's path variables: an unsolved exact-data press, its reference, a tiny model of its sensor, a folder
-    of tri-colour frames (CAMERA), N_FRAMES, and OUT (PORT is the test's own virtual board)."""
+    """The page's path variables: an unsolved exact-data press, its reference, three solved presses (PRESSES), a tiny
+    model of its sensor, a folder of tri-colour frames (CAMERA), N_FRAMES, and OUT (PORT is the test's own virtual
+    board)."""
     from nlipscalib.learn.dataset import CalibrationDataset, build_dataset
     from nlipscalib.learn.train import train
     from nlipscalib.pipeline import solve_folder
@@ -63,6 +64,7 @@ def tiny_sensor(tmp_path_factory) -> dict:
     return {
         "PRESS": root / "press",
         "REFERENCE": root / "reference",
+        "PRESSES": [root / n for n in NAMES],
         "MODEL": root / "model.pt",
         "CAMERA": str(frames),
         "N_FRAMES": N_FRAMES,
@@ -88,18 +90,46 @@ def test_every_python_block_of_the_page_runs_in_order(tiny_sensor):
     blocks = python_blocks(API.read_text())
     assert len(blocks) >= 9  # every section's example was found (a fence change would otherwise pass silently)
     out = tiny_sensor["OUT"]
+    before = process_settings()
     with VirtualBoard(12) as board:
         namespace = dict(tiny_sensor, PORT=board.url)
         for line, code in blocks[1:]:
             run_block(line, code, namespace)
         assert not board.latched.any()  # the camera blocks switched the LEDs off when they ended
     assert (out / "nlips" / "result.npz").is_file() and (out / "nlips_points.ply").is_file()
+    assert (
+        (out / "leds.json").is_file()
+        and (out / "model.pt").is_file()
+        and set(namespace["statuses"].values()) == {"solved"}
+    )  # solved again: with the calibrated LEDs, other settings than the fixture's
     assert (out / "twin" / "sphere" / "meta.json").is_file() and (out / "nlipsnet_points.ply").is_file()
     assert sorted(p.name for p in (out / "stream").glob("*.npz")) == ["frame_000000.npz"]  # every 10th of 3 frames
     frame = namespace["frame"]
     assert frame.depth.shape == (48, 64) and np.isfinite(namespace["depth_at_centre"])
     assert namespace["stats"].frames == N_FRAMES
     assert namespace["contact"]["aae_deg"] < 10  # the solve ran and was scored (exact data: far below this)
+    assert process_settings() == before  # a notebook that ran the page keeps its own settings
+
+
+def process_settings() -> dict:
+    """What a library must leave as the user's process had it: logging's root, signal handlers, torch's and BLAS's
+    thread counts, NumPy's print and error settings, the standard streams."""
+    import logging
+    import signal
+    import sys
+
+    import torch
+    from threadpoolctl import threadpool_info
+
+    root = logging.getLogger()
+    return {
+        "root logger": (list(root.handlers), root.level, root.disabled),
+        "signals": [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)],
+        "torch threads": torch.get_num_threads(),
+        "blas threads": sorted((i["filepath"], i["num_threads"]) for i in threadpool_info()),
+        "numpy": (np.get_printoptions(), np.geterr()),
+        "streams": (sys.stdout, sys.stderr),
+    }
 
 
 def test_the_page_links_only_files_that_exist():

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -32,7 +33,7 @@ import numpy as np
 from .. import __version__
 from .atomic import atomic_dir, write_json
 from .camera import Camera
-from .errors import CaptureError
+from .errors import CaptureError, ShapeError
 from .imageio import png_size, read_png_bytes, write_png16
 from .leds import Led, Leds
 from .prefetch import prefetch_images
@@ -75,6 +76,7 @@ from .surface_files import GT_KEYS, GroundTruth, Reference, ground_truth_loader,
 
 # every public name of the format, the re-exported ones with those defined here
 __all__ = [
+    "as_press",
     "CLIPPED_VALUE",
     "CaptureOptics",
     "FORMAT_NAME",
@@ -292,6 +294,21 @@ def read_optics(folder: str | Path) -> CaptureOptics:
     camera, leds, _ = parse_optics(meta, folder / META_FILE)
     reference = read_reference(folder, meta, camera, leds)
     return CaptureOptics(folder=folder, camera=camera, leds=tuple(leds), reference=reference)
+
+
+def as_press(press: Press | str | os.PathLike, name: str = "press") -> Press:
+    """``press`` itself, or the press folder it names loaded with :func:`load_press` (all its LEDs).
+
+    Why: the library's functions that take a capture take its folder's path too (str or Path), as a script or
+    notebook has it; anything else is one ShapeError naming the argument (``name``), not an AttributeError deep in
+    the computation."""
+    if isinstance(press, Press):
+        return press
+    if isinstance(press, (str, os.PathLike)):
+        return load_press(press)
+    raise ShapeError(
+        f"{name} must be a Press (load_press(folder)) or a press folder's path, got {type(press).__name__}"
+    )
 
 
 def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, decode: bool | str = True) -> Press:

@@ -264,7 +264,7 @@ def net_predictor(out: Path, record: dict, threads: int) -> Predictor:
     and the scores no longer depend on how many cores the machine running the report has."""
     from ..learn.evaluate import net_predict
     from ..learn.model import load_model
-    from ..learn.train import torch_threads
+    from ..learn.torch_device import torch_threads
 
     model = load_model(Path(out) / record["model"])
 

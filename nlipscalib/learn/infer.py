@@ -29,6 +29,7 @@ from .change import ChangeDetector
 from .integrate import RayGeometry, integrate_on_dome
 from .model import load_model
 from .prefilter import Prefilter
+from .torch_device import torch_threads
 
 if TYPE_CHECKING:  # named in hints only: to_reconstruction imports it where it makes one
     from collections.abc import Sequence
@@ -81,7 +82,8 @@ class Predictor:
     model_path : the model file (.pt) from ``nlips train``
     backend : one of :data:`BACKENDS` ("onnx" and "onnx-int8" use the .onnx file beside the model, from
         ``nlips train``)
-    threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch)
+    threads : CPU threads for the network (0: all cores this process may use for onnx, torch's default for torch);
+        torch's count is set for each call only (:func:`.torch_device.torch_threads`), the process's kept
     depth : integrate depth (False: normals only; each frame's depth and points are then the undeformed dome's)
     device : "cpu", or a torch GPU ("cuda", "cuda:N"): every step of a frame on that GPU (:mod:`.fullframe`, the
         PyTorch backend; the same change rule, box integration and results as the CPU path)
@@ -172,12 +174,10 @@ class Predictor:
 
         from .model import fused_net
 
-        if threads:
-            torch.set_num_threads(threads)
         net = fused_net(self.model.net)
 
         def run(x: np.ndarray):
-            with torch.inference_mode():
+            with torch_threads(threads), torch.inference_mode():
                 return net(torch.from_numpy(x)).numpy()
 
         return run

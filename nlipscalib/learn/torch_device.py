@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from typing import TYPE_CHECKING
 
 from ..core.errors import ConfigError, require
@@ -29,3 +31,24 @@ def check_device(device: str) -> torch.device:
     elif dev.type != "cpu":
         raise ConfigError(f"--device {device}: only cpu and cuda devices are supported")
     return dev
+
+
+@contextlib.contextmanager
+def torch_threads(count: int) -> Iterator[None]:
+    """PyTorch's CPU threads set to ``count`` in the block, then back to the process's (0: left as they are).
+
+    Why scoped: the count is the process's, so a library call must not keep its own. A training's count kept would
+    make what runs after it (the experiments score their models in the same process) run on another count after a
+    training than after reusing its model; a ``Predictor(threads=N)``'s kept would change a notebook's own torch
+    work behind its back. Setting the count costs well under a microsecond, so each predict call sets it again."""
+    if count <= 0:
+        yield
+        return
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

@@ -12,8 +12,9 @@ import dataclasses
 import functools
 import logging
 import math
+import os
 import time
-from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -42,7 +43,7 @@ from .model import (
     set_colour_normalisation,
 )
 from .publish import clean_interrupted_writes
-from .torch_device import check_device
+from .torch_device import check_device, torch_threads
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
     import torch
@@ -189,7 +190,7 @@ class TrainResult:
 
 
 def train(
-    dataset: CalibrationDataset,
+    dataset: CalibrationDataset | str | os.PathLike,
     cfg: TrainConfig,
     out: str | Path,
     val_names: Collection[str] | None = None,
@@ -203,7 +204,7 @@ def train(
 
     Parameters
     ----------
-    dataset : CalibrationDataset
+    dataset : CalibrationDataset, or its folder's path (str or Path)
     cfg : TrainConfig
     out : path of the model file (.pt)
     val_names : optional explicit validation presses
@@ -226,23 +227,21 @@ def train(
         Each epoch's device is in the history (``"device"``: "cpu" or "cuda"); a resume on another says so.
     """
     dev = check_device(device)
-    with torch_threads(cfg.threads):
+    if isinstance(dataset, (str, os.PathLike)):
+        dataset = CalibrationDataset(dataset)
+    with torch_threads(cfg.threads), _callers_generators(dev):
         return _train(dataset, cfg, Path(out), val_names, exclude, progress, stage, reuse, dev)
 
 
-@contextlib.contextmanager
-def torch_threads(count: int) -> Iterator[None]:
-    """PyTorch's CPU threads set to ``count`` in the block, then back to the process's: a training's count must
-    not stay the process's, or what runs after it (the experiments score their models in the same process) would
-    run on another count after a training than after reusing its model."""
+def _callers_generators(device: torch.device) -> contextlib.AbstractContextManager:
+    """torch's global generators given back as the caller had them when the training ends: it seeds them (weights'
+    initialisation, each epoch's dropout) for a reproducible model, and a notebook's own draws after a training
+    came out of the training's seed (``torch.initial_seed()`` was the config's). The CPU's, and the CUDA devices'
+    when it trains on one (reading their states starts CUDA: not done for a CPU training)."""
     import torch
 
-    before = torch.get_num_threads()
-    torch.set_num_threads(count)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
+    devices = list(range(torch.cuda.device_count())) if device.type == "cuda" else []
+    return torch.random.fork_rng(devices=devices)
 
 
 def _train(

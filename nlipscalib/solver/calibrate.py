@@ -27,13 +27,14 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..core import tolerances
-from ..core.capture import Press
+from ..core.capture import Press, as_press
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
 from .calibration_contact import contact_notes, contact_refusal, contact_regions
@@ -131,7 +132,7 @@ def default_stride(shape: tuple[int, int]) -> int:
 
 
 def calibrate_leds(
-    presses: Press | Sequence[Press],
+    presses: Press | str | os.PathLike | Sequence[Press | str | os.PathLike],
     initial: Leds | None = None,
     stride: int | None = None,
     loss: str = "cauchy",
@@ -152,7 +153,8 @@ def calibrate_leds(
 
     Parameters
     ----------
-    presses : Press or sequence of Press -- undeformed dome, with ``reference``; same camera and LEDs.
+    presses : Press or sequence of Press -- undeformed dome, with ``reference``; same camera and LEDs (a press
+        folder's path, str or Path, is loaded with all its LEDs: :func:`.as_press`).
     initial : sequence of Led or None -- starting values (default: the capture's LEDs).
     stride : use every ``stride``-th pixel in u and v (speed); None: :func:`default_stride` of the captures' frame.
     loss : scipy robust loss ("cauchy", "soft_l1", "huber", "linear").
@@ -183,7 +185,8 @@ def calibrate_leds(
     LedCalibration -- with ``quality`` (:func:`fit_quality`) and ``warnings``, each also logged as a warning:
     a ``coating_reflectance`` not used, a reflectance not profiled, an unreliable fit, a contact left out.
     """
-    presses = [presses] if isinstance(presses, Press) else list(presses)
+    one = isinstance(presses, (Press, str, os.PathLike))
+    presses = [as_press(p, "presses") for p in ([presses] if one else list(presses))]
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
     if stride is None:

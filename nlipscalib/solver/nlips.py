@@ -42,6 +42,7 @@ from ..core.errors import ConfigError
 from ..core.leds import Leds
 from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
+from ..progress import bars_enabled
 from .blas import blas_threads
 from .coarse_to_fine import level_pyramid, solve_coarse_to_fine
 from .crop import LevelData, crop_to_mask, full_image
@@ -101,7 +102,8 @@ def solve(
     saturated : (L, H, W, 3) bool or None -- samples to exclude as saturated.
     options : SolverOptions
     backend : "numpy" or "torch" (per-pixel maths on a GPU when present; same equations).
-    progress : show a tqdm bar.
+    progress : show a tqdm bar, on a terminal only (:func:`nlipscalib.progress.bars_enabled`): in a notebook or a
+        log file it wrote a line per iteration.
     init_depth : (H, W) float, mm, or None
         A close solution to start from (e.g. the previous pass of the outer interreflection loop,
         whose images differ only by a small change of the indirect light): the finest level alone is
@@ -184,7 +186,7 @@ def _solve_checked(
     report = data.report
     report["levels"] = []
     bar = None
-    if progress:
+    if bars_enabled(progress):
         from tqdm import tqdm
 
         # no total: a level stops on convergence, mostly long before opts.max_iters, so a bar to levels x max_iters

@@ -28,13 +28,14 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
 import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..core import tolerances
-from ..core.capture import Press
+from ..core.capture import Press, as_press
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
 from .contact import ContactMap, anchor_weights, contact_box
@@ -55,8 +56,12 @@ log = logging.getLogger(__name__)
 __all__ = ["FILL_ROWS", "REFIT_ALTERNATIONS", "UPDATE_ROWS", "led_channel_sum", "solve_press"]
 
 
-def solve_press(press: Press, **kwargs: Any) -> SolveResult:
+def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     """Solve one press; see :func:`_solve_press` for the parameters (the same keywords).
+
+    ``press`` and ``indirect`` may also be press folders' paths (str or Path), loaded by :func:`.as_press` (all
+    their LEDs): a script's ``solve_press("out/press", indirect="out/reference")`` failed deep inside the solve
+    (``'str' object has no attribute 'leds'``, ``could not convert string to float``).
 
     A guard against a failure seen on small, noisy captures: when the noise-adapted smoothness
     (``SolverOptions.noise_smoothness``) was applied and the solved surface left the physically possible
@@ -65,6 +70,9 @@ def solve_press(press: Press, **kwargs: Any) -> SolveResult:
     96x72 and a 160x120 twin capture with a tight box around a sphere press: depth 13 mm off, AAE 18 deg;
     without the raised smoothness 0.05 mm and 7.7 deg.
     """
+    press = as_press(press, "press")
+    if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
+        kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
     result = _solve_press(press, **kwargs)
     drift = _median_displacement(result, press)
     options = kwargs.get("options") or SolverOptions()

@@ -546,3 +546,22 @@ def test_every_public_name_of_the_format_is_still_importable_from_core_capture()
         home = getattr(obj, "__module__", None)
         if home is not None and home.startswith("nlipscalib.core."):  # a class or function: the same object
             assert getattr(importlib.import_module(home), name) is obj, name
+
+
+def test_as_press_takes_a_press_or_its_folders_path_and_nothing_else(tmp_path):
+    from pathlib import Path
+
+    from nlipscalib.core.capture import as_press
+    from nlipscalib.core.errors import ShapeError
+
+    folder = _press(tmp_path / "p")
+    press = load_press(folder)
+    assert as_press(press) is press
+    for given in (str(folder), Path(folder)):
+        loaded = as_press(given)
+        assert loaded.folder == Path(folder)
+        np.testing.assert_array_equal(loaded.led_images, press.led_images)
+    with pytest.raises(ShapeError, match="reference must be a Press .* got int"):
+        as_press(3, "reference")
+    with pytest.raises(CaptureError, match="not a press folder"):
+        as_press(tmp_path / "nowhere")

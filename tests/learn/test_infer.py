@@ -955,3 +955,34 @@ def test_a_stored_frames_seconds_time_its_linearisation_and_exposure_check_insid
     assert sum(v for k, v in seconds.items() if k != "total") <= seconds["total"]
     like = predictor.predict(predictor.ref_tricolor).seconds  # a frame like the calibration's: nothing to check
     assert like["check"] < 0.03 and sum(v for k, v in like.items() if k != "total") <= like["total"]
+
+
+def test_predictor_threads_are_the_calls_own_not_the_processs(trained, twin_presses, monkeypatch):
+    """Predictor(threads=N) runs the network on N torch threads and leaves the process's count as it was: a
+    notebook's own torch work after making a predictor ran on the predictor's count before (set at construction)."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(3)
+    try:
+        predictor = Predictor(trained, backend="torch", threads=1)
+        assert torch.get_num_threads() == 3
+        seen = []
+        monkeypatch.setattr(torch.nn.Module, "__call__", _counting_call(torch.nn.Module.__call__, seen))
+        press = load_press(twin_presses / HELD_OUT)
+        frame = predictor.predict(press.linear(press.tricolor))
+        assert frame.changed.sum() > 0 and seen and set(seen) == {1}, seen
+        assert torch.get_num_threads() == 3
+    finally:
+        torch.set_num_threads(before)
+
+
+def _counting_call(call, seen: list):
+    """torch.nn.Module.__call__ that notes torch's thread count at each call."""
+    import torch
+
+    def counted(self, *args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return call(self, *args, **kwargs)
+
+    return counted

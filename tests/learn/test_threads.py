@@ -65,3 +65,22 @@ def test_the_default_training_config_is_one_thread():
     from nlipscalib.experiments.q2 import QUICK_NET, Q2Config
 
     assert train_module.TrainConfig().threads == QUICK_NET.threads == Q2Config().net.threads == 1
+
+
+def test_a_training_gives_torchs_generator_back_and_takes_the_datasets_path(calib, tmp_path):
+    """A notebook's own draws after train() are those it would have had without it (the training seeded torch's
+    global generator with the config's seed and left it there), and train() takes the dataset's folder too."""
+    import torch
+
+    from nlipscalib.learn.dataset import CalibrationDataset
+
+    cfg = train_module.TrainConfig(hidden=(8,), max_epochs=2, dropout=0.1)
+    torch.manual_seed(1234)
+    torch.rand(3)
+    expected = torch.rand(3)
+    torch.manual_seed(1234)
+    torch.rand(3)
+    by_object = train_module.train(CalibrationDataset(calib), cfg, tmp_path / "a.pt", progress=False)
+    assert torch.equal(torch.rand(3), expected) and torch.initial_seed() == 1234
+    by_path = train_module.train(str(calib), cfg, tmp_path / "b.pt", progress=False)
+    assert by_path.history[-1]["train_loss"] == by_object.history[-1]["train_loss"]

@@ -132,3 +132,12 @@ def test_calibrate_leds_without_a_stride_takes_the_frames_default(tmp_path, monk
     with pytest.raises(RuntimeError):
         calibrate_leds(flat, stride=3)
     assert strides == [7, 3]
+
+
+def test_calibrate_leds_takes_capture_folders_paths(tmp_path):
+    """A script's calibrate_leds("out/reference") failed with "'PosixPath' object is not iterable"."""
+    folder = synth.make_press(tmp_path / "ref", "none", size=(64, 48))
+    loaded = calibrate_leds(load_press(folder), stride=4)
+    for given in (folder, str(folder), [folder]):
+        by_path = calibrate_leds(given, stride=4)
+        assert by_path.leds == loaded.leds and np.array_equal(by_path.rms, loaded.rms)

@@ -276,11 +276,13 @@ def test_the_too_few_leds_warning_names_the_press_and_counts_in_words(tmp_path, 
     assert sum("usable LEDs" in r.getMessage() for r in caplog.records) == 1
 
 
-def test_the_progress_line_names_the_level_and_counts_iterations_without_a_false_eta(sphere_press, capsys):
+def test_the_progress_line_names_the_level_and_counts_iterations_without_a_false_eta(sphere_press, as_terminal):
     """The bar ran to levels x max_iters; levels stop on convergence long before, so it ended at 3-10 % with an
-    ETA of tens of seconds (a 1280x960 whole frame showed "1/30 [00:01<00:36]" and finished in 19 s)."""
+    ETA of tens of seconds (a 1280x960 whole frame showed "1/30 [00:01<00:36]" and finished in 19 s). On a terminal:
+    elsewhere no bar is drawn (tests/solver/test_press.py)."""
+    terminal = as_terminal()
     res = _solve(sphere_press, progress=True)
-    shown = capsys.readouterr().err.replace("\r", "\n")
+    shown = terminal.getvalue().replace("\r", "\n")
     last = [
         line for line in shown.splitlines() if re.match(r"NLiPs level (\d+) of \1 \(\d+x\d+\): \d+ iterations", line)
     ]

@@ -1,0 +1,81 @@
+"""solve_press as a script calls it: a Press or a press folder's path (str or Path), for the press and its reference
+(exact-data presses, 64x48)."""
+
+import numpy as np
+import pytest
+
+from nlipscalib.core import load_press
+from nlipscalib.core.errors import CaptureError, ShapeError
+from nlipscalib.solver import SolverOptions, solve_press
+from tests.solver import synth
+
+FAST = SolverOptions(max_iters=6)
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    root = tmp_path_factory.mktemp("press_paths")
+    synth.make_press(root / "reference", "none", size=(64, 48))
+    synth.make_press(root / "press", "cube", size=(64, 48))
+    return root / "press", root / "reference"
+
+
+def test_a_press_folders_path_solves_as_its_loaded_press(folders):
+    press, reference = folders
+    loaded = solve_press(load_press(press), roi="auto", indirect=load_press(reference), options=FAST)
+    by_path = solve_press(str(press), roi="auto", indirect=reference, options=FAST)
+    assert loaded.reconstructed.sum() > 0
+    for name in ("normals", "depth", "albedo", "reconstructed"):
+        np.testing.assert_array_equal(getattr(by_path, name), getattr(loaded, name), err_msg=name)
+
+
+def test_anything_else_is_one_clear_error(folders):
+    press, reference = folders
+    with pytest.raises(ShapeError, match="press must be a Press .* got int"):
+        solve_press(3)
+    with pytest.raises(CaptureError, match="nowhere: not a press folder"):
+        solve_press(press, indirect=reference.parent / "nowhere")
+
+
+def test_the_solvers_bar_is_drawn_on_a_terminal_only(folders, capsys, as_terminal):
+    """progress=True in a notebook or a script logging to a file: no bar (it wrote a line per Gauss-Newton
+    iteration there); on a terminal the bar says the level and the iterations."""
+    press, reference = folders
+    solve_press(press, indirect=reference, options=FAST, progress=True)
+    assert capsys.readouterr().err == ""
+    terminal = as_terminal()
+    solve_press(press, indirect=reference, options=FAST, progress=True)
+    assert "iterations so far" in terminal.getvalue()
+
+
+@pytest.mark.parametrize("interrupted_call", [1, 2])
+def test_ctrl_c_in_a_solve_leaves_the_process_solving_as_before(folders, monkeypatch, interrupted_call):
+    """KeyboardInterrupt (Ctrl-C in a notebook) in the first pass or in the outer interreflection loop's second, once
+    the sensor's results are kept (solver.reuse) and the helper threads run: no thread is left behind, and the next
+    solve of the press is bit for bit the one before. Seen by hand on sphere1/cube1 at 640x480 with a real SIGINT
+    0.3 s and 1 s into the solve: the same (benchmarks/RESULTS.md, s25-api). interreflection="on": exact data have
+    no indirect light, and "auto" would solve a single pass."""
+    import threading
+
+    from nlipscalib.solver import nlips
+
+    press, reference = folders
+    first = solve_press(press, roi="auto", indirect=reference, options=FAST, interreflection="on")
+    threads = {t.name for t in threading.enumerate()}
+    calls = []
+    solve_levels = nlips.solve_coarse_to_fine
+
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == interrupted_call:
+            raise KeyboardInterrupt
+        return solve_levels(*args, **kwargs)
+
+    monkeypatch.setattr(nlips, "solve_coarse_to_fine", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        solve_press(press, roi="auto", indirect=reference, options=FAST, interreflection="on")
+    monkeypatch.undo()
+    assert {t.name for t in threading.enumerate()} <= threads
+    again = solve_press(press, roi="auto", indirect=reference, options=FAST, interreflection="on")
+    for name in ("normals", "depth", "albedo", "reconstructed"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(first, name), err_msg=name)
