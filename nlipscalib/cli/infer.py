@@ -321,30 +321,50 @@ class _EndsCleanly:
             raise StopLive from None
 
 
+STAGE_MEDIAN_BIN = 1e-3
+"""Relative width of the bins a stream's stage-time medians are counted in (:class:`_StageTimes`): a median is
+its bin's geometric centre, within 0.05 % of the exact one (the stage line prints 0.1 ms of 10-50 ms)."""
+
+
 class _StageTimes:
-    """Each frame's stage times (:attr:`learn.infer.Frame.seconds`), for the summary."""
+    """Each stage's running time (:attr:`learn.infer.Frame.seconds`) over a stream, for its summary: exact sums
+    (the means) and log-binned counts (the medians, :data:`STAGE_MEDIAN_BIN`), in memory that does not grow with
+    the frames.
+
+    Why: it kept every frame's stage dict for the medians, 0.42 kB a frame (tracemalloc): 46 MB an hour at 30
+    frames/s, for a stream a lab leaves running through an experiment (benchmarks/RESULTS.md, "s25-soak"). The bins
+    are bounded by the spread of the times (at most one per 0.1 % of it), not by the frames."""
 
     def __init__(self) -> None:
-        self.seconds: list[dict] = []
+        self.frames = 0
+        self.sums: dict[str, float] = {}
+        """Each stage's total time, s, in the order the stages first came ("total" among them)."""
+        self.counts: dict[str, dict[int, int]] = {}
+        """Each stage's frames per log bin (bin index: :func:`_time_bin`; None for 0 s)."""
 
     def add(self, frame: Frame) -> Frame:
-        self.seconds.append(frame.seconds)
+        for name, seconds in frame.seconds.items():
+            self.sums[name] = self.sums.get(name, 0.0) + seconds
+            bins = self.counts.setdefault(name, {})
+            key = _time_bin(seconds)
+            bins[key] = bins.get(key, 0) + 1
+        self.frames += 1
         return frame
 
     def medians(self) -> dict:
-        import numpy as np
-
-        return {k: float(np.median([s.get(k, 0.0) for s in self.seconds])) for k in self._names()}
+        """Each stage's median time per frame, s (0 in a frame that had no such stage), within
+        :data:`STAGE_MEDIAN_BIN` of the exact median."""
+        return {k: _binned_median(self.counts.get(k, {}), self.frames) for k in self._names()}
 
     def means(self) -> dict:
         """Each stage's mean time per frame, s (0 in a frame that had no such stage)."""
-        n = max(len(self.seconds), 1)
-        return {k: sum(s.get(k, 0.0) for s in self.seconds) / n for k in self._names()}
+        n = max(self.frames, 1)
+        return {k: self.sums.get(k, 0.0) / n for k in self._names()}
 
     def _names(self) -> list[str]:
         """Every stage any frame had, in their order, "total" last."""
-        names = list(dict.fromkeys(k for s in self.seconds for k in s if k != "total"))
-        return names + ["total"] if self.seconds else []
+        names = [k for k in self.sums if k != "total"]
+        return names + ["total"] if self.frames else []
 
     def summary(self, predictor: Predictor, cpu_s: float, stats: LiveStats, no_depth: bool) -> str:
         """The predictor's line: the mean time of each of its steps per frame, and the frame rate they add up to.
@@ -368,6 +388,30 @@ class _StageTimes:
             f"predictor alone, without read and output (normals{'' if no_depth else ' + depth'}); "
             f"process CPU {1e3 * cpu_s / stats.frames:.1f} ms/frame"
         )
+
+
+def _time_bin(seconds: float) -> int | None:
+    """The log bin of a stage time (:data:`STAGE_MEDIAN_BIN` wide, relative); None for 0 s (or less)."""
+    import math
+
+    return math.floor(math.log(seconds) / math.log1p(STAGE_MEDIAN_BIN)) if seconds > 0 else None
+
+
+def _binned_median(bins: dict[int | None, int], frames: int) -> float:
+    """The median of ``frames`` stage times counted in ``bins`` (:func:`_time_bin`; frames missing from them had
+    no such stage: 0 s), each bin taken at its geometric centre; the two middle ones' mean for an even count, as
+    numpy.median."""
+    import math
+
+    counted = sum(bins.values())
+    order = [(None, frames - counted + bins.get(None, 0))] + sorted((k, n) for k, n in bins.items() if k is not None)
+    middle = {(frames - 1) // 2, frames // 2}
+    values, seen = [], 0
+    for key, n in order:
+        values += [key] * len([r for r in middle if seen <= r < seen + n])
+        seen += n
+    step = math.log1p(STAGE_MEDIAN_BIN)
+    return sum(0.0 if k is None else math.exp((k + 0.5) * step) for k in values) / len(values) if values else 0.0
 
 
 class _PlySink:

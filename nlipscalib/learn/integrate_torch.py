@@ -26,6 +26,7 @@ rays, gradients averaged on each pixel pair; :func:`.integrate.edge_box_rhs` is 
 
 from __future__ import annotations
 
+import collections
 import functools
 import math
 from typing import TYPE_CHECKING
@@ -43,6 +44,10 @@ RECORD_AFTER = 3
 """A box size is recorded as a CUDA graph when it comes the third time, solved eagerly before: a contact that
 moves or grows brings a new box size nearly every frame, and recording one costs several eager solves (its
 warm-up runs and a memory pool of its own; benchmarks/RESULTS.md), while a held contact repeats its size."""
+SIZES_COUNTED = 1024
+"""Box sizes whose frames :class:`BoxIntegrator` counts toward :data:`RECORD_AFTER`, the most recently come (a size
+that drops out counts anew: at most RECORD_AFTER - 1 more eager solves). Why a bound: a contact that moves and grows
+through a stream of hours brings thousands of box sizes, and their counts were kept forever."""
 SETUP_BATCH_BYTES = 1 << 29
 """Memory of one batch of box solves while the capacitance matrix is set up (float64 boxes)."""
 
@@ -173,6 +178,27 @@ def _axis_matrices(n: int, neumann: bool, device: torch.device, dtype: torch.dty
     return c, c.mT.contiguous()
 
 
+class RecentCounts(collections.OrderedDict):
+    """How often each key has come, for the ``size`` keys that came last (least recently come dropped first).
+
+    Parameters
+    ----------
+    size : most keys kept (>= 1)
+    """
+
+    def __init__(self, size: int) -> None:
+        super().__init__()
+        self.size = int(size)
+
+    def add(self, key: object) -> int:
+        """Count ``key`` once more; its count (1 when new, or dropped since it last came)."""
+        count = self.pop(key, 0) + 1
+        self[key] = count  # the most recent, at the end
+        if len(self) > self.size:
+            self.popitem(last=False)
+        return count
+
+
 class BoxIntegrator:
     """:mod:`.integrate`'s box solver on a torch device: the changed pixels' box (grown to fast transform sizes,
     :func:`.integrate._box`), its interior solved with the outer ring at the reference, in float32 like the CPU's;
@@ -187,8 +213,9 @@ class BoxIntegrator:
 
     def __init__(self, geo: RayGeometry, device: torch.device, dense: bool | None = None):
         torch = _torch()
-        self.seen: dict[tuple[int, int], int] = {}
-        """How often each box size (h, w) has come (recorded at :data:`RECORD_AFTER`)."""
+        self.seen = RecentCounts(SIZES_COUNTED)
+        """How often each box size (h, w) has come (recorded at :data:`RECORD_AFTER`), of the
+        :data:`SIZES_COUNTED` sizes that came last."""
         self.on_gel = np.isfinite(geo.log_range)
         self.width = geo.log_range.shape[1]
         self.log_range = torch.as_tensor(geo.log_range.astype(np.float32), device=device).flatten()
@@ -252,8 +279,7 @@ class BoxIntegrator:
         if self.device.type != "cuda":
             return False
         key = (h, w) if edges == (0, 0) else (h, w, edges)
-        self.seen[key] = self.seen.get(key, 0) + 1
-        return self.seen[key] >= RECORD_AFTER
+        return self.seen.add(key) >= RECORD_AFTER
 
     def _solve(self, normals: torch.Tensor, index: torch.Tensor, edges: Edges = (0, 0)):
         """Points over the box whose flat pixel indices are ``index`` ((h, w) long tensor); an edge box mirrored

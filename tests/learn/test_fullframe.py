@@ -403,3 +403,22 @@ def test_normals_only_on_the_device_path_keeps_the_reference_surface(trained, tw
     frame = predictor.predict_stored(press.tricolor)
     np.testing.assert_allclose(frame.depth[predictor.valid], predictor.ref_depth[predictor.valid], rtol=1e-6)
     assert frame.changed.sum() == predictor.valid.sum() and np.isfinite(frame.normals).all()
+
+
+def test_box_sizes_counted_for_cuda_graphs_stay_bounded_over_a_long_stream():
+    """A contact that moves and grows for hours brings thousands of box sizes: their counts toward RECORD_AFTER
+    were kept forever (a dict per size); now only the SIZES_COUNTED sizes that came last are."""
+    from nlipscalib.learn.integrate_torch import SIZES_COUNTED, BoxIntegrator
+
+    integrator = BoxIntegrator(_dome()[0], CPU)
+    integrator.device = torch.device("cuda")  # counting is a GPU's (a CPU records no graph): nothing is allocated
+    held = (90, 91)  # outside the sizes below
+    for h in range(1, 80):
+        for w in range(1, 80):  # 6,241 sizes, more than SIZES_COUNTED
+            integrator._recorded(h, w)
+            integrator._recorded(h, w, (1, 0))  # an edge box of that size is another
+            integrator._recorded(*held)  # a held contact's size keeps coming, and keeps its count
+    assert len(integrator.seen) == SIZES_COUNTED < 2 * 79 * 79
+    assert integrator.seen[held] == 79 * 79 and integrator._recorded(*held)
+    # a size that dropped out counts anew: recorded again only at its RECORD_AFTER-th coming
+    assert [integrator._recorded(1, 1) for _ in range(RECORD_AFTER)] == [False] * (RECORD_AFTER - 1) + [True]
