@@ -76,11 +76,11 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from ..core.atomic import check_writable
+    from ..core.atomic import check_free_space, check_writable
     from ..core.capture import load_press
     from ..core.config import check_count
     from ..core.errors import ConfigError
-    from ..core.ledfile import save_leds
+    from ..core.ledfile import led_file_bytes, save_leds
     from ..core.metrics import angle_deg
     from ..core.sensor_record import sensor_of
     from ..progress import track, working
@@ -99,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
     for folder in args.presses:
         check_one_capture(folder, "a capture of the undeformed dome")
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
+    # a full disk, which the probe above passes (a folder takes no block on tmpfs), is found before the 1-2 s fit
+    check_free_space(Path(args.out).parent, led_file_bytes(len(presses[0].leds), len(presses)), "the LED file")
     with working(f"calibrating {len(presses[0].leds)} LEDs from {len(presses)} capture(s)"):
         cal = calibrate_leds(
             presses,

@@ -34,6 +34,8 @@ STALE_S = 600.0
 SCRATCH_MARK = "scratch-"
 """Start of the random part of a :func:`scratch_dir` folder's name: its files are moved *beside* the entry it is
 named for, not into a folder of that name, and :func:`named_target` names them there."""
+NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+"""Errors of a write that found no room: the disk is full, or the user's quota is spent."""
 
 
 _IN_PROGRESS: set[Path] = set()
@@ -117,6 +119,26 @@ def check_writable(folder: str | Path, longest_name: int = 0) -> None:
         probe.rmdir()
     finally:
         _IN_PROGRESS.discard(probe)
+
+
+def check_free_space(folder: str | Path, need: int, what: str) -> int:
+    """Fail fast (OSError ENOSPC naming ``folder``) when its disk has less than ``need`` bytes free, before long work.
+
+    Parameters
+    ----------
+    folder : an existing folder on the disk to be written
+    need : bytes the smallest useful output takes (one press, one LED file), int
+    what : that output, for the message ("a press", "the LED file")
+
+    Returns
+    -------
+    the free bytes, int (for a caller that says how many outputs fit)
+    """
+    free = shutil.disk_usage(folder).free
+    if free < need:
+        cause = f"No space left on device ({free >> 10} KiB free, {what} needs ~{need >> 10} KiB)"
+        raise OSError(errno.ENOSPC, cause, str(folder))
+    return free
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:

@@ -21,6 +21,21 @@ def save_leds(path: str | Path, leds: Leds, extra: dict | None = None) -> Path:
     return write_json(path, {"leds": [led.to_dict() for led in leds]} | (extra or {}))
 
 
+LED_FILE_BYTES_PER_LED = 2 << 10
+"""An LED file's share per LED (its values, uncertainties, fit quality, disk emitters and sensor record, JSON
+indented): 12 LEDs took 13.8 KB, 19.5 KB with ``--led-diameter`` (1.15-1.6 KB per LED; 160x120 reference of the
+default twin, 2026-12-05)."""
+LED_FILE_BYTES_BASE = 8 << 10
+"""An LED file's share whatever its LEDs: gauge, albedo, each capture's interreflection model (~0.5 KB), warnings,
+and the disk's block a file takes beyond its bytes (4 KiB)."""
+
+
+def led_file_bytes(n_leds: int, n_captures: int = 1) -> int:
+    """Room an LED file of ``n_leds`` LEDs calibrated from ``n_captures`` captures takes on the disk (bytes, an
+    upper bound: ~1.5x the files measured), for the up-front free-space check of ``nlips calibrate-leds``."""
+    return LED_FILE_BYTES_BASE + n_leds * LED_FILE_BYTES_PER_LED + n_captures * (1 << 10)
+
+
 class LedFile(NamedTuple):
     """An LED file as read back: its LEDs and the sensor they were calibrated on."""
 

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from ..core.atomic import whole_dir, write_text
 from ..core.config import from_mapping, read_config_file, to_mapping
-from ..core.errors import ConfigError
+from ..core.errors import ConfigError, NlipsError
 from . import check, markdown
 from .plan import build_tasks
 from .provenance import machine, made_by, software
@@ -213,6 +213,10 @@ def run_experiment(
             progress=progress,
             name=exp.name,
         )
+        if status.no_space:  # no report: learning, scoring and the report's files would fail on it too
+            raise NlipsError(
+                f"{out}: no space left on device: free space, then run the same command again (finished tasks are kept)"
+            )
         learned = exp.learn(cfg, tasks, out, progress=progress)
         run_s = time.perf_counter() - start
         rows = evaluation_rows(tasks, out)

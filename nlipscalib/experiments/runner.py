@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
 from ..core.processes import LOCAL_WORKER_GRACE_S, end_processes, kill_unless_ended, sigint_held
-from .tasks import REUSED, Task, clean_leftovers, execute, samples_problem, stored_result
+from .tasks import NO_SPACE, REUSED, Task, clean_leftovers, execute, samples_problem, stored_result
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
     from multiprocessing.context import SpawnProcess
@@ -45,6 +45,8 @@ class RunStatus:
     """Tasks already done on disk, or done by another run sharing the folder meanwhile."""
     failed: dict[str, str] = dataclasses.field(default_factory=dict)
     """Task id -> reason."""
+    no_space: bool = False
+    """A task failed on a full disk (or quota): no other task is started, running ones finish or fail."""
 
 
 def run_tasks(
@@ -84,6 +86,8 @@ def run_tasks(
     try:
         with _backend(scheduler, workers) as backend:
             for stage in sorted({t.stage for t in todo}):
+                if status.no_space:
+                    break
                 backend([t for t in todo if t.stage == stage], out, keep_presses, status, bar)
     finally:
         if check_scheduler(scheduler) is not None:
@@ -105,6 +109,10 @@ def _record(status: RunStatus, task_id: str, outcome: str, bar: tqdm) -> None:
         status.done.append(task_id)
     elif outcome == REUSED:  # another run sharing the folder did it while this one waited
         status.skipped.append(task_id)
+    elif outcome.startswith(NO_SPACE):
+        status.failed[task_id] = outcome.removeprefix(NO_SPACE)
+        status.no_space = True
+        log.warning("%s: failed: %s", task_id, status.failed[task_id])
     else:
         status.failed[task_id] = outcome.removeprefix("failed: ")
         log.warning("%s: %s", task_id, outcome)
@@ -179,6 +187,8 @@ class _backend:
         threads = max(1, usable_cores() // self.workers)
         if self.workers == 1 or len(tasks) == 1:
             for t in tasks:
+                if status.no_space:
+                    return
                 _record(status, t.id, execute(t, out, threads, keep), bar)
             return
         _WorkerSlots(min(self.workers, len(tasks)), str(out), threads, keep).run(tasks, status, bar)
@@ -192,11 +202,18 @@ class _backend:
         }
         for fut in dask_completed(futures):
             t = futures[fut]
+            if fut.cancelled():
+                continue
             try:
                 outcome = fut.result()
             except Exception as exc:  # KilledWorker after too many deaths, lost scheduler, ...
                 outcome = f"failed: {type(exc).__name__}: {exc}"
+            was_full = status.no_space
             _record(status, t.id, outcome, bar)
+            if status.no_space and not was_full:
+                # start no other task; the ones the workers run finish or fail (recorded as they come)
+                running = {key for keys in self.client.processing().values() for key in keys}
+                self.client.cancel([f for f in futures if not f.done() and f.key not in running])
 
 
 class _WorkerSlots:
@@ -227,6 +244,8 @@ class _WorkerSlots:
         finished = False
         try:
             while queue or busy:
+                if status.no_space:  # the tasks under way finish or fail; no other starts
+                    queue.clear()
                 for i in range(self.n):
                     if i not in busy and queue:
                         busy[i] = queue.pop(0)

@@ -10,8 +10,8 @@ worker that dies loses only the task it was running.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-import errno
 import hashlib
 import json
 import logging
@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core.atomic import write_bytes, write_json
+from ..core.atomic import NO_SPACE_ERRNOS, write_bytes, write_json
 from ..core.errors import ConfigError
 
 if TYPE_CHECKING:  # named in hints only
@@ -38,6 +38,9 @@ SOLVES_DIR = "solves"
 """PRESS/solves/<variant hash>/: the pipeline's reconstruction of each solve variant of a press."""
 REUSED = "reused"
 """What :func:`execute` returns for a task another run sharing the folder finished."""
+NO_SPACE = "failed for lack of space: "
+"""Start of what :func:`execute` returns for a task that failed on a full disk (or quota): the runner then starts
+no other task, each of which would render for seconds to minutes and then fail too."""
 RULES_HASHED_SILENTLY = {"rule": 2}
 """learn.dataset.SAMPLE_RULES when press tasks' hashes began to hold them (2026-12-05): at these versions a hash
 leaves them out, so the work folders of earlier runs, whose samples these rules made, keep their tasks (a full Q2
@@ -223,8 +226,9 @@ def execute(task: Task, out: str | Path, threads: int = 0, keep_presses: bool = 
     """Run one task (in any process or Dask worker) and write its JSON.
 
     Returns "done" (run here), "reused" (finished by another run sharing the folder, which this one waited
-    for) or "failed: ...". Exceptions are recorded in ``tasks/<id>.failed.json`` (retried on the next run),
-    never raised, so one bad press does not stop a sweep.
+    for), "failed: ..." or, on a full disk, :data:`NO_SPACE` "...". Exceptions are recorded in
+    ``tasks/<id>.failed.json`` (retried on the next run), never raised, so one bad press does not stop a sweep
+    (a full disk stops it in the runner, which starts no other task).
     """
     from ..core.claims import claim
 
@@ -248,7 +252,7 @@ def failure_text(exc: Exception) -> str:
 
     if not (isinstance(exc, OSError) and exc.filename is not None and exc.strerror):
         return f"{type(exc).__name__}: {exc}"
-    cause = exc.strerror + (" (the disk is full: free space, then run again)" if exc.errno == errno.ENOSPC else "")
+    cause = exc.strerror + (" (the disk is full: free space, then run again)" if exc.errno in NO_SPACE_ERRNOS else "")
     return f"{named_target(exc.filename)}: {cause}"
 
 
@@ -266,8 +270,11 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
         if _from_ctrl_c(exc):  # Ctrl-C inside a native library: stop the sweep, not record a failed press
             raise KeyboardInterrupt from exc
         error = failure_text(exc)
-        write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": error})
-        return f"failed: {error}"
+        full = _from_full_disk(exc)
+        # on a full disk this small record may not fit either: the runner stops the sweep all the same
+        with contextlib.suppress(OSError) if full else contextlib.nullcontext():
+            write_json(out / "tasks" / f"{task.id}.failed.json", {"id": task.id, "error": error})
+        return f"{NO_SPACE if full else 'failed: '}{error}"
     body["timing"] = body.get("timing", {}) | {"task_seconds": round(time.perf_counter() - start, 3)}
     from .provenance import made_by
 
@@ -285,6 +292,18 @@ def _from_ctrl_c(exc: BaseException) -> bool:
     seen = set()
     while exc is not None and id(exc) not in seen:
         if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def _from_full_disk(exc: BaseException) -> bool:
+    """Whether ``exc`` is, or was raised from, a write that found the disk full or the quota spent (a library
+    may wrap the OSError in its own error)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, OSError) and exc.errno in NO_SPACE_ERRNOS:
             return True
         seen.add(id(exc))
         exc = exc.__cause__ or exc.__context__

@@ -120,7 +120,7 @@ def save_checkpoint(
     dataset's sampling record (index.json's), compared by :func:`check_sampling_record`."""
     import torch
 
-    from ..core.atomic import write_bytes
+    from ..core.atomic import NO_SPACE_ERRNOS, write_bytes
 
     buf = io.BytesIO()
     torch.save(
@@ -140,7 +140,17 @@ def save_checkpoint(
         ),
         buf,
     )
-    write_bytes(path if to is None else Path(to), buf.getvalue())
+    target, data = (path if to is None else Path(to)), buf.getvalue()
+    try:
+        write_bytes(target, data)
+    except OSError as exc:
+        if exc.errno not in NO_SPACE_ERRNOS or not target.exists():
+            raise
+        # the atomic rewrite's price, kept: the last whole checkpoint stays until the new one is whole (with 1.8 MB
+        # free a 1.6 MB checkpoint fitted once, and the second epoch's rewrite failed with no word why)
+        size = f"{len(data) / 1e6:.1f} MB"
+        why = f"{exc.strerror} (rewriting it needs room for a second copy, {size}, while it replaces the first)"
+        raise OSError(exc.errno, why, exc.filename) from exc
 
 
 def on_cpu(state: object) -> object:

@@ -10,7 +10,6 @@ one that lost a file its meta.json lists (an image, reference.npz, gt.npz), rend
 from __future__ import annotations
 
 import contextlib
-import errno
 import logging
 import os
 import secrets
@@ -23,7 +22,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..core.atomic import check_writable, clean_interrupted
+from ..core.atomic import check_free_space, check_writable, clean_interrupted
 from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import RENDER_MEMORY, usable_cores, worker_count
 from ..core.errors import ConfigError, NlipsError
@@ -47,8 +46,25 @@ if TYPE_CHECKING:  # named in hints only
     from tqdm import tqdm
 
 log = logging.getLogger(__name__)
-GT_BYTES_PER_PIXEL = 4 + 12 + 12 + 2 + 4 + 12
-"""gt.npz (depth, points, normals, masks) and reference.npz (depth, normals) per pixel, uncompressed."""
+PNG_BYTES_PER_PIXEL = 3.5
+"""One stored 16-bit RGB image (an LED's, the dark or the tri-colour frame) per pixel as written: 3.32-3.47 on
+average over a press's 14 PNGs (6 uncompressed: the noise's low bits do not compress), measured on 19 presses of
+the default twin (sphere, cube and coin; 160x120, 320x240 at 4-16 spp, 640x480 at 16 spp), 2026-12-05."""
+NPZ_BYTES_PER_PIXEL = 39.5
+"""gt.npz and reference.npz together per pixel as written (deflated at level 1): 38.95-39.32 on the same presses
+(46 uncompressed)."""
+META_BYTES = 8 << 10
+"""A press's meta.json: 7.0-7.5 KiB."""
+BLOCK_BYTES = 4 << 10
+"""What a file may take beyond its bytes: it fills whole blocks of the disk (4 KiB on ext4 and tmpfs)."""
+PRESS_SIZE_MARGIN = 1.1
+"""Above the largest measured sizes, for scenes whose images hold more noise or light than the default twin's
+(PNG sizes follow the content; the PNGs are 55 % of a press, so 10 % of the whole is 18 % of them). The estimate is
+13 % above what the measured presses took on the disk, 160x120 to 640x480: only a disk with room for one press but
+not 13 % more is refused for nothing. No larger margin: an underestimate costs only a render that stops at its first
+failed write (the run stops, nothing half-written is kept), an overestimate refuses a run that fits. The earlier
+bound, uncompressed (130 bytes per pixel, 2437 KiB at 160x120), refused a run with 2188 KiB free for presses of
+1.62-1.67 MB."""
 BUSY_POLL_S = 1.0
 """Seconds between checks on presses another process is rendering."""
 
@@ -126,27 +142,29 @@ def run_dataset(
 
 
 def press_bytes(scene: SceneConfig) -> int:
-    """Rough upper bound of one press folder's size on disk: 16-bit RGB images + ground truth + reference."""
+    """One press folder's size on disk as a render writes it (16-bit RGB PNGs, gt.npz, reference.npz, meta.json),
+    with :data:`PRESS_SIZE_MARGIN`: 1.95 MB at 160x120 (presses took 1.71-1.72 MB of the disk), 30.0 MB at 640x480
+    (26.3-26.5 MB)."""
     pixels = scene.camera.width * scene.camera.height
     n_images = len(scene.led_models()) + 2  # LEDs, dark, tri-colour
-    return pixels * (n_images * 6 + GT_BYTES_PER_PIXEL)
+    n_files = n_images + 3  # + gt.npz, reference.npz, meta.json
+    per_pixel = n_images * PNG_BYTES_PER_PIXEL + NPZ_BYTES_PER_PIXEL
+    return int(pixels * per_pixel * PRESS_SIZE_MARGIN) + META_BYTES + n_files * BLOCK_BYTES
 
 
 def check_space(out: Path, scene: SceneConfig, n_presses: int) -> None:
-    """No room for even one press: fail now (ENOSPC). Room for some only: warn that the run will stop."""
-    free = shutil.disk_usage(out).free
+    """No room for even one press: fail now (ENOSPC). Room for some only: warn how many fit and that the run will
+    stop when the disk is full."""
     need = press_bytes(scene)
-    if free < need:
-        raise OSError(
-            errno.ENOSPC, f"No space left on device ({free >> 10} KiB free, a press needs ~{need >> 10} KiB)", str(out)
-        )
+    free = check_free_space(out, need, "a press" if n_presses == 1 else f"each of the {n_presses} presses")
     if free < need * n_presses:
         log.warning(
-            "%s: %d MiB free, the %d presses may need up to %d MiB: the run will stop when the disk is full",
+            "%s: %d MiB free, room for ~%d of the %d presses (~%.1f MiB each): the run will stop when the disk is full",
             out,
             free >> 20,
+            free // need,
             n_presses,
-            (need * n_presses) >> 20,
+            need / (1 << 20),
         )
 
 

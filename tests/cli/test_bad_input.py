@@ -87,6 +87,28 @@ def test_calibrate_leds_out_is_checked_before_the_fit(presses, a_file, monkeypat
     _one_line_error(capsys.readouterr().err, problem)
 
 
+def test_calibrate_leds_on_a_full_disk_is_refused_before_the_fit(presses, monkeypatch, capsys):
+    """`nlips calibrate-leds --out FULL/leds.json` on a full tmpfs fitted for 1-2 s, then said "No space left on
+    device": its probe folder takes no block there. The free space is now checked against the file's size first."""
+    import shutil
+    from collections import namedtuple
+
+    from nlipscalib import solver
+    from nlipscalib.core.ledfile import led_file_bytes
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 10240, 10240))
+    monkeypatch.setattr(solver, "calibrate_leds", lambda *a, **k: pytest.fail("the fit ran"))
+    out = presses.parent / "full" / "leds.json"
+    assert main(["--no-progress", "calibrate-leds", str(presses / "reference"), "--out", str(out)]) == 2
+    need = led_file_bytes(3) >> 10  # the test presses' 3 LEDs, one capture
+    _one_line_error(
+        capsys.readouterr().err,
+        f"{out.parent}: No space left on device (10 KiB free, the LED file needs ~{need} KiB) (the disk is full",
+    )
+    assert not out.exists()
+
+
 def test_a_hidden_width_out_of_reach_is_refused_before_loading_the_dataset(tmp_path, capsys):
     """`--hidden 100000000` loaded the dataset, then ran out of memory in the first batch: a torch traceback."""
     assert main(["train", str(tmp_path / "missing"), "--out", str(tmp_path / "m.pt"), "--hidden", "64,100000000"]) == 2

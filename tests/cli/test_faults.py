@@ -140,17 +140,20 @@ def test_no_room_for_one_press_fails_before_rendering(spec, tmp_path, monkeypatc
     import shutil
     from collections import namedtuple
 
+    from nlipscalib.sim.dataset import load_dataset_spec
+
     usage = namedtuple("usage", "total used free")
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 1000, 1000))
     out = tmp_path / "out"
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
-    _one_line_error(capsys.readouterr().err, str(out), "No space left on device", "KiB free")
+    need = dataset_pool.press_bytes(load_dataset_spec(spec)[1])
+    _one_line_error(capsys.readouterr().err, str(out), "No space left on device", "(0 KiB free, each of the 5 presses")
     assert calls == []
-    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 0, 200_000))  # room for two presses of five
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(10**9, 0, 2 * need + 1000))  # room for two of five
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    assert "the run will stop when the disk is full" in caplog.text
+    assert "room for ~2 of the 5 presses" in caplog.text and "the run will stop when the disk is full" in caplog.text
 
 
 # ---------------------------------------------------------------------- bad input values

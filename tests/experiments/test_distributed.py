@@ -188,3 +188,38 @@ def test_dask_workers_that_indented_a_gel_exit_cleanly():
         nanny.removeHandler(handler)
     assert len(f) == 4 * len(faces)  # each face split in four
     assert not [m for m in said if "killed by signal" in m], said
+
+
+def test_a_dask_sweep_starts_no_task_after_one_failed_on_a_full_disk(tmp_path, monkeypatch):
+    """As the local runner: once a task fails for lack of space, the tasks not started are cancelled (one Dask
+    worker thread in this process, so the tasks see this test's stand-ins)."""
+    import errno
+    import time
+
+    from nlipscalib.experiments import runner
+    from nlipscalib.experiments import tasks as tasks_mod
+    from nlipscalib.experiments.tasks import Task
+
+    started = []
+
+    def reference(task, out, threads, keep):
+        started.append(task.id)
+        time.sleep(0.5)  # long enough that the cancel comes while later tasks wait, even under load
+        if task.id == "ref-0":
+            raise OSError(errno.ENOSPC, "No space left on device", str(out / "refs" / task.id / "dark.png"))
+        return {"folder": "refs/x"}
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", reference)
+    tasks = [Task(kind="reference", id=f"ref-{i}", scene={"i": i}) for i in range(12)]
+    backend = runner._backend(None, 1)
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
+    backend.client, backend.threads = distributed.Client(cluster), 1
+    status = runner.RunStatus()
+    try:
+        backend._dask(tasks, tmp_path, False, status, runner._bar(len(tasks), 0, False, "tasks"))
+    finally:
+        backend.client.close()
+        cluster.close()
+    assert status.no_space and list(status.failed) == ["ref-0"]
+    assert len(started) < len(tasks), started  # those not started were cancelled
+    assert set(status.done) == set(started[1:]), (started, status)  # one under way finished and was recorded

@@ -396,9 +396,142 @@ def test_a_task_failed_on_a_full_disk_names_the_file_where_it_goes_not_its_tempo
     monkeypatch.setattr(tasks_mod, "_run_reference", full_disk)
     outcome = tasks_mod.execute(task, tmp_path)
     expected = f"{press / 'tricolor.png'}: No space left on device (the disk is full: free space, then run again)"
-    assert outcome == f"failed: {expected}"
+    assert outcome == f"{tasks_mod.NO_SPACE}{expected}"
     assert json.loads((tmp_path / "tasks" / "ref-full.failed.json").read_text())["error"] == expected
     assert tasks_mod.failure_text(ValueError("bad")) == "ValueError: bad"  # other errors as before
+
+
+TINY_ABLATION = """
+counts = [12]
+[twin]
+width = 40
+height = 30
+spp = 2
+bounces = 0
+[presses]
+indenters = [{ kind = "sphere", size = 6.0 }]
+polar_deg = [10.0, 20.0, 30.0]
+azimuth_deg = [30.0]
+"""
+"""One reference task (stage 0) and three press tasks (stage 2)."""
+
+
+@pytest.mark.parametrize("errno_name", ["ENOSPC", "EDQUOT"])
+def test_a_full_disk_stops_the_experiment_after_the_tasks_under_way(errno_name, tmp_path, monkeypatch, capsys):
+    """`nlips experiment` on a full disk went on after the first failed task: every later press rendered (seconds
+    to minutes each) and then failed too (s25 walk). Now no other task starts, and the run ends with one line
+    naming the folder and what to do, exit 2. The run again after freeing space reuses the finished tasks."""
+    import errno
+    import os
+
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    code = getattr(errno, errno_name)
+    started = []
+
+    def full_disk(task, out, threads, keep):
+        started.append(task.id)
+        raise OSError(code, os.strerror(code), str(out / "refs" / "x" / "led_01.png"))
+
+    def press(task, out, threads, keep):
+        started.append(task.id)
+        raise AssertionError("no press may start after a full disk")
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", full_disk)
+    monkeypatch.setattr(tasks_mod, "_run_press", press)
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY_ABLATION)
+    out = tmp_path / "out"
+    assert main(["--no-progress", "experiment", "ablation", "--config", str(config), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(started) == 1 and started[0].startswith("ref"), started  # the presses never rendered
+    assert err[-1] == (
+        f"nlips experiment: error: {out / 'ablation-custom'}: no space left on device: free space, then run the "
+        "same command again (finished tasks are kept)"
+    ), err
+    assert not (out / "ablation-custom" / "report" / "report.md").exists()  # no report of a run cut short
+
+
+def test_other_task_failures_let_the_sweep_go_on(tmp_path, monkeypatch, capsys):
+    """Only a full disk stops the sweep: a press that fails for its own reason is one failed task of many."""
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    started = []
+
+    def broken_press(task, out, threads, keep):
+        started.append(task.id)
+        raise ValueError("this press only")
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", lambda task, out, threads, keep: {"folder": "refs/x"})
+    monkeypatch.setattr(tasks_mod, "_run_press", broken_press)
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY_ABLATION)
+    out = tmp_path / "out"
+    assert main(["--no-progress", "experiment", "ablation", "--config", str(config), "--out", str(out)]) == 1
+    assert len(started) == 3, started  # every press tried
+    assert "3 failed" in capsys.readouterr().out
+
+
+def test_one_process_starts_no_task_of_its_stage_after_a_full_disk(tmp_path, monkeypatch):
+    import errno
+
+    from nlipscalib.experiments import tasks as tasks_mod
+    from nlipscalib.experiments.runner import run_tasks
+
+    started = []
+
+    def full_disk(task, out, threads, keep):
+        started.append(task.id)
+        raise OSError(errno.ENOSPC, "No space left on device", str(out / "refs" / task.id / "dark.png"))
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", full_disk)
+    status = run_tasks(
+        [Task(kind="reference", id=f"ref-{i}", scene={"i": i}) for i in range(3)], tmp_path, progress=False
+    )
+    assert started == ["ref-0"] and status.no_space and list(status.failed) == ["ref-0"]
+
+
+def test_local_workers_start_no_task_after_one_failed_on_a_full_disk(tmp_path):
+    """`--workers N`: the task another worker runs when one fails on a full disk is finished and recorded; the
+    tasks still queued never start."""
+    import queue
+
+    from nlipscalib.experiments import runner
+    from nlipscalib.experiments.tasks import NO_SPACE
+
+    outcomes = {"t0": f"{NO_SPACE}OUT/presses/t0/led_01.png: No space left on device", "t1": "done"}
+    given = []
+
+    class Worker:  # runs its task at once, in this process: the order of the results is the test's
+        def __init__(self, slot: int, results: queue.Queue):
+            self.slot, self.results, self.alive = slot, results, True
+
+        def put(self, task: Task | None) -> None:
+            if task is None:  # the runner's "no more tasks"
+                self.alive = False
+                return
+            given.append(task.id)
+            self.results.put((self.slot, task.id, outcomes.get(task.id, "done")))
+
+        def is_alive(self) -> bool:
+            return self.alive
+
+        def join(self, timeout: float) -> None:
+            pass
+
+    slots = runner._WorkerSlots.__new__(runner._WorkerSlots)
+    slots.n, slots.results = 2, queue.Queue()
+    slots._start = lambda i: (worker := Worker(i, slots.results), worker)
+    status = runner.RunStatus()
+    tasks = [Task(kind="press", id=f"t{i}", scene={"i": i}) for i in range(5)]
+    slots.run(tasks, status, bar=_NoBar())
+    assert given == ["t0", "t1"]  # the two under way when the disk filled; t2-t4 never started
+    assert status.no_space and status.done == ["t1"] and list(status.failed) == ["t0"]
+
+
+class _NoBar:
+    def update(self, n: int) -> None:
+        pass
 
 
 def test_a_resume_names_the_tasks_an_older_nlipscalib_made_instead_of_crediting_this_commit(

@@ -164,6 +164,36 @@ def test_cli_train_takes_press_lists_typed_with_spaces(calib, tmp_path):
     assert info["val_presses"] == ["press_a", "press_b"] and info["excluded_presses"] == [HELD_OUT]
 
 
+def test_a_full_disk_as_the_checkpoint_is_rewritten_says_it_needs_room_for_a_second_copy(
+    calib, tmp_path, capsys, monkeypatch
+):
+    """Each epoch's checkpoint replaces the last one atomically, so it needs room for two copies for a moment: with
+    1.8 MB free a 1.6 MB checkpoint was written once and the second epoch's failed, "No space left on device", with
+    1.6 MB seemingly free after the run. The line now says why."""
+    import errno
+    import os
+    from pathlib import Path
+
+    from nlipscalib.core import atomic
+
+    real_write_bytes = atomic.write_bytes
+
+    def full_for_a_second_copy(path, data):
+        path = Path(path)
+        if path.name.endswith(".checkpoint.pt") and path.exists():  # the first copy fitted, the second does not
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        return real_write_bytes(path, data)
+
+    monkeypatch.setattr(atomic, "write_bytes", full_for_a_second_copy)
+    out = tmp_path / "model" / "net.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8", "--dropout", "0", "--epochs", "2"]
+    assert main([*args, "--no-onnx", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    (checkpoint,) = out.parent.glob("net.*.checkpoint.pt")  # the first epoch's, kept whole
+    assert len(err) == 1 and err[0].startswith(f"nlips train: error: {checkpoint}: No space left on device"), err
+    assert "needs room for a second copy" in err[0] and "MB, while it replaces the first" in err[0], err
+
+
 def test_a_full_disk_as_the_model_is_written_names_the_model_file_and_a_rerun_finishes(
     calib, tmp_path, capsys, monkeypatch, caplog
 ):
