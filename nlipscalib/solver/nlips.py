@@ -37,12 +37,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..core.blas import blas_threads
 from ..core.camera import Camera
 from ..core.errors import ConfigError
 from ..core.leds import Leds
 from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
-from .blas import blas_threads
 from .coarse_to_fine import level_pyramid, solve_coarse_to_fine
 from .crop import LevelData, crop_to_mask, full_image
 from .gauss_newton import expanded_step
