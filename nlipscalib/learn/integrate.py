@@ -20,7 +20,7 @@ Two exact solvers of that same equation:
   (This is a fast solver for the curved-surface equation above, not a flat-sensor height-from-
   gradient integration: the gradients are of log-range along the real rays.)
 - ``"sparse"``: only the changed pixels are unknown, any shape, SuperLU (scipy.sparse) on the
-  normal equations; used when the box would leave the gel.
+  normal equations; used when no box below applies.
 
 The image border is not the gel's boundary: nothing is known beyond it, and the least-squares problem has
 no pixel pair across it, so a changed pixel on the border row has one neighbour fewer -- a natural (Neumann)
@@ -33,11 +33,20 @@ ends of it, no fixed pixel: that axis is diagonalised by the type-II cosine tran
 Neumann path Laplacian), the other by the sine transform as before. Its first eigenvalue is 0 along the
 cosine axis only, so the other axis's fixed ring sets the level; a box spanning both axes has none.
 
+A box that holds pixels off the gel (a contact near the rim of a gel that does not fill the image, the flat
+pad's) is a "rim box": its gel pixels are the unknowns, and a gel pixel next to an off-gel one has no pixel
+pair across that side (a natural side along the gel's outline, as on the sparse path). Its equation is the box's
+Laplacian changed in the rows of those rim pixels only (a low-rank change), solved by the capacitance-matrix
+method (Buzbee, Dorr, George & Golub, SIAM J. Numer. Anal. 8(4), 1971): two sine solves of the box and one
+dense (r, r) solve, r the rim pixels in the box. The capacitance matrix's entries are values of the box's
+Green's function, summed per frame from its sine modes (:func:`_box_green`), with no box solve per rim pixel.
+
 ``"auto"`` takes one box around all changed pixels where it applies; else it splits them into their
 4-connected regions (no equation joins two), each group a box, an edge box where its box reaches the
 image border (a contact pressed at the edge of the view: 5-9 ms at 640x480, not the 0.16-0.37 s of SuperLU;
-across the image: 14-31 ms, not 0.34-1.0 s, at load 9), and the sparse path where neither applies (off the
-gel, or across both axes).
+across the image: 14-31 ms, not 0.34-1.0 s, at load 9), a rim box where its box holds off-gel pixels but lies
+inside the image, and the sparse path where none applies (a rim box at the image border, or whose gel pixels
+touch no fixed one; across both axes).
 """
 
 from __future__ import annotations
@@ -151,7 +160,14 @@ def integrate_on_dome(
         for box, edges in [(box, (0, 0)) for box in boxes] + edge_boxes:
             log_range = _solve_box(normals, geo, box, edges)
             points[box] = np.exp(log_range.astype(np.float32))[..., None] * geo.rays32[box]
-        for crop in sparse:
+        for i, crop in enumerate(sparse):
+            if method == "auto" and _rim_box_applies(unknown, on_gel, crop):
+                others = [box for box, _ in edge_boxes] + boxes + sparse[:i] + sparse[i + 1 :]
+                crop = _faster_rim_box(unknown, on_gel, crop, others)
+                solved = _interior_mask(on_gel[crop])
+                log_range = _solve_rim_box(normals, geo, on_gel, crop)[solved]
+                points[crop][solved] = np.exp(log_range.astype(np.float32))[:, None] * geo.rays32[crop][solved]
+                continue
             log_range = _solve_sparse(normals, unknown, on_gel, geo, crop)
             points[crop][unknown[crop]] = np.exp(log_range)[:, None] * geo.rays[crop][unknown[crop]]
     return points[..., 2], points
@@ -424,7 +440,7 @@ def _mirror_line(arrays: list[Array], axis: int, edge: int) -> list[Array]:
     return out
 
 
-def box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array) -> Array:
+def box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array, on_gel: Array | None = None) -> Array:
     """Right-hand side of the box's interior equation, 4 x_i - sum of neighbours = f_i, with the box's outer ring
     (of ``x``, the reference) moved to it.
 
@@ -433,7 +449,8 @@ def box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array) -> Ar
     Parameters
     ----------
     normals, rays, d_u, d_v : (h, w, 3) float32 over the box (the normals unit, toward the camera)
-    x : (h, w) float32 -- the reference log-range over the box (its outer ring is used)
+    x : (h, w) float32 -- the reference log-range over the box (its outer ring is used; 0 where off the gel)
+    on_gel : (h, w) bool, or None (every pixel) -- a pair with a pixel off the gel has no equation (a rim box)
 
     Returns
     -------
@@ -442,6 +459,8 @@ def box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array) -> Ar
     p, q = _gradient32(normals, rays, d_u, d_v)
     gu = 0.5 * (p[:, :-1] + p[:, 1:])  # edge (r, c) -> (r, c + 1)
     gv = 0.5 * (q[:-1, :] + q[1:, :])  # edge (r, c) -> (r + 1, c)
+    if on_gel is not None:
+        gu, gv = gu * (on_gel[:, :-1] & on_gel[:, 1:]), gv * (on_gel[:-1, :] & on_gel[1:, :])
     # 4 x_i - sum of neighbours = (incoming edge gradients) - (outgoing edge gradients)
     f = gu[1:-1, :-1] - gu[1:-1, 1:] + gv[:-1, 1:-1] - gv[1:, 1:-1]
     f[0, :] += x[0, 1:-1]
@@ -476,6 +495,151 @@ def _gradient32(normals: Array, rays: Array, d_u: Array, d_v: Array) -> tuple[Ar
 
     den = dot(rays).clip(max=-INTEGRATION_MIN_FACING)
     return -dot(d_u) / den, -dot(d_v) / den
+
+
+MAX_RIM_GREEN_VALUES = 1 << 22
+"""Most values of the box's Green's function that one rim box may sum (:func:`_box_green`: the sine modes of
+one axis times the rim's points and columns; 32 MiB of float64 each of its two largest arrays). A region beyond
+it (a rim box thousands of rim pixels long) keeps the sparse path."""
+
+
+def _interior_mask(on_gel: np.ndarray) -> np.ndarray:
+    """(h, w) bool: a rim box's solved pixels -- the gel pixels of its interior (all but the outer ring)."""
+    solved = on_gel.copy()
+    solved[[0, -1], :] = solved[:, [0, -1]] = False
+    return solved
+
+
+def _rim_box_applies(unknown: np.ndarray, on_gel: np.ndarray, crop: Box) -> bool:
+    """Whether the region group in ``crop`` (its bounds grown by the ring, :func:`_regions`) is solved as a rim
+    box: its ring lies in the image (no changed pixel on it), every connected part of the interior's gel
+    touches a gel pixel of the ring (which fixes its level: else the sparse path's anchor does), and its rim
+    is small enough (:data:`MAX_RIM_GREEN_VALUES`)."""
+    from scipy import ndimage
+
+    changed, gel = unknown[crop], on_gel[crop]
+    if min(gel.shape) < 3 or changed[[0, -1], :].any() or changed[:, [0, -1]].any():
+        return False
+    solved = _interior_mask(gel)
+    labels, count = ndimage.label(solved)
+    held = ndimage.binary_dilation(gel & ~solved) & solved  # solved pixels next to a gel pixel of the ring
+    if len(np.unique(labels[held])) < count:
+        return False
+    rim = _rim_rows(gel)[1]
+    return _green_cost(*np.nonzero(rim), *np.nonzero(rim), *(k - 2 for k in gel.shape)) <= MAX_RIM_GREEN_VALUES
+
+
+def _faster_rim_box(unknown: np.ndarray, on_gel: np.ndarray, crop: Box, others: Sequence[Box]) -> Box:
+    """A rim box grown to FFT-friendly sides (:func:`_faster`) within the image, clear of the boxes solved apart
+    (``others``), where it still applies (:func:`_rim_box_applies`); else ``crop``. Its sine solves are most
+    of its time: the ridge across the flat pad's box, 148 x 536 inside its ring, has the prime factors 149 and 179
+    in its transform lengths."""
+    rect = (crop[0].start, crop[0].stop, crop[1].start, crop[1].stop)
+    bounds = [(b[0].start, b[0].stop, b[1].start, b[1].stop) for b in others]
+    grown = _faster(rect, np.ones_like(on_gel), bounds)
+    return grown if grown != crop and _rim_box_applies(unknown, on_gel, grown) else crop
+
+
+def _rim_rows(on_gel: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """Off-gel neighbours of a rim box's interior pixels, per side (up, down, left, right: (m, n) bool each), and
+    the rim: (m, n) bool, the interior's gel pixels with at least one off-gel neighbour."""
+    off = ~on_gel
+    sides = [off[:-2, 1:-1], off[2:, 1:-1], off[1:-1, :-2], off[1:-1, 2:]]
+    return sides, on_gel[1:-1, 1:-1] & (sides[0] | sides[1] | sides[2] | sides[3])
+
+
+def _solve_rim_box(normals: np.ndarray, geo: RayGeometry, on_gel: np.ndarray, box: Box) -> np.ndarray:
+    """(h, w) float64 log-range over a rim box (module docstring): its interior's gel pixels solved, the rest the
+    reference (NaN off the gel); the sparse path's equation with those pixels unknown, up to rounding.
+
+    The box's Dirichlet Laplacian L (DST-I) becomes the rim box's matrix M = L + U V^T: the rows of the rim
+    pixels (U: their unit columns) lose their off-gel neighbours (V^T: minus their count on the diagonal, plus
+    one at each off-gel interior neighbour, whose own rows stay L's: M is block triangular, its gel block the
+    sparse path's). Woodbury: M x = f is x = L^-1 (f - U s) with the capacitance system
+    (I + V^T L^-1 U) s = V^T L^-1 f, L^-1's entries at the rim and its neighbours from :func:`_box_green`.
+    """
+    from scipy.fft import dstn
+    from scipy.linalg import lu_factor, lu_solve
+
+    from ..core.blas import blas_threads
+
+    gel = on_gel[box]
+    x = np.where(gel, geo.log_range[box], 0.0)
+    facing = np.where(gel[..., None], normals[box], -geo.rays[box])  # any finite normal off the gel: no pair uses it
+    f = box_rhs(facing, geo.rays[box], geo.d_u[box], geo.d_v[box], x, gel)
+    solved = gel[1:-1, 1:-1]
+    f[~solved] = 0.0  # an off-gel pixel's row: L's own, decoupled from the gel's
+    lam = box_eigenvalues(*f.shape)
+
+    def solve(rhs: np.ndarray) -> np.ndarray:
+        return dstn(dstn(rhs, type=1, norm="ortho") / lam, type=1, norm="ortho")
+
+    y = solve(f)
+    sides, rim_mask = _rim_rows(gel)
+    if rim_mask.any():
+        n = f.shape[1]
+        rim = np.flatnonzero(rim_mask)
+        rr, rc = np.divmod(rim, n)
+        # V^T's entries: (rim row, interior pixel, value); the rim pixel itself, then its off-gel neighbours
+        rows, pixels, values = [np.arange(len(rim))], [rim], [-sum(side.ravel()[rim] for side in sides).astype(float)]
+        for (dr, dc), side in zip(((-1, 0), (1, 0), (0, -1), (0, 1)), sides):
+            nr, nc = rr + dr, rc + dc
+            inside = side.ravel()[rim] & (nr >= 0) & (nr < f.shape[0]) & (nc >= 0) & (nc < n)
+            rows.append(np.flatnonzero(inside))
+            pixels.append(nr[inside] * n + nc[inside])
+            values.append(np.ones(int(inside.sum())))
+        points, column = np.unique(np.concatenate(pixels), return_inverse=True)
+        v_t = np.zeros((len(rim), len(points)))
+        np.add.at(v_t, (np.concatenate(rows), column), np.concatenate(values))
+        with blas_threads(1):  # small dense products: a second BLAS thread only waits on a shared machine
+            green = _box_green(*np.divmod(points, n), rr, rc, *f.shape)
+            capacitance = np.eye(len(rim)) + v_t @ green
+            s = lu_solve(lu_factor(capacitance), v_t @ y.ravel()[points])
+        f.ravel()[rim] -= s
+        y = solve(f)
+    out = np.where(gel, geo.log_range[box], np.nan)
+    out[1:-1, 1:-1][solved] = y[solved]
+    return out
+
+
+def _sine_modes(index: np.ndarray, n: int) -> np.ndarray:
+    """(len(index), n) float64: the orthonormal type-I sine modes of a path of n points at the points ``index``
+    (rows ``index`` of the orthonormal DST-I matrix: ``scipy.fft.dst(eye(n), type=1, norm="ortho")``)."""
+    return np.sqrt(2.0 / (n + 1)) * np.sin(np.pi * np.outer(np.asarray(index) + 1, np.arange(1, n + 1)) / (n + 1))
+
+
+def _green_cost(pr: np.ndarray, pc: np.ndarray, qr: np.ndarray, qc: np.ndarray, m: int, n: int) -> int:
+    """Values :func:`_box_green` holds at once in its largest array, summing over the cheaper axis's modes."""
+    return min(_green_rows_cost(pr, pc, qr, m, n), _green_rows_cost(pc, pr, qc, n, m))
+
+
+def _box_green(pr: np.ndarray, pc: np.ndarray, qr: np.ndarray, qc: np.ndarray, m: int, n: int) -> np.ndarray:
+    """(P, Q) float64: the (m, n) box's Dirichlet Green's function G(p, q), the inverse of its 5-point Laplacian
+    (:func:`box_eigenvalues`), between interior pixels p = (pr, pc) and q = (qr, qc).
+
+    G(p, q) = sum_k sum_l S_k(pr) S_k(qr) T_l(pc) T_l(qc) / (mu_k + nu_l), S and T the sine modes of the two axes.
+    The inner sum, per row mode k, is a 1-D Green's function along the columns, needed only between the distinct
+    columns of p and of q; the outer sum is then one matrix product per distinct column of p. The axes are
+    swapped where that is cheaper (a rim along the rows, few distinct rows)."""
+    if _green_rows_cost(pr, pc, qr, m, n) > _green_rows_cost(pc, pr, qc, n, m):
+        return _box_green(pc, pr, qc, qr, n, m)
+    columns_p, at_p = np.unique(pc, return_inverse=True)
+    columns_q, at_q = np.unique(qc, return_inverse=True)
+    inverse = 1.0 / (_path_eigenvalues(m, False)[:, None] + _path_eigenvalues(n, False)[None, :])  # (m, n)
+    along = np.matmul(_sine_modes(columns_p, n)[None] * inverse[:, None, :], _sine_modes(columns_q, n).T)
+    weighted = _sine_modes(qr, m).T[:, None, :] * along[:, :, at_q]  # (m, distinct columns of p, Q)
+    green = np.empty((len(pr), len(qr)))
+    order = np.argsort(at_p, kind="stable")
+    starts = np.searchsorted(at_p[order], np.arange(len(columns_p) + 1))
+    for a in range(len(columns_p)):
+        rows = order[starts[a] : starts[a + 1]]
+        green[rows] = _sine_modes(pr[rows], m) @ weighted[:, a, :]
+    return green
+
+
+def _green_rows_cost(pr: np.ndarray, pc: np.ndarray, qr: np.ndarray, m: int, n: int) -> int:
+    """:func:`_green_cost` summing over the row modes: (m, distinct columns of p, n or Q) values."""
+    return m * len(np.unique(pc)) * max(n, len(qr))
 
 
 def _solve_sparse(

@@ -9,12 +9,12 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from ..core.blas import blas_threads
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError
 from ..core.leds import Led, Leds, disk_shading, led_shading
 from ..core.robust_scale import mad_scale
-from .blas import blas_threads
 from .press_checks import _other_sensor, optics_difference
 
 

@@ -25,7 +25,7 @@ This module is the entry (:func:`solve`); each part of a solve lives in a file o
 - ``operators.py``: a level's difference operators and normal-matrix assembler, kept for reuse, and its normals;
 - ``gauss_newton.py``: one level's Gauss-Newton iteration and line search; ``kernel.py``: the per-pixel image model;
   ``krylov.py``: the preconditioned CG; ``geometry.py``: rays, difference operators, normals;
-- ``blas.py`` and ``threads.py``: BLAS thread control and the thread pool.
+- ``threads.py``: the thread pool (BLAS thread control: ``core/blas.py``, shared with learn/).
 """
 
 from __future__ import annotations
@@ -37,13 +37,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..core.blas import blas_threads
 from ..core.camera import Camera
 from ..core.errors import ConfigError
 from ..core.leds import Leds
 from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
 from ..progress import bars_enabled
-from .blas import blas_threads
 from .coarse_to_fine import level_pyramid, solve_coarse_to_fine
 from .crop import LevelData, crop_to_mask, full_image
 from .gauss_newton import expanded_step

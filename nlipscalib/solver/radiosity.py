@@ -32,12 +32,12 @@ from typing import NamedTuple
 import numpy as np
 
 from ..core import tolerances
+from ..core.blas import blas_threads
 from ..core.camera import Camera, pixel_derivatives
 from ..core.dome import dome_inward_normals, project_to_dome
 from ..core.sensor import DomeConfig
 from ..core.tolerances import NORMAL_EPS
 from . import threads
-from .blas import blas_threads
 
 
 def pixel_solid_angle(camera: Camera) -> np.ndarray:

@@ -9,7 +9,7 @@ on its mask alone (0.5-0.9 s at 640x480), and every pass of the outer interrefle
 press of a dataset solves on the same masks. Those results are memoised here, keyed by what they are computed
 from (camera, LEDs, a digest of the undeformed surface's arrays or of a mask, or the identity of a loaded
 reference capture), a few per kind, so a changed input is never served a stale result; and by the BLAS thread
-setting they were computed under (:func:`nlipscalib.solver.blas.blas_setting`): a matrix product's last bits
+setting they were computed under (:func:`nlipscalib.core.blas.blas_setting`): a matrix product's last bits
 depend on it, and a sweep that runs its tasks under one BLAS thread for reproducible numbers must not
 be served a result an earlier call computed under two. Stored arrays are made read-only: a caller that
 would modify one fails loudly instead of corrupting the next press's solve.
@@ -85,7 +85,7 @@ def stored(kind: str, key: Hashable) -> bool:
 
 def _with_setting(key: Hashable) -> tuple:
     """``key`` with the BLAS thread setting it is computed under: the full key of a stored result."""
-    from .blas import blas_setting
+    from ..core.blas import blas_setting
 
     return key, blas_setting()
 

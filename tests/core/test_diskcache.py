@@ -150,8 +150,8 @@ def test_an_entry_holding_another_object_is_removed_with_a_warning_and_recompute
     import logging
     import pickle
 
+    from nlipscalib.core.blas import blas_setting
     from nlipscalib.solver import reuse
-    from nlipscalib.solver.blas import blas_setting
 
     path = diskcache.entry("thing", ("x",))
     diskcache.store(path, _Thing(1.0, (2,)))

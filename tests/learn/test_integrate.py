@@ -344,3 +344,95 @@ def test_a_band_across_both_axes_keeps_the_sparse_path():
     cross = _band(on_gel.shape, 0, 200, 210) | _band(on_gel.shape, 1, 300, 310)
     boxes, edge_boxes, sparse = _regions(cross, on_gel, "auto")
     assert boxes == edge_boxes == [] and len(sparse) == 1
+
+
+def _flat_pad():
+    from nlipscalib.core.sensor import shipped_design
+
+    design = shipped_design("flat")
+    ref, rays, _, _, _ = _sphere_pressed_into_the_dome(design, 0, 0, 4.0, 1.0)
+    return design, ref, RayGeometry.from_reference(rays, ref.depth.astype(np.float64)), np.isfinite(ref.depth)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_a_rim_box_solves_the_sparse_paths_equations_on_its_gel_pixels(seed):
+    # a blob of random smooth normals near the flat pad's rim: its box holds off-gel pixels, where the sparse
+    # path has no pixel pair (a natural side along the gel's outline); the rim box must solve exactly that
+    # equation over its interior's gel pixels, up to rounding
+    from nlipscalib.learn.integrate import _faster_rim_box, _interior_mask, _regions, _rim_box_applies, _rim_rows
+
+    _, ref, geo, on_gel = _flat_pad()
+    rng = np.random.default_rng(seed)
+    row = int(rng.integers(60, 420))
+    side = np.flatnonzero(on_gel[row])[[0, -1][seed % 2]]
+    col = side + int(rng.integers(-5, 15)) * (1 if seed % 2 == 0 else -1)
+    radius = int(rng.integers(15, 45))
+    rr, cc = np.mgrid[: on_gel.shape[0], : on_gel.shape[1]]
+    unknown = ((rr - row) ** 2 + (cc - col) ** 2 < radius**2) & on_gel
+    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (6, 6, 0)) * 10
+    normals = ref.normals + np.where(unknown[..., None], tilt, 0)
+    with np.errstate(invalid="ignore"):  # NaN off the gel
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    boxes, edge_boxes, (crop,) = _regions(unknown, on_gel, "auto")
+    assert boxes == edge_boxes == [] and _rim_box_applies(unknown, on_gel, crop)
+    crop = _faster_rim_box(unknown, on_gel, crop, [])  # the box integrate_on_dome solves
+    assert _rim_rows(on_gel[crop])[1].sum() > 10  # rim pixels in the box: the capacitance correction is at work
+    inner = np.zeros_like(unknown)
+    inner[crop] = _interior_mask(on_gel[crop])
+    got, _ = integrate_on_dome(normals, unknown, geo)
+    sparse, _ = integrate_on_dome(normals, inner, geo, "sparse")
+    assert np.abs(sparse - ref.depth)[inner].max() > 0.05  # mm: a surface unlike the pad
+    np.testing.assert_allclose(got[inner], sparse[inner], atol=2e-5)  # mm: float32 points of float64 solves
+    outside = on_gel & ~inner
+    np.testing.assert_array_equal(got[outside], ref.depth[outside])
+
+
+@pytest.mark.parametrize(("polar", "azimuth", "radius"), [(48, 0, 5.0), (45, 20, 4.0)])
+def test_exact_normals_of_a_sphere_at_the_pads_rim_give_its_depth_in_a_rim_box(polar, azimuth, radius):
+    # 13,000-15,000 px at 640x480: SuperLU took 106-150 ms a frame (s25-wide); the rim box, 12-22 ms
+    from nlipscalib.learn.integrate import _regions, _rim_box_applies
+
+    design, ref, geo, on_gel = _flat_pad()
+    _, _, hit, points, normals = _sphere_pressed_into_the_dome(design, polar, azimuth, radius, 1.0)
+    unknown = ndimage.binary_dilation(hit, iterations=3) & on_gel
+    (crop,) = _regions(unknown, on_gel, "auto")[2]
+    assert _rim_box_applies(unknown, on_gel, crop) and not on_gel[crop].all()
+    got, _ = integrate_on_dome(normals, unknown, geo)
+    dent, true_dent = ref.depth - got, ref.depth - points[..., 2]
+    assert dent[unknown].max() == pytest.approx(true_dent[unknown].max(), rel=0.02)
+    assert np.abs(dent - true_dent)[unknown].mean() < 0.02 * true_dent[unknown].max()
+
+
+@pytest.mark.parametrize(("m", "n"), [(7, 11), (12, 5)])
+def test_the_box_greens_function_is_the_inverse_of_its_laplacian(m, n):
+    from scipy.sparse import diags, identity, kron
+
+    from nlipscalib.learn.integrate import _box_green
+
+    def path(k):
+        return diags([-np.ones(k - 1), 2 * np.ones(k), -np.ones(k - 1)], [-1, 0, 1])
+
+    inverse = np.linalg.inv((kron(path(m), identity(n)) + kron(identity(m), path(n))).toarray())
+    rng = np.random.default_rng(m * n)
+    p, q = rng.integers(0, m * n, 30), rng.integers(0, m * n, 9)
+    # few distinct rows of p (a rim along the rows): _box_green sums the other axis's modes; both must agree
+    for pick in (p, p % n + n * (p // n % 2)):
+        got = _box_green(*np.divmod(pick, n), *np.divmod(q, n), m, n)
+        np.testing.assert_allclose(got, inverse[np.ix_(pick, q)], rtol=1e-10, atol=1e-12)
+
+
+def test_a_rim_box_whose_gel_touches_no_fixed_pixel_keeps_the_sparse_path():
+    # a gel island in the box whose every neighbour is off the gel: nothing fixes its level but the anchor
+    from nlipscalib.learn.integrate import _rim_box_applies
+
+    on_gel = np.ones((40, 40), bool)
+    on_gel[10:30, 10:30] = False
+    on_gel[15:25, 15:25] = True  # the island
+    unknown = np.zeros_like(on_gel)
+    unknown[17:23, 17:23] = True
+    for box in ((slice(14, 26), slice(14, 26)), (slice(5, 35), slice(5, 35))):
+        assert not _rim_box_applies(unknown, on_gel, box)
+    on_gel[20, 10:15] = True  # a bridge to the gel around: its level is fixed there
+    for box in ((slice(14, 26), slice(14, 26)), (slice(5, 35), slice(5, 35))):
+        assert _rim_box_applies(unknown, on_gel, box)
+    assert not _rim_box_applies(unknown, on_gel, (slice(17, 26), slice(14, 26)))  # a changed pixel on its ring

@@ -68,7 +68,7 @@ def test_a_result_is_served_for_its_key_and_object_only_and_read_only():
 def test_a_result_computed_under_another_blas_thread_count_is_not_served():
     """A matrix product's last bits depend on BLAS's thread count (the radiosity gather's do): an experiment
     task runs under one thread for reproducible numbers and must not get a result computed under two."""
-    from nlipscalib.solver.blas import blas_setting, blas_threads
+    from nlipscalib.core.blas import blas_setting, blas_threads
     from nlipscalib.solver.radiosity import gather
 
     rng = np.random.default_rng(0)
@@ -157,7 +157,7 @@ def test_a_persisted_result_is_computed_once_for_later_processes_and_served_read
     reuse.reused("k", ("a", reuse.digest(np.zeros(3))), compute, persist=True)  # other content: computed
     assert len(calls) == 2
     assert reuse.origin(again) is None  # this process's store was cleared since
-    from nlipscalib.solver.blas import blas_setting
+    from nlipscalib.core.blas import blas_setting
 
     assert reuse.origin(reuse.reused("k", key, compute)) == ("k", (key, blas_setting()))
 

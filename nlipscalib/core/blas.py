@@ -1,4 +1,5 @@
-"""BLAS thread control (threadpoolctl): limits for the solver, and the setting results depend on.
+"""BLAS thread control (threadpoolctl): limits for the solver and the depth integration of ``nlips infer``
+(small dense products, :mod:`nlipscalib.learn.integrate`'s rim box), and the setting results depend on.
 
 The solver's BLAS work is small vector operations, faster on one thread; the interreflection gathers are
 blocks of matrix products, which run on one BLAS thread each (radiosity.gather splits them over its own
@@ -16,7 +17,8 @@ _controller = None
 def _blas():
     """threadpoolctl's controller of the loaded BLAS libraries (numpy's and SciPy's OpenBLAS), made once:
     SciPy's is loaded here (``nlips solve`` may still be importing SciPy on pyamg's background thread,
-    :func:`.krylov.import_amg_in_background`: Python's import locks make either thread wait for the other)."""
+    :func:`nlipscalib.solver.krylov.import_amg_in_background`: Python's import locks make either thread wait
+    for the other)."""
     global _controller
     if _controller is None:
         import scipy.linalg  # noqa: F401  (loads SciPy's BLAS, so the controller sees it)
