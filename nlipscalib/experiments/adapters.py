@@ -24,10 +24,6 @@ if TYPE_CHECKING:  # named in hints only: each function imports what it uses
     from ..sim.scene import SceneConfig
     from ..solver import SolverOptions
 
-SOLVER_RNG_SEED = 0
-"""numpy's global generator is seeded with this before every solve and calibration: pyamg draws random
-vectors from it (spectral-radius estimates of its smoothers), and unseeded the same press solved twice
-differs by ~1e-6 degrees; seeded, a press gives the same bits in any process or Dask worker."""
 ROI_MARGIN_PX = 8
 """Margin around the true contact's bounding box for ``roi = "truth"``, pixels."""
 
@@ -109,7 +105,6 @@ def calibrate(reference_folder: Path, initial: Leds) -> tuple[tuple[Led, ...], d
     """
     from ..solver import calibrate_leds
 
-    np.random.seed(SOLVER_RNG_SEED)
     cal = calibrate_leds(load(reference_folder), initial=initial)
     quality = {k: cal.quality[k] for k in ("median_ratio", "threshold", "reliable")}
     return cal.leds, {"rms": [float(r) for r in cal.rms], "albedo": list(cal.albedo), "quality": quality}
@@ -175,7 +170,6 @@ def solve(
     if interreflection != "off" and reference is None:
         raise ConfigError(f"interreflection {interreflection!r} needs the undeformed reference capture")
     box = {"truth": lambda: truth_roi(press), "auto": lambda: "auto", "full": lambda: None}[roi]()
-    np.random.seed(SOLVER_RNG_SEED)
     result, status = solve_folder(
         press.folder,
         reference=None if interreflection == "off" else reference,

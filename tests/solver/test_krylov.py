@@ -588,3 +588,23 @@ def test_the_single_precision_copy_is_astypes_on_one_or_two_threads(monkeypatch)
                 assert not np.shares_memory(getattr(single, name), getattr(A, name))
     finally:
         threads.set_workers(before)
+
+
+def test_the_amg_set_up_draws_nothing_from_numpys_global_generator():
+    """pyamg estimates a smoother's spectral radius from a random start vector of NumPy's global generator; the
+    hierarchy weights its smoother from Gershgorin bounds instead, so it draws nothing: no caller needs to seed
+    the generator for the same bits, and a notebook's generator is left as it was."""
+    import pyamg
+
+    from nlipscalib.solver import krylov
+
+    matrix = pyamg.gallery.poisson((60, 60), format="csr")
+    np.random.seed(7)
+    untouched = np.random.random()  # the generator's next value had nothing drawn from it
+    np.random.seed(7)
+    first = krylov._hierarchy(matrix)
+    assert np.random.random() == untouched
+    second = krylov._hierarchy(matrix)
+    assert len(first.levels) == len(second.levels) > 1
+    for a, b in zip(first.levels, second.levels):
+        assert (a.A != b.A).nnz == 0
