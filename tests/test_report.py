@@ -496,6 +496,24 @@ def test_live_window_shows_normals_beside_depth_and_q_ends_the_stream(monkeypatc
         sink(1, None, result)
 
 
+def test_live_depth_colour_bar_names_the_unit_and_marks_the_ends_beyond_its_range(monkeypatch):
+    """The live window showed depth colours without a scale: the maps' colour bar now stands at its right."""
+    from nlipscalib.report import live
+    from nlipscalib.report.maps import BAR_WIDTH
+
+    drawn = []
+    bar = live.colour_bar
+    monkeypatch.setattr(live, "colour_bar", lambda *a: drawn.append(a) or bar(*a))
+    reference = np.full((60, 4), 10.0)
+    rgb, strip = live.depth_bar_rgb(reference - np.linspace(-0.5, 3.0, 240).reshape(60, 4), reference, span_mm=2.0)
+    assert rgb.shape == (60, 4, 3) and strip.shape == (60, BAR_WIDTH, 3) and strip.dtype == np.uint8
+    assert drawn[-1][1:] == ("viridis", 0.0, 2.0, "indentation, mm", True, True)  # "2+" and "<=0"
+    live.depth_bar_rgb(reference - 1.0, reference)
+    assert drawn[-1][-2:] == (False, False)
+    live.depth_bar_rgb(np.linspace(8.0, 9.0, 240).reshape(60, 4))  # no reference: its own range, nothing beyond
+    assert drawn[-1][1:] == ("viridis", 8.0, 9.0, "camera z, mm", False, False)
+
+
 def test_training_curve_ticks_whole_epochs(tmp_path, monkeypatch):
     import matplotlib.figure
 

@@ -5,10 +5,12 @@ of them, or a stream: a video file, an image-sequence pattern, a live camera (``
 emulated sensor (``--emulate``). Streams are opened and run exactly as ``nlips live`` runs them
 (cli/_stream.py's source flags, device/live.py's loop): the running frame rate goes to stderr once per
 second on a terminal, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
-frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud. Presses and frames
-resume instead: a result made from the same input with the same model file and options is kept (its report's
-``provenance.key``, :func:`still_provenance`), any other is inferred again, ``--overwrite`` infers all; a re-run
-whose results are all kept says so at once, without loading the model (:func:`_settings_before_loading`).
+frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud. A press's or frame's
+result gets ``nlips solve``'s figures beside it (``--figures``, default maps: normals.png, depth.png, error.png
+with ground truth). Presses and frames resume instead: a result made from the same input with the same model
+file and options is kept (its report's ``provenance.key``, :func:`still_provenance`), any other is inferred
+again, ``--overwrite`` infers all; a re-run whose results are all kept says so at once, without loading the
+model (:func:`_settings_before_loading`).
 """
 
 from __future__ import annotations
