@@ -47,6 +47,40 @@ def test_contact_sheet_writes_a_png(tmp_path):
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.parametrize("shape", [(332, 336), (480, 640), (40, 120)])
+def test_contact_sheet_panels_are_drawn_at_one_size_with_tight_gaps(shape):
+    """The solve summary's normals panel (no colour bar) was drawn larger than its neighbours, and a square
+    region of interest left wide gaps between panels (fixed 3.2 x 2.7 in cells): every image of a sheet is now
+    drawn at one size, whatever its panel holds, and the gaps between them are the colour bars' room only."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from nlipscalib.report.figures import BAR_ROOM_IN, PANEL_WIDTH_IN, sheet_figure
+
+    rng = np.random.default_rng(0)
+    values = rng.random(shape)
+    panels = [
+        Panel("normals", rng.random(shape + (3,))),
+        Panel("depth", values, label="indentation, mm"),
+        Panel("mask", (values > 0.5).astype(float), "gray", legend=("no", "yes")),
+        Panel("angular error\nAAE 0.45 deg, contact 0.42 deg", values * 2, "inferno", "deg", 0.0, 1.0),
+    ]
+    fig = sheet_figure([("press", panels), ("other", panels[:2])], caption="key", title="title")
+    fig.canvas.draw()
+    boxes = [ax.get_window_extent() for ax in fig.axes if ax.images and ax.get_label() != "<colorbar>"]
+    plt.close(fig)
+    assert len(boxes) == 6
+    sizes = {(round(b.width), round(b.height)) for b in boxes}
+    assert len(sizes) == 1, sizes  # one size for all, normal maps and masks as scalar maps
+    ((width, height),) = sizes
+    assert abs(width / height - shape[1] / shape[0]) < 0.02  # the image fills its axes: no gap inside them
+    gaps = [b.x0 - a.x1 for a, b in zip(boxes[:3], boxes[1:4])]
+    assert max(gaps) < (BAR_ROOM_IN + 0.5) * fig.dpi, gaps  # a colour bar's room, not a field of white
+    assert width > 0.7 * PANEL_WIDTH_IN * fig.dpi
+
+
 def test_scalar_map_colours_range_and_missing_values(tmp_path):
     import cv2
 
@@ -337,13 +371,15 @@ def test_error_map_sheets_are_readable_and_small(tmp_path):
     from PIL import Image
 
     from nlipscalib.report.experiments import error_maps
+    from nlipscalib.report.figures import PANEL_WIDTH_IN
 
     rng = np.random.default_rng(3)
     n = np.zeros((48, 64, 3))
     n[..., 2] = -1.0
     rows = [(f"press {i}", n, n, rng.uniform(0, 4, (48, 64))) for i in range(2)]
     path = error_maps(rows, tmp_path / "maps.png")
-    assert Image.open(path).size[0] >= 950  # 3 panels of 3.2 in at >= 100 dpi (60 dpi: 576 px, unreadable ticks)
+    # 3 images of PANEL_WIDTH_IN at >= 100 dpi (60 dpi: 576 px in all, unreadable ticks)
+    assert Image.open(path).size[0] >= 3 * PANEL_WIDTH_IN * 100
     assert path.stat().st_size < 150_000
 
 
@@ -381,7 +417,7 @@ def test_demo_sheet_contact_mask_is_named_in_a_legend_not_a_colour_bar():
     fig = Figure()
     ax = fig.subplots()
     _draw(fig, ax, mask)
-    assert len(fig.axes) == 1  # no colour bar axes
+    assert [a for a in fig.axes if a.get_visible()] == [ax]  # no colour bar (its room only: see the layout test)
     keys = ax.get_legend()
     assert [t.get_text() for t in keys.get_texts()] == ["no contact", "contact"]
     colours = [tuple(h.get_facecolor()[:3]) for h in keys.legend_handles]
@@ -443,6 +479,7 @@ def test_live_window_shows_normals_beside_depth_and_q_ends_the_stream(monkeypatc
 
     from nlipscalib.device.live import LiveResult, StopLive
     from nlipscalib.report.live import WindowSink, depth_to_rgb
+    from nlipscalib.report.maps import BAR_WIDTH
 
     shown, keys = [], [-1, ord("q")]
     monkeypatch.setattr(cv2, "imshow", lambda name, bgr: shown.append(bgr))
@@ -452,11 +489,29 @@ def test_live_window_shows_normals_beside_depth_and_q_ends_the_stream(monkeypatc
     result = LiveResult(normals, np.full((4, 5), 9.5, np.float32))
     sink = WindowSink(StopLive, reference_depth=np.full((4, 5), 10.0))
     sink(0, None, result)
-    assert shown[0].shape == (4, 10, 3)
+    assert shown[0].shape == (4, 10 + BAR_WIDTH, 3)  # normals, depth and the depth's colour bar
     assert tuple(shown[0][0, 0]) == (255, 127, 127)  # BGR of the camera-facing blue, as the saved normal maps
-    np.testing.assert_array_equal(shown[0][:, 5:, ::-1], depth_to_rgb(result.depth, np.full((4, 5), 10.0)))
+    np.testing.assert_array_equal(shown[0][:, 5:10, ::-1], depth_to_rgb(result.depth, np.full((4, 5), 10.0)))
     with pytest.raises(StopLive):
         sink(1, None, result)
+
+
+def test_live_depth_colour_bar_names_the_unit_and_marks_the_ends_beyond_its_range(monkeypatch):
+    """The live window showed depth colours without a scale: the maps' colour bar now stands at its right."""
+    from nlipscalib.report import live
+    from nlipscalib.report.maps import BAR_WIDTH
+
+    drawn = []
+    bar = live.colour_bar
+    monkeypatch.setattr(live, "colour_bar", lambda *a: drawn.append(a) or bar(*a))
+    reference = np.full((60, 4), 10.0)
+    rgb, strip = live.depth_bar_rgb(reference - np.linspace(-0.5, 3.0, 240).reshape(60, 4), reference, span_mm=2.0)
+    assert rgb.shape == (60, 4, 3) and strip.shape == (60, BAR_WIDTH, 3) and strip.dtype == np.uint8
+    assert drawn[-1][1:] == ("viridis", 0.0, 2.0, "indentation, mm", True, True)  # "2+" and "<=0"
+    live.depth_bar_rgb(reference - 1.0, reference)
+    assert drawn[-1][-2:] == (False, False)
+    live.depth_bar_rgb(np.linspace(8.0, 9.0, 240).reshape(60, 4))  # no reference: its own range, nothing beyond
+    assert drawn[-1][1:] == ("viridis", 8.0, 9.0, "camera z, mm", False, False)
 
 
 def test_training_curve_ticks_whole_epochs(tmp_path, monkeypatch):
@@ -485,8 +540,8 @@ def test_the_colour_bar_marks_clipped_values_only_on_a_fixed_scale(tmp_path, mon
     from nlipscalib.report import maps
 
     marked = []
-    bar = maps._colour_bar
-    monkeypatch.setattr(maps, "_colour_bar", lambda *a, **k: marked.append(a[-1]) or bar(*a, **k))
+    bar = maps.colour_bar
+    monkeypatch.setattr(maps, "colour_bar", lambda *a, **k: marked.append(a[-1]) or bar(*a, **k))
     values = np.linspace(0.0, 20.0, 64 * 64).reshape(64, 64)
     maps.scalar_map_png(tmp_path / "auto.png", values, "inferno", "deg")
     maps.scalar_map_png(tmp_path / "fixed.png", values, "inferno", "deg", vmin=0.0, vmax=10.0)

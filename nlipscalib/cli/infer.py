@@ -5,10 +5,12 @@ of them, or a stream: a video file, an image-sequence pattern, a live camera (``
 emulated sensor (``--emulate``). Streams are opened and run exactly as ``nlips live`` runs them
 (cli/_stream.py's source flags, device/live.py's loop): the running frame rate goes to stderr once per
 second on a terminal, Ctrl-C ends the stream cleanly with its summary, and ``--out`` keeps every ``--every``-th
-frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud. Presses and frames
-resume instead: a result made from the same input with the same model file and options is kept (its report's
-``provenance.key``, :func:`still_provenance`), any other is inferred again, ``--overwrite`` infers all; a re-run
-whose results are all kept says so at once, without loading the model (:func:`_settings_before_loading`).
+frame's normal map (PNG), arrays (npz: normals, depth) and, with ``--ply``, its point cloud. A press's or frame's
+result gets ``nlips solve``'s figures beside it (``--figures``, default maps: normals.png, depth.png, error.png
+with ground truth). Presses and frames resume instead: a result made from the same input with the same model
+file and options is kept (its report's ``provenance.key``, :func:`still_provenance`), any other is inferred
+again, ``--overwrite`` infers all; a re-run whose results are all kept says so at once, without loading the
+model (:func:`_settings_before_loading`).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ if TYPE_CHECKING:  # named in hints only: torch, OpenCV and the device loop are 
 
     import numpy as np
 
+    from ..core.surface_files import GroundTruth
     from ..device.live import FrameReader, LiveStats
     from ..learn.infer import Frame, Predictor
     from ..learn.watch import MismatchWatch
@@ -45,6 +48,14 @@ log = logging.getLogger(__name__)
 STILL_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".ppm", ".jpg", ".jpeg", ".bmp")
 """Files taken as single tri-colour frames (any case; device.camera.IMAGE_SUFFIXES, what a folder source reads);
 any other file is opened as a video."""
+FIGURE_FILES = {
+    "none": "",
+    "maps": ", normals.png, depth.png, error.png with ground truth",
+    "full": ", normals.png, depth.png, error.png with ground truth, summary.png",
+}
+"""What the line saying where the results are lists of each ``--figures`` level's files."""
+FIGURES_DEFAULT = "maps"
+"""Figures beside a press's or frame's result when --figures is not given: the maps, as ``nlips solve`` writes."""
 STREAM_STOPPED = "the stream stopped (a stream does not resume; frames already saved with --out are kept)"
 """What ``nlips infer`` of a stream, interrupted or terminated, says it left (:func:`stopped`)."""
 
@@ -97,6 +108,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--threads", type=int, default=0, help="CPU threads for the network (default 0: all this process may use)"
     )
     add_device_arguments(p)
+    p.add_argument(
+        "--figures",
+        choices=("none", "maps", "full"),
+        help="presses and frames: figures beside each result, as `nlips solve` writes them: maps (PNG normal map, "
+        "depth map with a colour bar in mm and, for a press with ground truth, the error map; fast; default), full "
+        "(plus a matplotlib summary sheet), none. A stream keeps its frames' normal maps (--out)",
+    )
+    p.add_argument("--no-figures", dest="figures", action="store_const", const="none", help="same as --figures none")
     p.add_argument("--max-frames", type=int, help="stream: stop after this many frames (default: its end or Ctrl-C)")
     p.add_argument("--every", type=int, help="stream with --out: keep every N-th frame (default 1)")
     p.set_defaults(func=run, stopped=stopped)
@@ -139,11 +158,18 @@ def run(args: argparse.Namespace) -> int:
                 f"{option(dest)} is for a stream (a video, --camera, --emulate): press folders and image files "
                 "are each inferred once; drop it"
             )
-    elif args.overwrite:  # a stream always starts over: there is nothing the flag would change
-        raise ConfigError(
-            "--overwrite is for press folders and image frames (their identical results are kept otherwise); a "
-            "stream does not resume: it writes its frames anew on every run"
-        )
+        args.figures = args.figures or FIGURES_DEFAULT
+    else:
+        if args.overwrite:  # a stream always starts over: there is nothing the flag would change
+            raise ConfigError(
+                "--overwrite is for press folders and image frames (their identical results are kept otherwise); a "
+                "stream does not resume: it writes its frames anew on every run"
+            )
+        if args.figures is not None:  # its per-frame pictures are the normal maps SaveSink keeps
+            raise ConfigError(
+                "--figures is for press folders and image files: a stream with --out keeps every --every-th "
+                "frame's normal map (PNG) beside its arrays; drop it"
+            )
     check_source_arguments(args)
     check_output_arguments(args, args.out)
     if stream_input is not None:
@@ -471,7 +497,7 @@ def _run_stills(args: argparse.Namespace) -> int:
     if sum(is_kept for _, is_kept in looked.values()) == len(frames):
         # a finished run again: said at once, without loading the model (torch or onnxruntime: seconds)
         print(_stills_summary(args, None, [], len(frames), time.perf_counter() - t_start))
-        print(_where_saved(saved, {folder for folder, _ in saved}, bool(args.ply or args.mesh)))
+        print(_where_saved(saved, {folder for folder, _ in saved}, bool(args.ply or args.mesh), args.figures))
         return 0
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
@@ -488,7 +514,7 @@ def _run_stills(args: argparse.Namespace) -> int:
             provenance, is_kept = looked.get(folder, (None, False))
             if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
                 provenance = still_provenance(settings, input_identity(press_folder, source))
-                is_kept = _kept(folder, provenance)
+                is_kept = _kept(folder, provenance, args.figures)
             if is_kept:
                 kept.add(folder)
                 continue
@@ -509,11 +535,11 @@ def _run_stills(args: argparse.Namespace) -> int:
             log.warning("%s", why)
         inner.append(result.seconds["total"])
         if folder is not None:
-            _save(args, predictor, result, name, folder, provenance)
+            _save(args, predictor, result, name, folder, provenance, press_folder)
     print(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
     not_written = {folder for folder, _ in failed.values()}
     if written := [(folder, press) for folder, press in saved if folder not in not_written]:
-        print(_where_saved(written, kept, bool(args.ply or args.mesh)))
+        print(_where_saved(written, kept, bool(args.ply or args.mesh), args.figures))
     if failed:
         print(f"failed: {len(failed)} of {len(frames)} input(s), not inferred (run again once fixed: the rest is kept)")
         for source, (_, why) in failed.items():  # the error names its file mostly: said once
@@ -553,13 +579,13 @@ def _look_before_loading(
             provenance = still_provenance(settings, input_identity(press_folder, source))
         except CaptureError:  # a damaged input: said by the loop over the inputs, with the model loaded
             break
-        looked[folder] = (provenance, _kept(folder, provenance))
+        looked[folder] = (provenance, _kept(folder, provenance, args.figures))
         if not looked[folder][1]:
             break
     return looked
 
 
-def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply: bool) -> str:
+def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply: bool, figures: str = "none") -> str:
     """Where the stills' results are (a new user looked for them after the frame-rate line): one folder each.
 
     ``saved``: (result folder, whether it is a press's) of every input with a result folder; frames' and
@@ -572,7 +598,7 @@ def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply
         where = f": {len(frames)} for frames in {_where(frames)}, {len(presses)} for presses in {_where(presses, True)}"
     else:
         where = f" in {_where(frames or presses, not frames)}"
-    files = "result.npz, report.json" + (", points.ply" if ply else "")
+    files = "result.npz, report.json" + (", points.ply" if ply else "") + FIGURE_FILES[figures]
     # a frame's result has no ground truth beside it: eval scores it against the press it shows, named with --result
     scores = "nlips eval scores them" + ("; a frame's: nlips eval PRESS --result FOLDER" if frames else "")
     written = len(saved) - len(kept)
@@ -860,14 +886,16 @@ def _interrupted_write(folder: Path) -> bool:
     return any(p.name[len(TMP_PREFIX) :].rsplit(OWNER_SEP, 3)[0] == folder.name for p in beside)
 
 
-def _kept(folder: Path, provenance: dict) -> bool:
+def _kept(folder: Path, provenance: dict, figures: str) -> bool:
     """Whether ``folder`` holds a whole result made with ``provenance``'s key (then it is kept, not inferred again).
 
     Not when a write of it was interrupted beside it (inferring it again publishes a result and removes the
     leftover, core.atomic), when it is damaged (every array read and checked, as ``nlips solve`` checks a result it
-    keeps: a warning), when it lacks the points.ply its settings name (removed since), or when its key differs
-    (:func:`_save` says what changed as it replaces it)."""
+    keeps: a warning), when it lacks the points.ply its settings name (removed since) or the ``figures`` asked
+    now (made with --figures none, or by an older nlipscalib: inferring again costs a fraction of a second once
+    the model is loaded), or when its key differs (:func:`_save` says what changed as it replaces it)."""
     from ..core.reconstruction import read_report, reconstruction_problem
+    from ..report import figures_missing
 
     if _interrupted_write(folder):
         log.info("%s: an interrupted write of it lies beside it; inferring it again", folder)
@@ -883,27 +911,58 @@ def _kept(folder: Path, provenance: dict) -> bool:
     if provenance["settings"]["ply"] and not (folder / "points.ply").is_file():
         log.info("%s: its points.ply is missing; inferring it again", folder)
         return False
+    if figures_missing(folder, figures):
+        log.info("%s: its figures (--figures %s) are missing; inferring it again", folder, figures)
+        return False
     log.debug("%s: identical result exists, kept (--overwrite infers it again)", folder)
     return True
 
 
 def _save(
-    args: argparse.Namespace, predictor: Predictor, result: Frame, name: str, folder: Path, provenance: dict
+    args: argparse.Namespace,
+    predictor: Predictor,
+    result: Frame,
+    name: str,
+    folder: Path,
+    provenance: dict,
+    press_folder: Path | None,
 ) -> None:
-    """Write ``result`` into ``folder`` (with its points.ply when asked), recording ``provenance``."""
+    """Write ``result`` into ``folder`` (with its points.ply and figures when asked), recording ``provenance``.
+
+    The figures are ``nlips solve``'s (report.reconstruction, ``args.figures``): the normal map, the depth map as
+    the indentation from the model's undeformed dome and, for a press with ground truth (a twin's gt.npz), the
+    error map."""
     from ..core.reconstruction import save_reconstruction
     from ..learn.infer import to_reconstruction
     from ..learn.ply import write_ply
+    from ..report import write_reconstruction_figures
 
-    def ply(tmp: Path) -> None:
-        # written into the temporary folder, so the result is published with its points.ply or not at all: a
-        # reader never sees a folder that lacks it, and a failed write (a full disk) publishes nothing
-        write_ply(tmp / "points.ply", result.points, result.normals, mesh=args.mesh)
-
-    extra = ply if args.ply or args.mesh else None
     reconstruction = to_reconstruction(result, predictor, name, provenance)
+
+    def extra(tmp: Path) -> None:
+        # written into the temporary folder, so the result is published with its points.ply and figures or not at
+        # all: a reader never sees a folder that lacks them, and a failed write (a full disk) publishes nothing
+        if args.ply or args.mesh:
+            write_ply(tmp / "points.ply", result.points, result.normals, mesh=args.mesh)
+        truth = (lambda: _truth_or_none(press_folder)) if press_folder is not None else None
+        reference = predictor.model.reference["depth"]  # the press's own, checked equal on loading it
+        write_reconstruction_figures(tmp, reconstruction, truth, args.figures, reference, name)
+
     _say_what_is_replaced(folder, reconstruction.report)
     save_reconstruction(reconstruction, folder, overwrite=True, extra_files=extra)
+
+
+def _truth_or_none(press_folder: Path) -> GroundTruth | None:
+    """The press's ground truth for its error map; None, with one warning, when gt.npz is damaged: the inference
+    reads none, so a damaged one costs the error map only (as in ``nlips solve``)."""
+    from ..core.capture import read_ground_truth
+    from ..core.errors import CaptureError
+
+    try:
+        return read_ground_truth(press_folder)
+    except CaptureError as exc:
+        log.warning("%s: the ground truth is damaged; the error figure (error.png) is skipped", exc)
+        return None
 
 
 def _say_what_is_replaced(folder: Path, report: dict) -> None:

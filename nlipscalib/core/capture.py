@@ -311,6 +311,15 @@ def as_press(press: Press | str | os.PathLike, name: str = "press") -> Press:
     )
 
 
+def read_ground_truth(folder: str | Path) -> GroundTruth | None:
+    """A press folder's ground truth (gt.npz, checked as :func:`load_press` checks it), or None when it has none,
+    without reading its images: what a figure of another method's result (``nlips infer``'s) scores it against."""
+    folder = Path(folder)
+    meta = read_meta(folder)
+    camera, leds, _ = parse_optics(meta, folder / META_FILE)
+    return ground_truth_loader(folder, meta, camera, leds).load()
+
+
 def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, decode: bool | str = True) -> Press:
     """Load and validate a press folder; every problem is reported naming the file.
 

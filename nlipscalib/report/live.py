@@ -1,7 +1,8 @@
 """Pictures of a live stream: the window ``nlips live`` shows, and the PNG normal maps ``--save`` / ``--out`` keep.
 
 device/live.py streams arrays through sinks; these sinks draw them (the CLI passes them in). The depth colours
-are :mod:`.maps`' scalar colour mapping (viridis), the normal colours :func:`.figures.normals_to_rgb`'s.
+are :mod:`.maps`' scalar colour mapping (viridis) with its colour bar, the normal colours
+:func:`.figures.normals_to_rgb`'s.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numpy as np
 from ..core.atomic import write_bytes
 from ..core.errors import require
 from .figures import normals_to_rgb
-from .maps import colour_scalars
+from .maps import colour_bar, colour_scalars
 
 if TYPE_CHECKING:  # named in hints only: at run time report/ imports no computing package
     from ..device.live import LiveResult
@@ -29,8 +30,11 @@ FLAT_RANGE_MM = 1e-9
 pixel is then at the range's bottom)."""
 
 
-def depth_to_rgb(depth: np.ndarray, reference: np.ndarray | None = None, span_mm: float = 2.0) -> np.ndarray:
-    """Depth map for viewing: indentation below the reference (or depth itself) on a colour scale.
+def depth_scale(
+    depth: np.ndarray, reference: np.ndarray | None = None, span_mm: float = 2.0
+) -> tuple[np.ndarray, float, float, str]:
+    """What the live view shows of a depth map: the indentation below the reference (or depth itself), its colour
+    range and the colour bar's unit label.
 
     Parameters
     ----------
@@ -40,16 +44,48 @@ def depth_to_rgb(depth: np.ndarray, reference: np.ndarray | None = None, span_mm
 
     Returns
     -------
-    (H, W, 3) uint8, RGB; black off the gel
+    values : (H, W) float, mm, NaN off the gel
+    vmin, vmax : the colour range, mm (0 to ``span_mm`` with a reference)
+    label : "indentation, mm" or "camera z, mm"
     """
     if reference is not None:
         # a press pushes the gel toward the camera inside the dome: the indentation is reference - depth
-        values, vmin, vmax = reference - depth, 0.0, span_mm
-    else:
-        valid = np.isfinite(depth)
-        lo, hi = (float(np.nanmin(depth)), float(np.nanmax(depth))) if valid.any() else (0.0, 1.0)
-        values, vmin, vmax = depth, lo, max(hi, lo + FLAT_RANGE_MM)
+        return reference - depth, 0.0, span_mm, "indentation, mm"
+    valid = np.isfinite(depth)
+    lo, hi = (float(np.nanmin(depth)), float(np.nanmax(depth))) if valid.any() else (0.0, 1.0)
+    return depth, lo, max(hi, lo + FLAT_RANGE_MM), "camera z, mm"
+
+
+def depth_to_rgb(depth: np.ndarray, reference: np.ndarray | None = None, span_mm: float = 2.0) -> np.ndarray:
+    """Depth map for viewing: indentation below the reference (or depth itself) on a colour scale
+    (:func:`depth_scale`).
+
+    Returns
+    -------
+    (H, W, 3) uint8, RGB; black off the gel
+    """
+    values, vmin, vmax, _ = depth_scale(depth, reference, span_mm)
     return colour_scalars(values, vmin, vmax, "viridis", no_value=OFF_GEL_RGB)[..., ::-1].copy()
+
+
+def depth_bar_rgb(
+    depth: np.ndarray, reference: np.ndarray | None = None, span_mm: float = 2.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """The live view's depth map and its colour bar strip (the maps' :func:`.maps.colour_bar`: range and unit;
+    "2+" when a press is deeper than ``span_mm``, "<=0" when the gel lies behind its undeformed surface).
+
+    Returns
+    -------
+    depth_rgb : (H, W, 3) uint8, RGB; black off the gel (:func:`depth_to_rgb`)
+    bar_rgb : (H, :data:`.maps.BAR_WIDTH`, 3) uint8, RGB
+    """
+    values, vmin, vmax, label = depth_scale(depth, reference, span_mm)
+    rgb = colour_scalars(values, vmin, vmax, "viridis", no_value=OFF_GEL_RGB)[..., ::-1]
+    fixed = reference is not None  # a fixed scale: values beyond it are marked (the own range holds them all)
+    finite = values[np.isfinite(values)] if fixed else values[:0]
+    over, under = bool(np.any(finite > vmax)), bool(np.any(finite < vmin))
+    bar = colour_bar(values.shape[0], "viridis", vmin, vmax, label, over, under)[..., ::-1]
+    return rgb, bar
 
 
 def normals_to_rgb8(normals: np.ndarray) -> np.ndarray:
@@ -80,7 +116,8 @@ def window_problem() -> str | None:
 
 
 class WindowSink:
-    """Normals and depth side by side in an OpenCV window; q or Esc ends the stream.
+    """Normals and depth side by side in an OpenCV window, the depth's colour bar (range, unit) at its right; q or
+    Esc ends the stream.
 
     Parameters
     ----------
@@ -95,7 +132,7 @@ class WindowSink:
 
     def __call__(self, index: int, frame: np.ndarray, result: LiveResult) -> None:
         normals = normals_to_rgb8(result.normals)
-        view = np.concatenate([normals, depth_to_rgb(result.depth, self.reference_depth)], axis=1)
+        view = np.concatenate([normals, *depth_bar_rgb(result.depth, self.reference_depth)], axis=1)
         self.cv2.imshow(WINDOW, view[..., ::-1])
         if self.cv2.waitKey(1) & 0xFF in (ord("q"), 27):
             raise self.stop

@@ -86,7 +86,7 @@ def scalar_map_png(
     under = fixed_bottom and bool(np.any(finite < vmin))
     height = max(values.shape[0], bar_min_height(label))
     bgr = np.concatenate([bgr, np.full((height - values.shape[0],) + bgr.shape[1:], 255, np.uint8)], axis=0)
-    strip = _colour_bar(height, cmap, vmin, vmax, label, over, under=under)
+    strip = colour_bar(height, cmap, vmin, vmax, label, over, under=under)
     return _write_png(path, np.concatenate([bgr, strip], axis=1))
 
 
@@ -159,7 +159,7 @@ def bar_min_height(label: str = "") -> int:
     return (2 + len(_unit_lines(label))) * LINE_PX + 8
 
 
-def _colour_bar(
+def colour_bar(
     height: int, cmap: str, vmin: float, vmax: float, label: str, over: bool = False, under: bool = False
 ) -> np.ndarray:
     """(height, BAR_WIDTH, 3) uint8 BGR: a vertical gradient (vmax at the top) with its range and unit.

@@ -2,9 +2,9 @@
 
 Two levels:
 
-- ``"maps"`` (default of ``nlips solve``): normals.png, depth.png, residual.png and, with ground truth,
-  error.png, as plain PNGs over the solved box at the image's resolution (OpenCV, milliseconds;
-  :mod:`.maps`).
+- ``"maps"`` (default of ``nlips solve`` and ``nlips infer``): normals.png, depth.png, residual.png (a result
+  with a residual: NLiPs', not NLiPsNet's) and, with ground truth, error.png, as plain PNGs over the solved box at
+  the image's resolution (OpenCV, milliseconds; :mod:`.maps`).
 - ``"full"``: the maps plus summary.png, a matplotlib contact sheet with titles and colour bars
   (about a second, most of it importing matplotlib).
 """
@@ -100,12 +100,17 @@ def write_reconstruction_figures(
         top = error_scale([err])  # ~6 ms at 640x480: once, for error.png and the summary alike
         return scalar_map_png(folder / "error.png", err, ERROR_CMAP, "deg", 0.0, top), (err, truth.contact[box], top)
 
+    residual = _masked(rec.residual[box], shown)
+    # NLiPs' fit leaves a residual per solved pixel; NLiPsNet's result (`nlips infer`) has none (all NaN): a grey
+    # residual.png with a meaningless colour bar would only mislead
+    residual = residual if np.isfinite(residual).any() else None
     jobs = [
         (error_png,),  # first: its truth's reading is the longest job
         (normal_map_png, folder / NORMALS_PNG, rec.normals[box], shown),
         (scalar_map_png, folder / "depth.png", depth, "viridis", depth_label, depth_min),
-        (scalar_map_png, folder / "residual.png", _masked(rec.residual[box], shown), "magma", RESIDUAL_UNIT),
     ]
+    if residual is not None:
+        jobs.append((scalar_map_png, folder / "residual.png", residual, "magma", RESIDUAL_UNIT))
     # PNG encoding and the truth's inflating release the GIL: the maps are written side by side
     with ThreadPoolExecutor(max_workers=min(len(jobs), usable_cores())) as pool:
         (error_path, error), *written = pool.map(lambda job: job[0](*job[1:]), jobs)
@@ -114,7 +119,7 @@ def write_reconstruction_figures(
     if level == "full":
         title = ", ".join(filter(None, [name, METHOD_NAMES.get(rec.report.get("method"), "")]))
         view = (depth, depth_label, depth_min)
-        written.append(_summary(folder / SUMMARY_PNG, rec, box, error, view, title))
+        written.append(_summary(folder / SUMMARY_PNG, rec, box, error, view, residual, title))
     return written
 
 
@@ -185,10 +190,12 @@ def _summary(
     box: tuple[slice, slice],
     error: tuple[np.ndarray, np.ndarray, float] | None,
     depth_view: tuple,
+    residual: np.ndarray | None,
     title: str,
 ) -> Path:
     """One matplotlib sheet of the result over the solved box, titled with the press and the method.
 
+    ``residual``: the RMS residual over ``box`` (NaN off the solved pixels), or None for a result without one.
     ``error``: the angular error map over ``box`` (degrees, NaN off the scored pixels), the truth's contact mask
     over ``box`` and error.png's colour bar top (degrees, :func:`.figures.error_scale`), or None without ground
     truth.
@@ -198,13 +205,13 @@ def _summary(
 
     shown = rec.reconstructed[box]
     depth, depth_label, depth_min = depth_view
-    residual = _masked(rec.residual[box], shown)
     panels = [
         Panel("normals", normals_to_rgb(rec.normals[box], shown)),
         # the maps' colour range rule, so depth.png and this panel show the same scale
         Panel(depth_label.split(",")[0], depth, "viridis", depth_label, *colour_range(depth, depth_min)),
-        Panel("RMS residual", residual, "magma", RESIDUAL_UNIT, *colour_range(residual)),
     ]
+    if residual is not None:
+        panels.append(Panel("RMS residual", residual, "magma", RESIDUAL_UNIT, *colour_range(residual)))
     if error is not None:
         err, contact, top = error  # error.png's colour range, so the two show the same scale
         panels.append(Panel(error_title(err, contact), err, ERROR_CMAP, "deg", 0.0, top))

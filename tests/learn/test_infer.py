@@ -19,7 +19,7 @@ def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_pres
     said = capsys.readouterr().out
     assert "frames/s" in said
     # the result's own folder, which `nlips eval PRESS --result` takes (it named OUT/PRESS/, the folder above it)
-    assert f"saved: 1 result folder(s) in {out / HELD_OUT / 'nlipsnet'}/ (result.npz, report.json, points.ply;" in said
+    assert f"saved: 1 result folder(s) in {out / HELD_OUT / 'nlipsnet'}/ (result.npz, report.json, points.ply, " in said
     press = load_press(twin_presses / HELD_OUT)
     rec = load_reconstruction(out / HELD_OUT / "nlipsnet", press.camera.shape)
     scores = evaluate(rec, press.ground_truth)["contact"]
@@ -50,6 +50,9 @@ def test_the_result_folder_is_published_with_its_ply_or_not_at_all(
     monkeypatch.undo()
     assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(out), "--ply"]) == 0
     assert sorted(p.name for p in (out / HELD_OUT / "nlipsnet").iterdir()) == [
+        "depth.png",
+        "error.png",
+        "normals.png",
         "points.ply",
         "report.json",
         "result.npz",
@@ -569,7 +572,7 @@ def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_fram
     assert main(command) == 0
     assert capsys.readouterr().out.startswith("4 frame(s), torch")
     first = _stamps(out)
-    assert len(first) == 8  # result.npz and report.json of three frames and a press
+    assert len(first) == 17  # result.npz, report.json, normals.png, depth.png of three frames and a press (+ error.png)
     report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text())
     assert set(report["provenance"]) == {"key", "software_version", "settings", "inputs"}
     assert report["provenance"]["settings"]["depth"] is True and report["provenance"]["settings"]["ply"] is None
@@ -986,3 +989,73 @@ def _counting_call(call, seen: list):
         return call(self, *args, **kwargs)
 
     return counted
+
+
+def _png_size(path):
+    """(width, height) of a PNG, from its header."""
+    import struct
+
+    head = path.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n", path
+    return struct.unpack(">II", head[16:24])
+
+
+def test_a_press_and_a_frame_get_the_solves_figures_beside_their_results(tiny_model, tmp_path, capsys, monkeypatch):
+    """`nlips infer` of presses and stills wrote arrays only (the s25-figs audit): a lab inferring a still wants to
+    look at it. Now the figures `nlips solve` writes: normals.png, depth.png (indentation, mm) and, for a press with
+    ground truth, error.png; no residual.png (NLiPsNet has no residual); --figures full adds summary.png, whose error
+    title gives the AAE and the contact AAE `nlips eval` prints."""
+    from nlipscalib.report import figures
+    from nlipscalib.report.maps import BAR_WIDTH
+
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    assert main(command) == 0
+    assert "normals.png, depth.png, error.png with ground truth;" in capsys.readouterr().out
+    press, frame = out / "press" / "nlipsnet", out / "a_sphere"
+    assert {p.name for p in press.glob("*.png")} == {"normals.png", "depth.png", "error.png"}
+    assert {p.name for p in frame.glob("*.png")} == {"normals.png", "depth.png"}  # no ground truth beside a frame
+    rec = load_reconstruction(press)
+    rows, cols = np.nonzero(rec.mask)
+    h, w = rows.max() - rows.min() + 1, cols.max() - cols.min() + 1  # the gel's box, at the image's resolution
+    assert _png_size(press / "normals.png") == (w, h)
+    assert _png_size(press / "depth.png")[0] == w + BAR_WIDTH  # the map and its colour bar in mm
+    sheets = {}
+    draw = figures.contact_sheet
+    monkeypatch.setattr(
+        figures, "contact_sheet", lambda rows, path, **kw: sheets.update(rows=rows, **kw) or draw(rows, path, **kw)
+    )
+    assert main([*command[:3], "--out", str(out), "--figures", "full", "--overwrite"]) == 0  # the frames
+    assert {p.name for p in frame.glob("*.png")} == {"normals.png", "depth.png", "summary.png"}
+    assert [p.title for p in sheets["rows"][0][1]] == ["normals", "indentation"]
+    press_only = ["infer", command[1], command[3], "--out", str(out)]
+    assert main([*press_only, "--figures", "full", "--overwrite"]) == 0
+    assert (press / "summary.png").stat().st_size > 10_000
+    panels = sheets["rows"][0][1]
+    assert [p.title.split("\n")[0] for p in panels] == ["normals", "indentation", "angular error"]
+    assert sheets["title"] == "press, NLiPsNet" and panels[1].label == "indentation, mm"
+    scores = evaluate(load_reconstruction(press), load_press(tmp_path / "press").ground_truth)
+    assert f"AAE {scores['all']['aae_deg']:.2f} deg, contact {scores['contact']['aae_deg']:.2f} deg" in panels[2].title
+
+
+def test_figures_none_writes_no_picture_and_a_result_lacking_the_figures_asked_is_inferred_again(
+    tiny_model, tmp_path, capsys
+):
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    assert main([*command, "--no-figures"]) == 0
+    capsys.readouterr()
+    assert not list(out.rglob("*.png"))
+    assert main([*command, "--figures", "none"]) == 0  # the same request: all kept
+    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    assert main(command) == 0  # the maps asked now: each result made again, with them
+    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert len(list(out.rglob("normals.png"))) == 4
+    assert main(command) == 0
+    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+
+
+def test_figures_are_refused_for_a_stream(capsys):
+    """A stream keeps its frames' normal maps (--out): --figures, for presses and stills, is refused there."""
+    for flag in (["--figures", "maps"], ["--no-figures"]):
+        assert main(["infer", "m.pt", "--camera", "0", *flag]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--figures is for press folders and image files" in err[0], err
