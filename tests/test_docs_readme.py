@@ -80,3 +80,20 @@ def test_the_readme_led_commands_without_hardware_run_and_do_what_their_comments
     adalight = next(out for c, out in said.items() if "--adalight" in c)
     assert "nothing was checked" in adalight and ": lit" not in adalight  # each step only sent, none checked
     assert main(["leds", "virtual", "state", "--adalight", "12"]) == 2  # "`state` is refused"
+
+
+def test_the_readme_and_setup_sh_quote_the_torch_range_and_pin_that_the_install_uses():
+    """The README's install section and setup.sh's comment quote pyproject.toml's torch range, and the README names
+    the version setup.sh installs: both were raised by hand when the bound moved (torch>=2.2 -> 2.6, s25)."""
+    import tomllib
+
+    root = README.parent
+    learn = tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"]["learn"]
+    (torch_range,) = [req.replace(" ", "") for req in learn if req.startswith("torch")]
+    setup = (root / "setup.sh").read_text()
+    readme = README.read_text()
+    assert f"`{torch_range}`" in readme
+    assert f"({torch_range})" in setup
+    (pin,) = set(re.findall(r"torch==[0-9.]+", setup))
+    assert f"`{pin}` from PyTorch's CPU index" in readme
+    assert re.findall(r"torch>=[0-9][0-9.,<>]*", readme) == [torch_range]  # no other, stale range

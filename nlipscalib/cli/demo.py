@@ -45,7 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--solve-workers",
         type=int,
         default=min(usable_cores(), 3),
-        help="presses solved at once, one single-threaded process each (default: one per core, at most 3)",
+        help="presses solved at once, one process each, the cores shared out among them as threads "
+        "(default: one per core, at most 3)",
     )
     p.set_defaults(func=run)
 

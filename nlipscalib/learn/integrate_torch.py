@@ -232,8 +232,9 @@ class BoxIntegrator:
 
     def boxes(self, changed: np.ndarray) -> list[tuple[tuple[slice, slice], Edges]] | None:
         """The boxes and edge boxes (with their :data:`.integrate.Edges`) that solve ``changed`` ((H, W) bool on
-        the gel) as :func:`.integrate.integrate_on_dome` does, or None where a region needs its sparse path (its
-        box leaves the gel, or spans an axis from border to border). Decided on the host, like the CPU's."""
+        the gel) as :func:`.integrate.integrate_on_dome` does, or None where a region needs another solve there (its
+        box leaves the gel: a rim box or the sparse path; or spans an axis from border to border: a cosine box).
+        Decided on the host, like the CPU's."""
         boxes, edge_boxes, sparse = _regions(changed, self.on_gel, "auto")
         # a box across the image (BOTH_SIDES) is the CPU's cosine box; here the whole gel solves that equation
         if sparse or any(BOTH_SIDES in edges for _, edges in edge_boxes):

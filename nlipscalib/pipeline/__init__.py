@@ -16,8 +16,10 @@ The one place that turns press folders into reconstruction folders (PRESS/nlips/
   writes (``.tmp-nlips-*``) are removed only by the claim's holder, i.e. when no live process can own them. A run
   holds its outputs for its settings until it ends (:func:`nlipscalib.core.claims.claim_shared`): a run of other
   settings is refused those presses, one line each, never replacing a live run's result.
-- **Parallel.** ``workers > 1`` solves presses in separate processes (the solver runs single-threaded
-  BLAS, so one process per core is the efficient split). Ctrl-C stops the batch in the parent: queued
+- **Parallel.** ``workers > 1`` solves presses in separate processes, the usable cores shared out among them as
+  the solver's threads (:func:`nlipscalib.core.cpus.threads_per_worker`; BLAS stays on one thread). A press's
+  solve uses two threads well, so ``nlips solve FOLDER`` starts one process per two cores by default
+  (:func:`nlipscalib.core.cpus.solve_workers_default`). Ctrl-C stops the batch in the parent: queued
   presses are not started, running ones finish; a SIGTERM'd worker removes its claim and temporary first.
 
 Modules, one job each: ``settings`` (the arguments of a solve checked and normalised), ``provenance`` (what made
