@@ -197,7 +197,9 @@ class _backend:
         from distributed import as_completed as dask_completed
 
         futures = {
-            self.client.submit(execute, t, str(out), self.threads, keep, key=f"{t.id}-{t.hash}", pure=False): t
+            self.client.submit(
+                _execute_on_dask_worker, t, str(out), self.threads, keep, key=f"{t.id}-{t.hash}", pure=False
+            ): t
             for t in tasks
         }
         for fut in dask_completed(futures):
@@ -330,6 +332,18 @@ def _worker_loop(
         if task is None:
             return
         results.put((slot, task.id, execute(task, out, threads, keep)))
+
+
+def _execute_on_dask_worker(task: Task, out: str, threads: int, keep: bool) -> str:
+    """:func:`.tasks.execute` on a Dask worker. A local cluster's worker (``threads`` > 0: its share of this
+    machine's cores) solves on that share, as it renders: its N workers each solved on every core (N x cores solver
+    threads), as the local pool's did before :func:`_worker_loop` set its share. A remote worker (0) keeps all of
+    its own cores."""
+    if threads > 0:
+        from ..solver import threads as solver_threads
+
+        solver_threads.set_workers(threads)
+    return execute(task, out, threads, keep)
 
 
 def import_native_libraries() -> None:

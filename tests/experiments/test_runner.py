@@ -446,3 +446,20 @@ def test_a_local_worker_solves_on_its_share_of_the_cores(monkeypatch, tmp_path):
     _worker_loop(0, inbox, results, str(tmp_path), 3, False)
     assert threads.workers() == 3
     assert results.empty()
+
+
+def test_a_local_dask_workers_solves_take_its_share_of_the_cores(monkeypatch):
+    """--scheduler local:N: each worker process rendered on cores // N threads but solved on every core (N x cores
+    solver threads on one machine); the task wrapper sets the solver's share. A remote worker (threads 0) keeps
+    its own count."""
+    from nlipscalib.experiments import runner
+    from nlipscalib.solver import threads as solver_threads
+
+    ran = []
+    monkeypatch.setattr(runner, "execute", lambda task, out, threads, keep: ran.append(threads) or "done")
+    monkeypatch.setattr(solver_threads, "_workers", 5)
+    monkeypatch.setattr(solver_threads, "_pool", None)
+    assert runner._execute_on_dask_worker("task", "out", 0, False) == "done"
+    assert solver_threads.workers() == 5  # remote: untouched
+    assert runner._execute_on_dask_worker("task", "out", 3, False) == "done"
+    assert solver_threads.workers() == 3 and ran == [0, 3]
