@@ -399,3 +399,15 @@ def test_a_stream_takes_sigterm_as_a_flag_once_armed_and_hands_a_second_to_the_h
         assert seen == [signal.SIGTERM] * 3
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def test_an_ignored_ctrl_c_stays_ignored_for_a_background_job():
+    """A script's background job (`nlips live ... &` in a non-interactive shell) starts with SIGINT ignored, so that
+    Ctrl-C in that terminal stops the script, not the jobs it left running: the command keeps it so (README, live;
+    such a stream is stopped with `kill PID`, which ends it with its summary)."""
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        assert cli._note_interrupts() is None
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, previous)
