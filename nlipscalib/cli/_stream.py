@@ -333,8 +333,10 @@ class SigtermEndsStream:
     Only a flag is set in the handler, read by ``device.live.stream`` before each frame (its ``stop``): no exception
     lands inside the network's runtime or a write. Armed (:meth:`arm`) just before the frames flow, so a SIGTERM
     while the model loads or the emulator renders its script still ends the process at once; held until the
-    summary is out (the ``with`` block). A second SIGTERM goes to the handler before, which ends the process at
-    once (a read that never returns: a camera that stopped sending).
+    summary is out (the ``with`` block; with an LED board, whose lights-off handler was installed before it and is
+    put back as the source closes, the command's handler is back a few milliseconds before the summary). A second
+    SIGTERM goes to the handler before, which ends the process at once (a read that never returns: a camera that
+    stopped sending).
 
     Use: ``with SigtermEndsStream() as term:`` ... ``term.arm()``; ``stream(..., stop=term)`` ...; the summary; then
     ``if term.received: return cli.terminated(args)``.
@@ -344,7 +346,7 @@ class SigtermEndsStream:
         self.received = False
         """Whether SIGTERM came while armed."""
         self._armed = False
-        self._previous = None
+        self._previous = self._handler = None
 
     def __call__(self) -> bool:
         return self.received
@@ -362,7 +364,7 @@ class SigtermEndsStream:
             self.received = True
 
         self._previous = signal.signal(signal.SIGTERM, handler)
-        self._armed = True
+        self._handler, self._armed = handler, True
 
     def __enter__(self) -> SigtermEndsStream:
         return self
@@ -370,9 +372,12 @@ class SigtermEndsStream:
     def __exit__(self, *exc: object) -> None:
         import signal
 
-        if self._armed:
+        # only while this one is still in place: a handler armed before it and put back since (the LED board's
+        # lights-off, device.lights_out, closed with the stream) has put back the one before both, and restoring
+        # ours would bring that stale lights-off back
+        if self._armed and signal.getsignal(signal.SIGTERM) is self._handler:
             signal.signal(signal.SIGTERM, self._previous if self._previous is not None else signal.SIG_DFL)
-            self._armed = False
+        self._armed = False
 
 
 def running_rate_report() -> Callable[[str], None] | None:

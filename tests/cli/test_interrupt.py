@@ -397,6 +397,14 @@ def test_a_stream_takes_sigterm_as_a_flag_once_armed_and_hands_a_second_to_the_h
             assert seen == [signal.SIGTERM] * 2
         os.kill(os.getpid(), signal.SIGTERM)
         assert seen == [signal.SIGTERM] * 3
+        # a handler installed before it and put back inside the block (the LED board's lights-off, closed with the
+        # stream) is not brought back by the block's end: the one before both stays
+        before = signal.getsignal(signal.SIGTERM)
+        with SigtermEndsStream() as term:
+            stale = signal.signal(signal.SIGTERM, lambda signum, frame: None)
+            term.arm()
+            signal.signal(signal.SIGTERM, stale)
+        assert signal.getsignal(signal.SIGTERM) is before
     finally:
         signal.signal(signal.SIGTERM, previous)
 
