@@ -218,8 +218,19 @@ def _interrupted(args: argparse.Namespace) -> int:
     return 130
 
 
+def terminated(args: argparse.Namespace) -> int:
+    """A command that ended its own work on SIGTERM (a stream: ``_stream.SigtermEndsStream``) says so as the
+    handler of :func:`_terminate_cleanly` would, after its summary; returns 143 (128 + SIGTERM)."""
+    import signal
+
+    print(f"nlips {args.command}: terminated; {_stopped(args)}", file=sys.stderr)
+    _SAID_INTERRUPTED.append(args.command)
+    return 128 + signal.SIGTERM
+
+
 _SAID_INTERRUPTED: list[str] = []
-"""Commands whose interruption this process has reported (:func:`_interrupted`), for :func:`_after_the_work`."""
+"""Commands whose interruption (or termination, :func:`terminated`) this process has reported
+(:func:`_interrupted`), for :func:`_after_the_work`."""
 
 
 def _note_interrupts():

@@ -323,6 +323,63 @@ def _emulated_source(
     return camera, before_frame
 
 
+class SigtermEndsStream:
+    """SIGTERM during a stream (``kill``, ``timeout``, systemd, a job scheduler) ends it as Ctrl-C does: the frame
+    being inferred finished and saved whole, the summary printed and written (``stream.json``), then exit 143
+    (:func:`nlipscalib.cli.terminated`: the command's "terminated" line, the code scripts test).
+
+    Why: the command's own SIGTERM handler (``cli._terminate_cleanly``) ends the process at once, so a stream stopped
+    with ``kill`` lost its frame count, rate, stage line and ``stream.json``; labs stop hours-long streams that way.
+    Only a flag is set in the handler, read by ``device.live.stream`` before each frame (its ``stop``): no exception
+    lands inside the network's runtime or a write. Armed (:meth:`arm`) just before the frames flow, so a SIGTERM
+    while the model loads or the emulator renders its script still ends the process at once; held until the
+    summary is out (the ``with`` block; with an LED board, whose lights-off handler was installed before it and is
+    put back as the source closes, the command's handler is back a few milliseconds before the summary). A second
+    SIGTERM goes to the handler before, which ends the process at once (a read that never returns: a camera that
+    stopped sending).
+
+    Use: ``with SigtermEndsStream() as term:`` ... ``term.arm()``; ``stream(..., stop=term)`` ...; the summary; then
+    ``if term.received: return cli.terminated(args)``.
+    """
+
+    def __init__(self) -> None:
+        self.received = False
+        """Whether SIGTERM came while armed."""
+        self._armed = False
+        self._previous = self._handler = None
+
+    def __call__(self) -> bool:
+        return self.received
+
+    def arm(self) -> None:
+        import signal
+        import threading
+
+        if threading.current_thread() is not threading.main_thread() or self._armed:
+            return  # signals reach the main thread only: a stream run elsewhere keeps the handler it has
+
+        def handler(signum: int, frame: object) -> None:
+            if self.received and callable(self._previous):
+                self._previous(signum, frame)  # the second: at once
+            self.received = True
+
+        self._previous = signal.signal(signal.SIGTERM, handler)
+        self._handler, self._armed = handler, True
+
+    def __enter__(self) -> SigtermEndsStream:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import signal
+
+        # only while this one is still in place: a handler armed before it and put back since (the LED board's
+        # lights-off, device.lights_out, closed with the stream) has put back the one before both, and restoring
+        # ours would bring that stale lights-off back
+        if self._armed and signal.getsignal(signal.SIGTERM) is self._handler:
+            signal.signal(signal.SIGTERM, self._previous if self._previous is not None else signal.SIG_DFL)
+        self._armed = False
+
+
 def running_rate_report() -> Callable[[str], None] | None:
     """Where a stream's running frame rate goes (``device.live.stream``'s ``report``, once per second): stderr on
     a terminal, None (quiet) in a log or pipe and with ``--no-progress``, as for progress bars

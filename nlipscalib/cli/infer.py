@@ -21,6 +21,7 @@ from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
 
 from ._stream import (
+    SigtermEndsStream,
     add_device_arguments,
     add_source_arguments,
     check_output_arguments,
@@ -226,20 +227,8 @@ def _check_video(path: str) -> None:
 
 
 def _run_stream(args: argparse.Namespace, what: str) -> int:
-    import contextlib
-    import time
-
-    from ..core.errors import CaptureError, DeviceError, require
-    from ..device.live import ReadAhead, SaveSink, stream
-    from ..learn.watch import MismatchWatch
-    from ..report.live import NormalMapPng
-    from ._stream import (
-        check_emulated_sensor,
-        nlipsnet_predictor,
-        open_frames,
-        running_rate_report,
-        size_emulator_for,
-    )
+    from ..core.errors import require
+    from ._stream import check_emulated_sensor, nlipsnet_predictor, size_emulator_for
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     # our one-line errors say it better; opencv-python-headless 4.8 has no cv2.utils.logging, only cv2.setLogLevel
@@ -256,6 +245,27 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     size_emulator_for(args, predictor.shape)
     check_emulated_sensor(args, predictor.model.sensor, predictor.model.reference["depth"])
+    with SigtermEndsStream() as term:
+        code = _stream_and_finish(args, name, predictor, term)
+    if term.received:  # `kill`: the summary and stream.json above, then the "terminated" line and 143
+        from . import terminated
+
+        return terminated(args)
+    return code
+
+
+def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor, term: SigtermEndsStream) -> int:
+    """Stream the frames of ``args``'s source through ``predictor`` (``term``: armed as the frames start), then its
+    summary lines and stream.json (:func:`_finish_stream`); returns 0, or raises the stream's error after them."""
+    import contextlib
+    import time
+
+    from ..core.errors import CaptureError, DeviceError
+    from ..device.live import ReadAhead, SaveSink, stream
+    from ..learn.watch import MismatchWatch
+    from ..report.live import NormalMapPng
+    from ._stream import open_frames, running_rate_report
+
     stats = None
     try:
         with contextlib.ExitStack() as stack:
@@ -281,6 +291,7 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
             def predict(frame: np.ndarray) -> Frame:
                 return stages.add(watch(frame))
 
+            term.arm()
             cpu0 = time.process_time()
             stats = stream(
                 source,
@@ -289,6 +300,7 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
                 max_frames=args.max_frames,
                 before_frame=before_frame,
                 report=running_rate_report(),
+                stop=term,
             )
             cpu = time.process_time() - cpu0
     except DeviceError:

@@ -19,6 +19,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, TypeAlias
 
 from ._stream import (
+    SigtermEndsStream,
     add_device_arguments,
     add_source_arguments,
     check_emulated_sensor,
@@ -170,23 +171,28 @@ def run(args: argparse.Namespace) -> int:
         check_count("--max-frames", args.max_frames, minimum=1)
     no_window = "--no-window" if args.no_window else window_problem()
     done = {}
-    try:
-        _run_stream(args, no_window, done)
-    except DeviceError:
-        if "stats" not in done:
+    with SigtermEndsStream() as term:
+        try:
+            _run_stream(args, no_window, done, term)
+        except DeviceError:
+            if "stats" not in done:
+                raise
+            # the LED board failed only as the stream closed (unplugged or killed: its lights-off got no answer):
+            # the frames were streamed, so their summary comes before the one error line (exit 2)
+            _summarise(done["stats"], done["predict"], args)
             raise
-        # the LED board failed only as the stream closed (unplugged or killed: its lights-off got no answer):
-        # the frames were streamed, so their summary comes before the one error line (exit 2)
         _summarise(done["stats"], done["predict"], args)
-        raise
-    _summarise(done["stats"], done["predict"], args)
+    if term.received:  # `kill`: the summary above, then the "terminated" line and 143, as scripts expect
+        from . import terminated
+
+        return terminated(args)
     return 0
 
 
-def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict) -> None:
+def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, term: SigtermEndsStream) -> None:
     """Open the source, the predictor and the sinks, and stream; ``no_window``: why no window shows the maps (None:
     one does); ``done`` gets ``stats`` and ``predict`` once the stream ended, before what it opened is closed (the
-    LED board switched off)."""
+    LED board switched off); ``term``: armed as the frames start, SIGTERM then ends the stream as Ctrl-C does."""
     import contextlib
 
     from ..device.live import SaveSink, StopLive, stream
@@ -208,6 +214,7 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict) -> 
             sinks.append(WindowSink(StopLive, reference_depth))
         elif not args.out:
             print(f"{no_window}: maps are not shown; use --out DIR to keep them", file=sys.stderr)
+        term.arm()
         done["stats"] = stream(
             source,
             predict,
@@ -215,6 +222,7 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict) -> 
             max_frames=args.max_frames,
             before_frame=before_frame,
             report=running_rate_report(),
+            stop=term,
         )
         done["predict"] = predict
 

@@ -151,8 +151,10 @@ def stream(
     before_frame: Callable[[int], None] | None = None,
     report: Callable[[str], None] | None = print,
     report_every_s: float = 1.0,
+    stop: Callable[[], bool] | None = None,
 ) -> LiveStats:
-    """Run frames through the predictor into the sinks until ``max_frames``, the end of the input, or a sink stops.
+    """Run frames through the predictor into the sinks until ``max_frames``, the end of the input, a sink stops,
+    Ctrl-C, or ``stop()`` says so.
 
     Parameters
     ----------
@@ -162,13 +164,15 @@ def stream(
     max_frames : stop after this many frames (None: until the source ends or Ctrl-C)
     before_frame : called with the frame index before each read (the emulator changes the press there)
     report : where the running frame rate goes (once per ``report_every_s``), None for quiet
+    stop : asked before each frame; True ends the stream there, the frame before it done and saved whole (the CLI
+        passes a SIGTERM flag: ``cli._stream.terminate_ends_stream``)
     """
     sinks = list(sinks)
     stats = LiveStats()
     t_start = last_report = time.perf_counter()
     frames_at_report = 0
     try:
-        while max_frames is None or stats.frames < max_frames:
+        while (max_frames is None or stats.frames < max_frames) and not (stop is not None and stop()):
             t0 = time.perf_counter()  # "read" counts the emulator's change of press before it: a step of each frame
             if before_frame is not None:
                 before_frame(stats.frames)

@@ -375,3 +375,47 @@ def test_a_second_ctrl_c_while_an_interrupted_command_exits_adds_no_line():
         proc.kill()
     assert err.strip() == f"nlips cache: interrupted; {cli.RESUMABLE}", err
     assert proc.returncode == 130
+
+
+def test_a_stream_takes_sigterm_as_a_flag_once_armed_and_hands_a_second_to_the_handler_before():
+    """``_stream.SigtermEndsStream``: before :meth:`arm` (the model loading, the emulator rendering its script) the
+    command's own handler keeps SIGTERM (it ends the process at once); armed, SIGTERM only sets the flag the stream
+    reads before each frame; a second goes to the handler before (a read that never returns); the ``with`` block
+    puts that handler back."""
+    from nlipscalib.cli._stream import SigtermEndsStream
+
+    seen = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: seen.append(signum))
+    try:
+        with SigtermEndsStream() as term:
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert seen == [signal.SIGTERM] and not term()  # not armed: the handler before has it
+            term.arm()
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert term() and term.received and seen == [signal.SIGTERM]
+            os.kill(os.getpid(), signal.SIGTERM)
+            assert seen == [signal.SIGTERM] * 2
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert seen == [signal.SIGTERM] * 3
+        # a handler installed before it and put back inside the block (the LED board's lights-off, closed with the
+        # stream) is not brought back by the block's end: the one before both stays
+        before = signal.getsignal(signal.SIGTERM)
+        with SigtermEndsStream() as term:
+            stale = signal.signal(signal.SIGTERM, lambda signum, frame: None)
+            term.arm()
+            signal.signal(signal.SIGTERM, stale)
+        assert signal.getsignal(signal.SIGTERM) is before
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def test_an_ignored_ctrl_c_stays_ignored_for_a_background_job():
+    """A script's background job (`nlips live ... &` in a non-interactive shell) starts with SIGINT ignored, so that
+    Ctrl-C in that terminal stops the script, not the jobs it left running: the command keeps it so (README, live;
+    such a stream is stopped with `kill PID`, which ends it with its summary)."""
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        assert cli._note_interrupts() is None
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, previous)

@@ -171,7 +171,9 @@ def test_live_summarises_its_frames_when_the_board_is_lost_before_the_lights_off
 
 
 def test_sigterm_of_live_says_the_stream_stopped_not_run_again_to_resume(tmp_path):
-    """A live stream cannot resume: "finished work is kept, run again to resume" promised what it cannot do."""
+    """A live stream cannot resume: "finished work is kept, run again to resume" promised what it cannot do.
+    SIGTERM ends it as Ctrl-C does (its summary, every saved frame whole), then that line, exit 143: it ended at
+    once with the line alone, the frame count and rate lost (s25-soak)."""
     cv2 = pytest.importorskip("cv2")
     frames = _grey_frames(cv2, tmp_path / "frames", 200)
     started = tmp_path / "started"
@@ -185,15 +187,22 @@ def test_sigterm_of_live_says_the_stream_stopped_not_run_again_to_resume(tmp_pat
         "fakes.slow = slow\n"
         "sys.exit(main(sys.argv[1:]))"
     )
-    argv = [sys.executable, "-c", code, "live", "--camera", str(frames), "--no-window", "--predictor"]
+    saved = tmp_path / "saved"
+    argv = [sys.executable, "-c", code, "live", "--camera", str(frames), "--no-window", "--out", str(saved)]
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-    proc = subprocess.Popen(argv + ["tests.device.fakes:slow"], stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        argv + ["--predictor", "tests.device.fakes:slow"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         deadline = time.monotonic() + 60
         while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.02)
         proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
+        out, err = proc.communicate(timeout=30)
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.kill(proc.pid, signal.SIGKILL)
@@ -202,3 +211,10 @@ def test_sigterm_of_live_says_the_stream_stopped_not_run_again_to_resume(tmp_pat
         "nlips live: terminated; the stream stopped (a live stream does not resume; maps already saved with --out "
         "are kept)"
     )
+    summary, where = out.splitlines()
+    n = int(summary.split()[0])
+    assert 1 <= n < 200 and summary.startswith(f"{n} frames in "), out
+    assert where.startswith(f"saved: {n} of {n} frames' "), out
+    # each frame the summary counts is saved whole (its picture and its arrays), and no other
+    assert sorted(p.name for p in saved.glob("*.npz")) == [f"frame_{i:06d}.npz" for i in range(n)]
+    assert len(list(saved.glob("*_normals.png"))) == n

@@ -42,6 +42,20 @@ def test_stream_stops_at_max_frames_or_when_a_sink_says_so(frames):
     assert stream(FolderSource(frames), flat_predictor((12, 16)), [stop_at_third], report=None).frames == 2
 
 
+def test_stream_asks_stop_before_each_frame_and_finishes_the_frame_under_way(frames):
+    """``stop`` (the CLI's SIGTERM flag) is read before a frame, never inside one: the frame under way reaches every
+    sink, the next is not read."""
+    seen, stop_now = [], []
+
+    def sink(i, frame, result):
+        seen.append(i)
+        if i == 1:
+            stop_now.append(True)  # as if SIGTERM came while frame 1 was inferred
+
+    stats = stream(FolderSource(frames), flat_predictor((12, 16)), [sink], report=None, stop=lambda: bool(stop_now))
+    assert stats.frames == 2 and seen == [0, 1]
+
+
 def test_each_frames_steps_cover_its_whole_loop_step_the_press_change_and_the_rate_line_included(frames):
     """The emulator's change of press before each read, and the running rate's line, ran outside the timed steps;
     each is made slow (a sleep) here: read and output count them, and the steps add up to no more than the wall."""

@@ -1059,3 +1059,60 @@ def test_figures_are_refused_for_a_stream(capsys):
         assert main(["infer", "m.pt", "--camera", "0", *flag]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "--figures is for press folders and image files" in err[0], err
+
+
+def test_sigterm_ends_a_stream_with_its_summary_and_stream_json_then_143(tiny_model, tmp_path):
+    """`kill` (SIGTERM: systemd, `timeout`, a job scheduler) of `nlips infer` on a stream ended it at once with one
+    line, exit 143: the frame count, rate, stage line and stream.json were lost, where Ctrl-C keeps them (s25-soak).
+    Now it ends as Ctrl-C does -- the frame under way finished and saved whole -- then the line, still exit 143."""
+    import contextlib
+    import json
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    from tests.learn.test_resume import NAMES
+
+    model, root = tiny_model
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for i in range(300):
+        shutil.copy(root / NAMES[i % len(NAMES)] / "tricolor.png", seq / f"img_{i:04d}.png")
+    started, out = tmp_path / "started", tmp_path / "out"
+    code = (
+        "import sys, time; from nlipscalib.cli import main; from nlipscalib.learn.watch import MismatchWatch\n"
+        "call = MismatchWatch.__call__\n"
+        "def slow(self, frame):\n"
+        f"    open({str(started)!r}, 'w').close(); time.sleep(0.05); return call(self, frame)\n"
+        "MismatchWatch.__call__ = slow\n"
+        "sys.exit(main(sys.argv[1:]))"
+    )
+    argv = [sys.executable, "-c", code, "--no-progress", "infer", str(model), str(seq / "img_%04d.png")]
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
+    proc = subprocess.Popen(
+        argv + ["--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    )
+    try:
+        deadline = time.monotonic() + 120
+        while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 128 + signal.SIGTERM, stderr
+    assert stderr.splitlines()[-1] == (
+        "nlips infer: terminated; the stream stopped (a stream does not resume; frames already saved with --out are "
+        "kept)"
+    )
+    lines = stdout.splitlines()
+    n = int(lines[0].split()[0])
+    assert 1 <= n < 300 and lines[0].startswith(f"{n} frames in "), stdout
+    assert any(line.startswith(f"saved: {n} of {n} frames' ") for line in lines), stdout
+    assert json.loads((out / "stream.json").read_text())["frames"] == n
+    assert sorted(p.name for p in out.glob("*.npz")) == [f"frame_{i:06d}.npz" for i in range(n)]
