@@ -956,25 +956,24 @@ def _save(
         # all: a reader never sees a folder that lacks them, and a failed write (a full disk) publishes nothing
         if args.ply or args.mesh:
             write_ply(tmp / "points.ply", result.points, result.normals, mesh=args.mesh)
-        truth = (lambda: _truth_or_none(press_folder)) if press_folder is not None else None
         reference = predictor.model.reference["depth"]  # the press's own, checked equal on loading it
+        truth = _ground_truth_reader(press_folder) if press_folder is not None else None
         write_reconstruction_figures(tmp, reconstruction, truth, args.figures, reference, name)
 
     _say_what_is_replaced(folder, reconstruction.report)
     save_reconstruction(reconstruction, folder, overwrite=True, extra_files=extra)
 
 
-def _truth_or_none(press_folder: Path) -> GroundTruth | None:
-    """The press's ground truth for its error map; None, with one warning, when gt.npz is damaged: the inference
-    reads none, so a damaged one costs the error map only (as in ``nlips solve``)."""
-    from ..core.capture import read_ground_truth
-    from ..core.errors import CaptureError
+def _ground_truth_reader(press_folder: Path) -> Callable[[], GroundTruth | None]:
+    """What reads the press's ground truth for its error map, on the figures' thread (a damaged gt.npz costs the
+    error map only, with one warning: the inference reads none, as in ``nlips solve``)."""
 
-    try:
+    def read() -> GroundTruth | None:
+        from ..core.capture import read_ground_truth
+
         return read_ground_truth(press_folder)
-    except CaptureError as exc:
-        log.warning("%s: the ground truth is damaged; the error figure (error.png) is skipped", exc)
-        return None
+
+    return read
 
 
 def _say_what_is_replaced(folder: Path, report: dict) -> None:

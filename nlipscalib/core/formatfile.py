@@ -3,11 +3,16 @@ checked once, and the .npz archives of arrays, with every problem one error nami
 
 from __future__ import annotations
 
+import contextlib
 import json
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .errors import CaptureError
+
+if TYPE_CHECKING:  # named in hints only
+    import numpy as np
 
 
 def read_format_json(
@@ -73,8 +78,14 @@ def version_problem(
     return line + (f"; {advice}" if advice else "")
 
 
-def read_arrays(path: str | Path, keys: Iterable[str] = (), unreadable: str = "damaged or truncated .npz") -> dict:
-    """Every array of a .npz file (:func:`nlipscalib.core.imageio.read_npz`), any damage one CaptureError.
+def read_arrays(
+    path: str | Path,
+    keys: Iterable[str] = (),
+    unreadable: str = "damaged or truncated .npz",
+    only: Iterable[str] | None = None,
+) -> dict:
+    """Every array of a .npz file (or those named in ``only``: :func:`nlipscalib.core.imageio.read_npz`), any
+    damage one CaptureError.
 
     ``read_npz`` names a missing file, a truncated archive (no zip directory) and a bad CRC; a flipped
     byte inside a deflated array instead fails in zlib's decompressor (``zlib.error``, which is not an
@@ -85,13 +96,32 @@ def read_arrays(path: str | Path, keys: Iterable[str] = (), unreadable: str = "d
     ------
     CaptureError -- missing, damaged or truncated, or lacking one of ``keys``.
     """
+    from .imageio import read_npz
+
+    with _damage_named(path, unreadable):
+        return read_npz(path, keys, unreadable=unreadable, only=only)
+
+
+def read_array_headers(
+    path: str | Path, keys: Iterable[str] = (), unreadable: str = "damaged or truncated .npz"
+) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """(shape, dtype) of every array of a .npz file, without inflating them (:func:`nlipscalib.core.imageio.
+    npz_headers`); any damage one CaptureError, as :func:`read_arrays` names it."""
+    from .imageio import npz_headers
+
+    with _damage_named(path, unreadable):
+        return npz_headers(path, keys, unreadable=unreadable)
+
+
+@contextlib.contextmanager
+def _damage_named(path: str | Path, unreadable: str) -> Iterator[None]:
+    """The errors of a damaged archive that :func:`nlipscalib.core.imageio.read_npz` leaves unnamed, as one
+    CaptureError naming ``path`` (:func:`read_arrays`)."""
     import struct
     import zlib
 
-    from .imageio import read_npz
-
     try:
-        return read_npz(path, keys, unreadable=unreadable)
+        yield
     except (zlib.error, struct.error, UnicodeDecodeError, NotImplementedError, OverflowError, MemoryError) as exc:
         what = "compressed data damaged" if isinstance(exc, zlib.error) else type(exc).__name__
         raise CaptureError(f"{path}: {unreadable} ({what}: {exc})") from None

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import zipfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -165,20 +166,67 @@ def _check_png_ends(path: Path) -> None:
 
 
 def read_npz(
-    path: str | Path, keys: Iterable[str] = (), unreadable: str = "damaged or truncated .npz"
+    path: str | Path,
+    keys: Iterable[str] = (),
+    unreadable: str = "damaged or truncated .npz",
+    only: Iterable[str] | None = None,
 ) -> dict[str, np.ndarray]:
-    """Every array of a .npz file, checked to be readable and to hold ``keys``.
+    """Every array of a .npz file (or those named in ``only``), checked to be readable and to hold ``keys``.
 
     ``unreadable`` words the problem when numpy cannot read the file (what the file was meant to be).
+    ``only``: the arrays to read; the others are not inflated (np.load reads an archive's members at their access).
 
     Raises
     ------
     CaptureError naming the file: missing, damaged or truncated, or lacking one of ``keys``.
     """
-    import zipfile
+    with _open_npz(path, keys, unreadable) as data:
+        return {k: data[k] for k in (data.files if only is None else only)}
+
+
+def npz_headers(
+    path: str | Path, keys: Iterable[str] = (), unreadable: str = "damaged or truncated .npz"
+) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """(shape, dtype) of every array of a .npz file, read from the arrays' headers: the arrays are not inflated.
+
+    Why: a file's shapes and types can be checked when it is opened and each array read at its first use only
+    (a 640x480 gt.npz holds 7.6 MB of deflated arrays; an error map needs three of its five).
+
+    Raises
+    ------
+    CaptureError naming the file: missing, damaged or truncated, or lacking one of ``keys``.
+    """
+    import struct
     import zlib
 
-    from .errors import CaptureError
+    headers = {}
+    with _open_npz(path, keys, unreadable) as data:
+        for name in data.files:
+            try:
+                headers[name] = _npy_header(data, name)
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, struct.error) as exc:
+                what = f"compressed data damaged: {exc}" if isinstance(exc, zlib.error) else str(exc)
+                raise CaptureError(f"{path}: array '{name}' is not readable ({what})") from None
+    return headers
+
+
+def _npy_header(data: np.lib.npyio.NpzFile, name: str) -> tuple[tuple[int, ...], np.dtype]:
+    """(shape, dtype) of the array ``name`` of an open .npz, from its header (the member's first bytes)."""
+    with data.zip.open(f"{name}.npy") as f:
+        readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+        reader = readers.get(np.lib.format.read_magic(f))
+        if reader is None:  # a header format numpy has no public reader for: the array itself tells
+            array = data[name]
+            return array.shape, array.dtype
+        shape, _, dtype = reader(f)
+        return shape, dtype
+
+
+@contextlib.contextmanager
+def _open_npz(path: str | Path, keys: Iterable[str], unreadable: str) -> Iterator[np.lib.npyio.NpzFile]:
+    """The open .npz archive at ``path`` (its zip directory read, no array inflated), checked to hold ``keys``;
+    a problem met opening it or reading from it is one CaptureError naming the file (:func:`read_npz`)."""
+    import zlib
 
     path = Path(path)
     if not path.is_file():
@@ -188,17 +236,18 @@ def read_npz(
             raise CaptureError(f"{path}: {unreadable} (not a .npz archive)")
     try:
         with np.load(path) as data:
-            arrays = {k: data[k] for k in data.files}
+            missing = sorted(set(keys) - set(data.files))
+            if missing:
+                raise CaptureError(f"{path}: missing arrays {missing}")
+            yield data
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        if isinstance(exc, CaptureError):
+            raise
         raise CaptureError(f"{path}: {unreadable} ({exc})") from None
     except zlib.error as exc:
         # A flipped byte inside a deflated array fails in zlib's decompressor before the zip layer can
         # compare the CRC, and zlib.error is not an OSError: without this the reader gets a traceback.
         raise CaptureError(f"{path}: {unreadable} (compressed data damaged: {exc})") from None
-    missing = sorted(set(keys) - set(arrays))
-    if missing:
-        raise CaptureError(f"{path}: missing arrays {missing}")
-    return arrays
 
 
 def save_npz(path: str | Path, arrays: dict[str, np.ndarray], compress: bool | str = True) -> Path:

@@ -151,10 +151,11 @@ def decode_in_background(*sources: StoredImages) -> threading.Thread:
 
 
 class LoadedOnRead:
-    """A :class:`.capture.Press` field that takes its value or a :class:`Loader` of it: the value is loaded at the
-    first read and kept. Why: a solve reads neither the tri-colour image nor the ground truth, and a solve that
-    reuses the undeformed capture's results never reads its images (decoding them is most of a warm process's
-    loading)."""
+    """A field of a frozen dataclass (:class:`.capture.Press`, :class:`.surface_files.GroundTruth`) that takes its
+    value or a :class:`Loader` of it: the value is loaded at the first read and kept. Why: a solve reads neither
+    the tri-colour image nor the ground truth, and a solve that reuses the undeformed capture's results never
+    reads its images (decoding them is most of a warm process's loading); an error map reads 3 of the ground
+    truth's 5 arrays."""
 
     def __init__(self, default: object = dataclasses.MISSING):
         self.default = default

@@ -14,30 +14,37 @@ import numpy as np
 
 from .camera import Camera
 from .errors import CaptureError
-from .formatfile import read_arrays
+from .formatfile import read_array_headers, read_arrays
 from .imageio import save_npz
 from .leds import Led, Leds
 from .press_meta import existing_file
-from .stored_images import FileLoader, Loader, file_stamp
+from .stored_images import FileLoader, LoadedOnRead, Loader, file_stamp
 from .surface_checks import surface_problem
 
 GT_KEYS = {"depth": 2, "points": 3, "normals": 3, "valid": 2, "contact": 2}
 """Ground-truth arrays and their number of dimensions; all (H, W[, 3]) in the camera frame."""
+NPZ_UNREADABLE = "not a readable .npz file"
+"""How a surface file's messages word an archive numpy cannot read."""
 
 
 @dataclasses.dataclass(frozen=True)
 class GroundTruth:
-    """Per-pixel truth of a synthetic press, camera frame, millimetres."""
+    """Per-pixel truth of a synthetic press, camera frame, millimetres.
 
-    depth: np.ndarray
+    Made from its arrays, or read from a gt.npz by :meth:`load`: each array is then inflated and checked at its
+    first read, naming the file and the array when it is damaged. Why: its readers need some of them (an error map
+    the normals, the valid and the contact masks; a score no points), and inflating all five of a 640x480 file took
+    ~60 ms of CPU, more than ``nlips infer``'s inference."""
+
+    depth: np.ndarray = LoadedOnRead()
     """(H, W) float32, mm -- z coordinate of the surface point; NaN where the ray misses the gel."""
-    points: np.ndarray
+    points: np.ndarray = LoadedOnRead()
     """(H, W, 3) float32, mm, camera frame."""
-    normals: np.ndarray
+    normals: np.ndarray = LoadedOnRead()
     """(H, W, 3) float32, unit, camera frame, pointing toward the camera (shading normals)."""
-    valid: np.ndarray
+    valid: np.ndarray = LoadedOnRead()
     """(H, W) bool -- the pixel sees the gel surface."""
-    contact: np.ndarray
+    contact: np.ndarray = LoadedOnRead()
     """(H, W) bool -- the gel under this pixel is displaced by the press."""
 
     def save(self, path: Path) -> None:
@@ -45,13 +52,26 @@ class GroundTruth:
 
     @classmethod
     def load(cls, path: Path, shape: tuple[int, int]) -> GroundTruth:
-        arrays = _load_npz(path, GT_KEYS)
+        """The ground truth in ``path`` for a camera of ``shape`` (H, W): the archive and its arrays' shapes and
+        types are checked now (their headers: nothing is inflated), each array's values at its first read
+        (:func:`_read_checked`, from the same file: one replaced since is refused)."""
+        headers = read_array_headers(path, GT_KEYS, unreadable=NPZ_UNREADABLE)
         for key, ndim in GT_KEYS.items():
-            a = arrays[key]
+            found, dtype = headers[key]
             want = shape + ((3,) if ndim == 3 else ())
-            if a.shape != want:
-                raise CaptureError(f"{path}: ground truth '{key}' has shape {a.shape}, expected {want}")
-        return cls(**{k: arrays[k] for k in GT_KEYS})
+            _check_type(path, key, dtype)
+            if found != want:
+                raise CaptureError(f"{path}: ground truth '{key}' has shape {found}, expected {want}")
+        return cls(**{k: FileLoader(path, functools.partial(_read_checked, path, k)) for k in GT_KEYS})
+
+
+def _read_checked(path: Path, key: str) -> np.ndarray:
+    """The array ``key`` of the .npz at ``path``, inflated alone and checked (:func:`_check_values`); a damaged one
+    is one CaptureError naming the file and the array."""
+    array = read_arrays(path, (key,), unreadable=f"array '{key}' is not readable", only=(key,))[key]
+    _check_type(path, key, array.dtype)
+    _check_values(path, key, array)
+    return array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,11 +162,22 @@ def _load_npz_kept(path: Path, keys: dict) -> dict:
 
 
 def _load_npz(path: Path, keys: dict) -> dict:
-    arrays = read_arrays(path, keys, unreadable="not a readable .npz file")
+    """Every array of the .npz at ``path``, read now and checked (:func:`_check_type`, :func:`_check_values`)."""
+    arrays = read_arrays(path, keys, unreadable=NPZ_UNREADABLE)
     for k in keys:
-        if arrays[k].dtype.kind not in "biuf":  # strings, objects: else numpy's "ufunc 'isfinite' not supported"
-            raise CaptureError(f"{path}: array '{k}' holds {arrays[k].dtype} values, expected numbers")
-        if arrays[k].dtype.kind == "f" and k != "depth" and k != "points" and not np.all(np.isfinite(arrays[k])):
-            # normals are finite everywhere by convention (zero where invalid); depth/points use NaN
-            raise CaptureError(f"{path}: array '{k}' contains NaN or infinity")
+        _check_type(path, k, arrays[k].dtype)
+        _check_values(path, k, arrays[k])
     return arrays
+
+
+def _check_type(path: Path, key: str, dtype: np.dtype) -> None:
+    """CaptureError naming the file unless the array ``key`` holds numbers."""
+    if dtype.kind not in "biuf":  # strings, objects: else numpy's "ufunc 'isfinite' not supported"
+        raise CaptureError(f"{path}: array '{key}' holds {dtype} values, expected numbers")
+
+
+def _check_values(path: Path, key: str, array: np.ndarray) -> None:
+    """CaptureError naming the file when the array ``key`` holds NaN or infinity where the format allows none."""
+    if array.dtype.kind == "f" and key != "depth" and key != "points" and not np.all(np.isfinite(array)):
+        # normals are finite everywhere by convention (zero where invalid); depth/points use NaN
+        raise CaptureError(f"{path}: array '{key}' contains NaN or infinity")

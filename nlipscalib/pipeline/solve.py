@@ -30,7 +30,6 @@ from .workers import _solve_in_processes
 if TYPE_CHECKING:  # named in hints only: the solver and captures are imported when a press is solved
     from ..core.capture import Press
     from ..core.leds import Led
-    from ..core.surface_files import GroundTruth
     from ..solver import SolverOptions
 
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
@@ -301,8 +300,7 @@ def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | Non
     if result is None:
         result = load_reconstruction(out)
     press = load_press(folder)
-    truth = _truth_or_none(lambda: press.ground_truth)
-    write_reconstruction_figures(out, result, truth, figures, *_figure_context(press))
+    write_reconstruction_figures(out, result, lambda: press.ground_truth, figures, *_figure_context(press))
     log.info("%s: figures (%s) added to the existing result", out, figures)
 
 
@@ -369,21 +367,11 @@ def _solve_and_save(
     context = _figure_context(press)
 
     def figures(tmp: Path) -> None:
-        write_reconstruction_figures(tmp, result, _truth_or_none(truth.result), level, *context)
+        write_reconstruction_figures(tmp, result, truth.result, level, *context)  # damaged: no error.png
 
     save_reconstruction(result, out, overwrite=True, extra_files=figures if level != "none" else None)
     _log_solved(folder, out, result.report, time.perf_counter() - t2)
     return result
-
-
-def _truth_or_none(read: Callable[[], GroundTruth | None]) -> GroundTruth | None:
-    """The ground truth ``read()`` returns for the error figure; None, with one warning, when gt.npz is damaged:
-    the solve reads none, so a damaged one stopped a solve only for its figure (``--no-figures`` solved)."""
-    try:
-        return read()
-    except CaptureError as exc:
-        log.warning("%s: the ground truth is damaged; the error figure (error.png) is skipped", exc)
-        return None
 
 
 def _read_beside(read: Callable[[], object]) -> Future:

@@ -11,6 +11,7 @@ Two levels:
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -19,10 +20,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.cpus import usable_cores
+from ..core.errors import CaptureError
 
 if TYPE_CHECKING:  # named in hints only
     from ..core.reconstruction import Reconstruction
     from ..core.surface_files import GroundTruth
+
+log = logging.getLogger(__name__)
 
 FIGURE_LEVELS = ("none", "maps", "full")
 """Accepted values of ``figures`` (``True`` means "maps", ``False`` means "none")."""
@@ -75,7 +79,8 @@ def write_reconstruction_figures(
     rec : Reconstruction -- maps over the full (H, W) image, camera frame
     ground_truth : GroundTruth or None -- adds error.png (angular error, degrees); or a function returning one
         (a press's truth read at its first use, ``lambda: press.ground_truth``): it is then called on the figures'
-        thread pool, beside the other maps' encoding (reading a 640x480 gt.npz inflates ~7 MB, ~0.05 s)
+        thread pool, beside the other maps' encoding (reading a 640x480 gt.npz inflates ~7 MB, ~0.05 s); a
+        damaged truth (CaptureError) is one warning naming the file, and no error.png
     level : "none", "maps" or "full" (or a bool), see the module docstring
     reference_depth : (H, W) float, mm, camera z of the undeformed surface (the press's reference.npz), or None --
         depth.png then shows the indentation (:func:`depth_view`), else camera z
@@ -93,12 +98,17 @@ def write_reconstruction_figures(
     depth, depth_label, depth_min = depth_view(rec, reference_depth, box)
 
     def error_png() -> tuple[Path | None, tuple | None]:
-        truth = ground_truth() if callable(ground_truth) else ground_truth
-        err = error_map(rec, truth, box)
-        if truth is None or err is None:
+        try:  # the truth's arrays are read at their first use (GroundTruth.load), here
+            truth = ground_truth() if callable(ground_truth) else ground_truth
+            err = error_map(rec, truth, box)
+            contact = truth.contact[box] if err is not None else None
+        except CaptureError as exc:  # the result needs no truth: a damaged one costs error.png only
+            log.warning("%s: the ground truth is damaged; the error figure (error.png) is skipped", exc)
+            return None, None
+        if err is None:
             return None, None
         top = error_scale([err])  # ~6 ms at 640x480: once, for error.png and the summary alike
-        return scalar_map_png(folder / "error.png", err, ERROR_CMAP, "deg", 0.0, top), (err, truth.contact[box], top)
+        return scalar_map_png(folder / "error.png", err, ERROR_CMAP, "deg", 0.0, top), (err, contact, top)
 
     residual = _masked(rec.residual[box], shown)
     # NLiPs' fit leaves a residual per solved pixel; NLiPsNet's result (`nlips infer`) has none (all NaN): a grey

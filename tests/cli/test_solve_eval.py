@@ -459,6 +459,26 @@ def test_a_solve_without_figures_reads_no_ground_truth(data, capsys, caplog):
     assert (out / "result.npz").is_file() and (out / "depth.png").is_file() and not (out / "error.png").exists()
 
 
+def test_a_damaged_ground_truth_array_costs_the_error_figure_and_is_named_by_eval(data, capsys, caplog):
+    """gt.npz's arrays are read at their first use (the error map's three, a score's four): a damaged one read by
+    the figures is still one warning naming the file and the array, the result published without error.png; `nlips
+    eval`, which needs it, says so in one line and exits 2."""
+    from tests.core.test_reconstruction import _spoil_deflated_member
+
+    root, cfg = data
+    press = root / "press_a"
+    _spoil_deflated_member(press / "gt.npz", "contact.npy")
+    capsys.readouterr()
+    assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
+    warned = [line for line in _log(caplog, capsys).splitlines() if "gt.npz" in line]
+    assert len(warned) == 1 and f"{press / 'gt.npz'}: array 'contact' is not readable" in warned[0], warned
+    assert "the error figure (error.png) is skipped" in warned[0]
+    assert (press / "nlips" / "depth.png").is_file() and not (press / "nlips" / "error.png").exists()
+    assert main(["eval", str(press)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{press / 'gt.npz'}: array 'contact' is not readable" in err[0], err
+
+
 def test_eval_of_a_captured_press_says_only_twin_renders_carry_ground_truth(data, capsys):
     """`nlips eval SESSION` (a capture session's presses) said "PRESS: no ground truth (gt.npz) to evaluate against",
     leaving the user to wonder what made gt.npz go missing: a captured press never has one."""

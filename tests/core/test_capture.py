@@ -130,7 +130,7 @@ def test_interrupted_folder_write_leaves_nothing(tmp_path):
         (lambda f: (f / "gt.npz").write_bytes(b"not npz"), "gt.npz: not a readable"),
         (lambda f: (f / "led_03.png").write_bytes((f / "led_03.png").read_bytes()[:-200]), "led_03.png: truncated PNG"),
         (lambda f: (f / "reference.npz").write_bytes(b"garbage"), "reference.npz: not a readable"),
-        (lambda f: _spoil_deflated(f / "gt.npz", "normals.npy"), "gt.npz: not a readable .npz file (compressed"),
+        (lambda f: _spoil_deflated(f / "gt.npz", "normals.npy"), "gt.npz: array 'normals' is not readable (compressed"),
         (lambda f: (f / "tricolor.png").write_bytes(b"garbage"), "tricolor.png: not a readable PNG"),
     ],
 )
@@ -263,6 +263,64 @@ def _spoil_deflated(path, member):
     from tests.core.test_reconstruction import _spoil_deflated_member
 
     _spoil_deflated_member(path, member)  # a flipped block inside an array: zlib fails, not the zip layer
+
+
+def test_a_ground_truth_inflates_each_array_at_its_first_read_only(tmp_path, monkeypatch):
+    """gt.npz's arrays are inflated at their first read, each once (its shapes and types checked on opening it,
+    from their headers): an error map reads 3 of the 5 and a score 4 (at 640x480 the points are 3.3 of its
+    7.6 MB deflated); loading a press's truth reads the 3 its surface check needs."""
+    from nlipscalib.core import surface_files
+
+    folder = _press(tmp_path / "p")
+    read, real = [], surface_files.read_arrays
+    monkeypatch.setattr(surface_files, "read_arrays", lambda *a, **k: read.extend(k["only"]) or real(*a, **k))
+    gt = GroundTruth.load(folder / "gt.npz", (H, W))
+    assert read == []
+    with np.load(folder / "gt.npz") as stored:
+        assert np.array_equal(gt.normals, stored["normals"]) and gt.normals is gt.normals
+        assert read == ["normals"]
+        press_truth = load_press(folder).ground_truth
+        assert sorted(read) == ["depth", "normals", "normals", "valid"]  # the surface check's
+        assert np.array_equal(press_truth.contact, stored["contact"])
+    assert "points" not in read and read.count("contact") == 1
+
+
+def test_a_ground_truth_array_of_another_shape_or_type_is_refused_on_opening(tmp_path):
+    folder = _press(tmp_path / "p")
+    with np.load(folder / "gt.npz") as stored:
+        arrays = dict(stored)
+    np.savez(folder / "gt.npz", **{**arrays, "points": arrays["points"][:, :, :2]})
+    with pytest.raises(CaptureError, match=r"gt\.npz: ground truth 'points' has shape \(12, 16, 2\), expected"):
+        GroundTruth.load(folder / "gt.npz", (H, W))
+    np.savez(folder / "gt.npz", **{**arrays, "contact": arrays["contact"].astype("U1")})
+    with pytest.raises(CaptureError, match=r"gt\.npz: array 'contact' holds <U1 values, expected numbers"):
+        GroundTruth.load(folder / "gt.npz", (H, W))
+
+
+def test_a_damaged_ground_truth_array_is_named_at_its_first_read(tmp_path):
+    """A byte of an array's values damaged (found by the zip CRC when the array is inflated) is one error naming
+    the file and the array, at the first read of that array; the other arrays still read."""
+    import zipfile
+
+    h, w = 64, 80  # a member longer than the zip reader's first read (4 kB): its header reads without its end
+    arrays = {"depth": np.full((h, w), 10.0, np.float32), "points": np.zeros((h, w, 3), np.float32)}
+    arrays |= {"normals": np.tile(np.float32([0, 0, -1]), (h, w, 1)), "valid": np.ones((h, w), bool)}
+    arrays["contact"] = np.zeros((h, w), bool)
+    path = tmp_path / "gt.npz"
+    np.savez(path, **arrays)  # stored, not deflated: the flipped byte is past the array's header
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo("contact.npy")
+    data = bytearray(path.read_bytes())
+    data[info.header_offset + 30 + len(info.filename) + len(info.extra) + info.compress_size - 1] ^= 1
+    path.write_bytes(bytes(data))
+    truth = GroundTruth.load(path, (h, w))
+    assert np.array_equal(truth.normals, arrays["normals"])
+    with pytest.raises(CaptureError, match=r"gt\.npz: array 'contact' is not readable \(Bad CRC-32"):
+        _ = truth.contact
+    arrays["normals"][0, 0] = np.nan
+    np.savez(path, **arrays)
+    with pytest.raises(CaptureError, match=r"gt\.npz: array 'normals' contains NaN or infinity"):
+        _ = GroundTruth.load(path, (h, w)).normals
 
 
 def test_a_reference_is_read_once_per_file_and_again_when_it_changes(tmp_path, monkeypatch):
