@@ -138,3 +138,22 @@ def threads_status(folder) -> str:
     from nlipscalib.solver import threads
 
     return f"solver {threads.workers()} opencv {cv2.getNumThreads()}"
+
+
+def terminate_once_started(argv: list[str], started: Path, env: dict[str, str], wait: float) -> tuple[int, str, str]:
+    """Run ``argv``, send it SIGTERM once it has made the file ``started`` (its frames began: the moment to stop
+    it at), and return (exit code, stdout, stderr); it is SIGKILLed if it outlives the test. ``wait`` bounds both
+    the start and the end, seconds."""
+    import contextlib
+
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.monotonic() + wait
+        while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=wait)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, signal.SIGKILL)
+    return proc.returncode, out, err

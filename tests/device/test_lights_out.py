@@ -22,6 +22,7 @@ import pytest
 from nlipscalib.cli import main
 from nlipscalib.device.controller import LedController, lights_out_on_exit
 from nlipscalib.device.virtual_board import VirtualBoard
+from tests.processes import terminate_once_started
 
 from .ledboards import SimavrUnderTest, firmware_build
 
@@ -190,23 +191,8 @@ def test_sigterm_of_live_says_the_stream_stopped_not_run_again_to_resume(tmp_pat
     saved = tmp_path / "saved"
     argv = [sys.executable, "-c", code, "live", "--camera", str(frames), "--no-window", "--out", str(saved)]
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-    proc = subprocess.Popen(
-        argv + ["--predictor", "tests.device.fakes:slow"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-    try:
-        deadline = time.monotonic() + 60
-        while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.02)
-        proc.send_signal(signal.SIGTERM)
-        out, err = proc.communicate(timeout=30)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 128 + signal.SIGTERM, err
+    returncode, out, err = terminate_once_started(argv + ["--predictor", "tests.device.fakes:slow"], started, env, 60)
+    assert returncode == 128 + signal.SIGTERM, err
     assert err.splitlines()[-1] == (
         "nlips live: terminated; the stream stopped (a live stream does not resume; maps already saved with --out "
         "are kept)"

@@ -1065,17 +1065,15 @@ def test_sigterm_ends_a_stream_with_its_summary_and_stream_json_then_143(tiny_mo
     """`kill` (SIGTERM: systemd, `timeout`, a job scheduler) of `nlips infer` on a stream ended it at once with one
     line, exit 143: the frame count, rate, stage line and stream.json were lost, where Ctrl-C keeps them (s25-soak).
     Now it ends as Ctrl-C does -- the frame under way finished and saved whole -- then the line, still exit 143."""
-    import contextlib
     import json
     import os
     import shutil
     import signal
-    import subprocess
     import sys
-    import time
     from pathlib import Path
 
     from tests.learn.test_resume import NAMES
+    from tests.processes import terminate_once_started
 
     model, root = tiny_model
     seq = tmp_path / "seq"
@@ -1093,19 +1091,8 @@ def test_sigterm_ends_a_stream_with_its_summary_and_stream_json_then_143(tiny_mo
     )
     argv = [sys.executable, "-c", code, "--no-progress", "infer", str(model), str(seq / "img_%04d.png")]
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2]))
-    proc = subprocess.Popen(
-        argv + ["--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
-    )
-    try:
-        deadline = time.monotonic() + 120
-        while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.02)
-        proc.send_signal(signal.SIGTERM)
-        stdout, stderr = proc.communicate(timeout=60)
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 128 + signal.SIGTERM, stderr
+    returncode, stdout, stderr = terminate_once_started(argv + ["--out", str(out)], started, env, wait=120)
+    assert returncode == 128 + signal.SIGTERM, stderr
     assert stderr.splitlines()[-1] == (
         "nlips infer: terminated; the stream stopped (a stream does not resume; frames already saved with --out are "
         "kept)"

@@ -213,6 +213,19 @@ def _at_border(mask):
     return mask & border
 
 
+def _solved_in_box(shape, rows, cols):
+    """(H, W) bool: the pixels a box (or edge box) over ``rows``, ``cols`` solves: all but its ring, except where
+    that ring lies on the image border (there the box has no ring: a natural side)."""
+    inner = np.zeros(shape, bool)
+    inner[rows, cols] = True
+    H, W = shape
+    for side, at_edge in ((np.s_[rows.start, :], rows.start == 0), (np.s_[rows.stop - 1, :], rows.stop == H)):
+        inner[side] &= at_edge  # the ring off the border is the reference's, fixed
+    for side, at_edge in ((np.s_[:, cols.start], cols.start == 0), (np.s_[:, cols.stop - 1], cols.stop == W)):
+        inner[side] &= at_edge
+    return inner
+
+
 @pytest.mark.parametrize(("polar", "azimuth"), [(35, 90), (55, 35)])
 def test_an_edge_box_solves_the_sparse_paths_equations_on_its_pixels(polar, azimuth):
     # the sparse path's equations at the image border have no pair across it: an edge box must solve exactly
@@ -225,13 +238,7 @@ def test_an_edge_box_solves_the_sparse_paths_equations_on_its_pixels(polar, azim
     unknown = ndimage.binary_dilation(hit, iterations=3) & on_gel
     geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
     (((rows, cols), edges),) = _regions(unknown, on_gel, "auto")[1]
-    inner = np.zeros_like(unknown)
-    inner[rows, cols] = True
-    H, W = unknown.shape
-    for side, at_edge in ((np.s_[rows.start, :], rows.start == 0), (np.s_[rows.stop - 1, :], rows.stop == H)):
-        inner[side] &= at_edge  # the ring off the border is the reference's, fixed
-    for side, at_edge in ((np.s_[:, cols.start], cols.start == 0), (np.s_[:, cols.stop - 1], cols.stop == W)):
-        inner[side] &= at_edge
+    inner = _solved_in_box(unknown.shape, rows, cols)
     assert _at_border(inner).sum() > 100
     box, _ = integrate_on_dome(normals, unknown, geo)
     sparse, _ = integrate_on_dome(normals, inner, geo, "sparse")
@@ -323,13 +330,7 @@ def test_a_box_across_the_image_solves_the_sparse_paths_equations_on_its_pixels(
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
     (((rows, cols), got_edges),) = _regions(unknown, on_gel, "auto")[1]
     assert got_edges == edges
-    inner = np.zeros_like(unknown)
-    inner[rows, cols] = True
-    H, W = unknown.shape
-    for side, at_edge in ((np.s_[rows.start, :], rows.start == 0), (np.s_[rows.stop - 1, :], rows.stop == H)):
-        inner[side] &= at_edge  # the ring off the border is the reference's, fixed
-    for side, at_edge in ((np.s_[:, cols.start], cols.start == 0), (np.s_[:, cols.stop - 1], cols.stop == W)):
-        inner[side] &= at_edge
+    inner = _solved_in_box(unknown.shape, rows, cols)
     box, _ = integrate_on_dome(normals, unknown, geo)
     sparse, _ = integrate_on_dome(normals, inner, geo, "sparse")
     assert np.abs(sparse - ref.depth)[inner].max() > 0.1  # mm: a surface unlike the dome
