@@ -25,7 +25,9 @@ trap cleanup EXIT
 "$VENV/bin/python" -m pip install -q uv
 "$VENV/bin/uv" pip compile -q --resolution lowest-direct --all-extras --python "$VENV/bin/python" \
     "$ROOT/pyproject.toml" -o "$VENV/lowest.txt"
-"$VENV/bin/uv" pip install -q --python "$VENV/bin/python" -r "$VENV/lowest.txt"
+# with the build system's setuptools (a venv starts with Python's old bundled one): tests/test_packaging builds the
+# wheel and sdist without build isolation, and setuptools < 77 rejects pyproject.toml's `license = "MIT"`
+"$VENV/bin/uv" pip install -q --python "$VENV/bin/python" -r "$VENV/lowest.txt" "setuptools>=77"
 "$VENV/bin/uv" pip install -q --python "$VENV/bin/python" --no-deps -e "$ROOT"
 echo "lowest direct versions (indirect ones as resolved):"
 grep -E '^[a-z]' "$VENV/lowest.txt" | tr '\n' ' '

@@ -9,9 +9,19 @@ threads). A product's last bits depend on BLAS's thread count, so results kept f
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Iterator
 
 _controller = None
+
+LIBRARY_LOADS = threading.Lock()
+"""Held by a thread that imports native modules in the background (:func:`nlipscalib.solver.krylov.
+import_amg_in_background`) and by :func:`_blas` while threadpoolctl walks the loaded libraries.
+
+Why: threadpoolctl walks them with glibc's ``dl_iterate_phdr``, which holds the dynamic loader's lock while it
+calls back into Python (the callback needs the GIL), and an extension module's import calls ``dlopen`` (which needs
+that lock) holding the GIL: each thread waited for the other. Seen as a solve that never ended in a ``--workers 2``
+pool process (tests/test_pipeline, lowest dependency versions: pyamg 5.0 importing ``scipy.io.matlab``)."""
 
 
 def _blas():
@@ -24,7 +34,8 @@ def _blas():
         import scipy.linalg  # noqa: F401  (loads SciPy's BLAS, so the controller sees it)
         from threadpoolctl import ThreadpoolController
 
-        _controller = ThreadpoolController().select(user_api="blas")
+        with LIBRARY_LOADS:  # no dlopen in another thread while the loader's lock is held (LIBRARY_LOADS)
+            _controller = ThreadpoolController().select(user_api="blas")
     return _controller
 
 

@@ -327,12 +327,10 @@ class OpenCVSource(FrameSource):
 @contextlib.contextmanager
 def _quiet_opencv(cv2: ModuleType) -> Iterator[None]:
     """OpenCV's log at errors only for the block (a failure is then reported once, by us)."""
-    logging_ = getattr(getattr(cv2, "utils", None), "logging", None)
-    if logging_ is None:  # pragma: no cover - builds without cv2.utils.logging
-        yield
-        return
+    # opencv-python-headless 4.8 has no cv2.utils.logging, only cv2.getLogLevel/setLogLevel (the same levels)
+    logging_ = getattr(getattr(cv2, "utils", None), "logging", None) or cv2
     level = logging_.getLogLevel()
-    logging_.setLogLevel(logging_.LOG_LEVEL_ERROR)
+    logging_.setLogLevel(2)  # OpenCV's LOG_LEVEL_ERROR
     try:
         yield
     finally:

@@ -316,8 +316,12 @@ def import_amg_in_background() -> threading.Thread:
     own import raises it. Not a daemon: the process's exit waits for a started import rather than stopping it half
     done."""
 
+    from ..core.blas import LIBRARY_LOADS
+
     def run() -> None:
-        with contextlib.suppress(Exception):  # raised again, by the set-up's own import, where it is needed
+        # taken before any import lock (so the BLAS controller's walk, which takes it after its imports, waits
+        # for this import or this import for it, never both for each other: core.blas.LIBRARY_LOADS)
+        with LIBRARY_LOADS, contextlib.suppress(Exception):  # raised again by the set-up's own import, if needed
             import pyamg  # noqa: F401
 
     thread = threading.Thread(target=run, name="import-pyamg")
