@@ -9,9 +9,9 @@ kernel), the network on every gel pixel, the change rule of :mod:`.change` (the 
 the reference normals kept where nothing changed (as on the CPU path; ``keep_reference=False``
 keeps the network's everywhere: ``--full-frame``). Then :mod:`.integrate_torch` integrates the
 changed pixels' boxes as the CPU does (per region where their common box does not apply, an edge box
-where one reaches the image border), after the graph (the box's shape changes per frame), or the whole gel
-inside it (``--full-frame``, or a region the CPU solves otherwise: off the gel, as a rim box or on its sparse path,
-or across the image, as a cosine box).
+where one reaches the image border, a cosine box across the image), after the graph (the box's shape changes per
+frame), or the whole gel inside it (``--full-frame``, or a region the CPU solves otherwise: off the gel, as a rim
+box or on its sparse path).
 """
 
 from __future__ import annotations
@@ -126,10 +126,10 @@ class FullFrame:
 
     def _box_points(self, normals: torch.Tensor, changed: np.ndarray):
         """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels' box
-        solved, else per region a box or an edge box at the image border, as on the CPU path
-        (:meth:`BoxIntegrator.boxes`; only the boxes come back from the device, in one copy), or the whole gel
-        solved where a region is none of these on the CPU (a rim box, a cosine box, or its sparse path; the level from
-        the unchanged pixels)."""
+        solved, else per region a box, an edge box at the image border or a cosine box across the image, as on the
+        CPU path (:meth:`BoxIntegrator.boxes`; only the boxes come back from the device, in one copy), or the whole
+        gel solved where a region is none of these on the CPU (a rim box or its sparse path; the level from the
+        unchanged pixels)."""
         if not changed.any():
             return self.ref_points_host.copy()
         boxes = self.box_integrator.boxes(changed)

@@ -4,9 +4,9 @@ Both solve the equation of :mod:`.integrate` (5-point Poisson in the log-range a
 rays, gradients averaged on each pixel pair; :func:`.integrate.edge_box_rhs` is shared).
 
 - :class:`BoxIntegrator`: the CPU's box solver (the changed pixels' box, its outer ring at the reference;
-  else per region a box, or an edge box mirrored across the image border: the same boxes and equations as
-  :func:`.integrate.integrate_on_dome`'s "auto"), its type-I sine transforms by torch's FFT on a CPU and by
-  dense matrix products on a GPU (no cuFFT plan per box size).
+  else per region a box, an edge box mirrored across the image border, or a box across the image with a cosine
+  axis: the same boxes and equations as :func:`.integrate.integrate_on_dome`'s "auto"), its sine (and cosine)
+  transforms by torch's FFT on a CPU and by dense matrix products on a GPU (no cuFFT plan per box size).
 - :class:`DomeIntegrator`: every gel pixel whose neighbours in the image are all on the gel. The gel pixels
   next to them that meet the dome's base (an off-gel pixel) are the Dirichlet boundary, held at the undeformed
   reference: the gel is fixed there. The image border is a natural (Neumann) boundary: the surface there is
@@ -232,14 +232,11 @@ class BoxIntegrator:
 
     def boxes(self, changed: np.ndarray) -> list[tuple[tuple[slice, slice], Edges]] | None:
         """The boxes and edge boxes (with their :data:`.integrate.Edges`) that solve ``changed`` ((H, W) bool on
-        the gel) as :func:`.integrate.integrate_on_dome` does, or None where a region needs another solve there (its
-        box leaves the gel: a rim box or the sparse path; or spans an axis from border to border: a cosine box).
+        the gel) as :func:`.integrate.integrate_on_dome` does (a box across the image too: its cosine axis), or
+        None where a region needs another solve there (its box leaves the gel: a rim box or the sparse path).
         Decided on the host, like the CPU's."""
         boxes, edge_boxes, sparse = _regions(changed, self.on_gel, "auto")
-        # a box across the image (BOTH_SIDES) is the CPU's cosine box; here the whole gel solves that equation
-        if sparse or any(BOTH_SIDES in edges for _, edges in edge_boxes):
-            return None
-        return [(b, (0, 0)) for b in boxes] + edge_boxes
+        return None if sparse else [(b, (0, 0)) for b in boxes] + edge_boxes
 
     def __call__(self, normals: torch.Tensor, box: tuple[slice, slice], edges: Edges = (0, 0)) -> torch.Tensor:
         """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor); an edge
@@ -290,12 +287,13 @@ class BoxIntegrator:
         x = self.log_range[index]  # a copy: the reference, whose interior is replaced below
         f = edge_box_rhs(normals.reshape(-1, 3)[index], rays, self.d_u[index], self.d_v[index], x, edges)
         own, interior = edge_box_parts(x.shape, edges)
-        x[interior] = self._solver(*f.shape)(f)[own]
+        # an axis across the image (BOTH_SIDES) has a natural side at both ends: the cosine transform, as on the CPU
+        x[interior] = self._solver(*f.shape, tuple(edge == BOTH_SIDES for edge in edges))(f)[own]
         return torch.exp(x)[..., None] * rays
 
     @functools.lru_cache(maxsize=32)  # noqa: B019 -- one per box size; the instance lives as long as the model
-    def _solver(self, m: int, n: int) -> BoxPoisson:
-        return BoxPoisson(m, n, self.device, _torch().float32, dense=self.dense)
+    def _solver(self, m: int, n: int, neumann: tuple[bool, bool] = (False, False)) -> BoxPoisson:
+        return BoxPoisson(m, n, self.device, _torch().float32, dense=self.dense, neumann=neumann)
 
     @functools.lru_cache(maxsize=32)  # noqa: B019
     def _index(self, h: int, w: int):

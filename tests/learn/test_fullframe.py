@@ -262,6 +262,38 @@ def test_the_device_path_solves_contacts_at_the_image_border_as_the_cpu_does(cas
         assert np.abs(depth - true_depth)[changed].mean() < 0.05 * true_dent
 
 
+@pytest.mark.parametrize("dense", [False, True], ids=["fft", "matrices"])
+@pytest.mark.parametrize(("axis", "lo", "hi"), [(0, 100, 190), (1, 500, 640)])
+def test_the_device_path_solves_a_contact_across_the_image_in_the_cpus_cosine_box(axis, lo, hi, dense):
+    """A band of changed pixels across the whole width or height (a side at the image border too): the torch path
+    solves the CPU's box with a cosine axis -- it solved the whole gel, a slightly different equation -- through
+    both transform branches, to the CPU's depth."""
+    from types import SimpleNamespace
+
+    from scipy import ndimage
+
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn.fullframe import FullFrame
+    from nlipscalib.learn.integrate import BOTH_SIDES, _regions, integrate_on_dome
+    from nlipscalib.learn.integrate_torch import BoxIntegrator
+    from tests.learn.test_integrate import _band, _dome_and_sphere
+
+    ref, geo, on_gel, _, _ = _dome_and_sphere()
+    changed = _band(on_gel.shape, axis, lo, hi)
+    tilt = ndimage.gaussian_filter(np.random.default_rng(lo).normal(size=on_gel.shape + (3,)), (8, 8, 0)) * 20
+    normals = ref.normals + np.where(changed[..., None], tilt, 0)
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    (((_, edges),),) = (_regions(changed, on_gel, "auto")[1],)
+    assert BOTH_SIDES in edges
+    cpu, _ = integrate_on_dome(normals, changed, geo)
+    assert np.abs(cpu - ref.depth)[changed].max() > 0.1  # mm: a surface unlike the dome
+    box_integrator = BoxIntegrator(geo, CPU, dense=dense)
+    assert box_integrator.boxes(changed) is not None  # a box, not the whole gel
+    path = SimpleNamespace(box_integrator=box_integrator, torch=torch, device=CPU, ref_points_host=geo.points)
+    got = FullFrame._box_points(path, torch.from_numpy(normals.astype(np.float32)), changed)[..., 2]
+    np.testing.assert_allclose(got, cpu, atol=TORCH_INTEGRATION_PARITY_MM)
+
+
 def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_elsewhere(trained, twin_presses):
     """What a GPU runs (learn.fullframe with the change rule), here on the CPU: the CPU path's mask and normals."""
     from nlipscalib.learn.fullframe import FullFrame
@@ -292,11 +324,17 @@ def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_els
     _, want = integrate_on_dome(normals, border, cpu_predictor.geo)
     np.testing.assert_allclose(at_border, want, atol=TORCH_INTEGRATION_PARITY_MM)
     assert not np.allclose(at_border, device_path.ref_points_host)
-    # a change across the image from border to border (the CPU's sparse path): the whole gel is solved
+    # a change across the image from border to border: the CPU's cosine box
     band = np.zeros_like(border)
     band[20:24, :] = True
-    whole = device_path._box_points(torch.from_numpy(normals), band)
-    np.testing.assert_allclose(whole, device_path.integrator(torch.from_numpy(normals), torch.from_numpy(~band)))
+    across = device_path._box_points(torch.from_numpy(normals), band)
+    _, want = integrate_on_dome(normals, band, cpu_predictor.geo)
+    np.testing.assert_allclose(across, want, atol=TORCH_INTEGRATION_PARITY_MM)
+    # across both axes (the CPU's sparse path): the whole gel is solved
+    cross = band.copy()
+    cross[:, 30:34] = True
+    whole = device_path._box_points(torch.from_numpy(normals), cross)
+    np.testing.assert_allclose(whole, device_path.integrator(torch.from_numpy(normals), torch.from_numpy(~cross)))
     # the network's normals everywhere (--full-frame): the whole gel's level from the pixels the rule left unchanged
     whole_path = FullFrame(cpu_predictor.model, CPU, cpu_predictor.geo, keep_reference=False)
     frame = torch.from_numpy(press.linear(press.tricolor))
