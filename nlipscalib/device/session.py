@@ -415,10 +415,20 @@ def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
     is checked on what it holds."""
     path = out / SESSION_FILE
     described = {"camera": rig.camera.to_dict(), "n_leds": len(rig.leds), "settings": _capture_settings(rig, cfg)}
-    if not path.exists() or not any(is_press_folder(d) for d in out.iterdir() if d.is_dir()):
+    captured = any(is_press_folder(d) for d in out.iterdir() if d.is_dir())
+    if path.exists() and captured:
+        _check_session_record(path, described)
+    if why := _captured_by_another_sensor(out, rig):
+        # session.json records no LED ring or dome, and may be absent (a folder of `nlips dataset`, or one removed
+        # as an unreadable one's message says): each press's meta.json records the sensor it was captured with
+        raise CaptureError(f"{why}; capture into a new --out folder")
+    if not path.exists() or not captured:
         # nothing captured yet (a reference refused for its exposure, a run stopped before it): nothing to mix
         write_json(path, described | {"started": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
-        return
+
+
+def _check_session_record(path: Path, described: dict) -> None:
+    """Refuse (CaptureError naming ``path``) a session.json of another camera, LED count or settings."""
     try:
         before = json.loads(path.read_text())
         if not isinstance(before, dict):
@@ -431,13 +441,72 @@ def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
         ) from None
     if {k: before.get(k) for k in ("camera", "n_leds")} != {k: described[k] for k in ("camera", "n_leds")}:
         raise CaptureError(
-            f"{path}: this session folder was captured with another camera or LED count; use a new folder"
+            f"{path}: this session folder was captured with another camera or LED count "
+            f"({_camera_difference(before, described)}); use a new folder"
         )
     if "settings" in before and (changes := setting_differences(before["settings"], described["settings"])):
         raise CaptureError(
             f"{path}: this session was captured with other settings ({changes[0]}); resume it with the same "
             "settings, or capture into a new folder"
         )
+
+
+def _camera_difference(before: dict, now: dict) -> str:
+    """What differs between session.json's ``camera`` and ``n_leds`` and this run's ("image size 80x60, the
+    session 160x120"): ``core.sensor_record.sensor_mismatch``'s words, or 'KEY: OLD -> NEW' for a record it
+    cannot read."""
+    from ..core.leds import tricolor_groups
+    from ..core.sensor_record import sensor_mismatch
+
+    def record(held: dict) -> dict:
+        n = held.get("n_leds")
+        return {"camera": held.get("camera"), "n_leds": n, "tricolor_groups": list(tricolor_groups(n))}
+
+    try:
+        why = sensor_mismatch(record(before), record(now), expected_as="the session")
+    except (KeyError, TypeError, ValueError):
+        why = None
+    if why:
+        return why
+    changes = setting_differences(
+        {k: before.get(k) for k in ("camera", "n_leds")}, {k: now[k] for k in ("camera", "n_leds")}
+    )
+    return ", ".join(changes[:2]) + (" and more" if len(changes) > 2 else "")
+
+
+def _captured_by_another_sensor(out: Path, rig: Rig) -> str | None:
+    """Why a whole press folder already in ``out`` is of another sensor than ``rig``'s, naming it, or None.
+
+    Compares each folder's meta.json with the rig: camera, LED count, grouping and geometry
+    (``core.sensor_record.sensor_mismatch``, the check of ``nlips solve --reference``), and the dome when both
+    record one (a twin's or the emulator's scene, a device's design). Seen: ``nlips capture --emulate nlipstac``
+    into a folder of fingertip presses from ``nlips dataset`` (no session.json) kept them, added nlipstac presses
+    beside them and exited 0. Damaged folders are left out: they are captured again."""
+    from ..core.press_meta import parse_optics, read_meta
+    from ..core.sensor_record import describe_sensor, sensor_mismatch
+
+    ours = describe_sensor(rig.camera, rig.leds)
+    our_dome = _dome_of(rig.design, rig.provenance)
+    folders = sorted((d for d in out.iterdir() if d.is_dir()), key=lambda d: (d.name != REFERENCE_NAME, d.name))
+    for folder in (d for d in folders if is_press_folder(d) and not _damaged(d)):
+        meta = read_meta(folder)
+        camera, leds, _ = parse_optics(meta, folder / "meta.json")
+        why = sensor_mismatch(describe_sensor(camera, leds), ours, expected_as=f"{folder.name} has")
+        their_dome = _dome_of(meta.get("design"), meta.get("provenance"))
+        if not why and isinstance(our_dome, dict) and isinstance(their_dome, dict):
+            changes = setting_differences(their_dome, our_dome, "dome")
+            why = f"{changes[0]}" if changes else None
+        if why:
+            return f"{folder}: captured with another sensor than the one capturing now ({why})"
+    return None
+
+
+def _dome_of(design: object, provenance: object) -> dict | None:
+    """The dome a press or rig records: its design's (a device) or its scene's (the twin, the emulator)."""
+    for holder in (design, (provenance or {}).get("scene") if isinstance(provenance, dict) else None):
+        if isinstance(holder, dict) and isinstance(holder.get("dome"), dict):
+            return holder["dome"]
+    return None
 
 
 def _capture_settings(rig: Rig, cfg: SessionConfig) -> dict:

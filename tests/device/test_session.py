@@ -149,8 +149,40 @@ def test_resume_refuses_another_camera(tmp_path):
     rig, _ = _rig()
     run_session(rig, tmp_path / "s", SessionConfig(presses=0), _quiet()[0])
     rig.camera = Camera.from_fov(W, H, 120.0)
-    with pytest.raises(CaptureError, match="another camera"):
+    with pytest.raises(CaptureError, match=r"another camera or LED count \(camera fx = 7\.639, the session 10\.19\)"):
         run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+
+
+def test_resume_into_a_folder_of_another_sensors_presses_is_refused_naming_the_press(tmp_path):
+    """`nlips capture --emulate nlipstac` into a folder of fingertip presses from `nlips dataset` (no session.json)
+    kept them, captured nlipstac presses beside them and exited 0; session.json records no LED ring or dome."""
+    import dataclasses
+
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    (tmp_path / "s" / "session.json").unlink()  # a dataset's folder has none
+    other = dataclasses.replace(rig, leds=tuple(Led(np.add(led.position, (0.0, 0.0, 2.0))) for led in rig.leds))
+    with pytest.raises(CaptureError) as err:
+        run_session(other, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    assert str(err.value).startswith(f"{tmp_path / 's' / 'reference'}: captured with another sensor than the one")
+    assert "LED 1 is 2.00 mm" in str(err.value) and "new --out folder" in str(err.value)
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["press_0001", "reference"]
+    assert run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])["press_0001"] == "kept"
+
+
+def test_resume_with_another_dome_and_the_same_camera_and_leds_is_refused(tmp_path):
+    """The camera and LED ring alone let another dome's presses pass: the dome each press records is compared."""
+    import dataclasses
+
+    rig, _ = _rig()
+    rig.design = {"dome": {"shape": "hemisphere", "radius": 15.0, "height": 15.0}}
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    (tmp_path / "s" / "session.json").unlink()
+    lower = dataclasses.replace(rig, design={"dome": {"shape": "hemisphere", "radius": 15.0, "height": 12.0}})
+    with pytest.raises(
+        CaptureError, match=r"reference: captured with another sensor .*\(dome\.height: 15\.0 -> 12\.0\)"
+    ):
+        run_session(lower, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
 
 
 def test_resume_refuses_other_capture_settings_and_names_the_change(tmp_path):
