@@ -20,6 +20,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # named in hints only: imported when a result is scored
+    import numpy as np
+
     from ..core.reconstruction import Reconstruction
     from ..pipeline import SolveSettings
 
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         elif stale:
             outdated.append((folder.name, stale))
         else:
-            rows.append((folder.name, _scores(folder, rec)[args.region]))
+            rows.append((folder.name, _scores(folder, rec, out if args.other_capture else None)[args.region]))
     if not rows and not damaged and not outdated:
         raise CaptureError(
             f"{args.path}: no press has a {method} result yet (run {MAKES[method].format(path=args.path)} first)"
@@ -368,9 +370,12 @@ def _recompute(folder: Path, out: Path, settings: SolveSettings) -> Reconstructi
     return result
 
 
-def _scores(folder: Path, rec: Reconstruction) -> dict:
+def _scores(folder: Path, rec: Reconstruction, other_capture: Path | None = None) -> dict:
+    """Scores of ``rec`` against the ground truth of ``folder``; ``other_capture``, the result folder given with
+    ``--other-capture``: first refuse it when its surface is not this press's (:func:`_far_from_truth`)."""
     from ..core.errors import CaptureError
     from ..core.metrics import evaluate
+    from ..core.tolerances import OTHER_CAPTURE_DEPTH_MM
 
     gt = _ground_truth(folder)
     if gt is None:
@@ -380,7 +385,35 @@ def _scores(folder: Path, rec: Reconstruction) -> dict:
         )
     if rec.shape != gt.depth.shape:
         raise CaptureError(f"{folder}: reconstruction is {rec.shape}, the capture {gt.depth.shape}")
+    if other_capture is not None and (far := _far_from_truth(rec.depth, gt.depth)):
+        raise CaptureError(
+            f"--result {other_capture}: {far} {folder}'s true surface: a "
+            f"result of another sensor (dome, camera) or of another press; --other-capture scores another capture of "
+            f"the same press (another noise seed), whose surface is within {OTHER_CAPTURE_DEPTH_MM} mm"
+        )
     return evaluate(rec, gt)
+
+
+def _far_from_truth(depth: np.ndarray | None, true_depth: np.ndarray) -> str | None:
+    """How far a result's depth lies from a press's true depth ("its depth is 1.20 mm (median over 19200
+    pixels) from"), when beyond OTHER_CAPTURE_DEPTH_MM; None within it, or with no depth to compare.
+
+    Why: ``--other-capture`` lifts the check that a result was made from the press; a result of another sensor
+    of the same image size was then scored without a word (a NLiPsTac result against a fingertip press: 34.9 deg,
+    3.8 mm). Its depth (mm, camera frame, NaN where none) is compared where both hold one."""
+    import numpy as np
+
+    if depth is None:
+        return None
+    both = np.isfinite(depth) & np.isfinite(true_depth)
+    if not both.any():
+        return None
+    from ..core.tolerances import OTHER_CAPTURE_DEPTH_MM
+
+    gap = float(np.median(np.abs(depth[both] - true_depth[both])))
+    if gap <= OTHER_CAPTURE_DEPTH_MM:
+        return None
+    return f"its depth is {gap:.2f} mm (median over {int(both.sum())} pixels) from"
 
 
 def _ground_truth(folder: Path):

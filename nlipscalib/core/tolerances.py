@@ -9,6 +9,11 @@ SAME_LED_DEG = 3.0
 """... and points within this angle (degrees) of it (a re-calibration: 1-2 deg; fingertip vs NLiPsTac: 10 deg)."""
 SAME_SURFACE_MM = 0.05
 """... and their undeformed surfaces (reference.npz depth) agree within this median distance (mm)."""
+OTHER_CAPTURE_DEPTH_MM = 0.3
+"""``nlips eval --result R --other-capture`` scores another capture of the same press (another noise seed) only
+if R's depth lies within this median distance (mm) of the press's true surface: NLiPs of a capture of the same
+sensor measured 0.04 mm (160x120 twin presses), of another dome 0.7-3.0 mm (fingertip vs a copy 4 mm lower, vs
+NLiPsTac)."""
 SAME_INTRINSICS_RTOL = 1e-3
 """A capture is of the sensor a model or LED file was calibrated for only if its camera's fx, fy, cx, cy each agree
 within this fraction (``core.sensor_record``): about a third of a pixel at 640x480 (fx 355 px, cx 320 px), so

@@ -393,6 +393,25 @@ def test_eval_refuses_a_result_of_another_press_unless_told(data, tmp_path, caps
     assert "--other-capture is only used with --result" in capsys.readouterr().err
 
 
+def test_eval_other_capture_refuses_a_result_of_another_sensors_surface(data, tmp_path, capsys):
+    """--other-capture scored a NLiPsTac result against a fingertip press of the same image size without a word
+    (34.9 deg, 3.8 mm; QA walk s26-mismatch): a result whose depth lies far from the press's true surface is one
+    line, exit 2; another capture of the same sensor still scores (the test above)."""
+    root, cfg = data
+    press, other = root / "press_a", tmp_path / "of_b"
+    assert main(["solve", str(root / "press_b"), "--config", str(cfg), "--out", str(other), "--no-progress"]) == 0
+    report = (other / "report.json").read_text()
+    rec = load_reconstruction(other)
+    save_reconstruction(dataclasses.replace(rec, depth=rec.depth + 1.0), other, overwrite=True)  # a dome 1 mm off
+    (other / "report.json").write_text(report)
+    capsys.readouterr()
+    assert main(["eval", str(press), "--result", str(other), "--other-capture"]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and not captured.out and "Traceback" not in captured.err, captured
+    assert f"--result {other}: its depth is 1.0" in err[0] and f"from {press}'s true surface" in err[0]
+
+
 def test_eval_warns_that_a_result_recording_no_input_cannot_be_checked(data, tmp_path, capsys, caplog):
     """A result written outside `nlips solve`/`nlips infer` (save_reconstruction) or by an older nlipscalib: scored,
     with a warning that says it was not checked."""
