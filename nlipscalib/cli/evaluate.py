@@ -232,7 +232,16 @@ def _check_made_from(press: Path, result: Path, report: dict, other_capture: boo
     what = f"the image frame {source!r}" if kind == "frame" else "another capture"
     named = f" (it names {source!r})" if kind == "press" and isinstance(source, str) and source else ""
     if other_capture:
-        log.warning("%s: made from %s%s, not from %s; scored anyway (--other-capture)", result, what, named, press)
+        from ..core.tolerances import OTHER_CAPTURE_DEPTH_MM
+
+        log.warning(
+            "%s: made from %s%s, not from %s; --other-capture: scored if its surface is within %s mm of the press's",
+            result,
+            what,
+            named,
+            press,
+            OTHER_CAPTURE_DEPTH_MM,
+        )
         return
     raise CaptureError(
         f"--result {result} was made from {what}{named}, not from {press} (the input identity in its report.json "

@@ -388,7 +388,7 @@ def test_eval_refuses_a_result_of_another_press_unless_told(data, tmp_path, caps
     caplog.set_level(logging.WARNING)
     assert main(["eval", str(press), "--result", str(other), "--other-capture"]) == 0
     assert "press_a" in capsys.readouterr().out
-    assert f"{other}: made from another capture, not from {press}; scored anyway (--other-capture)" in caplog.text
+    assert f"{other}: made from another capture, not from {press}; --other-capture: scored if" in caplog.text
     assert main(["eval", str(press), "--other-capture"]) == 2
     assert "--other-capture is only used with --result" in capsys.readouterr().err
 
