@@ -27,6 +27,7 @@ from .help import (
     HelpFormatter,
     Parser,
     VersionAction,
+    add_options_of_every_command,
     examples_text,
     print_help_for_no_command,
     version_text,
@@ -91,6 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
             raise
         module.register(sub)
     for name, command in sub.choices.items():
+        add_options_of_every_command(command)
         command.description, command.epilog = plain_text(command.description), plain_text(command.epilog)
         if command.formatter_class is argparse.HelpFormatter:
             command.formatter_class = HelpFormatter  # keeps the examples' lines as typed

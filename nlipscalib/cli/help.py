@@ -152,6 +152,36 @@ def _is_block(paragraph: str) -> bool:
 _INVALID_CHOICE = re.compile(r"invalid choice: '(?P<typed>[^']*)' \(choose from (?P<choices>.*)\)$")
 
 
+def add_options_of_every_command(command: argparse.ArgumentParser) -> None:
+    """``-v``/``--verbose``, ``--log-file`` and ``--no-progress`` after the command as well as before it:
+    ``nlips solve PRESS -v`` was "unrecognized arguments: -v", and ``--no-progress`` was taken by four commands
+    only. Their default is SUPPRESS: not typed after the command, the value typed before it (or nlips's default)
+    stands, as argparse copies every attribute of the command's namespace over nlips's."""
+    have = command._option_string_actions
+    if "--verbose" not in have and "-v" not in have:
+        command.add_argument(
+            "-v",
+            "--verbose",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="debug logging, as `nlips -v COMMAND`",
+        )
+    if "--log-file" not in have:
+        command.add_argument(
+            "--log-file",
+            metavar="FILE",
+            default=argparse.SUPPRESS,
+            help="also write every log and result line to FILE (appended)",
+        )
+    if "--no-progress" not in have:
+        command.add_argument(
+            "--no-progress",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="no progress bars, as `nlips --no-progress`",
+        )
+
+
 class VersionAction(argparse.Action):
     """``--version``: :func:`version_text`'s lines as they are (argparse's filled them into one paragraph)."""
 

@@ -117,3 +117,37 @@ def test_the_documented_statuses_are_those_the_command_returns(tmp_path, capsys)
     """2 for an error line, as EXIT_STATUS says (a missing press folder)."""
     assert main(["solve", str(tmp_path / "missing")]) == 2
     assert capsys.readouterr().err.startswith("nlips solve: error: ")
+
+
+@pytest.mark.parametrize("name", sorted(_commands()))
+def test_every_command_takes_verbose_log_file_and_no_progress_after_it_too(name, tmp_path):
+    """`nlips solve PRESS -v` was "unrecognized arguments: -v"; `nlips demo --no-progress` too, while `nlips solve
+    --no-progress` worked. Typed before the command they still hold (the command's own default must not undo
+    them)."""
+    parser = build_parser()
+    required = {"calibrate-camera": ["--pattern", "8x6", "--square", "5", "--out", "c.json", "img"]}
+    positionals = {
+        "dataset": ["spec", "--out", "o"],
+        "calibrate-leds": ["ref", "--out", "l.json"],
+        "eval": ["p"],
+        "experiment": ["q1"],
+        "leds": ["virtual", "info"],
+        "capture": ["--out", "o"],
+        "calibrate": ["p"],
+        "train": ["d", "--out", "m.pt"],
+        "export": ["m.pt"],
+        "render": ["--out", "o"],
+        "infer": ["m.pt"],
+    }
+    rest = required.get(name, positionals.get(name, []))
+    after = parser.parse_args([name, *rest, "-v", "--log-file", str(tmp_path / "log"), "--no-progress"])
+    assert after.verbose and after.log_file == str(tmp_path / "log")
+    assert after.global_no_progress or after.no_progress
+    before = parser.parse_args(["-v", "--log-file", "x.log", name, *rest])
+    assert before.verbose and before.log_file == "x.log"
+    assert not build_parser().parse_args([name, *rest]).verbose
+
+
+def test_roi_auto_is_explained():
+    text = " ".join(_commands()["solve"].format_help().split())
+    assert "'auto': the box around the pixels whose images differ from the undeformed dome's" in text
