@@ -1,3 +1,4 @@
+# PYTHON_ARGCOMPLETE_OK (argcomplete's global completion looks for this line: nlipscalib.cli.help.complete_if_asked)
 """The ``nlips`` command: the only place where sim/, device/, solver/ and learn/ are wired together.
 
 Each subcommand lives in its own module here exposing ``register(subparsers)``; that function adds
@@ -28,6 +29,7 @@ from .help import (
     Parser,
     VersionAction,
     add_options_of_every_command,
+    complete_if_asked,
     examples_text,
     print_help_for_no_command,
     version_text,
@@ -164,6 +166,7 @@ def _main(argv: Sequence[str] | None, own_process: bool) -> int:
     """Run the command of ``argv``; ``own_process``: the process ends after it (:func:`command`), so its signal
     handlers are not put back but replaced by :func:`_after_the_work`'s."""
     parser = build_parser()
+    complete_if_asked(parser)
     if not (sys.argv[1:] if argv is None else argv):
         print_help_for_no_command(parser)
     args = parser.parse_args(argv)

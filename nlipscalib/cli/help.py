@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import os
 import platform
 import re
 import sys
@@ -242,6 +243,21 @@ def _did_you_mean(typed: str, known: Sequence[str]) -> str:
     """`` (did you mean 'x'?)`` for the closest of ``known`` to ``typed``, or an empty string."""
     close = difflib.get_close_matches(typed, [k for k in known if k != typed], n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def complete_if_asked(parser: argparse.ArgumentParser) -> None:
+    """Shell completion of commands, options and choices by argcomplete, when it is installed (optional:
+    ``pip install argcomplete``, then ``eval "$(register-python-argcomplete nlips)"`` in the shell's rc file).
+
+    Only when the shell asks (argcomplete's ``_ARGCOMPLETE`` in the environment): otherwise nothing is imported, so
+    the commands start as fast as before. argcomplete answers and ends the process itself."""
+    if "_ARGCOMPLETE" not in os.environ:
+        return
+    try:
+        import argcomplete
+    except ImportError:
+        return
+    argcomplete.autocomplete(parser)
 
 
 def print_help_for_no_command(parser: argparse.ArgumentParser) -> NoReturn:

@@ -151,3 +151,43 @@ def test_every_command_takes_verbose_log_file_and_no_progress_after_it_too(name,
 def test_roi_auto_is_explained():
     text = " ".join(_commands()["solve"].format_help().split())
     assert "'auto': the box around the pixels whose images differ from the undeformed dome's" in text
+
+
+def test_shell_completion_is_handed_to_argcomplete_only_when_the_shell_asks(monkeypatch, capsys):
+    """Optional: with argcomplete installed and the shell asking (_ARGCOMPLETE set), it gets nlips's parser."""
+    import types
+
+    asked = []
+
+    def autocomplete(parser):
+        asked.append(parser)
+        raise SystemExit(0)  # as argcomplete does, once it has answered
+
+    monkeypatch.setitem(sys.modules, "argcomplete", types.SimpleNamespace(autocomplete=autocomplete))
+    monkeypatch.delenv("_ARGCOMPLETE", raising=False)
+    assert main(["cache"]) == 0  # not asked: the command runs
+    assert asked == []
+    monkeypatch.setenv("_ARGCOMPLETE", "1")
+    with pytest.raises(SystemExit):
+        main(["cache"])
+    assert [p.prog for p in asked] == ["nlips"] and "cache" in asked[0]._subparsers._group_actions[0].choices
+
+
+def test_shell_completion_without_argcomplete_runs_the_command(monkeypatch):
+    monkeypatch.setitem(sys.modules, "argcomplete", None)  # import fails
+    monkeypatch.setenv("_ARGCOMPLETE", "1")
+    assert main(["cache"]) == 0
+
+
+def test_completion_of_a_command_name_with_the_real_argcomplete(tmp_path):
+    """Skipped where argcomplete is not installed (it is optional)."""
+    import os
+
+    pytest.importorskip("argcomplete")
+    out = tmp_path / "completions"
+    env = {**os.environ, "_ARGCOMPLETE": "1", "COMP_LINE": "nlips sol", "COMP_POINT": "9"}
+    # argcomplete writes its answer to file descriptor 8, as the shell's completion function reads it
+    line = f'"$0" -m nlipscalib 8>"{out}" 9>/dev/null'
+    run = subprocess.run(["bash", "-c", line, sys.executable], env=env, cwd=ROOT, capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert out.read_text().split() == ["solve"]
