@@ -32,7 +32,6 @@ from .help import (
     complete_if_asked,
     examples_text,
     print_help_for_no_command,
-    version_text,
 )
 
 SUBCOMMAND_MODULES = (
@@ -65,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--version",
         action=VersionAction,
-        version=version_text(__version__),
+        version=__version__,
         help="show the version of nlipscalib, Python and the key libraries (for a bug report) and exit",
     )
     parser.add_argument(

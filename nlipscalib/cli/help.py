@@ -184,14 +184,15 @@ def add_options_of_every_command(command: argparse.ArgumentParser) -> None:
 
 
 class VersionAction(argparse.Action):
-    """``--version``: :func:`version_text`'s lines as they are (argparse's filled them into one paragraph)."""
+    """``--version``: :func:`version_text`'s lines as they are (argparse's filled them into one paragraph), read
+    when asked for, not each time the parser is built (every command)."""
 
     def __init__(self, option_strings: Sequence[str], version: str, dest: str = argparse.SUPPRESS, help: str = ""):
         super().__init__(option_strings, dest=dest, default=argparse.SUPPRESS, nargs=0, help=help)
         self.version = version
 
     def __call__(self, parser, namespace, values, option_string=None) -> NoReturn:  # noqa: ANN001 (argparse's)
-        print(self.version)
+        print(version_text(self.version))
         parser.exit()
 
 
