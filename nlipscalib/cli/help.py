@@ -8,13 +8,10 @@ the exit statuses (docs/faults.md repeats it).
 from __future__ import annotations
 
 import argparse
-import difflib
 import os
-import platform
 import re
 import sys
 from collections.abc import Sequence
-from importlib import metadata
 from typing import NoReturn
 
 EXAMPLES: dict[str, tuple[tuple[str, str], ...]] = {
@@ -118,6 +115,9 @@ def examples_text(command: str) -> str | None:
 def version_text(package_version: str) -> str:
     """``nlips --version``: the package's version, Python's and the platform's, then each library of
     :data:`VERSION_LIBRARIES` installed (read from its metadata: nothing is imported, so it stays instant)."""
+    import platform
+    from importlib import metadata
+
     found = []
     for name in VERSION_LIBRARIES:
         try:
@@ -242,6 +242,8 @@ def _unrecognized(extras: Sequence[str], options: Sequence[str]) -> str:
 
 def _did_you_mean(typed: str, known: Sequence[str]) -> str:
     """`` (did you mean 'x'?)`` for the closest of ``known`` to ``typed``, or an empty string."""
+    import difflib  # here: only a mistyped command needs it
+
     close = difflib.get_close_matches(typed, [k for k in known if k != typed], n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
 
