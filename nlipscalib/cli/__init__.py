@@ -1,3 +1,4 @@
+# PYTHON_ARGCOMPLETE_OK (argcomplete's global completion looks for this line: nlipscalib.cli.help.complete_if_asked)
 """The ``nlips`` command: the only place where sim/, device/, solver/ and learn/ are wired together.
 
 Each subcommand lives in its own module here exposing ``register(subparsers)``; that function adds
@@ -22,6 +23,16 @@ from typing import NoReturn
 from .. import __version__, progress
 from ..core.errors import MissingDependencyError, NlipsError
 from ..core.processes import end_processes  # here, not in the signal handler that uses it
+from .help import (
+    EXIT_STATUS,
+    HelpFormatter,
+    Parser,
+    VersionAction,
+    add_options_of_every_command,
+    complete_if_asked,
+    examples_text,
+    print_help_for_no_command,
+)
 
 SUBCOMMAND_MODULES = (
     "render",
@@ -44,10 +55,18 @@ SUBCOMMAND_MODULES = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="nlips", description="NLiPsCalib: digital twin, NLiPs solver and NLiPsNet for curved tactile sensors."
+    parser = Parser(
+        prog="nlips",
+        description="NLiPsCalib: digital twin, NLiPs solver and NLiPsNet for curved tactile sensors.",
+        epilog=f"{EXIT_STATUS}\n\nRun `nlips COMMAND --help` for a command's options and examples.",
+        formatter_class=HelpFormatter,
     )
-    parser.add_argument("--version", action="version", version=f"nlipscalib {__version__}")
+    parser.add_argument(
+        "--version",
+        action=VersionAction,
+        version=__version__,
+        help="show the version of nlipscalib, Python and the key libraries (for a bug report) and exit",
+    )
     parser.add_argument(
         "-v",
         "--verbose",
@@ -73,8 +92,13 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # subcommand not built yet
             raise
         module.register(sub)
-    for command in sub.choices.values():
+    for name, command in sub.choices.items():
+        add_options_of_every_command(command)
         command.description, command.epilog = plain_text(command.description), plain_text(command.epilog)
+        if command.formatter_class is argparse.HelpFormatter:
+            command.formatter_class = HelpFormatter  # keeps the examples' lines as typed
+        if (examples := examples_text(name)) is not None:
+            command.epilog = f"{command.epilog}\n\n{examples}" if command.epilog else examples
         if _names_source_files(command):
             command.epilog = f"{command.epilog}\n\n{SOURCE_NOTE}" if command.epilog else SOURCE_NOTE
     return parser
@@ -140,7 +164,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _main(argv: Sequence[str] | None, own_process: bool) -> int:
     """Run the command of ``argv``; ``own_process``: the process ends after it (:func:`command`), so its signal
     handlers are not put back but replaced by :func:`_after_the_work`'s."""
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    complete_if_asked(parser)
+    if not (sys.argv[1:] if argv is None else argv):
+        print_help_for_no_command(parser)
+    args = parser.parse_args(argv)
     previous = _terminate_cleanly(args.command, args)
     previous_int = _note_interrupts()
     try:

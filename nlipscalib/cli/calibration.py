@@ -40,7 +40,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "LEDs first (`nlips calibrate-leds PRESSES/reference --out leds.json`) and give them with --leds leds.json.",
     )
     p.add_argument("presses", help="folder of press folders (twin or device)")
-    p.add_argument("--reference", help="press folder of the undeformed dome (default: PRESSES/reference)")
+    p.add_argument(
+        "--reference", metavar="REF_PRESS", help="press folder of the undeformed dome (default: PRESSES/reference)"
+    )
     p.add_argument("--out", help="calibration dataset folder (default: PRESSES/calibration)")
     p.add_argument(
         "--leds",

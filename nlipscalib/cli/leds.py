@@ -41,8 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "leds",
         help="check or drive the LED controller (info, test, set, all, off, state)",
         description="Check or drive the LED controller. LEDs are numbered from 1, as in capture files "
-        "(LED 1 = led_01.png). Examples: nlips leds /dev/ttyACM0 info; nlips leds /dev/ttyACM0 test; "
-        "nlips leds /dev/ttyACM0 set 3 255 255 255; nlips leds virtual test",
+        "(LED 1 = led_01.png).",
     )
     p.add_argument(
         "port",

@@ -30,7 +30,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--roi",
         nargs="+",
         metavar="V",
-        help="x0 y0 w h (pixels, as 4 values or x0,y0,w,h) or 'auto' (around the contact); default: the whole gel",
+        help="x0 y0 w h (pixels, as 4 values or x0,y0,w,h) or 'auto': the box around the pixels whose images differ "
+        "from the undeformed dome's (the contact), plus an 8-pixel margin; much faster than the whole gel. Default: "
+        "the whole gel",
     )
     p.add_argument(
         "--leds",
