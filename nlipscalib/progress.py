@@ -1,7 +1,8 @@
 """Progress bars and logging for long commands: one switch for the whole ``nlips`` run.
 
-Bars (tqdm) go to stderr only when it is a terminal and ``--no-progress`` was not given, so log files
-and CI output never fill with carriage-return bars. ``--log-file`` copies every log line to a file.
+Bars (tqdm) go to stderr only when it is a terminal or a Jupyter notebook's (an IPython kernel's stream, drawn
+under the cell), and ``--no-progress`` was not given, so log files and CI output never fill with carriage-return
+bars. ``--log-file`` copies every log line to a file.
 """
 
 from __future__ import annotations
@@ -219,8 +220,24 @@ def _add(root: logging.Logger, handler: logging.Handler, fmt: str) -> None:
 
 
 def bars_enabled(requested: bool = True) -> bool:
-    """Whether a bar would be drawn: requested, not switched off globally, and stderr is a terminal."""
-    return bool(requested and _enabled and sys.stderr.isatty())
+    """Whether a bar would be drawn: requested, not switched off globally, and stderr is shown to a person as
+    it is written: a terminal, or a notebook's (:func:`shown_under_a_notebook_cell`)."""
+    stderr = sys.stderr
+    return bool(
+        requested and _enabled and stderr is not None and (stderr.isatty() or shown_under_a_notebook_cell(stderr))
+    )
+
+
+def shown_under_a_notebook_cell(stream: object) -> bool:
+    """Whether ``stream`` is a Jupyter kernel's output stream (ipykernel's ``OutStream``, or a subclass: Spyder's,
+    VS Code's notebooks run ipykernel too), whose text the notebook draws under the running cell.
+
+    Why: such a stream is not a terminal (``isatty()`` is False), so a notebook user saw no bar for a minutes-long
+    ``solve`` or ``train``, yet its front end redraws a carriage-return line in place, as a terminal does, so the
+    plain tqdm bar shows right there, with no widget library (tqdm's notebook widget needs ipywidgets, which is
+    not a dependency). Looked up by the stream's class, not by ``ipykernel`` being imported: stderr redirected to
+    a file inside a notebook (``contextlib.redirect_stderr``) stays quiet, like a log file."""
+    return any(cls.__module__.split(".")[0] == "ipykernel" for cls in type(stream).__mro__)
 
 
 def progress_bar(total: int | None = None, *, enabled: bool = True, **kwargs: Any) -> tqdm:
@@ -232,14 +249,14 @@ def progress_bar(total: int | None = None, *, enabled: bool = True, **kwargs: An
     enabled : the caller's own switch (e.g. a function's ``progress`` argument)
     kwargs : passed to tqdm (desc, unit, initial, ...)
     """
-    from tqdm.auto import tqdm
+    from tqdm import tqdm  # the plain bar, as every other bar of the package: see shown_under_a_notebook_cell
 
     return tqdm(total=total, disable=not bars_enabled(enabled), **kwargs)
 
 
 def track(iterable: Iterable, *, enabled: bool = True, **kwargs: Any) -> tqdm:
     """Iterate with a progress bar (see :func:`progress_bar`)."""
-    from tqdm.auto import tqdm
+    from tqdm import tqdm
 
     return tqdm(iterable, disable=not bars_enabled(enabled), **kwargs)
 
@@ -262,7 +279,7 @@ class working:  # noqa: N801 - used like a function: ``with working("rendering")
         if not self.enabled:
             logging.getLogger("nlipscalib").info("%s ...", self.desc)
             return self
-        from tqdm.auto import tqdm
+        from tqdm import tqdm
 
         self.bar = tqdm(total=None, desc=self.desc, bar_format="{desc}: {elapsed}")
         self._stop = threading.Event()

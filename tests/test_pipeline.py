@@ -514,6 +514,42 @@ def test_a_result_damaged_inside_or_with_a_strange_record_is_re_solved(press, ca
     assert read_report(press / "nlips")["provenance"]["key"] == record["provenance"]["key"]
 
 
+def test_a_result_of_other_code_or_of_code_unrecorded_is_re_solved(press, caplog, monkeypatch):
+    """The version is "0.1.0" in every commit: a user who upgraded was served the old code's result silently. The
+    key holds the code's fingerprint; a result of other code, or one whose record has none (made before it was
+    recorded), is solved again with one line saying why."""
+    import hashlib
+    import json
+
+    from nlipscalib import __version__
+    from nlipscalib.core import code_version
+
+    monkeypatch.setattr(code_version, "_fingerprint", lambda: "0" * 32)  # an older commit's solver
+    solve_folder(press, options=FAST, figures=False)
+    monkeypatch.undo()
+    caplog.set_level(logging.INFO)
+    assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
+    assert "made with other settings or inputs (nlipscalib code), re-solving" in caplog.text
+    report = press / "nlips" / "report.json"
+    record = json.loads(report.read_text())
+    assert record["provenance"]["code"] == code_version.code_fingerprint()
+    assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"  # the same code: reused
+
+    old = {k: v for k, v in record["provenance"].items() if k != "code"}  # as an nlipscalib before it wrote
+    source = {"settings": old["settings"], "inputs": old["inputs"], "software_version": __version__}
+    settings = {k: v for k, v in old["settings"].items() if k not in ("leds_file", "reference")}  # keyed
+    source["settings"] = settings
+    old["key"] = hashlib.sha256(json.dumps(source, sort_keys=True).encode()).hexdigest()
+    report.write_text(json.dumps(record | {"provenance": old}))
+    caplog.clear()
+    assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
+    lines = [r.getMessage() for r in caplog.records if "re-solving" in r.getMessage()]
+    assert lines == [
+        f"{press / 'nlips'}: made with other settings or inputs (code unrecorded: an nlipscalib before "
+        "2026-12-06 made it), re-solving"
+    ]
+
+
 @pytest.mark.parametrize("wait", [True, False])
 def test_wait_reuses_what_another_process_was_solving(press, tmp_path, caplog, wait):
     """`nlips calibrate` needs every result: a press another process is solving is waited for (at once with

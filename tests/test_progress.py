@@ -38,6 +38,44 @@ def test_bars_only_on_a_terminal_and_not_with_no_progress(monkeypatch):
     assert not progress.bars_enabled()
 
 
+class _KernelStream(io.StringIO):
+    """Stands for ipykernel's OutStream (a notebook's stderr): not a terminal, drawn under the cell."""
+
+    def isatty(self):
+        return False
+
+
+_KernelStream.__module__ = "ipykernel.iostream"
+
+
+class _SpyderStream(_KernelStream):  # a kernel's stream subclassed elsewhere (Spyder's console)
+    pass
+
+
+_SpyderStream.__module__ = "spyder_kernels.console.outstream"
+
+
+def test_bars_in_a_notebook_but_not_in_a_log_file_it_redirects_to(monkeypatch, tmp_path):
+    """A notebook's stderr is not a terminal, so a notebook user saw no bar at all; it shows the plain bar (no
+    ipywidgets needed). A file the notebook redirects stderr to stays quiet."""
+    for stream in (_KernelStream(), _SpyderStream()):
+        monkeypatch.setattr("sys.stderr", stream)
+        progress.configure(progress=True)
+        assert progress.bars_enabled(), type(stream)
+        with progress.progress_bar(3, desc="solve") as bar:  # to sys.stderr, as the package's bars are
+            bar.update(3)
+        assert "\r" in stream.getvalue() and "3/3" in stream.getvalue()
+        assert not progress.bars_enabled(requested=False)  # a function's progress=False
+        progress.configure(progress=False)
+        assert not progress.bars_enabled()
+    progress.configure(progress=True)
+    with open(tmp_path / "cell.log", "w") as log:
+        monkeypatch.setattr("sys.stderr", log)
+        assert not progress.bars_enabled()
+    monkeypatch.setattr("sys.stderr", None)  # pythonw, a daemon with fd 2 closed: no bar, no error
+    assert not progress.bars_enabled()
+
+
 def test_working_logs_start_and_end_when_not_a_terminal(caplog):
     caplog.set_level(logging.INFO)
     with progress.working("rendering press"):

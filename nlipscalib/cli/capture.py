@@ -106,7 +106,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--max-retakes", type=int, default=3, help="retakes of a moving press before giving up (default 3)"
     )
     ses.add_argument("--yes", action="store_true", help="do not wait for Enter at the prompts (scripts)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, stopped=stopped_line)
 
 
 REAL_SENSOR_OPTIONS = (
@@ -433,6 +433,25 @@ def _leds(args: argparse.Namespace, camera: Camera, design: SensorDesign) -> tup
             far,
         )
     return led_file.leds
+
+
+def stopped_line(args: argparse.Namespace) -> str:
+    """What a capture stopped by Ctrl-C or SIGTERM says it left (the end of the command's "interrupted;" or
+    "terminated;" line, :func:`nlipscalib.cli._stopped`): the session's folders captured whole, the folder a
+    run again starts with.
+
+    Why: a stopped capture printed only "finished work is kept, run again to resume", with no session line: the
+    operator, one press in a dozen, did not know how far the session got. Read from the folder (each press is
+    written whole, atomically), so the line is right whichever moment the signal came at."""
+    from ..device.session import REFERENCE_NAME, captured_folders, press_name
+
+    presses = args.presses if args.presses is not None else DEFAULTS["presses"]  # None: stopped before the options
+    done = captured_folders(args.out, presses)
+    names = ", ".join(done) if len(done) <= 3 else f"{done[0]}, {done[1]} ... {done[-1]}"
+    names_all = [REFERENCE_NAME, *map(press_name, range(1, presses + 1))]
+    missing = next((name for name in names_all if name not in done), None)
+    resume = f"run again to resume from {missing}" if missing else "all kept, nothing left to capture"
+    return f"session {args.out}: {len(done)} of {presses + 1} folders captured ({names or 'none'}); {resume}"
 
 
 def run(args: argparse.Namespace) -> int:

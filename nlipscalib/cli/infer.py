@@ -871,13 +871,15 @@ def _settings(args: argparse.Namespace, model_digest: str, backend: str, device:
 
 def still_provenance(settings: dict, inputs: dict) -> dict:
     """What made a still's result (report ``provenance``): ``settings`` (:func:`output_settings`), ``inputs``
-    (:func:`input_identity`), the software version, and ``key``, the SHA-256 (hex) of all three: a result whose
-    key equals a new request's is kept (:func:`_kept`)."""
+    (:func:`input_identity`), the software version, the code's fingerprint, and ``key``, the SHA-256 (hex) of them: a
+    result whose key equals a new request's is kept (:func:`_kept`)."""
     from .. import __version__
+    from ..core.code_version import code_fingerprint
     from ..core.reconstruction import provenance_key
 
     key = provenance_key(settings, inputs)
-    return {"key": key, "software_version": __version__, "settings": settings, "inputs": inputs}
+    code = code_fingerprint()
+    return {"key": key, "software_version": __version__, "code": code, "settings": settings, "inputs": inputs}
 
 
 def _has_entries(folder: Path) -> bool:
@@ -1016,6 +1018,8 @@ def _what_changed(old: dict, new: dict) -> list[str]:
         changes.append("another input (the press's files or the frame's file changed since)")
     if record.get("software_version") != made["software_version"]:
         changes.append(f"nlipscalib {record.get('software_version')} (now {made['software_version']})")
+    if record.get("code") != made["code"]:
+        changes.append("another nlipscalib code" if "code" in record else "an nlipscalib that recorded no code")
     return changes or ["a record that differs"]
 
 

@@ -440,11 +440,10 @@ def _source_salt() -> str:
     if _salt is None:
         import scipy
 
+        from .code_version import python_sources, source_digest
+
         h = hashlib.blake2b(digest_size=16)
         h.update(f"{sys.version_info[:2]} numpy {np.__version__} scipy {scipy.__version__}".encode())
-        package = Path(__file__).resolve().parent.parent
-        for path in sorted(package.rglob("*.py")):
-            h.update(str(path.relative_to(package)).encode())
-            h.update(path.read_bytes())
+        h.update(source_digest(python_sources()).encode())  # the whole package: any formula's edit misses
         _salt = h.hexdigest()
     return _salt

@@ -324,13 +324,25 @@ class OpenCVSource(FrameSource):
         self.cap.release()
 
 
+OPENCV_SILENT = 0
+"""OpenCV's ``LOG_LEVEL_SILENT`` (``cv2.utils.logging``; the same number in 4.8's ``cv2.setLogLevel``)."""
+
+
 @contextlib.contextmanager
 def _quiet_opencv(cv2: ModuleType) -> Iterator[None]:
-    """OpenCV's log at errors only for the block (a failure is then reported once, by us)."""
+    """OpenCV's own log silent for the block: a failure is then reported once, by our line. With ``-v`` (this
+    module's logger at DEBUG) OpenCV's lines are left on, for a camera that will not open.
+
+    Why silent, not errors only: OpenCV 4.8 (the lowest supported) logs a missing camera index as an error of its
+    own ("[ERROR:0@0.071] global obsensor_uvc_stream_channel.cpp:156 getStreamChannelGroup Camera index out of
+    range", twice), printed before ours; newer ones log only warnings there."""
+    if log.isEnabledFor(logging.DEBUG):
+        yield
+        return
     # opencv-python-headless 4.8 has no cv2.utils.logging, only cv2.getLogLevel/setLogLevel (the same levels)
     logging_ = getattr(getattr(cv2, "utils", None), "logging", None) or cv2
     level = logging_.getLogLevel()
-    logging_.setLogLevel(2)  # OpenCV's LOG_LEVEL_ERROR
+    logging_.setLogLevel(OPENCV_SILENT)
     try:
         yield
     finally:

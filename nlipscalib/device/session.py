@@ -364,6 +364,14 @@ def run_session(
     return status
 
 
+def captured_folders(out: str | Path, presses: int) -> list[str]:
+    """The folders of the session ``out`` (its reference, then ``presses`` presses) captured whole so far, in
+    capture order: what a session stopped part-way (Ctrl-C, SIGTERM) kept, and what a run again keeps. A folder
+    whose files went missing counts as not captured, as :func:`run_session` captures it again."""
+    names = [REFERENCE_NAME] + [press_name(k) for k in range(1, presses + 1)]
+    return [name for name in names if is_press_folder(Path(out) / name) and not _damaged(Path(out) / name)]
+
+
 @contextlib.contextmanager
 def claim_session(out: str | Path) -> Iterator[None]:
     """Hold the session folder ``out`` for this capture while the block runs; a ConfigError, before anything is

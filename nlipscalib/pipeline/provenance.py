@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import __version__
+from ..core.code_version import code_fingerprint
 from ..core.errors import CaptureError
 from ..core.reconstruction import provenance_key
 
@@ -31,16 +32,29 @@ def make_provenance(folder: Path, settings: SolveSettings) -> dict:
     }
     described = settings.describe()
     key = provenance_key(_keyed(described), inputs)
-    return {"key": key, "software_version": __version__, "settings": described, "inputs": inputs}
+    return {
+        "key": key,
+        "software_version": __version__,
+        "code": code_fingerprint(),
+        "settings": described,
+        "inputs": inputs,
+    }
 
 
 def run_record(settings: SolveSettings) -> dict:
     """What ``settings`` make of any press, for runs sharing an output (pipeline.reuse._hold): the settings that
     decide a result, the reference capture's identity and the software version (as in a result's provenance,
-    less the press), and ``key`` hashing them: two runs of one key make identical results."""
+    less the press), the code's fingerprint, and ``key`` hashing them: two runs of one key make identical results."""
     inputs = {"reference": None if settings.reference is None else capture_identity(settings.reference)}
     keyed = _keyed(settings.describe())
-    return {"key": provenance_key(keyed, inputs), "software_version": __version__, "settings": keyed, "inputs": inputs}
+    key = provenance_key(keyed, inputs)
+    return {
+        "key": key,
+        "software_version": __version__,
+        "code": code_fingerprint(),
+        "settings": keyed,
+        "inputs": inputs,
+    }
 
 
 def _keyed(described: dict) -> dict:
@@ -89,6 +103,7 @@ def identity_in_background(*folders: str | Path | None) -> None:
     that is not a press (a dataset, a typo) fails here silently: the call that needs its identity reports it."""
 
     def hash_all() -> None:
+        code_fingerprint()  # the reuse key's too, read and hashed here rather than on the main thread
         for folder in folders:
             if folder is not None:
                 with contextlib.suppress(Exception):  # said, with its context, by the call that needs the identity

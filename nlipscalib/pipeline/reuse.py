@@ -148,7 +148,16 @@ def _differences(old: dict, new: dict) -> list[tuple[str, object, object]]:
     changed += [(f"{k} capture", inputs.get(k), v) for k, v in new["inputs"].items() if inputs.get(k) != v]
     if old.get("software_version") != new["software_version"]:
         changed.append(("software version", old.get("software_version"), new["software_version"]))
+    if "code" not in old:  # written before the key had the code's fingerprint: which code made it is unknown
+        changed.append((CODE_UNRECORDED, None, new["code"]))
+    elif old["code"] != new["code"]:
+        changed.append(("nlipscalib code", old["code"], new["code"]))
     return changed
+
+
+CODE_UNRECORDED = "code unrecorded: an nlipscalib before 2026-12-06 made it"
+"""What :func:`_differences` says of a result whose provenance has no ``code`` fingerprint: never reused, as the
+code that made it cannot be told from this one."""
 
 
 def _leftovers(out: Path) -> bool:

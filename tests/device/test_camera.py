@@ -193,6 +193,34 @@ def test_a_camera_that_is_not_there_is_one_line_without_opencv_warnings(command,
     assert not (tmp_path / "s").exists()  # nothing captured
 
 
+def test_opencv_is_silent_while_a_camera_opens_and_as_before_after(monkeypatch, caplog):
+    """OpenCV 4.8 (the lowest supported) logs a missing camera index as an error of its own ("[ERROR:0@0.07] global
+    obsensor_uvc_stream_channel.cpp:156 getStreamChannelGroup Camera index out of range"), which errors-only let
+    through before our line: the open runs silent. With -v (DEBUG) OpenCV's lines stay, for a camera that will
+    not open."""
+    import logging
+
+    from nlipscalib.device import camera
+
+    opencv_log = getattr(getattr(cv2, "utils", None), "logging", None) or cv2  # 4.8: cv2.getLogLevel
+    levels = []
+
+    class NotThere:  # what OpenCV opens for a missing index, noting its log level as it logs
+        def __init__(self, device):
+            levels.append(opencv_log.getLogLevel())
+
+        def isOpened(self):  # noqa: N802 - OpenCV's name
+            return False
+
+    monkeypatch.setattr(cv2, "VideoCapture", NotThere)
+    before = opencv_log.getLogLevel()
+    for verbose, expected in ((False, camera.OPENCV_SILENT), (True, before)):
+        caplog.set_level(logging.DEBUG if verbose else logging.INFO, logger=camera.__name__)
+        with pytest.raises(CaptureError, match="camera 97: no such camera"):
+            camera.open_source("97")
+        assert levels[-1] == expected and opencv_log.getLogLevel() == before, verbose
+
+
 def test_a_file_opencv_opens_but_gives_no_frame_is_named_unreadable(tmp_path):
     """A file with an image's name but not an image: OpenCV opens it, then gives no frame; that was called
     "camera FILE: no frame (end of file)". In its own process: FFmpeg's log level (which keeps its "Invalid PNG

@@ -381,3 +381,68 @@ def test_a_board_with_another_led_count_than_the_design_is_one_line_naming_both_
     assert f"has {board_leds} LEDs but the design {design} has {design_leds}" in err
     assert f"`make NLEDS={design_leds}`" in err and f"--adalight {design_leds}" in err
     assert not (tmp_path / "s").exists() and board.latched.sum() == 0
+
+
+STOP_AFTER_PRESS_1 = """
+import sys, time
+from pathlib import Path
+from nlipscalib.cli import main
+from nlipscalib.device import session
+
+capture_press = session.capture_press
+
+def held_after_press_1(rig, folder, *args, **kwargs):  # press_0001 written whole, then the session waits
+    record = capture_press(rig, folder, *args, **kwargs)
+    if Path(folder).name == "press_0001":
+        Path(sys.argv[1]).touch()
+        time.sleep(60)
+    return record
+
+session.capture_press = held_after_press_1
+sys.exit(main(sys.argv[2:]))
+"""
+"""A capture that stops after its first press until a signal comes (the file ``argv[1]`` says it got there)."""
+
+STOPPED_LINE = "session {out}: 2 of 4 folders captured (reference, press_0001); run again to resume from press_0002"
+
+
+def test_a_capture_stopped_by_sigterm_prints_its_session_line_and_exits_143(tmp_path):
+    """SIGTERM (a scheduler, `kill`) ended `nlips capture` with "finished work is kept" and no session line: the
+    operator did not know how far the session got. The line names what was captured and where a run again starts."""
+    import os
+    import signal
+    import sys
+    from pathlib import Path
+
+    from tests.processes import terminate_once_started
+
+    out, started = tmp_path / "s", tmp_path / "started"
+    argv = [sys.executable, "-c", STOP_AFTER_PRESS_1, str(started), "capture", "--emulate", "nlipstac", *SMALL]
+    env = os.environ | {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    code, _, err = terminate_once_started([*argv, "--presses", "3", "--out", str(out)], started, env, wait=240)
+    assert started.exists(), err
+    assert code == 128 + signal.SIGTERM, err
+    assert err.strip().splitlines()[-1] == f"nlips capture: terminated; {STOPPED_LINE.format(out=out)}"
+    assert (out / "session.json").is_file() and [p.name for p in find_presses(out)] == ["press_0001", "reference"]
+
+
+def test_a_capture_stopped_by_ctrl_c_prints_its_session_line(tmp_path, capsys, monkeypatch):
+    from nlipscalib.device import session
+
+    capture_press = session.capture_press
+
+    def interrupted_after_press_1(rig, folder, *args, **kwargs):
+        record = capture_press(rig, folder, *args, **kwargs)
+        if folder.name == "press_0001":
+            raise KeyboardInterrupt
+        return record
+
+    monkeypatch.setattr(session, "capture_press", interrupted_after_press_1)
+    out = tmp_path / "s"
+    assert main(["capture", "--emulate", "nlipstac", *SMALL, "--presses", "3", "--out", str(out)]) == 130
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"nlips capture: interrupted; {STOPPED_LINE.format(out=out)}"
+    )
+    monkeypatch.undo()  # a run again resumes where the line said
+    assert main(["capture", "--emulate", "nlipstac", *SMALL, "--presses", "3", "--out", str(out)]) == 0
+    assert "press_0001: kept" in capsys.readouterr().out

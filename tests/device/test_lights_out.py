@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -26,7 +27,11 @@ from tests.processes import terminate_once_started
 
 from .ledboards import SimavrUnderTest, firmware_build
 
-TERMINATED = "nlips capture: terminated; finished work is kept, run again to resume"
+TERMINATED = re.compile(
+    r"nlips capture: terminated; session (?P<out>.+): (?P<kept>\d+) of 10 folders captured \(reference.*\); run again "
+    r"to resume from press_\d{4}"
+)
+"""The line of a capture of 9 presses stopped by SIGTERM after its reference: how far it got (cli.capture)."""
 
 
 @pytest.fixture
@@ -133,12 +138,14 @@ def test_sigterm_mid_capture_on_the_firmware_leaves_the_leds_dark_and_no_partial
             os.kill(proc.pid, signal.SIGKILL)
     try:
         assert proc.returncode == 128 + signal.SIGTERM, err
-        assert [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING "))] == [TERMINATED]
+        said = [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+        assert len(said) == 1 and (stopped := TERMINATED.fullmatch(said[0])), err
         assert board.latched().sum() == 0  # was lit when the signal came
     finally:
         board.close()
     presses = find_presses(tmp_path / "s")
     assert len(presses) < 10  # stopped mid-session
+    assert stopped["out"] == str(tmp_path / "s") and int(stopped["kept"]) == len(presses)  # as the line said
     for press in presses:  # whatever looks complete is complete
         assert load_press(press).led_images.shape == (12, 120, 160, 3)
 

@@ -574,7 +574,7 @@ def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_fram
     first = _stamps(out)
     assert len(first) == 17  # result.npz, report.json, normals.png, depth.png of three frames and a press (+ error.png)
     report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text())
-    assert set(report["provenance"]) == {"key", "software_version", "settings", "inputs"}
+    assert set(report["provenance"]) == {"key", "software_version", "code", "settings", "inputs"}
     assert report["provenance"]["settings"]["depth"] is True and report["provenance"]["settings"]["ply"] is None
     assert main(command) == 0
     assert capsys.readouterr().out.startswith(
