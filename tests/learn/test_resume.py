@@ -281,6 +281,12 @@ def test_damaged_and_foreign_model_files_are_one_line(built, tmp_path, capsys):
     for name, change, problem in (
         ("sensorless", {"sensor": {"camera": 5}}, "'sensor' is not a sensor description"),
         ("widthless", {"hidden": ["wide"]}, "'hidden' must list positive layer widths"),
+        # widths the weights do not have: the net was built first (1.8 GB and 8 s for [20000, 20000]), then refused
+        (
+            "widened",
+            {"hidden": [4096, 4096]},
+            r"weights do not fit the architecture \('hidden' \[4096, 4096\] needs mlp.0.weight of shape \(4096, 5\)",
+        ),
         ("noreference", {"reference": [1, 2]}, "'reference' must map names to arrays"),
         # a reference array missing or of another size: were a KeyError traceback, or a shape error not naming it
         (
