@@ -175,3 +175,23 @@ def test_a_newline_in_a_file_name_stays_inside_the_one_error_line(tmp_path, caps
     assert main(["solve", str(folder)]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert len(err) == 1 and "press\\nnlips solve: done" in err[0], err
+
+
+# ---------------------------------------------------------------------- paths in an experiment's results
+@pytest.mark.parametrize("where", ["absolute", "up"])
+def test_an_error_map_named_outside_the_experiments_folder_is_refused(tmp_path, where):
+    """results.json names each evaluation's error map; one of a report folder from elsewhere naming a path out of
+    it was read (and drawn into the figures)."""
+    from nlipscalib.experiments.common import map_rows
+
+    out, elsewhere = tmp_path / "work", tmp_path / "elsewhere.npz"
+    out.mkdir()
+    np.savez(elsewhere, true=np.zeros((2, 2, 3)), estimate=np.zeros((2, 2, 3)), error=np.zeros((2, 2)))
+    name = str(elsewhere) if where == "absolute" else "../elsewhere.npz"
+    rows = [{"method": "nlips", "press": "p1", "map": name, "aae_deg": 1.0}]
+    with pytest.raises(ConfigError, match="error map .* is not a file inside the experiment's folder"):
+        map_rows(rows, out, ("method",))
+    (out / "maps").mkdir()
+    np.savez(out / "maps" / "m.npz", true=np.zeros((2, 2, 3)), estimate=np.zeros((2, 2, 3)), error=np.ones((2, 2)))
+    [(_, _, _, error)] = map_rows([rows[0] | {"map": "maps/m.npz"}], out, ("method",))
+    assert error.sum() == 4
