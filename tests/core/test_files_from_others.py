@@ -195,3 +195,40 @@ def test_an_error_map_named_outside_the_experiments_folder_is_refused(tmp_path, 
     np.savez(out / "maps" / "m.npz", true=np.zeros((2, 2, 3)), estimate=np.zeros((2, 2, 3)), error=np.ones((2, 2)))
     [(_, _, _, error)] = map_rows([rows[0] | {"map": "maps/m.npz"}], out, ("method",))
     assert error.sum() == 4
+
+
+# ---------------------------------------------------------------------- a calibration dataset's shards
+def _shard_with_extra_member(path, samples: int = 4):
+    from nlipscalib.learn.dataset import write_shard
+
+    arrays = {
+        "pixel": np.zeros((samples, 2), np.int16),
+        "rgb": np.full((samples, 3), 0.5, np.float32),
+        "normal": np.tile(np.float32([0, 0, -1]), (samples, 1)),
+        "true_normal": np.full((samples, 3), np.nan, np.float32),
+        "contact": np.zeros(samples, bool),
+        "source": np.zeros(samples, np.uint8),
+    }
+    write_shard(path, arrays, {"name": "p1", "samples": samples, "stamp": "s"})
+    with zipfile.ZipFile(path, "a", zipfile.ZIP_DEFLATED) as z:  # a gigabyte of zeros, here damaged: never read
+        z.writestr("extra.npy", _npy((1 << 28,)) + zlib.compress(bytes(1 << 16))[:64])
+    return arrays
+
+
+def test_a_shard_inflates_its_own_arrays_only(tmp_path):
+    from nlipscalib.learn.dataset import shard_entry
+
+    _shard_with_extra_member(tmp_path / "p1.npz")
+    assert shard_entry(tmp_path / "p1.npz") == ({"name": "p1", "samples": 4, "stamp": "s"}, 4)
+
+
+def test_a_shard_declaring_more_samples_than_it_holds_is_refused_from_its_headers(tmp_path):
+    """rgb declaring 2^28 samples (no data) beside 4 of everything else: refused before the 3 GiB are allocated."""
+    from nlipscalib.learn.dataset import shard_entry, write_shard
+
+    arrays = _shard_with_extra_member(tmp_path / "p1.npz")
+    write_shard(tmp_path / "p1.npz", {k: v for k, v in arrays.items() if k != "rgb"})
+    with zipfile.ZipFile(tmp_path / "p1.npz", "a") as z:
+        z.writestr("rgb.npy", _npy((1 << 28, 3)))
+    with pytest.raises(CaptureError, match=r"p1.npz: array 'pixel' has shape \(4, 2\), inconsistent with 268435456"):
+        shard_entry(tmp_path / "p1.npz")
