@@ -303,7 +303,9 @@ def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None
         raise CaptureError(f"{path}: no reconstruction there (run `nlips solve` first)")
     report = _read_report(rpath)
     version = report["format_version"]
-    arrays = read_arrays(path, _stored_arrays(version), unreadable="damaged or truncated reconstruction")
+    # the format's arrays only: another member (a gigabyte of zeros in a result from elsewhere) is never inflated
+    stored = _stored_arrays(version)
+    arrays = read_arrays(path, stored, unreadable="damaged or truncated reconstruction", only=stored)
     box, frame = _box_checked(path, arrays, version, shape)
     if problem := content_problem(arrays):  # on the box: nothing outside it is reconstructed
         raise CaptureError(f"{path}: {problem}")

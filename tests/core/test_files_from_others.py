@@ -232,3 +232,15 @@ def test_a_shard_declaring_more_samples_than_it_holds_is_refused_from_its_header
         z.writestr("rgb.npy", _npy((1 << 28, 3)))
     with pytest.raises(CaptureError, match=r"p1.npz: array 'pixel' has shape \(4, 2\), inconsistent with 268435456"):
         shard_entry(tmp_path / "p1.npz")
+
+
+def test_a_result_inflates_the_formats_arrays_only(tmp_path):
+    """`nlips eval PRESS --result FOLDER` of a result from elsewhere: a member beside the format's arrays (here
+    damaged, which reading it would find) is never inflated."""
+    from nlipscalib.core.reconstruction import load_reconstruction, save_reconstruction
+    from tests.core.test_reconstruction import _rec
+
+    save_reconstruction(_rec(), tmp_path / "nlips")
+    with zipfile.ZipFile(tmp_path / "nlips" / "result.npz", "a", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("extra.npy", _npy((1 << 28,)) + zlib.compress(bytes(1 << 16))[:64])
+    np.testing.assert_array_equal(load_reconstruction(tmp_path / "nlips", shape=(4, 5)).depth, _rec().depth)
