@@ -490,6 +490,18 @@ def _file_in_the_way(name: str | Path | None, where: str | Path | None) -> bool:
     return Path(where).absolute().is_relative_to(Path(name).absolute())
 
 
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def one_line(message: str) -> str:
+    """``message`` with its control characters written as escapes (a newline as ``\\n``): the error stays one line.
+
+    Why: error lines name files, and a file or folder name from elsewhere (a press folder received in an archive,
+    a name in its meta.json) may hold a newline: printed as it is, it forged lines of the command's output, such
+    as ``nlips solve: done`` (docs/formats.md, "Files from others")."""
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], message)
+
+
 def _file_above(name: str | Path | None) -> Path | None:
     """The file at or above ``name`` that a path was made through as if it were a folder (ENOTDIR), or None."""
     if name is None:
@@ -501,6 +513,7 @@ def _file_above(name: str | Path | None) -> Path | None:
 
 
 def _fail(args: argparse.Namespace, message: str) -> int:
+    message = one_line(message)
     print(f"nlips {args.command}: error: {message}", file=sys.stderr)
     progress.file_log(logging.ERROR, f"nlips {args.command}: {message}")
     return 2

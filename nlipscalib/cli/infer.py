@@ -785,10 +785,11 @@ def _destination(args: argparse.Namespace, name: str, press_folder: Path | None)
     without --out."""
     from pathlib import Path
 
+    from ..core.reconstruction import reconstruction_dir
     from ..learn.infer import RESULT_DIR
 
     if press_folder is not None:
-        return Path(args.out) / name / RESULT_DIR if args.out else Path(press_folder) / RESULT_DIR
+        return Path(args.out) / name / RESULT_DIR if args.out else reconstruction_dir(press_folder, method=RESULT_DIR)
     return Path(args.out) / name if args.out else None
 
 

@@ -24,6 +24,7 @@ from functools import cached_property
 import numpy as np
 
 from .errors import ConfigError, ShapeError
+from .tolerances import MAX_IMAGE_PIXELS
 
 LENS_MODELS = ("fisheye", "brown")
 _N_COEFFS = {"fisheye": 4, "brown": 5}
@@ -137,7 +138,12 @@ class Camera:
         missing = {"width", "height", "fx", "fy", "cx", "cy"} - set(d)
         if missing:
             raise ConfigError(f"camera is missing keys {sorted(missing)}")
-        return cls(**{k: (tuple(v) if k == "dist" and isinstance(v, list) else v) for k, v in d.items()})
+        camera = cls(**{k: (tuple(v) if k == "dist" and isinstance(v, list) else v) for k, v in d.items()})
+        if camera.width * camera.height > MAX_IMAGE_PIXELS:  # a file from elsewhere: docs/formats.md
+            raise ConfigError(
+                f"camera size {camera.width}x{camera.height}: more than the {MAX_IMAGE_PIXELS} pixels nlipscalib reads"
+            )
+        return camera
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -11,6 +11,7 @@ import numpy as np
 
 from .atomic import write_bytes
 from .errors import CaptureError, ShapeError, require
+from .tolerances import MAX_IMAGE_PIXELS
 
 
 def _cv2():
@@ -77,10 +78,13 @@ def read_image(path: str | Path) -> np.ndarray | None:
     """
     cv2 = _cv2()
     data = np.fromfile(path, np.uint8)
-    if data[: len(PNG_SIGNATURE)].tobytes() == PNG_SIGNATURE and b"IEND" not in data[-64:].tobytes():
+    if data[: len(PNG_SIGNATURE)].tobytes() == PNG_SIGNATURE and (problem := png_problem(data)):
         # libpng would print "libpng error: Read Error" on stderr before the caller's one line
-        raise CaptureError(f"{path}: truncated PNG image (cut short: copy or capture it again)")
-    return cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        raise CaptureError(f"{path}: {problem}")
+    try:
+        return cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    except cv2.error as exc:  # another format above OpenCV's own pixel limit: an assertion, not None
+        raise CaptureError(f"{path}: OpenCV cannot decode it ({str(exc).strip().splitlines()[-1]})") from None
 
 
 def read_png16(path: str | Path) -> np.ndarray:
@@ -144,11 +148,16 @@ PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 def png_problem(data: np.ndarray) -> str | None:
     """What is wrong with ``data`` ((n,) uint8, a file's bytes) as a PNG, from its first and last bytes: no PNG
     signature, or cut short (no IEND chunk at its end: an interrupted copy or write); None for a whole PNG.
-    libpng would print its own error line on stderr before the caller's one line."""
+    libpng would print its own error line on stderr before the caller's one line. A header of more than
+    :data:`~nlipscalib.core.tolerances.MAX_IMAGE_PIXELS` pixels is a problem too, found before anything is inflated
+    (a file from elsewhere: a few hundred kilobytes of zeros decode to gigabytes)."""
     if data[: len(PNG_SIGNATURE)].tobytes() != PNG_SIGNATURE:
         return "not a readable PNG image (no PNG signature)"
     if b"IEND" not in data[-64:].tobytes():
         return "truncated PNG image (cut short: copy or capture it again)"
+    height, width = png_size(data)
+    if height * width > MAX_IMAGE_PIXELS:
+        return f"image is {width}x{height} pixels, more than the {MAX_IMAGE_PIXELS} nlipscalib reads"
     return None
 
 

@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike
 from .config import is_number
 from .errors import ConfigError, ShapeError
 from .metrics import angle_deg
-from .tolerances import NORMAL_EPS
+from .tolerances import MAX_LED_DISTANCE_MM, MAX_LED_INTENSITY, MAX_LED_MU, NORMAL_EPS
 
 TRICOLOR_COLORS = np.eye(3)
 """Colour of each tri-colour group: group 0 red, 1 green, 2 blue."""
@@ -68,7 +68,24 @@ class Led:
             raise ConfigError(f"led has unknown keys {sorted(unknown)}; expected {sorted(known)}")
         if "position" not in d:
             raise ConfigError("led is missing 'position'")
-        return cls(**d)
+        led = cls(**d)
+        if problem := _implausible(led):
+            raise ConfigError(problem)
+        return led
+
+
+def _implausible(led: Led) -> str | None:
+    """What makes ``led``, read from a file (it may come from elsewhere), no LED of a visuotactile sensor: a value
+    beyond :data:`~nlipscalib.core.tolerances.MAX_LED_DISTANCE_MM`, ``MAX_LED_MU`` or ``MAX_LED_INTENSITY``; None
+    when it is one. Why here and not in the constructor: a fit's intermediate LEDs are not held to it."""
+    distance = float(np.linalg.norm(led.position))
+    if distance > MAX_LED_DISTANCE_MM:
+        return f"led.position is {distance:.3g} mm from the camera, more than {MAX_LED_DISTANCE_MM:g} mm"
+    if led.mu > MAX_LED_MU:
+        return f"led.mu is {led.mu:.3g}, more than {MAX_LED_MU:g}"
+    if max(led.intensity) > MAX_LED_INTENSITY:
+        return f"led.intensity is {max(led.intensity):.3g}, more than {MAX_LED_INTENSITY:g}"
+    return None
 
 
 Leds = Sequence[Led]

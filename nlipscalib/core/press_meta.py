@@ -4,7 +4,7 @@ the files it lists (:func:`listed_files`, :func:`existing_file`)."""
 
 from __future__ import annotations
 
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from .camera import Camera
 from .errors import CaptureError
@@ -89,8 +89,16 @@ def _check_file_names(meta: dict, path: Path) -> None:
 
 
 def _check_name(name: object, key: str, path: Path) -> None:
+    """CaptureError unless ``name`` is the bare name of a file in the press folder.
+
+    Why: a press folder may come from elsewhere (e-mail, a USB stick); a name that is a path (``/home/me/x.png``,
+    ``../../other_press/led_01.png``) would make the product read a file outside the folder the user named, and a
+    control character (a newline) in it would forge lines of the command's messages (docs/formats.md, "Files from
+    others")."""
     if not isinstance(name, str) or not name:
         raise CaptureError(f"{path}: '{key}' must be a file name, got {name!r}")
+    if name != PurePosixPath(name).name or name in (".", "..") or not name.isprintable():
+        raise CaptureError(f"{path}: '{key}' must be the name of a file in the press folder, got {name!r}")
 
 
 def listed_files(meta: dict) -> list[str]:

@@ -110,10 +110,23 @@ def provenance_key(settings: dict, inputs: dict) -> str:
 
 
 def reconstruction_dir(press_folder: str | Path, out: str | Path | None = None, method: str = RESULT_DIR) -> Path:
-    """Where the reconstruction of ``press_folder`` lives (``out`` when given, else PRESS/<method>)."""
+    """Where the reconstruction of ``press_folder`` lives (``out`` when given, else PRESS/<method>).
+
+    CaptureError when PRESS/<method> (not given by the user) is a symbolic link to a place outside the press folder.
+    Why: a press folder from elsewhere (an archive, a colleague's disk) may carry such a link, and a solve, written
+    where the link points, replaced the reconstruction of another press there (docs/formats.md, "Files from
+    others"); a folder the user names (``out``) is written where it points, as the user asked."""
     if method not in METHODS:
         raise CaptureError(f"unknown reconstruction method {method!r}; expected one of {METHODS}")
-    return Path(out) if out is not None else Path(press_folder) / method
+    if out is not None:
+        return Path(out)
+    folder = Path(press_folder) / method
+    if folder.is_symlink() and not folder.resolve().is_relative_to(Path(press_folder).resolve()):
+        raise CaptureError(
+            f"{folder}: a symbolic link to {folder.resolve()}, outside the press folder (a press folder from elsewhere "
+            "may carry one); remove the link, or name the reconstruction's folder on the command line (--out)"
+        )
+    return folder
 
 
 def has_reconstruction(folder: str | Path) -> bool:
@@ -294,7 +307,9 @@ def load_reconstruction(folder: str | Path, shape: tuple[int, int] | None = None
         raise CaptureError(f"{path}: no reconstruction there (run `nlips solve` first)")
     report = _read_report(rpath)
     version = report["format_version"]
-    arrays = read_arrays(path, _stored_arrays(version), unreadable="damaged or truncated reconstruction")
+    # the format's arrays only: another member (a gigabyte of zeros in a result from elsewhere) is never inflated
+    stored = _stored_arrays(version)
+    arrays = read_arrays(path, stored, unreadable="damaged or truncated reconstruction", only=stored)
     box, frame = _box_checked(path, arrays, version, shape)
     if problem := content_problem(arrays):  # on the box: nothing outside it is reconstructed
         raise CaptureError(f"{path}: {problem}")

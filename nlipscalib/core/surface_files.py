@@ -88,9 +88,19 @@ class Reference:
 
     @classmethod
     def load(cls, path: Path, shape: tuple[int, int]) -> Reference:
-        arrays = _load_npz_kept(path, {"depth": 2, "normals": 3})
-        if arrays["depth"].shape != shape or arrays["normals"].shape != shape + (3,):
+        """The reference in ``path`` for a camera of ``shape`` (H, W). Its arrays' shapes and types are checked from
+        their headers before anything is inflated, and only ``depth`` and ``normals`` are inflated.
+
+        Why: a reference.npz comes with every press folder, from elsewhere too; a tiny archive may declare an array
+        of gigabytes (zeros deflate ~1000:1), or carry one beside the two: a 5 MB file with a 1 GiB extra member
+        took a solve from 0.6 to 1.2 GB of memory before it was read whole (docs/formats.md, "Files from others")."""
+        keys = {"depth": 2, "normals": 3}
+        headers = read_array_headers(path, keys, unreadable=NPZ_UNREADABLE)
+        for key in keys:
+            _check_type(path, key, headers[key][1])
+        if headers["depth"][0] != shape or headers["normals"][0] != shape + (3,):
             raise CaptureError(f"{path}: reference arrays do not match the camera size {shape}")
+        arrays = _load_npz_kept(path, keys)
         return cls(depth=arrays["depth"], normals=arrays["normals"])
 
 
@@ -163,7 +173,7 @@ def _load_npz_kept(path: Path, keys: dict) -> dict:
 
 def _load_npz(path: Path, keys: dict) -> dict:
     """Every array of the .npz at ``path``, read now and checked (:func:`_check_type`, :func:`_check_values`)."""
-    arrays = read_arrays(path, keys, unreadable=NPZ_UNREADABLE)
+    arrays = read_arrays(path, keys, unreadable=NPZ_UNREADABLE, only=keys)
     for k in keys:
         _check_type(path, k, arrays[k].dtype)
         _check_values(path, k, arrays[k])

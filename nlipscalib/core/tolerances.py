@@ -275,3 +275,19 @@ so 2 is a chi-square of ~18 (p ~1e-4). Measured: 1 switched 0.5 % of the sphere'
 REFINE_ITERATIONS = 6
 """... reweighting iterations of each pixel's fit, from the depth's normal. Why: 12 moved the coin press's contact
 AAE by 0.02 deg against 6 (without the gate); each costs one 3x3 solve per pixel."""
+MAX_LED_DISTANCE_MM = 1000.0
+"""An LED read from a file (meta.json, an LED file) sits at most this far (mm) from the camera: a visuotactile
+sensor's LEDs are ~10 mm away. Why: a file from elsewhere with a position of 1e30 mm solved to "no contact found"
+instead of naming the value (docs/formats.md, "Files from others")."""
+MAX_LED_MU = 1000.0
+"""... its anisotropy ``mu`` is at most this (a beam of 3 deg to half power; the twin's LEDs: 1): ``(n_s . d)^mu``
+of mu = 1e9 underflows to zero off the axis, a dark LED the file does not say it is."""
+MAX_LED_INTENSITY = 1e6
+"""... and its intensity Psi (linear image units x mm^2) at most this per channel: calibrated LEDs are ~1 (the
+images' full scale is 1 at ~10 mm); all LEDs at 1e30 overflowed the solver's float32 model (no contact found)."""
+MAX_IMAGE_PIXELS = 1 << 24
+"""Images (PNG headers) and cameras read from files hold at most this many pixels (16.8 Mpx: 4096 x 4096, twice a
+4K camera's 3840 x 2160). Why: a PNG of zeros deflates ~1000:1, so an 840 KB file decoded to 1.7 GB (12000 x 12000,
+16-bit RGB) in 10 s, and a press of 13 such images with a meta.json of that camera size asked for 22 GB; OpenCV's
+own limit (``CV_IO_MAX_IMAGE_PIXELS``, 2^30 pixels: 6.4 GB at 16-bit RGB) ends in a traceback (docs/formats.md,
+"Files from others")."""

@@ -59,10 +59,21 @@ def map_rows(rows: list[dict], out: Path, key: tuple[str, ...], limit: int = 6) 
         if name in seen or not r.get("map") or len(picked) >= limit:
             continue
         seen.add(name)
-        with np.load(Path(out) / r["map"]) as z:
+        with np.load(_map_path(out, r["map"])) as z:
             title = ", ".join(str(v) for v in name) + f"\n{r['press']}" + _contact_line(r.get("aae_deg"))
             picked.append((title, z["true"], z["estimate"], z["error"]))
     return picked
+
+
+def _map_path(out: Path, name: str) -> Path:
+    """``out / name``, an evaluation's error map named in results.json; ConfigError unless ``name`` is a path inside
+    ``out``: a report folder from elsewhere naming ``/elsewhere/x.npz`` or ``../..`` had it read (docs/formats.md,
+    "Files from others")."""
+    from ..core.errors import ConfigError
+
+    if not isinstance(name, str) or Path(name).is_absolute() or ".." in Path(name).parts:
+        raise ConfigError(f"{out}: an evaluation's error map {name!r} is not a file inside the experiment's folder")
+    return Path(out) / name
 
 
 def _contact_line(aae_deg: float | None) -> str:

@@ -47,7 +47,7 @@ from .. import __version__
 from ..core.atomic import write_by_name, write_json
 from ..core.claims import wait_for_release
 from ..core.errors import CaptureError, ConfigError
-from ..core.formatfile import read_arrays, read_format_json
+from ..core.formatfile import read_array_headers, read_arrays, read_format_json
 from ..core.imageio import save_npz
 from ..core.sensor_record import capture_settings, check_sensor, check_sensor_record, common_settings, sensor_of
 from ..progress import track
@@ -610,13 +610,18 @@ SHARD_KINDS = {"pixel": "iu", "rgb": "f", "normal": "f", "true_normal": "f", "co
 def _checked_shard(path: Path) -> dict:
     """The arrays of a shard, read in full (so a damaged deflated array shows) and checked for consistency:
     shapes, dtypes, and finite colours and labels (a NaN there reaches the training loss and stops training
-    without a model); ``true_normal`` is NaN wherever a press has no ground truth."""
-    arrays = read_arrays(path, SHARD_KEYS)
+    without a model); ``true_normal`` is NaN wherever a press has no ground truth.
+
+    Shapes are checked from the arrays' headers before any is inflated, and only the shard's own arrays are
+    inflated: a dataset from elsewhere may declare an array of gigabytes in a small file, or carry another member
+    (docs/formats.md, "Files from others")."""
+    headers = read_array_headers(path, SHARD_KEYS)
+    _check_shard_shapes(path, {key: headers[key][0] for key in SHARD_KEYS})
+    arrays = read_arrays(path, SHARD_KEYS, only=[key for key in headers if key in SHARD_KEYS or key == ENTRY_KEY])
+    _check_shard_shapes(path, {key: arrays[key].shape for key in SHARD_KEYS})
     n = len(arrays["rgb"])
-    for key, ndim in SHARD_KEYS.items():
+    for key in SHARD_KEYS:
         a = arrays[key]
-        if a.ndim != ndim or len(a) != n or (ndim == 2 and a.shape[1] != (2 if key == "pixel" else 3)):
-            raise CaptureError(f"{path}: array '{key}' has shape {a.shape}, inconsistent with {n} samples")
         if a.dtype.kind not in SHARD_KINDS[key]:
             raise CaptureError(f"{path}: array '{key}' holds {a.dtype} values, expected {_kind_words(key)}")
     for key in ("rgb", "normal"):
@@ -624,6 +629,16 @@ def _checked_shard(path: Path) -> dict:
         if bad:
             raise CaptureError(f"{path}: array '{key}' has NaN or infinite values in {bad} of {n} samples")
     return arrays
+
+
+def _check_shard_shapes(path: Path, shapes: dict[str, tuple[int, ...]]) -> None:
+    """CaptureError naming the shard unless each array's shape (``shapes``: of every key of :data:`SHARD_KEYS`)
+    has its number of dimensions and columns, and all have the samples of ``rgb``."""
+    n = shapes["rgb"][0] if shapes["rgb"] else 0
+    for key, ndim in SHARD_KEYS.items():
+        shape = tuple(shapes[key])
+        if len(shape) != ndim or shape[0] != n or (ndim == 2 and shape[1] != (2 if key == "pixel" else 3)):
+            raise CaptureError(f"{path}: array '{key}' has shape {shape}, inconsistent with {n} samples")
 
 
 def _kind_words(key: str) -> str:
@@ -784,10 +799,13 @@ class CalibrationDataset:
     def reference(self) -> dict:
         """The undeformed reference arrays (:func:`reference_arrays`)."""
         path = self.folder / SENSOR_FILE
-        arrays = read_arrays(path, dict.fromkeys(SENSOR_KEYS, 0))
         cam = self.sensor["camera"]
         shape = (cam["height"], cam["width"])
-        if arrays["depth"].shape != shape or arrays["tricolor"].shape != shape + (3,):
+        # shapes from the headers before anything is inflated, and the sensor's arrays only (a dataset from
+        # elsewhere: docs/formats.md, "Files from others")
+        headers = read_array_headers(path, SENSOR_KEYS)
+        if headers["depth"][0] != shape or headers["tricolor"][0] != shape + (3,):
             raise CaptureError(f"{path}: arrays do not match the sensor's {cam['width']}x{cam['height']} image")
+        arrays = read_arrays(path, SENSOR_KEYS, only=SENSOR_KEYS)
         check_reference_values(arrays, path)
         return arrays

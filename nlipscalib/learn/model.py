@@ -251,6 +251,7 @@ def load_model(path: str | Path) -> LoadedModel:
         check_sigma(payload.get("smoothing_px", 0.0), "'smoothing_px'")
     except ConfigError as exc:
         raise CaptureError(f"{path}: {exc}") from None
+    _check_layer_shapes(hidden, payload["state_dict"], path)
     net = build_net(hidden, float(dropout), cam["width"], cam["height"])
     _check_finite_weights(payload["state_dict"], path)
     try:
@@ -263,6 +264,27 @@ def load_model(path: str | Path) -> LoadedModel:
     # the digest of the bytes read, not of the file at the path later: a model published there meanwhile (`nlips
     # train --out`) would otherwise lend its digest to this one's export, which inference then takes as current
     return LoadedModel(path, net, payload, digest=bytes_digest(data))
+
+
+def _check_layer_shapes(hidden: Sequence[int], state: object, path: Path) -> None:
+    """CaptureError naming the model file unless each linear layer :func:`build_net` makes of ``hidden`` has its
+    weights in ``state`` (the file's ``state_dict``), of the layer's shape: checked before the net is built.
+
+    Why: a file from elsewhere may declare widths its weights do not have; the net of ``hidden`` [20000, 20000]
+    took 1.8 GB and 8 s to build before ``load_state_dict`` refused it, and widths of 1e5 would ask for 80 GB
+    (docs/formats.md, "Files from others")."""
+    torch = _torch()
+    n_in = 5
+    for i, n_out in enumerate([*hidden, 3]):
+        key = f"mlp.{4 * i}.weight"  # each hidden width adds Linear, BatchNorm1d, ReLU, dropout; then the last Linear
+        weight = state.get(key) if isinstance(state, dict) else None
+        found = tuple(weight.shape) if isinstance(weight, torch.Tensor) else None
+        if found != (n_out, n_in):
+            raise CaptureError(
+                f"{path}: weights do not fit the architecture ('hidden' {list(hidden)} needs {key} of shape "
+                f"{(n_out, n_in)}, the file holds {found})"
+            )
+        n_in = n_out
 
 
 def _check_finite_weights(state: object, path: Path) -> None:
