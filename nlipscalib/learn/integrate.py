@@ -173,7 +173,7 @@ def integrate_on_dome(
             anchor = _rim_box_anchor(unknown, on_gel, crop, edges) if method == "auto" else None
             if anchor is not None:
                 others = [box for box, _ in edge_boxes] + boxes + sparse[:i] + sparse[i + 1 :]
-                crop, anchor = _faster_rim_box(unknown, on_gel, crop, others, edges, anchor)
+                crop = _faster_rim_box(unknown, on_gel, crop, others, edges, anchor)
                 solved = _interior_mask(on_gel[crop], edges)
                 log_range = _solve_rim_box(normals, geo, on_gel, crop, edges, anchor)[solved]
                 points[crop][solved] = np.exp(log_range.astype(np.float32))[:, None] * geo.rays32[crop][solved]
@@ -590,17 +590,15 @@ def _faster_rim_box(
     others: Sequence[Box],
     edges: Edges = (0, 0),
     anchor: float = 0.0,
-) -> tuple[Box, float]:
-    """A rim box and its anchor grown to FFT-friendly sides (:func:`_faster`) within the image, clear of the boxes
-    solved apart (``others``), where it still applies with the same anchor (:func:`_rim_box_anchor`); else
-    ``crop``. Its sine solves are most of its time: the ridge across the flat pad's box, 148 x 536 inside its ring,
-    has the prime factors 149 and 179 in its transform lengths."""
+) -> Box:
+    """A rim box (``edges`` its sides at the image border) grown to FFT-friendly sides (:func:`_faster`) within the
+    image, clear of the boxes solved apart (``others``), where it still applies with the same ``anchor``
+    (:func:`_rim_box_anchor`); else ``crop``. Its sine solves are most of its time: the ridge across the flat pad's
+    box, 148 x 536 inside its ring, has the prime factors 149 and 179 in its transform lengths."""
     rect = (crop[0].start, crop[0].stop, crop[1].start, crop[1].stop)
     bounds = [(b[0].start, b[0].stop, b[1].start, b[1].stop) for b in others]
     grown = _faster(rect, np.ones_like(on_gel), bounds, edges)
-    if grown != crop and _rim_box_anchor(unknown, on_gel, grown, edges) == anchor:
-        return grown, anchor
-    return crop, anchor
+    return grown if grown != crop and _rim_box_anchor(unknown, on_gel, grown, edges) == anchor else crop
 
 
 def _beyond_border(a: np.ndarray, edges: Edges, value: object) -> np.ndarray:

@@ -378,7 +378,7 @@ def test_a_rim_box_solves_the_sparse_paths_equations_on_its_gel_pixels(seed):
         normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
     boxes, edge_boxes, (crop,) = _regions(unknown, on_gel, "auto")
     assert boxes == edge_boxes == [] and _rim_box_applies(unknown, on_gel, crop)
-    crop, _ = _faster_rim_box(unknown, on_gel, crop, [])  # the box integrate_on_dome solves
+    crop = _faster_rim_box(unknown, on_gel, crop, [])  # the box integrate_on_dome solves
     assert _rim_rows(on_gel[crop])[1].sum() > 10  # rim pixels in the box: the capacitance correction is at work
     inner = np.zeros_like(unknown)
     inner[crop] = _interior_mask(on_gel[crop])
@@ -472,7 +472,7 @@ def test_a_rim_box_at_the_image_border_solves_the_sparse_paths_equations_on_its_
     (crop,) = _regions(unknown, on_gel, "auto")[2]
     edges = _crop_edges(unknown, crop)
     assert edges == ([-1, 1][seed // 2], 0) and _rim_box_anchor(unknown, on_gel, crop, edges) == 0
-    crop, _ = _faster_rim_box(unknown, on_gel, crop, [], edges)  # the box integrate_on_dome solves
+    crop = _faster_rim_box(unknown, on_gel, crop, [], edges)  # the box integrate_on_dome solves
     inner = np.zeros_like(unknown)
     inner[crop] = _interior_mask(on_gel[crop], edges)
     assert not on_gel[crop].all() and _at_border(inner).sum() > 10
