@@ -738,14 +738,16 @@ def _box_green(
     eigenvalues = _axis_eigenvalues(m, edges[0])[:, None] + _axis_eigenvalues(n, edges[1])[None, :]
     inverse = 1.0 / (eigenvalues + anchor)  # (m, n)
     modes_p, modes_q = _axis_modes(columns_p, n, edges[1]), _axis_modes(columns_q, n, edges[1])
-    along = np.matmul(modes_p[None] * inverse[:, None, :], modes_q.T)
-    weighted = _axis_modes(qr, m, edges[0]).T[:, None, :] * along[:, :, at_q]  # (m, distinct columns of p, Q)
+    along = np.matmul(modes_p[None] * inverse[:, None, :], modes_q.T)  # (m, distinct columns of p, of q)
+    # (distinct columns of p, m, Q): contiguous per column of p, gathered by take (half the time of along[..., at_q])
+    weighted = np.take(along.transpose(1, 0, 2), at_q, axis=2)
+    weighted *= _axis_modes(qr, m, edges[0]).T
     green = np.empty((len(pr), len(qr)))
     order = np.argsort(at_p, kind="stable")
     starts = np.searchsorted(at_p[order], np.arange(len(columns_p) + 1))
     for a in range(len(columns_p)):
         rows = order[starts[a] : starts[a + 1]]
-        green[rows] = _axis_modes(pr[rows], m, edges[0]) @ weighted[:, a, :]
+        green[rows] = _axis_modes(pr[rows], m, edges[0]) @ weighted[a]
     return green
 
 
