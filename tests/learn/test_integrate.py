@@ -338,13 +338,15 @@ def test_a_box_across_the_image_solves_the_sparse_paths_equations_on_its_pixels(
 
 
 def test_a_band_across_both_axes_keeps_the_sparse_path():
-    # a cross spanning the width and the height has no fixed pixel in its box: the sparse path's anchor sets its level
-    from nlipscalib.learn.integrate import _regions
+    # a cross spanning the width and the height: its box (the image) has no ring, no fixed pixel
+    from nlipscalib.learn.integrate import _crop_edges, _regions, _rim_box_anchor
 
     _, _, on_gel, _, _ = _dome_and_sphere()
     cross = _band(on_gel.shape, 0, 200, 210) | _band(on_gel.shape, 1, 300, 310)
     boxes, edge_boxes, sparse = _regions(cross, on_gel, "auto")
     assert boxes == edge_boxes == [] and len(sparse) == 1
+    # nor an anchored box: it would anchor the unchanged pixels that the sparse path holds at the reference
+    assert _rim_box_anchor(cross, on_gel, sparse[0], _crop_edges(cross, sparse[0])) is None
 
 
 def _flat_pad():
@@ -404,22 +406,32 @@ def test_exact_normals_of_a_sphere_at_the_pads_rim_give_its_depth_in_a_rim_box(p
     assert np.abs(dent - true_dent)[unknown].mean() < 0.02 * true_dent[unknown].max()
 
 
-@pytest.mark.parametrize(("m", "n"), [(7, 11), (12, 5)])
-def test_the_box_greens_function_is_the_inverse_of_its_laplacian(m, n):
+@pytest.mark.parametrize(
+    ("m", "n", "edges", "anchor"),
+    [(7, 11, (0, 0), 0.0), (12, 5, (0, 0), 0.0), (7, 11, (-1, 2), 0.0), (9, 6, (1, 0), 0.0), (8, 10, (2, 2), 1e-4)],
+)
+def test_the_box_greens_function_is_the_inverse_of_its_laplacian(m, n, edges, anchor):
+    # per axis: fixed beyond both ends (0), natural at the image border (-1: before index 0, +1: after the last)
+    # or at both (2); with both axes natural only the anchor makes the matrix invertible
     from scipy.sparse import diags, identity, kron
 
-    from nlipscalib.learn.integrate import _box_green
+    from nlipscalib.learn.integrate import _box_green, _box_solve
 
-    def path(k):
-        return diags([-np.ones(k - 1), 2 * np.ones(k), -np.ones(k - 1)], [-1, 0, 1])
+    def path(k, edge):
+        diagonal = 2 * np.ones(k)
+        diagonal[[0] if edge == -1 else [-1] if edge == 1 else [0, -1] if edge == 2 else []] = 1  # no pair beyond
+        return diags([-np.ones(k - 1), diagonal, -np.ones(k - 1)], [-1, 0, 1])
 
-    inverse = np.linalg.inv((kron(path(m), identity(n)) + kron(identity(m), path(n))).toarray())
+    matrix = kron(path(m, edges[0]), identity(n)) + kron(identity(m), path(n, edges[1])) + anchor * identity(m * n)
+    inverse = np.linalg.inv(matrix.toarray())
     rng = np.random.default_rng(m * n)
     p, q = rng.integers(0, m * n, 30), rng.integers(0, m * n, 9)
     # few distinct rows of p (a rim along the rows): _box_green sums the other axis's modes; both must agree
     for pick in (p, p % n + n * (p // n % 2)):
-        got = _box_green(*np.divmod(pick, n), *np.divmod(q, n), m, n)
+        got = _box_green(*np.divmod(pick, n), *np.divmod(q, n), m, n, edges, anchor)
         np.testing.assert_allclose(got, inverse[np.ix_(pick, q)], rtol=1e-10, atol=1e-12)
+    f = rng.normal(size=(m, n))  # and the transform solve is the same matrix's
+    np.testing.assert_allclose(_box_solve(f, edges, anchor).ravel(), inverse @ f.ravel(), rtol=1e-9, atol=1e-9)
 
 
 def test_a_rim_box_whose_gel_touches_no_fixed_pixel_keeps_the_sparse_path():
@@ -437,3 +449,85 @@ def test_a_rim_box_whose_gel_touches_no_fixed_pixel_keeps_the_sparse_path():
     for box in ((slice(14, 26), slice(14, 26)), (slice(5, 35), slice(5, 35))):
         assert _rim_box_applies(unknown, on_gel, box)
     assert not _rim_box_applies(unknown, on_gel, (slice(17, 26), slice(14, 26)))  # a changed pixel on its ring
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_a_rim_box_at_the_image_border_solves_the_sparse_paths_equations_on_its_gel_pixels(seed):
+    # a blob of random smooth normals in a corner of the flat pad: its box holds off-gel pixels and reaches the
+    # top or bottom image border (a natural side there, mirrored as an edge box's), 0.2-0.3 s of SuperLU before
+    from nlipscalib.learn.integrate import _crop_edges, _faster_rim_box, _interior_mask, _regions, _rim_box_anchor
+
+    _, ref, geo, on_gel = _flat_pad()
+    rng = np.random.default_rng(seed)
+    row = [int(rng.integers(0, 8)), int(rng.integers(472, 480))][seed // 2]
+    side = np.flatnonzero(on_gel[row])[[0, -1][seed % 2]]
+    col = side + int(rng.integers(-5, 15)) * (1 if seed % 2 == 0 else -1)
+    radius = int(rng.integers(20, 45))
+    rr, cc = np.mgrid[: on_gel.shape[0], : on_gel.shape[1]]
+    unknown = ((rr - row) ** 2 + (cc - col) ** 2 < radius**2) & on_gel
+    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (6, 6, 0)) * 10
+    normals = ref.normals + np.where(unknown[..., None], tilt, 0)
+    with np.errstate(invalid="ignore"):  # NaN off the gel
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    (crop,) = _regions(unknown, on_gel, "auto")[2]
+    edges = _crop_edges(unknown, crop)
+    assert edges == ([-1, 1][seed // 2], 0) and _rim_box_anchor(unknown, on_gel, crop, edges) == 0
+    crop = _faster_rim_box(unknown, on_gel, crop, [], edges)  # the box integrate_on_dome solves
+    inner = np.zeros_like(unknown)
+    inner[crop] = _interior_mask(on_gel[crop], edges)
+    assert not on_gel[crop].all() and _at_border(inner).sum() > 10
+    got, _ = integrate_on_dome(normals, unknown, geo)
+    sparse, _ = integrate_on_dome(normals, inner, geo, "sparse")
+    assert np.abs(sparse - ref.depth)[inner].max() > 0.05  # mm: a surface unlike the pad
+    np.testing.assert_allclose(got[inner], sparse[inner], atol=2e-5)  # mm: float32 points of float64 solves
+    outside = on_gel & ~inner
+    np.testing.assert_array_equal(got[outside], ref.depth[outside])
+
+
+def test_a_frame_changed_on_the_whole_gel_solves_the_sparse_paths_anchored_equation():
+    # every pixel changed: a box across both axes, natural on all four sides; its one zero eigenvalue (the level)
+    # is the anchor's, which the sparse path puts on every pixel here -- the same equation (4 s of SuperLU before)
+    from nlipscalib.learn.integrate import ANCHOR_WEIGHT, BOTH_SIDES, _crop_edges, _regions, _rim_box_anchor
+
+    ref, geo, on_gel, _, _ = _dome_and_sphere()
+    rng = np.random.default_rng(5)
+    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (8, 8, 0)) * 5
+    normals = ref.normals + tilt
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    (crop,) = _regions(on_gel, on_gel, "auto")[2]
+    assert _crop_edges(on_gel, crop) == (BOTH_SIDES, BOTH_SIDES)
+    assert _rim_box_anchor(on_gel, on_gel, crop, (BOTH_SIDES, BOTH_SIDES)) == ANCHOR_WEIGHT
+    got, _ = integrate_on_dome(normals, on_gel, geo)
+    sparse, _ = integrate_on_dome(normals, on_gel, geo, "sparse")
+    assert np.abs(sparse - ref.depth).max() > 0.05  # mm
+    np.testing.assert_allclose(got, sparse, atol=2e-5)
+
+
+def test_a_changed_gel_island_touching_no_fixed_pixel_is_solved_with_the_anchor_in_a_rim_box():
+    # the whole of a gel island changed: no fixed pixel, the sparse path anchors each of its pixels; so does the
+    # rim box. An island with unchanged pixels would be another equation: it keeps the sparse path
+    from nlipscalib.learn.integrate import ANCHOR_WEIGHT, _regions, _rim_box_anchor
+
+    ref, _, _, _, normals = _dome_and_sphere()
+    depth = ref.depth.astype(np.float64).copy()
+    depth[190:260, 290:370] = np.nan
+    depth[200:250, 300:360] = ref.depth[200:250, 300:360]  # the island, off the gel all round
+    geo = RayGeometry.from_reference(_dome_rays(), depth)
+    on_gel = np.isfinite(depth)
+    island = np.zeros_like(on_gel)
+    island[200:250, 300:360] = True
+    (crop,) = _regions(island, on_gel, "auto")[2]
+    assert _rim_box_anchor(island, on_gel, crop) == ANCHOR_WEIGHT
+    got, _ = integrate_on_dome(normals, island, geo)
+    sparse, _ = integrate_on_dome(normals, island, geo, "sparse")
+    assert np.abs(sparse - depth)[island].max() > 0.05  # mm: the sphere's dent
+    np.testing.assert_allclose(got[island], sparse[island], atol=2e-5)
+    part = island.copy()
+    part[220:225, 320:330] = False  # unchanged pixels inside: they fix the level on the sparse path
+    assert _rim_box_anchor(part, on_gel, _regions(part, on_gel, "auto")[2][0]) is None
+
+
+def _dome_rays():
+    from nlipscalib.core.sensor import SensorDesign
+
+    return SensorDesign().camera_model().rays
