@@ -108,12 +108,12 @@ def nothing_to_fit(press: Press, gel: np.ndarray | None = None) -> str:
     """Why no sample of a capture can be fitted on (:func:`no_light_reason`, or a plainer word when the exposure
     does not explain it): no LED image gives light above the dark frame, or every lit one is saturated on the gel;
     "" when some sample is usable."""
-    from .contact import led_levels
+    from .contact import led_levels, lit_leds
 
     gel = gel_of(press) if gel is None else gel
     if not gel.any():
         return no_light_reason(press, gel, np.zeros(len(press.leds), bool))
-    live = led_levels(press.linear_led_images, gel) >= tolerances.LIT_LEVEL
+    live = lit_leds(led_levels(press.linear_led_images, gel))
     if _unsaturated_sample(press, gel, live):
         return ""
     return no_light_reason(press, gel, live) or ": no LED image holds an unsaturated sample lit above the dark frame"
