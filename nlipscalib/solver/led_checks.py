@@ -15,9 +15,7 @@ import numpy as np
 
 from ..core.camera import depth_to_points
 from ..core.capture import Press
-from ..core.errors import CaptureError
 from ..core.leds import Led, led_shading
-from ..core.press_meta import read_meta
 
 WEAK_LED_GAIN = 0.6
 """An LED whose image holds less than this fraction of the light the model gives it, relative to the median LED's
@@ -108,12 +106,9 @@ def _samples(press: Press, leds: Sequence[Led], live: list[int]) -> tuple[np.nda
 
 
 def _image_names(press: Press) -> list[str]:
-    """The LED images' file names as meta.json lists them (LED ``i`` at ``i``), or "LED image i" when they
-    cannot be matched (an LED subset)."""
-    try:
-        names = list(read_meta(press.folder)["images"]["leds"])
-    except (OSError, CaptureError, KeyError, TypeError):  # no readable meta.json to name the files from
-        names = []
-    if len(names) != len(press.leds):
+    """The LED images' file names as meta.json lists them (LED ``i`` at ``i``), or "image i" when they cannot be
+    matched (an LED subset)."""
+    names = (press.meta.get("images") or {}).get("leds")
+    if not isinstance(names, list) or len(names) != len(press.leds):
         return [f"image {i + 1}" for i in range(len(press.leds))]
     return [str(name) for name in names]
