@@ -53,7 +53,8 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
     notes = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
-    corr = np.corrcoef(image.mean(-1), model.mean(-1))[: len(live), len(live) :]
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
+        corr = np.corrcoef(image.mean(-1), model.mean(-1))[: len(live), len(live) :]
     swapped = set()
     for k, i in enumerate(live):
         best = int(np.argmax(corr[k]))
