@@ -147,3 +147,22 @@ def test_a_dark_frame_that_holds_light_is_refused_and_one_below_the_black_level_
     said = [n for n in result.report.get("warnings", []) if "dark.png" in n]
     assert len(said) == 1 and "below the black level 1024" in said[0]
     assert dark_frame_fault(load_press(synth.make_press(tmp_path / "clean", "sphere"))) is None
+
+
+def test_calibrate_leds_refuses_a_dead_led_and_a_lit_dark_frame_in_one_line_each(tmp_path):
+    """The LED fit of a dead LED diverged ("led.intensity must be 3 finite numbers, got (inf, inf, inf)" behind
+    numpy's "Mean of empty slice"); an LED image saved as the dark frame ran past 200 s on the twin's reference."""
+    from nlipscalib.core.imageio import read_png16, write_png16
+
+    def kill(lin):
+        lin = lin.copy()
+        lin[4] = 0.0
+        return lin
+
+    dead = synth.make_press(tmp_path / "dead", "none", lin_hook=kill)
+    with pytest.raises(CaptureError, match=r"LED 5 \(led_05.png\): image dark .*dead LED"):
+        calibrate_leds(load_press(dead))
+    lit = synth.make_press(tmp_path / "lit", "none")
+    write_png16(lit / "dark.png", read_png16(lit / "led_02.png"))
+    with pytest.raises(CaptureError, match="dark.png: not a dark frame"):
+        calibrate_leds(load_press(lit))
