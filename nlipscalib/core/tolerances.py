@@ -47,6 +47,20 @@ capture that can no longer be retaken, whether an image holds any light to fit: 
 normals (the fit weighs it against the images' noise), so only an image with almost nothing above the dark frame
 is dropped. The capture check is the stricter: a frame it calls lit has 1 % of the gel 20 times above this level,
 and one between the two is warned about at capture but still fitted."""
+DEAD_LED_FRACTION = 0.005
+"""An LED image is also dead when its bright end (as :data:`LIT_LEVEL`'s) is below this fraction of the median LED
+image's: it then holds the dark frame's noise, not light. Why: :data:`LIT_LEVEL` alone is below the noise's own
+bright end (a dead LED's image, a dark frame plus read noise, measured 0.0012 on the one-bounce 640x480 twin, the
+lit ones 0.65-0.87): that LED was fitted as lit, its dark image misfit the undeformed model all over the gel, and
+``nlips solve --roi auto`` refused the press with "found no contact" (s26 QA walk). An LED at 1 % of the others'
+power (bright end ~0.006 on the tests' synthetic dome) stays lit: it still constrains the normals."""
+DARK_FRAME_OFFSET = 0.005
+"""A dark frame whose median on the gel lies more than this (linear units, full scale 1) from the sensor's black
+level is not a dark frame of that sensor: above it, it holds light (an LED image saved as the dark frame: it was
+solved on to "no pixel could be reconstructed ... dead LEDs [1]"), and the solve is refused; below it, meta.json's
+``sensor.black_level`` is not the sensor's (a dark frame of zeros added 1.6 % of full scale to every image and
+moved the twin's cube press from 0.42 to 0.72 deg without a word), and the solve is warned about. The twin's dark
+frames: within 1e-4 of it."""
 NORMAL_EPS = 1e-9
 """Norms below this are treated as zero when normalising (float64 vectors: an LED's direction, a LUT bin's mean
 normal, a radiosity patch's area-weighted normal; any real one is many orders of magnitude longer, so the

@@ -306,6 +306,7 @@ def _check_calibration_inputs(
     for p in presses:
         if why := nothing_to_fit(p):
             raise CaptureError(f"{p.folder}: no usable pixel to calibrate the LEDs on{why}")
+        _check_lit(p)
     used = sum(len(d[0]) for d in data)
     if used < tolerances.CALIBRATION_MIN_PIXELS:
         raise ConfigError(
@@ -372,3 +373,24 @@ def _direct_after_all(presses: Sequence[Press], s: _Settings, models: list[dict]
     cal = _calibrate(presses, dataclasses.replace(s, interreflection="off", coating_reflectance=None))
     terms = [dict(m, enabled=False, term_gain=round(gain, 1), reason=r) for m, r in zip(models, off)]
     return dataclasses.replace(cal, interreflection=terms)
+
+
+def _check_lit(press: Press) -> None:
+    """CaptureError, in one line naming the file, for a capture whose dark frame holds light or one of whose LED
+    images is dark (a dead LED: no light to fit it on). Why: the LED fit of a dead LED diverged, ending on
+    numpy's "Mean of empty slice" and "led.intensity must be 3 finite numbers, got (inf, inf, inf)"; an LED image
+    saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference)."""
+    from .contact import led_levels, lit_leds
+    from .exposure import dark_file, dark_frame_fault, gel_of
+
+    gel = gel_of(press)
+    if (fault := dark_frame_fault(press, gel)) and fault[1]:
+        raise CaptureError(fault[0])
+    dead = np.flatnonzero(~lit_leds(led_levels(press.linear_led_images, gel)))
+    if dead.size:
+        names = (press.meta.get("images") or {}).get("leds") or []
+        said = ", ".join(f"LED {i + 1}" + (f" ({names[i]})" if len(names) == len(press.leds) else "") for i in dead)
+        raise CaptureError(
+            f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
+            f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
+        )

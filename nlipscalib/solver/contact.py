@@ -100,6 +100,26 @@ def led_levels(images: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return reuse.reused("led levels", (id(images), reuse.digest(valid)), levels, keep=images, most=1)
 
 
+def lit_leds(levels: np.ndarray, dead_level: float = tolerances.LIT_LEVEL) -> np.ndarray:
+    """Which LED images hold light: bright end at least ``dead_level`` and at least
+    :data:`~nlipscalib.core.tolerances.DEAD_LED_FRACTION` of the median LED image's (a dead LED's image is the dark
+    frame's noise, whose bright end can pass ``dead_level``).
+
+    Parameters
+    ----------
+    levels : (L,) float -- :func:`led_levels` (or another 99th percentile of each LED image), linear units.
+    dead_level : float -- absolute level, linear units (``SolverOptions.dead_led_level`` in a solve).
+
+    Returns
+    -------
+    (L,) bool
+    """
+    levels = np.asarray(levels, float)
+    if levels.size == 0:
+        return np.zeros(0, bool)
+    return levels >= max(dead_level, tolerances.DEAD_LED_FRACTION * float(np.median(levels)))
+
+
 NOISE_SAMPLES = masks.STATISTIC_PIXELS
 """Pixels :func:`image_noise` and :func:`led_levels` sample at least (all of the gel when it has fewer)."""
 
@@ -247,7 +267,7 @@ def _press_side(press: Press, grid: _Grid, indirect: np.ndarray | None, dead_lev
     noise (of the pixels), and the block size they were made at."""
     img, valid = press.linear_led_images, grid.pixels
     level = led_levels(img, valid)
-    dead = tuple(int(i) for i in np.flatnonzero(level < dead_level))
+    dead = tuple(int(i) for i in np.flatnonzero(~lit_leds(level, dead_level)))
     live = [i for i in range(len(img)) if i not in dead]
     if len(live) < tolerances.MIN_LEDS_PER_PIXEL:
         from .exposure import no_light_reason

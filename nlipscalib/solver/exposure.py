@@ -108,12 +108,12 @@ def nothing_to_fit(press: Press, gel: np.ndarray | None = None) -> str:
     """Why no sample of a capture can be fitted on (:func:`no_light_reason`, or a plainer word when the exposure
     does not explain it): no LED image gives light above the dark frame, or every lit one is saturated on the gel;
     "" when some sample is usable."""
-    from .contact import led_levels
+    from .contact import led_levels, lit_leds
 
     gel = gel_of(press) if gel is None else gel
     if not gel.any():
         return no_light_reason(press, gel, np.zeros(len(press.leds), bool))
-    live = led_levels(press.linear_led_images, gel) >= tolerances.LIT_LEVEL
+    live = lit_leds(led_levels(press.linear_led_images, gel))
     if _unsaturated_sample(press, gel, live):
         return ""
     return no_light_reason(press, gel, live) or ": no LED image holds an unsaturated sample lit above the dark frame"
@@ -133,3 +133,44 @@ def _unsaturated_sample(press: Press, gel: np.ndarray, live: np.ndarray) -> bool
         if image.max() < press.response.white_level or (dark_ok & ~press.saturated(image[gel])).any():
             return True
     return False
+
+
+def dark_frame_fault(press: Press, gel: np.ndarray | None = None) -> tuple[str, bool] | None:
+    """What is wrong with a capture's dark frame, and whether it is past using; None when it is a dark frame.
+
+    Its median on the gel, linear (``(dark - black_level) / (white_level - black_level)``), is compared with
+    :data:`~nlipscalib.core.tolerances.DARK_FRAME_OFFSET` either side of zero: above, it holds light (refused:
+    every image would be measured from another image); below, the black level of meta.json is not the sensor's
+    (a warning: the images are measured from the dark frame, each carrying that offset).
+
+    Parameters
+    ----------
+    press : Press
+    gel : (H, W) bool or None -- the pixels that see the gel (default :func:`gel_of`).
+
+    Returns
+    -------
+    (message, refuse) or None -- the message names the folder and the dark frame's file.
+    """
+    gel = gel_of(press) if gel is None else gel
+    if not gel.any():
+        return None
+    black, white = press.response.black_level, press.response.white_level
+    median = float(np.median(press.dark[gel]))
+    level = (median - black) / (white - black)
+    if abs(level) <= tolerances.DARK_FRAME_OFFSET:
+        return None
+    name = f"{press.folder}: {dark_file(press)}"
+    if level > 0:
+        return (
+            f"{name}: not a dark frame: its median on the gel, {median:g}, is {percent(level)} of full scale above "
+            f"the black level {black:g} (an LED lit, or room light?); capture it with every LED off",
+            True,
+        )
+    return (
+        f"{name}: its median on the gel, {median:g}, is {100 * -level:.1f} % of full scale below the black level "
+        f"{black:g} "
+        f"(meta.json sensor.black_level): that level is not this sensor's, or the dark frame is not; every image "
+        f"is measured from the dark frame, so each carries that offset",
+        False,
+    )

@@ -31,7 +31,7 @@ from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Leds, led_arrays, led_falloff, led_shading
 from ..core.sensor import DomeConfig, capture_design
 from . import radiosity, reuse, threads
-from .contact import led_levels
+from .contact import led_levels, lit_leds
 from .exposure import no_light_reason
 
 PATCH_TARGET = 80
@@ -580,7 +580,7 @@ def _fit_inputs(reference: Press, leds: Leds, shading: np.ndarray | reuse.Deferr
     # float32 (as loaded) is enough: the patch means multiply by float64 areas and sum in float64, and
     # a 0/1 usable mask multiplies exactly; float64 copies of these (L, H, W, 3) arrays cost 0.25 s
     lin = reference.linear_led_images
-    live = led_levels(lin, surf.valid) >= tolerances.LIT_LEVEL
+    live = lit_leds(led_levels(lin, surf.valid))
     saturated = reference.saturated_led_images
     usable = None  # the usual case, every LED live and nothing saturated on the gel: no (L, H, W, 3) mask
     if not live.all() or (saturated.any() and saturated[:, surf.valid].any()):

@@ -155,7 +155,14 @@ def solve(
             pixels = f"{n} pixel has" if n == 1 else f"{n} pixels have"
             log.warning("%s%s fewer than %d usable LEDs: not reconstructed (NaN)", named, pixels, opts.min_leds)
         if report["dead_leds"]:
-            log.warning("%sdead LEDs excluded (1-based): %s", named, [i + 1 for i in report["dead_leds"]])
+            numbers = ", ".join(str(i + 1) for i in report["dead_leds"])
+            many = "s" if len(report["dead_leds"]) > 1 else ""
+            log.warning(
+                "%sLED%s %s: image dark (no light above the dark frame's noise: dead LED?), left out of the solve",
+                named,
+                many,
+                numbers,
+            )
     return result
 
 

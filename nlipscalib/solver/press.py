@@ -38,9 +38,10 @@ from ..core import tolerances
 from ..core.capture import Press, as_press
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
-from .contact import ContactMap, anchor_weights, contact_box
-from .exposure import nothing_to_fit, saturated_share, saturation_note
+from .contact import ContactMap, anchor_weights, contact_box, led_levels, lit_leds
+from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
+from .led_checks import led_mismatch_notes
 from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, split_indirect
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -73,6 +74,7 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
+    led_notes = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
     result = _solve_press(press, **kwargs)
     drift = _median_displacement(result, press)
     options = kwargs.get("options") or SolverOptions()
@@ -91,7 +93,36 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             f"noise-adapted smoothness dropped: the first solve drifted {drift:.1f} mm"
         )
     _report_saturation(result, press)
+    if led_notes:
+        result.report["warnings"] = [*led_notes, *result.report.get("warnings", [])]
     return result
+
+
+def _capture_notes(press: Press, leds: Leds | None, options: SolverOptions | None) -> list[str]:
+    """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
+    when it holds light) and :func:`.led_checks.led_mismatch_notes` of its live LEDs. Made before the solve, so a
+    solve that then fails (e.g. "--roi auto found no contact" on a weak LED) has said why first."""
+    notes = []
+    if fault := dark_frame_fault(press):
+        message, refuse = fault
+        if refuse:
+            raise CaptureError(message)
+        log.warning("%s", message)
+        notes.append(message)
+    return notes + _led_notes(press, leds, options)
+
+
+def _led_notes(press: Press, leds: Leds | None, options: SolverOptions | None) -> list[str]:
+    """:func:`.led_checks.led_mismatch_notes` of the press's live LEDs, each logged as a warning."""
+    leds = press.leds if leds is None else tuple(leds)
+    if press.reference is None or len(leds) != len(press.leds):
+        return []  # no undeformed dome to model; a wrong LED count is refused by the solve
+    level = (options or SolverOptions()).dead_led_level
+    live = np.flatnonzero(lit_leds(led_levels(press.linear_led_images, np.isfinite(press.reference.depth)), level))
+    notes = led_mismatch_notes(press, leds, live)
+    for note in notes:
+        log.warning("%s", note)
+    return notes
 
 
 def _report_saturation(result: SolveResult, press: Press) -> None:

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..core import masks
 from . import threads
+from .contact import lit_leds
 from .options import SolverOptions
 
 
@@ -30,9 +31,8 @@ def exclusions(
     usable : (L, H, W, 3) bool
     report : dict -- dead_leds (0-based list), dead_pixels, saturated_samples, shadow_samples (counts)
     """
-    L = images.shape[0]
     per_led_high, per_channel_high = _bright_ends(images if whole is None else whole, images.dtype)
-    dead_leds = [i for i in range(L) if per_led_high[i] < options.dead_led_level]
+    dead_leds = [int(i) for i in np.flatnonzero(~lit_leds(per_led_high, options.dead_led_level))]
     # Shadow threshold per LED and channel, relative to that image's bright end.
     shadow_level = options.shadow_level * per_channel_high  # (L, 3)
     usable = np.empty(images.shape, bool)

@@ -76,6 +76,24 @@ def test_dead_led_with_auto_roi(tmp_path):
     assert evaluate(result, press.ground_truth)["contact"]["aae_deg"] < 2.0
 
 
+def test_a_dead_leds_noise_above_the_lit_level_is_still_a_dead_led(tmp_path):
+    """A dead LED's image is the dark frame plus read noise, whose bright end passes the absolute lit level
+    (0.0012 on the one-bounce twin, ~0.002 here): it is dead by its level against the other LEDs'
+    (``tolerances.DEAD_LED_FRACTION``), in the classification and the fit alike. It was taken as lit: on the
+    twin's cube press ``--roi auto`` then refused the press, "found no contact"."""
+    rng = np.random.default_rng(1)
+
+    def noise_only(lin):
+        lin = lin.copy()
+        lin[4] = np.abs(rng.normal(0.0, 0.0008, lin[4].shape))  # 99th percentile ~0.002 > LIT_LEVEL
+        return lin
+
+    press = load_press(synth.make_press(tmp_path / "noisy_dead", "sphere", lin_hook=noise_only))
+    result = solve_press(press, roi="auto", options=SolverOptions(max_iters=10))
+    assert result.report["dead_leds_contact"] == [4] and result.report["dead_leds"] == [4]
+    assert evaluate(result, press.ground_truth)["contact"]["aae_deg"] < 2.0
+
+
 def test_dead_led_level_reaches_the_contact_classification(tmp_path):
     """``SolverOptions.dead_led_level`` decides the dead LEDs of the contact classification (auto ROI, anchoring)
     as well as the fit's: an LED at 1 % of the others' intensity (its image's bright end ~0.006) is live at the

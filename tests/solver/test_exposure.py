@@ -13,7 +13,7 @@ from nlipscalib.core import load_press
 from nlipscalib.core.errors import CaptureError
 from nlipscalib.core.tolerances import SATURATED_SHARE_WARN
 from nlipscalib.solver import calibrate_leds, solve_press
-from nlipscalib.solver.exposure import saturated_share
+from nlipscalib.solver.exposure import dark_frame_fault, saturated_share
 from nlipscalib.solver.indirect import fit_indirect
 
 from . import synth
@@ -125,3 +125,44 @@ def test_a_noisy_black_capture_is_refused_before_the_led_fit(tmp_path):
     )
     with pytest.raises(CaptureError, match=r"no usable pixel to calibrate the LEDs on: its LED images .* are black"):
         calibrate_leds(load_press(folder), interreflection="off")
+
+
+def test_a_dark_frame_that_holds_light_is_refused_and_one_below_the_black_level_warned(tmp_path, capsys):
+    """An LED image saved as the dark frame was solved on to "no pixel could be reconstructed (... dead LEDs [1])";
+    a dark frame below meta.json's black level (zeros, black level 1024) moved the twin's cube press from 0.42 to
+    0.72 deg without a word. Now: "not a dark frame", exit 2; and a warning naming the dark frame, in report.json."""
+    from nlipscalib.core.imageio import read_png16, write_png16
+
+    lit = synth.make_press(tmp_path / "lit", "sphere")
+    write_png16(lit / "dark.png", read_png16(lit / "led_01.png"))
+    assert main(["solve", str(lit), "--roi", "auto", "--no-figures"]) == 2
+    err = capsys.readouterr().err
+    assert "dark.png: not a dark frame" in err and "Traceback" not in err
+
+    low = synth.make_press(tmp_path / "low", "sphere")
+    meta = json.loads((low / "meta.json").read_text())
+    meta["sensor"]["black_level"] = 1024.0  # the stored dark frame holds 256
+    (low / "meta.json").write_text(json.dumps(meta))
+    result = solve_press(load_press(low), roi="auto")
+    said = [n for n in result.report.get("warnings", []) if "dark.png" in n]
+    assert len(said) == 1 and "below the black level 1024" in said[0]
+    assert dark_frame_fault(load_press(synth.make_press(tmp_path / "clean", "sphere"))) is None
+
+
+def test_calibrate_leds_refuses_a_dead_led_and_a_lit_dark_frame_in_one_line_each(tmp_path):
+    """The LED fit of a dead LED diverged ("led.intensity must be 3 finite numbers, got (inf, inf, inf)" behind
+    numpy's "Mean of empty slice"); an LED image saved as the dark frame ran past 200 s on the twin's reference."""
+    from nlipscalib.core.imageio import read_png16, write_png16
+
+    def kill(lin):
+        lin = lin.copy()
+        lin[4] = 0.0
+        return lin
+
+    dead = synth.make_press(tmp_path / "dead", "none", lin_hook=kill)
+    with pytest.raises(CaptureError, match=r"LED 5 \(led_05.png\): image dark .*dead LED"):
+        calibrate_leds(load_press(dead))
+    lit = synth.make_press(tmp_path / "lit", "none")
+    write_png16(lit / "dark.png", read_png16(lit / "led_02.png"))
+    with pytest.raises(CaptureError, match="dark.png: not a dark frame"):
+        calibrate_leds(load_press(lit))

@@ -1,0 +1,115 @@
+"""Does each LED image show its own LED's light? Warnings for a weak LED and for LED images in the wrong order.
+
+Why: a capture whose LED images do not match the LED model was solved without a word about why (s26 QA walk on the
+one-bounce twin's cube press): two LED images swapped (a wiring error) gave a contact AAE of 5-6 deg and a depth 6.6
+mm off, with only "the solve drifted 6.2 mm from the undeformed surface"; an LED at 30 % of its power gave 0.64 deg
+on the whole gel (0.42 clean) and "--roi auto found no contact". Both are plain in the images: each LED image is
+compared with every LED's modelled shading of the undeformed dome, after a per-pixel albedo fitted over the LEDs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..core.camera import depth_to_points
+from ..core.capture import Press
+from ..core.leds import Led, led_shading
+
+WEAK_LED_GAIN = 0.6
+"""An LED whose image holds less than this fraction of the light the model gives it, relative to the median LED's
+fraction, is warned about as weak (or as brighter than modelled above 1 / this). The twin's LEDs: 1.05-1.10 of the
+model, within 5 % of their median; its 30 % LED: 0.29 of the median."""
+MATCH_CORRELATION = 0.5
+"""An LED image whose correlation over the gel with its own LED's modelled light is below this, and which
+correlates better with another LED's, is warned about as in the wrong place. The twin's images: 0.98-0.99 with their
+own LED; two swapped LED images: -0.55 and -0.51 with their own, 0.98 with each other's."""
+CHECK_PIXELS = 2000
+"""Gel pixels the check samples, at least (every k-th in raster order): its statistics are medians and
+correlations over the gel, steady at this count (the verdicts above are the same at 10^4 pixels)."""
+
+
+def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[str]:
+    """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs.
+
+    Parameters
+    ----------
+    press : Press -- with ``reference`` (none: no check, []).
+    leds : sequence of Led -- the LED model of the solve, in the order of ``press.led_images``.
+    live : sequence of int -- LEDs whose images hold light (0-based); dead ones are said elsewhere.
+
+    Returns
+    -------
+    list of str -- empty when every live LED image matches its LED.
+    """
+    live = [int(i) for i in live]
+    if press.reference is None or len(live) < 3:
+        return []
+    image, model = _samples(press, leds, live)
+    if image is None:
+        return []
+    names = _image_names(press)
+    notes = []
+    gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
+    relative = gain / np.median(gain)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
+        corr = np.corrcoef(image.mean(-1), model.mean(-1))[: len(live), len(live) :]
+    swapped = set()
+    for k, i in enumerate(live):
+        best = int(np.argmax(corr[k]))
+        if corr[k, k] < MATCH_CORRELATION and best != k:
+            j = live[best]
+            if int(np.argmax(corr[best])) == k and (j, i) not in swapped:
+                swapped.add((i, j))
+                notes.append(
+                    f"{press.folder}: the images of LED {i + 1} ({names[i]}) and LED {j + 1} ({names[j]}) look "
+                    f"swapped: each shows the other LED's light (correlation {corr[k, k]:.2f} with its own LED's "
+                    f"model, {corr[k, best]:.2f} with the other's): check the wiring, or the order of images.leds "
+                    f"in meta.json"
+                )
+            elif (j, i) not in swapped:
+                notes.append(
+                    f"{press.folder}: the image of LED {i + 1} ({names[i]}) does not show that LED's light "
+                    f"(correlation {corr[k, k]:.2f} with its model, {corr[k, best]:.2f} with LED {j + 1}'s): check "
+                    f"the wiring, the order of images.leds in meta.json, or the LED positions"
+                )
+        elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
+            what = "weak LED?" if relative[k] < 1 else "brighter than the others"
+            notes.append(
+                f"{press.folder}: LED {i + 1} ({names[i]}) gives {relative[k]:.2f} times the light the LED model "
+                f"expects of it, relative to the other LEDs ({what}): calibrate the LEDs on the undeformed dome "
+                f"(nlips calibrate-leds) and solve with --leds FILE"
+            )
+    return notes
+
+
+def _samples(press: Press, leds: Sequence[Led], live: list[int]) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The live LED images and their modelled light (albedo fitted per pixel and channel over the live LEDs) on a
+    subgrid of the gel: two (L_live, N, 3) float64 arrays, or (None, None) when too few gel pixels are lit."""
+    ref = press.reference
+    gel = np.isfinite(ref.depth)
+    index = np.flatnonzero(gel)
+    index = index[:: max(1, index.size // CHECK_PIXELS)]  # every k-th gel pixel in raster order
+    if index.size < 10:
+        return None, None
+    depth = ref.depth.reshape(-1)[index].astype(float)
+    rays = press.camera.rays.reshape(-1, 3)[index]
+    points = depth_to_points(depth, rays)
+    normals = ref.normals.reshape(-1, 3)[index].astype(float)
+    shading = led_shading(points, normals, [leds[i] for i in live])  # (L_live, N, 3)
+    image = np.stack([press.linear_led_images[i].reshape(-1, 3)[index] for i in live]).astype(float)
+    albedo = (shading * image).sum(0) / np.maximum((shading * shading).sum(0), 1e-24)
+    lit = (shading > 0).all(axis=(0, 2)) & (albedo > 0).all(axis=1)
+    if lit.sum() < 10:
+        return None, None
+    return image[:, lit], (albedo * shading)[:, lit]
+
+
+def _image_names(press: Press) -> list[str]:
+    """The LED images' file names as meta.json lists them (LED ``i`` at ``i``), or "image i" when they cannot be
+    matched (an LED subset)."""
+    names = (press.meta.get("images") or {}).get("leds")
+    if not isinstance(names, list) or len(names) != len(press.leds):
+        return [f"image {i + 1}" for i in range(len(press.leds))]
+    return [str(name) for name in names]

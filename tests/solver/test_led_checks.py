@@ -1,0 +1,47 @@
+"""LED images that do not show their LEDs (a wiring error, a weak LED) are warned about, naming the images."""
+
+import logging
+
+from nlipscalib.core import load_press
+from nlipscalib.solver import SolverOptions, solve_press
+from nlipscalib.solver.led_checks import led_mismatch_notes
+
+from . import synth
+
+
+def _press(tmp_path, name, hook=None):
+    return load_press(synth.make_press(tmp_path / name, "sphere", lin_hook=hook))
+
+
+def test_two_swapped_led_images_are_named_as_swapped_in_the_log_and_the_report(tmp_path, caplog):
+    """Two LED images in each other's place (a wiring error) were solved without a word about it (the twin's cube
+    press: contact AAE 6.1 deg, depth 6.7 mm off, only "the solve drifted"); the solve now names both images."""
+
+    def swap(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    press = _press(tmp_path, "swapped", swap)
+    with caplog.at_level(logging.WARNING):
+        result = solve_press(press, options=SolverOptions(max_iters=2))
+    said = [note for note in result.report.get("warnings", []) if "look swapped" in note]
+    assert len(said) == 1 and "LED 3 (led_03.png)" in said[0] and "LED 6 (led_06.png)" in said[0]
+    assert said[0] in caplog.text
+
+
+def test_a_weak_led_is_named_with_its_share_of_the_modelled_light(tmp_path):
+    def weaken(lin):
+        lin = lin.copy()
+        lin[4] *= 0.3
+        return lin
+
+    notes = led_mismatch_notes(_press(tmp_path, "weak", weaken), synth.ring_leds(), range(12))
+    assert len(notes) == 1 and "LED 5 (led_05.png) gives 0.3" in notes[0] and "weak LED?" in notes[0]
+
+
+def test_a_press_whose_images_match_their_leds_gets_no_led_warning(tmp_path):
+    press = _press(tmp_path, "clean")
+    assert led_mismatch_notes(press, press.leds, range(len(press.leds))) == []
+    result = solve_press(press, roi="auto", options=SolverOptions(max_iters=2))
+    assert not any("LED" in note for note in result.report.get("warnings", []))
