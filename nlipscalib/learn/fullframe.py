@@ -9,9 +9,9 @@ kernel), the network on every gel pixel, the change rule of :mod:`.change` (the 
 the reference normals kept where nothing changed (as on the CPU path; ``keep_reference=False``
 keeps the network's everywhere: ``--full-frame``). Then :mod:`.integrate_torch` integrates the
 changed pixels' boxes as the CPU does (per region where their common box does not apply, an edge box
-where one reaches the image border, a cosine box across the image), after the graph (the box's shape changes per
-frame), or the whole gel inside it (``--full-frame``, or a region the CPU solves otherwise: off the gel, as a rim
-box or on its sparse path).
+where one reaches the image border, a cosine box across the image, a rim box near the gel's outline; a region
+the CPU solves on its sparse path by the CPU's code on the host), after the graph (the box's shape changes per
+frame), or the whole gel inside it (``--full-frame``).
 """
 
 from __future__ import annotations
@@ -70,7 +70,9 @@ class FullFrame:
         self.filter = _GelFilter(valid, model.smoothing_px, device)
         # the whole gel (every pixel's normal from the network, or a region the boxes cannot solve) and the
         # changed pixels' boxes (the reference elsewhere, as on the CPU path)
-        self.integrator = DomeIntegrator(geo, device) if geo is not None else None
+        # the whole gel's set-up (a minute on two CPU cores for a gel that does not fill the image) only for it
+        self.integrator = DomeIntegrator(geo, device) if geo is not None and not keep_reference else None
+        self.has_geometry = geo is not None
         self.box_integrator = BoxIntegrator(geo, device) if geo is not None and keep_reference else None
         self.ref_points_host = depth_to_points(ref["depth"].astype(np.float32), camera.rays).astype(np.float32)
         self.ref_points = torch.as_tensor(self.ref_points_host, device=device)
@@ -113,7 +115,7 @@ class FullFrame:
                 out = self._compute(frame, stored)
             normals, changed, mismatch, points = out
             changed = changed.cpu().numpy()
-            if self.integrator is None:  # normals only: the reference surface, nothing to bring back
+            if not self.has_geometry:  # normals only: the reference surface, nothing to bring back
                 points = self.ref_points_host.copy()
             elif self.box_integrator is not None:
                 points = self._box_points(normals, changed)
@@ -125,23 +127,27 @@ class FullFrame:
         return normals, points[..., 2], points, changed, seconds, mismatch  # depth: the points' z, not downloaded
 
     def _box_points(self, normals: torch.Tensor, changed: np.ndarray):
-        """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels' box
-        solved, else per region a box, an edge box at the image border or a cosine box across the image, as on the
-        CPU path (:meth:`BoxIntegrator.boxes`; only the boxes come back from the device, in one copy), or the whole
-        gel solved where a region is none of these on the CPU (a rim box or its sparse path; the level from the
-        unchanged pixels)."""
+        """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels solved
+        as on the CPU path (:meth:`BoxIntegrator.plan`): their box, else per region a box, an edge box at the image
+        border, a cosine box across the image or a rim box on the device (only the boxes come back, in one copy),
+        and a region the CPU solves on its sparse path by the CPU's code on the host."""
         if not changed.any():
             return self.ref_points_host.copy()
-        boxes = self.box_integrator.boxes(changed)
-        if boxes is None:
-            return self.integrator(normals, self.torch.from_numpy(~changed).to(self.device))
+        integrator = self.box_integrator
+        plan = integrator.plan(changed)
         points = self.ref_points_host.copy()
-        solved = [self.box_integrator(normals, box, edges) for box, edges in boxes]  # queued on the device
-        flat = self.torch.cat([s.flatten() for s in solved]).cpu().numpy()  # the one wait for the device
-        start = 0
-        for (box, _), s in zip(boxes, solved):
-            points[box] = flat[start : start + s.numel()].reshape(s.shape)
-            start += s.numel()
+        # queued on the device
+        solved = [integrator(normals, box, edges) for box, edges in plan.boxes]
+        solved += [integrator.rim_box(normals, box) for box in plan.rim]
+        if solved:
+            flat = self.torch.cat([s.flatten() for s in solved]).cpu().numpy()  # the one wait for the device
+            start = 0
+            for box, s in zip([box for box, _ in plan.boxes] + plan.rim, solved):
+                points[box] = flat[start : start + s.numel()].reshape(s.shape)
+                start += s.numel()
+        for group in plan.host:
+            box, solved, solved_points = integrator.on_host(normals, changed, group)
+            points[box][solved] = solved_points
         return points
 
     def _compute(self, frame: torch.Tensor, stored: bool):

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
@@ -169,18 +169,40 @@ def integrate_on_dome(
             log_range = _solve_box(normals, geo, box, edges)
             points[box] = np.exp(log_range.astype(np.float32))[..., None] * geo.rays32[box]
         for i, crop in enumerate(sparse):
-            edges = _crop_edges(unknown, crop)
-            anchor = _rim_box_anchor(unknown, on_gel, crop, edges) if method == "auto" else None
-            if anchor is not None:
-                others = [box for box, _ in edge_boxes] + boxes + sparse[:i] + sparse[i + 1 :]
-                crop = _faster_rim_box(unknown, on_gel, crop, others, edges, anchor)
-                solved = _interior_mask(on_gel[crop], edges)
-                log_range = _solve_rim_box(normals, geo, on_gel, crop, edges, anchor)[solved]
-                points[crop][solved] = np.exp(log_range.astype(np.float32))[:, None] * geo.rays32[crop][solved]
-                continue
-            log_range = _solve_sparse(normals, unknown, on_gel, geo, crop)
-            points[crop][unknown[crop]] = np.exp(log_range)[:, None] * geo.rays[crop][unknown[crop]]
+            others = [box for box, _ in edge_boxes] + boxes + sparse[:i] + sparse[i + 1 :]
+            crop, solved, solved_points = solve_region_group(normals, unknown, on_gel, geo, crop, others, method)
+            points[crop][solved] = solved_points
     return points[..., 2], points
+
+
+def solve_region_group(
+    normals: np.ndarray,
+    unknown: np.ndarray,
+    on_gel: np.ndarray,
+    geo: RayGeometry,
+    crop: Box,
+    others: Sequence[Box],
+    method: str = "auto",
+) -> tuple[Box, np.ndarray, np.ndarray]:
+    """One region group that no box of :func:`_regions` solves (its bounds ``crop``; ``others`` the frame's other
+    boxes and groups), as :func:`integrate_on_dome` solves it: a rim box where one applies ("auto"), else the sparse
+    path. The torch path (:mod:`.integrate_torch`) calls it on the host for the groups it does not solve itself.
+
+    Returns
+    -------
+    box : the bounds solved (a rim box may grow past ``crop``)
+    solved : (h, w) bool over ``box`` -- the pixels solved
+    points : (n, 3) float, mm, camera frame -- their surface points, in ``solved`` order
+    """
+    edges = _crop_edges(unknown, crop)
+    anchor = _rim_box_anchor(unknown, on_gel, crop, edges) if method == "auto" else None
+    if anchor is not None:
+        crop = _faster_rim_box(unknown, on_gel, crop, others, edges, anchor)
+        solved = _interior_mask(on_gel[crop], edges)
+        log_range = _solve_rim_box(normals, geo, on_gel, crop, edges, anchor)[solved]
+        return crop, solved, np.exp(log_range.astype(np.float32))[:, None] * geo.rays32[crop][solved]
+    log_range = _solve_sparse(normals, unknown, on_gel, geo, crop)
+    return crop, unknown[crop], np.exp(log_range)[:, None] * geo.rays[crop][unknown[crop]]
 
 
 MAX_SPLIT_REGIONS = 256
@@ -429,6 +451,15 @@ def _flip(a: Array, axis: int) -> Array:
     return np.flip(a, axis) if isinstance(a, np.ndarray) else a.flip(axis)
 
 
+def _where(condition: Array, a: Array, b: Array) -> Array:
+    """numpy's where, or torch's for tensors."""
+    if isinstance(condition, np.ndarray):
+        return np.where(condition, a, b)
+    import torch
+
+    return torch.where(condition, a, b)
+
+
 def _mirror_line(arrays: list[Array], axis: int, edge: int) -> list[Array]:
     """normals, rays, d_u, d_v and log-range over a box with one line beyond the image border joined (``edge`` -1:
     before index 0 along ``axis``, +1: after the last): the border line's mirror image, in the place of a ring.
@@ -627,7 +658,8 @@ def _solve_rim_box(
     unit columns) lose their off-gel neighbours (V^T: minus their count on the diagonal, plus one at each off-gel
     interior neighbour, whose own rows stay L's: M is block triangular, its gel block the sparse path's).
     Woodbury: M x = f is x = L^-1 (f - U s) with the capacitance system (I + V^T L^-1 U) s = V^T L^-1 f, L^-1's
-    entries at the rim and its neighbours from :func:`_box_green`.
+    entries at the rim and its neighbours from :func:`_box_green`
+    (:func:`rim_box_capacitance`; :func:`rim_box_rhs` and :func:`rim_box_solve` are shared with the torch path).
     """
     from scipy.linalg import lu_factor, lu_solve
 
@@ -635,36 +667,15 @@ def _solve_rim_box(
 
     gel = on_gel[box]
     x = np.where(gel, geo.log_range[box], 0.0)
-    facing = np.where(gel[..., None], normals[box], -geo.rays[box])  # any finite normal off the gel: no pair uses it
     # beyond a side at the image border, a line with no pixel pair (off the gel for box_rhs) and nothing known
-    arrays = [_beyond_border(a, edges, 0.0) for a in (facing, geo.rays[box], geo.d_u[box], geo.d_v[box], x)]
-    f = box_rhs(*arrays, _beyond_border(gel, edges, False))
+    arrays = [_beyond_border(a, edges, 0.0) for a in (normals[box], geo.rays[box], geo.d_u[box], geo.d_v[box], x)]
+    f = rim_box_rhs(*arrays, _beyond_border(gel, edges, False))
     solved = _interior_mask(gel, edges)[tuple(_interior(edge) for edge in edges)]
-    f[~solved] = 0.0  # an off-gel pixel's row: L's own, decoupled from the gel's
     f[solved] += anchor * arrays[-1][1:-1, 1:-1][solved]
-    y = _box_solve(f, edges, anchor)
-    sides, rim_mask = _rim_rows(_beyond_border(gel, edges, True))  # the image border is no rim: L has it
-    if rim_mask.any():
-        n = f.shape[1]
-        rim = np.flatnonzero(rim_mask)
-        rr, rc = np.divmod(rim, n)
-        # V^T's entries: (rim row, interior pixel, value); the rim pixel itself, then its off-gel neighbours
-        rows, pixels, values = [np.arange(len(rim))], [rim], [-sum(side.ravel()[rim] for side in sides).astype(float)]
-        for (dr, dc), side in zip(((-1, 0), (1, 0), (0, -1), (0, 1)), sides):
-            nr, nc = rr + dr, rc + dc
-            inside = side.ravel()[rim] & (nr >= 0) & (nr < f.shape[0]) & (nc >= 0) & (nc < n)
-            rows.append(np.flatnonzero(inside))
-            pixels.append(nr[inside] * n + nc[inside])
-            values.append(np.ones(int(inside.sum())))
-        points, column = np.unique(np.concatenate(pixels), return_inverse=True)
-        v_t = np.zeros((len(rim), len(points)))
-        np.add.at(v_t, (np.concatenate(rows), column), np.concatenate(values))
-        with blas_threads(1):  # small dense products: a second BLAS thread only waits on a shared machine
-            green = _box_green(*np.divmod(points, n), rr, rc, *f.shape, edges, anchor)
-            capacitance = np.eye(len(rim)) + v_t @ green
-            s = lu_solve(lu_factor(capacitance), v_t @ y.ravel()[points])
-        f.ravel()[rim] -= s
-        y = _box_solve(f, edges, anchor)
+    rim, points, v_t, capacitance = rim_box_capacitance(gel, edges, anchor)
+    with blas_threads(1):  # a small dense factorisation: a second BLAS thread only waits on a shared machine
+        factor = lu_factor(capacitance) if len(rim) else None
+    y = rim_box_solve(f, lambda rhs: _box_solve(rhs, edges, anchor), rim, points, v_t, lambda b: lu_solve(factor, b))
     out = np.where(gel, geo.log_range[box], np.nan)
     out[tuple(_interior(edge) for edge in edges)][solved] = y[solved]
     return out
@@ -706,6 +717,95 @@ def _axis_modes(index: np.ndarray, n: int, edge: int = 0) -> np.ndarray:
         at = i + 1 + (n if edge < 0 else 0)  # 1-based place on the doubled path
         return 2 / np.sqrt(2 * n + 1) * np.sin(np.pi * np.outer(at, np.arange(1, 2 * n, 2)) / (2 * n + 1))
     return np.sqrt(2.0 / (n + 1)) * np.sin(np.pi * np.outer(i + 1, np.arange(1, n + 1)) / (n + 1))
+
+
+def rim_box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array, gel: Array) -> Array:
+    """Right-hand side of a rim box's solve (:func:`_solve_rim_box`); numpy or torch (shared with
+    :mod:`.integrate_torch`).
+
+    Parameters
+    ----------
+    normals, rays, d_u, d_v : (h, w, 3) over the box (the normals unit, toward the camera, where ``gel``)
+    x : (h, w) -- the reference log-range over the box, 0 off the gel
+    gel : (h, w) bool -- the box's gel pixels
+
+    Returns
+    -------
+    (h - 2, w - 2): :func:`box_rhs` with no pair across the gel's outline, 0 in an off-gel pixel's row (L's own,
+    decoupled from the gel's)
+    """
+    facing = _where(gel[..., None], normals, -rays)  # any finite normal off the gel: no pair uses it
+    f = box_rhs(facing, rays, d_u, d_v, x, gel)
+    return _where(gel[1:-1, 1:-1], f, 0 * f)
+
+
+def rim_box_capacitance(
+    gel: np.ndarray, edges: Edges = (0, 0), anchor: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The low-rank change of a rim box's Laplacian (:func:`_solve_rim_box`), from its gel pixels alone.
+
+    Parameters
+    ----------
+    gel : (h, w) bool -- the box's gel pixels
+    edges : its sides at the image border (no rim there: the box's Laplacian has that side, :func:`_box_solve`)
+    anchor : added to the Laplacian's diagonal (:func:`_rim_box_anchor`)
+
+    Returns
+    -------
+    rim : (r,) int64 -- flat indices (in the (h - 2, w - 2) interior) of the rim pixels
+    points : (P,) int64 -- flat interior indices where V^T has entries (the rim and its off-gel neighbours)
+    v_t : (r, P) float64 -- V^T on ``points``
+    capacitance : (r, r) float64 -- I + V^T L^-1 U
+    """
+    from ..core.blas import blas_threads
+
+    sides, rim_mask = _rim_rows(_beyond_border(gel, edges, True))  # the image border is no rim: L has it
+    m, n = rim_mask.shape
+    rim = np.flatnonzero(rim_mask)
+    rr, rc = np.divmod(rim, n)
+    # V^T's entries: (rim row, interior pixel, value); the rim pixel itself, then its off-gel neighbours
+    rows, pixels, values = [np.arange(len(rim))], [rim], [-sum(side.ravel()[rim] for side in sides).astype(float)]
+    for (dr, dc), side in zip(((-1, 0), (1, 0), (0, -1), (0, 1)), sides):
+        nr, nc = rr + dr, rc + dc
+        inside = side.ravel()[rim] & (nr >= 0) & (nr < m) & (nc >= 0) & (nc < n)
+        rows.append(np.flatnonzero(inside))
+        pixels.append(nr[inside] * n + nc[inside])
+        values.append(np.ones(int(inside.sum())))
+    points, column = np.unique(np.concatenate(pixels), return_inverse=True)
+    v_t = np.zeros((len(rim), len(points)))
+    np.add.at(v_t, (np.concatenate(rows), column), np.concatenate(values))
+    if not len(rim):
+        return rim, points, v_t, np.eye(0)
+    with blas_threads(1):  # small dense products: a second BLAS thread only waits on a shared machine
+        green = _box_green(*np.divmod(points, n), rr, rc, m, n, edges, anchor)
+        capacitance = np.eye(len(rim)) + v_t @ green
+    return rim, points, v_t, capacitance
+
+
+def rim_box_solve(
+    f: Array,
+    solve: Callable[[Array], Array],
+    rim: Array,
+    points: Array,
+    v_t: Array,
+    solve_capacitance: Callable[[Array], Array],
+) -> Array:
+    """(m, n) solution of a rim box's equation M y = f (:func:`_solve_rim_box`) by two box solves and one
+    capacitance solve; numpy or torch.
+
+    Parameters
+    ----------
+    f : (m, n) -- :func:`rim_box_rhs` (changed in place)
+    solve : the box's solve, L^-1 of an (m, n) array (:func:`_box_solve`, or the torch path's)
+    rim, points, v_t : of :func:`rim_box_capacitance` (as arrays of ``f``'s kind)
+    solve_capacitance : s with (I + V^T L^-1 U) s = b, of a (r,) b
+    """
+    y = solve(f)
+    if len(rim):
+        s = solve_capacitance(v_t @ y.reshape(-1)[points])
+        f.reshape(-1)[rim] -= s  # a view of f: contiguous (box_rhs's arithmetic made it)
+        y = solve(f)
+    return y
 
 
 def _green_cost(pr: np.ndarray, pc: np.ndarray, qr: np.ndarray, qc: np.ndarray, m: int, n: int) -> int:

@@ -4,9 +4,11 @@ Both solve the equation of :mod:`.integrate` (5-point Poisson in the log-range a
 rays, gradients averaged on each pixel pair; :func:`.integrate.edge_box_rhs` is shared).
 
 - :class:`BoxIntegrator`: the CPU's box solver (the changed pixels' box, its outer ring at the reference;
-  else per region a box, an edge box mirrored across the image border, or a box across the image with a cosine
-  axis: the same boxes and equations as :func:`.integrate.integrate_on_dome`'s "auto"), its sine (and cosine)
-  transforms by torch's FFT on a CPU and by dense matrix products on a GPU (no cuFFT plan per box size).
+  else per region a box, an edge box mirrored across the image border, a box across the image with a cosine
+  axis, or a rim box with the CPU's capacitance matrix: the same boxes and equations as
+  :func:`.integrate.integrate_on_dome`'s "auto"), its sine (and cosine) transforms by torch's FFT on a CPU and
+  by dense matrix products on a GPU (no cuFFT plan per box size). The regions the CPU solves otherwise (its
+  sparse path: rare on a real sensor) are solved by the CPU's own code on the host (:meth:`BoxIntegrator.on_host`).
 - :class:`DomeIntegrator`: every gel pixel whose neighbours in the image are all on the gel. The gel pixels
   next to them that meet the dome's base (an off-gel pixel) are the Dirichlet boundary, held at the undeformed
   reference: the gel is fixed there. The image border is a natural (Neumann) boundary: the surface there is
@@ -29,13 +31,30 @@ from __future__ import annotations
 import collections
 import functools
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from ..core.errors import ShapeError, require
 from ..core.tolerances import INTEGRATION_MIN_FACING
-from .integrate import BOTH_SIDES, Edges, RayGeometry, _box, _regions, box_eigenvalues, edge_box_parts, edge_box_rhs
+from .integrate import (
+    BOTH_SIDES,
+    Box,
+    Edges,
+    RayGeometry,
+    _box,
+    _crop_edges,
+    _faster_rim_box,
+    _regions,
+    _rim_box_anchor,
+    box_eigenvalues,
+    edge_box_parts,
+    edge_box_rhs,
+    rim_box_capacitance,
+    rim_box_rhs,
+    rim_box_solve,
+    solve_region_group,
+)
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
     import torch
@@ -199,6 +218,18 @@ class RecentCounts(collections.OrderedDict):
         return count
 
 
+class Plan(NamedTuple):
+    """How :class:`BoxIntegrator` solves a frame's changed pixels: the CPU's regions (:meth:`BoxIntegrator.plan`)."""
+
+    boxes: list[tuple[Box, Edges]]
+    """Boxes and edge boxes, each with its :data:`.integrate.Edges` ((0, 0): a box), solved on the device."""
+    rim: list[Box]
+    """Rim boxes (holding off-gel pixels; :func:`.integrate._solve_rim_box`'s equation), solved on the device."""
+    host: list[tuple[Box, list[Box]]]
+    """Region groups solved by the CPU's code on the host (its sparse path, and a rim box at the image border or
+    anchored): each group's bounds and the frame's other boxes and groups (which bound a rim box's growth)."""
+
+
 class BoxIntegrator:
     """:mod:`.integrate`'s box solver on a torch device: the changed pixels' box (grown to fast transform sizes,
     :func:`.integrate._box`), its interior solved with the outer ring at the reference, in float32 like the CPU's;
@@ -225,18 +256,52 @@ class BoxIntegrator:
         self.device = device
         # on a GPU as matrix products: a box of a new size would otherwise wait for its cuFFT plans
         self.dense = device.type == "cuda" if dense is None else dense
+        self.geo = geo
 
     def box(self, changed: np.ndarray) -> tuple[slice, slice] | None:
         """The box for ``changed`` ((H, W) bool on the gel), or None when it leaves the gel or touches the border."""
         return _box(changed, self.on_gel)
 
-    def boxes(self, changed: np.ndarray) -> list[tuple[tuple[slice, slice], Edges]] | None:
-        """The boxes and edge boxes (with their :data:`.integrate.Edges`) that solve ``changed`` ((H, W) bool on
-        the gel) as :func:`.integrate.integrate_on_dome` does (a box across the image too: its cosine axis), or
-        None where a region needs another solve there (its box leaves the gel: a rim box or the sparse path).
-        Decided on the host, like the CPU's."""
+    def plan(self, changed: np.ndarray) -> Plan:
+        """The boxes, edge boxes (with their :data:`.integrate.Edges`; a box across the image too: its cosine axis),
+        rim boxes and host regions that solve ``changed`` ((H, W) bool on the gel) as
+        :func:`.integrate.integrate_on_dome`'s "auto" does: its regions, and its rim box where one applies (the
+        same test and the same growth). Decided on the host, like the CPU's."""
         boxes, edge_boxes, sparse = _regions(changed, self.on_gel, "auto")
-        return None if sparse else [(b, (0, 0)) for b in boxes] + edge_boxes
+        rim, host = [], []
+        for i, crop in enumerate(sparse):
+            others = [box for box, _ in edge_boxes] + boxes + sparse[:i] + sparse[i + 1 :]
+            edges = _crop_edges(changed, crop)
+            # a plain rim box on the device; one at the image border or anchored (rare) by the CPU's code
+            if edges == (0, 0) and _rim_box_anchor(changed, self.on_gel, crop) == 0.0:
+                rim.append(_faster_rim_box(changed, self.on_gel, crop, others))
+            else:
+                host.append((crop, others))
+        return Plan([(b, (0, 0)) for b in boxes] + edge_boxes, rim, host)
+
+    def rim_box(self, normals: torch.Tensor, box: Box) -> torch.Tensor:
+        """(h, w, 3) float32 tensor: the surface points over a rim box (:attr:`Plan.rim`) from ``normals`` ((H, W, 3)
+        tensor): the CPU's equation and arithmetic (:func:`.integrate.rim_box_rhs`, :func:`.integrate.rim_box_solve`,
+        float64 like the CPU's), its capacitance matrix made once per box place on the host; NaN off the gel."""
+        torch = _torch()
+        r0, r1, c0, c1 = box[0].start, box[0].stop, box[1].start, box[1].stop
+        rim = self._rim_system(r0, r1, c0, c1)
+        index = self._index(r1 - r0, c1 - c0) + (r0 * self.width + c0)
+        rays, d_u, d_v = (a[index] for a in self._geometry64)
+        f = rim_box_rhs(normals.reshape(-1, 3)[index].to(torch.float64), rays, d_u, d_v, rim.known, rim.gel)
+        y = rim_box_solve(f, rim.solve, rim.rim, rim.points, rim.v_t, rim.solve_capacitance)
+        x = rim.reference.clone()  # NaN off the gel
+        x[1:-1, 1:-1] = torch.where(rim.solved, y, x[1:-1, 1:-1])
+        return torch.exp(x.to(torch.float32))[..., None] * self.rays[index]
+
+    def on_host(
+        self, normals: torch.Tensor, changed: np.ndarray, group: tuple[Box, list[Box]]
+    ) -> tuple[Box, np.ndarray, np.ndarray]:
+        """A region group of :attr:`Plan.host` solved by the CPU's code (:func:`.integrate.solve_region_group`,
+        the frame's normals copied to the host): its box, the (h, w) bool pixels solved there and their (n, 3)
+        surface points, mm, camera frame -- as the CPU path solves that group in that frame."""
+        crop, others = group
+        return solve_region_group(normals.cpu().numpy(), changed & self.on_gel, self.on_gel, self.geo, crop, others)
 
     def __call__(self, normals: torch.Tensor, box: tuple[slice, slice], edges: Edges = (0, 0)) -> torch.Tensor:
         """(h, w, 3) float32 tensor: the surface points over ``box`` from ``normals`` ((H, W, 3) tensor); an edge
@@ -301,6 +366,17 @@ class BoxIntegrator:
         torch = _torch()
         return torch.arange(h, device=self.device)[:, None] * self.width + torch.arange(w, device=self.device)
 
+    @functools.cached_property
+    def _geometry64(self):
+        """(H * W, 3) float64 tensors of the rays and their derivatives: a rim box's arithmetic is the CPU's
+        float64 (made on the first rim box)."""
+        geo = self.geo
+        return tuple(_torch().as_tensor(a, device=self.device).reshape(-1, 3) for a in (geo.rays, geo.d_u, geo.d_v))
+
+    @functools.lru_cache(maxsize=8)  # noqa: B019 -- per rim box place: a held contact repeats it
+    def _rim_system(self, r0: int, r1: int, c0: int, c1: int) -> _RimSystem:
+        return _RimSystem(self.on_gel[r0:r1, c0:c1], self.geo.log_range[r0:r1, c0:c1], self.device, self.dense)
+
     @functools.lru_cache(maxsize=32)  # noqa: B019
     def _graph(self, h: int, w: int, edges: Edges = (0, 0)):
         """The solve of an (h, w) box (an edge box: with its ``edges``) recorded as a CUDA graph; inputs: the normal
@@ -312,6 +388,30 @@ class BoxIntegrator:
         place = torch.zeros((), dtype=torch.long, device=self.device)
         solve = lambda n, o: self._solve(n, self._index(h, w) + o, edges)  # noqa: E731
         return record(solve, (normals, place), self.device, "The changed pixels' box solve")
+
+
+class _RimSystem:
+    """What a rim box's solve needs besides the frame's normals (:meth:`BoxIntegrator.rim_box`), on the device:
+    its gel pixels, the reference, the box's float64 Dirichlet solve and the capacitance matrix's LU factors
+    (:func:`.integrate.rim_box_capacitance`, made on the host as the CPU's)."""
+
+    def __init__(self, gel: np.ndarray, log_range: np.ndarray, device: torch.device, dense: bool):
+        torch = _torch()
+
+        def put(a: np.ndarray):
+            return torch.as_tensor(np.ascontiguousarray(a), device=device)
+
+        self.gel, self.solved = put(gel), put(gel[1:-1, 1:-1])
+        self.known = put(np.where(gel, log_range, 0.0))  # the reference log-range, 0 off the gel
+        self.reference = put(np.where(gel, log_range, np.nan))
+        rim, points, v_t, capacitance = rim_box_capacitance(gel)
+        self.rim, self.points, self.v_t = put(rim), put(points), put(v_t)
+        self.factors = torch.linalg.lu_factor(put(capacitance)) if len(rim) else None
+        self.solve = BoxPoisson(gel.shape[0] - 2, gel.shape[1] - 2, device, torch.float64, dense=dense)
+
+    def solve_capacitance(self, b: torch.Tensor) -> torch.Tensor:
+        """s with C s = b ((r,) float64), C the capacitance matrix."""
+        return _torch().linalg.lu_solve(*self.factors, b[:, None])[:, 0]
 
 
 class DomeIntegrator:

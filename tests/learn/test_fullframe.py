@@ -251,7 +251,7 @@ def test_the_device_path_solves_contacts_at_the_image_border_as_the_cpu_does(cas
     cpu, _ = integrate_on_dome(normals, changed, geo)
     assert [e for _, e in _regions(changed, np.isfinite(ref.depth), "auto")[1]] == edges
     box_integrator = BoxIntegrator(geo, CPU, dense=dense)
-    assert box_integrator.boxes(changed) is not None  # not the whole gel
+    assert box_integrator.plan(changed)[1:] == ([], [])  # boxes: no rim box, nothing on the host
     path = SimpleNamespace(box_integrator=box_integrator, torch=torch, device=CPU, ref_points_host=geo.points)
     got = FullFrame._box_points(path, torch.from_numpy(normals.astype(np.float32)), changed)[..., 2]
     np.testing.assert_allclose(got, cpu, atol=TORCH_INTEGRATION_PARITY_MM)
@@ -288,10 +288,136 @@ def test_the_device_path_solves_a_contact_across_the_image_in_the_cpus_cosine_bo
     cpu, _ = integrate_on_dome(normals, changed, geo)
     assert np.abs(cpu - ref.depth)[changed].max() > 0.1  # mm: a surface unlike the dome
     box_integrator = BoxIntegrator(geo, CPU, dense=dense)
-    assert box_integrator.boxes(changed) is not None  # a box, not the whole gel
+    assert box_integrator.plan(changed)[1:] == ([], [])  # boxes: no rim box, nothing on the host
     path = SimpleNamespace(box_integrator=box_integrator, torch=torch, device=CPU, ref_points_host=geo.points)
     got = FullFrame._box_points(path, torch.from_numpy(normals.astype(np.float32)), changed)[..., 2]
     np.testing.assert_allclose(got, cpu, atol=TORCH_INTEGRATION_PARITY_MM)
+
+
+def _device_path_points(geo, normals, changed, dense):
+    """``FullFrame._box_points`` (what ``--device`` runs after the network) on torch's CPU device, and its plan."""
+    from types import SimpleNamespace
+
+    from nlipscalib.learn.fullframe import FullFrame
+    from nlipscalib.learn.integrate_torch import BoxIntegrator
+
+    box_integrator = BoxIntegrator(geo, CPU, dense=dense)
+    path = SimpleNamespace(box_integrator=box_integrator, torch=torch, device=CPU, ref_points_host=geo.points)
+    tensor = torch.from_numpy(np.nan_to_num(normals).astype(np.float32))  # the device path: 0 off the gel
+    return FullFrame._box_points(path, tensor, changed), box_integrator.plan(changed)
+
+
+def _rim_blob(seed):
+    """The flat pad, a blob of random smooth normals near its rim (tests/learn/test_integrate.py's rim box case)."""
+    from scipy import ndimage
+
+    from tests.learn.test_integrate import _flat_pad
+
+    _, ref, geo, on_gel = _flat_pad()
+    rng = np.random.default_rng(seed)
+    row = int(rng.integers(60, 420))
+    side = np.flatnonzero(on_gel[row])[[0, -1][seed % 2]]
+    col = side + int(rng.integers(-5, 15)) * (1 if seed % 2 == 0 else -1)
+    rr, cc = np.mgrid[: on_gel.shape[0], : on_gel.shape[1]]
+    changed = ((rr - row) ** 2 + (cc - col) ** 2 < int(rng.integers(15, 45)) ** 2) & on_gel
+    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (6, 6, 0)) * 10
+    normals = ref.normals + np.where(changed[..., None], tilt, 0)
+    with np.errstate(invalid="ignore"):  # NaN off the gel
+        return ref, geo, changed, normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+
+
+@pytest.mark.parametrize("dense", [False, True], ids=["fft", "matrices"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_device_path_solves_a_contact_at_the_pads_rim_in_the_cpus_rim_box(seed, dense):
+    """Random smooth normals near the flat pad's rim (its box holds off-gel pixels): the torch path solves the
+    CPU's rim box (the same capacitance matrix) -- it solved the whole gel, 0.15-6 mm off the CPU's here."""
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn.integrate import integrate_on_dome
+
+    ref, geo, changed, normals = _rim_blob(seed)
+    cpu, _ = integrate_on_dome(normals, changed, geo)
+    assert np.abs(cpu - ref.depth)[changed].max() > 0.05  # mm: a surface unlike the pad
+    points, plan = _device_path_points(geo, normals, changed, dense)
+    assert plan.boxes == plan.host == [] and len(plan.rim) == 1
+    np.testing.assert_allclose(points[..., 2], cpu, atol=TORCH_INTEGRATION_PARITY_MM)  # NaN off the gel in both
+
+
+def test_the_device_path_hands_a_rim_box_at_the_image_border_to_the_cpus_code():
+    """A contact at the flat pad's rim that also reaches the image border (the CPU's rim box with a mirrored side),
+    beside a plain rim contact: the plain one on the device, the border one by the CPU's code on the host, with
+    the frame's other groups bounding its growth as on the CPU -- together the CPU's depth."""
+    from scipy import ndimage
+
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn.integrate import integrate_on_dome
+    from tests.learn.test_integrate import _flat_pad
+
+    _, ref, geo, on_gel = _flat_pad()
+    rng = np.random.default_rng(3)
+    rr, cc = np.mgrid[: on_gel.shape[0], : on_gel.shape[1]]
+    top = np.flatnonzero(on_gel[2])[0] + 5
+    plain = np.flatnonzero(on_gel[240])[-1] - 10
+    changed = (((rr - 2) ** 2 + (cc - top) ** 2 < 30**2) | ((rr - 240) ** 2 + (cc - plain) ** 2 < 25**2)) & on_gel
+    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (6, 6, 0)) * 10
+    normals = ref.normals + np.where(changed[..., None], tilt, 0)
+    with np.errstate(invalid="ignore"):  # NaN off the gel
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    cpu, _ = integrate_on_dome(normals, changed, geo)
+    assert np.abs(cpu - ref.depth)[changed].max() > 0.05  # mm: a surface unlike the pad
+    got, plan = _device_path_points(geo, normals, changed, dense=False)
+    assert plan.boxes == [] and len(plan.rim) == len(plan.host) == 1
+    np.testing.assert_allclose(got[..., 2], cpu, atol=TORCH_INTEGRATION_PARITY_MM)
+
+
+@pytest.mark.parametrize(("polar", "azimuth", "radius"), [(48, 0, 5.0), (45, 20, 4.0)])
+def test_the_device_path_finds_a_sphere_at_the_pads_rim_as_the_cpu_does(polar, azimuth, radius):
+    from scipy import ndimage
+
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn.integrate import integrate_on_dome
+    from tests.learn.test_integrate import _flat_pad, _sphere_pressed_into_the_dome
+
+    design, ref, geo, on_gel = _flat_pad()
+    _, _, hit, points, normals = _sphere_pressed_into_the_dome(design, polar, azimuth, radius, 1.0)
+    changed = ndimage.binary_dilation(hit, iterations=3) & on_gel
+    cpu, _ = integrate_on_dome(normals, changed, geo)
+    got, plan = _device_path_points(geo, normals, changed, dense=False)
+    assert len(plan.rim) == 1
+    np.testing.assert_allclose(got[..., 2], cpu, atol=TORCH_INTEGRATION_PARITY_MM)
+    true_dent = (ref.depth - points[..., 2])[changed].max()
+    assert (ref.depth - got[..., 2])[changed].max() == pytest.approx(true_dent, rel=0.02)
+
+
+@pytest.mark.parametrize("case", ["across both axes", "an island"])
+def test_the_device_path_hands_the_cpus_sparse_regions_to_the_cpu(case):
+    """Regions the CPU solves on its sparse path (a cross over the whole image: no fixed pixel in its box; a gel
+    island touching no fixed pixel, held by the anchor) are solved by the CPU's code on the host: the CPU's depth
+    (the whole gel solved was a different equation), and a box elsewhere still on the device."""
+    from scipy import ndimage
+
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn.integrate import integrate_on_dome
+    from tests.learn.test_integrate import _band, _dome_and_sphere
+
+    ref, geo, on_gel, _, _ = _dome_and_sphere()
+    if case == "an island":  # a ring off the gel around a square of it: the island's level is the anchor's
+        depth = ref.depth.astype(np.float64)
+        depth[150:250, 250:350] = np.nan
+        depth[170:230, 270:330] = ref.depth[170:230, 270:330]
+        geo = RayGeometry.from_reference(geo.rays, depth)
+        changed = np.zeros_like(on_gel)
+        changed[170:230, 270:330] = True  # the whole island
+        changed[300:330, 450:480] = True  # and a contact elsewhere, in a box
+    else:
+        changed = _band(on_gel.shape, 0, 200, 210) | _band(on_gel.shape, 1, 300, 310)
+    tilt = ndimage.gaussian_filter(np.random.default_rng(5).normal(size=on_gel.shape + (3,)), (8, 8, 0)) * 20
+    normals = ref.normals + np.where(changed[..., None], tilt, 0)
+    normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    cpu, _ = integrate_on_dome(normals, changed, geo)
+    assert np.nanmax(np.abs(cpu - ref.depth)[changed]) > 0.1  # mm: a surface unlike the dome
+    got, plan = _device_path_points(geo, normals, changed, dense=False)
+    assert len(plan.host) == 1 and plan.rim == [] and len(plan.boxes) == (case == "an island")
+    np.testing.assert_allclose(got[..., 2], cpu, atol=TORCH_INTEGRATION_PARITY_MM)
 
 
 def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_elsewhere(trained, twin_presses):
@@ -330,11 +456,12 @@ def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_els
     across = device_path._box_points(torch.from_numpy(normals), band)
     _, want = integrate_on_dome(normals, band, cpu_predictor.geo)
     np.testing.assert_allclose(across, want, atol=TORCH_INTEGRATION_PARITY_MM)
-    # across both axes (the CPU's sparse path): the whole gel is solved
+    # across both axes (the CPU's sparse path): the CPU's own solve on the host
     cross = band.copy()
     cross[:, 30:34] = True
-    whole = device_path._box_points(torch.from_numpy(normals), cross)
-    np.testing.assert_allclose(whole, device_path.integrator(torch.from_numpy(normals), torch.from_numpy(~cross)))
+    across_both = device_path._box_points(torch.from_numpy(normals), cross)
+    _, want = integrate_on_dome(normals, cross, cpu_predictor.geo)
+    np.testing.assert_allclose(across_both, want, atol=TORCH_INTEGRATION_PARITY_MM)
     # the network's normals everywhere (--full-frame): the whole gel's level from the pixels the rule left unchanged
     whole_path = FullFrame(cpu_predictor.model, CPU, cpu_predictor.geo, keep_reference=False)
     frame = torch.from_numpy(press.linear(press.tricolor))
