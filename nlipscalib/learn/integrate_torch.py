@@ -8,7 +8,8 @@ rays, gradients averaged on each pixel pair; :func:`.integrate.edge_box_rhs` is 
   axis, or a rim box with the CPU's capacitance matrix: the same boxes and equations as
   :func:`.integrate.integrate_on_dome`'s "auto"), its sine (and cosine) transforms by torch's FFT on a CPU and
   by dense matrix products on a GPU (no cuFFT plan per box size). The regions the CPU solves otherwise (its
-  sparse path: rare on a real sensor) are solved by the CPU's own code on the host (:meth:`BoxIntegrator.on_host`).
+  sparse path, and its rim boxes at the image border or anchored: rare on a real sensor) are solved by the CPU's
+  own code on the host (:meth:`BoxIntegrator.on_host`, :func:`.integrate.solve_region_group`).
 - :class:`DomeIntegrator`: every gel pixel whose neighbours in the image are all on the gel. The gel pixels
   next to them that meet the dome's base (an off-gel pixel) are the Dirichlet boundary, held at the undeformed
   reference: the gel is fixed there. The image border is a natural (Neumann) boundary: the surface there is
