@@ -34,7 +34,9 @@ SINGLE, BATCH, EXPERIMENT = 2, 1, 0
 values of :data:`PRESS_DETAIL` and :data:`PRESS_SUMMARY` up to it)."""
 _press_lines = SINGLE
 """What :func:`press_lines` last chose (handed to worker processes by :func:`worker_logging`)."""
-FILE_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+FILE_FORMAT = "%(asctime)s [%(process)d] %(levelname)s %(name)s: %(message)s"
+"""A log file's line: when, which process (two runs appending to one file, a run's worker processes), how grave,
+where from, what."""
 STDERR_FORMAT = "%(levelname)s %(message)s"
 
 
@@ -139,9 +141,10 @@ class AppendFileHandler(logging.Handler):
 _OURS = "_nlips_handler"
 
 
-def file_log(level: int, message: str) -> None:
-    """Record ``message`` in the log file only (for lines already printed on the terminal)."""
-    record = logging.LogRecord("nlipscalib", level, __file__, 0, message, None, None)
+def file_log(level: int, message: str, exc_info: bool = False) -> None:
+    """Record ``message`` in the log file only (for lines already printed on the terminal); ``exc_info``: with the
+    traceback of the exception being handled."""
+    record = logging.LogRecord("nlipscalib", level, __file__, 0, message, None, sys.exc_info() if exc_info else None)
     for handler in logging.getLogger().handlers:
         if getattr(handler, _OURS, False) and isinstance(handler, AppendFileHandler):
             handler.handle(record)
