@@ -209,3 +209,15 @@ def test_an_interrupted_command_says_so_in_the_log_file(tmp_path, monkeypatch, c
     assert main(["--log-file", str(log), "cache"]) == 130
     lines = log.read_text().splitlines()
     assert "WARNING nlipscalib: nlips cache: interrupted;" in lines[-2] and "exit status 130" in lines[-1], lines
+
+
+def test_verbose_shows_our_debug_lines_not_the_libraries(tmp_path, capsys):
+    """`nlips -v --log-file F train` for a minute wrote 2,200 lines, 2,191 of them matplotlib's font scoring."""
+    log = tmp_path / "lab.log"
+    progress.configure(progress=False, verbose=True, log_file=log)
+    logging.getLogger("matplotlib.font_manager").debug("findfont: score(FontEntry(...)) = 10.05")
+    logging.getLogger("nlipscalib.solver").debug("kept: identical result")
+    logging.getLogger("distributed.worker").warning("a library's warning still shows")
+    text = log.read_text()
+    assert "findfont" not in text and "kept: identical result" in text and "a library's warning" in text
+    assert "findfont" not in capsys.readouterr().err
