@@ -29,6 +29,10 @@ PRESS_SUMMARY = {"press_line": 1}
 """``extra`` of a press's one summary line (pixels reconstructed, solver time, where it was saved): on stderr for a
 single press and per press of a batch (``nlips solve FOLDER``, ``nlips calibrate``); not in experiments, whose task
 bar and report say it (``-v`` shows it there)."""
+FILE_ONLY = {"file_only": True}
+"""``extra`` of a long run's periodic log line (a training's epoch): in the ``--log-file`` always, on stderr only with
+``-v``. Why: a terminal's bar shows the same, and 200 such lines would bury a job's stderr; but the file of a
+three-hour training held nothing between its start and its end, so a crash left no trace of how far it got."""
 SINGLE, BATCH, EXPERIMENT = 2, 1, 0
 """What :func:`press_lines` shows on stderr: every press line, the summaries only, none (the ``press_line``
 values of :data:`PRESS_DETAIL` and :data:`PRESS_SUMMARY` up to it)."""
@@ -222,9 +226,13 @@ class _LinesToLog(io.TextIOBase):
 
 
 def _shown_on_stderr(record: logging.LogRecord) -> bool:
-    """Whether a record goes to stderr: any but a per-press line beyond :func:`press_lines`, unless ``-v``."""
+    """Whether a record goes to stderr: any but a per-press line beyond :func:`press_lines` and a :data:`FILE_ONLY`
+    line, unless ``-v``."""
+    verbose = logging.getLogger().getEffectiveLevel() <= logging.DEBUG
+    if getattr(record, "file_only", False):
+        return verbose
     line = getattr(record, "press_line", None)
-    return line is None or line <= _press_lines or logging.getLogger().getEffectiveLevel() <= logging.DEBUG
+    return line is None or line <= _press_lines or verbose
 
 
 def _add(root: logging.Logger, handler: logging.Handler, fmt: str) -> None:

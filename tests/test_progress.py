@@ -221,3 +221,12 @@ def test_verbose_shows_our_debug_lines_not_the_libraries(tmp_path, capsys):
     text = log.read_text()
     assert "findfont" not in text and "kept: identical result" in text and "a library's warning" in text
     assert "findfont" not in capsys.readouterr().err
+
+
+def test_a_file_only_line_reaches_stderr_only_with_verbose():
+    record = logging.LogRecord("nlipscalib.learn.train", logging.INFO, __file__, 0, "epoch 3", None, None)
+    record.__dict__.update(progress.FILE_ONLY)
+    progress.configure(progress=False)
+    assert not progress._shown_on_stderr(record)
+    progress.configure(progress=False, verbose=True)
+    assert progress._shown_on_stderr(record)
