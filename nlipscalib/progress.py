@@ -11,7 +11,7 @@ import io
 import logging
 import os
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TextIO
@@ -223,6 +223,82 @@ class _LinesToLog(io.TextIOBase):
 
     def fileno(self) -> int:
         return self.real.fileno()
+
+
+REPEAT_SUMMARY_S = 60.0
+"""Seconds between the lines of :class:`RepeatedWarning` that count a warning's repeats."""
+
+
+class RepeatedWarning:
+    """A warning that can come for every one of many inputs (each frame of a stream or of a folder): the first
+    ``first`` in full, each later one at DEBUG only (``-v``), and at most one WARNING line per ``every_s`` counting
+    them, "... repeated 1800 more times in the last 60 s (the latest: camera 0 frame 5399)"; one that comes after
+    ``every_s`` without any is in full again (a fault that came back). :meth:`flush` counts the ones not yet
+    counted (at the end of the run).
+
+    Why: ``nlips infer`` of a folder of frames taken at another exposure logged the same 500-character warning for
+    every frame (30 frames: 30 warnings; a 15 frames/s recording: 54,000 an hour), on stderr and in the
+    ``--log-file``, while a stream said it once for the whole day, missing a fault that came back hours later.
+
+    Parameters
+    ----------
+    logger : logging.Logger
+        The logger the lines go to.
+    what : str
+        The warning in a few words, for the counting line ("a frame unlike the calibration's reference").
+    first : int
+        How many are logged in full.
+    every_s : float
+        Seconds between counting lines, :data:`REPEAT_SUMMARY_S` unless given.
+    clock : callable
+        Seconds now (``time.monotonic``; a test's own).
+    """
+
+    def __init__(
+        self,
+        logger: logging.Logger,
+        what: str,
+        first: int = 1,
+        every_s: float = REPEAT_SUMMARY_S,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
+        import time
+
+        self.logger, self.what, self.first, self.every_s = logger, what, first, every_s
+        self.clock = clock or time.monotonic
+        self.count = 0
+        """How many times the warning came (the full ones included)."""
+        self._held, self._since, self._latest, self._last = 0, 0.0, "", 0.0
+
+    def __call__(self, message: str, where: str) -> None:
+        """The warning ``message`` about the input ``where`` (a frame's name, for the counting line)."""
+        self.count += 1
+        now, last = self.clock(), self._last
+        self._last = now
+        if self.count <= self.first or (not self._held and now - last >= self.every_s):
+            self.logger.warning("%s", message)  # one of the first, or the first after a quiet minute: in full
+            return
+        self.logger.debug("%s", message)
+        if not self._held:
+            self._since = now
+        self._held, self._latest = self._held + 1, where
+        if now - self._since >= self.every_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Count the repeats not counted yet (nothing when there are none)."""
+        if not self._held:
+            return
+        seconds = self.clock() - self._since
+        self.logger.warning(
+            "%s: repeated %d more time%s in the last %.0f s (the latest: %s; -v logs each)",
+            self.what,
+            self._held,
+            "" if self._held == 1 else "s",
+            seconds,
+            self._latest,
+        )
+        self._held = 0
 
 
 def _shown_on_stderr(record: logging.LogRecord) -> bool:
