@@ -230,3 +230,14 @@ def test_a_file_only_line_reaches_stderr_only_with_verbose():
     assert not progress._shown_on_stderr(record)
     progress.configure(progress=False, verbose=True)
     assert progress._shown_on_stderr(record)
+
+
+def test_a_dataset_logs_each_press_and_how_far_it_got_in_the_log_file_without_verbose(tmp_path, monkeypatch, capsys):
+    """A long `nlips --log-file F dataset` left only its end in F: the presses were logged at DEBUG (-v only)."""
+    spec, out, log = tmp_path / "spec.toml", tmp_path / "out", tmp_path / "run.log"
+    spec.write_text(SPEC)
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render([]))
+    assert main(["--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
+    lines = [line.split(": ", 1)[1] for line in log.read_text().splitlines() if "] INFO nlipscalib.sim." in line]
+    presses = [line for line in lines if line.startswith("press ")]
+    assert presses and presses[-1].endswith(f"rendered ({len(presses)} of {len(presses)})"), lines
