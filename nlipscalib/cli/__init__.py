@@ -228,9 +228,12 @@ def _log_start(argv: Sequence[str]) -> None:
     version; with two runs writing at once, the process id tells their lines apart (each line carries it)."""
     import shlex
 
+    try:
+        where = os.getcwd()
+    except OSError:  # the working folder was removed: the line is still written, the command still runs
+        where = "a removed folder"
     progress.file_log(
-        logging.INFO,
-        f"nlips {__version__} started (pid {os.getpid()}, in {os.getcwd()}): nlips {shlex.join(argv)}",
+        logging.INFO, f"nlips {__version__} started (pid {os.getpid()}, in {where}): nlips {shlex.join(argv)}"
     )
 
 
