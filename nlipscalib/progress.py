@@ -12,7 +12,7 @@ import io
 import logging
 import os
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TextIO
@@ -30,12 +30,18 @@ PRESS_SUMMARY = {"press_line": 1}
 """``extra`` of a press's one summary line (pixels reconstructed, solver time, where it was saved): on stderr for a
 single press and per press of a batch (``nlips solve FOLDER``, ``nlips calibrate``); not in experiments, whose task
 bar and report say it (``-v`` shows it there)."""
+FILE_ONLY = {"file_only": True}
+"""``extra`` of a long run's periodic log line (a training's epoch): in the ``--log-file`` always, on stderr only with
+``-v``. Why: a terminal's bar shows the same, and 200 such lines would bury a job's stderr; but the file of a
+three-hour training held nothing between its start and its end, so a crash left no trace of how far it got."""
 SINGLE, BATCH, EXPERIMENT = 2, 1, 0
 """What :func:`press_lines` shows on stderr: every press line, the summaries only, none (the ``press_line``
 values of :data:`PRESS_DETAIL` and :data:`PRESS_SUMMARY` up to it)."""
 _press_lines = SINGLE
 """What :func:`press_lines` last chose (handed to worker processes by :func:`worker_logging`)."""
-FILE_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+FILE_FORMAT = "%(asctime)s [%(process)d] %(levelname)s %(name)s: %(message)s"
+"""A log file's line: when, which process (two runs appending to one file, a run's worker processes), how grave,
+where from, what."""
 STDERR_FORMAT = "%(levelname)s %(message)s"
 
 
@@ -89,6 +95,7 @@ def _setup(level: int, log_file: str | Path | None) -> None:
     if not root.handlers:
         stderr = logging.StreamHandler(sys.stderr)
         stderr.addFilter(_shown_on_stderr)
+        stderr.addFilter(_debug_of_ours)
         _add(root, stderr, STDERR_FORMAT)
     _log_file = None
     if log_file:
@@ -99,8 +106,19 @@ def _setup(level: int, log_file: str | Path | None) -> None:
                 f"--log-file {log_file}: a folder; give the file to append the log to (e.g. {log_file}/nlips.log)"
             )
         Path(log_file).parent.mkdir(parents=True, exist_ok=True)
-        _add(root, AppendFileHandler(log_file), FILE_FORMAT)
+        file = AppendFileHandler(log_file)
+        file.addFilter(_debug_of_ours)
+        _add(root, file, FILE_FORMAT)
         _log_file = str(Path(log_file).absolute())
+
+
+def _debug_of_ours(record: logging.LogRecord) -> bool:
+    """Whether a record is shown: any at INFO and above, DEBUG ones of nlipscalib's loggers only.
+
+    Why: ``-v`` sets the root logger to DEBUG, and the libraries' debug lines came with ours: a one-minute
+    ``nlips -v --log-file F train`` wrote 2,200 lines, 2,191 of them matplotlib's font scoring ("findfont:
+    score(FontEntry(...))"), burying the run's own three."""
+    return record.levelno >= logging.INFO or record.name == "nlipscalib" or record.name.startswith("nlipscalib.")
 
 
 class AppendFileHandler(logging.Handler):
@@ -140,9 +158,10 @@ class AppendFileHandler(logging.Handler):
 _OURS = "_nlips_handler"
 
 
-def file_log(level: int, message: str) -> None:
-    """Record ``message`` in the log file only (for lines already printed on the terminal)."""
-    record = logging.LogRecord("nlipscalib", level, __file__, 0, message, None, None)
+def file_log(level: int, message: str, exc_info: bool = False) -> None:
+    """Record ``message`` in the log file only (for lines already printed on the terminal); ``exc_info``: with the
+    traceback of the exception being handled."""
+    record = logging.LogRecord("nlipscalib", level, __file__, 0, message, None, sys.exc_info() if exc_info else None)
     for handler in logging.getLogger().handlers:
         if getattr(handler, _OURS, False) and isinstance(handler, AppendFileHandler):
             handler.handle(record)
@@ -207,10 +226,90 @@ class _LinesToLog(io.TextIOBase):
         return self.real.fileno()
 
 
+REPEAT_SUMMARY_S = 60.0
+"""Seconds between the lines of :class:`RepeatedWarning` that count a warning's repeats."""
+
+
+class RepeatedWarning:
+    """A warning that can come for every one of many inputs (each frame of a stream or of a folder): the first
+    ``first`` in full, each later one at DEBUG only (``-v``), and at most one WARNING line per ``every_s`` counting
+    them, "... repeated 1800 more times in the last 60 s (the latest: camera 0 frame 5399)"; one that comes after
+    ``every_s`` without any is in full again (a fault that came back). :meth:`flush` counts the ones not yet
+    counted (at the end of the run).
+
+    Why: ``nlips infer`` of a folder of frames taken at another exposure logged the same 500-character warning for
+    every frame (30 frames: 30 warnings; a 15 frames/s recording: 54,000 an hour), on stderr and in the
+    ``--log-file``, while a stream said it once for the whole day, missing a fault that came back hours later.
+
+    Parameters
+    ----------
+    logger : logging.Logger
+        The logger the lines go to.
+    what : str
+        The warning in a few words, for the counting line ("a frame unlike the calibration's reference").
+    first : int
+        How many are logged in full.
+    every_s : float
+        Seconds between counting lines, :data:`REPEAT_SUMMARY_S` unless given.
+    clock : callable
+        Seconds now (``time.monotonic``; a test's own).
+    """
+
+    def __init__(
+        self,
+        logger: logging.Logger,
+        what: str,
+        first: int = 1,
+        every_s: float = REPEAT_SUMMARY_S,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
+        import time
+
+        self.logger, self.what, self.first, self.every_s = logger, what, first, every_s
+        self.clock = clock or time.monotonic
+        self.count = 0
+        """How many times the warning came (the full ones included)."""
+        self._held, self._since, self._latest, self._last = 0, 0.0, "", 0.0
+
+    def __call__(self, message: str, where: str) -> None:
+        """The warning ``message`` about the input ``where`` (a frame's name, for the counting line)."""
+        self.count += 1
+        now, last = self.clock(), self._last
+        self._last = now
+        if self.count <= self.first or (not self._held and now - last >= self.every_s):
+            self.logger.warning("%s", message)  # one of the first, or the first after a quiet minute: in full
+            return
+        self.logger.debug("%s", message)
+        if not self._held:
+            self._since = now
+        self._held, self._latest = self._held + 1, where
+        if now - self._since >= self.every_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Count the repeats not counted yet (nothing when there are none)."""
+        if not self._held:
+            return
+        seconds = self.clock() - self._since
+        self.logger.warning(
+            "%s: repeated %d more time%s in the last %.0f s (the latest: %s; -v logs each)",
+            self.what,
+            self._held,
+            "" if self._held == 1 else "s",
+            seconds,
+            self._latest,
+        )
+        self._held = 0
+
+
 def _shown_on_stderr(record: logging.LogRecord) -> bool:
-    """Whether a record goes to stderr: any but a per-press line beyond :func:`press_lines`, unless ``-v``."""
+    """Whether a record goes to stderr: any but a per-press line beyond :func:`press_lines` and a :data:`FILE_ONLY`
+    line, unless ``-v``."""
+    verbose = logging.getLogger().getEffectiveLevel() <= logging.DEBUG
+    if getattr(record, "file_only", False):
+        return verbose
     line = getattr(record, "press_line", None)
-    return line is None or line <= _press_lines or logging.getLogger().getEffectiveLevel() <= logging.DEBUG
+    return line is None or line <= _press_lines or verbose
 
 
 def _add(root: logging.Logger, handler: logging.Handler, fmt: str) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import logging
+import re
 
 import pytest
 
@@ -183,3 +184,98 @@ def test_a_folder_given_as_the_log_file_is_one_line_naming_the_option(tmp_path, 
         f"{folder}/nlips.log)"
     ], err
     assert list(folder.iterdir()) == []
+
+
+LINE = re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3} \[\d+\] (DEBUG|INFO|WARNING|ERROR|CRITICAL) \S+: ")
+"""A log file's line: timestamp, process id, level, logger."""
+
+
+def test_the_log_file_says_which_command_started_and_how_it_ended_and_runs_append(tmp_path, capsys):
+    """A log read a day later had no line saying where a run began, what was run (version, command line,
+    working folder) or how it ended: a run's last line was its last result, whatever its exit status."""
+    import os
+
+    from nlipscalib import __version__
+
+    log = tmp_path / "lab.log"
+    assert main(["--log-file", str(log), "cache"]) == 0
+    assert main(["cache", "--log-file", str(log)]) == 0  # a second run appends
+    lines = log.read_text().splitlines()
+    assert all(LINE.match(line) for line in lines), lines
+    starts = [i for i, line in enumerate(lines) if " started (pid " in line]
+    assert len(starts) == 2 and starts[0] == 0, lines
+    assert (
+        f"nlips {__version__} started (pid {os.getpid()}, in {os.getcwd()}): nlips --log-file {log} cache" in (lines[0])
+    )
+    ends = [i for i, line in enumerate(lines) if "nlips cache ended: exit status 0 after" in line]
+    assert ends == [starts[1] - 1, len(lines) - 1], lines
+
+
+def test_an_error_that_ends_the_command_and_its_exit_status_are_in_the_log_file(tmp_path, capsys):
+    log = tmp_path / "lab.log"
+    missing = tmp_path / "missing"
+    assert main(["--log-file", str(log), "solve", str(missing)]) == 2
+    text = log.read_text()
+    assert f"ERROR nlipscalib: nlips solve: {missing}" in text
+    assert text.splitlines()[-1].split("] ", 1)[1].startswith("ERROR nlipscalib: nlips solve ended: exit status 2")
+    assert capsys.readouterr().err.count("\n") == 1  # stderr stays one line
+
+
+def test_an_unexpected_error_leaves_its_traceback_and_status_in_the_log_file(tmp_path, monkeypatch, capsys):
+    from nlipscalib.cli import cache
+
+    def broken(args):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(cache, "run", broken)
+    log = tmp_path / "lab.log"
+    with pytest.raises(RuntimeError):
+        main(["--log-file", str(log), "cache"])
+    text = log.read_text()
+    assert "ERROR nlipscalib: nlips cache: unexpected error\nTraceback (most recent call last):" in text
+    assert "RuntimeError: a bug" in text and "nlips cache ended: exit status 1" in text.splitlines()[-1]
+
+
+def test_an_interrupted_command_says_so_in_the_log_file(tmp_path, monkeypatch, capsys):
+    from nlipscalib.cli import cache
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cache, "run", interrupted)
+    log = tmp_path / "lab.log"
+    assert main(["--log-file", str(log), "cache"]) == 130
+    lines = log.read_text().splitlines()
+    assert "WARNING nlipscalib: nlips cache: interrupted;" in lines[-2] and "exit status 130" in lines[-1], lines
+
+
+def test_verbose_shows_our_debug_lines_not_the_libraries(tmp_path, capsys):
+    """`nlips -v --log-file F train` for a minute wrote 2,200 lines, 2,191 of them matplotlib's font scoring."""
+    log = tmp_path / "lab.log"
+    progress.configure(progress=False, verbose=True, log_file=log)
+    logging.getLogger("matplotlib.font_manager").debug("findfont: score(FontEntry(...)) = 10.05")
+    logging.getLogger("nlipscalib.solver").debug("kept: identical result")
+    logging.getLogger("distributed.worker").warning("a library's warning still shows")
+    text = log.read_text()
+    assert "findfont" not in text and "kept: identical result" in text and "a library's warning" in text
+    assert "findfont" not in capsys.readouterr().err
+
+
+def test_a_file_only_line_reaches_stderr_only_with_verbose():
+    record = logging.LogRecord("nlipscalib.learn.train", logging.INFO, __file__, 0, "epoch 3", None, None)
+    record.__dict__.update(progress.FILE_ONLY)
+    progress.configure(progress=False)
+    assert not progress._shown_on_stderr(record)
+    progress.configure(progress=False, verbose=True)
+    assert progress._shown_on_stderr(record)
+
+
+def test_a_dataset_logs_each_press_and_how_far_it_got_in_the_log_file_without_verbose(tmp_path, monkeypatch, capsys):
+    """A long `nlips --log-file F dataset` left only its end in F: the presses were logged at DEBUG (-v only)."""
+    spec, out, log = tmp_path / "spec.toml", tmp_path / "out", tmp_path / "run.log"
+    spec.write_text(SPEC)
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render([]))
+    assert main(["--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
+    lines = [line.split(": ", 1)[1] for line in log.read_text().splitlines() if "] INFO nlipscalib.sim." in line]
+    presses = [line for line in lines if line.startswith("press ")]
+    assert presses and presses[-1].endswith(f"rendered ({len(presses)} of {len(presses)})"), lines

@@ -172,7 +172,7 @@ def _main(argv: Sequence[str] | None, own_process: bool) -> int:
     previous = _terminate_cleanly(args.command, args)
     previous_int = _note_interrupts()
     try:
-        return _run(args)
+        return _run(args, sys.argv[1:] if argv is None else list(argv))
     finally:
         import signal
 
@@ -185,26 +185,62 @@ def _main(argv: Sequence[str] | None, own_process: bool) -> int:
                 signal.signal(signal.SIGINT, previous_int)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _run(args: argparse.Namespace, argv: Sequence[str] = ()) -> int:
+    """Run the parsed command; with ``--log-file``, its file gets a line saying which command started
+    (:func:`_log_start`) and one saying how it ended, with its exit status (:func:`_log_end`)."""
+    import time
+
     _expand_home(args)
+    started = time.monotonic()
+    code: int | None = None
     try:
         progress.configure(
             progress=not (args.global_no_progress or getattr(args, "no_progress", False)),
             verbose=args.verbose,
             log_file=args.log_file,
         )
+        _log_start(argv)
         with progress.results_to_log_file():
-            return int(args.func(args) or 0)
+            code = int(args.func(args) or 0)
     except (NlipsError, MissingDependencyError) as exc:
-        return _fail(args, str(exc))
+        code = _fail(args, str(exc))
     except OSError as exc:  # disk full, read-only, permission, name too long ...: one line, no traceback
-        return _fail(args, describe_os_error(exc, hasattr(args, "overwrite"), where=_path_of(args)))
+        code = _fail(args, describe_os_error(exc, hasattr(args, "overwrite"), where=_path_of(args)))
     except KeyboardInterrupt:
-        return _interrupted(args)
+        code = _interrupted(args)
     except Exception:
         if _INTERRUPTED:  # Ctrl-C inside a native library (Mitsuba/drjit) surfaces as its own exception
-            return _interrupted(args)
-        raise
+            code = _interrupted(args)
+        else:
+            # the traceback goes to stderr as before (Python prints it); the file gets it too, with the status
+            progress.file_log(logging.ERROR, f"nlips {args.command}: unexpected error", exc_info=True)
+            _log_end(args.command, 1, time.monotonic() - started)
+            raise
+    _log_end(args.command, code, time.monotonic() - started)
+    return code
+
+
+def _log_start(argv: Sequence[str]) -> None:
+    """The ``--log-file``'s first line of a run: the command line as typed, the version, the process id and the
+    working folder (a log read a day later names presses by the paths the command was given, often relative).
+
+    Why: runs append to one file, and nothing said where one run's lines began, what was run, or with which
+    version; with two runs writing at once, the process id tells their lines apart (each line carries it)."""
+    import shlex
+
+    try:
+        where = os.getcwd()
+    except OSError:  # the working folder was removed: the line is still written, the command still runs
+        where = "a removed folder"
+    progress.file_log(
+        logging.INFO, f"nlips {__version__} started (pid {os.getpid()}, in {where}): nlips {shlex.join(argv)}"
+    )
+
+
+def _log_end(command: str, code: int, seconds: float) -> None:
+    """The ``--log-file``'s last line of a run: its exit status (see ``nlips --help``) and how long it ran."""
+    level = logging.INFO if code == 0 else logging.ERROR
+    progress.file_log(level, f"nlips {command} ended: exit status {code} after {seconds:.1f} s")
 
 
 def _expand_home(args: argparse.Namespace) -> None:
@@ -241,7 +277,9 @@ def _stopped(args: argparse.Namespace | None) -> str:
 
 
 def _interrupted(args: argparse.Namespace) -> int:
-    print(f"nlips {args.command}: interrupted; {_stopped(args)}", file=sys.stderr)
+    line = f"nlips {args.command}: interrupted; {_stopped(args)}"
+    print(line, file=sys.stderr)
+    progress.file_log(logging.WARNING, line)
     _SAID_INTERRUPTED.append(args.command)
     return 130
 
@@ -251,7 +289,9 @@ def terminated(args: argparse.Namespace) -> int:
     handler of :func:`_terminate_cleanly` would, after its summary; returns 143 (128 + SIGTERM)."""
     import signal
 
-    print(f"nlips {args.command}: terminated; {_stopped(args)}", file=sys.stderr)
+    line = f"nlips {args.command}: terminated; {_stopped(args)}"
+    print(line, file=sys.stderr)
+    progress.file_log(logging.WARNING, line)
     _SAID_INTERRUPTED.append(args.command)
     return 128 + signal.SIGTERM
 
@@ -343,6 +383,7 @@ def _end_at_once(line: str | None, code: int) -> NoReturn:
     atomic.remove_in_progress()
     if line is not None:
         print(line, file=sys.stderr)
+        progress.file_log(logging.WARNING, f"{line} (exit status {code})")  # os._exit: no end line otherwise
     sys.stderr.flush()
     sys.stdout.flush()
     os._exit(code)

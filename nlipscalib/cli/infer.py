@@ -57,6 +57,9 @@ FIGURE_FILES = {
 """What the line saying where the results are lists of each ``--figures`` level's files."""
 FIGURES_DEFAULT = "maps"
 """Figures beside a press's or frame's result when --figures is not given: the maps, as ``nlips solve`` writes."""
+STILLS_WARNED_IN_FULL = 3
+"""Inputs of ``nlips infer`` (frames, presses) unlike the calibration's reference that are warned about in full,
+each naming its file; later ones are counted (``progress.RepeatedWarning``; each with -v)."""
 STREAM_STOPPED = "the stream stopped (a stream does not resume; frames already saved with --out are kept)"
 """What ``nlips infer`` of a stream, interrupted or terminated, says it left (:func:`stopped`)."""
 
@@ -498,7 +501,7 @@ def _run_stills(args: argparse.Namespace) -> int:
 
     from ..core.errors import CaptureError
     from ..learn.infer import capture_changes, mismatch_warning
-    from ..progress import track
+    from ..progress import RepeatedWarning, track
     from ._stream import nlipsnet_predictor
 
     t_start = time.perf_counter()
@@ -519,6 +522,8 @@ def _run_stills(args: argparse.Namespace) -> int:
     if settings != early:  # the model file replaced since it was read above: what was looked at is looked at again
         looked = {}
     inner, kept, failed = [], set(), {}
+    # a folder of frames all taken otherwise logged the same long warning for each: the first 3, then counted
+    unlike = RepeatedWarning(log, "an input unlike the calibration's reference", first=STILLS_WARNED_IN_FULL)
     # a bar on a terminal (a folder of 300 frames ran 10 s without a sign of life); quiet elsewhere (progress)
     for name, load, press_folder, source in track(frames, enabled=len(frames) > 1, desc="inferring", unit="frame"):
         folder = _destination(args, name, press_folder)
@@ -544,10 +549,18 @@ def _run_stills(args: argparse.Namespace) -> int:
         result = predictor.predict(frame)
         changes = capture_changes(predictor.model, press_folder) if press_folder is not None else []
         if why := mismatch_warning(result, source, changes):
-            log.warning("%s", why)
+            unlike(why, str(source))
         inner.append(result.seconds["total"])
         if folder is not None:
             _save(args, predictor, result, name, folder, provenance, press_folder)
+    unlike.flush()
+    if unlike.count > STILLS_WARNED_IN_FULL:
+        log.warning(
+            "%d of %d inputs differed from the calibration's reference over most of the gel (see the warnings "
+            "above): their results are unreliable",
+            unlike.count,
+            len(frames),
+        )
     print(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
     not_written = {folder for folder, _ in failed.values()}
     if written := [(folder, press) for folder, press in saved if folder not in not_written]:

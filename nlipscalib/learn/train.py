@@ -452,7 +452,7 @@ def _epochs(
     ``samples``: tensors x_train, y_train, x_val, y_val, contact_val."""
     import torch
 
-    from ..progress import progress_bar
+    from ..progress import FILE_ONLY, progress_bar
 
     xt, yt, xv, yv, cv = samples
     history, best, best_state = state["history"], state["best"], state["best_state"]
@@ -491,6 +491,20 @@ def _epochs(
             # a copy on the CPU (a clone there): what the checkpoint and the model file hold, whatever the device
             best_state = {k: v.detach().to("cpu", copy=True) for k, v in net.state_dict().items()}
         checkpoint(history, best, best_state)
+        log.info(
+            "%s: epoch %d of at most %d: training loss %.4g, validation AAE %.3f deg (contact %.3f), learning rate "
+            "%.3g, %.1f s; best epoch %d",
+            desc,
+            epoch + 1,
+            cfg.max_epochs,
+            loss,
+            val_aae,
+            val_contact,
+            history[-1]["lr"],
+            history[-1]["seconds"],
+            best["epoch"] + 1,
+            extra=FILE_ONLY,
+        )
         bar.update(1)
         bar.set_postfix(val_aae=f"{val_aae:.2f}")
         stop_early = epoch - best["epoch"] >= cfg.patience

@@ -1,4 +1,5 @@
-"""A stream's watch for frames unlike the calibration's reference: warned about once, counted to the end."""
+"""A stream's watch for frames unlike the calibration's reference: warned about once, then counted once a minute and
+at the end."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import logging
 import numpy as np
 
 from ..core.tolerances import FRAME_MISMATCH_FRACTION
+from ..progress import RepeatedWarning
 from .infer import Frame, Predictor, mismatch_warning
 
 log = logging.getLogger(__name__)
@@ -17,7 +19,8 @@ class MismatchWatch:
     over the whole gel (``learn.infer.mismatch_warning``: BGR stored as RGB, another exposure or sensor).
 
     Why: such a frame leaves the change rule nothing to find, so the maps silently show the undeformed dome.
-    The warning is logged once per stream (a stream of such frames would repeat it every frame);
+    The warning is logged in full once, then counted once a minute (a stream of such frames would repeat it every
+    frame; once per stream missed a fault that came back hours later: ``progress.RepeatedWarning``);
     :meth:`report` logs at the end how many frames it concerned, as ``nlips infer`` does.
 
     Parameters
@@ -30,19 +33,22 @@ class MismatchWatch:
         self.predictor, self.name = predictor, name
         self.frames = 0
         self.mismatched = 0
+        self.warning = RepeatedWarning(log, f"{name}: a frame unlike the calibration's reference")
 
     def __call__(self, frame: np.ndarray) -> Frame:
         """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
         result = self.predictor.predict_stored(frame, self.name)
         index, self.frames = self.frames, self.frames + 1
-        if not self.mismatched and (why := mismatch_warning(result, f"{self.name} frame {index}")):
-            log.warning("%s", why)
+        where = f"{self.name} frame {index}"
+        if why := mismatch_warning(result, where):
+            self.warning(why, where)
         if result.mismatch > FRAME_MISMATCH_FRACTION:
             self.mismatched += 1
         return result
 
     def report(self) -> None:
         """The count of frames warned about, when there were any (after the stream)."""
+        self.warning.flush()
         if self.mismatched:
             log.warning(
                 "%d of %d frames differed from the calibration's reference over most of the gel (see the warning "

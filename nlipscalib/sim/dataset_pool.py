@@ -29,7 +29,7 @@ from ..core.errors import ConfigError, NlipsError
 from ..core.press_folders import is_press_folder
 from ..core.press_meta import META_FILE
 from ..core.processes import end_processes, end_with_parent, sigint_held, worker_signals
-from ..progress import SINGLE, configure_worker, progress_bar, worker_logging
+from ..progress import FILE_ONLY, SINGLE, configure_worker, progress_bar, worker_logging
 from .dataset_folder import (
     changed_error,
     check_existing,
@@ -217,7 +217,9 @@ def _rounds(
             )
             if status == "failed":
                 log.error("%s failed: %s", job.name, detail)
-            log.debug("press %s: %s", job.name, status)
+            # in the --log-file (stderr: -v) with how far the run got: a long render's file held only its end
+            done = sum(len(result[key]) for key in ("rendered", "skipped", "failed"))
+            log.info("press %s: %s (%d of %s)", job.name, status, done, bar.total, extra=FILE_ONLY)
             bar.update(1)
         if busy:
             (log.info if not waited else log.debug)(

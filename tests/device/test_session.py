@@ -114,7 +114,7 @@ def test_a_retake_is_said_once_to_the_operator_and_kept_in_the_log_file(tmp_path
     said = "Press 2: the object moved"
     shown = prompts if interactive else capsys.readouterr().out.splitlines()
     assert sum(said in line for line in shown) == 1
-    logged = [line.split(" ", 2)[2] for line in log.read_text().splitlines() if "changed" in line]
+    logged = [line.split(" ", 3)[3] for line in log.read_text().splitlines() if "changed" in line]  # past "[pid]"
     assert len(logged) == 1 and logged[0].startswith(f"INFO nlipscalib: {said} (") and "retaking" in logged[0]
 
 

@@ -1103,3 +1103,28 @@ def test_sigterm_ends_a_stream_with_its_summary_and_stream_json_then_143(tiny_mo
     assert any(line.startswith(f"saved: {n} of {n} frames' ") for line in lines), stdout
     assert json.loads((out / "stream.json").read_text())["frames"] == n
     assert sorted(p.name for p in out.glob("*.npz")) == [f"frame_{i:06d}.npz" for i in range(n)]
+
+
+def test_a_folder_of_frames_all_unlike_the_reference_warns_three_times_then_counts(tiny_model, tmp_path, capsys):
+    """`nlips --log-file F infer MODEL frames/` of 30 frames taken at another exposure wrote the same 500-character
+    warning 30 times (54,000 an hour of a 15 frames/s recording), in F and on stderr."""
+    import cv2
+
+    from nlipscalib import progress
+
+    model, root = tiny_model
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for i in range(8):
+        cv2.imwrite(str(frames / f"f{i}.png"), np.zeros((48, 64, 3), np.uint16))  # black: LEDs off
+    log = tmp_path / "lab.log"
+    try:
+        assert main(["--log-file", str(log), "infer", str(model), str(frames), "--out", str(tmp_path / "o")]) == 0
+    finally:
+        progress.configure(progress=True)
+    warnings = [line.split(" WARNING ", 1)[1] for line in log.read_text().splitlines() if " WARNING " in line]
+    full = [line for line in warnings if ": differs from the calibration's reference" in line]
+    assert [line.split(": differs")[0].rsplit("/", 1)[1] for line in full] == ["f0.png", "f1.png", "f2.png"]
+    assert len(warnings) == 5, warnings
+    assert "repeated 5 more times in the last" in warnings[3] and "(the latest: " in warnings[3]
+    assert "f7.png" in warnings[3] and "8 of 8 inputs differed" in warnings[4]

@@ -786,3 +786,20 @@ def test_a_read_only_model_folder_is_named_by_the_model_path_not_its_training_ho
     assert main(["--no-progress", "train", str(built), "--out", str(out), "--hidden", "8"]) == 2
     err = capsys.readouterr().err
     assert err == f"nlips train: error: {out}: Read-only file system (choose a writable output folder)\n", err
+
+
+def test_each_epoch_is_a_line_of_the_log_file(built, tmp_path):
+    """A three-hour `nlips --log-file F train` left nothing in F between its start and its end: after a crash
+    the lab could not tell how far it got. Each epoch is now a line there (on stderr only with -v:
+    tests/test_progress.py)."""
+    from nlipscalib import progress
+
+    log = tmp_path / "train.log"
+    try:
+        progress.configure(progress=False, log_file=log)
+        train(CalibrationDataset(built), TINY, tmp_path / "m.pt", val_names=["a_sphere"], progress=False)
+    finally:
+        progress.configure(progress=True)
+    epochs = [line for line in log.read_text().splitlines() if ": epoch " in line]
+    assert [line.split(": epoch ")[1].split(":")[0] for line in epochs] == ["1 of at most 2", "2 of at most 2"]
+    assert all("validation AAE" in line and "INFO nlipscalib.learn.train" in line for line in epochs), epochs
