@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -94,6 +95,24 @@ def test_a_killed_owner_not_yet_reaped_is_taken_over(tmp_path):
     with claim(target) as mine:
         assert mine
     owner.wait(30)
+
+
+def test_on_windows_a_process_is_looked_up_without_os_kill(monkeypatch):
+    """Windows has no signal 0: its ``os.kill(pid, 0)`` ends the process (TerminateProcess), so a liveness check
+    killed the claim's owner, or a worker's own command (s26-portable)."""
+    pytest.importorskip("psutil")
+    from nlipscalib.core import claims
+
+    def kill(pid, sig):
+        raise AssertionError(f"os.kill({pid}, {sig}) would end process {pid} on Windows")
+
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    ended.wait(30)
+    monkeypatch.setattr(sys, "platform", "win32")
+    # the module's own os only: psutil, standing in here for its Windows self, asks os.kill on Linux
+    monkeypatch.setattr(claims, "os", types.SimpleNamespace(**{**vars(os), "kill": kill}))
+    assert claims.pid_alive(os.getpid())
+    assert not claims.pid_alive(ended.pid)
 
 
 def test_claim_without_heartbeat_is_stale(tmp_path):

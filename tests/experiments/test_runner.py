@@ -231,6 +231,22 @@ def test_kill_unless_ended_kills_only_the_processes_that_outlive_their_sigterm()
             proc.stdout.close()
 
 
+def test_kill_unless_ended_works_without_sigkill(monkeypatch):
+    """Windows has no ``signal.SIGKILL``: the backstop raised AttributeError on the way out of a stopped
+    ``nlips experiment`` instead of ending a worker that outlived its grace (s26-portable)."""
+    from nlipscalib.core.processes import kill_unless_ended
+
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(3600)"])
+    try:
+        with monkeypatch.context() as patch:  # Popen.kill below needs it back
+            patch.delattr(signal, "SIGKILL")
+            kill_unless_ended([sleeper.pid], 0.0)
+        assert sleeper.wait(timeout=HANG_GUARD_S) == -signal.SIGTERM  # what ends a process there
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+
+
 def _worker_signals_state() -> tuple[bool, bool]:
     """(Ctrl-C can reach this process, SIGTERM has a handler of its own): run in a Dask worker's main thread."""
     import signal
