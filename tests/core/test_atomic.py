@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -263,6 +265,38 @@ def test_a_temporary_folder_removed_and_made_again_is_not_published(tmp_path):
             tmp.mkdir()  # e.g. an os.makedirs of a writer
             (tmp / "summary.png").write_text("png")
     assert not final.exists()
+
+
+def _no_folder_opened(monkeypatch) -> None:
+    """atomic's os.open as on Windows, where a folder cannot be opened: PermissionError (Errno 13). Its own only:
+    shutil.rmtree opens folders on Linux."""
+    from nlipscalib.core import atomic
+
+    real_open = os.open
+
+    def windows_open(path, flags, *args, **kwargs):
+        if os.path.isdir(path):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(atomic, "os", types.SimpleNamespace(**{**vars(os), "open": windows_open}))
+
+
+def test_a_folder_is_published_where_folders_cannot_be_opened(tmp_path, monkeypatch):
+    """Windows: every result folder failed with PermissionError, as atomic_dir held its temporary folder open
+    (os.open of a folder) to tell it from one made again under its name (s26-portable)."""
+    from nlipscalib.core.atomic import write_text
+
+    _no_folder_opened(monkeypatch)
+    final = tmp_path / "res-1"
+    with atomic_dir(final) as tmp:
+        write_text(tmp / "result.npz", "data")
+    assert (final / "result.npz").read_text(encoding="utf-8") == "data"
+    with pytest.raises(FileNotFoundError, match="removed while being written"):  # the check still holds
+        with atomic_dir(tmp_path / "res-2") as tmp:
+            write_text(tmp / "result.npz", "data")
+            shutil.rmtree(tmp)
+    assert not (tmp_path / "res-2").exists() and not list(tmp_path.glob(TMP_PREFIX + "*"))
 
 
 def test_a_writability_probe_goes_with_the_temporaries_removed_on_termination(tmp_path, monkeypatch):
