@@ -47,10 +47,10 @@ def test_working_logs_start_and_end_when_not_a_terminal(caplog):
 
 def test_dataset_log_file_without_carriage_returns(tmp_path, monkeypatch, capsys):
     spec, out, log = tmp_path / "spec.toml", tmp_path / "out", tmp_path / "logs" / "run.log"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render([]))
     assert main(["-v", "--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    text = log.read_text()
+    text = log.read_text(encoding="utf-8")
     assert "press press_0003: rendered" in text and "\r" not in text
     assert "\r" not in capsys.readouterr().err  # stderr is not a terminal here: no bar
 
@@ -62,7 +62,7 @@ def test_worker_processes_append_whole_lines_to_the_log_file(tmp_path):
     from multiprocessing import get_context
 
     log = tmp_path / "run.log"
-    log.write_text("earlier run\n")
+    log.write_text("earlier run\n", encoding="utf-8")
     progress.configure(progress=False, log_file=log)
     logger = logging.getLogger("nlipscalib.test_workers")
     long = "x" * 9000  # longer than a FileHandler's write buffer
@@ -73,7 +73,7 @@ def test_worker_processes_append_whole_lines_to_the_log_file(tmp_path):
             future.result()
     logger.warning("parent line")
     progress.configure(progress=True)  # closes the file
-    lines = log.read_text().splitlines()
+    lines = log.read_text(encoding="utf-8").splitlines()
     assert lines[0] == "earlier run"  # appended, not truncated
     numbers = sorted(int(m.group(1)) for line in lines if (m := re.search(rf"worker line (\d+) {long}$", line)))
     assert numbers == list(range(24)) and len(lines) == 26 and lines[-1].endswith("parent line")
@@ -86,12 +86,12 @@ def test_parallel_solve_logs_to_the_log_file(tmp_path):
     folders = [tmp_path / "press_a", tmp_path / "press_b"]
     for folder in folders:
         folder.mkdir()
-        (folder / "meta.json").write_text("{}")  # a capture the worker refuses, with an ERROR line
+        (folder / "meta.json").write_text("{}", encoding="utf-8")  # a capture the worker refuses, with an ERROR line
     log = tmp_path / "run.log"
     progress.configure(progress=False, log_file=log)
     status = solve_presses(folders, workers=2, progress=False, figures=False)
     assert all(s.startswith("failed") for s in status.values())
-    text = log.read_text()
+    text = log.read_text(encoding="utf-8")
     assert "ERROR" in text and "press_a" in text and "press_b" in text, text
 
 
@@ -108,7 +108,7 @@ def test_results_printed_on_stdout_reach_the_log_file_too(tmp_path, capsys):
         print(" 1.5")
     assert sys.stdout is real
     assert capsys.readouterr().out == "3 rendered, 0 already there\nmean AAE 1.5\n"
-    lines = log.read_text().splitlines()
+    lines = log.read_text(encoding="utf-8").splitlines()
     assert lines[0].endswith("3 rendered, 0 already there") and lines[1].endswith("mean AAE 1.5") and len(lines) == 2
     progress.configure(progress=False)  # without a log file nothing is wrapped
     with progress.results_to_log_file():
@@ -119,7 +119,7 @@ def test_the_cli_logs_a_commands_results_to_its_log_file(tmp_path, capsys):
     log = tmp_path / "cache.log"
     assert main(["--log-file", str(log), "cache"]) == 0
     printed = capsys.readouterr().out.strip().splitlines()
-    assert printed and all(line in log.read_text() for line in printed)
+    assert printed and all(line in log.read_text(encoding="utf-8") for line in printed)
 
 
 def test_the_log_tee_forwards_what_it_does_not_handle_and_steps_aside_without_stdout(tmp_path, monkeypatch):

@@ -265,7 +265,7 @@ def _zombie(pid: int) -> bool:
     Why: a worker killed with SIGKILL stays a zombie until its parent or init reaps it, which some containers'
     init does late; ``kill(pid, 0)`` succeeds on it, and its claims looked held by a live process."""
     try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
+        stat = Path(f"/proc/{pid}/stat").read_text(encoding="utf-8")
     except OSError:  # no procfs (macOS, Windows) or gone meanwhile: kill() had the last word
         return False
     return stat[stat.rfind(")") + 2 :][:1] in ("Z", "X")  # the name in parentheses may hold spaces

@@ -123,7 +123,7 @@ def _finished(path: Path, record: Path, key: str) -> dict | None:
     if not (path.is_file() and record.is_file()):
         return None
     try:
-        done = json.loads(record.read_text())
+        done = json.loads(record.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError):
         return None
     return done if done.get("key") == key else None

@@ -169,7 +169,7 @@ def stored_result(out: Path, task: Task) -> dict | None:
     samples unchecked)."""
     path = result_path(out, task.id)
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
     except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
         return None
     return data if data.get("task_hash") == task.hash and data.get("status") == "done" else None
@@ -466,7 +466,7 @@ def _solver_leds(adapters: ModuleType, out: Path, task: Task, press: Press, spec
         return adapters.perturb_leds(press.leds, **_error_args(err))
     from ..core.leds import Led
 
-    cal = json.loads(result_path(out, calibration_id(task.scene, err)).read_text())
+    cal = json.loads(result_path(out, calibration_id(task.scene, err)).read_text(encoding="utf-8"))
     return tuple(Led.from_dict(d) for d in cal["leds"])
 
 

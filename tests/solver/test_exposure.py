@@ -70,7 +70,7 @@ def test_solve_and_calibrate_leds_report_a_large_saturated_share(captures, tmp_p
     assert cal.saturated_share == (round(share, 4),)
     assert "left out of the LED fit" in cal.warnings[0]  # first: the likely cause of an unreliable fit
     assert main(["calibrate-leds", str(captures["over"]), "--out", str(tmp_path / "l.json")]) == 0
-    written = json.loads((tmp_path / "l.json").read_text())
+    written = json.loads((tmp_path / "l.json").read_text(encoding="utf-8"))
     assert written["saturated_share"] == [round(share, 4)] and "saturated" in written["warnings"][0]
     assert SATURATED_SHARE_WARN == 0.05
     assert not [w for w in calibrate_leds(good, interreflection="off").warnings if "saturated" in w]
