@@ -18,3 +18,23 @@ def test_a_stream_report_is_written_where_there_is_no_load_average(tmp_path, mon
     _write_stream_report(tmp_path, "camera 0", predictor, LiveStats(frames=3, seconds=1.5), _StageTimes(), 0.3)
     report = json.loads((tmp_path / "stream.json").read_text(encoding="utf-8"))
     assert report["frames"] == 3 and report["load_average"] is None
+
+
+def test_the_scenes_are_found_where_git_checked_their_link_out_as_a_file(tmp_path):
+    """git on Windows without symbolic links writes nlipscalib/scenes as a text file holding ``../scenes``."""
+    from nlipscalib.core.sensor import shipped_scenes
+
+    package = tmp_path / "nlipscalib"
+    package.mkdir()
+    (tmp_path / "scenes").mkdir()
+    (package / "scenes").write_text("../scenes", encoding="utf-8")
+    assert shipped_scenes(package) == tmp_path / "scenes"
+    (package / "scenes").unlink()
+    (package / "scenes").mkdir()  # an installed copy wins
+    assert shipped_scenes(package) == package / "scenes"
+
+
+def test_the_shipped_scenes_of_this_checkout_hold_the_default_scene():
+    from nlipscalib.core.sensor import SCENES_DIR
+
+    assert (SCENES_DIR / "nlipstac.toml").is_file()
