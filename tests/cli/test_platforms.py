@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import types
 
 from nlipscalib.cli.infer import _StageTimes, _write_stream_report
@@ -38,3 +39,17 @@ def test_the_shipped_scenes_of_this_checkout_hold_the_default_scene():
     from nlipscalib.core.sensor import SCENES_DIR
 
     assert (SCENES_DIR / "nlipstac.toml").is_file()
+
+
+def test_a_mac_counts_as_a_display_without_x11_or_wayland(monkeypatch):
+    """macOS names no DISPLAY: ``nlips live`` said "no display" at the Mac's own screen and showed no window."""
+    import cv2
+
+    from nlipscalib.report import live
+
+    for name in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(name, raising=False)
+    assert live.window_problem() == "no display"  # Linux without X11 or Wayland: a server, a container
+    monkeypatch.setattr(sys, "platform", "darwin")
+    monkeypatch.setattr(cv2, "namedWindow", lambda *args: None)  # an OpenCV with a GUI (not opened here)
+    assert live.window_problem() is None
