@@ -150,7 +150,7 @@ def _train(
     res = train(data, cfg, path, exclude=others, progress=progress)
     done = {
         "key": key,
-        "model": str(path.relative_to(out)),
+        "model": path.relative_to(out).as_posix(),  # / on every system: a folder moves between them
         "labels": cfg.labels,
         "hidden": list(cfg.hidden),
         "train_presses": res.train_presses,

@@ -320,7 +320,10 @@ def _run_reference(task: Task, out: Path, threads: int, keep: bool) -> dict:
     folder = reference_folder(out, task.scene)
     t = time.perf_counter()
     adapters.render(task.scene, None, folder, threads)
-    return {"folder": str(folder.relative_to(out)), "timing": {"render_seconds": round(time.perf_counter() - t, 3)}}
+    return {
+        "folder": folder.relative_to(out).as_posix(),
+        "timing": {"render_seconds": round(time.perf_counter() - t, 3)},
+    }
 
 
 def _run_calibration(task: Task, out: Path, threads: int, keep: bool) -> dict:
@@ -386,7 +389,7 @@ def _write_samples(
     path = samples_path(out, task.id)
     path.parent.mkdir(parents=True, exist_ok=True)
     info = {
-        "file": str(path.relative_to(out)),
+        "file": path.relative_to(out).as_posix(),  # / on every system: a folder moves between them
         "count": int(len(arrays["rgb"])),
         "contact": int(arrays["contact"].sum()),
         "has_truth": bool(press.ground_truth is not None),
