@@ -96,7 +96,7 @@ def time_case(
 
 def _record(s: dict, press: Path) -> None:
     """Append the run's inner timers (report.json) to the series ``s``."""
-    report = json.loads((press / "nlips" / "report.json").read_text())
+    report = json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))
     s["solver"].append(report["seconds"])
     s["load"].append(report["command_seconds"]["load"])
     s["solve"].append(report["command_seconds"]["solve"])

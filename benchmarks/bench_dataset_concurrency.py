@@ -64,7 +64,7 @@ def main() -> None:
         tmp = Path(tmp)
         claim_s, _ = median_time(lambda: _claim_once(tmp), repeats=50, warmup=5)
         spec = tmp / "spec.toml"
-        spec.write_text(SPEC.format(count=args.presses))
+        spec.write_text(SPEC.format(count=args.presses), encoding="utf-8")
         one = _dataset_wall(spec, tmp / "one", 1)
         two = _dataset_wall(spec, tmp / "two", 2)
         recheck = _dataset_wall(spec, tmp / "two", 1)

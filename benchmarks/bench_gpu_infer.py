@@ -131,7 +131,7 @@ def run(args) -> None:
             traceback.print_exc()
             entry["error"] = repr(exc)
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    (Path(args.out) / "gpu_infer.json").write_text(json.dumps(report, indent=2))
+    (Path(args.out) / "gpu_infer.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
 
 
 def _bench_model(model, key, entry, stored, presses, ref_depth, args) -> None:
@@ -253,7 +253,7 @@ def stream_step(args) -> None:
             entry["command" + "".join(extra)] = run_command(model, pattern, args, extra)
             print(f"{Path(model).stem} command {extra}: {json.dumps(entry['command' + ''.join(extra)])}", flush=True)
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    (Path(args.out) / "gpu_stream.json").write_text(json.dumps(report, indent=2))
+    (Path(args.out) / "gpu_stream.json").write_text(json.dumps(report, indent=2), encoding="utf-8")
 
 
 def boxes_step(args) -> None:
@@ -306,7 +306,9 @@ def boxes_step(args) -> None:
     med = {k: float(np.median([r[k] for r in rows])) for k in rows[0] if k.endswith("_ms")}
     print(json.dumps({"sizes": len(rows), "median": med}), flush=True)
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    (Path(args.out) / "gpu_boxes.json").write_text(json.dumps({"median": med, "rows": rows}, indent=2))
+    (Path(args.out) / "gpu_boxes.json").write_text(
+        json.dumps({"median": med, "rows": rows}, indent=2), encoding="utf-8"
+    )
 
 
 def moving_step(args) -> None:
@@ -349,7 +351,7 @@ def moving_step(args) -> None:
     }
     print(json.dumps(entry), flush=True)
     Path(args.out).mkdir(parents=True, exist_ok=True)
-    with open(Path(args.out) / "gpu_moving.jsonl", "a") as fh:
+    with open(Path(args.out) / "gpu_moving.jsonl", "a", encoding="utf-8") as fh:
         fh.write(json.dumps(entry) + "\n")
 
 

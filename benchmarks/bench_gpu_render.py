@@ -160,7 +160,7 @@ class Report:
         self.results.append(entry)
         print(json.dumps(entry), flush=True)
         tmp = self.path.with_suffix(".tmp")
-        tmp.write_text(json.dumps(self.results, indent=1) + "\n")
+        tmp.write_text(json.dumps(self.results, indent=1) + "\n", encoding="utf-8")
         tmp.replace(self.path)
 
     def attempt(self, step: str, work, need_s: float = 10.0) -> None:
@@ -262,7 +262,7 @@ def _command(report: Report, variant: str, home: str, label: str) -> None:
         tail = done.stderr.strip().splitlines()
         fields["error"] = tail[-1][:300] if tail else "no message"
     else:
-        provenance = json.loads((out / "meta.json").read_text())["provenance"]
+        provenance = json.loads((out / "meta.json").read_text(encoding="utf-8"))["provenance"]
         fields |= {"variant_used": provenance["variant"], "render_s": round(provenance["render_seconds"], 2)}
     report.add(f"command render --undeformed --variant {variant} ({label})", **fields)
 

@@ -318,7 +318,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     report = {"uptime_before": os.getloadavg()}
     if args.skip_accuracy:
-        report["accuracy"] = json.loads((out / "bench_learn.json").read_text())["accuracy"]
+        report["accuracy"] = json.loads((out / "bench_learn.json").read_text(encoding="utf-8"))["accuracy"]
     else:
         report["accuracy"] = accuracy(args)
     if report["accuracy"].get("scores"):
@@ -329,7 +329,7 @@ def main() -> None:
     report["int8_accuracy"] = int8_accuracy(models, args)
     report["fps"] = frames_per_second(models, folder, out, args.repeats)
     report["uptime_after"] = os.getloadavg()
-    (out / "bench_learn.json").write_text(json.dumps(report, indent=2, default=float))
+    (out / "bench_learn.json").write_text(json.dumps(report, indent=2, default=float), encoding="utf-8")
     print(json.dumps(report["fps"], indent=1, default=float))
 
 

@@ -216,7 +216,9 @@ def epochs(args: argparse.Namespace) -> None:
         ]
     )
     print(body)
-    (out / "train_device.json").write_text(json.dumps({"runs": runs, "checks": checks, "table": body}, indent=1))
+    (out / "train_device.json").write_text(
+        json.dumps({"runs": runs, "checks": checks, "table": body}, indent=1), encoding="utf-8"
+    )
 
 
 if __name__ == "__main__":

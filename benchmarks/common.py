@@ -39,10 +39,12 @@ def write_section(name: str, body: str) -> None:
     stamp = f"_machine: {machine()}; date: {datetime.date.today().isoformat()}; command: `{' '.join(sys.argv)}`_"
     section = f"{header}\n{stamp}\n\n{body.strip()}\n"
     text = (
-        RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n\nEach section is rewritten by its script.\n"
+        RESULTS.read_text(encoding="utf-8")
+        if RESULTS.exists()
+        else "# Benchmark results\n\nEach section is rewritten by its script.\n"
     )
     pattern = re.compile(rf"^{re.escape(header)}\n.*?(?=^## |\Z)", re.S | re.M)
     text = pattern.sub(lambda _: section + "\n", text) if pattern.search(text) else text.rstrip() + "\n\n" + section
     tmp = RESULTS.with_suffix(".tmp")
-    tmp.write_text(text)
+    tmp.write_text(text, encoding="utf-8")
     tmp.replace(RESULTS)

@@ -43,7 +43,7 @@ def until_each_waits_or_exits(procs: list, logs: list[Path], says: str, timeout:
 
 
 def _text(path: Path) -> str:
-    return path.read_text() if path.exists() else ""
+    return path.read_text(encoding="utf-8") if path.exists() else ""
 
 
 ENDLESS_PATCH = """
@@ -86,7 +86,9 @@ def endless_renders(env: dict[str, str], folder: Path) -> tuple[dict[str, str], 
     patch, traced = folder / "endless", folder / "traced"
     patch.mkdir()
     traced.mkdir()
-    (patch / "sitecustomize.py").write_text(ENDLESS_PATCH)  # imported by every Python process the command starts
+    (patch / "sitecustomize.py").write_text(
+        ENDLESS_PATCH, encoding="utf-8"
+    )  # imported by every Python process the command starts
     path = os.pathsep.join([str(patch), env.get("PYTHONPATH", "")])
     return dict(env, PYTHONPATH=path, RENDER_TRACED=str(traced)), traced
 
@@ -97,7 +99,7 @@ def claim_mark_and_wait(folder: Path) -> None:
     from nlipscalib.core.claims import claim
 
     with claim(folder / "held"):
-        (folder / str(os.getpid())).write_text("")
+        (folder / str(os.getpid())).write_text("", encoding="utf-8")
         while True:
             time.sleep(60)
 

@@ -57,7 +57,7 @@ def _package_imports(script: Path) -> list[tuple[str, str | None, int]]:
     """(module, imported name or None, line) of every import of this checkout's modules in ``script``, those
     inside functions included (most scripts import there, where ``--help`` never reaches)."""
     found = []
-    for node in ast.walk(ast.parse(script.read_text())):
+    for node in ast.walk(ast.parse(script.read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module.split(".")[0] in OURS[:2]:
             found += [(node.module, alias.name, node.lineno) for alias in node.names]
         elif isinstance(node, ast.Import):

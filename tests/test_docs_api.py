@@ -74,7 +74,7 @@ def tiny_sensor(tmp_path_factory) -> dict:
 
 def test_the_first_block_sets_the_paths_the_examples_read(tiny_sensor):
     """The page's 'set these' block names exactly the variables the test sets (PORT: the test's virtual board)."""
-    (line, code), *_ = python_blocks(API.read_text())
+    (line, code), *_ = python_blocks(API.read_text(encoding="utf-8"))
     assert assigned_names(code) == set(tiny_sensor) | {"PORT"}
     namespace = {}
     run_block(line, code, namespace)  # valid as written: plain paths and numbers
@@ -87,7 +87,7 @@ def test_every_python_block_of_the_page_runs_in_order(tiny_sensor):
     pytest.importorskip("mitsuba")  # the twin block renders; .ci/run turns this skip into a failure
     from nlipscalib.device.virtual_board import VirtualBoard
 
-    blocks = python_blocks(API.read_text())
+    blocks = python_blocks(API.read_text(encoding="utf-8"))
     assert len(blocks) >= 9  # every section's example was found (a fence change would otherwise pass silently)
     out = tiny_sensor["OUT"]
     before = process_settings()
@@ -133,7 +133,7 @@ def process_settings() -> dict:
 
 
 def test_the_page_links_only_files_that_exist():
-    links = re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", API.read_text())
+    links = re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", API.read_text(encoding="utf-8"))
     assert links and [link for link in links if not (API.parent / link).exists()] == []
 
 

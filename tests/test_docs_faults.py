@@ -15,7 +15,7 @@ def _references() -> list[tuple[str, str, str | None]]:
     A cell names tests as `tests/dir/test_x.py::test_y`, `test_x.py::test_y` (a file found under tests/) or
     `::test_z` (another test of the file named before it in the same cell), or a whole file."""
     refs = []
-    for line in FAULTS.read_text().splitlines():
+    for line in FAULTS.read_text(encoding="utf-8").splitlines():
         if not line.startswith("|") or line.startswith("|---"):
             continue
         cell = line.rstrip().rstrip("|").rsplit("|", 1)[-1]
@@ -45,7 +45,9 @@ def test_every_test_the_faults_table_names_exists():
     missing = []
     for row, file, name in refs:
         path = _test_file(file)
-        if path is None or (name is not None and not re.search(rf"^def {re.escape(name)}\(", path.read_text(), re.M)):
+        if path is None or (
+            name is not None and not re.search(rf"^def {re.escape(name)}\(", path.read_text(encoding="utf-8"), re.M)
+        ):
             missing.append(f"{file}::{name}  (row: {row[:60]}...)")
     assert missing == []
 
@@ -78,7 +80,7 @@ def test_every_option_the_docs_name_is_one_nlips_takes():
     named = {
         option: page.relative_to(ROOT)
         for page in pages
-        for option in re.findall(r"(?<![\w/.-])(--[a-z][a-z0-9-]*)", page.read_text())
+        for option in re.findall(r"(?<![\w/.-])(--[a-z][a-z0-9-]*)", page.read_text(encoding="utf-8"))
     }
     assert len(named) > 100  # the pages were read
     assert {o: str(p) for o, p in named.items() if o not in known and o not in OTHER_TOOLS_OPTIONS} == {}

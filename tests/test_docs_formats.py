@@ -17,7 +17,7 @@ FORMATS = Path(__file__).resolve().parents[1] / "docs" / "formats.md"
 
 
 def _section(start: str, end: str) -> str:
-    text = FORMATS.read_text()
+    text = FORMATS.read_text(encoding="utf-8")
     return text[text.index(start) : text.index(end)]
 
 
@@ -28,7 +28,7 @@ def _undocumented(keys, section: str) -> list[str]:
 
 def test_every_index_json_key_is_documented(tmp_path):
     write_index(tmp_path, {"camera": {}}, SamplingConfig(), [], str(tmp_path))
-    index = json.loads((tmp_path / "index.json").read_text())
+    index = json.loads((tmp_path / "index.json").read_text(encoding="utf-8"))
     section = _section("# Calibration dataset", "# NLiPsNet model file")
     assert _undocumented(index, section) == []
     assert _undocumented(index["sampling"], section) == []
@@ -41,7 +41,7 @@ def test_every_meta_json_key_is_documented(tmp_path):
     leds = [Led((float(i), 0.0, -1.0)) for i in range(3)]
     img = np.zeros((3, 4, 3), np.uint16)
     folder = write_press(tmp_path / "p", camera, leds, SensorResponse(), img, np.stack([img] * 3), img)
-    meta = json.loads((folder / "meta.json").read_text())
+    meta = json.loads((folder / "meta.json").read_text(encoding="utf-8"))
     section = _section("## meta.json", "## reference.npz")
     assert _undocumented(meta, section) == []
     assert _undocumented(meta["sensor"], section) == []
@@ -58,7 +58,7 @@ def test_the_dataset_spec_section_documents_every_key_and_its_example_loads(tmp_
     for cls in (DatasetSpec, GridSpec, RandomSpec):
         assert _undocumented([f.name for f in dataclasses.fields(cls)], section) == [], cls.__name__
     (example,) = re.findall(r"```toml\n(.*?)```", section, re.S)
-    (tmp_path / "tiny.toml").write_text(example)
+    (tmp_path / "tiny.toml").write_text(example, encoding="utf-8")
     spec, scene = load_dataset_spec(tmp_path / "tiny.toml")
     jobs = expand_jobs(spec)
     assert [j.name for j in jobs] == ["reference"] + [f"press_{i:04d}" for i in range(1, 7)]  # as the text says
@@ -72,7 +72,7 @@ def _literal_keys(module: str, function: str, variable: str | None = None) -> li
     import ast
 
     source = Path(__file__).resolve().parents[1] / "nlipscalib" / (module.replace(".", "/") + ".py")
-    tree = ast.parse(source.read_text())
+    tree = ast.parse(source.read_text(encoding="utf-8"))
     (func,) = [n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef) and n.name == function]
     values = [
         n.value
@@ -99,7 +99,7 @@ def test_a_twin_press_provenance_and_dataset_json_keys_are_documented(tmp_path):
     from nlipscalib.sim.dataset_manifest import manifest_text
 
     (example,) = re.findall(r"```toml\n(.*?)```", _section("# Dataset spec", "# Reconstruction format"), re.S)
-    (tmp_path / "tiny.toml").write_text(example)
+    (tmp_path / "tiny.toml").write_text(example, encoding="utf-8")
     spec, scene = load_dataset_spec(tmp_path / "tiny.toml")
     jobs = expand_jobs(spec)
     press = to_mapping(jobs[1].press)  # as sim.press writes it into provenance.press
@@ -176,7 +176,7 @@ def test_conventions_md_tricolor_rule_and_normal_map_colours():
     from nlipscalib.core import tricolor_groups
     from nlipscalib.report import normals_to_rgb
 
-    text = (FORMATS.parent / "conventions.md").read_text()
+    text = (FORMATS.parent / "conventions.md").read_text(encoding="utf-8")
     assert "group floor(3 i / L)" in text and "13 LEDs: 1-5 red, 6-9 green, 10-13 blue" in text
     for n in range(3, 40):
         assert tricolor_groups(n).tolist() == [3 * i // n for i in range(n)]
@@ -214,7 +214,7 @@ def test_a_press_written_from_formats_md_alone_loads(tmp_path):
         "reference": "reference.npz",
         "lab_station": "bench 2",  # formats.md: other top-level keys are ignored
     }
-    (folder / "meta.json").write_text(json.dumps(meta))
+    (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     press = load_press(folder)
     np.testing.assert_array_equal(press.dark, rgb["dark"])  # RGB in memory as in the file
     np.testing.assert_array_equal(press.led_images, np.stack([rgb[f"led_{i:02d}"] for i in (1, 2, 3)]))
@@ -243,7 +243,7 @@ def _literal_strftime(module: str) -> set[str]:
     import ast
 
     source = Path(__file__).resolve().parents[1] / "nlipscalib" / (module.replace(".", "/") + ".py")
-    calls = [n for n in ast.walk(ast.parse(source.read_text())) if isinstance(n, ast.Call)]
+    calls = [n for n in ast.walk(ast.parse(source.read_text(encoding="utf-8"))) if isinstance(n, ast.Call)]
     return {c.args[0].value for c in calls if getattr(c.func, "attr", "") == "strftime"}
 
 
@@ -255,7 +255,7 @@ def test_the_disk_cache_section_describes_an_entry_byte_for_byte_and_names_every
 
     from nlipscalib.core import diskcache
 
-    section = FORMATS.read_text()[FORMATS.read_text().index("# Disk cache") :]
+    section = FORMATS.read_text(encoding="utf-8")[FORMATS.read_text(encoding="utf-8").index("# Disk cache") :]
     magic = re.search(r"the line `(nlipscalib\.diskcache/\d+)`", section).group(1)
     tag = re.search(r'pickle \(protocol 5\) of \(`"([^"]+)"`', section).group(1)
     align = int(re.search(r"multiple of (\d+) bytes", section).group(1))
@@ -286,7 +286,7 @@ def test_the_disk_cache_section_describes_an_entry_byte_for_byte_and_names_every
     folders = set(re.search(r"\n  (surface/<digest>\.pkl.*)\n", section).group(1).replace("<digest>.pkl", "").split())
     persisted = set()  # kinds of reuse.reused(KIND, ..., persist=<not False>) and diskcache.entry(KIND, ...)
     for file in (FORMATS.parents[1] / "nlipscalib").rglob("*.py"):
-        for node in ast.walk(ast.parse(file.read_text())):
+        for node in ast.walk(ast.parse(file.read_text(encoding="utf-8"))):
             if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.args):
                 continue
             kind = node.args[0].value if isinstance(node.args[0], ast.Constant) else None

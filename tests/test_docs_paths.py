@@ -33,7 +33,7 @@ SOLVER_KEYS = {f.name for f in dataclasses.fields(SolverOptions)}
 def top_level_names(module: Path) -> frozenset[str]:
     """Names a module defines or imports at its top level (what ``module.name`` can reach)."""
     names = set()
-    for node in ast.parse(module.read_text()).body:
+    for node in ast.parse(module.read_text(encoding="utf-8")).body:
         if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
             names.add(node.name)
         elif isinstance(node, ast.Assign | ast.AnnAssign):
@@ -69,7 +69,7 @@ def dotted_problem(reference: str) -> str | None:
 
 
 def references(page: Path) -> list[str]:
-    text = page.read_text()
+    text = page.read_text(encoding="utf-8")
     return SLASHED.findall(text) + [m.rstrip(".") for m in DOTTED.findall(text)]
 
 

@@ -46,7 +46,7 @@ def parse_problem(command: str) -> str | None:
 
 
 def test_every_readme_command_parses():
-    commands = readme_commands(README.read_text())
+    commands = readme_commands(README.read_text(encoding="utf-8"))
     assert len(commands) > 40  # the blocks were read (a format change would otherwise pass silently)
     subcommands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices
     assert {c.split()[1] for c in commands} >= set(subcommands)  # every subcommand is shown
@@ -67,7 +67,7 @@ def test_the_readme_led_commands_without_hardware_run_and_do_what_their_comments
     """The LED section's `nlips leds virtual ...` / `nlipsemu://1` lines run as typed (``--dwell 0``: no waiting)."""
     from nlipscalib.cli import main
 
-    section = README.read_text().split("## LED controller (real sensor)")[1].split("\n## ")[0]
+    section = README.read_text(encoding="utf-8").split("## LED controller (real sensor)")[1].split("\n## ")[0]
     commands = [c for c in readme_commands(section) if c.split()[2].startswith(("virtual", "nlipsemu://"))]
     assert len(commands) == 3
     said = {}
@@ -88,10 +88,12 @@ def test_the_readme_and_setup_sh_quote_the_torch_range_and_pin_that_the_install_
     import tomllib
 
     root = README.parent
-    learn = tomllib.loads((root / "pyproject.toml").read_text())["project"]["optional-dependencies"]["learn"]
+    learn = tomllib.loads((root / "pyproject.toml").read_text(encoding="utf-8"))["project"]["optional-dependencies"][
+        "learn"
+    ]
     (torch_range,) = [req.replace(" ", "") for req in learn if req.startswith("torch")]
-    setup = (root / "setup.sh").read_text()
-    readme = README.read_text()
+    setup = (root / "setup.sh").read_text(encoding="utf-8")
+    readme = README.read_text(encoding="utf-8")
     assert f"`{torch_range}`" in readme
     assert f"({torch_range})" in setup
     (pin,) = set(re.findall(r"torch==[0-9.]+", setup))

@@ -16,7 +16,7 @@ TWIN = Path(__file__).resolve().parents[1] / "docs" / "twin.md"
 
 def _table_rows() -> dict[str, str]:
     """Section -> its row of the page's scene-file table (keys and defaults)."""
-    text = TWIN.read_text()
+    text = TWIN.read_text(encoding="utf-8")
     table = text[text.index("## The scene file") : text.index("## Which effects are on by default")]
     rows = {}
     for line in table.splitlines():
@@ -66,7 +66,7 @@ def test_the_scene_table_gives_the_code_s_default(section, key):
 
 def test_the_default_scene_file_is_scene_config_and_the_other_sensors_are_as_the_page_says():
     assert load_scene("nlipstac") == SceneConfig() == load_scene()
-    text = TWIN.read_text()
+    text = TWIN.read_text(encoding="utf-8")
     quoted = re.search(
         r"`ring_radius` ([\d. /]+) mm and `tilt_deg` ([\d /]+) against nlipstac's ([\d.]+) mm and (\d+)", text
     )
@@ -91,9 +91,12 @@ def _stated_bounce_noise() -> dict[str, float]:
 
     scene_py = Path(__file__).resolve().parents[1] / "nlipscalib" / "sim" / "scene.py"
     texts = {
-        "docs/twin.md": (TWIN.read_text(), r"about (\d+) % noise per pixel and LED image at 16 spp"),
+        "docs/twin.md": (TWIN.read_text(encoding="utf-8"), r"about (\d+) % noise per pixel and LED image at 16 spp"),
         "sim/render/denoise.py": (denoise.__doc__, r"at 16 spp the bounce light carries about (\d+) % noise"),
-        "RenderConfig.denoise_indirect": (scene_py.read_text(), r"At 16 spp that noise is about (\d+) % of the bounce"),
+        "RenderConfig.denoise_indirect": (
+            scene_py.read_text(encoding="utf-8"),
+            r"At 16 spp that noise is about (\d+) % of the bounce",
+        ),
     }
     stated = {}
     for where, (text, pattern) in texts.items():

@@ -16,7 +16,7 @@ def imported_modules(path: Path) -> list[tuple[int, str]]:
     """Every ``nlipscalib...`` module (or module.name) that ``path`` imports, with its line, relative ones resolved."""
     here = ["nlipscalib", *path.relative_to(PACKAGE).parent.parts]
     found = []
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.ImportFrom):
             base = here[: len(here) - node.level + 1] if node.level else []
             module = ".".join(base + ([node.module] if node.module else []))

@@ -82,7 +82,7 @@ def built(tmp_path_factory):
     code = f"from setuptools import build_meta; print(build_meta.build_sdist({str(dist)!r}))"
     res = _run([sys.executable, "-c", code], src)
     assert res.returncode == 0, res.stdout + res.stderr
-    (tmp / "sdist.log").write_text(res.stdout + res.stderr)  # setuptools' warnings on pyproject.toml
+    (tmp / "sdist.log").write_text(res.stdout + res.stderr, encoding="utf-8")  # setuptools' warnings on pyproject.toml
     (wheel,) = dist.glob("*.whl")
     return wheel, dist / res.stdout.strip().splitlines()[-1]
 
@@ -91,7 +91,7 @@ def test_pyproject_uses_no_setuptools_feature_with_an_end_date(built):
     """setuptools 84 warned that `license = { text = "MIT" }` is deprecated and that builds stop working after
     2027-02-18; its SPDX string (`license = "MIT"`, setuptools >= 77) is what it asks for."""
     wheel, _ = built
-    log = (wheel.parent.parent / "sdist.log").read_text()
+    log = (wheel.parent.parent / "sdist.log").read_text(encoding="utf-8")
     assert "deprecated" not in log.lower(), log
     info = "-".join(wheel.name.split("-")[:2]) + ".dist-info"  # nlipscalib-0.1.0.dist-info
     metadata = zipfile.ZipFile(wheel).read(f"{info}/METADATA").decode()
@@ -181,7 +181,7 @@ def test_a_bare_name_is_a_shipped_dataset_spec_even_beside_a_folder_of_that_name
     assert dataset_spec_path("train50") == DATASETS_DIR / "train50.toml"
     (tmp_path / "train50").mkdir()
     assert dataset_spec_path("train50") == DATASETS_DIR / "train50.toml"
-    (tmp_path / "mine").write_text("")
+    (tmp_path / "mine").write_text("", encoding="utf-8")
     assert dataset_spec_path("mine") == Path("mine")  # a file of the user's, without a suffix
     assert dataset_spec_path("specs/x.toml") == Path("specs/x.toml")  # load_dataset_spec says it is missing
     with pytest.raises(ConfigError, match=r"^dataset spec 'train5O': no such file, nor a shipped dataset spec"):

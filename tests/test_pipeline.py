@@ -257,7 +257,9 @@ def test_two_runs_of_other_settings_on_one_press_one_solves_and_the_other_is_ref
     assert len(lines) == 1, errs[loser]
     assert f"{press / 'nlips'}: another run is solving {press} into it with other settings (roi {roi}" in lines[0]
     assert "re-solving" not in _text(logs[loser]) and "reconstructed" not in _text(logs[loser])
-    recorded = json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["roi"]
+    recorded = json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))["provenance"]["settings"][
+        "roi"
+    ]
     assert recorded == ("auto", None)[winner]
     assert not list(press.glob(".claim-*")) and not list(press.glob(".tmp-*"))
 
@@ -286,7 +288,7 @@ def test_a_batch_keeps_its_presses_from_a_run_of_other_settings_until_it_ends(pr
 
 
 def _text(path) -> str:
-    return path.read_text() if path.exists() else ""
+    return path.read_text(encoding="utf-8") if path.exists() else ""
 
 
 def test_figures_off_maps_and_full(press):
@@ -359,9 +361,9 @@ def test_a_press_whose_meta_json_names_an_image_by_a_number_fails_alone(press_se
 
     root = tmp_path / "set"
     shutil.copytree(press_set, root)
-    meta = json.loads((root / "b_cube" / "meta.json").read_text())
+    meta = json.loads((root / "b_cube" / "meta.json").read_text(encoding="utf-8"))
     meta["images"]["dark"] = 5
-    (root / "b_cube" / "meta.json").write_text(json.dumps(meta))
+    (root / "b_cube" / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     statuses = solve_presses(sorted(root.iterdir()), options=FAST, workers=workers, progress=False, figures=False)
     assert statuses["a_sphere"] == "solved" and statuses["c_sphere_deep"] == "solved"
     assert statuses["b_cube"] == f"failed: {root / 'b_cube' / 'meta.json'}: 'images.dark' must be a file name, got 5"
@@ -378,7 +380,7 @@ def test_a_batchs_log_lines_name_each_press_as_the_user_gave_it(press_set, tmp_p
 
     for name in ("a_sphere", "b_cube"):
         shutil.copytree(press_set / name, tmp_path / "x" / name)
-    (tmp_path / "fast.toml").write_text("max_iters = 6\n")
+    (tmp_path / "fast.toml").write_text("max_iters = 6\n", encoding="utf-8")
     code = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
 
@@ -390,9 +392,9 @@ def test_a_batchs_log_lines_name_each_press_as_the_user_gave_it(press_set, tmp_p
     lines = solve("--config", "fast.toml")  # solved
     lines += solve()  # other options: re-solved
     lines += solve()  # reused
-    meta = json.loads((tmp_path / "x" / "b_cube" / "meta.json").read_text())
+    meta = json.loads((tmp_path / "x" / "b_cube" / "meta.json").read_text(encoding="utf-8"))
     meta["images"]["dark"] = 5
-    (tmp_path / "x" / "b_cube" / "meta.json").write_text(json.dumps(meta))
+    (tmp_path / "x" / "b_cube" / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     lines += solve("--overwrite")  # one press fails
     said = " ".join(lines)
     assert "reconstructed" in said and "re-solving" in said and "identical result" in said and "ERROR" in said
@@ -507,9 +509,9 @@ def test_a_result_damaged_inside_or_with_a_strange_record_is_re_solved(press, ca
     assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
     assert "compressed data damaged" in caplog.text
     report = press / "nlips" / "report.json"
-    record = json.loads(report.read_text())
+    record = json.loads(report.read_text(encoding="utf-8"))
     for provenance in (5, {"settings": 5, "inputs": [1]}):  # hand-edited: valid JSON, not a record
-        report.write_text(json.dumps(record | {"provenance": provenance}))
+        report.write_text(json.dumps(record | {"provenance": provenance}), encoding="utf-8")
         assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
     assert read_report(press / "nlips")["provenance"]["key"] == record["provenance"]["key"]
 
@@ -531,7 +533,7 @@ def test_a_result_of_other_code_or_of_code_unrecorded_is_re_solved(press, caplog
     assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
     assert "made with other settings or inputs (nlipscalib code), re-solving" in caplog.text
     report = press / "nlips" / "report.json"
-    record = json.loads(report.read_text())
+    record = json.loads(report.read_text(encoding="utf-8"))
     assert record["provenance"]["code"] == code_version.code_fingerprint()
     assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"  # the same code: reused
 
@@ -540,7 +542,7 @@ def test_a_result_of_other_code_or_of_code_unrecorded_is_re_solved(press, caplog
     settings = {k: v for k, v in old["settings"].items() if k not in ("leds_file", "reference")}  # keyed
     source["settings"] = settings
     old["key"] = hashlib.sha256(json.dumps(source, sort_keys=True).encode()).hexdigest()
-    report.write_text(json.dumps(record | {"provenance": old}))
+    report.write_text(json.dumps(record | {"provenance": old}), encoding="utf-8")
     caplog.clear()
     assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
     lines = [r.getMessage() for r in caplog.records if "re-solving" in r.getMessage()]
@@ -625,7 +627,7 @@ def test_a_killed_worker_fails_the_unfinished_presses_in_one_line_each(press_set
             time.sleep(0.01)
         victim, killed = claims[0].parent.name, None
         with contextlib.suppress(ValueError, OSError, ProcessLookupError):  # it may have finished meanwhile
-            killed = json.loads(claims[0].read_text())["pid"]
+            killed = json.loads(claims[0].read_text(encoding="utf-8"))["pid"]
             os.kill(killed, signal.SIGKILL)
         out, err = proc.communicate(timeout=60)
     finally:
@@ -657,15 +659,15 @@ def test_out_that_is_not_a_reconstruction_is_never_replaced(press, press_set, tm
     }[what]
     if what == "user folder":
         target.mkdir()
-        (target / "todo.txt").write_text("important")
+        (target / "todo.txt").write_text("important", encoding="utf-8")
     elif what == "user file":
-        target.write_text("precious")
-    before = sorted(p.name for p in target.iterdir()) if target.is_dir() else target.read_text()
+        target.write_text("precious", encoding="utf-8")
+    before = sorted(p.name for p in target.iterdir()) if target.is_dir() else target.read_text(encoding="utf-8")
     for extra in ([], ["--overwrite"]):
         assert main(["--no-progress", "solve", str(press), "--out", str(target), *extra]) == 2
         err = capsys.readouterr().err
         assert str(target) in err and "choose another --out" in err and "Traceback" not in err
-    after = sorted(p.name for p in target.iterdir()) if target.is_dir() else target.read_text()
+    after = sorted(p.name for p in target.iterdir()) if target.is_dir() else target.read_text(encoding="utf-8")
     assert after == before
 
 

@@ -70,7 +70,7 @@ def test_bars_in_a_notebook_but_not_in_a_log_file_it_redirects_to(monkeypatch, t
         progress.configure(progress=False)
         assert not progress.bars_enabled()
     progress.configure(progress=True)
-    with open(tmp_path / "cell.log", "w") as log:
+    with open(tmp_path / "cell.log", "w", encoding="utf-8") as log:
         monkeypatch.setattr("sys.stderr", log)
         assert not progress.bars_enabled()
     monkeypatch.setattr("sys.stderr", None)  # pythonw, a daemon with fd 2 closed: no bar, no error
@@ -86,10 +86,10 @@ def test_working_logs_start_and_end_when_not_a_terminal(caplog):
 
 def test_dataset_log_file_without_carriage_returns(tmp_path, monkeypatch, capsys):
     spec, out, log = tmp_path / "spec.toml", tmp_path / "out", tmp_path / "logs" / "run.log"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render([]))
     assert main(["-v", "--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    text = log.read_text()
+    text = log.read_text(encoding="utf-8")
     assert "press press_0003: rendered" in text and "\r" not in text
     assert "\r" not in capsys.readouterr().err  # stderr is not a terminal here: no bar
 
@@ -101,7 +101,7 @@ def test_worker_processes_append_whole_lines_to_the_log_file(tmp_path):
     from multiprocessing import get_context
 
     log = tmp_path / "run.log"
-    log.write_text("earlier run\n")
+    log.write_text("earlier run\n", encoding="utf-8")
     progress.configure(progress=False, log_file=log)
     logger = logging.getLogger("nlipscalib.test_workers")
     long = "x" * 9000  # longer than a FileHandler's write buffer
@@ -112,7 +112,7 @@ def test_worker_processes_append_whole_lines_to_the_log_file(tmp_path):
             future.result()
     logger.warning("parent line")
     progress.configure(progress=True)  # closes the file
-    lines = log.read_text().splitlines()
+    lines = log.read_text(encoding="utf-8").splitlines()
     assert lines[0] == "earlier run"  # appended, not truncated
     numbers = sorted(int(m.group(1)) for line in lines if (m := re.search(rf"worker line (\d+) {long}$", line)))
     assert numbers == list(range(24)) and len(lines) == 26 and lines[-1].endswith("parent line")
@@ -125,12 +125,12 @@ def test_parallel_solve_logs_to_the_log_file(tmp_path):
     folders = [tmp_path / "press_a", tmp_path / "press_b"]
     for folder in folders:
         folder.mkdir()
-        (folder / "meta.json").write_text("{}")  # a capture the worker refuses, with an ERROR line
+        (folder / "meta.json").write_text("{}", encoding="utf-8")  # a capture the worker refuses, with an ERROR line
     log = tmp_path / "run.log"
     progress.configure(progress=False, log_file=log)
     status = solve_presses(folders, workers=2, progress=False, figures=False)
     assert all(s.startswith("failed") for s in status.values())
-    text = log.read_text()
+    text = log.read_text(encoding="utf-8")
     assert "ERROR" in text and "press_a" in text and "press_b" in text, text
 
 
@@ -147,7 +147,7 @@ def test_results_printed_on_stdout_reach_the_log_file_too(tmp_path, capsys):
         print(" 1.5")
     assert sys.stdout is real
     assert capsys.readouterr().out == "3 rendered, 0 already there\nmean AAE 1.5\n"
-    lines = log.read_text().splitlines()
+    lines = log.read_text(encoding="utf-8").splitlines()
     assert lines[0].endswith("3 rendered, 0 already there") and lines[1].endswith("mean AAE 1.5") and len(lines) == 2
     progress.configure(progress=False)  # without a log file nothing is wrapped
     with progress.results_to_log_file():
@@ -158,7 +158,7 @@ def test_the_cli_logs_a_commands_results_to_its_log_file(tmp_path, capsys):
     log = tmp_path / "cache.log"
     assert main(["--log-file", str(log), "cache"]) == 0
     printed = capsys.readouterr().out.strip().splitlines()
-    assert printed and all(line in log.read_text() for line in printed)
+    assert printed and all(line in log.read_text(encoding="utf-8") for line in printed)
 
 
 def test_the_log_tee_forwards_what_it_does_not_handle_and_steps_aside_without_stdout(tmp_path, monkeypatch):
@@ -200,7 +200,7 @@ def test_the_log_file_says_which_command_started_and_how_it_ended_and_runs_appen
     log = tmp_path / "lab.log"
     assert main(["--log-file", str(log), "cache"]) == 0
     assert main(["cache", "--log-file", str(log)]) == 0  # a second run appends
-    lines = log.read_text().splitlines()
+    lines = log.read_text(encoding="utf-8").splitlines()
     assert all(LINE.match(line) for line in lines), lines
     starts = [i for i, line in enumerate(lines) if " started (pid " in line]
     assert len(starts) == 2 and starts[0] == 0, lines
@@ -215,7 +215,7 @@ def test_an_error_that_ends_the_command_and_its_exit_status_are_in_the_log_file(
     log = tmp_path / "lab.log"
     missing = tmp_path / "missing"
     assert main(["--log-file", str(log), "solve", str(missing)]) == 2
-    text = log.read_text()
+    text = log.read_text(encoding="utf-8")
     assert f"ERROR nlipscalib: nlips solve: {missing}" in text
     assert text.splitlines()[-1].split("] ", 1)[1].startswith("ERROR nlipscalib: nlips solve ended: exit status 2")
     assert capsys.readouterr().err.count("\n") == 1  # stderr stays one line
@@ -231,7 +231,7 @@ def test_an_unexpected_error_leaves_its_traceback_and_status_in_the_log_file(tmp
     log = tmp_path / "lab.log"
     with pytest.raises(RuntimeError):
         main(["--log-file", str(log), "cache"])
-    text = log.read_text()
+    text = log.read_text(encoding="utf-8")
     assert "ERROR nlipscalib: nlips cache: unexpected error\nTraceback (most recent call last):" in text
     assert "RuntimeError: a bug" in text and "nlips cache ended: exit status 1" in text.splitlines()[-1]
 
@@ -245,7 +245,7 @@ def test_an_interrupted_command_says_so_in_the_log_file(tmp_path, monkeypatch, c
     monkeypatch.setattr(cache, "run", interrupted)
     log = tmp_path / "lab.log"
     assert main(["--log-file", str(log), "cache"]) == 130
-    lines = log.read_text().splitlines()
+    lines = log.read_text(encoding="utf-8").splitlines()
     assert "WARNING nlipscalib: nlips cache: interrupted;" in lines[-2] and "exit status 130" in lines[-1], lines
 
 
@@ -256,7 +256,7 @@ def test_verbose_shows_our_debug_lines_not_the_libraries(tmp_path, capsys):
     logging.getLogger("matplotlib.font_manager").debug("findfont: score(FontEntry(...)) = 10.05")
     logging.getLogger("nlipscalib.solver").debug("kept: identical result")
     logging.getLogger("distributed.worker").warning("a library's warning still shows")
-    text = log.read_text()
+    text = log.read_text(encoding="utf-8")
     assert "findfont" not in text and "kept: identical result" in text and "a library's warning" in text
     assert "findfont" not in capsys.readouterr().err
 
@@ -273,9 +273,13 @@ def test_a_file_only_line_reaches_stderr_only_with_verbose():
 def test_a_dataset_logs_each_press_and_how_far_it_got_in_the_log_file_without_verbose(tmp_path, monkeypatch, capsys):
     """A long `nlips --log-file F dataset` left only its end in F: the presses were logged at DEBUG (-v only)."""
     spec, out, log = tmp_path / "spec.toml", tmp_path / "out", tmp_path / "run.log"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render([]))
     assert main(["--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    lines = [line.split(": ", 1)[1] for line in log.read_text().splitlines() if "] INFO nlipscalib.sim." in line]
+    lines = [
+        line.split(": ", 1)[1]
+        for line in log.read_text(encoding="utf-8").splitlines()
+        if "] INFO nlipscalib.sim." in line
+    ]
     presses = [line for line in lines if line.startswith("press ")]
     assert presses and presses[-1].endswith(f"rendered ({len(presses)} of {len(presses)})"), lines

@@ -19,10 +19,11 @@ def _pytest(folder: Path, *args: str, **env: str) -> subprocess.CompletedProcess
 
 def test_twin_skips_fail_only_when_required(tmp_path):
     (tmp_path / "test_twin_missing.py").write_text(
-        "import pytest\npytest.importorskip('mitsuba_missing_for_this_test')\ndef test_a():\n    pass\n"
+        "import pytest\npytest.importorskip('mitsuba_missing_for_this_test')\ndef test_a():\n    pass\n",
+        encoding="utf-8",
     )
     (tmp_path / "test_other_skip.py").write_text(
-        "import pytest\ndef test_b():\n    pytest.skip('no camera attached')\n"
+        "import pytest\ndef test_b():\n    pytest.skip('no camera attached')\n", encoding="utf-8"
     )
     relaxed = _pytest(tmp_path)
     assert relaxed.returncode == 0 and "2 skipped" in relaxed.stdout
@@ -34,6 +35,6 @@ def test_twin_skips_fail_only_when_required(tmp_path):
 
 
 def test_required_twin_that_cannot_render_stops_the_run(tmp_path):
-    (tmp_path / "test_ok.py").write_text("def test_ok():\n    pass\n")
+    (tmp_path / "test_ok.py").write_text("def test_ok():\n    pass\n", encoding="utf-8")
     run = _pytest(tmp_path, NLIPS_REQUIRE_TWIN="1", NLIPS_LLVM_OK="0")  # as if LLVM were broken
     assert run.returncode != 0 and "cannot render" in run.stdout + run.stderr

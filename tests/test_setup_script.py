@@ -23,7 +23,7 @@ pytestmark = pytest.mark.skipif(shutil.which("bash") is None, reason="needs bash
 
 
 def _exe(path: Path, text: str) -> None:
-    path.write_text(text)
+    path.write_text(text, encoding="utf-8")
     path.chmod(0o755)
 
 
@@ -71,7 +71,7 @@ def _setup(repo: Path, stubs: Path, *args: str, path: str | None = None, **env: 
 
 def _installs(log: Path) -> int:
     """How many times setup.sh ran ``pip install -e .[all]``."""
-    return log.read_text().count("-e .[all]") if log.exists() else 0
+    return log.read_text(encoding="utf-8").count("-e .[all]") if log.exists() else 0
 
 
 def test_second_run_only_checks_and_a_changed_pyproject_installs_again(checkout):
@@ -87,7 +87,9 @@ def test_second_run_only_checks_and_a_changed_pyproject_installs_again(checkout)
     assert _installs(log) == 1, "the second run installed again"
     assert "nothing to install" in second.stdout
 
-    (repo / "pyproject.toml").write_text((repo / "pyproject.toml").read_text() + "\n# changed\n")
+    (repo / "pyproject.toml").write_text(
+        (repo / "pyproject.toml").read_text(encoding="utf-8") + "\n# changed\n", encoding="utf-8"
+    )
     assert _setup(repo, stubs).returncode == 0
     assert _installs(log) == 2  # pyproject.toml changed since the last install
     assert _setup(repo, stubs).returncode == 0
@@ -101,14 +103,18 @@ def test_an_environment_that_no_longer_matches_installs(checkout):
     repo, log, stubs = checkout
     assert _setup(repo, stubs).returncode == 0 and _installs(log) == 1
     # a requirement the installed metadata does not have (pip install was never run with it)
-    text = (repo / "pyproject.toml").read_text().replace('"numpy>=1.26",', '"numpy>=1.26",\n  "not-a-real-package>=1",')
-    (repo / "pyproject.toml").write_text(text)
+    text = (
+        (repo / "pyproject.toml")
+        .read_text(encoding="utf-8")
+        .replace('"numpy>=1.26",', '"numpy>=1.26",\n  "not-a-real-package>=1",')
+    )
+    (repo / "pyproject.toml").write_text(text, encoding="utf-8")
     stamp = repo / ".venv" / ".nlipscalib-pyproject.sha256"
-    stamp.write_text(hashlib.sha256(text.encode()).hexdigest())  # even with a matching stamp
+    stamp.write_text(hashlib.sha256(text.encode()).hexdigest(), encoding="utf-8")  # even with a matching stamp
     assert _setup(repo, stubs).returncode == 0
     assert _installs(log) == 2
     # another checkout is what the venv imports (the package's own install, not this copy)
-    (repo / "pyproject.toml").write_text((ROOT / "pyproject.toml").read_text())
+    (repo / "pyproject.toml").write_text((ROOT / "pyproject.toml").read_text(encoding="utf-8"), encoding="utf-8")
     assert _setup(repo, stubs).returncode == 0 and _installs(log) == 3
     assert _setup(repo, stubs).returncode == 0 and _installs(log) == 3
     (repo / "nlipscalib").unlink()
@@ -119,8 +125,11 @@ def test_an_environment_that_no_longer_matches_installs(checkout):
     (repo / "nlipscalib").mkdir()
     shutil.copy(ROOT / "nlipscalib" / "__init__.py", repo / "nlipscalib")
     wrapper = repo / ".venv" / "bin" / "python"
-    wrapper.write_text("".join(line for line in wrapper.read_text().splitlines(True) if "PYTHONPATH" not in line))
-    wrapper.write_text(wrapper.read_text() + f'exec "{sys.executable}" "$@"\n')
+    wrapper.write_text(
+        "".join(line for line in wrapper.read_text(encoding="utf-8").splitlines(True) if "PYTHONPATH" not in line),
+        encoding="utf-8",
+    )
+    wrapper.write_text(wrapper.read_text(encoding="utf-8") + f'exec "{sys.executable}" "$@"\n', encoding="utf-8")
     assert _setup(repo, stubs).returncode == 0
     assert _installs(log) == 5
 
@@ -138,12 +147,14 @@ def test_torch_comes_from_the_cpu_index_not_pypis_cuda_build(checkout):
     repo, log, stubs = checkout
     (repo.parent / "no-torch").touch()
     assert _setup(repo, stubs).returncode == 0
-    torch_calls = [line for line in log.read_text().splitlines() if "torch==" in line]
+    torch_calls = [line for line in log.read_text(encoding="utf-8").splitlines() if "torch==" in line]
     assert len(torch_calls) == 1
     assert "--index-url https://download.pytorch.org/whl/cpu" in torch_calls[0]
     (repo.parent / "no-torch").unlink()
     assert _setup(repo, stubs).returncode == 0
-    assert sum("torch==" in line for line in log.read_text().splitlines()) == 1  # installed: not asked again
+    assert (
+        sum("torch==" in line for line in log.read_text(encoding="utf-8").splitlines()) == 1
+    )  # installed: not asked again
 
 
 def test_torch_falls_back_to_the_configured_index_when_the_cpu_index_fails(checkout):
@@ -154,7 +165,7 @@ def test_torch_falls_back_to_the_configured_index_when_the_cpu_index_fails(check
     (repo.parent / "cpu-index-down").touch()
     res = _setup(repo, stubs)
     assert res.returncode == 0, res.stderr
-    torch_calls = [line for line in log.read_text().splitlines() if "torch==" in line]
+    torch_calls = [line for line in log.read_text(encoding="utf-8").splitlines() if "torch==" in line]
     assert len(torch_calls) == 2 and "--index-url" in torch_calls[0] and "--index-url" not in torch_calls[1]
     assert "setup: warning: torch's CPU build is not reachable" in res.stderr
 
@@ -169,7 +180,7 @@ def test_a_python_older_than_3_11_is_refused_in_one_line_before_anything_is_inst
     res = _setup(repo, stubs, PYTHON=str(old))
     assert res.returncode == 1 and res.stderr.strip().count("\n") == 0, res.stderr
     assert "needs Python >= 3.11" in res.stderr and "is Python 3.10.12" in res.stderr
-    assert not log.exists(), log.read_text()  # neither apt-get nor pip ran
+    assert not log.exists(), log.read_text(encoding="utf-8")  # neither apt-get nor pip ran
 
 
 def test_a_python_without_its_venv_package_gets_it_before_the_venv_is_made(checkout, tmp_path):
@@ -193,7 +204,7 @@ exec "{sys.executable}" "$@"
     res = _setup(repo, stubs, PYTHON=str(bare))
     assert res.returncode == 0, res.stderr
     package = f"python{sys.version_info[0]}.{sys.version_info[1]}-venv"
-    assert f"apt-get install -y -qq {package}" in log.read_text()
+    assert f"apt-get install -y -qq {package}" in log.read_text(encoding="utf-8")
     assert _installs(log) == 1
 
 
@@ -210,7 +221,7 @@ def test_ldconfig_off_the_path_as_for_debians_users_still_finds_llvm(checkout):
     path = os.pathsep.join(d for d in os.environ["PATH"].split(os.pathsep) if not d.rstrip("/").endswith("sbin"))
     res = _setup(repo, stubs, path=path)
     assert res.returncode == 0, res.stderr
-    assert "libllvm19" not in (log.read_text() if log.exists() else "")
+    assert "libllvm19" not in (log.read_text(encoding="utf-8") if log.exists() else "")
 
 
 def test_a_machine_without_python3_gets_debians_before_anything_else(checkout, tmp_path):
@@ -237,7 +248,10 @@ esac
 """,
     )
     res = _setup(repo, stubs, path=str(bare))
-    assert "apt-get install -y -qq python3" in log.read_text(), (res.stderr, log.read_text())
+    assert "apt-get install -y -qq python3" in log.read_text(encoding="utf-8"), (
+        res.stderr,
+        log.read_text(encoding="utf-8"),
+    )
     assert "installing python3 (none on the PATH)" in res.stdout
     assert res.returncode == 0 and _installs(log) == 1, res.stderr
 
@@ -253,4 +267,4 @@ def test_an_ldconfig_still_writing_when_grep_has_its_match_does_not_look_like_mi
     )
     res = _setup(repo, stubs)
     assert res.returncode == 0, res.stderr
-    assert "libllvm19" not in (log.read_text() if log.exists() else "")
+    assert "libllvm19" not in (log.read_text(encoding="utf-8") if log.exists() else "")

@@ -88,7 +88,7 @@ def _descendants(pid: int) -> set[int]:
     parents = {}
     for entry in Path("/proc").iterdir():
         with contextlib.suppress(OSError, ValueError):  # a process gone meanwhile; /proc's other entries
-            stat = (entry / "stat").read_text()
+            stat = (entry / "stat").read_text(encoding="utf-8")
             parents[int(entry.name)] = int(stat[stat.rfind(")") + 2 :].split()[1])  # the name may hold spaces
     found, frontier = set(), {pid}
     while frontier:

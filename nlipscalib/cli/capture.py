@@ -377,7 +377,7 @@ def _calibrated_camera(path: str | None) -> Camera | None:
 
     made_by = "the JSON file from `nlips calibrate-camera`"
     try:
-        doc = json.loads(Path(path).read_text())
+        doc = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such camera calibration file") from None
     except IsADirectoryError:

@@ -490,7 +490,7 @@ def _write_stream_report(
         "median_stage_s": stages.medians(),
         "mean_stage_s": stages.means(),
         "cpu_s_per_frame": cpu_s / stats.frames,
-        "load_average": list(os.getloadavg()),
+        "load_average": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,  # none on Windows
     }
     write_bytes(Path(out) / "stream.json", json.dumps(report, indent=2).encode())
 

@@ -278,7 +278,7 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
     if not is_press_folder(out):
         raise ConfigError(f"{out}: exists and is not a press folder; choose another --out or use --overwrite")
     try:
-        recorded = recorded_spec_hash(json.loads((out / "meta.json").read_text())["provenance"])
+        recorded = recorded_spec_hash(json.loads((out / "meta.json").read_text(encoding="utf-8"))["provenance"])
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         recorded = None
     if recorded != render_spec_hash(scene, press, seed):

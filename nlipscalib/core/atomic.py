@@ -225,9 +225,14 @@ def atomic_dir(final: str | Path, overwrite: bool = False) -> Iterator[Path]:
     _IN_PROGRESS.add(tmp)
     try:
         os.mkdir(tmp, 0o700)  # made inside the try: an interrupt right after it still removes it (_temporary_name)
-        held = os.open(tmp, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))  # keeps its inode number its own
+        try:
+            held = os.open(tmp, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))  # keeps its inode number its own
+            made = None
+        except PermissionError:  # Windows opens no folder this way: its file id is kept instead (NTFS reuses none soon)
+            made = os.stat(tmp)
         yield tmp
-        _check_same_folder(tmp, os.fstat(held))  # never publish a folder that lost what was written into it
+        # never publish a folder that lost what was written into it
+        _check_same_folder(tmp, os.fstat(held) if held is not None else made)
         os.chmod(tmp, DIR_MODE)
         if overwrite:
             _swap_in(tmp, final)

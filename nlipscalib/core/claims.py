@@ -23,6 +23,7 @@ import logging
 import os
 import secrets
 import socket
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -240,7 +241,15 @@ def release_all() -> None:
 
 
 def pid_alive(pid: int) -> bool:
-    """Whether a process with this id runs on this machine (a zombie -- exited, not yet reaped -- does not)."""
+    """Whether a process with this id runs on this machine (a zombie -- exited, not yet reaped -- does not).
+
+    Windows: asked of psutil, never ``os.kill``. Why: Windows has no signal 0; its ``os.kill`` ends the process
+    with ``TerminateProcess`` for any signal but Ctrl-C's, so the check killed what it asked about (a claim's
+    owner, or a worker's own command: :func:`nlipscalib.core.processes.end_with_parent`)."""
+    if sys.platform == "win32":
+        import psutil  # a dependency on Windows only (pyproject); imported here, as the check is rare
+
+        return psutil.pid_exists(pid)
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -256,7 +265,7 @@ def _zombie(pid: int) -> bool:
     Why: a worker killed with SIGKILL stays a zombie until its parent or init reaps it, which some containers'
     init does late; ``kill(pid, 0)`` succeeds on it, and its claims looked held by a live process."""
     try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
+        stat = Path(f"/proc/{pid}/stat").read_text(encoding="utf-8")
     except OSError:  # no procfs (macOS, Windows) or gone meanwhile: kill() had the last word
         return False
     return stat[stat.rfind(")") + 2 :][:1] in ("Z", "X")  # the name in parentheses may hold spaces

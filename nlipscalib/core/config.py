@@ -39,7 +39,7 @@ def read_config_file(path: str | Path) -> dict:
         elif suffix in (".yaml", ".yml"):
             import yaml
 
-            data = yaml.safe_load(path.read_text())
+            data = yaml.safe_load(path.read_text(encoding="utf-8"))
             data = {} if data is None else data  # an empty (or comments-only) file, as an empty TOML file reads
         else:
             raise ConfigError(f"{path}: unknown config type '{suffix}' (use .toml, .yaml or .yml)")

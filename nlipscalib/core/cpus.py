@@ -59,10 +59,10 @@ def _cpu_quota(folder: Path, v1: bool) -> int | None:
     """One group's CPU quota in whole cores (rounded up, >= 1), None where it has none or a file is unreadable."""
     try:
         if v1:
-            quota = int((folder / "cpu.cfs_quota_us").read_text().strip())
-            period = int((folder / "cpu.cfs_period_us").read_text().strip())
+            quota = int((folder / "cpu.cfs_quota_us").read_text(encoding="utf-8").strip())
+            period = int((folder / "cpu.cfs_period_us").read_text(encoding="utf-8").strip())
         else:
-            quota_text, _, period_text = (folder / "cpu.max").read_text().strip().partition(" ")
+            quota_text, _, period_text = (folder / "cpu.max").read_text(encoding="utf-8").strip().partition(" ")
             if quota_text == "max":
                 return None
             quota, period = int(quota_text), int(period_text)
@@ -95,7 +95,7 @@ def available_memory(
 def _meminfo_available(meminfo: Path) -> int | None:
     """``MemAvailable`` of ``meminfo`` in bytes, or None where the file or the line is missing."""
     try:
-        text = meminfo.read_text()
+        text = meminfo.read_text(encoding="utf-8")
     except OSError:
         return None
     for line in text.splitlines():
@@ -143,7 +143,7 @@ def _cgroup_folder(
     proc_cgroup = PROC_CGROUP if proc_cgroup is None else proc_cgroup
     cgroup_root = CGROUP_ROOT if cgroup_root is None else cgroup_root
     try:
-        lines = proc_cgroup.read_text().splitlines()
+        lines = proc_cgroup.read_text(encoding="utf-8").splitlines()
     except OSError:
         return None
     v1 = v2 = None
@@ -179,11 +179,11 @@ def _group_and_ancestors(mount: Path, group: str) -> list[Path]:
 def _room(folder: Path, limit_file: str, usage_file: str) -> int | None:
     """Limit minus usage of one group's ``folder`` (>= 0), None where it has no limit or a file is unreadable."""
     try:
-        limit_text = (folder / limit_file).read_text().strip()
+        limit_text = (folder / limit_file).read_text(encoding="utf-8").strip()
         if limit_text == "max":
             return None
         limit = int(limit_text)
-        usage = int((folder / usage_file).read_text().strip())
+        usage = int((folder / usage_file).read_text(encoding="utf-8").strip())
     except (OSError, ValueError):
         return None
     if limit >= NO_CGROUP_LIMIT:
@@ -194,7 +194,7 @@ def _room(folder: Path, limit_file: str, usage_file: str) -> int | None:
 def _inactive_file(folder: Path) -> int:
     """Bytes of file cache the kernel can drop first (``inactive_file`` of ``memory.stat``), 0 where unknown."""
     try:
-        text = (folder / "memory.stat").read_text()
+        text = (folder / "memory.stat").read_text(encoding="utf-8")
     except OSError:
         return 0
     for line in text.splitlines():

@@ -49,7 +49,7 @@ def read_format_json(
     if not path.is_file():
         raise CaptureError(f"{path}: missing{hint}")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise CaptureError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != name:

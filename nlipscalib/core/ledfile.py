@@ -50,7 +50,7 @@ def read_led_file(path: str | Path) -> LedFile:
     """Read an LED file from ``nlips calibrate-leds`` (CaptureError naming it when missing or malformed)."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
         if not isinstance(data, dict):
             raise ValueError(f"expected a JSON object with 'leds', got {type(data).__name__}")
         if not isinstance(data.get("leds"), list):

@@ -88,10 +88,12 @@ def kill_unless_ended(pids: Iterable[int], grace_s: float) -> None:
     deadline = time.monotonic() + grace_s
     while any(pid_alive(pid) for pid in pids) and time.monotonic() < deadline:
         time.sleep(0.02)
+    # Windows has no SIGKILL; its os.kill ends the process outright (TerminateProcess) for SIGTERM as well
+    kill = getattr(signal, "SIGKILL", signal.SIGTERM)
     for pid in pids:
         if pid_alive(pid):
             with contextlib.suppress(OSError):
-                os.kill(pid, signal.SIGKILL)
+                os.kill(pid, kill)
 
 
 def worker_signals() -> None:

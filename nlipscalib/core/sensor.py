@@ -24,7 +24,19 @@ from .leds import Led
 
 MIN_IMAGE_SIDE, MAX_IMAGE_SIDE = 8, 16384
 """Image sides, pixels, the camera accepts."""
-SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
+
+
+def shipped_scenes(package: Path) -> Path:
+    """The folder of shipped scenes for the package folder ``package``: its ``scenes`` (a link to the repository's
+    ``scenes/`` in a checkout, a copy in an install), or the repository's ``scenes/`` itself where that link is not a
+    folder. Why: git on Windows without symbolic links (the default) checks the link out as a small text file
+    holding ``../scenes``, and every scene name (``--scene nlipstac``) was then unknown."""
+    linked = package / "scenes"
+    checkout = package.parent / "scenes"
+    return checkout if not linked.is_dir() and checkout.is_dir() else linked
+
+
+SCENES_DIR = shipped_scenes(Path(__file__).resolve().parents[1])
 """The shipped scenes (nlipscalib/scenes links to the repository's scenes/; installs carry a copy): their ``dome``,
 ``camera`` and ``leds`` sections are the designs ``nlips capture --design NAME`` names."""
 EXAMPLE_MESH = SCENES_DIR / "indenters" / "pyramid.stl"

@@ -438,7 +438,7 @@ def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:
 def _check_session_record(path: Path, described: dict) -> None:
     """Refuse (CaptureError naming ``path``) a session.json of another camera, LED count or settings."""
     try:
-        before = json.loads(path.read_text())
+        before = json.loads(path.read_text(encoding="utf-8"))
         if not isinstance(before, dict):
             raise ValueError(f"expected a JSON object, got {type(before).__name__}")
     except (OSError, ValueError) as exc:

@@ -51,7 +51,7 @@ def load_baseline(path: Path, experiment: str, size: str | None = None) -> dict:
     """The baseline document at ``path``: ConfigError (naming it) unless it is one of ``experiment`` at ``size``
     (a baseline of another size holds other figures: a quick run checked against a medium one passed unsaid)."""
     try:
-        data = json.loads(Path(path).read_text())
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such baseline file") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

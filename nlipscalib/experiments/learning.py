@@ -123,7 +123,7 @@ def _finished(path: Path, record: Path, key: str) -> dict | None:
     if not (path.is_file() and record.is_file()):
         return None
     try:
-        done = json.loads(record.read_text())
+        done = json.loads(record.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError):
         return None
     return done if done.get("key") == key else None
@@ -150,7 +150,7 @@ def _train(
     res = train(data, cfg, path, exclude=others, progress=progress)
     done = {
         "key": key,
-        "model": str(path.relative_to(out)),
+        "model": path.relative_to(out).as_posix(),  # / on every system: a folder moves between them
         "labels": cfg.labels,
         "hidden": list(cfg.hidden),
         "train_presses": res.train_presses,

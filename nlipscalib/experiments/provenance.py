@@ -66,7 +66,7 @@ def machine() -> dict:
     """Host, platform, CPU model, core count and load average (recorded with every report and benchmark)."""
     cpu = platform.processor() or platform.machine()
     try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
+        for line in Path("/proc/cpuinfo").read_text(encoding="utf-8").splitlines():
             if line.startswith("model name"):
                 cpu = line.split(":", 1)[1].strip()
                 break

@@ -169,7 +169,7 @@ def stored_result(out: Path, task: Task) -> dict | None:
     samples unchecked)."""
     path = result_path(out, task.id)
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
     except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
         return None
     return data if data.get("task_hash") == task.hash and data.get("status") == "done" else None
@@ -320,7 +320,10 @@ def _run_reference(task: Task, out: Path, threads: int, keep: bool) -> dict:
     folder = reference_folder(out, task.scene)
     t = time.perf_counter()
     adapters.render(task.scene, None, folder, threads)
-    return {"folder": str(folder.relative_to(out)), "timing": {"render_seconds": round(time.perf_counter() - t, 3)}}
+    return {
+        "folder": folder.relative_to(out).as_posix(),
+        "timing": {"render_seconds": round(time.perf_counter() - t, 3)},
+    }
 
 
 def _run_calibration(task: Task, out: Path, threads: int, keep: bool) -> dict:
@@ -386,7 +389,7 @@ def _write_samples(
     path = samples_path(out, task.id)
     path.parent.mkdir(parents=True, exist_ok=True)
     info = {
-        "file": str(path.relative_to(out)),
+        "file": path.relative_to(out).as_posix(),  # / on every system: a folder moves between them
         "count": int(len(arrays["rgb"])),
         "contact": int(arrays["contact"].sum()),
         "has_truth": bool(press.ground_truth is not None),
@@ -466,7 +469,7 @@ def _solver_leds(adapters: ModuleType, out: Path, task: Task, press: Press, spec
         return adapters.perturb_leds(press.leds, **_error_args(err))
     from ..core.leds import Led
 
-    cal = json.loads(result_path(out, calibration_id(task.scene, err)).read_text())
+    cal = json.loads(result_path(out, calibration_id(task.scene, err)).read_text(encoding="utf-8"))
     return tuple(Led.from_dict(d) for d in cal["leds"])
 
 

@@ -550,7 +550,7 @@ def arrays_digest(arrays: dict) -> str:
 
 def _old_entries(out: Path) -> dict:
     try:
-        return {e["name"]: e for e in json.loads((out / INDEX_FILE).read_text())["presses"]}
+        return {e["name"]: e for e in json.loads((out / INDEX_FILE).read_text(encoding="utf-8"))["presses"]}
     except (OSError, ValueError, KeyError, TypeError):
         return {}
 

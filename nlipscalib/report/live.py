@@ -8,6 +8,7 @@ are :mod:`.maps`' scalar colour mapping (viridis) with its colour bar, the norma
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -105,7 +106,9 @@ NO_GUI = "this OpenCV has no GUI (opencv-python-headless)"
 
 def window_problem() -> str | None:
     """Why an OpenCV window cannot be opened (no display; an OpenCV without a GUI), or None when it can."""
-    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or os.name == "nt"):
+    # Windows and macOS always have their own display server; only X11 and Wayland name theirs in the environment
+    desktop = os.name == "nt" or sys.platform == "darwin"
+    if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or desktop):
         return "no display"
     cv2 = require("cv2", "opencv-python-headless", "Showing live maps")
     try:

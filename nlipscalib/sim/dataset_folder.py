@@ -131,7 +131,7 @@ def _recorded_hash(folder: Path) -> str | None:
     from .press import recorded_spec_hash
 
     try:
-        return recorded_spec_hash(json.loads((folder / "meta.json").read_text())["provenance"])
+        return recorded_spec_hash(json.loads((folder / "meta.json").read_text(encoding="utf-8"))["provenance"])
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
 

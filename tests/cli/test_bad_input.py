@@ -36,7 +36,7 @@ def presses(tmp_path) -> Path:
 @pytest.fixture
 def a_file(tmp_path) -> Path:
     path = tmp_path / "a file"
-    path.write_text("notes")
+    path.write_text("notes", encoding="utf-8")
     return path
 
 
@@ -145,7 +145,7 @@ def test_a_camera_calibration_of_the_wrong_kind_says_what_it_is(tmp_path, conten
     from nlipscalib.core.errors import ConfigError
 
     path = tmp_path / "cam.json"
-    path.mkdir() if content is None else path.write_text(content)
+    path.mkdir() if content is None else path.write_text(content, encoding="utf-8")
     with pytest.raises(ConfigError) as caught:
         _calibrated_camera(str(path))
     assert str(caught.value).startswith(f"{path}: {problem}"), caught.value
@@ -190,7 +190,7 @@ def test_a_reconstruction_folder_given_as_a_press_is_named(presses, capsys):
     result = presses / "p1" / "nlips"
     result.mkdir()
     (result / RESULT_FILE).write_bytes(b"PK")
-    (result / "report.json").write_text(json.dumps({}))
+    (result / "report.json").write_text(json.dumps({}), encoding="utf-8")
     assert main(["--no-progress", "solve", str(result)]) == 2
     _one_line_error(capsys.readouterr().err, f"{result}: a reconstruction folder (result.npz), not a press")
 

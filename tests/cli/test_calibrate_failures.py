@@ -43,7 +43,7 @@ def test_a_damaged_tricolour_image_fails_its_press_only(tmp_path, capsys, caplog
     assert len(errors) == 1 and str(png) in errors[0], errors
     assert "calibration: 1 press, " in out
     assert "1 press left out of the dataset (not sampled): press_0001" in out
-    index = json.loads((root / "calibration" / "index.json").read_text())
+    index = json.loads((root / "calibration" / "index.json").read_text(encoding="utf-8"))
     assert [entry["name"] for entry in index["presses"]] == ["press_0002"]
 
 

@@ -24,7 +24,7 @@ def session(tmp_path_factory):
 
 
 def _solved_with(press) -> list | None:
-    return json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["leds"]
+    return json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))["provenance"]["settings"]["leds"]
 
 
 def test_calibrate_solves_with_the_led_file_and_again_when_the_leds_change(session, capsys, caplog):
@@ -35,7 +35,7 @@ def test_calibrate_solves_with_the_led_file_and_again_when_the_leds_change(sessi
     assert _solved_with(root / "press_0001") is None  # the capture's own LEDs
     caplog.clear()
     assert main(["calibrate", str(root), "--leds", str(leds), "--workers", "1", "--no-progress"]) == 0
-    calibrated = json.loads(leds.read_text())["leds"]
+    calibrated = json.loads(leds.read_text(encoding="utf-8"))["leds"]
     for name in ("press_0001", "press_0002"):
         assert [d["position"] for d in _solved_with(root / name)] == [d["position"] for d in calibrated]
     # not reused silently: each result made with the capture's LEDs is named and solved again
@@ -51,12 +51,12 @@ def test_calibrate_solves_with_the_led_file_and_again_when_the_leds_change(sessi
 
 def test_an_led_file_of_another_sensor_or_an_led_subset_is_one_line_before_any_solving(session, tmp_path, capsys):
     root, leds = session
-    other = json.loads(leds.read_text())  # calibrated on a sensor whose LEDs sit 20 % further out
+    other = json.loads(leds.read_text(encoding="utf-8"))  # calibrated on a sensor whose LEDs sit 20 % further out
     for led in other["leds"]:
         led["position"] = [v * 1.2 for v in led["position"]]
     other["sensor"]["led_positions"] = [[v * 1.2 for v in p] for p in other["sensor"]["led_positions"]]
     foreign = tmp_path / "other.json"
-    foreign.write_text(json.dumps(other))
+    foreign.write_text(json.dumps(other), encoding="utf-8")
     fresh = tmp_path / "presses"
     for name in ("reference", "press_0001"):
         synth.make_press(fresh / name, "none" if name == "reference" else "sphere", size=SIZE)
@@ -109,7 +109,7 @@ def test_calibrate_normals_refined_reaches_every_label_solve(tmp_path):
     synth.make_press(root / "press_0002", "cube", size=SIZE)
 
     def normals(name):
-        return json.loads((root / name / "nlips" / "report.json").read_text())["normals"]
+        return json.loads((root / name / "nlips" / "report.json").read_text(encoding="utf-8"))["normals"]
 
     assert main(["calibrate", str(root), "--normals", "refined", "--workers", "1", "--no-progress"]) == 0
     assert [normals(n) for n in ("press_0001", "press_0002")] == ["refined", "refined"]

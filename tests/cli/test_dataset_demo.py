@@ -28,7 +28,7 @@ depth = [1.2]
 
 def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     out = tmp_path / "data"
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "2", "--no-progress"]) == 0
     assert "3 rendered, 0 already there, 0 failed" in capsys.readouterr().out
@@ -37,7 +37,7 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     a, b = (load_press(p) for p in presses[:2])
     assert a.camera.shape == (60, 80) and a.ground_truth.contact.any()
     assert a.meta["provenance"]["press"]["azimuth_deg"] != b.meta["provenance"]["press"]["azimuth_deg"]
-    assert len(json.loads((out / "dataset.json").read_text())["presses"]) == 3
+    assert len(json.loads((out / "dataset.json").read_text(encoding="utf-8"))["presses"]) == 3
     assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 0
     assert "0 rendered, 3 already there" in capsys.readouterr().out
 
@@ -49,7 +49,7 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     args = ["--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "2", "--no-progress"]
     assert main(args) == 0
     assert "2 rendered, 1 already there, 0 failed" in capsys.readouterr().out
-    text = log.read_text()
+    text = log.read_text(encoding="utf-8")
     for name in ("press_0001", "press_0002"):
         assert f"{name}: incomplete press folder" in text, text
         assert load_press(out / name).camera.shape == (60, 80)
@@ -62,9 +62,9 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     assert (out / "press_0001" / "nlips" / "result.npz").is_file()
     assert not (out / "press_0002" / "nlips").exists() and not (out / "reference" / "nlips").exists()
     # without --reference, the dataset's own reference/ is the reference: used, not solved
-    first = json.loads((out / "press_0001" / "nlips" / "report.json").read_text())["provenance"]
+    first = json.loads((out / "press_0001" / "nlips" / "report.json").read_text(encoding="utf-8"))["provenance"]
     assert main(["solve", str(out), "--roi", "auto", "--overwrite"]) == 1
-    again = json.loads((out / "press_0001" / "nlips" / "report.json").read_text())["provenance"]
+    again = json.loads((out / "press_0001" / "nlips" / "report.json").read_text(encoding="utf-8"))["provenance"]
     assert again["settings"]["reference"] == str(out / "reference") and again["key"] == first["key"]
     assert not (out / "reference" / "nlips").exists()
     capsys.readouterr()
@@ -75,16 +75,19 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
 
 def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
     spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC.replace("depth = [1.2]", "depth = [9.0]").replace("seed = 5", "seed = 5\nreference = false"))
+    spec.write_text(
+        SPEC.replace("depth = [1.2]", "depth = [9.0]").replace("seed = 5", "seed = 5\nreference = false"),
+        encoding="utf-8",
+    )
     assert main(["dataset", str(spec), "--out", str(tmp_path / "d"), "--workers", "1", "--no-progress"]) == 2
     err = capsys.readouterr().err  # refused before rendering, naming the file and key
     assert "spec.toml" in err and "depth" in err and "thickness" in err
     rim = SPEC.replace("polar_deg = [10.0]", "polar_deg = [80.0]").replace("size = 6.0", "size = 12.0")
-    spec.write_text(rim.replace("seed = 5", "seed = 5\nreference = false"))
+    spec.write_text(rim.replace("seed = 5", "seed = 5\nreference = false"), encoding="utf-8")
     assert main(["dataset", str(spec), "--out", str(tmp_path / "d"), "--workers", "1", "--no-progress"]) == 1
     err = capsys.readouterr().err  # found only while rendering: reported per press, the others go on
     assert "press_0001" in err and "rim" in err
-    spec.write_text("[grid]\nindenter = []\n")
+    spec.write_text("[grid]\nindenter = []\n", encoding="utf-8")
     assert main(["dataset", str(spec), "--out", str(tmp_path / "e")]) == 2
     assert "spec.toml" in capsys.readouterr().err
 
@@ -92,7 +95,8 @@ def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
 def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
     spec = tmp_path / "demo.toml"
     spec.write_text(
-        SPEC.replace("azimuth_deg = [0.0, 180.0]", "azimuth_deg = [0.0]").replace("80", "96").replace("60", "72")
+        SPEC.replace("azimuth_deg = [0.0, 180.0]", "azimuth_deg = [0.0]").replace("80", "96").replace("60", "72"),
+        encoding="utf-8",
     )
     out = tmp_path / "demo"
     with caplog.at_level(logging.INFO, logger="nlipscalib"):
@@ -111,7 +115,7 @@ def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
     reused = [r for r in caplog.records if "identical result exists" in r.getMessage()]
     assert len(reused) == 1  # the second run reuses the one press and says so once
     # another spec into the same folder: refused naming --overwrite, which demo takes (it did not)
-    spec.write_text(spec.read_text().replace("seed = 5", "seed = 6"))
+    spec.write_text(spec.read_text(encoding="utf-8").replace("seed = 5", "seed = 6"), encoding="utf-8")
     assert main(["demo", "--spec", str(spec), "--out", str(out), "--no-solve"]) == 2
     assert "use --overwrite" in capsys.readouterr().err
     assert main(["demo", "--spec", str(spec), "--out", str(out), "--no-solve", "--overwrite"]) == 0

@@ -24,7 +24,7 @@ from tests.specs import TINY_SPEC as SPEC
 @pytest.fixture
 def spec(tmp_path) -> Path:
     path = tmp_path / "spec.toml"
-    path.write_text(SPEC)
+    path.write_text(SPEC, encoding="utf-8")
     return path
 
 
@@ -46,7 +46,7 @@ def _fake_render(calls, fail_at=None, error=errno.ENOSPC):
             raise OSError(error, os.strerror(error), str(out / job.name / "led_03.png"))
         (out / job.name).mkdir()
         meta = f'{{"provenance": {{"spec_hash": "{render_spec_hash(scene, job.press, job.seed)}"}}}}'
-        (out / job.name / "meta.json").write_text(meta)
+        (out / job.name / "meta.json").write_text(meta, encoding="utf-8")
 
     return render
 
@@ -176,7 +176,7 @@ def test_a_solver_option_out_of_range_in_a_config_file_is_one_line_naming_the_fi
 
     press = _press(tmp_path / "p")
     config = tmp_path / "c.toml"
-    config.write_text(line + "\n")
+    config.write_text(line + "\n", encoding="utf-8")
     assert main(["--no-progress", "solve", str(press), "--config", str(config)]) == 2
     _one_line_error(capsys.readouterr().err, str(config), problem)
 
@@ -187,7 +187,7 @@ def test_a_file_or_a_press_without_meta_json_is_called_what_it_is(tmp_path, caps
     from tests.core.test_capture import _press
 
     press, reference = _press(tmp_path / "p"), _press(tmp_path / "ref")
-    (tmp_path / "f.txt").write_text("x")
+    (tmp_path / "f.txt").write_text("x", encoding="utf-8")
     assert main(["--no-progress", "solve", str(press), "--reference", str(tmp_path / "f.txt")]) == 2
     _one_line_error(capsys.readouterr().err, "f.txt: a file, not a press folder")
     (press / "meta.json").unlink()
@@ -205,7 +205,7 @@ def test_a_file_where_the_output_folder_needs_a_folder_is_named_as_such(tmp_path
     from nlipscalib.cli import describe_os_error
 
     blocker = tmp_path / "bfile"
-    blocker.write_text("x")
+    blocker.write_text("x", encoding="utf-8")
     try:
         blocker.mkdir(parents=True, exist_ok=True)  # what making --out's parent does
     except FileExistsError as exc:

@@ -110,7 +110,7 @@ def test_exit_statuses_are_in_the_help_and_the_docs(capsys):
     with pytest.raises(SystemExit):
         main(["--help"])
     assert EXIT_STATUS in capsys.readouterr().out
-    assert EXIT_STATUS in (ROOT / "docs" / "faults.md").read_text()
+    assert EXIT_STATUS in (ROOT / "docs" / "faults.md").read_text(encoding="utf-8")
 
 
 def test_the_documented_statuses_are_those_the_command_returns(tmp_path, capsys):
@@ -190,4 +190,4 @@ def test_completion_of_a_command_name_with_the_real_argcomplete(tmp_path):
     line = f'"$0" -m nlipscalib 8>"{out}" 9>/dev/null'
     run = subprocess.run(["bash", "-c", line, sys.executable], env=env, cwd=ROOT, capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
-    assert out.read_text().split() == ["solve"]
+    assert out.read_text(encoding="utf-8").split() == ["solve"]

@@ -134,7 +134,7 @@ def _live_members(group: int) -> list[int]:
     pids = []
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
-            text = stat.read_text()
+            text = stat.read_text(encoding="utf-8")
         except OSError:  # ended meanwhile
             continue
         state, _, pgrp = text[text.rindex(")") + 2 :].split()[:3]
@@ -166,20 +166,24 @@ def test_sigterm_of_the_command_alone_stops_its_workers(tmp_path):
     command = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
     argv = [sys.executable, "-c", command, "--no-progress", "solve", str(tmp_path), "--workers", "2", "--no-figures"]
     log = tmp_path / "stderr.txt"
-    with open(log, "w") as err:  # a file, not a pipe: workers left running would hold a pipe open
+    with open(log, "w", encoding="utf-8") as err:  # a file, not a pipe: workers left running would hold a pipe open
         proc = subprocess.Popen(argv, stderr=err, text=True, start_new_session=True)
     try:
         deadline = time.monotonic() + 60
         while not list(tmp_path.glob("*/nlips/result.npz")) and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.02)
-        assert proc.poll() is None, log.read_text()  # still solving: the rest of the batch is in the pool
+        assert proc.poll() is None, log.read_text(
+            encoding="utf-8"
+        )  # still solving: the rest of the batch is in the pool
         os.kill(proc.pid, signal.SIGTERM)  # the command's process only
-        assert proc.wait(timeout=60) == 128 + signal.SIGTERM, log.read_text()
+        assert proc.wait(timeout=60) == 128 + signal.SIGTERM, log.read_text(encoding="utf-8")
         assert _wait_until_gone(proc.pid, 30) == []  # no worker (nor forkserver) left running
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
-    not_log = [line for line in log.read_text().splitlines() if not line.startswith(("INFO ", "WARNING "))]
+    not_log = [
+        line for line in log.read_text(encoding="utf-8").splitlines() if not line.startswith(("INFO ", "WARNING "))
+    ]
     assert not_log == [TERMINATED]
     assert not [p for p in tmp_path.rglob("*") if p.name.startswith((".claim-", ".tmp-"))]
 
@@ -232,7 +236,7 @@ def test_sigterm_of_a_dataset_run_ends_its_render_workers_which_release_their_cl
     root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
     log = tmp_path / "stderr.txt"
-    with open(log, "w") as err:
+    with open(log, "w", encoding="utf-8") as err:
         proc = subprocess.Popen(
             [sys.executable, "-c", DATASET_POOL, str(tmp_path)], stderr=err, env=env, start_new_session=True
         )
@@ -240,15 +244,18 @@ def test_sigterm_of_a_dataset_run_ends_its_render_workers_which_release_their_cl
         deadline = time.monotonic() + 120
         while len(list(tmp_path.glob("worker.*"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert len(list(tmp_path.glob("worker.*"))) == 2, log.read_text()
+        assert len(list(tmp_path.glob("worker.*"))) == 2, log.read_text(encoding="utf-8")
         assert len(list(tmp_path.glob(".claim-press_*"))) == 2
         os.kill(proc.pid, signal.SIGTERM)
-        assert proc.wait(timeout=60) == 128 + signal.SIGTERM, log.read_text()
+        assert proc.wait(timeout=60) == 128 + signal.SIGTERM, log.read_text(encoding="utf-8")
         assert _wait_until_gone(proc.pid, 30) == []
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
-    assert log.read_text().strip() == "nlips dataset: terminated; finished work is kept, run again to resume"
+    assert (
+        log.read_text(encoding="utf-8").strip()
+        == "nlips dataset: terminated; finished work is kept, run again to resume"
+    )
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith((".claim-", ".tmp-"))]
 
 

@@ -24,7 +24,7 @@ def presses(tmp_path_factory):
     root = tmp_path_factory.mktemp("press_lines")
     for name, shape in (("press_a", "sphere"), ("press_b", "cube")):
         synth.make_press(root / name, shape, size=(64, 48))
-    (root / "solver.toml").write_text("max_iters = 3\n")
+    (root / "solver.toml").write_text("max_iters = 3\n", encoding="utf-8")
     return root
 
 
@@ -58,7 +58,7 @@ def test_a_folder_of_presses_says_one_line_per_press(presses, tmp_path, workers)
     )
     assert _lines(err, *DETAILS) == [], err  # in the worker processes too
     assert len(_lines(err, SUMMARY)) == 2, err
-    assert len(_lines(log.read_text(), *DETAILS)) == 2  # the log file keeps every line
+    assert len(_lines(log.read_text(encoding="utf-8"), *DETAILS)) == 2  # the log file keeps every line
 
 
 def test_verbose_shows_each_press_details_in_a_batch(presses, tmp_path):
@@ -122,6 +122,6 @@ def test_a_local_dask_cluster_logs_as_the_command_says(tmp_path, verbose):
     flags = ["-v"] if verbose else []
     args = ["--log-file", str(log), *flags, "experiment", "q1", "--scheduler", "local:1", "--out", str(tmp_path / "w")]
     err = _nlips(*args, "--solver-option", "max_iters=2")
-    in_log = log.read_text()
+    in_log = log.read_text(encoding="utf-8")
     assert len(_lines(in_log, SUMMARY)) == 4 and len(_lines(in_log, *DETAILS)) == 4, in_log
     assert len(_lines(err, SUMMARY)) == (4 if verbose else 0), err

@@ -40,7 +40,7 @@ def test_out_of_range_or_inapplicable_flag_is_one_line_before_rendering(tmp_path
 
 def test_a_press_file_too_deep_is_named(tmp_path, capsys):
     spec = tmp_path / "deep.toml"
-    spec.write_text("depth = 9.0\n")
+    spec.write_text("depth = 9.0\n", encoding="utf-8")
     assert main(["render", "--press-file", str(spec), "--out", str(tmp_path / "press")]) == 2
     assert (
         capsys.readouterr().err

@@ -22,7 +22,7 @@ def _published_meanwhile(seed_offset: int = 0):
         out_folder = Path(out_folder)
         out_folder.mkdir(parents=True)
         recorded = sim_press.render_spec_hash(scene, press, None if seed_offset == 0 else seed_offset)
-        (out_folder / "meta.json").write_text(json.dumps({"provenance": {"spec_hash": recorded}}))
+        (out_folder / "meta.json").write_text(json.dumps({"provenance": {"spec_hash": recorded}}), encoding="utf-8")
         raise FileExistsError(errno.EEXIST, "already exists (written by another process)", str(out_folder))
 
     return render_press
@@ -80,16 +80,20 @@ def test_a_file_or_a_folder_of_other_things_is_never_replaced_by_a_render(tmp_pa
 
     monkeypatch.setattr(sim_press, "render_press", render_press)
     notes, dataset = tmp_path / "notes.txt", tmp_path / "train50"
-    notes.write_text("mine")
+    notes.write_text("mine", encoding="utf-8")
     (dataset / "press_0001").mkdir(parents=True)
-    (dataset / "press_0001" / "meta.json").write_text("{}")
+    (dataset / "press_0001" / "meta.json").write_text("{}", encoding="utf-8")
     refusals = ((notes, "a file where a folder is needed"), (dataset, "a folder holding other things than a press"))
     for out, says in refusals:
         assert main([*TINY, "--out", str(out), *overwrite]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith(f"nlips render: error: {out}: {says}"), err
         assert "use --overwrite" not in err[0]
-    assert rendered == [] and notes.read_text() == "mine" and (dataset / "press_0001" / "meta.json").exists()
+    assert (
+        rendered == []
+        and notes.read_text(encoding="utf-8") == "mine"
+        and (dataset / "press_0001" / "meta.json").exists()
+    )
     if overwrite:
         (tmp_path / "empty").mkdir()
         for out in (tmp_path / "empty", dataset / "press_0001"):

@@ -14,31 +14,31 @@ from tests.cli.test_faults import SPEC, _fake_render
 
 def test_dataset_rerun_with_changed_spec_is_not_silent(tmp_path, monkeypatch, capsys):
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]) == 0
     assert calls == ["reference", "press_0001", "press_0002"]  # --limit counts presses; the reference comes too
-    manifest = (out / "dataset.json").read_text()
+    manifest = (out / "dataset.json").read_text(encoding="utf-8")
     assert len(json.loads(manifest)["presses"]) == 5  # the whole spec, whatever --limit renders
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
     assert "2 rendered, 3 already there" in capsys.readouterr().out
 
-    spec.write_text(SPEC.replace("spp = 1", "spp = 2"))
+    spec.write_text(SPEC.replace("spp = 1", "spp = 2"), encoding="utf-8")
     calls.clear()
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
     err = capsys.readouterr().err
     assert str(out) in err and "different scene or spec" in err and "--overwrite" in err
-    assert calls == [] and (out / "dataset.json").read_text() == manifest  # nothing touched
+    assert calls == [] and (out / "dataset.json").read_text(encoding="utf-8") == manifest  # nothing touched
 
     monkeypatch.setattr(dataset_pool, "_run_one", _overwriting_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--overwrite"]) == 0
-    assert len(calls) == 5 and (out / "dataset.json").read_text() != manifest
+    assert len(calls) == 5 and (out / "dataset.json").read_text(encoding="utf-8") != manifest
 
 
 def test_dataset_rerenders_a_press_folder_without_meta_json(tmp_path, monkeypatch, capsys, caplog):
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
@@ -60,7 +60,7 @@ def test_dataset_leaves_an_incomplete_folder_a_live_process_works_in(tmp_path, m
     from nlipscalib.core.claims import claim
 
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     (out / "press_0002").mkdir(parents=True)
@@ -77,11 +77,11 @@ def test_dataset_leaves_an_incomplete_folder_a_live_process_works_in(tmp_path, m
 
 def test_dataset_names_a_damaged_meta_json(tmp_path, monkeypatch, capsys):
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     calls = []
     monkeypatch.setattr(dataset_pool, "_run_one", _fake_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 0
-    (out / "press_0003" / "meta.json").write_text("{\n")
+    (out / "press_0003" / "meta.json").write_text("{\n", encoding="utf-8")
     calls.clear()
     capsys.readouterr()
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1"]) == 2
@@ -93,7 +93,7 @@ def test_dataset_names_a_damaged_meta_json(tmp_path, monkeypatch, capsys):
     assert calls == []
     monkeypatch.setattr(dataset_pool, "_run_one", _overwriting_render(calls))
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--overwrite"]) == 0
-    assert calls == ["press_0003"] and json.loads((out / "press_0003" / "meta.json").read_text())
+    assert calls == ["press_0003"] and json.loads((out / "press_0003" / "meta.json").read_text(encoding="utf-8"))
 
 
 def _overwriting_render(calls):
@@ -121,7 +121,7 @@ def test_render_rerun_same_spec_skips_changed_spec_refuses(tmp_path, capsys):
     assert main([*args, "--depth", "0.7"]) == 2
     assert "different scene, press or seed" in capsys.readouterr().err
     assert main([*args, "--depth", "0.7", "--overwrite"]) == 0
-    assert json.loads((out / "meta.json").read_text())["provenance"]["press"]["depth"] == 0.7
+    assert json.loads((out / "meta.json").read_text(encoding="utf-8"))["provenance"]["press"]["depth"] == 0.7
 
 
 def test_press_from_before_spec_hashes_is_recognised():

@@ -26,7 +26,7 @@ def dataset(tmp_path_factory):
 def data(dataset, tmp_path):
     shutil.copytree(dataset, tmp_path / "d")
     cfg = tmp_path / "solver.toml"
-    cfg.write_text("max_iters = 5\n")
+    cfg.write_text("max_iters = 5\n", encoding="utf-8")
     return tmp_path / "d", cfg
 
 
@@ -52,10 +52,12 @@ def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys
     assert main(["solve", str(press), "--config", str(cfg), "--roi", "auto", "--no-progress"]) == 0
     assert _stamp(press) != first  # new options: re-solved, not "result exists"
     assert "made with other settings or inputs (roi), re-solving" in _log(caplog, capsys)
-    report = json.loads((press / "nlips" / "report.json").read_text())
+    report = json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))
     assert report["provenance"]["settings"]["roi"] == "auto" and report["roi"] is not None
     assert main(["solve", str(press), "--config", str(cfg), "--leds", "1,3,5,7,9,11", "--no-progress"]) == 0
-    assert json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["led_subset"] == [
+    assert json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))["provenance"]["settings"][
+        "led_subset"
+    ] == [
         1,
         3,
         5,
@@ -63,7 +65,7 @@ def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys
         9,
         11,
     ]
-    used = json.loads((press / "nlips" / "report.json").read_text())["leds_used"]
+    used = json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))["leds_used"]
     assert used == [0, 2, 4, 6, 8, 10]  # the capture's 0-based LED indices, not positions in the subset
     flags = ["--leds", "1,3,5,7,9,11", "--interreflection", "off", "--no-progress"]
     assert main(["solve", str(press), "--config", str(cfg), *flags]) == 0
@@ -95,7 +97,7 @@ def test_eval_of_a_result_whose_settings_are_unknown_says_how_to_re_solve_it(dat
     root, cfg = data
     press, other = root / "press_a", tmp_path / "elsewhere"
     assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
-    (press / "nlips" / "report.json").write_text("garbage")
+    (press / "nlips" / "report.json").write_text("garbage", encoding="utf-8")
     caplog.set_level(logging.INFO)
     capsys.readouterr()
     assert main(["eval", str(press)]) == 2
@@ -109,9 +111,9 @@ def test_eval_of_a_result_whose_settings_are_unknown_says_how_to_re_solve_it(dat
     assert "re-computing" not in caplog.text + captured.err
     # a result in another folder whose record has no settings: the command names that folder too
     assert main(["solve", str(press), "--config", str(cfg), "--out", str(other), "--no-progress"]) == 0
-    report = json.loads((other / "report.json").read_text())
+    report = json.loads((other / "report.json").read_text(encoding="utf-8"))
     del report["provenance"]
-    (other / "report.json").write_text(json.dumps(report))
+    (other / "report.json").write_text(json.dumps(report), encoding="utf-8")
     (other / "result.npz").write_bytes(b"garbage")
     capsys.readouterr()
     assert main(["eval", str(press), "--result", str(other)]) == 2
@@ -156,8 +158,10 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     out = capsys.readouterr().out
     # with the command that makes it again (the model the report names; this report names none)
     assert "damaged, not scored: press_a" in out and f"make it again with `nlips infer MODEL.pt {press}`" in out
-    report = json.loads((press / "nlipsnet" / "report.json").read_text())
-    (press / "nlipsnet" / "report.json").write_text(json.dumps(report | {"model": "/lab/models/net.pt"}))
+    report = json.loads((press / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
+    (press / "nlipsnet" / "report.json").write_text(
+        json.dumps(report | {"model": "/lab/models/net.pt"}), encoding="utf-8"
+    )
     assert main(["eval", str(press), "--method", "nlipsnet"]) == 2  # one press: on stderr
     assert f"make it again with `nlips infer /lab/models/net.pt {press}`" in capsys.readouterr().err
 
@@ -335,12 +339,15 @@ def test_the_press_may_follow_the_roi(data, capsys):
     root, cfg = data
     press = root / "press_a"
     assert main(["solve", "--roi", "auto", str(press), "--config", str(cfg), "--no-progress"]) == 0
-    assert json.loads((press / "nlips" / "report.json").read_text())["provenance"]["settings"]["roi"] == "auto"
+    assert (
+        json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))["provenance"]["settings"]["roi"]
+        == "auto"
+    )
     assert main(["solve", "--roi", "2", "3", "40", "30", str(press), "--config", str(cfg), "--no-progress"]) == 0
-    assert json.loads((press / "nlips" / "report.json").read_text())["roi"] == [2, 3, 40, 30]
+    assert json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))["roi"] == [2, 3, 40, 30]
     # typed with commas, as `--leds 1,5,9` is (it was "--roi needs 'x0 y0 w h' or 'auto', got 2,3,40,30")
     assert main(["solve", "--roi", "2,3,40,31", str(press), "--config", str(cfg), "--no-progress"]) == 0
-    assert json.loads((press / "nlips" / "report.json").read_text())["roi"] == [2, 3, 40, 31]
+    assert json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))["roi"] == [2, 3, 40, 31]
 
 
 def test_demo_recomputes_a_damaged_cached_result(data, capsys):
@@ -400,10 +407,10 @@ def test_eval_other_capture_refuses_a_result_of_another_sensors_surface(data, tm
     root, cfg = data
     press, other = root / "press_a", tmp_path / "of_b"
     assert main(["solve", str(root / "press_b"), "--config", str(cfg), "--out", str(other), "--no-progress"]) == 0
-    report = (other / "report.json").read_text()
+    report = (other / "report.json").read_text(encoding="utf-8")
     rec = load_reconstruction(other)
     save_reconstruction(dataclasses.replace(rec, depth=rec.depth + 1.0), other, overwrite=True)  # a dome 1 mm off
-    (other / "report.json").write_text(report)
+    (other / "report.json").write_text(report, encoding="utf-8")
     capsys.readouterr()
     assert main(["eval", str(press), "--result", str(other), "--other-capture"]) == 2
     captured = capsys.readouterr()
@@ -418,9 +425,9 @@ def test_eval_warns_that_a_result_recording_no_input_cannot_be_checked(data, tmp
     root, cfg = data
     press, other = root / "press_a", tmp_path / "elsewhere"
     assert main(["solve", str(press), "--config", str(cfg), "--out", str(other), "--no-progress"]) == 0
-    report = json.loads((other / "report.json").read_text())
+    report = json.loads((other / "report.json").read_text(encoding="utf-8"))
     del report["provenance"]["inputs"]
-    (other / "report.json").write_text(json.dumps(report))
+    (other / "report.json").write_text(json.dumps(report), encoding="utf-8")
     caplog.set_level(logging.WARNING)
     capsys.readouterr()
     assert main(["eval", str(press), "--result", str(other)]) == 0
@@ -503,9 +510,9 @@ def test_eval_of_a_captured_press_says_only_twin_renders_carry_ground_truth(data
     leaving the user to wonder what made gt.npz go missing: a captured press never has one."""
     root, cfg = data
     press = root / "press_a"
-    meta = json.loads((press / "meta.json").read_text())
+    meta = json.loads((press / "meta.json").read_text(encoding="utf-8"))
     meta["ground_truth"] = None  # as `nlips capture` writes it
-    (press / "meta.json").write_text(json.dumps(meta))
+    (press / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     assert main(["solve", str(press), "--config", str(cfg), "--no-progress"]) == 0
     capsys.readouterr()
     assert main(["eval", str(press)]) == 2
@@ -519,9 +526,9 @@ def test_eval_of_a_captured_press_says_only_twin_renders_carry_ground_truth(data
 def _as_twin_render(folder, **render) -> None:
     """Record ``folder`` as a twin render of the scene whose [render] section is ``render`` (meta.json provenance)."""
     path = folder / "meta.json"
-    meta = json.loads(path.read_text())
+    meta = json.loads(path.read_text(encoding="utf-8"))
     meta["provenance"] = {"source": "sim", "scene": {"name": "nlipstac", "render": render, "noise": {"enabled": True}}}
-    path.write_text(json.dumps(meta))
+    path.write_text(json.dumps(meta), encoding="utf-8")
 
 
 def test_a_twin_reference_rendered_with_other_light_settings_is_refused_in_one_line(data, tmp_path, capsys):

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -23,9 +25,9 @@ def test_publish_never_replaces_a_complete_folder(tmp_path):
     final = tmp_path / "press"
     with pytest.raises(FileExistsError):
         with atomic_dir(final) as tmp:
-            (tmp / "mine.txt").write_text("mine")
+            (tmp / "mine.txt").write_text("mine", encoding="utf-8")
             final.mkdir()  # another process publishes meanwhile
-            (final / "meta.json").write_text("{}")
+            (final / "meta.json").write_text("{}", encoding="utf-8")
     assert sorted(p.name for p in final.iterdir()) == ["meta.json"]
     assert not list(tmp_path.glob(TMP_PREFIX + "*"))
 
@@ -63,7 +65,7 @@ def test_clean_removes_claims_of_dead_owners_only(tmp_path):
     with claim(tmp_path / "a") as mine:
         assert mine
         claim_path(tmp_path / "b").write_text(
-            f'{{"host": "{os.uname().nodename}", "pid": {_dead_pid()}, "token": "t"}}'
+            f'{{"host": "{os.uname().nodename}", "pid": {_dead_pid()}, "token": "t"}}', encoding="utf-8"
         )
         gone = clean_interrupted(tmp_path)
         assert gone == [claim_path(tmp_path / "b")] and claim_path(tmp_path / "a").exists()
@@ -168,7 +170,7 @@ def test_clean_removes_the_short_lived_claim_files_of_killed_processes(tmp_path)
         tmp_path / ".claim-probe.elsewhere.12.0a1b2c3d": "",  # another machine's, fresh
     }
     for path, text in (killed | live).items():
-        path.write_text(text)
+        path.write_text(text, encoding="utf-8")
     assert sorted(clean_interrupted(tmp_path, item="nlips")) == sorted(killed)
     assert all(p.exists() for p in live)
 
@@ -184,8 +186,8 @@ def test_concurrent_overwrites_of_one_folder_all_succeed_and_leave_nothing_behin
         for i in range(60):
             try:
                 with atomic_dir(final, overwrite=True) as tmp:
-                    (tmp / "result.npz").write_text(f"{k} {i}")
-                    (tmp / "report.json").write_text("{}")
+                    (tmp / "result.npz").write_text(f"{k} {i}", encoding="utf-8")
+                    (tmp / "report.json").write_text("{}", encoding="utf-8")
             except Exception as exc:  # before: ENOTEMPTY, FileNotFoundError, "already exists"
                 errors.append(exc)
 
@@ -223,7 +225,7 @@ def test_a_folder_removed_on_termination_is_gone_while_threads_still_write_into_
             t.start()
         try:
             for _ in range(50):  # files keep appearing while the folder is being removed
-                (tmp / "meta.json").write_text("{}")
+                (tmp / "meta.json").write_text("{}", encoding="utf-8")
             remove_in_progress()
             assert not tmp.exists()
         finally:
@@ -258,11 +260,43 @@ def test_a_temporary_folder_removed_and_made_again_is_not_published(tmp_path):
     final = tmp_path / "res-2"
     with pytest.raises(FileNotFoundError, match="removed while being written"):
         with atomic_dir(final) as tmp:
-            (tmp / "result.npz").write_text("data")
+            (tmp / "result.npz").write_text("data", encoding="utf-8")
             shutil.rmtree(tmp)
             tmp.mkdir()  # e.g. an os.makedirs of a writer
-            (tmp / "summary.png").write_text("png")
+            (tmp / "summary.png").write_text("png", encoding="utf-8")
     assert not final.exists()
+
+
+def _no_folder_opened(monkeypatch) -> None:
+    """atomic's os.open as on Windows, where a folder cannot be opened: PermissionError (Errno 13). Its own only:
+    shutil.rmtree opens folders on Linux."""
+    from nlipscalib.core import atomic
+
+    real_open = os.open
+
+    def windows_open(path, flags, *args, **kwargs):
+        if os.path.isdir(path):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, flags, *args, **kwargs)
+
+    monkeypatch.setattr(atomic, "os", types.SimpleNamespace(**{**vars(os), "open": windows_open}))
+
+
+def test_a_folder_is_published_where_folders_cannot_be_opened(tmp_path, monkeypatch):
+    """Windows: every result folder failed with PermissionError, as atomic_dir held its temporary folder open
+    (os.open of a folder) to tell it from one made again under its name (s26-portable)."""
+    from nlipscalib.core.atomic import write_text
+
+    _no_folder_opened(monkeypatch)
+    final = tmp_path / "res-1"
+    with atomic_dir(final) as tmp:
+        write_text(tmp / "result.npz", "data")
+    assert (final / "result.npz").read_text(encoding="utf-8") == "data"
+    with pytest.raises(FileNotFoundError, match="removed while being written"):  # the check still holds
+        with atomic_dir(tmp_path / "res-2") as tmp:
+            write_text(tmp / "result.npz", "data")
+            shutil.rmtree(tmp)
+    assert not (tmp_path / "res-2").exists() and not list(tmp_path.glob(TMP_PREFIX + "*"))
 
 
 def test_a_writability_probe_goes_with_the_temporaries_removed_on_termination(tmp_path, monkeypatch):
@@ -291,21 +325,21 @@ def test_a_folder_given_as_a_link_is_written_where_it_points_and_the_link_stays(
 
     run = tmp_path / "runs" / "run-7"
     run.mkdir(parents=True)
-    (run / "results.json").write_text("old")
-    (run / "stale.png").write_text("old figure")
+    (run / "results.json").write_text("old", encoding="utf-8")
+    (run / "stale.png").write_text("old figure", encoding="utf-8")
     latest = tmp_path / "latest"
     latest.symlink_to(run, target_is_directory=True)
     with whole_dir(latest, "results.json") as tmp:
-        (tmp / "results.json").write_text("new")
+        (tmp / "results.json").write_text("new", encoding="utf-8")
     assert latest.is_symlink() and latest.resolve() == run.resolve()
-    assert (run / "results.json").read_text() == "new"
+    assert (run / "results.json").read_text(encoding="utf-8") == "new"
     assert not (run / "stale.png").exists()  # the target is one run's whole report
 
     later = tmp_path / "later"
     later.symlink_to(tmp_path / "runs" / "run-8", target_is_directory=True)  # a link to a folder not made yet
     with atomic_dir(later) as tmp:
-        (tmp / "a.txt").write_text("a")
-    assert later.is_symlink() and (tmp_path / "runs" / "run-8" / "a.txt").read_text() == "a"
+        (tmp / "a.txt").write_text("a", encoding="utf-8")
+    assert later.is_symlink() and (tmp_path / "runs" / "run-8" / "a.txt").read_text(encoding="utf-8") == "a"
 
 
 @pytest.mark.parametrize("how", ["atomic_dir", "write_bytes", "scratch_dir"])
@@ -335,7 +369,7 @@ def test_a_ctrl_c_right_as_the_temporary_is_made_leaves_no_temporary(tmp_path, m
     with pytest.raises(KeyboardInterrupt):
         if how == "atomic_dir":
             with atomic_dir(tmp_path / "result") as tmp:
-                (tmp / "a.txt").write_text("x")
+                (tmp / "a.txt").write_text("x", encoding="utf-8")
         elif how == "write_bytes":
             atomic.write_bytes(tmp_path / "a.txt", b"x")
         else:

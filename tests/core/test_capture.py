@@ -64,7 +64,7 @@ def test_find_presses_warns_about_incomplete_press_folders(tmp_path, caplog):
     shutil.copytree(good, broken)
     (broken / "meta.json").unlink()  # an interrupted copy
     (tmp_path / "calibration").mkdir()  # other output beside the presses: not a press, no warning
-    (tmp_path / "calibration" / "index.json").write_text("{}")
+    (tmp_path / "calibration" / "index.json").write_text("{}", encoding="utf-8")
     shutil.copytree(good, tmp_path / (TMP_PREFIX + "p3~host~1~x"))  # a write in progress: ignored
     assert find_presses(tmp_path) == [good]
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
@@ -119,7 +119,7 @@ def test_interrupted_folder_write_leaves_nothing(tmp_path):
     "breakage,message",
     [
         (lambda f: (f / "led_02.png").unlink(), "led_02.png: listed in meta.json but missing"),
-        (lambda f: (f / "meta.json").write_text("{nope"), "not valid JSON"),
+        (lambda f: (f / "meta.json").write_text("{nope", encoding="utf-8"), "not valid JSON"),
         (lambda f: (f / "meta.json").unlink(), "meta.json: missing"),
         (lambda f: (f / "dark.png").write_bytes(b"garbage"), "dark.png: not a readable PNG"),
         (lambda f: _edit_meta(f, lambda m: m["camera"].update(width=99)), "dark.png: image is"),
@@ -392,9 +392,9 @@ def test_bad_led_subset(tmp_path):
 
 
 def _edit_meta(folder, change):
-    meta = json.loads((folder / "meta.json").read_text())
+    meta = json.loads((folder / "meta.json").read_text(encoding="utf-8"))
     change(meta)
-    (folder / "meta.json").write_text(json.dumps(meta))
+    (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
 
 @pytest.mark.parametrize(
@@ -469,7 +469,7 @@ def test_a_file_or_a_press_without_meta_json_is_called_what_it_is(tmp_path):
     (a single press given) said "no press folders found"."""
     from nlipscalib.core.capture import no_presses_error, read_meta
 
-    (tmp_path / "f.txt").write_text("x")
+    (tmp_path / "f.txt").write_text("x", encoding="utf-8")
     with pytest.raises(CaptureError, match="f.txt: a file, not a press folder"):
         read_meta(tmp_path / "f.txt")
     with pytest.raises(CaptureError, match="f.txt: a file, not a press folder nor a folder of presses"):

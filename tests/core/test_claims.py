@@ -8,6 +8,7 @@ import subprocess
 import sys
 import textwrap
 import time
+import types
 from pathlib import Path
 
 import pytest
@@ -88,7 +89,9 @@ def test_a_killed_owner_not_yet_reaped_is_taken_over(tmp_path):
     assert owner.stdout.readline().strip() == "held"
     os.kill(owner.pid, signal.SIGKILL)
     deadline = time.monotonic() + 30
-    while "Z" not in Path(f"/proc/{owner.pid}/stat").read_text().rsplit(")", 1)[1][:3]:  # not reaped: no wait()
+    while (
+        "Z" not in Path(f"/proc/{owner.pid}/stat").read_text(encoding="utf-8").rsplit(")", 1)[1][:3]
+    ):  # not reaped: no wait()
         assert time.monotonic() < deadline
         time.sleep(0.01)
     with claim(target) as mine:
@@ -96,11 +99,29 @@ def test_a_killed_owner_not_yet_reaped_is_taken_over(tmp_path):
     owner.wait(30)
 
 
+def test_on_windows_a_process_is_looked_up_without_os_kill(monkeypatch):
+    """Windows has no signal 0: its ``os.kill(pid, 0)`` ends the process (TerminateProcess), so a liveness check
+    killed the claim's owner, or a worker's own command (s26-portable)."""
+    pytest.importorskip("psutil")
+    from nlipscalib.core import claims
+
+    def kill(pid, sig):
+        raise AssertionError(f"os.kill({pid}, {sig}) would end process {pid} on Windows")
+
+    ended = subprocess.Popen([sys.executable, "-c", "pass"])
+    ended.wait(30)
+    monkeypatch.setattr(sys, "platform", "win32")
+    # the module's own os only: psutil, standing in here for its Windows self, asks os.kill on Linux
+    monkeypatch.setattr(claims, "os", types.SimpleNamespace(**{**vars(os), "kill": kill}))
+    assert claims.pid_alive(os.getpid())
+    assert not claims.pid_alive(ended.pid)
+
+
 def test_claim_without_heartbeat_is_stale(tmp_path):
     """A claim from another machine (pid not checkable) whose heartbeat stopped is taken over."""
     target = tmp_path / "item"
     path = claim_path(target)
-    path.write_text(json.dumps({"host": "other-machine", "pid": 1, "token": "x"}))
+    path.write_text(json.dumps({"host": "other-machine", "pid": 1, "token": "x"}), encoding="utf-8")
     with claim(target, stale_s=30) as mine:
         assert not mine  # fresh heartbeat: respected
     old = time.time() - 120
@@ -146,7 +167,7 @@ def test_a_claim_taken_over_is_no_longer_refreshed(tmp_path, caplog):
     with claim(target, stale_s=0.4) as mine:
         assert mine
         path = claim_path(target)
-        path.write_text(json.dumps({"host": "elsewhere", "pid": 1, "token": "theirs"}))
+        path.write_text(json.dumps({"host": "elsewhere", "pid": 1, "token": "theirs"}), encoding="utf-8")
         old = time.time() - 60
         os.utime(path, (old, old))
         assert wait_until(lambda: "taken over" in caplog.text, 30)  # a beat came due (0.1 s): it found another owner
@@ -299,7 +320,7 @@ def test_a_shared_claim_holds_for_its_key_refuses_another_and_forgets_a_dead_hol
 
     target = tmp_path / "dataset"
     dead = tmp_path / ".claim-dataset~cccc~0123456789abcdef"  # a run of key "cccc" killed while it held the folder
-    dead.write_text(json.dumps({"host": HOST, "pid": _dead_pid(), "token": "x"}))
+    dead.write_text(json.dumps({"host": HOST, "pid": _dead_pid(), "token": "x"}), encoding="utf-8")
     with claim_shared(target, "aaaa") as first, claim_shared(target, "aaaa") as second:
         assert first is None and second is None  # one key: both hold it
         assert len(list(tmp_path.glob(".claim-dataset~aaaa~*"))) == 2
@@ -326,7 +347,7 @@ def test_a_shared_holders_note_reaches_the_process_it_refuses_and_is_not_part_of
         (member,) = tmp_path.glob(".claim-nlips~run~aaaa~*")
         assert _read_owner(member) == Owner(other.host, other.pid, other.token)  # the note aside
     assert not list(tmp_path.glob(".claim-*"))
-    (tmp_path / ".claim-x").write_text("[1, 2]")  # not an object: no owner, not an AttributeError
+    (tmp_path / ".claim-x").write_text("[1, 2]", encoding="utf-8")  # not an object: no owner, not an AttributeError
     assert _read_owner(tmp_path / ".claim-x") is None
 
 
@@ -340,9 +361,9 @@ def test_dead_owners_claims_anywhere_under_a_folder_are_removed_and_live_ones_ke
     hold = tmp_path / "presses" / "p1" / "solves" / ".claim-nlips~run~abc~dead"
     for path in (task, hold):
         path.parent.mkdir(parents=True)
-        path.write_text(dead)
+        path.write_text(dead, encoding="utf-8")
     other = tmp_path / "presses" / ".claim-notes"  # not a claim (no owner in it): left alone
-    other.write_text("notes")
+    other.write_text("notes", encoding="utf-8")
     with claim(tmp_path / "tasks" / "t2.json") as mine, claim_shared(tmp_path / "presses" / "p2", "k") as held:
         assert mine and held is None
         removed = remove_dead_claims(tmp_path)

@@ -11,20 +11,22 @@ from nlipscalib.core.code_version import RESULT_CODE, code_fingerprint, python_s
 def _tree(root: Path) -> Path:
     for name in ("__init__.py", "solver/nlips.py", "core/formats.py", "cli/solve.py", "learn/net.py"):
         (root / name).parent.mkdir(parents=True, exist_ok=True)
-        (root / name).write_text(f"# {name}\n")
+        (root / name).write_text(f"# {name}\n", encoding="utf-8")
     return root
 
 
 def test_the_fingerprint_changes_with_the_code_that_makes_results_only(tmp_path):
     pkg = _tree(tmp_path / "pkg")
     before = source_digest(python_sources(pkg, RESULT_CODE))
-    (pkg / "cli" / "solve.py").write_text("# another help text\n")  # the command line only chooses settings
+    (pkg / "cli" / "solve.py").write_text(
+        "# another help text\n", encoding="utf-8"
+    )  # the command line only chooses settings
     (pkg / "solver" / "__pycache__").mkdir()
     (pkg / "solver" / "__pycache__" / "nlips.cpython-311.pyc").write_bytes(b"compiled")  # compiled or not: alike
-    (pkg / "solver" / "notes.txt").write_text("not code")
+    (pkg / "solver" / "notes.txt").write_text("not code", encoding="utf-8")
     assert source_digest(python_sources(pkg, RESULT_CODE)) == before
     for edit in ("solver/nlips.py", "core/formats.py", "learn/net.py"):
-        (pkg / edit).write_text((pkg / edit).read_text() + "x = 1\n")
+        (pkg / edit).write_text((pkg / edit).read_text(encoding="utf-8") + "x = 1\n", encoding="utf-8")
         after = source_digest(python_sources(pkg, RESULT_CODE))
         assert after != before, edit
         before = after

@@ -21,7 +21,7 @@ def test_default_scene_is_nlipstac():
 
 def test_typo_names_file_section_and_key(tmp_path):
     bad = tmp_path / "bad.toml"
-    bad.write_text("[dome]\nraduis = 15.0\n")
+    bad.write_text("[dome]\nraduis = 15.0\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=r"bad\.toml.*dome.*raduis"):
         load_scene(bad)
 
@@ -43,10 +43,10 @@ def test_bad_values_are_explained(data, message):
 
 def test_yaml_and_unparsable_files(tmp_path):
     y = tmp_path / "s.yaml"
-    y.write_text("dome:\n  radius: 12.0\n")
+    y.write_text("dome:\n  radius: 12.0\n", encoding="utf-8")
     assert load_scene(y).dome.radius == 12.0
     broken = tmp_path / "x.toml"
-    broken.write_text("[dome\n")
+    broken.write_text("[dome\n", encoding="utf-8")
     with pytest.raises(ConfigError, match="x.toml: cannot parse"):
         load_scene(broken)
     with pytest.raises(ConfigError, match="no such config file"):
@@ -60,7 +60,7 @@ def test_a_yaml_file_that_does_not_parse_is_one_line_naming_file_and_place(tmp_p
     from nlipscalib.core.config import read_config_file
 
     bad = tmp_path / "exp.yaml"
-    bad.write_text(text)
+    bad.write_text(text, encoding="utf-8")
     with pytest.raises(ConfigError) as err:
         read_config_file(bad)
     message = str(err.value)
@@ -72,8 +72,8 @@ def test_an_empty_yaml_file_reads_as_an_empty_toml_file(tmp_path):
     empty TOML file gives every default."""
     from nlipscalib.core.config import read_config_file
 
-    (tmp_path / "a.yaml").write_text("# nothing changed yet\n")
-    (tmp_path / "a.toml").write_text("# nothing changed yet\n")
+    (tmp_path / "a.yaml").write_text("# nothing changed yet\n", encoding="utf-8")
+    (tmp_path / "a.toml").write_text("# nothing changed yet\n", encoding="utf-8")
     assert read_config_file(tmp_path / "a.yaml") == read_config_file(tmp_path / "a.toml") == {}
 
 
@@ -116,7 +116,7 @@ def test_an_experiment_config_file_overrides_only_what_it_names(tmp_path):
     from nlipscalib.experiments.q2 import Q2, Q2Config
 
     path = tmp_path / "q2.toml"
-    path.write_text('[train]\nindenters = [{kind = "brick", size = 8.0}]\n[twin]\nspp = 4\n')
+    path.write_text('[train]\nindenters = [{kind = "brick", size = 8.0}]\n[twin]\nspp = 4\n', encoding="utf-8")
     cfg, full = Q2().config(None, path), Q2Config()
     assert cfg.train == dataclasses.replace(full.train, indenters=cfg.train.indenters) and cfg.train.count == 50
     assert cfg.train.indenters[0].kind == "brick"
@@ -136,8 +136,8 @@ def test_a_scene_camera_with_the_wrong_number_of_lens_coefficients_is_one_line(t
     """A brown [camera] with the default (fisheye's four) or OpenCV's eight coefficients passed the scene's check and
     failed later in Camera.from_fov: "ValueError: not enough values to unpack (expected 5, got 4)", a traceback."""
     scene = tmp_path / "lens.toml"
-    scene.write_text(f"[camera]\n{camera}\n")
+    scene.write_text(f"[camera]\n{camera}\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=r"lens\.toml.*" + message):
         load_scene(scene).camera_model()
-    scene.write_text('[camera]\nmodel = "brown"\ndist = [-0.1, 0.01, 0, 0, 0]\n')
+    scene.write_text('[camera]\nmodel = "brown"\ndist = [-0.1, 0.01, 0, 0, 0]\n', encoding="utf-8")
     assert load_scene(scene).camera_model().dist == (-0.1, 0.01, 0.0, 0.0, 0.0)

@@ -38,9 +38,13 @@ SOLVE = WorkerMemory("solve", base_bytes=0, per_pixel_bytes=1000)  # 1.2288 GB a
 def test_available_memory_reads_memavailable_in_bytes(tmp_path):
     meminfo = tmp_path / "meminfo"
     no_cgroups = tmp_path / "missing"  # this machine's own cgroups (a container's limit) kept out of the test
-    meminfo.write_text("MemTotal:       16318480 kB\nMemFree:         1000000 kB\nMemAvailable:   12000000 kB\n")
+    meminfo.write_text(
+        "MemTotal:       16318480 kB\nMemFree:         1000000 kB\nMemAvailable:   12000000 kB\n", encoding="utf-8"
+    )
     assert available_memory(meminfo, no_cgroups) == 12_000_000 * 1024
-    meminfo.write_text("MemTotal:       16318480 kB\nMemFree:         1000000 kB\n")  # a kernel before 3.14
+    meminfo.write_text(
+        "MemTotal:       16318480 kB\nMemFree:         1000000 kB\n", encoding="utf-8"
+    )  # a kernel before 3.14
     assert available_memory(meminfo, no_cgroups) is None
     assert available_memory(tmp_path / "missing", no_cgroups) is None  # not Linux
 
@@ -95,20 +99,20 @@ def test_the_worker_models_grow_with_the_pixels_as_measured():
 
 def _meminfo(tmp_path, available_kb=12_000_000):
     meminfo = tmp_path / "meminfo"
-    meminfo.write_text(f"MemTotal:       16318480 kB\nMemAvailable:   {available_kb} kB\n")
+    meminfo.write_text(f"MemTotal:       16318480 kB\nMemAvailable:   {available_kb} kB\n", encoding="utf-8")
     return meminfo
 
 
 def _cgroup_files(folder, **files):
     folder.mkdir(parents=True, exist_ok=True)
     for name, text in files.items():
-        (folder / name.replace("_", ".", 1)).write_text(text)
+        (folder / name.replace("_", ".", 1)).write_text(text, encoding="utf-8")
 
 
 def test_a_cgroup_v2_limit_below_memavailable_decides(tmp_path):
     meminfo = _meminfo(tmp_path)  # the host: 12.3 GB available
     proc_cgroup = tmp_path / "cgroup"
-    proc_cgroup.write_text("0::/kubepods/pod1/box\n")
+    proc_cgroup.write_text("0::/kubepods/pod1/box\n", encoding="utf-8")
     root = tmp_path / "sys"
     # the container: 2 GB limit, 0.5 GB used of which 0.1 GB droppable file cache
     _cgroup_files(
@@ -131,7 +135,7 @@ def test_a_cgroup_v2_limit_below_memavailable_decides(tmp_path):
 def test_a_cgroup_v2_without_a_limit_leaves_memavailable(tmp_path):
     meminfo = _meminfo(tmp_path)
     proc_cgroup = tmp_path / "cgroup"
-    proc_cgroup.write_text("0::/user.slice/session-1.scope\n")
+    proc_cgroup.write_text("0::/user.slice/session-1.scope\n", encoding="utf-8")
     root = tmp_path / "sys"
     _cgroup_files(root / "user.slice/session-1.scope", memory_max="max\n", memory_current="123456\n")
     assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
@@ -145,12 +149,12 @@ def test_a_cgroup_v1_memory_hierarchy_is_read_and_its_huge_count_means_no_limit(
     meminfo = _meminfo(tmp_path)
     proc_cgroup = tmp_path / "cgroup"
     # a hybrid system (as this project's VM): v1 holds the memory controller, v2's tree has none
-    proc_cgroup.write_text("4:memory:/slurm/job7\n3:cpu,cpuacct:/slurm/job7\n0::/\n")
+    proc_cgroup.write_text("4:memory:/slurm/job7\n3:cpu,cpuacct:/slurm/job7\n0::/\n", encoding="utf-8")
     root = tmp_path / "sys"
     _cgroup_files(root / "memory/slurm/job7", memory_limit_in_bytes=f"{4 * GB}\n", memory_usage_in_bytes=f"{GB}\n")
     _cgroup_files(root / "memory", memory_limit_in_bytes="9223372036854771712\n", memory_usage_in_bytes="6112911360\n")
     assert available_memory(meminfo, proc_cgroup, root) == 3 * GB
-    (root / "memory/slurm/job7/memory.limit_in_bytes").write_text("9223372036854771712\n")  # no limit
+    (root / "memory/slurm/job7/memory.limit_in_bytes").write_text("9223372036854771712\n", encoding="utf-8")  # no limit
     assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
     assert cgroup_memory_room(proc_cgroup, root) is None  # not 9.2e18 bytes of room
 
@@ -160,7 +164,7 @@ def test_a_container_that_sees_its_group_as_the_mount_root_reads_the_root(tmp_pa
     # container's own group
     meminfo = _meminfo(tmp_path)
     proc_cgroup = tmp_path / "cgroup"
-    proc_cgroup.write_text("9:memory:/docker/0123abcd\n")
+    proc_cgroup.write_text("9:memory:/docker/0123abcd\n", encoding="utf-8")
     root = tmp_path / "sys"
     _cgroup_files(root / "memory", memory_limit_in_bytes=f"{GB}\n", memory_usage_in_bytes=f"{GB // 4}\n")
     assert available_memory(meminfo, proc_cgroup, root) == GB - GB // 4
@@ -171,11 +175,11 @@ def test_without_cgroups_or_with_unreadable_files_memavailable_alone_decides(tmp
     root = tmp_path / "sys"
     assert available_memory(meminfo, tmp_path / "missing", root) == 12_000_000 * 1024  # not Linux, no cgroups
     proc_cgroup = tmp_path / "cgroup"
-    proc_cgroup.write_text("0::/box\n")
+    proc_cgroup.write_text("0::/box\n", encoding="utf-8")
     assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024  # no cgroup files mounted
     _cgroup_files(root / "box", memory_max=f"{GB}\n")  # memory.current missing: not a reading
     assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
-    (root / "box/memory.current").write_text("garbled\n")
+    (root / "box/memory.current").write_text("garbled\n", encoding="utf-8")
     assert available_memory(meminfo, proc_cgroup, root) == 12_000_000 * 1024
     (root / "box/memory.current").unlink()
     (root / "box/memory.current").mkdir()  # unreadable (a folder: root reads any file mode)
@@ -184,30 +188,34 @@ def test_without_cgroups_or_with_unreadable_files_memavailable_alone_decides(tmp
     # neither reading: unknown, the cores decide
     assert available_memory(tmp_path / "missing", tmp_path / "missing", root) is None
     # the cgroup alone (no MemAvailable line): its room is the answer
-    (root / "box/memory.current").write_text(f"{GB // 2}\n")
+    (root / "box/memory.current").write_text(f"{GB // 2}\n", encoding="utf-8")
     assert available_memory(tmp_path / "missing", proc_cgroup, root) == GB // 2
 
 
 def test_a_cgroup_v2_cpu_quota_caps_the_cores_rounded_up(monkeypatch, tmp_path):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)  # the host's 64 cores
     proc_cgroup = tmp_path / "cgroup"
-    proc_cgroup.write_text("0::/kubepods/pod1/box\n")
+    proc_cgroup.write_text("0::/kubepods/pod1/box\n", encoding="utf-8")
     root = tmp_path / "sys"
     _cgroup_files(root / "kubepods/pod1/box", cpu_max="200000 100000\n")  # docker run --cpus=2
     assert cgroup_cpu_limit(proc_cgroup, root) == 2
     assert usable_cores(proc_cgroup, root) == 2
-    (root / "kubepods/pod1/box/cpu.max").write_text("150000 100000\n")  # 1.5 cores' time: two threads still help
+    (root / "kubepods/pod1/box/cpu.max").write_text(
+        "150000 100000\n", encoding="utf-8"
+    )  # 1.5 cores' time: two threads still help
     assert usable_cores(proc_cgroup, root) == 2
-    (root / "kubepods/pod1/box/cpu.max").write_text("20000 100000\n")  # a fifth of a core: never below one
+    (root / "kubepods/pod1/box/cpu.max").write_text(
+        "20000 100000\n", encoding="utf-8"
+    )  # a fifth of a core: never below one
     assert usable_cores(proc_cgroup, root) == 1
     # the pod above it has the smaller quota: it decides
-    (root / "kubepods/pod1/box/cpu.max").write_text("800000 100000\n")
+    (root / "kubepods/pod1/box/cpu.max").write_text("800000 100000\n", encoding="utf-8")
     _cgroup_files(root / "kubepods/pod1", cpu_max="300000 100000\n")
     assert usable_cores(proc_cgroup, root) == 3
     # a quota above the affinity does not raise it (taskset to 4 cores in a 16-core container)
     _cgroup_files(root / "kubepods", cpu_max="1600000 100000\n")
-    (root / "kubepods/pod1/cpu.max").write_text("max 100000\n")
-    (root / "kubepods/pod1/box/cpu.max").write_text("max 100000\n")
+    (root / "kubepods/pod1/cpu.max").write_text("max 100000\n", encoding="utf-8")
+    (root / "kubepods/pod1/box/cpu.max").write_text("max 100000\n", encoding="utf-8")
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
     assert usable_cores(proc_cgroup, root) == 4
 
@@ -215,7 +223,7 @@ def test_a_cgroup_v2_cpu_quota_caps_the_cores_rounded_up(monkeypatch, tmp_path):
 def test_a_cgroup_v2_without_a_cpu_quota_leaves_the_affinity(monkeypatch, tmp_path):
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(8)), raising=False)
     proc_cgroup = tmp_path / "cgroup"
-    proc_cgroup.write_text("0::/user.slice/session-1.scope\n")
+    proc_cgroup.write_text("0::/user.slice/session-1.scope\n", encoding="utf-8")
     root = tmp_path / "sys"
     assert usable_cores(proc_cgroup, root) == 8  # no cgroup files mounted
     _cgroup_files(root / "user.slice/session-1.scope", cpu_max="max 100000\n")  # "max": no quota
@@ -230,14 +238,16 @@ def test_a_cgroup_v1_cpu_quota_is_read_from_the_cpu_hierarchy(monkeypatch, tmp_p
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
     proc_cgroup = tmp_path / "cgroup"
     # a hybrid system (as this project's VM): v1 holds the cpu controller (with cpuacct), v2's tree has none
-    proc_cgroup.write_text("5:memory:/docker/0123abcd\n3:cpu,cpuacct:/docker/0123abcd\n2:cpuset:/\n0::/\n")
+    proc_cgroup.write_text(
+        "5:memory:/docker/0123abcd\n3:cpu,cpuacct:/docker/0123abcd\n2:cpuset:/\n0::/\n", encoding="utf-8"
+    )
     root = tmp_path / "sys"
     # mounted under the hierarchy's own name (no cpu -> cpu,cpuacct link)
     _cgroup_files(root / "cpu,cpuacct/docker/0123abcd", cpu_cfs_quota_us="400000\n", cpu_cfs_period_us="100000\n")
     _cgroup_files(root / "cpu,cpuacct", cpu_cfs_quota_us="-1\n", cpu_cfs_period_us="100000\n")  # the root: none
     assert cgroup_cpu_limit(proc_cgroup, root) == 4
     assert usable_cores(proc_cgroup, root) == 4
-    (root / "cpu,cpuacct/docker/0123abcd/cpu.cfs_quota_us").write_text("-1\n")  # no quota
+    (root / "cpu,cpuacct/docker/0123abcd/cpu.cfs_quota_us").write_text("-1\n", encoding="utf-8")  # no quota
     assert cgroup_cpu_limit(proc_cgroup, root) is None
     assert usable_cores(proc_cgroup, root) == 64
     # Docker without a cgroup namespace: the file names the host's path, the mount ``cpu`` is the container's group
@@ -254,7 +264,7 @@ def test_the_cpu_quota_lowers_the_pools_that_count_usable_cores(monkeypatch, tmp
 
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(64)), raising=False)
     proc_cgroup = tmp_path / "cgroup"
-    proc_cgroup.write_text("0::/box\n")
+    proc_cgroup.write_text("0::/box\n", encoding="utf-8")
     _cgroup_files(tmp_path / "sys/box", cpu_max="200000 100000\n")
     monkeypatch.setattr(cpus, "PROC_CGROUP", proc_cgroup)
     monkeypatch.setattr(cpus, "CGROUP_ROOT", tmp_path / "sys")

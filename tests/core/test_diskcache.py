@@ -89,7 +89,7 @@ def test_a_write_that_fails_costs_only_the_computation(cache_dir):
     assert not path.exists() and not (path.parent.exists() and list(path.parent.iterdir()))
     blocked = diskcache.entry("blocked", ("x",))
     cache_dir.mkdir(parents=True, exist_ok=True)
-    (cache_dir / "blocked").write_text("a file where the kind's folder should be")
+    (cache_dir / "blocked").write_text("a file where the kind's folder should be", encoding="utf-8")
     diskcache.store(blocked, np.zeros(3))  # OSError: logged, not raised
     assert not blocked.is_file()
 
@@ -189,7 +189,7 @@ def test_a_cache_folder_that_is_a_file_turns_the_cache_off_with_one_warning(tmp_
 
     caplog.set_level(logging.WARNING)
     monkeypatch.setattr(diskcache, "_warned", set())
-    (tmp_path / "cache").write_text("not a folder")
+    (tmp_path / "cache").write_text("not a folder", encoding="utf-8")
     monkeypatch.setenv(diskcache.ENV_DIR, str(tmp_path / "cache"))
     assert diskcache.folder() is None and diskcache.entry("k", ("a",)) is None
     said = [r for r in caplog.records if "is a file, not a folder: the disk cache is off" in r.getMessage()]

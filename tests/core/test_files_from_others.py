@@ -137,7 +137,7 @@ def test_an_led_no_sensor_has_is_named_in_meta_json(tmp_path, led, message):
 @pytest.mark.parametrize("led,message", BAD_LEDS)
 def test_an_led_no_sensor_has_is_named_in_an_led_file(tmp_path, led, message):
     path = tmp_path / "leds.json"
-    path.write_text(json.dumps({"leds": [{"position": [9, 0, 3]}, led]}))
+    path.write_text(json.dumps({"leds": [{"position": [9, 0, 3]}, led]}), encoding="utf-8")
     with pytest.raises(CaptureError, match=rf"leds.json: not a valid LED file \({message}\)"):
         read_led_file(path)
 

@@ -13,7 +13,7 @@ from nlipscalib.core.formatfile import read_format_json
 
 
 def _write(path, version, **extra):
-    path.write_text(json.dumps({"format": "nlipscalib.example", "format_version": version} | extra))
+    path.write_text(json.dumps({"format": "nlipscalib.example", "format_version": version} | extra), encoding="utf-8")
     return path
 
 
@@ -39,7 +39,7 @@ def test_a_capture_of_a_newer_format_asks_for_a_newer_nlipscalib(tmp_path):
     press = tmp_path / "press_0001"
     press.mkdir()
     meta = {"format": "nlipscalib.press", "format_version": 2, "camera": {}, "leds": [], "sensor": {}, "images": {}}
-    (press / "meta.json").write_text(json.dumps(meta))
+    (press / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     newer = r"meta\.json: format_version 2 is not supported \(expected 1\); written by a newer nlipscalib: upgrade"
     with pytest.raises(CaptureError, match=newer + " nlipscalib to read it$"):
         load_press(press)

@@ -60,7 +60,7 @@ def test_damaged_or_mismatched_reconstruction_names_the_file(tmp_path):
     (folder / "result.npz").write_bytes(data[: len(data) // 2])
     with pytest.raises(CaptureError, match="result.npz: damaged"):
         load_reconstruction(folder)
-    (folder / "report.json").write_text('{"format": "other"}')
+    (folder / "report.json").write_text('{"format": "other"}', encoding="utf-8")
     with pytest.raises(CaptureError, match="report.json"):
         load_reconstruction(folder)
 
@@ -158,7 +158,7 @@ def test_only_an_empty_folder_or_a_reconstruction_is_replaced(tmp_path):
     old = save_reconstruction(_rec(), tmp_path / "old")
     (old / "result.npz").write_bytes(b"damaged")
     assert replace_problem(old) is None
-    (tmp_path / "file").write_text("x")
+    (tmp_path / "file").write_text("x", encoding="utf-8")
     assert "is not a folder (a file" in replace_problem(tmp_path / "file")
     (old / "sub").mkdir()
     assert "other things" in replace_problem(old)
@@ -308,8 +308,8 @@ def test_a_later_format_version_is_named(tmp_path):
     import json
 
     folder = save_reconstruction(_rec(), tmp_path / "nlips")
-    report = json.loads((folder / "report.json").read_text()) | {"format_version": 3}
-    (folder / "report.json").write_text(json.dumps(report))
+    report = json.loads((folder / "report.json").read_text(encoding="utf-8")) | {"format_version": 3}
+    (folder / "report.json").write_text(json.dumps(report), encoding="utf-8")
     with pytest.raises(CaptureError, match=r"report\.json: format_version 3 is not supported \(expected 1 or 2\)"):
         load_reconstruction(folder)
 

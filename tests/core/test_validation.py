@@ -50,7 +50,7 @@ SCENE_CASES = [
 @pytest.mark.parametrize("section,key,value", SCENE_CASES)
 def test_scene_value_out_of_range_names_file_and_key(tmp_path, section, key, value):
     path = tmp_path / "bad_scene.toml"
-    path.write_text(f"[{section}]\n{key} = {value}\n")
+    path.write_text(f"[{section}]\n{key} = {value}\n", encoding="utf-8")
     with pytest.raises(ConfigError) as info:
         load_scene(path)
     message = str(info.value)
@@ -60,7 +60,7 @@ def test_scene_value_out_of_range_names_file_and_key(tmp_path, section, key, val
 
 def test_leds_given_as_a_word_says_so(tmp_path):
     path = tmp_path / "s.toml"
-    path.write_text('leds = "twelve"\n')
+    path.write_text('leds = "twelve"\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=r"s\.toml\.leds: expected a table"):
         load_scene(path)
 
@@ -92,7 +92,7 @@ SPEC_CASES = [
 @pytest.mark.parametrize("text,key", SPEC_CASES)
 def test_dataset_spec_value_out_of_range_names_file_and_key(tmp_path, text, key):
     path = tmp_path / "bad_spec.toml"
-    path.write_text(text)
+    path.write_text(text, encoding="utf-8")
     with pytest.raises(ConfigError) as info:
         load_dataset_spec(path)
     message = str(info.value)
@@ -113,7 +113,7 @@ def test_dataset_spec_value_out_of_range_names_file_and_key(tmp_path, text, key)
 )
 def test_cli_argument_out_of_range_is_one_line(tmp_path, capsys, args, flag):
     spec = tmp_path / "spec.toml"
-    spec.write_text(GRID)
+    spec.write_text(GRID, encoding="utf-8")
     args = [str(spec) if a == "SPEC" else str(tmp_path / "out") if a == "OUT" else a for a in args]
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
@@ -129,7 +129,10 @@ SINGLE_TRIANGLE = (
 
 def _mesh_spec(tmp_path, mesh_path):
     spec = tmp_path / "spec.toml"
-    spec.write_text(f"[grid]\nindenters = [{{ kind = 'mesh', mesh = '{mesh_path}', size = 4.0 }}]\ndepth = [0.5]\n")
+    spec.write_text(
+        f"[grid]\nindenters = [{{ kind = 'mesh', mesh = '{mesh_path}', size = 4.0 }}]\ndepth = [0.5]\n",
+        encoding="utf-8",
+    )
     return spec
 
 
@@ -144,7 +147,7 @@ def test_garbage_mesh_bytes_say_so(tmp_path):
 
 def test_single_triangle_mesh_is_refused(tmp_path):
     mesh = tmp_path / "tri.stl"
-    mesh.write_text(SINGLE_TRIANGLE)
+    mesh.write_text(SINGLE_TRIANGLE, encoding="utf-8")
     with pytest.raises(ConfigError, match="cannot enclose a solid"):
         load_dataset_spec(_mesh_spec(tmp_path, mesh))
 
@@ -171,7 +174,7 @@ def test_led_file_with_a_word_for_leds_says_so(tmp_path):
     from nlipscalib.core.ledfile import read_led_file
 
     path = tmp_path / "leds.json"
-    path.write_text('{"leds": "twelve"}')
+    path.write_text('{"leds": "twelve"}', encoding="utf-8")
     with pytest.raises(NlipsError) as info:
         read_led_file(path)
     assert "leds.json" in str(info.value) and "must be a list" in str(info.value)
@@ -180,7 +183,7 @@ def test_led_file_with_a_word_for_leds_says_so(tmp_path):
 
 def test_a_spec_naming_an_unknown_scene_or_a_folder_given_as_spec_is_named(tmp_path):
     spec = tmp_path / "spec.toml"
-    spec.write_text('scene = "nope"\n[grid]\nindenters = [{ kind = "sphere", size = 6.0 }]\n')
+    spec.write_text('scene = "nope"\n[grid]\nindenters = [{ kind = "sphere", size = 6.0 }]\n', encoding="utf-8")
     with pytest.raises(ConfigError, match=f"^{spec}: scene 'nope': no such scene file"):
         load_dataset_spec(spec)
     with pytest.raises(ConfigError, match=f"^{tmp_path}: a folder, not a config file"):
@@ -197,25 +200,27 @@ def test_a_spec_naming_an_unknown_scene_or_a_folder_given_as_spec_is_named(tmp_p
 def test_a_dataset_specs_camera_with_one_side_is_refused_in_one_line(tmp_path, camera, line):
     """`[camera] width = 160` alone kept the scene's height: `nlips dataset` rendered 160x480 presses without a word."""
     path = tmp_path / "spec.toml"
-    path.write_text(f'[camera]\n{camera}\n[random]\ncount = 1\nindenters = [{{ kind = "sphere", size = 6.0 }}]\n')
+    path.write_text(
+        f'[camera]\n{camera}\n[random]\ncount = 1\nindenters = [{{ kind = "sphere", size = 6.0 }}]\n', encoding="utf-8"
+    )
     with pytest.raises(ConfigError) as info:
         load_dataset_spec(path)
     message = str(info.value)
     assert message.startswith(f"{path}: {line}"), message
     assert message.endswith(("give both, e.g. width = 160, height = 120", "give both, e.g. width = 960, height = 720"))
     both = tmp_path / "both.toml"
-    both.write_text(path.read_text().replace(camera, "width = 161\nheight = 121"))
+    both.write_text(path.read_text(encoding="utf-8").replace(camera, "width = 161\nheight = 121"), encoding="utf-8")
     assert (load_dataset_spec(both)[1].camera.width, load_dataset_spec(both)[1].camera.height) == (161, 121)
 
 
 def test_a_scene_files_camera_with_one_side_is_refused_in_one_line(tmp_path):
     """A scene file of one's own with `[camera] width = 1280` alone rendered 1280x480 images without a word."""
     path = tmp_path / "mine.toml"
-    path.write_text("[camera]\nwidth = 1280\nhfov_deg = 100\n")
+    path.write_text("[camera]\nwidth = 1280\nhfov_deg = 100\n", encoding="utf-8")
     with pytest.raises(ConfigError) as info:
         load_scene(path)
     assert str(info.value).startswith(f"{path}: [camera] width = 1280 without height: the images would be 1280x480")
     assert str(info.value).endswith("give both, e.g. width = 1280, height = 960")
-    path.write_text("[camera]\nwidth = 1280\nheight = 720\n")
+    path.write_text("[camera]\nwidth = 1280\nheight = 720\n", encoding="utf-8")
     camera = load_scene(path).camera
     assert (camera.width, camera.height) == (1280, 720)

@@ -175,7 +175,7 @@ def test_a_camera_that_is_not_there_is_one_line_without_opencv_warnings(command,
     from nlipscalib.device.virtual_board import VirtualBoard
 
     board = VirtualBoard(12)
-    (tmp_path / "garbage.avi").write_text("not a video")
+    (tmp_path / "garbage.avi").write_text("not a video", encoding="utf-8")
     args = {
         "capture": ["capture", "--port", board.url, "--yes", "--out", str(tmp_path / "s"), "--camera"],
         "live": ["live", "--predictor", "tests.device.fakes:flat_predictor", "--no-window", "--camera"],
@@ -230,7 +230,7 @@ def test_a_file_opencv_opens_but_gives_no_frame_is_named_unreadable(tmp_path):
     from pathlib import Path
 
     fake = tmp_path / "fake.png"
-    fake.write_text("not an image")
+    fake.write_text("not an image", encoding="utf-8")
     argv = ["live", "--predictor", "tests.device.fakes:flat_predictor", "--no-window", "--camera", str(fake)]
     root = Path(__file__).resolve().parents[2]
     done = subprocess.run([sys.executable, "-m", "nlipscalib", *argv], capture_output=True, text=True, cwd=root)

@@ -152,7 +152,7 @@ def test_cli_writes_the_camera_block(views, tmp_path, capsys):
     # the lens line is legible: four significant digits per coefficient, not a tuple of full float reprs
     lens = next(line for line in text.splitlines() if line.startswith("fisheye camera"))
     assert "dist " in lens and "(" not in lens and not re.search(r"\.\d{7}", lens), lens
-    data = json.loads(out.read_text())
+    data = json.loads(out.read_text(encoding="utf-8"))
     assert Camera.from_dict(data["camera"]).model == "fisheye" and data["reprojection_rms_px"] < 0.1
     assert main(args[:3] + ["9x6"] + args[4:]) == 2  # wrong pattern: one clear error, no traceback
     assert "found in 0 of 7 images" in capsys.readouterr().err

@@ -26,7 +26,7 @@ def test_emulated_session_from_the_cli_resumes(tmp_path, capsys, caplog):
     p = load_press(presses[0])
     assert p.reference is not None and p.led_images.shape == (12, 48, 64, 3)
     assert p.meta["provenance"]["device"] == "emulator" and p.meta["provenance"]["attempts"] == 2
-    assert json.loads((tmp_path / "s" / "session.json").read_text())["n_leds"] == 12
+    assert json.loads((tmp_path / "s" / "session.json").read_text(encoding="utf-8"))["n_leds"] == 12
 
 
 def test_device_path_without_port_is_one_clear_error(tmp_path, capsys):
@@ -43,7 +43,7 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
     from nlipscalib.device.virtual_board import VirtualBoard
 
     camera = Camera.from_fov(64, 48, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
-    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}))
+    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}), encoding="utf-8")
     frames = tmp_path / "frames"
     frames.mkdir()
     for k in range(2 * 15):  # reference + one press, 15 images each; the check frame repeats the first
@@ -82,7 +82,7 @@ def test_a_second_capture_into_a_session_being_captured_is_refused_before_it_cap
     from nlipscalib.device.virtual_board import VirtualBoard
 
     camera = Camera.from_fov(64, 48, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
-    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}))
+    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}), encoding="utf-8")
     frames = tmp_path / "frames"
     frames.mkdir()
     for k in range(2 * 15):
@@ -168,8 +168,8 @@ def test_real_sensor_options_are_refused_with_emulate(tmp_path, capsys, extra, m
 
     bad = tmp_path / "bad"
     bad.mkdir()
-    (bad / "cam.json").write_text("garbage{")
-    (bad / "leds_malformed.json").write_text('{"leds": "twelve"}')
+    (bad / "cam.json").write_text("garbage{", encoding="utf-8")
+    (bad / "leds_malformed.json").write_text('{"leds": "twelve"}', encoding="utf-8")
     extra = [a.format(cam=bad / "cam.json", leds=bad / "leds_malformed.json") for a in extra]
     out = ["--out", str(tmp_path / "s"), "--presses", "1"]
     assert main(["capture", "--emulate", "nlipstac", *out, *extra]) == 2
@@ -177,7 +177,9 @@ def test_real_sensor_options_are_refused_with_emulate(tmp_path, capsys, extra, m
     assert message in err and err.count("\n") == 1
     # a valid 320x240 calibration is refused just the same: the capture would come out in the scene's size
     good = tmp_path / "cam320.json"
-    good.write_text(json.dumps({"camera": Camera.from_fov(320, 240, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    good.write_text(
+        json.dumps({"camera": Camera.from_fov(320, 240, 100.0, "fisheye", (0.0,) * 4).to_dict()}), encoding="utf-8"
+    )
     assert main(["capture", "--emulate", "nlipstac", *out, "--camera-calibration", str(good)]) == 2
     assert "--camera-calibration is not used with --emulate" in capsys.readouterr().err
     assert not (tmp_path / "s").exists()
@@ -191,7 +193,9 @@ def test_emulator_options_are_refused_without_emulate(tmp_path, capsys):
 
 def test_script_and_move_press_or_other_press_count_are_refused(tmp_path, capsys):
     script = tmp_path / "script.toml"
-    script.write_text("[[press]]\npolar_deg = 10.0\ndepth = 1.0\n\n[[press]]\npolar_deg = 20.0\ndepth = 1.0\n")
+    script.write_text(
+        "[[press]]\npolar_deg = 10.0\ndepth = 1.0\n\n[[press]]\npolar_deg = 20.0\ndepth = 1.0\n", encoding="utf-8"
+    )
     args = ["capture", "--emulate", "nlipstac", "--script", str(script), "--out", str(tmp_path / "s")]
     assert main(args + ["--move-press", "1"]) == 2
     assert "--move-press is not used with --script" in capsys.readouterr().err
@@ -295,7 +299,9 @@ def test_nlipsemu_port_with_a_camera_starts_the_board_alone(tmp_path, capsys):
     from nlipscalib.device.virtual_board import find_board
 
     camera = tmp_path / "camera.json"  # small frames
-    camera.write_text(json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    camera.write_text(
+        json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}), encoding="utf-8"
+    )
     frames = tmp_path / "frames"
     frames.mkdir()
     for k in range(15):  # the reference alone: tri-colour, dark, LED 1..12, check (= the first)
@@ -321,7 +327,9 @@ def test_capture_drives_the_led_board_at_the_rate_of_baud(tmp_path, capsys):
     from nlipscalib.device.virtual_board import VirtualBoard
 
     camera = tmp_path / "camera.json"
-    camera.write_text(json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    camera.write_text(
+        json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}), encoding="utf-8"
+    )
     frames = tmp_path / "frames"
     frames.mkdir()
     for k in range(15):  # the reference alone: tri-colour, dark, LED 1..12, check (= the first)
@@ -366,9 +374,14 @@ def test_a_board_with_another_led_count_than_the_design_is_one_line_naming_both_
     from nlipscalib.sim.scene import SCENES_DIR
 
     design = tmp_path / f"ring{design_leds}.toml"
-    design.write_text((SCENES_DIR / "nlipstac.toml").read_text().replace("count = 12", f"count = {design_leds}"))
+    design.write_text(
+        (SCENES_DIR / "nlipstac.toml").read_text(encoding="utf-8").replace("count = 12", f"count = {design_leds}"),
+        encoding="utf-8",
+    )
     camera = tmp_path / "camera.json"
-    camera.write_text(json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    camera.write_text(
+        json.dumps({"camera": Camera.from_fov(64, 48, 100.0, "fisheye", (0.0,) * 4).to_dict()}), encoding="utf-8"
+    )
     frames = tmp_path / "frames"
     frames.mkdir()
     for k in range(design_leds + 3):

@@ -26,7 +26,9 @@ def camera_file(tmp_path):
     from nlipscalib.core import Camera
 
     path = tmp_path / "camera.json"
-    path.write_text(json.dumps({"camera": Camera.from_fov(W, H, 100.0, "fisheye", (0.0,) * 4).to_dict()}))
+    path.write_text(
+        json.dumps({"camera": Camera.from_fov(W, H, 100.0, "fisheye", (0.0,) * 4).to_dict()}), encoding="utf-8"
+    )
     return path
 
 
@@ -109,7 +111,7 @@ def _led_file(path, leds, camera_path):
     from nlipscalib.core.ledfile import save_leds
     from nlipscalib.core.sensor_record import describe_sensor
 
-    camera = Camera.from_dict(json.loads(camera_path.read_text())["camera"])
+    camera = Camera.from_dict(json.loads(camera_path.read_text(encoding="utf-8"))["camera"])
     return save_leds(path, leds, {"sensor": describe_sensor(camera, leds, SensorResponse())})
 
 
@@ -137,7 +139,10 @@ def test_an_led_file_of_another_sensor_is_refused_as_solve_refuses_it(tmp_path, 
     design = load_scene("nlipstac").led_models()
     moved = tuple(dataclasses.replace(led, position=tuple(led.position + np.array([0.2, 0, 0]))) for led in design)
     ours = _led_file(tmp_path / "our_leds.json", design, camera)
-    ours.write_text(json.dumps(json.loads(ours.read_text()) | {"leds": [led.to_dict() for led in moved]}))
+    ours.write_text(
+        json.dumps(json.loads(ours.read_text(encoding="utf-8")) | {"leds": [led.to_dict() for led in moved]}),
+        encoding="utf-8",
+    )
     assert main([*capture_args(board.url, frames, camera, out, 0), "--leds", str(ours)]) == 0
     capsys.readouterr()
     np.testing.assert_allclose(load_press(out / "reference").leds[0].position, moved[0].position, atol=1e-6)

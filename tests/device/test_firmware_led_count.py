@@ -64,9 +64,9 @@ def test_a_build_with_more_leds_than_the_ram_holds_is_refused_with_the_reason(tm
 
 
 def test_the_docs_give_the_firmware_s_limit():
-    main_cpp = (FIRMWARE_DIR / "src" / "main.cpp").read_text()
+    main_cpp = (FIRMWARE_DIR / "src" / "main.cpp").read_text(encoding="utf-8")
     assert re.search(r"^#define NLEDS_MAX (\d+)$", main_cpp, re.M).group(1) == str(MOST_LEDS)
-    protocol_md = (REPO / "docs" / "protocol.md").read_text()
-    readme = (FIRMWARE_DIR / "README.md").read_text()
+    protocol_md = (REPO / "docs" / "protocol.md").read_text(encoding="utf-8")
+    readme = (FIRMWARE_DIR / "README.md").read_text(encoding="utf-8")
     assert f"1..{MOST_LEDS} on the ATmega328P" in protocol_md
     assert f"NLEDS=1..{MOST_LEDS}" in readme

@@ -113,7 +113,7 @@ def test_sigterm_mid_capture_on_the_firmware_leaves_the_leds_dark_and_no_partial
     from nlipscalib.core import Camera, find_presses, load_press
 
     camera = Camera.from_fov(160, 120, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
-    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}))
+    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}), encoding="utf-8")
     video = cv2.VideoWriter(str(tmp_path / "v.avi"), cv2.VideoWriter_fourcc(*"MJPG"), 30, (160, 120))
     for i in range(4000):  # ~0.5 s of decoding per press at --average 100: the session outlasts the kill
         # each image: --flush 2 + --average 100 frames; the dark one (second of 15) darker, so the LEDs show light

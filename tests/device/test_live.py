@@ -174,7 +174,7 @@ def test_live_takes_infers_names_for_its_output_and_frame_limit_and_its_own_as_a
 def test_live_names_a_file_given_for_its_folder_with_out_either_way(frames, tmp_path, capsys):
     """`nlips live --save FILE` said "FILE: File exists"; the remedy names --out, the option's name now."""
     a_file = tmp_path / "a file"
-    a_file.write_text("notes")
+    a_file.write_text("notes", encoding="utf-8")
     args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
     for flag in ("--out", "--save"):
         assert main([*args, flag, str(a_file)]) == 2

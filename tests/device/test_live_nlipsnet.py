@@ -96,9 +96,11 @@ def test_a_scene_of_another_dome_with_the_models_camera_and_leds_is_refused(refe
 
     model = _untrained_model(reference, tmp_path / "net.pt")
     scene = tmp_path / "mine.toml"
-    text = (SCENES_DIR / "nlipstac.toml").read_text()
+    text = (SCENES_DIR / "nlipstac.toml").read_text(encoding="utf-8")
     assert "radius = 15.0" in text
-    scene.write_text(text.replace("radius = 15.0", "radius = 14.0", 1))  # the dome's; the LED ring is ring_radius
+    scene.write_text(
+        text.replace("radius = 15.0", "radius = 14.0", 1), encoding="utf-8"
+    )  # the dome's; the LED ring is ring_radius
     args = (
         ["live", "--model", str(model), "--frames", "2", "--no-window"] if command == "live" else ["infer", str(model)]
     )

@@ -240,7 +240,7 @@ FIRMWARE_SRC = Path(__file__).resolve().parents[2] / "firmware" / "src"
 
 def example_session() -> list[tuple[str, bytes]]:
     """docs/protocol.md's recorded session: ("->" host line | "<-" board line, the line with its newline)."""
-    text = PROTOCOL_MD.read_text()
+    text = PROTOCOL_MD.read_text(encoding="utf-8")
     block = text[text.index("Example session") :].split("```")[1]
     return [(ln[:2], ln[3:].encode() + b"\n") for ln in block.splitlines() if ln[:2] in ("->", "<-")]
 
@@ -295,14 +295,17 @@ def test_an_led_index_of_at_most_three_digits_and_hex_in_either_case(board):
 
 def test_the_numbers_protocol_md_gives_are_the_firmware_s():
     """Line length, rate, latch and version, read from firmware/src, and the error table against protocol.py."""
-    text = PROTOCOL_MD.read_text()
-    main_cpp = (FIRMWARE_SRC / "main.cpp").read_text()
+    text = PROTOCOL_MD.read_text(encoding="utf-8")
+    main_cpp = (FIRMWARE_SRC / "main.cpp").read_text(encoding="utf-8")
     assert "#define MAX_LINE (6 * NLEDS + 32)" in main_cpp and "`6 × LEDs + 32` bytes" in text
     n = 12
     all_line = p.encode_command(0xFF, "ALL", "00" * 3 * n)
     assert len(all_line) - 2 == 6 * n + 12 and "`6 × LEDs + 12`" in text  # without '>' and the newline
-    assert "#define UART_BAUD 115200UL" in (FIRMWARE_SRC / "uart.h").read_text() and "UART 115200 baud" in text
-    assert "_delay_us(300)" in (FIRMWARE_SRC / "ws2812.cpp").read_text() and "low for 300 µs" in text
+    assert (
+        "#define UART_BAUD 115200UL" in (FIRMWARE_SRC / "uart.h").read_text(encoding="utf-8")
+        and "UART 115200 baud" in text
+    )
+    assert "_delay_us(300)" in (FIRMWARE_SRC / "ws2812.cpp").read_text(encoding="utf-8") and "low for 300 µs" in text
     assert '#define FW_VERSION "1.' in main_cpp and '#define PROTOCOL_VERSION "1"' in main_cpp
     rows = re.findall(r"^\| `E(\d)` \| `([A-Z]+)` \|", text, re.M)
     assert {int(c): name for c, name in rows} == p.ERROR_NAMES

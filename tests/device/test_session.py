@@ -114,7 +114,9 @@ def test_a_retake_is_said_once_to_the_operator_and_kept_in_the_log_file(tmp_path
     said = "Press 2: the object moved"
     shown = prompts if interactive else capsys.readouterr().out.splitlines()
     assert sum(said in line for line in shown) == 1
-    logged = [line.split(" ", 3)[3] for line in log.read_text().splitlines() if "changed" in line]  # past "[pid]"
+    logged = [
+        line.split(" ", 3)[3] for line in log.read_text(encoding="utf-8").splitlines() if "changed" in line
+    ]  # past "[pid]"
     assert len(logged) == 1 and logged[0].startswith(f"INFO nlipscalib: {said} (") and "retaking" in logged[0]
 
 
@@ -208,7 +210,7 @@ def test_a_damaged_session_description_says_how_to_resume(tmp_path):
     rig, _ = _rig()
     run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
     path = tmp_path / "s" / "session.json"
-    path.write_text(path.read_text()[:20])
+    path.write_text(path.read_text(encoding="utf-8")[:20], encoding="utf-8")
     with pytest.raises(CaptureError) as err:
         run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
     message = str(err.value)

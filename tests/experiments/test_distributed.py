@@ -61,7 +61,7 @@ def _pid_in_a_press(out: Path, pids) -> int | None:
         if path.name.startswith(".claim-cal-"):
             continue
         try:
-            pid = json.loads(path.read_text())["pid"]
+            pid = json.loads(path.read_text(encoding="utf-8"))["pid"]
         except (OSError, ValueError, KeyError):  # released or being written meanwhile
             continue
         if pid in pids:
@@ -92,7 +92,7 @@ def local_run(tmp_path_factory):
     thread.join(timeout=900)
     progress.configure(progress=False, log_file=None)
     logging.getLogger("nlipscalib.experiments.runner").removeHandler(handler)
-    logged = (out / "log.txt").read_text()
+    logged = (out / "log.txt").read_text(encoding="utf-8")
     assert "nlipscalib.solver" in logged, logged[-2000:]  # solves run in the worker processes only
     assert "error" not in box, box.get("error")
     assert deaths, "the killed worker was not noticed"

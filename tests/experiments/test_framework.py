@@ -39,11 +39,13 @@ def test_stored_result_is_reused_only_for_the_same_task(tmp_path):
     task = Task(kind="reference", id="ref-x", scene={"a": 1})
     path = result_path(tmp_path, task.id)
     path.parent.mkdir(parents=True)
-    path.write_text(json.dumps({"task_hash": task.hash, "status": "done"}))
+    path.write_text(json.dumps({"task_hash": task.hash, "status": "done"}), encoding="utf-8")
     assert load_result(tmp_path, task) is not None
     changed = Task(kind="reference", id="ref-x", scene={"a": 2})
     assert load_result(tmp_path, changed) is None  # config changed: run again, never reuse stale numbers
-    path.write_text('{"task_hash": "')  # torn file (cannot happen with atomic writes, but never trusted)
+    path.write_text(
+        '{"task_hash": "', encoding="utf-8"
+    )  # torn file (cannot happen with atomic writes, but never trusted)
     assert load_result(tmp_path, task) is None
 
 
@@ -84,7 +86,7 @@ def test_a_baseline_of_another_size_is_refused(tmp_path, capsys):
     import json
 
     base = tmp_path / "base.json"
-    base.write_text(json.dumps({"experiment": "q1", "size": "medium", "figures": {}}))
+    base.write_text(json.dumps({"experiment": "q1", "size": "medium", "figures": {}}), encoding="utf-8")
     assert main(["experiment", "q1", "--check", str(base), "--out", str(tmp_path), "--plan"]) == 2
     assert "baseline of size 'medium', this run is 'quick'" in capsys.readouterr().err
 
@@ -168,9 +170,11 @@ def test_an_output_that_cannot_be_written_is_refused_before_any_work(
         raise AssertionError("the experiment ran")
 
     monkeypatch.setattr(framework, "run_experiment", ran)
-    (tmp_path / "afile").write_text("not a folder")
+    (tmp_path / "afile").write_text("not a folder", encoding="utf-8")
     (tmp_path / "apress").mkdir()
-    (tmp_path / "apress" / "meta.json").write_text("{}")  # a capture: its images and the report would mix
+    (tmp_path / "apress" / "meta.json").write_text(
+        "{}", encoding="utf-8"
+    )  # a capture: its images and the report would mix
     given = tmp_path / value
     argv = ["experiment", "q1", "--out", str(tmp_path / "work"), option, str(given)]
     assert main(argv) == 2
@@ -192,7 +196,7 @@ def test_help_says_what_each_experiment_measures_and_how_long_each_size_takes(ca
 
 def test_config_file_with_a_typo_names_file_and_key(tmp_path, capsys):
     cfg = tmp_path / "q1.toml"
-    cfg.write_text("[twin]\nwidht = 64\n")
+    cfg.write_text("[twin]\nwidht = 64\n", encoding="utf-8")
     assert main(["experiment", "q1", "--config", str(cfg), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "q1.toml" in err and "widht" in err
@@ -217,7 +221,7 @@ def test_a_config_value_the_tasks_cannot_use_is_refused_naming_the_file(name, te
     """Such values used to pass --plan and the start of a run: an unknown word failed every press after its render
     (leds, roi, interreflection), a scene error did not name the file, an empty indenter list was a traceback."""
     cfg = tmp_path / "exp.toml"
-    cfg.write_text(text)
+    cfg.write_text(text, encoding="utf-8")
     assert main(["experiment", name, "--config", str(cfg), "--out", str(tmp_path), "--plan"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"nlips experiment: error: {cfg}") and message in err[0], err
@@ -225,7 +229,7 @@ def test_a_config_value_the_tasks_cannot_use_is_refused_naming_the_file(name, te
 
 def test_press_count_study_config_names_file_and_problem(tmp_path, capsys):
     cfg = tmp_path / "presses.toml"
-    cfg.write_text("counts = [1, 4]\n[net]\nhidden = [8]\n")
+    cfg.write_text("counts = [1, 4]\n[net]\nhidden = [8]\n", encoding="utf-8")
     assert main(["experiment", "presses", "--config", str(cfg), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "presses.toml" in err and "counts" in err
@@ -397,7 +401,7 @@ def test_a_task_failed_on_a_full_disk_names_the_file_where_it_goes_not_its_tempo
     outcome = tasks_mod.execute(task, tmp_path)
     expected = f"{press / 'tricolor.png'}: No space left on device (the disk is full: free space, then run again)"
     assert outcome == f"{tasks_mod.NO_SPACE}{expected}"
-    assert json.loads((tmp_path / "tasks" / "ref-full.failed.json").read_text())["error"] == expected
+    assert json.loads((tmp_path / "tasks" / "ref-full.failed.json").read_text(encoding="utf-8"))["error"] == expected
     assert tasks_mod.failure_text(ValueError("bad")) == "ValueError: bad"  # other errors as before
 
 
@@ -440,7 +444,7 @@ def test_a_full_disk_stops_the_experiment_after_the_tasks_under_way(errno_name, 
     monkeypatch.setattr(tasks_mod, "_run_reference", full_disk)
     monkeypatch.setattr(tasks_mod, "_run_press", press)
     config = tmp_path / "tiny.toml"
-    config.write_text(TINY_ABLATION)
+    config.write_text(TINY_ABLATION, encoding="utf-8")
     out = tmp_path / "out"
     assert main(["--no-progress", "experiment", "ablation", "--config", str(config), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -465,7 +469,7 @@ def test_other_task_failures_let_the_sweep_go_on(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(tasks_mod, "_run_reference", lambda task, out, threads, keep: {"folder": "refs/x"})
     monkeypatch.setattr(tasks_mod, "_run_press", broken_press)
     config = tmp_path / "tiny.toml"
-    config.write_text(TINY_ABLATION)
+    config.write_text(TINY_ABLATION, encoding="utf-8")
     out = tmp_path / "out"
     assert main(["--no-progress", "experiment", "ablation", "--config", str(config), "--out", str(out)]) == 1
     assert len(started) == 3, started  # every press tried
@@ -549,7 +553,7 @@ def test_a_resume_names_the_tasks_an_older_nlipscalib_made_instead_of_crediting_
         path = result_path(tmp_path, task.id)
         path.parent.mkdir(parents=True, exist_ok=True)
         record = {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done", "folder": "refs/x"}
-        path.write_text(json.dumps(record | ({"made_by": maker} if maker else {})))
+        path.write_text(json.dumps(record | ({"made_by": maker} if maker else {})), encoding="utf-8")
     assert tasks_mod.execute(new, tmp_path) == "done"
     assert load_result(tmp_path, new)["made_by"] == made_by()  # what a task made now records
 

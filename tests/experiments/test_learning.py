@@ -39,7 +39,7 @@ def test_a_model_another_run_is_training_is_waited_for_not_trained_twice(tmp_pat
     got = learning.train_model(None, names, stamps, cfg, tmp_path, progress=False)
     thread.join()
     assert trained == []
-    assert got == theirs == json.loads(record.read_text())
+    assert got == theirs == json.loads(record.read_text(encoding="utf-8"))
 
 
 def test_a_model_trained_before_is_reused_and_the_log_says_so(tmp_path, monkeypatch, caplog):

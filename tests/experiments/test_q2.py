@@ -31,7 +31,7 @@ COUNTS = (2, 3)
 
 
 def _doc(out, name: str) -> dict:
-    return json.loads((out / f"{name}-custom" / "report" / "results.json").read_text())
+    return json.loads((out / f"{name}-custom" / "report" / "results.json").read_text(encoding="utf-8"))
 
 
 def _score(doc: dict, split: str, method: str, key: str = "aae_vs_true_deg") -> float:
@@ -43,7 +43,7 @@ def _score(doc: dict, split: str, method: str, key: str = "aae_vs_true_deg") -> 
 def _config(folder, name: str, fields: dict) -> str:
     """A config file for ``--config`` holding ``fields`` (JSON is YAML)."""
     path = folder / f"{name}.yaml"
-    path.write_text(json.dumps(fields))
+    path.write_text(json.dumps(fields), encoding="utf-8")
     return str(path)
 
 
@@ -85,7 +85,7 @@ def test_q2_quick_writes_report_json_and_figures(q2):
     for r in steep.values():
         assert r["contact_samples"] > 0 and 0 < r["tilt_p99_deg"] <= 90
         assert 0 <= r["beyond_45_pct"] <= r["beyond_35_pct"] <= 100
-    text = (q2 / "q2-custom" / "report" / "report.md").read_text()
+    text = (q2 / "q2-custom" / "report" / "report.md").read_text(encoding="utf-8")
     assert "3.33" in text and "3.11" in text and "AAE vs true normals" in text and "per test indenter" in text
     assert "How steep the contact is" in text
     for png in ("q2_normals.png", "q2_vs_nlips.png", "q2_vs_true.png", "q2_training.png"):
@@ -123,7 +123,7 @@ def test_press_count_study_reuses_q2_presses_and_its_model(q2):
     assert {r["split"] for r in rows} == {"seen", "unseen"}
     for r in rows:
         assert r["aae_vs_true_deg"] == _score(q2_doc, r["split"], METHODS["nlipsnet"])
-    text = (q2 / "presses-custom" / "report" / "report.md").read_text()
+    text = (q2 / "presses-custom" / "report" / "report.md").read_text(encoding="utf-8")
     assert "| calibration presses | split | method |" in text and "(presses_aae.png)" in text
     assert (q2 / "presses-custom" / "report" / "presses_aae.png").stat().st_size > 1000
 
@@ -139,13 +139,14 @@ def test_too_few_calibration_presses_are_reported_not_fatal(tmp_path):
     """One calibration press cannot be split into training and validation: the report says so."""
     cfg = tmp_path / "q2_tiny.toml"
     cfg.write_text(
-        "[twin]\nwidth = 96\nheight = 72\nspp = 8\n[train]\ncount = 1\n[seen]\ncount = 0\n[unseen]\ncount = 0\n"
+        "[twin]\nwidth = 96\nheight = 72\nspp = 8\n[train]\ncount = 1\n[seen]\ncount = 0\n[unseen]\ncount = 0\n",
+        encoding="utf-8",
     )
     assert main(["experiment", "q2", "--config", str(cfg), "--out", str(tmp_path)]) == 0
     report = tmp_path / "q2-custom" / "report"
-    doc = json.loads((report / "results.json").read_text())
+    doc = json.loads((report / "results.json").read_text(encoding="utf-8"))
     assert "need 2" in doc["learned"]["error"]
-    assert "## Not computed" in (report / "report.md").read_text()
+    assert "## Not computed" in (report / "report.md").read_text(encoding="utf-8")
 
 
 def test_label_normals_reach_the_solves_and_the_default_adds_no_option():
@@ -163,7 +164,7 @@ def test_label_normals_reach_the_solves_and_the_default_adds_no_option():
 def test_a_bad_label_normals_value_is_one_line_naming_the_config_before_any_work(tmp_path, capsys):
     """``normals = "bogus"`` was planned and would have failed every press after its render."""
     cfg = tmp_path / "q2_bad.toml"
-    cfg.write_text('normals = "bogus"\n')
+    cfg.write_text('normals = "bogus"\n', encoding="utf-8")
     assert main(["experiment", "q2", "--config", str(cfg), "--plan", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(cfg) in err[0] and "normals" in err[0] and "bogus" in err[0], err

@@ -18,7 +18,7 @@ def test_q1_quick_writes_report_json_and_passes_the_stored_baseline(q1, capsys):
     out, _, code = q1
     assert code == 0
     report = out / "q1-quick" / "report"
-    doc = json.loads((report / "results.json").read_text())
+    doc = json.loads((report / "results.json").read_text(encoding="utf-8"))
     assert doc["software"]["nlipscalib"] and doc["machine"]["cores"] >= 1
     assert doc["config"]["twin"]["width"] == 96 and doc["size"] == "quick"
     assert doc["paper"]["aae_deg"] == 7.04
@@ -26,7 +26,7 @@ def test_q1_quick_writes_report_json_and_passes_the_stored_baseline(q1, capsys):
     assert {(e["indenter"], e["leds"]) for e in doc["evaluations"]} == {
         (i, s) for i in ("sphere", "cube") for s in ("true", "calibrated")
     }
-    text = (report / "report.md").read_text()
+    text = (report / "report.md").read_text(encoding="utf-8")
     assert "7.04" in text and "0.0588" in text
     for png in ("q1_aae.png", "q1_mabse.png", "q1_error_maps.png"):
         assert (report / png).stat().st_size > 1000 and f"({png})" in text
@@ -37,20 +37,20 @@ def test_q1_quick_calibrates_its_leds_reliably_from_a_reference_rendered_at_more
     LED self-calibration's residual was 1.40x the images' noise and warned UNRELIABLE in every quick run."""
     out, _, _ = q1
     work = out / "q1-quick"
-    doc = json.loads((work / "report" / "results.json").read_text())
+    doc = json.loads((work / "report" / "results.json").read_text(encoding="utf-8"))
     [calibration] = doc["calibrations"]
     assert calibration["quality"]["reliable"] and calibration["quality"]["median_ratio"] <= 1.1
-    assert "LED self-calibration: residual" in (work / "report" / "report.md").read_text()
+    assert "LED self-calibration: residual" in (work / "report" / "report.md").read_text(encoding="utf-8")
     [reference] = list(work.glob("refs/*/meta.json"))
-    assert json.loads(reference.read_text())["provenance"]["spp"] == 64
+    assert json.loads(reference.read_text(encoding="utf-8"))["provenance"]["spp"] == 64
     presses = list(work.glob("presses/*/meta.json"))
-    assert presses and all(json.loads(p.read_text())["provenance"]["spp"] == 8 for p in presses)
+    assert presses and all(json.loads(p.read_text(encoding="utf-8"))["provenance"]["spp"] == 8 for p in presses)
 
 
 def test_a_finished_experiment_resumes_without_redoing_presses(q1, capsys):
     out, argv, _ = q1
     assert main(argv) == 0
-    doc = json.loads((out / "q1-quick" / "report" / "results.json").read_text())
+    doc = json.loads((out / "q1-quick" / "report" / "results.json").read_text(encoding="utf-8"))
     assert doc["tasks"]["run_now"] == 0 and doc["tasks"]["already_done"] == doc["tasks"]["total"]
 
 
@@ -62,13 +62,13 @@ def test_presses_are_solved_through_the_pipeline_and_not_solved_again(q1, capsys
     reports = sorted(work.glob("presses/*/solves/*/report.json"))
     assert len(reports) == 4  # sphere and cube, true and self-calibrated LEDs
     for path in reports:
-        assert json.loads(path.read_text())["provenance"]["key"]
+        assert json.loads(path.read_text(encoding="utf-8"))["provenance"]["key"]
     stamps = {p: p.stat().st_mtime_ns for p in reports}
-    before = json.loads((work / "report" / "results.json").read_text())
+    before = json.loads((work / "report" / "results.json").read_text(encoding="utf-8"))
     for task in work.glob("tasks/sphere-*.json"):
         task.unlink()
     assert main(argv) == 0
-    after = json.loads((work / "report" / "results.json").read_text())
+    after = json.loads((work / "report" / "results.json").read_text(encoding="utf-8"))
     assert after["tasks"]["run_now"] == 1
     assert {p: p.stat().st_mtime_ns for p in reports} == stamps  # skipped by the pipeline, not re-solved
     assert [e["aae_deg"] for e in after["evaluations"]] == [e["aae_deg"] for e in before["evaluations"]]
@@ -86,10 +86,10 @@ def test_a_worsened_solver_option_fails_the_check(q1, capsys):
 def test_quick_variant_writes_its_report(name, table, tmp_path):
     assert main(["experiment", name, "--out", str(tmp_path)]) == 0
     report = tmp_path / f"{name}-quick" / "report"
-    doc = json.loads((report / "results.json").read_text())
+    doc = json.loads((report / "results.json").read_text(encoding="utf-8"))
     assert doc["experiment"] == name and not doc["tasks"]["failed"]
     assert _finite_numbers(doc) and len(_finite_numbers(doc)) == len(doc["evaluations"])
-    text = (report / "report.md").read_text()
+    text = (report / "report.md").read_text(encoding="utf-8")
     assert table in text
     assert list(report.glob("*.png"))
     if name == "studies":

@@ -35,7 +35,9 @@ def test_a_quick_report_redrawn_without_its_work_folder_comes_out_as_the_run_dre
     work = out / "q1-quick"
     report = tmp_path / "report"
     shutil.copytree(work / "report", report)
-    run = {p.name: p.read_bytes() for p in report.glob("*.png")} | {"report.md": (report / "report.md").read_text()}
+    run = {p.name: p.read_bytes() for p in report.glob("*.png")} | {
+        "report.md": (report / "report.md").read_text(encoding="utf-8")
+    }
     for png in ("q1_aae.png", "q1_mabse.png"):
         (report / png).unlink()
     hidden = out / "hidden"
@@ -50,7 +52,7 @@ def test_a_quick_report_redrawn_without_its_work_folder_comes_out_as_the_run_dre
     assert printed[1].startswith("q1: kept q1_error_maps.png: drawn from ") and len(printed) == 2
     for png in ("q1_aae.png", "q1_mabse.png", "q1_error_maps.png"):
         assert (report / png).read_bytes() == run[png], png
-    text = (report / "report.md").read_text()
+    text = (report / "report.md").read_text(encoding="utf-8")
     assert "kept as the run drew them (from its work folder): `q1_error_maps.png`" in text
     assert NOTE.sub("", text, count=1) == run["report.md"]
 
@@ -59,15 +61,15 @@ def test_a_quick_report_redrawn_without_its_work_folder_comes_out_as_the_run_dre
 def test_a_committed_report_redraws_every_figure_its_numbers_give(folder, tmp_path, capsys):
     report = tmp_path / folder
     shutil.copytree(DOCS / folder, report)
-    name = json.loads((report / "results.json").read_text())["experiment"]
-    listed = _figures((report / "report.md").read_text())
+    name = json.loads((report / "results.json").read_text(encoding="utf-8"))["experiment"]
+    listed = _figures((report / "report.md").read_text(encoding="utf-8"))
     kept = {f.file: (report / f.file).read_bytes() for f in get(name).work_figures if (report / f.file).is_file()}
     for png in report.glob("*.png"):
         if png.name not in kept:
             png.unlink()
     assert main(["experiment", name, "--redraw", str(report)]) == 0
     printed = capsys.readouterr().out
-    shown = _figures((report / "report.md").read_text())
+    shown = _figures((report / "report.md").read_text(encoding="utf-8"))
     assert sorted(shown) == sorted(listed)  # every figure of the report again: drawn now or kept
     assert all((report / png).stat().st_size > 1000 for png in shown)
     for png, data in kept.items():
@@ -77,7 +79,7 @@ def test_a_committed_report_redraws_every_figure_its_numbers_give(folder, tmp_pa
 def test_the_config_comes_from_results_json_not_from_the_default_size(tmp_path, monkeypatch):
     report = tmp_path / "q1"
     shutil.copytree(DOCS / "q1", report)
-    doc = json.loads((report / "results.json").read_text())
+    doc = json.loads((report / "results.json").read_text(encoding="utf-8"))
     seen = []
     figures = Q1.figures
     monkeypatch.setattr(Q1, "figures", lambda self, cfg, *a: seen.append(cfg) or figures(self, cfg, *a))
@@ -95,8 +97,12 @@ def test_a_report_with_a_solve_without_contact_redraws_it_as_failed(tmp_path, ca
 
     report = _results(tmp_path, no_contact)
     assert main(["experiment", "q1", "--redraw", str(report)]) == 0
-    first = json.loads((report / "results.json").read_text())["evaluations"][0]
-    row = next(line for line in (report / "report.md").read_text().splitlines() if line.startswith("| sphere | true"))
+    first = json.loads((report / "results.json").read_text(encoding="utf-8"))["evaluations"][0]
+    row = next(
+        line
+        for line in (report / "report.md").read_text(encoding="utf-8").splitlines()
+        if line.startswith("| sphere | true")
+    )
     assert first["indenter"] == "sphere" and first["leds"] == "true" and "(1 failed)" in row
 
 
@@ -104,10 +110,10 @@ def _results(tmp_path: Path, edit=None, text: str | None = None) -> Path:
     """A report folder holding the committed Q1 results.json, edited, or ``text`` as its results.json."""
     report = tmp_path / "report"
     report.mkdir()
-    doc = json.loads((DOCS / "q1" / "results.json").read_text())
+    doc = json.loads((DOCS / "q1" / "results.json").read_text(encoding="utf-8"))
     if edit:
         edit(doc)
-    (report / "results.json").write_text(json.dumps(doc) if text is None else text)
+    (report / "results.json").write_text(json.dumps(doc) if text is None else text, encoding="utf-8")
     return report
 
 
@@ -158,7 +164,7 @@ def test_the_commit_named_is_the_one_before_the_redraw_wrote(tmp_path, monkeypat
     monkeypatch.setattr(Q1, "figures", lambda self, *a: drawn.append(1) or figures(self, *a))
     monkeypatch.setattr(module, "software", lambda: {"nlipscalib": "0", "git_commit": "after" if drawn else "before"})
     module.redraw(get("q1"), report)
-    assert drawn and "at `before`" in (report / "report.md").read_text()
+    assert drawn and "at `before`" in (report / "report.md").read_text(encoding="utf-8")
 
 
 def test_a_redraw_leaves_one_report_no_figure_the_code_no_longer_draws(tmp_path):

@@ -72,7 +72,7 @@ def test_a_run_killed_while_writing_its_report_leaves_the_earlier_report_whole(t
 def test_a_folder_of_other_files_is_never_replaced_by_a_report(tmp_path):
     mine = tmp_path / "report"
     mine.mkdir()
-    (mine / "notes.txt").write_text("mine")
+    (mine / "notes.txt").write_text("mine", encoding="utf-8")
     with pytest.raises(ConfigError, match="no results.json"):
         _run(FakeConfig(), tmp_path)
     assert _files(mine) == {"notes.txt": b"mine"}
@@ -82,7 +82,7 @@ def test_the_command_refuses_a_report_folder_of_other_files_before_any_work(tmp_
     ran = []
     monkeypatch.setattr(framework, "run_experiment", lambda *a, **k: ran.append(1))
     (tmp_path / "mine").mkdir()
-    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    (tmp_path / "mine" / "notes.txt").write_text("mine", encoding="utf-8")
     argv = ["experiment", "q1", "--out", str(tmp_path / "out"), "--report", str(tmp_path / "mine")]
     assert main(argv) == 2
     assert "holds files but no results.json" in capsys.readouterr().err and not ran

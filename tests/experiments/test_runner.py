@@ -44,7 +44,7 @@ def test_ctrl_c_with_worker_processes_is_one_line_and_a_rerun_resumes(tmp_path):
     """A terminal sends Ctrl-C to every process of the command. The worker processes used to die of it each
     with a multiprocessing traceback of their own (KeyboardInterrupt inside a render) after the parent's line."""
     config = tmp_path / "tiny.toml"
-    config.write_text(TINY)
+    config.write_text(TINY, encoding="utf-8")
     out = tmp_path / "out"
     args = ("ablation", "--config", str(config), "--workers", "2", "--out", str(out))
     tasks = out / "ablation-custom" / "tasks"
@@ -85,7 +85,7 @@ def test_ctrl_c_with_a_dask_local_cluster_leaves_no_claim(tmp_path):
     the next run. Now the command removes them on its way out; its workers no longer warn of the cancelled tasks."""
     pytest.importorskip("distributed")
     config = tmp_path / "tiny.toml"
-    config.write_text(TINY)
+    config.write_text(TINY, encoding="utf-8")
     out = tmp_path / "out"
     tasks = out / "ablation-custom" / "tasks"
     args = ("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(out))
@@ -159,12 +159,12 @@ def test_ctrl_c_with_a_dask_local_cluster_ends_its_busy_workers_at_once(tmp_path
     from tests.processes import endless_renders
 
     config = tmp_path / "tiny.toml"
-    config.write_text(TINY)
+    config.write_text(TINY, encoding="utf-8")
     out = tmp_path / "out"
     env, traced = endless_renders(dict(os.environ), tmp_path)
     with (tmp_path / "endless" / "sitecustomize.py").open("a") as patch:
         patch.write(TRACED_SIGTERM)
-    (tmp_path / "patient_nanny.py").write_text(PATIENT_NANNY)
+    (tmp_path / "patient_nanny.py").write_text(PATIENT_NANNY, encoding="utf-8")
     sigtermed = tmp_path / "sigtermed"
     sigtermed.mkdir()
     env.update(
@@ -231,6 +231,22 @@ def test_kill_unless_ended_kills_only_the_processes_that_outlive_their_sigterm()
             proc.stdout.close()
 
 
+def test_kill_unless_ended_works_without_sigkill(monkeypatch):
+    """Windows has no ``signal.SIGKILL``: the backstop raised AttributeError on the way out of a stopped
+    ``nlips experiment`` instead of ending a worker that outlived its grace (s26-portable)."""
+    from nlipscalib.core.processes import kill_unless_ended
+
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(3600)"])
+    try:
+        with monkeypatch.context() as patch:  # Popen.kill below needs it back
+            patch.delattr(signal, "SIGKILL")
+            kill_unless_ended([sleeper.pid], 0.0)
+        assert sleeper.wait(timeout=HANG_GUARD_S) == -signal.SIGTERM  # what ends a process there
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+
+
 def _worker_signals_state() -> tuple[bool, bool]:
     """(Ctrl-C can reach this process, SIGTERM has a handler of its own): run in a Dask worker's main thread."""
     import signal
@@ -265,7 +281,7 @@ def test_sigterm_with_a_dask_local_cluster_is_one_line_and_leaves_no_claim(tmp_p
     from tests.cli.test_interrupt import _wait_until_gone
 
     config = tmp_path / "tiny.toml"
-    config.write_text(TINY)
+    config.write_text(TINY, encoding="utf-8")
     out = tmp_path / "out"
     tasks = out / "ablation-custom" / "tasks"
     proc = _nlips("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(out))
@@ -308,7 +324,7 @@ def test_a_dask_local_cluster_run_prints_none_of_distributeds_info_lines(tmp_pat
     http://127.0.0.1:8787/status"); -v shows them."""
     pytest.importorskip("distributed")
     config = tmp_path / "tiny.toml"
-    config.write_text(TINY)
+    config.write_text(TINY, encoding="utf-8")
     args = ("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(tmp_path / "out"))
     proc = _nlips(*args)
     stdout, err = proc.communicate(timeout=300)
@@ -338,7 +354,7 @@ def test_a_local_cluster_serves_no_dashboard_and_no_fixed_port_and_leaves_distri
 def test_a_second_run_says_it_reused_the_finished_tasks(tmp_path):
     """The command's line used to read "3 tasks, 0 failed" whether it ran them or found them done."""
     config = tmp_path / "tiny.toml"
-    config.write_text(TINY)
+    config.write_text(TINY, encoding="utf-8")
     args = ("ablation", "--config", str(config), "--out", str(tmp_path / "out"))
     first = _nlips(*args).communicate(timeout=300)[0]
     assert "3 tasks (3 run now, 0 reused), 0 failed" in first

@@ -69,9 +69,9 @@ def test_a_shard_with_values_no_capture_gives_is_named(built, tmp_path, capsys, 
 def test_a_bad_sampling_record_is_named_when_the_dataset_opens(built, sampling, problem):  # noqa: F811
     """``"sampling": "x"`` was an AttributeError in `nlips train`; a negative sigma was trained with and only
     refused by `nlips infer` ("prefilter sigma must be ..."), naming neither the model nor the key."""
-    index = json.loads((built / "index.json").read_text())
+    index = json.loads((built / "index.json").read_text(encoding="utf-8"))
     index["sampling"] = sampling
-    (built / "index.json").write_text(json.dumps(index))
+    (built / "index.json").write_text(json.dumps(index), encoding="utf-8")
     with pytest.raises(CaptureError) as caught:
         CalibrationDataset(built)
     assert str(caught.value) == f"{built / 'index.json'}: {problem}"
@@ -90,9 +90,9 @@ def test_nan_in_the_reference_frame_is_refused_before_training(built, tmp_path, 
 
 def test_too_few_presses_to_train_names_the_dataset(built, tmp_path, capsys):  # noqa: F811
     """``"presses": []`` said "training needs at least 2 presses (one to validate on), got 0", naming no file."""
-    index = json.loads((built / "index.json").read_text())
+    index = json.loads((built / "index.json").read_text(encoding="utf-8"))
     index["presses"] = []
-    (built / "index.json").write_text(json.dumps(index))
+    (built / "index.json").write_text(json.dumps(index), encoding="utf-8")
     assert main(["train", str(built), "--out", str(tmp_path / "m.pt"), "--no-onnx", "--no-progress"]) == 2
     _one_line(capsys, f"{built / 'index.json'}: training needs at least 2 presses", "0 of the 0 it lists")
 

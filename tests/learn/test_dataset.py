@@ -55,7 +55,7 @@ def test_corrupt_dataset_is_named(calib, tmp_path):
     (bad / "samples" / "press_a.npz").write_bytes(b"not a zip")
     with pytest.raises(CaptureError, match="press_a.npz"):
         CalibrationDataset(bad).load("press_a")
-    (bad / "index.json").write_text("{")
+    (bad / "index.json").write_text("{", encoding="utf-8")
     with pytest.raises(CaptureError, match="index.json"):
         CalibrationDataset(bad)
 
@@ -63,9 +63,9 @@ def test_corrupt_dataset_is_named(calib, tmp_path):
 def test_cli_train_on_corrupt_dataset_fails_with_one_line(calib, tmp_path, capsys):
     bad = tmp_path / "calib"
     shutil.copytree(calib.folder, bad)
-    index = json.loads((bad / "index.json").read_text())
+    index = json.loads((bad / "index.json").read_text(encoding="utf-8"))
     index["format_version"] = 99
-    (bad / "index.json").write_text(json.dumps(index))
+    (bad / "index.json").write_text(json.dumps(index), encoding="utf-8")
     assert main(["train", str(bad), "--out", str(tmp_path / "m.pt")]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "index.json" in err[0]
@@ -103,9 +103,9 @@ def test_a_dataset_without_led_geometry_opens_with_a_warning(calib, tmp_path, ca
     old = tmp_path / "calib"
     shutil.copytree(calib.folder, old)
     assert CalibrationDataset(old).sensor["led_positions"] and "LED geometry" not in caplog.text
-    index = json.loads((old / "index.json").read_text())
+    index = json.loads((old / "index.json").read_text(encoding="utf-8"))
     del index["sensor"]["led_positions"], index["sensor"]["led_directions"]
-    (old / "index.json").write_text(json.dumps(index))
+    (old / "index.json").write_text(json.dumps(index), encoding="utf-8")
     data = CalibrationDataset(old)
     assert data.names == calib.names
     assert f"{old / 'index.json'}: records no LED geometry" in caplog.text and "nlips calibrate" in caplog.text
@@ -122,7 +122,7 @@ def test_cli_calibrate_solves_samples_and_reports_coverage(twin_presses, tmp_pat
     assert (root / "press_b" / "nlips" / "result.npz").is_file()
     data = CalibrationDataset(root / "calibration")
     assert data.names == ["press_a", "press_b"]
-    cov = json.loads((root / "calibration" / "coverage.json").read_text())
+    cov = json.loads((root / "calibration" / "coverage.json").read_text(encoding="utf-8"))
     assert 0 < cov["covered_fraction"] < 1
     assert cov["next_press"]["indenter"] in ("sphere", "cube")
     # the twin's reference records where its camera sits: the advice gives the press direction too
@@ -230,9 +230,9 @@ def test_cli_calibrate_with_another_reference_leaves_the_folders_own_out(twin_pr
     ]
     foreign = tmp_path / "foreign"  # the undeformed dome of another sensor: another focal length
     shutil.copytree(twin_presses / "reference", foreign)
-    meta = json.loads((foreign / "meta.json").read_text())
+    meta = json.loads((foreign / "meta.json").read_text(encoding="utf-8"))
     meta["camera"]["fx"] *= 1.1
-    (foreign / "meta.json").write_text(json.dumps(meta))
+    (foreign / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     assert main(["calibrate", str(root), "--reference", str(foreign), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "different sensors" in err[0] and "camera fx" in err[0], err

@@ -36,7 +36,7 @@ def test_a_calibration_index_of_another_version_names_what_remakes_it(tmp_path, 
     folder = tmp_path / "calibration"
     folder.mkdir()
     index = {"format": FORMAT_NAME, "format_version": 0, "sensor": {}, "presses": []}
-    (folder / "index.json").write_text(json.dumps(index | ({"made_by": made_by} if made_by else {})))
+    (folder / "index.json").write_text(json.dumps(index | ({"made_by": made_by} if made_by else {})), encoding="utf-8")
     with pytest.raises(CaptureError, match=rf"index\.json: format_version 0 is not supported \(expected 1\); {advice}"):
         CalibrationDataset(folder)
 
@@ -50,10 +50,10 @@ def test_training_on_a_dataset_without_led_geometry_warns_once_naming_the_datase
 
     old = tmp_path / "calibration"
     shutil.copytree(calib.folder, old)
-    index = json.loads((old / "index.json").read_text())
+    index = json.loads((old / "index.json").read_text(encoding="utf-8"))
     for key in ("led_positions", "led_directions"):
         index["sensor"].pop(key)
-    (old / "index.json").write_text(json.dumps(index))
+    (old / "index.json").write_text(json.dumps(index), encoding="utf-8")
     out = tmp_path / "m.pt"
     args = ["train", str(old), "--out", str(out), "--hidden", "8", "--dropout", "0", "--epochs", "1", "--no-progress"]
     with caplog.at_level(logging.WARNING):

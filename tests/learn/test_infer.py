@@ -170,7 +170,7 @@ def test_eight_bit_png_jpeg_and_upper_case_frames_are_inferred_like_16_bit_ones(
     cv2.imwrite(str(frames / "a16.PNG"), bgr16)
     cv2.imwrite(str(frames / "b8.png"), (bgr16 >> 8).astype(np.uint8))
     cv2.imwrite(str(frames / "c8.jpg"), (bgr16 >> 8).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 98])
-    (frames / "notes.txt").write_text("press g, 2026-12-03")
+    (frames / "notes.txt").write_text("press g, 2026-12-03", encoding="utf-8")
     out = tmp_path / "o"
     assert main(["infer", str(trained), str(frames), "--backend", "torch", "--out", str(out)]) == 0
     assert "notes.txt" in caplog.text and "skipped" in caplog.text
@@ -268,10 +268,10 @@ def test_a_model_without_led_geometry_warns_and_infers_while_a_whole_one_refuses
     torch.save(payload, old)
     other = tmp_path / "other_ring"
     shutil.copytree(twin_presses / HELD_OUT, other, ignore=shutil.ignore_patterns("nlips*"))
-    meta = json.loads((other / "meta.json").read_text())
+    meta = json.loads((other / "meta.json").read_text(encoding="utf-8"))
     for led in meta["leds"]:
         led["position"][2] += 1.5  # a ring 1.5 mm higher: another sensor
-    (other / "meta.json").write_text(json.dumps(meta))
+    (other / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     assert main(["infer", str(trained), str(other), "--out", str(tmp_path / "new")]) == 2
     assert "another sensor" in capsys.readouterr().err
     assert "records no LED geometry" not in caplog.text
@@ -363,7 +363,7 @@ def test_nlipsnet_results_record_their_input_and_eval_refuses_another_press(
     held, other = twin_presses / HELD_OUT, twin_presses / "press_a"
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(held), str(other), "--out", str(out)]) == 0
-    report = json.loads((out / HELD_OUT / "nlipsnet" / "report.json").read_text())
+    report = json.loads((out / HELD_OUT / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
     assert report["provenance"]["inputs"] == {"press": capture_identity(held)}
     capsys.readouterr()
     assert main(["eval", str(held), "--result", str(out / HELD_OUT / "nlipsnet")]) == 0
@@ -382,7 +382,7 @@ def test_nlipsnet_results_record_their_input_and_eval_refuses_another_press(
     assert "was made from the image frame 'held', not from" in capsys.readouterr().err
     # a result written before inputs were recorded: still scored, with a warning that it was not checked
     old = out / HELD_OUT / "nlipsnet" / "report.json"
-    old.write_text(json.dumps({k: v for k, v in report.items() if k != "provenance"}))
+    old.write_text(json.dumps({k: v for k, v in report.items() if k != "provenance"}), encoding="utf-8")
     caplog.set_level(logging.WARNING)
     assert main(["eval", str(held), "--result", str(old.parent)]) == 0
     assert "records no input identity (written by an older nlipscalib" in caplog.text
@@ -421,11 +421,11 @@ def test_a_destination_holding_other_things_is_refused_and_another_models_result
     press = tmp_path / "press"
     shutil.copytree(twin_presses / HELD_OUT, press, ignore=shutil.ignore_patterns("nlips*"))
     (press / "nlipsnet").mkdir()
-    (press / "nlipsnet" / "notes.txt").write_text("mine")
+    (press / "nlipsnet" / "notes.txt").write_text("mine", encoding="utf-8")
     assert main(["infer", str(trained), str(press)]) == 2
     err = capsys.readouterr().err
     assert f"{press / 'nlipsnet'}: exists and holds other things than a reconstruction (notes.txt)" in err
-    assert (press / "nlipsnet" / "notes.txt").read_text() == "mine"
+    assert (press / "nlipsnet" / "notes.txt").read_text(encoding="utf-8") == "mine"
 
     shutil.rmtree(press / "nlipsnet")
     payload = torch.load(trained, weights_only=True)
@@ -573,7 +573,7 @@ def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_fram
     assert capsys.readouterr().out.startswith("4 frame(s), torch")
     first = _stamps(out)
     assert len(first) == 17  # result.npz, report.json, normals.png, depth.png of three frames and a press (+ error.png)
-    report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text())
+    report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
     assert set(report["provenance"]) == {"key", "software_version", "code", "settings", "inputs"}
     assert report["provenance"]["settings"]["depth"] is True and report["provenance"]["settings"]["ply"] is None
     assert main(command) == 0
@@ -648,7 +648,7 @@ def test_an_interrupted_run_infers_again_only_what_it_did_not_finish(tiny_model,
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     leftover = out / f".tmp-c_sphere_deep~{HOST}~{int(dead.stdout)}~x1y2"  # a run killed while writing it
     leftover.mkdir()
-    (leftover / "report.json").write_text("{")
+    (leftover / "report.json").write_text("{", encoding="utf-8")
     shutil.rmtree(out / "a_sphere")  # not written yet when the run was stopped
     (out / "b_cube" / "points.ply").unlink()
     with open(out / "press" / "nlipsnet" / "result.npz", "r+b") as f:
@@ -1101,7 +1101,7 @@ def test_sigterm_ends_a_stream_with_its_summary_and_stream_json_then_143(tiny_mo
     n = int(lines[0].split()[0])
     assert 1 <= n < 300 and lines[0].startswith(f"{n} frames in "), stdout
     assert any(line.startswith(f"saved: {n} of {n} frames' ") for line in lines), stdout
-    assert json.loads((out / "stream.json").read_text())["frames"] == n
+    assert json.loads((out / "stream.json").read_text(encoding="utf-8"))["frames"] == n
     assert sorted(p.name for p in out.glob("*.npz")) == [f"frame_{i:06d}.npz" for i in range(n)]
 
 
@@ -1122,7 +1122,9 @@ def test_a_folder_of_frames_all_unlike_the_reference_warns_three_times_then_coun
         assert main(["--log-file", str(log), "infer", str(model), str(frames), "--out", str(tmp_path / "o")]) == 0
     finally:
         progress.configure(progress=True)
-    warnings = [line.split(" WARNING ", 1)[1] for line in log.read_text().splitlines() if " WARNING " in line]
+    warnings = [
+        line.split(" WARNING ", 1)[1] for line in log.read_text(encoding="utf-8").splitlines() if " WARNING " in line
+    ]
     full = [line for line in warnings if ": differs from the calibration's reference" in line]
     assert [line.split(": differs")[0].rsplit("/", 1)[1] for line in full] == ["f0.png", "f1.png", "f2.png"]
     assert len(warnings) == 5, warnings

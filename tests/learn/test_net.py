@@ -95,15 +95,15 @@ def test_missing_and_corrupt_model_files_are_named(tmp_path, trained, capsys):
 def test_model_refuses_a_capture_of_another_sensor(trained, twin_presses, tmp_path, capsys):
     other = tmp_path / "other_press"
     shutil.copytree(twin_presses / HELD_OUT, other)
-    meta = json.loads((other / "meta.json").read_text())
+    meta = json.loads((other / "meta.json").read_text(encoding="utf-8"))
     meta["camera"]["fx"] *= 1.1  # another lens
-    (other / "meta.json").write_text(json.dumps(meta))
+    (other / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     assert main(["infer", str(trained), str(other)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "other_press" in err[0] and "another sensor" in err[0] and "fx" in err[0]
     meta["camera"]["fx"] /= 1.1  # the same lens, but another dome's LED ring (1.5 mm further out)
     meta["leds"][0]["position"][0] += 1.5
-    (other / "meta.json").write_text(json.dumps(meta))
+    (other / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     assert main(["infer", str(trained), str(other)]) != 0
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "another sensor" in err[0] and "LED 1 is 1.50 mm" in err[0]

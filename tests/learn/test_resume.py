@@ -56,7 +56,7 @@ def _build(solved, out):
 
 
 def test_a_build_killed_before_its_index_resumes_from_the_shards(solved, built, monkeypatch):
-    index = json.loads((built / "index.json").read_text())
+    index = json.loads((built / "index.json").read_text(encoding="utf-8"))
     (built / "index.json").unlink()  # index.json is written last: a build killed before it wrote none
     killed = built / "samples" / f"{TMP_PREFIX}b_cube.npz~{HOST}~{_dead_pid()}~x1y2"
     killed.write_bytes(b"half a shard")
@@ -66,7 +66,7 @@ def test_a_build_killed_before_its_index_resumes_from_the_shards(solved, built, 
 
     monkeypatch.setattr(dataset_module, "press_samples", never)
     _build(solved, built)
-    assert json.loads((built / "index.json").read_text())["presses"] == index["presses"]
+    assert json.loads((built / "index.json").read_text(encoding="utf-8"))["presses"] == index["presses"]
     assert not killed.exists()
     assert len(CalibrationDataset(built).arrays()["rgb"]) == sum(e["samples"] for e in index["presses"])
 
@@ -125,8 +125,8 @@ def test_a_build_waits_for_a_press_another_process_is_solving(solved, tmp_path, 
     ],
 )
 def test_a_hand_edited_index_is_one_line_naming_it(built, tmp_path, capsys, change, problem):
-    index = json.loads((built / "index.json").read_text())
-    (built / "index.json").write_text(json.dumps(index | change))
+    index = json.loads((built / "index.json").read_text(encoding="utf-8"))
+    (built / "index.json").write_text(json.dumps(index | change), encoding="utf-8")
     with pytest.raises(CaptureError, match="index.json: " + problem):
         CalibrationDataset(built)
     assert main(["train", str(built), "--out", str(tmp_path / "m.pt"), "--no-progress"]) == 2
@@ -159,13 +159,13 @@ def test_a_hand_edited_sampling_record_is_refused_in_one_line_not_reused(built, 
     args = ["train", str(built), "--out", str(out), "--hidden", "8", "--epochs", "2", "--no-onnx", "--no-progress"]
     assert main(args) == 0
     assert main(args) == 0 and "reused" in capsys.readouterr().out
-    index = json.loads((built / "index.json").read_text())
+    index = json.loads((built / "index.json").read_text(encoding="utf-8"))
     index["sampling"]["rest_cells"] += 1  # an option that decides only the samples, which are the same
-    (built / "index.json").write_text(json.dumps(index))
+    (built / "index.json").write_text(json.dumps(index), encoding="utf-8")
     assert main(args) == 0 and "reused" in capsys.readouterr().out
     was = index["sampling"]["smoothing_px"]
     index["sampling"]["smoothing_px"] = was + 1.0
-    (built / "index.json").write_text(json.dumps(index))
+    (built / "index.json").write_text(json.dumps(index), encoding="utf-8")
     before = out.read_bytes()
     assert main(args) == 2
     err = capsys.readouterr().err.strip()
@@ -388,7 +388,7 @@ def test_the_same_training_started_twice_waits_and_reuses_the_model_and_another_
                 text=True,
             )
         until_each_waits_or_exits([run_b], [b_log], "is training the same model", timeout=120)
-        assert run_b.poll() is None, b_log.read_text()
+        assert run_b.poll() is None, b_log.read_text(encoding="utf-8")
         (flags / "go").touch()
         stdout, stderr = run_a.communicate(timeout=120)
         assert run_a.returncode == 0, stderr
@@ -399,11 +399,11 @@ def test_the_same_training_started_twice_waits_and_reuses_the_model_and_another_
             if proc is not None:
                 proc.kill()
                 proc.wait()
-    assert run_b.returncode == 0, b_log.read_text()
-    waited = [line for line in b_log.read_text().splitlines() if "waiting for it" in line]
-    assert len(waited) == 1 and f"process {run_a.pid} on" in waited[0], b_log.read_text()
+    assert run_b.returncode == 0, b_log.read_text(encoding="utf-8")
+    waited = [line for line in b_log.read_text(encoding="utf-8").splitlines() if "waiting for it" in line]
+    assert len(waited) == 1 and f"process {run_a.pid} on" in waited[0], b_log.read_text(encoding="utf-8")
     assert f"{out}: reused, trained before with the same options on the same samples" in b_out, b_out
-    assert "resuming" not in b_log.read_text()  # no epoch trained, nothing written again
+    assert "resuming" not in b_log.read_text(encoding="utf-8")  # no epoch trained, nothing written again
     assert _model_files(out.parent) == published
     model = load_model(out)
     assert model.hidden == (8,)  # A's, whole: its .pt, .onnx and checkpoint
@@ -433,7 +433,7 @@ def test_a_killed_trainings_hold_is_taken_over_and_its_progress_resumed(built, t
     _interrupted_after_two_epochs(monkeypatch, lambda: train(data, cfg, out, progress=False))
     run = training_run(cfg, built, None, [])
     hold = tmp_path / f".claim-m.pt{TRAIN_HOLD}"
-    hold.write_text(json_module.dumps({"host": HOST, "pid": _dead_pid(), "token": "k9", "note": run}))
+    hold.write_text(json_module.dumps({"host": HOST, "pid": _dead_pid(), "token": "k9", "note": run}), encoding="utf-8")
     caplog.set_level(logging.INFO)
     args = ["train", str(built), "--out", str(out), "--epochs", "4", "--patience", "10", "--hidden", "8"]
     assert main([*args, "--dropout", "0", "--threads", "1", "--no-progress", "--no-onnx"]) == 0
@@ -663,7 +663,7 @@ def test_the_same_calibration_twice_makes_each_shard_once_and_one_of_other_sampl
             run_a = start("gated", log_file)
         deadline = time.monotonic() + 120
         while not (flags / "sampling").exists():
-            assert run_a.poll() is None, a_log.read_text()
+            assert run_a.poll() is None, a_log.read_text(encoding="utf-8")
             assert time.monotonic() < deadline
             time.sleep(0.05)
         cli = "import sys; from nlipscalib.cli import main; sys.exit(main(sys.argv[1:]))"
@@ -673,19 +673,21 @@ def test_the_same_calibration_twice_makes_each_shard_once_and_one_of_other_sampl
         with b_log.open("w") as log_file:
             run_b = start("free", log_file)
         until_each_waits_or_exits([run_b], [b_log], "waiting for its shard", timeout=120)
-        assert run_b.poll() is None, b_log.read_text()
+        assert run_b.poll() is None, b_log.read_text(encoding="utf-8")
         (flags / "go").touch()
-        assert run_a.wait(timeout=120) == 0, a_log.read_text()
-        assert run_b.wait(timeout=120) == 0, b_log.read_text()
+        assert run_a.wait(timeout=120) == 0, a_log.read_text(encoding="utf-8")
+        assert run_b.wait(timeout=120) == 0, b_log.read_text(encoding="utf-8")
     finally:
         for proc in (run_a, run_b):
             if proc is not None:
                 proc.kill()
                 proc.wait()
-    made = (flags / "made").read_text().split()
+    made = (flags / "made").read_text(encoding="utf-8").split()
     assert sorted(made) == sorted(NAMES), made  # each press's samples made once, by one run or the other
-    waited = [line for line in b_log.read_text().splitlines() if "being sampled by another process" in line]
-    assert len(waited) == 1 and f"{NAMES[0]}.npz" in waited[0], b_log.read_text()
+    waited = [
+        line for line in b_log.read_text(encoding="utf-8").splitlines() if "being sampled by another process" in line
+    ]
+    assert len(waited) == 1 and f"{NAMES[0]}.npz" in waited[0], b_log.read_text(encoding="utf-8")
     data = CalibrationDataset(out)
     assert data.names == list(NAMES) and len(data.arrays()["rgb"]) == sum(e["samples"] for e in data.entries)
     assert not [p for p in out.rglob(".*") if p.name.startswith((".claim-", TMP_PREFIX))]
@@ -699,9 +701,11 @@ def test_a_killed_builds_claims_are_taken_over_and_its_finished_shards_reused(so
     (built / "index.json").unlink()
     dead = {"host": HOST, "pid": _dead_pid(), "token": "k9"}
     hold = built / f".claim-{HOLD_NAME}~0123456789abcdef~k9"
-    hold.write_text(json.dumps(dead | {"note": {"key": "0123456789abcdef", "options": {"smoothing_px": 0.0}}}))
+    hold.write_text(
+        json.dumps(dead | {"note": {"key": "0123456789abcdef", "options": {"smoothing_px": 0.0}}}), encoding="utf-8"
+    )
     shard_claim = built / "samples" / ".claim-b_cube.npz"
-    shard_claim.write_text(json.dumps(dead))
+    shard_claim.write_text(json.dumps(dead), encoding="utf-8")
 
     def never(*args):
         raise AssertionError("a finished shard was made again")
@@ -800,6 +804,6 @@ def test_each_epoch_is_a_line_of_the_log_file(built, tmp_path):
         train(CalibrationDataset(built), TINY, tmp_path / "m.pt", val_names=["a_sphere"], progress=False)
     finally:
         progress.configure(progress=True)
-    epochs = [line for line in log.read_text().splitlines() if ": epoch " in line]
+    epochs = [line for line in log.read_text(encoding="utf-8").splitlines() if ": epoch " in line]
     assert [line.split(": epoch ")[1].split(":")[0] for line in epochs] == ["1 of at most 2", "2 of at most 2"]
     assert all("validation AAE" in line and "INFO nlipscalib.learn.train" in line for line in epochs), epochs

@@ -55,7 +55,7 @@ def test_video_frames_give_what_the_predictor_gives_on_those_frames(trained, twi
         assert (out / f"frame_{i:06d}_normals.png").is_file()
         assert b"element vertex" in (out / f"frame_{i:06d}.ply").read_bytes()[:300]
     assert expected.changed.sum() > 0  # the held-out press went through the network
-    report = json.loads((out / "stream.json").read_text())
+    report = json.loads((out / "stream.json").read_text(encoding="utf-8"))
     assert report["frames"] == 3 and report["fps"] > 0 and set(report["median_stage_s"]) >= {"network", "integrate"}
 
 
@@ -216,7 +216,7 @@ def test_the_stage_line_accounts_for_every_step_of_a_frame(trained, twin_presses
     printed = capsys.readouterr().out
     line = next(s for s in printed.splitlines() if s.startswith("NLiPsNet"))
     stream_line = next(s for s in printed.splitlines() if " frames in " in s)
-    recorded = json.loads((out / "stream.json").read_text())["mean_stage_s"]
+    recorded = json.loads((out / "stream.json").read_text(encoding="utf-8"))["mean_stage_s"]
     steps = ("linearise", "change", "network", "integrate", "check", "other")
     shown = {step: _printed_ms(line, step) for step in steps}
     for step in steps[:-1]:  # the printed means are the recorded stage times

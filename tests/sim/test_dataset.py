@@ -16,7 +16,7 @@ from nlipscalib.sim.scene import SCENES_DIR
 
 def _write(tmp_path, text):
     p = tmp_path / "spec.toml"
-    p.write_text(text)
+    p.write_text(text, encoding="utf-8")
     return p
 
 
@@ -88,7 +88,7 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
         folder = out / job.name
         folder.mkdir()
         meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
-        (folder / "meta.json").write_text(json.dumps(meta))
+        (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
     monkeypatch.setattr(dataset_pool, "_run_one", fake_render)
     out = tmp_path / "out"
@@ -111,7 +111,9 @@ def test_a_spec_finds_its_indenter_mesh_beside_it_from_any_working_directory(tmp
     folder.mkdir()
     (folder / "part.stl").write_bytes((SCENES_DIR / "indenters" / "pyramid.stl").read_bytes())
     spec_file = folder / "spec.toml"
-    spec_file.write_text('reference = false\n[random]\ncount = 2\nindenters = [{ kind = "mesh", mesh = "part.stl" }]\n')
+    spec_file.write_text(
+        'reference = false\n[random]\ncount = 2\nindenters = [{ kind = "mesh", mesh = "part.stl" }]\n', encoding="utf-8"
+    )
     monkeypatch.chdir(tmp_path)
     spec, _ = load_dataset_spec(spec_file)
     assert spec.random.indenters[0].mesh == str(folder / "part.stl")
@@ -131,7 +133,8 @@ def test_an_edited_indenter_mesh_makes_its_presses_stale_and_only_those(tmp_path
     (folder / "part.stl").write_bytes((SCENES_DIR / "indenters" / "pyramid.stl").read_bytes())
     spec = folder / "spec.toml"
     spec.write_text(
-        '[grid]\nindenters = [{ kind = "sphere" }, { kind = "mesh", mesh = "part.stl" }]\ndepth = [0.5, 1.0]\n'
+        '[grid]\nindenters = [{ kind = "sphere" }, { kind = "mesh", mesh = "part.stl" }]\ndepth = [0.5, 1.0]\n',
+        encoding="utf-8",
     )
     out, calls = tmp_path / "out", []
     monkeypatch.chdir(tmp_path)  # the mesh is found beside the spec, not in the working directory
@@ -193,7 +196,7 @@ def test_press_folders_a_shorter_spec_no_longer_names_are_warned_about(tmp_path,
     for name in ("press_0001", "press_0003", "reference", "notes"):
         (tmp_path / name).mkdir()
         if name != "notes":
-            (tmp_path / name / "meta.json").write_text("{}")
+            (tmp_path / name / "meta.json").write_text("{}", encoding="utf-8")
     jobs = [SimpleNamespace(name="press_0001"), SimpleNamespace(name="press_0002")]
     assert warn_unlisted(jobs, tmp_path) == ["press_0003", "reference"]
     assert "press_0003, reference are not in this spec" in caplog.text
@@ -209,7 +212,7 @@ def _publish_as_another_run(scene, job, out):
     """A press folder as a run of ``scene``'s spec publishes it (meta.json records its spec hash)."""
     (out / job.name).mkdir(parents=True)
     meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
-    (out / job.name / "meta.json").write_text(json.dumps(meta))
+    (out / job.name / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
 
 def test_a_press_another_spec_rendered_meanwhile_is_refused_not_counted_as_there(tmp_path, monkeypatch, capsys):
@@ -221,7 +224,7 @@ def test_a_press_another_spec_rendered_meanwhile_is_refused_not_counted_as_there
 
     spec = _write(tmp_path, GRID)
     other_spec = tmp_path / "other.toml"
-    other_spec.write_text(GRID.replace("spp = 2", "spp = 3"))
+    other_spec.write_text(GRID.replace("spp = 2", "spp = 3"), encoding="utf-8")
     other_scene = load_dataset_spec(other_spec)[1]
     other_job = expand_jobs(load_dataset_spec(other_spec)[0])[2]
     out, calls, checks = tmp_path / "out", [], []
@@ -264,7 +267,7 @@ def _whole_render(calls):
         for name in ["dark.png", "tricolor.png", *images["leds"], "reference.npz", "gt.npz"]:
             (folder / name).write_bytes(b"data")
         meta["provenance"] = {"spec_hash": render_spec_hash(scene, job.press, job.seed)}
-        (folder / "meta.json").write_text(json.dumps(meta))
+        (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
     return render
 
@@ -344,7 +347,7 @@ def test_a_live_run_of_another_spec_keeps_the_folder_even_from_overwrite_and_a_k
     killed = subprocess.Popen([sys.executable, "-c", "pass"])
     killed.wait(30)
     stale = out / ".claim-dataset~0123456789abcdef~0011223344556677"
-    stale.write_text(json.dumps({"host": HOST, "pid": killed.pid, "token": "x"}))
+    stale.write_text(json.dumps({"host": HOST, "pid": killed.pid, "token": "x"}), encoding="utf-8")
     assert main(args) == 0 and calls == ["reference", "press_0001"]
     assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "press_0001", "reference"]  # its claim swept
 
@@ -387,7 +390,7 @@ def test_a_dataset_into_a_press_folder_is_refused_before_anything_is_written(tmp
     monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
     press = tmp_path / "press"
     press.mkdir()
-    (press / "meta.json").write_text("{}")
+    (press / "meta.json").write_text("{}", encoding="utf-8")
     for out, command in [(press, ["dataset", str(spec)]), (press / "sub", ["dataset", str(spec)]), (press, ["demo"])]:
         capsys.readouterr()
         assert main(["--no-progress", *command, "--out", str(out)]) == 2
@@ -412,7 +415,7 @@ def test_the_default_render_workers_are_as_many_as_memory_holds(tmp_path, monkey
         calls.append(job.name)
         (out / job.name).mkdir()
         meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
-        (out / job.name / "meta.json").write_text(json.dumps(meta))
+        (out / job.name / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
     monkeypatch.setattr(dataset_pool, "_run_one", fake_render)
     monkeypatch.setattr(dataset_pool, "usable_cores", lambda: 8)

@@ -32,7 +32,7 @@ def _start(spec: Path, out: Path, log: Path) -> subprocess.Popen:
 
 
 def _rendered(logs: list[Path]) -> Counter:
-    text = "".join(p.read_text() for p in logs if p.exists())
+    text = "".join(p.read_text(encoding="utf-8") for p in logs if p.exists())
     return Counter(re.findall(r"press (\w+): rendered", text))
 
 
@@ -47,7 +47,7 @@ def _check_folder(out: Path) -> None:
 @pytest.mark.parametrize("n", [2, 3])
 def test_concurrent_runs_render_each_press_once(tmp_path, n):
     spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     out, logs = tmp_path / "out", [tmp_path / f"log{i}.txt" for i in range(n)]
     procs = [_start(spec, out, log) for log in logs]
     errs = [p.communicate(timeout=600)[1] for p in procs]
@@ -59,7 +59,7 @@ def test_concurrent_runs_render_each_press_once(tmp_path, n):
 
 def test_killed_run_is_taken_over(tmp_path):
     spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     out, logs = tmp_path / "out", [tmp_path / f"log{i}.txt" for i in range(3)]
     victim = _start(spec, out, logs[0])
     deadline = time.time() + 300
@@ -81,7 +81,7 @@ def test_killed_run_is_taken_over(tmp_path):
 
 def _owned_by(claim: Path, pid: int) -> bool:
     try:
-        return json.loads(claim.read_text())["pid"] == pid
+        return json.loads(claim.read_text(encoding="utf-8"))["pid"] == pid
     except (OSError, ValueError, KeyError):
         return False
 
@@ -89,7 +89,7 @@ def _owned_by(claim: Path, pid: int) -> bool:
 def test_terminated_run_releases_its_claims(tmp_path):
     """SIGTERM (a scheduler's time limit) unwinds: exit 143, its claim and half-written folder gone."""
     spec = tmp_path / "spec.toml"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC, encoding="utf-8")
     out = tmp_path / "out"
     proc = _start(spec, out, tmp_path / "log.txt")
     deadline = time.time() + 300
@@ -115,7 +115,7 @@ def test_concurrent_runs_of_different_specs_leave_one_spec(tmp_path):
 
     out, specs, logs = tmp_path / "out", [tmp_path / "a.toml", tmp_path / "b.toml"], []
     for path, seed in zip(specs, ("1", "2")):
-        path.write_text(SPEC.replace("seed = 1", f"seed = {seed}").replace("[0.0, 15.0]", "[0.0]"))
+        path.write_text(SPEC.replace("seed = 1", f"seed = {seed}").replace("[0.0, 15.0]", "[0.0]"), encoding="utf-8")
     with contextlib.ExitStack() as held:
         for name in ("reference", "press_0001", "press_0002"):
             assert held.enter_context(claim(out / name))
@@ -133,14 +133,14 @@ def test_concurrent_runs_of_different_specs_leave_one_spec(tmp_path):
     spec, scene = load_dataset_spec(specs[winner])
     expected = {j.name: render_spec_hash(scene, j.press, j.seed) for j in expand_jobs(spec)}
     found = {
-        p.name: recorded_spec_hash(json.loads((p / "meta.json").read_text())["provenance"])
+        p.name: recorded_spec_hash(json.loads((p / "meta.json").read_text(encoding="utf-8"))["provenance"])
         for p in out.iterdir()
         if p.is_dir() and not p.name.startswith(".")
     }
     assert found == expected  # every press of the winner's spec, none of the other's
-    assert json.loads((out / "dataset.json").read_text())["spec"]["seed"] == spec.seed
+    assert json.loads((out / "dataset.json").read_text(encoding="utf-8"))["spec"]["seed"] == spec.seed
     assert not list(out.glob(".claim-*")) and not list(out.glob(".tmp-*"))
 
 
 def _text(path: Path) -> str:
-    return path.read_text() if path.exists() else ""
+    return path.read_text(encoding="utf-8") if path.exists() else ""

@@ -139,7 +139,7 @@ def test_an_edited_mesh_is_not_taken_for_its_rendered_press(tmp_path, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(out) in err[0] and f"another version of {part}" in err[0] and "--overwrite" in err[0]
-    assert json.loads((out / "meta.json").read_text()) == first.meta  # nothing touched
+    assert json.loads((out / "meta.json").read_text(encoding="utf-8")) == first.meta  # nothing touched
     assert main([*args, "--overwrite"]) == 0
     second = load_press(out)
     assert second.meta["provenance"]["spec_hash"] != first.meta["provenance"]["spec_hash"]

@@ -168,7 +168,7 @@ def test_ctrl_c_during_a_datasets_worker_renders_ends_the_run_at_once_and_a_reru
     from tests.specs import TINY_SPEC
 
     spec, out = tmp_path / "spec.toml", tmp_path / "out"
-    spec.write_text(TINY_SPEC)  # the reference and four presses
+    spec.write_text(TINY_SPEC, encoding="utf-8")  # the reference and four presses
     path = os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])
     command = [sys.executable, "-m", "nlipscalib", "--no-progress", "dataset", str(spec), "--out", str(out)]
     done = subprocess.run([*command, "--limit", "1", "--workers", "1"], env=dict(os.environ, PYTHONPATH=path))

@@ -47,7 +47,9 @@ def test_a_scene_file_named_without_its_suffix_is_named_in_the_error(tmp_path, m
     from nlipscalib.core.errors import ConfigError
 
     monkeypatch.chdir(tmp_path)
-    (tmp_path / "myfinger.toml").write_text((SCENES_DIR / "fingertip.toml").read_text())
+    (tmp_path / "myfinger.toml").write_text(
+        (SCENES_DIR / "fingertip.toml").read_text(encoding="utf-8"), encoding="utf-8"
+    )
     with pytest.raises(ConfigError) as err:
         load_scene("myfinger")
     assert str(err.value).startswith("scene 'myfinger': no such scene file, nor a shipped scene (")

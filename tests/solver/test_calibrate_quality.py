@@ -76,7 +76,7 @@ def test_calibrate_leds_command_warns_about_an_unused_reflectance(captures, tmp_
     argv = ["--no-progress", "calibrate-leds", str(captures["direct"]), "--out", str(out), "--stride", str(STRIDE)]
     with caplog.at_level(logging.WARNING, logger="nlipscalib"):
         assert main([*argv, "--coating-reflectance", "0.8"]) == 0
-    (note,) = json.loads(out.read_text())["warnings"]
+    (note,) = json.loads(out.read_text(encoding="utf-8"))["warnings"]
     assert "not used" in note and note in caplog.text
     printed = capsys.readouterr().out
     assert "1 warning(s) above, also in the file" in printed
@@ -103,7 +103,7 @@ def test_a_noisy_capture_is_reported_unreliable(captures, tmp_path, caplog, caps
     argv = ["--no-progress", "calibrate-leds", str(captures["noisy"]), "--out", str(out), "--stride", str(STRIDE)]
     with caplog.at_level(logging.WARNING, logger="nlipscalib"):
         assert main(argv) == 0
-    data = json.loads(out.read_text())
+    data = json.loads(out.read_text(encoding="utf-8"))
     assert not data["quality"]["reliable"] and data["quality"]["median_ratio"] > FIT_NOISE_RATIO
     (note,) = data["warnings"]
     assert note.startswith("LED calibration unreliable") and "more samples per pixel" in note
@@ -135,7 +135,7 @@ def test_calibrate_leds_refuses_a_pressed_capture_and_fits_around_its_contact_wh
     assert line.startswith(f"nlips calibrate-leds: error: {pressed}: not a capture of the undeformed dome: "), line
     assert "--allow-contact" in line and not out.exists()
     assert main([*argv, "--allow-contact"]) == 0
-    data = json.loads(out.read_text())
+    data = json.loads(out.read_text(encoding="utf-8"))
     (count,) = data["contact_pixels"]
     assert count > 0 and any("left out of the LED fit" in w for w in data["warnings"]), data["warnings"]
     assert data["quality"]["reliable"], data["quality"]

@@ -12,7 +12,7 @@ def test_solve_eval_calibrate_cli(presses, tmp_path, capsys):
     press = tmp_path / "set" / "sphere"
     shutil.copytree(presses["sphere"], press)
     cfg = tmp_path / "solver.toml"
-    cfg.write_text("max_iters = 5\n")
+    cfg.write_text("max_iters = 5\n", encoding="utf-8")
     assert main(["solve", str(press), "--config", str(cfg)]) == 0
     out = press / "nlips"
     for name in ("result.npz", "report.json", "normals.png", "depth.png", "residual.png", "error.png"):
@@ -26,7 +26,7 @@ def test_solve_eval_calibrate_cli(presses, tmp_path, capsys):
     assert "AAE" in table and "sphere" in table
     leds = tmp_path / "leds.json"
     assert main(["calibrate-leds", str(presses["none"]), "--out", str(leds), "--stride", "4"]) == 0
-    assert len(json.loads(leds.read_text())["leds"]) == 12
+    assert len(json.loads(leds.read_text(encoding="utf-8"))["leds"]) == 12
     assert (
         main(
             [
@@ -55,13 +55,13 @@ def test_led_file_of_another_sensor_is_refused(presses, tmp_path, capsys, caplog
 
     leds = tmp_path / "leds.json"
     assert main(["calibrate-leds", str(presses["none"]), "--out", str(leds), "--stride", "8"]) == 0
-    assert json.loads(leds.read_text())["sensor"]["n_leds"] == 12
+    assert json.loads(leds.read_text(encoding="utf-8"))["sensor"]["n_leds"] == 12
     other = tmp_path / "other"
     shutil.copytree(presses["sphere"], other)
-    meta = json.loads((other / "meta.json").read_text())
+    meta = json.loads((other / "meta.json").read_text(encoding="utf-8"))
     for led in meta["leds"]:
         led["position"] = [v * 1.2 for v in led["position"]]
-    (other / "meta.json").write_text(json.dumps(meta))
+    (other / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     capsys.readouterr()
     assert main(["solve", str(other), "--leds", str(leds)]) == 2
     err = capsys.readouterr().err
@@ -71,20 +71,23 @@ def test_led_file_of_another_sensor_is_refused(presses, tmp_path, capsys, caplog
     # a session captured with these calibrated LEDs records them in meta.json, not the design: accepted
     captured = tmp_path / "captured"
     shutil.copytree(presses["sphere"], captured)
-    meta = json.loads((captured / "meta.json").read_text())
-    meta["leds"] = [{**d, "position": [v * 1.2 for v in d["position"]]} for d in json.loads(leds.read_text())["leds"]]
-    (captured / "meta.json").write_text(json.dumps(meta))
-    good = json.loads(leds.read_text())
+    meta = json.loads((captured / "meta.json").read_text(encoding="utf-8"))
+    meta["leds"] = [
+        {**d, "position": [v * 1.2 for v in d["position"]]}
+        for d in json.loads(leds.read_text(encoding="utf-8"))["leds"]
+    ]
+    (captured / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+    good = json.loads(leds.read_text(encoding="utf-8"))
     good["leds"] = meta["leds"]
     leds_moved = tmp_path / "leds_moved.json"  # its LEDs 20 % further out than the design it records
-    leds_moved.write_text(json.dumps(good))
+    leds_moved.write_text(json.dumps(good), encoding="utf-8")
     cfg = tmp_path / "solver.toml"
-    cfg.write_text("max_iters = 2\n")
+    cfg.write_text("max_iters = 2\n", encoding="utf-8")
     assert main(["solve", str(captured), "--leds", str(leds_moved), "--roi", "40,30,24,24", "--config", str(cfg)]) == 0
 
-    unrecorded = json.loads(leds.read_text())
+    unrecorded = json.loads(leds.read_text(encoding="utf-8"))
     del unrecorded["sensor"]
-    leds.write_text(json.dumps(unrecorded))
+    leds.write_text(json.dumps(unrecorded), encoding="utf-8")
     assert main(["solve", str(other), "--leds", str(leds), "--roi", "40,30,24,24", "--config", str(cfg)]) == 0
     assert "records no sensor to check against" in caplog.text
 

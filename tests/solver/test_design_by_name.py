@@ -35,10 +35,10 @@ def relabel(folder, dest, label):
     """A copy of the render ``folder`` at ``dest`` whose meta.json is a device capture's as ``label`` writes it:
     no scene in the provenance, the design by name, and the design's sections for ``sections``."""
     shutil.copytree(folder, dest)
-    meta = json.loads((dest / "meta.json").read_text())
+    meta = json.loads((dest / "meta.json").read_text(encoding="utf-8"))
     meta["provenance"] = {"source": "device", "design": NAMES[label]}
     meta |= DEVICE_META[label]
-    (dest / "meta.json").write_text(json.dumps(meta))
+    (dest / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     return load_press(dest)
 
 

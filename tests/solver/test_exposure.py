@@ -70,7 +70,7 @@ def test_solve_and_calibrate_leds_report_a_large_saturated_share(captures, tmp_p
     assert cal.saturated_share == (round(share, 4),)
     assert "left out of the LED fit" in cal.warnings[0]  # first: the likely cause of an unreliable fit
     assert main(["calibrate-leds", str(captures["over"]), "--out", str(tmp_path / "l.json")]) == 0
-    written = json.loads((tmp_path / "l.json").read_text())
+    written = json.loads((tmp_path / "l.json").read_text(encoding="utf-8"))
     assert written["saturated_share"] == [round(share, 4)] and "saturated" in written["warnings"][0]
     assert SATURATED_SHARE_WARN == 0.05
     assert not [w for w in calibrate_leds(good, interreflection="off").warnings if "saturated" in w]
@@ -140,9 +140,9 @@ def test_a_dark_frame_that_holds_light_is_refused_and_one_below_the_black_level_
     assert "dark.png: not a dark frame" in err and "Traceback" not in err
 
     low = synth.make_press(tmp_path / "low", "sphere")
-    meta = json.loads((low / "meta.json").read_text())
+    meta = json.loads((low / "meta.json").read_text(encoding="utf-8"))
     meta["sensor"]["black_level"] = 1024.0  # the stored dark frame holds 256
-    (low / "meta.json").write_text(json.dumps(meta))
+    (low / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     result = solve_press(load_press(low), roi="auto")
     said = [n for n in result.report.get("warnings", []) if "dark.png" in n]
     assert len(said) == 1 and "below the black level 1024" in said[0]

@@ -112,9 +112,9 @@ def test_solve_command_writes_which_normals_it_holds(presses, tmp_path):
     press = tmp_path / "sphere"
     shutil.copytree(presses["sphere"], press)
     cfg = tmp_path / "solver.toml"
-    cfg.write_text("max_iters = 5\n")
+    cfg.write_text("max_iters = 5\n", encoding="utf-8")
     assert main(["solve", str(press), "--config", str(cfg), "--normals", "refined", "--no-figures"]) == 0
-    report = json.loads((press / "nlips" / "report.json").read_text())
+    report = json.loads((press / "nlips" / "report.json").read_text(encoding="utf-8"))
     assert report["normals"] == "refined"
     assert report["provenance"]["settings"]["options"]["normals"] == "refined"
     assert report["provenance"]["settings"]["options"]["max_iters"] == 5  # the config's values kept

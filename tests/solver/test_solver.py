@@ -176,11 +176,11 @@ def test_bad_inputs(presses, sphere_press, tmp_path):
     (broken / "led_03.png").unlink()
     with pytest.raises(CaptureError, match="led_03.png"):
         load_press(broken)
-    meta = json.loads((presses["sphere"] / "meta.json").read_text())
+    meta = json.loads((presses["sphere"] / "meta.json").read_text(encoding="utf-8"))
     meta["camera"]["width"] = 100
     wrong = tmp_path / "wrong"
     shutil.copytree(presses["sphere"], wrong)
-    (wrong / "meta.json").write_text(json.dumps(meta))
+    (wrong / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     with pytest.raises(CaptureError, match="camera"):
         load_press(wrong)
 

@@ -188,7 +188,7 @@ def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_pat
     out = tmp_path / "leds.json"
     argv = ["--no-progress", "calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--stride", "4"]
     assert main([*argv, "--led-diameter", "3.6"]) == 0
-    data = json.loads(out.read_text())
+    data = json.loads(out.read_text(encoding="utf-8"))
     assert data["emitters"]["radius_mm"] == 1.8 and len(data["emitters"]["leds"]) == len(true)
     assert "as 3.6 mm disks" in capsys.readouterr().out
     assert main(["calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--led-diameter", "-1"]) == 2

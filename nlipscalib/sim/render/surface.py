@@ -203,7 +203,7 @@ def _warnings_relayed(mi: ModuleType) -> Iterator[None]:
             logger.clear_appenders()  # the file's appender goes (closing the file), stdout's comes back
             for appender in shown:
                 logger.add_appender(appender)
-            _relay(path.read_text(errors="replace") if path.exists() else "")
+            _relay(path.read_text(errors="replace", encoding="utf-8") if path.exists() else "")
 
 
 def _relay(text: str) -> None:
