@@ -574,7 +574,11 @@ def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_fram
     first = _stamps(out)
     assert len(first) == 17  # result.npz, report.json, normals.png, depth.png of three frames and a press (+ error.png)
     report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text())
-    assert set(report["provenance"]) == {"key", "software_version", "code", "settings", "inputs"}
+    assert set(report["provenance"]) == {"key", "software_version", "code", "libraries", "settings", "inputs"}
+    from importlib import metadata  # the libraries that ran the network (torch backend): a release moves numbers
+
+    versions = {"numpy": metadata.version("numpy"), "torch": metadata.version("torch")}
+    assert report["provenance"]["libraries"] == versions
     assert report["provenance"]["settings"]["depth"] is True and report["provenance"]["settings"]["ply"] is None
     assert main(command) == 0
     assert capsys.readouterr().out.startswith(
@@ -629,6 +633,17 @@ def test_another_model_option_or_input_is_inferred_again_saying_what_changed(tin
     assert f"{out / 'b_cube'}: replacing the result of another input" in caplog.text
     now = _stamps(out)
     assert [p for p in kept if now[p] != kept[p]] == [p for p in kept if p.parts[0] == "b_cube"]
+    from importlib import metadata  # another torch: a release moves numbers, so every result is inferred again
+
+    from nlipscalib.core import libraries
+
+    installed = libraries.installed_version
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(libraries, "installed_version", lambda name: "2.6.0" if name == "torch" else installed(name))
+        caplog.clear()
+        assert main([*command, "--no-depth", "--ply"]) == 0
+    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert f"{out / 'b_cube'}: replacing the result of torch {metadata.version('torch')} (now 2.6.0)" in caplog.text
 
 
 def test_an_interrupted_run_infers_again_only_what_it_did_not_finish(tiny_model, tmp_path, capsys, caplog):
