@@ -597,6 +597,20 @@ def test_a_result_of_other_library_versions_or_of_versions_unrecorded_is_re_solv
     ]
 
 
+def test_the_re_solve_line_names_library_versions_alone_or_among_other_differences():
+    from nlipscalib.pipeline.reuse import _why_not_reused
+
+    versions = {"numpy": "2.4.6", "scipy": "1.17.1", "pyamg": "5.4.1", "opencv": "5.1.0.95"}
+    new = {"settings": {"roi": "auto"}, "inputs": {"press": "a"}, "software_version": "0.1.0", "code": "c"}
+    new["libraries"] = versions
+    old = new | {"libraries": versions | {"numpy": "2.3.1", "pyamg": None}}
+    assert _why_not_reused(old, new) == "made with numpy 2.3.1, now 2.4.6; pyamg not installed, now 5.4.1: re-solving"
+    old["settings"] = {"roi": None}
+    assert _why_not_reused(old, new) == (
+        "made with other settings or inputs (roi, numpy 2.3.1 now 2.4.6, pyamg not installed now 5.4.1), re-solving"
+    )
+
+
 @pytest.mark.parametrize("wait", [True, False])
 def test_wait_reuses_what_another_process_was_solving(press, tmp_path, caplog, wait):
     """`nlips calibrate` needs every result: a press another process is solving is waited for (at once with

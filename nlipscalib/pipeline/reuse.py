@@ -124,14 +124,15 @@ def _why_not_reused(old: dict, new: dict) -> str:
 def _what_changed(old: dict, new: dict) -> str:
     if not old:
         return "no record of them"
-    named = (_library_change(*d).replace(",", "") if d[0] in LIBRARY_NAMES else d[0] for d in _differences(old, new))
+    named = (_library_change(*d, sep=" ") if d[0] in LIBRARY_NAMES else d[0] for d in _differences(old, new))
     return ", ".join(named) or "record differs"
 
 
-def _library_change(name: str, was: object, now: object) -> str:
-    """A library's version that differs, in words: "numpy 2.3.1, now 2.4.6" (None: "not installed")."""
+def _library_change(name: str, was: object, now: object, sep: str = ", ") -> str:
+    """A library's version that differs, in words: "numpy 2.3.1, now 2.4.6" (None: "not installed"); ``sep`` " "
+    inside a list of differences, whose items commas part."""
     text = lambda v: "not installed" if v is None else str(v)  # noqa: E731
-    return f"{name} {text(was)}, now {text(now)}"
+    return f"{name} {text(was)}{sep}now {text(now)}"
 
 
 def _in_words(old: dict, new: dict) -> str:
