@@ -552,6 +552,67 @@ def test_a_result_of_other_code_or_of_code_unrecorded_is_re_solved(press, caplog
     ]
 
 
+def test_a_result_of_other_library_versions_or_of_versions_unrecorded_is_re_solved(press, caplog, monkeypatch):
+    """A library's release moves numbers (the demo's coin press: 3.82 deg vs 4.05 at the lowest supported versions),
+    yet the key held nlipscalib's version and code alone: an upgraded NumPy was served the old one's result. The
+    provenance records the versions of the libraries that shape a solve and the key holds them; a result made under
+    another version is solved again with one line naming it, one whose record has none (made before) too."""
+    import hashlib
+    import json
+    from importlib import metadata
+
+    from nlipscalib import __version__
+    from nlipscalib.core import code_version, libraries
+
+    installed = libraries.installed_version
+    monkeypatch.setattr(libraries, "installed_version", lambda name: "2.3.1" if name == "numpy" else installed(name))
+    solve_folder(press, options=FAST, figures=False)
+    record = read_report(press / "nlips")["provenance"]
+    assert record["libraries"] == {
+        "numpy": "2.3.1",
+        "scipy": metadata.version("scipy"),
+        "pyamg": metadata.version("pyamg"),
+        "opencv": metadata.version("opencv-python-headless"),
+    }
+    monkeypatch.undo()
+    caplog.set_level(logging.INFO)
+    assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
+    lines = [r.getMessage() for r in caplog.records if "re-solving" in r.getMessage()]
+    assert lines == [f"{press / 'nlips'}: made with numpy 2.3.1, now {metadata.version('numpy')}: re-solving"]
+    assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"  # the same versions: reused
+
+    report = press / "nlips" / "report.json"
+    whole = json.loads(report.read_text())
+    old = {k: v for k, v in whole["provenance"].items() if k != "libraries"}  # as an nlipscalib before it wrote
+    settings = {k: v for k, v in old["settings"].items() if k not in ("leds_file", "reference")}  # keyed
+    source = {"settings": settings, "inputs": old["inputs"], "software_version": __version__}
+    old["key"] = hashlib.sha256(
+        json.dumps(source | {"code": code_version.code_fingerprint()}, sort_keys=True).encode()
+    ).hexdigest()
+    report.write_text(json.dumps(whole | {"provenance": old}))
+    caplog.clear()
+    assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
+    lines = [r.getMessage() for r in caplog.records if "re-solving" in r.getMessage()]
+    assert lines == [
+        f"{press / 'nlips'}: made with other settings or inputs (library versions unrecorded: an nlipscalib before "
+        "2026-12-06 made it), re-solving"
+    ]
+
+
+def test_the_re_solve_line_names_library_versions_alone_or_among_other_differences():
+    from nlipscalib.pipeline.reuse import _why_not_reused
+
+    versions = {"numpy": "2.4.6", "scipy": "1.17.1", "pyamg": "5.4.1", "opencv": "5.1.0.95"}
+    new = {"settings": {"roi": "auto"}, "inputs": {"press": "a"}, "software_version": "0.1.0", "code": "c"}
+    new["libraries"] = versions
+    old = new | {"libraries": versions | {"numpy": "2.3.1", "pyamg": None}}
+    assert _why_not_reused(old, new) == "made with numpy 2.3.1, now 2.4.6; pyamg not installed, now 5.4.1: re-solving"
+    old["settings"] = {"roi": None}
+    assert _why_not_reused(old, new) == (
+        "made with other settings or inputs (roi, numpy 2.3.1 now 2.4.6, pyamg not installed now 5.4.1), re-solving"
+    )
+
+
 @pytest.mark.parametrize("wait", [True, False])
 def test_wait_reuses_what_another_process_was_solving(press, tmp_path, caplog, wait):
     """`nlips calibrate` needs every result: a press another process is solving is waited for (at once with

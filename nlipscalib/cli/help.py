@@ -90,8 +90,7 @@ VERSION_LIBRARIES = (
     "scipy",
     "pyamg",
     "matplotlib",
-    "opencv-python-headless",
-    "opencv-python",
+    "opencv",
     "mitsuba",
     "drjit",
     "trimesh",
@@ -100,7 +99,8 @@ VERSION_LIBRARIES = (
     "pyserial",
     "dask",
 )
-"""Distributions whose versions ``nlips --version`` prints: those whose release changes results or errors."""
+"""Libraries whose versions ``nlips --version`` prints: those whose release changes results or errors (opencv: any
+of its distributions, core.libraries.DISTRIBUTIONS)."""
 
 
 def examples_text(command: str) -> str | None:
@@ -116,14 +116,10 @@ def version_text(package_version: str) -> str:
     """``nlips --version``: the package's version, Python's and the platform's, then each library of
     :data:`VERSION_LIBRARIES` installed (read from its metadata: nothing is imported, so it stays instant)."""
     import platform
-    from importlib import metadata
 
-    found = []
-    for name in VERSION_LIBRARIES:
-        try:
-            found.append(f"{name} {metadata.version(name)}")
-        except metadata.PackageNotFoundError:
-            continue
+    from ..core.libraries import library_versions
+
+    found = [f"{name} {version}" for name, version in library_versions(VERSION_LIBRARIES).items() if version]
     return "\n".join(
         (
             f"nlipscalib {package_version}",

@@ -885,15 +885,25 @@ def _settings(args: argparse.Namespace, model_digest: str, backend: str, device:
 
 def still_provenance(settings: dict, inputs: dict) -> dict:
     """What made a still's result (report ``provenance``): ``settings`` (:func:`output_settings`), ``inputs``
-    (:func:`input_identity`), the software version, the code's fingerprint, and ``key``, the SHA-256 (hex) of them: a
+    (:func:`input_identity`), the software version, the code's fingerprint, the versions of the libraries that ran
+    the model (core.libraries.INFER_LIBRARIES of the settings' backend), and ``key``, the SHA-256 (hex) of them: a
     result whose key equals a new request's is kept (:func:`_kept`)."""
     from .. import __version__
     from ..core.code_version import code_fingerprint
+    from ..core.libraries import INFER_LIBRARIES, library_versions
     from ..core.reconstruction import provenance_key
 
-    key = provenance_key(settings, inputs)
+    libraries = library_versions(INFER_LIBRARIES.get(settings["backend"], ("numpy",)))
+    key = provenance_key(settings, inputs, libraries)
     code = code_fingerprint()
-    return {"key": key, "software_version": __version__, "code": code, "settings": settings, "inputs": inputs}
+    return {
+        "key": key,
+        "software_version": __version__,
+        "code": code,
+        "libraries": libraries,
+        "settings": settings,
+        "inputs": inputs,
+    }
 
 
 def _has_entries(folder: Path) -> bool:
@@ -1034,6 +1044,17 @@ def _what_changed(old: dict, new: dict) -> list[str]:
         changes.append(f"nlipscalib {record.get('software_version')} (now {made['software_version']})")
     if record.get("code") != made["code"]:
         changes.append("another nlipscalib code" if "code" in record else "an nlipscalib that recorded no code")
+    libraries = record.get("libraries")
+    if not isinstance(libraries, dict):
+        if "code" in record:  # (one that recorded no code is named so above)
+            changes.append("an nlipscalib that recorded no library versions")
+    else:
+        text = lambda v: "not installed" if v is None else v  # noqa: E731
+        changes += [
+            f"{k} {text(libraries.get(k))} (now {text(v)})"
+            for k, v in made["libraries"].items()
+            if libraries.get(k) != v
+        ]
     return changes or ["a record that differs"]
 
 

@@ -9,8 +9,9 @@ a process; this module keeps them on disk between processes.
 - **Where:** ``$NLIPS_CACHE_DIR``; else ``$XDG_CACHE_HOME/nlipscalib``; else ``~/.cache/nlipscalib``.
   ``NLIPS_CACHE_DIR=off`` turns the tier off (results are then computed in every process, as before).
 - **Keys:** a digest of the result's kind, its key (camera, LEDs, digests of the arrays it is computed from,
-  the BLAS setting), and a digest of the package's own source, NumPy's and SciPy's versions: a changed
-  formula or library never serves an old result.
+  the BLAS setting), and a digest of the package's own source and of the versions of the libraries that shape
+  a solve (NumPy, SciPy, pyamg, OpenCV: :data:`~nlipscalib.core.libraries.SOLVE_LIBRARIES`): a changed formula or
+  library never serves an old result.
 - **Entries:** ``<dir>/<kind>/<digest>.pkl``: :data:`MAGIC`, a table of sizes, the pickle (protocol 5) of
   (:data:`TAG`, value) with its arrays' bytes out of band, then those bytes as they are in memory, each from an
   offset that is a multiple of :data:`ALIGN` (:func:`_serialised`). Read, the file is mapped and the arrays
@@ -434,16 +435,16 @@ def _size(path: Path) -> int | None:
 
 
 def _source_salt() -> str:
-    """Digest of the package's Python source and the versions of the libraries whose objects are stored:
-    any edit of a formula, or another NumPy/SciPy, makes every earlier entry a miss (computed once)."""
+    """Digest of the package's Python source and the versions of the libraries that compute or store the entries:
+    any edit of a formula, or another NumPy, SciPy, pyamg or OpenCV (the smoothed shading is OpenCV's blur), makes
+    every earlier entry a miss (computed once)."""
     global _salt
     if _salt is None:
-        import scipy
-
         from .code_version import python_sources, source_digest
+        from .libraries import SOLVE_LIBRARIES, library_versions
 
         h = hashlib.blake2b(digest_size=16)
-        h.update(f"{sys.version_info[:2]} numpy {np.__version__} scipy {scipy.__version__}".encode())
+        h.update(f"{sys.version_info[:2]} {sorted(library_versions(SOLVE_LIBRARIES).items())}".encode())
         h.update(source_digest(python_sources()).encode())  # the whole package: any formula's edit misses
         _salt = h.hexdigest()
     return _salt

@@ -94,18 +94,25 @@ class Reconstruction:
         return tuple(self.depth.shape)
 
 
-def provenance_key(settings: dict, inputs: dict) -> str:
+def provenance_key(settings: dict, inputs: dict, libraries: dict) -> str:
     """The key of a result's provenance (its report's ``provenance.key``): SHA-256 (hex) of the settings that decide
-    it, the identities of its inputs, the software version and the code's fingerprint
-    (:func:`~nlipscalib.core.code_version.code_fingerprint`: the version is the same in every commit), as sorted
-    JSON. A kept result whose key equals a new request's is reused (``nlips solve``, ``nlips infer``); one formula
-    for both, so their records read alike."""
+    it, the identities of its inputs, the software version, the code's fingerprint
+    (:func:`~nlipscalib.core.code_version.code_fingerprint`: the version is the same in every commit) and the
+    versions of the ``libraries`` that shape it (:func:`~nlipscalib.core.libraries.library_versions`: a release
+    moves numbers), as sorted JSON. A kept result whose key equals a new request's is reused (``nlips solve``,
+    ``nlips infer``); one formula for both, so their records read alike."""
     import hashlib
     import json
 
     from .code_version import code_fingerprint
 
-    source = {"settings": settings, "inputs": inputs, "software_version": __version__, "code": code_fingerprint()}
+    source = {
+        "settings": settings,
+        "inputs": inputs,
+        "software_version": __version__,
+        "code": code_fingerprint(),
+        "libraries": libraries,
+    }
     return hashlib.sha256(json.dumps(source, sort_keys=True).encode()).hexdigest()
 
 

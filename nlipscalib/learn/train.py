@@ -289,7 +289,7 @@ def _train(
         progress_path.unlink(missing_ok=True)
     net.to("cpu").load_state_dict(best_state)  # the model file's tensors and the ONNX export: on the CPU
     model_file = out if stage is None else Path(stage) / out.name
-    _save_trained(model_file, net, dataset, cfg, data, exclude, history, best)
+    _save_trained(model_file, net, dataset, cfg, data, data_key, exclude, history, best)
     progress_file = progress_path if stage else None
     return TrainResult(out, history, best["epoch"], data.train_names, data.val_names, progress_file)
 
@@ -365,16 +365,22 @@ def _save_trained(
     dataset: CalibrationDataset,
     cfg: TrainConfig,
     data: _TrainingData,
+    data_key: str,
     exclude: Collection[str],
     history: list[dict],
     best: dict,
 ) -> None:
     """Write the model file ``path``: ``net`` (its best weights loaded), the sensor and reference it was trained for,
-    and what the training was (``info``: options, presses, samples, best epoch, history)."""
+    and what the training was (``info``: options, presses, samples, best epoch, history).
+
+    The dataset is named by its folder's name and by the digest of the samples trained on (``data_key``,
+    :func:`.checkpoint.data_key_of`), not by its absolute path: that changed the file's bytes (and its digest, which
+    ``nlips infer`` keys results on) when the data moved, and told whoever received the model the lab's folders."""
     info = {
         "labels": cfg.labels,
         "config": jsonable_config(cfg),
-        "dataset": str(dataset.folder.resolve()),
+        "dataset": dataset.folder.resolve().name,
+        "samples_digest": data_key,
         "capture": dataset.capture,  # what `nlips infer` names when a press was taken otherwise
         "train_presses": data.train_names,
         "val_presses": data.val_names,

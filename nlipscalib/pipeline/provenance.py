@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 from .. import __version__
 from ..core.code_version import code_fingerprint
 from ..core.errors import CaptureError
+from ..core.libraries import SOLVE_LIBRARIES, library_versions
 from ..core.reconstruction import provenance_key
 
 if TYPE_CHECKING:
@@ -31,11 +32,13 @@ def make_provenance(folder: Path, settings: SolveSettings) -> dict:
         "reference": None if settings.reference is None else capture_identity(settings.reference),
     }
     described = settings.describe()
-    key = provenance_key(_keyed(described), inputs)
+    libraries = library_versions(SOLVE_LIBRARIES)
+    key = provenance_key(_keyed(described), inputs, libraries)
     return {
         "key": key,
         "software_version": __version__,
         "code": code_fingerprint(),
+        "libraries": libraries,
         "settings": described,
         "inputs": inputs,
     }
@@ -44,14 +47,17 @@ def make_provenance(folder: Path, settings: SolveSettings) -> dict:
 def run_record(settings: SolveSettings) -> dict:
     """What ``settings`` make of any press, for runs sharing an output (pipeline.reuse._hold): the settings that
     decide a result, the reference capture's identity and the software version (as in a result's provenance,
-    less the press), the code's fingerprint, and ``key`` hashing them: two runs of one key make identical results."""
+    less the press), the code's fingerprint, the libraries' versions, and ``key`` hashing them: two runs of one key
+    make identical results."""
     inputs = {"reference": None if settings.reference is None else capture_identity(settings.reference)}
     keyed = _keyed(settings.describe())
-    key = provenance_key(keyed, inputs)
+    libraries = library_versions(SOLVE_LIBRARIES)
+    key = provenance_key(keyed, inputs, libraries)
     return {
         "key": key,
         "software_version": __version__,
         "code": code_fingerprint(),
+        "libraries": libraries,
         "settings": keyed,
         "inputs": inputs,
     }
@@ -104,6 +110,7 @@ def identity_in_background(*folders: str | Path | None) -> None:
 
     def hash_all() -> None:
         code_fingerprint()  # the reuse key's too, read and hashed here rather than on the main thread
+        library_versions(SOLVE_LIBRARIES)  # and the libraries' versions (metadata files read, cached)
         for folder in folders:
             if folder is not None:
                 with contextlib.suppress(Exception):  # said, with its context, by the call that needs the identity

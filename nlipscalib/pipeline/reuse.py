@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 from ..core.atomic import TMP_PREFIX
 from ..core.errors import CaptureError
+from ..core.libraries import SOLVE_LIBRARIES
 from ..core.reconstruction import REPORT_FILE, load_reconstruction, read_report, reconstruction_problem
 from .status import SKIPPED
 
@@ -94,7 +95,7 @@ def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce
         old = {}
     if old.get("key") != provenance["key"]:
         if not quiet:
-            log.info("%s: made with other settings or inputs (%s), re-solving", out, _what_changed(old, provenance))
+            log.info("%s: %s", out, _why_not_reused(old, provenance))
         return None
     reused_level = logging.INFO if announce else logging.DEBUG
     if not want_result:
@@ -110,10 +111,28 @@ def _reuse(out: Path, provenance: dict, want_result: bool, quiet: bool, announce
     return result, SKIPPED
 
 
+def _why_not_reused(old: dict, new: dict) -> str:
+    """Why a result recorded by ``old`` is not the one ``new`` asks for, in one line: "made with numpy 2.3.1, now
+    2.4.6: re-solving" when only library versions differ, else "made with other settings or inputs (roi, numpy 2.3.1
+    now 2.4.6), re-solving"."""
+    differences = _differences(old, new) if old else []
+    if differences and all(name in LIBRARY_NAMES for name, _, _ in differences):
+        return "made with " + "; ".join(_library_change(*d) for d in differences) + ": re-solving"
+    return f"made with other settings or inputs ({_what_changed(old, new)}), re-solving"
+
+
 def _what_changed(old: dict, new: dict) -> str:
     if not old:
         return "no record of them"
-    return ", ".join(name for name, _, _ in _differences(old, new)) or "record differs"
+    named = (_library_change(*d, sep=" ") if d[0] in LIBRARY_NAMES else d[0] for d in _differences(old, new))
+    return ", ".join(named) or "record differs"
+
+
+def _library_change(name: str, was: object, now: object, sep: str = ", ") -> str:
+    """A library's version that differs, in words: "numpy 2.3.1, now 2.4.6" (None: "not installed"); ``sep`` " "
+    inside a list of differences, whose items commas part."""
+    text = lambda v: "not installed" if v is None else str(v)  # noqa: E731
+    return f"{name} {text(was)}{sep}now {text(now)}"
 
 
 def _in_words(old: dict, new: dict) -> str:
@@ -152,12 +171,23 @@ def _differences(old: dict, new: dict) -> list[tuple[str, object, object]]:
         changed.append((CODE_UNRECORDED, None, new["code"]))
     elif old["code"] != new["code"]:
         changed.append(("nlipscalib code", old["code"], new["code"]))
+    was = old.get("libraries")
+    if not isinstance(was, dict):  # written before the key had the libraries' versions: made under unknown ones
+        if "code" in old:  # (a record without the code's fingerprint says so already)
+            changed.append((LIBRARIES_UNRECORDED, None, new["libraries"]))
+    else:
+        changed += [(k, was.get(k), v) for k, v in new["libraries"].items() if was.get(k) != v]
     return changed
 
 
 CODE_UNRECORDED = "code unrecorded: an nlipscalib before 2026-12-06 made it"
 """What :func:`_differences` says of a result whose provenance has no ``code`` fingerprint: never reused, as the
 code that made it cannot be told from this one."""
+LIBRARIES_UNRECORDED = "library versions unrecorded: an nlipscalib before 2026-12-06 made it"
+"""What :func:`_differences` says of a result whose provenance has no ``libraries``: never reused, as the NumPy,
+SciPy, pyamg and OpenCV that made it are unknown."""
+LIBRARY_NAMES = frozenset(SOLVE_LIBRARIES)
+"""The names under which :func:`_differences` reports a library whose version differs."""
 
 
 def _leftovers(out: Path) -> bool:

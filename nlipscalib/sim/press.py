@@ -234,6 +234,7 @@ def render_press(
     -------
     Path of the folder, or (Path, RenderResult) with ``return_result``
     """
+    from ..core.libraries import RENDER_LIBRARIES, library_versions
     from .render.surface import render_surface
 
     if out_folder is None:
@@ -264,6 +265,8 @@ def render_press(
         "exposure_note": "Press.linear(led image) = exposure * albedo/pi * led_shading (+ interreflections); "
         "Press.linear(tricolor) = tricolor_exposure * sum_k colour_k * (albedo/pi * led_shading_k)",
         "render_seconds": round(result.seconds, 4),
+        # the renderer's release moves the images (and so every result from them): said by what made them
+        "libraries": library_versions(RENDER_LIBRARIES),
     }
     path = write_press(
         out_folder,

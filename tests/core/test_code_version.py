@@ -57,3 +57,18 @@ def test_the_disk_cache_salt_hashes_the_whole_package(monkeypatch):
     monkeypatch.setattr(diskcache, "_salt", None)
     monkeypatch.setattr(code_version, "python_sources", lambda: python_sources(subpackages=RESULT_CODE))
     assert diskcache._source_salt() != salt
+
+
+def test_the_disk_cache_salt_holds_every_library_that_shapes_a_solve(monkeypatch):
+    """It held NumPy's and SciPy's versions only: an upgraded OpenCV (the smoothed undeformed shading kept on disk is
+    its blur) or pyamg was served entries made by the old one."""
+    from nlipscalib.core import diskcache, libraries
+
+    monkeypatch.setattr(diskcache, "_salt", None)
+    salt = diskcache._source_salt()
+    installed = libraries.installed_version
+    for name in ("opencv", "pyamg", "numpy"):
+        with monkeypatch.context() as patch:
+            patch.setattr(diskcache, "_salt", None)
+            patch.setattr(libraries, "installed_version", lambda n, name=name: "0.1" if n == name else installed(n))
+            assert diskcache._source_salt() != salt, name

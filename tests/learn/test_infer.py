@@ -484,6 +484,37 @@ def tiny_model(tmp_path_factory):
     return out, root
 
 
+def test_a_model_file_names_its_dataset_by_name_and_samples_not_by_where_it_lay(tiny_model, tmp_path):
+    """info.dataset held the dataset's absolute path: a training of the same data elsewhere wrote other bytes (another
+    model digest, on which `nlips infer` keys its results), and a shared model told the lab's folder layout. Now the
+    folder's name and the digest of the samples trained on; an older file (an absolute path there) still loads."""
+    import shutil
+
+    import torch
+
+    from nlipscalib.learn.dataset import CalibrationDataset
+    from nlipscalib.learn.model import load_model
+    from nlipscalib.learn.train import train
+    from tests.learn.test_resume import TINY
+
+    model, root = tiny_model
+    moved = tmp_path / "elsewhere" / "calib"
+    shutil.copytree(root / "calib", moved)
+    again = tmp_path / "again.pt"
+    train(CalibrationDataset(moved), TINY, again, progress=False)
+    first, second = (torch.load(path, weights_only=True)["info"] for path in (model, again))
+    assert first["dataset"] == second["dataset"] == "calib"
+    assert len(first["samples_digest"]) == 16 and first["samples_digest"] == second["samples_digest"]
+    assert str(root).encode() not in model.read_bytes() and str(tmp_path).encode() not in again.read_bytes()
+
+    payload = torch.load(model, weights_only=True)
+    payload["info"] = {k: v for k, v in payload["info"].items() if k != "samples_digest"}
+    payload["info"]["dataset"] = str((root / "calib").resolve())  # as written before 2026-12-06
+    older = tmp_path / "older.pt"
+    torch.save(payload, older)
+    assert load_model(older).info["dataset"] == str((root / "calib").resolve())
+
+
 def test_a_calibration_dataset_given_as_input_is_named_as_such(tiny_model, tmp_path, capsys):
     """`nlips infer MODEL DATASET/calibration` took the calibration dataset for a folder of frames: two warnings
     (no --out, coverage.png 8-bit), then "coverage.png: image is 1078x1100, the model was calibrated for ..."."""
@@ -574,7 +605,11 @@ def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_fram
     first = _stamps(out)
     assert len(first) == 17  # result.npz, report.json, normals.png, depth.png of three frames and a press (+ error.png)
     report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
-    assert set(report["provenance"]) == {"key", "software_version", "code", "settings", "inputs"}
+    assert set(report["provenance"]) == {"key", "software_version", "code", "libraries", "settings", "inputs"}
+    from importlib import metadata  # the libraries that ran the network (torch backend): a release moves numbers
+
+    versions = {"numpy": metadata.version("numpy"), "torch": metadata.version("torch")}
+    assert report["provenance"]["libraries"] == versions
     assert report["provenance"]["settings"]["depth"] is True and report["provenance"]["settings"]["ply"] is None
     assert main(command) == 0
     assert capsys.readouterr().out.startswith(
@@ -629,6 +664,17 @@ def test_another_model_option_or_input_is_inferred_again_saying_what_changed(tin
     assert f"{out / 'b_cube'}: replacing the result of another input" in caplog.text
     now = _stamps(out)
     assert [p for p in kept if now[p] != kept[p]] == [p for p in kept if p.parts[0] == "b_cube"]
+    from importlib import metadata  # another torch: a release moves numbers, so every result is inferred again
+
+    from nlipscalib.core import libraries
+
+    installed = libraries.installed_version
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(libraries, "installed_version", lambda name: "2.6.0" if name == "torch" else installed(name))
+        caplog.clear()
+        assert main([*command, "--no-depth", "--ply"]) == 0
+    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert f"{out / 'b_cube'}: replacing the result of torch {metadata.version('torch')} (now 2.6.0)" in caplog.text
 
 
 def test_an_interrupted_run_infers_again_only_what_it_did_not_finish(tiny_model, tmp_path, capsys, caplog):

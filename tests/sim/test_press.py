@@ -24,6 +24,9 @@ def test_undeformed_press_round_trip(scene, tmp_path):
     assert prov["source"] == "sim" and prov["seed"] == 3 and prov["press"] is None
     assert prov["exposure"] == pytest.approx(scene_exposure(scene))
     assert {"variant", "spp", "bounces", "scene"} <= set(prov)
+    from importlib import metadata  # the renderer's release moves the images: meta.json says which made them
+
+    assert prov["libraries"] == {"mitsuba": metadata.version("mitsuba"), "drjit": metadata.version("drjit")}
     assert p.reference is not None and p.ground_truth is not None
     assert not p.ground_truth.contact.any()
     np.testing.assert_array_equal(p.reference.depth, p.ground_truth.depth)
