@@ -321,6 +321,7 @@ def _solve_and_save(
     from ..report import figure_level, write_reconstruction_figures
     from ..solver import solve_press
     from ..solver.krylov import import_amg_in_background
+    from ..solver.press import LED_LIST_KEYS
 
     level = figure_level(figures)
     check_writable(out.parent, len(out.name))  # a read-only disk fails now, not after the solve
@@ -356,7 +357,7 @@ def _solve_and_save(
     )
     t2 = time.perf_counter()
     if settings.led_subset is not None:  # the solver numbers the LEDs it was given: back to the capture's
-        for key in ("leds_used", "dead_leds", "dead_leds_contact"):
+        for key in LED_LIST_KEYS:
             if key in result.report:
                 result.report[key] = [settings.led_subset[i] for i in result.report[key]]
     result.report["method"] = "nlips"

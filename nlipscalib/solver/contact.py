@@ -435,8 +435,13 @@ def contact_box(
     if not valid.any():
         raise CaptureError(f"{folder}: no pixel sees the gel; nothing to reconstruct")
     hit = contact_hits(contact, threshold)
-    if not hit.any():
-        raise CaptureError(f"{folder}: --roi auto found no contact (images match the undeformed dome)")
+    peak = contact_peak(contact)
+    if not hit.any() or peak < tolerances.NO_CONTACT_PEAK:
+        raise CaptureError(
+            f"{folder}: --roi auto found no contact (images match the undeformed dome within noise: the strongest "
+            f"misfit is {peak:.1f} times its floor, a contact's above {tolerances.NO_CONTACT_PEAK:g}); nothing "
+            f"solved: the surface is the reference's (pass --roi X0 Y0 W H, or no --roi, to solve it anyway)"
+        )
     labels, sizes = masks.components(hit)
     keep = np.flatnonzero(sizes >= min_component * sizes.max()) + 1
     region = np.isin(labels, keep)
@@ -493,6 +498,17 @@ def contact_hits(contact: ContactMap, threshold: float = tolerances.CONTACT_MISF
         return valid
     floor = np.maximum(contact.expected, contact.median_misfit)
     return valid & (mis > threshold * np.maximum(floor, 1e-9))  # NaN compares False, off the gel anyway
+
+
+def contact_peak(contact: ContactMap) -> float:
+    """The largest misfit over its floor (the floor of :func:`contact_hits`) on the gel; 0 when no pixel sees it.
+    A contact's peak is far above :data:`nlipscalib.core.tolerances.NO_CONTACT_PEAK`, noise's below."""
+    mis = contact.misfit
+    valid = np.isfinite(mis)
+    if not valid.any():
+        return 0.0
+    floor = np.maximum(contact.expected, contact.median_misfit)
+    return float(np.max(mis[valid] / np.maximum(floor[valid], 1e-9)))
 
 
 def _box_fraction(region: np.ndarray, valid: np.ndarray) -> float:

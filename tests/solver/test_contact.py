@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.cli import main
-from nlipscalib.core import Led, load_press
+from nlipscalib.core import Led, load_press, tolerances
 from nlipscalib.core.errors import CaptureError
 from nlipscalib.core.metrics import evaluate
 from nlipscalib.solver import SolverOptions, solve_press
@@ -364,3 +364,22 @@ def test_the_misfits_residual_sum_is_einsums_over_the_stack_at_a_frames_block_gr
         res *= ok
     want = np.sqrt(np.einsum("lhwc,lhwc->hw", res, res) / count)
     assert np.array_equal(_misfit(S, img, ok, count), want)
+
+
+def test_a_press_without_contact_is_refused_by_the_auto_roi_as_having_none(tmp_path):
+    """The twin's undeformed capture solved as a press with --roi auto: noise's scattered hits spanned the gel, and
+    it was solved whole with "a press that large" (29 s). Now: "found no contact", the peak misfit named."""
+    from nlipscalib.solver.contact import contact_box, contact_peak
+
+    rng = np.random.default_rng(5)
+
+    def noisy(lin):
+        return lin + rng.normal(0.0, 0.004, lin.shape)
+
+    flat = load_press(synth.make_press(tmp_path / "flat", "none", size=(192, 144), lin_hook=noisy))
+    cmap = classify_contact(flat)
+    assert contact_peak(cmap) < tolerances.NO_CONTACT_PEAK
+    with pytest.raises(CaptureError, match="found no contact .* within noise"):
+        contact_box(cmap, flat.camera.shape, folder=flat.folder)
+    dented = _noisy_press(tmp_path / "dented", 1.0, 5)
+    assert contact_peak(classify_contact(dented)) > tolerances.NO_CONTACT_PEAK
