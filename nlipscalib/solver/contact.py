@@ -23,7 +23,7 @@ import numpy as np
 from ..core import masks, tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
-from ..core.errors import CaptureError
+from ..core.errors import CaptureError, NoContactError
 from ..core.leds import Leds, led_shading
 from ..core.robust_scale import mad_scale
 from . import reuse, threads
@@ -437,7 +437,7 @@ def contact_box(
     hit = contact_hits(contact, threshold)
     peak = contact_peak(contact)
     if not hit.any() or peak < tolerances.NO_CONTACT_PEAK:
-        raise CaptureError(
+        raise NoContactError(
             f"{folder}: --roi auto found no contact (images match the undeformed dome within noise: the strongest "
             f"misfit is {peak:.1f} times its floor, a contact's above {tolerances.NO_CONTACT_PEAK:g}); nothing "
             f"solved: the surface is the reference's (pass --roi X0 Y0 W H, or no --roi, to solve it anyway)"

@@ -383,3 +383,23 @@ def test_a_press_without_contact_is_refused_by_the_auto_roi_as_having_none(tmp_p
         contact_box(cmap, flat.camera.shape, folder=flat.folder)
     dented = _noisy_press(tmp_path / "dented", 1.0, 5)
     assert contact_peak(classify_contact(dented)) > tolerances.NO_CONTACT_PEAK
+
+
+def test_a_folder_solve_notes_a_press_without_contact_and_does_not_fail(tmp_path, capsys):
+    """A folder's press without contact was solved on the whole gel ("a press that large") or failed the batch; it is
+    now noted ("no contact"), nothing solved for it, and the batch's exit status stays 0."""
+    from nlipscalib.cli.solve import _summary
+    from nlipscalib.pipeline import NO_CONTACT, solve_presses
+
+    rng = np.random.default_rng(6)
+
+    def noisy(lin):
+        return lin + rng.normal(0.0, 0.004, lin.shape)
+
+    reference = synth.make_press(tmp_path / "reference", "none", size=(192, 144), lin_hook=noisy)
+    flat = synth.make_press(tmp_path / "flat", "none", size=(192, 144), lin_hook=noisy)
+    statuses = solve_presses([flat], reference=reference, roi="auto", progress=False, figures=False)
+    assert statuses["flat"].startswith(f"{NO_CONTACT}: ") and "found no contact" in statuses["flat"]
+    assert not (tmp_path / "flat" / "nlips").exists()
+    assert _summary(statuses) == 0
+    assert "1 without contact (nothing solved: flat)" in capsys.readouterr().out
