@@ -403,3 +403,14 @@ def test_a_folder_solve_notes_a_press_without_contact_and_does_not_fail(tmp_path
     assert not (tmp_path / "flat" / "nlips").exists()
     assert _summary(statuses) == 0
     assert "1 without contact (nothing solved: flat)" in capsys.readouterr().out
+
+
+def test_a_whole_gel_solve_of_a_press_without_contact_says_so(tmp_path):
+    rng = np.random.default_rng(7)
+
+    def noisy(lin):
+        return lin + rng.normal(0.0, 0.004, lin.shape)
+
+    flat = load_press(synth.make_press(tmp_path / "flat", "none", size=(96, 72), lin_hook=noisy))
+    result = solve_press(flat, options=SolverOptions(max_iters=2))
+    assert result.report["roi_note"].startswith("no contact found: the images match the undeformed dome within noise")
