@@ -243,11 +243,14 @@ def _press_after_roi(args: argparse.Namespace) -> None:
 
 
 def _summary(statuses: dict[str, str]) -> int:
-    """Print one line of counts (and the failed presses); exit code 1 when any failed."""
+    """Print one line of counts (and the failed presses, and those without contact); exit code 1 when any failed
+    (a press without contact is not a failure: nothing to solve)."""
     failed = {name: s for name, s in statuses.items() if s.startswith("failed")}
+    flat = [name for name, s in statuses.items() if s.startswith("no contact")]
     solved = sum(s == "solved" for s in statuses.values())
-    skipped = len(statuses) - solved - len(failed)
-    print(f"{solved} solved, {skipped} skipped (identical result), {len(failed)} failed")
+    skipped = len(statuses) - solved - len(failed) - len(flat)
+    without = f", {len(flat)} without contact (nothing solved: {', '.join(flat)})" if flat else ""
+    print(f"{solved} solved, {skipped} skipped (identical result), {len(failed)} failed{without}")
     for name, status in failed.items():
         print(f"  {name}: {status}")
     return 1 if failed else 0

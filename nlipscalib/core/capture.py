@@ -112,6 +112,7 @@ __all__ = [
     "prefetch_press",
     "read_meta",
     "read_optics",
+    "select_leds",
     "split_reference",
     "white_level_of",
     "write_press",
@@ -309,6 +310,17 @@ def as_press(press: Press | str | os.PathLike, name: str = "press") -> Press:
     raise ShapeError(
         f"{name} must be a Press (load_press(folder)) or a press folder's path, got {type(press).__name__}"
     )
+
+
+def select_leds(press: Press, keep: Sequence[int]) -> Press:
+    """``press`` with only the LEDs ``keep`` (0-based, in order), as ``load_press(folder, led_subset=keep)`` would
+    load it, without reading anything again: the kept LED images are a copy, the other fields ``press``'s own (a
+    field not read yet stays deferred). Why: a solve leaves out an LED whose image does not fit its model (a weak
+    LED, :mod:`nlipscalib.solver.led_checks`) after the capture is loaded."""
+    keep = [int(i) for i in keep]
+    fields = {field.name: press.__dict__[field.name] for field in dataclasses.fields(press)}
+    fields.update(leds=tuple(press.leds[i] for i in keep), led_images=press.led_images[keep])
+    return Press(**fields)
 
 
 def read_ground_truth(folder: str | Path) -> GroundTruth | None:

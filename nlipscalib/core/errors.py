@@ -21,6 +21,11 @@ class CaptureError(NlipsError):
     """A press folder is missing something or holds inconsistent data (the message names the file)."""
 
 
+class NoContactError(CaptureError):
+    """``--roi auto`` found no contact: the press's images match the undeformed dome within noise. A folder solve
+    notes the press and goes on (not a failure); ``nlips solve PRESS`` refuses it in one line."""
+
+
 class DeviceError(NlipsError):
     """The LED controller or camera failed: port missing, no permission, no answer, wrong firmware, reset."""
 

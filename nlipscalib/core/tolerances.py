@@ -104,6 +104,18 @@ at least :data:`ANCHOR_NOISE_FACTOR`); the median raises it where the undeformed
 sensor (then most of the gel misfits above noise level and only a dent's misfit stands out by this factor); and the
 RMS of noise alone over a pixel's LEDs and channels (tens of samples) stays well within 3 times its expected value,
 so noise alone does not make hits."""
+CAMERA_SHIFT_PX = 0.75
+"""A press whose image is shifted by at least this many pixels against its undeformed capture is warned about (the
+camera moved: :mod:`nlipscalib.solver.camera_shift`). Why: the twin's presses that did not move measure 0.01-0.29 px
+(the dent's pull and the noise: sphere1, cube1, coin1 and six more against /tmp/keep/reference, the demo's three
+against theirs), its cube press moved by 2 px 1.66 px (2 px less the dent's pull, -0.2 px on the cube press in
+place); exact synthetic data measure 2.000 (benchmarks/RESULTS.md, s26-degen2)."""
+NO_CONTACT_PEAK = 8.0
+"""``--roi auto``: a press has no contact when no pixel's misfit reaches this many times its floor (the floor of
+:data:`CONTACT_MISFIT_FACTOR`): the press is then refused with "found no contact", not solved on the whole gel. Why:
+noise and model error alone make hits at :data:`CONTACT_MISFIT_FACTOR` scattered over the gel (the twin's
+undeformed capture solved as a press: 1,528 pixels, the box 100 % of the gel, peak 4.7 times the floor), while the
+twin's presses peak at 12.6-67 times it (sphere1, cube1, coin1, the demo's three, six more; s26-degen2)."""
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""

@@ -32,12 +32,13 @@ from __future__ import annotations
 from .provenance import capture_identity, make_provenance
 from .settings import SolveSettings, check_fits_capture, make_settings, settings_from_record
 from .solve import solve_folder, solve_one, solve_presses
-from .status import BROKEN, BUSY, FAILED, SKIPPED, SOLVED
+from .status import BROKEN, BUSY, FAILED, NO_CONTACT, SKIPPED, SOLVED
 
 __all__ = [
     "BROKEN",
     "BUSY",
     "FAILED",
+    "NO_CONTACT",
     "SKIPPED",
     "SOLVED",
     "SolveSettings",

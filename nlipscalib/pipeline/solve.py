@@ -12,7 +12,7 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..core.errors import CaptureError, ConfigError, NlipsError
+from ..core.errors import CaptureError, ConfigError, NlipsError, NoContactError
 from ..core.reconstruction import (
     Reconstruction,
     check_replaceable,
@@ -24,7 +24,7 @@ from ..progress import PRESS_SUMMARY
 from .provenance import capture_identity, make_provenance, run_record
 from .reuse import _claim, _clean_interrupted, _hold, _leftovers, _published_since, _reuse, _wait_for_release
 from .settings import SolveSettings, check_fits_capture, make_settings
-from .status import BUSY, FAILED, SOLVED
+from .status import BUSY, FAILED, NO_CONTACT, SOLVED
 from .workers import _solve_in_processes
 
 if TYPE_CHECKING:  # named in hints only: the solver and captures are imported when a press is solved
@@ -321,6 +321,7 @@ def _solve_and_save(
     from ..report import figure_level, write_reconstruction_figures
     from ..solver import solve_press
     from ..solver.krylov import import_amg_in_background
+    from ..solver.press import LED_LIST_KEYS
 
     level = figure_level(figures)
     check_writable(out.parent, len(out.name))  # a read-only disk fails now, not after the solve
@@ -356,7 +357,7 @@ def _solve_and_save(
     )
     t2 = time.perf_counter()
     if settings.led_subset is not None:  # the solver numbers the LEDs it was given: back to the capture's
-        for key in ("leds_used", "dead_leds", "dead_leds_contact"):
+        for key in LED_LIST_KEYS:
             if key in result.report:
                 result.report[key] = [settings.led_subset[i] for i in result.report[key]]
     result.report["method"] = "nlips"
@@ -451,6 +452,9 @@ def _status_of(
             wait=wait,
             fresh_since=fresh_since,
         )[1]
+    except NoContactError as exc:  # noted, not failed: the press is the undeformed dome's
+        log.warning("%s", _failure_line(folder, exc))
+        return f"{NO_CONTACT}: {exc}"
     except NlipsError as exc:
         log.error("%s", _failure_line(folder, exc))
         return f"{FAILED}: {exc}"

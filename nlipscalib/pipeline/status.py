@@ -5,6 +5,9 @@ from __future__ import annotations
 SOLVED, SKIPPED, FAILED = "solved", "skipped", "failed"
 """Statuses of one press (a failure reads "failed: reason")."""
 
+NO_CONTACT = "no contact"
+"""Status of a press ``--roi auto`` found no contact in ("no contact: reason"): nothing solved, not a failure."""
+
 BUSY = "busy"
 """Internal status: another live process holds the press's claim (left to it, then waited for)."""
 

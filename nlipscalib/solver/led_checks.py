@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, led_shading
@@ -31,7 +32,18 @@ correlations over the gel, steady at this count (the verdicts above are the same
 
 
 def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[str]:
-    """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs.
+    """The warnings of :func:`led_check` (one line each, naming the press and the LED images)."""
+    return led_check(press, leds, live)[0]
+
+
+def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], list[int]]:
+    """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, and
+    the LEDs whose light is off the model's (weak, or brighter than the others): a solve leaves those out.
+
+    Why leave them out: with a 30 % LED 7 in the twin's cube press, its misfit everywhere raised the contact
+    finder's floor (the misfit's median) above the dent's misfit ("--roi auto found no contact"), and the whole gel
+    solved with it gave 0.64 deg (clean 0.42). Left out (as a dead LED is): 0.434 deg with ``--roi auto``; its
+    intensity rescaled by the measured 0.29 instead: 0.441 (benchmarks/RESULTS.md, s26-degen2).
 
     Parameters
     ----------
@@ -41,16 +53,19 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
 
     Returns
     -------
-    list of str -- empty when every live LED image matches its LED.
+    notes : list of str -- empty when every live LED image matches its LED.
+    left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
+        :data:`WEAK_LED_GAIN`; empty when leaving them out would leave fewer than
+        ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
     """
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
-        return []
+        return [], []
     image, model = _samples(press, leds, live)
     if image is None:
-        return []
+        return [], []
     names = _image_names(press)
-    notes = []
+    notes, off = [], []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
@@ -75,13 +90,17 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
                     f"the wiring, the order of images.leds in meta.json, or the LED positions"
                 )
         elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
-            what = "weak LED?" if relative[k] < 1 else "brighter than the others"
-            notes.append(
-                f"{press.folder}: LED {i + 1} ({names[i]}) gives {relative[k]:.2f} times the light the LED model "
-                f"expects of it, relative to the other LEDs ({what}): calibrate the LEDs on the undeformed dome "
-                f"(nlips calibrate-leds) and solve with --leds FILE"
-            )
-    return notes
+            off.append((i, relative[k]))
+    left_out = [i for i, _ in off] if len(live) - len(off) >= tolerances.MIN_LEDS_PER_PIXEL else []
+    for i, share in off:
+        what = "weak LED?" if share < 1 else "brighter than the others"
+        done = "left out of the solve and of --roi auto" if left_out else "used (too few LEDs to leave it out)"
+        notes.append(
+            f"{press.folder}: LED {i + 1} ({names[i]}) gives {share:.2f} times the light the LED model expects of "
+            f"it, relative to the other LEDs ({what}), {done}: calibrate the LEDs on the undeformed dome (nlips "
+            f"calibrate-leds) and solve with --leds FILE to use it"
+        )
+    return notes, left_out
 
 
 def _samples(press: Press, leds: Sequence[Led], live: list[int]) -> tuple[np.ndarray | None, np.ndarray | None]:

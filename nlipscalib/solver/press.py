@@ -35,13 +35,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core import tolerances
-from ..core.capture import Press, as_press
+from ..core.capture import Press, as_press, select_leds
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
-from .contact import ContactMap, anchor_weights, contact_box, led_levels, lit_leds
+from .camera_shift import shift_note
+from .contact import ContactMap, anchor_weights, contact_box, contact_peak, led_levels, lit_leds
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
-from .led_checks import led_mismatch_notes
+from .led_checks import led_check
 from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, split_indirect
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -74,7 +75,13 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
-    led_notes = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
+    led_notes, left_out = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
+    if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
+        log.warning("%s", moved)
+        led_notes.append(moved)
+    keep = [i for i in range(len(press.leds)) if i not in left_out]
+    if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
+        press, kwargs = _without_leds(press, kwargs, keep)
     result = _solve_press(press, **kwargs)
     drift = _median_displacement(result, press)
     options = kwargs.get("options") or SolverOptions()
@@ -93,15 +100,24 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             f"noise-adapted smoothness dropped: the first solve drifted {drift:.1f} mm"
         )
     _report_saturation(result, press)
+    if left_out:  # the solver numbers the LEDs it was given: back to the capture's
+        for key in LED_LIST_KEYS:
+            if key in result.report:
+                result.report[key] = [keep[i] for i in result.report[key]]
+        result.report["leds_left_out"] = left_out
     if led_notes:
         result.report["warnings"] = [*led_notes, *result.report.get("warnings", [])]
     return result
 
 
-def _capture_notes(press: Press, leds: Leds | None, options: SolverOptions | None) -> list[str]:
+LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
+"""Report entries that list LEDs (0-based): renumbered to the capture's LEDs where a solve had a subset of them."""
+
+
+def _capture_notes(press: Press, leds: Leds | None, options: SolverOptions | None) -> tuple[list[str], list[int]]:
     """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
-    when it holds light) and :func:`.led_checks.led_mismatch_notes` of its live LEDs. Made before the solve, so a
-    solve that then fails (e.g. "--roi auto found no contact" on a weak LED) has said why first."""
+    when it holds light) and :func:`.led_checks.led_check` of its live LEDs; and the LEDs to leave out (0-based).
+    Made before the solve, so a solve that then fails has said why first."""
     notes = []
     if fault := dark_frame_fault(press):
         message, refuse = fault
@@ -109,20 +125,35 @@ def _capture_notes(press: Press, leds: Leds | None, options: SolverOptions | Non
             raise CaptureError(message)
         log.warning("%s", message)
         notes.append(message)
-    return notes + _led_notes(press, leds, options)
+    led_notes, left_out = _led_notes(press, leds, options)
+    return notes + led_notes, left_out
 
 
-def _led_notes(press: Press, leds: Leds | None, options: SolverOptions | None) -> list[str]:
-    """:func:`.led_checks.led_mismatch_notes` of the press's live LEDs, each logged as a warning."""
+def _led_notes(press: Press, leds: Leds | None, options: SolverOptions | None) -> tuple[list[str], list[int]]:
+    """:func:`.led_checks.led_check` of the press's live LEDs, each note logged as a warning."""
     leds = press.leds if leds is None else tuple(leds)
     if press.reference is None or len(leds) != len(press.leds):
-        return []  # no undeformed dome to model; a wrong LED count is refused by the solve
+        return [], []  # no undeformed dome to model; a wrong LED count is refused by the solve
     level = (options or SolverOptions()).dead_led_level
     live = np.flatnonzero(lit_leds(led_levels(press.linear_led_images, np.isfinite(press.reference.depth)), level))
-    notes = led_mismatch_notes(press, leds, live)
+    notes, left_out = led_check(press, leds, live)
     for note in notes:
         log.warning("%s", note)
-    return notes
+    return notes, left_out
+
+
+def _without_leds(press: Press, kwargs: dict, keep: list[int]) -> tuple[Press, dict]:
+    """The press and :func:`_solve_press`'s keywords with only the LEDs ``keep``: its LED images, the LEDs given
+    (``leds``) and the undeformed capture or light given (``indirect``)."""
+    kwargs = dict(kwargs)
+    if kwargs.get("leds") is not None:
+        kwargs["leds"] = tuple(kwargs["leds"][i] for i in keep)
+    indirect = kwargs.get("indirect")
+    if isinstance(indirect, Press):
+        kwargs["indirect"] = select_leds(indirect, keep)
+    elif indirect is not None:
+        kwargs["indirect"] = np.asarray(indirect)[keep]
+    return select_leds(press, keep), kwargs
 
 
 def _report_saturation(result: SolveResult, press: Press) -> None:
@@ -266,6 +297,14 @@ def _region(
 ):
     """The box to solve, (x0, y0, w, h) or None for the whole gel, and what ``--roi auto`` left out or warns
     about ("" when nothing)."""
+    if roi is None and cmap is not None and contact_peak(cmap) < tolerances.NO_CONTACT_PEAK:
+        note = (
+            f"no contact found: the images match the undeformed dome within noise (the strongest misfit is "
+            f"{contact_peak(cmap):.1f} times its floor, a contact's above {tolerances.NO_CONTACT_PEAK:g}): the "
+            f"solved surface is the reference's up to noise"
+        )
+        log.warning("%s: %s", press.folder, note)
+        return None, note
     if roi != "auto":
         return explicit_roi, ""
     if cmap is None:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nlipscalib.cli import main
-from nlipscalib.core import Led, load_press
+from nlipscalib.core import Led, load_press, tolerances
 from nlipscalib.core.errors import CaptureError
 from nlipscalib.core.metrics import evaluate
 from nlipscalib.solver import SolverOptions, solve_press
@@ -364,3 +364,53 @@ def test_the_misfits_residual_sum_is_einsums_over_the_stack_at_a_frames_block_gr
         res *= ok
     want = np.sqrt(np.einsum("lhwc,lhwc->hw", res, res) / count)
     assert np.array_equal(_misfit(S, img, ok, count), want)
+
+
+def test_a_press_without_contact_is_refused_by_the_auto_roi_as_having_none(tmp_path):
+    """The twin's undeformed capture solved as a press with --roi auto: noise's scattered hits spanned the gel, and
+    it was solved whole with "a press that large" (29 s). Now: "found no contact", the peak misfit named."""
+    from nlipscalib.solver.contact import contact_box, contact_peak
+
+    rng = np.random.default_rng(5)
+
+    def noisy(lin):
+        return lin + rng.normal(0.0, 0.004, lin.shape)
+
+    flat = load_press(synth.make_press(tmp_path / "flat", "none", size=(192, 144), lin_hook=noisy))
+    cmap = classify_contact(flat)
+    assert contact_peak(cmap) < tolerances.NO_CONTACT_PEAK
+    with pytest.raises(CaptureError, match="found no contact .* within noise"):
+        contact_box(cmap, flat.camera.shape, folder=flat.folder)
+    dented = _noisy_press(tmp_path / "dented", 1.0, 5)
+    assert contact_peak(classify_contact(dented)) > tolerances.NO_CONTACT_PEAK
+
+
+def test_a_folder_solve_notes_a_press_without_contact_and_does_not_fail(tmp_path, capsys):
+    """A folder's press without contact was solved on the whole gel ("a press that large") or failed the batch; it is
+    now noted ("no contact"), nothing solved for it, and the batch's exit status stays 0."""
+    from nlipscalib.cli.solve import _summary
+    from nlipscalib.pipeline import NO_CONTACT, solve_presses
+
+    rng = np.random.default_rng(6)
+
+    def noisy(lin):
+        return lin + rng.normal(0.0, 0.004, lin.shape)
+
+    reference = synth.make_press(tmp_path / "reference", "none", size=(192, 144), lin_hook=noisy)
+    flat = synth.make_press(tmp_path / "flat", "none", size=(192, 144), lin_hook=noisy)
+    statuses = solve_presses([flat], reference=reference, roi="auto", progress=False, figures=False)
+    assert statuses["flat"].startswith(f"{NO_CONTACT}: ") and "found no contact" in statuses["flat"]
+    assert not (tmp_path / "flat" / "nlips").exists()
+    assert _summary(statuses) == 0
+    assert "1 without contact (nothing solved: flat)" in capsys.readouterr().out
+
+
+def test_a_whole_gel_solve_of_a_press_without_contact_says_so(tmp_path):
+    rng = np.random.default_rng(7)
+
+    def noisy(lin):
+        return lin + rng.normal(0.0, 0.004, lin.shape)
+
+    flat = load_press(synth.make_press(tmp_path / "flat", "none", size=(96, 72), lin_hook=noisy))
+    result = solve_press(flat, options=SolverOptions(max_iters=2))
+    assert result.report["roi_note"].startswith("no contact found: the images match the undeformed dome within noise")

@@ -45,3 +45,25 @@ def test_a_press_whose_images_match_their_leds_gets_no_led_warning(tmp_path):
     assert led_mismatch_notes(press, press.leds, range(len(press.leds))) == []
     result = solve_press(press, roi="auto", options=SolverOptions(max_iters=2))
     assert not any("LED" in note for note in result.report.get("warnings", []))
+
+
+def test_a_weak_led_is_left_out_of_the_solve_and_the_auto_roi_finds_the_contact(tmp_path, caplog):
+    """A 30 % LED 7 in the twin's cube press ended on "--roi auto found no contact" after its warning (its misfit
+    everywhere raised the contact finder's floor), and solved on the whole gel with it to 0.64 deg (0.42 clean). It
+    is now left out, as a dead LED is: the auto ROI boxes the dent, and the report numbers the capture's LEDs."""
+
+    def weaken(lin):
+        lin = lin.copy()
+        lin[6] *= 0.3
+        return lin
+
+    press = _press(tmp_path, "weak", weaken)
+    with caplog.at_level(logging.WARNING):
+        result = solve_press(press, roi="auto", options=SolverOptions(max_iters=2))
+    rep = result.report
+    assert rep["leds_left_out"] == [6] and 6 not in rep["leds_used"] and len(rep["leds_used"]) == 11
+    said = [note for note in rep["warnings"] if "LED 7 (led_07.png)" in note]
+    assert len(said) == 1 and "left out of the solve" in said[0] and "nlips calibrate-leds" in said[0]
+    assert said[0] in caplog.text
+    contact = press.ground_truth.contact
+    assert result.reconstructed[contact].all()  # the box holds the whole dent

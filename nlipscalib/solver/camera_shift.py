@@ -1,0 +1,136 @@
+"""Has the camera moved between the undeformed capture and a press? A warning with the measured shift.
+
+Why: the one-bounce twin's cube press with its images 2 px to the right of the undeformed capture's solved to 0.925
+deg (0.424 in place) without a word (s26 QA walk). A real lab's camera can creep after a knock; the remedy is a new
+undeformed capture. The shift is measured, not corrected: a press solved against a reference that no longer lines
+up with its pixels is the user's to recapture (benchmarks/RESULTS.md, s26-degen2).
+
+The images hold no sharp structure (the gel fills the view; its shading is smooth), so OpenCV's phase correlation and
+ECC alignment followed the dent or the noise (shifts of 1-100 px on presses that had not moved). A translation
+fitted by Gauss-Newton (Lucas-Kanade) on the log images of a few LEDs, block-averaged, with a per-LED offset (an
+exposure change) and Cauchy weights (the dent's pixels disagree with any shift), measures 0.01-0.29 px on twin
+presses that did not move and 1.66 px on the 2 px one (the dent pulls the cube press's by -0.2 px).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..core import masks, tolerances
+from ..core.capture import Press
+from . import reuse
+
+SHIFT_LEDS = 4
+"""LED images the shift is measured on (every k-th of the capture's): each adds the same shift's evidence under
+another light, so a dent that mimics a shift under one LED does not under the others."""
+SHIFT_BLOCK = 4
+"""Side, pixels, of the blocks the images are averaged over first (at least 60 blocks along the short side): the
+noise averages out, and the linearised shift stays within its range (a 2 px shift is half a block)."""
+SHIFT_ITERATIONS = 2
+"""Gauss-Newton steps (each warps the press by the shift so far)."""
+SHIFT_MARGIN = 3
+"""Blocks left out along the gel's outline and the image's border (see :func:`camera_shift`)."""
+SHIFT_LIT = 1e-3
+"""Blocks whose image is below this (linear, full scale 1) under one of the LEDs are left out."""
+SHIFT_REWEIGHTS = 3
+"""Weighted least-squares solves per step, each weighting the residual the previous one leaves."""
+
+
+def camera_shift(
+    reference: np.ndarray | Callable[[int, int], np.ndarray], images: np.ndarray, valid: np.ndarray
+) -> tuple[float, float]:
+    """The translation of ``images`` against ``reference``, pixels: ``images(x) ~ reference(x - (dx, dy))``.
+
+    Parameters
+    ----------
+    reference : (L, H, W, 3) float -- linear LED images of the undeformed capture; or ``(step, block) ->``
+        :func:`log_blocks` of its every ``step``-th image (a capture's, kept for the next press).
+    images : (L, H, W, 3) float -- linear LED images of the press.
+    valid : (H, W) bool -- the gel's pixels.
+
+    Returns
+    -------
+    (dx, dy) : float -- pixels, x right and y down; (0, 0) when the gel has too few blocks to tell.
+    """
+    import cv2
+
+    H, W = valid.shape
+    block = max(1, min(SHIFT_BLOCK, min(H, W) // 60))
+    step = max(1, len(images) // SHIFT_LEDS)
+    ref = reference(step, block) if callable(reference) else log_blocks(reference[::step], block)
+    img = log_blocks(images[::step], block)
+    h, w = ref.shape[1:]
+    inner = cv2.resize(valid.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA) > 0.999
+    inner[:1], inner[-1:], inner[:, :1], inner[:, -1:] = False, False, False, False
+    # away from the gel's outline and the image's border by more than a shift to be found, and lit by every LED: the
+    # log's jump at an outline (or where an LED does not reach) is no shading to align
+    inner = masks.erode(inner, iterations=SHIFT_MARGIN) & (ref > np.log(SHIFT_LIT)).all(axis=0)
+    if inner.sum() < 100:
+        return 0.0, 0.0
+    gy, gx = np.gradient(ref, axis=(1, 2))
+    gx, gy = gx[:, inner], gy[:, inner]
+    rows, cols = np.mgrid[:h, :w].astype(np.float32)
+    shift = np.zeros(2)
+    for _ in range(SHIFT_ITERATIONS):
+        moved = np.stack(
+            [cv2.remap(im, cols + np.float32(shift[0]), rows + np.float32(shift[1]), cv2.INTER_LINEAR) for im in img]
+        )
+        res = (moved - ref)[:, inner]
+        step, weight = np.zeros(2), np.ones_like(res)
+        for _ in range(SHIFT_REWEIGHTS):  # weights of what the step leaves: the shift's own residual is not an outlier
+            # an offset per LED (its log: an exposure or gain change) fitted with the step: each term centred
+            cx, cy, cr = (_centred(a, weight) for a in (gx, gy, res))
+            left = cr - step[0] * cx - step[1] * cy
+            scale = 1.4826 * float(np.median(np.abs(left))) + 1e-9
+            weight = 1.0 / (1.0 + (left / (3.0 * scale)) ** 2)  # Cauchy: the dent's pixels count little
+            cx, cy, cr = (_centred(a, weight) for a in (gx, gy, res))
+            wx, wy = weight * cx, weight * cy
+            normal = np.array([[np.sum(wx * cx), np.sum(wx * cy)], [np.sum(wx * cy), np.sum(wy * cy)]])
+            step = np.linalg.solve(normal, np.array([np.sum(wx * cr), np.sum(wy * cr)]))
+        shift -= step
+    return float(shift[0] * block), float(shift[1] * block)
+
+
+def shift_note(press: Press, reference: Press) -> str | None:
+    """A warning naming the press and its shift against ``reference`` (the undeformed capture) when the shift reaches
+    ``tolerances.CAMERA_SHIFT_PX``; None otherwise, or without a reference surface or with other image sizes."""
+    if press.reference is None or reference.camera.shape != press.camera.shape:
+        return None
+    if len(reference.leds) != len(press.leds):
+        return None
+
+    def reference_blocks(step: int, block: int) -> np.ndarray:
+        # the undeformed capture's, kept on disk under its images' bytes: a warm process need not decode them
+        key = (reference.images_digest(), reference.response, step, block)
+        return reuse.reused(
+            "shift reference", key, lambda: log_blocks(reference.linear_led_images[::step], block), persist=True
+        )
+
+    dx, dy = camera_shift(reference_blocks, press.linear_led_images, np.isfinite(press.reference.depth))
+    if np.hypot(dx, dy) < tolerances.CAMERA_SHIFT_PX:
+        return None
+    return (
+        f"{press.folder}: the image is shifted by ({dx:+.1f}, {dy:+.1f}) px (x right, y down) against the undeformed "
+        f"capture {reference.folder}: the camera moved between them? The solve compares them pixel by pixel: capture "
+        f"a new reference (undeformed dome) and solve against it"
+    )
+
+
+def _centred(values: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """(L, N) -- ``values`` less their ``weight``-ed mean over each row (each LED's pixels)."""
+    return values - (weight * values).sum(1, keepdims=True) / weight.sum(1, keepdims=True)
+
+
+def log_blocks(stack: np.ndarray, block: int) -> np.ndarray:
+    """(n, h, w) float32 -- log of each image's channel mean averaged over ``block`` x ``block`` pixels."""
+    import cv2
+
+    out = []
+    for image in stack:
+        image = np.asarray(image, np.float32)
+        if block > 1:  # the block means first: the channel mean then runs on 1 / block^2 of the pixels
+            image = cv2.resize(image, None, fx=1 / block, fy=1 / block, interpolation=cv2.INTER_AREA)
+        out.append(np.log(np.maximum(image.mean(-1), 1e-4)))
+    return np.stack(out)
