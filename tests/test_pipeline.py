@@ -582,14 +582,14 @@ def test_a_result_of_other_library_versions_or_of_versions_unrecorded_is_re_solv
     assert solve_folder(press, options=FAST, figures=False)[1] == "skipped"  # the same versions: reused
 
     report = press / "nlips" / "report.json"
-    whole = json.loads(report.read_text())
+    whole = json.loads(report.read_text(encoding="utf-8"))
     old = {k: v for k, v in whole["provenance"].items() if k != "libraries"}  # as an nlipscalib before it wrote
     settings = {k: v for k, v in old["settings"].items() if k not in ("leds_file", "reference")}  # keyed
     source = {"settings": settings, "inputs": old["inputs"], "software_version": __version__}
     old["key"] = hashlib.sha256(
         json.dumps(source | {"code": code_version.code_fingerprint()}, sort_keys=True).encode()
     ).hexdigest()
-    report.write_text(json.dumps(whole | {"provenance": old}))
+    report.write_text(json.dumps(whole | {"provenance": old}), encoding="utf-8")
     caplog.clear()
     assert solve_folder(press, options=FAST, figures=False)[1] == "solved"
     lines = [r.getMessage() for r in caplog.records if "re-solving" in r.getMessage()]
