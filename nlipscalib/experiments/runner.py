@@ -1,7 +1,8 @@
 """Running tasks: in this process, in local worker processes, or on a Dask cluster; stage by stage.
 
 Results never travel back through the executor: each task writes its JSON into the shared output
-folder, and the runner only learns "done" or "failed". That is what makes a sweep resumable and
+folder, and the runner only learns "done" or "failed" (on Dask, with the log records the task emitted:
+:mod:`.task_logs`). That is what makes a sweep resumable and
 lets a worker die: Dask re-runs a dead worker's task elsewhere (``allowed-failures``), the local
 pool is rebuilt and the unfinished tasks re-submitted.
 """
@@ -20,6 +21,7 @@ from typing import TYPE_CHECKING
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
 from ..core.processes import LOCAL_WORKER_GRACE_S, end_processes, kill_unless_ended, sigint_held
+from .task_logs import PACKAGE, replay, run_logged
 from .tasks import NO_SPACE, REUSED, Task, clean_leftovers, execute, samples_problem, stored_result
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
@@ -157,7 +159,6 @@ class _backend:
             _LOCAL_CLUSTERS.append(self.cluster)
             self.client = client(self.cluster)
             self.client.register_plugin(_quiet_workers())  # only our own workers: a shared cluster's stay as they are
-            self.client.register_plugin(_worker_logging())
             self.threads = max(1, usable_cores() // n)
         else:
             try:
@@ -196,9 +197,10 @@ class _backend:
     def _dask(self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm) -> None:
         from distributed import as_completed as dask_completed
 
+        level = logging.getLogger(PACKAGE).getEffectiveLevel()  # of the records the tasks carry back (task_logs)
         futures = {
             self.client.submit(
-                _execute_on_dask_worker, t, str(out), self.threads, keep, key=f"{t.id}-{t.hash}", pure=False
+                _execute_on_dask_worker, t, str(out), self.threads, keep, level, key=f"{t.id}-{t.hash}", pure=False
             ): t
             for t in tasks
         }
@@ -207,9 +209,11 @@ class _backend:
             if fut.cancelled():
                 continue
             try:
-                outcome = fut.result()
+                outcome, records = fut.result()
             except Exception as exc:  # KilledWorker after too many deaths, lost scheduler, ...
                 outcome = f"failed: {type(exc).__name__}: {exc}"
+            else:
+                replay(records, t.id)  # before the task's outcome line, as a local task's lines come
             was_full = status.no_space
             _record(status, t.id, outcome, bar)
             if status.no_space and not was_full:
@@ -334,16 +338,17 @@ def _worker_loop(
         results.put((slot, task.id, execute(task, out, threads, keep)))
 
 
-def _execute_on_dask_worker(task: Task, out: str, threads: int, keep: bool) -> str:
-    """:func:`.tasks.execute` on a Dask worker. A local cluster's worker (``threads`` > 0: its share of this
-    machine's cores) solves on that share, as it renders: its N workers each solved on every core (N x cores solver
-    threads), as the local pool's did before :func:`_worker_loop` set its share. A remote worker (0) keeps all of
-    its own cores."""
+def _execute_on_dask_worker(task: Task, out: str, threads: int, keep: bool, level: int) -> tuple[str, dict]:
+    """:func:`.tasks.execute` on a Dask worker, and the records of ``level`` and above it logged, for
+    :func:`.task_logs.replay` in the command (:func:`.task_logs.run_logged`). A local cluster's worker (``threads``
+    > 0: its share of this machine's cores) solves on that share, as it renders: its N workers each solved on every
+    core (N x cores solver threads), as the local pool's did before :func:`_worker_loop` set its share. A remote
+    worker (0) keeps all of its own cores."""
     if threads > 0:
         from ..solver import threads as solver_threads
 
         solver_threads.set_workers(threads)
-    return execute(task, out, threads, keep)
+    return run_logged(execute, level, task, out, threads, keep)
 
 
 def import_native_libraries() -> None:
@@ -413,35 +418,6 @@ def _quiet_workers() -> WorkerPlugin:
                 )
 
     return QuietWorkers()
-
-
-def _worker_logging() -> WorkerPlugin:
-    """A Dask worker plugin for a local cluster's workers: log as this process does (``-v``, its ``--log-file``,
-    its :func:`nlipscalib.progress.press_lines`), as the command's own worker processes do.
-
-    Why: a Dask worker sets up only dask.distributed's loggers, so the tasks' INFO lines (``-v``'s press details
-    and summaries) went nowhere and none of their lines reached the ``--log-file``. The loggers that dask.distributed
-    gave a handler of their own stop passing records on to the root logger, whose handler would print each twice.
-    Not for a remote scheduler's workers: shared, on other machines (the log file's path is this machine's).
-    """
-    from distributed.diagnostics.plugin import WorkerPlugin
-
-    from ..progress import worker_logging
-
-    parent = worker_logging()
-
-    class WorkerLogging(WorkerPlugin):
-        name = "nlipscalib-worker-logging"
-
-        def setup(self, worker: Worker) -> None:
-            from ..progress import configure_worker
-
-            for logger in list(logging.Logger.manager.loggerDict.values()):
-                if isinstance(logger, logging.Logger) and logger.handlers:  # dask.distributed's own, with handlers
-                    logger.propagate = False
-            configure_worker(*parent)
-
-    return WorkerLogging()
 
 
 _LOCAL_CLUSTERS: list = []

@@ -11,6 +11,7 @@ sparse kernels release the GIL too).
 
 from __future__ import annotations
 
+import contextvars
 import os
 import threading
 from collections.abc import Callable, Iterable
@@ -51,7 +52,12 @@ def set_workers(count: int) -> None:
 
 
 def map_items(fn: Callable, items: Iterable) -> list:
-    """``[fn(x) for x in items]``, on the thread pool when there is more than one core and one item."""
+    """``[fn(x) for x in items]``, on the thread pool when there is more than one core and one item.
+
+    Each item runs in a copy of the caller's :mod:`contextvars` context (as ``asyncio.to_thread`` does), so what
+    the caller's context says holds in the pool's threads too: a Dask task's log records are told apart by it
+    (``experiments.task_logs``), where the pool serves every task of its worker process at once.
+    """
     items = list(items)
     # a call from one of the pool's own threads runs in it: waiting there on the pool could deadlock it
     if workers() == 1 or len(items) < 2 or threading.current_thread().name.startswith(_PREFIX):
@@ -59,7 +65,8 @@ def map_items(fn: Callable, items: Iterable) -> list:
     global _pool
     if _pool is None:
         _pool = ThreadPoolExecutor(max_workers=workers(), thread_name_prefix=_PREFIX)
-    return list(_pool.map(fn, items))
+    contexts = [contextvars.copy_context() for _ in items]  # one each: a context runs in one thread at a time
+    return list(_pool.map(lambda context, item: context.run(fn, item), contexts, items))
 
 
 def chunks(count: int, parts: int | None = None) -> list[slice]:

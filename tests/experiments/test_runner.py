@@ -325,13 +325,17 @@ def test_a_dask_local_cluster_run_prints_none_of_distributeds_info_lines(tmp_pat
     pytest.importorskip("distributed")
     config = tmp_path / "tiny.toml"
     config.write_text(TINY, encoding="utf-8")
+    log_file = tmp_path / "log.txt"
     args = ("ablation", "--config", str(config), "--scheduler", "local:2", "--out", str(tmp_path / "out"))
-    proc = _nlips(*args)
+    proc = _nlips(*args, "--log-file", str(log_file))
     stdout, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
     assert "3 tasks (3 run now, 0 reused), 0 failed" in stdout
     assert not [line for line in err.splitlines() if line.startswith("INFO ")], err
     assert "dashboard" not in err and "8787" not in err, err
+    # the presses' lines, logged in the workers, come back with their tasks (task_logs) into the --log-file
+    solved = [line for line in log_file.read_text().splitlines() if "pixels reconstructed" in line]
+    assert len(solved) == 2 and all(" on tcp://127.0.0.1:" in line for line in solved), solved
 
 
 def test_a_local_cluster_serves_no_dashboard_and_no_fixed_port_and_leaves_distributeds_log_levels():
@@ -468,6 +472,8 @@ def test_a_local_dask_workers_solves_take_its_share_of_the_cores(monkeypatch):
     """--scheduler local:N: each worker process rendered on cores // N threads but solved on every core (N x cores
     solver threads on one machine); the task wrapper sets the solver's share. A remote worker (threads 0) keeps
     its own count."""
+    import logging
+
     from nlipscalib.experiments import runner
     from nlipscalib.solver import threads as solver_threads
 
@@ -475,7 +481,7 @@ def test_a_local_dask_workers_solves_take_its_share_of_the_cores(monkeypatch):
     monkeypatch.setattr(runner, "execute", lambda task, out, threads, keep: ran.append(threads) or "done")
     monkeypatch.setattr(solver_threads, "_workers", 5)
     monkeypatch.setattr(solver_threads, "_pool", None)
-    assert runner._execute_on_dask_worker("task", "out", 0, False) == "done"
+    assert runner._execute_on_dask_worker("task", "out", 0, False, logging.INFO)[0] == "done"
     assert solver_threads.workers() == 5  # remote: untouched
-    assert runner._execute_on_dask_worker("task", "out", 3, False) == "done"
+    assert runner._execute_on_dask_worker("task", "out", 3, False, logging.INFO)[0] == "done"
     assert solver_threads.workers() == 3 and ran == [0, 3]

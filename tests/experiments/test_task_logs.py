@@ -1,0 +1,140 @@
+"""A Dask task's log records travel back with its outcome and are logged in the command, once, with the task's
+name and worker (experiments/task_logs.py): a remote scheduler's workers' warnings never reached the user."""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+
+import pytest
+
+from nlipscalib.experiments import task_logs
+from nlipscalib.solver import threads as solver_threads
+
+distributed = pytest.importorskip("distributed")
+
+DARK = "LED 7: image dark (mean 3.1 of 255)"
+_both_running = threading.Barrier(2, timeout=60)
+"""Lets two tasks of one in-process worker log only once both run (their records would mix if any did)."""
+
+
+def _warn_dark() -> str:
+    logging.getLogger("nlipscalib.sim.render").warning(DARK)
+    logging.getLogger("nlipscalib.solver").debug("below the command's level: not carried")
+    return "done"
+
+
+def _log_from_own_threads(name: str) -> list[str]:
+    """A task logging in its thread, in the solver's pool (a copy of its context) and in a thread it starts
+    without its context, while another task does the same on the same worker."""
+    log = logging.getLogger("nlipscalib.solver")
+    _both_running.wait()
+    log.warning("%s: in its thread", name)
+    solver_threads.map_items(lambda part: log.warning("%s: pool part %d", name, part), range(4))
+    plain = threading.Thread(target=log.warning, args=("%s: a plain thread", name))
+    plain.start()
+    plain.join()
+    _both_running.wait()  # neither has ended before the other's plain thread logged
+    return [thread.name for thread in threading.enumerate()]
+
+
+def _messages(carried: dict) -> list[str]:
+    return [item["message"] for item in carried["records"]]
+
+
+def test_a_task_warning_reaches_the_command_once_with_the_task_and_worker(caplog, capfd):
+    """A worker process of the command's local cluster (as ``--scheduler local:1``): the warning comes once, from
+    the command's logging, with the worker's time and process id; the worker's stderr (the terminal) shows none."""
+    from nlipscalib.experiments.runner import _backend
+
+    caplog.set_level(logging.INFO)
+    backend = _backend("local:1", 1)
+    with backend:
+        outcome, carried = backend.client.submit(task_logs.run_logged, _warn_dark, logging.INFO).result()
+        task_logs.replay(carried, "press_0003")
+    assert outcome == "done"
+    dark = [r for r in caplog.records if DARK in r.getMessage()]
+    assert len(dark) == 1, [r.getMessage() for r in caplog.records]
+    (record,) = dark
+    assert record.getMessage() == f"[press_0003 on {carried['worker']}] {DARK}"
+    assert carried["worker"].startswith("tcp://")
+    assert record.levelno == logging.WARNING and record.name == "nlipscalib.sim.render"
+    assert record.process != os.getpid()  # the worker's, as the --log-file line shows it
+    assert not [r for r in caplog.records if "not carried" in r.getMessage()]  # DEBUG: below the level asked
+    assert DARK not in capfd.readouterr().err  # no last-resort print on the worker's stderr
+
+
+def test_two_tasks_on_one_worker_at_once_keep_their_own_records_the_solver_pools_included():
+    """Two tasks on two threads of one worker, logging at the same time: each carries back its own records, those
+    its solver pool threads logged included; a thread started without the task's context belongs to neither
+    (module docstring), but to the only task when it runs alone."""
+    before = solver_threads.workers()
+    solver_threads.set_workers(2)
+    try:
+        with (
+            distributed.LocalCluster(
+                n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
+            ) as cluster,
+            distributed.Client(cluster) as client,
+        ):
+            futures = [client.submit(task_logs.run_logged, _log_from_own_threads, logging.INFO, n) for n in "ab"]
+            results = client.gather(futures)
+            alone = client.submit(task_logs.run_logged, _log_from_own_threads, logging.INFO, "c", pure=False)
+            # the other party of its barrier's two waits, not a task
+            helper = threading.Thread(target=lambda: [_both_running.wait() for _ in range(2)])
+            helper.start()
+            _, lone = alone.result()
+            helper.join()
+    finally:
+        solver_threads.set_workers(before)
+    for name, (thread_names, carried) in zip("ab", results):
+        assert any(t.startswith("nlips-pool") for t in thread_names)  # the parts ran on the solver's pool
+        assert sorted(_messages(carried)) == sorted(
+            [f"{name}: in its thread"] + [f"{name}: pool part {p}" for p in range(4)]
+        )
+    assert "c: a plain thread" in _messages(lone)
+
+
+def test_a_task_carries_the_first_records_and_counts_the_rest(caplog):
+    caplog.set_level(logging.INFO)
+    level = logging.getLogger("nlipscalib").level
+    log = logging.getLogger("nlipscalib.sim.render")
+    _, carried = task_logs.run_logged(lambda: [log.warning("LED %d dark", i) for i in range(130)], logging.INFO)
+    assert _messages(carried) == [f"LED {i} dark" for i in range(task_logs.MAX_RECORDS)]
+    assert carried["more"] == carried["more_warnings"] == 130 - task_logs.MAX_RECORDS
+    task_logs.replay(carried, "press_0001")
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("[press_0001 on this process]")]
+    assert len(lines) == task_logs.MAX_RECORDS + 1
+    assert "30 more log record(s) (30 warning(s)) not carried back" in lines[-1]
+    assert logging.getLogger("nlipscalib").level == level  # lowered for the task only
+
+
+def test_the_runner_logs_a_dask_tasks_warning_before_its_outcome(tmp_path, monkeypatch, caplog):
+    """The runner's path: ``_execute_on_dask_worker`` carries the records, ``_dask`` logs them, prefixed with the
+    task's id, before the task's own outcome line (one Dask worker thread in this process, for the stand-in)."""
+    from nlipscalib.experiments import runner
+    from nlipscalib.experiments import tasks as tasks_mod
+    from nlipscalib.experiments.tasks import Task
+
+    def reference(task, out, threads, keep):
+        logging.getLogger("nlipscalib.sim.render").warning(DARK)
+        raise ValueError("a broken scene")
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", reference)
+    caplog.set_level(logging.INFO)
+    backend = runner._backend(None, 1)
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
+    backend.client, backend.threads = distributed.Client(cluster), 1
+    status, solver_workers = runner.RunStatus(), solver_threads.workers()
+    try:
+        task = Task(kind="reference", id="ref-0", scene={})
+        backend._dask([task], tmp_path, False, status, runner._bar(1, 0, False, ""))
+    finally:
+        backend.client.close()
+        cluster.close()
+        solver_threads.set_workers(solver_workers)  # the worker, this process, set its share
+    lines = [r.getMessage() for r in caplog.records]
+    replayed = [i for i, line in enumerate(lines) if line.startswith("[ref-0 on ") and line.endswith(DARK)]
+    failed = [i for i, line in enumerate(lines) if line.startswith("ref-0: failed: ValueError: a broken scene")]
+    assert len(replayed) == 1 and len(failed) == 1 and replayed[0] < failed[0], lines
