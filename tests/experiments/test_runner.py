@@ -334,7 +334,7 @@ def test_a_dask_local_cluster_run_prints_none_of_distributeds_info_lines(tmp_pat
     assert not [line for line in err.splitlines() if line.startswith("INFO ")], err
     assert "dashboard" not in err and "8787" not in err, err
     # the presses' lines, logged in the workers, come back with their tasks (task_logs) into the --log-file
-    solved = [line for line in log_file.read_text().splitlines() if "pixels reconstructed" in line]
+    solved = [line for line in log_file.read_text(encoding="utf-8").splitlines() if "pixels reconstructed" in line]
     assert len(solved) == 2 and all(" on tcp://127.0.0.1:" in line for line in solved), solved
 
 
