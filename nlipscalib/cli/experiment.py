@@ -124,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
     runs = []
     for name in names:
         exp = get(name)
-        work = Path(args.out) / f"{exp.work_name or name}-{size}"  # a study may share another's tasks
+        # a study may share another's tasks; absolute for a scheduler's workers, whose working folder is theirs
+        work = (Path(args.out).absolute() if args.scheduler else Path(args.out)) / f"{exp.work_name or name}-{size}"
         own = Path(args.out) / f"{name}-{size}"
         report = Path(args.report) / name if args.report and args.name == "all" else Path(args.report or own / "report")
         runs.append((name, exp, exp.config(args.size, args.config), work, report))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import threading
 
 import numpy as np
 import scipy.sparse as sp
@@ -231,12 +232,19 @@ def _subdivide(vertices: np.ndarray, faces: np.ndarray, mask: np.ndarray) -> tup
     """
     import pymeshlab
 
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces, f_scalar_array=mask.astype(np.float64)))
-    ms.compute_selection_by_condition_per_face(condselect="fq > 0.5")
-    ms.meshing_surface_subdivision_midpoint(iterations=1, threshold=pymeshlab.PercentageValue(0.0), selected=True)
-    mesh = ms.current_mesh()
-    return np.asarray(mesh.vertex_matrix(), dtype=np.float64), np.asarray(mesh.face_matrix(), dtype=np.int64)
+    with _PYMESHLAB:
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices, face_matrix=faces, f_scalar_array=mask.astype(np.float64)))
+        ms.compute_selection_by_condition_per_face(condselect="fq > 0.5")
+        ms.meshing_surface_subdivision_midpoint(iterations=1, threshold=pymeshlab.PercentageValue(0.0), selected=True)
+        mesh = ms.current_mesh()
+        return np.asarray(mesh.vertex_matrix(), dtype=np.float64), np.asarray(mesh.face_matrix(), dtype=np.int64)
+
+
+_PYMESHLAB = threading.Lock()
+"""Held while pymeshlab works: two indentations at once in one process (a Dask worker started with
+``--nthreads 2``) failed a press with "PyMeshLabException ... std::bad_alloc" (s26-dasklogs). A subdivision is
+milliseconds of a render's seconds, so one at a time costs nothing."""
 
 
 def _boundary_vertices(faces: np.ndarray, n_vertices: int) -> np.ndarray:

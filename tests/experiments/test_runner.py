@@ -485,3 +485,17 @@ def test_a_local_dask_workers_solves_take_its_share_of_the_cores(monkeypatch):
     assert solver_threads.workers() == 5  # remote: untouched
     assert runner._execute_on_dask_worker("task", "out", 3, False, logging.INFO)[0] == "done"
     assert solver_threads.workers() == 3 and ran == [0, 3]
+
+
+def test_a_scheduler_gets_an_absolute_work_folder(tmp_path, monkeypatch, capsys):
+    from nlipscalib.cli import main
+
+    """A relative --out with --scheduler: the tasks ran in the remote workers' own working folder (/tmp/out-...)."""
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY, encoding="utf-8")
+    monkeypatch.chdir(tmp_path)
+    base = ["experiment", "ablation", "--config", str(config), "--out", "rel", "--plan"]
+    assert main([*base, "--scheduler", "local:1"]) == 0
+    assert f"done in {tmp_path / 'rel' / 'ablation-custom'}" in capsys.readouterr().out
+    assert main(base) == 0  # without a scheduler the folder is named as the user gave it
+    assert f"done in {Path('rel') / 'ablation-custom'}" in capsys.readouterr().out

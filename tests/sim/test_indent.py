@@ -132,3 +132,22 @@ def test_the_plate_solve_matches_a_dense_solve():
     dense = q.toarray()
     expected = np.linalg.solve(dense[np.ix_(ui, ui)], -dense[ui] @ known)
     np.testing.assert_allclose(_solve(q, known, unknown), expected, rtol=0, atol=1e-10)
+
+
+def test_one_pymeshlab_subdivision_at_a_time():
+    """Two indentations at once in one process (a Dask worker with --nthreads 2) failed a press with pymeshlab's
+    std::bad_alloc: a subdivision waits while another holds pymeshlab."""
+    import threading
+
+    from nlipscalib.sim import indent
+
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    faces = np.array([[0, 1, 2]])
+    done = []
+    with indent._PYMESHLAB:
+        worker = threading.Thread(target=lambda: done.append(indent._subdivide(vertices, faces, np.ones(1, bool))))
+        worker.start()
+        worker.join(0.5)
+        assert worker.is_alive() and not done  # waiting for the lock, not inside pymeshlab
+    worker.join(60)
+    assert len(done) == 1 and len(done[0][1]) == 4  # one triangle split into four
