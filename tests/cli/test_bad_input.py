@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from nlipscalib.cli import describe_os_error, main
+from nlipscalib.core.sensor_response import SensorResponse
 from tests.core.test_capture import _press
 
 
@@ -28,8 +29,8 @@ def _one_line_error(err: str, *needles: str) -> str:
 def presses(tmp_path) -> Path:
     """A folder of presses: reference/ and one press, p1/."""
     root = tmp_path / "presses"
-    _press(root / "reference")
-    _press(root / "p1")
+    _press(root / "reference", dark_level=int(SensorResponse().black_level))
+    _press(root / "p1", dark_level=int(SensorResponse().black_level))
     return root
 
 

@@ -12,7 +12,9 @@ from nlipscalib.core.errors import CaptureError
 H, W = 12, 16
 
 
-def _press(folder, n_leds=3, with_gt=True):
+def _press(folder, n_leds=3, with_gt=True, dark_level=None):
+    """A press of random images; ``dark_level``: its dark frame that value everywhere (a real dark frame, which
+    the solver's check asks for), else random like the rest."""
     cam = Camera.from_fov(W, H, 90.0)
     leds = [Led(position=(float(i), 0.0, 0.0)) for i in range(n_leds)]
     rng = np.random.default_rng(0)
@@ -25,12 +27,15 @@ def _press(folder, n_leds=3, with_gt=True):
         n[..., 2] = -1
         gt = GroundTruth(depth, pts, n, np.ones((H, W), bool), np.zeros((H, W), bool))
     ref = Reference(np.full((H, W), 10.0, np.float32), np.tile(np.float32([0, 0, -1]), (H, W, 1)))
+    dark = img()
+    if dark_level is not None:
+        dark = np.full_like(dark, dark_level)
     return write_press(
         folder,
         cam,
         leds,
         SensorResponse(),
-        img(),
+        dark,
         np.stack([img() for _ in leds]),
         img(),
         provenance={"source": "test"},
