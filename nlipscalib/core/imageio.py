@@ -240,23 +240,26 @@ def _open_npz(path: str | Path, keys: Iterable[str], unreadable: str) -> Iterato
     path = Path(path)
     if not path.is_file():
         raise CaptureError(f"{path}: missing")
+    # The file is opened here, not by np.load(path): numpy 2.4 hands its own file to the NpzFile before the zip
+    # directory is read, so a damaged archive raised BadZipFile and left that file open (a ResourceWarning).
     with open(path, "rb") as f:
         if f.read(2) != b"PK":  # a .npz is a zip archive; numpy would take other bytes for a pickle
             raise CaptureError(f"{path}: {unreadable} (not a .npz archive)")
-    try:
-        with np.load(path) as data:
-            missing = sorted(set(keys) - set(data.files))
-            if missing:
-                raise CaptureError(f"{path}: missing arrays {missing}")
-            yield data
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        if isinstance(exc, CaptureError):
-            raise
-        raise CaptureError(f"{path}: {unreadable} ({exc})") from None
-    except zlib.error as exc:
-        # A flipped byte inside a deflated array fails in zlib's decompressor before the zip layer can
-        # compare the CRC, and zlib.error is not an OSError: without this the reader gets a traceback.
-        raise CaptureError(f"{path}: {unreadable} (compressed data damaged: {exc})") from None
+        f.seek(0)
+        try:
+            with np.load(f) as data:
+                missing = sorted(set(keys) - set(data.files))
+                if missing:
+                    raise CaptureError(f"{path}: missing arrays {missing}")
+                yield data
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            if isinstance(exc, CaptureError):
+                raise
+            raise CaptureError(f"{path}: {unreadable} ({exc})") from None
+        except zlib.error as exc:
+            # A flipped byte inside a deflated array fails in zlib's decompressor before the zip layer can
+            # compare the CRC, and zlib.error is not an OSError: without this the reader gets a traceback.
+            raise CaptureError(f"{path}: {unreadable} (compressed data damaged: {exc})") from None
 
 
 def save_npz(path: str | Path, arrays: dict[str, np.ndarray], compress: bool | str = True) -> Path:

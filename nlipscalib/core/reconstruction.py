@@ -227,7 +227,7 @@ def _verified_content(path: Path, version: int) -> str | None:
     inflate), reading only the arrays they need."""
     names = ("depth", "normals", "reconstructed") + (BOX_ARRAYS if version >= 2 else ())
     try:
-        with np.load(path) as npz:
+        with open(path, "rb") as f, np.load(f) as npz:  # not np.load(path): see core.imageio._open_npz
             arrays = {name: npz[name] for name in names}
         _box_checked(path, arrays, version)
     except CaptureError as exc:

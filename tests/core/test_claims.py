@@ -68,10 +68,10 @@ def test_second_process_is_refused_while_first_holds(tmp_path):
 
 def test_killed_owner_is_taken_over(tmp_path):
     target = tmp_path / "item"
-    owner = _hold(target)
-    assert owner.stdout.readline().strip() == "held"
-    owner.kill()
-    owner.wait(30)
+    with _hold(target) as owner:  # its pipes closed on leaving (ResourceWarning: unclosed file, before)
+        assert owner.stdout.readline().strip() == "held"
+        owner.kill()
+        owner.wait(30)
     assert claim_path(target).exists()  # a killed process leaves its claim behind
     with claim(target) as mine:
         assert mine
@@ -85,18 +85,18 @@ def test_a_killed_owner_not_yet_reaped_is_taken_over(tmp_path):
     import signal
 
     target = tmp_path / "item"
-    owner = _hold(target)
-    assert owner.stdout.readline().strip() == "held"
-    os.kill(owner.pid, signal.SIGKILL)
-    deadline = time.monotonic() + 30
-    while (
-        "Z" not in Path(f"/proc/{owner.pid}/stat").read_text(encoding="utf-8").rsplit(")", 1)[1][:3]
-    ):  # not reaped: no wait()
-        assert time.monotonic() < deadline
-        time.sleep(0.01)
-    with claim(target) as mine:
-        assert mine
-    owner.wait(30)
+    with _hold(target) as owner:  # its pipes closed on leaving (ResourceWarning: unclosed file, before)
+        assert owner.stdout.readline().strip() == "held"
+        os.kill(owner.pid, signal.SIGKILL)
+        deadline = time.monotonic() + 30
+        while (
+            "Z" not in Path(f"/proc/{owner.pid}/stat").read_text(encoding="utf-8").rsplit(")", 1)[1][:3]
+        ):  # not reaped: no wait()
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        with claim(target) as mine:
+            assert mine
+        owner.wait(30)
 
 
 def test_on_windows_a_process_is_looked_up_without_os_kill(monkeypatch):
