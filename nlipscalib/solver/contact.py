@@ -444,13 +444,15 @@ def contact_box(
     if not valid.any():
         raise CaptureError(f"{folder}: no pixel sees the gel; nothing to reconstruct")
     hit = contact_hits(contact, threshold)
-    peak = contact_peak(contact)
-    if not hit.any() or peak < tolerances.NO_CONTACT_PEAK:
-        raise NoContactError(
-            f"{folder}: --roi auto found no contact (images match the undeformed dome within noise: the strongest "
-            f"misfit is {peak:.1f} times its floor, a contact's above {tolerances.NO_CONTACT_PEAK:g}); nothing "
-            f"solved: the surface is the reference's (pass --roi X0 Y0 W H, or no --roi, to solve it anyway)"
-        )
+    if why := no_contact(contact, hit):
+        reason, within_noise = why
+        solve_anyway = "pass --roi X0 Y0 W H, or no --roi, to solve it anyway"
+        if within_noise:
+            raise NoContactError(
+                f"{folder}: --roi auto found no contact ({reason}); nothing solved: the surface is the reference's "
+                f"({solve_anyway})"
+            )
+        raise CaptureError(f"{folder}: --roi auto found no contact ({reason}); nothing solved ({solve_anyway})")
     labels, sizes = masks.components(hit)
     keep = np.flatnonzero(sizes >= min_component * sizes.max()) + 1
     region = np.isin(labels, keep)
@@ -507,6 +509,56 @@ def contact_hits(contact: ContactMap, threshold: float = tolerances.CONTACT_MISF
         return valid
     floor = np.maximum(contact.expected, contact.median_misfit)
     return valid & (mis > threshold * np.maximum(floor, 1e-9))  # NaN compares False, off the gel anyway
+
+
+def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str, bool] | None:
+    """Why the press shows no contact, and whether its images match the undeformed dome within noise; None when it
+    shows one.
+
+    Where the images fit the model to noise, a contact's peak misfit is far above
+    :data:`~nlipscalib.core.tolerances.NO_CONTACT_PEAK` times its floor and noise's below. Where they fit it only to
+    model error (the floor :data:`~nlipscalib.core.tolerances.MODEL_MISFIT_FLOOR` times the noise or more: LEDs
+    off their design power or place), a plain dent stands out by less, so only a press without a single hit
+    (:func:`contact_hits`) has none, and the remedy is an LED model that fits.
+
+    Parameters
+    ----------
+    contact : ContactMap
+    hit : (H, W) bool or None -- :func:`contact_hits` of ``contact`` when at hand.
+
+    Returns
+    -------
+    (reason, within_noise) or None -- ``reason`` is one clause with the numbers; ``within_noise`` False says the
+        images do not fit the LED model (the press may well have a contact).
+    """
+    floor = contact_floor(contact)
+    if floor < tolerances.MODEL_MISFIT_FLOOR:
+        peak = contact_peak(contact)
+        if peak >= tolerances.NO_CONTACT_PEAK:
+            return None
+        return (
+            f"images match the undeformed dome within noise: the strongest misfit is {peak:.1f} times its floor, a "
+            f"contact's above {tolerances.NO_CONTACT_PEAK:g}",
+            True,
+        )
+    if (contact_hits(contact) if hit is None else hit).any():
+        return None
+    return (
+        f"the images differ from the undeformed model all over the gel, {floor:.0f} times the noise, and no pixel "
+        f"by {tolerances.CONTACT_MISFIT_FACTOR:g} times more: the LED model does not fit this sensor; calibrate the "
+        f"LEDs on its undeformed capture (nlips calibrate-leds REF --out leds.json) and solve with --leds leds.json, "
+        f"or solve against that capture (--reference REF)",
+        False,
+    )
+
+
+def contact_floor(contact: ContactMap) -> float:
+    """The misfit's median over the gel in units of its noise-only value's median: about 1-2 where the images fit
+    the undeformed model to noise, more where the LED model is off (0 when no pixel sees the gel)."""
+    valid = np.isfinite(contact.misfit)
+    if not valid.any():
+        return 0.0
+    return contact.median_misfit / max(float(np.median(contact.expected[valid])), 1e-12)
 
 
 def contact_peak(contact: ContactMap) -> float:

@@ -39,7 +39,7 @@ from ..core.capture import Press, as_press, select_leds
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
 from .camera_shift import shift_note
-from .contact import ContactMap, anchor_weights, contact_box, contact_peak, led_levels, lit_leds
+from .contact import ContactMap, anchor_weights, contact_box, led_levels, lit_leds, no_contact
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
 from .led_checks import led_check
@@ -297,12 +297,12 @@ def _region(
 ):
     """The box to solve, (x0, y0, w, h) or None for the whole gel, and what ``--roi auto`` left out or warns
     about ("" when nothing)."""
-    if roi is None and cmap is not None and contact_peak(cmap) < tolerances.NO_CONTACT_PEAK:
-        note = (
-            f"no contact found: the images match the undeformed dome within noise (the strongest misfit is "
-            f"{contact_peak(cmap):.1f} times its floor, a contact's above {tolerances.NO_CONTACT_PEAK:g}): the "
-            f"solved surface is the reference's up to noise"
-        )
+    if roi is None and cmap is not None and (why := no_contact(cmap)):
+        reason, within_noise = why
+        if within_noise:
+            note = f"no contact found: the {reason}: the solved surface is the reference's up to noise"
+        else:
+            note = f"no contact found: {reason}"
         log.warning("%s: %s", press.folder, note)
         return None, note
     if roi != "auto":
