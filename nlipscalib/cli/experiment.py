@@ -66,6 +66,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plan", action="store_true", help="only print how many tasks the experiment has (and done)")
     p.add_argument("--keep-presses", action="store_true", help="keep the rendered press folders")
     p.add_argument(
+        "--keep-old",
+        action="store_true",
+        help="reuse finished tasks that other code or library versions made (default: make them again); the report "
+        "names them: their numbers are the old code's",
+    )
+    p.add_argument(
         "--redraw",
         metavar="REPORT",
         help="draw the figures and report.md of this report folder again from its results.json, without the "
@@ -138,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
     code = 0
     for name, exp, cfg, work, report in runs:
         if args.plan:
-            _print_plan(name, size, exp, cfg, work, options)
+            _print_plan(name, size, exp, cfg, work, options, args.keep_old)
             continue
         doc = run_experiment(
             exp,
@@ -150,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
             scheduler=args.scheduler,
             solver_options=options,
             keep_presses=args.keep_presses,
+            keep_old=args.keep_old,
         )
         failed = doc["tasks"]["failed"]
         print(f"{name}: {_summary(doc['tasks'])}, {doc['wall_seconds']} s; report {report / 'report.md'}")
@@ -181,6 +188,7 @@ RUN_OPTIONS = (
     "write_baseline",
     "plan",
     "keep_presses",
+    "keep_old",
 )
 """Options of a run, which ``--redraw`` refuses: it draws from the report's results.json alone, config included."""
 
@@ -255,10 +263,12 @@ def _summary(tasks: dict) -> str:
     )
 
 
-def _print_plan(name: str, size: str, exp: Experiment, cfg: object, work: Path, options: dict) -> None:
-    from ..experiments.tasks import load_result
+def _print_plan(
+    name: str, size: str, exp: Experiment, cfg: object, work: Path, options: dict, keep_old: bool = False
+) -> None:
+    from ..experiments.tasks import keeping_old, load_result
 
-    tasks = exp.tasks(cfg, options)
+    tasks = keeping_old(exp.tasks(cfg, options), keep_old)
     kinds = {k: sum(t.kind == k for t in tasks) for k in ("reference", "calibration", "press")}
     solves = sum(len({str(e["solve"]) for e in t.evaluations}) for t in tasks)
     done = sum(load_result(work, t) is not None for t in tasks)

@@ -20,7 +20,17 @@ from typing import TYPE_CHECKING
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
 from ..core.processes import LOCAL_WORKER_GRACE_S, end_processes, kill_unless_ended, sigint_held
-from .tasks import NO_SPACE, REUSED, Task, clean_leftovers, execute, samples_problem, stored_result
+from .tasks import (
+    NO_SPACE,
+    REUSED,
+    Task,
+    clean_leftovers,
+    execute,
+    finished_result,
+    made_difference,
+    samples_problem,
+    stored_result,
+)
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
     from multiprocessing.context import SpawnProcess
@@ -73,6 +83,7 @@ def run_tasks(
     clean_leftovers(out)  # a killed run's claim beside a task it finished: that task is skipped below
     status = RunStatus()
     todo = []
+    elsewhere: dict[str, str] = {}  # task id -> what made its finished result otherwise
     for t in tasks:
         result = stored_result(out, t)
         problem = samples_problem(out, t, result) if result is not None else None
@@ -81,7 +92,17 @@ def run_tasks(
             continue
         if problem is not None:  # said once here: execute() re-checks it quietly (load_result)
             log.warning("%s; running %s again", problem, t.id)
+        elif (old := finished_result(out, t)) is not None:
+            elsewhere[t.id] = made_difference(t, old)
         todo.append(t)
+    if elsewhere:  # one line for the lot, not one per task: an upgrade re-runs them all
+        log.warning(
+            "%s: %d of %d tasks made by other code or libraries (%s): re-running them (--keep-old keeps them)",
+            out,
+            len(elsewhere),
+            len(tasks),
+            "; ".join(sorted(set(elsewhere.values()))),
+        )
     bar = _bar(len(tasks), len(status.skipped), progress, f"{name} tasks" if name else "tasks")
     try:
         with _backend(scheduler, workers) as backend:
