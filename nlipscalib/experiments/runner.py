@@ -109,7 +109,9 @@ def run_tasks(
             for stage in sorted({t.stage for t in todo}):
                 if status.no_space:
                     break
-                backend([t for t in todo if t.stage == stage], out, keep_presses, status, bar)
+                staged = [t for t in todo if t.stage == stage]
+                backend(staged, out, keep_presses, status, bar)
+                _refuse_other_workers(staged, out, status)  # before the next stage builds on them
     finally:
         if check_scheduler(scheduler) is not None:
             # a LocalCluster closed mid-task (Ctrl-C) kills its busy workers (SIGKILL after Dask's grace): each
@@ -117,6 +119,23 @@ def run_tasks(
             clean_leftovers(out)
     bar.close()
     return status
+
+
+def _refuse_other_workers(tasks: list[Task], out: Path, status: RunStatus) -> None:
+    """Count as failed a task "done" whose result a worker of other code or libraries made (a remote Dask worker
+    with another installation): its result records that worker's ``made_with``, which this command does not take,
+    so its evaluations would be missing from the tables without a word."""
+    by_id = {t.id: t for t in tasks}
+    for task_id in list(status.done):
+        task = by_id.get(task_id)
+        result = finished_result(out, task) if task is not None else None
+        if result is not None and stored_result(out, task) is None:
+            status.done.remove(task_id)
+            status.failed[task_id] = (
+                f"made by a worker of other code or libraries ({made_difference(task, result)}): install this "
+                "nlipscalib and its libraries on the workers"
+            )
+            log.warning("%s: %s", task_id, status.failed[task_id])
 
 
 def _bar(total: int, initial: int, progress: bool, desc: str) -> tqdm:

@@ -591,6 +591,28 @@ def test_a_rerun_after_an_upgrade_makes_again_the_tasks_other_code_or_libraries_
     assert framework._made_by_other_software(every, tmp_path) == {}
 
 
+def test_a_task_a_worker_of_other_code_made_is_failed_not_dropped_from_the_tables(tmp_path, monkeypatch):
+    # a remote Dask worker with another installation writes its own made_with, which this command does not take:
+    # the task counted as done and its rows were missing from the tables without a word
+    from nlipscalib.experiments import runner
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", lambda task, out, threads, keep: {})
+
+    def other_worker(task, out, threads=0, keep=False):
+        outcome = tasks_mod.execute(task, out, threads, keep)
+        path = result_path(out, task.id)
+        record = json.loads(path.read_text(encoding="utf-8"))
+        record["made_with"]["libraries"]["mitsuba"] = "3.0.0"
+        path.write_text(json.dumps(record), encoding="utf-8")
+        return outcome
+
+    monkeypatch.setattr(runner, "execute", other_worker)
+    task = Task(kind="reference", id="ref-w", scene={})
+    status = runner.run_tasks([task], tmp_path, progress=False)
+    assert status.done == [] and "made by a worker of other code or libraries (mitsuba 3.0.0" in status.failed["ref-w"]
+
+
 def test_each_kind_of_task_is_made_again_only_for_the_code_and_libraries_it_depends_on():
     # a solver change must keep the references (renders: the most expensive tasks of a scene); a render change
     # makes everything built on the reference again (calibrations fit its images, presses read it)
