@@ -266,14 +266,18 @@ def _summary(tasks: dict) -> str:
 def _print_plan(
     name: str, size: str, exp: Experiment, cfg: object, work: Path, options: dict, keep_old: bool = False
 ) -> None:
-    from ..experiments.tasks import keeping_old, load_result
+    from ..experiments.tasks import finished_result, keeping_old, load_result
 
     tasks = keeping_old(exp.tasks(cfg, options), keep_old)
     kinds = {k: sum(t.kind == k for t in tasks) for k in ("reference", "calibration", "press")}
     solves = sum(len({str(e["solve"]) for e in t.evaluations}) for t in tasks)
-    done = sum(load_result(work, t) is not None for t in tasks)
+    done = [load_result(work, t) is not None for t in tasks]
+    # finished, but by other code or libraries: the run makes them again (the plan said "done" of them before)
+    old = sum(not ok and finished_result(work, t) is not None for t, ok in zip(tasks, done, strict=True))
     counts = " + ".join(_counted(kinds[k], k) for k in ("reference", "calibration", "press"))
-    print(f"{name} ({size}): {len(tasks)} tasks = {counts} ({_counted(solves, 'solve')}); {done} done in {work}")
+    again = f" ({old} more made by other code or libraries: run again; --keep-old keeps them)" if old else ""
+    solved = _counted(solves, "solve")
+    print(f"{name} ({size}): {len(tasks)} tasks = {counts} ({solved}); {sum(done)} done in {work}{again}")
 
 
 def _counted(n: int, noun: str) -> str:

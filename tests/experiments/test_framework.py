@@ -591,6 +591,24 @@ def test_a_rerun_after_an_upgrade_makes_again_the_tasks_other_code_or_libraries_
     assert framework._made_by_other_software(every, tmp_path) == {}
 
 
+def test_the_plan_counts_tasks_other_code_made_as_to_run_again(tmp_path, capsys):
+    # --plan said "N done" of tasks the run would then make again
+    from nlipscalib.experiments import get
+
+    exp = get("q1")
+    tasks = exp.tasks(exp.config("quick"))
+    work = tmp_path / "q1-quick"
+    here = made_with(tasks[0].kind)
+    _stored(work, tasks[0], here)
+    _stored(work, tasks[1], None)  # written before 2026-12-06
+    assert main(["experiment", "q1", "--out", str(tmp_path), "--plan"]) == 0
+    out = capsys.readouterr().out
+    assert "; 1 done in" in out and "(1 more made by other code or libraries: run again; --keep-old" in out
+    assert main(["experiment", "q1", "--out", str(tmp_path), "--plan", "--keep-old"]) == 0
+    out = capsys.readouterr().out
+    assert "; 2 done in" in out and "more made by" not in out
+
+
 def test_a_task_a_worker_of_other_code_made_is_failed_not_dropped_from_the_tables(tmp_path, monkeypatch):
     # a remote Dask worker with another installation writes its own made_with, which this command does not take:
     # the task counted as done and its rows were missing from the tables without a word
