@@ -53,13 +53,16 @@ any other versions enter the hash."""
 TASK_CODE = {
     "reference": ("core", "sim"),
     "calibration": ("core", "sim", "solver"),
-    "press": ("core", "sim", "solver", "pipeline", "learn"),
+    "press": ("core", "sim", "solver", "pipeline"),
 }
 """Subpackages whose source shapes a task's result, per kind: a reference is a render (the twin and the formats:
 core.code_version.RENDER_CODE); a calibration fits the LEDs (solver) to the reference's images, so the code of that
-render too; a press task renders, solves (solver, pipeline), writes NLiPsNet samples (learn) and reads the reference
-and calibrations. A change elsewhere (cli, experiments' tables and figures, report, device) keeps every task; a
-change of the solver alone keeps the references, whose renders cost the most a scene."""
+render too; a press task renders, solves (solver, pipeline) and reads the reference and calibrations. A change
+elsewhere (cli, experiments' tables and figures, report, device) keeps every task; a change of the solver alone
+keeps the references, whose renders cost the most a scene."""
+SAMPLES_CODE = ("learn",)
+"""What a press task that writes NLiPsNet calibration samples (``Task.samples``) depends on besides: the samples'
+rules (learn.dataset). Not the other press tasks: NLiPsNet's code changes often, and a Q1 press does not use it."""
 TASK_LIBRARIES = {
     "reference": RENDER_LIBRARIES,
     "calibration": RENDER_LIBRARIES + SOLVE_LIBRARIES,
@@ -68,18 +71,29 @@ TASK_LIBRARIES = {
 """Libraries whose release shapes a task's result, per kind (core.libraries), with the same reasoning."""
 
 
-@functools.cache
-def made_with(kind: str) -> dict:
-    """What a task of ``kind`` is made with here: ``{"code": digest of its TASK_CODE's source, "libraries": {name:
-    version}}``, recorded in each task result and compared when one would be reused (once per process and kind).
+def made_with(kind: str, samples: bool = False) -> dict:
+    """What a task of ``kind`` (writing NLiPsNet samples: ``samples``) is made with here: ``{"code": digest of its
+    TASK_CODE's source (and SAMPLES_CODE's), "libraries": {name: version}}``, recorded in each task result and
+    compared when one would be reused (computed once per process and kind; a copy each call).
 
     Why: a task's hash holds what it computes (scene, press, solves), not the code, and the version number is the
     same in every commit, so a rerun after an upgrade reused the old code's numbers beside the new code's in one
     table, said only in a warning."""
+    return json.loads(_made_with(kind, samples))
+
+
+@functools.cache
+def _made_with(kind: str, samples: bool) -> str:
     from ..core.code_version import subpackages_fingerprint
     from ..core.libraries import library_versions
 
-    return {"code": subpackages_fingerprint(TASK_CODE[kind]), "libraries": library_versions(TASK_LIBRARIES[kind])}
+    code = subpackages_fingerprint(task_code(kind, samples))
+    return json.dumps({"code": code, "libraries": library_versions(TASK_LIBRARIES[kind])})
+
+
+def task_code(kind: str, samples: bool = False) -> tuple[str, ...]:
+    """The subpackages a task of ``kind`` depends on (:data:`TASK_CODE`, with :data:`SAMPLES_CODE` for ``samples``)."""
+    return TASK_CODE[kind] + (SAMPLES_CODE if samples else ())
 
 
 def digest(obj: object, n: int = 10) -> str:
@@ -229,7 +243,7 @@ def finished_result(out: Path, task: Task) -> dict | None:
 def made_elsewhere(task: Task, result: dict) -> bool:
     """Whether ``result`` was made with other code or libraries than this installation's for the task's kind
     (:func:`made_with`), or records none (written before 2026-12-06)."""
-    return result.get("made_with") != made_with(task.kind)
+    return result.get("made_with") != made_with(task.kind, task.samples is not None)
 
 
 UNRECORDED = "code and libraries unrecorded (written before 2026-12-06)"
@@ -239,10 +253,11 @@ UNRECORDED = "code and libraries unrecorded (written before 2026-12-06)"
 def made_difference(task: Task, result: dict) -> str:
     """What made ``result`` otherwise than this installation would, in words: "other code (core, sim, solver)",
     "numpy 1.26.4 (now 2.1.3)", both, or :data:`UNRECORDED`; "" when nothing differs."""
-    was, here = result.get("made_with"), made_with(task.kind)
+    was, here = result.get("made_with"), made_with(task.kind, task.samples is not None)
     if not isinstance(was, dict) or not isinstance(was.get("libraries"), dict):
         return UNRECORDED
-    said = [f"other code ({', '.join(TASK_CODE[task.kind])})"] if was.get("code") != here["code"] else []
+    code = task_code(task.kind, task.samples is not None)
+    said = [f"other code ({', '.join(code)})"] if was.get("code") != here["code"] else []
     libraries = was["libraries"]
     said += [f"{k} {libraries.get(k)} (now {v})" for k, v in here["libraries"].items() if libraries.get(k) != v]
     return ", ".join(said)
@@ -352,7 +367,8 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
     from .provenance import made_by
 
     body["made_by"] = made_by()  # who made it, for the report of a run that keeps it (--keep-old; framework)
-    body["made_with"] = made_with(task.kind)  # what it was made with: a run of other code makes it again
+    # what it was made with: a run of other code or libraries makes it again
+    body["made_with"] = made_with(task.kind, task.samples is not None)
     write_json(
         result_path(out, task.id), {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done"} | body
     )

@@ -638,7 +638,8 @@ def test_each_kind_of_task_is_made_again_only_for_the_code_and_libraries_it_depe
 
     assert "solver" not in TASK_CODE["reference"] and {"core", "sim"} <= set(TASK_CODE["reference"])
     assert set(TASK_CODE["reference"]) < set(TASK_CODE["calibration"]) < set(TASK_CODE["press"])
-    assert {"solver", "pipeline", "learn"} <= set(TASK_CODE["press"])
+    assert {"solver", "pipeline"} <= set(TASK_CODE["press"]) and "learn" not in TASK_CODE["press"]
+    assert made_with("press", samples=True)["code"] != made_with("press")["code"]  # NLiPsNet's samples: + learn/
     assert set(TASK_LIBRARIES["reference"]) == {"mitsuba", "drjit"}
     assert {"numpy", "scipy", "pyamg", "mitsuba"} <= set(TASK_LIBRARIES["press"])
     assert made_with("reference")["code"] != made_with("press")["code"]

@@ -50,7 +50,7 @@ def _finish(out, task: Task, written_by: Task | None = None, entry: bool = True)
     writer = written_by or task
     write_shard(samples_path(out, task.id), _arrays(), dataset_entry(out, writer, _info()) if entry else None)
     body = {"id": task.id, "kind": "press", "task_hash": task.hash, "status": "done", "samples": _info()}
-    body["made_with"] = tasks.made_with(task.kind)  # made by this code: only the samples decide
+    body["made_with"] = tasks.made_with(task.kind, samples=True)  # made by this code: only the samples decide
     write_json(result_path(out, task.id), body)
 
 
