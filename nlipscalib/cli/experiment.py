@@ -66,6 +66,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plan", action="store_true", help="only print how many tasks the experiment has (and done)")
     p.add_argument("--keep-presses", action="store_true", help="keep the rendered press folders")
     p.add_argument(
+        "--keep-old",
+        action="store_true",
+        help="reuse finished tasks that other code or library versions made (default: make them again); the report "
+        "names them: their numbers are the old code's",
+    )
+    p.add_argument(
         "--redraw",
         metavar="REPORT",
         help="draw the figures and report.md of this report folder again from its results.json, without the "
@@ -139,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     code = 0
     for name, exp, cfg, work, report in runs:
         if args.plan:
-            _print_plan(name, size, exp, cfg, work, options)
+            _print_plan(name, size, exp, cfg, work, options, args.keep_old)
             continue
         doc = run_experiment(
             exp,
@@ -151,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
             scheduler=args.scheduler,
             solver_options=options,
             keep_presses=args.keep_presses,
+            keep_old=args.keep_old,
         )
         failed = doc["tasks"]["failed"]
         print(f"{name}: {_summary(doc['tasks'])}, {doc['wall_seconds']} s; report {report / 'report.md'}")
@@ -182,6 +189,7 @@ RUN_OPTIONS = (
     "write_baseline",
     "plan",
     "keep_presses",
+    "keep_old",
 )
 """Options of a run, which ``--redraw`` refuses: it draws from the report's results.json alone, config included."""
 
@@ -256,15 +264,21 @@ def _summary(tasks: dict) -> str:
     )
 
 
-def _print_plan(name: str, size: str, exp: Experiment, cfg: object, work: Path, options: dict) -> None:
-    from ..experiments.tasks import load_result
+def _print_plan(
+    name: str, size: str, exp: Experiment, cfg: object, work: Path, options: dict, keep_old: bool = False
+) -> None:
+    from ..experiments.tasks import finished_result, keeping_old, load_result
 
-    tasks = exp.tasks(cfg, options)
+    tasks = keeping_old(exp.tasks(cfg, options), keep_old)
     kinds = {k: sum(t.kind == k for t in tasks) for k in ("reference", "calibration", "press")}
     solves = sum(len({str(e["solve"]) for e in t.evaluations}) for t in tasks)
-    done = sum(load_result(work, t) is not None for t in tasks)
+    done = [load_result(work, t) is not None for t in tasks]
+    # finished, but by other code or libraries: the run makes them again (the plan said "done" of them before)
+    old = sum(not ok and finished_result(work, t) is not None for t, ok in zip(tasks, done, strict=True))
     counts = " + ".join(_counted(kinds[k], k) for k in ("reference", "calibration", "press"))
-    print(f"{name} ({size}): {len(tasks)} tasks = {counts} ({_counted(solves, 'solve')}); {done} done in {work}")
+    again = f" ({old} more made by other code or libraries: run again; --keep-old keeps them)" if old else ""
+    solved = _counted(solves, "solve")
+    print(f"{name} ({size}): {len(tasks)} tasks = {counts} ({solved}); {sum(done)} done in {work}{again}")
 
 
 def _counted(n: int, noun: str) -> str:

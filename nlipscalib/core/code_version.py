@@ -22,6 +22,10 @@ RESULT_CODE = ("core", "solver", "pipeline", "learn")
 solve pipeline (pipeline), NLiPsNet's inference (learn). The command line (cli), the twin (sim), the device,
 experiments and figures only choose settings (recorded in the key themselves) or make inputs (identified by
 content): a change there keeps results reusable."""
+RENDER_CODE = ("core", "sim")
+"""Subpackages whose source decides a rendered press's images: the twin (sim) and the formats and shared models it
+writes with (core). The solver is not among them: a rendered press (an experiment's reference, an ``nlips dataset``
+press) is kept when only the solver changed, as re-rendering costs seconds to minutes a press."""
 
 
 def python_sources(
@@ -75,3 +79,18 @@ def code_fingerprint() -> str:
 @functools.cache
 def _fingerprint() -> str:
     return source_digest(python_sources(subpackages=RESULT_CODE))
+
+
+def subpackages_fingerprint(subpackages: tuple[str, ...]) -> str:
+    """Digest (32 hex) of the source of ``subpackages`` (names below the package, e.g. :data:`RENDER_CODE`) as
+    installed, computed once per process and tuple: what an experiment's task result (and a rendered press)
+    records of the code that made it, so that a change of that code, and of no other, makes it anew.
+
+    The same digest as :func:`code_fingerprint` for ``RESULT_CODE`` (one file order, one hash)."""
+    with _computing:
+        return _subpackages_fingerprint(tuple(subpackages))
+
+
+@functools.cache
+def _subpackages_fingerprint(subpackages: tuple[str, ...]) -> str:
+    return source_digest(python_sources(subpackages=subpackages))

@@ -26,6 +26,7 @@ from .plan import build_tasks
 from .provenance import machine, made_by, software
 from .runner import run_tasks
 from .summary import dumps, evaluation_rows
+from .tasks import keeping_old
 
 if TYPE_CHECKING:  # named in hints only
     from ..core.claims import Owner
@@ -192,14 +193,16 @@ def run_experiment(
     scheduler: str | None = None,
     solver_options: dict | None = None,
     keep_presses: bool = False,
+    keep_old: bool = False,
     progress: bool = True,
 ) -> dict:
-    """Run (or resume) an experiment into ``out`` and write its report into ``report``.
+    """Run (or resume) an experiment into ``out`` and write its report into ``report``; ``keep_old``: reuse
+    finished tasks made by other code or libraries too (named in the report), rather than make them again.
 
     Returns the report's JSON document (also written to ``report/results.json``).
     """
     start = time.perf_counter()
-    tasks = exp.tasks(cfg, solver_options)
+    tasks = keeping_old(exp.tasks(cfg, solver_options), keep_old)
     settings = run_settings(exp, cfg, size, solver_options)
     if workers > 1 and scheduler is None:  # the count asked for, said when it likely exceeds the memory available
         _check_memory(tasks, workers)
@@ -230,7 +233,7 @@ def run_experiment(
             "solver_option_overrides": solver_options or {},
             "software": software(),
             "machine": machine(),
-            "execution": {"workers": workers, "scheduler": scheduler, "output": str(out)},
+            "execution": {"workers": workers, "scheduler": scheduler, "output": str(out), "keep_old": keep_old},
             "paper": exp.paper,
             "tables": {t.name: {"caption": t.caption, "by": list(t.by), "rows": t.rows} for t in tables},
             "check_figures": check.headline(main.rows, main.by) if main else {},
@@ -256,36 +259,34 @@ def run_experiment(
         return doc
 
 
-UNRECORDED_MAKER = "unrecorded (written before 2026-12-06)"
-"""How a task result without ``made_by`` (written before tasks recorded it) is named."""
-
-
 def _made_by_other_software(tasks: list[Task], out: Path) -> dict[str, str]:
-    """Task id -> the nlipscalib that made its result, for every finished task this code did not make.
+    """Task id -> what made its result otherwise than this installation would ("nlipscalib VERSION at COMMIT:
+    other code (core, sim, solver)", its library versions, or unrecorded), for every finished task kept by
+    ``--keep-old``.
 
-    The task hash holds what a task computes (scene, press, solve options), not the code that computed it, so
-    that a work folder resumes across commits; a resume by newer code therefore reuses older code's numbers, which
-    the report must not attribute to this run's commit. Logged as one warning, listed in results.json and
-    report.md."""
-    from .tasks import load_result
+    Without ``--keep-old`` a task made by other code or libraries is made again (tasks.made_elsewhere), so this is
+    empty; with it, the report must not attribute those numbers to this run's code: logged as one warning, listed in
+    results.json and report.md. A task another commit made with the same code of its kind is not named: its numbers
+    are the ones this code makes."""
+    from .tasks import load_result, made_difference, made_elsewhere
 
     here = made_by()
     other = {}
     for task in tasks:
         result = load_result(out, task)
-        maker = None if result is None else result.get("made_by")
-        if result is not None and maker != here:
-            other[task.id] = UNRECORDED_MAKER if not isinstance(maker, dict) else _maker_name(maker)
+        if result is not None and made_elsewhere(task, result):
+            maker = result.get("made_by")
+            name = _maker_name(maker) if isinstance(maker, dict) else "nlipscalib unrecorded"
+            other[task.id] = f"{name}: {made_difference(task, result)}"
     if other:
         logging.getLogger(__name__).warning(
-            "%s: %d of %d tasks were made by another nlipscalib (%s), not %s: their numbers are that code's; "
-            "run with another --out (or delete %s) to make them all with this one",
+            "%s: %d of %d tasks kept by --keep-old were made by other code or libraries (%s), not %s: their numbers "
+            "are that code's; run without --keep-old to make them all with this one",
             out,
             len(other),
             len(tasks),
-            ", ".join(sorted(set(other.values()))),
+            "; ".join(sorted(set(other.values()))),
             _maker_name(here),
-            Path(out) / "tasks",
         )
     return other
 

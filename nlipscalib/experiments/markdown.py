@@ -109,12 +109,13 @@ def _calibration_lines(calibrations: list[dict]) -> list[str]:
 
 
 def _other_software_lines(other: dict[str, str]) -> list[str]:
-    """The report's note on reused tasks made by another nlipscalib (framework._made_by_other_software)."""
+    """The report's note on tasks kept by ``--keep-old`` that other code or libraries made
+    (framework._made_by_other_software)."""
     if not other:
         return []
-    makers = ", ".join(sorted(set(other.values())))
+    makers = "; ".join(sorted(set(other.values())))
     return [
-        f"**{len(other)} reused task(s) were made by another nlipscalib** ({makers}): their numbers are that code's, "
-        f"not this commit's ({', '.join(sorted(other))}).",
+        f"**{len(other)} reused task(s) were made by other code or libraries** (kept by `--keep-old`; {makers}): "
+        f"their numbers are that code's, not this commit's ({', '.join(sorted(other))}).",
         "",
     ]

@@ -22,7 +22,17 @@ from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
 from ..core.processes import LOCAL_WORKER_GRACE_S, end_processes, kill_unless_ended, sigint_held
 from .task_logs import PACKAGE, replay, run_logged
-from .tasks import NO_SPACE, REUSED, Task, clean_leftovers, execute, samples_problem, stored_result
+from .tasks import (
+    NO_SPACE,
+    REUSED,
+    Task,
+    clean_leftovers,
+    execute,
+    finished_result,
+    made_difference,
+    samples_problem,
+    stored_result,
+)
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a bar is made, dask only with --scheduler
     from multiprocessing.context import SpawnProcess
@@ -75,6 +85,7 @@ def run_tasks(
     clean_leftovers(out)  # a killed run's claim beside a task it finished: that task is skipped below
     status = RunStatus()
     todo = []
+    elsewhere: dict[str, str] = {}  # task id -> what made its finished result otherwise
     for t in tasks:
         result = stored_result(out, t)
         problem = samples_problem(out, t, result) if result is not None else None
@@ -83,14 +94,26 @@ def run_tasks(
             continue
         if problem is not None:  # said once here: execute() re-checks it quietly (load_result)
             log.warning("%s; running %s again", problem, t.id)
+        elif (old := finished_result(out, t)) is not None:
+            elsewhere[t.id] = made_difference(t, old)
         todo.append(t)
+    if elsewhere:  # one line for the lot, not one per task: an upgrade re-runs them all
+        log.warning(
+            "%s: %d of %d tasks made by other code or libraries (%s): re-running them (--keep-old keeps them)",
+            out,
+            len(elsewhere),
+            len(tasks),
+            "; ".join(sorted(set(elsewhere.values()))),
+        )
     bar = _bar(len(tasks), len(status.skipped), progress, f"{name} tasks" if name else "tasks")
     try:
         with _backend(scheduler, workers) as backend:
             for stage in sorted({t.stage for t in todo}):
                 if status.no_space:
                     break
-                backend([t for t in todo if t.stage == stage], out, keep_presses, status, bar)
+                staged = [t for t in todo if t.stage == stage]
+                backend(staged, out, keep_presses, status, bar)
+                _refuse_other_workers(staged, out, status)  # before the next stage builds on them
     finally:
         if check_scheduler(scheduler) is not None:
             # a LocalCluster closed mid-task (Ctrl-C) kills its busy workers (SIGKILL after Dask's grace): each
@@ -98,6 +121,23 @@ def run_tasks(
             clean_leftovers(out)
     bar.close()
     return status
+
+
+def _refuse_other_workers(tasks: list[Task], out: Path, status: RunStatus) -> None:
+    """Count as failed a task "done" whose result a worker of other code or libraries made (a remote Dask worker
+    with another installation): its result records that worker's ``made_with``, which this command does not take,
+    so its evaluations would be missing from the tables without a word."""
+    by_id = {t.id: t for t in tasks}
+    for task_id in list(status.done):
+        task = by_id.get(task_id)
+        result = finished_result(out, task) if task is not None else None
+        if result is not None and stored_result(out, task) is None:
+            status.done.remove(task_id)
+            status.failed[task_id] = (
+                f"made by a worker of other code or libraries ({made_difference(task, result)}): install this "
+                "nlipscalib and its libraries on the workers"
+            )
+            log.warning("%s: %s", task_id, status.failed[task_id])
 
 
 def _bar(total: int, initial: int, progress: bool, desc: str) -> tqdm:

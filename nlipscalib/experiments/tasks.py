@@ -4,14 +4,15 @@ Three kinds of task, run in stages: ``reference`` (stage 0) renders the undeform
 ``calibration`` (stage 1) self-calibrates the LEDs from it, starting from the design LEDs with a
 given error; ``press`` (stage 2) renders one press and solves it once per distinct solve variant.
 Each task writes ``tasks/<id>.json`` atomically when it is done; a task whose JSON exists with the
-same content hash is never run again, so an interrupted experiment resumes where it stopped and a
-worker that dies loses only the task it was running.
+same content hash, made with the same code and libraries (:func:`made_with`), is never run again, so an
+interrupted experiment resumes where it stopped and a worker that dies loses only the task it was running.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import json
 import logging
@@ -24,6 +25,7 @@ import numpy as np
 
 from ..core.atomic import NO_SPACE_ERRNOS, write_bytes, write_json
 from ..core.errors import ConfigError
+from ..core.libraries import RENDER_LIBRARIES, SOLVE_LIBRARIES
 
 if TYPE_CHECKING:  # named in hints only
     from types import ModuleType
@@ -46,6 +48,52 @@ RULES_HASHED_SILENTLY = {"rule": 2}
 leaves them out, so the work folders of earlier runs, whose samples these rules made, keep their tasks (a full Q2
 is hours of renders and solves) rather than make them all again for a code that did not change. Never updated:
 any other versions enter the hash."""
+
+
+TASK_CODE = {
+    "reference": ("core", "sim"),
+    "calibration": ("core", "sim", "solver"),
+    "press": ("core", "sim", "solver", "pipeline"),
+}
+"""Subpackages whose source shapes a task's result, per kind: a reference is a render (the twin and the formats:
+core.code_version.RENDER_CODE); a calibration fits the LEDs (solver) to the reference's images, so the code of that
+render too; a press task renders, solves (solver, pipeline) and reads the reference and calibrations. A change
+elsewhere (cli, experiments' tables and figures, report, device) keeps every task; a change of the solver alone
+keeps the references, whose renders cost the most a scene."""
+SAMPLES_CODE = ("learn",)
+"""What a press task that writes NLiPsNet calibration samples (``Task.samples``) depends on besides: the samples'
+rules (learn.dataset). Not the other press tasks: NLiPsNet's code changes often, and a Q1 press does not use it."""
+TASK_LIBRARIES = {
+    "reference": RENDER_LIBRARIES,
+    "calibration": RENDER_LIBRARIES + SOLVE_LIBRARIES,
+    "press": RENDER_LIBRARIES + SOLVE_LIBRARIES,
+}
+"""Libraries whose release shapes a task's result, per kind (core.libraries), with the same reasoning."""
+
+
+def made_with(kind: str, samples: bool = False) -> dict:
+    """What a task of ``kind`` (writing NLiPsNet samples: ``samples``) is made with here: ``{"code": digest of its
+    TASK_CODE's source (and SAMPLES_CODE's), "libraries": {name: version}}``, recorded in each task result and
+    compared when one would be reused (computed once per process and kind; a copy each call).
+
+    Why: a task's hash holds what it computes (scene, press, solves), not the code, and the version number is the
+    same in every commit, so a rerun after an upgrade reused the old code's numbers beside the new code's in one
+    table, said only in a warning."""
+    return json.loads(_made_with(kind, samples))
+
+
+@functools.cache
+def _made_with(kind: str, samples: bool) -> str:
+    from ..core.code_version import subpackages_fingerprint
+    from ..core.libraries import library_versions
+
+    code = subpackages_fingerprint(task_code(kind, samples))
+    return json.dumps({"code": code, "libraries": library_versions(TASK_LIBRARIES[kind])})
+
+
+def task_code(kind: str, samples: bool = False) -> tuple[str, ...]:
+    """The subpackages a task of ``kind`` depends on (:data:`TASK_CODE`, with :data:`SAMPLES_CODE` for ``samples``)."""
+    return TASK_CODE[kind] + (SAMPLES_CODE if samples else ())
 
 
 def digest(obj: object, n: int = 10) -> str:
@@ -123,6 +171,10 @@ class Task:
     samples: dict | None = None
     """Press tasks of NLiPsNet experiments: the SamplingConfig mapping of the calibration samples written
     from the first solve (the NLiPs labels); None: no samples."""
+    keep_old: bool = False
+    """Reuse this task's finished result even when other code or libraries made it (``--keep-old``: a lab
+    finishing a table with old results); False: such a result is made again. Not part of :attr:`hash`: it
+    chooses which result is taken, not what the task computes."""
 
     @property
     def stage(self) -> int:
@@ -136,11 +188,17 @@ class Task:
         from ..learn.dataset import SAMPLE_RULES
 
         d = dataclasses.asdict(self)
+        del d["keep_old"]
         if d["samples"] is None:  # tasks without samples keep the hashes they had before the field existed
             del d["samples"]
         elif SAMPLE_RULES != RULES_HASHED_SILENTLY:
             d["sample_rules"] = SAMPLE_RULES
         return digest(d)
+
+
+def keeping_old(tasks: list[Task], keep_old: bool) -> list[Task]:
+    """``tasks``, each reusing its result made by other code or libraries too when ``keep_old`` (``--keep-old``)."""
+    return [dataclasses.replace(t, keep_old=True) for t in tasks] if keep_old else tasks
 
 
 def scene_key(scene: dict) -> str:
@@ -165,14 +223,44 @@ def load_result(out: Path, task: Task) -> dict | None:
 
 
 def stored_result(out: Path, task: Task) -> dict | None:
-    """The task's stored result JSON, or None when missing, unreadable or from a different task content (its
-    samples unchecked)."""
+    """The task's stored result JSON, or None when missing, unreadable, from a different task content or made
+    with other code or libraries (:func:`made_elsewhere`; kept with ``task.keep_old``); its samples unchecked."""
+    data = finished_result(out, task)
+    return data if data is not None and (task.keep_old or not made_elsewhere(task, data)) else None
+
+
+def finished_result(out: Path, task: Task) -> dict | None:
+    """The task's stored result JSON when it is a finished result of this task's content, whatever made it."""
     path = result_path(out, task.id)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (FileNotFoundError, json.JSONDecodeError, UnicodeDecodeError):
         return None
-    return data if data.get("task_hash") == task.hash and data.get("status") == "done" else None
+    ok = isinstance(data, dict) and data.get("task_hash") == task.hash and data.get("status") == "done"
+    return data if ok else None
+
+
+def made_elsewhere(task: Task, result: dict) -> bool:
+    """Whether ``result`` was made with other code or libraries than this installation's for the task's kind
+    (:func:`made_with`), or records none (written before 2026-12-06)."""
+    return result.get("made_with") != made_with(task.kind, task.samples is not None)
+
+
+UNRECORDED = "code and libraries unrecorded (written before 2026-12-06)"
+"""What :func:`made_difference` says of a task result without ``made_with``."""
+
+
+def made_difference(task: Task, result: dict) -> str:
+    """What made ``result`` otherwise than this installation would, in words: "other code (core, sim, solver)",
+    "numpy 1.26.4 (now 2.1.3)", both, or :data:`UNRECORDED`; "" when nothing differs."""
+    was, here = result.get("made_with"), made_with(task.kind, task.samples is not None)
+    if not isinstance(was, dict) or not isinstance(was.get("libraries"), dict):
+        return UNRECORDED
+    code = task_code(task.kind, task.samples is not None)
+    said = [f"other code ({', '.join(code)})"] if was.get("code") != here["code"] else []
+    libraries = was["libraries"]
+    said += [f"{k} {libraries.get(k)} (now {v})" for k, v in here["libraries"].items() if libraries.get(k) != v]
+    return ", ".join(said)
 
 
 def samples_problem(out: Path, task: Task, result: dict) -> str | None:
@@ -278,7 +366,9 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
     body["timing"] = body.get("timing", {}) | {"task_seconds": round(time.perf_counter() - start, 3)}
     from .provenance import made_by
 
-    body["made_by"] = made_by()  # a resume by other code names this task as made elsewhere (framework)
+    body["made_by"] = made_by()  # who made it, for the report of a run that keeps it (--keep-old; framework)
+    # what it was made with: a run of other code or libraries makes it again
+    body["made_with"] = made_with(task.kind, task.samples is not None)
     write_json(
         result_path(out, task.id), {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done"} | body
     )
@@ -344,9 +434,7 @@ def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
 
     folder = out / "presses" / task.id
     t = time.perf_counter()
-    from ..core.press_folders import is_press_folder
-
-    if not is_press_folder(folder):  # a press rendered before an interruption is reused
+    if not _rendered_here(folder):  # a press rendered before an interruption (or kept) by this code is reused
         adapters.render(task.scene, task.press, folder, threads)
     render_s = time.perf_counter() - t
     press = adapters.load(folder)
@@ -367,6 +455,23 @@ def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
     timing = {"render_seconds": round(render_s, 3), "solve_seconds": {k: v["seconds"] for k, v in solved.items()}}
     body = {"press": task.press, "scene_key": scene_key(task.scene), "evaluations": evaluations, "timing": timing}
     return body | ({"samples": samples} if samples is not None else {})
+
+
+def _rendered_here(folder: Path) -> bool:
+    """Whether ``folder`` holds a press rendered with this installation's twin code and renderer (a press kept by
+    ``--keep-presses``, or rendered before an interruption); one of other code is rendered again, as its task is."""
+    from ..core.errors import CaptureError
+    from ..core.press_folders import is_press_folder
+    from ..core.press_meta import read_meta
+    from ..sim.press import rendered_elsewhere
+
+    if not is_press_folder(folder):
+        return False
+    try:
+        provenance = read_meta(folder).get("provenance")
+    except (CaptureError, OSError):  # an unreadable meta.json: rendered again, which replaces the folder
+        return False
+    return isinstance(provenance, dict) and not rendered_elsewhere(provenance)
 
 
 def samples_path(out: Path, task_id: str) -> Path:

@@ -24,8 +24,11 @@ def is_complete(scene: SceneConfig, job: PressJob, out: Path) -> bool:
 
 
 def same_spec(scene: SceneConfig, job: PressJob, out: Path) -> bool:
-    """Whether the press folder of ``job`` in ``out`` records this very spec."""
-    return _recorded_hash(out / job.name) == _expected_hash(scene, job)
+    """Whether the press folder of ``job`` in ``out`` records this very spec, rendered with this installation's twin
+    code and renderer (:func:`nlipscalib.sim.press.rendered_elsewhere`): a press of other code or another Mitsuba is
+    not this spec's render, as an experiment's render task of other code is made again (docs/reproducibility.md)."""
+    folder = out / job.name
+    return _recorded_hash(folder) == _expected_hash(scene, job) and not _rendered_elsewhere(folder)
 
 
 def missing_files(folder: Path) -> list[str]:
@@ -51,7 +54,19 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
         raise CaptureError(
             f"{damaged[0]}; the press folder is damaged{more}: delete it to render it again, or use --overwrite"
         )
-    changed = [j.name for j in jobs if is_press_folder(out / j.name) and not same_spec(scene, j, out)]
+    found = [j for j in jobs if is_press_folder(out / j.name)]
+    other_renderer = [j.name for j in found if _recorded_hash(out / j.name) == _expected_hash(scene, j)]
+    other_renderer = [name for name in other_renderer if _rendered_elsewhere(out / name)]
+    if other_renderer:
+        names = ", ".join(other_renderer[:3]) + (
+            f" and {len(other_renderer) - 3} more" if len(other_renderer) > 3 else ""
+        )
+        raise ConfigError(
+            f"{out}: {names} were rendered by other twin code or render libraries "
+            f"({_render_difference(out / other_renderer[0])}); a dataset is one renderer's images: render into a new "
+            "folder, or use --overwrite to re-render them"
+        )
+    changed = [j.name for j in found if not same_spec(scene, j, out)]
     if changed:
         names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
         meshes = any(j.press is not None and j.press.indenter.kind == "mesh" for j in jobs if j.name in changed)
@@ -134,6 +149,33 @@ def _recorded_hash(folder: Path) -> str | None:
         return recorded_spec_hash(json.loads((folder / "meta.json").read_text(encoding="utf-8"))["provenance"])
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
+
+
+def _provenance(folder: Path) -> dict:
+    try:
+        provenance = json.loads((folder / META_FILE).read_text(encoding="utf-8"))["provenance"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+    return provenance if isinstance(provenance, dict) else {}
+
+
+def _rendered_elsewhere(folder: Path) -> bool:
+    from .press import rendered_elsewhere
+
+    return rendered_elsewhere(_provenance(folder))
+
+
+def _render_difference(folder: Path) -> str:
+    """What rendered ``folder`` otherwise than this installation would, in words."""
+    from .press import render_identity
+
+    was, here = _provenance(folder), render_identity()
+    if "code" not in was:
+        return "twin code unrecorded: rendered before 2026-12-06"
+    said = ["other code of sim/ or core/"] if was.get("code") != here["code"] else []
+    libraries = was.get("libraries") if isinstance(was.get("libraries"), dict) else {}
+    said += [f"{k} {libraries.get(k)} (now {v})" for k, v in here["libraries"].items() if libraries.get(k) != v]
+    return ", ".join(said)
 
 
 def _expected_hash(scene: SceneConfig, job: PressJob) -> str:

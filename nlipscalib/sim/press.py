@@ -148,6 +148,23 @@ def check_polar(where: str, value: float) -> float:
     return value
 
 
+def render_identity() -> dict:
+    """What renders here: ``{"libraries": {mitsuba, drjit: version}, "code": digest of sim/ and core/}``
+    (core.libraries.RENDER_LIBRARIES, core.code_version.RENDER_CODE), recorded in a rendered press's provenance."""
+    from ..core.code_version import RENDER_CODE, subpackages_fingerprint
+    from ..core.libraries import RENDER_LIBRARIES, library_versions
+
+    return {"libraries": library_versions(RENDER_LIBRARIES), "code": subpackages_fingerprint(RENDER_CODE)}
+
+
+def rendered_elsewhere(provenance: dict) -> bool:
+    """Whether a rendered press's ``provenance`` names other render libraries or twin code than this installation's
+    (:func:`render_identity`), or none (rendered before 2026-12-06): its images may differ from what a render here
+    makes."""
+    here = render_identity()
+    return any(provenance.get(key) != value for key, value in here.items())
+
+
 def render_spec_hash(scene: SceneConfig, press: PressConfig | None = None, seed: int | None = None) -> str:
     """Hash of everything that determines a render (scene, press, seed; not the thread count).
 
@@ -234,7 +251,6 @@ def render_press(
     -------
     Path of the folder, or (Path, RenderResult) with ``return_result``
     """
-    from ..core.libraries import RENDER_LIBRARIES, library_versions
     from .render.surface import render_surface
 
     if out_folder is None:
@@ -265,8 +281,9 @@ def render_press(
         "exposure_note": "Press.linear(led image) = exposure * albedo/pi * led_shading (+ interreflections); "
         "Press.linear(tricolor) = tricolor_exposure * sum_k colour_k * (albedo/pi * led_shading_k)",
         "render_seconds": round(result.seconds, 4),
-        # the renderer's release moves the images (and so every result from them): said by what made them
-        "libraries": library_versions(RENDER_LIBRARIES),
+        # the renderer's release moves the images (and so every result from them), as the twin's code does: said
+        # by what made them, and compared before a rendered press is reused (rendered_elsewhere)
+        **render_identity(),
     }
     path = write_press(
         out_folder,

@@ -38,14 +38,17 @@ def _one_line_error(err: str, *needles: str) -> None:
 
 def _fake_render(calls, fail_at=None, error=errno.ENOSPC):
     """Stand-in renderer writing a valid-looking press; raises an OSError on the ``fail_at``-th call."""
-    from nlipscalib.sim.press import render_spec_hash
+    import json
+
+    from nlipscalib.sim.press import render_identity, render_spec_hash
 
     def render(scene, job, out, overwrite=False):
         calls.append(job.name)
         if len(calls) == fail_at:
             raise OSError(error, os.strerror(error), str(out / job.name / "led_03.png"))
         (out / job.name).mkdir()
-        meta = f'{{"provenance": {{"spec_hash": "{render_spec_hash(scene, job.press, job.seed)}"}}}}'
+        provenance = {"spec_hash": render_spec_hash(scene, job.press, job.seed), **render_identity()}
+        meta = json.dumps({"provenance": provenance})
         (out / job.name / "meta.json").write_text(meta, encoding="utf-8")
 
     return render

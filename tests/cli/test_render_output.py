@@ -22,7 +22,9 @@ def _published_meanwhile(seed_offset: int = 0):
         out_folder = Path(out_folder)
         out_folder.mkdir(parents=True)
         recorded = sim_press.render_spec_hash(scene, press, None if seed_offset == 0 else seed_offset)
-        (out_folder / "meta.json").write_text(json.dumps({"provenance": {"spec_hash": recorded}}), encoding="utf-8")
+        (out_folder / "meta.json").write_text(
+            json.dumps({"provenance": {"spec_hash": recorded, **sim_press.render_identity()}}), encoding="utf-8"
+        )
         raise FileExistsError(errno.EEXIST, "already exists (written by another process)", str(out_folder))
 
     return render_press

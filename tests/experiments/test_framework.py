@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +16,7 @@ from nlipscalib.core.leds import Led
 from nlipscalib.experiments import adapters, check, get
 from nlipscalib.experiments.plan import build_tasks
 from nlipscalib.experiments.summary import aggregate, clean
-from nlipscalib.experiments.tasks import Task, load_result, result_path
+from nlipscalib.experiments.tasks import Task, load_result, made_with, result_path
 
 
 def test_studies_share_one_render_per_distinct_press():
@@ -39,7 +41,8 @@ def test_stored_result_is_reused_only_for_the_same_task(tmp_path):
     task = Task(kind="reference", id="ref-x", scene={"a": 1})
     path = result_path(tmp_path, task.id)
     path.parent.mkdir(parents=True)
-    path.write_text(json.dumps({"task_hash": task.hash, "status": "done"}), encoding="utf-8")
+    record = {"task_hash": task.hash, "status": "done", "made_with": made_with(task.kind)}
+    path.write_text(json.dumps(record), encoding="utf-8")
     assert load_result(tmp_path, task) is not None
     changed = Task(kind="reference", id="ref-x", scene={"a": 2})
     assert load_result(tmp_path, changed) is None  # config changed: run again, never reuse stale numbers
@@ -538,32 +541,109 @@ class _NoBar:
         pass
 
 
-def test_a_resume_names_the_tasks_an_older_nlipscalib_made_instead_of_crediting_this_commit(
-    tmp_path, monkeypatch, caplog
-):
-    # A work folder of an older version (its task results without `made_by`, as before 2026-12-06) keeps its task
-    # hashes, so a resume reuses its numbers; the report said "nlipscalib at <this commit>" over all of them.
+def _stored(out: Path, task: Task, made: dict | None, maker: dict | None = None) -> None:
+    """A finished result of ``task`` recording ``made`` as its ``made_with`` (None: none, as before 2026-12-06)."""
+    path = result_path(out, task.id)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    record = {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done", "folder": "refs/x"}
+    record |= {"made_with": made} if made is not None else {}
+    path.write_text(json.dumps(record | ({"made_by": maker} if maker else {})), encoding="utf-8")
+
+
+def test_a_rerun_after_an_upgrade_makes_again_the_tasks_other_code_or_libraries_made(tmp_path, monkeypatch, caplog):
+    # A task's hash holds what it computes, not the code: after an upgrade (new solver, a NumPy release) a rerun
+    # reused the old code's numbers beside the new code's in one table, said only in a warning. Now a result made
+    # with other code or libraries of its kind, or recording none (before 2026-12-06), is made again, said in one
+    # line; --keep-old keeps them, and the report names them.
     from nlipscalib.experiments import framework, markdown
     from nlipscalib.experiments import tasks as tasks_mod
-    from nlipscalib.experiments.provenance import made_by
+    from nlipscalib.experiments.runner import run_tasks
 
-    monkeypatch.setattr(tasks_mod, "_run_reference", lambda task, out, threads, keep: {"folder": "refs/x"})
-    old, other, new = (Task(kind="reference", id=f"ref-{n}", scene={"n": n}) for n in ("old", "other", "new"))
-    for task, maker in ((old, None), (other, {"nlipscalib": "0.0.9", "git_commit": "202cd61"})):
-        path = result_path(tmp_path, task.id)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        record = {"id": task.id, "kind": task.kind, "task_hash": task.hash, "status": "done", "folder": "refs/x"}
-        path.write_text(json.dumps(record | ({"made_by": maker} if maker else {})), encoding="utf-8")
-    assert tasks_mod.execute(new, tmp_path) == "done"
-    assert load_result(tmp_path, new)["made_by"] == made_by()  # what a task made now records
+    ran = []
+    monkeypatch.setattr(tasks_mod, "_run_reference", lambda task, out, threads, keep: ran.append(task.id) or {})
+    same, unrecorded, code, lib = (Task(kind="reference", id=f"ref-{n}", scene={"n": n}) for n in range(4))
+    here = made_with("reference")
+    _stored(tmp_path, same, here)
+    _stored(tmp_path, unrecorded, None)
+    _stored(tmp_path, code, here | {"code": "0" * 32}, {"nlipscalib": "0.1.0", "git_commit": "202cd61"})
+    _stored(tmp_path, lib, here | {"libraries": here["libraries"] | {"mitsuba": "3.0.0"}})
+    every = [same, unrecorded, code, lib]
 
+    kept = [dataclasses.replace(t, keep_old=True) for t in every]
+    assert all(load_result(tmp_path, t) is not None for t in kept)  # --keep-old: all four reused
     with caplog.at_level(logging.WARNING):
-        named = framework._made_by_other_software([old, other, new], tmp_path)
-    assert named == {"ref-old": framework.UNRECORDED_MAKER, "ref-other": "nlipscalib 0.0.9 at 202cd61"}
-    assert "2 of 3 tasks were made by another nlipscalib" in caplog.text
-    lines = markdown._other_software_lines(named)
-    assert "2 reused task(s) were made by another nlipscalib" in lines[0] and "ref-old" in lines[0]
-    assert markdown._other_software_lines({}) == []
+        named = framework._made_by_other_software(kept, tmp_path)
+    assert set(named) == {"ref-1", "ref-2", "ref-3"}  # the one this code made is not named
+    assert "code and libraries unrecorded" in named["ref-1"]
+    assert named["ref-2"] == "nlipscalib 0.1.0 at 202cd61: other code (core, sim)"
+    assert "mitsuba 3.0.0 (now " in named["ref-3"]
+    assert "3 of 4 tasks kept by --keep-old were made by other code or libraries" in caplog.text
+    assert "were made by other code or libraries** (kept by `--keep-old`" in markdown._other_software_lines(named)[0]
+
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        status = run_tasks(every, tmp_path, progress=False)
+    assert sorted(ran) == sorted(status.done) == ["ref-1", "ref-2", "ref-3"] and status.skipped == ["ref-0"]
+    lines = [r.getMessage() for r in caplog.records if "other code or libraries" in r.getMessage()]
+    assert len(lines) == 1 and "3 of 4 tasks made by other code or libraries" in lines[0], lines
+    assert "re-running them (--keep-old keeps them)" in lines[0]
+    assert all(load_result(tmp_path, t)["made_with"] == here for t in every)  # now all this code's
+    assert framework._made_by_other_software(every, tmp_path) == {}
+
+
+def test_the_plan_counts_tasks_other_code_made_as_to_run_again(tmp_path, capsys):
+    # --plan said "N done" of tasks the run would then make again
+    from nlipscalib.experiments import get
+
+    exp = get("q1")
+    tasks = exp.tasks(exp.config("quick"))
+    work = tmp_path / "q1-quick"
+    here = made_with(tasks[0].kind)
+    _stored(work, tasks[0], here)
+    _stored(work, tasks[1], None)  # written before 2026-12-06
+    assert main(["experiment", "q1", "--out", str(tmp_path), "--plan"]) == 0
+    out = capsys.readouterr().out
+    assert "; 1 done in" in out and "(1 more made by other code or libraries: run again; --keep-old" in out
+    assert main(["experiment", "q1", "--out", str(tmp_path), "--plan", "--keep-old"]) == 0
+    out = capsys.readouterr().out
+    assert "; 2 done in" in out and "more made by" not in out
+
+
+def test_a_task_a_worker_of_other_code_made_is_failed_not_dropped_from_the_tables(tmp_path, monkeypatch):
+    # a remote Dask worker with another installation writes its own made_with, which this command does not take:
+    # the task counted as done and its rows were missing from the tables without a word
+    from nlipscalib.experiments import runner
+    from nlipscalib.experiments import tasks as tasks_mod
+
+    monkeypatch.setattr(tasks_mod, "_run_reference", lambda task, out, threads, keep: {})
+
+    def other_worker(task, out, threads=0, keep=False):
+        outcome = tasks_mod.execute(task, out, threads, keep)
+        path = result_path(out, task.id)
+        record = json.loads(path.read_text(encoding="utf-8"))
+        record["made_with"]["libraries"]["mitsuba"] = "3.0.0"
+        path.write_text(json.dumps(record), encoding="utf-8")
+        return outcome
+
+    monkeypatch.setattr(runner, "execute", other_worker)
+    task = Task(kind="reference", id="ref-w", scene={})
+    status = runner.run_tasks([task], tmp_path, progress=False)
+    assert status.done == [] and "made by a worker of other code or libraries (mitsuba 3.0.0" in status.failed["ref-w"]
+
+
+def test_each_kind_of_task_is_made_again_only_for_the_code_and_libraries_it_depends_on():
+    # a solver change must keep the references (renders: the most expensive tasks of a scene); a render change
+    # makes everything built on the reference again (calibrations fit its images, presses read it)
+    from nlipscalib.experiments.tasks import TASK_CODE, TASK_LIBRARIES
+
+    assert "solver" not in TASK_CODE["reference"] and {"core", "sim"} <= set(TASK_CODE["reference"])
+    assert set(TASK_CODE["reference"]) < set(TASK_CODE["calibration"]) < set(TASK_CODE["press"])
+    assert {"solver", "pipeline"} <= set(TASK_CODE["press"]) and "learn" not in TASK_CODE["press"]
+    assert made_with("press", samples=True)["code"] != made_with("press")["code"]  # NLiPsNet's samples: + learn/
+    assert set(TASK_LIBRARIES["reference"]) == {"mitsuba", "drjit"}
+    assert {"numpy", "scipy", "pyamg", "mitsuba"} <= set(TASK_LIBRARIES["press"])
+    assert made_with("reference")["code"] != made_with("press")["code"]
+    assert Task(kind="reference", id="r", scene={}).hash == Task(kind="reference", id="r", scene={}, keep_old=True).hash
 
 
 def test_error_map_rows_are_titled_with_the_contact_aae_of_the_report(tmp_path):

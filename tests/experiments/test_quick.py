@@ -47,6 +47,22 @@ def test_q1_quick_calibrates_its_leds_reliably_from_a_reference_rendered_at_more
     assert presses and all(json.loads(p.read_text(encoding="utf-8"))["provenance"]["spp"] == 8 for p in presses)
 
 
+def test_a_kept_press_that_other_twin_code_rendered_is_rendered_again(q1):
+    """A press task re-run (its result lost, or made by other code) reused any press folder it found (kept by
+    --keep-presses): one rendered by other twin code, or another Mitsuba, gave its old images to the new solves."""
+    out, argv, _ = q1
+    work = out / "q1-quick"
+    [task] = [p for p in work.glob("tasks/*.json") if p.stem.startswith("cube")]
+    meta_path = work / "presses" / task.stem / "meta.json"
+    meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    here = meta["provenance"]["code"]
+    meta["provenance"]["code"] = "0" * 32  # as if an older sim/ had rendered it
+    meta_path.write_text(json.dumps(meta), encoding="utf-8")
+    task.unlink()
+    assert main(argv) == 0
+    assert json.loads(meta_path.read_text(encoding="utf-8"))["provenance"]["code"] == here  # rendered anew
+
+
 def test_a_finished_experiment_resumes_without_redoing_presses(q1, capsys):
     out, argv, _ = q1
     assert main(argv) == 0

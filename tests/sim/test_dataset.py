@@ -10,7 +10,7 @@ from nlipscalib.core.errors import ConfigError
 from nlipscalib.sim import dataset as ds
 from nlipscalib.sim import dataset_pool
 from nlipscalib.sim.dataset import DatasetSpec, expand_jobs, load_dataset_spec, run_dataset
-from nlipscalib.sim.press import render_spec_hash
+from nlipscalib.sim.press import render_identity, render_spec_hash
 from nlipscalib.sim.scene import SCENES_DIR
 
 
@@ -87,7 +87,7 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
             raise ConfigError("indenter off the dome")
         folder = out / job.name
         folder.mkdir()
-        meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
+        meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed), **render_identity()}}
         (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
     monkeypatch.setattr(dataset_pool, "_run_one", fake_render)
@@ -102,6 +102,47 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
     second = run_dataset(scene, jobs, out, workers=1, progress=False)
     assert calls == ["press_0003"]  # finished presses are never rendered twice
     assert len(second["skipped"]) == 3
+
+
+@pytest.mark.parametrize(
+    "was, said",
+    [
+        ({"code": "0" * 32}, "other code of sim/ or core/"),
+        ({"libraries": {"mitsuba": "3.0.0", "drjit": "0.4.0"}}, "mitsuba 3.0.0 (now "),
+        ({"code": None}, "twin code unrecorded: rendered before 2026-12-06"),
+    ],
+)
+def test_presses_other_twin_code_or_another_renderer_made_are_refused_not_mixed_in(tmp_path, monkeypatch, was, said):
+    """A rerun after an upgrade (sim/ or core/, Mitsuba, Dr.Jit) skipped the presses the old code had rendered and
+    rendered the rest with the new one: one dataset of two renderers, said nowhere (the spec hash holds neither).
+    Now it is refused as a press of another spec is, naming what differs; --overwrite renders them again."""
+    spec, scene = load_dataset_spec(_write(tmp_path, GRID))
+    jobs = expand_jobs(spec)[:3]
+    calls = []
+
+    def fake_render(scene, job, out, overwrite=False):
+        calls.append(job.name)
+        folder = out / job.name
+        folder.mkdir(exist_ok=True)
+        meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed), **render_identity()}}
+        (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+
+    monkeypatch.setattr(dataset_pool, "_run_one", fake_render)
+    out = tmp_path / "out"
+    run_dataset(scene, jobs, out, workers=1, progress=False)
+    path = out / jobs[1].name / "meta.json"
+    meta = json.loads(path.read_text(encoding="utf-8"))
+    meta["provenance"] |= was
+    if was.get("code", "") is None:
+        del meta["provenance"]["code"]
+    path.write_text(json.dumps(meta), encoding="utf-8")
+    with pytest.raises(ConfigError, match="rendered by other twin code or render libraries") as refused:
+        run_dataset(scene, jobs, out, workers=1, progress=False)
+    assert jobs[1].name in str(refused.value) and said in str(refused.value)
+    calls.clear()
+    again = run_dataset(scene, jobs, out, workers=1, progress=False, overwrite=True)
+    assert jobs[1].name in calls and jobs[1].name in again["rendered"]
+    assert not dataset_pool.check_existing(scene, jobs, out, False)  # all this code's now
 
 
 def test_a_spec_finds_its_indenter_mesh_beside_it_from_any_working_directory(tmp_path, monkeypatch):
@@ -211,7 +252,7 @@ def test_press_folders_a_shorter_spec_no_longer_names_are_warned_about(tmp_path,
 def _publish_as_another_run(scene, job, out):
     """A press folder as a run of ``scene``'s spec publishes it (meta.json records its spec hash)."""
     (out / job.name).mkdir(parents=True)
-    meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
+    meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed), **render_identity()}}
     (out / job.name / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
 
@@ -266,7 +307,7 @@ def _whole_render(calls):
         meta = {"images": images, "reference": "reference.npz", "ground_truth": "gt.npz"}
         for name in ["dark.png", "tricolor.png", *images["leds"], "reference.npz", "gt.npz"]:
             (folder / name).write_bytes(b"data")
-        meta["provenance"] = {"spec_hash": render_spec_hash(scene, job.press, job.seed)}
+        meta["provenance"] = {"spec_hash": render_spec_hash(scene, job.press, job.seed), **render_identity()}
         (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
     return render
@@ -414,7 +455,7 @@ def test_the_default_render_workers_are_as_many_as_memory_holds(tmp_path, monkey
     def fake_render(scene, job, out, overwrite=False):
         calls.append(job.name)
         (out / job.name).mkdir()
-        meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed)}}
+        meta = {"provenance": {"spec_hash": render_spec_hash(scene, job.press, job.seed), **render_identity()}}
         (out / job.name / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
     monkeypatch.setattr(dataset_pool, "_run_one", fake_render)

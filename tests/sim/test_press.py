@@ -27,6 +27,13 @@ def test_undeformed_press_round_trip(scene, tmp_path):
     from importlib import metadata  # the renderer's release moves the images: meta.json says which made them
 
     assert prov["libraries"] == {"mitsuba": metadata.version("mitsuba"), "drjit": metadata.version("drjit")}
+    # and the twin's code: a press that other code or another renderer made is not reused as this one's
+    from nlipscalib.sim.press import rendered_elsewhere
+
+    assert len(prov["code"]) == 32 and not rendered_elsewhere(prov)
+    assert rendered_elsewhere(prov | {"code": "0" * 32})
+    assert rendered_elsewhere(prov | {"libraries": prov["libraries"] | {"drjit": "0.4.0"}})
+    assert rendered_elsewhere({k: v for k, v in prov.items() if k != "code"})  # rendered before 2026-12-06
     assert p.reference is not None and p.ground_truth is not None
     assert not p.ground_truth.contact.any()
     np.testing.assert_array_equal(p.reference.depth, p.ground_truth.depth)
