@@ -17,18 +17,19 @@ from .scene import SceneConfig
 log = logging.getLogger(__name__)
 
 
-def is_complete(scene: SceneConfig, job: PressJob, out: Path) -> bool:
-    """A whole folder rendered from this very spec: meta.json records the spec, and every file it lists is there."""
+def is_complete(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = False) -> bool:
+    """A whole folder rendered from this very spec: meta.json records the spec, and every file it lists is there;
+    with ``overwrite`` also rendered by this installation's twin code and renderer (the others are rendered again)."""
     folder = out / job.name
-    return is_press_folder(folder) and same_spec(scene, job, out) and not missing_files(folder)
+    if not is_press_folder(folder) or not same_spec(scene, job, out) or missing_files(folder):
+        return False
+    return not (overwrite and _rendered_elsewhere(folder))
 
 
 def same_spec(scene: SceneConfig, job: PressJob, out: Path) -> bool:
-    """Whether the press folder of ``job`` in ``out`` records this very spec, rendered with this installation's twin
-    code and renderer (:func:`nlipscalib.sim.press.rendered_elsewhere`): a press of other code or another Mitsuba is
-    not this spec's render, as an experiment's render task of other code is made again (docs/reproducibility.md)."""
-    folder = out / job.name
-    return _recorded_hash(folder) == _expected_hash(scene, job) and not _rendered_elsewhere(folder)
+    """Whether the press folder of ``job`` in ``out`` records this very spec (scene, press, seed; not the renderer:
+    :func:`check_existing` warns about presses of other twin code or another Mitsuba)."""
+    return _recorded_hash(out / job.name) == _expected_hash(scene, job)
 
 
 def missing_files(folder: Path) -> list[str]:
@@ -45,7 +46,8 @@ def missing_files(folder: Path) -> list[str]:
 
 def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:
     """Finished presses made from another spec, or with a damaged meta.json, are an error (or
-    re-rendered with ``overwrite``)."""
+    re-rendered with ``overwrite``); ones of this spec that other twin code or render libraries made are kept with a
+    warning (re-rendered with ``overwrite``)."""
     if overwrite:
         return
     damaged = [p for p in (_meta_problem(out / j.name) for j in jobs if is_press_folder(out / j.name)) if p]
@@ -61,10 +63,13 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
         names = ", ".join(other_renderer[:3]) + (
             f" and {len(other_renderer) - 3} more" if len(other_renderer) > 3 else ""
         )
-        raise ConfigError(
-            f"{out}: {names} were rendered by other twin code or render libraries "
-            f"({_render_difference(out / other_renderer[0])}); a dataset is one renderer's images: render into a new "
-            "folder, or use --overwrite to re-render them"
+        # kept, not refused: `nlips demo` or a dataset's resume after an upgrade must not stop on hours of renders
+        log.warning(
+            "%s: %s were rendered by other twin code or render libraries (%s); kept, so the dataset mixes renderers: "
+            "--overwrite renders them again",
+            out,
+            names,
+            _render_difference(out / other_renderer[0]),
         )
     changed = [j.name for j in found if not same_spec(scene, j, out)]
     if changed:

@@ -98,7 +98,7 @@ def run_dataset(
     if workers < 0:
         raise ConfigError(f"workers must be >= 0 (0 = automatic), got {workers}")
     check_existing(scene, jobs, out, overwrite)
-    todo = [j for j in jobs if not is_complete(scene, j, out)]
+    todo = [j for j in jobs if not is_complete(scene, j, out, overwrite)]
     result = {"rendered": [], "skipped": [j.name for j in jobs if j not in todo], "failed": []}
     if not todo:
         return result
@@ -244,7 +244,7 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
         with claim(out / job.name, stale_s=stale_s) as mine:
             if not mine:
                 return "busy", None
-            if is_complete(scene, job, out):
+            if is_complete(scene, job, out, overwrite):
                 return "skipped", None
             clean_interrupted(out, item=job.name)  # a dead owner's half-written folder, if any
             folder = out / job.name

@@ -112,10 +112,13 @@ def test_run_resumes_and_reports_failures(tmp_path, monkeypatch):
         ({"code": None}, "twin code unrecorded: rendered before 2026-12-06"),
     ],
 )
-def test_presses_other_twin_code_or_another_renderer_made_are_refused_not_mixed_in(tmp_path, monkeypatch, was, said):
+def test_presses_other_twin_code_or_another_renderer_made_are_named_and_rendered_again_on_overwrite(
+    tmp_path, monkeypatch, caplog, was, said
+):
     """A rerun after an upgrade (sim/ or core/, Mitsuba, Dr.Jit) skipped the presses the old code had rendered and
     rendered the rest with the new one: one dataset of two renderers, said nowhere (the spec hash holds neither).
-    Now it is refused as a press of another spec is, naming what differs; --overwrite renders them again."""
+    Now they are named with what differs and kept (`nlips demo` after an upgrade must not stop on its old
+    renders); --overwrite renders exactly them again."""
     spec, scene = load_dataset_spec(_write(tmp_path, GRID))
     jobs = expand_jobs(spec)[:3]
     calls = []
@@ -136,12 +139,14 @@ def test_presses_other_twin_code_or_another_renderer_made_are_refused_not_mixed_
     if was.get("code", "") is None:
         del meta["provenance"]["code"]
     path.write_text(json.dumps(meta), encoding="utf-8")
-    with pytest.raises(ConfigError, match="rendered by other twin code or render libraries") as refused:
-        run_dataset(scene, jobs, out, workers=1, progress=False)
-    assert jobs[1].name in str(refused.value) and said in str(refused.value)
     calls.clear()
+    with caplog.at_level("WARNING", logger="nlipscalib.sim"):
+        kept = run_dataset(scene, jobs, out, workers=1, progress=False)
+    assert calls == [] and sorted(kept["skipped"]) == sorted(j.name for j in jobs)
+    warned = [r.getMessage() for r in caplog.records if "rendered by other twin code" in r.getMessage()]
+    assert len(warned) == 1 and jobs[1].name in warned[0] and said in warned[0] and "--overwrite" in warned[0]
     again = run_dataset(scene, jobs, out, workers=1, progress=False, overwrite=True)
-    assert jobs[1].name in calls and jobs[1].name in again["rendered"]
+    assert calls == [jobs[1].name] and again["rendered"] == [jobs[1].name]
     assert not dataset_pool.check_existing(scene, jobs, out, False)  # all this code's now
 
 
