@@ -309,21 +309,15 @@ def _device_path_points(geo, normals, changed, dense):
 
 def _rim_blob(seed):
     """The flat pad, a blob of random smooth normals near its rim (tests/learn/test_integrate.py's rim box case)."""
-    from scipy import ndimage
-
-    from tests.learn.test_integrate import _flat_pad
+    from tests.learn.test_integrate import _disc_of_smooth_normals, _flat_pad
 
     _, ref, geo, on_gel = _flat_pad()
     rng = np.random.default_rng(seed)
     row = int(rng.integers(60, 420))
     side = np.flatnonzero(on_gel[row])[[0, -1][seed % 2]]
     col = side + int(rng.integers(-5, 15)) * (1 if seed % 2 == 0 else -1)
-    rr, cc = np.mgrid[: on_gel.shape[0], : on_gel.shape[1]]
-    changed = ((rr - row) ** 2 + (cc - col) ** 2 < int(rng.integers(15, 45)) ** 2) & on_gel
-    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (6, 6, 0)) * 10
-    normals = ref.normals + np.where(changed[..., None], tilt, 0)
-    with np.errstate(invalid="ignore"):  # NaN off the gel
-        return ref, geo, changed, normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+    changed, normals = _disc_of_smooth_normals(ref, on_gel, rng, row, col, int(rng.integers(15, 45)))
+    return ref, geo, changed, normals
 
 
 @pytest.mark.parametrize("dense", [False, True], ids=["fft", "matrices"])

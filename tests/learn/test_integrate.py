@@ -357,6 +357,17 @@ def _flat_pad():
     return design, ref, RayGeometry.from_reference(rays, ref.depth.astype(np.float64)), np.isfinite(ref.depth)
 
 
+def _disc_of_smooth_normals(ref, on_gel, rng, row, col, radius):
+    """The gel pixels of a disc around (row, col) as changed, and the reference normals tilted there by random smooth
+    normals of ``rng`` (unit; NaN off the gel): a rim box's test case."""
+    rr, cc = np.mgrid[: on_gel.shape[0], : on_gel.shape[1]]
+    unknown = ((rr - row) ** 2 + (cc - col) ** 2 < radius**2) & on_gel
+    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (6, 6, 0)) * 10
+    normals = ref.normals + np.where(unknown[..., None], tilt, 0)
+    with np.errstate(invalid="ignore"):  # NaN off the gel
+        return unknown, normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_a_rim_box_solves_the_sparse_paths_equations_on_its_gel_pixels(seed):
     # a blob of random smooth normals near the flat pad's rim: its box holds off-gel pixels, where the sparse
@@ -370,12 +381,7 @@ def test_a_rim_box_solves_the_sparse_paths_equations_on_its_gel_pixels(seed):
     side = np.flatnonzero(on_gel[row])[[0, -1][seed % 2]]
     col = side + int(rng.integers(-5, 15)) * (1 if seed % 2 == 0 else -1)
     radius = int(rng.integers(15, 45))
-    rr, cc = np.mgrid[: on_gel.shape[0], : on_gel.shape[1]]
-    unknown = ((rr - row) ** 2 + (cc - col) ** 2 < radius**2) & on_gel
-    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (6, 6, 0)) * 10
-    normals = ref.normals + np.where(unknown[..., None], tilt, 0)
-    with np.errstate(invalid="ignore"):  # NaN off the gel
-        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    unknown, normals = _disc_of_smooth_normals(ref, on_gel, rng, row, col, radius)
     boxes, edge_boxes, (crop,) = _regions(unknown, on_gel, "auto")
     assert boxes == edge_boxes == [] and _rim_box_applies(unknown, on_gel, crop)
     crop = _faster_rim_box(unknown, on_gel, crop, [])  # the box integrate_on_dome solves
@@ -463,12 +469,7 @@ def test_a_rim_box_at_the_image_border_solves_the_sparse_paths_equations_on_its_
     side = np.flatnonzero(on_gel[row])[[0, -1][seed % 2]]
     col = side + int(rng.integers(-5, 15)) * (1 if seed % 2 == 0 else -1)
     radius = int(rng.integers(20, 45))
-    rr, cc = np.mgrid[: on_gel.shape[0], : on_gel.shape[1]]
-    unknown = ((rr - row) ** 2 + (cc - col) ** 2 < radius**2) & on_gel
-    tilt = ndimage.gaussian_filter(rng.normal(size=on_gel.shape + (3,)), (6, 6, 0)) * 10
-    normals = ref.normals + np.where(unknown[..., None], tilt, 0)
-    with np.errstate(invalid="ignore"):  # NaN off the gel
-        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+    unknown, normals = _disc_of_smooth_normals(ref, on_gel, rng, row, col, radius)
     (crop,) = _regions(unknown, on_gel, "auto")[2]
     edges = _crop_edges(unknown, crop)
     assert edges == ([-1, 1][seed // 2], 0) and _rim_box_anchor(unknown, on_gel, crop, edges) == 0
