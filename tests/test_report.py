@@ -52,11 +52,6 @@ def test_contact_sheet_panels_are_drawn_at_one_size_with_tight_gaps(shape):
     """The solve summary's normals panel (no colour bar) was drawn larger than its neighbours, and a square
     region of interest left wide gaps between panels (fixed 3.2 x 2.7 in cells): every image of a sheet is now
     drawn at one size, whatever its panel holds, and the gaps between them are the colour bars' room only."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from nlipscalib.report.figures import BAR_ROOM_IN, PANEL_WIDTH_IN, sheet_figure
 
     rng = np.random.default_rng(0)
@@ -70,7 +65,6 @@ def test_contact_sheet_panels_are_drawn_at_one_size_with_tight_gaps(shape):
     fig = sheet_figure([("press", panels), ("other", panels[:2])], caption="key", title="title")
     fig.canvas.draw()
     boxes = [ax.get_window_extent() for ax in fig.axes if ax.images and ax.get_label() != "<colorbar>"]
-    plt.close(fig)
     assert len(boxes) == 6
     sizes = {(round(b.width), round(b.height)) for b in boxes}
     assert len(sizes) == 1, sizes  # one size for all, normal maps and masks as scalar maps
@@ -669,3 +663,33 @@ def test_contact_sheet_panels_keep_the_images_orientation(tmp_path):
     # the rest of the image (black) lies below and right of the red quarter, the white page above and left of it
     assert dark[top + height + height // 2, left + width // 2] and dark[top + height // 2, left + width + width // 2]
     assert img[top - 3, left + width // 2].min() > 200 and img[top + height // 2, left - 3].min() > 200
+
+
+def test_figures_leave_a_notebooks_pyplot_alone(tmp_path):
+    """A Jupyter notebook's pyplot (its backend, the user's open figures) is not touched by our figures.
+
+    Seen in a real kernel (s27-jupyter): after ``solve_folder(..., figures="full")`` or ``training_curve``, which
+    called ``matplotlib.use("Agg")``, the notebook's inline backend was gone, so every later ``plt.show()`` of the
+    user's showed nothing; and a figure made with ``plt.figure()`` was shown under the cell besides being saved.
+    A non-interactive backend other than Agg stands in for the notebook's inline one (no kernel here)."""
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    from nlipscalib.report import experiments
+    from nlipscalib.report.learn import coverage_figure, training_curve
+
+    before = matplotlib.get_backend()
+    plt.switch_backend("svg")
+    try:
+        users = plt.figure()
+        contact_sheet([("row", [Panel("scalar", np.ones((8, 10)), label="mm")])], tmp_path / "sheet.png")
+        epochs = [{"epoch": e, "train_loss": 0.1, "val_aae_deg": 2.0, "val_contact_aae_deg": 2.5} for e in range(2)]
+        training_curve(epochs, tmp_path / "curve.png")
+        coverage_figure(_down_tilt_coverage(), tmp_path / "coverage.png")
+        experiments.grouped_bars(["seen"], {"nlips": ([1.0], [0.0])}, "AAE (deg)", tmp_path / "bars.png")
+        assert matplotlib.get_backend() == "svg"
+        assert plt.get_fignums() == [users.number]  # the user's figure kept, none of ours left for pyplot to show
+    finally:
+        plt.close("all")
+        plt.switch_backend(before)
+    assert all((tmp_path / name).read_bytes()[:4] == b"\x89PNG" for name in ("sheet.png", "curve.png", "bars.png"))

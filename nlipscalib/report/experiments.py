@@ -9,7 +9,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.atomic import write_bytes
-from .figures import ERROR_CMAP, NORMALS_KEY, Panel, contact_sheet, display_image, error_scale, normals_to_rgb
+from .figures import (
+    ERROR_CMAP,
+    NORMALS_KEY,
+    Panel,
+    contact_sheet,
+    display_image,
+    error_scale,
+    new_figure,
+    normals_to_rgb,
+)
 
 if TYPE_CHECKING:  # named in hints only: matplotlib is imported where a figure is drawn
     from matplotlib.axes import Axes
@@ -23,12 +32,9 @@ read; at 100 they are 8-10 px, and the palette PNG keeps the sheet small (see ``
 
 
 def _save(fig: Figure, path: str | Path) -> Path:
-    import matplotlib.pyplot as plt
-
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
-    plt.close(fig)
     return write_bytes(path, _palette_png(buf.getvalue()))
 
 
@@ -53,13 +59,9 @@ def _palette_png(png: bytes) -> bytes:
     return buf.getvalue()
 
 
-def _figure(width: float = 5.0, height: float = 3.2):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt.subplots(figsize=(width, height))
+def _figure(width: float = 5.0, height: float = 3.2) -> tuple[Figure, Axes]:
+    fig = new_figure(figsize=(width, height))
+    return fig, fig.subplots()
 
 
 LEGEND_WIDTH_IN = 2.3

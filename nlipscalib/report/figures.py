@@ -32,6 +32,25 @@ ERROR_SCALES_DEG = (1.0, 2.0, 5.0, 10.0, 20.0, 45.0)
 """Upper ends the angular-error colour bar chooses from (:func:`error_scale`)."""
 
 
+def new_figure(**kwargs: object) -> Figure:
+    """A matplotlib figure of the package's own, outside pyplot (``kwargs``: :class:`matplotlib.figure.Figure`'s,
+    e.g. ``figsize``), on an Agg canvas (``fig.canvas.draw()``, ``buffer_rgba()``, ``savefig``).
+
+    Why not pyplot: its figures and backend are the whole process's. In a Jupyter notebook each of our figures
+    made with ``plt.figure()`` was also shown under the cell (the inline backend shows every open pyplot figure
+    at the end of a cell), and ``matplotlib.use("Agg")``, called to draw files on a machine without a display,
+    switched the notebook's own backend: every figure the user had open was closed and their later
+    ``plt.show()`` showed nothing ("FigureCanvasAgg is non-interactive, and thus cannot be shown"). A figure
+    made here is the caller's alone: shown only where it is displayed, and freed with its last reference (no
+    ``plt.close``)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)  # the canvas attaches itself to the figure
+    return fig
+
+
 def error_scale(errors: Iterable[np.ndarray]) -> float:
     """The colour bar's upper end for angular error maps: the smallest of ``ERROR_SCALES_DEG`` at or above
     the 99th percentile of all their finite values (a fixed 20 deg shows half-degree errors as black).
@@ -102,12 +121,9 @@ def contact_sheet(
     caption : one line under the grid, e.g. :data:`NORMALS_KEY` on sheets with normal maps
     title : one line over the grid
     """
-    import matplotlib.pyplot as plt
-
     fig = sheet_figure(rows, caption, title)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    plt.close(fig)
     return write_bytes(path, buf.getvalue())
 
 
@@ -145,11 +161,6 @@ def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: 
     caption : one line under the grid
     title : one line over the grid
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     ncols = max(len(p) for _, p in rows)
     aspect = max((p.image.shape[0] / p.image.shape[1] for _, panels in rows for p in panels), default=1.0)
     image_w, image_h = PANEL_WIDTH_IN, PANEL_WIDTH_IN * aspect
@@ -163,7 +174,7 @@ def sheet_figure(rows: list[tuple[str, list[Panel]]], caption: str = "", title: 
         + sum(TITLE_ROOM_IN + image_h + legend for legend in legends)
         + (CAPTION_IN if caption else MARGIN_IN)
     )
-    fig = plt.figure(figsize=(width, height))
+    fig = new_figure(figsize=(width, height))
 
     def box(x: float, y: float, w: float, h: float) -> tuple[float, float, float, float]:
         return x / width, y / height, w / width, h / height  # inches from the bottom left -> figure fractions

@@ -9,25 +9,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.atomic import write_bytes
+from .figures import new_figure
 
 if TYPE_CHECKING:  # named in hints only: matplotlib is imported where a figure is drawn
     from matplotlib.figure import Figure
     from matplotlib.projections.polar import PolarAxes
 
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def _save(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
-    _plt().close(fig)
     return write_bytes(path, buf.getvalue())
 
 
@@ -48,7 +39,6 @@ def coverage_figure(cov: dict, path: str | Path) -> Path:
     cov : the dict of ``nlipscalib.learn.coverage.coverage``
     path : output .png
     """
-    plt = _plt()
     from matplotlib.cm import ScalarMappable
     from matplotlib.colors import Normalize
 
@@ -59,7 +49,7 @@ def coverage_figure(cov: dict, path: str | Path) -> Path:
     theta = np.linspace(-np.pi, np.pi, sectors * THETA_SUBSTEPS + 1)
     nxt = tuple(cov["next_press"]["region"])
     norm = Normalize(0, np.log1p(max(int(counts.max()), 1)))
-    fig = plt.figure(figsize=(2.2 * cells + 1.0, 2.2 * cells + 1.2))
+    fig = new_figure(figsize=(2.2 * cells + 1.0, 2.2 * cells + 1.2))
     keyed = False
     for r in range(cells):
         for c in range(cells):
@@ -137,9 +127,11 @@ def training_curve(history: list[dict], path: str | Path, title: str = "NLiPsNet
     history : list of dicts with epoch (0-based, as stored), train_loss, val_aae_deg, val_contact_aae_deg
     path : output .png
     """
-    plt = _plt()
+    from matplotlib.ticker import MaxNLocator
+
     ep = [h["epoch"] + 1 for h in history]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(9, 3.2))
+    fig = new_figure(figsize=(9, 3.2))
+    a1, a2 = fig.subplots(1, 2)
     a1.semilogy(ep, [h["train_loss"] for h in history])
     a1.set_xlabel("epoch")
     a1.set_ylabel("training loss 1 - n.n")
@@ -152,7 +144,7 @@ def training_curve(history: list[dict], path: str | Path, title: str = "NLiPsNet
     a2.legend(fontsize=8)
     a2.set_title(best_epoch_title(best), fontsize=9)
     for ax in (a1, a2):  # epochs are whole numbers (matplotlib would tick 2.5, 7.5, ...)
-        ax.xaxis.set_major_locator(plt.MaxNLocator(integer=True))
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return _save(fig, path)
