@@ -465,58 +465,58 @@ def _epochs(
     start = time.perf_counter() - sum(h["seconds"] for h in history)
     # the labels named: q2 trains on NLiPs labels, then on true normals, and two bare "training" bars read as a restart
     desc = TRAINING_BARS.get(cfg.labels, "training")
-    bar = progress_bar(cfg.max_epochs, enabled=progress, initial=len(history), desc=desc, unit="epoch")
-    for epoch in range(len(history), cfg.max_epochs):
-        if history and epoch - 1 - best["epoch"] >= cfg.patience:
-            break  # a resumed run that had already stopped early
-        t0 = time.perf_counter()
-        # every epoch's random draws (batch order; dropout masks from torch's global generator) depend on the
-        # seed and the epoch alone, so a resumed training makes the model an uninterrupted one makes
-        gen = torch.Generator().manual_seed(cfg.seed + epoch)
-        torch.manual_seed(cfg.seed + EPOCH_SEED_STRIDE * (epoch + 1))
-        loss = _epoch(net, opt, xt, yt, cfg.batch_size, gen)
-        val_aae, val_contact = _validate(net, xv, yv, cv)
-        if cfg.schedule == "plateau":
-            sched.step(val_aae)
-        else:
-            sched.step()
-        history.append(
-            {
-                "epoch": epoch,
-                "train_loss": loss,
-                "val_aae_deg": val_aae,
-                "val_contact_aae_deg": val_contact,
-                "lr": float(opt.param_groups[0]["lr"]),
-                "seconds": time.perf_counter() - t0,
-                "threads": cfg.threads,  # the count rounds the weights: a resume on another says so
-                "device": xt.device.type,  # so does the device, and it draws other dropout masks
-            }
-        )
-        if val_aae < best["aae"]:
-            best = {"aae": val_aae, "epoch": epoch}
-            # a copy on the CPU (a clone there): what the checkpoint and the model file hold, whatever the device
-            best_state = {k: v.detach().to("cpu", copy=True) for k, v in net.state_dict().items()}
-        checkpoint(history, best, best_state)
-        log.info(
-            "%s: epoch %d of at most %d: training loss %.4g, validation AAE %.3f deg (contact %.3f), learning rate "
-            "%.3g, %.1f s; best epoch %d",
-            desc,
-            epoch + 1,
-            cfg.max_epochs,
-            loss,
-            val_aae,
-            val_contact,
-            history[-1]["lr"],
-            history[-1]["seconds"],
-            best["epoch"] + 1,
-            extra=FILE_ONLY,
-        )
-        bar.update(1)
-        bar.set_postfix(val_aae=f"{val_aae:.2f}")
-        stop_early = epoch - best["epoch"] >= cfg.patience
-        if stop_early or (cfg.max_seconds and time.perf_counter() - start > cfg.max_seconds):
-            break
-    bar.close()
+    # closed on Ctrl-C too (``with``): a notebook keeps the interrupted frames, and a bar left open nests the next one
+    with progress_bar(cfg.max_epochs, enabled=progress, initial=len(history), desc=desc, unit="epoch") as bar:
+        for epoch in range(len(history), cfg.max_epochs):
+            if history and epoch - 1 - best["epoch"] >= cfg.patience:
+                break  # a resumed run that had already stopped early
+            t0 = time.perf_counter()
+            # every epoch's random draws (batch order; dropout masks from torch's global generator) depend on the
+            # seed and the epoch alone, so a resumed training makes the model an uninterrupted one makes
+            gen = torch.Generator().manual_seed(cfg.seed + epoch)
+            torch.manual_seed(cfg.seed + EPOCH_SEED_STRIDE * (epoch + 1))
+            loss = _epoch(net, opt, xt, yt, cfg.batch_size, gen)
+            val_aae, val_contact = _validate(net, xv, yv, cv)
+            if cfg.schedule == "plateau":
+                sched.step(val_aae)
+            else:
+                sched.step()
+            history.append(
+                {
+                    "epoch": epoch,
+                    "train_loss": loss,
+                    "val_aae_deg": val_aae,
+                    "val_contact_aae_deg": val_contact,
+                    "lr": float(opt.param_groups[0]["lr"]),
+                    "seconds": time.perf_counter() - t0,
+                    "threads": cfg.threads,  # the count rounds the weights: a resume on another says so
+                    "device": xt.device.type,  # so does the device, and it draws other dropout masks
+                }
+            )
+            if val_aae < best["aae"]:
+                best = {"aae": val_aae, "epoch": epoch}
+                # a copy on the CPU (a clone there): what the checkpoint and the model file hold, whatever the device
+                best_state = {k: v.detach().to("cpu", copy=True) for k, v in net.state_dict().items()}
+            checkpoint(history, best, best_state)
+            log.info(
+                "%s: epoch %d of at most %d: training loss %.4g, validation AAE %.3f deg (contact %.3f), learning rate "
+                "%.3g, %.1f s; best epoch %d",
+                desc,
+                epoch + 1,
+                cfg.max_epochs,
+                loss,
+                val_aae,
+                val_contact,
+                history[-1]["lr"],
+                history[-1]["seconds"],
+                best["epoch"] + 1,
+                extra=FILE_ONLY,
+            )
+            bar.update(1)
+            bar.set_postfix(val_aae=f"{val_aae:.2f}")
+            stop_early = epoch - best["epoch"] >= cfg.patience
+            if stop_early or (cfg.max_seconds and time.perf_counter() - start > cfg.max_seconds):
+                break
     return history, best, best_state
 
 

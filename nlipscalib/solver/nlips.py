@@ -202,10 +202,12 @@ def _solve_checked(
         # line could stay at "0 iterations so far"
         bar = tqdm(desc="NLiPs", leave=False, bar_format=LEVEL_BAR, mininterval=0, miniters=1)
     be = Backend(backend, opts.dtype)
-    with blas_threads(1):
-        t_state, out = solve_coarse_to_fine(levels, data.leds, opts, be, bar, report, t_first, unrefined == 0)
-    if bar is not None:
-        bar.close()
+    try:
+        with blas_threads(1):
+            t_state, out = solve_coarse_to_fine(levels, data.leds, opts, be, bar, report, t_first, unrefined == 0)
+    finally:  # on Ctrl-C too: a notebook keeps the interrupted frames, and a bar left open nests the next one
+        if bar is not None:
+            bar.close()
     report.update({"leds_used": [int(i) for i in data.kept], "pixels_solved": int(mask.sum())})
     result = full_image(t_state, out, levels[-1], data, mask, crop, opts)
     report["intensity_scale"] = data.scale
