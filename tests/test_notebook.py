@@ -5,6 +5,10 @@ Found in a real kernel (nbclient + ipykernel, s27-jupyter, benchmarks/RESULTS.md
 
 from __future__ import annotations
 
+import json
+import os
+from pathlib import Path
+
 import pytest
 
 from nlipscalib import progress
@@ -61,3 +65,36 @@ def test_an_interrupted_training_leaves_no_bar_open(monkeypatch, built, tmp_path
     kept = _interrupted(lambda: train_module.train(built, TINY, tmp_path / "model.pt", progress=True))
     assert _open_bars() == before
     del kept
+
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "docs" / "examples" / "quickstart.ipynb"
+
+
+def test_the_shipped_example_notebook_is_stripped_of_outputs():
+    """Outputs would go stale with the code (and carry a machine's paths): the file holds the code only."""
+    notebook = json.loads(EXAMPLE.read_text(encoding="utf-8"))
+    code = [cell for cell in notebook["cells"] if cell["cell_type"] == "code"]
+    assert code and all(cell["outputs"] == [] and cell["execution_count"] is None for cell in code)
+
+
+def test_the_shipped_example_notebook_runs_in_a_jupyter_kernel(tmp_path, monkeypatch):
+    """docs/examples/quickstart.ipynb run headless in a real kernel (nbclient, ipykernel), as a lab runs it: no
+    error, no warning, each figure shown once, under its own cell (our figures drawn to files left the notebook's
+    inline backend alone), and the point cloud written."""
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    pytest.importorskip("ipykernel")
+    root = str(EXAMPLE.parents[2])  # the kernel imports this checkout's package, installed or not
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")])))
+    notebook = nbformat.read(EXAMPLE, as_version=4)
+    nbclient.NotebookClient(notebook, timeout=600, resources={"metadata": {"path": str(tmp_path)}}).execute()
+    for cell in notebook.cells:
+        if cell.cell_type != "code":
+            continue
+        outputs = cell.outputs
+        assert not [o for o in outputs if o.output_type == "error"]
+        stderr = "".join(o.text for o in outputs if o.output_type == "stream" and o.name == "stderr")
+        assert "Warning" not in stderr and "Traceback" not in stderr, stderr
+        shown = sum("image/png" in o.get("data", {}) for o in outputs)
+        assert shown == cell.source.count("plt.show()") + cell.source.count("display(Image"), cell.source
+    assert (tmp_path / "quickstart_out" / "nlipsnet_points.ply").stat().st_size > 0
