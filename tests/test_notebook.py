@@ -56,6 +56,30 @@ def test_an_interrupted_solve_leaves_no_bar_open(monkeypatch, tmp_path):
     del kept
 
 
+class _InterruptedWhileWriting(_KernelStream):
+    """A notebook's stderr whose first write the stop button interrupts (the kernel's zmq send, seen there)."""
+
+    def write(self, text):
+        if not getattr(self, "interrupted", False):
+            self.interrupted = True
+            raise KeyboardInterrupt
+        return super().write(text)
+
+
+def test_a_solve_interrupted_while_its_bar_first_draws_leaves_no_bar_open(monkeypatch, tmp_path):
+    """The interrupt can land in the bar's first write, inside tqdm's constructor, which has already registered
+    the bar: no handle was returned to close it (seen in a kernel 2.5 s into a solve)."""
+    from nlipscalib.solver import solve_press
+
+    synth.make_press(tmp_path / "press", "sphere", size=(64, 48))
+    monkeypatch.setattr(progress, "_enabled", True)
+    monkeypatch.setattr("sys.stderr", _InterruptedWhileWriting())
+    before = _open_bars()
+    kept = _interrupted(lambda: solve_press(tmp_path / "press", progress=True))
+    assert _open_bars() == before
+    del kept
+
+
 def test_an_interrupted_training_leaves_no_bar_open(monkeypatch, built, tmp_path):  # noqa: F811
     from nlipscalib.learn import train as train_module
 

@@ -66,6 +66,9 @@ SolveResult = Reconstruction
 
 LEVEL_BAR = "{desc}: {n_fmt} iterations so far, {elapsed}"
 """The solve's terminal line (tqdm ``bar_format``): the level being solved and the iterations so far, no ETA."""
+BAR_DELAY_S = 1e-9
+"""tqdm's ``delay`` of that line: any above 0 keeps tqdm's constructor from drawing it (see :func:`_solve_checked`);
+this small, the first level's description still draws it at once."""
 
 
 def solve(
@@ -200,7 +203,10 @@ def _solve_checked(
         # stopped at 3-10 % with an ETA of tens of seconds (a 1280x960 whole frame's "1/30 [00:01<00:36]")
         # drawn at every iteration (each takes 10 ms to seconds): with tqdm's default 0.1 s interval a short solve's
         # line could stay at "0 iterations so far"
-        bar = tqdm(desc="NLiPs", leave=False, bar_format=LEVEL_BAR, mininterval=0, miniters=1)
+        # delay: no write in the constructor, which has registered the bar before it returns it; a Ctrl-C landing
+        # in that write (a notebook's stop button, in the kernel's send) left a bar open that nobody could close,
+        # and every later bar of the kernel nested under it. The first draw comes with the first level, in the try
+        bar = tqdm(desc="NLiPs", leave=False, bar_format=LEVEL_BAR, mininterval=0, miniters=1, delay=BAR_DELAY_S)
     be = Backend(backend, opts.dtype)
     try:
         with blas_threads(1):
