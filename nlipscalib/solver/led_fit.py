@@ -112,7 +112,11 @@ def fit_leds(
     off the axis) its first step could carry an LED 9.8 mm, behind the camera, into another minimum: on the
     bounce-free twin at 80x60, from LEDs 0.4-0.8 mm / 5-10 deg off, 6 of 24 starts left one LED 11-97 deg and
     4-7 mm off at a median quality like a good fit's (160x120 with noise: that LED 1.08x the noise, the others
-    0.99-1.02x). From offsets the first region is 1 (its norm when zero): none of them (benchmarks/RESULTS.md)."""
+    0.99-1.02x). From offsets the first region is 1 (its norm when zero): none of them (benchmarks/RESULTS.md).
+
+    An LED whose fit still ends far above the others' misfit (:func:`_stuck`) is fitted again from other axes
+    (:meth:`_LedProblem.restarts`) and the least misfit kept: from LEDs 2 mm / 80 deg off their design one LED stopped
+    6.9 mm / 65 deg off (benchmarks/RESULTS.md, s27-ledstarts)."""
     out, costs = [], []
     # one BLAS thread: trf's SVD of each step's (N, 9) Jacobian took 4-6x the CPU on 2 threads of a loaded
     # machine, the same bits (s17-d, benchmarks/RESULTS.md)
