@@ -207,6 +207,11 @@ FIT_NOISE_RATIO = 1.15
 """An LED calibration is reliable when its residual is at most this many times the images' own noise (with the
 model's own error, :data:`CALIBRATION_MODEL_ERROR`; median over the LEDs): measured 1.01-1.11 on good captures,
 1.19-1.63 on poor ones (the table in :func:`nlipscalib.solver.calibration_quality.fit_quality`)."""
+LED_FIT_OUTLIER_RATIO = 1.5
+"""One LED of a calibration called reliable (:data:`FIT_NOISE_RATIO`, the median LED's) is warned about when its own
+residual is above this many times the images' noise: the worst single LED of good twin captures reached 1.13
+(:func:`nlipscalib.solver.calibration_quality.fit_quality`), LEDs stopped in a wrong minimum 1.6-92
+(benchmarks/RESULTS.md, s27-ledstarts)."""
 FRAME_MISMATCH_FRACTION = 0.04
 """NLiPsNet: a frame whose median difference from the calibration's reference frame over the gel exceeds this
 fraction of the reference's brightness differs almost everywhere (twin frames of presses: 0.009-0.011, 8-bit

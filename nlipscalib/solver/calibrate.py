@@ -11,7 +11,8 @@ common factor rho_c = mean_i K_ic is reported as ``albedo``. The solver recovers
 What the user is told (``LedCalibration.warnings``, logged as warnings): a coating reflectance given but not
 used, a reflectance that could not be profiled, a fit that leaves more than the images' own noise
 unexplained (:func:`fit_quality`), i.e. LEDs not to be trusted, and a capture with many saturated samples
-(left out of the fit, :data:`nlipscalib.core.tolerances.SATURATED_SHARE_WARN`).
+(left out of the fit, :data:`nlipscalib.core.tolerances.SATURATED_SHARE_WARN`), and in a fit called reliable, a
+single LED not to be trusted (:func:`.calibration_quality.single_led_warnings`).
 
 This module is the entry (:func:`calibrate_leds`: the settings, the calibration and its reruns with one setting
 changed, the warnings); each part lives in a file of its own:
@@ -38,7 +39,7 @@ from ..core.capture import Press, as_press
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
 from .calibration_contact import contact_notes, contact_refusal, contact_regions
-from .calibration_quality import fit_quality, quality_warning
+from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
     emitters_and_profile,
     indirect_rounds,
@@ -201,6 +202,7 @@ def calibrate_leds(
     notes += contact_notes(presses, cal.contact_pixels)
     notes += unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
     notes += quality_warning(cal.quality, cal.interreflection, interreflection)
+    notes += single_led_warnings(cal.quality, cal.leds)
     for note in notes:
         log.warning(note)
     return dataclasses.replace(cal, warnings=tuple(notes), saturated_share=tuple(round(v, 4) for v in shares))

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..core import tolerances
 from ..core.capture import Press
+from ..core.leds import Led
 from ..core.robust_scale import mad_scale
 from .calibration_term import no_interreflection
 from .led_fit import fit_samples, point_model
@@ -150,3 +151,28 @@ def quality_warning(quality: dict, models: list[dict], interreflection: str) -> 
         "light the LED model does not explain. Capture again with more samples per pixel (a render) or more frames "
         "averaged, and check the capture (nothing moved, no stray light, the undeformed dome)" + hint
     ]
+
+
+def single_led_warnings(quality: dict, leds: Sequence[Led]) -> list[str]:
+    """Warnings for single LEDs not to be trusted in a calibration the median LED calls reliable (the verdict of
+    :func:`quality_warning`, which one LED does not move): an LED whose residual is above
+    :data:`tolerances.LED_FIT_OUTLIER_RATIO` times the noise, or whose mu ended at its bound 0. Why: from LEDs far off
+    their design (2 mm / 80 deg on synthetic captures) one LED stopped 6.9 mm / 65 deg off at 92x the noise while the
+    others sat at 0.03x, and was called reliable (benchmarks/RESULTS.md, s27-ledstarts)."""
+    if not quality["reliable"]:  # said already, for all the LEDs
+        return []
+    notes = []
+    for i, (ratio, led) in enumerate(zip(quality["ratio"], leds)):
+        why = []
+        if ratio > tolerances.LED_FIT_OUTLIER_RATIO:
+            median = quality["median_ratio"]
+            why.append(f"its residual is {ratio:.2f}x the images' noise (the LEDs' median {median:.2f}x)")
+        if led.mu <= 0:
+            why.append("its mu ended at its bound 0")
+        if why:
+            notes.append(
+                f"LED {i + 1} not to be trusted: {' and '.join(why)}: its fit may have stopped in a wrong minimum, or "
+                "the LED is not as the model has it (blocked, dim, far from its design place): check it, then capture "
+                "the undeformed dome again"
+            )
+    return notes

@@ -141,3 +141,49 @@ def test_calibrate_leds_takes_capture_folders_paths(tmp_path):
     for given in (folder, str(folder), [folder]):
         by_path = calibrate_leds(given, stride=4)
         assert by_path.leds == loaded.leds and np.array_equal(by_path.rms, loaded.rms)
+
+
+def _moved(leds, position_mm: float, tilt_deg: float, seed: int) -> tuple[Led, ...]:
+    """``leds`` as a hand-assembled sensor has them: each moved ``position_mm`` and tilted ``tilt_deg`` in random
+    directions, its brightness within +-20 %."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for led in leds:
+        d = np.asarray(led.direction)
+        shift, axis = rng.normal(size=3), np.cross(d, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        t = np.radians(tilt_deg)
+        out.append(
+            Led(
+                tuple(np.add(led.position, position_mm * shift / np.linalg.norm(shift))),
+                tuple(d * np.cos(t) + np.cross(axis, d) * np.sin(t)),
+                led.mu,
+                tuple(np.full(3, rng.uniform(0.8, 1.2))),
+            )
+        )
+    return tuple(out)
+
+
+def test_leds_far_from_their_design_are_calibrated_from_the_design(tmp_path):
+    """From the design's ring, LEDs 2 mm and 80 deg off it: LED 4 of this draw stopped in a wrong minimum (6.9 mm,
+    65 deg off, 92x the noise, the calibration "reliable"); the LED left far above the others' misfit is fitted
+    again from other axes (led_fit._stuck)."""
+    design = synth.ring_leds()
+    true = _moved(design, 2.0, 80.0, seed=0)
+    cal = calibrate_leds(load_press(synth.make_press(tmp_path / "ref", "none", leds=true)), initial=design, stride=3)
+    assert cal.quality["reliable"] and not cal.warnings, (cal.quality, cal.warnings)
+    for led, t in zip(cal.leds, true):
+        assert np.degrees(np.arccos(min(1.0, np.dot(led.direction, t.direction)))) < 0.5
+        assert np.abs(np.subtract(led.position, t.position)).max() < 0.05
+
+
+def test_one_led_far_above_the_others_residual_is_warned_about_in_a_reliable_calibration():
+    from nlipscalib.solver.calibration_quality import single_led_warnings
+
+    leds = synth.ring_leds()[:3]
+    quality = {"reliable": True, "median_ratio": 1.0, "ratio": [1.0, 92.0, 1.1]}
+    (note,) = single_led_warnings(quality, leds)
+    assert note.startswith("LED 2 not to be trusted: its residual is 92.00x the images' noise"), note
+    bound = (leds[0], leds[1], Led(leds[2].position, leds[2].direction, 0.0, leds[2].intensity))
+    assert [n[:6] for n in single_led_warnings(quality, bound)] == ["LED 2 ", "LED 3 "]
+    assert single_led_warnings(dict(quality, reliable=False), bound) == []  # the whole fit is warned about instead
