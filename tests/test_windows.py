@@ -73,3 +73,57 @@ def test_a_permission_error_on_linux_is_raised_at_once(tmp_path, monkeypatch):
     with pytest.raises(PermissionError) as info:
         atomic.write_text(target, "new")
     assert waits == [] and info.value.errno == errno.EACCES
+
+
+def _appends_as_windows_does(monkeypatch, path) -> None:
+    """``os.write`` to the log ``path`` as Windows' C runtime emulates ``O_APPEND``: find the end, then write there,
+    two steps another process's write can come between."""
+    import time
+
+    real_write = os.write
+
+    def write(fd: int, data: bytes) -> int:
+        if not os.path.samestat(os.fstat(fd), os.stat(path)):
+            return real_write(fd, data)
+        end = os.fstat(fd).st_size
+        time.sleep(0.001)  # another process runs meanwhile
+        with open(path, "r+b") as f:
+            f.seek(end)
+            return f.write(data)
+
+    monkeypatch.setattr(os, "write", write)
+
+
+@pytest.mark.parametrize("locked", [True, False])
+def test_log_lines_of_several_processes_stay_whole_where_appends_interleave(tmp_path, monkeypatch, locked):
+    import logging
+    import threading
+
+    from nlipscalib import progress
+
+    log = tmp_path / "nlips.log"
+    log.touch()
+    monkeypatch.setattr(progress, "APPENDS_INTERLEAVE", locked)
+    handlers = [progress.AppendFileHandler(log) for _ in range(4)]  # one per process, each its own lock
+    _appends_as_windows_does(monkeypatch, log)
+
+    together = threading.Barrier(4)
+
+    def log_lines(n: int) -> None:
+        together.wait()
+        for i in range(25):
+            handlers[n].handle(logging.makeLogRecord({"msg": f"process {n} line {i:02d} " + "x" * 60}))
+
+    threads = [threading.Thread(target=log_lines, args=(n,)) for n in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for handler in handlers:
+        handler.close()
+    lines = log.read_text(encoding="utf-8").splitlines()
+    whole = sorted(f"process {n} line {i:02d} " + "x" * 60 for n in range(4) for i in range(25))
+    if locked:
+        assert sorted(lines) == whole
+    else:  # the imitation does what it says: without the lock lines are lost
+        assert sorted(lines) != whole
