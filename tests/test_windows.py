@@ -127,3 +127,72 @@ def test_log_lines_of_several_processes_stay_whole_where_appends_interleave(tmp_
         assert sorted(lines) == whole
     else:  # the imitation does what it says: without the lock lines are lost
         assert sorted(lines) != whole
+
+
+WINDOWS_SIGNALS = """
+import signal, sys, time
+# Windows' signal module: no SIGHUP, SIGKILL, SIGALRM, SIGUSR1, pthread_sigmask; handlers only for these seven
+# (ValueError for any other); SIGBREAK (Ctrl-Break) stood in for by SIGUSR2, which the test sends
+signal.SIGBREAK = signal.SIGUSR2
+WINDOWS = {signal.SIGABRT, signal.SIGFPE, signal.SIGILL, signal.SIGINT, signal.SIGSEGV, signal.SIGTERM, signal.SIGBREAK}
+for name in ("SIGHUP", "SIGKILL", "SIGALRM", "SIGUSR1", "SIGQUIT", "pthread_sigmask", "pthread_kill"):
+    delattr(signal, name)
+real_signal = signal.signal
+
+def windows_signal(signum, handler):
+    if signum not in WINDOWS:
+        raise ValueError("invalid signal value")
+    return real_signal(signum, handler)
+
+signal.signal = windows_signal
+from nlipscalib.cli import cache, command
+
+def run(args):
+    print("working", flush=True)
+    time.sleep(30)
+
+cache.run = run
+sys.exit(command())
+"""
+
+
+def test_ctrl_break_on_windows_ends_a_command_as_ctrl_c_does():
+    """Ctrl-Break's default on Windows ends the process at once: no "interrupted" line, temporaries and claims
+    left, LEDs on. The command takes it for Ctrl-C; its handlers install with Windows' signal module."""
+    import signal
+    import subprocess
+    from pathlib import Path
+
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    proc = subprocess.Popen(
+        [sys.executable, "-c", WINDOWS_SIGNALS, "cache"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        assert proc.stdout.readline() == "working\n", proc.stderr.read()
+        proc.send_signal(signal.SIGUSR2)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert err.strip().splitlines()[-1].startswith("nlips cache: interrupted"), err
+
+
+def test_a_worker_on_windows_leaves_ctrl_break_to_its_command(monkeypatch):
+    import signal
+
+    from nlipscalib.core.processes import _worker_terminated, worker_signals
+
+    monkeypatch.setattr(signal, "SIGBREAK", signal.SIGUSR2, raising=False)
+    saved = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGUSR2)}
+    try:
+        worker_signals()
+        assert signal.getsignal(signal.SIGBREAK) == signal.SIG_IGN
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) is _worker_terminated
+    finally:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)

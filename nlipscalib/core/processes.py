@@ -98,8 +98,12 @@ def kill_unless_ended(pids: Iterable[int], grace_s: float) -> None:
 
 def worker_signals() -> None:
     """In a worker process: Ctrl-C ignored (the command answers it by ending the worker), and SIGTERM releasing the
-    worker's claims and removing its half-written temporaries before it exits (:func:`_worker_terminated`)."""
+    worker's claims and removing its half-written temporaries before it exits (:func:`_worker_terminated`).
+    Windows' Ctrl-Break, which reaches every process of the console as Ctrl-C does, is ignored as Ctrl-C is (the
+    command takes it for Ctrl-C: ``cli._note_interrupts``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "SIGBREAK"):
+        signal.signal(signal.SIGBREAK, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_terminated)
 
 
