@@ -196,3 +196,17 @@ def test_a_worker_on_windows_leaves_ctrl_break_to_its_command(monkeypatch):
     finally:
         for signum, handler in saved.items():
             signal.signal(signum, handler)
+
+
+def test_a_worker_on_windows_whose_command_is_gone_runs_its_sigterm_handler(monkeypatch):
+    """``os.kill`` of itself on Windows is TerminateProcess: the handler that releases a worker's claims never ran."""
+    import signal
+
+    from nlipscalib.core import processes
+
+    handled, killed = [], []
+    monkeypatch.setattr(sys, "platform", "win32")
+    monkeypatch.setattr(signal, "getsignal", lambda signum: lambda *args: handled.append(signum))
+    monkeypatch.setattr(os, "kill", lambda pid, signum: killed.append(signum))
+    processes._terminate_self()  # what end_with_parent's watch does once the command is gone
+    assert handled == [signal.SIGTERM]

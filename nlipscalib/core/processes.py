@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterable, Iterator
@@ -160,6 +161,18 @@ def end_with_parent(poll_s: float = PARENT_POLL_S) -> None:
     def watch(pid: int) -> None:
         while pid_alive(pid):
             time.sleep(poll_s)
-        os.kill(os.getpid(), signal.SIGTERM)
+        _terminate_self()
 
     threading.Thread(target=watch, args=(parent.pid,), name="parent-watch", daemon=True).start()
+
+
+def _terminate_self() -> None:
+    """SIGTERM this process, from any thread: its handler runs (a worker's releases its claims and temporaries).
+
+    Windows: ``os.kill`` of any signal but Ctrl-C/Ctrl-Break is ``TerminateProcess``, which runs no handler, and a
+    signal raised in this thread would wait for the main thread, blocked on the pool's queue, so the handler is
+    called here (the workers' handlers end with ``os._exit``, fine from any thread)."""
+    handler = signal.getsignal(signal.SIGTERM)
+    if sys.platform == "win32" and callable(handler):
+        handler(signal.SIGTERM, None)
+    os.kill(os.getpid(), signal.SIGTERM)
