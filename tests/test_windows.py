@@ -210,3 +210,46 @@ def test_a_worker_on_windows_whose_command_is_gone_runs_its_sigterm_handler(monk
     monkeypatch.setattr(os, "kill", lambda pid, signum: killed.append(signum))
     processes._terminate_self()  # what end_with_parent's watch does once the command is gone
     assert handled == [signal.SIGTERM]
+
+
+def _windows_without_long_paths(monkeypatch, enabled: bool = False) -> None:
+    from nlipscalib.core import long_paths
+
+    monkeypatch.setattr(long_paths, "WINDOWS", True)
+    monkeypatch.setattr(long_paths, "long_paths_enabled", lambda: enabled)  # the registry is not read in tests
+    monkeypatch.setattr(long_paths, "_warned", set())
+
+
+def test_an_output_folder_too_long_for_windows_is_warned_about_once_before_the_work(monkeypatch, caplog):
+    from nlipscalib.core.long_paths import DEEPEST_BELOW_OUT, MAX_PATH, warn_if_too_long
+
+    _windows_without_long_paths(monkeypatch)
+    room = MAX_PATH - 1 - DEEPEST_BELOW_OUT["experiment"]
+    fits, too_long = "/" + "a" * (room - 1), "/" + "a" * room  # nothing is made: any path will do
+    assert not warn_if_too_long(fits, "experiment")
+    assert warn_if_too_long(too_long, "experiment")
+    assert not warn_if_too_long(too_long, "experiment")  # once
+    [line] = [r.getMessage() for r in caplog.records if r.name == "nlipscalib.core.long_paths"]
+    assert line.startswith(f"{too_long}: paths up to {MAX_PATH} characters") and f"at most {room} characters" in line
+
+
+def test_no_warning_with_long_paths_on_or_off_windows(tmp_path, monkeypatch):
+    from nlipscalib.core import long_paths
+    from nlipscalib.core.long_paths import warn_if_too_long
+
+    deep = tmp_path / ("a" * 200)
+    _windows_without_long_paths(monkeypatch, enabled=True)
+    assert not warn_if_too_long(deep, "dataset")
+    _windows_without_long_paths(monkeypatch)
+    monkeypatch.setattr(long_paths, "WINDOWS", False)
+    assert not warn_if_too_long(deep, "dataset")
+
+
+def test_nlips_experiment_warns_of_a_long_out_on_windows(tmp_path, monkeypatch, caplog):
+    from nlipscalib.cli import main
+
+    _windows_without_long_paths(monkeypatch)
+    out = tmp_path / ("o" * 150)
+    assert main(["experiment", "q1", "--out", str(out), "--plan"]) == 0
+    [line] = [r.getMessage() for r in caplog.records if r.name == "nlipscalib.core.long_paths"]
+    assert line.startswith(f"{out}: paths up to")
