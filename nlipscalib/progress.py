@@ -131,6 +131,13 @@ class AppendFileHandler(logging.Handler):
     Nothing to set up in the parent (no queue, no listener thread), and a worker that dies has
     written its lines already. (On NFS, appends from several machines are not atomic; one machine's
     processes are fine.)
+
+    Windows has no such append: its C runtime emulates ``O_APPEND`` by moving to the end and then writing, two
+    steps, so two processes can both move to the same end and the second line overwrites the first. There
+    (:data:`APPENDS_INTERLEAVE`) every write holds an exclusive lock on ``PATH.lock`` (filelock: the
+    system's own file lock, released by the system when a process dies holding it; the file is removed on
+    release). A lock that cannot be had within :data:`LOG_LOCK_WAIT_S` (a folder where no lock file can be made)
+    does not cost the line: it is written unlocked.
     """
 
     def __init__(self, path: str | Path):
@@ -138,14 +145,33 @@ class AppendFileHandler(logging.Handler):
         self.path = str(path)
         flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_CLOEXEC", 0)
         self._fd: int | None = os.open(self.path, flags, 0o666)
+        self._append_lock = _append_lock(self.path) if APPENDS_INTERLEAVE else None
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
             data = (self.format(record) + "\n").encode("utf-8", "backslashreplace")
-            while data and self._fd is not None:
-                data = data[os.write(self._fd, data) :]  # a regular file takes it whole unless the disk is full
+            with self._whole_append():
+                while data and self._fd is not None:
+                    data = data[os.write(self._fd, data) :]  # a regular file takes it whole unless the disk is full
         except Exception:
             self.handleError(record)
+
+    @contextlib.contextmanager
+    def _whole_append(self) -> Iterator[None]:
+        """The log's lock held (where appends interleave), or nothing (where the system appends whole)."""
+        lock = self._append_lock
+        if lock is None:
+            yield
+            return
+        try:
+            lock.acquire(timeout=LOG_LOCK_WAIT_S, poll_interval=LOG_LOCK_POLL_S)
+        except Exception:  # no lock file there (a read-only folder), or held too long: the line still goes in
+            lock = None
+        try:
+            yield
+        finally:
+            if lock is not None:
+                lock.release()
 
     def close(self) -> None:
         with self.lock:
@@ -153,6 +179,22 @@ class AppendFileHandler(logging.Handler):
                 os.close(self._fd)
                 self._fd = None
         super().close()
+
+
+APPENDS_INTERLEAVE = sys.platform == "win32"
+"""Whether appends of several processes to one file can overwrite each other (Windows: :class:`AppendFileHandler`)."""
+LOG_LOCK_WAIT_S = 5.0
+"""Longest wait (s) for the log file's lock before the line is written without it."""
+LOG_LOCK_POLL_S = 0.001
+"""How often (s) a process waiting for the log file's lock tries again (filelock's 0.05 s default would hold a
+worker back 50 ms whenever two log at once)."""
+
+
+def _append_lock(path: str) -> Any:
+    """The lock every process appending to the log ``path`` takes around each line (a ``filelock.FileLock``)."""
+    import filelock  # here: only where appends interleave
+
+    return filelock.FileLock(path + ".lock")
 
 
 _OURS = "_nlips_handler"

@@ -183,6 +183,7 @@ def _main(argv: Sequence[str] | None, own_process: bool) -> int:
                 signal.signal(signal.SIGTERM, previous)
             if previous_int is not None:
                 signal.signal(signal.SIGINT, previous_int)
+                _ctrl_break_put_back()
 
 
 def _run(args: argparse.Namespace, argv: Sequence[str] = ()) -> int:
@@ -304,7 +305,13 @@ _SAID_INTERRUPTED: list[str] = []
 def _note_interrupts():
     """Record Ctrl-C, then interrupt as Python does (KeyboardInterrupt). A native library can catch that
     exception and raise its own (drjit: "error while performing a custom differentiable operation"); the
-    record lets :func:`_run` still report an interruption, not a traceback. Returns the previous handler."""
+    record lets :func:`_run` still report an interruption, not a traceback. Returns the previous handler.
+
+    Windows' Ctrl-Break (SIGBREAK) is taken for Ctrl-C -- KeyboardInterrupt, the "interrupted" line, exit 130,
+    temporaries removed, LEDs off, a stream's summary -- and ignored in the worker processes as Ctrl-C is
+    (:func:`nlipscalib.core.processes.worker_signals`). Why: its default ends the process at once with none of
+    that, and it is Windows' nearest to SIGTERM, which no other process can send there (``os.kill`` and
+    ``taskkill /F`` are ``TerminateProcess``, which no handler sees)."""
     import signal
     import threading
 
@@ -318,7 +325,19 @@ def _note_interrupts():
         _INTERRUPTED.append(signum)
         signal.default_int_handler(signum, frame)
 
+    ctrl_break = getattr(signal, "SIGBREAK", None)  # Windows only
+    if ctrl_break is not None and signal.getsignal(ctrl_break) == signal.SIG_DFL:
+        signal.signal(ctrl_break, handler)
     return signal.signal(signal.SIGINT, handler)
+
+
+def _ctrl_break_put_back() -> None:
+    """Ctrl-Break's default put back (Windows) when :func:`main` returns to a Python program that called it."""
+    import signal
+
+    ctrl_break = getattr(signal, "SIGBREAK", None)
+    if ctrl_break is not None and signal.getsignal(ctrl_break) not in (signal.SIG_IGN, None):
+        signal.signal(ctrl_break, signal.SIG_DFL)
 
 
 def _terminate_cleanly(command: str, args: argparse.Namespace | None = None):
@@ -360,14 +379,17 @@ def _after_the_work(command: str) -> None:
 
     interrupted = command in _SAID_INTERRUPTED
 
+    ctrl_break = getattr(signal, "SIGBREAK", None)  # Windows: as Ctrl-C (_note_interrupts)
+
     def handler(signum: int, frame: FrameType | None) -> None:
-        how = "interrupted" if signum == signal.SIGINT else "terminated"
+        how = "interrupted" if signum in (signal.SIGINT, ctrl_break) else "terminated"
         # after an interruption (its line said what is kept), a second Ctrl-C as the process exits ends it with no
         # other line: "after its work ended" would say the interrupted work had finished
-        _end_at_once(None if interrupted else f"nlips {command}: {how} {AFTER_THE_WORK}", 128 + signum)
+        code = 128 + (signal.SIGINT if signum == ctrl_break else signum)
+        _end_at_once(None if interrupted else f"nlips {command}: {how} {AFTER_THE_WORK}", code)
 
     if threading.current_thread() is threading.main_thread():
-        for signum in (signal.SIGINT, signal.SIGTERM):
+        for signum in (signal.SIGINT, signal.SIGTERM, *([ctrl_break] if ctrl_break is not None else [])):
             if signal.getsignal(signum) not in (signal.SIG_IGN, None):  # an ignored Ctrl-C (a background job) stays
                 signal.signal(signum, handler)
 

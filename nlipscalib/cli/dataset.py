@@ -58,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.config import check_count
+    from ..core.long_paths import warn_if_too_long
     from ..sim.dataset import (
         claim_folder,
         expand_jobs,
@@ -74,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
     out = Path(args.out)
     check_not_in_press(out, "render the dataset")
+    warn_if_too_long(out, "dataset")  # Windows' 260 characters: before the renders
     jobs = expand_jobs(spec, first=first_press_number(out))  # an old folder numbered from press_0000 keeps it
     todo = limit_presses(jobs, args.limit) if args.limit else jobs
     with claim_folder(out, spec_digest(spec, scene, jobs)):  # a run of another spec at work there: refused now

@@ -102,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.atomic import check_replaceable, write_json
     from ..core.config import check_count
     from ..core.errors import ConfigError
+    from ..core.long_paths import warn_if_too_long
     from ..experiments import EXPERIMENTS, UNAVAILABLE, check, get
     from ..experiments.framework import RESULTS, run_experiment
     from ..experiments.runner import check_scheduler
@@ -135,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
         own = Path(args.out) / f"{name}-{size}"
         report = Path(args.report) / name if args.report and args.name == "all" else Path(args.report or own / "report")
         runs.append((name, exp, exp.config(args.size, args.config), work, report))
+    warn_if_too_long(args.out, "experiment")  # Windows' 260 characters: before hours of work
     for _, _, _, work, report in runs:  # every output checked before hours of work, not at the first report
         _writable_folder("--out", args.out, work, probe=not args.plan)
         _writable_folder("--report", args.report, report, probe=not args.plan)

@@ -16,6 +16,7 @@ import os
 import re
 import secrets
 import shutil
+import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -34,6 +35,14 @@ STALE_S = 600.0
 SCRATCH_MARK = "scratch-"
 """Start of the random part of a :func:`scratch_dir` folder's name: its files are moved *beside* the entry it is
 named for, not into a folder of that name, and :func:`named_target` names them there."""
+HELD_OPEN_WAITS_S = (0.02, 0.05, 0.1, 0.2, 0.3, 0.35)
+"""Waits (s) between tries of a rename that Windows refused because another program holds the file (or a file in the
+folder) open: an antivirus scan or a search indexer lets go within a second; a viewer or Excel does not, and the
+write then fails naming the file (:data:`HELD_OPEN`). About 1 s in all."""
+HELD_OPEN = (
+    "could not be replaced: another program holds it open (a viewer, Excel, an antivirus scan?); close it and run again"
+)
+"""The cause of a write that found its file held open on Windows after :data:`HELD_OPEN_WAITS_S`."""
 NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
 """Errors of a write that found no room: the disk is full, or the user's quota is spent."""
 
@@ -173,7 +182,7 @@ def write_by_name(path: str | Path, write: Callable[[Path], object]) -> Path:
         os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))  # made inside the try: see _temporary_name
         write(tmp)
         os.chmod(tmp, FILE_MODE)
-        os.replace(tmp, path)
+        replace(tmp, path)
     except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
@@ -182,6 +191,34 @@ def write_by_name(path: str | Path, write: Callable[[Path], object]) -> Path:
     finally:
         _IN_PROGRESS.discard(tmp)
     return path
+
+
+def replace(source: str | Path, target: str | Path) -> None:
+    """``os.replace(source, target)``, tried again for about a second (:data:`HELD_OPEN_WAITS_S`) where Windows
+    refuses it because another program holds ``target`` open, then PermissionError naming ``target``
+    (:data:`HELD_OPEN`, errno EBUSY).
+
+    Why: POSIX replaces a file that others have open (they keep reading the old one); Windows refuses with
+    PermissionError while any program has it open without sharing its deletion, as a figure viewer, Excel with a
+    CSV, or an antivirus scan of the new file does. A scan ends within a second; the others need the user. On
+    other systems a PermissionError is a real permission problem and is raised at once.
+    """
+    _held_open_retried(lambda: os.replace(source, target), target)
+
+
+def _held_open_retried(rename: Callable[[], object], target: str | Path) -> None:
+    """Run ``rename()``; on Windows, a PermissionError is taken for ``target`` held open by another program, tried
+    again after each of :data:`HELD_OPEN_WAITS_S`, then raised as :data:`HELD_OPEN`."""
+    for wait in (*HELD_OPEN_WAITS_S, None):
+        try:
+            rename()
+            return
+        except PermissionError:
+            if sys.platform != "win32":
+                raise
+            if wait is None:
+                raise PermissionError(errno.EBUSY, HELD_OPEN, str(target)) from None
+            time.sleep(wait)
 
 
 def write_text(path: str | Path, text: str) -> Path:
@@ -444,8 +481,8 @@ def _swap_in(tmp: Path, final: Path) -> None:
     """
     for _ in range(SWAP_ATTEMPTS):
         old = final.with_name(tmp_prefix(final.name) + "old-" + secrets.token_hex(4))
-        try:
-            os.rename(final, old)
+        try:  # Windows: refused while a program holds a file inside open (a viewer showing a report's figure)
+            _held_open_retried(lambda old=old: os.rename(final, old), final)
         except FileNotFoundError:
             old = None
         try:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterable, Iterator
@@ -98,8 +99,12 @@ def kill_unless_ended(pids: Iterable[int], grace_s: float) -> None:
 
 def worker_signals() -> None:
     """In a worker process: Ctrl-C ignored (the command answers it by ending the worker), and SIGTERM releasing the
-    worker's claims and removing its half-written temporaries before it exits (:func:`_worker_terminated`)."""
+    worker's claims and removing its half-written temporaries before it exits (:func:`_worker_terminated`).
+    Windows' Ctrl-Break, which reaches every process of the console as Ctrl-C does, is ignored as Ctrl-C is (the
+    command takes it for Ctrl-C: ``cli._note_interrupts``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "SIGBREAK"):
+        signal.signal(signal.SIGBREAK, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_terminated)
 
 
@@ -156,6 +161,18 @@ def end_with_parent(poll_s: float = PARENT_POLL_S) -> None:
     def watch(pid: int) -> None:
         while pid_alive(pid):
             time.sleep(poll_s)
-        os.kill(os.getpid(), signal.SIGTERM)
+        _terminate_self()
 
     threading.Thread(target=watch, args=(parent.pid,), name="parent-watch", daemon=True).start()
+
+
+def _terminate_self() -> None:
+    """SIGTERM this process, from any thread: its handler runs (a worker's releases its claims and temporaries).
+
+    Windows: ``os.kill`` of any signal but Ctrl-C/Ctrl-Break is ``TerminateProcess``, which runs no handler, and a
+    signal raised in this thread would wait for the main thread, blocked on the pool's queue, so the handler is
+    called here (the workers' handlers end with ``os._exit``, fine from any thread)."""
+    handler = signal.getsignal(signal.SIGTERM)
+    if sys.platform == "win32" and callable(handler):
+        handler(signal.SIGTERM, None)
+    os.kill(os.getpid(), signal.SIGTERM)

@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 import time
 from collections.abc import Iterator
 from contextlib import AbstractContextManager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core import atomic
 from ..core.errors import ConfigError
 from .checkpoint import checkpoint_path
 
@@ -66,7 +66,7 @@ def publish_model(stage: str | Path, out: str | Path, result: TrainResult | None
         published = []
         for name in model_file_names(out):  # the model before its export
             if (stage / name).exists():
-                os.replace(stage / name, out.parent / name)
+                atomic.replace(stage / name, out.parent / name)  # Windows: retried while a program holds it
                 published.append(out.parent / name)
             else:  # another run's file, or a file of this name made before
                 (out.parent / name).unlink(missing_ok=True)
