@@ -113,3 +113,26 @@ def test_quick_variant_writes_its_report(name, table, tmp_path):
     if name == "q3":  # every shipped dome, each with a screw press
         assert {e["shape"] for e in doc["evaluations"]} == {"nlipstac", "fingertip", "oblate", "capsule", "flat"}
         assert {e["indenter"] for e in doc["evaluations"]} == {"screw"}
+
+
+def _copy_of(q1, tmp_path):
+    """A copy of the quick Q1's work folder and the command's argv on it: tests that damage or change it leave the
+    session's run as it was."""
+    import shutil
+
+    out, argv, _ = q1
+    mine = tmp_path / "q1"
+    shutil.copytree(out, mine)
+    return mine, [str(mine) if a == str(out) else a for a in argv]
+
+
+def test_a_damaged_error_map_is_one_line_naming_it(q1, tmp_path, capsys):
+    """The report's error-map figure read each map with np.load: a map cut short (a copied folder) stopped the
+    run's report with numpy's traceback (zipfile.BadZipFile)."""
+    out, argv = _copy_of(q1, tmp_path)
+    damaged = sorted((out / "q1-quick" / "maps").glob("*.npz"))[0]
+    damaged.write_bytes(damaged.read_bytes()[:200])
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip() and "\r" not in line]
+    assert len(err) == 1 and str(damaged) in err[0] and "damaged or truncated error map" in err[0], err
