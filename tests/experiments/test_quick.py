@@ -136,3 +136,39 @@ def test_a_damaged_error_map_is_one_line_naming_it(q1, tmp_path, capsys):
     assert main(argv) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip() and "\r" not in line]
     assert len(err) == 1 and str(damaged) in err[0] and "damaged or truncated error map" in err[0], err
+
+
+def test_a_solver_change_solves_the_kept_renders_again_without_rendering(q1, tmp_path, monkeypatch):
+    """A press task is keyed by all the code it runs, so a change of the solver alone re-runs it; its render was
+    deleted after scoring (unless --keep-presses), so every press was rendered again (minutes each at full size) to
+    solve the same images. Now the render stays, keyed by the twin's code and renderer: only the solves are redone,
+    with the same numbers."""
+    from nlipscalib.experiments import adapters, tasks
+
+    out, argv = _copy_of(q1, tmp_path)
+    argv = [a for a in argv if a != "--keep-presses"]
+    work = out / "q1-quick"
+    before = json.loads((work / "report" / "results.json").read_text(encoding="utf-8"))
+    made_with, edits = tasks._made_with, ["a"]
+
+    def solver_edited(kind: str, samples: bool) -> str:  # as if solver/ had changed: the kinds that run it differ
+        doc = json.loads(made_with(kind, samples))
+        if "solver" in tasks.task_code(kind, samples):
+            doc["code"] = edits[-1] * 32
+        return json.dumps(doc)
+
+    rendered = []
+    render = adapters.render
+    monkeypatch.setattr(tasks, "_made_with", solver_edited)
+    monkeypatch.setattr(
+        adapters, "render", lambda scene, press, *a, **k: rendered.append(press) or render(scene, press, *a, **k)
+    )
+    for edit in ("a", "b"):  # the first run finds the fixture's kept presses; the second, what the first left
+        edits.append(edit)
+        assert main(argv) == 0
+        doc = json.loads((work / "report" / "results.json").read_text(encoding="utf-8"))
+        assert rendered == [] and doc["tasks"]["run_now"] == doc["tasks"]["total"] - 1  # all but the reference
+        presses = sorted(work.glob("presses/*/meta.json"))
+        assert len(presses) == 2 and all((p.parent / "led_01.png").is_file() for p in presses)
+        assert not list(work.glob("presses/*/solves"))  # without --keep-presses the reconstructions go
+        assert [e["aae_deg"] for e in doc["evaluations"]] == [e["aae_deg"] for e in before["evaluations"]]
