@@ -467,7 +467,7 @@ def _rendered_here(folder: Path) -> bool:
     Why the render is kept after its task (and only the solves removed, unless ``--keep-presses``): a press task is
     keyed by all the code it runs (:data:`TASK_CODE`), so a change of the solver alone re-runs it; with the render
     deleted, that re-rendered every press (minutes each at the full size) to solve the same images again. The
-    cost is the folder's disk: ~0.65 MB a press at the quick size, ~25 MB at 640x480 (benchmarks/RESULTS.md,
+    cost is the folder's disk: ~0.6 MB a press at the quick size, ~25 MB at 640x480 (benchmarks/RESULTS.md,
     s27-stagekeys)."""
     from ..core.errors import CaptureError
     from ..core.press_folders import is_press_folder
