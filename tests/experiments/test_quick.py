@@ -176,3 +176,6 @@ def test_a_solver_change_solves_the_kept_renders_again_without_rendering(q1, tmp
         assert len(presses) == 2 and all((p.parent / "led_01.png").is_file() for p in presses)
         assert not list(work.glob("presses/*/solves"))  # without --keep-presses the reconstructions go
         assert [e["aae_deg"] for e in doc["evaluations"]] == [e["aae_deg"] for e in before["evaluations"]]
+    (presses[0].parent / "led_03.png").unlink()  # a kept render missing a file it lists is rendered again
+    (work / "tasks" / f"{presses[0].parent.name}.json").unlink()
+    assert main(argv) == 0 and len(rendered) == 1 and (presses[0].parent / "led_03.png").is_file()
