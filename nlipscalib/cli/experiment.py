@@ -64,7 +64,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--write-baseline", help="write this run's accuracy figures as a baseline JSON")
     p.add_argument("--plan", action="store_true", help="only print how many tasks the experiment has (and done)")
-    p.add_argument("--keep-presses", action="store_true", help="keep the rendered press folders")
+    p.add_argument(
+        "--keep-presses",
+        action="store_true",
+        help="keep each press folder whole, its solves' reconstructions (PRESS/solves/) too; the renders are kept "
+        "without it, so a rerun after a change of the solver solves them again without rendering",
+    )
     p.add_argument(
         "--keep-old",
         action="store_true",

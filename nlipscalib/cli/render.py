@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import re
 from typing import TYPE_CHECKING
 
@@ -13,6 +14,7 @@ if TYPE_CHECKING:  # named in hints only: the twin (Mitsuba) is imported when a 
     from ..sim.indent import PressConfig
     from ..sim.scene import SceneConfig
 
+log = logging.getLogger(__name__)
 DEFAULT_PRESS = {"indenter": "sphere", "polar_deg": 20.0, "azimuth_deg": 0.0, "spin_deg": 0.0, "depth": 1.0}
 """The press rendered when no indenter, pose or press file is given: a sphere 1 mm deep, 20 deg off the apex."""
 
@@ -288,4 +290,22 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
             f"{out}: already holds a press rendered from a different scene, press or seed{edited}; "
             "use --overwrite to replace it, or another --out"
         )
+    _warn_other_renderer(out)
     return True
+
+
+def _warn_other_renderer(out: Path) -> None:
+    """Warn that the press kept in ``out`` was rendered by other twin code or render libraries than this
+    installation's, as ``nlips dataset`` does (:func:`nlipscalib.sim.dataset_folder.check_existing`).
+
+    Why: the press spec alone was compared, so after an upgrade of Mitsuba or of sim/ the old images were kept
+    without a word. Kept, not re-rendered: a script re-running its renders must not spend minutes a press on
+    each upgrade; ``--overwrite`` renders it again."""
+    from ..sim.dataset_folder import render_difference, rendered_elsewhere_in
+
+    if rendered_elsewhere_in(out):
+        log.warning(
+            "%s: rendered by other twin code or render libraries (%s); kept: --overwrite renders it again",
+            out,
+            render_difference(out),
+        )

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.imageio import read_npz
 from ..report import experiments as fig
 from ..sim.indenters import IndenterConfig
 from .framework import WorkFigure
@@ -15,6 +16,8 @@ SPHERE = IndenterConfig(kind="sphere", size=6.0)
 CUBE = IndenterConfig(kind="cube", size=5.0)
 SCREW = IndenterConfig(kind="screw", size=4.0, length=10.0)
 
+MAP_ARRAYS = ("true", "estimate", "error")
+"""The arrays of an evaluation's error map (maps/*.npz, ``tasks._solve_one``) that a figure draws."""
 MAPS_NEED = "the presses' true and NLiPs normal maps (work folder maps/*.npz)"
 """What an error-map figure is drawn from (said when a redraw keeps it)."""
 
@@ -59,9 +62,10 @@ def map_rows(rows: list[dict], out: Path, key: tuple[str, ...], limit: int = 6) 
         if name in seen or not r.get("map") or len(picked) >= limit:
             continue
         seen.add(name)
-        with np.load(_map_path(out, r["map"])) as z:
-            title = ", ".join(str(v) for v in name) + f"\n{r['press']}" + _contact_line(r.get("aae_deg"))
-            picked.append((title, z["true"], z["estimate"], z["error"]))
+        # a damaged map (a copied or cut-short folder) is one line naming it, not numpy's traceback
+        z = read_npz(_map_path(out, r["map"]), MAP_ARRAYS, "damaged or truncated error map", only=MAP_ARRAYS)
+        title = ", ".join(str(v) for v in name) + f"\n{r['press']}" + _contact_line(r.get("aae_deg"))
+        picked.append((title, z["true"], z["estimate"], z["error"]))
     return picked
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from ..core.atomic import write_json
 from ..core.errors import CaptureError, ConfigError
+from ..core.imageio import read_npz
 from .tasks import Task, dataset_entry, digest, reference_folder, samples_problem, stored_result, view_path
 
 if TYPE_CHECKING:  # named in hints only: each function imports the learn/ modules it uses
@@ -284,9 +285,10 @@ def predicted_views(out: Path, predict: Predictor, names: list[str]) -> list[tup
         path = view_path(out, name)
         if not path.is_file():
             continue
-        with np.load(path) as z:
-            rgb, true, (x0, y0) = z["rgb"], z["true"], z["origin"]
-            colours = z["input"] if "input" in z.files else rgb  # the network's (filtered) input colours
+        # a damaged crop (a copied or cut-short folder) is one line naming it, not numpy's traceback
+        z = read_npz(path, ("rgb", "true", "origin"), "damaged or truncated figure crop")
+        rgb, true, (x0, y0) = z["rgb"], z["true"], z["origin"]
+        colours = z.get("input", rgb)  # the network's (filtered) input colours
         h, w = true.shape[:2]
         rows, cols = np.mgrid[0:h, 0:w]
         pixel = np.stack([cols.ravel() + x0, rows.ravel() + y0], -1)

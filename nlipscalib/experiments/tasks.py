@@ -59,7 +59,9 @@ TASK_CODE = {
 core.code_version.RENDER_CODE); a calibration fits the LEDs (solver) to the reference's images, so the code of that
 render too; a press task renders, solves (solver, pipeline) and reads the reference and calibrations. A change
 elsewhere (cli, experiments' tables and figures, report, device) keeps every task; a change of the solver alone
-keeps the references, whose renders cost the most a scene."""
+keeps the references, whose renders cost the most a scene, and the presses' renders, which each press task keeps in
+its folder and reuses when their own key, the twin's code and the render libraries, still holds
+(:func:`_rendered_here`): a press task is then a solve of the same images."""
 SAMPLES_CODE = ("learn",)
 """What a press task that writes NLiPsNet calibration samples (``Task.samples``) depends on besides: the samples'
 rules (learn.dataset). Not the other press tasks: NLiPsNet's code changes often, and a Q1 press does not use it."""
@@ -450,22 +452,30 @@ def _run_press(task: Task, out: Path, threads: int, keep: bool) -> dict:
     if task.samples is not None:
         first = solved[digest(task.evaluations[0]["solve"])]
         samples = _write_samples(adapters, out, task, press, reference, first.get("reconstruction"))
-    if not keep:
-        shutil.rmtree(folder, ignore_errors=True)
+    if not keep:  # the render stays (the cache of the render stage, :func:`_rendered_here`); the solves go
+        shutil.rmtree(folder / SOLVES_DIR, ignore_errors=True)
     timing = {"render_seconds": round(render_s, 3), "solve_seconds": {k: v["seconds"] for k, v in solved.items()}}
     body = {"press": task.press, "scene_key": scene_key(task.scene), "evaluations": evaluations, "timing": timing}
     return body | ({"samples": samples} if samples is not None else {})
 
 
 def _rendered_here(folder: Path) -> bool:
-    """Whether ``folder`` holds a press rendered with this installation's twin code and renderer (a press kept by
-    ``--keep-presses``, or rendered before an interruption); one of other code is rendered again, as its task is."""
+    """Whether ``folder`` holds a press rendered with this installation's twin code and renderer (the render stage's
+    key: :data:`nlipscalib.core.code_version.RENDER_CODE` and the render libraries, recorded in its meta.json); one of
+    other code is rendered again, as its task is.
+
+    Why the render is kept after its task (and only the solves removed, unless ``--keep-presses``): a press task is
+    keyed by all the code it runs (:data:`TASK_CODE`), so a change of the solver alone re-runs it; with the render
+    deleted, that re-rendered every press (minutes each at the full size) to solve the same images again. The
+    cost is the folder's disk: ~0.6 MB a press at the quick size, ~25 MB at 640x480 (benchmarks/RESULTS.md,
+    s27-stagekeys)."""
     from ..core.errors import CaptureError
     from ..core.press_folders import is_press_folder
     from ..core.press_meta import read_meta
+    from ..sim.dataset_folder import missing_files
     from ..sim.press import rendered_elsewhere
 
-    if not is_press_folder(folder):
+    if not is_press_folder(folder) or missing_files(folder):  # a file of it deleted since: rendered again whole
         return False
     try:
         provenance = read_meta(folder).get("provenance")

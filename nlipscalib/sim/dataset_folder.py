@@ -23,7 +23,7 @@ def is_complete(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool = 
     folder = out / job.name
     if not is_press_folder(folder) or not same_spec(scene, job, out) or missing_files(folder):
         return False
-    return not (overwrite and _rendered_elsewhere(folder))
+    return not (overwrite and rendered_elsewhere_in(folder))
 
 
 def same_spec(scene: SceneConfig, job: PressJob, out: Path) -> bool:
@@ -58,7 +58,7 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
         )
     found = [j for j in jobs if is_press_folder(out / j.name)]
     other_renderer = [j.name for j in found if _recorded_hash(out / j.name) == _expected_hash(scene, j)]
-    other_renderer = [name for name in other_renderer if _rendered_elsewhere(out / name)]
+    other_renderer = [name for name in other_renderer if rendered_elsewhere_in(out / name)]
     if other_renderer:
         names = ", ".join(other_renderer[:3]) + (
             f" and {len(other_renderer) - 3} more" if len(other_renderer) > 3 else ""
@@ -69,7 +69,7 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
             "--overwrite renders them again",
             out,
             names,
-            _render_difference(out / other_renderer[0]),
+            render_difference(out / other_renderer[0]),
         )
     changed = [j.name for j in found if not same_spec(scene, j, out)]
     if changed:
@@ -132,6 +132,29 @@ def results_inside(folder: Path) -> list[str]:
     return sorted(p.name + "/" for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))
 
 
+def rendered_elsewhere_in(folder: Path) -> bool:
+    """Whether the press in ``folder`` was rendered by other twin code or render libraries than this installation's
+    (or records none): ``nlips dataset`` and ``nlips render`` keep it with a warning, ``--overwrite`` renders it again.
+    """
+    from .press import rendered_elsewhere
+
+    return rendered_elsewhere(_provenance(folder))
+
+
+def render_difference(folder: Path) -> str:
+    """What rendered ``folder`` otherwise than this installation would, in words ("other code of sim/ or core/",
+    "mitsuba 3.5.0 (now 3.9.1)"), for the warnings of :func:`rendered_elsewhere_in`."""
+    from .press import render_identity
+
+    was, here = _provenance(folder), render_identity()
+    if "code" not in was:
+        return "twin code unrecorded: rendered before 2026-12-06"
+    said = ["other code of sim/ or core/"] if was.get("code") != here["code"] else []
+    libraries = was.get("libraries") if isinstance(was.get("libraries"), dict) else {}
+    said += [f"{k} {libraries.get(k)} (now {v})" for k, v in here["libraries"].items() if libraries.get(k) != v]
+    return ", ".join(said)
+
+
 # ---------------------------------------------------------------------- internals
 def _meta_problem(folder: Path) -> str | None:
     """Why ``folder``'s meta.json cannot be read as JSON (unreadable, not JSON, not an object), or None."""
@@ -162,25 +185,6 @@ def _provenance(folder: Path) -> dict:
     except (OSError, ValueError, KeyError, TypeError):
         return {}
     return provenance if isinstance(provenance, dict) else {}
-
-
-def _rendered_elsewhere(folder: Path) -> bool:
-    from .press import rendered_elsewhere
-
-    return rendered_elsewhere(_provenance(folder))
-
-
-def _render_difference(folder: Path) -> str:
-    """What rendered ``folder`` otherwise than this installation would, in words."""
-    from .press import render_identity
-
-    was, here = _provenance(folder), render_identity()
-    if "code" not in was:
-        return "twin code unrecorded: rendered before 2026-12-06"
-    said = ["other code of sim/ or core/"] if was.get("code") != here["code"] else []
-    libraries = was.get("libraries") if isinstance(was.get("libraries"), dict) else {}
-    said += [f"{k} {libraries.get(k)} (now {v})" for k, v in here["libraries"].items() if libraries.get(k) != v]
-    return ", ".join(said)
 
 
 def _expected_hash(scene: SceneConfig, job: PressJob) -> str:

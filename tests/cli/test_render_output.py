@@ -101,3 +101,33 @@ def test_a_file_or_a_folder_of_other_things_is_never_replaced_by_a_render(tmp_pa
         for out in (tmp_path / "empty", dataset / "press_0001"):
             assert main([*TINY, "--out", str(out), *overwrite]) == 0
         assert rendered == [tmp_path / "empty", dataset / "press_0001"]
+
+
+def test_a_press_that_other_twin_code_or_mitsuba_rendered_is_kept_with_a_warning(tmp_path, monkeypatch, capsys, caplog):
+    """`nlips render` onto a press folder compared the press spec only: after an upgrade of Mitsuba (or of sim/) it
+    said "nothing to do" and kept the old images without a word. Now it says what differs and keeps them, as
+    `nlips dataset` does; --overwrite renders them again."""
+    calls = []
+
+    def render_press(scene, press, out_folder, seed=None, overwrite=False):
+        calls.append(overwrite)
+        Path(out_folder).mkdir(parents=True, exist_ok=True)
+        provenance = {"spec_hash": sim_press.render_spec_hash(scene, press, seed), **sim_press.render_identity()}
+        (Path(out_folder) / "meta.json").write_text(json.dumps({"provenance": provenance}), encoding="utf-8")
+        return Path(out_folder)
+
+    monkeypatch.setattr(sim_press, "render_press", render_press)
+    out = tmp_path / "p"
+    assert main([*TINY, "--out", str(out)]) == 0 and calls == [False]
+    assert main([*TINY, "--out", str(out)]) == 0 and calls == [False]  # this installation's: nothing to say
+    assert not [r for r in caplog.records if "rendered by other twin code" in r.getMessage()]
+    meta = json.loads((out / "meta.json").read_text(encoding="utf-8"))
+    meta["provenance"]["libraries"] = meta["provenance"]["libraries"] | {"mitsuba": "3.0.0"}
+    (out / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+    assert main([*TINY, "--out", str(out)]) == 0 and calls == [False]  # kept
+    captured = capsys.readouterr()
+    assert "already rendered from this scene and press, nothing to do" in captured.out
+    warned = [r.getMessage() for r in caplog.records if "rendered by other twin code" in r.getMessage()]
+    assert len(warned) == 1 and str(out) in warned[0] and "mitsuba 3.0.0 (now " in warned[0], warned
+    assert "--overwrite renders it again" in warned[0]
+    assert main([*TINY, "--out", str(out), "--overwrite"]) == 0 and calls == [False, True]

@@ -6,6 +6,7 @@ import json
 import threading
 import time
 
+import numpy as np
 import pytest
 
 from nlipscalib.core.atomic import write_json
@@ -96,3 +97,20 @@ def test_a_model_is_scored_on_the_threads_it_trained_on_then_the_process_gets_it
         assert seen == [1, 1] and torch.get_num_threads() == 3
     finally:
         torch.set_num_threads(before)
+
+
+def test_a_damaged_figure_crop_is_one_error_naming_it(tmp_path):
+    """Q2's NLiPsNet figure read each press's crop with np.load: a crop cut short gave numpy's traceback."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.experiments.learning import predicted_views
+    from nlipscalib.experiments.tasks import view_path
+
+    path = view_path(tmp_path, "p1")
+    path.parent.mkdir(parents=True)
+    n = np.zeros((2, 2, 3), np.float32)
+    np.savez(path, rgb=n, true=n + [0, 0, -1], origin=np.array([3, 4]))
+    [(name, view)] = predicted_views(tmp_path, lambda pixel, rgb: np.tile([0.0, 0.0, -1.0], (len(pixel), 1)), ["p1"])
+    assert name == "p1" and np.all(view["error"] == 0)
+    path.write_bytes(path.read_bytes()[:100])
+    with pytest.raises(CaptureError, match=f"{path}: damaged or truncated figure crop"):
+        predicted_views(tmp_path, lambda pixel, rgb: pixel, ["p1"])

@@ -113,3 +113,69 @@ def test_quick_variant_writes_its_report(name, table, tmp_path):
     if name == "q3":  # every shipped dome, each with a screw press
         assert {e["shape"] for e in doc["evaluations"]} == {"nlipstac", "fingertip", "oblate", "capsule", "flat"}
         assert {e["indenter"] for e in doc["evaluations"]} == {"screw"}
+
+
+def _copy_of(q1, tmp_path):
+    """A copy of the quick Q1's work folder and the command's argv on it, run once more so that it holds that argv's
+    run (a test before may have left another's: other solver options): tests that damage or change it leave the
+    session's run as it was."""
+    import shutil
+
+    out, argv, _ = q1
+    mine = tmp_path / "q1"
+    shutil.copytree(out, mine)
+    argv = [str(mine) if a == str(out) else a for a in argv]
+    assert main(argv) == 0
+    return mine, argv
+
+
+def test_a_damaged_error_map_is_one_line_naming_it(q1, tmp_path, capsys):
+    """The report's error-map figure read each map with np.load: a map cut short (a copied folder) stopped the
+    run's report with numpy's traceback (zipfile.BadZipFile)."""
+    out, argv = _copy_of(q1, tmp_path)
+    doc = json.loads((out / "q1-quick" / "report" / "results.json").read_text(encoding="utf-8"))
+    damaged = out / "q1-quick" / next(e["map"] for e in doc["evaluations"] if e.get("map"))  # one the figure draws
+    damaged.write_bytes(damaged.read_bytes()[:200])
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip() and "\r" not in line]
+    assert len(err) == 1 and str(damaged) in err[0] and "damaged or truncated error map" in err[0], err
+
+
+def test_a_solver_change_solves_the_kept_renders_again_without_rendering(q1, tmp_path, monkeypatch):
+    """A press task is keyed by all the code it runs, so a change of the solver alone re-runs it; its render was
+    deleted after scoring (unless --keep-presses), so every press was rendered again (minutes each at full size) to
+    solve the same images. Now the render stays, keyed by the twin's code and renderer: only the solves are redone,
+    with the same numbers."""
+    from nlipscalib.experiments import adapters, tasks
+
+    out, argv = _copy_of(q1, tmp_path)
+    argv = [a for a in argv if a != "--keep-presses"]
+    work = out / "q1-quick"
+    before = json.loads((work / "report" / "results.json").read_text(encoding="utf-8"))
+    made_with, edits = tasks._made_with, ["a"]
+
+    def solver_edited(kind: str, samples: bool) -> str:  # as if solver/ had changed: the kinds that run it differ
+        doc = json.loads(made_with(kind, samples))
+        if "solver" in tasks.task_code(kind, samples):
+            doc["code"] = edits[-1] * 32
+        return json.dumps(doc)
+
+    rendered = []
+    render = adapters.render
+    monkeypatch.setattr(tasks, "_made_with", solver_edited)
+    monkeypatch.setattr(
+        adapters, "render", lambda scene, press, *a, **k: rendered.append(press) or render(scene, press, *a, **k)
+    )
+    for edit in ("a", "b"):  # the first run finds the fixture's kept presses; the second, what the first left
+        edits.append(edit)
+        assert main(argv) == 0
+        doc = json.loads((work / "report" / "results.json").read_text(encoding="utf-8"))
+        assert rendered == [] and doc["tasks"]["run_now"] == doc["tasks"]["total"] - 1  # all but the reference
+        presses = sorted(work.glob("presses/*/meta.json"))
+        assert len(presses) == 2 and all((p.parent / "led_01.png").is_file() for p in presses)
+        assert not list(work.glob("presses/*/solves"))  # without --keep-presses the reconstructions go
+        assert [e["aae_deg"] for e in doc["evaluations"]] == [e["aae_deg"] for e in before["evaluations"]]
+    (presses[0].parent / "led_03.png").unlink()  # a kept render missing a file it lists is rendered again
+    (work / "tasks" / f"{presses[0].parent.name}.json").unlink()
+    assert main(argv) == 0 and len(rendered) == 1 and (presses[0].parent / "led_03.png").is_file()
