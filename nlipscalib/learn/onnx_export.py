@@ -22,14 +22,22 @@ import numpy as np
 from ..core.cpus import usable_cores
 from ..core.errors import CaptureError, require
 from ..core.metrics import angle_deg
-from ..core.tolerances import ONNX_PARITY_DEG
+from ..core.tolerances import ONNX_PARITY_DEG, ONNX_WEIGHT_TOL
 
 if TYPE_CHECKING:  # named in hints only: the model module (and torch) are imported where an export needs them
+    import onnx
+
     from .model import LoadedModel
 
 OPSET = 17
 IR_VERSION = 8
 """ONNX IR version of the export: the oldest that carries opset 17 (onnxruntime >= 1.13 reads it)."""
+INPUT, OUTPUT = "uvrgb", "normal"
+"""Names of the export's input, (pixels, 5) float32 raw (u, v, r, g, b), and output, (pixels, 3) float32 unit
+normals."""
+SIZE_SLACK = 1 << 20
+"""Bytes a received ONNX file may hold beyond its model's export (metadata written by another tool, a longer sensor
+record): a larger file is refused before it is read."""
 
 
 def export_hint(model_path: str | Path, again: bool = False) -> str:
@@ -62,44 +70,11 @@ def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], obj
     between layers, then the division by the L2 norm (at least 1e-8). Named layers let the int8
     variant leave chosen layers in float (:func:`quantized_int8`).
     """
-    import torch
-
     from ..core.atomic import write_by_name, write_bytes
-    from .model import fused_net
 
     onnx = require("onnx", "onnx", "ONNX export")
-    helper, numpy_helper = onnx.helper, onnx.numpy_helper
-    linear = [m for m in fused_net(model.net.eval()).mlp if isinstance(m, torch.nn.Linear)]
-    nodes, weights, current = [], [], "uvrgb"
-    for k, layer in enumerate(linear):
-        weights.append(numpy_helper.from_array(layer.weight.detach().numpy().T.copy(), f"W{k}"))
-        weights.append(numpy_helper.from_array(layer.bias.detach().numpy().copy(), f"b{k}"))
-        nodes.append(helper.make_node("MatMul", [current, f"W{k}"], [f"matmul{k}"], name=f"layer{k}"))
-        nodes.append(helper.make_node("Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], name=f"bias{k}"))
-        current = f"linear{k}"
-        if k < len(linear) - 1:
-            nodes.append(helper.make_node("Relu", [current], [f"relu{k}"], name=f"relu{k}"))
-            current = f"relu{k}"
-    weights.append(numpy_helper.from_array(np.array([1e-8], np.float32), "min_norm"))
-    nodes += [
-        helper.make_node("ReduceL2", [current], ["norm"], keepdims=1, axes=[-1], name="norm"),
-        helper.make_node("Max", ["norm", "min_norm"], ["norm_clamped"], name="clamp"),
-        helper.make_node("Div", [current, "norm_clamped"], ["normal"], name="unit"),
-    ]
-    graph = helper.make_graph(
-        nodes,
-        "nlipsnet",
-        [helper.make_tensor_value_info("uvrgb", onnx.TensorProto.FLOAT, ["pixels", 5])],
-        [helper.make_tensor_value_info("normal", onnx.TensorProto.FLOAT, ["pixels", 3])],
-        weights,
-    )
-    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="nlipscalib")
-    proto.ir_version = IR_VERSION  # the installed onnx would write its newest, which older onnxruntimes refuse
+    proto = export_proto(model)
     onnx.checker.check_model(proto)
-    meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": json.dumps(list(model.hidden))}
-    for key, value in meta.items():
-        entry = proto.metadata_props.add()
-        entry.key, entry.value = key, value
     data = proto.SerializeToString()
     if check is None:
         return write_bytes(out, data)
@@ -114,8 +89,190 @@ def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], obj
     return write_by_name(out, write_and_check)
 
 
-def quantized_int8(path: str | Path) -> bytes:
-    """The ONNX model at ``path`` with dynamic int8 quantisation (onnxruntime.quantization.quantize_dynamic).
+def export_proto(model: LoadedModel) -> onnx.ModelProto:
+    """The ONNX model (onnx.ModelProto) :func:`export_onnx` writes for ``model``: its graph, weights and metadata.
+
+    Also what a received ONNX file is compared with before it is run (:func:`check_export`): one copy of the
+    graph's layout.
+    """
+    import torch
+
+    from .model import fused_net
+
+    onnx = require("onnx", "onnx", "ONNX export")
+    helper, numpy_helper = onnx.helper, onnx.numpy_helper
+    linear = [m for m in fused_net(model.net.eval()).mlp if isinstance(m, torch.nn.Linear)]
+    nodes, weights, current = [], [], INPUT
+    for k, layer in enumerate(linear):
+        weights.append(numpy_helper.from_array(layer.weight.detach().numpy().T.copy(), f"W{k}"))
+        weights.append(numpy_helper.from_array(layer.bias.detach().numpy().copy(), f"b{k}"))
+        nodes.append(helper.make_node("MatMul", [current, f"W{k}"], [f"matmul{k}"], name=f"layer{k}"))
+        nodes.append(helper.make_node("Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], name=f"bias{k}"))
+        current = f"linear{k}"
+        if k < len(linear) - 1:
+            nodes.append(helper.make_node("Relu", [current], [f"relu{k}"], name=f"relu{k}"))
+            current = f"relu{k}"
+    weights.append(numpy_helper.from_array(np.array([1e-8], np.float32), "min_norm"))
+    nodes += [
+        helper.make_node("ReduceL2", [current], ["norm"], keepdims=1, axes=[-1], name="norm"),
+        helper.make_node("Max", ["norm", "min_norm"], ["norm_clamped"], name="clamp"),
+        helper.make_node("Div", [current, "norm_clamped"], [OUTPUT], name="unit"),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "nlipsnet",
+        [helper.make_tensor_value_info(INPUT, onnx.TensorProto.FLOAT, ["pixels", 5])],
+        [helper.make_tensor_value_info(OUTPUT, onnx.TensorProto.FLOAT, ["pixels", 3])],
+        weights,
+    )
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="nlipscalib")
+    proto.ir_version = IR_VERSION  # the installed onnx would write its newest, which older onnxruntimes refuse
+    meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": json.dumps(list(model.hidden))}
+    for key, value in meta.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    return proto
+
+
+def check_export(path: str | Path, model: LoadedModel) -> bytes:
+    """The bytes of the ONNX file at ``path``, once known to be ``model``'s export: before onnxruntime sees them.
+
+    An ONNX file may come from elsewhere (beside a received model), and the model digest in its metadata is
+    whatever its sender wrote. It is run only when it is, up to float32 rounding, the graph :func:`export_proto`
+    writes for ``model``: the same nodes, input and output (NLiPsNet's ``uvrgb`` (pixels, 5) -> ``normal``
+    (pixels, 3)), standard operators of the same opset, and weights within
+    :data:`~nlipscalib.core.tolerances.ONNX_WEIGHT_TOL` of the model's folded weights. So it computes what the
+    model computes; what onnxruntime could be made to do by other graphs (read "external data" files named in
+    the graph, anywhere before onnxruntime's December 2025 fix; load custom operators; fold a ConstantOfShape of
+    terabytes while it optimises the graph) never starts. Its size is checked before it is read.
+
+    Raises
+    ------
+    CaptureError naming ``path`` and the first difference found, with how to write the export again.
+    """
+    onnx = require("onnx", "onnx", "ONNX inference")
+    path = Path(path)
+    expected = export_proto(model)
+    again = export_hint(model.path, again=True)
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise CaptureError(f"{path}: ONNX model cannot be read ({exc.strerror or exc})") from None
+    limit = expected.ByteSize() + SIZE_SLACK
+    if size > limit:
+        raise CaptureError(f"{path}: {size} bytes, more than an export of {model.path} holds ({limit}): {again}")
+    data = path.read_bytes()
+    try:
+        proto = onnx.load_from_string(data)
+    except Exception as exc:  # protobuf's DecodeError, or onnx's own for a file that is no model
+        raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__}): {again}") from None
+    if not proto.HasField("graph"):  # protobuf parses many byte strings (unknown fields are kept): no graph, no model
+        raise CaptureError(f"{path}: not a readable ONNX model (no graph): {again}")
+    if {p.key: p.value for p in proto.metadata_props}.get("model_digest") != model.digest:
+        raise CaptureError(
+            f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
+        )
+    problem = _graph_difference(proto, expected)
+    if problem:
+        raise CaptureError(f"{path}: {problem}, not the export of {model.path}: {again}")
+    return data
+
+
+def _graph_difference(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """The first way ``proto`` differs from ``expected`` (:func:`export_proto`), in words; None when it is the same
+    graph with weights within ONNX_WEIGHT_TOL (the metadata is not compared: the digest was). The most telling
+    differences are looked for first, so a hostile file is named for what it tries."""
+    for check in (_external_data, _custom_domain, _contract, _nodes, _weights, _extras):
+        problem = check(proto, expected)
+        if problem:
+            return problem
+    return None
+
+
+def _external_data(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """A weight whose values are in another file: onnxruntime would read it (any path, before its 2025 fix)."""
+    from onnx import TensorProto
+
+    graph = proto.graph
+    for tensor in [*graph.initializer, *(s.values for s in graph.sparse_initializer)]:
+        if tensor.data_location == TensorProto.EXTERNAL or tensor.external_data:
+            where = {e.key: e.value for e in tensor.external_data}.get("location", "?")
+            return f"its weight {tensor.name!r} refers to an external data file ({where!r}), which exports never do"
+    return None
+
+
+def _custom_domain(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Operators beyond the standard set (onnxruntime would look for a registered custom operator)."""
+    domains = ({o.domain for o in proto.opset_import} | {n.domain for n in proto.graph.node}) - {"", "ai.onnx"}
+    if domains:
+        return f"it uses operators of the domain {sorted(domains)[0]!r} (custom operators are never run)"
+    return None
+
+
+def _contract(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Inputs and outputs other than NLiPsNet's (u, v, r, g, b) -> n."""
+    graph, want = proto.graph, expected.graph
+    if [(v.name, v.type) for v in [*graph.input, *graph.output]] == [
+        (v.name, v.type) for v in [*want.input, *want.output]
+    ]:
+        return None
+    got = ", ".join(map(_describe, graph.input)) + " -> " + ", ".join(map(_describe, graph.output))
+    return f"its graph maps {got}, NLiPsNet maps {_describe(want.input[0])} -> {_describe(want.output[0])}"
+
+
+def _nodes(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Nodes other than the export's (each compared whole: operator, inputs, outputs, attributes, subgraphs)."""
+    nodes, want = list(proto.graph.node), list(expected.graph.node)
+    if nodes == want:
+        return None
+    k = next((i for i, (a, b) in enumerate(zip(nodes, want)) if a != b), min(len(nodes), len(want)))
+    got = repr(nodes[k].op_type) if k < len(nodes) else "missing"
+    need = repr(want[k].op_type) if k < len(want) else "none"
+    return f"its graph is not NLiPsNet's of this model's layers (node {k} is {got}, the export's is {need})"
+
+
+def _weights(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Weights of other names, shapes or values than the model's folded weights (within ONNX_WEIGHT_TOL)."""
+    from onnx import numpy_helper
+
+    weights, want = {t.name: t for t in proto.graph.initializer}, list(expected.graph.initializer)
+    if sorted(weights) != sorted(t.name for t in want):
+        return f"its weights are named {sorted(weights)}, the export's {sorted(t.name for t in want)}"
+    for tensor in want:
+        got, need = weights[tensor.name], numpy_helper.to_array(tensor)
+        if tuple(got.dims) != need.shape or got.data_type != tensor.data_type:
+            return f"its weight {tensor.name!r} is {tuple(got.dims)}, the model's {need.shape}"
+        off = float(np.max(np.abs(numpy_helper.to_array(got).astype(np.float64) - need), initial=0.0))
+        scale = float(np.max(np.abs(need), initial=0.0))
+        if not off <= ONNX_WEIGHT_TOL * max(scale, np.finfo(np.float32).tiny):
+            return f"its weight {tensor.name!r} differs from the model's by {off:.3g} (largest weight {scale:.3g})"
+    return None
+
+
+def _extras(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Anything else a graph may carry: another IR version or opset, model-local functions, training records."""
+    fields = ("ir_version", "opset_import", "functions", "training_info")
+    for field in fields:
+        if getattr(proto, field) != getattr(expected, field):
+            return f"its {field} differs from the export's"
+    graph, want = proto.graph, expected.graph
+    if list(graph.sparse_initializer) or list(graph.value_info) != list(want.value_info):
+        return "its graph holds sparse weights or value records that the export does not"
+    return None
+
+
+def _describe(value: onnx.ValueInfoProto) -> str:
+    """``name (pixels, 5) FLOAT`` for a graph input or output."""
+    from onnx import TensorProto
+
+    tensor = value.type.tensor_type
+    dims = ", ".join(d.dim_param or str(d.dim_value) for d in tensor.shape.dim)
+    return f"{value.name!r} ({dims}) {TensorProto.DataType.Name(tensor.elem_type)}"
+
+
+def quantized_int8(model: bytes) -> bytes:
+    """The ONNX model ``model`` (its file's bytes, checked: :func:`check_export`) with dynamic int8 quantisation
+    (onnxruntime.quantization.quantize_dynamic).
 
     Weights int8 per output channel, activations quantised per call. The first layer stays float: its
     inputs (pixel coordinates in hundreds, linear colours below 1) would share one 8-bit scale and
@@ -127,9 +284,10 @@ def quantized_int8(path: str | Path) -> bytes:
     require("onnx", "onnx", "int8 quantisation")
     quantization = require("onnxruntime.quantization", "onnxruntime", "int8 quantisation")
     onnx = require("onnx", "onnx", "int8 quantisation")
-    layers = [n.name for n in onnx.load(str(path), load_external_data=False).graph.node if n.op_type == "MatMul"]
+    layers = [n.name for n in onnx.load_from_string(model).graph.node if n.op_type == "MatMul"]
     with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "int8.onnx"
+        path, out = Path(tmp) / "float.onnx", Path(tmp) / "int8.onnx"
+        path.write_bytes(model)  # the bytes checked, not the file again (it may have changed meanwhile)
         # No warnings filter here: onnxruntime 1.32's quantize_dynamic warns nothing (a blanket "ignore" hid any
         # deprecation it might start to give from the tests' filterwarnings). Its advice goes to the root logger.
         logging.getLogger().disabled, was = True, logging.getLogger().disabled  # its advice on pre-processing
@@ -168,20 +326,17 @@ class OnnxNet:
         opts.inter_op_num_threads = 1
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        # a model's export only (check_export): a file is never handed to onnxruntime unchecked, nor read twice
+        data = check_export(path, model) if model is not None else path.read_bytes()
         try:
-            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
             raise CaptureError(
                 f"{path}: not a readable ONNX model ({type(exc).__name__}): "
                 f"{export_hint(model.path if model else 'MODEL.pt', again=True)}"
             ) from None
-        props = self.session.get_modelmeta().custom_metadata_map
-        if model is not None and props.get("model_digest") != model.digest:
-            raise CaptureError(
-                f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
-            )
         if int8:  # the checked float file, quantised in memory
-            self.session = ort.InferenceSession(quantized_int8(path), opts, providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(quantized_int8(data), opts, providers=["CPUExecutionProvider"])
         self.path = path
         self.int8 = int8
         self.threads = max(1, int(threads) if threads else usable_cores())

@@ -389,13 +389,13 @@ def test_a_failed_check_names_the_export_not_its_temporary(tmp_path, trained):
 
 def test_a_garbage_onnx_file_names_the_way_to_write_it_again(tmp_path):
     """`b.onnx: not a readable ONNX model (InvalidProtobuf)` gave no remedy; the missing-file line gave one."""
-    from types import SimpleNamespace
-
+    from nlipscalib.learn.model import load_model
     from nlipscalib.learn.onnx_export import OnnxNet
+    from tests.learn.test_onnx_digest import _save
 
     garbage = tmp_path / "net.onnx"
     garbage.write_bytes(np.random.default_rng(0).bytes(3000))
-    model = SimpleNamespace(path=tmp_path / "net.pt")
+    model = load_model(_save(tmp_path / "net.pt"))  # the export is checked against its model before it is read
     with pytest.raises(CaptureError) as caught:
         OnnxNet(garbage, model)
     message = str(caught.value)
