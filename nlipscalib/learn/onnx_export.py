@@ -9,12 +9,14 @@ never used with another model's reference.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -89,48 +91,104 @@ def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], obj
     return write_by_name(out, write_and_check)
 
 
+def onnx_messages() -> ModuleType:
+    """The module of ONNX's protobuf messages (``onnx.onnx_ml_pb2``: ModelProto, TensorProto ...), without
+    ``import onnx``.
+
+    Why: ``import onnx`` costs about 0.7 s of CPU (mostly ml_dtypes, which it imports for its type tables) at every
+    ``nlips infer`` start, where reading and comparing an export needs only the messages: their module, generated
+    by protoc into the onnx package, imports protobuf alone (30 ms). Loaded from the installed onnx's file; once
+    onnx itself is imported, its own module is used (both register the same descriptors).
+    """
+    import sys
+
+    loaded = sys.modules.get("onnx.onnx_ml_pb2")  # onnx imported: its own
+    return loaded if loaded is not None else _messages_alone()
+
+
+@functools.cache
+def _messages_alone() -> ModuleType:
+    """onnx's generated ``onnx_ml_pb2`` module executed from its file, once; ``import onnx`` later executes its own
+    copy, which adds the same descriptors to protobuf's pool (allowed: identical) and gets the same classes."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("onnx")  # finds the package without executing it
+    origin = Path(spec.origin).parent / "onnx_ml_pb2.py" if spec and spec.origin else None
+    if origin is None or not origin.is_file():  # no onnx (require names the package to install) or another layout
+        return require("onnx", "onnx", "ONNX inference").onnx_ml_pb2
+    messages = importlib.util.spec_from_file_location("onnx.onnx_ml_pb2", origin)
+    module = importlib.util.module_from_spec(messages)
+    messages.loader.exec_module(module)
+    return module
+
+
+def _tensor(pb: ModuleType, values: np.ndarray, name: str) -> onnx.TensorProto:
+    """A float32 initializer as onnx.numpy_helper.from_array writes it (dims, FLOAT, little-endian raw_data)."""
+    values = np.ascontiguousarray(values, "<f4")
+    return pb.TensorProto(name=name, dims=values.shape, data_type=pb.TensorProto.FLOAT, raw_data=values.tobytes())
+
+
+def _node(
+    pb: ModuleType, op: str, inputs: list[str], outputs: list[str], name: str, **ints: int | list[int]
+) -> onnx.NodeProto:
+    """A node as onnx.helper.make_node writes it: integer attributes (a list: INTS) sorted by name."""
+    node = pb.NodeProto(op_type=op, input=inputs, output=outputs, name=name)
+    for key, value in sorted(ints.items()):
+        if isinstance(value, list):
+            node.attribute.add(name=key, type=pb.AttributeProto.INTS, ints=value)
+        else:
+            node.attribute.add(name=key, type=pb.AttributeProto.INT, i=value)
+    return node
+
+
+def _value(pb: ModuleType, name: str, width: int) -> onnx.ValueInfoProto:
+    """A graph input or output: float32 of shape (``pixels``, width), as onnx.helper.make_tensor_value_info."""
+    value = pb.ValueInfoProto(name=name)
+    value.type.tensor_type.elem_type = pb.TensorProto.FLOAT
+    value.type.tensor_type.shape.dim.add(dim_param="pixels")
+    value.type.tensor_type.shape.dim.add(dim_value=width)
+    return value
+
+
 def export_proto(model: LoadedModel) -> onnx.ModelProto:
     """The ONNX model (onnx.ModelProto) :func:`export_onnx` writes for ``model``: its graph, weights and metadata.
 
     Also what a received ONNX file is compared with before it is run (:func:`check_export`): one copy of the
-    graph's layout.
+    graph's layout. Made of ONNX's protobuf messages directly (:func:`onnx_messages`), field by field as
+    onnx.helper makes them (tests/learn/test_models_from_others.py compares the bytes), so inference does not
+    import onnx.
     """
     import torch
 
     from .model import fused_net
 
-    onnx = require("onnx", "onnx", "ONNX export")
-    helper, numpy_helper = onnx.helper, onnx.numpy_helper
+    pb = onnx_messages()
     linear = [m for m in fused_net(model.net.eval()).mlp if isinstance(m, torch.nn.Linear)]
     nodes, weights, current = [], [], INPUT
     for k, layer in enumerate(linear):
-        weights.append(numpy_helper.from_array(layer.weight.detach().numpy().T.copy(), f"W{k}"))
-        weights.append(numpy_helper.from_array(layer.bias.detach().numpy().copy(), f"b{k}"))
-        nodes.append(helper.make_node("MatMul", [current, f"W{k}"], [f"matmul{k}"], name=f"layer{k}"))
-        nodes.append(helper.make_node("Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], name=f"bias{k}"))
+        weights.append(_tensor(pb, layer.weight.detach().numpy().T, f"W{k}"))
+        weights.append(_tensor(pb, layer.bias.detach().numpy(), f"b{k}"))
+        nodes.append(_node(pb, "MatMul", [current, f"W{k}"], [f"matmul{k}"], f"layer{k}"))
+        nodes.append(_node(pb, "Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], f"bias{k}"))
         current = f"linear{k}"
         if k < len(linear) - 1:
-            nodes.append(helper.make_node("Relu", [current], [f"relu{k}"], name=f"relu{k}"))
+            nodes.append(_node(pb, "Relu", [current], [f"relu{k}"], f"relu{k}"))
             current = f"relu{k}"
-    weights.append(numpy_helper.from_array(np.array([1e-8], np.float32), "min_norm"))
+    weights.append(_tensor(pb, np.array([1e-8], np.float32), "min_norm"))
     nodes += [
-        helper.make_node("ReduceL2", [current], ["norm"], keepdims=1, axes=[-1], name="norm"),
-        helper.make_node("Max", ["norm", "min_norm"], ["norm_clamped"], name="clamp"),
-        helper.make_node("Div", [current, "norm_clamped"], [OUTPUT], name="unit"),
+        _node(pb, "ReduceL2", [current], ["norm"], "norm", keepdims=1, axes=[-1]),
+        _node(pb, "Max", ["norm", "min_norm"], ["norm_clamped"], "clamp"),
+        _node(pb, "Div", [current, "norm_clamped"], [OUTPUT], "unit"),
     ]
-    graph = helper.make_graph(
-        nodes,
-        "nlipsnet",
-        [helper.make_tensor_value_info(INPUT, onnx.TensorProto.FLOAT, ["pixels", 5])],
-        [helper.make_tensor_value_info(OUTPUT, onnx.TensorProto.FLOAT, ["pixels", 3])],
-        weights,
+    graph = pb.GraphProto(
+        node=nodes, name="nlipsnet", input=[_value(pb, INPUT, 5)], output=[_value(pb, OUTPUT, 3)], initializer=weights
     )
-    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="nlipscalib")
-    proto.ir_version = IR_VERSION  # the installed onnx would write its newest, which older onnxruntimes refuse
+    # IR version 8: the installed onnx would write its newest, which older onnxruntimes refuse
+    proto = pb.ModelProto(ir_version=IR_VERSION, producer_name="nlipscalib", graph=graph)
+    proto.opset_import.add(domain="", version=OPSET)
     meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": json.dumps(list(model.hidden))}
     for key, value in meta.items():
-        entry = proto.metadata_props.add()
-        entry.key, entry.value = key, value
+        proto.metadata_props.add(key=key, value=value)
     return proto
 
 
@@ -150,7 +208,6 @@ def check_export(path: str | Path, model: LoadedModel) -> bytes:
     ------
     CaptureError naming ``path`` and the first difference found, with how to write the export again.
     """
-    onnx = require("onnx", "onnx", "ONNX inference")
     path = Path(path)
     expected = export_proto(model)
     again = export_hint(model.path, again=True)
@@ -163,8 +220,8 @@ def check_export(path: str | Path, model: LoadedModel) -> bytes:
         raise CaptureError(f"{path}: {size} bytes, more than an export of {model.path} holds ({limit}): {again}")
     data = path.read_bytes()
     try:
-        proto = onnx.load_from_string(data)
-    except Exception as exc:  # protobuf's DecodeError, or onnx's own for a file that is no model
+        proto = onnx_messages().ModelProto.FromString(data)
+    except Exception as exc:  # protobuf's DecodeError (its class depends on the protobuf backend)
         raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__}): {again}") from None
     if not proto.HasField("graph"):  # protobuf parses many byte strings (unknown fields are kept): no graph, no model
         raise CaptureError(f"{path}: not a readable ONNX model (no graph): {again}")
@@ -191,11 +248,9 @@ def _graph_difference(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str 
 
 def _external_data(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     """A weight whose values are in another file: onnxruntime would read it (any path, before its 2025 fix)."""
-    from onnx import TensorProto
-
-    graph = proto.graph
+    graph, external = proto.graph, onnx_messages().TensorProto.EXTERNAL
     for tensor in [*graph.initializer, *(s.values for s in graph.sparse_initializer)]:
-        if tensor.data_location == TensorProto.EXTERNAL or tensor.external_data:
+        if tensor.data_location == external or tensor.external_data:
             where = {e.key: e.value for e in tensor.external_data}.get("location", "?")
             return f"its weight {tensor.name!r} refers to an external data file ({where!r}), which exports never do"
     return None
@@ -233,16 +288,16 @@ def _nodes(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
 
 def _weights(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     """Weights of other names, shapes or values than the model's folded weights (within ONNX_WEIGHT_TOL)."""
-    from onnx import numpy_helper
-
     weights, want = {t.name: t for t in proto.graph.initializer}, list(expected.graph.initializer)
     if sorted(weights) != sorted(t.name for t in want):
         return f"its weights are named {sorted(weights)}, the export's {sorted(t.name for t in want)}"
     for tensor in want:
-        got, need = weights[tensor.name], numpy_helper.to_array(tensor)
-        if tuple(got.dims) != need.shape or got.data_type != tensor.data_type:
-            return f"its weight {tensor.name!r} is {tuple(got.dims)}, the model's {need.shape}"
-        off = float(np.max(np.abs(numpy_helper.to_array(got).astype(np.float64) - need), initial=0.0))
+        got, need = weights[tensor.name], _float_values(tensor)
+        values = _float_values(got) if tuple(got.dims) == need.shape else None
+        if values is None:
+            got_type = f"{tuple(got.dims)} of type {got.data_type}"
+            return f"its weight {tensor.name!r} is {got_type}, the model's {need.shape} of type {tensor.data_type}"
+        off = float(np.max(np.abs(values.astype(np.float64) - need), initial=0.0))
         scale = float(np.max(np.abs(need), initial=0.0))
         if not off <= ONNX_WEIGHT_TOL * max(scale, np.finfo(np.float32).tiny):
             return f"its weight {tensor.name!r} differs from the model's by {off:.3g} (largest weight {scale:.3g})"
@@ -261,13 +316,26 @@ def _extras(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
     return None
 
 
+def _float_values(tensor: onnx.TensorProto) -> np.ndarray | None:
+    """The float32 values of an initializer, shaped by its dims (in ``raw_data`` little-endian, or ``float_data``);
+    None when it is of another type or holds another number of values than its dims say."""
+    if tensor.data_type != onnx_messages().TensorProto.FLOAT:
+        return None
+    count = int(np.prod(tensor.dims, dtype=np.int64))
+    if tensor.raw_data:
+        values = np.frombuffer(tensor.raw_data, "<f4") if len(tensor.raw_data) == 4 * count else None
+    else:
+        values = np.asarray(tensor.float_data, np.float32) if len(tensor.float_data) == count else None
+    return None if values is None else values.reshape(tuple(tensor.dims))
+
+
 def _describe(value: onnx.ValueInfoProto) -> str:
     """``name (pixels, 5) FLOAT`` for a graph input or output."""
-    from onnx import TensorProto
-
+    data_type = onnx_messages().TensorProto.DataType
     tensor = value.type.tensor_type
     dims = ", ".join(d.dim_param or str(d.dim_value) for d in tensor.shape.dim)
-    return f"{value.name!r} ({dims}) {TensorProto.DataType.Name(tensor.elem_type)}"
+    kind = data_type.Name(tensor.elem_type) if tensor.elem_type in data_type.values() else str(tensor.elem_type)
+    return f"{value.name!r} ({dims}) {kind}"
 
 
 def quantized_int8(model: bytes) -> bytes:

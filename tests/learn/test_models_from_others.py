@@ -163,3 +163,62 @@ def test_a_model_file_deflated_to_a_thousandth_is_refused_before_torch_inflates_
         assert message.startswith(f"{bomb}: its entries inflate to ") and "\n" not in message, message
         assert message.endswith("(torch.save stores them uncompressed): not usable as an NLiPsNet model file")
     assert read_torch_file(plain, "a model")["bomb"].shape == (16 << 20,)  # the same file, stored: read
+
+
+def test_the_export_is_written_as_onnx_helper_writes_it_and_infer_does_not_import_onnx(tmp_path):
+    """export_proto makes the messages itself (inference then needs no `import onnx`, 0.7 s of CPU): its bytes are
+    those of onnx.helper's model, field for field, so exports of earlier releases are the graph compared with."""
+    import subprocess
+    import sys
+
+    from nlipscalib.learn.model import fused_net, load_model
+    from nlipscalib.learn.onnx_export import export_proto
+
+    model = load_model(_save(tmp_path / "m.pt"))
+    helper, numpy_helper = onnx.helper, onnx.numpy_helper
+    import torch
+
+    linear = [m for m in fused_net(model.net.eval()).mlp if isinstance(m, torch.nn.Linear)]
+    nodes, weights, current = [], [], "uvrgb"
+    for k, layer in enumerate(linear):  # the graph as export_onnx wrote it up to 2026-12-05, with onnx.helper
+        weights.append(numpy_helper.from_array(layer.weight.detach().numpy().T.copy(), f"W{k}"))
+        weights.append(numpy_helper.from_array(layer.bias.detach().numpy().copy(), f"b{k}"))
+        nodes.append(helper.make_node("MatMul", [current, f"W{k}"], [f"matmul{k}"], name=f"layer{k}"))
+        nodes.append(helper.make_node("Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], name=f"bias{k}"))
+        current = f"linear{k}"
+        if k < len(linear) - 1:
+            nodes.append(helper.make_node("Relu", [current], [f"relu{k}"], name=f"relu{k}"))
+            current = f"relu{k}"
+    weights.append(numpy_helper.from_array(np.array([1e-8], np.float32), "min_norm"))
+    nodes += [
+        helper.make_node("ReduceL2", [current], ["norm"], keepdims=1, axes=[-1], name="norm"),
+        helper.make_node("Max", ["norm", "min_norm"], ["norm_clamped"], name="clamp"),
+        helper.make_node("Div", [current, "norm_clamped"], ["normal"], name="unit"),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "nlipsnet",
+        [helper.make_tensor_value_info("uvrgb", onnx.TensorProto.FLOAT, ["pixels", 5])],
+        [helper.make_tensor_value_info("normal", onnx.TensorProto.FLOAT, ["pixels", 3])],
+        weights,
+    )
+    old = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)], producer_name="nlipscalib")
+    old.ir_version = 8
+    ours = export_proto(model)
+    del ours.metadata_props[:]
+    assert ours.SerializeToString() == old.SerializeToString()
+    code = (
+        "import sys; from nlipscalib.learn.model import load_model; from nlipscalib.learn.onnx_export import "
+        f"OnnxNet, export_onnx; m = load_model({str(model.path)!r}); "
+        "OnnxNet(export_onnx(m, m.path.with_suffix('.onnx')), m); import onnx"  # writing imports onnx: a new process
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+    check = (
+        "import sys; from nlipscalib.learn.model import load_model; from nlipscalib.learn.onnx_export import OnnxNet; "
+        f"m = load_model({str(model.path)!r}); OnnxNet(m.path.with_suffix('.onnx'), m, threads=1); "
+        "print('ml_dtypes' in sys.modules, 'onnx' in sys.modules)"
+    )
+    assert subprocess.run([sys.executable, "-c", check], check=True, capture_output=True, text=True).stdout.split() == [
+        "False",
+        "False",
+    ]
