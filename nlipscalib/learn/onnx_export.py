@@ -379,6 +379,10 @@ class OnnxNet:
     onnxruntime thread: for these narrow layers that uses the cores far better than onnxruntime's own
     intra-op split of one large call (measured in benchmarks/RESULTS.md). The session does not spin
     between calls, so the other stages of a frame get the cores.
+
+    With ``model`` (the loaded .pt: how inference runs it), the file runs only once :func:`check_export` found it
+    to be that model's export, and the session is made from the bytes checked. Without one, the file is trusted
+    as it is (a test's or benchmark's own export): never pass a received file so.
     """
 
     MIN_SLICE = 4096
@@ -394,8 +398,8 @@ class OnnxNet:
         opts.inter_op_num_threads = 1
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        # a model's export only (check_export): a file is never handed to onnxruntime unchecked, nor read twice
-        data = check_export(path, model) if model is not None else path.read_bytes()
+        # a model's export only (check_export): a received file is never handed to onnxruntime unchecked, nor read twice
+        data = check_export(path, model) if model is not None else str(path)
         try:
             self.session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
@@ -404,14 +408,15 @@ class OnnxNet:
                 f"{export_hint(model.path if model else 'MODEL.pt', again=True)}"
             ) from None
         if int8:  # the checked float file, quantised in memory
-            self.session = ort.InferenceSession(quantized_int8(data), opts, providers=["CPUExecutionProvider"])
+            float_model = data if isinstance(data, bytes) else path.read_bytes()
+            self.session = ort.InferenceSession(quantized_int8(float_model), opts, providers=["CPUExecutionProvider"])
         self.path = path
         self.int8 = int8
         self.threads = max(1, int(threads) if threads else usable_cores())
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
 
     def _run(self, x: np.ndarray) -> np.ndarray:
-        return self.session.run(None, {"uvrgb": x})[0]
+        return self.session.run(None, {INPUT: x})[0]
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(x, np.float32)
