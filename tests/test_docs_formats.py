@@ -140,7 +140,7 @@ def test_report_json_interreflection_model_onnx_stream_and_experiment_keys_are_d
     model = _section("# NLiPsNet model file", "`MODEL.onnx` beside it")
     assert _undocumented(_literal_keys("learn.model", "save_model", "payload"), model) == []
     onnx = _section("`MODEL.onnx` beside it", "The ONNX graph")
-    assert _undocumented(_literal_keys("learn.onnx_export", "export_onnx", "meta"), onnx) == []
+    assert _undocumented(_literal_keys("learn.onnx_export", "export_proto", "meta"), onnx) == []
     stream = _section("`nlips infer MODEL VIDEO", "## PLY")
     assert _undocumented(_literal_keys("cli.infer", "_write_stream_report", "report"), stream) == []
     results = _section("# Experiment report", "# Disk cache")

@@ -248,6 +248,11 @@ ONNX_PARITY_DEG = 0.1
 (:func:`nlipscalib.learn.onnx_export.checked_parity`); at or beyond it the export is refused. What it guards: an
 export that computes something other than the network (a wrongly fused layer, a missing normalisation), while
 the two runtimes' float32 rounding passes. The value's own origin is not recorded."""
+ONNX_WEIGHT_TOL = 1e-5
+"""A received ONNX file's weights are its model's (:func:`nlipscalib.learn.onnx_export.check_export`) when each
+differs from the model's folded float32 weight by at most this fraction of the layer's largest weight: float32
+rounding of the folding (done in float64) on another machine or torch version, while weights of another model (or
+a trained-on copy) differ by far more. Exports of the same loaded model are bit-identical (difference 0)."""
 UNIT_NORMAL_TOL = 1e-3
 """A stored normal's length may differ from 1 by this much (float32 storage rounds at ~1e-7)."""
 FACING_AWAY_MAJORITY = 0.5

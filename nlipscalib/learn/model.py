@@ -367,6 +367,7 @@ def _read_torch_bytes(path: str | Path, what: str) -> tuple[object, bytes]:
         raise CaptureError(f"{path}: not {what} (not a torch.save archive)")
     if not zipfile.is_zipfile(io.BytesIO(data)):
         raise CaptureError(f"{path}: truncated or damaged, not usable as {what} (the archive's directory is missing)")
+    _check_inflated_size(path, data, what)
     try:
         return torch.load(io.BytesIO(data), map_location="cpu", weights_only=True), data
     except Exception as exc:  # torch raises many kinds (RuntimeError, UnpicklingError, EOFError ...)
@@ -375,3 +376,23 @@ def _read_torch_bytes(path: str | Path, what: str) -> tuple[object, bytes]:
             first = "it holds objects other than tensors and plain data"
         detail = f"{type(exc).__name__}: {first[:160]}" if first else type(exc).__name__
         raise CaptureError(f"{path}: damaged, not usable as {what} ({detail})") from None
+
+
+def _check_inflated_size(path: Path, data: bytes, what: str) -> None:
+    """CaptureError naming the file when its zip entries declare more bytes than the file holds.
+
+    torch.save stores its entries uncompressed, but torch.load inflates deflated ones too: a received file of
+    64 KB could hold a tensor of 64 MB of zeros (1000:1), and of gigabytes at a few MB (docs/formats.md, "Files
+    from others"). Checked from the archive's directory, before torch reads an entry."""
+    import io
+    import zipfile
+
+    try:
+        inflated = sum(entry.file_size for entry in zipfile.ZipFile(io.BytesIO(data)).infolist())
+    except (zipfile.BadZipFile, OSError, ValueError) as exc:  # a directory that names impossible entries
+        raise CaptureError(f"{path}: damaged, not usable as {what} ({type(exc).__name__})") from None
+    if inflated > len(data):
+        raise CaptureError(
+            f"{path}: its entries inflate to {inflated} bytes from a file of {len(data)} (torch.save stores them "
+            f"uncompressed): not usable as {what}"
+        )

@@ -9,12 +9,14 @@ never used with another model's reference.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import logging
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from types import ModuleType
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,14 +24,22 @@ import numpy as np
 from ..core.cpus import usable_cores
 from ..core.errors import CaptureError, require
 from ..core.metrics import angle_deg
-from ..core.tolerances import ONNX_PARITY_DEG
+from ..core.tolerances import ONNX_PARITY_DEG, ONNX_WEIGHT_TOL
 
 if TYPE_CHECKING:  # named in hints only: the model module (and torch) are imported where an export needs them
+    import onnx
+
     from .model import LoadedModel
 
 OPSET = 17
 IR_VERSION = 8
 """ONNX IR version of the export: the oldest that carries opset 17 (onnxruntime >= 1.13 reads it)."""
+INPUT, OUTPUT = "uvrgb", "normal"
+"""Names of the export's input, (pixels, 5) float32 raw (u, v, r, g, b), and output, (pixels, 3) float32 unit
+normals."""
+SIZE_SLACK = 1 << 20
+"""Bytes a received ONNX file may hold beyond its model's export (metadata written by another tool, a longer sensor
+record): a larger file is refused before it is read."""
 
 
 def export_hint(model_path: str | Path, again: bool = False) -> str:
@@ -62,44 +72,11 @@ def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], obj
     between layers, then the division by the L2 norm (at least 1e-8). Named layers let the int8
     variant leave chosen layers in float (:func:`quantized_int8`).
     """
-    import torch
-
     from ..core.atomic import write_by_name, write_bytes
-    from .model import fused_net
 
     onnx = require("onnx", "onnx", "ONNX export")
-    helper, numpy_helper = onnx.helper, onnx.numpy_helper
-    linear = [m for m in fused_net(model.net.eval()).mlp if isinstance(m, torch.nn.Linear)]
-    nodes, weights, current = [], [], "uvrgb"
-    for k, layer in enumerate(linear):
-        weights.append(numpy_helper.from_array(layer.weight.detach().numpy().T.copy(), f"W{k}"))
-        weights.append(numpy_helper.from_array(layer.bias.detach().numpy().copy(), f"b{k}"))
-        nodes.append(helper.make_node("MatMul", [current, f"W{k}"], [f"matmul{k}"], name=f"layer{k}"))
-        nodes.append(helper.make_node("Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], name=f"bias{k}"))
-        current = f"linear{k}"
-        if k < len(linear) - 1:
-            nodes.append(helper.make_node("Relu", [current], [f"relu{k}"], name=f"relu{k}"))
-            current = f"relu{k}"
-    weights.append(numpy_helper.from_array(np.array([1e-8], np.float32), "min_norm"))
-    nodes += [
-        helper.make_node("ReduceL2", [current], ["norm"], keepdims=1, axes=[-1], name="norm"),
-        helper.make_node("Max", ["norm", "min_norm"], ["norm_clamped"], name="clamp"),
-        helper.make_node("Div", [current, "norm_clamped"], ["normal"], name="unit"),
-    ]
-    graph = helper.make_graph(
-        nodes,
-        "nlipsnet",
-        [helper.make_tensor_value_info("uvrgb", onnx.TensorProto.FLOAT, ["pixels", 5])],
-        [helper.make_tensor_value_info("normal", onnx.TensorProto.FLOAT, ["pixels", 3])],
-        weights,
-    )
-    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="nlipscalib")
-    proto.ir_version = IR_VERSION  # the installed onnx would write its newest, which older onnxruntimes refuse
+    proto = export_proto(model)
     onnx.checker.check_model(proto)
-    meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": json.dumps(list(model.hidden))}
-    for key, value in meta.items():
-        entry = proto.metadata_props.add()
-        entry.key, entry.value = key, value
     data = proto.SerializeToString()
     if check is None:
         return write_bytes(out, data)
@@ -114,8 +91,256 @@ def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], obj
     return write_by_name(out, write_and_check)
 
 
-def quantized_int8(path: str | Path) -> bytes:
-    """The ONNX model at ``path`` with dynamic int8 quantisation (onnxruntime.quantization.quantize_dynamic).
+def onnx_messages() -> ModuleType:
+    """The module of ONNX's protobuf messages (``onnx.onnx_ml_pb2``: ModelProto, TensorProto ...), without
+    ``import onnx``.
+
+    Why: ``import onnx`` costs about 0.7 s of CPU (mostly ml_dtypes, which it imports for its type tables) at every
+    ``nlips infer`` start, where reading and comparing an export needs only the messages: their module, generated
+    by protoc into the onnx package, imports protobuf alone (30 ms). Loaded from the installed onnx's file; once
+    onnx itself is imported, its own module is used (both register the same descriptors).
+    """
+    import sys
+
+    loaded = sys.modules.get("onnx.onnx_ml_pb2")  # onnx imported: its own
+    return loaded if loaded is not None else _messages_alone()
+
+
+@functools.cache
+def _messages_alone() -> ModuleType:
+    """onnx's generated ``onnx_ml_pb2`` module executed from its file, once; ``import onnx`` later executes its own
+    copy, which adds the same descriptors to protobuf's pool (allowed: identical) and gets the same classes."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("onnx")  # finds the package without executing it
+    origin = Path(spec.origin).parent / "onnx_ml_pb2.py" if spec and spec.origin else None
+    if origin is None or not origin.is_file():  # no onnx (require names the package to install) or another layout
+        return require("onnx", "onnx", "ONNX inference").onnx_ml_pb2
+    messages = importlib.util.spec_from_file_location("onnx.onnx_ml_pb2", origin)
+    module = importlib.util.module_from_spec(messages)
+    messages.loader.exec_module(module)
+    return module
+
+
+def _tensor(pb: ModuleType, values: np.ndarray, name: str) -> onnx.TensorProto:
+    """A float32 initializer as onnx.numpy_helper.from_array writes it (dims, FLOAT, little-endian raw_data)."""
+    values = np.ascontiguousarray(values, "<f4")
+    return pb.TensorProto(name=name, dims=values.shape, data_type=pb.TensorProto.FLOAT, raw_data=values.tobytes())
+
+
+def _node(
+    pb: ModuleType, op: str, inputs: list[str], outputs: list[str], name: str, **ints: int | list[int]
+) -> onnx.NodeProto:
+    """A node as onnx.helper.make_node writes it: integer attributes (a list: INTS) sorted by name."""
+    node = pb.NodeProto(op_type=op, input=inputs, output=outputs, name=name)
+    for key, value in sorted(ints.items()):
+        if isinstance(value, list):
+            node.attribute.add(name=key, type=pb.AttributeProto.INTS, ints=value)
+        else:
+            node.attribute.add(name=key, type=pb.AttributeProto.INT, i=value)
+    return node
+
+
+def _value(pb: ModuleType, name: str, width: int) -> onnx.ValueInfoProto:
+    """A graph input or output: float32 of shape (``pixels``, width), as onnx.helper.make_tensor_value_info."""
+    value = pb.ValueInfoProto(name=name)
+    value.type.tensor_type.elem_type = pb.TensorProto.FLOAT
+    value.type.tensor_type.shape.dim.add(dim_param="pixels")
+    value.type.tensor_type.shape.dim.add(dim_value=width)
+    return value
+
+
+def export_proto(model: LoadedModel) -> onnx.ModelProto:
+    """The ONNX model (onnx.ModelProto) :func:`export_onnx` writes for ``model``: its graph, weights and metadata.
+
+    Also what a received ONNX file is compared with before it is run (:func:`check_export`): one copy of the
+    graph's layout. Made of ONNX's protobuf messages directly (:func:`onnx_messages`), field by field as
+    onnx.helper makes them (tests/learn/test_models_from_others.py compares the bytes), so inference does not
+    import onnx.
+    """
+    import torch
+
+    from .model import fused_net
+
+    pb = onnx_messages()
+    linear = [m for m in fused_net(model.net.eval()).mlp if isinstance(m, torch.nn.Linear)]
+    nodes, weights, current = [], [], INPUT
+    for k, layer in enumerate(linear):
+        weights.append(_tensor(pb, layer.weight.detach().numpy().T, f"W{k}"))
+        weights.append(_tensor(pb, layer.bias.detach().numpy(), f"b{k}"))
+        nodes.append(_node(pb, "MatMul", [current, f"W{k}"], [f"matmul{k}"], f"layer{k}"))
+        nodes.append(_node(pb, "Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], f"bias{k}"))
+        current = f"linear{k}"
+        if k < len(linear) - 1:
+            nodes.append(_node(pb, "Relu", [current], [f"relu{k}"], f"relu{k}"))
+            current = f"relu{k}"
+    weights.append(_tensor(pb, np.array([1e-8], np.float32), "min_norm"))
+    nodes += [
+        _node(pb, "ReduceL2", [current], ["norm"], "norm", keepdims=1, axes=[-1]),
+        _node(pb, "Max", ["norm", "min_norm"], ["norm_clamped"], "clamp"),
+        _node(pb, "Div", [current, "norm_clamped"], [OUTPUT], "unit"),
+    ]
+    graph = pb.GraphProto(
+        node=nodes, name="nlipsnet", input=[_value(pb, INPUT, 5)], output=[_value(pb, OUTPUT, 3)], initializer=weights
+    )
+    # IR version 8: the installed onnx would write its newest, which older onnxruntimes refuse
+    proto = pb.ModelProto(ir_version=IR_VERSION, producer_name="nlipscalib", graph=graph)
+    proto.opset_import.add(domain="", version=OPSET)
+    meta = {"sensor": json.dumps(model.sensor), "model_digest": model.digest, "hidden": json.dumps(list(model.hidden))}
+    for key, value in meta.items():
+        proto.metadata_props.add(key=key, value=value)
+    return proto
+
+
+def check_export(path: str | Path, model: LoadedModel) -> bytes:
+    """The bytes of the ONNX file at ``path``, once known to be ``model``'s export: before onnxruntime sees them.
+
+    An ONNX file may come from elsewhere (beside a received model), and the model digest in its metadata is
+    whatever its sender wrote. It is run only when it is, up to float32 rounding, the graph :func:`export_proto`
+    writes for ``model``: the same nodes, input and output (NLiPsNet's ``uvrgb`` (pixels, 5) -> ``normal``
+    (pixels, 3)), standard operators of the same opset, and weights within
+    :data:`~nlipscalib.core.tolerances.ONNX_WEIGHT_TOL` of the model's folded weights. So it computes what the
+    model computes; what onnxruntime could be made to do by other graphs (read "external data" files named in
+    the graph, anywhere before onnxruntime's December 2025 fix; load custom operators; fold a ConstantOfShape of
+    terabytes while it optimises the graph) never starts. Its size is checked before it is read.
+
+    Raises
+    ------
+    CaptureError naming ``path`` and the first difference found, with how to write the export again.
+    """
+    path = Path(path)
+    expected = export_proto(model)
+    again = export_hint(model.path, again=True)
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise CaptureError(f"{path}: ONNX model cannot be read ({exc.strerror or exc})") from None
+    limit = expected.ByteSize() + SIZE_SLACK
+    if size > limit:
+        raise CaptureError(f"{path}: {size} bytes, more than an export of {model.path} holds ({limit}): {again}")
+    data = path.read_bytes()
+    try:
+        proto = onnx_messages().ModelProto.FromString(data)
+    except Exception as exc:  # protobuf's DecodeError (its class depends on the protobuf backend)
+        raise CaptureError(f"{path}: not a readable ONNX model ({type(exc).__name__}): {again}") from None
+    if not proto.HasField("graph"):  # protobuf parses many byte strings (unknown fields are kept): no graph, no model
+        raise CaptureError(f"{path}: not a readable ONNX model (no graph): {again}")
+    if {p.key: p.value for p in proto.metadata_props}.get("model_digest") != model.digest:
+        raise CaptureError(
+            f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
+        )
+    problem = _graph_difference(proto, expected)
+    if problem:
+        raise CaptureError(f"{path}: {problem}, not the export of {model.path}: {again}")
+    return data
+
+
+def _graph_difference(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """The first way ``proto`` differs from ``expected`` (:func:`export_proto`), in words; None when it is the same
+    graph with weights within ONNX_WEIGHT_TOL (the metadata is not compared: the digest was). The most telling
+    differences are looked for first, so a hostile file is named for what it tries."""
+    for check in (_external_data, _custom_domain, _contract, _nodes, _weights, _extras):
+        problem = check(proto, expected)
+        if problem:
+            return problem
+    return None
+
+
+def _external_data(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """A weight whose values are in another file: onnxruntime would read it (any path, before its 2025 fix)."""
+    graph, external = proto.graph, onnx_messages().TensorProto.EXTERNAL
+    for tensor in [*graph.initializer, *(s.values for s in graph.sparse_initializer)]:
+        if tensor.data_location == external or tensor.external_data:
+            where = {e.key: e.value for e in tensor.external_data}.get("location", "?")
+            return f"its weight {tensor.name!r} refers to an external data file ({where!r}), which exports never do"
+    return None
+
+
+def _custom_domain(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Operators beyond the standard set (onnxruntime would look for a registered custom operator)."""
+    domains = ({o.domain for o in proto.opset_import} | {n.domain for n in proto.graph.node}) - {"", "ai.onnx"}
+    if domains:
+        return f"it uses operators of the domain {sorted(domains)[0]!r} (custom operators are never run)"
+    return None
+
+
+def _contract(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Inputs and outputs other than NLiPsNet's (u, v, r, g, b) -> n."""
+    graph, want = proto.graph, expected.graph
+    if [(v.name, v.type) for v in [*graph.input, *graph.output]] == [
+        (v.name, v.type) for v in [*want.input, *want.output]
+    ]:
+        return None
+    got = ", ".join(map(_describe, graph.input)) + " -> " + ", ".join(map(_describe, graph.output))
+    return f"its graph maps {got}, NLiPsNet maps {_describe(want.input[0])} -> {_describe(want.output[0])}"
+
+
+def _nodes(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Nodes other than the export's (each compared whole: operator, inputs, outputs, attributes, subgraphs)."""
+    nodes, want = list(proto.graph.node), list(expected.graph.node)
+    if nodes == want:
+        return None
+    k = next((i for i, (a, b) in enumerate(zip(nodes, want)) if a != b), min(len(nodes), len(want)))
+    got = repr(nodes[k].op_type) if k < len(nodes) else "missing"
+    need = repr(want[k].op_type) if k < len(want) else "none"
+    return f"its graph is not NLiPsNet's of this model's layers (node {k} is {got}, the export's is {need})"
+
+
+def _weights(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Weights of other names, shapes or values than the model's folded weights (within ONNX_WEIGHT_TOL)."""
+    weights, want = {t.name: t for t in proto.graph.initializer}, list(expected.graph.initializer)
+    if sorted(weights) != sorted(t.name for t in want):
+        return f"its weights are named {sorted(weights)}, the export's {sorted(t.name for t in want)}"
+    for tensor in want:
+        got, need = weights[tensor.name], _float_values(tensor)
+        values = _float_values(got) if tuple(got.dims) == need.shape else None
+        if values is None:
+            got_type = f"{tuple(got.dims)} of type {got.data_type}"
+            return f"its weight {tensor.name!r} is {got_type}, the model's {need.shape} of type {tensor.data_type}"
+        off = float(np.max(np.abs(values.astype(np.float64) - need), initial=0.0))
+        scale = float(np.max(np.abs(need), initial=0.0))
+        if not off <= ONNX_WEIGHT_TOL * max(scale, np.finfo(np.float32).tiny):
+            return f"its weight {tensor.name!r} differs from the model's by {off:.3g} (largest weight {scale:.3g})"
+    return None
+
+
+def _extras(proto: onnx.ModelProto, expected: onnx.ModelProto) -> str | None:
+    """Anything else a graph may carry: another IR version or opset, model-local functions, training records."""
+    fields = ("ir_version", "opset_import", "functions", "training_info")
+    for field in fields:
+        if getattr(proto, field) != getattr(expected, field):
+            return f"its {field} differs from the export's"
+    graph, want = proto.graph, expected.graph
+    if list(graph.sparse_initializer) or list(graph.value_info) != list(want.value_info):
+        return "its graph holds sparse weights or value records that the export does not"
+    return None
+
+
+def _float_values(tensor: onnx.TensorProto) -> np.ndarray | None:
+    """The float32 values of an initializer, shaped by its dims (in ``raw_data`` little-endian, or ``float_data``);
+    None when it is of another type or holds another number of values than its dims say."""
+    if tensor.data_type != onnx_messages().TensorProto.FLOAT:
+        return None
+    count = int(np.prod(tensor.dims, dtype=np.int64))
+    if tensor.raw_data:
+        values = np.frombuffer(tensor.raw_data, "<f4") if len(tensor.raw_data) == 4 * count else None
+    else:
+        values = np.asarray(tensor.float_data, np.float32) if len(tensor.float_data) == count else None
+    return None if values is None else values.reshape(tuple(tensor.dims))
+
+
+def _describe(value: onnx.ValueInfoProto) -> str:
+    """``name (pixels, 5) FLOAT`` for a graph input or output."""
+    data_type = onnx_messages().TensorProto.DataType
+    tensor = value.type.tensor_type
+    dims = ", ".join(d.dim_param or str(d.dim_value) for d in tensor.shape.dim)
+    kind = data_type.Name(tensor.elem_type) if tensor.elem_type in data_type.values() else str(tensor.elem_type)
+    return f"{value.name!r} ({dims}) {kind}"
+
+
+def quantized_int8(model: bytes) -> bytes:
+    """The ONNX model ``model`` (its file's bytes, checked: :func:`check_export`) with dynamic int8 quantisation
+    (onnxruntime.quantization.quantize_dynamic).
 
     Weights int8 per output channel, activations quantised per call. The first layer stays float: its
     inputs (pixel coordinates in hundreds, linear colours below 1) would share one 8-bit scale and
@@ -127,9 +352,10 @@ def quantized_int8(path: str | Path) -> bytes:
     require("onnx", "onnx", "int8 quantisation")
     quantization = require("onnxruntime.quantization", "onnxruntime", "int8 quantisation")
     onnx = require("onnx", "onnx", "int8 quantisation")
-    layers = [n.name for n in onnx.load(str(path), load_external_data=False).graph.node if n.op_type == "MatMul"]
+    layers = [n.name for n in onnx.load_from_string(model).graph.node if n.op_type == "MatMul"]
     with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "int8.onnx"
+        path, out = Path(tmp) / "float.onnx", Path(tmp) / "int8.onnx"
+        path.write_bytes(model)  # the bytes checked, not the file again (it may have changed meanwhile)
         # No warnings filter here: onnxruntime 1.32's quantize_dynamic warns nothing (a blanket "ignore" hid any
         # deprecation it might start to give from the tests' filterwarnings). Its advice goes to the root logger.
         logging.getLogger().disabled, was = True, logging.getLogger().disabled  # its advice on pre-processing
@@ -153,6 +379,10 @@ class OnnxNet:
     onnxruntime thread: for these narrow layers that uses the cores far better than onnxruntime's own
     intra-op split of one large call (measured in benchmarks/RESULTS.md). The session does not spin
     between calls, so the other stages of a frame get the cores.
+
+    With ``model`` (the loaded .pt: how inference runs it), the file runs only once :func:`check_export` found it
+    to be that model's export, and the session is made from the bytes checked. Without one, the file is trusted
+    as it is (a test's or benchmark's own export): never pass a received file so.
     """
 
     MIN_SLICE = 4096
@@ -168,27 +398,25 @@ class OnnxNet:
         opts.inter_op_num_threads = 1
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        # a model's export only (check_export): a received file is never handed to onnxruntime unchecked, nor read twice
+        data = check_export(path, model) if model is not None else str(path)
         try:
-            self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+            self.session = ort.InferenceSession(data, opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own exception types for bad files
             raise CaptureError(
                 f"{path}: not a readable ONNX model ({type(exc).__name__}): "
                 f"{export_hint(model.path if model else 'MODEL.pt', again=True)}"
             ) from None
-        props = self.session.get_modelmeta().custom_metadata_map
-        if model is not None and props.get("model_digest") != model.digest:
-            raise CaptureError(
-                f"{path}: exported from another model than {model.path}; export it again ({export_hint(model.path)})"
-            )
         if int8:  # the checked float file, quantised in memory
-            self.session = ort.InferenceSession(quantized_int8(path), opts, providers=["CPUExecutionProvider"])
+            float_model = data if isinstance(data, bytes) else path.read_bytes()
+            self.session = ort.InferenceSession(quantized_int8(float_model), opts, providers=["CPUExecutionProvider"])
         self.path = path
         self.int8 = int8
         self.threads = max(1, int(threads) if threads else usable_cores())
         self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
 
     def _run(self, x: np.ndarray) -> np.ndarray:
-        return self.session.run(None, {"uvrgb": x})[0]
+        return self.session.run(None, {INPUT: x})[0]
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(x, np.float32)

@@ -387,15 +387,43 @@ def test_a_failed_check_names_the_export_not_its_temporary(tmp_path, trained):
     assert not out.exists()
 
 
+def test_a_hostile_onnx_beside_a_received_model_stops_infer_in_one_line(trained, twin_presses, tmp_path, capsys):
+    """A received model's .onnx pointing its weights at a file outside the model's folder: the default backend
+    (auto) uses the .onnx beside the model, so `nlips infer` refuses it in one line, exit 2, no traceback, rather
+    than fall back to PyTorch in silence (the lab would not learn what it was sent)."""
+    onnx = pytest.importorskip("onnx")
+    from nlipscalib.learn.onnx_export import export_onnx
+
+    received = tmp_path / "received"
+    received.mkdir()
+    model = received / "net.pt"
+    shutil.copy(trained, model)
+    proto = onnx.load(str(export_onnx(load_model(model), received / "net.onnx")))
+    weight = proto.graph.initializer[0]
+    weight.ClearField("raw_data")
+    weight.data_location = onnx.TensorProto.EXTERNAL
+    entry = weight.external_data.add()
+    entry.key, entry.value = "location", "../../etc/hostname"
+    (received / "net.onnx").write_bytes(proto.SerializeToString())
+    assert main(["infer", str(model), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert f"error: {received / 'net.onnx'}: its weight 'W0' refers to an external data file ('../../etc/" in err[0]
+    assert err[0].endswith(f"`nlips export {model}` writes it again, or use --backend torch"), err
+    assert not (tmp_path / "o").exists()
+    assert main(["export", str(model)]) == 0  # the remedy named: the model's own export replaces it
+    assert main(["infer", str(model), str(twin_presses / HELD_OUT), "--out", str(tmp_path / "o")]) == 0
+
+
 def test_a_garbage_onnx_file_names_the_way_to_write_it_again(tmp_path):
     """`b.onnx: not a readable ONNX model (InvalidProtobuf)` gave no remedy; the missing-file line gave one."""
-    from types import SimpleNamespace
-
+    from nlipscalib.learn.model import load_model
     from nlipscalib.learn.onnx_export import OnnxNet
+    from tests.learn.test_onnx_digest import _save
 
     garbage = tmp_path / "net.onnx"
     garbage.write_bytes(np.random.default_rng(0).bytes(3000))
-    model = SimpleNamespace(path=tmp_path / "net.pt")
+    model = load_model(_save(tmp_path / "net.pt"))  # the export is checked against its model before it is read
     with pytest.raises(CaptureError) as caught:
         OnnxNet(garbage, model)
     message = str(caught.value)
