@@ -27,6 +27,7 @@ from ..core.errors import CaptureError, NoContactError
 from ..core.leds import Leds, led_shading
 from ..core.robust_scale import mad_scale
 from . import reuse, threads
+from .sensor_fit import gain_fitted_misfit, gel_samples
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,23 @@ class ContactMap:
     """Estimated image noise sigma, linear units (full scale 1)."""
     level: np.ndarray
     """(H, W) float64 -- RMS of the (smoothed) images over live LEDs and channels, linear units."""
+    samples: tuple[np.ndarray, np.ndarray] | None = None
+    """The undeformed model and the images on a sample of the gel (:func:`.sensor_fit.gel_samples`), for
+    :attr:`sensor_misfit`; None when too few pixels are usable."""
+    sample_noise: float = float("nan")
+    """The noise-only misfit's median over the gel, linear units (:attr:`sensor_floor`'s unit)."""
+
+    @functools.cached_property
+    def sensor_fit(self) -> tuple[float, float]:
+        """(share, floor): what the undeformed model, with a gain per LED fitted too, misses of the images -- the
+        median over the gel of a pixel's RMS misfit over the median pixel's brightness, and that misfit in units
+        of the noise-only misfit (:func:`.sensor_fit.gain_fitted_misfit`); large when the images were taken with
+        another sensor than the capture's files describe. NaN, NaN when not measured. Worked out when first
+        asked: a solve asks its last classification only (~3-8 ms at 640x480)."""
+        if self.samples is None:
+            return float("nan"), float("nan")
+        share, misfit = gain_fitted_misfit(*self.samples)
+        return share, misfit / max(self.sample_noise, 1e-12)
 
     @property
     def ratio(self) -> np.ndarray:
@@ -232,12 +250,17 @@ def classify_contact(
         # blur changed it by < 5e-5 of its peak (640x480 one-bounce twin) and cost 0.06 s per classification
         S = S + grid.means(undeformed_light, live)
     misfit = _misfit(S, img, ok, count)
+    # the model and the images on a sample of the gel: does the model describe the sensor at all (asked once)?
+    samples = gel_samples(S, img, grid.valid, ok)
     noise = side["noise"]
     dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
     noise_blurred = noise * grid.gain * (np.sqrt(2.0) if undeformed_noise else 1.0)
+    dof_median = float(np.median(dof[grid.valid])) if grid.valid.any() else 1.0
     expected = grid.per_pixel(np.full(grid.valid.shape, noise_blurred) * np.sqrt(dof))
     misfit = np.where(valid, grid.per_pixel(misfit), np.nan)
-    return ContactMap(misfit, expected, tuple(live), side["dead"], noise, grid.per_pixel(side["level"]))
+    level = grid.per_pixel(side["level"])
+    sample_noise = float(noise_blurred) * np.sqrt(dof_median)
+    return ContactMap(misfit, expected, tuple(live), side["dead"], noise, level, samples, sample_noise)
 
 
 def prepare_press_side(

@@ -49,6 +49,7 @@ from .options import SolverOptions
 from .outer_loop import FILL_ROWS, UPDATE_ROWS, BoxCompensation, OuterLoop, led_channel_sum
 from .press_checks import check_modes, check_roi
 from .roi import box_mask, box_of, dent_focus
+from .sensor_fit import sensor_mismatch
 
 if TYPE_CHECKING:  # named in hints only
     from ..core.leds import Leds
@@ -246,6 +247,8 @@ def _solve_press(
     sources = Sources(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces)
     light = light_and_contact(sources, options.dead_led_level)
     model, cmap = light.model, light.cmap
+    if cmap is not None and (other := sensor_mismatch(cmap, press.folder)):
+        raise CaptureError(other)
     if model is not None and model.enabled and coating_albedo is not None:
         model = model.with_reflectance(coating_albedo)
     elif coating_albedo is not None:  # nothing for it to scale: say so rather than drop the user's value
