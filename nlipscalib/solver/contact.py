@@ -471,8 +471,11 @@ def contact_box(
         reason, within_noise = why
         solve_anyway = "pass --roi X0 Y0 W H, or no --roi, to solve it anyway"
         if within_noise:
+            # what to do, as well as what was found: a press too light to show, or the undeformed dome's capture
             raise NoContactError(
-                f"{folder}: --roi auto found no contact ({reason}); nothing solved: the surface is the reference's "
+                f"{folder}: --roi auto found no contact ({reason}); nothing solved: the surface is the reference's. "
+                f"If it was pressed, press deeper (or with a larger object) and capture it again; if it is the "
+                f"undeformed dome, use it as the reference (--reference {folder}, or a folder's reference/) "
                 f"({solve_anyway})"
             )
         raise CaptureError(f"{folder}: --roi auto found no contact ({reason}); nothing solved ({solve_anyway})")
