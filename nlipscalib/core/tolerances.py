@@ -145,6 +145,17 @@ without its refracting gel, LEDs 0.3 mm and 3 deg off the design, 3.2-3.9 %; the
 of it noise (2.5 times the noise: not refused). Designs closer than that are not told apart: the fingertip's and the
 capsule's images through each other's files 5.0-5.8 %, a fingertip dome 4 mm lower 3.0 % (benchmarks/RESULTS.md,
 s27-sensorfit)."""
+SENSOR_MISFIT_BEST_SHARE = 0.04
+"""... and only when the best-fitting tenth of the gel misses by at least this share too (the 10th percentile of the
+pixels' misfits, same unit). Why: where a press covers most of the view (a crop around a dent, a large flat
+indenter) the median misfit is the dent's (a 64x64 crop of a synthetic sphere press: 25 %), but the undeformed
+rest still fits its own sensor's model: 0.5-2.4 % on the twins of :data:`SENSOR_MISFIT_SHARE` (real_norefr 2.4 %);
+another design's files 4.9-8.3 % (the default dome with the fingertip's: 4.9 %, the thinnest margin; s27-sensorfit)."""
+SENSOR_FIT_VIEW_DEG = 30.0
+"""... and only when the view sees the dome at large: the camera's rays through the gel reach this far (degrees)
+from their mean direction. Why: a view of a patch of the dome (a 64x64 crop of a 480x360 view around a dent, a test's
+"mostly dent" capture, 9.5 deg) can be all dent, and a dent misfits the undeformed model as another sensor does
+(25 %); the shipped designs' full views reach 52-68 deg."""
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""

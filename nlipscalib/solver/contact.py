@@ -51,21 +51,23 @@ class ContactMap:
     """(H, W) float64 -- RMS of the (smoothed) images over live LEDs and channels, linear units."""
     samples: tuple[np.ndarray, np.ndarray] | None = None
     """The undeformed model and the images on a sample of the gel (:func:`.sensor_fit.gel_samples`), for
-    :attr:`sensor_misfit`; None when too few pixels are usable."""
+    :attr:`sensor_fit`; None when too few pixels are usable."""
     sample_noise: float = float("nan")
-    """The noise-only misfit's median over the gel, linear units (:attr:`sensor_floor`'s unit)."""
+    """The noise-only misfit's median over the gel, linear units (the unit of :attr:`sensor_fit`'s floor)."""
 
     @functools.cached_property
-    def sensor_fit(self) -> tuple[float, float]:
-        """(share, floor): what the undeformed model, with a gain per LED fitted too, misses of the images -- the
-        median over the gel of a pixel's RMS misfit over the median pixel's brightness, and that misfit in units
-        of the noise-only misfit (:func:`.sensor_fit.gain_fitted_misfit`); large when the images were taken with
-        another sensor than the capture's files describe. NaN, NaN when not measured. Worked out when first
-        asked: a solve asks its last classification only (~3-8 ms at 640x480)."""
+    def sensor_fit(self) -> tuple[float, float, float]:
+        """(share, best share, floor): what the undeformed model, with a gain per LED fitted too, misses of the
+        images -- the median over the gel of a pixel's RMS misfit over the median pixel's brightness, the best
+        tenth's (:data:`.sensor_fit.FIT_PIXELS_QUANTILE`) likewise, and the median misfit in units of the noise-only
+        misfit (:func:`.sensor_fit.gain_fitted_misfit`); large when the images were taken with another sensor than
+        the capture's files describe. NaNs when not measured. Worked out when first asked: a solve asks its last
+        classification only (the samples and the fit: 11-12 ms of CPU per 640x480 solve, benchmarks/RESULTS.md
+        s27-sensorfit)."""
         if self.samples is None:
-            return float("nan"), float("nan")
-        share, misfit = gain_fitted_misfit(*self.samples)
-        return share, misfit / max(self.sample_noise, 1e-12)
+            return float("nan"), float("nan"), float("nan")
+        share, best, misfit = gain_fitted_misfit(*self.samples)
+        return share, best, misfit / max(self.sample_noise, 1e-12)
 
     @property
     def ratio(self) -> np.ndarray:

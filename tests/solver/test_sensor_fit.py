@@ -35,7 +35,7 @@ def _other_ring(count=12, radius=7.5, tilt_deg=10.0, start_deg=15.0):
 
 
 def _sensor_fit(press):
-    """(share, floor) of the press's contact classification against its own description (the solve's)."""
+    """(share, best share, floor) of the press's contact classification against its own description (the solve's)."""
     sources = Sources(press, tuple(press.leds), None, None, None, "auto", 1)
     return light_and_contact(sources, tolerances.LIT_LEVEL).cmap.sensor_fit
 
@@ -61,14 +61,14 @@ def test_a_sensor_whose_leds_differ_in_power_from_its_design_is_not_refused(tmp_
     gains = 1 + 0.15 * np.where(np.arange(12) % 2, 1.0, -1.0)
     folder = synth.make_press(tmp_path / "spread", "sphere", lin_hook=lambda lin: lin * gains[:, None, None, None])
     press = load_press(folder)
-    share, _ = _sensor_fit(press)
+    share, _, _ = _sensor_fit(press)
     assert share < 0.01
     result = solve_press(press, options=QUICK)  # (--roi auto: "found no contact", the LED model misfit of s26)
     assert result.reconstructed.any()
 
 
 def test_a_press_with_its_own_description_fits_it(sphere_press):
-    share, floor = _sensor_fit(sphere_press)
+    share, _, _ = _sensor_fit(sphere_press)
     assert share < 0.01 and share < tolerances.SENSOR_MISFIT_SHARE / 8
 
 
@@ -97,6 +97,6 @@ def test_the_twin_default_dome_with_the_fingertip_designs_files_is_refused_and_w
         solve_press(load_press(copied), options=QUICK)
 
     for own in (press, fingertip):
-        share, _ = _sensor_fit(load_press(own))
+        share, _, _ = _sensor_fit(load_press(own))
         assert share < tolerances.SENSOR_MISFIT_SHARE / 2
     assert solve_press(load_press(press), options=QUICK).reconstructed.any()
