@@ -249,7 +249,9 @@ def _summary(statuses: dict[str, str]) -> int:
     flat = [name for name, s in statuses.items() if s.startswith("no contact")]
     solved = sum(s == "solved" for s in statuses.values())
     skipped = len(statuses) - solved - len(failed) - len(flat)
-    without = f", {len(flat)} without contact (nothing solved: {', '.join(flat)})" if flat else ""
+    # what to do too: each is a press too light to show, or the undeformed dome's capture among the presses
+    todo = "press deeper and capture again, or make the undeformed dome's capture the folder's reference/"
+    without = f", {len(flat)} without contact (nothing solved: {', '.join(flat)}: {todo})" if flat else ""
     print(f"{solved} solved, {skipped} skipped (identical result), {len(failed)} failed{without}")
     for name, status in failed.items():
         print(f"  {name}: {status}")

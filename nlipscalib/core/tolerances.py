@@ -132,6 +132,30 @@ design: 12.9-14.4 times the noise, its 1 mm sphere and cube presses peaked at 6.
 LEDs: the extended LEDs, glossy coat and response curve are not in the model either). The twin's presses and
 undeformed capture: 1.8-2.5 times the noise (the realistic twin at 8 spp, whose noise is the renderer's: 2.4-2.5)
 (benchmarks/RESULTS.md, s26-falsealarm)."""
+SENSOR_MISFIT_SHARE = 0.08
+"""A press is refused as taken with another sensor than its meta.json and reference.npz describe (dome, camera,
+LEDs) when the undeformed model, with a gain fitted per LED (a power spread is the sensor's own), misses its images
+by at least this share of their brightness (the median over the gel of each pixel's RMS misfit over the median
+pixel's level; :attr:`nlipscalib.solver.contact.ContactMap.sensor_fit`), and by at least :data:`MODEL_MISFIT_FLOOR`
+times the noise (below that the misfit is the noise's, not the model's). Why (320x240 one-bounce twins, 8 spp): the
+default dome's images with the fingertip design's files miss by 12 % (the reverse 18 %), with the capsule's, flat's
+or oblate's 16-36 % (and those designs' images with the default's 18-29 %); every twin with its own files 0.6-2.0 %
+(default, fingertip, oblate, capsule, flat; the default with its LED powers 15 % off: 1.7 %), the realistic twin
+without its refracting gel, LEDs 0.3 mm and 3 deg off the design, 3.2-3.9 %; the realistic twin at 8 spp 8.8 %, all
+of it noise (2.5 times the noise: not refused). Designs closer than that are not told apart: the fingertip's and the
+capsule's images through each other's files 5.0-5.8 %, a fingertip dome 4 mm lower 3.0 % (benchmarks/RESULTS.md,
+s27-sensorfit)."""
+SENSOR_MISFIT_BEST_SHARE = 0.04
+"""... and only when the best-fitting tenth of the gel misses by at least this share too (the 10th percentile of the
+pixels' misfits, same unit). Why: where a press covers most of the view (a crop around a dent, a large flat
+indenter) the median misfit is the dent's (a 64x64 crop of a synthetic sphere press: 25 %), but the undeformed
+rest still fits its own sensor's model: 0.5-2.4 % on the twins of :data:`SENSOR_MISFIT_SHARE` (real_norefr 2.4 %);
+another design's files 4.9-8.3 % (the default dome with the fingertip's: 4.9 %, the thinnest margin; s27-sensorfit)."""
+SENSOR_FIT_VIEW_DEG = 30.0
+"""... and only when the view sees the dome at large: the camera's rays through the gel reach this far (degrees)
+from their mean direction. Why: a view of a patch of the dome (a 64x64 crop of a 480x360 view around a dent, a test's
+"mostly dent" capture, 9.5 deg) can be all dent, and a dent misfits the undeformed model as another sensor does
+(25 %); the shipped designs' full views reach 52-68 deg."""
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""

@@ -27,6 +27,7 @@ from ..core.errors import CaptureError, NoContactError
 from ..core.leds import Leds, led_shading
 from ..core.robust_scale import mad_scale
 from . import reuse, threads
+from .sensor_fit import gain_fitted_misfit, gel_samples
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,25 @@ class ContactMap:
     """Estimated image noise sigma, linear units (full scale 1)."""
     level: np.ndarray
     """(H, W) float64 -- RMS of the (smoothed) images over live LEDs and channels, linear units."""
+    samples: tuple[np.ndarray, np.ndarray] | None = None
+    """The undeformed model and the images on a sample of the gel (:func:`.sensor_fit.gel_samples`), for
+    :attr:`sensor_fit`; None when too few pixels are usable."""
+    sample_noise: float = float("nan")
+    """The noise-only misfit's median over the gel, linear units (the unit of :attr:`sensor_fit`'s floor)."""
+
+    @functools.cached_property
+    def sensor_fit(self) -> tuple[float, float, float]:
+        """(share, best share, floor): what the undeformed model, with a gain per LED fitted too, misses of the
+        images -- the median over the gel of a pixel's RMS misfit over the median pixel's brightness, the best
+        tenth's (:data:`.sensor_fit.FIT_PIXELS_QUANTILE`) likewise, and the median misfit in units of the noise-only
+        misfit (:func:`.sensor_fit.gain_fitted_misfit`); large when the images were taken with another sensor than
+        the capture's files describe. NaNs when not measured. Worked out when first asked: a solve asks its last
+        classification only (the samples and the fit: 11-12 ms of CPU per 640x480 solve, benchmarks/RESULTS.md
+        s27-sensorfit)."""
+        if self.samples is None:
+            return float("nan"), float("nan"), float("nan")
+        share, best, misfit = gain_fitted_misfit(*self.samples)
+        return share, best, misfit / max(self.sample_noise, 1e-12)
 
     @property
     def ratio(self) -> np.ndarray:
@@ -232,12 +252,17 @@ def classify_contact(
         # blur changed it by < 5e-5 of its peak (640x480 one-bounce twin) and cost 0.06 s per classification
         S = S + grid.means(undeformed_light, live)
     misfit = _misfit(S, img, ok, count)
+    # the model and the images on a sample of the gel: does the model describe the sensor at all (asked once)?
+    samples = gel_samples(S, img, grid.valid, ok)
     noise = side["noise"]
     dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
     noise_blurred = noise * grid.gain * (np.sqrt(2.0) if undeformed_noise else 1.0)
+    dof_median = float(np.median(dof[grid.valid])) if grid.valid.any() else 1.0
     expected = grid.per_pixel(np.full(grid.valid.shape, noise_blurred) * np.sqrt(dof))
     misfit = np.where(valid, grid.per_pixel(misfit), np.nan)
-    return ContactMap(misfit, expected, tuple(live), side["dead"], noise, grid.per_pixel(side["level"]))
+    level = grid.per_pixel(side["level"])
+    sample_noise = float(noise_blurred) * np.sqrt(dof_median)
+    return ContactMap(misfit, expected, tuple(live), side["dead"], noise, level, samples, sample_noise)
 
 
 def prepare_press_side(
@@ -448,8 +473,11 @@ def contact_box(
         reason, within_noise = why
         solve_anyway = "pass --roi X0 Y0 W H, or no --roi, to solve it anyway"
         if within_noise:
+            # what to do, as well as what was found: a press too light to show, or the undeformed dome's capture
             raise NoContactError(
-                f"{folder}: --roi auto found no contact ({reason}); nothing solved: the surface is the reference's "
+                f"{folder}: --roi auto found no contact ({reason}); nothing solved: the surface is the reference's. "
+                f"If it was pressed, press deeper (or with a larger object) and capture it again; if it is the "
+                f"undeformed dome, use it as the reference (--reference {folder}, or a folder's reference/) "
                 f"({solve_anyway})"
             )
         raise CaptureError(f"{folder}: --roi auto found no contact ({reason}); nothing solved ({solve_anyway})")

@@ -36,7 +36,7 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
     return led_check(press, leds, live)[0]
 
 
-def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], list[int]]:
+def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], list[int], list[int]]:
     """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, and
     the LEDs whose light is off the model's (weak, or brighter than the others): a solve leaves those out.
 
@@ -57,24 +57,26 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
     left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
         :data:`WEAK_LED_GAIN`; empty when leaving them out would leave fewer than
         ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
+    misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
     """
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
-        return [], []
+        return [], [], []
     image, model = _samples(press, leds, live)
     if image is None:
-        return [], []
+        return [], [], []
     names = _image_names(press)
     notes, off = [], []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
         corr = np.corrcoef(image.mean(-1), model.mean(-1))[: len(live), len(live) :]
-    swapped = set()
+    swapped, misplaced = set(), []
     for k, i in enumerate(live):
         best = int(np.argmax(corr[k]))
         if corr[k, k] < MATCH_CORRELATION and best != k:
             j = live[best]
+            misplaced.append(i)
             if int(np.argmax(corr[best])) == k and (j, i) not in swapped:
                 swapped.add((i, j))
                 notes.append(
@@ -100,7 +102,7 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
             f"it, relative to the other LEDs ({what}), {done}: calibrate the LEDs on the undeformed dome (nlips "
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
-    return notes, left_out
+    return notes, left_out, misplaced
 
 
 def _samples(press: Press, leds: Sequence[Led], live: list[int]) -> tuple[np.ndarray | None, np.ndarray | None]:

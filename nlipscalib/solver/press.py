@@ -49,6 +49,7 @@ from .options import SolverOptions
 from .outer_loop import FILL_ROWS, UPDATE_ROWS, BoxCompensation, OuterLoop, led_channel_sum
 from .press_checks import check_modes, check_roi
 from .roi import box_mask, box_of, dent_focus
+from .sensor_fit import sensor_mismatch
 
 if TYPE_CHECKING:  # named in hints only
     from ..core.leds import Leds
@@ -75,7 +76,9 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
-    led_notes, left_out = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
+    led_notes, left_out, misplaced = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
+    if misplaced:  # LED images out of order misfit any description: said by their own warning, not as a sensor's
+        kwargs.setdefault("check_sensor", False)
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
         log.warning("%s", moved)
         led_notes.append(moved)
@@ -114,9 +117,12 @@ LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
 """Report entries that list LEDs (0-based): renumbered to the capture's LEDs where a solve had a subset of them."""
 
 
-def _capture_notes(press: Press, leds: Leds | None, options: SolverOptions | None) -> tuple[list[str], list[int]]:
+def _capture_notes(
+    press: Press, leds: Leds | None, options: SolverOptions | None
+) -> tuple[list[str], list[int], list[int]]:
     """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
-    when it holds light) and :func:`.led_checks.led_check` of its live LEDs; and the LEDs to leave out (0-based).
+    when it holds light) and :func:`.led_checks.led_check` of its live LEDs; the LEDs to leave out and those whose
+    images show another LED's light (0-based).
     Made before the solve, so a solve that then fails has said why first."""
     notes = []
     if fault := dark_frame_fault(press):
@@ -125,21 +131,23 @@ def _capture_notes(press: Press, leds: Leds | None, options: SolverOptions | Non
             raise CaptureError(message)
         log.warning("%s", message)
         notes.append(message)
-    led_notes, left_out = _led_notes(press, leds, options)
-    return notes + led_notes, left_out
+    led_notes, left_out, misplaced = _led_notes(press, leds, options)
+    return notes + led_notes, left_out, misplaced
 
 
-def _led_notes(press: Press, leds: Leds | None, options: SolverOptions | None) -> tuple[list[str], list[int]]:
+def _led_notes(
+    press: Press, leds: Leds | None, options: SolverOptions | None
+) -> tuple[list[str], list[int], list[int]]:
     """:func:`.led_checks.led_check` of the press's live LEDs, each note logged as a warning."""
     leds = press.leds if leds is None else tuple(leds)
     if press.reference is None or len(leds) != len(press.leds):
-        return [], []  # no undeformed dome to model; a wrong LED count is refused by the solve
+        return [], [], []  # no undeformed dome to model; a wrong LED count is refused by the solve
     level = (options or SolverOptions()).dead_led_level
     live = np.flatnonzero(lit_leds(led_levels(press.linear_led_images, np.isfinite(press.reference.depth)), level))
-    notes, left_out = led_check(press, leds, live)
+    notes, left_out, misplaced = led_check(press, leds, live)
     for note in notes:
         log.warning("%s", note)
-    return notes, left_out
+    return notes, left_out, misplaced
 
 
 def _without_leds(press: Press, kwargs: dict, keep: list[int]) -> tuple[Press, dict]:
@@ -191,6 +199,7 @@ def _solve_press(
     bounces: int = 1,
     max_outer: int = 2,
     outer_relaxation: float | str = "auto",
+    check_sensor: bool = True,
 ) -> SolveResult:
     """Solve one press.
 
@@ -217,6 +226,9 @@ def _solve_press(
         two passes stop on its good side, 0.03-0.05 deg better than the fixed point (benchmarks/RESULTS.md, s16-f).
     outer_relaxation : "auto" (per pixel 1 / (1 + indirect / direct light), see :func:`.outer_loop._relaxation`) or a
         number: the light of each outer pass is ``L + w (gathered - L)``; 1.0 is the plain iteration.
+    check_sensor : refuse (CaptureError) a press whose images do not fit the sensor its meta.json and reference.npz
+        describe (:func:`.sensor_fit.sensor_mismatch`); False: solve it anyway. :func:`solve_press` sets it False
+        when the LED images show other LEDs' light (out of order: their own warning says so).
 
     Returns
     -------
@@ -246,6 +258,8 @@ def _solve_press(
     sources = Sources(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces)
     light = light_and_contact(sources, options.dead_led_level)
     model, cmap = light.model, light.cmap
+    if check_sensor and cmap is not None and (other := sensor_mismatch(cmap, press)):
+        raise CaptureError(other)
     if model is not None and model.enabled and coating_albedo is not None:
         model = model.with_reflectance(coating_albedo)
     elif coating_albedo is not None:  # nothing for it to scale: say so rather than drop the user's value

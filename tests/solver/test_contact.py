@@ -402,7 +402,10 @@ def test_a_folder_solve_notes_a_press_without_contact_and_does_not_fail(tmp_path
     assert statuses["flat"].startswith(f"{NO_CONTACT}: ") and "found no contact" in statuses["flat"]
     assert not (tmp_path / "flat" / "nlips").exists()
     assert _summary(statuses) == 0
-    assert "1 without contact (nothing solved: flat)" in capsys.readouterr().out
+    assert "1 without contact (nothing solved: flat: press deeper and capture again, or make the" in (
+        capsys.readouterr().out
+    )
+    assert "press deeper" in statuses["flat"] and "use it as the reference" in statuses["flat"]
 
 
 def test_a_whole_gel_solve_of_a_press_without_contact_says_so(tmp_path):
