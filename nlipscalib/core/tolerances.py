@@ -118,7 +118,9 @@ undeformed capture solved as a press: 1,528 pixels, the box 100 % of the gel, pe
 fingertip twin's at 320x240, 8 spp: 4.8), while the twin's presses peak at 12.6-67 times it (sphere1, cube1, coin1,
 the demo's three, six more; s26-degen2). Not 8 (s26-degen2's): the fingertip twin's 1 mm cube press against its
 undeformed capture peaked at 7.5 and was refused (s26-falsealarm). Only where the images fit the model to noise
-(:data:`MODEL_MISFIT_FLOOR`)."""
+(:data:`MODEL_MISFIT_FLOOR`); a patch of hits of a dent's size away from the gel's edge
+(:data:`ROI_MIN_INNER_FRACTION`) is a contact however low its peak (the capsule design's cube and cylinder
+presses against their undeformed capture: 5.4 and 4.5; s27-shapesfa)."""
 MODEL_MISFIT_FLOOR = 3.5
 """A press's images fit the undeformed model only to within model error, not noise, when the misfit's median over
 the gel is at least this many times the noise-only misfit: :data:`NO_CONTACT_PEAK` (a peak over noise) then says
@@ -138,7 +140,10 @@ components along the gel's edge are then left out when a large one lies inside, 
 ROI_MIN_INNER_FRACTION = 0.005
 """``--roi auto``: a misfit component away from the gel's edge counts as a dent, in favour of which the edge's
 are left out, when it holds at least this fraction of the gel's pixels (96 px at 160x120, 1,536 at 640x480:
-well above isolated hot pixels and shadow specks, below a 3 mm sphere's contact)."""
+well above isolated hot pixels and shadow specks, below a 3 mm sphere's contact). Such a component is also a
+contact where the peak misfit is under :data:`NO_CONTACT_PEAK` (``solver.contact.no_contact``): the capsule
+design's faint dents made patches of 0.65-3.1 % of the gel, noise and model error at most 0.06 % inside the edge
+(s27-shapesfa)."""
 MAX_MEDIAN_DISPLACEMENT_MM = 3.0
 """A solve whose median distance to the undeformed surface exceeds this (mm; the default gel is 3 mm thick,
 and a median over a region around a contact is far below the deepest point) has left the physically
