@@ -121,8 +121,16 @@ undeformed capture peaked at 7.5 and was refused (s26-falsealarm); 8 again since
 alone at 6.06 (the fingertip's undeformed capture at 320x240, 16 spp, as a press with its design LEDs: solved as
 a press) and such dents caught by their patch (below). Only where the images fit the model to noise
 (:data:`MODEL_MISFIT_FLOOR`); a patch of hits of a dent's size away from the gel's edge
-(:data:`ROI_MIN_INNER_FRACTION`) is a contact however low its peak (the capsule design's cube and cylinder
+(:data:`NO_CONTACT_PATCH`) is a contact however low its peak (the capsule design's cube and cylinder
 presses against their undeformed capture: 5.4 and 4.5; s27-shapesfa)."""
+NO_CONTACT_PATCH = 0.002
+"""``--roi auto``: a press has a contact, whatever its peak (:data:`NO_CONTACT_PEAK`), when its hits at
+:data:`CONTACT_MISFIT_FACTOR` make a connected patch of at least this share of the gel's pixels that does not
+touch the gel's edge (``solver.contact.no_contact``). Why: a faint dent misfits little per pixel over many;
+noise's and model error's hits are specks, or lie along the edge (grazing view). Measured at 320x240
+(s27-shapesfa): dents 0.31 % (the fingertip's 0.3 mm sphere, 8 spp, design LEDs: peak 6.6), 0.65-3.1 % (the
+capsule's cube and cylinder, peaks 4.5-6.5); noise and model error at most 0.06 % inside the edge (undeformed
+captures as presses: capsule, ring16, default twin; second captures against the first: none)."""
 MODEL_MISFIT_FLOOR = 3.5
 """A press's images fit the undeformed model only to within model error, not noise, when the misfit's median over
 the gel is at least this many times the noise-only misfit: :data:`NO_CONTACT_PEAK` (a peak over noise) then says
@@ -142,10 +150,7 @@ components along the gel's edge are then left out when a large one lies inside, 
 ROI_MIN_INNER_FRACTION = 0.005
 """``--roi auto``: a misfit component away from the gel's edge counts as a dent, in favour of which the edge's
 are left out, when it holds at least this fraction of the gel's pixels (96 px at 160x120, 1,536 at 640x480:
-well above isolated hot pixels and shadow specks, below a 3 mm sphere's contact). Such a component is also a
-contact where the peak misfit is under :data:`NO_CONTACT_PEAK` (``solver.contact.no_contact``): the capsule
-design's faint dents made patches of 0.65-3.1 % of the gel, noise and model error at most 0.06 % inside the edge
-(s27-shapesfa)."""
+well above isolated hot pixels and shadow specks, below a 3 mm sphere's contact)."""
 MAX_MEDIAN_DISPLACEMENT_MM = 3.0
 """A solve whose median distance to the undeformed surface exceeds this (mm; the default gel is 3 mm thick,
 and a median over a region around a contact is far below the deepest point) has left the physically

@@ -542,7 +542,7 @@ def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str,
         return (
             f"images match the undeformed dome within noise: the strongest misfit is {peak:.1f} times its floor, a "
             f"contact's above {tolerances.NO_CONTACT_PEAK:g}, and no patch of misfit away from the gel's edge is a "
-            f"dent's size ({100 * tolerances.ROI_MIN_INNER_FRACTION:g} % of the gel)",
+            f"dent's size ({100 * tolerances.NO_CONTACT_PATCH:g} % of the gel)",
             True,
         )
     if hit.any():
@@ -558,7 +558,7 @@ def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str,
 
 def _inner_dent(hit: np.ndarray, valid: np.ndarray) -> bool:
     """Whether a connected patch of ``hit`` (H, W) bool that does not touch the gel's edge (``valid``'s silhouette
-    or the image border) holds :data:`~nlipscalib.core.tolerances.ROI_MIN_INNER_FRACTION` of the gel: a dent,
+    or the image border) holds :data:`~nlipscalib.core.tolerances.NO_CONTACT_PATCH` of the gel: a dent,
     however faintly it stands out.
 
     Why, besides the peak: where the LEDs light the dent from a narrow cone of directions (the ``capsule``
@@ -573,7 +573,7 @@ def _inner_dent(hit: np.ndarray, valid: np.ndarray) -> bool:
     labels, sizes = masks.components(hit)
     edge = valid & ~masks.erode(valid)
     inner = np.setdiff1d(np.arange(1, len(sizes) + 1), np.unique(labels[edge]))
-    return bool((sizes[inner - 1] >= tolerances.ROI_MIN_INNER_FRACTION * valid.sum()).any())
+    return bool((sizes[inner - 1] >= tolerances.NO_CONTACT_PATCH * valid.sum()).any())
 
 
 def contact_floor(contact: ContactMap) -> float:

@@ -491,6 +491,9 @@ def test_a_faint_dent_over_many_pixels_is_a_contact_and_edge_or_speck_misfit_is_
     assert contact_peak(cmap) < tolerances.NO_CONTACT_PEAK  # the premise: the peak alone says "no contact"
     (x0, y0, w, h), _ = contact_box(cmap, shape)
     assert x0 <= 74 and 86 < x0 + w and y0 <= 54 and 66 < y0 + h
+    # the fingertip's 0.3 mm sphere under its design LEDs: a patch of 0.31 % of the gel, peak 6.6
+    smaller = np.where(_disk(shape, (60, 80), 4), 6.6, noise)  # 49 px = 0.26 % of the gel
+    contact_box(_contact_map(smaller), shape)
     specks = noise.copy()
     specks[rng.integers(0, 120, 40), rng.integers(0, 160, 40)] = 5.0  # scattered: each its own tiny patch
     specks[30, 40] = 7.0  # noise's peak reached 6.06 on the fingertip's undeformed capture (16 spp, design LEDs)
