@@ -544,7 +544,9 @@ def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str,
     shows one.
 
     Where the images fit the model to noise, a contact's peak misfit is far above
-    :data:`~nlipscalib.core.tolerances.NO_CONTACT_PEAK` times its floor and noise's below. Where they fit it only to
+    :data:`~nlipscalib.core.tolerances.NO_CONTACT_PEAK` times its floor and noise's below, or, where the LEDs see
+    the dent from a narrow cone (a faint dent), its hits make a patch of a dent's size away from the gel's edge
+    (:func:`_inner_dent`), which noise's scattered hits do not. Where they fit it only to
     model error (the floor :data:`~nlipscalib.core.tolerances.MODEL_MISFIT_FLOOR` times the noise or more: LEDs
     off their design power or place), a plain dent stands out by less, so only a press without a single hit
     (:func:`contact_hits`) has none, and the remedy is an LED model that fits.
@@ -560,16 +562,18 @@ def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str,
         images do not fit the LED model (the press may well have a contact).
     """
     floor = contact_floor(contact)
+    hit = contact_hits(contact) if hit is None else hit
     if floor < tolerances.MODEL_MISFIT_FLOOR:
         peak = contact_peak(contact)
-        if peak >= tolerances.NO_CONTACT_PEAK:
+        if peak >= tolerances.NO_CONTACT_PEAK or _inner_dent(hit, np.isfinite(contact.misfit)):
             return None
         return (
             f"images match the undeformed dome within noise: the strongest misfit is {peak:.1f} times its floor, a "
-            f"contact's above {tolerances.NO_CONTACT_PEAK:g}",
+            f"contact's above {tolerances.NO_CONTACT_PEAK:g}, and no patch of misfit away from the gel's edge is a "
+            f"dent's size ({100 * tolerances.NO_CONTACT_PATCH:g} % of the gel)",
             True,
         )
-    if (contact_hits(contact) if hit is None else hit).any():
+    if hit.any():
         return None
     return (
         f"the images differ from the undeformed model all over the gel, {floor:.0f} times the noise, and no pixel "
@@ -578,6 +582,26 @@ def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str,
         f"or solve against that capture (--reference REF)",
         False,
     )
+
+
+def _inner_dent(hit: np.ndarray, valid: np.ndarray) -> bool:
+    """Whether a connected patch of ``hit`` (H, W) bool that does not touch the gel's edge (``valid``'s silhouette
+    or the image border) holds :data:`~nlipscalib.core.tolerances.NO_CONTACT_PATCH` of the gel: a dent,
+    however faintly it stands out.
+
+    Why, besides the peak: where the LEDs light the dent from a narrow cone of directions (the ``capsule``
+    design's apex, 22 mm above its 6.5 mm LED ring) a plain dent misfits by little per pixel but over thousands of
+    them: at 320x240 / 8 spp against its undeformed capture the 1 mm cube peaked at 5.4 and a 5 mm cylinder at 4.5
+    times the floor, refused as "no contact"; their patches held 3.1 and 0.65 % of the gel, while noise's (a second
+    undeformed capture) held at most 10 pixels, model error's (the design LEDs) 48 inside the edge and 600-640
+    along it (the capsule's and the default twin's undeformed captures as presses; benchmarks/RESULTS.md,
+    s27-shapesfa)."""
+    if not hit.any():
+        return False
+    labels, sizes = masks.components(hit)
+    edge = valid & ~masks.erode(valid)
+    inner = np.setdiff1d(np.arange(1, len(sizes) + 1), np.unique(labels[edge]))
+    return bool((sizes[inner - 1] >= tolerances.NO_CONTACT_PATCH * valid.sum()).any())
 
 
 def contact_floor(contact: ContactMap) -> float:
