@@ -225,6 +225,33 @@ def test_auto_roi_keeps_a_dent_at_the_edge():
     assert "left out" not in note
 
 
+def test_auto_roi_boxes_a_tiny_contact_not_the_weaker_but_larger_misfits_noise_makes_in_the_corners():
+    # the twin at 320x240: a 1 mm sphere's contact (187 hits, peak 38 times the floor) next to 70-100-pixel
+    # corner misfits at 3-4 times it; the box was the whole gel (s27-unusual)
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 105), 3)] = 30.0  # the tiny dent: 29 pixels
+    for corner in ((0, 0), (0, 159), (119, 159)):  # ~75 pixels each, as high as noise reaches there
+        misfit[_disk(shape, corner, 9)] = 4.0
+    box, note = contact_box(_contact_map(misfit), shape)
+    assert box == (105 - 16, 60 - 16, 32, 32)  # the dent, at the box's minimum size
+    assert note == ""
+
+
+def test_auto_roi_keeps_a_weak_misfit_beside_a_strong_one_as_the_dents_rim():
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 80), 6)] = 30.0  # the dent's core
+    misfit[_disk(shape, (60, 100), 5)] = 4.0  # a weak part of it the threshold split off, 9 pixels away
+    misfit[_disk(shape, (0, 0), 12)] = 4.0  # and weak misfit far away, in a corner
+    x0, y0, w, h = contact_box(_contact_map(misfit), shape)[0]
+    assert (x0, x0 + w) == (80 - 6 - 8, 100 + 6 + 8)
+
+
 def test_auto_roi_warns_when_its_box_covers_most_of_the_gel(caplog):
     from nlipscalib.solver.contact import auto_roi
 
