@@ -522,6 +522,34 @@ def _noise_like(contact: ContactMap, labels: np.ndarray, count: int, join: int) 
     return weak
 
 
+def widen_to_anchor(
+    contact: ContactMap, box: tuple[int, int, int, int], shape: tuple[int, int], step: int = 8
+) -> tuple[tuple[int, int, int, int], float, float]:
+    """``box`` (x0, y0, w, h, pixels) widened by ``step`` pixels at a time, within the image of ``shape`` (H, W),
+    until :data:`tolerances.ROI_MIN_UNDEFORMED_SHARE` of its gel pixels look undeformed (the pixels anchoring pins to
+    the reference), or it is the whole image.
+
+    Returns
+    -------
+    box : (x0, y0, w, h) pixels -- ``box`` itself when it holds enough.
+    before, after : float -- the share of undeformed gel pixels in ``box`` and in the returned box.
+    """
+    H, W = shape
+    valid = np.isfinite(contact.misfit)
+    undeformed = contact.undeformed(tolerances.ANCHOR_NOISE_FACTOR) & valid
+    x0, y0, w, h = box
+    x1, y1 = x0 + w, y0 + h
+
+    def share() -> float:
+        return float(undeformed[y0:y1, x0:x1].sum()) / max(int(valid[y0:y1, x0:x1].sum()), 1)
+
+    first = now = share()
+    while now < tolerances.ROI_MIN_UNDEFORMED_SHARE and (x0, y0, x1, y1) != (0, 0, W, H):
+        x0, y0, x1, y1 = max(x0 - step, 0), max(y0 - step, 0), min(x1 + step, W), min(y1 + step, H)
+        now = share()
+    return (int(x0), int(y0), int(x1 - x0), int(y1 - y0)), first, now
+
+
 def contact_hits(contact: ContactMap, threshold: float = tolerances.CONTACT_MISFIT_FACTOR) -> np.ndarray:
     """Pixels in or at the contact: misfit above ``threshold`` times the larger of its noise-only value and the
     misfit's median over the gel (the undeformed model is never exact on a real sensor).

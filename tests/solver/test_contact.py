@@ -252,6 +252,37 @@ def test_auto_roi_keeps_a_weak_misfit_beside_a_strong_one_as_the_dents_rim():
     assert (x0, x0 + w) == (80 - 6 - 8, 100 + 6 + 8)
 
 
+def test_auto_roi_widens_a_box_that_holds_too_few_undeformed_pixels_to_anchor_the_depth():
+    # a 3 mm-deep press: the gel deforms far beyond the pixels that misfit 3 times the raised floor, and the
+    # box around those held 3 % undeformed pixels; its depth was 0.25 mm off (s27-unusual)
+    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+
+    shape = (120, 160)
+    misfit = np.full(shape, 2.0)  # the floor: the misfit's median, twice the noise-only misfit
+    misfit[_disk(shape, (60, 80), 30)] = 4.0  # the deformed skirt: neither hit (> 6) nor undeformed (<= 3)
+    misfit[_disk(shape, (60, 80), 10)] = 20.0  # the contact
+    cmap = _contact_map(misfit)
+    box = contact_box(cmap, shape)[0]
+    assert box == (80 - 10 - 8, 60 - 10 - 8, 37, 37)
+    wide, before, after = widen_to_anchor(cmap, box, shape)
+    x0, y0, w, h = wide
+    assert before == 0.0 and after >= tolerances.ROI_MIN_UNDEFORMED_SHARE
+    assert (x0, y0, w, h) == (box[0] - 8 * 2, box[1] - 8 * 2, 37 + 16 * 2, 37 + 16 * 2)
+    smaller = misfit[y0 + 8 : y0 + h - 8, x0 + 8 : x0 + w - 8]
+    assert (smaller <= 3).mean() < tolerances.ROI_MIN_UNDEFORMED_SHARE  # one step less was not enough
+
+
+def test_auto_roi_keeps_a_box_that_holds_enough_undeformed_pixels():
+    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 80), 12)] = 10.0
+    cmap = _contact_map(misfit)
+    box = contact_box(cmap, shape)[0]
+    assert widen_to_anchor(cmap, box, shape)[0] == box
+
+
 def test_auto_roi_warns_when_its_box_covers_most_of_the_gel(caplog):
     from nlipscalib.solver.contact import auto_roi
 
