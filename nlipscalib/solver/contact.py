@@ -30,6 +30,10 @@ from . import reuse, threads
 
 log = logging.getLogger(__name__)
 
+ANCHOR_MIN_FRACTION = 0.02
+"""Anchoring is off (weak evidence) when fewer than this fraction of the gel's pixels fit the undeformed model at noise
+level (:func:`anchor_weights`); the auto ROI is then not widened for anchors either (:func:`widen_to_anchor`)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class ContactMap:
@@ -535,7 +539,8 @@ def widen_to_anchor(
 ) -> tuple[tuple[int, int, int, int], float, float]:
     """``box`` (x0, y0, w, h, pixels) widened by ``step`` pixels at a time, within the image of ``shape`` (H, W),
     until :data:`tolerances.ROI_MIN_UNDEFORMED_SHARE` of its gel pixels look undeformed (the pixels anchoring pins to
-    the reference), or it is the whole image.
+    the reference), or it is the whole image; not where anchoring is off (:data:`ANCHOR_MIN_FRACTION`: a noise-free
+    render, whose model error leaves next to no pixel within noise).
 
     Returns
     -------
@@ -552,6 +557,8 @@ def widen_to_anchor(
         return float(undeformed[y0:y1, x0:x1].sum()) / max(int(valid[y0:y1, x0:x1].sum()), 1)
 
     first = now = share()
+    if float(undeformed.sum()) < ANCHOR_MIN_FRACTION * max(int(valid.sum()), 1):
+        return box, first, first  # anchoring is off (anchor_weights): nothing to widen for
     while now < tolerances.ROI_MIN_UNDEFORMED_SHARE and (x0, y0, x1, y1) != (0, 0, W, H):
         x0, y0, x1, y1 = max(x0 - step, 0), max(y0 - step, 0), min(x1 + step, W), min(y1 + step, H)
         now = share()
@@ -672,7 +679,7 @@ def anchor_weights(
     mask: np.ndarray,
     weight: float,
     factor: float,
-    min_fraction: float = 0.02,
+    min_fraction: float = ANCHOR_MIN_FRACTION,
     max_relative: float = 0.05,
 ) -> tuple[np.ndarray | None, str]:
     """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed.

@@ -275,6 +275,19 @@ def test_auto_roi_widens_a_box_that_holds_too_few_undeformed_pixels_to_anchor_th
     assert (smaller <= 3).mean() < tolerances.ROI_MIN_UNDEFORMED_SHARE  # one step less was not enough
 
 
+def test_auto_roi_is_not_widened_where_anchoring_is_off():
+    # a noise-free render: model error leaves next to no pixel within noise, anchoring is off, and widening the box
+    # to the whole image left no pixel to fit the interreflection term on (tests/solver/test_twin.py)
+    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+
+    shape = (120, 160)
+    misfit = np.full(shape, 5.0)  # nowhere within 3 times the noise-only misfit
+    misfit[_disk(shape, (60, 80), 10)] = 40.0
+    cmap = _contact_map(misfit)
+    box = contact_box(cmap, shape)[0]
+    assert widen_to_anchor(cmap, box, shape)[0] == box
+
+
 def test_auto_roi_keeps_a_box_that_holds_enough_undeformed_pixels():
     from nlipscalib.solver.contact import contact_box, widen_to_anchor
 
