@@ -171,6 +171,14 @@ from their mean direction. Why: a view of a patch of the dome (a 64x64 crop of a
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""
+ROI_MIN_UNDEFORMED_SHARE = 0.1
+"""``--roi auto``: the box is widened (by its margin at a time) until at least this share of its gel pixels fit the
+undeformed model within :data:`ANCHOR_NOISE_FACTOR` times the noise: they anchor the solved depth to the reference.
+Why: a 6 mm sphere 3 mm deep (the gel's thickness) deforms the gel far beyond the pixels that misfit by
+:data:`CONTACT_MISFIT_FACTOR` times the raised floor; its box held 3 % such pixels and its contact AAE was 1.51 deg,
+depth RMSE 0.25 mm (the whole gel: 0.88 deg); widened to 16 %, 0.98 deg and 0.09 mm. The twin's other presses hold
+17-44 % at the 8-pixel margin (coin1 17 %, cube1 23 %, sphere1 27 %) and keep their box (benchmarks/RESULTS.md,
+s27-unusual)."""
 ROI_MIN_INNER_FRACTION = 0.005
 """``--roi auto``: a misfit component away from the gel's edge counts as a dent, in favour of which the edge's
 are left out, when it holds at least this fraction of the gel's pixels (96 px at 160x120, 1,536 at 640x480:

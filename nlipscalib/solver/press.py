@@ -39,7 +39,7 @@ from ..core.capture import Press, as_press, select_leds
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
 from .camera_shift import shift_note
-from .contact import ContactMap, anchor_weights, contact_box, led_levels, lit_leds, no_contact
+from .contact import ContactMap, anchor_weights, contact_box, led_levels, lit_leds, no_contact, widen_to_anchor
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
 from .led_checks import led_check
@@ -326,7 +326,18 @@ def _region(
     box, note = contact_box(cmap, press.camera.shape, folder=press.folder)
     if note:
         log.warning("%s: %s", press.folder, note)
-    return box, note
+    wide, before, after = widen_to_anchor(cmap, box, press.camera.shape)
+    if wide != box:  # a deep press: the gel deforms well beyond the pixels that misfit most
+        log.info(
+            "%s: --roi auto widened its box from %s to %s: %.0f %% of it looked undeformed, too few to anchor the "
+            "depth to the reference (now %.0f %%)",
+            press.folder,
+            list(box),
+            list(wide),
+            100 * before,
+            100 * after,
+        )
+    return wide, note
 
 
 class _Runner:

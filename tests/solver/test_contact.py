@@ -223,6 +223,80 @@ def test_auto_roi_keeps_a_dent_at_the_edge():
     x0, y0, w, h = box
     assert x0 + w == 160 and x0 <= 118 - 6 - 8  # both parts boxed
     assert "left out" not in note
+    # and the user is told that the box has no undeformed gel beyond the image's edge (the twin at polar 40-70
+    # deg: 0.1-0.4 deg more contact AAE than the whole gel; s27-unusual)
+    assert "the contact reaches the image's edge" in note and "drop --roi" in note
+
+
+def test_auto_roi_boxes_a_tiny_contact_not_the_weaker_but_larger_misfits_noise_makes_in_the_corners():
+    # the twin at 320x240: a 1 mm sphere's contact (187 hits, peak 38 times the floor) next to 70-100-pixel
+    # corner misfits at 3-4 times it; the box was the whole gel (s27-unusual)
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 105), 3)] = 30.0  # the tiny dent: 29 pixels
+    for corner in ((0, 0), (0, 159), (119, 159)):  # ~75 pixels each, as high as noise reaches there
+        misfit[_disk(shape, corner, 9)] = 4.0
+    box, note = contact_box(_contact_map(misfit), shape)
+    assert box == (105 - 16, 60 - 16, 32, 32)  # the dent, at the box's minimum size
+    assert note == ""
+
+
+def test_auto_roi_keeps_a_weak_misfit_beside_a_strong_one_as_the_dents_rim():
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 80), 6)] = 30.0  # the dent's core
+    misfit[_disk(shape, (60, 100), 5)] = 4.0  # a weak part of it the threshold split off, 9 pixels away
+    misfit[_disk(shape, (0, 0), 12)] = 4.0  # and weak misfit far away, in a corner
+    x0, y0, w, h = contact_box(_contact_map(misfit), shape)[0]
+    assert (x0, x0 + w) == (80 - 6 - 8, 100 + 6 + 8)
+
+
+def test_auto_roi_widens_a_box_that_holds_too_few_undeformed_pixels_to_anchor_the_depth():
+    # a 3 mm-deep press: the gel deforms far beyond the pixels that misfit 3 times the raised floor, and the
+    # box around those held 3 % undeformed pixels; its depth was 0.25 mm off (s27-unusual)
+    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+
+    shape = (120, 160)
+    misfit = np.full(shape, 2.0)  # the floor: the misfit's median, twice the noise-only misfit
+    misfit[_disk(shape, (60, 80), 30)] = 4.0  # the deformed skirt: neither hit (> 6) nor undeformed (<= 3)
+    misfit[_disk(shape, (60, 80), 10)] = 20.0  # the contact
+    cmap = _contact_map(misfit)
+    box = contact_box(cmap, shape)[0]
+    assert box == (80 - 10 - 8, 60 - 10 - 8, 37, 37)
+    wide, before, after = widen_to_anchor(cmap, box, shape)
+    x0, y0, w, h = wide
+    assert before == 0.0 and after >= tolerances.ROI_MIN_UNDEFORMED_SHARE
+    assert (x0, y0, w, h) == (box[0] - 8 * 2, box[1] - 8 * 2, 37 + 16 * 2, 37 + 16 * 2)
+    smaller = misfit[y0 + 8 : y0 + h - 8, x0 + 8 : x0 + w - 8]
+    assert (smaller <= 3).mean() < tolerances.ROI_MIN_UNDEFORMED_SHARE  # one step less was not enough
+
+
+def test_auto_roi_is_not_widened_where_anchoring_is_off():
+    # a noise-free render: model error leaves next to no pixel within noise, anchoring is off, and widening the box
+    # to the whole image left no pixel to fit the interreflection term on (tests/solver/test_twin.py)
+    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+
+    shape = (120, 160)
+    misfit = np.full(shape, 5.0)  # nowhere within 3 times the noise-only misfit
+    misfit[_disk(shape, (60, 80), 10)] = 40.0
+    cmap = _contact_map(misfit)
+    box = contact_box(cmap, shape)[0]
+    assert widen_to_anchor(cmap, box, shape)[0] == box
+
+
+def test_auto_roi_keeps_a_box_that_holds_enough_undeformed_pixels():
+    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 80), 12)] = 10.0
+    cmap = _contact_map(misfit)
+    box = contact_box(cmap, shape)[0]
+    assert widen_to_anchor(cmap, box, shape)[0] == box
 
 
 def test_auto_roi_warns_when_its_box_covers_most_of_the_gel(caplog):
