@@ -403,8 +403,8 @@ def track(iterable: Iterable, *, enabled: bool = True, **kwargs: Any) -> tqdm:
 
 
 UNDRAWN_DELAY_S = 1e-9
-"""tqdm's ``delay`` for a bar made here: any above 0 keeps tqdm's constructor from drawing it (:func:`_drawn` draws
-it), this small, no update is held back."""
+"""tqdm's ``delay`` for the package's bars (these and the solver's line): any above 0 keeps tqdm's constructor from
+drawing the bar (:func:`_drawn` draws it; the solver's first level does), this small, no update is held back."""
 
 
 def _drawn(bar: tqdm) -> tqdm:
