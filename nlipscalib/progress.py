@@ -392,14 +392,37 @@ def progress_bar(total: int | None = None, *, enabled: bool = True, **kwargs: An
     """
     from tqdm import tqdm  # the plain bar, as every other bar of the package: see shown_under_a_notebook_cell
 
-    return tqdm(total=total, disable=not bars_enabled(enabled), **kwargs)
+    return _drawn(tqdm(total=total, disable=not bars_enabled(enabled), delay=UNDRAWN_DELAY_S, **kwargs))
 
 
 def track(iterable: Iterable, *, enabled: bool = True, **kwargs: Any) -> tqdm:
     """Iterate with a progress bar (see :func:`progress_bar`)."""
     from tqdm import tqdm
 
-    return tqdm(iterable, disable=not bars_enabled(enabled), **kwargs)
+    return _drawn(tqdm(iterable, disable=not bars_enabled(enabled), delay=UNDRAWN_DELAY_S, **kwargs))
+
+
+UNDRAWN_DELAY_S = 1e-9
+"""tqdm's ``delay`` for the package's bars (these and the solver's line): any above 0 keeps tqdm's constructor from
+drawing the bar (:func:`_drawn` draws it; the solver's first level does), this small, no update is held back."""
+
+
+def _drawn(bar: tqdm) -> tqdm:
+    """Draw a bar made with :data:`UNDRAWN_DELAY_S` at once (its ``0/N`` line), closing it if that draw is stopped.
+
+    Why: tqdm's constructor registers a bar before its first draw; a Ctrl-C landing in that write (a notebook's
+    stop button, in the kernel's send) left a bar open that nobody held, and every later bar of the kernel nested
+    under it, a new line per update. Drawn here instead, under tqdm's lock taken with ``with`` (its own
+    ``refresh`` would keep the lock held by an interrupted write)."""
+    try:
+        if not bar.disable:
+            with bar.get_lock():
+                bar.refresh(nolock=True)
+    except BaseException:
+        bar.close()
+        raise
+    bar.delay = 0  # drawn: updates and close (its final line) now treat it as tqdm treats a bar its constructor drew
+    return bar
 
 
 class working:  # noqa: N801 - used like a function: ``with working("rendering"):``
@@ -422,7 +445,7 @@ class working:  # noqa: N801 - used like a function: ``with working("rendering")
             return self
         from tqdm import tqdm
 
-        self.bar = tqdm(total=None, desc=self.desc, bar_format="{desc}: {elapsed}")
+        self.bar = _drawn(tqdm(total=None, desc=self.desc, bar_format="{desc}: {elapsed}", delay=UNDRAWN_DELAY_S))
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._tick, daemon=True)
         self._thread.start()

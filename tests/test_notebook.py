@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -89,6 +90,78 @@ def test_an_interrupted_training_leaves_no_bar_open(monkeypatch, built, tmp_path
     kept = _interrupted(lambda: train_module.train(built, TINY, tmp_path / "model.pt", progress=True))
     assert _open_bars() == before
     del kept
+
+
+def _bar_makers() -> dict:
+    return {
+        "progress_bar": lambda: progress.progress_bar(3, desc="presses"),
+        "track": lambda: progress.track(range(3), desc="presses"),
+        "working": lambda: progress.working("rendering").__enter__(),
+    }
+
+
+@pytest.mark.parametrize("kind", sorted(_bar_makers()))
+def test_a_bar_interrupted_in_its_first_draw_is_closed(monkeypatch, kind):
+    """The package's other bars (training, ``solve FOLDER``, ``dataset``, ``calibrate``, experiments) drew in tqdm's
+    constructor, which registers the bar before its first write: a Ctrl-C there left a bar nobody could close."""
+    monkeypatch.setattr(progress, "_enabled", True)
+    monkeypatch.setattr("sys.stderr", _InterruptedWhileWriting())
+    before = _open_bars()
+    kept = _interrupted(_bar_makers()[kind])
+    assert _open_bars() == before
+    del kept
+
+
+def test_a_batch_bar_still_shows_its_zero_line_at_once_and_its_last_line_when_closed(monkeypatch):
+    """Drawn outside tqdm's constructor, not later: a batch's ``0/N`` line shows before its first press ends, and
+    a bar closed before any update still ends its line (the next output starts on a line of its own)."""
+    _as_in_a_notebook(monkeypatch)
+    bar = progress.progress_bar(3, desc="presses", unit="press")
+    assert "presses:   0%" in sys.stderr.getvalue() and "0/3" in sys.stderr.getvalue()
+    bar.close()
+    assert sys.stderr.getvalue().endswith("\n")
+    assert "0/3" in sys.stderr.getvalue().splitlines()[-1]
+
+
+def test_a_training_interrupted_while_its_bar_first_draws_leaves_no_bar_open(monkeypatch, built, tmp_path):  # noqa: F811
+    from nlipscalib.learn import train as train_module
+
+    monkeypatch.setattr(progress, "_enabled", True)
+    monkeypatch.setattr("sys.stderr", _InterruptedWhileWriting())
+    before = _open_bars()
+    kept = _interrupted(lambda: train_module.train(built, TINY, tmp_path / "model.pt", progress=True))
+    assert _open_bars() == before
+    del kept
+
+
+def test_a_batch_solve_interrupted_while_its_bar_first_draws_leaves_no_bar_open(monkeypatch, tmp_path):
+    from nlipscalib.pipeline import solve_presses
+
+    for name in ("a", "b"):
+        synth.make_press(tmp_path / name, "sphere", size=(64, 48))
+    monkeypatch.setattr(progress, "_enabled", True)
+    monkeypatch.setattr("sys.stderr", _InterruptedWhileWriting())
+    before = _open_bars()
+    kept = _interrupted(lambda: solve_presses([tmp_path / "a", tmp_path / "b"], progress=True, figures=False))
+    assert _open_bars() == before
+    del kept
+
+
+def test_an_experiment_ended_by_an_exception_leaves_no_bar_open(monkeypatch, tmp_path):
+    """experiments/runner.py closed its task bar only when the run returned."""
+    from nlipscalib.experiments import runner
+    from nlipscalib.experiments.tasks import Task
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("a bug in a task")
+
+    monkeypatch.setattr(runner, "execute", failing)
+    _as_in_a_notebook(monkeypatch)
+    before = _open_bars()
+    with pytest.raises(RuntimeError) as caught:
+        runner.run_tasks([Task(kind="reference", id="ref-none", scene={})], tmp_path)
+    assert _open_bars() == before
+    del caught
 
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "docs" / "examples" / "quickstart.ipynb"

@@ -249,8 +249,9 @@ def _summary(statuses: dict[str, str]) -> int:
     flat = [name for name, s in statuses.items() if s.startswith("no contact")]
     solved = sum(s == "solved" for s in statuses.values())
     skipped = len(statuses) - solved - len(failed) - len(flat)
-    # what to do too: each is a press too light to show, or the undeformed dome's capture among the presses
-    todo = "press deeper and capture again, or make the undeformed dome's capture the folder's reference/"
+    # what to do too: each is a press too light to show, or a capture of the undeformed dome among the presses,
+    # which needs no solve: a folder solve with --roi auto has its reference (reference/ or --reference) already
+    todo = "press deeper and capture again, or leave a capture of the undeformed dome out of the folder"
     without = f", {len(flat)} without contact (nothing solved: {', '.join(flat)}: {todo})" if flat else ""
     print(f"{solved} solved, {skipped} skipped (identical result), {len(failed)} failed{without}")
     for name, status in failed.items():

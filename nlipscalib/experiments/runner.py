@@ -115,11 +115,12 @@ def run_tasks(
                 backend(staged, out, keep_presses, status, bar)
                 _refuse_other_workers(staged, out, status)  # before the next stage builds on them
     finally:
+        # on a failure or Ctrl-C too: a notebook keeps the ended frames, and a bar left open nests the next one
+        bar.close()
         if check_scheduler(scheduler) is not None:
             # a LocalCluster closed mid-task (Ctrl-C) kills its busy workers (SIGKILL after Dask's grace): each
             # left its task's claim, which no one else would remove until the next run
             clean_leftovers(out)
-    bar.close()
     return status
 
 

@@ -432,6 +432,23 @@ class _Grid:
         return values if b == 1 else np.repeat(np.repeat(values, b, axis=0), b, axis=1)
 
 
+def _undeformed_advice(folder: str | Path, reference: str | Path | None) -> str:
+    """What to do with a press that is the undeformed dome, fitted to where its reference came from.
+
+    Why: the advice was always "use it as the reference", also to a folder that had its reference/ already (the
+    press is then a second capture of the undeformed dome, best moved out of the folder) and to a press solved
+    with an explicit --reference (which is that capture already)."""
+    if reference is None:
+        return f"if it is the undeformed dome, use it as the reference (--reference {folder}, or a folder's reference/)"
+    press, reference = Path(folder), Path(reference)
+    if reference.resolve() == (press.parent / "reference").resolve():
+        return (
+            f"if it is another capture of the undeformed dome, it needs no solve: move it out of {press.parent}, "
+            f"whose reference/ is that capture"
+        )
+    return f"if it is another capture of the undeformed dome, it needs no solve: {reference} is that capture"
+
+
 def auto_roi(contact: ContactMap, shape: tuple[int, int], **kwargs: Any) -> tuple[int, int, int, int]:
     """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome: :func:`contact_box`
     (the same keywords) without its note, which goes to the log as a warning."""
@@ -449,8 +466,12 @@ def contact_box(
     threshold: float = tolerances.CONTACT_MISFIT_FACTOR,
     min_component: float = 0.05,
     folder: str | Path = "",
+    reference: str | Path | None = None,
 ) -> tuple[tuple[int, int, int, int], str]:
     """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome, and a note.
+
+    ``folder`` is the press's, ``reference`` the folder of the undeformed dome's capture it was compared with (None:
+    not known), both named in the refusal of a press without contact (:func:`_undeformed_advice`).
 
     Candidates are the pixels :func:`contact_hits` calls hit (with ``threshold``); of their connected
     components only those at least ``min_component`` times the largest are kept, so isolated misfits (cast
@@ -484,9 +505,8 @@ def contact_box(
             # what to do, as well as what was found: a press too light to show, or the undeformed dome's capture
             raise NoContactError(
                 f"{folder}: --roi auto found no contact ({reason}); nothing solved: the surface is the reference's. "
-                f"If it was pressed, press deeper (or with a larger object) and capture it again; if it is the "
-                f"undeformed dome, use it as the reference (--reference {folder}, or a folder's reference/) "
-                f"({solve_anyway})"
+                f"If it was pressed, press deeper (or with a larger object) and capture it again; "
+                f"{_undeformed_advice(folder, reference)} ({solve_anyway})"
             )
         raise CaptureError(f"{folder}: --roi auto found no contact ({reason}); nothing solved ({solve_anyway})")
     labels, sizes = masks.components(hit)

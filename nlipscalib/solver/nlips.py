@@ -43,7 +43,7 @@ from ..core.errors import ConfigError
 from ..core.leds import Leds
 from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
-from ..progress import bars_enabled
+from ..progress import UNDRAWN_DELAY_S, bars_enabled
 from .coarse_to_fine import level_pyramid, solve_coarse_to_fine
 from .crop import LevelData, crop_to_mask, full_image
 from .gauss_newton import expanded_step
@@ -66,9 +66,6 @@ SolveResult = Reconstruction
 
 LEVEL_BAR = "{desc}: {n_fmt} iterations so far, {elapsed}"
 """The solve's terminal line (tqdm ``bar_format``): the level being solved and the iterations so far, no ETA."""
-BAR_DELAY_S = 1e-9
-"""tqdm's ``delay`` of that line: any above 0 keeps tqdm's constructor from drawing it (see :func:`_solve_checked`);
-this small, the first level's description still draws it at once."""
 
 
 def solve(
@@ -205,8 +202,9 @@ def _solve_checked(
         # line could stay at "0 iterations so far"
         # delay: no write in the constructor, which has registered the bar before it returns it; a Ctrl-C landing
         # in that write (a notebook's stop button, in the kernel's send) left a bar open that nobody could close,
-        # and every later bar of the kernel nested under it. The first draw comes with the first level, in the try
-        bar = tqdm(desc="NLiPs", leave=False, bar_format=LEVEL_BAR, mininterval=0, miniters=1, delay=BAR_DELAY_S)
+        # and every later bar of the kernel nested under it. The first draw comes with the first level's description,
+        # in the try (not progress._drawn's: this line has nothing to say before a level starts)
+        bar = tqdm(desc="NLiPs", leave=False, bar_format=LEVEL_BAR, mininterval=0, miniters=1, delay=UNDRAWN_DELAY_S)
     be = Backend(backend, opts.dtype)
     try:
         with blas_threads(1):

@@ -266,7 +266,7 @@ def _solve_press(
         why = model.reason if model is not None else "no interreflection term (a fixed light or no reference surface)"
         log.warning("%s: --coating-albedo not used: %s", press.folder, why)
     t0 = time.perf_counter()
-    roi, roi_note = _region(press, roi, explicit_roi, cmap)
+    roi, roi_note = _region(press, roi, explicit_roi, cmap, ref_capture.folder if ref_capture is not None else None)
     if roi is not None:
         mask &= box_mask(roi, (H, W))
     weights, anchoring = (None, "anchoring off (no reference surface)")
@@ -308,9 +308,10 @@ def _region(
     roi: tuple[int, int, int, int] | str | None,
     explicit_roi: tuple[int, int, int, int] | None,
     cmap: ContactMap | None,
+    reference: os.PathLike | None = None,
 ):
     """The box to solve, (x0, y0, w, h) or None for the whole gel, and what ``--roi auto`` left out or warns
-    about ("" when nothing)."""
+    about ("" when nothing). ``reference``: the folder of the undeformed capture ``cmap`` compares with."""
     if roi is None and cmap is not None and (why := no_contact(cmap)):
         reason, within_noise = why
         if within_noise:
@@ -323,7 +324,7 @@ def _region(
         return explicit_roi, ""
     if cmap is None:
         raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
-    box, note = contact_box(cmap, press.camera.shape, folder=press.folder)
+    box, note = contact_box(cmap, press.camera.shape, folder=press.folder, reference=reference)
     if note:
         log.warning("%s: %s", press.folder, note)
     wide, before, after = widen_to_anchor(cmap, box, press.camera.shape)

@@ -453,8 +453,9 @@ def test_a_press_without_contact_is_refused_by_the_auto_roi_as_having_none(tmp_p
     flat = load_press(synth.make_press(tmp_path / "flat", "none", size=(192, 144), lin_hook=noisy))
     cmap = classify_contact(flat)
     assert contact_peak(cmap) < tolerances.NO_CONTACT_PEAK
-    with pytest.raises(CaptureError, match="found no contact .* within noise"):
+    with pytest.raises(CaptureError, match="found no contact .* within noise") as no_reference_named:
         contact_box(cmap, flat.camera.shape, folder=flat.folder)
+    assert f"use it as the reference (--reference {flat.folder}" in str(no_reference_named.value)
     dented = _noisy_press(tmp_path / "dented", 1.0, 5)
     assert contact_peak(classify_contact(dented)) > tolerances.NO_CONTACT_PEAK
 
@@ -476,10 +477,30 @@ def test_a_folder_solve_notes_a_press_without_contact_and_does_not_fail(tmp_path
     assert statuses["flat"].startswith(f"{NO_CONTACT}: ") and "found no contact" in statuses["flat"]
     assert not (tmp_path / "flat" / "nlips").exists()
     assert _summary(statuses) == 0
-    assert "1 without contact (nothing solved: flat: press deeper and capture again, or make the" in (
+    assert "1 without contact (nothing solved: flat: press deeper and capture again, or leave a capture of" in (
         capsys.readouterr().out
     )
-    assert "press deeper" in statuses["flat"] and "use it as the reference" in statuses["flat"]
+    # the folder has its reference/: the press is a second capture of the undeformed dome, not the one to make it
+    assert "press deeper" in statuses["flat"] and f"move it out of {tmp_path}, whose reference/" in statuses["flat"]
+    assert "use it as the reference" not in statuses["flat"]
+
+
+def test_a_press_without_contact_solved_with_a_reference_elsewhere_is_told_that_reference(tmp_path):
+    """s27-sensorfit's refusal said "use it as the reference" to a press solved with an explicit --reference, which is
+    that capture already: it names the reference it was compared with."""
+    from nlipscalib.solver.contact import contact_box
+
+    rng = np.random.default_rng(5)
+    flat = load_press(
+        synth.make_press(
+            tmp_path / "flat", "none", size=(192, 144), lin_hook=lambda lin: lin + rng.normal(0, 0.004, lin.shape)
+        )
+    )
+    elsewhere = tmp_path / "dome" / "undeformed"
+    with pytest.raises(CaptureError, match="found no contact") as caught:
+        contact_box(classify_contact(flat), flat.camera.shape, folder=flat.folder, reference=elsewhere)
+    assert f"it needs no solve: {elsewhere} is that capture" in str(caught.value)
+    assert "use it as the reference" not in str(caught.value) and "move it out" not in str(caught.value)
 
 
 def test_a_whole_gel_solve_of_a_press_without_contact_says_so(tmp_path):
