@@ -904,10 +904,11 @@ def _solve_sparse(
 
 SPARSE_AMG_MIN_UNKNOWNS = 20_000
 """Fewest changed pixels of a sparse-path region that :func:`_solve_sparse` solves by AMG-preconditioned CG
-(:func:`_solve_amg`) rather than SuperLU. The crossover, measured one cold solve each (s27-amgpath, 2-core Xeon at
-load 4-8, CPU ms): compact regions (a flat-pad gel disc) 5,013 px 12 vs 14, 15,361 px 55 vs 37, 31,397 px 177 vs
-69; thin crosses of bands over the default dome (little SuperLU fill) 13,296 px 19 vs 32, 22,000 px 41 vs 49,
-32,700 px 71 vs 74, 48,375 px 127 vs 103. SuperLU's cost grows as its fill (n^1.5 on a compact region), AMG's as n."""
+(:func:`_solve_amg`) rather than SuperLU. The crossover, SuperLU vs AMG CPU ms (median of 3 cold solves,
+s27-amgpath, 2-core Xeon at load 4-8): compact regions (a flat-pad gel disc) 5,013 px 12 vs 14, 15,361 px 55 vs
+37, 31,397 px 177 vs 69; thin crosses of bands over the default dome (little SuperLU fill) 13,296 px 19 vs 32,
+22,000 px 41 vs 49, 32,700 px 71 vs 74, 48,375 px 127 vs 103. SuperLU's cost grows as its fill (n^1.5 on a
+compact region), AMG's as n."""
 AMG_HIERARCHY_CACHE_SIZE = 2
 """Most AMG hierarchies kept, one per region shape (its changed and gel pixels: the normal matrix depends on them
 alone, not on the normals). A stream repeats them (a frame whose lighting drifted flags the same whole gel; a
