@@ -912,7 +912,8 @@ compact region), AMG's as n."""
 AMG_HIERARCHY_CACHE_SIZE = 2
 """Most AMG hierarchies kept, one per region shape (its changed and gel pixels: the normal matrix depends on them
 alone, not on the normals). A stream repeats them (a frame whose lighting drifted flags the same whole gel; a
-contact held still keeps its mask): the set-up, a third to a half of a cold solve, is then skipped."""
+contact held still keeps its mask): the set-up, a third to a half of a cold solve, is then skipped. Each holds
+its levels' matrices: 57 MiB for the flat pad's whole gel at 640x480, 15 MiB for the default dome's cross."""
 _amg_cache: collections.OrderedDict[bytes, object] = collections.OrderedDict()
 _amg_cache_lock = threading.Lock()
 
