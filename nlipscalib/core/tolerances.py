@@ -287,6 +287,11 @@ TORCH_INTEGRATION_PARITY_MM = 5e-4
 transform) and the CPU's (:mod:`nlipscalib.learn.integrate`) agree within this where they solve the same boxes:
 float32 rounding of the transforms (at 640x480, 2 mm dents: up to 2.3e-4 mm in the middle, 1.2e-4 at the image
 border; solving the whole gel instead of an edge box moved border contacts by 2-4e-3 mm, s25)."""
+INTEGRATION_AMG_RTOL = 1e-8
+"""Relative residual (|b - M x| / |b|) at which the sparse path's AMG-preconditioned CG stops
+(:func:`nlipscalib.learn.integrate._solve_amg`, large regions). At 1e-8 its depth is within 3e-6 mm of SuperLU's on
+the default dome's cross and the flat pad's whole gel (640x480), far inside :data:`TORCH_INTEGRATION_PARITY_MM`; at
+1e-6 the cross was already 1.6e-4 mm off, too near it (s27-amgpath)."""
 ONNX_PARITY_DEG = 0.1
 """An ONNX export is accepted when onnxruntime's normals are within this angle (degrees) of PyTorch's
 (:func:`nlipscalib.learn.onnx_export.checked_parity`); at or beyond it the export is refused. What it guards: an

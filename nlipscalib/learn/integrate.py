@@ -20,7 +20,11 @@ Two exact solvers of that same equation:
   (This is a fast solver for the curved-surface equation above, not a flat-sensor height-from-
   gradient integration: the gradients are of log-range along the real rays.)
 - ``"sparse"``: only the changed pixels are unknown, any shape, SuperLU (scipy.sparse) on the
-  normal equations; used when no box below applies.
+  normal equations; used when no box below applies. A region of :data:`SPARSE_AMG_MIN_UNKNOWNS` pixels or more
+  (a cross of bands over the view, the flat pad's whole gel changed) is solved by conjugate gradients with a
+  Ruge-Stuben AMG preconditioner (pyamg) instead, to a residual whose depth is SuperLU's within a few 1e-6 mm
+  (:data:`~nlipscalib.core.tolerances.INTEGRATION_AMG_RTOL`); its hierarchy depends on the region's shape
+  alone and is kept for the next frames of that shape.
 
 The image border is not the gel's boundary: nothing is known beyond it, and the least-squares problem has
 no pixel pair across it, so a changed pixel on the border row has one neighbour fewer -- a natural (Neumann)
@@ -59,8 +63,10 @@ and unchanged pixels, a mix of gel parts with and without one, or a rim too long
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
+import threading
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, TypeAlias
 
@@ -72,6 +78,7 @@ from ..core.tolerances import INTEGRATION_MIN_FACING
 
 if TYPE_CHECKING:  # torch is optional (the full-frame path passes tensors): named for the type checker only
     import torch
+    from scipy.sparse import csr_matrix as sparse_matrix
 
 Array: TypeAlias = "np.ndarray | torch.Tensor"
 """A numpy array, or a torch tensor where :mod:`.fullframe` calls the shared arithmetic."""
@@ -864,7 +871,7 @@ def _solve_sparse(
     crop: tuple[slice, slice] | None = None,
 ) -> np.ndarray:
     """Log-range of the changed pixels ((n,) in ``unknown`` order): least squares on them only (any shape),
-    SuperLU on the normal equations.
+    SuperLU on the normal equations (AMG-preconditioned CG from :data:`SPARSE_AMG_MIN_UNKNOWNS` pixels up).
 
     Built on ``crop`` (default: the changed pixels' bounds grown by one pixel, where every pair of pixels that
     touches one lies), not the whole image: the same equations in the same order, and a group of noise specks
@@ -886,9 +893,69 @@ def _solve_sparse(
     n = int(unknown.sum())
     A = coo_matrix((vals, (rows, cols)), shape=(len(rhs), n)).tocsr()
     anchor = ANCHOR_WEIGHT * _unbounded(unknown, on_gel)[unknown]
-    normal_matrix = (A.T @ A + diags(anchor)).tocsc()
+    normal_matrix = (A.T @ A + diags(anchor)).tocsr()
     b = A.T @ rhs + anchor * known_lr[unknown]
-    return splu(normal_matrix, permc_spec="MMD_AT_PLUS_A").solve(b)
+    if n >= SPARSE_AMG_MIN_UNKNOWNS:
+        solution = _solve_amg(normal_matrix, b, known_lr[unknown], (unknown, on_gel))
+        if solution is not None:
+            return solution
+    return splu(normal_matrix.tocsc(), permc_spec="MMD_AT_PLUS_A").solve(b)
+
+
+SPARSE_AMG_MIN_UNKNOWNS = 20_000
+"""Fewest changed pixels of a sparse-path region that :func:`_solve_sparse` solves by AMG-preconditioned CG
+(:func:`_solve_amg`) rather than SuperLU. The crossover, SuperLU vs AMG CPU ms (median of 3 cold solves,
+s27-amgpath, 2-core Xeon at load 4-8): compact regions (a flat-pad gel disc) 5,013 px 12 vs 14, 15,361 px 55 vs
+37, 31,397 px 177 vs 69; thin crosses of bands over the default dome (little SuperLU fill) 13,296 px 19 vs 32,
+22,000 px 41 vs 49, 32,700 px 71 vs 74, 48,375 px 127 vs 103. SuperLU's cost grows as its fill (n^1.5 on a
+compact region), AMG's as n."""
+AMG_HIERARCHY_CACHE_SIZE = 2
+"""Most AMG hierarchies kept, one per region shape (its changed and gel pixels: the normal matrix depends on them
+alone, not on the normals). A stream repeats them (a frame whose lighting drifted flags the same whole gel; a
+contact held still keeps its mask): the set-up, a third to a half of a cold solve, is then skipped. Each holds
+its levels' matrices: 57 MiB for the flat pad's whole gel at 640x480, 15 MiB for the default dome's cross."""
+_amg_cache: collections.OrderedDict[bytes, object] = collections.OrderedDict()
+_amg_cache_lock = threading.Lock()
+
+
+def _solve_amg(
+    normal_matrix: sparse_matrix, b: np.ndarray, guess: np.ndarray, shape_masks: tuple[np.ndarray, np.ndarray]
+) -> np.ndarray | None:
+    """(n,) float64 solution of the sparse path's normal equations by conjugate gradients preconditioned with a
+    classical (Ruge-Stuben) AMG V-cycle (pyamg), from ``guess`` (the reference log-range), to the relative residual
+    :data:`~nlipscalib.core.tolerances.INTEGRATION_AMG_RTOL`; None where CG did not reach it (SuperLU then).
+
+    Why Ruge-Stuben, not smoothed aggregation: on this 5-point M-matrix it took 6-9 CG steps to SA's 7-16 and half
+    SA's CPU time at the same depth error (s27-amgpath). The hierarchy depends on ``shape_masks`` (the crop's changed
+    and gel pixels) alone, and is kept per shape (:data:`AMG_HIERARCHY_CACHE_SIZE`).
+    """
+    import hashlib
+
+    import pyamg
+
+    from ..core.blas import blas_threads
+    from ..core.tolerances import INTEGRATION_AMG_RTOL
+
+    unknown, on_gel = shape_masks
+    digest = hashlib.blake2b(repr(unknown.shape).encode(), digest_size=16)
+    for mask in shape_masks:
+        digest.update(np.packbits(mask).tobytes())
+    key = digest.digest()
+    with _amg_cache_lock:
+        hierarchy = _amg_cache.get(key)
+        if hierarchy is not None:
+            _amg_cache.move_to_end(key)
+    # one BLAS thread: CG's norms and dot products of ~1e5 values took 16 ms each, not 0.03, with a second
+    # thread waiting on a shared machine (load 5, s27-amgpath)
+    with blas_threads(1):
+        if hierarchy is None:
+            hierarchy = pyamg.ruge_stuben_solver(normal_matrix.tocsr())
+            with _amg_cache_lock:
+                _amg_cache[key] = hierarchy
+                while len(_amg_cache) > AMG_HIERARCHY_CACHE_SIZE:
+                    _amg_cache.popitem(last=False)
+        x, info = hierarchy.solve(b, x0=guess.copy(), tol=INTEGRATION_AMG_RTOL, accel="cg", return_info=True)
+    return x if info == 0 else None
 
 
 def _grown_bounds(unknown: np.ndarray) -> tuple[slice, slice]:

@@ -382,14 +382,17 @@ def test_the_device_path_finds_a_sphere_at_the_pads_rim_as_the_cpu_does(polar, a
     assert (ref.depth - got[..., 2])[changed].max() == pytest.approx(true_dent, rel=0.02)
 
 
+@pytest.mark.parametrize("solver", ["superlu", "amg"])
 @pytest.mark.parametrize("case", ["across both axes", "an island"])
-def test_the_device_path_hands_the_cpus_sparse_regions_to_the_cpu(case):
+def test_the_device_path_hands_the_cpus_sparse_regions_to_the_cpu(case, solver, monkeypatch):
     """Regions the CPU solves on its sparse path (a cross over the whole image: no fixed pixel in its box; a gel
     island touching no fixed pixel, held by the anchor) are solved by the CPU's code on the host: the CPU's depth
-    (the whole gel solved was a different equation), and a box elsewhere still on the device."""
+    (the whole gel solved was a different equation), and a box elsewhere still on the device. With AMG on the host
+    (the size threshold forced to 0), still SuperLU's depth."""
     from scipy import ndimage
 
     from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn import integrate
     from nlipscalib.learn.integrate import integrate_on_dome
     from tests.learn.test_integrate import _band, _dome_and_sphere
 
@@ -407,9 +410,14 @@ def test_the_device_path_hands_the_cpus_sparse_regions_to_the_cpu(case):
     tilt = ndimage.gaussian_filter(np.random.default_rng(5).normal(size=on_gel.shape + (3,)), (8, 8, 0)) * 20
     normals = ref.normals + np.where(changed[..., None], tilt, 0)
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
-    cpu, _ = integrate_on_dome(normals, changed, geo)
+    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
+    cpu, _ = integrate_on_dome(normals, changed, geo)  # SuperLU
     assert np.nanmax(np.abs(cpu - ref.depth)[changed]) > 0.1  # mm: a surface unlike the dome
+    monkeypatch.setattr(integrate, "_amg_cache", integrate.collections.OrderedDict())
+    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", 0 if solver == "amg" else np.inf)
     got, plan = _device_path_points(geo, normals, changed, dense=False)
+    # the island is a rim box on the host (anchored, every pixel changed); the cross is the sparse path's
+    assert len(integrate._amg_cache) == (solver == "amg" and case == "across both axes")
     assert len(plan.host) == 1 and plan.rim == [] and len(plan.boxes) == (case == "an island")
     np.testing.assert_allclose(got[..., 2], cpu, atol=TORCH_INTEGRATION_PARITY_MM)
 

@@ -532,3 +532,77 @@ def _dome_rays():
     from nlipscalib.core.sensor import SensorDesign
 
     return SensorDesign().camera_model().rays
+
+
+def _small(design):
+    """``design`` at 160x120: a CI-sized frame."""
+    import dataclasses
+
+    return dataclasses.replace(design, camera=dataclasses.replace(design.camera, width=160, height=120))
+
+
+def _amg_and_superlu(monkeypatch, normals, unknown, geo):
+    """Depth of ``integrate_on_dome`` with the sparse path's regions solved by AMG (the size threshold forced to 0),
+    then by SuperLU (no region large enough), and whether AMG ran (a hierarchy was cached)."""
+    from nlipscalib.learn import integrate
+
+    monkeypatch.setattr(integrate, "_amg_cache", integrate.collections.OrderedDict())
+    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", 0)
+    amg, _ = integrate_on_dome(normals, unknown, geo)
+    ran = len(integrate._amg_cache) == 1
+    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
+    superlu, _ = integrate_on_dome(normals, unknown, geo)
+    return amg, superlu, ran
+
+
+def _tilted(ref, changed, seed, sigma=2):
+    """The reference normals tilted by random smooth normals where ``changed`` (unit; NaN off the gel)."""
+    tilt = ndimage.gaussian_filter(np.random.default_rng(seed).normal(size=changed.shape + (3,)), (sigma, sigma, 0))
+    normals = ref.normals + np.where(changed[..., None], tilt * 10, 0)
+    with np.errstate(invalid="ignore"):
+        return normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+
+
+def test_amg_solves_a_cross_over_both_axes_as_superlu_does(monkeypatch):
+    # a cross of bands over the default dome at 160x120: the sparse path (no box applies); AMG-preconditioned CG
+    # to INTEGRATION_AMG_RTOL must give SuperLU's depth within the integration parity tolerance
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+
+    ref, rays, _, _, _ = _sphere_pressed_into_the_dome(_small(SensorDesign()), 0, 0, 4.0, 1.0)
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    cross = _band(ref.depth.shape, 0, 50, 65) | _band(ref.depth.shape, 1, 75, 90)
+    amg, superlu, ran = _amg_and_superlu(monkeypatch, _tilted(ref, cross, 3), cross, geo)
+    assert ran
+    assert np.abs(superlu - ref.depth)[cross].max() > 0.1  # mm: a surface unlike the dome
+    np.testing.assert_allclose(amg, superlu, atol=TORCH_INTEGRATION_PARITY_MM)
+
+
+def test_amg_solves_the_flat_pads_whole_gel_changed_as_superlu_does_and_reuses_its_hierarchy(monkeypatch):
+    # every gel pixel of the flat pad changed (a frame whose lighting drifted): no fixed pixel, the anchor holds the
+    # level. The hierarchy depends on the mask alone: a second frame with other normals reuses it and still matches
+    from nlipscalib.core.sensor import shipped_design
+    from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
+    from nlipscalib.learn import integrate
+
+    ref, rays, _, _, _ = _sphere_pressed_into_the_dome(_small(shipped_design("flat")), 0, 0, 4.0, 1.0)
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    on_gel = np.isfinite(ref.depth)
+    assert not on_gel.all()  # the pad does not fill the image: its outline is a natural side
+    # at 640x480 its rim (992 pixels) is too long for the rim box's Green's sum; at 160x120 it is not: say so
+    monkeypatch.setattr(integrate, "MAX_RIM_GREEN_VALUES", 0)
+    for seed in (4, 5):
+        amg, superlu, ran = _amg_and_superlu(monkeypatch, _tilted(ref, on_gel, seed, sigma=6), on_gel, geo)
+        assert ran
+        assert np.nanmax(np.abs(superlu - ref.depth)) > 0.05  # mm
+        np.testing.assert_allclose(amg, superlu, atol=TORCH_INTEGRATION_PARITY_MM)
+    monkeypatch.setattr(integrate, "_amg_cache", cached := integrate.collections.OrderedDict())
+    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", 0)
+    first, _ = integrate_on_dome(_tilted(ref, on_gel, 4, sigma=6), on_gel, geo)
+    (hierarchy,) = cached.values()
+    second, _ = integrate_on_dome(_tilted(ref, on_gel, 5, sigma=6), on_gel, geo)
+    assert list(cached.values()) == [hierarchy]  # reused, not rebuilt
+    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
+    want, _ = integrate_on_dome(_tilted(ref, on_gel, 5, sigma=6), on_gel, geo)
+    assert np.nanmax(np.abs(first - second)) > 0.05  # mm: the two frames differ
+    np.testing.assert_allclose(second, want, atol=TORCH_INTEGRATION_PARITY_MM)
