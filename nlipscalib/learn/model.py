@@ -112,10 +112,10 @@ def folded_layers(state: Mapping[str, torch.Tensor]) -> list[tuple[np.ndarray, n
     normalisation to unit length: 25-40 % less work on a frame, the same outputs up to float32 rounding.
     The one copy of the folding: :func:`fused_net` (PyTorch) and the ONNX export (``learn.onnx_export``) run it.
 
-    Folded in float64 with NumPy on the state's arrays: building ``torch.nn.Linear`` layers to hold them (and
-    torch's element-wise kernels, which start threads on a busy machine) made this 28-40 ms of CPU for the paper's
-    net at every ``nlips infer`` start (benchmarks/RESULTS.md, s27-onnxfast); the same float64 operations in the
-    same order, so the same float32 weights.
+    Folded in float64 with NumPy on the state's arrays: building ``torch.nn.Linear`` layers to hold them, with
+    torch's element-wise kernels (slow on a busy machine), cost 25-31 ms of CPU for the paper's net at every
+    ``nlips infer`` start, against 1 ms now (benchmarks/RESULTS.md, s27-onnxfast); the same float64 operations in
+    the same order, so the same float32 weights.
 
     Returns
     -------
