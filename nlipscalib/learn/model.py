@@ -21,7 +21,7 @@ dark frame, depth, normals) that inference compares frames with and integrates d
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -38,6 +38,9 @@ MODEL_VERSION = 1
 PAPER_HIDDEN = (256, 256, 128)
 """Hidden layer widths of the paper's NLiPsNet."""
 PAPER_DROPOUT = 0.2
+BATCHNORM_EPS = 1e-5
+"""BatchNorm's epsilon (torch's default): the layers of :func:`build_net` and their folding (:func:`folded_layers`);
+a model file's state holds no epsilon."""
 
 
 def _torch():
@@ -79,7 +82,12 @@ def build_net(
             super().__init__()
             layers, n_in = [], 5
             for n_out in hidden:
-                layers += [nn.Linear(n_in, n_out), nn.BatchNorm1d(n_out), nn.ReLU(), ByteMaskDropout(dropout)]
+                layers += [
+                    nn.Linear(n_in, n_out),
+                    nn.BatchNorm1d(n_out, eps=BATCHNORM_EPS),
+                    nn.ReLU(),
+                    ByteMaskDropout(dropout),
+                ]
                 n_in = n_out
             layers.append(nn.Linear(n_in, 3))
             self.mlp = nn.Sequential(*layers)
@@ -95,44 +103,69 @@ def build_net(
     return NLiPsNet()
 
 
-def fused_net(net: torch.nn.Module) -> torch.nn.Module:
-    """The same network in eval mode with every affine step folded into the linear layers (for inference).
+def folded_layers(state: Mapping[str, torch.Tensor]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The inference form's linear layers, from an NLiPsNet's ``state_dict`` (of :func:`build_net`'s layout).
 
     The input normalisation folds into the first layer (W' = W / scale, b' = b - W' offset) and each
     eval-mode BatchNorm into the layer before it (W' = s W, b' = s (b - mean) + beta, s = gamma /
     sqrt(var + eps)); dropout is the identity in eval mode. What remains is Linear-ReLU-...-Linear and the
     normalisation to unit length: 25-40 % less work on a frame, the same outputs up to float32 rounding.
-    Folding is done in float64. Takes and returns a torch.nn.Module: forward((N, 5) raw) -> (N, 3) unit.
+    The one copy of the folding: :func:`fused_net` (PyTorch) and the ONNX export (``learn.onnx_export``) run it.
+
+    Folded in float64 with NumPy on the state's arrays: building ``torch.nn.Linear`` layers to hold them, with
+    torch's element-wise kernels (slow on a busy machine), cost 25-31 ms of CPU for the paper's net at every
+    ``nlips infer`` start, against 1 ms now (benchmarks/RESULTS.md, s27-onnxfast); the same float64 operations in
+    the same order, so the same float32 weights.
+
+    Returns
+    -------
+    list of (W, b) : W (out, in) float32, b (out,) float32; ``x @ W.T + b`` on (N, in) inputs, raw (u, v, r, g, b)
+        pixels and linear colours for the first.
     """
-    torch = _torch()
-    nn = torch.nn
-    modules = list(net.mlp)
-    linear_at = [i for i, m in enumerate(modules) if isinstance(m, nn.Linear)]
-    offset, scale = net.in_offset.double(), net.in_scale.double()
+    offset, scale = _float64(state["in_offset"]), _float64(state["in_scale"])
     layers = []
-    for k, i in enumerate(linear_at):
-        W, b = modules[i].weight.detach().double(), modules[i].bias.detach().double()
+    k = 0
+    while f"mlp.{4 * k}.weight" in state:  # each hidden width adds Linear, BatchNorm1d, ReLU, dropout (build_net)
+        W, b = _float64(state[f"mlp.{4 * k}.weight"]), _float64(state[f"mlp.{4 * k}.bias"])
         if k == 0:
             W = W / scale
             b = b - W @ offset
-        nxt = modules[i + 1] if i + 1 < len(modules) else None
-        if isinstance(nxt, nn.BatchNorm1d):
-            s = nxt.weight.detach().double() / torch.sqrt(nxt.running_var.double() + nxt.eps)
-            W, b = W * s[:, None], s * (b - nxt.running_mean.double()) + nxt.bias.detach().double()
-        layer = nn.Linear(W.shape[1], W.shape[0])
-        with torch.no_grad():
-            layer.weight.copy_(W.float())
-            layer.bias.copy_(b.float())
-        layers += [layer, nn.ReLU()] if k < len(linear_at) - 1 else [layer]
+        norm = f"mlp.{4 * k + 1}."
+        if norm + "running_var" in state:  # the last linear layer has no BatchNorm after it
+            s = _float64(state[norm + "weight"]) / np.sqrt(_float64(state[norm + "running_var"]) + BATCHNORM_EPS)
+            W, b = W * s[:, None], s * (b - _float64(state[norm + "running_mean"])) + _float64(state[norm + "bias"])
+        layers.append((W.astype(np.float32), b.astype(np.float32)))
+        k += 1
+    return layers
 
-    class FusedNLiPsNet(nn.Module):
+
+def _float64(tensor: torch.Tensor) -> np.ndarray:
+    return tensor.detach().cpu().numpy().astype(np.float64)
+
+
+def fused_net(net: torch.nn.Module) -> torch.nn.Module:
+    """The same network in eval mode, its affine steps folded into the linear layers (:func:`folded_layers`).
+
+    Takes an NLiPsNet (:func:`build_net`) and returns a torch.nn.Module: forward((N, 5) raw) -> (N, 3) unit. Its
+    layers are the folded weights as buffers run with ``torch.nn.functional.linear`` and ``relu`` (what
+    ``nn.Linear`` and ``nn.ReLU`` run), without ``nn.Linear`` modules (each drew random initial weights first).
+    """
+    torch = _torch()
+    functional = torch.nn.functional
+    layers = folded_layers(net.state_dict())
+
+    class FusedNLiPsNet(torch.nn.Module):
         def __init__(self):
             super().__init__()
-            self.mlp = nn.Sequential(*layers)
+            for k, (W, b) in enumerate(layers):
+                self.register_buffer(f"weight{k}", torch.from_numpy(W))
+                self.register_buffer(f"bias{k}", torch.from_numpy(b))
 
         def forward(self, x: torch.Tensor):
-            out = self.mlp(x)
-            return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True).clamp_min(1e-8)
+            for k in range(len(layers)):
+                x = functional.linear(x, getattr(self, f"weight{k}"), getattr(self, f"bias{k}"))
+                x = functional.relu(x) if k < len(layers) - 1 else x
+            return x / torch.linalg.vector_norm(x, dim=-1, keepdim=True).clamp_min(1e-8)
 
     return FusedNLiPsNet().eval()
 

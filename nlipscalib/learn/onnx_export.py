@@ -1,7 +1,7 @@
 """NLiPsNet to ONNX (written with onnx.helper from the folded weights) and inference with onnxruntime.
 
 The ONNX graph takes the same raw (N, 5) input as the PyTorch model and returns (N, 3) unit normals.
-It is the inference form of the network (:func:`nlipscalib.learn.model.fused_net`): input
+It is the inference form of the network (:func:`nlipscalib.learn.model.folded_layers`): input
 normalisation and BatchNorm folded into the linear layers, so the graph is Gemm-ReLU-...-Gemm. The
 sensor description and the model file's digest travel in the ONNX metadata, so an .onnx file is
 never used with another model's reference.
@@ -67,7 +67,7 @@ def export_onnx(model: LoadedModel, out: str | Path, check: Callable[[Path], obj
     PyTorch, :func:`checked_parity`): an export that fails it, or is interrupted during it, is never published
     (an interrupted ``nlips export`` used to leave a file whose check never ran, which ``nlips infer`` then used).
 
-    The graph is written directly from the folded weights (:func:`nlipscalib.learn.model.fused_net`):
+    The graph is written directly from the folded weights (:func:`nlipscalib.learn.model.folded_layers`):
     per layer a MatMul named ``layer<k>`` and an Add (onnxruntime fuses the pair into one Gemm), ReLU
     between layers, then the division by the L2 norm (at least 1e-8). Named layers let the int8
     variant leave chosen layers in float (:func:`quantized_int8`).
@@ -158,16 +158,14 @@ def export_proto(model: LoadedModel) -> onnx.ModelProto:
     onnx.helper makes them (tests/learn/test_models_from_others.py compares the bytes), so inference does not
     import onnx.
     """
-    import torch
-
-    from .model import fused_net
+    from .model import folded_layers
 
     pb = onnx_messages()
-    linear = [m for m in fused_net(model.net.eval()).mlp if isinstance(m, torch.nn.Linear)]
+    linear = folded_layers(model.net.state_dict())
     nodes, weights, current = [], [], INPUT
-    for k, layer in enumerate(linear):
-        weights.append(_tensor(pb, layer.weight.detach().numpy().T, f"W{k}"))
-        weights.append(_tensor(pb, layer.bias.detach().numpy(), f"b{k}"))
+    for k, (W, b) in enumerate(linear):
+        weights.append(_tensor(pb, W.T, f"W{k}"))
+        weights.append(_tensor(pb, b, f"b{k}"))
         nodes.append(_node(pb, "MatMul", [current, f"W{k}"], [f"matmul{k}"], f"layer{k}"))
         nodes.append(_node(pb, "Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], f"bias{k}"))
         current = f"linear{k}"

@@ -5,7 +5,7 @@ import pytest
 
 from nlipscalib.core import tolerances
 from nlipscalib.learn import change
-from nlipscalib.learn.model import build_net, fused_net
+from nlipscalib.learn.model import PAPER_HIDDEN, build_net, folded_layers, fused_net
 
 
 def _trained_like_net(hidden=(32, 16)):
@@ -41,6 +41,65 @@ def test_folded_layers_give_the_same_normals():
     with torch.inference_mode():
         a, b = net(x).numpy(), fused_net(net)(x).numpy()
     assert np.abs(a - b).max() < 1e-5
+
+
+def _module_built_layers(net):
+    """(W, b) float32 of each folded layer as fused_net made them up to s27-onnxfast: torch float64 arithmetic on the
+    modules, copied into new torch.nn.Linear layers (the oracle the NumPy folding must equal bit for bit)."""
+    import torch
+
+    nn = torch.nn
+    modules = list(net.mlp)
+    linear_at = [i for i, m in enumerate(modules) if isinstance(m, nn.Linear)]
+    offset, scale = net.in_offset.double(), net.in_scale.double()
+    layers = []
+    for k, i in enumerate(linear_at):
+        W, b = modules[i].weight.detach().double(), modules[i].bias.detach().double()
+        if k == 0:
+            W = W / scale
+            b = b - W @ offset
+        nxt = modules[i + 1] if i + 1 < len(modules) else None
+        if isinstance(nxt, nn.BatchNorm1d):
+            s = nxt.weight.detach().double() / torch.sqrt(nxt.running_var.double() + nxt.eps)
+            W, b = W * s[:, None], s * (b - nxt.running_mean.double()) + nxt.bias.detach().double()
+        layer = nn.Linear(W.shape[1], W.shape[0])
+        with torch.no_grad():
+            layer.weight.copy_(W.float())
+            layer.bias.copy_(b.float())
+        layers.append((layer.weight.detach().numpy(), layer.bias.detach().numpy()))
+    return layers
+
+
+@pytest.mark.parametrize("hidden", [(32, 16), (64, 64, 64), PAPER_HIDDEN])
+def test_the_numpy_folding_equals_the_module_built_layers_bit_for_bit(hidden):
+    """folded_layers (NumPy on the state dict: no nn.Linear built) gives the float32 weights the module-built folding
+    gave, exactly; and fused_net's forward the normals of nn.Linear layers holding them, exactly (a model's normals
+    and depth stay bit-identical on the torch and ONNX backends)."""
+    import torch
+
+    net = _trained_like_net(hidden)
+    folded, oracle = folded_layers(net.state_dict()), _module_built_layers(net)
+    assert (
+        [W.shape for W, _ in folded]
+        == [W.shape for W, _ in oracle]
+        == [(n_out, n_in) for n_in, n_out in zip((5, *hidden), (*hidden, 3))]
+    )
+    for (W, b), (W_ref, b_ref) in zip(folded, oracle):
+        assert W.dtype == b.dtype == np.float32
+        np.testing.assert_array_equal(W, W_ref)
+        np.testing.assert_array_equal(b, b_ref)
+    layers = []
+    for k, (W, b) in enumerate(oracle):
+        linear = torch.nn.Linear(W.shape[1], W.shape[0])
+        with torch.no_grad():
+            linear.weight.copy_(torch.from_numpy(W))
+            linear.bias.copy_(torch.from_numpy(b))
+        layers += [linear, torch.nn.ReLU()] if k < len(oracle) - 1 else [linear]
+    x = torch.from_numpy(_inputs(3000))
+    with torch.inference_mode():
+        out = torch.nn.Sequential(*layers)(x)
+        expected = (out / torch.linalg.vector_norm(out, dim=-1, keepdim=True).clamp_min(1e-8)).numpy()
+        np.testing.assert_array_equal(fused_net(net)(x).numpy(), expected)
 
 
 def _sensor(width: int, height: int) -> dict:

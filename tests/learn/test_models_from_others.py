@@ -171,18 +171,17 @@ def test_the_export_is_written_as_onnx_helper_writes_it_and_infer_does_not_impor
     import subprocess
     import sys
 
-    from nlipscalib.learn.model import fused_net, load_model
+    from nlipscalib.learn.model import folded_layers, load_model
     from nlipscalib.learn.onnx_export import export_proto
 
     model = load_model(_save(tmp_path / "m.pt"))
     helper, numpy_helper = onnx.helper, onnx.numpy_helper
-    import torch
-
-    linear = [m for m in fused_net(model.net.eval()).mlp if isinstance(m, torch.nn.Linear)]
+    # the folded weights: the module-built ones bit for bit (test_fast_paths.py)
+    linear = folded_layers(model.net.state_dict())
     nodes, weights, current = [], [], "uvrgb"
-    for k, layer in enumerate(linear):  # the graph as export_onnx wrote it up to 2026-12-05, with onnx.helper
-        weights.append(numpy_helper.from_array(layer.weight.detach().numpy().T.copy(), f"W{k}"))
-        weights.append(numpy_helper.from_array(layer.bias.detach().numpy().copy(), f"b{k}"))
+    for k, (W, b) in enumerate(linear):  # the graph as export_onnx wrote it up to 2026-12-05, with onnx.helper
+        weights.append(numpy_helper.from_array(W.T.copy(), f"W{k}"))
+        weights.append(numpy_helper.from_array(b.copy(), f"b{k}"))
         nodes.append(helper.make_node("MatMul", [current, f"W{k}"], [f"matmul{k}"], name=f"layer{k}"))
         nodes.append(helper.make_node("Add", [f"matmul{k}", f"b{k}"], [f"linear{k}"], name=f"bias{k}"))
         current = f"linear{k}"
