@@ -171,6 +171,15 @@ from their mean direction. Why: a view of a patch of the dome (a 64x64 crop of a
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""
+LED_EMITTER_RADIUS_MM = 1.8
+"""``--roi auto``: radius, mm, of the disk an LED is taken to emit from when judging the misfit along the gel's edge
+that the auto ROI leaves out (``solver.contact.point_led_misfit``): edge pixels that misfit by no more than
+:data:`CONTACT_MISFIT_FACTOR` times what the point-LED model leaves against such disks are that model's known error,
+not a fault, and are left out without a warning. Why: the solver models point LEDs; a WS2812B emits from a light
+cup about 3.6 mm across (the twin's default ``[led_package]``), whose light the point model misses by a few % where
+the gel comes within a few LED sizes of the LEDs -- the ``capsule`` design's wall at the image border (every press
+with the design LEDs warned of 1,300-2,000 edge pixels; rendered with point LEDs its undeformed capture has 22 hits
+against 2,464; s27-shapes2). Not read from the capture: the press format does not describe the LED package."""
 ROI_MIN_INNER_FRACTION = 0.005
 """``--roi auto``: a misfit component away from the gel's edge counts as a dent, in favour of which the edge's
 are left out, when it holds at least this fraction of the gel's pixels (96 px at 160x120, 1,536 at 640x480:
