@@ -476,7 +476,7 @@ def contact_box(
     if not valid.any():
         raise CaptureError(f"{folder}: no pixel sees the gel; nothing to reconstruct")
     hit = contact_hits(contact, threshold)
-    if why := no_contact(contact, hit):
+    if why := no_contact(contact, hit, edge_model_error):
         reason, within_noise = why
         solve_anyway = "pass --roi X0 Y0 W H, or no --roi, to solve it anyway"
         if within_noise:
@@ -662,7 +662,11 @@ def contact_hits(contact: ContactMap, threshold: float = tolerances.CONTACT_MISF
     return valid & (mis > threshold * np.maximum(floor, 1e-9))  # NaN compares False, off the gel anyway
 
 
-def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str, bool] | None:
+def no_contact(
+    contact: ContactMap,
+    hit: np.ndarray | None = None,
+    model_error: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> tuple[str, bool] | None:
     """Why the press shows no contact, and whether its images match the undeformed dome within noise; None when it
     shows one.
 
@@ -678,6 +682,10 @@ def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str,
     ----------
     contact : ContactMap
     hit : (H, W) bool or None -- :func:`contact_hits` of ``contact`` when at hand.
+    model_error : as :func:`contact_box`'s ``edge_model_error`` (:func:`point_led_misfit`), or None -- asked of the
+        whole gel only when the floor says the LEDs do not fit and no pixel is hit: a floor that the point-LED
+        model's known error explains (the ``flat`` design with its exact LEDs: 3.9 times the noise, 1.01 times
+        hypot(noise, that error); s27-shapes2) is then "within noise", not "the LED model does not fit".
 
     Returns
     -------
@@ -698,6 +706,17 @@ def no_contact(contact: ContactMap, hit: np.ndarray | None = None) -> tuple[str,
         )
     if hit.any():
         return None
+    if model_error is not None:
+        gel = np.isfinite(contact.misfit)
+        known = np.hypot(contact.expected[gel], model_error(gel)[gel])
+        explained = contact.median_misfit / max(float(np.median(known)), 1e-12)
+        if explained < tolerances.MODEL_MISFIT_FLOOR:
+            return (
+                f"images match the undeformed dome within noise and the point-LED model's known error (the misfit's "
+                f"median is {explained:.1f} times theirs, {floor:.1f} times the noise alone), and no pixel misfits by "
+                f"{tolerances.CONTACT_MISFIT_FACTOR:g} times more",
+                True,
+            )
     return (
         f"the images differ from the undeformed model all over the gel, {floor:.0f} times the noise, and no pixel "
         f"by {tolerances.CONTACT_MISFIT_FACTOR:g} times more: the LED model does not fit this sensor; calibrate the "

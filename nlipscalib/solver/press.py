@@ -321,7 +321,7 @@ def _region(
 ):
     """The box to solve, (x0, y0, w, h) or None for the whole gel, and what ``--roi auto`` left out or warns
     about ("" when nothing); ``edge_model_error`` as :func:`.contact.contact_box`'s."""
-    if roi is None and cmap is not None and (why := no_contact(cmap)):
+    if roi is None and cmap is not None and (why := no_contact(cmap, model_error=edge_model_error)):
         reason, within_noise = why
         if within_noise:
             note = f"no contact found: the {reason}: the solved surface is the reference's up to noise"

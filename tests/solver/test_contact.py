@@ -564,3 +564,20 @@ def test_edge_noise_gain_is_the_smoothings_noise_at_the_edge_over_inside():
     for pixel in ((0, 0), (0, 25), (20, 0), (29, 39), (39, 0)):
         assert gain[pixel] == pytest.approx(measured[pixel], rel=1e-3), pixel
     assert gain[0, 0] > 1.6  # an image corner: about 1.7 times the noise
+
+
+def test_a_model_floor_that_the_point_led_error_explains_is_no_contact_not_leds_that_do_not_fit():
+    """The flat design's undeformed capture with its exact design LEDs: misfit 3.9 times the noise all over (what
+    point LEDs miss of its 3.6 mm ones), no pixel hit; refused as without contact, not told to calibrate its LEDs.
+    LEDs really off (a floor of 30 times the noise) are still told to."""
+    from nlipscalib.solver.contact import no_contact
+
+    shape = (60, 80)
+    rng = np.random.default_rng(0)
+    for floor, verdict in ((3.9, True), (30.0, False)):
+        misfit = floor * (1 + 0.1 * rng.standard_normal(shape))  # no pixel 3 times its median
+        contact = _contact_map(misfit)
+        assert no_contact(contact)[1] is False  # the floor alone: "the LED model does not fit"
+        reason, within = no_contact(contact, model_error=lambda pixels: np.where(pixels, 3.7, 0.0))
+        assert within is verdict, reason
+        assert ("point-LED model's known error" in reason) is verdict
