@@ -179,6 +179,15 @@ Why: a 6 mm sphere 3 mm deep (the gel's thickness) deforms the gel far beyond th
 depth RMSE 0.25 mm (the whole gel: 0.88 deg); widened to 16 %, 0.98 deg and 0.09 mm. The twin's other presses hold
 17-44 % at the 8-pixel margin (coin1 17 %, cube1 23 %, sphere1 27 %) and keep their box (benchmarks/RESULTS.md,
 s27-unusual)."""
+LED_EMITTER_RADIUS_MM = 1.8
+"""``--roi auto``: radius, mm, of the disk an LED is taken to emit from when judging the misfit along the gel's edge
+that the auto ROI leaves out (``solver.contact.point_led_misfit``): edge pixels that misfit by no more than
+:data:`CONTACT_MISFIT_FACTOR` times what the point-LED model leaves against such disks are that model's known error,
+not a fault, and are left out without a warning. Why: the solver models point LEDs; a WS2812B emits from a light
+cup about 3.6 mm across (the twin's default ``[led_package]``), whose light the point model misses by a few % where
+the gel comes within a few LED sizes of the LEDs -- the ``capsule`` design's wall at the image border (every press
+with the design LEDs warned of 1,300-2,000 edge pixels; rendered with point LEDs its undeformed capture has 22 hits
+against 2,464; s27-shapes2). Not read from the capture: the press format does not describe the LED package."""
 ROI_MIN_INNER_FRACTION = 0.005
 """``--roi auto``: a misfit component away from the gel's edge counts as a dent, in favour of which the edge's
 are left out, when it holds at least this fraction of the gel's pixels (96 px at 160x120, 1,536 at 640x480:

@@ -27,9 +27,11 @@ lives in a file of its own:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import os
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -39,7 +41,16 @@ from ..core.capture import Press, as_press, select_leds
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
 from .camera_shift import shift_note
-from .contact import ContactMap, anchor_weights, contact_box, led_levels, lit_leds, no_contact, widen_to_anchor
+from .contact import (
+    ContactMap,
+    anchor_weights,
+    contact_box,
+    led_levels,
+    lit_leds,
+    no_contact,
+    point_led_misfit,
+    widen_to_anchor,
+)
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
 from .led_checks import led_check
@@ -266,7 +277,15 @@ def _solve_press(
         why = model.reason if model is not None else "no interreflection term (a fixed light or no reference surface)"
         log.warning("%s: --coating-albedo not used: %s", press.folder, why)
     t0 = time.perf_counter()
-    roi, roi_note = _region(press, roi, explicit_roi, cmap, ref_capture.folder if ref_capture is not None else None)
+    # against a capture of the undeformed dome the model has no point-LED error to allow for at the edge
+    direct = 1.0 / (1.0 + model.share) if model is not None and model.enabled else 1.0
+    edge_error = (
+        None
+        if ref_capture is not None
+        else functools.partial(point_led_misfit, press, leds, cmap, direct_fraction=direct)
+    )
+    reference = ref_capture.folder if ref_capture is not None else None
+    roi, roi_note = _region(press, roi, explicit_roi, cmap, reference, edge_error)
     if roi is not None:
         mask &= box_mask(roi, (H, W))
     weights, anchoring = (None, "anchoring off (no reference surface)")
@@ -309,10 +328,12 @@ def _region(
     explicit_roi: tuple[int, int, int, int] | None,
     cmap: ContactMap | None,
     reference: os.PathLike | None = None,
+    edge_model_error: Callable[[np.ndarray], np.ndarray] | None = None,
 ):
     """The box to solve, (x0, y0, w, h) or None for the whole gel, and what ``--roi auto`` left out or warns
-    about ("" when nothing). ``reference``: the folder of the undeformed capture ``cmap`` compares with."""
-    if roi is None and cmap is not None and (why := no_contact(cmap)):
+    about ("" when nothing). ``reference``: the folder of the undeformed capture ``cmap`` compares with;
+    ``edge_model_error`` as :func:`.contact.contact_box`'s."""
+    if roi is None and cmap is not None and (why := no_contact(cmap, model_error=edge_model_error)):
         reason, within_noise = why
         if within_noise:
             note = f"no contact found: the {reason}: the solved surface is the reference's up to noise"
@@ -324,7 +345,9 @@ def _region(
         return explicit_roi, ""
     if cmap is None:
         raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
-    box, note = contact_box(cmap, press.camera.shape, folder=press.folder, reference=reference)
+    box, note = contact_box(
+        cmap, press.camera.shape, folder=press.folder, reference=reference, edge_model_error=edge_model_error
+    )
     if note:
         log.warning("%s: %s", press.folder, note)
     wide, before, after = widen_to_anchor(cmap, box, press.camera.shape)

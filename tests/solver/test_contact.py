@@ -599,3 +599,80 @@ def test_a_faint_dent_over_many_pixels_is_a_contact_and_edge_or_speck_misfit_is_
     for misfit in (specks, at_edge):
         with pytest.raises(CaptureError, match="found no contact .* within noise"):
             contact_box(_contact_map(misfit), shape)
+
+
+def test_edge_misfit_the_point_led_model_explains_is_left_out_without_a_warning_and_a_larger_one_is_not():
+    """The capsule design's wall at the image border misfits by what point LEDs miss of its 3.6 mm LEDs: left out of
+    the box as before, but not warned about; an edge misfit beyond that model error (a real fault) still is."""
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 105), 12)] = 10.0  # the dent
+    for corner in ((0, 0), (0, 159), (119, 0), (119, 159)):
+        misfit[_disk(shape, corner, 25)] = 10.0
+    plain_box, plain_note = contact_box(_contact_map(misfit), shape)
+    asked = []
+
+    def model_error(size):
+        def error(pixels):
+            asked.append(int(pixels.sum()))
+            return np.where(pixels, size, 0.0)
+
+        return error
+
+    explained_box, explained = contact_box(_contact_map(misfit), shape, edge_model_error=model_error(4.0))
+    fault_box, fault = contact_box(_contact_map(misfit), shape, edge_model_error=model_error(1.0))
+    assert "left out" in plain_note
+    assert explained == "" and explained_box == plain_box  # 10 <= 3 x hypot(1, 4): that model's error
+    assert "left out" in fault and "beyond the point-LED model's known error" in fault and fault_box == plain_box
+    assert asked[0] == asked[1] > 0  # asked about the left-out edge pixels only
+
+
+def test_the_point_led_models_error_grows_with_the_leds_size_and_is_asked_only_where_given(sphere_press):
+    from nlipscalib.solver.contact import point_led_misfit
+
+    press = sphere_press
+    cmap = classify_contact(press)
+    gel = np.isfinite(press.reference.depth)
+    pixels = gel & (np.indices(gel.shape)[1] % 2 == 0)  # every other column
+    small, large = (point_led_misfit(press, press.leds, cmap, pixels, radius) for radius in (1.0, 2.0))
+    assert np.all(small[~pixels] == 0) and np.all(small[pixels] > 0)
+    assert np.all(point_led_misfit(press, press.leds, cmap, pixels, 0.0) == 0)  # the point model itself
+    half = point_led_misfit(press, press.leds, cmap, pixels, 1.0, direct_fraction=0.5)  # the rest indirect light
+    np.testing.assert_allclose(half, small / 2)
+    ratio = np.median(large[pixels] / small[pixels])
+    assert 3.2 < ratio < 4.8, ratio  # second order in the radius: 4
+
+
+def test_edge_noise_gain_is_the_smoothings_noise_at_the_edge_over_inside():
+    from nlipscalib.solver.contact import _smooth, edge_noise_gain
+
+    valid = np.ones((40, 50), bool)
+    valid[30:, 40:] = False  # a silhouette corner inside the frame too
+    # the smoothing is linear: blurring every unit impulse gives its weights, whose squares sum to the noise's
+    impulses = np.repeat(np.eye(valid.size, dtype=np.float32).reshape(-1, *valid.shape, 1), 3, axis=3)
+    measured = np.sqrt((_smooth(impulses, valid, 1.5)[..., 0] ** 2).sum(axis=0))
+    measured /= measured[15, 25]
+    gain = edge_noise_gain(valid, 1.5)
+    assert gain[15, 25] == pytest.approx(1.0, abs=1e-3)  # _gain truncates the kernel at 3 sigma, OpenCV at 4
+    for pixel in ((0, 0), (0, 25), (20, 0), (29, 39), (39, 0)):
+        assert gain[pixel] == pytest.approx(measured[pixel], rel=1e-3), pixel
+    assert gain[0, 0] > 1.6  # an image corner: about 1.7 times the noise
+
+
+def test_a_model_floor_that_the_point_led_error_explains_is_no_contact_not_leds_that_do_not_fit():
+    """The flat design's undeformed capture with its exact design LEDs: misfit 3.9 times the noise all over (what
+    point LEDs miss of its 3.6 mm ones), no pixel hit; refused as without contact, not told to calibrate its LEDs.
+    LEDs really off (a floor of 30 times the noise) are still told to."""
+    from nlipscalib.solver.contact import no_contact
+
+    shape = (60, 80)
+    rng = np.random.default_rng(0)
+    for floor, verdict in ((3.9, True), (30.0, False)):
+        misfit = floor * (1 + 0.1 * rng.standard_normal(shape))  # no pixel 3 times its median
+        contact = _contact_map(misfit)
+        assert no_contact(contact)[1] is False  # the floor alone: "the LED model does not fit"
+        reason, within = no_contact(contact, model_error=lambda pixels: np.where(pixels, 3.7, 0.0))
+        assert within is verdict, reason
+        assert ("point-LED model's known error" in reason) is verdict
