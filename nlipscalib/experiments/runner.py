@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 from ..core.cpus import usable_cores
 from ..core.errors import ConfigError, MissingDependencyError
 from ..core.processes import LOCAL_WORKER_GRACE_S, end_processes, kill_unless_ended, sigint_held
-from .task_logs import PACKAGE, replay, run_logged
+from .task_logs import PACKAGE, LiveLogs, replay, run_logged
 from .tasks import (
     NO_SPACE,
     REUSED,
@@ -236,12 +236,29 @@ class _backend:
         _WorkerSlots(min(self.workers, len(tasks)), str(out), threads, keep).run(tasks, status, bar)
 
     def _dask(self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm) -> None:
+        level = logging.getLogger(PACKAGE).getEffectiveLevel()  # of the records the tasks carry back (task_logs)
+        live = LiveLogs(self.client)  # each task's records logged as they come, a killed worker's too
+        try:
+            self._await(tasks, out, keep, status, bar, level, live)
+        finally:
+            live.close()
+
+    def _await(
+        self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm, level: int, live: LiveLogs
+    ) -> None:
         from distributed import as_completed as dask_completed
 
-        level = logging.getLogger(PACKAGE).getEffectiveLevel()  # of the records the tasks carry back (task_logs)
         futures = {
             self.client.submit(
-                _execute_on_dask_worker, t, str(out), self.threads, keep, level, key=f"{t.id}-{t.hash}", pure=False
+                _execute_on_dask_worker,
+                t,
+                str(out),
+                self.threads,
+                keep,
+                level,
+                live.for_task(t.id),
+                key=f"{t.id}-{t.hash}",
+                pure=False,
             ): t
             for t in tasks
         }
@@ -254,7 +271,7 @@ class _backend:
             except Exception as exc:  # KilledWorker after too many deaths, lost scheduler, ...
                 outcome = f"failed: {type(exc).__name__}: {exc}"
             else:
-                replay(records, t.id)  # before the task's outcome line, as a local task's lines come
+                replay(records, t.id, live)  # those not logged live, before the task's outcome line
             was_full = status.no_space
             _record(status, t.id, outcome, bar)
             if status.no_space and not was_full:
@@ -379,7 +396,9 @@ def _worker_loop(
         results.put((slot, task.id, execute(task, out, threads, keep)))
 
 
-def _execute_on_dask_worker(task: Task, out: str, threads: int, keep: bool, level: int) -> tuple[str, dict]:
+def _execute_on_dask_worker(
+    task: Task, out: str, threads: int, keep: bool, level: int, live: tuple[str, str] | None = None
+) -> tuple[str, dict]:
     """:func:`.tasks.execute` on a Dask worker, and the records of ``level`` and above it logged, for
     :func:`.task_logs.replay` in the command (:func:`.task_logs.run_logged`). A local cluster's worker (``threads``
     > 0: its share of this machine's cores) solves on that share, as it renders: its N workers each solved on every
@@ -389,7 +408,7 @@ def _execute_on_dask_worker(task: Task, out: str, threads: int, keep: bool, leve
         from ..solver import threads as solver_threads
 
         solver_threads.set_workers(threads)
-    return run_logged(execute, level, task, out, threads, keep)
+    return run_logged(execute, level, task, out, threads, keep, live=live)
 
 
 def import_native_libraries() -> None:

@@ -16,6 +16,15 @@ caller's). A record from another thread (one the task started without its contex
 side's single helper thread, a read-ahead thread) is the task's when it is the only task its worker process runs
 now: always on a local cluster (one thread per worker) and on a remote worker running one task at a time. On a
 remote worker running several tasks at once such a record is no task's: it stays in the worker's own log only.
+
+Live: a task's records also travel as they are emitted (:class:`LiveLogs`), as Dask events (``Worker.log_event``)
+on a topic of this command's own, to which only this command's client subscribes (``Client.subscribe_topic``), and
+are logged at once. Why: the carried records came only when the task ended; a worker killed mid-task (out of
+memory, a pre-empted node) took them with it, and its last lines were the ones a lab needed. Each record is logged
+once: by whichever of its live event and the task's outcome comes first (a record is known by its task attempt's id
+and its number). ``Client.forward_logging`` or ``distributed.print``/``warn`` would be the library's own way, but
+they go to every client of the scheduler (above). Both mechanisms exist in dask.distributed 2024.1 (pyproject's
+floor) as in 2026.8.
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ import contextvars
 import dataclasses
 import logging
 import threading
+import uuid
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -33,6 +43,12 @@ MAX_RECORDS = 100
 fault repeated for every LED)."""
 PACKAGE = "nlipscalib"
 """The logger whose records (its children's included) a task carries back; the libraries' stay on the worker."""
+TOPIC_PREFIX = "nlipscalib-task-logs-"
+"""The start of a command's Dask event topic (:class:`LiveLogs`); a random part makes it the command's own."""
+REPLAYED = "nlipscalib_task_log"
+"""Attribute marking a record this module logged for a task (:func:`_log_item`): never a task's own. Why: a worker
+in the command's process (``LocalCluster(processes=False)``) running a lone task took the live line, logged on the
+client's thread, for one of the task's, and sent it again, prefixed twice."""
 EXTRA_KEYS = ("press_line", "file_only")
 """Attributes of a record (``extra``) that the command's handlers read (:mod:`nlipscalib.progress`)."""
 
@@ -51,19 +67,36 @@ class TaskLog:
     """Records left out after those."""
     more_warnings: int = 0
     """Of ``more``, those of level WARNING or above."""
+    send: Callable[[str, dict], None] | None = None
+    """Sends a kept record (with :attr:`attempt`) to the command as it is made (:class:`LiveLogs`); None: it
+    travels with the outcome only."""
+    attempt: str = dataclasses.field(default_factory=lambda: uuid.uuid4().hex)
+    """This run of the task (Dask re-runs a dead worker's task): with a record's number, what tells the command
+    that the outcome carries a record it already logged live."""
 
     def add(self, record: logging.LogRecord) -> None:
         if record.levelno < self.level:
             return
         if len(self.records) < MAX_RECORDS:
-            self.records.append(_as_dict(record))
+            item = _as_dict(record)
+            item["seq"] = len(self.records)
+            self.records.append(item)
+            if self.send is not None:
+                with contextlib.suppress(Exception):  # a worker closing: the record still travels with the outcome
+                    self.send(self.attempt, item)
             return
         self.more += 1
         self.more_warnings += record.levelno >= logging.WARNING
 
     def carried(self, worker: str) -> dict:
         """What travels back with the outcome (plain types: any serializer takes it)."""
-        return {"worker": worker, "records": self.records, "more": self.more, "more_warnings": self.more_warnings}
+        return {
+            "worker": worker,
+            "attempt": self.attempt,
+            "records": self.records,
+            "more": self.more,
+            "more_warnings": self.more_warnings,
+        }
 
 
 _current: contextvars.ContextVar[TaskLog | None] = contextvars.ContextVar("nlipscalib_task_log", default=None)
@@ -78,6 +111,8 @@ class _ToItsTask(logging.Handler):
     """On the package logger while tasks run: each record to the task it belongs to (module docstring)."""
 
     def emit(self, record: logging.LogRecord) -> None:
+        if getattr(record, REPLAYED, False):
+            return
         task = _current.get()
         if task is None:
             with _lock:
@@ -90,7 +125,7 @@ _handler = _ToItsTask()
 
 
 @contextlib.contextmanager
-def captured(level: int) -> Iterator[TaskLog]:
+def captured(level: int, send: Callable[[str, dict], None] | None = None) -> Iterator[TaskLog]:
     """Collect the package's records of ``level`` and above emitted by the calling task (module docstring).
 
     The package logger's level is lowered to ``level`` meanwhile (a worker's root logger is at WARNING: the
@@ -99,7 +134,7 @@ def captured(level: int) -> Iterator[TaskLog]:
     the command's terminal, which would show each warning twice.
     """
     global _level_before
-    task = TaskLog(level)
+    task = TaskLog(level, send=send)
     package = logging.getLogger(PACKAGE)
     with _lock:
         if not _active:
@@ -120,25 +155,79 @@ def captured(level: int) -> Iterator[TaskLog]:
                 package.setLevel(_level_before)
 
 
-def run_logged(fn: Callable[..., Any], level: int, *args: Any) -> tuple[Any, dict]:
+def run_logged(fn: Callable[..., Any], level: int, *args: Any, live: tuple[str, str] | None = None) -> tuple[Any, dict]:
     """``fn(*args)`` on a Dask worker, and the log records it emitted (:meth:`TaskLog.carried`), for
-    :func:`replay`. An exception of ``fn`` propagates; its records are then lost (they stay in the worker's
-    log)."""
-    with captured(level) as task:
+    :func:`replay`; with ``live`` (:meth:`LiveLogs.for_task`), each record is also sent to the command as it is
+    made. An exception of ``fn`` propagates; its records are then lost, unless sent live (they stay in the
+    worker's log)."""
+    worker = _worker()
+    address = str(worker.address) if worker is not None else "this process"
+    send = _sender(worker, address, live) if live is not None and worker is not None else None
+    with captured(level, send) as task:
         value = fn(*args)
-    return value, task.carried(_worker_address())
+    return value, task.carried(address)
 
 
-def _worker_address() -> str:
+def _sender(worker: Any, address: str, live: tuple[str, str]) -> Callable[[str, dict], None]:
+    """:attr:`TaskLog.send` of a task on ``worker``: an event on the command's topic (:class:`LiveLogs`)."""
+    topic, name = live
+
+    def send(attempt: str, item: dict) -> None:  # from any thread: the worker hands it to its event loop
+        worker.log_event(topic, {"task": name, "worker": address, "attempt": attempt, "record": item})
+
+    return send
+
+
+def _worker() -> Any:
+    """The Dask worker running the calling task, or None (called directly, not on a worker)."""
     try:
         from distributed import get_worker
 
-        return str(get_worker().address)
-    except (ImportError, ValueError):  # not on a Dask worker (called directly)
-        return "this process"
+        return get_worker()
+    except (ImportError, ValueError):
+        return None
 
 
-def replay(carried: dict, task: str) -> None:
+class LiveLogs:
+    """The command's side of the live records (module docstring): subscribes its client to a topic of its own,
+    logs each record that arrives, with the task's name and worker, and remembers which it logged, so that
+    :func:`replay` leaves them out of the task's outcome. Close it (:meth:`close`) when the tasks are done.
+
+    Parameters
+    ----------
+    client : the command's ``distributed.Client``
+    """
+
+    def __init__(self, client: Any):
+        self.client = client
+        self.topic = TOPIC_PREFIX + uuid.uuid4().hex
+        self._logged: set[tuple[str, int]] = set()
+        self._lock = threading.Lock()  # events arrive on the client's event loop thread, outcomes on the command's
+        client.subscribe_topic(self.topic, self._arrived)
+
+    def for_task(self, name: str) -> tuple[str, str]:
+        """``live`` of :func:`run_logged` for the task called ``name``."""
+        return self.topic, name
+
+    def first(self, attempt: str, seq: int) -> bool:
+        """Whether record ``seq`` of task attempt ``attempt`` is not logged yet (it is counted as logged now)."""
+        with self._lock:
+            if (attempt, seq) in self._logged:
+                return False
+            self._logged.add((attempt, seq))
+            return True
+
+    def _arrived(self, event: tuple[float, dict]) -> None:
+        _, msg = event
+        item = msg["record"]
+        if self.first(msg["attempt"], item["seq"]):
+            _log_item(item, f"[{msg['task']} on {msg['worker']}]")
+
+    def close(self) -> None:
+        self.client.unsubscribe_topic(self.topic)
+
+
+def replay(carried: dict, task: str, live: LiveLogs | None = None) -> None:
     """Log the records a task carried back (:func:`run_logged`) in this process, each prefixed with the task's
     name and worker, with its own time, level, logger and process id; then a line counting those left out.
 
@@ -146,20 +235,12 @@ def replay(carried: dict, task: str) -> None:
     ----------
     carried : the second item :func:`run_logged` returned
     task : the task's name ("press_0003")
+    live : the :class:`LiveLogs` the task sent its records to: those it logged already are left out
     """
     where = f"[{task} on {carried['worker']}]"
     for item in carried["records"]:
-        logger = logging.getLogger(item["logger"])
-        if not logger.isEnabledFor(item["level"]):  # DEBUG lines of a worker whose command was -v: not ours
-            continue
-        extra = {key: item[key] for key in EXTRA_KEYS if key in item}
-        record = logger.makeRecord(
-            item["logger"], item["level"], "(dask worker)", 0, f"{where} {item['message']}", None, None, extra=extra
-        )
-        record.created, record.msecs = item["time"], (item["time"] - int(item["time"])) * 1000
-        record.process, record.threadName = item["process"], item["thread"]
-        record.exc_text = item.get("exc")
-        logger.handle(record)
+        if live is None or live.first(carried["attempt"], item["seq"]):
+            _log_item(item, where)
     if carried["more"]:
         level = logging.WARNING if carried["more_warnings"] else logging.INFO
         log.log(
@@ -171,6 +252,22 @@ def replay(carried: dict, task: str) -> None:
             carried["more_warnings"],
             MAX_RECORDS,
         )
+
+
+def _log_item(item: dict, where: str) -> None:
+    """Log one record of a task (:func:`_as_dict`) through this process's handlers, prefixed with ``where``."""
+    logger = logging.getLogger(item["logger"])
+    if not logger.isEnabledFor(item["level"]):  # DEBUG lines of a worker whose command was -v: not ours
+        return
+    extra = {key: item[key] for key in EXTRA_KEYS if key in item}
+    record = logger.makeRecord(
+        item["logger"], item["level"], "(dask worker)", 0, f"{where} {item['message']}", None, None, extra=extra
+    )
+    record.created, record.msecs = item["time"], (item["time"] - int(item["time"])) * 1000
+    record.process, record.threadName = item["process"], item["thread"]
+    record.exc_text = item.get("exc")
+    setattr(record, REPLAYED, True)
+    logger.handle(record)
 
 
 _formatter = logging.Formatter()

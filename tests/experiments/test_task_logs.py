@@ -5,7 +5,10 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import threading
+import time
+import uuid
 
 import pytest
 
@@ -37,6 +40,43 @@ def _log_from_own_threads(name: str) -> list[str]:
     plain.join()
     _both_running.wait()  # neither has ended before the other's plain thread logged
     return [thread.name for thread in threading.enumerate()]
+
+
+SEEN_WAIT_S = 60.0
+"""How long a task waits for the test to see its line in this process's log (a loaded machine's worker is slow)."""
+
+
+def _warn_until_seen(seen: str, message: str) -> bool:
+    """Log ``message`` and wait until the test has seen it in the command's log (``seen``: a Dask Event's name):
+    True when it did while the task still ran."""
+    logging.getLogger("nlipscalib.sim.render").warning(message)
+    return distributed.Event(seen).wait(SEEN_WAIT_S)
+
+
+def _killed_mid_task(seen: str, first_attempt: str) -> str:
+    """The first attempt logs a line and, once the test saw it (or the wait is over), dies as the kernel's OOM
+    killer ends a process: SIGKILL, no clean-up. Dask runs the task again on the restarted worker."""
+    log = logging.getLogger("nlipscalib.sim.render")
+    if not os.path.exists(first_attempt):
+        open(first_attempt, "w", encoding="utf-8").close()
+        log.warning("LED 3: rendering")
+        distributed.Event(seen).wait(SEEN_WAIT_S)
+        os.kill(os.getpid(), signal.SIGKILL)
+    log.warning("the second attempt")
+    return "done"
+
+
+def _wait_for_line(caplog: pytest.LogCaptureFixture, text: str) -> bool:
+    deadline = time.monotonic() + SEEN_WAIT_S
+    while time.monotonic() < deadline:
+        if any(text in r.getMessage() for r in list(caplog.records)):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _lines_with(caplog: pytest.LogCaptureFixture, text: str) -> list[str]:
+    return [r.getMessage() for r in caplog.records if text in r.getMessage()]
 
 
 def _messages(carried: dict) -> list[str]:
@@ -138,3 +178,59 @@ def test_the_runner_logs_a_dask_tasks_warning_before_its_outcome(tmp_path, monke
     replayed = [i for i, line in enumerate(lines) if line.startswith("[ref-0 on ") and line.endswith(DARK)]
     failed = [i for i, line in enumerate(lines) if line.startswith("ref-0: failed: ValueError: a broken scene")]
     assert len(replayed) == 1 and len(failed) == 1 and replayed[0] < failed[0], lines
+
+
+def test_a_tasks_warning_reaches_the_command_while_it_runs_and_once(caplog):
+    """A worker process's warning is in the command's log before its task ends (the task waits for the test to
+    see it), and the task's outcome, which carries it too, does not log it again."""
+    from nlipscalib.experiments.runner import _backend
+
+    caplog.set_level(logging.INFO)
+    seen = f"seen-{uuid.uuid4().hex}"
+    backend = _backend("local:1", 1)
+    with backend:
+        client = backend.client
+        live = task_logs.LiveLogs(client)
+        future = client.submit(
+            task_logs.run_logged, _warn_until_seen, logging.INFO, seen, DARK, live=live.for_task("press_0003")
+        )
+        arrived = _wait_for_line(caplog, DARK)
+        distributed.Event(seen, client=client).set()
+        while_running, carried = future.result()
+        task_logs.replay(carried, "press_0003", live)
+        live.close()
+    assert arrived and while_running
+    assert _lines_with(caplog, DARK) == [f"[press_0003 on {carried['worker']}] {DARK}"]
+    assert _messages(carried) == [DARK]  # carried too: a worker that cannot send them live still brings them
+
+
+def test_a_killed_workers_last_lines_are_in_the_commands_log(caplog, tmp_path):
+    """The worker dies (SIGKILL) mid-task: the line it logged before is in the command's log, once; the task's
+    second attempt, on the restarted worker, logs its own line once (live and carried back)."""
+    from nlipscalib.experiments.runner import _backend
+
+    caplog.set_level(logging.INFO)
+    seen = f"seen-{uuid.uuid4().hex}"
+    backend = _backend("local:1", 1)
+    with backend:
+        client = backend.client
+        live = task_logs.LiveLogs(client)
+        future = client.submit(
+            task_logs.run_logged,
+            _killed_mid_task,
+            logging.INFO,
+            seen,
+            str(tmp_path / "first-attempt"),
+            live=live.for_task("press_0004"),
+            pure=False,
+        )
+        arrived = _wait_for_line(caplog, "LED 3: rendering")
+        distributed.Event(seen, client=client).set()
+        outcome, carried = future.result()
+        task_logs.replay(carried, "press_0004", live)
+        live.close()
+    assert arrived and outcome == "done"
+    (killed,) = _lines_with(caplog, "LED 3: rendering")
+    assert killed.startswith("[press_0004 on tcp://")
+    assert _lines_with(caplog, "the second attempt") == [f"[press_0004 on {carried['worker']}] the second attempt"]
+    assert _messages(carried) == ["the second attempt"]  # the killed attempt's line came live only
