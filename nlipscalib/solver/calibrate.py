@@ -38,6 +38,7 @@ from ..core import tolerances
 from ..core.capture import Press, as_press
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
+from ..core.repeated_frames import repeated_leds, repeated_line
 from .calibration_contact import contact_notes, contact_refusal, contact_regions
 from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
@@ -381,7 +382,9 @@ def _check_lit(press: Press) -> None:
     """CaptureError, in one line naming the file, for a capture whose dark frame holds light or one of whose LED
     images is dark (a dead LED: no light to fit it on). Why: the LED fit of a dead LED diverged, ending on
     numpy's "Mean of empty slice" and "led.intensity must be 3 finite numbers, got (inf, inf, inf)"; an LED image
-    saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference)."""
+    saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference). Also for an LED image that
+    repeats the one before it (:mod:`nlipscalib.core.repeated_frames`): it was fitted at the place of the LED before
+    it and called reliable (s27 QA walk, a webcam whose frames lag the LEDs)."""
     from .contact import led_levels, lit_leds
     from .exposure import dark_file, dark_frame_fault, gel_of
 
@@ -395,4 +398,11 @@ def _check_lit(press: Press) -> None:
         raise CaptureError(
             f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
             f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
+        )
+    if repeated := repeated_leds(press.linear_led_images, gel):
+        names = (press.meta.get("images") or {}).get("leds") or []
+        names = names if len(names) == len(press.leds) else [f"LED {i + 1}" for i in range(len(press.leds))]
+        # each repeated image would be fitted as its own LED at the place of the LED before it, "reliable"
+        raise CaptureError(
+            f"{repeated_line(press.folder, names, repeated)}; the LED calibration needs each LED's own light"
         )

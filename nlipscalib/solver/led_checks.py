@@ -17,6 +17,7 @@ from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, led_shading
+from ..core.repeated_frames import repeated_leds, repeated_line
 
 WEAK_LED_GAIN = 0.6
 """An LED whose image holds less than this fraction of the light the model gives it, relative to the median LED's
@@ -37,8 +38,10 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
 
 
 def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], list[int], list[int]]:
-    """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, and
-    the LEDs whose light is off the model's (weak, or brighter than the others): a solve leaves those out.
+    """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, repeat
+    the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`) or are not
+    linear in the light (:func:`response_slope`), and the LEDs whose light is off the model's (weak, or brighter
+    than the others) or repeated: a solve leaves those out.
 
     Why leave them out: with a 30 % LED 7 in the twin's cube press, its misfit everywhere raised the contact
     finder's floor (the misfit's median) above the dent's misfit ("--roi auto found no contact"), and the whole gel
@@ -55,18 +58,21 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
     -------
     notes : list of str -- empty when every live LED image matches its LED.
     left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
-        :data:`WEAK_LED_GAIN`; empty when leaving them out would leave fewer than
+        :data:`WEAK_LED_GAIN`, or their image repeats the one before; empty when leaving them out would leave fewer than
         ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
     misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
     """
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
         return [], [], []
-    image, model = _samples(press, leds, live)
-    if image is None:
-        return [], [], []
     names = _image_names(press)
-    notes, off = [], []
+    notes, repeated = _repeated_notes(press, names)
+    live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
+    image, model = _samples(press, leds, live) if len(live) >= 3 else (None, None)
+    if image is None:
+        return notes, _leave_out(repeated, len(live) + len(repeated)), []
+    notes += _linearity_notes(press, image, model)
+    off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
@@ -93,7 +99,7 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
                 )
         elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
             off.append((i, relative[k]))
-    left_out = [i for i, _ in off] if len(live) - len(off) >= tolerances.MIN_LEDS_PER_PIXEL else []
+    left_out = _leave_out([i for i, _ in off] + repeated, len(live) + len(repeated))
     for i, share in off:
         what = "weak LED?" if share < 1 else "brighter than the others"
         done = "left out of the solve and of --roi auto" if left_out else "used (too few LEDs to leave it out)"
@@ -103,6 +109,59 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
     return notes, left_out, misplaced
+
+
+def _leave_out(candidates: list[int], count: int) -> list[int]:
+    """``candidates`` (0-based LEDs) when at least ``tolerances.MIN_LEDS_PER_PIXEL`` of ``count`` LEDs are left
+    without them, else none (too few LEDs to solve: they are only warned about)."""
+    return sorted(candidates) if count - len(candidates) >= tolerances.MIN_LEDS_PER_PIXEL else []
+
+
+def _repeated_notes(press: Press, names: list[str]) -> tuple[list[str], list[int]]:
+    """The warning naming LED images that repeat the image before them (:func:`.repeated_leds`: frames that lag
+    the LED switch), and those LEDs (0-based), in the capture order of ``images.leds``."""
+    repeated = repeated_leds(press.linear_led_images, np.isfinite(press.reference.depth))
+    if not repeated:
+        return [], []
+    line = repeated_line(press.folder, names, repeated)
+    return [f"{line}; left out of the solve (they hold the LED before them's light)"], [i for i, _ in repeated]
+
+
+def _linearity_notes(press: Press, image: np.ndarray, model: np.ndarray) -> list[str]:
+    """A warning when the LED images are not linear in the light: the median over the sampled pixels of the
+    log-log slope of each pixel's LED images against its modelled light is below
+    :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` (an sRGB or gamma-encoded camera output)."""
+    slope = response_slope(image, model)
+    if slope is None or slope >= tolerances.LINEAR_RESPONSE_SLOPE:
+        return []
+    return [
+        f"{press.folder}: the LED images are not linear in the light: across the LEDs each pixel's value grows as "
+        f"the LED model's light to the power {slope:.2f} (median; a linear capture of this dome: about 0.75, its "
+        f"own interreflection included), as in gamma-encoded (sRGB) frames: capture raw, linear frames, with the "
+        f"camera's gamma, auto exposure and auto white balance off (docs/formats.md, Cameras); the solve's normals "
+        f"are wrong by degrees"
+    ]
+
+
+def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
+    """Median over pixels of the least-squares slope of log(image) against log(model) across the LEDs: 1 for a
+    linear response without interreflection, ``gamma`` for a camera that records ``x ** gamma``.
+
+    Parameters
+    ----------
+    image, model : (L, N, 3) float -- LED images and their modelled light at N pixels (:func:`_samples`).
+
+    Returns
+    -------
+    float, or None when fewer than 10 pixels have light from every LED
+    """
+    image, model = image.mean(axis=-1), model.mean(axis=-1)
+    usable = (image > tolerances.LIT_LEVEL).all(axis=0) & (model > 0).all(axis=0)
+    if usable.sum() < 10:
+        return None
+    x, y = np.log(model[:, usable]), np.log(image[:, usable])
+    x, y = x - x.mean(axis=0), y - y.mean(axis=0)
+    return float(np.median((x * y).sum(axis=0) / np.maximum((x * x).sum(axis=0), 1e-12)))
 
 
 def _samples(press: Press, leds: Sequence[Led], live: list[int]) -> tuple[np.ndarray | None, np.ndarray | None]:
