@@ -394,3 +394,9 @@ each pixel's value grows as the LED model's light to a power below this, in medi
 with it (the gel's own indirect light adds an offset): nlipstac's one-bounce twin 0.75 (0.74-0.76, 12 and 8 bits,
 reference and presses); the same captures through an sRGB tone curve 0.34 (0.29-0.42 with auto exposure, white
 balance and JPEG). Halfway between, in ratio."""
+EXPOSURE_DRIFT = 0.05
+"""A press's LED images are taken as exposed unlike the undeformed capture's (auto exposure, gain or white balance
+on) when one LED's brightness against the undeformed capture's, per channel, strays from their median by more
+than this fraction (:func:`nlipscalib.solver.led_checks.exposure_drift`). The one-bounce twin's presses at one
+exposure: within 0.25 % (320x240 and 640x480, 12 and 8 bits); the emulated webcam's auto exposure (+-15 %) and
+white balance (+-8 %): 0.78-1.26."""

@@ -50,6 +50,7 @@ from .calibration_term import (
     unused_reflectance,
 )
 from .exposure import nothing_to_fit, saturated_share, saturation_note
+from .led_checks import linearity_notes
 from .led_fit import Samples, capture_samples, to_leds
 
 if TYPE_CHECKING:  # named in hints only
@@ -384,7 +385,8 @@ def _check_lit(press: Press) -> None:
     numpy's "Mean of empty slice" and "led.intensity must be 3 finite numbers, got (inf, inf, inf)"; an LED image
     saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference). Also for an LED image that
     repeats the one before it (:mod:`nlipscalib.core.repeated_frames`): it was fitted at the place of the LED before
-    it and called reliable (s27 QA walk, a webcam whose frames lag the LEDs)."""
+    it and called reliable (s27 QA walk, a webcam whose frames lag the LEDs). Gamma-encoded LED images are warned
+    about (:func:`.led_checks.linearity_notes`): the fit absorbed an sRGB curve and called itself reliable."""
     from .contact import led_levels, lit_leds
     from .exposure import dark_file, dark_frame_fault, gel_of
 
@@ -406,3 +408,7 @@ def _check_lit(press: Press) -> None:
         raise CaptureError(
             f"{repeated_line(press.folder, names, repeated)}; the LED calibration needs each LED's own light"
         )
+    if press.reference is not None:
+        # a tone curve is absorbed by the fit (LEDs moved, "reliable"): said against the recorded LEDs, before it
+        for note in linearity_notes(press, range(len(press.leds))):
+            log.warning("%s", note.replace("the solve's normals", "an LED calibration and the solves with it"))

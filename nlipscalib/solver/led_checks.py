@@ -71,7 +71,7 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
     image, model = _samples(press, leds, live) if len(live) >= 3 else (None, None)
     if image is None:
         return notes, _leave_out(repeated, len(live) + len(repeated)), []
-    notes += _linearity_notes(press, image, model)
+    notes += linearity_notes(press, live)
     off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
@@ -127,11 +127,17 @@ def _repeated_notes(press: Press, names: list[str]) -> tuple[list[str], list[int
     return [f"{line}; left out of the solve (they hold the LED before them's light)"], [i for i, _ in repeated]
 
 
-def _linearity_notes(press: Press, image: np.ndarray, model: np.ndarray) -> list[str]:
+def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
     """A warning when the LED images are not linear in the light: the median over the sampled pixels of the
     log-log slope of each pixel's LED images against its modelled light is below
-    :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` (an sRGB or gamma-encoded camera output)."""
-    slope = response_slope(image, model)
+    :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` (an sRGB or gamma-encoded camera output).
+
+    The light is modelled with the LEDs the capture records (meta.json: the design's), never with calibrated
+    ones: an LED calibration on gamma-encoded images absorbs the tone curve (the twin's sRGB reference: LEDs
+    moved 2.5 mm, "reliable", slope 0.75 against them, 0.34 against the design's) and the solve with it gave
+    3.6 deg instead of 0.46."""
+    image, model = _samples(press, press.leds, [int(i) for i in live])
+    slope = None if image is None else response_slope(image, model)
     if slope is None or slope >= tolerances.LINEAR_RESPONSE_SLOPE:
         return []
     return [
@@ -196,3 +202,46 @@ def _image_names(press: Press) -> list[str]:
     if not isinstance(names, list) or len(names) != len(press.leds):
         return [f"image {i + 1}" for i in range(len(press.leds))]
     return [str(name) for name in names]
+
+
+def exposure_drift(press: Press, reference: Press) -> np.ndarray | None:
+    """Each LED image's brightness against the undeformed capture's of the same LED, per channel, relative to their
+    median: (L, 3) float64 ratios, 1 where the two were taken alike; None without a surface, or with other image
+    sizes or LED counts.
+
+    Why: a camera left on auto exposure, gain or white balance scales each LED image (and each channel) by its
+    own factor; the LED model then fits nowhere (s27 QA walk, 8-bit twin with +-15 % exposure and +-8 % white
+    balance per image: "--roi auto found no contact ... the LED model does not fit this sensor"). A press differs
+    from the undeformed capture only in its contact, so the median over the gel of each LED's ratio is that LED's
+    exposure change."""
+    if press.reference is None or reference.camera.shape != press.camera.shape:
+        return None
+    if len(reference.leds) != len(press.leds):
+        return None
+    index = np.flatnonzero(np.isfinite(press.reference.depth))
+    index = index[:: max(1, index.size // CHECK_PIXELS)]
+    now = press.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
+    before = reference.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
+    lit = (before > tolerances.EXPOSURE_LIGHT_FRACTION) & (now > tolerances.EXPOSURE_LIGHT_FRACTION)
+    if (lit.sum(axis=1) < 10).any():
+        return None
+    ratio = np.array(
+        [[np.median(now[k, lit[k, :, c], c] / before[k, lit[k, :, c], c]) for c in range(3)] for k in range(len(now))]
+    )
+    return ratio / np.median(ratio)
+
+
+def exposure_drift_note(press: Press, reference: Press) -> str | None:
+    """A warning when :func:`exposure_drift` spreads beyond :data:`~nlipscalib.core.tolerances.EXPOSURE_DRIFT`:
+    auto exposure, gain or white balance on."""
+    drift = exposure_drift(press, reference)
+    if drift is None or np.abs(np.log(drift)).max() <= np.log1p(tolerances.EXPOSURE_DRIFT):
+        return None
+    worst = int(np.unravel_index(np.argmax(np.abs(np.log(drift))), drift.shape)[0])
+    names = _image_names(press)
+    return (
+        f"{press.folder}: the LED images are {drift.min():.2f}-{drift.max():.2f} times as bright as the undeformed "
+        f"capture's {reference.folder} (per LED and channel, relative to their median; {names[worst]} the most "
+        f"changed): auto exposure, gain or white balance on? Every image must be taken at one fixed exposure, gain "
+        f"and white balance (docs/formats.md, Cameras)"
+    )

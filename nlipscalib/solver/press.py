@@ -42,7 +42,7 @@ from .camera_shift import shift_note
 from .contact import ContactMap, anchor_weights, contact_box, led_levels, lit_leds, no_contact
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
-from .led_checks import led_check
+from .led_checks import exposure_drift_note, led_check
 from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, split_indirect
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -82,6 +82,9 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
         log.warning("%s", moved)
         led_notes.append(moved)
+    if isinstance(kwargs.get("indirect"), Press) and (drifted := exposure_drift_note(press, kwargs["indirect"])):
+        log.warning("%s", drifted)
+        led_notes.append(drifted)
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
         press, kwargs = _without_leds(press, kwargs, keep)

@@ -203,3 +203,18 @@ def test_an_led_image_that_repeats_the_one_before_is_refused_before_the_fit(tmp_
     lagged = load_press(synth.make_press(tmp_path / "lagged", "none", size=(48, 36), lin_hook=lag))
     with pytest.raises(CaptureError, match=r"lagged: led_05\.png repeats led_04\.png .*--flush"):
         calibrate_leds([lagged], stride=4)
+
+
+def test_gamma_encoded_reference_images_are_warned_about_before_the_fit(tmp_path, caplog):
+    """An sRGB webcam's reference: the fit absorbed the tone curve (the twin's LEDs moved 2.5 mm) and called itself
+    reliable; the solves with those LEDs gave 3.6 deg instead of 0.46 (s27 QA walk). Now warned about, against the
+    LEDs the capture records."""
+    import logging
+
+    def encode(lin):
+        return np.clip(lin, 0, None) ** (1 / 2.2) * 0.5
+
+    encoded = load_press(synth.make_press(tmp_path / "srgb", "none", size=(48, 36), lin_hook=encode))
+    with caplog.at_level(logging.WARNING):
+        calibrate_leds([encoded], stride=4)
+    assert "srgb: the LED images are not linear in the light" in caplog.text and "LED calibration" in caplog.text
