@@ -9,6 +9,7 @@ compared with every LED's modelled shading of the undeformed dome, after a per-p
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 
 import numpy as np
@@ -18,6 +19,7 @@ from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, led_shading
 from ..core.repeated_frames import repeated_leds, repeated_line
+from . import reuse
 
 WEAK_LED_GAIN = 0.6
 """An LED whose image holds less than this fraction of the light the model gives it, relative to the median LED's
@@ -221,7 +223,15 @@ def exposure_drift(press: Press, reference: Press) -> np.ndarray | None:
     index = np.flatnonzero(np.isfinite(press.reference.depth))
     index = index[:: max(1, index.size // CHECK_PIXELS)]
     now = press.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
-    before = reference.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
+
+    def sampled() -> np.ndarray:
+        return reference.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
+
+    # kept on disk under the undeformed capture's bytes, as its other results: a warm solve never decodes it
+    where = hashlib.sha256(index.tobytes()).hexdigest()[:16]
+    before = reuse.reused(
+        "drift reference", (reference.images_digest(), reference.response, where), sampled, persist=True
+    )
     lit = (before > tolerances.EXPOSURE_LIGHT_FRACTION) & (now > tolerances.EXPOSURE_LIGHT_FRACTION)
     if (lit.sum(axis=1) < 10).any():
         return None
