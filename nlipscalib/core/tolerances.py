@@ -401,3 +401,24 @@ MAX_IMAGE_PIXELS = 1 << 24
 16-bit RGB) in 10 s, and a press of 13 such images with a meta.json of that camera size asked for 22 GB; OpenCV's
 own limit (``CV_IO_MAX_IMAGE_PIXELS``, 2^30 pixels: 6.4 GB at 16-bit RGB) ends in a traceback (docs/formats.md,
 "Files from others")."""
+REPEATED_FRAME_DIFFERENCE = 0.01
+"""An LED image repeats the one captured before it (a camera whose frames lag the LED switch: the frame read after
+switching to LED k was still exposed under LED k-1) when the median over the lit gel of their relative difference,
+``|a - b| / max(a, b)`` after the :data:`CAPTURE_CHECK_BLUR` box blur, is below this
+(:func:`nlipscalib.core.repeated_frames.repeated_leds`). Two neighbouring LEDs of nlipstac differ by 0.10-0.12
+(12-bit linear twin), 0.055-0.14 after an 8-bit sRGB webcam's tone curve and auto exposure; the same light
+captured twice differs by its noise, 0.3 % after the blur (twin, 12-bit), 0.000 for a frame handed out twice. A
+twice-as-dense ring (24 LEDs) would still differ by about 0.05 (linear)."""
+LINEAR_RESPONSE_SLOPE = 0.55
+"""LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
+each pixel's value grows as the LED model's light to a power below this, in median over the gel
+(:func:`nlipscalib.solver.led_checks.response_slope`). A linear capture gives 1 without interreflection and less
+with it (the gel's own indirect light adds an offset): nlipstac's one-bounce twin 0.75 (0.74-0.76, 12 and 8 bits,
+reference and presses); the same captures through an sRGB tone curve 0.34 (0.29-0.42 with auto exposure, white
+balance and JPEG). Halfway between, in ratio."""
+EXPOSURE_DRIFT = 0.05
+"""A press's LED images are taken as exposed unlike the undeformed capture's (auto exposure, gain or white balance
+on) when one LED's brightness against the undeformed capture's, per channel, strays from their median by more
+than this fraction (:func:`nlipscalib.solver.led_checks.exposure_drift`). The one-bounce twin's presses at one
+exposure: within 0.25 % (320x240 and 640x480, 12 and 8 bits); the emulated webcam's auto exposure (+-15 %) and
+white balance (+-8 %): 0.78-1.26."""

@@ -4,7 +4,8 @@ A capture session locks its exposure and LED levels when the reference is taken 
 them), so an exposure problem is best caught at once: :func:`check_exposure` runs on every press and the
 reference as they are captured (:func:`nlipscalib.device.session.capture_press`). It warns, one line per
 problem naming the files, when LED frames are black (no light above the dark frame: LEDs off, lens cap) or
-a large share of the gel is saturated (a shorter ``--exposure-ms`` or a lower LED level needed), and refuses
+a large share of the gel is saturated (a shorter ``--exposure-ms`` or a lower LED level needed) or an LED frame
+repeats the frame before it (the camera's frames lag the LED switch: a larger ``--flush`` needed), and refuses
 a reference whose LED frames are all black or saturated, which nothing downstream can use. Thresholds:
 :mod:`nlipscalib.core.tolerances` (``EXPOSURE_*``).
 """
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import CaptureError, require
+from ..core.repeated_frames import repeated_leds, repeated_line
 from ..core.sensor_response import SensorResponse, linearise
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
@@ -54,7 +56,7 @@ def check_exposure(
     Returns
     -------
     list of str
-        At most two lines: the black LED frames, the over-exposed frames.
+        At most three lines: the black LED frames, the over-exposed frames, the repeated LED frames.
 
     Raises
     ------
@@ -77,7 +79,19 @@ def check_exposure(
         _refuse_unusable(folder, names, black, clipped, where)
     lines = [_black_line(folder, names, black)] if black else []
     over = _over_line(folder, clipped, where)
-    return lines + ([over] if over else [])
+    return lines + ([over] if over else []) + _repeated_lines(frames, names, response, folder, gel)
+
+
+def _repeated_lines(
+    frames: dict[str, np.ndarray], names: list[str], response: SensorResponse, folder: Path, gel: np.ndarray
+) -> list[str]:
+    """The warning naming LED frames that repeat the frame before them (the camera's frames lag the LED switch:
+    :mod:`nlipscalib.core.repeated_frames`), while the press can still be captured again."""
+    linear = np.stack(
+        [linearise(frames[name], frames["dark"], response.black_level, response.white_level) for name in names]
+    )
+    repeated = repeated_leds(linear, gel)
+    return [repeated_line(folder, [f"{name}.png" for name in names], repeated)] if repeated else []
 
 
 def _gel(gel: np.ndarray | None, shape: tuple[int, int]) -> tuple[np.ndarray, str]:

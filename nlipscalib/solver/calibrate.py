@@ -38,6 +38,7 @@ from ..core import tolerances
 from ..core.capture import Press, as_press
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
+from ..core.repeated_frames import repeated_leds, repeated_line
 from .calibration_contact import contact_notes, contact_refusal, contact_regions
 from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
@@ -49,6 +50,7 @@ from .calibration_term import (
     unused_reflectance,
 )
 from .exposure import nothing_to_fit, saturated_share, saturation_note
+from .led_checks import linearity_notes
 from .led_fit import Samples, capture_samples, to_leds
 
 if TYPE_CHECKING:  # named in hints only
@@ -381,7 +383,10 @@ def _check_lit(press: Press) -> None:
     """CaptureError, in one line naming the file, for a capture whose dark frame holds light or one of whose LED
     images is dark (a dead LED: no light to fit it on). Why: the LED fit of a dead LED diverged, ending on
     numpy's "Mean of empty slice" and "led.intensity must be 3 finite numbers, got (inf, inf, inf)"; an LED image
-    saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference)."""
+    saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference). Also for an LED image that
+    repeats the one before it (:mod:`nlipscalib.core.repeated_frames`): it was fitted at the place of the LED before
+    it and called reliable (s27 QA walk, a webcam whose frames lag the LEDs). Gamma-encoded LED images are warned
+    about (:func:`.led_checks.linearity_notes`): the fit absorbed an sRGB curve and called itself reliable."""
     from .contact import led_levels, lit_leds
     from .exposure import dark_file, dark_frame_fault, gel_of
 
@@ -396,3 +401,14 @@ def _check_lit(press: Press) -> None:
             f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
             f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
         )
+    if repeated := repeated_leds(press.linear_led_images, gel):
+        names = (press.meta.get("images") or {}).get("leds") or []
+        names = names if len(names) == len(press.leds) else [f"LED {i + 1}" for i in range(len(press.leds))]
+        # each repeated image would be fitted as its own LED at the place of the LED before it, "reliable"
+        raise CaptureError(
+            f"{repeated_line(press.folder, names, repeated)}; the LED calibration needs each LED's own light"
+        )
+    if press.reference is not None:
+        # a tone curve is absorbed by the fit (LEDs moved, "reliable"): said against the recorded LEDs, before it
+        for note in linearity_notes(press, range(len(press.leds))):
+            log.warning("%s", note.replace("the solve's normals", "an LED calibration and the solves with it"))

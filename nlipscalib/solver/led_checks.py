@@ -9,6 +9,7 @@ compared with every LED's modelled shading of the undeformed dome, after a per-p
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 
 import numpy as np
@@ -17,6 +18,8 @@ from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Led, led_shading
+from ..core.repeated_frames import repeated_leds, repeated_line
+from . import reuse
 
 WEAK_LED_GAIN = 0.6
 """An LED whose image holds less than this fraction of the light the model gives it, relative to the median LED's
@@ -37,8 +40,10 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
 
 
 def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], list[int], list[int]]:
-    """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, and
-    the LEDs whose light is off the model's (weak, or brighter than the others): a solve leaves those out.
+    """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, repeat
+    the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`) or are not
+    linear in the light (:func:`response_slope`), and the LEDs whose light is off the model's (weak, or brighter
+    than the others) or repeated: a solve leaves those out.
 
     Why leave them out: with a 30 % LED 7 in the twin's cube press, its misfit everywhere raised the contact
     finder's floor (the misfit's median) above the dent's misfit ("--roi auto found no contact"), and the whole gel
@@ -55,18 +60,21 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
     -------
     notes : list of str -- empty when every live LED image matches its LED.
     left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
-        :data:`WEAK_LED_GAIN`; empty when leaving them out would leave fewer than
+        :data:`WEAK_LED_GAIN`, or their image repeats the one before; empty when leaving them out would leave fewer than
         ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
     misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
     """
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
         return [], [], []
-    image, model = _samples(press, leds, live)
-    if image is None:
-        return [], [], []
     names = _image_names(press)
-    notes, off = [], []
+    notes, repeated = _repeated_notes(press, names)
+    live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
+    image, model = _samples(press, leds, live) if len(live) >= 3 else (None, None)
+    if image is None:
+        return notes, _leave_out(repeated, len(live) + len(repeated)), []
+    notes += linearity_notes(press, live)
+    off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
@@ -93,7 +101,7 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
                 )
         elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
             off.append((i, relative[k]))
-    left_out = [i for i, _ in off] if len(live) - len(off) >= tolerances.MIN_LEDS_PER_PIXEL else []
+    left_out = _leave_out([i for i, _ in off] + repeated, len(live) + len(repeated))
     for i, share in off:
         what = "weak LED?" if share < 1 else "brighter than the others"
         done = "left out of the solve and of --roi auto" if left_out else "used (too few LEDs to leave it out)"
@@ -103,6 +111,65 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
     return notes, left_out, misplaced
+
+
+def _leave_out(candidates: list[int], count: int) -> list[int]:
+    """``candidates`` (0-based LEDs) when at least ``tolerances.MIN_LEDS_PER_PIXEL`` of ``count`` LEDs are left
+    without them, else none (too few LEDs to solve: they are only warned about)."""
+    return sorted(candidates) if count - len(candidates) >= tolerances.MIN_LEDS_PER_PIXEL else []
+
+
+def _repeated_notes(press: Press, names: list[str]) -> tuple[list[str], list[int]]:
+    """The warning naming LED images that repeat the image before them (:func:`.repeated_leds`: frames that lag
+    the LED switch), and those LEDs (0-based), in the capture order of ``images.leds``."""
+    repeated = repeated_leds(press.linear_led_images, np.isfinite(press.reference.depth))
+    if not repeated:
+        return [], []
+    line = repeated_line(press.folder, names, repeated)
+    return [f"{line}; left out of the solve (they hold the LED before them's light)"], [i for i, _ in repeated]
+
+
+def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
+    """A warning when the LED images are not linear in the light: the median over the sampled pixels of the
+    log-log slope of each pixel's LED images against its modelled light is below
+    :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` (an sRGB or gamma-encoded camera output).
+
+    The light is modelled with the LEDs the capture records (meta.json: the design's), never with calibrated
+    ones: an LED calibration on gamma-encoded images absorbs the tone curve (the twin's sRGB reference: LEDs
+    moved 2.5 mm, "reliable", slope 0.75 against them, 0.34 against the design's) and the solve with it gave
+    3.6 deg instead of 0.46."""
+    image, model = _samples(press, press.leds, [int(i) for i in live])
+    slope = None if image is None else response_slope(image, model)
+    if slope is None or slope >= tolerances.LINEAR_RESPONSE_SLOPE:
+        return []
+    return [
+        f"{press.folder}: the LED images are not linear in the light: across the LEDs each pixel's value grows as "
+        f"the LED model's light to the power {slope:.2f} (median; a linear capture of this dome: about 0.75, its "
+        f"own interreflection included), as in gamma-encoded (sRGB) frames: capture raw, linear frames, with the "
+        f"camera's gamma, auto exposure and auto white balance off (docs/formats.md, Cameras); the solve's normals "
+        f"are wrong by degrees"
+    ]
+
+
+def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
+    """Median over pixels of the least-squares slope of log(image) against log(model) across the LEDs: 1 for a
+    linear response without interreflection, ``gamma`` for a camera that records ``x ** gamma``.
+
+    Parameters
+    ----------
+    image, model : (L, N, 3) float -- LED images and their modelled light at N pixels (:func:`_samples`).
+
+    Returns
+    -------
+    float, or None when fewer than 10 pixels have light from every LED
+    """
+    image, model = image.mean(axis=-1), model.mean(axis=-1)
+    usable = (image > tolerances.LIT_LEVEL).all(axis=0) & (model > 0).all(axis=0)
+    if usable.sum() < 10:
+        return None
+    x, y = np.log(model[:, usable]), np.log(image[:, usable])
+    x, y = x - x.mean(axis=0), y - y.mean(axis=0)
+    return float(np.median((x * y).sum(axis=0) / np.maximum((x * x).sum(axis=0), 1e-12)))
 
 
 def _samples(press: Press, leds: Sequence[Led], live: list[int]) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -137,3 +204,54 @@ def _image_names(press: Press) -> list[str]:
     if not isinstance(names, list) or len(names) != len(press.leds):
         return [f"image {i + 1}" for i in range(len(press.leds))]
     return [str(name) for name in names]
+
+
+def exposure_drift(press: Press, reference: Press) -> np.ndarray | None:
+    """Each LED image's brightness against the undeformed capture's of the same LED, per channel, relative to their
+    median: (L, 3) float64 ratios, 1 where the two were taken alike; None without a surface, or with other image
+    sizes or LED counts.
+
+    Why: a camera left on auto exposure, gain or white balance scales each LED image (and each channel) by its
+    own factor; the LED model then fits nowhere (s27 QA walk, 8-bit twin with +-15 % exposure and +-8 % white
+    balance per image: "--roi auto found no contact ... the LED model does not fit this sensor"). A press differs
+    from the undeformed capture only in its contact, so the median over the gel of each LED's ratio is that LED's
+    exposure change."""
+    if press.reference is None or reference.camera.shape != press.camera.shape:
+        return None
+    if len(reference.leds) != len(press.leds):
+        return None
+    index = np.flatnonzero(np.isfinite(press.reference.depth))
+    index = index[:: max(1, index.size // CHECK_PIXELS)]
+    now = press.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
+
+    def sampled() -> np.ndarray:
+        return reference.linear_led_images.reshape(len(press.leds), -1, 3)[:, index].astype(np.float64)
+
+    # kept on disk under the undeformed capture's bytes, as its other results: a warm solve never decodes it
+    where = hashlib.sha256(index.tobytes()).hexdigest()[:16]
+    before = reuse.reused(
+        "drift reference", (reference.images_digest(), reference.response, where), sampled, persist=True
+    )
+    lit = (before > tolerances.EXPOSURE_LIGHT_FRACTION) & (now > tolerances.EXPOSURE_LIGHT_FRACTION)
+    if (lit.sum(axis=1) < 10).any():
+        return None
+    ratio = np.array(
+        [[np.median(now[k, lit[k, :, c], c] / before[k, lit[k, :, c], c]) for c in range(3)] for k in range(len(now))]
+    )
+    return ratio / np.median(ratio)
+
+
+def exposure_drift_note(press: Press, reference: Press) -> str | None:
+    """A warning when :func:`exposure_drift` spreads beyond :data:`~nlipscalib.core.tolerances.EXPOSURE_DRIFT`:
+    auto exposure, gain or white balance on."""
+    drift = exposure_drift(press, reference)
+    if drift is None or np.abs(np.log(drift)).max() <= np.log1p(tolerances.EXPOSURE_DRIFT):
+        return None
+    worst = int(np.unravel_index(np.argmax(np.abs(np.log(drift))), drift.shape)[0])
+    names = _image_names(press)
+    return (
+        f"{press.folder}: the LED images are {drift.min():.2f}-{drift.max():.2f} times as bright as the undeformed "
+        f"capture's {reference.folder} (per LED and channel, relative to their median; {names[worst]} the most "
+        f"changed): auto exposure, gain or white balance on? Every image must be taken at one fixed exposure, gain "
+        f"and white balance (docs/formats.md, Cameras)"
+    )

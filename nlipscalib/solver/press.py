@@ -53,7 +53,7 @@ from .contact import (
 )
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
-from .led_checks import led_check
+from .led_checks import exposure_drift_note, led_check
 from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, split_indirect
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -93,6 +93,9 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
         log.warning("%s", moved)
         led_notes.append(moved)
+    if isinstance(kwargs.get("indirect"), Press) and (drifted := exposure_drift_note(press, kwargs["indirect"])):
+        log.warning("%s", drifted)
+        led_notes.append(drifted)
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
         press, kwargs = _without_leds(press, kwargs, keep)

@@ -187,3 +187,34 @@ def test_one_led_far_above_the_others_residual_is_warned_about_in_a_reliable_cal
     bound = (leds[0], leds[1], Led(leds[2].position, leds[2].direction, 0.0, leds[2].intensity))
     assert [n[:6] for n in single_led_warnings(quality, bound)] == ["LED 2 ", "LED 3 "]
     assert single_led_warnings(dict(quality, reliable=False), bound) == []  # the whole fit is warned about instead
+
+
+def test_an_led_image_that_repeats_the_one_before_is_refused_before_the_fit(tmp_path):
+    """A webcam whose frames lag the LED switch: LED 5's image was LED 4's light, and the calibration fitted LED 5
+    at LED 4's place and called the fit reliable (s27 QA walk, residual 1.05x the noise). Now refused, naming the
+    images and the fix."""
+    from nlipscalib.core.errors import CaptureError
+
+    def lag(lin):
+        lin = lin.copy()
+        lin[4] = lin[3]
+        return lin
+
+    lagged = load_press(synth.make_press(tmp_path / "lagged", "none", size=(48, 36), lin_hook=lag))
+    with pytest.raises(CaptureError, match=r"lagged: led_05\.png repeats led_04\.png .*--flush"):
+        calibrate_leds([lagged], stride=4)
+
+
+def test_gamma_encoded_reference_images_are_warned_about_before_the_fit(tmp_path, caplog):
+    """An sRGB webcam's reference: the fit absorbed the tone curve (the twin's LEDs moved 2.5 mm) and called itself
+    reliable; the solves with those LEDs gave 3.6 deg instead of 0.46 (s27 QA walk). Now warned about, against the
+    LEDs the capture records."""
+    import logging
+
+    def encode(lin):
+        return np.clip(lin, 0, None) ** (1 / 2.2) * 0.5
+
+    encoded = load_press(synth.make_press(tmp_path / "srgb", "none", size=(48, 36), lin_hook=encode))
+    with caplog.at_level(logging.WARNING):
+        calibrate_leds([encoded], stride=4)
+    assert "srgb: the LED images are not linear in the light" in caplog.text and "LED calibration" in caplog.text

@@ -1,0 +1,67 @@
+"""LED images that repeat the image captured before them: a camera whose frames lag the LED switch.
+
+Why: a USB camera with a deep frame queue (or a driver that ignores ``CAP_PROP_BUFFERSIZE``) can hand out, after
+the LEDs switch from LED k-1 to LED k, a frame exposed before the switch. The capture then holds LED k-1's light
+under LED k's name, and nothing downstream said so (s27 QA walk, webcam-grade camera on the one-bounce twin at
+320x240): ``nlips calibrate-leds`` fitted LED 5 at LED 4's place and called the fit "reliable" (residual 1.05x the
+noise), and ``nlips solve --roi auto`` gave a contact AAE of 0.62 / 0.76 deg on the sphere / cube press instead
+of 0.47 / 0.46. Two different LEDs never light the gel alike, so an LED image within noise of its predecessor is
+that predecessor's light.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import uniform_filter
+
+from .tolerances import CAPTURE_CHECK_BLUR, EXPOSURE_LIGHT_FRACTION, REPEATED_FRAME_DIFFERENCE
+
+MIN_LIT_PIXELS = 100
+"""Fewest lit gel pixels two images need for a verdict (a smaller lit patch says nothing either way)."""
+
+
+def repeated_leds(linear: np.ndarray, gel: np.ndarray) -> list[tuple[int, float]]:
+    """The LED images that repeat the image captured just before them, in capture order.
+
+    Parameters
+    ----------
+    linear : (L, H, W, 3) float -- the LED images in capture order, linear (dark frame subtracted, full scale 1:
+        :func:`nlipscalib.core.sensor_response.linearise`).
+    gel : (H, W) bool -- the pixels that see the gel.
+
+    Returns
+    -------
+    list of (index, difference) -- ``index`` (0-based, >= 1) of each LED image whose median relative difference
+    from image ``index - 1`` over the pixels either lights (above
+    :data:`~nlipscalib.core.tolerances.EXPOSURE_LIGHT_FRACTION`), both box-blurred by
+    :data:`~nlipscalib.core.tolerances.CAPTURE_CHECK_BLUR`, is below
+    :data:`~nlipscalib.core.tolerances.REPEATED_FRAME_DIFFERENCE`; empty when none is.
+    """
+    found = []
+    previous = _blurred(linear[0])[gel] if len(linear) else None
+    for index in range(1, len(linear)):
+        current = _blurred(linear[index])[gel]
+        brighter = np.maximum(current, previous)
+        lit = brighter > EXPOSURE_LIGHT_FRACTION
+        if lit.sum() >= MIN_LIT_PIXELS:
+            difference = float(np.median(np.abs(current[lit] - previous[lit]) / brighter[lit]))
+            if difference < REPEATED_FRAME_DIFFERENCE:
+                found.append((index, difference))
+        previous = current
+    return found
+
+
+def _blurred(image: np.ndarray) -> np.ndarray:
+    """(H, W) float32: the channels' mean of one (H, W, 3) linear image, box-blurred to average the noise away."""
+    return uniform_filter(np.asarray(image, np.float32).mean(axis=2), CAPTURE_CHECK_BLUR, mode="nearest")
+
+
+def repeated_line(folder: object, names: list[str], repeated: list[tuple[int, float]]) -> str:
+    """One line naming the repeated LED images (``names`` in capture order) and the fix."""
+    said = ", ".join(
+        f"{names[i]} repeats {names[i - 1]} ({100 * difference:.1f} % apart)" for i, difference in repeated
+    )
+    return (
+        f"{folder}: {said}: the camera handed out a frame exposed before the LED switched (frames lag the LEDs); "
+        "capture again with a larger --flush (frames dropped after each LED change) or CAP_PROP_BUFFERSIZE 1"
+    )
