@@ -92,3 +92,27 @@ def test_the_check_finds_a_moved_module_and_a_missing_function():
     assert dotted_problem("nlipscalib.core.blas") is None
     assert dotted_problem("core.load_press") is None  # exported by core/__init__.py
     assert references(ROOT / "README.md"), "the README names modules: the patterns must find them"
+
+
+LINK = re.compile(r"\]\(([^)\s#]+)(?:#[^)\s]*)?\)")
+"""A Markdown link's relative target: ``[docs/api.md](docs/api.md)``, ``[the API](../api.md#solve)``."""
+
+
+def relative_links(text: str) -> list[str]:
+    return [target for target in LINK.findall(text) if not re.match(r"[a-z][a-z0-9+.-]*:", target)]
+
+
+def test_every_relative_link_of_the_pages_and_the_notebook_reaches_a_file():
+    """README and docs/ pages (not the RESULTS.md records) and the quickstart notebook's text cells link files by
+    relative paths, which break silently when a page or the notebook moves (docs/examples/ is one level down)."""
+    import json
+
+    sources = {p: p.read_text(encoding="utf-8") for p in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md")]}
+    sources = {p: text for p, text in sources.items() if p.name != "RESULTS.md"}
+    for notebook in (ROOT / "docs").rglob("*.ipynb"):
+        cells = json.loads(notebook.read_text(encoding="utf-8"))["cells"]
+        sources[notebook] = "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "markdown")
+    links = [(page, target) for page, text in sources.items() for target in relative_links(text)]
+    assert len(links) > 40  # the pattern reads the pages' links
+    assert [f"{p.relative_to(ROOT)}: {t}" for p, t in links if not (p.parent / t).exists()] == []
+    assert relative_links("[a](../api.md#solve) [b](https://x.org/y.md) [c](#top)") == ["../api.md"]

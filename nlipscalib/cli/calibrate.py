@@ -14,7 +14,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "dome's own interreflection where they show it, written as an LED file (docs/formats.md) for "
         "`nlips solve --leds FILE` or `nlips calibrate --leds FILE` (NLiPsNet's labels). Prints the LEDs with their "
         "1-sigma uncertainties and how well the fit explains the images; warns when it is unreliable (render the "
-        "reference at 16 spp or more, or average more frames).",
+        "reference at 16 spp or more, or average more frames), and names a single LED not to be trusted (far off its "
+        "design, blocked or dim: check it).",
     )
     p.add_argument("presses", nargs="+", help="press folders of the undeformed dome (with reference.npz)")
     p.add_argument(

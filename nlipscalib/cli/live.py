@@ -64,7 +64,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--backend",
         default="auto",
         choices=("auto", "torch", "onnx", "onnx-int8"),
-        help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch)",
+        help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch; an "
+        ".onnx that is not the model's own export is refused)",
     )
     p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
     add_device_arguments(p)

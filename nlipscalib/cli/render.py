@@ -27,7 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "twin into a press folder (docs/formats.md): the dark frame, one image per LED, the tri-colour image and "
         "the per-pixel ground truth. Press options not typed come from --press-file, else from the default press "
         "(a 6 mm sphere 1 mm deep at polar 20 deg, azimuth 0); render and image options not typed come from the "
-        "scene file (nlipstac: 640x480, 4 spp, direct light). Re-running with the same options does nothing.",
+        "scene file (nlipstac: 640x480, 4 spp, direct light). Re-running with the same options does nothing (a press "
+        "rendered by other twin code or another Mitsuba is kept, with a warning; --overwrite renders it again).",
     )
     p.add_argument("--scene", default=None, help="scene file or shipped scene name (default: nlipstac)")
     p.add_argument(

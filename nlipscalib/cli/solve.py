@@ -31,8 +31,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         nargs="+",
         metavar="V",
         help="x0 y0 w h (pixels, as 4 values or x0,y0,w,h) or 'auto': the box around the pixels whose images differ "
-        "from the undeformed dome's (the contact), plus an 8-pixel margin; much faster than the whole gel. Default: "
-        "the whole gel",
+        "from the undeformed dome's (the contact), plus an 8-pixel margin (wider where too little undeformed gel is "
+        "left in it to anchor the depth); much faster than the whole gel. A press without contact is refused with "
+        "what to do (a folder's: noted, the others solved). Default: the whole gel",
     )
     p.add_argument(
         "--leds",

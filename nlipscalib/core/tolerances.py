@@ -116,11 +116,11 @@ NO_CONTACT_PEAK = 8.0
 noise and model error alone make hits at :data:`CONTACT_MISFIT_FACTOR` scattered over the gel (the twin's
 undeformed capture solved as a press: 1,528 pixels, the box 100 % of the gel, peak 4.7 times the floor; the
 fingertip twin's at 320x240, 8 spp: 4.8), while the twin's presses peak at 12.6-67 times it (sphere1, cube1, coin1,
-the demo's three, six more; s26-degen2). Not 8 (s26-degen2's): the fingertip twin's 1 mm cube press against its
-undeformed capture peaked at 7.5 and was refused (s26-falsealarm); 8 again since s27-shapesfa, which found noise
-alone at 6.06 (the fingertip's undeformed capture at 320x240, 16 spp, as a press with its design LEDs: solved as
-a press) and such dents caught by their patch (below). Only where the images fit the model to noise
-(:data:`MODEL_MISFIT_FLOOR`); a patch of hits of a dent's size away from the gel's edge
+the demo's three, six more; s26-degen2). It was 6 from s26-falsealarm to s27-shapesfa: at s26-degen2's 8 the
+fingertip twin's 1 mm cube press against its undeformed capture peaked at 7.5 and was refused; 8 again since
+s27-shapesfa, which found noise alone at 6.06 (the fingertip's undeformed capture at 320x240, 16 spp, as a press
+with its design LEDs: solved as a press) and such dents caught by their patch (below). Only where the images fit
+the model to noise (:data:`MODEL_MISFIT_FLOOR`); a patch of hits of a dent's size away from the gel's edge
 (:data:`NO_CONTACT_PATCH`) is a contact however low its peak (the capsule design's cube and cylinder
 presses against their undeformed capture: 5.4 and 4.5; s27-shapesfa)."""
 NO_CONTACT_PATCH = 0.002

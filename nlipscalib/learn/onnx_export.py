@@ -1,10 +1,12 @@
-"""NLiPsNet to ONNX (written with onnx.helper from the folded weights) and inference with onnxruntime.
+"""NLiPsNet to ONNX (made of ONNX's protobuf messages from the folded weights, as onnx.helper writes them) and
+inference with onnxruntime.
 
 The ONNX graph takes the same raw (N, 5) input as the PyTorch model and returns (N, 3) unit normals.
 It is the inference form of the network (:func:`nlipscalib.learn.model.folded_layers`): input
-normalisation and BatchNorm folded into the linear layers, so the graph is Gemm-ReLU-...-Gemm. The
-sensor description and the model file's digest travel in the ONNX metadata, so an .onnx file is
-never used with another model's reference.
+normalisation and BatchNorm folded into the linear layers, so the graph is MatMul+Add (one Gemm to onnxruntime),
+ReLU, ..., MatMul+Add, then the division by the L2 norm. The sensor description and the model file's digest travel
+in the ONNX metadata, and a file is run only once it is compared with the export of the model it is run with
+(:func:`check_export`), so an .onnx file is never used with another model's reference.
 """
 
 from __future__ import annotations
