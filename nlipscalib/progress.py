@@ -137,7 +137,7 @@ class AboveTheBarsHandler(logging.StreamHandler):
     def format(self, record: logging.LogRecord) -> str:
         line = super().format(record)
         if self.blank_first and _is_a_terminal(self.stream):  # in the line's one write: a parent's draw can't split it
-            return _blank_line() + line
+            return _blank_line(self.stream) + line
         return line
 
 
@@ -148,12 +148,19 @@ def _is_a_terminal(stream: object) -> bool:
         return False
 
 
-def _blank_line() -> str:
-    """A carriage return, spaces across the terminal, a carriage return: blanks a line on any terminal (no escape
-    codes, which an old Windows console prints as they are)."""
+def _blank_line(stream: object) -> str:
+    """A carriage return, spaces across the terminal ``stream`` shows on, a carriage return: blanks a line on any
+    terminal (no escape codes, which an old Windows console prints as they are).
+
+    The width is the stream's own terminal's: ``shutil.get_terminal_size`` asks stdout's, 80 columns when stdout is
+    redirected (``nlips solve FOLDER > summary.txt``), which left the end of a wider bar after a short line."""
     import shutil
 
-    return "\r" + " " * max(shutil.get_terminal_size().columns - 1, 0) + "\r"
+    try:
+        columns = os.get_terminal_size(stream.fileno()).columns  # type: ignore[attr-defined]
+    except (AttributeError, OSError, ValueError):  # no descriptor (a test's stream), not a terminal's, closed
+        columns = shutil.get_terminal_size().columns
+    return "\r" + " " * max(columns - 1, 0) + "\r"
 
 
 @contextlib.contextmanager

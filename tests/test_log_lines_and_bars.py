@@ -231,3 +231,21 @@ def test_no_module_of_the_package_makes_a_tqdm_bar_itself():
         if re.search(r"\b(tqdm|trange)\(", line.split("#")[0])
     ]
     assert direct == []
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="pseudo-terminals are POSIX's")
+def test_a_workers_blanking_spans_its_own_terminals_width_not_stdouts(monkeypatch):
+    """With stdout redirected (``nlips solve FOLDER > summary.txt``) the terminal's width asked of stdout is 80
+    columns: a wider bar's end stayed after a short line."""
+    import fcntl
+    import os
+    import struct
+    import termios
+
+    parent, child = os.openpty()
+    fcntl.ioctl(child, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 132, 0, 0))
+    monkeypatch.setattr("sys.stdout", io.StringIO())
+    with open(child, "w", encoding="utf-8") as stream:
+        blank = progress._blank_line(stream)
+    os.close(parent)
+    assert blank == "\r" + " " * 131 + "\r"
