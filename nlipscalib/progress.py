@@ -170,14 +170,41 @@ def above_the_bars(stream: object = None, *, wait_for_lock: bool = True) -> Iter
     below it on the way out (tqdm's ``external_write_mode``, the library's own way of writing around its bars).
 
     ``wait_for_lock=False``: without taking tqdm's write lock, for a block that may wait a long time (an operator's
-    ``input()``). Nothing happens (tqdm is not even imported) while no bar of the process is live."""
+    ``input()``). The lock is waited for :data:`BAR_LOCK_WAIT_S` at most. Nothing happens (tqdm is not even
+    imported) while no bar of the process is live."""
     tqdm_module = sys.modules.get("tqdm")
     bars = getattr(getattr(tqdm_module, "tqdm", None), "_instances", None)
     if not bars:  # no bar made yet in this process (a worker's, a command without one): nothing to clear
         yield
         return
-    with tqdm_module.tqdm.external_write_mode(file=stream or sys.stderr, nolock=not wait_for_lock):  # type: ignore[union-attr]
-        yield
+    bar_class = tqdm_module.tqdm  # type: ignore[union-attr]
+    taken = _take_within(bar_class.get_lock(), BAR_LOCK_WAIT_S) if wait_for_lock else []
+    try:
+        with bar_class.external_write_mode(file=stream or sys.stderr, nolock=True):  # the lock, if had, is held here
+            yield
+    finally:
+        for part in reversed(taken):
+            part.release()
+
+
+BAR_LOCK_WAIT_S = 1.0
+"""Longest wait (s) for tqdm's write lock before a log line clears the bars without it. Why: a draw interrupted by
+Ctrl-C keeps that lock held for good (tqdm 4.70.1's ``refresh`` releases it in no ``finally``: s27-floors,
+benchmarks/RESULTS.md), so any other thread's log line (a claim's heartbeat) waited on it forever. A draw takes
+milliseconds; without the lock, a draw of another thread at that instant can at worst put the line after a bar."""
+
+
+def _take_within(lock: Any, wait_s: float) -> list:
+    """The parts of tqdm's write lock (a ``TqdmDefaultWriteLock``: the process's and the threads' locks, taken in
+    that order), all taken within ``wait_s`` each, or none (an empty list, nothing held)."""
+    taken: list = []
+    for part in getattr(lock, "locks", [lock]):
+        if not part.acquire(timeout=wait_s):
+            for held in reversed(taken):
+                held.release()
+            return []
+        taken.append(part)
+    return taken
 
 
 def _debug_of_ours(record: logging.LogRecord) -> bool:

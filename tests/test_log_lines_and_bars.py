@@ -249,3 +249,26 @@ def test_a_workers_blanking_spans_its_own_terminals_width_not_stdouts(monkeypatc
         blank = progress._blank_line(stream)
     os.close(parent)
     assert blank == "\r" + " " * 131 + "\r"
+
+
+def test_a_threads_line_does_not_wait_forever_on_a_bar_lock_an_interrupted_draw_kept(terminal, monkeypatch):
+    """tqdm's ``refresh`` keeps its write lock held when Ctrl-C stops its draw (no ``finally``): a log line of
+    another thread (a claim's heartbeat) then waited on that lock for good, hanging the command's end."""
+    import threading
+
+    from tqdm import tqdm
+
+    screen, logger, _ = terminal
+    monkeypatch.setattr("sys.stderr", screen)
+    monkeypatch.setattr(progress, "BAR_LOCK_WAIT_S", 0.05)
+    with progress.progress_bar(3, desc="presses"):
+        lock = tqdm.get_lock()
+        lock.acquire()  # as the interrupted draw left it, in this (the main) thread
+        try:
+            heartbeat = threading.Thread(target=logger.warning, args=("claim renewed late",), daemon=True)
+            heartbeat.start()
+            heartbeat.join(timeout=30)
+            assert not heartbeat.is_alive()
+        finally:
+            lock.release()
+    assert "WARNING claim renewed late" in _screen(screen.getvalue())
