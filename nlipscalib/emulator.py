@@ -225,10 +225,10 @@ class EmulatedSensor:
     def prerender(self, progress: bool = False) -> None:
         """Render every scripted surface now (the undeformed dome, each press, each moved pose), so that
         capture times measure the hardware path, not the renderer."""
-        from tqdm import tqdm
+        from .progress import track
 
         surfaces = [None] + [s for step in self.operator.script for s in (step.press, step.moved) if s is not None]
-        for surface in tqdm(surfaces, desc="rendering the twin", unit="surface", disable=not progress):
+        for surface in track(surfaces, enabled=progress, desc="rendering the twin", unit="surface"):
             self.camera.renders.images(surface)
 
     def close(self) -> None:

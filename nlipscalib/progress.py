@@ -83,6 +83,9 @@ def configure_worker(level: int, log_file: str | None = None, shown_press_lines:
     _enabled = False
     press_lines(shown_press_lines)
     _setup(level, log_file)
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, AboveTheBarsHandler):
+            handler.blank_first = True  # the parent's bar may be on the terminal's line
 
 
 def _setup(level: int, log_file: str | Path | None) -> None:
@@ -93,7 +96,7 @@ def _setup(level: int, log_file: str | Path | None) -> None:
         root.removeHandler(handler)
         handler.close()
     if not root.handlers:
-        stderr = logging.StreamHandler(sys.stderr)
+        stderr = AboveTheBarsHandler(sys.stderr)
         stderr.addFilter(_shown_on_stderr)
         stderr.addFilter(_debug_of_ours)
         _add(root, stderr, STDERR_FORMAT)
@@ -110,6 +113,98 @@ def _setup(level: int, log_file: str | Path | None) -> None:
         file.addFilter(_debug_of_ours)
         _add(root, file, FILE_FORMAT)
         _log_file = str(Path(log_file).absolute())
+
+
+class AboveTheBarsHandler(logging.StreamHandler):
+    """stderr's log handler: a line logged while a bar is drawn on the same terminal lands on its own line, with the
+    bar drawn again below it (:func:`above_the_bars`).
+
+    Why: a bar leaves the cursor at its end, so ``nlips -v solve FOLDER --workers 1`` wrote its first INFO line onto
+    the bar's ("presses:   0%|    | 0/3 [00:00<?, ?press/s]INFO ..."), as did every bar's user logging under it
+    (dataset, calibrate, experiment, train).
+
+    In a worker process (:func:`configure_worker`) the bar is the parent's, out of reach: a worker writing to a
+    terminal starts each line by blanking the terminal's line (:func:`_blank_line`), where the parent's bar may be,
+    and the parent draws its bar again at its next update."""
+
+    blank_first = False
+    """Whether each line starts by blanking the terminal's line (a worker's, whose parent may have a bar there)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        with above_the_bars(self.stream):
+            super().emit(record)
+
+    def format(self, record: logging.LogRecord) -> str:
+        line = super().format(record)
+        if self.blank_first and _is_a_terminal(self.stream):  # in the line's one write: a parent's draw can't split it
+            return _blank_line(self.stream) + line
+        return line
+
+
+def _is_a_terminal(stream: object) -> bool:
+    try:
+        return bool(stream.isatty())  # type: ignore[attr-defined]
+    except Exception:  # closed, or not a file
+        return False
+
+
+def _blank_line(stream: object) -> str:
+    """A carriage return, spaces across the terminal ``stream`` shows on, a carriage return: blanks a line on any
+    terminal (no escape codes, which an old Windows console prints as they are).
+
+    The width is the stream's own terminal's: ``shutil.get_terminal_size`` asks stdout's, 80 columns when stdout is
+    redirected (``nlips solve FOLDER > summary.txt``), which left the end of a wider bar after a short line."""
+    import shutil
+
+    try:
+        columns = os.get_terminal_size(stream.fileno()).columns  # type: ignore[attr-defined]
+    except (AttributeError, OSError, ValueError):  # no descriptor (a test's stream), not a terminal's, closed
+        columns = shutil.get_terminal_size().columns
+    return "\r" + " " * max(columns - 1, 0) + "\r"
+
+
+@contextlib.contextmanager
+def above_the_bars(stream: object = None, *, wait_for_lock: bool = True) -> Iterator[None]:
+    """While active, the live bars drawn to ``stream`` (stderr when None; stdout's too, as both show on one
+    terminal) are cleared from the screen, so what the block writes starts on a clean line; they are drawn again
+    below it on the way out (tqdm's ``external_write_mode``, the library's own way of writing around its bars).
+
+    ``wait_for_lock=False``: without taking tqdm's write lock, for a block that may wait a long time (an operator's
+    ``input()``). The lock is waited for :data:`BAR_LOCK_WAIT_S` at most. Nothing happens (tqdm is not even
+    imported) while no bar of the process is live."""
+    tqdm_module = sys.modules.get("tqdm")
+    bars = getattr(getattr(tqdm_module, "tqdm", None), "_instances", None)
+    if not bars:  # no bar made yet in this process (a worker's, a command without one): nothing to clear
+        yield
+        return
+    bar_class = tqdm_module.tqdm  # type: ignore[union-attr]
+    taken = _take_within(bar_class.get_lock(), BAR_LOCK_WAIT_S) if wait_for_lock else []
+    try:
+        with bar_class.external_write_mode(file=stream or sys.stderr, nolock=True):  # the lock, if had, is held here
+            yield
+    finally:
+        for part in reversed(taken):
+            part.release()
+
+
+BAR_LOCK_WAIT_S = 1.0
+"""Longest wait (s) for tqdm's write lock before a log line clears the bars without it. Why: a draw interrupted by
+Ctrl-C keeps that lock held for good (tqdm 4.70.1's ``refresh`` releases it in no ``finally``: s27-floors,
+benchmarks/RESULTS.md), so any other thread's log line (a claim's heartbeat) waited on it forever. A draw takes
+milliseconds; without the lock, a draw of another thread at that instant can at worst put the line after a bar."""
+
+
+def _take_within(lock: Any, wait_s: float) -> list:
+    """The parts of tqdm's write lock (a ``TqdmDefaultWriteLock``: the process's and the threads' locks, taken in
+    that order), all taken within ``wait_s`` each, or none (an empty list, nothing held)."""
+    taken: list = []
+    for part in getattr(lock, "locks", [lock]):
+        if not part.acquire(timeout=wait_s):
+            for held in reversed(taken):
+                held.release()
+            return []
+        taken.append(part)
+    return taken
 
 
 def _debug_of_ours(record: logging.LogRecord) -> bool:
@@ -381,18 +476,22 @@ def shown_under_a_notebook_cell(stream: object) -> bool:
     return any(cls.__module__.split(".")[0] == "ipykernel" for cls in type(stream).__mro__)
 
 
-def progress_bar(total: int | None = None, *, enabled: bool = True, **kwargs: Any) -> tqdm:
+def progress_bar(total: int | None = None, *, enabled: bool = True, first_draw: bool = True, **kwargs: Any) -> tqdm:
     """A tqdm bar (usable as a context manager), silent unless :func:`bars_enabled`.
 
     Parameters
     ----------
     total : number of steps (None when unknown)
     enabled : the caller's own switch (e.g. a function's ``progress`` argument)
+    first_draw : draw its first line now (:func:`_drawn`); False for a line with nothing to say before its first
+        step (the solver's, drawn with its first level's description), which the caller then draws in its own
+        ``try`` that closes the bar
     kwargs : passed to tqdm (desc, unit, initial, ...)
     """
     from tqdm import tqdm  # the plain bar, as every other bar of the package: see shown_under_a_notebook_cell
 
-    return _drawn(tqdm(total=total, disable=not bars_enabled(enabled), delay=UNDRAWN_DELAY_S, **kwargs))
+    bar = tqdm(total=total, disable=not bars_enabled(enabled), delay=UNDRAWN_DELAY_S, **kwargs)
+    return _drawn(bar) if first_draw else bar
 
 
 def track(iterable: Iterable, *, enabled: bool = True, **kwargs: Any) -> tqdm:

@@ -186,10 +186,10 @@ def _above_the_bar() -> contextlib.AbstractContextManager:
 
     Why: the bar leaves the cursor at its end, so on a terminal each prompt was written onto the bar's line
     ("capture:  33%|####      | 1/3 [00:00<00:01, 1.56press/s]Press 1/2: press the object now, hold still.").
-    No lock is held (``nolock``): input() may wait for the operator a long time."""
-    from tqdm import tqdm
+    No lock is held: input() may wait for the operator a long time."""
+    from ..progress import above_the_bars
 
-    return tqdm.external_write_mode(nolock=True)
+    return above_the_bars(wait_for_lock=False)
 
 
 def frame_sequence(n_leds: int, cfg: SessionConfig) -> list[tuple[str, np.ndarray]]:
@@ -336,7 +336,7 @@ def run_session(
     -------
     dict folder name -> the :func:`capture_press` record, or "kept" for folders already complete
     """
-    from tqdm import tqdm
+    from ..progress import track
 
     rig.check()
     operator = operator or Operator()
@@ -346,7 +346,8 @@ def run_session(
     _check_same_session(out, rig, cfg)
     names = [REFERENCE_NAME] + [press_name(k) for k in range(1, cfg.presses + 1)]
     status: dict[str, dict | str] = {}
-    for k, name in enumerate(tqdm(names, desc="capture", unit="press", disable=not progress)):
+    # the project's bar: drawn by its own helper (an interrupt cannot leave it open), only where a person sees it
+    for k, name in enumerate(track(names, enabled=progress, desc="capture", unit="press")):
         folder = out / name
         damaged = is_press_folder(folder) and _damaged(folder)
         if is_press_folder(folder) and not damaged:

@@ -43,7 +43,7 @@ from ..core.errors import ConfigError
 from ..core.leds import Leds
 from ..core.pages import ordinary_pages
 from ..core.reconstruction import Reconstruction
-from ..progress import UNDRAWN_DELAY_S, bars_enabled
+from ..progress import bars_enabled, progress_bar
 from .coarse_to_fine import level_pyramid, solve_coarse_to_fine
 from .crop import LevelData, crop_to_mask, full_image
 from .gauss_newton import expanded_step
@@ -194,17 +194,17 @@ def _solve_checked(
     report["levels"] = []
     bar = None
     if bars_enabled(progress):
-        from tqdm import tqdm
-
         # no total: a level stops on convergence, mostly long before opts.max_iters, so a bar to levels x max_iters
         # stopped at 3-10 % with an ETA of tens of seconds (a 1280x960 whole frame's "1/30 [00:01<00:36]")
         # drawn at every iteration (each takes 10 ms to seconds): with tqdm's default 0.1 s interval a short solve's
         # line could stay at "0 iterations so far"
-        # delay: no write in the constructor, which has registered the bar before it returns it; a Ctrl-C landing
-        # in that write (a notebook's stop button, in the kernel's send) left a bar open that nobody could close,
+        # first_draw=False: no write where the bar is made (tqdm has registered it by then); a Ctrl-C landing in
+        # that write (a notebook's stop button, in the kernel's send) left a bar open that nobody could close,
         # and every later bar of the kernel nested under it. The first draw comes with the first level's description,
         # in the try (not progress._drawn's: this line has nothing to say before a level starts)
-        bar = tqdm(desc="NLiPs", leave=False, bar_format=LEVEL_BAR, mininterval=0, miniters=1, delay=UNDRAWN_DELAY_S)
+        bar = progress_bar(
+            None, first_draw=False, desc="NLiPs", leave=False, bar_format=LEVEL_BAR, mininterval=0, miniters=1
+        )
     be = Backend(backend, opts.dtype)
     try:
         with blas_threads(1):

@@ -359,7 +359,10 @@ def test_on_a_terminal_the_operators_lines_start_their_own_line_not_the_bars(tmp
         def isatty(self):
             return True
 
+    from nlipscalib import progress
+
     screen = Terminal()
+    monkeypatch.setattr(progress, "_enabled", True)  # as a command without --no-progress sets it
     monkeypatch.setattr(sys, "stdout", screen)
     monkeypatch.setattr(sys, "stderr", screen)
     rig, _ = _rig()
