@@ -328,8 +328,9 @@ above 0.11, a median pixel at 0.23; a frame with the LEDs off, or a lens cap, st
 frame. Twenty times the solver's :data:`LIT_LEVEL`, which asks another question (why: there)."""
 CAPTURE_CHECK_BLUR = 5
 """Side, pixels, of the box blur of a capture's checks on raw frames (the exposure check's lit pixels, the
-session's movement check): 25 pixels averaged cut the sensor noise 5 times, while a lit gel or a moved edge,
-many pixels wide, keeps its level."""
+session's movement check), and of the blocks the repeated-frame check averages (:data:`REPEATED_FRAME_DIFFERENCE`):
+25 pixels averaged cut the sensor noise 5 times, while a lit gel or a moved edge, many pixels wide, keeps its
+level."""
 EXPOSURE_LIT_SHARE = 0.01
 """... an LED frame is black (no light above the dark frame: the LED off or dead, a lens cap, the camera not
 looking at the gel) when fewer than this fraction of the gel's pixels are lit by it (a lit LED of the shipped
@@ -404,11 +405,12 @@ own limit (``CV_IO_MAX_IMAGE_PIXELS``, 2^30 pixels: 6.4 GB at 16-bit RGB) ends i
 REPEATED_FRAME_DIFFERENCE = 0.01
 """An LED image repeats the one captured before it (a camera whose frames lag the LED switch: the frame read after
 switching to LED k was still exposed under LED k-1) when the median over the lit gel of their relative difference,
-``|a - b| / max(a, b)`` after the :data:`CAPTURE_CHECK_BLUR` box blur, is below this
+``|a - b| / max(a, b)`` of their means over blocks of :data:`CAPTURE_CHECK_BLUR` pixels a side, is below this
 (:func:`nlipscalib.core.repeated_frames.repeated_leds`). Two neighbouring LEDs of nlipstac differ by 0.10-0.12
-(12-bit linear twin), 0.055-0.14 after an 8-bit sRGB webcam's tone curve and auto exposure; the same light
-captured twice differs by its noise, 0.3 % after the blur (twin, 12-bit), 0.000 for a frame handed out twice. A
-twice-as-dense ring (24 LEDs) would still differ by about 0.05 (linear)."""
+(12-bit linear twin; 0.095-0.115 with the block means, s27 lead), 0.055-0.14 after an 8-bit sRGB webcam's tone
+curve and auto exposure; the same light captured twice differs by its noise, 0.3 % after a 5x5 box blur (twin,
+12-bit; the block means average as many pixels), 0.000 for a frame handed out twice. A twice-as-dense ring
+(24 LEDs) would still differ by about 0.05 (linear)."""
 LINEAR_RESPONSE_SLOPE = 0.55
 """LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
 each pixel's value grows as the LED model's light to a power below this, in median over the gel
