@@ -68,12 +68,13 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
     if press.reference is None or len(live) < 3:
         return [], [], []
     names = _image_names(press)
-    notes, repeated = _repeated_notes(press, names)
+    lagged, repeated = _repeated_line(press, names)
     live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
     image, model = _samples(press, leds, live) if len(live) >= 3 else (None, None)
     if image is None:
-        return notes, _leave_out(repeated, len(live) + len(repeated)), []
-    notes += linearity_notes(press, live)
+        left_out = _leave_out(repeated, len(live) + len(repeated))
+        return _said_repeated(lagged, left_out), left_out, []
+    notes = linearity_notes(press, live)
     off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
@@ -102,6 +103,7 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
         elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
             off.append((i, relative[k]))
     left_out = _leave_out([i for i, _ in off] + repeated, len(live) + len(repeated))
+    notes = _said_repeated(lagged, left_out) + notes
     for i, share in off:
         what = "weak LED?" if share < 1 else "brighter than the others"
         done = "left out of the solve and of --roi auto" if left_out else "used (too few LEDs to leave it out)"
@@ -119,14 +121,22 @@ def _leave_out(candidates: list[int], count: int) -> list[int]:
     return sorted(candidates) if count - len(candidates) >= tolerances.MIN_LEDS_PER_PIXEL else []
 
 
-def _repeated_notes(press: Press, names: list[str]) -> tuple[list[str], list[int]]:
-    """The warning naming LED images that repeat the image before them (:func:`.repeated_leds`: frames that lag
-    the LED switch), and those LEDs (0-based), in the capture order of ``images.leds``."""
+def _repeated_line(press: Press, names: list[str]) -> tuple[str | None, list[int]]:
+    """The line naming LED images that repeat the image before them (:func:`.repeated_leds`: frames that lag
+    the LED switch), None when none does, and those LEDs (0-based), in the capture order of ``images.leds``."""
     repeated = repeated_leds(press.linear_led_images, np.isfinite(press.reference.depth))
     if not repeated:
-        return [], []
-    line = repeated_line(press.folder, names, repeated)
-    return [f"{line}; left out of the solve (they hold the LED before them's light)"], [i for i, _ in repeated]
+        return None, []
+    return repeated_line(press.folder, names, repeated), [i for i, _ in repeated]
+
+
+def _said_repeated(line: str | None, left_out: list[int]) -> list[str]:
+    """The warning of :func:`_repeated_line`'s ``line``, saying whether the solve leaves those LEDs out (not when
+    too few LEDs would be left: :func:`_leave_out`)."""
+    if line is None:
+        return []
+    done = "left out of the solve" if left_out else "used (too few LEDs to leave them out)"
+    return [f"{line}; {done} (they hold the light of the LED before them)"]
 
 
 def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:

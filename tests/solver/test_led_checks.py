@@ -7,7 +7,7 @@ import numpy as np
 
 from nlipscalib.core import load_press
 from nlipscalib.solver import SolverOptions, solve_press
-from nlipscalib.solver.led_checks import _samples, led_mismatch_notes, response_slope
+from nlipscalib.solver.led_checks import _samples, led_check, led_mismatch_notes, response_slope
 
 from . import synth
 
@@ -90,6 +90,18 @@ def test_an_led_image_that_repeats_the_one_before_is_named_and_left_out(tmp_path
     assert len(said) == 1 and "led_05.png repeats led_04.png" in said[0] and "--flush" in said[0]
     assert rep["leds_left_out"] == [4] and 4 not in rep["leds_used"]
     assert said[0] in caplog.text
+    assert said[0].endswith("; left out of the solve (they hold the light of the LED before them)")
+
+
+def test_repeated_led_images_too_many_to_leave_out_are_said_to_be_used(tmp_path):
+    """Every LED image after the first repeats it (a camera handing out one frame throughout): leaving 11 of 12 LEDs
+    out would leave too few to solve, so they are used, and the warning says so (it said "left out of the solve"
+    whatever the solve did, s27-docs2)."""
+    press = _press(tmp_path, "stuck", lambda lin: lin[[0] * len(lin)])
+    notes, left_out, _ = led_check(press, press.leds, range(len(press.leds)))
+    said = [note for note in notes if "repeats" in note]
+    assert left_out == [] and len(said) == 1
+    assert "led_12.png repeats led_11.png" in said[0] and "; used (too few LEDs to leave them out)" in said[0]
 
 
 def test_gamma_encoded_led_images_are_called_not_linear(tmp_path):
