@@ -57,7 +57,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Capture the undeformed reference, then each press: tri-colour, dark, one image per LED, and "
         "the tri-colour again to detect movement (a press that moved is retaken), in the capture format the twin "
         "writes. Prompts the operator before each press (--yes for scripts); run again after an interruption and "
-        "it continues. Real sensor: --port and --camera (fixed exposure, gain and white balance); --emulate SCENE: "
+        "it continues. Real sensor: --port and --camera (fixed exposure, gain and white balance; raw, linear frames: "
+        "a webcam's gamma set to linear first, docs/formats.md, Cameras); --emulate SCENE: "
         "the same path through the LED driver, a virtual board and a camera showing the twin's renders.",
     )
     p.add_argument("--out", required=True, help="session folder (reference/, press_0001/, ...); resumes if present")
@@ -79,7 +80,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     src.add_argument("--gain", type=float, help="fixed analogue gain, camera units (default 0)")
     src.add_argument("--white-balance", type=float, help="fixed white balance, kelvin (default 5000)")
     src.add_argument("--black-level", type=float, help="camera black level in its own DN (default 0)")
-    src.add_argument("--flush", type=int, default=2, help="frames dropped after each LED change (default 2)")
+    src.add_argument(
+        "--flush",
+        type=int,
+        default=2,
+        help="frames dropped after each LED change (default 2); raise it when the capture warns that an LED image "
+        "repeats the one before (the camera's frames lag the LEDs)",
+    )
     src.add_argument("--average", type=int, help="frames averaged per image (default 1)")
     emu = p.add_argument_group("emulated sensor")
     emu.add_argument("--emulate", metavar="SCENE", help="run against the emulated sensor of this scene (no hardware)")

@@ -44,7 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--reference",
         metavar="REF_PRESS",
         help="press folder of the undeformed dome (same camera, LEDs, exposure): the interreflection term is "
-        "fitted on it and --roi auto / anchoring compare to it (default: PRESS/reference when PRESS is a folder of "
+        "fitted on it, --roi auto / anchoring compare to it, and each LED image's brightness is checked against it, "
+        "to warn of auto exposure or white balance left on (default: PRESS/reference when PRESS is a folder of "
         "presses that has one, as `nlips dataset` and `nlips capture` write; else the press itself, away from the "
         "contact)",
     )
