@@ -19,8 +19,15 @@ if TYPE_CHECKING:
 SOLVE_LIBRARIES = ("numpy", "scipy", "pyamg", "opencv")
 """What shapes an NLiPs result (``nlips solve``): arrays and BLAS (numpy), sparse algebra and filters (scipy), the
 multigrid preconditioner (pyamg), the pyramid's resampling and the contact region's filters (opencv)."""
-INFER_LIBRARIES = {"torch": ("numpy", "torch"), "onnx": ("numpy", "onnxruntime"), "onnx-int8": ("numpy", "onnxruntime")}
-"""What shapes an NLiPsNet result (``nlips infer``), per backend (``Predictor.backend``, resolved from auto)."""
+_DEPTH_LIBRARIES = ("scipy", "pyamg")
+INFER_LIBRARIES = {
+    "torch": ("numpy", "torch", *_DEPTH_LIBRARIES),
+    "onnx": ("numpy", "onnxruntime", *_DEPTH_LIBRARIES),
+    "onnx-int8": ("numpy", "onnxruntime", *_DEPTH_LIBRARIES),
+}
+"""What shapes an NLiPsNet result (``nlips infer``), per backend (``Predictor.backend``, resolved from auto): the
+network's runtime, and the depth integration's sparse solvers (scipy's SuperLU and transforms, pyamg's AMG for
+large regions, learn/integrate.py) -- recorded with ``--no-depth`` too, which only re-infers once more."""
 RENDER_LIBRARIES = ("mitsuba", "drjit")
 """What shapes a rendered press's images (``nlips render``, ``nlips dataset``): the renderer and its JIT."""
 

@@ -606,9 +606,9 @@ def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_fram
     assert len(first) == 17  # result.npz, report.json, normals.png, depth.png of three frames and a press (+ error.png)
     report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
     assert set(report["provenance"]) == {"key", "software_version", "code", "libraries", "settings", "inputs"}
-    from importlib import metadata  # the libraries that ran the network (torch backend): a release moves numbers
+    from importlib import metadata  # the libraries that ran the network (torch backend) and integrated its depth
 
-    versions = {"numpy": metadata.version("numpy"), "torch": metadata.version("torch")}
+    versions = {name: metadata.version(name) for name in ("numpy", "torch", "scipy", "pyamg")}
     assert report["provenance"]["libraries"] == versions
     assert report["provenance"]["settings"]["depth"] is True and report["provenance"]["settings"]["ply"] is None
     assert main(command) == 0
