@@ -419,10 +419,10 @@ balance and JPEG). Halfway between, in ratio."""
 JPEG_BLOCKINESS = 1.3
 """LED images are taken as JPEG-compressed (a camera streaming MJPEG, or frames saved as JPEG) when their values
 jump more than this many times as much across an 8x8 block grid's edges as inside its blocks
-(:func:`nlipscalib.core.compression.blockiness`). Frames never compressed: 1.00-1.03 (the one-bounce twin, 12 and 8
-bits, linear and sRGB, 96x72 to 640x480, the /tmp/keep captures included). Through OpenCV's JPEG encoder, 8-bit
-linear: quality 95 1.7-1.8, 85 1.9-2.3, 75 1.6-2.1; 8-bit sRGB: 1.4-1.9; quality 98 (1.02-1.05) is not told from
-noise. 30 % above the uncompressed frames, below the weakest compressed (benchmarks/RESULTS.md, s27-webcam2)."""
+(:func:`nlipscalib.core.compression.blockiness`). Frames never compressed: 1.00-1.01 (the one-bounce twin, 12 and 8
+bits, linear and sRGB, 96x72 to 640x480, the /tmp/keep captures included). Through OpenCV's JPEG encoder at
+quality 75-95, 8-bit linear: 1.50-1.99; 8-bit sRGB: 1.38-1.88; quality 98 (1.02-1.06) is not told from noise.
+30 % above the uncompressed frames, below the weakest compressed (benchmarks/RESULTS.md, s27-webcam2)."""
 EXPOSURE_DRIFT = 0.05
 """A press's LED images are taken as exposed unlike the undeformed capture's (auto exposure, gain or white balance
 on) when one LED's brightness against the undeformed capture's, per channel, strays from their median by more

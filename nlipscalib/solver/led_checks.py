@@ -134,8 +134,8 @@ def _repeated_notes(press: Press, names: list[str]) -> tuple[list[str], list[int
 def compression_notes(press: Press) -> list[str]:
     """The warning when the LED images went through JPEG (:func:`nlipscalib.core.compression.blockiness` over
     the gel above :data:`~nlipscalib.core.tolerances.JPEG_BLOCKINESS`: a camera streaming MJPEG); [] without an
-    undeformed surface to say where the gel is. ~6 ms on a 640x480 press of 12 LEDs (a seventh of its rows and
-    columns, one channel)."""
+    undeformed surface to say where the gel is. ~4 ms on a 640x480 press of 12 LEDs (6 of its LED images, a
+    seventh of their rows and columns, one channel)."""
     if press.reference is None:
         return []
     value = compressed(press.led_images, np.isfinite(press.reference.depth))
