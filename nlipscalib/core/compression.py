@@ -33,7 +33,8 @@ MAX_IMAGES = 6
 of a 640x480 press's 12 keep ~30 000 steps per phase at half the cost (~4 ms instead of ~9)."""
 OUTLIER_JUMP = 4.0
 """Each jump counts at most this many times the mean jump of its direction: a few glints or a marker (the
-synthetic dome with 20 of its pixels saturated in one image: 4.4 uncapped) must not make one phase stand out."""
+synthetic 64x48 dome with 20 of its pixels saturated in one image read 4.4 without the cap, 1.07 with it) must not
+make one phase stand out."""
 MIN_PAIRS = 50
 """Fewest neighbour pairs on the gel per phase and direction for a verdict (a smaller gel says nothing)."""
 
