@@ -418,6 +418,13 @@ each pixel's value grows as the LED model's light to a power below this, in medi
 with it (the gel's own indirect light adds an offset): nlipstac's one-bounce twin 0.75 (0.74-0.76, 12 and 8 bits,
 reference and presses); the same captures through an sRGB tone curve 0.34 (0.29-0.42 with auto exposure, white
 balance and JPEG). Halfway between, in ratio."""
+JPEG_BLOCKINESS = 1.3
+"""LED images are taken as JPEG-compressed (a camera streaming MJPEG, or frames saved as JPEG) when their values
+jump more than this many times as much across an 8x8 block grid's edges as inside its blocks
+(:func:`nlipscalib.core.compression.blockiness`). Frames never compressed: 1.00-1.01 (the one-bounce twin, 12 and 8
+bits, linear and sRGB, 96x72 to 640x480, the /tmp/keep captures included). Through OpenCV's JPEG encoder at
+quality 75-95, 8-bit linear: 1.50-1.99; 8-bit sRGB: 1.38-1.88; quality 98 (1.02-1.06) is not told from noise.
+30 % above the uncompressed frames, below the weakest compressed (benchmarks/RESULTS.md, s27-webcam2)."""
 EXPOSURE_DRIFT = 0.05
 """A press's LED images are taken as exposed unlike the undeformed capture's (auto exposure, gain or white balance
 on) when one LED's brightness against the undeformed capture's, per channel, strays from their median by more

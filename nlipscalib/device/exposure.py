@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, require
 from ..core.repeated_frames import repeated_leds, repeated_line
 from ..core.sensor_response import SensorResponse, linearise
@@ -56,7 +57,8 @@ def check_exposure(
     Returns
     -------
     list of str
-        At most three lines: the black LED frames, the over-exposed frames, the repeated LED frames.
+        At most four lines: the black LED frames, the over-exposed frames, the repeated LED frames, the
+        JPEG-compressed LED frames.
 
     Raises
     ------
@@ -79,7 +81,8 @@ def check_exposure(
         _refuse_unusable(folder, names, black, clipped, where)
     lines = [_black_line(folder, names, black)] if black else []
     over = _over_line(folder, clipped, where)
-    return lines + ([over] if over else []) + _repeated_lines(frames, names, response, folder, gel)
+    lines += [over] if over else []
+    return lines + _repeated_lines(frames, names, response, folder, gel) + _compressed_lines(frames, names, folder, gel)
 
 
 def _repeated_lines(
@@ -92,6 +95,14 @@ def _repeated_lines(
     )
     repeated = repeated_leds(linear, gel)
     return [repeated_line(folder, [f"{name}.png" for name in names], repeated)] if repeated else []
+
+
+def _compressed_lines(frames: dict[str, np.ndarray], names: list[str], folder: Path, gel: np.ndarray) -> list[str]:
+    """The warning when the LED frames went through JPEG (a camera streaming MJPEG:
+    :mod:`nlipscalib.core.compression`), while the press can still be captured again."""
+    if not names or (value := compressed(np.stack([frames[name] for name in names]), gel)) is None:
+        return []
+    return [blockiness_line(folder, "the LED frames", value)]
 
 
 def _gel(gel: np.ndarray | None, shape: tuple[int, int]) -> tuple[np.ndarray, str]:

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..core import tolerances
 from ..core.capture import Press, as_press
+from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
 from ..core.repeated_frames import repeated_leds, repeated_line
@@ -386,7 +387,8 @@ def _check_lit(press: Press) -> None:
     saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference). Also for an LED image that
     repeats the one before it (:mod:`nlipscalib.core.repeated_frames`): it was fitted at the place of the LED before
     it and called reliable (s27 QA walk, a webcam whose frames lag the LEDs). Gamma-encoded LED images are warned
-    about (:func:`.led_checks.linearity_notes`): the fit absorbed an sRGB curve and called itself reliable."""
+    about (:func:`.led_checks.linearity_notes`): the fit absorbed an sRGB curve and called itself reliable; so are
+    JPEG-compressed ones (:mod:`nlipscalib.core.compression`)."""
     from .contact import led_levels, lit_leds
     from .exposure import dark_file, dark_frame_fault, gel_of
 
@@ -408,6 +410,8 @@ def _check_lit(press: Press) -> None:
         raise CaptureError(
             f"{repeated_line(press.folder, names, repeated)}; the LED calibration needs each LED's own light"
         )
+    if (value := compressed(press.led_images, gel)) is not None:
+        log.warning("%s", blockiness_line(press.folder, "the LED images", value))
     if press.reference is not None:
         # a tone curve is absorbed by the fit (LEDs moved, "reliable"): said against the recorded LEDs, before it
         for note in linearity_notes(press, range(len(press.leds))):

@@ -161,6 +161,9 @@ def dark_frame_fault(press: Press, gel: np.ndarray | None = None) -> tuple[str, 
     if abs(level) <= tolerances.DARK_FRAME_OFFSET:
         return None
     name = f"{press.folder}: {dark_file(press)}"
+    if level > 0 and (curve := _tone_curve_cause(press)):
+        above = f"{percent(level)} of full scale above the black level {black:g}"
+        return f"{name}: its median on the gel, {median:g}, is {above}{curve}", True
     if level > 0:
         return (
             f"{name}: not a dark frame: its median on the gel, {median:g}, is {percent(level)} of full scale above "
@@ -173,4 +176,26 @@ def dark_frame_fault(press: Press, gel: np.ndarray | None = None) -> tuple[str, 
         f"(meta.json sensor.black_level): that level is not this sensor's, or the dark frame is not; every image "
         f"is measured from the dark frame, so each carries that offset",
         False,
+    )
+
+
+def _tone_curve_cause(press: Press) -> str:
+    """The likely cause of a dark frame above the black level when the LED images are not linear in the light
+    (:func:`.led_checks.recorded_response_slope` below ``tolerances.LINEAR_RESPONSE_SLOPE``): a tone curve, "" when
+    they are linear (or cannot be told).
+
+    Why: an 8-bit sRGB webcam with ``--black-level 0`` was refused as "an LED lit, or room light?" (s27 QA walk),
+    with every LED off. The sRGB curve is steepest at black (12.92 times the linear slope), so it lifts the
+    sensor's dark offset and noise, 0.07 % of full scale on the twin, to 2 of 255 steps, 0.8 %."""
+    from .led_checks import recorded_response_slope
+
+    slope = recorded_response_slope(press, range(len(press.leds)))
+    if slope is None or slope >= tolerances.LINEAR_RESPONSE_SLOPE:
+        return ""
+    return (
+        f", and the LED images are not linear in the light (each pixel's value grows as the LED model's light to "
+        f"the power {slope:.2f}; a linear capture of this dome: about 0.75): gamma-encoded (sRGB) frames? A tone "
+        f"curve is steepest at black (sRGB: 12.92 times the linear slope), so it lifts the sensor's small dark "
+        f"offset and noise above the black level. Capture raw, linear frames with the camera's gamma off "
+        f"(docs/formats.md, Cameras)"
     )

@@ -17,6 +17,7 @@ import numpy as np
 from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
+from ..core.compression import blockiness_line, compressed
 from ..core.leds import Led, led_shading
 from ..core.repeated_frames import repeated_leds, repeated_line
 from . import reuse
@@ -41,9 +42,9 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
 
 def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], list[int], list[int]]:
     """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, repeat
-    the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`) or are not
-    linear in the light (:func:`response_slope`), and the LEDs whose light is off the model's (weak, or brighter
-    than the others) or repeated: a solve leaves those out.
+    the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`), went through
+    JPEG (:func:`compression_notes`) or are not linear in the light (:func:`response_slope`), and the LEDs whose
+    light is off the model's (weak, or brighter than the others) or repeated: a solve leaves those out.
 
     Why leave them out: with a 30 % LED 7 in the twin's cube press, its misfit everywhere raised the contact
     finder's floor (the misfit's median) above the dent's misfit ("--roi auto found no contact"), and the whole gel
@@ -69,12 +70,13 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
         return [], [], []
     names = _image_names(press)
     lagged, repeated = _repeated_line(press, names)
+    jpeg_notes = compression_notes(press)
     live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
     image, model = _samples(press, leds, live) if len(live) >= 3 else (None, None)
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
-        return _said_repeated(lagged, left_out), left_out, []
-    notes = linearity_notes(press, live)
+        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, []
+    notes = jpeg_notes + linearity_notes(press, live)
     off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
@@ -139,6 +141,17 @@ def _said_repeated(line: str | None, left_out: list[int]) -> list[str]:
     return [f"{line}; {done} (they hold the light of the LED before them)"]
 
 
+def compression_notes(press: Press) -> list[str]:
+    """The warning when the LED images went through JPEG (:func:`nlipscalib.core.compression.blockiness` over
+    the gel above :data:`~nlipscalib.core.tolerances.JPEG_BLOCKINESS`: a camera streaming MJPEG); [] without an
+    undeformed surface to say where the gel is. ~4 ms on a 640x480 press of 12 LEDs (6 of its LED images, a
+    seventh of their rows and columns, one channel)."""
+    if press.reference is None:
+        return []
+    value = compressed(press.led_images, np.isfinite(press.reference.depth))
+    return [] if value is None else [blockiness_line(press.folder, "the LED images", value)]
+
+
 def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
     """A warning when the LED images are not linear in the light: the median over the sampled pixels of the
     log-log slope of each pixel's LED images against its modelled light is below
@@ -148,8 +161,7 @@ def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
     ones: an LED calibration on gamma-encoded images absorbs the tone curve (the twin's sRGB reference: LEDs
     moved 2.5 mm, "reliable", slope 0.75 against them, 0.34 against the design's) and the solve with it gave
     3.6 deg instead of 0.46."""
-    image, model = _samples(press, press.leds, [int(i) for i in live])
-    slope = None if image is None else response_slope(image, model)
+    slope = recorded_response_slope(press, live)
     if slope is None or slope >= tolerances.LINEAR_RESPONSE_SLOPE:
         return []
     return [
@@ -159,6 +171,14 @@ def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
         f"camera's gamma, auto exposure and auto white balance off (docs/formats.md, Cameras); the solve's normals "
         f"are wrong by degrees"
     ]
+
+
+def recorded_response_slope(press: Press, live: Sequence[int]) -> float | None:
+    """:func:`response_slope` of the ``live`` LED images (0-based) against the light of the LEDs the capture
+    records (meta.json), never calibrated ones (:func:`linearity_notes` says why); None without an undeformed
+    surface or with too few lit pixels."""
+    image, model = _samples(press, press.leds, [int(i) for i in live])
+    return None if image is None else response_slope(image, model)
 
 
 def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:

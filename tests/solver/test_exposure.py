@@ -166,3 +166,38 @@ def test_calibrate_leds_refuses_a_dead_led_and_a_lit_dark_frame_in_one_line_each
     write_png16(lit / "dark.png", read_png16(lit / "led_02.png"))
     with pytest.raises(CaptureError, match="dark.png: not a dark frame"):
         calibrate_leds(load_press(lit))
+
+
+def _srgb(linear):
+    """The sRGB transfer curve (IEC 61966-2-1) of linear values in [0, 1]."""
+    linear = np.clip(linear, 0, 1)
+    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+
+
+def test_a_gamma_encoded_dark_frame_above_the_black_level_is_put_down_to_the_tone_curve(tmp_path, capsys):
+    """An 8-bit sRGB webcam captured with ``--black-level 0`` was refused as "not a dark frame ... (an LED lit, or
+    room light?)" with every LED off (s27 QA walk): the curve is steepest at black (12.92 times), so the sensor's
+    0.07 % dark offset came out at 2 of 255 steps. With LED images that are not linear either, the refusal now
+    names the tone curve and the fix; with linear ones the same dark frame is still light (an LED, a room)."""
+    from nlipscalib.core.imageio import read_png16, write_png16
+
+    offset = 0.0007  # the twin's dark offset above its black level, of full scale
+
+    def with_dark(name, hook):
+        folder = synth.make_press(tmp_path / name, "none", lin_hook=hook)
+        dark = synth.to_stored(np.full(read_png16(folder / "dark.png").shape, _srgb(offset)))
+        write_png16(folder / "dark.png", dark)
+        return folder
+
+    encoded = with_dark("srgb", lambda lin: _srgb(lin + offset))
+    assert main(["solve", str(encoded), "--no-figures"]) == 2
+    err = capsys.readouterr().err
+    assert "dark.png: its median on the gel" in err and "above the black level" in err and "Traceback" not in err
+    assert "not linear in the light" in err and "gamma-encoded (sRGB)" in err and "LED lit" not in err
+    with pytest.raises(CaptureError, match=r"dark.png: .*gamma-encoded \(sRGB\) frames\? A tone curve"):
+        calibrate_leds(load_press(encoded))
+
+    linear = with_dark("linear", lambda lin: lin + _srgb(offset))
+    message, refused = dark_frame_fault(load_press(linear))
+    assert refused and "not a dark frame" in message and "(an LED lit, or room light?)" in message
+    assert "tone curve" not in message and "not linear" not in message
