@@ -28,10 +28,15 @@ class DenoiseConfig:
     iterations: int = 3
     """A-trous levels: taps 1, 2, 4, ... pixels apart (3 levels: a Gaussian-like footprint of sigma ~4.6 px)."""
     normal_deg: float = 4.0
-    """Normals this far apart (degrees) weigh exp(-1): the bounce light depends on the receiving normal."""
+    """A neighbour whose normal is this far (degrees) off the one that the two pixels' normals and their rates of
+    change predict weighs exp(-1): the bounce light depends on the receiving normal, so kinks stop the filter,
+    while the dome's smooth curvature passes at any resolution. (Normals merely apart stopped it on small frames:
+    at 64x48 the dome's normals turn ~2 deg a pixel, the filter left 4-5 times more noise than on a flat
+    surface, spatially correlated, and the solver read an undeformed capture as a press; benchmarks/RESULTS.md,
+    s27-noiselow.)"""
     depth_rel: float = 0.01
-    """A neighbour this far (relative to the depth: 1 % = 0.15 mm at 15 mm) off the plane that the pixel's
-    depth gradient predicts weighs exp(-1): slopes pass, steps (occlusion edges) do not."""
+    """A neighbour this far (relative to the depth: 1 % = 0.15 mm at 15 mm) off the surface that the two pixels'
+    depth gradients predict weighs exp(-1): slopes and curvature pass, steps (occlusion edges) do not."""
 
     def __post_init__(self):
         from ...core.errors import ConfigError
@@ -74,6 +79,7 @@ def denoise_indirect(
     inv_n = np.float32(1.0 / (1.0 - np.cos(np.radians(cfg.normal_deg))))
     inv_z = (1.0 / np.maximum(cfg.depth_rel * z, 1e-6)).astype(np.float32)
     gz_y, gz_x = _depth_gradient(z, valid)
+    gn_y, gn_x = _normal_gradient(n, valid)
     inside = valid.astype(np.float32)
     for level in range(cfg.iterations):
         step = 2**level
@@ -83,9 +89,12 @@ def denoise_indirect(
             for dx, wx in zip(range(-2, 3), _TAPS):
                 oy, ox = dy * step, dx * step
                 dst, src = _overlap(H, W, oy, ox)
-                cos = np.einsum("ijk,ijk->ij", n[dst], n[src])
-                off_plane = np.abs(z[src] - z[dst] - gz_y[dst] * oy - gz_x[dst] * ox)
-                w = np.exp(-np.maximum(1.0 - cos, 0.0) * inv_n - off_plane * inv_z[dst])
+                # off what the two pixels' own rates of change predict (trapezoid rule: exact on a quadratic
+                # field): a dome's curvature passes at any resolution, a kink or a step does not
+                dn = _off_trend(n, gn_y, gn_x, dst, src, oy, ox)
+                bend = 0.5 * np.einsum("ijk,ijk->ij", dn, dn)  # = 1 - cos for unit normals off no trend
+                off_plane = np.abs(_off_trend(z, gz_y, gz_x, dst, src, oy, ox))
+                w = np.exp(-bend * inv_n - off_plane * inv_z[dst])
                 w *= np.float32(wy * wx) * inside[src] * inside[dst]
                 den[dst] += w
                 taps.append((dst, src, w[..., None]))
@@ -132,6 +141,37 @@ def _depth_gradient(z: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.nd
         fwd, bwd = np.where(ok_f, fwd, np.inf), np.where(ok_b, bwd, np.inf)
         g = np.where(np.abs(fwd) < np.abs(bwd), fwd, bwd)
         out.append(np.where(np.isfinite(g), g, 0.0).astype(np.float32))
+    return out[0], out[1]
+
+
+def _off_trend(
+    f: np.ndarray,
+    g_y: np.ndarray,
+    g_x: np.ndarray,
+    dst: tuple[slice, slice],
+    src: tuple[slice, slice],
+    oy: int,
+    ox: int,
+) -> np.ndarray:
+    """f[src] - f[dst] less the change that the mean of their gradients (``g_y``, ``g_x``: per pixel) predicts over
+    the offset (``oy``, ``ox``) pixels; ``f`` (H, W) or (H, W, 3)."""
+    trend = (g_y[dst] + g_y[src]) * np.float32(oy / 2) + (g_x[dst] + g_x[src]) * np.float32(ox / 2)
+    return f[src] - f[dst] - trend
+
+
+def _normal_gradient(n: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(dn/drow, dn/dcol), each (H, W, 3) float32, per pixel: in each direction the one-sided difference of the
+    smaller change, so a pixel beside a kink keeps the rate of its own side (0 where neither side has surface)."""
+    out = []
+    for axis in (0, 1):
+        fwd = np.diff(n, axis=axis, append=np.take(n, [-1], axis=axis))
+        bwd = np.diff(n, axis=axis, prepend=np.take(n, [0], axis=axis))
+        ok_f = valid & np.roll(valid, -1, axis=axis)
+        ok_b = valid & np.roll(valid, 1, axis=axis)
+        size_f = np.where(ok_f, np.einsum("ijk,ijk->ij", fwd, fwd), np.inf)
+        size_b = np.where(ok_b, np.einsum("ijk,ijk->ij", bwd, bwd), np.inf)
+        g = np.where((size_f < size_b)[..., None], fwd, bwd)
+        out.append(np.where(np.isfinite(np.minimum(size_f, size_b))[..., None], g, 0.0).astype(np.float32))
     return out[0], out[1]
 
 
