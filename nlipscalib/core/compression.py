@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .sensor_response import CAMERA_SETTINGS_GUIDE
 from .tolerances import JPEG_BLOCKINESS
 
 BLOCK = 8
@@ -103,7 +104,7 @@ def blockiness_line(folder: object, what: str, value: float) -> str:
         f"block grid's edges as inside its blocks; an uncompressed frame about 1, the limit {JPEG_BLOCKINESS:g}): a "
         f"camera streaming MJPEG, or images saved as JPEG? Photometric stereo reads the steps as shading (the twin "
         f"at quality 85: contact AAE 1.0-1.2 deg instead of 0.47): capture an uncompressed format (YUYV or Y16: "
-        f"CAP_PROP_FOURCC) and store PNG (docs/formats.md, Cameras)"
+        f"CAP_PROP_FOURCC) and store PNG ({CAMERA_SETTINGS_GUIDE})"
     )
 
 

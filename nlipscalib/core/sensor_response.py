@@ -10,6 +10,10 @@ import numpy as np
 
 from .errors import CaptureError, ShapeError
 
+CAMERA_SETTINGS_GUIDE = 'docs/formats.md, "Cameras", in the nlipscalib source distribution or repository'
+"""Where messages about a camera's settings (gamma, exposure, white balance, compression) send a lab: a file a
+wheel's user does not have, so the message says where it is (tests/test_packaging.py)."""
+
 
 def white_level_of(bit_depth: int) -> int:
     """The stored white level of a ``bit_depth``-bit sensor: its largest value shifted up to 16 bits, as stored

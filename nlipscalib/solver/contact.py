@@ -31,6 +31,10 @@ from .sensor_fit import gain_fitted_misfit, gel_samples
 
 log = logging.getLogger(__name__)
 
+EDGE_CONTACT_PX = 2
+"""``--roi auto`` notes a contact whose misfitting pixels come within this many pixels of the image's border: its box
+has no undeformed gel beyond it on that side."""
+
 ANCHOR_MIN_FRACTION = 0.02
 """Anchoring is off (weak evidence) when fewer than this fraction of the gel's pixels fit the undeformed model at noise
 level (:func:`anchor_weights`); the auto ROI is then not widened for anchors either (:func:`widen_to_anchor`)."""
@@ -567,7 +571,11 @@ def contact_box(
             f"the gel's extent (its bounding box): a press that large, or LEDs / reference that do not fit this "
             f"sensor (try nlips calibrate-leds or --reference); pass --roi X0 Y0 W H to choose the region"
         )
-    at_edge = min(rows.min(), cols.min()) < margin or rows.max() + margin >= H or cols.max() + margin >= W
+    # the contact itself at the border, not its box's margin: at 64x48-96x72 (tests, the demo) every contact lies
+    # within the 8-pixel margin of some border, and the note fired on presses whose box holds undeformed gel
+    # all round (the lead, s27)
+    edge = EDGE_CONTACT_PX
+    at_edge = min(rows.min(), cols.min()) < edge or rows.max() + edge >= H or cols.max() + edge >= W
     if not note and at_edge:
         # the twin at polar 40-70 deg, 320x240: 0.1-0.4 deg more contact AAE than the whole gel (s27-unusual)
         note = (

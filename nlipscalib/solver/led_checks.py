@@ -20,6 +20,7 @@ from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
 from ..core.leds import Led, led_shading
 from ..core.repeated_frames import repeated_leds, repeated_line
+from ..core.sensor_response import CAMERA_SETTINGS_GUIDE
 from . import reuse
 
 WEAK_LED_GAIN = 0.6
@@ -168,8 +169,8 @@ def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
         f"{press.folder}: the LED images are not linear in the light: across the LEDs each pixel's value grows as "
         f"the LED model's light to the power {slope:.2f} (median; a linear capture of this dome: about 0.75, its "
         f"own interreflection included), as in gamma-encoded (sRGB) frames: capture raw, linear frames, with the "
-        f"camera's gamma, auto exposure and auto white balance off (docs/formats.md, Cameras); the solve's normals "
-        f"are wrong by degrees"
+        f"camera's gamma, auto exposure and auto white balance off ({CAMERA_SETTINGS_GUIDE}); the solve's "
+        f"normals are wrong by degrees"
     ]
 
 
@@ -283,5 +284,5 @@ def exposure_drift_note(press: Press, reference: Press) -> str | None:
         f"{press.folder}: the LED images are {drift.min():.2f}-{drift.max():.2f} times as bright as the undeformed "
         f"capture's {reference.folder} (per LED and channel, relative to their median; {names[worst]} the most "
         f"changed): auto exposure, gain or white balance on? Every image must be taken at one fixed exposure, gain "
-        f"and white balance (docs/formats.md, Cameras)"
+        f"and white balance ({CAMERA_SETTINGS_GUIDE})"
     )
