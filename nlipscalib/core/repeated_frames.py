@@ -37,7 +37,7 @@ def repeated_leds(linear: np.ndarray, gel: np.ndarray) -> list[tuple[int, float]
     :data:`~nlipscalib.core.tolerances.REPEATED_FRAME_DIFFERENCE`; empty when none is.
     """
     found = []
-    inside = _block_means(np.asarray(gel, np.float32)[..., None]) == 1  # blocks wholly on the gel
+    inside = _block_means(np.asarray(gel, np.float32)[..., None]) > 1 - 1e-6  # blocks wholly on the gel (rounding)
     previous = _block_means(linear[0])[inside] if len(linear) else None
     for index in range(1, len(linear)):
         current = _block_means(linear[index])[inside]
@@ -57,10 +57,14 @@ def _block_means(image: np.ndarray) -> np.ndarray:
     Block means, not a sliding box blur: they average the noise alike (b * b pixels each) at a twenty-fifth of the
     samples, and every solve runs this check on 12 full frames (a box blur with scipy.ndimage took 0.1 s and its
     import 0.09 s of a 640x480 solve's ~2 s, s27 lead)."""
+    import cv2  # imported by the solve already (core.camera)
+
     b = CAPTURE_CHECK_BLUR
     h, w = image.shape[0] // b, image.shape[1] // b
-    blocks = np.asarray(image[: h * b, : w * b], np.float32).reshape(h, b, w, b, image.shape[2])
-    return blocks.mean(axis=(1, 3, 4), dtype=np.float32)
+    # INTER_AREA at an integer factor is the b x b block mean (~1 ms at 640x480; NumPy's reduction over the
+    # reshaped block axes took 1.5 ms an image)
+    blocks = cv2.resize(np.asarray(image[: h * b, : w * b], np.float32), (w, h), interpolation=cv2.INTER_AREA)
+    return blocks.reshape(h, w, -1).mean(axis=2, dtype=np.float32)
 
 
 def repeated_line(folder: object, names: list[str], repeated: list[tuple[int, float]]) -> str:
