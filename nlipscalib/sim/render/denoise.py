@@ -15,6 +15,7 @@ SVGF, HPG 2017).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -132,16 +133,7 @@ def _apply(
 def _depth_gradient(z: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(dz/drow, dz/dcol) per pixel, mm per pixel: the smaller one-sided difference in each direction, so a
     pixel next to a step keeps the slope of its own side (0 where a side has no surface)."""
-    out = []
-    for axis in (0, 1):
-        fwd = np.diff(z, axis=axis, append=np.take(z, [-1], axis=axis))
-        bwd = np.diff(z, axis=axis, prepend=np.take(z, [0], axis=axis))
-        ok_f = valid & np.roll(valid, -1, axis=axis)
-        ok_b = valid & np.roll(valid, 1, axis=axis)
-        fwd, bwd = np.where(ok_f, fwd, np.inf), np.where(ok_b, bwd, np.inf)
-        g = np.where(np.abs(fwd) < np.abs(bwd), fwd, bwd)
-        out.append(np.where(np.isfinite(g), g, 0.0).astype(np.float32))
-    return out[0], out[1]
+    return _one_sided_gradient(z, valid, np.abs)
 
 
 def _off_trend(
@@ -162,16 +154,25 @@ def _off_trend(
 def _normal_gradient(n: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(dn/drow, dn/dcol), each (H, W, 3) float32, per pixel: in each direction the one-sided difference of the
     smaller change, so a pixel beside a kink keeps the rate of its own side (0 where neither side has surface)."""
+    return _one_sided_gradient(n, valid, lambda d: np.einsum("ijk,ijk->ij", d, d))
+
+
+def _one_sided_gradient(
+    f: np.ndarray, valid: np.ndarray, size: Callable[[np.ndarray], np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """(df/drow, df/dcol) of ``f`` (H, W) or (H, W, C) on the ``valid`` (H, W) pixels, float32: in each direction
+    the one-sided difference whose ``size`` (a per-pixel (H, W) measure of a difference) is the smaller, one whose
+    neighbour is off ``valid`` never taken, 0 where neither side is valid."""
     out = []
     for axis in (0, 1):
-        fwd = np.diff(n, axis=axis, append=np.take(n, [-1], axis=axis))
-        bwd = np.diff(n, axis=axis, prepend=np.take(n, [0], axis=axis))
-        ok_f = valid & np.roll(valid, -1, axis=axis)
-        ok_b = valid & np.roll(valid, 1, axis=axis)
-        size_f = np.where(ok_f, np.einsum("ijk,ijk->ij", fwd, fwd), np.inf)
-        size_b = np.where(ok_b, np.einsum("ijk,ijk->ij", bwd, bwd), np.inf)
-        g = np.where((size_f < size_b)[..., None], fwd, bwd)
-        out.append(np.where(np.isfinite(np.minimum(size_f, size_b))[..., None], g, 0.0).astype(np.float32))
+        fwd = np.diff(f, axis=axis, append=np.take(f, [-1], axis=axis))
+        bwd = np.diff(f, axis=axis, prepend=np.take(f, [0], axis=axis))
+        size_f = np.where(valid & np.roll(valid, -1, axis=axis), size(fwd), np.inf)
+        size_b = np.where(valid & np.roll(valid, 1, axis=axis), size(bwd), np.inf)
+        take_f, some = size_f < size_b, np.isfinite(np.minimum(size_f, size_b))
+        if f.ndim == 3:
+            take_f, some = take_f[..., None], some[..., None]
+        out.append(np.where(some, np.where(take_f, fwd, bwd), 0.0).astype(np.float32))
     return out[0], out[1]
 
 
