@@ -86,6 +86,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "to its own images where they reject the depth's, the depth kept: for steep relief such as a coin's; "
         "solver.normals in --config)",
     )
+    p.add_argument(
+        "--allow-sensor-misfit",
+        dest="check_sensor",
+        action="store_false",
+        help="solve a press whose images do not fit the sensor its meta.json and reference.npz describe (refused by "
+        "default: files copied from another sensor); for a sensor known to be built a few percent off its "
+        "description. The result's report.json records it (sensor_check, and the settings' check_sensor); "
+        "calibrating the LEDs (nlips calibrate-leds, --leds) usually fits such a sensor without it",
+    )
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
@@ -110,7 +119,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-SOLVER_KEYWORDS = ("dent_interreflection", "coating_albedo", "interreflection", "bounces")
+SOLVER_KEYWORDS = ("dent_interreflection", "coating_albedo", "interreflection", "bounces", "check_sensor")
 """Flags of this parser passed as keywords to solver.solve_press (add a flag above, then its name here)."""
 
 

@@ -39,6 +39,13 @@ def _blas():
     return _controller
 
 
+_limits_lock = threading.Lock()
+_active_limits: list[int] = []
+"""The counts of the :func:`blas_threads` blocks running now, on any thread (the limit applied is their least)."""
+_first_limiter = None
+"""threadpoolctl's limiter of the first of them: it holds the thread counts to restore when the last one ends."""
+
+
 @contextlib.contextmanager
 def blas_threads(count: int) -> Iterator[None]:
     """Limit the BLAS libraries' threads to ``count`` while the block runs.
@@ -47,9 +54,38 @@ def blas_threads(count: int) -> Iterator[None]:
     pyamg's setup). Multithreading those is a loss everywhere and a disaster on a loaded machine:
     on 2 shared cores a 250k-element dot product took 2.5 ms with 2 threads against 0.05 ms with one,
     and made up half of the solve time.
+
+    The limit is the process's, not the thread's: blocks running on several threads at once (a stream's frames
+    integrated on threads, :mod:`nlipscalib.learn.integrate`) share it, and the counts before the first are
+    restored when the last ends. Each block restoring what it found (threadpoolctl's own ``limit``) left BLAS on one
+    thread for good: the second block found the first's limit and restored it last (s28-small).
     """
-    with _blas().limit(limits=count):
+    _enter_limit(count)
+    try:
         yield
+    finally:
+        _exit_limit(count)
+
+
+def _enter_limit(count: int) -> None:
+    global _first_limiter
+    with _limits_lock:
+        if not _active_limits:
+            _first_limiter = _blas().limit(limits=count)
+        elif count < min(_active_limits):
+            _blas().limit(limits=count)  # its originals are the running blocks' limit: not restored
+        _active_limits.append(count)
+
+
+def _exit_limit(count: int) -> None:
+    global _first_limiter
+    with _limits_lock:
+        _active_limits.remove(count)
+        if not _active_limits:
+            _first_limiter.restore_original_limits()
+            _first_limiter = None
+        elif count < min(_active_limits):
+            _blas().limit(limits=min(_active_limits))  # the least of the blocks still running
 
 
 def blas_setting() -> tuple[int, ...]:

@@ -402,6 +402,13 @@ MAX_IMAGE_PIXELS = 1 << 24
 16-bit RGB) in 10 s, and a press of 13 such images with a meta.json of that camera size asked for 22 GB; OpenCV's
 own limit (``CV_IO_MAX_IMAGE_PIXELS``, 2^30 pixels: 6.4 GB at 16-bit RGB) ends in a traceback (docs/formats.md,
 "Files from others")."""
+MAX_TORCH_FILE_BYTES = 2 << 30
+"""A model file (``.pt``) or training checkpoint is read only up to this size (2 GiB); a larger one is refused
+before a byte is read (``learn.model.read_torch_file``). Why: the file was read whole, so a received 10 GB file
+filled memory first. Sizes made here (s28-small): the paper net (256-256-128) at 640x480 is 11.2 MB, nearly all
+its reference frame (41 bytes a pixel); the weights are 0.42 MB, 6.4 MB for 1024-1024-512 and 135 MB for
+4096-4096-4096 (``TrainConfig``'s widest layers). The largest model a user can make, 4096-4096-4096 for a camera of
+:data:`MAX_IMAGE_PIXELS`, is 0.82 GB; its checkpoint (weights, two Adam moments, the best weights) 0.54 GB."""
 REPEATED_FRAME_DIFFERENCE = 0.01
 """An LED image repeats the one captured before it (a camera whose frames lag the LED switch: the frame read after
 switching to LED k was still exposed under LED k-1) when the median over the lit gel of their relative difference,

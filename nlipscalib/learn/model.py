@@ -21,6 +21,7 @@ dark frame, depth, normals) that inference compares frames with and integrates d
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
@@ -391,7 +392,7 @@ def _read_torch_bytes(path: str | Path, what: str) -> tuple[object, bytes]:
     torch = _torch()
     path = Path(path)
     try:
-        data = path.read_bytes()
+        data = _read_bounded(path, what)
     except OSError as exc:
         raise CaptureError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     if not data:
@@ -409,6 +410,27 @@ def _read_torch_bytes(path: str | Path, what: str) -> tuple[object, bytes]:
             first = "it holds objects other than tensors and plain data"
         detail = f"{type(exc).__name__}: {first[:160]}" if first else type(exc).__name__
         raise CaptureError(f"{path}: damaged, not usable as {what} ({detail})") from None
+
+
+def _read_bounded(path: Path, what: str) -> bytes:
+    """The file's bytes; CaptureError naming it when it holds more than
+    :data:`~nlipscalib.core.tolerances.MAX_TORCH_FILE_BYTES` (said from its size before a byte is read; one growing
+    meanwhile is read no further than the limit)."""
+    from ..core.tolerances import MAX_TORCH_FILE_BYTES
+
+    with path.open("rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        # read(n) allocates n bytes first: the stat's size (+1 to see growth), not the limit (4 ms more CPU a read)
+        data = f.read(size + 1) if size <= MAX_TORCH_FILE_BYTES else b""
+        if len(data) > size:  # grown since the stat (another process writing it): on, to the limit at most
+            data += f.read(MAX_TORCH_FILE_BYTES + 1 - len(data))
+    if size > MAX_TORCH_FILE_BYTES or len(data) > MAX_TORCH_FILE_BYTES:
+        size = max(size, len(data))
+        raise CaptureError(
+            f"{path}: {size / 2**30:.1f} GiB, more than the {MAX_TORCH_FILE_BYTES / 2**30:.0f} GiB that "
+            f"{what} of the largest net at the largest camera size needs: not read (a file from elsewhere?)"
+        )
+    return data
 
 
 def _check_inflated_size(path: Path, data: bytes, what: str) -> None:

@@ -60,7 +60,7 @@ from .options import SolverOptions
 from .outer_loop import FILL_ROWS, UPDATE_ROWS, BoxCompensation, OuterLoop, led_channel_sum
 from .press_checks import check_modes, check_roi
 from .roi import box_mask, box_of, dent_focus
-from .sensor_fit import sensor_mismatch
+from .sensor_fit import sensor_check_note, sensor_mismatch
 
 if TYPE_CHECKING:  # named in hints only
     from ..core.leds import Leds
@@ -88,8 +88,8 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
     led_notes, left_out, misplaced = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
-    if misplaced:  # LED images out of order misfit any description: said by their own warning, not as a sensor's
-        kwargs.setdefault("check_sensor", False)
+    if misplaced and kwargs.get("check_sensor", True):  # out of order: they misfit any description (their warning)
+        kwargs["check_sensor"] = None
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
         log.warning("%s", moved)
         led_notes.append(moved)
@@ -213,7 +213,7 @@ def _solve_press(
     bounces: int = 1,
     max_outer: int = 2,
     outer_relaxation: float | str = "auto",
-    check_sensor: bool = True,
+    check_sensor: bool | None = True,
 ) -> SolveResult:
     """Solve one press.
 
@@ -241,8 +241,9 @@ def _solve_press(
     outer_relaxation : "auto" (per pixel 1 / (1 + indirect / direct light), see :func:`.outer_loop._relaxation`) or a
         number: the light of each outer pass is ``L + w (gathered - L)``; 1.0 is the plain iteration.
     check_sensor : refuse (CaptureError) a press whose images do not fit the sensor its meta.json and reference.npz
-        describe (:func:`.sensor_fit.sensor_mismatch`); False: solve it anyway. :func:`solve_press` sets it False
-        when the LED images show other LEDs' light (out of order: their own warning says so).
+        describe (:func:`.sensor_fit.sensor_mismatch`); False (``--allow-sensor-misfit``): solve it anyway, the
+        report's ``sensor_check`` saying what was overridden (and ``warnings``, when it was); None: not checked
+        (:func:`solve_press` sets it when the LED images show other LEDs' light: their own warning says so).
 
     Returns
     -------
@@ -277,6 +278,11 @@ def _solve_press(
     modelled = ref_capture is not None or interreflection != "off"
     if check_sensor and modelled and cmap is not None and (other := sensor_mismatch(cmap, press)):
         raise CaptureError(other)
+    sensor_note = None
+    if check_sensor is False:  # the user's override: what it overrode goes in the report (and a warning)
+        sensor_note = sensor_check_note(cmap, press) if modelled and cmap is not None else "off; not measured"
+        if sensor_note.startswith(str(press.folder)):
+            log.warning("%s", sensor_note)
     if model is not None and model.enabled and coating_albedo is not None:
         model = model.with_reflectance(coating_albedo)
     elif coating_albedo is not None:  # nothing for it to scale: say so rather than drop the user's value
@@ -316,6 +322,12 @@ def _solve_press(
     rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
     _report_loop(rep, loop)
     rep["anchoring"] = anchoring
+    if sensor_note is not None:
+        rep["sensor_check"] = sensor_note
+        if sensor_note.startswith(str(press.folder)):
+            rep["warnings"] = [*rep.get("warnings", []), sensor_note]
+    elif check_sensor is None:
+        rep["sensor_check"] = "not made: the LED images show other LEDs' light (their warning)"
     rep["anchored_pixels"] = int((weights > 1).sum()) if weights is not None else 0
     rep["dead_leds_contact"] = list(cmap.dead_leds) if cmap is not None else []
     rep["contact_seconds"] = t_contact

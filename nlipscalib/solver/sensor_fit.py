@@ -145,5 +145,25 @@ def sensor_mismatch(contact: ContactMap, press: Press) -> str | None:
         f"the gel with each LED's power fitted ({floor:.0f} times the noise; a sensor's own description: below "
         f"{limit:.0f} %). Were those files copied from another sensor? Put the files of the sensor that took the "
         f"images in the press folder; if they are its own, calibrate its LEDs on its undeformed capture (nlips "
-        f"calibrate-leds REF --out leds.json) and solve with --leds leds.json"
+        f"calibrate-leds REF --out leds.json) and solve with --leds leds.json; a sensor known to be built a few "
+        f"percent off its description is solved anyway with {OVERRIDE_FLAG}"
+    )
+
+
+OVERRIDE_FLAG = "--allow-sensor-misfit"
+"""The command-line flag that solves a press :func:`sensor_mismatch` refuses (``check_sensor=False`` of
+:func:`nlipscalib.solver.solve_press`), named by the refusal and recorded in the result's report."""
+
+
+def sensor_check_note(contact: ContactMap, press: Press) -> str:
+    """What a solve told to skip the check (``check_sensor=False``) records in its report (``sensor_check``): the
+    misfit it overrode, said as a warning too, or that the images fit their description all the same."""
+    share = contact.sensor_fit[0]
+    if sensor_mismatch(contact, press) is None:
+        fit = f"{share * 100:.1f} %" if np.isfinite(share) else "not measured"
+        return f"off ({OVERRIDE_FLAG}); nothing overridden: the images fit their sensor's description (misfit {fit})"
+    return (
+        f"{press.folder}: solved with {OVERRIDE_FLAG} although its images miss the model of the sensor its "
+        f"meta.json and reference.npz describe by {share * 100:.0f} % of their brightness (a sensor's own: below "
+        f"{tolerances.SENSOR_MISFIT_SHARE * 100:.0f} %): the surface is that description's"
     )

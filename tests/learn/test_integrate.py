@@ -606,3 +606,35 @@ def test_amg_solves_the_flat_pads_whole_gel_changed_as_superlu_does_and_reuses_i
     want, _ = integrate_on_dome(_tilted(ref, on_gel, 5, sigma=6), on_gel, geo)
     assert np.nanmax(np.abs(first - second)) > 0.05  # mm: the two frames differ
     np.testing.assert_allclose(second, want, atol=TORCH_INTEGRATION_PARITY_MM)
+
+
+def test_amg_hierarchies_shared_by_threads_give_the_single_thread_depths(monkeypatch):
+    # a stream may integrate frames on several threads at once: the hierarchy cache (two kept) is read, filled and
+    # trimmed by all of them, and each solve limits BLAS to one thread while it runs; two masks, four calls each at
+    # once, must give the depths of one thread, and leave BLAS's thread count as it was
+    from concurrent.futures import ThreadPoolExecutor
+
+    from nlipscalib.core.blas import blas_setting
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.learn import integrate
+
+    ref, rays, _, _, _ = _sphere_pressed_into_the_dome(_small(SensorDesign()), 0, 0, 4.0, 1.0)
+    geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
+    masks = (
+        _band(ref.depth.shape, 0, 50, 65) | _band(ref.depth.shape, 1, 75, 90),
+        _band(ref.depth.shape, 0, 30, 50) | _band(ref.depth.shape, 1, 40, 60),
+    )
+    frames = [(_tilted(ref, mask, seed), mask) for seed, mask in enumerate(masks)]
+    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", 0)
+    monkeypatch.setattr(integrate, "_amg_cache", cache := integrate.collections.OrderedDict())
+    alone = [integrate_on_dome(normals, mask, geo)[0] for normals, mask in frames]
+    assert len(cache) == 2 and np.nanmax(np.abs(alone[0] - alone[1])) > 0.1  # mm: two shapes, two surfaces
+    blas_before = blas_setting()
+    for rounds in range(3):
+        cache.clear()
+        with ThreadPoolExecutor(8) as pool:
+            depths = list(pool.map(lambda i: integrate_on_dome(*frames[i % 2], geo)[0], range(8)))
+        for i, depth in enumerate(depths):
+            np.testing.assert_array_equal(depth, alone[i % 2])
+        assert len(cache) == 2
+        assert blas_setting() == blas_before, rounds

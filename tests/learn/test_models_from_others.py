@@ -6,6 +6,7 @@ must be one CaptureError line naming the file and the problem, before onnxruntim
 """
 
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -221,3 +222,36 @@ def test_the_export_is_written_as_onnx_helper_writes_it_and_infer_does_not_impor
         "False",
         "False",
     ]
+
+
+def test_a_model_file_larger_than_any_model_made_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    """A received .pt is read whole: a 10 GB one filled memory first. Refused from its size (a sparse file: no
+    gigabytes on disk), and one that grows past the limit while it is read is read no further than the limit."""
+    import torch
+
+    from nlipscalib.core import tolerances
+    from nlipscalib.learn import model as model_module
+    from nlipscalib.learn.model import load_model, read_torch_file
+
+    huge = tmp_path / "huge.pt"
+    with huge.open("wb") as f:
+        f.write(b"PK\x03\x04")
+        f.truncate(10 << 30)  # 10 GiB, sparse
+    for read in (lambda p: read_torch_file(p, "an NLiPsNet model file"), load_model):
+        with pytest.raises(CaptureError) as caught:
+            read(huge)
+        message = str(caught.value)
+        assert message.startswith(f"{huge}: 10.0 GiB, more than the 2 GiB that an NLiPsNet model file") and (
+            "\n" not in message
+        ), message
+    assert tolerances.MAX_TORCH_FILE_BYTES >= 2 * 0.82e9  # twice the largest model a user can make (its docstring)
+
+    small = tmp_path / "small.pt"
+    torch.save({"w": torch.zeros(1000)}, small)
+    assert read_torch_file(small, "a model")["w"].shape == (1000,)
+    # stat says the file is small, its bytes keep coming (written meanwhile): read no further than the limit
+    monkeypatch.setattr(tolerances, "MAX_TORCH_FILE_BYTES", 100)
+    monkeypatch.setattr(model_module.os, "fstat", lambda fd: SimpleNamespace(st_size=10))
+    assert small.stat().st_size > 100
+    with pytest.raises(CaptureError, match=r"more than the 0 GiB"):
+        read_torch_file(small, "a model")

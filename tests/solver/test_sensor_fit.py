@@ -100,3 +100,38 @@ def test_the_twin_default_dome_with_the_fingertip_designs_files_is_refused_and_w
         share, _, _ = _sensor_fit(load_press(own))
         assert share < tolerances.SENSOR_MISFIT_SHARE / 2
     assert solve_press(load_press(press), options=QUICK).reconstructed.any()
+
+
+def test_the_refusal_names_its_override_and_the_override_solves_and_says_so_in_the_report(tmp_path, capsys, caplog):
+    """A dome built a few percent off its description, or one its lab knows better: `nlips solve
+    --allow-sensor-misfit` solves what is refused by default, and report.json says what was overridden (the
+    warning and ``sensor_check``) and records the setting (``check_sensor`` false in the provenance's settings)."""
+    import json
+
+    from nlipscalib.cli import main
+
+    cam = synth.camera()
+    _, pts, normals, _ = synth.surface(cam, "sphere", 1.5)
+    other = synth.render(cam, _other_ring(), pts, normals)
+    folder = synth.make_press(tmp_path / "copied_meta", "sphere", lin_hook=lambda lin: other)
+    config = tmp_path / "quick.toml"
+    config.write_text("max_iters = 2\n", encoding="utf-8")
+    assert main(["solve", str(folder), "--config", str(config), "--figures", "none"]) == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "not taken with the sensor" in line and line.endswith("solved anyway with --allow-sensor-misfit"), line
+    assert not (folder / "nlips" / "result.npz").exists()
+
+    flag = ["--allow-sensor-misfit", "--config", str(config), "--figures", "none"]
+    assert main(["solve", str(folder), *flag]) == 0
+    report = json.loads((folder / "nlips" / "report.json").read_text(encoding="utf-8"))
+    note = report["sensor_check"]
+    assert note.startswith(f"{folder}: solved with --allow-sensor-misfit although its images miss"), note
+    assert note in report["warnings"] and note in caplog.messages  # logged as a warning
+    assert report["provenance"]["settings"]["solver_keywords"]["check_sensor"] is False
+
+
+def test_the_override_on_a_press_that_fits_overrides_nothing_and_says_so(sphere_press):
+    result = solve_press(sphere_press, options=QUICK, check_sensor=False)
+    assert result.report["sensor_check"].startswith("off (--allow-sensor-misfit); nothing overridden: the images fit")
+    assert not any("allow-sensor-misfit" in w for w in result.report.get("warnings", []))
+    assert "sensor_check" not in solve_press(sphere_press, options=QUICK).report
