@@ -146,7 +146,8 @@ def sensor_mismatch(contact: ContactMap, press: Press) -> str | None:
         f"{limit:.0f} %). Were those files copied from another sensor? Put the files of the sensor that took the "
         f"images in the press folder; if they are its own, calibrate its LEDs on its undeformed capture (nlips "
         f"calibrate-leds REF --out leds.json) and solve with --leds leds.json; a sensor known to be built a few "
-        f"percent off its description is solved anyway with {OVERRIDE_FLAG}"
+        f"percent off its description is solved anyway with `nlips solve {OVERRIDE_FLAG}` (check_sensor=False in the "
+        f"API)"
     )
 
 
