@@ -856,20 +856,21 @@ def _peak_beyond_model_error(contact: ContactMap, model_error: Callable[[np.ndar
 
     Why: the ``capsule`` design's wall in the image corners comes within 4.4 mm of a 3.6 mm LED, where the point
     model misses 3-4 % of that LED's light, 3-5 times the floor of a 16-spp capture: its undeformed captures
-    peaked at 8.0-10.1 there and one of three was solved as a press (benchmarks/RESULTS.md, s28-capsule)."""
+    peaked at 8.0-10.1 there and 7 of 8 were solved as presses (benchmarks/RESULTS.md, s28-capsule)."""
     mis = np.nan_to_num(contact.misfit)
     floor = np.maximum(contact.expected, contact.median_misfit)
     strong = np.isfinite(contact.misfit) & (mis >= tolerances.NO_CONTACT_PEAK * floor)
-    ratio = np.where(strong, mis / np.maximum(floor, 1e-12), 0.0)
-    order = np.argsort(ratio, axis=None)[::-1][: int(strong.sum())]  # the strong pixels, strongest first
+    index = np.flatnonzero(strong)
+    # strongest first, sorting only those (the whole frame's argsort: 0.1 s at 640x480)
+    order = index[np.argsort(mis.flat[index] / np.maximum(floor.flat[index], 1e-12))[::-1]]
     peak = 0.0
     for part in (order[:_PEAK_FIRST], order[_PEAK_FIRST:]):
         if part.size == 0:
             break
         asked = np.zeros(strong.shape, bool)
         asked.flat[part] = True
-        known = np.hypot(floor, model_error(asked))
-        peak = max(peak, float((mis[asked] / np.maximum(known[asked], 1e-12)).max()))
+        known = np.hypot(floor.flat[part], model_error(asked).flat[part])
+        peak = max(peak, float((mis.flat[part] / np.maximum(known, 1e-12)).max()))
         if peak >= tolerances.NO_CONTACT_PEAK:
             break
     return peak
