@@ -122,7 +122,10 @@ s27-shapesfa, which found noise alone at 6.06 (the fingertip's undeformed captur
 with its design LEDs: solved as a press) and such dents caught by their patch (below). Only where the images fit
 the model to noise (:data:`MODEL_MISFIT_FLOOR`); a patch of hits of a dent's size away from the gel's edge
 (:data:`NO_CONTACT_PATCH`) is a contact however low its peak (the capsule design's cube and cylinder
-presses against their undeformed capture: 5.4 and 4.5; s27-shapesfa)."""
+presses against their undeformed capture: 5.4 and 4.5; s27-shapesfa). With the design's LED model as the undeformed
+model the peak is over the floor and the point-LED model's known error together (:data:`LED_EMITTER_RADIUS_MM`):
+the capsule's undeformed captures at 320x240 / 16 spp peaked at 8.0-10.1 in the image corners, where its wall comes
+within 4.4 mm of an LED, and 7 of 8 were solved as presses; over both, 6.1-6.7 (s28-capsule)."""
 NO_CONTACT_PATCH = 0.002
 """``--roi auto``: a press has a contact, whatever its peak (:data:`NO_CONTACT_PEAK`), when its hits at
 :data:`CONTACT_MISFIT_FACTOR` make a connected patch of at least this share of the gel's pixels that does not
@@ -183,7 +186,8 @@ LED_EMITTER_RADIUS_MM = 1.8
 """``--roi auto``: radius, mm, of the disk an LED is taken to emit from when judging the misfit along the gel's edge
 that the auto ROI leaves out (``solver.contact.point_led_misfit``): edge pixels that misfit by no more than
 :data:`CONTACT_MISFIT_FACTOR` times what the point-LED model leaves against such disks are that model's known error,
-not a fault, and are left out without a warning. Why: the solver models point LEDs; a WS2812B emits from a light
+not a fault, and are left out without a warning; likewise for :data:`NO_CONTACT_PEAK` (s28-capsule). Why: the
+solver models point LEDs; a WS2812B emits from a light
 cup about 3.6 mm across (the twin's default ``[led_package]``), whose light the point model misses by a few % where
 the gel comes within a few LED sizes of the LEDs -- the ``capsule`` design's wall at the image border (every press
 with the design LEDs warned of 1,300-2,000 edge pixels; rendered with point LEDs its undeformed capture has 22 hits

@@ -290,12 +290,10 @@ def _solve_press(
         log.warning("%s: --coating-albedo not used: %s", press.folder, why)
     t0 = time.perf_counter()
     # against a capture of the undeformed dome the model has no point-LED error to allow for at the edge
-    direct = 1.0 / (1.0 + model.share) if model is not None and model.enabled else 1.0
-    edge_error = (
-        None
-        if ref_capture is not None
-        else functools.partial(point_led_misfit, press, leds, cmap, direct_fraction=direct)
-    )
+    bounced = model.undeformed_light_per_led(press.camera.shape) if model is not None and model.enabled else None
+    edge_error = None
+    if ref_capture is None:
+        edge_error = functools.partial(point_led_misfit, press, leds, cmap, indirect_light=bounced)
     reference = ref_capture.folder if ref_capture is not None else None
     roi, roi_note = _region(press, roi, explicit_roi, cmap, reference, edge_error)
     if roi is not None:
