@@ -472,6 +472,7 @@ def contact_box(
     folder: str | Path = "",
     reference: str | Path | None = None,
     edge_model_error: Callable[[np.ndarray], np.ndarray] | None = None,
+    flank: bool = False,
 ) -> tuple[tuple[int, int, int, int], str]:
     """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome, and a note.
 
@@ -497,7 +498,8 @@ def contact_box(
     units) the undeformed model is known to leave there (:func:`point_led_misfit`); pixels within ``threshold``
     times it (and their floor, in quadrature: :func:`_beyond`) are that model's error, and unless the others hold
     :data:`tolerances.ROI_MIN_INNER_FRACTION` of the gel they are left out without a note (the box is the same
-    either way).
+    either way). ``flank``: the box grows over the contact's flank (:func:`grow_over_flank`; ``--roi auto``'s box,
+    not the outer loop's dent focus, whose wide margin holds it).
 
     Returns
     -------
@@ -555,6 +557,8 @@ def contact_box(
     H, W = shape
     y0, y1 = max(rows.min() - margin, 0), min(rows.max() + 1 + margin, H)
     x0, x1 = max(cols.min() - margin, 0), min(cols.max() + 1 + margin, W)
+    if flank:
+        x0, y0, x1, y1 = grow_over_flank(contact, region, (x0, y0, x1, y1), margin)
     if x1 - x0 < min_size:
         c = (x0 + x1) // 2
         x0, x1 = max(c - min_size // 2, 0), min(c + min_size // 2, W)
@@ -584,6 +588,74 @@ def contact_box(
             "whole gel)"
         )
     return box, note
+
+
+def grow_over_flank(
+    contact: ContactMap, region: np.ndarray, edges: tuple[int, int, int, int], margin: int, step: int = 4
+) -> tuple[int, int, int, int]:
+    """The box ``edges`` = (x0, y0, x1, y1), pixels (x1, y1 exclusive), grown side by side over a contact's flank:
+    while the ``step``-pixel strip beyond a side holds :data:`tolerances.ROI_FLANK_SHARE` of its gel pixels above
+    :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`contact_hits` (only those joined to ``region``, the
+    (H, W) bool pixels the box holds, and not within ``margin`` of the gel's edge), the side moves to ``margin``
+    pixels past that strip (within the image). The first strips lie :data:`tolerances.ROI_FLANK_START` of the
+    image's short side beyond ``region``; a box at the image's border on one axis does not grow along it.
+
+    Why: a large flat indenter (the 20 mm coin face) moves the gel far beyond the pixels hit at
+    :data:`tolerances.CONTACT_MISFIT_FACTOR`; its flank misfits by less, over many pixels, and the box of the hits
+    plus ``margin`` left out a third of the contact."""
+    gel = np.isfinite(contact.misfit)
+    floor = np.maximum(contact.expected, contact.median_misfit)
+    flank = np.nan_to_num(contact.misfit) > tolerances.ROI_FLANK_FACTOR * np.maximum(floor, 1e-9)
+    # not within a margin of the gel's edge or the image's border: the view there misfits more (the smoothing's fewer
+    # pixels, grazing angles), and a contact at the border grew along it from one end of the image to the other (the
+    # twin at polar 55 and 70)
+    flank &= masks.erode(gel, iterations=margin)
+    # only the flank that joins the box's contact: misfits that contact_box left out (noise-like, or too small beside
+    # the contact) are not its flank
+    labels, _ = masks.components(flank | region)
+    flank &= np.isin(labels, np.unique(labels[region]))
+    H, W = gel.shape
+    x0, y0, x1, y1 = edges
+    # the first strips lie a share of the view beyond the contact's hits: a plain dent's weak rim and the change of
+    # its light around it lie within (12 px at 320x240, 24 at 640x480)
+    start = max(int(round(tolerances.ROI_FLANK_START * min(H, W))) - margin, 0)
+    probe = [max(x0 - start, 0), max(y0 - start, 0), min(x1 + start, W), min(y1 + start, H)]
+    growing = [True] * 4
+    while any(growing):
+        for side in range(4):
+            # a box at the image's border on one axis grows not along it: the view there misfits more than the
+            # gel's edge band (the twin at polar 55: 1.5-3.7 times the floor 30 px in from the right border, the
+            # whole height), and the box grew along it from one end of the image to the other
+            along_border = (y0 == 0 or y1 == H) if side in (0, 2) else (x0 == 0 or x1 == W)
+            if not growing[side] or along_border:
+                growing[side] = False
+                continue
+            p = probe[side]
+            if side == 0:
+                strip = (slice(y0, y1), slice(max(p - step, 0), p))
+            elif side == 1:
+                strip = (slice(max(p - step, 0), p), slice(x0, x1))
+            elif side == 2:
+                strip = (slice(y0, y1), slice(p, min(p + step, W)))
+            else:
+                strip = (slice(p, min(p + step, H)), slice(x0, x1))
+            seen = int(gel[strip].sum())
+            if seen == 0 or flank[strip].sum() < tolerances.ROI_FLANK_SHARE * seen:
+                growing[side] = False
+                continue
+            if side == 0:
+                probe[0] = max(p - step, 0)
+                x0 = min(x0, max(probe[0] - margin, 0))
+            elif side == 1:
+                probe[1] = max(p - step, 0)
+                y0 = min(y0, max(probe[1] - margin, 0))
+            elif side == 2:
+                probe[2] = min(p + step, W)
+                x1 = max(x1, min(probe[2] + margin, W))
+            else:
+                probe[3] = min(p + step, H)
+                y1 = max(y1, min(probe[3] + margin, H))
+    return x0, y0, x1, y1
 
 
 def _noise_like(contact: ContactMap, labels: np.ndarray, count: int, join: int) -> np.ndarray:
