@@ -187,7 +187,7 @@ pixels (``solver.contact.grow_over_flank``). Why: a large flat indenter moves th
 20-30 px flank, and its box left out 36 % of its ground-truth contact (now 15 %: 7 % of its main patch, plus a patch
 the twin moves by 1 um along the image's bottom border, 9 % of the truth) (benchmarks/RESULTS.md, s28-bigedge)."""
 ROI_FLANK_SHARE = 0.03
-"""... the share of a strip's gel pixels above :data:`ROI_FLANK_FACTOR` times the floor that makes it flank; the first
+"""... the share of a strip's pixels above :data:`ROI_FLANK_FACTOR` times the floor that makes it flank; the first
 strip without it stops that side. Why: the coin's flank strips hold 6-81 %, 4-px strips of undeformed gel beside the
 twin's dents 0-3 %."""
 ROI_FLANK_START = 0.05

@@ -594,7 +594,7 @@ def grow_over_flank(
     contact: ContactMap, region: np.ndarray, edges: tuple[int, int, int, int], margin: int, step: int = 4
 ) -> tuple[int, int, int, int]:
     """The box ``edges`` = (x0, y0, x1, y1), pixels (x1, y1 exclusive), grown side by side over a contact's flank:
-    while the ``step``-pixel strip beyond a side holds :data:`tolerances.ROI_FLANK_SHARE` of its gel pixels above
+    while the ``step``-pixel strip beyond a side holds :data:`tolerances.ROI_FLANK_SHARE` of its pixels above
     :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`contact_hits` (only those joined to ``region``, the
     (H, W) bool pixels the box holds, and not within ``margin`` of the gel's edge), the side moves to ``margin``
     pixels past that strip (within the image). The first strips lie :data:`tolerances.ROI_FLANK_START` of the
@@ -603,59 +603,65 @@ def grow_over_flank(
     Why: a large flat indenter (the 20 mm coin face) moves the gel far beyond the pixels hit at
     :data:`tolerances.CONTACT_MISFIT_FACTOR`; its flank misfits by less, over many pixels, and the box of the hits
     plus ``margin`` left out a third of the contact."""
-    gel = np.isfinite(contact.misfit)
-    floor = np.maximum(contact.expected, contact.median_misfit)
-    flank = np.nan_to_num(contact.misfit) > tolerances.ROI_FLANK_FACTOR * np.maximum(floor, 1e-9)
-    # not within a margin of the gel's edge or the image's border: the view there misfits more (the smoothing's fewer
-    # pixels, grazing angles), and a contact at the border grew along it from one end of the image to the other (the
-    # twin at polar 55 and 70)
-    flank &= masks.erode(gel, iterations=margin)
-    # only the flank that joins the box's contact: misfits that contact_box left out (noise-like, or too small beside
-    # the contact) are not its flank
-    labels, _ = masks.components(flank | region)
-    flank &= np.isin(labels, np.unique(labels[region]))
-    H, W = gel.shape
-    x0, y0, x1, y1 = edges
+    H, W = region.shape
+    box = list(edges)
     # the first strips lie a share of the view beyond the contact's hits: a plain dent's weak rim and the change of
     # its light around it lie within (12 px at 320x240, 24 at 640x480)
     start = max(int(round(tolerances.ROI_FLANK_START * min(H, W))) - margin, 0)
-    probe = [max(x0 - start, 0), max(y0 - start, 0), min(x1 + start, W), min(y1 + start, H)]
+    probe = [max(box[0] - start, 0), max(box[1] - start, 0), min(box[2] + start, W), min(box[3] + start, H)]
+    over = _over_flank_level(contact)
+    # a plain dent (most presses): no first strip shows flank even before the checks below, which cost a whole
+    # frame's erosion and labelling (~25 ms at 640x480)
+    if not any(_is_flank(over, _strip(side, probe[side], box, step, (H, W))) for side in range(4)):
+        return edges
+    gel = np.isfinite(contact.misfit)
+    # not within a margin of the gel's edge or the image's border: the view there misfits more (the smoothing's fewer
+    # pixels, grazing angles); only the flank that joins the box's contact: misfits that contact_box left out
+    # (noise-like, or too small beside the contact) are not its flank
+    over &= masks.erode(gel, iterations=margin)
+    labels, _ = masks.components(over | region)
+    over &= np.isin(labels, np.unique(labels[region]))
     growing = [True] * 4
     while any(growing):
         for side in range(4):
             # a box at the image's border on one axis grows not along it: the view there misfits more than the
             # gel's edge band (the twin at polar 55: 1.5-3.7 times the floor 30 px in from the right border, the
             # whole height), and the box grew along it from one end of the image to the other
-            along_border = (y0 == 0 or y1 == H) if side in (0, 2) else (x0 == 0 or x1 == W)
-            if not growing[side] or along_border:
+            along_border = (box[1] == 0 or box[3] == H) if side in (0, 2) else (box[0] == 0 or box[2] == W)
+            if along_border or not (growing[side] and _is_flank(over, _strip(side, probe[side], box, step, (H, W)))):
                 growing[side] = False
                 continue
-            p = probe[side]
-            if side == 0:
-                strip = (slice(y0, y1), slice(max(p - step, 0), p))
-            elif side == 1:
-                strip = (slice(max(p - step, 0), p), slice(x0, x1))
-            elif side == 2:
-                strip = (slice(y0, y1), slice(p, min(p + step, W)))
-            else:
-                strip = (slice(p, min(p + step, H)), slice(x0, x1))
-            seen = int(gel[strip].sum())
-            if seen == 0 or flank[strip].sum() < tolerances.ROI_FLANK_SHARE * seen:
-                growing[side] = False
-                continue
-            if side == 0:
-                probe[0] = max(p - step, 0)
-                x0 = min(x0, max(probe[0] - margin, 0))
-            elif side == 1:
-                probe[1] = max(p - step, 0)
-                y0 = min(y0, max(probe[1] - margin, 0))
-            elif side == 2:
-                probe[2] = min(p + step, W)
-                x1 = max(x1, min(probe[2] + margin, W))
-            else:
-                probe[3] = min(p + step, H)
-                y1 = max(y1, min(probe[3] + margin, H))
-    return x0, y0, x1, y1
+            outward = -1 if side < 2 else 1
+            probe[side] = int(np.clip(probe[side] + outward * step, 0, (W, H)[side % 2]))
+            moved = int(np.clip(probe[side] + outward * margin, 0, (W, H)[side % 2]))
+            box[side] = min(box[side], moved) if side < 2 else max(box[side], moved)
+    return box[0], box[1], box[2], box[3]
+
+
+def _over_flank_level(contact: ContactMap) -> np.ndarray:
+    """(H, W) bool -- misfit above :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`contact_hits`."""
+    floor = np.maximum(contact.expected, contact.median_misfit)
+    return np.nan_to_num(contact.misfit) > tolerances.ROI_FLANK_FACTOR * np.maximum(floor, 1e-9)
+
+
+def _strip(side: int, probe: int, box: list[int], step: int, shape: tuple[int, int]) -> tuple[slice, slice]:
+    """(rows, cols) slices of the ``step``-pixel strip beyond ``box`` = [x0, y0, x1, y1]'s ``side`` (0 left, 1 top,
+    2 right, 3 bottom) that starts at ``probe`` (outward), spanning the box along that side, within ``shape``."""
+    H, W = shape
+    x0, y0, x1, y1 = box
+    if side == 0:
+        return slice(y0, y1), slice(max(probe - step, 0), probe)
+    if side == 1:
+        return slice(max(probe - step, 0), probe), slice(x0, x1)
+    if side == 2:
+        return slice(y0, y1), slice(probe, min(probe + step, W))
+    return slice(probe, min(probe + step, H)), slice(x0, x1)
+
+
+def _is_flank(over: np.ndarray, strip: tuple[slice, slice]) -> bool:
+    """Whether :data:`tolerances.ROI_FLANK_SHARE` of the strip's pixels are ``over`` (False for an empty strip)."""
+    part = over[strip]
+    return part.size > 0 and int(part.sum()) >= tolerances.ROI_FLANK_SHARE * part.size
 
 
 def _noise_like(contact: ContactMap, labels: np.ndarray, count: int, join: int) -> np.ndarray:
