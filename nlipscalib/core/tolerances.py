@@ -182,6 +182,23 @@ Why: a 6 mm sphere 3 mm deep (the gel's thickness) deforms the gel far beyond th
 depth RMSE 0.25 mm (the whole gel: 0.88 deg); widened to 16 %, 0.98 deg and 0.09 mm. The twin's other presses hold
 17-44 % at the 8-pixel margin (coin1 17 %, cube1 23 %, sphere1 27 %) and keep their box (benchmarks/RESULTS.md,
 s27-unusual)."""
+ROI_FLANK_FACTOR = 1.5
+"""``--roi auto``: a pixel shows a contact's flank when its misfit exceeds this many times its floor (the floor of
+:data:`CONTACT_MISFIT_FACTOR`); the box grows while the 4-px strip beyond it holds :data:`ROI_FLANK_SHARE` of such
+pixels (``solver.contact.grow_over_flank``). Why: a large flat indenter moves the gel far beyond the pixels hit at
+:data:`CONTACT_MISFIT_FACTOR`: the 20 mm coin face 0.3 mm deep (320x240 twin) misfits by 1.5-4 times the floor over a
+20-30 px flank, and its box left out 36 % of its ground-truth contact (now 15 %: 7 % of its main patch, plus a patch
+the twin moves by 1 um along the image's bottom border, 9 % of the truth) (benchmarks/RESULTS.md, s28-bigedge)."""
+ROI_FLANK_SHARE = 0.03
+"""... the share of a strip's pixels above :data:`ROI_FLANK_FACTOR` times the floor that makes it flank; the first
+strip without it stops that side. Why: the coin's flank strips hold 6-81 %, 4-px strips of undeformed gel beside the
+twin's dents 0-3 %."""
+ROI_FLANK_START = 0.05
+"""... the first strips lie this share of the image's short side beyond the contact's hits (12 px at 320x240, 24 at
+640x480). Why: closer in, a plain dent's weak rim and the change of its light around it pass as flank: at 0.033 the
+640x480 coin1 box grew 238x238 -> 238x262 px with its truth boxed already, and its contact AAE went 4.642 -> 4.673
+deg with a larger box; at 0.05 sphere1, cube1 and coin1 keep their boxes, the 20 mm coin boxes 93 % of its main
+patch (95 % at 0.033-0.04 with the factor 1.4, coin1 then 261x261)."""
 LED_EMITTER_RADIUS_MM = 1.8
 """``--roi auto``: radius, mm, of the disk an LED is taken to emit from when judging the misfit along the gel's edge
 that the auto ROI leaves out (``solver.contact.point_led_misfit``): edge pixels that misfit by no more than

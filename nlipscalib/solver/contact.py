@@ -472,6 +472,7 @@ def contact_box(
     folder: str | Path = "",
     reference: str | Path | None = None,
     edge_model_error: Callable[[np.ndarray], np.ndarray] | None = None,
+    flank: bool = False,
 ) -> tuple[tuple[int, int, int, int], str]:
     """Bounding box (x0, y0, w, h) of the pixels whose images disagree with the undeformed dome, and a note.
 
@@ -497,7 +498,8 @@ def contact_box(
     units) the undeformed model is known to leave there (:func:`point_led_misfit`); pixels within ``threshold``
     times it (and their floor, in quadrature: :func:`_beyond`) are that model's error, and unless the others hold
     :data:`tolerances.ROI_MIN_INNER_FRACTION` of the gel they are left out without a note (the box is the same
-    either way).
+    either way). ``flank``: the box grows over the contact's flank (:func:`grow_over_flank`; ``--roi auto``'s box,
+    not the outer loop's dent focus, whose wide margin holds it).
 
     Returns
     -------
@@ -555,6 +557,8 @@ def contact_box(
     H, W = shape
     y0, y1 = max(rows.min() - margin, 0), min(rows.max() + 1 + margin, H)
     x0, x1 = max(cols.min() - margin, 0), min(cols.max() + 1 + margin, W)
+    if flank:
+        x0, y0, x1, y1 = grow_over_flank(contact, region, (x0, y0, x1, y1), margin)
     if x1 - x0 < min_size:
         c = (x0 + x1) // 2
         x0, x1 = max(c - min_size // 2, 0), min(c + min_size // 2, W)
@@ -584,6 +588,80 @@ def contact_box(
             "whole gel)"
         )
     return box, note
+
+
+def grow_over_flank(
+    contact: ContactMap, region: np.ndarray, edges: tuple[int, int, int, int], margin: int, step: int = 4
+) -> tuple[int, int, int, int]:
+    """The box ``edges`` = (x0, y0, x1, y1), pixels (x1, y1 exclusive), grown side by side over a contact's flank:
+    while the ``step``-pixel strip beyond a side holds :data:`tolerances.ROI_FLANK_SHARE` of its pixels above
+    :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`contact_hits` (only those joined to ``region``, the
+    (H, W) bool pixels the box holds, and not within ``margin`` of the gel's edge), the side moves to ``margin``
+    pixels past that strip (within the image). The first strips lie :data:`tolerances.ROI_FLANK_START` of the
+    image's short side beyond ``region``; a box at the image's border on one axis does not grow along it.
+
+    Why: a large flat indenter (the 20 mm coin face) moves the gel far beyond the pixels hit at
+    :data:`tolerances.CONTACT_MISFIT_FACTOR`; its flank misfits by less, over many pixels, and the box of the hits
+    plus ``margin`` left out a third of the contact."""
+    H, W = region.shape
+    box = list(edges)
+    # the first strips lie a share of the view beyond the contact's hits: a plain dent's weak rim and the change of
+    # its light around it lie within (12 px at 320x240, 24 at 640x480)
+    start = max(int(round(tolerances.ROI_FLANK_START * min(H, W))) - margin, 0)
+    probe = [max(box[0] - start, 0), max(box[1] - start, 0), min(box[2] + start, W), min(box[3] + start, H)]
+    over = _over_flank_level(contact)
+    # a plain dent (most presses): no first strip shows flank even before the checks below, which cost a whole
+    # frame's erosion and labelling (~25 ms at 640x480)
+    if not any(_is_flank(over, _strip(side, probe[side], box, step, (H, W))) for side in range(4)):
+        return edges
+    gel = np.isfinite(contact.misfit)
+    # not within a margin of the gel's edge or the image's border: the view there misfits more (the smoothing's fewer
+    # pixels, grazing angles); only the flank that joins the box's contact: misfits that contact_box left out
+    # (noise-like, or too small beside the contact) are not its flank
+    over &= masks.erode(gel, iterations=margin)
+    labels, _ = masks.components(over | region)
+    over &= np.isin(labels, np.unique(labels[region]))
+    growing = [True] * 4
+    while any(growing):
+        for side in range(4):
+            # a box at the image's border on one axis grows not along it: the view there misfits more than the
+            # gel's edge band (the twin at polar 55: 1.5-3.7 times the floor 30 px in from the right border, the
+            # whole height), and the box grew along it from one end of the image to the other
+            along_border = (box[1] == 0 or box[3] == H) if side in (0, 2) else (box[0] == 0 or box[2] == W)
+            if along_border or not (growing[side] and _is_flank(over, _strip(side, probe[side], box, step, (H, W)))):
+                growing[side] = False
+                continue
+            outward = -1 if side < 2 else 1
+            probe[side] = int(np.clip(probe[side] + outward * step, 0, (W, H)[side % 2]))
+            moved = int(np.clip(probe[side] + outward * margin, 0, (W, H)[side % 2]))
+            box[side] = min(box[side], moved) if side < 2 else max(box[side], moved)
+    return box[0], box[1], box[2], box[3]
+
+
+def _over_flank_level(contact: ContactMap) -> np.ndarray:
+    """(H, W) bool -- misfit above :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`contact_hits`."""
+    floor = np.maximum(contact.expected, contact.median_misfit)
+    return np.nan_to_num(contact.misfit) > tolerances.ROI_FLANK_FACTOR * np.maximum(floor, 1e-9)
+
+
+def _strip(side: int, probe: int, box: list[int], step: int, shape: tuple[int, int]) -> tuple[slice, slice]:
+    """(rows, cols) slices of the ``step``-pixel strip beyond ``box`` = [x0, y0, x1, y1]'s ``side`` (0 left, 1 top,
+    2 right, 3 bottom) that starts at ``probe`` (outward), spanning the box along that side, within ``shape``."""
+    H, W = shape
+    x0, y0, x1, y1 = box
+    if side == 0:
+        return slice(y0, y1), slice(max(probe - step, 0), probe)
+    if side == 1:
+        return slice(max(probe - step, 0), probe), slice(x0, x1)
+    if side == 2:
+        return slice(y0, y1), slice(probe, min(probe + step, W))
+    return slice(probe, min(probe + step, H)), slice(x0, x1)
+
+
+def _is_flank(over: np.ndarray, strip: tuple[slice, slice]) -> bool:
+    """Whether :data:`tolerances.ROI_FLANK_SHARE` of the strip's pixels are ``over`` (False for an empty strip)."""
+    part = over[strip]
+    return part.size > 0 and int(part.sum()) >= tolerances.ROI_FLANK_SHARE * part.size
 
 
 def _noise_like(contact: ContactMap, labels: np.ndarray, count: int, join: int) -> np.ndarray:

@@ -362,7 +362,12 @@ def _region(
     if cmap is None:
         raise CaptureError(f"{press.folder}: --roi auto needs the capture's reference (undeformed dome)")
     box, note = contact_box(
-        cmap, press.camera.shape, folder=press.folder, reference=reference, edge_model_error=edge_model_error
+        cmap,
+        press.camera.shape,
+        folder=press.folder,
+        reference=reference,
+        edge_model_error=edge_model_error,
+        flank=True,
     )
     if note:
         log.warning("%s: %s", press.folder, note)

@@ -723,3 +723,70 @@ def test_a_corner_misfit_the_point_led_model_explains_is_no_contact_and_a_dent_b
     assert no_contact(_contact_map(dent), model_error=model_error(4.0)) is None
     inside = np.where(_disk(shape, (60, 80), 2), 20.0, misfit)  # a speck of a dent inside: 13 px, no patch
     assert no_contact(_contact_map(inside), model_error=model_error(4.0)) is None
+
+
+def _flank_press(shape=(120, 160), centre=(60, 80)):
+    """A large flat indenter's misfit: a core hit at 10 times the floor and a wide flank at 2 times it, below the
+    hits' 3 (the twin's 20 mm coin face: 1.5-4 times the floor over 20-30 px beyond its hits; s28-bigedge)."""
+    misfit = np.ones(shape)
+    flank = _disk(shape, centre, 35)
+    misfit[flank] = 2.0
+    misfit[_disk(shape, centre, 15)] = 10.0
+    return misfit, flank
+
+
+def _boxed_share(box, pixels):
+    from nlipscalib.solver.roi import box_mask
+
+    return (box_mask(box, pixels.shape) & pixels).sum() / pixels.sum()
+
+
+def test_auto_roi_grows_over_a_large_contacts_flank():
+    from nlipscalib.solver.contact import contact_box
+
+    misfit, flank = _flank_press()
+    cmap = _contact_map(misfit)
+    hits_only = contact_box(cmap, misfit.shape)[0]  # the outer loop's focus: the hits and the margin
+    box, note = contact_box(cmap, misfit.shape, flank=True)
+    assert _boxed_share(hits_only, flank) < 0.6  # the coin: 64 % of its truth
+    assert _boxed_share(box, flank) >= 0.95
+    x0, y0, w, h = box
+    assert (x0, y0) >= (80 - 35 - 8 - 4, 60 - 35 - 8 - 4) and (x0 + w, y0 + h) <= (80 + 36 + 8 + 4, 60 + 36 + 8 + 4)
+    assert note == ""
+
+
+def test_auto_roi_keeps_a_plain_dents_box_whose_weak_rim_lies_within_its_margin():
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 80), 17)] = 2.0  # the rim: 2 px at twice the floor
+    misfit[_disk(shape, (60, 80), 15)] = 10.0
+    cmap = _contact_map(misfit)
+    assert contact_box(cmap, shape, flank=True) == contact_box(cmap, shape)
+
+
+def test_auto_roi_does_not_grow_along_the_image_border_that_its_contact_reaches():
+    # the twin at polar 55: the view misfits 1.5-3.7 times the floor 30 px in from the right border, the whole
+    # height; the edge contact's box grew from the image's top to its bottom (s28-bigedge)
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[:, 125:] = 2.0
+    misfit[_disk(shape, (60, 150), 20)] = 10.0
+    cmap = _contact_map(misfit)
+    box = contact_box(cmap, shape, flank=True)[0]
+    plain = contact_box(cmap, shape)[0]
+    assert (box[1], box[3]) == (plain[1], plain[3]) == (60 - 20 - 8, 41 + 16)
+
+
+def test_auto_roi_box_grows_over_the_flank_only_where_the_flank_joins_the_contact():
+    from nlipscalib.solver.contact import contact_box
+
+    shape = (120, 160)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (60, 80), 15)] = 10.0
+    misfit[25:95, 104:112] = 2.0  # misfit beside the box, apart from the contact (a gap of 9 px)
+    cmap = _contact_map(misfit)
+    assert contact_box(cmap, shape, flank=True) == contact_box(cmap, shape)
