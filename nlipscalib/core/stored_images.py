@@ -24,6 +24,7 @@ from .imageio import decode_png16, read_png_bytes
 from .prefetch import stop as stop_prefetching
 from .prefetch import take as take_prefetched
 from .press_meta import META_FILE, existing_file
+from .sensor_response import undo_tone_curve
 
 
 class Loader:
@@ -77,9 +78,18 @@ class StoredImages(Loader):
     """
 
     def __init__(
-        self, paths: Sequence[Path], data: Sequence[np.ndarray], camera: Camera, stacked: bool, named: bool = True
+        self,
+        paths: Sequence[Path],
+        data: Sequence[np.ndarray],
+        camera: Camera,
+        stacked: bool,
+        named: bool = True,
+        tone_curve: np.ndarray | None = None,
     ):
         self._paths, self._data, self._camera, self._stacked = list(paths), list(data), camera, stacked
+        self._tone_curve = tone_curve
+        """(65536,) uint16 table undoing the camera's tone curve after decoding (``SensorResponse.tone_curve``), or
+        None (a linear camera)."""
         self._images, self._lock = None, threading.Lock()
         self.digest = _bytes_digest(self._data) if named else None
         """Digest of the files' raw bytes, in order; None when not ``named`` (images decoded at once: ~25 ms
@@ -122,6 +132,7 @@ def decode_together(*sources: StoredImages) -> list[np.ndarray]:
             stop_prefetching()  # what the prefetch has not begun is decoded here, on two threads
             in_threads(jobs)
         for src, out in zip(todo, images):  # only now: a failed decode leaves the source undecoded
+            undo_tone_curve(out, src._tone_curve)  # once, here: every reader gets values linear in the light
             src._images = out if src._stacked else out[0]
             src._data = []  # the bytes are no longer needed
         return [src._images for src in sources]
@@ -179,11 +190,12 @@ class LoadedOnRead:
         obj.__dict__[f"{self.name}_source"] = value if isinstance(value, Loader) else None
 
 
-def load_image(folder: Path, name: str, camera: Camera) -> np.ndarray:
+def load_image(folder: Path, name: str, camera: Camera, tone_curve: np.ndarray | None = None) -> np.ndarray:
     """(H, W, 3) uint16 of the image ``name`` that meta.json lists in ``folder``, read, decoded and checked
-    against the camera (:func:`_decode_image`); CaptureError naming the file."""
+    against the camera (:func:`_decode_image`), the camera's ``tone_curve`` undone (:class:`StoredImages`);
+    CaptureError naming the file."""
     path = existing_file(folder, name)
-    return _decode_image(path, read_png_bytes(path), camera)
+    return undo_tone_curve(_decode_image(path, read_png_bytes(path), camera), tone_curve)
 
 
 def _decode_image(path: Path, data: np.ndarray, camera: Camera, out: np.ndarray | None = None) -> np.ndarray:

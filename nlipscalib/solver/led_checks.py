@@ -20,7 +20,7 @@ from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
 from ..core.leds import Led, led_shading
 from ..core.repeated_frames import repeated_leds, repeated_line
-from ..core.sensor_response import CAMERA_SETTINGS_GUIDE
+from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
 from . import reuse
 
 WEAK_LED_GAIN = 0.6
@@ -169,8 +169,8 @@ def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
         f"{press.folder}: the LED images are not linear in the light: across the LEDs each pixel's value grows as "
         f"the LED model's light to the power {slope:.2f} (median; a linear capture of this dome: about 0.75, its "
         f"own interreflection included), as in gamma-encoded (sRGB) frames: capture raw, linear frames, with the "
-        f"camera's gamma, auto exposure and auto white balance off ({CAMERA_SETTINGS_GUIDE}); the solve's "
-        f"normals are wrong by degrees"
+        f"camera's gamma, auto exposure and auto white balance off ({CAMERA_SETTINGS_GUIDE}), {DECLARE_TONE_CURVE}; "
+        f"the solve's normals are wrong by degrees"
     ]
 
 
