@@ -87,6 +87,9 @@ def test_a_declared_srgb_capture_loads_and_solves_as_its_linear_twin(tmp_path):
     assert np.abs(declared.dark.astype(int) - linear.dark).max() <= 1
     table = declared.response.tone_curve()
     assert np.array_equal(declared.tricolor, table[read_png16(encoded / "tricolor.png")])  # undone too
+    from nlipscalib.learn.infer import load_tricolor  # nlips infer's own reading of a press folder: alike
+
+    assert np.array_equal(load_tricolor(encoded)[0], declared.linear(declared.tricolor))
 
     # the linearity check: silent on the declared capture, names the flag on the undeclared one
     assert linearity_notes(declared, range(12)) == []
