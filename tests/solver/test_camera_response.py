@@ -123,3 +123,12 @@ def test_a_declared_curve_is_written_as_format_version_2_and_a_linear_capture_as
         # a linear capture's meta.json is what it was before the field (readers before it read it alike)
         assert ("camera_response" in meta["sensor"]) == (version == 2)
         assert load_press(folder).response == response
+
+
+def test_linear_frames_declared_srgb_are_warned_about(tmp_path):
+    """Undoing a curve the frames never had bends them the other way: the default twin's linear sphere1 declared
+    sRGB solved to 20 deg without a word (slope 1.57 against the recorded LEDs, linear 0.75)."""
+    folder = _declare(synth.make_press(tmp_path / "p"), "srgb")
+    said = linearity_notes(load_press(folder), range(12))
+    assert len(said) == 1 and "declares the camera's srgb tone curve" in said[0] and "linear already" in said[0]
+    assert str(folder) in said[0]
