@@ -124,7 +124,7 @@ def decode_together(*sources: StoredImages) -> list[np.ndarray]:
         # each image decoded straight into its place in the result: no per-image copies, no np.stack
         images = [np.empty((len(src._paths),) + src._camera.shape + (3,), np.uint16) for src in todo]
         jobs = [
-            (_decode_image, p, d, src._camera, out[i])
+            (_decode_image, p, d, src._camera, out[i], src._tone_curve)
             for src, out in zip(todo, images)
             for i, (p, d) in enumerate(zip(src._paths, src._data))
         ]
@@ -132,7 +132,6 @@ def decode_together(*sources: StoredImages) -> list[np.ndarray]:
             stop_prefetching()  # what the prefetch has not begun is decoded here, on two threads
             in_threads(jobs)
         for src, out in zip(todo, images):  # only now: a failed decode leaves the source undecoded
-            undo_tone_curve(out, src._tone_curve)  # once, here: every reader gets values linear in the light
             src._images = out if src._stacked else out[0]
             src._data = []  # the bytes are no longer needed
         return [src._images for src in sources]
@@ -195,12 +194,15 @@ def load_image(folder: Path, name: str, camera: Camera, tone_curve: np.ndarray |
     against the camera (:func:`_decode_image`), the camera's ``tone_curve`` undone (:class:`StoredImages`);
     CaptureError naming the file."""
     path = existing_file(folder, name)
-    return undo_tone_curve(_decode_image(path, read_png_bytes(path), camera), tone_curve)
+    return _decode_image(path, read_png_bytes(path), camera, tone_curve=tone_curve)
 
 
-def _decode_image(path: Path, data: np.ndarray, camera: Camera, out: np.ndarray | None = None) -> np.ndarray:
+def _decode_image(
+    path: Path, data: np.ndarray, camera: Camera, out: np.ndarray | None = None, tone_curve: np.ndarray | None = None
+) -> np.ndarray:
     """(H, W, 3) uint16 of a capture's PNG read from ``path`` (``data``: its bytes), checked against the camera;
-    written into ``out`` ((H, W, 3) uint16) when given. An image decoded ahead from these same bytes
+    written into ``out`` ((H, W, 3) uint16) when given; the camera's ``tone_curve`` undone (:class:`StoredImages`:
+    once, as each image is decoded, on the decoding's threads). An image decoded ahead from these same bytes
     (:mod:`.prefetch`) is taken rather than decoded again."""
     img = take_prefetched(path, data)
     if img is None:
@@ -210,7 +212,7 @@ def _decode_image(path: Path, data: np.ndarray, camera: Camera, out: np.ndarray 
         img = out
     if img.shape != camera.shape + (3,):
         raise CaptureError(f"{path}: image is {img.shape}, but the camera in {META_FILE} is {camera.shape + (3,)}")
-    return img
+    return undo_tone_curve(img, tone_curve)
 
 
 def in_threads(jobs: list[tuple]) -> list:
