@@ -61,7 +61,9 @@ def test_the_inverse_srgb_curve_is_the_standards_and_keeps_black_and_white():
     assert np.all(np.diff(table.astype(int)) >= 0)  # monotone: no value swaps order
     mid = 256 + (65520 - 256) // 2
     assert table[mid] == pytest.approx(256 + (65520 - 256) * 0.214041, abs=2)
-    assert CAMERA_RESPONSES == ("linear", "srgb")
+    from nlipscalib.cli.capture import CAMERA_RESPONSES as CAPTURE_CHOICES  # named without numpy for --help
+
+    assert CAMERA_RESPONSES == CAPTURE_CHOICES == ("linear", "srgb")
 
 
 def test_a_declared_srgb_capture_loads_and_solves_as_its_linear_twin(tmp_path):
