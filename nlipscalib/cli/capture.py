@@ -41,6 +41,7 @@ DEFAULTS = {
     "gain": 0.0,
     "white_balance": 5000.0,
     "black_level": 0.0,
+    "camera_response": "linear",
     "average": 1,
     "seed": 0,
 }
@@ -48,6 +49,10 @@ DEFAULTS = {
 script). argparse leaves them None, so one typed at its default value still counts as given; :func:`check_options`
 fills them in (cli/options.py). --camera stays None when not given (camera 0 is chosen where it is opened):
 whether one was given also decides what --port nlipsemu://ID starts."""
+
+
+CAMERA_RESPONSES = ("linear", "srgb")
+"""``core.sensor_response.CAMERA_RESPONSES`` (a test keeps them equal): --camera-response's choices."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -80,6 +85,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     src.add_argument("--gain", type=float, help="fixed analogue gain, camera units (default 0)")
     src.add_argument("--white-balance", type=float, help="fixed white balance, kelvin (default 5000)")
     src.add_argument("--black-level", type=float, help="camera black level in its own DN (default 0)")
+    src.add_argument(
+        "--camera-response",
+        choices=CAMERA_RESPONSES,  # core.sensor_response's, named without importing numpy for --help
+        help="how the camera's values relate to light (default linear: its gamma is asked to be 1.0, a refusal "
+        "printed); srgb: a camera that cannot turn its tone curve off, recorded in meta.json and undone when the "
+        "capture is loaded (docs/formats.md, Cameras)",
+    )
     src.add_argument(
         "--flush",
         type=int,
@@ -128,6 +140,7 @@ REAL_SENSOR_OPTIONS = (
     "gain",
     "white_balance",
     "black_level",
+    "camera_response",
     "average",
 )
 """Options that set up the real sensor; the emulated one takes all of this from its scene file."""
@@ -305,6 +318,7 @@ def _run_device(args: argparse.Namespace):
         height=camera.height,
         flush_frames=args.flush,
         average=args.average,
+        linear_gamma=args.camera_response == "linear",  # a declared curve is the camera's own: left as it is
     )
     held = board if board is not None else contextlib.nullcontext()  # closing the board frees its id
     with (
@@ -322,6 +336,7 @@ def _run_device(args: argparse.Namespace):
             white_level=float(white_level_of(source.bit_depth)),
             exposure_ms=args.exposure_ms,
             gain=args.gain,
+            camera_response=args.camera_response,
         )
         rig = Rig(
             controller=controller,
@@ -334,6 +349,7 @@ def _run_device(args: argparse.Namespace):
             provenance={
                 "device": {"port": args.port, "firmware": str(controller.firmware), "camera": str(camera_spec)},
                 "camera_refused": list(source.refused),
+                "camera_gamma": source.gamma,
                 "design": args.design or DEFAULT_DESIGN,
             },
             source_name=f"camera {camera_spec}" if str(camera_spec).isdigit() else str(camera_spec),

@@ -4,7 +4,7 @@ A press folder (see docs/formats.md)::
 
     press_0007/
       meta.json        camera, LEDs, sensor response, provenance
-      dark.png         all LEDs off, 16-bit RGB, linear
+      dark.png         all LEDs off, 16-bit RGB, linear (or sRGB-encoded: meta.json sensor.camera_response)
       led_01.png ...   one image per LED lit alone in white
       tricolor.png     LED groups lit in red, green, blue at once
       reference.npz    optional: undeformed-dome depth and normals (sensor design / CAD)
@@ -130,9 +130,11 @@ class Press:
     leds: tuple[Led, ...]
     """The L LEDs, camera frame, mm, in the order of ``led_images`` (meta.json ``leds``)."""
     response: SensorResponse
-    """How the stored values relate to light: bit depth, black and white levels (meta.json ``sensor``)."""
+    """How the stored values relate to light: bit depth, black and white levels, tone curve (meta.json
+    ``sensor``)."""
     dark: np.ndarray = LoadedOnRead()
-    """(H, W, 3) uint16, stored values, RGB (may be given as a :class:`Loader`: loaded at the first read)."""
+    """(H, W, 3) uint16, stored values, RGB, linear in the light (a camera's tone curve undone by :func:`load_press`;
+    may be given as a :class:`Loader`: loaded at the first read)."""
     led_images: np.ndarray = LoadedOnRead()
     """(L, H, W, 3) uint16, stored values, RGB, one per LED lit alone in white (may be given deferred)."""
     tricolor: np.ndarray = LoadedOnRead()
@@ -244,15 +246,20 @@ def write_press(
         raise CaptureError(f"led_images must be (L={len(leds)}, H, W, 3), got {led_images.shape}")
     for i, img in enumerate(led_images):
         _check_image(img, shape, led_image_name(i))
+    sensor = dataclasses.asdict(response)
+    if response.camera_response == "linear":  # written as before it existed: every reader reads it alike
+        del sensor["camera_response"]
     meta = {
         "format": FORMAT_NAME,
-        "format_version": FORMAT_VERSION,
+        # a declared tone curve is version 2: a reader before it refuses the file rather than read encoded values
+        # as light
+        "format_version": 1 if response.camera_response == "linear" else FORMAT_VERSION,
         "software_version": __version__,
         "units": "mm",
         "frame": "camera (OpenCV: x right, y down, z forward)",
         "camera": camera.to_dict(),
         "leds": [led.to_dict() for led in leds],
-        "sensor": dataclasses.asdict(response),
+        "sensor": sensor,
         "images": {
             "dark": "dark.png",
             "leds": [led_image_name(i) for i in range(len(leds))],
@@ -359,8 +366,9 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
         raise CaptureError(f"{folder / META_FILE}: {len(leds)} LEDs but {len(names)} LED images listed")
     keep = range(len(leds)) if led_subset is None else _check_subset(led_subset, len(leds), folder)
     stored = _read_stored(folder, [images["dark"]] + [names[i] for i in keep], camera)
-    dark = StoredImages(*stored[0], camera, stacked=False, named=decode is False)
-    led_images = StoredImages(*stored[1], camera, stacked=True, named=decode is False)
+    curve = response.tone_curve()  # undone at decoding, before anything subtracts the dark frame
+    dark = StoredImages(*stored[0], camera, stacked=False, named=decode is False, tone_curve=curve)
+    led_images = StoredImages(*stored[1], camera, stacked=True, named=decode is False, tone_curve=curve)
     if decode == "background":
         decode_in_background(dark, led_images)
     elif decode:
@@ -373,7 +381,7 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
         dark=dark,
         led_images=led_images,
         tricolor=FileLoader(
-            folder / images["tricolor"], functools.partial(load_image, folder, images["tricolor"], camera)
+            folder / images["tricolor"], functools.partial(load_image, folder, images["tricolor"], camera, curve)
         ),
         meta=meta,
         reference=read_reference(folder, meta, camera, leds),

@@ -13,7 +13,11 @@ from .leds import Led
 from .sensor_response import SensorResponse
 
 FORMAT_NAME = "nlipscalib.press"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""The press format's version: 2 added meta.json's ``sensor.camera_response`` (a tone curve the loader undoes).
+Captures without one are still written as version 1 (:func:`.capture.write_press`)."""
+READ_VERSIONS = (1, FORMAT_VERSION)
+"""The versions :func:`read_meta` reads."""
 META_FILE = "meta.json"
 GT_FILE = "gt.npz"
 REFERENCE_FILE = "reference.npz"
@@ -42,7 +46,7 @@ def read_meta(folder: str | Path) -> dict:
     meta = read_format_json(
         path,
         FORMAT_NAME,
-        FORMAT_VERSION,
+        READ_VERSIONS,
         required=("camera", "leds", "sensor", "images"),
         missing_hint=f"{folder} is not a complete press folder",
     )

@@ -1,6 +1,6 @@
 """How a capture's stored 16-bit values relate to light: the sensor response (:class:`SensorResponse`: bit depth,
 black and white levels), the white level of a bit depth, and the one conversion of stored values to linear
-intensity (:func:`linearise`)."""
+intensity (:func:`linearise`), and the undoing of a camera's tone curve (:func:`undo_tone_curve`)."""
 
 from __future__ import annotations
 
@@ -19,6 +19,72 @@ def white_level_of(bit_depth: int) -> int:
     """The stored white level of a ``bit_depth``-bit sensor: its largest value shifted up to 16 bits, as stored
     values are (``DN << (16 - bit_depth)``, docs/formats.md; ``device.camera.to_stored``): 0xFF00 at 8 bits."""
     return ((1 << bit_depth) - 1) << (16 - bit_depth)
+
+
+CAMERA_RESPONSES = ("linear", "srgb")
+"""The values of meta.json's ``sensor.camera_response`` (:attr:`SensorResponse.camera_response`): "linear", stored
+values proportional to light (raw frames, the camera's gamma off); "srgb", frames encoded with the sRGB transfer
+curve (IEC 61966-2-1), as a webcam that cannot turn its tone curve off delivers them."""
+
+
+def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
+    """The exact inverse sRGB transfer function of IEC 61966-2-1: ``V / 12.92`` up to 0.04045, else
+    ``((V + 0.055) / 1.055) ** 2.4``; below 0 the straight part goes on (``V / 12.92``: noise under black stays
+    noise, as the scRGB extension of the standard has it).
+
+    Parameters
+    ----------
+    encoded : (...) float -- encoded values V, 0 = black, 1 = full scale
+
+    Returns
+    -------
+    (...) float64, linear light, 0 = black, 1 = full scale
+    """
+    v = np.asarray(encoded, np.float64)
+    return np.where(v <= 0.04045, v / 12.92, ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+def tone_curve_table(camera_response: str, black_level: float, white_level: float) -> np.ndarray | None:
+    """The stored value each stored value of a ``camera_response`` camera stands for in light, as a table of the
+    65536 uint16 values; None for "linear" (nothing to undo).
+
+    The curve runs from the black level (encoded 0) to the white level (encoded 1), so both levels keep their
+    values and :func:`linearise`'s scale, the dark-frame check and the saturation test read the linear values as
+    they read a linear camera's; values above the white level are clipped anyway and kept as they are. Rounded
+    to whole 16-bit steps (1/65535 of full scale: 1/257 of an 8-bit step)."""
+    if camera_response == "linear":
+        return None
+    stored = np.arange(65536, dtype=np.float64)
+    span = white_level - black_level
+    linear = black_level + span * srgb_to_linear((stored - black_level) / span)
+    linear = np.where(stored >= white_level, stored, linear)
+    return np.clip(np.rint(linear), 0, 65535).astype(np.uint16)
+
+
+def undo_tone_curve(images: np.ndarray, table: np.ndarray | None) -> np.ndarray:
+    """``images`` with the camera's tone curve undone (:func:`tone_curve_table`), in place; ``images`` itself
+    when ``table`` is None (a linear camera: nothing touched).
+
+    Parameters
+    ----------
+    images : (..., H, W, 3) uint16, stored values as the camera encoded them
+    table : (65536,) uint16 from :func:`tone_curve_table`, or None
+
+    Returns
+    -------
+    (..., H, W, 3) uint16, stored values linear in the light (the same array)
+    """
+    if table is not None:
+        np.take(table, images, out=images)
+    return images
+
+
+DECLARE_TONE_CURVE = (
+    "or, when the camera cannot turn its gamma off, declare its sRGB curve and the tool undoes it: `nlips capture "
+    '--camera-response srgb` (a capture already taken: meta.json "sensor": {"camera_response": "srgb"})'
+)
+"""The second cure the tone-curve messages name (the linearity warning, the dark-frame refusal): a webcam that
+cannot switch gamma off is declared, not refused (docs/formats.md, "Cameras")."""
 
 
 LEAST_BIT_DEPTH = 8
@@ -73,6 +139,11 @@ class SensorResponse:
     """Exposure time, ms (informational; images are not normalised by it); > 0."""
     gain: float = 1.0
     """Analogue gain (informational); >= 0."""
+    camera_response: str = "linear"
+    """How the camera encodes light in its values (:data:`CAMERA_RESPONSES`): "linear" (raw frames), or "srgb" (the
+    sRGB tone curve, undone once when the press is loaded, before the dark frame is subtracted). meta.json's
+    ``sensor.camera_response``, absent in captures before it existed (and in linear ones: they are written as
+    before, format_version 1)."""
 
     def __post_init__(self):
         from .config import is_finite_number, is_whole_number
@@ -87,6 +158,11 @@ class SensorResponse:
             raise CaptureError(
                 f"sensor.exposure_ms must be > 0 and sensor.gain >= 0, got {self.exposure_ms}, {self.gain}"
             )
+        if self.camera_response not in CAMERA_RESPONSES:
+            raise CaptureError(
+                f"sensor.camera_response must be one of {', '.join(map(repr, CAMERA_RESPONSES))} (docs/formats.md, "
+                f"meta.json), got {self.camera_response!r}"
+            )
         if not LEAST_BIT_DEPTH <= self.bit_depth <= 16:
             raise CaptureError(f"sensor.bit_depth must be {LEAST_BIT_DEPTH}..16, got {self.bit_depth}")
         if not 0 <= self.black_level < self.white_level <= 65535:
@@ -95,12 +171,17 @@ class SensorResponse:
                 f"got {self.black_level}, {self.white_level}"
             )
 
+    def tone_curve(self) -> np.ndarray | None:
+        """The table that undoes this camera's tone curve (:func:`tone_curve_table`), None for a linear one."""
+        return tone_curve_table(self.camera_response, self.black_level, self.white_level)
+
     def saturated(self, image: np.ndarray) -> np.ndarray:
         """Which stored values are at or above the white level (clipped).
 
         Parameters
         ----------
-        image : (..., H, W, 3) uint16 (or float) -- stored 16-bit values, not linearised.
+        image : (..., H, W, 3) uint16 (or float) -- stored 16-bit values, not linearised (a tone curve undone or
+            not: both keep the white level).
 
         Returns
         -------

@@ -24,6 +24,7 @@ from .imageio import decode_png16, read_png_bytes
 from .prefetch import stop as stop_prefetching
 from .prefetch import take as take_prefetched
 from .press_meta import META_FILE, existing_file
+from .sensor_response import undo_tone_curve
 
 
 class Loader:
@@ -77,9 +78,18 @@ class StoredImages(Loader):
     """
 
     def __init__(
-        self, paths: Sequence[Path], data: Sequence[np.ndarray], camera: Camera, stacked: bool, named: bool = True
+        self,
+        paths: Sequence[Path],
+        data: Sequence[np.ndarray],
+        camera: Camera,
+        stacked: bool,
+        named: bool = True,
+        tone_curve: np.ndarray | None = None,
     ):
         self._paths, self._data, self._camera, self._stacked = list(paths), list(data), camera, stacked
+        self._tone_curve = tone_curve
+        """(65536,) uint16 table undoing the camera's tone curve after decoding (``SensorResponse.tone_curve``), or
+        None (a linear camera)."""
         self._images, self._lock = None, threading.Lock()
         self.digest = _bytes_digest(self._data) if named else None
         """Digest of the files' raw bytes, in order; None when not ``named`` (images decoded at once: ~25 ms
@@ -114,7 +124,7 @@ def decode_together(*sources: StoredImages) -> list[np.ndarray]:
         # each image decoded straight into its place in the result: no per-image copies, no np.stack
         images = [np.empty((len(src._paths),) + src._camera.shape + (3,), np.uint16) for src in todo]
         jobs = [
-            (_decode_image, p, d, src._camera, out[i])
+            (_decode_image, p, d, src._camera, out[i], src._tone_curve)
             for src, out in zip(todo, images)
             for i, (p, d) in enumerate(zip(src._paths, src._data))
         ]
@@ -179,16 +189,20 @@ class LoadedOnRead:
         obj.__dict__[f"{self.name}_source"] = value if isinstance(value, Loader) else None
 
 
-def load_image(folder: Path, name: str, camera: Camera) -> np.ndarray:
+def load_image(folder: Path, name: str, camera: Camera, tone_curve: np.ndarray | None = None) -> np.ndarray:
     """(H, W, 3) uint16 of the image ``name`` that meta.json lists in ``folder``, read, decoded and checked
-    against the camera (:func:`_decode_image`); CaptureError naming the file."""
+    against the camera (:func:`_decode_image`), the camera's ``tone_curve`` undone (:class:`StoredImages`);
+    CaptureError naming the file."""
     path = existing_file(folder, name)
-    return _decode_image(path, read_png_bytes(path), camera)
+    return _decode_image(path, read_png_bytes(path), camera, tone_curve=tone_curve)
 
 
-def _decode_image(path: Path, data: np.ndarray, camera: Camera, out: np.ndarray | None = None) -> np.ndarray:
+def _decode_image(
+    path: Path, data: np.ndarray, camera: Camera, out: np.ndarray | None = None, tone_curve: np.ndarray | None = None
+) -> np.ndarray:
     """(H, W, 3) uint16 of a capture's PNG read from ``path`` (``data``: its bytes), checked against the camera;
-    written into ``out`` ((H, W, 3) uint16) when given. An image decoded ahead from these same bytes
+    written into ``out`` ((H, W, 3) uint16) when given; the camera's ``tone_curve`` undone (:class:`StoredImages`:
+    once, as each image is decoded, on the decoding's threads). An image decoded ahead from these same bytes
     (:mod:`.prefetch`) is taken rather than decoded again."""
     img = take_prefetched(path, data)
     if img is None:
@@ -198,7 +212,7 @@ def _decode_image(path: Path, data: np.ndarray, camera: Camera, out: np.ndarray 
         img = out
     if img.shape != camera.shape + (3,):
         raise CaptureError(f"{path}: image is {img.shape}, but the camera in {META_FILE} is {camera.shape + (3,)}")
-    return img
+    return undo_tone_curve(img, tone_curve)
 
 
 def in_threads(jobs: list[tuple]) -> list:

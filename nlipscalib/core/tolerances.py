@@ -446,6 +446,12 @@ each pixel's value grows as the LED model's light to a power below this, in medi
 with it (the gel's own indirect light adds an offset): nlipstac's one-bounce twin 0.75 (0.74-0.76, 12 and 8 bits,
 reference and presses); the same captures through an sRGB tone curve 0.34 (0.29-0.42 with auto exposure, white
 balance and JPEG). Halfway between, in ratio."""
+DECLARED_CURVE_SLOPE = 1.2
+"""A capture that declares a tone curve (meta.json ``sensor.camera_response`` "srgb") whose LED images, the curve
+undone, grow as the LED model's light to a power above this (:data:`LINEAR_RESPONSE_SLOPE`'s slope) is taken as
+declared wrongly: its frames were linear already, and undoing a curve they never had bends them the other way.
+The default twin (640x480, sphere1): encoded 8-bit sRGB and declared 0.752 (as linear, 0.752); linear but declared
+sRGB 1.571, contact AAE 20.0 deg, silent before this check. Halfway between 0.75 and 1.57, in ratio, rounded down."""
 JPEG_BLOCKINESS = 1.3
 """LED images are taken as JPEG-compressed (a camera streaming MJPEG, or frames saved as JPEG) when their values
 jump more than this many times as much across an 8x8 block grid's edges as inside its blocks

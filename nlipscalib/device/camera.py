@@ -73,6 +73,9 @@ class CameraSettings:
     """Frames averaged per captured image (noise drops as 1/sqrt(average))."""
     raw: bool = True
     """Ask for the camera's unconverted frames (the highest bit depth it gives, e.g. 10/12/16-bit Y16)."""
+    linear_gamma: bool = True
+    """Ask for gamma 1.0 (``CAP_PROP_GAMMA`` :data:`UVC_LINEAR_GAMMA`) and report a camera that refuses it; False
+    leaves the camera's gamma as it is (its tone curve declared instead: ``nlips capture --camera-response srgb``)."""
 
     def __post_init__(self):
         if self.buffer_size < 1 or self.flush_frames < 0 or self.average < 1:
@@ -93,6 +96,9 @@ class FrameSource:
     """Frames averaged by :meth:`capture`."""
     refused: tuple[str, ...] = ()
     """Settings the camera did not accept, one readable line each."""
+    gamma: float | None = None
+    """The live camera's ``CAP_PROP_GAMMA`` after the settings (:func:`reported_gamma`); None for files and for a
+    camera without the control."""
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -270,6 +276,7 @@ class OpenCVSource(FrameSource):
         settings = settings or CameraSettings()
         if self.live:
             self.refused = tuple(apply_settings(self.cap, settings))
+            self.gamma = reported_gamma(self.cap)
             for line in self.refused:
                 log.warning("camera %s: %s", device, line)
             self.flush_frames = settings.flush_frames
@@ -381,6 +388,19 @@ def exposure_to_backend(exposure_ms: float, backend: str) -> float:
     return exposure_ms
 
 
+UVC_LINEAR_GAMMA = 100
+"""``CAP_PROP_GAMMA`` asked for a linear response: the UVC gamma control counts hundredths (100 = gamma 1.0), as
+V4L2 and DirectShow pass it through; its range and default are the camera's (often 100-500, default 100-300), and
+a backend with other units reports a refusal, which is what a lab must see (docs/formats.md, "Cameras")."""
+
+
+def reported_gamma(cap: cv2.VideoCapture) -> float | None:
+    """The camera's ``CAP_PROP_GAMMA`` as it reports it, None when it has none (OpenCV: 0 or -1): recorded with a
+    capture (meta.json ``provenance.camera_gamma``), whether or not gamma was asked for."""
+    value = float(cap.get(_cv2().CAP_PROP_GAMMA))
+    return value if value > 0 else None
+
+
 def apply_settings(cap: cv2.VideoCapture, settings: CameraSettings) -> list[str]:
     """Set a live camera up for photometric stereo; returns one line per setting it refused.
 
@@ -408,6 +428,8 @@ def apply_settings(cap: cv2.VideoCapture, settings: CameraSettings) -> list[str]
     if settings.white_balance_k is not None:
         wanted.append(("auto white balance off", cv2.CAP_PROP_AUTO_WB, 0))
         wanted.append(("white balance", cv2.CAP_PROP_WB_TEMPERATURE, settings.white_balance_k))
+    if settings.linear_gamma:
+        wanted.append(("gamma 1.0 (linear; else declare --camera-response srgb)", cv2.CAP_PROP_GAMMA, UVC_LINEAR_GAMMA))
     refused = []
     for name, prop, value in wanted:
         accepted = cap.set(prop, value)

@@ -19,7 +19,7 @@ import numpy as np
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, require
 from ..core.repeated_frames import repeated_leds, repeated_line
-from ..core.sensor_response import SensorResponse, linearise
+from ..core.sensor_response import SensorResponse, linearise, undo_tone_curve
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
     EXPOSURE_LIGHT_FRACTION,
@@ -45,8 +45,9 @@ def check_exposure(
     ----------
     frames : dict name -> (H, W, 3) uint16 stored image
         What :func:`nlipscalib.device.session.capture_frames` returns: ``tricolor``, ``dark``, ``led_01`` ...
+        (as the camera encoded them: a declared tone curve, ``response.camera_response``, is undone on copies)
     response : SensorResponse
-        Black and white level of the stored values.
+        Black and white level of the stored values, and the camera's tone curve.
     folder : path
         The press folder, for the messages (its files are named as :func:`nlipscalib.core.write_press` names them).
     gel : (H, W) bool, optional
@@ -67,6 +68,8 @@ def check_exposure(
     """
     require("cv2", "opencv-python-headless", "The exposure check")
     folder = Path(folder)
+    if (curve := response.tone_curve()) is not None:  # a declared sRGB camera: checked in light, as it is solved
+        frames = {name: undo_tone_curve(frame.copy(), curve) for name, frame in frames.items()}
     names = sorted(name for name in frames if name.startswith("led_"))
     gel, where = _gel(gel, frames["dark"].shape[:2])
     clipped = {f"{name}.png": _saturated_share(frames[name], response, gel) for name in names}

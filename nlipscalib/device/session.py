@@ -535,4 +535,6 @@ def _capture_settings(rig: Rig, cfg: SessionConfig) -> dict:
             "design": prov.get("design"),
             "scene": prov.get("scene"),
         }
+        # a declared tone curve changes what the images mean; linear sessions keep the record they had before it
+        | ({"camera_response": rig.response.camera_response} if rig.response.camera_response != "linear" else {})
     )

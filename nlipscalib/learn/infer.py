@@ -432,6 +432,7 @@ def load_tricolor(folder: str | Path) -> tuple[np.ndarray, dict]:
     from ..core.imageio import read_png16
     from ..core.press_meta import META_FILE, parse_optics, read_meta
     from ..core.sensor_record import describe_sensor
+    from ..core.sensor_response import undo_tone_curve
 
     folder = Path(folder)
     meta = read_meta(folder)
@@ -442,5 +443,5 @@ def load_tricolor(folder: str | Path) -> tuple[np.ndarray, dict]:
         img = read_png16(folder / name)
         if img.shape != camera.shape + (3,):
             raise CaptureError(f"{folder / name}: image is {img.shape}, the camera in meta.json is {camera.shape}")
-        images.append(img)
+        images.append(undo_tone_curve(img, response.tone_curve()))  # a declared sRGB camera, as load_press does
     return linearise(images[0], images[1], response.black_level, response.white_level), sensor

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..core import tolerances
 from ..core.capture import Press
-from ..core.sensor_response import CAMERA_SETTINGS_GUIDE
+from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
 
 REMEDY_SATURATED = "lower the exposure (`nlips capture --exposure-ms`) or the LEDs' drive, and capture again"
 """What to do about saturated LED images."""
@@ -198,5 +198,5 @@ def _tone_curve_cause(press: Press) -> str:
         f"the power {slope:.2f}; a linear capture of this dome: about 0.75): gamma-encoded (sRGB) frames? A tone "
         f"curve is steepest at black (sRGB: 12.92 times the linear slope), so it lifts the sensor's small dark "
         f"offset and noise above the black level. Capture raw, linear frames with the camera's gamma off "
-        f"({CAMERA_SETTINGS_GUIDE})"
+        f"({CAMERA_SETTINGS_GUIDE}), {DECLARE_TONE_CURVE}"
     )

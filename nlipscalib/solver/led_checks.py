@@ -20,7 +20,7 @@ from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
 from ..core.leds import Led, led_shading
 from ..core.repeated_frames import repeated_leds, repeated_line
-from ..core.sensor_response import CAMERA_SETTINGS_GUIDE
+from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
 from . import reuse
 
 WEAK_LED_GAIN = 0.6
@@ -161,16 +161,27 @@ def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
     The light is modelled with the LEDs the capture records (meta.json: the design's), never with calibrated
     ones: an LED calibration on gamma-encoded images absorbs the tone curve (the twin's sRGB reference: LEDs
     moved 2.5 mm, "reliable", slope 0.75 against them, 0.34 against the design's) and the solve with it gave
-    3.6 deg instead of 0.46."""
+    3.6 deg instead of 0.46.
+
+    A capture that declares a tone curve is warned about the other way above
+    :data:`~nlipscalib.core.tolerances.DECLARED_CURVE_SLOPE`: linear frames declared sRGB."""
     slope = recorded_response_slope(press, live)
+    declared = press.response.camera_response
+    if slope is not None and declared != "linear" and slope > tolerances.DECLARED_CURVE_SLOPE:
+        return [
+            f"{press.folder}: meta.json declares the camera's {declared} tone curve (sensor.camera_response), "
+            f"but with it undone each pixel's value grows as the LED model's light to the power {slope:.2f} "
+            f"(median; a linear capture of this dome: about 0.75): the frames were linear already? Remove "
+            '"camera_response" (or set it to "linear"); normals solved from it are wrong by degrees'
+        ]
     if slope is None or slope >= tolerances.LINEAR_RESPONSE_SLOPE:
         return []
     return [
         f"{press.folder}: the LED images are not linear in the light: across the LEDs each pixel's value grows as "
         f"the LED model's light to the power {slope:.2f} (median; a linear capture of this dome: about 0.75, its "
         f"own interreflection included), as in gamma-encoded (sRGB) frames: capture raw, linear frames, with the "
-        f"camera's gamma, auto exposure and auto white balance off ({CAMERA_SETTINGS_GUIDE}); the solve's "
-        f"normals are wrong by degrees"
+        f"camera's gamma, auto exposure and auto white balance off ({CAMERA_SETTINGS_GUIDE}), {DECLARE_TONE_CURVE}; "
+        f"the solve's normals are wrong by degrees"
     ]
 
 

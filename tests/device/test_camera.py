@@ -239,3 +239,21 @@ def test_a_file_opencv_opens_but_gives_no_frame_is_named_unreadable(tmp_path):
         f"nlips live: error: {fake}: OpenCV cannot read it as video or images (another kind of file, damaged, or "
         "a missing codec)"
     ]
+
+
+def test_gamma_is_asked_linear_and_a_refusal_names_the_declaration():
+    """Many UVC webcams cannot switch gamma off: the capture asks for gamma 1.0 (UVC hundredths) and says when the
+    camera keeps its own; with a declared tone curve (``--camera-response srgb``) the camera's gamma is left alone."""
+    from nlipscalib.device.camera import UVC_LINEAR_GAMMA, reported_gamma
+
+    cap = FakeCap({})
+    assert apply_settings(cap, CameraSettings()) == [] and cap.props[cv2.CAP_PROP_GAMMA] == UVC_LINEAR_GAMMA == 100
+    assert reported_gamma(cap) == 100.0
+
+    stuck = FakeCap({cv2.CAP_PROP_GAMMA: 300.0})  # the camera keeps its gamma 3.0
+    refused = apply_settings(stuck, CameraSettings())
+    assert refused == ["gamma 1.0 (linear; else declare --camera-response srgb): asked 100, camera reports 300"]
+
+    declared = FakeCap({})
+    assert apply_settings(declared, CameraSettings(linear_gamma=False)) == []
+    assert cv2.CAP_PROP_GAMMA not in declared.props and reported_gamma(declared) is None  # no control: None

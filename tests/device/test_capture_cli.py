@@ -67,6 +67,41 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
     assert dome.radius == 15.0 and camera_position.tolist() == [0.0, 0.0, -3.0]
 
 
+def test_a_camera_response_declared_at_capture_is_recorded_and_undone_at_load(tmp_path, capsys):
+    """`nlips capture --camera-response srgb`: meta.json records the curve (format_version 2) and what the camera
+    reported for its gamma; the press loads linear in the light. The same frames undeclared load as stored."""
+    import cv2
+    import numpy as np
+
+    from nlipscalib.core import Camera
+    from nlipscalib.core.sensor_response import srgb_to_linear
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    camera = Camera.from_fov(64, 48, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
+    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}), encoding="utf-8")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(2 * 15):
+        value = 100 + (k % 15) * (k % 15 != 14)
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), value, np.uint8))
+    for declared in ("srgb", None):
+        board = VirtualBoard(12)
+        out = tmp_path / f"s-{declared}"
+        args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes"]
+        args += ["--camera-calibration", str(tmp_path / "camera.json"), "--presses", "1", "--out", str(out)]
+        args += ["--camera-response", declared] if declared else []
+        assert main(args) == 0, capsys.readouterr().err
+        meta = json.loads((out / "press_0001" / "meta.json").read_text(encoding="utf-8"))
+        p = load_press(out / "press_0001")
+        assert "camera_gamma" in meta["provenance"] and meta["provenance"]["camera_gamma"] is None  # frames: none
+        if declared:
+            assert meta["format_version"] == 2 and meta["sensor"]["camera_response"] == "srgb"
+            assert p.dark[0, 0, 0] == round(srgb_to_linear(101 / 255) * (255 << 8))
+        else:
+            assert meta["format_version"] == 1 and "camera_response" not in meta["sensor"]
+            assert p.dark[0, 0, 0] == 101 << 8
+
+
 def test_a_second_capture_into_a_session_being_captured_is_refused_before_it_captures(tmp_path, capsys):
     """Two captures started into one folder each captured what the other had not published yet: the session
     mixed both runs' presses under one reference, and the run that lost a press's rename failed with
