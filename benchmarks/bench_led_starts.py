@@ -6,7 +6,10 @@ tilted by ``dir`` deg about a random axis, every LED's mu set to ``mu``), calibr
 LEDs (as ``nlips calibrate-leds`` does on a real sensor, whose capture records the design) and reports the recovered
 LEDs' errors against the rendered truth.
 
-Usage: python benchmarks/bench_led_starts.py OUT [--levels 0,1,2,3,4] [--width 160 --height 120]
+Usage: python benchmarks/bench_led_starts.py OUT [--levels 0,1,2,3,4] [--width 160 --height 120] [--led-diameter 3.6]
+
+With ``--led-diameter`` the calibration also fits the LEDs as disks of that diameter (``LedCalibration.emitters``,
+what ``nlips calibrate-leds --led-diameter`` writes as 'emitters'); each row then scores them too ("disks").
 """
 
 from __future__ import annotations
@@ -119,6 +122,9 @@ def main() -> None:
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--presses", default="", help="indenters to render and solve with both LED sets, e.g. sphere,cube")
     ap.add_argument("--seed", type=int, default=0, help="the perturbations' random directions")
+    ap.add_argument(
+        "--led-diameter", type=float, default=0.0, help="also fit the LEDs as disks of this diameter, mm (scored too)"
+    )
     args = ap.parse_args()
     from nlipscalib.core.capture import as_press
     from nlipscalib.solver.calibrate import calibrate_leds
@@ -132,16 +138,19 @@ def main() -> None:
             render(scene, ref, args, ["--undeformed"])
         press = as_press(ref, "reference")
         t0 = time.perf_counter()
-        cal = calibrate_leds(press, initial=design, allow_contact=True)
+        cal = calibrate_leds(press, initial=design, allow_contact=True, led_radius=args.led_diameter / 2)
         seconds = time.perf_counter() - t0
         row = {"level": level, "perturbation": LEVELS[level], "seconds": round(seconds, 1)}
         row |= {"start": led_errors(design, press.leds), "fitted": led_errors(cal.leds, press.leds)}
+        if cal.emitters:  # the disks: the physical LEDs, scored against the render's disk centres
+            row |= {"disks": led_errors(cal.emitters, press.leds)}
         row |= {"quality": cal.quality.get("median_ratio"), "reliable": cal.quality.get("reliable")}
         row |= {"warnings": list(cal.warnings), "contact_pixels": list(cal.contact_pixels)}
         if args.presses:
             row |= {"contact_aae_deg": press_aae(args, scene, ref, level, cal)}
         print(json.dumps(row), flush=True)
-        (args.out / f"leds_l{level}_s{args.seed}.json").write_text(json.dumps(row), encoding="utf-8")
+        tag = f"_d{args.led_diameter:g}" if args.led_diameter else ""
+        (args.out / f"leds_l{level}_s{args.seed}{tag}.json").write_text(json.dumps(row), encoding="utf-8")
 
 
 if __name__ == "__main__":

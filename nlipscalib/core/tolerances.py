@@ -266,6 +266,14 @@ realistic twin and the emulator's reference), that of a press at least 3 % (a 3 
 deg, 160x120; 10-23 % for the default sphere, coin and cube presses): a factor 3 or more either side. Noise-free
 renders: 0 % undeformed (the LED model's own error, :data:`CALIBRATION_MODEL_ERROR`, counted as noise), 3.4 % for
 that small press at 80x60."""
+CALIBRATION_ONE_LED_MISFIT = 4.0
+"""LED calibration: a misfit region of a capture (:data:`CALIBRATION_CONTACT_FRACTION`) is put down to one LED's light
+that the point model does not describe (an LED far from its design, near the gel), not to a press, when that LED's
+image holds at least this many times its fair share (1 / the LEDs) of what a normal per pixel leaves unexplained
+(:func:`nlipscalib.solver.calibration_contact.unexplained_shares`). Why: measured (2026-12-06, 12 LEDs): presses
+1.7-2.5x (the twin's sphere and cube at 320x240, the synthetic sphere and cube), an LED near the gel 6.3x (the 160x120
+twin, its LEDs 4 mm / 35 deg off the design) and 8.5-9.5x (a 3.6 mm disk LED 3.5-5.3 mm from the synthetic dome): a
+factor 1.6 either side (benchmarks/RESULTS.md, s28-ledfar). With 4 LEDs or fewer it never applies."""
 CALIBRATION_MODEL_ERROR = 0.003
 """LED calibration quality (:func:`nlipscalib.solver.calibration_quality.fit_quality`): the error the LED model itself
 is allowed, as a fraction of each LED's median lit sample, added to the images' noise in quadrature. Why: the model

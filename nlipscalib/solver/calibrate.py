@@ -260,7 +260,8 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         s = dataclasses.replace(s, left_out=contact_regions(presses, to_leds(fitted)[0], models))
         if any(region.any() for region in s.left_out):
             if not s.allow_contact:
-                raise CaptureError(contact_refusal(presses, s.left_out))
+                leds, albedo = to_leds(fitted)[:2]
+                raise CaptureError(contact_refusal(presses, s.left_out, leds, albedo, models, leds0))
             again = _calibrate(presses, s)  # the same fit without the contact's pixels
             return dataclasses.replace(again, contact_pixels=tuple(int(r.sum()) for r in s.left_out))
     models = [m.to_json() for m in models]

@@ -64,6 +64,38 @@ def test_a_pressed_capture_is_refused_as_the_undeformed_reference_unless_contact
     assert calibrate_leds(flat, stride=3, allow_contact=True).contact_pixels == ()
 
 
+def test_an_led_near_the_gel_is_named_as_the_cause_not_a_press(tmp_path):
+    """The twin with its LEDs 4 mm / 35 deg off the design was refused as "not a capture of the undeformed dome ... as
+    a press does": one LED sat 5.3 mm from the gel, where its 3.6 mm light cup is no point light, and the misfit near it
+    was taken for a dent. What no normal explains lies in that LED's image: the refusal names it and what to do."""
+    import dataclasses
+
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.core.leds import disk_shading
+
+    size, albedo = (64, 48), np.array((0.8, 0.7, 0.6))  # synth.render's albedo
+    ring = synth.ring_leds()
+    near = dataclasses.replace(ring[0], position=(9 * 1.2, 0.0, synth.BASE_Z + 5))  # 3.5 mm from the seen gel
+    leds = (near, *ring[1:])
+    cam = synth.camera(*size)
+    _, pts, nrm, _ = synth.surface(cam, "none")
+    exposure = 0.7 / np.percentile(synth.render(cam, leds, pts, nrm, exposure=1.0), 99.5)
+
+    def disk_led(lin):  # LED 1 emits from a 3.6 mm disk (a WS2812B's cup), the rest are points
+        lin = lin.copy()
+        lin[0] = disk_shading(pts, nrm, [near], 1.8)[0] * albedo * exposure
+        return lin
+
+    flat = load_press(
+        synth.make_press(tmp_path / "ref", "none", size=size, leds=leds, lin_hook=disk_led, exposure=exposure)
+    )
+    with pytest.raises(CaptureError) as refused:
+        calibrate_leds(flat, stride=3)
+    line = str(refused.value)
+    assert "as a press does" not in line and "in LED 1's image: LED 1 sits 3.7 mm from the gel" in line, line
+    assert "assembled far from its design? check LED 1's mounting" in line and "--allow-contact" in line, line
+
+
 def test_a_contact_left_out_of_the_led_fit_is_left_out_of_the_indirect_terms_fit_too(presses, monkeypatch):
     """With ``allow_contact`` only the LED fit left the contact's pixels out: the indirect term was fitted to the whole
     capture, dent included (its light taken as the undeformed dome's), and the LEDs then fitted to the images minus
