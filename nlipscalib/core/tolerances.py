@@ -134,6 +134,17 @@ noise's and model error's hits are specks, or lie along the edge (grazing view).
 (s27-shapesfa): dents 0.31 % (the fingertip's 0.3 mm sphere, 8 spp, design LEDs: peak 6.6), 0.65-3.1 % (the
 capsule's cube and cylinder, peaks 4.5-6.5); noise and model error at most 0.06 % inside the edge (undeformed
 captures as presses: capsule, ring16, default twin; second captures against the first: none)."""
+RESOLVED_TILT_PER_PX = 0.9
+"""A press's contact is too small for the solve to resolve when the solved normals' tilt from the undeformed surface
+(its 75th percentile over the contact's hits, degrees) exceeds this many degrees per pixel of the contact's
+equivalent diameter (the largest component of :data:`CONTACT_MISFIT_FACTOR` hits among the solved pixels): the
+solve then warns that the normals there are smoothed (``solver.resolution``). Why: the depth's smoothing spreads a
+dent over a few pixels whatever its size, so the error grows with how steeply the normals turn per pixel, not with
+the size alone (a 1 mm sphere 0.3 mm deep and a 6 mm sphere 0.05 mm deep are both ~10 px across at 320x240; 3.6 and
+0.8 deg). Measured on 16 twin sphere presses, 1-6 mm, 0.05-2 mm deep, 320x240 and 640x480, ``--roi auto``
+(benchmarks/RESULTS.md, s28-tiny): 1.11-2.28 deg/px scored 1.66-3.62 deg contact AAE; 0.09-0.36 deg/px scored
+0.45-0.78 deg; the tests' exact 96x72 sphere and cube dents 0.71 and 0.45 (0.11 and 0.57 deg). The threshold is near
+the geometric middle of 0.71 and 1.11."""
 MODEL_MISFIT_FLOOR = 3.5
 """A press's images fit the undeformed model only to within model error, not noise, when the misfit's median over
 the gel is at least this many times the noise-only misfit: :data:`NO_CONTACT_PEAK` (a peak over noise) then says

@@ -59,6 +59,7 @@ from .nlips import SolveResult, solve
 from .options import SolverOptions
 from .outer_loop import FILL_ROWS, UPDATE_ROWS, BoxCompensation, OuterLoop, led_channel_sum
 from .press_checks import check_modes, check_roi
+from .resolution import contact_steepness, resolution_note
 from .roi import box_mask, box_of, dent_focus
 from .sensor_fit import sensor_check_note, sensor_mismatch
 
@@ -332,10 +333,19 @@ def _solve_press(
     rep["image_noise"] = noise
     rep["smoothness"] = options.smoothness
     rep["indirect_seconds"] = light.indirect_seconds + (loop.seconds if loop is not None else 0.0)
+    if cmap is not None and (note := _resolution_warning(press, cmap, result)):
+        log.warning("%s", note)
+        rep["warnings"] = [*rep.get("warnings", []), note]
     if model is not None:
         log.info("%s: %s", press.folder, model.reason, extra=PRESS_DETAIL)
     log.info("%s: %s", press.folder, anchoring, extra=PRESS_DETAIL)
     return result
+
+
+def _resolution_warning(press: Press, cmap: ContactMap, result: SolveResult) -> str | None:
+    """:func:`.resolution.resolution_note` of the solved contact (None: resolved, or no contact solved)."""
+    steepness = contact_steepness(cmap, result.normals, press.reference.normals, result.reconstructed)
+    return resolution_note(press.folder, *steepness) if steepness is not None else None
 
 
 def _region(
