@@ -410,9 +410,10 @@ def mismatch_warning(frame: Frame, where: str | Path, changes: Sequence[str] = (
     elif off:  # darker or brighter throughout: say by how much
         question = (
             f"it is {brightness:.2g} times as bright: was it taken at the calibration's exposure and LED level, "
-            "with its values at the calibration's bit depth (12-bit values in a 16-bit file are 1/16 as bright)?"
+            "with its values at the calibration's bit depth (12-bit values in a 16-bit file are 1/16 as bright)? "
+            f"{REFRESH_REMEDY}"
         )
-    elif _drifted(frame.channels):  # one colour dimmer or brighter, the others near: an LED group has aged
+    elif _explains(frame.channels, frame.mismatch):  # dimmer (or brighter) colours: light that aged
         question = f"{_channel_words(frame.channels)}: {REFRESH_REMEDY}"
     else:
         question = (
@@ -438,6 +439,15 @@ def _drifted(channels: Sequence[float]) -> bool:
     return any(not abs(r - 1) <= FRAME_CHANNEL_DRIFT for r in channels)  # NaN counts as drifted
 
 
+def _explains(channels: Sequence[float], mismatch: float) -> bool:
+    """Whether colours that drifted account for a frame's mismatch: every colour off the same way (LEDs that aged,
+    an exposure that drifted; not one up and one down) and by at least half the median difference (a colour 10 %
+    dimmer gave 3.5 %; red and blue swapped, BGR stored as RGB, gave 14-28 % with the medians 3 % apart)."""
+    off = max(abs(r - 1) for r in channels)
+    one_way = all(r <= 1 + FRAME_CHANNEL_DRIFT for r in channels) or all(r >= 1 - FRAME_CHANNEL_DRIFT for r in channels)
+    return _drifted(channels) and one_way and off >= mismatch / 2
+
+
 def _channel_words(channels: Sequence[float]) -> str:
     shown = ", ".join(f"{name} {ratio:.2f}" for name, ratio in zip(("red", "green", "blue"), channels))
     return f"the undeformed gel is {shown} times as bright as in the calibration's reference frame"
@@ -451,7 +461,7 @@ def drift_warning(frame: Frame, where: str | Path) -> str | None:
     if not _drifted(frame.channels):
         return None
     return (
-        f"{where}: {_channel_words(frame.channels)} (more than {100 * FRAME_CHANNEL_DRIFT:.0f} % off), so the "
+        f"{where}: {_channel_words(frame.channels)} (more than {100 * FRAME_CHANNEL_DRIFT:.3g} % off), so the "
         f"network reads its colours as other normals and the result drifts by degrees: {REFRESH_REMEDY}"
     )
 
