@@ -147,8 +147,9 @@ class Predictor:
         camera's exposure or gain drifts: each scales the light a gel pixel gets, so each frame is multiplied by the
         calibration's reference frame over ``reference`` (both smoothed on the gel first, so the new frame's
         noise is not copied into every frame). A 10 % dimmer LED group cost 6-7 deg of contact error, 0.0-0.1
-        after a refresh (benchmarks/RESULTS.md, s28-ageing). A gel that swelled or moved changes the shading
-        itself, not its scale: that needs a new calibration.
+        after a refresh (benchmarks/RESULTS.md, s28-ageing). A gel that swelled changes the shading itself, not
+        only its scale: 0.15 mm of radius cost 0.35 deg on one twin press, 0.05 after a refresh; more than that
+        was not measured, and a new calibration is the sure remedy.
 
         Parameters
         ----------
