@@ -16,6 +16,8 @@ from .leds import add_baud_argument, check_baud
 from .options import check_size_pair, fill_defaults, option, typed
 
 if TYPE_CHECKING:  # named in hints only: imported when a stream is opened
+    from pathlib import Path
+
     import numpy as np
 
     from ..device.camera import FrameSource
@@ -277,7 +279,7 @@ def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predicto
         from ..learn.infer import Predictor
     except ModuleNotFoundError:
         raise ConfigError("--model needs NLiPsNet (nlipscalib.learn.infer), which this installation lacks") from None
-    return Predictor(
+    predictor = Predictor(
         args.model,
         backend=args.backend,
         threads=args.threads,
@@ -285,6 +287,30 @@ def nlipsnet_predictor(args: argparse.Namespace, depth: bool = True) -> Predicto
         device=args.device,
         full_frame=args.full_frame,
     )
+    if getattr(args, "reference", None):  # `nlips infer --reference FRAME`: an aged sensor, refreshed
+        predictor.refresh(refreshed_reference(predictor, args.reference))
+    return predictor
+
+
+def refreshed_reference(predictor: Predictor, path: str | Path) -> np.ndarray:
+    """(H, W, 3) float32, linear: ``--reference``'s undeformed frame, a press folder's tri-colour frame or a 16-bit
+    tri-colour PNG (linearised with the model's dark frame); a bad one is one CaptureError naming it."""
+    from pathlib import Path
+
+    from ..core.errors import CaptureError
+    from ..core.imageio import read_png16
+    from ..learn.infer import load_tricolor
+
+    path = Path(path)
+    if path.is_dir():
+        frame, _ = load_tricolor(path)
+        if frame.shape != predictor.shape + (3,):
+            h, w = predictor.shape
+            raise CaptureError(f"--reference {path}: image is {frame.shape[1]}x{frame.shape[0]}, the model's {w}x{h}")
+        return frame
+    if not path.is_file():
+        raise CaptureError(f"--reference {path}: no such press folder or image file")
+    return predictor.linear(read_png16(path), f"--reference {path}")
 
 
 def _emulated_source(

@@ -114,6 +114,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     add_device_arguments(p)
     p.add_argument(
+        "--reference",
+        metavar="FRAME",
+        help="an undeformed capture of the sensor taken now (a press folder, or a 16-bit tri-colour PNG as "
+        "captured): frames are brought back to the calibration's light first, so LEDs that dimmed with age, a "
+        "drifted exposure or gain and a scuffed coating need no new training (the warning about them says when); "
+        "CPU path only",
+    )
+    p.add_argument(
         "--figures",
         choices=("none", "maps", "full"),
         help="presses and frames: figures beside each result, as `nlips solve` writes them: maps (PNG normal map, "
@@ -874,7 +882,7 @@ def output_settings(args: argparse.Namespace, predictor: Predictor) -> dict:
 
 def _settings(args: argparse.Namespace, model_digest: str, backend: str, device: str, full_frame: bool) -> dict:
     """:func:`output_settings` of a model known by its digest and resolved runtime, ``device`` and ``full_frame``."""
-    return {
+    settings = {
         "model_digest": model_digest,
         "backend": backend,
         "device": device,
@@ -882,6 +890,27 @@ def _settings(args: argparse.Namespace, model_digest: str, backend: str, device:
         "depth": not args.no_depth,
         "ply": "mesh" if args.mesh else "points" if args.ply else None,
     }
+    if getattr(args, "reference", None):  # recorded only when given: results made without one keep their key
+        settings["reference_digest"] = reference_digest(args.reference)
+    return settings
+
+
+def reference_digest(path: str | Path) -> str:
+    """The digest of a ``--reference`` capture's bytes (a press folder's tri-colour and dark images, or the image
+    file): a result made against another refreshed reference is not kept."""
+    from pathlib import Path
+
+    from ..core.errors import CaptureError
+    from ..core.press_meta import read_meta
+    from ..learn.onnx_export import bytes_digest
+
+    path = Path(path)
+    if not path.exists():
+        raise CaptureError(f"--reference {path}: no such press folder or image file")
+    if not path.is_dir():
+        return bytes_digest(path.read_bytes())
+    images = read_meta(path)["images"]
+    return bytes_digest(b"".join((path / images[key]).read_bytes() for key in ("tricolor", "dark")))
 
 
 def still_provenance(settings: dict, inputs: dict) -> dict:

@@ -310,6 +310,19 @@ FRAME_MISMATCH_FRACTION = 0.04
 fraction of the reference's brightness differs almost everywhere (twin frames of presses: 0.009-0.011, 8-bit
 ones too; 5 % brighter: 0.052; red and blue swapped: 0.28; a dark frame: 1.0), so its changed pixels cannot be
 told apart and the result is warned about."""
+FRAME_CHANNEL_DRIFT = 0.025
+"""NLiPsNet: a frame whose median red, green or blue on the unchanged gel is off the calibration's reference frame's
+by more than this fraction is warned about even when it is otherwise like it (:data:`FRAME_MISMATCH_FRACTION`):
+an LED group dimmed with age, or the exposure or gain drifted. Twin presses as captured measured at most 0.8 % off
+(30 presses, 640x480) and 0.2 % (96x72, 1 spp); one LED group 2 % dimmer cost 0.6-0.8 deg of contact error, 3 %
+1.2-1.6 deg and 5 % 3 deg, silently before this check (benchmarks/RESULTS.md, s28-ageing)."""
+REFRESH_SMOOTHING_PX = 2.0
+"""NLiPsNet's refresh from a new undeformed frame (``learn.infer.Predictor.refresh``): both reference frames are
+smoothed on the gel with a Gaussian of this sigma, pixels, before their ratio, so one frame's noise is not copied
+into every frame's colours (the drifts it corrects -- LED ageing, exposure, a scuffed coating -- are smooth)."""
+REFRESH_GAIN_LIMIT = 2.0
+"""NLiPsNet's refresh: each pixel's gain is clipped to [1/this, this]; a sensor that changed by more needs a new
+calibration, not a refresh."""
 FRAME_BLACK_FRACTION = 0.01
 """NLiPsNet: a frame that differs from the calibration's reference frame over most of the gel
 (:data:`FRAME_MISMATCH_FRACTION`) and whose median brightness on the gel is at most this fraction of the

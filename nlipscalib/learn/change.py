@@ -50,6 +50,7 @@ class ChangeDetector:
         self._level = self._ref_blocks.sum(-1)
         self._sample = np.flatnonzero(self._valid_blocks)[::NOISE_STRIDE]
         self._sample_level = float(np.median(self._level.ravel()[self._sample])) if self._sample.size else 0.0
+        self._ref_sample = self._ref_blocks.reshape(-1, 3)[self._sample]
         self.mismatch = 0.0
         """The last frame's median difference from the reference over the gel, as a fraction of the reference's
         median brightness (see :data:`nlipscalib.core.tolerances.FRAME_MISMATCH_FRACTION`)."""
@@ -77,9 +78,23 @@ class ChangeDetector:
         hit = masks.dilate(masks.erode(hit))  # opening: isolated blocks are noise
         if DILATE_BLOCKS > 0:
             hit = masks.dilate(hit, iterations=DILATE_BLOCKS)
+        self.channel_ratio = self._channel_ratio(signed, hit)
         out = np.zeros(self.shape, bool)
         out[self._crop] = cv2.resize(hit.view(np.uint8), None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST).view(bool)
         return out & self.valid
+
+    def _channel_ratio(self, signed: np.ndarray, hit: np.ndarray) -> np.ndarray:
+        """(3,) the median of the frame's colour over the reference's on the sampled gel blocks the rule left
+        unchanged: a press's own colours moved the whole gel's medians by up to 4.5 % on the twin's presses; a
+        block's ratio, not a ratio of medians, so the press pixels the rule leaves in the rest do not tip it."""
+        rest = ~hit.ravel()[self._sample]
+        if not rest.any():
+            return np.ones(3)
+        # frame / reference = 1 + difference / reference; one partition of each colour's contiguous row picks its
+        # middle value (half the time of np.median over the (N, 3) columns: 0.5 ms a 640x480 frame)
+        ratio = (signed.reshape(-1, 3)[self._sample[rest]] / np.maximum(self._ref_sample[rest], np.float32(1e-12))).T
+        middle = ratio.shape[1] // 2
+        return 1.0 + np.partition(np.ascontiguousarray(ratio), middle, axis=1)[:, middle].astype(np.float64)
 
 
 def changed_pixels(frame: np.ndarray, reference: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -22,7 +22,10 @@ from ..core.sensor_response import CLIPPED_VALUE, linearise
 from ..core.tolerances import (
     FRAME_BLACK_FRACTION,
     FRAME_BRIGHTNESS_OFF,
+    FRAME_CHANNEL_DRIFT,
     FRAME_MISMATCH_FRACTION,
+    REFRESH_GAIN_LIMIT,
+    REFRESH_SMOOTHING_PX,
     SATURATED_SHARE_WARN,
 )
 from .change import ChangeDetector
@@ -72,6 +75,9 @@ class Frame:
     mismatch: float = 0.0
     """Median difference from the reference frame over the gel, fraction of its brightness (:func:`mismatch_warning`).
     """
+    channels: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Median red, green and blue on the gel where the frame did not change, over the reference frame's
+    (:attr:`.change.ChangeDetector.channel_ratio`; 1s on the device path, :mod:`.fullframe`)."""
 
 
 class Predictor:
@@ -89,6 +95,8 @@ class Predictor:
         PyTorch backend; the same change rule, box integration and results as the CPU path)
     full_frame : the network's normals on every gel pixel, not only where the frame changed (the rest keeps
         the reference's otherwise), on ``device`` by :mod:`.fullframe`
+    reference : (H, W, 3) float32, linear -- an undeformed frame of the sensor taken now (:meth:`refresh`): its LEDs,
+        coating and exposure as they have aged since the calibration; None: the calibration's
     """
 
     def __init__(
@@ -99,6 +107,7 @@ class Predictor:
         depth: bool = True,
         device: str = "cpu",
         full_frame: bool = False,
+        reference: np.ndarray | None = None,
     ):
         if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 0:
             raise ConfigError(f"threads must be an integer >= 0 (0: all cores), got {threads!r}")
@@ -125,7 +134,36 @@ class Predictor:
             from .fullframe import FullFrame
 
             self._full = FullFrame(self.model, self.device, self.geo, keep_reference=not full_frame)
+        self.gain = None
+        """(H, W, 3) float32 or None -- what each frame is multiplied by first (:meth:`refresh`)."""
+        if reference is not None:
+            self.refresh(reference)
         self._warm_up()
+
+    def refresh(self, reference: np.ndarray) -> None:
+        """Bring frames of an aged sensor back to the calibration's light, without training again.
+
+        LEDs dim with age (one colour group more than the others), the coating scuffs darker in places and the
+        camera's exposure or gain drifts: each scales the light a gel pixel gets, so each frame is multiplied by the
+        calibration's reference frame over ``reference`` (both smoothed on the gel first, so the new frame's
+        noise is not copied into every frame). A 10 % dimmer LED group cost 6-7 deg of contact error, 0.0-0.1
+        after a refresh (benchmarks/RESULTS.md, s28-ageing). A gel that swelled changes the shading itself, not
+        only its scale: 0.15 mm of radius cost 0.35 deg on one twin press, 0.05 after a refresh; more than that
+        was not measured, and a new calibration is the sure remedy.
+
+        Parameters
+        ----------
+        reference : (H, W, 3) float32, linear -- an undeformed frame of the sensor now (:meth:`linear`)
+        """
+        if reference.shape != self.shape + (3,):
+            raise ShapeError(f"reference frame is {reference.shape}, the model expects {self.shape + (3,)}")
+        if self._full is not None:
+            raise ConfigError("a refreshed reference frame runs on the CPU path only (no --device, no --full-frame)")
+        old, new = (_smooth_on_gel(frame, self.valid) for frame in (self.ref_tricolor, reference))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gain = np.where(new > 0, old / new, 1.0)
+        gain = np.clip(gain, 1 / REFRESH_GAIN_LIMIT, REFRESH_GAIN_LIMIT)
+        self.gain = np.where(self.valid[..., None], gain, 1.0).astype(np.float32)
 
     def _undeformed_surface(self) -> tuple[np.ndarray, np.ndarray]:
         """(depth (H, W) float32 mm, points (H, W, 3) float32 mm, camera frame) of the calibration's undeformed dome:
@@ -213,6 +251,8 @@ class Predictor:
         """
         if tricolor.shape != self.shape + (3,):
             raise ShapeError(f"tri-colour frame is {tricolor.shape}, the model expects {self.shape + (3,)}")
+        if self.gain is not None:  # an aged sensor's frame, in the calibration's light (:meth:`refresh`)
+            tricolor = tricolor * self.gain
         if self._full is not None:
             return self._whole_frame(tricolor, stored=False)
         t0 = time.perf_counter()
@@ -233,6 +273,7 @@ class Predictor:
             depth, points = (surface.copy() for surface in self._reference_surface)
         t3 = time.perf_counter()
         frame = Frame(normals, depth, points, changed, {}, mismatch=self.changed.mismatch)
+        frame.channels = tuple(float(r) for r in self.changed.channel_ratio)
         if frame.mismatch > FRAME_MISMATCH_FRACTION:  # only then: what the warning can say about it
             frame.brightness, frame.saturated = self._exposure(tricolor)
         t4 = time.perf_counter()
@@ -294,6 +335,18 @@ class Predictor:
         return frame
 
 
+def _smooth_on_gel(frame: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32: ``frame`` Gaussian-smoothed over the gel only (normalised by the gel's own weight, so the
+    dark off-gel pixels do not darken its rim), :data:`~nlipscalib.core.tolerances.REFRESH_SMOOTHING_PX`."""
+    import cv2
+
+    sigma = REFRESH_SMOOTHING_PX
+    weight = cv2.GaussianBlur(valid.astype(np.float32), (0, 0), sigma)
+    blurred = cv2.GaussianBlur(np.where(valid[..., None], frame, 0).astype(np.float32), (0, 0), sigma)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(weight[..., None] > 0, blurred / weight[..., None], 0).astype(np.float32)
+
+
 def resolved_backend(model_path: str | Path, backend: str, on_cpu: bool = True) -> str:
     """The runtime a :class:`Predictor` of ``model_path`` with ``backend`` runs (what its results record).
 
@@ -337,7 +390,7 @@ def mismatch_warning(frame: Frame, where: str | Path, changes: Sequence[str] = (
     cause instead of a guess from the brightness.
     """
     if not frame.mismatch > FRAME_MISMATCH_FRACTION:
-        return None
+        return drift_warning(frame, where)
     brightness = 0.0 if frame.brightness < 0 else frame.brightness  # never a negative ratio (NaN stays NaN)
     off = abs(brightness - 1) > FRAME_BRIGHTNESS_OFF
     if changes:  # recorded: what differs is known, no guess
@@ -358,8 +411,11 @@ def mismatch_warning(frame: Frame, where: str | Path, changes: Sequence[str] = (
     elif off:  # darker or brighter throughout: say by how much
         question = (
             f"it is {brightness:.2g} times as bright: was it taken at the calibration's exposure and LED level, "
-            "with its values at the calibration's bit depth (12-bit values in a 16-bit file are 1/16 as bright)?"
+            "with its values at the calibration's bit depth (12-bit values in a 16-bit file are 1/16 as bright)? "
+            f"{REFRESH_REMEDY}"
         )
+    elif _explains(frame.channels, frame.mismatch):  # dimmer (or brighter) colours: light that aged
+        question = f"{_channel_words(frame.channels)}: {REFRESH_REMEDY}"
     else:
         question = (
             "was it taken with this sensor, its LEDs lit in the tri-colour pattern, and stored as RGB (not "
@@ -370,6 +426,44 @@ def mismatch_warning(frame: Frame, where: str | Path, changes: Sequence[str] = (
         f"{100 * frame.mismatch:.0f} % of its brightness; a press changes only part of it, and up to "
         f"{100 * FRAME_MISMATCH_FRACTION:.0f} % is normal), so a contact cannot be told apart and the result is "
         f"unreliable: {question}"
+    )
+
+
+REFRESH_REMEDY = (
+    "LEDs dimmed with age, or the exposure or gain drifted since the calibration? Capture an undeformed frame now "
+    "and pass it with `nlips infer MODEL ... --reference FRAME` (no training), or calibrate again"
+)
+"""What to do about a sensor whose light drifted (:func:`drift_warning`)."""
+
+
+def _drifted(channels: Sequence[float]) -> bool:
+    return any(not abs(r - 1) <= FRAME_CHANNEL_DRIFT for r in channels)  # NaN counts as drifted
+
+
+def _explains(channels: Sequence[float], mismatch: float) -> bool:
+    """Whether colours that drifted account for a frame's mismatch: every colour off the same way (LEDs that aged,
+    an exposure that drifted; not one up and one down) and by at least half the median difference (a colour 10 %
+    dimmer gave 3.5 %; red and blue swapped, BGR stored as RGB, gave 14-28 % with the medians 3 % apart)."""
+    off = max(abs(r - 1) for r in channels)
+    one_way = all(r <= 1 + FRAME_CHANNEL_DRIFT for r in channels) or all(r >= 1 - FRAME_CHANNEL_DRIFT for r in channels)
+    return _drifted(channels) and one_way and off >= mismatch / 2
+
+
+def _channel_words(channels: Sequence[float]) -> str:
+    shown = ", ".join(f"{name} {ratio:.2f}" for name, ratio in zip(("red", "green", "blue"), channels))
+    return f"the undeformed gel is {shown} times as bright as in the calibration's reference frame"
+
+
+def drift_warning(frame: Frame, where: str | Path) -> str | None:
+    """Why ``frame``'s result drifted when the frame is otherwise like the reference (:func:`mismatch_warning`
+    says why when it is not): a colour's median on the unchanged gel off the reference's by more than
+    :data:`~nlipscalib.core.tolerances.FRAME_CHANNEL_DRIFT` (an aged LED group, a drifted exposure or gain);
+    None otherwise. The network reads colours as they were at the calibration: 5 % less red cost 3 deg."""
+    if not _drifted(frame.channels):
+        return None
+    return (
+        f"{where}: {_channel_words(frame.channels)} (more than {100 * FRAME_CHANNEL_DRIFT:.3g} % off), so the "
+        f"network reads its colours as other normals and the result drifts by degrees: {REFRESH_REMEDY}"
     )
 
 
