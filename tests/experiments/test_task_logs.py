@@ -146,7 +146,7 @@ def test_a_task_carries_the_first_records_and_counts_the_rest(caplog):
     task_logs.replay(carried, "press_0001")
     lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("[press_0001 on this process]")]
     assert len(lines) == task_logs.MAX_RECORDS + 1
-    assert "30 more log record(s) (30 warning(s)) not carried back" in lines[-1]
+    assert "30 more log record(s) (30 warning(s)) left out" in lines[-1]
     assert logging.getLogger("nlipscalib").level == level  # lowered for the task only
 
 
