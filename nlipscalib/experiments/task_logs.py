@@ -55,6 +55,7 @@ MAX_RECORDS = 100
 fault repeated for every LED)."""
 MAX_LIVE_RECORDS = 1000
 """Records a task sends live at most (the first ones, :class:`LiveLogs`): a failed or killed task's lines shown.
+At least :data:`MAX_RECORDS` (a killed attempt's carried records are lost with it).
 A tiny experiment's press task logs 3 at INFO; 14 us and ~300 bytes a record on the worker (s27-dasklive)."""
 LEFT_OUT_EVERY = 100
 """Past :data:`MAX_LIVE_RECORDS`, a task sends the count of the records it left out at the first and every this
@@ -62,7 +63,8 @@ many (what the command says of a killed attempt's: "at least")."""
 PACKAGE = "nlipscalib"
 """The logger whose records (its children's included) a task carries back; the libraries' stay on the worker."""
 REPLAYED = "nlipscalib_task_log"
-"""Attribute marking a record this module logged for a task (:func:`_log_item`): never a task's own. Why: a worker
+"""Attribute marking a record this module logged for a task (:func:`_log_item`, the counts of those left out):
+never a task's own. Why: a worker
 in the command's process (``LocalCluster(processes=False)``) running a lone task took the live line, logged on the
 client's thread, for one of the task's, and sent it again, prefixed twice."""
 EXTRA_KEYS = ("press_line", "file_only")
@@ -304,7 +306,12 @@ class LiveLogs:
         if ended:  # the task raised: no outcome will count them
             _log_left_out(where, attempt.left_out, attempt.warnings)
         elif first_count:
-            log.info("%s logs more than %d records: the rest are counted, not shown", where, MAX_LIVE_RECORDS)
+            log.info(
+                "%s logs more than %d records: the rest are counted, not shown",
+                where,
+                MAX_LIVE_RECORDS,
+                extra={REPLAYED: True},  # a worker in this process must not take it for its task's
+            )
 
     def told(self, attempt: str) -> None:
         """The outcome of ``attempt`` counted its records left out (:func:`replay`)."""
@@ -351,6 +358,7 @@ def _log_left_out(where: str, left_out: int, warnings: int, without_outcome: boo
         left_out,
         warnings,
         " by an attempt that ended without an outcome (its worker died?)" if without_outcome else "",
+        extra={REPLAYED: True},
     )
 
 
