@@ -397,7 +397,7 @@ def _worker_loop(
 
 
 def _execute_on_dask_worker(
-    task: Task, out: str, threads: int, keep: bool, level: int, live: tuple[str, str] | None = None
+    task: Task, out: str, threads: int, keep: bool, level: int, live: tuple[str, str, str] | None = None
 ) -> tuple[str, dict]:
     """:func:`.tasks.execute` on a Dask worker, and the records of ``level`` and above it logged, for
     :func:`.task_logs.replay` in the command (:func:`.task_logs.run_logged`). A local cluster's worker (``threads``

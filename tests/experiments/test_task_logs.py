@@ -53,13 +53,19 @@ def _warn_until_seen(seen: str, message: str) -> bool:
     return distributed.Event(seen).wait(SEEN_WAIT_S)
 
 
+KILLED_LINES = task_logs.MAX_RECORDS + 50
+"""Lines the killed attempt logs: more than a task carries back (those past the 100th were lost, s27-dasklive)."""
+
+
 def _killed_mid_task(seen: str, first_attempt: str) -> str:
-    """The first attempt logs a line and, once the test saw it (or the wait is over), dies as the kernel's OOM
-    killer ends a process: SIGKILL, no clean-up. Dask runs the task again on the restarted worker."""
+    """The first attempt logs :data:`KILLED_LINES` lines and, once the test saw the last (or the wait is over),
+    dies as the kernel's OOM killer ends a process: SIGKILL, no clean-up. Dask runs the task again on the
+    restarted worker."""
     log = logging.getLogger("nlipscalib.sim.render")
     if not os.path.exists(first_attempt):
         open(first_attempt, "w", encoding="utf-8").close()
-        log.warning("LED 3: rendering")
+        for part in range(KILLED_LINES):
+            log.warning("LED 3: rendering part %d", part)
         distributed.Event(seen).wait(SEEN_WAIT_S)
         os.kill(os.getpid(), signal.SIGKILL)
     log.warning("the second attempt")
@@ -146,7 +152,7 @@ def test_a_task_carries_the_first_records_and_counts_the_rest(caplog):
     task_logs.replay(carried, "press_0001")
     lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("[press_0001 on this process]")]
     assert len(lines) == task_logs.MAX_RECORDS + 1
-    assert "30 more log record(s) (30 warning(s)) not carried back" in lines[-1]
+    assert "30 more log record(s) (30 warning(s)) left out" in lines[-1]
     assert logging.getLogger("nlipscalib").level == level  # lowered for the task only
 
 
@@ -205,8 +211,9 @@ def test_a_tasks_warning_reaches_the_command_while_it_runs_and_once(caplog):
 
 
 def test_a_killed_workers_last_lines_are_in_the_commands_log(caplog, tmp_path):
-    """The worker dies (SIGKILL) mid-task: the line it logged before is in the command's log, once; the task's
-    second attempt, on the restarted worker, logs its own line once (live and carried back)."""
+    """The worker dies (SIGKILL) mid-task: the lines it logged before, past the 100 a task carries back
+    included, are in the command's log, once each; the task's second attempt, on the restarted worker, logs its
+    own line once (live and carried back)."""
     from nlipscalib.experiments.runner import _backend
 
     caplog.set_level(logging.INFO)
@@ -224,13 +231,128 @@ def test_a_killed_workers_last_lines_are_in_the_commands_log(caplog, tmp_path):
             live=live.for_task("press_0004"),
             pure=False,
         )
-        arrived = _wait_for_line(caplog, "LED 3: rendering")
+        arrived = _wait_for_line(caplog, f"LED 3: rendering part {KILLED_LINES - 1}")
         distributed.Event(seen, client=client).set()
         outcome, carried = future.result()
         task_logs.replay(carried, "press_0004", live)
         live.close()
     assert arrived and outcome == "done"
-    (killed,) = _lines_with(caplog, "LED 3: rendering")
-    assert killed.startswith("[press_0004 on tcp://")
+    killed = _lines_with(caplog, "LED 3: rendering")
+    assert [line.split("] ", 1)[1] for line in killed] == [f"LED 3: rendering part {p}" for p in range(KILLED_LINES)]
+    assert all(line.startswith("[press_0004 on tcp://") for line in killed)
+    assert not _lines_with(caplog, "left out")  # none was: the bound of the lines sent live is far
     assert _lines_with(caplog, "the second attempt") == [f"[press_0004 on {carried['worker']}] the second attempt"]
     assert _messages(carried) == ["the second attempt"]  # the killed attempt's line came live only
+
+
+def _many_then_raise(lines: int) -> None:
+    log = logging.getLogger("nlipscalib.sim.render")
+    for i in range(lines):
+        log.warning("LED %d dark", i)
+    raise RuntimeError("out of memory")
+
+
+def test_a_failed_task_shows_its_lines_up_to_the_live_bound_and_counts_the_rest(caplog, monkeypatch):
+    """A task that raises brings no outcome: its lines come live only, past the 100 it would carry back, up to
+    :data:`task_logs.MAX_LIVE_RECORDS`; then one line counts the rest (a worker in this process, for the bounds)."""
+    monkeypatch.setattr(task_logs, "MAX_LIVE_RECORDS", 120)
+    monkeypatch.setattr(task_logs, "LEFT_OUT_EVERY", 10)
+    caplog.set_level(logging.INFO)
+    with (
+        distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as c,
+        distributed.Client(c) as client,
+    ):
+        live = task_logs.LiveLogs(client)
+        future = client.submit(
+            task_logs.run_logged, _many_then_raise, logging.INFO, 150, live=live.for_task("press_0005")
+        )
+        with pytest.raises(RuntimeError, match="out of memory"):
+            future.result()
+        counted = _wait_for_line(caplog, "left out")
+        live.close()
+    assert counted
+    shown = [line for line in _lines_with(caplog, "[press_0005 on ") if " dark" in line]
+    assert [line.split("] ", 1)[1] for line in shown] == [f"LED {i} dark" for i in range(120)]
+    (left_out,) = _lines_with(caplog, "left out")
+    assert "] 30 more log record(s) (30 warning(s)) left out: " in left_out
+    assert len(_lines_with(caplog, "more than 120 records")) == 1  # said once, as the first was left out
+
+
+class _StandInClient:
+    """What :class:`task_logs.LiveLogs` asks of a Dask client, for an attempt that never brings an outcome."""
+
+    id = "Client-stand-in"
+
+    def subscribe_topic(self, topic, handler):
+        self.handler = handler
+
+    def unsubscribe_topic(self, topic):
+        self.handler = None
+
+
+def test_an_attempt_without_an_outcome_past_the_live_bound_is_said_to_have_left_lines_out(caplog, monkeypatch):
+    """A killed attempt's records past the live bound: the command's close says at least how many (the count
+    the attempt last sent), as a warning; an attempt whose outcome came says nothing more at close."""
+    monkeypatch.setattr(task_logs, "MAX_RECORDS", 3)
+    monkeypatch.setattr(task_logs, "MAX_LIVE_RECORDS", 5)
+    monkeypatch.setattr(task_logs, "LEFT_OUT_EVERY", 10)
+    caplog.set_level(logging.INFO)
+    client = _StandInClient()
+    live = task_logs.LiveLogs(client)
+    topic, run, name = live.for_task("press_0006")
+
+    def send(attempt, event):
+        client.handler((time.time(), {"run": run, "task": name, "worker": "tcp://w:1", "attempt": attempt, **event}))
+
+    client.handler((time.time(), {"action": "add-client", "client": client.id}))  # the scheduler's own: ignored
+    log = logging.getLogger("nlipscalib.sim.render")
+    with task_logs.captured(logging.INFO, send):  # the killed attempt: 27 lines, no outcome
+        for i in range(27):
+            log.warning("LED %d dark", i)
+    with task_logs.captured(logging.INFO, send) as done:  # the next attempt, whose outcome comes
+        for i in range(4):
+            log.info("part %d", i)
+    task_logs.replay(done.carried("tcp://w:2"), name, live)
+    live.close()
+    lines = _lines_with(caplog, "[press_0006 on tcp://w:")
+    assert len([line for line in lines if " dark" in line]) == 5
+    assert len([line for line in lines if "] part " in line]) == 4  # each once: live and carried back
+    (at_close,) = [r for r in caplog.records if "without an outcome" in r.getMessage()]
+    assert at_close.levelno == logging.WARNING
+    assert "[press_0006 on tcp://w:1] at least 21 more log record(s) (21 warning(s)) left out" in at_close.getMessage()
+    assert len(_lines_with(caplog, "left out")) == 1
+
+
+def test_a_shared_scheduler_drops_a_finished_runs_task_lines(monkeypatch):
+    """Two runs (two clients, as two ``nlips experiment --scheduler tcp://...``) on one long-lived scheduler: once
+    each has left, the scheduler holds none of their tasks' records (after ``events-cleanup-delay``, an hour by
+    default; here 0.2 s). A run's own topic kept up to 1000 events until the scheduler restarted."""
+    import dask
+
+    def holding_records(client) -> dict:
+        return {
+            topic: len(events)
+            for topic, events in client.get_events().items()
+            if any(isinstance(msg, dict) and "record" in msg for _, msg in events)
+        }
+
+    with (
+        dask.config.set({"distributed.scheduler.events-cleanup-delay": "200ms"}),
+        distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as c,
+    ):
+        held_while_running = []
+        for run in range(2):
+            with distributed.Client(c) as client:
+                live = task_logs.LiveLogs(client)
+                future = client.submit(task_logs.run_logged, _warn_dark, logging.INFO, live=live.for_task(f"r{run}"))
+                _, carried = future.result()
+                task_logs.replay(carried, f"r{run}", live)
+                held_while_running.append(sum(holding_records(client).values()))
+                live.close()
+        with distributed.Client(c) as observer:
+            deadline = time.monotonic() + SEEN_WAIT_S
+            while holding_records(observer) and time.monotonic() < deadline:
+                time.sleep(0.1)
+            left = holding_records(observer)
+    assert held_while_running[0] >= 1  # the record did go through the scheduler
+    assert left == {}
