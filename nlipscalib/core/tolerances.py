@@ -471,19 +471,23 @@ switching to LED k was still exposed under LED k-1) when the median over the lit
 curve and auto exposure; the same light captured twice differs by its noise, 0.3 % after a 5x5 box blur (twin,
 12-bit; the block means average as many pixels), 0.000 for a frame handed out twice. A twice-as-dense ring
 (24 LEDs) would still differ by about 0.05 (linear)."""
-LINEAR_RESPONSE_SLOPE = 0.55
+LINEAR_RESPONSE_SLOPE = 0.7
 """LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
-each pixel's value grows as the LED model's light to a power below this, in median over the gel
-(:func:`nlipscalib.solver.led_checks.response_slope`). A linear capture gives 1 without interreflection and less
-with it (the gel's own indirect light adds an offset): nlipstac's one-bounce twin 0.75 (0.74-0.76, 12 and 8 bits,
-reference and presses); the same captures through an sRGB tone curve 0.34 (0.29-0.42 with auto exposure, white
-balance and JPEG). Halfway between, in ratio."""
+each pixel's value grows as the LED model's light, direct plus the fitted indirect term, to a power below this, in
+median over the gel (:func:`nlipscalib.solver.led_checks.recorded_response_slope`). One-bounce twin, 320x240, 16 spp,
+undeformed and pressed, two seeds: linear 0.99-1.02 on the default dome (the /tmp/keep 640x480 captures too), the
+capsule, the fingertip, the flat and the oblate designs; through the sRGB curve (8 bits) 0.46-0.49. Halfway between,
+in ratio. Against the direct light alone (before s28-capslin, limit 0.55) a linear capture's slope was its direct
+share: the default dome 0.75, the fingertip 0.56, the capsule 0.28-0.34 (every capsule solve warned)."""
 DECLARED_CURVE_SLOPE = 1.2
 """A capture that declares a tone curve (meta.json ``sensor.camera_response`` "srgb") whose LED images, the curve
 undone, grow as the LED model's light to a power above this (:data:`LINEAR_RESPONSE_SLOPE`'s slope) is taken as
 declared wrongly: its frames were linear already, and undoing a curve they never had bends them the other way.
 The default twin (640x480, sphere1): encoded 8-bit sRGB and declared 0.752 (as linear, 0.752); linear but declared
-sRGB 1.571, contact AAE 20.0 deg, silent before this check. Halfway between 0.75 and 1.57, in ratio, rounded down."""
+sRGB 1.571, contact AAE 20.0 deg, silent before this check. Halfway between 0.75 and 1.57, in ratio, rounded down.
+With the fitted indirect term in the model (s28-capslin) a rightly declared capture gives 1.00-1.02 (default dome,
+capsule, fingertip, 320x240); a linear one declared sRGB 1.56 on the default dome (the term fits to 0 on such
+frames), but 1.11 on the fingertip and 0.52 on the capsule (their interreflection: not told)."""
 JPEG_BLOCKINESS = 1.3
 """LED images are taken as JPEG-compressed (a camera streaming MJPEG, or frames saved as JPEG) when their values
 jump more than this many times as much across an 8x8 block grid's edges as inside its blocks

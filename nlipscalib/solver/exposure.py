@@ -195,7 +195,7 @@ def _tone_curve_cause(press: Press) -> str:
         return ""
     return (
         f", and the LED images are not linear in the light (each pixel's value grows as the LED model's light to "
-        f"the power {slope:.2f}; a linear capture of this dome: about 0.75): gamma-encoded (sRGB) frames? A tone "
+        f"the power {slope:.2f}; a linear capture: about 1): gamma-encoded (sRGB) frames? A tone "
         f"curve is steepest at black (sRGB: 12.92 times the linear slope), so it lifts the sensor's small dark "
         f"offset and noise above the black level. Capture raw, linear frames with the camera's gamma off "
         f"({CAMERA_SETTINGS_GUIDE}), {DECLARE_TONE_CURVE}"

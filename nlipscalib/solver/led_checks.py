@@ -18,10 +18,12 @@ from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
+from ..core.errors import CaptureError
 from ..core.leds import Led, led_shading
 from ..core.repeated_frames import repeated_leds, repeated_line
 from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
 from . import reuse
+from .indirect import fit_indirect
 
 WEAK_LED_GAIN = 0.6
 """An LED whose image holds less than this fraction of the light the model gives it, relative to the median LED's
@@ -44,7 +46,7 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
 def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], list[int], list[int]]:
     """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, repeat
     the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`), went through
-    JPEG (:func:`compression_notes`) or are not linear in the light (:func:`response_slope`), and the LEDs whose
+    JPEG (:func:`compression_notes`), and the LEDs whose
     light is off the model's (weak, or brighter than the others) or repeated: a solve leaves those out.
 
     Why leave them out: with a 30 % LED 7 in the twin's cube press, its misfit everywhere raised the contact
@@ -77,7 +79,7 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
         return _said_repeated(lagged, left_out) + jpeg_notes, left_out, []
-    notes = jpeg_notes + linearity_notes(press, live)
+    notes = list(jpeg_notes)  # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
@@ -153,44 +155,76 @@ def compression_notes(press: Press) -> list[str]:
     return [] if value is None else [blockiness_line(press.folder, "the LED images", value)]
 
 
-def linearity_notes(press: Press, live: Sequence[int]) -> list[str]:
+def linearity_notes(press: Press, live: Sequence[int], indirect: Sequence[np.ndarray] | None = None) -> list[str]:
     """A warning when the LED images are not linear in the light: the median over the sampled pixels of the
-    log-log slope of each pixel's LED images against its modelled light is below
-    :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` (an sRGB or gamma-encoded camera output).
+    log-log slope of each pixel's LED images against its modelled light, direct and indirect
+    (:func:`recorded_response_slope`), is below :data:`~nlipscalib.core.tolerances.LINEAR_RESPONSE_SLOPE` (an sRGB
+    or gamma-encoded camera output).
 
-    The light is modelled with the LEDs the capture records (meta.json: the design's), never with calibrated
+    The direct light is modelled with the LEDs the capture records (meta.json: the design's), never with calibrated
     ones: an LED calibration on gamma-encoded images absorbs the tone curve (the twin's sRGB reference: LEDs
-    moved 2.5 mm, "reliable", slope 0.75 against them, 0.34 against the design's) and the solve with it gave
-    3.6 deg instead of 0.46.
+    moved 2.5 mm, "reliable") and the solve with it gave 3.6 deg instead of 0.46.
+
+    Parameters
+    ----------
+    press : Press -- with ``reference`` (none: no check, []).
+    live : sequence of int -- the LEDs (0-based) to judge.
+    indirect : sequence of (H, W, 3) float or None -- the indirect light per unit albedo of each of the press's
+        LEDs (``IndirectModel.undeformed_light_per_led``: a solve's fitted term); None: fitted here
+        (:func:`own_indirect_light`).
 
     A capture that declares a tone curve is warned about the other way above
     :data:`~nlipscalib.core.tolerances.DECLARED_CURVE_SLOPE`: linear frames declared sRGB."""
-    slope = recorded_response_slope(press, live)
+    slope = recorded_response_slope(press, live, indirect)
     declared = press.response.camera_response
     if slope is not None and declared != "linear" and slope > tolerances.DECLARED_CURVE_SLOPE:
         return [
             f"{press.folder}: meta.json declares the camera's {declared} tone curve (sensor.camera_response), "
             f"but with it undone each pixel's value grows as the LED model's light to the power {slope:.2f} "
-            f"(median; a linear capture of this dome: about 0.75): the frames were linear already? Remove "
+            f"(median; a linear capture: about 1): the frames were linear already? Remove "
             '"camera_response" (or set it to "linear"); normals solved from it are wrong by degrees'
         ]
     if slope is None or slope >= tolerances.LINEAR_RESPONSE_SLOPE:
         return []
     return [
         f"{press.folder}: the LED images are not linear in the light: across the LEDs each pixel's value grows as "
-        f"the LED model's light to the power {slope:.2f} (median; a linear capture of this dome: about 0.75, its "
-        f"own interreflection included), as in gamma-encoded (sRGB) frames: capture raw, linear frames, with the "
+        f"the LED model's light (direct and interreflected) to the power {slope:.2f} (median; a linear capture: "
+        f"about 1), as in gamma-encoded (sRGB) frames: capture raw, linear frames, with the "
         f"camera's gamma, auto exposure and auto white balance off ({CAMERA_SETTINGS_GUIDE}), {DECLARE_TONE_CURVE}; "
         f"the solve's normals are wrong by degrees"
     ]
 
 
-def recorded_response_slope(press: Press, live: Sequence[int]) -> float | None:
+def recorded_response_slope(
+    press: Press, live: Sequence[int], indirect: Sequence[np.ndarray] | None = None
+) -> float | None:
     """:func:`response_slope` of the ``live`` LED images (0-based) against the light of the LEDs the capture
-    records (meta.json), never calibrated ones (:func:`linearity_notes` says why); None without an undeformed
-    surface or with too few lit pixels."""
-    image, model = _samples(press, press.leds, [int(i) for i in live])
+    records (meta.json), never calibrated ones (:func:`linearity_notes` says why), plus the ``indirect`` light
+    (:func:`linearity_notes`; None: :func:`own_indirect_light`); None without an undeformed surface or with too
+    few lit pixels.
+
+    Why the indirect light: against the direct light alone a linear capture's slope is its direct share, not 1:
+    the capsule's own interreflection gave 0.28-0.34 on every linear capture (warned as gamma-encoded), the
+    default dome 0.75; with the fitted term 1.00-1.02 on both, and their sRGB encodings 0.48-0.49."""
+    live = [int(i) for i in live]
+    if press.reference is None:
+        return None
+    if indirect is None:
+        indirect = own_indirect_light(press)
+    image, model = _samples(press, press.leds, live, indirect)
     return None if image is None else response_slope(image, model)
+
+
+def own_indirect_light(press: Press) -> Sequence[np.ndarray] | None:
+    """The indirect light per unit albedo of each LED (``IndirectModel.undeformed_light_per_led``) fitted on the
+    press itself with the LEDs it records (:func:`.indirect.fit_indirect`, forced on, one bounce), for a check made
+    before or without a solve's fit (the LED calibration, the dark frame's cause); None when nothing can be fitted
+    (the check then judges the direct light alone)."""
+    try:
+        model = fit_indirect(press, press.leds, mode="on", bounces=1)
+    except CaptureError:
+        return None
+    return model.undeformed_light_per_led(press.camera.shape)
 
 
 def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
@@ -214,9 +248,12 @@ def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
     return float(np.median((x * y).sum(axis=0) / np.maximum((x * x).sum(axis=0), 1e-12)))
 
 
-def _samples(press: Press, leds: Sequence[Led], live: list[int]) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """The live LED images and their modelled light (albedo fitted per pixel and channel over the live LEDs) on a
-    subgrid of the gel: two (L_live, N, 3) float64 arrays, or (None, None) when too few gel pixels are lit."""
+def _samples(
+    press: Press, leds: Sequence[Led], live: list[int], indirect: Sequence[np.ndarray] | None = None
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The live LED images and their modelled light (albedo fitted per pixel and channel over the live LEDs; with
+    ``indirect``, each LED's (H, W, 3) indirect light per unit albedo added to its direct shading) on a subgrid of
+    the gel: two (L_live, N, 3) float64 arrays, or (None, None) when too few gel pixels are lit."""
     ref = press.reference
     gel = np.isfinite(ref.depth)
     index = np.flatnonzero(gel)
@@ -230,10 +267,13 @@ def _samples(press: Press, leds: Sequence[Led], live: list[int]) -> tuple[np.nda
     rays = press.camera.unproject(np.stack([cols, rows], axis=-1).astype(np.float64))
     points = depth_to_points(depth, rays)
     normals = ref.normals.reshape(-1, 3)[index].astype(float)
-    shading = led_shading(points, normals, [leds[i] for i in live])  # (L_live, N, 3)
+    direct = led_shading(points, normals, [leds[i] for i in live])  # (L_live, N, 3)
+    shading = direct
+    if indirect is not None:
+        shading = direct + np.stack([np.asarray(indirect[i]).reshape(-1, 3)[index] for i in live])
     image = np.stack([press.linear_led_images[i].reshape(-1, 3)[index] for i in live]).astype(float)
     albedo = (shading * image).sum(0) / np.maximum((shading * shading).sum(0), 1e-24)
-    lit = (shading > 0).all(axis=(0, 2)) & (albedo > 0).all(axis=1)
+    lit = (direct > 0).all(axis=(0, 2)) & (albedo > 0).all(axis=1)
     if lit.sum() < 10:
         return None, None
     return image[:, lit], (albedo * shading)[:, lit]

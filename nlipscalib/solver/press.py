@@ -53,7 +53,7 @@ from .contact import (
 )
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
-from .led_checks import exposure_drift_note, led_check
+from .led_checks import exposure_drift_note, led_check, linearity_notes
 from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, split_indirect
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -65,6 +65,7 @@ from .sensor_fit import sensor_check_note, sensor_mismatch
 
 if TYPE_CHECKING:  # named in hints only
     from ..core.leds import Leds
+    from .indirect import IndirectModel
 
 log = logging.getLogger(__name__)
 
@@ -274,6 +275,7 @@ def _solve_press(
     sources = Sources(press, leds, ref_capture, fixed_light, explicit_roi, interreflection, bounces)
     light = light_and_contact(sources, options.dead_led_level)
     model, cmap = light.model, light.cmap
+    linear_notes = _linearity_warnings(press, model, cmap)
     # with the indirect term forced off and no undeformed capture, the model leaves out the gel's own light on
     # purpose (10 % of the twin's brightness at one bounce): its misfit then says nothing of the sensor's files
     modelled = ref_capture is not None or interreflection != "off"
@@ -333,6 +335,8 @@ def _solve_press(
     rep["image_noise"] = noise
     rep["smoothness"] = options.smoothness
     rep["indirect_seconds"] = light.indirect_seconds + (loop.seconds if loop is not None else 0.0)
+    if linear_notes:
+        rep["warnings"] = [*linear_notes, *rep.get("warnings", [])]
     if cmap is not None and (note := _resolution_warning(press, cmap, result)):
         log.warning("%s", note)
         rep["warnings"] = [*rep.get("warnings", []), note]
@@ -340,6 +344,20 @@ def _solve_press(
         log.info("%s: %s", press.folder, model.reason, extra=PRESS_DETAIL)
     log.info("%s: %s", press.folder, anchoring, extra=PRESS_DETAIL)
     return result
+
+
+def _linearity_warnings(press: Press, model: IndirectModel | None, cmap: ContactMap | None) -> list[str]:
+    """:func:`.led_checks.linearity_notes` of the live LEDs, each logged as a warning: against the direct light and
+    the indirect light of the solve's fitted term (the check fits its own when the solve has none: the term off,
+    or a fixed light). Made once the term is fitted, before NLiPs runs, so a solve that then fails has said it."""
+    if cmap is None:  # no reference surface: nothing to model
+        return []
+    fitted = model is not None and model.fitted_light is not None
+    indirect = model.undeformed_light_per_led(press.camera.shape) if fitted else None
+    notes = linearity_notes(press, cmap.live_leds, indirect)
+    for note in notes:
+        log.warning("%s", note)
+    return notes
 
 
 def _resolution_warning(press: Press, cmap: ContactMap, result: SolveResult) -> str | None:
