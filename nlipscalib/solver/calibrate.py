@@ -40,7 +40,7 @@ from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
 from ..core.repeated_frames import repeated_leds, repeated_line
-from .calibration_contact import contact_notes, contact_refusal, contact_regions
+from .calibration_contact import contact_notes, contact_refusal, contact_regions, led_cause
 from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
     emitters_and_profile,
@@ -99,6 +99,9 @@ class LedCalibration:
     contact_pixels: tuple[int, ...] = ()
     """With ``allow_contact``, per capture, the pixels left out of the fit as a contact (:func:`contact_regions`);
     empty when no capture showed one."""
+    contact_causes: tuple[str | None, ...] = ()
+    """With ``allow_contact``, per capture, the words naming an LED near the gel as its misfit's cause
+    (:func:`.calibration_contact.led_cause`), None where it is a press's (or none); what its warning says."""
 
     def to_json(self) -> dict:
         out = {
@@ -202,7 +205,7 @@ def calibrate_leds(
     _check_finite(cal, presses[0].folder)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
     notes = [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
-    notes += contact_notes(presses, cal.contact_pixels)
+    notes += contact_notes(presses, cal.contact_pixels, cal.contact_causes)
     notes += unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
     notes += quality_warning(cal.quality, cal.interreflection, interreflection)
     notes += single_led_warnings(cal.quality, cal.leds)
@@ -262,8 +265,14 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
             if not s.allow_contact:
                 leds, albedo = to_leds(fitted)[:2]
                 raise CaptureError(contact_refusal(presses, s.left_out, leds, albedo, models, leds0))
+            leds, albedo = to_leds(fitted)[:2]
+            causes = tuple(
+                led_cause(p, r, leds, albedo, m, leds0) if r.any() else None
+                for p, r, m in zip(presses, s.left_out, models)
+            )
             again = _calibrate(presses, s)  # the same fit without the contact's pixels
-            return dataclasses.replace(again, contact_pixels=tuple(int(r.sum()) for r in s.left_out))
+            pixels = tuple(int(r.sum()) for r in s.left_out)
+            return dataclasses.replace(again, contact_pixels=pixels, contact_causes=causes)
     models = [m.to_json() for m in models]
     quality = fit_quality(presses, fitted, samples.x, samples.n, direct, samples.ok)
     if s.interreflection == "auto" and any(m["enabled"] for m in models):  # on by the share with the starting LEDs

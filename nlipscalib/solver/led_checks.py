@@ -171,7 +171,9 @@ def reordered(press: Press, order: Sequence[int]) -> Press:
 def reorder_note(press: Press, order: Sequence[int], flag: str) -> str:
     """The warning of a solve that uses the LED images in the ``order`` they show (:func:`detected_order`)."""
     names = _image_names(press)
-    moved = ", ".join(f"{names[i]} as LED {j + 1}" for j, i in enumerate(order) if i != j)
+    moved = ", ".join(
+        f"{names[i]} (image {i + 1} of images.leds) as LED {j + 1}" for j, i in enumerate(order) if i != j
+    )
     return (
         f"{press.folder}: the LED images are out of order (each shows another LED's light: a wiring error, or the "
         f"order of images.leds in meta.json): solved in the order they show, {moved} (report.json led_order); fix "
