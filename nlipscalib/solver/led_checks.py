@@ -129,6 +129,11 @@ def led_check(
     return notes, left_out, misplaced, detected_order(shows, len(press.leds))
 
 
+def detected_order_of(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[int] | None:
+    """:func:`led_check`'s ``order`` alone: the order the LED images show, or None (theirs, or not clear)."""
+    return led_check(press, leds, live)[3]
+
+
 def detected_order(shows: dict[int, tuple[int, float]], count: int) -> list[int] | None:
     """For each of ``count`` LEDs, the image that shows its light, when the misplaced images are unambiguous.
 

@@ -138,6 +138,9 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     return result
 
 
+_SAID_ORDERS: set[tuple[str, tuple[int, ...]]] = set()
+"""(press's parent folder, LED order) already warned about in this process: a batch of a session captured with one
+wiring error (``nlips calibrate``, a folder solve) warns once, not once per press (the rest at INFO)."""
 KEEP_ORDER_FLAG = "--keep-led-order"
 """The command-line flag that solves LED images out of order as captured (``reorder_leds=False``)."""
 
@@ -150,7 +153,12 @@ def _in_detected_order(press: Press, kwargs: dict, order: list[int]) -> tuple[Pr
     Why: two swapped LED images of the twin's cube press were solved as captured to a contact AAE of 6.1 deg after a
     warning that named the pair; the image labelled 3 was lit by LED 7, so solving it as LED 7's is the physics."""
     note = reorder_note(press, order, KEEP_ORDER_FLAG)
-    log.warning("%s", note)
+    session = (str(press.folder.parent), tuple(order))
+    if session in _SAID_ORDERS:  # a wiring error is the whole session's: its presses' reports keep the line
+        log.info("%s", note)
+    else:
+        _SAID_ORDERS.add(session)
+        log.warning("%s (said once for the presses of %s out of this order)", note, press.folder.parent)
     kwargs = dict(kwargs)
     indirect = kwargs.get("indirect")
     if isinstance(indirect, Press) and indirect.reference is not None:

@@ -64,6 +64,23 @@ def test_swapped_led_images_are_solved_in_the_order_they_show_unless_kept_as_cap
     assert np.abs(kept.depth[gel] - clean.depth[gel]).max() > 0.1
 
 
+def test_a_sessions_wiring_error_is_warned_about_once_and_recorded_in_every_report(tmp_path, caplog):
+    """A wiring error is the session's: ``nlips calibrate`` of 50 presses would say it 50 times. The first press of a
+    folder out of an order warns; the next ones say it at INFO, each report keeping the line."""
+
+    def swap(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    presses = [_press(tmp_path / "session", name, swap) for name in ("p1", "p2")]
+    with caplog.at_level(logging.INFO):
+        results = [solve_press(p, options=SolverOptions(max_iters=1)) for p in presses]
+    warned = [r for r in caplog.records if "out of order" in r.getMessage() and r.levelno == logging.WARNING]
+    assert len(warned) == 1 and "said once" in warned[0].getMessage()
+    assert all(any("out of order" in w for w in r.report["warnings"]) for r in results)
+
+
 def test_only_a_clean_pair_or_cycle_of_misplaced_images_gives_an_order():
     """A wrong order is corrected only when it is plain: each misplaced image shows an LED whose own image is
     misplaced too, no LED twice, each well (``REORDER_CORRELATION``)."""
