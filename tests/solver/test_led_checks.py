@@ -64,6 +64,25 @@ def test_swapped_led_images_are_solved_in_the_order_they_show_unless_kept_as_cap
     assert np.abs(kept.depth[gel] - clean.depth[gel]).max() > 0.1
 
 
+def test_the_undeformed_capture_given_with_the_same_swap_is_reordered_alike(tmp_path):
+    """A session's undeformed capture (``--reference``, a folder's ``reference/``) shows its presses' wiring error:
+    reordering the press and not it would compare LED 6's light with LED 3's model of the undeformed dome."""
+
+    def swap(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    def flat(name, hook=None):
+        return load_press(synth.make_press(tmp_path / name, "none", lin_hook=hook))
+
+    options = SolverOptions(max_iters=2)
+    clean = solve_press(_press(tmp_path, "clean"), indirect=flat("ref"), options=options)
+    fixed = solve_press(_press(tmp_path, "swapped", swap), indirect=flat("ref_swapped", swap), options=options)
+    gel = clean.reconstructed & fixed.reconstructed
+    assert fixed.report["leds_reordered"] and np.abs(fixed.depth[gel] - clean.depth[gel]).max() < 1e-6
+
+
 def test_a_sessions_wiring_error_is_warned_about_once_and_recorded_in_every_report(tmp_path, caplog):
     """A wiring error is the session's: ``nlips calibrate`` of 50 presses would say it 50 times. The first press of a
     folder out of an order warns; the next ones say it at INFO, each report keeping the line."""
