@@ -247,7 +247,7 @@ def _in_shown_order(
         live = np.flatnonzero(lit_leds(led_levels(p.linear_led_images, np.isfinite(p.reference.depth))))
         order = detected_order_of(p, leds, live)
         if order is not None and reorder:
-            notes.append(reorder_note(p, order, "--keep-led-order"))
+            notes.append(reorder_note(p, order, "--keep-led-order", fit=True))
             p, applied = reordered(p, order), tuple(order)
         elif order is not None:
             notes.append(f"{p.folder}: the LED images are out of order, fitted as captured (--keep-led-order)")

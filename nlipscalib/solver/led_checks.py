@@ -173,16 +173,18 @@ def reordered(press: Press, order: Sequence[int]) -> Press:
     return Press(**fields)
 
 
-def reorder_note(press: Press, order: Sequence[int], flag: str) -> str:
-    """The warning of a solve that uses the LED images in the ``order`` they show (:func:`detected_order`)."""
+def reorder_note(press: Press, order: Sequence[int], flag: str, fit: bool = False) -> str:
+    """The warning of a solve (``fit``: an LED calibration) that uses the LED images in the ``order`` they show
+    (:func:`detected_order`)."""
     names = _image_names(press)
     moved = ", ".join(
         f"{names[i]} (image {i + 1} of images.leds) as LED {j + 1}" for j, i in enumerate(order) if i != j
     )
+    done, record, keep = ("fitted", "the LED file's", "fit") if fit else ("solved", "report.json", "solve")
     return (
         f"{press.folder}: the LED images are out of order (each shows another LED's light: a wiring error, or the "
-        f"order of images.leds in meta.json): solved in the order they show, {moved} (report.json led_order); fix "
-        f"the wiring or images.leds, or pass {flag} to solve them as captured"
+        f"order of images.leds in meta.json): {done} in the order they show, {moved} ({record} led_order); fix "
+        f"the wiring or images.leds, or pass {flag} to {keep} them as captured"
     )
 
 
