@@ -69,6 +69,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="calibrate on a capture that shows a press after all, its contact's pixels left out of the fit (with a "
         "warning); default: such a capture is refused, as it is not the undeformed dome",
     )
+    p.add_argument(
+        "--keep-led-order",
+        dest="reorder_leds",
+        action="store_false",
+        help="fit LED images that show other LEDs' light (a wiring error: two swapped, or a cycle) in the order "
+        "captured; by default they are fitted in the order they show, with a warning and the file's led_order",
+    )
     p.set_defaults(func=run)
 
 
@@ -112,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
             led_radius=args.led_diameter / 2,
             coating_reflectance=args.coating_reflectance,
             allow_contact=args.allow_contact,
+            reorder_leds=args.reorder_leds,
         )
     # the sensor it was calibrated on: `nlips solve/calibrate --leds` refuse the file for a capture of another one
     save_leds(args.out, cal.leds, cal.to_json() | {"sensor": sensor_of(presses[0])})

@@ -95,6 +95,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "description. The result's report.json records it (sensor_check, and the settings' check_sensor); "
         "calibrating the LEDs (nlips calibrate-leds, --leds) usually fits such a sensor without it",
     )
+    p.add_argument(
+        "--keep-led-order",
+        dest="reorder_leds",
+        action="store_false",
+        help="solve LED images that show other LEDs' light (a wiring error: two swapped, or a cycle) in the order "
+        "captured; by default they are solved in the order they show, with a warning and report.json's led_order",
+    )
     p.add_argument("--out", help="output folder (default PRESS/nlips); only for a single press")
     p.add_argument("--overwrite", action="store_true", help="re-solve even if an identical result exists")
     p.add_argument("--config", help="TOML/YAML file with SolverOptions fields")
@@ -119,7 +126,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-SOLVER_KEYWORDS = ("dent_interreflection", "coating_albedo", "interreflection", "bounces", "check_sensor")
+SOLVER_KEYWORDS = (
+    "dent_interreflection",
+    "coating_albedo",
+    "interreflection",
+    "bounces",
+    "check_sensor",
+    "reorder_leds",
+)
 """Flags of this parser passed as keywords to solver.solve_press (add a flag above, then its name here)."""
 
 

@@ -40,7 +40,7 @@ from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
 from ..core.repeated_frames import repeated_leds, repeated_line
-from .calibration_contact import contact_notes, contact_refusal, contact_regions
+from .calibration_contact import contact_notes, contact_refusal, contact_regions, led_cause
 from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
     emitters_and_profile,
@@ -99,6 +99,12 @@ class LedCalibration:
     contact_pixels: tuple[int, ...] = ()
     """With ``allow_contact``, per capture, the pixels left out of the fit as a contact (:func:`contact_regions`);
     empty when no capture showed one."""
+    led_order: tuple[int, ...] | None = None
+    """For each LED, the image (0-based, the capture's images.leds order) it was fitted to, when the images were out
+    of order (:func:`_in_shown_order`); None: as captured."""
+    contact_causes: tuple[str | None, ...] = ()
+    """With ``allow_contact``, per capture, the words naming an LED near the gel as its misfit's cause
+    (:func:`.calibration_contact.led_cause`), None where it is a press's (or none); what its warning says."""
 
     def to_json(self) -> dict:
         out = {
@@ -117,6 +123,8 @@ class LedCalibration:
             out["reflectance_profile"] = self.reflectance_profile
         if self.contact_pixels:
             out["contact_pixels"] = list(self.contact_pixels)
+        if self.led_order is not None:
+            out["led_order"] = list(self.led_order)
         return out
 
 
@@ -147,6 +155,7 @@ def calibrate_leds(
     led_radius: float = 0.0,
     coating_reflectance: float | tuple[float, float, float] | None = None,
     allow_contact: bool = False,
+    reorder_leds: bool = True,
 ) -> LedCalibration:
     """Estimate Psi_c, mu, n_s and x_s of every LED from undeformed captures.
 
@@ -183,6 +192,10 @@ def calibrate_leds(
     allow_contact : a capture that shows a contact (a press, :func:`contact_regions`) is refused (CaptureError)
         unless this is set; then its contact's pixels are left out of the LED fit and of the indirect term's, with
         a warning.
+    reorder_leds : LED images out of order (a wiring error: a clean pair or cycle,
+        :func:`.led_checks.detected_order`) are fitted in the order they show, with a warning and the file's
+        ``led_order``; False (``--keep-led-order``): as captured (each LED then fitted where its image's light comes
+        from, with no word but the warning).
 
     Returns
     -------
@@ -193,6 +206,7 @@ def calibrate_leds(
     presses = [as_press(p, "presses") for p in ([presses] if one else list(presses))]
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
+    presses, order_notes, order = _in_shown_order(presses, initial, reorder_leds)
     if stride is None:
         stride = default_stride(presses[0].camera.shape)
     settings = _Settings(
@@ -201,14 +215,44 @@ def calibrate_leds(
     cal = _with_term_if_needed(_calibrate(presses, settings), presses, settings)
     _check_finite(cal, presses[0].folder)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
-    notes = [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
-    notes += contact_notes(presses, cal.contact_pixels)
+    notes = order_notes + [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
+    notes += contact_notes(presses, cal.contact_pixels, cal.contact_causes)
     notes += unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
     notes += quality_warning(cal.quality, cal.interreflection, interreflection)
     notes += single_led_warnings(cal.quality, cal.leds)
     for note in notes:
         log.warning(note)
-    return dataclasses.replace(cal, warnings=tuple(notes), saturated_share=tuple(round(v, 4) for v in shares))
+    shares = tuple(round(v, 4) for v in shares)
+    return dataclasses.replace(cal, warnings=tuple(notes), saturated_share=shares, led_order=order)
+
+
+def _in_shown_order(
+    presses: list[Press], initial: Leds | None, reorder: bool
+) -> tuple[list[Press], list[str], tuple[int, ...] | None]:
+    """The captures with their LED images in the order they show (:func:`.led_checks.detected_order`, against
+    ``initial`` or each capture's LEDs) when ``reorder``; the warnings (one per capture out of order), and the order
+    applied (None: none). Why: the captures of the undeformed dome of a session with a wiring error show the same
+    swap as its presses; fitted as captured, LED 3 is moved to LED 7's place (s26-degen: "reliable"), a file that
+    then describes the wiring, not the sensor. A capture whose check finds no clear order is kept as it is (its
+    own warning says what it found, as a solve's does)."""
+    from .contact import led_levels, lit_leds
+    from .led_checks import detected_order_of, reorder_note, reordered
+
+    out, notes, applied = [], [], None
+    for p in presses:
+        if p.reference is None:  # refused further on, naming reference.npz
+            out.append(p)
+            continue
+        leds = tuple(initial) if initial is not None else p.leds
+        live = np.flatnonzero(lit_leds(led_levels(p.linear_led_images, np.isfinite(p.reference.depth))))
+        order = detected_order_of(p, leds, live)
+        if order is not None and reorder:
+            notes.append(reorder_note(p, order, "--keep-led-order", fit=True))
+            p, applied = reordered(p, order), tuple(order)
+        elif order is not None:
+            notes.append(f"{p.folder}: the LED images are out of order, fitted as captured (--keep-led-order)")
+        out.append(p)
+    return out, notes, applied
 
 
 def _check_finite(cal: LedCalibration, folder: Path) -> None:
@@ -262,8 +306,14 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
             if not s.allow_contact:
                 leds, albedo = to_leds(fitted)[:2]
                 raise CaptureError(contact_refusal(presses, s.left_out, leds, albedo, models, leds0))
+            leds, albedo = to_leds(fitted)[:2]
+            causes = tuple(
+                led_cause(p, r, leds, albedo, m, leds0) if r.any() else None
+                for p, r, m in zip(presses, s.left_out, models)
+            )
             again = _calibrate(presses, s)  # the same fit without the contact's pixels
-            return dataclasses.replace(again, contact_pixels=tuple(int(r.sum()) for r in s.left_out))
+            pixels = tuple(int(r.sum()) for r in s.left_out)
+            return dataclasses.replace(again, contact_pixels=pixels, contact_causes=causes)
     models = [m.to_json() for m in models]
     quality = fit_quality(presses, fitted, samples.x, samples.n, direct, samples.ok)
     if s.interreflection == "auto" and any(m["enabled"] for m in models):  # on by the share with the starting LEDs

@@ -82,20 +82,41 @@ def contact_refusal(
         f"{100 * region.sum() / gel:.1f} % of the gel, around pixel ({int(np.median(cols))}, {int(np.median(rows))})"
     )
     model = list(models)[index] if len(models) > index else None
-    shares = unexplained_shares(p, region, leds, albedo, model)
-    k = int(np.argmax(shares))
-    if shares[k] * len(shares) >= tolerances.CALIBRATION_ONE_LED_MISFIT:
+    cause = led_cause(p, region, leds, albedo, model, start)
+    if cause is not None:
         return (
             f"{p.folder}: not calibrated{more}: {where}, differs from the fitted LED model far beyond the images' "
-            f"noise, and {100 * shares[k]:.0f} % of what no normal explains there (a press's dent would) is in LED "
-            f"{k + 1}'s image: {_led_placement(p, leds, k, start)}; the point LED model does not describe an LED "
-            f"package that near the gel: a sensor assembled far from its design? check LED {k + 1}'s mounting against "
-            "the design and capture the undeformed dome again, or pass --allow-contact to fit without those pixels"
+            f"noise, and {cause} and capture the undeformed dome again, or pass --allow-contact to fit without those "
+            "pixels"
         )
     return (
         f"{p.folder}: not a capture of the undeformed dome{more}: {where}, differs from the fitted undeformed model "
         "far beyond the images' noise, as a press does; calibrate the LEDs on the undeformed dome (a session's "
         "reference/), or pass --allow-contact to fit without those pixels"
+    )
+
+
+def led_cause(
+    press: Press,
+    region: np.ndarray,
+    leds: Leds,
+    albedo: Sequence[float],
+    model: IndirectModel | None = None,
+    start: Leds | None = None,
+) -> str | None:
+    """The words naming one LED as the cause of a capture's misfit ``region`` ("48 % of what no normal explains
+    there (a press's dent would) is in LED 1's image: LED 1 sits ...; ... check LED 1's mounting against the
+    design"), when its share of what no normal explains (:func:`unexplained_shares`) times the LED count reaches
+    ``tolerances.CALIBRATION_ONE_LED_MISFIT``; None when the misfit is a press's (spread over the LEDs). The
+    arguments are :func:`contact_refusal`'s for that capture."""
+    shares = unexplained_shares(press, region, leds, albedo, model)
+    k = int(np.argmax(shares))
+    if shares[k] * len(shares) < tolerances.CALIBRATION_ONE_LED_MISFIT:
+        return None
+    return (
+        f"{100 * shares[k]:.0f} % of what no normal explains there (a press's dent would) is in LED {k + 1}'s image: "
+        f"{_led_placement(press, leds, k, start)}; the point LED model does not describe an LED package that near "
+        f"the gel: a sensor assembled far from its design? check LED {k + 1}'s mounting against the design"
     )
 
 
@@ -159,11 +180,20 @@ def _led_placement(press: Press, leds: Leds, k: int, start: Leds | None) -> str:
     return line
 
 
-def contact_notes(presses: Sequence[Press], pixels: Sequence[int]) -> list[str]:
-    """The warnings for contacts left out of the fit (``pixels``: ``LedCalibration.contact_pixels``)."""
+def contact_notes(presses: Sequence[Press], pixels: Sequence[int], causes: Sequence[str | None] = ()) -> list[str]:
+    """The warnings for contacts left out of the fit (``pixels``: ``LedCalibration.contact_pixels``; ``causes``:
+    its ``contact_causes``, :func:`led_cause` of each capture's region: an LED near the gel, not a press, named as
+    the refusal without ``--allow-contact`` names it)."""
     notes = []
-    for p, count in zip(presses, pixels):
-        if count:
+    causes = list(causes) or [None] * len(presses)
+    for p, count, cause in zip(presses, pixels, causes):
+        if count and cause is not None:
+            gel = max(int(np.isfinite(p.reference.depth).sum()), 1)
+            notes.append(
+                f"{p.folder}: {count} pixels ({100 * count / gel:.1f} % of the gel) differ from the fitted LED model "
+                f"far beyond the images' noise and were left out of the LED fit (--allow-contact): {cause}"
+            )
+        elif count:
             gel = max(int(np.isfinite(p.reference.depth).sum()), 1)
             notes.append(
                 f"{p.folder}: shows a contact (a press?): its {count} pixels ({100 * count / gel:.1f} % of the gel) "

@@ -9,6 +9,7 @@ compared with every LED's modelled shading of the undeformed dome, after a per-p
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 from collections.abc import Sequence
 
@@ -33,6 +34,11 @@ MATCH_CORRELATION = 0.5
 """An LED image whose correlation over the gel with its own LED's modelled light is below this, and which
 correlates better with another LED's, is warned about as in the wrong place. The twin's images: 0.98-0.99 with their
 own LED; two swapped LED images: -0.55 and -0.51 with their own, 0.98 with each other's."""
+REORDER_CORRELATION = 0.9
+"""LED images out of order are solved in the order they show (:func:`detected_order`) only when each misplaced image
+correlates with the LED it shows by at least this much: the twin's two swapped images 0.98 with each other's LED
+(their own 0.98-0.99). Below it, or when the images do not map one-to-one onto the LEDs they leave (a clean pair
+or cycle), the order is kept and only warned about."""
 CHECK_PIXELS = 2000
 """Gel pixels the check samples, at least (every k-th in raster order): its statistics are medians and
 correlations over the gel, steady at this count (the verdicts above are the same at 10^4 pixels)."""
@@ -43,7 +49,9 @@ def led_mismatch_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -
     return led_check(press, leds, live)[0]
 
 
-def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], list[int], list[int]]:
+def led_check(
+    press: Press, leds: Sequence[Led], live: Sequence[int]
+) -> tuple[list[str], list[int], list[int], list[int] | None]:
     """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, repeat
     the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`), went through
     JPEG (:func:`compression_notes`), and the LEDs whose
@@ -67,10 +75,12 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
         :data:`WEAK_LED_GAIN`, or their image repeats the one before; empty when leaving them out would leave fewer than
         ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
     misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
+    order : list of int, or None -- for each LED (0-based), the image (0-based, the capture's order) that shows its
+        light, when the misplaced images are a clean pair or cycle (:func:`detected_order`); None otherwise.
     """
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
-        return [], [], []
+        return [], [], [], None
     names = _image_names(press)
     lagged, repeated = _repeated_line(press, names)
     jpeg_notes = compression_notes(press)
@@ -78,19 +88,20 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
     image, model = _samples(press, leds, live) if len(live) >= 3 else (None, None)
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
-        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, []
+        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None
     notes = list(jpeg_notes)  # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
         corr = np.corrcoef(image.mean(-1), model.mean(-1))[: len(live), len(live) :]
-    swapped, misplaced = set(), []
+    swapped, misplaced, shows = set(), [], {}
     for k, i in enumerate(live):
         best = int(np.argmax(corr[k]))
         if corr[k, k] < MATCH_CORRELATION and best != k:
             j = live[best]
             misplaced.append(i)
+            shows[i] = (j, float(corr[k, best]))
             if int(np.argmax(corr[best])) == k and (j, i) not in swapped:
                 swapped.add((i, j))
                 notes.append(
@@ -117,7 +128,66 @@ def led_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[l
             f"it, relative to the other LEDs ({what}), {done}: calibrate the LEDs on the undeformed dome (nlips "
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
-    return notes, left_out, misplaced
+    return notes, left_out, misplaced, detected_order(shows, len(press.leds))
+
+
+def detected_order_of(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[int] | None:
+    """:func:`led_check`'s ``order`` alone: the order the LED images show, or None (theirs, or not clear)."""
+    return led_check(press, leds, live)[3]
+
+
+def detected_order(shows: dict[int, tuple[int, float]], count: int) -> list[int] | None:
+    """For each of ``count`` LEDs, the image that shows its light, when the misplaced images are unambiguous.
+
+    Parameters
+    ----------
+    shows : dict int -> (int, float) -- each misplaced image (0-based) -> the LED whose light it shows best
+        (0-based) and its correlation with that LED's modelled light.
+    count : int -- LEDs of the capture.
+
+    Returns
+    -------
+    list of int (``count``), the image of each LED (the identity where nothing is misplaced), or None when
+    nothing is misplaced, when two images show one LED, when an image shows an LED whose own image is not
+    misplaced (a pair or cycle is closed), or when one correlates with its LED below :data:`REORDER_CORRELATION`.
+    """
+    if not shows:
+        return None
+    targets = [j for j, _ in shows.values()]
+    closed = sorted(targets) == sorted(shows)
+    if not closed or min(c for _, c in shows.values()) < REORDER_CORRELATION:
+        return None
+    order = list(range(count))
+    for image, (led, _) in shows.items():
+        order[led] = image
+    return order
+
+
+def reordered(press: Press, order: Sequence[int]) -> Press:
+    """``press`` with its LED images in ``order`` (``order[j]``: the image of LED ``j``), meta.json's
+    ``images.leds`` names with them (warnings name the files); the LEDs and the other fields ``press``'s own."""
+    order = [int(i) for i in order]
+    fields = {field.name: press.__dict__[field.name] for field in dataclasses.fields(press)}
+    fields["led_images"] = press.led_images[order]
+    images = (press.meta.get("images") or {}).get("leds")
+    if isinstance(images, list) and len(images) == len(order):
+        fields["meta"] = {**press.meta, "images": {**press.meta["images"], "leds": [images[i] for i in order]}}
+    return Press(**fields)
+
+
+def reorder_note(press: Press, order: Sequence[int], flag: str, fit: bool = False) -> str:
+    """The warning of a solve (``fit``: an LED calibration) that uses the LED images in the ``order`` they show
+    (:func:`detected_order`)."""
+    names = _image_names(press)
+    moved = ", ".join(
+        f"{names[i]} (image {i + 1} of images.leds) as LED {j + 1}" for j, i in enumerate(order) if i != j
+    )
+    done, record, keep = ("fitted", "the LED file's", "fit") if fit else ("solved", "report.json", "solve")
+    return (
+        f"{press.folder}: the LED images are out of order (each shows another LED's light: a wiring error, or the "
+        f"order of images.leds in meta.json): {done} in the order they show, {moved} ({record} led_order); fix "
+        f"the wiring or images.leds, or pass {flag} to {keep} them as captured"
+    )
 
 
 def _leave_out(candidates: list[int], count: int) -> list[int]:

@@ -53,7 +53,7 @@ from .contact import (
 )
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
-from .led_checks import exposure_drift_note, led_check, linearity_notes
+from .led_checks import exposure_drift_note, led_check, linearity_notes, reorder_note, reordered
 from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, split_indirect
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -89,7 +89,14 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
-    led_notes, left_out, misplaced = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
+    keep_order = not kwargs.pop("reorder_leds", True)
+    checks = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"), say=False)
+    led_notes, left_out, misplaced, order = checks
+    if order is not None and not keep_order:  # the images' own order: the physics is right again
+        press, kwargs, led_notes, left_out, misplaced = _in_detected_order(press, kwargs, order)
+    else:
+        for note in led_notes:
+            log.warning("%s", note)
     if misplaced and kwargs.get("check_sensor", True):  # out of order: they misfit any description (their warning)
         kwargs["check_sensor"] = None
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
@@ -124,9 +131,44 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             if key in result.report:
                 result.report[key] = [keep[i] for i in result.report[key]]
         result.report["leds_left_out"] = left_out
+    if order is not None:
+        result.report["led_order"] = order if not keep_order else list(range(len(order)))
+        result.report["leds_reordered"] = not keep_order
     if led_notes:
         result.report["warnings"] = [*led_notes, *result.report.get("warnings", [])]
     return result
+
+
+_SAID_ORDERS: set[tuple[str, tuple[int, ...]]] = set()
+"""(press's parent folder, LED order) already warned about in this process: a batch of a session captured with one
+wiring error (``nlips calibrate``, a folder solve) warns once, not once per press (the rest at INFO)."""
+KEEP_ORDER_FLAG = "--keep-led-order"
+"""The command-line flag that solves LED images out of order as captured (``reorder_leds=False``)."""
+
+
+def _in_detected_order(press: Press, kwargs: dict, order: list[int]) -> tuple[Press, dict, list[str], list, list]:
+    """The press with its LED images in the ``order`` they show (:func:`.led_checks.detected_order`), the undeformed
+    capture given (``indirect``) likewise when its own images show the same order (the same wiring), and the
+    warnings, LEDs to leave out and misplaced LEDs of the reordered press (its checks made again, logged).
+
+    Why: two swapped LED images of the twin's cube press were solved as captured to a contact AAE of 6.1 deg after a
+    warning that named the pair; the image labelled 3 was lit by LED 7, so solving it as LED 7's is the physics."""
+    note = reorder_note(press, order, KEEP_ORDER_FLAG)
+    session = (str(press.folder.parent), tuple(order))
+    if session in _SAID_ORDERS:  # a wiring error is the whole session's: its presses' reports keep the line
+        log.info("%s", note)
+    else:
+        _SAID_ORDERS.add(session)
+        log.warning("%s (said once for the presses of %s out of this order)", note, press.folder.parent)
+    kwargs = dict(kwargs)
+    indirect = kwargs.get("indirect")
+    if isinstance(indirect, Press) and indirect.reference is not None:
+        its_order = _led_notes(indirect, kwargs.get("leds"), kwargs.get("options"), say=False)[3]
+        if its_order == order:
+            kwargs["indirect"] = reordered(indirect, order)
+    press = reordered(press, order)
+    notes, left_out, misplaced, _ = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
+    return press, kwargs, [note, *notes], left_out, misplaced
 
 
 LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
@@ -134,36 +176,37 @@ LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
 
 
 def _capture_notes(
-    press: Press, leds: Leds | None, options: SolverOptions | None
-) -> tuple[list[str], list[int], list[int]]:
+    press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
+) -> tuple[list[str], list[int], list[int], list[int] | None]:
     """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
     when it holds light) and :func:`.led_checks.led_check` of its live LEDs; the LEDs to leave out and those whose
-    images show another LED's light (0-based).
+    images show another LED's light (0-based), and the order the images show (None: theirs, or not clear).
     Made before the solve, so a solve that then fails has said why first."""
     notes = []
     if fault := dark_frame_fault(press):
         message, refuse = fault
         if refuse:
             raise CaptureError(message)
-        log.warning("%s", message)
+        if say:
+            log.warning("%s", message)
         notes.append(message)
-    led_notes, left_out, misplaced = _led_notes(press, leds, options)
-    return notes + led_notes, left_out, misplaced
+    led_notes, left_out, misplaced, order = _led_notes(press, leds, options, say)
+    return notes + led_notes, left_out, misplaced, order
 
 
 def _led_notes(
-    press: Press, leds: Leds | None, options: SolverOptions | None
-) -> tuple[list[str], list[int], list[int]]:
-    """:func:`.led_checks.led_check` of the press's live LEDs, each note logged as a warning."""
+    press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
+) -> tuple[list[str], list[int], list[int], list[int] | None]:
+    """:func:`.led_checks.led_check` of the press's live LEDs, each note logged as a warning (``say``)."""
     leds = press.leds if leds is None else tuple(leds)
     if press.reference is None or len(leds) != len(press.leds):
-        return [], [], []  # no undeformed dome to model; a wrong LED count is refused by the solve
+        return [], [], [], None  # no undeformed dome to model; a wrong LED count is refused by the solve
     level = (options or SolverOptions()).dead_led_level
     live = np.flatnonzero(lit_leds(led_levels(press.linear_led_images, np.isfinite(press.reference.depth)), level))
-    notes, left_out, misplaced = led_check(press, leds, live)
-    for note in notes:
+    notes, left_out, misplaced, order = led_check(press, leds, live)
+    for note in notes if say else ():
         log.warning("%s", note)
-    return notes, left_out, misplaced
+    return notes, left_out, misplaced, order
 
 
 def _without_leds(press: Press, kwargs: dict, keep: list[int]) -> tuple[Press, dict]:
@@ -216,6 +259,7 @@ def _solve_press(
     max_outer: int = 2,
     outer_relaxation: float | str = "auto",
     check_sensor: bool | None = True,
+    reorder_leds: bool = True,
 ) -> SolveResult:
     """Solve one press.
 
@@ -246,6 +290,9 @@ def _solve_press(
         describe (:func:`.sensor_fit.sensor_mismatch`); False (``--allow-sensor-misfit``): solve it anyway, the
         report's ``sensor_check`` saying what was overridden (and ``warnings``, when it was); None: not checked
         (:func:`solve_press` sets it when the LED images show other LEDs' light: their own warning says so).
+    reorder_leds : LED images out of order (a clean pair or cycle, :func:`.led_checks.detected_order`) are solved
+        in the order they show, with a warning and the report's ``led_order`` / ``leds_reordered``
+        (:func:`solve_press` does it); False (``--keep-led-order``): as captured, only warned about.
 
     Returns
     -------

@@ -94,6 +94,34 @@ def test_an_led_near_the_gel_is_named_as_the_cause_not_a_press(tmp_path):
     line = str(refused.value)
     assert "as a press does" not in line and "in LED 1's image: LED 1 sits 3.7 mm from the gel" in line, line
     assert "assembled far from its design? check LED 1's mounting" in line and "--allow-contact" in line, line
+    # with --allow-contact the fit goes on without those pixels, and its warning names the LED the same way: it said
+    # "shows a contact (a press?)" (s28-ledfar)
+    cal = calibrate_leds(flat, stride=3, allow_contact=True)
+    said = [w for w in cal.warnings if "left out of the LED fit" in w]
+    assert len(said) == 1 and "a press?" not in said[0], cal.warnings
+    assert "in LED 1's image: LED 1 sits 3.7 mm from the gel" in said[0] and "check LED 1's mounting" in said[0]
+
+
+def test_led_images_out_of_order_are_fitted_in_the_order_they_show(tmp_path):
+    """The undeformed capture of a session with a wiring error shows its presses' swap: fitted as captured, LED 3 was
+    moved to LED 6's place (s26-degen: "reliable"), a file describing the wiring, not the sensor. The fit now takes
+    the images in the order they show, says so, and records it; ``reorder_leds=False`` fits them as captured."""
+
+    def swap(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    flat = load_press(synth.make_press(tmp_path / "ref", "none", size=(64, 48), lin_hook=swap))
+    cal = calibrate_leds(flat, stride=3, interreflection="off")
+    assert cal.led_order == (0, 1, 5, 3, 4, 2, 6, 7, 8, 9, 10, 11) and cal.to_json()["led_order"][2] == 5
+    assert any("out of order" in w and "fitted in the order they show" in w for w in cal.warnings), cal.warnings
+    design = synth.ring_leds()
+    moved = [np.linalg.norm(np.subtract(a.position, b.position)) for a, b in zip(cal.leds, design)]
+    assert max(moved) < 1.0, moved
+    kept = calibrate_leds(flat, stride=3, interreflection="off", reorder_leds=False)
+    assert kept.led_order is None and "led_order" not in kept.to_json()
+    assert any("fitted as captured" in w for w in kept.warnings), kept.warnings
 
 
 def test_a_contact_left_out_of_the_led_fit_is_left_out_of_the_indirect_terms_fit_too(presses, monkeypatch):

@@ -9,7 +9,14 @@ import pytest
 
 from nlipscalib.core import load_press
 from nlipscalib.solver import SolverOptions, solve_press
-from nlipscalib.solver.led_checks import _samples, led_check, led_mismatch_notes, linearity_notes, response_slope
+from nlipscalib.solver.led_checks import (
+    _samples,
+    detected_order,
+    led_check,
+    led_mismatch_notes,
+    linearity_notes,
+    response_slope,
+)
 
 from . import synth
 
@@ -20,7 +27,8 @@ def _press(tmp_path, name, hook=None):
 
 def test_two_swapped_led_images_are_named_as_swapped_in_the_log_and_the_report(tmp_path, caplog):
     """Two LED images in each other's place (a wiring error) were solved without a word about it (the twin's cube
-    press: contact AAE 6.1 deg, depth 6.7 mm off, only "the solve drifted"); the solve now names both images."""
+    press: contact AAE 6.1 deg, depth 6.7 mm off, only "the solve drifted"); the solve now names both images (kept in
+    the captured order here: the order they show is the next test's)."""
 
     def swap(lin):
         lin = lin.copy()
@@ -29,10 +37,87 @@ def test_two_swapped_led_images_are_named_as_swapped_in_the_log_and_the_report(t
 
     press = _press(tmp_path, "swapped", swap)
     with caplog.at_level(logging.WARNING):
-        result = solve_press(press, options=SolverOptions(max_iters=2))
+        result = solve_press(press, options=SolverOptions(max_iters=2), reorder_leds=False)
     said = [note for note in result.report.get("warnings", []) if "look swapped" in note]
     assert len(said) == 1 and "LED 3 (led_03.png)" in said[0] and "LED 6 (led_06.png)" in said[0]
     assert said[0] in caplog.text
+
+
+def test_swapped_led_images_are_solved_in_the_order_they_show_unless_kept_as_captured(tmp_path, caplog):
+    """The twin's cube press with LED images 3 and 7 swapped was solved as captured after its warning: contact AAE
+    6.1 deg, a result the tool knew was wrong. The image labelled 3 was lit by LED 6 here: the solve now uses it
+    as LED 6's (the physics), says so, and records the order; ``reorder_leds=False`` keeps the captured order."""
+
+    def swap(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    options = SolverOptions(max_iters=2)
+    clean = solve_press(_press(tmp_path, "clean"), options=options)
+    press = _press(tmp_path, "swapped", swap)
+    with caplog.at_level(logging.WARNING):
+        fixed = solve_press(press, options=options)
+    order = [0, 1, 5, 3, 4, 2, 6, 7, 8, 9, 10, 11]
+    assert fixed.report["led_order"] == order and fixed.report["leds_reordered"] is True
+    said = [note for note in fixed.report["warnings"] if "out of order" in note]
+    assert (
+        len(said) == 1 and "led_06.png (image 6 of images.leds) as LED 3" in said[0] and "--keep-led-order" in said[0]
+    )
+    assert said[0] in caplog.text and not any("look swapped" in note for note in fixed.report["warnings"])
+    gel = clean.reconstructed & fixed.reconstructed
+    assert np.abs(fixed.depth[gel] - clean.depth[gel]).max() < 1e-6
+    kept = solve_press(press, options=options, reorder_leds=False)
+    assert kept.report["led_order"] == list(range(12)) and kept.report["leds_reordered"] is False
+    assert any("look swapped" in note for note in kept.report["warnings"])
+    assert np.abs(kept.depth[gel] - clean.depth[gel]).max() > 0.1
+
+
+def test_the_undeformed_capture_given_with_the_same_swap_is_reordered_alike(tmp_path):
+    """A session's undeformed capture (``--reference``, a folder's ``reference/``) shows its presses' wiring error:
+    reordering the press and not it would compare LED 6's light with LED 3's model of the undeformed dome."""
+
+    def swap(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    def flat(name, hook=None):
+        return load_press(synth.make_press(tmp_path / name, "none", lin_hook=hook))
+
+    options = SolverOptions(max_iters=2)
+    clean = solve_press(_press(tmp_path, "clean"), indirect=flat("ref"), options=options)
+    fixed = solve_press(_press(tmp_path, "swapped", swap), indirect=flat("ref_swapped", swap), options=options)
+    gel = clean.reconstructed & fixed.reconstructed
+    assert fixed.report["leds_reordered"] and np.abs(fixed.depth[gel] - clean.depth[gel]).max() < 1e-6
+
+
+def test_a_sessions_wiring_error_is_warned_about_once_and_recorded_in_every_report(tmp_path, caplog):
+    """A wiring error is the session's: ``nlips calibrate`` of 50 presses would say it 50 times. The first press of a
+    folder out of an order warns; the next ones say it at INFO, each report keeping the line."""
+
+    def swap(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    presses = [_press(tmp_path / "session", name, swap) for name in ("p1", "p2")]
+    with caplog.at_level(logging.INFO):
+        results = [solve_press(p, options=SolverOptions(max_iters=1)) for p in presses]
+    warned = [r for r in caplog.records if "out of order" in r.getMessage() and r.levelno == logging.WARNING]
+    assert len(warned) == 1 and "said once" in warned[0].getMessage()
+    assert all(any("out of order" in w for w in r.report["warnings"]) for r in results)
+
+
+def test_only_a_clean_pair_or_cycle_of_misplaced_images_gives_an_order():
+    """A wrong order is corrected only when it is plain: each misplaced image shows an LED whose own image is
+    misplaced too, no LED twice, each well (``REORDER_CORRELATION``)."""
+    assert detected_order({1: (3, 0.98), 3: (1, 0.97)}, 5) == [0, 3, 2, 1, 4]
+    assert detected_order({0: (1, 0.98), 1: (2, 0.98), 2: (0, 0.98)}, 4) == [2, 0, 1, 3]
+    assert detected_order({1: (3, 0.98)}, 5) is None  # LED 4's own image fits it: not a swap
+    assert detected_order({1: (3, 0.98), 2: (3, 0.98), 3: (1, 0.98)}, 5) is None  # LED 4 shown twice
+    assert detected_order({1: (3, 0.98), 3: (1, 0.7)}, 5) is None  # a poor match: only warned about
+    assert detected_order({}, 5) is None
 
 
 def test_a_weak_led_is_named_with_its_share_of_the_modelled_light(tmp_path):
@@ -100,7 +185,7 @@ def test_repeated_led_images_too_many_to_leave_out_are_said_to_be_used(tmp_path)
     out would leave too few to solve, so they are used, and the warning says so (it said "left out of the solve"
     whatever the solve did, s27-docs2)."""
     press = _press(tmp_path, "stuck", lambda lin: lin[[0] * len(lin)])
-    notes, left_out, _ = led_check(press, press.leds, range(len(press.leds)))
+    notes, left_out, _, _ = led_check(press, press.leds, range(len(press.leds)))
     said = [note for note in notes if "repeats" in note]
     assert left_out == [] and len(said) == 1
     assert "led_12.png repeats led_11.png" in said[0] and "; used (too few LEDs to leave them out)" in said[0]
