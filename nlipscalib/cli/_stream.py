@@ -166,9 +166,11 @@ def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
 
 
 def open_frames(
-    args: argparse.Namespace, stack: contextlib.ExitStack, loop: bool = False
+    args: argparse.Namespace, stack: contextlib.ExitStack, loop: bool = False, camera_response: str = "linear"
 ) -> tuple[FrameSource, Callable[[int], None] | None]:
     """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
+    ``camera_response``: the model's (``Predictor.camera_response``); a live camera is asked for gamma 1.0 only
+    when "linear", else its own curve is left on, as the calibration's captures had it and the model undoes it.
 
     The emulated sensor when ``--emulate``, else ``--camera`` (camera, folder or video) with the LED board
     at ``--port`` lit in the tri-colour pattern (``nlipsemu://ID``: a virtual board of that id, started here
@@ -183,7 +185,8 @@ def open_frames(
     if args.emulate:
         return _emulated_source(args, stack, loop=loop or args.max_frames is not None)
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
-    source = stack.enter_context(open_source(camera, CameraSettings(exposure_ms=args.exposure_ms)))
+    settings = CameraSettings(exposure_ms=args.exposure_ms, linear_gamma=camera_response == "linear")
+    source = stack.enter_context(open_source(camera, settings))
     if args.port:
         from ..device.lights_out import lights_out_on_exit
         from ..device.port import BAUD_RATE
@@ -230,7 +233,7 @@ def check_emulated_sensor(args: argparse.Namespace, sensor: dict, reference_dept
     """
     from ..core.dome import reference_surface
     from ..core.errors import CaptureError
-    from ..core.sensor_record import describe_sensor, sensor_mismatch, surface_mismatch
+    from ..core.sensor_record import camera_response_of, describe_sensor, sensor_mismatch, surface_mismatch
     from ..sim.scene import load_scene
 
     if not args.emulate:
@@ -240,6 +243,8 @@ def check_emulated_sensor(args: argparse.Namespace, sensor: dict, reference_dept
     why = sensor_mismatch(sensor, describe_sensor(scene.camera_model(), scene.led_models(), scene.noise.response()))
     if not why and reference_depth is not None:
         why = surface_mismatch(reference_depth, reference_surface(scene.design).depth)
+    if not why and (response := camera_response_of(sensor)) != "linear":  # emulated frames are linear
+        why = f"its frames are linear, the model's calibration declared the camera response {response}"
     if why:
         raise CaptureError(
             f"--emulate {args.emulate}: the emulated sensor of {args.emulate} is another sensor than the model "

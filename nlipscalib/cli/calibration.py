@@ -131,6 +131,7 @@ def run(args: argparse.Namespace) -> int:
     if not presses:
         raise no_presses_error(root)
     reference_fits(reference, presses)
+    responses_agree(reference, presses)
     if args.leds is not None:
         led_file_fits(args.leds, reference)
     out = Path(args.out) if args.out else root / DEFAULT_DIR
@@ -254,6 +255,28 @@ def reference_fits(reference: Path, presses: Sequence[Path]) -> None:
         if why := twin_reference_problem(reference, read_meta(reference), press, meta, optional=False):
             raise ConfigError(f"--reference {why}")
         return
+
+
+def responses_agree(reference: Path, presses: Sequence[Path]) -> None:
+    """One line, before any solving, when a press declares another camera response than the undeformed capture
+    (meta.json ``sensor.camera_response``, :func:`~nlipscalib.core.sensor_record.response_mismatch`): the model
+    records one response, with which ``nlips infer`` linearises the stills and streams it is given. A press whose
+    meta.json cannot be read is not compared: it fails alone, in its own line."""
+    from ..core.errors import CaptureError, ConfigError
+    from ..core.press_meta import META_FILE, parse_optics, read_meta
+    from ..core.sensor_record import describe_sensor, response_mismatch
+
+    def sensor(folder: Path) -> dict:
+        return describe_sensor(*parse_optics(read_meta(folder), folder / META_FILE))
+
+    theirs = sensor(reference)
+    for press in presses:
+        try:
+            ours = sensor(press)
+        except CaptureError:
+            continue
+        if why := response_mismatch(theirs, ours, f"--reference {reference}"):
+            raise ConfigError(f"{press}: {why}")
 
 
 def led_file_fits(leds: str, reference: Path) -> None:

@@ -325,10 +325,8 @@ def _run_device(args: argparse.Namespace):
         held,
         open_leds(args.port, args.adalight, args.baud) as controller,
         lights_out_on_exit(controller),  # also when the session is stopped (Ctrl-C, SIGTERM) mid-press
-        open_source(camera_spec, settings) as source,
+        open_source(camera_spec, settings, reported=_session_refusals(args.out, camera_spec)) as source,
     ):
-        for line in source.refused:
-            print(f"camera refused: {line}", file=sys.stderr)
         shift = 16 - source.bit_depth
         response = SensorResponse(
             bit_depth=source.bit_depth,
@@ -413,6 +411,25 @@ def _calibrated_camera(path: str | None) -> Camera | None:
         return Camera.from_dict(doc["camera"])
     except (ValueError, KeyError, TypeError) as exc:
         raise ConfigError(f"{path}: not a camera calibration file ({exc})") from None
+
+
+def _session_refusals(out: str, camera_spec: str) -> tuple[str, ...]:
+    """The camera refusals a resumed session said when it started (its reference's meta.json
+    ``provenance.camera_refused``, when taken with the camera ``camera_spec``): not said again at each capture
+    (``device.camera.report_refusals``); () for a new session or a record that cannot be read."""
+    from pathlib import Path
+
+    from ..core.errors import CaptureError
+    from ..core.press_meta import REFERENCE_FOLDER, read_meta
+
+    try:
+        provenance = read_meta(Path(out) / REFERENCE_FOLDER).get("provenance")
+    except (CaptureError, OSError, ValueError):
+        return ()
+    if not isinstance(provenance, dict) or (provenance.get("device") or {}).get("camera") != str(camera_spec):
+        return ()
+    refused = provenance.get("camera_refused")
+    return tuple(line for line in refused if isinstance(line, str)) if isinstance(refused, list) else ()
 
 
 def _leds(args: argparse.Namespace, camera: Camera, design: SensorDesign) -> tuple[Led, ...] | None:

@@ -281,7 +281,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     stats = None
     try:
         with contextlib.ExitStack() as stack:
-            source, before_frame = open_frames(args, stack)
+            source, before_frame = open_frames(args, stack, camera_response=predictor.camera_response)
             if tuple(source.shape) != predictor.shape:
                 (h, w), (mh, mw) = source.shape, predictor.shape
                 raise CaptureError(

@@ -205,7 +205,9 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, ter
             size_emulator_for(args, predict.predictor.shape)
             check_emulated_sensor(args, predict.predictor.model.sensor, predict.predictor.model.reference["depth"])
         window = no_window is None
-        source, before_frame = open_frames(args, stack, loop=window)
+        # a model's camera response decides whether the camera is asked for gamma 1.0; a plugged predictor's: linear
+        response = predict.predictor.camera_response if args.model else "linear"
+        source, before_frame = open_frames(args, stack, loop=window, camera_response=response)
         if not args.model:
             predict, reference_depth = _plugged(args.predictor, source.shape)
         sinks = []

@@ -33,8 +33,9 @@ def sensor_of(press: Press) -> dict:
 
 
 def describe_sensor(camera: Camera, leds: Leds, response: SensorResponse | None = None) -> dict:
-    """Camera, LED count, tri-colour groups, sensor levels and LED geometry (positions, mm, and directions,
-    camera frame) of a sensor: what a calibration dataset and a model are valid for.
+    """Camera, LED count, tri-colour groups, sensor levels, camera response ("camera_response", only when not
+    linear: :func:`camera_response_of`) and LED geometry (positions, mm, and directions, camera frame) of a sensor:
+    what a calibration dataset and a model are valid for.
 
     ``response`` None (a sensor about to be captured, its camera not yet opened): no sensor levels, which
     :func:`sensor_mismatch` does not compare; such a description is for comparing only, not for storing."""
@@ -42,6 +43,8 @@ def describe_sensor(camera: Camera, leds: Leds, response: SensorResponse | None 
     levels = {}
     if response is not None:
         levels = {"black_level": float(response.black_level), "white_level": float(response.white_level)}
+        if response.camera_response != "linear":  # absent when linear: the records of linear sensors as before
+            levels["camera_response"] = response.camera_response
     return {
         "camera": camera.to_dict(),
         "n_leds": n,
@@ -50,6 +53,28 @@ def describe_sensor(camera: Camera, leds: Leds, response: SensorResponse | None 
         "led_positions": [[float(v) for v in led.position] for led in leds],
         "led_directions": [[float(v) for v in led.direction] for led in leds],
     }
+
+
+def camera_response_of(sensor: dict) -> str:
+    """The camera response (``core.sensor_response.CAMERA_RESPONSES``) a sensor description records: what the
+    frames of its captures, and a model's stills and streams, are encoded with; "linear" when it records none (a
+    linear camera, or a file written before responses were recorded, 2026-12-06)."""
+    return sensor.get("camera_response", "linear")
+
+
+def response_mismatch(expected: dict, actual: dict, expected_as: str = "the calibration's") -> str | None:
+    """Why a capture of ``actual`` does not belong in a calibration of ``expected`` for its camera response alone
+    (:func:`camera_response_of`), or None when they share one. Not part of :func:`sensor_mismatch`: a capture of
+    either response is linearised by its own declaration and solves (or infers) alike; only a calibration must
+    have one, as its model linearises stills and streams, which declare nothing, with the one it records."""
+    ours, theirs = camera_response_of(actual), camera_response_of(expected)
+    if ours == theirs:
+        return None
+    return (
+        f"camera response {ours} (meta.json sensor.camera_response), {expected_as} {theirs}: a calibration's "
+        "undeformed capture and presses must share one, which its model records and undoes on the stills and "
+        "streams it infers; calibrate the presses of each response apart (or recapture)"
+    )
 
 
 def sensor_mismatch(expected: dict, actual: dict, expected_as: str = "calibrated for") -> str | None:
@@ -231,6 +256,7 @@ def check_sensor_record(sensor: object, where: str | Path, remedy: str = "") -> 
     from .camera import Camera
     from .config import is_finite_number
     from .errors import ConfigError
+    from .sensor_response import CAMERA_RESPONSES
 
     try:
         if not isinstance(sensor, dict):
@@ -250,6 +276,11 @@ def check_sensor_record(sensor: object, where: str | Path, remedy: str = "") -> 
         for key in ("black_level", "white_level"):  # float("x") would name the value, not the key
             if not is_finite_number(sensor[key]):
                 raise ValueError(f"{key} must be a finite number, got {sensor[key]!r}")
+        if camera_response_of(sensor) not in CAMERA_RESPONSES:  # inference would undo no curve, or a wrong one
+            raise ValueError(
+                f"camera_response must be one of {', '.join(map(repr, CAMERA_RESPONSES))}, got "
+                f"{sensor['camera_response']!r}"
+            )
         for key in ("led_positions", "led_directions"):  # absent in files made before they were recorded
             if key in sensor and np.asarray(sensor[key], dtype=float).shape != (n, 3):
                 raise ValueError(f"{key} must be {n} (x, y, z) triples")

@@ -19,7 +19,7 @@ import logging
 import math
 import os
 import re
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING
@@ -263,7 +263,7 @@ class OpenCVSource(FrameSource):
     file or sequence gets no settings and no flushing (each recorded frame is one exposure).
     """
 
-    def __init__(self, device: int | str, settings: CameraSettings | None = None):
+    def __init__(self, device: int | str, settings: CameraSettings | None = None, reported: Collection[str] = ()):
         cv2 = _cv2()
         self.device = device
         self.live = isinstance(device, int) or str(device).startswith("/dev/")
@@ -277,8 +277,7 @@ class OpenCVSource(FrameSource):
         if self.live:
             self.refused = tuple(apply_settings(self.cap, settings))
             self.gamma = reported_gamma(self.cap)
-            for line in self.refused:
-                log.warning("camera %s: %s", device, line)
+            report_refusals(device, self.refused, reported)
             self.flush_frames = settings.flush_frames
             self.exposure_ms = settings.exposure_ms
             self.gain = settings.gain
@@ -394,6 +393,14 @@ V4L2 and DirectShow pass it through; its range and default are the camera's (oft
 a backend with other units reports a refusal, which is what a lab must see (docs/formats.md, "Cameras")."""
 
 
+NO_GAMMA_CONTROL = (
+    "gamma 1.0: the camera has no gamma control, so its frames are taken as linear (if it applies a tone curve, "
+    "declare --camera-response srgb; the capture's linearity check warns of a curve it sees)"
+)
+"""The refusal line of a camera without a gamma control (OpenCV reports 0 or -1): not "asked 100, camera reports
+0", which read as a value the camera chose."""
+
+
 def reported_gamma(cap: cv2.VideoCapture) -> float | None:
     """The camera's ``CAP_PROP_GAMMA`` as it reports it, None when it has none (OpenCV: 0 or -1): recorded with a
     capture (meta.json ``provenance.camera_gamma``), whether or not gamma was asked for."""
@@ -434,19 +441,39 @@ def apply_settings(cap: cv2.VideoCapture, settings: CameraSettings) -> list[str]
     for name, prop, value in wanted:
         accepted = cap.set(prop, value)
         got = cap.get(prop)
-        if not accepted or not math.isclose(got, value, rel_tol=CAMERA_SETTING_RTOL, abs_tol=CAMERA_SETTING_ABS):
+        if prop == cv2.CAP_PROP_GAMMA and not accepted and got <= 0:  # OpenCV's 0 or -1: no such control
+            refused.append(NO_GAMMA_CONTROL)
+        elif not accepted or not math.isclose(got, value, rel_tol=CAMERA_SETTING_RTOL, abs_tol=CAMERA_SETTING_ABS):
             refused.append(f"{name}: asked {value:g}, camera reports {got:g}")
     return refused
 
 
-def open_source(spec: str | int, settings: CameraSettings | None = None) -> FrameSource:
+_REPORTED: set[tuple[str, str]] = set()
+"""(camera, line) of each refusal this process has said (:func:`report_refusals`)."""
+
+
+def report_refusals(device: int | str, refused: Collection[str], reported: Collection[str] = ()) -> None:
+    """Warn of each setting ``device`` refused, once per camera and process, and not at all when in ``reported``
+    (a resumed session's, said when it started and recorded in its captures).
+
+    Why: a webcam without a gamma control said "camera refused: gamma 1.0 ..." at every capture of a session (twice:
+    as this warning and as the capture's own line), though nothing about it could change between them."""
+    for line in refused:
+        key = (str(device), line)
+        if line not in reported and key not in _REPORTED:
+            log.warning("camera %s refused %s", device, line)
+        _REPORTED.add(key)
+
+
+def open_source(spec: str | int, settings: CameraSettings | None = None, reported: Collection[str] = ()) -> FrameSource:
     """Frame source from a command-line spec: a camera index ("0"), a device path, a folder, a video file
-    or an image sequence pattern ("frames/img_%04d.png")."""
+    or an image sequence pattern ("frames/img_%04d.png"). ``reported``: refusals of a live camera not to be said
+    again (:func:`report_refusals`)."""
     settings = settings or CameraSettings()
     if isinstance(spec, int) or str(spec).isdigit():
-        return OpenCVSource(int(spec), settings)
+        return OpenCVSource(int(spec), settings, reported)
     if Path(spec).is_dir():
         return FolderSource(spec, average=settings.average)
     if "%" in str(spec) and "://" not in str(spec) and not str(spec).startswith("/dev/") and not Path(spec).exists():
         return SequenceSource(spec, average=settings.average)  # a stream URL may hold %-escapes: OpenCV's
-    return OpenCVSource(str(spec), settings)
+    return OpenCVSource(str(spec), settings, reported)

@@ -49,7 +49,14 @@ from ..core.claims import wait_for_release
 from ..core.errors import CaptureError, ConfigError
 from ..core.formatfile import read_array_headers, read_arrays, read_format_json
 from ..core.imageio import save_npz
-from ..core.sensor_record import capture_settings, check_sensor, check_sensor_record, common_settings, sensor_of
+from ..core.sensor_record import (
+    capture_settings,
+    check_sensor,
+    check_sensor_record,
+    common_settings,
+    response_mismatch,
+    sensor_of,
+)
 from ..progress import track
 from .change import RULE_VERSION, changed_pixels
 from .prefilter import Prefilter, check_sigma
@@ -421,6 +428,8 @@ class _Build:
 
         press = load_press(folder)
         check_sensor(self.sensor, sensor_of(press), folder)
+        if why := response_mismatch(self.sensor, sensor_of(press), "the reference's"):
+            raise CaptureError(f"{folder}: {why}")
         rec = load_reconstruction(folder / self.result_dir, press.camera.shape)
         samples = press_samples(press, rec, self.ref, self.cfg)
         entry = {

@@ -18,7 +18,8 @@ import numpy as np
 
 from ..core.camera import Camera, depth_to_points
 from ..core.errors import CaptureError, ConfigError, ShapeError
-from ..core.sensor_response import CLIPPED_VALUE, linearise
+from ..core.sensor_record import camera_response_of
+from ..core.sensor_response import CLIPPED_VALUE, linearise, tone_curve_table, undo_tone_curve
 from ..core.tolerances import (
     FRAME_BLACK_FRACTION,
     FRAME_BRIGHTNESS_OFF,
@@ -121,6 +122,12 @@ class Predictor:
         self.ref_normals = np.where(self.valid[..., None], ref["normals"], 0).astype(np.float32)
         self.ref_depth = ref["depth"].astype(np.float64)
         self.dark = ref["dark"].astype(np.float32)
+        sensor = self.model.sensor
+        # the response the calibration's captures declared ("linear" in a model from before it was recorded): its
+        # captures had their curve undone as they were loaded, the stored frames given here (stills, streams)
+        # declare none and are taken as encoded alike
+        self.camera_response = camera_response_of(sensor)
+        self.tone_curve = tone_curve_table(self.camera_response, sensor["black_level"], sensor["white_level"])
         self.geo = RayGeometry.from_reference(self.camera.rays, self.ref_depth) if depth else None
         # normals only: every frame's depth and points are the undeformed dome's; made once, not per frame (that
         # cost 2-8 ms a 640x480 frame, more than integrating the changed pixels with depth)
@@ -226,11 +233,13 @@ class Predictor:
 
     # ------------------------------------------------------------------ inputs
     def linear(self, image: np.ndarray, where: str | Path = "frame") -> np.ndarray:
-        """Linear tri-colour image from stored 16-bit values, with the calibration's dark frame and levels.
+        """Linear tri-colour image from stored 16-bit values, with the calibration's camera response, dark frame
+        and levels.
 
         Parameters
         ----------
-        image : (H, W, 3) uint16 stored values (a tri-colour PNG of this sensor)
+        image : (H, W, 3) uint16 stored values, encoded as the calibration's captures were (a tri-colour PNG or a
+            camera frame of this sensor; not changed)
         where : name used in error messages (the file)
         """
         if image.shape != self.shape + (3,):
@@ -238,6 +247,27 @@ class Predictor:
             raise CaptureError(
                 f"{where}: image is {image.shape[1]}x{image.shape[0]}, the model was calibrated for {w}x{h} images"
             )
+        return self._linearise(self.in_light(image))
+
+    def in_light(self, image: np.ndarray) -> np.ndarray:
+        """``image``'s stored values with the calibration's tone curve undone (a new array; ``image`` itself for a
+        linear camera): what the capture loader makes of a declared camera's images, with the same table.
+
+        Parameters
+        ----------
+        image : (H, W, 3) uint16 stored values as the camera encoded them
+
+        Returns
+        -------
+        (H, W, 3) uint16 stored values linear in the light
+        """
+        if self.tone_curve is None:
+            return image
+        # a copy: the frame may be a reader's buffer or the caller's array (2.3 ms a 640x480 frame, the copy 0.3)
+        return undo_tone_curve(np.array(image, np.uint16), self.tone_curve)
+
+    def _linearise(self, image: np.ndarray) -> np.ndarray:
+        """(H, W, 3) float32 linear frame of stored values already linear in the light (:meth:`in_light`)."""
         s = self.model.sensor
         return linearise(image, self.dark, s["black_level"], s["white_level"])
 
@@ -301,8 +331,12 @@ class Predictor:
         calibration's: 11 of the 31 ms that check added to each such 640x480 frame of a stream)."""
         level = float(np.median(self.ref_tricolor[self.valid].sum(-1)))
         s = self.model.sensor
-        # the clipping level at each gel pixel, linearised as the frame was; half a step below it for float32 rounding
-        top = min(float(s["white_level"]), CLIPPED_VALUE) - 0.5
+        # the clipping level at each gel pixel, linearised as the frame was (its tone curve undone first: an 8-bit
+        # sRGB frame's 255 stays the white level, a 16-bit one's 0xFF00 is darker); half a step below for rounding
+        top = min(float(s["white_level"]), CLIPPED_VALUE)
+        if self.tone_curve is not None:
+            top = float(self.tone_curve[int(top)])
+        top -= 0.5
         return level, linearise(np.float32(top), self.dark[self.valid], s["black_level"], s["white_level"])
 
     def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
@@ -313,7 +347,8 @@ class Predictor:
     def predict_stored(self, image: np.ndarray, where: str | Path = "frame") -> Frame:
         """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""
         if self._full is not None and image.dtype == np.uint16 and image.shape == self.shape + (3,):
-            return self._whole_frame(image, stored=True)  # converted on the device: half the bytes to move
+            # the tone curve undone here, the rest converted on the device: half the bytes to move
+            return self._whole_frame(self.in_light(image), stored=True)
         t0 = time.perf_counter()
         linear = self.linear(image, where)
         t1 = time.perf_counter()
@@ -328,7 +363,7 @@ class Predictor:
         frame = Frame(normals, depth, points, changed, seconds, mismatch=mismatch)
         t0 = time.perf_counter()
         if frame.mismatch > FRAME_MISMATCH_FRACTION:
-            frame.brightness, frame.saturated = self._exposure(self.linear(tricolor) if stored else tricolor)
+            frame.brightness, frame.saturated = self._exposure(self._linearise(tricolor) if stored else tricolor)
         check = time.perf_counter() - t0
         frame.seconds = {**{k: v for k, v in seconds.items() if k != "total"}, "check": check}
         frame.seconds["total"] = seconds["total"] + check

@@ -257,3 +257,61 @@ def test_gamma_is_asked_linear_and_a_refusal_names_the_declaration():
     declared = FakeCap({})
     assert apply_settings(declared, CameraSettings(linear_gamma=False)) == []
     assert cv2.CAP_PROP_GAMMA not in declared.props and reported_gamma(declared) is None  # no control: None
+
+
+def test_a_camera_without_a_gamma_control_is_said_so_once_per_camera_and_session(caplog, tmp_path):
+    """A webcam without a gamma control read "camera refused: gamma 1.0 ...: asked 100, camera reports 0" at every
+    capture (and twice: the source's warning and the capture's line). Now its own line, said once per camera in a
+    process, and not again when a resumed session recorded it in its captures."""
+    import json
+    import logging
+
+    from nlipscalib.cli.capture import _session_refusals
+    from nlipscalib.device.camera import NO_GAMMA_CONTROL, report_refusals
+
+    none = FakeCap({cv2.CAP_PROP_GAMMA: None})  # set() refused, get() 0: OpenCV's answer for a missing control
+    assert apply_settings(none, CameraSettings()) == [NO_GAMMA_CONTROL]
+    assert "no gamma control" in NO_GAMMA_CONTROL and "--camera-response srgb" in NO_GAMMA_CONTROL
+
+    caplog.set_level(logging.WARNING, logger="nlipscalib.device.camera")
+    for _ in range(3):
+        report_refusals("/dev/video-test-7", [NO_GAMMA_CONTROL])
+    said = [r.getMessage() for r in caplog.records]
+    assert said == [f"camera /dev/video-test-7 refused {NO_GAMMA_CONTROL}"]
+    report_refusals("/dev/video-test-8", [NO_GAMMA_CONTROL], reported=[NO_GAMMA_CONTROL])  # the session said it
+    assert len(caplog.records) == 1
+
+    from tests.solver import synth
+
+    session = tmp_path / "session"
+    synth.make_press(session / "reference", kind="none", size=(32, 24))  # a whole press folder: meta.json is read
+    meta_path = session / "reference" / "meta.json"
+    meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    meta["provenance"] = {"device": {"camera": "3"}, "camera_refused": [NO_GAMMA_CONTROL]}  # as a capture records it
+    meta_path.write_text(json.dumps(meta), encoding="utf-8")
+    assert _session_refusals(str(session), "3") == (NO_GAMMA_CONTROL,)
+    assert _session_refusals(str(session), "4") == ()  # another camera: its refusals are its own
+    assert _session_refusals(str(tmp_path / "new"), "3") == ()
+
+
+@pytest.mark.parametrize("response", ["linear", "srgb"])
+def test_a_stream_asks_for_gamma_1_only_for_a_linear_model(monkeypatch, response):
+    """An sRGB model was calibrated on frames with the camera's curve on, and undoes it on the stream's frames:
+    its stream leaves the camera's gamma as it is, a linear model's asks for 1.0."""
+    import argparse
+    import contextlib
+
+    from nlipscalib.cli._stream import open_frames
+    from nlipscalib.device import camera
+
+    asked = []
+
+    def opened(spec, settings):
+        asked.append(settings)
+        return contextlib.nullcontext()
+
+    monkeypatch.setattr(camera, "open_source", opened)
+    args = argparse.Namespace(emulate=None, camera="0", port=None, exposure_ms=10.0)
+    with contextlib.ExitStack() as stack:
+        open_frames(args, stack, camera_response=response)
+    assert [s.linear_gamma for s in asked] == [response == "linear"]

@@ -1,0 +1,135 @@
+"""A model records the camera response of its calibration's captures, and ``nlips infer`` undoes it on the stills
+and streams it is given (they declare none); a calibration mixing responses is refused in one line."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from nlipscalib.core.errors import CaptureError, ConfigError
+
+
+def _srgb_encoded(stored: np.ndarray, black: float, white: float) -> np.ndarray:
+    """Linear stored values encoded with the sRGB curve of IEC 61966-2-1 (the forward curve, which the package has
+    no use for: written out here so the test does not check the package's inverse against itself)."""
+    x = np.minimum((stored.astype(np.float64) - black) / (white - black), 1)  # noise under black kept, as the
+    v = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 0) ** (1 / 2.4) - 0.055)  # package's inverse does
+    return np.clip(np.rint(black + (white - black) * v), 0, 65535).astype(np.uint16)
+
+
+def _declared(model_path, out, response="srgb"):
+    """A copy of the model file ``model_path`` at ``out`` whose sensor records ``response`` (None: no key, as
+    a model from before it was recorded)."""
+    import torch
+
+    payload = torch.load(model_path, weights_only=False)
+    payload["sensor"] = {k: v for k, v in payload["sensor"].items() if k != "camera_response"}
+    if response is not None:
+        payload["sensor"]["camera_response"] = response
+    torch.save(payload, out)
+    return out
+
+
+def _declare(folder, response="srgb"):
+    meta_path = folder / "meta.json"
+    meta = json.loads(meta_path.read_text(encoding="utf-8"))
+    meta["sensor"]["camera_response"] = response
+    meta["format_version"] = 2
+    meta_path.write_text(json.dumps(meta), encoding="utf-8")
+
+
+def test_a_sensor_record_holds_a_declared_response_and_old_records_read_linear():
+    from nlipscalib.core.camera import Camera
+    from nlipscalib.core.leds import Led
+    from nlipscalib.core.sensor_record import camera_response_of, check_sensor_record, describe_sensor
+    from nlipscalib.core.sensor_response import SensorResponse
+
+    camera = Camera(fx=100.0, fy=100.0, cx=16.0, cy=12.0, width=32, height=24)
+    leds = [Led(position=(10.0 * np.cos(a), 10.0 * np.sin(a), 5.0), direction=(0, 0, -1)) for a in range(3)]
+    linear = describe_sensor(camera, leds, SensorResponse())
+    srgb = describe_sensor(camera, leds, SensorResponse(camera_response="srgb"))
+    assert "camera_response" not in linear and camera_response_of(linear) == "linear"  # written as before
+    assert srgb["camera_response"] == "srgb" and camera_response_of(srgb) == "srgb"
+    assert check_sensor_record(srgb, "m.pt") is srgb
+    with pytest.raises(CaptureError, match=r"^m\.pt: 'sensor' is not .*camera_response must be one of .*'gamma'"):
+        check_sensor_record(srgb | {"camera_response": "gamma"}, "m.pt")
+
+
+def test_a_model_records_its_calibrations_response_and_infer_undoes_it_on_stored_frames(
+    trained, twin_presses, tmp_path
+):
+    """The same light given as linear frames to the linear model and as sRGB-encoded frames to the model that
+    records the sRGB response: the same linear frame (within the 16-bit rounding of the curve) and the same
+    normals. A model without the record (older files) is linear and touches no value."""
+    from nlipscalib.core import load_press
+    from nlipscalib.learn.infer import Predictor
+
+    old = Predictor(_declared(trained, tmp_path / "old.pt", None))
+    assert old.camera_response == "linear" and old.tone_curve is None
+    srgb = Predictor(_declared(trained, tmp_path / "srgb.pt"))
+    assert srgb.camera_response == "srgb" and srgb.tone_curve is not None
+
+    press = load_press(twin_presses / "press_a")
+    stored = press.tricolor.copy()
+    black, white = press.response.black_level, press.response.white_level
+    encoded = _srgb_encoded(stored, black, white)
+    given = encoded.copy()
+    linear_from_srgb = srgb.linear(encoded)
+    assert np.array_equal(encoded, given)  # the caller's frame is not changed
+    expected = old.linear(stored)
+    assert np.array_equal(expected, srgb._linearise(stored))  # one conversion once the curve is undone
+    # the curve's 16-bit rounding, at its steepest (near black), a few stored steps of the 12-bit sensor
+    assert np.abs(linear_from_srgb - expected).max() < 3e-4
+    # undone nowhere else: the encoded frame read as linear is far off (why the stills were wrong without a word)
+    assert np.abs(old.linear(encoded) - expected).max() > 0.05
+
+    want, got = old.predict_stored(stored), srgb.predict_stored(encoded)
+    valid = old.valid
+    cos = np.clip((want.normals[valid] * got.normals[valid]).sum(-1), -1, 1)
+    assert np.median(np.degrees(np.arccos(cos))) < 0.05
+    assert np.array_equal(want.changed, got.changed) or (want.changed ^ got.changed).sum() < 0.01 * valid.sum()
+
+
+def test_a_press_folder_is_linearised_by_its_own_declaration_whatever_the_models(trained, twin_presses, tmp_path):
+    """A press folder declares how its images are encoded: read by that, not by the model's response (the model's
+    is for stills and streams, which declare nothing), so an sRGB press infers as its linear twin with either
+    model."""
+    from nlipscalib.core import load_press
+    from nlipscalib.learn.infer import load_tricolor
+
+    folder = tmp_path / "press_a"
+    shutil.copytree(twin_presses / "press_a", folder)
+    press = load_press(folder)
+    black, white = press.response.black_level, press.response.white_level
+    from nlipscalib.core.imageio import write_png16
+
+    meta = json.loads((folder / "meta.json").read_text(encoding="utf-8"))
+    for key in ("tricolor", "dark"):
+        stored = getattr(press, key)
+        write_png16(folder / meta["images"][key], _srgb_encoded(stored, black, white))
+    _declare(folder)
+    linear, _ = load_tricolor(twin_presses / "press_a")
+    undone, sensor = load_tricolor(folder)
+    assert sensor["camera_response"] == "srgb"
+    assert np.abs(undone - linear).max() < 3e-4
+
+
+def test_a_calibration_mixing_camera_responses_is_refused_in_one_line(twin_presses, tmp_path):
+    """Before any solve (nlips calibrate's check of the folders), and when a dataset is built from solved presses:
+    the press that declares another response than the undeformed capture is named."""
+    from nlipscalib.cli.calibration import responses_agree
+    from nlipscalib.learn.dataset import build_dataset
+
+    root = tmp_path / "presses"
+    for name in ("reference", "press_a", "press_b"):
+        shutil.copytree(twin_presses / name, root / name)
+    responses_agree(root / "reference", [root / "press_a", root / "press_b"])  # alike: nothing said
+    _declare(root / "press_b")
+    with pytest.raises(ConfigError) as refused:
+        responses_agree(root / "reference", [root / "press_a", root / "press_b"])
+    line = str(refused.value)
+    assert "\n" not in line and line.startswith(f"{root / 'press_b'}: camera response srgb")
+    assert f"--reference {root / 'reference'} linear" in line
+    with pytest.raises(CaptureError, match=r"press_b: camera response srgb .*the reference's linear"):
+        build_dataset([root / "press_a", root / "press_b"], root / "reference", tmp_path / "calib", progress=False)
