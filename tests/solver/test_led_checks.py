@@ -136,3 +136,16 @@ def test_led_images_exposed_unlike_the_undeformed_captures_are_warned_about(tmp_
     assert len(said) == 1 and "0.87-1.12 times as bright" in said[0] and said[0] in caplog.text
     steady = solve_press(_press(tmp_path, "steady"), indirect=reference, options=SolverOptions(max_iters=2))
     assert not any("auto exposure" in note for note in steady.report.get("warnings", []))
+
+
+def test_one_led_group_dimmer_is_named_as_possibly_aged_and_left_out_of_the_global_gain(tmp_path):
+    """A group of LEDs aged on its own (the red third 10 % dimmer) is no global gain: the per-LED warning says it,
+    now naming aged LEDs beside auto exposure, and the solve's gain stays 1."""
+    from nlipscalib.solver.led_checks import exposure_drift_note, exposure_ratio, reference_gain
+
+    reference = load_press(synth.make_press(tmp_path / "reference", "none"))
+    red_aged = _press(tmp_path, "red", lambda lin: lin * np.repeat([0.9, 1.0, 1.0], 4)[:, None, None, None])
+    ratio = exposure_ratio(red_aged, reference)
+    assert np.allclose(reference_gain(ratio), 1.0, atol=0.005)
+    note = exposure_drift_note(red_aged, reference, ratio)
+    assert note is not None and "auto exposure" in note and "LEDs aged" in note
