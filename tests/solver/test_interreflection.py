@@ -6,12 +6,16 @@ model, so these tests render the ideal scene (``nlipstac_ideal``: point LEDs, id
 scene's extended LEDs the fit sees a 0.85 reflectance and a 1.4 % share in a bounce-0 capture.
 """
 
+import json
+import shutil
+
 import numpy as np
 import pytest
 
 pytest.importorskip("mitsuba")
 
 from nlipscalib.core import load_press  # noqa: E402
+from nlipscalib.core.imageio import read_png16, write_png16  # noqa: E402
 from nlipscalib.core.metrics import evaluate  # noqa: E402
 from nlipscalib.sim.indent import PressConfig  # noqa: E402
 from nlipscalib.sim.indenters import IndenterConfig  # noqa: E402
@@ -419,11 +423,6 @@ def test_the_gathers_filled_albedo_is_the_whole_frames_on_one_thread_and_on_two(
 def _dimmed(press, folder, gain):
     """A copy of ``press`` in ``folder`` with every LED image ``gain`` times as bright above the dark frame (LEDs
     aged alike, or a shorter exposure), as a press captured so would store it."""
-    import json
-    import shutil
-
-    from nlipscalib.core.imageio import read_png16, write_png16
-
     shutil.copytree(press.folder, folder)
     images = json.loads((folder / "meta.json").read_text(encoding="utf-8"))["images"]
     dark = read_png16(folder / images["dark"]).astype(float)
