@@ -501,3 +501,8 @@ on) when one LED's brightness against the undeformed capture's, per channel, str
 than this fraction (:func:`nlipscalib.solver.led_checks.exposure_drift`). The one-bounce twin's presses at one
 exposure: within 0.25 % (320x240 and 640x480, 12 and 8 bits); the emulated webcam's auto exposure (+-15 %) and
 white balance (+-8 %): 0.78-1.26."""
+REFERENCE_GAIN_DRIFT = 0.03
+"""A press's LED images are warned of as brighter or dimmer than the undeformed capture's, every LED alike (LEDs aged,
+exposure or gain changed), when that gain (:func:`nlipscalib.solver.led_checks.reference_gain`, per channel) strays
+from 1 by more than this fraction. The one-bounce twin's presses at one exposure: within 0.25 %; the solve scales the
+undeformed capture's light by the gain whatever its size (benchmarks/RESULTS.md, s28-dimref)."""

@@ -82,6 +82,19 @@ class IndirectModel:
             reason=self.reason + f"; reflectance set to {np.round(a, 3).tolist()}",
         )
 
+    def with_gain(self, gain: np.ndarray) -> IndirectModel:
+        """This model for images ``gain`` (3,) times as bright as the fitted capture's, per channel (LEDs aged, the
+        exposure changed: :func:`.led_checks.reference_gain`). The albedo solved on them is ``gain`` times the
+        fitted one, so kappa (reflectance per unit albedo) is divided by it and the off-view dome's albedo
+        multiplied; the fitted light (per unit receiver albedo) and the coating's reflectance stay: for one bounce
+        every term of the image model is then ``gain`` times the fitted capture's, as the images are."""
+        gain = np.asarray(gain, float)
+        return dataclasses.replace(
+            self,
+            kappa=tuple(float(v) for v in np.asarray(self.kappa) / gain),
+            off_view_albedo=tuple(float(v) for v in np.asarray(self.off_view_albedo) * gain),
+        )
+
     def undeformed_light(self, shape: tuple[int, int]) -> np.ndarray:
         """(L, H, W, 3) float32 -- the fitted capture's indirect light per unit receiver albedo
         (multiply by the pixel's albedo; add to the direct shading for the undeformed model)."""

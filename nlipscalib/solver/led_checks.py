@@ -361,7 +361,15 @@ def _image_names(press: Press) -> list[str]:
 def exposure_drift(press: Press, reference: Press) -> np.ndarray | None:
     """Each LED image's brightness against the undeformed capture's of the same LED, per channel, relative to their
     median: (L, 3) float64 ratios, 1 where the two were taken alike; None without a surface, or with other image
-    sizes or LED counts.
+    sizes or LED counts (:func:`exposure_ratio` over its median)."""
+    ratio = exposure_ratio(press, reference)
+    return None if ratio is None else ratio / np.median(ratio)
+
+
+def exposure_ratio(press: Press, reference: Press) -> np.ndarray | None:
+    """Each LED image's brightness against the undeformed capture's of the same LED, per channel: (L, 3) float64
+    ratios (the median over the gel of the pixels' ratios), 1 where the two were taken alike; None without a
+    surface, or with other image sizes or LED counts.
 
     Why: a camera left on auto exposure, gain or white balance scales each LED image (and each channel) by its
     own factor; the LED model then fits nowhere (s27 QA walk, 8-bit twin with +-15 % exposure and +-8 % white
@@ -390,13 +398,44 @@ def exposure_drift(press: Press, reference: Press) -> np.ndarray | None:
     ratio = np.array(
         [[np.median(now[k, lit[k, :, c], c] / before[k, lit[k, :, c], c]) for c in range(3)] for k in range(len(now))]
     )
-    return ratio / np.median(ratio)
+    return ratio
 
 
-def exposure_drift_note(press: Press, reference: Press) -> str | None:
+def reference_gain(ratio: np.ndarray) -> np.ndarray:
+    """(3,) float64 -- the press's brightness over the undeformed capture's, per channel: the median over the LEDs
+    of :func:`exposure_ratio`'s (L, 3) ratios (each already a median over the gel, so the contact, a small part of
+    it, does not move it; nor does one LED group of a third of the LEDs dimmed on its own: that is
+    :func:`exposure_drift_note`'s).
+
+    Why: all LEDs aged alike, or an exposure or gain changed, scale every image by one factor, which the albedo
+    absorbs, but the indirect term fitted on the undeformed capture holds that capture's brightness (its kappa is
+    per unit albedo): on the twin's sphere press with every LED image 10 % dimmer the whole-gel depth RMSE went from
+    0.039 to 0.27 mm (benchmarks/RESULTS.md, s28-dimref). The solve scales the term by this gain
+    (:meth:`.indirect.IndirectModel.with_gain`)."""
+    return np.median(ratio, axis=0)
+
+
+def reference_gain_note(press: Press, reference: Press, gain: np.ndarray) -> str | None:
+    """A warning when :func:`reference_gain` strays from 1 by more than
+    :data:`~nlipscalib.core.tolerances.REFERENCE_GAIN_DRIFT`: the LEDs aged or the exposure changed since the
+    undeformed capture."""
+    if np.abs(np.log(gain)).max() <= np.log1p(tolerances.REFERENCE_GAIN_DRIFT):
+        return None
+    colours = "/".join(f"{g:.2f}" for g in gain)
+    return (
+        f"{press.folder}: the LED images are {colours} times (red/green/blue) as bright as the undeformed capture's "
+        f"{reference.folder}, every LED alike: LEDs aged (dimmer with use) or the exposure or gain changed since. "
+        f"The solve scales the undeformed capture's light by this gain; a fresh capture of the undeformed dome "
+        f"(--reference) at today's settings is the remedy"
+    )
+
+
+def exposure_drift_note(press: Press, reference: Press, ratio: np.ndarray | None = None) -> str | None:
     """A warning when :func:`exposure_drift` spreads beyond :data:`~nlipscalib.core.tolerances.EXPOSURE_DRIFT`:
-    auto exposure, gain or white balance on."""
-    drift = exposure_drift(press, reference)
+    auto exposure, gain or white balance on, or one group of LEDs aged. ``ratio``: :func:`exposure_ratio`'s, when
+    already measured."""
+    ratio = exposure_ratio(press, reference) if ratio is None else ratio
+    drift = None if ratio is None else ratio / np.median(ratio)
     if drift is None or np.abs(np.log(drift)).max() <= np.log1p(tolerances.EXPOSURE_DRIFT):
         return None
     worst = int(np.unravel_index(np.argmax(np.abs(np.log(drift))), drift.shape)[0])
@@ -404,6 +443,7 @@ def exposure_drift_note(press: Press, reference: Press) -> str | None:
     return (
         f"{press.folder}: the LED images are {drift.min():.2f}-{drift.max():.2f} times as bright as the undeformed "
         f"capture's {reference.folder} (per LED and channel, relative to their median; {names[worst]} the most "
-        f"changed): auto exposure, gain or white balance on? Every image must be taken at one fixed exposure, gain "
-        f"and white balance ({CAMERA_SETTINGS_GUIDE})"
+        f"changed): auto exposure, gain or white balance on, or some LEDs aged (dimmer with use) since that capture? "
+        f"Every image must be taken at one fixed exposure, gain and white balance ({CAMERA_SETTINGS_GUIDE}); for "
+        f"aged LEDs a fresh capture of the undeformed dome (--reference) and of the LEDs (nlips calibrate-leds)"
     )

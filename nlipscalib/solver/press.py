@@ -53,7 +53,16 @@ from .contact import (
 )
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
 from .interreflection import compensate
-from .led_checks import exposure_drift_note, led_check, linearity_notes, reorder_note, reordered
+from .led_checks import (
+    exposure_drift_note,
+    exposure_ratio,
+    led_check,
+    linearity_notes,
+    reference_gain,
+    reference_gain_note,
+    reorder_note,
+    reordered,
+)
 from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, split_indirect
 from .nlips import SolveResult, solve
 from .options import SolverOptions
@@ -102,9 +111,16 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
         log.warning("%s", moved)
         led_notes.append(moved)
-    if isinstance(kwargs.get("indirect"), Press) and (drifted := exposure_drift_note(press, kwargs["indirect"])):
-        log.warning("%s", drifted)
-        led_notes.append(drifted)
+    if isinstance(kwargs.get("indirect"), Press):
+        ratio = exposure_ratio(press, kwargs["indirect"])
+        if drifted := exposure_drift_note(press, kwargs["indirect"], ratio):
+            log.warning("%s", drifted)
+            led_notes.append(drifted)
+        if ratio is not None:  # measured on every LED, before any is left out below
+            kwargs["light_gain"] = reference_gain(ratio)
+            if aged := reference_gain_note(press, kwargs["indirect"], kwargs["light_gain"]):
+                log.warning("%s", aged)
+                led_notes.append(aged)
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
         press, kwargs = _without_leds(press, kwargs, keep)
@@ -260,6 +276,7 @@ def _solve_press(
     outer_relaxation: float | str = "auto",
     check_sensor: bool | None = True,
     reorder_leds: bool = True,
+    light_gain: np.ndarray | None = None,
 ) -> SolveResult:
     """Solve one press.
 
@@ -293,11 +310,14 @@ def _solve_press(
     reorder_leds : LED images out of order (a clean pair or cycle, :func:`.led_checks.detected_order`) are solved
         in the order they show, with a warning and the report's ``led_order`` / ``leds_reordered``
         (:func:`solve_press` does it); False (``--keep-led-order``): as captured, only warned about.
+    light_gain : (3,) the press's images' brightness over the undeformed capture's (``indirect``), per channel
+        (:func:`.led_checks.reference_gain`; :func:`solve_press` measures it): the indirect term fitted on that
+        capture is scaled by it (:meth:`.indirect.IndirectModel.with_gain`); None: taken as 1.
 
     Returns
     -------
     SolveResult -- ``report`` adds roi, roi_note (what ``--roi auto`` left out or a warning; empty when none),
-    prior, interreflection (the fitted model and the decision),
+    prior, interreflection (the fitted model and the decision), reference_gain (``light_gain``),
     indirect_compensation, dent_interreflection, outer_passes, outer_changes_deg (median normal change of
     each outer pass; all but the last pass are unrefined), outer_focus (the box [x0, y0, w, h] the passes
     before the last solved, or None), pass_seconds (the solver's timer of each NLiPs solve; ``seconds`` is
@@ -333,6 +353,8 @@ def _solve_press(
         sensor_note = sensor_check_note(cmap, press) if modelled and cmap is not None else "off; not measured"
         if sensor_note.startswith(str(press.folder)):
             log.warning("%s", sensor_note)
+    if model is not None and ref_capture is not None and light_gain is not None:
+        model = model.with_gain(light_gain)  # the undeformed capture's brightness, as the press's
     if model is not None and model.enabled and coating_albedo is not None:
         model = model.with_reflectance(coating_albedo)
     elif coating_albedo is not None:  # nothing for it to scale: say so rather than drop the user's value
@@ -370,6 +392,7 @@ def _solve_press(
     rep["indirect_compensation"] = bool(fixed_light is not None or (model is not None and model.enabled))
     _report_loop(rep, loop)
     rep["anchoring"] = anchoring
+    rep["reference_gain"] = [float(g) for g in light_gain] if light_gain is not None else None
     if sensor_note is not None:
         rep["sensor_check"] = sensor_note
         if sensor_note.startswith(str(press.folder)):

@@ -260,3 +260,16 @@ def test_a_linear_capture_of_an_interreflecting_design_is_not_called_gamma_encod
         write_png16(path, np.rint(black + _srgb(fraction) * (white - black)).astype(np.uint16))
     said = linearity_notes(load_press(encoded), every)
     assert len(said) == 1 and "power 0.4" in said[0] and "gamma-encoded (sRGB)" in said[0]
+
+
+def test_one_led_group_dimmer_is_named_as_possibly_aged_and_left_out_of_the_global_gain(tmp_path):
+    """A group of LEDs aged on its own (the red third 10 % dimmer) is no global gain: the per-LED warning says it,
+    now naming aged LEDs beside auto exposure, and the solve's gain stays 1."""
+    from nlipscalib.solver.led_checks import exposure_drift_note, exposure_ratio, reference_gain
+
+    reference = load_press(synth.make_press(tmp_path / "reference", "none"))
+    red_aged = _press(tmp_path, "red", lambda lin: lin * np.repeat([0.9, 1.0, 1.0], 4)[:, None, None, None])
+    ratio = exposure_ratio(red_aged, reference)
+    assert np.allclose(reference_gain(ratio), 1.0, atol=0.005)
+    note = exposure_drift_note(red_aged, reference, ratio)
+    assert note is not None and "auto exposure" in note and "LEDs aged" in note
