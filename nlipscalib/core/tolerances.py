@@ -145,6 +145,13 @@ the size alone (a 1 mm sphere 0.3 mm deep and a 6 mm sphere 0.05 mm deep are bot
 (benchmarks/RESULTS.md, s28-tiny): 1.11-2.28 deg/px scored 1.66-3.62 deg contact AAE; 0.09-0.36 deg/px scored
 0.45-0.78 deg; the tests' exact 96x72 sphere and cube dents 0.71 and 0.45 (0.11 and 0.57 deg). The threshold is near
 the geometric middle of 0.71 and 1.11."""
+UNCALIBRATED_STEEPNESS_FACTOR = 1.5
+"""``nlips infer`` warns that a frame's NLiPsNet normals are not to be trusted when its contact (the change rule's
+largest patch, ``learn.change``) turns its predicted normals by more degrees per pixel of its equivalent diameter
+(75th percentile of the tilt over the diameter, ``core.steepness``) than this times the steepest calibration
+press's labels did (recorded at training, ``learn.resolution``), or more than :data:`RESOLVED_TILT_PER_PX`.
+Why: the net extrapolates, and smooths like the labels it learned, past the presses it was taught; measured in
+benchmarks/RESULTS.md (s28-tinynet)."""
 MODEL_MISFIT_FLOOR = 3.5
 """A press's images fit the undeformed model only to within model error, not noise, when the misfit's median over
 the gel is at least this many times the noise-only misfit: :data:`NO_CONTACT_PEAK` (a peak over noise) then says
