@@ -510,6 +510,7 @@ def _run_stills(args: argparse.Namespace) -> int:
 
     from ..core.errors import CaptureError
     from ..learn.infer import capture_changes, mismatch_warning
+    from ..learn.resolution import frame_warning
     from ..progress import RepeatedWarning, track
     from ._stream import nlipsnet_predictor
 
@@ -533,6 +534,7 @@ def _run_stills(args: argparse.Namespace) -> int:
     inner, kept, failed = [], set(), {}
     # a folder of frames all taken otherwise logged the same long warning for each: the first 3, then counted
     unlike = RepeatedWarning(log, "an input unlike the calibration's reference", first=STILLS_WARNED_IN_FULL)
+    steep = RepeatedWarning(log, "a contact too small or steep for the calibration", first=STILLS_WARNED_IN_FULL)
     # a bar on a terminal (a folder of 300 frames ran 10 s without a sign of life); quiet elsewhere (progress)
     for name, load, press_folder, source in track(frames, enabled=len(frames) > 1, desc="inferring", unit="frame"):
         folder = _destination(args, name, press_folder)
@@ -559,10 +561,20 @@ def _run_stills(args: argparse.Namespace) -> int:
         changes = capture_changes(predictor.model, press_folder) if press_folder is not None else []
         if why := mismatch_warning(result, source, changes):
             unlike(why, str(source))
+        elif why := frame_warning(predictor, result, source):
+            steep(why, str(source))
         inner.append(result.seconds["total"])
         if folder is not None:
             _save(args, predictor, result, name, folder, provenance, press_folder)
     unlike.flush()
+    steep.flush()
+    if steep.count > STILLS_WARNED_IN_FULL:
+        log.warning(
+            "%d of %d inputs had a contact too small or steep for the calibration (see the warnings above): their "
+            "normals there are smoothed",
+            steep.count,
+            len(frames),
+        )
     if unlike.count > STILLS_WARNED_IN_FULL:
         log.warning(
             "%d of %d inputs differed from the calibration's reference over most of the gel (see the warnings "

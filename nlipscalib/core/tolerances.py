@@ -145,6 +145,25 @@ the size alone (a 1 mm sphere 0.3 mm deep and a 6 mm sphere 0.05 mm deep are bot
 (benchmarks/RESULTS.md, s28-tiny): 1.11-2.28 deg/px scored 1.66-3.62 deg contact AAE; 0.09-0.36 deg/px scored
 0.45-0.78 deg; the tests' exact 96x72 sphere and cube dents 0.71 and 0.45 (0.11 and 0.57 deg). The threshold is near
 the geometric middle of 0.71 and 1.11."""
+CHANGED_TILT_PER_PX = 0.4
+"""``nlips infer`` warns that a frame's NLiPsNet normals in its contact are smoothed when its predicted normals'
+tilt from the undeformed surface (75th percentile over the largest patch of the change rule's changed pixels less
+their 4 px rim, ``learn.resolution``) exceeds this many degrees per pixel of that patch's equivalent diameter
+(``core.steepness``, the formula of :data:`RESOLVED_TILT_PER_PX`). Lower than the solve's 0.9: the net errs more
+than the solve on such contacts (s27-unusual: 5.6 against 2.4 deg on the 1 mm sphere at 640x480). Measured with a
+32-32 net trained 5 min on /tmp/keep/train50 (640x480; benchmarks/RESULTS.md, s28-tinynet): 1-2 mm spheres
+0.1-0.5 mm deep 0.59-1.28 deg/px, contact AAE 3.2-5.7 deg; 15 normal and unusual presses 0.05-0.17 deg/px and the
+6 mm sphere 0.05 mm deep 0.29 (1.3 deg), 0.8-1.3 deg (2.4-6.8 where the relief is steep or at the gel's edge,
+another cause). Near the geometric middle of 0.29 and 0.59. The tests' 96x72 twin's 6 mm sphere: 0.55 (warned)."""
+UNCALIBRATED_STEEPNESS_FACTOR = 1.5
+"""``nlips infer`` warns that a frame's NLiPsNet normals are not to be trusted when its contact (the change rule's
+largest patch, ``learn.change``) turns its predicted normals by more degrees per pixel of its equivalent diameter
+(75th percentile of the tilt over the diameter, ``core.steepness``) than this times the steepest calibration
+press's labels did (recorded at training, ``learn.resolution``), or more than :data:`CHANGED_TILT_PER_PX`.
+Why: the net extrapolates, and smooths like the labels it learned, past the presses it was taught; a margin over
+the steepest press, since one frame's measure is noisier than a press's labels (not measured: the 50-press twin
+calibration reached 0.72 deg/px with two shallow cone presses, above every sphere press tried).
+benchmarks/RESULTS.md (s28-tinynet)."""
 MODEL_MISFIT_FLOOR = 3.5
 """A press's images fit the undeformed model only to within model error, not noise, when the misfit's median over
 the gel is at least this many times the noise-only misfit: :data:`NO_CONTACT_PEAK` (a peak over noise) then says

@@ -43,6 +43,7 @@ from .model import (
     set_colour_normalisation,
 )
 from .publish import clean_interrupted_writes
+from .resolution import INFO_KEY, calibrated_contacts
 from .torch_device import check_device, torch_threads
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used: named for the hints only
@@ -389,6 +390,8 @@ def _save_trained(
         "best_epoch": best["epoch"],
         "best_val_aae_deg": best["aae"],
         "history": history,
+        # how large and steep the taught contacts were: `nlips infer` warns beyond them (learn.resolution)
+        INFO_KEY: calibrated_contacts(dataset, data.train_names + data.val_names, cfg.labels),
     }
     save_model(
         path,

@@ -10,6 +10,7 @@ import numpy as np
 from ..core.tolerances import FRAME_MISMATCH_FRACTION
 from ..progress import RepeatedWarning
 from .infer import Frame, Predictor, mismatch_warning
+from .resolution import frame_warning
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +35,9 @@ class MismatchWatch:
         self.frames = 0
         self.mismatched = 0
         self.warning = RepeatedWarning(log, f"{name}: a frame unlike the calibration's reference")
+        self.steep = 0
+        """Frames whose contact was too small or steep for the calibration (``learn.resolution``)."""
+        self.steep_warning = RepeatedWarning(log, f"{name}: a contact too small or steep for the calibration")
 
     def __call__(self, frame: np.ndarray) -> Frame:
         """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
@@ -44,15 +48,26 @@ class MismatchWatch:
             self.warning(why, where)
         if result.mismatch > FRAME_MISMATCH_FRACTION:
             self.mismatched += 1
+        elif why := frame_warning(self.predictor, result, where):
+            self.steep += 1
+            self.steep_warning(why, where)
         return result
 
     def report(self) -> None:
         """The count of frames warned about, when there were any (after the stream)."""
         self.warning.flush()
+        self.steep_warning.flush()
         if self.mismatched:
             log.warning(
                 "%d of %d frames differed from the calibration's reference over most of the gel (see the warning "
                 "above): their results are unreliable",
                 self.mismatched,
+                self.frames,
+            )
+        if self.steep:
+            log.warning(
+                "%d of %d frames had a contact too small or steep for the calibration (see the warning above): "
+                "their normals there are smoothed",
+                self.steep,
                 self.frames,
             )

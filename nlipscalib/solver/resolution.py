@@ -13,11 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import masks, tolerances
+from ..core.steepness import MIN_CONTACT_PX, patch_steepness, resolved_diameter_px
 from .contact import ContactMap, contact_hits
 
-MIN_CONTACT_PX = 9
-"""Hits fewer than this (a 3x3 patch) are not a contact to judge: noise specks, or no contact at all."""
+__all__ = ["MIN_CONTACT_PX", "contact_steepness", "resolution_note"]
 
 
 def contact_steepness(
@@ -34,24 +33,15 @@ def contact_steepness(
 
     Returns
     -------
-    diameter : float, px -- 2 sqrt(area / pi) of the largest connected component of hits among ``solved``.
-    tilt : float, degrees -- 75th percentile over that component of the angle between solved and undeformed normals.
+    :func:`nlipscalib.core.steepness.patch_steepness` of the contact's hits among ``solved``.
     """
-    hits = contact_hits(contact) & solved
-    labels, sizes = masks.components(hits)
-    if sizes.size == 0 or sizes.max() < MIN_CONTACT_PX:
-        return None
-    largest = labels == int(np.argmax(sizes)) + 1
-    cosine = np.sum(normals[largest].astype(np.float64) * reference_normals[largest], axis=-1)
-    tilt = np.degrees(np.arccos(np.clip(cosine[np.isfinite(cosine)], -1.0, 1.0)))
-    if tilt.size == 0:
-        return None
-    return 2.0 * float(np.sqrt(sizes.max() / np.pi)), float(np.percentile(tilt, 75))
+    return patch_steepness(contact_hits(contact) & solved, normals, reference_normals)
 
 
 def resolution_note(folder: str | Path, diameter_px: float, tilt_deg: float) -> str | None:
-    """The warning for a contact too small for its slopes (:data:`tolerances.RESOLVED_TILT_PER_PX`), or None."""
-    needed = tilt_deg / tolerances.RESOLVED_TILT_PER_PX
+    """The warning for a contact too small for its slopes
+    (:data:`~nlipscalib.core.tolerances.RESOLVED_TILT_PER_PX`), or None."""
+    needed = resolved_diameter_px(tilt_deg)
     if diameter_px >= needed:
         return None
     return (

@@ -13,6 +13,10 @@ from nlipscalib.learn.watch import MismatchWatch
 class _Predictor:
     """Stands in for learn.infer.Predictor: each stored frame's first value is the frame's mismatch."""
 
+    full_frame = False
+    model = type("Model", (), {"info": {}})()
+    ref_normals = np.zeros((2, 2, 3))
+
     def predict_stored(self, frame: np.ndarray, where: str) -> Frame:
         zeros = np.zeros((2, 2))
         mismatch = float(frame.flat[0])
