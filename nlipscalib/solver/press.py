@@ -26,12 +26,13 @@ lives in a file of its own:
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import logging
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -137,7 +138,8 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             result.report["smoothness"],
         )
         kwargs["options"] = dataclasses.replace(options, noise_smoothness=0.0)
-        result = _solve_press(press, **kwargs)
+        with _not_said_again(result.report.get("warnings", [])):
+            result = _solve_press(press, **kwargs)
         result.report["smoothness_fallback"] = (
             f"noise-adapted smoothness dropped: the first solve drifted {drift:.1f} mm"
         )
@@ -153,6 +155,29 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     if led_notes:
         result.report["warnings"] = [*led_notes, *result.report.get("warnings", [])]
     return result
+
+
+class _SaidAlready(logging.Filter):
+    """Drops a log record whose message is one of ``said`` (the first solve's warnings)."""
+
+    def __init__(self, said: Sequence[str]) -> None:
+        super().__init__()
+        self.said = set(said)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.getMessage() not in self.said
+
+
+@contextlib.contextmanager
+def _not_said_again(said: Sequence[str]) -> Iterator[None]:
+    """The solve again without the raised smoothness says none of the first solve's warnings a second time (its
+    report keeps them): a capture's linearity, an override or a contact at the resolution limit was logged twice."""
+    said_already = _SaidAlready(said)
+    log.addFilter(said_already)
+    try:
+        yield
+    finally:
+        log.removeFilter(said_already)
 
 
 _SAID_ORDERS: set[tuple[str, tuple[int, ...]]] = set()

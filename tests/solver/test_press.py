@@ -91,3 +91,41 @@ def test_a_solve_draws_nothing_from_numpys_global_generator(folders):
     np.random.seed(12345)
     solve_press(press, roi="auto", indirect=reference, options=FAST)
     assert np.random.random() == untouched
+
+
+def test_the_solve_again_without_the_raised_smoothness_says_the_first_solves_warnings_once(
+    folders, monkeypatch, caplog
+):
+    """A press solved a second time (the first drifted off the gel with the noise-adapted smoothness) logged each of
+    the first solve's warnings again (a capture's linearity, an override, a contact at the resolution limit); the
+    second solve's new warnings are still said, and the report keeps what it found."""
+    import logging
+    import types
+
+    from nlipscalib.solver import press as press_module
+
+    press = load_press(folders[0])
+    calls = []
+
+    def solve_twice(p, **kwargs):
+        calls.append(kwargs["options"])
+        note = f"{p.folder}: a warning of every solve"
+        press_module.log.warning("%s", note)
+        notes = [note]
+        if len(calls) == 2:
+            press_module.log.warning("%s: only the second solve's", p.folder)
+            notes.append(f"{p.folder}: only the second solve's")
+        depth = p.reference.depth + (5.0 if len(calls) == 1 else 0.0)  # the first solve left the gel
+        report = {"smoothness": 1.0 if len(calls) == 1 else 0.0, "warnings": notes}
+        return types.SimpleNamespace(depth=depth, reconstructed=np.isfinite(depth), report=report)
+
+    monkeypatch.setattr(press_module, "_solve_press", solve_twice)
+    with caplog.at_level(logging.WARNING, logger=press_module.log.name):
+        result = solve_press(press, options=SolverOptions(smoothness=0.5))
+    assert len(calls) == 2 and calls[1].noise_smoothness == 0.0
+    said = [r.getMessage() for r in caplog.records]
+    assert said.count(f"{press.folder}: a warning of every solve") == 1, said
+    assert said.count(f"{press.folder}: only the second solve's") == 1, said
+    assert any("solving again without it" in line for line in said)
+    assert f"{press.folder}: a warning of every solve" in result.report["warnings"]
+    assert not press_module.log.filters  # the filter is gone with the second solve
