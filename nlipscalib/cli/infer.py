@@ -119,7 +119,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="an undeformed capture of the sensor taken now (a press folder, or a 16-bit tri-colour PNG as "
         "captured): frames are brought back to the calibration's light first, so LEDs that dimmed with age, a "
         "drifted exposure or gain and a scuffed coating need no new training (the warning about them says when); "
-        "CPU path only",
+        "with --device and --full-frame too (applied on the device)",
     )
     p.add_argument(
         "--figures",
