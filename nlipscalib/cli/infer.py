@@ -509,7 +509,8 @@ def _run_stills(args: argparse.Namespace) -> int:
     import time
 
     from ..core.errors import CaptureError
-    from ..learn.infer import capture_changes, mismatch_warning
+    from ..core.tolerances import FRAME_MISMATCH_FRACTION
+    from ..learn.infer import REFRESH_REMEDY, capture_changes, mismatch_warning
     from ..progress import RepeatedWarning, track
     from ._stream import nlipsnet_predictor
 
@@ -533,6 +534,7 @@ def _run_stills(args: argparse.Namespace) -> int:
     inner, kept, failed = [], set(), {}
     # a folder of frames all taken otherwise logged the same long warning for each: the first 3, then counted
     unlike = RepeatedWarning(log, "an input unlike the calibration's reference", first=STILLS_WARNED_IN_FULL)
+    drifted = 0  # of those: like the reference over the gel, colours drifted (learn.infer.drift_warning)
     # a bar on a terminal (a folder of 300 frames ran 10 s without a sign of life); quiet elsewhere (progress)
     for name, load, press_folder, source in track(frames, enabled=len(frames) > 1, desc="inferring", unit="frame"):
         folder = _destination(args, name, press_folder)
@@ -559,16 +561,25 @@ def _run_stills(args: argparse.Namespace) -> int:
         changes = capture_changes(predictor.model, press_folder) if press_folder is not None else []
         if why := mismatch_warning(result, source, changes):
             unlike(why, str(source))
+            drifted += result.mismatch <= FRAME_MISMATCH_FRACTION  # like the reference, its colours drifted
         inner.append(result.seconds["total"])
         if folder is not None:
             _save(args, predictor, result, name, folder, provenance, press_folder)
     unlike.flush()
-    if unlike.count > STILLS_WARNED_IN_FULL:
+    if unlike.count > STILLS_WARNED_IN_FULL and unlike.count > drifted:
         log.warning(
             "%d of %d inputs differed from the calibration's reference over most of the gel (see the warnings "
             "above): their results are unreliable",
-            unlike.count,
+            unlike.count - drifted,
             len(frames),
+        )
+    if unlike.count > STILLS_WARNED_IN_FULL and drifted:  # they were counted as differing over most of the gel
+        log.warning(
+            "%d of %d inputs had colours that drifted from the calibration's reference (see the warnings above): "
+            "their results drift by degrees; %s",
+            drifted,
+            len(frames),
+            REFRESH_REMEDY,
         )
     print(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
     not_written = {folder for folder, _ in failed.values()}

@@ -157,3 +157,15 @@ def test_a_stream_counts_its_drifted_frames_and_refreshes_on_the_full_frame_path
     reference = _aged(twin_presses / "reference", tmp_path / "aged_reference", RED_DIMMED)
     assert main(["infer", str(trained), str(video), "--full-frame", "--reference", str(reference)]) == 0
     assert "drifted" not in caplog.text and "undeformed gel is" not in caplog.text
+
+
+def test_many_drifted_stills_are_counted_as_drifted_not_as_unlike_the_reference(trained, twin_presses, tmp_path,
+                                                                                caplog):  # fmt: skip
+    """Past 3 warnings `nlips infer` counted drifted inputs as "differed ... over most of the gel"."""
+    names = ("press_a", "press_b", "press_c", HELD_OUT)
+    for name in names:
+        _aged(twin_presses / name, tmp_path / "aged" / name, RED_DIMMED)
+    caplog.set_level(logging.WARNING)
+    assert main(["infer", str(trained), *(str(tmp_path / "aged" / n) for n in names), "--figures", "none"]) == 0
+    assert "4 of 4 inputs had colours that drifted from the calibration's reference" in caplog.text
+    assert "over most of the gel" not in caplog.text
