@@ -119,7 +119,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="an undeformed capture of the sensor taken now (a press folder, or a 16-bit tri-colour PNG as "
         "captured): frames are brought back to the calibration's light first, so LEDs that dimmed with age, a "
         "drifted exposure or gain and a scuffed coating need no new training (the warning about them says when); "
-        "CPU path only",
+        "with --device and --full-frame too (applied on the device)",
     )
     p.add_argument(
         "--figures",
@@ -509,7 +509,8 @@ def _run_stills(args: argparse.Namespace) -> int:
     import time
 
     from ..core.errors import CaptureError
-    from ..learn.infer import capture_changes, mismatch_warning
+    from ..core.tolerances import FRAME_MISMATCH_FRACTION
+    from ..learn.infer import REFRESH_REMEDY, capture_changes, mismatch_warning
     from ..learn.resolution import frame_warning
     from ..progress import RepeatedWarning, track
     from ._stream import nlipsnet_predictor
@@ -534,6 +535,7 @@ def _run_stills(args: argparse.Namespace) -> int:
     inner, kept, failed = [], set(), {}
     # a folder of frames all taken otherwise logged the same long warning for each: the first 3, then counted
     unlike = RepeatedWarning(log, "an input unlike the calibration's reference", first=STILLS_WARNED_IN_FULL)
+    drifted = 0  # of those: like the reference over the gel, colours drifted (learn.infer.drift_warning)
     steep = RepeatedWarning(log, "a contact too small or steep for the calibration", first=STILLS_WARNED_IN_FULL)
     # a bar on a terminal (a folder of 300 frames ran 10 s without a sign of life); quiet elsewhere (progress)
     for name, load, press_folder, source in track(frames, enabled=len(frames) > 1, desc="inferring", unit="frame"):
@@ -561,6 +563,7 @@ def _run_stills(args: argparse.Namespace) -> int:
         changes = capture_changes(predictor.model, press_folder) if press_folder is not None else []
         if why := mismatch_warning(result, source, changes):
             unlike(why, str(source))
+            drifted += result.mismatch <= FRAME_MISMATCH_FRACTION  # like the reference, its colours drifted
         elif why := frame_warning(predictor, result, source):
             steep(why, str(source))
         inner.append(result.seconds["total"])
@@ -575,12 +578,20 @@ def _run_stills(args: argparse.Namespace) -> int:
             steep.count,
             len(frames),
         )
-    if unlike.count > STILLS_WARNED_IN_FULL:
+    if unlike.count > STILLS_WARNED_IN_FULL and unlike.count > drifted:
         log.warning(
             "%d of %d inputs differed from the calibration's reference over most of the gel (see the warnings "
             "above): their results are unreliable",
-            unlike.count,
+            unlike.count - drifted,
             len(frames),
+        )
+    if unlike.count > STILLS_WARNED_IN_FULL and drifted:  # they were counted as differing over most of the gel
+        log.warning(
+            "%d of %d inputs had colours that drifted from the calibration's reference (see the warnings above): "
+            "their results drift by degrees; %s",
+            drifted,
+            len(frames),
+            REFRESH_REMEDY,
         )
     print(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
     not_written = {folder for folder, _ in failed.values()}

@@ -54,6 +54,8 @@ class ChangeDetector:
         self.mismatch = 0.0
         """The last frame's median difference from the reference over the gel, as a fraction of the reference's
         median brightness (see :data:`nlipscalib.core.tolerances.FRAME_MISMATCH_FRACTION`)."""
+        self.channel_ratio = np.ones(3)
+        """(3,) the last frame's :func:`channel_ratio` (1s before the first, and on a gel too small to sample)."""
 
     def __call__(self, frame: np.ndarray) -> np.ndarray:
         """(H, W) bool -- pixels of ``frame`` ((H, W, 3) float, linear) that differ from the reference."""
@@ -84,17 +86,34 @@ class ChangeDetector:
         return out & self.valid
 
     def _channel_ratio(self, signed: np.ndarray, hit: np.ndarray) -> np.ndarray:
-        """(3,) the median of the frame's colour over the reference's on the sampled gel blocks the rule left
-        unchanged: a press's own colours moved the whole gel's medians by up to 4.5 % on the twin's presses; a
-        block's ratio, not a ratio of medians, so the press pixels the rule leaves in the rest do not tip it."""
-        rest = ~hit.ravel()[self._sample]
-        if not rest.any():
-            return np.ones(3)
-        # frame / reference = 1 + difference / reference; one partition of each colour's contiguous row picks its
-        # middle value (half the time of np.median over the (N, 3) columns: 0.5 ms a 640x480 frame)
-        ratio = (signed.reshape(-1, 3)[self._sample[rest]] / np.maximum(self._ref_sample[rest], np.float32(1e-12))).T
-        middle = ratio.shape[1] // 2
-        return 1.0 + np.partition(np.ascontiguousarray(ratio), middle, axis=1)[:, middle].astype(np.float64)
+        """(3,) :func:`channel_ratio` of this frame's sampled gel blocks."""
+        return channel_ratio(signed.reshape(-1, 3)[self._sample], self._ref_sample, ~hit.ravel()[self._sample])
+
+
+def channel_ratio(signed: np.ndarray, reference: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """Each colour's median of a frame over the reference frame on the sampled gel blocks the change rule left
+    unchanged (:attr:`ChangeDetector.channel_ratio`, and the device path's, :mod:`.fullframe`).
+
+    A press's own colours moved the whole gel's medians by up to 4.5 % on the twin's presses; a block's ratio, not a
+    ratio of medians, so the press pixels the rule leaves in the rest do not tip it.
+
+    Parameters
+    ----------
+    signed : (N, 3) float32 -- the frame's 2x2-block means minus the reference's, linear, at the sampled gel blocks
+    reference : (N, 3) float32 -- the reference frame's block means there
+    rest : (N,) bool -- the blocks the change rule left unchanged
+
+    Returns
+    -------
+    (3,) float64 -- red, green, blue; 1s when every sampled block changed
+    """
+    if not rest.any():
+        return np.ones(3)
+    # frame / reference = 1 + difference / reference; one partition of each colour's contiguous row picks its
+    # middle value (half the time of np.median over the (N, 3) columns: 0.5 ms a 640x480 frame)
+    ratio = (signed[rest] / np.maximum(reference[rest], np.float32(1e-12))).T
+    middle = ratio.shape[1] // 2
+    return 1.0 + np.partition(np.ascontiguousarray(ratio), middle, axis=1)[:, middle].astype(np.float64)
 
 
 def changed_pixels(frame: np.ndarray, reference: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core.errors import require
+from .change import channel_ratio
 from .cuda_graph import record
 from .integrate import RayGeometry
 from .integrate_torch import BoxIntegrator, DomeIntegrator
@@ -78,9 +79,22 @@ class FullFrame:
         self.ref_points = torch.as_tensor(self.ref_points_host, device=device)
         self.change = _ChangeRule(ref["tricolor"].astype(np.float32), valid, device)
         self.keep_reference = keep_reference
+        self.gain = None
+        """(H, W, 3) float32 tensor or None: what each linear frame is multiplied by first (:meth:`set_gain`)."""
         ref_normals = np.where(valid[..., None], ref["normals"], 0).astype(np.float32)
         self.ref_normals = torch.as_tensor(ref_normals, device=device)
         self._graphs: dict = {}
+
+    def set_gain(self, gain: np.ndarray | None) -> None:
+        """Multiply each linear frame by ``gain`` ((H, W, 3) float32, or None for none) before the change rule and
+        the network: an aged sensor's frames in the calibration's light (``learn.infer.Predictor.refresh``).
+
+        On the device, after a stored frame's linearisation (a stored frame is converted there); the recorded
+        graphs are dropped, so the next frames record them with the gain.
+        """
+        torch = self.torch
+        self.gain = None if gain is None else torch.as_tensor(np.asarray(gain, np.float32), device=self.device)
+        self._graphs.clear()
 
     def warm_up(self) -> None:
         """Plan and record what the first frames of either kind (linear, stored) would: not part of a frame's time."""
@@ -92,7 +106,8 @@ class FullFrame:
             self.box_integrator.warm_up(self.ref_normals)
 
     def __call__(self, tricolor: np.ndarray, stored: bool = False):
-        """normals, depth, points, changed (numpy, as :class:`.infer.Frame` holds them), stage seconds, mismatch.
+        """normals, depth, points, changed (numpy, as :class:`.infer.Frame` holds them), stage seconds, mismatch,
+        channels (each colour's median over the reference's on the unchanged gel, :func:`.change.channel_ratio`).
 
         ``tricolor`` is (H, W, 3): linear float32, or the stored uint16 values when ``stored`` (converted on the
         device: half the bytes to move). Stage seconds: upload, compute (everything on the device), download.
@@ -113,8 +128,9 @@ class FullFrame:
                 frame = host.to(self.device)
                 t1 = self._sync()
                 out = self._compute(frame, stored)
-            normals, changed, mismatch, points = out
+            normals, changed, mismatch, points, sampled = out
             changed = changed.cpu().numpy()
+            channels = self.change.channels(sampled.cpu().numpy())
             if not self.has_geometry:  # normals only: the reference surface, nothing to bring back
                 points = self.ref_points_host.copy()
             elif self.box_integrator is not None:
@@ -124,7 +140,8 @@ class FullFrame:
             points = points if isinstance(points, np.ndarray) else points.cpu().numpy()
         t3 = time.perf_counter()
         seconds = {"upload": t1 - t0, "compute": t2 - t1, "download": t3 - t2, "total": t3 - t0}
-        return normals, points[..., 2], points, changed, seconds, mismatch  # depth: the points' z, not downloaded
+        # depth: the points' z, not downloaded
+        return normals, points[..., 2], points, changed, seconds, mismatch, channels
 
     def _box_points(self, normals: torch.Tensor, changed: np.ndarray):
         """Points of the frame whose changed pixels are ``changed``: the reference, with the changed pixels solved
@@ -151,22 +168,26 @@ class FullFrame:
         return points
 
     def _compute(self, frame: torch.Tensor, stored: bool):
-        """(normals (H, W, 3), changed (H, W), mismatch (), points (H, W, 3)) tensors of one frame on the device;
-        with ``keep_reference`` the points are the reference's (the box is integrated after, not recorded)."""
+        """(normals (H, W, 3), changed (H, W), mismatch (), points (H, W, 3), sampled (N, 4)) tensors of one frame
+        on the device (sampled: :meth:`_ChangeRule.__call__`'s); with ``keep_reference`` the points are the
+        reference's (the box is integrated after, not recorded)."""
         torch = self.torch
         if stored:
             frame = (frame.to(torch.float32) - self.dark) / self.scale
+        if self.gain is not None:  # an aged sensor's frame, in the calibration's light (set_gain)
+            frame = frame * self.gain
         filtered = self.filter(frame)
         # every gel pixel through the network: on a GPU cheaper than gathering the changed ones (a shape per frame)
         x = torch.cat([self.x, filtered.reshape(-1, 3)[self.flat]], 1)
         normals = torch.zeros(self.shape + (3,), dtype=torch.float32, device=self.device)
         normals.view(-1, 3)[self.flat] = self.net(x)
-        changed, mismatch = self.change(frame)
+        changed, mismatch, sampled = self.change(frame)
         if not self.keep_reference:  # the network's normals everywhere, integrated over the whole gel
             whole = self.integrator(normals, ~changed) if self.integrator is not None else self.ref_points
-            return normals, self.change.valid, mismatch, whole
+            return normals, self.change.valid, mismatch, whole, sampled
         # the reference normals where nothing changed; the box is integrated after (its shape changes per frame)
-        return torch.where(changed[..., None], normals, self.ref_normals), changed, mismatch, self.ref_points
+        kept = torch.where(changed[..., None], normals, self.ref_normals)
+        return kept, changed, mismatch, self.ref_points, sampled
 
     def _graph(self, host: torch.Tensor, stored: bool):
         """The frame's work recorded once as a CUDA graph and replayed per frame (one launch instead of ~100 small
@@ -224,7 +245,8 @@ class _ChangeRule:
     difference from the reference box-averaged (replicated border), summed over colours, compared with the
     median and the median absolute deviation over the gel's sampled blocks and with the reference's level, an
     opening and growth with the 3x3 cross (zeros outside), back to full resolution. Also its whole-frame figure
-    (:attr:`.change.ChangeDetector.mismatch`)."""
+    (:attr:`.change.ChangeDetector.mismatch`) and the sampled blocks its per-colour ratio is taken from
+    (:func:`.change.channel_ratio`, on the host)."""
 
     def __init__(self, reference: np.ndarray, valid: np.ndarray, device: torch.device):
         from ..core.tolerances import CHANGE_MIN_REL, CHANGE_NOISE_SIGMAS
@@ -242,19 +264,23 @@ class _ChangeRule:
         self.sample = torch.nonzero(self.on.flatten()).flatten()[::NOISE_STRIDE]
         level = self.ref_blocks.sum(-1).flatten()[self.sample]
         self.level = float(_median(level)) if len(level) else 0.0
+        self.ref_sample = self.ref_blocks.reshape(-1, 3)[self.sample].cpu().numpy()
 
     def _blocks(self, image: torch.Tensor):
         F = _torch().nn.functional
         return F.avg_pool2d(image[self.crop].permute(2, 0, 1)[None], 2)[0].permute(1, 2, 0)
 
     def __call__(self, frame: torch.Tensor):
-        """(changed (H, W) bool, mismatch 0-d) tensors for ``frame`` ((H, W, 3) linear)."""
+        """(changed (H, W) bool, mismatch 0-d, sampled (N, 4)) tensors for ``frame`` ((H, W, 3) linear); sampled:
+        the frame's block means minus the reference's at the sampled gel blocks, then 1 where the rule found a change
+        (one small download for :meth:`channels`, which takes the ratio by the CPU path's own code)."""
         from .change import DILATE_BLOCKS
 
         torch = _torch()
         F = torch.nn.functional
         if not len(self.sample) or self.level <= 0:
-            return torch.zeros_like(self.valid), torch.zeros((), device=frame.device)
+            nothing = torch.zeros((0, 4), device=frame.device)
+            return torch.zeros_like(self.valid), torch.zeros((), device=frame.device), nothing
         signed = torch.where(self.on[..., None], self._blocks(frame) - self.ref_blocks, 0.0)
         r = self.smooth // 2
         padded = F.pad(signed.permute(2, 0, 1)[None], (r, r, r, r), mode="replicate")
@@ -269,7 +295,17 @@ class _ChangeRule:
             hit = _cross(hit, torch.amax)
         changed = torch.zeros_like(self.valid)
         changed[self.crop] = hit.repeat_interleave(2, 0).repeat_interleave(2, 1)
-        return changed & self.valid, median / self.level
+        blocks = signed.reshape(-1, 3)[self.sample]
+        sampled = torch.cat([blocks, hit.flatten()[self.sample, None].to(blocks.dtype)], 1)
+        return changed & self.valid, median / self.level, sampled
+
+    def channels(self, sampled: np.ndarray) -> tuple[float, float, float]:
+        """Each colour's median over the reference's on the unchanged gel (:func:`.change.channel_ratio`) from
+        :meth:`__call__`'s downloaded ``sampled`` ((N, 4) float32)."""
+        if not len(sampled):
+            return (1.0, 1.0, 1.0)
+        ratio = channel_ratio(sampled[:, :3], self.ref_sample, sampled[:, 3] == 0)
+        return tuple(float(r) for r in ratio)
 
 
 def _median(x: torch.Tensor):

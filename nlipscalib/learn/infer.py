@@ -78,7 +78,8 @@ class Frame:
     """
     channels: tuple[float, float, float] = (1.0, 1.0, 1.0)
     """Median red, green and blue on the gel where the frame did not change, over the reference frame's
-    (:attr:`.change.ChangeDetector.channel_ratio`; 1s on the device path, :mod:`.fullframe`)."""
+    (:attr:`.change.ChangeDetector.channel_ratio`; on the device path, :mod:`.fullframe`, the same blocks and
+    formula)."""
 
 
 class Predictor:
@@ -164,13 +165,13 @@ class Predictor:
         """
         if reference.shape != self.shape + (3,):
             raise ShapeError(f"reference frame is {reference.shape}, the model expects {self.shape + (3,)}")
-        if self._full is not None:
-            raise ConfigError("a refreshed reference frame runs on the CPU path only (no --device, no --full-frame)")
         old, new = (_smooth_on_gel(frame, self.valid) for frame in (self.ref_tricolor, reference))
         with np.errstate(divide="ignore", invalid="ignore"):
             gain = np.where(new > 0, old / new, 1.0)
         gain = np.clip(gain, 1 / REFRESH_GAIN_LIMIT, REFRESH_GAIN_LIMIT)
         self.gain = np.where(self.valid[..., None], gain, 1.0).astype(np.float32)
+        if self._full is not None:  # applied on the device, after a stored frame's linearisation there
+            self._full.set_gain(self.gain)
 
     def _undeformed_surface(self) -> tuple[np.ndarray, np.ndarray]:
         """(depth (H, W) float32 mm, points (H, W, 3) float32 mm, camera frame) of the calibration's undeformed dome:
@@ -281,10 +282,10 @@ class Predictor:
         """
         if tricolor.shape != self.shape + (3,):
             raise ShapeError(f"tri-colour frame is {tricolor.shape}, the model expects {self.shape + (3,)}")
+        if self._full is not None:  # the gain (:meth:`refresh`) is applied on the device
+            return self._whole_frame(tricolor, stored=False)
         if self.gain is not None:  # an aged sensor's frame, in the calibration's light (:meth:`refresh`)
             tricolor = tricolor * self.gain
-        if self._full is not None:
-            return self._whole_frame(tricolor, stored=False)
         t0 = time.perf_counter()
         changed = self.changed(tricolor)
         t1 = time.perf_counter()
@@ -359,11 +360,12 @@ class Predictor:
 
     def _whole_frame(self, tricolor: np.ndarray, stored: bool) -> Frame:
         """:mod:`.fullframe`'s result as a Frame ("changed": every gel pixel with ``full_frame``)."""
-        normals, depth, points, changed, seconds, mismatch = self._full(tricolor, stored)
-        frame = Frame(normals, depth, points, changed, seconds, mismatch=mismatch)
+        normals, depth, points, changed, seconds, mismatch, channels = self._full(tricolor, stored)
+        frame = Frame(normals, depth, points, changed, seconds, mismatch=mismatch, channels=channels)
         t0 = time.perf_counter()
         if frame.mismatch > FRAME_MISMATCH_FRACTION:
-            frame.brightness, frame.saturated = self._exposure(self._linearise(tricolor) if stored else tricolor)
+            linear = self._linearise(tricolor) if stored else tricolor  # stored: its tone curve already undone
+            frame.brightness, frame.saturated = self._exposure(linear if self.gain is None else linear * self.gain)
         check = time.perf_counter() - t0
         frame.seconds = {**{k: v for k, v in seconds.items() if k != "total"}, "check": check}
         frame.seconds["total"] = seconds["total"] + check

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..core.tolerances import FRAME_MISMATCH_FRACTION
 from ..progress import RepeatedWarning
-from .infer import Frame, Predictor, mismatch_warning
+from .infer import REFRESH_REMEDY, Frame, Predictor, mismatch_warning
 from .resolution import frame_warning
 
 log = logging.getLogger(__name__)
@@ -22,7 +22,9 @@ class MismatchWatch:
     Why: such a frame leaves the change rule nothing to find, so the maps silently show the undeformed dome.
     The warning is logged in full once, then counted once a minute (a stream of such frames would repeat it every
     frame; once per stream missed a fault that came back hours later: ``progress.RepeatedWarning``);
-    :meth:`report` logs at the end how many frames it concerned, as ``nlips infer`` does.
+    :meth:`report` logs at the end how many frames it concerned, as ``nlips infer`` does: those unlike the reference
+    over most of the gel, and those like it whose colours drifted (``learn.infer.drift_warning``: an aged LED group, a
+    drifted exposure; their results drift by degrees).
 
     Parameters
     ----------
@@ -34,6 +36,8 @@ class MismatchWatch:
         self.predictor, self.name = predictor, name
         self.frames = 0
         self.mismatched = 0
+        self.drifted = 0
+        """Frames like the reference but with a colour drifted past ``FRAME_CHANNEL_DRIFT`` (warned about)."""
         self.warning = RepeatedWarning(log, f"{name}: a frame unlike the calibration's reference")
         self.steep = 0
         """Frames whose contact was too small or steep for the calibration (``learn.resolution``)."""
@@ -44,17 +48,20 @@ class MismatchWatch:
         result = self.predictor.predict_stored(frame, self.name)
         index, self.frames = self.frames, self.frames + 1
         where = f"{self.name} frame {index}"
-        if why := mismatch_warning(result, where):
+        why = mismatch_warning(result, where)
+        if why:
             self.warning(why, where)
         if result.mismatch > FRAME_MISMATCH_FRACTION:
             self.mismatched += 1
+        elif why:  # like the reference over the gel, but its colours drifted (drift_warning)
+            self.drifted += 1
         elif why := frame_warning(self.predictor, result, where):
             self.steep += 1
             self.steep_warning(why, where)
         return result
 
     def report(self) -> None:
-        """The count of frames warned about, when there were any (after the stream)."""
+        """The counts of frames warned about, when there were any (after the stream)."""
         self.warning.flush()
         self.steep_warning.flush()
         if self.mismatched:
@@ -63,6 +70,14 @@ class MismatchWatch:
                 "above): their results are unreliable",
                 self.mismatched,
                 self.frames,
+            )
+        if self.drifted:
+            log.warning(
+                "%d of %d frames had colours that drifted from the calibration's reference (see the warning above): "
+                "their results drift by degrees; %s",
+                self.drifted,
+                self.frames,
+                REFRESH_REMEDY,
             )
         if self.steep:
             log.warning(

@@ -93,3 +93,79 @@ def test_a_bad_reference_is_one_line_naming_it(trained, twin_presses, tmp_path, 
                  str(reference)])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and str(reference) in err and "Traceback" not in err
+
+
+def _aged_stored(stored, dark, gains):
+    """(H, W, 3) uint16: a stored frame with each colour's light above the dark frame scaled by ``gains``."""
+    aged = dark + (stored.astype(np.float64) - dark) * np.asarray(gains)
+    return np.clip(np.rint(aged), 0, 65535).astype(np.uint16)
+
+
+def test_the_full_frame_path_names_a_dimmer_led_group_as_the_cpu_path_does(trained, twin_presses):
+    """The device path (learn.fullframe, here torch on the CPU) measured no colour: 1s, so never a drift warning."""
+    cpu, whole = Predictor(trained), Predictor(trained, full_frame=True)
+    folder = twin_presses / HELD_OUT
+    stored, dark = (read_png16(folder / f"{name}.png") for name in ("tricolor", "dark"))
+    press = cpu.linear(stored)
+    assert drift_warning(whole.predict(press), "p") is None
+    dimmed = press * np.float32(RED_DIMMED)
+    on_cpu, on_device = cpu.predict(dimmed), whole.predict(dimmed)
+    assert on_device.channels == pytest.approx(on_cpu.channels, abs=1e-5)  # the same blocks and formula
+    why = mismatch_warning(on_device, "p")
+    assert why is not None and why.startswith("p: the undeformed gel is red 0.") and "--reference" in why
+    converted_there = whole.predict_stored(_aged_stored(stored, dark, RED_DIMMED))  # linearised on the device
+    assert converted_there.channels[0] < 0.93 and drift_warning(converted_there, "p") is not None
+
+
+def test_refresh_on_the_full_frame_path_gives_the_cpu_paths_refreshed_normals(trained, twin_presses):
+    """`--reference` was refused with --device and --full-frame: the same gain, applied on the device."""
+    folder = twin_presses / HELD_OUT
+    stored, dark = (read_png16(folder / f"{name}.png") for name in ("tricolor", "dark"))
+    cpu = Predictor(trained)
+    reference = cpu.linear(read_png16(twin_presses / "reference" / "tricolor.png")) * np.float32(RED_DIMMED)
+    cpu.refresh(reference)
+    whole = Predictor(trained, full_frame=True, reference=reference)
+    aged_stored = _aged_stored(stored, dark, RED_DIMMED)
+    aged = cpu.linear(aged_stored)
+    on_cpu, on_device = cpu.predict(aged), whole.predict(aged)
+    assert drift_warning(on_device, "p") is None and on_device.channels == pytest.approx(on_cpu.channels, abs=1e-5)
+    changed = on_cpu.changed
+    assert changed.sum() > 100
+    np.testing.assert_allclose(on_device.normals[changed], on_cpu.normals[changed], atol=1e-4)  # float32 rounding
+    np.testing.assert_allclose(whole.predict_stored(aged_stored).normals, on_device.normals, atol=1e-5)
+    unrefreshed = Predictor(trained, full_frame=True).predict(aged)
+    assert _contact_error_deg(on_device, folder) < _contact_error_deg(unrefreshed, folder) - 1.0
+
+
+def test_a_stream_counts_its_drifted_frames_and_refreshes_on_the_full_frame_path(trained, twin_presses, tmp_path,
+                                                                                 caplog):  # fmt: skip
+    """A stream's summary counted the 4 % mismatches only: a day of drifted frames ended with no count."""
+    cv2 = pytest.importorskip("cv2")
+    frames = [twin_presses / name for name in ("reference", "press_a", HELD_OUT)]
+    dark = read_png16(twin_presses / "reference" / "dark.png")
+    video = tmp_path / "aged.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"FFV1"), 30, dark.shape[1::-1])
+    for folder in frames:  # what an 8-bit video keeps: the top 8 bits, as BGR
+        aged = _aged_stored(read_png16(folder / "tricolor.png"), dark, RED_DIMMED)
+        writer.write(np.ascontiguousarray((aged >> 8).astype(np.uint8)[..., ::-1]))
+    writer.release()
+    caplog.set_level(logging.WARNING)
+    assert main(["infer", str(trained), str(video)]) == 0
+    assert "3 of 3 frames had colours that drifted from the calibration's reference" in caplog.text
+    assert "--reference FRAME" in caplog.text.splitlines()[-1]
+    caplog.clear()
+    reference = _aged(twin_presses / "reference", tmp_path / "aged_reference", RED_DIMMED)
+    assert main(["infer", str(trained), str(video), "--full-frame", "--reference", str(reference)]) == 0
+    assert "drifted" not in caplog.text and "undeformed gel is" not in caplog.text
+
+
+def test_many_drifted_stills_are_counted_as_drifted_not_as_unlike_the_reference(trained, twin_presses, tmp_path,
+                                                                                caplog):  # fmt: skip
+    """Past 3 warnings `nlips infer` counted drifted inputs as "differed ... over most of the gel"."""
+    names = ("press_a", "press_b", "press_c", HELD_OUT)
+    for name in names:
+        _aged(twin_presses / name, tmp_path / "aged" / name, RED_DIMMED)
+    caplog.set_level(logging.WARNING)
+    assert main(["infer", str(trained), *(str(tmp_path / "aged" / n) for n in names), "--figures", "none"]) == 0
+    assert "4 of 4 inputs had colours that drifted from the calibration's reference" in caplog.text
+    assert "over most of the gel" not in caplog.text

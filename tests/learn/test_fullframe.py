@@ -432,10 +432,11 @@ def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_els
         press = load_press(twin_presses / name)
         frame = press.linear(press.tricolor)
         cpu = cpu_predictor.predict(frame)
-        normals, depth, points, changed, seconds, mismatch = device_path(frame)
+        normals, depth, points, changed, seconds, mismatch, channels = device_path(frame)
         np.testing.assert_array_equal(changed, cpu.changed)
         np.testing.assert_allclose(normals, cpu.normals, atol=1e-4)  # float32 rounding (1e-4: 0.006 deg)
         assert mismatch == pytest.approx(cpu_predictor.changed.mismatch, rel=1e-4, abs=1e-7)
+        assert channels == pytest.approx(cpu.channels, abs=1e-5)  # the same blocks, ratio and median
         assert set(seconds) == {"upload", "compute", "download", "total"}
         np.testing.assert_allclose(depth, cpu.depth, atol=1e-4)  # the same box solve (torch's FFT, scipy's)
         np.testing.assert_allclose(points, cpu.points, atol=1e-4)
@@ -468,8 +469,8 @@ def test_the_device_path_applies_the_cpu_change_rule_and_keeps_the_reference_els
     whole_path = FullFrame(cpu_predictor.model, CPU, cpu_predictor.geo, keep_reference=False)
     frame = torch.from_numpy(press.linear(press.tricolor))
     with torch.no_grad():
-        normals, _, _, points = whole_path._compute(frame, stored=False)
-        changed, _ = whole_path.change(frame)
+        normals, _, _, points, _ = whole_path._compute(frame, stored=False)
+        changed, _, _ = whole_path.change(frame)
     assert 0 < changed.sum() < changed.numel()
     np.testing.assert_array_equal(points.numpy(), whole_path.integrator(normals, ~changed).numpy())
 

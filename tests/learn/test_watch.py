@@ -74,3 +74,31 @@ def test_a_stream_like_the_reference_says_nothing(caplog):
             watch(np.zeros((2, 2, 3)))
         watch.report()
     assert watch.frames == 3 and not caplog.records
+
+
+class _DriftingPredictor:
+    """Stands in for learn.infer.Predictor: each stored frame's first value is its red over the reference's."""
+
+    def predict_stored(self, frame: np.ndarray, where: str) -> Frame:
+        zeros = np.zeros((2, 2))
+        return Frame(
+            zeros[..., None].repeat(3, -1),
+            zeros,
+            zeros[..., None].repeat(3, -1),
+            zeros > 0,
+            {},
+            channels=(float(frame.flat[0]), 1.0, 1.0),
+        )
+
+
+def test_a_streams_summary_counts_the_frames_whose_colours_drifted(caplog):
+    """An aged LED group's frames (drift_warning, under the 4 % mismatch) were warned about, never counted."""
+    watch = MismatchWatch(_DriftingPredictor(), "camera 0")
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.learn.watch"):
+        for red in (1.0, 0.9, 0.9, 1.0, 0.95):
+            watch(np.full((2, 2, 3), red))
+        watch.report()
+    lines = [r.getMessage() for r in caplog.records]
+    assert "camera 0 frame 1: the undeformed gel is red 0.90" in lines[0]
+    assert lines[-1].startswith("3 of 5 frames had colours that drifted from the calibration's reference")
+    assert "--reference FRAME" in lines[-1] and not any("differed" in line for line in lines)
