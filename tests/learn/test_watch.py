@@ -76,7 +76,7 @@ def test_a_stream_like_the_reference_says_nothing(caplog):
     assert watch.frames == 3 and not caplog.records
 
 
-class _DriftingPredictor:
+class _DriftingPredictor(_Predictor):
     """Stands in for learn.infer.Predictor: each stored frame's first value is its red over the reference's."""
 
     def predict_stored(self, frame: np.ndarray, where: str) -> Frame:
