@@ -153,8 +153,8 @@ def _rows_from(source_of, rows):
 
 def test_an_led_image_read_out_across_the_switch_is_named_with_its_rows_and_left_out(tmp_path, caplog):
     """A rolling shutter that read LED 5's frame while the LEDs switched: its top half is LED 4's light. Called a
-    whole repeat before (or, a quarter, not seen at all; the twin's sphere press: contact AAE 0.540 deg, 0.529
-    clean); now the rows, the cause and the fix are named and the LED is left out."""
+    whole repeat before (or, a quarter, not seen at all; the twin's cube press with three quarters lagged: contact
+    AAE 0.500 deg, 0.446 clean); now the rows, the cause and the fix are named and the LED is left out (0.458)."""
     press = _press(tmp_path, "rolling", _rows_from({4: 3}, 36))
     with caplog.at_level(logging.WARNING):
         result = solve_press(press, options=SolverOptions(max_iters=2))
