@@ -473,17 +473,11 @@ curve and auto exposure; the same light captured twice differs by its noise, 0.3
 (24 LEDs) would still differ by about 0.05 (linear)."""
 LAGGED_BAND_ROWS = 3
 """Fewest rows of blocks (of :data:`CAPTURE_CHECK_BLUR` pixels) at the top or bottom of an LED image that must show
-the light captured before it (the previous LED's, within :data:`REPEATED_FRAME_DIFFERENCE`, or the dark frame's,
-below :data:`LAGGED_BAND_DARK`) for the image to be called partly lagged: the LEDs switched while a rolling
-shutter read the frame out (:func:`nlipscalib.core.repeated_frames.lagged_bands`). 15 pixels. Why a run of rows:
-one row of blocks of two neighbouring LED images can come within 1.6 % (twin presses at 640x480, /tmp/keep and
-extra); none came below 1 %, and no run of 3 rows below 3 % reached an image's top or bottom (s28-rolling)."""
-LAGGED_BAND_DARK = 0.05
-"""A row of blocks of an LED image is dark (read out before its LED lit: the dark frame's light) when the median
-over its lit blocks of the image's brightness relative to the brighter of it and its neighbour in capture order is
-below this (:func:`nlipscalib.core.repeated_frames.lagged_bands`). Neighbouring LEDs of the twin: 0.74-0.77 in
-every row (/tmp/keep presses, 640x480); rows taken from the dark frame 0.00. Not higher: a weak LED (30 % of its
-power, the synthetic ring's test) reaches 0.3 in the rows its neighbour lights most (s28-rolling)."""
+the light of the image captured before it (within :data:`REPEATED_FRAME_DIFFERENCE`) for the image to be called
+partly lagged: the LEDs switched while a rolling shutter read the frame out
+(:func:`nlipscalib.core.repeated_frames.lagged_bands`). 15 pixels. Why a run of rows: one row of blocks of two
+neighbouring LED images can come within 1.6 % (twin presses at 640x480, /tmp/keep and extra); none came below 1 %,
+and no run of 3 rows below 3 % reached an image's top or bottom (s28-rolling)."""
 SHIFTED_BAND_RATIO = 0.7
 """The rows of a band of the frame are read out before the LED switch in every LED image (a systematic timing
 error: the camera's rolling readout starts before each LED switches) when, in median over the LEDs, the LED image

@@ -130,9 +130,9 @@ def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int]
     LEDs (0-based), in the capture order of ``images.leds``.
 
     Why leave a partly lagged LED out: its rows of the previous LED's light are solved as its own. The twin's cube
-    press (640x480, --roi auto; clean 0.446 deg): LED 5's top three quarters from LED 4 0.500, its top quarter dark
-    0.543, either left out 0.458; where the rows miss the contact, leaving it out costs up to 0.011 deg (sphere:
-    0.529-0.531 used, 0.540 left out; s28-rolling)."""
+    press (640x480, --roi auto; clean 0.446 deg): LED 5's top three quarters from LED 4 0.500, left out 0.458; where
+    the rows miss the contact, leaving it out costs up to 0.011 deg (sphere: 0.529-0.531 used, 0.540 left out;
+    s28-rolling)."""
     repeated, bands = frame_lags(press.linear_led_images, np.isfinite(press.reference.depth))
     lines = ([repeated_line(press.folder, names, repeated)] if repeated else []) + (
         [lagged_line(press.folder, names, bands)] if bands else []
