@@ -490,6 +490,19 @@ switching to LED k was still exposed under LED k-1) when the median over the lit
 curve and auto exposure; the same light captured twice differs by its noise, 0.3 % after a 5x5 box blur (twin,
 12-bit; the block means average as many pixels), 0.000 for a frame handed out twice. A twice-as-dense ring
 (24 LEDs) would still differ by about 0.05 (linear)."""
+LAGGED_BAND_ROWS = 3
+"""Fewest rows of blocks (of :data:`CAPTURE_CHECK_BLUR` pixels) at the top or bottom of an LED image that must show
+the light of the image captured before it (within :data:`REPEATED_FRAME_DIFFERENCE`) for the image to be called
+partly lagged: the LEDs switched while a rolling shutter read the frame out
+(:func:`nlipscalib.core.repeated_frames.lagged_bands`). 15 pixels. Why a run of rows: one row of blocks of two
+neighbouring LED images can come within 1.6 % (twin presses at 640x480, /tmp/keep and extra); none came below 1 %,
+and no run of 3 rows below 3 % reached an image's top or bottom (s28-rolling)."""
+SHIFTED_BAND_RATIO = 0.7
+"""The rows of a band of the frame are read out before the LED switch in every LED image (a systematic timing
+error: the camera's rolling readout starts before each LED switches) when, in median over the LEDs, the LED image
+fitted (gain and offset) to the previous LED's modelled light leaves less than this fraction of the misfit to its own
+LED's (:func:`nlipscalib.solver.led_checks.shifted_rows`). The twin's presses (/tmp/keep, 640x480, 16 bands of 30
+rows): 1.18 and above in every band; bands read before the switch: 0.09-0.48 (s28-rolling)."""
 LINEAR_RESPONSE_SLOPE = 0.7
 """LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
 each pixel's value grows as the LED model's light, direct plus the fitted indirect term, to a power below this, in

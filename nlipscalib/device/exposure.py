@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, require
-from ..core.repeated_frames import repeated_leds, repeated_line
+from ..core.repeated_frames import frame_lags, lagged_line, repeated_line
 from ..core.sensor_response import SensorResponse, linearise, undo_tone_curve
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
@@ -91,13 +91,17 @@ def check_exposure(
 def _repeated_lines(
     frames: dict[str, np.ndarray], names: list[str], response: SensorResponse, folder: Path, gel: np.ndarray
 ) -> list[str]:
-    """The warning naming LED frames that repeat the frame before them (the camera's frames lag the LED switch:
-    :mod:`nlipscalib.core.repeated_frames`), while the press can still be captured again."""
+    """The warnings naming LED frames that repeat the frame before them, whole or in some rows (the camera's frames
+    lag the LED switch, or were read out across it: :mod:`nlipscalib.core.repeated_frames`), while the press can
+    still be captured again."""
     linear = np.stack(
         [linearise(frames[name], frames["dark"], response.black_level, response.white_level) for name in names]
     )
-    repeated = repeated_leds(linear, gel)
-    return [repeated_line(folder, [f"{name}.png" for name in names], repeated)] if repeated else []
+    repeated, bands = frame_lags(linear, gel)
+    files = [f"{name}.png" for name in names]
+    return ([repeated_line(folder, files, repeated)] if repeated else []) + (
+        [lagged_line(folder, files, bands)] if bands else []
+    )
 
 
 def _compressed_lines(frames: dict[str, np.ndarray], names: list[str], folder: Path, gel: np.ndarray) -> list[str]:

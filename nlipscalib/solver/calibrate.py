@@ -39,7 +39,7 @@ from ..core.capture import Press, as_press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
-from ..core.repeated_frames import repeated_leds, repeated_line
+from ..core.repeated_frames import frame_lags, lagged_line, repeated_line
 from .calibration_contact import contact_notes, contact_refusal, contact_regions, led_cause
 from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
@@ -454,13 +454,14 @@ def _check_lit(press: Press) -> None:
             f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
             f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
         )
-    if repeated := repeated_leds(press.linear_led_images, gel):
+    repeated, bands = frame_lags(press.linear_led_images, gel)
+    if repeated or bands:
         names = (press.meta.get("images") or {}).get("leds") or []
         names = names if len(names) == len(press.leds) else [f"LED {i + 1}" for i in range(len(press.leds))]
-        # each repeated image would be fitted as its own LED at the place of the LED before it, "reliable"
-        raise CaptureError(
-            f"{repeated_line(press.folder, names, repeated)}; the LED calibration needs each LED's own light"
-        )
+        # each repeated image would be fitted as its own LED at the place of the LED before it, "reliable"; a
+        # partly lagged one somewhere between the two
+        line = repeated_line(press.folder, names, repeated) if repeated else lagged_line(press.folder, names, bands)
+        raise CaptureError(f"{line}; the LED calibration needs each LED's own light")
     if (value := compressed(press.led_images, gel)) is not None:
         log.warning("%s", blockiness_line(press.folder, "the LED images", value))
     if press.reference is not None:

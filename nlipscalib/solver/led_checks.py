@@ -21,7 +21,7 @@ from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError
 from ..core.leds import Led, led_shading
-from ..core.repeated_frames import repeated_leds, repeated_line
+from ..core.repeated_frames import frame_lags, lagged_line, repeated_line
 from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
 from . import reuse
 from .indirect import fit_indirect
@@ -89,7 +89,8 @@ def led_check(
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
         return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None
-    notes = list(jpeg_notes)  # linearity: said by the solve once its indirect term is fitted (linearity_notes)
+    # linearity: said by the solve once its indirect term is fitted (linearity_notes)
+    notes = jpeg_notes + shifted_notes(press, leds, live)
     off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     relative = gain / np.median(gain)
@@ -196,22 +197,100 @@ def _leave_out(candidates: list[int], count: int) -> list[int]:
     return sorted(candidates) if count - len(candidates) >= tolerances.MIN_LEDS_PER_PIXEL else []
 
 
-def _repeated_line(press: Press, names: list[str]) -> tuple[str | None, list[int]]:
-    """The line naming LED images that repeat the image before them (:func:`.repeated_leds`: frames that lag
-    the LED switch), None when none does, and those LEDs (0-based), in the capture order of ``images.leds``."""
-    repeated = repeated_leds(press.linear_led_images, np.isfinite(press.reference.depth))
-    if not repeated:
-        return None, []
-    return repeated_line(press.folder, names, repeated), [i for i, _ in repeated]
+def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int]]:
+    """The lines naming LED images that repeat the image before them, whole or in some rows (:func:`.frame_lags`:
+    frames that lag the LED switch, or read out across it by a rolling shutter), none when none does, and those
+    LEDs (0-based), in the capture order of ``images.leds``.
+
+    Why leave a partly lagged LED out: its rows of the previous LED's light are solved as its own. The twin's cube
+    press (640x480, --roi auto; clean 0.446 deg): LED 5's top three quarters from LED 4 0.500, left out 0.458; where
+    the rows miss the contact, leaving it out costs up to 0.011 deg (sphere: 0.529-0.531 used, 0.540 left out;
+    s28-rolling)."""
+    repeated, bands = frame_lags(press.linear_led_images, np.isfinite(press.reference.depth))
+    lines = ([repeated_line(press.folder, names, repeated)] if repeated else []) + (
+        [lagged_line(press.folder, names, bands)] if bands else []
+    )
+    return lines, sorted([i for i, _ in repeated] + [band.index for band in bands])
 
 
-def _said_repeated(line: str | None, left_out: list[int]) -> list[str]:
-    """The warning of :func:`_repeated_line`'s ``line``, saying whether the solve leaves those LEDs out (not when
+def _said_repeated(lines: list[str], left_out: list[int]) -> list[str]:
+    """The warnings of :func:`_repeated_line`'s ``lines``, saying whether the solve leaves those LEDs out (not when
     too few LEDs would be left: :func:`_leave_out`)."""
-    if line is None:
-        return []
     done = "left out of the solve" if left_out else "used (too few LEDs to leave them out)"
-    return [f"{line}; {done} (they hold the light of the LED before them)"]
+    return [f"{line}; {done} (they hold the light of the LED before them)" for line in lines]
+
+
+SHIFT_BANDS = 16
+"""Bands of rows :func:`shifted_rows` fits one by one (30 rows at 480: the reported rows are to a band)."""
+
+
+def shifted_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[str]:
+    """The warning when a band of rows at the top or bottom of every LED image shows the previous LED's light
+    (:func:`shifted_rows`): a systematic timing error, no LED can be left out for it."""
+    band = shifted_rows(press, leds, live)
+    if band is None:
+        return []
+    (first, stop), top = band
+    return [
+        f"{press.folder}: rows {first}-{stop - 1} ({'top' if top else 'bottom'}) of the LED images show the light "
+        "of the LED captured before each: the LEDs switched while the camera read the frames out (a rolling "
+        "shutter reads the rows one after another), every frame alike; capture again with --flush 1 or more "
+        "(frames dropped after each LED change, default 2) and frames that are not read out before the LED lit; "
+        "the normals solved in those rows are wrong"
+    ]
+
+
+def shifted_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[tuple[int, int], bool] | None:
+    """The rows, at the top or the bottom of the frame, in which the LED images show the light of the LED before
+    them in capture order: ((first, stop) pixel rows, top), or None.
+
+    Per band of rows (:data:`SHIFT_BANDS`) and live LED k whose predecessor is live, the LED image is fitted (gain
+    and offset: albedo and interreflection) to LED k's modelled light and to LED k-1's on the undeformed dome; a
+    band whose median over the LEDs of the two misfits' ratio (previous / own) is below
+    :data:`~nlipscalib.core.tolerances.SHIFTED_BAND_RATIO` holds the previous LED's light. Why model, not the
+    images: with every frame read across its switch, neighbouring images no longer share any rows' light
+    (:func:`nlipscalib.core.repeated_frames.frame_lags` sees nothing).
+    """
+    pairs = [k for k in live if k >= 1 and k - 1 in set(live)]
+    ref = press.reference
+    if ref is None or len(pairs) < 3:
+        return None
+    index = np.flatnonzero(np.isfinite(ref.depth))
+    index = index[:: max(1, index.size // (2 * CHECK_PIXELS))]
+    rows, cols = np.divmod(index, press.camera.width)
+    rays = press.camera.unproject(np.stack([cols, rows], axis=-1).astype(np.float64))
+    points = depth_to_points(ref.depth.reshape(-1)[index].astype(float), rays)
+    model = led_shading(points, ref.normals.reshape(-1, 3)[index].astype(float), list(leds)).sum(axis=-1)
+    image = np.stack([press.linear_led_images[k].reshape(-1, 3)[index].sum(axis=-1) for k in pairs]).astype(float)
+    band = rows * SHIFT_BANDS // press.camera.height
+    ratio = np.full(SHIFT_BANDS, np.nan)
+    for b in range(SHIFT_BANDS):
+        where = band == b
+        if where.sum() >= 50:  # ~a band's samples at 2 x CHECK_PIXELS; fewer: no verdict
+            own = _affine_misfit(image[:, where], model[pairs][:, where])
+            previous = _affine_misfit(image[:, where], model[[k - 1 for k in pairs]][:, where])
+            ratio[b] = np.median(previous / np.maximum(own, 1e-12))
+    shifted = ratio < tolerances.SHIFTED_BAND_RATIO  # NaN: False
+    counted = np.flatnonzero(np.isfinite(ratio))
+    if not shifted.any() or shifted[counted].all():
+        return None
+    height = press.camera.height
+    for top, ordered in ((True, counted), (False, counted[::-1])):
+        run = int(np.argmax(~shifted[ordered]))  # the first band of the LEDs' own light
+        if run:
+            ends = sorted((ordered[0], ordered[run - 1]))
+            return (int(ends[0]) * height // SHIFT_BANDS, (int(ends[1]) + 1) * height // SHIFT_BANDS), top
+    return None
+
+
+def _affine_misfit(image: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """(L,) float: the rms misfit of each row of ``image`` (L, N) fitted as gain x ``model`` (L, N) + offset, over
+    its mean."""
+    x = model - model.mean(axis=1, keepdims=True)
+    y = image - image.mean(axis=1, keepdims=True)
+    gain = (x * y).sum(axis=1) / np.maximum((x * x).sum(axis=1), 1e-24)
+    rms = np.sqrt(np.mean((y - gain[:, None] * x) ** 2, axis=1))
+    return rms / np.maximum(np.abs(image.mean(axis=1)), 1e-12)
 
 
 def compression_notes(press: Press) -> list[str]:

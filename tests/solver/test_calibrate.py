@@ -265,6 +265,24 @@ def test_an_led_image_that_repeats_the_one_before_is_refused_before_the_fit(tmp_
         calibrate_leds([lagged], stride=4)
 
 
+def test_an_led_image_read_out_across_the_switch_is_refused_before_the_fit(tmp_path):
+    """A rolling shutter read LED 5's frame while the LEDs switched: its top third is LED 4's light. Refused before
+    for the wrong cause ("the point LED model does not describe an LED package that near the gel ... check LED 5's
+    mounting"); now refused naming the rows, the cause and --flush (s28-rolling)."""
+    from nlipscalib.core.errors import CaptureError
+
+    def roll(lin):
+        lin = lin.copy()
+        lin[4, :24] = lin[3, :24]
+        return lin
+
+    rolled = load_press(synth.make_press(tmp_path / "rolled", "none", size=(96, 72), lin_hook=roll))
+    with pytest.raises(
+        CaptureError, match=r"rolled: led_05\.png's rows 0-\d+ \(top\) show led_04\.png's light.*--flush"
+    ):
+        calibrate_leds([rolled], stride=4)
+
+
 def test_gamma_encoded_reference_images_are_warned_about_before_the_fit(tmp_path, caplog):
     """An sRGB webcam's reference: the fit absorbed the tone curve (the twin's LEDs moved 2.5 mm) and called itself
     reliable; the solves with those LEDs gave 3.6 deg instead of 0.46 (s27 QA walk). Now warned about, against the
