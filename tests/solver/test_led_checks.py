@@ -307,7 +307,7 @@ def test_dark_top_rows_of_an_led_image_are_not_taken_for_a_rolling_shutter(tmp_p
     """Dark rows are not looked for (an LED's own light can end as sharply): the top quarter of LED 9's frame read
     while no LED was lit is not named as a readout across the switch; it is no repeat either."""
     press = _press(tmp_path, "rolling_dark", _rows_from({8: None}, 18))
-    notes, _, _ = led_check(press, press.leds, range(len(press.leds)))
+    notes, _, _, _ = led_check(press, press.leds, range(len(press.leds)))
     assert not any("read the frame out" in note or "repeats" in note for note in notes)
 
 
@@ -315,7 +315,7 @@ def test_every_led_image_read_out_across_its_switch_is_named_as_a_systematic_tim
     """Every LED frame's top third read out before its LED switched (LED 1's: the dark frame's): neighbouring
     images then share no rows' light, so only the LED model tells; the rows are named, for every image."""
     press = _press(tmp_path, "rolling_all", _rows_from({k: (k - 1 if k else None) for k in range(12)}, 24))
-    notes, _, _ = led_check(press, press.leds, range(len(press.leds)))
+    notes, _, _, _ = led_check(press, press.leds, range(len(press.leds)))
     said = [note for note in notes if "of the LED images show the light of the LED captured before each" in note]
     assert len(said) == 1 and "rows 0-" in said[0] and "(top)" in said[0] and "every frame alike" in said[0]
     assert "--flush" in said[0]
