@@ -161,7 +161,7 @@ class SensorResponse:
         if self.camera_response not in CAMERA_RESPONSES:
             raise CaptureError(
                 f"sensor.camera_response must be one of {', '.join(map(repr, CAMERA_RESPONSES))} (docs/formats.md, "
-                f"meta.json), got {self.camera_response!r}"
+                f"meta.json, in the nlipscalib source distribution), got {self.camera_response!r}"
             )
         if not LEAST_BIT_DEPTH <= self.bit_depth <= 16:
             raise CaptureError(f"sensor.bit_depth must be {LEAST_BIT_DEPTH}..16, got {self.bit_depth}")
