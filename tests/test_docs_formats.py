@@ -308,3 +308,48 @@ def test_the_model_file_section_names_the_reference_arrays_and_the_onnx_versions
     ).group(0)
     assert set(re.findall(r"`(\w+)`", reference)) - {"reference"} == set(REFERENCE_ARRAYS)
     assert f"opset {onnx_export.OPSET}, IR version {onnx_export.IR_VERSION}" in model
+
+
+def _subscript_report_keys(path: Path) -> list[str]:
+    """The string keys ``path`` assigns one by one into a report dict (``rep["key"] = ...``,
+    ``result.report["key"] = ...``): the keys a solve adds after its report's dict literal."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    return [
+        target.slice.value
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Assign)
+        for target in node.targets
+        if isinstance(target, ast.Subscript)
+        and isinstance(target.slice, ast.Constant)
+        and isinstance(target.slice.value, str)
+        and (ast.unparse(target.value) == "rep" or ast.unparse(target.value).endswith("report"))
+    ]
+
+
+def test_every_key_a_solve_adds_to_report_json_and_every_solver_keyword_setting_is_documented():
+    """s28 added report.json's `reference_gain` (the undeformed capture's light scaled to the press's) and
+    `sensor_check` (what --allow-sensor-misfit overrode) without a row in the table, and the settings'
+    `check_sensor` / `reorder_leds` (--allow-sensor-misfit, --keep-led-order) went unnamed."""
+    from nlipscalib.cli.solve import SOLVER_KEYWORDS
+
+    solver = Path(__file__).resolve().parents[1] / "nlipscalib" / "solver"
+    keys = [k for path in sorted(solver.glob("*.py")) for k in _subscript_report_keys(path)]
+    assert {"reference_gain", "sensor_check", "leds_reordered"} <= set(keys)  # the source was read
+    assert _undocumented(keys, _section("## report.json", "`provenance` (written by")) == []
+    settings = _section("| `settings.solver_keywords`", "| `inputs.press`")
+    assert _undocumented(SOLVER_KEYWORDS, settings) == []
+
+
+def test_files_from_older_versions_names_the_format_versions_each_reader_reads():
+    """The section said captures were "format 1, the only one so far" after s28 wrote sRGB captures as 2."""
+    from nlipscalib.core import press_meta
+    from nlipscalib.learn import dataset, model
+
+    section = _section("# Files from older versions", "- **Reconstructions**") + _section(
+        "- **Calibration datasets**", "- **LED files**"
+    )
+    read = {"Captures": press_meta.READ_VERSIONS, "Calibration datasets": (dataset.FORMAT_VERSION,)}
+    read["Models"] = (model.MODEL_VERSION,)
+    for kind, versions in read.items():
+        (said,) = re.findall(rf"- \*\*{kind}\*\* \(([^)]*)\)", section)
+        assert {int(n) for n in re.findall(r"\d+", said)} == set(versions), kind
