@@ -149,3 +149,20 @@ def test_a_mesh_indenter_is_scaled_to_its_size_unless_told_to_keep_the_files_mil
     assert max(scaled.extents) == pytest.approx(IndenterConfig().size, rel=1e-6)
     kept = make_indenter(IndenterConfig(kind="mesh", mesh=str(part), scale_to_size=False))
     assert max(kept.extents) == pytest.approx(4.0, rel=1e-6)
+
+
+def test_every_keyword_the_pages_give_solve_press_is_one_it_takes():
+    """api.md names ``solve_press(..., check_sensor=False)``, ``reorder_leds=False`` and the pipeline's
+    ``solver_keywords={"check_sensor": False}`` (s28): a renamed keyword would reach the solve as a TypeError."""
+    import inspect
+
+    from nlipscalib.solver import press
+
+    root = API.parents[1]
+    pages = [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+    text = "\n".join(page.read_text(encoding="utf-8") for page in pages)
+    calls = re.findall(r"solve_press\(([^)]*)\)", text)
+    named = {k for call in calls for k in re.findall(r"(\w+)=", call)}
+    named |= {k for d in re.findall(r"solver_keywords=\{([^}]*)\}", text) for k in re.findall(r"\"(\w+)\":", d)}
+    assert len(calls) >= 4 and "indirect" in named  # the pages were read
+    assert sorted(named - set(inspect.signature(press._solve_press).parameters)) == []
