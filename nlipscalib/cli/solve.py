@@ -32,7 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="V",
         help="x0 y0 w h (pixels, as 4 values or x0,y0,w,h) or 'auto': the box around the pixels whose images differ "
         "from the undeformed dome's (the contact), plus an 8-pixel margin (wider where too little undeformed gel is "
-        "left in it to anchor the depth); much faster than the whole gel. A press without contact is refused with "
+        "left in it to anchor the depth, and over a large contact's flank); much faster than the whole gel. "
+        "A press without contact is refused with "
         "what to do (a folder's: noted, the others solved). Default: the whole gel",
     )
     p.add_argument(
@@ -45,7 +46,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="REF_PRESS",
         help="press folder of the undeformed dome (same camera, LEDs, exposure): the interreflection term is "
         "fitted on it, --roi auto / anchoring compare to it, and each LED image's brightness is checked against it, "
-        "to warn of auto exposure or white balance left on (default: PRESS/reference when PRESS is a folder of "
+        "to warn of auto exposure or white balance left on; its light is scaled by the press's overall brightness "
+        "over it (LEDs aged, exposure or gain changed since: report.json reference_gain) "
+        "(default: PRESS/reference when PRESS is a folder of "
         "presses that has one, as `nlips dataset` and `nlips capture` write; else the press itself, away from the "
         "contact)",
     )
