@@ -353,3 +353,15 @@ def test_files_from_older_versions_names_the_format_versions_each_reader_reads()
     for kind, versions in read.items():
         (said,) = re.findall(rf"- \*\*{kind}\*\* \(([^)]*)\)", section)
         assert {int(n) for n in re.findall(r"\d+", said)} == set(versions), kind
+
+
+def test_the_model_file_section_names_every_info_key_the_training_writes():
+    """s28-tinynet added the model's `info.contacts` (what `nlips infer`'s small-contact warning reads) without a word
+    in the model file's section."""
+    from nlipscalib.learn.resolution import INFO_KEY
+
+    model = _section("# NLiPsNet model file", "`MODEL.onnx` beside it")
+    info = _literal_keys("learn.train", "_save_trained", "info")
+    assert "samples_digest" in info  # the source was read
+    contacts = _literal_keys("learn.resolution", "calibrated_contacts")
+    assert _undocumented([*info, INFO_KEY, *contacts], model) == []
