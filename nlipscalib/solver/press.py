@@ -117,8 +117,8 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
         if drifted := exposure_drift_note(press, kwargs["indirect"], ratio):
             log.warning("%s", drifted)
             led_notes.append(drifted)
-        if ratio is not None:  # measured on every LED, before any is left out below
-            kwargs["light_gain"] = reference_gain(ratio)
+        if ratio is not None and kwargs.get("light_gain") is None:  # on every LED, before any is left out below
+            kwargs["light_gain"] = reference_gain(ratio)  # a caller's own gain is theirs
             if aged := reference_gain_note(press, kwargs["indirect"], kwargs["light_gain"]):
                 log.warning("%s", aged)
                 led_notes.append(aged)
