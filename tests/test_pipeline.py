@@ -839,3 +839,38 @@ def test_ctrl_c_on_a_parallel_solve_starts_no_press_but_those_running(tmp_path, 
     # as it ended, before the parent read its result and set the stop (5 before: the call queue's presses too)
     solved = sorted(p.name for p in marks.iterdir() if p.is_file())
     assert solved in (["press_0", "press_1"], ["press_0", "press_1", "press_2"]), solved
+
+
+def test_a_sessions_swapped_and_aged_leds_are_warned_of_once_by_a_batch_of_two_workers(tmp_path):
+    """A session whose LED images 3 and 6 are swapped in every capture and whose presses are 10 % dimmer than its
+    undeformed capture (s28-together): `nlips solve FOLDER --workers 2` said the swap once per worker process and
+    the brightness once per press. Now each is one WARNING for the command, the other presses' lines at INFO, and
+    each press's report keeps both."""
+    from nlipscalib import progress
+
+    def swapped(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    session = tmp_path / "session"
+    synth.make_press(session / "reference", "none", lin_hook=swapped)
+    names = ("p1", "p2", "p3", "p4")
+    for name in names:
+        synth.make_press(session / name, "sphere", lin_hook=lambda lin: swapped(lin) * 0.9)
+    log = tmp_path / "run.log"
+    progress.configure(progress=False, log_file=log)
+    try:
+        status = solve_presses(
+            [session / n for n in names], reference=session / "reference", options=FAST, workers=2, figures=False
+        )
+    finally:
+        progress.configure(progress=False)
+    assert set(status.values()) == {"solved"}, status
+    lines = log.read_text(encoding="utf-8").splitlines()
+    for fault in ("out of order", "LEDs aged"):
+        said = [line for line in lines if fault in line]
+        assert len(said) == len(names), said  # each press's own line ...
+        assert sum(" WARNING " in line for line in said) == 1, said  # ... one of them a warning
+        for name in names:
+            assert any(fault in note for note in read_report(session / name / "nlips")["warnings"]), name

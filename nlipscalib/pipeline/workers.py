@@ -9,6 +9,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core import said_once
 from ..core.cpus import threads_per_worker
 from ..core.processes import end_with_parent
 from .status import BROKEN
@@ -54,12 +55,16 @@ def _solve_in_processes(
     # A byte in shared memory, no lock (one writer): no named semaphores for the exit to free, as an Event has
     stop = ctx.RawValue("b", 0)
     count = min(workers, len(folders))
-    with ProcessPoolExecutor(
-        max_workers=count,
-        mp_context=ctx,
-        initializer=_worker_init,
-        initargs=(*worker_logging(), stop, threads_per_worker(count)),
-    ) as pool:
+    # a session's fault (swapped LED images, aged LEDs) is warned of once per command, not once per worker
+    with (
+        said_once.shared_between_processes() as said,
+        ProcessPoolExecutor(
+            max_workers=count,
+            mp_context=ctx,
+            initializer=_worker_init,
+            initargs=(*worker_logging(), stop, threads_per_worker(count), said),
+        ) as pool,
+    ):
         futures = {pool.submit(_unless_stopped, status_of, f, *args): f for f in folders}
         bar = progress_bar(len(futures), enabled=progress, desc="presses", unit="press")
         try:
@@ -100,14 +105,22 @@ def _unless_stopped(status_of: Callable[..., str], folder: Path, *args: object) 
 
 
 def _worker_init(
-    log_level: int, log_file: str | None, press_lines: int, stop: c_byte | None, thread_count: int = 1
+    log_level: int,
+    log_file: str | None,
+    press_lines: int,
+    stop: c_byte | None,
+    thread_count: int = 1,
+    said: str | None = None,
 ) -> None:
     """Log like the parent (stderr and its ``--log-file``); ``thread_count`` threads for the solver's pool and
     OpenCV's (the cores shared out among the workers, :func:`~nlipscalib.core.cpus.threads_per_worker`: one a worker
     where there are as many workers as cores, so cores are not oversubscribed); the solver limits BLAS itself;
     ``press_lines``: the parent's (progress.press_lines); ``stop``: the batch's stop flag
-    (:func:`_unless_stopped`)."""
+    (:func:`_unless_stopped`); ``said``: the folder in which the batch's processes say a session's warning once
+    (:func:`~nlipscalib.core.said_once.share`)."""
     from ..progress import configure_worker
+
+    said_once.share(said)
 
     global _STOP
     _STOP = stop

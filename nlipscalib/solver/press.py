@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from ..core import tolerances
+from ..core import said_once, tolerances
 from ..core.capture import Press, as_press, select_leds
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
@@ -120,7 +120,7 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
         if ratio is not None and kwargs.get("light_gain") is None:  # on every LED, before any is left out below
             kwargs["light_gain"] = reference_gain(ratio)  # a caller's own gain is theirs
             if aged := reference_gain_note(press, kwargs["indirect"], kwargs["light_gain"]):
-                log.warning("%s", aged)
+                _say_once_per_session(aged, f"reference gain\0{press.folder.parent}\0{kwargs['indirect'].folder}")
                 led_notes.append(aged)
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
@@ -168,6 +168,16 @@ class _SaidAlready(logging.Filter):
         return record.getMessage() not in self.said
 
 
+def _say_once_per_session(note: str, key: str) -> None:
+    """``note`` as a WARNING the first time this command meets ``key`` (a fault of the whole session, such as
+    LEDs aged since the undeformed capture: a batch of 6 presses said it 6 times), at INFO afterwards; each press's
+    report keeps it either way."""
+    if said_once.first_time(key):
+        log.warning("%s (said once for this session's presses; each press's report.json keeps its own)", note)
+    else:
+        log.info("%s", note)
+
+
 @contextlib.contextmanager
 def _not_said_again(said: Sequence[str]) -> Iterator[None]:
     """The solve again without the raised smoothness says none of the first solve's warnings a second time (its
@@ -180,9 +190,6 @@ def _not_said_again(said: Sequence[str]) -> Iterator[None]:
         log.removeFilter(said_already)
 
 
-_SAID_ORDERS: set[tuple[str, tuple[int, ...]]] = set()
-"""(press's parent folder, LED order) already warned about in this process: a batch of a session captured with one
-wiring error (``nlips calibrate``, a folder solve) warns once, not once per press (the rest at INFO)."""
 KEEP_ORDER_FLAG = "--keep-led-order"
 """The command-line flag that solves LED images out of order as captured (``reorder_leds=False``)."""
 
@@ -195,12 +202,11 @@ def _in_detected_order(press: Press, kwargs: dict, order: list[int]) -> tuple[Pr
     Why: two swapped LED images of the twin's cube press were solved as captured to a contact AAE of 6.1 deg after a
     warning that named the pair; the image labelled 3 was lit by LED 7, so solving it as LED 7's is the physics."""
     note = reorder_note(press, order, KEEP_ORDER_FLAG)
-    session = (str(press.folder.parent), tuple(order))
-    if session in _SAID_ORDERS:  # a wiring error is the whole session's: its presses' reports keep the line
-        log.info("%s", note)
-    else:
-        _SAID_ORDERS.add(session)
+    # a wiring error is the whole session's: said once per command (its workers too), each press's report keeps it
+    if said_once.first_time(f"led order\0{press.folder.parent}\0{order}"):
         log.warning("%s (said once for the presses of %s out of this order)", note, press.folder.parent)
+    else:
+        log.info("%s", note)
     kwargs = dict(kwargs)
     indirect = kwargs.get("indirect")
     if isinstance(indirect, Press) and indirect.reference is not None:

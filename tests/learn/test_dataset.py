@@ -291,3 +291,34 @@ def test_cli_calibrate_killed_while_reporting_coverage_leaves_no_report_of_anoth
     assert CalibrationDataset(root / "calibration").names == ["press_a", "press_b"]
     assert not (root / "calibration" / "coverage.json").exists()
     assert not (root / "calibration" / "coverage.png").exists()
+
+
+def test_presses_dimmer_than_the_undeformed_capture_keep_their_contact_samples(twin_presses, tmp_path, caplog):
+    """A session whose presses are 10 % dimmer than its undeformed capture (LEDs aged, exposure changed between
+    them): the change rule found what differs from the rest of a frame that differed everywhere, and the twin
+    session of s28-together kept 3,904 of 36,724 contact samples, silently. The contact is now told apart against
+    the undeformed frame scaled by the press's measured brightness, its colours sampled at the undeformed frame's
+    (with them, a refresh by `nlips infer --reference` undid the fault: contact AAE 22.0 -> 4.7 deg), one warning."""
+    import logging
+
+    from nlipscalib.core.imageio import read_png16, write_png16
+    from nlipscalib.learn.dataset import press_samples, reference_arrays
+
+    ref = reference_arrays(load_press(twin_presses / "reference"))
+    rec = load_reconstruction(twin_presses / "press_a" / "nlips")
+    as_captured = press_samples(load_press(twin_presses / "press_a"), rec, ref, SamplingConfig())
+    dimmed = tmp_path / "session" / "press_a"
+    shutil.copytree(twin_presses / "press_a", dimmed)
+    images = json.loads((dimmed / "meta.json").read_text(encoding="utf-8"))["images"]
+    dark = read_png16(dimmed / images["dark"]).astype(float)
+    lit = read_png16(dimmed / images["tricolor"]).astype(float) - dark
+    write_png16(dimmed / images["tricolor"], np.clip(np.rint(dark + 0.9 * lit), 0, 65535).astype(np.uint16))
+    with caplog.at_level(logging.INFO):
+        samples = press_samples(load_press(dimmed), rec, ref, SamplingConfig())
+    kept, before = int(samples["contact"].sum()), int(as_captured["contact"].sum())
+    assert abs(kept - before) <= 0.05 * before, (kept, before)
+    # the colours at the undeformed capture's brightness, as the model's reference frame (a refresh maps to it)
+    brightness = np.median(samples["rgb"], axis=0) / np.median(as_captured["rgb"], axis=0)
+    assert np.allclose(brightness, 1.0, atol=0.01), brightness
+    said = [r for r in caplog.records if "tri-colour frame is red 0.90" in r.getMessage()]
+    assert len(said) == 1 and said[0].levelno == logging.WARNING, said
