@@ -405,7 +405,7 @@ def reference_gain(ratio: np.ndarray) -> np.ndarray:
     """(3,) float64 -- the press's brightness over the undeformed capture's, per channel: the median over the LEDs
     of :func:`exposure_ratio`'s (L, 3) ratios (each already a median over the gel, so the contact, a small part of
     it, does not move it; nor does one LED group of a third of the LEDs dimmed on its own: that is
-    :func:`exposure_drift_note`'s).
+    :func:`led_gains`' and :func:`exposure_drift_note`'s).
 
     Why: all LEDs aged alike, or an exposure or gain changed, scale every image by one factor, which the albedo
     absorbs, but the indirect term fitted on the undeformed capture holds that capture's brightness (its kappa is
