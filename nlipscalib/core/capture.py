@@ -113,6 +113,7 @@ __all__ = [
     "read_meta",
     "read_optics",
     "select_leds",
+    "with_led_gains",
     "split_reference",
     "white_level_of",
     "write_press",
@@ -327,6 +328,37 @@ def select_leds(press: Press, keep: Sequence[int]) -> Press:
     keep = [int(i) for i in keep]
     fields = {field.name: press.__dict__[field.name] for field in dataclasses.fields(press)}
     fields.update(leds=tuple(press.leds[i] for i in keep), led_images=press.led_images[keep])
+    return Press(**fields)
+
+
+def with_led_gains(press: Press, gains: np.ndarray) -> Press:
+    """``press`` as captured with each LED at its modelled power: LED ``k``'s image divided by ``gains[k]`` above
+    the dark frame, per channel (stored values rounded; a saturated value kept, so it stays saturated).
+
+    Why: an LED at a fraction g of the power it had at the undeformed capture scales its image by g; dividing the
+    image by g is the model with that LED's Psi and its fitted indirect light times g (the solve's least squares
+    then weigh that LED's residual by 1 / g, a few per cent), without fitting the undeformed capture's indirect
+    term or its shading again (:func:`nlipscalib.solver.led_checks.led_gains`).
+
+    Parameters
+    ----------
+    press : Press
+    gains : (L, 3) float -- each LED's brightness over its modelled one, per channel (R, G, B), > 0.
+
+    Returns
+    -------
+    Press -- a copy whose ``led_images`` (new uint16 array) are rescaled; the other fields ``press``'s own.
+    """
+    gains = np.asarray(gains, np.float64)
+    dark = press.dark.astype(np.float32)
+    stored = press.led_images
+    images = np.empty_like(stored)
+    for k in range(len(stored)):
+        lit = stored[k].astype(np.float32) - dark
+        scaled = np.clip(np.rint(dark + lit / gains[k].astype(np.float32)), 0, 65535)
+        images[k] = np.where(press.response.saturated(stored[k]), stored[k], scaled.astype(np.uint16))
+    fields = {field.name: press.__dict__[field.name] for field in dataclasses.fields(press)}
+    fields.update(led_images=images)
     return Press(**fields)
 
 

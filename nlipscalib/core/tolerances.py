@@ -533,6 +533,14 @@ on) when one LED's brightness against the undeformed capture's, per channel, str
 than this fraction (:func:`nlipscalib.solver.led_checks.exposure_drift`). The one-bounce twin's presses at one
 exposure: within 0.25 % (320x240 and 640x480, 12 and 8 bits); the emulated webcam's auto exposure (+-15 %) and
 white balance (+-8 %): 0.78-1.26."""
+LED_GAIN_CORRECTION = 0.01
+"""A solve against the undeformed capture (``--reference``) rescales an LED's image to that capture's brightness
+(:func:`nlipscalib.solver.led_checks.led_gains`) when, after the press's overall gain
+(:data:`REFERENCE_GAIN_DRIFT`'s), one LED's brightness against that capture, per channel, strays from 1 by more than
+this fraction (LEDs aged on their own, or auto exposure). The one-bounce twin's presses at one exposure: within
+0.35 % (per LED and channel; nine 640x480 presses), 0.43 % on large or steep contacts (a 3 mm deep sphere, a 20 mm
+coin, 55-70 deg polar presses, two spheres; 320x240); one LED group 5 % dimmer: 0.95 (benchmarks/RESULTS.md,
+s28-ledgain)."""
 REFERENCE_GAIN_DRIFT = 0.03
 """A press's LED images are warned of as brighter or dimmer than the undeformed capture's, every LED alike (LEDs aged,
 exposure or gain changed), when that gain (:func:`nlipscalib.solver.led_checks.reference_gain`, per channel) strays

@@ -484,7 +484,7 @@ def reference_gain(ratio: np.ndarray) -> np.ndarray:
     """(3,) float64 -- the press's brightness over the undeformed capture's, per channel: the median over the LEDs
     of :func:`exposure_ratio`'s (L, 3) ratios (each already a median over the gel, so the contact, a small part of
     it, does not move it; nor does one LED group of a third of the LEDs dimmed on its own: that is
-    :func:`exposure_drift_note`'s).
+    :func:`led_gains`' and :func:`exposure_drift_note`'s).
 
     Why: all LEDs aged alike, or an exposure or gain changed, scale every image by one factor, which the albedo
     absorbs, but the indirect term fitted on the undeformed capture holds that capture's brightness (its kappa is
@@ -492,6 +492,30 @@ def reference_gain(ratio: np.ndarray) -> np.ndarray:
     0.039 to 0.27 mm (benchmarks/RESULTS.md, s28-dimref). The solve scales the term by this gain
     (:meth:`.indirect.IndirectModel.with_gain`)."""
     return np.median(ratio, axis=0)
+
+
+def led_gains(ratio: np.ndarray, misplaced: Sequence[int] = ()) -> np.ndarray | None:
+    """(L, 3) float64 -- each LED's brightness against the undeformed capture's, per channel, over the press's
+    overall gain (:func:`reference_gain`), when one strays from 1 by more than
+    :data:`~nlipscalib.core.tolerances.LED_GAIN_CORRECTION`; None when every LED is within it (as captured).
+    ``misplaced`` (0-based): LEDs whose images show another LED's light, kept at 1 (their ratio is no gain).
+
+    Why: an LED that aged on its own (the red group 10 % dimmer on the twin's sphere and cube presses) scales its
+    own images only; the model, with its calibrated Psi and the indirect light fitted on the undeformed capture,
+    then misfits every pixel that LED lights: contact AAE 0.50 -> 4.8 deg, depth 0.49 mm off (benchmarks/RESULTS.md,
+    s28-dimref). Each ratio is a median over the gel, so the contact, a small part of it, does not move it. The
+    solve rescales those images (:func:`nlipscalib.core.capture.with_led_gains`)."""
+    gains = ratio / reference_gain(ratio)
+    gains[[int(i) for i in misplaced]] = 1.0
+    if np.abs(np.log(gains)).max() <= np.log1p(tolerances.LED_GAIN_CORRECTION):
+        return None
+    return gains
+
+
+def changed_leds(gains: np.ndarray) -> list[int]:
+    """The LEDs (0-based) whose :func:`led_gains` stray beyond ``tolerances.LED_GAIN_CORRECTION``."""
+    off = np.abs(np.log(gains)).max(axis=1) > np.log1p(tolerances.LED_GAIN_CORRECTION)
+    return [int(i) for i in np.flatnonzero(off)]
 
 
 def reference_gain_note(press: Press, reference: Press, gain: np.ndarray) -> str | None:
@@ -509,10 +533,13 @@ def reference_gain_note(press: Press, reference: Press, gain: np.ndarray) -> str
     )
 
 
-def exposure_drift_note(press: Press, reference: Press, ratio: np.ndarray | None = None) -> str | None:
+def exposure_drift_note(
+    press: Press, reference: Press, ratio: np.ndarray | None = None, gains: np.ndarray | None = None
+) -> str | None:
     """A warning when :func:`exposure_drift` spreads beyond :data:`~nlipscalib.core.tolerances.EXPOSURE_DRIFT`:
     auto exposure, gain or white balance on, or one group of LEDs aged. ``ratio``: :func:`exposure_ratio`'s, when
-    already measured."""
+    already measured; ``gains``: :func:`led_gains`, when the solve rescales the images by them (the note names those
+    LEDs)."""
     ratio = exposure_ratio(press, reference) if ratio is None else ratio
     drift = None if ratio is None else ratio / np.median(ratio)
     if drift is None or np.abs(np.log(drift)).max() <= np.log1p(tolerances.EXPOSURE_DRIFT):
@@ -525,4 +552,14 @@ def exposure_drift_note(press: Press, reference: Press, ratio: np.ndarray | None
         f"changed): auto exposure, gain or white balance on, or some LEDs aged (dimmer with use) since that capture? "
         f"Every image must be taken at one fixed exposure, gain and white balance ({CAMERA_SETTINGS_GUIDE}); for "
         f"aged LEDs a fresh capture of the undeformed dome (--reference) and of the LEDs (nlips calibrate-leds)"
+        + (_rescaled(names, gains) if gains is not None else "")
+    )
+
+
+def _rescaled(names: Sequence[str], gains: np.ndarray) -> str:
+    """The drift note's tail when the solve rescales LED images by :func:`led_gains`: which, and by how much."""
+    which = ", ".join(f"LED {i + 1} ({names[i]}) {np.median(gains[i]):.2f}" for i in changed_leds(gains))
+    return (
+        f". The solve rescaled these LED images to the undeformed capture's brightness (report.json led_gains): "
+        f"{which}; the lasting fix is that fresh capture and calibration"
     )

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core import said_once, tolerances
-from ..core.capture import Press, as_press, select_leds
+from ..core.capture import Press, as_press, select_leds, with_led_gains
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
 from .camera_shift import shift_note
@@ -58,6 +58,7 @@ from .led_checks import (
     exposure_drift_note,
     exposure_ratio,
     led_check,
+    led_gains,
     linearity_notes,
     reference_gain,
     reference_gain_note,
@@ -95,6 +96,11 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     gel cannot move that far), the press is solved again without it and the report says so. Seen on a
     96x72 and a 160x120 twin capture with a tight box around a sphere press: depth 13 mm off, AAE 18 deg;
     without the raised smoothness 0.05 mm and 7.7 deg.
+
+    Against an undeformed capture (``indirect`` a Press), LEDs that aged on their own since it (their brightness
+    against it beyond ``tolerances.LED_GAIN_CORRECTION`` after the overall gain) are solved with their images
+    rescaled to its brightness (:func:`.led_checks.led_gains`, :func:`.capture.with_led_gains`), recorded as the
+    report's ``led_gains`` ((L, 3) per LED and channel; None when none was rescaled).
     """
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
@@ -112,9 +118,11 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
         log.warning("%s", moved)
         led_notes.append(moved)
+    gains = None
     if isinstance(kwargs.get("indirect"), Press):
         ratio = exposure_ratio(press, kwargs["indirect"])
-        if drifted := exposure_drift_note(press, kwargs["indirect"], ratio):
+        gains = None if ratio is None else led_gains(ratio, misplaced)
+        if drifted := exposure_drift_note(press, kwargs["indirect"], ratio, gains):
             log.warning("%s", drifted)
             led_notes.append(drifted)
         if ratio is not None and kwargs.get("light_gain") is None:  # on every LED, before any is left out below
@@ -122,6 +130,9 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             if aged := reference_gain_note(press, kwargs["indirect"], kwargs["light_gain"]):
                 _say_once_per_session(aged, f"reference gain\0{press.folder.parent}\0{kwargs['indirect'].folder}")
                 led_notes.append(aged)
+        if gains is not None:  # LEDs aged on their own: their images at the undeformed capture's brightness
+            log.info("%s: LED images rescaled by %s", press.folder, np.round(gains, 3).tolist(), extra=PRESS_DETAIL)
+            press = with_led_gains(press, gains)
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
         press, kwargs = _without_leds(press, kwargs, keep)
@@ -144,6 +155,7 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             f"noise-adapted smoothness dropped: the first solve drifted {drift:.1f} mm"
         )
     _report_saturation(result, press)
+    result.report["led_gains"] = gains.tolist() if gains is not None else None
     if left_out:  # the solver numbers the LEDs it was given: back to the capture's
         for key in LED_LIST_KEYS:
             if key in result.report:

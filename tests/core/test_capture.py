@@ -628,3 +628,27 @@ def test_as_press_takes_a_press_or_its_folders_path_and_nothing_else(tmp_path):
         as_press(3, "reference")
     with pytest.raises(CaptureError, match="not a press folder"):
         as_press(tmp_path / "nowhere")
+
+
+def test_led_gains_rescale_each_led_image_above_the_dark_frame_and_keep_saturated_samples(tmp_path):
+    """``capture.with_led_gains`` (a solve's images of LEDs aged on their own, brought to the undeformed capture's
+    brightness): LED k's linear image divided by its gain per channel, to the stored values' rounding; a saturated
+    sample stays saturated (it was clipped: its light is unknown); a new digest, so no result of the images as
+    captured is reused for them; the other fields the press's own."""
+    cam = Camera.from_fov(W, H, 90.0)
+    leds = [Led(position=(float(i), 0.0, 0.0)) for i in range(3)]
+    images = np.random.default_rng(2).integers(4000, 65536, size=(3, H, W, 3), dtype=np.uint16)
+    images[0, 0, 0] = 65535  # clipped
+    dark = np.full((H, W, 3), 4000, np.uint16)
+    press = load_press(write_press(tmp_path / "p", cam, leds, SensorResponse(), dark, images, dark))
+    gains = np.array([[0.8, 0.9, 1.0], [1.0, 1.0, 1.0], [1.25, 1.25, 1.25]])
+    scaled = capture.with_led_gains(press, gains)
+    lin, before = scaled.linear_led_images, press.linear_led_images
+    expected = before / gains[:, None, None, :]
+    white = SensorResponse().white_level
+    keep = (4000 + (images - 4000.0) / gains[:, None, None, :] < white - 1) & ~press.saturated_led_images
+    assert np.abs(lin - expected)[keep].max() < 1.0 / white  # half a stored value (rounding) and float32 arithmetic
+    assert keep.mean() > 0.5 and (scaled.saturated_led_images | keep).all()  # the rest saturated: left out
+    assert scaled.saturated_led_images[0, 0, 0].all()
+    assert scaled.leds is press.leds and scaled.reference is press.reference
+    assert scaled.images_digest() != press.images_digest()

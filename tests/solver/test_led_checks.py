@@ -319,3 +319,22 @@ def test_every_led_image_read_out_across_its_switch_is_named_as_a_systematic_tim
     said = [note for note in notes if "of the LED images show the light of the LED captured before each" in note]
     assert len(said) == 1 and "rows 0-" in said[0] and "(top)" in said[0] and "every frame alike" in said[0]
     assert "--flush" in said[0]
+
+
+def test_leds_aged_on_their_own_are_measured_per_led_and_named_in_the_drift_note(tmp_path):
+    """Per-LED gains against the undeformed capture (``led_gains``): None for a press taken as the capture was
+    (within ``LED_GAIN_CORRECTION``: as captured, solved as before); the red group's 0.9 when it aged on its own, the
+    others 1; an LED whose image shows another LED's light kept at 1; the drift note names the rescaled LEDs."""
+    from nlipscalib.solver.led_checks import exposure_drift_note, exposure_ratio, led_gains
+
+    reference = load_press(synth.make_press(tmp_path / "reference", "none"))
+    steady = _press(tmp_path, "steady")
+    assert led_gains(exposure_ratio(steady, reference)) is None
+    red_aged = _press(tmp_path, "red", lambda lin: lin * np.repeat([0.9, 1.0, 1.0], 4)[:, None, None, None])
+    ratio = exposure_ratio(red_aged, reference)
+    gains = led_gains(ratio)
+    assert gains is not None and np.allclose(gains, np.repeat([0.9, 1.0, 1.0], 4)[:, None], atol=0.01), gains
+    assert np.array_equal(led_gains(ratio, misplaced=[0])[0], [1.0, 1.0, 1.0])
+    note = exposure_drift_note(red_aged, reference, ratio, gains)
+    assert "LED 4 (led_04.png) 0.90" in note and "LED 5" not in note and "report.json led_gains" in note
+    assert "LED 1" not in exposure_drift_note(red_aged, reference, ratio).split("most changed")[1]
