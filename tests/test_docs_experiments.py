@@ -1,0 +1,53 @@
+"""docs/experiments/: the pages that list the committed reports name every one of them, and describe their size.
+
+s28-docs2 found `q2-steep-refined/` (committed 2026-12-05) missing from the README's "Reports in this folder" and
+`q2/` named at the commit of the run it replaced: a reader looking for a report's origin was sent astray."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENTS = ROOT / "docs" / "experiments"
+FULL_TWIN = {"width": 640, "height": 480, "spp": 16}
+"""The full size's render settings, which the README says every committed report has."""
+
+
+def _reports() -> dict[str, dict]:
+    return {
+        p.parent.name: json.loads(p.read_text(encoding="utf-8")) for p in sorted(EXPERIMENTS.glob("*/results.json"))
+    }
+
+
+def _reports_paragraph() -> str:
+    text = (EXPERIMENTS / "README.md").read_text(encoding="utf-8")
+    return text.split("## Reports in this folder", 1)[1]
+
+
+def test_every_committed_report_is_named_with_its_commit():
+    reports = _reports()
+    assert len(reports) >= 9  # the folders were found
+    paragraph = _reports_paragraph()
+    results_table = (EXPERIMENTS / "RESULTS.md").read_text(encoding="utf-8").split("\n## ", 1)[0]
+    unnamed = {name for name in reports if f"`{name}/`" not in paragraph or f"`{name}/`" not in results_table}
+    assert unnamed == set()
+    # the commit a report's results.json records is its last run's; a run that only rebuilt the report from
+    # finished tasks may differ from the one the pages name, so each page must name one of the two
+    wrong = {}
+    for name, results in reports.items():
+        commit = results["software"]["git_commit"][:7]
+        # "`q1/` at `b43542d`", or "`q2-steep/` at `86233d4` (2026-12-03)" across a line break
+        named = re.search(rf"`{re.escape(name)}/`\s+at\s+`([0-9a-f]{{7}})`", paragraph)
+        if named is None or (named[1] != commit and commit not in paragraph):
+            wrong[name] = (named and named[1], commit)
+    assert wrong == {}
+
+
+def test_every_committed_report_is_at_the_full_size_render_settings():
+    """The README: "Every report here is a full-size run (640x480 px, 16 spp)", variants "size custom"."""
+    sizes = {name: (r["size"], {k: r["config"]["twin"][k] for k in FULL_TWIN}) for name, r in _reports().items()}
+    assert {name: s for name, s in sizes.items() if s[0] not in ("full", "custom") or s[1] != FULL_TWIN} == {}
+    custom = sorted(name for name, s in sizes.items() if s[0] == "custom")
+    assert custom == sorted(set(re.findall(r"`(q2-[\w-]+)/`", _reports_paragraph())))
