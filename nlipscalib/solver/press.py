@@ -137,10 +137,10 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     elif press.reference is not None:  # no undeformed capture: LEDs aged on their own, against the LED model
         live = [i for i in _live_leds(press, kwargs.get("options")) if i not in left_out and i not in misplaced]
         aged, gains = model_gain_check(press, _model_leds(press, kwargs.get("leds")), live)
-        for note in aged:
-            log.warning("%s", note)
         led_notes.extend(aged)
-        if gains is not None:
+        if gains is not None:  # the sensor's fault, alike on a session's presses: warned once for them
+            which = np.flatnonzero(gains[:, 0] != 1).tolist()
+            _say_once_per_session(aged[0], f"model led gains\0{press.folder.parent}\0{which}")
             press = with_led_gains(press, gains)
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
