@@ -546,3 +546,15 @@ REFERENCE_GAIN_DRIFT = 0.03
 exposure or gain changed), when that gain (:func:`nlipscalib.solver.led_checks.reference_gain`, per channel) strays
 from 1 by more than this fraction. The one-bounce twin's presses at one exposure: within 0.25 %; the solve scales the
 undeformed capture's light by the gain whatever its size (benchmarks/RESULTS.md, s28-dimref)."""
+MODEL_GROUP_GAIN = 0.03
+"""Without an undeformed capture (no ``--reference``), a tri-colour LED group
+(:func:`nlipscalib.core.leds.tricolor_groups`) is taken as aged (or brightened) on its own when its median light
+against the LED model, over the median group's, strays from 1 by more than this fraction
+(:func:`nlipscalib.solver.led_checks.model_led_gains`): warned about, and its images rescaled by that group gain.
+The twin's design LEDs as captured: within 1.63 % (59 640x480 presses: /tmp/keep, extra, train50); its red group
+5 % dimmer: 0.96-0.97 (benchmarks/RESULTS.md, s28-noref)."""
+MODEL_LED_GAIN = 0.07
+"""Without an undeformed capture, one LED is taken as aged on its own when its light against the LED model, over its
+group's median, strays from 1 by more than this fraction (:func:`nlipscalib.solver.led_checks.model_led_gains`): the
+model's own error puts single LEDs up to 3.6 % off their group on every press (the twin's design LEDs, the same LEDs
+each time), so this is twice that; LED 5 15 % dimmer: 0.87 (benchmarks/RESULTS.md, s28-noref)."""

@@ -60,6 +60,7 @@ from .led_checks import (
     led_check,
     led_gains,
     linearity_notes,
+    model_gain_check,
     reference_gain,
     reference_gain_note,
     reorder_note,
@@ -132,6 +133,14 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
                 led_notes.append(aged)
         if gains is not None:  # LEDs aged on their own: their images at the undeformed capture's brightness
             log.info("%s: LED images rescaled by %s", press.folder, np.round(gains, 3).tolist(), extra=PRESS_DETAIL)
+            press = with_led_gains(press, gains)
+    elif press.reference is not None:  # no undeformed capture: LEDs aged on their own, against the LED model
+        live = [i for i in _live_leds(press, kwargs.get("options")) if i not in left_out and i not in misplaced]
+        aged, gains = model_gain_check(press, _model_leds(press, kwargs.get("leds")), live)
+        led_notes.extend(aged)
+        if gains is not None:  # the sensor's fault, alike on a session's presses: warned once for them
+            which = np.flatnonzero(gains[:, 0] != 1).tolist()
+            _say_once_per_session(aged[0], f"model led gains\0{press.folder.parent}\0{which}")
             press = with_led_gains(press, gains)
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
@@ -257,15 +266,26 @@ def _led_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
 ) -> tuple[list[str], list[int], list[int], list[int] | None]:
     """:func:`.led_checks.led_check` of the press's live LEDs, each note logged as a warning (``say``)."""
-    leds = press.leds if leds is None else tuple(leds)
+    leds = _model_leds(press, leds)
     if press.reference is None or len(leds) != len(press.leds):
         return [], [], [], None  # no undeformed dome to model; a wrong LED count is refused by the solve
-    level = (options or SolverOptions()).dead_led_level
-    live = np.flatnonzero(lit_leds(led_levels(press.linear_led_images, np.isfinite(press.reference.depth)), level))
+    live = _live_leds(press, options)
     notes, left_out, misplaced, order = led_check(press, leds, live)
     for note in notes if say else ():
         log.warning("%s", note)
     return notes, left_out, misplaced, order
+
+
+def _model_leds(press: Press, leds: Leds | None) -> tuple:
+    """The LED model a solve uses: ``leds`` given, else the press's own."""
+    return tuple(press.leds if leds is None else leds)
+
+
+def _live_leds(press: Press, options: SolverOptions | None) -> list[int]:
+    """The LEDs (0-based) whose images hold light over the gel (``SolverOptions.dead_led_level``)."""
+    level = (options or SolverOptions()).dead_led_level
+    lit = lit_leds(led_levels(press.linear_led_images, np.isfinite(press.reference.depth)), level)
+    return [int(i) for i in np.flatnonzero(lit)]
 
 
 def _without_leds(press: Press, kwargs: dict, keep: list[int]) -> tuple[Press, dict]:

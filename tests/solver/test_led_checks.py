@@ -338,3 +338,57 @@ def test_leds_aged_on_their_own_are_measured_per_led_and_named_in_the_drift_note
     note = exposure_drift_note(red_aged, reference, ratio, gains)
     assert "LED 4 (led_04.png) 0.90" in note and "LED 5" not in note and "report.json led_gains" in note
     assert "LED 1" not in exposure_drift_note(red_aged, reference, ratio).split("most changed")[1]
+
+
+# The twin's design LEDs against its sphere press (benchmarks/RESULTS.md, s28-noref: model_relative_gains), as
+# captured and with its red group 5 % dimmer: the LED model's own error puts LEDs 1 and 7 3 % low on every press.
+AS_CAPTURED = [0.972, 0.994, 1.007, 1.015, 1.009, 0.990, 0.966, 0.989, 1.004, 1.012, 1.010, 0.996]
+RED_5_PERCENT = [0.936, 0.952, 0.968, 0.976, 1.020, 1.001, 0.975, 0.999, 1.014, 1.021, 1.023, 1.011]
+
+
+def test_without_a_reference_the_model_error_is_no_ageing_but_a_dimmer_group_is_judged_as_one():
+    """Against the LED model alone an LED's gain carries the model's error (0.966-1.022 as captured): rescaling
+    every LED by it made the solve worse, rescaling LEDs beyond 5 % one by one caught a 5 % dimmer red group's LED 1
+    alone (1.60 deg instead of 0.50). As captured nothing is off; the 5 % group is one gain on its four LEDs; one
+    LED 15 % dimmer is caught on its own."""
+    from nlipscalib.core.leds import tricolor_groups
+    from nlipscalib.solver.led_checks import model_led_gains
+
+    groups = tricolor_groups(12)
+    assert model_led_gains(np.array(AS_CAPTURED), groups) is None
+    gains = model_led_gains(np.array(RED_5_PERCENT), groups)
+    assert gains is not None and np.allclose(gains[:4], gains[0]) and 0.95 < gains[0] < 0.97
+    assert np.array_equal(gains[4:], np.ones(8))
+    one = np.array(AS_CAPTURED) * np.where(np.arange(12) == 4, 0.85, 1.0)
+    gains = model_led_gains(one, groups)
+    assert gains is not None and np.flatnonzero(gains != 1).tolist() == [4] and 0.84 < gains[4] < 0.88
+
+
+def test_without_a_reference_an_led_group_aged_on_its_own_is_named_and_rescaled(tmp_path, caplog):
+    """Without ``--reference`` the red group 10 % dimmer was solved without a word (the twin's sphere press 4.8 deg,
+    cube 5.5 deg: only LEDs below 0.6 of the model were named). The solve now names the LEDs, the remedy, rescales
+    their images (report.json led_gains) and lands near the clean solve, warned once for a session's presses; a clean
+    press gets neither."""
+    options = SolverOptions(max_iters=4)
+    clean = solve_press(_press(tmp_path, "clean"), options=options)
+    assert clean.report["led_gains"] is None
+    assert not any("LED model expects" in note for note in clean.report.get("warnings", []))
+    dimmer = np.repeat([0.9, 1.0, 1.0], 4)[:, None, None, None]
+    red_aged = _press(tmp_path, "red", lambda lin: lin * dimmer)
+    with caplog.at_level(logging.WARNING):
+        result = solve_press(red_aged, options=options)
+    said = [note for note in result.report.get("warnings", []) if "LED model expects" in note]
+    assert len(said) == 1 and said[0] in caplog.text
+    assert "LED 1 (led_01.png) 0.90" in said[0] and "LED 4 (led_04.png) 0.90" in said[0] and "LED 5" not in said[0]
+    assert "--reference" in said[0] and "nlips calibrate-leds" in said[0]
+    gains = np.array(result.report["led_gains"])
+    assert np.allclose(gains[:4], 0.9, atol=0.01) and np.array_equal(gains[4:], np.ones((8, 3)))
+    contact = red_aged.ground_truth.contact
+    off = np.abs(result.depth - clean.depth)[contact & result.reconstructed & clean.reconstructed]
+    assert np.median(off) < 0.01, np.median(off)
+    caplog.clear()  # the sensor's fault: a session's next press keeps it in its report, said at INFO
+    with caplog.at_level(logging.INFO):
+        again = solve_press(_press(tmp_path, "red2", lambda lin: lin * dimmer), options=options)
+    assert any("LED model expects" in note for note in again.report["warnings"])
+    said = [r.levelno for r in caplog.records if "LED model expects" in r.getMessage()]
+    assert said == [logging.INFO], said
