@@ -351,9 +351,16 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
         return REUSED
     from threadpoolctl import threadpool_limits
 
+    from ..core.blas import blas_threads
+
     start = time.perf_counter()
     try:
-        with threadpool_limits(limits=1):  # BLAS sums in a fixed order: the same numbers on any worker
+        # BLAS sums in a fixed order: the same numbers on any worker. blas_threads, not threadpoolctl's limit alone:
+        # that limits the libraries loaded when it starts, and a fresh worker's first task (a killed worker's task
+        # re-run in the local pool) loads SciPy's own OpenBLAS later, which then ran on every core outside the
+        # solver's blocks, switched to one and back by those blocks on the pool's threads while others computed.
+        # blas_threads loads it first, and the solver's blocks inside share its count and change nothing.
+        with blas_threads(1), threadpool_limits(limits=1, user_api="openmp"):
             runner = {"reference": _run_reference, "calibration": _run_calibration, "press": _run_press}[task.kind]
             body = runner(task, out, threads, keep_presses)
     except Exception as exc:  # recorded, the sweep goes on
