@@ -235,7 +235,7 @@ def _in_shown_order(
     swap as its presses; fitted as captured, LED 3 is moved to LED 7's place (s26-degen: "reliable"), a file that
     then describes the wiring, not the sensor. A capture whose check finds no clear order is kept as it is (its
     own warning says what it found, as a solve's does)."""
-    from .contact import led_levels, lit_leds
+    from .image_stats import led_levels, lit_leds
     from .led_checks import detected_order_of, reorder_note, reordered
 
     out, notes, applied = [], [], None
@@ -440,8 +440,8 @@ def _check_lit(press: Press) -> None:
     it and called reliable (s27 QA walk, a webcam whose frames lag the LEDs). Gamma-encoded LED images are warned
     about (:func:`.led_checks.linearity_notes`): the fit absorbed an sRGB curve and called itself reliable; so are
     JPEG-compressed ones (:mod:`nlipscalib.core.compression`)."""
-    from .contact import led_levels, lit_leds
     from .exposure import dark_file, dark_frame_fault, gel_of
+    from .image_stats import led_levels, lit_leds
 
     gel = gel_of(press)
     if (fault := dark_frame_fault(press, gel)) and fault[1]:

@@ -28,7 +28,8 @@ def contact_regions(presses: Sequence[Press], leds: Leds, models: Sequence[Indir
     calibration finds; the robust loss keeps a dent from pulling them far, so the dent is what they misfit.
     Dilated by :data:`CONTACT_MARGIN_PX`: the dent's rim misfits just below the hit threshold.
     """
-    from .contact import classify_contact, contact_hits
+    from .contact import classify_contact
+    from .contact_verdict import contact_hits
 
     out = []
     for p, m in zip(presses, list(models) or [None] * len(presses)):

@@ -19,7 +19,7 @@ def _led_noise(presses: Sequence[Press]) -> np.ndarray:
     """(L,) float -- the white noise of each LED's images, linear units: Immerkaer's estimate
     (:func:`nlipscalib.solver.contact.image_noise`) on the gel, median over the captures, at least one ADC step
     (a noise-free capture holds only quantisation, where the estimate says nothing)."""
-    from .contact import image_noise
+    from .image_stats import image_noise
 
     per = []
     for p in presses:

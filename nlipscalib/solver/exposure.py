@@ -109,7 +109,7 @@ def nothing_to_fit(press: Press, gel: np.ndarray | None = None) -> str:
     """Why no sample of a capture can be fitted on (:func:`no_light_reason`, or a plainer word when the exposure
     does not explain it): no LED image gives light above the dark frame, or every lit one is saturated on the gel;
     "" when some sample is usable."""
-    from .contact import led_levels, lit_leds
+    from .image_stats import led_levels, lit_leds
 
     gel = gel_of(press) if gel is None else gel
     if not gel.any():

@@ -31,8 +31,8 @@ from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Leds, led_arrays, led_falloff, led_shading
 from ..core.sensor import DomeConfig, capture_design
 from . import radiosity, reuse, threads
-from .contact import led_levels, lit_leds
 from .exposure import no_light_reason
+from .image_stats import led_levels, lit_leds
 
 PATCH_TARGET = 80
 """Patches along the image's long side (the patch side is the long side over this, at least 2 px)."""

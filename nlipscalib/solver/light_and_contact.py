@@ -17,7 +17,8 @@ from ..core import diskcache
 from ..core.capture import Press
 from ..core.errors import ShapeError
 from . import reuse
-from .contact import ContactMap, classify_contact, led_levels, prepare_press_side
+from .contact import ContactMap, classify_contact, prepare_press_side
+from .image_stats import led_levels
 from .indirect import IndirectModel, design_of, fit_indirect, reference_shading
 from .press_checks import check_undeformed
 from .roi import box_mask, contact_pixels

@@ -41,18 +41,13 @@ from ..core import said_once, tolerances
 from ..core.capture import Press, as_press, select_leds, with_led_gains
 from ..core.errors import CaptureError, ShapeError
 from ..progress import PRESS_DETAIL
+from .anchoring import anchor_weights, widen_to_anchor
 from .camera_shift import shift_note
-from .contact import (
-    ContactMap,
-    anchor_weights,
-    contact_box,
-    led_levels,
-    lit_leds,
-    no_contact,
-    point_led_misfit,
-    widen_to_anchor,
-)
+from .contact import ContactMap
+from .contact_roi import contact_box
+from .contact_verdict import no_contact
 from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturation_note
+from .image_stats import led_levels, lit_leds
 from .interreflection import compensate
 from .led_checks import (
     exposure_drift_note,
@@ -70,6 +65,7 @@ from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, s
 from .nlips import SolveResult, solve
 from .options import SolverOptions
 from .outer_loop import FILL_ROWS, UPDATE_ROWS, BoxCompensation, OuterLoop, led_channel_sum
+from .point_led_error import point_led_misfit
 from .press_checks import check_modes, check_roi
 from .resolution import contact_steepness, resolution_note
 from .roi import box_mask, box_of, dent_focus
@@ -622,7 +618,7 @@ def _report_loop(rep: dict, loop: OuterLoop | None) -> None:
 
 def _noise_regularised(options: SolverOptions, press: Press, cmap: ContactMap | None):
     """(options with the noise-adapted smoothness, relative noise level) -- see SolverOptions.noise_smoothness."""
-    from .contact import image_noise
+    from .image_stats import image_noise
 
     if options.noise_smoothness <= 0:
         return options, None

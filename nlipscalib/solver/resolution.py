@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.steepness import MIN_CONTACT_PX, patch_steepness, resolved_diameter_px
-from .contact import ContactMap, contact_hits
+from .contact import ContactMap
+from .contact_verdict import contact_hits
 
 __all__ = ["MIN_CONTACT_PX", "contact_steepness", "resolution_note"]
 

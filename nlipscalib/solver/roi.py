@@ -10,7 +10,9 @@ import numpy as np
 
 from ..core import masks, tolerances
 from ..core.errors import CaptureError
-from .contact import ContactMap, contact_box, contact_hits
+from .contact import ContactMap
+from .contact_roi import contact_box
+from .contact_verdict import contact_hits
 from .nlips import SolveResult
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..core import masks
 from . import threads
-from .contact import lit_leds
+from .image_stats import lit_leds
 from .options import SolverOptions
 
 

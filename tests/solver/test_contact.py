@@ -199,7 +199,7 @@ def _disk(shape, centre, radius):
 
 
 def test_auto_roi_leaves_out_misfit_along_the_edge_when_a_dent_lies_inside():
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -213,7 +213,7 @@ def test_auto_roi_leaves_out_misfit_along_the_edge_when_a_dent_lies_inside():
 
 
 def test_auto_roi_keeps_a_dent_at_the_edge():
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -231,7 +231,7 @@ def test_auto_roi_keeps_a_dent_at_the_edge():
 def test_auto_roi_boxes_a_tiny_contact_not_the_weaker_but_larger_misfits_noise_makes_in_the_corners():
     # the twin at 320x240: a 1 mm sphere's contact (187 hits, peak 38 times the floor) next to 70-100-pixel
     # corner misfits at 3-4 times it; the box was the whole gel (s27-unusual)
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -244,7 +244,7 @@ def test_auto_roi_boxes_a_tiny_contact_not_the_weaker_but_larger_misfits_noise_m
 
 
 def test_auto_roi_keeps_a_weak_misfit_beside_a_strong_one_as_the_dents_rim():
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -258,7 +258,8 @@ def test_auto_roi_keeps_a_weak_misfit_beside_a_strong_one_as_the_dents_rim():
 def test_auto_roi_widens_a_box_that_holds_too_few_undeformed_pixels_to_anchor_the_depth():
     # a 3 mm-deep press: the gel deforms far beyond the pixels that misfit 3 times the raised floor, and the
     # box around those held 3 % undeformed pixels; its depth was 0.25 mm off (s27-unusual)
-    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+    from nlipscalib.solver.anchoring import widen_to_anchor
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.full(shape, 2.0)  # the floor: the misfit's median, twice the noise-only misfit
@@ -278,7 +279,8 @@ def test_auto_roi_widens_a_box_that_holds_too_few_undeformed_pixels_to_anchor_th
 def test_auto_roi_is_not_widened_where_anchoring_is_off():
     # a noise-free render: model error leaves next to no pixel within noise, anchoring is off, and widening the box
     # to the whole image left no pixel to fit the interreflection term on (tests/solver/test_twin.py)
-    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+    from nlipscalib.solver.anchoring import widen_to_anchor
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.full(shape, 5.0)  # nowhere within 3 times the noise-only misfit
@@ -289,7 +291,8 @@ def test_auto_roi_is_not_widened_where_anchoring_is_off():
 
 
 def test_auto_roi_keeps_a_box_that_holds_enough_undeformed_pixels():
-    from nlipscalib.solver.contact import contact_box, widen_to_anchor
+    from nlipscalib.solver.anchoring import widen_to_anchor
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -300,7 +303,7 @@ def test_auto_roi_keeps_a_box_that_holds_enough_undeformed_pixels():
 
 
 def test_auto_roi_warns_when_its_box_covers_most_of_the_gel(caplog):
-    from nlipscalib.solver.contact import auto_roi
+    from nlipscalib.solver.contact_roi import auto_roi
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -314,7 +317,7 @@ def test_auto_roi_warns_when_its_box_covers_most_of_the_gel(caplog):
 
 def test_auto_roi_does_not_warn_when_only_its_margin_makes_the_box_large(caplog):
     # q2 quick's 96x72 presses: a dent over 29 % of the gel, boxed with the 8-pixel margin over 54 %
-    from nlipscalib.solver.contact import auto_roi
+    from nlipscalib.solver.contact_roi import auto_roi
 
     shape = (72, 96)
     misfit = np.ones(shape)
@@ -330,7 +333,7 @@ def test_contact_hits_compare_the_misfit_with_the_larger_of_its_noise_and_its_me
     map (``ContactMap.median_misfit``) for the ROI, the dent's focus and the refit's exclusion."""
     import warnings
 
-    from nlipscalib.solver.contact import contact_hits
+    from nlipscalib.solver.contact_verdict import contact_hits
 
     rng = np.random.default_rng(3)
     misfit = rng.uniform(0.5, 4.0, (30, 40))
@@ -373,7 +376,9 @@ def test_classifying_on_blocks_gives_the_box_and_anchored_pixels_of_every_pixel(
     and the image level are the per-pixel ones, and the misfit is finite on exactly the gel's pixels."""
     import dataclasses
 
-    from nlipscalib.solver.contact import anchor_weights, contact_box, contact_hits
+    from nlipscalib.solver.anchoring import anchor_weights
+    from nlipscalib.solver.contact_roi import contact_box
+    from nlipscalib.solver.contact_verdict import contact_hits
 
     press = _noisy_press(tmp_path / "p", 1.0, 0)
     rows, cols = np.indices(press.camera.shape)
@@ -399,7 +404,8 @@ def test_classifying_on_blocks_gives_the_box_and_anchored_pixels_of_every_pixel(
 def test_classifying_on_blocks_leaves_out_saturated_samples_and_subtracts_a_fixed_light(tmp_path):
     """The block classification with saturated samples (a block is usable where all its samples are) and a light
     subtracted (from the block means): the box and the hits of the per-pixel classification."""
-    from nlipscalib.solver.contact import contact_box, contact_hits
+    from nlipscalib.solver.contact_roi import contact_box
+    from nlipscalib.solver.contact_verdict import contact_hits
 
     press = _noisy_press(tmp_path / "p", 1.5, 1)
     assert press.saturated(press.led_images).mean() > 0.005  # the premise
@@ -412,11 +418,11 @@ def test_classifying_on_blocks_leaves_out_saturated_samples_and_subtracts_a_fixe
 
 
 def test_frames_from_480_lines_up_are_classified_on_blocks(sphere_press, monkeypatch):
-    from nlipscalib.solver import contact
+    from nlipscalib.solver import contact_grid
 
-    assert contact.classify_block((480, 640)) == 2 and contact.classify_block((960, 1280)) == 2
-    assert contact.classify_block((360, 480)) == 1 and contact.classify_block((481, 640)) == 1
-    monkeypatch.setattr(contact, "BLOCK_MIN_SIDE", 72)  # the 96x72 press: its default is then blocks
+    assert contact_grid.classify_block((480, 640)) == 2 and contact_grid.classify_block((960, 1280)) == 2
+    assert contact_grid.classify_block((360, 480)) == 1 and contact_grid.classify_block((481, 640)) == 1
+    monkeypatch.setattr(contact_grid, "BLOCK_MIN_SIDE", 72)  # the 96x72 press: its default is then blocks
     np.testing.assert_array_equal(classify_contact(sphere_press).misfit, classify_contact(sphere_press, block=2).misfit)
     assert not np.array_equal(classify_contact(sphere_press).misfit, classify_contact(sphere_press, block=1).misfit)
 
@@ -443,7 +449,8 @@ def test_the_misfits_residual_sum_is_einsums_over_the_stack_at_a_frames_block_gr
 def test_a_press_without_contact_is_refused_by_the_auto_roi_as_having_none(tmp_path):
     """The twin's undeformed capture solved as a press with --roi auto: noise's scattered hits spanned the gel, and
     it was solved whole with "a press that large" (29 s). Now: "found no contact", the peak misfit named."""
-    from nlipscalib.solver.contact import contact_box, contact_peak
+    from nlipscalib.solver.contact_roi import contact_box
+    from nlipscalib.solver.contact_verdict import contact_peak
 
     rng = np.random.default_rng(5)
 
@@ -488,7 +495,7 @@ def test_a_folder_solve_notes_a_press_without_contact_and_does_not_fail(tmp_path
 def test_a_press_without_contact_solved_with_a_reference_elsewhere_is_told_that_reference(tmp_path):
     """s27-sensorfit's refusal said "use it as the reference" to a press solved with an explicit --reference, which is
     that capture already: it names the reference it was compared with."""
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     rng = np.random.default_rng(5)
     flat = load_press(
@@ -530,7 +537,8 @@ def test_a_plain_dent_under_design_leds_of_another_power_is_not_refused_as_witho
     """LED powers 10 % off the design raise the misfit's floor all over the gel (17 times the noise): the sphere's
     dent then peaks at 5.8 times it, under NO_CONTACT_PEAK, and --roi auto refused the press as "images match the
     undeformed dome within noise" (the twin's cube press: the same at 5 % off). The box is the dent's again."""
-    from nlipscalib.solver.contact import contact_box, contact_floor
+    from nlipscalib.solver.contact_roi import contact_box
+    from nlipscalib.solver.contact_verdict import contact_floor
 
     press = _spread_press(tmp_path / "p", "sphere", 0.1, 3)
     cmap = classify_contact(press)
@@ -544,7 +552,7 @@ def test_a_press_without_contact_under_leds_that_do_not_fit_is_told_to_calibrate
     """No hit at all under LEDs 10 % off their design power: refused (exit 2 in the CLI), but not as a press that
     matches the dome (a folder solve would note it as the undeformed dome's): the message names the remedy."""
     from nlipscalib.core.errors import NoContactError
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     flat = _spread_press(tmp_path / "flat", "none", 0.1, 3)
     with pytest.raises(CaptureError, match="LED model does not fit .*nlips calibrate-leds") as refused:
@@ -559,7 +567,7 @@ def test_a_dent_that_stands_out_of_noisier_images_by_less_than_8_is_a_contact(tm
     misfit's floor and was refused as "no contact" (NO_CONTACT_PEAK was 8); noise alone peaks at 4.7-4.8 there and
     on the default twin. Here: a 0.05 mm dent under noise of sigma 0.012 (peak 7.7), noise alone 1.8. Under
     NO_CONTACT_PEAK 8 again (s27-shapesfa) it is a contact by its patch of hits away from the gel's edge."""
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     rng = np.random.default_rng(5)
 
@@ -579,7 +587,8 @@ def test_a_faint_dent_over_many_pixels_is_a_contact_and_edge_or_speck_misfit_is_
     size away from the gel's edge is a contact; specks, and a patch along the edge (model error at grazing view),
     are not; nor is a speck at 7 times the floor (the fingertip's undeformed capture at 16 spp peaked at 6.06 and was
     solved as a press while NO_CONTACT_PEAK was 6)."""
-    from nlipscalib.solver.contact import contact_box, contact_peak
+    from nlipscalib.solver.contact_roi import contact_box
+    from nlipscalib.solver.contact_verdict import contact_peak
 
     shape = (120, 160)
     rng = np.random.default_rng(3)
@@ -604,7 +613,7 @@ def test_a_faint_dent_over_many_pixels_is_a_contact_and_edge_or_speck_misfit_is_
 def test_edge_misfit_the_point_led_model_explains_is_left_out_without_a_warning_and_a_larger_one_is_not():
     """The capsule design's wall at the image border misfits by what point LEDs miss of its 3.6 mm LEDs: left out of
     the box as before, but not warned about; an edge misfit beyond that model error (a real fault) still is."""
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -632,8 +641,8 @@ def test_edge_misfit_the_point_led_model_explains_is_left_out_without_a_warning_
 
 
 def test_the_point_led_models_error_grows_with_the_leds_size_and_is_asked_only_where_given(sphere_press):
-    from nlipscalib.solver.contact import point_led_misfit
     from nlipscalib.solver.indirect import direct_shading
+    from nlipscalib.solver.point_led_error import point_led_misfit
 
     press = sphere_press
     cmap = classify_contact(press)
@@ -657,7 +666,7 @@ def test_the_point_led_models_error_grows_with_the_leds_size_and_is_asked_only_w
 
 
 def test_edge_noise_gain_is_the_smoothings_noise_at_the_edge_over_inside():
-    from nlipscalib.solver.contact import _smooth, edge_noise_gain
+    from nlipscalib.solver.contact_grid import _smooth, edge_noise_gain
 
     valid = np.ones((40, 50), bool)
     valid[30:, 40:] = False  # a silhouette corner inside the frame too
@@ -676,7 +685,7 @@ def test_a_model_floor_that_the_point_led_error_explains_is_no_contact_not_leds_
     """The flat design's undeformed capture with its exact design LEDs: misfit 3.9 times the noise all over (what
     point LEDs miss of its 3.6 mm ones), no pixel hit; refused as without contact, not told to calibrate its LEDs.
     LEDs really off (a floor of 30 times the noise) are still told to."""
-    from nlipscalib.solver.contact import no_contact
+    from nlipscalib.solver.contact_verdict import no_contact
 
     shape = (60, 80)
     rng = np.random.default_rng(0)
@@ -695,7 +704,7 @@ def test_a_corner_misfit_the_point_led_model_explains_is_no_contact_and_a_dent_b
     solved as a press. The peak over the floor and that known error together (quadrature) is under
     NO_CONTACT_PEAK there; a dent's is not, in the same corner or inside; with no model error given it is as
     before (a contact)."""
-    from nlipscalib.solver.contact import _PEAK_FIRST, contact_peak, no_contact
+    from nlipscalib.solver.contact_verdict import _PEAK_FIRST, contact_peak, no_contact
 
     shape = (120, 160)
     rng = np.random.default_rng(4)
@@ -742,7 +751,7 @@ def _boxed_share(box, pixels):
 
 
 def test_auto_roi_grows_over_a_large_contacts_flank():
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     misfit, flank = _flank_press()
     cmap = _contact_map(misfit)
@@ -756,7 +765,7 @@ def test_auto_roi_grows_over_a_large_contacts_flank():
 
 
 def test_auto_roi_keeps_a_plain_dents_box_whose_weak_rim_lies_within_its_margin():
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -769,7 +778,7 @@ def test_auto_roi_keeps_a_plain_dents_box_whose_weak_rim_lies_within_its_margin(
 def test_auto_roi_does_not_grow_along_the_image_border_that_its_contact_reaches():
     # the twin at polar 55: the view misfits 1.5-3.7 times the floor 30 px in from the right border, the whole
     # height; the edge contact's box grew from the image's top to its bottom (s28-bigedge)
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
@@ -782,7 +791,7 @@ def test_auto_roi_does_not_grow_along_the_image_border_that_its_contact_reaches(
 
 
 def test_auto_roi_box_grows_over_the_flank_only_where_the_flank_joins_the_contact():
-    from nlipscalib.solver.contact import contact_box
+    from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)

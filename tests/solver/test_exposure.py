@@ -95,8 +95,8 @@ def test_the_saturated_share_and_what_is_left_to_fit_count_every_clipped_sample(
     solve ~35 ms slower, the full comparison ran on every calibration): the same share and verdict as counting
     every sample of the gel, with the dark frame's clipped samples counted once per LED image."""
     from nlipscalib.core.tolerances import LIT_LEVEL
-    from nlipscalib.solver.contact import led_levels
     from nlipscalib.solver.exposure import nothing_to_fit
+    from nlipscalib.solver.image_stats import led_levels
 
     press = load_press(captures["good"])
     white, gel = press.response.white_level, np.isfinite(press.reference.depth)

@@ -301,7 +301,7 @@ def _solve_fields(press, undeformed):
 
 
 def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, disk, monkeypatch):
-    from nlipscalib.solver import contact, indirect, operators
+    from nlipscalib.solver import contact_grid, indirect, operators
 
     # the whole gel's levels this large keep their operators on disk, with the fixed-pattern map
     monkeypatch.setattr(operators, "OPERATOR_PERSIST_PIXELS", 1000)
@@ -319,9 +319,9 @@ def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, dis
     assert {"surface", "fit", "operators", "smoothed_undeformed", "level_geometry"} <= kinds
     reuse.clear()  # a new process: only the disk remembers
     shaded, blurred = [], []
-    direct, blur = indirect.direct_shading, contact._smooth
+    direct, blur = indirect.direct_shading, contact_grid._smooth
     monkeypatch.setattr(indirect, "direct_shading", lambda *a, **k: shaded.append(1) or direct(*a, **k))
-    monkeypatch.setattr(contact, "_smooth", lambda *a, **k: blurred.append(1) or blur(*a, **k))
+    monkeypatch.setattr(contact_grid, "_smooth", lambda *a, **k: blurred.append(1) or blur(*a, **k))
     later = _solve_fields(press, undeformed)
     assert not shaded  # the undeformed surface's shading came from disk
     assert len(blurred) == 1  # the press's images; the undeformed capture's blur came from disk

@@ -8,7 +8,8 @@ from nlipscalib.core import load_press, masks
 from nlipscalib.core.errors import ConfigError
 from nlipscalib.core.metrics import evaluate
 from nlipscalib.solver import SolverOptions, reuse, solve, threads
-from nlipscalib.solver.contact import classify_contact, led_levels
+from nlipscalib.solver.contact import classify_contact
+from nlipscalib.solver.image_stats import led_levels
 from nlipscalib.solver.indirect import Surface, direct_shading, fit_indirect, surface_digest
 from nlipscalib.solver.samples import exclusions
 

@@ -1,0 +1,91 @@
+"""Anchoring to the reference where a press's gel looks undeformed: the prior's weights (:func:`anchor_weights`)
+and ``--roi auto``'s box widened until it holds enough such gel (:func:`widen_to_anchor`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..core import tolerances
+from .contact import ContactMap
+
+ANCHOR_MIN_FRACTION = 0.02
+"""Anchoring is off (weak evidence) when fewer than this fraction of the gel's pixels fit the undeformed model at noise
+level (:func:`anchor_weights`); the auto ROI is then not widened for anchors either (:func:`widen_to_anchor`)."""
+
+
+def anchor_weights(
+    contact: ContactMap,
+    mask: np.ndarray,
+    weight: float,
+    factor: float,
+    min_fraction: float = ANCHOR_MIN_FRACTION,
+    max_relative: float = 0.05,
+) -> tuple[np.ndarray | None, str]:
+    """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed.
+
+    Parameters
+    ----------
+    contact : ContactMap
+    mask : (H, W) bool -- the solve mask.
+    weight : SolverOptions.anchor_weight (0: off).
+    factor : a pixel is undeformed when its misfit is within ``factor`` times the noise-only misfit.
+    min_fraction : evidence is weak -- no anchoring -- when fewer than this fraction of the gel's
+        pixels fit at noise level (the undeformed model does not explain the data at all, e.g. strong
+        unmodelled interreflection or a wrong LED model).
+    max_relative : a pixel's verdict counts only when its threshold, ``factor`` times the noise-only
+        misfit, is at most this fraction of its image level: with more noise a real dent (a 1 deg
+        tilt changes the shading by ~2 %) would pass as undeformed.
+
+    Returns
+    -------
+    weights : (H, W) float64 or None
+    note : str -- what was decided and why.
+    """
+    if weight <= 0:
+        return None, "anchoring off (anchor_weight = 0)"
+    gel = np.isfinite(contact.misfit)
+    sharp = factor * contact.expected <= max_relative * np.nan_to_num(contact.level)
+    undeformed = contact.undeformed(factor) & gel & sharp
+    fraction = float(undeformed.sum()) / max(int(gel.sum()), 1)
+    if contact.noise <= 0 or fraction < min_fraction:
+        return None, (
+            f"anchoring off: weak evidence (only {100 * fraction:.1f} % of the gel fits the undeformed model within "
+            f"{factor:g} x the noise level {contact.noise:.2g} at a threshold below {100 * max_relative:g} % of the "
+            f"image)"
+        )
+    pins = undeformed & mask
+    weights = np.ones(mask.shape)
+    weights[pins] += weight
+    return weights, f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise)"
+
+
+def widen_to_anchor(
+    contact: ContactMap, box: tuple[int, int, int, int], shape: tuple[int, int], step: int = 8
+) -> tuple[tuple[int, int, int, int], float, float]:
+    """``box`` (x0, y0, w, h, pixels) widened by ``step`` pixels at a time, within the image of ``shape`` (H, W),
+    until :data:`tolerances.ROI_MIN_UNDEFORMED_SHARE` of its gel pixels look undeformed (the pixels anchoring pins to
+    the reference), or it is the whole image; not where anchoring is off (:data:`ANCHOR_MIN_FRACTION`: a noise-free
+    render, whose model error leaves next to no pixel within noise).
+
+    Returns
+    -------
+    box : (x0, y0, w, h) pixels -- ``box`` itself when it holds enough.
+    before, after : float -- the share of undeformed gel pixels in ``box`` and in the returned box.
+    """
+    H, W = shape
+    valid = np.isfinite(contact.misfit)
+    undeformed = contact.undeformed(tolerances.ANCHOR_NOISE_FACTOR) & valid
+    x0, y0, w, h = box
+    x1, y1 = x0 + w, y0 + h
+
+    def share() -> float:
+        return float(undeformed[y0:y1, x0:x1].sum()) / max(int(valid[y0:y1, x0:x1].sum()), 1)
+
+    first = now = share()
+    if float(undeformed.sum()) < ANCHOR_MIN_FRACTION * max(int(valid.sum()), 1):
+        return box, first, first  # anchoring is off (anchor_weights): nothing to widen for
+    while now < tolerances.ROI_MIN_UNDEFORMED_SHARE and (x0, y0, x1, y1) != (0, 0, W, H):
+        x0, y0, x1, y1 = max(x0 - step, 0), max(y0 - step, 0), min(x1 + step, W), min(y1 + step, H)
+        now = share()
+    return (int(x0), int(y0), int(x1 - x0), int(y1 - y0)), first, now
