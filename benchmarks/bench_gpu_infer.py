@@ -265,7 +265,7 @@ def boxes_step(args) -> None:
     from nlipscalib.learn import integrate_torch
     from nlipscalib.learn.fullframe import FullFrame
     from nlipscalib.learn.infer import Predictor
-    from nlipscalib.learn.integrate import _fast_span
+    from nlipscalib.learn.integrate_regions import _fast_span
     from nlipscalib.learn.torch_device import check_device
 
     integrate_torch.RECORD_AFTER = 1  # a size's first call through the integrator records it, the next replays

@@ -42,7 +42,7 @@ def _cases(which: set[str]):
     """(name, geo, changed, normals) per case."""
     from scipy import ndimage
 
-    from nlipscalib.learn.integrate import RayGeometry
+    from nlipscalib.learn.integrate_geometry import RayGeometry
 
     if "pad" in which:
         rim_blob = _test_helper("test_fullframe", "_rim_blob")

@@ -25,7 +25,7 @@ import numpy as np
 from ..core.errors import require
 from .change import channel_ratio
 from .cuda_graph import record
-from .integrate import RayGeometry
+from .integrate_geometry import RayGeometry
 from .integrate_torch import BoxIntegrator, DomeIntegrator
 from .prefilter import kernel_radius
 

@@ -30,7 +30,8 @@ from ..core.tolerances import (
     SATURATED_SHARE_WARN,
 )
 from .change import ChangeDetector
-from .integrate import RayGeometry, integrate_on_dome
+from .integrate import integrate_on_dome
+from .integrate_geometry import RayGeometry
 from .model import load_model
 from .prefilter import Prefilter
 from .torch_device import torch_threads

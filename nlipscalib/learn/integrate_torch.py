@@ -38,24 +38,11 @@ import numpy as np
 
 from ..core.errors import ShapeError, require
 from ..core.tolerances import INTEGRATION_MIN_FACING
-from .integrate import (
-    BOTH_SIDES,
-    Box,
-    Edges,
-    RayGeometry,
-    _box,
-    _crop_edges,
-    _faster_rim_box,
-    _regions,
-    _rim_box_anchor,
-    box_eigenvalues,
-    edge_box_parts,
-    edge_box_rhs,
-    rim_box_capacitance,
-    rim_box_rhs,
-    rim_box_solve,
-    solve_region_group,
-)
+from .integrate import solve_region_group
+from .integrate_box import box_eigenvalues, edge_box_parts, edge_box_rhs
+from .integrate_geometry import RayGeometry
+from .integrate_regions import BOTH_SIDES, Box, Edges, _box, _crop_edges, _regions
+from .integrate_rim import _faster_rim_box, _rim_box_anchor, rim_box_capacitance, rim_box_rhs, rim_box_solve
 
 if TYPE_CHECKING:  # torch is optional and imported where it is used (``_torch``): named for the hints only
     import torch

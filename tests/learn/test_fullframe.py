@@ -9,7 +9,7 @@ torch = pytest.importorskip("torch")
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import load_press  # noqa: E402
 from nlipscalib.learn.infer import Predictor  # noqa: E402
-from nlipscalib.learn.integrate import RayGeometry, log_range_gradient  # noqa: E402
+from nlipscalib.learn.integrate_geometry import RayGeometry, log_range_gradient  # noqa: E402
 from nlipscalib.learn.integrate_torch import RECORD_AFTER, BoxPoisson, DomeIntegrator, dct2, dst1, idct2  # noqa: E402
 
 CPU = torch.device("cpu")
@@ -243,7 +243,8 @@ def test_the_device_path_solves_contacts_at_the_image_border_as_the_cpu_does(cas
 
     from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
     from nlipscalib.learn.fullframe import FullFrame
-    from nlipscalib.learn.integrate import _regions, integrate_on_dome
+    from nlipscalib.learn.integrate import integrate_on_dome
+    from nlipscalib.learn.integrate_regions import _regions
     from nlipscalib.learn.integrate_torch import BoxIntegrator
 
     spheres, edges = TWO_SPHERES[case]
@@ -274,7 +275,8 @@ def test_the_device_path_solves_a_contact_across_the_image_in_the_cpus_cosine_bo
 
     from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
     from nlipscalib.learn.fullframe import FullFrame
-    from nlipscalib.learn.integrate import BOTH_SIDES, _regions, integrate_on_dome
+    from nlipscalib.learn.integrate import integrate_on_dome
+    from nlipscalib.learn.integrate_regions import BOTH_SIDES, _regions
     from nlipscalib.learn.integrate_torch import BoxIntegrator
     from tests.learn.test_integrate import _band, _dome_and_sphere
 
@@ -392,7 +394,7 @@ def test_the_device_path_hands_the_cpus_sparse_regions_to_the_cpu(case, solver, 
     from scipy import ndimage
 
     from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
-    from nlipscalib.learn import integrate
+    from nlipscalib.learn import integrate_sparse
     from nlipscalib.learn.integrate import integrate_on_dome
     from tests.learn.test_integrate import _band, _dome_and_sphere
 
@@ -410,14 +412,14 @@ def test_the_device_path_hands_the_cpus_sparse_regions_to_the_cpu(case, solver, 
     tilt = ndimage.gaussian_filter(np.random.default_rng(5).normal(size=on_gel.shape + (3,)), (8, 8, 0)) * 20
     normals = ref.normals + np.where(changed[..., None], tilt, 0)
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
-    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
+    monkeypatch.setattr(integrate_sparse, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
     cpu, _ = integrate_on_dome(normals, changed, geo)  # SuperLU
     assert np.nanmax(np.abs(cpu - ref.depth)[changed]) > 0.1  # mm: a surface unlike the dome
-    monkeypatch.setattr(integrate, "_amg_cache", integrate.collections.OrderedDict())
-    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", 0 if solver == "amg" else np.inf)
+    monkeypatch.setattr(integrate_sparse, "_amg_cache", integrate_sparse.collections.OrderedDict())
+    monkeypatch.setattr(integrate_sparse, "SPARSE_AMG_MIN_UNKNOWNS", 0 if solver == "amg" else np.inf)
     got, plan = _device_path_points(geo, normals, changed, dense=False)
     # the island is a rim box on the host (anchored, every pixel changed); the cross is the sparse path's
-    assert len(integrate._amg_cache) == (solver == "amg" and case == "across both axes")
+    assert len(integrate_sparse._amg_cache) == (solver == "amg" and case == "across both axes")
     assert len(plan.host) == 1 and plan.rim == [] and len(plan.boxes) == (case == "an island")
     np.testing.assert_allclose(got[..., 2], cpu, atol=TORCH_INTEGRATION_PARITY_MM)
 

@@ -5,7 +5,8 @@ import pytest
 from scipy import ndimage
 
 from nlipscalib.core import load_press
-from nlipscalib.learn.integrate import RayGeometry, integrate_on_dome
+from nlipscalib.learn.integrate import integrate_on_dome
+from nlipscalib.learn.integrate_geometry import RayGeometry
 
 
 def _dent(press, normals, method="auto"):
@@ -31,7 +32,7 @@ def test_exact_normals_of_a_sphere_press_recover_its_depth_within_5_percent(twin
     # outside the solved pixels the depth is the undeformed reference's
     solved = unknown.copy()
     if method == "box":  # the box around the changed pixels that the solver integrates over
-        from nlipscalib.learn.integrate import _box
+        from nlipscalib.learn.integrate_regions import _box
 
         solved[_box(unknown, press.ground_truth.valid)] = True
     outside = press.ground_truth.valid & ~solved
@@ -126,7 +127,7 @@ def _pixels(bounds, unknown):
 def test_noise_specks_at_the_border_leave_the_contact_to_its_box():
     # 2-spp frames at 1280x960 flag a few small regions at the image border: the one box around all changed
     # pixels then touched the border, and the whole contact went to SuperLU (0.4-0.7 s a frame)
-    from nlipscalib.learn.integrate import _box, _regions
+    from nlipscalib.learn.integrate_regions import _box, _regions
 
     ref, geo, on_gel, contact, normals = _dome_and_sphere()
     assert on_gel.all()  # the gel fills the default image: every border pixel is on it
@@ -145,7 +146,7 @@ def test_noise_specks_at_the_border_leave_the_contact_to_its_box():
 
 
 def test_regions_whose_bounds_overlap_are_solved_together():
-    from nlipscalib.learn.integrate import BOTH_SIDES, _regions
+    from nlipscalib.learn.integrate_regions import BOTH_SIDES, _regions
 
     on_gel = np.ones((60, 80), bool)
     near = np.zeros_like(on_gel)
@@ -186,7 +187,7 @@ def test_exact_normals_of_a_contact_at_the_image_border_give_its_depth_in_an_edg
     # a press at the edge of the view: its box passes the image border, where the least-squares problem has
     # no pixel pair (a natural side); the edge box mirrors it there instead of leaving it to SuperLU
     from nlipscalib.core.sensor import SensorDesign
-    from nlipscalib.learn.integrate import _regions
+    from nlipscalib.learn.integrate_regions import _regions
 
     ref, rays, hit, points, normals = _sphere_pressed_into_the_dome(SensorDesign(), polar, azimuth, 7.0, 2.0)
     on_gel = np.isfinite(ref.depth)
@@ -231,7 +232,7 @@ def test_an_edge_box_solves_the_sparse_paths_equations_on_its_pixels(polar, azim
     # the sparse path's equations at the image border have no pair across it: an edge box must solve exactly
     # them over its pixels (every pixel in it unknown but its ring off the border), up to float32 rounding
     from nlipscalib.core.sensor import SensorDesign
-    from nlipscalib.learn.integrate import _regions
+    from nlipscalib.learn.integrate_regions import _regions
 
     ref, rays, hit, _, normals = _sphere_pressed_into_the_dome(SensorDesign(), polar, azimuth, 7.0, 2.0)
     on_gel = np.isfinite(ref.depth)
@@ -249,7 +250,7 @@ def test_an_edge_box_solves_the_sparse_paths_equations_on_its_pixels(polar, azim
 
 def test_the_sparse_path_solves_separate_regions_as_if_each_were_alone():
     # the split into regions rests on this: no equation joins two 4-connected regions
-    from nlipscalib.learn.integrate import _solve_sparse
+    from nlipscalib.learn.integrate_sparse import _solve_sparse
 
     _, geo, on_gel, contact, normals = _dome_and_sphere()
     speck = np.zeros_like(contact)
@@ -292,7 +293,7 @@ def test_exact_normals_of_a_contact_across_the_image_give_its_depth_in_a_cosine_
     # a ridge pressed into the flat pad spans the image's height: natural sides at both image borders, which
     # used to leave the contact to SuperLU (27,000-75,000 px: 0.2-1 s); now a box with a type-II cosine axis
     from nlipscalib.core.sensor import shipped_design
-    from nlipscalib.learn.integrate import BOTH_SIDES, _regions
+    from nlipscalib.learn.integrate_regions import BOTH_SIDES, _regions
 
     ref, rays, hit, points, normals = _cylinder_pressed_into_the_gel(shipped_design("flat"), 3.0, 1.0, (0, 1, 0))
     on_gel = np.isfinite(ref.depth)
@@ -320,7 +321,7 @@ def _band(shape, axis, lo, hi):
 def test_a_box_across_the_image_solves_the_sparse_paths_equations_on_its_pixels(axis, lo, hi, edges):
     # random smooth normals over a band spanning the image (a side at an image border too): the cosine box must
     # solve exactly the sparse path's equations over its pixels (every pixel but its ring off the border)
-    from nlipscalib.learn.integrate import _regions
+    from nlipscalib.learn.integrate_regions import _regions
 
     ref, geo, on_gel, _, _ = _dome_and_sphere()
     rng = np.random.default_rng(lo + hi)
@@ -339,7 +340,8 @@ def test_a_box_across_the_image_solves_the_sparse_paths_equations_on_its_pixels(
 
 def test_a_band_across_both_axes_keeps_the_sparse_path():
     # a cross spanning the width and the height: its box (the image) has no ring, no fixed pixel
-    from nlipscalib.learn.integrate import _crop_edges, _regions, _rim_box_anchor
+    from nlipscalib.learn.integrate_regions import _crop_edges, _regions
+    from nlipscalib.learn.integrate_rim import _rim_box_anchor
 
     _, _, on_gel, _, _ = _dome_and_sphere()
     cross = _band(on_gel.shape, 0, 200, 210) | _band(on_gel.shape, 1, 300, 310)
@@ -373,7 +375,8 @@ def test_a_rim_box_solves_the_sparse_paths_equations_on_its_gel_pixels(seed):
     # a blob of random smooth normals near the flat pad's rim: its box holds off-gel pixels, where the sparse
     # path has no pixel pair (a natural side along the gel's outline); the rim box must solve exactly that
     # equation over its interior's gel pixels, up to rounding
-    from nlipscalib.learn.integrate import _faster_rim_box, _interior_mask, _regions, _rim_box_applies, _rim_rows
+    from nlipscalib.learn.integrate_regions import _regions
+    from nlipscalib.learn.integrate_rim import _faster_rim_box, _interior_mask, _rim_box_applies, _rim_rows
 
     _, ref, geo, on_gel = _flat_pad()
     rng = np.random.default_rng(seed)
@@ -399,7 +402,8 @@ def test_a_rim_box_solves_the_sparse_paths_equations_on_its_gel_pixels(seed):
 @pytest.mark.parametrize(("polar", "azimuth", "radius"), [(48, 0, 5.0), (45, 20, 4.0)])
 def test_exact_normals_of_a_sphere_at_the_pads_rim_give_its_depth_in_a_rim_box(polar, azimuth, radius):
     # 13,000-15,000 px at 640x480: SuperLU took 106-150 ms a frame (s25-wide); the rim box, 12-22 ms
-    from nlipscalib.learn.integrate import _regions, _rim_box_applies
+    from nlipscalib.learn.integrate_regions import _regions
+    from nlipscalib.learn.integrate_rim import _rim_box_applies
 
     design, ref, geo, on_gel = _flat_pad()
     _, _, hit, points, normals = _sphere_pressed_into_the_dome(design, polar, azimuth, radius, 1.0)
@@ -421,7 +425,7 @@ def test_the_box_greens_function_is_the_inverse_of_its_laplacian(m, n, edges, an
     # or at both (2); with both axes natural only the anchor makes the matrix invertible
     from scipy.sparse import diags, identity, kron
 
-    from nlipscalib.learn.integrate import _box_green, _box_solve
+    from nlipscalib.learn.integrate_green import _box_green, _box_solve
 
     def path(k, edge):
         diagonal = 2 * np.ones(k)
@@ -442,7 +446,7 @@ def test_the_box_greens_function_is_the_inverse_of_its_laplacian(m, n, edges, an
 
 def test_a_rim_box_whose_gel_touches_no_fixed_pixel_keeps_the_sparse_path():
     # a gel island in the box whose every neighbour is off the gel: nothing fixes its level but the anchor
-    from nlipscalib.learn.integrate import _rim_box_applies
+    from nlipscalib.learn.integrate_rim import _rim_box_applies
 
     on_gel = np.ones((40, 40), bool)
     on_gel[10:30, 10:30] = False
@@ -461,7 +465,8 @@ def test_a_rim_box_whose_gel_touches_no_fixed_pixel_keeps_the_sparse_path():
 def test_a_rim_box_at_the_image_border_solves_the_sparse_paths_equations_on_its_gel_pixels(seed):
     # a blob of random smooth normals in a corner of the flat pad: its box holds off-gel pixels and reaches the
     # top or bottom image border (a natural side there, mirrored as an edge box's), 0.2-0.3 s of SuperLU before
-    from nlipscalib.learn.integrate import _crop_edges, _faster_rim_box, _interior_mask, _regions, _rim_box_anchor
+    from nlipscalib.learn.integrate_regions import _crop_edges, _regions
+    from nlipscalib.learn.integrate_rim import _faster_rim_box, _interior_mask, _rim_box_anchor
 
     _, ref, geo, on_gel = _flat_pad()
     rng = np.random.default_rng(seed)
@@ -488,7 +493,9 @@ def test_a_rim_box_at_the_image_border_solves_the_sparse_paths_equations_on_its_
 def test_a_frame_changed_on_the_whole_gel_solves_the_sparse_paths_anchored_equation():
     # every pixel changed: a box across both axes, natural on all four sides; its one zero eigenvalue (the level)
     # is the anchor's, which the sparse path puts on every pixel here -- the same equation (4 s of SuperLU before)
-    from nlipscalib.learn.integrate import ANCHOR_WEIGHT, BOTH_SIDES, _crop_edges, _regions, _rim_box_anchor
+    from nlipscalib.learn.integrate_regions import BOTH_SIDES, _crop_edges, _regions
+    from nlipscalib.learn.integrate_rim import _rim_box_anchor
+    from nlipscalib.learn.integrate_sparse import ANCHOR_WEIGHT
 
     ref, geo, on_gel, _, _ = _dome_and_sphere()
     rng = np.random.default_rng(5)
@@ -507,7 +514,9 @@ def test_a_frame_changed_on_the_whole_gel_solves_the_sparse_paths_anchored_equat
 def test_a_changed_gel_island_touching_no_fixed_pixel_is_solved_with_the_anchor_in_a_rim_box():
     # the whole of a gel island changed: no fixed pixel, the sparse path anchors each of its pixels; so does the
     # rim box. An island with unchanged pixels would be another equation: it keeps the sparse path
-    from nlipscalib.learn.integrate import ANCHOR_WEIGHT, _regions, _rim_box_anchor
+    from nlipscalib.learn.integrate_regions import _regions
+    from nlipscalib.learn.integrate_rim import _rim_box_anchor
+    from nlipscalib.learn.integrate_sparse import ANCHOR_WEIGHT
 
     ref, _, _, _, normals = _dome_and_sphere()
     depth = ref.depth.astype(np.float64).copy()
@@ -544,13 +553,13 @@ def _small(design):
 def _amg_and_superlu(monkeypatch, normals, unknown, geo):
     """Depth of ``integrate_on_dome`` with the sparse path's regions solved by AMG (the size threshold forced to 0),
     then by SuperLU (no region large enough), and whether AMG ran (a hierarchy was cached)."""
-    from nlipscalib.learn import integrate
+    from nlipscalib.learn import integrate_sparse
 
-    monkeypatch.setattr(integrate, "_amg_cache", integrate.collections.OrderedDict())
-    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", 0)
+    monkeypatch.setattr(integrate_sparse, "_amg_cache", integrate_sparse.collections.OrderedDict())
+    monkeypatch.setattr(integrate_sparse, "SPARSE_AMG_MIN_UNKNOWNS", 0)
     amg, _ = integrate_on_dome(normals, unknown, geo)
-    ran = len(integrate._amg_cache) == 1
-    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
+    ran = len(integrate_sparse._amg_cache) == 1
+    monkeypatch.setattr(integrate_sparse, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
     superlu, _ = integrate_on_dome(normals, unknown, geo)
     return amg, superlu, ran
 
@@ -583,26 +592,26 @@ def test_amg_solves_the_flat_pads_whole_gel_changed_as_superlu_does_and_reuses_i
     # level. The hierarchy depends on the mask alone: a second frame with other normals reuses it and still matches
     from nlipscalib.core.sensor import shipped_design
     from nlipscalib.core.tolerances import TORCH_INTEGRATION_PARITY_MM
-    from nlipscalib.learn import integrate
+    from nlipscalib.learn import integrate_rim, integrate_sparse
 
     ref, rays, _, _, _ = _sphere_pressed_into_the_dome(_small(shipped_design("flat")), 0, 0, 4.0, 1.0)
     geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
     on_gel = np.isfinite(ref.depth)
     assert not on_gel.all()  # the pad does not fill the image: its outline is a natural side
     # at 640x480 its rim (992 pixels) is too long for the rim box's Green's sum; at 160x120 it is not: say so
-    monkeypatch.setattr(integrate, "MAX_RIM_GREEN_VALUES", 0)
+    monkeypatch.setattr(integrate_rim, "MAX_RIM_GREEN_VALUES", 0)
     for seed in (4, 5):
         amg, superlu, ran = _amg_and_superlu(monkeypatch, _tilted(ref, on_gel, seed, sigma=6), on_gel, geo)
         assert ran
         assert np.nanmax(np.abs(superlu - ref.depth)) > 0.05  # mm
         np.testing.assert_allclose(amg, superlu, atol=TORCH_INTEGRATION_PARITY_MM)
-    monkeypatch.setattr(integrate, "_amg_cache", cached := integrate.collections.OrderedDict())
-    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", 0)
+    monkeypatch.setattr(integrate_sparse, "_amg_cache", cached := integrate_sparse.collections.OrderedDict())
+    monkeypatch.setattr(integrate_sparse, "SPARSE_AMG_MIN_UNKNOWNS", 0)
     first, _ = integrate_on_dome(_tilted(ref, on_gel, 4, sigma=6), on_gel, geo)
     (hierarchy,) = cached.values()
     second, _ = integrate_on_dome(_tilted(ref, on_gel, 5, sigma=6), on_gel, geo)
     assert list(cached.values()) == [hierarchy]  # reused, not rebuilt
-    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
+    monkeypatch.setattr(integrate_sparse, "SPARSE_AMG_MIN_UNKNOWNS", np.inf)
     want, _ = integrate_on_dome(_tilted(ref, on_gel, 5, sigma=6), on_gel, geo)
     assert np.nanmax(np.abs(first - second)) > 0.05  # mm: the two frames differ
     np.testing.assert_allclose(second, want, atol=TORCH_INTEGRATION_PARITY_MM)
@@ -616,7 +625,7 @@ def test_amg_hierarchies_shared_by_threads_give_the_single_thread_depths(monkeyp
     from concurrent.futures import ThreadPoolExecutor
 
     from nlipscalib.core.sensor import SensorDesign
-    from nlipscalib.learn import integrate
+    from nlipscalib.learn import integrate_sparse
 
     ref, rays, _, _, _ = _sphere_pressed_into_the_dome(_small(SensorDesign()), 0, 0, 4.0, 1.0)
     geo = RayGeometry.from_reference(rays, ref.depth.astype(np.float64))
@@ -625,8 +634,8 @@ def test_amg_hierarchies_shared_by_threads_give_the_single_thread_depths(monkeyp
         _band(ref.depth.shape, 0, 30, 50) | _band(ref.depth.shape, 1, 40, 60),
     )
     frames = [(_tilted(ref, mask, seed), mask) for seed, mask in enumerate(masks)]
-    monkeypatch.setattr(integrate, "SPARSE_AMG_MIN_UNKNOWNS", 0)
-    monkeypatch.setattr(integrate, "_amg_cache", cache := integrate.collections.OrderedDict())
+    monkeypatch.setattr(integrate_sparse, "SPARSE_AMG_MIN_UNKNOWNS", 0)
+    monkeypatch.setattr(integrate_sparse, "_amg_cache", cache := integrate_sparse.collections.OrderedDict())
     alone = [integrate_on_dome(normals, mask, geo)[0] for normals, mask in frames]
     assert len(cache) == 2 and np.nanmax(np.abs(alone[0] - alone[1])) > 0.1  # mm: two shapes, two surfaces
     for _ in range(3):
