@@ -20,8 +20,8 @@ Two exact solvers of that same equation:
   (This is a fast solver for the curved-surface equation above, not a flat-sensor height-from-
   gradient integration: the gradients are of log-range along the real rays.)
 - ``"sparse"``: only the changed pixels are unknown, any shape, SuperLU (scipy.sparse) on the
-  normal equations; used when no box below applies. A region of :data:`SPARSE_AMG_MIN_UNKNOWNS` pixels or more
-  (a cross of bands over the view, the flat pad's whole gel changed) is solved by conjugate gradients with a
+  normal equations; used when no box below applies. A region of :data:`.integrate_sparse.SPARSE_AMG_MIN_UNKNOWNS` pixels
+  or more (a cross of bands over the view, the flat pad's whole gel changed) is solved by conjugate gradients with a
   Ruge-Stuben AMG preconditioner (pyamg) instead, to a residual whose depth is SuperLU's within a few 1e-6 mm
   (:data:`~nlipscalib.core.tolerances.INTEGRATION_AMG_RTOL`); its hierarchy depends on the region's shape
   alone and is kept for the next frames of that shape.
@@ -43,12 +43,12 @@ pair across that side (a natural side along the gel's outline, as on the sparse 
 Laplacian changed in the rows of those rim pixels only (a low-rank change), solved by the capacitance-matrix
 method (Buzbee, Dorr, George & Golub, SIAM J. Numer. Anal. 8(4), 1971): two sine solves of the box and one
 dense (r, r) solve, r the rim pixels in the box. The capacitance matrix's entries are values of the box's
-Green's function, summed per frame from its sine modes (:func:`_box_green`), with no box solve per rim pixel.
-A rim box may reach the image border: that side is natural as an edge box's (mirrored; its axis's modes are the
-doubled path's odd sines, :func:`_axis_modes`), and an axis at both borders takes cosines. A box with no fixed
-pixel at all (a frame changed on the whole gel, or a whole gel island) is solved where every pixel of it is
-changed: the sparse path then anchors every unknown (:data:`ANCHOR_WEIGHT` on the diagonal), which adds the
-weight to every eigenvalue of the box -- the same equation, the cosine-cosine box's zero eigenvalue included.
+Green's function, summed per frame from its sine modes (:func:`.integrate_green._box_green`), with no box solve per rim
+pixel. A rim box may reach the image border: that side is natural as an edge box's (mirrored; its axis's modes are the
+doubled path's odd sines, :func:`.integrate_green._axis_modes`), and an axis at both borders takes cosines. A box with
+no fixed pixel at all (a frame changed on the whole gel, or a whole gel island) is solved where every pixel of it is
+changed: the sparse path then anchors every unknown (:data:`.integrate_sparse.ANCHOR_WEIGHT` on the diagonal), which
+adds the weight to every eigenvalue of the box -- the same equation, the cosine-cosine box's zero eigenvalue included.
 
 ``"auto"`` takes one box around all changed pixels where it applies; else it splits them into their
 4-connected regions (no equation joins two), each group a box, an edge box where its box reaches the
@@ -58,7 +58,7 @@ the image border) or spans both axes with every pixel changed, and the sparse pa
 across both axes with unchanged pixels in its box (a cross or ridges over the whole view: anchoring the box would
 let a dent lift the unchanged surface, which the sparse path holds at the reference), a box with no fixed pixel
 and unchanged pixels, a mix of gel parts with and without one, or a rim too long for the Green's sum
-(:data:`MAX_RIM_GREEN_VALUES`: the flat pad's whole gel, 992 rim pixels).
+(:data:`.integrate_rim.MAX_RIM_GREEN_VALUES`: the flat pad's whole gel, 992 rim pixels).
 """
 
 from __future__ import annotations
@@ -123,9 +123,10 @@ def solve_region_group(
     others: Sequence[Box],
     method: str = "auto",
 ) -> tuple[Box, np.ndarray, np.ndarray]:
-    """One region group that no box of :func:`_regions` solves (its bounds ``crop``; ``others`` the frame's other
-    boxes and groups), as :func:`integrate_on_dome` solves it: a rim box where one applies ("auto"), else the sparse
-    path. The torch path (:mod:`.integrate_torch`) calls it on the host for the groups it does not solve itself.
+    """One region group that no box of :func:`.integrate_regions._regions` solves (its bounds ``crop``; ``others`` the
+    frame's other boxes and groups), as :func:`integrate_on_dome` solves it: a rim box where one applies ("auto"), else
+    the sparse path. The torch path (:mod:`.integrate_torch`) calls it on the host for the groups it does not solve
+    itself.
 
     Returns
     -------

@@ -15,8 +15,9 @@ from .integrate_regions import BOTH_SIDES, Box, Edges, _interior
 
 def _solve_box(normals: np.ndarray, geo: RayGeometry, box: tuple[slice, slice], edges: Edges = (0, 0)) -> np.ndarray:
     """Log-range over the box: Poisson solve on its interior, the outer ring fixed at the reference (DST-I);
-    on an edge box's border sides (``edges``) no ring, a natural side (mirrored, module docstring); along an axis
-    that spans the image (:data:`BOTH_SIDES`) a natural side at both ends: the type-II cosine transform there."""
+    on an edge box's border sides (``edges``) no ring, a natural side (mirrored, :mod:`.integrate`'s docstring); along
+    an axis that spans the image (:data:`.integrate_regions.BOTH_SIDES`) a natural side at both ends: the type-II cosine
+    transform there."""
     from scipy.fft import dct, dst, dstn, idct
 
     # float32 like the transforms below: a gradient of log-range needs no more than 1e-7 relative
@@ -38,9 +39,9 @@ def _solve_box(normals: np.ndarray, geo: RayGeometry, box: tuple[slice, slice], 
 
 def edge_box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array, edges: Edges = (0, 0)) -> Array:
     """:func:`box_rhs` of a box, or of an edge box's doubled box (mirrored across the image border on its
-    ``edges`` sides, module docstring; a :data:`BOTH_SIDES` axis mirrored at both ends, not doubled): the
-    right-hand side of the box solve; numpy or torch (shared with :mod:`.integrate_torch`). Arguments as
-    :func:`box_rhs`'s, over the box; :func:`edge_box_parts` takes the box's log-range from the solve."""
+    ``edges`` sides, :mod:`.integrate`'s docstring; a :data:`.integrate_regions.BOTH_SIDES` axis mirrored at both ends,
+    not doubled): the right-hand side of the box solve; numpy or torch (shared with :mod:`.integrate_torch`). Arguments
+    as :func:`box_rhs`'s, over the box; :func:`edge_box_parts` takes the box's log-range from the solve."""
     arrays = [normals, rays, d_u, d_v, x]
     for axis, edge in enumerate(edges):
         for side in (-1, 1) if edge == BOTH_SIDES else (edge,) if edge else ():
@@ -55,8 +56,8 @@ def edge_box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array, 
 def edge_box_parts(shape: tuple[int, int], edges: Edges = (0, 0)) -> tuple[Box, Box]:
     """(own, interior): where the box of ``shape`` (h, w) finds its solved pixels in the solve of
     :func:`edge_box_rhs` (the box's own half of the doubled box: the last along an axis mirrored before it, the
-    first after it; all of a :data:`BOTH_SIDES` axis), and where they go in the box (its interior: no ring on a
-    border side)."""
+    first after it; all of a :data:`.integrate_regions.BOTH_SIDES` axis), and where they go in the box (its interior: no
+    ring on a border side)."""
     half = tuple(k if edge == BOTH_SIDES else k - 1 if edge else k - 2 for k, edge in zip(shape, edges))
     own = tuple(slice(-k, None) if edge == -1 else slice(0, k) for k, edge in zip(half, edges))
     return own, tuple(_interior(edge) for edge in edges)
@@ -152,8 +153,8 @@ def _path_eigenvalues(n: int, neumann: bool) -> np.ndarray:
 
 def _axis_eigenvalues(n: int, edge: int) -> np.ndarray:
     """(n,) float64 eigenvalues of the 1-D 3-point Laplacian on n points whose ends are fixed (``edge`` 0), natural
-    (:data:`BOTH_SIDES`), or natural at one end only (-1, +1: an edge box's mirrored axis, the odd modes of the
-    doubled path's sines); in the order of :func:`_axis_modes`."""
+    (:data:`.integrate_regions.BOTH_SIDES`), or natural at one end only (-1, +1: an edge box's mirrored axis, the odd
+    modes of the doubled path's sines); in the order of :func:`.integrate_green._axis_modes`."""
     if edge == BOTH_SIDES:
         return 2 - 2 * np.cos(np.pi * np.arange(n) / n)
     if edge:

@@ -12,10 +12,11 @@ from .integrate_regions import BOTH_SIDES, Edges
 
 
 def _box_solve(f: np.ndarray, edges: Edges = (0, 0), anchor: float = 0.0) -> np.ndarray:
-    """(m, n) float64: (L + anchor I)^-1 f, L the 5-point Laplacian of an (m, n) box (:func:`_axis_eigenvalues`
-    per axis): fixed beyond both ends (DST-I), natural at both (:data:`BOTH_SIDES`: DCT-II; its zero eigenvalue
-    needs the anchor where both axes are), or at the image border only (-1, +1: the DST-I of the array mirrored
-    across it, as :func:`_solve_box`'s edge box)."""
+    """(m, n) float64: (L + anchor I)^-1 f, L the 5-point Laplacian of an (m, n) box
+    (:func:`.integrate_box._axis_eigenvalues` per axis): fixed beyond both ends (DST-I), natural at both
+    (:data:`.integrate_regions.BOTH_SIDES`: DCT-II; its zero eigenvalue needs the anchor where both axes are), or at the
+    image border only (-1, +1: the DST-I of the array mirrored across it, as :func:`.integrate_box._solve_box`'s edge
+    box)."""
     from scipy.fft import dct, dst, dstn, idct
 
     if edges == (0, 0):  # the plain rim box: one call per direction
@@ -35,10 +36,11 @@ def _box_solve(f: np.ndarray, edges: Edges = (0, 0), anchor: float = 0.0) -> np.
 
 
 def _axis_modes(index: np.ndarray, n: int, edge: int = 0) -> np.ndarray:
-    """(len(index), n) float64: the orthonormal eigenvectors of the 1-D Laplacian of :func:`_axis_eigenvalues` at
-    the points ``index`` -- type-I sines (rows of ``scipy.fft.dst(eye(n), type=1, norm="ortho")``), type-II cosines
-    (:data:`BOTH_SIDES`), or the doubled path's odd sines on the box's half of it (-1: its second half, +1: its
-    first; sqrt(2) for the half's norm)."""
+    """(len(index), n) float64: the orthonormal eigenvectors of the 1-D Laplacian of
+    :func:`.integrate_box._axis_eigenvalues` at the points ``index`` -- type-I sines (rows of
+    ``scipy.fft.dst(eye(n), type=1, norm="ortho")``), type-II cosines (:data:`.integrate_regions.BOTH_SIDES`), or the
+    doubled path's odd sines on the box's half of it (-1: its second half, +1: its first; sqrt(2) for the
+    half's norm)."""
     i = np.asarray(index, float)
     if edge == BOTH_SIDES:
         scale = np.where(np.arange(n) == 0, np.sqrt(1.0 / n), np.sqrt(2.0 / n))

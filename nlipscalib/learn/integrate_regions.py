@@ -44,8 +44,8 @@ def _regions(
     edge of the view, a speck of noise at the image border), the changed pixels split into 4-connected regions:
     the least-squares equations of one region share no unknown with another's, so each region group is solved
     on its own -- in a box where its box applies, in an edge box where its bounds pass the image border by the
-    ring on one side of an axis (module docstring), else on the sparse path. Bounds (grown by the ring) that
-    share a pixel are merged first: one box's solved interior must not be another's fixed ring or a sparse
+    ring on one side of an axis (:mod:`.integrate`'s docstring), else on the sparse path. Bounds (grown by the ring)
+    that share a pixel are merged first: one box's solved interior must not be another's fixed ring or a sparse
     region's known neighbour, so a region whose box does not apply takes every box it overlaps with it.
     """
     if method == "sparse":

@@ -16,9 +16,9 @@ from .integrate_regions import BOTH_SIDES, Box, Edges, _faster, _interior
 from .integrate_sparse import ANCHOR_WEIGHT
 
 MAX_RIM_GREEN_VALUES = 1 << 22
-"""Most values of the box's Green's function that one rim box may sum (:func:`_box_green`: the modes of one axis
-times the rim's points and columns; 32 MiB of float64 each of its two largest arrays). A region beyond it (a rim
-box thousands of rim pixels long, such as the flat pad's whole gel) keeps the sparse path."""
+"""Most values of the box's Green's function that one rim box may sum (:func:`.integrate_green._box_green`: the modes of
+one axis times the rim's points and columns; 32 MiB of float64 each of its two largest arrays). A region beyond it (a
+rim box thousands of rim pixels long, such as the flat pad's whole gel) keeps the sparse path."""
 
 
 def _interior_mask(on_gel: np.ndarray, edges: Edges = (0, 0)) -> np.ndarray:
@@ -37,15 +37,15 @@ def _rim_box_applies(unknown: np.ndarray, on_gel: np.ndarray, crop: Box, edges: 
 
 def _rim_box_anchor(unknown: np.ndarray, on_gel: np.ndarray, crop: Box, edges: Edges = (0, 0)) -> float | None:
     """The anchor weight of the rim box of the region group in ``crop`` (its bounds grown by the ring,
-    :func:`_regions`; ``edges`` its sides at the image border, :func:`_crop_edges`), or None where the sparse path
-    must solve it.
+    :func:`.integrate_regions._regions`; ``edges`` its sides at the image border,
+    :func:`.integrate_regions._crop_edges`), or None where the sparse path must solve it.
 
     It applies where its ring (the sides off the image border) holds no changed pixel, its rim is small enough
     (:data:`MAX_RIM_GREEN_VALUES`), and either every connected part of the interior's gel touches a gel pixel of
     the ring (which fixes its level: anchor 0), or none does and every one of its pixels is a changed pixel (the
-    sparse path then anchors every unknown, the same equation: :data:`ANCHOR_WEIGHT`; e.g. a frame changed on the
-    whole gel). A mix, or an unchanged pixel in a box without a fixed pixel, keeps the sparse path: anchoring
-    pixels that the sparse path holds at the reference would be another equation."""
+    sparse path then anchors every unknown, the same equation: :data:`.integrate_sparse.ANCHOR_WEIGHT`; e.g. a frame
+    changed on the whole gel). A mix, or an unchanged pixel in a box without a fixed pixel, keeps the sparse path:
+    anchoring pixels that the sparse path holds at the reference would be another equation."""
     from scipy import ndimage
 
     changed, gel = unknown[crop], on_gel[crop]
@@ -77,10 +77,11 @@ def _faster_rim_box(
     edges: Edges = (0, 0),
     anchor: float = 0.0,
 ) -> Box:
-    """A rim box (``edges`` its sides at the image border) grown to FFT-friendly sides (:func:`_faster`) within the
-    image, clear of the boxes solved apart (``others``), where it still applies with the same ``anchor``
-    (:func:`_rim_box_anchor`); else ``crop``. Its sine solves are most of its time: the ridge across the flat pad's
-    box, 148 x 536 inside its ring, has the prime factors 149 and 179 in its transform lengths."""
+    """A rim box (``edges`` its sides at the image border) grown to FFT-friendly sides
+    (:func:`.integrate_regions._faster`) within the image, clear of the boxes solved apart (``others``), where it still
+    applies with the same ``anchor`` (:func:`_rim_box_anchor`); else ``crop``. Its sine solves are most of its time: the
+    ridge across the flat pad's box, 148 x 536 inside its ring, has the prime factors 149 and 179 in its transform
+    lengths."""
     rect = (crop[0].start, crop[0].stop, crop[1].start, crop[1].stop)
     bounds = [(b[0].start, b[0].stop, b[1].start, b[1].stop) for b in others]
     grown = _faster(rect, np.ones_like(on_gel), bounds, edges)
@@ -105,15 +106,15 @@ def _rim_rows(on_gel: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
 def _solve_rim_box(
     normals: np.ndarray, geo: RayGeometry, on_gel: np.ndarray, box: Box, edges: Edges = (0, 0), anchor: float = 0.0
 ) -> np.ndarray:
-    """(h, w) float64 log-range over a rim box (module docstring): its interior's gel pixels solved, the rest the
-    reference (NaN off the gel); the sparse path's equation with those pixels unknown, up to rounding.
+    """(h, w) float64 log-range over a rim box (:mod:`.integrate`'s docstring): its interior's gel pixels solved, the
+    rest the reference (NaN off the gel); the sparse path's equation with those pixels unknown, up to rounding.
 
-    The box's Laplacian L (DST-I; on ``edges`` sides at the image border a natural side, :func:`_box_solve`), plus
-    ``anchor`` on its diagonal, becomes the rim box's matrix M = L + U V^T: the rows of the rim pixels (U: their
-    unit columns) lose their off-gel neighbours (V^T: minus their count on the diagonal, plus one at each off-gel
-    interior neighbour, whose own rows stay L's: M is block triangular, its gel block the sparse path's).
-    Woodbury: M x = f is x = L^-1 (f - U s) with the capacitance system (I + V^T L^-1 U) s = V^T L^-1 f, L^-1's
-    entries at the rim and its neighbours from :func:`_box_green`
+    The box's Laplacian L (DST-I; on ``edges`` sides at the image border a natural side,
+    :func:`.integrate_green._box_solve`), plus ``anchor`` on its diagonal, becomes the rim box's matrix M = L + U V^T:
+    the rows of the rim pixels (U: their unit columns) lose their off-gel neighbours (V^T: minus their count on the
+    diagonal, plus one at each off-gel interior neighbour, whose own rows stay L's: M is block triangular, its gel block
+    the sparse path's). Woodbury: M x = f is x = L^-1 (f - U s) with the capacitance system (I + V^T L^-1 U) s = V^T
+    L^-1 f, L^-1's entries at the rim and its neighbours from :func:`.integrate_green._box_green`
     (:func:`rim_box_capacitance`; :func:`rim_box_rhs` and :func:`rim_box_solve` are shared with the torch path).
     """
     from scipy.linalg import lu_factor, lu_solve
@@ -148,8 +149,8 @@ def rim_box_rhs(normals: Array, rays: Array, d_u: Array, d_v: Array, x: Array, g
 
     Returns
     -------
-    (h - 2, w - 2): :func:`box_rhs` with no pair across the gel's outline, 0 in an off-gel pixel's row (L's own,
-    decoupled from the gel's)
+    (h - 2, w - 2): :func:`.integrate_box.box_rhs` with no pair across the gel's outline, 0 in an off-gel pixel's row
+    (L's own, decoupled from the gel's)
     """
     facing = _where(gel[..., None], normals, -rays)  # any finite normal off the gel: no pair uses it
     f = box_rhs(facing, rays, d_u, d_v, x, gel)
@@ -164,7 +165,8 @@ def rim_box_capacitance(
     Parameters
     ----------
     gel : (h, w) bool -- the box's gel pixels
-    edges : its sides at the image border (no rim there: the box's Laplacian has that side, :func:`_box_solve`)
+    edges : its sides at the image border (no rim there: the box's Laplacian has that side,
+        :func:`.integrate_green._box_solve`)
     anchor : added to the Laplacian's diagonal (:func:`_rim_box_anchor`)
 
     Returns
@@ -213,7 +215,7 @@ def rim_box_solve(
     Parameters
     ----------
     f : (m, n) -- :func:`rim_box_rhs` (changed in place)
-    solve : the box's solve, L^-1 of an (m, n) array (:func:`_box_solve`, or the torch path's)
+    solve : the box's solve, L^-1 of an (m, n) array (:func:`.integrate_green._box_solve`, or the torch path's)
     rim, points, v_t : of :func:`rim_box_capacitance` (as arrays of ``f``'s kind)
     solve_capacitance : s with (I + V^T L^-1 U) s = b, of a (r,) b
     """

@@ -36,8 +36,8 @@ def _solve_sparse(
 
     Built on ``crop`` (default: the changed pixels' bounds grown by one pixel, where every pair of pixels that
     touches one lies), not the whole image: the same equations in the same order, and a group of noise specks
-    at a 1280x960 frame's border (:func:`_regions`) costs what its size says. Solves the changed pixels in
-    ``crop`` (in their order there); none of their neighbours may be changed pixels outside it.
+    at a 1280x960 frame's border (:func:`.integrate_regions._regions`) costs what its size says. Solves the changed
+    pixels in ``crop`` (in their order there); none of their neighbours may be changed pixels outside it.
     """
     from scipy.sparse import coo_matrix, diags
     from scipy.sparse.linalg import splu

@@ -76,14 +76,15 @@ class ContactMap:
 
     @functools.cached_property
     def median_misfit(self) -> float:
-        """The misfit's median over the gel (NaN when no pixel sees it). Kept: :func:`contact_hits` reads it for
-        the auto ROI, the dent's focus and the refit's exclusion (~3 ms each at 640x480)."""
+        """The misfit's median over the gel (NaN when no pixel sees it). Kept: :func:`.contact_verdict.contact_hits`
+        reads it for the auto ROI, the dent's focus and the refit's exclusion (~3 ms each at 640x480)."""
         valid = np.isfinite(self.misfit)
         return float(np.median(self.misfit[valid])) if valid.any() else float("nan")
 
     @functools.cached_property
     def peak(self) -> float:
-        """:func:`contact_peak`: the largest misfit over its floor on the gel (0 when no pixel sees it)."""
+        """:func:`.contact_verdict.contact_peak`: the largest misfit over its floor on the gel (0 when no pixel sees
+        it)."""
         valid = np.isfinite(self.misfit)
         if not valid.any():
             return 0.0
@@ -128,8 +129,8 @@ def classify_contact(
         models (e.g. before and after a refit of the indirect term): holds the press's side (live
         LEDs, smoothed images, noise), filled by the first call. Not used with ``indirect``.
     block : side, pixels, of the square blocks whose gel pixels' mean the classification works on (1: every
-        pixel); None: :func:`classify_block` of the frame. Its maps come back per pixel (each pixel gets its
-        block's value); the blur is then ``blur_px`` / ``block`` blocks (:meth:`_Grid.of`).
+        pixel); None: :func:`.contact_grid.classify_block` of the frame. Its maps come back per pixel (each pixel gets
+        its block's value); the blur is then ``blur_px`` / ``block`` blocks (:meth:`.contact_grid._Grid.of`).
 
     Returns
     -------
@@ -186,7 +187,8 @@ def prepare_press_side(
 
 
 def _grid_of(press: Press, blur_px: float, block: int | None) -> _Grid:
-    """The :class:`_Grid` that :func:`classify_contact` works on for ``press`` (its reference's gel pixels)."""
+    """The :class:`.contact_grid._Grid` that :func:`classify_contact` works on for ``press`` (its reference's gel
+    pixels)."""
     valid = np.isfinite(press.reference.depth)
     return _Grid.of(valid, classify_block(valid.shape) if block is None else int(block), blur_px)
 

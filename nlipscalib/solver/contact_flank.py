@@ -15,9 +15,9 @@ def grow_over_flank(
 ) -> tuple[int, int, int, int]:
     """The box ``edges`` = (x0, y0, x1, y1), pixels (x1, y1 exclusive), grown side by side over a contact's flank:
     while the ``step``-pixel strip beyond a side holds :data:`tolerances.ROI_FLANK_SHARE` of its pixels above
-    :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`contact_hits` (only those joined to ``region``, the
-    (H, W) bool pixels the box holds, and not within ``margin`` of the gel's edge), the side moves to ``margin``
-    pixels past that strip (within the image). The first strips lie :data:`tolerances.ROI_FLANK_START` of the
+    :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`.contact_verdict.contact_hits` (only those joined to
+    ``region``, the (H, W) bool pixels the box holds, and not within ``margin`` of the gel's edge), the side moves to
+    ``margin`` pixels past that strip (within the image). The first strips lie :data:`tolerances.ROI_FLANK_START` of the
     image's short side beyond ``region``; a box at the image's border on one axis does not grow along it.
 
     Why: a large flat indenter (the 20 mm coin face) moves the gel far beyond the pixels hit at
@@ -59,7 +59,8 @@ def grow_over_flank(
 
 
 def _over_flank_level(contact: ContactMap) -> np.ndarray:
-    """(H, W) bool -- misfit above :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`contact_hits`."""
+    """(H, W) bool -- misfit above :data:`tolerances.ROI_FLANK_FACTOR` times the floor of
+    :func:`.contact_verdict.contact_hits`."""
     floor = np.maximum(contact.expected, contact.median_misfit)
     return np.nan_to_num(contact.misfit) > tolerances.ROI_FLANK_FACTOR * np.maximum(floor, 1e-9)
 

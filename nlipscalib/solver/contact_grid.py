@@ -13,7 +13,7 @@ import numpy as np
 from . import threads
 
 BLOCK_MIN_SIDE = 480
-"""Short side, pixels, of the frames that :func:`classify_contact` classifies on 2 x 2 block means
+"""Short side, pixels, of the frames that :func:`.contact.classify_contact` classifies on 2 x 2 block means
 (:func:`classify_block`). Why: it smooths by 1.5 px anyway, and what it gives -- a box with an 8-pixel margin,
 the pixels to anchor, the contact left out of a refit -- moves by a pixel or two, while its whole-frame passes
 over the LED images (blur, the misfit's sums, the undeformed model and its light) read a quarter of the
@@ -25,7 +25,7 @@ Smaller frames keep every pixel: their classification costs little, and a 96x72 
 
 
 def classify_block(shape: tuple[int, int]) -> int:
-    """Block side, pixels, that :func:`classify_contact` works on for a frame of ``shape`` = (H, W): 2 from
+    """Block side, pixels, that :func:`.contact.classify_contact` works on for a frame of ``shape`` = (H, W): 2 from
     :data:`BLOCK_MIN_SIDE` on (both sides even), else 1 (every pixel)."""
     H, W = shape
     return 2 if min(H, W) >= BLOCK_MIN_SIDE and H % 2 == 0 and W % 2 == 0 else 1
@@ -33,7 +33,7 @@ def classify_block(shape: tuple[int, int]) -> int:
 
 @dataclasses.dataclass(frozen=True)
 class _Grid:
-    """The pixels :func:`classify_contact` works on: the frame's, or the means of square blocks of them."""
+    """The pixels :func:`.contact.classify_contact` works on: the frame's, or the means of square blocks of them."""
 
     pixels: np.ndarray
     """(H, W) bool -- the gel's pixels."""

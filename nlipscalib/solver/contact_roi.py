@@ -69,7 +69,7 @@ def contact_box(
     ``folder`` is the press's, ``reference`` the folder of the undeformed dome's capture it was compared with (None:
     not known), both named in the refusal of a press without contact (:func:`_undeformed_advice`).
 
-    Candidates are the pixels :func:`contact_hits` calls hit (with ``threshold``); of their connected
+    Candidates are the pixels :func:`.contact_verdict.contact_hits` calls hit (with ``threshold``); of their connected
     components only those at least ``min_component`` times the largest are kept, so isolated misfits (cast
     shadows far from the dent, silhouette aliasing, hot pixels) do not stretch the box.
 
@@ -85,11 +85,11 @@ def contact_box(
     (:func:`_noise_like`) are left out first: a tiny or shallow contact's hits are fewer than the weak ones noise
     makes along the view's edge, and ``min_component`` alone kept those and boxed the whole gel.
     ``edge_model_error``, given the (H, W) bool pixels left out along the edge, returns the misfit (H, W, image
-    units) the undeformed model is known to leave there (:func:`point_led_misfit`); pixels within ``threshold``
-    times it (and their floor, in quadrature: :func:`_beyond`) are that model's error, and unless the others hold
-    :data:`tolerances.ROI_MIN_INNER_FRACTION` of the gel they are left out without a note (the box is the same
-    either way). ``flank``: the box grows over the contact's flank (:func:`grow_over_flank`; ``--roi auto``'s box,
-    not the outer loop's dent focus, whose wide margin holds it).
+    units) the undeformed model is known to leave there (:func:`.point_led_error.point_led_misfit`); pixels within
+    ``threshold`` times it (and their floor, in quadrature: :func:`_beyond`) are that model's error, and unless the
+    others hold :data:`tolerances.ROI_MIN_INNER_FRACTION` of the gel they are left out without a note (the box is the
+    same either way). ``flank``: the box grows over the contact's flank (:func:`.contact_flank.grow_over_flank`; ``--roi
+    auto``'s box, not the outer loop's dent focus, whose wide margin holds it).
 
     Returns
     -------
@@ -181,9 +181,9 @@ def contact_box(
 
 
 def _noise_like(contact: ContactMap, labels: np.ndarray, count: int, join: int) -> np.ndarray:
-    """(count,) bool -- the hit components (``labels`` 1..count of :func:`contact_hits`) that noise alone could
-    make: peak misfit below :data:`tolerances.NO_CONTACT_PEAK` times its floor, and farther than ``join`` pixels
-    from any component above it (the weaker rim of a dent joins its core). None is noise-like where the images
+    """(count,) bool -- the hit components (``labels`` 1..count of :func:`.contact_verdict.contact_hits`) that noise
+    alone could make: peak misfit below :data:`tolerances.NO_CONTACT_PEAK` times its floor, and farther than ``join``
+    pixels from any component above it (the weaker rim of a dent joins its core). None is noise-like where the images
     fit the undeformed model only to model error (:data:`tolerances.MODEL_MISFIT_FLOOR`): a dent's peak there
     stands out by less.
 
@@ -216,10 +216,11 @@ def _largest_patch(mask: np.ndarray) -> int:
 
 def _beyond(contact: ContactMap, model_error: np.ndarray, threshold: float, blur_px: float = 1.5) -> np.ndarray:
     """(H, W) bool -- pixels whose misfit exceeds ``threshold`` times their floor and a known model error
-    ``model_error`` (H, W) added in quadrature (independent errors). The floor is :func:`contact_hits`'s plus, in
-    quadrature, the noise the smoothing leaves beyond the noise-only misfit where it averages fewer pixels
-    (:func:`edge_noise_gain`, on the pixel grid with :func:`classify_contact`'s ``blur_px``). Why: the capsule's
-    undeformed capture misfits 4.2-5.7 times the plain floor in the image's corners (s27-shapes2)."""
+    ``model_error`` (H, W) added in quadrature (independent errors). The floor is
+    :func:`.contact_verdict.contact_hits`'s plus, in quadrature, the noise the smoothing leaves beyond the noise-only
+    misfit where it averages fewer pixels (:func:`.contact_grid.edge_noise_gain`, on the pixel grid with
+    :func:`.contact.classify_contact`'s ``blur_px``). Why: the capsule's undeformed capture misfits 4.2-5.7 times the
+    plain floor in the image's corners (s27-shapes2)."""
     gel = np.isfinite(contact.misfit)
     floor = np.maximum(contact.expected, contact.median_misfit)
     extra_noise = contact.expected * np.sqrt(np.maximum(edge_noise_gain(gel, blur_px) ** 2 - 1.0, 0.0))

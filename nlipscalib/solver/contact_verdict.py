@@ -45,7 +45,7 @@ def contact_floor(contact: ContactMap) -> float:
 def contact_peak(contact: ContactMap) -> float:
     """The largest misfit over its floor (the floor of :func:`contact_hits`) on the gel; 0 when no pixel sees it.
     A contact's peak is far above :data:`nlipscalib.core.tolerances.NO_CONTACT_PEAK`, noise's below. Kept on the
-    map (:attr:`ContactMap.peak`): the auto ROI and the dent's focus both ask (2-3 ms each at 640x480)."""
+    map (:attr:`.contact.ContactMap.peak`): the auto ROI and the dent's focus both ask (2-3 ms each at 640x480)."""
     return contact.peak
 
 
@@ -69,13 +69,13 @@ def no_contact(
     ----------
     contact : ContactMap
     hit : (H, W) bool or None -- :func:`contact_hits` of ``contact`` when at hand.
-    model_error : as :func:`contact_box`'s ``edge_model_error`` (:func:`point_led_misfit`), or None -- asked of the
-        whole gel only when the floor says the LEDs do not fit and no pixel is hit: a floor that the point-LED
-        model's known error explains (the ``flat`` design with its exact LEDs: 3.9 times the noise, 1.01 times
-        hypot(noise, that error); s27-shapes2) is then "within noise", not "the LED model does not fit". And of
-        the pixels that reach NO_CONTACT_PEAK times the floor when no patch says "dent": the peak is then over the
-        floor and that error together (:func:`_peak_beyond_model_error`; the ``capsule``'s image corners,
-        s28-capsule).
+    model_error : as :func:`.contact_roi.contact_box`'s ``edge_model_error``
+        (:func:`.point_led_error.point_led_misfit`), or None -- asked of the whole gel only when the floor says the LEDs
+        do not fit and no pixel is hit: a floor that the point-LED model's known error explains (the ``flat`` design
+        with its exact LEDs: 3.9 times the noise, 1.01 times hypot(noise, that error); s27-shapes2) is then "within
+        noise", not "the LED model does not fit". And of the pixels that reach NO_CONTACT_PEAK times the floor when no
+        patch says "dent": the peak is then over the floor and that error together (:func:`_peak_beyond_model_error`;
+        the ``capsule``'s image corners, s28-capsule).
 
     Returns
     -------
@@ -125,8 +125,8 @@ def no_contact(
 
 
 def _peak_beyond_model_error(contact: ContactMap, model_error: Callable[[np.ndarray], np.ndarray]) -> float:
-    """:func:`contact_peak` with the model's known error ``model_error`` (:func:`point_led_misfit`) added to the
-    floor in quadrature (independent errors), asked only of the pixels at or above
+    """:func:`contact_peak` with the model's known error ``model_error`` (:func:`.point_led_error.point_led_misfit`)
+    added to the floor in quadrature (independent errors), asked only of the pixels at or above
     :data:`~nlipscalib.core.tolerances.NO_CONTACT_PEAK` times the plain floor (no other can reach it), and of the
     :data:`_PEAK_FIRST` strongest of those first: when one of them still reaches it (a dent), that value is
     returned, a lower bound of the peak that settles the question without asking about the rest.

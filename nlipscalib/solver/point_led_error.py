@@ -25,7 +25,8 @@ def point_led_misfit(
 ) -> np.ndarray:
     """What the undeformed model's point LEDs alone make a pixel misfit: the misfit of the point model to LEDs that
     emit from disks of ``radius`` (:func:`nlipscalib.core.leds.disk_shading`), both on the reference surface, as a
-    share of their shading, times the direct light's part of the pixel's image level (:attr:`ContactMap.level`).
+    share of their shading, times the direct light's part of the pixel's image level
+    (:attr:`.contact.ContactMap.level`).
 
     From the design (reference surface, LEDs), not from the images: large where the gel comes within a few LED
     sizes of an LED (the ``capsule`` design's wall at the image border: 2-6 % there, s27-shapes2).
