@@ -139,33 +139,58 @@ def classify_contact(
     if press.reference is None:
         raise CaptureError(f"{press.folder}: --roi auto and anchoring need the capture's reference (undeformed dome)")
     leds = press.leds if leds is None else tuple(leds)
-    ref = press.reference
-    valid = np.isfinite(ref.depth)
+    valid = np.isfinite(press.reference.depth)
     grid = _grid_of(press, blur_px, block)
     side = cache if cache is not None and indirect is None else {}
     _fill_press_side(side, press, grid, indirect, dead_level)
     live, img, ok, count = side["live"], side["images"], side["ok"], side["count"]
-    if undeformed_images is not None:
-        S = _smoothed_undeformed(undeformed_images, live, grid)
-    else:
-        pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
-        S = grid.smooth(grid.means(led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds), live))
-    if undeformed_light is not None:
-        # not smoothed: the fitted light is a gather over patches many pixels wide, bilinearly upsampled; the
-        # blur changed it by < 5e-5 of its peak (640x480 one-bounce twin) and cost 0.06 s per classification
-        S = S + grid.means(undeformed_light, live)
+    S = _undeformed_model(press, leds, live, grid, undeformed_images, undeformed_light)
     misfit = _misfit(S, img, ok, count)
     # the model and the images on a sample of the gel: does the model describe the sensor at all (asked once)?
     samples = gel_samples(S, img, grid.valid, ok)
     noise = side["noise"]
+    expected, sample_noise = _noise_only_misfit(noise, count, grid, undeformed_noise)
+    misfit = np.where(valid, grid.per_pixel(misfit), np.nan)
+    level = grid.per_pixel(side["level"])
+    return ContactMap(misfit, expected, tuple(live), side["dead"], noise, level, samples, sample_noise)
+
+
+def _undeformed_model(
+    press: Press,
+    leds: Leds,
+    live: Sequence[int],
+    grid: _Grid,
+    images: np.ndarray | reuse.Deferred | None,
+    light: np.ndarray | Sequence[np.ndarray] | None,
+) -> np.ndarray:
+    """(n, h, w, 3) float32 -- the undeformed model on ``grid`` for the ``live`` LEDs: ``images`` smoothed, or the
+    direct model on ``press.reference`` with ``leds`` where None, plus ``light`` unsmoothed where given
+    (:func:`classify_contact`'s ``undeformed_images`` and ``undeformed_light``)."""
+    if images is not None:
+        S = _smoothed_undeformed(images, live, grid)
+    else:
+        ref = press.reference
+        valid = np.isfinite(ref.depth)
+        pts = depth_to_points(np.where(valid, ref.depth, 0.0), press.camera.rays)
+        S = grid.smooth(grid.means(led_shading(pts, np.where(valid[..., None], ref.normals, 0.0), leds), live))
+    if light is not None:
+        # not smoothed: the fitted light is a gather over patches many pixels wide, bilinearly upsampled; the
+        # blur changed it by < 5e-5 of its peak (640x480 one-bounce twin) and cost 0.06 s per classification
+        S = S + grid.means(light, live)
+    return S
+
+
+def _noise_only_misfit(
+    noise: float, count: np.ndarray, grid: _Grid, undeformed_noise: bool
+) -> tuple[np.ndarray, float]:
+    """(expected, sample_noise): the misfit that image noise ``noise`` alone leaves at each pixel ((H, W) float64),
+    and its median over the gel (:attr:`ContactMap.sample_noise`), on ``grid`` with ``count`` (h, w) usable samples
+    per block; sqrt(2) times more where the undeformed model is a capture with its own noise."""
     dof = np.clip((count - 3) / count, 0.0, 1.0)  # three albedo scales absorb part of the noise
     noise_blurred = noise * grid.gain * (np.sqrt(2.0) if undeformed_noise else 1.0)
     dof_median = float(np.median(dof[grid.valid])) if grid.valid.any() else 1.0
     expected = grid.per_pixel(np.full(grid.valid.shape, noise_blurred) * np.sqrt(dof))
-    misfit = np.where(valid, grid.per_pixel(misfit), np.nan)
-    level = grid.per_pixel(side["level"])
-    sample_noise = float(noise_blurred) * np.sqrt(dof_median)
-    return ContactMap(misfit, expected, tuple(live), side["dead"], noise, level, samples, sample_noise)
+    return expected, float(noise_blurred) * np.sqrt(dof_median)
 
 
 def prepare_press_side(
@@ -204,30 +229,12 @@ def _press_side(press: Press, grid: _Grid, indirect: np.ndarray | None, dead_lev
     """The press's half of :func:`classify_contact`: live LEDs, smoothed images (on ``grid``) and their level,
     noise (of the pixels), and the block size they were made at."""
     img, valid = press.linear_led_images, grid.pixels
-    level = led_levels(img, valid)
-    dead = tuple(int(i) for i in np.flatnonzero(~lit_leds(level, dead_level)))
-    live = [i for i in range(len(img)) if i not in dead]
-    if len(live) < tolerances.MIN_LEDS_PER_PIXEL:
-        from .exposure import no_light_reason
-
-        why = no_light_reason(press, valid, level >= dead_level)  # black or saturated throughout: say so
-        raise CaptureError(
-            f"{press.folder}: only {len(live)} LED images are lit (dead: {[i + 1 for i in dead]}); "
-            f"nothing can be reconstructed{why}"
-        )
+    dead, live = _live_leds(press, valid, dead_level)
     # the press's own mask, made once per press; every LED live (the usual case): that mask, not a copy of it
     sat = press.saturated_led_images if len(live) == len(img) else press.saturated_led_images[live]
     # nothing saturated (the usual case): no mask to multiply by; else a block is usable where all its samples are
     ok = None if not sat.any() else (~sat if grid.block == 1 else grid.means(sat, range(len(live))) <= 0)
-    # Deformation changes the shading coherently over many pixels, noise does not: classify on
-    # smoothed images (normalised convolution inside the gel) and scale the noise alike.
-    if grid.block == 1:
-        img = grid.smooth((img if indirect is None else img - indirect)[live])
-    else:
-        img = grid.means(img, live)
-        if indirect is not None:  # block means are linear: subtracted from them, not from the whole frames
-            img -= grid.means(indirect, live)
-        img = grid.smooth(img)
+    img = _smoothed_images(img, live, grid, indirect)
     shape = grid.valid.shape
     count = np.maximum(ok.sum((0, 3)), 1) if ok is not None else np.full(shape, img.shape[0] * img.shape[3])
     return {
@@ -240,6 +247,36 @@ def _press_side(press: Press, grid: _Grid, indirect: np.ndarray | None, dead_lev
         "noise": image_noise([press.linear_led_images[i] for i in live], valid),  # no copy of the stack
         "level": np.sqrt(_sum_squares(img, ok) / count),
     }
+
+
+def _live_leds(press: Press, valid: np.ndarray, dead_level: float) -> tuple[tuple[int, ...], list[int]]:
+    """(dead, live): the press's LEDs (0-based) whose image is dark (:func:`.image_stats.lit_leds` on the gel's
+    ``valid`` pixels) and the rest; a :class:`CaptureError` that says why where too few are lit."""
+    level = led_levels(press.linear_led_images, valid)
+    dead = tuple(int(i) for i in np.flatnonzero(~lit_leds(level, dead_level)))
+    live = [i for i in range(len(press.linear_led_images)) if i not in dead]
+    if len(live) < tolerances.MIN_LEDS_PER_PIXEL:
+        from .exposure import no_light_reason
+
+        why = no_light_reason(press, valid, level >= dead_level)  # black or saturated throughout: say so
+        raise CaptureError(
+            f"{press.folder}: only {len(live)} LED images are lit (dead: {[i + 1 for i in dead]}); "
+            f"nothing can be reconstructed{why}"
+        )
+    return dead, live
+
+
+def _smoothed_images(img: np.ndarray, live: Sequence[int], grid: _Grid, indirect: np.ndarray | None) -> np.ndarray:
+    """(n, h, w, 3) float32 -- the ``live`` LEDs' images ``img`` (L, H, W, 3), less ``indirect`` where given, on
+    ``grid`` and smoothed."""
+    # Deformation changes the shading coherently over many pixels, noise does not: classify on
+    # smoothed images (normalised convolution inside the gel) and scale the noise alike.
+    if grid.block == 1:
+        return grid.smooth((img if indirect is None else img - indirect)[live])
+    img = grid.means(img, live)
+    if indirect is not None:  # block means are linear: subtracted from them, not from the whole frames
+        img -= grid.means(indirect, live)
+    return grid.smooth(img)
 
 
 def _misfit(S: np.ndarray, img: np.ndarray, ok: np.ndarray | None, count: np.ndarray) -> np.ndarray:

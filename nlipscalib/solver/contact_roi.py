@@ -100,6 +100,23 @@ def contact_box(
     if not valid.any():
         raise CaptureError(f"{folder}: no pixel sees the gel; nothing to reconstruct")
     hit = contact_hits(contact, threshold)
+    _refuse_without_contact(contact, hit, edge_model_error, folder, reference)
+    region, note = _contact_region(contact, hit, margin, min_component, threshold, edge_model_error, folder)
+    rows, cols = np.nonzero(region)
+    box = _padded_box(contact, region, (rows, cols), shape, margin, min_size, flank)
+    return box, note or _spread_note(region, valid) or _edge_note((rows, cols), shape)
+
+
+def _refuse_without_contact(
+    contact: ContactMap,
+    hit: np.ndarray,
+    edge_model_error: Callable[[np.ndarray], np.ndarray] | None,
+    folder: str | Path,
+    reference: str | Path | None,
+) -> None:
+    """Raise :class:`NoContactError` (images within noise of the undeformed dome) or :class:`CaptureError` (the LED
+    model does not fit) where :func:`.contact_verdict.no_contact` finds no contact; :func:`contact_box`'s
+    arguments."""
     if why := no_contact(contact, hit, edge_model_error):
         reason, within_noise = why
         solve_anyway = "pass --roi X0 Y0 W H, or no --roi, to solve it anyway"
@@ -111,39 +128,80 @@ def contact_box(
                 f"{_undeformed_advice(folder, reference)} ({solve_anyway})"
             )
         raise CaptureError(f"{folder}: --roi auto found no contact ({reason}); nothing solved ({solve_anyway})")
+
+
+def _contact_region(
+    contact: ContactMap,
+    hit: np.ndarray,
+    margin: int,
+    min_component: float,
+    threshold: float,
+    edge_model_error: Callable[[np.ndarray], np.ndarray] | None,
+    folder: str | Path,
+) -> tuple[np.ndarray, str]:
+    """(region, note): the (H, W) bool pixels :func:`contact_box` boxes -- the components of ``hit`` that are not
+    noise-like and at least ``min_component`` times the largest, without those along the gel's edge where they
+    spread the box over most of the gel and a large one remains inside -- and the note on what was left out (empty:
+    nothing, or only the point-LED model's known error). Arguments as :func:`contact_box`'s."""
+    valid = np.isfinite(contact.misfit)
     labels, sizes = masks.components(hit)
     sizes = np.where(_noise_like(contact, labels, len(sizes), 2 * margin), 0, sizes)
     keep = np.flatnonzero(sizes >= min_component * sizes.max()) + 1
     region = np.isin(labels, keep)
-    note = ""
-    if _box_fraction(region, valid) >= tolerances.ROI_LARGE_FRACTION:
-        inner = _inner_regions(labels, sizes, valid, 2 * margin, min_component)
-        left = region & ~inner if inner is not None else None
-        if left is not None and left.any():
-            region = inner
-            unexplained = (
-                left if edge_model_error is None else left & _beyond(contact, edge_model_error(left), threshold)
-            )
-            # specks beyond it (the capsule's image corners: 6-118 px each, an effect not modelled here) are not
-            # worth a warning; an effect that is makes a patch as large as an inner component the box counts
-            if _largest_patch(unexplained) >= (
-                1 if edge_model_error is None else tolerances.ROI_MIN_INNER_FRACTION * valid.sum()
-            ):
-                note = (
-                    f"--roi auto left out {int(left.sum())} misfitting pixels along the gel's edge "
-                    f"({int(unexplained.sum())} beyond the point-LED model's known error; an effect the undeformed "
-                    f"model does not have there, e.g. vignetting or the view at grazing angles); pass --roi X0 Y0 W H "
-                    f"to solve them too"
-                )
-            else:
-                log.info(
-                    "%s: --roi auto left out %d pixels along the gel's edge that misfit by what the point-LED model "
-                    "misses of LEDs %.1f mm across",
-                    folder,
-                    int(left.sum()),
-                    2 * tolerances.LED_EMITTER_RADIUS_MM,
-                )
-    rows, cols = np.nonzero(region)
+    if _box_fraction(region, valid) < tolerances.ROI_LARGE_FRACTION:
+        return region, ""
+    inner = _inner_regions(labels, sizes, valid, 2 * margin, min_component)
+    left = region & ~inner if inner is not None else None
+    if left is None or not left.any():
+        return region, ""
+    return inner, _left_out_note(contact, left, threshold, edge_model_error, folder)
+
+
+def _left_out_note(
+    contact: ContactMap,
+    left: np.ndarray,
+    threshold: float,
+    edge_model_error: Callable[[np.ndarray], np.ndarray] | None,
+    folder: str | Path,
+) -> str:
+    """The note on the misfitting pixels ``left`` ((H, W) bool) left out along the gel's edge; empty (and a line in
+    the log) where all that misfits beyond the point-LED model's known error is specks. Arguments as
+    :func:`contact_box`'s."""
+    valid = np.isfinite(contact.misfit)
+    unexplained = left if edge_model_error is None else left & _beyond(contact, edge_model_error(left), threshold)
+    # specks beyond it (the capsule's image corners: 6-118 px each, an effect not modelled here) are not
+    # worth a warning; an effect that is makes a patch as large as an inner component the box counts
+    if _largest_patch(unexplained) >= (
+        1 if edge_model_error is None else tolerances.ROI_MIN_INNER_FRACTION * valid.sum()
+    ):
+        return (
+            f"--roi auto left out {int(left.sum())} misfitting pixels along the gel's edge "
+            f"({int(unexplained.sum())} beyond the point-LED model's known error; an effect the undeformed "
+            f"model does not have there, e.g. vignetting or the view at grazing angles); pass --roi X0 Y0 W H "
+            f"to solve them too"
+        )
+    log.info(
+        "%s: --roi auto left out %d pixels along the gel's edge that misfit by what the point-LED model "
+        "misses of LEDs %.1f mm across",
+        folder,
+        int(left.sum()),
+        2 * tolerances.LED_EMITTER_RADIUS_MM,
+    )
+    return ""
+
+
+def _padded_box(
+    contact: ContactMap,
+    region: np.ndarray,
+    pixels: tuple[np.ndarray, np.ndarray],
+    shape: tuple[int, int],
+    margin: int,
+    min_size: int,
+    flank: bool,
+) -> tuple[int, int, int, int]:
+    """(x0, y0, w, h): the bounding box of ``region`` (its ``pixels``, rows and columns) plus ``margin``, grown over
+    the contact's flank where ``flank``, at least ``min_size`` on each side, within the image of ``shape`` (H, W)."""
+    rows, cols = pixels
     H, W = shape
     y0, y1 = max(rows.min() - margin, 0), min(rows.max() + 1 + margin, H)
     x0, x1 = max(cols.min() - margin, 0), min(cols.max() + 1 + margin, W)
@@ -155,29 +213,40 @@ def contact_box(
     if y1 - y0 < min_size:
         c = (y0 + y1) // 2
         y0, y1 = max(c - min_size // 2, 0), min(c + min_size // 2, H)
-    box = (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
+    return (int(x0), int(y0), int(x1 - x0), int(y1 - y0))
+
+
+def _spread_note(region: np.ndarray, valid: np.ndarray) -> str:
+    """The warning where the boxed ``region`` still spans most of the gel's (``valid``) extent; else empty."""
     # judged on the misfit itself, not on the box's margin and minimum size: at 96x72 those alone make a
     # small dent's box cover half the gel, and the warning is about images that do not fit the model
     spread = _box_fraction(region, valid)
-    if not note and spread >= tolerances.ROI_LARGE_FRACTION:
-        note = (
-            f"--roi auto: the pixels whose images differ from the undeformed model span {100 * spread:.0f} % of "
-            f"the gel's extent (its bounding box): a press that large, or LEDs / reference that do not fit this "
-            f"sensor (try nlips calibrate-leds or --reference); pass --roi X0 Y0 W H to choose the region"
-        )
+    if spread < tolerances.ROI_LARGE_FRACTION:
+        return ""
+    return (
+        f"--roi auto: the pixels whose images differ from the undeformed model span {100 * spread:.0f} % of "
+        f"the gel's extent (its bounding box): a press that large, or LEDs / reference that do not fit this "
+        f"sensor (try nlips calibrate-leds or --reference); pass --roi X0 Y0 W H to choose the region"
+    )
+
+
+def _edge_note(pixels: tuple[np.ndarray, np.ndarray], shape: tuple[int, int]) -> str:
+    """The note where the contact's ``pixels`` (rows, columns) come within :data:`EDGE_CONTACT_PX` of the border of
+    the image of ``shape`` (H, W); else empty."""
     # the contact itself at the border, not its box's margin: at 64x48-96x72 (tests, the demo) every contact lies
     # within the 8-pixel margin of some border, and the note fired on presses whose box holds undeformed gel
     # all round (the lead, s27)
+    rows, cols = pixels
+    H, W = shape
     edge = EDGE_CONTACT_PX
-    at_edge = min(rows.min(), cols.min()) < edge or rows.max() + edge >= H or cols.max() + edge >= W
-    if not note and at_edge:
-        # the twin at polar 40-70 deg, 320x240: 0.1-0.4 deg more contact AAE than the whole gel (s27-unusual)
-        note = (
-            "--roi auto: the contact reaches the image's edge, where its box has no undeformed gel around it on that "
-            "side: its normals near the edge are less reliable than a whole-gel solve's (drop --roi to solve the "
-            "whole gel)"
-        )
-    return box, note
+    if not (min(rows.min(), cols.min()) < edge or rows.max() + edge >= H or cols.max() + edge >= W):
+        return ""
+    # the twin at polar 40-70 deg, 320x240: 0.1-0.4 deg more contact AAE than the whole gel (s27-unusual)
+    return (
+        "--roi auto: the contact reaches the image's edge, where its box has no undeformed gel around it on that "
+        "side: its normals near the edge are less reliable than a whole-gel solve's (drop --roi to solve the "
+        "whole gel)"
+    )
 
 
 def _noise_like(contact: ContactMap, labels: np.ndarray, count: int, join: int) -> np.ndarray:

@@ -85,25 +85,40 @@ def no_contact(
     floor = contact_floor(contact)
     hit = contact_hits(contact) if hit is None else hit
     if floor < tolerances.MODEL_MISFIT_FLOOR:
-        peak = contact_peak(contact)
-        within = f"within noise: the strongest misfit is {peak:.1f} times its floor"
-        if peak >= tolerances.NO_CONTACT_PEAK and model_error is not None:
-            # the point-LED model's own error can reach it (the capsule's image corners, s28-capsule): the peak
-            # over the floor and that error together decides
-            peak = _peak_beyond_model_error(contact, model_error)
-            within = (
-                f"within noise and the point-LED model's known error: the strongest misfit is {peak:.1f} times both"
-            )
-        if peak >= tolerances.NO_CONTACT_PEAK or _inner_dent(hit, np.isfinite(contact.misfit)):
-            return None
-        return (
-            f"images match the undeformed dome {within}, a contact's above {tolerances.NO_CONTACT_PEAK:g}, and no "
-            f"patch of misfit away from the gel's edge is a dent's size ({100 * tolerances.NO_CONTACT_PATCH:g} % of "
-            f"the gel)",
-            True,
-        )
+        return _no_contact_within_noise(contact, hit, model_error)
     if hit.any():
         return None
+    return _no_contact_beyond_noise(contact, floor, model_error)
+
+
+def _no_contact_within_noise(
+    contact: ContactMap, hit: np.ndarray, model_error: Callable[[np.ndarray], np.ndarray] | None
+) -> tuple[str, bool] | None:
+    """:func:`no_contact` where the images fit the undeformed model to noise: no peak and no inner patch of a
+    dent's size says "contact"."""
+    peak = contact_peak(contact)
+    within = f"within noise: the strongest misfit is {peak:.1f} times its floor"
+    if peak >= tolerances.NO_CONTACT_PEAK and model_error is not None:
+        # the point-LED model's own error can reach it (the capsule's image corners, s28-capsule): the peak
+        # over the floor and that error together decides
+        peak = _peak_beyond_model_error(contact, model_error)
+        within = f"within noise and the point-LED model's known error: the strongest misfit is {peak:.1f} times both"
+    if peak >= tolerances.NO_CONTACT_PEAK or _inner_dent(hit, np.isfinite(contact.misfit)):
+        return None
+    return (
+        f"images match the undeformed dome {within}, a contact's above {tolerances.NO_CONTACT_PEAK:g}, and no "
+        f"patch of misfit away from the gel's edge is a dent's size ({100 * tolerances.NO_CONTACT_PATCH:g} % of "
+        f"the gel)",
+        True,
+    )
+
+
+def _no_contact_beyond_noise(
+    contact: ContactMap, floor: float, model_error: Callable[[np.ndarray], np.ndarray] | None
+) -> tuple[str, bool]:
+    """:func:`no_contact` where the images fit the undeformed model only to more than noise (``floor``, of
+    :func:`contact_floor`) and no pixel is hit: within the point-LED model's known error, or an LED model that does
+    not fit."""
     if model_error is not None:
         gel = np.isfinite(contact.misfit)
         known = np.hypot(contact.expected[gel], model_error(gel)[gel])
