@@ -3,7 +3,7 @@ one is its value, and every docs section that a message or a page points to ("do
 heading of that page.
 
 tests/test_docs_tolerances.py checks `tolerances.NAME`; the same drift happens to other modules' constants
-(`learn.integrate.SPARSE_AMG_MIN_UNKNOWNS` (20,000), `progress.BAR_LOCK_WAIT_S` (1 s)) and to the sections that
+(`learn.integrate_sparse.SPARSE_AMG_MIN_UNKNOWNS` (20,000), `progress.BAR_LOCK_WAIT_S` (1 s)) and to the sections that
 warnings send a user to (s27-docs2). Read from the source with ``ast``: nothing is imported.
 """
 
@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "nlipscalib"
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "docs" / "experiments" / "README.md"]
 NAMED = re.compile(r"`((?:[a-z_]+\.)+)([A-Z][A-Z0-9_]*)`")
-"""`learn.integrate.SPARSE_AMG_MIN_UNKNOWNS`, `progress.BAR_LOCK_WAIT_S`: a module path (from the package, or the
+"""`learn.integrate_sparse.SPARSE_AMG_MIN_UNKNOWNS`, `progress.BAR_LOCK_WAIT_S`: a module path (from the package, or the
 tail of one: `press.CACHE_SIZE`), then the constant."""
 QUOTED = re.compile(
     r"`((?:[a-z_]+\.)+)([A-Z][A-Z0-9_]*)`[,:]?\s+\(?(\d{1,3}(?:,\d{3})+|\d+(?:\.\d+)?(?:e-?\d+)?)\s*(%)?"
@@ -149,11 +149,11 @@ def test_every_docs_section_a_message_or_page_points_to_is_a_heading():
 
 
 def test_the_checks_find_a_renamed_constant_a_stale_value_and_a_renamed_section():
-    assert unknown_constants("`learn.integrate.SPARSE_AMG_MIN_UNKNOWNS`, `press.CACHE_SIZE`") == []
+    assert unknown_constants("`learn.integrate_sparse.SPARSE_AMG_MIN_UNKNOWNS`, `press.CACHE_SIZE`") == []
     assert unknown_constants("`learn.integrate.SPARSE_MIN_UNKNOWNS`") == ["learn.integrate.SPARSE_MIN_UNKNOWNS"]
     assert unknown_constants("`lern.integrate.X`") == ["lern.integrate.X (no such module)"]
-    assert misquoted_values("`learn.integrate.SPARSE_AMG_MIN_UNKNOWNS` (20,000) changed pixels") == []
-    assert misquoted_values("`learn.integrate.SPARSE_AMG_MIN_UNKNOWNS` (10,000) changed pixels")
+    assert misquoted_values("`learn.integrate_sparse.SPARSE_AMG_MIN_UNKNOWNS` (20,000) changed pixels") == []
+    assert misquoted_values("`learn.integrate_sparse.SPARSE_AMG_MIN_UNKNOWNS` (10,000) changed pixels")
     assert misquoted_values("`progress.BAR_LOCK_WAIT_S` (2 s: a draw") == ["progress.BAR_LOCK_WAIT_S: quoted 2, is 1"]
     assert dangling_sections("gamma off (docs/formats.md, Cameras); the solve") == []
     assert dangling_sections('(docs/formats.md, "Files from others")') == []

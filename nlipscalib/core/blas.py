@@ -1,5 +1,5 @@
 """BLAS thread control (threadpoolctl): limits for the solver and the depth integration of ``nlips infer``
-(small dense products, :mod:`nlipscalib.learn.integrate`'s rim box), and the setting results depend on.
+(small dense products, :mod:`nlipscalib.learn.integrate_rim`'s rim box), and the setting results depend on.
 
 The solver's BLAS work is small vector operations, faster on one thread; the interreflection gathers are
 blocks of matrix products, which run on one BLAS thread each (radiosity.gather splits them over its own

@@ -27,7 +27,7 @@ INFER_LIBRARIES = {
 }
 """What shapes an NLiPsNet result (``nlips infer``), per backend (``Predictor.backend``, resolved from auto): the
 network's runtime, and the depth integration's sparse solvers (scipy's SuperLU and transforms, pyamg's AMG for
-large regions, learn/integrate.py) -- recorded with ``--no-depth`` too, which only re-infers once more."""
+large regions, learn/integrate_sparse.py) -- recorded with ``--no-depth`` too, which only re-infers once more."""
 RENDER_LIBRARIES = ("mitsuba", "drjit")
 """What shapes a rendered press's images (``nlips render``, ``nlips dataset``): the renderer and its JIT."""
 

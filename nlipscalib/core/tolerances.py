@@ -35,7 +35,7 @@ leave those samples out of their fits, the brightest LEDs of a pixel first, so i
 noise, without a word on why). ``nlips infer`` and ``live`` say it of a frame with this share of the gel's pixels
 clipped."""
 LIT_LEVEL = 1e-3
-"""An LED image gives light when its bright end on the gel (``solver.contact.led_levels``: the 99th percentile of
+"""An LED image gives light when its bright end on the gel (``solver.image_stats.led_levels``: the 99th percentile of
 its samples) is at least this, linear units (full scale 1) above the dark frame; a dead LED's image says nothing
 about the light, and the solvers and the LED calibration leave it out.
 
@@ -97,7 +97,7 @@ ANCHOR_NOISE_FACTOR = 3.0
 misfit that the estimated image noise alone explains."""
 CONTACT_MISFIT_FACTOR = 3.0
 """Contact: a pixel is hit (in or at the contact: ``--roi auto``'s box, the dent focus of the outer interreflection
-loop, the pixels a press's own indirect fit leaves out; :func:`nlipscalib.solver.contact.contact_hits`) when its
+loop, the pixels a press's own indirect fit leaves out; :func:`nlipscalib.solver.contact_verdict.contact_hits`) when its
 misfit exceeds this many times the larger of its noise-only misfit and the misfit's median over the gel. Why: the
 floor is at least the noise-only misfit, so a hit pixel is never one anchoring calls undeformed (as long as this is
 at least :data:`ANCHOR_NOISE_FACTOR`); the median raises it where the undeformed model is not exact on a real
@@ -129,7 +129,7 @@ within 4.4 mm of an LED, and 7 of 8 were solved as presses; over both, 6.1-6.7 (
 NO_CONTACT_PATCH = 0.002
 """``--roi auto``: a press has a contact, whatever its peak (:data:`NO_CONTACT_PEAK`), when its hits at
 :data:`CONTACT_MISFIT_FACTOR` make a connected patch of at least this share of the gel's pixels that does not
-touch the gel's edge (``solver.contact.no_contact``). Why: a faint dent misfits little per pixel over many;
+touch the gel's edge (``solver.contact_verdict.no_contact``). Why: a faint dent misfits little per pixel over many;
 noise's and model error's hits are specks, or lie along the edge (grazing view). Measured at 320x240
 (s27-shapesfa): dents 0.31 % (the fingertip's 0.3 mm sphere, 8 spp, design LEDs: peak 6.6), 0.65-3.1 % (the
 capsule's cube and cylinder, peaks 4.5-6.5); noise and model error at most 0.06 % inside the edge (undeformed
@@ -215,7 +215,7 @@ s27-unusual)."""
 ROI_FLANK_FACTOR = 1.5
 """``--roi auto``: a pixel shows a contact's flank when its misfit exceeds this many times its floor (the floor of
 :data:`CONTACT_MISFIT_FACTOR`); the box grows while the 4-px strip beyond it holds :data:`ROI_FLANK_SHARE` of such
-pixels (``solver.contact.grow_over_flank``). Why: a large flat indenter moves the gel far beyond the pixels hit at
+pixels (``solver.contact_flank.grow_over_flank``). Why: a large flat indenter moves the gel far beyond the pixels hit at
 :data:`CONTACT_MISFIT_FACTOR`: the 20 mm coin face 0.3 mm deep (320x240 twin) misfits by 1.5-4 times the floor over a
 20-30 px flank, and its box left out 36 % of its ground-truth contact (now 15 %: 7 % of its main patch, plus a patch
 the twin moves by 1 um along the image's bottom border, 9 % of the truth) (benchmarks/RESULTS.md, s28-bigedge)."""
@@ -231,7 +231,7 @@ deg with a larger box; at 0.05 sphere1, cube1 and coin1 keep their boxes, the 20
 patch (95 % at 0.033-0.04 with the factor 1.4, coin1 then 261x261)."""
 LED_EMITTER_RADIUS_MM = 1.8
 """``--roi auto``: radius, mm, of the disk an LED is taken to emit from when judging the misfit along the gel's edge
-that the auto ROI leaves out (``solver.contact.point_led_misfit``): edge pixels that misfit by no more than
+that the auto ROI leaves out (``solver.point_led_error.point_led_misfit``): edge pixels that misfit by no more than
 :data:`CONTACT_MISFIT_FACTOR` times what the point-LED model leaves against such disks are that model's known error,
 not a fault, and are left out without a warning; likewise for :data:`NO_CONTACT_PEAK` (s28-capsule). Why: the
 solver models point LEDs; a WS2812B emits from a light
@@ -288,7 +288,7 @@ one-bounce reference 2262-2480."""
 CALIBRATION_CONTACT_FRACTION = 0.005
 """LED calibration: a capture is taken to show a contact (a press, not the undeformed dome it must be; refused unless
 ``--allow-contact``) when a connected region of pixels that the fitted undeformed model misfits
-(:func:`nlipscalib.solver.contact.contact_hits`) holds at least this fraction of the gel's pixels (as
+(:func:`nlipscalib.solver.contact_verdict.contact_hits`) holds at least this fraction of the gel's pixels (as
 :data:`ROI_MIN_INNER_FRACTION` for ``--roi auto``). Why: measured with the LEDs the calibration fits (2026-12-06),
 the largest such region of an undeformed capture holds at most 0.15 % of the gel (the oblate twin's, direct-only fit
 leaving its interreflection; 0-0.03 % on the default twin bounce-free or one-bounce, 80x60 to 640x480, the
@@ -370,8 +370,8 @@ float32 rounding of the transforms (at 640x480, 2 mm dents: up to 2.3e-4 mm in t
 border; solving the whole gel instead of an edge box moved border contacts by 2-4e-3 mm, s25)."""
 INTEGRATION_AMG_RTOL = 1e-8
 """Relative residual (|b - M x| / |b|) at which the sparse path's AMG-preconditioned CG stops
-(:func:`nlipscalib.learn.integrate._solve_amg`, large regions). At 1e-8 its depth is within 3e-6 mm of SuperLU's on
-the default dome's cross and the flat pad's whole gel (640x480), far inside :data:`TORCH_INTEGRATION_PARITY_MM`; at
+(:func:`nlipscalib.learn.integrate_sparse._solve_amg`, large regions). At 1e-8 its depth is within 3e-6 mm of SuperLU's
+on the default dome's cross and the flat pad's whole gel (640x480), far inside :data:`TORCH_INTEGRATION_PARITY_MM`; at
 1e-6 the cross was already 1.6e-4 mm off, too near it (s27-amgpath)."""
 ONNX_PARITY_DEG = 0.1
 """An ONNX export is accepted when onnxruntime's normals are within this angle (degrees) of PyTorch's

@@ -59,6 +59,16 @@ across both axes with unchanged pixels in its box (a cross or ridges over the wh
 let a dent lift the unchanged surface, which the sparse path holds at the reference), a box with no fixed pixel
 and unchanged pixels, a mix of gel parts with and without one, or a rim too long for the Green's sum
 (:data:`.integrate_rim.MAX_RIM_GREEN_VALUES`: the flat pad's whole gel, 992 rim pixels).
+
+This module is the entry (:func:`integrate_on_dome`, and :func:`solve_region_group`, which the torch path calls for
+the groups it leaves to the host); each part lives in a file of its own:
+
+- ``integrate_geometry.py``: the sensor's rays (:class:`.integrate_geometry.RayGeometry`) and the log-range gradient;
+- ``integrate_regions.py``: the changed pixels split into boxes, edge boxes and region groups;
+- ``integrate_box.py``: the box and edge box solve (sines, cosines) and its right-hand side;
+- ``integrate_rim.py``: the rim box (capacitance matrix);
+- ``integrate_green.py``: the inverse of a box's Laplacian that the rim box is built on (Green's function);
+- ``integrate_sparse.py``: the sparse path (SuperLU; AMG-preconditioned CG for large regions).
 """
 
 from __future__ import annotations

@@ -55,17 +55,9 @@ def _regions(
         return [box], [], []
     if method == "box":
         raise ShapeError("the changed pixels' box leaves the gel or touches the image border: use 'sparse'")
-    from scipy import ndimage
-
-    labels, count = ndimage.label(unknown)
-    if count > MAX_SPLIT_REGIONS:
+    groups = _region_groups(unknown)
+    if groups is None:
         return [], [], [_grown_bounds(unknown)]
-    # each region's bounds grown by one pixel (its ring): [r0, r1, c0, c1), with the regions it holds
-    groups = [
-        [s[0].start - 1, s[0].stop + 1, s[1].start - 1, s[1].stop + 1, [k + 1]]
-        for k, s in enumerate(ndimage.find_objects(labels))
-    ]
-    groups = _merge_overlapping(groups)
     # merged bounds share no pixel: a group whose bounds do not fit took every group it overlapped with it
     H, W = unknown.shape
     rects = [(max(g[0], 0), min(g[1], H), max(g[2], 0), min(g[3], W)) for g in groups]  # within the image
@@ -80,6 +72,22 @@ def _regions(
             edge_boxes.append((box, edges[i]))
     sparse = [(slice(r0, r1), slice(c0, c1)) for (r0, r1, c0, c1), e in zip(rects, edges) if e is None]
     return boxes, edge_boxes, sparse
+
+
+def _region_groups(unknown: np.ndarray) -> list[list] | None:
+    """The 4-connected regions of ``unknown``'s pixels as groups [r0, r1, c0, c1, labels] (bounds grown by the ring,
+    may pass the image border), merged until no two share a pixel; None beyond :data:`MAX_SPLIT_REGIONS` regions."""
+    from scipy import ndimage
+
+    labels, count = ndimage.label(unknown)
+    if count > MAX_SPLIT_REGIONS:
+        return None
+    # each region's bounds grown by one pixel (its ring): [r0, r1, c0, c1), with the regions it holds
+    groups = [
+        [s[0].start - 1, s[0].stop + 1, s[1].start - 1, s[1].stop + 1, [k + 1]]
+        for k, s in enumerate(ndimage.find_objects(labels))
+    ]
+    return _merge_overlapping(groups)
 
 
 def _merge_overlapping(groups: list[list]) -> list[list]:

@@ -1,7 +1,7 @@
 """Normal integration on the dome in PyTorch, on any device: the changed pixels' box, or the whole gel.
 
 Both solve the equation of :mod:`.integrate` (5-point Poisson in the log-range along the camera's real
-rays, gradients averaged on each pixel pair; :func:`.integrate.edge_box_rhs` is shared).
+rays, gradients averaged on each pixel pair; :func:`.integrate_box.edge_box_rhs` is shared).
 
 - :class:`BoxIntegrator`: the CPU's box solver (the changed pixels' box, its outer ring at the reference;
   else per region a box, an edge box mirrored across the image border, a box across the image with a cosine
@@ -210,9 +210,9 @@ class Plan(NamedTuple):
     """How :class:`BoxIntegrator` solves a frame's changed pixels: the CPU's regions (:meth:`BoxIntegrator.plan`)."""
 
     boxes: list[tuple[Box, Edges]]
-    """Boxes and edge boxes, each with its :data:`.integrate.Edges` ((0, 0): a box), solved on the device."""
+    """Boxes and edge boxes, each with its :data:`.integrate_regions.Edges` ((0, 0): a box), solved on the device."""
     rim: list[Box]
-    """Rim boxes (holding off-gel pixels; :func:`.integrate._solve_rim_box`'s equation), solved on the device."""
+    """Rim boxes (holding off-gel pixels; :func:`.integrate_rim._solve_rim_box`'s equation), solved on the device."""
     host: list[tuple[Box, list[Box]]]
     """Region groups solved by the CPU's code on the host (its sparse path, and a rim box at the image border or
     anchored): each group's bounds and the frame's other boxes and groups (which bound a rim box's growth)."""
@@ -220,8 +220,8 @@ class Plan(NamedTuple):
 
 class BoxIntegrator:
     """:mod:`.integrate`'s box solver on a torch device: the changed pixels' box (grown to fast transform sizes,
-    :func:`.integrate._box`), its interior solved with the outer ring at the reference, in float32 like the CPU's;
-    where that box does not apply, the CPU's boxes and edge boxes per region (:meth:`boxes`).
+    :func:`.integrate_regions._box`), its interior solved with the outer ring at the reference, in float32 like the
+    CPU's; where that box does not apply, the CPU's boxes and edge boxes per region (:meth:`boxes`).
 
     Parameters
     ----------
@@ -251,8 +251,8 @@ class BoxIntegrator:
         return _box(changed, self.on_gel)
 
     def plan(self, changed: np.ndarray) -> Plan:
-        """The boxes, edge boxes (with their :data:`.integrate.Edges`; a box across the image too: its cosine axis),
-        rim boxes and host regions that solve ``changed`` ((H, W) bool on the gel) as
+        """The boxes, edge boxes (with their :data:`.integrate_regions.Edges`; a box across the image too: its cosine
+        axis), rim boxes and host regions that solve ``changed`` ((H, W) bool on the gel) as
         :func:`.integrate.integrate_on_dome`'s "auto" does: its regions, and its rim box where one applies (the
         same test and the same growth). Decided on the host, like the CPU's."""
         boxes, edge_boxes, sparse = _regions(changed, self.on_gel, "auto")
@@ -269,8 +269,9 @@ class BoxIntegrator:
 
     def rim_box(self, normals: torch.Tensor, box: Box) -> torch.Tensor:
         """(h, w, 3) float32 tensor: the surface points over a rim box (:attr:`Plan.rim`) from ``normals`` ((H, W, 3)
-        tensor): the CPU's equation and arithmetic (:func:`.integrate.rim_box_rhs`, :func:`.integrate.rim_box_solve`,
-        float64 like the CPU's), its capacitance matrix made once per box place on the host; NaN off the gel."""
+        tensor): the CPU's equation and arithmetic (:func:`.integrate_rim.rim_box_rhs`,
+        :func:`.integrate_rim.rim_box_solve`, float64 like the CPU's), its capacitance matrix made once per box place on
+        the host; NaN off the gel."""
         torch = _torch()
         r0, r1, c0, c1 = box[0].start, box[0].stop, box[1].start, box[1].stop
         rim = self._rim_system(r0, r1, c0, c1)
@@ -334,7 +335,7 @@ class BoxIntegrator:
 
     def _solve(self, normals: torch.Tensor, index: torch.Tensor, edges: Edges = (0, 0)):
         """Points over the box whose flat pixel indices are ``index`` ((h, w) long tensor); an edge box mirrored
-        across the image border on its ``edges`` sides (:func:`.integrate.edge_box_rhs`, the CPU's arithmetic)."""
+        across the image border on its ``edges`` sides (:func:`.integrate_box.edge_box_rhs`, the CPU's arithmetic)."""
         torch = _torch()
         rays = self.rays[index]
         x = self.log_range[index]  # a copy: the reference, whose interior is replaced below
@@ -381,7 +382,7 @@ class BoxIntegrator:
 class _RimSystem:
     """What a rim box's solve needs besides the frame's normals (:meth:`BoxIntegrator.rim_box`), on the device:
     its gel pixels, the reference, the box's float64 Dirichlet solve and the capacitance matrix's LU factors
-    (:func:`.integrate.rim_box_capacitance`, made on the host as the CPU's)."""
+    (:func:`.integrate_rim.rim_box_capacitance`, made on the host as the CPU's)."""
 
     def __init__(self, gel: np.ndarray, log_range: np.ndarray, device: torch.device, dense: bool):
         torch = _torch()

@@ -21,7 +21,7 @@ if TYPE_CHECKING:  # named in hints only: the functions import the indirect modu
 def contact_regions(presses: Sequence[Press], leds: Leds, models: Sequence[IndirectModel]) -> tuple[np.ndarray, ...]:
     """Per capture, (H, W) bool: where it shows a contact -- the connected regions of pixels that the fitted
     undeformed model (``leds`` and the capture's indirect term when on) misfits far beyond the images' noise
-    (:func:`nlipscalib.solver.contact.contact_hits`, the solver's own classification of a press), each at least
+    (:func:`nlipscalib.solver.contact_verdict.contact_hits`, the solver's own classification of a press), each at least
     :data:`tolerances.CALIBRATION_CONTACT_FRACTION` of the gel. All False on a capture of the undeformed dome.
 
     Why from the fit: the capture holds no ground truth (a real sensor has none), and its LEDs are what the

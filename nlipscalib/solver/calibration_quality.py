@@ -17,7 +17,7 @@ from .led_fit import fit_samples, point_model
 
 def _led_noise(presses: Sequence[Press]) -> np.ndarray:
     """(L,) float -- the white noise of each LED's images, linear units: Immerkaer's estimate
-    (:func:`nlipscalib.solver.contact.image_noise`) on the gel, median over the captures, at least one ADC step
+    (:func:`nlipscalib.solver.image_stats.image_noise`) on the gel, median over the captures, at least one ADC step
     (a noise-free capture holds only quantisation, where the estimate says nothing)."""
     from .image_stats import image_noise
 

@@ -7,6 +7,17 @@ terms with what the image noise alone leaves (noise estimated from the images, I
 variance estimation", CVIU 64(2), 1996), so the decision does not depend on how much of the view the
 dent fills: a capture that is mostly dent has mostly large misfits, and none of them is called
 undeformed.
+
+This module makes the classification (:func:`classify_contact`, its :class:`ContactMap`); what it starts from and
+what reads it live in files of their own:
+
+- ``image_stats.py``: the LED images' statistics (each image's bright end, the lit LEDs, the noise);
+- ``contact_grid.py``: the pixels or 2 x 2 blocks it works on, their smoothing and the noise that leaves;
+- ``contact_verdict.py``: what the map says: the hit pixels, the misfit's floor and peak, no contact and why;
+- ``contact_roi.py``: ``--roi auto``'s box around the contact, and the refusal of a press without one;
+- ``contact_flank.py``: that box grown over a large contact's flank;
+- ``anchoring.py``: the pixels anchored to the reference, and the box widened to hold enough of them;
+- ``point_led_error.py``: the point-LED model's known misfit, which the verdicts and the box allow for.
 """
 
 from __future__ import annotations

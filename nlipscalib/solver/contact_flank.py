@@ -34,13 +34,29 @@ def grow_over_flank(
     # frame's erosion and labelling (~25 ms at 640x480)
     if not any(_is_flank(over, _strip(side, probe[side], box, step, (H, W))) for side in range(4)):
         return edges
+    over = _joined_flank(contact, over, region, margin)
+    return _grown_sides(over, box, probe, step, margin)
+
+
+def _joined_flank(contact: ContactMap, over: np.ndarray, region: np.ndarray, margin: int) -> np.ndarray:
+    """(H, W) bool -- the pixels ``over`` the flank level that count as the contact's flank: not within ``margin`` of
+    the gel's edge, and joined to ``region`` (the box's contact)."""
     gel = np.isfinite(contact.misfit)
     # not within a margin of the gel's edge or the image's border: the view there misfits more (the smoothing's fewer
     # pixels, grazing angles); only the flank that joins the box's contact: misfits that contact_box left out
     # (noise-like, or too small beside the contact) are not its flank
-    over &= masks.erode(gel, iterations=margin)
+    over = over & masks.erode(gel, iterations=margin)
     labels, _ = masks.components(over | region)
-    over &= np.isin(labels, np.unique(labels[region]))
+    return over & np.isin(labels, np.unique(labels[region]))
+
+
+def _grown_sides(
+    over: np.ndarray, box: list[int], probe: list[int], step: int, margin: int
+) -> tuple[int, int, int, int]:
+    """:func:`grow_over_flank`'s box [x0, y0, x1, y1] once no side grows: each side's strip from ``probe`` (outward)
+    moves ``step`` pixels while it is flank (:func:`_is_flank` of ``over``), the side ``margin`` pixels past it.
+    ``box`` and ``probe`` are changed in place."""
+    H, W = over.shape
     growing = [True] * 4
     while any(growing):
         for side in range(4):

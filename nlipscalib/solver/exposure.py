@@ -86,7 +86,7 @@ def no_light_reason(press: Press, gel: np.ndarray, live: np.ndarray) -> str:
     ": N % of the gel's samples ... are saturated (...)"; "" when it is neither.
 
     ``gel`` (H, W) bool: the pixels fitted on; ``live`` (L,) bool: the LEDs whose images hold light above the dark
-    frame (``solver.contact.led_levels``)."""
+    frame (``solver.image_stats.led_levels``)."""
     if not gel.any():
         return ": the undeformed surface (reference.npz) covers no pixel of the image"
     share = saturated_share(press, gel)
