@@ -158,8 +158,8 @@ def to_stored(frame: np.ndarray, name: str = "frame", tone_curve: np.ndarray | N
     """
     if frame.dtype not in (np.uint8, np.uint16):
         raise CaptureError(f"{name}: unsupported sample type {frame.dtype} (8- or 16-bit images only)")
-    channels = frame.shape[2] if frame.ndim == 3 else 1 if frame.ndim == 2 else 0
-    if channels not in (1, 3, 4):
+    channels = 1 if frame.ndim == 2 else frame.shape[2] if frame.ndim == 3 and frame.shape[2] in (3, 4) else 0
+    if not channels:  # (H, W, 1) too, as before: OpenCV gives grey as (H, W)
         raise CaptureError(f"{name}: unsupported image shape {frame.shape}")
     cv2 = _cv2()
     to_rgb = {1: cv2.COLOR_GRAY2RGB, 3: cv2.COLOR_BGR2RGB, 4: cv2.COLOR_BGRA2RGB}[channels]

@@ -347,3 +347,6 @@ def test_an_eight_bit_frames_curve_is_undone_in_one_lookup_bit_for_bit():
     undone, bits = to_stored(deep, tone_curve=table)
     assert bits == 16 and np.array_equal(undone, table[deep[..., ::-1]])
     assert np.array_equal(to_stored(deep)[0], deep[..., ::-1])
+    for shape in ((6, 8, 1), (6, 8, 2), (6,)):  # refused as before (OpenCV's grey is (H, W))
+        with pytest.raises(CaptureError, match=r"unsupported image shape"):
+            to_stored(np.zeros(shape, np.uint8), tone_curve=table)
