@@ -118,7 +118,7 @@ def check_source_arguments(args: argparse.Namespace) -> None:
     for dest in typed(args, ("adalight", "baud", "tricolor_level")):
         if not args.port:
             raise ConfigError(f"{option(dest)} describes the LED board: give its --port too (or drop {option(dest)})")
-    if typed(args, ("exposure_ms",)) and not args.emulate and not _live_camera(args):
+    if typed(args, ("exposure_ms",)) and not args.emulate and not live_camera(args):
         raise ConfigError(
             "--exposure-ms sets a live camera's exposure (--camera N or /dev/videoN); recorded frames keep theirs: "
             "drop --exposure-ms"
@@ -136,7 +136,7 @@ def check_source_arguments(args: argparse.Namespace) -> None:
             check_count(option(dest), getattr(args, dest), minimum=1)
 
 
-def _live_camera(args: argparse.Namespace) -> bool:
+def live_camera(args: argparse.Namespace) -> bool:
     """Whether the stream's camera is a device (a number or /dev/...), not a recording (file, folder, pattern)."""
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     return camera is not None and (str(camera).isdigit() or str(camera).startswith("/dev/"))
@@ -166,11 +166,18 @@ def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
 
 
 def open_frames(
-    args: argparse.Namespace, stack: contextlib.ExitStack, loop: bool = False, camera_response: str = "linear"
+    args: argparse.Namespace,
+    stack: contextlib.ExitStack,
+    loop: bool = False,
+    camera_response: str = "linear",
+    tone_curve: np.ndarray | None = None,
 ) -> tuple[FrameSource, Callable[[int], None] | None]:
     """(source, before_frame) for the flags of :func:`add_source_arguments`; closed by ``stack`` (an ExitStack).
     ``camera_response``: the model's (``Predictor.camera_response``); a live camera is asked for gamma 1.0 only
     when "linear", else its own curve is left on, as the calibration's captures had it and the model undoes it.
+    ``tone_curve``: that curve's table (``Predictor.tone_curve``), undone on each camera or file frame as it is
+    converted (``device.camera.to_stored``: an 8-bit frame in one 256-entry lookup; the source's ``tone_curve``
+    says so, and the predictor is then told its frames are in light: ``MismatchWatch.in_light``).
 
     The emulated sensor when ``--emulate``, else ``--camera`` (camera, folder or video) with the LED board
     at ``--port`` lit in the tri-colour pattern (``nlipsemu://ID``: a virtual board of that id, started here
@@ -186,7 +193,7 @@ def open_frames(
         return _emulated_source(args, stack, loop=loop or args.max_frames is not None)
     camera = args.camera if args.camera is not None else getattr(args, "default_camera", None)
     settings = CameraSettings(exposure_ms=args.exposure_ms, linear_gamma=camera_response == "linear")
-    source = stack.enter_context(open_source(camera, settings))
+    source = stack.enter_context(open_source(camera, settings, tone_curve=tone_curve))
     if args.port:
         from ..device.lights_out import lights_out_on_exit
         from ..device.port import BAUD_RATE

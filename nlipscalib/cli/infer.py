@@ -281,7 +281,12 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     stats = None
     try:
         with contextlib.ExitStack() as stack:
-            source, before_frame = open_frames(args, stack, camera_response=predictor.camera_response)
+            # the model's tone curve undone as each frame is converted (an 8-bit frame's in one 256-entry lookup,
+            # on ReadAhead's threads for files), not again by the predictor
+            source, before_frame = open_frames(
+                args, stack, camera_response=predictor.camera_response, tone_curve=predictor.tone_curve
+            )
+            in_light = getattr(source, "tone_curve", None) is not None  # the emulated sensor: linear frames
             if tuple(source.shape) != predictor.shape:
                 (h, w), (mh, mw) = source.shape, predictor.shape
                 raise CaptureError(
@@ -298,7 +303,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
             elif args.ply or args.mesh:
                 log.warning("--ply without --out: no point clouds are written")
 
-            watch = MismatchWatch(predictor, name)
+            watch = MismatchWatch(predictor, name, in_light=in_light)
 
             def predict(frame: np.ndarray) -> Frame:
                 return stages.add(watch(frame))
@@ -771,18 +776,21 @@ class _EightBitNotice:
 
 def _image_loader(path: Path, eight_bit: Callable[[Path], None] | None) -> Callable[[Predictor], np.ndarray]:
     def load(predictor: Predictor) -> np.ndarray:
-        return predictor.linear(read_still(path, eight_bit), path)
+        # the model's tone curve undone as the image is converted: an 8-bit one's in one 256-entry lookup
+        return predictor.linear(read_still(path, eight_bit, predictor.tone_curve), path, in_light=True)
 
     return load
 
 
-def read_still(path: str | Path, eight_bit: Callable[[Path], None] | None = None) -> np.ndarray:
+def read_still(
+    path: str | Path, eight_bit: Callable[[Path], None] | None = None, tone_curve: np.ndarray | None = None
+) -> np.ndarray:
     """A tri-colour frame stored as an image file, as stored 16-bit RGB values ((H, W, 3) uint16).
 
     The capture format (16-bit PNG) or any image OpenCV reads (8 or 16 bits, BGR or BGRA as OpenCV returns
     it), converted as a camera's or a video's frames are (``device.camera.to_stored``: 8-bit values shifted up
-    by 8 bits). ``eight_bit(path)`` is called for an 8-bit image. A grey image is refused: it is no
-    tri-colour frame.
+    by 8 bits; ``tone_curve``, a camera's tone-curve table, undone on the way). ``eight_bit(path)`` is called for
+    an 8-bit image. A grey image is refused: it is no tri-colour frame.
     """
     from pathlib import Path
 
@@ -800,7 +808,7 @@ def read_still(path: str | Path, eight_bit: Callable[[Path], None] | None = None
     channels = raw.shape[2] if raw.ndim == 3 else 1
     if channels not in (3, 4):
         raise CaptureError(f"{path}: a tri-colour frame must have 3 colour channels, found {channels}")
-    image, bits = to_stored(raw, str(path))
+    image, bits = to_stored(raw, str(path), tone_curve)
     if bits == 8 and eight_bit is not None:
         eight_bit(path)
     return image

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import sys
 from collections.abc import Callable
 from typing import TYPE_CHECKING, TypeAlias
@@ -32,6 +33,7 @@ from ._stream import (
     saved_line,
     size_emulator_for,
 )
+from .capture import CAMERA_RESPONSES
 
 if TYPE_CHECKING:  # named in hints only: numpy and the device loop are imported when a stream runs
     import numpy as np
@@ -40,6 +42,8 @@ if TYPE_CHECKING:  # named in hints only: numpy and the device loop are imported
 
     Predict: TypeAlias = Callable[[np.ndarray], LiveResult]
     """A stream's predictor: a stored frame ((H, W, 3) uint16) -> its LiveResult (normals, depth)."""
+
+log = logging.getLogger(__name__)
 
 STOPPED = "the stream stopped (a live stream does not resume; maps already saved with --out are kept)"
 """What ``nlips live`` interrupted or terminated says it left (``cli._stopped``), not "run again to resume": a live
@@ -59,6 +63,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--model", help="NLiPsNet model file from `nlips train`")
     p.add_argument(
         "--predictor", help=f"other predictor, module:function: a {PREDICTOR_USAGE} (nlipscalib.device.live)"
+    )
+    p.add_argument(
+        "--camera-response",
+        choices=CAMERA_RESPONSES,
+        help="with --predictor: the camera's tone curve the predictor was made for (default: the predictor's own "
+        "camera_response attribute, else linear); a live camera is asked for gamma 1.0 only when linear, srgb leaves "
+        "its curve on. --model: the model records its calibration's",
     )
     p.add_argument(
         "--backend",
@@ -111,14 +122,69 @@ PREDICTOR_USAGE = "function(camera_shape) returning a callable: stored frame -> 
 """What --predictor names, as its help and its errors say it (the help pointed to the README, not in a wheel)."""
 
 
-def _plugged(spec: str, shape: tuple[int, int]) -> tuple[Predict, None]:
+def _factory(spec: str) -> Callable:
+    """The object ``--predictor module:function`` names (imported, not called); ConfigError naming it."""
     from ..core.errors import ConfigError
 
     module, _, name = spec.partition(":")
     try:
-        factory = getattr(importlib.import_module(module), name)
+        return getattr(importlib.import_module(module), name)
     except (ImportError, AttributeError, ValueError) as exc:
         raise ConfigError(f"--predictor {spec}: cannot load it ({exc}); give module:function") from None
+
+
+RESPONSE_ATTRIBUTE = "camera_response"
+"""The attribute of a ``--predictor`` function that declares the camera response it was made for (one of
+``core.sensor_response.CAMERA_RESPONSES``), as a model file records its calibration's."""
+
+
+def plugged_response(args: argparse.Namespace, factory: object) -> str:
+    """The camera response a ``--predictor`` stream asks the camera for (``open_frames``): ``--camera-response``,
+    else the function's :data:`RESPONSE_ATTRIBUTE`, else "linear", said once for a live camera (it is then asked
+    for gamma 1.0). One line naming the option for a bad declaration or two that disagree.
+
+    Why: a plugged predictor has no model file to record the response its maker calibrated it on; asking a camera
+    whose sRGB frames it was made for to turn its gamma off would feed it other colours, silently."""
+    from ..core.errors import ConfigError
+    from ..core.sensor_response import CAMERA_RESPONSES
+    from ._stream import live_camera
+
+    declared = getattr(factory, RESPONSE_ATTRIBUTE, None)
+    spec = args.predictor
+    if declared is not None and declared not in CAMERA_RESPONSES:
+        raise ConfigError(
+            f"--predictor {spec}: its {RESPONSE_ATTRIBUTE} must be one of {', '.join(map(repr, CAMERA_RESPONSES))}, "
+            f"got {declared!r}"
+        )
+    given = args.camera_response
+    if given and declared and given != declared:
+        raise ConfigError(
+            f"--camera-response {given}: --predictor {spec} declares {RESPONSE_ATTRIBUTE} {declared!r}; drop "
+            "--camera-response or give the same"
+        )
+    response = given or declared
+    if args.emulate and response not in (None, "linear"):
+        how = "--camera-response" if given else f"--predictor {spec}"
+        raise ConfigError(
+            f"{how}: declares the camera response {response}, but the emulated sensor's frames are linear; stream "
+            "a camera with that curve, or drop the declaration"
+        )
+    if response is None:
+        response = "linear"
+        if not args.emulate and live_camera(args):
+            log.info(
+                "--predictor %s declares no camera response (a %s attribute, or --camera-response): the camera is "
+                "asked for gamma 1.0 and its frames are taken as linear; a predictor made for a camera's sRGB frames: "
+                "--camera-response srgb",
+                spec,
+                RESPONSE_ATTRIBUTE,
+            )
+    return response
+
+
+def _plugged(spec: str, shape: tuple[int, int], factory: object) -> tuple[Predict, None]:
+    from ..core.errors import ConfigError
+
     usage = PREDICTOR_USAGE
     if not callable(factory):
         raise ConfigError(f"--predictor {spec}: {type(factory).__name__} is not callable; give a {usage}")
@@ -165,6 +231,11 @@ def run(args: argparse.Namespace) -> int:
 
     if bool(args.model) == bool(args.predictor):
         raise ConfigError("give exactly one of --model FILE (NLiPsNet) or --predictor module:function")
+    if args.model and args.camera_response:
+        raise ConfigError(
+            f"--camera-response is for --predictor: the model {args.model} records its calibration's camera "
+            "response; drop --camera-response"
+        )
     emulate_behind_port(args)
     check_source_arguments(args)
     check_output_arguments(args, args.out)
@@ -205,11 +276,17 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, ter
             size_emulator_for(args, predict.predictor.shape)
             check_emulated_sensor(args, predict.predictor.model.sensor, predict.predictor.model.reference["depth"])
         window = no_window is None
-        # a model's camera response decides whether the camera is asked for gamma 1.0; a plugged predictor's: linear
-        response = predict.predictor.camera_response if args.model else "linear"
-        source, before_frame = open_frames(args, stack, loop=window, camera_response=response)
-        if not args.model:
-            predict, reference_depth = _plugged(args.predictor, source.shape)
+        if args.model:  # the model's camera response: the camera asked for gamma 1.0 only when linear
+            tone_curve = predict.predictor.tone_curve  # undone as each frame is converted, not again by the model
+            source, before_frame = open_frames(
+                args, stack, loop=window, camera_response=predict.predictor.camera_response, tone_curve=tone_curve
+            )
+            predict.in_light = getattr(source, "tone_curve", None) is not None
+        else:
+            factory = _factory(args.predictor)
+            response = plugged_response(args, factory)
+            source, before_frame = open_frames(args, stack, loop=window, camera_response=response)
+            predict, reference_depth = _plugged(args.predictor, source.shape, factory)
         sinks = []
         if args.out:
             sinks.append(SaveSink(args.out, args.every, pictures=NormalMapPng()))

@@ -79,6 +79,19 @@ def undo_tone_curve(images: np.ndarray, table: np.ndarray | None) -> np.ndarray:
     return images
 
 
+def eight_bit_table(table: np.ndarray | None) -> np.ndarray:
+    """The stored value of each 8-bit sample, with the camera's tone curve undone: (256,) uint16, ``table`` (from
+    :func:`tone_curve_table`) at ``DN << 8`` (an 8-bit frame's stored values, ``device.camera.to_stored``), or
+    ``DN << 8`` itself for None (a linear camera).
+
+    Why: an 8-bit frame has 256 values, so the shift up to 16 bits and the curve are one lookup on the uint8 frame
+    (``cv2.LUT``), bit for bit :func:`undo_tone_curve` of the shifted frame: 0.3 ms a 640x480 frame against 2-4
+    (benchmarks/RESULTS.md, s29-lut8).
+    """
+    stored = np.arange(256, dtype=np.uint16) << np.uint16(8)
+    return stored if table is None else np.ascontiguousarray(table[stored], dtype=np.uint16)
+
+
 DECLARE_TONE_CURVE = (
     "or, when the camera cannot turn its gamma off, declare its sRGB curve and the tool undoes it: `nlips capture "
     '--camera-response srgb` (a capture already taken: meta.json "sensor": {"camera_response": "srgb"})'

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.imageio import opencv_path, read_image
+from ..core.sensor_response import eight_bit_table, undo_tone_curve
 from ..core.tolerances import CAMERA_SETTING_ABS, CAMERA_SETTING_RTOL
 
 if TYPE_CHECKING:  # OpenCV is imported where it is used (``_cv2``): named for the hints only
@@ -99,6 +100,10 @@ class FrameSource:
     gamma: float | None = None
     """The live camera's ``CAP_PROP_GAMMA`` after the settings (:func:`reported_gamma`); None for files and for a
     camera without the control."""
+    tone_curve: np.ndarray | None = None
+    """(65536,) uint16 table of the camera's tone curve (``core.sensor_response.tone_curve_table``) undone on every
+    frame as it is converted (:func:`to_stored`): frames linear in the light; None: frames as the camera encoded them
+    (a capture's, whose loader undoes its declared curve)."""
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -139,27 +144,29 @@ class FrameSource:
         self.close()
 
 
-def to_stored(frame: np.ndarray, name: str = "frame") -> tuple[np.ndarray, int]:
+def to_stored(frame: np.ndarray, name: str = "frame", tone_curve: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """A frame as OpenCV returns it (BGR or grey, 8 or 16 bit) -> ((H, W, 3) uint16 RGB stored, bit depth).
 
     16-bit frames are taken as already scaled to 16 bits (OpenCV's Y16 and 16-bit PNG); 8-bit ones are
-    shifted up by 8 bits.
+    shifted up by 8 bits. ``tone_curve``: a (65536,) uint16 table (``core.sensor_response.tone_curve_table``) undone
+    on the way, the frame returned then linear in the light; None: nothing undone (the values as the camera encoded
+    them). Always a new array (never ``frame`` or a view of it).
+
+    An 8-bit frame's shift and curve are one lookup of 256 entries (``core.sensor_response.eight_bit_table``,
+    ``cv2.LUT``) on its uint8 values, bit for bit the 65536-entry table on the shifted ones; 0.3 ms a 640x480 frame
+    against 0.9 for the shift alone (NumPy) and 2-4 with the curve (benchmarks/RESULTS.md, s29-lut8).
     """
-    if frame.dtype == np.uint8:
-        out, bits = frame.astype(np.uint16) << np.uint16(8), 8
-    elif frame.dtype == np.uint16:
-        out, bits = frame, 16
-    else:
+    if frame.dtype not in (np.uint8, np.uint16):
         raise CaptureError(f"{name}: unsupported sample type {frame.dtype} (8- or 16-bit images only)")
-    if out.ndim == 2:
-        out = np.repeat(out[..., None], 3, axis=2)
-    elif out.ndim == 3 and out.shape[2] == 4:
-        out = out[..., 2::-1]
-    elif out.ndim == 3 and out.shape[2] == 3:
-        out = out[..., ::-1]
-    else:
+    channels = 1 if frame.ndim == 2 else frame.shape[2] if frame.ndim == 3 and frame.shape[2] in (3, 4) else 0
+    if not channels:  # (H, W, 1) too, as before: OpenCV gives grey as (H, W)
         raise CaptureError(f"{name}: unsupported image shape {frame.shape}")
-    return np.ascontiguousarray(out), bits
+    cv2 = _cv2()
+    to_rgb = {1: cv2.COLOR_GRAY2RGB, 3: cv2.COLOR_BGR2RGB, 4: cv2.COLOR_BGRA2RGB}[channels]
+    rgb = cv2.cvtColor(frame, to_rgb)  # a new contiguous array in either depth
+    if frame.dtype == np.uint8:
+        return cv2.LUT(rgb, eight_bit_table(tone_curve)), 8
+    return undo_tone_curve(rgb, tone_curve), 16
 
 
 class _ImageFiles(FrameSource):
@@ -175,8 +182,9 @@ class _ImageFiles(FrameSource):
     name: str
     """What error lines call the whole (the folder, or the pattern)."""
 
-    def __init__(self, files: list[Path], name: str, average: int = 1):
+    def __init__(self, files: list[Path], name: str, average: int = 1, tone_curve: np.ndarray | None = None):
         self.files, self.name = files, name
+        self.tone_curve = tone_curve
         self.average = int(average)
         self.position = 0
         first, self.bit_depth = self._load(self.files[0])
@@ -190,7 +198,7 @@ class _ImageFiles(FrameSource):
         frame = read_image(path)
         if frame is None:
             raise CaptureError(f"{path}: not a readable image")
-        return to_stored(frame, str(path))
+        return to_stored(frame, str(path), self.tone_curve)
 
     def frame_at(self, index: int) -> np.ndarray:
         """Frame ``index`` (from 0): (H, W, 3) uint16, RGB, stored values; :class:`EndOfFrames` past the last one,
@@ -214,14 +222,14 @@ class _ImageFiles(FrameSource):
 class FolderSource(_ImageFiles):
     """Images of a folder in name order, one per :meth:`read` (a recorded capture, or a test fixture)."""
 
-    def __init__(self, folder: str | Path, average: int = 1):
+    def __init__(self, folder: str | Path, average: int = 1, tone_curve: np.ndarray | None = None):
         self.folder = Path(folder)
         if not self.folder.is_dir():
             raise CaptureError(f"{self.folder}: image folder does not exist")
         files = sorted(p for p in self.folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
         if not files:
             raise CaptureError(f"{self.folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
-        super().__init__(files, str(self.folder), average)
+        super().__init__(files, str(self.folder), average, tone_curve)
 
 
 class SequenceSource(_ImageFiles):
@@ -231,7 +239,7 @@ class SequenceSource(_ImageFiles):
     Not through ``cv2.VideoCapture``: this source can decode several frames at once (:meth:`frame_at`).
     """
 
-    def __init__(self, pattern: str, average: int = 1):
+    def __init__(self, pattern: str, average: int = 1, tone_curve: np.ndarray | None = None):
         self.pattern = str(pattern)
         if not is_sequence_pattern(self.pattern):
             raise CaptureError(
@@ -244,7 +252,7 @@ class SequenceSource(_ImageFiles):
         files = []
         while Path(self._name(start + len(files))).is_file():
             files.append(Path(self._name(start + len(files))))
-        super().__init__(files, self.pattern, average)
+        super().__init__(files, self.pattern, average, tone_curve)
 
     def _name(self, index: int) -> str:
         return self.pattern % index
@@ -263,9 +271,16 @@ class OpenCVSource(FrameSource):
     file or sequence gets no settings and no flushing (each recorded frame is one exposure).
     """
 
-    def __init__(self, device: int | str, settings: CameraSettings | None = None, reported: Collection[str] = ()):
+    def __init__(
+        self,
+        device: int | str,
+        settings: CameraSettings | None = None,
+        reported: Collection[str] = (),
+        tone_curve: np.ndarray | None = None,
+    ):
         cv2 = _cv2()
         self.device = device
+        self.tone_curve = tone_curve
         self.live = isinstance(device, int) or str(device).startswith("/dev/")
         if not self.live and "%" not in str(device) and not Path(device).exists():
             raise CaptureError(f"{device}: video file does not exist")
@@ -310,7 +325,7 @@ class OpenCVSource(FrameSource):
                 "raw frames: the camera's raw format is compressed, 8-bit frames used",
             )
             return self._grab()
-        out, self.bit_depth = to_stored(frame, f"camera {self.device}")
+        out, self.bit_depth = to_stored(frame, f"camera {self.device}", self.tone_curve)
         return out
 
     def read(self) -> np.ndarray:
@@ -465,15 +480,21 @@ def report_refusals(device: int | str, refused: Collection[str], reported: Colle
         _REPORTED.add(key)
 
 
-def open_source(spec: str | int, settings: CameraSettings | None = None, reported: Collection[str] = ()) -> FrameSource:
+def open_source(
+    spec: str | int,
+    settings: CameraSettings | None = None,
+    reported: Collection[str] = (),
+    tone_curve: np.ndarray | None = None,
+) -> FrameSource:
     """Frame source from a command-line spec: a camera index ("0"), a device path, a folder, a video file
     or an image sequence pattern ("frames/img_%04d.png"). ``reported``: refusals of a live camera not to be said
-    again (:func:`report_refusals`)."""
+    again (:func:`report_refusals`); ``tone_curve``: undone on every frame (:attr:`FrameSource.tone_curve`)."""
     settings = settings or CameraSettings()
     if isinstance(spec, int) or str(spec).isdigit():
-        return OpenCVSource(int(spec), settings, reported)
+        return OpenCVSource(int(spec), settings, reported, tone_curve)
     if Path(spec).is_dir():
-        return FolderSource(spec, average=settings.average)
+        return FolderSource(spec, average=settings.average, tone_curve=tone_curve)
     if "%" in str(spec) and "://" not in str(spec) and not str(spec).startswith("/dev/") and not Path(spec).exists():
-        return SequenceSource(spec, average=settings.average)  # a stream URL may hold %-escapes: OpenCV's
-    return OpenCVSource(str(spec), settings, reported)
+        # a stream URL may hold %-escapes: OpenCV's
+        return SequenceSource(spec, average=settings.average, tone_curve=tone_curve)
+    return OpenCVSource(str(spec), settings, reported, tone_curve)

@@ -106,7 +106,8 @@ class FullFrame:
             self.box_integrator.warm_up(self.ref_normals)
 
     def __call__(self, tricolor: np.ndarray, stored: bool = False):
-        """normals, depth, points, changed (numpy, as :class:`.infer.Frame` holds them), stage seconds, mismatch,
+        """normals, depth, points, changed (numpy, as :class:`.infer.Frame` holds them; the change rule's pixels also
+        with ``keep_reference=False``, where the network's normals are every gel pixel's), stage seconds, mismatch,
         channels (each colour's median over the reference's on the unchanged gel, :func:`.change.channel_ratio`).
 
         ``tricolor`` is (H, W, 3): linear float32, or the stored uint16 values when ``stored`` (converted on the
@@ -184,7 +185,9 @@ class FullFrame:
         changed, mismatch, sampled = self.change(frame)
         if not self.keep_reference:  # the network's normals everywhere, integrated over the whole gel
             whole = self.integrator(normals, ~changed) if self.integrator is not None else self.ref_points
-            return normals, self.change.valid, mismatch, whole, sampled
+            # the rule's changed pixels all the same (the contact the small-contact warning measures): the same
+            # download as the gel's mask it replaced
+            return normals, changed, mismatch, whole, sampled
         # the reference normals where nothing changed; the box is integrated after (its shape changes per frame)
         kept = torch.where(changed[..., None], normals, self.ref_normals)
         return kept, changed, mismatch, self.ref_points, sampled

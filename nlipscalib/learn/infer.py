@@ -77,6 +77,9 @@ class Frame:
     mismatch: float = 0.0
     """Median difference from the reference frame over the gel, fraction of its brightness (:func:`mismatch_warning`).
     """
+    contact: np.ndarray | None = None
+    """(H, W) bool -- the change rule's changed pixels where ``changed`` is not them (``full_frame``: every gel pixel
+    is the network's), for the small-contact warning (``learn.resolution.frame_warning``); None: ``changed``."""
     channels: tuple[float, float, float] = (1.0, 1.0, 1.0)
     """Median red, green and blue on the gel where the frame did not change, over the reference frame's
     (:attr:`.change.ChangeDetector.channel_ratio`; on the device path, :mod:`.fullframe`, the same blocks and
@@ -234,7 +237,7 @@ class Predictor:
         return self.model.shape
 
     # ------------------------------------------------------------------ inputs
-    def linear(self, image: np.ndarray, where: str | Path = "frame") -> np.ndarray:
+    def linear(self, image: np.ndarray, where: str | Path = "frame", in_light: bool = False) -> np.ndarray:
         """Linear tri-colour image from stored 16-bit values, with the calibration's camera response, dark frame
         and levels.
 
@@ -243,13 +246,15 @@ class Predictor:
         image : (H, W, 3) uint16 stored values, encoded as the calibration's captures were (a tri-colour PNG or a
             camera frame of this sensor; not changed)
         where : name used in error messages (the file)
+        in_light : ``image`` has the calibration's tone curve undone already (converted with :attr:`tone_curve`:
+            ``device.camera.to_stored``, an 8-bit frame's in one 256-entry lookup)
         """
         if image.shape != self.shape + (3,):
             h, w = self.shape
             raise CaptureError(
                 f"{where}: image is {image.shape[1]}x{image.shape[0]}, the model was calibrated for {w}x{h} images"
             )
-        return self._linearise(self.in_light(image))
+        return self._linearise(image if in_light else self.in_light(image))
 
     def in_light(self, image: np.ndarray) -> np.ndarray:
         """``image``'s stored values with the calibration's tone curve undone (a new array; ``image`` itself for a
@@ -346,13 +351,14 @@ class Predictor:
         rows, cols = slice(int(row[0]), int(row[-1]) + 1), slice(int(col.min()), int(col.max()) + 1)  # row is sorted
         return self.prefilter(tricolor, rows, cols)[row - rows.start, col - cols.start]
 
-    def predict_stored(self, image: np.ndarray, where: str | Path = "frame") -> Frame:
-        """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it)."""
+    def predict_stored(self, image: np.ndarray, where: str | Path = "frame", in_light: bool = False) -> Frame:
+        """:meth:`predict` of a stored frame ((H, W, 3) uint16, as a camera or a tri-colour PNG gives it);
+        ``in_light``: its tone curve undone already (:meth:`linear`)."""
         if self._full is not None and image.dtype == np.uint16 and image.shape == self.shape + (3,):
             # the tone curve undone here, the rest converted on the device: half the bytes to move
-            return self._whole_frame(self.in_light(image), stored=True)
+            return self._whole_frame(image if in_light else self.in_light(image), stored=True)
         t0 = time.perf_counter()
-        linear = self.linear(image, where)
+        linear = self.linear(image, where, in_light)
         t1 = time.perf_counter()
         frame = self.predict(linear)
         # the stored values' linearisation is a step of the frame too (a stream's frames are all stored)
@@ -363,6 +369,8 @@ class Predictor:
         """:mod:`.fullframe`'s result as a Frame ("changed": every gel pixel with ``full_frame``)."""
         normals, depth, points, changed, seconds, mismatch, channels = self._full(tricolor, stored)
         frame = Frame(normals, depth, points, changed, seconds, mismatch=mismatch, channels=channels)
+        if self.full_frame:  # the network's normals on the whole gel; the rule's changed pixels are the contact
+            frame.changed, frame.contact = self.valid.copy(), changed
         t0 = time.perf_counter()
         if frame.mismatch > FRAME_MISMATCH_FRACTION:
             linear = self._linearise(tricolor) if stored else tricolor  # stored: its tone curve already undone

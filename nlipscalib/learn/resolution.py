@@ -141,9 +141,11 @@ def steepness_warning(
 
 def frame_warning(predictor: Predictor, frame: Frame, where: str | Path) -> str | None:
     """:func:`steepness_warning` of one of ``predictor``'s frames (its model's recorded calibration, its reference
-    normals); None for a frame unlike the reference over the whole gel (``infer.mismatch_warning`` says that) and
-    for a whole-frame prediction (``full_frame``: no changed region to judge)."""
-    if frame.mismatch > tolerances.FRAME_MISMATCH_FRACTION or predictor.full_frame:
+    normals) on its change rule's changed pixels (``Frame.contact`` of a whole-frame prediction, ``full_frame``,
+    whose ``changed`` is every gel pixel: the rule runs there too, on the device); None for a frame unlike the
+    reference over the whole gel (``infer.mismatch_warning`` says that)."""
+    if frame.mismatch > tolerances.FRAME_MISMATCH_FRACTION:
         return None
     calibrated = recorded_steepness(predictor.model.info)
-    return steepness_warning(frame.changed, frame.normals, predictor.ref_normals, where, calibrated)
+    contact = frame.changed if frame.contact is None else frame.contact
+    return steepness_warning(contact, frame.normals, predictor.ref_normals, where, calibrated)

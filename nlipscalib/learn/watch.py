@@ -32,8 +32,11 @@ class MismatchWatch:
     name : str -- the source, for the warning (``"camera 0"``, a video's path, ``"emulated sensor"``)
     """
 
-    def __init__(self, predictor: Predictor, name: str) -> None:
+    def __init__(self, predictor: Predictor, name: str, in_light: bool = False) -> None:
         self.predictor, self.name = predictor, name
+        self.in_light = in_light
+        """The frames have the calibration's tone curve undone already (a source opened with the predictor's
+        ``tone_curve``: ``device.camera.to_stored``), so the predictor does not undo it again."""
         self.frames = 0
         self.mismatched = 0
         self.drifted = 0
@@ -45,7 +48,7 @@ class MismatchWatch:
 
     def __call__(self, frame: np.ndarray) -> Frame:
         """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
-        result = self.predictor.predict_stored(frame, self.name)
+        result = self.predictor.predict_stored(frame, self.name, in_light=self.in_light)
         index, self.frames = self.frames, self.frames + 1
         where = f"{self.name} frame {index}"
         why = mismatch_warning(result, where)

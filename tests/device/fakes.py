@@ -73,6 +73,23 @@ def flat_predictor(shape):
     return predict
 
 
+def srgb_predictor(shape):
+    """:func:`flat_predictor`, made for a camera's sRGB frames: it says so (``camera_response``), as a model file
+    records its calibration's camera response."""
+    return flat_predictor(shape)
+
+
+srgb_predictor.camera_response = "srgb"
+
+
+def gamma_predictor(shape):
+    """:func:`flat_predictor` declaring a camera response the workbench does not know."""
+    return flat_predictor(shape)
+
+
+gamma_predictor.camera_response = "gamma 2.2"
+
+
 def tuple_predictor(shape):
     """A broken `nlips live` predictor: its callable returns a tuple, not a LiveResult."""
     return lambda frame: (frame, frame)

@@ -306,7 +306,7 @@ def test_a_stream_asks_for_gamma_1_only_for_a_linear_model(monkeypatch, response
 
     asked = []
 
-    def opened(spec, settings):
+    def opened(spec, settings, tone_curve=None):
         asked.append(settings)
         return contextlib.nullcontext()
 
@@ -315,3 +315,38 @@ def test_a_stream_asks_for_gamma_1_only_for_a_linear_model(monkeypatch, response
     with contextlib.ExitStack() as stack:
         open_frames(args, stack, camera_response=response)
     assert [s.linear_gamma for s in asked] == [response == "linear"]
+
+
+def test_an_eight_bit_frames_curve_is_undone_in_one_lookup_bit_for_bit():
+    """``to_stored`` with a tone curve: an 8-bit frame's shift and curve in one 256-entry lookup give, for every
+    value, what the 65536-entry table gives on the shifted frame, which is the exact inverse sRGB curve rounded to
+    whole 16-bit steps; a 16-bit frame gets the table itself; grey and BGRA frames as before, and the caller's frame
+    untouched."""
+    from nlipscalib.core.sensor_response import eight_bit_table, srgb_to_linear, tone_curve_table, undo_tone_curve
+    from nlipscalib.device.camera import to_stored
+
+    black, white = 512.0, 65280.0
+    table = tone_curve_table("srgb", black, white)
+    values = np.arange(256, dtype=np.uint16) << 8
+    exact = black + (white - black) * srgb_to_linear((values - black) / (white - black))
+    exact = np.where(values >= white, values, exact)
+    assert np.array_equal(eight_bit_table(table), np.clip(np.rint(exact), 0, 65535).astype(np.uint16))
+    assert np.array_equal(eight_bit_table(None), values)
+
+    rng = np.random.default_rng(3)
+    bgr = rng.integers(0, 256, (6, 256, 3), dtype=np.uint8)
+    bgr[0, :, 0] = np.arange(256, dtype=np.uint8)  # every value
+    for frame in (bgr, bgr[..., 0], np.dstack([bgr, bgr[..., :1]]), bgr[::-1, ::2]):
+        given = frame.copy()
+        shifted, bits = to_stored(frame)
+        undone, bits_undone = to_stored(frame, tone_curve=table)
+        assert bits == bits_undone == 8 and undone.dtype == np.uint16 and undone.shape == shifted.shape
+        assert np.array_equal(undone, undo_tone_curve(shifted.copy(), table))
+        assert np.array_equal(frame, given)
+    deep = rng.integers(0, 65536, (6, 256, 3), dtype=np.uint16)
+    undone, bits = to_stored(deep, tone_curve=table)
+    assert bits == 16 and np.array_equal(undone, table[deep[..., ::-1]])
+    assert np.array_equal(to_stored(deep)[0], deep[..., ::-1])
+    for shape in ((6, 8, 1), (6, 8, 2), (6,)):  # refused as before (OpenCV's grey is (H, W))
+        with pytest.raises(CaptureError, match=r"unsupported image shape"):
+            to_stored(np.zeros(shape, np.uint8), tone_curve=table)

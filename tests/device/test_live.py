@@ -386,3 +386,50 @@ def test_live_help_says_a_window_needs_an_opencv_with_a_gui(capsys):
     assert "with an OpenCV built with a GUI: opencv-python in place of the opencv-python-headless" in _help(
         "live", capsys
     )
+
+
+@pytest.mark.parametrize(
+    ("predictor", "flag", "gamma_1", "said"),
+    [
+        ("flat_predictor", [], True, True),
+        ("srgb_predictor", [], False, False),
+        ("flat_predictor", ["--camera-response", "srgb"], False, False),
+        ("srgb_predictor", ["--camera-response", "srgb"], False, False),
+        ("flat_predictor", ["--camera-response", "linear"], True, False),
+    ],
+)
+def test_a_plugged_predictor_streams_a_camera_with_the_response_it_declares(
+    frames, monkeypatch, caplog, predictor, flag, gamma_1, said
+):
+    """`nlips live --predictor` asked every camera for gamma 1.0 (a plugged predictor has no model file to record
+    its calibration's camera response): the function's ``camera_response``, or ``--camera-response``, is honoured
+    (sRGB: the camera's curve left on); with neither, linear as before, said once."""
+    import logging
+
+    from nlipscalib.device import camera
+
+    asked = []
+
+    def opened(spec, settings, tone_curve=None):
+        asked.append((spec, settings.linear_gamma, tone_curve))
+        return FolderSource(frames)  # stands in for camera 0
+
+    monkeypatch.setattr(camera, "open_source", opened)
+    argv = ["live", "--camera", "0", "--predictor", f"tests.device.fakes:{predictor}", "--no-window"]
+    with caplog.at_level(logging.INFO, logger="nlipscalib.cli.live"):
+        assert main([*argv, *flag, "--max-frames", "2"]) == 0
+    assert asked == [("0", gamma_1, None)]  # the frames as the camera encodes them: the predictor's to undo
+    lines = [r.getMessage() for r in caplog.records if "declares no camera response" in r.getMessage()]
+    assert len(lines) == (1 if said else 0) and all("gamma 1.0" in line for line in lines)
+
+
+def test_a_declared_response_that_is_unknown_or_contradicted_is_one_line(frames, capsys):
+    argv = ["live", "--camera", str(frames), "--no-window", "--max-frames", "1", "--predictor"]
+    assert main([*argv, "tests.device.fakes:gamma_predictor"]) == 2
+    assert "camera_response must be one of 'linear', 'srgb', got 'gamma 2.2'" in capsys.readouterr().err
+    assert main([*argv, "tests.device.fakes:srgb_predictor", "--camera-response", "linear"]) == 2
+    assert "declares camera_response 'srgb'; drop --camera-response" in capsys.readouterr().err
+    model = ["live", "--camera", str(frames), "--model", "m.pt", "--camera-response", "srgb"]
+    assert main(model) == 2 and "--camera-response is for --predictor" in capsys.readouterr().err
+    emulated = ["live", "--emulate", "nlipstac", "--predictor", "tests.device.fakes:srgb_predictor", "--no-window"]
+    assert main(emulated) == 2 and "the emulated sensor's frames are linear" in capsys.readouterr().err

@@ -122,3 +122,37 @@ def test_a_stream_says_it_once_and_counts_it(trained, twin_presses, caplog, monk
     lines = [r.getMessage() for r in caplog.records]
     assert lines[0].startswith("camera 0 frame 0: contact about"), lines
     assert "repeated 2 more times" in lines[1] and lines[-1].startswith("3 of 3 frames had a contact too small")
+
+
+def test_the_whole_frame_path_warns_as_the_changed_pixel_path(trained, twin_presses, caplog):
+    """``--full-frame`` (the network on every gel pixel; torch on the CPU here) was never checked: every gel pixel
+    counted as changed. Its change rule's pixels (``Frame.contact``) are measured as the changed-pixel path's: the
+    same warning on the held-out press (the same contact within a pixel and a degree), none on the undeformed
+    reference, and a stream counts it."""
+    import re
+
+    pytest.importorskip("torch")
+    from nlipscalib.learn.infer import Predictor
+    from nlipscalib.learn.resolution import frame_warning
+    from nlipscalib.learn.watch import MismatchWatch
+
+    from .conftest import HELD_OUT
+
+    changed_only, whole = Predictor(trained, depth=False), Predictor(trained, depth=False, full_frame=True)
+    stored = load_press(twin_presses / HELD_OUT).tricolor
+    part, full = changed_only.predict_stored(stored), whole.predict_stored(stored)
+    assert np.array_equal(full.changed, whole.valid) and full.contact is not None  # every gel pixel the network's
+    assert (part.changed ^ full.contact).sum() <= 0.02 * part.changed.sum()
+    said = [frame_warning(p, f, "f") for p, f in ((changed_only, part), (whole, full))]
+    assert all(said), said
+    numbers = [[float(x) for x in re.findall(r"about (\S+) px .*~(\S+) deg \((\S+) deg/px", s)[0]] for s in said]
+    assert abs(numbers[0][0] - numbers[1][0]) <= 1 and abs(numbers[0][1] - numbers[1][1]) <= 1, numbers
+    reference = load_press(twin_presses / "reference").tricolor
+    assert frame_warning(whole, whole.predict_stored(reference), "r") is None
+
+    watch = MismatchWatch(whole, "camera 0")
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.learn.watch"):
+        for _ in range(2):
+            watch(stored)
+        watch.report()
+    assert caplog.records[-1].getMessage().startswith("2 of 2 frames had a contact too small")

@@ -133,3 +133,39 @@ def test_a_calibration_mixing_camera_responses_is_refused_in_one_line(twin_press
     assert f"--reference {root / 'reference'} linear" in line
     with pytest.raises(CaptureError, match=r"press_b: camera response srgb .*the reference's linear"):
         build_dataset([root / "press_a", root / "press_b"], root / "reference", tmp_path / "calib", progress=False)
+
+
+def test_eight_bit_srgb_frames_are_undone_in_one_lookup_with_the_tables_numbers(trained, twin_presses, tmp_path):
+    """An 8-bit sRGB frame's curve is undone as it is converted (a 256-entry lookup on its uint8 values, on the
+    stream's reader threads), and not again by the predictor: the same linear frame, bit for bit, as the 65536-entry
+    table on the shifted frame (the way before), for a still and an image sequence; `nlips infer`'s stream saves the
+    normals of that frame (undone twice or not at all, they would be another frame's)."""
+    import cv2
+
+    from nlipscalib.cli import main
+    from nlipscalib.cli.infer import read_still
+    from nlipscalib.core import load_press
+    from nlipscalib.device.camera import SequenceSource
+    from nlipscalib.learn.infer import Predictor
+
+    srgb = Predictor(_declared(trained, tmp_path / "srgb.pt"))
+    press = load_press(twin_presses / "press_a")
+    encoded = _srgb_encoded(press.tricolor, press.response.black_level, press.response.white_level)
+    eight = (encoded >> 8).astype(np.uint8)
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for i in range(2):
+        cv2.imwrite(str(seq / f"img_{i:04d}.png"), np.ascontiguousarray(eight[..., ::-1]))
+    stored = eight.astype(np.uint16) << 8  # what the frame was converted to before, its curve undone by the model
+    expected = srgb.linear(stored)
+    frame = SequenceSource(str(seq / "img_%04d.png"), tone_curve=srgb.tone_curve).read()
+    assert np.array_equal(srgb.linear(frame, in_light=True), expected)
+    still = read_still(seq / "img_0000.png", tone_curve=srgb.tone_curve)
+    assert np.array_equal(srgb.linear(still, in_light=True), expected)
+    assert np.abs(srgb.linear(frame) - expected).max() > 0.05  # undone twice: far off (what in_light prevents)
+
+    out = tmp_path / "stream"
+    assert main(["infer", str(tmp_path / "srgb.pt"), str(seq / "img_%04d.png"), "--out", str(out)]) == 0
+    saved = np.load(out / "frame_000000.npz")["normals"]
+    want = srgb.predict_stored(stored).normals
+    assert np.allclose(np.nan_to_num(saved), want, atol=1e-5)

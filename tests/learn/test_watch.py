@@ -17,7 +17,7 @@ class _Predictor:
     model = type("Model", (), {"info": {}})()
     ref_normals = np.zeros((2, 2, 3))
 
-    def predict_stored(self, frame: np.ndarray, where: str) -> Frame:
+    def predict_stored(self, frame: np.ndarray, where: str, in_light: bool = False) -> Frame:
         zeros = np.zeros((2, 2))
         mismatch = float(frame.flat[0])
         return Frame(
@@ -79,7 +79,7 @@ def test_a_stream_like_the_reference_says_nothing(caplog):
 class _DriftingPredictor(_Predictor):
     """Stands in for learn.infer.Predictor: each stored frame's first value is its red over the reference's."""
 
-    def predict_stored(self, frame: np.ndarray, where: str) -> Frame:
+    def predict_stored(self, frame: np.ndarray, where: str, in_light: bool = False) -> Frame:
         zeros = np.zeros((2, 2))
         return Frame(
             zeros[..., None].repeat(3, -1),
