@@ -355,7 +355,7 @@ def build_dataset(
     out = Path(out)
     folders = [Path(f) for f in press_folders]
     run = run or dataset_run(folders, reference_folder, cfg, result_dir)
-    with hold_dataset(out, run):
+    with said_once.scope(), hold_dataset(out, run):  # a session's brightness warned of once per build
         (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
         _clean_interrupted(out)
         ref_press = load_press(reference_folder)
