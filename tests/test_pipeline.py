@@ -874,3 +874,24 @@ def test_a_sessions_swapped_and_aged_leds_are_warned_of_once_by_a_batch_of_two_w
         assert sum(" WARNING " in line for line in said) == 1, said  # ... one of them a warning
         for name in names:
             assert any(fault in note for note in read_report(session / name / "nlips")["warnings"]), name
+
+
+def test_each_solve_of_a_sessions_folder_in_one_process_warns_of_its_swapped_leds_once(tmp_path, caplog):
+    """A notebook (one long-lived process) that solved a session's folder twice, or after the session's presses had
+    been captured again under the same path, heard the swapped LED images only the first time: the memory of what
+    was said lasted the process. Now each call over the folder says it once (a WARNING), its other presses at INFO."""
+
+    def swapped(lin):
+        lin = lin.copy()
+        lin[[2, 5]] = lin[[5, 2]]
+        return lin
+
+    session = tmp_path / "session"
+    folders = [synth.make_press(session / name, "sphere", lin_hook=swapped) for name in ("p1", "p2")]
+    for _ in range(2):
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="nlipscalib"):
+            status = solve_presses(folders, options=SolverOptions(max_iters=1), figures=False, overwrite=True)
+        assert set(status.values()) == {"solved"}, status
+        said = [r for r in caplog.records if "out of order" in r.getMessage()]
+        assert [r.levelno for r in said] == [logging.WARNING, logging.INFO], [r.getMessage() for r in said]

@@ -21,6 +21,7 @@ from types import FrameType
 from typing import NoReturn
 
 from .. import __version__, progress
+from ..core import said_once
 from ..core.errors import MissingDependencyError, NlipsError
 from ..core.processes import end_processes  # here, not in the signal handler that uses it
 from .help import (
@@ -201,7 +202,8 @@ def _run(args: argparse.Namespace, argv: Sequence[str] = ()) -> int:
             log_file=args.log_file,
         )
         _log_start(argv)
-        with progress.results_to_log_file():
+        # a session's fault is warned of once per command (said_once), again by a later command of this process
+        with progress.results_to_log_file(), said_once.scope():
             code = int(args.func(args) or 0)
     except (NlipsError, MissingDependencyError) as exc:
         code = _fail(args, str(exc))

@@ -4,7 +4,13 @@ be solved in several worker processes (``--workers``), each of which would other
 
 The parent of a worker pool makes a folder (:func:`shared_between_processes`) and hands its path to each worker
 (:func:`share`); the first process to create a key's file there says the warning, the others log it at INFO.
-Without a shared folder the keys are kept in this process only."""
+Without a shared folder the keys are kept in this process only.
+
+How long a key counts as said: one :func:`scope` (each ``nlips`` command; each call of
+:func:`nlipscalib.pipeline.solve_presses` or :func:`nlipscalib.learn.dataset.build_dataset`; a scope opened inside
+another joins it). Outside any scope (a script's bare ``solve_press`` or ``solve_folder`` calls) a key is said once
+per process. Why: a notebook that solved a session's folder twice, or another session's folder of the same path,
+heard its swapped or aged LEDs only the first time."""
 
 from __future__ import annotations
 
@@ -17,6 +23,8 @@ from pathlib import Path
 
 _SAID: set[str] = set()
 """Digests of the keys already said by this process (or, after a pool, by its workers)."""
+_IN_SCOPE = False
+"""Whether a :func:`scope` is open (``_SAID`` is then its own set, the process-wide one put aside until it ends)."""
 _SHARED: Path | None = None
 """The folder shared with the other processes of this command (None: keys kept in this process only)."""
 
@@ -44,6 +52,24 @@ def first_time(key: str) -> bool:
     except OSError:  # the folder is gone or unwritable: saying a warning twice beats not saying it
         return True
     return True
+
+
+@contextlib.contextmanager
+def scope() -> Iterator[None]:
+    """Each key said once within the block (a command, one API call over a folder of presses), said again in a
+    later block; inside an open scope, part of it (``nlips calibrate``'s solves and dataset build: one command).
+
+    The keys said outside any scope (process-wide) are neither seen inside nor added to by it."""
+    global _SAID, _IN_SCOPE
+    if _IN_SCOPE:
+        yield
+        return
+    before = _SAID
+    _SAID, _IN_SCOPE = set(), True
+    try:
+        yield
+    finally:
+        _SAID, _IN_SCOPE = before, False
 
 
 def share(folder: str | None) -> None:

@@ -47,7 +47,8 @@ RULES_HASHED_SILENTLY = {"rule": 2}
 """learn.dataset.SAMPLE_RULES when press tasks' hashes began to hold them (2026-12-05): at these versions a hash
 leaves them out, so the work folders of earlier runs, whose samples these rules made, keep their tasks (a full Q2
 is hours of renders and solves) rather than make them all again for a code that did not change. Never updated:
-any other versions enter the hash."""
+any other versions enter the hash (the first: learn.dataset.FRAME_GAIN_RULE, 2026-12-06, whose rule did change the
+samples of a press dimmer than its undeformed capture)."""
 
 
 TASK_CODE = {

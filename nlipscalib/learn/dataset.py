@@ -80,10 +80,14 @@ SENSOR_KEYS = ("tricolor", "dark", "depth", "normals", "valid")
 EXPERIMENT_MAKER = "nlips experiment"
 """index.json's ``made_by`` in a dataset that ``nlips experiment`` assembled from its press tasks' samples (absent:
 ``nlips calibrate``'s): what a refusal tells the user to run again (:func:`remake_advice`)."""
-SAMPLE_RULES: dict[str, int] = {"rule": RULE_VERSION}
+FRAME_GAIN_RULE = 1
+"""Version of :func:`contact_pixels`' rule for a press brighter or dimmer than the undeformed capture (its reference
+frame scaled by the press's brightness; s28-together, 2026-12-06). Shards made before it kept almost none of such a
+press's contact samples; as part of :data:`SAMPLE_RULES` they are made anew."""
+SAMPLE_RULES: dict[str, int] = {"rule": RULE_VERSION, "frame_gain": FRAME_GAIN_RULE}
 """Versions of the code that decides a press's samples beyond its reconstruction and the sampling options (name ->
-version; today the change-detection rule's, :mod:`.change`). The one list: part of every shard's stamp
-(:func:`shard_stamp`), of a build's key (:func:`dataset_run`) and of an experiment's press task
+version; today the change-detection rule's, :mod:`.change`, and :data:`FRAME_GAIN_RULE`). The one list: part of
+every shard's stamp (:func:`shard_stamp`), of a build's key (:func:`dataset_run`) and of an experiment's press task
 (experiments.tasks.Task.hash), so a bumped version remakes the samples wherever they were made. A rule whose code
 decides samples adds its version here."""
 SOURCE_NLIPS, SOURCE_REFERENCE = 0, 1
@@ -355,7 +359,7 @@ def build_dataset(
     out = Path(out)
     folders = [Path(f) for f in press_folders]
     run = run or dataset_run(folders, reference_folder, cfg, result_dir)
-    with hold_dataset(out, run):
+    with said_once.scope(), hold_dataset(out, run):  # a session's brightness warned of once per build
         (out / SHARD_DIR).mkdir(parents=True, exist_ok=True)
         _clean_interrupted(out)
         ref_press = load_press(reference_folder)

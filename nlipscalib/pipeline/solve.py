@@ -12,6 +12,7 @@ from concurrent.futures import Future
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core import said_once
 from ..core.errors import CaptureError, ConfigError, NlipsError, NoContactError
 from ..core.reconstruction import (
     Reconstruction,
@@ -129,6 +130,10 @@ def solve_presses(
     press (bad capture, bad LED file) do not stop the others; a file-system error (disk full, read-only) stops
     the batch (OSError naming the path). A result is reused only when its
     arrays pass their checksums, so damage inside result.npz is re-computed too.
+
+    A fault of the whole session (LED images out of order, LEDs aged since the undeformed capture) is logged as a
+    WARNING once per call (its workers too), at INFO for the other presses, each press's report keeping it
+    (:func:`nlipscalib.core.said_once.scope`): a second call on the same folder warns again.
     """
     from ..report import figure_level
 
@@ -143,7 +148,8 @@ def solve_presses(
         raise ConfigError(f"workers must be a whole number >= 1, got {workers!r}")
     names = _names(folders)
     started = _fs_clock(folders)
-    with contextlib.ExitStack() as held:  # every press held for these settings until the batch ends
+    # a session's fault (swapped, aged LEDs) said once per call: a notebook's second call says it again
+    with said_once.scope(), contextlib.ExitStack() as held:  # every press held for these settings until the end
         statuses = _hold_presses(held, folders, settings)  # those a run of other settings holds: failed
         todo = [f for f in folders if f not in statuses]
         statuses |= _solve_batch(todo, names, settings, workers, overwrite, progress, figures, wait)

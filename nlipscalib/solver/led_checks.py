@@ -78,9 +78,31 @@ def led_check(
     order : list of int, or None -- for each LED (0-based), the image (0-based, the capture's order) that shows its
         light, when the misplaced images are a clean pair or cycle (:func:`detected_order`); None otherwise.
     """
+    return led_check_measured(press, leds, live)[:4]
+
+
+@dataclasses.dataclass(frozen=True)
+class MeasuredGains:
+    """Each LED's light against the LED model over the median LED's (:func:`model_relative_gains`) as
+    :func:`led_check_measured` measured it on its samples, for :func:`model_gain_check` of the same LEDs.
+
+    Why: a solve without an undeformed capture judged the LEDs' ageing on samples of the gel and LED shading that
+    the weak-LED check had just computed alike (~2-10 ms a solve, benchmarks/RESULTS.md, s29-qaleft)."""
+
+    live: tuple[int, ...]
+    """The LEDs (0-based) measured, in order."""
+    relative: np.ndarray
+    """(len(live),) float64 -- their light over the median LED's."""
+
+
+def led_check_measured(
+    press: Press, leds: Sequence[Led], live: Sequence[int]
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None]:
+    """:func:`led_check`, and the relative gains it measured on the LEDs it judged (:class:`MeasuredGains`; None
+    when it sampled none)."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
-        return [], [], [], None
+        return [], [], [], None, None
     names = _image_names(press)
     lagged, repeated = _repeated_line(press, names)
     jpeg_notes = compression_notes(press)
@@ -88,12 +110,11 @@ def led_check(
     image, model = _samples(press, leds, live) if len(live) >= 3 else (None, None)
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
-        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None
+        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None, None
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
     off = []
-    gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
-    relative = gain / np.median(gain)
+    relative = _relative_gains(image, model)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
         corr = np.corrcoef(image.mean(-1), model.mean(-1))[: len(live), len(live) :]
     swapped, misplaced, shows = set(), [], {}
@@ -129,7 +150,8 @@ def led_check(
             f"it, relative to the other LEDs ({what}), {done}: calibrate the LEDs on the undeformed dome (nlips "
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
-    return notes, left_out, misplaced, detected_order(shows, len(press.leds))
+    measured = MeasuredGains(tuple(live), relative)
+    return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured
 
 
 def detected_order_of(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[int] | None:
@@ -607,13 +629,19 @@ def model_relative_gains(press: Press, leds: Sequence[Led], live: Sequence[int])
     if press.reference is None or len(live) < 3:
         return None
     image, model = _samples(press, leds, live)
-    if image is None:
-        return None
+    return None if image is None else _relative_gains(image, model)
+
+
+def _relative_gains(image: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """(L,) float64 -- each LED's median over the samples of image over model (:func:`_samples`' (L, N, 3) arrays),
+    over the median LED's."""
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
     return gain / np.median(gain)
 
 
-def model_gain_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[list[str], np.ndarray | None]:
+def model_gain_check(
+    press: Press, leds: Sequence[Led], live: Sequence[int], measured: MeasuredGains | None = None
+) -> tuple[list[str], np.ndarray | None]:
     """Without an undeformed capture: LEDs or LED groups aged (or brightened) on their own, against the LED model.
 
     Why: with ``--reference`` an aged LED is measured against the undeformed capture (:func:`led_gains`); without
@@ -626,6 +654,8 @@ def model_gain_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> 
     press : Press -- with ``reference`` (none: no check).
     leds : sequence of Led -- the solve's LED model, in the order of ``press.led_images``.
     live : sequence of int -- the LEDs (0-based) to judge: lit, not left out, not misplaced.
+    measured : MeasuredGains or None -- :func:`led_check_measured`'s of this press and ``leds``: used when measured on
+        ``live`` itself (the same samples, so the same numbers), else they are measured here.
 
     Returns
     -------
@@ -634,7 +664,10 @@ def model_gain_check(press: Press, leds: Sequence[Led], live: Sequence[int]) -> 
         (:func:`nlipscalib.core.capture.with_led_gains`), 1 for LEDs not judged; None when none is off.
     """
     live = [int(i) for i in live]
-    relative = model_relative_gains(press, leds, live)
+    if measured is not None and measured.live == tuple(live):
+        relative = measured.relative
+    else:
+        relative = model_relative_gains(press, leds, live)
     if relative is None:
         return [], None
     found = model_led_gains(relative, tricolor_groups(len(press.leds))[live])

@@ -50,9 +50,10 @@ from .exposure import dark_frame_fault, nothing_to_fit, saturated_share, saturat
 from .image_stats import led_levels, lit_leds
 from .interreflection import compensate
 from .led_checks import (
+    MeasuredGains,
     exposure_drift_note,
     exposure_ratio,
-    led_check,
+    led_check_measured,
     led_gains,
     linearity_notes,
     model_gain_check,
@@ -104,9 +105,9 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
     keep_order = not kwargs.pop("reorder_leds", True)
     checks = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"), say=False)
-    led_notes, left_out, misplaced, order = checks
+    led_notes, left_out, misplaced, order, measured = checks
     if order is not None and not keep_order:  # the images' own order: the physics is right again
-        press, kwargs, led_notes, left_out, misplaced = _in_detected_order(press, kwargs, order)
+        press, kwargs, led_notes, left_out, misplaced, measured = _in_detected_order(press, kwargs, order)
     else:
         for note in led_notes:
             log.warning("%s", note)
@@ -132,7 +133,8 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             press = with_led_gains(press, gains)
     elif press.reference is not None:  # no undeformed capture: LEDs aged on their own, against the LED model
         live = [i for i in _live_leds(press, kwargs.get("options")) if i not in left_out and i not in misplaced]
-        aged, gains = model_gain_check(press, _model_leds(press, kwargs.get("leds")), live)
+        # the weak-LED check's samples of the same LEDs, when it judged these: measured once
+        aged, gains = model_gain_check(press, _model_leds(press, kwargs.get("leds")), live, measured)
         led_notes.extend(aged)
         if gains is not None:  # the sensor's fault, alike on a session's presses: warned once for them
             which = np.flatnonzero(gains[:, 0] != 1).tolist()
@@ -211,10 +213,13 @@ KEEP_ORDER_FLAG = "--keep-led-order"
 """The command-line flag that solves LED images out of order as captured (``reorder_leds=False``)."""
 
 
-def _in_detected_order(press: Press, kwargs: dict, order: list[int]) -> tuple[Press, dict, list[str], list, list]:
+def _in_detected_order(
+    press: Press, kwargs: dict, order: list[int]
+) -> tuple[Press, dict, list[str], list, list, MeasuredGains | None]:
     """The press with its LED images in the ``order`` they show (:func:`.led_checks.detected_order`), the undeformed
     capture given (``indirect``) likewise when its own images show the same order (the same wiring), and the
-    warnings, LEDs to leave out and misplaced LEDs of the reordered press (its checks made again, logged).
+    warnings, LEDs to leave out, misplaced LEDs and measured gains of the reordered press (its checks made again,
+    logged).
 
     Why: two swapped LED images of the twin's cube press were solved as captured to a contact AAE of 6.1 deg after a
     warning that named the pair; the image labelled 3 was lit by LED 7, so solving it as LED 7's is the physics."""
@@ -231,8 +236,8 @@ def _in_detected_order(press: Press, kwargs: dict, order: list[int]) -> tuple[Pr
         if its_order == order:
             kwargs["indirect"] = reordered(indirect, order)
     press = reordered(press, order)
-    notes, left_out, misplaced, _ = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
-    return press, kwargs, [note, *notes], left_out, misplaced
+    notes, left_out, misplaced, _, measured = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
+    return press, kwargs, [note, *notes], left_out, misplaced, measured
 
 
 LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
@@ -241,10 +246,11 @@ LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
 
 def _capture_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[list[str], list[int], list[int], list[int] | None]:
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None]:
     """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
     when it holds light) and :func:`.led_checks.led_check` of its live LEDs; the LEDs to leave out and those whose
-    images show another LED's light (0-based), and the order the images show (None: theirs, or not clear).
+    images show another LED's light (0-based), the order the images show (None: theirs, or not clear) and the LEDs'
+    light against the model as the check measured it (:class:`.led_checks.MeasuredGains`, or None).
     Made before the solve, so a solve that then fails has said why first."""
     notes = []
     if fault := dark_frame_fault(press):
@@ -254,22 +260,22 @@ def _capture_notes(
         if say:
             log.warning("%s", message)
         notes.append(message)
-    led_notes, left_out, misplaced, order = _led_notes(press, leds, options, say)
-    return notes + led_notes, left_out, misplaced, order
+    led_notes, left_out, misplaced, order, measured = _led_notes(press, leds, options, say)
+    return notes + led_notes, left_out, misplaced, order, measured
 
 
 def _led_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[list[str], list[int], list[int], list[int] | None]:
-    """:func:`.led_checks.led_check` of the press's live LEDs, each note logged as a warning (``say``)."""
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None]:
+    """:func:`.led_checks.led_check_measured` of the press's live LEDs, each note logged as a warning (``say``)."""
     leds = _model_leds(press, leds)
     if press.reference is None or len(leds) != len(press.leds):
-        return [], [], [], None  # no undeformed dome to model; a wrong LED count is refused by the solve
+        return [], [], [], None, None  # no undeformed dome to model; a wrong LED count is refused by the solve
     live = _live_leds(press, options)
-    notes, left_out, misplaced, order = led_check(press, leds, live)
+    notes, left_out, misplaced, order, measured = led_check_measured(press, leds, live)
     for note in notes if say else ():
         log.warning("%s", note)
-    return notes, left_out, misplaced, order
+    return notes, left_out, misplaced, order, measured
 
 
 def _model_leds(press: Press, leds: Leds | None) -> tuple:

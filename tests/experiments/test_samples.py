@@ -249,13 +249,17 @@ def _sensor() -> dict:
 def test_a_bumped_sampling_rule_makes_the_press_tasks_samples_anew(tmp_path, monkeypatch):
     """``nlips calibrate``'s shard stamp holds the change-detection rule's version, so a changed rule re-samples its
     presses; an experiment's press task hash did not, and its samples stayed the old rule's for good. Both now take
-    the one list (learn.dataset.SAMPLE_RULES); today's versions leave the hash as it was (earlier work folders keep
-    their tasks), and tasks without samples are untouched."""
+    the one list (learn.dataset.SAMPLE_RULES); the versions of 2026-12-05 (tasks.RULES_HASHED_SILENTLY) leave the
+    hash as it was then (work folders of that day keep their tasks), and tasks without samples are untouched."""
     from nlipscalib.learn import dataset
 
     task, plain = _task(), Task(kind="reference", id="ref-x", scene={})
     fields = {k: v for k, v in dataclasses.asdict(task).items() if k != "keep_old"}  # which result, not what
-    assert task.hash == tasks.digest(fields)
+    today = task.hash
+    with monkeypatch.context() as then:
+        then.setattr(dataset, "SAMPLE_RULES", dict(tasks.RULES_HASHED_SILENTLY))
+        assert task.hash == tasks.digest(fields)
+    assert today == tasks.digest(fields | {"sample_rules": dataset.SAMPLE_RULES})  # the dimmed-press rule since
     _finish(tmp_path, task)
     assert load_result(tmp_path, task) is not None
     run = dataset.dataset_run([], tmp_path, SamplingConfig())

@@ -751,6 +751,30 @@ def test_samples_are_made_again_against_another_undeformed_reference(solved, bui
     assert made == []
 
 
+RULES_BEFORE_FRAME_GAIN = {"rule": 2}
+"""learn.dataset.SAMPLE_RULES until 2026-12-06: what the shards made before contact_pixels scaled the reference frame
+for a dimmed press were stamped with."""
+
+
+def test_shards_stamped_before_the_dimmed_press_rule_are_made_again_on_resume(solved, tmp_path, monkeypatch):
+    """s28-together changed which pixels of a press dimmer than its undeformed capture count as contact
+    (learn.dataset.contact_pixels) without a new sampling version: a resumed `nlips calibrate` kept every shard the
+    old rule had made (almost none of such a press's contact). Shards stamped with the older versions are made again;
+    the next build keeps them."""
+    out = tmp_path / "calib"
+    monkeypatch.setattr(dataset_module, "SAMPLE_RULES", RULES_BEFORE_FRAME_GAIN)
+    _build(solved, out)
+    monkeypatch.undo()
+    (out / "index.json").unlink()  # killed before its index: resumed from the shards' own entries
+    made, real = [], dataset_module.press_samples
+    monkeypatch.setattr(dataset_module, "press_samples", lambda p, *a: made.append(p.folder.name) or real(p, *a))
+    _build(solved, out)
+    assert made == list(NAMES)
+    made.clear()
+    _build(solved, out)
+    assert made == []
+
+
 def _refused_in_one_line(cli: str, args: list[str], env: dict) -> str:
     """Run ``python -c cli ARGS``, which must be refused: exit 2 and one line on stderr, returned."""
     run = subprocess.run([sys.executable, "-c", cli, *args], env=env, capture_output=True, text=True, timeout=120)

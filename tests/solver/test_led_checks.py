@@ -392,3 +392,35 @@ def test_without_a_reference_an_led_group_aged_on_its_own_is_named_and_rescaled(
     assert any("LED model expects" in note for note in again.report["warnings"])
     said = [r.levelno for r in caplog.records if "LED model expects" in r.getMessage()]
     assert said == [logging.INFO], said
+
+
+def test_without_a_reference_the_led_ageing_check_reuses_the_weak_led_checks_samples(tmp_path, monkeypatch):
+    """The no-reference ageing check (model_gain_check) sampled the gel and shaded it with every live LED a second
+    time, after the weak-LED check (led_check) had done the same. A solve now samples them once; the gains it passes
+    on are the ones measured afresh, bit for bit, and another set of LEDs is measured anew."""
+    from nlipscalib.solver import led_checks
+    from nlipscalib.solver.led_checks import led_check_measured, model_gain_check
+
+    dimmer = np.repeat([0.9, 1.0, 1.0], 4)[:, None, None, None]
+    press = _press(tmp_path, "red", lambda lin: lin * dimmer)
+    every = list(range(12))
+    measured = led_check_measured(press, press.leds, every)[4]
+    assert measured is not None and measured.live == tuple(every)
+    fresh = model_gain_check(press, press.leds, every)
+    shared = model_gain_check(press, press.leds, every, measured)
+    assert fresh[0] == shared[0] and np.array_equal(fresh[1], shared[1])
+    assert fresh[1] is not None and np.allclose(fresh[1][:4], 0.9, atol=0.01)
+    fewer = every[1:]
+    assert np.array_equal(
+        model_gain_check(press, press.leds, fewer, measured)[1], model_gain_check(press, press.leds, fewer)[1]
+    )
+
+    direct, real = [], led_checks._samples
+    monkeypatch.setattr(
+        led_checks,
+        "_samples",
+        lambda p, leds, live, indirect=None: direct.append(indirect is None) or real(p, leds, live, indirect),
+    )
+    result = solve_press(press, options=SolverOptions(max_iters=1))
+    assert result.report["led_gains"] is not None
+    assert sum(direct) == 1, direct  # the direct shading's samples: once (the linearity check adds its own)
