@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, require
-from ..core.repeated_frames import frame_lags, lagged_line, repeated_line
+from ..core.repeated_frames import dark_everywhere_line, frame_checks, lagged_line, repeated_line
 from ..core.sensor_response import SensorResponse, linearise, undo_tone_curve
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
@@ -97,10 +97,12 @@ def _repeated_lines(
     linear = np.stack(
         [linearise(frames[name], frames["dark"], response.black_level, response.white_level) for name in names]
     )
-    repeated, bands = frame_lags(linear, gel)
+    repeated, bands, dark = frame_checks(linear, gel)
     files = [f"{name}.png" for name in names]
-    return ([repeated_line(folder, files, repeated)] if repeated else []) + (
-        [lagged_line(folder, files, bands)] if bands else []
+    return (
+        ([repeated_line(folder, files, repeated)] if repeated else [])
+        + ([lagged_line(folder, files, bands)] if bands else [])
+        + ([dark_everywhere_line(folder, dark)] if dark else [])
     )
 
 
