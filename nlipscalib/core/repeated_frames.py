@@ -174,7 +174,9 @@ def dark_bands(light: np.ndarray, rows: np.ndarray, height: int) -> list[DarkBan
     order = np.argsort(band, kind="stable")
     slot = np.arange(len(order)) - np.repeat(np.cumsum(count) - count, count)
     table = np.full((len(light), len(count), count.max()), np.inf)
-    table[:, band[order], slot] = light[:, order] / np.median(light, axis=1, keepdims=True)
+    level = np.median(light, axis=1, keepdims=True)
+    # an LED dark at most samples (the model lights what it does not): NaN, no verdict
+    table[:, band[order], slot] = light[:, order] / np.where(level > 0, level, np.nan)
     counted = np.zeros(table.shape[1:], bool)
     counted[band[order], slot] = True
     found = []
@@ -311,11 +313,15 @@ def lagged_line(folder: object, names: list[str], bands: list[LaggedBand]) -> st
     )
 
 
+DARK_CAUSE = (
+    "no LED was lit while the camera read (or exposed) those rows: the LED switched on late, or off early, against "
+    "the readout (a rolling shutter reads the rows one after another; a global-reset sensor exposes them within one "
+    "window)"
+)
+"""The cause of dark rows (:func:`dark_line`, :func:`dark_everywhere_line`, the LED calibration's refusal)."""
 DARK_FIX = (
-    "the LED was off while the camera read (or exposed) those rows: it switched on late, or off early, against the "
-    "readout (a rolling shutter reads the rows one after another; a global-reset sensor exposes them within one "
-    "window); capture again with --flush 1 or more (frames dropped after each LED change, default 2) and each LED "
-    "lit over the whole frame time"
+    f"{DARK_CAUSE}; capture again with --flush 1 or more (frames dropped after each LED change, default 2) and each "
+    "LED lit over the whole frame time"
 )
 """The cause and fix of dark rows, shared by :func:`dark_line` and :func:`dark_everywhere_line`."""
 

@@ -58,8 +58,8 @@ def check_exposure(
     Returns
     -------
     list of str
-        At most four lines: the black LED frames, the over-exposed frames, the repeated LED frames, the
-        JPEG-compressed LED frames.
+        At most six lines: the black LED frames, the over-exposed frames, the repeated LED frames, the partly
+        lagged ones, rows dark in every LED frame, the JPEG-compressed LED frames.
 
     Raises
     ------
@@ -92,8 +92,8 @@ def _repeated_lines(
     frames: dict[str, np.ndarray], names: list[str], response: SensorResponse, folder: Path, gel: np.ndarray
 ) -> list[str]:
     """The warnings naming LED frames that repeat the frame before them, whole or in some rows (the camera's frames
-    lag the LED switch, or were read out across it: :mod:`nlipscalib.core.repeated_frames`), while the press can
-    still be captured again."""
+    lag the LED switch, or were read out across it: :mod:`nlipscalib.core.repeated_frames`), and rows dark in every
+    LED frame (read while no LED was lit), while the press can still be captured again."""
     linear = np.stack(
         [linearise(frames[name], frames["dark"], response.black_level, response.white_level) for name in names]
     )

@@ -147,6 +147,17 @@ def led_check(
     return notes, left_out, misplaced, detected_order(shows, len(press.leds))
 
 
+def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[DarkBand]:
+    """The LED images (of the 0-based LEDs ``live``) with a band of rows at the dark frame's level where the LED model
+    ``leds`` lights the undeformed dome (:func:`.dark_bands`), ``index`` the LED's; empty without a surface or lit
+    samples. :func:`led_check` finds them from its own samples."""
+    live = [int(i) for i in live]
+    if press.reference is None or len(live) < 3:
+        return []
+    image, model, rows = _sampled(press, leds, live)
+    return [] if image is None else _dark_rows(image, model, rows, live, press.camera.height, None)
+
+
 def _dark_rows(
     image: np.ndarray, model: np.ndarray, rows: np.ndarray, live: list[int], height: int, everywhere: DarkBand | None
 ) -> list[DarkBand]:
