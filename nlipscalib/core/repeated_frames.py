@@ -331,14 +331,17 @@ def dark_line(folder: object, names: list[str], bands: list[DarkBand]) -> str:
     the cause and the fix."""
     said = ", ".join(f"{names[band.index]}'s rows {_rows(band)}" for band in bands)
     return (
-        f"{folder}: {said} {'are' if len(bands) == 1 else 'are each'} dark (the dark frame's level, where the LED "
-        f"model and the other LEDs give them light): {DARK_FIX}"
+        f"{folder}: {said} {'are' if len(bands) == 1 else 'are each'} dark (under {DARK_BAND_LIGHT:g} of the light "
+        f"the LED model and the other LEDs give them: the dark frame's level, or a very dim LED): {DARK_FIX}"
     )
 
 
 def dark_everywhere_line(folder: object, band: DarkBand) -> str:
     """One line naming the rows dark in every LED image (:func:`dark_everywhere`), the cause and the fix."""
-    return f"{folder}: rows {_rows(band)} of every LED image are dark (the dark frame's level): {DARK_FIX}"
+    return (
+        f"{folder}: rows {_rows(band)} of every LED image are dark (the LEDs' light there under {DARK_BAND_LIGHT:g} "
+        f"of its median over the gel: the dark frame's level): {DARK_FIX}"
+    )
 
 
 def _rows(band: DarkBand) -> str:

@@ -137,8 +137,9 @@ def _dark_rows_of(press: Press, leds: Leds, k: int) -> str | None:
     if band is None:
         return None
     return (
-        f"whose rows {band.rows[0]}-{band.rows[1] - 1} ({band.where}) are dark (the dark frame's level where the "
-        f"fitted LED lights them): {DARK_CAUSE}; keep each LED lit over the whole frame time (--flush 1 or more)"
+        f"whose rows {band.rows[0]}-{band.rows[1] - 1} ({band.where}) are dark (the dark frame's level, or a very "
+        f"dim LED, where the fitted LED lights them): {DARK_CAUSE}; keep each LED lit over the whole frame time "
+        "(--flush 1 or more)"
     )
 
 
