@@ -61,7 +61,8 @@ def led_check(
     press: Press, leds: Sequence[Led], live: Sequence[int]
 ) -> tuple[list[str], list[int], list[int], list[int] | None]:
     """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, repeat
-    the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`), went through
+    the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`), hold rows read
+    while no LED was lit (one image's, against the LED model: :func:`_dark_rows`; every image's), went through
     JPEG (:func:`compression_notes`), and the LEDs whose
     light is off the model's (weak, or brighter than the others) or repeated: a solve leaves those out.
 
@@ -80,7 +81,8 @@ def led_check(
     -------
     notes : list of str -- empty when every live LED image matches its LED.
     left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
-        :data:`WEAK_LED_GAIN`, or their image repeats the one before; empty when leaving them out would leave fewer than
+        :data:`WEAK_LED_GAIN`, or their image repeats the one before (whole or in some rows) or has a band of rows at
+        the dark frame's level (:func:`.dark_bands`); empty when leaving them out would leave fewer than
         ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
     misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
     order : list of int, or None -- for each LED (0-based), the image (0-based, the capture's order) that shows its
@@ -105,7 +107,7 @@ def led_check(
     judged = [k for k, i in enumerate(live) if i not in {band.index for band in dark}]
     off = []
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
-    relative = gain / np.median(gain[judged])
+    relative = gain / np.median(gain[judged] if judged else gain)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
         corr = np.corrcoef(image.mean(-1), model.mean(-1))[: len(live), len(live) :]
     swapped, misplaced, shows = set(), [], {}

@@ -304,9 +304,10 @@ def test_an_led_image_read_out_across_the_switch_is_named_with_its_rows_and_left
 
 
 def test_dark_top_rows_of_an_led_image_are_named_with_their_rows_and_left_out(tmp_path, caplog):
-    """LED 9's top 20 rows read while it was off (the dark frame's level): solved silently before (the twin's cube
-    press, LED 5's top 60 rows dark: contact AAE 0.50 deg, 0.45 clean, s29-darkrows); now the rows, the cause and the
-    fix are named and the LED is left out. Not taken for a readout across the switch, nor for a repeat."""
+    """LED 9's top 20 rows read while it was off (the dark frame's level): solved without a word about it, or with a
+    wrong cause (the twin's presses, LED 5's top 20-60 rows: "misfitting pixels along the gel's edge ... vignetting";
+    its top 200 rows: refused as another sensor's images; s29-darkrows); now the rows, the cause and the fix are named
+    and the LED is left out. Not taken for a readout across the switch, for a repeat or for a weak LED."""
     press = _press(tmp_path, "rolling_dark", _rows_from({8: None}, 20))
     with caplog.at_level(logging.WARNING):
         result = solve_press(press, options=SolverOptions(max_iters=2))
