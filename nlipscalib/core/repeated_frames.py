@@ -13,6 +13,12 @@ Partly (:func:`lagged_bands`): a rolling shutter reads the rows one after anothe
 k-1's) above a row and LED k's below it. Whole-frame medians missed it (s28 QA: LED 5
 of the twin's sphere press with its top half from LED 4 was called a repeat, its top quarter not seen at all), so
 the check compares the images row of blocks by row of blocks.
+
+Dark rows (:func:`dark_bands`, :func:`dark_everywhere`): rows read while no LED was lit (the LED switched on late, or
+off early, against the readout; a global-reset sensor's exposure that missed the LED in some rows) hold the dark
+frame's level, not the previous LED's light. One LED's dark band is told from its own light's terminator by the LED
+model (the solve's :func:`nlipscalib.solver.led_checks.led_check` feeds :func:`dark_bands` its samples); rows dark in
+every LED image by the images alone (the LEDs together light the whole gel).
 """
 
 from __future__ import annotations
@@ -232,8 +238,8 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
         scale = np.where(lit[rows], brighter[rows], 1)
         difference = _row_medians(np.abs(current[rows] - neighbour[rows]) / scale, lit[rows])
         # 1: the previous LED's light, 0: the image's own light. Dark rows (read while no LED was lit) are not
-        # looked for: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far from
-        # their design: dark top rows in 2 of 12 images, s28-rolling); the weak-LED check leaves such an LED out
+        # looked for here: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
+        # from their design: dark top rows in 2 of 12 images, s28-rolling); the LED model tells (dark_bands)
         kind = (difference < REPEATED_FRAME_DIFFERENCE).astype(np.int8)
         if band := _edge_band(kind, rows, index):
             bands.append(band)
