@@ -13,6 +13,12 @@ Partly (:func:`lagged_bands`): a rolling shutter reads the rows one after anothe
 k-1's) above a row and LED k's below it. Whole-frame medians missed it (s28 QA: LED 5
 of the twin's sphere press with its top half from LED 4 was called a repeat, its top quarter not seen at all), so
 the check compares the images row of blocks by row of blocks.
+
+Dark rows (:func:`dark_bands`, :func:`dark_everywhere`): rows read while no LED was lit (the LED switched on late, or
+off early, against the readout; a global-reset sensor's exposure that missed the LED in some rows) hold the dark
+frame's level, not the previous LED's light. One LED's dark band is told from its own light's terminator by the LED
+model (the solve's :func:`nlipscalib.solver.led_checks.led_check` feeds :func:`dark_bands` its samples); rows dark in
+every LED image by the images alone (the LEDs together light the whole gel).
 """
 
 from __future__ import annotations
@@ -23,6 +29,9 @@ import numpy as np
 
 from .tolerances import (
     CAPTURE_CHECK_BLUR,
+    DARK_BAND_LIGHT,
+    DARK_BAND_ROWS,
+    DARK_BAND_SHARE,
     EXPOSURE_LIGHT_FRACTION,
     LAGGED_BAND_ROWS,
     REPEATED_FRAME_DIFFERENCE,
@@ -32,6 +41,9 @@ MIN_LIT_PIXELS = 100
 """Fewest lit gel pixels two images need for a verdict (a smaller lit patch says nothing either way)."""
 MIN_LIT_ROW_BLOCKS = 8
 """Fewest lit blocks a row of blocks needs to count in :func:`lagged_bands` (200 pixels: its median is steady)."""
+MIN_ROW_SAMPLES = 8
+"""Fewest samples a band of :data:`CAPTURE_CHECK_BLUR` rows needs to count in :func:`dark_bands` (the solve's
+~2000 gel samples give ~20 a band at 640x480, ~40 at 320x240)."""
 
 
 class LaggedBand(NamedTuple):
@@ -45,6 +57,17 @@ class LaggedBand(NamedTuple):
     """The band is at the image's top (a shutter reading downwards), else at its bottom."""
 
 
+class DarkBand(NamedTuple):
+    """Rows of an LED image (or of every one) at the dark frame's level: read while no LED was lit."""
+
+    index: int | None
+    """The LED image, 0-based in capture order; None: every LED image (:func:`dark_everywhere`)."""
+    rows: tuple[int, int]
+    """First and one-past-last pixel row of the band (to :data:`CAPTURE_CHECK_BLUR` pixels)."""
+    where: str
+    """"top", "bottom" or "middle" of the rows that count."""
+
+
 def repeated_leds(linear: np.ndarray, gel: np.ndarray) -> list[tuple[int, float]]:
     """The LED images that repeat the image captured just before them, in capture order (:func:`frame_lags`'s first
     list)."""
@@ -52,6 +75,13 @@ def repeated_leds(linear: np.ndarray, gel: np.ndarray) -> list[tuple[int, float]
 
 
 def frame_lags(linear: np.ndarray, gel: np.ndarray) -> tuple[list[tuple[int, float]], list[LaggedBand]]:
+    """:func:`frame_checks`' repeated and partly lagged LED images (its first two lists)."""
+    return frame_checks(linear, gel)[:2]
+
+
+def frame_checks(
+    linear: np.ndarray, gel: np.ndarray
+) -> tuple[list[tuple[int, float]], list[LaggedBand], DarkBand | None]:
     """The LED images that repeat the image captured before them, whole and in part (one block average each).
 
     Parameters
@@ -69,6 +99,7 @@ def frame_lags(linear: np.ndarray, gel: np.ndarray) -> tuple[list[tuple[int, flo
         :data:`~nlipscalib.core.tolerances.REPEATED_FRAME_DIFFERENCE`, and which holds no rows of its own light
         (then it is a lagged band); empty when none is.
     bands : list of LaggedBand -- the images lagged only in part (:func:`lagged_bands`).
+    dark : DarkBand or None -- rows dark in every LED image (:func:`dark_everywhere`).
     """
     inside = _block_means(np.asarray(gel, np.float32)[..., None]) > 1 - 1e-6  # blocks wholly on the gel (rounding)
     blocks = [_block_means(image) for image in linear]
@@ -83,7 +114,99 @@ def frame_lags(linear: np.ndarray, gel: np.ndarray) -> tuple[list[tuple[int, flo
             difference = float(np.median(np.abs(current[lit] - previous[lit]) / brighter[lit]))
             if difference < REPEATED_FRAME_DIFFERENCE:
                 found.append((index, difference))
-    return found, bands
+    return found, bands, dark_everywhere(blocks, inside)
+
+
+def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | None:
+    """Rows of blocks dark in every LED image: the LEDs' summed light below
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT` of its median over the gel in
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_SHARE` of the row's blocks in a run of
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` rows or more (not all of them).
+
+    Why the images alone suffice: the LEDs together light the whole gel (each LED's own light may end at its
+    terminator; a contact's shadow from every LED at once is a small hole, not whole rows).
+
+    Parameters
+    ----------
+    blocks : list of (h, w) float32 -- the LED images' block means (:func:`_block_means`), in capture order.
+    inside : (h, w) bool -- the blocks wholly on the gel.
+
+    Returns
+    -------
+    DarkBand (``index`` None) or None.
+    """
+    if len(blocks) < 2:
+        return None
+    total = np.sum(blocks, axis=0)
+    rows = np.flatnonzero(inside.sum(axis=1) >= MIN_LIT_ROW_BLOCKS)
+    if len(rows) <= DARK_BAND_ROWS:
+        return None
+    level = float(np.median(total[inside]))
+    if not level > 0:
+        return None
+    most = _row_quantiles(total[rows] / level, inside[rows], DARK_BAND_SHARE)
+    return _dark_run(most < DARK_BAND_LIGHT, rows, None)
+
+
+def dark_bands(light: np.ndarray, rows: np.ndarray, height: int) -> list[DarkBand]:
+    """The LED images with a band of rows far below the light they should hold: read while their LED was not lit.
+
+    Per LED, the samples' ``light`` over its median below :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT` in
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_SHARE` of the samples of each band of
+    :data:`~nlipscalib.core.tolerances.CAPTURE_CHECK_BLUR` rows (with :data:`MIN_ROW_SAMPLES` samples or more), in a
+    run of
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` bands or more, not all of them, at the top, the bottom or in
+    the middle (a global-reset sensor's exposure that missed the LED in some rows).
+
+    Parameters
+    ----------
+    light : (L, N) float -- each LED's image at N gel samples over the light expected there (the LED model with a
+        per-pixel albedo fitted over the LEDs: :func:`nlipscalib.solver.led_checks.led_check`); 1 as modelled.
+    rows : (N,) int -- the samples' pixel rows.
+    height : int -- the image's rows.
+
+    Returns
+    -------
+    list of DarkBand -- one per LED image with a dark band (its longest), in order; empty when none has one.
+    """
+    b = CAPTURE_CHECK_BLUR
+    light = np.asarray(light, np.float64)
+    band = np.asarray(rows) // b
+    count = np.bincount(band, minlength=-(-height // b))
+    bands = np.flatnonzero(count >= MIN_ROW_SAMPLES)
+    if len(bands) <= DARK_BAND_ROWS or light.size == 0:
+        return []
+    # each band's samples side by side (padded): one sort gives every band's median, every LED at once
+    order = np.argsort(band, kind="stable")
+    slot = np.arange(len(order)) - np.repeat(np.cumsum(count) - count, count)
+    table = np.full((len(light), len(count), count.max()), np.inf)
+    level = np.median(light, axis=1, keepdims=True)
+    # an LED dark at most samples (the model lights what it does not): NaN, no verdict
+    table[:, band[order], slot] = light[:, order] / np.where(level > 0, level, np.nan)
+    counted = np.zeros(table.shape[1:], bool)
+    counted[band[order], slot] = True
+    found = []
+    for index, values in enumerate(table):
+        most = _row_quantiles(values[bands], counted[bands], DARK_BAND_SHARE)
+        if dark := _dark_run(most < DARK_BAND_LIGHT, bands, index):
+            found.append(dark)
+    return found
+
+
+def _dark_run(dark: np.ndarray, bands: np.ndarray, index: int | None) -> DarkBand | None:
+    """The longest run of ``dark`` among the counted ``bands`` (rows of blocks, ascending) when it is
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` long or more and not all of them."""
+    if dark.all() or not dark.any():
+        return None
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], dark.astype(np.int8), [0]])))
+    starts, stops = edges[::2], edges[1::2]
+    longest = int(np.argmax(stops - starts))
+    start, stop = int(starts[longest]), int(stops[longest])
+    if stop - start < DARK_BAND_ROWS:
+        return None
+    where = "top" if start == 0 else "bottom" if stop == len(dark) else "middle"
+    b = CAPTURE_CHECK_BLUR
+    return DarkBand(index, (int(bands[start]) * b, (int(bands[stop - 1]) + 1) * b), where)
 
 
 def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBand]:
@@ -115,8 +238,8 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
         scale = np.where(lit[rows], brighter[rows], 1)
         difference = _row_medians(np.abs(current[rows] - neighbour[rows]) / scale, lit[rows])
         # 1: the previous LED's light, 0: the image's own light. Dark rows (read while no LED was lit) are not
-        # looked for: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far from
-        # their design: dark top rows in 2 of 12 images, s28-rolling); the weak-LED check leaves such an LED out
+        # looked for here: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
+        # from their design: dark top rows in 2 of 12 images, s28-rolling); the LED model tells (dark_bands)
         kind = (difference < REPEATED_FRAME_DIFFERENCE).astype(np.int8)
         if band := _edge_band(kind, rows, index):
             bands.append(band)
@@ -130,6 +253,14 @@ def _row_medians(values: np.ndarray, counted: np.ndarray) -> np.ndarray:
     count = counted.sum(axis=1)
     at = np.arange(len(values))
     return 0.5 * (ordered[at, (count - 1) // 2] + ordered[at, count // 2])
+
+
+def _row_quantiles(values: np.ndarray, counted: np.ndarray, q: float) -> np.ndarray:
+    """(n,) float: the ``q`` quantile (lower: an entry) of each row of ``values`` (n, w) over its ``counted``
+    entries (at least one each), as :func:`_row_medians`."""
+    ordered = np.sort(np.where(counted, values, np.inf), axis=1)
+    count = counted.sum(axis=1)
+    return ordered[np.arange(len(values)), np.floor(q * (count - 1)).astype(int)]
 
 
 def _edge_band(kind: np.ndarray, rows: np.ndarray, index: int) -> LaggedBand | None:
@@ -186,3 +317,39 @@ def lagged_line(folder: object, names: list[str], bands: list[LaggedBand]) -> st
         "--flush 1 or more (frames dropped after each LED change, default 2), and a frame source that drops them "
         "(a recorded video or image sequence does not)"
     )
+
+
+DARK_CAUSE = (
+    "no LED was lit while the camera read (or exposed) those rows: the LED switched on late, or off early, against "
+    "the readout (a rolling shutter reads the rows one after another; a global-reset sensor exposes them within one "
+    "window)"
+)
+"""The cause of dark rows (:func:`dark_line`, :func:`dark_everywhere_line`, the LED calibration's refusal)."""
+DARK_FIX = (
+    f"{DARK_CAUSE}; capture again with --flush 1 or more (frames dropped after each LED change, default 2) and each "
+    "LED lit over the whole frame time"
+)
+"""The cause and fix of dark rows, shared by :func:`dark_line` and :func:`dark_everywhere_line`."""
+
+
+def dark_line(folder: object, names: list[str], bands: list[DarkBand]) -> str:
+    """One line naming the LED images (``names`` in capture order) with dark rows (:func:`dark_bands`), their rows,
+    the cause and the fix."""
+    said = ", ".join(f"{names[band.index]}'s rows {_rows(band)}" for band in bands)
+    return (
+        f"{folder}: {said} {'are' if len(bands) == 1 else 'are each'} dark (under {DARK_BAND_LIGHT:g} of the light "
+        f"the LED model and the other LEDs give them: the dark frame's level, or a very dim LED): {DARK_FIX}"
+    )
+
+
+def dark_everywhere_line(folder: object, band: DarkBand) -> str:
+    """One line naming the rows dark in every LED image (:func:`dark_everywhere`), the cause and the fix."""
+    return (
+        f"{folder}: rows {_rows(band)} of every LED image are dark (the LEDs' light there under {DARK_BAND_LIGHT:g} "
+        f"of its median over the gel: the dark frame's level): {DARK_FIX}"
+    )
+
+
+def _rows(band: DarkBand) -> str:
+    """'first-last (where)' of a dark band's pixel rows."""
+    return f"{band.rows[0]}-{band.rows[1] - 1} ({band.where})"

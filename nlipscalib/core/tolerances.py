@@ -503,6 +503,21 @@ error: the camera's rolling readout starts before each LED switches) when, in me
 fitted (gain and offset) to the previous LED's modelled light leaves less than this fraction of the misfit to its own
 LED's (:func:`nlipscalib.solver.led_checks.shifted_rows`). The twin's presses (/tmp/keep, 640x480, 16 bands of 30
 rows): 1.18 and above in every band; bands read before the switch: 0.09-0.48 (s28-rolling)."""
+DARK_BAND_ROWS = 3
+"""Fewest bands of :data:`CAPTURE_CHECK_BLUR` rows (15 pixels) in a run for an LED image's rows (or every LED
+image's) to be called dark: read while no LED was lit (:func:`nlipscalib.core.repeated_frames.dark_bands`,
+:func:`~nlipscalib.core.repeated_frames.dark_everywhere`). As :data:`LAGGED_BAND_ROWS`."""
+DARK_BAND_LIGHT = 0.25
+"""Rows are dark (read while no LED was lit, or a very dim LED) when, in :data:`DARK_BAND_SHARE` of a band of
+:data:`CAPTURE_CHECK_BLUR` rows' samples, the LED image's light over the light the LED model (albedo fitted over the
+LEDs) gives it, relative to its median over the gel, is below this; every LED image at once: their summed light over
+its median over the gel, per 5x5 block. The twin (one bounce, 16 spp; /tmp/keep at 640x480 and 24 presses at
+320x240, deep ones at the frame's edge): 0.965 and above in every band of every LED, 1.00 and above for the sum;
+rows read while no LED was lit 0.00 (s29-darkrows). A synthetic 3 mm dent filling a cropped frame: 0.64."""
+DARK_BAND_SHARE = 0.9
+"""Share of a band's samples (or blocks) that must be dark (:data:`DARK_BAND_LIGHT`): a dark band is dark across the
+whole row; a contact's flank turned away from an LED is dark in a part of it (a quantile, not the median: the
+twin's median over a band goes down to 0.82 on the presses above)."""
 LINEAR_RESPONSE_SLOPE = 0.7
 """LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
 each pixel's value grows as the LED model's light, direct plus the fitted indirect term, to a power below this, in

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, require
-from ..core.repeated_frames import frame_lags, lagged_line, repeated_line
+from ..core.repeated_frames import dark_everywhere_line, frame_checks, lagged_line, repeated_line
 from ..core.sensor_response import SensorResponse, linearise, undo_tone_curve
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
@@ -58,8 +58,8 @@ def check_exposure(
     Returns
     -------
     list of str
-        At most four lines: the black LED frames, the over-exposed frames, the repeated LED frames, the
-        JPEG-compressed LED frames.
+        At most six lines: the black LED frames, the over-exposed frames, the repeated LED frames, the partly
+        lagged ones, rows dark in every LED frame, the JPEG-compressed LED frames.
 
     Raises
     ------
@@ -71,6 +71,7 @@ def check_exposure(
     if (curve := response.tone_curve()) is not None:  # a declared sRGB camera: checked in light, as it is solved
         frames = {name: undo_tone_curve(frame.copy(), curve) for name, frame in frames.items()}
     names = sorted(name for name in frames if name.startswith("led_"))
+    outlined = _has_gel(gel, frames["dark"].shape[:2])
     gel, where = _gel(gel, frames["dark"].shape[:2])
     clipped = {f"{name}.png": _saturated_share(frames[name], response, gel) for name in names}
     clipped["tricolor.png"] = _saturated_share(frames["tricolor"], response, gel)
@@ -85,22 +86,31 @@ def check_exposure(
     lines = [_black_line(folder, names, black)] if black else []
     over = _over_line(folder, clipped, where)
     lines += [over] if over else []
-    return lines + _repeated_lines(frames, names, response, folder, gel) + _compressed_lines(frames, names, folder, gel)
+    lines += _repeated_lines(frames, names, response, folder, gel, outlined)
+    return lines + _compressed_lines(frames, names, folder, gel)
 
 
 def _repeated_lines(
-    frames: dict[str, np.ndarray], names: list[str], response: SensorResponse, folder: Path, gel: np.ndarray
+    frames: dict[str, np.ndarray],
+    names: list[str],
+    response: SensorResponse,
+    folder: Path,
+    gel: np.ndarray,
+    outlined: bool = True,
 ) -> list[str]:
     """The warnings naming LED frames that repeat the frame before them, whole or in some rows (the camera's frames
-    lag the LED switch, or were read out across it: :mod:`nlipscalib.core.repeated_frames`), while the press can
-    still be captured again."""
+    lag the LED switch, or were read out across it: :mod:`nlipscalib.core.repeated_frames`), and rows dark in every
+    LED frame (read while no LED was lit; only where ``outlined``, a gel mask given: the frame's rows beyond the
+    dome's image are dark in every frame), while the press can still be captured again."""
     linear = np.stack(
         [linearise(frames[name], frames["dark"], response.black_level, response.white_level) for name in names]
     )
-    repeated, bands = frame_lags(linear, gel)
+    repeated, bands, dark = frame_checks(linear, gel)
     files = [f"{name}.png" for name in names]
-    return ([repeated_line(folder, files, repeated)] if repeated else []) + (
-        [lagged_line(folder, files, bands)] if bands else []
+    return (
+        ([repeated_line(folder, files, repeated)] if repeated else [])
+        + ([lagged_line(folder, files, bands)] if bands else [])
+        + ([dark_everywhere_line(folder, dark)] if dark and outlined else [])
     )
 
 
@@ -114,10 +124,15 @@ def _compressed_lines(frames: dict[str, np.ndarray], names: list[str], folder: P
 
 def _gel(gel: np.ndarray | None, shape: tuple[int, int]) -> tuple[np.ndarray, str]:
     """The pixels checked, and what the messages call them: the gel's when ``gel`` marks some of a frame of
-    ``shape``, else every pixel."""
-    if gel is not None and gel.shape == shape and bool(gel.any()):
+    ``shape`` (:func:`_has_gel`), else every pixel."""
+    if _has_gel(gel, shape):
         return gel, "of the gel"
     return np.ones(shape, bool), "of the pixels"
+
+
+def _has_gel(gel: np.ndarray | None, shape: tuple[int, int]) -> bool:
+    """Whether ``gel`` marks some pixels of a frame of ``shape``."""
+    return gel is not None and gel.shape == shape and bool(gel.any())
 
 
 def _saturated_share(image: np.ndarray, response: SensorResponse, gel: np.ndarray) -> float:

@@ -39,7 +39,7 @@ from ..core.capture import Press, as_press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
-from ..core.repeated_frames import frame_lags, lagged_line, repeated_line
+from ..core.repeated_frames import dark_everywhere_line, frame_checks, lagged_line, repeated_line
 from .calibration_contact import contact_notes, contact_refusal, contact_regions, led_cause
 from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
@@ -454,7 +454,11 @@ def _check_lit(press: Press) -> None:
             f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
             f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
         )
-    repeated, bands = frame_lags(press.linear_led_images, gel)
+    repeated, bands, dark = frame_checks(press.linear_led_images, gel)
+    if dark is not None:
+        # rows at the dark frame's level in every image: each LED would be fitted to light it never gave
+        line = dark_everywhere_line(press.folder, dark)
+        raise CaptureError(f"{line}; the LED calibration needs each LED's light over the whole gel")
     if repeated or bands:
         names = (press.meta.get("images") or {}).get("leds") or []
         names = names if len(names) == len(press.leds) else [f"LED {i + 1}" for i in range(len(press.leds))]

@@ -21,7 +21,15 @@ from ..core.capture import Press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError
 from ..core.leds import Led, led_shading, tricolor_groups
-from ..core.repeated_frames import frame_lags, lagged_line, repeated_line
+from ..core.repeated_frames import (
+    DarkBand,
+    dark_bands,
+    dark_everywhere_line,
+    dark_line,
+    frame_checks,
+    lagged_line,
+    repeated_line,
+)
 from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
 from . import reuse
 from .indirect import fit_indirect
@@ -53,7 +61,8 @@ def led_check(
     press: Press, leds: Sequence[Led], live: Sequence[int]
 ) -> tuple[list[str], list[int], list[int], list[int] | None]:
     """Warnings (one line each, naming the press and the LED images) when LED images do not show their LEDs, repeat
-    the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`), went through
+    the image before them (frames that lag the LED switch, :mod:`nlipscalib.core.repeated_frames`), hold rows read
+    while no LED was lit (one image's, against the LED model: :func:`_dark_rows`; every image's), went through
     JPEG (:func:`compression_notes`), and the LEDs whose
     light is off the model's (weak, or brighter than the others) or repeated: a solve leaves those out.
 
@@ -72,7 +81,8 @@ def led_check(
     -------
     notes : list of str -- empty when every live LED image matches its LED.
     left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
-        :data:`WEAK_LED_GAIN`, or their image repeats the one before; empty when leaving them out would leave fewer than
+        :data:`WEAK_LED_GAIN`, or their image repeats the one before (whole or in some rows) or has a band of rows at
+        the dark frame's level (:func:`.dark_bands`); empty when leaving them out would leave fewer than
         ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
     misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
     order : list of int, or None -- for each LED (0-based), the image (0-based, the capture's order) that shows its
@@ -104,21 +114,26 @@ def led_check_measured(
     if press.reference is None or len(live) < 3:
         return [], [], [], None, None
     names = _image_names(press)
-    lagged, repeated = _repeated_line(press, names)
-    jpeg_notes = compression_notes(press)
+    lagged, repeated, everywhere = _repeated_line(press, names)
+    jpeg_notes = compression_notes(press) + (
+        [f"{dark_everywhere_line(press.folder, everywhere)}; {DARK_ALL}"] if everywhere else []
+    )
     live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
-    image, model = _samples(press, leds, live) if len(live) >= 3 else (None, None)
+    image, model, rows = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
         return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None, None
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
+    dark = _dark_rows(image, model, rows, live, press.camera.height, everywhere)
+    judged = [k for k, i in enumerate(live) if i not in {band.index for band in dark}]
     off = []
-    relative = _relative_gains(image, model)
+    relative = _relative_gains(image, model, judged)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat image (saturated throughout): NaN, no verdict
         corr = np.corrcoef(image.mean(-1), model.mean(-1))[: len(live), len(live) :]
     swapped, misplaced, shows = set(), [], {}
-    for k, i in enumerate(live):
+    for k in judged:  # an image with dark rows: its light is off the model there, no verdict on its LED
+        i = live[k]
         best = int(np.argmax(corr[k]))
         if corr[k, k] < MATCH_CORRELATION and best != k:
             j = live[best]
@@ -140,8 +155,10 @@ def led_check_measured(
                 )
         elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
             off.append((i, relative[k]))
-    left_out = _leave_out([i for i, _ in off] + repeated, len(live) + len(repeated))
-    notes = _said_repeated(lagged, left_out) + notes
+    darkened = [band.index for band in dark]
+    left_out = _leave_out([i for i, _ in off] + repeated + darkened, len(live) + len(repeated))
+    dark_notes = [dark_line(press.folder, names, dark)] if dark else []
+    notes = _said_repeated(lagged, left_out) + _said_repeated(dark_notes, left_out, DARK_REASON) + notes
     for i, share in off:
         what = "weak LED?" if share < 1 else "brighter than the others"
         done = "left out of the solve and of --roi auto" if left_out else "used (too few LEDs to leave it out)"
@@ -152,6 +169,35 @@ def led_check_measured(
         )
     measured = MeasuredGains(tuple(live), relative)
     return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured
+
+
+def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[DarkBand]:
+    """The LED images (of the 0-based LEDs ``live``) with a band of rows at the dark frame's level where the LED model
+    ``leds`` lights the undeformed dome (:func:`.dark_bands`), ``index`` the LED's; empty without a surface or lit
+    samples. :func:`led_check` finds them from its own samples."""
+    live = [int(i) for i in live]
+    if press.reference is None or len(live) < 3:
+        return []
+    image, model, rows = _sampled(press, leds, live)
+    return [] if image is None else _dark_rows(image, model, rows, live, press.camera.height, None)
+
+
+def _dark_rows(
+    image: np.ndarray, model: np.ndarray, rows: np.ndarray, live: list[int], height: int, everywhere: DarkBand | None
+) -> list[DarkBand]:
+    """:func:`.dark_bands` of the sampled LED images (``image``, ``model``: :func:`_sampled`'s, of the LEDs
+    ``live``), their ``index`` the LED's (0-based), outside the rows dark in every image (``everywhere``: there the
+    albedo fitted to the dark frame's noise models noise).
+
+    Why the LED model: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
+    from their design: dark top rows in 2 of 12 images, s28-rolling); the samples lie where every LED lights the
+    gel directly, so rows the model lights and the image does not were read while the LED was off."""
+    light = image.sum(-1) / np.maximum(model.sum(-1), 1e-12)
+    if everywhere is not None:
+        keep = (rows < everywhere.rows[0]) | (rows >= everywhere.rows[1])
+        light, rows = light[:, keep], rows[keep]
+    found = dark_bands(light, rows, height)
+    return [band._replace(index=live[band.index]) for band in found]
 
 
 def detected_order_of(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[int] | None:
@@ -219,27 +265,35 @@ def _leave_out(candidates: list[int], count: int) -> list[int]:
     return sorted(candidates) if count - len(candidates) >= tolerances.MIN_LEDS_PER_PIXEL else []
 
 
-def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int]]:
-    """The lines naming LED images that repeat the image before them, whole or in some rows (:func:`.frame_lags`:
-    frames that lag the LED switch, or read out across it by a rolling shutter), none when none does, and those
-    LEDs (0-based), in the capture order of ``images.leds``.
+def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int], DarkBand | None]:
+    """The lines naming LED images that repeat the image before them, whole or in some rows (:func:`.frame_checks`:
+    frames that lag the LED switch, or read out across it by a rolling shutter), none when none does, those LEDs
+    (0-based), in the capture order of ``images.leds``, and the rows dark in every LED image (None: none).
 
     Why leave a partly lagged LED out: its rows of the previous LED's light are solved as its own. The twin's cube
     press (640x480, --roi auto; clean 0.446 deg): LED 5's top three quarters from LED 4 0.500, left out 0.458; where
     the rows miss the contact, leaving it out costs up to 0.011 deg (sphere: 0.529-0.531 used, 0.540 left out;
     s28-rolling)."""
-    repeated, bands = frame_lags(press.linear_led_images, np.isfinite(press.reference.depth))
+    repeated, bands, everywhere = frame_checks(press.linear_led_images, np.isfinite(press.reference.depth))
     lines = ([repeated_line(press.folder, names, repeated)] if repeated else []) + (
         [lagged_line(press.folder, names, bands)] if bands else []
     )
-    return lines, sorted([i for i, _ in repeated] + [band.index for band in bands])
+    return lines, sorted([i for i, _ in repeated] + [band.index for band in bands]), everywhere
 
 
-def _said_repeated(lines: list[str], left_out: list[int]) -> list[str]:
-    """The warnings of :func:`_repeated_line`'s ``lines``, saying whether the solve leaves those LEDs out (not when
-    too few LEDs would be left: :func:`_leave_out`)."""
+DARK_ALL = "no LED can be left out for it: the normals solved in those rows are wrong"
+"""The tail of the solve's warning about rows dark in every LED image (:func:`.dark_everywhere_line`)."""
+REPEATED_REASON = "they hold the light of the LED before them"
+"""Why :func:`_said_repeated` leaves repeated and partly lagged LED images out."""
+DARK_REASON = "their rows read while the LED was off are no light of theirs"
+"""Why :func:`_said_repeated` leaves LED images with dark rows out."""
+
+
+def _said_repeated(lines: list[str], left_out: list[int], reason: str = REPEATED_REASON) -> list[str]:
+    """The warnings of :func:`_repeated_line`'s ``lines`` (or the dark rows'), saying whether the solve leaves those
+    LEDs out (not when too few LEDs would be left: :func:`_leave_out`), and ``reason``."""
     done = "left out of the solve" if left_out else "used (too few LEDs to leave them out)"
-    return [f"{line}; {done} (they hold the light of the LED before them)" for line in lines]
+    return [f"{line}; {done} ({reason})" for line in lines]
 
 
 SHIFT_BANDS = 16
@@ -422,15 +476,23 @@ def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
 def _samples(
     press: Press, leds: Sequence[Led], live: list[int], indirect: Sequence[np.ndarray] | None = None
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """:func:`_sampled`'s images and modelled light, without the rows."""
+    return _sampled(press, leds, live, indirect)[:2]
+
+
+def _sampled(
+    press: Press, leds: Sequence[Led], live: list[int], indirect: Sequence[np.ndarray] | None = None
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """The live LED images and their modelled light (albedo fitted per pixel and channel over the live LEDs; with
     ``indirect``, each LED's (H, W, 3) indirect light per unit albedo added to its direct shading) on a subgrid of
-    the gel: two (L_live, N, 3) float64 arrays, or (None, None) when too few gel pixels are lit."""
+    the gel: two (L_live, N, 3) float64 arrays and the samples' (N,) pixel rows, or Nones when too few gel pixels
+    are lit."""
     ref = press.reference
     gel = np.isfinite(ref.depth)
     index = np.flatnonzero(gel)
     index = index[:: max(1, index.size // CHECK_PIXELS)]  # every k-th gel pixel in raster order
     if index.size < 10:
-        return None, None
+        return None, None, None
     depth = ref.depth.reshape(-1)[index].astype(float)
     # the sampled pixels' rays only: the whole frame's (Camera.rays, 0.1 s at 640x480) is more than a solve on
     # the contact's box ever needs
@@ -446,8 +508,8 @@ def _samples(
     albedo = (shading * image).sum(0) / np.maximum((shading * shading).sum(0), 1e-24)
     lit = (direct > 0).all(axis=(0, 2)) & (albedo > 0).all(axis=1)
     if lit.sum() < 10:
-        return None, None
-    return image[:, lit], (albedo * shading)[:, lit]
+        return None, None, None
+    return image[:, lit], (albedo * shading)[:, lit], rows[lit]
 
 
 def _image_names(press: Press) -> list[str]:
@@ -632,11 +694,12 @@ def model_relative_gains(press: Press, leds: Sequence[Led], live: Sequence[int])
     return None if image is None else _relative_gains(image, model)
 
 
-def _relative_gains(image: np.ndarray, model: np.ndarray) -> np.ndarray:
+def _relative_gains(image: np.ndarray, model: np.ndarray, judged: Sequence[int] | None = None) -> np.ndarray:
     """(L,) float64 -- each LED's median over the samples of image over model (:func:`_samples`' (L, N, 3) arrays),
-    over the median LED's."""
+    over the median of the LEDs ``judged`` (indices into L; None or empty: all; an image with dark rows is off the
+    model there, so it does not set the scale)."""
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
-    return gain / np.median(gain)
+    return gain / np.median(gain[list(judged)] if judged else gain)
 
 
 def model_gain_check(

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from nlipscalib.core.repeated_frames import repeated_leds
+from nlipscalib.core.repeated_frames import DarkBand, dark_bands, frame_checks, repeated_leds
 from nlipscalib.core.tolerances import REPEATED_FRAME_DIFFERENCE
 
 H, W, L = 40, 48, 8
@@ -32,3 +32,31 @@ def test_a_dark_pair_gives_no_verdict():
     images = np.zeros((3, H, W, 3), np.float32)
     images[0] = 0.3
     assert repeated_leds(images, np.ones((H, W), bool)) == []
+
+
+def test_a_band_of_dark_rows_is_found_with_its_rows_and_a_partial_dark_patch_is_not():
+    """Samples' light over the modelled light (1 as modelled, 2 % noise) of 4 LEDs on a 120-row frame: LED 2's rows
+    0-29 read while it was off (the dark frame's noise), LED 3's rows 60-79 (a global-reset exposure that missed
+    it), LED 1's rows 0-59 dark over the left half only (a contact's flank turned away from it: not whole rows)."""
+    rng = np.random.default_rng(1)
+    rows = np.repeat(np.arange(120), 20)
+    cols = np.tile(np.arange(20), 120)
+    light = 1 + rng.normal(0, 0.02, (4, rows.size))
+    light[2, rows < 30] = rng.normal(0, 0.002, (rows < 30).sum())
+    light[3, (rows >= 60) & (rows < 80)] = 0.01
+    light[1, (rows < 60) & (cols < 10)] = 0.0
+    assert dark_bands(light, rows, 120) == [DarkBand(2, (0, 30), "top"), DarkBand(3, (60, 80), "middle")]
+    light[0, rows >= 110] = 0.0  # 10 rows: two bands of five, fewer than DARK_BAND_ROWS
+    assert [band.index for band in dark_bands(light, rows, 120)] == [2, 3]
+    light[0, rows >= 100] = 0.0
+    assert dark_bands(light, rows, 120)[0] == DarkBand(0, (100, 120), "bottom")
+
+
+def test_rows_dark_in_every_led_image_are_found_by_the_images_alone():
+    rng = np.random.default_rng(2)
+    gel = np.ones((H, W), bool)
+    images = _ring(rng)
+    assert frame_checks(images, gel)[2] is None
+    images[:, :15] = rng.normal(0, 1e-3, (L, 15, W, 3))  # a readout before any LED lit
+    repeated, bands, dark = frame_checks(images, gel)
+    assert dark == DarkBand(None, (0, 15), "top") and repeated == [] and bands == []

@@ -283,6 +283,30 @@ def test_an_led_image_read_out_across_the_switch_is_refused_before_the_fit(tmp_p
         calibrate_leds([rolled], stride=4)
 
 
+def test_dark_rows_of_an_led_image_are_named_by_the_refusal_and_dark_rows_of_every_image_refused_before_the_fit(
+    tmp_path,
+):
+    """LED 5's top 20 rows read while it was off: refused naming LED 5's mounting (the twin's undeformed capture with
+    its top 60 rows dark too: "check LED 5's mounting", s29-darkrows); now its dark rows and the cause, against the
+    fitted LEDs. The same rows dark in every image: refused before the fit (the images alone tell)."""
+    from nlipscalib.core.errors import CaptureError
+
+    def dark(which, rows):
+        def hook(lin):
+            lin = lin.copy()
+            lin[which, :rows] = 0.0
+            return lin
+
+        return hook
+
+    one = load_press(synth.make_press(tmp_path / "one", "none", size=(96, 72), lin_hook=dark(4, 20)))
+    with pytest.raises(CaptureError, match=r"one: not calibrated: .* LED 5's image, whose rows 0-19 \(top\) are dark"):
+        calibrate_leds([one], stride=4)
+    every = load_press(synth.make_press(tmp_path / "every", "none", size=(96, 72), lin_hook=dark(slice(None), 15)))
+    with pytest.raises(CaptureError, match=r"every: rows 0-14 \(top\) of every LED image are dark .*--flush"):
+        calibrate_leds([every], stride=4)
+
+
 def test_gamma_encoded_reference_images_are_warned_about_before_the_fit(tmp_path, caplog):
     """An sRGB webcam's reference: the fit absorbed the tone curve (the twin's LEDs moved 2.5 mm) and called itself
     reliable; the solves with those LEDs gave 3.6 deg instead of 0.46 (s27 QA walk). Now warned about, against the
