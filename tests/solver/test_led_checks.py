@@ -446,10 +446,10 @@ def test_without_a_reference_the_led_ageing_check_reuses_the_weak_led_checks_sam
         model_gain_check(press, press.leds, fewer, measured)[1], model_gain_check(press, press.leds, fewer)[1]
     )
 
-    direct, real = [], led_checks._samples
+    direct, real = [], led_checks._sampled
     monkeypatch.setattr(
         led_checks,
-        "_samples",
+        "_sampled",
         lambda p, leds, live, indirect=None: direct.append(indirect is None) or real(p, leds, live, indirect),
     )
     result = solve_press(press, options=SolverOptions(max_iters=1))
