@@ -248,8 +248,9 @@ class StreamSteepness:
     frame; a stream's consecutive frames mostly show the same press. A frame whose changed pixels' count and
     centroid are within :data:`~nlipscalib.core.tolerances.STREAM_CONTACT_CHANGE` of the last judged frame's
     gets that frame's verdict (reworded with its own name; a frame warned so counts as warned), at most
-    :data:`~nlipscalib.core.tolerances.STREAM_REJUDGE_FRAMES` frames in a row; any other is measured. Still
-    frames (``nlips infer`` of files) call :func:`frame_warning` on each.
+    :data:`~nlipscalib.core.tolerances.STREAM_REJUDGE_FRAMES` frames in a row and not across a frame without a
+    contact (the press lifted); any other is measured. Still frames (``nlips infer`` of files) call
+    :func:`frame_warning` on each.
 
     Parameters
     ----------
@@ -267,8 +268,11 @@ class StreamSteepness:
     def __call__(self, frame: Frame, where: str | Path) -> str | None:
         """:func:`frame_warning` of ``frame``, named ``where``, or the last judged frame's verdict (see above)."""
         contact = _judged_contact(frame)
-        extent = None if contact is None else contact_extent(contact)
-        if extent is None:  # unlike the reference, or nothing changed: nothing to judge, nothing measured
+        if contact is None:  # unlike the reference (mismatch_warning): nothing to judge
+            return None
+        extent = contact_extent(contact)
+        if extent is None:  # nothing changed: the press ended, the next one is measured whatever its place
+            self._extent = None
             return None
         held = self._extent is not None and self._extent.near(extent, tolerances.STREAM_CONTACT_CHANGE)
         if held and self._reused < tolerances.STREAM_REJUDGE_FRAMES:

@@ -163,7 +163,7 @@ def test_a_held_press_is_judged_once_and_every_frame_counts_as_warned(caplog, mo
 
 def test_a_stream_whose_contact_changes_is_judged_again(monkeypatch):
     """A press that moves, grows or is replaced is measured again, with the verdict the still-frame check gives;
-    a held one again after ``STREAM_REJUDGE_FRAMES`` frames."""
+    a held one again after ``STREAM_REJUDGE_FRAMES`` frames, and after it was lifted."""
     from nlipscalib.core import tolerances
     from nlipscalib.learn.resolution import StreamSteepness, frame_warning
 
@@ -183,6 +183,9 @@ def test_a_stream_whose_contact_changes_is_judged_again(monkeypatch):
     monkeypatch.setattr(tolerances, "STREAM_REJUDGE_FRAMES", 2)
     check, held = StreamSteepness(predictor), frames[0]
     assert all(check(held, "f") for _ in range(7)) and check.judged == 3  # frames 0, 3 and 6
+    lifted = dataclasses.replace(held, changed=np.zeros_like(held.changed))
+    check = StreamSteepness(predictor)
+    assert [bool(check(f, "f")) for f in (held, lifted, held)] == [True, False, True] and check.judged == 2
 
 
 def test_a_noise_speck_far_from_a_held_press_does_not_make_it_judged_again():
