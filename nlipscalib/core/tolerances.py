@@ -164,6 +164,16 @@ Why: the net extrapolates, and smooths like the labels it learned, past the pres
 the steepest press, since one frame's measure is noisier than a press's labels (not measured: the 50-press twin
 calibration reached 0.72 deg/px with two shallow cone presses, above every sphere press tried).
 benchmarks/RESULTS.md (s28-tinynet)."""
+STREAM_CONTACT_CHANGE = 0.03
+"""A stream's frame (``nlips infer`` of a camera or video, ``nlips live``) gets the last judged frame's verdict of
+:data:`CHANGED_TILT_PER_PX` (``learn.resolution.StreamSteepness``) instead of its contact being measured again when
+its changed pixels number within this fraction of that frame's and their centroid lies within this fraction of that
+frame's equivalent diameter (at least a pixel) of that frame's: the same press held. Why: the measure costs 2-4.5 ms
+of host CPU per pressed 640x480 frame, and a held press's frames differ by the sensor's noise only (sphere1 with its
+noise doubled: pixels within 0.5 %, centroid within 0.4 px; benchmarks/RESULTS.md, s29-watchcost)."""
+STREAM_REJUDGE_FRAMES = 30
+"""... for at most this many frames in a row, then measured again (a second at 30 frames/s): a press whose normals
+steepen while its changed region stays put is not judged once for the whole stream."""
 MODEL_MISFIT_FLOOR = 3.5
 """A press's images fit the undeformed model only to within model error, not noise, when the misfit's median over
 the gel is at least this many times the noise-only misfit: :data:`NO_CONTACT_PEAK` (a peak over noise) then says

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -92,14 +93,87 @@ def recorded_steepness(info: dict) -> float | None:
     return float(value)
 
 
-def steepness_warning(
+@dataclass(frozen=True)
+class Steepness:
+    """A contact judged too small or steep for NLiPsNet (:func:`judge_steepness`).
+
+    Attributes
+    ----------
+    diameter : float, px -- the contact's equivalent diameter (``core.steepness.patch_steepness``).
+    tilt : float, degrees -- its predicted normals' tilt from the undeformed surface (75th percentile).
+    limits : tuple of str -- the limits it is beyond, in words.
+    """
+
+    diameter: float
+    tilt: float
+    limits: tuple[str, ...]
+
+    def line(self, where: str | Path) -> str:
+        """The warning for the frame named ``where``."""
+        per_px = self.tilt / self.diameter
+        return (
+            f"{where}: contact about {self.diameter:.0f} px across with its normals tilted ~{self.tilt:.0f} deg "
+            f"({per_px:.2f} deg/px): beyond {' and '.join(self.limits)}; NLiPsNet's normals there are smoothed "
+            f"(expect several degrees of error); capture at a higher resolution, press with a larger indenter, or "
+            f"calibrate with presses as small and steep"
+        )
+
+
+@dataclass(frozen=True)
+class ContactExtent:
+    """How many pixels a frame's contact has, where their middle is, and their bounding box: what a stream compares
+    to tell a held press from a moving one (:class:`StreamSteepness`) without measuring the contact.
+
+    Attributes
+    ----------
+    pixels : int -- changed pixels.
+    middle : (row, column) float, px -- their centroid.
+    box : (top, bottom, left, right) int, px -- their bounding box's first and last row and column (where the
+        contact is measured; not compared: one noise speck of the change rule far from the contact moves it by
+        hundreds of pixels, and the contact's middle by a fraction of one).
+    """
+
+    pixels: int
+    middle: tuple[float, float]
+    box: tuple[int, int, int, int]
+
+    def near(self, other: ContactExtent, fraction: float) -> bool:
+        """Whether ``other`` has within ``fraction`` as many pixels as this and its middle lies within ``fraction``
+        of this one's equivalent diameter (at least a pixel) of this one's."""
+        diameter = 2.0 * math.sqrt(self.pixels / math.pi)
+        moved = math.dist(self.middle, other.middle)
+        return abs(other.pixels - self.pixels) <= fraction * self.pixels and moved <= max(1.0, fraction * diameter)
+
+    def slices(self) -> tuple[slice, slice]:
+        """The box as an index of (H, W) arrays."""
+        top, bottom, left, right = self.box
+        return np.s_[top : bottom + 1, left : right + 1]
+
+
+def contact_extent(changed: np.ndarray) -> ContactExtent | None:
+    """The :class:`ContactExtent` of ``changed`` ((H, W) bool), None without a changed pixel."""
+    rows, cols = np.flatnonzero(changed.any(axis=1)), np.flatnonzero(changed.any(axis=0))
+    if rows.size == 0:
+        return None
+    top, bottom, left, right = int(rows[0]), int(rows[-1]), int(cols[0]), int(cols[-1])
+    inside = changed[top : bottom + 1, left : right + 1]  # the box: nothing changed outside it
+    per_row, per_col = np.count_nonzero(inside, axis=1), np.count_nonzero(inside, axis=0)
+    pixels = int(per_row.sum())
+    middle = (
+        top + float(per_row @ np.arange(per_row.size)) / pixels,
+        left + float(per_col @ np.arange(per_col.size)) / pixels,
+    )
+    return ContactExtent(pixels, middle, (top, bottom, left, right))
+
+
+def judge_steepness(
     changed: np.ndarray,
     normals: np.ndarray,
     reference_normals: np.ndarray,
-    where: str | Path,
     calibrated_per_px: float | None,
-) -> str | None:
-    """Why a frame's normals in its contact are not to be trusted, or None.
+    extent: ContactExtent | None = None,
+) -> Steepness | None:
+    """The frame's contact when its normals are not to be trusted, or None.
 
     The frame's changed region's largest patch and its predicted normals' tilt
     (:func:`nlipscalib.core.steepness.patch_steepness`) turn by more degrees per pixel than NLiPsNet resolves
@@ -111,15 +185,15 @@ def steepness_warning(
     changed : (H, W) bool -- the frame's changed pixels (``Frame.changed``).
     normals : (H, W, 3) float32, unit, camera frame -- the predicted normals.
     reference_normals : (H, W, 3) float32, unit, camera frame -- the undeformed surface's.
-    where : the frame's name, for the line.
     calibrated_per_px : deg/px -- :func:`recorded_steepness` of the model's info.
+    extent : :func:`contact_extent` of ``changed`` when known already.
     """
-    rows, cols = np.flatnonzero(changed.any(axis=1)), np.flatnonzero(changed.any(axis=0))
-    if rows.size == 0:
+    extent = extent or contact_extent(changed)
+    if extent is None:
         return None
     # the changed pixels' bounding box only: the same patch (outside it nothing changed), a fraction of the pixels
-    box = np.s_[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
-    found = patch_steepness(masks.erode(changed[box], RIM_PX), normals[box], reference_normals[box])
+    top, _, left, _ = extent.box
+    found = patch_steepness(masks.erode(changed[extent.slices()], RIM_PX), normals, reference_normals, (top, left))
     if found is None:
         return None
     diameter, tilt = found
@@ -129,14 +203,28 @@ def steepness_warning(
         limits.append(f"the ~{tolerances.CHANGED_TILT_PER_PX:g} deg/px NLiPsNet resolves")
     if calibrated_per_px is not None and per_px > tolerances.UNCALIBRATED_STEEPNESS_FACTOR * calibrated_per_px:
         limits.append(f"the {calibrated_per_px:.2f} deg/px of the steepest calibration press")
-    if not limits:
+    return Steepness(diameter, tilt, tuple(limits)) if limits else None
+
+
+def steepness_warning(
+    changed: np.ndarray,
+    normals: np.ndarray,
+    reference_normals: np.ndarray,
+    where: str | Path,
+    calibrated_per_px: float | None,
+) -> str | None:
+    """Why a frame's normals in its contact are not to be trusted (:func:`judge_steepness`), or None; ``where``
+    names the frame in the line."""
+    judged = judge_steepness(changed, normals, reference_normals, calibrated_per_px)
+    return None if judged is None else judged.line(where)
+
+
+def _judged_contact(frame: Frame) -> np.ndarray | None:
+    """The change rule's pixels of ``frame`` (``Frame.contact`` of a whole-frame prediction, else ``changed``), None
+    for a frame unlike the reference over the whole gel (``infer.mismatch_warning`` says that)."""
+    if frame.mismatch > tolerances.FRAME_MISMATCH_FRACTION:
         return None
-    return (
-        f"{where}: contact about {diameter:.0f} px across with its normals tilted ~{tilt:.0f} deg "
-        f"({per_px:.2f} deg/px): beyond {' and '.join(limits)}; NLiPsNet's normals there are smoothed (expect "
-        f"several degrees of error); capture at a higher resolution, press with a larger indenter, or calibrate "
-        f"with presses as small and steep"
-    )
+    return frame.changed if frame.contact is None else frame.contact
 
 
 def frame_warning(predictor: Predictor, frame: Frame, where: str | Path) -> str | None:
@@ -144,8 +232,55 @@ def frame_warning(predictor: Predictor, frame: Frame, where: str | Path) -> str 
     normals) on its change rule's changed pixels (``Frame.contact`` of a whole-frame prediction, ``full_frame``,
     whose ``changed`` is every gel pixel: the rule runs there too, on the device); None for a frame unlike the
     reference over the whole gel (``infer.mismatch_warning`` says that)."""
-    if frame.mismatch > tolerances.FRAME_MISMATCH_FRACTION:
+    contact = _judged_contact(frame)
+    if contact is None:
         return None
     calibrated = recorded_steepness(predictor.model.info)
-    contact = frame.changed if frame.contact is None else frame.contact
     return steepness_warning(contact, frame.normals, predictor.ref_normals, where, calibrated)
+
+
+class StreamSteepness:
+    """:func:`frame_warning` of a stream's frames, its contact measured again only when it changed: a held press
+    is judged once, not on every frame.
+
+    Why: measuring the contact costs 2-4.5 ms of host CPU per pressed 640x480 frame (24 ms for a 200 px contact
+    under load; benchmarks/RESULTS.md, s29-lut8), ~10 % of a CPU changed-pixel frame and about a whole GPU full
+    frame; a stream's consecutive frames mostly show the same press. A frame whose changed pixels' count and
+    centroid are within :data:`~nlipscalib.core.tolerances.STREAM_CONTACT_CHANGE` of the last judged frame's
+    gets that frame's verdict (reworded with its own name; a frame warned so counts as warned), at most
+    :data:`~nlipscalib.core.tolerances.STREAM_REJUDGE_FRAMES` frames in a row and not across a frame without a
+    contact (the press lifted); any other is measured. Still frames (``nlips infer`` of files) call
+    :func:`frame_warning` on each.
+
+    Parameters
+    ----------
+    predictor : learn.infer.Predictor -- its model's recorded calibration and reference normals.
+    """
+
+    def __init__(self, predictor: Predictor) -> None:
+        self.predictor = predictor
+        self.judged = 0
+        """Frames whose contact was measured (the others reused a verdict)."""
+        self._extent: ContactExtent | None = None
+        self._verdict: Steepness | None = None
+        self._reused = 0
+
+    def __call__(self, frame: Frame, where: str | Path) -> str | None:
+        """:func:`frame_warning` of ``frame``, named ``where``, or the last judged frame's verdict (see above)."""
+        contact = _judged_contact(frame)
+        if contact is None:  # unlike the reference (mismatch_warning): nothing to judge
+            return None
+        extent = contact_extent(contact)
+        if extent is None:  # nothing changed: the press ended, the next one is measured whatever its place
+            self._extent = None
+            return None
+        held = self._extent is not None and self._extent.near(extent, tolerances.STREAM_CONTACT_CHANGE)
+        if held and self._reused < tolerances.STREAM_REJUDGE_FRAMES:
+            self._reused += 1
+        else:
+            calibrated = recorded_steepness(self.predictor.model.info)
+            ref = self.predictor.ref_normals
+            self._verdict = judge_steepness(contact, frame.normals, ref, calibrated, extent)
+            self._extent, self._reused = extent, 0
+            self.judged += 1
+        return None if self._verdict is None else self._verdict.line(where)

@@ -10,7 +10,7 @@ import numpy as np
 from ..core.tolerances import FRAME_MISMATCH_FRACTION
 from ..progress import RepeatedWarning
 from .infer import REFRESH_REMEDY, Frame, Predictor, mismatch_warning
-from .resolution import frame_warning
+from .resolution import StreamSteepness
 
 log = logging.getLogger(__name__)
 
@@ -24,7 +24,9 @@ class MismatchWatch:
     frame; once per stream missed a fault that came back hours later: ``progress.RepeatedWarning``);
     :meth:`report` logs at the end how many frames it concerned, as ``nlips infer`` does: those unlike the reference
     over most of the gel, and those like it whose colours drifted (``learn.infer.drift_warning``: an aged LED group, a
-    drifted exposure; their results drift by degrees).
+    drifted exposure; their results drift by degrees), and those whose contact was too small or steep for the
+    calibration (``learn.resolution.StreamSteepness``: a held press's contact measured once, each of its frames
+    counted).
 
     Parameters
     ----------
@@ -45,6 +47,8 @@ class MismatchWatch:
         self.steep = 0
         """Frames whose contact was too small or steep for the calibration (``learn.resolution``)."""
         self.steep_warning = RepeatedWarning(log, f"{name}: a contact too small or steep for the calibration")
+        self.steepness = StreamSteepness(predictor)
+        """The small-contact check, measured again only when the contact changed (a held press: once)."""
 
     def __call__(self, frame: np.ndarray) -> Frame:
         """The predictor's result of one stored frame ((H, W, 3) uint16), warned about as above."""
@@ -58,7 +62,7 @@ class MismatchWatch:
             self.mismatched += 1
         elif why:  # like the reference over the gel, but its colours drifted (drift_warning)
             self.drifted += 1
-        elif why := frame_warning(self.predictor, result, where):
+        elif why := self.steepness(result, where):
             self.steep += 1
             self.steep_warning(why, where)
         return result

@@ -1,6 +1,7 @@
 """learn.watch.MismatchWatch: a stream's frames unlike the calibration's reference, warned about once, counted once a
 minute and at the end."""
 
+import dataclasses
 import logging
 
 import numpy as np
@@ -102,3 +103,101 @@ def test_a_streams_summary_counts_the_frames_whose_colours_drifted(caplog):
     assert "camera 0 frame 1: the undeformed gel is red 0.90" in lines[0]
     assert lines[-1].startswith("3 of 5 frames had colours that drifted from the calibration's reference")
     assert "--reference FRAME" in lines[-1] and not any("differed" in line for line in lines)
+
+
+class _PressPredictor(_Predictor):
+    """Stands in for learn.infer.Predictor: each stored frame's first pixel is (centre column, centre row, radius)
+    of a spherical dent whose normals tilt steeply (warned: ~4 deg/px, the rule 0.4), changed where it is."""
+
+    shape = (60, 80)
+    ref_normals = np.zeros((60, 80, 3), np.float32)
+    ref_normals[..., 2] = 1.0
+
+    def predict_stored(self, frame: np.ndarray, where: str, in_light: bool = False) -> Frame:
+        cx, cy, radius = (float(x) for x in frame[0, 0])
+        v, u = np.mgrid[: self.shape[0], : self.shape[1]].astype(np.float32)
+        x, y = (u - cx) / (1.2 * radius), (v - cy) / (1.2 * radius)
+        inside = x * x + y * y < 1.0 / 1.44
+        normals = self.ref_normals.copy()
+        normals[inside] = np.stack([x, y, np.sqrt(np.clip(1.0 - x * x - y * y, 0, 1))], -1)[inside]
+        zeros = np.zeros(self.shape)
+        return Frame(normals, zeros, normals, inside, {})
+
+
+def _press(cx: float, cy: float, radius: float) -> np.ndarray:
+    frame = np.zeros((60, 80, 3))
+    frame[0, 0] = cx, cy, radius
+    return frame
+
+
+def _counting(monkeypatch) -> list:
+    """Counts the contacts measured (``core.steepness.patch_steepness`` as ``learn.resolution`` calls it)."""
+    from nlipscalib.learn import resolution
+
+    calls = []
+    measure = resolution.patch_steepness
+
+    def counted(*args):
+        calls.append(1)
+        return measure(*args)
+
+    monkeypatch.setattr(resolution, "patch_steepness", counted)
+    return calls
+
+
+def test_a_held_press_is_judged_once_and_every_frame_counts_as_warned(caplog, monkeypatch):
+    """The small-contact measure cost 2-4.5 ms of host CPU per pressed 640x480 frame, on every frame of a press held
+    still (s29-watchcost): its contact is measured once, and each frame still gets the warning."""
+    calls = _counting(monkeypatch)
+    watch = MismatchWatch(_PressPredictor(), "camera 0")
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.learn.watch"):
+        for _ in range(5):
+            watch(_press(40, 30, 10))
+        watch.report()
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(calls) == 1 and watch.steepness.judged == 1
+    assert watch.steep == 5 and lines[0].startswith("camera 0 frame 0: contact about"), lines
+    assert "repeated 4 more times" in lines[1] and "(the latest: camera 0 frame 4;" in lines[1]
+    assert lines[-1].startswith("5 of 5 frames had a contact too small or steep")
+
+
+def test_a_stream_whose_contact_changes_is_judged_again(monkeypatch):
+    """A press that moves, grows or is replaced is measured again, with the verdict the still-frame check gives;
+    a held one again after ``STREAM_REJUDGE_FRAMES`` frames, and after it was lifted."""
+    from nlipscalib.core import tolerances
+    from nlipscalib.learn.resolution import StreamSteepness, frame_warning
+
+    calls = _counting(monkeypatch)
+    predictor = _PressPredictor()
+    check = StreamSteepness(predictor)
+    # moved a third of its size, grown by a third, another shallow press (not warned), back
+    presses = [(40, 30, 10), (45, 30, 10), (45, 30, 13), (40, 30, 10)]
+    frames = [predictor.predict_stored(_press(*p), "f") for p in presses]
+    elsewhere = predictor.predict_stored(_press(20, 30, 12), "f")
+    frames.insert(3, dataclasses.replace(elsewhere, normals=predictor.ref_normals.copy()))
+    said = [check(f, f"f{i}") for i, f in enumerate(frames)]
+    assert len(calls) == check.judged == 5
+    assert said == [frame_warning(predictor, f, f"f{i}") for i, f in enumerate(frames)]
+    assert said[3] is None and all(said[i] for i in (0, 1, 2, 4)), said
+
+    monkeypatch.setattr(tolerances, "STREAM_REJUDGE_FRAMES", 2)
+    check, held = StreamSteepness(predictor), frames[0]
+    assert all(check(held, "f") for _ in range(7)) and check.judged == 3  # frames 0, 3 and 6
+    lifted = dataclasses.replace(held, changed=np.zeros_like(held.changed))
+    check = StreamSteepness(predictor)
+    assert [bool(check(f, "f")) for f in (held, lifted, held)] == [True, False, True] and check.judged == 2
+
+
+def test_a_noise_speck_far_from_a_held_press_does_not_make_it_judged_again():
+    """The change rule's isolated noise blocks come and go on a held press (sphere1 with its noise doubled: one
+    moved the changed pixels' bounding box by 140 px); they move the contact's centroid by a fraction of a pixel."""
+    from nlipscalib.learn.resolution import StreamSteepness
+
+    predictor = _PressPredictor()
+    check = StreamSteepness(predictor)
+    held = predictor.predict_stored(_press(50, 30, 10), "f")
+    speck = held.changed.copy()
+    speck[2:4, 2:4] = True
+    for changed in (held.changed, speck, held.changed):
+        check(dataclasses.replace(held, changed=changed), "f")
+    assert check.judged == 1
