@@ -2,8 +2,10 @@
 (small dense products, :mod:`nlipscalib.learn.integrate`'s rim box), and the setting results depend on.
 
 The solver's BLAS work is small vector operations, faster on one thread; the interreflection gathers are
-blocks of matrix products, which run on one BLAS thread each (radiosity.gather splits them over its own
-threads). A product's last bits depend on BLAS's thread count, so results kept for reuse record it.
+blocks of matrix products, which radiosity.gather splits over its own threads. A product's last bits depend on
+BLAS's thread count (OpenBLAS splits a larger product's rows between its threads, and a row's sums then take
+another path), so the gathers multiply by :func:`serial_matmul`, whose bits do not depend on it; results kept for
+reuse still record the setting (:func:`blas_setting`).
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ from __future__ import annotations
 import contextlib
 import threading
 from collections.abc import Iterator
+
+import numpy as np
 
 _controller = None
 
@@ -52,12 +56,71 @@ def blas_threads(count: int) -> Iterator[None]:
     several threads (the solver's pool, a stream's frames integrated on threads) can leave the limit at ``count``
     after the last ends. Kept on purpose: s28-small made the last block restore the counts from before the first
     (BLAS back on 2 threads after a solve), and Q1's Dask-against-local test then differed in the 7th digit of the
-    calibrated-LED row whenever an in-process solve had run before it in the same pytest process (three clean-clone
-    CI runs; the same test alone passed). Which computation of the command's own process reads the thread count
-    was not found (benchmarks/RESULTS.md, twenty-eighth session's lead section).
+    calibrated-LED row whenever an in-process solve had run before it in the same pytest process.
+
+    Why (s29-dask): a limit is not always applied. threadpoolctl (3.8) lets one thread at a time set OpenBLAS's
+    count: the first thread that sets it holds it until its own ``with`` blocks of threadpoolctl have all ended, and
+    while it lives a set from any other thread is silently ignored. s28-small's first block set the limit without
+    threadpoolctl's ``with``, so the main thread that ran the solve held it for good (having restored 2 threads), and
+    the calibration task that the test's sweep then ran on its own thread got 2 BLAS threads inside its
+    ``blas_threads(1)``. The count also changes under a running block when an overlapping block on another thread
+    ends (each restores what it found). So no result may rely on this limit for its bits: the products whose bits
+    depend on the count (the radiosity gathers) use :func:`serial_matmul`; this limit is for speed.
     """
     with _blas().limit(limits=count):
         yield
+
+
+SERIAL_GEMM_MNK = 1 << 18
+"""The largest m * n * k of an (m, k) x (k, n) matrix product (gemm) that OpenBLAS computes on one thread whatever
+its thread count: interface/gemm.c runs a product of at most SMP_THRESHOLD_MIN (65,536) x GEMM_MULTITHREAD_THRESHOLD
+(4, the default build's, NumPy's and SciPy's wheels') multiply-adds on the calling thread. Larger ones are split
+between its threads by rows, and a row's sums then take another path of the kernel: the radiosity gather's
+(218, 1,200) x (1,200, 24) float32 products differed in the last bits of 20-50 % of their entries between 1 and 2
+threads (benchmarks/RESULTS.md, s29-dask)."""
+
+
+def serial_matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b`` as matrix products of at most :data:`SERIAL_GEMM_MNK` multiply-adds each, cut by the shapes alone:
+    the same bits whatever BLAS's thread count and whoever set it (:func:`blas_threads`' why).
+
+    Parameters
+    ----------
+    a : (m, k) float array.
+    b : (k, n) float array, n >= 2 (n = 1 would be a matrix-vector product, with thresholds of its own).
+
+    Returns
+    -------
+    (m, n) array of ``a @ b``'s dtype.
+
+    Notes
+    -----
+    Blocks of rows (never a single row: NumPy multiplies a single row as a matrix-vector product, gemv) times blocks
+    of ``k`` summed in order when a row of ``b``'s whole ``k`` does not fit. Its bits differ from ``a @ b``'s in the
+    last place (a row's sums depend on how many rows share the product), never with the thread count. Costs more
+    calls: (218, 1,200) x (1,200, 24) float32 in 25 products of 9 rows, ~2x the time of one single-threaded product.
+    """
+    m, k = a.shape
+    if m == 1:  # as two rows: a single one would be a matrix-vector product
+        return serial_matmul(np.repeat(a, 2, axis=0), b)[:1]
+    n = b.shape[1]
+    out = np.empty((m, n), np.result_type(a, b))
+    depth = min(k, max(1, SERIAL_GEMM_MNK // (3 * n)))  # 3 rows fit: a block never needs to be a single row
+    rows = max(3, SERIAL_GEMM_MNK // (depth * n))
+    for s, e in _row_blocks(m, rows):
+        np.matmul(a[s:e, :depth], b[:depth], out=out[s:e])
+        for d in range(depth, k, depth):
+            out[s:e] += np.matmul(a[s:e, d : d + depth], b[d : d + depth])
+    return out
+
+
+def _row_blocks(m: int, rows: int) -> list[tuple[int, int]]:
+    """(start, end) of blocks of at most ``rows`` (>= 3) of ``m`` rows, none of a single row unless ``m`` is 1: a
+    single last row takes one from the block before it."""
+    bounds = list(range(0, m, rows)) + [m]
+    if len(bounds) > 2 and bounds[-1] - bounds[-2] == 1:
+        bounds[-2] -= 1
+    return list(zip(bounds[:-1], bounds[1:]))
 
 
 def blas_setting() -> tuple[int, ...]:
