@@ -45,30 +45,76 @@ def _blas():
 
 @contextlib.contextmanager
 def blas_threads(count: int) -> Iterator[None]:
-    """Limit the BLAS libraries' threads to ``count`` while the block runs.
+    """Limit the BLAS libraries' threads to ``count`` while the block runs, on whichever thread it runs.
 
     The solver's BLAS calls are vector dot products and norms inside CG (and small dense ones in
     pyamg's setup). Multithreading those is a loss everywhere and a disaster on a loaded machine:
     on 2 shared cores a 250k-element dot product took 2.5 ms with 2 threads against 0.05 ms with one,
-    and made up half of the solve time.
+    and made up half of the solve time. The LED fit's least squares (SciPy's trf on a 640x480 capture's (N, 9)
+    Jacobians) also gives other last bits on 2 threads than on one: its LEDs rely on this limit.
 
-    The limit is the process's (threadpoolctl's), and each block restores what it found: blocks overlapping on
-    several threads (the solver's pool, a stream's frames integrated on threads) can leave the limit at ``count``
-    after the last ends. Kept on purpose: s28-small made the last block restore the counts from before the first
-    (BLAS back on 2 threads after a solve), and Q1's Dask-against-local test then differed in the 7th digit of the
-    calibrated-LED row whenever an in-process solve had run before it in the same pytest process.
+    The limit is the process's: blocks running on several threads at once (the solver's pool, a stream's frames
+    integrated on threads) share it, at the least of their counts, and the counts from before the first are restored
+    when the last ends. It is set past threadpoolctl's controlling thread (3.8: the first thread that sets OpenBLAS's
+    count holds it until a ``with`` block of threadpoolctl ends on it, and a set from any other thread meanwhile is
+    silently ignored), so that a block on any thread gets its count.
 
-    Why (s29-dask): a limit is not always applied. threadpoolctl (3.8) lets one thread at a time set OpenBLAS's
-    count: the first thread that sets it holds it until its own ``with`` blocks of threadpoolctl have all ended, and
-    while it lives a set from any other thread is silently ignored. s28-small's first block set the limit without
-    threadpoolctl's ``with``, so the main thread that ran the solve held it for good (having restored 2 threads), and
-    the calibration task that the test's sweep then ran on its own thread got 2 BLAS threads inside its
-    ``blas_threads(1)``. The count also changes under a running block when an overlapping block on another thread
-    ends (each restores what it found). So no result may rely on this limit for its bits: the products whose bits
-    depend on the count (the radiosity gathers) use :func:`serial_matmul`; this limit is for speed.
+    Why (s29-dask, benchmarks/RESULTS.md): s28-small's version of this count of blocks used threadpoolctl's limit
+    outside ``with``, so the main thread that ran a solve held the control for good (with 2 threads restored); Q1's
+    calibration task that the Dask test's local sweep ran in-process on the test's thread then got 2 BLAS threads
+    inside its ``blas_threads(1)``, and its calibrated-LED row differed in the 7th digit from the Dask workers'. Each
+    block restoring what it found (threadpoolctl's own ``with``, 46778b0) hid that by leaving BLAS on one thread, but
+    let a block's count change under it when an overlapping block on another thread ended. The radiosity gathers'
+    products do not rely on any limit (:func:`serial_matmul`).
     """
-    with _blas().limit(limits=count):
+    _enter_limit(count)
+    try:
         yield
+    finally:
+        _exit_limit(count)
+
+
+_limits_lock = threading.Lock()
+_active_limits: list[int] = []
+"""The counts of the :func:`blas_threads` blocks running now, on any thread (the limit applied is their least)."""
+_before: tuple[int, ...] = ()
+"""The libraries' thread counts from before the first of them, restored when the last ends."""
+
+
+def _enter_limit(count: int) -> None:
+    global _before
+    libs = _blas().lib_controllers  # made (and SciPy's BLAS loaded) before the lock: LIBRARY_LOADS inside
+    with _limits_lock:
+        if not _active_limits:
+            _before = blas_setting()
+        _active_limits.append(count)
+        _apply(libs, (min(_active_limits),) * len(libs))
+
+
+def _exit_limit(count: int) -> None:
+    libs = _blas().lib_controllers
+    with _limits_lock:
+        _active_limits.remove(count)
+        _apply(libs, (min(_active_limits),) * len(libs) if _active_limits else _before)
+
+
+def _apply(libs: list, counts: tuple[int, ...]) -> None:
+    """Set each library's thread count, from this thread whichever holds threadpoolctl's control, and leave the
+    control to none (:func:`blas_threads`' why)."""
+    for lib, n in zip(libs, counts):
+        if lib.num_threads != n:
+            _release_control()
+            lib.set_num_threads(n)
+    _release_control()
+
+
+def _release_control() -> None:
+    """threadpoolctl's OpenBLAS controlling thread cleared (3.8; earlier versions have none: nothing to do)."""
+    import threadpoolctl
+
+    clear = getattr(getattr(threadpoolctl, "OpenBLASController", None), "clear_controlling_thread", None)
+    if clear is not None:
+        clear(force=True)
 
 
 SERIAL_GEMM_MNK = 1 << 18

@@ -1,4 +1,7 @@
-"""core.blas.serial_matmul: a matrix product with the same bits whatever BLAS's thread count."""
+"""core.blas: blas_threads' limit on any thread; serial_matmul, a matrix product with the same bits whatever BLAS's
+thread count."""
+
+import threading
 
 import numpy as np
 import pytest
@@ -45,3 +48,39 @@ def test_a_serial_products_pieces_are_each_within_the_single_thread_size(monkeyp
         sizes.clear()
         serial_matmul(rng.random((m, k)), rng.random((k, n)))
         assert sizes and all(r >= 2 and r * kk * nn <= SERIAL_GEMM_MNK for r, kk, nn in sizes), sizes
+
+
+def test_a_block_on_any_thread_gets_its_count_while_another_thread_holds_a_blas_limit():
+    """threadpoolctl (3.8) ignores a limit set on a thread other than the one holding its control (here the main
+    thread's ``with``): the way Q1's calibration task, run on the Dask test's thread, got 2 BLAS threads inside its
+    ``blas_threads(1)``. Blocks overlapping on two threads keep the count until the last ends, then the counts from
+    before the first are back."""
+    from nlipscalib.core.blas import blas_setting, blas_threads
+
+    seen: dict = {}
+    first_in, first_out = threading.Event(), threading.Event()
+
+    def first():
+        with blas_threads(1):
+            first_in.set()
+            seen["first"] = blas_setting()
+            first_out.wait(60)
+
+    def second():
+        first_in.wait(60)
+        with blas_threads(1):
+            first_out.set()
+            thread.join(60)  # the first block has ended meanwhile
+            seen["second, the first ended"] = blas_setting()
+
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = blas_setting()
+        thread = threading.Thread(target=first)
+        other = threading.Thread(target=second)
+        thread.start()
+        other.start()
+        other.join(60)
+        after = blas_setting()
+    assert set(before) == {2}, before
+    assert seen == {"first": (1,) * len(before), "second, the first ended": (1,) * len(before)}, seen
+    assert after == before
