@@ -50,8 +50,9 @@ def blas_threads(count: int) -> Iterator[None]:
     The solver's BLAS calls are vector dot products and norms inside CG (and small dense ones in
     pyamg's setup). Multithreading those is a loss everywhere and a disaster on a loaded machine:
     on 2 shared cores a 250k-element dot product took 2.5 ms with 2 threads against 0.05 ms with one,
-    and made up half of the solve time. The LED fit's least squares (SciPy's trf on a 640x480 capture's (N, 9)
-    Jacobians) also gives other last bits on 2 threads than on one: its LEDs rely on this limit.
+    and made up half of the solve time. The LED fit (:func:`nlipscalib.solver.led_fit.fit_leds`, SciPy's least
+    squares on a 640x480 capture's (N, 9) Jacobians; the call not isolated) gives other last bits on 2 NumPy BLAS
+    threads than on one: its LEDs rely on this limit.
 
     The limit is the process's: blocks running on several threads at once (the solver's pool, a stream's frames
     integrated on threads) share it, at the least of their counts, and the counts from before the first are restored
