@@ -356,7 +356,8 @@ def _execute_claimed(task: Task, out: Path, threads: int, keep_presses: bool) ->
 
     start = time.perf_counter()
     try:
-        # BLAS sums in a fixed order: the same numbers on any worker. blas_threads, not threadpoolctl's limit alone:
+        # BLAS on one thread: the LED fit's bits need it (the gathers' products do not: core.blas.serial_matmul),
+        # on whichever thread the task runs (core.blas.blas_threads' why). blas_threads, not threadpoolctl's limit:
         # that limits the libraries loaded when it starts, and a fresh worker's first task (a killed worker's task
         # re-run in the local pool) loads SciPy's own OpenBLAS later, which then ran on every core outside the
         # solver's blocks, switched to one and back by those blocks on the pool's threads while others computed.

@@ -32,7 +32,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..core import tolerances
-from ..core.blas import blas_threads
+from ..core.blas import blas_threads, serial_matmul
 from ..core.camera import Camera, pixel_derivatives
 from ..core.dome import dome_inward_normals, project_to_dome
 from ..core.sensor import DomeConfig
@@ -234,7 +234,7 @@ def _gather_blocks(pairs: _Pairs, factors_of: Callable[[int], np.ndarray], radia
     out = np.empty((pairs.receivers, rad.shape[1]), np.float32)
 
     def block(s: int) -> None:
-        out[s : s + pairs.chunk] = factors_of(s) @ rad
+        out[s : s + pairs.chunk] = serial_matmul(factors_of(s), rad)  # the same bits whatever BLAS's thread count
 
     pairs.on_pool(block)
     return _gathered(out, len(radiance))
@@ -287,7 +287,8 @@ class _Pairs:
 
     def on_pool(self, block: Callable[[int], None]) -> None:
         """``block(s)`` for every block's first receiver ``s``: the blocks split over the thread pool, BLAS on one
-        thread (its own threads on these small products synchronised more than they computed)."""
+        thread (its own threads on these small products synchronised more than they computed; the products' bits do
+        not rely on it: :func:`nlipscalib.core.blas.serial_matmul`)."""
         starts = list(range(0, self.receivers, self.chunk))
 
         def part(blocks: list[int]) -> None:
@@ -336,7 +337,7 @@ class _Emitters(NamedTuple):
 def _pair_light(pr: np.ndarray, nr: np.ndarray, emitters: _Emitters, rad: np.ndarray) -> np.ndarray:
     """(m, L*3) float32 -- ``sum_q rad_q cos_p cos_q A_q / r^2`` (pi G) of m receivers over k emitters: pr, nr (m, 3)
     float64 receiver points (mm) and normals; rad (k, L*3) float32."""
-    return _pair_factors(pr, nr, emitters) @ rad
+    return serial_matmul(_pair_factors(pr, nr, emitters), rad)  # the same bits whatever BLAS's thread count
 
 
 def _pair_factors(pr: np.ndarray, nr: np.ndarray, emitters: _Emitters) -> np.ndarray:

@@ -620,8 +620,8 @@ def test_amg_solves_the_flat_pads_whole_gel_changed_as_superlu_does_and_reuses_i
 def test_amg_hierarchies_shared_by_threads_give_the_single_thread_depths(monkeypatch):
     # a stream may integrate frames on several threads at once: the hierarchy cache (two kept) is read, filled and
     # trimmed by all of them, and each solve limits BLAS to one thread while it runs; two masks, four calls each at
-    # once, must give the depths of one thread (BLAS may stay limited to one thread after overlapping blocks:
-    # core.blas.blas_threads says why that is kept)
+    # once, must give the depths of one thread (the blocks on several threads share the process's limit:
+    # core.blas.blas_threads)
     from concurrent.futures import ThreadPoolExecutor
 
     from nlipscalib.core.sensor import SensorDesign

@@ -1,6 +1,9 @@
 """The radiosity gather with far emitters grouped (radiosity.gather_grid) against the exact gather (known answers on
 a dome's inside, with and without a dent)."""
 
+import contextlib
+import threading
+
 import numpy as np
 import pytest
 
@@ -208,3 +211,46 @@ def test_patch_means_have_the_bits_of_the_broadcast_weights():
             expected = radiosity.block_sum(values * w, size) * pa
         got = radiosity.patch_mean(patches, values)
         assert got.shape == expected.shape and got.tobytes() == expected.tobytes()
+
+
+def _every_gather(s: dict) -> list[np.ndarray]:
+    """The exact gather, the kept form factors' and the grouped one (their products: radiosity.serial_matmul)."""
+    emit = {"points": s["points"].reshape(-1, 3), "normals": s["normals"].reshape(-1, 3), "area": s["area"].ravel()}
+    light = s["radiance"].reshape(s["radiance"].shape[0], -1, 3)
+    receivers = np.ones(s["area"].shape, bool)
+    points, normals = s["points"][receivers], s["normals"][receivers]
+    kept = radiosity.FormFactors(points, normals, emit).gather(light)
+    return [radiosity.gather(points, normals, emit, light), kept, _grid(s, receivers)]
+
+
+def test_gathers_have_the_same_bits_on_one_and_two_blas_threads(monkeypatch):
+    """The gathers' products give the same bits whatever BLAS's thread count, also where the solver's 1-thread
+    limit does not hold (a limit set on another thread; here none at all): the calibrated LEDs of Q1's sphere press
+    moved in the 9th digit between 1 and 2 threads, its AAE in the 7th (benchmarks/RESULTS.md, s29-dask)."""
+    from threadpoolctl import threadpool_limits
+
+    monkeypatch.setattr(radiosity, "blas_threads", lambda count: contextlib.nullcontext())
+    s = _dome(dent=1.0)  # 2,080 patches: blocks of 126 x 2,080 x 9 multiply-adds, which BLAS would split
+    with threadpool_limits(limits=1, user_api="blas"):
+        one = _every_gather(s)
+    with threadpool_limits(limits=2, user_api="blas"):
+        two = _every_gather(s)
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_gather_on_another_thread_has_its_bits_while_the_main_thread_holds_a_blas_limit():
+    """The way it failed: with threadpoolctl >= 3.8 the thread that set OpenBLAS's count holds it while its ``with``
+    block runs, and a limit set on any other thread meanwhile is ignored: a gather in a worker thread (the sweep's
+    calibration task in tests/experiments/test_distributed) ran on 2 BLAS threads inside its ``blas_threads(1)``."""
+    from threadpoolctl import threadpool_limits
+
+    s = _dome(dent=1.0)
+    alone = _every_gather(s)
+    box: dict = {}
+    with threadpool_limits(limits=2, user_api="blas"):
+        worker = threading.Thread(target=lambda: box.update(gathers=_every_gather(s)))
+        worker.start()
+        worker.join()
+    for a, b in zip(alone, box["gathers"]):
+        np.testing.assert_array_equal(a, b)
