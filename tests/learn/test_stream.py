@@ -84,7 +84,7 @@ def test_ctrl_c_ends_a_camera_stream_cleanly(trained, twin_presses, tmp_path, ca
                 raise KeyboardInterrupt
             return frame
 
-    monkeypatch.setattr(camera, "open_source", lambda spec, settings=None: InterruptedCamera())
+    monkeypatch.setattr(camera, "open_source", lambda spec, settings=None, tone_curve=None: InterruptedCamera())
     out = tmp_path / "out"
     assert main(["infer", str(trained), "--camera", "0", "--out", str(out)]) == 0
     assert "3 frames in" in capsys.readouterr().out
