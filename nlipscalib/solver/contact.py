@@ -34,7 +34,7 @@ from ..core.capture import Press
 from ..core.errors import CaptureError
 from ..core.leds import Leds, led_shading
 from . import reuse
-from .contact_grid import _Grid, classify_block
+from .contact_grid import ContactGrid, classify_block
 from .image_stats import image_noise, led_levels, lit_leds
 from .sensor_fit import gain_fitted_misfit, gel_samples
 
@@ -141,7 +141,7 @@ def classify_contact(
         LEDs, smoothed images, noise), filled by the first call. Not used with ``indirect``.
     block : side, pixels, of the square blocks whose gel pixels' mean the classification works on (1: every
         pixel); None: :func:`.contact_grid.classify_block` of the frame. Its maps come back per pixel (each pixel gets
-        its block's value); the blur is then ``blur_px`` / ``block`` blocks (:meth:`.contact_grid._Grid.of`).
+        its block's value); the blur is then ``blur_px`` / ``block`` blocks (:meth:`.contact_grid.ContactGrid.of`).
 
     Returns
     -------
@@ -156,7 +156,7 @@ def classify_contact(
     _fill_press_side(side, press, grid, indirect, dead_level)
     live, img, ok, count = side["live"], side["images"], side["ok"], side["count"]
     S = _undeformed_model(press, leds, live, grid, undeformed_images, undeformed_light)
-    misfit = _misfit(S, img, ok, count)
+    misfit = rms_misfit(S, img, ok, count)
     # the model and the images on a sample of the gel: does the model describe the sensor at all (asked once)?
     samples = gel_samples(S, img, grid.valid, ok)
     noise = side["noise"]
@@ -170,7 +170,7 @@ def _undeformed_model(
     press: Press,
     leds: Leds,
     live: Sequence[int],
-    grid: _Grid,
+    grid: ContactGrid,
     images: np.ndarray | reuse.Deferred | None,
     light: np.ndarray | Sequence[np.ndarray] | None,
 ) -> np.ndarray:
@@ -192,7 +192,7 @@ def _undeformed_model(
 
 
 def _noise_only_misfit(
-    noise: float, count: np.ndarray, grid: _Grid, undeformed_noise: bool
+    noise: float, count: np.ndarray, grid: ContactGrid, undeformed_noise: bool
 ) -> tuple[np.ndarray, float]:
     """(expected, sample_noise): the misfit that image noise ``noise`` alone leaves at each pixel ((H, W) float64),
     and its median over the gel (:attr:`ContactMap.sample_noise`), on ``grid`` with ``count`` (h, w) usable samples
@@ -222,21 +222,23 @@ def prepare_press_side(
     _fill_press_side(cache, press, _grid_of(press, blur_px, block), None, dead_level)
 
 
-def _grid_of(press: Press, blur_px: float, block: int | None) -> _Grid:
-    """The :class:`.contact_grid._Grid` that :func:`classify_contact` works on for ``press`` (its reference's gel
+def _grid_of(press: Press, blur_px: float, block: int | None) -> ContactGrid:
+    """The :class:`.contact_grid.ContactGrid` that :func:`classify_contact` works on for ``press`` (its reference's gel
     pixels)."""
     valid = np.isfinite(press.reference.depth)
-    return _Grid.of(valid, classify_block(valid.shape) if block is None else int(block), blur_px)
+    return ContactGrid.of(valid, classify_block(valid.shape) if block is None else int(block), blur_px)
 
 
-def _fill_press_side(side: dict, press: Press, grid: _Grid, indirect: np.ndarray | None, dead_level: float) -> None:
+def _fill_press_side(
+    side: dict, press: Press, grid: ContactGrid, indirect: np.ndarray | None, dead_level: float
+) -> None:
     """:func:`_press_side` into ``side`` unless it holds it already for ``grid``'s block size."""
     if side.get("block") != grid.block:  # empty, or filled at another block size
         side.clear()
         side.update(_press_side(press, grid, indirect, dead_level))
 
 
-def _press_side(press: Press, grid: _Grid, indirect: np.ndarray | None, dead_level: float) -> dict:
+def _press_side(press: Press, grid: ContactGrid, indirect: np.ndarray | None, dead_level: float) -> dict:
     """The press's half of :func:`classify_contact`: live LEDs, smoothed images (on ``grid``) and their level,
     noise (of the pixels), and the block size they were made at."""
     img, valid = press.linear_led_images, grid.pixels
@@ -256,7 +258,7 @@ def _press_side(press: Press, grid: _Grid, indirect: np.ndarray | None, dead_lev
         "ok": ok,
         "count": count,
         "noise": image_noise([press.linear_led_images[i] for i in live], valid),  # no copy of the stack
-        "level": np.sqrt(_sum_squares(img, ok) / count),
+        "level": np.sqrt(sum_squares(img, ok) / count),
     }
 
 
@@ -277,7 +279,9 @@ def _live_leds(press: Press, valid: np.ndarray, dead_level: float) -> tuple[tupl
     return dead, live
 
 
-def _smoothed_images(img: np.ndarray, live: Sequence[int], grid: _Grid, indirect: np.ndarray | None) -> np.ndarray:
+def _smoothed_images(
+    img: np.ndarray, live: Sequence[int], grid: ContactGrid, indirect: np.ndarray | None
+) -> np.ndarray:
     """(n, h, w, 3) float32 -- the ``live`` LEDs' images ``img`` (L, H, W, 3), less ``indirect`` where given, on
     ``grid`` and smoothed."""
     # Deformation changes the shading coherently over many pixels, noise does not: classify on
@@ -290,7 +294,7 @@ def _smoothed_images(img: np.ndarray, live: Sequence[int], grid: _Grid, indirect
     return grid.smooth(img)
 
 
-def _misfit(S: np.ndarray, img: np.ndarray, ok: np.ndarray | None, count: np.ndarray) -> np.ndarray:
+def rms_misfit(S: np.ndarray, img: np.ndarray, ok: np.ndarray | None, count: np.ndarray) -> np.ndarray:
     """(H, W) float32 -- RMS residual of ``S`` scaled per pixel and channel (the albedo) to ``img``.
 
     ``S``, ``img`` : (L, H, W, 3) float32; ``ok`` : (L, H, W, 3) bool or None (all usable); ``count`` :
@@ -319,13 +323,13 @@ def _residual_squares(alb: np.ndarray, S: np.ndarray, img: np.ndarray, ok: np.nd
     return total
 
 
-def _sum_squares(stack: np.ndarray, ok: np.ndarray | None) -> np.ndarray:
+def sum_squares(stack: np.ndarray, ok: np.ndarray | None) -> np.ndarray:
     """(H, W) -- sum over LEDs and channels of ``stack`` squared where ``ok`` (None: everywhere)."""
     masked = stack if ok is None else stack * ok
     return np.einsum("lhwc,lhwc->hw", masked, masked)
 
 
-def _smoothed_undeformed(images: np.ndarray | reuse.Deferred, live: Sequence[int], grid: _Grid) -> np.ndarray:
+def _smoothed_undeformed(images: np.ndarray | reuse.Deferred, live: Sequence[int], grid: ContactGrid) -> np.ndarray:
     """``grid.smooth`` of ``grid.means(images, live)`` (float32). When ``images`` is one that ``solver.reuse``
     returned or defers (the sensor's direct shading, shared by the solves of its presses) the result is kept
     under its key, in this process and on disk for the next (a deferred ``images`` is then read only when the

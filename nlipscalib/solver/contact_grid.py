@@ -32,7 +32,7 @@ def classify_block(shape: tuple[int, int]) -> int:
 
 
 @dataclasses.dataclass(frozen=True)
-class _Grid:
+class ContactGrid:
     """The pixels :func:`.contact.classify_contact` works on: the frame's, or the means of square blocks of them."""
 
     pixels: np.ndarray
@@ -47,7 +47,7 @@ class _Grid:
     """How much block mean and blur scale white pixel noise (L2 norm of their kernel)."""
 
     @classmethod
-    def of(cls, pixels: np.ndarray, block: int, blur_px: float) -> _Grid:
+    def of(cls, pixels: np.ndarray, block: int, blur_px: float) -> ContactGrid:
         """The grid of ``block`` x ``block`` blocks of ``pixels`` (H, W) bool that smooths like a blur of ``blur_px``.
 
         The blur on the blocks is ``blur_px`` / b blocks. A block mean's noise is the pixels' over b (b^2
@@ -93,8 +93,8 @@ class _Grid:
         return out
 
     def smooth(self, stack: np.ndarray) -> np.ndarray:
-        """:func:`_smooth` of an (n, h, w, 3) stack on this grid."""
-        return _smooth(stack, self.valid, self.sigma)
+        """:func:`gel_blur` of an (n, h, w, 3) stack on this grid."""
+        return gel_blur(stack, self.valid, self.sigma)
 
     def per_pixel(self, values: np.ndarray) -> np.ndarray:
         """(H, W) -- each pixel gets its block's value of ``values`` (h, w)."""
@@ -102,7 +102,7 @@ class _Grid:
         return values if b == 1 else np.repeat(np.repeat(values, b, axis=0), b, axis=1)
 
 
-def _smooth(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
+def gel_blur(stack: np.ndarray, valid: np.ndarray, sigma: float) -> np.ndarray:
     """Gaussian blur of (L, H, W, 3) images inside ``valid`` (normalised convolution), float32."""
     if sigma <= 0:
         return stack
@@ -130,7 +130,7 @@ def _gain(sigma: float) -> float:
 
 
 def edge_noise_gain(valid: np.ndarray, sigma: float) -> np.ndarray:
-    """How much more white noise :func:`_smooth` leaves at each pixel than inside the gel: near the gel's
+    """How much more white noise :func:`gel_blur` leaves at each pixel than inside the gel: near the gel's
     silhouette and the image border its normalised convolution averages fewer pixels (and the border's reflected
     ones twice), 1.7 times the noise in an image corner at 1.5 px.
 
@@ -143,7 +143,7 @@ def edge_noise_gain(valid: np.ndarray, sigma: float) -> np.ndarray:
     -------
     (H, W) float64 -- >= about 1 on the gel (1 far from its edge); 1 off it.
 
-    Exact for :func:`_smooth`: its blur is separable, so the squared weights of a pixel's average are
+    Exact for :func:`gel_blur`: its blur is separable, so the squared weights of a pixel's average are
     ``Gy**2 valid Gx**2.T`` with ``Gy``, ``Gx`` the 1-D blurs as matrices (OpenCV's kernel and border, got by
     blurring identity matrices), and the average's weights sum to ``Gy valid Gx.T``."""
     if sigma <= 0:

@@ -12,7 +12,7 @@ from ..core import tolerances
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.leds import Leds, disk_shading, led_shading
-from .contact import ContactMap, _misfit, _sum_squares
+from .contact import ContactMap, rms_misfit, sum_squares
 
 
 def point_led_misfit(
@@ -60,7 +60,9 @@ def point_led_misfit(
     point = led_shading(points, normals, live).astype(np.float32)[:, :, None]  # (L, N, 1, 3): a 1-wide image
     disk = disk_shading(points, normals, live, radius).astype(np.float32)[:, :, None]
     count = np.full((rows.size, 1), point.shape[0] * point.shape[3])
-    share = _misfit(point, disk, None, count)[:, 0] / np.maximum(np.sqrt(_sum_squares(disk, None) / count)[:, 0], 1e-30)
+    share = rms_misfit(point, disk, None, count)[:, 0] / np.maximum(
+        np.sqrt(sum_squares(disk, None) / count)[:, 0], 1e-30
+    )
     direct = 1.0
     if indirect_light is not None:
         lit = point.sum(axis=(0, 2, 3), dtype=np.float64)  # (N,): the direct shading over the live LEDs and colours

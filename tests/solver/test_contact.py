@@ -171,7 +171,7 @@ def test_a_prepared_press_side_and_a_light_read_per_led_give_the_same_classifica
 
 def test_misfit_leaves_out_saturated_samples_like_the_plain_sums():
     """The einsum form against the textbook one: per-pixel albedo fitted on usable samples only."""
-    from nlipscalib.solver.contact import _misfit
+    from nlipscalib.solver.contact import rms_misfit
 
     rng = np.random.default_rng(3)
     S = rng.uniform(0.1, 1.0, (5, 4, 6, 3)).astype(np.float32)
@@ -180,10 +180,10 @@ def test_misfit_leaves_out_saturated_samples_like_the_plain_sums():
     count = np.maximum(ok.sum((0, 3)), 1)
     alb = (S * img * ok).sum(0) / (S * S * ok).sum(0)
     want = np.sqrt((((alb * S - img) * ok) ** 2).sum((0, 3)) / count)
-    np.testing.assert_allclose(_misfit(S, img, ok, count), want, rtol=1e-5)
+    np.testing.assert_allclose(rms_misfit(S, img, ok, count), want, rtol=1e-5)
     full = np.full((4, 6), 15)
     want_all = np.sqrt((((img * S).sum(0) / (S * S).sum(0) * S - img) ** 2).sum((0, 3)) / 15)
-    np.testing.assert_allclose(_misfit(S, img, None, full), want_all, rtol=1e-5)
+    np.testing.assert_allclose(rms_misfit(S, img, None, full), want_all, rtol=1e-5)
 
 
 def _contact_map(misfit: np.ndarray):
@@ -429,7 +429,7 @@ def test_frames_from_480_lines_up_are_classified_on_blocks(sphere_press, monkeyp
 
 @pytest.mark.parametrize("with_ok", [False, True])
 def test_the_misfits_residual_sum_is_einsums_over_the_stack_at_a_frames_block_grid(with_ok):
-    from nlipscalib.solver.contact import _misfit
+    from nlipscalib.solver.contact import rms_misfit
 
     rng = np.random.default_rng(5)
     shape = (12, 240, 320, 3)  # a 640x480 frame's 2 x 2 blocks
@@ -443,7 +443,7 @@ def test_the_misfits_residual_sum_is_einsums_over_the_stack_at_a_frames_block_gr
     if ok is not None:
         res *= ok
     want = np.sqrt(np.einsum("lhwc,lhwc->hw", res, res) / count)
-    assert np.array_equal(_misfit(S, img, ok, count), want)
+    assert np.array_equal(rms_misfit(S, img, ok, count), want)
 
 
 def test_a_press_without_contact_is_refused_by_the_auto_roi_as_having_none(tmp_path):
@@ -666,13 +666,13 @@ def test_the_point_led_models_error_grows_with_the_leds_size_and_is_asked_only_w
 
 
 def test_edge_noise_gain_is_the_smoothings_noise_at_the_edge_over_inside():
-    from nlipscalib.solver.contact_grid import _smooth, edge_noise_gain
+    from nlipscalib.solver.contact_grid import edge_noise_gain, gel_blur
 
     valid = np.ones((40, 50), bool)
     valid[30:, 40:] = False  # a silhouette corner inside the frame too
     # the smoothing is linear: blurring every unit impulse gives its weights, whose squares sum to the noise's
     impulses = np.repeat(np.eye(valid.size, dtype=np.float32).reshape(-1, *valid.shape, 1), 3, axis=3)
-    measured = np.sqrt((_smooth(impulses, valid, 1.5)[..., 0] ** 2).sum(axis=0))
+    measured = np.sqrt((gel_blur(impulses, valid, 1.5)[..., 0] ** 2).sum(axis=0))
     measured /= measured[15, 25]
     gain = edge_noise_gain(valid, 1.5)
     assert gain[15, 25] == pytest.approx(1.0, abs=1e-3)  # _gain truncates the kernel at 3 sigma, OpenCV at 4

@@ -319,9 +319,9 @@ def test_a_later_process_solves_alike_from_the_sensor_work_on_disk(tmp_path, dis
     assert {"surface", "fit", "operators", "smoothed_undeformed", "level_geometry"} <= kinds
     reuse.clear()  # a new process: only the disk remembers
     shaded, blurred = [], []
-    direct, blur = indirect.direct_shading, contact_grid._smooth
+    direct, blur = indirect.direct_shading, contact_grid.gel_blur
     monkeypatch.setattr(indirect, "direct_shading", lambda *a, **k: shaded.append(1) or direct(*a, **k))
-    monkeypatch.setattr(contact_grid, "_smooth", lambda *a, **k: blurred.append(1) or blur(*a, **k))
+    monkeypatch.setattr(contact_grid, "gel_blur", lambda *a, **k: blurred.append(1) or blur(*a, **k))
     later = _solve_fields(press, undeformed)
     assert not shaded  # the undeformed surface's shading came from disk
     assert len(blurred) == 1  # the press's images; the undeformed capture's blur came from disk
