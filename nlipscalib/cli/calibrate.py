@@ -15,7 +15,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="LED self-calibration: each LED's intensity Psi (per colour), emission exponent mu, axis n_s "
         "and position x_s, fitted to captures of the undeformed dome (its known shape, reference.npz) minus the "
         "dome's own interreflection where they show it, written as an LED file (docs/formats.md) for "
-        "`nlips solve --leds FILE` or `nlips calibrate --leds FILE` (NLiPsNet's labels). Prints the LEDs with their "
+        "`nlips solve --leds FILE` or `nlips calibrate --leds FILE` (NLiPsNet's labels); where the capture's sensor "
+        "design declares its LEDs' emitting diameter (leds.emitter_diameter: the shipped designs' 3.6 mm), each LED "
+        "also as a disk of that size (--led-diameter overrides; 0: points only). Prints the LEDs with their "
         "1-sigma uncertainties and how well the fit explains the images; warns when it is unreliable (render the "
         "reference at 16 spp or more, or average more frames), and names a single LED not to be trusted (far off its "
         "design, blocked or dim: check it).",

@@ -123,3 +123,16 @@ def test_a_bad_recorded_led_size_is_one_line_naming_the_file_and_key(value):
     bad = meta(scene={"leds": {"emitter_diameter": value}})
     with pytest.raises(ConfigError, match=r"^p/meta.json: provenance.scene.leds.emitter_diameter"):
         capture_led_diameter(bad, "p/meta.json")
+
+
+def test_a_reference_rendered_before_the_led_size_was_declared_still_matches_its_presses():
+    """A twin reference rendered before the shipped scenes declared ``emitter_diameter`` and a press rendered after
+    differ in that key only: the same light (the twin renders ``[led_package]``), so no refusal."""
+    from nlipscalib.pipeline.settings import twin_render_difference
+
+    now = load_scene("nlipstac").to_dict()
+    before = now | {"leds": {k: v for k, v in now["leds"].items() if k != "emitter_diameter"}}
+    sim = lambda scene: {"provenance": {"source": "sim", "scene": scene}}  # noqa: E731
+    assert twin_render_difference(sim(before), sim(now)) == ""
+    bounced = now | {"render": now["render"] | {"bounces": 1}}
+    assert twin_render_difference(sim(before), sim(bounced)) == "render.bounces 0 here, 1 for the press"
