@@ -64,7 +64,7 @@ def perturbed_leds_toml(pos_mm: float, dir_deg: float, mu: float, seed: int = 0)
 def scene_file(out: Path, level: int, seed: int) -> Path:
     text = (SCENES_DIR / "nlipstac.toml").read_text(encoding="utf-8")
     head, rest = text.split("[leds]", 1)
-    tail = rest[rest.index("[led_package]") :]
+    tail = rest[rest.index("\n[led_package]") + 1 :]  # the section, not a comment naming it
     path = out / f"scene_l{level}_s{seed}.toml"
     body = head.replace('name = "nlipstac"', f'name = "nlipstac_l{level}"')
     path.write_text(body + perturbed_leds_toml(*LEVELS[level], seed=seed) + "\n" + tail, encoding="utf-8")
