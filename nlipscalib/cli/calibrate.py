@@ -67,7 +67,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="A",
         help="the coating's diffuse reflectance 0-1 when known (measured or from its datasheet). It fixes the "
         "interreflection term's magnitude, which the LED axes otherwise trade against; default: fitted, and with "
-        "--led-diameter chosen where the disk fit leaves the least residual",
+        "LED disks (the design's size or --led-diameter) chosen where the disk fit leaves the least residual",
     )
     p.add_argument(
         "--allow-contact",
