@@ -7,9 +7,12 @@ LEDs (as ``nlips calibrate-leds`` does on a real sensor, whose capture records t
 LEDs' errors against the rendered truth.
 
 Usage: python benchmarks/bench_led_starts.py OUT [--levels 0,1,2,3,4] [--width 160 --height 120] [--led-diameter 3.6]
+[--bounces 1]
 
 With ``--led-diameter`` the calibration also fits the LEDs as disks of that diameter (``LedCalibration.emitters``,
-what ``nlips calibrate-leds --led-diameter`` writes as 'emitters'); each row then scores them too ("disks").
+what ``nlips calibrate-leds --led-diameter`` writes as 'emitters'); each row then scores them too ("disks"). With
+``--bounces 1`` the captures show the dome's interreflection (a real sensor's; issue 6 point 2's setting), their
+folders and files tagged ``_b1``.
 """
 
 from __future__ import annotations
@@ -61,7 +64,7 @@ def perturbed_leds_toml(pos_mm: float, dir_deg: float, mu: float, seed: int = 0)
 def scene_file(out: Path, level: int, seed: int) -> Path:
     text = (SCENES_DIR / "nlipstac.toml").read_text(encoding="utf-8")
     head, rest = text.split("[leds]", 1)
-    tail = rest[rest.index("[led_package]") :]
+    tail = rest[rest.index("\n[led_package]") + 1 :]  # the section, not a comment naming it
     path = out / f"scene_l{level}_s{seed}.toml"
     body = head.replace('name = "nlipstac"', f'name = "nlipstac_l{level}"')
     path.write_text(body + perturbed_leds_toml(*LEVELS[level], seed=seed) + "\n" + tail, encoding="utf-8")
@@ -70,7 +73,8 @@ def scene_file(out: Path, level: int, seed: int) -> Path:
 
 def render(scene: Path, out: Path, args, extra: list[str]) -> None:
     cmd = [sys.executable, "-m", "nlipscalib", "--no-progress", "render", "--scene", str(scene), "--out", str(out)]
-    cmd += ["--width", str(args.width), "--height", str(args.height), "--spp", str(args.spp)] + extra
+    cmd += ["--width", str(args.width), "--height", str(args.height), "--spp", str(args.spp)]
+    cmd += ["--bounces", str(args.bounces)] + extra
     subprocess.run(cmd, check=True, capture_output=True)
 
 
@@ -100,7 +104,7 @@ def press_aae(args, scene: Path, ref: Path, level: int, cal) -> dict:
     led_file = save_leds(args.out / f"leds_l{level}_s{args.seed}_cal.json", cal.leds)
     out = {}
     for kind in args.presses.split(","):
-        folder = args.out / f"{kind}_l{level}_s{args.seed}"
+        folder = args.out / f"{kind}_l{level}_s{args.seed}{f'_b{args.bounces}' if args.bounces else ''}"
         if not folder.exists():
             render(scene, folder, args, ["--indenter", kind])
         aae = []
@@ -120,6 +124,7 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=160)
     ap.add_argument("--height", type=int, default=120)
     ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--bounces", type=int, default=0, help="interreflection bounces of the renders (default 0)")
     ap.add_argument("--presses", default="", help="indenters to render and solve with both LED sets, e.g. sphere,cube")
     ap.add_argument("--seed", type=int, default=0, help="the perturbations' random directions")
     ap.add_argument(
@@ -133,7 +138,8 @@ def main() -> None:
     design = load_scene("nlipstac").led_models()
     for level in map(int, args.levels.split(",")):
         scene = scene_file(args.out, level, args.seed)
-        ref = args.out / f"ref_l{level}_s{args.seed}"
+        bounce_tag = f"_b{args.bounces}" if args.bounces else ""
+        ref = args.out / f"ref_l{level}_s{args.seed}{bounce_tag}"
         if not ref.exists():
             render(scene, ref, args, ["--undeformed"])
         press = as_press(ref, "reference")
@@ -149,7 +155,7 @@ def main() -> None:
         if args.presses:
             row |= {"contact_aae_deg": press_aae(args, scene, ref, level, cal)}
         print(json.dumps(row), flush=True)
-        tag = f"_d{args.led_diameter:g}" if args.led_diameter else ""
+        tag = bounce_tag + (f"_d{args.led_diameter:g}" if args.led_diameter else "")
         (args.out / f"leds_l{level}_s{args.seed}{tag}.json").write_text(json.dumps(row), encoding="utf-8")
 
 

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import logging
+
+log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -12,7 +15,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="LED self-calibration: each LED's intensity Psi (per colour), emission exponent mu, axis n_s "
         "and position x_s, fitted to captures of the undeformed dome (its known shape, reference.npz) minus the "
         "dome's own interreflection where they show it, written as an LED file (docs/formats.md) for "
-        "`nlips solve --leds FILE` or `nlips calibrate --leds FILE` (NLiPsNet's labels). Prints the LEDs with their "
+        "`nlips solve --leds FILE` or `nlips calibrate --leds FILE` (NLiPsNet's labels); where the capture's sensor "
+        "design declares its LEDs' emitting diameter (leds.emitter_diameter: the shipped designs' 3.6 mm), each LED "
+        "also as a disk of that size (--led-diameter overrides; 0: points only). Prints the LEDs with their "
         "1-sigma uncertainties and how well the fit explains the images; warns when it is unreliable (render the "
         "reference at 16 spp or more, or average more frames), and names a single LED not to be trusted (far off its "
         "design, blocked or dim: check it).",
@@ -48,11 +53,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--led-diameter",
         type=float,
-        default=0.0,
+        default=None,
         metavar="MM",
         help="diameter of each LED's light-emitting area, mm (WS2812B: 3.6): also fit the LEDs as such disks, "
-        "the physical LEDs to compare with the CAD (written as 'emitters'; the solver keeps the point LEDs); "
-        "default 0: point LEDs only",
+        "the physical LEDs to compare with the CAD (written as 'emitters'; the solver keeps the point LEDs). "
+        "Default: the capture's sensor design's leds.emitter_diameter (the shipped designs: 3.6), point LEDs only "
+        "where it declares none; 0: point LEDs only",
     )
     p.add_argument(
         "--coating-reflectance",
@@ -61,7 +67,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="A",
         help="the coating's diffuse reflectance 0-1 when known (measured or from its datasheet). It fixes the "
         "interreflection term's magnitude, which the LED axes otherwise trade against; default: fitted, and with "
-        "--led-diameter chosen where the disk fit leaves the least residual",
+        "LED disks (the design's size or --led-diameter) chosen where the disk fit leaves the least residual",
     )
     p.add_argument(
         "--allow-contact",
@@ -90,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..core.ledfile import led_file_bytes, save_leds
     from ..core.metrics import angle_deg
+    from ..core.sensor import MAX_EMITTER_DIAMETER_MM
     from ..core.sensor_record import sensor_of
     from ..progress import track, working
     from ..solver import calibrate_leds
@@ -99,14 +106,17 @@ def run(args: argparse.Namespace) -> int:
         check_count("--stride", args.stride, minimum=1)
     if args.coating_reflectance is not None and not 0 < args.coating_reflectance <= 1:
         raise ConfigError(f"--coating-reflectance must be in (0, 1], got {args.coating_reflectance}")
-    if not 0 <= args.led_diameter < 50:
-        raise ConfigError(f"--led-diameter must be 0-50 mm, got {args.led_diameter}")
+    if args.led_diameter is not None and not 0 <= args.led_diameter <= MAX_EMITTER_DIAMETER_MM:
+        raise ConfigError(f"--led-diameter must be 0-{MAX_EMITTER_DIAMETER_MM:g} mm, got {args.led_diameter}")
     if Path(args.out).is_dir():  # found after the fit as "OUT -> OUT: Is a directory"
         raise ConfigError(f"--out {args.out}: a folder; give the LED file to write (e.g. {args.out}/leds.json)")
     check_writable(Path(args.out).parent)  # a file in its place or a read-only disk: before the fit, not after it
     for folder in args.presses:
         check_one_capture(folder, "a capture of the undeformed dome")
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
+    led_model = _led_model(args.led_diameter, presses)
+    log.info(led_model["said"])
+    diameter = led_model["diameter_mm"]
     # a full disk, which the probe above passes (a folder takes no block on tmpfs), is found before the 1-2 s fit
     check_free_space(Path(args.out).parent, led_file_bytes(len(presses[0].leds), len(presses)), "the LED file")
     with working(f"calibrating {len(presses[0].leds)} LEDs from {len(presses)} capture(s)"):
@@ -116,13 +126,14 @@ def run(args: argparse.Namespace) -> int:
             loss=args.loss,
             interreflection=args.interreflection,
             bounces=args.bounces,
-            led_radius=args.led_diameter / 2,
+            led_radius=diameter / 2,
             coating_reflectance=args.coating_reflectance,
             allow_contact=args.allow_contact,
             reorder_leds=args.reorder_leds,
         )
     # the sensor it was calibrated on: `nlips solve/calibrate --leds` refuse the file for a capture of another one
-    save_leds(args.out, cal.leds, cal.to_json() | {"sensor": sensor_of(presses[0])})
+    record = {k: led_model[k] for k in ("fitted", "diameter_mm", "from")}
+    save_leds(args.out, cal.leds, cal.to_json() | {"led_model": record, "sensor": sensor_of(presses[0])})
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")
     print(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))
     for i, (led, sd) in enumerate(zip(cal.leds, cal.std)):
@@ -132,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
             f"{sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}"
         )
     if cal.emitters:
-        print(f"LEDs as {args.led_diameter:g} mm disks (the physical centre and axis, written as emitters):")
+        print(f"LEDs as {diameter:g} mm disks (the physical centre and axis, written as emitters):")
         for i, (disk, led) in enumerate(zip(cal.emitters, cal.leds)):
             shift = np.subtract(led.position, disk.position)
             tilt = float(angle_deg(disk.direction, led.direction))
@@ -155,6 +166,36 @@ def run(args: argparse.Namespace) -> int:
     albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
     print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
     return 0
+
+
+def _led_model(given: float | None, presses: list) -> dict:
+    """What the LEDs are fitted as: ``{"fitted": "disks" or "points", "diameter_mm", "from", "said"}``; ``said``: the
+    INFO line. ``given``: ``--led-diameter`` (None: not typed), else the captures' design
+    (:func:`nlipscalib.core.sensor.capture_led_diameter`); captures that declare different sizes are refused (one
+    sensor's captures declare one).
+
+    Why by default from the design: the twin's LEDs, and a WS2812B sensor's, are 3.6 mm disks 8-15 mm from the gel;
+    fitted as points, a sensor built 2-3 mm / 15-25 deg off its design calibrates its worst LED 0.35 mm off, as disks
+    0.2 mm (benchmarks/RESULTS.md, s29-ledsize), and the user had to know to pass ``--led-diameter``."""
+    from ..core.errors import ConfigError
+    from ..core.press_meta import META_FILE
+    from ..core.sensor import capture_led_diameter
+
+    if given is not None:
+        diameter, source = float(given), "--led-diameter"
+    else:
+        found = [capture_led_diameter(p.meta, str(p.folder / META_FILE)) for p in presses]
+        if len({d for d, _ in found}) > 1:
+            sizes = ", ".join(f"{p.folder}: {d:g} mm" for p, (d, _) in zip(presses, found))
+            raise ConfigError(f"the captures' designs declare different LED sizes ({sizes}): pass --led-diameter")
+        diameter, source = found[0]
+    if diameter > 0:
+        said = f"LEDs fitted as {diameter:g} mm disks ({source}) and as the solver's points; --led-diameter 0: "
+        said += "points only"
+    else:
+        why = "--led-diameter 0" if given is not None else source
+        said = f"LEDs fitted as points ({why}); --led-diameter D also fits them as D mm disks (a WS2812B's: 3.6)"
+    return {"fitted": "disks" if diameter > 0 else "points", "diameter_mm": diameter, "from": source, "said": said}
 
 
 def _fit_line(q: dict) -> str:

@@ -120,12 +120,23 @@ def _merged(default: Any, value: Any) -> Any:
     return out
 
 
+OMIT_AT_DEFAULT = "omit_at_default"
+"""Key of a config field's ``metadata`` (``dataclasses.field(default=..., metadata={OMIT_AT_DEFAULT: True})``): the
+field is left out of :func:`to_mapping` while it holds its default. Why: a field added to a config that captures,
+renders and experiments record and hash (a scene's, a design's) would otherwise change every record and hash made
+before it existed, and re-render what is already rendered; at its default it says nothing they did not."""
+
+
 def to_mapping(obj: Any) -> dict:
-    """Plain JSON/TOML-able dict of a (nested) config dataclass."""
+    """Plain JSON/TOML-able dict of a (nested) config dataclass (fields marked :data:`OMIT_AT_DEFAULT` left out at
+    their default)."""
+
+    def kept(v: Any, f: dataclasses.Field) -> bool:
+        return not (f.metadata.get(OMIT_AT_DEFAULT) and getattr(v, f.name) == f.default)
 
     def plain(v: Any) -> Any:
         if dataclasses.is_dataclass(v):
-            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v) if kept(v, f)}
         if isinstance(v, (list, tuple)):
             return [plain(x) for x in v]
         return v

@@ -18,12 +18,15 @@ from typing import Literal
 import numpy as np
 
 from .camera import Camera
-from .config import check_count, check_range, from_mapping, read_config_file
+from .config import OMIT_AT_DEFAULT, check_count, check_range, from_mapping, read_config_file
 from .errors import ConfigError
 from .leds import Led
 
 MIN_IMAGE_SIDE, MAX_IMAGE_SIDE = 8, 16384
 """Image sides, pixels, the camera accepts."""
+MAX_EMITTER_DIAMETER_MM = 20.0
+"""Largest LED light-emitting diameter, mm, a design may declare (``leds.emitter_diameter``; the twin's
+``[led_package] size`` has the same bound): an LED package, not a light panel."""
 
 
 def shipped_scenes(package: Path) -> Path:
@@ -132,6 +135,14 @@ class LedConfig:
     """Explicit LED positions in the dome frame, mm; when given, overrides the ring."""
     directions: tuple[tuple[float, float, float], ...] = ()
     """Explicit principal directions (dome frame), one per explicit position."""
+    emitter_diameter: float = dataclasses.field(default=0.0, metadata={OMIT_AT_DEFAULT: True})
+    """Diameter of each LED's round light-emitting area, mm (a WS2812B's light cup: 3.6), perpendicular to its
+    principal direction; 0 (the default, and designs written before the field existed): not declared, the LEDs
+    taken as points. ``nlips calibrate-leds`` fits the LEDs as disks of this size by default (``--led-diameter``
+    overrides it, ``--led-diameter 0`` fits points only). Why it matters: 8-15 mm from the gel a 3.6 mm disk is no
+    point; the best point sits ~0.23 mm behind its centre, and a sensor built 2-3 mm / 15-25 deg off its design
+    calibrates its worst LED 0.29-0.56 mm off as points, 0.03-0.07 mm as disks (benchmarks/RESULTS.md,
+    s28-ledfar). Left out of the scene's mapping at 0 (:data:`~nlipscalib.core.config.OMIT_AT_DEFAULT`)."""
 
     def __post_init__(self):
         n = len(self.positions) or self.count
@@ -148,6 +159,7 @@ class LedConfig:
             raise ConfigError("directions: a zero vector has no direction")
         if self.directions and len(self.directions) != len(self.positions):
             raise ConfigError("leds.directions must have one entry per leds.positions entry")
+        check_range("emitter_diameter", self.emitter_diameter, 0.0, MAX_EMITTER_DIAMETER_MM)
 
     def leds(self, camera_position: tuple[float, float, float]) -> tuple[Led, ...]:
         """The LEDs in the camera frame."""
@@ -183,6 +195,24 @@ class SensorDesign:
     def led_models(self) -> tuple[Led, ...]:
         """The LEDs in the camera frame."""
         return self.leds.leds(self.camera.position)
+
+
+UNRENDERED_DESIGN_KEYS = (("leds", "emitter_diameter"),)
+"""(section, key) of the design's fields that no twin render reads: the twin draws its LEDs from the scene's
+``[led_package]``; ``leds.emitter_diameter`` only tells ``nlips calibrate-leds`` what to fit."""
+
+
+def rendered_scene(scene: dict) -> dict:
+    """A scene mapping (``SceneConfig.to_dict()``, a capture's ``provenance.scene``) without
+    :data:`UNRENDERED_DESIGN_KEYS`: what the hashes of renders (``sim.press.render_spec_hash``) and of the experiments'
+    tasks are taken of. Why: the shipped scenes declared ``emitter_diameter`` in 2026-12 (s29-ledsize); hashed, every
+    rendered press and experiment task of them would have been taken as stale and made again, for a field that
+    changes none of their light (and no experiment calibrates with it)."""
+    out = dict(scene)
+    for section, key in UNRENDERED_DESIGN_KEYS:
+        if isinstance(out.get(section), dict) and key in out[section]:
+            out[section] = {k: v for k, v in out[section].items() if k != key}
+    return out
 
 
 def shipped_design(name: object) -> SensorDesign | None:
@@ -251,3 +281,49 @@ def capture_design(meta: dict) -> tuple[tuple[DomeConfig, np.ndarray] | None, st
         return None, f"{NO_DESIGN} (it names the design {name!r}, whose {designed} LEDs are not its {n})"
     found = design_dome(dataclasses.asdict(design))
     return found, f"sensor design taken by name: the shipped {name!r} (the capture records its name only)"
+
+
+def capture_led_diameter(meta: dict, where: str = "meta.json") -> tuple[float, str]:
+    """The emitting diameter of the LEDs a capture's sensor design declares (``leds.emitter_diameter``, mm), and
+    where it was read: what ``nlips calibrate-leds`` fits the LEDs as by default (disks of that size; 0: points).
+
+    Looks where :func:`capture_design` does: meta.json's ``design`` (device captures), ``provenance.scene`` (the twin,
+    the emulated sensor), then the shipped design ``provenance.design`` names (device captures before 2026-12-04)
+    when its LED count is the capture's. A design recorded without the field (written before it existed) declares
+    none: 0.
+
+    Parameters
+    ----------
+    meta : dict -- a press folder's meta.json (``core.press_meta.read_meta``).
+    where : str -- the file, for the error.
+
+    Returns
+    -------
+    (diameter mm >= 0, source): source names the file and key read ("PRESS/meta.json: design.leds.emitter_diameter"),
+    or says why there is none.
+
+    Raises
+    ------
+    ConfigError
+        A recorded value that is no number in [0, :data:`MAX_EMITTER_DIAMETER_MM`] mm, naming ``where`` and the key.
+    """
+    from .config import is_finite_number
+
+    provenance = meta.get("provenance") if isinstance(meta.get("provenance"), dict) else {}
+    for key, source in (("design", meta.get("design")), ("provenance.scene", provenance.get("scene"))):
+        leds = source.get("leds") if isinstance(source, dict) else None
+        if not isinstance(leds, dict):
+            continue
+        if "emitter_diameter" not in leds:
+            return 0.0, f"{where}: its design ({key}) declares no leds.emitter_diameter"
+        value = leds["emitter_diameter"]
+        name = f"{key}.leds.emitter_diameter"
+        if isinstance(value, bool) or not is_finite_number(value):
+            raise ConfigError(f"{where}: {name} must be a number of mm, got {value!r}")
+        check_range(f"{where}: {name}", float(value), 0.0, MAX_EMITTER_DIAMETER_MM)
+        return float(value), f"{where}: {name}"
+    name = provenance.get("design")
+    design = shipped_design(name)
+    if design is None or len(design.led_models()) != len(meta.get("leds") or ()):
+        return 0.0, f"{where}: no sensor design recorded"
+    return design.leds.emitter_diameter, f"{where}: provenance.design, the shipped design {name!r}"

@@ -26,6 +26,7 @@ import numpy as np
 from ..core.atomic import NO_SPACE_ERRNOS, write_bytes, write_json
 from ..core.errors import ConfigError
 from ..core.libraries import RENDER_LIBRARIES, SOLVE_LIBRARIES
+from ..core.sensor import rendered_scene
 
 if TYPE_CHECKING:  # named in hints only
     from types import ModuleType
@@ -192,6 +193,8 @@ class Task:
 
         d = dataclasses.asdict(self)
         del d["keep_old"]
+        # the design's LED size: no task reads it (adapters.calibrate fits point LEDs), so the hashes stay
+        d["scene"] = rendered_scene(d["scene"])
         if d["samples"] is None:  # tasks without samples keep the hashes they had before the field existed
             del d["samples"]
         elif SAMPLE_RULES != RULES_HASHED_SILENTLY:
@@ -205,7 +208,9 @@ def keeping_old(tasks: list[Task], keep_old: bool) -> list[Task]:
 
 
 def scene_key(scene: dict) -> str:
-    """Name of a scene's reference folder: its content hash (render threads excluded)."""
+    """Name of a scene's reference folder: its content hash (render threads and the design's fields no render reads,
+    ``core.sensor.rendered_scene``, excluded)."""
+    scene = rendered_scene(scene)
     render = {k: v for k, v in scene.get("render", {}).items() if k != "threads"}
     return digest({**scene, "render": render})
 

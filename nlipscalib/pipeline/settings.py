@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 from ..core import tolerances
 from ..core.errors import CaptureError, ConfigError
+from ..core.sensor import UNRENDERED_DESIGN_KEYS
 
 if TYPE_CHECKING:  # named in hints only: the solver is imported when settings are made
     from ..core.leds import Led
@@ -171,10 +172,15 @@ def twin_reference_problem(
     )
 
 
-TWIN_SETTINGS_OF_NO_LIGHT = frozenset({"name", "render.spp", "render.seed", "render.threads", "render.variant"})
+TWIN_SETTINGS_OF_NO_LIGHT = frozenset(
+    {"name", "render.spp", "render.seed", "render.threads", "render.variant"}
+    | {f"{section}.{key}" for section, key in UNRENDERED_DESIGN_KEYS}
+)
 """Scene settings two twin renders of one sensor may differ in (``provenance.scene`` of meta.json, "section.key"):
 the scene's name, the sample count (the experiments render their references at more samples per pixel than their
-presses), seeds, threads and the Mitsuba variant. Every other one changes the sensor's light."""
+presses), seeds, threads, the Mitsuba variant and the design's fields no render reads
+(``core.sensor.UNRENDERED_DESIGN_KEYS``: a reference rendered before the shipped scenes declared their LEDs' size).
+Every other one changes the sensor's light."""
 
 
 def twin_render_difference(reference_meta: dict, press_meta: dict) -> str:

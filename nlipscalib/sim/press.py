@@ -218,8 +218,9 @@ def recorded_spec_hash(provenance: dict) -> str | None:
 
 def _spec_digest(scene_dict: dict, press_dict: dict | None, seed: int, mesh_digest: str | None = None) -> str:
     from ..core.config import digest
+    from ..core.sensor import rendered_scene
 
-    data = dict(scene_dict)
+    data = rendered_scene(scene_dict)
     data["render"] = {k: v for k, v in data["render"].items() if k != "threads"}
     spec = {"scene": data, "press": press_dict, "seed": seed}
     if mesh_digest is not None:  # mesh presses only: no other press's hash changes

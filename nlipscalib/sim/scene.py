@@ -24,7 +24,7 @@ from ..core.camera import Camera
 from ..core.config import check_count, check_range, check_size_pair, from_mapping, read_config_file, to_mapping
 from ..core.errors import ConfigError
 from ..core.leds import Led
-from ..core.sensor import SCENES_DIR, CameraConfig, DomeConfig, LedConfig, SensorDesign
+from ..core.sensor import MAX_EMITTER_DIAMETER_MM, SCENES_DIR, CameraConfig, DomeConfig, LedConfig, SensorDesign
 from ..core.sensor_response import SensorResponse
 from .render.denoise import DenoiseConfig
 from .render.variant import VARIANTS
@@ -111,7 +111,7 @@ class LedPackageConfig:
     5.0 x 5.0 mm outline; the emitting window is about 3.6 mm across)."""
 
     def __post_init__(self):
-        check_range("size", self.size, 0.0, 20.0)
+        check_range("size", self.size, 0.0, MAX_EMITTER_DIAMETER_MM)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -271,9 +271,12 @@ class SceneConfig:
 
     def ideal(self) -> SceneConfig:
         """Copy that renders exactly the NLiPs image model (``core.leds.led_shading``): point LEDs, Lambertian
-        coat, ideal linear camera, index-matched gel. Noise, interreflection and spp are kept."""
+        coat, ideal linear camera, index-matched gel. Noise, interreflection and spp are kept. Its design declares
+        point LEDs too (``leds.emitter_diameter`` 0): ``nlips calibrate-leds`` then fits its captures' LEDs as the
+        points they are."""
         return dataclasses.replace(
             self,
+            leds=dataclasses.replace(self.leds, emitter_diameter=0.0),
             led_package=dataclasses.replace(self.led_package, enabled=False),
             coating=dataclasses.replace(self.coating, specular=0.0),
             camera_effects=IDEAL_CAMERA,

@@ -9,7 +9,7 @@ channel and the LED intensities are normalised so that **mean_i Psi_ic = 1 for e
 common factor rho_c = mean_i K_ic is reported as ``albedo``. The solver recovers albedo relative to it.
 
 What the user is told (``LedCalibration.warnings``, logged as warnings): a coating reflectance given but not
-used, a reflectance that could not be profiled, a fit that leaves more than the images' own noise
+used, a fit that leaves more than the images' own noise
 unexplained (:func:`fit_quality`), i.e. LEDs not to be trusted, and a capture with many saturated samples
 (left out of the fit, :data:`nlipscalib.core.tolerances.SATURATED_SHARE_WARN`), and in a fit called reliable, a
 single LED not to be trusted (:func:`.calibration_quality.single_led_warnings`).
@@ -48,6 +48,7 @@ from .calibration_term import (
     no_interreflection,
     term_gain,
     term_wins,
+    unprofiled_note,
     unused_reflectance,
 )
 from .exposure import nothing_to_fit, saturated_share, saturation_note
@@ -200,7 +201,8 @@ def calibrate_leds(
     Returns
     -------
     LedCalibration -- with ``quality`` (:func:`fit_quality`) and ``warnings``, each also logged as a warning:
-    a ``coating_reflectance`` not used, a reflectance not profiled, an unreliable fit, a contact left out.
+    a ``coating_reflectance`` not used, an unreliable fit, a contact left out (LED disks whose reflectance could not
+    be profiled: an INFO line).
     """
     one = isinstance(presses, (Press, str, os.PathLike))
     presses = [as_press(p, "presses") for p in ([presses] if one else list(presses))]
@@ -217,7 +219,9 @@ def calibrate_leds(
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
     notes = order_notes + [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
     notes += contact_notes(presses, cal.contact_pixels, cal.contact_causes)
-    notes += unused_reflectance(cal.interreflection, interreflection, led_radius, coating_reflectance)
+    notes += unused_reflectance(cal.interreflection, interreflection, coating_reflectance)
+    if note := unprofiled_note(cal.interreflection, interreflection, led_radius, coating_reflectance):
+        log.info(note)
     notes += quality_warning(cal.quality, cal.interreflection, interreflection)
     notes += single_led_warnings(cal.quality, cal.leds)
     for note in notes:

@@ -169,9 +169,9 @@ def no_interreflection(models: list[dict], interreflection: str) -> str | None:
 
 
 def unused_reflectance(
-    models: list[dict], interreflection: str, led_radius: float, reflectance: float | tuple[float, float, float] | None
+    models: list[dict], interreflection: str, reflectance: float | tuple[float, float, float] | None
 ) -> list[str]:
-    """The warnings for a coating reflectance given but not used, or not profiled (with ``led_radius``).
+    """The warning for a coating reflectance given but not used.
 
     Not honoured on purpose: the reflectance sets the magnitude of the indirect term, and with the term off
     there is nothing to scale. On a capture the auto decision found without interreflection (a bounce-free
@@ -193,12 +193,19 @@ def unused_reflectance(
             f"coating reflectance {shown} (--coating-reflectance) not used: {why}, so the LEDs were fitted to the "
             f"images as direct light{force}"
         ]
-    if led_radius > 0 and interreflection != "off":
-        return [
-            f"coating reflectance not profiled (--led-diameter without --coating-reflectance): {why}, so the LEDs "
-            "were fitted to the images as direct light"
-        ]
     return []
+
+
+def unprofiled_note(models: list[dict], interreflection: str, led_radius: float, reflectance: object) -> str | None:
+    """The INFO line for LED disks whose coating reflectance was not profiled (no capture's indirect term on), or None.
+
+    Not a warning since the disks are fitted by default from the design (s29-ledsize): on a capture without
+    interreflection (the twin's bounce-free renders) there is no reflectance to choose, and the disks and points are
+    fitted to the images as direct light alike; every such calibration warned."""
+    why = no_interreflection(models, interreflection)
+    if why is None or not led_radius > 0 or reflectance is not None or interreflection == "off":
+        return None
+    return f"LED disks fitted to the images as direct light, no coating reflectance profiled: {why}"
 
 
 def emitters_and_profile(
@@ -215,9 +222,11 @@ def emitters_and_profile(
     ``models``: the captures' indirect terms as JSON."""
     if not led_radius > 0:
         return (), None
-    # from the points (0.2 mm off at most): the disk fit only refines them
+    # from the points (0.2 mm off at most): the disk fit only refines them, on every k-th sample (DISK_FIT_SAMPLES)
     x, n, ok = samples.x, samples.n, samples.ok
-    emitters = to_leds(fit_leds(leds, x, n, direct, ok, loss, disk_model(led_radius)))[0]
+    every = slice(None, None, -(-len(x) // DISK_FIT_SAMPLES))
+    disks = fit_leds(leds, x[every], n[every], direct[:, every], ok[:, every], loss, disk_model(led_radius))
+    emitters = to_leds(disks)[0]
     fitted_reflectance = _fitted_reflectance(models)
     if coating_reflectance is not None or fitted_reflectance is None:
         return emitters, None
@@ -242,10 +251,17 @@ PROFILE_XTOL = 0.01
 """The profile's tolerance on that multiple."""
 
 
-PROFILE_SAMPLES = 20_000
-"""The profile's disk fits use every k-th sample, k the smallest that leaves at most this many (a 640x480
-capture at stride 2 has ~55,000; every second of a 160x120 capture's ~3,400 moved the chosen reflectance from
-0.78 to 0.75, and its LED positions by 0.03 mm)."""
+DISK_FIT_SAMPLES = 10_000
+"""The LED disk fits (the emitters and each step of the reflectance profile, :func:`_profiled_reflectance`) use every
+k-th sample, k the smallest that leaves at most this many. Why: since the disks are fitted by default (a design that
+declares its LEDs' size, s29-ledsize) their cost is every calibration's; a disk evaluates the point model at 7
+places, so each fit cost 7x a point fit on all samples, and a 640x480 one-bounce calibration took 5.3x the CPU of
+points only. The disk fit only refines the converged points (9 parameters an LED), which a few thousand samples
+determine. Measured on the 320x240 one-bounce twin reference (~14,000 samples; CPU s / worst disk position mm / worst
+axis deg / chosen reflectance, true 0.8; benchmarks/RESULTS.md): all samples (the profile on at most 20,000)
+25.6 / 0.080 / 0.83 / 0.824; 10,000: 17.0 / 0.087 / 0.93 / 0.829; 5,000: 10.8-11.0 / 0.099 / 1.07 / 0.836; points
+only 3.8. Fewer samples move the profile's reflectance up (every second of a 160x120 capture's ~3,400 moved it from
+0.78 to 0.75, and its LED positions by 0.03 mm), and with it the point LEDs the solver uses."""
 
 
 def _profiled_reflectance(
@@ -268,7 +284,7 @@ def _profiled_reflectance(
     indirect light scaled by s (exact for one bounce, linear in the reflectance), is least near the true
     reflectance (twin, 160x120: 0.75-0.80 for 0.8; benchmarks/RESULTS.md). Bounded Brent search over s
     (scipy.optimize.minimize_scalar), each step a disk fit from ``emitters`` on at most
-    :data:`PROFILE_SAMPLES` samples.
+    :data:`DISK_FIT_SAMPLES` samples.
 
     Parameters
     ----------
@@ -286,7 +302,7 @@ def _profiled_reflectance(
     from scipy.optimize import minimize_scalar
 
     light = img - direct
-    every = slice(None, None, -(-len(x) // PROFILE_SAMPLES))
+    every = slice(None, None, -(-len(x) // DISK_FIT_SAMPLES))
     xs, ns, imgs, lights, oks = x[every], n[every], img[:, every], light[:, every], ok[:, every]
     model = disk_model(radius)
     tried: dict[float, float] = {}

@@ -226,7 +226,8 @@ def test_refracting_gel_bends_the_view_and_dims_the_coat(dome_scene):
 
 def test_default_scene_is_the_papers_sensor_and_ideal_is_the_nlips_model():
     default, ideal = load_scene(), load_scene("nlipstac_ideal")
-    assert default == SceneConfig()
+    # SceneConfig()'s defaults but the design's declared LED size: the disks its [led_package] renders
+    assert default == SceneConfig().replace(leds={"emitter_diameter": SceneConfig().led_package.size})
     assert default.led_package.enabled and default.camera_effects.defocus_px > 0
     assert default.camera_effects.black_level_error != 0 and default.coating.specular == 0
     assert ideal.replace(name=default.name) == default.ideal()
@@ -235,6 +236,8 @@ def test_default_scene_is_the_papers_sensor_and_ideal_is_the_nlips_model():
     stripped = load_scene("nlipstac_realistic").ideal()
     assert not stripped.led_package.enabled and not stripped.camera_effects.enabled
     assert stripped.coating.specular == 0 and not stripped.gel_optics.enabled
+    # and its design declares the point LEDs it renders: calibrate-leds fits them as points by default
+    assert default.leds.emitter_diameter > 0 and stripped.leds.emitter_diameter == ideal.leds.emitter_diameter == 0
 
 
 def test_extended_leds_have_little_monte_carlo_noise_at_4_spp():

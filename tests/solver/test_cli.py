@@ -108,3 +108,22 @@ def test_calibrate_leds_names_its_worst_led_beside_the_median_that_decides():
     ratios[2] = 2.1
     line = _fit_line({"ratio": ratios, "median_ratio": 0.8, "threshold": 1.15, "reliable": True})
     assert line.startswith("fit: residual 0.80x") and "worst LED 3 2.10x" in line and line.endswith(": reliable")
+
+
+def test_a_capture_recording_a_bad_led_size_is_refused_in_one_line_before_the_fit(presses, tmp_path, capsys):
+    """A meta.json whose design declares an LED emitting diameter that is no size (s29-ledsize: the default LED
+    model comes from it) is named with the key, exit 2, no file; --led-diameter overrides the design's word."""
+    import shutil
+
+    capture = tmp_path / "none"
+    shutil.copytree(presses["none"], capture)
+    meta = json.loads((capture / "meta.json").read_text(encoding="utf-8"))
+    meta["design"] = {"leds": {"emitter_diameter": -3.6}}
+    (capture / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+    out = tmp_path / "leds.json"
+    assert main(["calibrate-leds", str(capture), "--out", str(out), "--stride", "4"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{capture / 'meta.json'}: design.leds.emitter_diameter: must be in [0.0, 20.0], got -3.6" in line
+    assert not out.exists()
+    assert main(["calibrate-leds", str(capture), "--out", str(out), "--stride", "4", "--led-diameter", "0"]) == 0
+    assert json.loads(out.read_text(encoding="utf-8"))["led_model"]["from"] == "--led-diameter"

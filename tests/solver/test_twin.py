@@ -166,10 +166,13 @@ def test_undeformed_gel_anchors_the_depth_scale_of_a_small_roi(root):
     assert anchored["all"]["aae_deg"] <= free["all"]["aae_deg"] + 0.1
 
 
-def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_path, capsys):
+def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_path, capsys, caplog):
     """The default twin's LEDs are 3.6 mm disks: the best point LEDs sit ~0.2 mm behind the centres, the
-    disk fit (``--led-diameter 3.6``) recovers centre and axis; the solver keeps using the points."""
+    disk fit (its design's ``leds.emitter_diameter``, ``--led-diameter 3.6``) recovers centre and axis; the solver
+    keeps using the points."""
     import json
+    import logging
+    import shutil
 
     flat = load_press(render_press(twin(), None, root / "flat_disk", seed=3))
     true = flat.leds
@@ -187,10 +190,35 @@ def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_pat
     # command's fit takes 10-15 s of CPU at stride 4 where it took 25-30 s at the default 2
     out = tmp_path / "leds.json"
     argv = ["--no-progress", "calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--stride", "4"]
-    assert main([*argv, "--led-diameter", "3.6"]) == 0
+    # by default as the disks its design declares (the twin's capture records the scene's leds.emitter_diameter)
+    with caplog.at_level(logging.INFO, logger="nlipscalib"):
+        assert main(argv) == 0
     data = json.loads(out.read_text(encoding="utf-8"))
     assert data["emitters"]["radius_mm"] == 1.8 and len(data["emitters"]["leds"]) == len(true)
+    assert data["led_model"] == {
+        "fitted": "disks",
+        "diameter_mm": 3.6,
+        "from": f"{root / 'flat_disk' / 'meta.json'}: provenance.scene.leds.emitter_diameter",
+    }
     assert "as 3.6 mm disks" in capsys.readouterr().out
+    (said,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("LEDs fitted as")]
+    assert "3.6 mm disks" in said and "--led-diameter 0: points only" in said
+    # --led-diameter 0 forces points: no disks in the file, which says so; the point LEDs are the same
+    assert main([*argv, "--led-diameter", "0"]) == 0
+    points = json.loads(out.read_text(encoding="utf-8"))
+    assert "emitters" not in points and points["leds"] == data["leds"]
+    assert points["led_model"] == {"fitted": "points", "diameter_mm": 0.0, "from": "--led-diameter"}
+    # a capture whose design declares no size (recorded before the field) keeps the point LEDs of before
+    old = tmp_path / "old_capture"
+    shutil.copytree(root / "flat_disk", old)
+    meta = json.loads((old / "meta.json").read_text(encoding="utf-8"))
+    del meta["provenance"]["scene"]["leds"]["emitter_diameter"]
+    (old / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+    assert main([*argv[:2], str(old), *argv[3:]]) == 0
+    undeclared = json.loads(out.read_text(encoding="utf-8"))
+    assert "emitters" not in undeclared and undeclared["led_model"]["fitted"] == "points"
+    assert "declares no leds.emitter_diameter" in undeclared["led_model"]["from"]
+    capsys.readouterr()
     assert main(["calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--led-diameter", "-1"]) == 2
     assert "--led-diameter" in capsys.readouterr().err
     assert main(["calibrate-leds", str(root / "flat_disk"), "--out", str(out), "--coating-reflectance", "1.5"]) == 2
