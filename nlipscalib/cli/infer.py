@@ -272,13 +272,13 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     import contextlib
     import time
 
-    from ..core.errors import CaptureError, DeviceError
-    from ..device.live import ReadAhead, SaveSink, stream
+    from ..core.errors import CaptureError, NlipsError
+    from ..device.live import LiveStats, ReadAhead, SaveSink, stream
     from ..learn.watch import MismatchWatch
     from ..report.live import NormalMapPng
     from ._stream import open_frames, running_rate_report
 
-    stats = None
+    stats, watch, stages, cpu0 = LiveStats(), None, None, None
     try:
         with contextlib.ExitStack() as stack:
             source, before_frame = open_frames(args, stack, camera_response=predictor.camera_response)
@@ -305,7 +305,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
 
             term.arm()
             cpu0 = time.process_time()
-            stats = stream(
+            stream(
                 source,
                 predict,
                 sinks,
@@ -313,14 +313,17 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                 before_frame=before_frame,
                 report=running_rate_report(),
                 stop=term,
+                stats=stats,
             )
             cpu = time.process_time() - cpu0
-    except DeviceError:
-        if stats is None:
+    except (NlipsError, OSError):
+        if not stats.frames or watch is None:
             raise
-        # the LED board failed only as the stream closed (unplugged: its lights-off got no answer): the frames
-        # were inferred and saved, so their summary and report come before the one error line (exit 2)
-        _finish_stream(args, name, predictor, stats, stages, cpu, watch)
+        # frames were inferred and saved before it (a live camera that stopped sending, a full disk, the LED board
+        # unplugged or failing as the stream closed): their summary comes before the one error line (exit 2), as
+        # for a damaged frame of a recording; a stream of hours lost its count and rate, and stream.json
+        cpu = time.process_time() - cpu0
+        _finish_stream(args, name, predictor, stats, stages, cpu, watch, after_error=True)
         raise
     _finish_stream(args, name, predictor, stats, stages, cpu, watch)
     if getattr(source, "failure", None) is not None:  # a damaged frame: after what came before it, one line
@@ -336,15 +339,24 @@ def _finish_stream(
     stages: _StageTimes,
     cpu: float,
     watch: MismatchWatch,
+    after_error: bool = False,
 ) -> None:
-    """A stream's summary lines, its mismatch count and (with --out) its stream.json."""
+    """A stream's summary lines, its mismatch count and (with --out) its stream.json. ``after_error``: the stream
+    ended on an error, whose line follows; stream.json is then left out when it cannot be written (the disk that
+    filled), not made a second error."""
     print(stats.summary())
     print(stages.summary(predictor, cpu, stats, args.no_depth))
     watch.report()
     if args.out and stats.frames:
-        _write_stream_report(args.out, name, predictor, stats, stages, cpu)
+        reported = "; stream.json"
+        try:
+            _write_stream_report(args.out, name, predictor, stats, stages, cpu)
+        except OSError:
+            if not after_error:
+                raise
+            reported = ""
         ply = ", .ply" if args.ply or args.mesh else ""
-        print(saved_line(args.out, stats.frames, args.every, f"{ply}; stream.json"))
+        print(saved_line(args.out, stats.frames, args.every, f"{ply}{reported}"))
 
 
 class _EndsCleanly:
