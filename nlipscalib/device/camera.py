@@ -253,8 +253,9 @@ class SequenceSource(_ImageFiles):
 class NumberedFiles(Sequence):
     """The files of an image sequence, ``pattern % (start + i)`` for i < ``count``, each made when asked for.
 
-    Why: the sequence's list held a Path per frame, ~0.3 kB each: 45 MB of a stream's memory for a recording of
-    150,000 frames (an hour and a half at 30 frames/s; benchmarks/RESULTS.md, s29-soak), for names one line makes.
+    Why: the sequence's list held a Path per frame, 0.66 kB each with its name: ~50 MB of a stream's memory for a
+    recording of 150,000 frames (an hour and a half at 30 frames/s; benchmarks/RESULTS.md, s29-soak), for names one
+    line makes.
     """
 
     def __init__(self, pattern: str, start: int, count: int) -> None:

@@ -331,6 +331,30 @@ def test_stage_times_of_a_long_stream_take_memory_that_does_not_grow_with_its_fr
     assert long.means()["network"] == pytest.approx(0.010 + 0.0001 * 19.5, rel=1e-9)
 
 
+def test_stage_times_that_vary_continuously_take_memory_fixed_from_the_first_frame():
+    """A loaded CPU's stage times vary continuously: the bins were a dict that gained an entry for each new bin a time
+    fell in (7,788 after 2,000 frames of a stream, growing for hours, s29-soak); 20,000 frames now take the room of
+    200, whatever their times (the ends of STAGE_TIME_RANGE_S counted in its first and last bins)."""
+    import pickle
+
+    from nlipscalib.cli.infer import STAGE_MEDIAN_BIN, STAGE_TIME_RANGE_S, _StageTimes
+
+    rng = np.random.default_rng(5)
+
+    def stages_of(frames: int) -> _StageTimes:
+        stages = _StageTimes()
+        for network in rng.lognormal(np.log(0.01), 1.0, frames):
+            stages.add(_stage_frame({"network": network, "total": network + 0.002}))
+        return stages
+
+    short, long = stages_of(200), stages_of(20_000)
+    assert len(pickle.dumps(long)) <= len(pickle.dumps(short)) + 1000
+    outside = _StageTimes()
+    for seconds in (STAGE_TIME_RANGE_S[0] / 10, STAGE_TIME_RANGE_S[1] * 10, STAGE_TIME_RANGE_S[1] * 10):
+        outside.add(_stage_frame({"network": seconds, "total": seconds}))
+    assert outside.medians()["network"] == pytest.approx(STAGE_TIME_RANGE_S[1], rel=STAGE_MEDIAN_BIN)
+
+
 def test_stage_medians_are_numpys_within_the_bin_width_with_missing_stages_as_zero():
     from nlipscalib.cli.infer import STAGE_MEDIAN_BIN, _StageTimes
 
