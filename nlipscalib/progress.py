@@ -257,6 +257,9 @@ class AppendFileHandler(logging.Handler):
         except OSError as exc:
             self._lose(exc)
             return
+        except Exception:  # never out of a handler: shown as logging shows it
+            self.handleError(record)
+            return
         self.lost = 0
 
     def _append(self, data: bytes) -> None:
