@@ -241,15 +241,56 @@ class AppendFileHandler(logging.Handler):
         flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | getattr(os, "O_CLOEXEC", 0)
         self._fd: int | None = os.open(self.path, flags, 0o666)
         self._append_lock = _append_lock(self.path) if APPENDS_INTERLEAVE else None
+        self.lost = 0
+        """Lines not written since the last one that was (the disk full, the file's disk gone)."""
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
             data = (self.format(record) + "\n").encode("utf-8", "backslashreplace")
-            with self._whole_append():
-                while data and self._fd is not None:
-                    data = data[os.write(self._fd, data) :]  # a regular file takes it whole unless the disk is full
         except Exception:
+            self.handleError(record)  # a record that cannot be formatted: a bug of its caller, shown as logging does
+            return
+        try:
+            if self.lost:  # written again (space freed): say in the file what is missing before this line
+                data = self._lost_line(record).encode("utf-8", "backslashreplace") + data
+            self._append(data)
+        except OSError as exc:
+            self._lose(exc)
+            return
+        except Exception:  # never out of a handler: shown as logging shows it
             self.handleError(record)
+            return
+        self.lost = 0
+
+    def _append(self, data: bytes) -> None:
+        with self._whole_append():
+            while data and self._fd is not None:
+                data = data[os.write(self._fd, data) :]  # a regular file takes it whole unless the disk is full
+
+    def _lose(self, exc: OSError) -> None:
+        """A line that could not be written: said once on stderr, in one line, then counted (:attr:`lost`).
+
+        Why: ``logging.Handler.handleError`` printed a 30-line "--- Logging error ---" traceback on stderr for every
+        line once the log's disk was full, for as long as the command ran (a stream's counted warning each minute,
+        its summary lines), and the command's own errors drowned in them; the command's work and its output
+        elsewhere go on."""
+        if not self._said_lost:
+            self._said_lost = True
+            stream = sys.stderr
+            if stream is not None:  # pythonw: no stderr
+                cause = exc.strerror or str(exc)
+                stream.write(f"nlips: --log-file {self.path}: {cause}; its lines are lost until it can be written\n")
+        self.lost += 1
+
+    _said_lost = False
+    """Whether the loss of lines was said on stderr (once per handler: a disk that fills again is not said twice)."""
+
+    def _lost_line(self, record: logging.LogRecord) -> str:
+        """The log line counting the lines lost before ``record`` (in the file's format, at WARNING)."""
+        lost = logging.LogRecord(
+            record.name, logging.WARNING, __file__, 0, f"{self.lost} log line(s) lost here (not written)", None, None
+        )
+        return self.format(lost) + "\n"
 
     @contextlib.contextmanager
     def _whole_append(self) -> Iterator[None]:

@@ -272,13 +272,13 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
     import contextlib
     import time
 
-    from ..core.errors import CaptureError, DeviceError
-    from ..device.live import ReadAhead, SaveSink, stream
+    from ..core.errors import CaptureError, NlipsError
+    from ..device.live import LiveStats, ReadAhead, SaveSink, stream
     from ..learn.watch import MismatchWatch
     from ..report.live import NormalMapPng
     from ._stream import open_frames, running_rate_report
 
-    stats = None
+    stats, watch, stages, cpu0 = LiveStats(), None, None, None
     try:
         with contextlib.ExitStack() as stack:
             # the model's tone curve undone as each frame is converted (an 8-bit frame's in one 256-entry lookup,
@@ -310,7 +310,7 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
 
             term.arm()
             cpu0 = time.process_time()
-            stats = stream(
+            stream(
                 source,
                 predict,
                 sinks,
@@ -318,14 +318,17 @@ def _stream_and_finish(args: argparse.Namespace, name: str, predictor: Predictor
                 before_frame=before_frame,
                 report=running_rate_report(),
                 stop=term,
+                stats=stats,
             )
             cpu = time.process_time() - cpu0
-    except DeviceError:
-        if stats is None:
+    except (NlipsError, OSError):
+        if not stats.frames or watch is None:
             raise
-        # the LED board failed only as the stream closed (unplugged: its lights-off got no answer): the frames
-        # were inferred and saved, so their summary and report come before the one error line (exit 2)
-        _finish_stream(args, name, predictor, stats, stages, cpu, watch)
+        # frames were inferred and saved before it (a live camera that stopped sending, a full disk, the LED board
+        # unplugged or failing as the stream closed): their summary comes before the one error line (exit 2), as
+        # for a damaged frame of a recording; a stream of hours lost its count and rate, and stream.json
+        cpu = time.process_time() - cpu0
+        _finish_stream(args, name, predictor, stats, stages, cpu, watch, after_error=True)
         raise
     _finish_stream(args, name, predictor, stats, stages, cpu, watch)
     if getattr(source, "failure", None) is not None:  # a damaged frame: after what came before it, one line
@@ -341,15 +344,24 @@ def _finish_stream(
     stages: _StageTimes,
     cpu: float,
     watch: MismatchWatch,
+    after_error: bool = False,
 ) -> None:
-    """A stream's summary lines, its mismatch count and (with --out) its stream.json."""
+    """A stream's summary lines, its mismatch count and (with --out) its stream.json. ``after_error``: the stream
+    ended on an error, whose line follows; stream.json is then left out when it cannot be written (the disk that
+    filled), not made a second error."""
     print(stats.summary())
     print(stages.summary(predictor, cpu, stats, args.no_depth))
     watch.report()
     if args.out and stats.frames:
-        _write_stream_report(args.out, name, predictor, stats, stages, cpu)
+        reported = "; stream.json"
+        try:
+            _write_stream_report(args.out, name, predictor, stats, stages, cpu)
+        except OSError:
+            if not after_error:
+                raise
+            reported = ""
         ply = ", .ply" if args.ply or args.mesh else ""
-        print(saved_line(args.out, stats.frames, args.every, f"{ply}; stream.json"))
+        print(saved_line(args.out, stats.frames, args.every, f"{ply}{reported}"))
 
 
 class _EndsCleanly:
@@ -379,37 +391,46 @@ class _EndsCleanly:
 STAGE_MEDIAN_BIN = 1e-3
 """Relative width of the bins a stream's stage-time medians are counted in (:class:`_StageTimes`): a median is
 its bin's geometric centre, within 0.05 % of the exact one (the stage line prints 0.1 ms of 10-50 ms)."""
+STAGE_TIME_RANGE_S = (1e-6, 1e3)
+"""Stage times the bins cover, s: a shorter one counts in the first bin, a longer one in the last (a frame's stage
+of more than 1000 s is no stream)."""
 
 
 class _StageTimes:
     """Each stage's running time (:attr:`learn.infer.Frame.seconds`) over a stream, for its summary: exact sums
-    (the means) and log-binned counts (the medians, :data:`STAGE_MEDIAN_BIN`), in memory that does not grow with
-    the frames.
+    (the means) and log-binned counts (the medians, :data:`STAGE_MEDIAN_BIN`), in memory fixed from the first frame.
 
     Why: it kept every frame's stage dict for the medians, 0.42 kB a frame (tracemalloc): 46 MB an hour at 30
-    frames/s, for a stream a lab leaves running through an experiment (benchmarks/RESULTS.md, "s25-soak"). The bins
-    are bounded by the spread of the times (at most one per 0.1 % of it), not by the frames."""
+    frames/s (benchmarks/RESULTS.md, "s25-soak"). Its bins then were a dict that gained an entry for each new bin a
+    time fell in: a stream's times vary continuously (load, contacts), so on a loaded CPU it held 7,788 entries after
+    2,000 frames (0.65 kB a frame) and went on growing for hours, up to ~10 MB (s29-soak). Now each stage counts into
+    one array over :data:`STAGE_TIME_RANGE_S` (20,734 bins, 166 kB)."""
 
     def __init__(self) -> None:
         self.frames = 0
         self.sums: dict[str, float] = {}
         """Each stage's total time, s, in the order the stages first came ("total" among them)."""
-        self.counts: dict[str, dict[int, int]] = {}
-        """Each stage's frames per log bin (bin index: :func:`_time_bin`; None for 0 s)."""
+        self.counts: dict[str, np.ndarray] = {}
+        """Each stage's frames per log bin ((n,) int64, bin :func:`_time_bin`); frames with 0 s or without the stage
+        are not counted (the medians take them as 0 s)."""
 
     def add(self, frame: Frame) -> Frame:
+        import numpy as np
+
         for name, seconds in frame.seconds.items():
             self.sums[name] = self.sums.get(name, 0.0) + seconds
-            bins = self.counts.setdefault(name, {})
-            key = _time_bin(seconds)
-            bins[key] = bins.get(key, 0) + 1
+            if seconds > 0:
+                bins = self.counts.get(name)
+                if bins is None:
+                    bins = self.counts[name] = np.zeros(_time_bin(STAGE_TIME_RANGE_S[1]) + 1, np.int64)
+                bins[_time_bin(seconds)] += 1
         self.frames += 1
         return frame
 
     def medians(self) -> dict:
         """Each stage's median time per frame, s (0 in a frame that had no such stage), within
-        :data:`STAGE_MEDIAN_BIN` of the exact median."""
-        return {k: _binned_median(self.counts.get(k, {}), self.frames) for k in self._names()}
+        :data:`STAGE_MEDIAN_BIN` of the exact median (inside :data:`STAGE_TIME_RANGE_S`)."""
+        return {k: _binned_median(self.counts.get(k), self.frames) for k in self._names()}
 
     def means(self) -> dict:
         """Each stage's mean time per frame, s (0 in a frame that had no such stage)."""
@@ -445,28 +466,37 @@ class _StageTimes:
         )
 
 
-def _time_bin(seconds: float) -> int | None:
-    """The log bin of a stage time (:data:`STAGE_MEDIAN_BIN` wide, relative); None for 0 s (or less)."""
+def _time_bin(seconds: float) -> int:
+    """The log bin of a stage time > 0 (:data:`STAGE_MEDIAN_BIN` wide, relative, from the start of
+    :data:`STAGE_TIME_RANGE_S`; a time outside the range in its first or last bin)."""
     import math
 
-    return math.floor(math.log(seconds) / math.log1p(STAGE_MEDIAN_BIN)) if seconds > 0 else None
+    low, high = STAGE_TIME_RANGE_S
+    seconds = min(max(seconds, low), high)
+    return math.floor(math.log(seconds / low) / math.log1p(STAGE_MEDIAN_BIN))
 
 
-def _binned_median(bins: dict[int | None, int], frames: int) -> float:
-    """The median of ``frames`` stage times counted in ``bins`` (:func:`_time_bin`; frames missing from them had
-    no such stage: 0 s), each bin taken at its geometric centre; the two middle ones' mean for an even count, as
+def _binned_median(bins: np.ndarray | None, frames: int) -> float:
+    """The median of ``frames`` stage times counted in ``bins`` (:func:`_time_bin`; frames not counted had no such
+    stage, or 0 s: 0 s), each bin taken at its geometric centre; the two middle ones' mean for an even count, as
     numpy.median."""
     import math
 
-    counted = sum(bins.values())
-    order = [(None, frames - counted + bins.get(None, 0))] + sorted((k, n) for k, n in bins.items() if k is not None)
-    middle = {(frames - 1) // 2, frames // 2}
-    values, seen = [], 0
-    for key, n in order:
-        values += [key] * len([r for r in middle if seen <= r < seen + n])
-        seen += n
+    import numpy as np
+
+    if not frames:
+        return 0.0
+    cumulative = np.cumsum(bins) if bins is not None else np.zeros(1, np.int64)
+    zeros = frames - int(cumulative[-1])
     step = math.log1p(STAGE_MEDIAN_BIN)
-    return sum(0.0 if k is None else math.exp((k + 0.5) * step) for k in values) / len(values) if values else 0.0
+    values = []
+    for rank in sorted({(frames - 1) // 2, frames // 2}):
+        if rank < zeros:
+            values.append(0.0)
+        else:
+            k = int(np.searchsorted(cumulative, rank - zeros, side="right"))
+            values.append(STAGE_TIME_RANGE_S[0] * math.exp((k + 0.5) * step))
+    return (values[0] + values[-1]) / 2
 
 
 class _PlySink:

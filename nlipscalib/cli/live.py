@@ -226,7 +226,7 @@ def _checked_first_call(spec: str, predict: Predict) -> Predict:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count
-    from ..core.errors import ConfigError, DeviceError
+    from ..core.errors import ConfigError, NlipsError
     from ..report.live import window_problem
 
     if bool(args.model) == bool(args.predictor):
@@ -246,11 +246,12 @@ def run(args: argparse.Namespace) -> int:
     with SigtermEndsStream() as term:
         try:
             _run_stream(args, no_window, done, term)
-        except DeviceError:
-            if "stats" not in done:
+        except (NlipsError, OSError):
+            if "stats" not in done or not done["stats"].frames:
                 raise
-            # the LED board failed only as the stream closed (unplugged or killed: its lights-off got no answer):
-            # the frames were streamed, so their summary comes before the one error line (exit 2)
+            # frames were streamed before it (a camera that stopped sending, a damaged recorded frame, a full disk,
+            # the LED board unplugged or failing as the stream closed): their summary comes before the one error
+            # line (exit 2); an hours-long stream lost its count and rate
             _summarise(done["stats"], done["predict"], args)
             raise
         _summarise(done["stats"], done["predict"], args)
@@ -263,11 +264,12 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, term: SigtermEndsStream) -> None:
     """Open the source, the predictor and the sinks, and stream; ``no_window``: why no window shows the maps (None:
-    one does); ``done`` gets ``stats`` and ``predict`` once the stream ended, before what it opened is closed (the
-    LED board switched off); ``term``: armed as the frames start, SIGTERM then ends the stream as Ctrl-C does."""
+    one does); ``done`` gets ``stats`` (counted into as the frames go: what was streamed when an error ends it) and
+    ``predict`` as the frames start; ``term``: armed as the frames start, SIGTERM then ends the stream as Ctrl-C
+    does."""
     import contextlib
 
-    from ..device.live import SaveSink, StopLive, stream
+    from ..device.live import LiveStats, SaveSink, StopLive, stream
     from ..report.live import NormalMapPng, WindowSink
 
     with contextlib.ExitStack() as stack:
@@ -294,8 +296,9 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, ter
             sinks.append(WindowSink(StopLive, reference_depth))
         elif not args.out:
             print(f"{no_window}: maps are not shown; use --out DIR to keep them", file=sys.stderr)
+        done["stats"], done["predict"] = LiveStats(), predict
         term.arm()
-        done["stats"] = stream(
+        stream(
             source,
             predict,
             sinks,
@@ -303,8 +306,8 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, ter
             before_frame=before_frame,
             report=running_rate_report(),
             stop=term,
+            stats=done["stats"],
         )
-        done["predict"] = predict
 
 
 def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace) -> None:

@@ -19,7 +19,7 @@ import logging
 import math
 import os
 import re
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterator, Sequence
 from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING
@@ -177,12 +177,12 @@ class _ImageFiles(FrameSource):
     does: OpenCV releases the GIL while it decodes).
     """
 
-    files: list[Path]
+    files: Sequence[Path]
     """The frames' files, in order."""
     name: str
     """What error lines call the whole (the folder, or the pattern)."""
 
-    def __init__(self, files: list[Path], name: str, average: int = 1, tone_curve: np.ndarray | None = None):
+    def __init__(self, files: Sequence[Path], name: str, average: int = 1, tone_curve: np.ndarray | None = None):
         self.files, self.name = files, name
         self.tone_curve = tone_curve
         self.average = int(average)
@@ -249,13 +249,37 @@ class SequenceSource(_ImageFiles):
         start = next((i for i in (0, 1) if Path(self._name(i)).is_file()), None)
         if start is None:
             raise CaptureError(f"{self.pattern}: no image of the sequence ({self._name(0)} nor {self._name(1)} exists)")
-        files = []
-        while Path(self._name(start + len(files))).is_file():
-            files.append(Path(self._name(start + len(files))))
-        super().__init__(files, self.pattern, average, tone_curve)
+        count = 0
+        while os.path.isfile(self._name(start + count)):
+            count += 1
+        super().__init__(NumberedFiles(self.pattern, start, count), self.pattern, average, tone_curve)
 
     def _name(self, index: int) -> str:
         return self.pattern % index
+
+
+class NumberedFiles(Sequence):
+    """The files of an image sequence, ``pattern % (start + i)`` for i < ``count``, each made when asked for.
+
+    Why: the sequence's list held a Path per frame, 0.66 kB each with its name: ~50 MB of a stream's memory for a
+    recording of 150,000 frames (an hour and a half at 30 frames/s; benchmarks/RESULTS.md, s29-soak), for names one
+    line makes.
+    """
+
+    def __init__(self, pattern: str, start: int, count: int) -> None:
+        self.pattern, self.start, self.count = pattern, start, count
+
+    def __len__(self) -> int:
+        return self.count
+
+    def __getitem__(self, index: int | slice) -> Path | list[Path]:
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(self.count))]
+        if index < 0:
+            index += self.count
+        if not 0 <= index < self.count:
+            raise IndexError(index)
+        return Path(self.pattern % (self.start + index))
 
 
 def is_sequence_pattern(spec: str) -> bool:

@@ -152,6 +152,7 @@ def stream(
     report: Callable[[str], None] | None = print,
     report_every_s: float = 1.0,
     stop: Callable[[], bool] | None = None,
+    stats: LiveStats | None = None,
 ) -> LiveStats:
     """Run frames through the predictor into the sinks until ``max_frames``, the end of the input, a sink stops,
     Ctrl-C, or ``stop()`` says so.
@@ -165,10 +166,17 @@ def stream(
     before_frame : called with the frame index before each read (the emulator changes the press there)
     report : where the running frame rate goes (once per ``report_every_s``), None for quiet
     stop : asked before each frame; True ends the stream there, the frame before it done and saved whole (the CLI
-        passes a SIGTERM flag: ``cli._stream.terminate_ends_stream``)
+        passes a SIGTERM flag: ``cli._stream.SigtermEndsStream``)
+    stats : counted into in place (default: a new LiveStats), its ``seconds`` set however the stream ends: a caller
+        that passes its own still has the frames done when the stream raises (a camera that stopped, a full disk),
+        for the summary it prints before the error line
+
+    Returns
+    -------
+    LiveStats -- ``stats``
     """
     sinks = list(sinks)
-    stats = LiveStats()
+    stats = LiveStats() if stats is None else stats
     t_start = last_report = time.perf_counter()
     frames_at_report = 0
     try:
@@ -197,7 +205,8 @@ def stream(
             stats.output_s += time.perf_counter() - t2  # the running rate's line is output too
     except (StopLive, KeyboardInterrupt):
         pass
-    stats.seconds = time.perf_counter() - t_start
+    finally:  # an error too: the frames before it were streamed, in this much time
+        stats.seconds = time.perf_counter() - t_start
     return stats
 
 

@@ -91,6 +91,78 @@ def test_ctrl_c_ends_a_camera_stream_cleanly(trained, twin_presses, tmp_path, ca
     assert len(list(out.glob("*.npz"))) == 3
 
 
+def _camera_that_stops(monkeypatch, frame: np.ndarray, after: int) -> None:
+    """``--camera 0`` opens a stand-in that gives ``frame`` ``after`` times, then fails as a live camera that stopped
+    sending does (``OpenCVSource._grab``)."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.device import camera
+
+    class StoppingCamera(camera.FrameSource):
+        reads = 0
+        shape = frame.shape[:2]
+        live = True
+
+        def read(self):
+            if self.reads == after:
+                raise CaptureError("camera 0: no frame (the camera stopped)")
+            self.reads += 1
+            return frame
+
+    monkeypatch.setattr(camera, "open_source", lambda spec, settings=None: StoppingCamera())
+
+
+def test_a_camera_that_stops_sending_ends_the_stream_with_its_summary_then_one_line(
+    trained, twin_presses, tmp_path, capsys, monkeypatch
+):
+    """A live camera that stopped (unplugged; its driver's read timed out) ended `nlips infer --camera` with the error
+    alone: an hours-long stream's count, rate, stage line and stream.json were lost (s29-soak)."""
+    _camera_that_stops(monkeypatch, read_png16(twin_presses / HELD_OUT / "tricolor.png"), after=4)
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), "--camera", "0", "--out", str(out), "--every", "2"]) == 2
+    printed, err = capsys.readouterr()
+    assert "4 frames in" in printed and "frames/s for the predictor alone" in printed
+    assert f"saved: 2 of 4 frames' normals and depth in {out} (frame_NNNNNN.npz, _normals.png; stream.json)" in printed
+    assert err.strip().splitlines() == ["nlips infer: error: camera 0: no frame (the camera stopped)"]
+    assert json.loads((out / "stream.json").read_text(encoding="utf-8"))["frames"] == 4
+
+
+def test_a_disk_that_fills_ends_the_stream_with_its_summary_then_one_line(
+    trained, twin_presses, tmp_path, capsys, monkeypatch
+):
+    """`nlips infer VIDEO --out DIR` on a disk that fills: the frames saved before it kept whole, their summary, then
+    the one line naming the file (no stream.json: the disk has no room for it)."""
+    import errno
+    import os
+
+    from nlipscalib.core import atomic
+    from nlipscalib.device import live
+
+    _camera_that_stops(monkeypatch, read_png16(twin_presses / HELD_OUT / "tricolor.png"), after=100)
+    real_save, saved = live.save_npz, []
+
+    def fills_at_the_third(path, arrays, **kw):
+        if len(saved) == 2:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+        saved.append(path)
+        return real_save(path, arrays, **kw)
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(live, "save_npz", fills_at_the_third)
+    monkeypatch.setattr(atomic, "write_bytes", full)  # stream.json finds the disk full too
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), "--camera", "0", "--out", str(out)]) == 2
+    printed, err = capsys.readouterr()
+    assert "2 frames in" in printed and f"saved: 2 of 2 frames' normals and depth in {out} (frame_NNNNNN.npz" in printed
+    assert "stream.json" not in printed and not (out / "stream.json").exists()
+    assert err.strip().splitlines() == [
+        f"nlips infer: error: {out / 'frame_000002.npz'}: No space left on device (the disk is full: free space or "
+        "choose another --out)"
+    ]
+    assert sorted(p.name for p in out.glob("*.npz")) == ["frame_000000.npz", "frame_000001.npz"]
+
+
 def _one_line_error(capsys) -> str:
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
@@ -257,6 +329,30 @@ def test_stage_times_of_a_long_stream_take_memory_that_does_not_grow_with_its_fr
     short, long = stages_of(200), stages_of(20_000)
     assert len(pickle.dumps(long)) < 1.2 * len(pickle.dumps(short))
     assert long.means()["network"] == pytest.approx(0.010 + 0.0001 * 19.5, rel=1e-9)
+
+
+def test_stage_times_that_vary_continuously_take_memory_fixed_from_the_first_frame():
+    """A loaded CPU's stage times vary continuously: the bins were a dict that gained an entry for each new bin a time
+    fell in (7,788 after 2,000 frames of a stream, growing for hours, s29-soak); 20,000 frames now take the room of
+    200, whatever their times (the ends of STAGE_TIME_RANGE_S counted in its first and last bins)."""
+    import pickle
+
+    from nlipscalib.cli.infer import STAGE_MEDIAN_BIN, STAGE_TIME_RANGE_S, _StageTimes
+
+    rng = np.random.default_rng(5)
+
+    def stages_of(frames: int) -> _StageTimes:
+        stages = _StageTimes()
+        for network in rng.lognormal(np.log(0.01), 1.0, frames):
+            stages.add(_stage_frame({"network": network, "total": network + 0.002}))
+        return stages
+
+    short, long = stages_of(200), stages_of(20_000)
+    assert len(pickle.dumps(long)) <= len(pickle.dumps(short)) + 1000
+    outside = _StageTimes()
+    for seconds in (STAGE_TIME_RANGE_S[0] / 10, STAGE_TIME_RANGE_S[1] * 10, STAGE_TIME_RANGE_S[1] * 10):
+        outside.add(_stage_frame({"network": seconds, "total": seconds}))
+    assert outside.medians()["network"] == pytest.approx(STAGE_TIME_RANGE_S[1], rel=STAGE_MEDIAN_BIN)
 
 
 def test_stage_medians_are_numpys_within_the_bin_width_with_missing_stages_as_zero():
