@@ -84,7 +84,7 @@ def test_stream_counts_into_the_stats_it_is_given_until_an_error_ends_it():
 
 
 def _live(tmp_path, source: FrameSource, monkeypatch, *args: str) -> int:
-    monkeypatch.setattr(camera, "open_source", lambda spec, settings=None: source)
+    monkeypatch.setattr(camera, "open_source", lambda spec, settings=None, tone_curve=None: source)
     argv = ["live", "--camera", "0", "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
     return main(argv + ["--out", str(tmp_path / "out"), *args])
 

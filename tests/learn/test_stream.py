@@ -108,7 +108,7 @@ def _camera_that_stops(monkeypatch, frame: np.ndarray, after: int) -> None:
             self.reads += 1
             return frame
 
-    monkeypatch.setattr(camera, "open_source", lambda spec, settings=None: StoppingCamera())
+    monkeypatch.setattr(camera, "open_source", lambda spec, settings=None, tone_curve=None: StoppingCamera())
 
 
 def test_a_camera_that_stops_sending_ends_the_stream_with_its_summary_then_one_line(
