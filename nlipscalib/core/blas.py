@@ -25,7 +25,8 @@ import_amg_in_background`) and by :func:`_blas` while threadpoolctl walks the lo
 Why: threadpoolctl walks them with glibc's ``dl_iterate_phdr``, which holds the dynamic loader's lock while it
 calls back into Python (the callback needs the GIL), and an extension module's import calls ``dlopen`` (which needs
 that lock) holding the GIL: each thread waited for the other. Seen as a solve that never ended in a ``--workers 2``
-pool process (tests/test_pipeline, lowest dependency versions: pyamg 5.0 importing ``scipy.io.matlab``)."""
+pool process (tests/test_pipeline at the lowest dependency versions of the time: pyamg 5.0 importing
+``scipy.io.matlab``)."""
 
 
 def _blas():

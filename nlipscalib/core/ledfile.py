@@ -23,8 +23,8 @@ def save_leds(path: str | Path, leds: Leds, extra: dict | None = None) -> Path:
 
 LED_FILE_BYTES_PER_LED = 2 << 10
 """An LED file's share per LED (its values, uncertainties, fit quality, disk emitters and sensor record, JSON
-indented): 12 LEDs took 13.8 KB, 19.5 KB with ``--led-diameter`` (1.15-1.6 KB per LED; 160x120 reference of the
-default twin, 2026-12-05)."""
+indented): 12 LEDs took 13.8 KB as points, 19.5 KB with disks (the design's size, by default, or ``--led-diameter``;
+1.15-1.6 KB per LED; 160x120 reference of the default twin, 2026-12-05; 13.9 / 19.6 KB with ``led_model``, s29)."""
 LED_FILE_BYTES_BASE = 8 << 10
 """An LED file's share whatever its LEDs: gauge, albedo, each capture's interreflection model (~0.5 KB), warnings,
 and the disk's block a file takes beyond its bytes (4 KiB)."""
