@@ -41,10 +41,10 @@ TICKS = os.sysconf("SC_CLK_TCK")
 
 def sample(pid: int) -> dict:
     """The process's memory (MB), threads, open files and CPU seconds now, from /proc (Linux)."""
-    status = Path(f"/proc/{pid}/status").read_text()
+    status = Path(f"/proc/{pid}/status").read_text(encoding="utf-8")
     field = dict(line.split(":", 1) for line in status.splitlines() if ":" in line)
     field = {k: v.split()[0] for k, v in field.items() if v.split()}  # a zombie's memory lines are gone
-    stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    stat = Path(f"/proc/{pid}/stat").read_text(encoding="utf-8").rsplit(")", 1)[1].split()
     return {
         "rss_mb": int(field["VmRSS"]) / 1024,
         "hwm_mb": int(field["VmHWM"]) / 1024,
@@ -233,7 +233,7 @@ def main() -> None:
     if not samples:
         raise SystemExit("no samples: the command ended before the first one (see its output above)")
     if args.json:
-        Path(args.json).write_text(json.dumps(samples, indent=1))
+        Path(args.json).write_text(json.dumps(samples, indent=1), encoding="utf-8")
     if args.what == "stream":
         keys = ["t", "rss_mb", "hwm_mb", "threads", "fds", "cpu_s", "fps", "out_files", "out_mb", "log_kb"]
     else:

@@ -149,6 +149,8 @@ def serial_matmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     calls: (218, 1,200) x (1,200, 24) float32 in 25 products of 9 rows, ~2x the time of one single-threaded product.
     """
     m, k = a.shape
+    if a.size == 0 or b.size == 0:  # nothing to sum (a flat pad's gather has no pairs): zeros or an empty array
+        return a @ b
     if m == 1:  # as two rows: a single one would be a matrix-vector product
         return serial_matmul(np.repeat(a, 2, axis=0), b)[:1]
     n = b.shape[1]

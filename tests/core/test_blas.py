@@ -50,6 +50,16 @@ def test_a_serial_products_pieces_are_each_within_the_single_thread_size(monkeyp
         assert sizes and all(r >= 2 and r * kk * nn <= SERIAL_GEMM_MNK for r, kk, nn in sizes), sizes
 
 
+@pytest.mark.parametrize("m, k, n", [(0, 5, 24), (7, 0, 24), (7, 5, 0), (0, 0, 0)])
+def test_a_serial_product_with_an_empty_side_is_numpys(m, k, n):
+    """An empty factor (a flat pad's gather has no surface pairs: Q3's flat-pad press failed on a division by zero)
+    gives NumPy's product: zeros where nothing is summed, an empty array where a side is empty."""
+    a, b = np.ones((m, k), np.float32), np.ones((k, n), np.float32)
+    out = serial_matmul(a, b)
+    assert out.shape == (m, n) and out.dtype == np.float32
+    np.testing.assert_array_equal(out, a @ b)
+
+
 def test_a_block_on_any_thread_gets_its_count_while_another_thread_holds_a_blas_limit():
     """threadpoolctl (3.8) ignores a limit set on a thread other than the one holding its control (here the main
     thread's ``with``): the way Q1's calibration task, run on the Dask test's thread, got 2 BLAS threads inside its

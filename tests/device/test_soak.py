@@ -154,7 +154,7 @@ def test_a_log_file_on_a_full_disk_costs_one_line_not_a_traceback_per_line(tmp_p
         handler.close()
     err = capsys.readouterr().err
     assert err == f"nlips: --log-file {log_file}: No space left on device; its lines are lost until it can be written\n"
-    assert log_file.read_text().splitlines() == [
+    assert log_file.read_text(encoding="utf-8").splitlines() == [
         "WARNING 50 log line(s) lost here (not written)",
         "WARNING frame 50 unlike the reference",
     ]
