@@ -284,9 +284,6 @@ class _Settings:
     left_out: tuple[np.ndarray, ...] | None = None
     """Per capture, (H, W) bool: its pixels left out of the fit (a contact, with ``allow_contact``); None: not
     looked for yet (:func:`contact_regions`, after the first fit)."""
-    converged: bool = False
-    """Whether ``initial`` is a converged fit's LEDs (the reflectance profile's rerun): a known
-    ``coating_reflectance`` then applies from the first round (:func:`.calibration_term.indirect_rounds`)."""
 
 
 def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
@@ -305,16 +302,7 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         selections=[d[4] for d in data],
     )
     fitted, direct, models = indirect_rounds(
-        presses,
-        samples,
-        leds0,
-        s.loss,
-        s.interreflection,
-        s.bounces,
-        s.rounds,
-        s.coating_reflectance,
-        left_out,
-        converged=s.converged,
+        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out
     )
     if s.left_out is None:  # once per calibration: the reruns below keep the verdict
         s = dataclasses.replace(s, left_out=contact_regions(presses, to_leds(fitted)[0], models))
@@ -339,10 +327,8 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         models = [dict(m, term_gain=round(gain, 1)) for m in models]
     leds, albedo, std = to_leds(fitted)
     emitters, profile = emitters_and_profile(leds, samples, direct, s.loss, s.led_radius, s.coating_reflectance, models)
-    if profile is not None:  # the calibration again with the profiled reflectance: one round from these LEDs
-        chosen = tuple(profile["chosen"])
-        rerun = dataclasses.replace(s, initial=leds, coating_reflectance=chosen, rounds=1, converged=True)
-        again = _calibrate(presses, rerun)
+    if profile is not None:  # the whole calibration again with the profiled reflectance
+        again = _calibrate(presses, dataclasses.replace(s, initial=leds, coating_reflectance=tuple(profile["chosen"])))
         return _with_profile(again, profile)
     rms = [f[2] for f in fitted]
     return LedCalibration(leds, albedo, std, rms, models, emitters, float(s.led_radius), quality=quality)

@@ -29,15 +29,12 @@ def indirect_rounds(
     rounds: int,
     coating_reflectance: float | tuple[float, float, float] | None,
     left_out: Sequence[np.ndarray | None],
-    converged: bool = False,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray, float]], np.ndarray, list[IndirectModel]]:
     """(per-LED fits as :func:`fit_leds` returns them, the images minus the indirect light they were fitted to,
     the captures' last indirect terms) -- ``rounds`` alternations of indirect fit and LED fit, or one direct-only
     LED fit from ``leds0`` when no term is on. ``left_out``: per capture, (H, W) bool or None -- pixels the term's
     fit leaves out as the LED fit does (a contact, ``allow_contact``): a dent's light fitted as the undeformed
     dome's would bias the term's reflectance, and through it every LED fitted to the images minus it.
-    ``converged``: ``leds0`` are a converged fit's LEDs (the reflectance profile's rerun, one round), so a known
-    ``coating_reflectance`` applies from the first round.
 
     A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on the twin),
     after which nothing correlates with the indirect term any more: the term is fitted with the starting LEDs
@@ -56,9 +53,9 @@ def indirect_rounds(
         ]
         if r == 0 and interreflection == "auto":
             models = [_decide(m) for m in models]
-        if coating_reflectance is not None and (r > 0 or converged):
-            # not in the first round from a start: with the starting LEDs a lower light than fitted let an LED fit
-            # run off (seen: one LED 6.6 mm away); from the first round's LEDs the known value only refines
+        if coating_reflectance is not None and r > 0:
+            # not in the first round: with the starting LEDs a lower light than fitted let an LED fit run off
+            # (seen: one LED 6.6 mm away); from the first round's LEDs the known value only refines
             models = [m.with_reflectance(coating_reflectance) if m.enabled else m for m in models]
         if not any(m.enabled for m in models):
             break
