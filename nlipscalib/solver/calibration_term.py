@@ -44,6 +44,7 @@ def indirect_rounds(
     x, n, img, ok = samples.x, samples.n, samples.img, samples.ok
     leds, fitted, models = leds0, None, []
     direct = img  # the images minus the indirect light the last LED fit used
+    first: list[float | None] = [None] * len(presses)  # each capture's share with the starting LEDs
     for r in range(rounds if interreflection != "off" else 0):
         if r > 0:
             leds = to_leds(fitted)[0]
@@ -53,6 +54,9 @@ def indirect_rounds(
         ]
         if r == 0 and interreflection == "auto":
             models = [_decide(m) for m in models]
+        models = [calibration_reason(m, interreflection, share) for m, share in zip(models, first)]
+        if r == 0:
+            first = [m.share for m in models]
         if coating_reflectance is not None and r > 0:
             # not in the first round: with the starting LEDs a lower light than fitted let an LED fit run off
             # (seen: one LED 6.6 mm away); from the first round's LEDs the known value only refines
@@ -73,10 +77,41 @@ def _decide(model: IndirectModel):
     import dataclasses
 
     on = model.share >= tolerances.CALIBRATION_MIN_SHARE
-    limit = tolerances.CALIBRATION_MIN_SHARE
-    note = f"; calibration: {'used' if on else 'not used'} (threshold {limit} with the starting LEDs)"
     reason = model.reason.replace("interreflection on:", "interreflection off:") if not on else model.reason
-    return dataclasses.replace(model, enabled=on, reason=reason + note)
+    return dataclasses.replace(model, enabled=on, reason=reason)
+
+
+def calibration_reason(model: IndirectModel, mode: str, first_share: float | None) -> IndirectModel:
+    """``model`` with the rule of its ``reason`` in the LED calibration's terms.
+
+    Why: :func:`.indirect.fit_indirect` names the solver's auto threshold (:data:`tolerances.INDIRECT_MIN_SHARE`,
+    0.02), which the calibration's first round does not use (:data:`tolerances.CALIBRATION_MIN_SHARE`, 0.1, with
+    the starting LEDs): `nlips calibrate-leds` printed "auto threshold 0.02" and "threshold 0.1" side by side.
+
+    Parameters
+    ----------
+    model : a term fitted in a round of :func:`indirect_rounds` (the first round's after :func:`_decide`)
+    mode : the calibration's ``interreflection``, "auto" or "on" (on: no threshold is named)
+    first_share : the capture's share with the starting LEDs, the first round's; None: this is the first round
+    """
+    import dataclasses
+
+    from .indirect import AUTO_THRESHOLD_SAID
+
+    limit, later = tolerances.CALIBRATION_MIN_SHARE, tolerances.INDIRECT_MIN_SHARE
+    if mode != "auto":
+        said = ""
+    elif first_share is None:
+        side = "at least" if model.enabled else "below"
+        said = f" with the starting LEDs ({side} the LED calibration's auto threshold {limit:g})"
+    elif model.enabled:
+        said = (
+            f" (on since its share with the starting LEDs, {first_share:.3f}, reached the LED calibration's auto "
+            f"threshold {limit:g})"
+        )
+    else:
+        said = f" (below {later:g} with the refitted LEDs, after {first_share:.3f} with the starting LEDs)"
+    return dataclasses.replace(model, reason=model.reason.replace(" " + AUTO_THRESHOLD_SAID, said))
 
 
 def _sampled_indirect_light(

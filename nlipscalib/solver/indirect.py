@@ -40,6 +40,11 @@ FIT_PATCH_TARGET = 40
 """The same for the fit on the undeformed dome (slowly varying light: coarse patches suffice)."""
 
 
+AUTO_THRESHOLD_SAID = f"(auto threshold {tolerances.INDIRECT_MIN_SHARE})"
+"""How :func:`fit_indirect`'s ``reason`` names the rule of "auto": the LED calibration, whose rule is another
+(:func:`nlipscalib.solver.calibration_term.calibration_reason`), puts its own words in its place."""
+
+
 @dataclasses.dataclass(frozen=True)
 class IndirectModel:
     """The fitted indirect term (:func:`fit_indirect`)."""
@@ -482,7 +487,7 @@ def fit_indirect(
     enabled = mode == "on" or share >= tolerances.INDIRECT_MIN_SHARE
     reason = (
         f"interreflection {'on' if enabled else 'off'}: fitted indirect share {share:.3f} of the direct light "
-        f"(auto threshold {tolerances.INDIRECT_MIN_SHARE}), coating reflectance {np.round(reflectance, 3).tolist()}"
+        f"{AUTO_THRESHOLD_SAID}, coating reflectance {np.round(reflectance, 3).tolist()}"
         + (f"; {cache['design_note']}" if cache["design_note"] else "")
     )
     if mode == "on":

@@ -127,3 +127,24 @@ def test_calibrate_runs_as_many_solvers_as_memory_holds(session, monkeypatch, ca
     caplog.set_level(logging.INFO)
     assert main(["calibrate", str(root), "--no-progress"]) == 0
     assert "1 worker instead of 8: each solve, auto ROI worker may take ~0.2 GB at 64x48" in caplog.text
+
+
+def _capture_line(out: str) -> str:
+    return next(line for line in out.splitlines() if line.startswith("capture 1:"))
+
+
+def test_calibrate_leds_names_the_interreflection_threshold_it_used_and_no_other(session, tmp_path, capsys):
+    """`nlips calibrate-leds` printed "(auto threshold 0.02)" -- the solver's, which its first round does not use --
+    beside "calibration: not used (threshold 0.1 with the starting LEDs)", the one it did use: two thresholds for
+    one decision. With --interreflection on, no threshold decides anything, and none is named."""
+    root, _ = session
+    capsys.readouterr()
+    args = ["--no-progress", "calibrate-leds", str(root / "reference"), "--stride", "4"]
+    assert main([*args, "--out", str(tmp_path / "auto.json")]) == 0
+    line = _capture_line(capsys.readouterr().out)
+    assert line.startswith("capture 1: interreflection off: fitted indirect share ")
+    assert "of the direct light with the starting LEDs (below the LED calibration's auto threshold 0.1)" in line
+    assert line.count("threshold") == 1, line
+    assert main([*args, "--interreflection", "on", "--out", str(tmp_path / "on.json")]) == 0
+    line = _capture_line(capsys.readouterr().out)
+    assert line.startswith("capture 1: interreflection on: fitted indirect share ") and "threshold" not in line

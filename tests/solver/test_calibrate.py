@@ -320,3 +320,29 @@ def test_gamma_encoded_reference_images_are_warned_about_before_the_fit(tmp_path
     with caplog.at_level(logging.WARNING):
         calibrate_leds([encoded], stride=4)
     assert "srgb: the LED images are not linear in the light" in caplog.text and "LED calibration" in caplog.text
+
+
+def test_the_calibrations_later_rounds_say_what_turned_the_term_on():
+    """After the first round (decided on the starting LEDs' share against tolerances.CALIBRATION_MIN_SHARE), the
+    term is refitted and stays on down to the solver's INDIRECT_MIN_SHARE: its reason named only that
+    "(auto threshold 0.02)", the threshold of `nlips solve`, which had decided nothing of this calibration."""
+    from nlipscalib.core import tolerances
+    from nlipscalib.solver.calibration_term import calibration_reason
+    from nlipscalib.solver.indirect import AUTO_THRESHOLD_SAID, IndirectModel
+
+    def model(on, share):
+        state = "on" if on else "off"
+        said = f"interreflection {state}: fitted indirect share {share:.3f} of the direct light {AUTO_THRESHOLD_SAID}"
+        return IndirectModel((0.3,) * 3, (0.8,) * 3, share, 1, on, said + ", coating reflectance [0.8, 0.8, 0.8]")
+
+    kept = calibration_reason(model(True, 0.31), "auto", 0.29).reason
+    assert kept == (
+        "interreflection on: fitted indirect share 0.310 of the direct light (on since its share with the starting "
+        f"LEDs, 0.290, reached the LED calibration's auto threshold {tolerances.CALIBRATION_MIN_SHARE:g}), coating "
+        "reflectance [0.8, 0.8, 0.8]"
+    )
+    dropped = calibration_reason(model(False, 0.01), "auto", 0.12).reason
+    assert f"(below {tolerances.INDIRECT_MIN_SHARE:g} with the refitted LEDs, after 0.120 with the starting" in dropped
+    first = calibration_reason(model(True, 0.31), "auto", None).reason
+    assert "0.310 of the direct light with the starting LEDs (at least the LED calibration's auto threshold" in first
+    assert all(AUTO_THRESHOLD_SAID not in r for r in (kept, dropped, first))
