@@ -68,12 +68,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "off: only the undeformed surface's indirect light is subtracted",
     )
     p.add_argument(
-        "--coating-albedo",
+        "--coating-reflectance",
+        dest="coating_albedo",
         type=float,
         default=None,
         metavar="A",
-        help="override the coating's reflectance (0-1]; default: fitted from the data",
+        help="the coating's diffuse reflectance (0-1] when known, in place of the one fitted from the data "
+        "(default: fitted); formerly --coating-albedo, still accepted",
     )
+    # the former name, kept for scripts; one name per idea in the help (calibrate-leds says "reflectance")
+    p.add_argument("--coating-albedo", dest="coating_albedo", type=float, default=None, help=argparse.SUPPRESS)
     p.add_argument(
         "--backend",
         choices=("numpy", "torch"),

@@ -424,7 +424,7 @@ def _solve_press(
         model = model.with_reflectance(coating_albedo)
     elif coating_albedo is not None:  # nothing for it to scale: say so rather than drop the user's value
         why = model.reason if model is not None else "no interreflection term (a fixed light or no reference surface)"
-        log.warning("%s: --coating-albedo not used: %s", press.folder, why)
+        log.warning("%s: --coating-reflectance not used: %s", press.folder, why)
     t0 = time.perf_counter()
     # against a capture of the undeformed dome the model has no point-LED error to allow for at the edge
     bounced = model.undeformed_light_per_led(press.camera.shape) if model is not None and model.enabled else None

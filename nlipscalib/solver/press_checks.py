@@ -41,7 +41,8 @@ def check_modes(
         values = np.atleast_1d(np.asarray(coating_albedo, float))
         if values.size not in (1, 3) or not np.all((values > 0) & (values <= 1)):
             raise ConfigError(
-                f"coating albedo (--coating-albedo) must be one value or three in (0, 1], got {coating_albedo!r}"
+                "coating reflectance (--coating-reflectance) must be one value or three in (0, 1], "
+                f"got {coating_albedo!r}"
             )
 
 

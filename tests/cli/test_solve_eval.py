@@ -271,8 +271,9 @@ def test_bad_arguments_are_one_line(data, capsys):
     assert "leds must be like '1,2,5'" in capsys.readouterr().err
     assert main(["solve", str(root / "press_a"), "--roi", "1", "2"]) == 2
     assert "--roi" in capsys.readouterr().err
-    assert main(["solve", str(root / "press_a"), "--coating-albedo", "2"]) == 2
-    assert "--coating-albedo" in capsys.readouterr().err
+    for spelling in ("--coating-reflectance", "--coating-albedo"):  # the former name, still taken
+        assert main(["solve", str(root / "press_a"), spelling, "2"]) == 2
+        assert "coating reflectance (--coating-reflectance) must be" in capsys.readouterr().err
     assert main(["solve", "--roi", "auto"]) == 2
     assert "press folder is missing" in capsys.readouterr().err
     # a --reference that is not there: one line before any solving (was a failure line per press, exit 1)
@@ -577,3 +578,21 @@ def test_a_folders_default_worker_count_is_one_per_two_cores_lowered_to_memory(d
     monkeypatch.setattr(cpus, "available_memory", lambda: 10**8)  # 0.1 GB: one worker at most
     main(["solve", str(root), "--config", str(cfg), "--no-progress"])
     assert asked.pop() == 1
+
+
+def test_solve_and_calibrate_leds_take_the_coating_reflectance_by_one_name():
+    """`nlips solve --coating-albedo A` and `nlips calibrate-leds --coating-reflectance A` set the same quantity (the
+    coating's reflectance, IndirectModel.with_reflectance) under two names. Both take --coating-reflectance now;
+    solve's former spelling still works (scripts), and its help shows the one name."""
+    import argparse
+
+    from nlipscalib.cli import build_parser
+
+    parser = build_parser()
+    for spelling in ("--coating-reflectance", "--coating-albedo"):
+        assert parser.parse_args(["solve", "PRESS", spelling, "0.7"]).coating_albedo == 0.7
+    assert parser.parse_args(["calibrate-leds", "REF", "--out", "x.json", "--coating-reflectance", "0.7"])
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    text = " ".join(commands["solve"].format_help().split())
+    assert "--coating-reflectance A" in text and "formerly --coating-albedo, still accepted" in text
+    assert "--coating-albedo A" not in text  # hidden: one name per idea

@@ -150,7 +150,7 @@ def test_a_coating_albedo_with_the_term_off_is_reported_not_dropped(textured, ca
     with caplog.at_level("WARNING", logger="nlipscalib"):
         given = solve_press(press, roi=roi, coating_albedo=0.8, options=SolverOptions(max_iters=3))
     assert not given.report["interreflection"]["enabled"]
-    assert "--coating-albedo not used: interreflection off" in caplog.text
+    assert "--coating-reflectance not used: interreflection off" in caplog.text
     plain = solve_press(press, roi=roi, options=SolverOptions(max_iters=3))
     np.testing.assert_array_equal(given.normals, plain.normals)  # what the warning says: nothing changed
 

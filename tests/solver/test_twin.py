@@ -333,7 +333,7 @@ def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_inte
     assert len(profile["scales"]) == len(profile["residuals"]) >= 4
     assert min(profile["residuals"]) < profile["residuals"][profile["scales"].index(max(profile["scales"]))]
     assert "reflectance set to" in fitted.interreflection[0]["reason"]
-    # the model with a set reflectance scales its light with it (the solver's --coating-albedo too)
+    # the model with a set reflectance scales its light with it (the solver's --coating-reflectance too)
     model = fit_indirect(flat, true)
     half = model.with_reflectance(np.asarray(model.reflectance) / 2)
     np.testing.assert_allclose(
