@@ -48,7 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--overwrite",
         action="store_true",
-        help="re-render presses made from a different spec (by a run that has ended)",
+        help="re-render the presses that another spec (by a run that has ended), other twin code or another "
+        "Mitsuba made, and damaged ones; presses of this very spec are kept (delete one to render it anew)",
     )
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

@@ -37,7 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--overwrite",
         action="store_true",
-        help="render every press again (e.g. --out holds presses of another scene, spec or version)",
+        help="re-render the presses in --out that another scene, spec or twin version made; presses of this "
+        "very spec are kept, and their solutions reused (delete --out to start anew)",
     )
     p.add_argument("--no-solve", action="store_true", help="only render and show the ground truth")
     p.add_argument("--no-figures", action="store_true", help="no per-press figure maps next to the results")

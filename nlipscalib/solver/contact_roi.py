@@ -244,8 +244,8 @@ def _edge_note(pixels: tuple[np.ndarray, np.ndarray], shape: tuple[int, int]) ->
     # the twin at polar 40-70 deg, 320x240: 0.1-0.4 deg more contact AAE than the whole gel (s27-unusual)
     return (
         "--roi auto: the contact reaches the image's edge, where its box has no undeformed gel around it on that "
-        "side: its normals near the edge are less reliable than a whole-gel solve's (drop --roi to solve the "
-        "whole gel)"
+        "side: its normals near the edge are less reliable than a whole-gel solve's (`nlips solve PRESS` without "
+        "--roi)"
     )
 
 

@@ -119,3 +119,12 @@ def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
     assert main(["demo", "--spec", str(spec), "--out", str(out), "--no-solve"]) == 2
     assert "use --overwrite" in capsys.readouterr().err
     assert main(["demo", "--spec", str(spec), "--out", str(out), "--no-solve", "--overwrite"]) == 0
+    # --overwrite re-renders only what another spec made: this spec's presses are kept, as its help says (it said
+    # "render every press again", and a user waiting for fresh renders got none)
+    rendered = (out / "press_0001" / "meta.json").stat().st_mtime_ns
+    assert main(["demo", "--spec", str(spec), "--out", str(out), "--no-solve", "--overwrite"]) == 0
+    assert (out / "press_0001" / "meta.json").stat().st_mtime_ns == rendered
+    for command in ("demo", "dataset"):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert "presses of this very spec are kept" in " ".join(capsys.readouterr().out.split())

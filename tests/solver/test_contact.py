@@ -224,8 +224,9 @@ def test_auto_roi_keeps_a_dent_at_the_edge():
     assert x0 + w == 160 and x0 <= 118 - 6 - 8  # both parts boxed
     assert "left out" not in note
     # and the user is told that the box has no undeformed gel beyond the image's edge (the twin at polar 40-70
-    # deg: 0.1-0.4 deg more contact AAE than the whole gel; s27-unusual)
-    assert "the contact reaches the image's edge" in note and "drop --roi" in note
+    # deg: 0.1-0.4 deg more contact AAE than the whole gel; s27-unusual), and how to get that solve: the note said
+    # "drop --roi" under `nlips calibrate` and `nlips demo`, which take no --roi (they always solve around the contact)
+    assert "the contact reaches the image's edge" in note and "(`nlips solve PRESS` without --roi)" in note
 
 
 def test_auto_roi_boxes_a_tiny_contact_not_the_weaker_but_larger_misfits_noise_makes_in_the_corners():
