@@ -11,7 +11,8 @@ log = logging.getLogger(__name__)
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "calibrate-leds",
-        help="estimate LED Psi, mu, n_s, x_s from undeformed-dome captures",
+        help="fit each LED's position, axis, brightness and spread (Psi, mu, n_s, x_s) to undeformed-dome captures "
+        "-> LED JSON",
         description="LED self-calibration: each LED's intensity Psi (per colour), emission exponent mu, axis n_s "
         "and position x_s, fitted to captures of the undeformed dome (its known shape, reference.npz) minus the "
         "dome's own interreflection where they show it, written as an LED file (docs/formats.md) for "

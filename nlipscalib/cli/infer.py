@@ -82,6 +82,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument(
         "inputs",
         nargs="*",
+        default=[],  # not "required" (argparse's word for a bare nargs="*"): --camera / --emulate stand in for them
         help="press folder(s), a folder of presses, image file(s) (PNG, JPEG, TIFF, ...), a folder of them, or one "
         "video file or image-sequence pattern",
     )

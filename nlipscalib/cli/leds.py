@@ -54,7 +54,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="info: firmware and LED count; test: light each LED alone, then all red, green, blue; "
         "set LED R G B (LED 1..N); all R G B; off; state: colours the LEDs show (read back: not with --adalight)",
     )
-    p.add_argument("values", nargs="*", type=int, help="LED R G B for set (LED from 1), R G B for all (0..255)")
+    # default: not "required" (argparse's word for a bare nargs="*"): info, test, off and state take none
+    p.add_argument(
+        "values", nargs="*", type=int, default=[], help="LED R G B for set (LED from 1), R G B for all (0..255)"
+    )
     p.add_argument("--adalight", type=int, metavar="N", help="the board runs Adalight with N LEDs")
     add_baud_argument(p)
     p.add_argument("--timeout", type=float, default=1.0, help="seconds to wait for each reply (default 1)")

@@ -81,6 +81,15 @@ def test_nlips_alone_shows_the_commands_and_is_a_usage_error():
     assert "calibrate-leds" in run.stderr and "exit status:" in run.stderr and run.stdout == ""
 
 
+@pytest.mark.parametrize("argv, required", [(("leds", "virtual"), "action"), (("infer",), "model")])
+def test_a_missing_argument_names_only_what_is_required(capsys, argv, required):
+    """`nlips leds PORT` said "the following arguments are required: action, values" and `nlips infer` "...: model,
+    inputs", though `nlips leds PORT info` takes no values and `nlips infer MODEL --camera 0` no inputs (argparse
+    calls a positional of nargs="*" without a default required)."""
+    last = _error(capsys, *argv).strip().splitlines()[-1]
+    assert last.endswith(f"error: the following arguments are required: {required}"), last
+
+
 def test_help_and_h_are_the_same(capsys):
     texts = []
     for flag in ("-h", "--help"):
