@@ -78,7 +78,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="network runtime (default auto: onnxruntime when MODEL.onnx is beside the model, else PyTorch; an "
         ".onnx that is not the model's own export is refused)",
     )
-    p.add_argument("--threads", type=int, default=0, help="network CPU threads (0: the library's default)")
+    p.add_argument(
+        "--threads", type=int, default=0, help="CPU threads for the network (default 0: all this process may use)"
+    )
     add_device_arguments(p)
     add_source_arguments(p, camera_default="0")
     # the names of `nlips infer` (and, for --out, of every other command); the first names stay accepted

@@ -61,3 +61,12 @@ def test_every_option_with_a_value_by_default_names_it(name):
         and "default" not in (action.help or "").lower()
     ]
     assert unnamed == []
+
+
+def test_live_and_infer_say_alike_what_their_threads_option_does_when_not_given():
+    """The same network runtime runs under both (learn.infer.Predictor, threads=0 when not given), but `nlips live
+    --threads` said "(0: the library's default)", which names no value, while `nlips infer --threads` said "default
+    0: all this process may use" (the check above took "library's default" for a default named)."""
+    live, infer = (_commands()[name]._option_string_actions["--threads"] for name in ("live", "infer"))
+    assert live.default == infer.default == 0
+    assert live.help == infer.help and "default 0: all this process may use" in live.help
