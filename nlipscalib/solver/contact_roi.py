@@ -119,7 +119,8 @@ def _refuse_without_contact(
     arguments."""
     if why := no_contact(contact, hit, edge_model_error):
         reason, within_noise = why
-        solve_anyway = "pass --roi X0 Y0 W H, or no --roi, to solve it anyway"
+        # the command named: `nlips calibrate` and `nlips demo` print this too, and take no --roi
+        solve_anyway = f"`nlips solve {folder or 'PRESS'} --roi X0 Y0 W H`, or without --roi, solves it anyway"
         if within_noise:
             # what to do, as well as what was found: a press too light to show, or the undeformed dome's capture
             raise NoContactError(
@@ -177,8 +178,8 @@ def _left_out_note(
         return (
             f"--roi auto left out {int(left.sum())} misfitting pixels along the gel's edge "
             f"({int(unexplained.sum())} beyond the point-LED model's known error; an effect the undeformed "
-            f"model does not have there, e.g. vignetting or the view at grazing angles); pass --roi X0 Y0 W H "
-            f"to solve them too"
+            f"model does not have there, e.g. vignetting or the view at grazing angles); `nlips solve "
+            f"{folder or 'PRESS'} --roi X0 Y0 W H` solves them too"
         )
     log.info(
         "%s: --roi auto left out %d pixels along the gel's edge that misfit by what the point-LED model "
@@ -226,7 +227,7 @@ def _spread_note(region: np.ndarray, valid: np.ndarray) -> str:
     return (
         f"--roi auto: the pixels whose images differ from the undeformed model span {100 * spread:.0f} % of "
         f"the gel's extent (its bounding box): a press that large, or LEDs / reference that do not fit this "
-        f"sensor (try nlips calibrate-leds or --reference); pass --roi X0 Y0 W H to choose the region"
+        f"sensor (try nlips calibrate-leds or --reference); `nlips solve PRESS --roi X0 Y0 W H` chooses the region"
     )
 
 

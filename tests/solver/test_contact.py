@@ -464,6 +464,11 @@ def test_a_press_without_contact_is_refused_by_the_auto_roi_as_having_none(tmp_p
     with pytest.raises(CaptureError, match="found no contact .* within noise") as no_reference_named:
         contact_box(cmap, flat.camera.shape, folder=flat.folder)
     assert f"use it as the reference (--reference {flat.folder}" in str(no_reference_named.value)
+    # the way to solve it anyway names its command: `nlips calibrate` and `nlips demo` say this too, and take no --roi
+    # (it said "pass --roi X0 Y0 W H, or no --roi")
+    assert f"(`nlips solve {flat.folder} --roi X0 Y0 W H`, or without --roi, solves it anyway)" in str(
+        no_reference_named.value
+    )
     dented = _noisy_press(tmp_path / "dented", 1.0, 5)
     assert contact_peak(classify_contact(dented)) > tolerances.NO_CONTACT_PEAK
 
