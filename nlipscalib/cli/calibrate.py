@@ -166,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
     albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
     print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
+    print(f"next: nlips solve PRESS --leds {args.out}, or nlips calibrate FOLDER --leds {args.out} (NLiPsNet's labels)")
     return 0
 
 

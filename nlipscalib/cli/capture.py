@@ -513,4 +513,10 @@ def run(args: argparse.Namespace) -> int:
         else:
             print(f"{name}: captured in {rec['seconds']:.2f} s, {rec['attempts']} attempt(s)")
     print(f"session {args.out}: {len(status)} folders in {time.perf_counter() - t0:.1f} s")
+    # the next steps of the sensor's calibration, as `nlips calibrate` and `nlips train` name theirs
+    reference = Path(args.out) / "reference"
+    print(
+        f"next: nlips calibrate-leds {reference} --out leds.json (the sensor's LEDs), then nlips calibrate "
+        f"{args.out} --leds leds.json (NLiPsNet's training data)"
+    )
     return 0

@@ -141,7 +141,13 @@ def test_calibrate_leds_names_the_interreflection_threshold_it_used_and_no_other
     capsys.readouterr()
     args = ["--no-progress", "calibrate-leds", str(root / "reference"), "--stride", "4"]
     assert main([*args, "--out", str(tmp_path / "auto.json")]) == 0
-    line = _capture_line(capsys.readouterr().out)
+    out = capsys.readouterr().out
+    # and, as `nlips calibrate` and `nlips train` end, what to run next with the file (it ended on "written FILE")
+    leds = tmp_path / "auto.json"
+    assert out.splitlines()[
+        -1
+    ] == f"next: nlips solve PRESS --leds {leds}, or nlips calibrate FOLDER --leds {leds} " + ("(NLiPsNet's labels)")
+    line = _capture_line(out)
     assert line.startswith("capture 1: interreflection off: fitted indirect share ")
     assert "of the direct light with the starting LEDs (below the LED calibration's auto threshold 0.1)" in line
     assert line.count("threshold") == 1, line

@@ -18,6 +18,12 @@ def test_emulated_session_from_the_cli_resumes(tmp_path, capsys, caplog):
     # the press that moved is said once, by the operator's line (it was a WARNING log line too)
     assert sum("Press 1: the object moved" in line for line in out.splitlines()) == 1
     assert "pixels changed" not in caplog.text
+    # the session's next steps, as `nlips calibrate` and `nlips train` end (an operator had to find them in the README)
+    reference = tmp_path / "s" / "reference"
+    assert out.splitlines()[-1] == (
+        f"next: nlips calibrate-leds {reference} --out leds.json (the sensor's LEDs), then nlips calibrate "
+        f"{tmp_path / 's'} --leds leds.json (NLiPsNet's training data)"
+    )
     assert main(args + [str(tmp_path / "s"), "--presses", "2"]) == 0
     out = capsys.readouterr().out
     assert "reference: kept" in out and "press_0001: kept" in out and "press_0002: captured" in out
