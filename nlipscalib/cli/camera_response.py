@@ -125,7 +125,10 @@ def _check(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     _check(args)
+    from ..device.response_fit import check_exposures
+
     exposures = exposures_of(args.exposures_ms)
+    check_exposures(exposures, f"--emulate {args.emulate}" if args.emulate else f"camera {args.camera}")
     if args.emulate:
         frames, source, camera, black = _emulated_bracket(args, exposures)
     else:
@@ -236,8 +239,9 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
         average=args.average,
         linear_gamma=False,  # the curve to be measured is the one the camera keeps on
     )
+    # --port nlipsemu://ID: a virtual board of the default design's 12 LEDs (or as many as --led needs)
     board = start_board(
-        args.port, args.adalight or max(args.led, 1), adalight=args.adalight is not None, baudrate=BAUD_RATE
+        args.port, args.adalight or max(args.led, 12), adalight=args.adalight is not None, baudrate=BAUD_RATE
     )
     with (
         board if board is not None else contextlib.nullcontext(),

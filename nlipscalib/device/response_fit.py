@@ -113,11 +113,7 @@ def fit_response(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], so
 def _check_bracket(frames: Sequence[np.ndarray], times: np.ndarray, source: str) -> None:
     """One line naming ``source`` when the bracket cannot give a curve: too few exposures, repeated ones, frames
     that are no 8-bit images of one size, or too few frames that are neither black nor clipped on the gel."""
-    if len(set(times.tolist())) < RESPONSE_MIN_EXPOSURES or not (times > 0).all():
-        raise CaptureError(
-            f"{source}: a bracket needs at least {RESPONSE_MIN_EXPOSURES} different exposures > 0 ms, got "
-            f"{', '.join(f'{t:g}' for t in times)}"
-        )
+    check_exposures(times, source)
     shape = frames[0].shape
     if any(f.dtype != np.uint8 or f.shape != shape or f.ndim != 3 or f.shape[2] != 3 for f in frames):
         raise ValueError("bracket frames must be (H, W, 3) uint8 of one size")
@@ -129,6 +125,18 @@ def _check_bracket(frames: Sequence[np.ndarray], times: np.ndarray, source: str)
             f"{source}: only {sum(well)} of {len(frames)} exposures are well exposed ({black} black, {clipped} "
             f"saturated), at least {RESPONSE_MIN_WELL_EXPOSED} are needed: give exposures from where the lit gel is "
             "dark to where it just clips (--exposures-ms), or change the LED level (--level)"
+        )
+
+
+def check_exposures(exposures_ms: Sequence[float], source: str) -> None:
+    """One line naming ``source`` when a bracket of these exposures (ms) cannot give a curve: fewer than
+    :data:`~nlipscalib.core.tolerances.RESPONSE_MIN_EXPOSURES` different ones, or one not > 0. Called before a
+    bracket is taken, too: nothing is lit or rendered for a bracket refused anyway."""
+    times = np.asarray(exposures_ms, dtype=np.float64)
+    if len(set(times.tolist())) < RESPONSE_MIN_EXPOSURES or not (times > 0).all():
+        raise CaptureError(
+            f"{source}: a bracket needs at least {RESPONSE_MIN_EXPOSURES} different exposures > 0 ms, got "
+            f"{', '.join(f'{t:g}' for t in times)}"
         )
 
 

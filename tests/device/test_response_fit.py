@@ -128,6 +128,25 @@ def test_a_damaged_response_file_given_to_capture_is_one_line_naming_it(measured
     assert not (tmp_path / "s").exists()
 
 
+def test_a_camera_that_is_no_live_one_is_refused_before_a_bracket(tmp_path, capsys):
+    """The exposure of recorded frames cannot be stepped: one line naming --camera, exit 2, the LEDs left off."""
+    import cv2
+
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    cv2.imwrite(str(frames / "000.png"), np.full((48, 64, 3), 100, np.uint8))
+    board = VirtualBoard(12)
+    out = tmp_path / "r.json"
+    argv = ["calibrate-camera-response", "--port", board.url, "--camera", str(frames), "--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--camera {frames}: a live camera is needed" in err[0], err
+    assert not board.latched.any() and not out.exists()
+    board.close()
+
+
 def test_the_emulated_tone_curves_are_the_commands_choices():
     from nlipscalib.cli.camera_response import TONE_CURVE_CHOICES
 
