@@ -46,8 +46,15 @@ def lookup_costs(pairs: int) -> dict[str, list[float]]:
         "measured": tone_curve_table(curve_id(curve), 0.0, 65280.0, curve),
     }
     times: dict[str, list[float]] = {}
+    builders = {
+        "srgb": lambda: tone_curve_table("srgb", 0.0, 65280.0),
+        "measured": lambda: tone_curve_table(curve_id(curve), 0.0, 65280.0, curve),
+    }
     for _ in range(pairs):
         for name, table in tables.items():
+            times.setdefault(f"table {name} (once a load)", []).append(
+                _per_frame(lambda _f, b=builders[name]: b(), None)
+            )
             times.setdefault(f"8-bit {name}", []).append(_per_frame(lambda f, t=table: to_stored(f, "bench", t), eight))
             times.setdefault(f"16-bit {name}", []).append(
                 _per_frame(lambda f, t=table: undo_tone_curve(f.copy(), t), sixteen)
@@ -84,7 +91,7 @@ def main() -> None:
     args = p.parse_args()
     for name, values in lookup_costs(args.pairs).items():
         spread = f"[{min(values):.3f}-{max(values):.3f}]"
-        print(f"{name}: {statistics.median(values):.3f} ms/frame {spread}, n={len(values)}")
+        print(f"{name}: {statistics.median(values):.3f} ms each {spread}, n={len(values)}")
     if not args.no_fit:
         fit_errors(args.size)
 

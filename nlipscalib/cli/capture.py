@@ -270,6 +270,29 @@ def declared_response(value: str) -> MeasuredResponse | None:
     return read_response_file(value)
 
 
+def response_provenance(args: argparse.Namespace) -> dict:
+    """What meta.json's ``provenance`` records of a measured response (``provenance.camera_response``: the file
+    given and how the curve was measured: camera, date, exposures, fit residual); {} for "linear" and "srgb" (their
+    captures' provenance as before). The curve itself is in ``sensor.response_curve``."""
+    if args.measured is None:
+        return {}
+    return {
+        "camera_response": {"file": str(args.camera_response), "name": args.measured.name, **args.measured.provenance}
+    }
+
+
+def check_black_level(args: argparse.Namespace) -> None:
+    """ConfigError when a measured response was measured from another black level than ``--black-level``: its curve
+    spans black to white, so its entries would stand for other values."""
+    measured_black = (args.measured.provenance if args.measured else {}).get("black_level_dn")
+    if measured_black is not None and not math.isclose(float(measured_black), args.black_level):
+        raise _usage(
+            f"--camera-response {args.camera_response}: measured with the camera's black level at {measured_black:g} "
+            f"DN, --black-level is {args.black_level:g}: give the same, or measure the curve again "
+            "(`nlips calibrate-camera-response --black-level`)"
+        )
+
+
 def sensor_response_of(args: argparse.Namespace, **levels: float) -> SensorResponse:
     """The ``core.SensorResponse`` a capture declares: ``levels`` (bit depth, black and white levels, exposure,
     gain) and ``--camera-response``, a measured curve's name and table for a response file."""
@@ -331,6 +354,7 @@ def _run_emulated(args: argparse.Namespace):
         tone_curve=args.emulate_tone_curve,
         response=response,
     ) as sensor:
+        sensor.rig.provenance.update(response_provenance(args))
         cfg = _session_config(args, sensor.tricolor_level)
         sensor.prerender(progress=bars_enabled())
         return run_session(sensor.rig, args.out, cfg, sensor.operator, progress=bars_enabled())
@@ -349,6 +373,7 @@ def _run_device(args: argparse.Namespace):
         raise _usage(
             "give the LED controller's --port (or --emulate SCENE, or --port nlipsemu://1, to run without hardware)"
         )
+    check_black_level(args)
     design = _design(args.design)
     camera = _calibrated_camera(args.camera_calibration) or design.camera_model()
     leds = _leds(args, camera, design) or design.led_models()
@@ -394,7 +419,8 @@ def _run_device(args: argparse.Namespace):
                 "camera_refused": list(source.refused),
                 "camera_gamma": source.gamma,
                 "design": args.design or DEFAULT_DESIGN,
-            },
+            }
+            | response_provenance(args),
             source_name=f"camera {camera_spec}" if str(camera_spec).isdigit() else str(camera_spec),
             leds_origin=f"the LED file {args.leds}" if args.leds else f"the design {args.design or DEFAULT_DESIGN}",
             camera_origin=f"the camera calibration {args.camera_calibration}"

@@ -128,6 +128,37 @@ def test_a_damaged_response_file_given_to_capture_is_one_line_naming_it(measured
     assert not (tmp_path / "s").exists()
 
 
+def test_a_device_capture_records_the_measured_curve_and_refuses_another_black_level(measured, tmp_path, capsys):
+    """The curve spans the black level it was measured from to white: a capture at another --black-level is one
+    line; at the same, meta.json records the curve's name, its values and how it was measured."""
+    import cv2
+
+    from nlipscalib.core import Camera
+    from nlipscalib.device.virtual_board import VirtualBoard
+
+    camera = Camera.from_fov(64, 48, 100.0, "fisheye", (0.05, -0.01, 0.0, 0.0))
+    (tmp_path / "camera.json").write_text(json.dumps({"camera": camera.to_dict()}), encoding="utf-8")
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for k in range(2 * 15):  # as tests/device/test_capture_cli.py: a reference and a press of 12 LEDs
+        cv2.imwrite(str(frames / f"{k:03d}.png"), np.full((48, 64, 3), 100 + (k % 15) * (k % 15 != 14), np.uint8))
+    response = read_response_file(measured["gamma2.2"])
+    black = response.provenance["black_level_dn"]  # the emulated camera's, 64 DN of 12 bits
+    board = VirtualBoard(12)
+    args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes", "--presses"]
+    args += ["1", "--camera-calibration", str(tmp_path / "camera.json"), "--out", str(tmp_path / "s")]
+    args += ["--camera-response", str(measured["gamma2.2"])]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"black level at {black:g} DN, --black-level is 0" in err[0], err
+    assert main([*args, "--black-level", f"{black:g}"]) == 0, capsys.readouterr().err
+    meta = json.loads((tmp_path / "s" / "press_0001" / "meta.json").read_text(encoding="utf-8"))
+    assert meta["sensor"]["camera_response"] == response.name
+    assert meta["sensor"]["response_curve"] == list(response.curve)
+    assert meta["provenance"]["camera_response"]["fit_residual"] == response.provenance["fit_residual"]
+    board.close()
+
+
 def test_a_camera_that_is_no_live_one_is_refused_before_a_bracket(tmp_path, capsys):
     """The exposure of recorded frames cannot be stepped: one line naming --camera, exit 2, the LEDs left off."""
     import cv2
