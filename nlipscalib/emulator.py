@@ -28,7 +28,7 @@ import numpy as np
 from .core.config import from_mapping, read_config_file, to_mapping
 from .core.dome import reference_surface
 from .core.errors import ConfigError
-from .core.sensor_response import SensorResponse
+from .core.sensor_response import SensorResponse, linear_to_srgb
 from .device.camera import FrameSource
 from .device.session import Operator, Rig
 from .sim.indent import PressConfig, apply_press
@@ -122,14 +122,10 @@ def _vendor_s_curve(x: np.ndarray) -> np.ndarray:
     return np.float32(0.5) * g * g * (np.float32(3) - np.float32(2) * g) + np.float32(0.5) * g
 
 
-def _srgb(x: np.ndarray) -> np.ndarray:
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, np.float32(1 / 2.4)) - 0.055).astype(np.float32)
-
-
 EMULATED_TONE_CURVES: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "gamma2.2": _gamma22,
     "s-curve": _vendor_s_curve,
-    "srgb": _srgb,
+    "srgb": linear_to_srgb,
 }
 """Tone curves the emulated camera may encode its frames with (``--emulate-tone-curve``): linear light in [0, 1]
 (fraction of full scale above black) -> encoded fraction, as a webcam's image processor applies it before its

@@ -114,8 +114,9 @@ def _check(args: argparse.Namespace) -> None:
         raise ConfigError(f"--level must be 1..255, got {args.level}")
     if args.emulate and (args.port or args.adalight is not None):
         raise ConfigError("--port/--adalight are not used with --emulate: the emulated sensor has its own LED board")
-    if not args.emulate and args.emulate_tone_curve:
-        raise ConfigError("--emulate-tone-curve is only used with --emulate SCENE")
+    for dest in ("emulate_tone_curve", "width", "height", "spp"):
+        if not args.emulate and getattr(args, dest) is not None:
+            raise ConfigError(f"--{dest.replace('_', '-')} is only used with --emulate SCENE")
     if not args.emulate and not args.port:
         raise ConfigError("give the LED controller's --port and --camera (or --emulate SCENE, to run without hardware)")
     if args.average < 1 or args.flush < 0:

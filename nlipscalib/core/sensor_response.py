@@ -54,6 +54,22 @@ def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.04045, v / 12.92, ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4)
 
 
+def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function of IEC 61966-2-1, :func:`srgb_to_linear`'s inverse: ``12.92 L`` up to 0.0031308,
+    else ``1.055 L ** (1 / 2.4) - 0.055`` (the emulated sRGB camera's encoding, ``emulator.EMULATED_TONE_CURVES``).
+
+    Parameters
+    ----------
+    linear : (...) float32, linear light in [0, 1]
+
+    Returns
+    -------
+    (...) float32, encoded values V in [0, 1]
+    """
+    x = np.asarray(linear, np.float32)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, np.float32(1 / 2.4)) - 0.055).astype(np.float32)
+
+
 def tone_curve_table(
     camera_response: str, black_level: float, white_level: float, curve: Sequence[float] | None = None
 ) -> np.ndarray | None:

@@ -162,3 +162,12 @@ def test_linear_and_srgb_captures_are_written_as_before(tmp_path):
         assert "response_curve" not in meta["sensor"]
         assert meta["format_version"] == (1 if name == "linear" else 2)
         assert "response_curve" not in describe_sensor(*_camera_leds(), response)
+
+
+def test_the_srgb_encoding_is_the_loaders_inverse():
+    """The emulated sRGB camera encodes with ``linear_to_srgb``; the loader undoes ``srgb_to_linear``."""
+    from nlipscalib.core.sensor_response import linear_to_srgb, srgb_to_linear
+
+    x = np.linspace(0, 1, 10001, dtype=np.float32)
+    assert np.abs(srgb_to_linear(linear_to_srgb(x)) - x).max() < 1e-6
+    assert linear_to_srgb(np.float32(0.5)) == pytest.approx(0.735357, abs=1e-6)  # IEC 61966-2-1's mid grey
