@@ -10,7 +10,9 @@ per channel), scaled by the scene's exposure and passed through the scene's sens
 fresh noise draw per frame, as a real sensor gives.
 
 Like a real UVC camera, the virtual camera delivers frames with a delay (``latency_frames``): a frame
-read right after an LED change still shows the old light, so a session that does not flush fails.
+read right after an LED change still shows the old light, so a session that does not flush fails. Like a webcam
+that cannot turn its gamma off, it may encode its frames with a tone curve (:data:`EMULATED_TONE_CURVES`), and its
+exposure may be stepped (:attr:`EmulatedCamera.exposure_scale`: ``nlips calibrate-camera-response``'s bracket).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import numpy as np
 from .core.config import from_mapping, read_config_file, to_mapping
 from .core.dome import reference_surface
 from .core.errors import ConfigError
+from .core.sensor_response import SensorResponse, linear_to_srgb
 from .device.camera import FrameSource
 from .device.session import Operator, Rig
 from .sim.indent import PressConfig, apply_press
@@ -108,6 +111,60 @@ class TwinRenders:
         return self.cache[key]
 
 
+def _gamma22(x: np.ndarray) -> np.ndarray:
+    return np.power(x, np.float32(1 / 2.2))
+
+
+def _vendor_s_curve(x: np.ndarray) -> np.ndarray:
+    # a webcam's "contrast" look: gamma 2.2 blended half and half with a smoothstep of it (steeper mid-tones,
+    # flatter ends); monotonic, 0 -> 0 and 1 -> 1
+    g = np.power(x, np.float32(1 / 2.2))
+    return np.float32(0.5) * g * g * (np.float32(3) - np.float32(2) * g) + np.float32(0.5) * g
+
+
+EMULATED_TONE_CURVES: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "gamma2.2": _gamma22,
+    "s-curve": _vendor_s_curve,
+    "srgb": linear_to_srgb,
+}
+"""Tone curves the emulated camera may encode its frames with (``--emulate-tone-curve``): linear light in [0, 1]
+(fraction of full scale above black) -> encoded fraction, as a webcam's image processor applies it before its
+frames are quantised. None of them is declared to the tools: a capture of them is measured
+(``nlips calibrate-camera-response --emulate``) or declared ("srgb")."""
+
+
+def check_tone_curve(name: str | None) -> None:
+    """ConfigError naming ``name`` when it is not None nor one of :data:`EMULATED_TONE_CURVES`."""
+    if name is not None and name not in EMULATED_TONE_CURVES:
+        raise ConfigError(f"--emulate-tone-curve {name}: not one of {', '.join(EMULATED_TONE_CURVES)}")
+
+
+def encode_frame(
+    stored: np.ndarray, bit_depth: int, black_dn: float, curve: Callable[[np.ndarray], np.ndarray]
+) -> np.ndarray:
+    """A linear camera's stored frame encoded by ``curve`` (:data:`EMULATED_TONE_CURVES`) between its black level
+    and full scale, and quantised again to the camera's ``bit_depth``: what a camera applying that curve stores.
+
+    Parameters
+    ----------
+    stored : (H, W, 3) uint16, stored values ``DN << (16 - bit_depth)``, linear in the light
+    bit_depth : int, bits of the camera's values
+    black_dn : float, the black level in the camera's DN (zero light; kept there)
+
+    Returns
+    -------
+    (H, W, 3) uint16, stored values, encoded
+    """
+    shift = np.uint16(16 - bit_depth)
+    top = np.float32((1 << bit_depth) - 1)
+    dn = (stored >> shift).astype(np.float32)
+    x = np.clip((dn - np.float32(black_dn)) / (top - np.float32(black_dn)), 0, 1)
+    encoded = curve(x) * (top - np.float32(black_dn)) + np.float32(black_dn)
+    # the noise below black stays (a curve is applied above black): its values pass unchanged
+    encoded = np.where(dn < black_dn, dn, encoded)
+    return np.clip(np.rint(encoded), 0, top).astype(np.uint16) << shift
+
+
 class EmulatedCamera(FrameSource):
     """A camera looking at the twin, lit by whatever the LED board latched.
 
@@ -118,6 +175,7 @@ class EmulatedCamera(FrameSource):
     seed : noise seed of the frame sequence (of each press's frames: :meth:`show` with its ``index``)
     latency_frames : frames between exposure and delivery (a real camera's buffer)
     flush_frames, average : as :class:`nlipscalib.device.camera.CameraSettings`
+    tone_curve : name in :data:`EMULATED_TONE_CURVES` the frames are encoded with, or None (linear frames)
     """
 
     def __init__(
@@ -128,7 +186,13 @@ class EmulatedCamera(FrameSource):
         latency_frames: int = 1,
         flush_frames: int = 2,
         average: int = 1,
+        tone_curve: str | None = None,
     ) -> None:
+        check_tone_curve(tone_curve)
+        self.encoding = tone_curve
+        self.exposure_scale = 1.0
+        """Exposure relative to the scene's (``nlips calibrate-camera-response --emulate``: its exposure in ms over
+        the emulated camera's 10 ms); 1.0 for every capture."""
         self.renders = renders
         self.latched = latched
         self.seed = seed
@@ -172,7 +236,11 @@ class EmulatedCamera(FrameSource):
         images = self.renders.images(surface)
         lit = np.flatnonzero(colors.any(axis=1))  # most frames light one LED or none: skip the dark ones
         linear = np.einsum("lhwc,lc->hwc", images[lit], colors[lit], dtype=np.float32)
-        return apply_noise(linear, self.renders.exposure, self.renders.scene.noise, self.rng)
+        noise = self.renders.scene.noise
+        stored = apply_noise(linear, self.renders.exposure * self.exposure_scale, noise, self.rng)
+        if self.encoding is None:
+            return stored
+        return encode_frame(stored, noise.bit_depth, noise.black_level, EMULATED_TONE_CURVES[self.encoding])
 
 
 class ScriptedOperator(Operator):
@@ -253,15 +321,20 @@ def open_emulated_sensor(
     flush_frames: int = 2,
     echo: Callable[[str], None] = print,
     board_id: str | None = None,
+    tone_curve: str | None = None,
+    response: SensorResponse | None = None,
 ) -> EmulatedSensor:
     """The virtual LED board (opened through the real host driver) and the virtual camera for ``scene``.
 
     ``board_id`` names the board's URL (``nlipsemu://<board_id>``; default: the next free number), for a
-    command given ``--port nlipsemu://<id>``.
+    command given ``--port nlipsemu://<id>``. ``tone_curve``: the curve the camera encodes with
+    (:data:`EMULATED_TONE_CURVES`; None: linear frames); ``response``: the sensor response its captures declare
+    (default the scene's, linear: a curve declared, ``--camera-response``, replaces it).
     """
     from .device.controller import LedController
     from .device.virtual_board import VirtualBoard
 
+    check_tone_curve(tone_curve)  # before the board: nothing to close on a bad name
     board = VirtualBoard(len(scene.led_models()), board_id=board_id)
     try:
         controller = LedController.open(board.url)
@@ -273,14 +346,17 @@ def open_emulated_sensor(
         return board.latched
 
     renders = TwinRenders(scene)
-    camera = EmulatedCamera(renders, latched, seed=seed, latency_frames=latency_frames, flush_frames=flush_frames)
+    camera = EmulatedCamera(
+        renders, latched, seed=seed, latency_frames=latency_frames, flush_frames=flush_frames, tone_curve=tone_curve
+    )
     rig = Rig(
         controller=controller,
         source=camera,
         camera=scene.camera_model(),
         leds=scene.led_models(),
-        response=scene.noise.response(),
+        response=response or scene.noise.response(),
         reference=reference_surface(scene.design),
-        provenance={"device": "emulator", "scene": scene.to_dict(), "exposure": renders.exposure},
+        provenance={"device": "emulator", "scene": scene.to_dict(), "exposure": renders.exposure}
+        | ({"tone_curve": tone_curve} if tone_curve else {}),
     )
     return EmulatedSensor(rig, ScriptedOperator(camera, script, echo), camera, board, tricolor_level(renders))

@@ -219,7 +219,8 @@ def test_a_press_written_from_formats_md_alone_loads(tmp_path):
     np.testing.assert_array_equal(press.dark, rgb["dark"])  # RGB in memory as in the file
     np.testing.assert_array_equal(press.led_images, np.stack([rgb[f"led_{i:02d}"] for i in (1, 2, 3)]))
     assert press.camera.dist == (0.0,) * 5 and len(press.leds) == n
-    assert dataclasses.astuple(press.response) == (12, 256, 65520, 10, 1, "linear")  # the page's defaults
+    # the page's defaults (no response_curve: only a measured response has one)
+    assert dataclasses.astuple(press.response) == (12, 256, 65520, 10, 1, "linear", None)
     assert [led.direction for led in press.leds] == [(0.0, 0.0, 1.0)] * n and press.leds[0].mu == 1.0
     np.testing.assert_array_equal(press.reference.depth, z)
     section = _section("## meta.json", "## reference.npz")

@@ -46,6 +46,7 @@ SUBCOMMAND_MODULES = (
     "leds",
     "capture",
     "calibrate_camera",
+    "camera_response",
     "live",
     "calibration",
     "train",

@@ -26,13 +26,16 @@ import time
 from typing import TYPE_CHECKING
 
 from ..progress import bars_enabled
+from .camera_response import TONE_CURVE_CHOICES
 from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
 
 if TYPE_CHECKING:  # named in hints only: imported when a session runs
     from ..core.camera import Camera
     from ..core.leds import Led
+    from ..core.response_curve import MeasuredResponse
     from ..core.sensor import SensorDesign
+    from ..core.sensor_response import SensorResponse
     from .leds import LedBoard
 
 DEFAULTS = {
@@ -52,7 +55,8 @@ whether one was given also decides what --port nlipsemu://ID starts."""
 
 
 CAMERA_RESPONSES = ("linear", "srgb")
-"""``core.sensor_response.CAMERA_RESPONSES`` (a test keeps them equal): --camera-response's choices."""
+"""``core.sensor_response.CAMERA_RESPONSES`` (a test keeps them equal): --camera-response's names; any other value
+is a response file (``nlips calibrate-camera-response``)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -88,10 +92,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     src.add_argument("--black-level", type=float, help="camera black level in its own DN (default 0)")
     src.add_argument(
         "--camera-response",
-        choices=CAMERA_RESPONSES,  # core.sensor_response's, named without importing numpy for --help
+        metavar="{linear,srgb,FILE}",
         help="how the camera's values relate to light (default linear: its gamma is asked to be 1.0, a refusal "
         "printed); srgb: a camera that cannot turn its tone curve off, recorded in meta.json and undone when the "
-        "capture is loaded (docs/formats.md, Cameras)",
+        "capture is loaded; FILE: its curve measured by `nlips calibrate-camera-response`, recorded and undone "
+        "alike (docs/formats.md, Cameras). With --emulate: what the emulated camera's frames are declared as",
     )
     src.add_argument(
         "--flush",
@@ -109,6 +114,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     emu.add_argument("--height", type=int, help="emulated image height, pixels (default: the scene's camera)")
     emu.add_argument("--spp", type=int, help="emulated render samples per pixel (default: the scene's [render] spp)")
     emu.add_argument("--seed", type=int, help="emulated sensor noise seed (default 0)")
+    emu.add_argument(
+        "--emulate-tone-curve",
+        choices=TONE_CURVE_CHOICES,
+        help="the tone curve the emulated camera encodes its frames with (default none: linear); declare it with "
+        "--camera-response (srgb, or the FILE `nlips calibrate-camera-response --emulate` measured)",
+    )
     ses = p.add_argument_group("session")
     ses.add_argument(
         "--tricolor-level",
@@ -141,13 +152,12 @@ REAL_SENSOR_OPTIONS = (
     "gain",
     "white_balance",
     "black_level",
-    "camera_response",
     "average",
 )
 """Options that set up the real sensor; the emulated one takes all of this from its scene file."""
 DEFAULT_DESIGN = "nlipstac"
 """The design (and emulated scene) when --design is not given."""
-EMULATED_SENSOR_OPTIONS = ("script", "move_press", "width", "height", "spp", "seed")
+EMULATED_SENSOR_OPTIONS = ("script", "move_press", "width", "height", "spp", "seed", "emulate_tone_curve")
 """Options of the emulated sensor alone."""
 WHY_NOT_EMULATED = {
     "camera_calibration": "the emulated camera is the scene's [camera] section (its size: --width/--height; "
@@ -211,6 +221,7 @@ def check_options(args: argparse.Namespace) -> None:
             "has a `moved` table"
         )
     fill_defaults(args, DEFAULTS)
+    args.measured = declared_response(args.camera_response)
     if not args.emulate:
         args.baud = check_baud(args)
     _at_least(args, "presses", 0, "presses after the reference")
@@ -247,6 +258,50 @@ def check_options(args: argparse.Namespace) -> None:
         value = getattr(args, dest)
         if not (value >= 0 and math.isfinite(value)):
             raise _usage(f"{option(dest)} must be >= 0, got {value:g}")
+
+
+def declared_response(value: str) -> MeasuredResponse | None:
+    """The measured response ``--camera-response`` names (``core.response_curve.MeasuredResponse``), None for
+    "linear" and "srgb"; a file that is not one is one line naming it (CaptureError)."""
+    if value in CAMERA_RESPONSES:
+        return None
+    from ..core.response_curve import read_response_file
+
+    return read_response_file(value)
+
+
+def response_provenance(args: argparse.Namespace) -> dict:
+    """What meta.json's ``provenance`` records of a measured response (``provenance.camera_response``: the file
+    given and how the curve was measured: camera, date, exposures, fit residual); {} for "linear" and "srgb" (their
+    captures' provenance as before). The curve itself is in ``sensor.response_curve``."""
+    if args.measured is None:
+        return {}
+    return {
+        "camera_response": {"file": str(args.camera_response), "name": args.measured.name, **args.measured.provenance}
+    }
+
+
+def check_black_level(args: argparse.Namespace) -> None:
+    """ConfigError when a measured response was measured from another black level than ``--black-level``: its curve
+    spans black to white, so its entries would stand for other values."""
+    measured_black = (args.measured.provenance if args.measured else {}).get("black_level_dn")
+    if measured_black is not None and not math.isclose(float(measured_black), args.black_level):
+        raise _usage(
+            f"--camera-response {args.camera_response}: measured with the camera's black level at {measured_black:g} "
+            f"DN, --black-level is {args.black_level:g}: give the same, or measure the curve again "
+            "(`nlips calibrate-camera-response --black-level`)"
+        )
+
+
+def sensor_response_of(args: argparse.Namespace, **levels: float) -> SensorResponse:
+    """The ``core.SensorResponse`` a capture declares: ``levels`` (bit depth, black and white levels, exposure,
+    gain) and ``--camera-response``, a measured curve's name and table for a response file."""
+    from ..core.sensor_response import SensorResponse
+
+    measured = args.measured
+    if measured is None:
+        return SensorResponse(**levels, camera_response=args.camera_response)
+    return SensorResponse(**levels, camera_response=measured.name, response_curve=measured.curve)
 
 
 def _at_least(args: argparse.Namespace, dest: str, minimum: int, what: str) -> None:
@@ -286,7 +341,20 @@ def _run_emulated(args: argparse.Namespace):
         from ..device.virtual_board import emulated_sensor_note
 
         print(emulated_sensor_note(args.emulated_port, args.emulate), file=sys.stderr)
-    with open_emulated_sensor(scene, script, seed=args.seed, flush_frames=args.flush, board_id=board_id) as sensor:
+    base = scene.noise.response()
+    response = sensor_response_of(
+        args, **{k: getattr(base, k) for k in ("bit_depth", "black_level", "white_level", "exposure_ms", "gain")}
+    )
+    with open_emulated_sensor(
+        scene,
+        script,
+        seed=args.seed,
+        flush_frames=args.flush,
+        board_id=board_id,
+        tone_curve=args.emulate_tone_curve,
+        response=response,
+    ) as sensor:
+        sensor.rig.provenance.update(response_provenance(args))
         cfg = _session_config(args, sensor.tricolor_level)
         sensor.prerender(progress=bars_enabled())
         return run_session(sensor.rig, args.out, cfg, sensor.operator, progress=bars_enabled())
@@ -294,7 +362,7 @@ def _run_emulated(args: argparse.Namespace):
 
 def _run_device(args: argparse.Namespace):
     from ..core.dome import reference_surface
-    from ..core.sensor_response import SensorResponse, white_level_of
+    from ..core.sensor_response import white_level_of
     from ..device.camera import CameraSettings, open_source
     from ..device.lights_out import lights_out_on_exit
     from ..device.port import BAUD_RATE
@@ -305,6 +373,7 @@ def _run_device(args: argparse.Namespace):
         raise _usage(
             "give the LED controller's --port (or --emulate SCENE, or --port nlipsemu://1, to run without hardware)"
         )
+    check_black_level(args)
     design = _design(args.design)
     camera = _calibrated_camera(args.camera_calibration) or design.camera_model()
     leds = _leds(args, camera, design) or design.led_models()
@@ -329,13 +398,13 @@ def _run_device(args: argparse.Namespace):
         open_source(camera_spec, settings, reported=_session_refusals(args.out, camera_spec)) as source,
     ):
         shift = 16 - source.bit_depth
-        response = SensorResponse(
+        response = sensor_response_of(
+            args,
             bit_depth=source.bit_depth,
             black_level=float(args.black_level) * (1 << shift),
             white_level=float(white_level_of(source.bit_depth)),
             exposure_ms=args.exposure_ms,
             gain=args.gain,
-            camera_response=args.camera_response,
         )
         rig = Rig(
             controller=controller,
@@ -350,7 +419,8 @@ def _run_device(args: argparse.Namespace):
                 "camera_refused": list(source.refused),
                 "camera_gamma": source.gamma,
                 "design": args.design or DEFAULT_DESIGN,
-            },
+            }
+            | response_provenance(args),
             source_name=f"camera {camera_spec}" if str(camera_spec).isdigit() else str(camera_spec),
             leds_origin=f"the LED file {args.leds}" if args.leds else f"the design {args.design or DEFAULT_DESIGN}",
             camera_origin=f"the camera calibration {args.camera_calibration}"

@@ -52,9 +52,14 @@ EXAMPLES: dict[str, tuple[tuple[str, str], ...]] = {
     "capture": (
         ("nlips capture --out session --port /dev/ttyACM0 --camera 0", "the sensor: reference, 10 presses"),
         ("nlips capture --out session --emulate nlipstac --presses 3 --yes", "the emulated sensor, no prompts"),
+        ("nlips capture --out s --port /dev/ttyACM0 --camera-response curve.json", "a measured tone curve"),
     ),
     "calibrate-camera": (
         ("nlips calibrate-camera boards/ --pattern 8x6 --square 5 --out camera.json", "a 9x7-square checkerboard"),
+    ),
+    "calibrate-camera-response": (
+        ("nlips calibrate-camera-response --port /dev/ttyACM0 --out curve.json", "a webcam's tone curve"),
+        ("nlips calibrate-camera-response --emulate nlipstac --out curve.json", "the emulated camera's"),
     ),
     "live": (
         ("nlips live --model model.pt --camera 0 --port /dev/ttyACM0", "the sensor, shown in a window"),

@@ -66,10 +66,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--camera-response",
-        choices=CAMERA_RESPONSES,
+        metavar="{" + ",".join(CAMERA_RESPONSES) + ",FILE}",
         help="with --predictor: the camera's tone curve the predictor was made for (default: the predictor's own "
         "camera_response attribute, else linear); a live camera is asked for gamma 1.0 only when linear, srgb leaves "
-        "its curve on. --model: the model records its calibration's",
+        "its curve on, as a measured curve (FILE from `nlips calibrate-camera-response`) does. --model: the model "
+        "records its calibration's",
     )
     p.add_argument(
         "--backend",
@@ -148,17 +149,20 @@ def plugged_response(args: argparse.Namespace, factory: object) -> str:
     Why: a plugged predictor has no model file to record the response its maker calibrated it on; asking a camera
     whose sRGB frames it was made for to turn its gamma off would feed it other colours, silently."""
     from ..core.errors import ConfigError
-    from ..core.sensor_response import CAMERA_RESPONSES
+    from ..core.response_curve import read_response_file
+    from ..core.sensor_response import CAMERA_RESPONSES, known_response
     from ._stream import live_camera
 
     declared = getattr(factory, RESPONSE_ATTRIBUTE, None)
     spec = args.predictor
-    if declared is not None and declared not in CAMERA_RESPONSES:
+    if declared is not None and not known_response(declared):
         raise ConfigError(
             f"--predictor {spec}: its {RESPONSE_ATTRIBUTE} must be one of {', '.join(map(repr, CAMERA_RESPONSES))}, "
-            f"got {declared!r}"
+            f"got {declared!r} (or a measured curve's name, measured:<hash>)"
         )
     given = args.camera_response
+    if given and given not in CAMERA_RESPONSES:  # a response file: the curve's name, as a predictor declares it
+        given = read_response_file(given).name
     if given and declared and given != declared:
         raise ConfigError(
             f"--camera-response {given}: --predictor {spec} declares {RESPONSE_ATTRIBUTE} {declared!r}; drop "

@@ -250,6 +250,8 @@ def write_press(
     sensor = dataclasses.asdict(response)
     if response.camera_response == "linear":  # written as before it existed: every reader reads it alike
         del sensor["camera_response"]
+    if response.response_curve is None:  # a measured curve's table only: "srgb" captures written as before
+        del sensor["response_curve"]
     meta = {
         "format": FORMAT_NAME,
         # a declared tone curve is version 2: a reader before it refuses the file rather than read encoded values

@@ -45,6 +45,8 @@ def describe_sensor(camera: Camera, leds: Leds, response: SensorResponse | None 
         levels = {"black_level": float(response.black_level), "white_level": float(response.white_level)}
         if response.camera_response != "linear":  # absent when linear: the records of linear sensors as before
             levels["camera_response"] = response.camera_response
+        if response.response_curve is not None:  # a measured curve: the table itself, as a model must undo it
+            levels["response_curve"] = list(response.response_curve)
     return {
         "camera": camera.to_dict(),
         "n_leds": n,
@@ -53,6 +55,17 @@ def describe_sensor(camera: Camera, leds: Leds, response: SensorResponse | None 
         "led_positions": [[float(v) for v in led.position] for led in leds],
         "led_directions": [[float(v) for v in led.direction] for led in leds],
     }
+
+
+def response_table_of(sensor: dict) -> np.ndarray | None:
+    """The table undoing the tone curve a sensor description records (``core.sensor_response.tone_curve_table``
+    of its :func:`camera_response_of`, its levels and, for a measured one, its ``response_curve``); None when
+    linear."""
+    from .sensor_response import tone_curve_table
+
+    return tone_curve_table(
+        camera_response_of(sensor), sensor["black_level"], sensor["white_level"], sensor.get("response_curve")
+    )
 
 
 def camera_response_of(sensor: dict) -> str:
@@ -256,7 +269,8 @@ def check_sensor_record(sensor: object, where: str | Path, remedy: str = "") -> 
     from .camera import Camera
     from .config import is_finite_number
     from .errors import ConfigError
-    from .sensor_response import CAMERA_RESPONSES
+    from .response_curve import check_curve, is_measured
+    from .sensor_response import CAMERA_RESPONSES, known_response
 
     try:
         if not isinstance(sensor, dict):
@@ -276,11 +290,13 @@ def check_sensor_record(sensor: object, where: str | Path, remedy: str = "") -> 
         for key in ("black_level", "white_level"):  # float("x") would name the value, not the key
             if not is_finite_number(sensor[key]):
                 raise ValueError(f"{key} must be a finite number, got {sensor[key]!r}")
-        if camera_response_of(sensor) not in CAMERA_RESPONSES:  # inference would undo no curve, or a wrong one
+        if not known_response(camera_response_of(sensor)):  # inference would undo no curve, or a wrong one
             raise ValueError(
-                f"camera_response must be one of {', '.join(map(repr, CAMERA_RESPONSES))}, got "
+                f"camera_response must be one of {', '.join(map(repr, CAMERA_RESPONSES))} or measured:<hash>, got "
                 f"{sensor['camera_response']!r}"
             )
+        if is_measured(camera_response_of(sensor)):  # its table, undone on every still and stream
+            check_curve(sensor.get("response_curve"), camera_response_of(sensor))
         for key in ("led_positions", "led_directions"):  # absent in files made before they were recorded
             if key in sensor and np.asarray(sensor[key], dtype=float).shape != (n, 3):
                 raise ValueError(f"{key} must be {n} (x, y, z) triples")

@@ -5,10 +5,12 @@ intensity (:func:`linearise`), and the undoing of a camera's tone curve (:func:`
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 
 from .errors import CaptureError, ShapeError
+from .response_curve import check_curve, is_measured, measured_table
 
 CAMERA_SETTINGS_GUIDE = 'docs/formats.md, "Cameras", in the nlipscalib source distribution or repository'
 """Where messages about a camera's settings (gamma, exposure, white balance, compression) send a lab: a file a
@@ -22,9 +24,17 @@ def white_level_of(bit_depth: int) -> int:
 
 
 CAMERA_RESPONSES = ("linear", "srgb")
-"""The values of meta.json's ``sensor.camera_response`` (:attr:`SensorResponse.camera_response`): "linear", stored
-values proportional to light (raw frames, the camera's gamma off); "srgb", frames encoded with the sRGB transfer
-curve (IEC 61966-2-1), as a webcam that cannot turn its tone curve off delivers them."""
+"""The named values of meta.json's ``sensor.camera_response`` (:attr:`SensorResponse.camera_response`): "linear",
+stored values proportional to light (raw frames, the camera's gamma off); "srgb", frames encoded with the sRGB
+transfer curve (IEC 61966-2-1), as a webcam that cannot turn its tone curve off delivers them. Beside them, a
+measured curve (``nlips calibrate-camera-response``): "measured:<hash>", its table in ``sensor.response_curve``
+(:mod:`.response_curve`)."""
+
+
+def known_response(camera_response: object) -> bool:
+    """Whether ``camera_response`` is one meta.json may declare: one of :data:`CAMERA_RESPONSES`, or a measured
+    curve's name (``"measured:<hash>"``, :func:`.response_curve.is_measured`)."""
+    return camera_response in CAMERA_RESPONSES or is_measured(camera_response)
 
 
 def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
@@ -44,9 +54,28 @@ def srgb_to_linear(encoded: np.ndarray) -> np.ndarray:
     return np.where(v <= 0.04045, v / 12.92, ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4)
 
 
-def tone_curve_table(camera_response: str, black_level: float, white_level: float) -> np.ndarray | None:
+def linear_to_srgb(linear: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function of IEC 61966-2-1, :func:`srgb_to_linear`'s inverse: ``12.92 L`` up to 0.0031308,
+    else ``1.055 L ** (1 / 2.4) - 0.055`` (the emulated sRGB camera's encoding, ``emulator.EMULATED_TONE_CURVES``).
+
+    Parameters
+    ----------
+    linear : (...) float32, linear light in [0, 1]
+
+    Returns
+    -------
+    (...) float32, encoded values V in [0, 1]
+    """
+    x = np.asarray(linear, np.float32)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, np.float32(1 / 2.4)) - 0.055).astype(np.float32)
+
+
+def tone_curve_table(
+    camera_response: str, black_level: float, white_level: float, curve: Sequence[float] | None = None
+) -> np.ndarray | None:
     """The stored value each stored value of a ``camera_response`` camera stands for in light, as a table of the
-    65536 uint16 values; None for "linear" (nothing to undo).
+    65536 uint16 values; None for "linear" (nothing to undo). A measured response ("measured:<hash>") is its
+    ``curve`` (``sensor.response_curve``, :func:`.response_curve.measured_table`).
 
     The curve runs from the black level (encoded 0) to the white level (encoded 1), so both levels keep their
     values and :func:`linearise`'s scale, the dark-frame check and the saturation test read the linear values as
@@ -54,6 +83,10 @@ def tone_curve_table(camera_response: str, black_level: float, white_level: floa
     to whole 16-bit steps (1/65535 of full scale: 1/257 of an 8-bit step)."""
     if camera_response == "linear":
         return None
+    if is_measured(camera_response):
+        if curve is None:
+            raise CaptureError(f"camera response {camera_response} given without its response_curve")
+        return measured_table(curve, black_level, white_level)
     stored = np.arange(65536, dtype=np.float64)
     span = white_level - black_level
     linear = black_level + span * srgb_to_linear((stored - black_level) / span)
@@ -94,7 +127,9 @@ def eight_bit_table(table: np.ndarray | None) -> np.ndarray:
 
 DECLARE_TONE_CURVE = (
     "or, when the camera cannot turn its gamma off, declare its sRGB curve and the tool undoes it: `nlips capture "
-    '--camera-response srgb` (a capture already taken: meta.json "sensor": {"camera_response": "srgb"})'
+    '--camera-response srgb` (a capture already taken: meta.json "sensor": {"camera_response": "srgb"}); another '
+    "curve (gamma 2.2, a vendor's): measure it once with `nlips calibrate-camera-response` and capture with "
+    "`--camera-response FILE`"
 )
 """The second cure the tone-curve messages name (the linearity warning, the dark-frame refusal): a webcam that
 cannot switch gamma off is declared, not refused (docs/formats.md, "Cameras")."""
@@ -156,7 +191,11 @@ class SensorResponse:
     """How the camera encodes light in its values (:data:`CAMERA_RESPONSES`): "linear" (raw frames), or "srgb" (the
     sRGB tone curve, undone once when the press is loaded, before the dark frame is subtracted). meta.json's
     ``sensor.camera_response``, absent in captures before it existed (and in linear ones: they are written as
-    before, format_version 1)."""
+    before, format_version 1). A measured curve: "measured:<hash>" (:mod:`.response_curve`)."""
+    response_curve: tuple[float, ...] | None = None
+    """The measured curve a "measured:<hash>" response names (meta.json ``sensor.response_curve``: 256 or 65536
+    linear fractions of full scale, one per encoded fraction from black to white); None for "linear" and "srgb"
+    (and then absent from meta.json)."""
 
     def __post_init__(self):
         from .config import is_finite_number, is_whole_number
@@ -171,11 +210,13 @@ class SensorResponse:
             raise CaptureError(
                 f"sensor.exposure_ms must be > 0 and sensor.gain >= 0, got {self.exposure_ms}, {self.gain}"
             )
-        if self.camera_response not in CAMERA_RESPONSES:
+        if not known_response(self.camera_response):
             raise CaptureError(
-                f"sensor.camera_response must be one of {', '.join(map(repr, CAMERA_RESPONSES))} (docs/formats.md, "
-                f"meta.json, in the nlipscalib source distribution), got {self.camera_response!r}"
+                f"sensor.camera_response must be one of {', '.join(map(repr, CAMERA_RESPONSES))} or a measured "
+                "curve's name, measured:<hash> (docs/formats.md, meta.json, in the nlipscalib source distribution), "
+                f"got {self.camera_response!r}"
             )
+        self._check_curve()
         if not LEAST_BIT_DEPTH <= self.bit_depth <= 16:
             raise CaptureError(f"sensor.bit_depth must be {LEAST_BIT_DEPTH}..16, got {self.bit_depth}")
         if not 0 <= self.black_level < self.white_level <= 65535:
@@ -184,9 +225,26 @@ class SensorResponse:
                 f"got {self.black_level}, {self.white_level}"
             )
 
+    def _check_curve(self) -> None:
+        """A measured response carries the curve it names, as a tuple (meta.json gives a list); no other does."""
+        if not is_measured(self.camera_response):
+            if self.response_curve is not None:
+                raise CaptureError(
+                    f"sensor.response_curve is given, but sensor.camera_response is {self.camera_response!r}, "
+                    "not a measured curve (measured:<hash>)"
+                )
+            return
+        if self.response_curve is None:
+            raise CaptureError(f"sensor.camera_response is {self.camera_response} but sensor.response_curve is missing")
+        try:
+            curve = check_curve(self.response_curve, self.camera_response)
+        except ValueError as exc:
+            raise CaptureError(f"sensor.{exc}") from None
+        object.__setattr__(self, "response_curve", curve)  # frozen: a list from meta.json kept as a tuple
+
     def tone_curve(self) -> np.ndarray | None:
         """The table that undoes this camera's tone curve (:func:`tone_curve_table`), None for a linear one."""
-        return tone_curve_table(self.camera_response, self.black_level, self.white_level)
+        return tone_curve_table(self.camera_response, self.black_level, self.white_level, self.response_curve)
 
     def saturated(self, image: np.ndarray) -> np.ndarray:
         """Which stored values are at or above the white level (clipped).

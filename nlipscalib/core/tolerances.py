@@ -583,3 +583,29 @@ MODEL_LED_GAIN = 0.07
 group's median, strays from 1 by more than this fraction (:func:`nlipscalib.solver.led_checks.model_led_gains`): the
 model's own error puts single LEDs up to 3.6 % off their group on every press (the twin's design LEDs, the same LEDs
 each time), so this is twice that; LED 5 15 % dimmer: 0.87 (benchmarks/RESULTS.md, s28-noref)."""
+RESPONSE_MIN_EXPOSURES = 5
+"""Fewest exposures a camera-response bracket (``nlips calibrate-camera-response``) has: each code of the curve is
+then seen at several light levels even where the gel's light varies little. The emulated one-LED bracket at
+sqrt(2) steps sees each code in about five of its exposures."""
+RESPONSE_MIN_WELL_EXPOSED = 3
+"""Fewest exposures of a bracket whose gel is mostly neither black nor clipped (:data:`RESPONSE_DARK_CODE` to
+:data:`RESPONSE_CLIPPED_CODE` on half its pixels): fewer, and the bracket is refused as black or saturated."""
+RESPONSE_DARK_CODE = 5
+"""8-bit codes at or below this count as black in a bracket frame (read noise around the black level)."""
+RESPONSE_CLIPPED_CODE = 250
+"""8-bit codes at or above this count as clipped in a bracket frame (a camera's knee before 255)."""
+RESPONSE_REACH_LOW = 48
+"""A bracket must see some 8-bit code at or below this one, and some at or above :data:`RESPONSE_REACH_HIGH`: the
+curve below the lowest code seen is a straight line to black, above the highest a straight line's extrapolation to
+white; over longer spans a tone curve's bend is guessed, not measured. The emulated one-LED bracket (0.5-64 ms,
+sqrt(2) steps) sees codes 10-17 up to 254."""
+RESPONSE_REACH_HIGH = 224
+"""See :data:`RESPONSE_REACH_LOW`."""
+RESPONSE_MAX_DIP = 0.005
+"""A fitted response may fall by at most this fraction of full scale from one code to the next (read noise on the
+few darkest codes seen: the emulated brackets dip by 0.0005 at most) before it is refused as not monotonic; smaller
+dips are flattened (the running maximum)."""
+RESPONSE_CURVE_ERROR = 0.015
+"""What the emulated tests hold a recovered curve to, fraction of full scale, over codes 10-250: OpenCV's
+CalibrateRobertson on the one-LED bracket gives 0.4-0.5 % for gamma 2.2 and sRGB, 1.1-1.3 % for the S-shaped
+vendor curve (160x120, 4 spp; benchmarks/RESULTS.md, s30-response)."""

@@ -18,8 +18,8 @@ import numpy as np
 
 from ..core.camera import Camera, depth_to_points
 from ..core.errors import CaptureError, ConfigError, ShapeError
-from ..core.sensor_record import camera_response_of
-from ..core.sensor_response import CLIPPED_VALUE, linearise, tone_curve_table, undo_tone_curve
+from ..core.sensor_record import camera_response_of, response_table_of
+from ..core.sensor_response import CLIPPED_VALUE, linearise, undo_tone_curve
 from ..core.tolerances import (
     FRAME_BLACK_FRACTION,
     FRAME_BRIGHTNESS_OFF,
@@ -132,7 +132,7 @@ class Predictor:
         # captures had their curve undone as they were loaded, the stored frames given here (stills, streams)
         # declare none and are taken as encoded alike
         self.camera_response = camera_response_of(sensor)
-        self.tone_curve = tone_curve_table(self.camera_response, sensor["black_level"], sensor["white_level"])
+        self.tone_curve = response_table_of(sensor)
         self.geo = RayGeometry.from_reference(self.camera.rays, self.ref_depth) if depth else None
         # normals only: every frame's depth and points are the undeformed dome's; made once, not per frame (that
         # cost 2-8 ms a 640x480 frame, more than integrating the changed pixels with depth)

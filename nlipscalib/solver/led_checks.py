@@ -407,7 +407,13 @@ def linearity_notes(press: Press, live: Sequence[int], indirect: Sequence[np.nda
             f"{press.folder}: meta.json declares the camera's {declared} tone curve (sensor.camera_response), "
             f"but with it undone each pixel's value grows as the LED model's light to the power {slope:.2f} "
             f"(median; a linear capture: about 1): the frames were linear already? Remove "
-            '"camera_response" (or set it to "linear"); normals solved from it are wrong by degrees'
+            + (
+                '"camera_response" and "response_curve" (or remeasure the curve with the camera set as it captured: '
+                "`nlips calibrate-camera-response`)"
+                if press.response.response_curve is not None
+                else '"camera_response" (or set it to "linear")'
+            )
+            + "; normals solved from it are wrong by degrees"
         ]
     if slope is None or slope >= tolerances.LINEAR_RESPONSE_SLOPE:
         return []

@@ -433,3 +433,28 @@ def test_a_declared_response_that_is_unknown_or_contradicted_is_one_line(frames,
     assert main(model) == 2 and "--camera-response is for --predictor" in capsys.readouterr().err
     emulated = ["live", "--emulate", "nlipstac", "--predictor", "tests.device.fakes:srgb_predictor", "--no-window"]
     assert main(emulated) == 2 and "the emulated sensor's frames are linear" in capsys.readouterr().err
+
+
+def test_a_plugged_predictor_may_name_a_measured_response_file(frames, monkeypatch, tmp_path, capsys):
+    """`--camera-response FILE` (`nlips calibrate-camera-response`): the camera keeps its curve (no gamma 1.0 asked)
+    and the predictor gets the frames as encoded, as with srgb; a damaged file is one line naming it."""
+    from nlipscalib.core.response_curve import MeasuredResponse, write_response_file
+    from nlipscalib.device import camera
+
+    asked = []
+
+    def opened(spec, settings, tone_curve=None):
+        asked.append((settings.linear_gamma, tone_curve))
+        return FolderSource(frames)  # stands in for camera 0
+
+    monkeypatch.setattr(camera, "open_source", opened)
+    curve = tuple(float(v) for v in np.linspace(0, 1, 256) ** 2.2)
+    path = write_response_file(tmp_path / "curve.json", MeasuredResponse(curve, {}))
+    argv = ["live", "--camera", "0", "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main([*argv, "--camera-response", str(path), "--max-frames", "2"]) == 0
+    assert asked == [(False, None)]
+    capsys.readouterr()
+    (tmp_path / "bad.json").write_text("{", encoding="utf-8")
+    assert main([*argv, "--camera-response", str(tmp_path / "bad.json"), "--max-frames", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{tmp_path / 'bad.json'}: not valid JSON" in err[0], err

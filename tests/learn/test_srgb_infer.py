@@ -169,3 +169,36 @@ def test_eight_bit_srgb_frames_are_undone_in_one_lookup_with_the_tables_numbers(
     saved = np.load(out / "frame_000000.npz")["normals"]
     want = srgb.predict_stored(stored).normals
     assert np.allclose(np.nan_to_num(saved), want, atol=1e-5)
+
+
+def test_a_model_of_a_measured_response_undoes_its_curve_on_stored_frames(trained, twin_presses, tmp_path):
+    """A calibration of captures declaring a measured curve (``nlips calibrate-camera-response``): the model records
+    its name and values and undoes them on stills and streams, as it does sRGB; a hand-edited curve is refused."""
+    import torch
+
+    from nlipscalib.core import load_press
+    from nlipscalib.core.response_curve import curve_id
+    from nlipscalib.learn.infer import Predictor
+
+    curve = [float(v) for v in np.linspace(0, 1, 256) ** 2.2]
+    payload = torch.load(trained, weights_only=False)
+    payload["sensor"] |= {"camera_response": curve_id(curve), "response_curve": curve}
+    torch.save(payload, tmp_path / "measured.pt")
+    measured = Predictor(tmp_path / "measured.pt")
+    old = Predictor(_declared(trained, tmp_path / "old.pt", None))
+    assert measured.camera_response == curve_id(curve) and measured.tone_curve is not None
+
+    press = load_press(twin_presses / "press_a")
+    stored = press.tricolor.copy()
+    black, white = press.response.black_level, press.response.white_level
+    x = np.clip((stored.astype(np.float64) - black) / (white - black), 0, 1)
+    encoded = np.rint(black + (white - black) * x ** (1 / 2.2)).astype(np.uint16)  # the camera's gamma 2.2
+    expected = old.linear(stored)
+    # the 256-entry curve interpolated on 16-bit values: within a few 12-bit steps at its steepest
+    assert np.abs(measured.linear(encoded) - expected).max() < 1e-3
+    assert np.abs(old.linear(encoded) - expected).max() > 0.05
+
+    payload["sensor"]["response_curve"][200] += 1e-7
+    torch.save(payload, tmp_path / "edited.pt")
+    with pytest.raises(CaptureError, match="edited or damaged"):
+        Predictor(tmp_path / "edited.pt")

@@ -1,0 +1,326 @@
+"""``nlips calibrate-camera-response``: measure a camera's tone curve from an exposure bracket, for a camera that
+can neither turn its gamma off nor applies the exact sRGB curve.
+
+Real sensor (the undeformed gel lit by one LED, the exposure stepped)::
+
+    nlips calibrate-camera-response --port /dev/ttyACM0 --camera 0 --out response.json
+
+Emulated sensor (its camera encoding with a vendor curve the tools are not told)::
+
+    nlips calibrate-camera-response --emulate nlipstac --emulate-tone-curve s-curve --out response.json
+
+then ``nlips capture --camera-response response.json ...``: every capture records the curve and is undone by it.
+Not ``nlips calibrate-camera`` (the lens: intrinsics and distortion from checkerboards).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .leds import add_baud_argument, check_baud
+
+if TYPE_CHECKING:  # named in hints only: imported when a bracket is taken
+    import numpy as np
+
+    from ..device.camera import FrameSource
+
+EMULATED_EXPOSURE_MS = 10.0
+"""The exposure the emulated camera's frames are made at (its scene's auto exposure): a bracket's exposure over this
+scales its light (``EmulatedCamera.exposure_scale``); ``nlips capture``'s default --exposure-ms."""
+DEFAULT_EXPOSURES_MS = tuple(round(0.5 * 2 ** (k / 2), 3) for k in range(15))
+"""0.5 to 64 ms in half-stop (sqrt 2) steps: with one LED lighting the gel, each code is seen in about five of them
+(benchmarks/RESULTS.md, s30-response)."""
+TONE_CURVE_CHOICES = ("gamma2.2", "s-curve", "srgb")
+"""``emulator.EMULATED_TONE_CURVES``'s names (a test keeps them equal), named without importing numpy for --help."""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "calibrate-camera-response",
+        help="measure the camera's tone curve from an exposure bracket -> response JSON for --camera-response",
+        description="Measure how the camera's values relate to light, for a webcam that cannot turn its tone curve "
+        "off and does not apply the exact sRGB curve (gamma 2.2, a vendor curve, a contrast setting): the "
+        "undeformed gel lit by one LED is taken at several exposures, OpenCV's CalibrateRobertson fits the curve, "
+        "and the response file (docs/formats.md, Camera response file) and its figure are written. Give it to "
+        "`nlips capture --camera-response FILE`: each capture records the curve and is linearised with it.",
+    )
+    p.add_argument("--out", required=True, help="response JSON to write (for `nlips capture --camera-response`)")
+    p.add_argument("--figure", help="PNG of the curve per channel and the measured points (default: OUT with .png)")
+    p.add_argument(
+        "--exposures-ms",
+        help=f"comma-separated exposures, ms, at least 5 (default {DEFAULT_EXPOSURES_MS[0]:g} to "
+        f"{DEFAULT_EXPOSURES_MS[-1]:g} in sqrt(2) steps): from the lit gel dark to just clipped",
+    )
+    p.add_argument(
+        "--led",
+        type=int,
+        default=1,
+        help="the LED lit, 1-based (default 1): its light falls off across "
+        "the gel, so one frame holds many levels (all LEDs light it evenly)",
+    )
+    p.add_argument("--level", type=int, default=255, help="that LED's drive, 1-255 (default 255)")
+    src = p.add_argument_group("real sensor")
+    src.add_argument("--port", help="LED controller: serial port or pyserial URL (/dev/ttyACM0, COM3, ...)")
+    src.add_argument("--adalight", type=int, metavar="N", help="the LED board runs stock Adalight with N LEDs")
+    add_baud_argument(src)
+    src.add_argument("--camera", default="0", help="camera index or device path (default 0)")
+    src.add_argument("--gain", type=float, default=0.0, help="fixed analogue gain, camera units (default 0)")
+    src.add_argument("--white-balance", type=float, default=5000.0, help="fixed white balance, kelvin (default 5000)")
+    src.add_argument("--black-level", type=float, default=0.0, help="camera black level in its own DN (default 0)")
+    src.add_argument("--flush", type=int, default=4, help="frames dropped after each exposure change (default 4)")
+    src.add_argument("--average", type=int, default=1, help="frames averaged per exposure (default 1)")
+    emu = p.add_argument_group("emulated sensor")
+    emu.add_argument("--emulate", metavar="SCENE", help="measure the emulated sensor of this scene (no hardware)")
+    emu.add_argument(
+        "--emulate-tone-curve",
+        choices=TONE_CURVE_CHOICES,
+        help="the tone curve the emulated camera encodes with (default none: linear frames)",
+    )
+    emu.add_argument("--width", type=int, help="emulated image width, pixels (default: the scene's camera)")
+    emu.add_argument("--height", type=int, help="emulated image height, pixels (default: the scene's camera)")
+    emu.add_argument("--spp", type=int, help="emulated render samples per pixel (default: the scene's)")
+    emu.add_argument("--seed", type=int, default=0, help="emulated sensor noise seed (default 0)")
+    p.set_defaults(func=run)
+
+
+def exposures_of(text: str | None) -> tuple[float, ...]:
+    """The ``--exposures-ms`` list: numbers > 0, ConfigError naming the option otherwise (the bracket's own checks,
+    ``device.response_fit``, count them)."""
+    from ..core.errors import ConfigError
+
+    if text is None:
+        return DEFAULT_EXPOSURES_MS
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"--exposures-ms must be comma-separated numbers of ms, got {text!r}") from None
+    if not all(v > 0 and v != float("inf") for v in values):
+        raise ConfigError(f"--exposures-ms must all be > 0 ms, got {text!r}")
+    return values
+
+
+def _check(args: argparse.Namespace) -> None:
+    from ..core.errors import ConfigError
+
+    if Path(args.out).is_dir():
+        raise ConfigError(f"--out {args.out}: a folder; give the JSON file to write (e.g. {args.out}/response.json)")
+    if not 1 <= args.level <= 255:
+        raise ConfigError(f"--level must be 1..255, got {args.level}")
+    if args.emulate and (args.port or args.adalight is not None):
+        raise ConfigError("--port/--adalight are not used with --emulate: the emulated sensor has its own LED board")
+    for dest in ("emulate_tone_curve", "width", "height", "spp"):
+        if not args.emulate and getattr(args, dest) is not None:
+            raise ConfigError(f"--{dest.replace('_', '-')} is only used with --emulate SCENE")
+    if not args.emulate and not args.port:
+        raise ConfigError("give the LED controller's --port and --camera (or --emulate SCENE, to run without hardware)")
+    if args.average < 1 or args.flush < 0:
+        raise ConfigError(f"--average must be >= 1 and --flush >= 0, got {args.average}, {args.flush}")
+    args.baud = check_baud(args)
+
+
+def run(args: argparse.Namespace) -> int:
+    _check(args)
+    from ..device.response_fit import check_exposures
+
+    exposures = exposures_of(args.exposures_ms)
+    check_exposures(exposures, f"--emulate {args.emulate}" if args.emulate else f"camera {args.camera}")
+    if args.emulate:
+        frames, source, camera, black = _emulated_bracket(args, exposures)
+    else:
+        frames, source, camera, black = _device_bracket(args, exposures)
+    return _fit_and_write(args, frames, exposures, source, camera, black)
+
+
+def take_bracket(
+    source: FrameSource, light: Callable[[], None], set_exposure: Callable[[float], None], exposures: Sequence[float]
+) -> list[np.ndarray]:
+    """One frame of the lit gel per exposure, as stored values (``FrameSource.capture``: flushed, averaged).
+
+    Parameters
+    ----------
+    source : the camera
+    light : lights the LED (called once, before the first exposure)
+    set_exposure : sets the camera's exposure, ms
+    exposures : ms, in the order taken
+
+    Returns
+    -------
+    list of (H, W, 3) uint16, stored values ``DN << (16 - bit_depth)``
+    """
+    from ..progress import track
+
+    light()
+    frames = []
+    for ms in track(exposures, enabled=_bars(), desc="bracket", unit="exposure"):
+        set_exposure(ms)
+        frames.append(source.capture())
+    return frames
+
+
+def _bars() -> bool:
+    from ..progress import bars_enabled
+
+    return bars_enabled()
+
+
+def to_codes(stored: np.ndarray, bit_depth: int, black_dn: float) -> np.ndarray:
+    """8-bit codes of a stored frame as encoded fractions above black, ``rint((DN - black) / (max - black) * 255)``:
+    what a response curve's entries stand for (``core.response_curve``); an 8-bit camera with black 0 keeps its DN.
+
+    Parameters
+    ----------
+    stored : (H, W, 3) uint16, ``DN << (16 - bit_depth)``
+    bit_depth : bits of the camera's values
+    black_dn : its black level, DN
+
+    Returns
+    -------
+    (H, W, 3) uint8
+    """
+    import numpy as np
+
+    dn = (stored >> np.uint16(16 - bit_depth)).astype(np.float32)
+    top = float((1 << bit_depth) - 1)
+    codes = np.rint((dn - np.float32(black_dn)) * np.float32(255 / (top - black_dn)))
+    return np.clip(codes, 0, 255).astype(np.uint8)
+
+
+def _emulated_bracket(args: argparse.Namespace, exposures: Sequence[float]):
+    import numpy as np
+
+    from ..emulator import open_emulated_sensor
+    from ..sim.scene import load_scene
+    from .options import check_size_pair
+
+    scene = load_scene(args.emulate)
+    check_size_pair(args.width, args.height, (scene.camera.width, scene.camera.height))
+    camera = {k: v for k, v in {"width": args.width, "height": args.height}.items() if v}
+    scene = scene.replace(camera=camera, render={"spp": args.spp} if args.spp else {})
+    n_leds = len(scene.led_models())
+    _check_led(args.led, n_leds)
+    with open_emulated_sensor(scene, [], seed=args.seed, tone_curve=args.emulate_tone_curve) as sensor:
+        sensor.camera.show(None, index=0)
+        sensor.prerender(progress=_bars())
+
+        def light():
+            colours = np.zeros((n_leds, 3), np.uint8)
+            colours[args.led - 1] = args.level
+            sensor.rig.controller.set_all(colours)
+
+        def set_exposure(ms: float) -> None:
+            sensor.camera.exposure_scale = ms / EMULATED_EXPOSURE_MS
+
+        frames = take_bracket(sensor.camera, light, set_exposure, exposures)
+        noise = scene.noise
+    codes = [to_codes(f, noise.bit_depth, noise.black_level) for f in frames]
+    curve = args.emulate_tone_curve or "linear"
+    return codes, f"--emulate {args.emulate}", f"emulated ({args.emulate}, tone curve {curve})", noise.black_level
+
+
+def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
+    import numpy as np
+
+    from ..device.camera import CameraSettings, apply_settings, open_source, report_refusals
+    from ..device.lights_out import lights_out_on_exit
+    from ..device.port import BAUD_RATE
+    from ..device.virtual_board import start_board
+    from .capture import open_leds
+
+    settings = CameraSettings(
+        exposure_ms=exposures[0],
+        gain=args.gain,
+        white_balance_k=args.white_balance,
+        flush_frames=args.flush,
+        average=args.average,
+        linear_gamma=False,  # the curve to be measured is the one the camera keeps on
+    )
+    # --port nlipsemu://ID: a virtual board of the default design's 12 LEDs (or as many as --led needs)
+    board = start_board(
+        args.port, args.adalight or max(args.led, 12), adalight=args.adalight is not None, baudrate=BAUD_RATE
+    )
+    with (
+        board if board is not None else contextlib.nullcontext(),
+        open_leds(args.port, args.adalight, args.baud) as controller,
+        lights_out_on_exit(controller),
+        open_source(args.camera, settings) as source,
+    ):
+        _check_led(args.led, controller.n_leds)
+        cap = getattr(source, "cap", None)
+        if cap is None or not getattr(source, "live", False):
+            from ..core.errors import ConfigError
+
+            raise ConfigError(f"--camera {args.camera}: a live camera is needed (its exposure is stepped)")
+
+        def light():
+            colours = np.zeros((controller.n_leds, 3), np.uint8)
+            colours[args.led - 1] = args.level
+            controller.set_all(colours)
+
+        def set_exposure(ms: float) -> None:
+            refused = apply_settings(
+                cap, CameraSettings(exposure_ms=ms, gain=None, white_balance_k=None, raw=False, linear_gamma=False)
+            )
+            report_refusals(args.camera, refused)
+
+        frames = take_bracket(source, light, set_exposure, exposures)
+        bits = source.bit_depth
+    codes = [to_codes(f, bits, args.black_level) for f in frames]
+    return codes, f"camera {args.camera}", f"camera {args.camera}", args.black_level
+
+
+def _check_led(led: int, n_leds: int) -> None:
+    from ..core.errors import ConfigError
+
+    if not 1 <= led <= n_leds:
+        raise ConfigError(f"--led {led}: the sensor has LEDs 1..{n_leds}")
+
+
+def _fit_and_write(
+    args: argparse.Namespace,
+    frames: list,
+    exposures: Sequence[float],
+    source: str,
+    camera: str,
+    black_dn: float,
+) -> int:
+    from .. import __version__
+    from ..core.response_curve import MeasuredResponse, write_response_file
+    from ..device.response_fit import fit_response
+    from ..report.camera_response import response_figure
+
+    fit = fit_response(frames, exposures, source)
+    date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
+    provenance = {
+        "camera": camera,
+        "date": date,
+        "exposures_ms": [float(e) for e in exposures],
+        "led": args.led,
+        "level": args.level,
+        "black_level_dn": float(black_dn),
+        "method": "OpenCV CalibrateRobertson, channels' mean",
+        "codes_seen": list(fit.seen),
+        "fit_residual": round(fit.residual, 6),
+        "channel_spread": round(fit.channel_spread, 6),
+        "monotonic": {"max_dip": round(fit.max_dip, 6), "flattened": fit.max_dip > 0},
+        "software_version": __version__,
+    }
+    response = MeasuredResponse(tuple(float(v) for v in fit.curve), provenance)
+    out = write_response_file(args.out, response)
+    figure = Path(args.figure) if args.figure else out.with_suffix(".png")
+    note = (
+        f"codes seen {fit.seen[0]}-{fit.seen[1]}; fit residual {fit.residual:.4f}; channels within "
+        f"{fit.channel_spread:.4f} of full scale"
+    )
+    response_figure(fit.curve, fit.channels, fit.points, figure, f"{camera} response, {date}", note)
+    print(
+        f"{out}: {response.name} from {len(exposures)} exposures ({note}); figure {figure}. Capture with "
+        f"`nlips capture --camera-response {out}`",
+        file=sys.stdout,
+    )
+    return 0
