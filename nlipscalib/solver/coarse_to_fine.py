@@ -101,7 +101,8 @@ def solve_coarse_to_fine(
             t_init, _, info = solve_level(lv, t_init, leds, opts, be, bar, "ls", coarse=True)
             report["levels"].append(info)
         coarse = k < len(levels) - 1
-        t_state, out, info = solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse)
+        warm = k == 0 and t_first is not None  # the finest level from a solved depth: tighter first step
+        t_state, out, info = solve_level(lv, t_init, leds, opts, be, bar, opts.estimator, coarse, warm)
         report["levels"].append(info)
     return t_state, out
 

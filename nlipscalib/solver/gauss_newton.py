@@ -14,7 +14,7 @@ from ..core.metrics import angle_deg
 from ..core.robust_scale import mad_scale
 from . import threads
 from .kernel import Array, Backend, ChunkedModel, Model, Parts, make_model
-from .krylov import Krylov, forcing
+from .krylov import Krylov, forcing, warm_first_step
 from .operators import depth_normals, level_operators, log_depth_gradient, pixelwise, unit_normals
 from .options import SolverOptions
 
@@ -31,11 +31,14 @@ def solve_level(
     bar: tqdm | None,
     est: str,
     coarse: bool = False,
+    warm: bool = False,
 ) -> tuple[np.ndarray, dict, dict]:
     """Minimise the energy on one pyramid level from log-depth ``t_init`` (H, W) of that level.
 
     On a ``coarse`` level (one whose result only starts the next), linear solves stop at a relative
     residual of sqrt(cg_rtol): tighter solves there bought nothing the next level keeps.
+    ``warm``: ``t_init`` is a solved depth brought up to this, the finest, level (the outer loop's last pass): its
+    first linear solve is tighter, by AMG (:func:`.krylov.warm_first_step`).
 
     Each iteration (:meth:`_Level.iterate`): variable-projection Gauss-Newton step on t (albedo eliminated),
     solved inexactly by AMG-preconditioned CG, then a backtracking line search on the joint energy with the
@@ -46,7 +49,7 @@ def solve_level(
     (H, W) float64 log-depth (0 off the mask), the per-pixel results (normals, albedo, residual, confidence,
     has_gradient), the level's report entry.
     """
-    level = _Level(lv, t_init, leds, opts, be, est)
+    level = _Level(lv, t_init, leds, opts, be, est, warm and not coarse)
     pcg = Krylov(opts)
     for _ in range(opts.max_iters):
         stop = level.iterate(pcg, coarse)
@@ -64,7 +67,9 @@ class _Level:
     """One pyramid level's energy and the Gauss-Newton state on it: log-depth t on the mask's pixels, the
     shading F and its derivatives dF, the albedo, the residuals r, the energy, the normals."""
 
-    def __init__(self, lv: dict, t_init: np.ndarray, leds: tuple, opts: SolverOptions, be: Backend, est: str):
+    def __init__(
+        self, lv: dict, t_init: np.ndarray, leds: tuple, opts: SolverOptions, be: Backend, est: str, warm: bool = False
+    ):
         self.tm = _Timer()
         self.lv, self.opts, self.be, self.est = lv, opts, be, est
         self.mk = mk = lv["mask"]
@@ -111,6 +116,9 @@ class _Level:
         self.g_prev = self.eta = None
         self._full_step = None
         """The line search's full-step trial depth (the only one :meth:`_expanded` doubles), or None."""
+        self.first_rtol = warm_first_step(len(t), opts) if warm else None
+        """The first linear solve's tolerance, by AMG alone (:func:`.krylov.warm_first_step`); None: the forcing
+        term's, Jacobi tried first."""
         self.tm.lap("init")
 
     # ------------------------------------------------------------------ the energy's parts
@@ -175,10 +183,11 @@ class _Level:
         del M, b  # (3, 3, N) and (3, N) float64: in Hm and g now
         self.tm.lap("assemble")
         g_norm = float(np.linalg.norm(g))
-        eta = forcing(g_norm, self.g_prev, self.eta, opts)
+        first_warm = self.g_prev is None and self.first_rtol is not None
+        eta = self.first_rtol if first_warm else forcing(g_norm, self.g_prev, self.eta, opts)
         self.eta = max(eta, np.sqrt(opts.cg_rtol)) if coarse else eta
         self.g_prev = g_norm
-        delta, iters = pcg.solve(Hm, -g, self.eta)
+        delta, iters = pcg.solve(Hm, -g, self.eta, jacobi=not first_warm)
         self.info["cg_iters"].append(iters)
         self.info["cg_rtol"].append(self.eta)
         self.tm.lap("cg")

@@ -31,6 +31,35 @@ def forcing(g_norm: float, g_prev: float | None, eta_prev: float | None, opts: S
     return float(min(opts.cg_rtol_max, max(opts.cg_rtol, eta)))
 
 
+WARM_FIRST_RTOL = 1e-2
+"""CG tolerance of the first Gauss-Newton step of a warm-started finest level (:func:`warm_first_step`), instead of the
+forcing term's cap ``cg_rtol_max`` (0.1), solved with AMG from the start (no Jacobi attempt: Jacobi's CG stalls near
+0.1 on these levels, benchmarks/RESULTS.md, s20-jac1).
+
+Why: the forcing term starts loose because a first step is taken far from the solution, where the Gauss-Newton model
+is itself poor. The outer loop's last pass starts its finest level from the coarser level's solution brought up,
+close to its own: there a loose first step only takes the rough part of the Newton step and leaves the rest to a whole
+later Gauss-Newton step (blocks, assembly, linear solve, line search). On the default twin's 640x480 auto ROIs the
+last pass took 3 -> 2 steps on cube1 and sphere1, 5 -> 4 on coin1 (benchmarks/RESULTS.md, s30-lastpass). 0.03 left
+cube1 at 3 steps."""
+
+
+WARM_FIRST_MAX_ROWS = 200_000
+"""Levels with at least this many rows (a whole 640x480 frame's finest, 307,200) keep the forcing term's first step
+(:func:`warm_first_step`): there the tighter first step moved coin1's whole-frame contact AAE by +0.025 deg (4.710 ->
+4.735; sphere1 -0.004, cube1 unchanged) and the relief presses' by a few hundredths before (s20-jac's ``tight1``), and
+the whole frame meets its time goal without it (benchmarks/RESULTS.md, s30-lastpass)."""
+
+
+def warm_first_step(rows: int, opts: SolverOptions) -> float | None:
+    """The CG tolerance of a warm-started finest level's first Gauss-Newton step (:data:`WARM_FIRST_RTOL`, not below
+    ``opts.cg_rtol``), solved by AMG alone; None where the level keeps the forcing term's (:data:`WARM_FIRST_MAX_ROWS`
+    rows or more)."""
+    if rows >= WARM_FIRST_MAX_ROWS:
+        return None
+    return max(WARM_FIRST_RTOL, opts.cg_rtol)
+
+
 class Krylov:
     """Preconditioned conjugate gradient for the Gauss-Newton systems of one pyramid level.
 
@@ -50,6 +79,8 @@ class Krylov:
     same 9 iterations from zero (benchmarks/RESULTS.md, s17-b). And a Jacobi solve that was tried is abandoned
     once its residual lies far above the prediction's (:func:`jacobi_give_up_rate`); AMG continues from its iterate.
     A level of :data:`JACOBI_ONCE_ROWS` rows or more (a whole frame's finest) tries Jacobi in its first solve only.
+    A warm-started finest level's first solve (the outer loop's last pass) is tighter and by AMG alone
+    (:func:`warm_first_step`).
     """
 
     def __init__(self, opts: SolverOptions):
@@ -67,8 +98,9 @@ class Krylov:
         self.jacobi_rate: float | None = None
         """Residual reduction per iteration of this level's last Jacobi solve, bounded above (1: it failed)."""
 
-    def solve(self, Hm: sp.csr_matrix, rhs: np.ndarray, rtol: float) -> tuple[np.ndarray, int]:
-        """Approximate solution of Hm x = rhs to ``|r| <= rtol |rhs|``; returns x and CG iterations."""
+    def solve(self, Hm: sp.csr_matrix, rhs: np.ndarray, rtol: float, jacobi: bool = True) -> tuple[np.ndarray, int]:
+        """Approximate solution of Hm x = rhs to ``|r| <= rtol |rhs|``; returns x and CG iterations. ``jacobi``: False:
+        AMG from the start (:func:`warm_first_step`)."""
         self.solves += 1
         x = None
         # the system's products on both cores; the same bits as Hm @ v (threads.RowBlocks)
@@ -79,7 +111,7 @@ class Krylov:
         predicted = jacobi_predicted(self.jacobi_rate, rtol)
         # a large level's Jacobi attempts after its first failed at their cap (JACOBI_ONCE_ROWS)
         once = Hm.shape[0] >= JACOBI_ONCE_ROWS and self.solves > 1
-        if self.amg is None and cap > 0 and rtol >= 1e-2 and predicted <= cap and not once:
+        if jacobi and self.amg is None and cap > 0 and rtol >= 1e-2 and predicted <= cap and not once:
             give_up = jacobi_give_up_rate(predicted, rtol)
             x, status, jacobi_iters = pcg(products, rhs, None, rtol, cap, _Jacobi(Hm), give_up)
             # converged: rtol^(1/iterations) bounds its rate from above (the residual reached rtol or less)
@@ -222,7 +254,8 @@ and the contact AAE moved by at most 0.001 deg (benchmarks/RESULTS.md, s22-jac1;
 >= 35,000 rows moved the demo's cube press's 73,980-row auto ROI by 0.03 deg and was reverted). Jacobi is not
 dropped from the first solve: the 0.1 step AMG takes instead is a different step, which moved the relief presses'
 AAE by up to 0.03 deg (s20-jac, s22-jac1) and saved no time even on cube1, whose first Jacobi solve fails at its cap
-(the later steps took more AMG iterations from AMG's first step)."""
+(the later steps took more AMG iterations from AMG's first step). A warm-started finest level's first solve is the
+exception: to 0.01 by AMG it saves a whole Gauss-Newton step (:data:`WARM_FIRST_RTOL`)."""
 
 JACOBI_PATIENCE = 10.0
 """How much slower than predicted a Jacobi solve may converge before it is abandoned (:func:`jacobi_give_up_rate`).

@@ -289,3 +289,26 @@ def test_the_progress_line_names_the_level_and_counts_iterations_without_a_false
     assert last, shown
     assert int(last[-1].split(": ")[1].split()[0]) > 0 and res.report["levels"][-1]["iterations"] > 0
     assert "%" not in shown and "<" not in shown and "it/s" not in shown, shown
+
+
+def test_a_warm_started_finest_level_takes_its_first_step_tighter_by_amg(sphere_press, monkeypatch):
+    """The outer loop's last pass starts the finest level from a solved depth: its first linear solve is to
+    krylov.WARM_FIRST_RTOL by AMG (not the forcing term's cap by Jacobi), except on a level of WARM_FIRST_MAX_ROWS
+    rows or more; a solve from the prior keeps the forcing term's first step."""
+    from nlipscalib.solver import krylov
+
+    p = sphere_press
+    images = p.led_images
+    prior = p.reference.depth
+    cold = solve(images, p.camera, p.leds, prior_depth=prior, options=OPTS)
+    first = cold.report["levels"][0]
+    assert first["cg_rtol"][0] == OPTS.cg_rtol_max
+    start = np.where(cold.reconstructed, prior + 0.5 * (cold.depth - prior), np.nan)  # half-way: steps to take
+    warm = solve(images, p.camera, p.leds, prior_depth=prior, options=OPTS, init_depth=start)
+    (level,) = warm.report["levels"]
+    assert level["cg_rtol"][0] == krylov.WARM_FIRST_RTOL
+    assert level["amg_setups"] >= 1 and len(level["cg_rtol"]) >= 2
+    assert evaluate(warm, p.ground_truth)["contact"]["aae_deg"] < 1.5
+    monkeypatch.setattr(krylov, "WARM_FIRST_MAX_ROWS", level["pixels"])  # as a whole 640x480 frame's level
+    large = solve(images, p.camera, p.leds, prior_depth=prior, options=OPTS, init_depth=start)
+    assert large.report["levels"][0]["cg_rtol"][0] == OPTS.cg_rtol_max
