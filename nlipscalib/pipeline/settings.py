@@ -186,7 +186,7 @@ Every other one changes the sensor's light."""
 BOUNCE_LIGHT_SETTINGS = ("render.denoise_indirect", "render.denoise.")
 """Scene settings (prefixes of "section.key") that shape only the bounce light: two renders of direct light only
 (``render.bounces`` 0 both) may differ in them. Why: a reference rendered before the twin had its bounce-light filter
-(2026-11-24) records none of them, and was refused as the reference of a direct-light press rendered since."""
+(2026-12-01) records none of them, and was refused as the reference of a direct-light press rendered since."""
 
 
 def twin_render_difference(reference_meta: dict, press_meta: dict) -> str:
