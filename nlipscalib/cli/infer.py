@@ -239,8 +239,10 @@ def _check_video(path: str) -> None:
 
 
 def _run_stream(args: argparse.Namespace, what: str) -> int:
+    import pathlib
+
     from ..core.errors import require
-    from ._stream import check_emulated_sensor, nlipsnet_predictor, size_emulator_for
+    from ._stream import check_emulated_sensor, nlipsnet_predictor, size_emulator_for, warn_earlier_frames
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     # our one-line errors say it better; opencv-python-headless 4.8 has no cv2.utils.logging, only cv2.setLogLevel
@@ -255,6 +257,8 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
         args.camera = what
     name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
+    if args.out:
+        warn_earlier_frames(pathlib.Path(args.out))
     size_emulator_for(args, predictor.shape)
     check_emulated_sensor(args, predictor.model.sensor, predictor.model.reference["depth"])
     with SigtermEndsStream() as term:
