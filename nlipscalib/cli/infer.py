@@ -1118,7 +1118,13 @@ def _what_changed(old: dict, new: dict) -> list[str]:
     record = record if isinstance(record, dict) else {}
     settings = record.get("settings") if isinstance(record.get("settings"), dict) else None
     if settings is None:  # an older nlipscalib's result: the model's path is all it records of what made it
-        other = [f"another model ({old.get('model')})"] if old.get("model") != new["model"] else []
+        # a relative path (754bd8b's records) was relative to a working folder no record names: the same model given
+        # the same way was said to be "another model (model/m.pt)"
+        import os.path
+
+        was = old.get("model")
+        known = isinstance(was, str) and os.path.isabs(was)
+        other = [f"another model ({was})"] if known and was != new["model"] else []
         return other + ["an older nlipscalib (it records no options)"]
     if record.get("key") == made["key"]:
         return []
