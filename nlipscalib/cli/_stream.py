@@ -10,6 +10,7 @@ import contextlib
 import logging
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .leds import add_baud_argument, check_baud
@@ -163,6 +164,25 @@ def check_output_arguments(args: argparse.Namespace, out: str | None) -> None:
     check_count("--threads", args.threads, minimum=0)
     if typed(args, ("every",)) and not out:  # after the checks: a refused value's error line comes alone
         log.warning("--every without an output folder: no frames are kept")
+
+
+def warn_earlier_frames(out: Path) -> None:
+    """Warn when a stream's output folder ``out`` holds frames an earlier run saved (``frame_NNNNNN.npz``, of this
+    nlipscalib or an older one): ``nlips live --out`` and ``nlips infer`` of a stream ``--out``.
+
+    Why: a run replaces the frames it writes and leaves the others; after a shorter run (or one of another model,
+    or after an upgrade) the folder mixed the two runs' maps without a word, its frame files alike."""
+    if not out.is_dir():
+        return
+    earlier = sorted(out.glob(f"frame_{'[0-9]' * 6}.npz"))
+    if earlier:
+        log.warning(
+            "%s: holds %d frame(s) an earlier run saved (%s, ...): this run replaces those it writes and leaves the "
+            "rest, so the folder may mix two runs; give another --out to keep them apart",
+            out,
+            len(earlier),
+            earlier[0].name,
+        )
 
 
 def open_frames(

@@ -9,7 +9,8 @@ MODEL FRAMES --out DIR`) carry no ground truth: each is scored against the press
 (`nlips eval PRESS --result DIR/FRAME`); infer the press folders instead to score them together. Both methods
 write the core reconstruction format (docs/formats.md), so they are scored alike. A damaged NLiPs result is
 re-computed from the settings recorded in its report.json, with a warning; when report.json is itself damaged or
-records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it.
+records no settings, the press is reported with the `nlips solve PRESS --overwrite` that re-makes it. Results made
+by other nlipscalib code (an earlier version) are scored as they are and named in a line below the table.
 """
 
 from __future__ import annotations
@@ -94,6 +95,11 @@ def run(args: argparse.Namespace) -> int:
     if len(pairs) == 1 and (damaged or outdated):  # one press, nothing to tabulate: its error, on stderr, exit 2
         raise CaptureError((damaged or outdated)[0][1])
     _print(rows, _scored(Path(args.path), pairs, method, args.result))
+    scored = {name for name, _ in rows}
+    if older := [folder.name for folder, out in pairs if folder.name in scored and _other_code(folder, out, method)]:
+        shown = ", ".join(older[:3]) + (f" and {len(older) - 3} more" if len(older) > 3 else "")
+        remake = MAKES[method].format(path=args.path)
+        print(f"made by other nlipscalib code, scored as they are: {shown} ({remake} makes them with this version)")
     if unsolved:
         print(f"not solved, skipped: {', '.join(unsolved)}")
     for name, problem in damaged:
@@ -443,6 +449,23 @@ def _ground_truth(folder: Path):
     except (TypeError, ValueError) as exc:
         raise CaptureError(f"{folder / 'meta.json'}: {exc}") from None
     return GroundTruth.load(path, shape)
+
+
+def _other_code(press: Path, out: Path | None, method: str) -> bool:
+    """Whether the result scored for ``press`` (``out``, else its default folder) was made by other code than this
+    installation's (its report's ``provenance.code``; a report without one was written before 2026-12-06).
+
+    Why: after an upgrade `nlips eval` printed an old result's scores like any other, and a lab read them as this
+    version's; `nlips solve` would have made it again ("nlipscalib code", or "code unrecorded")."""
+    from ..core.code_version import code_fingerprint
+    from ..core.errors import CaptureError
+    from ..core.reconstruction import read_report, reconstruction_dir
+
+    try:
+        provenance = read_report(reconstruction_dir(press, out, method)).get("provenance")
+    except (CaptureError, OSError):
+        return False
+    return not isinstance(provenance, dict) or provenance.get("code") != code_fingerprint()
 
 
 def _scored(path: Path, pairs: list, method: str, result: str | None) -> str:

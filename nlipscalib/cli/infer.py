@@ -240,8 +240,10 @@ def _check_video(path: str) -> None:
 
 
 def _run_stream(args: argparse.Namespace, what: str) -> int:
+    import pathlib
+
     from ..core.errors import require
-    from ._stream import check_emulated_sensor, nlipsnet_predictor, size_emulator_for
+    from ._stream import check_emulated_sensor, nlipsnet_predictor, size_emulator_for, warn_earlier_frames
 
     cv2 = require("cv2", "opencv-python-headless", "Reading a video or camera")
     # our one-line errors say it better; opencv-python-headless 4.8 has no cv2.utils.logging, only cv2.setLogLevel
@@ -256,6 +258,8 @@ def _run_stream(args: argparse.Namespace, what: str) -> int:
         args.camera = what
     name = "emulated sensor" if what == "emulated" else (what if video else f"camera {what}")
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
+    if args.out:
+        warn_earlier_frames(pathlib.Path(args.out))
     size_emulator_for(args, predictor.shape)
     check_emulated_sensor(args, predictor.model.sensor, predictor.model.reference["depth"])
     with SigtermEndsStream() as term:
@@ -1115,7 +1119,13 @@ def _what_changed(old: dict, new: dict) -> list[str]:
     record = record if isinstance(record, dict) else {}
     settings = record.get("settings") if isinstance(record.get("settings"), dict) else None
     if settings is None:  # an older nlipscalib's result: the model's path is all it records of what made it
-        other = [f"another model ({old.get('model')})"] if old.get("model") != new["model"] else []
+        # a relative path (754bd8b's records) was relative to a working folder no record names: the same model given
+        # the same way was said to be "another model (model/m.pt)"
+        import os.path
+
+        was = old.get("model")
+        known = isinstance(was, str) and os.path.isabs(was)
+        other = [f"another model ({was})"] if known and was != new["model"] else []
         return other + ["an older nlipscalib (it records no options)"]
     if record.get("key") == made["key"]:
         return []

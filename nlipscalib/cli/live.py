@@ -17,6 +17,7 @@ import importlib
 import logging
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, TypeAlias
 
 from ._stream import (
@@ -32,6 +33,7 @@ from ._stream import (
     running_rate_report,
     saved_line,
     size_emulator_for,
+    warn_earlier_frames,
 )
 from .capture import CAMERA_RESPONSES
 
@@ -245,6 +247,8 @@ def run(args: argparse.Namespace) -> int:
     emulate_behind_port(args)
     check_source_arguments(args)
     check_output_arguments(args, args.out)
+    if args.out:
+        warn_earlier_frames(Path(args.out))
     if args.max_frames is not None:
         check_count("--max-frames", args.max_frames, minimum=1)
     no_window = "--no-window" if args.no_window else window_problem()

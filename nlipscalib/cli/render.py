@@ -274,6 +274,7 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
 
     from ..core.errors import ConfigError
     from ..core.press_folders import is_press_folder
+    from ..sim.dataset_folder import spec_change
     from ..sim.press import recorded_spec_hash, render_spec_hash
 
     if not out.exists():
@@ -287,8 +288,10 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
     if recorded != render_spec_hash(scene, press, seed):
         mesh = press.indenter.mesh if press is not None and press.indenter.kind == "mesh" else None
         edited = f" (or from another version of {mesh}: the mesh file's content counts)" if mesh else ""
+        why = spec_change(scene, press, seed, out)
         raise ConfigError(
-            f"{out}: already holds a press rendered from a different scene, press or seed{edited}; "
+            f"{out}: already holds a press rendered from a different scene, press or seed{edited}"
+            f"{f' ({why})' if why else ''}; "
             "use --overwrite to replace it, or another --out"
         )
     _warn_other_renderer(out)

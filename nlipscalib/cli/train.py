@@ -13,6 +13,8 @@ if TYPE_CHECKING:  # named in hints only: torch is imported when a model is trai
     from ..learn.dataset import CalibrationDataset
     from ..learn.train import TrainConfig, TrainResult
 
+log = logging.getLogger(__name__)
+
 OPTION_OF = {
     "hidden": "--hidden",
     "dropout": "--dropout",
@@ -129,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
         )
     device = check_device(args.device)  # before the dataset loads: a machine without the GPU is told at once
     data = CalibrationDataset(args.dataset)
+    if older := data.older_sampling():
+        log.warning("%s", older)
     val = _names(args.val_presses) or None
     exclude = _names(args.exclude)
     onnx_path = out.with_suffix(".onnx")
@@ -155,6 +159,8 @@ def run(args: argparse.Namespace) -> int:
                 f"{result.best_epoch + 1} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg); "
                 f"{_device_note(result.history, device.type)}other options or --out train another"
             )
+            if older := _older_model(out):
+                log.warning("%s", older)
             return 0
         training_curve(result.history, stage / curve.name, f"NLiPsNet {args.hidden}")
         best = result.history[result.best_epoch]
@@ -179,6 +185,24 @@ def run(args: argparse.Namespace) -> int:
         print(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
     print(f"next: nlips infer {out} INPUT (press folders, tri-colour frames, a video or --camera N)")
     return 0
+
+
+def _older_model(out: Path) -> str | None:
+    """Why the reused model at ``out`` lacks what a training of this version records, in one line, or None.
+
+    Why: a training of the same options on the same samples reuses the model whatever nlipscalib trained it (its
+    weights are what training again would give); one trained before 2026-12-06 records no calibrated contacts
+    (``learn.resolution.INFO_KEY``), so `nlips infer` could not judge a contact against the steepest calibration
+    press, and a lab that re-ran `nlips train` after upgrading kept that model without a word."""
+    from ..learn.model import load_model
+    from ..learn.resolution import INFO_KEY
+
+    if INFO_KEY in load_model(out).info:
+        return None
+    return (
+        f"{out}: trained by an nlipscalib before 2026-12-06: it records no calibrated contacts, so `nlips infer` "
+        "judges a contact's steepness by NLiPsNet's own limit only; train into another --out to record them"
+    )
 
 
 def _device_note(history: list[dict], device: str) -> str:

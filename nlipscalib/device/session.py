@@ -453,11 +453,24 @@ def _check_session_record(path: Path, described: dict) -> None:
             f"{path}: this session folder was captured with another camera or LED count "
             f"({_camera_difference(before, described)}); use a new folder"
         )
-    if "settings" in before and (changes := setting_differences(before["settings"], described["settings"])):
+    if "settings" in before and (changes := setting_differences(*map(_lit_settings, (before, described)))):
         raise CaptureError(
             f"{path}: this session was captured with other settings ({changes[0]}); resume it with the same "
             "settings, or capture into a new folder"
         )
+
+
+def _lit_settings(record: dict) -> object:
+    """A session record's ``settings`` without the emulated scene's fields that change no image
+    (``core.sensor.UNRENDERED_DESIGN_KEYS``). Why: the shipped scenes declared their LEDs' emitting diameter in
+    2026-12 (s29-ledsize); compared whole, every emulated session begun before then was refused on resume
+    ("leds.emitter_diameter: None -> 3.6") for a field no render reads."""
+    from ..core.sensor import rendered_scene
+
+    settings = record.get("settings")
+    if isinstance(settings, dict) and isinstance(settings.get("scene"), dict):
+        return settings | {"scene": rendered_scene(settings["scene"])}
+    return settings
 
 
 def _camera_difference(before: dict, now: dict) -> str:

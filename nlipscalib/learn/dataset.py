@@ -305,6 +305,7 @@ def write_index(
         "capture": capture,
         "reference": reference,
         "sampling": dataclasses.asdict(cfg),
+        "sample_rules": dict(SAMPLE_RULES),
         "presses": entries,
     }
     return write_json(folder / INDEX_FILE, index | ({"made_by": made_by} if made_by else {}))
@@ -814,6 +815,10 @@ class CalibrationDataset:
         self.entries: list[dict] = _checked_entries(index["presses"], path)
         self.smoothing_px: float = _checked_smoothing(index.get("sampling"), path)
         """Prefilter sigma the samples' colours were filtered with (0 for datasets made before the option)."""
+        rules = index.get("sample_rules")
+        self.sample_rules: dict | None = rules if isinstance(rules, dict) else None
+        """The sampling code's versions its samples were made under (:data:`SAMPLE_RULES`); None for datasets made
+        before they were recorded (2026-12-06)."""
         capture = index.get("capture")
         self.capture: dict | None = capture if isinstance(capture, dict) else None
         """The capture settings its presses share (``core.sensor_record.common_settings``); None for datasets made
@@ -822,6 +827,33 @@ class CalibrationDataset:
     @property
     def names(self) -> list[str]:
         return [e["name"] for e in self.entries]
+
+    def older_sampling(self) -> str | None:
+        """Why this dataset's samples may not be those this nlipscalib makes of its presses, in one line naming
+        index.json and the remedy, or None when they were made under today's :data:`SAMPLE_RULES`.
+
+        Why: `nlips calibrate` makes a shard again when a rule's version changed (its stamp holds them), but
+        `nlips train` on a dataset an older nlipscalib made read its samples without a word: one made before
+        :data:`FRAME_GAIN_RULE` kept almost none of the contact samples of a press brighter or dimmer than the
+        reference."""
+        if self.sample_rules == SAMPLE_RULES:
+            return None
+        path = self.folder / INDEX_FILE
+        if self.sample_rules is None:
+            why = "records no sampling rules: made by an nlipscalib before 2026-12-06"
+        else:
+            was = self.sample_rules
+            why = (
+                "made under other sampling rules ("
+                + ", ".join(f"{k} {was.get(k)}, now {v}" for k, v in SAMPLE_RULES.items() if was.get(k) != v)
+                + ")"
+            )
+        older_gain = self.sample_rules is None or self.sample_rules.get("frame_gain") != FRAME_GAIN_RULE
+        gain = " (before 2026-12-06 a press brighter or dimmer than the reference kept almost no contact samples)"
+        return (
+            f"{path}: {why}: its samples may differ from this version's{gain if older_gain else ''}; {self.remake} to "
+            "make them with this version"
+        )
 
     def entry(self, name: str) -> dict:
         for e in self.entries:

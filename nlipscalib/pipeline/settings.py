@@ -183,10 +183,16 @@ presses), seeds, threads, the Mitsuba variant and the design's fields no render 
 Every other one changes the sensor's light."""
 
 
+BOUNCE_LIGHT_SETTINGS = ("render.denoise_indirect", "render.denoise.")
+"""Scene settings (prefixes of "section.key") that shape only the bounce light: two renders of direct light only
+(``render.bounces`` 0 both) may differ in them. Why: a reference rendered before the twin had its bounce-light filter
+(2026-12-01) records none of them, and was refused as the reference of a direct-light press rendered since."""
+
+
 def twin_render_difference(reference_meta: dict, press_meta: dict) -> str:
     """'render.bounces 0 here, 1 for the press', naming up to three scene settings in which two twin renders differ
-    (:data:`TWIN_SETTINGS_OF_NO_LIGHT` aside); "" when they agree or one of them is no twin render (a real sensor's
-    capture, an older folder).
+    (:data:`TWIN_SETTINGS_OF_NO_LIGHT` aside, and :data:`BOUNCE_LIGHT_SETTINGS` between direct-light renders); ""
+    when they agree or one of them is no twin render (a real sensor's capture, an older folder).
 
     Why: `nlips render --undeformed` at the scene's defaults (direct light) as the reference of a press rendered with
     ``--bounces 1 --spp 16`` (as README's NLiPsNet walk renders a press) fitted an indirect share of 0.014 (term off)
@@ -196,7 +202,12 @@ def twin_render_difference(reference_meta: dict, press_meta: dict) -> str:
     if a is None or b is None:
         return ""
     flat_a, flat_b = _flat(a), _flat(b)
-    keys = sorted(k for k in flat_a.keys() | flat_b.keys() if k not in TWIN_SETTINGS_OF_NO_LIGHT)
+    direct_only = flat_a.get("render.bounces") == 0 and flat_b.get("render.bounces") == 0
+    keys = sorted(
+        k
+        for k in flat_a.keys() | flat_b.keys()
+        if k not in TWIN_SETTINGS_OF_NO_LIGHT and not (direct_only and k.startswith(BOUNCE_LIGHT_SETTINGS))
+    )
     differ = [k for k in keys if flat_a.get(k) != flat_b.get(k)]
     said = [f"{k} {flat_a.get(k)!r} here, {flat_b.get(k)!r} for the press" for k in differ[:3]]
     return "; ".join(said) + (f"; and {len(differ) - 3} more" if len(differ) > 3 else "")

@@ -8,10 +8,12 @@ import json
 import logging
 from pathlib import Path
 
+from ..core import said_once
 from ..core.errors import CaptureError, ConfigError, NlipsError
 from ..core.press_folders import is_press_folder
 from ..core.press_meta import META_FILE
 from .dataset_spec import PressJob
+from .indent import PressConfig
 from .scene import SceneConfig
 
 log = logging.getLogger(__name__)
@@ -59,7 +61,8 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
     found = [j for j in jobs if is_press_folder(out / j.name)]
     other_renderer = [j.name for j in found if _recorded_hash(out / j.name) == _expected_hash(scene, j)]
     other_renderer = [name for name in other_renderer if rendered_elsewhere_in(out / name)]
-    if other_renderer:
+    # said once a command: `nlips dataset` checks before its manifest is written and again as the renders start
+    if other_renderer and said_once.first_time(f"rendered elsewhere\0{out.resolve()}"):
         names = ", ".join(other_renderer[:3]) + (
             f" and {len(other_renderer) - 3} more" if len(other_renderer) > 3 else ""
         )
@@ -76,10 +79,48 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
         names = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3 else "")
         meshes = any(j.press is not None and j.press.indenter.kind == "mesh" for j in jobs if j.name in changed)
         edited = " (or from another version of an indenter's mesh file: its content counts)" if meshes else ""
+        first = next(j for j in jobs if j.name == changed[0])
+        why = spec_change(scene, first.press, first.seed, out / first.name)
+        why = f" ({first.name}: {why})" if why else ""
         raise ConfigError(
-            f"{out}: {names} were rendered from a different scene or spec{edited}; render into a new folder, "
+            f"{out}: {names} were rendered from a different scene or spec{edited}{why}; render into a new folder, "
             "or use --overwrite to re-render them"
         )
+
+
+SPEC_CHANGES_SHOWN = 3
+"""How many of the differing settings :func:`spec_change` names (the rest are counted)."""
+
+
+def spec_change(scene: SceneConfig, press: PressConfig | None, seed: int | None, folder: Path) -> str:
+    """What differs between the spec the press folder ``folder`` records and this one (``scene``, ``press``,
+    ``seed``; None: the scene's seed for the press), for the refusals of :func:`check_existing` and ``nlips render``:
+    "scene.render.bounces: 0 -> 1", naming up to :data:`SPEC_CHANGES_SHOWN` settings, and saying so when every one of
+    them is a setting its record lacks (a folder an older nlipscalib rendered, before the setting existed); "" when
+    the record cannot say (no scene recorded, a mesh file edited).
+
+    Why: after an upgrade a dataset's resume was refused as "rendered from a different scene or spec" while the
+    user had changed neither: the scene had gained render settings (``render.denoise``) since."""
+    from ..core.config import to_mapping
+    from ..core.sensor_record import setting_differences
+    from .press import hashed_spec, press_seed
+
+    was = _provenance(folder)
+    if not isinstance(was.get("scene"), dict) or not isinstance(was["scene"].get("render"), dict):
+        return ""
+    press_dict = None if press is None else to_mapping(press)
+    seed = press_seed(scene.render.seed, press_dict) if seed is None else int(seed)
+    try:
+        old = hashed_spec(was["scene"], was.get("press"), was.get("seed"))
+    except (TypeError, ValueError, AttributeError):
+        return ""
+    changes = setting_differences(old, hashed_spec(scene.to_dict(), press_dict, seed))
+    if not changes:
+        return ""
+    more = f" and {len(changes) - SPEC_CHANGES_SHOWN} more" if len(changes) > SPEC_CHANGES_SHOWN else ""
+    unrecorded = all(": None -> " in change for change in changes)
+    older = "; settings its record lacks: an older nlipscalib rendered it" if unrecorded else ""
+    return f"{', '.join(changes[:SPEC_CHANGES_SHOWN])}{more}{older}"
 
 
 def changed_error(scene: SceneConfig, job: PressJob, out: Path) -> str:

@@ -22,6 +22,7 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..core import said_once
 from ..core.atomic import check_free_space, check_writable, clean_interrupted
 from ..core.claims import CLAIM_STALE_S
 from ..core.cpus import RENDER_MEMORY, usable_cores, worker_count
@@ -97,7 +98,8 @@ def run_dataset(
     out = Path(out)
     if workers < 0:
         raise ConfigError(f"workers must be >= 0 (0 = automatic), got {workers}")
-    check_existing(scene, jobs, out, overwrite)
+    with said_once.scope():  # each call warns of older renders again; inside a command, once with its own check
+        check_existing(scene, jobs, out, overwrite)
     todo = [j for j in jobs if not is_complete(scene, j, out, overwrite)]
     result = {"rendered": [], "skipped": [j.name for j in jobs if j not in todo], "failed": []}
     if not todo:

@@ -218,14 +218,22 @@ def recorded_spec_hash(provenance: dict) -> str | None:
 
 def _spec_digest(scene_dict: dict, press_dict: dict | None, seed: int, mesh_digest: str | None = None) -> str:
     from ..core.config import digest
+
+    spec = hashed_spec(scene_dict, press_dict, seed)
+    if mesh_digest is not None:  # mesh presses only: no other press's hash changes
+        spec["mesh_file"] = mesh_digest
+    return digest(spec)
+
+
+def hashed_spec(scene_dict: dict, press_dict: dict | None, seed: int) -> dict:
+    """What a render's ``spec_hash`` is taken of (a mesh file's content aside): the scene as rendered (without
+    ``render.threads`` and ``core.sensor.UNRENDERED_DESIGN_KEYS``), the press and the seed. Compared key by key, it
+    says why a press folder is not of a spec (``sim.dataset_folder.spec_change``)."""
     from ..core.sensor import rendered_scene
 
     data = rendered_scene(scene_dict)
     data["render"] = {k: v for k, v in data["render"].items() if k != "threads"}
-    spec = {"scene": data, "press": press_dict, "seed": seed}
-    if mesh_digest is not None:  # mesh presses only: no other press's hash changes
-        spec["mesh_file"] = mesh_digest
-    return digest(spec)
+    return {"scene": data, "press": press_dict, "seed": seed}
 
 
 def render_press(

@@ -131,3 +131,27 @@ def test_a_press_that_other_twin_code_or_mitsuba_rendered_is_kept_with_a_warning
     assert len(warned) == 1 and str(out) in warned[0] and "mitsuba 3.0.0 (now " in warned[0], warned
     assert "--overwrite renders it again" in warned[0]
     assert main([*TINY, "--out", str(out), "--overwrite"]) == 0 and calls == [False, True]
+
+
+def test_a_press_an_older_nlipscalib_rendered_is_refused_naming_the_settings_added_since(tmp_path, monkeypatch, capsys):
+    """`nlips render` onto a press folder of 2026-11-23 (754bd8b) said "a different scene, press or seed" although
+    the user gave the same: the scene had gained render.denoise since. The line names what differs."""
+    from nlipscalib.core.config import to_mapping
+
+    def render_as_754bd8b(scene, press, out_folder, seed=None, overwrite=False):
+        scene_dict = scene.to_dict()
+        scene_dict["render"] = {k: v for k, v in scene_dict["render"].items() if not k.startswith("denoise")}
+        press_dict = None if press is None else to_mapping(press)
+        seed = sim_press.press_seed(scene.render.seed, press_dict) if seed is None else seed
+        provenance = {"source": "sim", "scene": scene_dict, "press": press_dict, "seed": seed}
+        Path(out_folder).mkdir(parents=True, exist_ok=True)
+        (Path(out_folder) / "meta.json").write_text(json.dumps({"provenance": provenance}), encoding="utf-8")
+        return Path(out_folder)
+
+    monkeypatch.setattr(sim_press, "render_press", render_as_754bd8b)
+    args = [*TINY, "--out", str(tmp_path / "p")]
+    assert main(args) == 0
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "different scene, press or seed (scene.render.denoise: None -> " in err, err
+    assert "settings its record lacks: an older nlipscalib rendered it); use --overwrite" in err

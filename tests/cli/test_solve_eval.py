@@ -596,3 +596,27 @@ def test_solve_and_calibrate_leds_take_the_coating_reflectance_by_one_name():
     text = " ".join(commands["solve"].format_help().split())
     assert "--coating-reflectance A" in text and "formerly --coating-albedo, still accepted" in text
     assert "--coating-albedo A" not in text  # hidden: one name per idea
+
+
+def test_eval_names_the_results_other_nlipscalib_code_made(data, capsys):
+    """After an upgrade `nlips eval` printed an old result's scores like any other, and a lab read them as this
+    version's (`nlips solve` would have made it again). The scores stay; one line names those results."""
+    root, cfg = data
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["eval", str(root)]) == 0
+    assert "other nlipscalib code" not in capsys.readouterr().out  # this installation's results
+    for name, code in (("press_a", "0" * 32), ("press_b", None)):  # other code; a result of before 2026-12-06
+        path = root / name / "nlips" / "report.json"
+        report = json.loads(path.read_text(encoding="utf-8"))
+        report["provenance"]["code"] = code
+        if code is None:
+            del report["provenance"]["code"]
+        path.write_text(json.dumps(report), encoding="utf-8")
+    assert main(["eval", str(root)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-1] == (
+        f"made by other nlipscalib code, scored as they are: press_a, press_b (`nlips solve {root}` makes them with "
+        "this version)"
+    ), out
+    assert any(line.startswith("press_a ") for line in out) and any(line.startswith("press_b ") for line in out)

@@ -136,3 +136,21 @@ def test_a_reference_rendered_before_the_led_size_was_declared_still_matches_its
     assert twin_render_difference(sim(before), sim(now)) == ""
     bounced = now | {"render": now["render"] | {"bounces": 1}}
     assert twin_render_difference(sim(before), sim(bounced)) == "render.bounces 0 here, 1 for the press"
+
+
+def test_a_direct_light_reference_rendered_before_the_bounce_filter_still_matches_its_presses():
+    """A twin reference of 2026-11-23 (754bd8b) records no render.denoise settings (added with the bounce light's
+    filter): `nlips solve --reference` of it for a direct-light press rendered since was refused ("render.denoise.
+    depth_rel None here, 0.01 for the press"), though the filter touches bounce light only. With bounces it still
+    differs."""
+    from nlipscalib.pipeline.settings import twin_render_difference
+
+    now = load_scene("nlipstac").to_dict()
+    assert now["render"]["bounces"] == 0
+    before = now | {"render": {k: v for k, v in now["render"].items() if not k.startswith("denoise")}}
+    sim = lambda scene: {"provenance": {"source": "sim", "scene": scene}}  # noqa: E731
+    assert twin_render_difference(sim(before), sim(now)) == ""
+    bounced = lambda scene: scene | {"render": scene["render"] | {"bounces": 1}}  # noqa: E731
+    assert twin_render_difference(sim(bounced(before)), sim(bounced(now))).startswith(
+        "render.denoise.depth_rel None here, 0.01 for the press"
+    )

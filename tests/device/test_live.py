@@ -458,3 +458,19 @@ def test_a_plugged_predictor_may_name_a_measured_response_file(frames, monkeypat
     assert main([*argv, "--camera-response", str(tmp_path / "bad.json"), "--max-frames", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"{tmp_path / 'bad.json'}: not valid JSON" in err[0], err
+
+
+def test_live_into_a_folder_of_an_earlier_runs_frames_warns_that_they_may_mix(frames, tmp_path, capsys, caplog):
+    """`nlips live --out DIR` (after an upgrade, or with another model) replaced the frames it wrote and left an
+    earlier, longer run's others beside them without a word: one folder of two runs' maps."""
+    import logging
+
+    out = tmp_path / "maps"
+    args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    with caplog.at_level(logging.WARNING):
+        assert main([*args, "--out", str(out)]) == 0
+        assert not [r for r in caplog.records if "earlier run" in r.getMessage()]  # a new folder: nothing to say
+        assert main([*args, "--out", str(out), "--max-frames", "2"]) == 0
+    warned = [r.getMessage() for r in caplog.records if "earlier run" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith(f"{out}: holds 5 frame(s) an earlier run saved"), warned
+    assert "frame_000000.npz" in warned[0] and "another --out" in warned[0]

@@ -204,6 +204,21 @@ def test_resume_refuses_other_capture_settings_and_names_the_change(tmp_path):
     assert run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])["press_0002"]["attempts"] == 1
 
 
+def test_an_emulated_session_begun_before_the_scenes_declared_their_led_size_resumes(tmp_path):
+    """`nlips capture --emulate nlipstac` of an upgraded nlipscalib refused to resume a session begun before the
+    shipped scenes declared leds.emitter_diameter ("other settings (scene.leds.emitter_diameter: None -> 3.6)"),
+    a field no render reads; another scene field still refuses."""
+    rig, _ = _rig()
+    scene = {"name": "nlipstac", "leds": {"count": N_LEDS, "ring_radius": 9.0}, "render": {"bounces": 0}}
+    rig.provenance = {"scene": scene}
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    rig.provenance = {"scene": scene | {"leds": scene["leds"] | {"emitter_diameter": 3.6}}}
+    assert run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])["press_0002"]["attempts"] == 1
+    rig.provenance = {"scene": scene | {"render": {"bounces": 1}}}
+    with pytest.raises(CaptureError, match=r"other settings \(scene\.render\.bounces: 0 -> 1\)"):
+        run_session(rig, tmp_path / "s", SessionConfig(presses=3), _quiet()[0])
+
+
 def test_a_damaged_session_description_says_how_to_resume(tmp_path):
     """A truncated session.json named the file and the problem but not what to do about it; removing it
     resumes the session (its presses kept), recording the settings again."""

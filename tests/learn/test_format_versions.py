@@ -61,3 +61,56 @@ def test_training_on_a_dataset_without_led_geometry_warns_once_naming_the_datase
     warned = [r.getMessage() for r in caplog.records if "records no LED geometry" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith(str(old / "index.json")), warned
     assert out.with_suffix(".onnx").is_file()
+
+
+@pytest.mark.parametrize(
+    "rules, said",
+    [
+        (None, "records no sampling rules: made by an nlipscalib before 2026-12-06: its samples may differ"),
+        ({"rule": 2, "frame_gain": 0}, "made under other sampling rules (frame_gain 0, now 1): its samples may differ"),
+    ],
+)
+def test_training_on_a_dataset_of_older_sampling_rules_warns_naming_the_dataset(calib, tmp_path, caplog, rules, said):
+    """`nlips train` on a dataset an older nlipscalib made read its samples without a word, while `nlips calibrate`
+    makes such shards again (a press dimmer than the reference kept almost none of its contact samples before
+    learn.dataset.FRAME_GAIN_RULE). A dataset of this version's rules says nothing."""
+    import shutil
+
+    from nlipscalib.cli import main
+    from nlipscalib.learn.dataset import SAMPLE_RULES
+
+    assert calib.sample_rules == SAMPLE_RULES and calib.older_sampling() is None
+    old = tmp_path / "calibration"
+    shutil.copytree(calib.folder, old)
+    index = json.loads((old / "index.json").read_text(encoding="utf-8"))
+    index.pop("sample_rules")
+    (old / "index.json").write_text(json.dumps(index | ({"sample_rules": rules} if rules else {})), encoding="utf-8")
+    args = ["train", str(old), "--out", str(tmp_path / "m.pt"), "--hidden", "8", "--epochs", "1", "--no-onnx"]
+    with caplog.at_level(logging.WARNING):
+        assert main([*args, "--no-progress"]) == 0
+    warned = [r.getMessage() for r in caplog.records if "sampling rules" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith(f"{old / 'index.json'}: {said}"), warned
+    assert warned[0].endswith("run `nlips calibrate` on its presses again to make them with this version")
+
+
+def test_a_model_an_older_nlipscalib_trained_is_reused_with_a_warning_of_what_it_lacks(calib, tmp_path, caplog):
+    """`nlips train` after an upgrade reuses a model of the same options and samples whatever code trained it; one
+    trained before 2026-12-06 records no calibrated contacts (`nlips infer` cannot judge a contact against the
+    steepest calibration press) and was reused without a word. Reused now with a warning; this version's, without."""
+    torch = pytest.importorskip("torch")
+    from nlipscalib.cli import main
+    from nlipscalib.learn.resolution import INFO_KEY
+
+    out = tmp_path / "m.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8", "--epochs", "1", "--no-onnx"]
+    assert main([*args, "--no-progress"]) == 0
+    with caplog.at_level(logging.WARNING):
+        assert main([*args, "--no-progress"]) == 0  # reused: this version's model, nothing to say
+    assert not [r for r in caplog.records if "records no calibrated contacts" in r.getMessage()]
+    payload = torch.load(out, weights_only=True)
+    del payload["info"][INFO_KEY]
+    torch.save(payload, out)  # as a training of before 2026-12-06 wrote it
+    with caplog.at_level(logging.WARNING):
+        assert main([*args, "--no-progress"]) == 0
+    warned = [r.getMessage() for r in caplog.records if "records no calibrated contacts" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith(f"{out}: trained by an nlipscalib before 2026-12-06"), warned

@@ -1176,3 +1176,16 @@ def test_a_folder_of_frames_all_unlike_the_reference_warns_three_times_then_coun
     assert len(warnings) == 5, warnings
     assert "repeated 5 more times in the last" in warnings[3] and "(the latest: " in warnings[3]
     assert "f7.png" in warnings[3] and "8 of 8 inputs differed" in warnings[4]
+
+
+def test_an_older_result_recording_a_relative_model_path_is_not_said_to_be_another_models():
+    """An NLiPsNet result of 754bd8b records the model as typed ("model/m.pt", relative to a working folder no record
+    names) and no options: inferring it again with that same model said "replacing the result of another model
+    (model/m.pt)". Only an absolute path that differs says another model."""
+    from nlipscalib.cli.infer import _what_changed
+
+    new = {"model": "/lab/model/m.pt", "provenance": {"settings": {}}}
+    older = "an older nlipscalib (it records no options)"
+    assert _what_changed({"model": "model/m.pt"}, new) == [older]
+    assert _what_changed({"model": "/lab/other.pt"}, new) == ["another model (/lab/other.pt)", older]
+    assert _what_changed({"model": "/lab/model/m.pt"}, new) == [older]

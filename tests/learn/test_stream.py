@@ -371,3 +371,16 @@ def test_stage_medians_are_numpys_within_the_bin_width_with_missing_stages_as_ze
             if name in medians:
                 assert medians[name] == pytest.approx(np.median(values), rel=STAGE_MEDIAN_BIN / 2, abs=1e-12)
                 assert means[name] == pytest.approx(values.mean(), rel=1e-12)
+
+
+def test_a_stream_into_a_folder_of_an_earlier_runs_frames_warns_that_they_may_mix(trained, video, tmp_path, caplog):
+    """`nlips infer MODEL VIDEO --out DIR` replaced the frames it wrote and left an earlier, longer run's others (an
+    older nlipscalib's, another model's) beside them without a word."""
+    import logging
+
+    out = tmp_path / "out"
+    assert main(["infer", str(trained), str(video), "--max-frames", "3", "--out", str(out)]) == 0
+    with caplog.at_level(logging.WARNING):
+        assert main(["infer", str(trained), str(video), "--max-frames", "1", "--out", str(out)]) == 0
+    warned = [r.getMessage() for r in caplog.records if "earlier run" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith(f"{out}: holds 3 frame(s) an earlier run saved"), warned

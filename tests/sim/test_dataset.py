@@ -489,3 +489,63 @@ def test_the_space_a_press_is_counted_for_follows_what_a_render_writes(indenter,
     on_disk = sum(f.stat().st_blocks * 512 for f in folder.iterdir())  # whole blocks, as the free space counts
     estimate = dataset_pool.press_bytes(scene)
     assert on_disk <= estimate <= 1.25 * on_disk, (on_disk, estimate)
+
+
+def _as_an_older_nlipscalib_rendered(scene, job, out, drop=("denoise", "denoise_indirect")):
+    """A press folder as a render of an older nlipscalib left it: its provenance records the scene, press and seed
+    (no spec_hash: recomputed from them), without render settings added since and without code or libraries."""
+    from nlipscalib.core.config import to_mapping
+
+    scene_dict = scene.to_dict()
+    scene_dict["render"] = {k: v for k, v in scene_dict["render"].items() if k not in drop}
+    press = None if job.press is None else to_mapping(job.press)
+    (out / job.name).mkdir(parents=True)
+    meta = {"provenance": {"source": "sim", "scene": scene_dict, "press": press, "seed": job.seed}}
+    (out / job.name / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
+
+
+def test_a_dataset_an_older_nlipscalib_rendered_is_refused_naming_the_settings_added_since(tmp_path, capsys):
+    """After an upgrade, `nlips dataset` on a folder of 2026-11-23 (754bd8b) refused it as "rendered from a different
+    scene or spec" while the user had changed neither: the scene had gained render.denoise since. The line now names
+    the settings that differ and that the record lacks them."""
+    from nlipscalib.cli import main
+
+    spec_file = _write(tmp_path, GRID)
+    spec, scene = load_dataset_spec(spec_file)
+    out = tmp_path / "out"
+    for job in expand_jobs(spec)[:2]:
+        _as_an_older_nlipscalib_rendered(scene, job, out)
+    assert main(["--no-progress", "dataset", str(spec_file), "--out", str(out), "--limit", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "rendered from a different scene or spec (reference: scene.render.denoise: None" in err[0]
+    assert "scene.render.denoise_indirect: None -> True" in err[0], err
+    assert "settings its record lacks: an older nlipscalib rendered it" in err[0] and "--overwrite" in err[0]
+
+
+def test_a_dataset_of_another_spec_is_refused_naming_what_differs(tmp_path):
+    """A folder of another spec (not an older nlipscalib's) is named with the setting that differs, not as older."""
+    spec, scene = load_dataset_spec(_write(tmp_path, GRID))
+    other = load_dataset_spec(_write(tmp_path, GRID.replace("spp = 2", "spp = 3")))[1]
+    jobs = expand_jobs(spec)[:2]
+    out = tmp_path / "out"
+    _as_an_older_nlipscalib_rendered(other, jobs[1], out, drop=())
+    with pytest.raises(ConfigError, match=r"\(press_0001: scene\.render\.spp: 3 -> 2\); render into a new folder"):
+        ds.check_existing(scene, jobs, out, overwrite=False)
+
+
+def test_presses_other_twin_code_rendered_are_warned_of_once_a_command(tmp_path, monkeypatch, caplog):
+    """`nlips dataset` checks the folder before writing its manifest and again as the renders start: the warning
+    of presses an older twin rendered came twice in one command."""
+    from nlipscalib.cli import main
+    from tests.cli.test_faults import _fake_render
+
+    spec_file = _write(tmp_path, GRID)
+    spec, scene = load_dataset_spec(spec_file)
+    out = tmp_path / "out"
+    for job in expand_jobs(spec)[:2]:
+        _as_an_older_nlipscalib_rendered(scene, job, out, drop=())
+    monkeypatch.setattr(dataset_pool, "_run_one", _fake_render([]))
+    with caplog.at_level("WARNING", logger="nlipscalib.sim"):
+        assert main(["--no-progress", "dataset", str(spec_file), "--out", str(out), "--limit", "2"]) == 0
+    warned = [r.getMessage() for r in caplog.records if "rendered by other twin code" in r.getMessage()]
+    assert len(warned) == 1 and "reference, press_0001" in warned[0], warned
