@@ -528,6 +528,16 @@ DARK_BAND_SHARE = 0.9
 """Share of a band's samples (or blocks) that must be dark (:data:`DARK_BAND_LIGHT`): a dark band is dark across the
 whole row; a contact's flank turned away from an LED is dark in a part of it (a quantile, not the median: the
 twin's median over a band goes down to 0.82 on the presses above)."""
+DARK_CANDIDATE_SHARE = 0.15
+"""A band of :data:`CAPTURE_CHECK_BLUR` rows (columns) of an LED image is looked at pixel row by pixel row when this
+share of its samples (two or more) is dark (:data:`DARK_BAND_LIGHT`;
+:func:`nlipscalib.core.repeated_frames.dark_candidates`): one dark row in five leaves ~20 % of a band's samples dark
+(~4 samples a row at 640x480, ~8 at 320x240). Set low on purpose: the pixel rows' own test decides."""
+DARK_LINES_MIN = 2
+"""Fewest pixel rows (columns) in a run for a band shorter than :data:`DARK_BAND_ROWS` bands to be called dark, each
+with :data:`DARK_BAND_SHARE` of its ~100 samples under :data:`DARK_BAND_LIGHT`
+(:func:`nlipscalib.core.repeated_frames.dark_lines`). One row alone is left to the solve's shadow test: a single
+line is what a dead sensor row or a transmission glitch gives, not an LED switched against the readout."""
 LINEAR_RESPONSE_SLOPE = 0.7
 """LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
 each pixel's value grows as the LED model's light, direct plus the fitted indirect term, to a power below this, in

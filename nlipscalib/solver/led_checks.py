@@ -24,8 +24,10 @@ from ..core.leds import Led, led_shading, tricolor_groups
 from ..core.repeated_frames import (
     DarkBand,
     dark_bands,
+    dark_candidates,
     dark_everywhere_line,
     dark_line,
+    dark_lines,
     frame_checks,
     lagged_line,
     repeated_line,
@@ -119,13 +121,13 @@ def led_check_measured(
         [f"{dark_everywhere_line(press.folder, everywhere)}; {DARK_ALL}"] if everywhere else []
     )
     live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
-    image, model, rows = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
+    image, model, pixels = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
         return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None, None
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
-    dark = _dark_rows(image, model, rows, live, press.camera.height, everywhere)
+    dark = _dark_rows(press, leds, image, model, pixels, live, everywhere)
     judged = [k for k, i in enumerate(live) if i not in {band.index for band in dark}]
     off = []
     relative = _relative_gains(image, model, judged)
@@ -172,32 +174,106 @@ def led_check_measured(
 
 
 def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[DarkBand]:
-    """The LED images (of the 0-based LEDs ``live``) with a band of rows at the dark frame's level where the LED model
-    ``leds`` lights the undeformed dome (:func:`.dark_bands`), ``index`` the LED's; empty without a surface or lit
-    samples. :func:`led_check` finds them from its own samples."""
+    """The LED images (of the 0-based LEDs ``live``) with a band of rows (or columns) at the dark frame's level where
+    the LED model ``leds`` lights the undeformed dome (:func:`_dark_rows`), ``index`` the LED's; empty without a
+    surface or lit samples. :func:`led_check` finds them from its own samples."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
         return []
-    image, model, rows = _sampled(press, leds, live)
-    return [] if image is None else _dark_rows(image, model, rows, live, press.camera.height, None)
+    image, model, pixels = _sampled(press, leds, live)
+    return [] if image is None else _dark_rows(press, leds, image, model, pixels, live, None)
+
+
+DENSE_LINE_SAMPLES = 100
+"""Samples a pixel row (column) gets, about, where :func:`_dark_rows` looks for a band shorter than
+:data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` bands (every ``width // 100``-th gel pixel of the row: 128-160
+at 640x480, 106-160 at 320x240)."""
 
 
 def _dark_rows(
-    image: np.ndarray, model: np.ndarray, rows: np.ndarray, live: list[int], height: int, everywhere: DarkBand | None
+    press: Press,
+    leds: Sequence[Led],
+    image: np.ndarray,
+    model: np.ndarray,
+    pixels: np.ndarray,
+    live: list[int],
+    everywhere: DarkBand | None,
 ) -> list[DarkBand]:
-    """:func:`.dark_bands` of the sampled LED images (``image``, ``model``: :func:`_sampled`'s, of the LEDs
-    ``live``), their ``index`` the LED's (0-based), outside the rows dark in every image (``everywhere``: there the
-    albedo fitted to the dark frame's noise models noise).
+    """The LED images with a band of rows, else of columns (a camera turned 90 degrees), at the dark frame's level:
+    :func:`.dark_bands` of the sampled LED images (``image``, ``model``, ``pixels``: :func:`_sampled`'s, of the LEDs
+    ``live``), and for the LEDs without one, the shorter bands that :func:`.dark_candidates` points to, told pixel
+    row by pixel row (:func:`.dark_lines`) on samples dense along those rows (:data:`DENSE_LINE_SAMPLES`); their
+    ``index`` the LED's (0-based), outside the rows dark in every image (``everywhere``: there the albedo fitted to
+    the dark frame's noise models noise).
 
     Why the LED model: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
     from their design: dark top rows in 2 of 12 images, s28-rolling); the samples lie where every LED lights the
     gel directly, so rows the model lights and the image does not were read while the LED was off."""
+    height, width = press.camera.shape
     light = image.sum(-1) / np.maximum(model.sum(-1), 1e-12)
+    lines = dict(zip(("rows", "columns"), np.divmod(pixels, width), strict=True))
+    lengths = {"rows": height, "columns": width}
+    keep = np.ones(pixels.size, bool)
     if everywhere is not None:
-        keep = (rows < everywhere.rows[0]) | (rows >= everywhere.rows[1])
-        light, rows = light[:, keep], rows[keep]
-    found = dark_bands(light, rows, height)
-    return [band._replace(index=live[band.index]) for band in found]
+        along = lines[everywhere.axis]
+        keep = (along < everywhere.rows[0]) | (along >= everywhere.rows[1])
+    found: dict[int, DarkBand] = {}
+    for axis in ("rows", "columns"):
+        for band in dark_bands(light[:, keep], lines[axis][keep], lengths[axis], axis):
+            found.setdefault(band.index, band)
+    level = np.median(light[:, keep], axis=1)
+    for axis in ("rows", "columns"):
+        candidates = dark_candidates(light[:, keep], lines[axis][keep], lengths[axis])
+        wanted = {k: bands for k, bands in enumerate(candidates) if bands.size and k not in found}
+        if wanted:
+            extent = (int(lines[axis][keep].min()), int(lines[axis][keep].max()) + 1)
+            found.update(_short_dark_bands(press, leds, live, axis, wanted, level, extent, everywhere))
+    return [found[k]._replace(index=live[k]) for k in sorted(found)]
+
+
+def _short_dark_bands(
+    press: Press,
+    leds: Sequence[Led],
+    live: list[int],
+    axis: str,
+    wanted: dict[int, np.ndarray],
+    level: np.ndarray,
+    extent: tuple[int, int],
+    everywhere: DarkBand | None,
+) -> dict[int, DarkBand]:
+    """:func:`.dark_lines` of the LEDs ``wanted`` (positions in ``live`` -> their candidate bands of
+    :data:`~nlipscalib.core.tolerances.CAPTURE_CHECK_BLUR` rows or columns, :func:`.dark_candidates`), on samples
+    dense along those rows (columns) and one band either side; ``level``: each LED's median light over the
+    modelled light on the check's own samples (the dense samples' scale)."""
+    b = tolerances.CAPTURE_CHECK_BLUR
+    length = press.camera.shape[0 if axis == "rows" else 1]
+    near = np.zeros(length, bool)
+    for bands in wanted.values():
+        for band in bands:
+            near[max(0, (band - 1) * b) : (band + 2) * b] = True
+    if everywhere is not None and everywhere.axis == axis:
+        near[everywhere.rows[0] : everywhere.rows[1]] = False
+    gel = np.isfinite(press.reference.depth)
+    gel = gel if axis == "rows" else gel.T
+    chosen = np.flatnonzero(near)
+    step = max(1, gel.shape[1] // DENSE_LINE_SAMPLES)
+    at, across = np.nonzero(gel[chosen, ::step])
+    at, across = chosen[at], across * step
+    index = at * press.camera.width + across if axis == "rows" else across * press.camera.width + at
+    image, model, pixels = _sampled_at(press, leds, live, np.sort(index))
+    if image is None:
+        return {}
+    light = image.sum(-1) / np.maximum(model.sum(-1), 1e-12) / np.where(level > 0, level, np.nan)[:, None]
+    lines = np.divmod(pixels, press.camera.width)[0 if axis == "rows" else 1]
+    found = {}
+    for k, bands in wanted.items():
+        mine = np.zeros(length, bool)
+        for band in bands:
+            mine[max(0, (band - 1) * b) : (band + 2) * b] = True
+        where = mine[lines]
+        if dark := dark_lines(light[k, where], lines[where], extent, k, axis):
+            found[k] = dark
+    return found
 
 
 def detected_order_of(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[int] | None:
@@ -476,7 +552,7 @@ def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
 def _samples(
     press: Press, leds: Sequence[Led], live: list[int], indirect: Sequence[np.ndarray] | None = None
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """:func:`_sampled`'s images and modelled light, without the rows."""
+    """:func:`_sampled`'s images and modelled light, without the pixels."""
     return _sampled(press, leds, live, indirect)[:2]
 
 
@@ -485,12 +561,22 @@ def _sampled(
 ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """The live LED images and their modelled light (albedo fitted per pixel and channel over the live LEDs; with
     ``indirect``, each LED's (H, W, 3) indirect light per unit albedo added to its direct shading) on a subgrid of
-    the gel: two (L_live, N, 3) float64 arrays and the samples' (N,) pixel rows, or Nones when too few gel pixels
-    are lit."""
-    ref = press.reference
-    gel = np.isfinite(ref.depth)
-    index = np.flatnonzero(gel)
+    the gel: two (L_live, N, 3) float64 arrays and the samples' (N,) flat pixel indices, or Nones when too few gel
+    pixels are lit."""
+    index = np.flatnonzero(np.isfinite(press.reference.depth))
     index = index[:: max(1, index.size // CHECK_PIXELS)]  # every k-th gel pixel in raster order
+    return _sampled_at(press, leds, live, index, indirect)
+
+
+def _sampled_at(
+    press: Press,
+    leds: Sequence[Led],
+    live: list[int],
+    index: np.ndarray,
+    indirect: Sequence[np.ndarray] | None = None,
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """:func:`_sampled` at the gel pixels ``index`` ((n,) int, flat, row-major)."""
+    ref = press.reference
     if index.size < 10:
         return None, None, None
     depth = ref.depth.reshape(-1)[index].astype(float)
@@ -509,7 +595,7 @@ def _sampled(
     lit = (direct > 0).all(axis=(0, 2)) & (albedo > 0).all(axis=1)
     if lit.sum() < 10:
         return None, None, None
-    return image[:, lit], (albedo * shading)[:, lit], rows[lit]
+    return image[:, lit], (albedo * shading)[:, lit], index[lit]
 
 
 def _image_names(press: Press) -> list[str]:

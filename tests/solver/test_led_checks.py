@@ -319,6 +319,24 @@ def test_dark_top_rows_of_an_led_image_are_named_with_their_rows_and_left_out(tm
     assert not any("read the frame out" in note or "repeats" in note or "weak" in note for note in rep["warnings"])
 
 
+def test_dark_columns_and_a_few_dark_rows_of_an_led_image_are_named(tmp_path):
+    """A camera mounted turned 90 degrees: its rolling shutter reads the columns, and LED 9's first 20 columns were
+    read while it was off; a short glitch darkened LED 4's rows 30-32 (under the 15 rows of the bands). Neither was
+    named before (s29-darkrows: rows of 15 or more only); now both are, with their columns and rows."""
+
+    def hook(lin):
+        lin = lin.copy()
+        lin[8, :, :20] = 0.0
+        lin[3, 30:33] = 0.0
+        return lin
+
+    press = _press(tmp_path, "dark_columns", hook)
+    notes, _, _, _ = led_check(press, press.leds, range(len(press.leds)))
+    said = [note for note in notes if "are each dark" in note]
+    assert len(said) == 1, notes
+    assert "led_04.png's rows 30-32 (middle)" in said[0] and "led_09.png's columns 0-19 (left)" in said[0], said
+
+
 def test_rows_dark_in_every_led_image_are_warned_about_and_no_led_is_left_out(tmp_path):
     press = _press(tmp_path, "all_dark", _rows_from(dict.fromkeys(range(12)), 15))
     notes, left_out, _, _ = led_check(press, press.leds, range(len(press.leds)))
