@@ -18,7 +18,10 @@ Dark rows (:func:`dark_bands`, :func:`dark_everywhere`): rows read while no LED 
 off early, against the readout; a global-reset sensor's exposure that missed the LED in some rows) hold the dark
 frame's level, not the previous LED's light. One LED's dark band is told from its own light's terminator by the LED
 model (the solve's :func:`nlipscalib.solver.led_checks.led_check` feeds :func:`dark_bands` its samples); rows dark in
-every LED image by the images alone (the LEDs together light the whole gel).
+every LED image by the images alone (the LEDs together light the whole gel). Columns alike (a camera mounted turned 90
+degrees: its rolling shutter reads the image's columns); bands shorter than the samples' bands of rows tell
+(:func:`dark_candidates`) are told row by row on denser samples (:func:`dark_lines`). A solve leaves out an LED's dark
+band for that LED only (:func:`dark_band_mask`).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import numpy as np
 from .tolerances import (
     CAPTURE_CHECK_BLUR,
     DARK_BAND_LIGHT,
+    DARK_BAND_MARGIN,
     DARK_BAND_ROWS,
     DARK_BAND_SHARE,
     DARK_CANDIDATE_SHARE,
@@ -265,6 +269,34 @@ def dark_lines(
     ends = ("top", "bottom") if axis == "rows" else ("left", "right")
     where = ends[0] if start <= extent[0] else ends[1] if stop >= extent[1] else "middle"
     return DarkBand(index, (start, stop), where, axis)
+
+
+def dark_band_mask(bands: list[DarkBand], leds: list[int], shape: tuple[int, int]) -> np.ndarray:
+    """The samples an LED image's dark band leaves without its LED's light: its rows (columns) and
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_MARGIN` either side, for that LED only.
+
+    Parameters
+    ----------
+    bands : list of DarkBand -- with ``index`` an LED (0-based, capture order; :func:`dark_bands`, :func:`dark_lines`).
+    leds : list of int -- the LEDs of the images the mask is for (0-based), in their order; a band of another LED
+        is left out.
+    shape : (H, W) -- the image's rows and columns.
+
+    Returns
+    -------
+    (len(leds), H, W) bool -- True where the sample is to be left out.
+    """
+    mask = np.zeros((len(leds), *shape), bool)
+    at = {led: k for k, led in enumerate(leds)}
+    for band in bands:
+        if band.index not in at:
+            continue
+        lines = slice(max(0, band.rows[0] - DARK_BAND_MARGIN), band.rows[1] + DARK_BAND_MARGIN)
+        if band.axis == "rows":
+            mask[at[band.index], lines] = True
+        else:
+            mask[at[band.index], :, lines] = True
+    return mask
 
 
 def _band_table(light: np.ndarray, lines: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -538,6 +538,11 @@ DARK_LINES_MIN = 2
 with :data:`DARK_BAND_SHARE` of its ~100 samples under :data:`DARK_BAND_LIGHT`
 (:func:`nlipscalib.core.repeated_frames.dark_lines`). One row alone is left to the solve's shadow test: a single
 line is what a dead sensor row or a transmission glitch gives, not an LED switched against the readout."""
+DARK_BAND_MARGIN = 5
+"""Pixel rows (columns) either side of an LED image's dark band that the solve leaves out with it, for that LED
+(:func:`nlipscalib.core.repeated_frames.dark_band_mask`): the bands of 15 rows or more are found to
+:data:`CAPTURE_CHECK_BLUR` rows, and an LED switching during the readout ramps its light over a few rows (a dim
+edge that is neither dark nor the LED's light)."""
 LINEAR_RESPONSE_SLOPE = 0.7
 """LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
 each pixel's value grows as the LED model's light, direct plus the fitted indirect term, to a power below this, in

@@ -83,9 +83,10 @@ def led_check(
     -------
     notes : list of str -- empty when every live LED image matches its LED.
     left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
-        :data:`WEAK_LED_GAIN`, or their image repeats the one before (whole or in some rows) or has a band of rows at
-        the dark frame's level (:func:`.dark_bands`); empty when leaving them out would leave fewer than
-        ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
+        :data:`WEAK_LED_GAIN`, or their image repeats the one before (whole or in some rows); empty when leaving
+        them out would leave fewer than ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about). An image
+        with a band of rows (columns) at the dark frame's level is not left out: only those rows
+        (:func:`led_check_measured`).
     misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
     order : list of int, or None -- for each LED (0-based), the image (0-based, the capture's order) that shows its
         light, when the misplaced images are a clean pair or cycle (:func:`detected_order`); None otherwise.
@@ -109,9 +110,10 @@ class MeasuredGains:
 
 def led_check_measured(
     press: Press, leds: Sequence[Led], live: Sequence[int]
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None]:
-    """:func:`led_check`, and the relative gains it measured on the LEDs it judged (:class:`MeasuredGains`; None
-    when it sampled none)."""
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand]]:
+    """:func:`led_check`, the relative gains it measured on the LEDs it judged (:class:`MeasuredGains`; None
+    when it sampled none), and the LED images' dark bands (:func:`_dark_rows`: rows or columns read while the LED
+    was off), whose samples a solve leaves out for that LED (:func:`.dark_band_mask`); the LED itself is kept."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
         return [], [], [], None, None
@@ -124,7 +126,7 @@ def led_check_measured(
     image, model, pixels = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
-        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None, None
+        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None, None, []
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
     dark = _dark_rows(press, leds, image, model, pixels, live, everywhere)
@@ -157,10 +159,10 @@ def led_check_measured(
                 )
         elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
             off.append((i, relative[k]))
-    darkened = [band.index for band in dark]
-    left_out = _leave_out([i for i, _ in off] + repeated + darkened, len(live) + len(repeated))
-    dark_notes = [dark_line(press.folder, names, dark)] if dark else []
-    notes = _said_repeated(lagged, left_out) + _said_repeated(dark_notes, left_out, DARK_REASON) + notes
+    left_out = _leave_out([i for i, _ in off] + repeated, len(live) + len(repeated))
+    dark = [band for band in dark if band.index not in left_out]
+    dark_notes = [dark_line(press.folder, names, dark, DARK_DONE)] if dark else []
+    notes = _said_repeated(lagged, left_out) + dark_notes + notes
     for i, share in off:
         what = "weak LED?" if share < 1 else "brighter than the others"
         done = "left out of the solve and of --roi auto" if left_out else "used (too few LEDs to leave it out)"
@@ -170,7 +172,7 @@ def led_check_measured(
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
     measured = MeasuredGains(tuple(live), relative)
-    return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured
+    return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured, dark
 
 
 def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[DarkBand]:
@@ -361,13 +363,21 @@ DARK_ALL = "no LED can be left out for it: the normals solved in those rows are 
 """The tail of the solve's warning about rows dark in every LED image (:func:`.dark_everywhere_line`)."""
 REPEATED_REASON = "they hold the light of the LED before them"
 """Why :func:`_said_repeated` leaves repeated and partly lagged LED images out."""
-DARK_REASON = "their rows read while the LED was off are no light of theirs"
-"""Why :func:`_said_repeated` leaves LED images with dark rows out."""
+DARK_DONE = (
+    f"; left out of the solve for that LED only, with {tolerances.DARK_BAND_MARGIN} rows (columns) either side "
+    "(read while it was off, they are no light of its), the rest of its image used"
+)
+"""What the solve does about an LED image's dark rows (:func:`.dark_line`'s ``done``).
+
+Why not the LED whole (as s29-darkrows did): the twin's sphere and cube presses (640x480, --roi auto; clean 0.509 /
+0.439 deg) with a band of LED 5's or LED 9's rows or columns dark (3-200 of them, top, middle, bottom, left, right)
+gave a contact AAE of 0.512-0.520 / 0.441-0.452 deg with the LED left out, 0.509-0.514 / 0.436-0.441 with only its
+band's rows left out (benchmarks/RESULTS.md, s30-darkcols)."""
 
 
 def _said_repeated(lines: list[str], left_out: list[int], reason: str = REPEATED_REASON) -> list[str]:
-    """The warnings of :func:`_repeated_line`'s ``lines`` (or the dark rows'), saying whether the solve leaves those
-    LEDs out (not when too few LEDs would be left: :func:`_leave_out`), and ``reason``."""
+    """The warnings of :func:`_repeated_line`'s ``lines``, saying whether the solve leaves those LEDs out (not when
+    too few LEDs would be left: :func:`_leave_out`), and ``reason``."""
     done = "left out of the solve" if left_out else "used (too few LEDs to leave them out)"
     return [f"{line}; {done} ({reason})" for line in lines]
 

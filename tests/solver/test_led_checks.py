@@ -7,7 +7,7 @@ import shutil
 import numpy as np
 import pytest
 
-from nlipscalib.core import load_press
+from nlipscalib.core import load_press, tolerances
 from nlipscalib.solver import SolverOptions, solve_press
 from nlipscalib.solver.led_checks import (
     _samples,
@@ -303,19 +303,28 @@ def test_an_led_image_read_out_across_the_switch_is_named_with_its_rows_and_left
     assert rep["leds_left_out"] == [4] and said[0] in caplog.text
 
 
-def test_dark_top_rows_of_an_led_image_are_named_with_their_rows_and_left_out(tmp_path, caplog):
+def test_dark_top_rows_of_an_led_image_are_named_and_only_those_rows_left_out_for_that_led(tmp_path, caplog):
     """LED 9's top 20 rows read while it was off (the dark frame's level): solved without a word about it, or with a
     wrong cause (the twin's presses, LED 5's top 20-60 rows: "misfitting pixels along the gel's edge ... vignetting";
-    its top 200 rows: refused as another sensor's images; s29-darkrows); now the rows, the cause and the fix are named
-    and the LED is left out. Not taken for a readout across the switch, for a repeat or for a weak LED."""
+    its top 200 rows: refused as another sensor's images; s29-darkrows); the rows, the cause and the fix are named.
+    Then s29 left the LED out whole; now only its rows 0-19 and DARK_BAND_MARGIN more are left out, for LED 9 alone:
+    the solve's usable LEDs there are one fewer than in the clean press's solve, and the same below. Not taken for a
+    readout across the switch, for a repeat or for a weak LED."""
+    options = SolverOptions(max_iters=2)
+    clean = solve_press(_press(tmp_path, "clean"), options=options)
     press = _press(tmp_path, "rolling_dark", _rows_from({8: None}, 20))
     with caplog.at_level(logging.WARNING):
-        result = solve_press(press, options=SolverOptions(max_iters=2))
+        result = solve_press(press, options=options)
     rep = result.report
     said = [note for note in rep["warnings"] if "are dark" in note]
     assert len(said) == 1 and "led_09.png's rows 0-19 (top) are dark" in said[0], said
-    assert "--flush" in said[0] and "left out of the solve" in said[0] and said[0] in caplog.text
-    assert rep["leds_left_out"] == [8] and 8 not in rep["leds_used"]
+    assert "--flush" in said[0] and "left out of the solve for that LED only" in said[0] and said[0] in caplog.text
+    assert "leds_left_out" not in rep and 8 in rep["leds_used"]
+    assert rep["dark_bands_left_out"] == [{"led": 8, "rows": [0, 20], "margin": tolerances.DARK_BAND_MARGIN}]
+    fewer = clean.usable_leds.astype(int) - result.usable_leds
+    edge = 20 + tolerances.DARK_BAND_MARGIN
+    inside = result.mask & clean.mask
+    assert (fewer[:edge][inside[:edge]] == 1).all() and (fewer[edge:][inside[edge:]] == 0).all()
     assert not any("read the frame out" in note or "repeats" in note or "weak" in note for note in rep["warnings"])
 
 
