@@ -187,13 +187,20 @@ def dark_bands(light: np.ndarray, lines: np.ndarray, length: int, axis: str = "r
     -------
     list of DarkBand -- one per LED image with a dark band (its longest), in order; empty when none has one.
     """
+    return dark_bands_and_candidates(light, lines, length, axis)[0]
+
+
+def dark_bands_and_candidates(
+    light: np.ndarray, lines: np.ndarray, length: int, axis: str = "rows"
+) -> tuple[list[DarkBand], list[np.ndarray]]:
+    """:func:`dark_bands` and :func:`dark_candidates` of the same samples, their bands' table made once."""
     table, counted, bands = _band_table(light, lines, length)
     found = []
     for index, values in enumerate(table):
         most = _row_quantiles(values[bands], counted[bands], DARK_BAND_SHARE)
         if dark := _dark_run(most < DARK_BAND_LIGHT, bands, index, axis):
             found.append(dark)
-    return found
+    return found, _candidates(table, counted, bands)
 
 
 def dark_candidates(light: np.ndarray, lines: np.ndarray, length: int) -> list[np.ndarray]:
@@ -211,9 +218,13 @@ def dark_candidates(light: np.ndarray, lines: np.ndarray, length: int) -> list[n
     list (L) of (k,) int -- the candidate bands (band ``b``: pixel rows ``b * CAPTURE_CHECK_BLUR`` on), ascending;
     all empty when too few bands hold samples (as :func:`dark_bands`).
     """
-    table, counted, bands = _band_table(light, lines, length)
+    return _candidates(*_band_table(light, lines, length))
+
+
+def _candidates(table: np.ndarray, counted: np.ndarray, bands: np.ndarray) -> list[np.ndarray]:
+    """:func:`dark_candidates` of :func:`_band_table`'s table."""
     if table.size == 0:
-        return [np.zeros(0, int) for _ in range(len(light))]
+        return [np.zeros(0, int) for _ in range(len(table))]
     dark = (table[:, bands] < DARK_BAND_LIGHT).sum(axis=2)  # padding is +inf: never dark
     share = dark / np.maximum(counted[bands].sum(axis=1), 1)
     return [bands[(d >= 2) & (s >= DARK_CANDIDATE_SHARE)] for d, s in zip(dark, share, strict=True)]

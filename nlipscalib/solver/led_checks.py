@@ -23,8 +23,7 @@ from ..core.errors import CaptureError
 from ..core.leds import Led, led_shading, tricolor_groups
 from ..core.repeated_frames import (
     DarkBand,
-    dark_bands,
-    dark_candidates,
+    dark_bands_and_candidates,
     dark_everywhere_line,
     dark_line,
     dark_lines,
@@ -215,20 +214,21 @@ def _dark_rows(
     light = image.sum(-1) / np.maximum(model.sum(-1), 1e-12)
     lines = dict(zip(("rows", "columns"), np.divmod(pixels, width), strict=True))
     lengths = {"rows": height, "columns": width}
-    keep = np.ones(pixels.size, bool)
     if everywhere is not None:
         along = lines[everywhere.axis]
         keep = (along < everywhere.rows[0]) | (along >= everywhere.rows[1])
+        light, lines = light[:, keep], {axis: at[keep] for axis, at in lines.items()}
     found: dict[int, DarkBand] = {}
+    candidates = {}
     for axis in ("rows", "columns"):
-        for band in dark_bands(light[:, keep], lines[axis][keep], lengths[axis], axis):
+        bands, candidates[axis] = dark_bands_and_candidates(light, lines[axis], lengths[axis], axis)
+        for band in bands:
             found.setdefault(band.index, band)
-    level = np.median(light[:, keep], axis=1)
+    level = np.median(light, axis=1)
     for axis in ("rows", "columns"):
-        candidates = dark_candidates(light[:, keep], lines[axis][keep], lengths[axis])
-        wanted = {k: bands for k, bands in enumerate(candidates) if bands.size and k not in found}
+        wanted = {k: bands for k, bands in enumerate(candidates[axis]) if bands.size and k not in found}
         if wanted:
-            extent = (int(lines[axis][keep].min()), int(lines[axis][keep].max()) + 1)
+            extent = (int(lines[axis].min()), int(lines[axis].max()) + 1)
             found.update(_short_dark_bands(press, leds, live, axis, wanted, level, extent, everywhere))
     return [found[k]._replace(index=live[k]) for k in sorted(found)]
 
