@@ -115,11 +115,11 @@ def led_check_measured(
     was off), whose samples a solve leaves out for that LED (:func:`.dark_band_mask`); the LED itself is kept."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
-        return [], [], [], None, None
+        return [], [], [], None, None, []
     names = _image_names(press)
     lagged, repeated, everywhere = _repeated_line(press, names)
     jpeg_notes = compression_notes(press) + (
-        [f"{dark_everywhere_line(press.folder, everywhere)}; {DARK_ALL}"] if everywhere else []
+        [f"{dark_everywhere_line(press.folder, everywhere)}; {DARK_ALL.format(everywhere.axis)}"] if everywhere else []
     )
     live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
     image, model, pixels = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
@@ -359,8 +359,9 @@ def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int]
     return lines, sorted([i for i, _ in repeated] + [band.index for band in bands]), everywhere
 
 
-DARK_ALL = "no LED can be left out for it: the normals solved in those rows are wrong"
-"""The tail of the solve's warning about rows dark in every LED image (:func:`.dark_everywhere_line`)."""
+DARK_ALL = "no LED can be left out for it: the normals solved in those {} are wrong"
+"""The tail of the solve's warning about rows (columns: ``DARK_ALL.format(axis)``) dark in every LED image
+(:func:`.dark_everywhere_line`)."""
 REPEATED_REASON = "they hold the light of the LED before them"
 """Why :func:`_said_repeated` leaves repeated and partly lagged LED images out."""
 DARK_DONE = (

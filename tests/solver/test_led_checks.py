@@ -13,6 +13,7 @@ from nlipscalib.solver.led_checks import (
     _samples,
     detected_order,
     led_check,
+    led_check_measured,
     led_mismatch_notes,
     linearity_notes,
     response_slope,
@@ -344,6 +345,13 @@ def test_dark_columns_and_a_few_dark_rows_of_an_led_image_are_named(tmp_path):
     said = [note for note in notes if "are each dark" in note]
     assert len(said) == 1, notes
     assert "led_04.png's rows 30-32 (middle)" in said[0] and "led_09.png's columns 0-19 (left)" in said[0], said
+
+
+def test_the_check_of_too_few_live_leds_says_nothing_in_the_shape_of_every_answer(tmp_path):
+    """With fewer than 3 live LEDs nothing is judged: empty notes, nothing left out, no dark bands (the solve
+    unpacks the six answers whichever path gave them)."""
+    press = _press(tmp_path, "few")
+    assert led_check_measured(press, press.leds, [0, 1]) == ([], [], [], None, None, [])
 
 
 def test_rows_dark_in_every_led_image_are_warned_about_and_no_led_is_left_out(tmp_path):
