@@ -523,7 +523,9 @@ DARK_BAND_LIGHT = 0.25
 LEDs) gives it, relative to its median over the gel, is below this; every LED image at once: their summed light over
 its median over the gel, per 5x5 block. The twin (one bounce, 16 spp; /tmp/keep at 640x480 and 24 presses at
 320x240, deep ones at the frame's edge): 0.965 and above in every band of every LED, 1.00 and above for the sum;
-rows read while no LED was lit 0.00 (s29-darkrows). A synthetic 3 mm dent filling a cropped frame: 0.64."""
+rows read while no LED was lit 0.00 (s29-darkrows). A synthetic 3 mm dent filling a cropped frame: 0.64. Bands of
+columns (a camera turned 90 degrees), the same test: 0.823 and above on /tmp/keep and 18 presses at 320x240, 12 of them
+at the frame's left or right side (a 10 mm cylinder 2.5 mm deep over every row: 0.823; s30-darkcols)."""
 DARK_BAND_SHARE = 0.9
 """Share of a band's samples (or blocks) that must be dark (:data:`DARK_BAND_LIGHT`): a dark band is dark across the
 whole row; a contact's flank turned away from an LED is dark in a part of it (a quantile, not the median: the

@@ -372,7 +372,7 @@ DARK_DONE = (
 
 Why not the LED whole (as s29-darkrows did): the twin's sphere and cube presses (640x480, --roi auto; clean 0.509 /
 0.439 deg) with a band of LED 5's or LED 9's rows or columns dark (3-200 of them, top, middle, bottom, left, right)
-gave a contact AAE of 0.512-0.520 / 0.441-0.452 deg with the LED left out, 0.509-0.514 / 0.436-0.441 with only its
+gave a contact AAE of 0.512-0.520 / 0.441-0.452 deg with the LED left out, 0.508-0.514 / 0.436-0.441 with only its
 band's rows left out (benchmarks/RESULTS.md, s30-darkcols)."""
 
 
