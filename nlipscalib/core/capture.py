@@ -115,6 +115,7 @@ __all__ = [
     "select_leds",
     "with_led_gains",
     "with_unusable_samples",
+    "unusable_digest",
     "split_reference",
     "white_level_of",
     "write_press",
@@ -333,6 +334,18 @@ def select_leds(press: Press, keep: Sequence[int]) -> Press:
     return Press(**fields)
 
 
+UNUSABLE_DIGEST = "unusable_samples_digest"
+"""Where :func:`with_unusable_samples` leaves a digest of its copy's unusable samples (the instance's ``__dict__``;
+:func:`unusable_digest` reads it)."""
+
+
+def unusable_digest(press: Press) -> str | None:
+    """The digest of the samples :func:`with_unusable_samples` marked in ``press`` (with the saturated ones), or None
+    for a press as loaded: a key of what is computed from those samples adds it (an undeformed capture's indirect
+    fit, kept under its images' digest, must not serve the copy)."""
+    return press.__dict__.get(UNUSABLE_DIGEST)
+
+
 def with_unusable_samples(press: Press, unusable: np.ndarray) -> Press:
     """``press`` whose :attr:`Press.saturated_led_images` also marks the samples ``unusable``: what a solve leaves
     out per LED, pixel and channel (its data term, its contact map, the interreflection term fitted on it) is
@@ -357,6 +370,10 @@ def with_unusable_samples(press: Press, unusable: np.ndarray) -> Press:
     samples = press.saturated_led_images | np.asarray(unusable, bool)[..., None]
     samples.setflags(write=False)
     masked.__dict__["saturated_led_images"] = samples  # the cached property's slot: read as computed
+    from .diskcache import digest
+
+    # what names the copy apart from ``press`` where a result computed from its samples is kept (an indirect fit)
+    masked.__dict__[UNUSABLE_DIGEST] = digest(np.packbits(samples))
     if "linear_led_images" in press.__dict__:  # computed already: the same images
         masked.__dict__["linear_led_images"] = press.__dict__["linear_led_images"]
     return masked

@@ -116,7 +116,7 @@ def led_check_measured(
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
         return [], [], [], None, None, []
-    names = _image_names(press)
+    names = image_names(press)
     lagged, repeated, everywhere = _repeated_line(press, names)
     jpeg_notes = compression_notes(press) + (
         [f"{dark_everywhere_line(press.folder, everywhere)}; {DARK_ALL.format(everywhere.axis)}"] if everywhere else []
@@ -187,8 +187,8 @@ def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[Da
 
 DENSE_LINE_SAMPLES = 100
 """Samples a pixel row (column) gets, about, where :func:`_dark_rows` looks for a band shorter than
-:data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` bands (every ``width // 100``-th gel pixel of the row: 128-160
-at 640x480, 106-160 at 320x240)."""
+:data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` bands (every ``width // 100``-th gel pixel of the row,
+``height // 100``-th of the column: ~107 a row and ~120 a column at 640x480 and at 320x240)."""
 
 
 def _dark_rows(
@@ -325,7 +325,7 @@ def reordered(press: Press, order: Sequence[int]) -> Press:
 def reorder_note(press: Press, order: Sequence[int], flag: str, fit: bool = False) -> str:
     """The warning of a solve (``fit``: an LED calibration) that uses the LED images in the ``order`` they show
     (:func:`detected_order`)."""
-    names = _image_names(press)
+    names = image_names(press)
     moved = ", ".join(
         f"{names[i]} (image {i + 1} of images.leds) as LED {j + 1}" for j, i in enumerate(order) if i != j
     )
@@ -366,7 +366,7 @@ REPEATED_REASON = "they hold the light of the LED before them"
 """Why :func:`_said_repeated` leaves repeated and partly lagged LED images out."""
 DARK_DONE = (
     f"; left out of the solve for that LED only, with {tolerances.DARK_BAND_MARGIN} rows (columns) either side "
-    "(read while it was off, they are no light of its), the rest of its image used"
+    "(read while it was off, they hold none of its light), the rest of its image used"
 )
 """What the solve does about an LED image's dark rows (:func:`.dark_line`'s ``done``).
 
@@ -609,7 +609,7 @@ def _sampled_at(
     return image[:, lit], (albedo * shading)[:, lit], index[lit]
 
 
-def _image_names(press: Press) -> list[str]:
+def image_names(press: Press) -> list[str]:
     """The LED images' file names as meta.json lists them (LED ``i`` at ``i``), or "image i" when they cannot be
     matched (an LED subset)."""
     names = (press.meta.get("images") or {}).get("leds")
@@ -726,7 +726,7 @@ def exposure_drift_note(
     if drift is None or np.abs(np.log(drift)).max() <= np.log1p(tolerances.EXPOSURE_DRIFT):
         return None
     worst = int(np.unravel_index(np.argmax(np.abs(np.log(drift))), drift.shape)[0])
-    names = _image_names(press)
+    names = image_names(press)
     return (
         f"{press.folder}: the LED images are {drift.min():.2f}-{drift.max():.2f} times as bright as the undeformed "
         f"capture's {reference.folder} (per LED and channel, relative to their median; {names[worst]} the most "
@@ -835,7 +835,7 @@ def model_gain_check(
         return [], None
     gains = np.ones((len(press.leds), 3))
     gains[live] = found[:, None]
-    names = _image_names(press)
+    names = image_names(press)
     which = ", ".join(f"LED {i + 1} ({names[i]}) {gains[i, 0]:.2f}" for i in range(len(gains)) if gains[i, 0] != 1)
     return [
         f"{press.folder}: LEDs give other shares of the light the LED model expects than the rest, beyond the "

@@ -251,6 +251,10 @@ def test_unusable_samples_join_the_saturated_ones_in_a_copy_of_the_press(tmp_pat
     np.testing.assert_array_equal(masked.saturated_led_images, expected)
     assert masked.saturated_led_images[0, 0, 0].all() and not masked.saturated_led_images.flags.writeable
     assert not press.saturated_led_images[1, 3:6].any() and masked.led_images is press.led_images
+    # what is computed from the samples is kept apart: the copy carries their digest, a loaded press none
+    assert capture.unusable_digest(press) is None and capture.unusable_digest(masked) is not None
+    other = np.zeros_like(unusable)
+    assert capture.unusable_digest(capture.with_unusable_samples(press, other)) != capture.unusable_digest(masked)
 
 
 def test_a_file_replaced_after_the_press_was_loaded_is_not_read_into_it(tmp_path):

@@ -329,6 +329,33 @@ def test_dark_top_rows_of_an_led_image_are_named_and_only_those_rows_left_out_fo
     assert not any("read the frame out" in note or "repeats" in note or "weak" in note for note in rep["warnings"])
 
 
+def test_dark_rows_of_the_undeformed_capture_are_named_and_left_out_for_that_led_there_and_in_the_press(tmp_path):
+    """The undeformed capture a press is solved against (``indirect``, ``--reference``) with LED 9's top 20 rows read
+    while it was off: nothing was said (the twin's sphere press against such a capture, LED 5's top 60 rows: contact
+    AAE 0.622 deg, clean 0.509, "misfitting pixels along the gel's edge ... vignetting"); now the capture's rows are
+    named with the fix, and left out for LED 9 in both captures (0.509): the solve's usable LEDs there one fewer."""
+    options = SolverOptions(max_iters=2)
+    press = _press(tmp_path, "pressed")
+    clean = solve_press(press, indirect=load_press(synth.make_press(tmp_path / "undeformed", "none")), options=options)
+    dark = load_press(synth.make_press(tmp_path / "undeformed_dark", "none", lin_hook=_rows_from({8: None}, 20)))
+    result = solve_press(press, indirect=dark, options=options)
+    rep = result.report
+    said = [note for note in rep["warnings"] if "in the undeformed capture the press is solved against" in note]
+    assert len(said) == 1 and said[0].startswith(f"{dark.folder}: led_09.png's rows 0-19 (top) are dark"), said
+    assert rep["undeformed_dark_bands_left_out"] == [{"led": 8, "rows": [0, 20], "margin": tolerances.DARK_BAND_MARGIN}]
+    assert "dark_bands_left_out" not in rep and "undeformed_dark_bands_left_out" not in clean.report
+    fewer = clean.usable_leds.astype(int) - result.usable_leds
+    edge = 20 + tolerances.DARK_BAND_MARGIN
+    inside = result.mask & clean.mask
+    assert (fewer[:edge][inside[:edge]] == 1).all() and (fewer[edge:][inside[edge:]] == 0).all()
+    # its interreflection fit, kept under the capture's content, is not the unmasked capture's
+    from nlipscalib.core.capture import with_unusable_samples
+    from nlipscalib.solver.light_and_contact import capture_key
+
+    masked = with_unusable_samples(dark, np.zeros((12, *dark.camera.shape), bool))
+    assert capture_key(masked) != capture_key(dark)
+
+
 def test_dark_columns_and_a_few_dark_rows_of_an_led_image_are_named(tmp_path):
     """A camera mounted turned 90 degrees: its rolling shutter reads the columns, and LED 9's first 20 columns were
     read while it was off; a short glitch darkened LED 4's rows 30-32 (under the 15 rows of the bands). Neither was
