@@ -114,6 +114,8 @@ __all__ = [
     "read_optics",
     "select_leds",
     "with_led_gains",
+    "with_unusable_samples",
+    "unusable_digest",
     "split_reference",
     "white_level_of",
     "write_press",
@@ -192,7 +194,8 @@ class Press:
     def saturated_led_images(self) -> np.ndarray:
         """(L, H, W, 3) bool, read-only -- :meth:`saturated` of ``led_images``, computed once per press (a solve
         reads it in the contact classification, the indirect fit of a press on itself and the solve itself:
-        ~4 ms each at 640x480 with 12 LEDs, two of them on two threads at once)."""
+        ~4 ms each at 640x480 with 12 LEDs, two of them on two threads at once). The samples a solve leaves out
+        per LED: :func:`with_unusable_samples` adds others (an LED image's rows read while its LED was off)."""
         saturated = self.saturated(self.led_images)
         saturated.setflags(write=False)
         return saturated
@@ -331,6 +334,51 @@ def select_leds(press: Press, keep: Sequence[int]) -> Press:
     fields = {field.name: press.__dict__[field.name] for field in dataclasses.fields(press)}
     fields.update(leds=tuple(press.leds[i] for i in keep), led_images=press.led_images[keep])
     return Press(**fields)
+
+
+UNUSABLE_DIGEST = "unusable_samples_digest"
+"""Where :func:`with_unusable_samples` leaves a digest of its copy's unusable samples (the instance's ``__dict__``;
+:func:`unusable_digest` reads it)."""
+
+
+def unusable_digest(press: Press) -> str | None:
+    """The digest of the samples :func:`with_unusable_samples` marked in ``press`` (with the saturated ones), or None
+    for a press as loaded: a key of what is computed from those samples adds it (an undeformed capture's indirect
+    fit, kept under its images' digest, must not serve the copy)."""
+    return press.__dict__.get(UNUSABLE_DIGEST)
+
+
+def with_unusable_samples(press: Press, unusable: np.ndarray) -> Press:
+    """``press`` whose :attr:`Press.saturated_led_images` also marks the samples ``unusable``: what a solve leaves
+    out per LED, pixel and channel (its data term, its contact map, the interreflection term fitted on it) is
+    what that mask says, whatever the cause.
+
+    Why: an LED image with a band of rows read while its LED was off (:mod:`nlipscalib.core.repeated_frames`)
+    holds no light of that LED there, and its light everywhere else; the solve's own exclusion of saturated
+    samples leaves out just those samples, with no new path through the solver.
+
+    Parameters
+    ----------
+    press : Press
+    unusable : (L, H, W) bool -- per LED image and pixel (every channel).
+
+    Returns
+    -------
+    Press -- a copy, its other fields ``press``'s own; its saturated samples (``saturated_led_images``) are
+    ``press``'s or ``unusable``.
+    """
+    fields = {field.name: press.__dict__[field.name] for field in dataclasses.fields(press)}
+    masked = Press(**fields)
+    samples = press.saturated_led_images | np.asarray(unusable, bool)[..., None]
+    samples.setflags(write=False)
+    masked.__dict__["saturated_led_images"] = samples  # the cached property's slot: read as computed
+    from .diskcache import digest
+
+    # what names the copy apart from ``press`` where a result computed from its samples is kept (an indirect fit)
+    masked.__dict__[UNUSABLE_DIGEST] = digest(np.packbits(samples))
+    if "linear_led_images" in press.__dict__:  # computed already: the same images
+        masked.__dict__["linear_led_images"] = press.__dict__["linear_led_images"]
+    return masked
 
 
 def with_led_gains(press: Press, gains: np.ndarray) -> Press:

@@ -18,7 +18,10 @@ Dark rows (:func:`dark_bands`, :func:`dark_everywhere`): rows read while no LED 
 off early, against the readout; a global-reset sensor's exposure that missed the LED in some rows) hold the dark
 frame's level, not the previous LED's light. One LED's dark band is told from its own light's terminator by the LED
 model (the solve's :func:`nlipscalib.solver.led_checks.led_check` feeds :func:`dark_bands` its samples); rows dark in
-every LED image by the images alone (the LEDs together light the whole gel).
+every LED image by the images alone (the LEDs together light the whole gel). Columns alike (a camera mounted turned 90
+degrees: its rolling shutter reads the image's columns); bands shorter than the samples' bands of rows tell
+(:func:`dark_candidates`) are told row by row on denser samples (:func:`dark_lines`). A solve leaves out an LED's dark
+band for that LED only (:func:`dark_band_mask`).
 """
 
 from __future__ import annotations
@@ -30,8 +33,11 @@ import numpy as np
 from .tolerances import (
     CAPTURE_CHECK_BLUR,
     DARK_BAND_LIGHT,
+    DARK_BAND_MARGIN,
     DARK_BAND_ROWS,
     DARK_BAND_SHARE,
+    DARK_CANDIDATE_SHARE,
+    DARK_LINES_MIN,
     EXPOSURE_LIGHT_FRACTION,
     LAGGED_BAND_ROWS,
     REPEATED_FRAME_DIFFERENCE,
@@ -44,6 +50,9 @@ MIN_LIT_ROW_BLOCKS = 8
 MIN_ROW_SAMPLES = 8
 """Fewest samples a band of :data:`CAPTURE_CHECK_BLUR` rows needs to count in :func:`dark_bands` (the solve's
 ~2000 gel samples give ~20 a band at 640x480, ~40 at 320x240)."""
+MIN_LINE_SAMPLES = 16
+"""Fewest dense samples a pixel row (column) needs to count in :func:`dark_lines` (the solve samples ~100 a row:
+:data:`nlipscalib.solver.led_checks.DENSE_LINE_SAMPLES`)."""
 
 
 class LaggedBand(NamedTuple):
@@ -58,14 +67,17 @@ class LaggedBand(NamedTuple):
 
 
 class DarkBand(NamedTuple):
-    """Rows of an LED image (or of every one) at the dark frame's level: read while no LED was lit."""
+    """Rows (or columns) of an LED image (or of every one) at the dark frame's level: read while no LED was lit."""
 
     index: int | None
     """The LED image, 0-based in capture order; None: every LED image (:func:`dark_everywhere`)."""
     rows: tuple[int, int]
-    """First and one-past-last pixel row of the band (to :data:`CAPTURE_CHECK_BLUR` pixels)."""
+    """First and one-past-last pixel row (``axis`` "columns": column) of the band: to :data:`CAPTURE_CHECK_BLUR`
+    pixels (:func:`dark_bands`), to the pixel (:func:`dark_lines`)."""
     where: str
-    """"top", "bottom" or "middle" of the rows that count."""
+    """"top", "bottom" or "middle" of the rows that count; "left", "right" or "middle" of the columns."""
+    axis: str = "rows"
+    """"rows", or "columns": a camera mounted turned 90 degrees, its rolling shutter reading the image's columns."""
 
 
 def repeated_leds(linear: np.ndarray, gel: np.ndarray) -> list[tuple[int, float]]:
@@ -118,10 +130,10 @@ def frame_checks(
 
 
 def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | None:
-    """Rows of blocks dark in every LED image: the LEDs' summed light below
+    """Rows (else columns) of blocks dark in every LED image: the LEDs' summed light below
     :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT` of its median over the gel in
-    :data:`~nlipscalib.core.tolerances.DARK_BAND_SHARE` of the row's blocks in a run of
-    :data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` rows or more (not all of them).
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_SHARE` of the row's (column's) blocks in a run of
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` rows (columns) or more (not all of them).
 
     Why the images alone suffice: the LEDs together light the whole gel (each LED's own light may end at its
     terminator; a contact's shadow from every LED at once is a small hole, not whole rows).
@@ -138,44 +150,177 @@ def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | 
     if len(blocks) < 2:
         return None
     total = np.sum(blocks, axis=0)
-    rows = np.flatnonzero(inside.sum(axis=1) >= MIN_LIT_ROW_BLOCKS)
-    if len(rows) <= DARK_BAND_ROWS:
-        return None
-    level = float(np.median(total[inside]))
+    level = float(np.median(total[inside])) if inside.any() else 0.0
     if not level > 0:
         return None
-    most = _row_quantiles(total[rows] / level, inside[rows], DARK_BAND_SHARE)
-    return _dark_run(most < DARK_BAND_LIGHT, rows, None)
+    for axis, light, counted in (("rows", total, inside), ("columns", total.T, inside.T)):
+        lines = np.flatnonzero(counted.sum(axis=1) >= MIN_LIT_ROW_BLOCKS)
+        if len(lines) <= DARK_BAND_ROWS:
+            continue
+        most = _row_quantiles(light[lines] / level, counted[lines], DARK_BAND_SHARE)
+        if band := _dark_run(most < DARK_BAND_LIGHT, lines, None, axis):
+            return band
+    return None
 
 
-def dark_bands(light: np.ndarray, rows: np.ndarray, height: int) -> list[DarkBand]:
-    """The LED images with a band of rows far below the light they should hold: read while their LED was not lit.
+def dark_bands(light: np.ndarray, lines: np.ndarray, length: int, axis: str = "rows") -> list[DarkBand]:
+    """The LED images with a band of rows (or columns) far below the light they should hold: read while their LED
+    was not lit.
 
     Per LED, the samples' ``light`` over its median below :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT` in
     :data:`~nlipscalib.core.tolerances.DARK_BAND_SHARE` of the samples of each band of
     :data:`~nlipscalib.core.tolerances.CAPTURE_CHECK_BLUR` rows (with :data:`MIN_ROW_SAMPLES` samples or more), in a
     run of
     :data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` bands or more, not all of them, at the top, the bottom or in
-    the middle (a global-reset sensor's exposure that missed the LED in some rows).
+    the middle (a global-reset sensor's exposure that missed the LED in some rows). Shorter bands:
+    :func:`dark_candidates` and :func:`dark_lines`.
 
     Parameters
     ----------
     light : (L, N) float -- each LED's image at N gel samples over the light expected there (the LED model with a
         per-pixel albedo fitted over the LEDs: :func:`nlipscalib.solver.led_checks.led_check`); 1 as modelled.
-    rows : (N,) int -- the samples' pixel rows.
-    height : int -- the image's rows.
+    lines : (N,) int -- the samples' pixel rows (``axis`` "columns": columns).
+    length : int -- the image's rows (columns).
+    axis : "rows" or "columns" -- what ``lines`` count (the names in the result).
 
     Returns
     -------
     list of DarkBand -- one per LED image with a dark band (its longest), in order; empty when none has one.
     """
+    return dark_bands_and_candidates(light, lines, length, axis)[0]
+
+
+def dark_bands_and_candidates(
+    light: np.ndarray, lines: np.ndarray, length: int, axis: str = "rows"
+) -> tuple[list[DarkBand], list[np.ndarray]]:
+    """:func:`dark_bands` and :func:`dark_candidates` of the same samples, their bands' table made once."""
+    table, counted, bands = _band_table(light, lines, length)
+    found = []
+    for index, values in enumerate(table):
+        most = _row_quantiles(values[bands], counted[bands], DARK_BAND_SHARE)
+        if dark := _dark_run(most < DARK_BAND_LIGHT, bands, index, axis):
+            found.append(dark)
+    return found, _candidates(table, counted, bands)
+
+
+def dark_candidates(light: np.ndarray, lines: np.ndarray, length: int) -> list[np.ndarray]:
+    """Per LED, the bands of :data:`~nlipscalib.core.tolerances.CAPTURE_CHECK_BLUR` rows (columns) whose samples may
+    hide a dark band shorter than :func:`dark_bands` can tell: :data:`~nlipscalib.core.tolerances.DARK_CANDIDATE_SHARE`
+    of them or more (and two or more) below :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT`. Why: one row in
+    five dark leaves the band's 90 % quantile lit; :func:`dark_lines` then looks at those rows pixel by pixel.
+
+    Parameters
+    ----------
+    light, lines, length : as :func:`dark_bands`'s.
+
+    Returns
+    -------
+    list (L) of (k,) int -- the candidate bands (band ``b``: pixel rows ``b * CAPTURE_CHECK_BLUR`` on), ascending;
+    all empty when too few bands hold samples (as :func:`dark_bands`).
+    """
+    return _candidates(*_band_table(light, lines, length))
+
+
+def _candidates(table: np.ndarray, counted: np.ndarray, bands: np.ndarray) -> list[np.ndarray]:
+    """:func:`dark_candidates` of :func:`_band_table`'s table."""
+    if table.size == 0:
+        return [np.zeros(0, int) for _ in range(len(table))]
+    dark = (table[:, bands] < DARK_BAND_LIGHT).sum(axis=2)  # padding is +inf: never dark
+    share = dark / np.maximum(counted[bands].sum(axis=1), 1)
+    return [bands[(d >= 2) & (s >= DARK_CANDIDATE_SHARE)] for d, s in zip(dark, share, strict=True)]
+
+
+def dark_lines(
+    light: np.ndarray, lines: np.ndarray, extent: tuple[int, int], index: int, axis: str = "rows"
+) -> DarkBand | None:
+    """One LED image's dark band to the pixel row (column), from samples dense along the rows :func:`dark_candidates`
+    named: the rows whose samples' ``light`` is below :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT` in
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_SHARE` of them (:data:`MIN_LINE_SAMPLES` or more a row), in a
+    run of :data:`~nlipscalib.core.tolerances.DARK_LINES_MIN` rows or more (the longest run).
+
+    Parameters
+    ----------
+    light : (n,) float -- the LED's light over the modelled light at the dense samples, relative to the LED's
+        median over the gel (:func:`dark_bands`' ``light``'s scale).
+    lines : (n,) int -- the samples' pixel rows (columns).
+    extent : (first, stop) -- the rows (columns) the gel's samples span: a band from ``first`` is "top" ("left"),
+        one to ``stop`` "bottom" ("right").
+    index : int -- the LED image (0-based), for the result.
+    axis : "rows" or "columns".
+
+    Returns
+    -------
+    DarkBand or None.
+    """
+    lines = np.asarray(lines)
+    if lines.size == 0:
+        return None
+    first = int(lines.min())
+    count = np.bincount(lines - first)
+    order = np.argsort(lines, kind="stable")
+    slot = np.arange(len(order)) - np.repeat(np.cumsum(count) - count, count)
+    table = np.full((len(count), max(int(count.max()), 1)), np.inf)
+    table[lines[order] - first, slot] = np.asarray(light, np.float64)[order]
+    counted = np.zeros(table.shape, bool)
+    counted[lines[order] - first, slot] = True
+    kept = np.flatnonzero(count >= MIN_LINE_SAMPLES)
+    if kept.size == 0:
+        return None
+    dark = _row_quantiles(table[kept], counted[kept], DARK_BAND_SHARE) < DARK_BAND_LIGHT
+    # runs of dark lines among consecutive counted lines (a line without samples ends a run)
+    run_id = np.cumsum(np.concatenate([[1], (np.diff(kept) != 1) | ~dark[1:] | ~dark[:-1]]))
+    best = None
+    for rid in np.unique(run_id[dark]):
+        members = kept[(run_id == rid) & dark]
+        if best is None or len(members) > len(best):
+            best = members
+    if best is None or len(best) < DARK_LINES_MIN:
+        return None
+    start, stop = int(best[0]) + first, int(best[-1]) + first + 1
+    ends = ("top", "bottom") if axis == "rows" else ("left", "right")
+    where = ends[0] if start <= extent[0] else ends[1] if stop >= extent[1] else "middle"
+    return DarkBand(index, (start, stop), where, axis)
+
+
+def dark_band_mask(bands: list[DarkBand], leds: list[int], shape: tuple[int, int]) -> np.ndarray:
+    """The samples an LED image's dark band leaves without its LED's light: its rows (columns) and
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_MARGIN` either side, for that LED only.
+
+    Parameters
+    ----------
+    bands : list of DarkBand -- with ``index`` an LED (0-based, capture order; :func:`dark_bands`, :func:`dark_lines`).
+    leds : list of int -- the LEDs of the images the mask is for (0-based), in their order; a band of another LED
+        is left out.
+    shape : (H, W) -- the image's rows and columns.
+
+    Returns
+    -------
+    (len(leds), H, W) bool -- True where the sample is to be left out.
+    """
+    mask = np.zeros((len(leds), *shape), bool)
+    at = {led: k for k, led in enumerate(leds)}
+    for band in bands:
+        if band.index not in at:
+            continue
+        lines = slice(max(0, band.rows[0] - DARK_BAND_MARGIN), band.rows[1] + DARK_BAND_MARGIN)
+        if band.axis == "rows":
+            mask[at[band.index], lines] = True
+        else:
+            mask[at[band.index], :, lines] = True
+    return mask
+
+
+def _band_table(light: np.ndarray, lines: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each LED's ``light`` (L, N) over its median, the samples of each band of :data:`CAPTURE_CHECK_BLUR` lines side
+    by side (padded with +inf): (L, bands, most) float64; which entries are samples (bands, most) bool; and the
+    bands that count (:data:`MIN_ROW_SAMPLES` samples or more), or none when :data:`DARK_BAND_ROWS` or fewer do."""
     b = CAPTURE_CHECK_BLUR
     light = np.asarray(light, np.float64)
-    band = np.asarray(rows) // b
-    count = np.bincount(band, minlength=-(-height // b))
+    band = np.asarray(lines) // b
+    count = np.bincount(band, minlength=-(-length // b))
     bands = np.flatnonzero(count >= MIN_ROW_SAMPLES)
     if len(bands) <= DARK_BAND_ROWS or light.size == 0:
-        return []
+        return np.zeros((len(light), 0, 0)), np.zeros((0, 0), bool), np.zeros(0, int)
     # each band's samples side by side (padded): one sort gives every band's median, every LED at once
     order = np.argsort(band, kind="stable")
     slot = np.arange(len(order)) - np.repeat(np.cumsum(count) - count, count)
@@ -185,16 +330,11 @@ def dark_bands(light: np.ndarray, rows: np.ndarray, height: int) -> list[DarkBan
     table[:, band[order], slot] = light[:, order] / np.where(level > 0, level, np.nan)
     counted = np.zeros(table.shape[1:], bool)
     counted[band[order], slot] = True
-    found = []
-    for index, values in enumerate(table):
-        most = _row_quantiles(values[bands], counted[bands], DARK_BAND_SHARE)
-        if dark := _dark_run(most < DARK_BAND_LIGHT, bands, index):
-            found.append(dark)
-    return found
+    return table, counted, bands
 
 
-def _dark_run(dark: np.ndarray, bands: np.ndarray, index: int | None) -> DarkBand | None:
-    """The longest run of ``dark`` among the counted ``bands`` (rows of blocks, ascending) when it is
+def _dark_run(dark: np.ndarray, bands: np.ndarray, index: int | None, axis: str = "rows") -> DarkBand | None:
+    """The longest run of ``dark`` among the counted ``bands`` (rows or columns of blocks, ascending) when it is
     :data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` long or more and not all of them."""
     if dark.all() or not dark.any():
         return None
@@ -204,9 +344,10 @@ def _dark_run(dark: np.ndarray, bands: np.ndarray, index: int | None) -> DarkBan
     start, stop = int(starts[longest]), int(stops[longest])
     if stop - start < DARK_BAND_ROWS:
         return None
-    where = "top" if start == 0 else "bottom" if stop == len(dark) else "middle"
+    ends = ("top", "bottom") if axis == "rows" else ("left", "right")
+    where = ends[0] if start == 0 else ends[1] if stop == len(dark) else "middle"
     b = CAPTURE_CHECK_BLUR
-    return DarkBand(index, (int(bands[start]) * b, (int(bands[stop - 1]) + 1) * b), where)
+    return DarkBand(index, (int(bands[start]) * b, (int(bands[stop - 1]) + 1) * b), where, axis)
 
 
 def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBand]:
@@ -325,31 +466,54 @@ DARK_CAUSE = (
     "window)"
 )
 """The cause of dark rows (:func:`dark_line`, :func:`dark_everywhere_line`, the LED calibration's refusal)."""
-DARK_FIX = (
-    f"{DARK_CAUSE}; capture again with --flush 1 or more (frames dropped after each LED change, default 2) and each "
-    "LED lit over the whole frame time"
+DARK_CAUSE_COLUMNS = (
+    "no LED was lit while the camera read (or exposed) those columns: the LED switched on late, or off early, "
+    "against the readout (a camera mounted turned 90 degrees: its rolling shutter reads the image's columns one "
+    "after another)"
 )
+"""The cause of dark columns (:func:`dark_cause`)."""
+DARK_FIX_TAIL = (
+    "capture again with --flush 1 or more (frames dropped after each LED change, default 2) and each LED lit over the "
+    "whole frame time"
+)
+"""The fix of dark rows or columns."""
+DARK_FIX = f"{DARK_CAUSE}; {DARK_FIX_TAIL}"
 """The cause and fix of dark rows, shared by :func:`dark_line` and :func:`dark_everywhere_line`."""
 
 
-def dark_line(folder: object, names: list[str], bands: list[DarkBand]) -> str:
-    """One line naming the LED images (``names`` in capture order) with dark rows (:func:`dark_bands`), their rows,
-    the cause and the fix."""
-    said = ", ".join(f"{names[band.index]}'s rows {_rows(band)}" for band in bands)
+def dark_line(folder: object, names: list[str], bands: list[DarkBand], done: str = "") -> str:
+    """One line naming the LED images (``names`` in capture order) with dark rows or columns (:func:`dark_bands`,
+    :func:`dark_lines`), their rows, the cause and the fix; ``done``: what the solve does about them, appended."""
+    said = ", ".join(f"{names[band.index]}'s {dark_span(band)}" for band in bands)
     return (
         f"{folder}: {said} {'are' if len(bands) == 1 else 'are each'} dark (under {DARK_BAND_LIGHT:g} of the light "
-        f"the LED model and the other LEDs give them: the dark frame's level, or a very dim LED): {DARK_FIX}"
+        f"the LED model and the other LEDs give them: the dark frame's level, or a very dim LED): "
+        f"{dark_fix(bands)}{done}"
     )
 
 
 def dark_everywhere_line(folder: object, band: DarkBand) -> str:
-    """One line naming the rows dark in every LED image (:func:`dark_everywhere`), the cause and the fix."""
+    """One line naming the rows (columns) dark in every LED image (:func:`dark_everywhere`), the cause and the fix."""
     return (
-        f"{folder}: rows {_rows(band)} of every LED image are dark (the LEDs' light there under {DARK_BAND_LIGHT:g} "
-        f"of its median over the gel: the dark frame's level): {DARK_FIX}"
+        f"{folder}: {dark_span(band)} of every LED image are dark (the LEDs' light there under {DARK_BAND_LIGHT:g} "
+        f"of its median over the gel: the dark frame's level): {dark_fix([band])}"
     )
 
 
-def _rows(band: DarkBand) -> str:
-    """'first-last (where)' of a dark band's pixel rows."""
-    return f"{band.rows[0]}-{band.rows[1] - 1} ({band.where})"
+def dark_cause(bands: list[DarkBand]) -> str:
+    """:data:`DARK_CAUSE`, or its words for columns when every band is of columns (a camera turned 90 degrees)."""
+    if bands and all(band.axis == "columns" for band in bands):
+        return DARK_CAUSE_COLUMNS
+    return DARK_CAUSE
+
+
+def dark_fix(bands: list[DarkBand]) -> str:
+    """:data:`DARK_FIX`, or its words for columns (:func:`dark_cause`)."""
+    return DARK_FIX if dark_cause(bands) == DARK_CAUSE else f"{DARK_CAUSE_COLUMNS}; {DARK_FIX_TAIL}"
+
+
+def dark_span(band: DarkBand) -> str:
+    """'rows first-last (where)' (or 'columns ...') of a dark band's pixel rows (columns)."""
+    first, last = band.rows[0], band.rows[1] - 1
+    span = f"{band.axis} {first}-{last}" if last > first else f"{band.axis[:-1]} {first}"
+    return f"{span} ({band.where})"

@@ -523,11 +523,28 @@ DARK_BAND_LIGHT = 0.25
 LEDs) gives it, relative to its median over the gel, is below this; every LED image at once: their summed light over
 its median over the gel, per 5x5 block. The twin (one bounce, 16 spp; /tmp/keep at 640x480 and 24 presses at
 320x240, deep ones at the frame's edge): 0.965 and above in every band of every LED, 1.00 and above for the sum;
-rows read while no LED was lit 0.00 (s29-darkrows). A synthetic 3 mm dent filling a cropped frame: 0.64."""
+rows read while no LED was lit 0.00 (s29-darkrows). A synthetic 3 mm dent filling a cropped frame: 0.64. Bands of
+columns (a camera turned 90 degrees), the same test: 0.823 and above on /tmp/keep and 18 presses at 320x240, 12 of them
+at the frame's left or right side (a 10 mm cylinder 2.5 mm deep over every row: 0.823; s30-darkcols)."""
 DARK_BAND_SHARE = 0.9
 """Share of a band's samples (or blocks) that must be dark (:data:`DARK_BAND_LIGHT`): a dark band is dark across the
 whole row; a contact's flank turned away from an LED is dark in a part of it (a quantile, not the median: the
 twin's median over a band goes down to 0.82 on the presses above)."""
+DARK_CANDIDATE_SHARE = 0.15
+"""A band of :data:`CAPTURE_CHECK_BLUR` rows (columns) of an LED image is looked at pixel row by pixel row when this
+share of its samples (two or more) is dark (:data:`DARK_BAND_LIGHT`;
+:func:`nlipscalib.core.repeated_frames.dark_candidates`): one dark row in five leaves ~20 % of a band's samples dark
+(~4 samples a row at 640x480, ~8 at 320x240). Set low on purpose: the pixel rows' own test decides."""
+DARK_LINES_MIN = 2
+"""Fewest pixel rows (columns) in a run for a band shorter than :data:`DARK_BAND_ROWS` bands to be called dark, each
+with :data:`DARK_BAND_SHARE` of its ~100 samples under :data:`DARK_BAND_LIGHT`
+(:func:`nlipscalib.core.repeated_frames.dark_lines`). One row alone is left to the solve's shadow test: a single
+line is what a dead sensor row or a transmission glitch gives, not an LED switched against the readout."""
+DARK_BAND_MARGIN = 5
+"""Pixel rows (columns) either side of an LED image's dark band that the solve leaves out with it, for that LED
+(:func:`nlipscalib.core.repeated_frames.dark_band_mask`): the bands of 15 rows or more are found to
+:data:`CAPTURE_CHECK_BLUR` rows, and an LED switching during the readout ramps its light over a few rows (a dim
+edge that is neither dark nor the LED's light)."""
 LINEAR_RESPONSE_SLOPE = 0.7
 """LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
 each pixel's value grows as the LED model's light, direct plus the fitted indirect term, to a power below this, in

@@ -124,23 +124,22 @@ def led_cause(
 
 
 def _dark_rows_of(press: Press, leds: Leds, k: int) -> str | None:
-    """Words naming LED ``k``'s (0-based) rows at the dark frame's level where the fitted ``leds`` light them
-    (:func:`.led_checks.dark_rows`), None when it has none.
+    """Words naming LED ``k``'s (0-based) rows (or columns) at the dark frame's level where the fitted ``leds`` light
+    them (:func:`.led_checks.dark_rows`), None when it has none.
 
     Why here, after the fit, and not before it as the solve does: before it the LEDs are the design's, and an LED far
     from its design ends its light where the design's would not (the synthetic ring: dark top rows in 2 of 12
     images, s28-rolling); the fitted LEDs light what the LEDs lit. The twin's undeformed capture with LED 5's top 60
     rows dark was refused naming LED 5's mounting (s29-darkrows)."""
-    from ..core.repeated_frames import DARK_CAUSE
+    from ..core.repeated_frames import dark_cause, dark_span
     from .led_checks import dark_rows
 
     band = next((b for b in dark_rows(press, leds, range(len(leds))) if b.index == k), None)
     if band is None:
         return None
     return (
-        f"whose rows {band.rows[0]}-{band.rows[1] - 1} ({band.where}) are dark (the dark frame's level, or a very "
-        f"dim LED, where the fitted LED lights them): {DARK_CAUSE}; keep each LED lit over the whole frame time "
-        "(--flush 1 or more)"
+        f"whose {dark_span(band)} are dark (the dark frame's level, or a very dim LED, where the fitted LED lights "
+        f"them): {dark_cause([band])}; keep each LED lit over the whole frame time (--flush 1 or more)"
     )
 
 

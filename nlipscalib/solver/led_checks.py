@@ -23,9 +23,10 @@ from ..core.errors import CaptureError
 from ..core.leds import Led, led_shading, tricolor_groups
 from ..core.repeated_frames import (
     DarkBand,
-    dark_bands,
+    dark_bands_and_candidates,
     dark_everywhere_line,
     dark_line,
+    dark_lines,
     frame_checks,
     lagged_line,
     repeated_line,
@@ -81,9 +82,10 @@ def led_check(
     -------
     notes : list of str -- empty when every live LED image matches its LED.
     left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
-        :data:`WEAK_LED_GAIN`, or their image repeats the one before (whole or in some rows) or has a band of rows at
-        the dark frame's level (:func:`.dark_bands`); empty when leaving them out would leave fewer than
-        ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about).
+        :data:`WEAK_LED_GAIN`, or their image repeats the one before (whole or in some rows); empty when leaving
+        them out would leave fewer than ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about). An image
+        with a band of rows (columns) at the dark frame's level is not left out: only those rows
+        (:func:`led_check_measured`).
     misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
     order : list of int, or None -- for each LED (0-based), the image (0-based, the capture's order) that shows its
         light, when the misplaced images are a clean pair or cycle (:func:`detected_order`); None otherwise.
@@ -107,25 +109,26 @@ class MeasuredGains:
 
 def led_check_measured(
     press: Press, leds: Sequence[Led], live: Sequence[int]
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None]:
-    """:func:`led_check`, and the relative gains it measured on the LEDs it judged (:class:`MeasuredGains`; None
-    when it sampled none)."""
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand]]:
+    """:func:`led_check`, the relative gains it measured on the LEDs it judged (:class:`MeasuredGains`; None
+    when it sampled none), and the LED images' dark bands (:func:`_dark_rows`: rows or columns read while the LED
+    was off), whose samples a solve leaves out for that LED (:func:`.dark_band_mask`); the LED itself is kept."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
-        return [], [], [], None, None
-    names = _image_names(press)
+        return [], [], [], None, None, []
+    names = image_names(press)
     lagged, repeated, everywhere = _repeated_line(press, names)
     jpeg_notes = compression_notes(press) + (
-        [f"{dark_everywhere_line(press.folder, everywhere)}; {DARK_ALL}"] if everywhere else []
+        [f"{dark_everywhere_line(press.folder, everywhere)}; {DARK_ALL.format(everywhere.axis)}"] if everywhere else []
     )
     live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
-    image, model, rows = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
+    image, model, pixels = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
     if image is None:
         left_out = _leave_out(repeated, len(live) + len(repeated))
-        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None, None
+        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None, None, []
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
-    dark = _dark_rows(image, model, rows, live, press.camera.height, everywhere)
+    dark = _dark_rows(press, leds, image, model, pixels, live, everywhere)
     judged = [k for k, i in enumerate(live) if i not in {band.index for band in dark}]
     off = []
     relative = _relative_gains(image, model, judged)
@@ -155,10 +158,10 @@ def led_check_measured(
                 )
         elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
             off.append((i, relative[k]))
-    darkened = [band.index for band in dark]
-    left_out = _leave_out([i for i, _ in off] + repeated + darkened, len(live) + len(repeated))
-    dark_notes = [dark_line(press.folder, names, dark)] if dark else []
-    notes = _said_repeated(lagged, left_out) + _said_repeated(dark_notes, left_out, DARK_REASON) + notes
+    left_out = _leave_out([i for i, _ in off] + repeated, len(live) + len(repeated))
+    dark = [band for band in dark if band.index not in left_out]
+    dark_notes = [dark_line(press.folder, names, dark, DARK_DONE)] if dark else []
+    notes = _said_repeated(lagged, left_out) + dark_notes + notes
     for i, share in off:
         what = "weak LED?" if share < 1 else "brighter than the others"
         done = "left out of the solve and of --roi auto" if left_out else "used (too few LEDs to leave it out)"
@@ -168,36 +171,111 @@ def led_check_measured(
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
     measured = MeasuredGains(tuple(live), relative)
-    return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured
+    return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured, dark
 
 
 def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[DarkBand]:
-    """The LED images (of the 0-based LEDs ``live``) with a band of rows at the dark frame's level where the LED model
-    ``leds`` lights the undeformed dome (:func:`.dark_bands`), ``index`` the LED's; empty without a surface or lit
-    samples. :func:`led_check` finds them from its own samples."""
+    """The LED images (of the 0-based LEDs ``live``) with a band of rows (or columns) at the dark frame's level where
+    the LED model ``leds`` lights the undeformed dome (:func:`_dark_rows`), ``index`` the LED's; empty without a
+    surface or lit samples. :func:`led_check` finds them from its own samples."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
         return []
-    image, model, rows = _sampled(press, leds, live)
-    return [] if image is None else _dark_rows(image, model, rows, live, press.camera.height, None)
+    image, model, pixels = _sampled(press, leds, live)
+    return [] if image is None else _dark_rows(press, leds, image, model, pixels, live, None)
+
+
+DENSE_LINE_SAMPLES = 100
+"""Samples a pixel row (column) gets, about, where :func:`_dark_rows` looks for a band shorter than
+:data:`~nlipscalib.core.tolerances.DARK_BAND_ROWS` bands (every ``width // 100``-th gel pixel of the row,
+``height // 100``-th of the column: ~107 a row and ~120 a column at 640x480 and at 320x240)."""
 
 
 def _dark_rows(
-    image: np.ndarray, model: np.ndarray, rows: np.ndarray, live: list[int], height: int, everywhere: DarkBand | None
+    press: Press,
+    leds: Sequence[Led],
+    image: np.ndarray,
+    model: np.ndarray,
+    pixels: np.ndarray,
+    live: list[int],
+    everywhere: DarkBand | None,
 ) -> list[DarkBand]:
-    """:func:`.dark_bands` of the sampled LED images (``image``, ``model``: :func:`_sampled`'s, of the LEDs
-    ``live``), their ``index`` the LED's (0-based), outside the rows dark in every image (``everywhere``: there the
-    albedo fitted to the dark frame's noise models noise).
+    """The LED images with a band of rows, else of columns (a camera turned 90 degrees), at the dark frame's level:
+    :func:`.dark_bands` of the sampled LED images (``image``, ``model``, ``pixels``: :func:`_sampled`'s, of the LEDs
+    ``live``), and for the LEDs without one, the shorter bands that :func:`.dark_candidates` points to, told pixel
+    row by pixel row (:func:`.dark_lines`) on samples dense along those rows (:data:`DENSE_LINE_SAMPLES`); their
+    ``index`` the LED's (0-based), outside the rows dark in every image (``everywhere``: there the albedo fitted to
+    the dark frame's noise models noise).
 
     Why the LED model: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
     from their design: dark top rows in 2 of 12 images, s28-rolling); the samples lie where every LED lights the
     gel directly, so rows the model lights and the image does not were read while the LED was off."""
+    height, width = press.camera.shape
     light = image.sum(-1) / np.maximum(model.sum(-1), 1e-12)
+    lines = dict(zip(("rows", "columns"), np.divmod(pixels, width), strict=True))
+    lengths = {"rows": height, "columns": width}
     if everywhere is not None:
-        keep = (rows < everywhere.rows[0]) | (rows >= everywhere.rows[1])
-        light, rows = light[:, keep], rows[keep]
-    found = dark_bands(light, rows, height)
-    return [band._replace(index=live[band.index]) for band in found]
+        along = lines[everywhere.axis]
+        keep = (along < everywhere.rows[0]) | (along >= everywhere.rows[1])
+        light, lines = light[:, keep], {axis: at[keep] for axis, at in lines.items()}
+    found: dict[int, DarkBand] = {}
+    candidates = {}
+    for axis in ("rows", "columns"):
+        bands, candidates[axis] = dark_bands_and_candidates(light, lines[axis], lengths[axis], axis)
+        for band in bands:
+            found.setdefault(band.index, band)
+    level = np.median(light, axis=1)
+    for axis in ("rows", "columns"):
+        wanted = {k: bands for k, bands in enumerate(candidates[axis]) if bands.size and k not in found}
+        if wanted:
+            extent = (int(lines[axis].min()), int(lines[axis].max()) + 1)
+            found.update(_short_dark_bands(press, leds, live, axis, wanted, level, extent, everywhere))
+    return [found[k]._replace(index=live[k]) for k in sorted(found)]
+
+
+def _short_dark_bands(
+    press: Press,
+    leds: Sequence[Led],
+    live: list[int],
+    axis: str,
+    wanted: dict[int, np.ndarray],
+    level: np.ndarray,
+    extent: tuple[int, int],
+    everywhere: DarkBand | None,
+) -> dict[int, DarkBand]:
+    """:func:`.dark_lines` of the LEDs ``wanted`` (positions in ``live`` -> their candidate bands of
+    :data:`~nlipscalib.core.tolerances.CAPTURE_CHECK_BLUR` rows or columns, :func:`.dark_candidates`), on samples
+    dense along those rows (columns) and one band either side; ``level``: each LED's median light over the
+    modelled light on the check's own samples (the dense samples' scale)."""
+    b = tolerances.CAPTURE_CHECK_BLUR
+    length = press.camera.shape[0 if axis == "rows" else 1]
+    near = np.zeros(length, bool)
+    for bands in wanted.values():
+        for band in bands:
+            near[max(0, (band - 1) * b) : (band + 2) * b] = True
+    if everywhere is not None and everywhere.axis == axis:
+        near[everywhere.rows[0] : everywhere.rows[1]] = False
+    gel = np.isfinite(press.reference.depth)
+    gel = gel if axis == "rows" else gel.T
+    chosen = np.flatnonzero(near)
+    step = max(1, gel.shape[1] // DENSE_LINE_SAMPLES)
+    at, across = np.nonzero(gel[chosen, ::step])
+    at, across = chosen[at], across * step
+    index = at * press.camera.width + across if axis == "rows" else across * press.camera.width + at
+    image, model, pixels = _sampled_at(press, leds, live, np.sort(index))
+    if image is None:
+        return {}
+    light = image.sum(-1) / np.maximum(model.sum(-1), 1e-12) / np.where(level > 0, level, np.nan)[:, None]
+    lines = np.divmod(pixels, press.camera.width)[0 if axis == "rows" else 1]
+    found = {}
+    for k, bands in wanted.items():
+        mine = np.zeros(length, bool)
+        for band in bands:
+            mine[max(0, (band - 1) * b) : (band + 2) * b] = True
+        where = mine[lines]
+        if dark := dark_lines(light[k, where], lines[where], extent, k, axis):
+            found[k] = dark
+    return found
 
 
 def detected_order_of(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[int] | None:
@@ -247,7 +325,7 @@ def reordered(press: Press, order: Sequence[int]) -> Press:
 def reorder_note(press: Press, order: Sequence[int], flag: str, fit: bool = False) -> str:
     """The warning of a solve (``fit``: an LED calibration) that uses the LED images in the ``order`` they show
     (:func:`detected_order`)."""
-    names = _image_names(press)
+    names = image_names(press)
     moved = ", ".join(
         f"{names[i]} (image {i + 1} of images.leds) as LED {j + 1}" for j, i in enumerate(order) if i != j
     )
@@ -281,17 +359,26 @@ def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int]
     return lines, sorted([i for i, _ in repeated] + [band.index for band in bands]), everywhere
 
 
-DARK_ALL = "no LED can be left out for it: the normals solved in those rows are wrong"
-"""The tail of the solve's warning about rows dark in every LED image (:func:`.dark_everywhere_line`)."""
+DARK_ALL = "no LED can be left out for it: the normals solved in those {} are wrong"
+"""The tail of the solve's warning about rows (columns: ``DARK_ALL.format(axis)``) dark in every LED image
+(:func:`.dark_everywhere_line`)."""
 REPEATED_REASON = "they hold the light of the LED before them"
 """Why :func:`_said_repeated` leaves repeated and partly lagged LED images out."""
-DARK_REASON = "their rows read while the LED was off are no light of theirs"
-"""Why :func:`_said_repeated` leaves LED images with dark rows out."""
+DARK_DONE = (
+    f"; left out of the solve for that LED only, with {tolerances.DARK_BAND_MARGIN} rows (columns) either side "
+    "(read while it was off, they hold none of its light), the rest of its image used"
+)
+"""What the solve does about an LED image's dark rows (:func:`.dark_line`'s ``done``).
+
+Why not the LED whole (as s29-darkrows did): the twin's sphere and cube presses (640x480, --roi auto; clean 0.509 /
+0.439 deg) with a band of LED 5's or LED 9's rows or columns dark (3-200 of them, top, middle, bottom, left, right)
+gave a contact AAE of 0.512-0.520 / 0.441-0.452 deg with the LED left out, 0.508-0.514 / 0.436-0.441 with only its
+band's rows left out (benchmarks/RESULTS.md, s30-darkcols)."""
 
 
 def _said_repeated(lines: list[str], left_out: list[int], reason: str = REPEATED_REASON) -> list[str]:
-    """The warnings of :func:`_repeated_line`'s ``lines`` (or the dark rows'), saying whether the solve leaves those
-    LEDs out (not when too few LEDs would be left: :func:`_leave_out`), and ``reason``."""
+    """The warnings of :func:`_repeated_line`'s ``lines``, saying whether the solve leaves those LEDs out (not when
+    too few LEDs would be left: :func:`_leave_out`), and ``reason``."""
     done = "left out of the solve" if left_out else "used (too few LEDs to leave them out)"
     return [f"{line}; {done} ({reason})" for line in lines]
 
@@ -482,7 +569,7 @@ def response_slope(image: np.ndarray, model: np.ndarray) -> float | None:
 def _samples(
     press: Press, leds: Sequence[Led], live: list[int], indirect: Sequence[np.ndarray] | None = None
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """:func:`_sampled`'s images and modelled light, without the rows."""
+    """:func:`_sampled`'s images and modelled light, without the pixels."""
     return _sampled(press, leds, live, indirect)[:2]
 
 
@@ -491,12 +578,22 @@ def _sampled(
 ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """The live LED images and their modelled light (albedo fitted per pixel and channel over the live LEDs; with
     ``indirect``, each LED's (H, W, 3) indirect light per unit albedo added to its direct shading) on a subgrid of
-    the gel: two (L_live, N, 3) float64 arrays and the samples' (N,) pixel rows, or Nones when too few gel pixels
-    are lit."""
-    ref = press.reference
-    gel = np.isfinite(ref.depth)
-    index = np.flatnonzero(gel)
+    the gel: two (L_live, N, 3) float64 arrays and the samples' (N,) flat pixel indices, or Nones when too few gel
+    pixels are lit."""
+    index = np.flatnonzero(np.isfinite(press.reference.depth))
     index = index[:: max(1, index.size // CHECK_PIXELS)]  # every k-th gel pixel in raster order
+    return _sampled_at(press, leds, live, index, indirect)
+
+
+def _sampled_at(
+    press: Press,
+    leds: Sequence[Led],
+    live: list[int],
+    index: np.ndarray,
+    indirect: Sequence[np.ndarray] | None = None,
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """:func:`_sampled` at the gel pixels ``index`` ((n,) int, flat, row-major)."""
+    ref = press.reference
     if index.size < 10:
         return None, None, None
     depth = ref.depth.reshape(-1)[index].astype(float)
@@ -515,10 +612,10 @@ def _sampled(
     lit = (direct > 0).all(axis=(0, 2)) & (albedo > 0).all(axis=1)
     if lit.sum() < 10:
         return None, None, None
-    return image[:, lit], (albedo * shading)[:, lit], rows[lit]
+    return image[:, lit], (albedo * shading)[:, lit], index[lit]
 
 
-def _image_names(press: Press) -> list[str]:
+def image_names(press: Press) -> list[str]:
     """The LED images' file names as meta.json lists them (LED ``i`` at ``i``), or "image i" when they cannot be
     matched (an LED subset)."""
     names = (press.meta.get("images") or {}).get("leds")
@@ -635,7 +732,7 @@ def exposure_drift_note(
     if drift is None or np.abs(np.log(drift)).max() <= np.log1p(tolerances.EXPOSURE_DRIFT):
         return None
     worst = int(np.unravel_index(np.argmax(np.abs(np.log(drift))), drift.shape)[0])
-    names = _image_names(press)
+    names = image_names(press)
     return (
         f"{press.folder}: the LED images are {drift.min():.2f}-{drift.max():.2f} times as bright as the undeformed "
         f"capture's {reference.folder} (per LED and channel, relative to their median; {names[worst]} the most "
@@ -744,7 +841,7 @@ def model_gain_check(
         return [], None
     gains = np.ones((len(press.leds), 3))
     gains[live] = found[:, None]
-    names = _image_names(press)
+    names = image_names(press)
     which = ", ".join(f"LED {i + 1} ({names[i]}) {gains[i, 0]:.2f}" for i in range(len(gains)) if gains[i, 0] != 1)
     return [
         f"{press.folder}: LEDs give other shares of the light the LED model expects than the rest, beyond the "

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..core import diskcache
-from ..core.capture import Press
+from ..core.capture import Press, unusable_digest
 from ..core.errors import ShapeError
 from . import reuse
 from .contact import ContactMap, classify_contact, prepare_press_side
@@ -162,7 +162,7 @@ def _indirect_fitter(sources: Sources, shading: reuse.Deferred | None) -> _Indir
         def first():
             model = reuse.reused(
                 "fit",
-                (_capture_key(ref_capture), leds, interreflection, bounces),
+                (capture_key(ref_capture), leds, interreflection, bounces),
                 lambda: fit(exclude=None, iterations=3),
                 persist=True,
             )
@@ -190,7 +190,7 @@ one-bounce 640x480 presses sphere / cube / coin): 1 warm 8e-3 / 3e-2 / 9e-3, 2 w
 0 2.6e-5 / 2.4e-5 / 1.7e-5; 4 from kappa = 0 1e-6 / 5e-7 / 4e-7 (benchmarks/RESULTS.md, s20-fixed)."""
 
 
-def _capture_key(capture: Press) -> tuple:
+def capture_key(capture: Press) -> tuple:
     """What an indirect fit reads of a capture, named by content: camera, response, a digest of the stored
     images (:meth:`Press.images_digest`) and of the reference surface, and the sensor design (the dome beyond
     the view). A fit on the undeformed dome is the sensor's, so it is kept for later presses and processes
@@ -206,7 +206,10 @@ def _capture_key(capture: Press) -> tuple:
         ref = capture.reference
         surface = reuse.digest(ref.depth, ref.normals)
         design = diskcache.stable_key(design_of(capture))
-        return capture.camera, capture.response, capture.images_digest(), surface, design
+        masked = unusable_digest(capture)  # samples left out (an LED image's dark rows): another fit
+        return (capture.camera, capture.response, capture.images_digest(), surface, design) + (
+            () if masked is None else (masked,)
+        )
 
     return reuse.reused("capture key", id(capture), key, keep=capture)
 
@@ -216,7 +219,7 @@ def _undeformed_images(capture: Press) -> reuse.Deferred:
     under its content key: the contact classification's blur of them (0.13-0.25 s at 640x480) names them by that
     key and is kept on disk for the next process (``contact._smoothed_undeformed``), which then does not
     linearise them at all (a 44 MB array at 640x480 with 12 LEDs)."""
-    return reuse.deferred("undeformed capture", _capture_key(capture), lambda: capture.linear_led_images)
+    return reuse.deferred("undeformed capture", capture_key(capture), lambda: capture.linear_led_images)
 
 
 def _contact(

@@ -38,9 +38,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core import said_once, tolerances
-from ..core.capture import Press, as_press, select_leds, with_led_gains
+from ..core.capture import Press, as_press, select_leds, with_led_gains, with_unusable_samples
 from ..core.errors import CaptureError, ShapeError
+from ..core.repeated_frames import DarkBand, dark_band_mask, dark_line
 from ..progress import PRESS_DETAIL
+from . import reuse
 from .anchoring import anchor_weights, widen_to_anchor
 from .camera_shift import shift_note
 from .contact import ContactMap
@@ -51,8 +53,10 @@ from .image_stats import led_levels, lit_leds
 from .interreflection import compensate
 from .led_checks import (
     MeasuredGains,
+    dark_rows,
     exposure_drift_note,
     exposure_ratio,
+    image_names,
     led_check_measured,
     led_gains,
     linearity_notes,
@@ -62,7 +66,7 @@ from .led_checks import (
     reorder_note,
     reordered,
 )
-from .light_and_contact import REFIT_ALTERNATIONS, Sources, light_and_contact, split_indirect
+from .light_and_contact import REFIT_ALTERNATIONS, Sources, capture_key, light_and_contact, split_indirect
 from .nlips import SolveResult, solve
 from .options import SolverOptions
 from .outer_loop import FILL_ROWS, UPDATE_ROWS, BoxCompensation, OuterLoop, led_channel_sum
@@ -105,9 +109,9 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
     keep_order = not kwargs.pop("reorder_leds", True)
     checks = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"), say=False)
-    led_notes, left_out, misplaced, order, measured = checks
+    led_notes, left_out, misplaced, order, measured, dark = checks
     if order is not None and not keep_order:  # the images' own order: the physics is right again
-        press, kwargs, led_notes, left_out, misplaced, measured = _in_detected_order(press, kwargs, order)
+        press, kwargs, led_notes, left_out, misplaced, measured, dark = _in_detected_order(press, kwargs, order)
     else:
         for note in led_notes:
             log.warning("%s", note)
@@ -116,6 +120,11 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
         log.warning("%s", moved)
         led_notes.append(moved)
+    undeformed_dark = _undeformed_dark_bands(press, kwargs)
+    if undeformed_dark:
+        note = dark_line(kwargs["indirect"].folder, image_names(kwargs["indirect"]), undeformed_dark, UNDEFORMED_DARK)
+        _say_once_per_session(note, f"undeformed dark bands\0{kwargs['indirect'].folder}")
+        led_notes.append(note)
     gains = None
     if isinstance(kwargs.get("indirect"), Press):
         ratio = exposure_ratio(press, kwargs["indirect"])
@@ -132,7 +141,12 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             log.info("%s: LED images rescaled by %s", press.folder, np.round(gains, 3).tolist(), extra=PRESS_DETAIL)
             press = with_led_gains(press, gains)
     elif press.reference is not None:  # no undeformed capture: LEDs aged on their own, against the LED model
-        live = [i for i in _live_leds(press, kwargs.get("options")) if i not in left_out and i not in misplaced]
+        darkened = {band.index for band in dark}  # off the model in their dark rows: no gain measured on them
+        live = [
+            i
+            for i in _live_leds(press, kwargs.get("options"))
+            if i not in left_out and i not in misplaced and i not in darkened
+        ]
         # the weak-LED check's samples of the same LEDs, when it judged these: measured once
         aged, gains = model_gain_check(press, _model_leds(press, kwargs.get("leds")), live, measured)
         led_notes.extend(aged)
@@ -143,6 +157,12 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
         press, kwargs = _without_leds(press, kwargs, keep)
+    if dark or undeformed_dark:  # rows (columns) read while their LED was off: left out for that LED, as saturated
+        # samples are; the undeformed capture's too, there and in the press (nothing to compare the press with there)
+        press = with_unusable_samples(press, dark_band_mask(dark + undeformed_dark, keep, press.camera.shape))
+    if undeformed_dark:
+        mask = dark_band_mask(undeformed_dark, keep, press.camera.shape)
+        kwargs["indirect"] = with_unusable_samples(kwargs["indirect"], mask)
     result = _solve_press(press, **kwargs)
     drift = _median_displacement(result, press)
     options = kwargs.get("options") or SolverOptions()
@@ -168,6 +188,12 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
             if key in result.report:
                 result.report[key] = [keep[i] for i in result.report[key]]
         result.report["leds_left_out"] = left_out
+    for key, bands in (("dark_bands_left_out", dark), ("undeformed_dark_bands_left_out", undeformed_dark)):
+        if bands:
+            result.report[key] = [
+                {"led": band.index, band.axis: [band.rows[0], band.rows[1]], "margin": tolerances.DARK_BAND_MARGIN}
+                for band in bands
+            ]
     if order is not None:
         result.report["led_order"] = order if not keep_order else list(range(len(order)))
         result.report["leds_reordered"] = not keep_order
@@ -215,11 +241,11 @@ KEEP_ORDER_FLAG = "--keep-led-order"
 
 def _in_detected_order(
     press: Press, kwargs: dict, order: list[int]
-) -> tuple[Press, dict, list[str], list, list, MeasuredGains | None]:
+) -> tuple[Press, dict, list[str], list, list, MeasuredGains | None, list[DarkBand]]:
     """The press with its LED images in the ``order`` they show (:func:`.led_checks.detected_order`), the undeformed
     capture given (``indirect``) likewise when its own images show the same order (the same wiring), and the
-    warnings, LEDs to leave out, misplaced LEDs and measured gains of the reordered press (its checks made again,
-    logged).
+    warnings, LEDs to leave out, misplaced LEDs, measured gains and dark bands of the reordered press (its checks
+    made again, logged).
 
     Why: two swapped LED images of the twin's cube press were solved as captured to a contact AAE of 6.1 deg after a
     warning that named the pair; the image labelled 3 was lit by LED 7, so solving it as LED 7's is the physics."""
@@ -236,8 +262,8 @@ def _in_detected_order(
         if its_order == order:
             kwargs["indirect"] = reordered(indirect, order)
     press = reordered(press, order)
-    notes, left_out, misplaced, _, measured = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
-    return press, kwargs, [note, *notes], left_out, misplaced, measured
+    notes, left_out, misplaced, _, measured, dark = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"))
+    return press, kwargs, [note, *notes], left_out, misplaced, measured, dark
 
 
 LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
@@ -246,11 +272,12 @@ LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
 
 def _capture_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None]:
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand]]:
     """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
     when it holds light) and :func:`.led_checks.led_check` of its live LEDs; the LEDs to leave out and those whose
-    images show another LED's light (0-based), the order the images show (None: theirs, or not clear) and the LEDs'
-    light against the model as the check measured it (:class:`.led_checks.MeasuredGains`, or None).
+    images show another LED's light (0-based), the order the images show (None: theirs, or not clear), the LEDs'
+    light against the model as the check measured it (:class:`.led_checks.MeasuredGains`, or None) and the LED
+    images' dark bands (rows or columns read while the LED was off, :class:`.repeated_frames.DarkBand`).
     Made before the solve, so a solve that then fails has said why first."""
     notes = []
     if fault := dark_frame_fault(press):
@@ -260,22 +287,54 @@ def _capture_notes(
         if say:
             log.warning("%s", message)
         notes.append(message)
-    led_notes, left_out, misplaced, order, measured = _led_notes(press, leds, options, say)
-    return notes + led_notes, left_out, misplaced, order, measured
+    led_notes, left_out, misplaced, order, measured, dark = _led_notes(press, leds, options, say)
+    return notes + led_notes, left_out, misplaced, order, measured, dark
 
 
 def _led_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None]:
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand]]:
     """:func:`.led_checks.led_check_measured` of the press's live LEDs, each note logged as a warning (``say``)."""
     leds = _model_leds(press, leds)
     if press.reference is None or len(leds) != len(press.leds):
-        return [], [], [], None, None  # no undeformed dome to model; a wrong LED count is refused by the solve
+        return [], [], [], None, None, []  # no undeformed dome to model; a wrong LED count is refused by the solve
     live = _live_leds(press, options)
-    notes, left_out, misplaced, order, measured = led_check_measured(press, leds, live)
+    notes, left_out, misplaced, order, measured, dark = led_check_measured(press, leds, live)
     for note in notes if say else ():
         log.warning("%s", note)
-    return notes, left_out, misplaced, order, measured
+    return notes, left_out, misplaced, order, measured, dark
+
+
+UNDEFORMED_DARK = (
+    "; in the undeformed capture the press is solved against: capture the undeformed dome again; until then those "
+    f"rows (columns), with {tolerances.DARK_BAND_MARGIN} more either side, are left out for that LED, there and in "
+    "the press"
+)
+"""What the solve does about dark rows of the undeformed capture (``--reference``; :func:`.dark_line`'s ``done``).
+
+Why: the twin's sphere press (640x480, --roi auto) solved against an undeformed capture with LED 5's top 60 rows dark
+gave a contact AAE of 0.622 deg (0.509 against the clean capture), with "--roi auto left out 39680 misfitting pixels
+along the gel's edge (... vignetting ...)": the interreflection term fitted on it and the contact map compare with
+light it does not hold. Those rows left out for LED 5 in both: 0.509 (benchmarks/RESULTS.md, s30-darkcols)."""
+
+
+def _undeformed_dark_bands(press: Press, kwargs: dict) -> list[DarkBand]:
+    """The undeformed capture's (``kwargs["indirect"]``, a Press with a surface) LED images' dark bands
+    (:func:`.led_checks.dark_rows` of its live LEDs against the solve's LED model), once per capture's content and
+    LED model (~4 ms, and its images' decoding); [] without one, or when its LEDs are not the press's."""
+    undeformed = kwargs.get("indirect")
+    if not isinstance(undeformed, Press) or undeformed.reference is None:
+        return []
+    leds = _model_leds(press, kwargs.get("leds"))
+    if len(undeformed.leds) != len(leds) or undeformed.camera.shape != press.camera.shape:
+        return []
+
+    def bands() -> list[DarkBand]:
+        return dark_rows(undeformed, leds, _live_leds(undeformed, kwargs.get("options")))
+
+    # kept on disk under the capture's content, as its interreflection fit: a warm solve never decodes its images
+    level = (kwargs.get("options") or SolverOptions()).dead_led_level
+    return reuse.reused("undeformed dark bands", (capture_key(undeformed), leds, level), bands, persist=True)
 
 
 def _model_leds(press: Press, leds: Leds | None) -> tuple:

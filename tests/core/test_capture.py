@@ -234,6 +234,29 @@ def test_a_press_masks_its_saturated_led_samples_once_read_only(tmp_path):
     assert press.saturated_led_images is mask and not mask.flags.writeable
 
 
+def test_unusable_samples_join_the_saturated_ones_in_a_copy_of_the_press(tmp_path):
+    """``with_unusable_samples`` (an LED image's rows read while its LED was off, left out of the solve for that LED:
+    s30-darkcols): the copy's ``saturated_led_images`` are the press's and the given samples, on every channel,
+    read-only; the press itself and its images are unchanged."""
+    cam = Camera.from_fov(W, H, 90.0)
+    leds = [Led(position=(float(i), 0.0, 0.0)) for i in range(2)]
+    images = np.random.default_rng(2).integers(0, 60000, size=(2, H, W, 3), dtype=np.uint16)
+    images[0, 0, 0] = 65535  # clipped
+    dark = np.zeros((H, W, 3), np.uint16)
+    press = load_press(write_press(tmp_path / "p", cam, leds, SensorResponse(), dark, images, dark))
+    unusable = np.zeros((2, H, W), bool)
+    unusable[1, 3:6] = True
+    masked = capture.with_unusable_samples(press, unusable)
+    expected = press.saturated_led_images | unusable[..., None]
+    np.testing.assert_array_equal(masked.saturated_led_images, expected)
+    assert masked.saturated_led_images[0, 0, 0].all() and not masked.saturated_led_images.flags.writeable
+    assert not press.saturated_led_images[1, 3:6].any() and masked.led_images is press.led_images
+    # what is computed from the samples is kept apart: the copy carries their digest, a loaded press none
+    assert capture.unusable_digest(press) is None and capture.unusable_digest(masked) is not None
+    other = np.zeros_like(unusable)
+    assert capture.unusable_digest(capture.with_unusable_samples(press, other)) != capture.unusable_digest(masked)
+
+
 def test_a_file_replaced_after_the_press_was_loaded_is_not_read_into_it(tmp_path):
     """The tri-colour image and the ground truth are read at first use: one replaced since the load (the folder
     rendered again) would mix two presses in one object, so the read is refused, naming the file."""

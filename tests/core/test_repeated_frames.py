@@ -2,7 +2,14 @@
 
 import numpy as np
 
-from nlipscalib.core.repeated_frames import DarkBand, dark_bands, frame_checks, repeated_leds
+from nlipscalib.core.repeated_frames import (
+    DarkBand,
+    dark_bands,
+    dark_candidates,
+    dark_lines,
+    frame_checks,
+    repeated_leds,
+)
 from nlipscalib.core.tolerances import REPEATED_FRAME_DIFFERENCE
 
 H, W, L = 40, 48, 8
@@ -60,3 +67,47 @@ def test_rows_dark_in_every_led_image_are_found_by_the_images_alone():
     images[:, :15] = rng.normal(0, 1e-3, (L, 15, W, 3))  # a readout before any LED lit
     repeated, bands, dark = frame_checks(images, gel)
     assert dark == DarkBand(None, (0, 15), "top") and repeated == [] and bands == []
+
+
+def test_a_band_of_dark_columns_is_found_as_columns_and_not_as_rows():
+    """A camera turned 90 degrees reads the image's columns one after another: LED 1's columns 40-69 read while it
+    was off are named as columns (middle); binned by rows the same samples hold no dark band."""
+    rng = np.random.default_rng(3)
+    rows = np.repeat(np.arange(120), 100)
+    cols = np.tile(np.arange(100), 120)
+    light = 1 + rng.normal(0, 0.02, (3, rows.size))
+    light[1, (cols >= 40) & (cols < 70)] = 0.0
+    assert dark_bands(light, cols, 100, "columns") == [DarkBand(1, (40, 70), "middle", "columns")]
+    assert dark_bands(light, rows, 120) == []
+
+
+def test_a_dark_band_of_a_few_rows_is_a_candidate_and_is_found_to_the_pixel_row():
+    """Three rows (61-63) of LED 2 read while it was off: too short for the bands of five rows (their 90 % quantile
+    stays lit), a candidate band there, and found to the row on samples dense along the rows; one dark row alone,
+    or rows dark over half their width (a contact's flank), are not."""
+    rng = np.random.default_rng(4)
+    rows = np.repeat(np.arange(120), 20)
+    light = 1 + rng.normal(0, 0.02, (3, rows.size))
+    light[2, (rows >= 61) & (rows < 64)] = 0.0
+    assert dark_bands(light, rows, 120) == []
+    candidates = dark_candidates(light, rows, 120)
+    assert candidates[0].size == 0 and candidates[1].size == 0 and set(candidates[2]) <= {12}
+    dense_rows = np.repeat(np.arange(55, 70), 100)
+    dense = 1 + rng.normal(0, 0.02, dense_rows.size)
+    dense[(dense_rows >= 61) & (dense_rows < 64)] = 0.0
+    assert dark_lines(dense, dense_rows, (0, 120), 2) == DarkBand(2, (61, 64), "middle")
+    one = np.where((dense_rows >= 62) & (dense_rows < 64), 1 + rng.normal(0, 0.02, dense.size), dense)
+    assert dark_lines(one, dense_rows, (0, 120), 2) is None
+    half = 1 + rng.normal(0, 0.02, dense_rows.size)
+    half[(dense_rows >= 61) & (dense_rows < 64) & (np.arange(dense.size) % 100 < 50)] = 0.0
+    assert dark_lines(half, dense_rows, (0, 120), 2) is None
+    assert dark_lines(dense, dense_rows, (61, 120), 2, "columns") == DarkBand(2, (61, 64), "left", "columns")
+
+
+def test_columns_dark_in_every_led_image_are_found_by_the_images_alone():
+    rng = np.random.default_rng(5)
+    gel = np.ones((H, W), bool)
+    images = _ring(rng)
+    assert frame_checks(images, gel)[2] is None
+    images[:, :, 30:] = rng.normal(0, 1e-3, (L, H, W - 30, 3))  # a camera turned 90 degrees, read before any LED lit
+    assert frame_checks(images, gel)[2] == DarkBand(None, (30, 45), "right", "columns")  # to the 5-pixel block

@@ -7,12 +7,13 @@ import shutil
 import numpy as np
 import pytest
 
-from nlipscalib.core import load_press
+from nlipscalib.core import load_press, tolerances
 from nlipscalib.solver import SolverOptions, solve_press
 from nlipscalib.solver.led_checks import (
     _samples,
     detected_order,
     led_check,
+    led_check_measured,
     led_mismatch_notes,
     linearity_notes,
     response_slope,
@@ -303,20 +304,81 @@ def test_an_led_image_read_out_across_the_switch_is_named_with_its_rows_and_left
     assert rep["leds_left_out"] == [4] and said[0] in caplog.text
 
 
-def test_dark_top_rows_of_an_led_image_are_named_with_their_rows_and_left_out(tmp_path, caplog):
+def test_dark_top_rows_of_an_led_image_are_named_and_only_those_rows_left_out_for_that_led(tmp_path, caplog):
     """LED 9's top 20 rows read while it was off (the dark frame's level): solved without a word about it, or with a
     wrong cause (the twin's presses, LED 5's top 20-60 rows: "misfitting pixels along the gel's edge ... vignetting";
-    its top 200 rows: refused as another sensor's images; s29-darkrows); now the rows, the cause and the fix are named
-    and the LED is left out. Not taken for a readout across the switch, for a repeat or for a weak LED."""
+    its top 200 rows: refused as another sensor's images; s29-darkrows); the rows, the cause and the fix are named.
+    Then s29 left the LED out whole; now only its rows 0-19 and DARK_BAND_MARGIN more are left out, for LED 9 alone:
+    the solve's usable LEDs there are one fewer than in the clean press's solve, and the same below. Not taken for a
+    readout across the switch, for a repeat or for a weak LED."""
+    options = SolverOptions(max_iters=2)
+    clean = solve_press(_press(tmp_path, "clean"), options=options)
     press = _press(tmp_path, "rolling_dark", _rows_from({8: None}, 20))
     with caplog.at_level(logging.WARNING):
-        result = solve_press(press, options=SolverOptions(max_iters=2))
+        result = solve_press(press, options=options)
     rep = result.report
     said = [note for note in rep["warnings"] if "are dark" in note]
     assert len(said) == 1 and "led_09.png's rows 0-19 (top) are dark" in said[0], said
-    assert "--flush" in said[0] and "left out of the solve" in said[0] and said[0] in caplog.text
-    assert rep["leds_left_out"] == [8] and 8 not in rep["leds_used"]
+    assert "--flush" in said[0] and "left out of the solve for that LED only" in said[0] and said[0] in caplog.text
+    assert "leds_left_out" not in rep and 8 in rep["leds_used"]
+    assert rep["dark_bands_left_out"] == [{"led": 8, "rows": [0, 20], "margin": tolerances.DARK_BAND_MARGIN}]
+    fewer = clean.usable_leds.astype(int) - result.usable_leds
+    edge = 20 + tolerances.DARK_BAND_MARGIN
+    inside = result.mask & clean.mask
+    assert (fewer[:edge][inside[:edge]] == 1).all() and (fewer[edge:][inside[edge:]] == 0).all()
     assert not any("read the frame out" in note or "repeats" in note or "weak" in note for note in rep["warnings"])
+
+
+def test_dark_rows_of_the_undeformed_capture_are_named_and_left_out_for_that_led_there_and_in_the_press(tmp_path):
+    """The undeformed capture a press is solved against (``indirect``, ``--reference``) with LED 9's top 20 rows read
+    while it was off: nothing was said (the twin's sphere press against such a capture, LED 5's top 60 rows: contact
+    AAE 0.622 deg, clean 0.509, "misfitting pixels along the gel's edge ... vignetting"); now the capture's rows are
+    named with the fix, and left out for LED 9 in both captures (0.509): the solve's usable LEDs there one fewer."""
+    options = SolverOptions(max_iters=2)
+    press = _press(tmp_path, "pressed")
+    clean = solve_press(press, indirect=load_press(synth.make_press(tmp_path / "undeformed", "none")), options=options)
+    dark = load_press(synth.make_press(tmp_path / "undeformed_dark", "none", lin_hook=_rows_from({8: None}, 20)))
+    result = solve_press(press, indirect=dark, options=options)
+    rep = result.report
+    said = [note for note in rep["warnings"] if "in the undeformed capture the press is solved against" in note]
+    assert len(said) == 1 and said[0].startswith(f"{dark.folder}: led_09.png's rows 0-19 (top) are dark"), said
+    assert rep["undeformed_dark_bands_left_out"] == [{"led": 8, "rows": [0, 20], "margin": tolerances.DARK_BAND_MARGIN}]
+    assert "dark_bands_left_out" not in rep and "undeformed_dark_bands_left_out" not in clean.report
+    fewer = clean.usable_leds.astype(int) - result.usable_leds
+    edge = 20 + tolerances.DARK_BAND_MARGIN
+    inside = result.mask & clean.mask
+    assert (fewer[:edge][inside[:edge]] == 1).all() and (fewer[edge:][inside[edge:]] == 0).all()
+    # its interreflection fit, kept under the capture's content, is not the unmasked capture's
+    from nlipscalib.core.capture import with_unusable_samples
+    from nlipscalib.solver.light_and_contact import capture_key
+
+    masked = with_unusable_samples(dark, np.zeros((12, *dark.camera.shape), bool))
+    assert capture_key(masked) != capture_key(dark)
+
+
+def test_dark_columns_and_a_few_dark_rows_of_an_led_image_are_named(tmp_path):
+    """A camera mounted turned 90 degrees: its rolling shutter reads the columns, and LED 9's first 20 columns were
+    read while it was off; a short glitch darkened LED 4's rows 30-32 (under the 15 rows of the bands). Neither was
+    named before (s29-darkrows: rows of 15 or more only); now both are, with their columns and rows."""
+
+    def hook(lin):
+        lin = lin.copy()
+        lin[8, :, :20] = 0.0
+        lin[3, 30:33] = 0.0
+        return lin
+
+    press = _press(tmp_path, "dark_columns", hook)
+    notes, _, _, _ = led_check(press, press.leds, range(len(press.leds)))
+    said = [note for note in notes if "are each dark" in note]
+    assert len(said) == 1, notes
+    assert "led_04.png's rows 30-32 (middle)" in said[0] and "led_09.png's columns 0-19 (left)" in said[0], said
+
+
+def test_the_check_of_too_few_live_leds_says_nothing_in_the_shape_of_every_answer(tmp_path):
+    """With fewer than 3 live LEDs nothing is judged: empty notes, nothing left out, no dark bands (the solve
+    unpacks the six answers whichever path gave them)."""
+    press = _press(tmp_path, "few")
+    assert led_check_measured(press, press.leds, [0, 1]) == ([], [], [], None, None, [])
 
 
 def test_rows_dark_in_every_led_image_are_warned_about_and_no_led_is_left_out(tmp_path):
