@@ -409,6 +409,15 @@ def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | 
     return gone
 
 
+def removed_leftover(path: str | Path) -> str:
+    """What :func:`clean_interrupted` removed at ``path``, for its log line: "an interrupted write" (a temporary) or
+    "the claim of a run that ended without releasing it (killed)". The claims of a killed ``nlips calibrate`` were
+    logged as "removed an interrupted write", a write that never was."""
+    if Path(path).name.startswith(CLAIM_PREFIX):
+        return "the claim of a run that ended without releasing it (killed)"
+    return "an interrupted write"
+
+
 # ---------------------------------------------------------------------- internals
 VANISHED = "its temporary folder was removed while being written (by another process?); nothing was published"
 

@@ -174,11 +174,11 @@ def clean_interrupted_writes(out: Path, *names: str) -> None:
     Every file here is written atomically under an owner-tagged temporary name (core.atomic); a SIGKILL
     in the middle of a write leaves that temporary, which no later write would otherwise remove.
     """
-    from ..core.atomic import clean_interrupted
+    from ..core.atomic import clean_interrupted, removed_leftover
 
     for name in names or model_file_names(out):
         for gone in clean_interrupted(out.parent, item=name):
-            log.warning("%s: removed an interrupted write", gone)
+            log.warning("%s: removed %s", gone, removed_leftover(gone))
 
 
 def unusable_model_files(out: str | Path, with_onnx: bool) -> str | None:

@@ -752,6 +752,9 @@ def test_a_killed_builds_claims_are_taken_over_and_its_finished_shards_reused(so
     assert "samples of 3 of 3 presses kept" in caplog.text and "waiting" not in caplog.text
     assert CalibrationDataset(built).names == list(NAMES)
     assert not hold.exists() and not shard_claim.exists()
+    # each claim is called a claim: it was logged as "removed an interrupted write", a write that never was
+    assert f"{hold}: removed the claim of a run that ended without releasing it (killed)" in caplog.text
+    assert "interrupted write" not in caplog.text
 
 
 def test_a_shard_another_build_replaced_is_never_mixed_in_and_is_made_again(solved, built, tmp_path, monkeypatch):
