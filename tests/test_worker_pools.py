@@ -95,3 +95,22 @@ def _descendants(pid: int) -> set[int]:
         frontier = {child for child, parent in parents.items() if parent in frontier} - found
         found |= frontier
     return found
+
+
+def test_a_ctrl_c_while_the_solver_pools_forkserver_imports_is_no_traceback(tmp_path):
+    """The forkserver of `nlips solve DATASET --workers N` is in the command's process group and ignored Ctrl-C only
+    once its preload was imported (~1 s): a Ctrl-C then printed a KeyboardInterrupt traceback of its imports among
+    the command's "interrupted" line, and the forkserver died. Now it starts with Ctrl-C ignored: a SIGINT that
+    reaches it while it imports (here sent by a preloaded module to its own process) does nothing."""
+    script = (
+        "from nlipscalib.pipeline import workers\n"
+        "workers.FORKSERVER_PRELOAD = (*workers.FORKSERVER_PRELOAD, 'tests.sigint_on_import')\n"
+        "ctx = workers.pool_context()\n"
+        "p = ctx.Process(target=print, args=('worker ran',))\n"
+        "p.start(); p.join(60)\n"
+        "print('exit', p.exitcode)\n"
+    )
+    root = Path(__file__).resolve().parents[1]
+    run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=root, timeout=120)
+    assert "Traceback" not in run.stderr and "KeyboardInterrupt" not in run.stderr, run.stderr
+    assert run.returncode == 0 and "worker ran" in run.stdout and "exit 0" in run.stdout, run.stdout + run.stderr

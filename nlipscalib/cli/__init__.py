@@ -153,10 +153,16 @@ def command() -> NoReturn:
     hold for the rest of the process and the processes it starts -- NumPy's arrays on ordinary pages
     (:func:`nlipscalib.core.pages.ordinary_pages_for_command`) -- and Ctrl-C or SIGTERM after the work ended
     (:func:`_after_the_work`)."""
+    from ..__main__ import INTERRUPTED_EARLY
     from ..core.pages import ordinary_pages_for_command
 
-    ordinary_pages_for_command()
-    _exit(_main(None, own_process=True))
+    try:
+        ordinary_pages_for_command()
+        code = _main(None, own_process=True)
+    except KeyboardInterrupt:  # before the command set its handlers (arguments read, help modules loaded)
+        print(INTERRUPTED_EARLY, file=sys.stderr)
+        code = 130
+    _exit(code)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

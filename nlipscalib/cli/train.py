@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..learn.checkpoint import training_run
     from ..learn.dataset import CalibrationDataset
-    from ..learn.publish import hold_training, model_stage, publish_model
+    from ..learn.publish import hold_training, model_stage, publish_model, unusable_model_files
     from ..learn.torch_device import check_device
     from ..learn.train import TrainConfig, train
     from ..report.learn import training_curve
@@ -141,6 +141,11 @@ def run(args: argparse.Namespace) -> int:
     # this run's files are made in a folder of their own and published together, never a .pt beside another's .onnx
     with hold_training(out, training_run(cfg, data.folder, val, exclude)), model_stage(out) as stage:
         reuse = args.no_onnx or onnx_path.is_file()  # a finished model whose export is missing: exported again
+        with _quiet_sensor_record():  # the dataset's load said what its record lacks; the model holds that record
+            damaged = unusable_model_files(out, with_onnx=not args.no_onnx) if reuse else None
+        if damaged is not None:  # a file torn by a power cut, or cut short: made again, not reused as it is
+            log.warning("%s; made again from its training's checkpoint", damaged)
+            reuse = False
         result = train(
             data,
             cfg,

@@ -356,6 +356,25 @@ def scratch_dir(final: str | Path) -> Iterator[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+@contextlib.contextmanager
+def system_scratch_dir(name: str) -> Iterator[Path]:
+    """:func:`scratch_dir` of ``name`` in the system's temporary folder (``tempfile.gettempdir()``), after removing
+    the ones that processes of this machine, gone since, left there.
+
+    Why: nothing writes ``name`` itself there, so no later write removed a killed process's scratch folder: each
+    ``kill -9`` (a power cut, the OOM killer) of a render left its Mitsuba log folder, and of a command with
+    worker processes its said-once folder (a ``tempfile.TemporaryDirectory`` then), in /tmp for good: 13 and 37 of
+    them after a day of this machine's tests and walks."""
+    import tempfile
+
+    folder = Path(tempfile.gettempdir())
+    with contextlib.suppress(OSError):  # another user's, or one removed meanwhile: left as it is
+        # this machine's only (its processes can be checked): another's sharing the folder may idle for hours
+        clean_interrupted(folder, stale_s=float("inf"), item=name)
+    with scratch_dir(folder / name) as tmp:
+        yield tmp
+
+
 def remove_in_progress() -> None:
     """Remove this process's unfinished temporary folders and files (for a signal handler about to exit).
 
@@ -407,6 +426,15 @@ def clean_interrupted(folder: str | Path, stale_s: float = STALE_S, item: str | 
             p.unlink(missing_ok=True)
             gone.append(p)
     return gone
+
+
+def removed_leftover(path: str | Path) -> str:
+    """What :func:`clean_interrupted` removed at ``path``, for its log line: "an interrupted write" (a temporary) or
+    "the claim of a run that ended without releasing it (killed)". The claims of a killed ``nlips calibrate`` were
+    logged as "removed an interrupted write", a write that never was."""
+    if Path(path).name.startswith(CLAIM_PREFIX):
+        return "the claim of a run that ended without releasing it (killed)"
+    return "an interrupted write"
 
 
 # ---------------------------------------------------------------------- internals

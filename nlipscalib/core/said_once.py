@@ -17,7 +17,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -82,9 +81,13 @@ def share(folder: str | None) -> None:
 def shared_between_processes() -> Iterator[str]:
     """A folder (its path, for the workers' :func:`share`) in which this process and its workers say each key once;
     what the workers said counts as said by this process afterwards. Removed at the end."""
+    from .atomic import system_scratch_dir
+
     global _SHARED
     before = _SHARED
-    with tempfile.TemporaryDirectory(prefix="nlips-said-") as folder:
+    # not a TemporaryDirectory: a killed command's (kill -9) is removed by the next command's
+    with system_scratch_dir("nlips-said") as scratch:
+        folder = str(scratch)
         for digest in _SAID:  # said here already (an earlier batch of this command): not again in a worker
             Path(folder, digest).touch()
         _SHARED = Path(folder)

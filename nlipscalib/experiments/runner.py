@@ -30,7 +30,7 @@ from .tasks import (
     execute,
     finished_result,
     made_difference,
-    samples_problem,
+    result_files_problem,
     stored_result,
 )
 
@@ -88,7 +88,7 @@ def run_tasks(
     elsewhere: dict[str, str] = {}  # task id -> what made its finished result otherwise
     for t in tasks:
         result = stored_result(out, t)
-        problem = samples_problem(out, t, result) if result is not None else None
+        problem = result_files_problem(out, t, result) if result is not None else None
         if result is not None and problem is None:
             status.skipped.append(t.id)
             continue

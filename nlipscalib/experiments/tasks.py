@@ -225,9 +225,10 @@ def result_path(out: Path, task_id: str) -> Path:
 
 def load_result(out: Path, task: Task) -> dict | None:
     """The task's stored result, or None when missing, unreadable, from a different task content, or naming
-    samples that are not whole and this task's (:func:`samples_problem`): such a task is run again."""
+    samples that are not whole and this task's, or error maps that are not whole (:func:`result_files_problem`): such
+    a task is run again."""
     data = stored_result(out, task)
-    return data if data is not None and samples_problem(out, task, data) is None else None
+    return data if data is not None and result_files_problem(out, task, data) is None else None
 
 
 def stored_result(out: Path, task: Task) -> dict | None:
@@ -269,6 +270,34 @@ def made_difference(task: Task, result: dict) -> str:
     libraries = was["libraries"]
     said += [f"{k} {libraries.get(k)} (now {v})" for k, v in here["libraries"].items() if libraries.get(k) != v]
     return ", ".join(said)
+
+
+def result_files_problem(out: Path, task: Task, result: dict) -> str | None:
+    """Why a file that a finished task's ``result`` names cannot be used (:func:`samples_problem`,
+    :func:`maps_problem`), or None: then the task is reused."""
+    return samples_problem(out, task, result) or maps_problem(out, result)
+
+
+def maps_problem(out: Path, result: dict) -> str | None:
+    """Why an error map that ``result``'s evaluations name (``maps/*.npz``) cannot be read, or None.
+
+    Why: a map is written before its task's result (each atomically, neither synced), so a result names maps that
+    were whole when it was written; a map left empty or cut short since (a power cut soon after the run, before the
+    disk had it; a folder copied in part) was reused with its task, and every run after it stopped at the report
+    on one line, "...npz: damaged or truncated error map", with nothing that made it again. Now its task runs again.
+    Only the archive's directory is read (a cut-short or empty file has none), not the arrays."""
+    import zipfile
+
+    for ev in result.get("evaluations") or ():
+        name = ev.get("map") if isinstance(ev, dict) else None
+        if not isinstance(name, str):
+            continue
+        path = Path(out) / name
+        if not path.is_file():
+            return f"{path}: error map missing"
+        if not zipfile.is_zipfile(path):
+            return f"{path}: error map damaged or cut short (not a whole .npz archive)"
+    return None
 
 
 def samples_problem(out: Path, task: Task, result: dict) -> str | None:

@@ -388,11 +388,11 @@ def build_dataset(
 
 def _clean_interrupted(out: Path) -> None:
     """Remove the temporaries and claims of killed builds in ``out`` (only those whose owner is gone)."""
-    from ..core.atomic import clean_interrupted
+    from ..core.atomic import clean_interrupted, removed_leftover
 
     for folder in (out, out / SHARD_DIR):
         for gone in clean_interrupted(folder):
-            log.warning("%s: removed an interrupted write", gone)
+            log.warning("%s: removed %s", gone, removed_leftover(gone))
 
 
 @dataclasses.dataclass

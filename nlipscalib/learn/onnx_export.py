@@ -347,14 +347,15 @@ def quantized_int8(model: bytes) -> bytes:
     the colours would be lost. The last layer (3 outputs, little work) stays float too. Costs about
     0.05 deg mean (0.3 deg max) against the float network; measured in benchmarks/RESULTS.md.
     """
-    import tempfile
+    from ..core.atomic import system_scratch_dir
 
     require("onnx", "onnx", "int8 quantisation")
     quantization = require("onnxruntime.quantization", "onnxruntime", "int8 quantisation")
     onnx = require("onnx", "onnx", "int8 quantisation")
     layers = [n.name for n in onnx.load_from_string(model).graph.node if n.op_type == "MatMul"]
-    with tempfile.TemporaryDirectory() as tmp:
-        path, out = Path(tmp) / "float.onnx", Path(tmp) / "int8.onnx"
+    # not a TemporaryDirectory: a killed command's (kill -9 while it quantises) is removed by the next quantisation
+    with system_scratch_dir("nlips-onnx-int8") as tmp:
+        path, out = tmp / "float.onnx", tmp / "int8.onnx"
         path.write_bytes(model)  # the bytes checked, not the file again (it may have changed meanwhile)
         # No warnings filter here: onnxruntime 1.32's quantize_dynamic warns nothing (a blanket "ignore" hid any
         # deprecation it might start to give from the tests' filterwarnings). Its advice goes to the root logger.

@@ -174,8 +174,35 @@ def clean_interrupted_writes(out: Path, *names: str) -> None:
     Every file here is written atomically under an owner-tagged temporary name (core.atomic); a SIGKILL
     in the middle of a write leaves that temporary, which no later write would otherwise remove.
     """
-    from ..core.atomic import clean_interrupted
+    from ..core.atomic import clean_interrupted, removed_leftover
 
     for name in names or model_file_names(out):
         for gone in clean_interrupted(out.parent, item=name):
-            log.warning("%s: removed an interrupted write", gone)
+            log.warning("%s: removed %s", gone, removed_leftover(gone))
+
+
+def unusable_model_files(out: str | Path, with_onnx: bool) -> str | None:
+    """Why the model at ``out`` (or, with ``with_onnx``, its ONNX export beside it, when there) cannot be reused as
+    it is, in one line naming the file; None when it can, or when there is no model there.
+
+    Why: a finished training is reused on the strength of the checkpoint published with its model
+    (:func:`.checkpoint.published_state`), which says nothing of the model file itself. A model file or export
+    left empty or cut short (a power cut soon after the files were published, before the disk had them; a copy
+    interrupted) was reused as it was, "reused, trained before ...", exit 0, and only ``nlips infer`` found it
+    damaged, each run of ``nlips train`` reusing it again. Read here, such a file is made again from the
+    checkpoint instead (no epoch trained again). The model is read in full (kilobytes to a few megabytes)."""
+    from ..core.errors import CaptureError
+    from .model import load_model
+    from .onnx_export import check_export
+
+    out = Path(out)
+    if not out.is_file():
+        return None
+    onnx_path = out.with_suffix(".onnx")
+    try:
+        model = load_model(out)
+        if with_onnx and onnx_path.is_file():
+            check_export(onnx_path, model)
+    except CaptureError as exc:
+        return str(exc)
+    return None

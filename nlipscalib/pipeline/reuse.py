@@ -216,7 +216,7 @@ def _clean_interrupted(out: Path) -> None:
     import re
     import shutil
 
-    from ..core.atomic import clean_interrupted
+    from ..core.atomic import clean_interrupted, removed_leftover
 
     gone = clean_interrupted(out.parent, item=out.name)
     # tempfile.mkdtemp's suffix, or "old": another item's legacy name has a second "-", a tagged one a "~"
@@ -225,4 +225,4 @@ def _clean_interrupted(out: Path) -> None:
     for tmp in legacy:
         shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink(missing_ok=True)
     for tmp in gone + legacy:
-        log.warning("%s: removed an interrupted write", tmp)
+        log.warning("%s: removed %s", tmp, removed_leftover(tmp))

@@ -15,6 +15,7 @@ from ..core.processes import end_with_parent
 from .status import BROKEN
 
 if TYPE_CHECKING:  # the flag's type in hints only: made by the pool's multiprocessing context
+    import multiprocessing.context
     from ctypes import c_byte
 
 log = logging.getLogger(__package__)  # the package's one logger: log files keep naming "nlipscalib.pipeline"
@@ -33,7 +34,6 @@ def _solve_in_processes(
     ``status_of`` is passed in, not imported, so this module does not depend on the solving one that calls it; it
     must be a module-level function (it is pickled by name). A bar counts the presses when ``progress``.
     """
-    import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
@@ -43,10 +43,7 @@ def _solve_in_processes(
     # a caller that may hold threads (claims' heartbeats, progress monitors) or a multi-threaded BLAS; SciPy's
     # sparse modules with it, which the solver's modules import only where they use them (as the solver's import
     # did before: pyamg preloaded too measured no faster, 4 presses on 2 workers, benchmarks/RESULTS.md s21-imp)
-    methods = multiprocessing.get_all_start_methods()
-    ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    if "forkserver" in methods:
-        ctx.set_forkserver_preload(["nlipscalib.pipeline", "nlipscalib.solver", "scipy.sparse.linalg"])
+    ctx = pool_context()
     statuses = {}
     # set on Ctrl-C: the presses the pool has already moved into its call queue (workers + 1 of them), which no
     # cancel reaches, return NOT_STARTED instead of being solved (a 6-press set on 2 workers solved all 4 it had
@@ -89,6 +86,41 @@ def _solve_in_processes(
         finally:
             bar.close()
     return statuses
+
+
+FORKSERVER_PRELOAD = ("nlipscalib.pipeline", "nlipscalib.solver", "scipy.sparse.linalg")
+"""Modules the forkserver imports once for every solver process it starts (:func:`pool_context`)."""
+
+
+def pool_context() -> multiprocessing.context.BaseContext:
+    """The multiprocessing context of a solver pool: forkserver (preloading :data:`FORKSERVER_PRELOAD`) where there
+    is one, else spawn; the forkserver is started here, with Ctrl-C ignored.
+
+    Why ignored: the forkserver is a process of the command's group, so a Ctrl-C reaches it too; it ignores Ctrl-C
+    only once its preload is imported (~1 s, more under load), and a Ctrl-C before that printed a KeyboardInterrupt
+    traceback of its imports among the command's one "interrupted" line (`nlips solve DATASET --workers 2`,
+    Ctrl-C 2 s after the start). Started with SIGINT ignored, it inherits the disposition through its exec, and so
+    do the workers it forks (which leave Ctrl-C to the command anyway, :func:`_worker_init`). The command's own
+    handler is put back at once: the start is a fork and exec, milliseconds in which a Ctrl-C is dropped."""
+    import multiprocessing
+    import signal
+    import threading
+
+    methods = multiprocessing.get_all_start_methods()
+    if "forkserver" not in methods:
+        return multiprocessing.get_context("spawn")
+    from multiprocessing import forkserver
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    if threading.current_thread() is not threading.main_thread():  # only the main thread may set a handler
+        return ctx
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    return ctx
 
 
 NOT_STARTED = "not started: the batch was interrupted"

@@ -34,6 +34,7 @@ from ..progress import FILE_ONLY, SINGLE, configure_worker, progress_bar, worker
 from .dataset_folder import (
     changed_error,
     check_existing,
+    described_missing,
     is_complete,
     live_claim_inside,
     missing_files,
@@ -258,14 +259,13 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
                 if missing:
                     busy = live_claim_inside(folder)
                     if busy:
-                        return "failed", f"{folder}: {missing[0]} missing, but {busy}; run again when it is done"
-                    more = f" and {len(missing) - 3} more" if len(missing) > 3 else ""
+                        said = described_missing(folder, missing, most=1)
+                        return "failed", f"{folder}: {said}, but {busy}; run again when it is done"
                     results = results_inside(folder)
                     log.warning(
-                        "%s: %s%s missing; rendering it again%s",
+                        "%s: %s; rendering it again%s",
                         folder,
-                        ", ".join(missing[:3]),
-                        more,
+                        described_missing(folder, missing),
                         f" (its results {', '.join(results)} go with it)" if results else "",
                     )
                     replace = True

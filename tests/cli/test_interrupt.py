@@ -426,3 +426,49 @@ def test_an_ignored_ctrl_c_stays_ignored_for_a_background_job():
         assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+EARLY_SIGINT = {
+    # a Ctrl-C as the command's modules load: sent as the CLI's help module is looked up
+    "loading": (
+        "import importlib.abc, os, signal, sys\n"
+        "class CtrlC(importlib.abc.MetaPathFinder):\n"
+        "    def find_spec(self, name, path, target=None):\n"
+        "        if name == 'nlipscalib.cli.help':\n"
+        "            os.kill(os.getpid(), signal.SIGINT)\n"
+        "sys.meta_path.insert(0, CtrlC())\n"
+        "sys.argv = ['nlips', 'solve', '--help']\n"
+        "from nlipscalib.__main__ import command\n"
+        "command()\n"
+    ),
+    # a Ctrl-C as the command's parser is built (its arguments not read yet, its handlers not set)
+    "parsing": (
+        "import os, signal, sys\n"
+        "sys.argv = ['nlips', 'solve', '--help']\n"
+        "from nlipscalib import cli\n"
+        "real = cli.build_parser\n"
+        "def build():\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "    return real()\n"
+        "cli.build_parser = build\n"
+        "from nlipscalib.__main__ import command\n"
+        "command()\n"
+    ),
+}
+
+
+@pytest.mark.parametrize("when", sorted(EARLY_SIGINT))
+def test_a_ctrl_c_before_the_command_began_is_one_line_and_130(when):
+    """A Ctrl-C in the first ~0.3 s of any command (~1 s under load: its modules loading, its arguments read, before
+    it set its own Ctrl-C handling) printed a KeyboardInterrupt traceback of the imports, and the process ended by the
+    signal (status -2). Now: one line, exit 130, as any interrupt."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    run = subprocess.run(
+        [sys.executable, "-c", EARLY_SIGINT[when]], capture_output=True, text=True, cwd=root, timeout=120
+    )
+    assert run.stderr.splitlines() == ["nlips: interrupted before the command began; nothing was done"], run.stderr
+    assert run.returncode == 130 and run.stdout == ""

@@ -377,3 +377,34 @@ def test_a_ctrl_c_right_as_the_temporary_is_made_leaves_no_temporary(tmp_path, m
                 pass
     monkeypatch.undo()
     assert sorted(p.name for p in tmp_path.iterdir()) == [] and not atomic._IN_PROGRESS
+
+
+def test_a_killed_process_scratch_folder_in_the_system_temporary_folder_goes_with_the_next(tmp_path, monkeypatch):
+    """A Mitsuba log folder of a render, a said-once folder of a command with workers: made in /tmp under a name
+    nothing else writes, so each one a ``kill -9`` left stayed there for good (13 and 37 of them on the walk's
+    machine). The next one made removes those of this machine's dead processes, never a live one's or another
+    machine's (whose processes cannot be checked: it may be idle for hours)."""
+    import tempfile
+
+    from nlipscalib.core import said_once
+    from nlipscalib.core.atomic import system_scratch_dir
+    from nlipscalib.core.claims import HOST
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+
+    def left(name: str, host: str, pid: int) -> Path:
+        folder = tmp_path / f"{TMP_PREFIX}{name}~{host}~{pid}~scratch-0123456789ab"
+        folder.mkdir()
+        (folder / "render.log").write_text("x", encoding="utf-8")
+        return folder
+
+    for name in ("nlips-mitsuba-log", "nlips-said"):
+        dead, live, other = left(name, HOST, _dead_pid()), left(name, HOST, os.getppid()), left(name, "elsewhere", 7)
+        if name == "nlips-said":
+            with said_once.shared_between_processes() as folder:
+                assert Path(folder).parent == tmp_path and Path(folder).name.startswith(f"{TMP_PREFIX}{name}~")
+        else:
+            with system_scratch_dir(name) as folder:
+                assert folder.is_dir()
+        assert not dead.exists() and live.is_dir() and other.is_dir()
+        assert not Path(folder).exists()  # its own, removed at the end

@@ -58,11 +58,24 @@ def test_onnx_matches_pytorch_within_a_tenth_of_a_degree(calib, trained, tmp_pat
     assert max_angle_deg(OnnxNet(path, model)(x), net_predict(model, s["pixel"], s["rgb"])) < 0.1
 
 
-def test_int8_onnx_stays_close_to_the_float_network(calib, trained, tmp_path):
-    """Dynamic int8 quantisation (first and last layer float): a small, bounded angular cost."""
+def test_int8_onnx_stays_close_to_the_float_network(calib, trained, tmp_path, monkeypatch):
+    """Dynamic int8 quantisation (first and last layer float): a small, bounded angular cost. Its scratch folder in
+    the system's temporary folder goes at the end, and a killed process's goes with the next (a TemporaryDirectory
+    that a `kill -9` while it quantised left in /tmp for good)."""
+    import os
+    import tempfile
+
+    from nlipscalib.core.atomic import TMP_PREFIX
+    from nlipscalib.core.claims import HOST
     from nlipscalib.learn.model import model_inputs
     from nlipscalib.learn.onnx_export import OnnxNet, export_onnx
+    from tests.core.test_atomic import _dead_pid
 
+    system_tmp = tmp_path / "system_tmp"
+    system_tmp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(system_tmp))
+    killed = system_tmp / f"{TMP_PREFIX}nlips-onnx-int8~{HOST}~{_dead_pid()}~scratch-0123456789ab"
+    killed.mkdir()
     model = load_model(trained)
     path = export_onnx(model, tmp_path / "net.onnx")
     s = calib.load(HELD_OUT)
@@ -71,6 +84,7 @@ def test_int8_onnx_stays_close_to_the_float_network(calib, trained, tmp_path):
     angle = np.degrees(np.arccos(np.clip(np.sum(int8 * exact, -1), -1, 1)))
     assert angle.mean() < 0.5 and np.percentile(angle, 99) < 2.0, (angle.mean(), angle.max())
     assert OnnxNet(path, model).session.get_inputs()[0].name == "uvrgb"
+    assert os.listdir(system_tmp) == []  # the killed one's and its own
 
 
 def test_missing_and_corrupt_model_files_are_named(tmp_path, trained, capsys):

@@ -486,6 +486,42 @@ def test_an_export_beside_the_model_is_never_of_the_model_a_training_replaced_me
     OnnxNet(out.with_suffix(".onnx"), real_load(out))  # exported from the .pt beside it ("from another model" before)
 
 
+@pytest.mark.parametrize("torn", ["m.pt", "m.onnx"])
+@pytest.mark.parametrize("length", [0, 300])
+def test_a_finished_models_file_torn_after_it_was_published_is_made_again_not_reused(
+    built, tmp_path, capsys, caplog, torn, length
+):
+    """A model or its export left empty or cut short after the run that published them had ended (a power cut
+    before the disk had the files; a copy interrupted) beside a whole checkpoint: the next identical `nlips train`
+    said "reused, trained before ...", exit 0, every time, and only `nlips infer` found the file damaged. Now it
+    is named and made again from the checkpoint, without training an epoch again: the same weights as before."""
+    from nlipscalib.learn.onnx_export import check_export
+
+    out = tmp_path / "m.pt"
+    args = ["train", str(built), "--out", str(out), "--epochs", "2", "--hidden", "8", "--threads", "1"]
+    assert main([*args, "--no-progress"]) == 0
+    weights = {k: v.clone() for k, v in load_model(out).net.state_dict().items()}
+    with open(tmp_path / torn, "r+b") as f:
+        f.truncate(length)
+    capsys.readouterr()
+    caplog.set_level(logging.INFO)
+    assert main([*args, "--no-progress"]) == 0
+    said = capsys.readouterr().out
+    assert "reused" not in said and f"{tmp_path / torn}: " in caplog.text and "made again" in caplog.text
+    assert "resuming after epoch 2" in caplog.text and "epoch 1 " not in said
+    model = load_model(out)
+    assert all(torch_equal(model.net.state_dict()[k], v) for k, v in weights.items())
+    check_export(out.with_suffix(".onnx"), model)  # whole, and this model's
+    capsys.readouterr()
+    assert main([*args, "--no-progress"]) == 0 and f"{out}: reused" in capsys.readouterr().out  # now reused
+
+
+def torch_equal(a, b) -> bool:
+    import torch
+
+    return bool(torch.equal(a, b))
+
+
 def test_a_training_without_onnx_removes_the_export_of_the_model_it_replaces(built, tmp_path, capsys):
     """`--no-onnx` into an --out that held another run's .pt and .onnx left that .onnx beside the new .pt."""
     out = tmp_path / "m.pt"
@@ -716,6 +752,9 @@ def test_a_killed_builds_claims_are_taken_over_and_its_finished_shards_reused(so
     assert "samples of 3 of 3 presses kept" in caplog.text and "waiting" not in caplog.text
     assert CalibrationDataset(built).names == list(NAMES)
     assert not hold.exists() and not shard_claim.exists()
+    # each claim is called a claim: it was logged as "removed an interrupted write", a write that never was
+    assert f"{hold}: removed the claim of a run that ended without releasing it (killed)" in caplog.text
+    assert "interrupted write" not in caplog.text
 
 
 def test_a_shard_another_build_replaced_is_never_mixed_in_and_is_made_again(solved, built, tmp_path, monkeypatch):

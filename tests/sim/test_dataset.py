@@ -341,6 +341,30 @@ def test_a_press_that_lost_a_file_is_rendered_again_not_counted_as_there(tmp_pat
     assert main(args) == 0 and calls == []  # whole again
 
 
+def test_a_press_with_a_file_left_empty_is_rendered_again_not_counted_as_there(tmp_path, monkeypatch, capsys, caplog):
+    """An empty image or .npz is what a power cut soon after a press was published leaves (the folder renamed into
+    place, its files' data not yet on the disk): the press was "already there" at every run, and `nlips solve`
+    failed on it ("led_02.png: not a readable PNG image") until its folder was deleted by hand. Now it is rendered
+    again, as a press that lost a file is; the warning says which file is empty."""
+    from nlipscalib.cli import main
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
+    assert main(args) == 0
+    (out / "press_0002" / "led_02.png").write_bytes(b"")
+    (out / "press_0002" / "gt.npz").write_bytes(b"")
+    calls.clear()
+    capsys.readouterr()
+    assert main(args) == 0
+    assert calls == ["press_0002"]
+    assert capsys.readouterr().out.strip() == f"{out}: 1 rendered, 2 already there, 0 failed"
+    assert "press_0002: led_02.png empty, gt.npz empty; rendering it again" in caplog.text
+    assert (out / "press_0002" / "led_02.png").stat().st_size > 0
+    calls.clear()
+    assert main(args) == 0 and calls == []  # whole again
+
+
 def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_path, monkeypatch, capsys, caplog):
     """Rendering it again swapped the whole folder away under a running `nlips solve` (its result went with it,
     said by nothing but "led_02.png missing"): now the press waits for the next run, like an incomplete one."""

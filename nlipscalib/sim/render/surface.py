@@ -7,10 +7,8 @@ import dataclasses
 import functools
 import logging
 import re
-import tempfile
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -192,8 +190,9 @@ def _warnings_relayed(mi: ModuleType) -> Iterator[None]:
         yield
         return
     shown = [logger.appender(i) for i in range(logger.appender_count())]
-    # a scratch folder of core.atomic, not a TemporaryDirectory: SIGTERM's handler removes it before os._exit
-    with atomic.scratch_dir(Path(tempfile.gettempdir()) / "nlips-mitsuba-log") as folder:
+    # a scratch folder of core.atomic, not a TemporaryDirectory: SIGTERM's handler removes it before os._exit, and
+    # a killed render's is removed by the next render
+    with atomic.system_scratch_dir("nlips-mitsuba-log") as folder:
         path = folder / "render.log"
         logger.clear_appenders()
         logger.add_appender(mi.StreamAppender(str(path)))
