@@ -349,7 +349,11 @@ def _after_runoff(
     values and the choice), which :func:`calibrate_leds` warns about."""
     args = (presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, left_out, trace[1])
     chosen = runoff_reflectance(*args)
-    log.info("the free coating reflectance ran off over the rounds (%s); chosen %.3f", trace, chosen)
+    log.info(
+        "the free coating reflectance ran off over the rounds (%s); chosen %.3f",
+        ", ".join(f"{v:.3f}" for v in trace),
+        chosen,
+    )
     again = _calibrate(presses, dataclasses.replace(s, initial=leds0, coating_reflectance=chosen))
     if not any(m.get("enabled") for m in again.interreflection):  # "auto" dropped the term there: nothing was set
         return again
