@@ -46,6 +46,9 @@ from .calibration_term import (
     emitters_and_profile,
     indirect_rounds,
     no_interreflection,
+    ran_off,
+    runoff_note,
+    runoff_reflectance,
     term_gain,
     term_wins,
     unprofiled_note,
@@ -222,6 +225,7 @@ def calibrate_leds(
     notes += unused_reflectance(cal.interreflection, interreflection, coating_reflectance)
     if note := unprofiled_note(cal.interreflection, interreflection, led_radius, coating_reflectance):
         log.info(note)
+    notes += runoff_note(cal.interreflection)
     notes += quality_warning(cal.quality, cal.interreflection, interreflection)
     notes += single_led_warnings(cal.quality, cal.leds)
     for note in notes:
@@ -301,9 +305,12 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         ok=np.concatenate([d[3] for d in data], axis=1),
         selections=[d[4] for d in data],
     )
+    trace: list[float] = []
     fitted, direct, models = indirect_rounds(
-        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out
+        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out, trace
     )
+    if s.coating_reflectance is None and ran_off(trace):  # before the contact check: the run-off reads as a press
+        return _after_runoff(presses, samples, leds0, s, left_out, trace)
     if s.left_out is None:  # once per calibration: the reruns below keep the verdict
         s = dataclasses.replace(s, left_out=contact_regions(presses, to_leds(fitted)[0], models))
         if any(region.any() for region in s.left_out):
@@ -336,6 +343,26 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         return _with_profile(again, profile)
     rms = [f[2] for f in fitted]
     return LedCalibration(leds, albedo, std, rms, models, emitters, float(s.led_radius), quality=quality)
+
+
+def _after_runoff(
+    presses: Sequence[Press], samples: Samples, leds0: Leds, s: _Settings, left_out: Sequence, trace: list[float]
+) -> LedCalibration:
+    """The calibration with the coating reflectance set to :func:`.calibration_term.runoff_reflectance`'s choice,
+    after the free one ran off over the rounds (``trace``); the terms carry ``reflectance_runoff`` (the rounds'
+    values and the choice), which :func:`calibrate_leds` warns about."""
+    args = (presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, left_out, trace[1])
+    chosen = runoff_reflectance(*args)
+    log.info(
+        "the free coating reflectance ran off over the rounds (%s); chosen %.3f",
+        ", ".join(f"{v:.3f}" for v in trace),
+        chosen,
+    )
+    again = _calibrate(presses, dataclasses.replace(s, initial=leds0, coating_reflectance=chosen))
+    if not any(m.get("enabled") for m in again.interreflection):  # "auto" dropped the term there: nothing was set
+        return again
+    run = {"rounds": [round(v, 4) for v in trace], "chosen": round(chosen, 4)}
+    return dataclasses.replace(again, interreflection=[dict(m, reflectance_runoff=run) for m in again.interreflection])
 
 
 def _with_profile(again: LedCalibration, profile: dict) -> LedCalibration:

@@ -29,12 +29,15 @@ def indirect_rounds(
     rounds: int,
     coating_reflectance: float | tuple[float, float, float] | None,
     left_out: Sequence[np.ndarray | None],
+    trace: list[float] | None = None,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray, float]], np.ndarray, list[IndirectModel]]:
     """(per-LED fits as :func:`fit_leds` returns them, the images minus the indirect light they were fitted to,
     the captures' last indirect terms) -- ``rounds`` alternations of indirect fit and LED fit, or one direct-only
     LED fit from ``leds0`` when no term is on. ``left_out``: per capture, (H, W) bool or None -- pixels the term's
     fit leaves out as the LED fit does (a contact, ``allow_contact``): a dent's light fitted as the undeformed
-    dome's would bias the term's reflectance, and through it every LED fitted to the images minus it.
+    dome's would bias the term's reflectance, and through it every LED fitted to the images minus it. ``trace``, when
+    given, gets each round's term reflectance (the first capture's whose term is on, its largest channel)
+    appended: what :func:`ran_off` reads.
 
     A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on the twin),
     after which nothing correlates with the indirect term any more: the term is fitted with the starting LEDs
@@ -63,12 +66,79 @@ def indirect_rounds(
             models = [m.with_reflectance(coating_reflectance) if m.enabled else m for m in models]
         if not any(m.enabled for m in models):
             break
+        if trace is not None:
+            trace.append(float(np.max(next(m.reflectance for m in models if m.enabled))))
         direct = img - _sampled_indirect_light(presses, models, samples.selections, len(leds))
         fitted = fit_leds(leds, x, n, direct, ok, loss)
     if fitted is None or (models and not any(m.enabled for m in models)):
         direct = img
         fitted = fit_leds(leds0, x, n, img, ok, loss)
     return fitted, direct, models
+
+
+RUNOFF_RATIO = 0.8
+"""The free reflectance of the indirect term has run off (:func:`ran_off`) when its last round's value is below
+this share of the second round's (the first fitted with fitted LEDs). Why: an LED whose visible light is mostly
+indirect (the twin with its LEDs 3 mm / 25 deg off the design, LED 10 pointing up from outside the ring: 1.25x
+more indirect than direct light on the gel) moves where it takes up the term's light, the term's reflectance falls,
+and the next round moves it further: 0.927, 0.913, 0.654, 0.380 for a true 0.8, LED 10 0.65, 2.45, 3.23 mm off, and
+the capture was refused as a press. Converged fits change it by < 1 % after the second round (the twin's one-bounce
+references: 0.986, 0.895, 0.895); benchmarks/RESULTS.md, s30-ledmargin."""
+RUNOFF_RANGE = (0.5, 1.0)
+"""The reflectances :func:`runoff_reflectance` tries, as multiples of the second round's (capped at 1)."""
+RUNOFF_XTOL = 0.02
+"""Its tolerance on the reflectance."""
+
+
+def ran_off(trace: Sequence[float]) -> bool:
+    """Whether the free reflectance of the rounds (``trace``, :func:`indirect_rounds`) ran off
+    (:data:`RUNOFF_RATIO`): it needs 3 rounds or more."""
+    return len(trace) >= 3 and trace[-1] < RUNOFF_RATIO * trace[1]
+
+
+def runoff_reflectance(
+    presses: Sequence[Press],
+    samples: Samples,
+    leds0: Leds,
+    loss: str,
+    interreflection: str,
+    bounces: int,
+    rounds: int,
+    left_out: Sequence[np.ndarray | None],
+    second: float,
+) -> float:
+    """The coating reflectance whose whole rounds (:func:`indirect_rounds` from ``leds0`` with it set) leave the point
+    LED fits the least summed squared residual (image units), in :data:`RUNOFF_RANGE` times ``second`` (the second
+    round's free reflectance). Bounded Brent search (scipy.optimize.minimize_scalar), each step a calibration's rounds.
+
+    Why the whole rounds, not the LEDs' fit to one round's images: the reflectance and the LED that took up the term's
+    light trade within a round (on the run-off twin capture the LED fits' residual was lower at its wrong round than at
+    the first), while rounds held at a reflectance settle where that reflectance puts the LEDs: there the residual
+    is least at the true one (summed squared RMS x 1e4: 2.49 at 0.6, 2.35 at 0.7, 2.32 at 0.8, 3.15 at 0.9, 4.27 at
+    1.0; LEDs 0.48 mm off at 0.8, 3.2 mm at 0.9; benchmarks/RESULTS.md, s30-ledmargin)."""
+    from scipy.optimize import minimize_scalar
+
+    def residual(a: float) -> float:
+        fitted = indirect_rounds(presses, samples, leds0, loss, interreflection, bounces, rounds, float(a), left_out)[0]
+        return float(sum(f[2] ** 2 for f in fitted))
+
+    low, high = RUNOFF_RANGE[0] * second, min(RUNOFF_RANGE[1] * second, 1.0)
+    best = minimize_scalar(residual, bounds=(low, high), method="bounded", options={"xatol": RUNOFF_XTOL})
+    return float(best.x)
+
+
+def runoff_note(models: list[dict]) -> list[str]:
+    """The warning for a calibration whose free reflectance ran off and was chosen by :func:`runoff_reflectance`
+    (the terms' ``reflectance_runoff``), or none."""
+    for m in models:
+        if run := m.get("reflectance_runoff"):
+            rounds = ", ".join(f"{v:.3f}" for v in run["rounds"])
+            return [
+                f"the coating reflectance fitted with the LEDs ran off over the rounds ({rounds}): an LED took up the "
+                f"interreflection's light; chosen {run['chosen']:.3f} by whole fits at set reflectances instead: "
+                f"give --coating-reflectance if the coating's is known"
+            ]
+    return []
 
 
 def _decide(model: IndirectModel):
@@ -279,7 +349,11 @@ def _fitted_reflectance(models: list[dict]) -> np.ndarray | None:
 
 
 PROFILE_SCALES = (0.6, 1.15)
-"""Range of the reflectance profile, as multiples of the freely fitted reflectance (:func:`_profiled_reflectance`)."""
+"""Range of the reflectance profile, as multiples of the freely fitted reflectance (:func:`_profiled_reflectance`).
+A profile least at its top is searched again above it, over a range as many times wider (up to a reflectance of 1):
+where the LEDs start far from their places the free fit can come out far low (the twin with its LEDs 3 mm / 25 deg
+off the design, one bounce: 0.60 and 0.42 for 0.8, the profile then chose its top, 0.69 and 0.49, and the disks ended
+2.2 and 7.9 deg off; benchmarks/RESULTS.md, s30-ledmargin)."""
 
 
 PROFILE_XTOL = 0.01
@@ -347,8 +421,12 @@ def _profiled_reflectance(
         tried[float(s)] = float(sum(f[2] ** 2 for f in out))
         return tried[float(s)]
 
-    top = min(PROFILE_SCALES[1], 1.0 / float(np.max(fitted)))
-    best = minimize_scalar(residual, bounds=(PROFILE_SCALES[0], top), method="bounded", options={"xatol": PROFILE_XTOL})
+    cap = 1.0 / float(np.max(fitted))  # a reflectance of at most 1
+    low, top = PROFILE_SCALES[0], min(PROFILE_SCALES[1], cap)
+    best = minimize_scalar(residual, bounds=(low, top), method="bounded", options={"xatol": PROFILE_XTOL})
+    while best.x > top - 2 * PROFILE_XTOL and top < cap:  # least at the range's top: the minimum lies above it
+        low, top = top, min(top * PROFILE_SCALES[1] / PROFILE_SCALES[0], cap)
+        best = minimize_scalar(residual, bounds=(low, top), method="bounded", options={"xatol": PROFILE_XTOL})
     scales = sorted(tried)
     return {
         "fitted": [float(v) for v in fitted],

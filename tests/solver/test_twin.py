@@ -307,10 +307,16 @@ def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_inte
     """Issue 6's LED acceptance on the default twin (3.6 mm disk LEDs, one bounce, noise): a ring-wide tilt of
     the LED axes trades against the indirect term's magnitude, and the freely fitted reflectance comes out high
     (0.89 for 0.8). With the coating's reflectance known, or profiled from the images alone (the disk fit's
-    residual), the LEDs as disks are within 2 deg and 0.3 mm."""
+    residual), the LEDs as disks are within 2 deg and 0.3 mm, here with a margin.
+
+    64 spp, not 16: at 16 spp the twin's bounce light keeps its Monte Carlo noise as smooth blotches (the denoiser's),
+    light no LED model explains, and LEDs 4 and 10 (their nearest gel outside the 4:3 frame, their position 3-4x
+    less determined than the others') follow it: over render seeds 0-5 the worst disk was 0.10-0.30 mm off and the
+    profiled axes up to 2.09 deg (this seed 0.29996 mm, 0.04 um inside the limit); at 64 spp 0.05-0.13 mm and up
+    to 1.52 deg (benchmarks/bench_led_margin.py; RESULTS.md, s30-ledmargin). The start's seed moves them < 0.01 mm."""
     from nlipscalib.solver.indirect import fit_indirect
 
-    flat = load_press(render_press(twin(bounces=1, spp=16, noise=True), None, root / "flat_b1_disk_leds", seed=3))
+    flat = load_press(render_press(twin(bounces=1, spp=64, noise=True), None, root / "flat_b1_disk_leds", seed=3))
     true = flat.leds
     start = perturbed(true, np.random.default_rng(0))
 
@@ -321,12 +327,12 @@ def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_inte
     known = calibrate_leds(flat, initial=start, led_radius=1.8, coating_reflectance=0.8)
     fitted = calibrate_leds(flat, initial=start, led_radius=1.8)
     ang, pos = worst(known.emitters)
-    assert ang <= 2.0 and pos <= 0.3, (ang, pos)
+    assert ang <= 1.0 and pos <= 0.2, (ang, pos)  # seeds 0-5: <= 0.68 deg, <= 0.089 mm
     assert "reflectance set to [0.8, 0.8, 0.8]" in known.interreflection[0]["reason"]
     assert known.reflectance_profile is None  # a known value is not profiled
     # from the images alone: the free fit's reflectance is off (the degeneracy), the profiled one is not
     ang, pos = worst(fitted.emitters)
-    assert ang <= 2.0 and pos <= 0.3, (ang, pos)
+    assert ang <= 2.0 and pos <= 0.2, (ang, pos)  # seeds 0-5: <= 1.52 deg, <= 0.133 mm
     profile = fitted.reflectance_profile
     free, chosen = profile["fitted"][0], profile["chosen"][0]
     assert free > 0.85 and abs(chosen - 0.8) < 0.04, profile
@@ -343,6 +349,38 @@ def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_inte
 
     with pytest.raises(ConfigError, match="reflectance must be in"):
         model.with_reflectance(1.5)
+
+
+def test_an_led_that_takes_up_the_interreflection_does_not_run_the_free_reflectance_off(root):
+    """LEDs 3 mm / 25 deg / mu 2 off the design, one bounce (s29-ledsize's failure): one LED moved outside the ring
+    and turned up lights the visible gel more by bounce than directly; fitted with the term's free reflectance it
+    took up the term's light, the reflectance fell round by round (0.93, 0.90, 0.60 for 0.8) and the capture was
+    refused as a press (16 % of the gel "far beyond the noise"). The reflectance is then chosen by whole fits at set
+    reflectances (calibration_term.runoff_reflectance), with a warning."""
+    scene = twin(bounces=1, spp=16, noise=True).replace(camera={"width": 80, "height": 60})
+    design = scene.led_models()
+    rng = np.random.default_rng(1)
+    cam = np.asarray(scene.camera.position)
+    positions, directions = [], []
+    for led in design:  # benchmarks/bench_led_starts.py's level 4, seed 1
+        d = np.asarray(led.direction)
+        offset = rng.normal(size=3)
+        positions.append(tuple(np.asarray(led.position) + cam + 3.0 * offset / np.linalg.norm(offset)))
+        axis = np.cross(d, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        tilt = np.radians(25.0)
+        directions.append(tuple(d * np.cos(tilt) + np.cross(axis, d) * np.sin(tilt)))
+    moved = scene.replace(leds={"positions": tuple(positions), "directions": tuple(directions), "mu": 2.0})
+    ref = load_press(render_press(moved, None, root / "far_b1_80", seed=0))
+    cal = calibrate_leds(ref, initial=design, led_radius=1.8)
+    (model,) = cal.interreflection
+    run = model["reflectance_runoff"]
+    assert run["rounds"][-1] < 0.8 * run["rounds"][1] and abs(run["chosen"] - 0.8) < 0.06, run
+    assert any("ran off over the rounds" in w for w in cal.warnings), cal.warnings
+    assert cal.quality["reliable"], cal.quality
+    for disk, truth in zip(cal.emitters, ref.leds):  # before: refused; with allow_contact LED 10 3 mm / 18 deg off
+        assert np.linalg.norm(np.subtract(disk.position, truth.position)) < 0.5
+        assert np.degrees(np.arccos(min(1.0, np.dot(disk.direction, truth.direction)))) < 2.0
 
 
 def test_a_profile_rerun_that_drops_the_term_returns_direct_only_leds_without_the_profile(root, monkeypatch):
