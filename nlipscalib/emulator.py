@@ -33,7 +33,7 @@ from .device.camera import FrameSource
 from .device.session import Operator, Rig
 from .sim.indent import PressConfig, apply_press
 from .sim.noise import apply_noise
-from .sim.press import press_seed, scene_exposure, undeformed_mesh
+from .sim.press import press_seed, render_identity, scene_exposure, undeformed_mesh
 from .sim.scene import SceneConfig
 
 log = logging.getLogger(__name__)
@@ -356,7 +356,9 @@ def open_emulated_sensor(
         leds=scene.led_models(),
         response=response or scene.noise.response(),
         reference=reference_surface(scene.design),
-        provenance={"device": "emulator", "scene": scene.to_dict(), "exposure": renders.exposure}
+        # the twin code and render libraries (as a rendered press records them): a session resumed after an
+        # upgrade tells its earlier presses from this run's (device.session.made_otherwise_line)
+        provenance={"device": "emulator", "scene": scene.to_dict(), "exposure": renders.exposure, **render_identity()}
         | ({"tone_curve": tone_curve} if tone_curve else {}),
     )
     return EmulatedSensor(rig, ScriptedOperator(camera, script, echo), camera, board, tricolor_level(renders))

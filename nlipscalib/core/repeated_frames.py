@@ -12,7 +12,8 @@ Partly (:func:`lagged_bands`): a rolling shutter reads the rows one after anothe
 (~30 ms on a USB webcam); a frame whose readout the LED switch falls into holds the light captured before it (LED
 k-1's) above a row and LED k's below it. Whole-frame medians missed it (s28 QA: LED 5
 of the twin's sphere press with its top half from LED 4 was called a repeat, its top quarter not seen at all), so
-the check compares the images row of blocks by row of blocks.
+the check compares the images row of blocks by row of blocks, then column by column (a camera mounted turned 90
+degrees: its rolling shutter reads the columns; the same test on the transposed blocks).
 
 Dark rows (:func:`dark_bands`, :func:`dark_everywhere`): rows read while no LED was lit (the LED switched on late, or
 off early, against the readout; a global-reset sensor's exposure that missed the LED in some rows) hold the dark
@@ -46,7 +47,8 @@ from .tolerances import (
 MIN_LIT_PIXELS = 100
 """Fewest lit gel pixels two images need for a verdict (a smaller lit patch says nothing either way)."""
 MIN_LIT_ROW_BLOCKS = 8
-"""Fewest lit blocks a row of blocks needs to count in :func:`lagged_bands` (200 pixels: its median is steady)."""
+"""Fewest lit blocks a row (column) of blocks needs to count in :func:`lagged_bands` (200 pixels: its median is
+steady)."""
 MIN_ROW_SAMPLES = 8
 """Fewest samples a band of :data:`CAPTURE_CHECK_BLUR` rows needs to count in :func:`dark_bands` (the solve's
 ~2000 gel samples give ~20 a band at 640x480, ~40 at 320x240)."""
@@ -56,14 +58,22 @@ MIN_LINE_SAMPLES = 16
 
 
 class LaggedBand(NamedTuple):
-    """Rows of one LED image that hold the light captured before it (:func:`lagged_bands`)."""
+    """Rows (or columns) of one LED image that hold the light captured before it (:func:`lagged_bands`)."""
 
     index: int
     """The LED image, 0-based in capture order."""
     rows: tuple[int, int]
-    """First and one-past-last pixel row of the band (block rows: to :data:`CAPTURE_CHECK_BLUR` pixels)."""
+    """First and one-past-last pixel row (``axis`` "columns": column) of the band (blocks: to
+    :data:`CAPTURE_CHECK_BLUR` pixels)."""
     top: bool
-    """The band is at the image's top (a shutter reading downwards), else at its bottom."""
+    """The band is at the image's top (a shutter reading downwards; columns: its left), else at its bottom (right)."""
+    axis: str = "rows"
+    """"rows", or "columns": a camera mounted turned 90 degrees, its rolling shutter reading the image's columns."""
+
+    @property
+    def where(self) -> str:
+        """ "top" or "bottom" of the rows; "left" or "right" of the columns."""
+        return ("top" if self.top else "bottom") if self.axis == "rows" else ("left" if self.top else "right")
 
 
 class DarkBand(NamedTuple):
@@ -351,13 +361,14 @@ def _dark_run(dark: np.ndarray, bands: np.ndarray, index: int | None, axis: str 
 
 
 def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBand]:
-    """The LED images whose top or bottom rows hold the light captured before them: the LED switched while a
-    rolling shutter read the frame out.
+    """The LED images whose top or bottom rows (else left or right columns) hold the light captured before them:
+    the LED switched while a rolling shutter read the frame out (a camera mounted turned 90 degrees reads the
+    columns one after another).
 
-    Row of blocks by row of blocks, over the blocks either image lights: the median relative difference from the
-    previous LED image (below :data:`~nlipscalib.core.tolerances.REPEATED_FRAME_DIFFERENCE`: that image's light). An
-    image whose first (or last) :data:`~nlipscalib.core.tolerances.LAGGED_BAND_ROWS` rows or more are that light,
-    and not all of its rows, is lagged in part.
+    Row of blocks by row of blocks (column by column), over the blocks either image lights: the median relative
+    difference from the previous LED image (below :data:`~nlipscalib.core.tolerances.REPEATED_FRAME_DIFFERENCE`:
+    that image's light). An image whose first (or last) :data:`~nlipscalib.core.tolerances.LAGGED_BAND_ROWS` rows
+    (columns) or more are that light, and not all of them, is lagged in part.
 
     Parameters
     ----------
@@ -366,25 +377,61 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
 
     Returns
     -------
-    list of LaggedBand -- one per partly lagged image, in capture order; empty when none is.
+    list of LaggedBand -- one per partly lagged image (of rows or of columns: where both look lagged, the band
+    holding less of the image's own light), in capture order; empty when none is.
     """
     bands = []
     for index in range(1, len(blocks)):
         current, neighbour = blocks[index], blocks[index - 1]
-        brighter = np.maximum(current, neighbour)
-        lit = inside & (brighter > EXPOSURE_LIGHT_FRACTION)
-        rows = np.flatnonzero(lit.sum(axis=1) >= MIN_LIT_ROW_BLOCKS)
-        if len(rows) <= LAGGED_BAND_ROWS:
-            continue
-        scale = np.where(lit[rows], brighter[rows], 1)
-        difference = _row_medians(np.abs(current[rows] - neighbour[rows]) / scale, lit[rows])
-        # 1: the previous LED's light, 0: the image's own light. Dark rows (read while no LED was lit) are not
-        # looked for here: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
-        # from their design: dark top rows in 2 of 12 images, s28-rolling); the LED model tells (dark_bands)
-        kind = (difference < REPEATED_FRAME_DIFFERENCE).astype(np.int8)
-        if band := _edge_band(kind, rows, index):
-            bands.append(band)
+        lit = inside & (np.maximum(current, neighbour) > EXPOSURE_LIGHT_FRACTION)
+        # the columns are the transposed blocks' rows: one test, one threshold for both readout directions
+        found = [
+            band
+            for axis, turn in (("rows", np.asarray), ("columns", np.transpose))
+            if (band := _lagged_lines(turn(current), turn(neighbour), turn(lit), index, axis))
+        ]
+        if len(found) > 1:
+            # a band of columns can leave some rows mostly inside it, their medians lagged too (the twin's sphere
+            # press with half its columns lagged: "rows 0-334 (top)"): the readout's band is the one whose blocks
+            # are all the previous light
+            difference = np.abs(current - neighbour) / np.where(lit, np.maximum(current, neighbour), 1)
+            found.sort(key=lambda band: _own_light_share(band, difference, lit))
+        bands += found[:1]
     return bands
+
+
+def _own_light_share(band: LaggedBand, difference: np.ndarray, lit: np.ndarray) -> float:
+    """The share of the ``lit`` blocks inside ``band`` whose relative ``difference`` (h, w) from the previous image
+    is :data:`~nlipscalib.core.tolerances.REPEATED_FRAME_DIFFERENCE` or more: the image's own light, or noise alone
+    where the whole band is the previous image's light."""
+    b = CAPTURE_CHECK_BLUR
+    lines = slice(band.rows[0] // b, -(-band.rows[1] // b))
+    inside = (slice(None), lines) if band.axis == "columns" else (lines, slice(None))
+    values = difference[inside][lit[inside]]
+    return float(np.mean(values >= REPEATED_FRAME_DIFFERENCE)) if values.size else 1.0
+
+
+def _lagged_lines(
+    current: np.ndarray, neighbour: np.ndarray, lit: np.ndarray, index: int, axis: str
+) -> LaggedBand | None:
+    """:func:`lagged_bands`' test of one LED image's rows of blocks (``axis`` "columns": of the transposed blocks).
+
+    Parameters
+    ----------
+    current, neighbour : (h, w) float32 -- the image's and the previous image's block means (rows: the lines
+        tested).
+    lit : (h, w) bool -- the blocks on the gel that either image lights.
+    """
+    rows = np.flatnonzero(lit.sum(axis=1) >= MIN_LIT_ROW_BLOCKS)
+    if len(rows) <= LAGGED_BAND_ROWS:
+        return None
+    scale = np.where(lit[rows], np.maximum(current[rows], neighbour[rows]), 1)
+    difference = _row_medians(np.abs(current[rows] - neighbour[rows]) / scale, lit[rows])
+    # 1: the previous LED's light, 0: the image's own light. Dark rows (read while no LED was lit) are not
+    # looked for here: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
+    # from their design: dark top rows in 2 of 12 images, s28-rolling); the LED model tells (dark_bands)
+    kind = (difference < REPEATED_FRAME_DIFFERENCE).astype(np.int8)
+    return _edge_band(kind, rows, index, axis)
 
 
 def _row_medians(values: np.ndarray, counted: np.ndarray) -> np.ndarray:
@@ -404,9 +451,10 @@ def _row_quantiles(values: np.ndarray, counted: np.ndarray, q: float) -> np.ndar
     return ordered[np.arange(len(values)), np.floor(q * (count - 1)).astype(int)]
 
 
-def _edge_band(kind: np.ndarray, rows: np.ndarray, index: int) -> LaggedBand | None:
-    """The band of rows of the previous image's light (``kind`` 1) at the top, else at the bottom, of the counted
-    ``rows`` (block rows, ascending) when it is :data:`LAGGED_BAND_ROWS` long or more and not all of them."""
+def _edge_band(kind: np.ndarray, rows: np.ndarray, index: int, axis: str = "rows") -> LaggedBand | None:
+    """The band of rows (``axis`` "columns": columns) of the previous image's light (``kind`` 1) at the top (left),
+    else at the bottom (right), of the counted ``rows`` (block rows, ascending) when it is :data:`LAGGED_BAND_ROWS`
+    long or more and not all of them."""
     b = CAPTURE_CHECK_BLUR
     for top in (True, False):
         ordered = kind if top else kind[::-1]
@@ -415,7 +463,7 @@ def _edge_band(kind: np.ndarray, rows: np.ndarray, index: int) -> LaggedBand | N
         run = int(np.argmax(ordered != ordered[0])) if (ordered != ordered[0]).any() else len(ordered)
         if LAGGED_BAND_ROWS <= run < len(ordered):
             span = (int(rows[0]) * b, int(rows[run]) * b) if top else (int(rows[-run]) * b, (int(rows[-1]) + 1) * b)
-            return LaggedBand(index, span, top)
+            return LaggedBand(index, span, top, axis)
     return None
 
 
@@ -447,16 +495,21 @@ def repeated_line(folder: object, names: list[str], repeated: list[tuple[int, fl
 
 
 def lagged_line(folder: object, names: list[str], bands: list[LaggedBand]) -> str:
-    """One line naming the partly lagged LED images (``names`` in capture order), their rows, the cause and the fix."""
+    """One line naming the partly lagged LED images (``names`` in capture order), their rows (columns), the cause
+    and the fix."""
     said = []
     for band in bands:
-        where = f"rows {band.rows[0]}-{band.rows[1] - 1} ({'top' if band.top else 'bottom'})"
+        where = f"{band.axis} {band.rows[0]}-{band.rows[1] - 1} ({band.where})"
         said.append(f"{names[band.index]}'s {where} show {names[band.index - 1]}'s light")
+    reads = (
+        "a camera mounted turned 90 degrees: its rolling shutter reads the image's columns one after another"
+        if bands and all(band.axis == "columns" for band in bands)
+        else "a rolling shutter reads the rows one after another"
+    )
     return (
-        f"{folder}: {'; '.join(said)}: the LEDs switched while the camera read the frame out (a rolling shutter "
-        "reads the rows one after another: a frame read across the switch holds both lights); capture again with "
-        "--flush 1 or more (frames dropped after each LED change, default 2), and a frame source that drops them "
-        "(a recorded video or image sequence does not)"
+        f"{folder}: {'; '.join(said)}: the LEDs switched while the camera read the frame out ({reads}: a frame read "
+        "across the switch holds both lights); capture again with --flush 1 or more (frames dropped after each LED "
+        "change, default 2), and a frame source that drops them (a recorded video or image sequence does not)"
     )
 
 

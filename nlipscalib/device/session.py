@@ -345,6 +345,8 @@ def run_session(
     clean_interrupted(out)
     _check_same_session(out, rig, cfg)
     names = [REFERENCE_NAME] + [press_name(k) for k in range(1, cfg.presses + 1)]
+    if set(names) - set(captured_folders(out, cfg.presses)) and (line := made_otherwise_line(out, rig)):
+        log.warning("%s", line)  # only when a folder is to be captured: a session kept whole mixes nothing
     status: dict[str, dict | str] = {}
     # the project's bar: drawn by its own helper (an interrupt cannot leave it open), only where a person sees it
     for k, name in enumerate(track(names, enabled=progress, desc="capture", unit="press")):
@@ -371,6 +373,54 @@ def captured_folders(out: str | Path, presses: int) -> list[str]:
     whose files went missing counts as not captured, as :func:`run_session` captures it again."""
     names = [REFERENCE_NAME] + [press_name(k) for k in range(1, presses + 1)]
     return [name for name in names if is_press_folder(Path(out) / name) and not _damaged(Path(out) / name)]
+
+
+MADE_BY = ("code", "libraries")
+"""The keys of a rig's ``provenance`` naming what made its images beside the sensor: the emulated sensor's twin
+code and render libraries (``sim.press.render_identity``), recorded in each press it captures; a device has none."""
+
+
+def made_otherwise_line(out: str | Path, rig: Rig) -> str:
+    """The warning when whole press folders in ``out`` were made by other twin code or render libraries than
+    ``rig``'s (its ``provenance``'s :data:`MADE_BY`; the emulated sensor), or recorded none (emulated before
+    2026-12-06); "" when they match or ``rig`` records none (a device: its images are the sensor's).
+
+    Why: an emulated session resumed after an upgrade took today's render of a new press beside its old reference
+    and presses, said nowhere (a session of before 2026-12-04 records no settings to compare), and ``nlips solve``
+    pairs them. Kept, not refused, as ``nlips dataset`` keeps its renders: the user decides."""
+    from ..core.press_meta import read_meta
+
+    ours = {key: rig.provenance[key] for key in MADE_BY if key in rig.provenance}
+    if not ours:
+        return ""
+    out, differs = Path(out), {}
+    for folder in sorted((d for d in out.iterdir() if d.is_dir()), key=lambda d: (d.name != REFERENCE_NAME, d.name)):
+        if is_press_folder(folder) and not _damaged(folder):
+            provenance = read_meta(folder).get("provenance")
+            theirs = {key: provenance.get(key) for key in MADE_BY} if isinstance(provenance, dict) else {}
+            if any(theirs.get(key) != value for key, value in ours.items()):
+                differs[folder.name] = theirs
+    if not differs:
+        return ""
+    names = list(differs)
+    said = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+    return (
+        f"{out}: {said} {'was' if len(names) == 1 else 'were'} captured by the emulated sensor with other twin code "
+        f"or render libraries ({_made_difference(differs[names[0]], ours)}); kept, so this session mixes their "
+        "images with this run's: remove them to capture them again, or capture into a new --out folder"
+    )
+
+
+def _made_difference(was: dict, ours: dict) -> str:
+    """What made a press otherwise than ``ours`` (:data:`MADE_BY` values), in words: "twin code unrecorded: ...",
+    "other code of sim/ or core/", "mitsuba 3.5.0 (now 3.6.0)" (as ``nlips dataset`` says of its renders)."""
+    if not was.get("code"):
+        return "twin code unrecorded: an older nlipscalib captured it"
+    said = ["other code of sim/ or core/"] if was.get("code") != ours.get("code") else []
+    libraries = was.get("libraries") if isinstance(was.get("libraries"), dict) else {}
+    now = ours.get("libraries") if isinstance(ours.get("libraries"), dict) else {}
+    said += [f"{k} {libraries.get(k)} (now {v})" for k, v in now.items() if libraries.get(k) != v]
+    return ", ".join(said)
 
 
 @contextlib.contextmanager
@@ -448,6 +498,14 @@ def _check_session_record(path: Path, described: dict) -> None:
             f"{path}: unreadable session description ({exc}); to resume with the settings these presses were "
             f"captured with, remove or rename {SESSION_FILE} and run again, or capture into a new --out folder"
         ) from None
+    was, now = _emulated_tone_curve(before), _emulated_tone_curve(described)
+    if was != now:
+        # named as the option: "settings (emulated_tone_curve: 'gamma2.2' -> None)" hid which option to give again
+        raise CaptureError(
+            f"{path}: this session's frames were encoded with --emulate-tone-curve {was} (this run: {now}); resume "
+            f"it with {'no --emulate-tone-curve' if was == 'none' else f'--emulate-tone-curve {was}'}, or capture "
+            "into a new folder"
+        )
     if {k: before.get(k) for k in ("camera", "n_leds")} != {k: described[k] for k in ("camera", "n_leds")}:
         raise CaptureError(
             f"{path}: this session folder was captured with another camera or LED count "
@@ -458,6 +516,15 @@ def _check_session_record(path: Path, described: dict) -> None:
             f"{path}: this session was captured with other settings ({changes[0]}); resume it with the same "
             "settings, or capture into a new folder"
         )
+
+
+def _emulated_tone_curve(record: dict) -> str:
+    """The tone curve a session record's emulated camera encoded its frames with (``settings.emulated_tone_curve``,
+    ``nlips capture --emulate-tone-curve``), "none" for linear frames: a device's session, or one recorded before
+    the emulator had tone curves (2026-12-06), whose frames were all linear."""
+    settings = record.get("settings")
+    curve = settings.get("emulated_tone_curve") if isinstance(settings, dict) else None
+    return str(curve) if curve else "none"
 
 
 def _lit_settings(record: dict) -> object:
@@ -550,4 +617,6 @@ def _capture_settings(rig: Rig, cfg: SessionConfig) -> dict:
         }
         # a declared tone curve changes what the images mean; linear sessions keep the record they had before it
         | ({"camera_response": rig.response.camera_response} if rig.response.camera_response != "linear" else {})
+        # the emulated camera's own curve changes its frames' values (recorded alike only when there is one)
+        | ({"emulated_tone_curve": prov["tone_curve"]} if prov.get("tone_curve") else {})
     )

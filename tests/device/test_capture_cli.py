@@ -8,6 +8,7 @@ pytest.importorskip("mitsuba")
 
 from nlipscalib.cli import main  # noqa: E402
 from nlipscalib.core import find_presses, load_press  # noqa: E402
+from nlipscalib.sim.press import render_identity  # noqa: E402
 
 
 def test_emulated_session_from_the_cli_resumes(tmp_path, capsys, caplog):
@@ -32,7 +33,24 @@ def test_emulated_session_from_the_cli_resumes(tmp_path, capsys, caplog):
     p = load_press(presses[0])
     assert p.reference is not None and p.led_images.shape == (12, 48, 64, 3)
     assert p.meta["provenance"]["device"] == "emulator" and p.meta["provenance"]["attempts"] == 2
+    # the twin that rendered it, as a rendered press records it: a resume after an upgrade tells (test_session.py)
+    assert {k: p.meta["provenance"][k] for k in ("code", "libraries")} == render_identity()
     assert json.loads((tmp_path / "s" / "session.json").read_text(encoding="utf-8"))["n_leds"] == 12
+
+
+def test_an_emulated_session_resumed_with_another_tone_curve_is_one_line_exit_2(tmp_path, capsys):
+    """Its frames were encoded with gamma 2.2; resumed without --emulate-tone-curve the new press's were linear,
+    said nowhere. The refusal names the option and what to give; the session is left as it was."""
+    args = ["capture", "--emulate", "nlipstac", "--width", "64", "--height", "48", "--spp", "1", "--yes"]
+    out = tmp_path / "s"
+    assert main([*args, "--out", str(out), "--presses", "0", "--emulate-tone-curve", "gamma2.2"]) == 0
+    record = json.loads((out / "session.json").read_text(encoding="utf-8"))
+    assert record["settings"]["emulated_tone_curve"] == "gamma2.2"
+    capsys.readouterr()
+    assert main([*args, "--out", str(out), "--presses", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--emulate-tone-curve gamma2.2 (this run: none)" in err[0], err
+    assert sorted(p.name for p in out.iterdir()) == ["reference", "session.json"]
 
 
 def test_device_path_without_port_is_one_clear_error(tmp_path, capsys):

@@ -69,3 +69,21 @@ def test_without_flushing_the_capture_check_names_the_rows_read_before_the_switc
     assert bands[0].rows == (0, 25)
     line = lagged_line("press_01", [f"led_{k + 1:02d}.png" for k in range(4)], bands)
     assert "led_03.png's rows 0-24 (top) show led_02.png's light" in line and "--flush 1 or more" in line
+
+
+def test_a_camera_turned_90_degrees_without_flushing_names_the_columns_read_before_the_switch():
+    """Mounted turned 90 degrees, the rolling shutter reads the image's columns: LED 3's left (or right) columns
+    show LED 2's light. Only rows were compared before (the band was not seen); the columns are named as the rows
+    are, with the cause in their words, and a clean turned capture holds none."""
+    camera = RollingShutterCamera(_lights(), rows_before=25, across=(2,))
+    camera.flush_frames = 0
+    turned = _capture_all(camera).transpose(0, 2, 1, 3)  # (4, 80, 60, 3): the first 25 columns read before
+    gel = np.ones(turned.shape[1:3], bool)
+    repeated, bands = frame_lags(turned, gel)
+    assert repeated == [] and [(band.index, band.rows, band.where) for band in bands] == [(2, (0, 25), "left")]
+    line = lagged_line("press_01", [f"led_{k + 1:02d}.png" for k in range(4)], bands)
+    assert "led_03.png's columns 0-24 (left) show led_02.png's light" in line and "turned 90 degrees" in line
+    mirrored = frame_lags(turned[:, :, ::-1], gel)[1]
+    assert [(band.index, band.rows, band.where) for band in mirrored] == [(2, (35, 60), "right")]
+    camera.flush_frames = 2
+    assert frame_lags(_capture_all(camera).transpose(0, 2, 1, 3), gel) == ([], [])

@@ -387,3 +387,79 @@ def test_on_a_terminal_the_operators_lines_start_their_own_line_not_the_bars(tmp
     said = [line for line in shown if "Press " in line or "Do not touch" in line]
     assert len(said) == 5 and all(line.startswith(("Press ", "Do not touch")) for line in said), said
     assert "capture:" in screen.getvalue()  # the bar was drawn
+
+
+def test_resume_with_another_emulated_tone_curve_is_refused_naming_the_option(tmp_path):
+    """`nlips capture --emulate nlipstac --emulate-tone-curve gamma2.2` resumed without the option (or with another)
+    captured the new presses' frames linear beside gamma-encoded ones, said nowhere: the curve was not in
+    session.json. A session recorded without it (linear, or begun before the emulator had curves) resumes linear."""
+    import json
+
+    rig, _ = _rig()
+    rig.provenance = {"device": "emulator", "tone_curve": "gamma2.2"}
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    rig.provenance = {"device": "emulator"}
+    with pytest.raises(CaptureError) as err:
+        run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    message = str(err.value)
+    assert "\n" not in message and message.startswith(str(tmp_path / "s" / "session.json"))
+    assert (
+        "--emulate-tone-curve gamma2.2 (this run: none)" in message
+        and "resume it with --emulate-tone-curve gamma2.2" in message
+    )
+    rig.provenance = {"device": "emulator", "tone_curve": "s-curve"}
+    with pytest.raises(CaptureError, match=r"--emulate-tone-curve gamma2\.2 \(this run: s-curve\)"):
+        run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    assert sorted(p.name for p in (tmp_path / "s").iterdir()) == ["press_0001", "reference", "session.json"]
+    rig.provenance = {"device": "emulator", "tone_curve": "gamma2.2"}
+    assert run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])["press_0002"]["attempts"] == 1
+    # a session recorded before the curve was (no such key; or no settings at all, before 2026-12-04): linear
+    path = tmp_path / "s" / "session.json"
+    record = json.loads(path.read_text(encoding="utf-8"))
+    for old in (
+        {**record, "settings": {k: v for k, v in record["settings"].items() if k != "emulated_tone_curve"}},
+        {k: v for k, v in record.items() if k != "settings"},
+    ):
+        path.write_text(json.dumps(old), encoding="utf-8")
+        with pytest.raises(CaptureError, match=r"--emulate-tone-curve none \(this run: gamma2\.2\); resume it with no"):
+            run_session(rig, tmp_path / "s", SessionConfig(presses=3), _quiet()[0])
+        rig.provenance = {"device": "emulator"}
+        assert run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])["press_0002"] == "kept"
+        rig.provenance = {"device": "emulator", "tone_curve": "gamma2.2"}
+
+
+def test_an_emulated_session_resumed_by_other_twin_code_says_its_earlier_presses_were_made_otherwise(tmp_path, caplog):
+    """An emulated session begun before an upgrade took today's render of a new press beside its old reference and
+    presses, said nowhere (the presses recorded no twin code). Now each emulated press records the twin code and
+    render libraries, and a resume that captures beside presses of other ones (or of none) warns, naming them."""
+    import logging
+
+    rig, _ = _rig()
+    libraries = {"mitsuba": "3.6.0", "drjit": "1.0.0"}
+    rig.provenance = {"device": "emulator"}  # captured before 2026-12-06: no code recorded
+    run_session(rig, tmp_path / "old", SessionConfig(presses=1), _quiet()[0])
+    rig.provenance = {"device": "emulator", "code": "a" * 32, "libraries": libraries}
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.device.session"):
+        run_session(rig, tmp_path / "old", SessionConfig(presses=2), _quiet()[0])
+    assert (
+        f"{tmp_path / 'old'}: reference, press_0001 were captured by the emulated sensor with other twin code or "
+        "render libraries (twin code unrecorded: an older nlipscalib captured it); kept" in caplog.text
+    )
+    assert load_press(tmp_path / "old" / "press_0002").meta["provenance"]["code"] == "a" * 32
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.device.session"):
+        run_session(rig, tmp_path / "old", SessionConfig(presses=2), _quiet()[0])  # nothing to capture: nothing mixed
+        run_session(rig, tmp_path / "new", SessionConfig(presses=1), _quiet()[0])
+        run_session(rig, tmp_path / "new", SessionConfig(presses=2), _quiet()[0])  # the same code: silent
+    assert "other twin code" not in caplog.text
+    rig.provenance = {"device": "emulator", "code": "b" * 32, "libraries": libraries | {"mitsuba": "3.7.0"}}
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.device.session"):
+        run_session(rig, tmp_path / "new", SessionConfig(presses=3), _quiet()[0])
+    assert "new: reference, press_0001, press_0002 were captured" in caplog.text
+    assert "(other code of sim/ or core/, mitsuba 3.6.0 (now 3.7.0))" in caplog.text
+    caplog.clear()
+    device, _ = _rig()  # a device records no twin code: its presses are never said to be made otherwise
+    with caplog.at_level(logging.WARNING, logger="nlipscalib.device.session"):
+        run_session(device, tmp_path / "device", SessionConfig(presses=1), _quiet()[0])
+        run_session(device, tmp_path / "device", SessionConfig(presses=2), _quiet()[0])
+    assert "other twin code" not in caplog.text

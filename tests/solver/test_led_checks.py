@@ -304,6 +304,29 @@ def test_an_led_image_read_out_across_the_switch_is_named_with_its_rows_and_left
     assert rep["leds_left_out"] == [4] and said[0] in caplog.text
 
 
+def test_an_led_image_read_out_across_the_switch_by_a_camera_turned_90_degrees_is_named_with_its_columns(
+    tmp_path, caplog
+):
+    """A camera mounted turned 90 degrees reads the columns one after another: LED 5's left columns from LED 4's
+    light were solved as its own, said nowhere (the check looked at rows only; dark columns were named since
+    s30-darkcols). Now the columns, the cause and the fix are named and the LED is left out, as for rows."""
+
+    def hook(lin):
+        lin = lin.copy()
+        lin[4, :, :40] = lin[3, :, :40]
+        return lin
+
+    press = _press(tmp_path, "rolling_turned", hook)
+    with caplog.at_level(logging.WARNING):
+        result = solve_press(press, options=SolverOptions(max_iters=2))
+    rep = result.report
+    said = [note for note in rep["warnings"] if "read the frame out" in note]
+    assert len(said) == 1 and "led_05.png's columns " in said[0] and "(left) show led_04.png's light" in said[0]
+    assert "turned 90 degrees" in said[0] and "--flush" in said[0] and "left out of the solve" in said[0]
+    assert not any("repeats" in note or "are dark" in note for note in rep["warnings"])
+    assert rep["leds_left_out"] == [4] and said[0] in caplog.text
+
+
 def test_dark_top_rows_of_an_led_image_are_named_and_only_those_rows_left_out_for_that_led(tmp_path, caplog):
     """LED 9's top 20 rows read while it was off (the dark frame's level): solved without a word about it, or with a
     wrong cause (the twin's presses, LED 5's top 20-60 rows: "misfitting pixels along the gel's edge ... vignetting";
