@@ -66,9 +66,10 @@ def test_the_dataset_spec_section_documents_every_key_and_its_example_loads(tmp_
 
 
 def _literal_keys(module: str, function: str, variable: str | None = None) -> list[str]:
-    """The string keys of the dict literal(s) assigned to ``variable`` (None: returned) in ``function`` of ``module``
-    (a dotted name under nlipscalib/), nested dicts included: what a writer puts into its file, read from its
-    source, for writers that need a whole run (a training, an experiment, a stream) to produce the file."""
+    """The string keys of the dict literal(s) assigned to ``variable`` (None: returned; also a call's keyword
+    argument of that name) in ``function`` of ``module`` (a dotted name under nlipscalib/), nested dicts included:
+    what a writer puts into its file, read from its source, for writers that need a whole run (a training, an
+    experiment, a stream, a camera) to produce the file."""
     import ast
 
     source = Path(__file__).resolve().parents[1] / "nlipscalib" / (module.replace(".", "/") + ".py")
@@ -79,6 +80,7 @@ def _literal_keys(module: str, function: str, variable: str | None = None) -> li
         for n in ast.walk(func)
         if (isinstance(n, ast.Return) and variable is None)
         or (isinstance(n, ast.Assign) and any(isinstance(t, ast.Name) and t.id == variable for t in n.targets))
+        or (isinstance(n, ast.keyword) and variable is not None and n.arg == variable)
     ]
     assert values, f"{module}.{function} makes no {variable or 'return value'}"
     return [
@@ -123,7 +125,7 @@ def test_led_file_sensor_description_and_camera_calibration_keys_are_documented(
         leds=(led,), albedo=(1.0, 1.0, 1.0), std=[{}], rms=[0.0], emitters=(led,), led_radius=1.8,
         reflectance_profile={}, quality={},
     )  # fmt: skip
-    led_file = _section("## LED file", "## Camera calibration")
+    led_file = _section("## LED file", "## Camera response file")
     assert _undocumented(cal.to_json(), led_file) == []
     assert _undocumented(["leds", "sensor"], led_file) == []  # core.ledfile.save_leds's and cli.calibrate's
     assert _undocumented(_literal_keys("solver.calibration_quality", "fit_quality"), led_file) == []
@@ -132,6 +134,22 @@ def test_led_file_sensor_description_and_camera_calibration_keys_are_documented(
     assert _undocumented(sensor, _section("## Sensor description", "# Dataset spec")) == []
     calibration = Calibration(camera, 0.1, (0.1,), ("a.png",), ())
     assert _undocumented(calibration.to_dict(), _section("## Camera calibration", "## Sensor description")) == []
+
+
+def test_camera_response_file_and_device_press_provenance_keys_are_documented():
+    """The response file's keys and its provenance's (nested ``monotonic`` too), and what a device or emulated
+    press records in meta.json ``provenance`` beside the session's own keys (the camera, the measured response)."""
+    response_file = _section("## Camera response file", "## Camera calibration")
+    assert _undocumented(_literal_keys("core.response_curve", "write_response_file", "doc"), response_file) == []
+    assert _undocumented(_literal_keys("cli.camera_response", "_fit_and_write", "provenance"), response_file) == []
+    device = _section("Device presses record in `provenance`", "`reference.npz` of device presses")
+    keys = [
+        *_literal_keys("cli.capture", "_run_device", "provenance"),
+        *_literal_keys("cli.capture", "response_provenance"),
+        *_literal_keys("emulator", "open_emulated_sensor", "provenance"),
+    ]
+    assert {"camera_gamma", "camera_response", "tone_curve"} <= set(keys)  # the check reads the writers
+    assert _undocumented(keys, device) == []
 
 
 def test_report_json_interreflection_model_onnx_stream_and_experiment_keys_are_documented():

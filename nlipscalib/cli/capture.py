@@ -67,8 +67,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "the tri-colour again to detect movement (a press that moved is retaken), in the capture format the twin "
         "writes. Prompts the operator before each press (--yes for scripts); run again after an interruption and "
         "it continues. Real sensor: --port and --camera (fixed exposure, gain and white balance; raw, linear frames: "
-        "a webcam's gamma set to linear first, or its sRGB curve declared with --camera-response srgb, "
-        "docs/formats.md, Cameras); --emulate SCENE: "
+        "a webcam's gamma set to linear first, or its sRGB curve declared with --camera-response srgb, another "
+        "curve with the FILE `nlips calibrate-camera-response` measures, docs/formats.md, Cameras); --emulate SCENE: "
         "the same path through the LED driver, a virtual board and a camera showing the twin's renders.",
     )
     p.add_argument("--out", required=True, help="session folder (reference/, press_0001/, ...); resumes if present")

@@ -140,7 +140,8 @@ def _factory(spec: str) -> Callable:
 
 RESPONSE_ATTRIBUTE = "camera_response"
 """The attribute of a ``--predictor`` function that declares the camera response it was made for (one of
-``core.sensor_response.CAMERA_RESPONSES``), as a model file records its calibration's."""
+``core.sensor_response.CAMERA_RESPONSES``, or a measured curve's name "measured:<hash>"), as a model file records its
+calibration's."""
 
 
 def plugged_response(args: argparse.Namespace, factory: object) -> str:

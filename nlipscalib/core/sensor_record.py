@@ -69,7 +69,8 @@ def response_table_of(sensor: dict) -> np.ndarray | None:
 
 
 def camera_response_of(sensor: dict) -> str:
-    """The camera response (``core.sensor_response.CAMERA_RESPONSES``) a sensor description records: what the
+    """The camera response (``core.sensor_response.CAMERA_RESPONSES``, or a measured curve's "measured:<hash>",
+    its curve in ``response_curve``) a sensor description records: what the
     frames of its captures, and a model's stills and streams, are encoded with; "linear" when it records none (a
     linear camera, or a file written before responses were recorded, 2026-12-06)."""
     return sensor.get("camera_response", "linear")
