@@ -501,12 +501,13 @@ curve and auto exposure; the same light captured twice differs by its noise, 0.3
 12-bit; the block means average as many pixels), 0.000 for a frame handed out twice. A twice-as-dense ring
 (24 LEDs) would still differ by about 0.05 (linear)."""
 LAGGED_BAND_ROWS = 3
-"""Fewest rows of blocks (of :data:`CAPTURE_CHECK_BLUR` pixels) at the top or bottom of an LED image that must show
-the light of the image captured before it (within :data:`REPEATED_FRAME_DIFFERENCE`) for the image to be called
-partly lagged: the LEDs switched while a rolling shutter read the frame out
-(:func:`nlipscalib.core.repeated_frames.lagged_bands`). 15 pixels. Why a run of rows: one row of blocks of two
-neighbouring LED images can come within 1.6 % (twin presses at 640x480, /tmp/keep and extra); none came below 1 %,
-and no run of 3 rows below 3 % reached an image's top or bottom (s28-rolling)."""
+"""Fewest rows of blocks (of :data:`CAPTURE_CHECK_BLUR` pixels) at the top or bottom of an LED image (or columns at
+its left or right: a camera mounted turned 90 degrees, s30-qaleft) that must show the light of the image captured
+before it (within :data:`REPEATED_FRAME_DIFFERENCE`) for the image to be called partly lagged: the LEDs switched
+while a rolling shutter read the frame out (:func:`nlipscalib.core.repeated_frames.lagged_bands`). 15 pixels.
+Why a run of rows: one row of blocks of two neighbouring LED images can come within 1.6 % (twin presses at 640x480,
+/tmp/keep and extra); none came below 1 %, and no run of 3 rows below 3 % reached an image's top or bottom
+(s28-rolling); no edge row or column of blocks within 1 % on /tmp/keep and 19 captures at 320x240 (s30-qaleft)."""
 SHIFTED_BAND_RATIO = 0.7
 """The rows of a band of the frame are read out before the LED switch in every LED image (a systematic timing
 error: the camera's rolling readout starts before each LED switches) when, in median over the LEDs, the LED image
@@ -514,9 +515,10 @@ fitted (gain and offset) to the previous LED's modelled light leaves less than t
 LED's (:func:`nlipscalib.solver.led_checks.shifted_rows`). The twin's presses (/tmp/keep, 640x480, 16 bands of 30
 rows): 1.18 and above in every band; bands read before the switch: 0.09-0.48 (s28-rolling)."""
 DARK_BAND_ROWS = 3
-"""Fewest bands of :data:`CAPTURE_CHECK_BLUR` rows (15 pixels) in a run for an LED image's rows (or every LED
-image's) to be called dark: read while no LED was lit (:func:`nlipscalib.core.repeated_frames.dark_bands`,
-:func:`~nlipscalib.core.repeated_frames.dark_everywhere`). As :data:`LAGGED_BAND_ROWS`."""
+"""Fewest bands of :data:`CAPTURE_CHECK_BLUR` rows (columns) in a run, 15 pixels, for an LED image's rows (or every
+LED image's) to be called dark at the bands' test: read while no LED was lit; shorter runs are looked at row by row
+(:data:`DARK_CANDIDATE_SHARE`, :data:`DARK_LINES_MIN`); :func:`nlipscalib.core.repeated_frames.dark_bands`,
+:func:`~nlipscalib.core.repeated_frames.dark_everywhere`. As :data:`LAGGED_BAND_ROWS`."""
 DARK_BAND_LIGHT = 0.25
 """Rows are dark (read while no LED was lit, or a very dim LED) when, in :data:`DARK_BAND_SHARE` of a band of
 :data:`CAPTURE_CHECK_BLUR` rows' samples, the LED image's light over the light the LED model (albedo fitted over the

@@ -76,7 +76,8 @@ class CameraSettings:
     """Ask for the camera's unconverted frames (the highest bit depth it gives, e.g. 10/12/16-bit Y16)."""
     linear_gamma: bool = True
     """Ask for gamma 1.0 (``CAP_PROP_GAMMA`` :data:`UVC_LINEAR_GAMMA`) and report a camera that refuses it; False
-    leaves the camera's gamma as it is (its tone curve declared instead: ``nlips capture --camera-response srgb``)."""
+    leaves the camera's gamma as it is (its tone curve declared instead: ``nlips capture --camera-response srgb``, or
+    a curve measured by ``nlips calibrate-camera-response``: ``--camera-response FILE``)."""
 
     def __post_init__(self):
         if self.buffer_size < 1 or self.flush_frames < 0 or self.average < 1:
