@@ -18,6 +18,7 @@ import os
 import stat
 import zipfile
 from pathlib import Path
+from typing import BinaryIO
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 """The 8 bytes every PNG file starts with."""
@@ -84,7 +85,7 @@ def described_problems(folder: str | Path, names: list[str], most: int = 3) -> s
     return ", ".join(said) + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
-def _png_problem(f, size: int) -> str | None:
+def _png_problem(f: BinaryIO, size: int) -> str | None:
     if f.read(len(PNG_SIGNATURE)) != PNG_SIGNATURE:
         return "damaged (no PNG signature at its start)"
     if size < len(PNG_SIGNATURE) + len(PNG_END):
@@ -93,7 +94,7 @@ def _png_problem(f, size: int) -> str | None:
     return None if f.read() == PNG_END else "cut short (no PNG end chunk)"
 
 
-def _zip_problem(f, size: int, path: Path) -> str | None:
+def _zip_problem(f: BinaryIO, size: int, path: Path) -> str | None:
     if f.read(len(ZIP_SIGNATURE)) != ZIP_SIGNATURE:
         return "damaged (no zip signature at its start)"
     if size >= ZIP_END_SIZE:
