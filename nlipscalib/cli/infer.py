@@ -1027,7 +1027,8 @@ def _kept(folder: Path, provenance: dict, figures: str) -> bool:
     leftover, core.atomic), when it is damaged (every array read and checked, as ``nlips solve`` checks a result it
     keeps: a warning), when it lacks the points.ply its settings name (removed since) or the ``figures`` asked
     now, or holds one empty or cut short (made with --figures none, by an older nlipscalib, a power cut: inferring
-    again costs a fraction of a second once the model is loaded), or when its key differs (:func:`_save` says what changed as it replaces it)."""
+    again costs a fraction of a second once the model is loaded), or when its key differs (:func:`_save` says what
+    changed as it replaces it)."""
     from ..core.reconstruction import read_report, reconstruction_problem
     from ..report import figures_problem
 
