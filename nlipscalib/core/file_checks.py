@@ -52,24 +52,24 @@ def file_problem(path: str | Path) -> str | None:
     """
     path = Path(path)
     try:
+        st = path.stat()  # before opening: a folder or a pipe of that name is no file (and a pipe would block)
+        if not stat.S_ISREG(st.st_mode):
+            return MISSING
+        if st.st_size == 0:
+            return EMPTY
+        suffix = path.suffix.lower()
+        if suffix not in (".png", ".npz", ".json"):
+            return None
         with open(path, "rb") as f:
-            st = os.fstat(f.fileno())
-            if not stat.S_ISREG(st.st_mode):
-                return MISSING
-            if st.st_size == 0:
-                return EMPTY
-            suffix = path.suffix.lower()
             if suffix == ".png":
                 return _png_problem(f, st.st_size)
             if suffix == ".npz":
                 return _zip_problem(f, st.st_size, path)
-            if suffix == ".json" and st.st_size <= JSON_MOST_BYTES:
-                return _json_problem(f.read())
+            return _json_problem(f.read()) if st.st_size <= JSON_MOST_BYTES else None
     except FileNotFoundError:
         return MISSING
     except OSError as exc:
         return f"unreadable ({exc.strerror or exc})"
-    return None
 
 
 def unusable_files(folder: str | Path, names: list[str]) -> list[str]:
