@@ -1026,10 +1026,11 @@ def _kept(folder: Path, provenance: dict, figures: str) -> bool:
     Not when a write of it was interrupted beside it (inferring it again publishes a result and removes the
     leftover, core.atomic), when it is damaged (every array read and checked, as ``nlips solve`` checks a result it
     keeps: a warning), when it lacks the points.ply its settings name (removed since) or the ``figures`` asked
-    now (made with --figures none, or by an older nlipscalib: inferring again costs a fraction of a second once
-    the model is loaded), or when its key differs (:func:`_save` says what changed as it replaces it)."""
+    now, or holds one empty or cut short (made with --figures none, by an older nlipscalib, a power cut: inferring
+    again costs a fraction of a second once the model is loaded), or when its key differs (:func:`_save` says what
+    changed as it replaces it)."""
     from ..core.reconstruction import read_report, reconstruction_problem
-    from ..report import figures_missing
+    from ..report import figures_problem
 
     if _interrupted_write(folder):
         log.info("%s: an interrupted write of it lies beside it; inferring it again", folder)
@@ -1045,8 +1046,8 @@ def _kept(folder: Path, provenance: dict, figures: str) -> bool:
     if provenance["settings"]["ply"] and not (folder / "points.ply").is_file():
         log.info("%s: its points.ply is missing; inferring it again", folder)
         return False
-    if figures_missing(folder, figures):
-        log.info("%s: its figures (--figures %s) are missing; inferring it again", folder, figures)
+    if (problem := figures_problem(folder, figures)) is not None:
+        log.info("%s: its figures (--figures %s): %s; inferring it again", folder, figures, problem)
         return False
     log.debug("%s: identical result exists, kept (--overwrite infers it again)", folder)
     return True

@@ -211,6 +211,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..core.atomic import check_writable
     from ..progress import working
+    from ..sim.dataset_folder import missing_files
     from ..sim.press import render_press
 
     scene = _scene(args)
@@ -235,7 +236,8 @@ def run(args: argparse.Namespace) -> int:
     what = "undeformed dome" if press is None else "press"
     try:
         with working(f"rendering {what} ({scene.camera.width}x{scene.camera.height}, spp {scene.render.spp})"):
-            path = render_press(scene, press, out, seed=args.seed, overwrite=args.overwrite)
+            replace = args.overwrite or (out.is_dir() and bool(missing_files(out)))  # a torn press: _up_to_date
+            path = render_press(scene, press, out, seed=args.seed, overwrite=replace)
     except FileExistsError:
         # another run published the folder meanwhile: its very render is done, as a run after it would say
         if args.overwrite or not out.is_dir() or not _up_to_date(out, scene, press, args.seed):
@@ -294,8 +296,24 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
             f"{f' ({why})' if why else ''}; "
             "use --overwrite to replace it, or another --out"
         )
+    if _torn_files(out):
+        return False
     _warn_other_renderer(out)
     return True
+
+
+def _torn_files(out: Path) -> list[str]:
+    """Files of the press in ``out`` that are gone, empty or cut short (sim.dataset_folder.missing_files), said in
+    a warning: the press is then rendered again in place of them.
+
+    Why: writes are atomic but not synced, so a power cut soon after a render was published can leave a file empty
+    or cut short; "already rendered ..., nothing to do" kept it at every run, and the solve failed on it."""
+    from ..sim.dataset_folder import described_missing, missing_files
+
+    torn = missing_files(out)
+    if torn:
+        log.warning("%s: %s; rendering it again", out, described_missing(out, torn))
+    return torn
 
 
 def _warn_other_renderer(out: Path) -> None:

@@ -44,12 +44,14 @@ def find_presses(root: str | Path) -> list[Path]:
 
 
 def missing_capture_files(folder: str | Path) -> list[str]:
-    """Files a press folder's meta.json lists (images, reference, ground truth) that are not there; [] for a
-    whole press.
+    """Files a press folder's meta.json lists (images, reference, ground truth) that are not there, or are empty or
+    cut short (:func:`.file_checks.file_problem`: what a power cut soon after the folder was published leaves);
+    [] for a whole press.
 
     CaptureError (naming meta.json) when meta.json itself is missing or malformed."""
-    folder = Path(folder)
-    return [name for name in listed_files(read_meta(folder)) if not (folder / name).is_file()]
+    from .file_checks import unusable_files
+
+    return unusable_files(folder, listed_files(read_meta(Path(folder))))
 
 
 def no_presses_error(root: str | Path) -> CaptureError:

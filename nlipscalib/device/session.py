@@ -456,14 +456,16 @@ def claim_session(out: str | Path) -> Iterator[None]:
 
 def _damaged(folder: Path) -> str:
     """Why a captured press folder cannot be kept ("" when it is whole): files its meta.json lists are gone
-    (deleted or lost since), or meta.json itself is unreadable."""
+    (deleted or lost since), empty or cut short (a power cut soon after it was captured), or meta.json itself is
+    unreadable."""
+    from ..core.file_checks import described_problems
     from ..core.press_folders import missing_capture_files
 
     try:
         missing = missing_capture_files(folder)
     except CaptureError as exc:
         return str(exc).removeprefix(f"{folder}: ")
-    return f"{', '.join(missing[:3])}{' and more' if len(missing) > 3 else ''} missing" if missing else ""
+    return described_problems(folder, missing) if missing else ""
 
 
 def _check_same_session(out: Path, rig: Rig, cfg: SessionConfig) -> None:

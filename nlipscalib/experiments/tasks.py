@@ -285,18 +285,19 @@ def maps_problem(out: Path, result: dict) -> str | None:
     were whole when it was written; a map left empty or cut short since (a power cut soon after the run, before the
     disk had it; a folder copied in part) was reused with its task, and every run after it stopped at the report
     on one line, "...npz: damaged or truncated error map", with nothing that made it again. Now its task runs again.
-    Only the archive's directory is read (a cut-short or empty file has none), not the arrays."""
-    import zipfile
+    Only the archive's end record is read (core.file_checks: a cut-short or empty file has none), not the arrays."""
+    from ..core.file_checks import MISSING, file_problem
 
     for ev in result.get("evaluations") or ():
         name = ev.get("map") if isinstance(ev, dict) else None
         if not isinstance(name, str):
             continue
         path = Path(out) / name
-        if not path.is_file():
+        problem = file_problem(path)
+        if problem == MISSING:
             return f"{path}: error map missing"
-        if not zipfile.is_zipfile(path):
-            return f"{path}: error map damaged or cut short (not a whole .npz archive)"
+        if problem is not None:
+            return f"{path}: error map damaged or cut short ({problem}; not a whole .npz archive)"
     return None
 
 

@@ -296,18 +296,24 @@ def _reuse_or_solve(
 
 def _write_missing_figures(folder: Path, out: Path, result: Reconstruction | None, figures: str) -> None:
     """Give a reused result the figures this run asks for that the run which made it did not write
-    (``--no-figures`` then, ``--figures full`` now): drawing them takes milliseconds, re-solving seconds.
-    Called under the result's claim, so no other process replaces the folder meanwhile."""
+    (``--no-figures`` then, ``--figures full`` now), or left empty or cut short (a power cut soon after it was
+    published): drawing them takes milliseconds, re-solving seconds. Called under the result's claim, so no other
+    process replaces the folder meanwhile."""
     from ..core.capture import load_press
-    from ..report import figures_missing, write_reconstruction_figures
+    from ..core.file_checks import MISSING
+    from ..report import figures_problem, write_reconstruction_figures
 
-    if not figures_missing(out, figures):
+    problem = figures_problem(out, figures)
+    if problem is None:
         return
     if result is None:
         result = load_reconstruction(out)
     press = load_press(folder)
     write_reconstruction_figures(out, result, lambda: press.ground_truth, figures, *_figure_context(press))
-    log.info("%s: figures (%s) added to the existing result", out, figures)
+    if problem.endswith(f" {MISSING}"):
+        log.info("%s: figures (%s) added to the existing result", out, figures)
+    else:
+        log.warning("%s: %s; figures (%s) drawn again, the result kept", out, problem, figures)
 
 
 def _bars(requested: bool) -> bool:

@@ -9,7 +9,14 @@ saved normal maps; imported from there).
 
 from .figures import Panel, contact_sheet, display_image, normals_to_rgb
 from .maps import normal_map_png, scalar_map_png
-from .reconstruction import FIGURE_LEVELS, error_map, figure_level, figures_missing, write_reconstruction_figures
+from .reconstruction import (
+    FIGURE_LEVELS,
+    error_map,
+    figure_level,
+    figures_missing,
+    figures_problem,
+    write_reconstruction_figures,
+)
 
 __all__ = [
     "FIGURE_LEVELS",
@@ -19,6 +26,7 @@ __all__ = [
     "error_map",
     "figure_level",
     "figures_missing",
+    "figures_problem",
     "normal_map_png",
     "normals_to_rgb",
     "scalar_map_png",

@@ -34,8 +34,13 @@ RESIDUAL_UNIT = "linear intensity"
 """Unit of the residual maps: linear image units, the sensor's full range = 1 (``Press.linear``)."""
 METHOD_NAMES = {"nlips": "NLiPs", "nlipsnet": "NLiPsNet"}
 """How the summary's title names the method of ``report.json``'s ``method``."""
-NORMALS_PNG, SUMMARY_PNG = "normals.png", "summary.png"
-"""The normal map (written at every level but "none") and the "full" level's summary sheet."""
+NORMALS_PNG, DEPTH_PNG, SUMMARY_PNG = "normals.png", "depth.png", "summary.png"
+"""The normal and depth maps (written at every level but "none") and the "full" level's summary sheet."""
+RESIDUAL_PNG, ERROR_PNG = "residual.png", "error.png"
+"""The maps drawn for some results only: the residual (a result with one: NLiPs') and the angular error (a press
+with ground truth)."""
+OPTIONAL_PNGS = (RESIDUAL_PNG, ERROR_PNG)
+""":data:`RESIDUAL_PNG` and :data:`ERROR_PNG`: their absence says nothing of a result's figures being whole."""
 
 
 def figure_level(figures: bool | str | None) -> str:
@@ -52,15 +57,43 @@ def figure_level(figures: bool | str | None) -> str:
 
 
 def figures_missing(folder: str | Path, level: bool | str | None) -> bool:
-    """True when ``folder`` lacks figures that ``level`` writes (e.g. a result solved with --no-figures).
+    """True when ``folder`` lacks figures that ``level`` writes (e.g. a result solved with --no-figures), or holds
+    one of them empty or cut short (:func:`figures_problem`).
 
     Parameters
     ----------
     folder : a reconstruction folder
     level : "none", "maps" or "full" (or a bool)
     """
-    needed = {"none": (), "maps": (NORMALS_PNG,), "full": (NORMALS_PNG, SUMMARY_PNG)}[figure_level(level)]
-    return any(not (Path(folder) / name).is_file() for name in needed)
+    return figures_problem(folder, level) is not None
+
+
+def figures_problem(folder: str | Path, level: bool | str | None) -> str | None:
+    """What is wrong with the figures ``level`` writes in ``folder``, in words ("depth.png cut short (no PNG end
+    chunk)", "normals.png missing"), or None when they are all there and whole; they are then drawn again
+    (milliseconds), the result kept.
+
+    Why torn ones: figures are written atomically but not synced, like every output, so a power cut soon after a
+    solve can leave depth.png empty or cut short beside a whole result; it was kept at every run. Each figure is
+    judged by the bytes at its ends (core.file_checks: ~10-20 us a file). residual.png and error.png are not
+    drawn for every result (NLiPsNet's has no residual; a capture no ground truth): only a torn one counts.
+
+    Parameters
+    ----------
+    folder : a reconstruction folder
+    level : "none", "maps" or "full" (or a bool)
+    """
+    from ..core.file_checks import MISSING, file_problem
+
+    level = figure_level(level)
+    if level == "none":
+        return None
+    needed = (NORMALS_PNG, DEPTH_PNG) + ((SUMMARY_PNG,) if level == "full" else ())
+    for name in needed + OPTIONAL_PNGS:
+        problem = file_problem(Path(folder) / name)
+        if problem is not None and (name in needed or problem != MISSING):
+            return f"{name} {problem}"
+    return None
 
 
 def write_reconstruction_figures(
@@ -108,7 +141,7 @@ def write_reconstruction_figures(
         if err is None:
             return None, None
         top = error_scale([err])  # ~6 ms at 640x480: once, for error.png and the summary alike
-        return scalar_map_png(folder / "error.png", err, ERROR_CMAP, "deg", 0.0, top), (err, contact, top)
+        return scalar_map_png(folder / ERROR_PNG, err, ERROR_CMAP, "deg", 0.0, top), (err, contact, top)
 
     residual = _masked(rec.residual[box], shown)
     # NLiPs' fit leaves a residual per solved pixel; NLiPsNet's result (`nlips infer`) has none (all NaN): a grey
@@ -117,10 +150,10 @@ def write_reconstruction_figures(
     jobs = [
         (error_png,),  # first: its truth's reading is the longest job
         (normal_map_png, folder / NORMALS_PNG, rec.normals[box], shown),
-        (scalar_map_png, folder / "depth.png", depth, "viridis", depth_label, depth_min),
+        (scalar_map_png, folder / DEPTH_PNG, depth, "viridis", depth_label, depth_min),
     ]
     if residual is not None:
-        jobs.append((scalar_map_png, folder / "residual.png", residual, "magma", RESIDUAL_UNIT))
+        jobs.append((scalar_map_png, folder / RESIDUAL_PNG, residual, "magma", RESIDUAL_UNIT))
     # PNG encoding and the truth's inflating release the GIL: the maps are written side by side
     with ThreadPoolExecutor(max_workers=min(len(jobs), usable_cores())) as pool:
         (error_path, error), *written = pool.map(lambda job: job[0](*job[1:]), jobs)

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import logging
-import stat
 from pathlib import Path
 
 from ..core import said_once
@@ -36,35 +35,30 @@ def same_spec(scene: SceneConfig, job: PressJob, out: Path) -> bool:
 
 
 def missing_files(folder: Path) -> list[str]:
-    """Files ``folder``'s meta.json lists that are gone (deleted or lost since it was rendered) or empty; [] when
-    whole, or when meta.json cannot say (its format is for the commands that load the press to judge).
+    """Files ``folder``'s meta.json lists that are gone (deleted or lost since it was rendered), empty or cut short
+    (core.file_checks); [] when whole, or when meta.json cannot say (its format is for the commands that load the
+    press to judge).
 
-    Why empty ones: no file a render writes is empty, and an empty one is what a power cut soon after the press was
-    published leaves (its folder renamed into place, its files' data not yet on the disk: the writes are atomic,
-    not synced). Such a press was "already there" at every run; the commands reading it named the file, and only
-    deleting the folder by hand rendered it again."""
+    Why empty or cut short ones: no file a render writes is either, and that is what a power cut soon after the
+    press was published leaves (its folder renamed into place, its files' data not yet on the disk: the writes are
+    atomic, not synced). Such a press was "already there" at every run; the commands reading it named the file,
+    and only deleting the folder by hand rendered it again. Only the ends of each file are read (~10-20 us a file)."""
+    from ..core.file_checks import unusable_files
     from ..core.press_meta import listed_files
 
     try:
         names = listed_files(json.loads((folder / META_FILE).read_bytes()))
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return []
-    return [name for name in names if _size(folder / name) in (None, 0)]
+    return unusable_files(folder, names)
 
 
 def described_missing(folder: Path, names: list[str], most: int = 3) -> str:
-    """``names`` (:func:`missing_files` of ``folder``) in words: "led_02.png missing, led_05.png empty and 2 more"."""
-    said = [f"{name} {'missing' if _size(folder / name) is None else 'empty'}" for name in names[:most]]
-    return ", ".join(said) + (f" and {len(names) - most} more" if len(names) > most else "")
+    """``names`` (:func:`missing_files` of ``folder``) in words: "led_02.png missing, led_05.png cut short (no PNG
+    end chunk) and 2 more"."""
+    from ..core.file_checks import described_problems
 
-
-def _size(path: Path) -> int | None:
-    """Bytes of the regular file ``path``; None when it is gone or not a file."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return st.st_size if stat.S_ISREG(st.st_mode) else None
+    return described_problems(folder, names, most)
 
 
 def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrite: bool) -> None:

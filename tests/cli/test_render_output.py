@@ -155,3 +155,23 @@ def test_a_press_an_older_nlipscalib_rendered_is_refused_naming_the_settings_add
     err = capsys.readouterr().err
     assert "different scene, press or seed (scene.render.denoise: None -> " in err, err
     assert "settings its record lacks: an older nlipscalib rendered it); use --overwrite" in err
+
+
+def test_a_render_with_a_file_cut_short_is_rendered_again_not_nothing_to_do(tmp_path, capsys, caplog):
+    """Writes are atomic but not synced: a power cut soon after a render was published can leave an image cut
+    short. "already rendered from this scene and press, nothing to do" kept it at every run, and the solve failed on
+    it. Now the press is rendered again, the same images."""
+    from nlipscalib.core.file_checks import file_problem
+
+    out = tmp_path / "p"
+    assert main([*TINY, "--out", str(out)]) == 0
+    image = out / "led_03.png"
+    whole = image.read_bytes()
+    image.write_bytes(whole[: len(whole) // 2])
+    capsys.readouterr()
+    assert main([*TINY, "--out", str(out)]) == 0
+    assert "led_03.png cut short (no PNG end chunk); rendering it again" in caplog.text
+    assert capsys.readouterr().out.startswith("rendered press to")
+    assert file_problem(image) is None and image.read_bytes() == whole
+    assert main([*TINY, "--out", str(out)]) == 0
+    assert "nothing to do" in capsys.readouterr().out

@@ -247,6 +247,24 @@ def test_resume_captures_again_a_press_whose_files_are_gone(tmp_path, caplog):
     assert (tmp_path / "s" / "press_0001" / "led_02.png").is_file()
 
 
+def test_resume_captures_again_a_press_whose_files_are_empty_or_cut_short(tmp_path, caplog):
+    """Writes are atomic but not synced: a power cut soon after a press was captured can leave its files empty or
+    cut short, and the press was "kept" at every resume (the solve then failed on the image). Now it is captured
+    again, and the warning names each file's state."""
+    from nlipscalib.core.file_checks import file_problem
+
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    press = tmp_path / "s" / "press_0001"
+    (press / "led_01.png").write_bytes(b"")
+    (press / "led_02.png").write_bytes((press / "led_02.png").read_bytes()[:100])
+    status = run_session(rig, tmp_path / "s", SessionConfig(presses=1), _quiet()[0])
+    assert status["reference"] == "kept" and status["press_0001"]["attempts"] == 1
+    said = "press_0001: led_01.png empty, led_02.png cut short (no PNG end chunk); capturing it again"
+    assert said in caplog.text
+    assert file_problem(press / "led_01.png") is None and file_problem(press / "led_02.png") is None
+
+
 def test_rig_check_names_the_mismatch():
     rig, _ = _rig()
     rig.controller = FakeController(N_LEDS + 1)

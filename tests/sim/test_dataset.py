@@ -298,6 +298,23 @@ def test_a_press_another_spec_rendered_meanwhile_is_refused_not_counted_as_there
     assert main([*args, "--overwrite"]) == 0 and calls == ["press_0002"]  # --overwrite renders it again
 
 
+def _whole_bytes(suffix: str) -> bytes:
+    """A small whole file of the format: a 4x4 PNG, or an .npz of one array (the stand-in's press files, which the
+    dataset judges by their ends: core.file_checks)."""
+    import io
+
+    import cv2
+
+    if suffix == ".png":
+        return cv2.imencode(".png", np.zeros((4, 4), np.uint8))[1].tobytes()
+    buf = io.BytesIO()
+    np.savez_compressed(buf, a=np.arange(64.0))
+    return buf.getvalue()
+
+
+_WHOLE_PNG, _WHOLE_NPZ = _whole_bytes(".png"), _whole_bytes(".npz")
+
+
 def _whole_render(calls):
     """Stand-in renderer writing every file its meta.json lists (replacing the folder as ``--overwrite`` does)."""
     import shutil
@@ -311,7 +328,7 @@ def _whole_render(calls):
         images = {"dark": "dark.png", "tricolor": "tricolor.png", "leds": ["led_01.png", "led_02.png"]}
         meta = {"images": images, "reference": "reference.npz", "ground_truth": "gt.npz"}
         for name in ["dark.png", "tricolor.png", *images["leds"], "reference.npz", "gt.npz"]:
-            (folder / name).write_bytes(b"data")
+            (folder / name).write_bytes(_WHOLE_PNG if name.endswith(".png") else _WHOLE_NPZ)
         meta["provenance"] = {"spec_hash": render_spec_hash(scene, job.press, job.seed), **render_identity()}
         (folder / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
 
@@ -361,6 +378,30 @@ def test_a_press_with_a_file_left_empty_is_rendered_again_not_counted_as_there(t
     assert capsys.readouterr().out.strip() == f"{out}: 1 rendered, 2 already there, 0 failed"
     assert "press_0002: led_02.png empty, gt.npz empty; rendering it again" in caplog.text
     assert (out / "press_0002" / "led_02.png").stat().st_size > 0
+    calls.clear()
+    assert main(args) == 0 and calls == []  # whole again
+
+
+def test_a_press_with_a_file_cut_short_is_rendered_again_not_counted_as_there(tmp_path, monkeypatch, capsys, caplog):
+    """A power cut can leave a published file cut short rather than empty (part of its data on the disk): the
+    press was "already there" at every run, as an empty file's was before. Now its ends are read (a PNG's IEND
+    chunk, an .npz's end-of-central-directory record: core.file_checks) and it is rendered again."""
+    from nlipscalib.cli import main
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
+    assert main(args) == 0
+    for name in ("led_01.png", "reference.npz"):
+        path = out / "press_0001" / name
+        path.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
+    calls.clear()
+    capsys.readouterr()
+    assert main(args) == 0
+    assert calls == ["press_0001"]
+    assert capsys.readouterr().out.strip() == f"{out}: 1 rendered, 2 already there, 0 failed"
+    said = "press_0001: led_01.png cut short (no PNG end chunk), reference.npz cut short (no zip end record)"
+    assert f"{said}; rendering it again" in caplog.text
     calls.clear()
     assert main(args) == 0 and calls == []  # whole again
 
