@@ -802,7 +802,13 @@ def _relative_gains(image: np.ndarray, model: np.ndarray, judged: Sequence[int] 
     over the median of the LEDs ``judged`` (indices into L; None or empty: all; an image with dark rows is off the
     model there, so it does not set the scale)."""
     gain = np.median(image / np.maximum(model, 1e-12), axis=(1, 2))
-    return gain / np.median(gain[list(judged)] if judged else gain)
+    scale = float(np.median(gain[list(judged)] if judged else gain))
+    if not scale > 0:
+        # the judged LEDs light none of the samples the model lights (a model far from the sensor: the ring's LEDs
+        # 80 deg off their design, whose images the dark-band check also reads as dark): the lit LEDs set the scale
+        lit = gain[gain > 0]
+        scale = float(np.median(lit)) if lit.size else 1.0
+    return gain / scale
 
 
 def model_gain_check(

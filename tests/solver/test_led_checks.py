@@ -540,3 +540,20 @@ def test_without_a_reference_the_led_ageing_check_reuses_the_weak_led_checks_sam
     result = solve_press(press, options=SolverOptions(max_iters=1))
     assert result.report["led_gains"] is not None
     assert sum(direct) == 1, direct  # the direct shading's samples: once (the linearity check adds its own)
+
+
+def test_relative_gains_stay_finite_when_the_judged_leds_light_none_of_the_model_lit_samples():
+    """The ring's LEDs 80 deg off their design (test_calibrate's far-from-design case): the dark-band check took 8 of
+    12 LED images as banded, and 2 of the 4 left lit none of the samples, so their median gain 0 scaled every LED's to
+    inf / NaN (a RuntimeWarning in CI). The lit LEDs set the scale then."""
+    from nlipscalib.solver.led_checks import _relative_gains
+
+    image = np.ones((4, 10, 3))
+    image[:2] = 0.0  # LEDs 1 and 2: no light where the model has it
+    model = np.ones((4, 10, 3))
+    with np.errstate(divide="raise", invalid="raise"):
+        relative = _relative_gains(image, model, judged=[0, 1, 2])
+    np.testing.assert_array_equal(relative, [0.0, 0.0, 1.0, 1.0])
+    with np.errstate(divide="raise", invalid="raise"):
+        np.testing.assert_array_equal(_relative_gains(np.zeros((3, 5, 3)), np.ones((3, 5, 3))), [0.0, 0.0, 0.0])
+    np.testing.assert_allclose(_relative_gains(image * 2, model, judged=[2, 3]), [0.0, 0.0, 1.0, 1.0])
