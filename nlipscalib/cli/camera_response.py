@@ -48,7 +48,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "off and does not apply the exact sRGB curve (gamma 2.2, a vendor curve, a contrast setting): the "
         "undeformed gel lit by one LED is taken at several exposures, OpenCV's CalibrateRobertson fits the curve, "
         "and the response file (docs/formats.md, Camera response file) and its figure are written. Give it to "
-        "`nlips capture --camera-response FILE`: each capture records the curve and is linearised with it.",
+        "`nlips capture --camera-response FILE`: each capture records the curve and is linearised with it. The "
+        "fit takes each frame at the exposure asked, so a bracket whose frames do not brighten with it is refused, "
+        "nothing written: a camera that ignores the exposure (auto exposure on: every frame equally bright), "
+        "quantises it (two exposures one frame) or whose frames lag the setting (a larger --flush). On DirectShow "
+        "and Media Foundation (whole log2-second steps) the bracket is taken at the powers of two, said in a line.",
     )
     p.add_argument("--out", required=True, help="response JSON to write (for `nlips capture --camera-response`)")
     p.add_argument("--figure", help="PNG of the curve per channel and the measured points (default: OUT with .png)")
@@ -73,8 +77,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     src.add_argument("--gain", type=float, default=0.0, help="fixed analogue gain, camera units (default 0)")
     src.add_argument("--white-balance", type=float, default=5000.0, help="fixed white balance, kelvin (default 5000)")
     src.add_argument("--black-level", type=float, default=0.0, help="camera black level in its own DN (default 0)")
-    src.add_argument("--flush", type=int, default=4, help="frames dropped after each exposure change (default 4)")
+    src.add_argument(
+        "--flush",
+        type=int,
+        default=4,
+        help="frames dropped after each exposure change (default 4): more if the "
+        "camera's frames lag a new exposure (the bracket is then refused: frames equally bright or darker)",
+    )
     src.add_argument("--average", type=int, default=1, help="frames averaged per exposure (default 1)")
+    taken = p.add_argument_group("a bracket already taken (a camera OpenCV cannot set the exposure of)")
+    taken.add_argument(
+        "--bracket",
+        metavar="FOLDER",
+        help="images of the lit gel the lab took with the vendor's tool, one per exposure, the exposure in each "
+        "name (gel_2.5ms.png) or in FOLDER/exposures.csv (file,exposure_ms rows); --black-level as captured",
+    )
     emu = p.add_argument_group("emulated sensor")
     emu.add_argument("--emulate", metavar="SCENE", help="measure the emulated sensor of this scene (no hardware)")
     emu.add_argument(
@@ -117,8 +134,13 @@ def _check(args: argparse.Namespace) -> None:
     for dest in ("emulate_tone_curve", "width", "height", "spp"):
         if not args.emulate and getattr(args, dest) is not None:
             raise ConfigError(f"--{dest.replace('_', '-')} is only used with --emulate SCENE")
-    if not args.emulate and not args.port:
-        raise ConfigError("give the LED controller's --port and --camera (or --emulate SCENE, to run without hardware)")
+    if args.bracket and (args.emulate or args.port or args.adalight is not None):
+        raise ConfigError("--bracket FOLDER is a bracket already taken: no --port, --adalight or --emulate with it")
+    if not args.emulate and not args.port and not args.bracket:
+        raise ConfigError(
+            "give the LED controller's --port and --camera (or --bracket FOLDER of images already taken, or "
+            "--emulate SCENE, to run without hardware)"
+        )
     if args.average < 1 or args.flush < 0:
         raise ConfigError(f"--average must be >= 1 and --flush >= 0, got {args.average}, {args.flush}")
     args.baud = check_baud(args)
@@ -128,12 +150,15 @@ def run(args: argparse.Namespace) -> int:
     _check(args)
     from ..device.response_fit import check_exposures
 
+    if args.bracket:
+        frames, exposures, source, black = _folder_bracket(args)
+        return _fit_and_write(args, frames, exposures, source, source, black)
     exposures = exposures_of(args.exposures_ms)
     check_exposures(exposures, f"--emulate {args.emulate}" if args.emulate else f"camera {args.camera}")
     if args.emulate:
         frames, source, camera, black = _emulated_bracket(args, exposures)
     else:
-        frames, source, camera, black = _device_bracket(args, exposures)
+        frames, exposures, source, camera, black = _device_bracket(args, exposures)
     return _fit_and_write(args, frames, exposures, source, camera, black)
 
 
@@ -262,16 +287,54 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
             colours[args.led - 1] = args.level
             controller.set_all(colours)
 
-        def set_exposure(ms: float) -> None:
-            refused = apply_settings(
-                cap, CameraSettings(exposure_ms=ms, gain=None, white_balance_k=None, raw=False, linear_gamma=False)
-            )
-            report_refusals(args.camera, refused)
+        refused: dict[str, None] = {}  # each exposure's readback, said once after the bracket: not a line a step
 
+        def set_exposure(ms: float) -> None:
+            settings = CameraSettings(exposure_ms=ms, gain=None, white_balance_k=None, raw=False, linear_gamma=False)
+            refused.update(dict.fromkeys(apply_settings(cap, settings)))
+
+        exposures = _backend_exposures(args.camera, cap.getBackendName(), exposures)
         frames = take_bracket(source, light, set_exposure, exposures)
+        fresh = [line for line in refused if line not in source.refused]  # said when the camera opened
+        if fresh:
+            report_refusals(args.camera, ["; ".join(fresh)])
         bits = source.bit_depth
     codes = [to_codes(f, bits, args.black_level) for f in frames]
-    return codes, f"camera {args.camera}", f"camera {args.camera}", args.black_level
+    return codes, exposures, f"camera {args.camera}", f"camera {args.camera}", args.black_level
+
+
+def _backend_exposures(camera: str, backend: str, exposures: Sequence[float]) -> tuple[float, ...]:
+    """The exposures the camera's backend can be asked (DirectShow, Media Foundation: whole log2-second steps), each
+    once, said in one line when they differ from those given: the fit must use the times the camera took, and two
+    exposures asked as one step are one frame twice, which would bend the curve."""
+    from ..device.camera import backend_exposure_ms
+    from ..device.response_fit import check_exposures
+
+    taken = tuple(dict.fromkeys(backend_exposure_ms(ms, backend) for ms in exposures))
+    if taken != tuple(exposures):
+        print(
+            f"camera {camera} ({backend}) takes exposures in powers of two seconds: the bracket is "
+            f"{', '.join(f'{t:g}' for t in taken)} ms ({len(exposures) - len(taken)} of the {len(exposures)} asked "
+            "fall on a step already taken)",
+            file=sys.stderr,
+        )
+    check_exposures(taken, f"camera {camera} ({backend})")
+    return taken
+
+
+def _folder_bracket(args: argparse.Namespace):
+    """The frames of ``--bracket FOLDER`` as 8-bit codes above ``--black-level``, their exposures (ms) and the
+    source named in refusals."""
+    from ..core.errors import ConfigError
+    from ..device.bracket_folder import read_bracket_folder
+    from ..device.response_fit import check_exposures
+
+    if args.exposures_ms is not None:
+        raise ConfigError("--exposures-ms is not used with --bracket: each image's exposure is in its name or CSV")
+    stored, exposures, bits = read_bracket_folder(args.bracket)
+    source = f"--bracket {args.bracket}"
+    check_exposures(exposures, source)
+    return [to_codes(f, bits, args.black_level) for f in stored], exposures, source, args.black_level
 
 
 def _check_led(led: int, n_leds: int) -> None:
@@ -300,8 +363,8 @@ def _fit_and_write(
         "camera": camera,
         "date": date,
         "exposures_ms": [float(e) for e in exposures],
-        "led": args.led,
-        "level": args.level,
+        "led": None if args.bracket else args.led,  # a bracket already taken: the lab's, not recorded
+        "level": None if args.bracket else args.level,
         "black_level_dn": float(black_dn),
         "method": "OpenCV CalibrateRobertson, channels' mean",
         "codes_seen": list(fit.seen),

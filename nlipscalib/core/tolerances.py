@@ -620,6 +620,16 @@ white; over longer spans a tone curve's bend is guessed, not measured. The emula
 sqrt(2) steps) sees codes 10-17 up to 254."""
 RESPONSE_REACH_HIGH = 224
 """See :data:`RESPONSE_REACH_LOW`."""
+RESPONSE_MIN_RISE = 0.5
+"""Least rise, in 8-bit codes, of a bracket frame's mean over the frame at the next shorter exposure (on the pixels
+whose mean code of the two is neither black nor clipped): less, and the two frames are taken as one exposure (a
+camera that ignores or quantises the exposure asked, or frames that lag it) and the bracket is refused, as its fit
+would assume two exposure times where the camera took one. The emulated brackets' half-stop steps (64x48, 1 spp)
+rise by 2.5-54 codes (linear camera), 6.2-30 (gamma 2.2), 5.6-28 (S-curve); two frames of one exposure, other noise
+seeds, by under 0.04 (benchmarks/RESULTS.md, s30-bracket)."""
+RESPONSE_RISE_PIXELS = 0.01
+"""Fraction of a frame's samples that must be neither black nor clipped in a pair of bracket frames for their rise to
+be judged (:data:`RESPONSE_MIN_RISE`): fewer (both black, both clipped), the pair says nothing."""
 RESPONSE_MAX_DIP = 0.005
 """A fitted response may fall by at most this fraction of full scale from one code to the next (read noise on the
 few darkest codes seen: the emulated brackets dip by 0.0005 at most) before it is refused as not monotonic; smaller

@@ -427,6 +427,15 @@ def exposure_to_backend(exposure_ms: float, backend: str) -> float:
     return exposure_ms
 
 
+def backend_exposure_ms(exposure_ms: float, backend: str) -> float:
+    """The exposure time, ms, that :func:`exposure_to_backend`'s value for ``exposure_ms`` stands for: DirectShow and
+    Media Foundation take whole log2(seconds) steps, so 0.5 and 0.707 ms both ask 2**-11 s (0.488 ms); other
+    backends the time asked."""
+    if backend in ("DSHOW", "MSMF"):
+        return 1000.0 * 2.0 ** exposure_to_backend(exposure_ms, backend)
+    return exposure_ms
+
+
 UVC_LINEAR_GAMMA = 100
 """``CAP_PROP_GAMMA`` asked for a linear response: the UVC gamma control counts hundredths (100 = gamma 1.0), as
 V4L2 and DirectShow pass it through; its range and default are the camera's (often 100-500, default 100-300), and

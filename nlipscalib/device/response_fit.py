@@ -20,9 +20,11 @@ from ..core.tolerances import (
     RESPONSE_DARK_CODE,
     RESPONSE_MAX_DIP,
     RESPONSE_MIN_EXPOSURES,
+    RESPONSE_MIN_RISE,
     RESPONSE_MIN_WELL_EXPOSED,
     RESPONSE_REACH_HIGH,
     RESPONSE_REACH_LOW,
+    RESPONSE_RISE_PIXELS,
 )
 
 CODES = 256
@@ -73,7 +75,8 @@ def fit_response(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], so
     Raises
     ------
     CaptureError -- one line naming ``source``: too few exposures, the scene black or clipped in too many of them,
-        codes not reaching from near black to near white, or a curve that falls.
+        frames that do not brighten as the exposure grows (:func:`check_follows`), codes not reaching from near
+        black to near white, or a curve that falls.
     """
     cv2 = require("cv2", "opencv-python-headless", "Measuring a camera's response")
     times = np.asarray(exposures_ms, dtype=np.float64)
@@ -83,6 +86,7 @@ def fit_response(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], so
     order = np.argsort(times)
     frames = [np.ascontiguousarray(frames[i]) for i in order]
     times = times[order]
+    check_follows(frames, times, source)
     # OpenCV takes BGR or RGB alike (per channel), seconds as float32
     raw = cv2.createCalibrateRobertson().process(frames, (times / 1000.0).astype(np.float32))
     raw = raw.reshape(CODES, 3).astype(np.float64)
@@ -126,6 +130,71 @@ def _check_bracket(frames: Sequence[np.ndarray], times: np.ndarray, source: str)
             f"saturated), at least {RESPONSE_MIN_WELL_EXPOSED} are needed: give exposures from where the lit gel is "
             "dark to where it just clips (--exposures-ms), or change the LED level (--level)"
         )
+
+
+def rises(frames: Sequence[np.ndarray]) -> list[float | None]:
+    """How much brighter each frame is than the one before it: the mean of their difference, 8-bit codes, over the
+    samples whose mean code of the two is neither black nor clipped (a symmetric mask: two frames of one exposure
+    rise by their noise's mean, ~0). None where too few samples are (both frames black or both clipped).
+
+    Parameters
+    ----------
+    frames : sequence of (H, W, 3) uint8, in the order of their exposure times
+
+    Returns
+    -------
+    list of len(frames) - 1 floats (codes) or None
+    """
+    out: list[float | None] = []
+    for low, high in zip(frames[:-1], frames[1:], strict=True):
+        lo, hi = low.astype(np.int16), high.astype(np.int16)
+        middle = lo + hi  # twice the pair's mean code
+        use = (middle > 2 * RESPONSE_DARK_CODE) & (middle < 2 * RESPONSE_CLIPPED_CODE)
+        out.append(float((hi - lo)[use].mean()) if use.mean() >= RESPONSE_RISE_PIXELS else None)
+    return out
+
+
+def check_follows(frames: Sequence[np.ndarray], times: np.ndarray, source: str) -> None:
+    """One line naming ``source`` when the frames do not brighten as the exposure grows: the camera ignored the
+    exposure asked (auto exposure it cannot turn off, a backend that drops the property: every frame equally
+    bright), took two asked exposures as one (it quantises them), or its frames lag the setting (the first frames
+    repeat). A fit would take them at the times asked and write a wrong curve.
+
+    Parameters
+    ----------
+    frames : sequence of (H, W, 3) uint8, sorted by exposure
+    times : (E,) float64, ms, ascending
+    source : named in the refusal
+    """
+    steps = rises(frames)
+    judged = [k for k, r in enumerate(steps) if r is not None]
+    flat = [k for k in judged if steps[k] < RESPONSE_MIN_RISE]
+    if not flat:
+        return
+    if len(flat) == len(judged):
+        raise CaptureError(
+            f"{source}: the bracket's frames are all equally bright from {times[0]:g} to {times[-1]:g} ms (mean "
+            f"rise {max(steps[k] for k in judged):.2f} codes a step at most): the camera did not take the exposures "
+            "asked (its auto exposure is on, or it ignores OpenCV's exposure): switch auto exposure off (Linux: "
+            "`v4l2-ctl -d /dev/videoN -c auto_exposure=1`, older drivers exposure_auto=1; else the vendor's tool) "
+            "and retake"
+        )
+    falls = [k for k in flat if steps[k] < -RESPONSE_MIN_RISE]
+    if falls:
+        k = falls[0]
+        raise CaptureError(
+            f"{source}: the bracket's frame at {times[k + 1]:g} ms is darker than at {times[k]:g} ms ({steps[k]:+.2f} "
+            "codes): its frames lag the exposure setting (a larger --flush), its exposure did not follow (auto "
+            "exposure on?), or the scene moved or its light changed during the bracket; keep it still and retake"
+        )
+    pairs = ", ".join(f"{times[k]:g} and {times[k + 1]:g} ms ({steps[k]:+.2f} codes)" for k in flat)
+    raise CaptureError(
+        f"{source}: the bracket's frames at {pairs} are equally bright (a longer exposure brightens by at least "
+        f"{RESPONSE_MIN_RISE:g} codes): the camera took them at one exposure, so a fit at the times asked is wrong: "
+        "the frames lag the exposure setting (a larger --flush), or the camera quantises its exposure (list its "
+        "steps, e.g. `v4l2-ctl -d /dev/videoN -L`, and give --exposures-ms it honours), or the exposures are too "
+        "close (space them wider)"
+    )
 
 
 def check_exposures(exposures_ms: Sequence[float], source: str) -> None:

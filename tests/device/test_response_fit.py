@@ -100,8 +100,9 @@ def test_a_bracket_that_cannot_give_a_curve_is_one_line(tmp_path, capsys, exposu
     assert not out.exists()
 
 
-def test_a_bracket_whose_light_changed_is_refused_as_not_monotonic(measured):
-    """Frames of a bracket swapped (the exposure did not follow, the light changed): the fit falls, refused."""
+def test_a_bracket_whose_light_changed_is_refused_as_not_brightening(measured):
+    """Frames of a bracket swapped (the exposure did not follow, the light changed): a longer exposure's frame is
+    darker, refused before the fit (whose curve fell; s30-bracket's check names the frames)."""
     codes = np.arange(256, dtype=np.float64)
     light = np.linspace(0.05, 0.4, 64 * 48).reshape(48, 64, 1) * np.ones(3)
     exposures = [0.5 * 2 ** (k / 2) for k in range(15)]
@@ -111,7 +112,7 @@ def test_a_bracket_whose_light_changed_is_refused_as_not_monotonic(measured):
     fit = fit_response(frames, exposures, "test bracket")
     assert np.abs(fit.curve - (codes / 255) ** 2.2)[LIT_CODES].max() < RESPONSE_CURVE_ERROR
     frames[6], frames[8] = frames[8], frames[6]
-    with pytest.raises(CaptureError, match="^test bracket: the fitted response falls by"):
+    with pytest.raises(CaptureError, match=r"^test bracket: the bracket's frame at 5\.65\d* ms is darker than at 4 ms"):
         fit_response(frames, exposures, "test bracket")
 
 
