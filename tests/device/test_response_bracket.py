@@ -173,6 +173,15 @@ def _write_bracket(folder, exposures, name="gel_{:g}ms.png", frame_ms=None):
     return folder
 
 
+def _with_csv(folder, text, broken=None):
+    _write_bracket(folder, EXPOSURES)
+    if text:
+        (folder / "exposures.csv").write_text(text, encoding="utf-8")
+    if broken:
+        (folder / broken).write_bytes(b"not a png")
+    return folder
+
+
 EXPOSURES = [round(0.5 * 2 ** (k / 2), 3) for k in range(15)]
 
 
@@ -199,8 +208,11 @@ def test_a_bracket_folder_with_the_exposures_in_its_names_gives_the_curve(tmp_pa
         (lambda f: _write_bracket(f, EXPOSURES, frame_ms=[max(ms, 1.0) for ms in EXPOSURES]), "frames at 0.5 and"),
         (lambda f: _write_bracket(f, [1, 2]), "a bracket needs at least 5 different exposures"),
         (lambda f: f / "missing", "no such folder"),
+        (lambda f: _with_csv(f, "file,exposure_ms\ngel_0.5ms.png,0.5\n"), "gel_0.707ms.png: not in exposures.csv"),
+        (lambda f: _with_csv(f, "name,ms\ngel_0.5ms.png,0.5\n"), "exposures.csv: line 2: needs file,exposure_ms"),
+        (lambda f: _with_csv(f, "", broken="gel_1ms.png"), "gel_1ms.png: OpenCV cannot read it as an image"),
     ],
-    ids=["unnamed", "quantised", "too-few", "missing"],
+    ids=["unnamed", "quantised", "too-few", "missing", "csv-short", "csv-columns", "unreadable"],
 )
 def test_a_bracket_folder_that_cannot_give_a_curve_is_one_line(tmp_path, capsys, make, problem):
     folder = make(tmp_path / "b")
