@@ -21,7 +21,10 @@ def crop_to_mask(mask: np.ndarray, camera: Camera) -> tuple[tuple[slice, slice],
     rows, cols = np.nonzero(mask)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     cam = dataclasses.replace(camera, width=int(c1 - c0), height=int(r1 - r0), cx=camera.cx - c0, cy=camera.cy - r0)
-    return (slice(r0, r1), slice(c0, c1)), cam
+    crop = (slice(r0, r1), slice(c0, c1))
+    if "rays" in vars(camera):  # the whole image's rays are made: the crop's are theirs (Camera.rays, kept on it)
+        vars(cam)["rays"] = camera.rays[crop]
+    return crop, cam
 
 
 @dataclasses.dataclass

@@ -31,6 +31,7 @@ import dataclasses
 import functools
 import logging
 import os
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any
@@ -38,11 +39,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..core import said_once, tolerances
+from ..core.blas import blas_threads
 from ..core.capture import Press, as_press, select_leds, with_led_gains, with_unusable_samples
 from ..core.errors import CaptureError, ShapeError
 from ..core.repeated_frames import DarkBand, dark_band_mask, dark_line
 from ..progress import PRESS_DETAIL
-from . import reuse
+from . import reuse, threads
 from .anchoring import anchor_weights, widen_to_anchor
 from .camera_shift import shift_note
 from .contact import ContactMap
@@ -107,6 +109,38 @@ def solve_press(press: Press | str | os.PathLike, **kwargs: Any) -> SolveResult:
     press = as_press(press, "press")
     if isinstance(kwargs.get("indirect"), (str, os.PathLike)):
         kwargs["indirect"] = as_press(kwargs["indirect"], "indirect")
+    if not isinstance(kwargs.get("indirect"), Press):  # against an undeformed capture they may go unused
+        _rays_ahead(press)
+    # One BLAS thread throughout, not only inside the NLiPs solves: the LED checks' np.corrcoef of (24, 2008)
+    # samples took 55-70 ms on OpenBLAS's two threads on the 2-core VM, 0.1 ms on one, on the main thread while the
+    # other core waited (benchmarks/RESULTS.md, s30-lastpass2; core.blas.blas_threads' why).
+    with blas_threads(1):
+        return _checked_solve(press, kwargs)
+
+
+def _rays_ahead(press: Press) -> None:
+    """Start computing the press camera's whole-frame viewing rays (``Camera.rays``, kept on the camera) on a
+    thread of its own; nothing on one core or when they are computed already.
+
+    Why: the contact search's point-LED error (:func:`.point_led_misfit`) computed them first, on the main thread
+    while the other core waited: 25-35 ms of NumPy at 640x480 (the fisheye lens's Newton unprojection), which
+    releases the GIL. The LED checks and the light's fit run on the main thread meanwhile; the contact search then
+    finds them made or waits for them (``cached_property`` holds its lock while one thread computes). The same
+    bits on any thread. Not against an undeformed capture (``--reference``): its solve need not unproject the whole
+    image (the auto ROI's box alone), and a second core's 25 ms would then be spent for nothing."""
+    camera = press.camera
+    if threads.workers() == 1 or "rays" in vars(camera):
+        return
+
+    def run() -> None:
+        with contextlib.suppress(Exception):  # a camera that cannot unproject raises where its rays are used
+            camera.rays  # noqa: B018  (the cached property computed and kept)
+
+    threading.Thread(target=run, name="camera-rays", daemon=True).start()
+
+
+def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
+    """:func:`solve_press`'s body on a loaded press: the LED checks, the solve and its report."""
     keep_order = not kwargs.pop("reorder_leds", True)
     checks = _capture_notes(press, kwargs.get("leds"), kwargs.get("options"), say=False)
     led_notes, left_out, misplaced, order, measured, dark = checks

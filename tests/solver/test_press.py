@@ -129,3 +129,55 @@ def test_the_solve_again_without_the_raised_smoothness_says_the_first_solves_war
     assert any("solving again without it" in line for line in said)
     assert f"{press.folder}: a warning of every solve" in result.report["warnings"]
     assert not press_module.log.filters  # the filter is gone with the second solve
+
+
+def test_the_led_checks_before_the_solve_run_on_one_blas_thread(folders, monkeypatch):
+    """The checks' small products (np.corrcoef of (24, 2008) samples) took 55-70 ms on OpenBLAS's two threads on a
+    2-core machine, 0.1 ms on one: solve_press runs on one BLAS thread from its first check, not only in the solve."""
+    from nlipscalib.core.blas import blas_setting, blas_threads
+    from nlipscalib.solver import press as press_module
+
+    seen = []
+    checks = press_module.led_check_measured
+
+    def counted(*args, **kwargs):
+        seen.append(blas_setting())
+        return checks(*args, **kwargs)
+
+    monkeypatch.setattr(press_module, "led_check_measured", counted)
+    press, reference = folders
+    with blas_threads(2):  # the caller's count (a 2-core machine's default)
+        solve_press(press, roi="auto", indirect=reference, options=FAST)
+        assert set(blas_setting()) == {2}  # given back after the solve
+    assert seen and all(set(setting) == {1} for setting in seen)
+
+
+def test_the_whole_images_rays_are_made_once_on_a_thread_of_their_own(folders, monkeypatch):
+    """The contact search's point-LED error used them first, on the main thread while the other core waited."""
+    import threading
+
+    from nlipscalib.core import load_press as load
+    from nlipscalib.core.camera import Camera
+    from nlipscalib.solver import threads
+
+    made = []
+    unproject = Camera.unproject
+
+    def recorded(camera, uv):
+        if uv.shape[:2] == camera.shape:
+            made.append((camera.shape, threading.current_thread().name))
+        return unproject(camera, uv)
+
+    monkeypatch.setattr(Camera, "unproject", recorded)
+    press, reference = folders
+    loaded, against = load(press), load(press)
+    before = threads.workers()
+    try:
+        threads.set_workers(2)
+        solve_press(loaded, options=FAST)
+        # against an undeformed capture the whole image's rays may go unused: not made ahead
+        solve_press(against, roi="auto", indirect=reference, options=FAST)
+    finally:
+        threads.set_workers(before)
+    assert [name for shape, name in made if shape == loaded.camera.shape] == ["camera-rays"]
+    assert "rays" in vars(loaded.camera) and "rays" not in vars(against.camera)
