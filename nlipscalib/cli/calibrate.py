@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import time
+from collections.abc import Iterator
+from pathlib import Path
 
 log = logging.getLogger(__name__)
 
@@ -87,20 +91,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    import numpy as np
-
-    from ..core.atomic import check_free_space, check_writable
-    from ..core.capture import load_press
+    from ..core.atomic import check_writable
     from ..core.config import check_count
     from ..core.errors import ConfigError
-    from ..core.ledfile import led_file_bytes, save_leds
-    from ..core.metrics import angle_deg
     from ..core.sensor import MAX_EMITTER_DIAMETER_MM
-    from ..core.sensor_record import sensor_of
-    from ..progress import track, working
-    from ..solver import calibrate_leds
     from .folders import check_one_capture
 
     if args.stride is not None:
@@ -114,6 +108,109 @@ def run(args: argparse.Namespace) -> int:
     check_writable(Path(args.out).parent)  # a file in its place or a read-only disk: before the fit, not after it
     for folder in args.presses:
         check_one_capture(folder, "a capture of the undeformed dome")
+    with _fit_held(Path(args.out), _fit_key(args)) as done_by:
+        if done_by is not None:
+            print(
+                f"{args.out}: written by {done_by} meanwhile, from the same captures and options (its table is "
+                "that run's); nothing to do"
+            )
+            return 0
+        return _fit_and_write(args)
+
+
+FIT_KEY_OPTIONS = (
+    "stride",
+    "loss",
+    "interreflection",
+    "bounces",
+    "led_diameter",
+    "coating_reflectance",
+    "allow_contact",
+    "reorder_leds",
+)
+"""The options of ``nlips calibrate-leds`` that decide its LED file (with the captures): runs into one --out that
+agree on them and on the captures fit the same file (:func:`_fit_held`)."""
+
+
+def _fit_key(args: argparse.Namespace) -> str:
+    """What tells one fit from another for runs at once: the captures (their folders, resolved) and
+    :data:`FIT_KEY_OPTIONS`, hashed (16 hex digits). Folders, not contents: it is compared between runs under way at
+    the same time, which read the same files."""
+    import hashlib
+    import json
+
+    fit = {"presses": [str(Path(p).resolve()) for p in args.presses]}
+    fit |= {name: getattr(args, name) for name in FIT_KEY_OPTIONS}
+    return hashlib.sha256(json.dumps(fit, sort_keys=True).encode()).hexdigest()[:16]
+
+
+FIT_POLL_S = 0.05
+"""How often a run finding another's claim being written looks again, s (milliseconds: its owner writes it)."""
+
+
+@contextlib.contextmanager
+def _fit_held(out: Path, key: str) -> Iterator[str | None]:
+    """Hold the LED file ``out`` (its claim, core.claims, noting ``key``) while the block fits and writes it; yields
+    None. While another live run holds it: the same fit (``key``): wait for it, then yield who it was (in words)
+    when it wrote the file meanwhile, or hold it and fit here when it did not (failed, killed); another fit: a
+    ConfigError at once.
+
+    Why: three runs at once into one --out each fitted the same LEDs and wrote the file in turn (whole each time,
+    written atomically: the last one's was left), seconds of work done three times; a run of other captures or
+    options replaced the other's file without a word. Now they behave as ``nlips train`` into one model: one fits,
+    the others wait for it and say so; another fit into the file is refused. A folder that cannot hold a claim
+    file (read-only media) is not held: the write says why."""
+    from ..core.claims import claim, holder, wait_for_release
+    from ..core.errors import ConfigError
+
+    while True:
+        before = _stamp(out)
+        with contextlib.ExitStack() as held:
+            try:
+                mine = held.enter_context(claim(out, note={"key": key}))
+            except OSError as exc:
+                log.debug("%s: not claimed (%s)", out, exc.strerror or exc)
+                mine = True
+            if mine:
+                yield None
+                return
+        other = holder(out)
+        if other is None or other.note is None:  # released meanwhile, or its claim being written
+            time.sleep(FIT_POLL_S)
+            continue
+        if other.note.get("key") != key:
+            raise ConfigError(
+                f"{out}: {other.who} is calibrating LEDs into it from other captures or options; wait until it "
+                "ends, or write another --out file"
+            )
+        log.info("%s: %s is fitting the same LEDs (the same captures and options); waiting for it", out, other.who)
+        wait_for_release(out)
+        if _stamp(out) != before:
+            yield other.who
+            return
+
+
+def _stamp(path: Path) -> tuple[int, int, int] | None:
+    """(inode, mtime ns, size) of ``path``, None when there is none: a file written in its place changes it."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns, st.st_size
+
+
+def _fit_and_write(args: argparse.Namespace) -> int:
+    """Load the captures, fit the LEDs, write ``args.out`` and print the table (:func:`run`, its file held)."""
+    import numpy as np
+
+    from ..core.atomic import check_free_space
+    from ..core.capture import load_press
+    from ..core.ledfile import led_file_bytes, save_leds
+    from ..core.metrics import angle_deg
+    from ..core.sensor_record import sensor_of
+    from ..progress import track, working
+    from ..solver import calibrate_leds
+
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
     led_model = _led_model(args.led_diameter, presses)
     log.info(led_model["said"])

@@ -16,6 +16,7 @@ model (:func:`_settings_before_loading`).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from typing import TYPE_CHECKING
@@ -580,35 +581,39 @@ def _run_stills(args: argparse.Namespace) -> int:
     # a bar on a terminal (a folder of 300 frames ran 10 s without a sign of life); quiet elsewhere (progress)
     for name, load, press_folder, source in track(frames, enabled=len(frames) > 1, desc="inferring", unit="frame"):
         folder = _destination(args, name, press_folder)
-        try:
-            provenance, is_kept = looked.get(folder, (None, False))
-            if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
-                provenance = still_provenance(settings, input_identity(press_folder, source))
-                is_kept = _kept(folder, provenance, args.figures)
-            if is_kept:
-                kept.add(folder)
+        with contextlib.ExitStack() as held:  # the claim on its result folder, while it is inferred and saved
+            try:
+                provenance, is_kept = looked.get(folder, (None, False))
+                if folder is not None and folder not in looked and not args.overwrite and _has_entries(folder):
+                    provenance = still_provenance(settings, input_identity(press_folder, source))
+                    is_kept = _kept(folder, provenance, args.figures)
+                if is_kept:
+                    kept.add(folder)
+                    continue
+                frame = load(predictor)  # first: a bad input is its one line, before a claim makes --out
+                if folder is not None:
+                    provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
+                    if _inferred_elsewhere(folder, held, provenance, args.figures):
+                        kept.add(folder)
+                        continue
+            except CaptureError as exc:
+                if len(frames) == 1:
+                    raise
+                # a damaged or foreign input of many: said, and the others inferred, as `nlips solve DATASET` goes on
+                # (the first one stopped the whole run, leaving every input after it undone)
+                log.error("%s", exc)
+                failed[source] = (folder, str(exc))
                 continue
-            frame = load(predictor)
+            result = predictor.predict(frame)
+            changes = capture_changes(predictor.model, press_folder) if press_folder is not None else []
+            if why := mismatch_warning(result, source, changes):
+                unlike(why, str(source))
+                drifted += result.mismatch <= FRAME_MISMATCH_FRACTION  # like the reference, its colours drifted
+            elif why := frame_warning(predictor, result, source):
+                steep(why, str(source))
+            inner.append(result.seconds["total"])
             if folder is not None:
-                provenance = provenance or still_provenance(settings, input_identity(press_folder, source))
-        except CaptureError as exc:
-            if len(frames) == 1:
-                raise
-            # a damaged or foreign input of many: said, and the others inferred, as `nlips solve DATASET` goes on
-            # (the first one stopped the whole run, leaving every input after it undone)
-            log.error("%s", exc)
-            failed[source] = (folder, str(exc))
-            continue
-        result = predictor.predict(frame)
-        changes = capture_changes(predictor.model, press_folder) if press_folder is not None else []
-        if why := mismatch_warning(result, source, changes):
-            unlike(why, str(source))
-            drifted += result.mismatch <= FRAME_MISMATCH_FRACTION  # like the reference, its colours drifted
-        elif why := frame_warning(predictor, result, source):
-            steep(why, str(source))
-        inner.append(result.seconds["total"])
-        if folder is not None:
-            _save(args, predictor, result, name, folder, provenance, press_folder)
+                _save(args, predictor, result, name, folder, provenance, press_folder)
     unlike.flush()
     steep.flush()
     if steep.count > STILLS_WARNED_IN_FULL:
@@ -1018,6 +1023,35 @@ def _interrupted_write(folder: Path) -> bool:
 
     beside = folder.parent.glob(glob.escape(f"{TMP_PREFIX}{folder.name}{OWNER_SEP}") + "*")
     return any(p.name[len(TMP_PREFIX) :].rsplit(OWNER_SEP, 3)[0] == folder.name for p in beside)
+
+
+def _inferred_elsewhere(folder: Path, held: contextlib.ExitStack, provenance: dict, figures: str) -> bool:
+    """Take the claim on the result ``folder`` (core.claims; entered into ``held``, released once its result is
+    saved) and return False: this run infers it. While another live process holds it, wait for that one (saying
+    so), then return True when it left a result to keep (:func:`_kept`: the same input, model and options) -- else
+    (it failed, was killed, or made another model's result) take the claim and infer it here.
+
+    Why: three ``nlips infer`` runs into one folder at once each inferred the presses the others were inferring
+    and published over one another (whole folders, the last one's left: never a mix, but work done twice); now
+    one infers a press, the others wait for it and keep its result, as ``nlips solve`` and ``nlips train`` do. A
+    folder that cannot hold a claim file (read-only media) is not held: the save that follows says why."""
+    from ..core.claims import UNKNOWN_OWNER, claim, holder, wait_for_release
+
+    while True:
+        with contextlib.ExitStack() as attempt:
+            try:
+                mine = attempt.enter_context(claim(folder))
+            except OSError as exc:
+                log.debug("%s: not claimed (%s)", folder, exc.strerror or exc)
+                return False
+            if mine:
+                held.enter_context(attempt.pop_all())
+                return False
+        who = (holder(folder) or UNKNOWN_OWNER).who
+        wait_for_release(folder, lambda who=who: log.info("%s: being inferred by %s; waiting for it", folder, who))
+        if _kept(folder, provenance, figures):
+            log.info("%s: inferred by %s meanwhile (the same input, model and options); kept", folder, who)
+            return True
 
 
 def _kept(folder: Path, provenance: dict, figures: str) -> bool:

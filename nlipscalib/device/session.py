@@ -25,6 +25,7 @@ import contextlib
 import dataclasses
 import json
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -463,8 +464,8 @@ def _damaged(folder: Path) -> str:
 
     try:
         missing = missing_capture_files(folder)
-    except CaptureError as exc:
-        return str(exc).removeprefix(f"{folder}: ")
+    except CaptureError as exc:  # meta.json cut short or emptied: "meta.json: not valid JSON", the folder said once
+        return str(exc).removeprefix(f"{folder}: ").removeprefix(f"{folder}{os.sep}")
     return described_problems(folder, missing) if missing else ""
 
 

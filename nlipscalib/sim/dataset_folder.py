@@ -53,6 +53,21 @@ def missing_files(folder: Path) -> list[str]:
     return unusable_files(folder, names)
 
 
+def torn_own_meta(scene: SceneConfig, job: PressJob, out: Path) -> str | None:
+    """Why the meta.json of ``job``'s press folder in ``out`` cannot be read (cut short, emptied, not JSON), when the
+    folder is this dataset's own render of ``job``: the dataset's record (dataset.json) lists the press under its
+    name with this very scene, press and seed. None when meta.json is readable, or the folder is not known to be
+    the dataset's own (no readable dataset.json, another spec's record): :func:`check_existing` refuses that one.
+
+    Why: a power cut soon after a press was published can leave its meta.json cut short (writes are atomic, not
+    synced), and ``nlips dataset`` then stopped with "the press folder is damaged: delete it ... or use
+    --overwrite" -- for a folder that is nothing but this dataset's render, made again as a torn image is."""
+    problem = _meta_problem(out / job.name)
+    if problem is None or not _listed_in_manifest(scene, job, out):
+        return None
+    return problem.removeprefix(f"{out / job.name / META_FILE}: ")
+
+
 def described_missing(folder: Path, names: list[str], most: int = 3) -> str:
     """``names`` (:func:`missing_files` of ``folder``) in words: "led_02.png missing, led_05.png cut short (no PNG
     end chunk) and 2 more"."""
@@ -67,13 +82,15 @@ def check_existing(scene: SceneConfig, jobs: list[PressJob], out: Path, overwrit
     warning (re-rendered with ``overwrite``)."""
     if overwrite:
         return
-    damaged = [p for p in (_meta_problem(out / j.name) for j in jobs if is_press_folder(out / j.name)) if p]
+    found = [j for j in jobs if is_press_folder(out / j.name)]
+    own_torn = {j.name for j in found if torn_own_meta(scene, j, out)}  # rendered again by the run (_render_job)
+    damaged = [p for p in (_meta_problem(out / j.name) for j in found if j.name not in own_torn) if p]
     if damaged:
         more = f" ({len(damaged) - 1} more press folders are damaged too)" if len(damaged) > 1 else ""
         raise CaptureError(
             f"{damaged[0]}; the press folder is damaged{more}: delete it to render it again, or use --overwrite"
         )
-    found = [j for j in jobs if is_press_folder(out / j.name)]
+    found = [j for j in found if j.name not in own_torn]
     other_renderer = [j.name for j in found if _recorded_hash(out / j.name) == _expected_hash(scene, j)]
     other_renderer = [name for name in other_renderer if rendered_elsewhere_in(out / name)]
     # said once a command: `nlips dataset` checks before its manifest is written and again as the renders start
@@ -224,6 +241,27 @@ def _meta_problem(folder: Path) -> str | None:
     if not isinstance(meta, dict):
         return f"{path}: not a JSON object"
     return None
+
+
+def _listed_in_manifest(scene: SceneConfig, job: PressJob, out: Path) -> bool:
+    """Whether ``out``'s dataset.json records ``job`` under its name with the scene, press and seed of ``scene`` and
+    ``job``: what the run that made the folder asked for (:func:`.dataset_manifest.manifest_text`). Compared as a
+    render's spec hash takes them (:func:`.press.hashed_spec`: not the thread count), as JSON values."""
+    from ..core.config import to_mapping
+    from .dataset_manifest import MANIFEST
+    from .press import hashed_spec
+
+    def as_json(value: object) -> object:
+        return json.loads(json.dumps(value))
+
+    try:
+        record = json.loads((out / MANIFEST).read_bytes())
+        entry = {press["name"]: press for press in record["presses"]}[job.name]
+        theirs = hashed_spec(record["scene"], entry["press"], entry["seed"])
+        press = None if job.press is None else to_mapping(job.press)  # the reference: none
+        return as_json(theirs) == as_json(hashed_spec(scene.to_dict(), press, job.seed))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return False
 
 
 def _recorded_hash(folder: Path) -> str | None:

@@ -40,6 +40,7 @@ from .dataset_folder import (
     missing_files,
     results_inside,
     same_spec,
+    torn_own_meta,
 )
 from .dataset_spec import PressJob
 from .scene import SceneConfig
@@ -253,19 +254,23 @@ def _render_job(scene: SceneConfig, job: PressJob, out: Path, overwrite: bool, s
             folder = out / job.name
             replace = overwrite
             if is_press_folder(folder):
-                if not overwrite and not same_spec(scene, job, out):
+                torn = torn_own_meta(scene, job, out)
+                if not torn and not overwrite and not same_spec(scene, job, out):
                     return "changed", changed_error(scene, job, out)
-                missing = missing_files(folder)
-                if missing:
+                missing = [] if torn else missing_files(folder)
+                if torn or missing:
+                    # torn: its own render (dataset.json lists it), so made again as a torn image is
+                    said = f"{META_FILE} damaged ({torn}; the dataset's own press)" if torn else None
+                    said = said or described_missing(folder, missing)
                     busy = live_claim_inside(folder)
                     if busy:
-                        said = described_missing(folder, missing, most=1)
-                        return "failed", f"{folder}: {said}, but {busy}; run again when it is done"
+                        short = said if torn else described_missing(folder, missing, most=1)
+                        return "failed", f"{folder}: {short}, but {busy}; run again when it is done"
                     results = results_inside(folder)
                     log.warning(
                         "%s: %s; rendering it again%s",
                         folder,
-                        described_missing(folder, missing),
+                        said,
                         f" (its results {', '.join(results)} go with it)" if results else "",
                     )
                     replace = True

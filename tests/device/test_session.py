@@ -265,6 +265,23 @@ def test_resume_captures_again_a_press_whose_files_are_empty_or_cut_short(tmp_pa
     assert file_problem(press / "led_01.png") is None and file_problem(press / "led_02.png") is None
 
 
+def test_resume_captures_again_a_press_whose_meta_json_is_cut_short(tmp_path, caplog):
+    """A session's press folder is the session's own capture: its meta.json cut short by a power cut (or emptied)
+    is captured again on resume, as a torn image is, not a stop or a kept press."""
+    from nlipscalib.core.press_meta import read_meta
+
+    rig, _ = _rig()
+    run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    meta = tmp_path / "s" / "press_0001" / "meta.json"
+    meta.write_bytes(meta.read_bytes()[:200])
+    (tmp_path / "s" / "press_0002" / "meta.json").write_bytes(b"")
+    status = run_session(rig, tmp_path / "s", SessionConfig(presses=2), _quiet()[0])
+    assert status["reference"] == "kept"
+    assert status["press_0001"]["attempts"] == 1 and status["press_0002"]["attempts"] == 1
+    assert "press_0001: meta.json: not valid JSON (" in caplog.text and "capturing it again" in caplog.text
+    assert read_meta(meta.parent)["images"] and read_meta(meta.parent.with_name("press_0002"))["images"]
+
+
 def test_rig_check_names_the_mismatch():
     rig, _ = _rig()
     rig.controller = FakeController(N_LEDS + 1)

@@ -766,6 +766,66 @@ def test_a_finished_run_again_says_so_without_loading_the_model(tiny_model, tmp_
     assert lines[1].startswith("saved: 1 result folder(s), kept 3 as they were; all 4: 3 for frames in "), lines
 
 
+def test_a_result_another_run_is_inferring_is_waited_for_and_kept_not_inferred_twice(
+    tiny_model, tmp_path, monkeypatch, capsys, caplog
+):
+    """Three `nlips infer MODEL DS --out O` at once each inferred the results the others were inferring and published
+    over one another (whole folders: the last one's left). Now each result folder is claimed (core.claims) while it
+    is inferred and saved: a run that finds another holding it waits, then keeps what that one made (the same
+    input, model and options), or infers it itself when the other left none (killed, failed). A thread holding the
+    claim stands for the other process here."""
+    import logging
+    import shutil
+    import threading
+    import time
+
+    from nlipscalib.core import claims
+
+    monkeypatch.setattr(claims, "CLAIM_POLL_S", 0.05)
+    caplog.set_level(logging.INFO, logger="nlipscalib")
+    command, out = _frames_and_a_press(tiny_model, tmp_path)
+    assert main(command) == 0
+    capsys.readouterr()
+    folder, made = out / "b_cube", tmp_path / "made_by_the_other"
+    shutil.move(folder, made)  # what the other run is about to publish
+    released = []
+
+    def other_run(publish: bool) -> threading.Thread:
+        held = threading.Event()
+
+        def run() -> None:
+            with claims.claim(folder) as mine:
+                assert mine
+                held.set()
+                time.sleep(0.6)
+                if publish:
+                    shutil.copytree(made, folder)
+                released.append(time.time())
+
+        thread = threading.Thread(target=run)
+        thread.start()
+        held.wait(5)
+        return thread
+
+    thread = other_run(publish=True)
+    assert main(command) == 0
+    thread.join()
+    said = capsys.readouterr().out.splitlines()
+    assert said[0].startswith("0 frame(s) inferred, 4 kept"), said
+    assert f"{folder}: being inferred by process " in caplog.text and "waiting for it" in caplog.text
+    assert (
+        f"{folder}: inferred by process " in caplog.text
+        and "meanwhile (the same input, model and options); kept" in caplog.text
+    )
+
+    shutil.rmtree(folder)
+    thread = other_run(publish=False)  # the other run ends without a result: this one infers it, after it
+    assert main(command) == 0
+    thread.join()
+    assert capsys.readouterr().out.startswith("1 frame(s) inferred, 3 kept")
+    assert (folder / "result.npz").stat().st_mtime >= released[-1]
+
+
 def test_overwrite_is_refused_for_a_stream(capsys):
     """A stream never resumes (STREAM_STOPPED): --overwrite would change nothing there, so it is refused."""
     assert main(["infer", "m.pt", "--camera", "0", "--overwrite"]) == 2

@@ -406,6 +406,43 @@ def test_a_press_with_a_file_cut_short_is_rendered_again_not_counted_as_there(tm
     assert main(args) == 0 and calls == []  # whole again
 
 
+def test_a_press_whose_meta_json_is_cut_short_is_rendered_again_when_the_dataset_lists_it(
+    tmp_path, monkeypatch, capsys, caplog
+):
+    """A power cut can leave a press's meta.json cut short (published, not synced): `nlips dataset` stopped with "the
+    press folder is damaged: delete it to render it again, or use --overwrite". The folder is the dataset's own
+    render (dataset.json lists the press with this spec): it is rendered again, as a torn image is. A folder the
+    record does not vouch for (no dataset.json) is still refused: it may hold anything."""
+    from nlipscalib.cli import main
+
+    spec, out, calls = _write(tmp_path, GRID), tmp_path / "out", []
+    monkeypatch.setattr(dataset_pool, "_run_one", _whole_render(calls))
+    args = ["--no-progress", "dataset", str(spec), "--out", str(out), "--workers", "1", "--limit", "2"]
+    assert main(args) == 0
+    meta = out / "press_0001" / "meta.json"
+    whole = meta.read_bytes()
+    meta.write_bytes(whole[: len(whole) // 2])
+    calls.clear()
+    capsys.readouterr()
+    assert main(args) == 0
+    assert calls == ["press_0001"] and meta.read_bytes() == whole
+    assert capsys.readouterr().out.strip() == f"{out}: 1 rendered, 2 already there, 0 failed"
+    assert "press_0001: meta.json damaged (not valid JSON" in caplog.text and "rendering it again" in caplog.text
+    calls.clear()
+    assert main(args) == 0 and calls == []  # whole again
+    reference = out / "reference" / "meta.json"
+    reference.write_bytes(b"")  # the reference (no press) alike
+    assert main(args) == 0 and calls == ["reference"] and json.loads(reference.read_bytes())
+    calls.clear()
+
+    meta.write_bytes(b"")  # emptied, and the dataset's record lost too: not known to be the dataset's own
+    (out / "dataset.json").unlink()
+    capsys.readouterr()
+    assert main(args) == 2 and calls == []
+    err = capsys.readouterr().err
+    assert f"{meta}: not valid JSON" in err and "the press folder is damaged" in err and "Traceback" not in err
+
+
 def test_a_press_that_lost_a_file_while_a_solve_works_in_it_is_left_alone(tmp_path, monkeypatch, capsys, caplog):
     """Rendering it again swapped the whole folder away under a running `nlips solve` (its result went with it,
     said by nothing but "led_02.png missing"): now the press waits for the next run, like an incomplete one."""

@@ -127,3 +127,72 @@ def test_a_capture_recording_a_bad_led_size_is_refused_in_one_line_before_the_fi
     assert not out.exists()
     assert main(["calibrate-leds", str(capture), "--out", str(out), "--stride", "4", "--led-diameter", "0"]) == 0
     assert json.loads(out.read_text(encoding="utf-8"))["led_model"]["from"] == "--led-diameter"
+
+
+def test_runs_at_once_into_one_led_file_fit_it_once_and_another_fit_is_refused(
+    presses, tmp_path, monkeypatch, capsys, caplog
+):
+    """Three `nlips calibrate-leds` at once into one --out each fitted the same LEDs and wrote the file in turn (whole
+    each time: the last one's left), and a run of other captures or options replaced the other's file unsaid. Now
+    the file is claimed (core.claims) while it is fitted and written: a run of the same fit waits and keeps what the
+    other wrote (or fits when it wrote nothing: killed, failed); another fit is refused in one line. A thread
+    holding the claim stands for the other process here."""
+    import logging
+    import threading
+    import time
+
+    from nlipscalib import solver
+    from nlipscalib.cli import build_parser
+    from nlipscalib.cli.calibrate import _fit_key
+    from nlipscalib.core import claims
+
+    monkeypatch.setattr(claims, "CLAIM_POLL_S", 0.05)
+    caplog.set_level(logging.INFO, logger="nlipscalib")
+    out = tmp_path / "leds.json"
+    argv = ["calibrate-leds", str(presses["none"]), "--out", str(out), "--stride", "8"]
+    assert main(argv) == 0
+    whole = out.read_bytes()
+    out.unlink()
+    key = _fit_key(build_parser().parse_args(argv))
+    released = []
+
+    def other_run(its_key: str, write: bool) -> threading.Thread:
+        held = threading.Event()
+
+        def run() -> None:
+            with claims.claim(out, note={"key": its_key}) as mine:
+                assert mine
+                held.set()
+                time.sleep(0.5)
+                if write:
+                    out.write_bytes(whole)
+                released.append(time.time())
+
+        thread = threading.Thread(target=run)
+        thread.start()
+        held.wait(5)
+        return thread
+
+    fits = []
+    fit = solver.calibrate_leds
+    monkeypatch.setattr(solver, "calibrate_leds", lambda *a, **k: fits.append(1) or fit(*a, **k))
+    capsys.readouterr()
+    thread = other_run(key, write=True)
+    assert main(argv) == 0
+    thread.join()
+    said = capsys.readouterr().out.strip().splitlines()
+    assert said[-1].startswith(f"{out}: written by process ") and "nothing to do" in said[-1], said
+    assert fits == [] and out.read_bytes() == whole and "is fitting the same LEDs" in caplog.text
+
+    thread = other_run("another", write=True)
+    assert main(argv) == 2
+    thread.join()
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{out}: process " in line and "from other captures or options; wait until it ends" in line, line
+    assert fits == []
+
+    out.unlink()
+    thread = other_run(key, write=False)  # the other run ends without the file: this one fits, after it
+    assert main(argv) == 0
+    thread.join()
+    assert fits == [1] and out.stat().st_mtime >= released[-1]
