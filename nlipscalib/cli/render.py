@@ -275,6 +275,7 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
     import json
 
     from ..core.errors import ConfigError
+    from ..core.file_checks import file_problem
     from ..core.press_folders import is_press_folder
     from ..sim.dataset_folder import spec_change
     from ..sim.press import recorded_spec_hash, render_spec_hash
@@ -283,6 +284,13 @@ def _up_to_date(out: Path, scene: SceneConfig, press: PressConfig | None, seed: 
         return False
     if not is_press_folder(out):
         raise ConfigError(f"{out}: exists and is not a press folder; choose another --out or use --overwrite")
+    if problem := file_problem(out / "meta.json"):
+        # a power cut (writes are atomic, not synced) or a copy cut short: nothing records what the folder was
+        # rendered from, so it is neither this render nor another one (which the next error would have claimed)
+        raise ConfigError(
+            f"{out}: its meta.json is {problem}, so what it was rendered from is unknown; "
+            "use --overwrite to render it again, or another --out"
+        )
     try:
         recorded = recorded_spec_hash(json.loads((out / "meta.json").read_text(encoding="utf-8"))["provenance"])
     except (OSError, ValueError, KeyError, TypeError, AttributeError):

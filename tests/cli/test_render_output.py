@@ -175,3 +175,22 @@ def test_a_render_with_a_file_cut_short_is_rendered_again_not_nothing_to_do(tmp_
     assert file_problem(image) is None and image.read_bytes() == whole
     assert main([*TINY, "--out", str(out)]) == 0
     assert "nothing to do" in capsys.readouterr().out
+
+
+def test_a_render_whose_meta_json_is_cut_short_is_named_so_not_another_scene(tmp_path, capsys):
+    """A press folder whose meta.json a power cut left cut short was refused as "already holds a press rendered from a
+    different scene, press or seed": a wrong cause. Now its meta.json is named, and --overwrite renders it again."""
+    out = tmp_path / "p"
+    assert main([*TINY, "--out", str(out)]) == 0
+    meta = out / "meta.json"
+    whole = meta.read_bytes()
+    meta.write_bytes(whole[:100])
+    capsys.readouterr()
+    assert main([*TINY, "--out", str(out)]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "meta.json is cut short or damaged (not valid JSON)" in line and "different scene" not in line, line
+    assert str(out) in line and "--overwrite" in line
+    assert main([*TINY, "--out", str(out), "--overwrite"]) == 0
+    capsys.readouterr()
+    assert main([*TINY, "--out", str(out)]) == 0  # whole again, and this very render
+    assert "nothing to do" in capsys.readouterr().out
