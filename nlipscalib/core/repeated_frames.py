@@ -21,8 +21,9 @@ frame's level, not the previous LED's light. One LED's dark band is told from it
 model (the solve's :func:`nlipscalib.solver.led_checks.led_check` feeds :func:`dark_bands` its samples); rows dark in
 every LED image by the images alone (the LEDs together light the whole gel). Columns alike (a camera mounted turned 90
 degrees: its rolling shutter reads the image's columns); bands shorter than the samples' bands of rows tell
-(:func:`dark_candidates`) are told row by row on denser samples (:func:`dark_lines`). A solve leaves out an LED's dark
-band for that LED only (:func:`dark_band_mask`).
+(:func:`dark_candidates`) are told row by row on denser samples (:func:`dark_lines`; every LED image's:
+:func:`dark_everywhere_lines`). A solve leaves out an LED's dark band, or its lagged band, for that LED only
+(:func:`dark_band_mask`).
 """
 
 from __future__ import annotations
@@ -52,6 +53,12 @@ steady)."""
 MIN_ROW_SAMPLES = 8
 """Fewest samples a band of :data:`CAPTURE_CHECK_BLUR` rows needs to count in :func:`dark_bands` (the solve's
 ~2000 gel samples give ~20 a band at 640x480, ~40 at 320x240)."""
+EVERYWHERE_SAMPLES = 2000
+"""Gel pixels :func:`dark_everywhere_lines` samples, at least (every k-th in raster order), as the solve's LED check
+(:data:`nlipscalib.solver.led_checks.CHECK_PIXELS`): ~20 a band of 5 rows at 640x480."""
+EVERYWHERE_LINE_SAMPLES = 100
+"""Samples a pixel row (column) gets, about, where :func:`dark_everywhere_lines` looks line by line (as
+:data:`nlipscalib.solver.led_checks.DENSE_LINE_SAMPLES`)."""
 MIN_LINE_SAMPLES = 16
 """Fewest dense samples a pixel row (column) needs to count in :func:`dark_lines` (the solve samples ~100 a row:
 :data:`nlipscalib.solver.led_checks.DENSE_LINE_SAMPLES`)."""
@@ -121,7 +128,8 @@ def frame_checks(
         :data:`~nlipscalib.core.tolerances.REPEATED_FRAME_DIFFERENCE`, and which holds no rows of its own light
         (then it is a lagged band); empty when none is.
     bands : list of LaggedBand -- the images lagged only in part (:func:`lagged_bands`).
-    dark : DarkBand or None -- rows dark in every LED image (:func:`dark_everywhere`).
+    dark : DarkBand or None -- rows dark in every LED image (:func:`dark_everywhere`; shorter bands:
+        :func:`dark_everywhere_lines`).
     """
     inside = _block_means(np.asarray(gel, np.float32)[..., None]) > 1 - 1e-6  # blocks wholly on the gel (rounding)
     blocks = [_block_means(image) for image in linear]
@@ -136,7 +144,7 @@ def frame_checks(
             difference = float(np.median(np.abs(current[lit] - previous[lit]) / brighter[lit]))
             if difference < REPEATED_FRAME_DIFFERENCE:
                 found.append((index, difference))
-    return found, bands, dark_everywhere(blocks, inside)
+    return found, bands, dark_everywhere(blocks, inside) or dark_everywhere_lines(linear, gel)
 
 
 def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | None:
@@ -171,6 +179,69 @@ def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | 
         if band := _dark_run(most < DARK_BAND_LIGHT, lines, None, axis):
             return band
     return None
+
+
+def dark_everywhere_lines(linear: np.ndarray, gel: np.ndarray) -> DarkBand | None:
+    """Rows (else columns) dark in every LED image in a band shorter than :func:`dark_everywhere`'s blocks tell
+    (down to :data:`~nlipscalib.core.tolerances.DARK_LINES_MIN` lines), to the pixel: the LEDs' summed light over
+    its median over the gel, at :data:`EVERYWHERE_SAMPLES` gel pixels, through the one LED's tests
+    (:func:`dark_candidates`: bands of :data:`~nlipscalib.core.tolerances.CAPTURE_CHECK_BLUR` lines that may hide
+    one), and on the candidates' lines densely (:data:`EVERYWHERE_LINE_SAMPLES` a line) :func:`dark_lines`.
+
+    Why the images alone, again: the LEDs together light the whole gel; a contact's shadow from every LED at once is
+    a small hole, not whole lines (:func:`dark_lines` asks for :data:`~nlipscalib.core.tolerances.DARK_BAND_SHARE`
+    of a line's samples dark).
+
+    Parameters
+    ----------
+    linear : (L, H, W, 3) float -- the LED images in capture order, linear (:func:`frame_checks`').
+    gel : (H, W) bool -- the pixels that see the gel.
+
+    Returns
+    -------
+    DarkBand (``index`` None) or None.
+    """
+    if len(linear) < 2:
+        return None
+    height, width = gel.shape
+    index = np.flatnonzero(gel)
+    index = index[:: max(1, index.size // EVERYWHERE_SAMPLES)]
+    if index.size == 0:
+        return None
+    flat = linear.reshape(len(linear), -1, linear.shape[-1])
+    light = _summed(flat, index)
+    level = float(np.median(light))
+    if not level > 0:
+        return None
+    for axis, at, length, across in (
+        ("rows", index // width, height, width),
+        ("columns", index % width, width, height),
+    ):
+        candidates = dark_candidates(light[None], at, length)[0]
+        if candidates.size == 0:
+            continue
+        b = CAPTURE_CHECK_BLUR
+        near = np.zeros(length, bool)
+        for band in candidates:
+            near[max(0, (band - 1) * b) : (band + 2) * b] = True
+        lines = np.flatnonzero(near)
+        inside = gel[lines] if axis == "rows" else gel[:, lines].T
+        step = max(1, across // EVERYWHERE_LINE_SAMPLES)
+        which, spot = np.nonzero(inside[:, ::step])
+        line, spot = lines[which], spot * step
+        pixels = line * width + spot if axis == "rows" else spot * width + line
+        dense = _summed(flat, pixels) / level
+        extent = (int(at.min()), int(at.max()) + 1)
+        if band := dark_lines(dense, line, extent, None, axis):
+            return band
+    return None
+
+
+def _summed(flat: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(n,) float64: the LED images' (``flat``: (L, H * W, C)) light at the flat ``pixels`` (n,), summed over the
+    LEDs and channels. np.take and the LEDs summed first: ~0.08 ms for 2000 pixels of 12 LED images (fancy indexing
+    of the middle axis ~0.5 ms, one float64 sum over two axes ~0.26 ms)."""
+    return np.take(flat, pixels, axis=1).sum(axis=0).sum(axis=1, dtype=np.float64)
 
 
 def dark_bands(light: np.ndarray, lines: np.ndarray, length: int, axis: str = "rows") -> list[DarkBand]:
@@ -241,7 +312,7 @@ def _candidates(table: np.ndarray, counted: np.ndarray, bands: np.ndarray) -> li
 
 
 def dark_lines(
-    light: np.ndarray, lines: np.ndarray, extent: tuple[int, int], index: int, axis: str = "rows"
+    light: np.ndarray, lines: np.ndarray, extent: tuple[int, int], index: int | None, axis: str = "rows"
 ) -> DarkBand | None:
     """One LED image's dark band to the pixel row (column), from samples dense along the rows :func:`dark_candidates`
     named: the rows whose samples' ``light`` is below :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT` in
@@ -255,7 +326,7 @@ def dark_lines(
     lines : (n,) int -- the samples' pixel rows (columns).
     extent : (first, stop) -- the rows (columns) the gel's samples span: a band from ``first`` is "top" ("left"),
         one to ``stop`` "bottom" ("right").
-    index : int -- the LED image (0-based), for the result.
+    index : int or None -- the LED image (0-based), for the result; None: every LED image.
     axis : "rows" or "columns".
 
     Returns
@@ -292,13 +363,16 @@ def dark_lines(
     return DarkBand(index, (start, stop), where, axis)
 
 
-def dark_band_mask(bands: list[DarkBand], leds: list[int], shape: tuple[int, int]) -> np.ndarray:
-    """The samples an LED image's dark band leaves without its LED's light: its rows (columns) and
-    :data:`~nlipscalib.core.tolerances.DARK_BAND_MARGIN` either side, for that LED only.
+def dark_band_mask(bands: list[DarkBand | LaggedBand], leds: list[int], shape: tuple[int, int]) -> np.ndarray:
+    """The samples an LED image's dark band (or lagged band) leaves without its LED's light: its rows (columns) and
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_MARGIN` either side, for that LED only; a lagged band also to the
+    frame's edge it lies at (its first rows read, or its last: the gel's lines beyond the rows
+    :func:`lagged_bands` counts hold the previous LED's light too).
 
     Parameters
     ----------
-    bands : list of DarkBand -- with ``index`` an LED (0-based, capture order; :func:`dark_bands`, :func:`dark_lines`).
+    bands : list of DarkBand or LaggedBand -- with ``index`` an LED (0-based, capture order; :func:`dark_bands`,
+        :func:`dark_lines`, :func:`lagged_bands`).
     leds : list of int -- the LEDs of the images the mask is for (0-based), in their order; a band of another LED
         is left out.
     shape : (H, W) -- the image's rows and columns.
@@ -312,11 +386,13 @@ def dark_band_mask(bands: list[DarkBand], leds: list[int], shape: tuple[int, int
     for band in bands:
         if band.index not in at:
             continue
-        lines = slice(max(0, band.rows[0] - DARK_BAND_MARGIN), band.rows[1] + DARK_BAND_MARGIN)
+        start, stop = max(0, band.rows[0] - DARK_BAND_MARGIN), band.rows[1] + DARK_BAND_MARGIN
+        if isinstance(band, LaggedBand):
+            start, stop = (0, stop) if band.top else (start, max(shape))
         if band.axis == "rows":
-            mask[at[band.index], lines] = True
+            mask[at[band.index], start:stop] = True
         else:
-            mask[at[band.index], :, lines] = True
+            mask[at[band.index], :, start:stop] = True
     return mask
 
 

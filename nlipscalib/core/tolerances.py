@@ -513,11 +513,13 @@ SHIFTED_BAND_RATIO = 0.7
 error: the camera's rolling readout starts before each LED switches) when, in median over the LEDs, the LED image
 fitted (gain and offset) to the previous LED's modelled light leaves less than this fraction of the misfit to its own
 LED's (:func:`nlipscalib.solver.led_checks.shifted_rows`). The twin's presses (/tmp/keep, 640x480, 16 bands of 30
-rows): 1.18 and above in every band; bands read before the switch: 0.09-0.48 (s28-rolling)."""
+rows): 1.18 and above in every band; bands read before the switch: 0.09-0.48 (s28-rolling). Bands of columns alike
+(a camera turned 90 degrees; 16 bands of 40 columns at 640): see benchmarks/RESULTS.md, s31-darkall."""
 DARK_BAND_ROWS = 3
 """Fewest bands of :data:`CAPTURE_CHECK_BLUR` rows (columns) in a run, 15 pixels, for an LED image's rows (or every
 LED image's) to be called dark at the bands' test: read while no LED was lit; shorter runs are looked at row by row
-(:data:`DARK_CANDIDATE_SHARE`, :data:`DARK_LINES_MIN`); :func:`nlipscalib.core.repeated_frames.dark_bands`,
+(:data:`DARK_CANDIDATE_SHARE`, :data:`DARK_LINES_MIN`; every LED image's too since s31-darkall:
+:func:`~nlipscalib.core.repeated_frames.dark_everywhere_lines`); :func:`nlipscalib.core.repeated_frames.dark_bands`,
 :func:`~nlipscalib.core.repeated_frames.dark_everywhere`. As :data:`LAGGED_BAND_ROWS`."""
 DARK_BAND_LIGHT = 0.25
 """Rows are dark (read while no LED was lit, or a very dim LED) when, in :data:`DARK_BAND_SHARE` of a band of
@@ -527,7 +529,9 @@ its median over the gel, per 5x5 block. The twin (one bounce, 16 spp; /tmp/keep 
 320x240, deep ones at the frame's edge): 0.965 and above in every band of every LED, 1.00 and above for the sum;
 rows read while no LED was lit 0.00 (s29-darkrows). A synthetic 3 mm dent filling a cropped frame: 0.64. Bands of
 columns (a camera turned 90 degrees), the same test: 0.823 and above on /tmp/keep and 18 presses at 320x240, 12 of them
-at the frame's left or right side (a 10 mm cylinder 2.5 mm deep over every row: 0.823; s30-darkcols)."""
+at the frame's left or right side (a 10 mm cylinder 2.5 mm deep over every row: 0.823; s30-darkcols). The LEDs'
+summed light pixel row by pixel row (column by column; the 90 % quantile of ~100 gel pixels a line): 0.957 and above
+on those captures and 4 more edge presses (s31-darkall)."""
 DARK_BAND_SHARE = 0.9
 """Share of a band's samples (or blocks) that must be dark (:data:`DARK_BAND_LIGHT`): a dark band is dark across the
 whole row; a contact's flank turned away from an LED is dark in a part of it (a quantile, not the median: the
@@ -546,7 +550,9 @@ DARK_BAND_MARGIN = 5
 """Pixel rows (columns) either side of an LED image's dark band that the solve leaves out with it, for that LED
 (:func:`nlipscalib.core.repeated_frames.dark_band_mask`): the bands of 15 rows or more are found to
 :data:`CAPTURE_CHECK_BLUR` rows, and an LED switching during the readout ramps its light over a few rows (a dim
-edge that is neither dark nor the LED's light)."""
+edge that is neither dark nor the LED's light). A lagged band's too (the previous LED's light, found to the block of
+:data:`CAPTURE_CHECK_BLUR` rows: the block across the switch holds both lights), with the rows beyond it to the
+frame's edge (s31-darkall)."""
 LINEAR_RESPONSE_SLOPE = 0.7
 """LED images are taken as not linear in the light (an sRGB or gamma-encoded camera output) when, across the LEDs,
 each pixel's value grows as the LED model's light, direct plus the fitted indirect term, to a power below this, in

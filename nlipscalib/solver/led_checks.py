@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -23,6 +24,8 @@ from ..core.errors import CaptureError
 from ..core.leds import Led, led_shading, tricolor_groups
 from ..core.repeated_frames import (
     DarkBand,
+    LaggedBand,
+    dark_band_mask,
     dark_bands_and_candidates,
     dark_everywhere_line,
     dark_line,
@@ -82,10 +85,10 @@ def led_check(
     -------
     notes : list of str -- empty when every live LED image matches its LED.
     left_out : list of int -- LEDs (0-based) to leave out: their light is off the model's by more than
-        :data:`WEAK_LED_GAIN`, or their image repeats the one before (whole or in some rows); empty when leaving
-        them out would leave fewer than ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about). An image
-        with a band of rows (columns) at the dark frame's level is not left out: only those rows
-        (:func:`led_check_measured`).
+        :data:`WEAK_LED_GAIN`, or their image repeats the one before (whole); empty when leaving them out would
+        leave fewer than ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs (then only warned about). An image with a band of
+        rows (columns) at the dark frame's level, or holding the previous image's light (read across the switch), is
+        not left out: only those rows (:func:`led_check_measured`).
     misplaced : list of int -- LEDs (0-based) whose images show another LED's light (swapped, or out of order).
     order : list of int, or None -- for each LED (0-based), the image (0-based, the capture's order) that shows its
         light, when the misplaced images are a clean pair or cycle (:func:`detected_order`); None otherwise.
@@ -109,23 +112,28 @@ class MeasuredGains:
 
 def led_check_measured(
     press: Press, leds: Sequence[Led], live: Sequence[int]
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand]]:
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand | LaggedBand]]:
     """:func:`led_check`, the relative gains it measured on the LEDs it judged (:class:`MeasuredGains`; None
-    when it sampled none), and the LED images' dark bands (:func:`_dark_rows`: rows or columns read while the LED
-    was off), whose samples a solve leaves out for that LED (:func:`.dark_band_mask`); the LED itself is kept."""
+    when it sampled none), and the LED images' bands whose samples a solve leaves out for that LED
+    (:func:`.dark_band_mask`; the LED itself is kept): dark bands (:func:`_dark_rows`: rows or columns read while
+    the LED was off), then lagged bands (:func:`.lagged_bands`: read before the LED switched, the previous LED's
+    light)."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
         return [], [], [], None, None, []
     names = image_names(press)
-    lagged, repeated, everywhere = _repeated_line(press, names)
+    count = len(live)
+    said, repeated, lagged, everywhere = _repeated_line(press, names)
     jpeg_notes = compression_notes(press) + (
         [f"{dark_everywhere_line(press.folder, everywhere)}; {DARK_ALL.format(everywhere.axis)}"] if everywhere else []
     )
-    live = [i for i in live if i not in repeated]  # another LED's light: no verdict on its own LED
+    lagged_notes = [f"{lagged_line(press.folder, names, lagged)}{LAGGED_DONE}"] if lagged else []
+    # another LED's light, whole or in a band: no verdict on its own LED
+    live = [i for i in live if i not in repeated and i not in {band.index for band in lagged}]
     image, model, pixels = _sampled(press, leds, live) if len(live) >= 3 else (None, None, None)
     if image is None:
-        left_out = _leave_out(repeated, len(live) + len(repeated))
-        return _said_repeated(lagged, left_out) + jpeg_notes, left_out, [], None, None, []
+        left_out = _leave_out(repeated, count)
+        return _said_repeated(said, left_out) + lagged_notes + jpeg_notes, left_out, [], None, None, list(lagged)
     # linearity: said by the solve once its indirect term is fitted (linearity_notes)
     notes = jpeg_notes + shifted_notes(press, leds, live)
     dark = _dark_rows(press, leds, image, model, pixels, live, everywhere)
@@ -158,10 +166,10 @@ def led_check_measured(
                 )
         elif relative[k] < WEAK_LED_GAIN or relative[k] > 1 / WEAK_LED_GAIN:
             off.append((i, relative[k]))
-    left_out = _leave_out([i for i, _ in off] + repeated, len(live) + len(repeated))
+    left_out = _leave_out([i for i, _ in off] + repeated, count)
     dark = [band for band in dark if band.index not in left_out]
     dark_notes = [dark_line(press.folder, names, dark, DARK_DONE)] if dark else []
-    notes = _said_repeated(lagged, left_out) + dark_notes + notes
+    notes = _said_repeated(said, left_out) + lagged_notes + dark_notes + notes
     for i, share in off:
         what = "weak LED?" if share < 1 else "brighter than the others"
         done = "left out of the solve and of --roi auto" if left_out else "used (too few LEDs to leave it out)"
@@ -171,7 +179,7 @@ def led_check_measured(
             f"calibrate-leds) and solve with --leds FILE to use it"
         )
     measured = MeasuredGains(tuple(live), relative)
-    return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured, dark
+    return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured, [*dark, *lagged]
 
 
 def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[DarkBand]:
@@ -343,27 +351,29 @@ def _leave_out(candidates: list[int], count: int) -> list[int]:
     return sorted(candidates) if count - len(candidates) >= tolerances.MIN_LEDS_PER_PIXEL else []
 
 
-def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int], DarkBand | None]:
-    """The lines naming LED images that repeat the image before them, whole or in some rows (:func:`.frame_checks`:
-    frames that lag the LED switch, or read out across it by a rolling shutter), none when none does, those LEDs
-    (0-based), in the capture order of ``images.leds``, and the rows dark in every LED image (None: none).
-
-    Why leave a partly lagged LED out: its rows of the previous LED's light are solved as its own. The twin's cube
-    press (640x480, --roi auto; clean 0.446 deg): LED 5's top three quarters from LED 4 0.500, left out 0.458; where
-    the rows miss the contact, leaving it out costs up to 0.011 deg (sphere: 0.529-0.531 used, 0.540 left out;
-    s28-rolling)."""
+def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int], list[LaggedBand], DarkBand | None]:
+    """The line naming LED images that repeat the image before them (:func:`.frame_checks`: frames that lag the LED
+    switch), none when none does, those LEDs (0-based), in the capture order of ``images.leds``; the LED images
+    read out across the switch by a rolling shutter, in part the previous LED's light (:func:`.lagged_bands`); and
+    the rows dark in every LED image (None: none)."""
     repeated, bands, everywhere = frame_checks(press.linear_led_images, np.isfinite(press.reference.depth))
-    lines = ([repeated_line(press.folder, names, repeated)] if repeated else []) + (
-        [lagged_line(press.folder, names, bands)] if bands else []
-    )
-    return lines, sorted([i for i, _ in repeated] + [band.index for band in bands]), everywhere
+    lines = [repeated_line(press.folder, names, repeated)] if repeated else []
+    return lines, sorted(i for i, _ in repeated), bands, everywhere
 
 
 DARK_ALL = "no LED can be left out for it: the normals solved in those {} are wrong"
 """The tail of the solve's warning about rows (columns: ``DARK_ALL.format(axis)``) dark in every LED image
 (:func:`.dark_everywhere_line`)."""
 REPEATED_REASON = "they hold the light of the LED before them"
-"""Why :func:`_said_repeated` leaves repeated and partly lagged LED images out."""
+"""Why :func:`_said_repeated` leaves repeated LED images out."""
+LAGGED_DONE = (
+    f"; left out of the solve for that LED only, with {tolerances.DARK_BAND_MARGIN} rows (columns) more and to the "
+    "frame's edge (they hold the light of the LED before it), the rest of its image used"
+)
+"""What the solve does about an LED image's rows (columns) read before its LED switched (:func:`.lagged_line`): as
+about dark rows (:data:`DARK_DONE`; :func:`.dark_band_mask`).
+
+Why not the LED whole (as s28-rolling and s30-qaleft did): see benchmarks/RESULTS.md, s31-darkall."""
 DARK_DONE = (
     f"; left out of the solve for that LED only, with {tolerances.DARK_BAND_MARGIN} rows (columns) either side "
     "(read while it was off, they hold none of its light), the rest of its image used"
@@ -384,32 +394,57 @@ def _said_repeated(lines: list[str], left_out: list[int], reason: str = REPEATED
 
 
 SHIFT_BANDS = 16
-"""Bands of rows :func:`shifted_rows` fits one by one (30 rows at 480: the reported rows are to a band)."""
+"""Bands of rows (columns) :func:`shifted_rows` fits one by one (30 rows at 480, 40 columns at 640: the reported
+lines are to a band)."""
+SHIFT_BAND_SAMPLES = 50
+"""Fewest samples a band needs for a verdict in :func:`shifted_rows` (~a band's at 2 x :data:`CHECK_PIXELS`)."""
+
+
+class ShiftedBand(NamedTuple):
+    """Rows (or columns) at the frame's edge in which every LED image shows the light of the LED before it
+    (:func:`shifted_rows`)."""
+
+    lines: tuple[int, int]
+    """First and one-past-last pixel row (``axis`` "columns": column), to a band (:data:`SHIFT_BANDS`)."""
+    top: bool
+    """At the frame's top (columns: its left), else its bottom (right)."""
+    axis: str = "rows"
+    """"rows", or "columns": a camera mounted turned 90 degrees, its rolling shutter reading the image's columns."""
+
+    @property
+    def where(self) -> str:
+        """ "top" or "bottom" of the rows; "left" or "right" of the columns."""
+        return ("top" if self.top else "bottom") if self.axis == "rows" else ("left" if self.top else "right")
 
 
 def shifted_notes(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[str]:
-    """The warning when a band of rows at the top or bottom of every LED image shows the previous LED's light
-    (:func:`shifted_rows`): a systematic timing error, no LED can be left out for it."""
+    """The warning when a band of rows at the top or bottom (columns at the left or right: a camera turned 90
+    degrees) of every LED image shows the previous LED's light (:func:`shifted_rows`): a systematic timing error, no
+    LED can be left out for it."""
     band = shifted_rows(press, leds, live)
     if band is None:
         return []
-    (first, stop), top = band
+    first, stop = band.lines
+    reads = (
+        "a rolling shutter reads the rows one after another"
+        if band.axis == "rows"
+        else "a camera mounted turned 90 degrees: its rolling shutter reads the image's columns one after another"
+    )
     return [
-        f"{press.folder}: rows {first}-{stop - 1} ({'top' if top else 'bottom'}) of the LED images show the light "
-        "of the LED captured before each: the LEDs switched while the camera read the frames out (a rolling "
-        "shutter reads the rows one after another), every frame alike; capture again with --flush 1 or more "
-        "(frames dropped after each LED change, default 2) and frames that are not read out before the LED lit; "
-        "the normals solved in those rows are wrong"
+        f"{press.folder}: {band.axis} {first}-{stop - 1} ({band.where}) of the LED images show the light of the LED "
+        f"captured before each: the LEDs switched while the camera read the frames out ({reads}), every frame "
+        "alike; capture again with --flush 1 or more (frames dropped after each LED change, default 2) and frames "
+        f"that are not read out before the LED lit; the normals solved in those {band.axis} are wrong"
     ]
 
 
-def shifted_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tuple[tuple[int, int], bool] | None:
-    """The rows, at the top or the bottom of the frame, in which the LED images show the light of the LED before
-    them in capture order: ((first, stop) pixel rows, top), or None.
+def shifted_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> ShiftedBand | None:
+    """The rows at the top or the bottom of the frame (else the columns at its left or right: a camera mounted
+    turned 90 degrees) in which the LED images show the light of the LED before them in capture order, or None.
 
-    Per band of rows (:data:`SHIFT_BANDS`) and live LED k whose predecessor is live, the LED image is fitted (gain
-    and offset: albedo and interreflection) to LED k's modelled light and to LED k-1's on the undeformed dome; a
-    band whose median over the LEDs of the two misfits' ratio (previous / own) is below
+    Per band of rows (columns; :data:`SHIFT_BANDS`) and live LED k whose predecessor is live, the LED image is
+    fitted (gain and offset: albedo and interreflection) to LED k's modelled light and to LED k-1's on the
+    undeformed dome; a band whose median over the LEDs of the two misfits' ratio (previous / own) is below
     :data:`~nlipscalib.core.tolerances.SHIFTED_BAND_RATIO` holds the previous LED's light. Why model, not the
     images: with every frame read across its switch, neighbouring images no longer share any rows' light
     (:func:`nlipscalib.core.repeated_frames.frame_lags` sees nothing).
@@ -425,35 +460,61 @@ def shifted_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> tupl
     points = depth_to_points(ref.depth.reshape(-1)[index].astype(float), rays)
     model = led_shading(points, ref.normals.reshape(-1, 3)[index].astype(float), list(leds)).sum(axis=-1)
     image = np.stack([press.linear_led_images[k].reshape(-1, 3)[index].sum(axis=-1) for k in pairs]).astype(float)
-    band = rows * SHIFT_BANDS // press.camera.height
-    ratio = np.full(SHIFT_BANDS, np.nan)
-    for b in range(SHIFT_BANDS):
-        where = band == b
-        if where.sum() >= 50:  # ~a band's samples at 2 x CHECK_PIXELS; fewer: no verdict
-            own = _affine_misfit(image[:, where], model[pairs][:, where])
-            previous = _affine_misfit(image[:, where], model[[k - 1 for k in pairs]][:, where])
-            ratio[b] = np.median(previous / np.maximum(own, 1e-12))
+    own, previous = model[pairs], model[[k - 1 for k in pairs]]
+    found = []
+    for axis, at, length in (("rows", rows, press.camera.height), ("columns", cols, press.camera.width)):
+        band = at * SHIFT_BANDS // length
+        ratio = np.median(_band_misfits(image, previous, band) / _band_misfits(image, own, band), axis=0)
+        if shifted := _shifted_edge(ratio, length, axis):
+            found.append((float(np.nanmean(ratio[_band_of(shifted, length)])), shifted))
+    # where both look shifted (a band of columns leaves some rows mostly inside it, as lagged_bands says), the
+    # band whose light is the more plainly the previous LED's: the lower ratio
+    return min(found)[1] if found else None
+
+
+def _band_of(shifted: ShiftedBand, length: int) -> slice:
+    """The bands (:data:`SHIFT_BANDS` over ``length`` lines) ``shifted`` spans."""
+    return slice(shifted.lines[0] * SHIFT_BANDS // length, -(-shifted.lines[1] * SHIFT_BANDS // length))
+
+
+def _shifted_edge(ratio: np.ndarray, length: int, axis: str) -> ShiftedBand | None:
+    """The run of bands from the frame's first (else last) band whose ``ratio`` ((SHIFT_BANDS,), NaN: no verdict)
+    is below :data:`~nlipscalib.core.tolerances.SHIFTED_BAND_RATIO`, not all of the counted ones."""
     shifted = ratio < tolerances.SHIFTED_BAND_RATIO  # NaN: False
     counted = np.flatnonzero(np.isfinite(ratio))
     if not shifted.any() or shifted[counted].all():
         return None
-    height = press.camera.height
     for top, ordered in ((True, counted), (False, counted[::-1])):
         run = int(np.argmax(~shifted[ordered]))  # the first band of the LEDs' own light
         if run:
             ends = sorted((ordered[0], ordered[run - 1]))
-            return (int(ends[0]) * height // SHIFT_BANDS, (int(ends[1]) + 1) * height // SHIFT_BANDS), top
+            lines = (int(ends[0]) * length // SHIFT_BANDS, (int(ends[1]) + 1) * length // SHIFT_BANDS)
+            return ShiftedBand(lines, top, axis)
     return None
 
 
-def _affine_misfit(image: np.ndarray, model: np.ndarray) -> np.ndarray:
-    """(L,) float: the rms misfit of each row of ``image`` (L, N) fitted as gain x ``model`` (L, N) + offset, over
-    its mean."""
-    x = model - model.mean(axis=1, keepdims=True)
-    y = image - image.mean(axis=1, keepdims=True)
-    gain = (x * y).sum(axis=1) / np.maximum((x * x).sum(axis=1), 1e-24)
-    rms = np.sqrt(np.mean((y - gain[:, None] * x) ** 2, axis=1))
-    return rms / np.maximum(np.abs(image.mean(axis=1)), 1e-12)
+def _band_misfits(image: np.ndarray, model: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """(L, SHIFT_BANDS) float: the rms misfit of each row of ``image`` (L, N) fitted as gain x ``model`` (L, N) +
+    offset, over its mean, over the samples of each band (``band``: (N,) int, 0 to SHIFT_BANDS - 1); NaN where a band
+    holds fewer than :data:`SHIFT_BAND_SAMPLES`. The bands' sums in one pass (``np.add.reduceat`` on the samples
+    sorted by band: a matrix product with the bands' indicator took ~1 ms here, OpenBLAS on 2 busy cores)."""
+    order = np.argsort(band, kind="stable")
+    count = np.bincount(band, minlength=SHIFT_BANDS)
+    starts = np.cumsum(count) - count  # an empty band's sum is masked below
+    pad = np.zeros((len(model), 1))  # a last start past the samples (empty bands at the end) reads this
+    x, y = np.hstack([model[:, order], pad]), np.hstack([image[:, order], pad])
+    n = np.maximum(count, 1)
+
+    def mean(values: np.ndarray) -> np.ndarray:
+        return np.add.reduceat(values, starts, axis=1) / n
+
+    mean_x, mean_y = mean(x), mean(y)
+    sxx, sxy, syy = mean(x * x) - mean_x**2, mean(x * y) - mean_x * mean_y, mean(y * y) - mean_y**2
+    gain = sxy / np.maximum(sxx, 1e-24)
+    rms = np.sqrt(np.maximum(syy - gain * sxy, 0.0))
+    misfit = np.maximum(rms / np.maximum(np.abs(mean_y), 1e-12), 1e-12)
+    misfit[:, count < SHIFT_BAND_SAMPLES] = np.nan
+    return misfit
 
 
 def compression_notes(press: Press) -> list[str]:
@@ -632,10 +693,13 @@ def exposure_drift(press: Press, reference: Press) -> np.ndarray | None:
     return None if ratio is None else ratio / np.median(ratio)
 
 
-def exposure_ratio(press: Press, reference: Press) -> np.ndarray | None:
+def exposure_ratio(press: Press, reference: Press, bands: Sequence[DarkBand | LaggedBand] = ()) -> np.ndarray | None:
     """Each LED image's brightness against the undeformed capture's of the same LED, per channel: (L, 3) float64
     ratios (the median over the gel of the pixels' ratios), 1 where the two were taken alike; None without a
-    surface, or with other image sizes or LED counts.
+    surface, or with other image sizes or LED counts. ``bands``: the LED images' dark or lagged bands
+    (:func:`led_check_measured`'s), their samples left out of that LED's median (:func:`.dark_band_mask`): there
+    the image holds no light of its LED (the twin's sphere press with LED 5's columns 0-209 from LED 4 measured
+    LED 5 at 0.98, and the solve rescaled its image by it).
 
     Why: a camera left on auto exposure, gain or white balance scales each LED image (and each channel) by its
     own factor; the LED model then fits nowhere (s27 QA walk, 8-bit twin with +-15 % exposure and +-8 % white
@@ -659,6 +723,10 @@ def exposure_ratio(press: Press, reference: Press) -> np.ndarray | None:
         "drift reference", (reference.images_digest(), reference.response, where), sampled, persist=True
     )
     lit = (before > tolerances.EXPOSURE_LIGHT_FRACTION) & (now > tolerances.EXPOSURE_LIGHT_FRACTION)
+    if bands:
+        banded = sorted({band.index for band in bands})
+        mask = dark_band_mask(list(bands), banded, press.camera.shape).reshape(len(banded), -1)[:, index]
+        lit[banded] &= ~mask[..., None]
     if (lit.sum(axis=1) < 10).any():
         return None
     ratio = np.array(

@@ -42,7 +42,7 @@ from ..core import said_once, tolerances
 from ..core.blas import blas_threads
 from ..core.capture import Press, as_press, select_leds, with_led_gains, with_unusable_samples
 from ..core.errors import CaptureError, ShapeError
-from ..core.repeated_frames import DarkBand, dark_band_mask, dark_line
+from ..core.repeated_frames import DarkBand, LaggedBand, dark_band_mask, dark_line
 from ..progress import PRESS_DETAIL
 from . import reuse, threads
 from .anchoring import anchor_weights, widen_to_anchor
@@ -161,7 +161,7 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
         led_notes.append(note)
     gains = None
     if isinstance(kwargs.get("indirect"), Press):
-        ratio = exposure_ratio(press, kwargs["indirect"])
+        ratio = exposure_ratio(press, kwargs["indirect"], dark)  # an LED's dark or lagged band holds no light of it
         gains = None if ratio is None else led_gains(ratio, misplaced)
         if drifted := exposure_drift_note(press, kwargs["indirect"], ratio, gains):
             log.warning("%s", drifted)
@@ -191,8 +191,9 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     keep = [i for i in range(len(press.leds)) if i not in left_out]
     if left_out:  # LEDs whose light does not fit the model: solved without them, as without a dead LED
         press, kwargs = _without_leds(press, kwargs, keep)
-    if dark or undeformed_dark:  # rows (columns) read while their LED was off: left out for that LED, as saturated
-        # samples are; the undeformed capture's too, there and in the press (nothing to compare the press with there)
+    if dark or undeformed_dark:  # rows (columns) read while their LED was off, or before it switched (the previous
+        # LED's light): left out for that LED, as saturated samples are; the undeformed capture's dark ones too, there
+        # and in the press (nothing to compare the press with there)
         press = with_unusable_samples(press, dark_band_mask(dark + undeformed_dark, keep, press.camera.shape))
     if undeformed_dark:
         mask = dark_band_mask(undeformed_dark, keep, press.camera.shape)
@@ -222,7 +223,13 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
             if key in result.report:
                 result.report[key] = [keep[i] for i in result.report[key]]
         result.report["leds_left_out"] = left_out
-    for key, bands in (("dark_bands_left_out", dark), ("undeformed_dark_bands_left_out", undeformed_dark)):
+    lagged = [band for band in dark if isinstance(band, LaggedBand)]
+    dark = [band for band in dark if not isinstance(band, LaggedBand)]
+    for key, bands in (
+        ("dark_bands_left_out", dark),
+        ("lagged_bands_left_out", lagged),
+        ("undeformed_dark_bands_left_out", undeformed_dark),
+    ):
         if bands:
             result.report[key] = [
                 {"led": band.index, band.axis: [band.rows[0], band.rows[1]], "margin": tolerances.DARK_BAND_MARGIN}
@@ -275,11 +282,11 @@ KEEP_ORDER_FLAG = "--keep-led-order"
 
 def _in_detected_order(
     press: Press, kwargs: dict, order: list[int]
-) -> tuple[Press, dict, list[str], list, list, MeasuredGains | None, list[DarkBand]]:
+) -> tuple[Press, dict, list[str], list, list, MeasuredGains | None, list[DarkBand | LaggedBand]]:
     """The press with its LED images in the ``order`` they show (:func:`.led_checks.detected_order`), the undeformed
     capture given (``indirect``) likewise when its own images show the same order (the same wiring), and the
-    warnings, LEDs to leave out, misplaced LEDs, measured gains and dark bands of the reordered press (its checks
-    made again, logged).
+    warnings, LEDs to leave out, misplaced LEDs, measured gains and dark and lagged bands of the reordered press (its
+    checks made again, logged).
 
     Why: two swapped LED images of the twin's cube press were solved as captured to a contact AAE of 6.1 deg after a
     warning that named the pair; the image labelled 3 was lit by LED 7, so solving it as LED 7's is the physics."""
@@ -306,7 +313,7 @@ LED_LIST_KEYS = ("leds_used", "dead_leds", "dead_leds_contact", "leds_left_out")
 
 def _capture_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand]]:
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand | LaggedBand]]:
     """Warnings about the capture, each logged: its dark frame (:func:`.exposure.dark_frame_fault`; CaptureError
     when it holds light) and :func:`.led_checks.led_check` of its live LEDs; the LEDs to leave out and those whose
     images show another LED's light (0-based), the order the images show (None: theirs, or not clear), the LEDs'
@@ -327,7 +334,7 @@ def _capture_notes(
 
 def _led_notes(
     press: Press, leds: Leds | None, options: SolverOptions | None, say: bool = True
-) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand]]:
+) -> tuple[list[str], list[int], list[int], list[int] | None, MeasuredGains | None, list[DarkBand | LaggedBand]]:
     """:func:`.led_checks.led_check_measured` of the press's live LEDs, each note logged as a warning (``say``)."""
     leds = _model_leds(press, leds)
     if press.reference is None or len(leds) != len(press.leds):

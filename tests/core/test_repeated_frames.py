@@ -104,6 +104,27 @@ def test_a_dark_band_of_a_few_rows_is_a_candidate_and_is_found_to_the_pixel_row(
     assert dark_lines(dense, dense_rows, (61, 120), 2, "columns") == DarkBand(2, (61, 64), "left", "columns")
 
 
+def test_a_few_rows_or_columns_dark_in_every_led_image_are_found_to_the_pixel():
+    """Two rows (20-21) of every LED image read while no LED was lit: under the blocks' run of DARK_BAND_ROWS
+    (15 pixels) nothing was found (s30-darkcols' leftover); now, as one LED's short band, to the row on the LEDs'
+    summed light. Columns at the frame's right (beyond its last whole block) alike; one dark row alone, or rows
+    dark over half the width (a contact's shadow from every LED), are not."""
+    rng = np.random.default_rng(8)
+    gel = np.ones((H, W), bool)
+    images = _ring(rng)
+
+    def darkened(*lines):
+        dark = images.copy()
+        dark[(slice(None), *lines)] = rng.normal(0, 1e-3, dark[(slice(None), *lines)].shape)
+        return dark
+
+    assert frame_checks(darkened(slice(20, 22)), gel)[2] == DarkBand(None, (20, 22), "middle")
+    assert frame_checks(darkened(slice(0, 3)), gel)[2] == DarkBand(None, (0, 3), "top")
+    assert frame_checks(darkened(slice(None), slice(45, 48)), gel)[2] == DarkBand(None, (45, 48), "right", "columns")
+    assert frame_checks(darkened(slice(20, 21)), gel)[2] is None
+    assert frame_checks(darkened(slice(20, 23), slice(0, 24)), gel)[2] is None
+
+
 def test_columns_dark_in_every_led_image_are_found_by_the_images_alone():
     rng = np.random.default_rng(5)
     gel = np.ones((H, W), bool)
