@@ -28,6 +28,7 @@ degrees: its rolling shutter reads the image's columns); bands shorter than the 
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -204,8 +205,7 @@ def dark_everywhere_lines(linear: np.ndarray, gel: np.ndarray) -> DarkBand | Non
     if len(linear) < 2:
         return None
     height, width = gel.shape
-    index = np.flatnonzero(gel)
-    index = index[:: max(1, index.size // EVERYWHERE_SAMPLES)]
+    index = _gel_samples(gel)
     if index.size == 0:
         return None
     flat = linear.reshape(len(linear), -1, linear.shape[-1])
@@ -235,6 +235,18 @@ def dark_everywhere_lines(linear: np.ndarray, gel: np.ndarray) -> DarkBand | Non
         if band := dark_lines(dense, line, extent, None, axis):
             return band
     return None
+
+
+def _gel_samples(gel: np.ndarray) -> np.ndarray:
+    """(n,) int: about :data:`EVERYWHERE_SAMPLES` of the ``gel``'s (H, W) pixels, flat: every k-th pixel of the frame
+    in raster order that is on the gel, k prime to the width (so the samples fall on every column as on every row).
+    Why not every k-th gel pixel (``np.flatnonzero``): that pass over the frame took 0.1 ms of the check's ~0.3."""
+    width = gel.shape[1]
+    step = max(1, int(np.count_nonzero(gel)) // EVERYWHERE_SAMPLES)
+    while math.gcd(step, width) != 1:
+        step += 1
+    index = np.arange(0, gel.size, step)
+    return index[gel.reshape(-1)[index]]
 
 
 def _summed(flat: np.ndarray, pixels: np.ndarray) -> np.ndarray:

@@ -373,7 +373,10 @@ LAGGED_DONE = (
 """What the solve does about an LED image's rows (columns) read before its LED switched (:func:`.lagged_line`): as
 about dark rows (:data:`DARK_DONE`; :func:`.dark_band_mask`).
 
-Why not the LED whole (as s28-rolling and s30-qaleft did): see benchmarks/RESULTS.md, s31-darkall."""
+Why not the LED whole (as s28-rolling and s30-qaleft did): the twin's sphere and cube presses (640x480, --roi auto;
+clean 0.503 / 0.442 deg) with LED 5's rows 0-119, 0-359, 420-479 or columns 0-59, 0-210 from LED 4 gave a contact
+AAE of 0.509-0.515 / 0.455-0.468 deg with the LED left out, 0.503-0.516 / 0.442-0.453 with only its band left out
+(and its gain measured off the band: with it, 0.546 / 0.605 on columns 0-210; benchmarks/RESULTS.md, s31-darkall)."""
 DARK_DONE = (
     f"; left out of the solve for that LED only, with {tolerances.DARK_BAND_MARGIN} rows (columns) either side "
     "(read while it was off, they hold none of its light), the rest of its image used"
