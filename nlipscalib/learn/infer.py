@@ -345,7 +345,10 @@ class Predictor:
         if self.tone_curve is not None:
             top = self.tone_curve[int(top)].astype(np.float32)
         top = top - np.float32(0.5)
-        return level, linearise(top, self.dark[self.valid], s["black_level"], s["white_level"])
+        dark = self.dark[self.valid]
+        if top.ndim:  # each channel's: one level per gel pixel and channel, as the dark frame's
+            top = np.broadcast_to(top, dark.shape)
+        return level, linearise(top, dark, s["black_level"], s["white_level"])
 
     def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         """(N, 3) network input colours at the changed pixels: the model's prefilter, on their bounding box only."""
