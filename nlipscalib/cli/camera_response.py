@@ -52,8 +52,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "`nlips capture --camera-response FILE`: each capture records the curve and is linearised with it. The "
         "fit takes each frame at the exposure asked, so a bracket whose frames do not brighten with it is refused, "
         "nothing written: a camera that ignores the exposure (auto exposure on: every frame equally bright), "
-        "quantises it (two exposures one frame) or whose frames lag the setting (a larger --flush). On DirectShow "
-        "and Media Foundation (whole log2-second steps) the bracket is taken at the powers of two, said in a line.",
+        "quantises it (two exposures one frame) or whose frames lag the setting (a larger --flush), one whose "
+        "frames' light, the curve undone, does not grow as the times (it rounds them to steps of its own), and one "
+        "whose frame with every LED off reads above --black-level (it adds a black level). Channels that respond "
+        "differently keep a curve each. On DirectShow and Media Foundation (whole log2-second steps) the bracket "
+        "is taken at the powers of two, said in a line.",
     )
     p.add_argument("--out", required=True, help="response JSON to write (for `nlips capture --camera-response`)")
     p.add_argument("--figure", help="PNG of the curve per channel and the measured points (default: OUT with .png)")
@@ -98,7 +101,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     emu.add_argument(
         "--emulate-tone-curve",
         choices=TONE_CURVE_CHOICES,
-        help="the tone curve the emulated camera encodes with (default none: linear frames)",
+        help="the tone curve the emulated camera encodes with (default none: linear frames; rgb-gammas: gamma 2.0, "
+        "2.2, 2.4 in R, G, B, a camera whose channels differ)",
     )
     emu.add_argument("--width", type=int, help="emulated image width, pixels (default: the scene's camera)")
     emu.add_argument("--height", type=int, help="emulated image height, pixels (default: the scene's camera)")
