@@ -39,6 +39,9 @@ DEFAULT_EXPOSURES_MS = tuple(round(0.5 * 2 ** (k / 2), 3) for k in range(15))
 (benchmarks/RESULTS.md, s30-response)."""
 TONE_CURVE_CHOICES = ("gamma2.2", "s-curve", "srgb", "rgb-gammas")
 """``emulator.EMULATED_TONE_CURVES``'s names (a test keeps them equal), named without importing numpy for --help."""
+DarkFrame = tuple
+"""A bracket's frame with every LED off: (its codes above the black level, (H, W, 3) uint8; its exposure, ms, or
+None where a --bracket folder's name gives none; the camera's DN per 8-bit code, to name a black level)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -94,7 +97,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--bracket",
         metavar="FOLDER",
         help="images of the lit gel the lab took with the vendor's tool, one per exposure, the exposure in each "
-        "name (gel_2.5ms.png) or in FOLDER/exposures.csv (file,exposure_ms rows); --black-level as captured",
+        "name (gel_2.5ms.png) or in FOLDER/exposures.csv (file,exposure_ms rows); --black-level as captured; "
+        "optionally dark.png, every LED off (checked against --black-level)",
     )
     emu = p.add_argument_group("emulated sensor")
     emu.add_argument("--emulate", metavar="SCENE", help="measure the emulated sensor of this scene (no hardware)")
@@ -165,9 +169,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         frames, exposures, source, camera, black, dark = _device_bracket(args, exposures)
     return _fit_and_write(args, frames, exposures, source, camera, black, dark)
-
-
-DarkFrame = tuple  # (codes (H, W, 3) uint8, exposure ms or None, the camera's DN per 8-bit code), or None
 
 
 def take_bracket(
@@ -269,7 +270,8 @@ def _emulated_bracket(args: argparse.Namespace, exposures: Sequence[float]):
         dark = take_dark(sensor.camera, lights_off, set_exposure, min(exposures))
         noise = scene.noise
     codes = [to_codes(f, noise.bit_depth, noise.black_level) for f in frames]
-    dark = (to_codes(dark, noise.bit_depth, noise.black_level), min(exposures), dn_per_code(noise.bit_depth, 0))
+    scale = dn_per_code(noise.bit_depth, noise.black_level)
+    dark = (to_codes(dark, noise.bit_depth, noise.black_level), min(exposures), scale)
     curve = args.emulate_tone_curve or "linear"
     name = f"emulated ({args.emulate}, tone curve {curve})"
     return codes, f"--emulate {args.emulate}", name, noise.black_level, dark
@@ -364,9 +366,28 @@ def _folder_bracket(args: argparse.Namespace):
     stored, exposures, bits, dark = read_bracket_folder(args.bracket)
     source = f"--bracket {args.bracket}"
     check_exposures(exposures, source)
+    _check_scaled(stored, bits, source)
     if dark is not None:
         dark = (to_codes(dark[0], bits, args.black_level), dark[1], dn_per_code(bits, args.black_level))
     return [to_codes(f, bits, args.black_level) for f in stored], exposures, source, args.black_level, dark
+
+
+UNSCALED_TOP = 1 << 12
+"""A 16-bit bracket whose values all stay below this holds a camera's 12 (or fewer) bits unscaled."""
+
+
+def _check_scaled(stored: list, bits: int, source: str) -> None:
+    """CaptureError when 16-bit images hold a 10- or 12-bit camera's values as they are, not scaled to 16 bits
+    (``DN << 4``): their light would read 16 times dimmer, and the bracket be refused as never reaching white."""
+    from ..core.errors import CaptureError
+
+    top = max(int(frame.max()) for frame in stored)
+    if bits == 16 and top < UNSCALED_TOP:
+        raise CaptureError(
+            f"{source}: its 16-bit images reach {top} of 65535 at most, in every exposure: a 10- or 12-bit camera's "
+            "values stored unscaled? scale them to 16 bits (a 12-bit camera's times 16) or save them as the camera "
+            "gives them to OpenCV"
+        )
 
 
 def _check_led(led: int, n_leds: int) -> None:

@@ -1,6 +1,12 @@
 """A camera's tone curve measured from an exposure bracket (``nlips calibrate-camera-response``): OpenCV's
 ``CalibrateRobertson`` fitted to frames of one still, lit scene at several exposure times, turned into the curve a
-capture declares (:mod:`nlipscalib.core.response_curve`), or one line saying why the bracket cannot give one.
+capture declares (:mod:`nlipscalib.core.response_curve`), or one line saying why the bracket cannot give one: the
+channels' mean, or a curve per channel where they differ; checked against what the bracket itself says of the
+camera (frames that brighten with the exposure, light that grows as the times' ratio, a dark frame at black).
+
+Frames of more than 8 bits come binned to 8-bit codes (``cli.camera_response.to_codes``): OpenCV's
+``CalibrateRobertson`` asserts 8-bit frames, and the 256-entry curve, interpolated between entries, undoes a 16-bit
+camera's values within the fit's own error (benchmarks/RESULTS.md, s31-respcam).
 
 Why Robertson, not Debevec: on the emulated sensor's bracket Debevec's 70 random samples and its smoothness prior
 left ripples of 1-2 % of full scale (up to 5 % with the gel lit evenly); Robertson's maximum-likelihood fit over
@@ -93,7 +99,8 @@ def fit_response(frames: Sequence[np.ndarray], exposures_ms: Sequence[float], so
     ------
     CaptureError -- one line naming ``source``: too few exposures, the scene black or clipped in too many of them,
         frames that do not brighten as the exposure grows (:func:`check_follows`), codes not reaching from near
-        black to near white, or a curve that falls.
+        black to near white, a curve that falls, or frames whose light does not grow as their times
+        (:func:`check_exposure_ratios`).
     """
     cv2 = require("cv2", "opencv-python-headless", "Measuring a camera's response")
     times = np.asarray(exposures_ms, dtype=np.float64)
@@ -196,7 +203,7 @@ def check_exposure_ratios(frames: Sequence[np.ndarray], times: np.ndarray, curve
     -------
     float, the largest relative error over the pairs judged (0 when none could be)
     """
-    stack, linear, light = _merged_light(frames, times, curves, _sample_step(frames))
+    _, linear, light = _merged_light(frames, times, curves, _sample_step(frames))
     low = curves[np.arange(3), RESPONSE_RATIO_LOW_CODE]  # each channel's light at that code
     high = curves[np.arange(3), RESPONSE_CLIPPED_CODE - 1]
     errors = np.zeros(len(times) - 1)

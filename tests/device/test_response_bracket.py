@@ -303,3 +303,11 @@ def test_a_16_bit_bracket_gives_the_curve_over_every_16_bit_value(tmp_path, caps
     table = measured_table(response.curve, 0.0, 65535.0).astype(np.float64) / 65535
     lit = stored >= 10 << 8
     assert np.abs(table - (stored / 65535) ** GAMMA)[lit].max() < RESPONSE_CURVE_ERROR
+    # a 12-bit camera's values in 16-bit images, unscaled: one line (was "the bracket's codes reach from None to
+    # None; ...: add shorter and longer exposures", the wrong cure)
+    for path in folder.iterdir():
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(path), image >> 4)
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(tmp_path / "u.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "images reach 4095 of 65535 at most, in every exposure: a 10- or 12-bit camera" in err[0]
