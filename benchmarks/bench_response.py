@@ -74,9 +74,12 @@ def fit_errors(size: str) -> None:
             t0 = time.perf_counter()
             subprocess.run([*cmd, "--out", str(out)], check=True, capture_output=True)
             wall = time.perf_counter() - t0
-            truth = np.interp(np.arange(256) / 255, encode(grid).astype(np.float64), grid.astype(np.float64))
+            # every curve takes (..., 3) values (rgb-gammas: a gamma per channel); the truth per channel, (3, 256)
+            encoded = encode(np.repeat(grid[:, None], 3, axis=1)).astype(np.float64)
+            codes = np.arange(256) / 255
+            truth = np.stack([np.interp(codes, encoded[:, c], grid.astype(np.float64)) for c in range(3)])
             response = read_response_file(out)
-            error = np.abs(np.asarray(response.curve) - truth)
+            error = np.abs(np.broadcast_to(np.asarray(response.curve), (3, 256)) - truth).max(axis=0)
             print(
                 f"{name}: max error codes 10-250 {error[10:251].max():.4f}, all codes {error.max():.4f} of full "
                 f"scale; fit residual {response.provenance['fit_residual']:.4f}; command wall {wall:.2f} s"

@@ -122,15 +122,25 @@ def _vendor_s_curve(x: np.ndarray) -> np.ndarray:
     return np.float32(0.5) * g * g * (np.float32(3) - np.float32(2) * g) + np.float32(0.5) * g
 
 
+RGB_GAMMAS = (2.0, 2.2, 2.4)
+"""The gammas of the emulated camera whose channels differ (``rgb-gammas``): R, G, B."""
+
+
+def _rgb_gammas(x: np.ndarray) -> np.ndarray:
+    # a webcam whose red, green and blue respond differently: a gamma per channel (the last axis, R, G, B)
+    return np.power(x, np.float32(1) / np.asarray(RGB_GAMMAS, np.float32))
+
+
 EMULATED_TONE_CURVES: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "gamma2.2": _gamma22,
     "s-curve": _vendor_s_curve,
     "srgb": linear_to_srgb,
+    "rgb-gammas": _rgb_gammas,
 }
 """Tone curves the emulated camera may encode its frames with (``--emulate-tone-curve``): linear light in [0, 1]
 (fraction of full scale above black) -> encoded fraction, as a webcam's image processor applies it before its
-frames are quantised. None of them is declared to the tools: a capture of them is measured
-(``nlips calibrate-camera-response --emulate``) or declared ("srgb")."""
+frames are quantised ("rgb-gammas" takes (..., 3) arrays, R, G, B: a gamma per channel). None of them is declared
+to the tools: a capture of them is measured (``nlips calibrate-camera-response --emulate``) or declared ("srgb")."""
 
 
 def check_tone_curve(name: str | None) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import datetime
+import functools
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -36,8 +37,11 @@ scales its light (``EmulatedCamera.exposure_scale``); ``nlips capture``'s defaul
 DEFAULT_EXPOSURES_MS = tuple(round(0.5 * 2 ** (k / 2), 3) for k in range(15))
 """0.5 to 64 ms in half-stop (sqrt 2) steps: with one LED lighting the gel, each code is seen in about five of them
 (benchmarks/RESULTS.md, s30-response)."""
-TONE_CURVE_CHOICES = ("gamma2.2", "s-curve", "srgb")
+TONE_CURVE_CHOICES = ("gamma2.2", "s-curve", "srgb", "rgb-gammas")
 """``emulator.EMULATED_TONE_CURVES``'s names (a test keeps them equal), named without importing numpy for --help."""
+DarkFrame = tuple
+"""A bracket's frame with every LED off: (its codes above the black level, (H, W, 3) uint8; its exposure, ms, or
+None where a --bracket folder's name gives none; the camera's DN per 8-bit code, to name a black level)."""
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -51,8 +55,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "`nlips capture --camera-response FILE`: each capture records the curve and is linearised with it. The "
         "fit takes each frame at the exposure asked, so a bracket whose frames do not brighten with it is refused, "
         "nothing written: a camera that ignores the exposure (auto exposure on: every frame equally bright), "
-        "quantises it (two exposures one frame) or whose frames lag the setting (a larger --flush). On DirectShow "
-        "and Media Foundation (whole log2-second steps) the bracket is taken at the powers of two, said in a line.",
+        "quantises it (two exposures one frame) or whose frames lag the setting (a larger --flush), one whose "
+        "frames' light, the curve undone, does not grow as the times (it rounds them to steps of its own), and one "
+        "whose frame with every LED off reads above --black-level (it adds a black level). Channels that respond "
+        "differently keep a curve each. On DirectShow and Media Foundation (whole log2-second steps) the bracket "
+        "is taken at the powers of two, said in a line.",
     )
     p.add_argument("--out", required=True, help="response JSON to write (for `nlips capture --camera-response`)")
     p.add_argument("--figure", help="PNG of the curve per channel and the measured points (default: OUT with .png)")
@@ -90,14 +97,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--bracket",
         metavar="FOLDER",
         help="images of the lit gel the lab took with the vendor's tool, one per exposure, the exposure in each "
-        "name (gel_2.5ms.png) or in FOLDER/exposures.csv (file,exposure_ms rows); --black-level as captured",
+        "name (gel_2.5ms.png) or in FOLDER/exposures.csv (file,exposure_ms rows); --black-level as captured; "
+        "optionally dark.png, every LED off (checked against --black-level)",
     )
     emu = p.add_argument_group("emulated sensor")
     emu.add_argument("--emulate", metavar="SCENE", help="measure the emulated sensor of this scene (no hardware)")
     emu.add_argument(
         "--emulate-tone-curve",
         choices=TONE_CURVE_CHOICES,
-        help="the tone curve the emulated camera encodes with (default none: linear frames)",
+        help="the tone curve the emulated camera encodes with (default none: linear frames; rgb-gammas: gamma 2.0, "
+        "2.2, 2.4 in R, G, B, a camera whose channels differ)",
     )
     emu.add_argument("--width", type=int, help="emulated image width, pixels (default: the scene's camera)")
     emu.add_argument("--height", type=int, help="emulated image height, pixels (default: the scene's camera)")
@@ -151,15 +160,15 @@ def run(args: argparse.Namespace) -> int:
     from ..device.response_fit import check_exposures
 
     if args.bracket:
-        frames, exposures, source, black = _folder_bracket(args)
-        return _fit_and_write(args, frames, exposures, source, source, black)
+        frames, exposures, source, black, dark = _folder_bracket(args)
+        return _fit_and_write(args, frames, exposures, source, source, black, dark)
     exposures = exposures_of(args.exposures_ms)
     check_exposures(exposures, f"--emulate {args.emulate}" if args.emulate else f"camera {args.camera}")
     if args.emulate:
-        frames, source, camera, black = _emulated_bracket(args, exposures)
+        frames, source, camera, black, dark = _emulated_bracket(args, exposures)
     else:
-        frames, exposures, source, camera, black = _device_bracket(args, exposures)
-    return _fit_and_write(args, frames, exposures, source, camera, black)
+        frames, exposures, source, camera, black, dark = _device_bracket(args, exposures)
+    return _fit_and_write(args, frames, exposures, source, camera, black, dark)
 
 
 def take_bracket(
@@ -186,6 +195,21 @@ def take_bracket(
         set_exposure(ms)
         frames.append(source.capture())
     return frames
+
+
+def take_dark(
+    source: FrameSource, lights_off: Callable[[], None], set_exposure: Callable[[float], None], ms: float
+) -> np.ndarray:
+    """One frame with every LED off at ``ms`` (the bracket's shortest exposure: room light adds least there), as
+    stored values: what the camera reads for no light (``device.response_fit.check_black``)."""
+    lights_off()
+    set_exposure(ms)
+    return source.capture()
+
+
+def dn_per_code(bit_depth: int, black_dn: float) -> float:
+    """The camera's DN per 8-bit code above ``black_dn`` (:func:`to_codes`' scale)."""
+    return ((1 << bit_depth) - 1 - black_dn) / 255
 
 
 def _bars() -> bool:
@@ -242,10 +266,15 @@ def _emulated_bracket(args: argparse.Namespace, exposures: Sequence[float]):
             sensor.camera.exposure_scale = ms / EMULATED_EXPOSURE_MS
 
         frames = take_bracket(sensor.camera, light, set_exposure, exposures)
+        lights_off = functools.partial(sensor.rig.controller.set_all, np.zeros((n_leds, 3), np.uint8))
+        dark = take_dark(sensor.camera, lights_off, set_exposure, min(exposures))
         noise = scene.noise
     codes = [to_codes(f, noise.bit_depth, noise.black_level) for f in frames]
+    scale = dn_per_code(noise.bit_depth, noise.black_level)
+    dark = (to_codes(dark, noise.bit_depth, noise.black_level), min(exposures), scale)
     curve = args.emulate_tone_curve or "linear"
-    return codes, f"--emulate {args.emulate}", f"emulated ({args.emulate}, tone curve {curve})", noise.black_level
+    name = f"emulated ({args.emulate}, tone curve {curve})"
+    return codes, f"--emulate {args.emulate}", name, noise.black_level, dark
 
 
 def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
@@ -295,12 +324,15 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
 
         exposures = _backend_exposures(args.camera, cap.getBackendName(), exposures)
         frames = take_bracket(source, light, set_exposure, exposures)
+        lights_off = functools.partial(controller.set_all, np.zeros((controller.n_leds, 3), np.uint8))
+        dark = take_dark(source, lights_off, set_exposure, min(exposures))
         fresh = [line for line in refused if line not in source.refused]  # said when the camera opened
         if fresh:
             report_refusals(args.camera, ["; ".join(fresh)])
         bits = source.bit_depth
     codes = [to_codes(f, bits, args.black_level) for f in frames]
-    return codes, exposures, f"camera {args.camera}", f"camera {args.camera}", args.black_level
+    dark = (to_codes(dark, bits, args.black_level), min(exposures), dn_per_code(bits, args.black_level))
+    return codes, exposures, f"camera {args.camera}", f"camera {args.camera}", args.black_level, dark
 
 
 def _backend_exposures(camera: str, backend: str, exposures: Sequence[float]) -> tuple[float, ...]:
@@ -323,18 +355,39 @@ def _backend_exposures(camera: str, backend: str, exposures: Sequence[float]) ->
 
 
 def _folder_bracket(args: argparse.Namespace):
-    """The frames of ``--bracket FOLDER`` as 8-bit codes above ``--black-level``, their exposures (ms) and the
-    source named in refusals."""
+    """The frames of ``--bracket FOLDER`` as 8-bit codes above ``--black-level``, their exposures (ms), the source
+    named in refusals and the folder's dark frame (:data:`DarkFrame`; None when it has none)."""
     from ..core.errors import ConfigError
     from ..device.bracket_folder import read_bracket_folder
     from ..device.response_fit import check_exposures
 
     if args.exposures_ms is not None:
         raise ConfigError("--exposures-ms is not used with --bracket: each image's exposure is in its name or CSV")
-    stored, exposures, bits = read_bracket_folder(args.bracket)
+    stored, exposures, bits, dark = read_bracket_folder(args.bracket)
     source = f"--bracket {args.bracket}"
     check_exposures(exposures, source)
-    return [to_codes(f, bits, args.black_level) for f in stored], exposures, source, args.black_level
+    _check_scaled(stored, bits, source)
+    if dark is not None:
+        dark = (to_codes(dark[0], bits, args.black_level), dark[1], dn_per_code(bits, args.black_level))
+    return [to_codes(f, bits, args.black_level) for f in stored], exposures, source, args.black_level, dark
+
+
+UNSCALED_TOP = 1 << 12
+"""A 16-bit bracket whose values all stay below this holds a camera's 12 (or fewer) bits unscaled."""
+
+
+def _check_scaled(stored: list, bits: int, source: str) -> None:
+    """CaptureError when 16-bit images hold a 10- or 12-bit camera's values as they are, not scaled to 16 bits
+    (``DN << 4``): their light would read 16 times dimmer, and the bracket be refused as never reaching white."""
+    from ..core.errors import CaptureError
+
+    top = max(int(frame.max()) for frame in stored)
+    if bits == 16 and top < UNSCALED_TOP:
+        raise CaptureError(
+            f"{source}: its 16-bit images reach {top} of 65535 at most, in every exposure: a 10- or 12-bit camera's "
+            "values stored unscaled? scale them to 16 bits (a 12-bit camera's times 16) or save them as the camera "
+            "gives them to OpenCV"
+        )
 
 
 def _check_led(led: int, n_leds: int) -> None:
@@ -351,13 +404,16 @@ def _fit_and_write(
     source: str,
     camera: str,
     black_dn: float,
+    dark: DarkFrame | None,
 ) -> int:
     from .. import __version__
     from ..core.response_curve import MeasuredResponse, write_response_file
-    from ..device.response_fit import fit_response
+    from ..device.response_fit import check_black, fit_response
     from ..report.camera_response import response_figure
 
+    dark_code = None if dark is None else check_black(dark[0], dark[1], source, black_dn, dark[2])
     fit = fit_response(frames, exposures, source)
+    own = fit.kept.ndim == 2
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
     provenance = {
         "camera": camera,
@@ -366,21 +422,26 @@ def _fit_and_write(
         "led": None if args.bracket else args.led,  # a bracket already taken: the lab's, not recorded
         "level": None if args.bracket else args.level,
         "black_level_dn": float(black_dn),
-        "method": "OpenCV CalibrateRobertson, channels' mean",
+        "method": "OpenCV CalibrateRobertson, " + ("a curve per channel" if own else "channels' mean"),
         "codes_seen": list(fit.seen),
         "fit_residual": round(fit.residual, 6),
         "channel_spread": round(fit.channel_spread, 6),
+        "channel_difference": round(fit.channel_difference, 6),
+        "per_channel": own,
+        "exposure_ratio_error": round(fit.ratio_error, 6),
+        "dark_median_code": dark_code,
         "monotonic": {"max_dip": round(fit.max_dip, 6), "flattened": fit.max_dip > 0},
         "software_version": __version__,
     }
-    response = MeasuredResponse(tuple(float(v) for v in fit.curve), provenance)
+    curve = tuple(tuple(float(v) for v in c) for c in fit.kept) if own else tuple(float(v) for v in fit.kept)
+    response = MeasuredResponse(curve, provenance)
     out = write_response_file(args.out, response)
     figure = Path(args.figure) if args.figure else out.with_suffix(".png")
     note = (
         f"codes seen {fit.seen[0]}-{fit.seen[1]}; fit residual {fit.residual:.4f}; channels within "
-        f"{fit.channel_spread:.4f} of full scale"
+        f"{fit.channel_spread:.4f} of full scale" + (": a curve per channel kept" if own else "")
     )
-    response_figure(fit.curve, fit.channels, fit.points, figure, f"{camera} response, {date}", note)
+    response_figure(fit.kept, fit.channels, fit.points, figure, f"{camera} response, {date}", note)
     print(
         f"{out}: {response.name} from {len(exposures)} exposures ({note}); figure {figure}. Capture with "
         f"`nlips capture --camera-response {out}`",

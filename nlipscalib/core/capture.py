@@ -60,6 +60,7 @@ from .press_meta import (
     parse_optics,
     read_meta,
 )
+from .response_curve import per_channel
 from .sensor_response import CLIPPED_VALUE, LEAST_BIT_DEPTH, SensorResponse, linearise, white_level_of
 from .stored_images import (
     FileLoader,
@@ -214,6 +215,15 @@ class Press:
         return self.response.saturated(image)
 
 
+def _format_version(response: SensorResponse) -> int:
+    """meta.json's format_version: the oldest that holds the response, so every reader that can read a capture
+    reads it and one that cannot refuses it rather than read encoded values as light: 1 for a linear camera (as
+    before the tone curves), 2 for one curve for all channels, 3 for a measured curve per channel."""
+    if response.camera_response == "linear":
+        return 1
+    return FORMAT_VERSION if response.response_curve is not None and per_channel(response.response_curve) else 2
+
+
 def write_press(
     folder: str | Path,
     camera: Camera,
@@ -257,9 +267,7 @@ def write_press(
         del sensor["response_curve"]
     meta = {
         "format": FORMAT_NAME,
-        # a declared tone curve is version 2: a reader before it refuses the file rather than read encoded values
-        # as light
-        "format_version": 1 if response.camera_response == "linear" else FORMAT_VERSION,
+        "format_version": _format_version(response),
         "software_version": __version__,
         "units": "mm",
         "frame": "camera (OpenCV: x right, y down, z forward)",

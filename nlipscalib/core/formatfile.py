@@ -69,7 +69,8 @@ def version_problem(
     """The one line refusing a file whose ``format_version`` is not among ``versions``: the file, its version,
     those read, and what to do: upgrade nlipscalib for a newer file, ``remake`` (what makes it anew) for any."""
     found = data.get("format_version")
-    expected = " or ".join(str(v) for v in versions)
+    names = [str(v) for v in versions]
+    expected = " or ".join([", ".join(names[:-1]), names[-1]] if len(names) > 2 else names)  # "1, 2 or 3"
     line = f"{path}: format_version {found!r} is not supported (expected {expected})"
     advice = remake(data) if callable(remake) else remake
     if isinstance(found, int) and not isinstance(found, bool) and found > max(versions):

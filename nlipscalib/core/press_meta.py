@@ -13,10 +13,11 @@ from .leds import Led
 from .sensor_response import SensorResponse
 
 FORMAT_NAME = "nlipscalib.press"
-FORMAT_VERSION = 2
-"""The press format's version: 2 added meta.json's ``sensor.camera_response`` (a tone curve the loader undoes).
-Captures without one are still written as version 1 (:func:`.capture.write_press`)."""
-READ_VERSIONS = (1, FORMAT_VERSION)
+FORMAT_VERSION = 3
+"""The press format's version: 2 added meta.json's ``sensor.camera_response`` (a tone curve the loader undoes), 3 a
+measured curve per channel (``sensor.response_curve`` three lists, R, G, B). Captures without a tone curve are
+still written as version 1, those with one curve for all channels as 2 (:func:`.capture.write_press`)."""
+READ_VERSIONS = (1, 2, FORMAT_VERSION)
 """The versions :func:`read_meta` reads."""
 META_FILE = "meta.json"
 GT_FILE = "gt.npz"

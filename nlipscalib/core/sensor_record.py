@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 
 from .errors import CaptureError
 from .leds import Leds, led_geometry_mismatch, tricolor_groups
+from .response_curve import curve_json
 from .tolerances import SAME_DISTORTION_ABS, SAME_INTRINSICS_ABS_PX, SAME_INTRINSICS_RTOL, SAME_SURFACE_MM
 
 if TYPE_CHECKING:  # names in hints only: this module imports the camera where it checks one
@@ -46,7 +47,7 @@ def describe_sensor(camera: Camera, leds: Leds, response: SensorResponse | None 
         if response.camera_response != "linear":  # absent when linear: the records of linear sensors as before
             levels["camera_response"] = response.camera_response
         if response.response_curve is not None:  # a measured curve: the table itself, as a model must undo it
-            levels["response_curve"] = list(response.response_curve)
+            levels["response_curve"] = curve_json(response.response_curve)
     return {
         "camera": camera.to_dict(),
         "n_leds": n,

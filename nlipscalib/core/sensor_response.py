@@ -75,7 +75,8 @@ def tone_curve_table(
 ) -> np.ndarray | None:
     """The stored value each stored value of a ``camera_response`` camera stands for in light, as a table of the
     65536 uint16 values; None for "linear" (nothing to undo). A measured response ("measured:<hash>") is its
-    ``curve`` (``sensor.response_curve``, :func:`.response_curve.measured_table`).
+    ``curve`` (``sensor.response_curve``, :func:`.response_curve.measured_table`): (65536, 3), a column per
+    channel, for a per-channel curve.
 
     The curve runs from the black level (encoded 0) to the white level (encoded 1), so both levels keep their
     values and :func:`linearise`'s scale, the dark-frame check and the saturation test read the linear values as
@@ -101,28 +102,39 @@ def undo_tone_curve(images: np.ndarray, table: np.ndarray | None) -> np.ndarray:
     Parameters
     ----------
     images : (..., H, W, 3) uint16, stored values as the camera encoded them
-    table : (65536,) uint16 from :func:`tone_curve_table`, or None
+    table : (65536,) uint16 from :func:`tone_curve_table`, (65536, 3) for a per-channel measured curve (a column
+        per channel, R, G, B), or None
 
     Returns
     -------
     (..., H, W, 3) uint16, stored values linear in the light (the same array)
     """
-    if table is not None:
+    if table is None:
+        return images
+    if table.ndim == 1:
         np.take(table, images, out=images)
+        return images
+    for c in range(3):  # each channel through its own curve
+        images[..., c] = table[images[..., c], c]
     return images
 
 
 def eight_bit_table(table: np.ndarray | None) -> np.ndarray:
     """The stored value of each 8-bit sample, with the camera's tone curve undone: (256,) uint16, ``table`` (from
     :func:`tone_curve_table`) at ``DN << 8`` (an 8-bit frame's stored values, ``device.camera.to_stored``), or
-    ``DN << 8`` itself for None (a linear camera).
+    ``DN << 8`` itself for None (a linear camera); (1, 256, 3) for a per-channel table (``cv2.LUT``'s table of a
+    lookup per channel).
 
     Why: an 8-bit frame has 256 values, so the shift up to 16 bits and the curve are one lookup on the uint8 frame
     (``cv2.LUT``), bit for bit :func:`undo_tone_curve` of the shifted frame: 0.3 ms a 640x480 frame against 2-4
     (benchmarks/RESULTS.md, s29-lut8).
     """
     stored = np.arange(256, dtype=np.uint16) << np.uint16(8)
-    return stored if table is None else np.ascontiguousarray(table[stored], dtype=np.uint16)
+    if table is None:
+        return stored
+    if table.ndim == 2:
+        return np.ascontiguousarray(table[stored][None], dtype=np.uint16)
+    return np.ascontiguousarray(table[stored], dtype=np.uint16)
 
 
 DECLARE_TONE_CURVE = (
@@ -192,10 +204,11 @@ class SensorResponse:
     sRGB tone curve, undone once when the press is loaded, before the dark frame is subtracted). meta.json's
     ``sensor.camera_response``, absent in captures before it existed (and in linear ones: they are written as
     before, format_version 1). A measured curve: "measured:<hash>" (:mod:`.response_curve`)."""
-    response_curve: tuple[float, ...] | None = None
+    response_curve: tuple | None = None
     """The measured curve a "measured:<hash>" response names (meta.json ``sensor.response_curve``: 256 or 65536
-    linear fractions of full scale, one per encoded fraction from black to white); None for "linear" and "srgb"
-    (and then absent from meta.json)."""
+    linear fractions of full scale, one per encoded fraction from black to white, or three such tuples, R, G, B,
+    for a camera whose channels respond differently); None for "linear" and "srgb" (and then absent from
+    meta.json)."""
 
     def __post_init__(self):
         from .config import is_finite_number, is_whole_number

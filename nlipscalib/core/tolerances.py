@@ -640,6 +640,27 @@ RESPONSE_MAX_DIP = 0.005
 """A fitted response may fall by at most this fraction of full scale from one code to the next (read noise on the
 few darkest codes seen: the emulated brackets dip by 0.0005 at most) before it is refused as not monotonic; smaller
 dips are flattened (the running maximum)."""
+RESPONSE_CHANNEL_SPREAD = 0.015
+"""Channels whose fitted curves, each averaged over 15 codes, differ by more than this fraction of full scale
+(:func:`nlipscalib.device.response_fit.channel_difference`) each keep their own curve in the response file; closer,
+their mean is kept, as for sRGB: a difference within the fit's own error (:data:`RESPONSE_CURVE_ERROR`) is noise.
+The emulated sensor's one curve (linear, gamma 2.2, S-curve, sRGB; half and full stops, 64x48 1 spp and 160x120
+4 spp) differs by 0.0009-0.0076 between its channels (0.016 code by code, full stops, unaveraged); the emulated
+gamma 2.0 / 2.2 / 2.4 camera by 0.067-0.070 (benchmarks/RESULTS.md, s31-respcam)."""
+RESPONSE_RATIO_ERROR = 0.025
+"""The light of two consecutive bracket frames, the fitted curve undone, may differ from their exposures' ratio by
+this fraction before the bracket is refused as taken at other times than asked
+(:func:`nlipscalib.device.response_fit.check_exposure_ratios`). The emulated brackets stay within 0.0005-0.0071,
+a noisier synthetic one (full stops from 0.125 ms, its darkest frames mostly noise) within 0.019; a stand-in camera
+taking one exposure 3 / 4 / 6 % off the asked shows 2.7 / 3.8 / 5.5 % (benchmarks/RESULTS.md, s31-respcam)."""
+RESPONSE_RATIO_LOW_CODE = 32
+"""Pixels whose merged light puts them below this 8-bit code in the darker frame of a pair are left out of the
+pair's ratio (:data:`RESPONSE_RATIO_ERROR`): at the dark end a code's light is a few codes' rounding and noise."""
+RESPONSE_BLACK_CODES = 2.0
+"""Most 8-bit codes a bracket's dark frame (every LED off, the shortest exposure) may read above the black level
+given, its median over the frame, before the bracket is refused as from a camera that adds a black level
+(:func:`nlipscalib.device.response_fit.check_black`). Read noise around the right black gives 0 (half the pixels
+below black, clipped there); the emulated gamma 2.2 camera's dark frame 0."""
 RESPONSE_CURVE_ERROR = 0.015
 """What the emulated tests hold a recovered curve to, fraction of full scale, over codes 10-250: OpenCV's
 CalibrateRobertson on the one-LED bracket gives 0.48-0.53 % for gamma 2.2 and sRGB, 0.63 % for the S-shaped

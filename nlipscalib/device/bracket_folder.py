@@ -1,7 +1,8 @@
 """An exposure bracket a lab took itself (``nlips calibrate-camera-response --bracket FOLDER``): for a camera OpenCV
 cannot set the exposure of, whose vendor's tool can. One image per exposure, the exposure, ms, in its name
 (``gel_2.5ms.png``, ``0.707 ms.tif``), or in ``exposures.csv`` beside them (``file,exposure_ms`` rows), which then
-rules."""
+rules. An image whose name starts with ``dark`` (``dark.png``, ``dark_0.5ms.png``) is a frame with every LED off,
+not one of the bracket: what the camera reads for no light (``device.response_fit.check_black``)."""
 
 from __future__ import annotations
 
@@ -21,7 +22,13 @@ MS_IN_NAME = re.compile(r"(\d+(?:\.\d+)?)\s*ms", re.IGNORECASE)
 """An exposure in a file's name: a number followed by ``ms`` (the last such in the name)."""
 
 
-def read_bracket_folder(folder: str | Path) -> tuple[list[np.ndarray], list[float], int]:
+DARK_PREFIX = "dark"
+"""The start of a dark frame's name (any case)."""
+
+
+def read_bracket_folder(
+    folder: str | Path,
+) -> tuple[list[np.ndarray], list[float], int, tuple[np.ndarray, float | None] | None]:
     """The images of a bracket folder and their exposures, in the order of their names.
 
     Parameters
@@ -33,6 +40,8 @@ def read_bracket_folder(folder: str | Path) -> tuple[list[np.ndarray], list[floa
     frames : list of (H, W, 3) uint16, RGB, stored values ``DN << (16 - bit_depth)``
     exposures : ms, one per frame
     bit_depth : of the images (8 or 16; all must share it)
+    dark : (the dark frame, (H, W, 3) uint16 as the frames; its exposure, ms, or None when its name and the CSV
+        give none), or None when the folder has none
 
     Raises
     ------
@@ -42,9 +51,13 @@ def read_bracket_folder(folder: str | Path) -> tuple[list[np.ndarray], list[floa
     folder = Path(folder)
     if not folder.is_dir():
         raise CaptureError(f"--bracket {folder}: no such folder")
-    files = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    images = sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    darks = [p for p in images if p.name.lower().startswith(DARK_PREFIX)]
+    files = [p for p in images if p not in darks]
     if not files:
         raise CaptureError(f"--bracket {folder}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+    if len(darks) > 1:
+        raise CaptureError(f"--bracket {folder}: {len(darks)} dark frames ({darks[0].name}, {darks[1].name}): one")
     table = _exposure_table(folder / EXPOSURES_CSV)
     exposures = [_exposure_of(path, table) for path in files]
     seen: dict[float, Path] = {}
@@ -53,7 +66,7 @@ def read_bracket_folder(folder: str | Path) -> tuple[list[np.ndarray], list[floa
             raise CaptureError(f"{path}: exposure {ms:g} ms, as {seen[ms].name}: one image per exposure")
         seen[ms] = path
     frames, depths = [], set()
-    for path in files:
+    for path in files + darks:
         image = read_image(path)
         if image is None:
             raise CaptureError(f"{path}: OpenCV cannot read it as an image")
@@ -67,7 +80,16 @@ def read_bracket_folder(folder: str | Path) -> tuple[list[np.ndarray], list[floa
         depths.add(bits)
     if len(depths) > 1:
         raise CaptureError(f"--bracket {folder}: images of {sorted(depths)} bits: one camera setting for all")
-    return frames, exposures, depths.pop()
+    dark = (frames.pop(), _dark_exposure(darks[0], table)) if darks else None
+    return frames, exposures, depths.pop(), dark
+
+
+def _dark_exposure(path: Path, table: dict[str, float] | None) -> float | None:
+    """The dark frame's exposure, ms, from the CSV or its name; None when neither gives one (it is optional)."""
+    if table is not None and path.name in table:
+        return table[path.name]
+    found = MS_IN_NAME.findall(path.stem)
+    return float(found[-1]) if found else None
 
 
 def _exposure_table(path: Path) -> dict[str, float] | None:

@@ -102,7 +102,7 @@ class FrameSource:
     """The live camera's ``CAP_PROP_GAMMA`` after the settings (:func:`reported_gamma`); None for files and for a
     camera without the control."""
     tone_curve: np.ndarray | None = None
-    """(65536,) uint16 table of the camera's tone curve (``core.sensor_response.tone_curve_table``) undone on every
+    """(65536,) uint16 table (65536, 3: per channel) of the camera's tone curve (``tone_curve_table``) undone on every
     frame as it is converted (:func:`to_stored`): frames linear in the light; None: frames as the camera encoded them
     (a capture's, whose loader undoes its declared curve)."""
 
@@ -149,9 +149,9 @@ def to_stored(frame: np.ndarray, name: str = "frame", tone_curve: np.ndarray | N
     """A frame as OpenCV returns it (BGR or grey, 8 or 16 bit) -> ((H, W, 3) uint16 RGB stored, bit depth).
 
     16-bit frames are taken as already scaled to 16 bits (OpenCV's Y16 and 16-bit PNG); 8-bit ones are
-    shifted up by 8 bits. ``tone_curve``: a (65536,) uint16 table (``core.sensor_response.tone_curve_table``) undone
-    on the way, the frame returned then linear in the light; None: nothing undone (the values as the camera encoded
-    them). Always a new array (never ``frame`` or a view of it).
+    shifted up by 8 bits. ``tone_curve``: a (65536,) or per-channel (65536, 3) uint16 table
+    (``core.sensor_response.tone_curve_table``) undone on the way, the frame returned then linear in the light;
+    None: nothing undone (the values as the camera encoded them). Always a new array (never ``frame`` or a view of it).
 
     An 8-bit frame's shift and curve are one lookup of 256 entries (``core.sensor_response.eight_bit_table``,
     ``cv2.LUT``) on its uint8 values, bit for bit the 65536-entry table on the shifted ones; 0.3 ms a 640x480 frame

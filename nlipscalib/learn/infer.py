@@ -340,11 +340,15 @@ class Predictor:
         s = self.model.sensor
         # the clipping level at each gel pixel, linearised as the frame was (its tone curve undone first: an 8-bit
         # sRGB frame's 255 stays the white level, a 16-bit one's 0xFF00 is darker); half a step below for rounding
-        top = min(float(s["white_level"]), CLIPPED_VALUE)
+        # (a per-channel curve: each channel's own, (3,))
+        top = np.float32(min(float(s["white_level"]), CLIPPED_VALUE))
         if self.tone_curve is not None:
-            top = float(self.tone_curve[int(top)])
-        top -= 0.5
-        return level, linearise(np.float32(top), self.dark[self.valid], s["black_level"], s["white_level"])
+            top = self.tone_curve[int(top)].astype(np.float32)
+        top = top - np.float32(0.5)
+        dark = self.dark[self.valid]
+        if top.ndim:  # each channel's: one level per gel pixel and channel, as the dark frame's
+            top = np.broadcast_to(top, dark.shape)
+        return level, linearise(top, dark, s["black_level"], s["white_level"])
 
     def _colours(self, tricolor: np.ndarray, row: np.ndarray, col: np.ndarray) -> np.ndarray:
         """(N, 3) network input colours at the changed pixels: the model's prefilter, on their bounding box only."""

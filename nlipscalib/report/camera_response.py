@@ -28,7 +28,8 @@ def response_figure(
 
     Parameters
     ----------
-    curve : (N,) float, linear light (fraction of full scale) of each encoded value, N = 256: the curve kept
+    curve : (N,) float, linear light (fraction of full scale) of each encoded value, N = 256: the curve kept; or
+        (3, N), a curve kept per channel (R, G, B)
     channels : (N, 3) float, each channel's fitted curve (R, G, B), NaN where the channel saw no code
     points : (codes (M,), linear (M,)): measured samples, the bracket's estimate of their light
     path : the PNG to write
@@ -37,15 +38,19 @@ def response_figure(
     """
     fig = new_figure(figsize=(6.4, 5.0))
     ax = fig.add_subplot(1, 1, 1)
-    encoded = np.arange(len(curve)) / (len(curve) - 1)
+    encoded = np.arange(np.shape(curve)[-1]) / (np.shape(curve)[-1] - 1)
     codes, linear = points
     step = max(1, len(codes) // POINTS_SHOWN)
     ax.scatter(
-        codes[::step] / (len(curve) - 1), linear[::step], s=2, c="0.6", alpha=0.5, label="measured (green)", lw=0
+        codes[::step] / (len(encoded) - 1), linear[::step], s=2, c="0.6", alpha=0.5, label="measured (green)", lw=0
     )
     for c, colour in enumerate(CHANNEL_COLOURS):
         ax.plot(encoded, channels[:, c], color=colour, lw=0.8, alpha=0.8, label="RGB"[c])
-    ax.plot(encoded, curve, color="k", lw=1.6, label="kept (mean)")
+    if np.ndim(curve) == 2:  # each channel keeps its own: drawn thick in its colour, the fits under them thin
+        for c, colour in enumerate(CHANNEL_COLOURS):
+            ax.plot(encoded, curve[c], color=colour, lw=1.6, label=f"kept ({'RGB'[c]})")
+    else:
+        ax.plot(encoded, curve, color="k", lw=1.6, label="kept (mean)")
     ax.plot([0, 1], [0, 1], color="0.4", lw=0.8, ls="--", label="linear camera")
     ax.set(xlim=(0, 1), ylim=(0, 1.02), xlabel="encoded value (fraction, black to white)")
     ax.set_ylabel("linear light (fraction of full scale)")

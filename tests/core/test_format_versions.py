@@ -38,8 +38,8 @@ def test_a_newer_version_says_upgrade_and_an_unread_older_one_what_remakes_it(tm
 def test_a_capture_of_a_newer_format_asks_for_a_newer_nlipscalib(tmp_path):
     press = tmp_path / "press_0001"
     press.mkdir()
-    meta = {"format": "nlipscalib.press", "format_version": 3, "camera": {}, "leds": [], "sensor": {}, "images": {}}
+    meta = {"format": "nlipscalib.press", "format_version": 4, "camera": {}, "leds": [], "sensor": {}, "images": {}}
     (press / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
-    newer = r"meta\.json: format_version 3 is not supported \(expected 1 or 2\); written by a newer nlipscalib: upgrade"
-    with pytest.raises(CaptureError, match=newer + " nlipscalib to read it$"):
+    newer = r"meta\.json: format_version 4 is not supported \(expected 1, 2 or 3\); written by a newer nlipscalib"
+    with pytest.raises(CaptureError, match=newer + ": upgrade nlipscalib to read it$"):
         load_press(press)

@@ -171,3 +171,65 @@ def test_the_srgb_encoding_is_the_loaders_inverse():
     x = np.linspace(0, 1, 10001, dtype=np.float32)
     assert np.abs(srgb_to_linear(linear_to_srgb(x)) - x).max() < 1e-6
     assert linear_to_srgb(np.float32(0.5)) == pytest.approx(0.735357, abs=1e-6)  # IEC 61966-2-1's mid grey
+
+
+GAMMAS = (2.0, 2.2, 2.4)
+"""A webcam whose red, green and blue respond differently (the emulator's ``rgb-gammas``)."""
+
+
+def _rgb_curve() -> tuple[tuple[float, ...], ...]:
+    return tuple(tuple(float(v) for v in np.linspace(0, 1, 256) ** g) for g in GAMMAS)
+
+
+def test_a_per_channel_curve_is_checked_and_its_file_is_version_2_while_one_curve_stays_version_1(tmp_path):
+    """Why: one curve per channel (s31-respcam); version 1 files (one curve) are written and read as before, and a
+    version 1 file holding three curves is no file an older nlipscalib wrote."""
+    curves = _rgb_curve()
+    assert check_curve(curves, curve_id(curves)) == curves and curve_id(curves) != curve_id(curves[1])
+    falling = [list(c) for c in curves]
+    falling[2][100] = falling[2][99] - 0.01
+    with pytest.raises(ValueError, match=r"response_curve \(B\) falls at entry 100"):
+        check_curve(falling)
+    with pytest.raises(ValueError, match=r"three such lists\), got \(2, 256\)"):
+        check_curve(curves[:2])
+    for curve, version in ((curves, 2), (_gamma_curve(), 1)):
+        path = write_response_file(tmp_path / f"v{version}.json", MeasuredResponse(curve, {"camera": "camera 0"}))
+        doc = json.loads(path.read_text(encoding="utf-8"))
+        assert doc["format_version"] == version and read_response_file(path).curve == curve
+    doc = json.loads((tmp_path / "v2.json").read_text(encoding="utf-8"))
+    doc["format_version"] = 1
+    (tmp_path / "mislabelled.json").write_text(json.dumps(doc), encoding="utf-8")
+    with pytest.raises(CaptureError, match=r"mislabelled.json: .*three curves, which format_version 1 does not"):
+        read_response_file(tmp_path / "mislabelled.json")
+
+
+def test_a_per_channel_table_undoes_each_channel_with_its_curve_in_captures_and_streams(tmp_path):
+    """The capture loader (a 65536-entry table per channel), and a live or recorded stream's 8-bit frames
+    (``device.camera.to_stored``: one ``cv2.LUT`` of a table per channel), bit for bit alike."""
+    from nlipscalib.core.sensor_response import eight_bit_table, undo_tone_curve
+    from nlipscalib.device.camera import to_stored
+
+    curves = _rgb_curve()
+    table = measured_table(curves, 0.0, 65280.0)
+    assert table.shape == (65536, 3)
+    for c in range(3):
+        assert np.array_equal(table[:, c], measured_table(curves[c], 0.0, 65280.0))
+    bgr = np.random.default_rng(0).integers(0, 256, (12, 16, 3), dtype=np.uint8)
+    rgb = np.ascontiguousarray(bgr[..., ::-1])
+    undone = undo_tone_curve(rgb.astype(np.uint16) << 8, table)
+    codes = np.arange(256)
+    for c, g in enumerate(GAMMAS):
+        assert np.array_equal(undone[..., c], np.rint(65280.0 * (codes / 255) ** g).astype(np.uint16)[rgb[..., c]])
+    assert eight_bit_table(table).shape == (1, 256, 3)
+    stored, bits = to_stored(bgr, "frame", table)
+    assert bits == 8 and np.array_equal(stored, undone)
+    # a capture declaring it: meta.json format_version 3, each channel linear; and its sensor record for models
+    response = _response(curves)
+    _write(tmp_path / "p", response, 128)
+    meta = json.loads((tmp_path / "p" / "meta.json").read_text(encoding="utf-8"))
+    assert meta["format_version"] == 3 and meta["sensor"]["response_curve"] == [list(c) for c in curves]
+    press = load_press(tmp_path / "p")
+    assert [int(v) for v in press.led_images[0, 0, 0]] == [round(65280 * (128 / 255) ** g) for g in GAMMAS]
+    record = describe_sensor(press.camera, press.leds, press.response)
+    check_sensor_record(json.loads(json.dumps(record)), "model.pt")
+    assert np.array_equal(response_table_of(record), table)

@@ -28,9 +28,16 @@ LIGHT = np.linspace(0.05, 0.4, 64 * 48).reshape(48, 64, 1) * np.ones(3)
 GAMMA = 2.2
 
 
-def _frame(ms: float) -> np.ndarray:
-    """The gel at ``ms`` through a gamma 2.2 camera, 8-bit BGR."""
-    return np.clip(np.rint(255 * np.minimum(LIGHT * ms / 8, 1) ** (1 / GAMMA)), 0, 255).astype(np.uint8)
+BOARDS: list[VirtualBoard] = []
+"""The LED board of the calibration running (:func:`_calibrate`): the stand-in camera sees the gel lit only while
+an LED is."""
+
+
+def _frame(ms: float, lit: bool = True, black: int = 0) -> np.ndarray:
+    """The gel at ``ms`` through a gamma 2.2 camera, 8-bit BGR; black (every LED off) when not ``lit``; ``black``
+    codes added to every value (a camera's black level, a pedestal)."""
+    light = np.clip(np.rint(255 * np.minimum(LIGHT * ms / 8, 1) ** (1 / GAMMA)), 0, 255) if lit else 0 * LIGHT
+    return np.clip(light + black, 0, 255).astype(np.uint8)
 
 
 class Webcam:
@@ -38,10 +45,12 @@ class Webcam:
 
     ignores: it accepts CAP_PROP_EXPOSURE and reads it back, but every frame is at 8 ms (a backend dropping the
     property); min_ms: exposures below this are taken at it (V4L2's 100 us units); lag: frames made before a new
-    exposure applies; factor: the real time over the asked one; backend: what ``getBackendName`` says."""
+    exposure applies; factor: the real time over the asked one; backend: what ``getBackendName`` says; taken: the
+    real time of an asked one (a camera rounding to steps of its own); black: codes added to every value."""
 
-    def __init__(self, ignores=False, min_ms=0.0, lag=0, factor=1.0, backend="V4L2"):
+    def __init__(self, ignores=False, min_ms=0.0, lag=0, factor=1.0, backend="V4L2", taken=None, black=0):
         self.ignores, self.min_ms, self.lag, self.factor, self.backend = ignores, min_ms, lag, factor, backend
+        self.taken, self.black = taken or (lambda ms: ms), black
         self.props, self.pending, self.ms = {}, [], 8.0
 
     def isOpened(self):
@@ -73,7 +82,8 @@ class Webcam:
                 self.pending.remove(item)
             else:
                 item[0] -= 1
-        return True, _frame(8.0 if self.ignores else self.ms * self.factor)
+        lit = bool(BOARDS[-1].latched.any()) if BOARDS else True
+        return True, _frame(8.0 if self.ignores else self.taken(self.ms) * self.factor, lit, self.black)
 
     def release(self):
         pass
@@ -91,11 +101,13 @@ def webcam(monkeypatch):
 
 def _calibrate(tmp_path, *more):
     board = VirtualBoard(12)
+    BOARDS.append(board)
     out = tmp_path / "r.json"
     try:
         code = main(["calibrate-camera-response", "--port", board.url, "--camera", "0", "--out", str(out), *more])
         assert not board.latched.any()  # the LED off again
     finally:
+        BOARDS.remove(board)
         board.close()
     return code, out
 
@@ -221,3 +233,81 @@ def test_a_bracket_folder_that_cannot_give_a_curve_is_one_line(tmp_path, capsys,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(folder) in err[0] and problem in err[0], err
     assert not out.exists()
+
+
+def test_a_camera_that_takes_one_exposure_at_a_time_of_its_own_is_one_line(webcam, tmp_path, capsys):
+    """A camera rounding an exposure to a step of its own (asked 4 ms, took 4.3: still brighter than 2.83 ms and
+    darker than 5.66): with the fitted curve undone, that frame is 6.7 % brighter against the one before than the
+    times say; the fit at the times asked was written before, its curve bent (2.8 % off the camera's, where one that
+    takes the times asked gives 0.35 %; benchmarks/RESULTS.md, s31-respcam)."""
+    webcam(taken=lambda ms: 4.3 if ms == 4 else ms)
+    code, out = _calibrate(tmp_path)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and not out.exists() and len(err) == 1, err
+    assert (
+        "camera 0: with the fitted curve undone, the frame at 4 ms is 1.509 times as bright as at 2.828 ms, its "
+        "exposure 1.414 times as long; the frame at 5.657 ms" in err[0]
+    ), err
+    assert "rounds exposures to steps of its own" in err[0] and "v4l2-ctl" in err[0]
+
+
+def test_a_camera_that_adds_a_black_level_is_one_line_naming_the_black_level_to_give(webcam, tmp_path, capsys):
+    """Every value 8 codes up (a pedestal): the dark frame, every LED off, reads 8; given --black-level 8 the curve
+    is the camera's. Before, the fit absorbed the offset and wrote a file measured from black 0 without a word."""
+    webcam(black=8)
+    code, out = _calibrate(tmp_path / "a")
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and not out.exists() and len(err) == 1, err
+    assert (
+        "camera 0: the dark frame (every LED off, 0.5 ms) reads 8 codes of 255 (median) above --black-level 0" in err[0]
+    )
+    assert "give --black-level 8 (its DN)" in err[0]
+    code, out = _calibrate(tmp_path / "b", "--black-level", "8")
+    assert code == 0, capsys.readouterr().err
+    response = read_response_file(out)
+    assert response.provenance["black_level_dn"] == 8 and response.provenance["dark_median_code"] == 0
+    # the codes above black 8 span 247 of 255: the curve is the camera's gamma on that span
+    light = (np.arange(256) / 255 * 247 / 255) ** GAMMA / (247 / 255) ** GAMMA
+    assert np.abs(np.asarray(response.curve) - np.minimum(light, 1))[LIT_CODES].max() < RESPONSE_CURVE_ERROR
+
+
+def test_a_bracket_folders_dark_frame_is_checked(tmp_path, capsys):
+    folder = _write_bracket(tmp_path / "b", EXPOSURES)
+    cv2.imwrite(str(folder / "dark.png"), _frame(0.5, lit=False, black=6))
+    out = tmp_path / "r.json"
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--bracket {folder}: the dark frame (every LED off) reads 6 codes" in err[0], err
+    cv2.imwrite(str(folder / "dark.png"), _frame(0.5, lit=False))
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(out)]) == 0
+    assert read_response_file(out).provenance["exposures_ms"] == sorted(EXPOSURES, key=lambda ms: f"gel_{ms:g}ms.png")
+
+
+def test_a_16_bit_bracket_gives_the_curve_over_every_16_bit_value(tmp_path, capsys):
+    """16-bit frames (a machine-vision camera, a vendor tool's TIFFs): OpenCV's CalibrateRobertson takes 8-bit
+    frames only, so the values are binned to 256 codes for the fit; the 256-entry curve, interpolated linearly
+    between entries, undoes every 16-bit value within the tests' tolerance."""
+    from nlipscalib.core.response_curve import measured_table
+
+    folder = tmp_path / "b16"
+    folder.mkdir()
+    noise = np.random.default_rng(1)
+    for ms in EXPOSURES:
+        light = np.clip(LIGHT * ms / 8 + noise.normal(0, 0.0005, LIGHT.shape), 0, 1)
+        cv2.imwrite(str(folder / f"gel_{ms:g}ms.png"), np.rint(65535 * light ** (1 / GAMMA)).astype(np.uint16))
+    out = tmp_path / "r.json"
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(out)]) == 0, capsys.readouterr()
+    response = read_response_file(out)
+    assert np.abs(np.asarray(response.curve) - _true_curve())[LIT_CODES].max() < RESPONSE_CURVE_ERROR
+    stored = np.arange(65536)
+    table = measured_table(response.curve, 0.0, 65535.0).astype(np.float64) / 65535
+    lit = stored >= 10 << 8
+    assert np.abs(table - (stored / 65535) ** GAMMA)[lit].max() < RESPONSE_CURVE_ERROR
+    # a 12-bit camera's values in 16-bit images, unscaled: one line (was "the bracket's codes reach from None to
+    # None; ...: add shorter and longer exposures", the wrong cure)
+    for path in folder.iterdir():
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        cv2.imwrite(str(path), image >> 4)
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(tmp_path / "u.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "images reach 4095 of 65535 at most, in every exposure: a 10- or 12-bit camera" in err[0]

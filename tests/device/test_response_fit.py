@@ -55,7 +55,41 @@ def test_the_measured_curve_recovers_the_cameras(measured, curve):
     prov = response.provenance
     assert prov["exposures_ms"][0] == 0.5 and len(prov["exposures_ms"]) == 15 and prov["fit_residual"] < 0.01
     assert prov["monotonic"]["max_dip"] < 0.005 and "Robertson" in prov["method"]
+    # one curve for the three channels (they agree within the fit's error): written as before, version 1
+    assert prov["per_channel"] is False and json.loads(measured[curve].read_text())["format_version"] == 1
+    assert prov["exposure_ratio_error"] < 0.01 and prov["dark_median_code"] == 0
     assert measured[curve].with_suffix(".png").stat().st_size > 10_000  # the figure
+
+
+def test_a_camera_whose_channels_differ_keeps_a_curve_per_channel_and_captures_linear(tmp_path, capsys):
+    """The emulated webcam of gamma 2.0 / 2.2 / 2.4 in R / G / B: each channel's curve is kept (response file
+    version 2) and undone on its channel (meta.json format_version 3): the capture's LED images agree with a linear
+    camera's in every channel. The channels' mean, kept before (s30), is far off red and blue."""
+    from nlipscalib.emulator import RGB_GAMMAS
+
+    path = tmp_path / "rgb.json"
+    args = ["calibrate-camera-response", "--emulate", "nlipstac", "--emulate-tone-curve", "rgb-gammas", *SIZE]
+    assert main([*args, "--out", str(path)]) == 0
+    assert "a curve per channel kept" in capsys.readouterr().out
+    response = read_response_file(path)
+    assert response.provenance["per_channel"] is True and "a curve per channel" in response.provenance["method"]
+    assert json.loads(path.read_text())["format_version"] == 2
+    curves = np.asarray(response.curve)
+    codes = np.arange(256) / 255
+    for c, gamma in enumerate(RGB_GAMMAS):
+        assert np.abs(curves[c] - codes**gamma)[LIT_CODES].max() < RESPONSE_CURVE_ERROR
+        assert np.abs(curves.mean(axis=0) - codes**gamma)[LIT_CODES].max() > (2 * RESPONSE_CURVE_ERROR if c != 1 else 0)
+    base = ["capture", "--emulate", "nlipstac", *SIZE, "--presses", "1", "--yes", "--out"]
+    assert main([*base, str(tmp_path / "linear")]) == 0
+    declared = ["--emulate-tone-curve", "rgb-gammas", "--camera-response", str(path)]
+    assert main([*base, str(tmp_path / "declared"), *declared]) == 0
+    meta = json.loads((tmp_path / "declared" / "press_0001" / "meta.json").read_text(encoding="utf-8"))
+    assert meta["format_version"] == 3 and meta["sensor"]["camera_response"] == response.name
+    linear = _led_images(tmp_path / "linear")
+    diff = _led_images(tmp_path / "declared") - linear
+    for c in range(3):
+        lit = linear[..., c] > 0.02
+        assert np.median(np.abs(diff[..., c][lit])) < 0.004 and abs(np.mean(diff[..., c][lit])) < 0.004, c
 
 
 def _led_images(folder):

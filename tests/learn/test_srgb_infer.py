@@ -202,3 +202,41 @@ def test_a_model_of_a_measured_response_undoes_its_curve_on_stored_frames(traine
     torch.save(payload, tmp_path / "edited.pt")
     with pytest.raises(CaptureError, match="edited or damaged"):
         Predictor(tmp_path / "edited.pt")
+
+
+def test_a_model_of_a_per_channel_response_undoes_each_channels_curve(trained, twin_presses, tmp_path):
+    """A calibration of captures declaring a curve per channel (s31-respcam: a webcam whose R, G, B respond
+    differently): the model undoes each channel's own on stills and streams, and its exposure check reads each
+    channel's clipping level through that channel's curve."""
+    import torch
+
+    from nlipscalib.core import load_press
+    from nlipscalib.core.response_curve import curve_id
+    from nlipscalib.learn.infer import Predictor
+
+    gammas = (2.0, 2.2, 2.4)
+    curves = [[float(v) for v in np.linspace(0, 1, 256) ** g] for g in gammas]
+    payload = torch.load(trained, weights_only=False)
+    payload["sensor"] |= {"camera_response": curve_id(curves), "response_curve": curves}
+    torch.save(payload, tmp_path / "rgb.pt")
+    measured = Predictor(tmp_path / "rgb.pt")
+    old = Predictor(_declared(trained, tmp_path / "old.pt", None))
+    assert measured.tone_curve.shape == (65536, 3)
+
+    press = load_press(twin_presses / "press_a")
+    stored = press.tricolor.copy()
+    black, white = press.response.black_level, press.response.white_level
+    x = np.clip((stored.astype(np.float64) - black) / (white - black), 0, 1)
+    encoded = np.rint(black + (white - black) * x ** (1 / np.asarray(gammas))).astype(np.uint16)
+    expected = old.linear(stored)
+    assert np.abs(measured.linear(encoded) - expected).max() < 1e-3
+    # one curve for all three (gamma 2.2's, on red and blue too): far off
+    one = [float(v) for v in np.linspace(0, 1, 256) ** 2.2]
+    payload["sensor"] |= {"camera_response": curve_id(one), "response_curve": one}
+    torch.save(payload, tmp_path / "one.pt")
+    assert np.abs(Predictor(tmp_path / "one.pt").linear(encoded) - expected).max() > 0.01
+    got, want = measured.predict_stored(encoded).normals, old.predict_stored(stored).normals
+    both = np.isfinite(got).all(-1) & np.isfinite(want).all(-1)
+    assert both.mean() > 0.5 and np.median(np.abs(got - want)[both]) < 1e-3
+    # the exposure check of a frame unlike the calibration's: each channel clips at its curve's white (the level)
+    assert measured._exposure(expected) == pytest.approx(old._exposure(expected))
