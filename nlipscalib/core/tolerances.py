@@ -239,6 +239,13 @@ ROI_FLANK_START = 0.05
 640x480 coin1 box grew 238x238 -> 238x262 px with its truth boxed already, and its contact AAE went 4.642 -> 4.673
 deg with a larger box; at 0.05 sphere1, cube1 and coin1 keep their boxes, the 20 mm coin boxes 93 % of its main
 patch (95 % at 0.033-0.04 with the factor 1.4, coin1 then 261x261)."""
+ROI_FLANK_MAX_CONTACT_MISFIT = 9.0
+"""... and only a contact whose pixels (those the box holds) misfit by a median of less than this many times the floor:
+a large shallow contact, whose images differ little from the undeformed dome's (the twin's 16-20 mm coin faces
+0.2-0.5 mm deep at 320x240: 4.0-8.2). Why: a plain dent misfits more (6-20 mm spheres, the 640x480 coin1: 9.7-17.4),
+and against an undeformed capture (``--reference``, no model error in the floor) the change of its light around it
+passed as flank: coin1's box grew 238x240 -> 302x268 px (+20 % solve CPU, contact AAE 4.484 -> 4.512 deg), the
+320x240 6 and 12 mm spheres' 16 px (benchmarks/RESULTS.md, s31-autobox)."""
 LED_EMITTER_RADIUS_MM = 1.8
 """``--roi auto``: radius, mm, of the disk an LED is taken to emit from when judging the misfit along the gel's edge
 that the auto ROI leaves out (``solver.point_led_error.point_led_misfit``): edge pixels that misfit by no more than

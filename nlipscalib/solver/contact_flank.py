@@ -18,7 +18,9 @@ def grow_over_flank(
     :data:`tolerances.ROI_FLANK_FACTOR` times the floor of :func:`.contact_verdict.contact_hits` (only those joined to
     ``region``, the (H, W) bool pixels the box holds, and not within ``margin`` of the gel's edge), the side moves to
     ``margin`` pixels past that strip (within the image). The first strips lie :data:`tolerances.ROI_FLANK_START` of the
-    image's short side beyond ``region``; a box at the image's border on one axis does not grow along it.
+    image's short side beyond ``region``; a box at the image's border on one axis does not grow along it. A contact
+    whose pixels misfit by a median of :data:`tolerances.ROI_FLANK_MAX_CONTACT_MISFIT` times the floor or more is a
+    plain dent: its box does not grow.
 
     Why: a large flat indenter (the 20 mm coin face) moves the gel far beyond the pixels hit at
     :data:`tolerances.CONTACT_MISFIT_FACTOR`; its flank misfits by less, over many pixels, and the box of the hits
@@ -34,8 +36,17 @@ def grow_over_flank(
     # frame's erosion and labelling (~25 ms at 640x480)
     if not any(_is_flank(over, _strip(side, probe[side], box, step, (H, W))) for side in range(4)):
         return edges
+    if _contact_strength(contact, region) >= tolerances.ROI_FLANK_MAX_CONTACT_MISFIT:
+        return edges  # a plain dent: what passes as flank beside it is the change of its light around it
     over = _joined_flank(contact, over, region, margin)
     return _grown_sides(over, box, probe, step, margin)
+
+
+def _contact_strength(contact: ContactMap, region: np.ndarray) -> float:
+    """The median over ``region`` ((H, W) bool, the box's contact) of the misfit over the floor of
+    :func:`.contact_verdict.contact_hits` -- how strongly the contact's images differ from the undeformed dome's."""
+    floor = np.maximum(contact.expected[region], contact.median_misfit)
+    return float(np.median(np.nan_to_num(contact.misfit[region]) / np.maximum(floor, 1e-9)))
 
 
 def _joined_flank(contact: ContactMap, over: np.ndarray, region: np.ndarray, margin: int) -> np.ndarray:

@@ -740,13 +740,14 @@ def test_a_corner_misfit_the_point_led_model_explains_is_no_contact_and_a_dent_b
     assert no_contact(_contact_map(inside), model_error=model_error(4.0)) is None
 
 
-def _flank_press(shape=(120, 160), centre=(60, 80)):
-    """A large flat indenter's misfit: a core hit at 10 times the floor and a wide flank at 2 times it, below the
-    hits' 3 (the twin's 20 mm coin face: 1.5-4 times the floor over 20-30 px beyond its hits; s28-bigedge)."""
+def _flank_press(shape=(120, 160), centre=(60, 80), core=6.0):
+    """A large flat indenter's misfit: a core hit at ``core`` times the floor (the twin's 16-20 mm coin faces: a median
+    of 4.0-8.2; s31-autobox) and a wide flank at 2 times it, below the hits' 3 (the 20 mm coin face: 1.5-4 times the
+    floor over 20-30 px beyond its hits; s28-bigedge)."""
     misfit = np.ones(shape)
     flank = _disk(shape, centre, 35)
     misfit[flank] = 2.0
-    misfit[_disk(shape, centre, 15)] = 10.0
+    misfit[_disk(shape, centre, 15)] = core
     return misfit, flank
 
 
@@ -770,13 +771,26 @@ def test_auto_roi_grows_over_a_large_contacts_flank():
     assert note == ""
 
 
+def test_auto_roi_does_not_grow_a_plain_dents_box_over_the_change_of_its_light_around_it():
+    # coin1 (640x480) against the undeformed capture: its hits misfit by a median of 11 times the floor, the change of
+    # its light around it by 1.5-3 times, and its box grew 238x240 -> 302x268 px as if over a flank (s31-autobox)
+    from nlipscalib.solver.contact_roi import contact_box
+
+    strong, halo = _flank_press(core=1.5 * tolerances.ROI_FLANK_MAX_CONTACT_MISFIT)
+    cmap = _contact_map(strong)
+    assert contact_box(cmap, strong.shape, flank=True) == contact_box(cmap, strong.shape)
+    assert _boxed_share(contact_box(cmap, strong.shape)[0], halo) < 0.6  # the halo would have grown it
+    weak = _contact_map(_flank_press(core=0.9 * tolerances.ROI_FLANK_MAX_CONTACT_MISFIT)[0])
+    assert _boxed_share(contact_box(weak, strong.shape, flank=True)[0], halo) >= 0.95  # a shallow contact's flank
+
+
 def test_auto_roi_keeps_a_plain_dents_box_whose_weak_rim_lies_within_its_margin():
     from nlipscalib.solver.contact_roi import contact_box
 
     shape = (120, 160)
     misfit = np.ones(shape)
     misfit[_disk(shape, (60, 80), 17)] = 2.0  # the rim: 2 px at twice the floor
-    misfit[_disk(shape, (60, 80), 15)] = 10.0
+    misfit[_disk(shape, (60, 80), 15)] = 6.0  # a shallow contact's: the start of the strips decides
     cmap = _contact_map(misfit)
     assert contact_box(cmap, shape, flank=True) == contact_box(cmap, shape)
 
@@ -789,7 +803,8 @@ def test_auto_roi_does_not_grow_along_the_image_border_that_its_contact_reaches(
     shape = (120, 160)
     misfit = np.ones(shape)
     misfit[:, 125:] = 2.0
-    misfit[_disk(shape, (60, 150), 20)] = 10.0
+    misfit[_disk(shape, (60, 150), 20)] = 6.0  # a shallow contact's: the border guard decides
+    misfit[_disk(shape, (60, 150), 4)] = 20.0  # its peak: a contact, not noise
     cmap = _contact_map(misfit)
     box = contact_box(cmap, shape, flank=True)[0]
     plain = contact_box(cmap, shape)[0]
@@ -801,7 +816,7 @@ def test_auto_roi_box_grows_over_the_flank_only_where_the_flank_joins_the_contac
 
     shape = (120, 160)
     misfit = np.ones(shape)
-    misfit[_disk(shape, (60, 80), 15)] = 10.0
+    misfit[_disk(shape, (60, 80), 15)] = 6.0  # a shallow contact's: the join decides
     misfit[25:95, 104:112] = 2.0  # misfit beside the box, apart from the contact (a gap of 9 px)
     cmap = _contact_map(misfit)
     assert contact_box(cmap, shape, flank=True) == contact_box(cmap, shape)
