@@ -2,7 +2,8 @@
 
 Bars (tqdm) go to stderr only when it is a terminal or a Jupyter notebook's (an IPython kernel's stream, drawn
 under the cell), and ``--no-progress`` was not given, so log files and CI output never fill with carriage-return
-bars. ``--log-file`` copies every log line to a file.
+bars. ``--log-file`` copies every log line to a file. ``--quiet`` leaves stderr to warnings and errors (and draws
+no bar); the log file still gets every line.
 """
 
 from __future__ import annotations
@@ -22,6 +23,9 @@ if TYPE_CHECKING:  # named in hints only: tqdm is imported when a bar is made
 
 _enabled = True
 _log_file: str | None = None
+_quiet = False
+"""``--quiet`` of the last :func:`configure`: stderr shows WARNING and above only (handed to worker processes by
+:func:`worker_logging`)."""
 """The ``log_file`` of the last :func:`configure` (handed to worker processes by :func:`worker_logging`)."""
 PRESS_DETAIL = {"press_line": 2}
 """``extra`` of a log record saying how one press was solved (the interreflection term's and the anchoring's
@@ -45,14 +49,18 @@ where from, what."""
 STDERR_FORMAT = "%(levelname)s %(message)s"
 
 
-def configure(*, progress: bool = True, verbose: bool = False, log_file: str | Path | None = None) -> None:
+def configure(
+    *, progress: bool = True, verbose: bool = False, log_file: str | Path | None = None, quiet: bool = False
+) -> None:
     """Set up logging (stderr, plus ``log_file`` when given) and the global progress switch.
 
-    Handlers already on the root logger (an embedding application's, pytest's) are kept; only the
-    file handler this function added before is replaced.
+    ``quiet`` (``nlips --quiet``): stderr gets warnings and errors only, and no bar; the log file's lines are not
+    lessened (its level stays INFO, or DEBUG with ``verbose``). Handlers already on the root logger (an embedding
+    application's, pytest's) are kept; only the file handler this function added before is replaced.
     """
-    global _enabled
-    _enabled = progress
+    global _enabled, _quiet
+    _enabled = progress and not quiet
+    _quiet = quiet
     press_lines(SINGLE)  # until the command says it solves a batch
     _setup(logging.DEBUG if verbose else logging.INFO, log_file)
 
@@ -67,20 +75,23 @@ def press_lines(shown: int) -> None:
     _press_lines = shown
 
 
-def worker_logging() -> tuple[int, str | None, int]:
-    """``initargs`` for :func:`configure_worker` as a pool's ``initializer``: this process's level, log file and
-    :func:`press_lines`."""
-    return logging.getLogger().getEffectiveLevel(), _log_file, _press_lines
+def worker_logging() -> tuple[int, str | None, int, bool]:
+    """``initargs`` for :func:`configure_worker` as a pool's ``initializer``: this process's level, log file,
+    :func:`press_lines` and ``--quiet``."""
+    return logging.getLogger().getEffectiveLevel(), _log_file, _press_lines, _quiet
 
 
-def configure_worker(level: int, log_file: str | None = None, shown_press_lines: int = SINGLE) -> None:
+def configure_worker(
+    level: int, log_file: str | None = None, shown_press_lines: int = SINGLE, quiet: bool = False
+) -> None:
     """In a worker process (spawn, forkserver): log like the parent, to stderr and to its ``--log-file``, with
-    the parent's :func:`press_lines`.
+    the parent's :func:`press_lines` and ``--quiet``.
 
     Bars stay off: the parent draws the only one.
     """
-    global _enabled
+    global _enabled, _quiet
     _enabled = False
+    _quiet = quiet
     press_lines(shown_press_lines)
     _setup(level, log_file)
     for handler in logging.getLogger().handlers:
@@ -345,6 +356,18 @@ def file_log(level: int, message: str, exc_info: bool = False) -> None:
             handler.handle(record)
 
 
+def say(line: str, *, warning: bool = False) -> None:
+    """A command's closing line for the person at the terminal (counts, coverage, the next step): on stderr as
+    typed, without a level's word, unless ``--quiet`` (a ``warning``, e.g. the presses that failed, is said even
+    then), and in the ``--log-file`` at INFO (WARNING).
+
+    Why not stdout: stdout holds a command's result paths alone, one a line, for scripts
+    (``model=$(nlips train DS --out m.pt)``); why not a log record: ``INFO`` before a summary line read as noise."""
+    if warning or not _quiet:
+        print(line, file=sys.stderr)
+    file_log(logging.WARNING if warning else logging.INFO, line)
+
+
 @contextlib.contextmanager
 def results_to_log_file() -> Iterator[None]:
     """While active, every line printed on stdout (a command's results: summaries, tables, scores) also goes
@@ -482,7 +505,9 @@ class RepeatedWarning:
 
 def _shown_on_stderr(record: logging.LogRecord) -> bool:
     """Whether a record goes to stderr: any but a per-press line beyond :func:`press_lines` and a :data:`FILE_ONLY`
-    line, unless ``-v``."""
+    line, unless ``-v``; with ``--quiet``, warnings and errors only."""
+    if _quiet:
+        return record.levelno >= logging.WARNING
     verbose = logging.getLogger().getEffectiveLevel() <= logging.DEBUG
     if getattr(record, "file_only", False):
         return verbose

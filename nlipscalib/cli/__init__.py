@@ -69,12 +69,20 @@ def build_parser() -> argparse.ArgumentParser:
         version=__version__,
         help="show the version of nlipscalib, Python and the key libraries (for a bug report) and exit",
     )
-    parser.add_argument(
+    loudness = parser.add_mutually_exclusive_group()
+    loudness.add_argument(
         "-v",
         "--verbose",
         action="store_true",
         help="show debug logging, and in batches of presses (a folder, `nlips calibrate`, demo, experiments) how each "
         "press was solved (interreflection term, anchoring), which they otherwise leave to --log-file",
+    )
+    loudness.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="only warnings and errors on stderr: no INFO lines, no progress bars (results still go to stdout, and "
+        "--log-file still gets every line)",
     )
     parser.add_argument(
         "--no-progress",
@@ -177,6 +185,8 @@ def _main(argv: Sequence[str] | None, own_process: bool) -> int:
     if not (sys.argv[1:] if argv is None else argv):
         print_help_for_no_command(parser)
     args = parser.parse_args(argv)
+    if args.verbose and args.quiet:  # one before the command, the other after it: argparse's group sees only one
+        parser.error("argument -v/--verbose: not allowed with argument -q/--quiet")
     previous = _terminate_cleanly(args.command, args)
     previous_int = _note_interrupts()
     try:
@@ -207,6 +217,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] = ()) -> int:
             progress=not (args.global_no_progress or getattr(args, "no_progress", False)),
             verbose=args.verbose,
             log_file=args.log_file,
+            quiet=args.quiet,
         )
         _log_start(argv)
         # a session's fault is warned of once per command (said_once), again by a later command of this process

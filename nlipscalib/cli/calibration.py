@@ -8,6 +8,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .options import SOLVE_WORKERS_HELP
+
 if TYPE_CHECKING:
     from ..learn.dataset import SamplingConfig
 
@@ -62,8 +64,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--workers",
         type=int,
         default=0,
-        help="solver processes (default 0: one per core this process may use, fewer where the memory available "
-        "holds fewer)",
+        help=SOLVE_WORKERS_HELP,
     )
     p.add_argument(
         "--min-confidence",
@@ -153,16 +154,17 @@ def _solve_and_build(
     run: dict,
 ) -> int:
     """The solves, the dataset and its coverage report, and the summary lines (exit status)."""
-    from ..core.cpus import SOLVE_ROI_MEMORY, usable_cores, worker_count
+    from ..core.cpus import SOLVE_ROI_MEMORY, solve_worker_count
     from ..core.errors import ConfigError
     from ..core.press_meta import image_size, read_meta
     from ..core.sensor_record import camera_position_of
     from ..learn.coverage import coverage, write_coverage_json
     from ..learn.dataset import CalibrationDataset, build_dataset
+    from ..progress import say
     from ..report.learn import coverage_figure
 
-    # one solver per core, fewer where memory holds fewer (an 8-core 16 GB PC at 1280x960: ~1.9 GB each)
-    workers = worker_count(args.workers, usable_cores(), SOLVE_ROI_MEMORY, *image_size(reference))
+    # as `nlips solve FOLDER`: one solver per two cores, fewer where memory holds fewer (1280x960: ~1.9 GB each)
+    workers = solve_worker_count(args.workers, SOLVE_ROI_MEMORY, *image_size(reference))
     status = solve_all(
         presses, reference, workers=workers, progress=not args.no_progress, leds=args.leds, normals=args.normals
     )
@@ -185,16 +187,17 @@ def _solve_and_build(
     n = sum(e["samples"] for e in data.entries)
     n_contact = sum(e["contact_samples"] for e in data.entries)
     pressed = f"{len(data.entries)} press{'es' if len(data.entries) != 1 else ''}"
-    print(f"{out}: {pressed}, {n} samples ({n_contact} contact)")
+    print(out)  # stdout: the dataset's folder alone (scripts); what it holds is said on stderr
+    say(f"{out}: {pressed}, {n} samples ({n_contact} contact)")
     nxt = cov["next_press"]
-    print(f"coverage: {cov['covered_fraction'] * 100:.0f}% of (region, direction) bins; press next: {nxt['advice']}")
+    say(f"coverage: {cov['covered_fraction'] * 100:.0f}% of (region, direction) bins; press next: {nxt['advice']}")
     if cov["steep"]["advice"]:
-        print(f"coverage: {cov['steep']['advice']}")
+        say(f"coverage: {cov['steep']['advice']}")
     for names, what in ((failed, "failed to solve"), (unsampled, "left out of the dataset (not sampled)")):
         if names:
-            print(f"{len(names)} press{'es' if len(names) > 1 else ''} {what}: {', '.join(sorted(names))}")
+            say(f"{len(names)} press{'es' if len(names) > 1 else ''} {what}: {', '.join(sorted(names))}", warning=True)
     # the step after this one, with this run's folder: the calibration dataset is what `nlips train` reads
-    print(f"next: nlips train {out} --out MODEL.pt (NLiPsNet; --hidden 64,64,64 --dropout 0: the real-time variant)")
+    say(f"next: nlips train {out} --out MODEL.pt (NLiPsNet; --hidden 64,64,64 --dropout 0: the real-time variant)")
     return 1 if failed or unsampled else 0
 
 

@@ -8,6 +8,8 @@ import logging
 import sys
 from typing import TYPE_CHECKING
 
+from .options import RENDER_WORKERS_HELP
+
 if TYPE_CHECKING:  # named in hints only
     from pathlib import Path
 
@@ -36,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--workers",
         type=int,
         default=0,
-        help="render processes (default: one per two cores, fewer where memory holds fewer)",
+        help=RENDER_WORKERS_HELP,
     )
     p.add_argument(
         "--limit",

@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..core.cpus import usable_cores
+from .options import RENDER_WORKERS_HELP, SOLVE_WORKERS_HELP
 
 if TYPE_CHECKING:  # named in hints only: imported when the demo runs
     import numpy as np
@@ -33,7 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="demo",
         help="dataset spec to render: a file or a shipped spec's name (default: demo)",
     )
-    p.add_argument("--workers", type=int, default=1, help="render processes (default 1: all cores to one)")
+    p.add_argument("--workers", type=int, default=0, help=RENDER_WORKERS_HELP)
     p.add_argument(
         "--overwrite",
         action="store_true",
@@ -45,9 +45,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--solve-workers",
         type=int,
-        default=min(usable_cores(), 3),
-        help="presses solved at once, one process each, the cores shared out among them as threads "
-        "(default: one per core, at most 3)",
+        default=0,
+        help=SOLVE_WORKERS_HELP,
     )
     p.set_defaults(func=run)
 
@@ -70,7 +69,8 @@ def run(args: argparse.Namespace) -> int:
     from .folders import check_not_in_press
 
     press_lines(BATCH)  # its table says how each press went; a line per solved press, how with -v
-    check_count("--solve-workers", args.solve_workers, minimum=1)  # before minutes of rendering, not after
+    check_count("--workers", args.workers, minimum=0)  # before minutes of rendering, not after
+    check_count("--solve-workers", args.solve_workers, minimum=0)
     out = Path(args.out)
     check_not_in_press(out, "render the demo")
     spec, scene = load_dataset_spec(dataset_spec_path(args.spec))
@@ -86,10 +86,12 @@ def run(args: argparse.Namespace) -> int:
     presses = [j for j in jobs if j.name != REFERENCE_NAME]
     failed = set()
     if not args.no_solve:
+        from ..core.cpus import SOLVE_ROI_MEMORY, solve_worker_count
         from ..pipeline import solve_presses
 
         folders = [out / job.name for job in presses]
-        statuses = solve_presses(folders, roi="auto", workers=args.solve_workers, figures=not args.no_figures)
+        workers = solve_worker_count(args.solve_workers, SOLVE_ROI_MEMORY, scene.camera.width, scene.camera.height)
+        statuses = solve_presses(folders, roi="auto", workers=workers, figures=not args.no_figures)
         failed = {name for name, status in statuses.items() if status.startswith("failed")}
         for name in sorted(failed):
             print(f"{name}: {statuses[name]}")

@@ -155,7 +155,8 @@ _INVALID_CHOICE = re.compile(r"invalid choice: '(?P<typed>[^']*)' \(choose from 
 
 
 def add_options_of_every_command(command: argparse.ArgumentParser) -> None:
-    """``-v``/``--verbose``, ``--log-file`` and ``--no-progress`` after the command as well as before it:
+    """``-v``/``--verbose``, ``-q``/``--quiet``, ``--log-file`` and ``--no-progress`` after the command as well as
+    before it:
     ``nlips solve PRESS -v`` was "unrecognized arguments: -v", and ``--no-progress`` was taken by four commands
     only. Their default is SUPPRESS: not typed after the command, the value typed before it (or nlips's default)
     stands, as argparse copies every attribute of the command's namespace over nlips's."""
@@ -167,6 +168,14 @@ def add_options_of_every_command(command: argparse.ArgumentParser) -> None:
             action="store_true",
             default=argparse.SUPPRESS,
             help="debug logging, as `nlips -v COMMAND`",
+        )
+    if "--quiet" not in have and "-q" not in have:
+        command.add_argument(
+            "-q",
+            "--quiet",
+            action="store_true",
+            default=argparse.SUPPRESS,
+            help="only warnings and errors on stderr, as `nlips -q COMMAND`",
         )
     if "--log-file" not in have:
         command.add_argument(

@@ -355,8 +355,10 @@ def _finish_stream(
     """A stream's summary lines, its mismatch count and (with --out) its stream.json. ``after_error``: the stream
     ended on an error, whose line follows; stream.json is then left out when it cannot be written (the disk that
     filled), not made a second error."""
-    print(stats.summary())
-    print(stages.summary(predictor, cpu, stats, args.no_depth))
+    from ..progress import say
+
+    say(stats.summary())  # stderr: the rates; stdout: where the frames went (below), alone
+    say(stages.summary(predictor, cpu, stats, args.no_depth))
     watch.report()
     if args.out and stats.frames:
         reported = "; stream.json"
@@ -367,7 +369,8 @@ def _finish_stream(
                 raise
             reported = ""
         ply = ", .ply" if args.ply or args.mesh else ""
-        print(saved_line(args.out, stats.frames, args.every, f"{ply}{reported}"))
+        print(args.out)
+        say(saved_line(args.out, stats.frames, args.every, f"{ply}{reported}"))
 
 
 class _EndsCleanly:
@@ -553,7 +556,7 @@ def _run_stills(args: argparse.Namespace) -> int:
     from ..core.tolerances import FRAME_MISMATCH_FRACTION
     from ..learn.infer import REFRESH_REMEDY, capture_changes, mismatch_warning
     from ..learn.resolution import frame_warning
-    from ..progress import RepeatedWarning, track
+    from ..progress import RepeatedWarning, say, track
     from ._stream import nlipsnet_predictor
 
     t_start = time.perf_counter()
@@ -563,8 +566,9 @@ def _run_stills(args: argparse.Namespace) -> int:
     looked = _look_before_loading(args, frames, early) if early is not None else {}
     if sum(is_kept for _, is_kept in looked.values()) == len(frames):
         # a finished run again: said at once, without loading the model (torch or onnxruntime: seconds)
-        print(_stills_summary(args, None, [], len(frames), time.perf_counter() - t_start))
-        print(_where_saved(saved, {folder for folder, _ in saved}, bool(args.ply or args.mesh), args.figures))
+        _print_folders(saved)
+        say(_stills_summary(args, None, [], len(frames), time.perf_counter() - t_start))
+        say(_where_saved(saved, {folder for folder, _ in saved}, bool(args.ply or args.mesh), args.figures))
         return 0
     predictor = nlipsnet_predictor(args, depth=not args.no_depth)
     if not args.out and any(press_folder is None for _, _, press_folder, _ in frames):
@@ -638,14 +642,17 @@ def _run_stills(args: argparse.Namespace) -> int:
             len(frames),
             REFRESH_REMEDY,
         )
-    print(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
     not_written = {folder for folder, _ in failed.values()}
-    if written := [(folder, press) for folder, press in saved if folder not in not_written]:
-        print(_where_saved(written, kept, bool(args.ply or args.mesh), args.figures))
+    written = [(folder, press) for folder, press in saved if folder not in not_written]
+    _print_folders(written)
+    say(_stills_summary(args, predictor, inner, len(kept), time.perf_counter() - t_start))
+    if written:
+        say(_where_saved(written, kept, bool(args.ply or args.mesh), args.figures))
     if failed:
-        print(f"failed: {len(failed)} of {len(frames)} input(s), not inferred (run again once fixed: the rest is kept)")
+        rest = "run again once fixed: the rest is kept"
+        say(f"failed: {len(failed)} of {len(frames)} input(s), not inferred ({rest})", warning=True)
         for source, (_, why) in failed.items():  # the error names its file mostly: said once
-            print(f"  {why}" if why.startswith(f"{source}:") else f"  {source}: {why}")
+            say(f"  {why}" if why.startswith(f"{source}:") else f"  {source}: {why}", warning=True)
         return 1
     return 0
 
@@ -685,6 +692,13 @@ def _look_before_loading(
         if not looked[folder][1]:
             break
     return looked
+
+
+def _print_folders(saved: Sequence[tuple[Path, bool]]) -> None:
+    """stdout: each result folder of ``saved`` ((folder, whether a press's)), one a line, alone (for scripts); the
+    summary and where they are in words go to stderr (:func:`nlipscalib.progress.say`)."""
+    for folder, _ in saved:
+        print(folder)
 
 
 def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply: bool, figures: str = "none") -> str:

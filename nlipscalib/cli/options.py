@@ -19,6 +19,21 @@ DEFAULTED = "defaulted_options"
 """Attribute of the parsed arguments: the options :func:`fill_defaults` gave their default (not typed)."""
 
 
+SOLVE_WORKERS_HELP = (
+    "presses solved at once, one process each (default 0: one per two usable cores, a container's CPU quota "
+    "counted: 1 on a 2- or 3-core machine, where one process already solves each press on both cores' threads; "
+    "fewer where the memory available holds fewer); the cores are shared out as threads among the workers"
+)
+"""Help of the solver pool's ``--workers`` of every command that solves presses (``solve``, ``calibrate``, and
+``demo --solve-workers``): one default, :func:`nlipscalib.core.cpus.solve_worker_count`."""
+RENDER_WORKERS_HELP = (
+    "render processes (default 0: one per two usable cores, each rendering on two cores' threads; fewer where the "
+    "memory available holds fewer)"
+)
+"""Help of the render pool's ``--workers`` (``dataset``, ``demo``): one default, :func:`nlipscalib.sim.dataset_pool.
+run_dataset`'s ``workers=0``."""
+
+
 def typed(args: argparse.Namespace, dests: Iterable[str]) -> list[str]:
     """The options among ``dests`` that the user typed, in the order of ``dests``.
 

@@ -8,6 +8,8 @@ import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+from .options import SOLVE_WORKERS_HELP
+
 if TYPE_CHECKING:  # named in hints only: the solver is imported when a press is solved
     from pathlib import Path
 
@@ -116,10 +118,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--workers",
         type=int,
         default=0,
-        help="presses of a folder solved at once, one process each (default 0: one per two usable cores, a "
-        "container's CPU quota counted: 1 on a 2- or 3-core machine, where one process already solves each press "
-        "on both cores' threads; fewer where the memory available holds fewer); the cores are shared out as "
-        "threads among the workers",
+        help=SOLVE_WORKERS_HELP,
     )
     p.add_argument(
         "--figures",
@@ -166,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..core.press_folders import no_presses_error, split_reference
     from ..core.press_meta import read_meta
-    from ..pipeline import make_settings, solve_one, solve_presses
+    from ..pipeline import SKIPPED, SOLVED, make_settings, result_dir, solve_one, solve_presses
     from ..pipeline.provenance import identity_in_background
     from ..progress import BATCH, press_lines
     from .folders import check_one_capture
@@ -213,17 +212,21 @@ def run(args: argparse.Namespace) -> int:
             figures=args.figures,
             wait=True,  # the result asked for: another run's is waited for, and reused only when made alike
         )
+        print(result_dir(presses[0], args.out))  # stdout: where the result is, alone (the how is on stderr)
         return 0
-    from ..core.cpus import SOLVE_ROI_MEMORY, SOLVE_WHOLE_MEMORY, solve_workers_default, worker_count
+    from ..core.cpus import SOLVE_ROI_MEMORY, SOLVE_WHOLE_MEMORY, solve_worker_count
     from ..core.press_meta import image_size
 
     # the count asked for (said when it likely exceeds the memory available), else the cores' lowered to memory's
     memory = SOLVE_WHOLE_MEMORY if given["roi"] is None else SOLVE_ROI_MEMORY
-    workers = worker_count(args.workers, solve_workers_default(), memory, *image_size(presses[0]))
+    workers = solve_worker_count(args.workers, memory, *image_size(presses[0]))
     press_lines(BATCH)  # a line per press; how each was solved with -v
     statuses = solve_presses(
         presses, workers=workers, overwrite=args.overwrite, progress=progress, figures=args.figures, **given
     )
+    for press in presses:  # stdout: each result's folder, one a line (solved now or before)
+        if statuses.get(press.name, statuses.get(str(press))) in (SOLVED, SKIPPED):  # keyed as pipeline._names
+            print(result_dir(press))
     return _summary(statuses)
 
 
@@ -275,8 +278,10 @@ def _press_after_roi(args: argparse.Namespace) -> None:
 
 
 def _summary(statuses: dict[str, str]) -> int:
-    """Print one line of counts (and the failed presses, and those without contact); exit code 1 when any failed
-    (a press without contact is not a failure: nothing to solve)."""
+    """Say one line of counts (and the failed presses, and those without contact) on stderr; exit code 1 when any
+    failed (a press without contact is not a failure: nothing to solve)."""
+    from ..progress import say
+
     failed = {name: s for name, s in statuses.items() if s.startswith("failed")}
     flat = [name for name, s in statuses.items() if s.startswith("no contact")]
     solved = sum(s == "solved" for s in statuses.values())
@@ -285,7 +290,7 @@ def _summary(statuses: dict[str, str]) -> int:
     # which needs no solve: a folder solve with --roi auto has its reference (reference/ or --reference) already
     todo = "press deeper and capture again, or leave a capture of the undeformed dome out of the folder"
     without = f", {len(flat)} without contact (nothing solved: {', '.join(flat)}: {todo})" if flat else ""
-    print(f"{solved} solved, {skipped} skipped (identical result), {len(failed)} failed{without}")
+    say(f"{solved} solved, {skipped} skipped (identical result), {len(failed)} failed{without}", warning=bool(failed))
     for name, status in failed.items():
-        print(f"  {name}: {status}")
+        say(f"  {name}: {status}", warning=True)
     return 1 if failed else 0

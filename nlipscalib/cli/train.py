@@ -103,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from ..learn.publish import hold_training, model_stage, publish_model, unusable_model_files
     from ..learn.torch_device import check_device
     from ..learn.train import TrainConfig, train
+    from ..progress import say
     from ..report.learn import training_curve
 
     try:
@@ -159,7 +160,8 @@ def run(args: argparse.Namespace) -> int:
         )
         if result.reused:
             best = result.history[result.best_epoch]
-            print(
+            print(out)  # stdout: the model's file alone (scripts); what it is, on stderr
+            say(
                 f"{out}: reused, trained before with the same options on the same samples (best epoch "
                 f"{result.best_epoch + 1} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg); "
                 f"{_device_note(result.history, device.type)}other options or --out train another"
@@ -182,13 +184,15 @@ def run(args: argparse.Namespace) -> int:
         except Exception:  # a failed export costs the export, not the training: the model goes out without one
             (stage / onnx_path.name).unlink(missing_ok=True)  # written, then failed its parity check
             publish_model(stage, out, result)
-            print(summary)
+            print(out)
+            say(summary)
             raise
         publish_model(stage, out, result)
-    print(summary)
+    print(out)  # stdout: the model's file alone (scripts); how it trained, on stderr
+    say(summary)
     if angle is not None:
-        print(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
-    print(f"next: nlips infer {out} INPUT (press folders, tri-colour frames, a video or --camera N)")
+        say(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")
+    say(f"next: nlips infer {out} INPUT (press folders, tri-colour frames, a video or --camera N)")
     return 0
 
 

@@ -22,6 +22,11 @@ RESULT_CODE = ("core", "solver", "pipeline", "learn")
 solve pipeline (pipeline), NLiPsNet's inference (learn). The command line (cli), the twin (sim), the device,
 experiments and figures only choose settings (recorded in the key themselves) or make inputs (identified by
 content): a change there keeps results reusable."""
+TRAIN_CODE = ("core", "learn")
+"""Subpackages whose source decides a trained NLiPsNet's weights: the samples' formats and shared models (core) and
+NLiPsNet's network, training loop and checkpoints (learn). A finished model whose checkpoint records another digest
+(or none: trained before 2026-12-06) is trained again, not reused (:func:`nlipscalib.learn.checkpoint.
+training_code`), as a result of other solver code is solved again."""
 RENDER_CODE = ("core", "sim")
 """Subpackages whose source decides a rendered press's images: the twin (sim) and the formats and shared models it
 writes with (core). The solver is not among them: a rendered press (an experiment's reference, an ``nlips dataset``

@@ -249,10 +249,34 @@ start-up and imports again."""
 
 
 def solve_workers_default(cores: int | None = None) -> int:
-    """Worker processes ``nlips solve FOLDER`` starts when ``--workers`` is not given: one per
-    :data:`SOLVE_THREADS` usable cores (``cores``; None: :func:`usable_cores`), at least 1; the pool starts no
-    more than there are presses, and :func:`worker_count` lowers it to what memory holds."""
+    """Worker processes a command solving presses (``nlips solve FOLDER``, ``nlips calibrate``, ``nlips demo``)
+    starts when ``--workers`` is not given: one per :data:`SOLVE_THREADS` usable cores (``cores``; None:
+    :func:`usable_cores`), at least 1; the pool starts no more than there are presses, and :func:`worker_count`
+    lowers it to what memory holds (:func:`solve_worker_count` does both)."""
     return max(1, (usable_cores() if cores is None else cores) // SOLVE_THREADS)
+
+
+def solve_worker_count(requested: int | None, memory: WorkerMemory, width: int, height: int) -> int:
+    """Solver processes of every command that solves presses in a pool (``nlips solve FOLDER``, ``nlips
+    calibrate``, ``nlips demo``): ``requested`` (the user's ``--workers``; 0 or None: not given), else
+    :func:`solve_workers_default` lowered to what memory holds (:func:`worker_count`).
+
+    Why one function: ``calibrate`` started one solver per core and ``demo`` one per core (at most 3) where
+    ``solve FOLDER`` started one per two cores, for the same work; a press's solve already runs on two cores'
+    threads, and the pool shares the cores out as threads (:func:`threads_per_worker`), so a second process per
+    two cores adds its start-up and imports for little (benchmarks/RESULTS.md, s31-walkleft).
+
+    Parameters
+    ----------
+    requested : the user's ``--workers`` (None or 0: the default)
+    memory : one solver's peak memory model (:data:`SOLVE_ROI_MEMORY`, :data:`SOLVE_WHOLE_MEMORY`)
+    width, height : the presses' image size, pixels
+
+    Returns
+    -------
+    int >= 1
+    """
+    return worker_count(requested, solve_workers_default(), memory, width, height)
 
 
 def threads_per_worker(workers: int, cores: int | None = None) -> int:

@@ -48,6 +48,32 @@ def _trajectory_options(cfg: TrainConfig) -> dict:
     return {k: v for k, v in jsonable_config(cfg).items() if k not in limits}
 
 
+def training_code() -> str:
+    """Digest of the training code as installed (:data:`~nlipscalib.core.code_version.TRAIN_CODE`: core and learn),
+    which a checkpoint records (``code``): a finished model is reused, and a checkpoint resumed, only when its code
+    is this one.
+
+    Why: the options and samples alone made two runs the same training, so a model trained by other code (a
+    changed loss, initialisation or sampling rule; the version number is "0.1.0" in every commit) was reused
+    after an upgrade with no word but for a missing ``info.contacts``; `nlips solve` solves a result of other code
+    again (``pipeline.reuse``), and training now follows it. 2-36 ms once per process (benchmarks/RESULTS.md,
+    s31-walkleft)."""
+    from ..core.code_version import TRAIN_CODE, subpackages_fingerprint
+
+    return subpackages_fingerprint(TRAIN_CODE)
+
+
+def other_code(ck: dict) -> str:
+    """Why checkpoint ``ck`` is of other training code, in words ("" when it is this code's)."""
+    recorded = ck.get("code")
+    if recorded == training_code():
+        return ""
+    if recorded is None:
+        return "trained by an nlipscalib before 2026-12-06, which recorded no fingerprint of its training code"
+    now = training_code()
+    return f"trained by other nlipscalib training code (core/ or learn/ differ: {recorded[:8]}, now {now[:8]})"
+
+
 def config_key(cfg: TrainConfig) -> str:
     """What a checkpoint must match to be resumed: a digest of :func:`_trajectory_options`."""
     return hashlib.sha1(repr(_trajectory_options(cfg)).encode()).hexdigest()[:16]
@@ -127,6 +153,7 @@ def save_checkpoint(
         on_cpu(
             {
                 "key": config_key(cfg),
+                "code": training_code(),  # a model of other training code is trained again (published_state)
                 "options": _trajectory_options(cfg),  # so a refusal can say which option differs
                 "data_key": data_key,
                 "sampling": sampling,
@@ -297,6 +324,9 @@ def resume(
         if not isinstance(history, list) or not history or not isinstance(best, dict) or best_state is None:
             raise ValueError("no finished epoch recorded")
         float(best["aae"]), int(best["epoch"])
+        if why := other_code(ck):  # a whole checkpoint, whose weights are not what this code makes of these samples
+            log.info("%s: %s; training from scratch", path, why)
+            return fresh
         build_net(cfg.hidden, cfg.dropout).load_state_dict(best_state)  # the weights it would save must fit
         net.load_state_dict(ck["net"])
         opt.load_state_dict(ck["opt"])

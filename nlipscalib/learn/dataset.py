@@ -48,6 +48,7 @@ from ..core import said_once
 from ..core.atomic import write_by_name, write_json
 from ..core.claims import wait_for_release
 from ..core.errors import CaptureError, ConfigError
+from ..core.file_checks import file_problem
 from ..core.formatfile import read_array_headers, read_arrays, read_format_json
 from ..core.imageio import save_npz
 from ..core.sensor_record import (
@@ -309,6 +310,26 @@ def write_index(
         "presses": entries,
     }
     return write_json(folder / INDEX_FILE, index | ({"made_by": made_by} if made_by else {}))
+
+
+def torn_index(folder: Path, problem: str) -> str:
+    """The one line `nlips train` (any reader of the dataset) says of an index.json that is ``problem`` ("empty",
+    "cut short or damaged (not valid JSON)": :func:`~nlipscalib.core.file_checks.file_problem`), with the command
+    that makes it again.
+
+    Why: a power cut soon after `nlips calibrate` published the dataset can leave index.json cut short (writes are
+    atomic, not synced); `nlips train` said only "not valid JSON (Expecting ... char 200)", naming no remedy. Its
+    samples (samples/PRESS.npz) are intact then, and `nlips calibrate` run again on the presses keeps them and
+    writes the index anew. Where the dataset is the default PRESSES/calibration, the command names PRESSES; its
+    maker (``made_by``: an experiment's) is lost with the file, so the calibrate advice is given."""
+    if folder.name == DEFAULT_DIR:
+        again = f"run `nlips calibrate {folder.parent}` again"
+    else:
+        again = f"run `nlips calibrate PRESSES --out {folder}` again on the presses it was made from"
+    return (
+        f"{folder / INDEX_FILE}: {problem}: the dataset's index, torn (a crash or power cut soon after it was "
+        f"written?); {again} to write it anew (the samples it indexes are kept where intact)"
+    )
 
 
 def remake_advice(folder: Path, made_by: object) -> str:
@@ -799,6 +820,8 @@ class CalibrationDataset:
                 f"{self.folder}: a folder inside a calibration dataset, not one; the dataset is {self.folder.parent} "
                 "(give that folder)"
             )
+        if path.is_file() and (torn := file_problem(path)) is not None:
+            raise CaptureError(torn_index(self.folder, torn))
         index = read_format_json(
             path,
             FORMAT_NAME,

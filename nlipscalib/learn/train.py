@@ -26,6 +26,7 @@ from .checkpoint import (
     checkpoint_path,
     data_key_of,
     jsonable_config,
+    other_code,
     progress_checkpoint_path,
     published_by,
     published_state,
@@ -267,7 +268,11 @@ def _train(
     clean_interrupted_writes(out, progress_path.name)
     check_sampling_record(out, progress_path, cfg, data_key, dataset.folder, sampling)
     if reuse and (done := published_state(out, cfg, data_key)) is not None and _finished(done, cfg):
-        return TrainResult(out, done["history"], done["best"]["epoch"], data.train_names, data.val_names, reused=True)
+        if not (why := other_code(done)):
+            epochs, best_epoch = done["history"], done["best"]["epoch"]
+            return TrainResult(out, epochs, best_epoch, data.train_names, data.val_names, reused=True)
+        # as `nlips solve` solves a result of other code again: its weights are not what this code makes
+        log.warning("%s: %s: trained again, replaced when this run ends (another --out keeps it)", out, why)
     state = resume(out, progress_path, cfg, data_key, net, opt, sched, device=device.type)
     if out.is_file() and not published_by(out, cfg, data_key):  # a better model would go unnoticed otherwise
         log.warning(

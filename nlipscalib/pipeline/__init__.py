@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from .provenance import capture_identity, make_provenance
 from .settings import SolveSettings, check_fits_capture, make_settings, settings_from_record
-from .solve import solve_folder, solve_one, solve_presses
+from .solve import result_dir, solve_folder, solve_one, solve_presses
 from .status import BROKEN, BUSY, FAILED, NO_CONTACT, SKIPPED, SOLVED
 
 __all__ = [
@@ -46,6 +46,7 @@ __all__ = [
     "check_fits_capture",
     "make_provenance",
     "make_settings",
+    "result_dir",
     "settings_from_record",
     "solve_folder",
     "solve_one",

@@ -170,7 +170,7 @@ def _hold_presses(held: contextlib.ExitStack, folders: list[Path], settings: Sol
     refused = {}
     for folder in folders:
         try:
-            held.enter_context(_hold(folder, _result_dir(folder, None), record))
+            held.enter_context(_hold(folder, result_dir(folder, None), record))
         except NlipsError as exc:
             log.error("%s", _failure_line(folder, exc))
             refused[folder] = f"{FAILED}: {exc}"
@@ -222,7 +222,7 @@ def solve_one(
 
     figures = figure_level(figures)  # a bad value fails now, not after the solve
     check_fits_capture(folder, settings)  # before anything is said about an earlier result
-    out = _result_dir(folder, out)
+    out = result_dir(folder, out)
     check_replaceable(out)  # a dataset, a press or a user's folder at --out is never replaced by a result
     provenance = make_provenance(folder, settings)
     with _hold(folder, out, run_record(settings)):  # a live run of other settings keeps its press: refused here
@@ -241,7 +241,7 @@ def solve_one(
         )
 
 
-def _result_dir(folder: Path, out: str | Path | None) -> Path:
+def result_dir(folder: Path, out: str | Path | None = None) -> Path:
     """Where ``folder``'s result goes, named from the press as the user gave it (or ``out``): the log lines name it
     so, beside the press's own (``x/press_0001/nlips`` for ``x/press_0001``, not an absolute path among relative
     ones); absolute only for ``--out .``, which has no name to claim or write beside."""

@@ -140,6 +140,7 @@ def _worker_init(
     log_level: int,
     log_file: str | None,
     press_lines: int,
+    quiet: bool,
     stop: c_byte | None,
     thread_count: int = 1,
     said: str | None = None,
@@ -147,7 +148,7 @@ def _worker_init(
     """Log like the parent (stderr and its ``--log-file``); ``thread_count`` threads for the solver's pool and
     OpenCV's (the cores shared out among the workers, :func:`~nlipscalib.core.cpus.threads_per_worker`: one a worker
     where there are as many workers as cores, so cores are not oversubscribed); the solver limits BLAS itself;
-    ``press_lines``: the parent's (progress.press_lines); ``stop``: the batch's stop flag
+    ``press_lines``, ``quiet``: the parent's (progress.press_lines, ``--quiet``); ``stop``: the batch's stop flag
     (:func:`_unless_stopped`); ``said``: the folder in which the batch's processes say a session's warning once
     (:func:`~nlipscalib.core.said_once.share`)."""
     from ..progress import configure_worker
@@ -156,7 +157,7 @@ def _worker_init(
 
     global _STOP
     _STOP = stop
-    configure_worker(log_level, log_file, press_lines)
+    configure_worker(log_level, log_file, press_lines, quiet)
     _worker_signals()
     end_with_parent()  # a command killed with SIGKILL cannot end this worker: it ends itself
     os.environ.setdefault("OMP_NUM_THREADS", "1")

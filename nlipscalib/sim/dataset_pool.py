@@ -184,14 +184,14 @@ def _stop_pool(pool: ProcessPoolExecutor) -> None:
     pool.shutdown(wait=True, cancel_futures=True)  # its manager thread, which finds them gone, ends
 
 
-def _worker_init(log_level: int, log_file: str | None = None, press_lines: int = SINGLE) -> None:
+def _worker_init(log_level: int, log_file: str | None = None, press_lines: int = SINGLE, quiet: bool = False) -> None:
     """A render process: logs like the parent; ignores Ctrl-C, which the parent answers by ending it (a terminal
     sends Ctrl-C to every process of the command: a render process died of it with a traceback of its own, or
     waited at its exit for the render it interrupted); on SIGTERM (sent by a stopped ``nlips dataset``, or to the
     whole process group) releases its claim and removes its half-written press folder, then exits, as the parent
     does. The handler runs at once, a render being on a thread of its own (``sim.render.interruptible``); ended with
     ``os._exit``, as an exception raised there could land inside the library."""
-    configure_worker(log_level, log_file, press_lines)
+    configure_worker(log_level, log_file, press_lines, quiet)
     worker_signals()
     end_with_parent()  # a command killed with SIGKILL cannot end this render process: it ends itself
 

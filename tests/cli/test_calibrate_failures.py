@@ -28,7 +28,7 @@ def test_a_damaged_press_is_reported_once(tmp_path, capsys, caplog):
     logged = caplog.text + err  # pytest's handler receives the log; stderr has it when none is installed
     errors = [line for line in logged.splitlines() if "press_0001" in line and "truncated PNG" in line]
     assert len(errors) == 1 and "failed:" not in errors[0], errors
-    assert "1 press failed to solve: press_0001" in out
+    assert "1 press failed to solve: press_0001" in err and out == f"{root / 'calibration'}\n"
 
 
 def test_a_damaged_tricolour_image_fails_its_press_only(tmp_path, capsys, caplog):
@@ -41,8 +41,8 @@ def test_a_damaged_tricolour_image_fails_its_press_only(tmp_path, capsys, caplog
     logged = caplog.text + err
     errors = [line for line in logged.splitlines() if "tricolor.png" in line and "truncated PNG" in line]
     assert len(errors) == 1 and str(png) in errors[0], errors
-    assert "calibration: 1 press, " in out
-    assert "1 press left out of the dataset (not sampled): press_0001" in out
+    assert "calibration: 1 press, " in err
+    assert "1 press left out of the dataset (not sampled): press_0001" in err
     index = json.loads((root / "calibration" / "index.json").read_text(encoding="utf-8"))
     assert [entry["name"] for entry in index["presses"]] == ["press_0002"]
 

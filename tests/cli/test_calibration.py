@@ -41,9 +41,10 @@ def test_calibrate_solves_with_the_led_file_and_again_when_the_leds_change(sessi
     # not reused silently: each result made with the capture's LEDs is named and solved again
     resolved = [r.getMessage() for r in caplog.records if "made with other settings or inputs (leds)" in r.getMessage()]
     assert len(resolved) == 2, caplog.text
-    out = capsys.readouterr().out
-    assert "2 presses" in out and "press next: an object in image region" in out  # was "an unknown"
-    assert f"next: nlips train {root / 'calibration'} --out MODEL.pt" in out  # a new user's next step, with its folder
+    out, err = capsys.readouterr()
+    assert set(out.splitlines()) == {str(root / "calibration")}  # stdout: the dataset's folder alone (each run)
+    assert "2 presses" in err and "press next: an object in image region" in err  # was "an unknown"
+    assert f"next: nlips train {root / 'calibration'} --out MODEL.pt" in err  # a new user's next step, with its folder
     caplog.clear()
     assert main(["calibrate", str(root), "--leds", str(leds), "--workers", "1", "--no-progress"]) == 0
     assert "identical result exists" in caplog.text and "re-solving" not in caplog.text
@@ -118,7 +119,8 @@ def test_calibrate_normals_refined_reaches_every_label_solve(tmp_path):
 
 
 def test_calibrate_runs_as_many_solvers_as_memory_holds(session, monkeypatch, caplog):
-    """Without --workers, one solver per core unless the memory available holds fewer (one INFO line)."""
+    """Without --workers, one solver per two cores (as `nlips solve FOLDER`; it was one per core) unless the
+    memory available holds fewer (one INFO line)."""
     from nlipscalib.core import cpus
 
     root, _ = session
@@ -126,7 +128,31 @@ def test_calibrate_runs_as_many_solvers_as_memory_holds(session, monkeypatch, ca
     monkeypatch.setattr(cpus, "available_memory", lambda: 10**8)  # 100 MB: not one 64x48 solver's ~0.16 GB
     caplog.set_level(logging.INFO)
     assert main(["calibrate", str(root), "--no-progress"]) == 0
-    assert "1 worker instead of 8: each solve, auto ROI worker may take ~0.2 GB at 64x48" in caplog.text
+    assert "1 worker instead of 4: each solve, auto ROI worker may take ~0.2 GB at 64x48" in caplog.text
+
+
+@pytest.mark.parametrize("cores, workers", [(2, 1), (3, 1), (4, 2), (8, 4)])
+def test_every_solving_command_starts_as_many_solvers_by_one_default(session, monkeypatch, cores, workers):
+    """`nlips solve FOLDER` started one solver per two cores, `nlips calibrate` one per core and `nlips demo` one
+    per core (at most 3), for the same work and under help texts that said so three ways. Now one default
+    (core.cpus.solve_worker_count) and one help text; ``--workers`` is obeyed alike."""
+    import nlipscalib.pipeline as pipeline
+    from nlipscalib.cli import build_parser
+    from nlipscalib.core import cpus
+
+    root, _ = session
+    asked = []
+    monkeypatch.setattr(pipeline, "solve_presses", lambda presses, workers, **kw: asked.append(workers) or {})
+    monkeypatch.setattr(cpus, "available_memory", lambda: 64 * 10**9)
+    monkeypatch.setattr(cpus, "usable_cores", lambda: cores)
+    main(["solve", str(root), "--roi", "auto", "--no-progress"])
+    main(["calibrate", str(root), "--no-progress"])  # no press solved here: refused after the solves, as it should
+    main(["calibrate", str(root), "--workers", "3", "--no-progress"])
+    assert asked == [workers, workers, 3]
+    commands = build_parser()._subparsers._group_actions[0].choices
+    pools = [(commands["solve"], "workers"), (commands["calibrate"], "workers"), (commands["demo"], "solve_workers")]
+    options = [next(a for a in parser._actions if a.dest == dest) for parser, dest in pools]
+    assert {(a.default, a.help) for a in options} == {(0, options[0].help)}  # one default, said one way
 
 
 def _capture_line(out: str) -> str:
@@ -154,3 +180,31 @@ def test_calibrate_leds_names_the_interreflection_threshold_it_used_and_no_other
     assert main([*args, "--interreflection", "on", "--out", str(tmp_path / "on.json")]) == 0
     line = _capture_line(capsys.readouterr().out)
     assert line.startswith("capture 1: interreflection on: fitted indirect share ") and "threshold" not in line
+
+
+@pytest.mark.parametrize("length", [0, 200])
+def test_a_torn_index_is_named_by_train_with_its_remedy_and_calibrate_writes_it_anew(session, tmp_path, capsys, length):
+    """A calibration dataset's index.json cut short (a power cut soon after `nlips calibrate` published it): `nlips
+    train` said only "index.json: not valid JSON (Expecting ... (char 200))", no remedy. Now one line saying it is
+    torn and which command writes it anew; that command (calibrate again) keeps the intact samples."""
+    import shutil
+
+    root = tmp_path / "presses"
+    shutil.copytree(session[0], root, ignore=shutil.ignore_patterns("calibration"))
+    assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0
+    index = root / "calibration" / "index.json"
+    whole = json.loads(index.read_text(encoding="utf-8"))
+    shards = {p: p.stat().st_mtime_ns for p in (root / "calibration" / "samples").glob("*.npz")}
+    with open(index, "r+b") as f:
+        f.truncate(length)
+    capsys.readouterr()
+    model = tmp_path / "m.pt"
+    assert main(["train", str(index.parent), "--out", str(model), "--epochs", "1", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    problem = "empty" if length == 0 else "cut short or damaged (not valid JSON)"
+    said = f"nlips train: error: {index}: {problem}: the dataset's index, torn"
+    assert len(err) == 1 and err[0].startswith(said), err
+    assert f"run `nlips calibrate {root}` again to write it anew" in err[0]
+    assert main(["calibrate", str(root), "--workers", "1", "--no-progress"]) == 0  # the remedy named works
+    assert json.loads(index.read_text(encoding="utf-8"))["presses"] == whole["presses"]
+    assert {p: p.stat().st_mtime_ns for p in shards} == shards  # the samples kept, not made again

@@ -69,6 +69,48 @@ def test_verbose_shows_each_press_details_in_a_batch(presses, tmp_path):
     assert len(_lines(err, *DETAILS)) == 2 and len(_lines(err, SUMMARY)) == 2, err
 
 
+def test_one_press_prints_where_its_result_is_on_stdout_alone(presses, tmp_path):
+    """`nlips solve PRESS` said where its result went on stderr only (an INFO line among others): a script had to
+    parse the log. Now stdout is that folder, one line; stderr as before."""
+    out = tmp_path / "a"
+    run = subprocess.run(
+        [sys.executable, "-m", "nlipscalib", "--no-progress", "solve", str(presses / "press_a"), "--out", str(out)]
+        + ["--config", str(presses / "solver.toml")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert run.returncode == 0 and run.stdout == f"{out}\n", run
+    assert len(_lines(run.stderr, SUMMARY)) == 1 and len(_lines(run.stderr, *DETAILS)) == 1, run.stderr
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_quiet_leaves_stderr_to_warnings_and_errors(presses, tmp_path, workers):
+    """No `--quiet`: INFO lines always reached stderr (`2>/dev/null` hid the warnings too). Now `nlips --quiet`
+    leaves stderr to warnings and errors, in the worker processes too; stdout keeps the results, the --log-file
+    every line."""
+    folder = tmp_path / "presses"
+    for name in ("press_a", "press_b"):
+        _copy(presses / name, folder / name)
+    led = folder / "press_b" / "led_03.png"
+    led.write_bytes(led.read_bytes()[:100])  # cut short: press_b fails (an ERROR line and the summary's warning)
+    log = tmp_path / "run.log"
+    run = subprocess.run(
+        [sys.executable, "-m", "nlipscalib", "--quiet", "--log-file", str(log), "solve", str(folder)]
+        + ["--workers", workers, "--config", str(presses / "solver.toml")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    assert run.returncode == 1 and run.stdout == f"{folder / 'press_a' / 'nlips'}\n", run
+    err = run.stderr.splitlines()
+    assert not [line for line in err if line.startswith("INFO ")] and not _lines(run.stderr, SUMMARY), err
+    assert any(line.startswith("ERROR ") and "led_03.png" in line for line in err), err  # the failure, as it came
+    assert "1 solved, 0 skipped (identical result), 1 failed" in err, err  # the counts: a failure among them
+    in_log = log.read_text(encoding="utf-8")
+    assert len(_lines(in_log, SUMMARY)) == 1 and "1 solved, 0 skipped" in in_log, in_log
+
+
 def _copy(src: Path, dst: Path) -> None:
     import shutil
 
@@ -94,7 +136,7 @@ def command_stderr(monkeypatch):
         (["eval", "missing"], {"detail", "summary", "warning"}),  # not a batch: every line
         (["experiment", "q1", "--plan"], {"warning"}),  # the task bar and the report say how the presses went
         (["-v", "experiment", "q1", "--plan"], {"detail", "summary", "warning"}),
-        (["demo", "--solve-workers", "0"], {"summary", "warning"}),  # its table says the rest
+        (["demo", "--solve-workers", "-1"], {"summary", "warning"}),  # its table says the rest
     ],
 )
 def test_experiments_say_nothing_per_press_unless_verbose(command_stderr, tmp_path, capsys, argv, shown):

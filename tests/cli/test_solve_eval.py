@@ -76,7 +76,9 @@ def test_solve_again_with_new_options_re_solves_and_identical_skips(data, capsys
 def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys, caplog):
     root, cfg = data
     assert main(["solve", str(root), "--config", str(cfg), "--workers", "2", "--no-progress"]) == 0
-    assert "2 solved, 0 skipped" in capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: each result's folder alone, one a line; the counts on stderr
+    assert said.out.splitlines() == [str(root / p / "nlips") for p in ("press_a", "press_b")]
+    assert "2 solved, 0 skipped" in said.err
     npz = root / "press_a" / "nlips" / "result.npz"
     npz.write_bytes(npz.read_bytes()[:-200])  # truncated
     assert main(["eval", str(root)]) == 0  # re-computed from the recorded settings, then scored
@@ -87,7 +89,7 @@ def test_damaged_result_is_recomputed_by_solve_and_eval(data, capsys, caplog):
     assert load_reconstruction(root / "press_a" / "nlips").report["provenance"]["settings"]["options"]["max_iters"] == 5
     npz.write_bytes(b"garbage")
     assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
-    assert "1 solved, 1 skipped" in capsys.readouterr().out
+    assert "1 solved, 1 skipped" in capsys.readouterr().err
     assert load_reconstruction(root / "press_a" / "nlips").reconstructed.any()
 
 

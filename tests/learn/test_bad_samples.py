@@ -112,7 +112,7 @@ def test_validation_presses_without_contact_say_so_never_nan_deg(built, tmp_path
     _edit_npz(built / "samples" / f"{NAMES[0]}.npz", lambda a: a["contact"].fill(False))
     cmd = ["train", str(built), "--out", str(tmp_path / "m.pt"), "--val-presses", NAMES[0], "--hidden", "8"]
     assert main(cmd + ["--dropout", "0", "--epochs", "2", "--no-onnx", "--no-progress"]) == 0
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert f"(no contact samples) on {NAMES[0]};" in out and "nan" not in out.lower(), out
 
 

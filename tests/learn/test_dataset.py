@@ -131,7 +131,7 @@ def test_cli_calibrate_solves_samples_and_reports_coverage(twin_presses, tmp_pat
     # a sphere and a cube tilt the gel by far less than 45 deg: the report asks for a press with steep relief
     assert 0 < cov["steep"]["taught_tilt_deg"] < 45 and cov["steep"]["untaught_from_deg"] <= 45
     assert (root / "calibration" / "coverage.png").stat().st_size > 1000
-    printed = capsys.readouterr().out
+    printed = capsys.readouterr().err
     assert "press next" in printed and "steep relief" in printed and "press direction polar" in printed
 
 

@@ -114,3 +114,35 @@ def test_a_model_an_older_nlipscalib_trained_is_reused_with_a_warning_of_what_it
         assert main([*args, "--no-progress"]) == 0
     warned = [r.getMessage() for r in caplog.records if "records no calibrated contacts" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith(f"{out}: trained by an nlipscalib before 2026-12-06"), warned
+
+
+@pytest.mark.parametrize("recorded", ["0" * 32, None])  # other training code; none recorded (before 2026-12-06)
+def test_a_model_other_training_code_made_is_trained_again_not_reused(calib, tmp_path, caplog, capsys, recorded):
+    """`nlips train` reused a finished model of the same options and samples whatever code trained it (a changed
+    loss or initialisation went unseen after an upgrade), warning only of a missing ``info.contacts``. Now its
+    checkpoint records the training code's fingerprint, and a model of another is trained again, as `nlips solve`
+    solves a result of other code again; the run after that reuses it."""
+    torch = pytest.importorskip("torch")
+    from nlipscalib.cli import main
+    from nlipscalib.learn.checkpoint import checkpoint_path, training_code
+
+    out = tmp_path / "m.pt"
+    args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8", "--epochs", "1", "--no-onnx"]
+    assert main([*args, "--no-progress"]) == 0
+    ck = torch.load(checkpoint_path(out), weights_only=True)
+    assert ck["code"] == training_code()
+    if recorded is None:
+        del ck["code"]
+    else:
+        ck["code"] = recorded
+    torch.save(ck, checkpoint_path(out))
+    capsys.readouterr()
+    with caplog.at_level(logging.INFO):
+        assert main([*args, "--no-progress"]) == 0
+    said = capsys.readouterr().err
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING and str(out) in r.getMessage()]
+    assert len(warned) == 1 and "trained again" in warned[0], warned
+    assert ("other nlipscalib training code" if recorded else "recorded no fingerprint") in warned[0]
+    assert "reused" not in said and "training from scratch" in caplog.text  # not resumed from that checkpoint
+    assert torch.load(checkpoint_path(out), weights_only=True)["code"] == training_code()
+    assert main([*args, "--no-progress"]) == 0 and "reused" in capsys.readouterr().err  # now this code's

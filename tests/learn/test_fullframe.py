@@ -504,7 +504,7 @@ def test_whole_frame_path_matches_the_changed_pixel_path_where_it_changed(traine
 def test_infer_full_frame_from_the_command_line(trained, twin_presses, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(twin_presses / "press_g"), "--full-frame", "--out", str(out)]) == 0
-    line = capsys.readouterr().out
+    line = capsys.readouterr().err
     assert "torch" in line and "frames/s" in line, line
     assert (out / "press_g" / "nlipsnet" / "result.npz").is_file()
 
@@ -556,7 +556,7 @@ def test_a_stream_through_the_device_path_prints_its_stage_times(trained, twin_p
         cv2.imwrite(str(tmp_path / f"img_{i:04d}.png"), press.tricolor[..., ::-1])
     pattern = str(tmp_path / "img_%04d.png")
     assert main(["infer", str(trained), pattern, "--full-frame", "--max-frames", "3"]) == 0
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert "3 frames in" in out and "upload" in out and "compute" in out and "frames/s" in out, out
     stages = _StageTimes()
     device_predictor = Predictor(trained, full_frame=True)

@@ -16,7 +16,8 @@ from .conftest import HELD_OUT
 def test_infer_press_writes_a_scorable_reconstruction_and_ply(trained, twin_presses, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(twin_presses / HELD_OUT), "--out", str(out), "--mesh"]) == 0
-    said = capsys.readouterr().out
+    stdout, said = capsys.readouterr()
+    assert stdout == f"{out / HELD_OUT / 'nlipsnet'}\n"  # the result's folder alone; the summary on stderr
     assert "frames/s" in said
     # the result's own folder, which `nlips eval PRESS --result` takes (it named OUT/PRESS/, the folder above it)
     assert f"saved: 1 result folder(s) in {out / HELD_OUT / 'nlipsnet'}/ (result.npz, report.json, points.ply, " in said
@@ -97,7 +98,7 @@ def test_infer_folder_of_png_frames_with_onnx(trained, twin_presses, tmp_path, c
     for i, name in enumerate(("press_a", "press_b", HELD_OUT)):
         shutil.copy(twin_presses / name / "tricolor.png", frames / f"frame_{i}.png")
     assert main(["infer", str(trained), str(frames), "--backend", "onnx", "--out", str(tmp_path / "o")]) == 0
-    assert "3 frame(s), onnx" in capsys.readouterr().out
+    assert "3 frame(s), onnx" in capsys.readouterr().err
     assert (tmp_path / "o" / "frame_2" / "result.npz").is_file()
 
 
@@ -309,7 +310,7 @@ def test_a_folder_of_presses_infers_its_presses_not_its_reference(trained, twin_
     for name in ("reference", "press_a", "press_b"):
         shutil.copytree(twin_presses / name, root / name, ignore=shutil.ignore_patterns("nlips"))
     assert main(["infer", str(trained), str(root)]) == 0
-    said = capsys.readouterr().out
+    said = capsys.readouterr().err
     assert said.startswith("2 frame(s)")
     assert f"saved: 2 result folder(s) in each press's nlipsnet/ (e.g. {root / 'press_a' / 'nlipsnet'})" in said
     assert (root / "press_a" / "nlipsnet").is_dir() and not (root / "reference" / "nlipsnet").exists()
@@ -344,7 +345,7 @@ def test_a_frame_whose_name_holds_a_percent_sign_is_a_still_not_a_sequence_patte
     frame = tmp_path / "press 50%.png"
     shutil.copy(twin_presses / HELD_OUT / "tricolor.png", frame)
     assert main(["infer", str(trained), str(frame), "--out", str(tmp_path / "o")]) == 0
-    assert capsys.readouterr().out.startswith("1 frame(s)")  # the stills' summary, not a stream's
+    assert capsys.readouterr().err.startswith("1 frame(s)")  # the stills' summary, not a stream's
     assert (tmp_path / "o" / "press 50%" / "result.npz").is_file()
 
 
@@ -402,8 +403,8 @@ def test_a_damaged_frame_of_a_sequence_ends_the_stream_with_one_line_after_the_f
     out = tmp_path / "o"
     assert main(["infer", str(trained), str(seq / "img_%04d.png"), "--out", str(out)]) == 2  # bad input
     captured = capsys.readouterr()
-    assert captured.out.startswith("2 frames in")  # the summary of the frames before it
-    err = captured.err.strip().splitlines()
+    assert captured.err.startswith("2 frames in")  # the summary of the frames before it
+    err = [line for line in captured.err.strip().splitlines() if "error" in line]
     assert len(err) == 1 and "img_0002.png: not a readable image (the stream stopped there, after 2 frames)" in err[0]
     assert (out / "stream.json").is_file()
 
@@ -601,7 +602,7 @@ def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_fram
 
     command, out = _frames_and_a_press(tiny_model, tmp_path)
     assert main(command) == 0
-    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert capsys.readouterr().err.startswith("4 frame(s), torch")
     first = _stamps(out)
     assert len(first) == 17  # result.npz, report.json, normals.png, depth.png of three frames and a press (+ error.png)
     report = json.loads((out / "press" / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
@@ -612,20 +613,20 @@ def test_a_rerun_keeps_identical_results_untouched_and_counts_only_inferred_fram
     assert report["provenance"]["libraries"] == versions
     assert report["provenance"]["settings"]["depth"] is True and report["provenance"]["settings"]["ply"] is None
     assert main(command) == 0
-    assert capsys.readouterr().out.startswith(
+    assert capsys.readouterr().err.startswith(
         "0 frame(s) inferred, 4 kept (identical results; --overwrite infers them again); whole command"
     )
     assert _stamps(out) == first
     copy = tmp_path / "copy.pt"
     shutil.copy(command[1], copy)
     assert main(["infer", str(copy), *command[2:]]) == 0
-    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    assert capsys.readouterr().err.startswith("0 frame(s) inferred, 4 kept")
     assert _stamps(out) == first
     (out / "a_sphere" / "report.json").unlink()  # one result gone: only it is inferred, the rate is of it alone
     assert main(command) == 0
-    assert " frames/s over the 1 inferred " in capsys.readouterr().out
+    assert " frames/s over the 1 inferred " in capsys.readouterr().err
     assert main([*command, "--overwrite"]) == 0  # --overwrite, as `nlips solve`'s: every result made again
-    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert capsys.readouterr().err.startswith("4 frame(s), torch")
     again = _stamps(out)
     assert again.keys() == first.keys() and all(again[p] != first[p] for p in first)
 
@@ -647,20 +648,20 @@ def test_another_model_option_or_input_is_inferred_again_saying_what_changed(tin
     torch.save(payload, other)
     capsys.readouterr()
     assert main(["infer", str(other), *command[2:]]) == 0
-    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert capsys.readouterr().err.startswith("4 frame(s), torch")
     assert f"{out / 'b_cube'}: replacing the result of another model ({Path(model).resolve()})" in caplog.text
     caplog.clear()
     assert main([*command, "--no-depth", "--ply"]) == 0
-    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert capsys.readouterr().err.startswith("4 frame(s), torch")
     assert "other options (depth True, now False, ply None, now 'points')" in caplog.text
     assert main([*command, "--no-depth", "--ply"]) == 0
-    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    assert capsys.readouterr().err.startswith("0 frame(s) inferred, 4 kept")
     kept = _stamps(out)
     frames = tmp_path / "frames"
     shutil.copy(frames / "a_sphere.png", frames / "b_cube.png")  # another frame under that name
     caplog.clear()
     assert main([*command, "--no-depth", "--ply"]) == 0
-    assert capsys.readouterr().out.startswith("1 frame(s) inferred, 3 kept")
+    assert capsys.readouterr().err.startswith("1 frame(s) inferred, 3 kept")
     assert f"{out / 'b_cube'}: replacing the result of another input" in caplog.text
     now = _stamps(out)
     assert [p for p in kept if now[p] != kept[p]] == [p for p in kept if p.parts[0] == "b_cube"]
@@ -673,7 +674,7 @@ def test_another_model_option_or_input_is_inferred_again_saying_what_changed(tin
         patch.setattr(libraries, "installed_version", lambda name: "2.6.0" if name == "torch" else installed(name))
         caplog.clear()
         assert main([*command, "--no-depth", "--ply"]) == 0
-    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert capsys.readouterr().err.startswith("4 frame(s), torch")
     assert f"{out / 'b_cube'}: replacing the result of torch {metadata.version('torch')} (now 2.6.0)" in caplog.text
 
 
@@ -701,17 +702,17 @@ def test_an_interrupted_run_infers_again_only_what_it_did_not_finish(tiny_model,
         f.truncate(100)
     capsys.readouterr()
     assert main(command) == 0
-    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert capsys.readouterr().err.startswith("4 frame(s), torch")
     assert f"{out / 'c_sphere_deep'}: an interrupted write of it lies beside it; inferring it again" in caplog.text
     assert f"{out / 'b_cube'}: its points.ply is missing; inferring it again" in caplog.text
     assert "result.npz: damaged or truncated reconstruction" in caplog.text
     assert not leftover.exists()
     assert main(command) == 0
-    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    assert capsys.readouterr().err.startswith("0 frame(s) inferred, 4 kept")
     shutil.rmtree(out / "a_sphere")
     again = _stamps(out)
     assert main(command) == 0  # only the missing one: the others keep their files
-    assert capsys.readouterr().out.startswith("1 frame(s) inferred, 3 kept")
+    assert capsys.readouterr().err.startswith("1 frame(s) inferred, 3 kept")
     now = _stamps(out)
     assert {p: now[p] for p in again} == again and len(now) == len(first)
 
@@ -746,7 +747,7 @@ def test_a_finished_run_again_says_so_without_loading_the_model(tiny_model, tmp_
     if backend == "onnx":
         assert main(["export", str(model)]) == 0  # MODEL.onnx beside it: --backend auto runs onnxruntime
     assert main(command) == 0
-    assert f"4 frame(s), {backend}" in capsys.readouterr().out
+    assert f"4 frame(s), {backend}" in capsys.readouterr().err
     root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
 
@@ -755,14 +756,16 @@ def test_a_finished_run_again_says_so_without_loading_the_model(tiny_model, tmp_
             [sys.executable, "-c", FINISHED_RUN, *command, *extra], capture_output=True, text=True, env=env
         )
         assert run.returncode == 0, run.stderr
-        return run.stdout.splitlines()
+        said = [line for line in run.stderr.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+        return said, run.stdout.splitlines()  # stdout: the result folders, then the runtimes imported
 
-    lines = again()
+    lines, printed = again()
     assert lines[0].startswith("0 frame(s) inferred, 4 kept (identical results; --overwrite infers them again)")
-    assert lines[1].startswith("kept: 4 result folder(s) as they were (nothing written)") and lines[-1] == "[]", lines
+    assert lines[1].startswith("kept: 4 result folder(s) as they were (nothing written)"), lines
+    assert len(printed) == 5 and printed[-1] == "[]", printed
     shutil.rmtree(out / "c_sphere_deep")  # one result to make: the model is loaded, the others still kept
-    lines = again()
-    assert lines[0].startswith("1 frame(s) inferred, 3 kept") and lines[-1] != "[]", lines
+    lines, printed = again()
+    assert lines[0].startswith("1 frame(s) inferred, 3 kept") and printed[-1] != "[]", lines
     assert lines[1].startswith("saved: 1 result folder(s), kept 3 as they were; all 4: 3 for frames in "), lines
 
 
@@ -810,7 +813,7 @@ def test_a_result_another_run_is_inferring_is_waited_for_and_kept_not_inferred_t
     thread = other_run(publish=True)
     assert main(command) == 0
     thread.join()
-    said = capsys.readouterr().out.splitlines()
+    said = capsys.readouterr().err.splitlines()
     assert said[0].startswith("0 frame(s) inferred, 4 kept"), said
     assert f"{folder}: being inferred by process " in caplog.text and "waiting for it" in caplog.text
     assert (
@@ -822,7 +825,7 @@ def test_a_result_another_run_is_inferring_is_waited_for_and_kept_not_inferred_t
     thread = other_run(publish=False)  # the other run ends without a result: this one infers it, after it
     assert main(command) == 0
     thread.join()
-    assert capsys.readouterr().out.startswith("1 frame(s) inferred, 3 kept")
+    assert capsys.readouterr().err.startswith("1 frame(s) inferred, 3 kept")
     assert (folder / "result.npz").stat().st_mtime >= released[-1]
 
 
@@ -876,7 +879,7 @@ def test_the_saved_line_says_where_frames_and_presses_results_are(tiny_model, tm
     where = f": 3 for frames in {out}/, 1 for presses in {out / 'press' / 'nlipsnet'}/ (result.npz, "
     for counts in ("saved: 4 result folder(s)", "kept: 4 result folder(s) as they were (nothing written)"):
         assert main(command) == 0  # inferred, then all kept (said without loading the model)
-        assert capsys.readouterr().out.splitlines()[1].startswith(counts + where)
+        assert capsys.readouterr().err.splitlines()[1].startswith(counts + where)
 
 
 def test_stills_show_a_bar_on_a_terminal_and_none_elsewhere(tiny_model, tmp_path, capsys, as_terminal):
@@ -902,7 +905,8 @@ def test_a_damaged_input_among_many_is_said_and_the_others_are_inferred(tiny_mod
     damaged.write_bytes(damaged.read_bytes()[:300])
     assert main(command) == 1
     said = capsys.readouterr()
-    lines = said.out.splitlines()
+    lines = said.err.splitlines()
+    assert len(said.out.splitlines()) == 3  # stdout: the three result folders written, alone
     assert lines[0].startswith("3 frame(s), torch") and lines[1].startswith("saved: 3 result folder(s): 2 for frames")
     assert lines[2] == "failed: 1 of 4 input(s), not inferred (run again once fixed: the rest is kept)", lines
     assert lines[3] == f"  {damaged}: truncated PNG image (cut short: copy or capture it again)", lines
@@ -910,7 +914,7 @@ def test_a_damaged_input_among_many_is_said_and_the_others_are_inferred(tiny_mod
     assert sorted(p.name for p in out.iterdir()) == sorted([*NAMES[1:], "press"])
     assert (out / "press" / "nlipsnet" / "result.npz").is_file()
     assert main(command) == 1  # again: the others kept, the damaged one said again
-    assert capsys.readouterr().out.splitlines()[1].startswith("kept: 3 result folder(s) as they were")
+    assert capsys.readouterr().err.splitlines()[1].startswith("kept: 3 result folder(s) as they were")
     assert main(["infer", command[1], str(damaged), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"nlips infer: error: {damaged}: truncated PNG image (cut short: copy or capture it again)"], err
@@ -955,7 +959,7 @@ def test_eval_of_a_folder_of_frames_results_says_how_to_score_one(tiny_model, tm
     command, _ = _frames_and_a_press(tiny_model, tmp_path)
     out = tmp_path / "frames-out"
     assert main(["infer", command[1], command[2], "--out", str(out)]) == 0
-    assert "; a frame's: nlips eval PRESS --result FOLDER)" in capsys.readouterr().out
+    assert "; a frame's: nlips eval PRESS --result FOLDER)" in capsys.readouterr().err
     assert main(["eval", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert (
@@ -976,7 +980,7 @@ def test_a_folder_holding_only_a_copied_tricolor_png_is_a_folder_of_frames(tiny_
     shutil.copy(root / "reference" / "tricolor.png", frames / "tricolor.png")
     out = tmp_path / "out"
     assert main(["--no-progress", "infer", str(model), str(frames), "--out", str(out)]) == 0
-    assert "1 frame(s)" in capsys.readouterr().out
+    assert "1 frame(s)" in capsys.readouterr().err
     assert (out / "tricolor" / "result.npz").is_file()
     shutil.copy(root / "reference" / "dark.png", frames / "dark.png")  # a press's own images: still refused
     assert main(["--no-progress", "infer", str(model), str(frames), "--out", str(tmp_path / "o2")]) == 2
@@ -1116,7 +1120,7 @@ def test_a_press_and_a_frame_get_the_solves_figures_beside_their_results(tiny_mo
 
     command, out = _frames_and_a_press(tiny_model, tmp_path)
     assert main(command) == 0
-    assert "normals.png, depth.png, error.png with ground truth;" in capsys.readouterr().out
+    assert "normals.png, depth.png, error.png with ground truth;" in capsys.readouterr().err
     press, frame = out / "press" / "nlipsnet", out / "a_sphere"
     assert {p.name for p in press.glob("*.png")} == {"normals.png", "depth.png", "error.png"}
     assert {p.name for p in frame.glob("*.png")} == {"normals.png", "depth.png"}  # no ground truth beside a frame
@@ -1151,12 +1155,12 @@ def test_figures_none_writes_no_picture_and_a_result_lacking_the_figures_asked_i
     capsys.readouterr()
     assert not list(out.rglob("*.png"))
     assert main([*command, "--figures", "none"]) == 0  # the same request: all kept
-    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    assert capsys.readouterr().err.startswith("0 frame(s) inferred, 4 kept")
     assert main(command) == 0  # the maps asked now: each result made again, with them
-    assert capsys.readouterr().out.startswith("4 frame(s), torch")
+    assert capsys.readouterr().err.startswith("4 frame(s), torch")
     assert len(list(out.rglob("normals.png"))) == 4
     assert main(command) == 0
-    assert capsys.readouterr().out.startswith("0 frame(s) inferred, 4 kept")
+    assert capsys.readouterr().err.startswith("0 frame(s) inferred, 4 kept")
 
 
 def test_figures_are_refused_for_a_stream(capsys):
@@ -1203,10 +1207,11 @@ def test_sigterm_ends_a_stream_with_its_summary_and_stream_json_then_143(tiny_mo
         "nlips infer: terminated; the stream stopped (a stream does not resume; frames already saved with --out are "
         "kept)"
     )
-    lines = stdout.splitlines()
+    assert stdout == f"{out}\n", stdout  # where the frames went, alone; the summary on stderr
+    lines = [line for line in stderr.splitlines() if not line.startswith(("INFO ", "WARNING "))]
     n = int(lines[0].split()[0])
-    assert 1 <= n < 300 and lines[0].startswith(f"{n} frames in "), stdout
-    assert any(line.startswith(f"saved: {n} of {n} frames' ") for line in lines), stdout
+    assert 1 <= n < 300 and lines[0].startswith(f"{n} frames in "), stderr
+    assert any(line.startswith(f"saved: {n} of {n} frames' ") for line in lines), stderr
     assert json.loads((out / "stream.json").read_text(encoding="utf-8"))["frames"] == n
     assert sorted(p.name for p in out.glob("*.npz")) == [f"frame_{i:06d}.npz" for i in range(n)]
 

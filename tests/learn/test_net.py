@@ -310,7 +310,9 @@ def test_cli_train_numbers_epochs_from_one(calib, tmp_path, capsys, monkeypatch,
     out = tmp_path / "m.pt"
     args = ["train", str(calib.folder), "--out", str(out), "--hidden", "8,8", "--epochs", "3", "--patience", "5"]
     assert main([*args, "--no-onnx", "--no-progress"]) == 0
-    printed = capsys.readouterr().out
+    printed, said = capsys.readouterr()
+    assert printed == f"{out}\n"  # stdout: the model's file alone; how it trained on stderr
+    printed = said
     assert f"best epoch {best} of 3," in printed and "stopped at the epoch limit (--epochs 3)" in printed
     assert printed.splitlines()[-1].startswith(f"next: nlips infer {out} ")  # what a new user does with the model
     curve = figures[0].axes[1]
@@ -344,6 +346,7 @@ def test_missing_onnx_file_names_the_ways_to_make_it(trained, twin_presses, tmp_
     export_onnx(load_model(other), model.with_suffix(".onnx"))
     capsys.readouterr()
     assert main(args) == 0  # the kept result was made with the good export: kept, the model not even read
+    capsys.readouterr()  # its closing lines (on stderr): not the refusal's
     fresh = [*args[:-1], str(tmp_path / "o2")]  # work to do: the stale export is found before it is used
     assert main(fresh) == 2
     err = capsys.readouterr().err.strip().splitlines()

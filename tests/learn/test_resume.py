@@ -158,11 +158,11 @@ def test_a_hand_edited_sampling_record_is_refused_in_one_line_not_reused(built, 
     out = tmp_path / "m.pt"
     args = ["train", str(built), "--out", str(out), "--hidden", "8", "--epochs", "2", "--no-onnx", "--no-progress"]
     assert main(args) == 0
-    assert main(args) == 0 and "reused" in capsys.readouterr().out
+    assert main(args) == 0 and "reused" in capsys.readouterr().err
     index = json.loads((built / "index.json").read_text(encoding="utf-8"))
     index["sampling"]["rest_cells"] += 1  # an option that decides only the samples, which are the same
     (built / "index.json").write_text(json.dumps(index), encoding="utf-8")
-    assert main(args) == 0 and "reused" in capsys.readouterr().out
+    assert main(args) == 0 and "reused" in capsys.readouterr().err
     was = index["sampling"]["smoothing_px"]
     index["sampling"]["smoothing_px"] = was + 1.0
     (built / "index.json").write_text(json.dumps(index), encoding="utf-8")
@@ -402,7 +402,10 @@ def test_the_same_training_started_twice_waits_and_reuses_the_model_and_another_
     assert run_b.returncode == 0, b_log.read_text(encoding="utf-8")
     waited = [line for line in b_log.read_text(encoding="utf-8").splitlines() if "waiting for it" in line]
     assert len(waited) == 1 and f"process {run_a.pid} on" in waited[0], b_log.read_text(encoding="utf-8")
-    assert f"{out}: reused, trained before with the same options on the same samples" in b_out, b_out
+    assert b_out == f"{out}\n"  # stdout: the model's file alone; the reuse said on stderr
+    assert f"{out}: reused, trained before with the same options on the same samples" in b_log.read_text(
+        encoding="utf-8"
+    )
     assert "resuming" not in b_log.read_text(encoding="utf-8")  # no epoch trained, nothing written again
     assert _model_files(out.parent) == published
     model = load_model(out)
@@ -411,7 +414,8 @@ def test_the_same_training_started_twice_waits_and_reuses_the_model_and_another_
     checkpoint = torch.load(checkpoint_path(out), weights_only=False)
     assert checkpoint["history"] == model.info["history"]
     assert sorted(p.name for p in out.parent.iterdir()) == ["m.checkpoint.pt", "m.onnx", "m.pt", "m_curve.png"]
-    assert f"{out}: best epoch" in stdout and f"{out.with_suffix('.onnx')}: onnxruntime vs PyTorch" in stdout
+    assert stdout == f"{out}\n"  # the model's file alone; what it is on stderr
+    assert f"{out}: best epoch" in stderr and f"{out.with_suffix('.onnx')}: onnxruntime vs PyTorch" in stderr
 
 
 def _model_files(folder):
@@ -441,7 +445,7 @@ def test_a_killed_trainings_hold_is_taken_over_and_its_progress_resumed(built, t
     assert len(load_model(out).info["history"]) == 4 and not hold.exists()
     capsys.readouterr()
     assert main([*args, "--dropout", "0", "--threads", "1", "--no-progress", "--no-onnx"]) == 0  # done: reused
-    assert f"{out}: reused, trained before" in capsys.readouterr().out
+    assert f"{out}: reused, trained before" in capsys.readouterr().err
 
 
 def test_an_export_beside_the_model_is_never_of_the_model_a_training_replaced_meanwhile(built, tmp_path, monkeypatch):
@@ -506,14 +510,14 @@ def test_a_finished_models_file_torn_after_it_was_published_is_made_again_not_re
     capsys.readouterr()
     caplog.set_level(logging.INFO)
     assert main([*args, "--no-progress"]) == 0
-    said = capsys.readouterr().out
+    said = capsys.readouterr().err
     assert "reused" not in said and f"{tmp_path / torn}: " in caplog.text and "made again" in caplog.text
     assert "resuming after epoch 2" in caplog.text and "epoch 1 " not in said
     model = load_model(out)
     assert all(torch_equal(model.net.state_dict()[k], v) for k, v in weights.items())
     check_export(out.with_suffix(".onnx"), model)  # whole, and this model's
     capsys.readouterr()
-    assert main([*args, "--no-progress"]) == 0 and f"{out}: reused" in capsys.readouterr().out  # now reused
+    assert main([*args, "--no-progress"]) == 0 and f"{out}: reused" in capsys.readouterr().err  # now reused
 
 
 def torch_equal(a, b) -> bool:

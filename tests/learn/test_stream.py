@@ -43,8 +43,8 @@ def video(twin_presses, tmp_path_factory):
 def test_video_frames_give_what_the_predictor_gives_on_those_frames(trained, twin_presses, video, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(video), "--out", str(out), "--ply"]) == 0
-    printed = capsys.readouterr().out
-    assert "3 frames in" in printed and "frames/s" in printed and "network" in printed
+    stdout, printed = capsys.readouterr()  # stdout: the folder the frames went to, alone; the rates on stderr
+    assert stdout == f"{out}\n" and "3 frames in" in printed and "frames/s" in printed and "network" in printed
     predictor = Predictor(trained)
     for i, name in enumerate(FRAMES):
         stored = _eight_bit(read_png16(twin_presses / name / "tricolor.png")).astype(np.uint16) << 8
@@ -62,7 +62,7 @@ def test_video_frames_give_what_the_predictor_gives_on_those_frames(trained, twi
 def test_max_frames_and_every(trained, video, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(video), "--max-frames", "2", "--out", str(out), "--every", "2"]) == 0
-    printed = capsys.readouterr().out
+    printed = capsys.readouterr().err
     assert "2 frames in" in printed
     assert f"saved: 1 of 2 frames' normals and depth in {out} " in printed  # the summary said nothing of where
     assert sorted(p.name for p in out.glob("*.npz")) == ["frame_000000.npz"]
@@ -87,7 +87,7 @@ def test_ctrl_c_ends_a_camera_stream_cleanly(trained, twin_presses, tmp_path, ca
     monkeypatch.setattr(camera, "open_source", lambda spec, settings=None, tone_curve=None: InterruptedCamera())
     out = tmp_path / "out"
     assert main(["infer", str(trained), "--camera", "0", "--out", str(out)]) == 0
-    assert "3 frames in" in capsys.readouterr().out
+    assert "3 frames in" in capsys.readouterr().err
     assert len(list(out.glob("*.npz"))) == 3
 
 
@@ -119,10 +119,11 @@ def test_a_camera_that_stops_sending_ends_the_stream_with_its_summary_then_one_l
     _camera_that_stops(monkeypatch, read_png16(twin_presses / HELD_OUT / "tricolor.png"), after=4)
     out = tmp_path / "out"
     assert main(["infer", str(trained), "--camera", "0", "--out", str(out), "--every", "2"]) == 2
-    printed, err = capsys.readouterr()
-    assert "4 frames in" in printed and "frames/s for the predictor alone" in printed
+    stdout, printed = capsys.readouterr()
+    err = printed.strip().splitlines()[-1:]  # after the summary: the error
+    assert stdout == f"{out}\n" and "4 frames in" in printed and "frames/s for the predictor alone" in printed
     assert f"saved: 2 of 4 frames' normals and depth in {out} (frame_NNNNNN.npz, _normals.png; stream.json)" in printed
-    assert err.strip().splitlines() == ["nlips infer: error: camera 0: no frame (the camera stopped)"]
+    assert err == ["nlips infer: error: camera 0: no frame (the camera stopped)"]
     assert json.loads((out / "stream.json").read_text(encoding="utf-8"))["frames"] == 4
 
 
@@ -153,10 +154,11 @@ def test_a_disk_that_fills_ends_the_stream_with_its_summary_then_one_line(
     monkeypatch.setattr(atomic, "write_bytes", full)  # stream.json finds the disk full too
     out = tmp_path / "out"
     assert main(["infer", str(trained), "--camera", "0", "--out", str(out)]) == 2
-    printed, err = capsys.readouterr()
+    printed = capsys.readouterr().err
+    err = printed.strip().splitlines()[-1:]  # after the summary: the error
     assert "2 frames in" in printed and f"saved: 2 of 2 frames' normals and depth in {out} (frame_NNNNNN.npz" in printed
     assert "stream.json" not in printed and not (out / "stream.json").exists()
-    assert err.strip().splitlines() == [
+    assert err == [
         f"nlips infer: error: {out / 'frame_000002.npz'}: No space left on device (the disk is full: free space or "
         "choose another --out)"
     ]
@@ -223,7 +225,7 @@ def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
     capsys.readouterr()
     args = ["infer", str(model), *size, "--max-frames", "4", "--frames-per-press", "2", "--out", str(tmp_path / "o")]
     assert main(args) == 0
-    assert "4 frames in" in capsys.readouterr().out
+    assert "4 frames in" in capsys.readouterr().err
     first = np.load(tmp_path / "o" / "frame_000000.npz")  # the undeformed gel: reference normals where unchanged
     valid = np.isfinite(reference.reference.depth)
     same = np.all(np.abs(first["normals"] - reference.reference.normals) < 1e-5, axis=-1)
@@ -236,7 +238,7 @@ def test_emulated_sensor_streams_through_infer(tmp_path, capsys):
     by_port = ["--port", "nlipsemu://17"]
     args = ["infer", str(model), *by_port, "--max-frames", "4", "--frames-per-press", "2", "--out", str(tmp_path / "p")]
     assert main(args) == 0
-    assert "4 frames in" in capsys.readouterr().out
+    assert "4 frames in" in capsys.readouterr().err
     again = np.load(tmp_path / "p" / "frame_000000.npz")
     np.testing.assert_array_equal(again["normals"], first["normals"])
 
@@ -285,7 +287,7 @@ def test_the_stage_line_accounts_for_every_step_of_a_frame(trained, twin_presses
     monkeypatch.setattr(infer.Predictor, "_exposure", slow_exposure)
     out = tmp_path / "out"
     assert main(["infer", str(trained), str(dim), "--out", str(out), "--every", "3"]) == 0
-    printed = capsys.readouterr().out
+    printed = capsys.readouterr().err
     line = next(s for s in printed.splitlines() if s.startswith("NLiPsNet"))
     stream_line = next(s for s in printed.splitlines() if " frames in " in s)
     recorded = json.loads((out / "stream.json").read_text(encoding="utf-8"))["mean_stage_s"]

@@ -113,8 +113,8 @@ def test_a_finished_model_of_another_device_is_reused_saying_which_device_made_i
     assert main([*args, "--no-progress"]) == 0
     capsys.readouterr()
     assert main([*args, "--no-progress"]) == 0
-    same = capsys.readouterr().out
+    same = capsys.readouterr().err
     assert "reused" in same and "trained on" not in same
     _as_if_trained_on(checkpoint_path(tmp_path / "net.pt"), "cuda")
     assert main([*args, "--no-progress", "--device", "cpu"]) == 0
-    assert "trained on cuda, not cpu (another --out trains on cpu)" in capsys.readouterr().out
+    assert "trained on cuda, not cpu (another --out trains on cpu)" in capsys.readouterr().err

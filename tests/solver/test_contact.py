@@ -491,7 +491,7 @@ def test_a_folder_solve_notes_a_press_without_contact_and_does_not_fail(tmp_path
     assert not (tmp_path / "flat" / "nlips").exists()
     assert _summary(statuses) == 0
     assert "1 without contact (nothing solved: flat: press deeper and capture again, or leave a capture of" in (
-        capsys.readouterr().out
+        capsys.readouterr().err
     )
     # the folder has its reference/: the press is a second capture of the undeformed dome, not the one to make it
     assert "press deeper" in statuses["flat"] and f"move it out of {tmp_path}, whose reference/" in statuses["flat"]
