@@ -169,12 +169,15 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline import make_settings, solve_one, solve_presses
     from ..pipeline.provenance import identity_in_background
     from ..progress import BATCH, press_lines
+    from . import freeze_imports
     from .folders import check_one_capture
 
     _press_after_roi(args)
     identity_in_background(args.press, args.reference)  # beside the solver's import, which follows
     _decode_ahead(args)  # beside it too
     from ..solver import SolverOptions
+
+    freeze_imports()  # the solver's modules imported by now: left out of the garbage collector's walks
 
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
     if args.normals is not None:  # the flag over the config's value
