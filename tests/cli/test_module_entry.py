@@ -40,7 +40,7 @@ def test_the_command_ends_once_its_work_is_done_with_the_solvers_thread_pool_idl
 
 FREEZE_COUNT_AT_EXIT = (
     "import atexit, gc, sys\n"
-    "atexit.register(lambda: print('frozen', gc.get_freeze_count()))\n"
+    "atexit.register(lambda: print('enabled', gc.isenabled(), 'frozen', gc.get_freeze_count()))\n"
     "sys.argv = ['nlips', '--no-progress', 'solve', sys.argv[1], '--no-figures', '--overwrite']\n"
     "from nlipscalib.cli import command\n"
     "command()\n"
@@ -50,9 +50,9 @@ FREEZE_COUNT_AT_EXIT = (
 def test_nlips_solve_leaves_its_imported_modules_out_of_the_garbage_collectors_walks_in_its_own_process_only(
     tmp_path,
 ):
-    """``nlips solve`` freezes the objects of the modules it imported (gc.freeze: a full collection no longer walks
-    them) in the command's own process; ``cli.main`` called from Python (a test session, a notebook) freezes
-    nothing, as its objects would never be collected."""
+    """``nlips solve`` collects no garbage while it imports the solver and then freezes the objects of the modules
+    it imported (gc.freeze: a full collection no longer walks them) in the command's own process; ``cli.main``
+    called from Python (a test session, a notebook) freezes nothing, as its objects would never be collected."""
     import gc
 
     from nlipscalib.cli import main
@@ -64,6 +64,7 @@ def test_nlips_solve_leaves_its_imported_modules_out_of_the_garbage_collectors_w
     )
     assert run.returncode == 0, run.stderr
     assert int(run.stdout.split("frozen")[-1]) > 10_000  # NumPy's, SciPy's and the solver's modules
+    assert "enabled True" in run.stdout  # collecting again after the imports
     before = gc.get_freeze_count()
     assert main(["--no-progress", "solve", str(press), "--no-figures", "--overwrite"]) == 0
-    assert gc.get_freeze_count() == before
+    assert gc.get_freeze_count() == before and gc.isenabled()
