@@ -186,8 +186,8 @@ def imports_frozen() -> Iterator[None]:
     its objects frozen would never be collected.
 
     Why: the imports make some 10^5 objects that live as long as the process, and the collector walked them again
-    and again, holding the GIL: ~50 ms of CPU in ``nlips solve PRESS --roi auto`` on cube1 (2-core VM,
-    benchmarks/RESULTS.md, s31-cube). Garbage made after the block is collected as before."""
+    and again, holding the GIL: the collector took 35-40 ms of CPU in ``nlips solve PRESS --roi auto`` on cube1, 9-11
+    ms with this (2-core VM, benchmarks/RESULTS.md, s31-cube). Garbage made after the block is collected as before."""
     if not _own_process:
         yield
         return
