@@ -126,6 +126,22 @@ def test_an_identity_hashed_in_the_background_is_the_one_a_later_call_gets_witho
         capture_identity(tmp_path / "nowhere")
 
 
+def test_the_disk_caches_key_salt_is_made_in_the_background_too(tmp_path, monkeypatch):
+    """The identity's thread also makes the disk cache's key salt (the package's source read and hashed), which the
+    press's load needs next: not on the main thread after the solver's import. With the disk cache off, none."""
+    from nlipscalib.core import diskcache
+    from nlipscalib.pipeline import provenance
+
+    for cache, made in [(str(tmp_path / "cache"), True), ("off", False)]:
+        monkeypatch.setenv(diskcache.ENV_DIR, cache)
+        monkeypatch.setattr(diskcache, "_salt", None)
+        threads_before = set(threading.enumerate())
+        provenance.identity_in_background(None)
+        for thread in set(threading.enumerate()) - threads_before:
+            thread.join(timeout=30)
+        assert (diskcache._salt is not None) is made
+
+
 def test_a_file_missing_from_a_press_is_named_as_the_folder_was_given(press, tmp_path, monkeypatch):
     """`nlips solve out/cs` said "/tmp/.../out/cs/press_0001/tricolor.png: listed in meta.json but missing": the
     resolved path the identity is cached under, where every other line names the folder as typed."""

@@ -9,13 +9,15 @@ Heavy imports happen inside those callables, so ``nlips --help`` is instant.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
+import gc
 import importlib
 import logging
 import os
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from types import FrameType
 from typing import NoReturn
@@ -159,11 +161,13 @@ def command() -> NoReturn:
 
     Only here, not in :func:`main` (which tests and Python programs call in their own process): settings that
     hold for the rest of the process and the processes it starts -- NumPy's arrays on ordinary pages
-    (:func:`nlipscalib.core.pages.ordinary_pages_for_command`) -- and Ctrl-C or SIGTERM after the work ended
-    (:func:`_after_the_work`)."""
+    (:func:`nlipscalib.core.pages.ordinary_pages_for_command`) --, the imported modules left out of the garbage
+    collector's walks (:func:`imports_frozen`) and Ctrl-C or SIGTERM after the work ended (:func:`_after_the_work`)."""
+    global _own_process
     from ..__main__ import INTERRUPTED_EARLY
     from ..core.pages import ordinary_pages_for_command
 
+    _own_process = True
     try:
         ordinary_pages_for_command()
         code = _main(None, own_process=True)
@@ -175,6 +179,32 @@ def command() -> NoReturn:
 
 def main(argv: Sequence[str] | None = None) -> int:
     return _main(argv, own_process=False)
+
+
+_own_process = False
+"""Whether this process is the ``nlips`` command's own (:func:`command`), not a Python program's that calls
+:func:`main`."""
+
+
+@contextlib.contextmanager
+def imports_frozen() -> Iterator[None]:
+    """In the command's own process, no garbage collection while the block imports modules, and every object the
+    collector tracks at its end -- the modules imported so far, which live as long as the process -- moved out of
+    its later walks (:func:`gc.freeze`); in a caller's process (:func:`main`: a test session, a notebook) nothing:
+    its objects frozen would never be collected.
+
+    Why: the imports make some 10^5 objects that live as long as the process, and the collector walked them again
+    and again, holding the GIL: the collector took 35-40 ms of CPU in ``nlips solve PRESS --roi auto`` on cube1, 9-11
+    ms with this (2-core VM, benchmarks/RESULTS.md, s31-cube). Garbage made after the block is collected as before."""
+    if not _own_process:
+        yield
+        return
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        gc.enable()
 
 
 def _main(argv: Sequence[str] | None, own_process: bool) -> int:

@@ -168,12 +168,14 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline import SKIPPED, SOLVED, make_settings, result_dir, solve_one, solve_presses
     from ..pipeline.provenance import identity_in_background
     from ..progress import BATCH, press_lines
+    from . import imports_frozen
     from .folders import check_one_capture
 
     _press_after_roi(args)
     identity_in_background(args.press, args.reference)  # beside the solver's import, which follows
-    _decode_ahead(args)  # beside it too
-    from ..solver import SolverOptions
+    with imports_frozen():  # the solver's modules: no collection while they are imported, none of them walked later
+        _decode_ahead(args)  # beside it too
+        from ..solver import SolverOptions
 
     options = from_mapping(SolverOptions, read_config_file(args.config), args.config) if args.config else None
     if args.normals is not None:  # the flag over the config's value

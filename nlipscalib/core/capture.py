@@ -22,9 +22,11 @@ truth and reference arrays (:mod:`.surface_files`) and the press folders found i
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import os
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -481,16 +483,35 @@ def load_press(folder: str | Path, led_subset: Sequence[int] | None = None, deco
 
 def prefetch_press(folder: str | Path) -> None:
     """Start decoding the dark and LED images of the press at ``folder`` on a thread of their own, for a
-    :func:`load_press` of it to come (:mod:`.prefetch`: it takes them when their bytes are the ones it reads).
-    Nothing happens, and nothing is raised, when ``folder``'s meta.json does not list its images: the load reports
-    what is wrong."""
+    :func:`load_press` of it to come (:mod:`.prefetch`: it takes them when their bytes are the ones it reads), and
+    reading its reference.npz on another (:func:`_reference_ahead`). Nothing happens, and nothing is raised, when
+    ``folder``'s meta.json does not list its images: the load reports what is wrong."""
     try:
-        images = read_meta(folder)["images"]
+        meta = read_meta(folder)
+        images = meta["images"]
         names = [images["dark"], *images["leds"]]
     except (CaptureError, KeyError, TypeError):
         return
     if all(isinstance(name, str) for name in names):
         prefetch_images([Path(folder) / name for name in names])
+        _reference_ahead(Path(folder), meta)
+
+
+def _reference_ahead(folder: Path, meta: dict) -> None:
+    """Read and check the press's reference.npz (:func:`read_reference`, kept per file) on a daemon thread; a
+    problem is left to :func:`load_press`, which reads it again and names it.
+
+    Why: ``nlips solve`` read it on the main thread just after the solver's import, while the second core had
+    nothing left to do: its content hash, the disk cache's mapping and the surface check, ~25-30 ms idle on the
+    2-core VM (benchmarks/RESULTS.md, s31-cube). Here it runs beside the import (GIL-bound) and the decoding;
+    hashing and NumPy's loops release the GIL."""
+
+    def run() -> None:
+        with contextlib.suppress(Exception):  # the load reads it again and reports what is wrong, naming the file
+            camera, leds, _ = parse_optics(meta, folder / META_FILE)
+            read_reference(folder, meta, camera, leds)
+
+    threading.Thread(target=run, name="prefetch-reference", daemon=True).start()
 
 
 def _read_stored(folder: Path, names: list[str], camera: Camera) -> tuple[tuple[list, list], tuple[list, list]]:

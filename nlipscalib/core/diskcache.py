@@ -91,6 +91,9 @@ arrays viewing a mapped entry are aligned as NumPy and SciPy's kernels want them
 cache line apart), never copied for it."""
 
 _salt: str | None = None
+_salt_lock = threading.Lock()
+"""Held while the salt is computed: a thread that asks meanwhile waits for it (:func:`salt_ahead`'s thread) rather
+than read the package's source a second time."""
 _pending: dict[Path, threading.Thread] = {}
 """Entries this process is writing in the background (:func:`store_later`), by path."""
 _pending_lock = threading.Lock()
@@ -437,14 +440,26 @@ def _size(path: Path) -> int | None:
 def _source_salt() -> str:
     """Digest of the package's Python source and the versions of the libraries that compute or store the entries:
     any edit of a formula, or another NumPy, SciPy, pyamg or OpenCV (the smoothed shading is OpenCV's blur), makes
-    every earlier entry a miss (computed once)."""
+    every earlier entry a miss (computed once; thread-safe)."""
     global _salt
-    if _salt is None:
-        from .code_version import python_sources, source_digest
-        from .libraries import SOLVE_LIBRARIES, library_versions
+    with _salt_lock:
+        if _salt is None:
+            from .code_version import python_sources, source_digest
+            from .libraries import SOLVE_LIBRARIES, library_versions
 
-        h = hashlib.blake2b(digest_size=16)
-        h.update(f"{sys.version_info[:2]} {sorted(library_versions(SOLVE_LIBRARIES).items())}".encode())
-        h.update(source_digest(python_sources()).encode())  # the whole package: any formula's edit misses
-        _salt = h.hexdigest()
-    return _salt
+            h = hashlib.blake2b(digest_size=16)
+            h.update(f"{sys.version_info[:2]} {sorted(library_versions(SOLVE_LIBRARIES).items())}".encode())
+            h.update(source_digest(python_sources()).encode())  # the whole package: any formula's edit misses
+            _salt = h.hexdigest()
+        return _salt
+
+
+def salt_ahead() -> None:
+    """Compute the entries' salt (:func:`_source_salt`) now, when the tier is on: for a thread that runs beside the
+    command's imports (:func:`nlipscalib.pipeline.provenance.identity_in_background`).
+
+    Why: the first entry a solve looks up (the press's reference.npz, :mod:`nlipscalib.core.surface_files`) made it
+    on the main thread, reading and hashing every source file of the package (35-80 ms at load 10 on the 2-core VM)
+    just after the imports, while the second core had nothing to do (benchmarks/RESULTS.md, s31-cube)."""
+    if folder() is not None:
+        _source_salt()

@@ -86,13 +86,25 @@ KEEP_FREED_BYTES = 1 << 30
 """glibc's mmap and trim thresholds under :func:`_reuse_freed_memory`, bytes: above every array a 640x480 solve
 allocates (the largest are ~350 MB at 1280x960), so each comes from the heap and goes back to it."""
 
+ARENAS = 1
+"""glibc's arenas (heaps) under :func:`_reuse_freed_memory`: one, shared by every thread, so that memory one thread
+frees serves the next array of any other."""
+
 
 def _reuse_freed_memory() -> None:
     """glibc's allocator serves large arrays from its heap and keeps them there when freed, instead of mapping fresh
     pages for each one and unmapping them on free (its default above 32 MB at most): the solver allocates its
     (L, 3, N) arrays afresh per level and pass, and each fresh mapping is page faults again. A whole 640x480
     frame: 0.81 M -> 0.37 M minor faults, system time 2.2 -> 1.1 s, peak memory +2 %. Linux with glibc only; in
-    this process by ``mallopt`` and for the processes it starts by ``GLIBC_TUNABLES`` (read when they start)."""
+    this process by ``mallopt`` and for the processes it starts by ``GLIBC_TUNABLES`` (read when they start).
+
+    One heap (arena) for all threads (:data:`ARENAS`): by default each thread that allocates while another does gets
+    an arena of its own, whose freed memory only its own later allocations reuse, and which cannot hold an array
+    of more than 64 MB at all (each such array a fresh mapping again). The solver's pool threads, the decoding and
+    the operators made ahead allocate arrays that the main thread frees, and the other way round. NumPy allocates
+    its arrays holding the GIL, so the threads hardly ever wait for the one heap's lock. cube1 ``--roi auto``:
+    168 k -> 130 k minor faults, peak memory 0.73 -> 0.59 GB, system time -0.06 s; the same bits
+    (benchmarks/RESULTS.md, s31-cube)."""
     if "GLIBC_TUNABLES" in os.environ or not sys.platform.startswith("linux"):
         return
     import ctypes
@@ -103,8 +115,10 @@ def _reuse_freed_memory() -> None:
         return
     mallopt(-3, KEEP_FREED_BYTES)  # M_MMAP_THRESHOLD
     mallopt(-1, KEEP_FREED_BYTES)  # M_TRIM_THRESHOLD
+    mallopt(-8, ARENAS)  # M_ARENA_MAX, before the command's threads start: glibc fixes it at the first extra arena
     os.environ["GLIBC_TUNABLES"] = (
         f"glibc.malloc.mmap_threshold={KEEP_FREED_BYTES}:glibc.malloc.trim_threshold={KEEP_FREED_BYTES}"
+        f":glibc.malloc.arena_max={ARENAS}"
     )
 
 

@@ -8,6 +8,7 @@ import contextlib
 import dataclasses
 import functools
 import hashlib
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -121,12 +122,18 @@ def _ground_truth(folder: Path, meta: dict, camera: Camera, leds: Leds) -> Groun
     return gt
 
 
+_reading_reference = threading.Lock()
+"""Held while a reference.npz is read and checked: a load that asks for the one a thread is reading ahead
+(:func:`nlipscalib.core.capture.prefetch_press`) waits for it, then finds it kept, rather than read it again."""
+
+
 def read_reference(folder: Path, meta: dict, camera: Camera, leds: Leds) -> Reference | None:
     """The capture's reference.npz, checked against the format's promise; None when it has none."""
     if not meta.get("reference"):
         return None
     path = existing_file(folder, meta["reference"])
-    return _checked_reference(path, file_stamp(path), camera, tuple(leds))
+    with _reading_reference:
+        return _checked_reference(path, file_stamp(path), camera, tuple(leds))
 
 
 @functools.lru_cache(maxsize=4)

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import __version__
+from ..core import diskcache
 from ..core.code_version import code_fingerprint
 from ..core.errors import CaptureError
 from ..core.libraries import SOLVE_LIBRARIES, library_versions
@@ -106,7 +107,8 @@ def identity_in_background(*folders: str | Path | None) -> None:
 
     Why: reading the files and SHA-256 release the GIL, so the hashing (~0.03 s of a 640x480 press with 12 LEDs)
     runs on the second core while ``nlips solve`` imports the solver (GIL-bound, ~0.2 s), not after it. A folder
-    that is not a press (a dataset, a typo) fails here silently: the call that needs its identity reports it."""
+    that is not a press (a dataset, a typo) fails here silently: the call that needs its identity reports it. The
+    disk cache's key salt is made here too (:func:`nlipscalib.core.diskcache.salt_ahead`), after the identities."""
 
     def hash_all() -> None:
         code_fingerprint()  # the reuse key's too, read and hashed here rather than on the main thread
@@ -115,6 +117,8 @@ def identity_in_background(*folders: str | Path | None) -> None:
             if folder is not None:
                 with contextlib.suppress(Exception):  # said, with its context, by the call that needs the identity
                     capture_identity(folder)
+        with contextlib.suppress(Exception):  # the disk cache's key salt, for the load's first entry (not an error)
+            diskcache.salt_ahead()
 
     threading.Thread(target=hash_all, name="capture-identity", daemon=True).start()
 

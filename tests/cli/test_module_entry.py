@@ -36,3 +36,35 @@ def test_the_command_ends_once_its_work_is_done_with_the_solvers_thread_pool_idl
     )
     assert run.returncode == 0, run.stderr
     assert (press / "nlips" / "result.npz").exists()
+
+
+FREEZE_COUNT_AT_EXIT = (
+    "import atexit, gc, sys\n"
+    "atexit.register(lambda: print('enabled', gc.isenabled(), 'frozen', gc.get_freeze_count()))\n"
+    "sys.argv = ['nlips', '--no-progress', 'solve', sys.argv[1], '--no-figures', '--overwrite']\n"
+    "from nlipscalib.cli import command\n"
+    "command()\n"
+)
+
+
+def test_nlips_solve_leaves_its_imported_modules_out_of_the_garbage_collectors_walks_in_its_own_process_only(
+    tmp_path,
+):
+    """``nlips solve`` collects no garbage while it imports the solver and then freezes the objects of the modules
+    it imported (gc.freeze: a full collection no longer walks them) in the command's own process; ``cli.main``
+    called from Python (a test session, a notebook) freezes nothing, as its objects would never be collected."""
+    import gc
+
+    from nlipscalib.cli import main
+    from tests.solver import synth
+
+    press = synth.make_press(tmp_path / "p", "sphere", size=(48, 36))
+    run = subprocess.run(
+        [sys.executable, "-c", FREEZE_COUNT_AT_EXIT, str(press)], capture_output=True, text=True, cwd=ROOT, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    assert int(run.stdout.split("frozen")[-1]) > 10_000  # NumPy's, SciPy's and the solver's modules
+    assert "enabled True" in run.stdout  # collecting again after the imports
+    before = gc.get_freeze_count()
+    assert main(["--no-progress", "solve", str(press), "--no-figures", "--overwrite"]) == 0
+    assert gc.get_freeze_count() == before and gc.isenabled()

@@ -89,6 +89,36 @@ def test_the_command_and_its_workers_reuse_freed_memory_instead_of_faulting_fres
     assert command < plain / 4 and worker < plain / 4
 
 
+FAULTS_OF_ARRAYS_ON_A_THREAD = """
+import resource, threading, numpy as np
+a = np.ones(8 << 20); del a  # 64 MB freed by the main thread
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+def work():
+    for _ in range(6):
+        a = np.ones(8 << 20); del a
+thread = threading.Thread(target=work); thread.start(); thread.join()
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator settings")
+def test_in_the_command_and_its_workers_a_thread_reuses_memory_the_main_thread_freed(monkeypatch):
+    """A thread's six 64 MB arrays after the main thread freed one: with an arena of its own the thread maps each
+    afresh (an arena of a thread holds at most 64 MB: 16 k page faults each); with one arena for all threads it
+    reuses the freed memory."""
+    monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
+    monkeypatch.setenv(pages.ADVICE_VARIABLE, "0")
+
+    def faults(code: str, *args: str) -> list[int]:
+        out = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, check=True)
+        return [int(line) for line in out.stdout.split()]
+
+    (plain,) = faults(FAULTS_OF_ARRAYS_ON_A_THREAD)
+    command, worker = faults(IN_A_COMMAND, FAULTS_OF_ARRAYS_ON_A_THREAD)
+    assert plain > 6 * 16_000 * 0.9  # 6 x 64 MB of fresh 4 KiB pages
+    assert command < plain / 4 and worker < plain / 4
+
+
 def test_a_users_own_allocator_settings_are_kept(monkeypatch):
     monkeypatch.setenv("GLIBC_TUNABLES", "glibc.malloc.arena_max=1")
     pages._reuse_freed_memory()

@@ -103,3 +103,38 @@ def test_nlips_solve_decodes_ahead_only_a_press_it_will_solve(tmp_path):
     prefetch._items.clear()
     _decode_ahead(argparse.Namespace(press=str(tmp_path), out=None, overwrite=True))  # a folder of presses
     assert not prefetch._items
+
+
+def test_a_prefetched_press_has_its_reference_read_ahead_and_the_load_reads_it_no_more(tmp_path, monkeypatch):
+    """``nlips solve`` reads the press's reference.npz beside the solver's import too (on a thread of its own): the
+    load then finds it read and checked, the same arrays, and does not read the file again."""
+    import threading
+
+    from nlipscalib.core import capture, surface_files
+
+    folder = _press(tmp_path / "p")
+    reads = []
+    load = surface_files.Reference.load.__func__
+    monkeypatch.setattr(
+        surface_files.Reference,
+        "load",
+        classmethod(lambda cls, *a: reads.append(threading.current_thread().name) or load(cls, *a)),
+    )
+    capture.prefetch_press(folder)
+    for thread in threading.enumerate():
+        if thread.name in ("prefetch-reference", "prefetch-images"):
+            thread.join()
+    assert reads == ["prefetch-reference"]
+    press = load_press(folder)
+    assert reads == ["prefetch-reference"]  # not read again
+    np.testing.assert_array_equal(press.reference.depth, np.full(press.camera.shape, 10.0, np.float32))
+
+
+def test_a_broken_reference_read_ahead_is_reported_by_the_load(tmp_path):
+    from nlipscalib.core import capture
+
+    folder = _press(tmp_path / "p")
+    (folder / "reference.npz").write_bytes(b"not a zip")
+    capture.prefetch_press(folder)  # nothing raised on its thread
+    with pytest.raises(CaptureError, match="reference.npz"):
+        load_press(folder)
