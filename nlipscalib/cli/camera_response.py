@@ -63,7 +63,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "nothing written: a camera that ignores the exposure (auto exposure on: every frame equally bright), "
         "quantises it (two exposures one frame) or whose frames lag the setting (a larger --flush), one whose "
         "frames' light, the curve undone, does not grow as the times (it rounds them to steps of its own), and one "
-        "whose frame with every LED off reads above --black-level (it adds a black level). Channels that respond "
+        "whose frame with every LED off reads above --black-level (it adds a black level). Then LEDs lit apart and "
+        "together at one exposure check that light adds with the curve undone: a curve off by a power (real "
+        "exposure times a power of the asked ones, which no bracket can see) is raised to the power that makes "
+        "them add, said in a line; LEDs that dim each other lit together are refused. Channels that respond "
         "differently keep a curve each. On DirectShow and Media Foundation (whole log2-second steps) the bracket "
         "is taken at the powers of two, said in a line.",
     )

@@ -678,11 +678,15 @@ RESPONSE_ADDITIVITY_ERROR = 0.015
 frame taken off each) within this fraction (summed over the pixels both light alike, and over those one lights
 mostly: :mod:`nlipscalib.device.additivity`); beyond it the curve is raised to the power that makes every pair add
 (the exposure times a power of the asked ones), or the calibration refused when none does. The emulated cameras'
-right curves add within TODO; a curve off by the power 0.9 misses by TODO (benchmarks/RESULTS.md, s31-additive)."""
+right curves add within 0.12-0.43 % (64x48, 1 spp; the stand-in webcam of the tests 0.67 %); times to the power 0.9 /
+1.1 miss by 7.9-8.1 / 5.6-6.4 %, 0.97 by 2.5 % (benchmarks/RESULTS.md, s31-additive). Within it, a power a = 0.98
+at most goes unseen: its curve ~0.7 % off, the fit's own error."""
 RESPONSE_ADDITIVITY_GAP = 0.006
 """Once the curve is raised to the power that makes the LED pairs add (:data:`RESPONSE_ADDITIVITY_ERROR`), a pair's
 error where both LEDs light a pixel alike and where one lights it mostly may differ by this fraction: a power of the
-curve explains the misfit at every mix (TODO), a pair that dims as a whole does not (TODO)."""
+curve explains the misfit at every mix (the stand-in webcam's times to the power 0.9-1.1, pinned: 0.05-0.2 % apart),
+a pair that dims as a whole does not (the stand-in's pairs at 0.95 / 0.97 / 0.98 / 1.05 of their light apart: 1.9 /
+1.0 / 0.7 / 1.2 %; benchmarks/RESULTS.md, s31-additive)."""
 RESPONSE_ADDITIVITY_POWERS = (0.5, 2.0)
 """The powers of the fitted curve tried to make the LED pairs add (:data:`RESPONSE_ADDITIVITY_ERROR`): times that
 are ``t ** a`` of the asked ones give a curve off by the power ``a``; a = 0.5-2 spans shutter tables from a base

@@ -30,6 +30,7 @@ from ..core.tolerances import (
     RESPONSE_DARK_CODE,
     RESPONSE_RISE_PIXELS,
 )
+from .response_fit import SAMPLED_PIXELS
 
 ALIKE = (0.5, 1.0)
 """The smaller of A's and B's light over the larger, at a pixel of the first bin: lit alike by both, where a curve
@@ -113,13 +114,13 @@ def pair_errors(curves: np.ndarray, shots: AdditivityFrames, bins: dict | None =
 
 
 def pair_bins(curves: np.ndarray, shots: AdditivityFrames) -> dict:
-    """(a, b) -> (alike pixels, unalike pixels): (H, W, 3) bool masks of the samples where no frame of the pair is
-    black or clipped and the smaller of A's and B's light (``curves`` undone) over the larger is within
+    """(a, b) -> (alike pixels, unalike pixels): (P, 3) bool masks of the samples (:func:`_codes`) where no frame
+    of the pair is black or clipped and the smaller of A's and B's light (``curves`` undone) over the larger is within
     :data:`ALIKE` / :data:`UNALIKE`; None for a bin of fewer than
     :data:`~nlipscalib.core.tolerances.RESPONSE_RISE_PIXELS` of the samples. Fixed once from the fitted curve, so
     that the power pinned is judged on the same pixels at every power tried."""
     codes = _codes(shots)
-    dark = _lookup(curves, shots.dark)
+    dark = _lookup(curves, codes["dark"])
     out = {}
     for a, b, _ in shots.pairs:
         frames = (codes[a], codes[b], codes[a, b])
@@ -147,8 +148,6 @@ def pin_power(curves: np.ndarray, shots: AdditivityFrames, source: str) -> tuple
     (3, 256) float64 curves (``curves`` itself when it adds within
     :data:`~nlipscalib.core.tolerances.RESPONSE_ADDITIVITY_ERROR`), and the :class:`Additivity` measured
     """
-    from scipy.optimize import minimize_scalar
-
     bins = pair_bins(curves, shots)
     errors = tuple(pair_errors(curves, shots, bins))
     before = _largest([e for pair in errors for e in pair[2:]])
@@ -160,6 +159,8 @@ def pin_power(curves: np.ndarray, shots: AdditivityFrames, source: str) -> tuple
         )
     if before <= RESPONSE_ADDITIVITY_ERROR:
         return curves, Additivity(errors, 1.0, before, _gap(errors))
+    from scipy.optimize import minimize_scalar  # only when the curve does not add as fitted
+
     low, high = RESPONSE_ADDITIVITY_POWERS
 
     def misfit(power: float) -> float:
@@ -185,15 +186,18 @@ def pin_power(curves: np.ndarray, shots: AdditivityFrames, source: str) -> tuple
 
 
 def _codes(shots: AdditivityFrames) -> dict:
-    """The frames by key: "dark", an LED's number, or (a, b) for a pair lit together."""
-    out: dict = {"dark": shots.dark, **shots.singles}
-    out.update({(a, b): frame for a, b, frame in shots.pairs})
-    return out
+    """The frames by key ("dark", an LED's number, or (a, b) for a pair lit together), as (P, 3) samples of
+    every pixel, or of :data:`~nlipscalib.device.response_fit.SAMPLED_PIXELS` evenly spaced ones of a larger frame
+    (the power's search undoes every frame some 25 times: 2 s a 640x480 set, 0.1 s sampled)."""
+    step = max(1, shots.dark.shape[0] * shots.dark.shape[1] // SAMPLED_PIXELS)
+    frames: dict = {"dark": shots.dark, **shots.singles}
+    frames.update({(a, b): frame for a, b, frame in shots.pairs})
+    return {key: frame.reshape(-1, 3)[::step] for key, frame in frames.items()}
 
 
 def _lookup(curves: np.ndarray, codes: np.ndarray) -> np.ndarray:
-    """(H, W, 3) float64 linear light of 8-bit ``codes``, each channel through its curve."""
-    return np.stack([curves[c][codes[..., c]] for c in range(3)], axis=-1)
+    """(P, 3) float64 linear light of (P, 3) 8-bit ``codes``, each channel through its curve."""
+    return np.stack([curves[c][codes[:, c]] for c in range(3)], axis=-1)
 
 
 def _gap(errors: list | tuple) -> float:
