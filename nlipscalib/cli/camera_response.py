@@ -224,7 +224,7 @@ def take_additivity(
     led: int,
     level: int,
     exposure_ms: float,
-) -> tuple[np.ndarray, dict, tuple]:
+) -> tuple[np.ndarray, dict, tuple] | None:
     """The frames of LEDs lit apart and together at ``exposure_ms`` (``device.additivity``): every LED off, ``led``
     and its :data:`ADDITIVITY_PARTNERS` each alone, then each pair of them together, all at ``level``.
 
@@ -233,6 +233,7 @@ def take_additivity(
     dark : (H, W, 3) uint16 stored values
     singles : LED number (1-based) -> (H, W, 3) uint16
     pairs : ((LED a, LED b, (H, W, 3) uint16 lit together), ...)
+    (None, nothing taken, for a board of one LED)
     """
     import itertools
 
@@ -240,6 +241,8 @@ def take_additivity(
 
     offsets = [0, *(k if isinstance(k, int) else round(k * n_leds) for k in ADDITIVITY_PARTNERS)]
     leds = list(dict.fromkeys((led - 1 + k) % n_leds + 1 for k in offsets))
+    if len(leds) < 2:  # a board of one LED: no pair to light
+        return None
 
     def lit(*which: int) -> np.ndarray:
         colours = np.zeros((n_leds, 3), np.uint8)
@@ -255,10 +258,14 @@ def take_additivity(
     return dark, singles, pairs
 
 
-def additivity_codes(taken: tuple, exposure_ms: float, bit_depth: int, black_dn: float) -> AdditivityFrames:
+def additivity_codes(
+    taken: tuple | None, exposure_ms: float, bit_depth: int, black_dn: float
+) -> AdditivityFrames | None:
     """:func:`take_additivity`'s frames as ``device.additivity.AdditivityFrames`` of 8-bit codes (:func:`to_codes`)."""
     from ..device.additivity import AdditivityFrames
 
+    if taken is None:
+        return None
     dark, singles, pairs = taken
     return AdditivityFrames(
         exposure_ms,
@@ -536,6 +543,14 @@ def _pinned(fit: ResponseFit, shots: AdditivityFrames | None, source: str) -> tu
     if shots is None:
         return fit, None
     _, check = pin_power(np.broadcast_to(fit.kept, (3, len(fit.curve))), shots, source)
+    if not np.isfinite(check.before):
+        print(
+            f"{source}: the frames of LEDs lit apart and together at {shots.exposure_ms:g} ms have too few pixels "
+            "neither black nor clipped that two LEDs light: the curve is not checked by light adding (a power of "
+            "the exposure times would go unseen); kept as fitted",
+            file=sys.stderr,
+        )
+        return fit, None
     record = {
         "exposure_ms": float(shots.exposure_ms),
         "pairs": [[a, b] for a, b, *_ in check.errors],

@@ -146,17 +146,14 @@ def pin_power(curves: np.ndarray, shots: AdditivityFrames, source: str) -> tuple
     Returns
     -------
     (3, 256) float64 curves (``curves`` itself when it adds within
-    :data:`~nlipscalib.core.tolerances.RESPONSE_ADDITIVITY_ERROR`), and the :class:`Additivity` measured
+    :data:`~nlipscalib.core.tolerances.RESPONSE_ADDITIVITY_ERROR`, or when no pair has pixels to judge: then
+    :attr:`Additivity.before` is NaN), and the :class:`Additivity` measured
     """
     bins = pair_bins(curves, shots)
     errors = tuple(pair_errors(curves, shots, bins))
     before = _largest([e for pair in errors for e in pair[2:]])
-    if not np.isfinite(before):
-        raise CaptureError(
-            f"{source}: the frames of LEDs lit apart and together at {shots.exposure_ms:g} ms have too few pixels "
-            "neither black nor clipped where two LEDs both light the gel: give a bracket that reaches the LEDs' light "
-            "lit together without clipping (--exposures-ms)"
-        )
+    if not np.isfinite(before):  # nothing to judge: the caller says so, the curve kept as fitted
+        return curves, Additivity(errors, 1.0, before, 0.0)
     if before <= RESPONSE_ADDITIVITY_ERROR:
         return curves, Additivity(errors, 1.0, before, _gap(errors))
     from scipy.optimize import minimize_scalar  # only when the curve does not add as fitted

@@ -53,3 +53,12 @@ def test_the_pairs_exposure_keeps_two_leds_below_clipping():
     # ROWS reaches 0.4 at 8 ms: twice 8 ms (16) peaks at 0.8, twice 11.3 (22.6) clips a sixth of the frame
     assert pair_exposure(frames, times) == 8.0
     assert pair_exposure(frames[-2:], times[-2:]) == times[-2]  # none keeps two below clipping: the shortest
+
+
+def test_pairs_with_no_pixel_to_judge_leave_the_curve_as_fitted():
+    """Every pair clipped (an exposure too long for two LEDs): nothing is judged, nothing raised or refused; the
+    command says the curve went unchecked."""
+    clipped = AdditivityFrames(8.0, _codes(0 * ROWS), {k: _codes(v) for k, v in LIGHTS.items()}, ())
+    clipped = AdditivityFrames(8.0, clipped.dark, clipped.singles, ((1, 2, _codes(ROWS + 1)),))
+    curves, check = pin_power(TRUE**1.2, clipped, "cam")
+    assert np.array_equal(curves, TRUE**1.2) and check.power == 1.0 and np.isnan(check.before)
