@@ -29,7 +29,9 @@ from .leds import add_baud_argument, check_baud
 if TYPE_CHECKING:  # named in hints only: imported when a bracket is taken
     import numpy as np
 
+    from ..device.additivity import AdditivityFrames
     from ..device.camera import FrameSource
+    from ..device.response_fit import ResponseFit
 
 EMULATED_EXPOSURE_MS = 10.0
 """The exposure the emulated camera's frames are made at (its scene's auto exposure): a bracket's exposure over this
@@ -39,6 +41,10 @@ DEFAULT_EXPOSURES_MS = tuple(round(0.5 * 2 ** (k / 2), 3) for k in range(15))
 (benchmarks/RESULTS.md, s30-response)."""
 TONE_CURVE_CHOICES = ("gamma2.2", "s-curve", "srgb", "rgb-gammas")
 """``emulator.EMULATED_TONE_CURVES``'s names (a test keeps them equal), named without importing numpy for --help."""
+ADDITIVITY_PARTNERS = (1, 0.5)
+"""The LEDs lit apart and with --led for the additivity check (``device.additivity``), as offsets from it in the
+board's order (wrapping): whole numbers of LEDs, or fractions of the board's count: the next LED and the one
+halfway round, so that the pairs light pixels alike (neighbours on a ring) and unalike (opposite LEDs)."""
 DarkFrame = tuple
 """A bracket's frame with every LED off: (its codes above the black level, (H, W, 3) uint8; its exposure, ms, or
 None where a --bracket folder's name gives none; the camera's DN per 8-bit code, to name a black level)."""
@@ -57,7 +63,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "nothing written: a camera that ignores the exposure (auto exposure on: every frame equally bright), "
         "quantises it (two exposures one frame) or whose frames lag the setting (a larger --flush), one whose "
         "frames' light, the curve undone, does not grow as the times (it rounds them to steps of its own), and one "
-        "whose frame with every LED off reads above --black-level (it adds a black level). Channels that respond "
+        "whose frame with every LED off reads above --black-level (it adds a black level). Then LEDs lit apart and "
+        "together at one exposure check that light adds with the curve undone: a curve off by a power (real "
+        "exposure times a power of the asked ones, which no bracket can see) is raised to the power that makes "
+        "them add, said in a line; LEDs that dim each other lit together are refused. Channels that respond "
         "differently keep a curve each. On DirectShow and Media Foundation (whole log2-second steps) the bracket "
         "is taken at the powers of two, said in a line.",
     )
@@ -161,14 +170,14 @@ def run(args: argparse.Namespace) -> int:
 
     if args.bracket:
         frames, exposures, source, black, dark = _folder_bracket(args)
-        return _fit_and_write(args, frames, exposures, source, source, black, dark)
+        return _fit_and_write(args, frames, exposures, source, source, black, dark, None)
     exposures = exposures_of(args.exposures_ms)
     check_exposures(exposures, f"--emulate {args.emulate}" if args.emulate else f"camera {args.camera}")
     if args.emulate:
-        frames, source, camera, black, dark = _emulated_bracket(args, exposures)
+        frames, source, camera, black, dark, shots = _emulated_bracket(args, exposures)
     else:
-        frames, exposures, source, camera, black, dark = _device_bracket(args, exposures)
-    return _fit_and_write(args, frames, exposures, source, camera, black, dark)
+        frames, exposures, source, camera, black, dark, shots = _device_bracket(args, exposures)
+    return _fit_and_write(args, frames, exposures, source, camera, black, dark, shots)
 
 
 def take_bracket(
@@ -207,6 +216,65 @@ def take_dark(
     return source.capture()
 
 
+def take_additivity(
+    source: FrameSource,
+    set_colours: Callable[[np.ndarray], None],
+    set_exposure: Callable[[float], None],
+    n_leds: int,
+    led: int,
+    level: int,
+    exposure_ms: float,
+) -> tuple[np.ndarray, dict, tuple] | None:
+    """The frames of LEDs lit apart and together at ``exposure_ms`` (``device.additivity``): every LED off, ``led``
+    and its :data:`ADDITIVITY_PARTNERS` each alone, then each pair of them together, all at ``level``.
+
+    Returns
+    -------
+    dark : (H, W, 3) uint16 stored values
+    singles : LED number (1-based) -> (H, W, 3) uint16
+    pairs : ((LED a, LED b, (H, W, 3) uint16 lit together), ...)
+    (None, nothing taken, for a board of one LED)
+    """
+    import itertools
+
+    import numpy as np
+
+    offsets = [0, *(k if isinstance(k, int) else round(k * n_leds) for k in ADDITIVITY_PARTNERS)]
+    leds = list(dict.fromkeys((led - 1 + k) % n_leds + 1 for k in offsets))
+    if len(leds) < 2:  # a board of one LED: no pair to light
+        return None
+
+    def lit(*which: int) -> np.ndarray:
+        colours = np.zeros((n_leds, 3), np.uint8)
+        colours[[k - 1 for k in which]] = level
+        set_colours(colours)
+        return source.capture()
+
+    set_exposure(exposure_ms)
+    dark = lit()
+    singles = {k: lit(k) for k in leds}
+    pairs = tuple((a, b, lit(a, b)) for a, b in itertools.combinations(leds, 2))
+    set_colours(np.zeros((n_leds, 3), np.uint8))
+    return dark, singles, pairs
+
+
+def additivity_codes(
+    taken: tuple | None, exposure_ms: float, bit_depth: int, black_dn: float
+) -> AdditivityFrames | None:
+    """:func:`take_additivity`'s frames as ``device.additivity.AdditivityFrames`` of 8-bit codes (:func:`to_codes`)."""
+    from ..device.additivity import AdditivityFrames
+
+    if taken is None:
+        return None
+    dark, singles, pairs = taken
+    return AdditivityFrames(
+        exposure_ms,
+        to_codes(dark, bit_depth, black_dn),
+        {k: to_codes(f, bit_depth, black_dn) for k, f in singles.items()},
+        tuple((a, b, to_codes(f, bit_depth, black_dn)) for a, b, f in pairs),
+    )
+
+
 def dn_per_code(bit_depth: int, black_dn: float) -> float:
     """The camera's DN per 8-bit code above ``black_dn`` (:func:`to_codes`' scale)."""
     return ((1 << bit_depth) - 1 - black_dn) / 255
@@ -243,6 +311,7 @@ def to_codes(stored: np.ndarray, bit_depth: int, black_dn: float) -> np.ndarray:
 def _emulated_bracket(args: argparse.Namespace, exposures: Sequence[float]):
     import numpy as np
 
+    from ..device.additivity import pair_exposure
     from ..emulator import open_emulated_sensor
     from ..sim.scene import load_scene
     from .options import check_size_pair
@@ -269,17 +338,22 @@ def _emulated_bracket(args: argparse.Namespace, exposures: Sequence[float]):
         lights_off = functools.partial(sensor.rig.controller.set_all, np.zeros((n_leds, 3), np.uint8))
         dark = take_dark(sensor.camera, lights_off, set_exposure, min(exposures))
         noise = scene.noise
-    codes = [to_codes(f, noise.bit_depth, noise.black_level) for f in frames]
+        codes = [to_codes(f, noise.bit_depth, noise.black_level) for f in frames]
+        at = pair_exposure(codes, exposures)
+        set_colours = sensor.rig.controller.set_all
+        taken = take_additivity(sensor.camera, set_colours, set_exposure, n_leds, args.led, args.level, at)
+    shots = additivity_codes(taken, at, noise.bit_depth, noise.black_level)
     scale = dn_per_code(noise.bit_depth, noise.black_level)
     dark = (to_codes(dark, noise.bit_depth, noise.black_level), min(exposures), scale)
     curve = args.emulate_tone_curve or "linear"
     name = f"emulated ({args.emulate}, tone curve {curve})"
-    return codes, f"--emulate {args.emulate}", name, noise.black_level, dark
+    return codes, f"--emulate {args.emulate}", name, noise.black_level, dark, shots
 
 
 def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
     import numpy as np
 
+    from ..device.additivity import pair_exposure
     from ..device.camera import CameraSettings, apply_settings, open_source, report_refusals
     from ..device.lights_out import lights_out_on_exit
     from ..device.port import BAUD_RATE
@@ -326,13 +400,16 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
         frames = take_bracket(source, light, set_exposure, exposures)
         lights_off = functools.partial(controller.set_all, np.zeros((controller.n_leds, 3), np.uint8))
         dark = take_dark(source, lights_off, set_exposure, min(exposures))
+        bits = source.bit_depth
+        codes = [to_codes(f, bits, args.black_level) for f in frames]
+        at = pair_exposure(codes, exposures)
+        taken = take_additivity(source, controller.set_all, set_exposure, controller.n_leds, args.led, args.level, at)
         fresh = [line for line in refused if line not in source.refused]  # said when the camera opened
         if fresh:
             report_refusals(args.camera, ["; ".join(fresh)])
-        bits = source.bit_depth
-    codes = [to_codes(f, bits, args.black_level) for f in frames]
     dark = (to_codes(dark, bits, args.black_level), min(exposures), dn_per_code(bits, args.black_level))
-    return codes, exposures, f"camera {args.camera}", f"camera {args.camera}", args.black_level, dark
+    shots = additivity_codes(taken, at, bits, args.black_level)
+    return codes, exposures, f"camera {args.camera}", f"camera {args.camera}", args.black_level, dark, shots
 
 
 def _backend_exposures(camera: str, backend: str, exposures: Sequence[float]) -> tuple[float, ...]:
@@ -405,6 +482,7 @@ def _fit_and_write(
     camera: str,
     black_dn: float,
     dark: DarkFrame | None,
+    shots: AdditivityFrames | None,
 ) -> int:
     from .. import __version__
     from ..core.response_curve import MeasuredResponse, write_response_file
@@ -413,6 +491,7 @@ def _fit_and_write(
 
     dark_code = None if dark is None else check_black(dark[0], dark[1], source, black_dn, dark[2])
     fit = fit_response(frames, exposures, source)
+    fit, additivity = _pinned(fit, shots, source)
     own = fit.kept.ndim == 2
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
     provenance = {
@@ -430,6 +509,7 @@ def _fit_and_write(
         "per_channel": own,
         "exposure_ratio_error": round(fit.ratio_error, 6),
         "dark_median_code": dark_code,
+        "additivity": additivity,
         "monotonic": {"max_dip": round(fit.max_dip, 6), "flattened": fit.max_dip > 0},
         "software_version": __version__,
     }
@@ -448,3 +528,47 @@ def _fit_and_write(
         file=sys.stdout,
     )
     return 0
+
+
+def _pinned(fit: ResponseFit, shots: AdditivityFrames | None, source: str) -> tuple[ResponseFit, dict | None]:
+    """``fit`` checked by the LEDs lit apart and together (``device.additivity.pin_power``), its curves raised to
+    the power that makes their light add when the curve as fitted does not (said in one line), and what the
+    response file records of it (None for a --bracket folder: it has no such frames)."""
+    import dataclasses
+
+    import numpy as np
+
+    from ..device.additivity import pin_power
+
+    if shots is None:
+        return fit, None
+    _, check = pin_power(np.broadcast_to(fit.kept, (3, len(fit.curve))), shots, source)
+    if not np.isfinite(check.before):
+        print(
+            f"{source}: the frames of LEDs lit apart and together at {shots.exposure_ms:g} ms have too few pixels "
+            "neither black nor clipped that two LEDs light: the curve is not checked by light adding (a power of "
+            "the exposure times would go unseen); kept as fitted",
+            file=sys.stderr,
+        )
+        return fit, None
+    record = {
+        "exposure_ms": float(shots.exposure_ms),
+        "pairs": [[a, b] for a, b, *_ in check.errors],
+        "error": round(check.before, 6),
+        "power": round(check.power, 6),
+        "error_after": round(check.after, 6),
+    }
+    if check.power == 1.0:
+        return fit, record
+    p = check.power
+    print(
+        f"{source}: with the curve as fitted, LEDs lit together give {1 + check.signed:.3f} times their light lit "
+        f"apart; raised to the power {p:.3f} every pair adds within {check.after:.1%}: the camera's exposure times "
+        f"are a power of the asked ones (t ** {p:.2f}), which a bracket alone cannot see; the curve is so raised",
+        file=sys.stderr,
+    )
+    codes, linear = fit.points
+    raised = dataclasses.replace(
+        fit, curve=fit.curve**p, kept=fit.kept**p, channels=fit.channels**p, points=(codes, linear**p)
+    )
+    return raised, record

@@ -673,3 +673,21 @@ RESPONSE_CURVE_ERROR = 0.015
 CalibrateRobertson on the one-LED bracket gives 0.48-0.53 % for gamma 2.2 and sRGB, 0.63 % for the S-shaped
 vendor curve (0.77 % over every code; 160x120, 4 spp; benchmarks/RESULTS.md, s30-response); at the tests' 64x48,
 1 spp 0.54-0.59 %, the S-shaped 0.58 % (0.74 % over every code; s30-docsqa)."""
+RESPONSE_ADDITIVITY_ERROR = 0.015
+"""With the fitted camera-response curve undone, two LEDs lit together may give their light lit apart (the dark
+frame taken off each) within this fraction (summed over the pixels both light alike, and over those one lights
+mostly: :mod:`nlipscalib.device.additivity`); beyond it the curve is raised to the power that makes every pair add
+(the exposure times a power of the asked ones), or the calibration refused when none does. The emulated cameras'
+right curves add within 0.12-0.43 % (64x48, 1 spp; the stand-in webcam of the tests 0.67 %); times to the power 0.9 /
+1.1 miss by 7.9-8.1 / 5.6-6.4 %, 0.97 by 2.5 % (benchmarks/RESULTS.md, s31-additive). Within it, a power a = 0.98
+at most goes unseen: its curve ~0.7 % off, the fit's own error."""
+RESPONSE_ADDITIVITY_GAP = 0.006
+"""Once the curve is raised to the power that makes the LED pairs add (:data:`RESPONSE_ADDITIVITY_ERROR`), a pair's
+error where both LEDs light a pixel alike and where one lights it mostly may differ by this fraction: a power of the
+curve explains the misfit at every mix (the stand-in webcam's times to the power 0.9-1.1, pinned: 0.05-0.2 % apart),
+a pair that dims as a whole does not (the stand-in's pairs at 0.95 / 0.97 / 0.98 / 1.05 of their light apart: 1.9 /
+1.0 / 0.7 / 1.2 %; benchmarks/RESULTS.md, s31-additive)."""
+RESPONSE_ADDITIVITY_POWERS = (0.5, 2.0)
+"""The powers of the fitted curve tried to make the LED pairs add (:data:`RESPONSE_ADDITIVITY_ERROR`): times that
+are ``t ** a`` of the asked ones give a curve off by the power ``a``; a = 0.5-2 spans shutter tables from a base
+of sqrt(2) taken for 2 to 4 taken for 2. A power needed beyond them is no time table: refused."""

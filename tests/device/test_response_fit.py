@@ -15,7 +15,7 @@ from nlipscalib.cli import main
 from nlipscalib.core import load_press
 from nlipscalib.core.errors import CaptureError
 from nlipscalib.core.response_curve import read_response_file
-from nlipscalib.core.tolerances import RESPONSE_CURVE_ERROR
+from nlipscalib.core.tolerances import RESPONSE_ADDITIVITY_ERROR, RESPONSE_CURVE_ERROR
 from nlipscalib.device.response_fit import fit_response
 from nlipscalib.emulator import EMULATED_TONE_CURVES
 
@@ -58,6 +58,9 @@ def test_the_measured_curve_recovers_the_cameras(measured, curve):
     # one curve for the three channels (they agree within the fit's error): written as before, version 1
     assert prov["per_channel"] is False and json.loads(measured[curve].read_text())["format_version"] == 1
     assert prov["exposure_ratio_error"] < 0.01 and prov["dark_median_code"] == 0
+    # the emulated board's LEDs lit apart and together add with the curve as fitted (0.3-0.4 %): not raised
+    assert prov["additivity"]["pairs"] == [[1, 2], [1, 7], [2, 7]] and prov["additivity"]["power"] == 1.0
+    assert prov["additivity"]["error"] < RESPONSE_ADDITIVITY_ERROR / 2
     assert measured[curve].with_suffix(".png").stat().st_size > 10_000  # the figure
 
 
