@@ -23,11 +23,12 @@ from .leds import DISK_RULE_POINTS, DISK_RULE_WEIGHTS, Led, _disk_points, _fallo
 
 GRADIENT_PARAMETERS = ("mu", "axis_x", "axis_y", "axis_z", "position_x", "position_y", "position_z")
 """The columns of :func:`falloff_gradient`'s derivative, in order."""
-GRADIENT_BLOCK = 8192
-"""Values (points x quadrature points) per block of :func:`falloff_gradient`: its (quadrature points, points)
-temporaries then stay in the CPU's cache. A 7-point disk's gradient of 10,000 points took 2.5-2.7 ms a call in
-blocks of 512-1024 points, 5.3-6.6 ms in blocks of 2048-16384 (about one disk evaluation's time against 2-2.5x);
-a point LED's 0.7-1.0 ms in blocks of 1024-16384, 1.4 ms in 512 (benchmarks/RESULTS.md, s31-diskjac)."""
+GRADIENT_BLOCK = 32768
+"""Values (points x quadrature points) per block of :func:`falloff_gradient`: its temporaries are (quadrature
+points, points) arrays. On 9,600 samples of the 640x480 reference, one BLAS thread (as the LED fit runs), a 3.6 mm
+disk's gradient took 2.2-3.0 ms in blocks of 2,048-4,096 values, 1.7-1.8 ms at 8,192 and 1.5 ms from 32,768 to the
+whole set in one block (one disk evaluation 0.63-0.66 ms); a point's 0.34-0.39 ms from 16,384 up (one evaluation
+0.16 ms; benchmarks/RESULTS.md, s31-diskjac)."""
 
 
 def falloff_gradient(

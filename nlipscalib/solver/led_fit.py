@@ -55,7 +55,7 @@ class LedModel:
         columns of their Jacobian are the images themselves, the others these times K (:meth:`_LedProblem.jacobian`).
 
         Why not finite differences (scipy's default): 9 model evaluations a trf step, most of a disk fit's CPU
-        (s29-diskcost); this costs about one (benchmarks/RESULTS.md, s31-diskjac)."""
+        (s29-diskcost); this costs 2.2-2.4 (benchmarks/RESULTS.md, s31-diskjac)."""
         falloff, gradient = falloff_gradient(x, n, _led(params), self.radius)
         polar, azimuth = params[4:6]
         # d n_s / d (polar, azimuth) of _unit
