@@ -340,11 +340,15 @@ def disk_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: fl
 def _disk_points(centre: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:
     """(7, 3) float64, mm -- the quadrature points (:data:`DISK_RULE_POINTS`) of the disk of ``radius`` centred on
     ``centre`` and perpendicular to the unit ``axis``."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(axis, helper)
+    u = np.cross(axis, _disk_helper(axis))
     u /= np.linalg.norm(u)
     v = np.cross(axis, u)
     return centre + radius * (DISK_RULE_POINTS[:, :1] * u + DISK_RULE_POINTS[:, 1:] * v)
+
+
+def _disk_helper(axis: np.ndarray) -> np.ndarray:
+    """(3,) the fixed vector e of :func:`_disk_points`' frame (u along axis x e): one far from the axis."""
+    return np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
 
 
 def _vec3(v: object, name: str) -> tuple[float, float, float]:

@@ -19,7 +19,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .leds import DISK_RULE_POINTS, DISK_RULE_WEIGHTS, Led, _disk_points, _falloff, _planes, _points_and_normals
+from .leds import (
+    DISK_RULE_POINTS,
+    DISK_RULE_WEIGHTS,
+    Led,
+    _disk_helper,
+    _disk_points,
+    _falloff,
+    _planes,
+    _points_and_normals,
+)
 
 GRADIENT_PARAMETERS = ("mu", "axis_x", "axis_y", "axis_z", "position_x", "position_y", "position_z")
 """The columns of :func:`falloff_gradient`'s derivative, in order."""
@@ -106,8 +115,8 @@ def _block_gradient(
 
 def _disk_turns(axis: np.ndarray, radius: float) -> np.ndarray:
     """(7, 3, 3) float64 -- d c_j / d n_s of each quadrature point c_j of :func:`_disk_points` (its frame follows
-    the axis: u = (n_s x e) / |n_s x e|, v = n_s x u, e its fixed helper vector)."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    the axis: u = (n_s x e) / |n_s x e|, v = n_s x u, e fixed: :func:`_disk_helper`)."""
+    helper = _disk_helper(axis)
     w = np.cross(axis, helper)
     u = w / np.linalg.norm(w)
     du = (np.eye(3) - np.outer(u, u)) / np.linalg.norm(w) @ -_cross_matrix(helper)  # d(n_s x e) = -[e]x dn_s
