@@ -246,9 +246,18 @@ def _planes(points: np.ndarray, normals: np.ndarray) -> tuple[list[np.ndarray], 
     ]
 
 
-def _falloff(x: list[np.ndarray], n: list[np.ndarray], pos: np.ndarray, direction: np.ndarray, mu: float) -> np.ndarray:
+def _falloff(
+    x: list[np.ndarray],
+    n: list[np.ndarray],
+    pos: np.ndarray,
+    direction: np.ndarray,
+    mu: float,
+    parts: dict | None = None,
+) -> np.ndarray:
     """(P,) float64 -- one LED's (n_s.d)^mu max(0, cos) / r^2 at the points ``x`` with normals ``n`` (planes,
-    :func:`_planes`); in place where possible."""
+    :func:`_planes`); in place where possible. ``pos`` may be (J, 1) planes (J LEDs or points of a disk at once:
+    then (J, P)). ``parts``, when given, gets the terms it is made of (d = x_s - x (3), r2, inv_r, cos_surface,
+    cos_led): what its derivatives (:mod:`nlipscalib.core.leds_jacobian`) are made of."""
     d = [pos[k] - x[k] for k in range(3)]  # x_s - x
     r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
     inv_r = 1.0 / np.sqrt(r2)
@@ -256,6 +265,8 @@ def _falloff(x: list[np.ndarray], n: list[np.ndarray], pos: np.ndarray, directio
     np.maximum(cos_surface * inv_r, 0.0, out=cos_surface)
     cos_led = d[0] * direction[0] + d[1] * direction[1] + d[2] * direction[2]  # n_s . (x_s - x), negated below
     np.maximum(cos_led * -inv_r, 0.0, out=cos_led)
+    if parts is not None:  # cos_surface becomes the falloff below
+        parts.update(d=d, r2=r2, inv_r=inv_r, cos_surface=cos_surface.copy(), cos_led=cos_led)
     if mu > 0:
         cos_surface *= cos_led if mu == 1.0 else cos_led**mu
     cos_surface /= r2
@@ -329,11 +340,15 @@ def disk_shading(points: np.ndarray, normals: np.ndarray, leds: Leds, radius: fl
 def _disk_points(centre: np.ndarray, axis: np.ndarray, radius: float) -> np.ndarray:
     """(7, 3) float64, mm -- the quadrature points (:data:`DISK_RULE_POINTS`) of the disk of ``radius`` centred on
     ``centre`` and perpendicular to the unit ``axis``."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    u = np.cross(axis, helper)
+    u = np.cross(axis, _disk_helper(axis))
     u /= np.linalg.norm(u)
     v = np.cross(axis, u)
     return centre + radius * (DISK_RULE_POINTS[:, :1] * u + DISK_RULE_POINTS[:, 1:] * v)
+
+
+def _disk_helper(axis: np.ndarray) -> np.ndarray:
+    """(3,) the fixed vector e of :func:`_disk_points`' frame (u along axis x e): one far from the axis."""
+    return np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
 
 
 def _vec3(v: object, name: str) -> tuple[float, float, float]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -15,7 +15,8 @@ from ..core.blas import blas_threads
 from ..core.camera import depth_to_points
 from ..core.capture import Press
 from ..core.errors import CaptureError
-from ..core.leds import Led, Leds, disk_shading, led_shading
+from ..core.leds import Led, Leds, disk_shading
+from ..core.leds_jacobian import falloff_gradient
 from ..core.robust_scale import mad_scale
 from .press_checks import _other_sensor, optics_difference
 
@@ -23,9 +24,6 @@ if TYPE_CHECKING:  # named in hints only: scipy is imported when an LED is fitte
     from scipy.optimize import OptimizeResult
 
 log = logging.getLogger(__name__)
-
-Model = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-"""An LED image model: (params (9,), points (N, 3), normals (N, 3)) -> (N, 3) images (:func:`point_model`)."""
 
 
 def _unit(theta: float, phi: float):
@@ -39,18 +37,52 @@ def _led(params: np.ndarray) -> Led:
     )
 
 
-def point_model(params: np.ndarray, x: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """(N, 3) model images of one LED: the one LED image model, ``core.leds.led_shading``."""
-    return led_shading(x, n, (_led(params),))[0]
+@dataclasses.dataclass(frozen=True)
+class LedModel:
+    """The LED image model of one LED's parameter vector (log K (3), mu, polar, azimuth of n_s, x_s (3)): a point
+    (``core.leds.led_shading``) or a disk of ``radius`` (``core.leds.disk_shading``), with its Jacobian."""
+
+    radius: float = 0.0
+    """The LED's emitting disk's radius, mm; 0: a point LED."""
+
+    def __call__(self, params: np.ndarray, x: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """(N, 3) model images of one LED at the points ``x`` (N, 3) with normals ``n`` (N, 3), mm, camera frame."""
+        return disk_shading(x, n, (_led(params),), self.radius)[0]
+
+    def gradient(self, params: np.ndarray, x: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(falloff (N,), its derivatives (N, 6) with respect to params[3:9]: mu, polar, azimuth, x_s) -- the model
+        images are exp(log K) times the falloff per channel (``core.leds_jacobian.falloff_gradient``), so the log K
+        columns of their Jacobian are the images themselves, the others these times K (:meth:`_LedProblem.jacobian`).
+
+        Why not finite differences (scipy's default): 9 model evaluations a trf step, most of a disk fit's CPU
+        (s29-diskcost); this costs 2.2-2.4 (benchmarks/RESULTS.md, s31-diskjac)."""
+        falloff, gradient = falloff_gradient(x, n, _led(params), self.radius)
+        polar, azimuth = params[4:6]
+        # d n_s / d (polar, azimuth) of _unit
+        turn = np.array(
+            [
+                [np.cos(polar) * np.cos(azimuth), -np.sin(polar) * np.sin(azimuth)],
+                [np.cos(polar) * np.sin(azimuth), np.sin(polar) * np.cos(azimuth)],
+                [-np.sin(polar), 0.0],
+            ]
+        )
+        derivative = np.empty((len(x), 6))
+        derivative[:, 0] = gradient[:, 0] if params[3] >= 0 else 0.0  # _led clips mu at 0
+        derivative[:, 1:3] = gradient[:, 1:4] @ turn
+        derivative[:, 3:6] = gradient[:, 4:7]
+        return falloff, derivative
 
 
-def disk_model(radius: float) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+Model = LedModel
+"""An LED image model: (params (9,), points (N, 3), normals (N, 3)) -> (N, 3) images, and its Jacobian."""
+
+point_model = LedModel()
+"""The LED image model of a point LED: ``core.leds.led_shading``, the one LED image model."""
+
+
+def disk_model(radius: float) -> LedModel:
     """``point_model`` for an LED emitting from a disk of ``radius`` mm (``core.leds.disk_shading``)."""
-
-    def model(params: np.ndarray, x: np.ndarray, n: np.ndarray):
-        return disk_shading(x, n, (_led(params),), radius)[0]
-
-    return model
+    return LedModel(radius)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,7 +135,7 @@ def fit_leds(
     img: np.ndarray,
     ok: np.ndarray,
     loss: str,
-    model: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] = point_model,
+    model: Model = point_model,
 ) -> list[tuple[np.ndarray, np.ndarray, float]]:
     """[(params, std, rms)] per LED: robust non-linear least squares of ``model`` from ``leds``.
 
@@ -166,6 +198,8 @@ class _LedProblem:
     x: np.ndarray
     n: np.ndarray
     model: Model
+    rows: tuple[np.ndarray, np.ndarray]
+    """(M,) int each: the sample and channel of each residual row (``np.nonzero(use)``)."""
 
     @classmethod
     def of(cls, led: Led, img: np.ndarray, ok: np.ndarray, x: np.ndarray, n: np.ndarray, model: Model) -> _LedProblem:
@@ -179,10 +213,21 @@ class _LedProblem:
         )
         use = fit_samples(img, ok)
         scale = float(np.percentile(img[use], 90)) if use.any() else 1.0
-        return cls(_scaled(p0, img, ok, x, n, model), img, use, scale, x, n, model)
+        return cls(_scaled(p0, img, ok, x, n, model), img, use, scale, x, n, model, np.nonzero(use))
 
     def residual(self, params: np.ndarray) -> np.ndarray:
         return ((self.model(params, self.x, self.n) - self.img) / self.scale)[self.use]
+
+    def jacobian(self, params: np.ndarray) -> np.ndarray:
+        """(M, 9) -- :meth:`residual`'s derivatives (a step's are the parameters': the unknowns are offsets), its
+        rows the used samples' channels in :meth:`residual`'s order."""
+        sample, channel = self.rows
+        falloff, derivative = self.model.gradient(params, self.x, self.n)
+        k = np.exp(params[:3])[channel] / self.scale  # (M,): each row's K, in the residual's unit
+        jac = np.zeros((len(sample), 9))
+        jac[np.arange(len(sample)), channel] = falloff[sample] * k  # d/d log K_c: the row's model image
+        np.multiply(derivative[sample], k[:, None], out=jac[:, 3:])
+        return jac
 
     def solve(self, p0: np.ndarray, loss: str) -> OptimizeResult:
         """scipy's result of the fit from ``p0``, its unknowns the offsets from it (:func:`fit_leds`' why); ``p0``
@@ -192,8 +237,11 @@ class _LedProblem:
         def resid(step: np.ndarray) -> np.ndarray:
             return self.residual(p0 + step)
 
+        def jac(step: np.ndarray) -> np.ndarray:
+            return self.jacobian(p0 + step)
+
         f_scale = max(3 * mad_scale(resid(np.zeros_like(p0))), 1e-3)
-        res = least_squares(resid, np.zeros_like(p0), loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
+        res = least_squares(resid, np.zeros_like(p0), jac=jac, loss=loss, f_scale=f_scale, x_scale="jac", method="trf")
         res.start = p0
         return res
 

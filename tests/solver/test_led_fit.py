@@ -1,0 +1,53 @@
+import numpy as np
+import pytest
+from scipy.optimize._numdiff import approx_derivative
+
+from nlipscalib.core.leds import Led
+from nlipscalib.solver.led_fit import _led, _LedProblem, disk_model, fit_leds, point_model
+
+
+def _dome(count: int = 1500):
+    """Points and normals of a spherical cap of radius 20 mm, 12-20 mm in front of the camera."""
+    rng = np.random.default_rng(2)
+    theta, phi = np.arccos(rng.uniform(0.75, 1.0, count)), rng.uniform(0, 2 * np.pi, count)
+    normals = -np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], axis=1)
+    return np.array([0.0, 0.0, 32.0]) + 20.0 * normals, normals
+
+
+TRUE = Led((8.0, -3.0, 4.0), (-0.35, 0.15, 1.0), 1.6, (1.3, 1.0, 0.7))
+
+
+@pytest.mark.parametrize("model", [point_model, disk_model(1.8)], ids=["point", "disk"])
+def test_the_fits_jacobian_is_its_residuals_finite_differences(model):
+    """The Jacobian the fit hands scipy (the unknowns, the residual's scale and its used samples) against central
+    differences of the fit's own residual, away from the start's values."""
+    x, n = _dome()
+    img = model(_params(TRUE), x, n)
+    ok = np.ones_like(img, bool)
+    ok[::7, 1] = False  # rows of some samples' channels left out: the Jacobian's rows must follow the residual's
+    problem = _LedProblem.of(TRUE, img, ok, x, n, model)
+    params = problem.p0 + np.array([0.1, -0.05, 0.2, 0.3, 0.05, -0.1, 0.4, -0.3, 0.2])
+    analytic = problem.jacobian(params)
+    numeric = approx_derivative(problem.residual, params, method="3-point")
+    assert analytic.shape == numeric.shape == (problem.use.sum(), 9)
+    for column in range(9):  # each against its own size (log K's are the images, the position's per mm)
+        scale = np.abs(numeric[:, column]).max()
+        np.testing.assert_allclose(analytic[:, column], numeric[:, column], atol=1e-6 * scale, rtol=0)
+
+
+def test_a_disk_fit_from_an_offset_start_recovers_the_disk():
+    x, n = _dome()
+    model = disk_model(1.8)
+    img = model(_params(TRUE), x, n)[None]
+    start = Led((8.4, -2.7, 4.3), (-0.25, 0.1, 1.0), 1.2, (1.0, 1.0, 1.0))
+    ((params, std, rms),) = fit_leds([start], x, n, img, np.ones_like(img, bool), "cauchy", model)
+    fitted = _led(params)
+    np.testing.assert_allclose(fitted.position, TRUE.position, atol=1e-6)
+    np.testing.assert_allclose(fitted.direction, TRUE.direction, atol=1e-8)
+    np.testing.assert_allclose([fitted.mu, *fitted.intensity], [TRUE.mu, *TRUE.intensity], rtol=1e-6)
+    assert rms < 1e-9 * img.max() and np.all(np.isfinite(std))
+
+
+def _params(led: Led) -> np.ndarray:
+    d = np.asarray(led.direction)
+    return np.array([*np.log(led.intensity), led.mu, np.arccos(d[2]), np.arctan2(d[1], d[0]), *led.position])
