@@ -21,8 +21,10 @@ def anchor_weights(
     factor: float,
     min_fraction: float = ANCHOR_MIN_FRACTION,
     max_relative: float = 0.05,
+    auto_box: bool = False,
 ) -> tuple[np.ndarray | None, str]:
-    """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed.
+    """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed
+    (``1 + weight`` times :data:`tolerances.ROI_ANCHOR_GAIN` in ``--roi auto``'s box).
 
     Parameters
     ----------
@@ -36,6 +38,8 @@ def anchor_weights(
     max_relative : a pixel's verdict counts only when its threshold, ``factor`` times the noise-only
         misfit, is at most this fraction of its image level: with more noise a real dent (a 1 deg
         tilt changes the shading by ~2 %) would pass as undeformed.
+    auto_box : ``mask`` is ``--roi auto``'s box: its anchors, a ring round the contact, are weighted
+        :data:`tolerances.ROI_ANCHOR_GAIN` times more (at ``weight`` the box's depth scale drifted).
 
     Returns
     -------
@@ -56,8 +60,9 @@ def anchor_weights(
         )
     pins = undeformed & mask
     weights = np.ones(mask.shape)
-    weights[pins] += weight
-    return weights, f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise)"
+    weights[pins] += weight * tolerances.ROI_ANCHOR_GAIN if auto_box else weight
+    gain = f", weight x{tolerances.ROI_ANCHOR_GAIN:g} in --roi auto's box" if auto_box else ""
+    return weights, f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise{gain})"
 
 
 def widen_to_anchor(

@@ -532,12 +532,15 @@ def _solve_press(
     if ref_capture is None:
         edge_error = functools.partial(point_led_misfit, press, leds, cmap, indirect_light=bounced)
     reference = ref_capture.folder if ref_capture is not None else None
+    auto_box = isinstance(roi, str)  # "auto" (checked above): its box's anchors weigh more
     roi, roi_note = _region(press, roi, explicit_roi, cmap, reference, edge_error)
     if roi is not None:
         mask &= box_mask(roi, (H, W))
     weights, anchoring = (None, "anchoring off (no reference surface)")
     if cmap is not None:
-        weights, anchoring = anchor_weights(cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR)
+        weights, anchoring = anchor_weights(
+            cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR, auto_box=auto_box
+        )
     options, noise = _noise_regularised(options, press, cmap)
     t_contact = light.contact_seconds + time.perf_counter() - t0
 
