@@ -45,7 +45,7 @@ from ..core.errors import CaptureError, ShapeError
 from ..core.repeated_frames import DarkBand, LaggedBand, dark_band_mask, dark_line
 from ..progress import PRESS_DETAIL
 from . import reuse, threads
-from .anchoring import anchor_weights, widen_to_anchor
+from .anchoring import anchor_weights, rescale_to_anchors, widen_to_anchor
 from .camera_shift import shift_note
 from .contact import ContactMap
 from .contact_roi import contact_box
@@ -552,6 +552,10 @@ def _solve_press(
         result = loop.run(run, max_outer if dent_interreflection else 0)
     else:
         loop, result = None, run(fixed_light)
+    if auto_box and prior is not None:  # the box's depth scale, pinned to the reference where it is undeformed
+        result, scale = rescale_to_anchors(result, prior, weights)
+        if scale is not None:
+            anchoring += f"; the box's depth scaled by {scale:.5f} onto the reference there"
     rep = result.report
     rep["roi"] = list(roi) if roi is not None else None
     rep["roi_note"] = roi_note
