@@ -218,7 +218,8 @@ weight the data's pull on the depth scale won over them: the box's undeformed ri
 (cube1 0.074 mm, the contact's depth RMSE 0.069 mm) where the whole gel's is pinned. At 3x the twin's six benchmark
 presses (sphere1, cube1, coin1 at 640x480; a 1.8 mm-deep sphere, a cube at 40 deg polar, a 4 mm sphere at 320x240)
 all improved: depth RMSE -50 to -66 % (coin1 the same, its error being the relief's), contact AAE 0.002-0.26 deg
-lower; at 5-10x the 4 mm sphere's AAE rose 0.006-0.011 deg (benchmarks/RESULTS.md, s31-rimdepth). Whole-gel and
+lower; at 5-10x the 4 mm sphere's AAE rose 0.006-0.011 deg (benchmarks/RESULTS.md, s31-rimdepth). What is left of
+the scale is taken out after the solve (:func:`nlipscalib.solver.anchoring.rescale_to_anchors`). Whole-gel and
 explicit-ROI solves keep the plain weight."""
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
