@@ -211,6 +211,16 @@ SENSOR_FIT_VIEW_DEG = 30.0
 from their mean direction. Why: a view of a patch of the dome (a 64x64 crop of a 480x360 view around a dent, a test's
 "mostly dent" capture, 9.5 deg) can be all dent, and a dent misfits the undeformed model as another sensor does
 (25 %); the shipped designs' full views reach 52-68 deg."""
+ROI_ANCHOR_GAIN = 3.0
+"""``--roi auto``: the anchored pixels' prior weight (:attr:`.SolverOptions.anchor_weight`) is this many times the
+whole gel's in the auto box. Why: in the box the anchors are a thin ring round the contact, and at the whole gel's
+weight the data's pull on the depth scale won over them: the box's anchored pixels came out 0.1-0.5 % too far
+(cube1's outer ring 0.074 mm, its contact's depth RMSE 0.069 mm) where the whole gel's are pinned. At 3x the twin's
+six benchmark presses (sphere1, cube1, coin1 at 640x480; a 1.8 mm-deep sphere, a cube at 40 deg polar, a 4 mm sphere
+at 320x240) all improved: depth RMSE -50 to -66 % (coin1 the same, its error being the relief's), contact AAE
+0.002-0.26 deg lower (at 160x120 a 6 mm sphere's rose 0.015 deg); at 5-10x the 4 mm sphere's rose 0.006-0.011 deg
+(benchmarks/RESULTS.md, s31-rimdepth). What is left of the scale is taken out after the solve
+(:func:`nlipscalib.solver.anchoring.rescale_to_anchors`). Whole-gel and explicit-ROI solves keep the plain weight."""
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""

@@ -45,7 +45,7 @@ from ..core.errors import CaptureError, ShapeError
 from ..core.repeated_frames import DarkBand, LaggedBand, dark_band_mask, dark_line
 from ..progress import PRESS_DETAIL
 from . import reuse, threads
-from .anchoring import anchor_weights, widen_to_anchor
+from .anchoring import anchor_weights, rescale_to_anchors, widen_to_anchor
 from .camera_shift import shift_note
 from .contact import ContactMap
 from .contact_roi import contact_box
@@ -532,12 +532,15 @@ def _solve_press(
     if ref_capture is None:
         edge_error = functools.partial(point_led_misfit, press, leds, cmap, indirect_light=bounced)
     reference = ref_capture.folder if ref_capture is not None else None
+    auto_box = isinstance(roi, str)  # "auto" (checked above): its box's anchors weigh more
     roi, roi_note = _region(press, roi, explicit_roi, cmap, reference, edge_error)
     if roi is not None:
         mask &= box_mask(roi, (H, W))
     weights, anchoring = (None, "anchoring off (no reference surface)")
     if cmap is not None:
-        weights, anchoring = anchor_weights(cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR)
+        weights, anchoring = anchor_weights(
+            cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR, auto_box=auto_box
+        )
     options, noise = _noise_regularised(options, press, cmap)
     t_contact = light.contact_seconds + time.perf_counter() - t0
 
@@ -549,6 +552,10 @@ def _solve_press(
         result = loop.run(run, max_outer if dent_interreflection else 0)
     else:
         loop, result = None, run(fixed_light)
+    if auto_box and prior is not None:  # the box's depth scale, pinned to the reference where it is undeformed
+        result, scale = rescale_to_anchors(result, prior, weights)
+        if scale is not None:
+            anchoring += f"; the box's depth scaled by {scale:.5f} onto the reference there"
     rep = result.report
     rep["roi"] = list(roi) if roi is not None else None
     rep["roi_note"] = roi_note

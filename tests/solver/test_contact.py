@@ -820,3 +820,92 @@ def test_auto_roi_box_grows_over_the_flank_only_where_the_flank_joins_the_contac
     misfit[25:95, 104:112] = 2.0  # misfit beside the box, apart from the contact (a gap of 9 px)
     cmap = _contact_map(misfit)
     assert contact_box(cmap, shape, flank=True) == contact_box(cmap, shape)
+
+
+def test_auto_roi_anchors_weigh_roi_anchor_gain_times_more_in_its_box():
+    """In ``--roi auto``'s box the anchored pixels' weight is ``tolerances.ROI_ANCHOR_GAIN`` times the whole gel's
+    (at the plain weight the box's depth scale drifted: cube1 0.07 mm, s31-rimdepth); other pixels keep 1."""
+    from nlipscalib.solver.anchoring import anchor_weights
+    from nlipscalib.solver.contact import ContactMap
+
+    shape = (40, 50)
+    misfit = np.ones(shape)
+    misfit[_disk(shape, (20, 25), 8)] = 20.0  # the dent: not undeformed
+    cmap = ContactMap(misfit, np.ones(shape), (0, 1, 2), (), 0.01, np.full(shape, 100.0))
+    gel = np.ones(shape, bool)
+    plain, note = anchor_weights(cmap, gel, 1000.0, 3.0)
+    boxed, boxed_note = anchor_weights(cmap, gel, 1000.0, 3.0, auto_box=True)
+    pins = misfit <= 3.0
+    assert tolerances.ROI_ANCHOR_GAIN > 1
+    np.testing.assert_array_equal(plain, np.where(pins, 1001.0, 1.0))
+    np.testing.assert_array_equal(boxed, np.where(pins, 1.0 + 1000.0 * tolerances.ROI_ANCHOR_GAIN, 1.0))
+    assert "--roi auto" in boxed_note and "--roi auto" not in note
+
+
+def _reconstruction(depth: np.ndarray, rays: np.ndarray):
+    """A Reconstruction of ``depth`` (H, W) mm with points ``depth * rays`` and arbitrary unit normals."""
+    from nlipscalib.core.reconstruction import Reconstruction
+
+    H, W = depth.shape
+    normals = np.broadcast_to(np.array([0.0, 0.6, -0.8], np.float32), (H, W, 3)).copy()
+    ones = np.ones((H, W), np.float32)
+    return Reconstruction(
+        depth=depth.astype(np.float32),
+        points=(depth[..., None] * rays).astype(np.float32),
+        normals=normals,
+        albedo=np.ones((H, W, 3), np.float32),
+        residual=ones,
+        confidence=ones,
+        usable_leds=np.full((H, W), 12, np.int16),
+        mask=np.isfinite(depth),
+        reconstructed=np.isfinite(depth),
+        report={"seconds": 1.0},
+    )
+
+
+def test_rescaling_to_anchors_puts_the_anchored_depth_on_the_reference_and_keeps_the_normals():
+    """:func:`.anchoring.rescale_to_anchors`: the box's depth and points scaled about the camera's centre by the
+    median reference-over-solved ratio of its anchored pixels (robust to a few pixels off), normals untouched."""
+    from nlipscalib.solver.anchoring import rescale_to_anchors
+
+    shape = (30, 40)
+    rng = np.random.default_rng(0)
+    reference = 15.0 + rng.uniform(-0.5, 0.5, shape)
+    solved = reference * 1.004  # the box 0.4 % too far
+    solved[10:20, 15:25] -= 0.3  # the dent: not anchored
+    weights = np.ones(shape)
+    weights[:3, :] = weights[-3:, :] = 1001.0  # the ring of anchored pixels
+    weights[:, :3] = weights[:, -3:] = 1001.0
+    solved[0, :5] += 1.0  # a few anchored pixels far off: the median ignores them
+    rays = np.dstack([rng.uniform(-0.3, 0.3, shape), rng.uniform(-0.3, 0.3, shape), np.ones(shape)])
+    result = _reconstruction(solved, rays)
+    scaled, scale = rescale_to_anchors(result, reference, weights)
+    np.testing.assert_allclose(scale, 1 / 1.004, rtol=1e-6)
+    ring = weights > 1
+    ring[0, :5] = False
+    np.testing.assert_allclose(scaled.depth[ring], reference[ring], rtol=1e-6)
+    np.testing.assert_allclose(scaled.points, result.points * scale, rtol=1e-6)
+    assert scaled.normals is result.normals and scaled.albedo is result.albedo
+    assert scaled.report["anchor_scale"] == scale and "anchor_scale" not in result.report
+    assert rescale_to_anchors(result, reference, None) == (result, None)
+    assert rescale_to_anchors(result, reference, np.ones(shape)) == (result, None)
+
+
+def test_auto_roi_solve_scales_its_box_onto_the_reference_and_a_whole_gel_solve_does_not(tmp_path, monkeypatch):
+    """``solve_press(roi="auto")`` rescales its box's depth (``report["anchor_scale"]``, normals as solved); the whole
+    gel and an explicit box are left as solved."""
+    from nlipscalib.solver import press as press_solve
+
+    press = _noisy_press(tmp_path / "p", 1.0, 0)
+    options = SolverOptions(max_iters=5)
+    auto = solve_press(press, roi="auto", options=options)
+    scale = auto.report["anchor_scale"]
+    assert scale != 1.0 and "depth scaled by" in auto.report["anchoring"]
+    monkeypatch.setattr(press_solve, "rescale_to_anchors", lambda result, *_: (result, None))
+    unscaled = solve_press(press, roi="auto", options=options)
+    np.testing.assert_array_equal(auto.normals, unscaled.normals)
+    np.testing.assert_allclose(auto.depth, unscaled.depth * scale, rtol=1e-6)
+    monkeypatch.undo()
+    for roi in (None, tuple(auto.report["roi"])):
+        other = solve_press(press, roi=roi, options=options)
+        assert "anchor_scale" not in other.report and "--roi auto" not in other.report["anchoring"]
