@@ -26,6 +26,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from common import twin_presses  # noqa: E402
+
 TILTS_DEG = (1.0, 2.0)
 """Truth pixels tilted by more than these (deg) from the undeformed surface are counted apart: the solve's contact AAE
 is 0.4-0.7 deg, so a pixel tilted less is as well described by the undeformed surface as by a solve."""
@@ -84,13 +86,8 @@ def main() -> None:
     ap.add_argument("--whole", action="store_true", help="also solve the whole gel: the left-out truth's AAE there")
     ap.add_argument("--margins", default="8", help="comma-separated box margins, px (the default's: 8)")
     args = ap.parse_args()
-    from nlipscalib.core import load_press
-
-    reference = load_press(args.reference) if args.reference else None
-    for folder in args.presses:
-        press = load_press(folder)
-        if press.ground_truth is None:
-            sys.exit(f"{folder}: no ground truth (gt.npz): not a twin's render")
+    reference, presses = twin_presses(args.presses, args.reference)
+    for _, press in presses:
         whole = _solve(press, reference, None, 8)[0] if args.whole else None
         for margin in (int(m) for m in args.margins.split(",")):
             print(json.dumps(_row(press, reference, margin, whole)), flush=True)

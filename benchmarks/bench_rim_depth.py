@@ -22,6 +22,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from common import twin_presses  # noqa: E402
+
 RING_PX = 4
 """Width of the box's outer ring whose depth offset is reported, pixels."""
 
@@ -62,13 +64,8 @@ def main() -> None:
     ap.add_argument("--reference", type=Path, help="the undeformed dome's capture (as nlips solve --reference)")
     ap.add_argument("--anchor-weights", default="1000", help="comma-separated SolverOptions.anchor_weight values")
     args = ap.parse_args()
-    from nlipscalib.core import load_press
-
-    reference = load_press(args.reference) if args.reference else None
-    for folder in args.presses:
-        press = load_press(folder)
-        if press.ground_truth is None:
-            sys.exit(f"{folder}: no ground truth (gt.npz): not a twin's render")
+    reference, presses = twin_presses(args.presses, args.reference)
+    for _, press in presses:
         for weight in (float(w) for w in args.anchor_weights.split(",")):
             print(json.dumps(_row(press, reference, weight)), flush=True)
 

@@ -33,6 +33,20 @@ def median_time(fn, repeats: int = 5, warmup: int = 1) -> tuple[float, list[floa
     return statistics.median(times), times
 
 
+def twin_presses(folders: list[Path], reference: Path | None) -> tuple[object, list[tuple[Path, object]]]:
+    """The undeformed capture (None without one) and each twin press folder's loaded press; exits with one line
+    naming a folder without ground truth (gt.npz), which a press the twin did not render lacks."""
+    from nlipscalib.core import load_press
+
+    presses = []
+    for folder in folders:
+        press = load_press(folder)
+        if press.ground_truth is None:
+            sys.exit(f"{folder}: no ground truth (gt.npz): not a twin's render")
+        presses.append((folder, press))
+    return (load_press(reference) if reference else None), presses
+
+
 def write_section(name: str, body: str) -> None:
     """Replace (or append) the section ``## name`` of RESULTS.md, keeping the others."""
     header = f"## {name}"
