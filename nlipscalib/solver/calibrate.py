@@ -288,10 +288,6 @@ class _Settings:
     left_out: tuple[np.ndarray, ...] | None = None
     """Per capture, (H, W) bool: its pixels left out of the fit (a contact, with ``allow_contact``); None: not
     looked for yet (:func:`contact_regions`, after the first fit)."""
-    start: Leds | None = None
-    """The LEDs the calibration started from when a rerun starts from others (:func:`_after_runoff`): what the words
-    naming an LED near the gel measure its move from (the capture's LEDs, the design's on a sensor); None: ``initial``
-    (or the capture's)."""
 
 
 def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
@@ -310,9 +306,8 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         selections=[d[4] for d in data],
     )
     trace: list[float] = []
-    fitted, direct, models = indirect_rounds(
-        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out, trace
-    )
+    args = (presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out)
+    fitted, direct, models = indirect_rounds(*args, trace, settle=True)  # a set reflectance: from far off, to settle
     # before the contact check: a run-off, or a term held low by LEDs far from their start, misfits as a press
     if s.coating_reflectance is None and (bounds := unsettled_range(trace)) is not None:
         return _after_runoff(presses, samples, leds0, s, left_out, trace, bounds)
@@ -321,10 +316,10 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         if any(region.any() for region in s.left_out):
             if not s.allow_contact:
                 leds, albedo = to_leds(fitted)[:2]
-                raise CaptureError(contact_refusal(presses, s.left_out, leds, albedo, models, s.start or leds0))
+                raise CaptureError(contact_refusal(presses, s.left_out, leds, albedo, models, leds0))
             leds, albedo = to_leds(fitted)[:2]
             causes = tuple(
-                led_cause(p, r, leds, albedo, m, s.start or leds0) if r.any() else None
+                led_cause(p, r, leds, albedo, m, leds0) if r.any() else None
                 for p, r, m in zip(presses, s.left_out, models)
             )
             again = _calibrate(presses, s)  # the same fit without the contact's pixels
@@ -364,14 +359,13 @@ def _after_runoff(
     the rounds (``trace``); the terms carry ``reflectance_runoff`` (the rounds' values and the choice), which
     :func:`calibrate_leds` warns about."""
     args = (presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, left_out, bounds)
-    chosen, ended = runoff_reflectance(*args)
+    chosen = runoff_reflectance(*args)
     log.info(
         "the free coating reflectance did not settle over the rounds (%s); chosen %.3f",
         ", ".join(f"{v:.3f}" for v in trace),
         chosen,
     )
-    # on from where the search's rounds at the chosen reflectance ended: from LEDs far off, they had not settled
-    again = _calibrate(presses, dataclasses.replace(s, initial=ended, coating_reflectance=chosen, start=leds0))
+    again = _calibrate(presses, dataclasses.replace(s, initial=leds0, coating_reflectance=chosen))
     if not any(m.get("enabled") for m in again.interreflection):  # "auto" dropped the term there: nothing was set
         return again
     run = {"rounds": [round(v, 4) for v in trace], "chosen": round(chosen, 4)}

@@ -30,6 +30,7 @@ def indirect_rounds(
     coating_reflectance: float | tuple[float, float, float] | None,
     left_out: Sequence[np.ndarray | None],
     trace: list[float] | None = None,
+    settle: bool = False,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray, float]], np.ndarray, list[IndirectModel]]:
     """(per-LED fits as :func:`fit_leds` returns them, the images minus the indirect light they were fitted to,
     the captures' last indirect terms) -- ``rounds`` alternations of indirect fit and LED fit, or one direct-only
@@ -37,7 +38,8 @@ def indirect_rounds(
     fit leaves out as the LED fit does (a contact, ``allow_contact``): a dent's light fitted as the undeformed
     dome's would bias the term's reflectance, and through it every LED fitted to the images minus it. ``trace``, when
     given, gets each round's term reflectance (the first capture's whose term is on, its largest channel)
-    appended: what :func:`ran_off` reads.
+    appended: what :func:`ran_off` reads. ``settle``, with a ``coating_reflectance``: more rounds while the last one
+    still moved an LED far (:func:`moved_far`), at most :data:`SETTLE_EXTRA_ROUNDS`.
 
     A direct-only fit would absorb the indirect light into wrong LED parameters (up to 17 deg off on the twin),
     after which nothing correlates with the indirect term any more: the term is fitted with the starting LEDs
@@ -48,7 +50,10 @@ def indirect_rounds(
     leds, fitted, models = leds0, None, []
     direct = img  # the images minus the indirect light the last LED fit used
     first: list[float | None] = [None] * len(presses)  # each capture's share with the starting LEDs
-    for r in range(rounds if interreflection != "off" else 0):
+    planned = rounds if interreflection != "off" else 0
+    settle = settle and coating_reflectance is not None
+    before, r = None, 0
+    while r < planned or (settle and r < planned + SETTLE_EXTRA_ROUNDS and moved_far(before, fitted)):
         if r > 0:
             leds = to_leds(fitted)[0]
         models = [
@@ -69,11 +74,38 @@ def indirect_rounds(
         if trace is not None:
             trace.append(float(np.max(next(m.reflectance for m in models if m.enabled))))
         direct = img - _sampled_indirect_light(presses, models, samples.selections, len(leds))
-        fitted = fit_leds(leds, x, n, direct, ok, loss)
+        before, fitted = fitted, fit_leds(leds, x, n, direct, ok, loss)
+        r += 1
     if fitted is None or (models and not any(m.enabled for m in models)):
         direct = img
         fitted = fit_leds(leds0, x, n, img, ok, loss)
     return fitted, direct, models
+
+
+SETTLE_MOVE_MM = 0.2
+"""An LED fit whose last round moved an LED more than this (or its axis more than :data:`SETTLE_MOVE_DEG`) has not
+settled (:func:`moved_far`). Why: from LEDs far off their places, three rounds at a set reflectance stop half way:
+the twin 3 mm / 25 deg off the design, one bounce, seed 3, at the true 0.8: moves 2.26, 1.07, 0.56, 0.30, 0.16 mm
+(11.9, 7.2, 3.2, 1.7, 0.9 deg) at rounds 2-6, LED 10's disk 0.64 mm / 2.6 deg off after three rounds, 0.09 mm / 0.5
+deg after six. The usual captures' third round moves them at most 0.053 mm / 0.94 deg (the twin's one-bounce
+references from 0-2 mm off the design, or from the truth 0.3-0.5 mm / 5 deg off), so they are not touched; seed 2 of
+the far twin 0.22 mm / 1.6 deg; benchmarks/RESULTS.md, s31-ledfar."""
+SETTLE_MOVE_DEG = 3.0
+"""The axis part of :data:`SETTLE_MOVE_MM`, deg."""
+SETTLE_EXTRA_ROUNDS = 4
+"""The most rounds :func:`indirect_rounds` adds to settle (each a term fit and an LED fit: ~0.5 s of CPU at
+160x120)."""
+
+
+def moved_far(before: list | None, after: list | None) -> bool:
+    """Whether any LED moved more than :data:`SETTLE_MOVE_MM` or turned more than :data:`SETTLE_MOVE_DEG` from the LED
+    fits ``before`` to ``after`` (as :func:`fit_leds` returns them); False without both."""
+    if before is None or after is None:
+        return False
+    old, new = to_leds(before)[0], to_leds(after)[0]
+    move = max(float(np.linalg.norm(np.subtract(a.position, b.position))) for a, b in zip(old, new))
+    cosine = min(float(np.dot(a.direction, b.direction)) for a, b in zip(old, new))
+    return move > SETTLE_MOVE_MM or np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))) > SETTLE_MOVE_DEG
 
 
 RUNOFF_RATIO = 0.8
@@ -138,36 +170,27 @@ def runoff_reflectance(
     rounds: int,
     left_out: Sequence[np.ndarray | None],
     bounds: tuple[float, float],
-) -> tuple[float, Leds]:
-    """(the coating reflectance, the point LEDs its rounds ended with): the reflectance whose whole rounds
-    (:func:`indirect_rounds` from ``leds0`` with it set) leave the point LED fits the least summed squared residual
-    (image units), within ``bounds`` (:func:`unsettled_range`). Bounded Brent search (scipy.optimize.minimize_scalar),
-    each step a calibration's rounds.
+) -> float:
+    """The coating reflectance whose whole rounds (:func:`indirect_rounds` from ``leds0`` with it set) leave the point
+    LED fits the least summed squared residual (image units), within ``bounds`` (:func:`unsettled_range`). Bounded
+    Brent search (scipy.optimize.minimize_scalar), each step a calibration's rounds.
 
     Why the whole rounds, not the LEDs' fit to one round's images: the reflectance and the LED that took up the term's
     light trade within a round (on the run-off twin capture the LED fits' residual was lower at its wrong round than at
     the first), while rounds held at a reflectance settle where that reflectance puts the LEDs: there the residual
     is least at the true one (summed squared RMS x 1e4: 2.49 at 0.6, 2.35 at 0.7, 2.32 at 0.8, 3.15 at 0.9, 4.27 at
-    1.0; LEDs 0.48 mm off at 0.8, 3.2 mm at 0.9; benchmarks/RESULTS.md, s30-ledmargin).
-
-    Why its LEDs are returned: the calibration at the chosen reflectance goes on from them. From LEDs far off their
-    places, ``rounds`` rounds at a set reflectance have not settled (the twin 3 mm / 25 deg off, seed 3, at 0.796:
-    LED 10's axis 7.8, 4.9, 2.2 deg off over three rounds; after three more 0.47 deg, its disk 0.65 mm -> 0.09 mm
-    off): started again from ``leds0`` they stopped where three rounds end (s31-ledfar)."""
+    1.0; LEDs 0.48 mm off at 0.8, 3.2 mm at 0.9; benchmarks/RESULTS.md, s30-ledmargin). Each step's rounds are
+    ``rounds`` only (not settled, :func:`moved_far`): the residual ranks the reflectances already (the twin 3 mm / 25
+    deg off, seed 3: 1.855, 1.778, 1.757, 1.788, 1.867 x 1e-4 at 0.6-1.0), and the calibration at the chosen one
+    settles."""
     from scipy.optimize import minimize_scalar
-
-    ended: dict[float, Leds] = {}
 
     def residual(a: float) -> float:
         fitted = indirect_rounds(presses, samples, leds0, loss, interreflection, bounces, rounds, float(a), left_out)[0]
-        ended[float(a)] = to_leds(fitted)[0]
         return float(sum(f[2] ** 2 for f in fitted))
 
     best = minimize_scalar(residual, bounds=bounds, method="bounded", options={"xatol": RUNOFF_XTOL})
-    chosen = float(best.x)
-    if chosen not in ended:  # scipy returns an evaluated point; this only guards a change of that
-        residual(chosen)
-    return chosen, ended[chosen]
+    return float(best.x)
 
 
 def runoff_note(models: list[dict]) -> list[str]:

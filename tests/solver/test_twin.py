@@ -394,8 +394,8 @@ def test_leds_far_from_their_design_are_calibrated_though_their_free_reflectance
     each round gave only a few % back (0.39, 0.41, 0.44, ..., 0.52 after 8 rounds, for 0.8). The contact check, run on
     that fit, found a 3 % patch at the frame's corner and refused the undeformed capture as a press ("as a press
     does"); with --allow-contact the disks ended 0.53 mm / 2.9 deg off (a 160x120 render of seed 3's bench capture).
-    The reflectance is now chosen by whole fits at set reflectances when it was still rising, and the calibration goes
-    on from the LEDs those fits ended with (benchmarks/RESULTS.md, s31-ledfar)."""
+    The reflectance is now chosen by whole fits at set reflectances when it was still rising, and at a set reflectance
+    the rounds go on while they still move an LED far (benchmarks/RESULTS.md, s31-ledfar)."""
     scene = twin(bounces=1, spp=16, noise=True)
     ref = load_press(render_press(far_from_design(scene, seed=3), None, root / "far3_b1", seed=0))
     cal = calibrate_leds(ref, initial=scene.led_models(), led_radius=1.8)  # before: CaptureError "as a press does"
@@ -404,9 +404,15 @@ def test_leds_far_from_their_design_are_calibrated_though_their_free_reflectance
     assert run["rounds"][-1] > 1.02 * run["rounds"][-2] and abs(run["chosen"] - 0.8) < 0.06, run
     assert any("still rising over the rounds" in w for w in cal.warnings), cal.warnings
     assert cal.quality["reliable"] and not cal.contact_pixels, cal.quality
-    for disk, truth in zip(cal.emitters, ref.leds):  # now 0.28 mm / 1.0 deg at worst
-        assert np.linalg.norm(np.subtract(disk.position, truth.position)) < 0.4
+    for disk, truth in zip(cal.emitters, ref.leds):  # now 0.36 mm (LED 10, the light mostly out of view) / 1.1 deg
+        assert np.linalg.norm(np.subtract(disk.position, truth.position)) < 0.45
         assert np.degrees(np.arccos(min(1.0, np.dot(disk.direction, truth.direction)))) < 2.0
+    # the reflectance given: three rounds from the design had not settled (LED 10 0.99 mm / 2.1 deg off), the rounds
+    # now go on while they move an LED far (calibration_term.moved_far): 0.44 mm / 0.6 deg
+    known = calibrate_leds(ref, initial=scene.led_models(), led_radius=1.8, coating_reflectance=0.8)
+    for disk, truth in zip(known.emitters, ref.leds):
+        assert np.linalg.norm(np.subtract(disk.position, truth.position)) < 0.6
+        assert np.degrees(np.arccos(min(1.0, np.dot(disk.direction, truth.direction)))) < 1.5
 
 
 def test_a_profile_rerun_that_drops_the_term_returns_direct_only_leds_without_the_profile(root, monkeypatch):
