@@ -127,7 +127,7 @@ RISING_STEP = 0.02
 of the round's before. Why: LEDs that start far from their places take up part of the interreflection's light in the
 first round (the term is fitted with the starting LEDs), and the alternation of term and LED fits gives it back a
 few % a round: the twin with its LEDs 3 mm / 25 deg / mu 2 off the design, one bounce, seeds 2 and 3 (true 0.8):
-0.507, 0.568, 0.588 (+3.4 %), ..., 0.666 after 8 rounds, and 0.387, 0.411, 0.434 (+5.6 %), ..., 0.523; their LEDs at
+0.507, 0.568, 0.588 (+3.5 %), ..., 0.666 after 8 rounds, and 0.387, 0.411, 0.434 (+5.6 %), ..., 0.523; their LEDs at
 the third round 0.5 / 1.1 mm and 3.6 / 8.4 deg off, and the capture refused as a press (a 1 % patch at the frame's
 corner the low term misfits). Settled rounds change it by < 0.3 % at the third (the twin's one-bounce references
 and the design ring from 0-2 mm off; benchmarks/RESULTS.md, s31-ledfar)."""
