@@ -46,12 +46,12 @@ from .calibration_term import (
     emitters_and_profile,
     indirect_rounds,
     no_interreflection,
-    ran_off,
     runoff_note,
     runoff_reflectance,
     term_gain,
     term_wins,
     unprofiled_note,
+    unsettled_range,
     unused_reflectance,
 )
 from .exposure import nothing_to_fit, saturated_share, saturation_note
@@ -306,11 +306,11 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
         selections=[d[4] for d in data],
     )
     trace: list[float] = []
-    fitted, direct, models = indirect_rounds(
-        presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out, trace
-    )
-    if s.coating_reflectance is None and ran_off(trace):  # before the contact check: the run-off reads as a press
-        return _after_runoff(presses, samples, leds0, s, left_out, trace)
+    args = (presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out)
+    fitted, direct, models = indirect_rounds(*args, trace, settle=True)  # a set reflectance: from far off, to settle
+    # before the contact check: a run-off, or a term held low by LEDs far from their start, misfits as a press
+    if s.coating_reflectance is None and (bounds := unsettled_range(trace)) is not None:
+        return _after_runoff(presses, samples, leds0, s, left_out, trace, bounds)
     if s.left_out is None:  # once per calibration: the reruns below keep the verdict
         s = dataclasses.replace(s, left_out=contact_regions(presses, to_leds(fitted)[0], models))
         if any(region.any() for region in s.left_out):
@@ -346,15 +346,22 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
 
 
 def _after_runoff(
-    presses: Sequence[Press], samples: Samples, leds0: Leds, s: _Settings, left_out: Sequence, trace: list[float]
+    presses: Sequence[Press],
+    samples: Samples,
+    leds0: Leds,
+    s: _Settings,
+    left_out: Sequence,
+    trace: list[float],
+    bounds: tuple[float, float],
 ) -> LedCalibration:
-    """The calibration with the coating reflectance set to :func:`.calibration_term.runoff_reflectance`'s choice,
-    after the free one ran off over the rounds (``trace``); the terms carry ``reflectance_runoff`` (the rounds'
-    values and the choice), which :func:`calibrate_leds` warns about."""
-    args = (presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, left_out, trace[1])
+    """The calibration with the coating reflectance set to :func:`.calibration_term.runoff_reflectance`'s choice
+    within ``bounds`` (:func:`.calibration_term.unsettled_range`), after the free one ran off or was still rising over
+    the rounds (``trace``); the terms carry ``reflectance_runoff`` (the rounds' values and the choice), which
+    :func:`calibrate_leds` warns about."""
+    args = (presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, left_out, bounds)
     chosen = runoff_reflectance(*args)
     log.info(
-        "the free coating reflectance ran off over the rounds (%s); chosen %.3f",
+        "the free coating reflectance did not settle over the rounds (%s); chosen %.3f",
         ", ".join(f"{v:.3f}" for v in trace),
         chosen,
     )

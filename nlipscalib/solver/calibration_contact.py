@@ -90,11 +90,21 @@ def contact_refusal(
             f"noise, and {cause} and capture the undeformed dome again, or pass --allow-contact to fit without those "
             "pixels"
         )
+    # what the check cannot tell from a dent: the model's own misfit where nothing pressed (LEDs far from their
+    # design, the free reflectance held low by them: the twin 3 mm / 25 deg off, seeds 2-3, before s31-ledfar)
     return (
         f"{p.folder}: not a capture of the undeformed dome{more}: {where}, differs from the fitted undeformed model "
         "far beyond the images' noise, as a press does; calibrate the LEDs on the undeformed dome (a session's "
-        "reference/), or pass --allow-contact to fit without those pixels"
+        f"reference/), or pass --allow-contact to fit without those pixels; {NOTHING_PRESSED}"
     )
+
+
+NOTHING_PRESSED = (
+    "if nothing touched the gel, the LED model misfits there (LEDs far from their design?): pass --allow-contact, and "
+    "--coating-reflectance if the coating's is known, then check the LED file's warnings"
+)
+"""The refusal's advice for a capture of the undeformed dome that the check took for a press: it cannot tell a dent
+from the LED model's own misfit, and a user who knows nothing pressed the gel must be told what to do."""
 
 
 def led_cause(

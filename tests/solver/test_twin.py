@@ -351,6 +351,23 @@ def test_led_calibration_with_a_known_or_profiled_coating_reflectance_on_an_inte
         model.with_reflectance(1.5)
 
 
+def far_from_design(scene, seed):
+    """``scene`` with benchmarks/bench_led_starts.py's level-4 LEDs: each moved 3 mm in a random direction, its axis
+    tilted 25 deg about a random axis, mu 2 (the design's: 1), drawn with ``seed``."""
+    rng = np.random.default_rng(seed)
+    cam = np.asarray(scene.camera.position)
+    positions, directions = [], []
+    for led in scene.led_models():
+        d = np.asarray(led.direction)
+        offset = rng.normal(size=3)
+        positions.append(tuple(np.asarray(led.position) + cam + 3.0 * offset / np.linalg.norm(offset)))
+        axis = np.cross(d, rng.normal(size=3))
+        axis /= np.linalg.norm(axis)
+        tilt = np.radians(25.0)
+        directions.append(tuple(d * np.cos(tilt) + np.cross(axis, d) * np.sin(tilt)))
+    return scene.replace(leds={"positions": tuple(positions), "directions": tuple(directions), "mu": 2.0})
+
+
 def test_an_led_that_takes_up_the_interreflection_does_not_run_the_free_reflectance_off(root):
     """LEDs 3 mm / 25 deg / mu 2 off the design, one bounce (s29-ledsize's failure): one LED moved outside the ring
     and turned up lights the visible gel more by bounce than directly; fitted with the term's free reflectance it
@@ -359,19 +376,7 @@ def test_an_led_that_takes_up_the_interreflection_does_not_run_the_free_reflecta
     reflectances (calibration_term.runoff_reflectance), with a warning."""
     scene = twin(bounces=1, spp=16, noise=True).replace(camera={"width": 80, "height": 60})
     design = scene.led_models()
-    rng = np.random.default_rng(1)
-    cam = np.asarray(scene.camera.position)
-    positions, directions = [], []
-    for led in design:  # benchmarks/bench_led_starts.py's level 4, seed 1
-        d = np.asarray(led.direction)
-        offset = rng.normal(size=3)
-        positions.append(tuple(np.asarray(led.position) + cam + 3.0 * offset / np.linalg.norm(offset)))
-        axis = np.cross(d, rng.normal(size=3))
-        axis /= np.linalg.norm(axis)
-        tilt = np.radians(25.0)
-        directions.append(tuple(d * np.cos(tilt) + np.cross(axis, d) * np.sin(tilt)))
-    moved = scene.replace(leds={"positions": tuple(positions), "directions": tuple(directions), "mu": 2.0})
-    ref = load_press(render_press(moved, None, root / "far_b1_80", seed=0))
+    ref = load_press(render_press(far_from_design(scene, seed=1), None, root / "far_b1_80", seed=0))
     cal = calibrate_leds(ref, initial=design, led_radius=1.8)
     (model,) = cal.interreflection
     run = model["reflectance_runoff"]
@@ -381,6 +386,33 @@ def test_an_led_that_takes_up_the_interreflection_does_not_run_the_free_reflecta
     for disk, truth in zip(cal.emitters, ref.leds):  # before: refused; with allow_contact LED 10 3 mm / 18 deg off
         assert np.linalg.norm(np.subtract(disk.position, truth.position)) < 0.5
         assert np.degrees(np.arccos(min(1.0, np.dot(disk.direction, truth.direction)))) < 2.0
+
+
+def test_leds_far_from_their_design_are_calibrated_though_their_free_reflectance_rises_slowly(root):
+    """LEDs 3 mm / 25 deg / mu 2 off the design, one bounce, draw 3 (s30-ledmargin's "not done"): the first round's
+    term, fitted with the design's LEDs, came out low, the LEDs took up the rest of the interreflection's light, and
+    each round gave only a few % back (0.39, 0.41, 0.44, ..., 0.52 after 8 rounds, for 0.8). The contact check, run on
+    that fit, found a 3 % patch at the frame's corner and refused the undeformed capture as a press ("as a press
+    does"); with --allow-contact the disks ended 0.53 mm / 2.9 deg off (a 160x120 render of seed 3's bench capture).
+    The reflectance is now chosen by whole fits at set reflectances when it was still rising, and at a set reflectance
+    the rounds go on while they still move an LED far (benchmarks/RESULTS.md, s31-ledfar)."""
+    scene = twin(bounces=1, spp=16, noise=True)
+    ref = load_press(render_press(far_from_design(scene, seed=3), None, root / "far3_b1", seed=0))
+    cal = calibrate_leds(ref, initial=scene.led_models(), led_radius=1.8)  # before: CaptureError "as a press does"
+    (model,) = cal.interreflection
+    run = model["reflectance_runoff"]
+    assert run["rounds"][-1] > 1.02 * run["rounds"][-2] and abs(run["chosen"] - 0.8) < 0.06, run
+    assert any("still rising over the rounds" in w for w in cal.warnings), cal.warnings
+    assert cal.quality["reliable"] and not cal.contact_pixels, cal.quality
+    for disk, truth in zip(cal.emitters, ref.leds):  # now 0.36 mm (LED 10, the light mostly out of view) / 1.1 deg
+        assert np.linalg.norm(np.subtract(disk.position, truth.position)) < 0.45
+        assert np.degrees(np.arccos(min(1.0, np.dot(disk.direction, truth.direction)))) < 2.0
+    # the reflectance given: three rounds from the design had not settled (LED 10 0.99 mm / 2.1 deg off), the rounds
+    # now go on while they move an LED far (calibration_term.moved_far): 0.44 mm / 0.6 deg
+    known = calibrate_leds(ref, initial=scene.led_models(), led_radius=1.8, coating_reflectance=0.8)
+    for disk, truth in zip(known.emitters, ref.leds):
+        assert np.linalg.norm(np.subtract(disk.position, truth.position)) < 0.6
+        assert np.degrees(np.arccos(min(1.0, np.dot(disk.direction, truth.direction)))) < 1.5
 
 
 def test_a_profile_rerun_that_drops_the_term_returns_direct_only_leds_without_the_profile(root, monkeypatch):
