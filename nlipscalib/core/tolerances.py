@@ -285,6 +285,10 @@ CALIBRATION_MIN_PIXELS = 100
 """LED self-calibration needs at least this many pixels of the gel (all captures, after ``stride``): about ten
 per parameter of an LED (9). With one pixel (``--stride 10000``) half the LEDs came out NaN and the fit
 called itself reliable."""
+CALIBRATION_MIN_LED_KEPT = 0.5
+"""The LED calibration leaves an LED image's lagged or dark band (its rows read before its LED switched, or while
+it was off) out of that LED's fit (:mod:`nlipscalib.solver.calibration_bands`) when at least this share of the gel's
+pixels is left to it; a larger band is refused (capture again). Why half: see benchmarks/RESULTS.md, s31-darkleft."""
 CALIBRATION_MIN_SHARE = 0.1
 """LED calibration, interreflection auto: the indirect term is used when, fitted with the starting LEDs,
 its share of the direct light is at least this. The starting LEDs' own errors pose as a few % of
