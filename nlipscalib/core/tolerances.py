@@ -295,6 +295,15 @@ CALIBRATION_MIN_PIXELS = 100
 """LED self-calibration needs at least this many pixels of the gel (all captures, after ``stride``): about ten
 per parameter of an LED (9). With one pixel (``--stride 10000``) half the LEDs came out NaN and the fit
 called itself reliable."""
+CALIBRATION_MIN_LED_KEPT = 0.5
+"""The LED calibration leaves an LED image's lagged or dark band (its rows read before its LED switched, or while
+it was off) out of that LED's fit (:mod:`nlipscalib.solver.calibration_bands`) when at least this share of the gel's
+pixels is left to it; a larger band is refused (capture again). Why half: the twin's undeformed capture (320x240, one
+bounce, 16 spp; its clean fit's LED 5 disk 0.055 mm / 0.68 deg off the truth) with LED 5's rows from LED 4, fitted on
+the rest: bands at the top leaving it 73-44 % of the gel 0.023-0.032 mm / 0.34-0.52 deg, 27 % 0.065 / 0.99, 15 % 0.168 /
+1.86; at the bottom (where LED 5 lights the gel brightest) 73 % 0.214 / 1.24, 48 % 0.322 / 1.74, 27 % 0.379 /
+2.51, every one called reliable (its own residual 1.02-1.05x the noise): over half left, every band tried stayed
+within the README's 0.3 mm / 2 deg (benchmarks/RESULTS.md, s31-darkleft)."""
 CALIBRATION_MIN_SHARE = 0.1
 """LED calibration, interreflection auto: the indirect term is used when, fitted with the starting LEDs,
 its share of the direct light is at least this. The starting LEDs' own errors pose as a few % of

@@ -39,7 +39,8 @@ from ..core.capture import Press, as_press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
-from ..core.repeated_frames import dark_everywhere_line, frame_checks, lagged_line, repeated_line
+from ..core.repeated_frames import dark_everywhere_line, frame_checks, repeated_line
+from .calibration_bands import dark_notes, without_dark_bands, without_lagged_bands
 from .calibration_contact import contact_notes, contact_refusal, contact_regions, led_cause
 from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
@@ -109,6 +110,10 @@ class LedCalibration:
     contact_causes: tuple[str | None, ...] = ()
     """With ``allow_contact``, per capture, the words naming an LED near the gel as its misfit's cause
     (:func:`.calibration_contact.led_cause`), None where it is a press's (or none); what its warning says."""
+    dark_bands: tuple = ()
+    """Per capture, the LED images' dark bands left out of their LEDs' fits
+    (:func:`.calibration_bands.without_dark_bands`, :class:`.repeated_frames.DarkBand`); empty when no capture had
+    one."""
 
     def to_json(self) -> dict:
         out = {
@@ -212,6 +217,7 @@ def calibrate_leds(
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
     presses, order_notes, order = _in_shown_order(presses, initial, reorder_leds)
+    presses, lagged_notes = without_lagged_bands(presses)  # read across the LED switch: that band out of its LED's fit
     if stride is None:
         stride = default_stride(presses[0].camera.shape)
     settings = _Settings(
@@ -220,7 +226,8 @@ def calibrate_leds(
     cal = _with_term_if_needed(_calibrate(presses, settings), presses, settings)
     _check_finite(cal, presses[0].folder)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
-    notes = order_notes + [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
+    notes = order_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
+    notes += [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
     notes += contact_notes(presses, cal.contact_pixels, cal.contact_causes)
     notes += unused_reflectance(cal.interreflection, interreflection, coating_reflectance)
     if note := unprofiled_note(cal.interreflection, interreflection, led_radius, coating_reflectance):
@@ -288,6 +295,9 @@ class _Settings:
     left_out: tuple[np.ndarray, ...] | None = None
     """Per capture, (H, W) bool: its pixels left out of the fit (a contact, with ``allow_contact``); None: not
     looked for yet (:func:`contact_regions`, after the first fit)."""
+    dark_bands: tuple | None = None
+    """Per capture, its LED images' dark bands, marked unusable in the captures
+    (:func:`.calibration_bands.without_dark_bands`, after the first fit); None: not looked for yet."""
 
 
 def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
@@ -308,6 +318,12 @@ def _calibrate(presses: Sequence[Press], s: _Settings) -> LedCalibration:
     trace: list[float] = []
     args = (presses, samples, leds0, s.loss, s.interreflection, s.bounces, s.rounds, s.coating_reflectance, left_out)
     fitted, direct, models = indirect_rounds(*args, trace, settle=True)  # a set reflectance: from far off, to settle
+    if s.left_out is None and s.dark_bands is None:  # rows read while an LED was off: out of its fit, fitted again
+        # (before the run-off check: the dark rows' misfit ran the free reflectance off, 0.70 -> 0.39)
+        masked, found = without_dark_bands(presses, to_leds(fitted)[0])
+        if any(found):
+            again = _calibrate(masked, dataclasses.replace(s, dark_bands=found))
+            return dataclasses.replace(again, dark_bands=found)
     # before the contact check: a run-off, or a term held low by LEDs far from their start, misfits as a press
     if s.coating_reflectance is None and (bounds := unsettled_range(trace)) is not None:
         return _after_runoff(presses, samples, leds0, s, left_out, trace, bounds)
@@ -496,17 +512,16 @@ def _check_lit(press: Press) -> None:
             f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
             f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
         )
-    repeated, bands, dark = frame_checks(press.linear_led_images, gel)
+    repeated, _, dark = frame_checks(press.linear_led_images, gel)
     if dark is not None:
         # rows at the dark frame's level in every image: each LED would be fitted to light it never gave
         line = dark_everywhere_line(press.folder, dark)
         raise CaptureError(f"{line}; the LED calibration needs each LED's light over the whole gel")
-    if repeated or bands:
+    if repeated:  # a partly lagged image's band is left out of its LED's fit (calibration_bands)
         names = (press.meta.get("images") or {}).get("leds") or []
         names = names if len(names) == len(press.leds) else [f"LED {i + 1}" for i in range(len(press.leds))]
-        # each repeated image would be fitted as its own LED at the place of the LED before it, "reliable"; a
-        # partly lagged one somewhere between the two
-        line = repeated_line(press.folder, names, repeated) if repeated else lagged_line(press.folder, names, bands)
+        # each repeated image would be fitted as its own LED at the place of the LED before it, "reliable"
+        line = repeated_line(press.folder, names, repeated)
         raise CaptureError(f"{line}; the LED calibration needs each LED's own light")
     if (value := compressed(press.led_images, gel)) is not None:
         log.warning("%s", blockiness_line(press.folder, "the LED images", value))

@@ -124,8 +124,10 @@ def capture_samples(
     rays = p.camera.rays[sel]
     x = depth_to_points(p.reference.depth[sel].astype(np.float64), rays)
     n = p.reference.normals[sel].astype(np.float64)
-    # the press's linear images, made once for it (nothing_to_fit, _led_noise and fit_indirect read them too)
-    return x, n, p.linear_led_images[:, sel].astype(np.float64), ~p.saturated(p.led_images[:, sel]), sel
+    # the press's linear images, made once for it (nothing_to_fit, _led_noise and fit_indirect read them too); the
+    # usable samples are the press's own (saturated, and a band an LED image holds none of its light in:
+    # calibration_bands), as the indirect term's fit reads them
+    return x, n, p.linear_led_images[:, sel].astype(np.float64), ~p.saturated_led_images[:, sel], sel
 
 
 def fit_leds(

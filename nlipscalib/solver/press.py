@@ -42,7 +42,7 @@ from ..core import said_once, tolerances
 from ..core.blas import blas_threads
 from ..core.capture import Press, as_press, select_leds, with_led_gains, with_unusable_samples
 from ..core.errors import CaptureError, ShapeError
-from ..core.repeated_frames import DarkBand, LaggedBand, dark_band_mask, dark_line
+from ..core.repeated_frames import DarkBand, LaggedBand, dark_band_mask, dark_line, frame_checks, lagged_line
 from ..progress import PRESS_DETAIL
 from . import reuse, threads
 from .anchoring import anchor_weights, rescale_to_anchors, widen_to_anchor
@@ -155,13 +155,11 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
         log.warning("%s", moved)
         led_notes.append(moved)
     undeformed_dark = _undeformed_dark_bands(press, kwargs)
-    if undeformed_dark:
-        note = dark_line(kwargs["indirect"].folder, image_names(kwargs["indirect"]), undeformed_dark, UNDEFORMED_DARK)
-        _say_once_per_session(note, f"undeformed dark bands\0{kwargs['indirect'].folder}")
-        led_notes.append(note)
+    led_notes += _undeformed_band_notes(kwargs.get("indirect"), undeformed_dark)
     gains = None
     if isinstance(kwargs.get("indirect"), Press):
-        ratio = exposure_ratio(press, kwargs["indirect"], dark)  # an LED's dark or lagged band holds no light of it
+        # an LED's dark or lagged band (in the press or the undeformed capture) holds no light of it
+        ratio = exposure_ratio(press, kwargs["indirect"], dark + undeformed_dark)
         gains = None if ratio is None else led_gains(ratio, misplaced)
         if drifted := exposure_drift_note(press, kwargs["indirect"], ratio, gains):
             log.warning("%s", drifted)
@@ -225,10 +223,13 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
         result.report["leds_left_out"] = left_out
     lagged = [band for band in dark if isinstance(band, LaggedBand)]
     dark = [band for band in dark if not isinstance(band, LaggedBand)]
+    undeformed_lagged = [band for band in undeformed_dark if isinstance(band, LaggedBand)]
+    undeformed_dark = [band for band in undeformed_dark if not isinstance(band, LaggedBand)]
     for key, bands in (
         ("dark_bands_left_out", dark),
         ("lagged_bands_left_out", lagged),
         ("undeformed_dark_bands_left_out", undeformed_dark),
+        ("undeformed_lagged_bands_left_out", undeformed_lagged),
     ):
         if bands:
             result.report[key] = [
@@ -359,10 +360,36 @@ along the gel's edge (... vignetting ...)": the interreflection term fitted on i
 light it does not hold. Those rows left out for LED 5 in both: 0.509 (benchmarks/RESULTS.md, s30-darkcols)."""
 
 
-def _undeformed_dark_bands(press: Press, kwargs: dict) -> list[DarkBand]:
+UNDEFORMED_LAGGED = (
+    "; in the undeformed capture the press is solved against: capture the undeformed dome again; until then those "
+    f"rows (columns), with {tolerances.DARK_BAND_MARGIN} more and to the frame's edge, are left out for that LED, "
+    "there and in the press"
+)
+"""What the solve does about rows (columns) of the undeformed capture read before their LED switched (``--reference``;
+:func:`.lagged_line`'s tail), as about its dark rows (:data:`UNDEFORMED_DARK`)."""
+
+
+def _undeformed_band_notes(undeformed: object, bands: list[DarkBand | LaggedBand]) -> list[str]:
+    """The warnings about the undeformed capture's dark and lagged bands (:func:`_undeformed_dark_bands`), each said
+    once for a session's presses (each press's report keeps it)."""
+    if not bands:
+        return []
+    names = image_names(undeformed)
+    lagged = [band for band in bands if isinstance(band, LaggedBand)]
+    dark = [band for band in bands if not isinstance(band, LaggedBand)]
+    notes = [dark_line(undeformed.folder, names, dark, UNDEFORMED_DARK)] if dark else []
+    notes += [f"{lagged_line(undeformed.folder, names, lagged)}{UNDEFORMED_LAGGED}"] if lagged else []
+    for note in notes:
+        _say_once_per_session(note, f"undeformed bands\0{undeformed.folder}\0{note[:40]}")
+    return notes
+
+
+def _undeformed_dark_bands(press: Press, kwargs: dict) -> list[DarkBand | LaggedBand]:
     """The undeformed capture's (``kwargs["indirect"]``, a Press with a surface) LED images' dark bands
-    (:func:`.led_checks.dark_rows` of its live LEDs against the solve's LED model), once per capture's content and
-    LED model (~4 ms, and its images' decoding); [] without one, or when its LEDs are not the press's."""
+    (:func:`.led_checks.dark_rows` of its live LEDs against the solve's LED model) and lagged bands (rows or columns
+    read before the LED switched, :func:`.repeated_frames.lagged_bands`: the LED before it's light; its LED not
+    looked at for dark rows, as in the press), once per capture's content and LED model (~4 ms and ~10 ms, and its
+    images' decoding); [] without one, or when its LEDs are not the press's."""
     undeformed = kwargs.get("indirect")
     if not isinstance(undeformed, Press) or undeformed.reference is None:
         return []
@@ -370,12 +397,15 @@ def _undeformed_dark_bands(press: Press, kwargs: dict) -> list[DarkBand]:
     if len(undeformed.leds) != len(leds) or undeformed.camera.shape != press.camera.shape:
         return []
 
-    def bands() -> list[DarkBand]:
-        return dark_rows(undeformed, leds, _live_leds(undeformed, kwargs.get("options")))
+    def bands() -> list[DarkBand | LaggedBand]:
+        lagged = frame_checks(undeformed.linear_led_images, np.isfinite(undeformed.reference.depth))[1]
+        shifted = {band.index for band in lagged}  # another LED's light there: no verdict on its own light
+        live = [i for i in _live_leds(undeformed, kwargs.get("options")) if i not in shifted]
+        return [*dark_rows(undeformed, leds, live), *lagged]
 
     # kept on disk under the capture's content, as its interreflection fit: a warm solve never decodes its images
     level = (kwargs.get("options") or SolverOptions()).dead_led_level
-    return reuse.reused("undeformed dark bands", (capture_key(undeformed), leds, level), bands, persist=True)
+    return reuse.reused("undeformed bands", (capture_key(undeformed), leds, level), bands, persist=True)
 
 
 def _model_leds(press: Press, leds: Leds | None) -> tuple:

@@ -404,6 +404,31 @@ def test_dark_rows_of_the_undeformed_capture_are_named_and_left_out_for_that_led
     assert capture_key(masked) != capture_key(dark)
 
 
+def test_lagged_rows_of_the_undeformed_capture_are_named_and_left_out_for_that_led_there_and_in_the_press(tmp_path):
+    """The undeformed capture a press is solved against with LED 9's top 20 rows read before the LEDs switched (LED
+    8's light): its lagged bands were not looked for (its dark ones were, s30-darkcols), so the press was compared
+    with LED 8's light there and LED 9's gain measured with it. Now named with the fix, once, and left out for LED 9
+    in both captures (to the frame's edge, as a lagged band of the press), its gain measured off them."""
+    options = SolverOptions(max_iters=2)
+    press = _press(tmp_path, "pressed")
+    clean = solve_press(press, indirect=load_press(synth.make_press(tmp_path / "undeformed", "none")), options=options)
+    lagged = load_press(synth.make_press(tmp_path / "undeformed_lagged", "none", lin_hook=_rows_from({8: 7}, 20)))
+    result = solve_press(press, indirect=lagged, options=options)
+    rep = result.report
+    said = [note for note in rep["warnings"] if "in the undeformed capture the press is solved against" in note]
+    assert len(said) == 1 and said[0].startswith(f"{lagged.folder}: led_09.png's rows 0-19 (top) show led_08.png's")
+    assert "to the frame's edge" in said[0] and "--flush" in said[0], said
+    assert rep["undeformed_lagged_bands_left_out"] == [
+        {"led": 8, "rows": [0, 20], "margin": tolerances.DARK_BAND_MARGIN}
+    ]
+    assert "undeformed_dark_bands_left_out" not in rep and "lagged_bands_left_out" not in rep
+    assert rep["led_gains"] is None  # LED 9 measured off its band: as bright as the press's
+    fewer = clean.usable_leds.astype(int) - result.usable_leds
+    edge = 20 + tolerances.DARK_BAND_MARGIN
+    inside = result.mask & clean.mask
+    assert (fewer[:edge][inside[:edge]] == 1).all() and (fewer[edge:][inside[edge:]] == 0).all()
+
+
 def test_dark_columns_and_a_few_dark_rows_of_an_led_image_are_named(tmp_path):
     """A camera mounted turned 90 degrees: its rolling shutter reads the columns, and LED 9's first 20 columns were
     read while it was off; a short glitch darkened LED 4's rows 30-32 (under the 15 rows of the bands). Neither was
