@@ -24,7 +24,7 @@ import numpy as np
 
 
 def _record(path: Path) -> tuple[dict, np.ndarray]:
-    doc = json.loads(path.read_text())
+    doc = json.loads(path.read_text(encoding="utf-8"))
     return doc["provenance"]["additivity"], np.asarray(doc["response_curve"], dtype=np.float64)
 
 

@@ -56,7 +56,9 @@ def test_the_measured_curve_recovers_the_cameras(measured, curve):
     assert prov["exposures_ms"][0] == 0.5 and len(prov["exposures_ms"]) == 15 and prov["fit_residual"] < 0.01
     assert prov["monotonic"]["max_dip"] < 0.005 and "Robertson" in prov["method"]
     # one curve for the three channels (they agree within the fit's error): written as before, version 1
-    assert prov["per_channel"] is False and json.loads(measured[curve].read_text(encoding="utf-8"))["format_version"] == 1
+    assert (
+        prov["per_channel"] is False and json.loads(measured[curve].read_text(encoding="utf-8"))["format_version"] == 1
+    )
     assert prov["exposure_ratio_error"] < 0.01 and prov["dark_median_code"] == 0
     # the emulated board's LEDs lit apart and together add with the curve as fitted (0.3-0.4 %): not raised
     assert prov["additivity"]["pairs"] == [[1, 2], [1, 7], [2, 7]] and prov["additivity"]["power"] == 1.0
@@ -76,7 +78,7 @@ def test_a_camera_whose_channels_differ_keeps_a_curve_per_channel_and_captures_l
     assert "a curve per channel kept" in capsys.readouterr().out
     response = read_response_file(path)
     assert response.provenance["per_channel"] is True and "a curve per channel" in response.provenance["method"]
-    assert json.loads(path.read_text())["format_version"] == 2
+    assert json.loads(path.read_text(encoding="utf-8"))["format_version"] == 2
     curves = np.asarray(response.curve)
     codes = np.arange(256) / 255
     for c, gamma in enumerate(RGB_GAMMAS):
