@@ -12,6 +12,7 @@ import contextlib
 import io
 import logging
 import os
+import re
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -23,10 +24,10 @@ if TYPE_CHECKING:  # named in hints only: tqdm is imported when a bar is made
 
 _enabled = True
 _log_file: str | None = None
+"""The ``log_file`` of the last :func:`configure` (handed to worker processes by :func:`worker_logging`)."""
 _quiet = False
 """``--quiet`` of the last :func:`configure`: stderr shows WARNING and above only (handed to worker processes by
 :func:`worker_logging`)."""
-"""The ``log_file`` of the last :func:`configure` (handed to worker processes by :func:`worker_logging`)."""
 PRESS_DETAIL = {"press_line": 2}
 """``extra`` of a log record saying how one press was solved (the interreflection term's and the anchoring's
 decisions): on stderr for a single press (``nlips solve PRESS``); in batches of presses only with ``-v``."""
@@ -366,6 +367,36 @@ def say(line: str, *, warning: bool = False) -> None:
     if warning or not _quiet:
         print(line, file=sys.stderr)
     file_log(logging.WARNING if warning else logging.INFO, line)
+
+
+def print_result(path: str | Path) -> None:
+    """stdout: one path the command made or found done (a press folder, a dataset, a model, a report), alone on
+    its line, so that a script reads each line as one path (``press=$(nlips render --out p1 -q)``); what it is and
+    how it went is said on stderr (:func:`say`).
+
+    A name holding a control character (a line break: a press folder received from elsewhere) is written with
+    it escaped (:func:`one_line`, a newline as ``\\n``), with one warning saying so: printed as it is, it would
+    be two lines, two paths to a script. Output names given with ``--out`` are refused with one before any work
+    (:func:`nlipscalib.cli.check_output_names`)."""
+    shown = one_line(str(path))
+    if shown != str(path):
+        logging.getLogger(__name__).warning(
+            "%s: a control character (a line break) in the name: written on stdout with it escaped", shown
+        )
+    print(shown)
+
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+"""Control characters: a line break among them, which would split a printed name or error over two lines."""
+
+
+def one_line(message: str) -> str:
+    """``message`` with its control characters written as escapes (a newline as ``\\n``): the line stays one line.
+
+    Why: error lines and result paths name files, and a file or folder name from elsewhere (a press folder received
+    in an archive, a name in its meta.json) may hold a newline: printed as it is, it forged lines of the command's
+    output, such as ``nlips solve: done`` (docs/formats.md, "Files from others")."""
+    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], message)
 
 
 @contextlib.contextmanager

@@ -26,6 +26,7 @@ from .. import __version__, progress
 from ..core import said_once
 from ..core.errors import MissingDependencyError, NlipsError
 from ..core.processes import end_processes  # here, not in the signal handler that uses it
+from ..progress import one_line
 from .help import (
     EXIT_STATUS,
     HelpFormatter,
@@ -250,6 +251,7 @@ def _run(args: argparse.Namespace, argv: Sequence[str] = ()) -> int:
             quiet=args.quiet,
         )
         _log_start(argv)
+        check_output_names(args)
         # a session's fault is warned of once per command (said_once), again by a later command of this process
         with progress.results_to_log_file(), said_once.scope():
             code = int(args.func(args) or 0)
@@ -603,16 +605,25 @@ def _file_in_the_way(name: str | Path | None, where: str | Path | None) -> bool:
     return Path(where).absolute().is_relative_to(Path(name).absolute())
 
 
-_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+OUTPUT_OPTIONS = ("out", "report", "figure")
+"""The dests of the options naming what a command writes (``--out``, experiment's ``--report``,
+calibrate-camera-response's ``--figure``), checked by :func:`check_output_names`."""
 
 
-def one_line(message: str) -> str:
-    """``message`` with its control characters written as escapes (a newline as ``\\n``): the error stays one line.
+def check_output_names(args: argparse.Namespace) -> None:
+    """Refuse, before any work, an output name holding a control character (a line break, a tab): stdout gives each
+    result path on one line (:func:`nlipscalib.progress.print_result`), and a script reading it would take one such name
+    for two paths; the folder would also be awkward in every shell after."""
+    from ..core.errors import ConfigError
+    from .options import option
 
-    Why: error lines name files, and a file or folder name from elsewhere (a press folder received in an archive,
-    a name in its meta.json) may hold a newline: printed as it is, it forged lines of the command's output, such
-    as ``nlips solve: done`` (docs/formats.md, "Files from others")."""
-    return _CONTROL.sub(lambda m: repr(m.group())[1:-1], message)
+    for dest in OUTPUT_OPTIONS:
+        value = getattr(args, dest, None)
+        if isinstance(value, (str, Path)) and one_line(str(value)) != str(value):
+            raise ConfigError(
+                f"{option(dest)} {one_line(str(value))}: a control character (a line break?) in an output's name: "
+                "stdout gives each result path on one line, for scripts; choose a name without one"
+            )
 
 
 def _file_above(name: str | Path | None) -> Path | None:

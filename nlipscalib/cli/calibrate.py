@@ -110,7 +110,10 @@ def run(args: argparse.Namespace) -> int:
         check_one_capture(folder, "a capture of the undeformed dome")
     with _fit_held(Path(args.out), _fit_key(args)) as done_by:
         if done_by is not None:
-            print(
+            from ..progress import print_result, say
+
+            print_result(args.out)  # stdout: the LED file alone (scripts); whose it is on stderr
+            say(
                 f"{args.out}: written by {done_by} meanwhile, from the same captures and options (its table is "
                 "that run's); nothing to do"
             )
@@ -208,7 +211,7 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     from ..core.ledfile import led_file_bytes, save_leds
     from ..core.metrics import angle_deg
     from ..core.sensor_record import sensor_of
-    from ..progress import track, working
+    from ..progress import print_result, say, track, working
     from ..solver import calibrate_leds
 
     presses = [load_press(f) for f in track(args.presses, desc="loading", unit="press")]
@@ -232,38 +235,39 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     # the sensor it was calibrated on: `nlips solve/calibrate --leds` refuse the file for a capture of another one
     record = {k: led_model[k] for k in ("fitted", "diameter_mm", "from")}
     save_leds(args.out, cal.leds, cal.to_json() | {"led_model": record, "sensor": sensor_of(presses[0])})
+    print_result(args.out)  # stdout: the LED file alone (scripts); the fit's table and the next step on stderr
     head = ("LED", "Psi R", "Psi G", "Psi B", "mu", "+-mu", "+-dir(deg)", "+-pos(mm)")
-    print(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))
+    say(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))
     for i, (led, sd) in enumerate(zip(cal.leds, cal.std)):
         r, g, b = led.intensity
-        print(
+        say(
             f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {sd['mu']:>6.3f} "
             f"{sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}"
         )
     if cal.emitters:
-        print(f"LEDs as {diameter:g} mm disks (the physical centre and axis, written as emitters):")
+        say(f"LEDs as {diameter:g} mm disks (the physical centre and axis, written as emitters):")
         for i, (disk, led) in enumerate(zip(cal.emitters, cal.leds)):
             shift = np.subtract(led.position, disk.position)
             tilt = float(angle_deg(disk.direction, led.direction))
             along = float(shift @ np.asarray(disk.direction))
-            print(
+            say(
                 f"{i + 1:>3} centre ({', '.join(f'{c:.3f}' for c in disk.position)}) mm; the point LED sits "
                 f"{abs(along):.3f} mm {'behind' if along < 0 else 'in front of'} it, axes {tilt:.2f} deg apart"
             )
     if cal.reflectance_profile is not None:
         prof = cal.reflectance_profile
-        print(
+        say(
             f"coating reflectance from the images alone: {np.round(prof['chosen'], 3).tolist()} (least disk-fit "
             f"residual over {len(prof['scales'])} tries; the free fit gave {np.round(prof['fitted'], 3).tolist()})"
         )
     for i, model in enumerate(cal.interreflection):
-        print(f"capture {i + 1}: {model.get('reason', '')}")
-    print(_fit_line(cal.quality))
+        say(f"capture {i + 1}: {model.get('reason', '')}")
+    say(_fit_line(cal.quality))
     # the warnings were logged while calibrating, above the table: say so where the user looks last
     seen = f"; {len(cal.warnings)} warning(s) above, also in the file" if cal.warnings else ""
     albedo = ", ".join(f"{a:.4g}" for a in cal.albedo)  # the file keeps every digit; four say what it is
-    print(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
-    print(f"next: nlips solve PRESS --leds {args.out}, or nlips calibrate FOLDER --leds {args.out} (NLiPsNet's labels)")
+    say(f"written {args.out} (gauge: mean Psi = 1 per channel; albedo {albedo}){seen}")
+    say(f"next: nlips solve PRESS --leds {args.out}, or nlips calibrate FOLDER --leds {args.out} (NLiPsNet's labels)")
     return 0
 
 

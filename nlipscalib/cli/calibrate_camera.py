@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..core.tolerances import CAMERA_CAL_HIGH_RMS_PX
     from ..device.camera_calibration import Target, calibrate_images
+    from ..progress import print_result, say
 
     log = logging.getLogger(__name__)
 
@@ -79,15 +80,15 @@ def run(args: argparse.Namespace) -> int:
     target = Target(_pattern(args.pattern), args.square, args.charuco, args.dictionary)
     cal = calibrate_images(_image_paths(args.images), target, args.model)
     for name, err in zip(cal.used, cal.per_view_px):
-        print(f"{name}: {err:.3f} px")
+        say(f"{name}: {err:.3f} px")
     for name in cal.rejected:
-        print(f"{name}: board not found (skipped)")
+        say(f"{name}: board not found (skipped)")
     c = cal.camera
-    print(
+    say(
         f"{c.model} camera {c.width}x{c.height}: fx {c.fx:.2f} fy {c.fy:.2f} cx {c.cx:.2f} cy {c.cy:.2f} "
         f"dist {', '.join(f'{d:.4g}' for d in c.dist)}"  # every digit is in the JSON file
     )
-    print(f"reprojection error (RMS over {len(cal.used)} views): {cal.rms_px:.3f} px")
+    say(f"reprojection error (RMS over {len(cal.used)} views): {cal.rms_px:.3f} px")
     if cal.rms_px > CAMERA_CAL_HIGH_RMS_PX:
         worst = max(zip(cal.per_view_px, cal.used))[1]
         log.warning(
@@ -98,5 +99,6 @@ def run(args: argparse.Namespace) -> int:
             worst,
         )
     write_json(args.out, cal.to_dict())
-    print(f"written {args.out}")
+    print_result(args.out)  # stdout: the camera file alone (scripts); the fit's figures on stderr
+    say(f"written {args.out}")
     return 0

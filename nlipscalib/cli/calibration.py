@@ -160,7 +160,7 @@ def _solve_and_build(
     from ..core.sensor_record import camera_position_of
     from ..learn.coverage import coverage, write_coverage_json
     from ..learn.dataset import CalibrationDataset, build_dataset
-    from ..progress import say
+    from ..progress import print_result, say
     from ..report.learn import coverage_figure
 
     # as `nlips solve FOLDER`: one solver per two cores, fewer where memory holds fewer (1280x960: ~1.9 GB each)
@@ -187,7 +187,7 @@ def _solve_and_build(
     n = sum(e["samples"] for e in data.entries)
     n_contact = sum(e["contact_samples"] for e in data.entries)
     pressed = f"{len(data.entries)} press{'es' if len(data.entries) != 1 else ''}"
-    print(out)  # stdout: the dataset's folder alone (scripts); what it holds is said on stderr
+    print_result(out)  # stdout: the dataset's folder alone (scripts); what it holds is said on stderr
     say(f"{out}: {pressed}, {n} samples ({n_contact} contact)")
     nxt = cov["next_press"]
     say(f"coverage: {cov['covered_fraction'] * 100:.0f}% of (region, direction) bins; press next: {nxt['advice']}")

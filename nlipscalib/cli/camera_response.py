@@ -487,6 +487,7 @@ def _fit_and_write(
     from .. import __version__
     from ..core.response_curve import MeasuredResponse, write_response_file
     from ..device.response_fit import check_black, fit_response
+    from ..progress import print_result, say
     from ..report.camera_response import response_figure
 
     dark_code = None if dark is None else check_black(dark[0], dark[1], source, black_dn, dark[2])
@@ -522,10 +523,10 @@ def _fit_and_write(
         f"{fit.channel_spread:.4f} of full scale" + (": a curve per channel kept" if own else "")
     )
     response_figure(fit.kept, fit.channels, fit.points, figure, f"{camera} response, {date}", note)
-    print(
+    print_result(out)  # stdout: the response file alone (scripts); the fit and the next step on stderr
+    say(
         f"{out}: {response.name} from {len(exposures)} exposures ({note}); figure {figure}. Capture with "
-        f"`nlips capture --camera-response {out}`",
-        file=sys.stdout,
+        f"`nlips capture --camera-response {out}`"
     )
     return 0
 

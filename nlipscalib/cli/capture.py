@@ -25,7 +25,7 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
-from ..progress import bars_enabled
+from ..progress import bars_enabled, print_result, say
 from .camera_response import TONE_CURVE_CHOICES
 from .leds import add_baud_argument, check_baud
 from .options import fill_defaults, option, typed
@@ -353,6 +353,7 @@ def _run_emulated(args: argparse.Namespace):
         board_id=board_id,
         tone_curve=args.emulate_tone_curve,
         response=response,
+        echo=say,  # the scripted operator's instructions: a session's info lines, on stderr (stdout: the folder)
     ) as sensor:
         sensor.rig.provenance.update(response_provenance(args))
         cfg = _session_config(args, sensor.tricolor_level)
@@ -427,8 +428,20 @@ def _run_device(args: argparse.Namespace):
             if args.camera_calibration
             else f"the camera of the design {args.design or DEFAULT_DESIGN} (no --camera-calibration)",
         )
-        operator = Operator(interactive=not args.yes and sys.stdin.isatty())
+        interactive = not args.yes and sys.stdin.isatty()
+        operator = Operator(interactive=interactive, echo=_tell_operator if interactive else say)
         return run_session(rig, args.out, _session_config(args, None), operator, progress=bars_enabled())
+
+
+def _tell_operator(line: str) -> None:
+    """An instruction to the person at the sensor waiting on it (``Press 1 captured: release.``): on stderr, even with
+    ``--quiet`` (it is no info line), and in the ``--log-file``; stdout holds the session's folder alone."""
+    import logging
+
+    from ..progress import file_log
+
+    print(line, file=sys.stderr, flush=True)
+    file_log(logging.INFO, line)
 
 
 def open_leds(port: str, adalight: int | None = None, baudrate: int | None = None) -> LedBoard:
@@ -579,13 +592,14 @@ def run(args: argparse.Namespace) -> int:
         status = _run_emulated(args) if args.emulate else _run_device(args)
     for name, rec in status.items():
         if rec == "kept":
-            print(f"{name}: kept (already captured)")
+            say(f"{name}: kept (already captured)")
         else:
-            print(f"{name}: captured in {rec['seconds']:.2f} s, {rec['attempts']} attempt(s)")
-    print(f"session {args.out}: {len(status)} folders in {time.perf_counter() - t0:.1f} s")
+            say(f"{name}: captured in {rec['seconds']:.2f} s, {rec['attempts']} attempt(s)")
+    print_result(args.out)  # stdout: the session's folder alone (scripts); what it holds and the next steps on stderr
+    say(f"session {args.out}: {len(status)} folders in {time.perf_counter() - t0:.1f} s")
     # the next steps of the sensor's calibration, as `nlips calibrate` and `nlips train` name theirs
     reference = Path(args.out) / "reference"
-    print(
+    say(
         f"next: nlips calibrate-leds {reference} --out leds.json (the sensor's LEDs), then nlips calibrate "
         f"{args.out} --leds leds.json (NLiPsNet's training data)"
     )

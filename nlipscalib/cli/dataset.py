@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import sys
 from typing import TYPE_CHECKING
 
 from .options import RENDER_WORKERS_HELP
@@ -60,6 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from .. import progress
     from ..core.config import check_count
     from ..core.long_paths import warn_if_too_long
     from ..sim.dataset import (
@@ -83,12 +83,16 @@ def run(args: argparse.Namespace) -> int:
     todo = limit_presses(jobs, args.limit) if args.limit else jobs
     with claim_folder(out, spec_digest(spec, scene, jobs)):  # a run of another spec at work there: refused now
         result = _render(args, spec, scene, jobs, todo, out)
-    print(
+    if not result["failed"]:  # stdout: the dataset's folder alone, once no press failed (scripts); counts on stderr
+        progress.print_result(out)
+    failed = bool(result["failed"])
+    progress.say(
         f"{out}: {len(result['rendered'])} rendered, {len(result['skipped'])} already there, "
-        f"{len(result['failed'])} failed"
+        f"{len(result['failed'])} failed",
+        warning=failed,
     )
     for name, error in result["failed"]:
-        print(f"  {name}: {error}", file=sys.stderr)
+        progress.say(f"  {name}: {error}", warning=True)
     return 1 if result["failed"] else 0
 
 

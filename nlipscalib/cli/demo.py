@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..core.capture import load_press
     from ..core.config import check_count
-    from ..progress import BATCH, press_lines
+    from ..progress import BATCH, press_lines, print_result, say
     from ..sim.dataset import (
         REFERENCE_NAME,
         claim_folder,
@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
         rendered = run_dataset(scene, jobs, out, workers=args.workers, overwrite=args.overwrite)
     if rendered["failed"]:
         for name, error in rendered["failed"]:
-            print(f"{name}: {error}")
+            say(f"{name}: {error}", warning=True)
         return 1
     presses = [j for j in jobs if j.name != REFERENCE_NAME]
     failed = set()
@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
         statuses = solve_presses(folders, roi="auto", workers=workers, figures=not args.no_figures)
         failed = {name for name, status in statuses.items() if status.startswith("failed")}
         for name in sorted(failed):
-            print(f"{name}: {statuses[name]}")
+            say(f"{name}: {statuses[name]}", warning=True)
     rows, table = [], []
     for job in presses:
         press = load_press(out / job.name)
@@ -108,8 +108,9 @@ def run(args: argparse.Namespace) -> int:
     from ..report.figures import NORMALS_KEY
 
     sheet = contact_sheet(rows, out / "contact_sheet.png", caption=NORMALS_KEY)
-    _print_table(table)
-    print(f"contact sheet: {sheet}")
+    print_result(sheet)  # stdout: the demo's product, the contact sheet, alone (scripts); its scores on stderr
+    _say_table(table)
+    say(f"contact sheet: {sheet}")
     return 1 if failed else 0
 
 
@@ -166,13 +167,17 @@ def _error_panel(err: np.ndarray, contact: np.ndarray | None = None) -> Panel:
     return Panel(error_title(err, contact), err, cmap=ERROR_CMAP, label="degrees", vmin=0, vmax=error_scale([err]))
 
 
-def _print_table(table: list[tuple[str, str, dict]]) -> None:
+def _say_table(table: list[tuple[str, str, dict]]) -> None:
+    """The scores of each solved press, a line each, on stderr (:func:`nlipscalib.progress.say`): the demo's product
+    is its contact sheet; ``nlips eval`` prints such a table as its stdout."""
+    from ..progress import say
+
     if not table:
         return
-    print(f"{'press':<12} {'indenter':<10} {'AAE roi':>8} {'MabsE roi':>10} {'AAE contact':>12} {'depth RMSE':>11}")
+    say(f"{'press':<12} {'indenter':<10} {'AAE roi':>8} {'MabsE roi':>10} {'AAE contact':>12} {'depth RMSE':>11}")
     for name, kind, s in table:
         roi, contact = s["all"], s["contact"]
-        print(
+        say(
             f"{name:<12} {kind:<10} {roi['aae_deg']:>7.2f}° {roi['mabse']:>10.4f} "
             f"{contact['aae_deg']:>11.2f}° {roi['depth_rmse_mm']:>8.3f} mm"
         )

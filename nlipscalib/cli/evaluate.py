@@ -94,18 +94,25 @@ def run(args: argparse.Namespace) -> int:
         )
     if len(pairs) == 1 and (damaged or outdated):  # one press, nothing to tabulate: its error, on stderr, exit 2
         raise CaptureError((damaged or outdated)[0][1])
-    _print(rows, _scored(Path(args.path), pairs, method, args.result))
+    from ..progress import say
+
+    if rows:  # stderr: what was scored; stdout: the table alone (the command's product, for scripts)
+        say(f"scoring {_scored(Path(args.path), pairs, method, args.result)}")
+    _print(rows)
     scored = {name for name, _ in rows}
     if older := [folder.name for folder, out in pairs if folder.name in scored and _other_code(folder, out, method)]:
         shown = ", ".join(older[:3]) + (f" and {len(older) - 3} more" if len(older) > 3 else "")
         remake = MAKES[method].format(path=args.path)
-        print(f"made by other nlipscalib code, scored as they are: {shown} ({remake} makes them with this version)")
+        say(
+            f"made by other nlipscalib code, scored as they are: {shown} ({remake} makes them with this version)",
+            warning=True,
+        )
     if unsolved:
-        print(f"not solved, skipped: {', '.join(unsolved)}")
+        say(f"not solved, skipped: {', '.join(unsolved)}", warning=True)
     for name, problem in damaged:
-        print(f"damaged, not scored: {name}: {problem}")
+        say(f"damaged, not scored: {name}: {problem}", warning=True)
     for name, problem in outdated:
-        print(f"outdated, not scored: {name}: {problem}")
+        say(f"outdated, not scored: {name}: {problem}", warning=True)
     return 1 if damaged or outdated else 0
 
 
@@ -481,12 +488,12 @@ def _scored(path: Path, pairs: list, method: str, result: str | None) -> str:
     return str(path / "*" / method)
 
 
-def _print(rows: list[tuple[str, dict]], scored: str) -> None:
+def _print(rows: list[tuple[str, dict]]) -> None:
+    """stdout: the table of scores, a press a line (and their mean and pooled figures), its header first."""
     import numpy as np
 
     if not rows:
         return
-    print(f"scoring {scored}")
     print(f"{'press':<24} {'pixels':>8} {'AAE(deg)':>9} {'MabsE':>8} {'RMSE(mm)':>9}")
     for name, s in rows:
         print(f"{name:<24} {s['pixels']:>8d} {s['aae_deg']:>9.3f} {s['mabse']:>8.4f} {s['depth_rmse_mm']:>9.4f}")

@@ -12,7 +12,6 @@ figures drawn from the work folder's per-press arrays (error maps, normal maps) 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -112,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     from ..experiments.framework import RESULTS, run_experiment
     from ..experiments.runner import check_scheduler
     from ..experiments.summary import clean
-    from ..progress import EXPERIMENT, press_lines
+    from ..progress import EXPERIMENT, press_lines, print_result, say
     from .options import fill_defaults
 
     press_lines(EXPERIMENT)  # its task bar and report say how the presses went; each press's lines with -v
@@ -167,20 +166,24 @@ def run(args: argparse.Namespace) -> int:
             keep_old=args.keep_old,
         )
         failed = doc["tasks"]["failed"]
-        print(f"{name}: {_summary(doc['tasks'])}, {doc['wall_seconds']} s; report {report / 'report.md'}")
+        print_result(report)  # stdout: each report's folder alone (scripts); how its run went on stderr
+        say(
+            f"{name}: {_summary(doc['tasks'])}, {doc['wall_seconds']} s; report {report / 'report.md'}",
+            warning=bool(failed),
+        )
         code = code or (1 if failed else 0)
         if args.write_baseline:
             write_json(args.write_baseline, clean(check.baseline_document(name, size, doc["check_figures"])))
         if args.check:
             worse = check.compare(doc["check_figures"], baseline)
             if worse:
-                print(f"{name}: {len(worse)} accuracy figure(s) worse than {args.check}:")
-                print(check.format_worse(worse))
+                say(f"{name}: {len(worse)} accuracy figure(s) worse than {args.check}:", warning=True)
+                say(check.format_worse(worse), warning=True)
                 return 1
-            print(f"{name}: no accuracy figure worse than {args.check}")
+            say(f"{name}: no accuracy figure worse than {args.check}")
     if args.name == "all":
         for name, why in UNAVAILABLE.items():
-            print(f"{name}: not run: {why}", file=sys.stderr)
+            say(f"{name}: not run: {why}", warning=True)
     return code
 
 
@@ -206,6 +209,7 @@ def _redraw(args: argparse.Namespace) -> int:
     from ..core.errors import ConfigError
     from ..experiments import get
     from ..experiments.redraw import RESULTS, redraw
+    from ..progress import print_result, say
     from .options import option
 
     if args.name == "all":
@@ -221,9 +225,10 @@ def _redraw(args: argparse.Namespace) -> int:
     if report.is_file():  # was "no such folder", of a path that exists
         raise ConfigError(f"{report}: a file, not a report folder of nlips experiment (the folder holding {RESULTS})")
     done = redraw(get(args.name), report)
-    print(f"{args.name}: redrew {', '.join(done.drawn)} in {report} from its {RESULTS}")
+    print_result(report)  # stdout: the report's folder alone (scripts); what was redrawn on stderr
+    say(f"{args.name}: redrew {', '.join(done.drawn)} in {report} from its {RESULTS}")
     for f in done.kept:
-        print(f"{args.name}: kept {f.file}: drawn from {f.needs}, which {RESULTS} does not hold")
+        say(f"{args.name}: kept {f.file}: drawn from {f.needs}, which {RESULTS} does not hold")
     return 0
 
 

@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from ..learn.model import load_model
     from ..learn.onnx_export import export_onnx
     from ..learn.publish import model_files_held
+    from ..progress import print_result, say
 
     out = Path(args.out) if args.out else Path(args.model).with_suffix(".onnx")
     if out.suffix.lower() != ".onnx":
@@ -57,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
         if beside
         else f"a copy: `nlips infer` and `nlips live` use {default} by default"
     )
-    print(f"{path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg; {used}")
+    print_result(path)  # stdout: the ONNX file alone (scripts); its check on stderr
+    say(f"{path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg; {used}")
     return 0
 
 

@@ -355,7 +355,7 @@ def _finish_stream(
     """A stream's summary lines, its mismatch count and (with --out) its stream.json. ``after_error``: the stream
     ended on an error, whose line follows; stream.json is then left out when it cannot be written (the disk that
     filled), not made a second error."""
-    from ..progress import say
+    from ..progress import print_result, say
 
     say(stats.summary())  # stderr: the rates; stdout: where the frames went (below), alone
     say(stages.summary(predictor, cpu, stats, args.no_depth))
@@ -369,7 +369,7 @@ def _finish_stream(
                 raise
             reported = ""
         ply = ", .ply" if args.ply or args.mesh else ""
-        print(args.out)
+        print_result(args.out)
         say(saved_line(args.out, stats.frames, args.every, f"{ply}{reported}"))
 
 
@@ -697,8 +697,10 @@ def _look_before_loading(
 def _print_folders(saved: Sequence[tuple[Path, bool]]) -> None:
     """stdout: each result folder of ``saved`` ((folder, whether a press's)), one a line, alone (for scripts); the
     summary and where they are in words go to stderr (:func:`nlipscalib.progress.say`)."""
+    from ..progress import print_result
+
     for folder, _ in saved:
-        print(folder)
+        print_result(folder)
 
 
 def _where_saved(saved: Sequence[tuple[Path, bool]], kept: Collection[Path], ply: bool, figures: str = "none") -> str:

@@ -322,11 +322,14 @@ def _run_stream(args: argparse.Namespace, no_window: str | None, done: dict, ter
 
 
 def _summarise(stats: LiveStats, predict: Predict, args: argparse.Namespace) -> None:
-    """The stream's summary line (stdout), where --out put its maps, and how many frames differed from the
-    calibration (a warning)."""
-    print(stats.summary())
+    """The stream's summary line (stderr), where --out put its maps (its folder alone on stdout, as ``nlips infer``
+    says it), and how many frames differed from the calibration (a warning)."""
+    from ..progress import print_result, say
+
+    say(stats.summary())
     if args.out and stats.frames:
-        print(saved_line(args.out, stats.frames, args.every))
+        print_result(args.out)
+        say(saved_line(args.out, stats.frames, args.every))
     watch = sys.modules.get("nlipscalib.learn.watch")  # not imported: an NLiPsNet-free stream, nothing to report
     if watch is not None and isinstance(predict, watch.MismatchWatch):
         predict.report()

@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..core.atomic import check_writable
-    from ..progress import working
+    from ..progress import print_result, say, working
     from ..sim.dataset_folder import missing_files
     from ..sim.press import render_press
 
@@ -227,7 +227,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     _check_replaceable(out)
     if not args.overwrite and _up_to_date(out, scene, press, args.seed):
-        print(f"{out}: already rendered from this scene and press, nothing to do")
+        print_result(out)  # stdout: the press folder alone, done before or now (scripts); the how on stderr
+        say(f"{out}: already rendered from this scene and press, nothing to do")
         return 0
     try:
         check_writable(out.parent, longest_name=len(out.name))  # before the render, not after it
@@ -242,9 +243,11 @@ def run(args: argparse.Namespace) -> int:
         # another run published the folder meanwhile: its very render is done, as a run after it would say
         if args.overwrite or not out.is_dir() or not _up_to_date(out, scene, press, args.seed):
             raise
-        print(f"{out}: already rendered from this scene and press (by another run meanwhile), nothing to do")
+        print_result(out)
+        say(f"{out}: already rendered from this scene and press (by another run meanwhile), nothing to do")
         return 0
-    print(f"rendered {what} to {path}")
+    print_result(path)
+    say(f"rendered {what} to {path}")
     return 0
 
 

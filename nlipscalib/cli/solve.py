@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.press_meta import read_meta
     from ..pipeline import SKIPPED, SOLVED, make_settings, result_dir, solve_one, solve_presses
     from ..pipeline.provenance import identity_in_background
-    from ..progress import BATCH, press_lines
+    from ..progress import BATCH, press_lines, print_result
     from . import imports_frozen
     from .folders import check_one_capture
 
@@ -214,7 +214,7 @@ def run(args: argparse.Namespace) -> int:
             figures=args.figures,
             wait=True,  # the result asked for: another run's is waited for, and reused only when made alike
         )
-        print(result_dir(presses[0], args.out))  # stdout: where the result is, alone (the how is on stderr)
+        print_result(result_dir(presses[0], args.out))  # stdout: where the result is, alone (the how is on stderr)
         return 0
     from ..core.cpus import SOLVE_ROI_MEMORY, SOLVE_WHOLE_MEMORY, solve_worker_count
     from ..core.press_meta import image_size
@@ -228,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
     )
     for press in presses:  # stdout: each result's folder, one a line (solved now or before)
         if statuses.get(press.name, statuses.get(str(press))) in (SOLVED, SKIPPED):  # keyed as pipeline._names
-            print(result_dir(press))
+            print_result(result_dir(press))
     return _summary(statuses)
 
 

@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     from ..learn.publish import hold_training, model_stage, publish_model, unusable_model_files
     from ..learn.torch_device import check_device
     from ..learn.train import TrainConfig, train
-    from ..progress import say
+    from ..progress import print_result, say
     from ..report.learn import training_curve
 
     try:
@@ -160,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
         )
         if result.reused:
             best = result.history[result.best_epoch]
-            print(out)  # stdout: the model's file alone (scripts); what it is, on stderr
+            print_result(out)  # stdout: the model's file alone (scripts); what it is, on stderr
             say(
                 f"{out}: reused, trained before with the same options on the same samples (best epoch "
                 f"{result.best_epoch + 1} of {len(result.history)}, validation AAE {best['val_aae_deg']:.2f} deg); "
@@ -184,11 +184,11 @@ def run(args: argparse.Namespace) -> int:
         except Exception:  # a failed export costs the export, not the training: the model goes out without one
             (stage / onnx_path.name).unlink(missing_ok=True)  # written, then failed its parity check
             publish_model(stage, out, result)
-            print(out)
+            print_result(out)
             say(summary)
             raise
         publish_model(stage, out, result)
-    print(out)  # stdout: the model's file alone (scripts); how it trained, on stderr
+    print_result(out)  # stdout: the model's file alone (scripts); how it trained, on stderr
     say(summary)
     if angle is not None:
         say(f"{onnx_path}: onnxruntime vs PyTorch max angular difference {angle:.4f} deg on the validation samples")

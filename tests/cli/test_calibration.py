@@ -167,7 +167,9 @@ def test_calibrate_leds_names_the_interreflection_threshold_it_used_and_no_other
     capsys.readouterr()
     args = ["--no-progress", "calibrate-leds", str(root / "reference"), "--stride", "4"]
     assert main([*args, "--out", str(tmp_path / "auto.json")]) == 0
-    out = capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the LED file alone (`leds=$(nlips calibrate-leds ...)`); the table on stderr
+    assert said.out == f"{tmp_path / 'auto.json'}\n"
+    out = said.err
     # and, as `nlips calibrate` and `nlips train` end, what to run next with the file (it ended on "written FILE")
     leds = tmp_path / "auto.json"
     assert out.splitlines()[
@@ -178,7 +180,7 @@ def test_calibrate_leds_names_the_interreflection_threshold_it_used_and_no_other
     assert "of the direct light with the starting LEDs (below the LED calibration's auto threshold 0.1)" in line
     assert line.count("threshold") == 1, line
     assert main([*args, "--interreflection", "on", "--out", str(tmp_path / "on.json")]) == 0
-    line = _capture_line(capsys.readouterr().out)
+    line = _capture_line(capsys.readouterr().err)
     assert line.startswith("capture 1: interreflection on: fitted indirect share ") and "threshold" not in line
 
 

@@ -31,7 +31,8 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     spec.write_text(SPEC, encoding="utf-8")
     out = tmp_path / "data"
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "2", "--no-progress"]) == 0
-    assert "3 rendered, 0 already there, 0 failed" in capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the dataset's folder alone (a script's `data=$(nlips dataset ...)`)
+    assert said.out == f"{out}\n" and f"{out}: 3 rendered, 0 already there, 0 failed" in said.err.splitlines()
     presses = find_presses(out)
     assert [p.name for p in presses] == ["press_0001", "press_0002", "reference"]
     a, b = (load_press(p) for p in presses[:2])
@@ -39,7 +40,7 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     assert a.meta["provenance"]["press"]["azimuth_deg"] != b.meta["provenance"]["press"]["azimuth_deg"]
     assert len(json.loads((out / "dataset.json").read_text(encoding="utf-8"))["presses"]) == 3
     assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 0
-    assert "0 rendered, 3 already there" in capsys.readouterr().out
+    assert "0 rendered, 3 already there" in capsys.readouterr().err
 
     # press folders without meta.json (interrupted copies) are removed and rendered again by the
     # worker processes, which say so in the --log-file too
@@ -48,7 +49,7 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     log = tmp_path / "run.log"
     args = ["--log-file", str(log), "dataset", str(spec), "--out", str(out), "--workers", "2", "--no-progress"]
     assert main(args) == 0
-    assert "2 rendered, 1 already there, 0 failed" in capsys.readouterr().out
+    assert "2 rendered, 1 already there, 0 failed" in capsys.readouterr().err
     text = log.read_text(encoding="utf-8")
     for name in ("press_0001", "press_0002"):
         assert f"{name}: incomplete press folder" in text, text
@@ -69,8 +70,9 @@ def test_dataset_renders_in_parallel_then_resumes(tmp_path, capsys):
     assert not (out / "reference" / "nlips").exists()
     capsys.readouterr()
     assert main(["eval", str(out)]) == 0  # scores what was solved, names what was not
-    table = capsys.readouterr().out
-    assert "press_0001" in table and "not solved, skipped: press_0002\n" in table  # the reference is no press
+    said = capsys.readouterr()  # stdout: the table alone; what was left out, on stderr
+    assert "press_0001" in said.out and "press_0002" not in said.out and "skipped" not in said.out
+    assert "not solved, skipped: press_0002\n" in said.err  # the reference is no press
 
 
 def test_dataset_reports_bad_presses_and_bad_specs(tmp_path, capsys):
@@ -101,7 +103,9 @@ def test_demo_renders_solves_and_draws(tmp_path, capsys, caplog):
     out = tmp_path / "demo"
     with caplog.at_level(logging.INFO, logger="nlipscalib"):
         assert main(["demo", "--spec", str(spec), "--out", str(out)]) == 0
-    text = capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the contact sheet alone; the scores' table on stderr
+    assert said.out == f"{out / 'contact_sheet.png'}\n"
+    text = said.err
     assert (out / "contact_sheet.png").stat().st_size > 10_000
     assert "press_0001" in text and "sphere" in text
     assert (out / "press_0001" / "nlips" / "result.npz").is_file()

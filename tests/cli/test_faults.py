@@ -123,12 +123,12 @@ def test_real_full_disk_and_read_only_recheck(spec, tmpfs, capsys):
 
     _remount(tmpfs, "size=4m")  # room again: the run resumes and finishes
     assert main(["dataset", str(spec), "--out", str(out), "--workers", "1", "--no-progress"]) == 0
-    assert f"{5 - len(done)} rendered, {len(done)} already there" in capsys.readouterr().out
+    assert f"{5 - len(done)} rendered, {len(done)} already there" in capsys.readouterr().err
 
     (out / "dataset.json").unlink()  # even one from before dataset.json existed
     _remount(tmpfs, "ro")  # a finished dataset on read-only media can be re-checked
     assert main(["dataset", str(spec), "--out", str(out), "--no-progress"]) == 0
-    assert "0 rendered, 5 already there, 0 failed" in capsys.readouterr().out
+    assert "0 rendered, 5 already there, 0 failed" in capsys.readouterr().err
 
 
 def test_real_read_only_unfinished_dataset(spec, tmpfs, capsys):

@@ -36,11 +36,11 @@ def test_the_same_render_published_meanwhile_by_another_run_is_nothing_to_do(tmp
     out = tmp_path / "r1" / "p"
     monkeypatch.setattr(sim_press, "render_press", _published_meanwhile())
     assert main([*TINY, "--out", str(out)]) == 0
-    captured = capsys.readouterr()
-    assert captured.out.strip() == (
-        f"{out}: already rendered from this scene and press (by another run meanwhile), nothing to do"
+    captured = capsys.readouterr()  # stdout: the press folder alone, done by the other run; the why on stderr
+    assert captured.out == f"{out}\n"
+    assert (
+        captured.err == f"{out}: already rendered from this scene and press (by another run meanwhile), nothing to do\n"
     )
-    assert captured.err == ""
 
 
 def test_another_render_published_meanwhile_is_still_refused(tmp_path, monkeypatch, capsys):
@@ -126,7 +126,8 @@ def test_a_press_that_other_twin_code_or_mitsuba_rendered_is_kept_with_a_warning
     (out / "meta.json").write_text(json.dumps(meta), encoding="utf-8")
     assert main([*TINY, "--out", str(out)]) == 0 and calls == [False]  # kept
     captured = capsys.readouterr()
-    assert "already rendered from this scene and press, nothing to do" in captured.out
+    assert "already rendered from this scene and press, nothing to do" in captured.err
+    assert captured.out.splitlines() == [str(out)] * 3  # rendered, then found done twice: the folder each time
     warned = [r.getMessage() for r in caplog.records if "rendered by other twin code" in r.getMessage()]
     assert len(warned) == 1 and str(out) in warned[0] and "mitsuba 3.0.0 (now " in warned[0], warned
     assert "--overwrite renders it again" in warned[0]
@@ -171,10 +172,10 @@ def test_a_render_with_a_file_cut_short_is_rendered_again_not_nothing_to_do(tmp_
     capsys.readouterr()
     assert main([*TINY, "--out", str(out)]) == 0
     assert "led_03.png cut short (no PNG end chunk); rendering it again" in caplog.text
-    assert capsys.readouterr().out.startswith("rendered press to")
+    assert capsys.readouterr().err.endswith(f"rendered press to {out}\n")
     assert file_problem(image) is None and image.read_bytes() == whole
     assert main([*TINY, "--out", str(out)]) == 0
-    assert "nothing to do" in capsys.readouterr().out
+    assert "nothing to do" in capsys.readouterr().err
 
 
 def test_a_render_whose_meta_json_is_cut_short_is_named_so_not_another_scene(tmp_path, capsys):
@@ -193,4 +194,4 @@ def test_a_render_whose_meta_json_is_cut_short_is_named_so_not_another_scene(tmp
     assert main([*TINY, "--out", str(out), "--overwrite"]) == 0
     capsys.readouterr()
     assert main([*TINY, "--out", str(out)]) == 0  # whole again, and this very render
-    assert "nothing to do" in capsys.readouterr().out
+    assert "nothing to do" in capsys.readouterr().err

@@ -143,13 +143,13 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     save_reconstruction(exact, press / "nlipsnet")
     capsys.readouterr()
     assert main(["eval", str(press / "nlipsnet")]) == 0
-    out = capsys.readouterr().out
-    assert f"scoring {press / 'nlipsnet'}" in out  # the method came from the folder's name
-    row = next(line for line in out.splitlines() if line.startswith("press_a")).split()
+    said = capsys.readouterr()  # stdout: the table alone; what it scores, on stderr
+    assert f"scoring {press / 'nlipsnet'}" in said.err  # the method came from the folder's name
+    row = next(line for line in said.out.splitlines() if line.startswith("press_a")).split()
     # zero up to arccos near 1 on float32 unit vectors (~0.01 deg); depth exactly zero
     assert int(row[1]) == gt.valid.sum() and float(row[2]) < 0.02 and float(row[4]) == 0.0
     assert main(["eval", str(root), "--method", "nlipsnet"]) == 0
-    assert "not solved, skipped: press_b" in capsys.readouterr().out
+    assert "not solved, skipped: press_b" in capsys.readouterr().err
     assert main(["eval", str(press / "nlips")]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("press_a")).split()
     assert float(row[4]) > 0.0 and float(row[2]) < 5.0  # NLiPs on exact data: small but not exact
@@ -157,7 +157,7 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
     npz = press / "nlipsnet" / "result.npz"
     npz.write_bytes(npz.read_bytes()[:100])
     assert main(["eval", str(root), "--method", "nlipsnet"]) == 1  # not re-made here: named, exit 1
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     # with the command that makes it again (the model the report names; this report names none)
     assert "damaged, not scored: press_a" in out and f"make it again with `nlips infer MODEL.pt {press}`" in out
     report = json.loads((press / "nlipsnet" / "report.json").read_text(encoding="utf-8"))
@@ -169,7 +169,8 @@ def test_eval_scores_nlips_and_nlipsnet_alike(data, capsys):
 
 
 def test_eval_header_names_what_is_scored(data, capsys):
-    """The table's header said `scoring PRESS/nlips` whatever PATH was."""
+    """The table's header said `scoring PRESS/nlips` whatever PATH was. That line is on stderr: stdout holds the
+    table alone, its column heads first (a script reading the scores)."""
     root, cfg = data
     assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
     capsys.readouterr()
@@ -180,7 +181,27 @@ def test_eval_header_names_what_is_scored(data, capsys):
         (press / "nlips", f"scoring {press / 'nlips'}"),
     ):
         assert main(["eval", str(path)]) == 0
-        assert capsys.readouterr().out.splitlines()[0] == header
+        said = capsys.readouterr()
+        assert header in said.err.splitlines() and said.out.split()[:2] == ["press", "pixels"]
+
+
+def test_eval_quiet_prints_the_table_alone_and_still_says_what_it_left_out(data, capsys):
+    """`nlips eval`'s product is its table: stdout, alone (no "scoring" line above it, no notes below it); with
+    --quiet stderr says only what was not scored (a warning), not what was."""
+    import shutil
+
+    root, cfg = data
+    assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
+    capsys.readouterr()
+    assert main(["-q", "eval", str(root)]) == 0
+    out, err = capsys.readouterr()
+    assert [line.split()[0] for line in out.splitlines()] == ["press", "press_a", "press_b", "mean", "pooled"]
+    assert err == ""
+    shutil.rmtree(root / "press_b" / "nlips")
+    assert main(["-q", "eval", str(root)]) == 0
+    out, err = capsys.readouterr()
+    assert [line.split()[0] for line in out.splitlines()] == ["press", "press_a"]
+    assert err == "not solved, skipped: press_b\n"
 
 
 def test_eval_of_several_presses_gives_their_mean_and_the_pooled_figures(data, capsys):
@@ -195,7 +216,7 @@ def test_eval_of_several_presses_gives_their_mean_and_the_pooled_figures(data, c
     capsys.readouterr()
     assert main(["eval", str(root), "--region", "contact"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [line.split()[0] for line in lines[2:]] == ["press_a", "press_b", "mean", "pooled"]
+    assert [line.split()[0] for line in lines] == ["press", "press_a", "press_b", "mean", "pooled"]
     pixels, aae, mabse, rmse = lines[-1].split()[1:]
     angles, components, depth = [], [], []
     for name in ("press_a", "press_b"):
@@ -222,9 +243,9 @@ def test_eval_scores_a_result_solved_into_another_folder(data, tmp_path, capsys)
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"nlips eval PRESS --result {other}" in err[0]
     assert main(["eval", str(press), "--result", str(other)]) == 0
-    out = capsys.readouterr().out
-    assert f"scoring {other} against {press}" in out
-    row = next(line for line in out.splitlines() if line.startswith("press_a")).split()
+    said = capsys.readouterr()
+    assert f"scoring {other} against {press}" in said.err
+    row = next(line for line in said.out.splitlines() if line.startswith("press_a")).split()
     scores = evaluate(load_reconstruction(other), load_press(press).ground_truth)["all"]
     assert int(row[1]) == scores["pixels"] > 0 and float(row[2]) == pytest.approx(scores["aae_deg"], abs=1e-3)
     assert main(["eval", str(press), "--result", str(other), "--method", "nlipsnet"]) == 2  # the report says nlips
@@ -449,9 +470,13 @@ def test_eval_does_not_score_a_result_its_press_was_recaptured_since(data, capsy
     assert main(["eval", str(root)]) == 0
     shutil.copytree(root / "press_b" / "nlips", press / "nlips", dirs_exist_ok=True)  # press_a's folder, b's result
     assert main(["eval", str(root)]) == 1
-    out = capsys.readouterr().out
-    assert "press_b" in out and f"outdated, not scored: press_a: {press / 'nlips'} was made from another capture" in out
-    assert f"remake it: `nlips solve {press} --overwrite`" in out
+    said = capsys.readouterr()
+    err = said.err
+    assert (
+        "press_b" in said.out
+        and f"outdated, not scored: press_a: {press / 'nlips'} was made from another capture" in err
+    )
+    assert f"remake it: `nlips solve {press} --overwrite`" in err
 
 
 def test_a_press_whose_tricolor_image_is_corrupt_still_solves(data, capsys):
@@ -607,7 +632,7 @@ def test_eval_names_the_results_other_nlipscalib_code_made(data, capsys):
     assert main(["solve", str(root), "--config", str(cfg), "--no-progress"]) == 0
     capsys.readouterr()
     assert main(["eval", str(root)]) == 0
-    assert "other nlipscalib code" not in capsys.readouterr().out  # this installation's results
+    assert "other nlipscalib code" not in capsys.readouterr().err  # this installation's results
     for name, code in (("press_a", "0" * 32), ("press_b", None)):  # other code; a result of before 2026-12-06
         path = root / name / "nlips" / "report.json"
         report = json.loads(path.read_text(encoding="utf-8"))
@@ -616,9 +641,10 @@ def test_eval_names_the_results_other_nlipscalib_code_made(data, capsys):
             del report["provenance"]["code"]
         path.write_text(json.dumps(report), encoding="utf-8")
     assert main(["eval", str(root)]) == 0
-    out = capsys.readouterr().out.splitlines()
-    assert out[-1] == (
+    said = capsys.readouterr()
+    assert said.err.splitlines()[-1] == (
         f"made by other nlipscalib code, scored as they are: press_a, press_b (`nlips solve {root}` makes them with "
         "this version)"
-    ), out
+    ), said.err
+    out = said.out.splitlines()
     assert any(line.startswith("press_a ") for line in out) and any(line.startswith("press_b ") for line in out)

@@ -4,6 +4,15 @@ import numpy as np
 
 from nlipscalib.device.camera import FrameSource
 
+OPERATOR_LINES = ("Do not touch the sensor", "Press ", "Reference: ")
+"""How the instructions to the person at the sensor (device.session.Operator) begin: `nlips capture` says them on
+stderr (stdout holds the session's folder alone), among the errors a test reads there."""
+
+
+def errors_only(err: str) -> list[str]:
+    """The lines of ``err`` that are neither log lines nor the operator's instructions."""
+    return [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING ", *OPERATOR_LINES))]
+
 
 class FakeController:
     """Latches every command at once, like a board that acknowledges after latching."""

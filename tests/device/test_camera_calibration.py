@@ -147,7 +147,9 @@ def test_cli_writes_the_camera_block(views, tmp_path, capsys):
     out = tmp_path / "camera.json"
     args = ["calibrate-camera", str(tmp_path), "--pattern", "8x6", "--square", "3", "--out", str(out)]
     assert main(args) == 0
-    text = capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the camera file alone; the fit's figures, on stderr
+    assert said.out == f"{out}\n"
+    text = said.err
     assert "blank.png: board not found" in text and "reprojection error" in text
     # the lens line is legible: four significant digits per coefficient, not a tuple of full float reprs
     lens = next(line for line in text.splitlines() if line.startswith("fisheye camera"))
@@ -158,7 +160,7 @@ def test_cli_writes_the_camera_block(views, tmp_path, capsys):
     assert "found in 0 of 7 images" in capsys.readouterr().err
     # the same folder twice counts each view once; an empty folder, a folder as --out, --square -3: one line each
     assert main(args[:2] + [str(tmp_path)] + args[2:]) == 0
-    assert "(RMS over 6 views)" in capsys.readouterr().out
+    assert "(RMS over 6 views)" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()
     for bad, message in (
         ([args[0], str(tmp_path / "empty"), *args[2:]], "empty: no images (.bmp"),

@@ -14,7 +14,9 @@ from nlipscalib.sim.press import render_identity  # noqa: E402
 def test_emulated_session_from_the_cli_resumes(tmp_path, capsys, caplog):
     args = ["capture", "--emulate", "nlipstac", "--width", "64", "--height", "48", "--spp", "1", "--out"]
     assert main(args + [str(tmp_path / "s"), "--presses", "1", "--move-press", "1"]) == 0
-    out = capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the session's folder alone (`session=$(nlips capture ...)`); the rest, stderr
+    assert said.out == f"{tmp_path / 's'}\n"
+    out = said.err
     assert "press_0001: captured" in out and "2 attempt(s)" in out
     # the press that moved is said once, by the operator's line (it was a WARNING log line too)
     assert sum("Press 1: the object moved" in line for line in out.splitlines()) == 1
@@ -26,7 +28,7 @@ def test_emulated_session_from_the_cli_resumes(tmp_path, capsys, caplog):
         f"{tmp_path / 's'} --leds leds.json (NLiPsNet's training data)"
     )
     assert main(args + [str(tmp_path / "s"), "--presses", "2"]) == 0
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert "reference: kept" in out and "press_0001: kept" in out and "press_0002: captured" in out
     presses = find_presses(tmp_path / "s")
     assert [p.name for p in presses] == ["press_0001", "press_0002", "reference"]
@@ -77,7 +79,7 @@ def test_device_path_with_virtual_board_and_recorded_frames(tmp_path, capsys):
     args = ["capture", "--port", board.url, "--camera", str(frames), "--design", "nlipstac", "--yes"]
     args += ["--camera-calibration", str(tmp_path / "camera.json"), "--presses", "1", "--out", str(tmp_path / "s")]
     assert main(args) == 0
-    assert "press_0001: captured" in capsys.readouterr().out
+    assert "press_0001: captured" in capsys.readouterr().err
     p = load_press(tmp_path / "s" / "press_0001")
     assert p.camera == camera and p.response.bit_depth == 8 and p.response.white_level == 255 << 8
     assert p.meta["provenance"]["device"]["firmware"] and np.isfinite(p.reference.depth).all()
@@ -157,7 +159,7 @@ def test_a_second_capture_into_a_session_being_captured_is_refused_before_it_cap
         assert len(err) == 1 and f"{out}: another capture is writing this session (process {os.getpid()} on " in err[0]
         assert not out.exists() and board.latched.sum() == 0
     assert main(args) == 0
-    assert "press_0001: captured" in capsys.readouterr().out
+    assert "press_0001: captured" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == ["press_0001", "reference", "session.json"]
     assert not (tmp_path / ".claim-s").exists()  # released
 
@@ -292,7 +294,7 @@ def test_nlipsemu_port_from_a_fresh_process_captures_on_the_emulated_sensor(tmp_
     )
     assert result.returncode == 0, result.stderr
     assert "nlipsemu://1: starting the emulated sensor of nlipstac" in result.stderr
-    assert "Traceback" not in result.stderr and "press_0001: captured" in result.stdout
+    assert "Traceback" not in result.stderr and "press_0001: captured" in result.stderr
     p = load_press(out / "press_0001")
     assert p.led_images.shape == (12, 48, 64, 3) and p.reference is not None
     assert p.meta["provenance"]["device"] == "emulator"
@@ -311,7 +313,11 @@ def test_nlipsemu_port_is_the_emulated_sensor_of_the_design(tmp_path, capsys):
     port = ["capture", "--port", url, "--design", "nlipstac", *SMALL, "--presses", "1"]
     assert main([*port, "--out", str(tmp_path / "port")]) == 0
     captured = capsys.readouterr()
-    assert f"{url}: starting the emulated sensor of nlipstac" in captured.err and captured.err.count("\n") == 1
+    assert (
+        captured.err.startswith(f"{url}: starting the emulated sensor of nlipstac")
+        and captured.out == f"{tmp_path / 'port'}\n"
+    )
+    assert captured.err.count("starting the emulated sensor") == 1
     assert find_board(url) is None
     assert main(["capture", "--emulate", "nlipstac", *SMALL, "--presses", "1", "--out", str(tmp_path / "emu")]) == 0
     capsys.readouterr()
@@ -321,7 +327,7 @@ def test_nlipsemu_port_is_the_emulated_sensor_of_the_design(tmp_path, capsys):
     assert a.camera == b.camera and a.leds == b.leds
     # run again with one press more: it resumes
     assert main([*port[:-1], "2", "--out", str(tmp_path / "port")]) == 0
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert "press_0001: kept" in out and "press_0002: captured" in out
     assert [p.name for p in find_presses(tmp_path / "port")] == ["press_0001", "press_0002", "reference"]
 
@@ -369,7 +375,7 @@ def test_nlipsemu_port_with_a_camera_starts_the_board_alone(tmp_path, capsys):
     args = ["capture", "--port", url, "--camera", str(frames), "--camera-calibration", str(camera)]
     assert main([*args, "--presses", "0", "--out", str(tmp_path / "s")]) == 0
     captured = capsys.readouterr()
-    assert "reference: captured" in captured.out and "emulated" not in captured.err
+    assert "reference: captured" in captured.err and "emulated" not in captured.err
     p = load_press(tmp_path / "s" / "reference")
     assert p.meta["provenance"]["device"]["port"] == url and p.led_images.shape[0] == 12
     assert p.dark[0, 0, 0] == 51 << 8 and p.led_images[11, 0, 0, 0] == 63 << 8
@@ -397,7 +403,7 @@ def test_capture_drives_the_led_board_at_the_rate_of_baud(tmp_path, capsys):
     args = ["capture", "--port", board.url, "--camera", str(frames), "--camera-calibration", str(camera), "--yes"]
     args += ["--presses", "0"]
     assert main([*args, "--out", str(tmp_path / "s"), "--baud", "57600"]) == 0
-    assert "reference: captured" in capsys.readouterr().out
+    assert "reference: captured" in capsys.readouterr().err
     assert load_press(tmp_path / "s" / "reference").led_images.shape[0] == 12
     assert main([*args, "--out", str(tmp_path / "t")]) == 2
     err = capsys.readouterr().err
@@ -517,4 +523,4 @@ def test_a_capture_stopped_by_ctrl_c_prints_its_session_line(tmp_path, capsys, m
     )
     monkeypatch.undo()  # a run again resumes where the line said
     assert main(["capture", "--emulate", "nlipstac", *SMALL, "--presses", "3", "--out", str(out)]) == 0
-    assert "press_0001: kept" in capsys.readouterr().out
+    assert "press_0001: kept" in capsys.readouterr().err

@@ -23,6 +23,7 @@ import pytest
 from nlipscalib.cli import main
 from nlipscalib.device.controller import LedController, lights_out_on_exit
 from nlipscalib.device.virtual_board import VirtualBoard
+from tests.device.fakes import errors_only
 from tests.processes import terminate_once_started
 
 from .ledboards import SimavrUnderTest, firmware_build
@@ -138,7 +139,7 @@ def test_sigterm_mid_capture_on_the_firmware_leaves_the_leds_dark_and_no_partial
             os.kill(proc.pid, signal.SIGKILL)
     try:
         assert proc.returncode == 128 + signal.SIGTERM, err
-        said = [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
+        said = errors_only(err)  # the operator's instructions are on stderr too
         assert len(said) == 1 and (stopped := TERMINATED.fullmatch(said[0])), err
         assert board.latched().sum() == 0  # was lit when the signal came
     finally:
@@ -171,10 +172,15 @@ def test_live_summarises_its_frames_when_the_board_is_lost_before_the_lights_off
     monkeypatch.setattr(fakes, "unplugging_predictor", unplugging_predictor, raising=False)
     args = ["live", "--camera", str(frames), "--port", board.url, "--no-window", "--save", str(tmp_path / "s")]
     assert main(args + ["--predictor", "tests.device.fakes:unplugging_predictor"]) == 2
-    captured = capsys.readouterr()
-    assert captured.out.startswith("3 frames in ")
-    lines = [line for line in captured.err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
-    assert len(lines) == 1 and lines[0].startswith(f"nlips live: error: {board.url}: the board disconnected ("), lines
+    captured = capsys.readouterr()  # stdout: the maps' folder; on stderr the summary, then the error, last
+    said = captured.err.splitlines()
+    assert captured.out == f"{tmp_path / 's'}\n" and any(line.startswith("3 frames in ") for line in said), said
+    lines = [line for line in said if line.startswith("nlips ")]
+    assert (
+        said[-1] == lines[0]
+        and len(lines) == 1
+        and lines[0].startswith(f"nlips live: error: {board.url}: the board disconnected (")
+    ), lines
     assert len(list((tmp_path / "s").glob("*_normals.png"))) == 3
 
 
@@ -204,7 +210,8 @@ def test_sigterm_of_live_says_the_stream_stopped_not_run_again_to_resume(tmp_pat
         "nlips live: terminated; the stream stopped (a live stream does not resume; maps already saved with --out "
         "are kept)"
     )
-    summary, where = out.splitlines()
+    assert out == f"{saved}\n"  # stdout: the maps' folder alone; the summary and where, on stderr before the line
+    summary, where = [line for line in err.splitlines() if not line.startswith(("INFO ", "WARNING "))][-3:-1]
     n = int(summary.split()[0])
     assert 1 <= n < 200 and summary.startswith(f"{n} frames in "), out
     assert where.startswith(f"saved: {n} of {n} frames' "), out

@@ -144,7 +144,9 @@ def test_live_cli_saves_maps_with_a_plugged_predictor(frames, tmp_path, capsys):
     out = tmp_path / "maps"
     args = ["live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor"]
     assert main(args + ["--out", str(out), "--every", "2", "--no-window"]) == 0
-    printed = capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the maps' folder alone (as `nlips infer`); the rates and where, on stderr
+    assert said.out == f"{out}\n"
+    printed = said.err
     assert "5 frames in" in printed and f"saved: 3 of 5 frames' normals and depth in {out} " in printed
     assert sorted(p.name for p in out.iterdir()) == [
         f"frame_{k:06d}{ext}" for k in (0, 2, 4) for ext in (".npz", "_normals.png")
@@ -156,6 +158,16 @@ def test_live_cli_saves_maps_with_a_plugged_predictor(frames, tmp_path, capsys):
     assert main(["live", "--camera", str(frames)]) == 2  # no predictor: one clear error
 
 
+def test_live_quiet_prints_its_folder_alone(frames, tmp_path, capsys):
+    """`nlips live --out DIR` printed its frame rates and where the maps went on stdout; now stdout is DIR alone (as
+    `nlips infer`'s stream), and --quiet leaves those lines out of stderr."""
+    out = tmp_path / "maps"
+    args = ["-q", "live", "--camera", str(frames), "--predictor", "tests.device.fakes:flat_predictor", "--no-window"]
+    assert main([*args, "--out", str(out)]) == 0
+    assert capsys.readouterr() == (f"{out}\n", "")
+    assert len(list(out.glob("*.npz"))) == 5
+
+
 def test_live_takes_infers_names_for_its_output_and_frame_limit_and_its_own_as_aliases(frames, tmp_path, capsys):
     """`nlips live` had --save DIR / --frames N where `nlips infer` (and every other command, for --out) has
     --out DIR / --max-frames N; the old names stay accepted, and the help says which is which."""
@@ -163,7 +175,7 @@ def test_live_takes_infers_names_for_its_output_and_frame_limit_and_its_own_as_a
     for out_flag, limit_flag in (("--out", "--max-frames"), ("--save", "--frames")):
         out = tmp_path / out_flag.strip("-")
         assert main([*args, out_flag, str(out), limit_flag, "2"]) == 0
-        assert "2 frames in" in capsys.readouterr().out
+        assert "2 frames in" in capsys.readouterr().err
         assert sorted(p.name for p in out.glob("*.npz")) == ["frame_000000.npz", "frame_000001.npz"]
     live, infer = _help("live", capsys), _help("infer", capsys)
     assert "--max-frames N, --frames N" in live and "--frames: its former name" in live

@@ -43,7 +43,7 @@ def test_live_streams_the_emulated_sensor_through_nlipsnet(reference, tmp_path, 
     maps = tmp_path / "maps"
     args = ["live", *ARGS, "--model", str(model), "--frames", "6", "--frames-per-press", "3", "--save", str(maps)]
     assert main(args) == 0
-    summary = capsys.readouterr().out
+    summary = capsys.readouterr().err
     assert "6 frames in" in summary and "fps" in summary
     assert "differs from the calibration's reference" not in caplog.text  # frames of the calibrated sensor
     first = np.load(maps / "frame_000001.npz")  # the undeformed gel: the reference normals where nothing changed
@@ -63,7 +63,7 @@ def test_live_warns_once_when_frames_differ_from_the_calibration_everywhere(refe
     caplog.set_level(logging.WARNING)
     model = _untrained_model(reference, tmp_path / "net.pt", brightness=3.0)  # frames 1/3 as bright
     assert main(["live", *ARGS, "--model", str(model), "--frames", "4", "--no-window", *path]) == 0
-    assert "4 frames in" in capsys.readouterr().out
+    assert "4 frames in" in capsys.readouterr().err
     warned = [r.getMessage() for r in caplog.records if "differs from the calibration's reference" in r.getMessage()]
     assert len(warned) == 1 and warned[0].startswith("emulated sensor frame 0: ") and "times as bright" in warned[0]
     assert "4 of 4 frames differed from the calibration's reference" in caplog.text
@@ -136,8 +136,13 @@ def test_infer_keeps_its_summary_and_report_when_the_board_is_lost_before_the_li
     )
     out = tmp_path / "out"
     assert main(["infer", str(model), "--camera", str(frames), "--port", board.url, "--out", str(out)]) == 2
-    captured = capsys.readouterr()
-    assert captured.out.startswith("3 frames in ")
-    lines = [line for line in captured.err.splitlines() if not line.startswith(("INFO ", "WARNING "))]
-    assert len(lines) == 1 and lines[0].startswith(f"nlips infer: error: {board.url}: the board disconnected ("), lines
+    captured = capsys.readouterr()  # the summary (on stderr since 2026-12-06: stdout holds the --out folder), then
+    said = captured.err.splitlines()  # the error, last
+    assert any(line.startswith("3 frames in ") for line in said), said
+    lines = [line for line in said if line.startswith("nlips ")]
+    assert (
+        said[-1] == lines[0]
+        and len(lines) == 1
+        and lines[0].startswith(f"nlips infer: error: {board.url}: the board disconnected (")
+    ), lines
     assert (out / "stream.json").is_file() and len(list(out.glob("frame_*.npz"))) == 3

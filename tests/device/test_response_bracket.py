@@ -162,9 +162,11 @@ def test_directshow_takes_the_bracket_at_its_powers_of_two_said_in_one_line(webc
     step (2**-11 s); now each step is taken once, at its own time, and the curve is right."""
     webcam(backend="DSHOW")
     code, out = _calibrate(tmp_path)
-    err = capsys.readouterr().err.strip().splitlines()
+    said = capsys.readouterr()
+    err = said.err.strip().splitlines()
     assert code == 0, err
-    assert len(err) == 1 and "camera 0 (DSHOW) takes exposures in powers of two seconds" in err[0], err
+    assert said.out == f"{out}\n" and err[-1].startswith(f"{out}: ")  # the file on stdout; what it is, on stderr
+    assert len(err) == 2 and "camera 0 (DSHOW) takes exposures in powers of two seconds" in err[0], err
     response = read_response_file(out)
     assert response.provenance["exposures_ms"] == [1000 * 2.0**k for k in range(-11, -3)]
     # full stops, not half: each code is seen in fewer frames, 2.3 % off at code 222 (half stops: 0.34 %)
@@ -350,6 +352,7 @@ def test_a_16_bit_bracket_gives_the_curve_over_every_16_bit_value(tmp_path, caps
         cv2.imwrite(str(folder / f"gel_{ms:g}ms.png"), np.rint(65535 * light ** (1 / GAMMA)).astype(np.uint16))
     out = tmp_path / "r.json"
     assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(out)]) == 0, capsys.readouterr()
+    capsys.readouterr()  # the fit's line (stderr), not the refusal's below
     response = read_response_file(out)
     assert np.abs(np.asarray(response.curve) - _true_curve())[LIT_CODES].max() < RESPONSE_CURVE_ERROR
     stored = np.arange(65536)

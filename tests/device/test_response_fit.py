@@ -75,7 +75,8 @@ def test_a_camera_whose_channels_differ_keeps_a_curve_per_channel_and_captures_l
     path = tmp_path / "rgb.json"
     args = ["calibrate-camera-response", "--emulate", "nlipstac", "--emulate-tone-curve", "rgb-gammas", *SIZE]
     assert main([*args, "--out", str(path)]) == 0
-    assert "a curve per channel kept" in capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the response file alone; the fit, on stderr
+    assert said.out == f"{path}\n" and "a curve per channel kept" in said.err
     response = read_response_file(path)
     assert response.provenance["per_channel"] is True and "a curve per channel" in response.provenance["method"]
     assert json.loads(path.read_text(encoding="utf-8"))["format_version"] == 2

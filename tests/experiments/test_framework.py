@@ -476,7 +476,8 @@ def test_other_task_failures_let_the_sweep_go_on(tmp_path, monkeypatch, capsys):
     out = tmp_path / "out"
     assert main(["--no-progress", "experiment", "ablation", "--config", str(config), "--out", str(out)]) == 1
     assert len(started) == 3, started  # every press tried
-    assert "3 failed" in capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the report's folder; the failures, on stderr (kept by --quiet)
+    assert "3 failed" in said.err and said.out == f"{out / 'ablation-custom' / 'report'}\n"
 
 
 def test_one_process_starts_no_task_of_its_stage_after_a_full_disk(tmp_path, monkeypatch):

@@ -94,7 +94,7 @@ def test_a_worsened_solver_option_fails_the_check(q1, capsys):
     out, argv, _ = q1
     # a heavy depth prior pins the surface to the undeformed dome: the contact comes out too flat
     assert main(argv + ["--solver-option", "prior_weight=100.0"]) == 1
-    printed = capsys.readouterr().out
+    printed = capsys.readouterr().err
     assert "worse than" in printed and "baseline" in printed
 
 
@@ -162,7 +162,7 @@ def test_an_error_map_left_empty_or_cut_short_runs_its_task_again(q1, tmp_path, 
     caplog.set_level(logging.WARNING)
     assert main(argv) == 0
     assert f"{damaged}: error map damaged or cut short" in caplog.text
-    assert "4 tasks (1 run now, 3 reused)" in capsys.readouterr().out
+    assert "4 tasks (1 run now, 3 reused)" in capsys.readouterr().err
     assert zipfile.ZipFile(damaged).testzip() is None
 
 

@@ -47,7 +47,9 @@ def test_a_quick_report_redrawn_without_its_work_folder_comes_out_as_the_run_dre
         assert main(["experiment", "q1", "--redraw", str(report)]) == 0
     finally:
         hidden.rename(work)
-    printed = capsys.readouterr().out.splitlines()
+    said = capsys.readouterr()  # stdout: the report's folder alone; what was redrawn, on stderr
+    assert said.out == f"{report}\n"
+    printed = said.err.splitlines()
     assert printed[0].startswith("q1: redrew q1_aae.png, q1_mabse.png, report.md")
     assert printed[1].startswith("q1: kept q1_error_maps.png: drawn from ") and len(printed) == 2
     for png in ("q1_aae.png", "q1_mabse.png", "q1_error_maps.png"):
@@ -68,7 +70,7 @@ def test_a_committed_report_redraws_every_figure_its_numbers_give(folder, tmp_pa
         if png.name not in kept:
             png.unlink()
     assert main(["experiment", name, "--redraw", str(report)]) == 0
-    printed = capsys.readouterr().out
+    printed = capsys.readouterr().err
     shown = _figures((report / "report.md").read_text(encoding="utf-8"))
     assert sorted(shown) == sorted(listed)  # every figure of the report again: drawn now or kept
     assert all((report / png).stat().st_size > 1000 for png in shown)

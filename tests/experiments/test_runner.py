@@ -57,7 +57,8 @@ def test_ctrl_c_with_worker_processes_is_one_line_and_a_rerun_resumes(tmp_path):
     again = _nlips(*args)
     stdout, err = again.communicate(timeout=300)
     assert again.returncode == 0, err
-    assert "3 tasks" in stdout and "0 failed" in stdout, stdout
+    assert stdout == f"{out / 'ablation-custom' / 'report'}\n", stdout  # the report's folder alone
+    assert "3 tasks" in err and "0 failed" in err, err  # how the run went, on stderr
     assert len(list(tasks.glob("*.json"))) == 3
 
 
@@ -330,7 +331,7 @@ def test_a_dask_local_cluster_run_prints_none_of_distributeds_info_lines(tmp_pat
     proc = _nlips(*args, "--log-file", str(log_file))
     stdout, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
-    assert "3 tasks (3 run now, 0 reused), 0 failed" in stdout
+    assert "3 tasks (3 run now, 0 reused), 0 failed" in err and stdout.endswith("report\n")  # how it went: stderr
     assert not [line for line in err.splitlines() if line.startswith("INFO ")], err
     assert "dashboard" not in err and "8787" not in err, err
     # the presses' lines, logged in the workers, come back with their tasks (task_logs) into the --log-file
@@ -360,9 +361,9 @@ def test_a_second_run_says_it_reused_the_finished_tasks(tmp_path):
     config = tmp_path / "tiny.toml"
     config.write_text(TINY, encoding="utf-8")
     args = ("ablation", "--config", str(config), "--out", str(tmp_path / "out"))
-    first = _nlips(*args).communicate(timeout=300)[0]
+    first = _nlips(*args).communicate(timeout=300)[1]  # stderr: the run's line (stdout: the report's folder)
     assert "3 tasks (3 run now, 0 reused), 0 failed" in first
-    second = _nlips(*args).communicate(timeout=300)[0]
+    second = _nlips(*args).communicate(timeout=300)[1]
     assert "3 tasks (0 run now, 3 reused), 0 failed" in second
 
 

@@ -368,6 +368,7 @@ def test_nlipsnet_results_record_their_input_and_eval_refuses_another_press(
     assert report["provenance"]["inputs"] == {"press": capture_identity(held)}
     capsys.readouterr()
     assert main(["eval", str(held), "--result", str(out / HELD_OUT / "nlipsnet")]) == 0
+    capsys.readouterr()  # its table (stdout) and what it scored (stderr): not the refusal's
     assert main(["eval", str(held), "--result", str(out / "press_a" / "nlipsnet")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "made from another capture (it names 'press_a'), not from" in err[0], err
@@ -457,9 +458,9 @@ def test_results_of_a_folder_of_presses_are_scored_against_their_presses(trained
     assert "holds results" in err and f"nlips eval PRESSES --result {out}" in err
     shutil.copytree(twin_presses / "press_b", presses / "press_b", ignore=shutil.ignore_patterns("nlips*"))
     assert main(["eval", str(presses), "--result", str(out)]) == 0
-    table = capsys.readouterr().out
-    assert "press_a" in table and HELD_OUT in table and "mean" in table
-    assert f"scoring {out}/*/nlipsnet against {presses}/*" in table and "not solved, skipped: press_b" in table
+    table, said = capsys.readouterr()  # stdout: the table alone; what it scored and left out, on stderr
+    assert "press_a" in table and HELD_OUT in table and "mean" in table and "press_b" not in table
+    assert f"scoring {out}/*/nlipsnet against {presses}/*" in said and "not solved, skipped: press_b" in said
     assert main(["eval", str(presses), "--result", str(tmp_path)]) == 2
     assert "holds no result of the presses" in capsys.readouterr().err
 

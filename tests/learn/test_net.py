@@ -336,7 +336,8 @@ def test_missing_onnx_file_names_the_ways_to_make_it(trained, twin_presses, tmp_
     assert len(err) == 1 and "net.onnx" in err[0] and "`nlips train`" in err[0]
     assert f"`nlips export {model}` writes it" in err[0]
     assert main(["export", str(model)]) == 0  # the way the message names works
-    assert "max angular difference" in capsys.readouterr().out
+    said = capsys.readouterr()  # stdout: the ONNX file alone; its check, on stderr
+    assert said.out == f"{model.with_suffix('.onnx')}\n" and "max angular difference" in said.err
     assert main(args) == 0
     # stale (another model's export beside it, e.g. after retraining with --no-onnx): named, and export mends it
     other = tmp_path / "other.pt"
@@ -354,7 +355,7 @@ def test_missing_onnx_file_names_the_ways_to_make_it(trained, twin_presses, tmp_
     assert main(["export", str(model)]) == 0 and main(fresh) == 0
     # a copy elsewhere, checked alike; the wrong suffix and the ONNX file given as the model are one line each
     assert main(["export", str(model), "--out", str(tmp_path / "copy.onnx")]) == 0
-    assert "a copy: `nlips infer` and `nlips live` use" in capsys.readouterr().out
+    assert "a copy: `nlips infer` and `nlips live` use" in capsys.readouterr().err
     for bad, problem in ((["--out", str(tmp_path / "x.pt")], "must end in .onnx"), ([], "the ONNX export")):
         target = str(model.with_suffix(".onnx")) if not bad else str(model)
         assert main(["export", target, *bad]) == 2

@@ -351,7 +351,8 @@ def test_a_press_that_lost_a_file_is_rendered_again_not_counted_as_there(tmp_pat
     capsys.readouterr()
     assert main(args) == 0
     assert calls == ["reference", "press_0001"]
-    assert capsys.readouterr().out.strip() == f"{out}: 2 rendered, 1 already there, 0 failed"
+    said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
+    assert said.out == f"{out}\n" and f"{out}: 2 rendered, 1 already there, 0 failed" in said.err.splitlines()
     assert "led_02.png missing; rendering it again" in caplog.text
     assert not [p for p in out.rglob("*") if p.name.startswith((".tmp-", ".claim-"))]
     calls.clear()
@@ -375,7 +376,8 @@ def test_a_press_with_a_file_left_empty_is_rendered_again_not_counted_as_there(t
     capsys.readouterr()
     assert main(args) == 0
     assert calls == ["press_0002"]
-    assert capsys.readouterr().out.strip() == f"{out}: 1 rendered, 2 already there, 0 failed"
+    said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
+    assert said.out == f"{out}\n" and f"{out}: 1 rendered, 2 already there, 0 failed" in said.err.splitlines()
     assert "press_0002: led_02.png empty, gt.npz empty; rendering it again" in caplog.text
     assert (out / "press_0002" / "led_02.png").stat().st_size > 0
     calls.clear()
@@ -399,7 +401,8 @@ def test_a_press_with_a_file_cut_short_is_rendered_again_not_counted_as_there(tm
     capsys.readouterr()
     assert main(args) == 0
     assert calls == ["press_0001"]
-    assert capsys.readouterr().out.strip() == f"{out}: 1 rendered, 2 already there, 0 failed"
+    said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
+    assert said.out == f"{out}\n" and f"{out}: 1 rendered, 2 already there, 0 failed" in said.err.splitlines()
     said = "press_0001: led_01.png cut short (no PNG end chunk), reference.npz cut short (no zip end record)"
     assert f"{said}; rendering it again" in caplog.text
     calls.clear()
@@ -426,7 +429,8 @@ def test_a_press_whose_meta_json_is_cut_short_is_rendered_again_when_the_dataset
     capsys.readouterr()
     assert main(args) == 0
     assert calls == ["press_0001"] and meta.read_bytes() == whole
-    assert capsys.readouterr().out.strip() == f"{out}: 1 rendered, 2 already there, 0 failed"
+    said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
+    assert said.out == f"{out}\n" and f"{out}: 1 rendered, 2 already there, 0 failed" in said.err.splitlines()
     assert "press_0001: meta.json damaged (not valid JSON" in caplog.text and "rendering it again" in caplog.text
     calls.clear()
     assert main(args) == 0 and calls == []  # whole again
@@ -522,7 +526,8 @@ def test_presses_are_numbered_from_1_as_a_capture_session_s_and_an_old_folder_ke
     calls.clear()
     capsys.readouterr()
     assert main([*args, str(old), "--limit", "3"]) == 0 and calls == ["press_0002"]  # its third press, old name
-    assert capsys.readouterr().out.strip() == f"{old}: 1 rendered, 3 already there, 0 failed"
+    said = capsys.readouterr()  # stdout: the folder alone; its counts on stderr
+    assert said.out == f"{old}\n" and f"{old}: 1 rendered, 3 already there, 0 failed" in said.err.splitlines()
     assert ds.first_press_number(old) == 0 and ds.first_press_number(new) == 1
     names = sorted(p.name for p in old.iterdir() if p.is_dir())
     assert names == ["press_0000", "press_0001", "press_0002", "reference"]

@@ -30,7 +30,7 @@ def test_cli_renders_undeformed_dome(tmp_path, capsys):
         ]
     )
     assert rc == 0
-    assert str(out) in capsys.readouterr().out
+    assert capsys.readouterr().out == f"{out}\n"  # the press folder alone: `press=$(nlips render ...)`
     p = load_press(out)
     assert p.camera.shape == (24, 32) and p.meta["provenance"]["seed"] == 4
     assert main(["render", "--undeformed", "--width", "32", "--height", "24", "--out", str(out)]) == 2  # exists
@@ -134,7 +134,7 @@ def test_an_edited_mesh_is_not_taken_for_its_rendered_press(tmp_path, capsys):
     assert main(args) == 0
     first = load_press(out)
     first_contact = first.ground_truth.contact  # read now: a press is what its folder held when loaded
-    assert main(args) == 0 and "nothing to do" in capsys.readouterr().out  # unchanged mesh: reused
+    assert main(args) == 0 and "nothing to do" in capsys.readouterr().err  # unchanged mesh: reused
     trimesh.creation.box(extents=[4.0, 4.0, 3.0]).export(part)  # the same path, another shape
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -145,7 +145,7 @@ def test_an_edited_mesh_is_not_taken_for_its_rendered_press(tmp_path, capsys):
     assert second.meta["provenance"]["spec_hash"] != first.meta["provenance"]["spec_hash"]
     assert second.meta["provenance"]["seed"] == first.meta["provenance"]["seed"]  # the noise seed stays
     assert not np.array_equal(second.ground_truth.contact, first_contact)  # the box's footprint
-    assert main(args) == 0 and "nothing to do" in capsys.readouterr().out
+    assert main(args) == 0 and "nothing to do" in capsys.readouterr().err
     part.unlink()  # a missing mesh is named as such, not taken for an edited one
     assert main(args) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -81,7 +81,7 @@ def test_calibrate_leds_command_warns_about_an_unused_reflectance(captures, tmp_
         assert main([*argv, "--coating-reflectance", "0.8"]) == 0
     (note,) = json.loads(out.read_text(encoding="utf-8"))["warnings"]
     assert "not used" in note and note in caplog.text
-    printed = capsys.readouterr().out
+    printed = capsys.readouterr().err
     assert "1 warning(s) above, also in the file" in printed
     # the summary's albedo is legible (it printed Python's full float reprs, 103.04731814227624)
     written = next(line for line in printed.splitlines() if line.startswith("written "))
@@ -111,7 +111,7 @@ def test_a_noisy_capture_is_reported_unreliable(captures, tmp_path, caplog, caps
     (note,) = data["warnings"]
     assert note.startswith("LED calibration unreliable") and "more samples per pixel" in note
     assert note in caplog.text
-    assert "UNRELIABLE" in capsys.readouterr().out
+    assert "UNRELIABLE" in capsys.readouterr().err
     # the warning is right: these LEDs are poor. The file holds the LEDs the warning is about: the command ran
     # calibrate_leds(flat, stride=STRIDE) with every other setting at its default (loss, interreflection, bounces,
     # no disks, no reflectance), and JSON keeps every float's bits, so fitting again here would give the same LEDs

@@ -180,7 +180,9 @@ def test_runs_at_once_into_one_led_file_fit_it_once_and_another_fit_is_refused(
     thread = other_run(key, write=True)
     assert main(argv) == 0
     thread.join()
-    said = capsys.readouterr().out.strip().splitlines()
+    captured = capsys.readouterr()  # stdout: the file, the other run's; whose it is, on stderr
+    assert captured.out == f"{out}\n"
+    said = captured.err.strip().splitlines()
     assert said[-1].startswith(f"{out}: written by process ") and "nothing to do" in said[-1], said
     assert fits == [] and out.read_bytes() == whole and "is fitting the same LEDs" in caplog.text
 

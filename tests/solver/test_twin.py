@@ -200,7 +200,7 @@ def test_led_calibration_as_disks_recovers_the_twins_extended_leds(root, tmp_pat
         "diameter_mm": 3.6,
         "from": f"{root / 'flat_disk' / 'meta.json'}: provenance.scene.leds.emitter_diameter",
     }
-    assert "as 3.6 mm disks" in capsys.readouterr().out
+    assert "as 3.6 mm disks" in capsys.readouterr().err
     (said,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("LEDs fitted as")]
     assert "3.6 mm disks" in said and "--led-diameter 0: points only" in said
     # --led-diameter 0 forces points: no disks in the file, which says so; the point LEDs are the same
