@@ -107,6 +107,7 @@ def stream(args: argparse.Namespace) -> list[dict]:
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=slave, env=env, text=True)
     os.close(slave)
     rates: list[tuple[float, float]] = []  # (time, fps) of each running-rate line
+    said: list[str] = []  # the other lines on the terminal: the summary is on stderr, stdout holds the --out folder
 
     def read_terminal() -> None:
         buffer = b""
@@ -124,7 +125,8 @@ def stream(args: argparse.Namespace) -> list[dict]:
                 if m:
                     rates.append((time.monotonic() - t0, float(m.group(1))))
                 elif line.strip():
-                    print(line.decode(errors="replace"), file=sys.stderr)
+                    said.append(line.decode(errors="replace"))
+                    print(said[-1], file=sys.stderr)
 
     reader = threading.Thread(target=read_terminal, daemon=True)
     reader.start()
@@ -146,7 +148,8 @@ def stream(args: argparse.Namespace) -> list[dict]:
     os.close(master)
     print(stdout, file=sys.stderr)
     _rates_between(samples, rates)
-    print(f"exit {proc.returncode}, process wall {wall:.1f} s; summary: {stdout.strip().splitlines()[:1]}")
+    result = stdout.strip().splitlines()[:1]
+    print(f"exit {proc.returncode}, process wall {wall:.1f} s; result: {result}; summary: {said[-1:]}")
     return samples
 
 
