@@ -1,13 +1,14 @@
-"""Where ``--roi auto``'s depth error lies, and what the anchors' weight and the rescale onto the reference do to it.
+"""Where a box's (``--roi``) depth error lies, and what the anchors' weight and the rescale onto the reference do to it.
 
 For each press folder (rendered by the twin: it needs gt.npz) and each anchor weight (``SolverOptions.anchor_weight``,
-which ``tolerances.ROI_ANCHOR_GAIN`` multiplies in the auto box): ``solve_press(press, roi="auto")``, its contact AAE
+which ``tolerances.ROI_ANCHOR_GAIN`` multiplies in a box): ``solve_press(press, roi=ROI)``, its contact AAE
 and depth RMSE, the solved-minus-true depth over the contact and over the box's outer 4-px ring, the depth scale
 ``anchoring.rescale_to_anchors`` applied (``report["anchor_scale"]``), and the depth RMSE without that rescale.
 
 Usage: python benchmarks/bench_rim_depth.py PRESS [PRESS ...] [--reference REF] [--anchor-weights 1000,3000]
+       [--roi X0 Y0 W H] (default: auto)
 
-One JSON line per (press, weight); prints only (benchmarks/RESULTS.md, s31-rimdepth, has the runs).
+One JSON line per (press, weight); prints only (benchmarks/RESULTS.md, s31-rimdepth and s31-roiscale, has the runs).
 """
 
 from __future__ import annotations
@@ -28,14 +29,14 @@ RING_PX = 4
 """Width of the box's outer ring whose depth offset is reported, pixels."""
 
 
-def _row(press, reference, weight: float) -> dict:
-    """The accuracy and depth offsets of ``press`` solved with ``--roi auto`` at anchor weight ``weight``."""
+def _row(press, reference, weight: float, roi: str | tuple[int, int, int, int] = "auto") -> dict:
+    """The accuracy and depth offsets of ``press`` solved in the box ``roi`` at anchor weight ``weight``."""
     from nlipscalib.core import masks
     from nlipscalib.core.metrics import depth_rmse, evaluate
     from nlipscalib.solver import SolverOptions, solve_press
 
     cpu = time.process_time()
-    result = solve_press(press, roi="auto", indirect=reference, options=SolverOptions(anchor_weight=weight))
+    result = solve_press(press, roi=roi, indirect=reference, options=SolverOptions(anchor_weight=weight))
     cpu = time.process_time() - cpu
     truth = press.ground_truth
     scored = result.reconstructed & truth.valid
@@ -63,11 +64,13 @@ def main() -> None:
     ap.add_argument("presses", nargs="+", type=Path, help="press folders rendered by the twin (with gt.npz)")
     ap.add_argument("--reference", type=Path, help="the undeformed dome's capture (as nlips solve --reference)")
     ap.add_argument("--anchor-weights", default="1000", help="comma-separated SolverOptions.anchor_weight values")
+    ap.add_argument("--roi", nargs=4, type=int, metavar=("X0", "Y0", "W", "H"), help="an explicit box (default: auto)")
     args = ap.parse_args()
+    roi = tuple(args.roi) if args.roi else "auto"
     reference, presses = twin_presses(args.presses, args.reference)
     for _, press in presses:
         for weight in (float(w) for w in args.anchor_weights.split(",")):
-            print(json.dumps(_row(press, reference, weight)), flush=True)
+            print(json.dumps(_row(press, reference, weight, roi)), flush=True)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Anchoring to the reference where a press's gel looks undeformed: the prior's weights (:func:`anchor_weights`)
-``--roi auto``'s box widened until it holds enough such gel (:func:`widen_to_anchor`), and that box's solved depth
-scaled onto the reference at its anchored pixels (:func:`rescale_to_anchors`).
+``--roi auto``'s box widened until it holds enough such gel (:func:`widen_to_anchor`), and a box's solved depth
+(``--roi auto`` or ``--roi X0 Y0 W H``) scaled onto the reference at its anchored pixels (:func:`rescale_to_anchors`).
 """
 
 from __future__ import annotations
@@ -25,10 +25,10 @@ def anchor_weights(
     factor: float,
     min_fraction: float = ANCHOR_MIN_FRACTION,
     max_relative: float = 0.05,
-    auto_box: bool = False,
+    boxed: bool = False,
 ) -> tuple[np.ndarray | None, str]:
     """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed
-    (``1 + weight`` times :data:`tolerances.ROI_ANCHOR_GAIN` in ``--roi auto``'s box).
+    (``1 + weight`` times :data:`tolerances.ROI_ANCHOR_GAIN` in a box: ``--roi auto`` or ``--roi X0 Y0 W H``).
 
     Parameters
     ----------
@@ -42,8 +42,8 @@ def anchor_weights(
     max_relative : a pixel's verdict counts only when its threshold, ``factor`` times the noise-only
         misfit, is at most this fraction of its image level: with more noise a real dent (a 1 deg
         tilt changes the shading by ~2 %) would pass as undeformed.
-    auto_box : ``mask`` is ``--roi auto``'s box: its anchors, a ring round the contact, are weighted
-        :data:`tolerances.ROI_ANCHOR_GAIN` times more (at ``weight`` the box's depth scale drifted).
+    boxed : ``mask`` is a box (``--roi auto``'s or an explicit one): its anchors, a ring round the contact, are
+        weighted :data:`tolerances.ROI_ANCHOR_GAIN` times more (at ``weight`` the box's depth scale drifted).
 
     Returns
     -------
@@ -64,8 +64,8 @@ def anchor_weights(
         )
     pins = undeformed & mask
     weights = np.ones(mask.shape)
-    weights[pins] += weight * tolerances.ROI_ANCHOR_GAIN if auto_box else weight
-    gain = f", weight x{tolerances.ROI_ANCHOR_GAIN:g} in --roi auto's box" if auto_box else ""
+    weights[pins] += weight * tolerances.ROI_ANCHOR_GAIN if boxed else weight
+    gain = f", weight x{tolerances.ROI_ANCHOR_GAIN:g} in the box" if boxed else ""
     return weights, f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise{gain})"
 
 
@@ -107,10 +107,10 @@ def rescale_to_anchors(
     (``weights`` > 1, reconstructed) of reference over solved depth, and that scale (None, ``result`` unchanged:
     no anchored pixel).
 
-    Why: in ``--roi auto``'s box the data pull the depth scale off the reference against the anchors
-    (:data:`tolerances.ROI_ANCHOR_GAIN`: cube1's anchored ring stays 0.2 % too far at 3x the weight, and a larger
-    gain bends a small sphere's normals); a uniform scale about the camera's centre leaves every normal as it is, so
-    the depth alone moves (benchmarks/RESULTS.md, s31-rimdepth). The albedo stays the solve's.
+    Why: in a box (``--roi auto``'s or an explicit one) the data pull the depth scale off the reference against the
+    anchors (:data:`tolerances.ROI_ANCHOR_GAIN`: cube1's anchored ring stays 0.2 % too far at 3x the weight, and a
+    larger gain bends a small sphere's normals); a uniform scale about the camera's centre leaves every normal as it
+    is, so the depth alone moves (benchmarks/RESULTS.md, s31-rimdepth, s31-roiscale). The albedo stays the solve's.
 
     Parameters
     ----------

@@ -562,14 +562,16 @@ def _solve_press(
     if ref_capture is None:
         edge_error = functools.partial(point_led_misfit, press, leds, cmap, indirect_light=bounced)
     reference = ref_capture.folder if ref_capture is not None else None
-    auto_box = isinstance(roi, str)  # "auto" (checked above): its box's anchors weigh more
     roi, roi_note = _region(press, roi, explicit_roi, cmap, reference, edge_error)
-    if roi is not None:
+    # a box, --roi auto's or an explicit one, holds its depth scale by a ring of anchors: they weigh more and the
+    # depth is scaled onto them after (both drifted 0.1-0.5 % at the plain weight; s31-rimdepth, s31-roiscale)
+    boxed = roi is not None
+    if boxed:
         mask &= box_mask(roi, (H, W))
     weights, anchoring = (None, "anchoring off (no reference surface)")
     if cmap is not None:
         weights, anchoring = anchor_weights(
-            cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR, auto_box=auto_box
+            cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR, boxed=boxed
         )
     options, noise = _noise_regularised(options, press, cmap)
     t_contact = light.contact_seconds + time.perf_counter() - t0
@@ -582,7 +584,7 @@ def _solve_press(
         result = loop.run(run, max_outer if dent_interreflection else 0)
     else:
         loop, result = None, run(fixed_light)
-    if auto_box and prior is not None:  # the box's depth scale, pinned to the reference where it is undeformed
+    if boxed and prior is not None:  # the box's depth scale, pinned to the reference where it is undeformed
         result, scale = rescale_to_anchors(result, prior, weights)
         if scale is not None:
             anchoring += f"; the box's depth scaled by {scale:.5f} onto the reference there"

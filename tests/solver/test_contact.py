@@ -822,9 +822,10 @@ def test_auto_roi_box_grows_over_the_flank_only_where_the_flank_joins_the_contac
     assert contact_box(cmap, shape, flank=True) == contact_box(cmap, shape)
 
 
-def test_auto_roi_anchors_weigh_roi_anchor_gain_times_more_in_its_box():
-    """In ``--roi auto``'s box the anchored pixels' weight is ``tolerances.ROI_ANCHOR_GAIN`` times the whole gel's
-    (at the plain weight the box's depth scale drifted: cube1 0.07 mm, s31-rimdepth); other pixels keep 1."""
+def test_boxed_anchors_weigh_roi_anchor_gain_times_more():
+    """In a box (``--roi auto``'s or an explicit one) the anchored pixels' weight is ``tolerances.ROI_ANCHOR_GAIN``
+    times the whole gel's (at the plain weight the box's depth scale drifted: cube1 0.07 mm, s31-rimdepth); other
+    pixels keep 1."""
     from nlipscalib.solver.anchoring import anchor_weights
     from nlipscalib.solver.contact import ContactMap
 
@@ -834,12 +835,12 @@ def test_auto_roi_anchors_weigh_roi_anchor_gain_times_more_in_its_box():
     cmap = ContactMap(misfit, np.ones(shape), (0, 1, 2), (), 0.01, np.full(shape, 100.0))
     gel = np.ones(shape, bool)
     plain, note = anchor_weights(cmap, gel, 1000.0, 3.0)
-    boxed, boxed_note = anchor_weights(cmap, gel, 1000.0, 3.0, auto_box=True)
+    boxed, boxed_note = anchor_weights(cmap, gel, 1000.0, 3.0, boxed=True)
     pins = misfit <= 3.0
     assert tolerances.ROI_ANCHOR_GAIN > 1
     np.testing.assert_array_equal(plain, np.where(pins, 1001.0, 1.0))
     np.testing.assert_array_equal(boxed, np.where(pins, 1.0 + 1000.0 * tolerances.ROI_ANCHOR_GAIN, 1.0))
-    assert "--roi auto" in boxed_note and "--roi auto" not in note
+    assert "in the box" in boxed_note and "in the box" not in note
 
 
 def _reconstruction(depth: np.ndarray, rays: np.ndarray):
@@ -891,9 +892,10 @@ def test_rescaling_to_anchors_puts_the_anchored_depth_on_the_reference_and_keeps
     assert rescale_to_anchors(result, reference, np.ones(shape)) == (result, None)
 
 
-def test_auto_roi_solve_scales_its_box_onto_the_reference_and_a_whole_gel_solve_does_not(tmp_path, monkeypatch):
-    """``solve_press(roi="auto")`` rescales its box's depth (``report["anchor_scale"]``, normals as solved); the whole
-    gel and an explicit box are left as solved."""
+def test_boxed_solves_scale_onto_the_reference_and_a_whole_gel_solve_does_not(tmp_path, monkeypatch):
+    """``solve_press(roi="auto")`` rescales its box's depth (``report["anchor_scale"]``, normals as solved), and an
+    explicit box, here the auto one's, is solved by the same rule (it drifted the same way, s31-roiscale): the same
+    result bit for bit; the whole gel is left as solved."""
     from nlipscalib.solver import press as press_solve
 
     press = _noisy_press(tmp_path / "p", 1.0, 0)
@@ -906,6 +908,9 @@ def test_auto_roi_solve_scales_its_box_onto_the_reference_and_a_whole_gel_solve_
     np.testing.assert_array_equal(auto.normals, unscaled.normals)
     np.testing.assert_allclose(auto.depth, unscaled.depth * scale, rtol=1e-6)
     monkeypatch.undo()
-    for roi in (None, tuple(auto.report["roi"])):
-        other = solve_press(press, roi=roi, options=options)
-        assert "anchor_scale" not in other.report and "--roi auto" not in other.report["anchoring"]
+    explicit = solve_press(press, roi=tuple(auto.report["roi"]), options=options)
+    assert explicit.report["anchor_scale"] == scale and explicit.report["anchoring"] == auto.report["anchoring"]
+    np.testing.assert_array_equal(explicit.depth, auto.depth)
+    np.testing.assert_array_equal(explicit.normals, auto.normals)
+    whole = solve_press(press, roi=None, options=options)
+    assert "anchor_scale" not in whole.report and "in the box" not in whole.report["anchoring"]
