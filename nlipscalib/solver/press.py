@@ -443,10 +443,9 @@ def _undeformed_dark_bands(press: Press, kwargs: dict) -> tuple[list[DarkBand | 
         return [*dark_rows(undeformed, leds, live), *lagged], [(int(i), float(d)) for i, d in repeated]
 
     # kept on disk under the capture's content, as its interreflection fit: a warm solve never decodes its images
-    # (kind "undeformed frames": "undeformed bands" entries, written before repeated images were looked for, hold
-    # the bands alone)
+    # (the key's digest holds the package's source: entries written before repeated images were kept are not read)
     level = (kwargs.get("options") or SolverOptions()).dead_led_level
-    return reuse.reused("undeformed frames", (capture_key(undeformed), leds, level), bands, persist=True)
+    return reuse.reused("undeformed bands", (capture_key(undeformed), leds, level), bands, persist=True)
 
 
 def _model_leds(press: Press, leds: Leds | None) -> tuple:
