@@ -63,6 +63,9 @@ EVERYWHERE_LINE_SAMPLES = 100
 MIN_LINE_SAMPLES = 16
 """Fewest dense samples a pixel row (column) needs to count in :func:`dark_lines` (the solve samples ~100 a row:
 :data:`nlipscalib.solver.led_checks.DENSE_LINE_SAMPLES`)."""
+LIT_QUANTILE = 0.95
+"""The quantile of an LED's light (over the modelled light) that stands for its lit samples when over half of them
+are dark (:func:`lit_level`): a dark band can cover at most this share of its image and be found."""
 
 
 class LaggedBand(NamedTuple):
@@ -284,10 +287,11 @@ def dark_bands(light: np.ndarray, lines: np.ndarray, length: int, axis: str = "r
 
 
 def dark_bands_and_candidates(
-    light: np.ndarray, lines: np.ndarray, length: int, axis: str = "rows"
+    light: np.ndarray, lines: np.ndarray, length: int, axis: str = "rows", mostly_dark: bool = False
 ) -> tuple[list[DarkBand], list[np.ndarray]]:
-    """:func:`dark_bands` and :func:`dark_candidates` of the same samples, their bands' table made once."""
-    table, counted, bands = _band_table(light, lines, length)
+    """:func:`dark_bands` and :func:`dark_candidates` of the same samples, their bands' table made once;
+    ``mostly_dark``: also an LED dark at over half its samples (:func:`lit_level`)."""
+    table, counted, bands = _band_table(light, lines, length, mostly_dark)
     found = []
     for index, values in enumerate(table):
         most = _row_quantiles(values[bands], counted[bands], DARK_BAND_SHARE)
@@ -408,10 +412,13 @@ def dark_band_mask(bands: list[DarkBand | LaggedBand], leds: list[int], shape: t
     return mask
 
 
-def _band_table(light: np.ndarray, lines: np.ndarray, length: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _band_table(
+    light: np.ndarray, lines: np.ndarray, length: int, mostly_dark: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each LED's ``light`` (L, N) over its median, the samples of each band of :data:`CAPTURE_CHECK_BLUR` lines side
     by side (padded with +inf): (L, bands, most) float64; which entries are samples (bands, most) bool; and the
-    bands that count (:data:`MIN_ROW_SAMPLES` samples or more), or none when :data:`DARK_BAND_ROWS` or fewer do."""
+    bands that count (:data:`MIN_ROW_SAMPLES` samples or more), or none when :data:`DARK_BAND_ROWS` or fewer do.
+    ``mostly_dark``: over :func:`lit_level`, else over the median (an LED dark at most samples: no verdict)."""
     b = CAPTURE_CHECK_BLUR
     light = np.asarray(light, np.float64)
     band = np.asarray(lines) // b
@@ -423,12 +430,36 @@ def _band_table(light: np.ndarray, lines: np.ndarray, length: int) -> tuple[np.n
     order = np.argsort(band, kind="stable")
     slot = np.arange(len(order)) - np.repeat(np.cumsum(count) - count, count)
     table = np.full((len(light), len(count), count.max()), np.inf)
-    level = np.median(light, axis=1, keepdims=True)
-    # an LED dark at most samples (the model lights what it does not): NaN, no verdict
+    # an LED dark at most samples (the model lights what it does not): NaN, no verdict, unless asked: an LED far
+    # from the model ends its own light at its terminator where the model's would not (s31-ledfar's twin: LEDs 4
+    # and 5 "dark" over 56 % of their images against the first fit's LEDs)
+    level = lit_level(light) if mostly_dark else np.median(light, axis=1, keepdims=True)
     table[:, band[order], slot] = light[:, order] / np.where(level > 0, level, np.nan)
     counted = np.zeros(table.shape[1:], bool)
     counted[band[order], slot] = True
     return table, counted, bands
+
+
+def lit_level(light: np.ndarray) -> np.ndarray:
+    """Each LED's ``light`` (L, N) level where it is lit: its median, or, when that is below
+    :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT` of its :data:`LIT_QUANTILE` quantile (more than about half
+    its samples dark), the median of its samples above that. (L, 1) float64.
+
+    Why: a band read while the LED was off over more than half of its image (the twin's LED 5 dark in rows 0-129 of
+    240) put its median at the dark frame's noise, and every ratio to it said lit: the band was never found, and
+    the LED calibration ran off ("led.intensity must be 3 finite numbers", s31-halfdark). Only asked where a fit
+    ran off (:func:`nlipscalib.solver.calibrate.calibrate_leds`): an LED far from the model is dark past its own
+    terminator over as much."""
+    light = np.asarray(light, np.float64)
+    level = np.median(light, axis=1, keepdims=True)
+    if light.size == 0:
+        return level
+    top = np.quantile(light, LIT_QUANTILE, axis=1, keepdims=True)
+    bright = light >= DARK_BAND_LIGHT * top
+    dim = (level < DARK_BAND_LIGHT * top) & (top > 0)
+    for k in np.flatnonzero(dim[:, 0]):
+        level[k, 0] = np.median(light[k][bright[k]])
+    return level
 
 
 def _dark_run(dark: np.ndarray, bands: np.ndarray, index: int | None, axis: str = "rows") -> DarkBand | None:

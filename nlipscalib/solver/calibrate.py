@@ -57,7 +57,7 @@ from .calibration_term import (
 )
 from .exposure import nothing_to_fit, saturated_share, saturation_note
 from .led_checks import linearity_notes
-from .led_fit import Samples, capture_samples, to_leds
+from .led_fit import LedFitRanOff, Samples, capture_samples, to_leds
 
 if TYPE_CHECKING:  # named in hints only
     from pathlib import Path
@@ -223,7 +223,10 @@ def calibrate_leds(
     settings = _Settings(
         initial, stride, loss, interreflection, bounces, rounds, led_radius, coating_reflectance, allow_contact
     )
-    cal = _with_term_if_needed(_calibrate(presses, settings), presses, settings)
+    try:
+        cal = _with_term_if_needed(_calibrate(presses, settings), presses, settings)
+    except LedFitRanOff as error:
+        raise CaptureError(ran_off_line(presses, error.led, settings.initial)) from None
     _check_finite(cal, presses[0].folder)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
     notes = order_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
@@ -276,6 +279,28 @@ def _check_finite(cal: LedCalibration, folder: Path) -> None:
         values = [*led.position, *led.direction, led.mu, *led.intensity]
         if not np.all(np.isfinite(values)):
             raise CaptureError(f"{folder}: the fit of LED {i % len(cal.leds) + 1} did not converge (not finite)")
+
+
+def ran_off_line(presses: Sequence[Press], led: int, initial: Leds | None = None) -> str:
+    """One line for an LED fit that ran off (:class:`.led_fit.LedFitRanOff`, ``led`` 0-based): a capture's LED
+    images' dark bands over more than half an image (:func:`.calibration_bands.half_dark_line`, against the starting
+    LEDs ``initial``, else the capture's own) when one has some, else the captures, the LED and its image, the likely
+    causes and what to do (the fit's own error named neither)."""
+    from .calibration_bands import half_dark_line
+    from .led_checks import image_names
+
+    for p in presses:
+        if line := half_dark_line(p, tuple(initial) if initial is not None else p.leds):
+            return line
+    folders = ", ".join(str(p.folder) for p in presses)
+    name = image_names(presses[0])[led]
+    return (
+        f"{folders}: the fit of LED {led + 1} ({name}) ran off (its brightness or place left finite numbers): its "
+        "image does not hold its light where an LED can give it: likely a dark band over much of it (rows read while "
+        "the LED was off), the LED dead or very dim, or the LED far from the place the capture's meta.json gives it; "
+        f"compare {name} with the other LED images, then fix the LED or capture the undeformed dome again (with "
+        "--flush 1 or more)"
+    )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -74,6 +74,25 @@ def dark_notes(presses: Sequence[Press], found: Sequence[Sequence[DarkBand]]) ->
     return [dark_line(p.folder, _names(p), list(b), DARK_FIT_DONE) for p, b in zip(presses, found) if b]
 
 
+HALF_DARK_DONE = (
+    "; the LED calibration cannot fit that LED on the rest of its image (its fit ran off): capture the undeformed "
+    "dome again"
+)
+"""What the LED calibration does about a dark band over more than half an LED's image (:func:`half_dark_line`)."""
+
+
+def half_dark_line(press: Press, leds: Leds) -> str | None:
+    """The refusal naming ``press``'s LED images' dark bands, over more than half an image or less, against the
+    starting ``leds`` (:func:`.led_checks.dark_rows` with ``mostly_dark``); None when it has none. Asked only after an
+    LED's fit ran off (:class:`.led_fit.LedFitRanOff`): over half dark, a band put the LED's median light at the dark
+    frame's noise and went unseen against the first fit (s31-halfdark), while an LED far from the model ends its own
+    light as far, so the look is not made on a fit that converged."""
+    from .led_checks import dark_rows
+
+    bands = dark_rows(press, leds, range(len(press.leds)), mostly_dark=True) if press.reference is not None else []
+    return dark_line(press.folder, _names(press), bands, HALF_DARK_DONE) if bands else None
+
+
 def masked(press: Press, bands: Sequence[DarkBand | LaggedBand], line: str) -> Press:
     """``press`` with ``bands`` marked unusable for their LEDs, after :func:`check_left` (``line``: the warning that
     names them, the refusal's start)."""

@@ -182,15 +182,16 @@ def led_check_measured(
     return notes, left_out, misplaced, detected_order(shows, len(press.leds)), measured, [*dark, *lagged]
 
 
-def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int]) -> list[DarkBand]:
+def dark_rows(press: Press, leds: Sequence[Led], live: Sequence[int], mostly_dark: bool = False) -> list[DarkBand]:
     """The LED images (of the 0-based LEDs ``live``) with a band of rows (or columns) at the dark frame's level where
     the LED model ``leds`` lights the undeformed dome (:func:`_dark_rows`), ``index`` the LED's; empty without a
-    surface or lit samples. :func:`led_check` finds them from its own samples."""
+    surface or lit samples. :func:`led_check` finds them from its own samples. ``mostly_dark``: also a band over
+    more than half an LED's image (:func:`.repeated_frames.lit_level`; where an LED's fit ran off)."""
     live = [int(i) for i in live]
     if press.reference is None or len(live) < 3:
         return []
     image, model, pixels = _sampled(press, leds, live)
-    return [] if image is None else _dark_rows(press, leds, image, model, pixels, live, None)
+    return [] if image is None else _dark_rows(press, leds, image, model, pixels, live, None, mostly_dark)
 
 
 DENSE_LINE_SAMPLES = 100
@@ -207,13 +208,14 @@ def _dark_rows(
     pixels: np.ndarray,
     live: list[int],
     everywhere: DarkBand | None,
+    mostly_dark: bool = False,
 ) -> list[DarkBand]:
     """The LED images with a band of rows, else of columns (a camera turned 90 degrees), at the dark frame's level:
     :func:`.dark_bands` of the sampled LED images (``image``, ``model``, ``pixels``: :func:`_sampled`'s, of the LEDs
     ``live``), and for the LEDs without one, the shorter bands that :func:`.dark_candidates` points to, told pixel
     row by pixel row (:func:`.dark_lines`) on samples dense along those rows (:data:`DENSE_LINE_SAMPLES`); their
     ``index`` the LED's (0-based), outside the rows dark in every image (``everywhere``: there the albedo fitted to
-    the dark frame's noise models noise).
+    the dark frame's noise models noise); ``mostly_dark``: :func:`dark_rows`'.
 
     Why the LED model: an LED's own light can end as sharply at its terminator (the synthetic ring with LEDs far
     from their design: dark top rows in 2 of 12 images, s28-rolling); the samples lie where every LED lights the
@@ -229,7 +231,7 @@ def _dark_rows(
     found: dict[int, DarkBand] = {}
     candidates = {}
     for axis in ("rows", "columns"):
-        bands, candidates[axis] = dark_bands_and_candidates(light, lines[axis], lengths[axis], axis)
+        bands, candidates[axis] = dark_bands_and_candidates(light, lines[axis], lengths[axis], axis, mostly_dark)
         for band in bands:
             found.setdefault(band.index, band)
     level = np.median(light, axis=1)

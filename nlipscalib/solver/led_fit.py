@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -14,7 +14,7 @@ import numpy as np
 from ..core.blas import blas_threads
 from ..core.camera import depth_to_points
 from ..core.capture import Press
-from ..core.errors import CaptureError
+from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds, disk_shading
 from ..core.leds_jacobian import falloff_gradient
 from ..core.robust_scale import mad_scale
@@ -32,9 +32,9 @@ def _unit(theta: float, phi: float):
 
 def _led(params: np.ndarray) -> Led:
     """The Led a parameter vector (log K (3), mu, polar, azimuth of n_s, x_s (3)) stands for."""
-    return Led(
-        tuple(params[6:9]), tuple(_unit(params[4], params[5])), max(float(params[3]), 0.0), tuple(np.exp(params[:3]))
-    )
+    with np.errstate(over="ignore"):  # an overflow is refused by Led, then said once (_ran_off_said), not numpy's
+        intensity = tuple(np.exp(params[:3]))
+    return Led(tuple(params[6:9]), tuple(_unit(params[4], params[5])), max(float(params[3]), 0.0), intensity)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,16 +156,38 @@ def fit_leds(
     # machine, the same bits (s17-d, benchmarks/RESULTS.md)
     with blas_threads(1):
         problems = [_LedProblem.of(led, img[i], ok[i], x, n, model) for i, led in enumerate(leds)]
-        for problem in problems:
-            res = problem.solve(problem.p0, loss)
+        for i, problem in enumerate(problems):
+            res = _ran_off_said(problem.solve, problem.p0, loss, i)
             costs.append(problem.misfit(res))
             out.append(res)
         level = float(np.median(costs))
         for i in _stuck(costs):
             log.info("LED %d: fit %.1fx the median LED's misfit; fitted again from other axes", i + 1, costs[i] / level)
-            tries = [out[i]] + [problems[i].solve(p, loss) for p in problems[i].restarts()]
+            tries = [out[i]] + [_ran_off_said(problems[i].solve, p, loss, i) for p in problems[i].restarts()]
             out[i] = min(tries, key=problems[i].misfit)
     return [problem.result(res) for problem, res in zip(problems, out)]
+
+
+class LedFitRanOff(CaptureError):
+    """An LED's fit left finite numbers (its brightness or place overflowed): ``led`` the LED, 0-based."""
+
+    def __init__(self, led: int) -> None:
+        super().__init__(f"the fit of LED {led + 1} ran off (not finite)")
+        self.led = led
+
+
+def _ran_off_said(
+    solve: Callable[[np.ndarray, str], OptimizeResult], p0: np.ndarray, loss: str, led: int
+) -> OptimizeResult:
+    """``solve(p0, loss)``, or :class:`LedFitRanOff` naming the LED when a step of it left finite numbers.
+
+    Why: a trf step that overflows exp(log K) made the Led (``core.leds``) refuse "led.intensity must be 3 finite
+    numbers", a line that named neither the capture nor the LED (the twin's LED 5 dark in rows 0-129, s31-darkleft);
+    :func:`nlipscalib.solver.calibrate.calibrate_leds` says which and why."""
+    try:
+        return solve(p0, loss)
+    except ConfigError as error:
+        raise LedFitRanOff(led) from error
 
 
 RESTART_TILT_DEG = 45.0

@@ -42,7 +42,15 @@ from ..core import said_once, tolerances
 from ..core.blas import blas_threads
 from ..core.capture import Press, as_press, select_leds, with_led_gains, with_unusable_samples
 from ..core.errors import CaptureError, ShapeError
-from ..core.repeated_frames import DarkBand, LaggedBand, dark_band_mask, dark_line, frame_checks, lagged_line
+from ..core.repeated_frames import (
+    DarkBand,
+    LaggedBand,
+    dark_band_mask,
+    dark_line,
+    frame_checks,
+    lagged_line,
+    repeated_line,
+)
 from ..progress import PRESS_DETAIL
 from . import reuse, threads
 from .anchoring import anchor_weights, rescale_to_anchors, widen_to_anchor
@@ -154,12 +162,21 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
     if isinstance(kwargs.get("indirect"), Press) and (moved := shift_note(press, kwargs["indirect"])):
         log.warning("%s", moved)
         led_notes.append(moved)
-    undeformed_dark = _undeformed_dark_bands(press, kwargs)
+    undeformed_dark, undeformed_repeated = _undeformed_dark_bands(press, kwargs)
     led_notes += _undeformed_band_notes(kwargs.get("indirect"), undeformed_dark)
+    # an undeformed image that repeats the one before it holds none of its LED's light: that LED left out, as a
+    # repeated press image is (nothing to compare the press's light with, nor to fit its interreflection on)
+    repeated_out = [i for i, _ in undeformed_repeated if i not in left_out]
+    if len(press.leds) - len(left_out) - len(repeated_out) < tolerances.MIN_LEDS_PER_PIXEL:
+        repeated_out = []  # too few LEDs to solve without them: only warned about, as in the press
+    led_notes += _undeformed_repeated_notes(kwargs.get("indirect"), undeformed_repeated)
+    left_out = sorted({*left_out, *repeated_out})
     gains = None
     if isinstance(kwargs.get("indirect"), Press):
         # an LED's dark or lagged band (in the press or the undeformed capture) holds no light of it
         ratio = exposure_ratio(press, kwargs["indirect"], dark + undeformed_dark)
+        if ratio is not None and repeated_out:  # another LED's light there: no verdict, the LED is left out below
+            ratio[repeated_out] = 1.0
         gains = None if ratio is None else led_gains(ratio, misplaced)
         if drifted := exposure_drift_note(press, kwargs["indirect"], ratio, gains):
             log.warning("%s", drifted)
@@ -221,6 +238,8 @@ def _checked_solve(press: Press, kwargs: dict[str, Any]) -> SolveResult:
             if key in result.report:
                 result.report[key] = [keep[i] for i in result.report[key]]
         result.report["leds_left_out"] = left_out
+    if repeated_out:
+        result.report["undeformed_repeated_left_out"] = repeated_out
     lagged = [band for band in dark if isinstance(band, LaggedBand)]
     dark = [band for band in dark if not isinstance(band, LaggedBand)]
     undeformed_lagged = [band for band in undeformed_dark if isinstance(band, LaggedBand)]
@@ -384,26 +403,47 @@ def _undeformed_band_notes(undeformed: object, bands: list[DarkBand | LaggedBand
     return notes
 
 
-def _undeformed_dark_bands(press: Press, kwargs: dict) -> list[DarkBand | LaggedBand]:
+UNDEFORMED_REPEATED = (
+    "; in the undeformed capture the press is solved against: capture the undeformed dome again; until then that LED "
+    "is left out of the solve (nothing of its own light to compare the press with)"
+)
+"""What the solve does about an undeformed capture's LED image that repeats the one before it (``--reference``;
+:func:`.repeated_line`'s tail), as about a press's (:data:`.led_checks.REPEATED_REASON`)."""
+
+
+def _undeformed_repeated_notes(undeformed: object, repeated: list[tuple[int, float]]) -> list[str]:
+    """The warning about the undeformed capture's repeated LED images (:func:`_undeformed_dark_bands`' second
+    list), said once for a session's presses (each press's report keeps it)."""
+    if not repeated:
+        return []
+    note = f"{repeated_line(undeformed.folder, image_names(undeformed), repeated)}{UNDEFORMED_REPEATED}"
+    _say_once_per_session(note, f"undeformed repeated\0{undeformed.folder}\0{note[:40]}")
+    return [note]
+
+
+def _undeformed_dark_bands(press: Press, kwargs: dict) -> tuple[list[DarkBand | LaggedBand], list[tuple[int, float]]]:
     """The undeformed capture's (``kwargs["indirect"]``, a Press with a surface) LED images' dark bands
     (:func:`.led_checks.dark_rows` of its live LEDs against the solve's LED model) and lagged bands (rows or columns
     read before the LED switched, :func:`.repeated_frames.lagged_bands`: the LED before it's light; its LED not
-    looked at for dark rows, as in the press), once per capture's content and LED model (~4 ms and ~10 ms, and its
-    images' decoding); [] without one, or when its LEDs are not the press's."""
+    looked at for dark rows, as in the press), and its LED images that repeat the one before them whole
+    (:func:`.repeated_frames.frame_checks`' first list: (index, difference)), once per capture's content and LED model
+    (~4 ms and ~10 ms, and its images' decoding); ([], []) without one, or when its LEDs are not the press's."""
     undeformed = kwargs.get("indirect")
     if not isinstance(undeformed, Press) or undeformed.reference is None:
-        return []
+        return [], []
     leds = _model_leds(press, kwargs.get("leds"))
     if len(undeformed.leds) != len(leds) or undeformed.camera.shape != press.camera.shape:
-        return []
+        return [], []
 
-    def bands() -> list[DarkBand | LaggedBand]:
-        lagged = frame_checks(undeformed.linear_led_images, np.isfinite(undeformed.reference.depth))[1]
-        shifted = {band.index for band in lagged}  # another LED's light there: no verdict on its own light
+    def bands() -> tuple[list[DarkBand | LaggedBand], list[tuple[int, float]]]:
+        repeated, lagged = frame_checks(undeformed.linear_led_images, np.isfinite(undeformed.reference.depth))[:2]
+        # another LED's light there: no verdict on its own light
+        shifted = {band.index for band in lagged} | {i for i, _ in repeated}
         live = [i for i in _live_leds(undeformed, kwargs.get("options")) if i not in shifted]
-        return [*dark_rows(undeformed, leds, live), *lagged]
+        return [*dark_rows(undeformed, leds, live), *lagged], [(int(i), float(d)) for i, d in repeated]
 
     # kept on disk under the capture's content, as its interreflection fit: a warm solve never decodes its images
+    # (the key's digest holds the package's source: entries written before repeated images were kept are not read)
     level = (kwargs.get("options") or SolverOptions()).dead_led_level
     return reuse.reused("undeformed bands", (capture_key(undeformed), leds, level), bands, persist=True)
 

@@ -389,3 +389,33 @@ def test_the_calibrations_later_rounds_say_what_turned_the_term_on():
     first = calibration_reason(model(True, 0.31), "auto", None).reason
     assert "0.310 of the direct light with the starting LEDs (at least the LED calibration's auto threshold" in first
     assert all(AUTO_THRESHOLD_SAID not in r for r in (kept, dropped, first))
+
+
+def test_an_led_image_dark_over_more_than_half_is_named_when_its_fit_runs_off(tmp_path):
+    """The twin's undeformed capture (160x120, one bounce) with LED 5's rows 0-64 of 120 at the dark frame: the band
+    put LED 5's median light at the dark frame's noise, so it was not found against the first fit, and the
+    calibration ended on "led.intensity must be 3 finite numbers" (s31-darkleft's "not done"), naming neither the
+    capture nor the LED. Now the fit that runs off names the band, the cause and the fix; an LED fit that runs off
+    without a band is named with its likely causes."""
+    import cv2
+
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.sim.press import render_press
+    from nlipscalib.sim.scene import load_scene
+
+    scene = load_scene("nlipstac").replace(
+        noise={"enabled": True}, render={"bounces": 1, "spp": 16}, camera={"width": 160, "height": 120}
+    )
+    folder = render_press(scene, None, tmp_path / "half_dark", seed=3)
+    dark, image = (cv2.imread(str(folder / name), cv2.IMREAD_UNCHANGED) for name in ("dark.png", "led_05.png"))
+    image[:65] = dark[:65]
+    cv2.imwrite(str(folder / "led_05.png"), image)
+    half = load_press(folder)
+    with pytest.raises(CaptureError, match=r"half_dark: led_05\.png's rows 0-64 \(top\) are dark .*--flush.*ran off"):
+        calibrate_leds(half)
+    from nlipscalib.solver.calibrate import ran_off_line
+
+    clean = load_press(synth.make_press(tmp_path / "clean", "none", size=(48, 36)))
+    line = ran_off_line([clean], 4)
+    assert line.startswith(f"{clean.folder}: the fit of LED 5 (led_05.png) ran off"), line
+    assert "dark band" in line and "dead" in line and "meta.json" in line, line

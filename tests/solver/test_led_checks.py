@@ -429,6 +429,25 @@ def test_lagged_rows_of_the_undeformed_capture_are_named_and_left_out_for_that_l
     assert (fewer[:edge][inside[:edge]] == 1).all() and (fewer[edge:][inside[edge:]] == 0).all()
 
 
+def test_a_repeated_image_in_the_undeformed_capture_is_named_once_and_its_led_left_out_of_the_solve(tmp_path):
+    """The undeformed capture a press is solved against with LED 9's whole image LED 8's (a dropped frame): its
+    lagged and dark bands were looked for, not whole repeated images (s31-darkleft), so the press's LED 9 was
+    compared with LED 8's light, its gain measured with it, and the interreflection fitted on it. Now named once with
+    the fix and LED 9 left out of the solve, as a repeated press image is."""
+    options = SolverOptions(max_iters=2)
+    press = _press(tmp_path, "pressed")
+    repeated = load_press(synth.make_press(tmp_path / "undeformed_repeated", "none", lin_hook=_rows_from({8: 7}, 72)))
+    result = solve_press(press, indirect=repeated, options=options)
+    rep = result.report
+    said = [note for note in rep["warnings"] if "in the undeformed capture the press is solved against" in note]
+    assert len(said) == 1 and said[0].startswith(f"{repeated.folder}: led_09.png repeats led_08.png"), said
+    assert "--flush" in said[0] and "that LED is left out of the solve" in said[0], said
+    assert rep["leds_left_out"] == [8] and rep["undeformed_repeated_left_out"] == [8], rep.get("leds_left_out")
+    assert rep["led_gains"] is None  # LED 9's ratio (LED 8's light) not measured as a gain
+    assert result.usable_leds.max() == len(press.leds) - 1  # no pixel solved with LED 9
+    assert "undeformed_lagged_bands_left_out" not in rep and "undeformed_dark_bands_left_out" not in rep
+
+
 def test_dark_columns_and_a_few_dark_rows_of_an_led_image_are_named(tmp_path):
     """A camera mounted turned 90 degrees: its rolling shutter reads the columns, and LED 9's first 20 columns were
     read while it was off; a short glitch darkened LED 4's rows 30-32 (under the 15 rows of the bands). Neither was
