@@ -195,7 +195,8 @@ def test_a_camera_whose_times_are_a_power_of_the_asked_ones_is_pinned_by_leds_li
     code, out = _calibrate(tmp_path)
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 0, err
-    assert len(err) == 1 and "camera 0: with the curve as fitted, LEDs lit together give 1.0" in err[0], err
+    assert err[-1].startswith(f"{out}: ")  # what the file is, last on stderr (stdout holds the file alone)
+    assert len(err) == 2 and "camera 0: with the curve as fitted, LEDs lit together give 1.0" in err[0], err
     assert "the camera's exposure times are a power of the asked ones (t ** 0.9" in err[0], err
     response = read_response_file(out)
     # 0.64 % off (a camera taking the times asked: 0.35 %; the fit at the asked times, before: 3.98 %)
@@ -209,7 +210,9 @@ def test_a_camera_whose_times_are_a_power_of_the_asked_ones_is_pinned_by_leds_li
 def test_a_camera_taking_the_times_asked_adds_as_fitted(webcam, tmp_path, capsys):
     webcam()
     code, out = _calibrate(tmp_path)
-    assert code == 0 and capsys.readouterr().err == ""
+    said = capsys.readouterr()
+    assert code == 0 and said.out == f"{out}\n"
+    assert said.err.strip().splitlines() == [said.err.strip()] and said.err.startswith(f"{out}: ")  # no warning
     record = read_response_file(out).provenance["additivity"]
     assert record["power"] == 1.0 and record["error"] < RESPONSE_ADDITIVITY_ERROR / 2  # 0.0066
 
