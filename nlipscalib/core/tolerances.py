@@ -225,7 +225,7 @@ at 320x240) all improved: depth RMSE -50 to -66 % (coin1 the same, its error bei
 centre: depth RMSE -14 to -94 % on 11, AAE 0.004-0.068 deg lower on 12; worse: a generous box round coin1 +0.0035 mm,
 its relief's, a box cutting the 4 mm sphere's edge +0.003 mm, that sphere's generous box's AAE +0.020 deg;
 s31-roiscale), so every box gets both: one rule. Whole-gel solves keep the plain weight but are rescaled too (their
-depth floated 0.2-0.4 %; the rescale alone moves no normal; s31-wholescale)."""
+depth floated 0.2-0.3 %; the rescale alone moves no normal; s31-wholescale)."""
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""

@@ -110,7 +110,7 @@ def rescale_to_anchors(
 
     Why: the data pull the depth scale off the reference against the anchors, in a box (``--roi auto``'s or an
     explicit one; :data:`tolerances.ROI_ANCHOR_GAIN`: cube1's anchored ring stays 0.2 % too far at 3x the weight, and
-    a larger gain bends a small sphere's normals) and on the whole gel (0.2-0.4 % at the plain weight); a uniform
+    a larger gain bends a small sphere's normals) and on the whole gel (0.2-0.3 % at the plain weight); a uniform
     scale about the camera's centre leaves every normal as it is, so the depth alone moves (benchmarks/RESULTS.md,
     s31-rimdepth, s31-roiscale, s31-wholescale). The albedo stays the solve's.
 
