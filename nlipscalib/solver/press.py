@@ -604,8 +604,8 @@ def _solve_press(
     reference = ref_capture.folder if ref_capture is not None else None
     roi, roi_note = _region(press, roi, explicit_roi, cmap, reference, edge_error)
     # a box, --roi auto's or an explicit one, holds its depth scale by a ring of anchors: they weigh more (it drifted
-    # 0.1-0.5 % at the plain weight; s31-rimdepth, s31-roiscale); every solve's depth is scaled onto them after
-    # (the whole gel floats too; the rescale moves no normal: s31-wholescale)
+    # 0.1-0.5 % at the plain weight; s31-rimdepth, s31-roiscale); every solve's depth, a box's or the whole gel's
+    # (which floats too), is then scaled onto its anchors: the rescale moves no normal (s31-wholescale)
     boxed = roi is not None
     if boxed:
         mask &= box_mask(roi, (H, W))
