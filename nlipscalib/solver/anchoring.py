@@ -1,6 +1,7 @@
 """Anchoring to the reference where a press's gel looks undeformed: the prior's weights (:func:`anchor_weights`)
-``--roi auto``'s box widened until it holds enough such gel (:func:`widen_to_anchor`), and a box's solved depth
-(``--roi auto`` or ``--roi X0 Y0 W H``) scaled onto the reference at its anchored pixels (:func:`rescale_to_anchors`).
+``--roi auto``'s box widened until it holds enough such gel (:func:`widen_to_anchor`), and a solve's depth (a box's,
+``--roi auto`` or ``--roi X0 Y0 W H``, or the whole gel's) scaled onto the reference at its anchored pixels
+(:func:`rescale_to_anchors`).
 """
 
 from __future__ import annotations
@@ -107,14 +108,15 @@ def rescale_to_anchors(
     (``weights`` > 1, reconstructed) of reference over solved depth, and that scale (None, ``result`` unchanged:
     no anchored pixel).
 
-    Why: in a box (``--roi auto``'s or an explicit one) the data pull the depth scale off the reference against the
-    anchors (:data:`tolerances.ROI_ANCHOR_GAIN`: cube1's anchored ring stays 0.2 % too far at 3x the weight, and a
-    larger gain bends a small sphere's normals); a uniform scale about the camera's centre leaves every normal as it
-    is, so the depth alone moves (benchmarks/RESULTS.md, s31-rimdepth, s31-roiscale). The albedo stays the solve's.
+    Why: the data pull the depth scale off the reference against the anchors, in a box (``--roi auto``'s or an
+    explicit one; :data:`tolerances.ROI_ANCHOR_GAIN`: cube1's anchored ring stays 0.2 % too far at 3x the weight, and
+    a larger gain bends a small sphere's normals) and on the whole gel (0.2-0.3 % at the plain weight); a uniform
+    scale about the camera's centre leaves every normal as it is, so the depth alone moves (benchmarks/RESULTS.md,
+    s31-rimdepth, s31-roiscale, s31-wholescale). The albedo stays the solve's.
 
     Parameters
     ----------
-    result : SolveResult of the box.
+    result : SolveResult of the box or the whole gel.
     reference_depth : (H, W) float, mm -- the undeformed surface's z (the prior; NaN off the gel).
     weights : (H, W) float or None -- :func:`anchor_weights`'s multipliers.
 

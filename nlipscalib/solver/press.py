@@ -603,8 +603,9 @@ def _solve_press(
         edge_error = functools.partial(point_led_misfit, press, leds, cmap, indirect_light=bounced)
     reference = ref_capture.folder if ref_capture is not None else None
     roi, roi_note = _region(press, roi, explicit_roi, cmap, reference, edge_error)
-    # a box, --roi auto's or an explicit one, holds its depth scale by a ring of anchors: they weigh more and the
-    # depth is scaled onto them after (both drifted 0.1-0.5 % at the plain weight; s31-rimdepth, s31-roiscale)
+    # a box, --roi auto's or an explicit one, holds its depth scale by a ring of anchors: they weigh more (it drifted
+    # 0.1-0.5 % at the plain weight; s31-rimdepth, s31-roiscale); every solve's depth, a box's or the whole gel's
+    # (which floats too), is then scaled onto its anchors: the rescale moves no normal (s31-wholescale)
     boxed = roi is not None
     if boxed:
         mask &= box_mask(roi, (H, W))
@@ -624,10 +625,10 @@ def _solve_press(
         result = loop.run(run, max_outer if dent_interreflection else 0)
     else:
         loop, result = None, run(fixed_light)
-    if boxed and prior is not None:  # the box's depth scale, pinned to the reference where it is undeformed
+    if prior is not None:  # the depth scale, pinned to the reference where the gel is undeformed
         result, scale = rescale_to_anchors(result, prior, weights)
         if scale is not None:
-            anchoring += f"; the box's depth scaled by {scale:.5f} onto the reference there"
+            anchoring += f"; the depth scaled by {scale:.5f} onto the reference there"
     rep = result.report
     rep["roi"] = list(roi) if roi is not None else None
     rep["roi_note"] = roi_note

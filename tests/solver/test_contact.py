@@ -892,10 +892,11 @@ def test_rescaling_to_anchors_puts_the_anchored_depth_on_the_reference_and_keeps
     assert rescale_to_anchors(result, reference, np.ones(shape)) == (result, None)
 
 
-def test_boxed_solves_scale_onto_the_reference_and_a_whole_gel_solve_does_not(tmp_path, monkeypatch):
+def test_every_solve_scales_onto_the_reference_and_only_a_box_weighs_its_anchors_more(tmp_path, monkeypatch):
     """``solve_press(roi="auto")`` rescales its box's depth (``report["anchor_scale"]``, normals as solved), and an
     explicit box, here the auto one's, is solved by the same rule (it drifted the same way, s31-roiscale): the same
-    result bit for bit; the whole gel is left as solved."""
+    result bit for bit; the whole gel is rescaled too (it floats as well, s31-wholescale), its normals as solved,
+    its anchors at the plain weight."""
     from nlipscalib.solver import press as press_solve
 
     press = _noisy_press(tmp_path / "p", 1.0, 0)
@@ -913,4 +914,10 @@ def test_boxed_solves_scale_onto_the_reference_and_a_whole_gel_solve_does_not(tm
     np.testing.assert_array_equal(explicit.depth, auto.depth)
     np.testing.assert_array_equal(explicit.normals, auto.normals)
     whole = solve_press(press, roi=None, options=options)
-    assert "anchor_scale" not in whole.report and "in the box" not in whole.report["anchoring"]
+    monkeypatch.setattr(press_solve, "rescale_to_anchors", lambda result, *_: (result, None))
+    solved = solve_press(press, roi=None, options=options)
+    whole_scale = whole.report["anchor_scale"]
+    assert whole_scale != 1.0 and "depth scaled by" in whole.report["anchoring"]
+    assert "in the box" not in whole.report["anchoring"]
+    np.testing.assert_array_equal(whole.normals, solved.normals)
+    np.testing.assert_allclose(whole.depth, solved.depth * whole_scale, rtol=1e-6)
