@@ -211,21 +211,6 @@ SENSOR_FIT_VIEW_DEG = 30.0
 from their mean direction. Why: a view of a patch of the dome (a 64x64 crop of a 480x360 view around a dent, a test's
 "mostly dent" capture, 9.5 deg) can be all dent, and a dent misfits the undeformed model as another sensor does
 (25 %); the shipped designs' full views reach 52-68 deg."""
-ROI_ANCHOR_GAIN = 3.0
-"""``--roi auto`` and ``--roi X0 Y0 W H``: the anchored pixels' prior weight (:attr:`.SolverOptions.anchor_weight`)
-is this many times the whole gel's in a box. Why: in a box the anchors are a thin ring round the contact, and at the
-whole gel's weight the data's pull on the depth scale won over them: the box's anchored pixels came out 0.1-0.5 % too
-far (cube1's outer ring 0.074 mm, its contact's depth RMSE 0.069 mm). At 3x the twin's
-six benchmark presses (sphere1, cube1, coin1 at 640x480; a 1.8 mm-deep sphere, a cube at 40 deg polar, a 4 mm sphere
-at 320x240) all improved: depth RMSE -50 to -66 % (coin1 the same, its error being the relief's), contact AAE
-0.002-0.26 deg lower (at 160x120 a 6 mm sphere's rose 0.015 deg); at 5-10x the 4 mm sphere's rose 0.006-0.011 deg
-(benchmarks/RESULTS.md, s31-rimdepth). What is left of the scale is taken out after the solve
-(:func:`nlipscalib.solver.anchoring.rescale_to_anchors`). Explicit boxes drifted the same way and gain the same
-(14 boxes on the six presses: the auto ones given as --roi X0 Y0 W H, boxes hugging the contact, 30-60 px wider, off
-centre: depth RMSE -14 to -94 % on 11, AAE 0.004-0.068 deg lower on 12; worse: a generous box round coin1 +0.0035 mm,
-its relief's, a box cutting the 4 mm sphere's edge +0.003 mm, that sphere's generous box's AAE +0.020 deg;
-s31-roiscale), so every box gets both: one rule. Whole-gel solves keep the plain weight but are rescaled too (their
-depth floated 0.2-0.3 %; the rescale alone moves no normal; s31-wholescale)."""
 ROI_LARGE_FRACTION = 0.5
 """``--roi auto``: a box covering at least this fraction of the gel's bounding box is "most of the gel": the
 components along the gel's edge are then left out when a large one lies inside, or the user is warned."""

@@ -26,10 +26,8 @@ def anchor_weights(
     factor: float,
     min_fraction: float = ANCHOR_MIN_FRACTION,
     max_relative: float = 0.05,
-    boxed: bool = False,
 ) -> tuple[np.ndarray | None, str]:
-    """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed
-    (``1 + weight`` times :data:`tolerances.ROI_ANCHOR_GAIN` in a box: ``--roi auto`` or ``--roi X0 Y0 W H``).
+    """Prior weight multipliers and a report line: ``1 + weight`` where the data show the gel undeformed.
 
     Parameters
     ----------
@@ -43,8 +41,6 @@ def anchor_weights(
     max_relative : a pixel's verdict counts only when its threshold, ``factor`` times the noise-only
         misfit, is at most this fraction of its image level: with more noise a real dent (a 1 deg
         tilt changes the shading by ~2 %) would pass as undeformed.
-    boxed : ``mask`` is a box (``--roi auto``'s or an explicit one): its anchors, a ring round the contact, are
-        weighted :data:`tolerances.ROI_ANCHOR_GAIN` times more (at ``weight`` the box's depth scale drifted).
 
     Returns
     -------
@@ -65,9 +61,8 @@ def anchor_weights(
         )
     pins = undeformed & mask
     weights = np.ones(mask.shape)
-    weights[pins] += weight * tolerances.ROI_ANCHOR_GAIN if boxed else weight
-    gain = f", weight x{tolerances.ROI_ANCHOR_GAIN:g} in the box" if boxed else ""
-    return weights, f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise{gain})"
+    weights[pins] += weight
+    return weights, f"anchored {int(pins.sum())} of {int(mask.sum())} pixels (misfit within {factor:g} x noise)"
 
 
 def widen_to_anchor(
@@ -109,10 +104,12 @@ def rescale_to_anchors(
     no anchored pixel).
 
     Why: the data pull the depth scale off the reference against the anchors, in a box (``--roi auto``'s or an
-    explicit one; :data:`tolerances.ROI_ANCHOR_GAIN`: cube1's anchored ring stays 0.2 % too far at 3x the weight, and
-    a larger gain bends a small sphere's normals) and on the whole gel (0.2-0.3 % at the plain weight); a uniform
-    scale about the camera's centre leaves every normal as it is, so the depth alone moves (benchmarks/RESULTS.md,
-    s31-rimdepth, s31-roiscale, s31-wholescale). The albedo stays the solve's.
+    explicit one: 0.1-0.5 %, cube1's outer ring 0.074 mm too far, its contact's depth RMSE 0.069 mm) and on the whole
+    gel (0.2-0.3 %); a uniform scale about the camera's centre leaves every normal as it is, so the depth alone moves
+    (benchmarks/RESULTS.md, s31-rimdepth, s31-roiscale, s31-wholescale). Weighing the anchors more instead (3x in a
+    box) moved normals: 0.02-0.04 deg better on the one-bounce twin presses, 0.01-0.06 deg worse on the demo's
+    direct-light presses and a small sphere at 160x120: left out (the lead's check, thirty-first session). The
+    albedo stays the solve's.
 
     Parameters
     ----------

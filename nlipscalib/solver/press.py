@@ -603,17 +603,11 @@ def _solve_press(
         edge_error = functools.partial(point_led_misfit, press, leds, cmap, indirect_light=bounced)
     reference = ref_capture.folder if ref_capture is not None else None
     roi, roi_note = _region(press, roi, explicit_roi, cmap, reference, edge_error)
-    # a box, --roi auto's or an explicit one, holds its depth scale by a ring of anchors: they weigh more (it drifted
-    # 0.1-0.5 % at the plain weight; s31-rimdepth, s31-roiscale); every solve's depth, a box's or the whole gel's
-    # (which floats too), is then scaled onto its anchors: the rescale moves no normal (s31-wholescale)
-    boxed = roi is not None
-    if boxed:
+    if roi is not None:
         mask &= box_mask(roi, (H, W))
     weights, anchoring = (None, "anchoring off (no reference surface)")
     if cmap is not None:
-        weights, anchoring = anchor_weights(
-            cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR, boxed=boxed
-        )
+        weights, anchoring = anchor_weights(cmap, mask, options.anchor_weight, tolerances.ANCHOR_NOISE_FACTOR)
     options, noise = _noise_regularised(options, press, cmap)
     t_contact = light.contact_seconds + time.perf_counter() - t0
 
@@ -625,7 +619,7 @@ def _solve_press(
         result = loop.run(run, max_outer if dent_interreflection else 0)
     else:
         loop, result = None, run(fixed_light)
-    if prior is not None:  # the depth scale, pinned to the reference where the gel is undeformed
+    if prior is not None:  # the depth scale, which the data pull off the anchors (0.1-0.5 %), put back onto them
         result, scale = rescale_to_anchors(result, prior, weights)
         if scale is not None:
             anchoring += f"; the depth scaled by {scale:.5f} onto the reference there"
