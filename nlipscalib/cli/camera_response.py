@@ -181,33 +181,68 @@ def run(args: argparse.Namespace) -> int:
 
 
 def take_bracket(
-    source: FrameSource, light: Callable[[], None], set_exposure: Callable[[float], None], exposures: Sequence[float]
-) -> list[np.ndarray]:
-    """One frame of the lit gel per exposure, as stored values (``FrameSource.capture``: flushed, averaged).
+    source: FrameSource,
+    light: Callable[[], None],
+    set_exposure: Callable[[float], float | None],
+    exposures: Sequence[float],
+) -> tuple[list[np.ndarray], list[float]]:
+    """One frame of the lit gel per exposure, as stored values (``FrameSource.capture``: flushed, averaged), and the
+    time each was taken at.
 
     Parameters
     ----------
     source : the camera
     light : lights the LED (called once, before the first exposure)
-    set_exposure : sets the camera's exposure, ms
+    set_exposure : sets the camera's exposure, ms; returns the time the camera reports it took, ms (None: the time
+        asked)
     exposures : ms, in the order taken
 
     Returns
     -------
-    list of (H, W, 3) uint16, stored values ``DN << (16 - bit_depth)``
+    frames : list of (H, W, 3) uint16, stored values ``DN << (16 - bit_depth)``
+    taken : ms, each frame's exposure as the camera reported it
     """
     from ..progress import track
 
     light()
-    frames = []
+    frames, taken = [], []
     for ms in track(exposures, enabled=_bars(), desc="bracket", unit="exposure"):
-        set_exposure(ms)
+        reported = set_exposure(ms)
         frames.append(source.capture())
-    return frames
+        taken.append(float(ms if reported is None else reported))
+    return frames, taken
+
+
+def as_reported(camera: str, asked: Sequence[float], taken: Sequence[float], frames: list) -> tuple[list, list]:
+    """The bracket at the times the camera reports it took (:func:`take_bracket`), said in one line when they are
+    not the times asked; a frame whose reported time an earlier frame already has is dropped (a minimum or a table
+    step clamped two asked times to one: the same exposure twice says nothing more and would weigh one time twice).
+
+    Returns
+    -------
+    frames : the frames kept, as given
+    times : ms, each kept frame's
+    """
+    import math
+
+    moved = [(a, t) for a, t in zip(asked, taken, strict=True) if not math.isclose(a, t, rel_tol=1e-6)]
+    if not moved:
+        return list(frames), list(taken)
+    kept = {}
+    for frame, ms in zip(frames, taken, strict=True):
+        kept.setdefault(ms, frame)
+    shown = ", ".join(f"{a:g} -> {t:.4g}" for a, t in moved[:6]) + (", ..." if len(moved) > 6 else "")
+    dropped = len(frames) - len(kept)
+    print(
+        f"camera {camera} reports exposures other than asked ({shown} ms): the bracket is fitted at the times it "
+        "reports" + (f" ({dropped} frames at a time already taken dropped)" if dropped else ""),
+        file=sys.stderr,
+    )
+    return list(kept.values()), list(kept)
 
 
 def take_dark(
-    source: FrameSource, lights_off: Callable[[], None], set_exposure: Callable[[float], None], ms: float
+    source: FrameSource, lights_off: Callable[[], None], set_exposure: Callable[[float], float | None], ms: float
 ) -> np.ndarray:
     """One frame with every LED off at ``ms`` (the bracket's shortest exposure: room light adds least there), as
     stored values: what the camera reads for no light (``device.response_fit.check_black``)."""
@@ -219,7 +254,7 @@ def take_dark(
 def take_additivity(
     source: FrameSource,
     set_colours: Callable[[np.ndarray], None],
-    set_exposure: Callable[[float], None],
+    set_exposure: Callable[[float], float | None],
     n_leds: int,
     led: int,
     level: int,
@@ -334,7 +369,7 @@ def _emulated_bracket(args: argparse.Namespace, exposures: Sequence[float]):
         def set_exposure(ms: float) -> None:
             sensor.camera.exposure_scale = ms / EMULATED_EXPOSURE_MS
 
-        frames = take_bracket(sensor.camera, light, set_exposure, exposures)
+        frames, _ = take_bracket(sensor.camera, light, set_exposure, exposures)
         lights_off = functools.partial(sensor.rig.controller.set_all, np.zeros((n_leds, 3), np.uint8))
         dark = take_dark(sensor.camera, lights_off, set_exposure, min(exposures))
         noise = scene.noise
@@ -354,9 +389,10 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
     import numpy as np
 
     from ..device.additivity import pair_exposure
-    from ..device.camera import CameraSettings, apply_settings, open_source, report_refusals
+    from ..device.camera import CameraSettings, apply_settings, open_source, report_refusals, reported_exposure_ms
     from ..device.lights_out import lights_out_on_exit
     from ..device.port import BAUD_RATE
+    from ..device.response_fit import check_exposures
     from ..device.virtual_board import start_board
     from .capture import open_leds
 
@@ -392,12 +428,17 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
 
         refused: dict[str, None] = {}  # each exposure's readback, said once after the bracket: not a line a step
 
-        def set_exposure(ms: float) -> None:
+        def set_exposure(ms: float) -> float:
             settings = CameraSettings(exposure_ms=ms, gain=None, white_balance_k=None, raw=False, linear_gamma=False)
-            refused.update(dict.fromkeys(apply_settings(cap, settings)))
+            # an exposure read back other than asked is the time the fit takes (as_reported says it), not a refusal
+            lines = apply_settings(cap, settings)
+            refused.update(dict.fromkeys(line for line in lines if not line.startswith("exposure:")))
+            return reported_exposure_ms(cap, ms)
 
-        exposures = _backend_exposures(args.camera, cap.getBackendName(), exposures)
-        frames = take_bracket(source, light, set_exposure, exposures)
+        asked = _backend_exposures(args.camera, cap.getBackendName(), exposures)
+        frames, taken = take_bracket(source, light, set_exposure, asked)
+        frames, exposures = as_reported(str(args.camera), asked, taken, frames)
+        check_exposures(exposures, f"camera {args.camera}")
         lights_off = functools.partial(controller.set_all, np.zeros((controller.n_leds, 3), np.uint8))
         dark = take_dark(source, lights_off, set_exposure, min(exposures))
         bits = source.bit_depth
@@ -413,18 +454,26 @@ def _device_bracket(args: argparse.Namespace, exposures: Sequence[float]):
 
 
 def _backend_exposures(camera: str, backend: str, exposures: Sequence[float]) -> tuple[float, ...]:
-    """The exposures the camera's backend can be asked (DirectShow, Media Foundation: whole log2-second steps), each
-    once, said in one line when they differ from those given: the fit must use the times the camera took, and two
+    """The exposures the camera's backend can be asked (V4L2: whole 100 us steps; DirectShow, Media Foundation: whole
+    log2-second steps), each once, said in one line when two fall on one step or one moves by more than
+    :data:`~nlipscalib.core.tolerances.CAMERA_SETTING_RTOL`: the fit must use the times the camera took, and two
     exposures asked as one step are one frame twice, which would bend the curve."""
+    import math
+
+    from ..core.tolerances import CAMERA_SETTING_RTOL
     from ..device.camera import backend_exposure_ms
     from ..device.response_fit import check_exposures
 
-    taken = tuple(dict.fromkeys(backend_exposure_ms(ms, backend) for ms in exposures))
-    if taken != tuple(exposures):
+    steps = [backend_exposure_ms(ms, backend) for ms in exposures]
+    taken = tuple(dict.fromkeys(steps))
+    moved = any(not math.isclose(a, t, rel_tol=CAMERA_SETTING_RTOL) for a, t in zip(exposures, steps, strict=True))
+    if len(taken) < len(exposures) or moved:
+        unit = "powers of two seconds" if backend in ("DSHOW", "MSMF") else "whole 100 us steps"
+        merged = len(exposures) - len(taken)
         print(
-            f"camera {camera} ({backend}) takes exposures in powers of two seconds: the bracket is "
-            f"{', '.join(f'{t:g}' for t in taken)} ms ({len(exposures) - len(taken)} of the {len(exposures)} asked "
-            "fall on a step already taken)",
+            f"camera {camera} ({backend}) takes exposures in {unit}: the bracket is "
+            f"{', '.join(f'{t:g}' for t in taken)} ms"
+            + (f" ({merged} of the {len(exposures)} asked fall on a step already taken)" if merged else ""),
             file=sys.stderr,
         )
     check_exposures(taken, f"camera {camera} ({backend})")

@@ -454,6 +454,11 @@ CAMERA_SETTING_ABS = 1e-6
 """... or within this absolute amount (the setting's own units): the floor for a value of 0 (raw frames off,
 auto exposure/gain/white balance off), where the relative tolerance alone would demand exact equality. Float
 rounding, not a physical allowance."""
+EXPOSURE_READBACK_RANGE = 4.0
+"""An exposure time a live camera reads back within this factor of the one asked is taken as the time it took
+(:func:`nlipscalib.device.camera.reported_exposure_ms`: a shutter table of its own, 1/60 s for 16 ms; a minimum,
+1 ms for 0.5); further off, as no time at all (OpenCV's 0 or -1 where a backend reads nothing back): the asked one
+is kept."""
 CAMERA_CAL_MIN_TILT_SPREAD_DEG = 5.0
 """Camera calibration (:mod:`nlipscalib.device.camera_calibration`): views whose boards all face the same way
 (normals within this angle, deg) cannot separate the focal length from the board's distance: the fit then returns

@@ -176,8 +176,10 @@ def pin_power(curves: np.ndarray, shots: AdditivityFrames, source: str) -> tuple
             f"light lit apart (more than {RESPONSE_ADDITIVITY_ERROR:.1%} off 1, and no power of the curve within "
             f"{low:g}-{high:g} makes every pair add alike where both LEDs light a pixel and where one does: power "
             f"{power:.3f} leaves {after:.1%}, the two {gap:.1%} apart): light adds, so the LEDs dim each other "
-            "when lit together (a shared supply that sags: power the board from its own supply) or the light "
-            "changed between the frames (room light, the gel moved); fix that and retake"
+            "when lit together (a shared supply that sags: power the board from its own supply), the light "
+            "changed between the frames (room light, the gel moved), or the camera took some exposures at times of "
+            "its own that bent the curve (a shutter table: 1/60 s for 16 ms; give the times it takes as "
+            "--exposures-ms); fix that and retake"
         )
     return raised, Additivity(errors, power, after, gap)
 

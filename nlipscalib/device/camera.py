@@ -29,7 +29,7 @@ import numpy as np
 from ..core.errors import CaptureError, ConfigError, require
 from ..core.imageio import opencv_path, read_image
 from ..core.sensor_response import eight_bit_table, undo_tone_curve
-from ..core.tolerances import CAMERA_SETTING_ABS, CAMERA_SETTING_RTOL
+from ..core.tolerances import CAMERA_SETTING_ABS, CAMERA_SETTING_RTOL, EXPOSURE_READBACK_RANGE
 
 if TYPE_CHECKING:  # OpenCV is imported where it is used (``_cv2``): named for the hints only
     import cv2
@@ -418,22 +418,43 @@ def _not_opened(device: int | str, live: bool) -> str:
 
 
 def exposure_to_backend(exposure_ms: float, backend: str) -> float:
-    """OpenCV's CAP_PROP_EXPOSURE value for an exposure time: V4L2 counts 100 us steps, DirectShow and
-    Media Foundation take log2(seconds), other backends are passed milliseconds."""
+    """OpenCV's CAP_PROP_EXPOSURE value for an exposure time: V4L2 counts whole 100 us steps (its control is an
+    integer: 0.707 ms is asked as 7, 0.7 ms, not left to the driver to cut), DirectShow and Media Foundation take
+    whole log2(seconds), other backends are passed milliseconds."""
     if backend == "V4L2":
-        return exposure_ms * 10.0
+        return float(max(1, math.floor(exposure_ms * 10.0 + 0.5)))  # half up: 0.25 ms asks 3, not 2
     if backend in ("DSHOW", "MSMF"):
         return float(round(math.log2(exposure_ms / 1000.0)))
     return exposure_ms
 
 
+def exposure_from_backend(value: float, backend: str) -> float:
+    """The exposure time, ms, of a CAP_PROP_EXPOSURE value in ``backend``'s units (:func:`exposure_to_backend`'s
+    inverse); NaN for a value that is no time (V4L2 and the others: not > 0)."""
+    if backend in ("DSHOW", "MSMF"):
+        return 1000.0 * 2.0**value if math.isfinite(value) else math.nan
+    ms = value / 10.0 if backend == "V4L2" else value
+    return ms if ms > 0 and math.isfinite(ms) else math.nan
+
+
 def backend_exposure_ms(exposure_ms: float, backend: str) -> float:
     """The exposure time, ms, that :func:`exposure_to_backend`'s value for ``exposure_ms`` stands for: DirectShow and
-    Media Foundation take whole log2(seconds) steps, so 0.5 and 0.707 ms both ask 2**-11 s (0.488 ms); other
-    backends the time asked."""
-    if backend in ("DSHOW", "MSMF"):
-        return 1000.0 * 2.0 ** exposure_to_backend(exposure_ms, backend)
-    return exposure_ms
+    Media Foundation take whole log2(seconds) steps, so 0.5 and 0.707 ms both ask 2**-11 s (0.488 ms); V4L2 whole
+    100 us steps (0.707 ms asks 0.7); other backends the time asked."""
+    return exposure_from_backend(exposure_to_backend(exposure_ms, backend), backend)
+
+
+def reported_exposure_ms(cap: cv2.VideoCapture, asked_ms: float) -> float:
+    """The exposure time, ms, the camera reads back after ``asked_ms`` was set: ``asked_ms`` itself when it reports
+    none or one more than :data:`~nlipscalib.core.tolerances.EXPOSURE_READBACK_RANGE` times off (OpenCV's 0 or -1
+    where a backend reads nothing back). Why: a camera with a shutter table of its own (1/60 s for 16 ms) or a
+    minimum clamps the time it is asked and, through V4L2, reads back what it took: a bracket fitted at that time is
+    right where one fitted at the asked time bends the curve (benchmarks/RESULTS.md, s32-devleft)."""
+    backend = cap.getBackendName() if hasattr(cap, "getBackendName") else ""
+    ms = exposure_from_backend(float(cap.get(_cv2().CAP_PROP_EXPOSURE)), backend)
+    if not math.isfinite(ms) or not 1 / EXPOSURE_READBACK_RANGE <= ms / asked_ms <= EXPOSURE_READBACK_RANGE:
+        return asked_ms
+    return ms
 
 
 UVC_LINEAR_GAMMA = 100
