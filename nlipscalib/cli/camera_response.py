@@ -107,7 +107,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="FOLDER",
         help="images of the lit gel the lab took with the vendor's tool, one per exposure, the exposure in each "
         "name (gel_2.5ms.png) or in FOLDER/exposures.csv (file,exposure_ms rows); --black-level as captured; "
-        "optionally dark.png, every LED off (checked against --black-level)",
+        "optionally dark.png, every LED off (checked against --black-level), and FOLDER/additivity/ of LEDs lit "
+        "apart and together at one exposure (dark.png, led_1.png, led_2.png, led_1+2.png, ...: they check the "
+        "curve's power, as the command's own frames do)",
     )
     emu = p.add_argument_group("emulated sensor")
     emu.add_argument("--emulate", metavar="SCENE", help="measure the emulated sensor of this scene (no hardware)")
@@ -169,8 +171,8 @@ def run(args: argparse.Namespace) -> int:
     from ..device.response_fit import check_exposures
 
     if args.bracket:
-        frames, exposures, source, black, dark = _folder_bracket(args)
-        return _fit_and_write(args, frames, exposures, source, source, black, dark, None)
+        frames, exposures, source, black, dark, shots = _folder_bracket(args)
+        return _fit_and_write(args, frames, exposures, source, source, black, dark, shots)
     exposures = exposures_of(args.exposures_ms)
     check_exposures(exposures, f"--emulate {args.emulate}" if args.emulate else f"camera {args.camera}")
     if args.emulate:
@@ -482,9 +484,12 @@ def _backend_exposures(camera: str, backend: str, exposures: Sequence[float]) ->
 
 def _folder_bracket(args: argparse.Namespace):
     """The frames of ``--bracket FOLDER`` as 8-bit codes above ``--black-level``, their exposures (ms), the source
-    named in refusals and the folder's dark frame (:data:`DarkFrame`; None when it has none)."""
-    from ..core.errors import ConfigError
-    from ..device.bracket_folder import read_bracket_folder
+    named in refusals, the folder's dark frame (:data:`DarkFrame`; None when it has none) and its LEDs lit apart and
+    together (``device.bracket_folder.read_pair_frames`` as ``AdditivityFrames``; None when it has none: said in one
+    line)."""
+    from ..core.errors import CaptureError, ConfigError
+    from ..device.additivity import AdditivityFrames
+    from ..device.bracket_folder import PAIRS_FOLDER, read_bracket_folder, read_pair_frames
     from ..device.response_fit import check_exposures
 
     if args.exposures_ms is not None:
@@ -495,7 +500,18 @@ def _folder_bracket(args: argparse.Namespace):
     _check_scaled(stored, bits, source)
     if dark is not None:
         dark = (to_codes(dark[0], bits, args.black_level), dark[1], dn_per_code(bits, args.black_level))
-    return [to_codes(f, bits, args.black_level) for f in stored], exposures, source, args.black_level, dark
+    pairs = read_pair_frames(args.bracket)
+    shots = None
+    if pairs is not None:
+        frames, ms = pairs
+        if frames["dark"].shape != stored[0].shape:
+            raise CaptureError(f"{source}: its {PAIRS_FOLDER}/ images are not the bracket's size: one camera setting")
+        codes = {k: to_codes(f, bits, args.black_level) for k, f in frames.items()}
+        singles = {k: f for k, f in codes.items() if isinstance(k, int)}
+        together = tuple((*k, f) for k, f in codes.items() if isinstance(k, tuple))
+        shots = AdditivityFrames(ms, codes["dark"], singles, together)
+    codes = [to_codes(f, bits, args.black_level) for f in stored]
+    return codes, exposures, source, args.black_level, dark, shots
 
 
 UNSCALED_TOP = 1 << 12
@@ -541,7 +557,7 @@ def _fit_and_write(
 
     dark_code = None if dark is None else check_black(dark[0], dark[1], source, black_dn, dark[2])
     fit = fit_response(frames, exposures, source)
-    fit, additivity = _pinned(fit, shots, source)
+    fit, additivity = _pinned(fit, shots, source, args.bracket)
     own = fit.kept.ndim == 2
     date = datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")
     provenance = {
@@ -580,29 +596,41 @@ def _fit_and_write(
     return 0
 
 
-def _pinned(fit: ResponseFit, shots: AdditivityFrames | None, source: str) -> tuple[ResponseFit, dict | None]:
+def _pinned(
+    fit: ResponseFit, shots: AdditivityFrames | None, source: str, bracket: str | None
+) -> tuple[ResponseFit, dict | None]:
     """``fit`` checked by the LEDs lit apart and together (``device.additivity.pin_power``), its curves raised to
     the power that makes their light add when the curve as fitted does not (said in one line), and what the
-    response file records of it (None for a --bracket folder: it has no such frames)."""
+    response file records of it (None for a --bracket folder without such frames: said in one line)."""
     import dataclasses
 
     import numpy as np
 
     from ..device.additivity import pin_power
+    from ..device.bracket_folder import PAIRS_FOLDER
 
     if shots is None:
+        if bracket is not None:
+            print(
+                f"{source}: no {PAIRS_FOLDER}/ subfolder of LEDs lit apart and together, so the curve's power is "
+                "not checked (exposure times a power of those named would bend it unseen): add "
+                f"{Path(bracket) / PAIRS_FOLDER}/ with dark.png, led_1.png, led_2.png, led_1+2.png (more pairs "
+                "alike) at one exposure (docs/formats.md, Camera response file)",
+                file=sys.stderr,
+            )
         return fit, None
     _, check = pin_power(np.broadcast_to(fit.kept, (3, len(fit.curve))), shots, source)
     if not np.isfinite(check.before):
+        at = "" if shots.exposure_ms is None else f" at {shots.exposure_ms:g} ms"
         print(
-            f"{source}: the frames of LEDs lit apart and together at {shots.exposure_ms:g} ms have too few pixels "
+            f"{source}: the frames of LEDs lit apart and together{at} have too few pixels "
             "neither black nor clipped that two LEDs light: the curve is not checked by light adding (a power of "
             "the exposure times would go unseen); kept as fitted",
             file=sys.stderr,
         )
         return fit, None
     record = {
-        "exposure_ms": float(shots.exposure_ms),
+        "exposure_ms": None if shots.exposure_ms is None else float(shots.exposure_ms),
         "pairs": [[a, b] for a, b, *_ in check.errors],
         "error": round(check.before, 6),
         "power": round(check.power, 6),

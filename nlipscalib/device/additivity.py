@@ -44,8 +44,9 @@ LEDs, power 1.11: 8.0 % alike, 6.0 % here), and a common dimming of the pair as 
 class AdditivityFrames:
     """Frames of the undeformed gel at one exposure for the additivity check, as 8-bit codes above black."""
 
-    exposure_ms: float
-    """Their exposure, ms (the bracket's longest that two LEDs' light does not clip: :func:`pair_exposure`)."""
+    exposure_ms: float | None
+    """Their exposure, ms (the bracket's longest that two LEDs' light does not clip: :func:`pair_exposure`); None
+    for a ``--bracket`` folder's whose names give none."""
     dark: np.ndarray
     """(H, W, 3) uint8, every LED off."""
     singles: dict

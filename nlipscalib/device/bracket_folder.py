@@ -2,7 +2,9 @@
 cannot set the exposure of, whose vendor's tool can. One image per exposure, the exposure, ms, in its name
 (``gel_2.5ms.png``, ``0.707 ms.tif``), or in ``exposures.csv`` beside them (``file,exposure_ms`` rows), which then
 rules. An image whose name starts with ``dark`` (``dark.png``, ``dark_0.5ms.png``) is a frame with every LED off,
-not one of the bracket: what the camera reads for no light (``device.response_fit.check_black``)."""
+not one of the bracket: what the camera reads for no light (``device.response_fit.check_black``). Optionally, a
+subfolder ``additivity/`` of LEDs lit apart and together at one exposure (:func:`read_pair_frames`): what checks the
+curve's power (``device.additivity``), which no bracket can."""
 
 from __future__ import annotations
 
@@ -24,6 +26,11 @@ MS_IN_NAME = re.compile(r"(\d+(?:\.\d+)?)\s*ms", re.IGNORECASE)
 
 DARK_PREFIX = "dark"
 """The start of a dark frame's name (any case)."""
+PAIRS_FOLDER = "additivity"
+"""The bracket folder's optional subfolder of LEDs lit apart and together (:func:`read_pair_frames`)."""
+LED_NAME = re.compile(r"^led[ _-]?(\d+)(?:\+(\d+))?(?![\d+])", re.IGNORECASE)
+"""A pair frame's name: ``led_3`` (LED 3 lit alone) or ``led_3+9`` (LEDs 3 and 9 lit together), 1-based, then
+anything (``led_3+9_8ms.png``)."""
 
 
 def read_bracket_folder(
@@ -126,3 +133,79 @@ def _exposure_of(path: Path, table: dict[str, float] | None) -> float:
     if not ms > 0 or ms == float("inf"):
         raise CaptureError(f"{path}: exposure {ms:g} ms: must be > 0")
     return ms
+
+
+def read_pair_frames(folder: str | Path) -> tuple[dict, float | None] | None:
+    """The frames of LEDs lit apart and together in a bracket folder's :data:`PAIRS_FOLDER` subfolder, None when it
+    has none: ``dark.png`` (every LED off), ``led_A.png`` and ``led_B.png`` (each LED alone), ``led_A+B.png`` (the
+    two together), for one or more pairs, all at one exposure and LED level (an exposure in the names, ``_8ms``,
+    must be one for all; none is needed).
+
+    Parameters
+    ----------
+    folder : the bracket folder
+
+    Returns
+    -------
+    frames : "dark" -> (H, W, 3) uint16 stored values, as :func:`read_bracket_folder`'s; LED number -> its frame
+        lit alone; (A, B) with A < B -> the frame of the two lit together
+    exposure : ms, from the names, or None when they give none
+
+    Raises
+    ------
+    CaptureError -- one line naming the subfolder or file: no dark frame, no pair, a pair without a frame of each
+        of its LEDs alone, a name that is none of these, two frames of one key, exposures that differ, an image
+        OpenCV cannot read.
+    """
+    sub = Path(folder) / PAIRS_FOLDER
+    if not sub.is_dir():
+        return None
+    example = "dark.png, led_1.png, led_2.png, led_1+2.png"
+    frames: dict = {}
+    times: dict[float, Path] = {}
+    for path in sorted(p for p in sub.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES):
+        key = _pair_key(path, example)
+        if key in frames:
+            raise CaptureError(f"{path}: a second frame of {_pair_name(key)} in {sub}: one each")
+        image = read_image(path)
+        if image is None:
+            raise CaptureError(f"{path}: OpenCV cannot read it as an image")
+        frames[key] = to_stored(image, str(path))[0]
+        for ms in MS_IN_NAME.findall(path.stem)[-1:]:
+            times.setdefault(float(ms), path)
+    pairs = [k for k in frames if isinstance(k, tuple)]
+    if "dark" not in frames or not pairs:
+        missing = "no dark.png (every LED off)" if "dark" not in frames else "no pair lit together (led_A+B.png)"
+        raise CaptureError(f"{sub}: {missing}: the LEDs lit apart and together need {example} (more pairs alike)")
+    for a, b in pairs:
+        for led in (a, b):
+            if led not in frames:
+                raise CaptureError(f"{sub}: led_{a}+{b} without led_{led} (LED {led} lit alone at that exposure)")
+    shapes = {f.shape for f in frames.values()}
+    if len(shapes) > 1:
+        raise CaptureError(f"{sub}: images of {len(shapes)} sizes: one camera setting for all")
+    if len(times) > 1:
+        (t0, p0), (t1, p1) = list(times.items())[:2]
+        raise CaptureError(f"{sub}: {p0.name} at {t0:g} ms, {p1.name} at {t1:g} ms: one exposure for all")
+    return frames, next(iter(times), None)
+
+
+def _pair_key(path: Path, example: str) -> str | int | tuple[int, int]:
+    """A pair frame's key from its name (:data:`LED_NAME`): "dark", an LED's number or a pair (A, B), A < B."""
+    if path.name.lower().startswith(DARK_PREFIX):
+        return "dark"
+    found = LED_NAME.match(path.stem)
+    if found is None or int(found[1]) < 1 or (found[2] is not None and int(found[2]) < 1):
+        raise CaptureError(
+            f"{path}: not a name the LEDs' frames take ({example}: every LED off, each LED alone, two together)"
+        )
+    if found[2] is None:
+        return int(found[1])
+    a, b = sorted((int(found[1]), int(found[2])))
+    if a == b:
+        raise CaptureError(f"{path}: LED {a} with itself: a pair is two LEDs (led_1+2.png)")
+    return a, b
+
+
+def _pair_name(key: str | int | tuple[int, int]) -> str:
+    return key if isinstance(key, str) else f"led_{key}" if isinstance(key, int) else f"led_{key[0]}+{key[1]}"

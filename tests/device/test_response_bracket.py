@@ -423,6 +423,78 @@ def test_a_bracket_folders_dark_frame_is_checked(tmp_path, capsys):
     assert read_response_file(out).provenance["exposures_ms"] == sorted(EXPOSURES, key=lambda ms: f"gel_{ms:g}ms.png")
 
 
+def _write_pairs(folder, ms=8.0, droop=1.0, leds=(1, 2, 7), skip=()):
+    """The LEDs lit apart and together in ``folder/additivity/``: dark, each LED alone, each pair (``droop`` times
+    its light lit apart), at ``ms`` (named in the files)."""
+    import itertools
+
+    sub = folder / "additivity"
+    sub.mkdir()
+    light = {k: LED_LIGHT.get(k, LIGHT) for k in leds}
+    frames = {"dark": _frame(ms, lit=False), **{f"led_{k}": _frame(ms, lit=v) for k, v in light.items()}}
+    for a, b in itertools.combinations(leds, 2):
+        frames[f"led_{a}+{b}"] = _frame(ms, lit=droop * (light[a] + light[b]))
+    for name, frame in frames.items():
+        if name not in skip:
+            cv2.imwrite(str(sub / f"{name}_{ms:g}ms.png"), frame)
+    return sub
+
+
+def test_a_bracket_folder_with_leds_lit_apart_and_together_has_its_curves_power_pinned(tmp_path, capsys):
+    """A vendor tool's bracket whose real times are a power of those named (0.5 (t / 0.5) ** 0.9): no bracket can
+    see it, and the folder's curve was written 4 % off without a word; the folder's additivity/ frames (LEDs lit
+    apart and together) raise the curve back to the camera's, as the command's own frames do."""
+    real = [0.5 * (ms / 0.5) ** 0.9 for ms in EXPOSURES]
+    folder = _write_bracket(tmp_path / "b", EXPOSURES, frame_ms=real)
+    out = tmp_path / "r.json"
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and err[0].startswith(f"--bracket {folder}: no additivity/ subfolder of LEDs lit apart"), err
+    assert f"add {folder / 'additivity'}/ with dark.png, led_1.png, led_2.png, led_1+2.png" in err[0]
+    assert np.abs(np.asarray(read_response_file(out).curve) - _true_curve())[LIT_CODES].max() > 0.03  # unchecked
+    _write_pairs(folder)
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(out)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "the camera's exposure times are a power of the asked ones (t ** 0.9" in err[0], err
+    response = read_response_file(out)
+    assert np.abs(np.asarray(response.curve) - _true_curve())[LIT_CODES].max() < RESPONSE_CURVE_ERROR
+    record = response.provenance["additivity"]
+    assert record["pairs"] == [[1, 2], [1, 7], [2, 7]] and record["exposure_ms"] == 8.0
+    assert abs(record["power"] - 0.9) < 0.01
+
+
+def test_a_bracket_folders_leds_that_dim_each_other_are_one_line(tmp_path, capsys):
+    folder = _write_bracket(tmp_path / "b", EXPOSURES)
+    _write_pairs(folder, droop=0.95)
+    out = tmp_path / "r.json"
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--bracket {folder}: with the fitted curve undone, LEDs 1 and 2 lit together" in err[0]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "skip, extra, problem",
+    [
+        (("led_7",), None, "additivity: led_1+7 without led_7 (LED 7 lit alone at that exposure)"),
+        (("dark",), None, "additivity: no dark.png (every LED off): the LEDs lit apart and together need"),
+        ((), "gel.png", "additivity/gel.png: not a name the LEDs' frames take (dark.png, led_1.png"),
+        ((), "led_3_4ms.png", "additivity: dark_8ms.png at 8 ms, led_3_4ms.png at 4 ms: one exposure for all"),
+    ],
+    ids=["no-single", "no-dark", "stray", "two-exposures"],
+)
+def test_a_bracket_folders_additivity_frames_that_cannot_be_used_are_one_line(tmp_path, capsys, skip, extra, problem):
+    folder = _write_bracket(tmp_path / "b", EXPOSURES)
+    sub = _write_pairs(folder, skip=skip)
+    if extra:
+        cv2.imwrite(str(sub / extra), _frame(4.0))
+    out = tmp_path / "r.json"
+    assert main(["calibrate-camera-response", "--bracket", str(folder), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and problem in err[0], err
+    assert not out.exists()
+
+
 def test_a_16_bit_bracket_gives_the_curve_over_every_16_bit_value(tmp_path, capsys):
     """16-bit frames (a machine-vision camera, a vendor tool's TIFFs): OpenCV's CalibrateRobertson takes 8-bit
     frames only, so the values are binned to 256 codes for the fit; the 256-entry curve, interpolated linearly
