@@ -223,3 +223,56 @@ def test_the_emulated_tone_curves_are_the_commands_choices():
     from nlipscalib.cli.camera_response import TONE_CURVE_CHOICES
 
     assert tuple(EMULATED_TONE_CURVES) == TONE_CURVE_CHOICES
+
+
+def _emulated_camera(monkeypatch, power: float = 1.0, droop: float = 1.0) -> None:
+    """The emulated camera made to take ``0.5 (t / 0.5) ** power`` ms when asked ``t`` (a shutter table of another
+    log base), and to see LEDs lit together at ``droop`` times their drive (a shared supply that sags)."""
+    from nlipscalib import emulator
+
+    class Camera(emulator.EmulatedCamera):
+        def __init__(self, renders, latched, *args, **kwargs):
+            def sagging():
+                colours = np.asarray(latched(), dtype=np.float32)
+                return colours * np.float32(droop) if colours.any(axis=1).sum() > 1 else colours
+
+            super().__init__(renders, sagging, *args, **kwargs)
+
+        @property
+        def exposure_scale(self) -> float:
+            return self._scale
+
+        @exposure_scale.setter
+        def exposure_scale(self, value: float) -> None:
+            self._scale = 0.05 * (value / 0.05) ** power  # 10 ms is scale 1: 0.5 ms, 0.05, is where the two agree
+
+    monkeypatch.setattr(emulator, "EmulatedCamera", Camera)
+
+
+def test_leds_dimmed_two_percent_together_are_refused_not_taken_for_a_power(monkeypatch, tmp_path, capsys):
+    """LEDs lit together at 0.98 of their light apart: the curve as fitted misses by 1.7-2.2 %, and the power that
+    fits best (1.03) left the pair's two mixes 0.39-0.59 % apart over 50 noise seeds and five curves, under the 0.6 %
+    allowed then: the curve was raised by it, ~1 % off, without a word. Clean cameras whose times are a power of the
+    asked ones leave them 0.23 % apart at most (200 runs): the 0.3 % now allowed refuses the sagging pair
+    (benchmarks/RESULTS.md, s32-devleft)."""
+    _emulated_camera(monkeypatch, droop=0.98)
+    out = tmp_path / "r.json"
+    args = ["calibrate-camera-response", "--emulate", "nlipstac", "--emulate-tone-curve", "gamma2.2", *SIZE]
+    assert main([*args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--emulate nlipstac: with the fitted curve undone, LEDs" in err[0], err
+    assert "lit together give 0.98" in err[0] and "the LEDs dim each other when lit together" in err[0]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_times_a_power_of_the_asked_ones_are_pinned_not_refused_over_noise_seeds(monkeypatch, tmp_path, seed):
+    """The false alarm the tighter gap could raise: the emulated camera whose times are ``t ** 0.95`` is pinned
+    (its two mixes 0.02-0.23 % apart once raised), its curve back within the fit's error, on any noise seed."""
+    _emulated_camera(monkeypatch, power=0.95)
+    out = tmp_path / "r.json"
+    args = ["calibrate-camera-response", "--emulate", "nlipstac", "--emulate-tone-curve", "gamma2.2", *SIZE]
+    assert main([*args, "--seed", str(seed), "--out", str(out)]) == 0
+    response = read_response_file(out)
+    assert abs(response.provenance["additivity"]["power"] - 0.95) < 0.01
+    assert np.abs(np.asarray(response.curve) - _true_curve("gamma2.2"))[LIT_CODES].max() < RESPONSE_CURVE_ERROR
