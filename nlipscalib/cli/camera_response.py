@@ -68,7 +68,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "exposure times a power of the asked ones, which no bracket can see) is raised to the power that makes "
         "them add, said in a line; LEDs that dim each other lit together are refused. Channels that respond "
         "differently keep a curve each. On DirectShow and Media Foundation (whole log2-second steps) the bracket "
-        "is taken at the powers of two, said in a line.",
+        "is taken at the powers of two, said in a line; on V4L2 at whole 100 us steps; each exposure is read back "
+        "and the bracket fitted at the times the camera reports (a shutter table's 1/60 s for 16 ms), said in a line.",
     )
     p.add_argument("--out", required=True, help="response JSON to write (for `nlips capture --camera-response`)")
     p.add_argument("--figure", help="PNG of the curve per channel and the measured points (default: OUT with .png)")
