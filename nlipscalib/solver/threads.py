@@ -150,19 +150,10 @@ def sparse_product(L: sp.csr_matrix, M: sp.csr_matrix, sort: bool = False) -> sp
     indptr = [parts[0].indptr]
     for part in parts[1:]:
         indptr.append(part.indptr[1:] + indptr[-1][-1])
-    nnz = int(indptr[-1][-1])
-    data = np.empty(nnz, parts[0].data.dtype)
-    indices = np.empty(nnz, np.result_type(*(part.indices for part in parts)))
-    starts = np.cumsum([0] + [part.nnz for part in parts[:-1]]).tolist()
-
-    def stack(i: int) -> None:  # each part copied on a thread of its own: the copies' fresh pages too
-        part, start = parts[i], starts[i]
-        data[start : start + part.nnz] = part.data
-        indices[start : start + part.nnz] = part.indices
-
-    map_items(stack, range(len(parts)))
-    out = sp.csr_matrix((L.shape[0], M.shape[1]), dtype=data.dtype)
-    out.data, out.indices, out.indptr = data, indices, np.concatenate(indptr)
+    out = sp.csr_matrix((L.shape[0], M.shape[1]), dtype=parts[0].dtype)
+    out.data = np.concatenate([part.data for part in parts])
+    out.indices = np.concatenate([part.indices for part in parts])
+    out.indptr = np.concatenate(indptr)
     if sort:
         out.has_sorted_indices = True  # each block's rows are: no scan of the whole for it
     return out
