@@ -271,10 +271,9 @@ class NormalMatrix:
         parts = [np.ascontiguousarray(M.transpose(0, 2, 1)).ravel()]  # K[a*n + i, b*n + i] = M[a, b, i]
         parts += [np.full(m, float(w)) for m, w in zip(self.sizes, weights)]
         K = sp.csr_matrix((np.concatenate(parts), self._indices, self._indptr), shape=self._shape)
-        # both products and the sort by row blocks on the pool (the bits of one product): an auto-ROI box's level
-        # (111,552 pixels on cube1) took ~30-38 ms of one core per assembly while the other waited, now ~6 ms of the
-        # main thread (benchmarks/RESULTS.md, s32-cubespeed)
-        return threads.sparse_product(self.GT, threads.sparse_product(K, self.G), sort=True)
+        H = (self.GT @ (K @ self.G)).tocsr()
+        H.sort_indices()
+        return H
 
 
 class _FixedPattern:

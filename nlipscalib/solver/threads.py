@@ -116,49 +116,6 @@ class RowBlocks:
         return out
 
 
-def sparse_product(L: sp.csr_matrix, M: sp.csr_matrix, sort: bool = False) -> sp.csr_matrix:
-    """``L @ M`` (CSR) by the row blocks of :class:`RowBlocks` (none where there is one thread or ``L`` has fewer than
-    :data:`PRODUCT_MIN_ROWS` rows: one product) on the pool, stacked by hand: SciPy's ``vstack`` checks and copies
-    took longer than the second thread saved.
-
-    Each row of a product depends on that row of ``L`` alone (SciPy's kernel starts every row afresh), so the result
-    has the bits, the entries and their order within each row of one product on one thread.
-
-    Parameters
-    ----------
-    L : (m, k) scipy.sparse CSR matrix -- read, never written.
-    M : (k, n) scipy.sparse matrix.
-    sort : sort each row's column indices (``sort_indices``), each block on its own thread; the result says so
-        (``has_sorted_indices``).
-
-    Returns
-    -------
-    (m, n) scipy.sparse CSR matrix.
-    """
-    import scipy.sparse as sp
-
-    def product(left: sp.csr_matrix) -> sp.csr_matrix:
-        out = (left @ M).tocsr()
-        if sort:
-            out.sort_indices()
-        return out
-
-    blocks = RowBlocks(L).blocks
-    if not blocks:
-        return product(L)
-    parts = map_items(lambda block: product(block[1]), blocks)
-    indptr = [parts[0].indptr]
-    for part in parts[1:]:
-        indptr.append(part.indptr[1:] + indptr[-1][-1])
-    out = sp.csr_matrix((L.shape[0], M.shape[1]), dtype=parts[0].dtype)
-    out.data = np.concatenate([part.data for part in parts])
-    out.indices = np.concatenate([part.indices for part in parts])
-    out.indptr = np.concatenate(indptr)
-    if sort:
-        out.has_sorted_indices = True  # each block's rows are: no scan of the whole for it
-    return out
-
-
 def _row_view(A: sp.csr_matrix | sp.csr_array, rows: slice) -> sp.csr_matrix:
     """Rows ``rows`` of CSR ``A`` as a CSR matrix whose values and column indices are views of ``A``'s own.
 

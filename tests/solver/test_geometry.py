@@ -192,51 +192,6 @@ def test_the_normal_basis_is_numpys_cross_products_to_the_bit():
         np.testing.assert_array_equal(got, np.cross(a, b))
 
 
-def test_the_normal_matrix_is_assembled_by_row_blocks_on_the_pool_with_the_bits_of_one_product(monkeypatch):
-    """A level of PRODUCT_MIN_ROWS pixels or more (an auto-ROI box) is assembled on the pool's threads (both sparse
-    products and the sort, by rows): the same data, indices and indptr as the one product on one thread, sorted."""
-    import scipy.sparse as sp
-
-    from nlipscalib.solver import threads
-
-    mask = np.ones((30, 40), bool)
-    mask[10:14, 12:20] = False
-    du, dv, _ = geometry.gradient_operators(mask)
-    n = int(mask.sum())
-    extra = (du - dv).tocsr()
-    rng = np.random.default_rng(4)
-    M = rng.normal(size=(3, 3, n))
-    M = M + M.transpose(1, 0, 2)
-    matrix = geometry.NormalMatrix((sp.identity(n, format="csr"), du, dv), [extra])
-    K = sp.csr_matrix(
-        (
-            np.concatenate([np.ascontiguousarray(M.transpose(0, 2, 1)).ravel(), np.full(n, 0.3)]),
-            matrix._indices,
-            matrix._indptr,
-        ),
-        shape=matrix._shape,
-    )
-    expected = (matrix.GT @ (K @ matrix.G)).tocsr()  # the one product, as assembled before (s32-cubespeed)
-    expected.sort_indices()
-    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
-    maps = []
-    real_map = threads.map_items
-    monkeypatch.setattr(threads, "map_items", lambda fn, items: maps.append(1) or real_map(fn, items))
-    before = threads.workers()
-    try:
-        for count in (1, 2):
-            threads.set_workers(count)
-            maps.clear()
-            H = matrix.assemble(M, (0.3,))
-            assert len(maps) == (2 if count == 2 else 0)  # K G, then G^T (K G), each by row blocks
-            for name in ("data", "indices", "indptr"):
-                np.testing.assert_array_equal(getattr(H, name), getattr(expected, name))
-            rows = np.repeat(np.arange(n), np.diff(H.indptr))
-            assert H.has_sorted_indices and np.all((np.diff(H.indices) > 0) | (np.diff(rows) > 0))
-    finally:
-        threads.set_workers(before)
-
-
 def test_the_fixed_pattern_assembly_by_row_blocks_is_the_one_product(monkeypatch):
     """Each row block's task makes its part of H (S's product, the indices' copy, the check for zeros): the bits of
     S @ [M, w] in one product, on one thread or two, zeros left out alike; the arrays H's own."""
