@@ -66,14 +66,7 @@ def map_items(fn: Callable, items: Iterable) -> list:
     if _pool is None:
         _pool = ThreadPoolExecutor(max_workers=workers(), thread_name_prefix=_PREFIX)
     contexts = [contextvars.copy_context() for _ in items]  # one each: a context runs in one thread at a time
-    futures = [_pool.submit(context.run, fn, item) for context, item in zip(contexts[1:], items[1:])]
-    try:
-        first = contexts[0].run(fn, items[0])  # the caller's own share: one thread fewer woken and waited for
-    except BaseException:
-        for future in futures:
-            future.cancel()
-        raise
-    return [first] + [future.result() for future in futures]
+    return list(_pool.map(lambda context, item: context.run(fn, item), contexts, items))
 
 
 def chunks(count: int, parts: int | None = None) -> list[slice]:
