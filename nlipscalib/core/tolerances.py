@@ -92,6 +92,17 @@ a channel, only when more than this share of its area is usable (on the gel, uns
 dark, so a partly usable patch (the gel's edge, a saturated glint, a contact's rim) would read too dim by the
 unusable share and pass for less light than it has; the margin below 1 keeps a wholly usable patch whose
 area-weighted mean rounds to just under 1. The value's own origin is not recorded."""
+INDIRECT_FIT_MIN_SHARE = 0.3
+"""An explicit ``--roi`` box without an undeformed capture: the press's own interreflection fit leaves the box out
+(the contact is in it) only when at least this share of the patches it can fit on over the whole gel lie outside it
+(:func:`nlipscalib.solver.indirect.fit_patch_share`); a box over more of the gel (the whole frame: none left) is fitted
+as a whole-gel solve is, away from the contact it finds (``solver.light_and_contact``). Why: a fit on the ring of
+patches along the frame's edge that a big box leaves comes out low (the twin's one-bounce 640x480 sphere press:
+coating reflectance 0.837 on the whole gel; 0.832, 0.827, 0.823, 0.815 with 49, 36, 26, 16 % of the patches left)
+and the solve with it worse than with the whole gel's fit: with 16 % left (a box over 90 % of the frame's side) the
+contact's depth RMSE +0.011 mm on the sphere press, its AAE +0.015 deg on the cube press, at 640x480 and 320x240
+alike; with 26 % +0.006 mm on the sphere; with 36 % +0.003 mm, the AAE within 0.003 deg (benchmarks/RESULTS.md,
+s32-wholebox). Between the last two: a box that leaves more keeps its own fit (and its results)."""
 ANCHOR_NOISE_FACTOR = 3.0
 """Anchoring: a pixel is undeformed when its misfit to the undeformed model is within this many times the
 misfit that the estimated image noise alone explains."""

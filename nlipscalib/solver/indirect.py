@@ -507,11 +507,55 @@ def fit_indirect(
     )
 
 
+def fit_patch_share(
+    reference: Press,
+    leds: Leds,
+    exclude: np.ndarray,
+    *,
+    shading: np.ndarray | reuse.Deferred | None = None,
+    cache: dict | None = None,
+) -> float:
+    """The share of the patches :func:`fit_indirect` can fit on over the whole gel that it still can with
+    ``exclude`` left out (0 when it can fit on none at all).
+
+    A press that stands in for the undeformed capture leaves its contact out of its own fit; this says whether
+    what is left (of an explicit ``--roi`` box's outside: none when the box covers the gel, a thin ring when it
+    covers most of it) is enough to fit the term on (``light_and_contact``, :data:`tolerances.INDIRECT_FIT_MIN_SHARE`).
+
+    Parameters
+    ----------
+    reference : Press -- the capture to fit on, with ``reference`` (depth, normals).
+    leds : sequence of Led -- the LED model.
+    exclude : (H, W) bool -- the pixels the fit would leave out.
+    shading, cache : as :func:`fit_indirect`'s; ``cache`` is filled here for the fit that follows, which then reads
+        the patch data with this ``exclude`` from it instead of working them out again.
+    """
+    cache = {} if cache is None else cache
+    if not cache:
+        cache.update(_fit_inputs(reference, leds, shading))
+    every = (_patch_data(cache, None)[1] > tolerances.INDIRECT_PATCH_USABLE).any(axis=(0, 2)).sum()
+    left = (_patch_data(cache, exclude)[1] > tolerances.INDIRECT_PATCH_USABLE).any(axis=(0, 2)).sum()
+    return float(left / every) if every else 0.0
+
+
 def _patch_data(cache: dict, exclude: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """The kept patches' mean images and usable fractions, (L, K, 3) each, leaving out ``exclude`` (H, W) bool.
 
     The means over every pixel are worked out once per capture (kept in ``cache``); with ``exclude``, only the
-    patches over the excluded pixels are recomputed."""
+    patches over the excluded pixels are recomputed, and kept in ``cache`` for the next call that leaves out the
+    same pixels (:func:`fit_patch_share`'s, then the fit's: a box over most of a 640x480 frame recomputes most of
+    the patches)."""
+    last = cache.get("excluded")
+    if exclude is not None and last is not None and np.array_equal(last[0], exclude):
+        return last[1]
+    data = _patch_data_uncached(cache, exclude)
+    if exclude is not None:
+        cache["excluded"] = (exclude.copy(), data)  # a copy: the caller's array may change after
+    return data
+
+
+def _patch_data_uncached(cache: dict, exclude: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_patch_data` worked out."""
     surf, lin, usable = cache["surface"], cache["linear"], cache["usable"]
     if "image_means" not in cache:
         if usable is None:  # every sample of the gel usable: the patch weights, zero off the gel, mask alone

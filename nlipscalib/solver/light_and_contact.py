@@ -7,24 +7,28 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..core import diskcache
+from ..core import diskcache, tolerances
 from ..core.capture import Press, unusable_digest
 from ..core.errors import ShapeError
+from ..progress import PRESS_DETAIL
 from . import reuse
 from .contact import ContactMap, classify_contact, prepare_press_side
 from .image_stats import led_levels
-from .indirect import IndirectModel, design_of, fit_indirect, reference_shading
+from .indirect import IndirectModel, design_of, fit_indirect, fit_patch_share, reference_shading
 from .press_checks import check_undeformed
 from .roi import box_mask, contact_pixels
 
 if TYPE_CHECKING:  # named in hints only
     from ..core.leds import Leds
+
+log = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -131,7 +135,8 @@ class _IndirectFitter:
     again: object
     """(exclude=...) -> IndirectModel: the fit again, leaving out ``exclude`` (the press's own fit)."""
     refits: bool
-    """Whether the contact found with the first fit should be left out of a second one."""
+    """Whether the contact found with the first fit should be left out of a second one (set by :attr:`first` when
+    an explicit box leaves too little of the gel to fit on: :func:`_box_leaves_fit`)."""
     contact_cache: dict = dataclasses.field(default_factory=dict)
     """The press's side of the contact classification, shared by the classifications of one solve."""
 
@@ -144,9 +149,7 @@ def _indirect_fitter(sources: Sources, shading: reuse.Deferred | None) -> _Indir
         return None
     H, W = press.camera.shape
     source = ref_capture if ref_capture is not None else press
-    exclude = box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
-    # a press without a known contact is fitted twice: the first fit only finds the contact
-    rough = ref_capture is None and explicit_roi is None
+    box = box_mask(explicit_roi, (H, W)) if ref_capture is None and explicit_roi is not None else None
     cache = {}
     fit = functools.partial(
         fit_indirect,
@@ -172,7 +175,12 @@ def _indirect_fitter(sources: Sources, shading: reuse.Deferred | None) -> _Indir
     else:
 
         def first():
-            return fit(exclude=exclude, iterations=1 if rough else 3)
+            # the press stands in for the undeformed capture: its fit leaves out the user's box when enough of the
+            # gel is left outside it; else (no box, or one over most of the gel) a first fit only finds the contact
+            # and the fit is made again without it (``again``)
+            if box is not None and not _box_leaves_fit(press, leds, box, interreflection, shading, cache):
+                fitter.refits = True
+            return fit(exclude=None if fitter.refits else box, iterations=1 if fitter.refits else 3)
 
     def again(exclude: np.ndarray) -> IndirectModel:
         # on from the rough fit's kappa and light (warm): 2 alternations land as near the fixed point as 3 from
@@ -180,7 +188,30 @@ def _indirect_fitter(sources: Sources, shading: reuse.Deferred | None) -> _Indir
         # alternation moves it), one kappa search and gather fewer
         return fit(exclude=exclude, iterations=REFIT_ALTERNATIONS, warm=True)
 
-    return _IndirectFitter(first=first, again=again, refits=rough)
+    fitter = _IndirectFitter(first=first, again=again, refits=ref_capture is None and box is None)
+    return fitter
+
+
+def _box_leaves_fit(
+    press: Press, leds: Leds, box: np.ndarray, mode: str, shading: reuse.Deferred | None, cache: dict
+) -> bool:
+    """Whether the press's own indirect fit can leave out the explicit ROI ``box`` ((H, W) bool): at least
+    ``tolerances.INDIRECT_FIT_MIN_SHARE`` of the patches it fits on over the whole gel lie outside it (a box
+    over the whole frame leaves none, a thin ring fits the term low). ``cache``: the fit's, filled here."""
+    if mode == "off":  # nothing is fitted
+        return True
+    share = fit_patch_share(press, leds, box, shading=shading, cache=cache)
+    if share >= tolerances.INDIRECT_FIT_MIN_SHARE:
+        return True
+    log.info(
+        "%s: the --roi box leaves %.0f %% of the gel's patches outside it (under %.0f %%): the interreflection term "
+        "is fitted on the whole gel away from the contact found, as without --roi",
+        press.folder,
+        100 * share,
+        100 * tolerances.INDIRECT_FIT_MIN_SHARE,
+        extra=PRESS_DETAIL,
+    )
+    return False
 
 
 REFIT_ALTERNATIONS = 2

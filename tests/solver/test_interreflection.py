@@ -93,6 +93,46 @@ def test_a_warm_refit_lands_where_a_longer_cold_one_does(bounce1):
     assert cold(3, cache={}, warm=True) == cold(3)  # with no earlier fit in its cache a warm fit is the cold one
 
 
+def test_an_explicit_box_over_most_of_the_gel_is_fitted_as_the_whole_gel(bounce1):
+    """Without an undeformed capture the press's own fit leaves an explicit box out; a box over the whole frame
+    left nothing to fit on ("no usable pixel to fit the interreflection term on") and one over all but a ring of
+    patches fitted the term on that ring alone. Both are now fitted as the whole gel is (away from the contact
+    found): the whole-frame box solves to the whole gel's arrays, and the ring box gets the whole gel's term; a box
+    around the contact still leaves it out (its own fit, another kappa)."""
+    from nlipscalib.core import tolerances
+    from nlipscalib.solver.roi import box_mask
+
+    _, press = bounce1
+    H, W = press.camera.shape
+    fast = SolverOptions(max_iters=5)
+    whole = solve_press(press, options=fast)
+    boxed = solve_press(press, roi=(0, 0, W, H), options=fast)
+    for name, a in whole.arrays().items():
+        np.testing.assert_array_equal(getattr(boxed, name), a, err_msg=name)
+    ring = (4, 4, W - 8, H - 8)  # leaves one ring of the fit's 4-pixel patches
+    from nlipscalib.solver.indirect import fit_patch_share  # after the whole-frame box: what failed before it
+
+    share = fit_patch_share(press, press.leds, box_mask(ring, (H, W)))
+    assert 0 < share < tolerances.INDIRECT_FIT_MIN_SHARE, share  # the premise: a few patches left
+    kappa = whole.report["interreflection"]["kappa"]
+    assert solve_press(press, roi=ring, options=SolverOptions(max_iters=1)).report["interreflection"]["kappa"] == kappa
+    around = solve_press(press, roi=contact_box(press.ground_truth.contact), options=SolverOptions(max_iters=1))
+    assert around.report["interreflection"]["kappa"] != kappa
+
+
+def test_fit_patch_share_counts_the_patches_left_to_fit_on(bounce1):
+    from nlipscalib.solver.indirect import fit_patch_share
+
+    _, press = bounce1
+    H, W = press.camera.shape
+    none, every = np.zeros((H, W), bool), np.ones((H, W), bool)
+    half = none.copy()
+    half[:, : W // 2] = True  # the fit's patches are 4 pixels: half of them, the gel's edge alike on both sides
+    assert fit_patch_share(press, press.leds, none) == 1.0
+    assert fit_patch_share(press, press.leds, every) == 0.0
+    assert fit_patch_share(press, press.leds, half) == pytest.approx(0.5, abs=0.02)
+
+
 def test_fit_finds_no_interreflection_in_a_textured_bounce0_capture(textured):
     flat, _ = textured
     model = fit_indirect(flat)
