@@ -7,9 +7,13 @@ for that LED (benchmarks/RESULTS.md, s31-darkall). The band's samples are marked
 (:func:`nlipscalib.core.capture.with_unusable_samples`, as saturated ones are), so the LED's fit, the indirect term's
 fit and the contact check all leave them out; the rest of the LED's image is fitted.
 
+An LED image that repeats the one before it whole (a stale frame) is left out of that LED's fit alike, the LED kept at
+its starting values where no capture holds its light (:func:`without_repeated_images`).
+
 Lagged bands are found from the images alone, before the fit (:func:`nlipscalib.core.repeated_frames.lagged_bands`);
 dark bands against the fitted LEDs, after the first fit (:func:`.calibration_contact._dark_rows_of`'s reason: an LED
-far from its design ends its light where the design's would not).
+far from its design ends its light where the design's would not), and a band over more than half an image against the
+converged LEDs (:func:`half_dark_bands`).
 """
 
 from __future__ import annotations
