@@ -250,6 +250,9 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     if cal.emitters:
         say(f"LEDs as {diameter:g} mm disks (the physical centre and axis, written as emitters):")
         for i, (disk, led) in enumerate(zip(cal.emitters, cal.leds)):
+            if i in cal.not_fitted:
+                say(f"{i + 1:>3} not fitted: its starting values")
+                continue
             shift = np.subtract(led.position, disk.position)
             tilt = float(angle_deg(disk.direction, led.direction))
             along = float(shift @ np.asarray(disk.direction))
