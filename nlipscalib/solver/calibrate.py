@@ -41,6 +41,7 @@ from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
 from ..core.repeated_frames import dark_everywhere_line, dark_line, frame_checks
 from .calibration_bands import (
+    NOTHING_TO_FIT,
     dark_notes,
     half_dark_bands,
     masked,
@@ -480,7 +481,7 @@ def _check_calibration_inputs(
     # 3 finite numbers" (~40 ms per 640x480 capture; its linear images are the ones capture_samples made)
     for p in presses:
         if why := nothing_to_fit(p):
-            raise CaptureError(f"{p.folder}: no usable pixel to calibrate the LEDs on{why}")
+            raise CaptureError(NOTHING_TO_FIT.format(folder=p.folder, why=why))
         _check_lit(p)
     used = sum(len(d[0]) for d in data)
     if used < tolerances.CALIBRATION_MIN_PIXELS:

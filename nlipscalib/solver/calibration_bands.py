@@ -66,6 +66,11 @@ REPEATED_REFUSED = (
 """The tail of the refusal when too few LEDs would be fitted without the repeated ones."""
 
 
+NOTHING_TO_FIT = "{folder}: no usable pixel to calibrate the LEDs on{why}"
+"""The LED calibration's refusal of a capture black or saturated throughout (``why``: :func:`.exposure.nothing_to_fit`'s
+words)."""
+
+
 class Repeats(NamedTuple):
     """The captures' LED images that repeat the image before them (:func:`without_repeated_images`)."""
 
@@ -87,6 +92,8 @@ def without_repeated_images(presses: Sequence[Press]) -> Repeats:
     Why: such a capture was refused whole ("the LED calibration needs each LED's own light") while ``nlips solve``
     and its ``--reference`` capture leave that LED out (s31-halfdark); fitted, the LED went to the place of the LED
     before it and was called reliable (s27 QA walk)."""
+    from .exposure import nothing_to_fit
+
     found = [_frame_faults(p)[0] for p in presses]
     count = len(presses[0].leds)
     held = set(range(count))
@@ -99,6 +106,8 @@ def without_repeated_images(presses: Sequence[Press]) -> Repeats:
             continue
         line = repeated_line(p.folder, _names(p), repeated)
         if count - len(held) < tolerances.MIN_LEDS_PER_PIXEL:
+            if why := nothing_to_fit(p):  # saturated throughout: every image alike, said as such (not stale frames)
+                raise CaptureError(NOTHING_TO_FIT.format(folder=p.folder, why=why))
             raise CaptureError(f"{line}{REPEATED_REFUSED.format(least=tolerances.MIN_LEDS_PER_PIXEL)}")
         mask = np.zeros((count, *p.camera.shape), bool)
         mask[[i for i, _ in repeated]] = True

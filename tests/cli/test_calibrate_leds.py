@@ -9,7 +9,9 @@ from nlipscalib.cli import main
 from tests.solver import synth
 
 
-def test_a_stale_led_frame_is_left_out_the_led_kept_at_its_start_said_in_the_table_and_the_file(tmp_path, capsys, caplog):
+def test_a_stale_led_frame_is_left_out_and_its_led_kept_at_its_start_in_the_table_and_the_file(
+    tmp_path, capsys, caplog
+):
     """A camera that handed out a stale frame (led_05.png a copy of led_04.png): the command refused the capture
     (exit 2) while `nlips solve` leaves that LED out. Now it writes the LED file (exit 0) with one warning, the LED's
     table row "not fitted", and the file's ``not_fitted`` and ``warnings``."""
