@@ -240,13 +240,19 @@ def _fit_and_write(args: argparse.Namespace) -> int:
     say(" ".join(f"{h:>{w}}" for h, w in zip(head, (3, 7, 7, 7, 6, 6, 10, 9))))
     for i, (led, sd) in enumerate(zip(cal.leds, cal.std)):
         r, g, b = led.intensity
-        say(
-            f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {sd['mu']:>6.3f} "
-            f"{sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}"
+        # an LED not fitted (its image a stale frame in every capture): its starting values, said in its warning
+        spread = (
+            f"{sd['mu']:>6.3f} {sd['direction_deg']:>10.3f} {max(sd['position_mm']):>9.4f}"
+            if i not in cal.not_fitted
+            else "  not fitted: starting values"
         )
+        say(f"{i + 1:>3} {r:>7.3f} {g:>7.3f} {b:>7.3f} {led.mu:>6.3f} {spread}")
     if cal.emitters:
         say(f"LEDs as {diameter:g} mm disks (the physical centre and axis, written as emitters):")
         for i, (disk, led) in enumerate(zip(cal.emitters, cal.leds)):
+            if i in cal.not_fitted:
+                say(f"{i + 1:>3} not fitted: its starting values")
+                continue
             shift = np.subtract(led.position, disk.position)
             tilt = float(angle_deg(disk.direction, led.direction))
             along = float(shift @ np.asarray(disk.direction))

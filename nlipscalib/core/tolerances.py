@@ -547,6 +547,13 @@ fitted (gain and offset) to the previous LED's modelled light leaves less than t
 LED's (:func:`nlipscalib.solver.led_checks.shifted_rows`). The twin's presses (/tmp/keep, 640x480, 16 bands of 30
 rows): 1.18 and above in every band; bands read before the switch: 0.09-0.48 (s28-rolling). Bands of columns alike
 (a camera turned 90 degrees; 16 bands of 40 columns at 640): see benchmarks/RESULTS.md, s31-darkall."""
+HALF_DARK_NOISE = 3.0
+"""A band over more than half an LED's image, looked for on the LED calibration's converged LEDs
+(:func:`nlipscalib.solver.calibration_bands.half_dark_bands`), is called dark only when its gel pixels' median light
+(linear, the channels' mean) is at most this many times its image's noise: the dark frame's level. Why: against the
+converged LEDs of s31-ledfar's twin (LEDs 3 mm / 25 deg off their design, one bounce, 160x120) LEDs 4 and 5 came out
+"dark" in columns 75-159 / 0-114 at the light-ratio test alone while their light there was 51 / 40 times the noise; a
+band read while the LED was off holds the dark frame's noise (median about 0) (s32-ledleft)."""
 DARK_BAND_ROWS = 3
 """Fewest bands of :data:`CAPTURE_CHECK_BLUR` rows (columns) in a run, 15 pixels, for an LED image's rows (or every
 LED image's) to be called dark at the bands' test: read while no LED was lit; shorter runs are looked at row by row

@@ -39,8 +39,16 @@ from ..core.capture import Press, as_press
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, ConfigError
 from ..core.leds import Led, Leds
-from ..core.repeated_frames import dark_everywhere_line, frame_checks, repeated_line
-from .calibration_bands import dark_notes, without_dark_bands, without_lagged_bands
+from ..core.repeated_frames import dark_everywhere_line, dark_line, frame_checks
+from .calibration_bands import (
+    NOTHING_TO_FIT,
+    dark_notes,
+    half_dark_bands,
+    masked,
+    without_dark_bands,
+    without_lagged_bands,
+    without_repeated_images,
+)
 from .calibration_contact import contact_notes, contact_refusal, contact_regions, led_cause
 from .calibration_quality import fit_quality, quality_warning, single_led_warnings
 from .calibration_term import (
@@ -56,7 +64,7 @@ from .calibration_term import (
     unused_reflectance,
 )
 from .exposure import nothing_to_fit, saturated_share, saturation_note
-from .led_checks import linearity_notes
+from .led_checks import image_names, linearity_notes
 from .led_fit import LedFitRanOff, Samples, capture_samples, to_leds
 
 if TYPE_CHECKING:  # named in hints only
@@ -114,6 +122,9 @@ class LedCalibration:
     """Per capture, the LED images' dark bands left out of their LEDs' fits
     (:func:`.calibration_bands.without_dark_bands`, :class:`.repeated_frames.DarkBand`); empty when no capture had
     one."""
+    not_fitted: tuple[int, ...] = ()
+    """The LEDs (0-based) not fitted, kept at their starting values: their image repeats the one before it in every
+    capture (:func:`.calibration_bands.without_repeated_images`); their ``std`` and ``rms`` NaN. Empty: all fitted."""
 
     def to_json(self) -> dict:
         out = {
@@ -134,6 +145,8 @@ class LedCalibration:
             out["contact_pixels"] = list(self.contact_pixels)
         if self.led_order is not None:
             out["led_order"] = list(self.led_order)
+        if self.not_fitted:
+            out["not_fitted"] = list(self.not_fitted)
         return out
 
 
@@ -217,6 +230,9 @@ def calibrate_leds(
     if not presses:
         raise CaptureError("calibrate_leds needs at least one capture")
     presses, order_notes, order = _in_shown_order(presses, initial, reorder_leds)
+    # a stale frame (an LED image repeating the one before it): out of that LED's fit, its LED held where no capture
+    # holds its light
+    presses, repeated_notes, held = without_repeated_images(presses)
     presses, lagged_notes = without_lagged_bands(presses)  # read across the LED switch: that band out of its LED's fit
     if stride is None:
         stride = default_stride(presses[0].camera.shape)
@@ -225,11 +241,12 @@ def calibrate_leds(
     )
     try:
         cal = _with_term_if_needed(_calibrate(presses, settings), presses, settings)
+        cal = _without_half_dark(cal, presses, settings)
     except LedFitRanOff as error:
         raise CaptureError(ran_off_line(presses, error.led, settings.initial)) from None
     _check_finite(cal, presses[0].folder)
     shares = [saturated_share(p) for p in presses]  # first: a likely cause of the warnings after it
-    notes = order_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
+    notes = order_notes + repeated_notes + lagged_notes + dark_notes(presses, cal.dark_bands)
     notes += [n for p, share in zip(presses, shares) if (n := saturation_note(p, share, "the LED fit"))]
     notes += contact_notes(presses, cal.contact_pixels, cal.contact_causes)
     notes += unused_reflectance(cal.interreflection, interreflection, coating_reflectance)
@@ -241,7 +258,27 @@ def calibrate_leds(
     for note in notes:
         log.warning(note)
     shares = tuple(round(v, 4) for v in shares)
-    return dataclasses.replace(cal, warnings=tuple(notes), saturated_share=shares, led_order=order)
+    return dataclasses.replace(cal, warnings=tuple(notes), saturated_share=shares, led_order=order, not_fitted=held)
+
+
+def _without_half_dark(cal: LedCalibration, presses: list[Press], s: _Settings) -> LedCalibration:
+    """``cal``, or, when a capture's LED image is dark over more than half against its LEDs
+    (:func:`.calibration_bands.half_dark_bands`), the calibration again with those bands left out of their LEDs' fits
+    as the other dark bands are (:func:`.calibration_bands.masked`: refused when a band leaves an LED under
+    ``tolerances.CALIBRATION_MIN_LED_KEPT`` of the gel), its ``dark_bands`` holding them (the warning names them)."""
+    known = cal.dark_bands or ((),) * len(presses)
+    half = half_dark_bands(presses, cal.leds, known)
+    if not any(half):
+        return cal
+    found = tuple((*k, *h) for k, h in zip(known, half))
+    names = [image_names(p) for p in presses]
+    masked_presses = [
+        masked(p, list(bands), dark_line(p.folder, n, list(bands))) if bands else p
+        for p, bands, n in zip(presses, found, names)
+    ]
+    s = dataclasses.replace(s, dark_bands=found)
+    again = _with_term_if_needed(_calibrate(masked_presses, s), masked_presses, s)
+    return dataclasses.replace(again, dark_bands=found)
 
 
 def _in_shown_order(
@@ -444,7 +481,7 @@ def _check_calibration_inputs(
     # 3 finite numbers" (~40 ms per 640x480 capture; its linear images are the ones capture_samples made)
     for p in presses:
         if why := nothing_to_fit(p):
-            raise CaptureError(f"{p.folder}: no usable pixel to calibrate the LEDs on{why}")
+            raise CaptureError(NOTHING_TO_FIT.format(folder=p.folder, why=why))
         _check_lit(p)
     used = sum(len(d[0]) for d in data)
     if used < tolerances.CALIBRATION_MIN_PIXELS:
@@ -518,9 +555,9 @@ def _check_lit(press: Press) -> None:
     """CaptureError, in one line naming the file, for a capture whose dark frame holds light or one of whose LED
     images is dark (a dead LED: no light to fit it on). Why: the LED fit of a dead LED diverged, ending on
     numpy's "Mean of empty slice" and "led.intensity must be 3 finite numbers, got (inf, inf, inf)"; an LED image
-    saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference). Also for an LED image that
-    repeats the one before it (:mod:`nlipscalib.core.repeated_frames`): it was fitted at the place of the LED before
-    it and called reliable (s27 QA walk, a webcam whose frames lag the LEDs). Gamma-encoded LED images are warned
+    saved as the dark frame ran past 200 s (s26 QA walk on the twin's 640x480 reference). Also for rows dark in
+    every LED image (an LED image that repeats the one before it is left out of its LED's fit before:
+    :func:`.calibration_bands.without_repeated_images`). Gamma-encoded LED images are warned
     about (:func:`.led_checks.linearity_notes`): the fit absorbed an sRGB curve and called itself reliable; so are
     JPEG-compressed ones (:mod:`nlipscalib.core.compression`)."""
     from .exposure import dark_file, dark_frame_fault, gel_of
@@ -537,17 +574,11 @@ def _check_lit(press: Press) -> None:
             f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
             f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
         )
-    repeated, _, dark = frame_checks(press.linear_led_images, gel)
+    dark = frame_checks(press.linear_led_images, gel)[2]  # a repeated image: calibration_bands, before the fit
     if dark is not None:
         # rows at the dark frame's level in every image: each LED would be fitted to light it never gave
         line = dark_everywhere_line(press.folder, dark)
         raise CaptureError(f"{line}; the LED calibration needs each LED's light over the whole gel")
-    if repeated:  # a partly lagged image's band is left out of its LED's fit (calibration_bands)
-        names = (press.meta.get("images") or {}).get("leds") or []
-        names = names if len(names) == len(press.leds) else [f"LED {i + 1}" for i in range(len(press.leds))]
-        # each repeated image would be fitted as its own LED at the place of the LED before it, "reliable"
-        line = repeated_line(press.folder, names, repeated)
-        raise CaptureError(f"{line}; the LED calibration needs each LED's own light")
     if (value := compressed(press.led_images, gel)) is not None:
         log.warning("%s", blockiness_line(press.folder, "the LED images", value))
     if press.reference is not None:

@@ -7,14 +7,19 @@ for that LED (benchmarks/RESULTS.md, s31-darkall). The band's samples are marked
 (:func:`nlipscalib.core.capture.with_unusable_samples`, as saturated ones are), so the LED's fit, the indirect term's
 fit and the contact check all leave them out; the rest of the LED's image is fitted.
 
+An LED image that repeats the one before it whole (a stale frame) is left out of that LED's fit alike, the LED kept at
+its starting values where no capture holds its light (:func:`without_repeated_images`).
+
 Lagged bands are found from the images alone, before the fit (:func:`nlipscalib.core.repeated_frames.lagged_bands`);
 dark bands against the fitted LEDs, after the first fit (:func:`.calibration_contact._dark_rows_of`'s reason: an LED
-far from its design ends its light where the design's would not).
+far from its design ends its light where the design's would not), and a band over more than half an image against the
+converged LEDs (:func:`half_dark_bands`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
@@ -22,7 +27,15 @@ from ..core import tolerances
 from ..core.capture import Press, with_unusable_samples
 from ..core.errors import CaptureError
 from ..core.leds import Leds
-from ..core.repeated_frames import DarkBand, LaggedBand, dark_band_mask, dark_line, frame_checks, lagged_line
+from ..core.repeated_frames import (
+    DarkBand,
+    LaggedBand,
+    dark_band_mask,
+    dark_line,
+    frame_checks,
+    lagged_line,
+    repeated_line,
+)
 
 LAGGED_FIT_DONE = (
     f"; left out of that LED's fit (and of the indirect term's) with {tolerances.DARK_BAND_MARGIN} rows (columns) "
@@ -37,14 +50,86 @@ DARK_FIT_DONE = (
 """What the LED calibration does about an LED image's dark rows (columns) (:func:`.dark_line`'s ``done``)."""
 
 
+REPEATED_FITTED_ELSEWHERE = "; left out of that LED's fit (it holds the light of the LED before it), fitted on {}"
+"""What the LED calibration does about a capture's LED image that repeats the one before it (:func:`.repeated_line`'s
+tail) where another capture holds that LED's own light: the other captures' names."""
+REPEATED_HELD = (
+    "; {leds} not fitted (no capture holds its own light): kept at its starting values (the capture's meta.json "
+    "LEDs), the LED file's not_fitted; capture the undeformed dome again to calibrate it"
+)
+"""What the LED calibration does about an LED whose image repeats the one before it in every capture: it is held at
+its start (:func:`.led_fit.held_fit`), as a solve leaves such an LED out (:data:`.led_checks.REPEATED_REASON`)."""
+REPEATED_REFUSED = (
+    "; the LED calibration needs each LED's own light, and at least {least} LEDs fitted to keep the others at their "
+    "starting values: capture the undeformed dome again"
+)
+"""The tail of the refusal when too few LEDs would be fitted without the repeated ones."""
+
+
+NOTHING_TO_FIT = "{folder}: no usable pixel to calibrate the LEDs on{why}"
+"""The LED calibration's refusal of a capture black or saturated throughout (``why``: :func:`.exposure.nothing_to_fit`'s
+words)."""
+
+
+class Repeats(NamedTuple):
+    """The captures' LED images that repeat the image before them (:func:`without_repeated_images`)."""
+
+    presses: list[Press]
+    """The captures, each repeated image marked unusable whole for its LED."""
+    notes: list[str]
+    """One warning per capture with a repeated image."""
+    held: tuple[int, ...]
+    """The LEDs (0-based) repeated in every capture: no light of theirs to fit, held at their start."""
+
+
+def without_repeated_images(presses: Sequence[Press]) -> Repeats:
+    """The captures with each LED image that repeats the one before it (:func:`.frame_checks`' first list: a camera
+    that handed out a stale frame; the later of the two is the stale one, as the solve decides,
+    :func:`.led_checks.led_check`) marked unusable whole for that LED, one warning per such capture, and the LEDs
+    stale in every capture: those keep their starting values (:func:`.led_fit.held_fit`). CaptureError (the line and
+    what to do) when fewer than ``tolerances.MIN_LEDS_PER_PIXEL`` LEDs would be fitted.
+
+    Why: such a capture was refused whole ("the LED calibration needs each LED's own light") while ``nlips solve``
+    and its ``--reference`` capture leave that LED out (s31-halfdark); fitted, the LED went to the place of the LED
+    before it and was called reliable (s27 QA walk)."""
+    from .exposure import nothing_to_fit
+
+    found = [_frame_faults(p)[0] for p in presses]
+    count = len(presses[0].leds)
+    held = set(range(count))
+    for p, repeated in zip(presses, found):
+        held &= {i for i, _ in repeated} if p.reference is not None else set()
+    out, notes = [], []
+    for p, repeated in zip(presses, found):
+        if not repeated:
+            out.append(p)
+            continue
+        line = repeated_line(p.folder, _names(p), repeated)
+        if count - len(held) < tolerances.MIN_LEDS_PER_PIXEL:
+            if why := nothing_to_fit(p):  # saturated throughout: every image alike, said as such (not stale frames)
+                raise CaptureError(NOTHING_TO_FIT.format(folder=p.folder, why=why))
+            raise CaptureError(f"{line}{REPEATED_REFUSED.format(least=tolerances.MIN_LEDS_PER_PIXEL)}")
+        mask = np.zeros((count, *p.camera.shape), bool)
+        mask[[i for i, _ in repeated]] = True
+        out.append(with_unusable_samples(p, mask))
+        if own := {i for i, _ in repeated} - held:
+            others = ", ".join(str(q.folder) for q, r in zip(presses, found) if not own & {i for i, _ in r})
+            line += REPEATED_FITTED_ELSEWHERE.format(others)
+        if mine := sorted(held & {i for i, _ in repeated}):
+            line += REPEATED_HELD.format(leds=", ".join(f"LED {i + 1}" for i in mine))
+        notes.append(line)
+    return Repeats(out, notes, tuple(sorted(held)))
+
+
 def without_lagged_bands(presses: Sequence[Press]) -> tuple[list[Press], list[str]]:
     """The captures with each LED image's lagged band (:func:`.frame_checks`: rows or columns read before its LED
     switched) marked unusable for that LED (:func:`.dark_band_mask`: the band, its margin, on to the frame's edge),
     and one warning line per capture with such a band; CaptureError when a band leaves too little of its LED
-    (:func:`check_left`). Repeated images and rows dark in every image are refused by the calibration's own check."""
+    (:func:`check_left`). Repeated images: :func:`without_repeated_images`; rows dark in every image are refused by
+    the calibration's own check."""
     out, notes = [], []
     for p in presses:
-        bands = _lagged(p)
+        bands = _frame_faults(p)[1]
         if bands:
             names = _names(p)
             line = lagged_line(p.folder, names, bands)
@@ -60,7 +145,7 @@ def without_dark_bands(presses: Sequence[Press], leds: Leds) -> tuple[list[Press
     when a band leaves too little of its LED (:func:`check_left`)."""
     from .led_checks import dark_rows
 
-    found = tuple(tuple(dark_rows(p, leds, range(len(leds)))) if p.reference is not None else () for p in presses)
+    found = tuple(tuple(dark_rows(p, leds, _own_light(p))) if p.reference is not None else () for p in presses)
     if not any(found):
         return list(presses), found
     out = []
@@ -72,6 +157,51 @@ def without_dark_bands(presses: Sequence[Press], leds: Leds) -> tuple[list[Press
 def dark_notes(presses: Sequence[Press], found: Sequence[Sequence[DarkBand]]) -> list[str]:
     """One warning line per capture with dark bands left out (:func:`without_dark_bands`' ``found``)."""
     return [dark_line(p.folder, _names(p), list(b), DARK_FIT_DONE) for p, b in zip(presses, found) if b]
+
+
+def half_dark_bands(
+    presses: Sequence[Press], leds: Leds, known: Sequence[Sequence[DarkBand]]
+) -> tuple[tuple[DarkBand, ...], ...]:
+    """Per capture, its LED images' dark bands over more than half an image against the calibrated ``leds``
+    (:func:`.led_checks.dark_rows` with ``mostly_dark``) that the median's look does not find, of the LEDs without a
+    band ``known`` (per capture, those left out already; may be empty); all empty: none.
+
+    Why: over half dark, a band puts the LED's median light at the dark frame's noise and goes unseen by the look
+    against the first fit (:func:`without_dark_bands`); a fit that converges anyway (the robust loss leaves the dark
+    rows) took it without a word (s31-halfdark: a noise-free capture's LED 5 dark in rows 0-64 of 120). Asked of the
+    converged LEDs, not the first fit's: against those an LED far from its design ends its own light at its
+    terminator over as much (s31-ledfar's twin: LEDs 4 and 5 "dark" over 56 % of their images)."""
+    from .led_checks import dark_rows
+
+    out = []
+    for p, bands in zip(presses, list(known) or [()] * len(presses)):
+        if p.reference is None:
+            out.append(())
+            continue
+        live = [i for i in _own_light(p) if i not in {band.index for band in bands}]
+        plain = {band.index for band in dark_rows(p, leds, live)}
+        half = [band for band in dark_rows(p, leds, live, mostly_dark=True) if band.index not in plain]
+        out.append(tuple(band for band in half if _at_dark_level(p, band)))
+    return tuple(out)
+
+
+def _at_dark_level(press: Press, band: DarkBand) -> bool:
+    """Whether ``band``'s gel pixels hold the dark frame's level in its LED's image: their median light (linear, the
+    channels' mean) at most :data:`~nlipscalib.core.tolerances.HALF_DARK_NOISE` times the image's noise
+    (:func:`.image_stats.image_noise`, at least one ADC step: a noise-free capture)."""
+    from .calibration_quality import adc_step
+    from .image_stats import image_noise
+
+    gel = np.isfinite(press.reference.depth)
+    inside = np.zeros_like(gel)
+    start, stop = band.rows
+    if band.axis == "rows":
+        inside[start:stop] = True
+    else:
+        inside[:, start:stop] = True
+    image = press.linear_led_images[band.index]
+    noise = max(image_noise(image[None], gel), adc_step(press))
+    return bool(np.median(image[inside & gel].mean(-1)) <= tolerances.HALF_DARK_NOISE * noise)
 
 
 HALF_DARK_DONE = (
@@ -89,7 +219,7 @@ def half_dark_line(press: Press, leds: Leds) -> str | None:
     light as far, so the look is not made on a fit that converged."""
     from .led_checks import dark_rows
 
-    bands = dark_rows(press, leds, range(len(press.leds)), mostly_dark=True) if press.reference is not None else []
+    bands = dark_rows(press, leds, _own_light(press), mostly_dark=True) if press.reference is not None else []
     return dark_line(press.folder, _names(press), bands, HALF_DARK_DONE) if bands else None
 
 
@@ -118,11 +248,19 @@ def check_left(press: Press, mask: np.ndarray, line: str) -> None:
         )
 
 
-def _lagged(press: Press) -> list[LaggedBand]:
-    """The capture's partly lagged LED images (:func:`.frame_checks`' second list; none without a surface)."""
+def _frame_faults(press: Press) -> tuple[list[tuple[int, float]], list[LaggedBand]]:
+    """The capture's LED images that repeat the one before them, whole and partly (:func:`.frame_checks`' first two
+    lists; none without a surface)."""
     if press.reference is None:
-        return []
-    return frame_checks(press.linear_led_images, np.isfinite(press.reference.depth))[1]
+        return [], []
+    return frame_checks(press.linear_led_images, np.isfinite(press.reference.depth))[:2]
+
+
+def _own_light(press: Press) -> list[int]:
+    """The LEDs (0-based) whose image holds some of their own light: all but those marked unusable throughout (a
+    repeated image, :func:`without_repeated_images`: its light is another LED's, no band of it to look for)."""
+    whole = press.saturated_led_images.all(axis=(1, 2, 3))
+    return [i for i in range(len(press.leds)) if not whole[i]]
 
 
 def _names(press: Press) -> list[str]:

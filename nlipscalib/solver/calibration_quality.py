@@ -3,6 +3,7 @@ own noise and the LED model's error (:func:`fit_quality`), and the warning for a
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -34,9 +35,19 @@ def _led_noise(presses: Sequence[Press]) -> np.ndarray:
         per.append(
             [image_noise(lin[i : i + 1], valid & ~banded[i] if banded is not None else valid) for i in range(len(lin))]
         )
-    r = presses[0].response
-    step = 2.0 ** (16 - r.bit_depth) / (r.white_level - r.black_level)
-    return np.maximum(np.median(np.asarray(per, float), axis=0), step)
+        if banded is not None:  # an image left out whole (a stale frame, calibration_bands): no estimate of it here
+            per[-1] = [np.nan if (valid & ~banded[i]).sum() == 0 else v for i, v in enumerate(per[-1])]
+    step = adc_step(presses[0])
+    with warnings.catch_warnings():  # an LED left out of every capture (not fitted): NaN, no estimate
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.maximum(np.nanmedian(np.asarray(per, float), axis=0), step)
+
+
+def adc_step(press: Press) -> float:
+    """One ADC step of ``press``'s camera in linear units (full scale 1): the least noise an image is said to hold (a
+    noise-free capture holds only quantisation)."""
+    r = press.response
+    return 2.0 ** (16 - r.bit_depth) / (r.white_level - r.black_level)
 
 
 def fit_quality(

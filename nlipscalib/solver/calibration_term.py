@@ -12,7 +12,7 @@ import numpy as np
 from ..core import tolerances
 from ..core.capture import Press
 from ..core.leds import Led, Leds
-from .led_fit import Samples, disk_model, fit_leds, fit_samples, point_model, to_leds
+from .led_fit import Samples, disk_model, fit_leds, fit_samples, point_model, summed_squares, to_leds
 
 if TYPE_CHECKING:  # named in hints only: the functions import the indirect module where they use it
     from .calibrate import LedCalibration
@@ -187,7 +187,7 @@ def runoff_reflectance(
 
     def residual(a: float) -> float:
         fitted = indirect_rounds(presses, samples, leds0, loss, interreflection, bounces, rounds, float(a), left_out)[0]
-        return float(sum(f[2] ** 2 for f in fitted))
+        return summed_squares(fitted)
 
     best = minimize_scalar(residual, bounds=bounds, method="bounded", options={"xatol": RUNOFF_XTOL})
     return float(best.x)
@@ -318,7 +318,8 @@ def term_gain(
     def squares(fits: list, images: np.ndarray) -> np.ndarray:
         return np.array([np.sum((point_model(f[0], x, n) - im)[u] ** 2) for f, im, u in zip(fits, images, uses)])
 
-    return float(np.sum((squares(off, img) - squares(on, lit)) / variance))
+    # an LED not fitted (no usable sample, led_fit.held_fit): no samples, its variance NaN: it gains nothing
+    return float(np.nansum((squares(off, img) - squares(on, lit)) / variance))
 
 
 def term_wins(direct: LedCalibration, on: LedCalibration) -> bool:
@@ -489,7 +490,7 @@ def _profiled_reflectance(
 
     def residual(s: float) -> float:
         out = fit_leds(emitters, xs, ns, imgs - s * lights, oks, loss, model)
-        tried[float(s)] = float(sum(f[2] ** 2 for f in out))
+        tried[float(s)] = summed_squares(out)
         return tried[float(s)]
 
     cap = 1.0 / float(np.max(fitted))  # a reflectance of at most 1

@@ -151,21 +151,44 @@ def fit_leds(
     An LED whose fit still ends far above the others' misfit (:func:`_stuck`) is fitted again from other axes
     (:meth:`_LedProblem.restarts`) and the least misfit kept: from LEDs 2 mm / 80 deg off their design one LED stopped
     6.9 mm / 65 deg off (benchmarks/RESULTS.md, s27-ledstarts)."""
-    out, costs = [], []
+    out, costs = {}, {}
     # one BLAS thread: trf's SVD of each step's (N, 9) Jacobian took 4-6x the CPU on 2 threads of a loaded
     # machine, the same bits (s17-d, benchmarks/RESULTS.md)
     with blas_threads(1):
         problems = [_LedProblem.of(led, img[i], ok[i], x, n, model) for i, led in enumerate(leds)]
         for i, problem in enumerate(problems):
-            res = _ran_off_said(problem.solve, problem.p0, loss, i)
-            costs.append(problem.misfit(res))
-            out.append(res)
-        level = float(np.median(costs))
-        for i in _stuck(costs):
+            if problem.use.any():  # an LED without a usable sample (its image a stale copy) is held: held_fit
+                res = _ran_off_said(problem.solve, problem.p0, loss, i)
+                costs[i] = problem.misfit(res)
+                out[i] = res
+        level = float(np.median(list(costs.values())))
+        for k in _stuck(list(costs.values())):
+            i = list(costs)[k]
             log.info("LED %d: fit %.1fx the median LED's misfit; fitted again from other axes", i + 1, costs[i] / level)
             tries = [out[i]] + [_ran_off_said(problems[i].solve, p, loss, i) for p in problems[i].restarts()]
             out[i] = min(tries, key=problems[i].misfit)
-    return [problem.result(res) for problem, res in zip(problems, out)]
+    fitted = {i: problems[i].result(res) for i, res in out.items()}
+    return [fitted[i] if i in fitted else held_fit(led, fitted, leds) for i, led in enumerate(leds)]
+
+
+def held_fit(
+    led: Led, fitted: dict[int, tuple[np.ndarray, np.ndarray, float]], leds: Leds
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """(params, std, rms) of an LED held at its start ``led`` (no usable sample to fit it on: every capture's image
+    of it repeats the image before it, :func:`.calibration_bands.without_repeated_images`): its place, axis and mu
+    as started, its brightness its start's relative to the fitted LEDs' (``fitted``: 0-based LED -> its fit; ``leds``
+    their starts), per channel the median fitted K over start Psi, so that the gauge (mean Psi = 1) keeps its share;
+    std and rms NaN (nothing was fitted)."""
+    d = np.asarray(led.direction)
+    scale = np.median([np.exp(f[0][:3]) / np.maximum(leds[i].intensity, 1e-12) for i, f in fitted.items()], axis=0)
+    params = np.concatenate(
+        [
+            np.log(np.maximum(np.multiply(led.intensity, scale), 1e-12)),
+            [led.mu, np.arccos(np.clip(d[2], -1, 1)), np.arctan2(d[1], d[0])],
+            led.position,
+        ]
+    )
+    return params, np.full(9, np.nan), float("nan")
 
 
 class LedFitRanOff(CaptureError):
@@ -307,6 +330,13 @@ class _LedProblem:
         except np.linalg.LinAlgError:
             sd = np.full(len(res.x), np.nan)
         return res.start + res.x, sd, float(np.sqrt(np.mean(res.fun**2))) * self.scale
+
+
+def summed_squares(fitted: Sequence[tuple[np.ndarray, np.ndarray, float]]) -> float:
+    """The LED fits' squared RMS residuals summed (image units squared; per LED as :func:`fit_leds` returns them),
+    over the LEDs fitted: an LED held at its start (:func:`held_fit`, rms NaN) is left out, as it was of the fit (its
+    NaN turned every reflectance tried into NaN, and the bounded search then chose one of them blindly)."""
+    return float(sum(f[2] ** 2 for f in fitted if not np.isnan(f[2])))
 
 
 def _scaled(p0: np.ndarray, img: np.ndarray, ok: np.ndarray, x: np.ndarray, n: np.ndarray, model: Model) -> np.ndarray:

@@ -1,3 +1,5 @@
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.optimize._numdiff import approx_derivative
@@ -51,3 +53,26 @@ def test_a_disk_fit_from_an_offset_start_recovers_the_disk():
 def _params(led: Led) -> np.ndarray:
     d = np.asarray(led.direction)
     return np.array([*np.log(led.intensity), led.mu, np.arccos(d[2]), np.arctan2(d[1], d[0]), *led.position])
+
+
+def test_an_led_without_a_usable_sample_is_held_at_its_start_and_left_out_of_the_summed_residual():
+    """An LED whose image is left out whole (a stale frame in every capture, calibration_bands) has nothing to fit:
+    it keeps its start's place, axis and mu, its brightness its start's share of the fitted LEDs' (here the others'
+    true 2x), std and rms NaN; the summed squared residual the reflectance searches rank (calibration_term) leaves it
+    out (its NaN made every reflectance tried NaN: the twin's stale LED 5 moved the profile's choice from 0.82 to 0.68
+    and every other LED by 0.1 mm / 1.5 deg, s32-ledleft)."""
+    from nlipscalib.solver.led_fit import summed_squares
+
+    x, n = _dome()
+    leds = [TRUE, Led((-8.0, 3.0, 4.0), (0.35, -0.15, 1.0), 1.4, (0.9, 1.1, 1.0)), Led((0.0, 8.0, 4.0), TRUE.direction)]
+    bright = [dataclasses.replace(led, intensity=tuple(2 * np.asarray(led.intensity))) for led in leds]
+    img = np.stack([point_model(_params(led), x, n) for led in bright])
+    ok = np.ones_like(img, bool)
+    ok[2] = False
+    fitted = fit_leds(leds, x, n, img, ok, "linear")
+    params, std, rms = fitted[2]
+    np.testing.assert_allclose(params[3:], _params(leds[2])[3:])
+    np.testing.assert_allclose(np.exp(params[:3]), 2 * np.asarray(leds[2].intensity), rtol=1e-6)
+    assert np.isnan(std).all() and np.isnan(rms)
+    assert all(np.isfinite(f[2]) for f in fitted[:2])
+    assert summed_squares(fitted) == fitted[0][2] ** 2 + fitted[1][2] ** 2
