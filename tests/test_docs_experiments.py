@@ -79,3 +79,32 @@ def test_every_config_file_the_page_shows_loads_into_its_experiment_with_the_val
                 if isinstance(set_to, list) and set_to and isinstance(set_to[0], dict):  # indenters: their kinds
                     got, set_to = [i.kind for i in got], [i["kind"] for i in set_to]
                 assert (list(got) if isinstance(got, tuple) else got) == set_to, (name, key, field)
+
+
+def test_the_sizes_the_page_gives_are_the_experiments_configs():
+    """s32-docwalk: the page's "Sizes" paragraph (96x72 px at 8 spp, the reference at 64; 320x240 and 640x480 at 16;
+    74 + 200 + 145 + 143 full-size tasks, Q2's 75) and Q2's press counts were checked against nothing."""
+    from nlipscalib.experiments import get
+
+    text = " ".join((EXPERIMENTS / "README.md").read_text(encoding="utf-8").split())
+    full = re.search(r"q1, ablation, q3, studies (\d+) \+ (\d+) \+ (\d+) \+ (\d+) tasks; q2 (\d+) tasks", text)
+    counts = dict(zip(("q1", "ablation", "q3", "studies", "q2"), map(int, full.groups())))
+    assert {name: len(get(name).tasks(get(name).config("full"))) for name in counts} == counts
+    twins = {size: get("q1").config(size).twin for size in ("quick", "medium", "full")}
+    assert "`quick` (CI: 96x72 px, 8 spp with the undeformed reference at 64 spp" in text
+    assert (twins["quick"].width, twins["quick"].height, twins["quick"].spp, twins["quick"].reference_spp) == (
+        96,
+        72,
+        8,
+        64,
+    )
+    assert "`medium` (320x240 px, 16 spp" in text and "`full` (640x480 px, 16 spp" in text
+    assert [(t.width, t.height, t.spp) for t in (twins["medium"], twins["full"])] == [(320, 240, 16), (640, 480, 16)]
+    said = re.search(
+        r"quick: (\d+) calibration \+ (\d+) seen \+ (\d+) unseen presses at 96x72 px; medium: (\d+) \+ "
+        r"(\d+) \+ (\d+) at 320x240; full: (\d+) \+ (\d+) \+ (\d+) at 640x480",
+        text,
+    )
+    presses = [int(n) for n in said.groups()]
+    for i, size in enumerate(("quick", "medium", "full")):  # one reference task beside the presses
+        assert len(get("q2").tasks(get("q2").config(size))) == 1 + sum(presses[3 * i : 3 * i + 3]), size
