@@ -166,3 +166,64 @@ def test_every_keyword_the_pages_give_solve_press_is_one_it_takes():
     named |= {k for d in re.findall(r"solver_keywords=\{([^}]*)\}", text) for k in re.findall(r"\"(\w+)\":", d)}
     assert len(calls) >= 4 and "indirect" in named  # the pages were read
     assert sorted(named - set(inspect.signature(press._solve_press).parameters)) == []
+
+
+PAGE_EXTRA_NAMES = {
+    "VirtualBoard": "nlipscalib.device.virtual_board",
+    "solve_folder": "nlipscalib.pipeline",
+    "AdalightController": "nlipscalib.device.adalight",
+}
+"""Bare names the pages call inline that api.md's blocks do not import: the module each is from."""
+
+
+def _callable_named(name: str, imported: dict[str, str]):
+    """The object a page's inline call names: ``nlipscalib.x.f`` / ``x.f`` (a subpackage) or a bare name that api.md's
+    blocks import (or PAGE_EXTRA_NAMES lists); None for anything else (``torch.load``)."""
+    import importlib
+
+    parts = name.removeprefix("nlipscalib.").split(".")
+    if len(parts) == 1:
+        module = imported.get(name) or PAGE_EXTRA_NAMES.get(name)
+        return getattr(importlib.import_module(module), name) if module else None
+    for cut in range(len(parts) - 1, 0, -1):
+        try:
+            obj = importlib.import_module("nlipscalib." + ".".join(parts[:cut]))
+        except ImportError:
+            continue
+        for part in parts[cut:]:
+            obj = getattr(obj, part)  # a missing one: the page names what is not there
+        return obj
+    return None
+
+
+def test_every_keyword_an_inline_call_of_the_pages_gives_is_one_the_callable_takes():
+    """s32-docwalk: the pages' prose calls (``Predictor(MODEL, threads=2)``, ``CameraSettings(...,
+    linear_gamma=False)``, ``VirtualBoard(n, baudrate=57600)``, ``calibrate_leds``' ``led_radius``, ...) are run by no
+    block; a renamed keyword would reach a lab's script as a TypeError. solve_press has its own test above."""
+    import inspect
+
+    imported = {
+        alias.asname or alias.name: node.module
+        for _, code in python_blocks(API.read_text(encoding="utf-8"))
+        for node in ast.parse(code).body
+        if isinstance(node, ast.ImportFrom) and node.module.startswith("nlipscalib")
+        for alias in node.names
+    }
+    root = API.parents[1]
+    pages = [root / "README.md", *sorted((root / "docs").rglob("*.md"))]
+    checked, unknown = set(), {}
+    for page in pages:
+        for span in re.findall(r"`([^`\n]+)`", page.read_text(encoding="utf-8")):
+            for name, args in re.findall(r"([A-Za-z_][\w.]*)\(([^()]*(?:\([^()]*\)[^()]*)*)\)", span):
+                keywords = re.findall(r"(?<![=\w])(\w+)=(?!=)", args)
+                target = _callable_named(name, imported) if keywords else None
+                if target is None:
+                    continue
+                parameters = inspect.signature(target).parameters
+                if any(p.kind is p.VAR_KEYWORD for p in parameters.values()):
+                    continue
+                checked.add(name.rsplit(".", 1)[-1])
+                if wrong := [k for k in keywords if k not in parameters]:
+                    unknown[f"{page.name}: {name}({args})"] = wrong
+    assert {"Predictor", "CameraSettings", "VirtualBoard", "calibrate_leds", "solve_presses"} <= checked  # read
+    assert unknown == {}

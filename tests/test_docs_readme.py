@@ -99,3 +99,12 @@ def test_the_readme_and_setup_sh_quote_the_torch_range_and_pin_that_the_install_
     (pin,) = set(re.findall(r"torch==[0-9.]+", setup))
     assert f"`{pin}` from PyTorch's CPU index" in readme
     assert re.findall(r"torch>=[0-9][0-9.,<>]*", readme) == [torch_range]  # no other, stale range
+
+
+def test_every_nlips_command_the_docs_pages_show_parses():
+    """s32-docwalk: only README.md's blocks were parsed; docs/experiments/README.md shows nine `nlips experiment`
+    lines (--scheduler, --config, --check, --write-baseline, --solver-option, --redraw) that no test read."""
+    pages = sorted((README.parent / "docs").rglob("*.md"))
+    commands = {c: page.name for page in pages for c in readme_commands(page.read_text(encoding="utf-8"))}
+    assert sum(c.startswith("nlips experiment") for c in commands) >= 9  # the experiments page's block was read
+    assert {c: (page, parse_problem(c)) for c, page in commands.items() if parse_problem(c)} == {}

@@ -232,7 +232,8 @@ Why: a 6 mm sphere 3 mm deep (the gel's thickness) deforms the gel far beyond th
 :data:`CONTACT_MISFIT_FACTOR` times the raised floor; its box held 3 % such pixels and its contact AAE was 1.51 deg,
 depth RMSE 0.25 mm (the whole gel: 0.88 deg); widened to 16 %, 0.98 deg and 0.09 mm. The twin's other presses hold
 17-44 % at the 8-pixel margin (coin1 17 %, cube1 23 %, sphere1 27 %) and keep their box (benchmarks/RESULTS.md,
-s27-unusual)."""
+s27-unusual). Not widened where the whole image holds no larger share than the box (the realistic twin: 3.3 % in the
+dent's box, 2.8 % in the image, whose corners misfit; widened, 3.95 deg contact AAE against 3.14; s32-docwalk)."""
 ROI_FLANK_FACTOR = 1.5
 """``--roi auto``: a pixel shows a contact's flank when its misfit exceeds this many times its floor (the floor of
 :data:`CONTACT_MISFIT_FACTOR`); the box grows while the 4-px strip beyond it holds :data:`ROI_FLANK_SHARE` of such

@@ -80,14 +80,15 @@ class TrainConfig:
     lr: float = 2e-3
     """Adam learning rate at the start (then set by ``schedule``)."""
     schedule: str = "plateau"
-    """Learning-rate schedule. "plateau": multiply the rate by ``lr_factor`` after ``lr_patience`` epochs
-    without a better validation AAE, down to 1 % of ``lr``. At a fixed rate the validation AAE of the paper's
-    net on 50 full-size presses scattered by 0.4 deg from epoch to epoch and early stopping kept a lucky
-    epoch; lowering the rate when it stalls kept a better epoch, in fewer epochs (benchmarks/RESULTS.md; the
-    scatter, from 10 validation presses, stays). "cosine": annealed to 5 % over ``max_epochs`` (the earlier
-    default; with early stopping after ~25 of 200 epochs it stays near ``lr``)."""
+    """Learning-rate schedule. "plateau": multiply the rate by ``lr_factor`` once more than ``lr_patience`` epochs
+    in a row bring no better validation AAE (``ReduceLROnPlateau``), down to 1 % of ``lr``. At a fixed rate the
+    validation AAE of the paper's net on 50 full-size presses scattered by 0.4 deg from epoch to epoch and early
+    stopping kept a lucky epoch; lowering the rate when it stalls kept a better epoch, in fewer epochs
+    (benchmarks/RESULTS.md; the scatter, from 10 validation presses, stays). "cosine": annealed to 5 % over
+    ``max_epochs`` (the earlier default; with early stopping after ~25 of 200 epochs it stays near ``lr``)."""
     lr_patience: int = 2
-    """Epochs without a better validation AAE before the plateau schedule lowers the rate."""
+    """Epochs in a row without a better validation AAE that the plateau schedule lets pass: it lowers the rate at the
+    next one (2: at the third)."""
     lr_factor: float = 0.3
     """Factor the plateau schedule lowers the rate by."""
     seed: int = 0

@@ -71,11 +71,15 @@ def widen_to_anchor(
     """``box`` (x0, y0, w, h, pixels) widened by ``step`` pixels at a time, within the image of ``shape`` (H, W),
     until :data:`tolerances.ROI_MIN_UNDEFORMED_SHARE` of its gel pixels look undeformed (the pixels anchoring pins to
     the reference), or it is the whole image; not where anchoring is off (:data:`ANCHOR_MIN_FRACTION`: a noise-free
-    render, whose model error leaves next to no pixel within noise).
+    render, whose model error leaves next to no pixel within noise), nor where the whole image holds no larger share
+    than ``box``: most of the gel misfits the undeformed model (the realistic twin's corners: vignetting, the view
+    through the refracting gel), so widening adds misfit, not anchors (the realistic twin's sphere press: 3.3 % in the
+    dent's box, 2.8 % in the whole image, whose solve scored 3.95 deg over the contact against the box's 3.14;
+    benchmarks/RESULTS.md, s32-docwalk).
 
     Returns
     -------
-    box : (x0, y0, w, h) pixels -- ``box`` itself when it holds enough.
+    box : (x0, y0, w, h) pixels -- ``box`` itself when it holds enough, or when widening cannot raise its share.
     before, after : float -- the share of undeformed gel pixels in ``box`` and in the returned box.
     """
     H, W = shape
@@ -93,6 +97,8 @@ def widen_to_anchor(
     while now < tolerances.ROI_MIN_UNDEFORMED_SHARE and (x0, y0, x1, y1) != (0, 0, W, H):
         x0, y0, x1, y1 = max(x0 - step, 0), max(y0 - step, 0), min(x1 + step, W), min(y1 + step, H)
         now = share()
+    if now < tolerances.ROI_MIN_UNDEFORMED_SHARE and now <= first:
+        return box, first, first  # the whole image anchors no better than the box: keep the box
     return (int(x0), int(y0), int(x1 - x0), int(y1 - y0)), first, now
 
 

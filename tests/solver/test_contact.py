@@ -898,3 +898,27 @@ def test_every_solve_scales_onto_the_reference_and_its_normals_stay_as_solved(tm
     assert whole_scale != 1.0 and "depth scaled by" in whole.report["anchoring"]
     np.testing.assert_array_equal(whole.normals, solved.normals)
     np.testing.assert_allclose(whole.depth, solved.depth * whole_scale, rtol=1e-6)
+
+
+@pytest.mark.parametrize("band_rows, widened", [(3, False), (10, True)])
+def test_auto_roi_is_widened_only_where_the_whole_image_anchors_better_than_its_box(band_rows, widened):
+    """s32-docwalk: on the realistic twin most of the gel misfits the undeformed model (its corners), so the dent's box
+    (3.3 % undeformed) was widened to the whole image (2.8 %): more misfit, no more share of anchors, contact AAE
+    3.95 deg against the box's 3.14. Widening that cannot raise the share keeps the box; one that can still widens."""
+    from nlipscalib.solver.anchoring import ANCHOR_MIN_FRACTION, widen_to_anchor
+    from nlipscalib.solver.contact_roi import contact_box
+
+    shape = (120, 160)
+    misfit = np.full(shape, 4.0)  # most of the gel: neither contact nor undeformed (<= 3)
+    misfit[_disk(shape, (60, 80), 11)] = 2.0  # a thin undeformed ring around the contact
+    misfit[_disk(shape, (60, 80), 10)] = 40.0  # the contact
+    misfit[120 - band_rows :, 5:155] = 2.0  # undeformed gel far from it: 450 or 1500 pixels
+    cmap = _contact_map(misfit)
+    box = contact_box(cmap, shape)[0]
+    wide, before, after = widen_to_anchor(cmap, box, shape)
+    assert before < tolerances.ROI_MIN_UNDEFORMED_SHARE and after < tolerances.ROI_MIN_UNDEFORMED_SHARE
+    assert float((misfit <= 3).mean()) >= ANCHOR_MIN_FRACTION  # anchoring is on: the widening is weighed
+    undeformed_share = float((misfit <= 3).mean())  # the whole image's
+    assert (undeformed_share > before) is widened  # the case the parameters make
+    assert (wide != box) is widened
+    assert (wide == (0, 0, 160, 120)) is widened and (after > before) is widened
