@@ -44,6 +44,9 @@ class LedFile(NamedTuple):
     sensor: dict | None
     """The capture's sensor description (:func:`nlipscalib.core.sensor_record.describe_sensor`: camera,
     LED count and design geometry); None in files written before it was recorded (2026-12-04)."""
+    not_fitted: tuple[int, ...] = ()
+    """The LEDs (0-based) the calibration could not fit and kept at their starting values (the file's
+    ``not_fitted``: their image was a stale copy in every capture); empty when all were fitted."""
 
 
 def read_led_file(path: str | Path) -> LedFile:
@@ -66,4 +69,14 @@ def read_led_file(path: str | Path) -> LedFile:
     except (json.JSONDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
         raise CaptureError(f"{path}: not a valid LED file ({exc})") from None
     sensor = data.get("sensor")
-    return LedFile(leds, None if sensor is None else check_sensor_record(sensor, path))
+    return LedFile(
+        leds, None if sensor is None else check_sensor_record(sensor, path), _not_fitted(data, path, len(leds))
+    )
+
+
+def _not_fitted(data: dict, path: Path, n_leds: int) -> tuple[int, ...]:
+    """The file's ``not_fitted`` LEDs (0-based), checked: CaptureError naming the file when malformed."""
+    held = data.get("not_fitted", [])
+    if not isinstance(held, list) or not all(isinstance(i, int) and 0 <= i < n_leds for i in held):
+        raise CaptureError(f"{path}: not a valid LED file ('not_fitted' must list LED indices 0-{n_leds - 1})")
+    return tuple(held)

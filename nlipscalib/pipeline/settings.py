@@ -301,6 +301,7 @@ def _resolve_leds(
         path = Path(leds)
         if path.suffix.lower() == ".json" or path.exists():  # a folder too: read_led_file says what it is
             led_file = read_led_file(path)
+            _warn_not_fitted(path, led_file.not_fitted)
             return None, led_file.leds, str(path), led_file.sensor
         try:
             return tuple(int(v) - 1 for v in str(leds).split(",")), None, None, None
@@ -312,6 +313,22 @@ def _resolve_leds(
     if leds and all(isinstance(v, int) for v in leds):
         return leds, None, None, None
     raise ConfigError("leds must be an LED file, '1,2,5', a sequence of Led, or a sequence of 0-based indices")
+
+
+def _warn_not_fitted(path: Path, held: tuple[int, ...]) -> None:
+    """Say (once per command) that an LED file's not-fitted LEDs shade with their starting values only: a user
+    solving with the file would otherwise take every LED for a calibrated one."""
+    from ..core.said_once import first_time
+
+    if held and first_time(f"not_fitted {path.resolve()}"):
+        log.warning(
+            "%s: LED%s %s not fitted by its calibration (kept at the starting values); capture the undeformed dome "
+            "again and re-run `nlips calibrate-leds` to calibrate %s",
+            path,
+            "s" if len(held) > 1 else "",
+            ", ".join(str(i + 1) for i in held),
+            "them" if len(held) > 1 else "it",
+        )
 
 
 def _solver_keywords(given: dict | None) -> dict:

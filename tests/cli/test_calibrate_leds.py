@@ -32,3 +32,25 @@ def test_a_stale_led_frame_is_left_out_and_its_led_kept_at_its_start_in_the_tabl
     assert written["not_fitted"] == [4] and written["warnings"] == [warning]
     assert written["leds"][4]["position"] == json.loads((folder / "meta.json").read_text())["leds"][4]["position"]
     assert math.isnan(written["rms"][4]) and not math.isnan(written["rms"][3])
+
+
+def test_solving_with_an_led_file_that_holds_a_not_fitted_led_says_so_once(tmp_path, caplog):
+    """The LED file of a stale-frame calibration keeps LED 5 at its starting values; `nlips solve --leds FILE` took
+    it silently for a calibrated LED. Now one warning names the file, the LED and the fix."""
+
+    def lag(lin):
+        lin = lin.copy()
+        lin[4] = lin[3]
+        return lin
+
+    reference = synth.make_press(tmp_path / "stale", "none", size=(48, 36), lin_hook=lag)
+    press = synth.make_press(tmp_path / "press", "sphere", size=(48, 36))
+    leds = tmp_path / "leds.json"
+    assert main(["--no-progress", "calibrate-leds", str(reference), "--out", str(leds), "--stride", "2"]) == 0
+    caplog.clear()
+    assert main(["--no-progress", "solve", str(press), "--leds", str(leds), "--out", str(tmp_path / "out")]) == 0
+    said = [r.getMessage() for r in caplog.records if "not fitted by its calibration" in r.getMessage()]
+    assert said == [
+        f"{leds}: LED 5 not fitted by its calibration (kept at the starting values); capture the undeformed dome "
+        "again and re-run `nlips calibrate-leds` to calibrate it"
+    ]

@@ -171,3 +171,19 @@ def test_a_binary_file_given_as_an_led_file_is_named_without_the_decoders_byte_o
     with pytest.raises(CaptureError) as err:
         read_led_file(model)
     assert str(err.value) == f"{model}: not an LED file (binary, not JSON): give the .json from `nlips calibrate-leds`"
+
+
+def test_an_led_files_not_fitted_leds_are_read_back_and_a_malformed_list_is_named(tmp_path):
+    """calibrate-leds records the LEDs it kept at their starting values (``not_fitted``); the reader hands them on
+    (so `nlips solve --leds` can say so) and names the file when the list is not LED indices."""
+    from nlipscalib.core.errors import CaptureError
+    from nlipscalib.core.ledfile import read_led_file, save_leds
+
+    leds = [Led(position=(float(i), 0.0, 1.0), direction=(0.0, 0.0, 1.0)) for i in range(4)]
+    good = save_leds(tmp_path / "leds.json", leds, {"not_fitted": [2]})
+    assert read_led_file(good).not_fitted == (2,)
+    assert read_led_file(save_leds(tmp_path / "all.json", leds)).not_fitted == ()
+    bad = save_leds(tmp_path / "bad.json", leds, {"not_fitted": [4]})
+    with pytest.raises(CaptureError) as err:
+        read_led_file(bad)
+    assert str(err.value) == f"{bad}: not a valid LED file ('not_fitted' must list LED indices 0-3)"
