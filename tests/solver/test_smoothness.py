@@ -60,3 +60,12 @@ def test_the_edge_scale_is_the_slope_change_times_the_pixels_angle():
     A, _, C = geometry.normal_basis(q, qu, qv)
     assert edge_scale(A, C, 0.15) == pytest.approx(0.15 / f)
     assert edge_scale(A, C, 0.0) is None
+
+
+@pytest.mark.parametrize("value", [-0.1, float("nan")])
+def test_a_negative_or_missing_edge_scale_is_refused_in_one_line(value):
+    from nlipscalib.core.errors import ConfigError
+    from nlipscalib.solver import SolverOptions
+
+    with pytest.raises(ConfigError, match="smoothness_edge"):
+        SolverOptions(smoothness_edge=value)
