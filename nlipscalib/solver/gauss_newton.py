@@ -17,6 +17,7 @@ from .kernel import Array, Backend, ChunkedModel, Model, Parts, make_model
 from .krylov import Krylov, forcing, warm_first_step
 from .operators import depth_normals, level_operators, log_depth_gradient, pixelwise, unit_normals
 from .options import SolverOptions
+from .smoothness import Smoothness, edge_scale
 
 if TYPE_CHECKING:  # named in hints only: tqdm is imported where a progress bar is asked for
     from tqdm import tqdm
@@ -91,6 +92,7 @@ class _Level:
         # The smoothness weight is relative to the data term's curvature along the gradient of t (least
         # squares, starting depth).
         self.gamma = opts.smoothness * float(np.median(model.gradient_curvature(dF, albedo, model.usable)))
+        self.smooth = Smoothness(self.ops, self.gamma, edge_scale(self.A, self.C, opts.smoothness_edge))
         if est != "ls":
             albedo, r, e_data = self.refit(F, albedo, energy=True)
         self.M, self.b = model.irls_blocks(F, dF, r, albedo, self.lam, est)
@@ -129,10 +131,8 @@ class _Level:
         return (out[0], out[1:]) if derivatives else (out, None)
 
     def prior(self, tt: np.ndarray) -> float:
-        # the Laplacian's product by row blocks on the pool (the same bits): one per line-search trial, ~5 ms of
-        # one core at 640x480
-        lap_t = threads.RowBlocks(self.ops["lap"]).dot(tt)
-        return float(np.sum(self.zeta * (tt - self.t0) ** 2)) + self.gamma * float(tt @ lap_t)
+        """The energy's terms on t alone at ``tt``: the depth prior's and the smoothness's."""
+        return float(np.sum(self.zeta * (tt - self.t0) ** 2)) + self.smooth.energy(tt)
 
     def refit(self, F: Array | Parts, alb: Array | Parts | None, energy: bool = False):
         """Albedo at shading F: exact for least squares, one IRLS step from ``alb`` otherwise; (albedo,
@@ -175,11 +175,12 @@ class _Level:
             # accepted depth's (:meth:`_accept`).
             self.dF = self.r = None
             self.tm.lap("blocks")
-        M, b, zeta, gamma = self.M, self.b, self.zeta, self.gamma
+        M, b, zeta = self.M, self.b, self.zeta
         self.M = self.b = None  # used; the next iteration's blocks come from the accepted depth
-        g = b[0] + ops["Du"].T @ b[1] + ops["Dv"].T @ b[2] + zeta * (t - self.t0) + gamma * (ops["lap"] @ t)
+        smooth_g, smooth_w = self.smooth.gradient_and_weights(t)
+        g = b[0] + ops["Du"].T @ b[1] + ops["Dv"].T @ b[2] + zeta * (t - self.t0) + smooth_g
         M[0, 0] += zeta + 1e-12 * max(float(np.mean(M[0, 0])), 1e-30)  # the prior; definite if zeta = 0
-        Hm = ops["normal"].assemble(M, (gamma, gamma))
+        Hm = ops["normal"].assemble(M, smooth_w)
         del M, b  # (3, 3, N) and (3, N) float64: in Hm and g now
         self.tm.lap("assemble")
         g_norm = float(np.linalg.norm(g))

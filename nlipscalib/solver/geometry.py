@@ -219,7 +219,8 @@ def normals_from_gradient(t_u: np.ndarray, t_v: np.ndarray, A: np.ndarray, B: np
 
 
 class NormalMatrix:
-    """Assembles H = sum_ab P_a^T diag(M_ab) P_b + sum_j w_j E_j^T E_j for per-pixel symmetric blocks M.
+    """Assembles H = sum_ab P_a^T diag(M_ab) P_b + sum_j E_j^T diag(w_j) E_j for per-pixel symmetric blocks M and
+    each extra's weight w_j: a scalar, or one per row of E_j (the edge-preserving smoothness's IRLS weights).
 
     Two ways, the same matrix (to rounding):
 
@@ -261,15 +262,15 @@ class NormalMatrix:
         self._indptr = self._indptr.astype(np.int32)
         self._shape = (k * n + m_extra, k * n + m_extra)
 
-    def assemble(self, M: np.ndarray, weights: Sequence[float] = ()) -> sp.csr_matrix:
+    def assemble(self, M: np.ndarray, weights: Sequence[float | np.ndarray] = ()) -> sp.csr_matrix:
         """H (N, N) CSR, float64, sorted indices, for blocks M (k, k, N) (symmetric in its first two axes)
-        and the extras' weights."""
+        and the extras' weights (each a scalar or an (M_j,) array, one per row of E_j)."""
         import scipy.sparse as sp
 
         if self.fixed is not None:
             return self.fixed.assemble(M, weights)
         parts = [np.ascontiguousarray(M.transpose(0, 2, 1)).ravel()]  # K[a*n + i, b*n + i] = M[a, b, i]
-        parts += [np.full(m, float(w)) for m, w in zip(self.sizes, weights)]
+        parts += [np.broadcast_to(np.asarray(w, np.float64), (m,)) for m, w in zip(self.sizes, weights)]
         K = sp.csr_matrix((np.concatenate(parts), self._indices, self._indptr), shape=self._shape)
         H = (self.GT @ (K @ self.G)).tocsr()
         H.sort_indices()
@@ -307,14 +308,28 @@ class _FixedPattern:
         S = sp.csc_matrix((np.concatenate(coef), position, indptr), shape=(pattern.nnz, k * k * n)).tocsr()
         self.S = _with_extras(S, [(_positions(where, EtE.row, EtE.col), EtE.data) for EtE in _gram(extras)])
         self.n_extras = len(extras)
+        self.sizes = [E.shape[0] for E in extras]
+        self.R = sp.hstack([_row_gram_map(where, E) for E in extras], format="csr") if extras else None
+        """The map from weights per row of the extras, concatenated, to H.data: used only where a weight is an
+        array (the edge-preserving smoothness), so that scalar weights keep S's bits."""
 
-    def assemble(self, M: np.ndarray, weights: Sequence[float] = ()) -> sp.csr_matrix:
+    def assemble(self, M: np.ndarray, weights: Sequence[float | np.ndarray] = ()) -> sp.csr_matrix:
         # the extras' weights after the blocks (absent ones 0: not added); by row blocks on both cores, the same bits
-        # as S @ x (threads.RowBlocks)
+        # as S @ x (threads.RowBlocks). Weights per row (any weight an array): S's extra columns get 0 and R's
+        # product adds them all.
         import scipy.sparse as sp
 
+        weights = list(weights[: self.n_extras])
+        per_row = any(np.ndim(w) for w in weights)
         extra = np.zeros(self.n_extras)
-        extra[: len(weights)] = weights[: self.n_extras]
+        row_weights = None
+        if per_row:
+            weights += [0.0] * (self.n_extras - len(weights))
+            row_weights = np.concatenate(
+                [np.broadcast_to(np.asarray(w, np.float64), (m,)) for m, w in zip(self.sizes, weights)]
+            )
+        else:
+            extra[: len(weights)] = weights
         blocks = np.ascontiguousarray(M, np.float64).reshape(-1)
         # Each row block's task makes its part of H: S's product (the bits of S @ x, threads.RowBlocks), the copy of
         # its column indices and the check for zeros; x (the blocks, then the weights) is copied by halves first.
@@ -325,13 +340,21 @@ class _FixedPattern:
         threads.map_items(lambda part: x.__setitem__(part, blocks[part]), threads.chunks(blocks.size))
         data, indices = np.empty(self.S.shape[0]), np.empty_like(self.indices)
 
-        def rows(part: tuple[slice, sp.csr_matrix]) -> bool:
-            entries, S = part
+        def rows(part: tuple[tuple[slice, sp.csr_matrix], tuple[slice, sp.csr_matrix] | None]) -> bool:
+            (entries, S), by_row = part
             data[entries] = S @ x
+            if by_row is not None:
+                data[entries] += by_row[1] @ row_weights
             indices[entries] = self.indices[entries]
             return bool(data[entries].all())
 
-        nonzero = threads.map_items(rows, threads.RowBlocks(self.S).blocks or [(slice(0, len(data)), self.S)])
+        whole = [(slice(0, len(data)), self.S)]
+        blocks = threads.RowBlocks(self.S).blocks or whole
+        if per_row:  # R's rows in the same blocks as S's (the same row count: the same chunks)
+            by_rows = threads.RowBlocks(self.R).blocks or [(slice(0, len(data)), self.R)]
+        else:
+            by_rows = [None] * len(blocks)
+        nonzero = threads.map_items(rows, list(zip(blocks, by_rows)))
         H = sp.csr_matrix(self.shape, dtype=np.float64)
         H.data, H.indices, H.indptr = data, indices, self.indptr.copy()
         H.has_sorted_indices = True
@@ -343,6 +366,22 @@ class _FixedPattern:
 def _gram(extras: Sequence[sp.csr_matrix]) -> list[sp.coo_matrix]:
     """E_j^T E_j of each extra operator, COO."""
     return [(E.T @ E).tocoo() for E in extras]
+
+
+def _row_gram_map(where: sp.csr_matrix, E: sp.csr_matrix) -> sp.csr_matrix:
+    """(pattern nnz, M) CSR map from weights w (M,), one per row of E (M, N), to the data of E^T diag(w) E on the
+    pattern (``where``: 1 + the index into the pattern's data of each entry): row j's pairs of entries (a, b) add
+    w_j E_ja E_jb at (a, b)."""
+    import scipy.sparse as sp
+
+    cols, vals = _padded_rows(sp.csr_matrix(E))
+    ok = (cols[:, :, None] >= 0) & (cols[:, None, :] >= 0)  # (M, w, w): row j's pairs of entries
+    rows_h = np.broadcast_to(cols[:, :, None], ok.shape)[ok]
+    cols_h = np.broadcast_to(cols[:, None, :], ok.shape)[ok]
+    coef = (vals[:, :, None] * vals[:, None, :])[ok]
+    indptr = np.concatenate([[0], np.cumsum(ok.reshape(len(cols), -1).sum(axis=1))])
+    position = _positions(where, rows_h, cols_h)
+    return sp.csc_matrix((coef, position, indptr), shape=(where.nnz, E.shape[0])).tocsr()
 
 
 def _with_extras(S: sp.csr_matrix, extras: Sequence[tuple[np.ndarray, np.ndarray]]) -> sp.csr_matrix:

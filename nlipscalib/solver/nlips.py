@@ -3,7 +3,10 @@
 Unknown: log-depth t = log z on a mask of pixels. Energy::
 
     E(t, rho) = sum_{p, i, c usable} phi(rho_c(p) Psi_ic F_i(p; t) - I_ic(p))
-                + zeta sum_p (t_p - t0_p)^2 + gamma |second differences of t|^2
+                + zeta sum_p (t_p - t0_p)^2 + gamma sum_s phi_s(second differences s of t)
+
+phi_s(s) = c^2 log(1 + s^2 / c^2): squared for small s, edge-preserving beyond c (``SolverOptions.smoothness_edge``, a
+slope change per pixel; ``smoothness.py``), so a relief's walls keep their height; c = 0 (off): s^2.
 
 The albedo is eliminated (variable projection): it is the closed-form (IRLS-weighted) fit at every
 depth, and each Gauss-Newton step on t uses the Jacobian projected orthogonally to the shading, so
@@ -23,7 +26,8 @@ This module is the entry (:func:`solve`); each part of a solve lives in a file o
 - ``pyramid.py``: the levels' images, masks, rays and priors; ``coarse_to_fine.py``: the levels solved coarse to
   fine (or the finest brought up);
 - ``operators.py``: a level's difference operators and normal-matrix assembler, kept for reuse, and its normals;
-- ``gauss_newton.py``: one level's Gauss-Newton iteration and line search; ``kernel.py``: the per-pixel image model;
+- ``gauss_newton.py``: one level's Gauss-Newton iteration and line search; ``smoothness.py``: its smoothness term;
+  ``kernel.py``: the per-pixel image model;
   ``krylov.py``: the preconditioned CG; ``geometry.py``: rays, difference operators, normals;
 - ``threads.py``: the thread pool (BLAS thread control: ``core/blas.py``, shared with learn/).
 """

@@ -93,6 +93,7 @@ def _make_operators(mk: np.ndarray, fixed: bool = False) -> dict:
         "Dv": Dv,
         "has_grad": has_grad,
         "lap": lap,
+        "second": second,
         "normal": geometry.NormalMatrix((eye, Du, Dv), second, fixed=fixed),
     }
 

@@ -38,6 +38,13 @@ class SolverOptions:
     (sigma / median image level)^2), sigma estimated from the images (Immerkaer 1996), so noisy data
     (one-bounce twin renders: ~6 % per pixel -> gamma ~0.1) are regularised and exact data are not.
     Applied by :func:`solve_press`; 0 = off."""
+    smoothness_edge: float = 0.15
+    """Edge-preserving smoothness: a second difference of log-depth is penalised quadratically while the
+    surface's slope (tan of its tilt from the ray) changes by up to about this much per pixel, and only
+    logarithmically beyond (a Cauchy penalty of that scale, :mod:`nlipscalib.solver.smoothness`). Why: the
+    squared penalty flattened the walls of a relief a pixel or two wide (a coin's rim and strokes, steps of
+    0.3-0.5 mm) and left the demo's coin face 0.18 mm too shallow; noise and smooth indenters (a few hundredths
+    per pixel) stay in its quadratic part. 0 = squared everywhere (the solver before s32)."""
     nominal_distance: float = 15.0
     """Camera-to-surface distance along each ray, mm, used as prior when the capture has no reference."""
     pyramid_levels: int = 0
@@ -116,10 +123,11 @@ class SolverOptions:
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ConfigError(f"solver.{name} must be > 0, got {getattr(self, name)}")
-        if min(self.prior_weight, self.robust_floor, self.smoothness, self.anchor_weight, self.noise_smoothness) < 0:
+        weights = (self.prior_weight, self.robust_floor, self.smoothness, self.anchor_weight, self.noise_smoothness)
+        if min(*weights, self.smoothness_edge) < 0:
             raise ConfigError(
-                "solver.prior_weight, solver.smoothness, solver.noise_smoothness, solver.robust_floor and "
-                "solver.anchor_weight must be >= 0"
+                "solver.prior_weight, solver.smoothness, solver.noise_smoothness, solver.smoothness_edge, "
+                "solver.robust_floor and solver.anchor_weight must be >= 0"
             )
         if self.max_iters < 1 or self.cg_maxiter < 1 or self.line_search_steps < 0 or self.cg_jacobi_iters < 0:
             raise ConfigError(

@@ -227,3 +227,38 @@ def test_the_fixed_pattern_assembly_by_row_blocks_is_the_one_product(monkeypatch
                 assert H.has_sorted_indices
     finally:
         threads.set_workers(before)
+
+
+@pytest.mark.parametrize("fixed", [False, True])
+def test_the_extras_weighted_per_row_are_their_weighted_grams(fixed, monkeypatch):
+    """The edge-preserving smoothness weighs each second difference on its own: H = blocks + sum_j E_j^T diag(w_j)
+    E_j with w_j one weight per row, alike in both assemblies, on one thread or two (R's row blocks beside S's);
+    a scalar weight is the array of it."""
+    import scipy.sparse as sp
+
+    from nlipscalib.solver import threads
+
+    mask = np.ones((30, 40), bool)
+    mask[10:14, 12:20] = False
+    du, dv, _ = geometry.gradient_operators(mask)
+    n = int(mask.sum())
+    extras = [(du - dv).tocsr(), (du @ du + dv).tocsr()]
+    rng = np.random.default_rng(5)
+    M = rng.normal(size=(3, 3, n))
+    M = M + M.transpose(1, 0, 2)
+    ops = (sp.identity(n, format="csr"), du, dv)
+    weights = (rng.uniform(0.01, 1.0, n), 0.3)
+    blocks = sum(ops[a].T @ sp.diags(M[a, b]) @ ops[b] for a in range(3) for b in range(3))
+    ref = blocks + extras[0].T @ sp.diags(weights[0]) @ extras[0] + 0.3 * (extras[1].T @ extras[1])
+    matrix = geometry.NormalMatrix(ops, extras, fixed=fixed)
+    monkeypatch.setattr(threads, "PRODUCT_MIN_ROWS", 1000)
+    before = threads.workers()
+    try:
+        for count in (1, 2):
+            threads.set_workers(count)
+            H = matrix.assemble(M, weights)
+            assert abs(H - ref).max() < 1e-12 and H.has_sorted_indices
+            scalar = matrix.assemble(M, (np.full(n, 0.3), np.full(n, 0.3)))
+            assert abs(scalar - matrix.assemble(M, (0.3, 0.3))).max() < 1e-12
+    finally:
+        threads.set_workers(before)
