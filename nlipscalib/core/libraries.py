@@ -2,7 +2,8 @@
 rendered press's meta.json), compared when a result would be reused, and listed by ``nlips --version``.
 
 Why: a library's release moves numbers (the demo's coin press: 3.82 deg contact AAE with today's NumPy/SciPy/pyamg,
-4.05 deg at the lowest supported versions, docs/reproducibility.md), and a result made under other versions is not
+4.05 deg at the lowest supported versions, both before the edge-preserving smoothness of 2026-12-06;
+docs/reproducibility.md), and a result made under other versions is not
 the one this installation makes. Versions are read from the installed distributions' metadata
 (:mod:`importlib.metadata`): nothing is imported for it, and a library that is not installed reads as None.
 """
