@@ -250,7 +250,33 @@ def _decode_ahead(args: argparse.Namespace) -> None:
         args.overwrite or not has_reconstruction(reconstruction_dir(args.press, args.out))
     ):
         prefetch_press(args.press)
+        _heap_ahead(args.press)
         import scipy.sparse.linalg  # noqa: F401 -- beside the decoding, as the solver's import did (see above)
+
+
+HEAP_AHEAD_SHARE = 0.7
+"""Share of an auto-ROI solve's modelled array memory (:data:`..core.cpus.SOLVE_ROI_MEMORY` less its base) that
+``nlips solve PRESS`` maps ahead. The model is the upper end at 640x480 (the cube press's peak RSS 0.58 GB; the
+sphere's 0.42, the coin's 0.45 GB), and pages mapped beyond a solve's peak are CPU and memory spent for nothing: at the
+whole model the sphere and coin took 0.06-0.07 s more CPU and 80-115 MB more memory; at 0.7 neither changed
+(benchmarks/RESULTS.md, s32-pages)."""
+
+
+def _heap_ahead(press: str) -> None:
+    """Map the solve's memory ahead on the second core's idle share (:func:`..core.pages.populate_heap_ahead`):
+    :data:`HEAP_AHEAD_SHARE` of an auto-ROI solve's modelled peak (:data:`..core.cpus.SOLVE_ROI_MEMORY`, the
+    libraries left out); nothing when the press's meta.json cannot be read (the load reports it)."""
+    from ..core.cpus import SOLVE_ROI_MEMORY
+    from ..core.errors import NlipsError
+    from ..core.pages import populate_heap_ahead
+    from ..core.press_meta import image_size
+
+    try:
+        width, height = image_size(press)
+    except (NlipsError, KeyError, TypeError, ValueError):
+        return
+    arrays = SOLVE_ROI_MEMORY.estimate(width, height) - SOLVE_ROI_MEMORY.base_bytes
+    populate_heap_ahead(int(HEAP_AHEAD_SHARE * arrays))
 
 
 def _check_min_leds(options: SolverOptions, press: Path, config: str) -> None:

@@ -91,6 +91,9 @@ ARENAS = 1
 frees serves the next array of any other."""
 
 
+_kept = [False]  # whether this process's allocator keeps freed memory (_reuse_freed_memory set it)
+
+
 def _reuse_freed_memory() -> None:
     """glibc's allocator serves large arrays from its heap and keeps them there when freed, instead of mapping fresh
     pages for each one and unmapping them on free (its default above 32 MB at most): the solver allocates its
@@ -116,10 +119,91 @@ def _reuse_freed_memory() -> None:
     mallopt(-3, KEEP_FREED_BYTES)  # M_MMAP_THRESHOLD
     mallopt(-1, KEEP_FREED_BYTES)  # M_TRIM_THRESHOLD
     mallopt(-8, ARENAS)  # M_ARENA_MAX, before the command's threads start: glibc fixes it at the first extra arena
+    _kept[0] = True
     os.environ["GLIBC_TUNABLES"] = (
         f"glibc.malloc.mmap_threshold={KEEP_FREED_BYTES}:glibc.malloc.trim_threshold={KEEP_FREED_BYTES}"
         f":glibc.malloc.arena_max={ARENAS}"
     )
+
+
+MADV_POPULATE_WRITE = 23
+"""Linux's ``madvise`` advice (5.14 and later) that maps a range's pages writable now, as writes would, leaving
+their contents as they are: safe on memory that the program uses meanwhile."""
+
+POPULATE_STEP_BYTES = 2 << 20
+"""Bytes populated per ``madvise`` call: short calls, so that another thread's growth of the heap or new mapping (which
+waits for the call: the kernel's lock of the address space) waits little; 32 MiB calls gave +0.05 s of CPU on cube1
+``--roi auto`` and no gain (benchmarks/RESULTS.md s32-pages)."""
+
+
+def populate_heap_ahead(nbytes: int) -> threading.Thread | None:
+    """Grow the allocator's heap by ``nbytes`` now and map its pages on a thread of the lowest priority, so that the
+    arrays the command allocates later find their pages already there; the thread, or None where nothing is done.
+
+    Why: a solve writes its arrays to fresh pages (the heap grows to its peak once, :func:`_reuse_freed_memory`):
+    cube1 ``--roi auto`` took ~130 k minor faults, each a trap and a zeroed page on the thread that first writes,
+    the main thread's ~30 k and the pool's ~25 k of them on the command's serial path. Here they are taken on the
+    idle share of the second core instead (nice 19: it runs only when no thread of the command waits for a
+    core). The heap is grown by one ``malloc`` and ``free`` (the freed block is the heap's top, which the trim
+    threshold keeps), then mapped 2 MiB at a time by ``madvise(MADV_POPULATE_WRITE)``, which changes no byte:
+    arrays allocated in it meanwhile are safe. The same numbers: only when the pages are mapped changes.
+
+    Nothing is done outside the ``nlips`` command's own allocator settings (:func:`ordinary_pages_for_command`,
+    without the user's ``GLIBC_TUNABLES``: a block this large would be mapped apart and unmapped on ``free``),
+    nor for more than half :data:`KEEP_FREED_BYTES` or a quarter of the memory available
+    (:func:`nlipscalib.core.cpus.available_memory`); on a
+    kernel before 5.14 the first ``madvise`` fails and the thread ends.
+
+    Parameters
+    ----------
+    nbytes : bytes of heap to map ahead (the command's expected peak of arrays).
+
+    Returns
+    -------
+    threading.Thread or None
+    """
+    from .cpus import available_memory
+
+    if not _kept[0] or nbytes <= 0:
+        return None
+    available = available_memory()
+    nbytes = min(nbytes, KEEP_FREED_BYTES // 2)  # a block above the trim threshold would go back to the kernel at once
+    nbytes = min(nbytes, available // 4) if available is not None else nbytes
+    start, end = _grown_heap(nbytes)
+    if start >= end:
+        return None
+    import ctypes
+
+    madvise = ctypes.CDLL(None).madvise
+    madvise.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_int]
+
+    def populate() -> None:
+        with contextlib.suppress(OSError):  # lowest priority: the command's own threads first
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
+        for at in range(start, end, POPULATE_STEP_BYTES):
+            if madvise(at, min(POPULATE_STEP_BYTES, end - at), MADV_POPULATE_WRITE) != 0:
+                return  # a kernel without the advice, or memory short: the arrays fault their pages as before
+
+    thread = threading.Thread(target=populate, name="populate-heap", daemon=True)
+    thread.start()
+    return thread
+
+
+def _grown_heap(nbytes: int) -> tuple[int, int]:
+    """Grow glibc's heap by ``nbytes`` (a block allocated and freed at once: with the command's thresholds it stays
+    in the heap); (start, end) of its whole pages, or (0, 0) when the allocation failed."""
+    import ctypes
+
+    libc = ctypes.CDLL(None)
+    libc.malloc.restype = ctypes.c_void_p
+    libc.malloc.argtypes = [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
+    address = libc.malloc(nbytes)
+    if not address:
+        return 0, 0
+    libc.free(address)
+    page = os.sysconf("SC_PAGE_SIZE")
+    return -(-address // page) * page, (address + nbytes) // page * page
 
 
 def _users_choice() -> bool:

@@ -68,3 +68,45 @@ def test_nlips_solve_leaves_its_imported_modules_out_of_the_garbage_collectors_w
     before = gc.get_freeze_count()
     assert main(["--no-progress", "solve", str(press), "--no-figures", "--overwrite"]) == 0
     assert gc.get_freeze_count() == before and gc.isenabled()
+
+
+HEAP_AHEAD_AT_EXIT = (
+    "import atexit, sys\n"
+    "from nlipscalib.core import pages\n"
+    "calls = []\n"
+    "populate = pages.populate_heap_ahead\n"
+    "def spy(nbytes):\n"
+    "    thread = populate(nbytes)\n"
+    "    calls.append((nbytes, thread is not None))\n"
+    "    return thread\n"
+    "pages.populate_heap_ahead = spy\n"
+    "atexit.register(lambda: print('calls', calls))\n"
+    "sys.argv = ['nlips', '--no-progress', 'solve', sys.argv[1], '--no-figures', '--overwrite']\n"
+    "from nlipscalib.cli import command\n"
+    "command()\n"
+)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator settings")
+def test_nlips_solve_maps_its_memory_ahead_in_its_own_process_only(tmp_path, monkeypatch):
+    """``nlips solve PRESS`` grows the heap by its share of an auto-ROI solve's modelled arrays and starts the thread
+    that maps it (core.pages.populate_heap_ahead); ``cli.main`` from Python, whose allocator keeps its settings, maps
+    nothing ahead."""
+    from nlipscalib.cli import main
+    from nlipscalib.cli.solve import HEAP_AHEAD_SHARE
+    from nlipscalib.core import pages
+    from nlipscalib.core.cpus import SOLVE_ROI_MEMORY
+    from tests.solver import synth
+
+    monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
+    press = synth.make_press(tmp_path / "p", "sphere", size=(48, 36))
+    run = subprocess.run(
+        [sys.executable, "-c", HEAP_AHEAD_AT_EXIT, str(press)], capture_output=True, text=True, cwd=ROOT, timeout=300
+    )
+    assert run.returncode == 0, run.stderr
+    expected = int(HEAP_AHEAD_SHARE * (SOLVE_ROI_MEMORY.estimate(48, 36) - SOLVE_ROI_MEMORY.base_bytes))
+    assert f"calls [({expected}, True)]" in run.stdout
+    started, populate = [], pages.populate_heap_ahead
+    monkeypatch.setattr(pages, "populate_heap_ahead", lambda nbytes: started.append(populate(nbytes) is not None))
+    assert main(["--no-progress", "solve", str(press), "--no-figures", "--overwrite"]) == 0
+    assert started == [False]  # asked, and nothing mapped: the allocator's settings are the command's alone

@@ -123,3 +123,51 @@ def test_a_users_own_allocator_settings_are_kept(monkeypatch):
     monkeypatch.setenv("GLIBC_TUNABLES", "glibc.malloc.arena_max=1")
     pages._reuse_freed_memory()
     assert os.environ["GLIBC_TUNABLES"] == "glibc.malloc.arena_max=1"
+
+
+FAULTS_AFTER_HEAP_AHEAD = """
+import resource, sys, numpy as np
+from nlipscalib.core import pages
+pages.ordinary_pages_for_command()
+thread = pages.populate_heap_ahead(int(sys.argv[1]))
+if thread is not None:
+    thread.join()
+before = resource.getrusage(resource.RUSAGE_THREAD).ru_minflt
+arrays = [np.ones(8 << 20) for _ in range(3)]  # 3 x 64 MB, all alive
+print(resource.getrusage(resource.RUSAGE_THREAD).ru_minflt - before)
+"""
+
+
+def _kernel_at_least(major: int, minor: int) -> bool:
+    """Whether this Linux kernel's version is ``major.minor`` or later."""
+    numbers = os.uname().release.split("-")[0].split(".")
+    try:
+        return (int(numbers[0]), int(numbers[1])) >= (major, minor)
+    except (IndexError, ValueError):
+        return False
+
+
+@pytest.mark.skipif(
+    not sys.platform.startswith("linux") or not _kernel_at_least(5, 14), reason="glibc, MADV_POPULATE_WRITE"
+)
+def test_memory_mapped_ahead_spares_the_arrays_their_page_faults(monkeypatch):
+    """Three 64 MB arrays alive at once on the main thread: ~48 k fresh pages faulted by it; after the heap was
+    mapped ahead on the thread, next to none."""
+    monkeypatch.delenv("GLIBC_TUNABLES", raising=False)
+    monkeypatch.setenv(pages.ADVICE_VARIABLE, "0")
+
+    def faults(nbytes: int) -> int:
+        code = FAULTS_AFTER_HEAP_AHEAD
+        out = subprocess.run([sys.executable, "-c", code, str(nbytes)], capture_output=True, text=True, check=True)
+        return int(out.stdout)
+
+    plain, ahead = faults(0), faults(256 << 20)
+    assert plain > 3 * 16_000 * 0.9  # 3 x 64 MB of fresh 4 KiB pages
+    assert ahead < plain / 10
+
+
+def test_nothing_is_mapped_ahead_outside_the_commands_allocator_settings(monkeypatch):
+    """Without the command's thresholds a block this large is mapped apart and unmapped when freed: nothing to
+    map ahead (a test session, a Python program calling ``cli.main``, a user's own ``GLIBC_TUNABLES``)."""
+    monkeypatch.setattr(pages, "_kept", [False])
+    assert pages.populate_heap_ahead(64 << 20) is None
