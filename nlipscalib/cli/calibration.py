@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.press_meta import REFERENCE_FOLDER, read_meta
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
     from ..progress import BATCH, press_lines
-    from .folders import check_one_capture
+    from .folders import check_one_capture, check_undeformed
 
     press_lines(BATCH)  # a line per solved press; how each was solved with -v
     check_count("--workers", args.workers, minimum=0)
@@ -116,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         root = Path(args.presses)
         if args.reference is not None:
             check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
+            check_undeformed(args.reference, "the undeformed dome's capture (--reference)", "or leave out --reference")
         presses, reference = split_reference(root, args.reference)
         if reference is not None:  # a missing or broken --reference: one line naming it, before any solving
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
