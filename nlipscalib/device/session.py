@@ -183,7 +183,7 @@ def _above_the_bar() -> contextlib.AbstractContextManager:
 
     Why: the bar leaves the cursor at its end, so on a terminal each prompt was written onto the bar's line
     ("capture:  33%|####      | 1/3 [00:00<00:01, 1.56press/s]Press 1/2: press the object now, hold still.").
-    No lock is held: the operator's answer may take for the operator a long time."""
+    No lock is held: the operator may take a long time to answer."""
     from ..progress import above_the_bars
 
     return above_the_bars(wait_for_lock=False)

@@ -65,3 +65,34 @@ def test_a_twin_press_given_for_the_undeformed_dome_is_refused_before_any_work(t
 def test_the_undeformed_render_is_taken_as_the_reference(twin, capsys):
     assert main(["solve", str(twin / "press_0001"), "--reference", str(twin / "reference"), "-q"]) == 0
     assert capsys.readouterr().out == f"{twin / 'press_0001' / 'nlips'}\n"
+
+
+def _flip_member(npz, member):
+    """8 bytes inverted in the middle of ``member``'s stored bytes in the archive ``npz``: whole length, its ends
+    as written, the member's CRC-32 failing."""
+    import zipfile
+
+    with zipfile.ZipFile(npz) as archive:
+        info = archive.getinfo(member)
+        start = info.header_offset + 30 + len(info.filename) + len(info.extra) + info.compress_size // 2
+    data = bytearray(npz.read_bytes())
+    data[start : start + 8] = bytes(b ^ 0xFF for b in data[start : start + 8])
+    npz.write_bytes(bytes(data))
+
+
+def test_eval_of_a_folder_scores_the_others_when_one_ground_truth_is_damaged(twin, tmp_path, capsys):
+    """`nlips eval FOLDER` with one press's gt.npz damaged inside: the whole table failed on it (exit 2, nothing
+    scored), where a damaged result fails its press alone. Now it is named under the table, the others scored,
+    exit 1 (done in part)."""
+    config = tmp_path / "quick.toml"
+    config.write_text("max_iters = 2\n", encoding="utf-8")
+    assert main(["solve", str(twin), "--config", str(config), "--figures", "none", "--workers", "1", "-q"]) == 0
+    capsys.readouterr()
+    _flip_member(twin / "press_0002" / "gt.npz", "normals.npy")
+    assert main(["eval", str(twin)]) == 1
+    out, err = capsys.readouterr()
+    assert [line.split()[0] for line in out.strip().splitlines()] == ["press", "press_0001"]
+    assert f"damaged, not scored: press_0002: {twin / 'press_0002' / 'gt.npz'}: array 'normals' is not readable" in err
+    assert "Traceback" not in err
+    assert main(["eval", str(twin / "press_0002")]) == 2  # one press: its error, as before
+    assert capsys.readouterr().err.startswith(f"nlips eval: error: {twin / 'press_0002' / 'gt.npz'}: array 'normals'")
