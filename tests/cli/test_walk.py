@@ -96,3 +96,41 @@ def test_eval_of_a_folder_scores_the_others_when_one_ground_truth_is_damaged(twi
     assert "Traceback" not in err
     assert main(["eval", str(twin / "press_0002")]) == 2  # one press: its error, as before
     assert capsys.readouterr().err.startswith(f"nlips eval: error: {twin / 'press_0002' / 'gt.npz'}: array 'normals'")
+
+
+SPEC = """
+scene = "nlipstac"
+seed = 2024
+reference = true
+[camera]
+width = 160
+height = 120
+[random]
+count = 2
+polar_deg = [0.0, 30.0]
+azimuth_deg = [0.0, 360.0]
+depth = [0.4, 1.5]
+indenters = [{ kind = "sphere", size = 6.0 }]
+"""
+"""A dataset spec, as docs/formats.md's try-out."""
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["solve", "{root}/press_0001", "--config", "{spec}"],
+        ["render", "--scene", "{spec}", "--out", "{root}/p9"],
+    ],
+    ids=lambda c: c[0],
+)
+def test_a_dataset_spec_given_to_another_command_is_named_as_one(twin, tmp_path, capsys, command):
+    """`nlips solve PRESS --config spec.toml` and `nlips render --scene spec.toml` said only "unknown key(s)
+    ['camera', 'random', ...]" and the other file's 10-40 keys: nothing said that the file is a dataset spec."""
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC, encoding="utf-8")
+    assert main([part.format(root=twin, spec=spec) for part in command]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert (
+        f"{spec}: unknown key(s) [" in line and "]; a dataset spec? give it to `nlips dataset SPEC --out DIR`" in line
+    )
+    assert not (twin / "p9").exists() and not (twin / "press_0001" / "nlips").exists()
