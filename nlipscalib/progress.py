@@ -386,6 +386,20 @@ def print_result(path: str | Path) -> None:
     print(shown)
 
 
+def ask(prompt: str) -> str:
+    """Wait for the person at the terminal to answer ``prompt`` (Enter); the line typed, without its newline.
+
+    The prompt goes to stderr, written here, and never to stdout. Why: ``input(prompt)`` writes it to stdout
+    whenever stdout is not a terminal, so ``session=$(nlips capture --port ...)`` at a terminal read the operator's
+    instructions ("Do not touch the sensor: ... [Enter] ") into the variable ahead of the session's folder, and a
+    script got no path it could use. stdout holds result paths alone (:func:`print_result`); ``input()`` without a
+    prompt writes nothing there. Raises EOFError when stdin is closed (Ctrl-D), as ``input`` does."""
+    if sys.stderr is not None:
+        sys.stderr.write(prompt)
+        sys.stderr.flush()
+    return input()
+
+
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 """Control characters: a line break among them, which would split a printed name or error over two lines."""
 

@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.config import check_count
     from ..core.errors import ConfigError
     from ..core.sensor import MAX_EMITTER_DIAMETER_MM
-    from .folders import check_one_capture
+    from .folders import check_one_capture, check_undeformed
 
     if args.stride is not None:
         check_count("--stride", args.stride, minimum=1)
@@ -108,6 +108,8 @@ def run(args: argparse.Namespace) -> int:
     check_writable(Path(args.out).parent)  # a file in its place or a read-only disk: before the fit, not after it
     for folder in args.presses:
         check_one_capture(folder, "a capture of the undeformed dome")
+        if not args.allow_contact:
+            check_undeformed(folder, "a capture of the undeformed dome", "or pass --allow-contact to fit on it anyway")
     with _fit_held(Path(args.out), _fit_key(args)) as done_by:
         if done_by is not None:
             from ..progress import print_result, say

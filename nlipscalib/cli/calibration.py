@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from ..core.press_meta import REFERENCE_FOLDER, read_meta
     from ..learn.dataset import DEFAULT_DIR, SamplingConfig, check_min_leds, dataset_run, hold_dataset
     from ..progress import BATCH, press_lines
-    from .folders import check_one_capture
+    from .folders import check_one_capture, check_undeformed
 
     press_lines(BATCH)  # a line per solved press; how each was solved with -v
     check_count("--workers", args.workers, minimum=0)
@@ -116,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         root = Path(args.presses)
         if args.reference is not None:
             check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
+            check_undeformed(args.reference, "the undeformed dome's capture (--reference)", "or leave out --reference")
         presses, reference = split_reference(root, args.reference)
         if reference is not None:  # a missing or broken --reference: one line naming it, before any solving
             check_min_leds(cfg, len(read_meta(reference).get("leds") or ()), reference)
@@ -138,10 +139,27 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else root / DEFAULT_DIR
     check_writable(out)  # a file in its place or a read-only disk: one line now, not after solving every press
     leds = str(Path(args.leds).resolve()) if args.leds is not None else None
+    damaged = _left_out_damaged(root, presses, out)
+    presses = [p for p in presses if p.name not in damaged]
     run = dataset_run(presses, reference, cfg, solve={"normals": args.normals, "leds": leds})
     # held from before the solves: a build of other samples into this --out is refused now, not after them
     with hold_dataset(out, run, option_of=OPTION_OF | SOLVE_OPTION_OF):
-        return _solve_and_build(args, root, presses, reference, out, cfg, run)
+        return _solve_and_build(args, root, presses, reference, out, cfg, run, damaged)
+
+
+def _left_out_damaged(root: Path, presses: list[Path], out: Path) -> dict[str, str]:
+    """The presses left out before any solve, by name with their line (logged here): a file only the samples read
+    is damaged inside (:func:`nlipscalib.learn.dataset.damaged_sampled_files`), which the build met after every
+    press was solved. ConfigError when that leaves none."""
+    from ..core.errors import ConfigError
+    from ..learn.dataset import damaged_sampled_files
+
+    damaged = damaged_sampled_files(presses, out)
+    for line in damaged.values():
+        log.error("%s; the press is left out, not solved: copy it again, or capture it again", line)
+    if damaged and len(damaged) == len(presses):
+        raise ConfigError(f"{root}: every press holds a damaged file (each named above)")
+    return damaged
 
 
 def _solve_and_build(
@@ -152,8 +170,10 @@ def _solve_and_build(
     out: Path,
     cfg: SamplingConfig,
     run: dict,
+    damaged: dict[str, str],
 ) -> int:
-    """The solves, the dataset and its coverage report, and the summary lines (exit status)."""
+    """The solves, the dataset and its coverage report, and the summary lines (exit status); ``damaged``: the
+    presses left out before solving (:func:`_left_out_damaged`), counted with those the build leaves out."""
     from ..core.cpus import SOLVE_ROI_MEMORY, solve_worker_count
     from ..core.errors import ConfigError
     from ..core.press_meta import image_size, read_meta
@@ -178,7 +198,7 @@ def _solve_and_build(
     # earlier dataset's report (or half of it) beside this one's index.json
     for name in COVERAGE_FILES:
         (out / name).unlink(missing_ok=True)
-    unsampled: dict[str, str] = {}  # a press whose tri-colour image is damaged fails alone, as a failed solve
+    unsampled = dict(damaged)  # a press whose tri-colour image is damaged fails alone, as a failed solve
     build_dataset(solved, reference, out, cfg, progress=not args.no_progress, run=run, failed=unsampled)
     data = CalibrationDataset(out)
     cov = coverage(data, camera_position=camera_position_of(read_meta(Path(reference))))

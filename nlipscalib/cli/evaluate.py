@@ -24,6 +24,7 @@ if TYPE_CHECKING:  # named in hints only: imported when a result is scored
     import numpy as np
 
     from ..core.reconstruction import Reconstruction
+    from ..core.surface_files import GroundTruth
     from ..pipeline import SolveSettings
 
 log = logging.getLogger(__name__)
@@ -87,7 +88,18 @@ def run(args: argparse.Namespace) -> int:
         elif stale:
             outdated.append((folder.name, stale))
         else:
-            rows.append((folder.name, _scores(folder, rec, out if args.other_capture else None)[args.region]))
+            truth = None
+            try:
+                truth = _ground_truth(folder)  # its arrays are inflated as they are scored
+                scores = _scores(folder, rec, out if args.other_capture else None, truth)
+            except CaptureError as exc:
+                # in a batch, a damaged gt.npz fails its press alone, as a damaged result does (it failed the table);
+                # a press without one stops it: a folder of captures has none to score against
+                if len(pairs) == 1 or truth is None:
+                    raise
+                damaged.append((folder.name, str(exc)))
+                continue
+            rows.append((folder.name, scores[args.region]))
     if not rows and not damaged and not outdated:
         raise CaptureError(
             f"{args.path}: no press has a {method} result yet (run {MAKES[method].format(path=args.path)} first)"
@@ -392,14 +404,14 @@ def _recompute(folder: Path, out: Path, settings: SolveSettings) -> Reconstructi
     return result
 
 
-def _scores(folder: Path, rec: Reconstruction, other_capture: Path | None = None) -> dict:
-    """Scores of ``rec`` against the ground truth of ``folder``; ``other_capture``, the result folder given with
-    ``--other-capture``: first refuse it when its surface is not this press's (:func:`_far_from_truth`)."""
+def _scores(folder: Path, rec: Reconstruction, other_capture: Path | None, gt: GroundTruth | None) -> dict:
+    """Scores of ``rec`` against ``gt``, the ground truth of ``folder`` (:func:`_ground_truth`: None when it has
+    none); ``other_capture``, the result folder given with ``--other-capture``: first refuse it when its surface is
+    not this press's (:func:`_far_from_truth`)."""
     from ..core.errors import CaptureError
     from ..core.metrics import evaluate
     from ..core.tolerances import OTHER_CAPTURE_DEPTH_MM
 
-    gt = _ground_truth(folder)
     if gt is None:
         raise CaptureError(
             f"{folder}: no ground truth (gt.npz) to evaluate against: only twin renders (nlips render, dataset, "

@@ -40,8 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--workers",
         type=int,
-        help="local worker processes (default 1: one task at a time, rendering and solving on all usable cores' "
-        "threads; N workers share the cores out as threads, a container's CPU quota counted)",
+        help="local worker processes (default 1: one task at a time, in this process, rendering and solving on all "
+        "usable cores' threads; N: up to N tasks at a time, one per process, the processes sharing the cores out "
+        "as threads, a container's CPU quota counted; not with --scheduler)",
     )
     p.add_argument(
         "--scheduler",
@@ -123,6 +124,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(
             f"--size {args.size} and --config {args.config}: the config file replaces the size's settings; "
             "give one of them"
+        )
+    if args.scheduler is not None and args.workers is not None:
+        # the Dask workers run the tasks: --workers started no process and was dropped without a word
+        raise ConfigError(
+            f"--workers is not used with --scheduler {args.scheduler}: the cluster's workers run the tasks "
+            "(local:N starts N of them); drop --workers"
         )
     fill_defaults(args, {"size": "quick", "out": "out/experiments", "workers": 1})
     check_count("--workers", args.workers, minimum=1)

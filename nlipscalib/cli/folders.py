@@ -40,3 +40,45 @@ def check_one_capture(folder: str | Path, role: str) -> None:
         raise ConfigError(f"{folder}: a folder of presses, not {role}; its undeformed dome is {reference} (give that)")
     if find_presses(folder):
         raise ConfigError(f"{folder}: a folder of presses, not {role}; give one capture's folder")
+
+
+def check_undeformed(folder: str | Path, role: str, way_out: str) -> None:
+    """A ConfigError when ``folder`` is a twin render of a press (its meta.json records the indenter) where the
+    undeformed dome's capture is expected; ``role`` names that ("the undeformed dome's capture (--reference)"),
+    ``way_out`` ends the line ("or solve without --reference").
+
+    Why: ``nlips solve PRESS --reference OTHER_PRESS`` and ``nlips calibrate FOLDER --reference FOLDER/press_0002``
+    solved against the other press's dented dome, exit 0: its contact and its anchoring came out wrong without a
+    word; ``nlips calibrate-leds PRESS`` fitted the LEDs first (minutes at 640x480) and refused after the fit. A
+    capture of the real sensor records no press, so only the twin's renders are told apart here; anything else
+    (a broken meta.json) is left to the loader's own message.
+    """
+    from ..core.errors import CaptureError
+    from ..core.press_meta import read_meta
+
+    folder = Path(folder)
+    if not is_press_folder(folder):
+        return
+    try:
+        provenance = read_meta(folder).get("provenance")
+    except CaptureError:
+        return
+    press = provenance.get("press") if isinstance(provenance, dict) and provenance.get("source") == "sim" else None
+    if not isinstance(press, dict):
+        return
+    sibling = folder.parent / REFERENCE_FOLDER
+    given = f"its {REFERENCE_FOLDER}/ ({sibling}), " if sibling != folder and is_press_folder(sibling) else ""
+    raise ConfigError(
+        f"{folder}: a press of the twin ({_pressed(press)}), not {role}; give {given}an undeformed render "
+        f"(`nlips render --undeformed` with the press's scene and options), {way_out}"
+    )
+
+
+def _pressed(press: dict) -> str:
+    """'a sphere of 6 mm pressed 1.50 mm deep' from a twin press's description (meta.json's provenance.press)."""
+    indenter = press.get("indenter") if isinstance(press.get("indenter"), dict) else {}
+    kind, size, depth = indenter.get("kind"), indenter.get("size"), press.get("depth")
+    what = f"a {kind}" if isinstance(kind, str) and kind.isprintable() else "an indenter"
+    if isinstance(size, (int, float)):
+        what += f" of {size:g} mm"
+    return what + (f" pressed {depth:.2f} mm deep" if isinstance(depth, (int, float)) else "")

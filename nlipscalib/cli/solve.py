@@ -169,7 +169,7 @@ def run(args: argparse.Namespace) -> int:
     from ..pipeline.provenance import identity_in_background
     from ..progress import BATCH, press_lines, print_result
     from . import imports_frozen
-    from .folders import check_one_capture
+    from .folders import check_one_capture, check_undeformed
 
     _press_after_roi(args)
     identity_in_background(args.press, args.reference)  # beside the solver's import, which follows
@@ -186,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         raise no_presses_error(args.press)
     if args.reference is not None:
         check_one_capture(args.reference, "the undeformed dome's capture (--reference)")
+        check_undeformed(args.reference, "the undeformed dome's capture (--reference)", "or solve without --reference")
     if reference is not None:
         read_meta(reference)  # a missing or broken --reference is one line now, not one failure per press
     if args.config:  # --normals alone sets no min_leds

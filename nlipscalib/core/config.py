@@ -77,7 +77,8 @@ def from_mapping(cls: type[ConfigT], data: Any, where: str = "") -> ConfigT:
     fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     unknown = set(data) - set(fields)
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)} (known: {', '.join(fields)})")
+        known = ", ".join(fields)
+        raise ConfigError(f"{where}: unknown key(s) {sorted(unknown)}{_other_kind(unknown)} (known: {known})")
     kwargs = {}
     for name, field in fields.items():
         if name not in data:
@@ -92,6 +93,20 @@ def from_mapping(cls: type[ConfigT], data: Any, where: str = "") -> ConfigT:
         raise ConfigError(f"{where}: {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{where}: {exc}") from None
+
+
+OTHER_FILE_KINDS = (
+    ("a dataset spec? give it to `nlips dataset SPEC --out DIR`", frozenset({"grid", "random"})),
+    ("a scene file? give it to `nlips render --scene FILE`", frozenset({"dome", "leds", "coating"})),
+)
+"""What a file is when the keys a config refuses include one of these (the words said, the keys that tell): the file
+given is another command's. Why: `nlips solve PRESS --config spec.toml` (the dataset spec of the README's walk) said
+only "unknown key(s) ['camera', 'random', ...]" and the solver's 40 options; `nlips render --scene spec.toml` alike."""
+
+
+def _other_kind(unknown: set[str]) -> str:
+    """ "; a dataset spec? give it to ..." when the refused keys tell another command's file, else ""."""
+    return next((f"; {words}" for words, keys in OTHER_FILE_KINDS if unknown & keys), "")
 
 
 def _over_default(field: dataclasses.Field, value: Any) -> Any:

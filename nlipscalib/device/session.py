@@ -26,7 +26,6 @@ import dataclasses
 import json
 import logging
 import os
-import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -154,14 +153,11 @@ class Operator:
 
     def _prompt(self, text: str) -> None:
         if self.interactive:
-            if sys.stdin.isatty() and sys.stdout.isatty():
-                # input() then writes the prompt to the terminal itself, past the copy of stdout that --log-file
-                # gets (progress.results_to_log_file); otherwise the prompt goes through sys.stdout and that copy
-                from ..progress import file_log
+            from ..progress import ask, file_log
 
-                file_log(logging.INFO, text)
+            file_log(logging.INFO, text)  # the prompt is on stderr, which --log-file gets no copy of
             try:
-                input(f"{text} [Enter] ")
+                ask(f"{text} [Enter] ")
             except EOFError:  # Ctrl-D or a closed stdin: stop like Ctrl-C, keeping what is captured
                 raise KeyboardInterrupt from None
         else:
@@ -187,7 +183,7 @@ def _above_the_bar() -> contextlib.AbstractContextManager:
 
     Why: the bar leaves the cursor at its end, so on a terminal each prompt was written onto the bar's line
     ("capture:  33%|####      | 1/3 [00:00<00:01, 1.56press/s]Press 1/2: press the object now, hold still.").
-    No lock is held: input() may wait for the operator a long time."""
+    No lock is held: the operator may take a long time to answer."""
     from ..progress import above_the_bars
 
     return above_the_bars(wait_for_lock=False)

@@ -168,6 +168,8 @@ class _backend:
     def __init__(self, scheduler: str | None, workers: int):
         self.scheduler, self.workers = scheduler, max(1, int(workers))
         self.client = self.cluster = None
+        self.cluster_workers = 0
+        """The local cluster's worker processes (``local:N``), or 0 for a remote cluster's."""
         self._levels: dict[str, int] = {}  # dask.distributed's log levels before this run quieted them
 
     def __enter__(self):
@@ -200,13 +202,13 @@ class _backend:
             _LOCAL_CLUSTERS.append(self.cluster)
             self.client = client(self.cluster)
             self.client.register_plugin(_quiet_workers())  # only our own workers: a shared cluster's stay as they are
-            self.threads = max(1, usable_cores() // n)
+            self.cluster_workers = n  # each task's share of the cores is set per stage (_await)
         else:
             try:
                 self.client = client(self.scheduler, timeout="30s")
             except (OSError, TimeoutError) as exc:
                 raise ConfigError(f"--scheduler {self.scheduler}: cannot reach the Dask scheduler ({exc})") from None
-            self.threads = 0  # a remote worker renders with all its cores
+            self.cluster_workers = 0  # a remote cluster's: each renders with all of its own cores
         self.client.register_plugin(_main_thread_imports())  # also on workers that join later
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
@@ -226,14 +228,17 @@ class _backend:
             _restore_levels(self._levels)
 
     def _local(self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm) -> None:
-        threads = max(1, usable_cores() // self.workers)
-        if self.workers == 1 or len(tasks) == 1:
+        # the cores shared by the processes this stage runs, not by --workers: a stage of fewer tasks (q1's one
+        # reference, then its one calibration) rendered on cores/N threads in this process, the rest idle
+        running = min(self.workers, len(tasks))
+        threads = max(1, usable_cores() // running)
+        if running == 1:
             for t in tasks:
                 if status.no_space:
                     return
                 _record(status, t.id, execute(t, out, threads, keep), bar)
             return
-        _WorkerSlots(min(self.workers, len(tasks)), str(out), threads, keep).run(tasks, status, bar)
+        _WorkerSlots(running, str(out), threads, keep).run(tasks, status, bar)
 
     def _dask(self, tasks: list[Task], out: Path, keep: bool, status: RunStatus, bar: tqdm) -> None:
         level = logging.getLogger(PACKAGE).getEffectiveLevel()  # of the records the tasks carry back (task_logs)
@@ -248,12 +253,16 @@ class _backend:
     ) -> None:
         from distributed import as_completed as dask_completed
 
+        # a local cluster's share of this machine's cores for each of the stage's tasks at a time (as _local);
+        # a remote cluster's workers (0) keep all of their own
+        local = self.cluster_workers
+        threads = max(1, usable_cores() // min(local, len(tasks))) if local > 0 else 0
         futures = {
             self.client.submit(
                 _execute_on_dask_worker,
                 t,
                 str(out),
-                self.threads,
+                threads,
                 keep,
                 level,
                 live.for_task(t.id),

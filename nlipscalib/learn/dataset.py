@@ -603,6 +603,42 @@ def check_min_leds(cfg: SamplingConfig, n_leds: int, where: str | Path) -> None:
         raise ConfigError(f"min_leds must be at most the {n_leds} LEDs of {where}, got {cfg.min_leds}")
 
 
+SAMPLED_GROUND_TRUTH = ("normals.npy", "valid.npy")
+"""The members of a press's gt.npz that its samples read (:func:`press_samples`: the true normals where valid)."""
+
+
+def damaged_sampled_files(folders: Iterable[Path], out: Path) -> dict[str, str]:
+    """The presses of ``folders`` whose files only the samples read (the tri-colour image; the ground truth's
+    :data:`SAMPLED_GROUND_TRUTH`) are missing, cut short or damaged inside, by name, each with the line naming the
+    file and the problem.
+
+    Why: ``nlips calibrate`` solves every press before it samples any, so such a press was solved (minutes at
+    640x480) and then left out, its file named only at the end; the solve reads its LED images itself, at the
+    start of each press's solve. Checked from all of their bytes (:func:`~nlipscalib.core.file_checks.
+    damage_inside`: ~1 ms for a 640x480 tri-colour image, ~30 ms to inflate the ground truth's normals); a press
+    whose shard is in ``out`` already is not checked (a resumed build keeps that shard, reading neither file).
+    """
+    from ..core.file_checks import damage_inside, file_problem
+    from ..core.press_meta import read_meta
+
+    damaged = {}
+    for folder in folders:
+        if (out / SHARD_DIR / f"{folder.name}.npz").is_file():
+            continue
+        meta = read_meta(folder)
+        images = meta.get("images")
+        checked = [(images.get("tricolor"), None)] if isinstance(images, dict) else []
+        if meta.get("ground_truth"):
+            checked.append((meta["ground_truth"], SAMPLED_GROUND_TRUTH))
+        for name, members in checked:
+            if isinstance(name, str) and (
+                problem := file_problem(folder / name) or damage_inside(folder / name, members)
+            ):
+                damaged[folder.name] = f"{folder / name}: {problem}"
+                break
+    return damaged
+
+
 def shard_stamp(result: Path, cfg: SamplingConfig, reference_digest: str) -> str:
     """What made a shard (its resume key, ``stamp``): a digest of the reconstruction's content, the sampling options,
     the undeformed reference's arrays (:func:`arrays_digest`) and the sampling code's versions (:data:`SAMPLE_RULES`).

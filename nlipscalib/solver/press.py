@@ -34,6 +34,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -581,7 +582,8 @@ def _solve_press(
     # with the indirect term forced off and no undeformed capture, the model leaves out the gel's own light on
     # purpose (10 % of the twin's brightness at one bounce): its misfit then says nothing of the sensor's files
     modelled = ref_capture is not None or interreflection != "off"
-    if check_sensor and modelled and cmap is not None and (other := sensor_mismatch(cmap, press)):
+    undeformed = Path(ref_capture.folder) if ref_capture is not None and ref_capture.folder is not None else None
+    if check_sensor and modelled and cmap is not None and (other := sensor_mismatch(cmap, press, undeformed)):
         raise CaptureError(other)
     sensor_note = None
     if check_sensor is False:  # the user's override: what it overrode goes in the report (and a warning)

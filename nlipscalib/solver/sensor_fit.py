@@ -16,6 +16,7 @@ the falloff is the only evidence; it tells designs apart whose domes or LED ring
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -123,13 +124,19 @@ def view_spread_deg(camera: Camera, gel: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((rays @ mean).min(), -1.0, 1.0))))
 
 
-def sensor_mismatch(contact: ContactMap, press: Press) -> str | None:
+def sensor_mismatch(contact: ContactMap, press: Press, undeformed: Path | None = None) -> str | None:
     """One line naming ``folder`` when its images do not fit the sensor its files describe
     (:data:`~nlipscalib.core.tolerances.SENSOR_MISFIT_SHARE` of their brightness and
     :data:`~nlipscalib.core.tolerances.MODEL_MISFIT_FLOOR` times the noise, with each LED's gain fitted, and the
     best-fitting tenth of the gel by :data:`~nlipscalib.core.tolerances.SENSOR_MISFIT_BEST_SHARE`); None when they
     fit, or when nothing could be measured, or when the view of ``press`` (with ``reference``) sees less of the dome
-    than :data:`~nlipscalib.core.tolerances.SENSOR_FIT_VIEW_DEG`."""
+    than :data:`~nlipscalib.core.tolerances.SENSOR_FIT_VIEW_DEG`.
+
+    ``undeformed``: the folder of the undeformed dome's capture the contact was classified against (``nlips solve
+    --reference``), whose images are then the model: the line names that capture, not the press's own files. Why:
+    an emulator's press solved with a twin render of other light settings as its --reference was told "its images
+    were not taken with the sensor that its meta.json and reference.npz describe ... Were those files copied from
+    another sensor?", of a press whose files were its own and which solved without the --reference."""
     folder = press.folder
     share, best, floor = contact.sensor_fit
     if not (share >= tolerances.SENSOR_MISFIT_SHARE and floor >= tolerances.MODEL_MISFIT_FLOOR):
@@ -139,6 +146,16 @@ def sensor_mismatch(contact: ContactMap, press: Press) -> str | None:
     if view_spread_deg(press.camera, np.isfinite(press.reference.depth)) < tolerances.SENSOR_FIT_VIEW_DEG:
         return None  # a view of a patch of the dome (a crop) may be all dent: its misfit says nothing of the sensor
     limit = tolerances.SENSOR_MISFIT_SHARE * 100
+    if undeformed is not None:
+        return (
+            f"{folder}: its images do not fit {undeformed}, the undeformed dome's capture it is solved with: that "
+            f"capture's light misses them by {share * 100:.0f} % of their brightness all over the gel with each LED's "
+            f"power fitted ({floor:.0f} times the noise; a capture of the same sensor and settings: below "
+            f"{limit:.0f} %). Was {undeformed} captured with another sensor or other settings (exposure, gain, LED "
+            f"levels; for a render, its bounces or scene)? Give the undeformed capture taken with this press's sensor "
+            f"and settings (--reference; `nlips solve` also solves without one); a capture known to fit is used "
+            f"anyway with `nlips solve {OVERRIDE_FLAG}` (check_sensor=False in the API)"
+        )
     return (
         f"{folder}: its images were not taken with the sensor that its meta.json and reference.npz describe (dome, "
         f"camera, LEDs): the undeformed dome's model misses them by {share * 100:.0f} % of their brightness all over "

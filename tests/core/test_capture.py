@@ -196,7 +196,7 @@ def test_an_undecoded_capture_checks_its_images_now_and_decodes_them_at_first_re
     _edit_meta(folder, lambda m: m["camera"].update(width=W))
     _spoil_png(folder / "led_02.png")
     spoilt = load_press(folder, decode=False)  # whole at both ends: found by decoding it
-    with pytest.raises(CaptureError, match="led_02.png: not a readable PNG"):
+    with pytest.raises(CaptureError, match="led_02.png: damaged inside"):
         _ = spoilt.led_images
 
 
@@ -213,7 +213,7 @@ def test_a_capture_decoded_in_the_background_holds_the_images_decoded_at_once(tm
     assert background.images_digest() == decoded.images_digest()  # the arrays', as for a press decoded at once
     _spoil_png(folder / "led_02.png")
     spoilt = load_press(folder, decode="background")
-    with pytest.raises(CaptureError, match="led_02.png: not a readable PNG"):
+    with pytest.raises(CaptureError, match="led_02.png: damaged inside"):
         _ = spoilt.led_images
     with pytest.raises(ValueError, match="decode must be True, False or 'background'"):
         load_press(folder, decode="later")

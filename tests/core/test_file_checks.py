@@ -1,4 +1,5 @@
-"""core.file_checks: a finished file judged whole or torn from the bytes at its ends."""
+"""core.file_checks: a finished file judged whole or torn from the bytes at its ends, or damaged inside from all of
+its bytes."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from nlipscalib.core.file_checks import described_problems, file_problem, unusable_files
+from nlipscalib.core.file_checks import damage_inside, described_problems, file_problem, unusable_files
 
 
 def _whole(suffix: str) -> bytes:
@@ -70,3 +71,36 @@ def test_other_files_are_judged_by_being_there_and_not_empty(tmp_path):
     assert unusable_files(tmp_path, names) == ["empty.txt", "a.png", "gone.npz"]
     said = described_problems(tmp_path, unusable_files(tmp_path, names), most=2)
     assert said == "empty.txt empty, a.png cut short (no PNG end chunk) and 1 more"
+
+
+def _flipped(data: bytes, at: int) -> bytes:
+    """``data`` with 4 bytes inverted from ``at``: whole length, both ends as written."""
+    return data[:at] + bytes(b ^ 0xFF for b in data[at : at + 4]) + data[at + 4 :]
+
+
+def test_damage_inside_a_whole_length_png_is_named_by_its_chunk(tmp_path):
+    """Bytes flipped inside a PNG (a bad disk block) pass every check at its ends; the chunk's CRC-32 names it."""
+    path = tmp_path / "led_01.png"
+    whole = _whole(".png")
+    path.write_bytes(whole)
+    assert damage_inside(path) is None
+    path.write_bytes(_flipped(whole, len(whole) // 2))
+    assert file_problem(path) is None  # its ends are whole
+    assert damage_inside(path) == "damaged inside (chunk IDAT at byte 33 fails its CRC-32 check)"
+    path.write_bytes(whole[:-40] + whole[-12:])  # the end chunk kept, the last IDAT short of its length
+    assert "runs past the end of the file" in damage_inside(path)
+
+
+def test_damage_inside_an_npz_is_named_by_its_member_and_only_members_asked_for_are_read(tmp_path):
+    path = tmp_path / "gt.npz"
+    whole = _whole(".npz")
+    path.write_bytes(whole)
+    assert damage_inside(path) is None
+    with zipfile.ZipFile(path) as archive:
+        depth = archive.getinfo("depth.npy")
+        start = depth.header_offset + 30 + len(depth.filename) + len(depth.extra)
+    path.write_bytes(_flipped(whole, start + depth.compress_size // 2))
+    assert file_problem(path) is None
+    assert damage_inside(path).startswith("damaged inside (member depth.npy: ")
+    assert damage_inside(path, ("mask.npy",)) is None  # the damaged member is not one a reader takes
+    assert damage_inside(tmp_path / "gone.npz") == "missing" and damage_inside(tmp_path / "x.txt") is None

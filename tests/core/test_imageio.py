@@ -93,3 +93,21 @@ def test_a_full_disk_while_an_npz_is_written_names_the_file_inside_the_press(tmp
     with pytest.raises(OSError) as caught:
         save_npz(staged / "gt.npz", {"depth": np.zeros((4, 4))})
     assert describe_os_error(caught.value).startswith(f"{tmp_path / 'press' / 'gt.npz'}: No space left on device")
+
+
+def test_a_png_damaged_inside_is_named_by_its_chunk_not_as_unreadable(tmp_path):
+    """A 16-bit PNG of whole length with bytes flipped inside: libpng fails mid-decode, and the reader said only
+    "not a readable PNG image"; now the chunk whose CRC-32 fails is named, for read_png16 and read_image alike."""
+    from nlipscalib.core.imageio import read_image, read_png16, write_png16
+
+    path = write_png16(tmp_path / "led_01.png", np.random.default_rng(1).integers(0, 65535, (48, 64, 3), np.uint16))
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid : mid + 4] = bytes(b ^ 0xFF for b in data[mid : mid + 4])
+    path.write_bytes(bytes(data))
+    for read in (read_png16, read_image):
+        with pytest.raises(CaptureError) as info:
+            read(path)
+        message = str(info.value)
+        assert message.startswith(f"{path}: damaged inside (chunk IDAT at byte "), message
+        assert message.endswith("fails its CRC-32 check): copy or capture it again"), message

@@ -54,7 +54,7 @@ def test_a_broken_image_is_reported_by_the_load_not_by_the_prefetch(tmp_path):
     folder = _press(tmp_path / "p")
     _spoil_png(folder / "led_02.png")
     _prefetched(folder)  # nothing raised on its thread
-    with pytest.raises(CaptureError, match="led_02.png: not a readable PNG"):
+    with pytest.raises(CaptureError, match="led_02.png: damaged inside"):
         load_press(folder)
 
 

@@ -100,9 +100,8 @@ def test_a_retake_is_said_once_to_the_operator_and_kept_in_the_log_file(tmp_path
     moved = images.copy()
     moved[:, 2:8, 3:9] *= 1.5
     rig.source.change_at = (4, moved)
-    prompts = []
-    monkeypatch.setattr("builtins.input", prompts.append)
-    for stream in (sys.stdin, sys.stdout):  # input() writes its prompt to the terminal itself, past the log's copy
+    monkeypatch.setattr("builtins.input", lambda: "")  # Enter, at once
+    for stream in (sys.stdin, sys.stdout):  # a terminal's: the prompt still goes to stderr, past stdout's log copy
         monkeypatch.setattr(stream, "isatty", lambda: True, raising=False)
     log = tmp_path / "run.log"
     progress.configure(progress=False, log_file=log)
@@ -112,7 +111,9 @@ def test_a_retake_is_said_once_to_the_operator_and_kept_in_the_log_file(tmp_path
     finally:
         progress.configure(progress=True)  # closes the file
     said = "Press 2: the object moved"
-    shown = prompts if interactive else capsys.readouterr().out.splitlines()
+    captured = capsys.readouterr()
+    shown = captured.err.split("[Enter] ") if interactive else captured.out.splitlines()
+    assert not interactive or captured.out == ""  # stdout holds result paths alone, never a prompt
     assert sum(said in line for line in shown) == 1
     logged = [
         line.split(" ", 3)[3] for line in log.read_text(encoding="utf-8").splitlines() if "changed" in line
@@ -320,21 +321,23 @@ def test_board_reset_mid_press_is_retaken(tmp_path, caplog):
     np.testing.assert_allclose(p.linear(p.led_images), images, atol=2e-5)
 
 
-def test_interactive_operator_waits_for_enter_and_stops_on_eof(monkeypatch):
+def test_interactive_operator_waits_for_enter_and_stops_on_eof(monkeypatch, capsys):
     answers = iter(["", EOFError])
 
-    def fake_input(prompt):
+    def fake_input(*prompt):
+        assert not prompt  # a prompt given to input() goes to stdout when stdout is no terminal
         answer = next(answers)
         if answer is EOFError:
             raise EOFError
-        assert prompt.endswith("[Enter] ")
         return answer
 
     monkeypatch.setattr("builtins.input", fake_input)
     op = Operator(interactive=True)
     op.press(1, 2)  # returns after Enter
+    assert capsys.readouterr().err == "Press 1/2: press the object now, hold still. [Enter] "
     with pytest.raises(KeyboardInterrupt):
         op.press(2, 2)
+    assert capsys.readouterr().out == ""
 
 
 def test_a_board_lost_mid_press_is_the_error_reported_not_the_clean_ups(tmp_path):

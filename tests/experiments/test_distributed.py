@@ -213,7 +213,7 @@ def test_a_dask_sweep_starts_no_task_after_one_failed_on_a_full_disk(tmp_path, m
     tasks = [Task(kind="reference", id=f"ref-{i}", scene={"i": i}) for i in range(12)]
     backend = runner._backend(None, 1)
     cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
-    backend.client, backend.threads = distributed.Client(cluster), 1
+    backend.client, backend.cluster_workers = distributed.Client(cluster), 1
     status = runner.RunStatus()
     try:
         backend._dask(tasks, tmp_path, False, status, runner._bar(len(tasks), 0, False, "tasks"))

@@ -500,3 +500,76 @@ def test_a_scheduler_gets_an_absolute_work_folder(tmp_path, monkeypatch, capsys)
     assert f"done in {tmp_path / 'rel' / 'ablation-custom'}" in capsys.readouterr().out
     assert main(base) == 0  # without a scheduler the folder is named as the user gave it
     assert f"done in {Path('rel') / 'ablation-custom'}" in capsys.readouterr().out
+
+
+def test_a_stage_of_fewer_tasks_than_workers_shares_the_cores_among_the_tasks_it_runs(monkeypatch, tmp_path):
+    """`nlips experiment q1 --workers 2` ran its one reference, then its one calibration, in the command's process
+    on cores // 2 threads (q1's reference on 1 of 2 cores, 2 of 16 with --workers 8), the other cores idle; and a
+    stage of 2 tasks under --workers 8 started 2 processes on cores // 8 threads each. The cores are now shared by
+    the processes the stage runs: min(workers, tasks)."""
+    from nlipscalib.experiments import runner
+    from nlipscalib.experiments.tasks import Task
+
+    monkeypatch.setattr(runner, "usable_cores", lambda: 16)
+    ran, pools = [], []
+    monkeypatch.setattr(runner, "execute", lambda task, out, threads, keep: ran.append((task.id, threads)) or "done")
+
+    class Slots:
+        def __init__(self, n, out, threads, keep):
+            pools.append((n, threads))
+
+        def run(self, tasks, status, bar):
+            pass
+
+    monkeypatch.setattr(runner, "_WorkerSlots", Slots)
+    status, bar = runner.RunStatus(), runner._bar(3, 0, False, "")
+    local = runner._backend(None, 8)._local
+    local([Task(kind="reference", id="ref-0", scene={})], tmp_path, False, status, bar)
+    assert ran == [("ref-0", 16)]  # in this process, on every core
+    local([Task(kind="reference", id=f"ref-{i}", scene={"i": i}) for i in (1, 2)], tmp_path, False, status, bar)
+    assert pools == [(2, 8)]  # two processes, half the cores each
+    local([Task(kind="reference", id=f"ref-{i}", scene={"i": i}) for i in range(3, 13)], tmp_path, False, status, bar)
+    assert pools[-1] == (8, 2)  # --workers 8 of them, as many as asked
+
+
+def test_workers_with_a_scheduler_is_refused_not_dropped(tmp_path, capsys):
+    """`--workers 4 --scheduler local:2` ran on the cluster's 2 workers and dropped --workers without a word."""
+    from nlipscalib.cli import main
+
+    config = tmp_path / "tiny.toml"
+    config.write_text(TINY, encoding="utf-8")
+    args = ["experiment", "ablation", "--config", str(config), "--out", str(tmp_path / "w"), "--plan"]
+    assert main([*args, "--workers", "4", "--scheduler", "local:2"]) == 2
+    captured = capsys.readouterr()
+    (line,) = captured.err.strip().splitlines()
+    assert line == (
+        "nlips experiment: error: --workers is not used with --scheduler local:2: the cluster's workers run the "
+        "tasks (local:N starts N of them); drop --workers"
+    )
+    assert captured.out == "" and not (tmp_path / "w").exists()
+
+
+def test_a_local_clusters_stage_of_one_task_renders_on_every_core(monkeypatch, tmp_path):
+    """--scheduler local:N: every task had cores // N threads, a stage of one task (q1's reference) too."""
+    distributed = pytest.importorskip("distributed")
+    from nlipscalib.experiments import runner
+    from nlipscalib.experiments.tasks import Task
+    from nlipscalib.solver import threads as solver_threads
+
+    ran = []
+    monkeypatch.setattr(runner, "usable_cores", lambda: 8)
+    monkeypatch.setattr(runner, "execute", lambda task, out, threads, keep: ran.append(threads) or "done")
+    monkeypatch.setattr(solver_threads, "_workers", None)  # the worker (this process) sets its share: restored
+    monkeypatch.setattr(solver_threads, "_pool", None)
+    backend = runner._backend(None, 1)
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
+    backend.client, backend.cluster_workers = distributed.Client(cluster), 4  # as local:4
+    try:
+        bar = runner._bar(3, 0, False, "")
+        backend._dask([Task(kind="reference", id="ref-0", scene={})], tmp_path, False, runner.RunStatus(), bar)
+        two = [Task(kind="reference", id=f"ref-{i}", scene={"i": i}) for i in (1, 2)]
+        backend._dask(two, tmp_path, False, runner.RunStatus(), bar)
+    finally:
+        backend.client.close()
+        cluster.close()
+    assert ran == [8, 4, 4]

@@ -171,7 +171,7 @@ def test_the_runner_logs_a_dask_tasks_warning_before_its_outcome(tmp_path, monke
     caplog.set_level(logging.INFO)
     backend = runner._backend(None, 1)
     cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None)
-    backend.client, backend.threads = distributed.Client(cluster), 1
+    backend.client, backend.cluster_workers = distributed.Client(cluster), 1
     status, solver_workers = runner.RunStatus(), solver_threads.workers()
     try:
         task = Task(kind="reference", id="ref-0", scene={})

@@ -136,3 +136,28 @@ def test_the_override_on_a_press_that_fits_overrides_nothing_and_says_so(sphere_
     assert result.report["sensor_check"].startswith("off (--allow-sensor-misfit); nothing overridden: the images fit")
     assert not any("allow-sensor-misfit" in w for w in result.report.get("warnings", []))
     assert "sensor_check" not in solve_press(sphere_press, options=QUICK).report
+
+
+def test_a_reference_capture_of_other_light_is_named_not_the_press_files(tmp_path, capsys):
+    """`nlips solve PRESS --reference REF` where REF's light is another sensor's (or settings'): the contact is
+    classified against REF's images, so the misfit is theirs, yet the line said "its images were not taken with the
+    sensor that its meta.json and reference.npz describe ... Were those files copied from another sensor?" of a
+    press whose files were its own (it solves without the --reference). Now it names REF."""
+    from nlipscalib.cli import main
+
+    cam = synth.camera()
+    _, pts, normals, _ = synth.surface(cam, "none", 0.0)
+    other = synth.render(cam, _other_ring(), pts, normals)
+    reference = synth.make_press(tmp_path / "other_light_reference", "none", lin_hook=lambda lin: other)
+    press = synth.make_press(tmp_path / "press", "sphere")
+    config = tmp_path / "quick.toml"
+    config.write_text("max_iters = 2\n", encoding="utf-8")
+    argv = ["solve", str(press), "--config", str(config), "--figures", "none"]
+    assert main([*argv, "--reference", str(reference)]) == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert line.startswith(
+        f"nlips solve: error: {press}: its images do not fit {reference}, the undeformed dome's capture it is solved "
+        "with: "
+    ), line
+    assert "meta.json" not in line and "--allow-sensor-misfit" in line
+    assert main(argv) == 0  # its own files fit its images
