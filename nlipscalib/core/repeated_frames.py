@@ -42,6 +42,7 @@ from .tolerances import (
     DARK_CANDIDATE_SHARE,
     DARK_LINES_MIN,
     EXPOSURE_LIGHT_FRACTION,
+    LAGGED_BAND_CONTRAST,
     LAGGED_BAND_ROWS,
     REPEATED_FRAME_DIFFERENCE,
 )
@@ -502,12 +503,15 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
     bands = []
     for index in range(1, len(blocks)):
         current, neighbour = blocks[index], blocks[index - 1]
+        # the image after (after the last, the first: the LEDs of a ring in capture order) brackets the image's own
+        # light with the one before; with two images there is none, and every line counts
+        after = blocks[(index + 1) % len(blocks)] if len(blocks) > 2 else None
         lit = inside & (np.maximum(current, neighbour) > EXPOSURE_LIGHT_FRACTION)
         # the columns are the transposed blocks' rows: one test, one threshold for both readout directions
         found = [
             band
             for axis, turn in (("rows", np.asarray), ("columns", np.transpose))
-            if (band := _lagged_lines(turn(current), turn(neighbour), turn(lit), index, axis))
+            if (band := _lagged_lines(turn(current), turn(neighbour), turn(lit), index, axis, _turned(turn, after)))
         ]
         if len(found) > 1:
             # a band of columns can leave some rows mostly inside it, their medians lagged too (the twin's sphere
@@ -530,8 +534,18 @@ def _own_light_share(band: LaggedBand, difference: np.ndarray, lit: np.ndarray) 
     return float(np.mean(values >= REPEATED_FRAME_DIFFERENCE)) if values.size else 1.0
 
 
+def _turned(turn, blocks: np.ndarray | None) -> np.ndarray | None:
+    """``turn(blocks)``, None for None."""
+    return None if blocks is None else turn(blocks)
+
+
 def _lagged_lines(
-    current: np.ndarray, neighbour: np.ndarray, lit: np.ndarray, index: int, axis: str
+    current: np.ndarray,
+    neighbour: np.ndarray,
+    lit: np.ndarray,
+    index: int,
+    axis: str,
+    after: np.ndarray | None = None,
 ) -> LaggedBand | None:
     """:func:`lagged_bands`' test of one LED image's rows of blocks (``axis`` "columns": of the transposed blocks).
 
@@ -540,8 +554,15 @@ def _lagged_lines(
     current, neighbour : (h, w) float32 -- the image's and the previous image's block means (rows: the lines
         tested).
     lit : (h, w) bool -- the blocks on the gel that either image lights.
+    after : (h, w) float32 or None -- the next image's block means: a line counts only where it and ``neighbour``
+        differ by :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST` or more (elsewhere the image's own
+        light cannot be told from the previous one's); None: every line counts.
     """
-    rows = np.flatnonzero(lit.sum(axis=1) >= MIN_LIT_ROW_BLOCKS)
+    counted = lit.sum(axis=1) >= MIN_LIT_ROW_BLOCKS
+    if after is not None:
+        contrast = np.abs(after - neighbour) / np.where(lit, np.maximum(np.maximum(after, neighbour), 1e-12), 1)
+        counted[counted] = _row_medians(contrast[counted], lit[counted]) >= LAGGED_BAND_CONTRAST
+    rows = np.flatnonzero(counted)
     if len(rows) <= LAGGED_BAND_ROWS:
         return None
     scale = np.where(lit[rows], np.maximum(current[rows], neighbour[rows]), 1)
