@@ -29,6 +29,7 @@ degrees: its rolling shutter reads the image's columns); bands shorter than the 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -534,7 +535,7 @@ def _own_light_share(band: LaggedBand, difference: np.ndarray, lit: np.ndarray) 
     return float(np.mean(values >= REPEATED_FRAME_DIFFERENCE)) if values.size else 1.0
 
 
-def _turned(turn, blocks: np.ndarray | None) -> np.ndarray | None:
+def _turned(turn: Callable[[np.ndarray], np.ndarray], blocks: np.ndarray | None) -> np.ndarray | None:
     """``turn(blocks)``, None for None."""
     return None if blocks is None else turn(blocks)
 
