@@ -29,6 +29,7 @@ degrees: its rolling shutter reads the image's columns); bands shorter than the 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -42,6 +43,7 @@ from .tolerances import (
     DARK_CANDIDATE_SHARE,
     DARK_LINES_MIN,
     EXPOSURE_LIGHT_FRACTION,
+    LAGGED_BAND_CONTRAST,
     LAGGED_BAND_ROWS,
     REPEATED_FRAME_DIFFERENCE,
 )
@@ -112,8 +114,47 @@ def frame_lags(linear: np.ndarray, gel: np.ndarray) -> tuple[list[tuple[int, flo
     return frame_checks(linear, gel)[:2]
 
 
+ExpectedLight = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""The LEDs' summed light the image model gives the undeformed gel at pixels: (rows (n,) int, columns (n,) int) ->
+(n,) float (:func:`model_light`)."""
+
+
+def model_light(depth: np.ndarray, normals: np.ndarray, camera: object, leds: object) -> ExpectedLight:
+    """The LEDs' summed light on the undeformed gel by the image model (``core.leds.led_shading``, albedo 1), at the
+    pixels asked for: what "dark in every LED image" is judged against.
+
+    Why: a camera that sees the whole dome down to its base (a wide view, the gel not filling the frame,
+    s32-rimview) sees there gel that the LEDs, at the base's own height, light at a tenth of the median or less in
+    direct light: a band of "columns 4-10 (left) of every LED image are dark" was reported at 160x120 and
+    ``nlips calibrate-leds`` refused the capture. The light over the model's is even over the gel.
+
+    Parameters
+    ----------
+    depth : (H, W) float, mm -- camera-frame z of the undeformed gel, NaN off it (``reference.npz``).
+    normals : (H, W, 3) float, unit, toward the camera.
+    camera : core Camera -- the capture's (its ``unproject``: the asked pixels' rays only; the whole frame's,
+        ``Camera.rays``, take 0.2 s at 640x480, where the check takes ~15 ms).
+    leds : sequence of Led -- the capture's LEDs (its design's until calibrated).
+    """
+    from .camera import depth_to_points
+    from .leds import led_shading
+
+    def light(rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        rays = camera.unproject(np.stack([cols, rows], axis=-1).astype(np.float64))
+        points = depth_to_points(depth[rows, cols].astype(np.float64), rays)
+        return led_shading(points, normals[rows, cols], leds).sum(axis=(0, 2))
+
+    return light
+
+
+def _over_model(light: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """``light`` over the ``model``'s, infinite (never dark) where the model gives no light: nothing to judge."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(model > 0, light / np.where(model > 0, model, 1), np.inf)
+
+
 def frame_checks(
-    linear: np.ndarray, gel: np.ndarray
+    linear: np.ndarray, gel: np.ndarray, expected: ExpectedLight | None = None
 ) -> tuple[list[tuple[int, float]], list[LaggedBand], DarkBand | None]:
     """The LED images that repeat the image captured before them, whole and in part (one block average each).
 
@@ -122,6 +163,8 @@ def frame_checks(
     linear : (L, H, W, 3) float -- the LED images in capture order, linear (dark frame subtracted, full scale 1:
         :func:`nlipscalib.core.sensor_response.linearise`).
     gel : (H, W) bool -- the pixels that see the gel.
+    expected : ExpectedLight or None -- the model's light on the undeformed gel (:func:`model_light`): rows that
+        look dark in every LED image are judged again by their light over it; None: by their light alone.
 
     Returns
     -------
@@ -148,10 +191,18 @@ def frame_checks(
             difference = float(np.median(np.abs(current[lit] - previous[lit]) / brighter[lit]))
             if difference < REPEATED_FRAME_DIFFERENCE:
                 found.append((index, difference))
-    return found, bands, dark_everywhere(blocks, inside) or dark_everywhere_lines(linear, gel)
+    dark = dark_everywhere(blocks, inside) or dark_everywhere_lines(linear, gel)
+    if dark is not None and expected is not None:
+        # lines the images alone call dark are judged again against the model, which tells gel that is merely lit
+        # less (the dome's base seen by a wide view) from lines read while no LED was lit (dark both ways); asked
+        # only then: ~30 ms at 640x480 that every solve of a capture without such lines is spared
+        dark = dark_everywhere(blocks, inside, expected) or dark_everywhere_lines(linear, gel, expected)
+    return found, bands, dark
 
 
-def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | None:
+def dark_everywhere(
+    blocks: list[np.ndarray], inside: np.ndarray, expected: ExpectedLight | None = None
+) -> DarkBand | None:
     """Rows (else columns) of blocks dark in every LED image: the LEDs' summed light below
     :data:`~nlipscalib.core.tolerances.DARK_BAND_LIGHT` of its median over the gel in
     :data:`~nlipscalib.core.tolerances.DARK_BAND_SHARE` of the row's (column's) blocks in a run of
@@ -164,6 +215,8 @@ def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | 
     ----------
     blocks : list of (h, w) float32 -- the LED images' block means (:func:`_block_means`), in capture order.
     inside : (h, w) bool -- the blocks wholly on the gel.
+    expected : ExpectedLight or None -- :func:`frame_checks`'; given, each block's light over the model's at its
+        centre pixel.
 
     Returns
     -------
@@ -172,6 +225,10 @@ def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | 
     if len(blocks) < 2:
         return None
     total = np.sum(blocks, axis=0)
+    if expected is not None and inside.any():
+        b = CAPTURE_CHECK_BLUR
+        rows, cols = np.nonzero(inside)
+        total[inside] = _over_model(total[inside], expected(rows * b + b // 2, cols * b + b // 2))
     level = float(np.median(total[inside])) if inside.any() else 0.0
     if not level > 0:
         return None
@@ -185,7 +242,9 @@ def dark_everywhere(blocks: list[np.ndarray], inside: np.ndarray) -> DarkBand | 
     return None
 
 
-def dark_everywhere_lines(linear: np.ndarray, gel: np.ndarray) -> DarkBand | None:
+def dark_everywhere_lines(
+    linear: np.ndarray, gel: np.ndarray, expected: ExpectedLight | None = None
+) -> DarkBand | None:
     """Rows (else columns) dark in every LED image in a band shorter than :func:`dark_everywhere`'s blocks tell
     (down to :data:`~nlipscalib.core.tolerances.DARK_LINES_MIN` lines), to the pixel: the LEDs' summed light over
     its median over the gel, at :data:`EVERYWHERE_SAMPLES` gel pixels, through the one LED's tests
@@ -200,6 +259,7 @@ def dark_everywhere_lines(linear: np.ndarray, gel: np.ndarray) -> DarkBand | Non
     ----------
     linear : (L, H, W, 3) float -- the LED images in capture order, linear (:func:`frame_checks`').
     gel : (H, W) bool -- the pixels that see the gel.
+    expected : ExpectedLight or None -- :func:`frame_checks`'; given, the light over the model's.
 
     Returns
     -------
@@ -212,7 +272,12 @@ def dark_everywhere_lines(linear: np.ndarray, gel: np.ndarray) -> DarkBand | Non
     if index.size == 0:
         return None
     flat = linear.reshape(len(linear), -1, linear.shape[-1])
-    light = _summed(flat, index)
+
+    def summed(pixels: np.ndarray) -> np.ndarray:
+        light = _summed(flat, pixels)
+        return light if expected is None else _over_model(light, expected(pixels // width, pixels % width))
+
+    light = summed(index)
     level = float(np.median(light))
     if not level > 0:
         return None
@@ -233,7 +298,7 @@ def dark_everywhere_lines(linear: np.ndarray, gel: np.ndarray) -> DarkBand | Non
         which, spot = np.nonzero(inside[:, ::step])
         line, spot = lines[which], spot * step
         pixels = line * width + spot if axis == "rows" else spot * width + line
-        dense = _summed(flat, pixels) / level
+        dense = summed(pixels) / level
         extent = (int(at.min()), int(at.max()) + 1)
         if band := dark_lines(dense, line, extent, None, axis):
             return band
@@ -502,12 +567,15 @@ def lagged_bands(blocks: list[np.ndarray], inside: np.ndarray) -> list[LaggedBan
     bands = []
     for index in range(1, len(blocks)):
         current, neighbour = blocks[index], blocks[index - 1]
+        # the image after (after the last, the first: the LEDs of a ring in capture order) brackets the image's own
+        # light with the one before; with two images there is none, and every line counts
+        after = blocks[(index + 1) % len(blocks)] if len(blocks) > 2 else None
         lit = inside & (np.maximum(current, neighbour) > EXPOSURE_LIGHT_FRACTION)
         # the columns are the transposed blocks' rows: one test, one threshold for both readout directions
         found = [
             band
             for axis, turn in (("rows", np.asarray), ("columns", np.transpose))
-            if (band := _lagged_lines(turn(current), turn(neighbour), turn(lit), index, axis))
+            if (band := _lagged_lines(turn(current), turn(neighbour), turn(lit), index, axis, _turned(turn, after)))
         ]
         if len(found) > 1:
             # a band of columns can leave some rows mostly inside it, their medians lagged too (the twin's sphere
@@ -530,8 +598,18 @@ def _own_light_share(band: LaggedBand, difference: np.ndarray, lit: np.ndarray) 
     return float(np.mean(values >= REPEATED_FRAME_DIFFERENCE)) if values.size else 1.0
 
 
+def _turned(turn: Callable[[np.ndarray], np.ndarray], blocks: np.ndarray | None) -> np.ndarray | None:
+    """``turn(blocks)``, None for None."""
+    return None if blocks is None else turn(blocks)
+
+
 def _lagged_lines(
-    current: np.ndarray, neighbour: np.ndarray, lit: np.ndarray, index: int, axis: str
+    current: np.ndarray,
+    neighbour: np.ndarray,
+    lit: np.ndarray,
+    index: int,
+    axis: str,
+    after: np.ndarray | None = None,
 ) -> LaggedBand | None:
     """:func:`lagged_bands`' test of one LED image's rows of blocks (``axis`` "columns": of the transposed blocks).
 
@@ -540,8 +618,15 @@ def _lagged_lines(
     current, neighbour : (h, w) float32 -- the image's and the previous image's block means (rows: the lines
         tested).
     lit : (h, w) bool -- the blocks on the gel that either image lights.
+    after : (h, w) float32 or None -- the next image's block means: a line counts only where it and ``neighbour``
+        differ by :data:`~nlipscalib.core.tolerances.LAGGED_BAND_CONTRAST` or more (elsewhere the image's own
+        light cannot be told from the previous one's); None: every line counts.
     """
-    rows = np.flatnonzero(lit.sum(axis=1) >= MIN_LIT_ROW_BLOCKS)
+    counted = lit.sum(axis=1) >= MIN_LIT_ROW_BLOCKS
+    if after is not None:
+        contrast = np.abs(after - neighbour) / np.where(lit, np.maximum(np.maximum(after, neighbour), 1e-12), 1)
+        counted[counted] = _row_medians(contrast[counted], lit[counted]) >= LAGGED_BAND_CONTRAST
+    rows = np.flatnonzero(counted)
     if len(rows) <= LAGGED_BAND_ROWS:
         return None
     scale = np.where(lit[rows], np.maximum(current[rows], neighbour[rows]), 1)

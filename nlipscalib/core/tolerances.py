@@ -541,6 +541,16 @@ while a rolling shutter read the frame out (:func:`nlipscalib.core.repeated_fram
 Why a run of rows: one row of blocks of two neighbouring LED images can come within 1.6 % (twin presses at 640x480,
 /tmp/keep and extra); none came below 1 %, and no run of 3 rows below 3 % reached an image's top or bottom
 (s28-rolling); no edge row or column of blocks within 1 % on /tmp/keep and 19 captures at 320x240 (s30-qaleft)."""
+LAGGED_BAND_CONTRAST = 2 * REPEATED_FRAME_DIFFERENCE
+"""A row (column) of blocks can show an LED image's lag (:func:`nlipscalib.core.repeated_frames.lagged_bands`) only
+where the LED images before and after it differ there by at least this (median relative difference over its lit gel
+blocks): the image's own light lies between its neighbours', so where they differ by less than twice
+:data:`REPEATED_FRAME_DIFFERENCE` its own light and the previous LED's are alike within that threshold and the line
+tells nothing. Why: a camera that sees the whole dome down to its base (a wide view, the gel not filling the frame,
+s32-rimview) sees at the frame's last gel columns only the far base rim, which neighbouring LEDs of the ring light
+alike (0.2-0.6 % apart, the next LED 1.3-3.6 %, 160x120 twin press): 3 such columns were called lagged, "led_08.png's
+columns 135-149 (right) show led_07.png's light", and left out of the solve. A true lag band holds the light of an
+LED two ring places from the next (nlipstac: 0.2 apart, :data:`REPEATED_FRAME_DIFFERENCE`'s note)."""
 SHIFTED_BAND_RATIO = 0.7
 """The rows of a band of the frame are read out before the LED switch in every LED image (a systematic timing
 error: the camera's rolling readout starts before each LED switches) when, in median over the LEDs, the LED image

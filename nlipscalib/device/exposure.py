@@ -18,7 +18,7 @@ import numpy as np
 
 from ..core.compression import blockiness_line, compressed
 from ..core.errors import CaptureError, require
-from ..core.repeated_frames import dark_everywhere_line, frame_checks, lagged_line, repeated_line
+from ..core.repeated_frames import ExpectedLight, dark_everywhere_line, frame_checks, lagged_line, repeated_line
 from ..core.sensor_response import SensorResponse, linearise, undo_tone_curve
 from ..core.tolerances import (
     CAPTURE_CHECK_BLUR,
@@ -38,6 +38,7 @@ def check_exposure(
     folder: str | Path,
     gel: np.ndarray | None = None,
     reference: bool = False,
+    expected: ExpectedLight | None = None,
 ) -> list[str]:
     """The exposure warnings of one captured press (none when it is well exposed).
 
@@ -54,6 +55,9 @@ def check_exposure(
         The pixels that see the gel (``np.isfinite(reference.depth)``); the whole frame when None.
     reference : bool
         The session's reference: wholly black or wholly saturated is a CaptureError, not a warning.
+    expected : ExpectedLight, optional
+        The image model's light on the undeformed gel (:func:`nlipscalib.core.repeated_frames.model_light`): rows
+        that look dark in every LED frame are judged again against it (a wide view's dome base is lit less).
 
     Returns
     -------
@@ -86,7 +90,7 @@ def check_exposure(
     lines = [_black_line(folder, names, black)] if black else []
     over = _over_line(folder, clipped, where)
     lines += [over] if over else []
-    lines += _repeated_lines(frames, names, response, folder, gel, outlined)
+    lines += _repeated_lines(frames, names, response, folder, gel, outlined, expected)
     return lines + _compressed_lines(frames, names, folder, gel)
 
 
@@ -97,6 +101,7 @@ def _repeated_lines(
     folder: Path,
     gel: np.ndarray,
     outlined: bool = True,
+    expected: ExpectedLight | None = None,
 ) -> list[str]:
     """The warnings naming LED frames that repeat the frame before them, whole or in some rows (the camera's frames
     lag the LED switch, or were read out across it: :mod:`nlipscalib.core.repeated_frames`), and rows dark in every
@@ -105,7 +110,7 @@ def _repeated_lines(
     linear = np.stack(
         [linearise(frames[name], frames["dark"], response.black_level, response.white_level) for name in names]
     )
-    repeated, bands, dark = frame_checks(linear, gel)
+    repeated, bands, dark = frame_checks(linear, gel, expected)
     files = [f"{name}.png" for name in names]
     return (
         ([repeated_line(folder, files, repeated)] if repeated else [])

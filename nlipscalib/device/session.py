@@ -268,6 +268,7 @@ def capture_press(
     dict with ``folder``, ``attempts``, ``moved`` (fraction of moved pixels per attempt; None for an attempt
     cut short by a reset of the LED board), ``seconds``
     """
+    from ..core.repeated_frames import model_light
     from .errors import BoardResetError
     from .exposure import check_exposure
 
@@ -305,7 +306,10 @@ def capture_press(
         "tricolor_level": cfg.tricolor_level,
     }
     gel = None if rig.reference is None else np.isfinite(rig.reference.depth)
-    for line in check_exposure(frames, rig.response, folder, gel, reference=index == 0):
+    expected = (
+        None if rig.reference is None else model_light(rig.reference.depth, rig.reference.normals, rig.camera, rig.leds)
+    )
+    for line in check_exposure(frames, rig.response, folder, gel, reference=index == 0, expected=expected):
         log.warning("%s", line)
     leds = np.stack([frames[led_frame_name(i)] for i in range(len(rig.leds))])
     write_press(

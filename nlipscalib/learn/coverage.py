@@ -131,7 +131,7 @@ def coverage(
         "gel": gel,
         "covered_fraction": fraction,
         "kinds": {k: (h / max(h.sum(), 1)).round(4) for k, h in kinds.items()},
-        "next_press": _next_press(counts, covered, gel, kinds, (H, W), where),
+        "next_press": _next_press(counts, covered, gel, kinds, ref["valid"], where),
         "steep": steep_gap(covered, gel, tilts),
     }
 
@@ -209,7 +209,7 @@ def region_press_angles(
     box: list[int], depth: np.ndarray, camera: Camera, camera_position: tuple[float, float, float]
 ) -> tuple[float, float] | None:
     """The press direction ``(polar_deg, azimuth_deg)`` (``core.dome.press_angles``) of the gel pixel nearest the
-    centre of an image region; None when no pixel of it sees the gel.
+    centre of an image region's gel pixels (:func:`gel_centre`); None when no pixel of it sees the gel.
 
     Parameters
     ----------
@@ -221,15 +221,34 @@ def region_press_angles(
     from ..core.dome import press_angles
 
     u0, v0, u1, v1 = box
-    window = depth[v0:v1, u0:u1]
-    v, u = np.nonzero(np.isfinite(window))
+    v, u = np.nonzero(np.isfinite(depth[v0:v1, u0:u1]))
     if len(u) == 0:
         return None
-    nearest = int(np.argmin((u - (u1 - u0 - 1) / 2) ** 2 + (v - (v1 - v0 - 1) / 2) ** 2))
+    centre_u, centre_v = gel_centre(box, np.isfinite(depth))
+    nearest = int(np.argmin((u0 + u - centre_u) ** 2 + (v0 + v - centre_v) ** 2))
     row, col = v0 + int(v[nearest]), u0 + int(u[nearest])
     ray = camera.unproject(np.array([col, row], float))
     point = ray * (depth[row, col] / ray[2])  # camera frame, on the gel
     return press_angles(point + np.asarray(camera_position, float))
+
+
+def gel_centre(box: list[int], valid: np.ndarray) -> tuple[float, float]:
+    """The mean (u, v) of an image region's gel pixels, pixels; the box's centre when none sees the gel.
+
+    Where the gel fills the region this is the box's centre; where it does not (a camera that sees beyond the gel:
+    black corners, the housing), the next press is placed on the gel the region holds, not on its black corner
+    (s32-rimview: "centre u=20, v=14", a pixel off the gel, was advised).
+
+    Parameters
+    ----------
+    box : [u0, v0, u1, v1], pixels, end exclusive
+    valid : (H, W) bool -- the pixels that see the gel
+    """
+    u0, v0, u1, v1 = box
+    v, u = np.nonzero(valid[v0:v1, u0:u1])
+    if len(u) == 0:
+        return (u0 + u1 - 1) / 2, (v0 + v1 - 1) / 2
+    return u0 + float(u.mean()), v0 + float(v.mean())
 
 
 def _next_press(
@@ -237,10 +256,10 @@ def _next_press(
     covered: np.ndarray,
     gel: np.ndarray,
     kinds: dict,
-    shape: tuple[int, int],
+    valid: np.ndarray,
     where: Callable[[list[int]], tuple[float, float] | None] | None = None,
 ) -> dict:
-    H, W = shape
+    H, W = valid.shape
     cells = counts.shape[0]
     empty = np.where(gel, (~covered).sum(-1), -1)
     # most empty bins first, then fewest samples
@@ -251,7 +270,7 @@ def _next_press(
     scores = {k: float((h[gap] > 0).sum() + h[gap].sum() / max(h.sum(), 1)) for k, h in kinds.items()}
     kind = max(scores, key=scores.get) if scores else "any indenter"
     box = [c * W // cells, r * H // cells, (c + 1) * W // cells, (r + 1) * H // cells]
-    centre = [(box[0] + box[2] - 1) / 2, (box[1] + box[3] - 1) / 2]
+    centre = list(gel_centre(box, valid))
     angles = where(box) if where is not None else None
     # the twin's and an indenter stage's way to place a press, beside the image region
     direction = f"; press direction polar {angles[0]:.0f}°, azimuth {angles[1]:.0f}°" if angles else ""

@@ -560,7 +560,7 @@ def _check_lit(press: Press) -> None:
     :func:`.calibration_bands.without_repeated_images`). Gamma-encoded LED images are warned
     about (:func:`.led_checks.linearity_notes`): the fit absorbed an sRGB curve and called itself reliable; so are
     JPEG-compressed ones (:mod:`nlipscalib.core.compression`)."""
-    from .exposure import dark_file, dark_frame_fault, gel_of
+    from .exposure import dark_file, dark_frame_fault, expected_light_of, gel_of
     from .image_stats import led_levels, lit_leds
 
     gel = gel_of(press)
@@ -574,7 +574,7 @@ def _check_lit(press: Press) -> None:
             f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
             f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
         )
-    dark = frame_checks(press.linear_led_images, gel)[2]  # a repeated image: calibration_bands, before the fit
+    dark = frame_checks(press.linear_led_images, gel, expected_light_of(press))[2]  # a repeated image: calibration_bands, before the fit
     if dark is not None:
         # rows at the dark frame's level in every image: each LED would be fitted to light it never gave
         line = dark_everywhere_line(press.folder, dark)

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..core import tolerances
 from ..core.capture import Press
+from ..core.repeated_frames import ExpectedLight, model_light
 from ..core.sensor_response import CAMERA_SETTINGS_GUIDE, DECLARE_TONE_CURVE
 
 REMEDY_SATURATED = "lower the exposure (`nlips capture --exposure-ms`) or the LEDs' drive, and capture again"
@@ -24,6 +25,14 @@ def gel_of(press: Press) -> np.ndarray:
     if press.reference is not None:
         return np.isfinite(press.reference.depth)
     return np.ones(press.camera.shape, bool)
+
+
+def expected_light_of(press: Press) -> ExpectedLight | None:
+    """The image model's summed LED light on the press's undeformed gel (:func:`.repeated_frames.model_light`, the
+    capture's LEDs), what the rows dark in every LED image are judged against; None without reference.npz."""
+    if press.reference is None:
+        return None
+    return model_light(press.reference.depth, press.reference.normals, press.camera, press.leds)
 
 
 def saturated_share(press: Press, gel: np.ndarray | None = None) -> float:

@@ -358,7 +358,10 @@ def _repeated_line(press: Press, names: list[str]) -> tuple[list[str], list[int]
     switch), none when none does, those LEDs (0-based), in the capture order of ``images.leds``; the LED images
     read out across the switch by a rolling shutter, in part the previous LED's light (:func:`.lagged_bands`); and
     the rows dark in every LED image (None: none)."""
-    repeated, bands, everywhere = frame_checks(press.linear_led_images, np.isfinite(press.reference.depth))
+    from .exposure import expected_light_of
+
+    gel = np.isfinite(press.reference.depth)
+    repeated, bands, everywhere = frame_checks(press.linear_led_images, gel, expected_light_of(press))
     lines = [repeated_line(press.folder, names, repeated)] if repeated else []
     return lines, sorted(i for i, _ in repeated), bands, everywhere
 

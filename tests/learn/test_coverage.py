@@ -74,9 +74,13 @@ def test_the_advice_names_the_object_with_its_article():
     counts = np.zeros((2, 2, 3))
     gel = np.ones((2, 2), bool)
     kinds = {"object": np.ones(3)}
-    assert _next_press(counts, covered, gel, kinds, (20, 20))["advice"].startswith("an object in image region")
-    assert _next_press(counts, covered, gel, {"sphere": np.ones(3)}, (20, 20))["advice"].startswith("a sphere in")
-    assert _next_press(counts, covered, gel, {}, (20, 20))["advice"].startswith("any indenter in")
+    assert _next_press(counts, covered, gel, kinds, np.ones((20, 20), bool))["advice"].startswith(
+        "an object in image region"
+    )
+    assert _next_press(counts, covered, gel, {"sphere": np.ones(3)}, np.ones((20, 20), bool))["advice"].startswith(
+        "a sphere in"
+    )
+    assert _next_press(counts, covered, gel, {}, np.ones((20, 20), bool))["advice"].startswith("any indenter in")
 
 
 @pytest.mark.parametrize("recorded", [None, "unknown"])
@@ -116,8 +120,39 @@ def test_the_advice_gives_the_press_direction_when_the_sensor_geometry_is_known(
     from nlipscalib.learn.coverage import _next_press
 
     covered, counts, gel = np.zeros((2, 2, 3), bool), np.zeros((2, 2, 3)), np.ones((2, 2), bool)
-    advice = _next_press(counts, covered, gel, {}, (20, 20), lambda box: (12.34, 251.6))
+    advice = _next_press(counts, covered, gel, {}, np.ones((20, 20), bool), lambda box: (12.34, 251.6))
     assert "(centre u=4, v=4; press direction polar 12°, azimuth 252°)" in advice["advice"]
     assert (advice["polar_deg"], advice["azimuth_deg"]) == (12.3, 251.6)
-    unknown = _next_press(counts, covered, gel, {}, (20, 20))
+    unknown = _next_press(counts, covered, gel, {}, np.ones((20, 20), bool))
     assert "polar" not in unknown["advice"] and unknown["polar_deg"] is None
+
+
+def test_a_region_that_holds_gel_and_black_corner_is_advised_on_its_gel():
+    """A camera that sees beyond the gel (nlipstac's dome, the camera 8 mm below the base with a 130 deg view at
+    160x120: a circular image, black corners): the top-left region is half gel, half black corner. The advice named
+    the region's centre, a pixel off the gel ("centre u=20, v=14"), and the press direction of the gel pixel nearest
+    it, on the dome's base (polar 90 deg); it names the centre of the region's gel and a direction onto it."""
+    from nlipscalib.core.dome import reference_surface
+    from nlipscalib.core.sensor import SensorDesign
+    from nlipscalib.learn.coverage import _next_press, gel_centre, region_press_angles
+
+    design = SensorDesign()
+    view = dataclasses.replace(design.camera, width=160, height=120, hfov_deg=130.0, position=(0.0, 0.0, -8.0))
+    design = dataclasses.replace(design, camera=view)
+    camera = design.camera_model()
+    depth = reference_surface(design, camera).depth
+    valid = np.isfinite(depth)
+    assert 0.3 < valid[:30, :40].mean() < 0.7  # the region is partly off the gel
+    u, v = gel_centre([0, 0, 40, 30], valid)
+    assert valid[round(v), round(u)]
+    polar, _ = region_press_angles([0, 0, 40, 30], depth, camera, tuple(view.position))
+    assert polar < 85  # on the gel's side, not its base
+    covered, counts, gel = np.ones((4, 4, 3), bool), np.zeros((4, 4, 3)), np.ones((4, 4), bool)
+    covered[0, 0] = False
+    advice = _next_press(counts, covered, gel, {}, valid)
+    assert (
+        advice["box_u0_v0_u1_v1"] == [0, 0, 40, 30]
+        and valid[round(advice["centre_uv"][1]), round(advice["centre_uv"][0])]
+    )
+    # where the gel fills the region, the advice is its centre, as before
+    assert gel_centre([0, 0, 40, 30], np.ones((120, 160), bool)) == (19.5, 14.5)
