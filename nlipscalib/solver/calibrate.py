@@ -574,7 +574,8 @@ def _check_lit(press: Press) -> None:
             f"{press.folder}: {said}: image dark (no light above the dark frame {dark_file(press)}'s noise: dead "
             f"LED?); the LED calibration needs every LED lit: fix the LED and capture again"
         )
-    dark = frame_checks(press.linear_led_images, gel, expected_light_of(press))[2]  # a repeated image: calibration_bands, before the fit
+    # a repeated image is left out by calibration_bands, before the fit: only the dark rows matter here
+    dark = frame_checks(press.linear_led_images, gel, expected_light_of(press))[2]
     if dark is not None:
         # rows at the dark frame's level in every image: each LED would be fitted to light it never gave
         line = dark_everywhere_line(press.folder, dark)
