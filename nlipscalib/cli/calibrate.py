@@ -96,7 +96,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="OLD_LEDS.json",
         help="an earlier LED file of this sensor: say which LEDs or tri-colour groups changed brightness (aged, "
         "replaced) or moved since, one warning line each, in the table and in the new file ('previous'); a file of "
-        "another sensor is refused",
+        "another sensor is refused. It may be the --out file itself (read before it is replaced)",
     )
     p.set_defaults(func=run)
 
@@ -118,9 +118,13 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {args.out}: a folder; give the LED file to write (e.g. {args.out}/leds.json)")
     check_writable(Path(args.out).parent)  # a file in its place or a read-only disk: before the fit, not after it
     if args.previous is not None:  # a bad file: one line before the fit
+        from ..core.errors import CaptureError
         from ..core.ledfile import read_led_file
 
-        args.previous_file = read_led_file(args.previous)
+        try:
+            args.previous_file = read_led_file(args.previous)
+        except CaptureError as exc:  # the line names the file; say which option gave it
+            raise CaptureError(f"--previous {exc}") from None
     for folder in args.presses:
         check_one_capture(folder, "a capture of the undeformed dome")
         if not args.allow_contact:

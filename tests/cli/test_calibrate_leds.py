@@ -109,17 +109,22 @@ def test_an_aged_led_group_is_named_against_the_previous_calibration(twin_captur
 
 def test_clean_captures_against_an_earlier_calibration_raise_no_alarm(twin_captures, tmp_path, caplog):
     """The same sensor, unchanged, under other noise seeds: no LED nor group beyond the tolerances (set from the
-    calibration's repeatability), nothing warned; the comparison is still recorded."""
+    calibration's repeatability), nothing warned; the comparison is still recorded. The earlier file may be the one
+    --out replaces (a lab's leds.json, calibrated again in place)."""
     root, first = twin_captures
-    for seed in (8, 9):
-        warnings, written = _calibrated_against(root / f"seed{seed}", first, tmp_path / f"{seed}.json", caplog)
+    replaced = tmp_path / "leds.json"  # --previous the very file --out replaces: read before the fit
+    replaced.write_bytes(first.read_bytes())
+    for seed, out, previous in ((8, tmp_path / "8.json", first), (9, replaced, replaced)):
+        warnings, written = _calibrated_against(root / f"seed{seed}", previous, out, caplog)
         assert warnings == [] and written["previous"]["changes"] == [], warnings
+        assert written["previous"]["file"] == str(previous)
         assert np.nanmax(np.abs(np.log(written["previous"]["brightness"]))) < 0.04
+    assert json.loads(replaced.read_text())["leds"] != json.loads(first.read_text())["leds"]  # seed 9's, replaced
 
 
 def test_an_earlier_led_file_of_another_sensor_is_refused_before_the_fit(twin_captures, tmp_path, capsys, monkeypatch):
-    """--previous with another sensor's LED file (a 48x36 camera), or one that records no sensor: one line naming
-    the file, exit 2, before the fit, nothing written."""
+    """--previous with another sensor's LED file (a 48x36 camera), one that records no sensor, or none at all: one
+    line naming the option and the file, exit 2, before the fit, nothing written."""
     from nlipscalib import solver
 
     root, first = twin_captures
@@ -130,7 +135,8 @@ def test_an_earlier_led_file_of_another_sensor_is_refused_before_the_fit(twin_ca
     unrecorded.write_text(json.dumps({k: v for k, v in json.loads(first.read_text()).items() if k != "sensor"}))
     monkeypatch.setattr(solver, "calibrate_leds", lambda *a, **k: pytest.fail("the fit ran"))
     capsys.readouterr()
-    for previous, why in ((other, "calibrated on another sensor"), (unrecorded, "records no sensor")):
+    refusals = [(other, "calibrated on another sensor"), (unrecorded, "records no sensor")]
+    for previous, why in refusals + [(tmp_path / "gone.json", "no such LED file")]:
         out = tmp_path / "new.json"
         args = ["--no-progress", "calibrate-leds", str(root / "seed8"), "--out", str(out), "--previous", str(previous)]
         assert main(args) == 2
